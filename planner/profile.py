@@ -1,0 +1,268 @@
+"""Geometry profiles: loading and validating hitch descriptions from TOML.
+
+A profile holds every number the model needs, in SI units (m, rad, s). The schema
+is strict: unknown keys, wrong types and values outside their physical range are
+rejected with a :class:`ProfileError` whose message names the field, the value and
+what is allowed.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from importlib import resources
+from pathlib import Path
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+__all__ = [
+    "ProfileError",
+    "Profile",
+    "ActuatorSpec",
+    "Category",
+    "load_profile",
+    "available_profiles",
+]
+
+ACTUATORS = ("lift", "tilt", "top", "left", "right")
+BOX_KEYS = ("x", "z", "roll", "pitch")
+
+
+class ProfileError(ValueError):
+    """A profile that cannot be used; the message names field, value and allowed range."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=False)
+
+
+def _interval(name: str, value: tuple[float, float], *, angle: bool) -> tuple[float, float]:
+    lo, hi = value
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        raise ValueError(f"{name} bounds must be finite numbers")
+    if not lo < hi:
+        raise ValueError(f"{name} needs min < max (got [{lo}, {hi}])")
+    if angle and (abs(lo) > math.pi or abs(hi) > math.pi):
+        raise ValueError(f"{name} bounds are angles in radians and must lie within ±π")
+    return value
+
+
+class Box(_Strict):
+    """An axis-aligned box over the controlled DOF: x, z [m]; roll, pitch [rad]."""
+
+    x: tuple[float, float]
+    z: tuple[float, float]
+    roll: tuple[float, float]
+    pitch: tuple[float, float]
+
+    @model_validator(mode="after")
+    def _check(self):
+        for k in BOX_KEYS:
+            _interval(k, getattr(self, k), angle=k in ("roll", "pitch"))
+        return self
+
+    def as_dict(self) -> dict[str, tuple[float, float]]:
+        return {k: tuple(getattr(self, k)) for k in BOX_KEYS}
+
+
+class Geometry(_Strict):
+    lower_link_pivot_span: float = Field(gt=0, le=3.0)
+    lower_link_length: float = Field(gt=0, le=3.0)
+    lift_rod_attachment: float = Field(gt=0, le=3.0)
+    limiter_bracket_position: float = Field(gt=0, le=3.0)
+    limiter_bracket_offset: float = Field(ge=0, le=1.0)
+    fixed_lift_rod_length: float = Field(gt=0, le=3.0)
+    lift_arm_length: float = Field(gt=0, le=3.0)
+    lift_arm_pivot: tuple[float, float, float]
+    top_link_tractor_point: tuple[float, float, float]
+    limiter_tractor_point: tuple[float, float, float]
+    pivot_height: float = Field(gt=0, le=3.0)
+
+    @model_validator(mode="after")
+    def _check(self):
+        for name in ("lift_arm_pivot", "top_link_tractor_point", "limiter_tractor_point"):
+            v = getattr(self, name)
+            if not all(math.isfinite(c) and abs(c) <= 5.0 for c in v):
+                raise ValueError(f"{name} coordinates must be finite and within ±5 m")
+        if self.lift_rod_attachment >= self.lower_link_length:
+            raise ValueError("lift_rod_attachment must lie on the lower link (< lower_link_length)")
+        if self.limiter_bracket_position >= self.lower_link_length:
+            raise ValueError("limiter_bracket_position must lie on the lower link (< lower_link_length)")
+        return self
+
+
+class Category(_Strict):
+    """ISO 730 implement category: lower hitch span (inner faces, as in the standard) and mast height [m]."""
+
+    span: float = Field(gt=0, le=2.0)
+    mast_height: float = Field(gt=0, le=2.0)
+
+
+class Implement(_Strict):
+    ball_centre_correction: float = Field(ge=0, le=0.2)
+    default_category: str
+    categories: dict[str, Category]
+
+    @model_validator(mode="after")
+    def _check(self):
+        if not self.categories:
+            raise ValueError("categories must list at least one ISO 730 category")
+        if self.default_category not in self.categories:
+            raise ValueError(
+                f"default_category {self.default_category!r} is not one of {sorted(self.categories)}"
+            )
+        return self
+
+
+class ActuatorSpec(_Strict):
+    """One actuator: stroke, sensor calibration and identified valve dynamics (thesis 1.1)."""
+
+    min: float
+    max: float
+    counts_min: int = Field(ge=0, le=1023)
+    counts_max: int = Field(ge=0, le=1023)
+    valve_multiplier: float = Field(gt=0, le=1.0)
+    kv_pos: float = Field(gt=0, le=100.0)
+    kv_neg: float = Field(gt=0, le=100.0)
+    transport_delay: float = Field(ge=0, le=2.0)
+    time_constant: float = Field(ge=0, le=2.0)
+    min_flow: float = Field(ge=0, le=254)
+    dead_zone: float = Field(ge=0, le=254)
+    neutral: float | None = None
+
+    @model_validator(mode="after")
+    def _check(self):
+        _interval("stroke", (self.min, self.max), angle=False)
+        if self.counts_min >= self.counts_max:
+            raise ValueError(f"counts_min ({self.counts_min}) must be below counts_max ({self.counts_max})")
+        if self.neutral is not None and not (self.min <= self.neutral <= self.max):
+            raise ValueError(f"neutral {self.neutral} must lie within the stroke [{self.min}, {self.max}]")
+        return self
+
+
+class Actuators(_Strict):
+    lift: ActuatorSpec
+    tilt: ActuatorSpec
+    top: ActuatorSpec
+    left: ActuatorSpec
+    right: ActuatorSpec
+
+    @model_validator(mode="after")
+    def _check(self):
+        if not (-math.pi / 2 < self.lift.min < self.lift.max < math.pi / 2):
+            raise ValueError("lift is an angle [rad]: its stroke must lie within (-π/2, π/2)")
+        for n in ("tilt", "top", "left", "right"):
+            spec = getattr(self, n)
+            if spec.min <= 0 or spec.max > 5.0:
+                raise ValueError(f"{n} is a length [m]: its stroke must lie within (0, 5]")
+        return self
+
+
+class Limits(_Strict):
+    top_link_yaw_max: float = Field(gt=0, le=math.pi / 2)
+    top_link_pitch_up_max: float = Field(gt=0, le=math.pi / 2)
+    top_link_pitch_down_max: float = Field(gt=0, le=math.pi / 2)
+    top_link_angle_reference: Literal["neutral", "horizontal"] = "neutral"
+    ground_clearance: float = Field(ge=-1.0, le=2.0)
+
+
+class Workspace(_Strict):
+    thesis_box: Box
+    z_reference: Literal["neutral", "pivot"] = "neutral"
+    #: restricted (operator-level) workspace per category, absolute in the tractor frame
+    restricted: dict[str, Box] = Field(default_factory=dict)
+
+
+class Profile(_Strict):
+    schema_version: Literal[1]
+    name: str = Field(min_length=1, max_length=80)
+    description: str = ""
+    geometry: Geometry
+    implement: Implement
+    actuators: Actuators
+    limits: Limits
+    workspace: Workspace
+
+    @field_validator("name")
+    @classmethod
+    def _name(cls, v: str) -> str:
+        if not all(c.isalnum() or c in "-_." for c in v):
+            raise ValueError("name may contain letters, digits, '-', '_' and '.' only")
+        return v
+
+    def category(self, name: str) -> Category:
+        try:
+            return self.implement.categories[name]
+        except KeyError:
+            raise ProfileError(
+                f"category {name!r} is not in profile {self.name!r}; allowed: {', '.join(self.implement.categories)}"
+            ) from None
+
+    def span(self, category: str) -> float:
+        """Ball-centre lower hitch span [m]: the ISO 730 span plus the correction.
+
+        This is the one place the +40 mm ball-centre correction (thesis §3.2) is applied.
+        """
+        return self.category(category).span + self.implement.ball_centre_correction
+
+    def actuator(self, name: str) -> ActuatorSpec:
+        return getattr(self.actuators, name)
+
+
+def _format_validation_error(source: str, err: ValidationError, data: dict) -> str:
+    lines = [f"invalid profile {source}:"]
+    for e in err.errors():
+        loc = ".".join(str(p) for p in e["loc"])
+        msg = e["msg"]
+        if e["type"] == "extra_forbidden":
+            msg = "unknown key (not part of the profile schema)"
+        ctx = e.get("ctx") or {}
+        if "gt" in ctx or "ge" in ctx or "lt" in ctx or "le" in ctx:
+            lo = f"> {ctx['gt']}" if "gt" in ctx else (f">= {ctx['ge']}" if "ge" in ctx else "")
+            hi = f"< {ctx['lt']}" if "lt" in ctx else (f"<= {ctx['le']}" if "le" in ctx else "")
+            msg = f"{msg} (allowed: {' and '.join(x for x in (lo, hi) if x)})"
+        value = e.get("input")
+        shown = "" if isinstance(value, dict) else f" = {value!r}"
+        lines.append(f"  {loc}{shown}: {msg}")
+    return "\n".join(lines)
+
+
+def available_profiles() -> list[str]:
+    """Names of the profiles shipped with the package."""
+    folder = resources.files("planner") / "profiles"
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+def _read(name_or_path: str | Path) -> tuple[str, str]:
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or p.exists():
+        if not p.is_file():
+            raise ProfileError(f"profile file {p} does not exist")
+        return str(p), p.read_text(encoding="utf-8")
+    name = str(name_or_path)
+    res = resources.files("planner") / "profiles" / f"{name}.toml"
+    if not res.is_file():
+        raise ProfileError(
+            f"profile {name!r} not found; built-in profiles: {', '.join(available_profiles())} "
+            "(or give a path to a .toml file)"
+        )
+    return name, res.read_text(encoding="utf-8")
+
+
+def load_profile(name_or_path: str | Path = "thesis-t132") -> Profile:
+    """Load and validate a profile by built-in name or file path."""
+    source, text = _read(name_or_path)
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ProfileError(f"profile {source} is not valid TOML: {exc}") from None
+    return profile_from_dict(data, source=source)
+
+
+def profile_from_dict(data: dict, source: str = "<dict>") -> Profile:
+    """Validate a profile given as a dictionary (as parsed from TOML)."""
+    try:
+        return Profile.model_validate(data)
+    except ValidationError as exc:
+        raise ProfileError(_format_validation_error(source, exc, data)) from None

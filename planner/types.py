@@ -1,0 +1,115 @@
+"""Value types shared by every layer: actuators, poses, kinematic states.
+
+All values are SI: metres for lengths, radians for angles.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Mapping
+
+import numpy as np
+
+__all__ = [
+    "ACTUATOR_NAMES",
+    "POSE_NAMES",
+    "CONTROLLED_POSE_NAMES",
+    "Actuators",
+    "Pose",
+    "HitchState",
+    "KinematicsError",
+]
+
+#: Order of the actuator vector everywhere (arrays, CAN references, plots).
+ACTUATOR_NAMES: tuple[str, ...] = ("lift", "tilt", "top", "left", "right")
+#: Order of the full pose vector.
+POSE_NAMES: tuple[str, ...] = ("x", "y", "z", "roll", "pitch", "yaw")
+#: The four controlled degrees of freedom of the implement.
+CONTROLLED_POSE_NAMES: tuple[str, ...] = ("x", "z", "roll", "pitch")
+
+
+class KinematicsError(ValueError):
+    """An actuator vector or pose no mechanism can take; the message names the cause."""
+
+
+@dataclass(frozen=True)
+class Actuators:
+    """The five actuator coordinates of the hitch.
+
+    ``lift`` is the lift-arm angle theta_E [rad]; ``tilt`` (right lift rod), ``top``
+    (top link), ``left`` and ``right`` (sway limiters) are pin-to-pin lengths [m].
+    """
+
+    lift: float
+    tilt: float
+    top: float
+    left: float
+    right: float
+
+    def as_array(self) -> np.ndarray:
+        return np.array([self.lift, self.tilt, self.top, self.left, self.right], dtype=float)
+
+    @classmethod
+    def from_array(cls, values) -> "Actuators":
+        v = np.asarray(values, dtype=float).reshape(-1)
+        if v.size != 5:
+            raise ValueError(f"actuator vector needs 5 values (lift, tilt, top, left, right), got {v.size}")
+        return cls(*(float(x) for x in v))
+
+    @classmethod
+    def from_mapping(cls, values: Mapping[str, float]) -> "Actuators":
+        missing = [n for n in ACTUATOR_NAMES if n not in values]
+        if missing:
+            raise ValueError(f"actuators: missing field(s) {', '.join(missing)}")
+        return cls(*(float(values[n]) for n in ACTUATOR_NAMES))
+
+    def as_dict(self) -> dict[str, float]:
+        return {n: getattr(self, n) for n in ACTUATOR_NAMES}
+
+
+@dataclass(frozen=True)
+class Pose:
+    """Pose of the tool point T and the implement, in the tractor frame.
+
+    x, y, z [m]; roll, pitch, yaw [rad]. See README "Frames and signs".
+    """
+
+    x: float
+    y: float
+    z: float
+    roll: float
+    pitch: float
+    yaw: float
+
+    def as_array(self) -> np.ndarray:
+        return np.array([self.x, self.y, self.z, self.roll, self.pitch, self.yaw], dtype=float)
+
+    @classmethod
+    def from_array(cls, values) -> "Pose":
+        v = np.asarray(values, dtype=float).reshape(-1)
+        if v.size != 6:
+            raise ValueError(f"pose vector needs 6 values (x, y, z, roll, pitch, yaw), got {v.size}")
+        return cls(*(float(x) for x in v))
+
+    def controlled(self) -> np.ndarray:
+        """The four controlled DOF (x, z, roll, pitch)."""
+        return np.array([self.x, self.z, self.roll, self.pitch], dtype=float)
+
+    def as_dict(self) -> dict[str, float]:
+        return {n: getattr(self, n) for n in POSE_NAMES}
+
+
+@dataclass(frozen=True)
+class HitchState:
+    """Result of forward kinematics: actuators, pose and every named point [m]."""
+
+    actuators: Actuators
+    pose: Pose
+    points: Mapping[str, np.ndarray] = field(repr=False)
+    #: lower-link angles theta_xl, theta_zl, theta_xr, theta_zr [rad] (thesis 2.19-2.20)
+    link_angles: tuple[float, float, float, float] = (math.nan,) * 4
+    #: top-link direction angles relative to its mount reference: (yaw, pitch) [rad]
+    top_link_angles: tuple[float, float] = (math.nan, math.nan)
+    #: distance |L - R| [m]; equals the implement span when an implement is attached
+    lower_span: float = math.nan

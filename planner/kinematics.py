@@ -142,14 +142,15 @@ class HitchModel:
         arrays are copies.
         """
         f, jac, checks = self._features(self._as_vector(q))
-        self._check(checks[:, 0], f[:, 0])
+        if not self._fast_ok(checks[:, 0], f[:, 0]):
+            self._check(checks[:, 0], f[:, 0], self._as_vector(q))
         return f[:, 0].copy(), jac.copy()
 
     def forward(self, actuators: Actuators | np.ndarray) -> HitchState:
         """Exact forward kinematics: pose of T and the implement, and every named point."""
         q = self._as_vector(actuators)
         f, pts, angles, checks = self._points(q)
-        self._check(checks[:, 0], f[:, 0])
+        self._check(checks[:, 0], f[:, 0], q)
         f = f[:, 0]
         ref = getattr(self, "top_link_reference", (0.0, 0.0))
         return HitchState(
@@ -175,11 +176,12 @@ class HitchModel:
                 raise ValueError(f"actuators.{name} must be a finite number, got {v}")
         return q
 
-    @staticmethod
-    def _check(checks: np.ndarray, features: np.ndarray) -> None:
-        for cause, r in zip(_RESIDUAL_CAUSES, checks[:4]):
-            if not abs(r) <= _CLOSURE_TOL_M:  # also catches NaN
-                raise KinematicsError(f"{cause} (closure error {r:.3g} m)")
+    def _check(self, checks: np.ndarray, features: np.ndarray, q: np.ndarray | None = None) -> None:
+        bad = [i for i in range(4) if not abs(checks[i]) <= _CLOSURE_TOL_M]  # also catches NaN
+        if bad:
+            cause = self._closure_cause(q) if q is not None else None
+            r = checks[bad[0]]
+            raise KinematicsError(f"{cause or _RESIDUAL_CAUSES[bad[0]]} (closure error {r:.3g} m)")
         if not abs(checks[4]) <= 1.0:
             raise KinematicsError(
                 "top link cannot reach the implement mast with this length (circle-sphere miss, "
@@ -187,6 +189,39 @@ class HitchModel:
             )
         if not np.all(np.isfinite(features)):
             raise KinematicsError("degenerate configuration (lower-link ends coincide)")
+
+    @staticmethod
+    def _fast_ok(checks: np.ndarray, features: np.ndarray) -> bool:
+        return bool(
+            np.max(np.abs(checks[:4])) <= _CLOSURE_TOL_M and abs(checks[4]) <= 1.0 and np.isfinite(features).all()
+        )
+
+    def _closure_cause(self, q: np.ndarray) -> str | None:
+        """Which member cannot close, by reach intervals around the lower-link pivot.
+
+        B is at the fixed distance √(d_OB'² + d_BB'²) from the pivot and A at d_O^A, so
+        |B − C| and |A − S| must lie within the triangle-inequality intervals.
+        """
+        g = self.profile.geometry
+        rb = math.hypot(g.limiter_bracket_position, g.limiter_bracket_offset)
+        for k, side in enumerate((LEFT, RIGHT)):
+            sg = side_geometry(self.profile, side)
+            piv = np.array(sg.pivot)
+            dc = np.linalg.norm(np.array(sg.limiter_point) - piv)
+            lim = q[3 + k]
+            if not abs(dc - rb) <= lim <= dc + rb:
+                who = "left" if side == LEFT else "right"
+                return (f"{who} sway limiter length {lim:.4g} m cannot reach its bracket "
+                        f"(reachable {abs(dc - rb):.4g}..{dc + rb:.4g} m)")
+            qa = np.array(sg.lift_arm_pivot)
+            s_pt = qa + g.lift_arm_length * np.array([0.0, math.cos(q[0]), math.sin(q[0])])
+            ds = np.linalg.norm(s_pt - piv)
+            rod = g.fixed_lift_rod_length if side == LEFT else q[1]
+            if not abs(ds - g.lift_rod_attachment) <= rod <= ds + g.lift_rod_attachment:
+                who = "left lift rod" if side == LEFT else "tilt cylinder"
+                return (f"{who} length {rod:.4g} m cannot reach the lower link "
+                        f"(reachable {abs(ds - g.lift_rod_attachment):.4g}..{ds + g.lift_rod_attachment:.4g} m)")
+        return None
 
     def _solve_neutral(self) -> np.ndarray:
         """Neutral actuators: lift and tilt at their profile neutrals; limiters and top link

@@ -23,6 +23,7 @@ __all__ = [
     "Category",
     "load_profile",
     "available_profiles",
+    "profile_from_dict",
 ]
 
 ACTUATORS = ("lift", "tilt", "top", "left", "right")
@@ -210,18 +211,42 @@ class Profile(_Strict):
         return getattr(self.actuators, name)
 
 
-def _format_validation_error(source: str, err: ValidationError, data: dict) -> str:
+def _field_range(loc: tuple) -> str:
+    """'> 0 and <= 1.5708' from the schema's constraints of the field at ``loc`` (or '')."""
+    model: type[BaseModel] | None = Profile
+    info = None
+    for part in loc:
+        if model is None or not isinstance(part, str) or part not in model.model_fields:
+            if isinstance(part, str) and info is not None:  # dict[str, Model] value
+                continue
+            return ""
+        info = model.model_fields[part]
+        ann = info.annotation
+        model = ann if isinstance(ann, type) and issubclass(ann, BaseModel) else None
+        if model is None and getattr(ann, "__args__", None):
+            inner = [a for a in ann.__args__ if isinstance(a, type) and issubclass(a, BaseModel)]
+            model = inner[0] if inner else None
+    if info is None:
+        return ""
+    parts = []
+    for m in info.metadata:
+        for attr, sym in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<=")):
+            v = getattr(m, attr, None)
+            if v is not None:
+                parts.append(f"{sym} {v:.6g}")
+    return " and ".join(parts)
+
+
+def _format_validation_error(source: str, err: ValidationError) -> str:
     lines = [f"invalid profile {source}:"]
     for e in err.errors():
         loc = ".".join(str(p) for p in e["loc"])
         msg = e["msg"]
         if e["type"] == "extra_forbidden":
             msg = "unknown key (not part of the profile schema)"
-        ctx = e.get("ctx") or {}
-        if "gt" in ctx or "ge" in ctx or "lt" in ctx or "le" in ctx:
-            lo = f"> {ctx['gt']}" if "gt" in ctx else (f">= {ctx['ge']}" if "ge" in ctx else "")
-            hi = f"< {ctx['lt']}" if "lt" in ctx else (f"<= {ctx['le']}" if "le" in ctx else "")
-            msg = f"{msg} (allowed: {' and '.join(x for x in (lo, hi) if x)})"
+        allowed = _field_range(tuple(e["loc"]))
+        if allowed:
+            msg = f"{msg} (allowed: {allowed})"
         value = e.get("input")
         shown = "" if isinstance(value, dict) else f" = {value!r}"
         lines.append(f"  {loc}{shown}: {msg}")
@@ -265,4 +290,4 @@ def profile_from_dict(data: dict, source: str = "<dict>") -> Profile:
     try:
         return Profile.model_validate(data)
     except ValidationError as exc:
-        raise ProfileError(_format_validation_error(source, exc, data)) from None
+        raise ProfileError(_format_validation_error(source, exc)) from None

@@ -1,0 +1,51 @@
+"""CLI: fk, profile show and errors, run as a user would (real subprocess of the console script)."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+HITCH = [str(Path(sys.executable).with_name("hitch"))]
+
+
+def run(*args):
+    return subprocess.run(HITCH + list(args), capture_output=True, text=True, timeout=120)
+
+
+def test_fk_json_matches_the_model(model):
+    q = model.neutral
+    r = run("fk", "--lift", str(q[0]), "--tilt", str(q[1]), "--top", str(q[2]), "--left", str(q[3]),
+            "--right", str(q[4]), "--json")
+    assert r.returncode == 0, r.stderr
+    d = json.loads(r.stdout)
+    assert set(d["pose"]) == {"x", "y", "z", "roll", "pitch", "yaw"}
+    assert d["pose"]["z"] == pytest.approx(model.neutral_pose.z, abs=1e-12)
+    assert {"L", "R", "T", "U", "H", "S_l", "S_r", "C_l", "C_r"} <= set(d["points"])
+    assert len(d["points"]["U"]) == 3
+
+
+def test_profile_show_json():
+    r = run("profile", "show", "--category", "3", "--json")
+    assert r.returncode == 0, r.stderr
+    d = json.loads(r.stdout)
+    assert d["category"] == "3" and d["span"] == pytest.approx(1.005)
+    assert set(d["workspace"]) == {"x", "z", "roll", "pitch"}
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["fk", "--lift", "0.2", "--tilt", "5", "--top", "0.75", "--left", "0.54", "--right", "0.54"], "tilt cylinder"),
+        (["fk", "--lift", "nan", "--tilt", "0.6", "--top", "0.75", "--left", "0.54", "--right", "0.54"], "--lift must be finite"),
+        (["fk", "--lift", "0.2"], "required"),
+        (["profile", "show", "--category", "9"], "category '9' is not in profile"),
+        (["profile", "show", "--profile", "nope"], "profile 'nope' not found"),
+    ],
+)
+def test_errors_exit_non_zero_with_one_line(args, message):
+    r = run(*args)
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("hitch: error:") and message in lines[0]

@@ -8,6 +8,7 @@ differentiation, and is evaluated through pre-bound buffers (~µs per call).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import casadi as ca
@@ -18,7 +19,7 @@ from .geometry import LEFT, RIGHT, closure_residual, direction_angles, lift_arm_
 from .profile import Profile, load_profile
 from .types import ACTUATOR_NAMES, Actuators, HitchState, KinematicsError, Pose
 
-__all__ = ["HitchModel", "FEATURE_NAMES", "POINT_NAMES"]
+__all__ = ["HitchModel", "SymbolicModel", "FEATURE_NAMES", "POINT_NAMES"]
 
 #: Rows of the feature vector (pose, lower span, raw top-link angles, link-end heights).
 FEATURE_NAMES: tuple[str, ...] = (
@@ -93,9 +94,28 @@ def _build(profile: Profile, category: str):
     th_star = ca.vertcat(txl, tzl, txr, tzr)
     features, jac, point_matrix, reach = ca.substitute([features, jac, point_matrix, reach], [th], [th_star])
     checks = ca.vertcat(res_l, res_r, reach)
-    points_fn = ca.Function("hitch_points", [q], [features, point_matrix, th_star, checks])
-    feature_fn = ca.Function("hitch_features", [q], [features, jac, checks])
-    return points_fn, feature_fn
+    # common-subexpression elimination: the substituted Newton graph is shared by all outputs
+    points_fn = ca.Function("hitch_points", [q], ca.cse([features, point_matrix, th_star, checks]))
+    feature_fn = ca.Function("hitch_features", [q], ca.cse([features, jac, checks]))
+    # NaN wherever the mechanism cannot close, so optimisers reject such points instead of
+    # trusting the finite garbage of a non-converged Newton iteration.
+    valid = ca.logic_and(ca.mmax(ca.fabs(ca.vertcat(res_l, res_r))) <= _CLOSURE_TOL_M, ca.fabs(reach) <= 1.0)
+    poison = ca.if_else(valid, 0.0, math.nan)
+    symbolic = SymbolicModel(q=q, features=features + poison, jacobian=jac + poison)
+    return points_fn, feature_fn, symbolic
+
+
+@dataclass(frozen=True)
+class SymbolicModel:
+    """CasADi SX expressions of the model in the actuator symbol ``q`` (5,).
+
+    ``features`` (:data:`FEATURE_NAMES`) and ``jacobian`` (11×5, implicit-function theorem)
+    evaluate to NaN where the mechanism cannot close.
+    """
+
+    q: ca.SX
+    features: ca.SX
+    jacobian: ca.SX
 
 
 class HitchModel:
@@ -115,7 +135,7 @@ class HitchModel:
         profile.category(self.category)  # validates the name
         self.span = profile.span(self.category)
         self.mast_height = profile.category(self.category).mast_height
-        self.points_function, self.feature_function = _build(profile, self.category)
+        self.points_function, self.feature_function, self.symbolic = _build(profile, self.category)
         self._points = FastFunction(self.points_function)
         self._features = FastFunction(self.feature_function)
         specs = [profile.actuator(n) for n in ACTUATOR_NAMES]

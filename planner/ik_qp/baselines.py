@@ -1,0 +1,206 @@
+"""The thesis's inverse-kinematics models, as measured baselines (thesis §2.2.4-2.2.7).
+
+All three map a target (x_T, z_T, α=roll, β=pitch) to lower-link angles θ and a top-link
+length; actuators then follow from the exact angle maps and the result's pose from the
+exact forward model, so what is measured is the error of each IK *method*:
+
+* :class:`GeometricIK` (thesis 2.36-2.42): small-change formulas around the start pose,
+  yaw from the previous cycle's angles.
+* :class:`DLSIK` (thesis 2.45-2.54): damped least squares on s = [x_T, z_T, α, d_L^R]
+  over θ = [θxl, θxr, θzl, θzr], λ = 1 − 1/‖J‖₂, step μ, top link through the augmented
+  row of J_K (2.51-2.52).
+* :class:`HybridIK`: DLS for the lower links, the geometric top-link formula (2.40-2.42).
+
+Deviations from the typeset text, all of notation, not of method: angles and signs are
+those of our frame (README); the yaw of 2.37 is computed from the previous cycle's
+link ends including the pivot offset (the typeset Δx omits it); the mast direction of
+2.40-2.41 is built from roll, pitch and yaw in our implement frame (the typeset matrix
+is R_z(α)R_y(β)R_x(γ) with swapped labels); the −J_U4 of 2.52 is +J_U4 here because our
+pitch is a right-hand rotation (the thesis's β = atan(y/z) has the opposite sign).
+The thesis gives no μ or stopping margin ("never tuned"): μ = 1, margin 1e-6, at most
+50 iterations, configurable.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from ..angle_maps import AngleMaps
+from ..fast_function import FastFunction
+from ..geometry import LEFT, RIGHT, link_direction, side_geometry
+from ..kinematics import HitchModel
+from ..types import Actuators, KinematicsError
+from .result import IKResult, check_target
+
+__all__ = ["GeometricIK", "DLSIK", "HybridIK", "BaselineSettings"]
+
+
+@dataclass(frozen=True)
+class BaselineSettings:
+    step: float = 1.0          # μ (thesis 2.54)
+    margin: float = 1e-6       # stop when ‖e‖∞ below this [m, rad]
+    max_iterations: int = 50
+
+
+def _build_angle_space(model: HitchModel):
+    """θ = (θxl, θxr, θzl, θzr) → s = [x_T, z_T, α, |L−R|], J = ∂s/∂θ (thesis 2.46, 2.50), ends, yaw."""
+    prof = model.profile
+    left, right = side_geometry(prof, LEFT), side_geometry(prof, RIGHT)
+    l = prof.geometry.lower_link_length
+    th = ca.SX.sym("theta", 4)
+    L = ca.DM(left.pivot) + l * link_direction(th[0], th[2])
+    R = ca.DM(right.pivot) + l * link_direction(th[1], th[3])
+    T = (L + R) / 2
+    v = L - R
+    s = ca.vertcat(T[0], T[2], ca.atan2(-v[2], v[0]), ca.norm_2(v))
+    yaw = ca.atan2(v[1], v[0])
+    return FastFunction(ca.Function("dls_s", [th], [s, ca.densify(ca.jacobian(s, th)), T, yaw, L, R]))
+
+
+def _build_top_link(model: HitchModel):
+    """Top-link length from the pose by the thesis's rotation formula (2.40-2.42) and
+    J_U = ∂d/∂(x, z, α, β) (2.51), with y_T and yaw γ given.
+
+    U = T + R_z(γ)·R_y(α)·R_x(β)·[0, 0, d_T^U]ᵀ: fixed XYZ rotations (pitch about x, roll
+    about the rearward y, yaw about z) in our frame's signs. It equals the exact mast
+    point only to first order in combined angles; that is the method's model error.
+    """
+    prof = model.profile
+    p = ca.SX.sym("p", 4)  # x, z, roll, pitch
+    y_yaw = ca.SX.sym("yy", 2)
+    roll, pitch, yaw = p[2], p[3], y_yaw[1]
+    rx = ca.vertcat(ca.horzcat(1, 0, 0), ca.horzcat(0, ca.cos(pitch), -ca.sin(pitch)), ca.horzcat(0, ca.sin(pitch), ca.cos(pitch)))
+    ry = ca.vertcat(ca.horzcat(ca.cos(roll), 0, ca.sin(roll)), ca.horzcat(0, 1, 0), ca.horzcat(-ca.sin(roll), 0, ca.cos(roll)))
+    rz = ca.vertcat(ca.horzcat(ca.cos(yaw), -ca.sin(yaw), 0), ca.horzcat(ca.sin(yaw), ca.cos(yaw), 0), ca.horzcat(0, 0, 1))
+    T = ca.vertcat(p[0], y_yaw[0], p[1])
+    U = T + rz @ ry @ rx @ ca.DM([0.0, 0.0, model.mast_height])          # (thesis 2.40-2.41)
+    d = ca.norm_2(U - ca.DM(prof.geometry.top_link_tractor_point))        # (thesis 2.42)
+    return FastFunction(ca.Function("top_link", [p, y_yaw], [d, ca.densify(ca.jacobian(d, p))]))
+
+
+class _Baseline:
+    method = "baseline"
+
+    def __init__(self, model: HitchModel, settings: BaselineSettings | None = None):
+        self.model = model
+        self.settings = settings or BaselineSettings()
+        self.maps = AngleMaps(model.profile)
+        self._s = _build_angle_space(model)
+        self._top = _build_top_link(model)
+        st = model.forward(model.neutral)
+        txl, tzl, txr, tzr = st.link_angles
+        self.neutral_theta = np.array([txl, txr, tzl, tzr])
+        self.theta = self.neutral_theta.copy()   # previous cycle's angles
+        self.top = float(model.neutral[2])
+
+    def reset(self) -> None:
+        self.theta = self.neutral_theta.copy()
+        self.top = float(self.model.neutral[2])
+
+    def _finish(self, target: np.ndarray, theta: np.ndarray, top: float, iterations: int, t0: float) -> IKResult:
+        txl, txr, tzl, tzr = theta
+        try:
+            lift, tilt, left, right = self.maps.to_actuators([txl, tzl, txr, tzr])
+            q = np.array([lift, tilt, top, left, right])
+            state = self.model.forward(q)
+        except KinematicsError as exc:
+            return IKResult.failed(f"{self.method}: {exc}", iterations, time.perf_counter() - t0)
+        self.theta, self.top = theta.copy(), top
+        err = state.pose.controlled() - target
+        return IKResult(
+            actuators=Actuators.from_array(q), pose=state.pose, status="ok", active=(), iterations=iterations,
+            residual=float(np.max(np.abs(err))), solve_time_s=time.perf_counter() - t0,
+        )
+
+    def _dls_step(self, theta: np.ndarray, target: np.ndarray):
+        s, J, T, yaw, _, _ = self._s(theta)
+        e = np.array([target[0], target[1], target[2], self.model.span]) - s[:, 0]
+        lam = 1.0 - 1.0 / np.linalg.norm(J, 2)                      # (thesis 2.53)
+        dtheta = J.T @ np.linalg.solve(J @ J.T + lam**2 * np.eye(4), e)  # (thesis 2.48)
+        return dtheta, e, lam, float(T[1, 0]), float(yaw[0, 0])
+
+
+class GeometricIK(_Baseline):
+    """Thesis 2.36-2.42: closed-form small-change formulas around the start pose."""
+
+    method = "geometric"
+
+    def solve(self, target_pose) -> IKResult:
+        t0 = time.perf_counter()
+        x, z, roll, pitch = check_target(target_pose)
+        l, span = self.model.profile.geometry.lower_link_length, self.model.span
+        tz0 = abs(self.neutral_theta[3])  # θ_z0: start-pose deviation of the links from y (2.36)
+        a = math.asin(max(-1.0, min(1.0, x / l)))
+        b = math.asin(max(-1.0, min(1.0, span * (1 - math.cos(roll)) / (2 * l))))
+        tzr, tzl = -a + b + tz0, -a - b - tz0                         # (thesis 2.36)
+        _, _, _, yaw, _, _ = self._s(self.theta)                      # previous cycle (2.37)
+        gamma = float(yaw[0, 0])
+        h = span * math.cos(gamma) * math.sin(roll) / 2              # (thesis 2.38)
+        txl = math.asin(max(-1.0, min(1.0, (z - h) / l)))             # (thesis 2.39)
+        txr = math.asin(max(-1.0, min(1.0, (z + h) / l)))
+        theta = np.array([txl, txr, tzl, tzr])
+        _, _, T, yaw_new, _, _ = self._s(theta)
+        d, _ = self._top(np.array([x, z, roll, pitch]), np.array([T[1, 0], gamma]))  # (thesis 2.40-2.42)
+        return self._finish(np.array([x, z, roll, pitch]), theta, float(d[0, 0]), 1, t0)
+
+
+class DLSIK(_Baseline):
+    """Thesis 2.45-2.54: damped least squares with the augmented top-link row."""
+
+    method = "dls"
+
+    def solve(self, target_pose) -> IKResult:
+        t0 = time.perf_counter()
+        target = np.array(check_target(target_pose))
+        st = self.settings
+        theta, top = self.theta.copy(), self.top
+        k = 0
+        for k in range(1, st.max_iterations + 1):
+            dtheta, e, lam, y_t, yaw = self._dls_step(theta, target)
+            q = self._actuators(theta, top)
+            if q is None:
+                break
+            pitch = self.model.forward(q).pose.pitch
+            e_beta = target[3] - pitch
+            _, ju = self._top(target, np.array([y_t, yaw]))
+            ju = ju[0]
+            dtop = (1 - lam) * (ju[0] * e[0] + ju[1] * e[1] + ju[2] * e[2]) + ju[3] * e_beta  # (2.52)
+            theta = theta + st.step * dtheta                            # (thesis 2.54)
+            top = top + st.step * dtop
+            if max(np.max(np.abs(e)), abs(e_beta)) < st.margin:
+                break
+        return self._finish(target, theta, top, k, t0)
+
+    def _actuators(self, theta, top):
+        try:
+            txl, txr, tzl, tzr = theta
+            lift, tilt, left, right = self.maps.to_actuators([txl, tzl, txr, tzr])
+            return np.array([lift, tilt, top, left, right])
+        except KinematicsError:
+            return None
+
+
+class HybridIK(_Baseline):
+    """DLS lower links + the geometric top link (thesis §2.2.7)."""
+
+    method = "hybrid"
+
+    def solve(self, target_pose) -> IKResult:
+        t0 = time.perf_counter()
+        target = np.array(check_target(target_pose))
+        st = self.settings
+        theta = self.theta.copy()
+        k = 0
+        for k in range(1, st.max_iterations + 1):
+            dtheta, e, _, _, _ = self._dls_step(theta, target)
+            theta = theta + st.step * dtheta
+            if np.max(np.abs(e)) < st.margin:
+                break
+        _, _, T, yaw, _, _ = self._s(theta)
+        d, _ = self._top(target, np.array([T[1, 0], yaw[0, 0]]))
+        return self._finish(target, theta, float(d[0, 0]), k, t0)

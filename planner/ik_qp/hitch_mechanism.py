@@ -1,0 +1,49 @@
+"""The hitch as a :class:`~planner.ik_qp.mechanism.Mechanism` of the SQP core.
+
+Actuators q = (lift, tilt, top, left, right). Task: the controlled pose (x, z, roll,
+pitch). Equality: implement rigidity |L − R| − span = 0 (thesis 2.49). Inequalities:
+top-link yaw and pitch relative to the mount reference (thesis §3.2) and the lower-link
+ends' heights above the ground (profile ground clearance). Bounds: the strokes.
+All functions share the model's exact CasADi graph and its implicit-function Jacobian.
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+
+from ..hard_limits import FEATURE_LIMIT_ROWS, HardLimits
+from ..kinematics import FEATURE_NAMES, HitchModel
+from ..types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
+from .mechanism import Mechanism
+
+__all__ = ["build_hitch_mechanism", "TASK_ROWS"]
+
+#: Feature rows of the task (x, z, roll, pitch).
+TASK_ROWS = tuple(FEATURE_NAMES.index(n) for n in CONTROLLED_POSE_NAMES)
+
+
+def build_hitch_mechanism(model: HitchModel, limits: HardLimits | None = None) -> Mechanism:
+    limits = limits or HardLimits.from_model(model)
+    sym = model.symbolic
+    q, f, jac = sym.q, sym.features, sym.jacobian
+    span_row = FEATURE_NAMES.index("lower_span")
+    ineq_rows = list(limits.feature_index)
+
+    def fn(label, rows, offset=0.0):
+        return ca.Function(f"hitch_{label}", [q], [f[rows] - offset, jac[rows, :]])
+
+    return Mechanism(
+        name="hitch",
+        actuator_names=ACTUATOR_NAMES,
+        lower=limits.actuator_lower,
+        upper=limits.actuator_upper,
+        task=fn("task", list(TASK_ROWS)),
+        task_names=CONTROLLED_POSE_NAMES,
+        equality=fn("rigidity", [span_row], model.span),
+        equality_names=("implement_rigidity",),
+        inequality=fn("limits", ineq_rows),
+        inequality_names=tuple(r[0] for r in FEATURE_LIMIT_ROWS),
+        g_lower=limits.feature_lower,
+        g_upper=limits.feature_upper,
+        inequality_side_names=tuple((r[1], r[2] or f"{r[0]}_max") for r in FEATURE_LIMIT_ROWS),
+    )

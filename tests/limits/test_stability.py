@@ -382,7 +382,7 @@ def _profile_dict():
     import tomllib
     from importlib import resources
 
-    return tomllib.loads((resources.files("planner") / "profiles" / "tractor-6t.toml").read_text())
+    return tomllib.loads((resources.files("planner") / "profiles" / "tractors" / "tractor-6t.toml").read_text())
 
 
 @pytest.mark.parametrize(

@@ -75,9 +75,8 @@ def _build(model: HitchModel, newton: int = 8) -> ca.Function:
     top = ca.norm_2(U - ca.DM(g.top_link_tractor_point))
     q = ca.vertcat(lift, tilt, top, lim_l, lim_r)
     checks = ca.vertcat(ca.norm_2(L - L0) - l_vv, ca.norm_2(R - R0) - l_vv, lift_arg)
-    return ca.Function(
-        "hitch_exact_inverse", [target], [q, ca.densify(ca.jacobian(q, target)), checks, ca.vertcat(sol[0], sol[1])]
-    )
+    outs = [q, ca.densify(ca.jacobian(q, target)), checks, ca.vertcat(sol[0], sol[1])]
+    return ca.Function("hitch_exact_inverse", [target], ca.cse(outs))
 
 
 class ExactInverse:
@@ -94,12 +93,17 @@ class ExactInverse:
 
     def solve(self, target) -> tuple[np.ndarray, np.ndarray]:
         """(actuators, d actuators / d (x, z, roll, pitch)) for a target of 4 values."""
+        q, jac, _ = self.solve_full(target)
+        return q, jac
+
+    def solve_full(self, target) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
+        """(actuators, d actuators / d target, (y_T [m], yaw [rad])) for a target of 4 values."""
         t = np.asarray(target, dtype=float).reshape(-1)
         if t.size != 4 or not np.all(np.isfinite(t)):
             raise ValueError("target must be 4 finite numbers (x [m], z [m], roll [rad], pitch [rad])")
         if abs(t[2]) >= math.pi / 2 or abs(t[3]) >= math.pi / 2:
             raise KinematicsError("roll and pitch must lie within ±π/2")
-        q, jac, checks, _ = self._fast(t)
+        q, jac, checks, y_yaw = self._fast(t)
         c = checks[:, 0]
         if not (abs(c[0]) <= _TOL_M and abs(c[1]) <= _TOL_M):
             raise KinematicsError(
@@ -110,7 +114,7 @@ class ExactInverse:
         qv = q[:, 0].copy()
         if not np.all(np.isfinite(qv)):
             raise KinematicsError("degenerate pose")
-        return qv, jac.copy()
+        return qv, jac.copy(), (float(y_yaw[0, 0]), float(y_yaw[1, 0]))
 
     def actuators(self, x: float, z: float, roll: float, pitch: float) -> Actuators:
         return Actuators.from_array(self(x, z, roll, pitch))

@@ -168,6 +168,20 @@ class Limits(_Strict):
     ground_clearance: float = Field(ge=-1.0, le=2.0)
 
 
+class Motion(_Strict):
+    """Motion limits derived from the valves (issue 4).
+
+    Actuator velocity limit = velocity_fraction × min(kv_pos, kv_neg) × 254 × valve_multiplier
+    (AD counts/s, thesis tables 3-3, 3-4) converted to SI; acceleration limit = velocity
+    limit / acceleration_time; jerk limit = acceleration limit / jerk_time.
+    """
+
+    velocity_fraction: float = Field(default=0.9, gt=0, le=1.0)
+    acceleration_time: float = Field(default=0.3, gt=0, le=10.0)
+    jerk_time: float = Field(default=0.15, gt=0, le=10.0)
+    control_rate: float = Field(default=50.0, ge=1.0, le=200.0)
+
+
 class Workspace(_Strict):
     thesis_box: Box
     z_reference: Literal["neutral", "pivot"] = "neutral"
@@ -184,6 +198,7 @@ class Profile(_Strict):
     actuators: Actuators
     limits: Limits
     workspace: Workspace
+    motion: Motion = Field(default_factory=Motion)
 
     @field_validator("name")
     @classmethod

@@ -1,0 +1,256 @@
+"""Jerk-limited, time-synchronised motion between implement poses (Ruckig in pose space).
+
+From rest, a move follows a straight line in pose space (x, z, roll, pitch): the per-DOF
+limits are the path's scalar limits times |u_d| (:func:`~.pose_limits.straight_line_limits`)
+and Ruckig's phase synchronisation keeps every DOF on the line, starting and stopping
+together. From a moving state (a re-plan), Ruckig time-synchronises from the current
+position, velocity and acceleration, so nothing jumps. Every plan is sampled and verified
+against every limit before it is returned; when a sample is over a limit the limits are
+scaled down and the plan recomputed. Community Ruckig ignores position limits, so the
+trajectory's position extrema are checked against the workspace here.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+from ruckig import ControlInterface, InputParameter, Result, Ruckig, Synchronization, Trajectory
+
+from ..exact_inverse import ExactInverse
+from ..hard_limits import HardLimits
+from ..kinematics import HitchModel
+from ..types import CONTROLLED_POSE_NAMES, KinematicsError
+from .actuator_limits import ActuatorLimits
+from .plan import MotionState, Plan, PlanError, Setpoints, sample_plan, verify_setpoints
+from .pose_limits import PoseLimits, box_limits, straight_line_limits
+
+__all__ = ["TrajectoryPlanner", "Waypoint"]
+
+_OK = (Result.Working, Result.Finished)
+
+
+def _check_scale(speed_scale) -> float:
+    if isinstance(speed_scale, bool) or not isinstance(speed_scale, (int, float)) or not math.isfinite(speed_scale) \
+            or not 0.0 < speed_scale <= 1.0:
+        raise ValueError(f"speed_scale must be a number in (0, 1], got {speed_scale!r}")
+    return float(speed_scale)
+
+
+class Waypoint:
+    """A (possibly partial) goal pose with an optional speed scale for the segment that reaches it."""
+
+    def __init__(self, goal: Mapping[str, float], speed_scale: float = 1.0):
+        self.goal = dict(goal)
+        self.speed_scale = _check_scale(speed_scale)
+
+
+class TrajectoryPlanner:
+    """Plans motions of one :class:`~planner.kinematics.HitchModel` within its workspace and limits."""
+
+    def __init__(self, model: HitchModel, *, limits: ActuatorLimits | None = None, rate: float | None = None,
+                 workspace: Mapping[str, tuple[float, float]] | None = None):
+        self.model = model
+        self.inverse = ExactInverse(model)
+        self.hard = HardLimits.from_model(model)
+        self.limits = limits or ActuatorLimits.from_profile(model.profile)
+        self.rate = float(rate if rate is not None else model.profile.motion.control_rate)
+        if not 1.0 <= self.rate <= 200.0:
+            raise ValueError(f"rate must lie within 1..200 Hz, got {self.rate}")
+        ws = workspace if workspace is not None else model.workspace
+        if ws is None:
+            raise PlanError(f"no restricted workspace for category {model.category}: Cartesian motion is refused")
+        self.workspace = {k: (float(ws[k][0]), float(ws[k][1])) for k in CONTROLLED_POSE_NAMES}
+        self.lo = np.array([self.workspace[k][0] for k in CONTROLLED_POSE_NAMES])
+        self.hi = np.array([self.workspace[k][1] for k in CONTROLLED_POSE_NAMES])
+        corners = [np.array(c) for c in itertools.product(*[(a, (a + b) / 2, b) for a, b in zip(self.lo, self.hi)])]
+        self.any_direction = box_limits(self.inverse, corners, self.limits)
+        self._ruckig = Ruckig(4)
+        self._input = InputParameter(4)
+        self._ruckig1 = Ruckig(1)
+        self._input1 = InputParameter(1)
+        self._traj1 = Trajectory(1)
+
+    # ------------------------------------------------------------------ goals
+    def goal_vector(self, current, goal: Mapping[str, float]) -> np.ndarray:
+        """Full goal (x, z, roll, pitch) from a partial mapping; unspecified DOF keep ``current``."""
+        if not isinstance(goal, Mapping):
+            raise ValueError(f"goal must be a mapping with any of {', '.join(CONTROLLED_POSE_NAMES)}")
+        unknown = set(goal) - set(CONTROLLED_POSE_NAMES)
+        if unknown:
+            raise ValueError(f"goal: unknown field(s) {', '.join(sorted(unknown))}; allowed: x, z, roll, pitch")
+        out = np.asarray(current, float).copy()
+        for i, k in enumerate(CONTROLLED_POSE_NAMES):
+            if k in goal:
+                v = goal[k]
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                    raise ValueError(f"goal.{k} must be a finite number, got {v!r}")
+                out[i] = float(v)
+        return out
+
+    def check_in_workspace(self, p, what: str = "goal") -> None:
+        for i, k in enumerate(CONTROLLED_POSE_NAMES):
+            unit = "m" if k in ("x", "z") else "rad"
+            if p[i] < self.lo[i] - 1e-9:
+                raise PlanError(f"{what}.{k} = {p[i]:.4f} {unit} is below the workspace (workspace:{k}:min = {self.lo[i]:.4f})")
+            if p[i] > self.hi[i] + 1e-9:
+                raise PlanError(f"{what}.{k} = {p[i]:.4f} {unit} is above the workspace (workspace:{k}:max = {self.hi[i]:.4f})")
+
+    def state_from_actuators(self, q, q_velocity=None) -> MotionState:
+        """Pose-space state of actuators ``q`` moving at ``q_velocity`` (least squares through the FK Jacobian)."""
+        f, jac = self.model.features(np.asarray(q, float))
+        rows = [0, 2, 3, 4]
+        vel = np.zeros(4) if q_velocity is None else jac[rows] @ np.asarray(q_velocity, float)
+        return MotionState(f[rows].copy(), vel, np.zeros(4))
+
+    # ------------------------------------------------------------------ planning
+    def plan_move(self, start: MotionState, goal: Mapping[str, float], *, speed_scale: float = 1.0) -> Plan:
+        """Plan from ``start`` to a (partial) goal pose, ending at rest."""
+        scale = _check_scale(speed_scale)
+        p1 = self.goal_vector(start.position, goal)
+        self.check_in_workspace(p1)
+        return self._plan_segments(start, [(p1, np.zeros(4), scale)])
+
+    def plan_sequence(self, start: MotionState, waypoints: Sequence[Waypoint], *, blend: bool = False,
+                      blend_fraction: float = 0.5) -> Plan:
+        """Through waypoints, stopping at each (``blend=False``) or passing with non-zero velocity."""
+        if not waypoints:
+            raise ValueError("waypoints: at least one waypoint is needed")
+        pts, prev = [], start.position
+        for k, w in enumerate(waypoints):
+            if not isinstance(w, Waypoint):
+                raise ValueError(f"waypoints[{k}] must be a Waypoint")
+            p = self.goal_vector(prev, w.goal)
+            self.check_in_workspace(p, f"waypoints[{k}]")
+            pts.append(p)
+            prev = p
+        vels = [np.zeros(4) for _ in pts]
+        if blend:
+            chain = [start.position] + pts
+            for k in range(len(pts) - 1):
+                vels[k] = self._blend_velocity(chain[k], chain[k + 1], chain[k + 2], blend_fraction,
+                                               min(waypoints[k].speed_scale, waypoints[k + 1].speed_scale))
+        return self._plan_segments(start, [(p, v, w.speed_scale) for p, v, w in zip(pts, vels, waypoints)])
+
+    def plan_stop(self, state: MotionState) -> Plan:
+        """The jerk-limited shortest stop from ``state`` (each DOF brakes at its any-direction limits)."""
+        inp = self._input
+        self._set_limits(inp, self.any_direction.floored(self._abs_floor(state)))
+        inp.control_interface = ControlInterface.Velocity
+        inp.synchronization = Synchronization.No
+        inp.current_position, inp.current_velocity = list(state.position), list(state.velocity)
+        inp.current_acceleration = list(state.acceleration)
+        inp.target_velocity, inp.target_acceleration = [0.0] * 4, [0.0] * 4
+        traj = Trajectory(4)
+        res = self._ruckig.calculate(inp, traj)
+        inp.control_interface = ControlInterface.Position
+        if res not in _OK:
+            raise PlanError(f"stop could not be computed (ruckig {res})")
+        return Plan((traj,), state, traj.duration, 0.0, {"kind": "stop"})
+
+    def sample(self, plan: Plan, rate: float | None = None) -> Setpoints:
+        r = self.rate if rate is None else float(rate)
+        if not 1.0 <= r <= 200.0:
+            raise ValueError(f"rate must lie within 1..200 Hz, got {r}")
+        return sample_plan(plan, self.inverse, r)
+
+    def lower_bound(self, q0, q1, q0_velocity=None) -> float:
+        """Longest per-actuator time-optimal jerk-limited move q0 → q1 (at rest at q1)."""
+        inp, tr = self._input1, self._traj1
+        t = 0.0
+        for i in range(5):
+            inp.current_position = [float(q0[i])]
+            inp.current_velocity = [0.0 if q0_velocity is None else float(q0_velocity[i])]
+            inp.current_acceleration = [0.0]
+            inp.target_position = [float(q1[i])]
+            inp.max_velocity = [float(self.limits.velocity[i])]
+            inp.max_acceleration = [float(self.limits.acceleration[i])]
+            inp.max_jerk = [float(self.limits.jerk[i])]
+            if self._ruckig1.calculate(inp, tr) not in _OK:
+                raise PlanError(f"lower bound for actuator {i} could not be computed")
+            t = max(t, tr.duration)
+        return t
+
+    # ------------------------------------------------------------------ internals
+    def _abs_floor(self, state: MotionState) -> PoseLimits:
+        """Limits never below the current |v|, |a| (Ruckig rejects states beyond its limits)."""
+        return PoseLimits(np.abs(state.velocity) * (1 + 1e-9), np.abs(state.acceleration) * (1 + 1e-9),
+                          np.zeros(4))
+
+    def _segment_limits(self, p0, p1, start_moving: bool, scale: float) -> PoseLimits:
+        try:
+            lim = straight_line_limits(self.inverse, p0, p1, self.limits).scaled(scale)
+        except KinematicsError as exc:
+            raise PlanError(f"the straight line to the goal leaves the reachable set: {exc}") from None
+        if start_moving:  # other DOF may carry velocity: allow them the any-direction limits
+            lim = lim.floored(self.any_direction.scaled(scale))
+        return lim
+
+    def _blend_velocity(self, a, b, c, fraction: float, scale: float) -> np.ndarray:
+        """Pass-through velocity at b: along (c − a), as large as both neighbouring segments allow."""
+        d = c - a
+        if np.linalg.norm(d) < 1e-12:
+            return np.zeros(4)
+        u = d / np.linalg.norm(d)
+        lim = np.minimum(self._segment_limits(a, b, True, scale).velocity, self._segment_limits(b, c, True, scale).velocity)
+        with np.errstate(divide="ignore"):
+            speed = float(np.min(np.where(np.abs(u) > 1e-12, lim / np.abs(u), np.inf)))
+        return fraction * speed * u
+
+    def _set_limits(self, inp: InputParameter, lim: PoseLimits) -> None:
+        inp.max_velocity = [float(max(v, 1e-9)) for v in lim.velocity]
+        inp.max_acceleration = [float(max(v, 1e-9)) for v in lim.acceleration]
+        inp.max_jerk = [float(max(v, 1e-9)) for v in lim.jerk]
+
+    def _solve_segment(self, state: MotionState, p1, v1, lim: PoseLimits) -> Trajectory:
+        inp = self._input
+        inp.control_interface = ControlInterface.Position
+        self._set_limits(inp, lim.floored(self._abs_floor(state)).floored(
+            PoseLimits(np.abs(v1) * (1 + 1e-9), np.zeros(4), np.zeros(4))))
+        inp.current_position, inp.current_velocity = list(state.position), list(state.velocity)
+        inp.current_acceleration = list(state.acceleration)
+        inp.target_position, inp.target_velocity, inp.target_acceleration = list(p1), list(v1), [0.0] * 4
+        inp.synchronization = Synchronization.Phase if not state.moving and not np.any(v1) else Synchronization.Time
+        traj = Trajectory(4)
+        res = self._ruckig.calculate(inp, traj)
+        if res not in _OK:
+            raise PlanError(f"no trajectory to the goal within the limits (ruckig {res})")
+        return traj
+
+    def _plan_segments(self, start: MotionState, targets) -> Plan:
+        factor = 1.0
+        for attempt in range(12):
+            segs, state = [], start
+            for p1, v1, scale in targets:
+                lim = self._segment_limits(state.position, p1, state.moving or bool(np.any(v1)), scale * factor)
+                traj = self._solve_segment(state, p1, v1, lim)
+                self._check_extrema(traj)
+                segs.append(traj)
+                p, v, a = traj.at_time(traj.duration)
+                state = MotionState(np.array(p), np.array(v), np.array(a))
+            duration = float(sum(s.duration for s in segs))
+            plan = Plan(tuple(segs), start, duration, 0.0)
+            sp = self.sample(plan)
+            bad = verify_setpoints(sp, self.model, self.hard, self.limits)
+            if not bad:
+                q0, q0d = sp.actuators[0], sp.actuator_velocity[0]
+                lb = self.lower_bound(q0, sp.actuators[-1], q0d)
+                return Plan(plan.segments, start, duration, lb,
+                            {"speed_factor": factor, "attempts": attempt + 1, "setpoints": sp})
+            worst = bad[0]
+            if worst.limit.startswith(("velocity:", "acceleration:")):
+                factor *= 0.9
+                continue
+            raise PlanError(f"the plan would exceed {worst.limit} at t = {worst.t:.2f} s")
+        raise PlanError(f"the plan keeps exceeding {worst.limit} at t = {worst.t:.2f} s even at {factor:.2f} of full speed")
+
+    def _check_extrema(self, traj: Trajectory) -> None:
+        for i, (k, ext) in enumerate(zip(CONTROLLED_POSE_NAMES, traj.position_extrema)):
+            if ext.min < self.lo[i] - 1e-6:
+                raise PlanError(f"the trajectory would leave the workspace: {k} reaches {ext.min:.4f} at t = {ext.t_min:.2f} s "
+                                f"(workspace:{k}:min = {self.lo[i]:.4f})")
+            if ext.max > self.hi[i] + 1e-6:
+                raise PlanError(f"the trajectory would leave the workspace: {k} reaches {ext.max:.4f} at t = {ext.t_max:.2f} s "
+                                f"(workspace:{k}:max = {self.hi[i]:.4f})")

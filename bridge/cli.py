@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from . import cli_model
+from . import cli_ik, cli_model, cli_plan
 
 __all__ = ["main", "build_parser", "CLIError"]
 
@@ -27,6 +27,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="hitch", description="Motion planning for an advanced tractor rear hitch (SI units).")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     cli_model.add_commands(sub)
+    cli_ik.add_commands(sub)
+    cli_plan.add_commands(sub)
     return parser
 
 
@@ -36,11 +38,14 @@ def main(argv: list[str] | None = None) -> int:
         return int(args.handler(args) or 0)
     except CLIError as exc:
         print(f"hitch: error: {exc}", file=sys.stderr)
-    except (ValueError, KeyError) as exc:  # ProfileError, KinematicsError, SensorRangeError, …
+    except (ValueError, KeyError) as exc:  # ProfileError, KinematicsError, PlanError, SensorRangeError, …
         msg = str(exc).replace("\n", "; ")
         print(f"hitch: error: {msg}", file=sys.stderr)
     except KeyboardInterrupt:
         return 130
+    except BrokenPipeError:  # e.g. `hitch plan --json | head`
+        sys.stderr.close()
+        return 0
     return 2
 
 

@@ -1,0 +1,113 @@
+"""Inverse kinematics of the hitch: pose (x, z, roll, pitch) → five actuators, within every limit.
+
+:class:`IKSolver` wraps the mechanism-agnostic SQP core (:mod:`planner.ik_qp.sqp`) with the
+hitch mechanism (:mod:`planner.ik_qp.hitch_mechanism`): hard constraints are the strokes,
+implement rigidity (thesis 2.49), top-link angles and ground clearance; the restricted
+workspace is optional (off by default; the motion layers switch it on). It keeps the last
+solution and warm-starts from it, so streaming targets along a path reuses it and a small
+change of target gives a small change of actuators (no branch flipping: the solver only
+follows the continuous branch it is on).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..hard_limits import HardLimits
+from ..kinematics import HitchModel
+from ..types import Actuators, KinematicsError
+from .hitch_mechanism import build_hitch_mechanism
+from .problem import build_ik_problem
+from .result import IKResult, Target, check_target
+from .sqp import SQPSettings, SQPSolver
+
+__all__ = ["IKSolver", "default_weights", "BACKENDS"]
+
+BACKENDS = ("osqp", "daqp", "quadprog", "proxqp", "clarabel")
+
+
+def default_weights(model: HitchModel) -> np.ndarray:
+    """Task weights (x, z, roll, pitch): 1 per metre of the tool point and d_T^U per radian,
+    i.e. an angle counts as the displacement it causes at the mast top. Out-of-reach
+    targets return the pose nearest in this metric."""
+    return np.array([1.0, 1.0, model.mast_height, model.mast_height])
+
+
+class IKSolver:
+    """Constrained IK of one :class:`~planner.kinematics.HitchModel` (stateful: warm starts)."""
+
+    def __init__(
+        self,
+        model: HitchModel,
+        *,
+        backend: str = "osqp",
+        use_workspace: bool = False,
+        settings: SQPSettings | None = None,
+        limits: HardLimits | None = None,
+    ):
+        if backend not in BACKENDS:
+            raise ValueError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
+        self.model = model
+        self.limits = limits or HardLimits.from_model(model)
+        self.mechanism = build_hitch_mechanism(model, self.limits)
+        self.sqp = SQPSolver(self.mechanism, backend=backend, settings=settings or SQPSettings())
+        self.use_workspace = use_workspace
+        if use_workspace and model.workspace is None:
+            raise ValueError(
+                f"use_workspace: profile {model.profile.name} has no restricted workspace for category {model.category}"
+            )
+        self.weights = default_weights(model)
+        self.last = model.neutral.copy()
+
+    def reset(self, actuators=None) -> None:
+        """Forget the warm start (next solve starts from ``actuators`` or the neutral pose)."""
+        self.last = self.model.neutral.copy() if actuators is None else np.asarray(actuators, dtype=float).copy()
+
+    def solve(self, target, seed=None, *, use_workspace: bool | None = None) -> IKResult:
+        """Solve for a :class:`~planner.ik_qp.result.Target` (or mapping / 4 numbers).
+
+        ``seed``: actuators to start from (default: the last solution). Raises ValueError
+        naming the field for NaN, inf or wrong types; never returns NaN.
+        """
+        t0 = time.perf_counter()
+        x, z, roll, pitch = check_target(target)
+        weights = self.weights
+        if isinstance(target, Target) and target.weights is not None:
+            weights = np.asarray(target.weights) * self.weights
+        start = self.last if seed is None else self._seed(seed)
+        ws = self.use_workspace if use_workspace is None else use_workspace
+        bounds = None
+        if ws:
+            if self.model.workspace is None:
+                return IKResult.failed("no restricted workspace for this category", 0, time.perf_counter() - t0)
+            bounds = self.model.workspace
+        problem = build_ik_problem(self.mechanism, np.array([x, z, roll, pitch]), weights, task_bounds=bounds)
+        sol = self.sqp.solve(problem, seed=start)
+        if sol.status == "failed":
+            return IKResult.failed(sol.reason, sol.iterations, time.perf_counter() - t0)
+        try:
+            state = self.model.forward(sol.q)
+        except KinematicsError as exc:  # defensive: the core only returns closing points
+            return IKResult.failed(f"solution does not close: {exc}", sol.iterations, time.perf_counter() - t0)
+        self.last = sol.q.copy()
+        err = state.pose.controlled() - np.array([x, z, roll, pitch])
+        return IKResult(
+            actuators=Actuators.from_array(sol.q),
+            pose=state.pose,
+            status=sol.status,
+            active=sol.active,
+            iterations=sol.iterations,
+            residual=float(np.max(np.abs(err))),
+            solve_time_s=time.perf_counter() - t0,
+            reason=sol.reason if sol.status != "ok" else "",
+            extra={"weighted_residual": sol.residual, "at_bound": sol.at_bound, "violation": sol.violation},
+        )
+
+    def _seed(self, seed) -> np.ndarray:
+        q = seed.as_array() if isinstance(seed, Actuators) else np.asarray(seed, dtype=float).reshape(-1)
+        if q.size != 5 or not np.all(np.isfinite(q)):
+            raise ValueError("seed must be 5 finite actuator values (lift, tilt, top, left, right)")
+        return np.clip(q, self.limits.actuator_lower, self.limits.actuator_upper)
+

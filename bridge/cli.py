@@ -9,7 +9,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-from . import cli_ik, cli_model, cli_plan
+from planner.arm_cli import add_arm_parser
+
+from . import cli_ik, cli_model, cli_plan, cli_stability
 
 __all__ = ["main", "build_parser", "CLIError"]
 
@@ -29,6 +31,8 @@ def build_parser() -> argparse.ArgumentParser:
     cli_model.add_commands(sub)
     cli_ik.add_commands(sub)
     cli_plan.add_commands(sub)
+    cli_stability.add_commands(sub)
+    add_arm_parser(sub)
     return parser
 
 

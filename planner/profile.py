@@ -160,12 +160,22 @@ class Actuators(_Strict):
         return self
 
 
+class KeepOut(_Strict):
+    """A sphere the top link (segment H–U) must stay clear of, e.g. the remote-hydraulics couplers."""
+
+    name: str = Field(min_length=1, max_length=60)
+    centre: tuple[float, float, float]
+    radius: float = Field(gt=0, le=1.0)
+
+
 class Limits(_Strict):
     top_link_yaw_max: float = Field(gt=0, le=math.pi / 2)
     top_link_pitch_up_max: float = Field(gt=0, le=math.pi / 2)
     top_link_pitch_down_max: float = Field(gt=0, le=math.pi / 2)
     top_link_angle_reference: Literal["neutral", "horizontal"] = "neutral"
     ground_clearance: float = Field(ge=-1.0, le=2.0)
+    keep_out: list[KeepOut] = Field(default_factory=list)
+    end_stop_zone: float = Field(default=0.05, ge=0.0, le=0.5)
 
 
 class Motion(_Strict):
@@ -180,6 +190,17 @@ class Motion(_Strict):
     acceleration_time: float = Field(default=0.3, gt=0, le=10.0)
     jerk_time: float = Field(default=0.15, gt=0, le=10.0)
     control_rate: float = Field(default=50.0, ge=1.0, le=200.0)
+
+
+class Stability(_Strict):
+    """Which tractor carries the hitch (a profile in planner/profiles/tractors/) and its front ballast [kg]."""
+
+    tractor_profile: str = "tractor-6t"
+    front_ballast: float = Field(default=0.0, ge=0.0, le=5000.0)
+    #: slow-down factor when a margin falls below its caution threshold (seed 003: 0.8)
+    caution_speed_factor: float = Field(default=0.8, gt=0.0, le=1.0)
+    #: how far ahead jog motion is evaluated [s] (seed 003: about one second)
+    jog_horizon: float = Field(default=1.0, gt=0.0, le=5.0)
 
 
 class Workspace(_Strict):
@@ -199,6 +220,7 @@ class Profile(_Strict):
     limits: Limits
     workspace: Workspace
     motion: Motion = Field(default_factory=Motion)
+    stability: Stability = Field(default_factory=Stability)
 
     @field_validator("name")
     @classmethod

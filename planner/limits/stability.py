@@ -51,6 +51,11 @@ EDGE_NAMES: tuple[str, str, str] = ("rear", "right", "left")
 _EDGES = ((0, 1, 2), (1, 2, 0), (2, 0, 1))  # (A, B, opposite vertex) over Tractor.support_vertices
 
 
+def _cross3(a, b) -> np.ndarray:
+    """Cross product of two 3-vectors (np.cross costs ~35 µs per call; this ~1 µs)."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
 def gravity_direction(slope_roll: float, slope_pitch: float) -> np.ndarray:
     """Unit gravity vector (3,) in the tractor frame; roll > 0 left side up, pitch > 0 nose up [rad]."""
     r, p = (_scalar(n, v) for n, v in (("slope_roll", slope_roll), ("slope_pitch", slope_pitch)))
@@ -139,12 +144,12 @@ def axle_loads(tractor: Tractor, mass: float, centre_of_mass, gravity) -> AxleLo
 def _support_frame(tractor: Tractor):
     """Support plane: unit normal n (z-up side), in-plane axes e1 (+x), e2 = n x e1, 2-D vertices."""
     V = tractor.support_vertices
-    n = np.cross(V[1] - V[0], V[2] - V[0])
+    n = _cross3(V[1] - V[0], V[2] - V[0])
     n /= np.linalg.norm(n)
     if n[2] < 0:
         n = -n
     e1 = (V[0] - V[1]) / np.linalg.norm(V[0] - V[1])
-    e2 = np.cross(n, e1)
+    e2 = _cross3(n, e1)
     return V, n, e1, e2, (V - V[0]) @ np.column_stack([e1, e2])
 
 
@@ -252,7 +257,7 @@ def energy_margins(tractor: Tractor, mass: float, centre_of_mass, gravity) -> En
         r = p - A
         r_perp = r - (r @ axis) * axis
         rise = np.linalg.norm(r_perp) * math.sqrt(max(0.0, 1.0 - float(axis @ up) ** 2)) - float(r_perp @ up)
-        side = np.cross(axis, up)  # normal of the vertical plane through the edge
+        side = _cross3(axis, up)  # normal of the vertical plane through the edge
         if side @ (V[c_i] - A) < 0:
             side = -side
         sign = float(np.sign(side @ r))

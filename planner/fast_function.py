@@ -34,6 +34,9 @@ class FastFunction:
     def __call__(self, *args) -> list[np.ndarray]:
         """Evaluate with the given inputs; returns the (shared, overwritten) output arrays."""
         for dst, src in zip(self.inputs, args):
-            dst[:] = np.ravel(src, order="F")
+            if isinstance(src, np.ndarray) and src.ndim == 1:
+                dst[:] = src
+            else:
+                dst[:] = np.ravel(src, order="F")
         self._eval()
         return self.outputs

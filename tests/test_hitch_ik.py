@@ -55,9 +55,11 @@ def test_round_trip_on_random_workspace_targets(model, solver, truth, rng):
 def test_out_of_reach_returns_nearest_reachable_pose_with_the_limit(model, solver):
     n = model.neutral_pose
     cases = [
-        (Target(0.12, n.z, 0.0, 0.0), "top_link_yaw_max"),       # far left: the top link swings right
-        (Target(-0.12, n.z, 0.0, 0.0), "top_link_yaw_min"),
-        (Target(0.0, 0.8, 0.0, 0.0), "stroke:lift:max"),
+        # far left (+x): the mast point U moves to +x, the top link yaws negative (README signs)
+        (Target(0.12, n.z, 0.0, 0.0), "top_link_yaw_min"),
+        (Target(-0.12, n.z, 0.0, 0.0), "top_link_yaw_max"),
+        (Target(0.0, 0.8, 0.0, 0.0), "top_link_pitch_max"),      # the top link tilts up before the lift ends
+        (Target(0.0, -0.8, 0.0, 0.0), "stroke:lift:min"),
         (Target(0.0, n.z, 0.0, 0.6), "stroke:top:min"),           # mast far forward needs a short top link
         (Target(0.0, n.z, 0.0, -0.6), "stroke:top:max"),
     ]
@@ -119,7 +121,7 @@ def test_backends_agree_with_osqp(model, solver, backend, rng):
         assert b.status == "ok"
         np.testing.assert_allclose(a.actuators.as_array(), b.actuators.as_array(), atol=1e-8)
     lim = other.solve(Target(0.12, model.neutral_pose.z, 0.0, 0.0), seed=model.neutral)
-    assert lim.status == "limited" and "top_link_yaw_max" in lim.active
+    assert lim.status == "limited" and "top_link_yaw_min" in lim.active
 
 
 @pytest.mark.parametrize(

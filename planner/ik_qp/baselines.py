@@ -163,9 +163,13 @@ class DLSIK(_Baseline):
         for k in range(1, st.max_iterations + 1):
             dtheta, e, lam, y_t, yaw = self._dls_step(theta, target)
             q = self._actuators(theta, top)
-            if q is None:
-                break
-            pitch = self.model.forward(q).pose.pitch
+            try:
+                pitch = self.model.forward(q).pose.pitch if q is not None else None
+            except KinematicsError:
+                pitch = None
+            if pitch is None:  # the iterate left the mechanism's valid region
+                self.reset()
+                return IKResult.failed(f"dls: iterate {k} does not close the mechanism", k, time.perf_counter() - t0)
             e_beta = target[3] - pitch
             _, ju = self._top(target, np.array([y_t, yaw]))
             ju = ju[0]

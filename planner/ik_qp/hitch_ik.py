@@ -12,12 +12,13 @@ follows the continuous branch it is on).
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 
 from ..hard_limits import HardLimits
 from ..kinematics import HitchModel
-from ..types import Actuators, KinematicsError
+from ..types import Actuators, KinematicsError, Pose
 from .hitch_mechanism import build_hitch_mechanism
 from .problem import build_ik_problem
 from .result import IKResult, Target, check_target
@@ -60,6 +61,7 @@ class IKSolver:
             )
         self.weights = default_weights(model)
         self.last = model.neutral.copy()
+        self._problems: dict = {}
 
     def reset(self, actuators=None) -> None:
         """Forget the warm start (next solve starts from ``actuators`` or the neutral pose)."""
@@ -78,24 +80,23 @@ class IKSolver:
             weights = np.asarray(target.weights) * self.weights
         start = self.last if seed is None else self._seed(seed)
         ws = self.use_workspace if use_workspace is None else use_workspace
-        bounds = None
-        if ws:
-            if self.model.workspace is None:
-                return IKResult.failed("no restricted workspace for this category", 0, time.perf_counter() - t0)
-            bounds = self.model.workspace
-        problem = build_ik_problem(self.mechanism, np.array([x, z, roll, pitch]), weights, task_bounds=bounds)
+        if ws and self.model.workspace is None:
+            return IKResult.failed("no restricted workspace for this category", 0, time.perf_counter() - t0)
+        target_arr = np.array([x, z, roll, pitch])
+        problem = self._problem(target_arr, weights, ws)
         sol = self.sqp.solve(problem, seed=start)
         if sol.status == "failed":
             return IKResult.failed(sol.reason, sol.iterations, time.perf_counter() - t0)
         try:
-            state = self.model.forward(sol.q)
+            f, _ = self.model.features(sol.q)
         except KinematicsError as exc:  # defensive: the core only returns closing points
             return IKResult.failed(f"solution does not close: {exc}", sol.iterations, time.perf_counter() - t0)
         self.last = sol.q.copy()
-        err = state.pose.controlled() - np.array([x, z, roll, pitch])
+        pose = Pose.from_array(f[:6])
+        err = pose.controlled() - target_arr
         return IKResult(
             actuators=Actuators.from_array(sol.q),
-            pose=state.pose,
+            pose=pose,
             status=sol.status,
             active=sol.active,
             iterations=sol.iterations,
@@ -104,6 +105,18 @@ class IKSolver:
             reason=sol.reason if sol.status != "ok" else "",
             extra={"weighted_residual": sol.residual, "at_bound": sol.at_bound, "violation": sol.violation},
         )
+
+    def _problem(self, target: np.ndarray, weights: np.ndarray, use_workspace: bool):
+        """The validated problem for these weights and bounds, reused with only the target replaced
+        (the target was validated by :func:`check_target`)."""
+        key = (weights.tobytes(), use_workspace)
+        cached = self._problems.get(key)
+        if cached is None:
+            bounds = self.model.workspace if use_workspace else None
+            cached = build_ik_problem(self.mechanism, target, weights, task_bounds=bounds)
+            self._problems[key] = cached
+            return cached
+        return replace(cached, target=target)
 
     def _seed(self, seed) -> np.ndarray:
         q = seed.as_array() if isinstance(seed, Actuators) else np.asarray(seed, dtype=float).reshape(-1)

@@ -3,10 +3,12 @@
 from .actuator_limits import ActuatorLimits
 from .plan import MotionState, Plan, PlanError, Setpoints, Violation, sample_plan, verify_setpoints
 from .jog import JOG_FIELDS, JogController, JogOutput
+from .joint_space import JointSamples, plan_joint_move
 from .planner import TrajectoryPlanner, Waypoint
 from .pose_limits import PoseLimits, box_limits, straight_line_limits
 
 __all__ = [
     "ActuatorLimits", "MotionState", "Plan", "PlanError", "Setpoints", "Violation", "sample_plan",
-    "verify_setpoints", "TrajectoryPlanner", "Waypoint", "JogController", "JogOutput", "JOG_FIELDS", "PoseLimits", "box_limits", "straight_line_limits",
+    "verify_setpoints", "TrajectoryPlanner", "Waypoint", "JogController", "JogOutput", "JOG_FIELDS",
+    "JointSamples", "plan_joint_move", "PoseLimits", "box_limits", "straight_line_limits",
 ]

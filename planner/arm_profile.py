@@ -26,14 +26,13 @@ Schema (``schema_version = 1``)::
 from __future__ import annotations
 
 import math
-import tomllib
-from importlib import resources
 from pathlib import Path
 from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from .dh import DHChain, DHLink, build_dh_chain
+from .toml_profiles import builtin_profiles, format_validation_error, read_profile
 from .transforms import euler_zyz_matrix, homogeneous
 
 __all__ = [
@@ -159,43 +158,9 @@ class ArmProfile(_Strict):
         return build_dh_chain([j.link() for j in self.joints], base=self.base.transform(), tool=self.tool.transform())
 
 
-def _format(source: str, err: ValidationError) -> str:
-    lines = [f"invalid arm profile {source}:"]
-    for e in err.errors():
-        loc = ".".join(str(p) for p in e["loc"]) or "<root>"
-        msg = e["msg"].removeprefix("Value error, ")
-        if e["type"] == "extra_forbidden":
-            msg = "unknown key (not part of the arm profile schema)"
-        ctx = e.get("ctx") or {}
-        bounds = [f"{op} {ctx[k]}" for k, op in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<=")) if k in ctx]
-        if bounds:
-            msg = f"{msg} (allowed: {' and '.join(bounds)})"
-        value = e.get("input")
-        shown = "" if isinstance(value, dict) else f" = {value!r}"
-        lines.append(f"  {loc}{shown}: {msg}")
-    return "\n".join(lines)
-
-
 def available_arm_profiles() -> list[str]:
     """Names of the arm profiles shipped with the package (``planner/profiles/arms/*.toml``)."""
-    folder = resources.files("planner") / "profiles" / "arms"
-    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.startswith("arm-") and p.name.endswith(".toml"))
-
-
-def _read(name_or_path: str | Path) -> tuple[str, str]:
-    p = Path(name_or_path)
-    if p.suffix == ".toml" or p.exists():
-        if not p.is_file():
-            raise ArmProfileError(f"arm profile file {p} does not exist")
-        return str(p), p.read_text(encoding="utf-8")
-    name = str(name_or_path)
-    res = resources.files("planner") / "profiles" / "arms" / f"{name}.toml"
-    if not name.startswith("arm-") or not res.is_file():
-        raise ArmProfileError(
-            f"arm profile {name!r} not found; built-in arm profiles: {', '.join(available_arm_profiles())} "
-            "(or give a path to a .toml file)"
-        )
-    return name, res.read_text(encoding="utf-8")
+    return builtin_profiles("arms")
 
 
 def arm_profile_from_dict(data: dict, source: str = "<dict>") -> ArmProfile:
@@ -205,14 +170,10 @@ def arm_profile_from_dict(data: dict, source: str = "<dict>") -> ArmProfile:
     try:
         return ArmProfile.model_validate(data)
     except ValidationError as exc:
-        raise ArmProfileError(_format(source, exc)) from None
+        raise ArmProfileError(format_validation_error("arm profile", source, exc, ArmProfile)) from None
 
 
 def load_arm_profile(name_or_path: str | Path = DEFAULT_ARM_PROFILE) -> ArmProfile:
     """Load and validate an arm profile by built-in name (``arm-…``) or by file path."""
-    source, text = _read(name_or_path)
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ArmProfileError(f"arm profile {source} is not valid TOML: {exc}") from None
+    source, data = read_profile(name_or_path, subfolder="arms", kind="arm profile", error=ArmProfileError)
     return arm_profile_from_dict(data, source=source)

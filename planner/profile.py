@@ -9,12 +9,12 @@ what is allowed.
 from __future__ import annotations
 
 import math
-import tomllib
-from importlib import resources
 from pathlib import Path
 from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from .toml_profiles import builtin_profiles, format_validation_error, read_profile
 
 __all__ = [
     "ProfileError",
@@ -248,77 +248,14 @@ class Profile(_Strict):
         return getattr(self.actuators, name)
 
 
-def _field_range(loc: tuple) -> str:
-    """'> 0 and <= 1.5708' from the schema's constraints of the field at ``loc`` (or '')."""
-    model: type[BaseModel] | None = Profile
-    info = None
-    for part in loc:
-        if model is None or not isinstance(part, str) or part not in model.model_fields:
-            if isinstance(part, str) and info is not None:  # dict[str, Model] value
-                continue
-            return ""
-        info = model.model_fields[part]
-        ann = info.annotation
-        model = ann if isinstance(ann, type) and issubclass(ann, BaseModel) else None
-        if model is None and getattr(ann, "__args__", None):
-            inner = [a for a in ann.__args__ if isinstance(a, type) and issubclass(a, BaseModel)]
-            model = inner[0] if inner else None
-    if info is None:
-        return ""
-    parts = []
-    for m in info.metadata:
-        for attr, sym in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<=")):
-            v = getattr(m, attr, None)
-            if v is not None:
-                parts.append(f"{sym} {v:.6g}")
-    return " and ".join(parts)
-
-
-def _format_validation_error(source: str, err: ValidationError) -> str:
-    lines = [f"invalid profile {source}:"]
-    for e in err.errors():
-        loc = ".".join(str(p) for p in e["loc"])
-        msg = e["msg"]
-        if e["type"] == "extra_forbidden":
-            msg = "unknown key (not part of the profile schema)"
-        allowed = _field_range(tuple(e["loc"]))
-        if allowed:
-            msg = f"{msg} (allowed: {allowed})"
-        value = e.get("input")
-        shown = "" if isinstance(value, dict) else f" = {value!r}"
-        lines.append(f"  {loc}{shown}: {msg}")
-    return "\n".join(lines)
-
-
 def available_profiles() -> list[str]:
-    """Names of the profiles shipped with the package."""
-    folder = resources.files("planner") / "profiles"
-    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
-
-
-def _read(name_or_path: str | Path) -> tuple[str, str]:
-    p = Path(name_or_path)
-    if p.suffix == ".toml" or p.exists():
-        if not p.is_file():
-            raise ProfileError(f"profile file {p} does not exist")
-        return str(p), p.read_text(encoding="utf-8")
-    name = str(name_or_path)
-    res = resources.files("planner") / "profiles" / f"{name}.toml"
-    if not res.is_file():
-        raise ProfileError(
-            f"profile {name!r} not found; built-in profiles: {', '.join(available_profiles())} "
-            "(or give a path to a .toml file)"
-        )
-    return name, res.read_text(encoding="utf-8")
+    """Names of the hitch profiles shipped with the package."""
+    return builtin_profiles(None)
 
 
 def load_profile(name_or_path: str | Path = "thesis-t132") -> Profile:
     """Load and validate a profile by built-in name or file path."""
-    source, text = _read(name_or_path)
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ProfileError(f"profile {source} is not valid TOML: {exc}") from None
+    source, data = read_profile(name_or_path, subfolder=None, kind="profile", error=ProfileError)
     return profile_from_dict(data, source=source)
 
 
@@ -327,4 +264,4 @@ def profile_from_dict(data: dict, source: str = "<dict>") -> Profile:
     try:
         return Profile.model_validate(data)
     except ValidationError as exc:
-        raise ProfileError(_format_validation_error(source, exc)) from None
+        raise ProfileError(format_validation_error("profile", source, exc, Profile)) from None

@@ -24,15 +24,15 @@ rear-axle centre, ``rear_track`` apart; the pivot is on the centre line one whee
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field
-from importlib import resources
 from pathlib import Path
 from types import MappingProxyType
 from typing import Literal, Mapping
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from ..toml_profiles import format_validation_error, read_profile
 
 __all__ = [
     "STANDARD_GRAVITY",
@@ -334,27 +334,12 @@ class TractorProfile:
             ) from None
 
 
-def _format(source: str, err: ValidationError) -> str:
-    lines = [f"invalid tractor profile {source}:"]
-    for e in err.errors():
-        loc = ".".join(str(p) for p in e["loc"])
-        msg = "unknown key (not part of the tractor profile schema)" if e["type"] == "extra_forbidden" else e["msg"]
-        ctx = e.get("ctx") or {}
-        bounds = [f"{op} {ctx[k]}" for k, op in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<=")) if k in ctx]
-        if bounds:
-            msg = f"{msg} (allowed: {' and '.join(bounds)})"
-        value = e.get("input")
-        shown = "" if isinstance(value, dict) else f" = {value!r}"
-        lines.append(f"  {loc}{shown}: {msg}")
-    return "\n".join(lines)
-
-
 def tractor_profile_from_dict(data: dict, source: str = "<dict>") -> TractorProfile:
     """Validate a tractor profile given as a dictionary (as parsed from TOML)."""
     try:
         spec = TractorProfileSpec.model_validate(data)
     except ValidationError as exc:
-        raise TractorProfileError(_format(source, exc)) from None
+        raise TractorProfileError(format_validation_error("tractor profile", source, exc, TractorProfileSpec)) from None
     records = {
         n: ImplementRecord(n, s.category, s.mass, s.centre_of_mass, s.description) for n, s in spec.implements.items()
     }
@@ -363,18 +348,5 @@ def tractor_profile_from_dict(data: dict, source: str = "<dict>") -> TractorProf
 
 def load_tractor_profile(name_or_path: str | Path = "tractor-6t") -> TractorProfile:
     """Load a tractor profile by built-in name (``planner/profiles/tractors/<name>.toml``) or file path."""
-    p = Path(name_or_path)
-    if p.suffix == ".toml" or p.exists():
-        if not p.is_file():
-            raise TractorProfileError(f"tractor profile file {p} does not exist")
-        source, text = str(p), p.read_text(encoding="utf-8")
-    else:
-        res = resources.files("planner") / "profiles" / "tractors" / f"{name_or_path}.toml"
-        if not res.is_file():
-            raise TractorProfileError(f"tractor profile {str(name_or_path)!r} not found (give a name or a .toml path)")
-        source, text = str(name_or_path), res.read_text(encoding="utf-8")
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise TractorProfileError(f"tractor profile {source} is not valid TOML: {exc}") from None
+    source, data = read_profile(name_or_path, subfolder="tractors", kind="tractor profile", error=TractorProfileError)
     return tractor_profile_from_dict(data, source=source)

@@ -1,0 +1,88 @@
+"""Shared loading of TOML profiles (hitch, arm, tractor): file or built-in name, TOML parsing,
+and validation errors that name the field, the value and the allowed range."""
+
+from __future__ import annotations
+
+import tomllib
+from importlib import resources
+from pathlib import Path
+
+from pydantic import BaseModel, ValidationError
+
+__all__ = ["builtin_profiles", "read_profile", "format_validation_error"]
+
+
+def _folder(subfolder: str | None):
+    base = resources.files("planner") / "profiles"
+    return base / subfolder if subfolder else base
+
+
+def builtin_profiles(subfolder: str | None) -> list[str]:
+    """Names of the built-in profiles in ``planner/profiles/<subfolder>``."""
+    return sorted(p.name[:-5] for p in _folder(subfolder).iterdir() if p.name.endswith(".toml"))
+
+
+def read_profile(name_or_path: str | Path, *, subfolder: str | None, kind: str, error: type[Exception]) -> tuple[str, dict]:
+    """(source, parsed TOML) from a path to a .toml file or a built-in name; ``error`` on failure."""
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or p.exists():
+        if not p.is_file():
+            raise error(f"{kind} file {p} does not exist")
+        source, text = str(p), p.read_text(encoding="utf-8")
+    else:
+        source = str(name_or_path)
+        res = _folder(subfolder) / f"{source}.toml"
+        if not res.is_file():
+            raise error(f"{kind} {source!r} not found; built-in {kind}s: {', '.join(builtin_profiles(subfolder))} "
+                        "(or give a path to a .toml file)")
+        text = res.read_text(encoding="utf-8")
+    try:
+        return source, tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise error(f"{kind} {source} is not valid TOML: {exc}") from None
+
+
+def _field_range(model: type[BaseModel] | None, loc: tuple) -> str:
+    """'> 0 and <= 1.5708' from the schema's constraints of the field at ``loc`` (or '')."""
+    info = None
+    for part in loc:
+        if model is None or not isinstance(part, str) or part not in model.model_fields:
+            if isinstance(part, (str, int)) and info is not None:  # dict / list item of a model
+                continue
+            return ""
+        info = model.model_fields[part]
+        ann = info.annotation
+        model = ann if isinstance(ann, type) and issubclass(ann, BaseModel) else None
+        if model is None and getattr(ann, "__args__", None):
+            inner = [a for a in ann.__args__ if isinstance(a, type) and issubclass(a, BaseModel)]
+            model = inner[0] if inner else None
+    if info is None:
+        return ""
+    parts = []
+    for m in info.metadata:
+        for attr, sym in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<=")):
+            v = getattr(m, attr, None)
+            if v is not None:
+                parts.append(f"{sym} {v:.6g}")
+    return " and ".join(parts)
+
+
+def format_validation_error(kind: str, source: str, err: ValidationError, schema: type[BaseModel] | None = None) -> str:
+    """One line per problem: ``<field path> = <value>: <what is wrong> (allowed: <range>)``."""
+    lines = [f"invalid {kind} {source}:"]
+    for e in err.errors():
+        loc = ".".join(str(p) for p in e["loc"]) or "<root>"
+        msg = e["msg"].removeprefix("Value error, ")
+        if e["type"] == "extra_forbidden":
+            msg = f"unknown key (not part of the {kind} schema)"
+        allowed = _field_range(schema, tuple(e["loc"]))
+        if not allowed:
+            ctx = e.get("ctx") or {}
+            allowed = " and ".join(f"{op} {ctx[k]}" for k, op in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<="))
+                                   if k in ctx)
+        if allowed:
+            msg = f"{msg} (allowed: {allowed})"
+        value = e.get("input")
+        shown = "" if isinstance(value, dict) else f" = {value!r}"
+        lines.append(f"  {loc}{shown}: {msg}")
+    return "\n".join(lines)

@@ -4,9 +4,10 @@
 hitch mechanism (:mod:`planner.ik_qp.hitch_mechanism`): hard constraints are the strokes,
 implement rigidity (thesis 2.49), top-link angles and ground clearance; the restricted
 workspace is optional (off by default; the motion layers switch it on). It keeps the last
-solution and warm-starts from it, so streaming targets along a path reuses it and a small
-change of target gives a small change of actuators (no branch flipping: the solver only
-follows the continuous branch it is on).
+solution; each solve starts from the closed-form inverse clipped into the strokes
+(``seed_strategy="closed_form"``, default: the SQP then only certifies it or, out of reach,
+moves to the nearest reachable pose) or from the last solution (``"last"``). The hitch has
+one solution per pose, so a small change of target gives a small change of actuators.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..exact_inverse import ExactInverse
 from ..hard_limits import HardLimits
 from ..kinematics import HitchModel
 from ..types import Actuators, KinematicsError, Pose
@@ -47,6 +49,7 @@ class IKSolver:
         use_workspace: bool = False,
         settings: SQPSettings | None = None,
         limits: HardLimits | None = None,
+        seed_strategy: str = "closed_form",
     ):
         if backend not in BACKENDS:
             raise ValueError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
@@ -59,6 +62,10 @@ class IKSolver:
             raise ValueError(
                 f"use_workspace: profile {model.profile.name} has no restricted workspace for category {model.category}"
             )
+        if seed_strategy not in ("closed_form", "last"):
+            raise ValueError(f"seed_strategy must be 'closed_form' or 'last', got {seed_strategy!r}")
+        self.seed_strategy = seed_strategy
+        self.inverse = ExactInverse(model)
         self.weights = default_weights(model)
         self.last = model.neutral.copy()
         self._problems: dict = {}
@@ -78,7 +85,7 @@ class IKSolver:
         weights = self.weights
         if isinstance(target, Target) and target.weights is not None:
             weights = np.asarray(target.weights) * self.weights
-        start = self.last if seed is None else self._seed(seed)
+        start = self._seed(seed) if seed is not None else self._default_seed(x, z, roll, pitch)
         ws = self.use_workspace if use_workspace is None else use_workspace
         if ws and self.model.workspace is None:
             return IKResult.failed("no restricted workspace for this category", 0, time.perf_counter() - t0)
@@ -117,6 +124,17 @@ class IKSolver:
             self._problems[key] = cached
             return cached
         return replace(cached, target=target)
+
+    def _default_seed(self, x, z, roll, pitch) -> np.ndarray:
+        """The closed-form inverse clipped into the strokes (then the SQP only certifies or
+        corrects it), falling back to the last solution when the closed form has none."""
+        if self.seed_strategy == "closed_form":
+            try:
+                q = self.inverse.solve(np.array([x, z, roll, pitch]))[0]
+                return np.clip(q, self.limits.actuator_lower, self.limits.actuator_upper)
+            except KinematicsError:
+                pass
+        return self.last
 
     def _seed(self, seed) -> np.ndarray:
         q = seed.as_array() if isinstance(seed, Actuators) else np.asarray(seed, dtype=float).reshape(-1)

@@ -44,7 +44,7 @@ def main() -> None:
             dt = time.perf_counter() - t0
             if plan.duration >= args.min_duration:
                 break
-        sp = plan.limits_used["setpoints"]
+        sp = plan.setpoints
         times.append(dt)
         durations.append(plan.duration)
         ratios.append(plan.duration / plan.lower_bound)

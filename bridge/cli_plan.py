@@ -74,7 +74,7 @@ def _cmd_plan(args) -> int:
         start = tp.goal_vector(start, args.start)
         tp.check_in_workspace(start, "from")
     plan = tp.plan_move(MotionState.at_rest(start), args.to, speed_scale=args.speed_scale)
-    sp = tp.sample(plan)
+    sp = plan.setpoints  # verified at the planner's rate (--rate)
     if args.plot:
         plot_plan(args.plot, sp, tp)
     if args.json:

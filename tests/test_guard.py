@@ -65,7 +65,7 @@ def test_lifting_a_heavy_implement_on_a_slope_is_refused_at_the_right_sample(gua
     assert "esm would be" in str(exc.value) and f"t = {first.t_s:.2f} s" in str(exc.value)
     # the refusal names the first sample past the crossing height
     plan = guard.planner.plan_move(MotionState.at_rest([0.0, lo, 0.0, 0.0]), {"z": hi})
-    sp = plan.limits_used["setpoints"]
+    sp = plan.setpoints
     k = int(np.flatnonzero(np.isclose(sp.t, first.t_s))[0])
     assert sp.pose[k, 2] >= z_cross - 1e-9 and sp.pose[k - 1, 2] < z_cross
 

@@ -203,7 +203,7 @@ class Guard:
         total, caution_applied, reasons = 1.0, False, []
         for _ in range(8):
             plan = self.planner.plan_move(start, goal, speed_scale=speed_scale * total)
-            sp = plan.limits_used["setpoints"]
+            sp = plan.setpoints
             dec = self.check_setpoints(sp)
             if dec.action == "refused":
                 raise GuardRefusal(dec)

@@ -52,7 +52,10 @@ class Plan:
     start: MotionState
     duration: float
     lower_bound: float
-    limits_used: dict = field(default_factory=dict)
+    #: the verified samples at the planner's rate (None for plans that were not sampled, e.g. stops)
+    setpoints: "Setpoints | None" = field(default=None, repr=False)
+    #: how the plan was made: kind, speed factor, attempts
+    info: dict = field(default_factory=dict)
 
     def state_at(self, t: float) -> MotionState:
         """Pose-space state at time t (clamped to [0, duration])."""

@@ -148,7 +148,7 @@ class TrajectoryPlanner:
         inp.control_interface = ControlInterface.Position
         if res not in _OK:
             raise PlanError(f"stop could not be computed (ruckig {res})")
-        return Plan((traj,), state, traj.duration, 0.0, {"kind": "stop"})
+        return Plan((traj,), state, traj.duration, 0.0, info={"kind": "stop"})
 
     def sample(self, plan: Plan, rate: float | None = None) -> Setpoints:
         r = self.rate if rate is None else float(rate)
@@ -237,8 +237,8 @@ class TrajectoryPlanner:
             if not bad:
                 q0, q0d = sp.actuators[0], sp.actuator_velocity[0]
                 lb = self.lower_bound(q0, sp.actuators[-1], q0d)
-                return Plan(plan.segments, start, duration, lb,
-                            {"speed_factor": factor, "attempts": attempt + 1, "setpoints": sp})
+                return Plan(plan.segments, start, duration, lb, sp,
+                            {"kind": "move", "speed_factor": factor, "attempts": attempt + 1})
             worst = bad[0]
             if worst.limit.startswith(("velocity:", "acceleration:")):
                 factor *= 0.9

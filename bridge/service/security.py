@@ -1,0 +1,362 @@
+"""Zenoh security for the hitch service (issue 7 §6): user/password authentication, access control
+on the motion keys, TLS and mutual TLS — built programmatically for Zenoh 1.10.
+
+The pieces, each a frozen value, combined in :class:`SecuritySettings`:
+
+* :class:`Credentials` — this node's own user/password (``transport/auth/usrpwd/user|password``),
+  sent when it opens a link; ``users_file`` — the ``user:password`` dictionary every incoming link
+  must authenticate against (``transport/auth/usrpwd/dictionary_file``; :func:`write_users_file`).
+* :class:`AccessPolicy` — the ``access_control`` section: default deny; under the key prefix,
+  *operators* may use everything, *viewers* everything but the motion keys
+  (:func:`motion_keys`: ``goto``, ``jog``, ``presets/go``, ``maneuvers/run``, ``mode``), and
+  *services* (service nodes behind a router) may publish and answer. Subjects are Zenoh
+  usernames (from usrpwd) and, with mTLS, certificate common names.
+* :class:`TlsSettings` — ``transport/link/tls``: a certificate and key (used both to listen on
+  ``tls/…`` and, with ``mutual``, to present a client certificate), the CA to verify the other side,
+  ``enable_mtls`` for mutual authentication.
+
+Where the ACL must live: access control filters the links of the node that carries it. With
+clients connecting straight to the service (the default peer setup) that is the service; in a
+fleet behind a router it is the router (the service sees only the router's link and username),
+with the service nodes listed as ``services``.
+
+:func:`build_security_config` gives the Zenoh config sections as a dict; :func:`security_json5`
+the text of a security file; :func:`apply_security` merges settings or such a file (parsed and
+checked by Zenoh itself) into a ``zenoh.Config``. Denied queries get no reply: to a refused
+user the motion queryables do not exist.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+__all__ = [
+    "MOTION_KEYS", "VIEWER_QUERIES", "SECTIONS", "SecurityError", "Credentials", "AccessPolicy", "TlsSettings", "SecuritySettings",
+    "motion_keys", "build_acl", "build_security_config", "security_json5", "write_users_file",
+    "apply_security", "security_sections", "exposure_warnings",
+]
+
+#: API names that move the hitch (issue 7 §6); restricted to operators
+MOTION_KEYS: tuple[str, ...] = ("goto", "jog", "presets/go", "maneuvers/run", "mode")
+#: non-motion queries a viewer may send (API names under the prefix; exact keys, no wildcards)
+VIEWER_QUERIES: tuple[str, ...] = ("ik", "plan", "stop", "config", "presets/list", "presets/save",
+                                   "presets/delete", "maneuvers/validate", "maneuvers/save", "maneuvers/list",
+                                   "maneuvers/delete")
+#: the Zenoh 1.10 ACL message kinds, by the direction a client-side user needs them in
+_OBSERVE_IN = ("declare_subscriber", "declare_liveliness_subscriber", "liveliness_query")
+_TO_CLIENT = ("put", "delete", "reply", "declare_queryable", "liveliness_token")
+_ALL = _OBSERVE_IN + ("query",) + _TO_CLIENT
+#: the config sections this module owns
+SECTIONS: tuple[str, ...] = ("transport/auth/usrpwd", "transport/link/tls", "access_control")
+
+
+class SecurityError(ValueError):
+    """Security settings that cannot be used; ``field`` names the setting."""
+
+    def __init__(self, field: str, message: str):
+        self.field = field
+        super().__init__(f"{field}: {message}")
+
+
+def _user(name: Any, what: str) -> str:
+    if not isinstance(name, str) or not name or len(name) > 64 or any(c in name for c in ":\n\r\t ") \
+            or not name.isprintable():
+        raise SecurityError(what, f"a user name must be 1-64 printable characters without ':' or spaces, got {name!r}")
+    return name
+
+
+def _key(prefix: Any, name: str | None = None, what: str = "prefix") -> str:
+    if not isinstance(prefix, str) or not prefix or prefix.startswith("/") or prefix.endswith("/"):
+        raise SecurityError(what, f"must be a key expression such as 'hitch' or 'fleet/*/hitch', got {prefix!r}")
+    key = prefix if name is None else f"{prefix}/{name}"
+    try:
+        return str(zenoh.KeyExpr(key))
+    except Exception as exc:  # zenoh raises its own ZError
+        raise SecurityError(what, f"{key!r} is not a canonical Zenoh key expression ({exc})") from None
+
+
+def motion_keys(prefix: str = "hitch") -> tuple[str, ...]:
+    """The full motion keys under ``prefix``: ``hitch/goto`` … ``hitch/mode``."""
+    return tuple(_key(prefix, k) for k in MOTION_KEYS)
+
+
+@dataclass(frozen=True)
+class Credentials:
+    """This node's user and password for usrpwd authentication (the password is not shown in repr)."""
+
+    user: str
+    password: str = field(repr=False)
+
+    def __post_init__(self):
+        _user(self.user, "credentials.user")
+        if not isinstance(self.password, str) or not self.password or "\n" in self.password or len(self.password) > 256:
+            raise SecurityError("credentials.password", "must be 1-256 characters on one line")
+
+
+@dataclass(frozen=True)
+class AccessPolicy:
+    """Who may do what under ``prefix`` (a key expression; ``fleet/*/hitch`` on a fleet router)."""
+
+    prefix: str = "hitch"
+    operators: tuple[str, ...] = ()         # usernames allowed everything, motion included
+    viewers: tuple[str, ...] = ()           # usernames allowed state, events and non-motion queries
+    services: tuple[str, ...] = ()          # usernames of service nodes (behind a router): publish, answer
+    operator_cert_names: tuple[str, ...] = ()  # mTLS certificate common names with operator rights
+    viewer_cert_names: tuple[str, ...] = ()
+    service_cert_names: tuple[str, ...] = ()
+    viewer_queries: tuple[str, ...] = VIEWER_QUERIES  # API names viewers may query
+
+    def __post_init__(self):
+        _key(self.prefix)
+        vq = self.viewer_queries
+        if isinstance(vq, str) or not all(isinstance(k, str) for k in vq):
+            raise SecurityError("access.viewer_queries", "must be a list of API names such as 'ik'")
+        for k in vq:
+            if k in MOTION_KEYS or "*" in k or "$" in k:
+                raise SecurityError("access.viewer_queries", f"{k!r} is a motion key or a wildcard (allowed: exact "
+                                                             f"non-motion API names, e.g. {', '.join(VIEWER_QUERIES[:3])})")
+            _key(self.prefix, k, "access.viewer_queries")
+        object.__setattr__(self, "viewer_queries", tuple(vq))
+        seen: dict[str, str] = {}
+        for role in ("operators", "viewers", "services"):
+            names = getattr(self, role)
+            if isinstance(names, str) or not isinstance(names, Sequence):
+                raise SecurityError(f"access.{role}", "must be a list of user names")
+            for n in names:
+                _user(n, f"access.{role}")
+                if n in seen:
+                    raise SecurityError(f"access.{role}", f"user {n!r} is also listed in access.{seen[n]}")
+                seen[n] = role
+            object.__setattr__(self, role, tuple(names))
+        for role in ("operator_cert_names", "viewer_cert_names", "service_cert_names"):
+            names = getattr(self, role)
+            if isinstance(names, str) or not all(isinstance(n, str) and n and n.isprintable() for n in names):
+                raise SecurityError(f"access.{role}", "must be a list of non-empty certificate common names")
+            object.__setattr__(self, role, tuple(names))
+        if not (self.operators or self.viewers or self.services or self.operator_cert_names
+                or self.viewer_cert_names or self.service_cert_names):
+            raise SecurityError("access", "names nobody: with default deny no one could reach the service")
+
+
+@dataclass(frozen=True)
+class TlsSettings:
+    """TLS files (PEM). ``certificate``/``private_key``: this node's (to listen on ``tls/…``, and the
+    client certificate with ``mutual``); ``root_ca``: the CA that signed the other side's certificate;
+    ``mutual``: mTLS — a listener demands client certificates, a client presents its own."""
+
+    root_ca: Path | None = None
+    certificate: Path | None = None
+    private_key: Path | None = None
+    mutual: bool = False
+    verify_name: bool = True  # the server certificate must name the host connected to (e.g. IP:127.0.0.1)
+
+    def __post_init__(self):
+        for name in ("root_ca", "certificate", "private_key"):
+            v = getattr(self, name)
+            if v is not None:
+                object.__setattr__(self, name, Path(v))
+        if (self.certificate is None) != (self.private_key is None):
+            raise SecurityError("tls.private_key" if self.private_key is None else "tls.certificate",
+                                "certificate and private_key go together")
+        if self.mutual and (self.root_ca is None or self.certificate is None):
+            raise SecurityError("tls.mutual", "mutual TLS needs root_ca, certificate and private_key")
+        for name in ("root_ca", "certificate", "private_key"):
+            v = getattr(self, name)
+            if v is not None and not v.is_file():
+                raise SecurityError(f"tls.{name}", f"file {v} does not exist")
+
+
+@dataclass(frozen=True)
+class SecuritySettings:
+    credentials: Credentials | None = None
+    users_file: Path | None = None
+    access: AccessPolicy | None = None
+    tls: TlsSettings | None = None
+
+    def __post_init__(self):
+        if self.users_file is not None:
+            object.__setattr__(self, "users_file", Path(self.users_file))
+            if not self.users_file.is_file():
+                raise SecurityError("users_file", f"file {self.users_file} does not exist")
+        a = self.access
+        if a is not None and (a.operators or a.viewers or a.services) and self.users_file is None:
+            raise SecurityError("users_file", "the access policy names users, but without a users_file no link "
+                                              "is authenticated and no username can match")
+        if a is not None and (a.operator_cert_names or a.viewer_cert_names or a.service_cert_names) \
+                and (self.tls is None or not self.tls.mutual):
+            raise SecurityError("tls.mutual", "certificate names in the access policy need mutual TLS")
+
+
+def build_acl(policy: AccessPolicy) -> dict:
+    """The ``access_control`` section: default deny; see :class:`AccessPolicy` and the module docstring."""
+    everything = [_key(policy.prefix, "**")]
+    rules = [
+        {"id": "observe", "permission": "allow", "flows": ["ingress"], "messages": list(_OBSERVE_IN),
+         "key_exprs": everything},
+        {"id": "to_client", "permission": "allow", "flows": ["egress"], "messages": list(_TO_CLIENT),
+         "key_exprs": everything},
+        # queries are allowed by exact key: ACL rules match keys *included* in theirs, so a wildcard
+        # query such as 'hitch/**' (which would reach the motion queryables) matches none of these
+        {"id": "viewer_queries", "permission": "allow", "flows": ["ingress"], "messages": ["query"],
+         "key_exprs": [_key(policy.prefix, k, "access.viewer_queries") for k in policy.viewer_queries]},
+        {"id": "operator_queries", "permission": "allow", "flows": ["ingress"], "messages": ["query"],
+         "key_exprs": everything},
+        {"id": "no_motion", "permission": "deny", "flows": ["ingress", "egress"], "messages": list(_ALL),
+         "key_exprs": list(motion_keys(policy.prefix))},
+        {"id": "service", "permission": "allow", "flows": ["ingress", "egress"], "messages": list(_ALL),
+         "key_exprs": everything},
+    ]
+    subjects, policies = [], []
+    for role, users, certs, rule_ids in (
+            ("operators", policy.operators, policy.operator_cert_names, ["observe", "to_client", "operator_queries"]),
+            ("viewers", policy.viewers, policy.viewer_cert_names,
+             ["observe", "to_client", "viewer_queries", "no_motion"]),
+            ("services", policy.services, policy.service_cert_names, ["service"])):
+        ids = []
+        if users:
+            subjects.append({"id": f"{role}_users", "usernames": list(users)})
+            ids.append(f"{role}_users")
+        if certs:
+            subjects.append({"id": f"{role}_certs", "cert_common_names": list(certs)})
+            ids.append(f"{role}_certs")
+        if ids:
+            policies.append({"id": role, "rules": rule_ids, "subjects": ids})
+    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
+            "policies": policies}
+
+
+def build_security_config(settings: SecuritySettings) -> dict:
+    """The security sections as a nested Zenoh config dict (only what is set)."""
+    out: dict[str, Any] = {}
+    usrpwd: dict[str, Any] = {}
+    if settings.credentials is not None:
+        usrpwd.update(user=settings.credentials.user, password=settings.credentials.password)
+    if settings.users_file is not None:
+        usrpwd["dictionary_file"] = str(settings.users_file.resolve())
+    if usrpwd:
+        out.setdefault("transport", {})["auth"] = {"usrpwd": usrpwd}
+    if settings.tls is not None:
+        t = settings.tls
+        tls: dict[str, Any] = {"enable_mtls": t.mutual, "verify_name_on_connect": t.verify_name}
+        if t.root_ca is not None:
+            tls["root_ca_certificate"] = str(t.root_ca.resolve())
+        if t.certificate is not None:
+            cert, key = str(t.certificate.resolve()), str(t.private_key.resolve())
+            tls.update(listen_certificate=cert, listen_private_key=key)
+            if t.mutual:
+                tls.update(connect_certificate=cert, connect_private_key=key)
+        out.setdefault("transport", {})["link"] = {"tls": tls}
+    if settings.access is not None:
+        out["access_control"] = build_acl(settings.access)
+    return out
+
+
+def security_json5(settings: SecuritySettings) -> str:
+    """Text of a security file (JSON, which is JSON5) for ``--security`` / ``[zenoh] security``."""
+    return json.dumps(build_security_config(settings), indent=2) + "\n"
+
+
+def write_users_file(path: str | Path, users: Mapping[str, str]) -> Path:
+    """Write the usrpwd dictionary (``user:password`` per line), readable by the owner only (0600)."""
+    lines = []
+    for user, password in users.items():
+        Credentials(user, password)  # validates both
+        lines.append(f"{user}:{password}\n")
+    if not lines:
+        raise SecurityError("users", "at least one user is needed")
+    p = Path(path)
+    fd = os.open(p, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        f.writelines(lines)
+    os.chmod(p, 0o600)
+    return p
+
+
+def _as_sections(config: zenoh.Config) -> dict[str, str]:
+    return {s: config.get_json(s) for s in SECTIONS}
+
+
+def security_sections(source: SecuritySettings | Mapping | str | Path) -> dict[str, str]:
+    """Config path → JSON of each security section, from settings, a nested dict or a JSON5 file.
+
+    Files and dicts are parsed and checked by Zenoh itself (unknown keys are errors); a file that
+    sets anything outside ``transport/auth/usrpwd``, ``transport/link/tls`` and ``access_control``
+    is refused, so a security file cannot quietly change endpoints or the mode.
+    """
+    if isinstance(source, SecuritySettings):
+        source = build_security_config(source)
+    if isinstance(source, (str, Path)):
+        p = Path(source)
+        if not p.is_file():
+            raise SecurityError("security", f"file {p} does not exist")
+        text, where = p.read_text(encoding="utf-8"), str(p)
+    elif isinstance(source, Mapping):
+        text, where = json.dumps(source), "<dict>"
+    else:
+        raise SecurityError("security", f"must be SecuritySettings, a dict or a file path, got {type(source).__name__}")
+    try:
+        parsed = zenoh.Config.from_json5(text)
+    except Exception as exc:  # zenoh's ZError: unknown key, wrong type, bad JSON5
+        raise SecurityError("security", f"{where} is not a valid Zenoh security config: {exc}") from None
+    foreign = _foreign_settings(parsed)
+    if foreign:
+        raise SecurityError("security", f"{where} sets {', '.join(foreign)}; a security file may only set "
+                                        f"{', '.join(SECTIONS)}")
+    return _as_sections(parsed)
+
+
+def _foreign_settings(parsed: zenoh.Config) -> list[str]:
+    default = zenoh.Config()
+    out = []
+    for top in ("mode", "connect", "listen", "open", "gateway", "region_name", "metadata", "stats", "scouting", "timestamping", "queries_default_timeout", "routing",
+                "aggregation", "qos", "adminspace", "namespace", "downsampling", "low_pass_filter", "plugins_loading", "plugins"):
+        try:
+            if json.loads(parsed.get_json(top)) != json.loads(default.get_json(top)):
+                out.append(top)
+        except Exception:  # a section this Zenoh version does not have
+            continue
+    t, d = json.loads(parsed.get_json("transport")), json.loads(default.get_json("transport"))
+    t["auth"]["usrpwd"], t["link"]["tls"] = d["auth"]["usrpwd"], d["link"]["tls"]
+    if t != d:
+        out.append("transport settings other than auth.usrpwd and link.tls")
+    return out
+
+
+def apply_security(config: zenoh.Config, source: SecuritySettings | Mapping | str | Path) -> zenoh.Config:
+    """Merge the security sections of ``source`` into ``config`` (in place; returned for chaining)."""
+    for path, value in security_sections(source).items():
+        try:
+            config.insert_json5(path, value)
+        except Exception as exc:
+            raise SecurityError("security", f"Zenoh refused {path}: {exc}") from None
+    return config
+
+
+def exposure_warnings(listen: Sequence[str], settings: SecuritySettings | None) -> list[str]:
+    """Sentences about listening beyond loopback without protection (loopback-only is the default).
+
+    A ``tls/…`` endpoint without a certificate is an error (:class:`SecurityError`).
+    """
+    out = []
+    for ep in listen:
+        proto, _, addr = ep.partition("/")
+        host = addr.rsplit(":", 1)[0].strip("[]")
+        if proto == "tls" and (settings is None or settings.tls is None or settings.tls.certificate is None):
+            raise SecurityError("tls.certificate", f"listening on {ep} needs a certificate and private key")
+        loopback = host in ("localhost", "::1") or host.startswith("127.") or proto == "unixsock-stream"
+        if loopback:
+            continue
+        if proto != "tls":
+            out.append(f"{ep} accepts unencrypted links from the network; use tls/… with a certificate")
+        if settings is None or settings.users_file is None:
+            out.append(f"{ep} accepts links from the network without user/password authentication")
+        if settings is None or settings.access is None:
+            out.append(f"{ep} exposes the motion keys to every connected node (no access_control)")
+    return out

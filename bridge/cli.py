@@ -11,7 +11,7 @@ import sys
 
 from planner.arm_cli import add_arm_parser
 
-from . import cli_ik, cli_model, cli_plan, cli_stability
+from . import cli_ik, cli_model, cli_plan, cli_sim, cli_stability
 
 __all__ = ["main", "build_parser", "CLIError"]
 
@@ -32,6 +32,7 @@ def build_parser() -> argparse.ArgumentParser:
     cli_ik.add_commands(sub)
     cli_plan.add_commands(sub)
     cli_stability.add_commands(sub)
+    cli_sim.add_commands(sub)
     add_arm_parser(sub)
     return parser
 

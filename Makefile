@@ -14,7 +14,7 @@ $(BIN)/hitch-installed: pyproject.toml
 	touch $@
 
 run: $(BIN)/hitch-installed
-	$(BIN)/hitch demo
+	$(BIN)/hitch serve
 
 test: $(BIN)/hitch-installed
 	$(BIN)/python -m pytest

@@ -12,6 +12,7 @@ import sys
 from planner.arm_cli import add_arm_parser
 
 from . import cli_ik, cli_model, cli_plan, cli_sim, cli_stability
+from . import cli_service
 
 __all__ = ["main", "build_parser", "CLIError"]
 
@@ -33,6 +34,7 @@ def build_parser() -> argparse.ArgumentParser:
     cli_plan.add_commands(sub)
     cli_stability.add_commands(sub)
     cli_sim.add_commands(sub)
+    cli_service.add_commands(sub)
     add_arm_parser(sub)
     return parser
 

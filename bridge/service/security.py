@@ -38,6 +38,7 @@ from typing import Any
 import zenoh
 
 __all__ = [
+    "access_policy_from_file",
     "MOTION_KEYS", "VIEWER_QUERIES", "SECTIONS", "SecurityError", "Credentials", "AccessPolicy", "TlsSettings", "SecuritySettings",
     "motion_keys", "build_acl", "build_security_config", "security_json5", "write_users_file",
     "apply_security", "security_sections", "exposure_warnings",
@@ -337,6 +338,29 @@ def apply_security(config: zenoh.Config, source: SecuritySettings | Mapping | st
         except Exception as exc:
             raise SecurityError("security", f"Zenoh refused {path}: {exc}") from None
     return config
+
+
+def access_policy_from_file(source: str | Path, prefix: str) -> AccessPolicy | None:
+    """The operator/viewer roles of a security file's ``access_control`` section (as written by
+    :func:`build_acl`), so commands that arrive outside Zenoh (the web terminal) are authorised
+    exactly like Zenoh queries; None when the file has no access control."""
+    sections = security_sections(source)
+    text = sections.get("access_control")
+    if not text:
+        return None
+    acl = json.loads(text)
+    if not acl.get("enabled", False):
+        return None
+    users = {sub["id"]: tuple(sub.get("usernames", ())) for sub in acl.get("subjects", [])}
+    roles = {pol["id"]: tuple(u for sid in pol.get("subjects", []) for u in users.get(sid, ()))
+             for pol in acl.get("policies", [])}
+    viewer_rule = next((r for r in acl.get("rules", []) if r.get("id") == "viewer_queries"), None)
+    queries = VIEWER_QUERIES
+    if viewer_rule is not None:
+        head = prefix.rstrip("/") + "/"
+        queries = tuple(k[len(head):] for k in viewer_rule.get("key_exprs", []) if k.startswith(head))
+    return AccessPolicy(prefix=prefix, operators=roles.get("operators", ()), viewers=roles.get("viewers", ()),
+                        services=roles.get("services", ()), viewer_queries=queries)
 
 
 def exposure_warnings(listen: Sequence[str], settings: SecuritySettings | None) -> list[str]:

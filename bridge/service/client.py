@@ -1,0 +1,193 @@
+"""The client side of the service (the CLI, the bench and the tests use it).
+
+:class:`HitchClient` opens its own Zenoh session (client mode by default: it connects, it does not
+listen), sends JSON queries to ``<prefix>/<key>`` and returns the reply as a dict or raises
+:class:`ServiceError` carrying the service's ``error`` code and ``message``.
+:meth:`HitchClient.fleet` lists the live services through their liveliness tokens
+(``**/alive``): each token's key minus ``/alive`` is a service's key prefix.
+"""
+
+from __future__ import annotations
+
+import json
+import queue
+import threading
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from .config import DEFAULT_LISTEN, validate_endpoint, validate_prefix
+from .security import apply_security
+
+__all__ = ["HitchClient", "ServiceError", "ServiceTimeout", "client_config"]
+
+
+class ServiceError(ValueError):
+    """The service answered with an error: ``code`` (e.g. ``bad_request``) and its message."""
+
+    def __init__(self, code: str, message: str):
+        self.code = code
+        super().__init__(message)
+
+
+class ServiceTimeout(ServiceError):
+    """No answer within the timeout (service down, unreachable, or the key denied by access control)."""
+
+    def __init__(self, message: str):
+        super().__init__("timeout", message)
+
+
+def client_config(connect: Sequence[str], *, mode: str = "client", security: str | Path | None = None) -> zenoh.Config:
+    """Zenoh config of a client session: connect to ``connect``, no scouting, optional security file."""
+    if mode not in ("client", "peer"):
+        raise ValueError(f"mode must be 'client' or 'peer', got {mode!r}")
+    eps = [validate_endpoint(e) for e in connect]
+    if not eps:
+        raise ValueError("connect: at least one endpoint is needed, e.g. tcp/127.0.0.1:7447")
+    z = zenoh.Config()
+    z.insert_json5("mode", json.dumps(mode))
+    z.insert_json5("connect/endpoints", json.dumps(eps))
+    z.insert_json5("scouting/multicast/enabled", "false")
+    if mode == "peer":
+        z.insert_json5("listen/endpoints", "[]")
+    if security is not None:
+        apply_security(z, security)
+    return z
+
+
+def _decode(payload: zenoh.ZBytes) -> Any:
+    try:
+        return json.loads(payload.to_bytes())
+    except (ValueError, UnicodeDecodeError):
+        return {"error": "bad_reply", "message": "the reply is not JSON"}
+
+
+class HitchClient:
+    """A Zenoh session to one service (``prefix``) or a fleet (``fleet()``, per-call prefixes)."""
+
+    def __init__(self, connect: Sequence[str] = (DEFAULT_LISTEN,), *, prefix: str = "hitch",
+                 timeout_s: float = 5.0, security: str | Path | None = None, mode: str = "client"):
+        self.prefix = validate_prefix(prefix)
+        if not 0 < timeout_s <= 600:
+            raise ValueError(f"timeout_s must lie in (0, 600] s, got {timeout_s!r}")
+        self.timeout_s = float(timeout_s)
+        try:
+            self.session = zenoh.open(client_config(connect, mode=mode, security=security))
+        except zenoh.ZError as exc:
+            raise ServiceError("connect", f"cannot open a Zenoh session to {', '.join(connect)}: {exc}") from None
+        self._subs: list = []
+
+    # ------------------------------------------------------------------ requests
+    def request(self, key: str, payload: Mapping | bytes | str | None = None, *, prefix: str | None = None,
+                timeout_s: float | None = None) -> dict:
+        """Query ``<prefix>/<key>``; the reply dict, or :class:`ServiceError`."""
+        full = f"{validate_prefix(prefix) if prefix else self.prefix}/{key}"
+        if isinstance(payload, Mapping):
+            data: bytes | str = json.dumps(payload)
+        else:
+            data = b"" if payload is None else payload
+        t = self.timeout_s if timeout_s is None else timeout_s
+        for reply in self.session.get(full, payload=data, timeout=t):
+            if reply.ok is not None:
+                return _decode(reply.ok.payload)
+            err = _decode(reply.err.payload)
+            if not isinstance(err, dict):
+                err = {}
+            raise ServiceError(str(err.get("error", "error")), str(err.get("message", "the service refused")))
+        raise ServiceTimeout(f"no reply from {full} within {t:g} s (is the service running and reachable, "
+                             "and may this user use that key?)")
+
+    def ik(self, x: float, z: float, roll: float, pitch: float) -> dict:
+        return self.request("ik", {"x": x, "z": z, "roll": roll, "pitch": pitch})
+
+    def plan(self, goal: Mapping[str, float], speed_scale: float = 1.0) -> dict:
+        return self.request("plan", {"goal": dict(goal), "speed_scale": speed_scale})
+
+    def goto(self, goal: Mapping[str, float], speed_scale: float = 1.0) -> dict:
+        return self.request("goto", {"goal": dict(goal), "speed_scale": speed_scale})
+
+    def jog(self, vx: float = 0.0, vz: float = 0.0, vroll: float = 0.0, vpitch: float = 0.0,
+            ttl_ms: float = 200.0) -> dict:
+        return self.request("jog", {"vx": vx, "vz": vz, "vroll": vroll, "vpitch": vpitch, "ttl_ms": ttl_ms})
+
+    def stop(self) -> dict:
+        return self.request("stop", {})
+
+    def mode(self, mode: str | None = None) -> dict:
+        return self.request("mode", {} if mode is None else {"mode": mode})
+
+    def config(self, prefix: str | None = None) -> dict:
+        return self.request("config", {}, prefix=prefix)
+
+    # ------------------------------------------------------------------ subscriptions
+    def subscribe(self, what: str, callback: Callable[[dict], None], *, prefix: str | None = None) -> None:
+        """Call ``callback(dict)`` for every ``state`` or ``events`` sample (until :meth:`close`)."""
+        if what not in ("state", "events"):
+            raise ValueError(f"what must be 'state' or 'events', got {what!r}")
+        key = f"{validate_prefix(prefix) if prefix else self.prefix}/{what}"
+        self._subs.append(self.session.declare_subscriber(key, lambda s: callback(_decode(s.payload))))
+
+    def follow(self, what: str = "state", *, timeout_s: float | None = None) -> Iterator[dict]:
+        """Iterate over samples; a :class:`ServiceTimeout` when none arrives within the timeout."""
+        q: queue.Queue = queue.Queue(maxsize=1000)
+
+        def put(d: dict) -> None:
+            try:
+                q.put_nowait(d)
+            except queue.Full:
+                pass
+        self.subscribe(what, put)
+        t = self.timeout_s if timeout_s is None else timeout_s
+        while True:
+            try:
+                yield q.get(timeout=t)
+            except queue.Empty:
+                raise ServiceTimeout(f"no {self.prefix}/{what} sample within {t:g} s") from None
+
+    def state(self, *, timeout_s: float | None = None) -> dict:
+        """The next ``state`` sample."""
+        return next(self.follow("state", timeout_s=timeout_s))
+
+    def wait_motion(self, motion_id: int, *, timeout_s: float = 60.0) -> dict:
+        """Block until motion ``motion_id`` has ended (finished, aborted or replaced); the state then."""
+        done = threading.Event()
+        last: dict = {}
+
+        def on_state(s: dict) -> None:
+            last.update(s)
+            mid = s.get("motion_id")
+            if isinstance(mid, int) and (mid > motion_id or (mid == motion_id and not s.get("moving"))):
+                done.set()
+        self.subscribe("state", on_state)
+        if not done.wait(timeout_s):
+            raise ServiceTimeout(f"motion {motion_id} still running after {timeout_s:g} s")
+        return dict(last)
+
+    # ------------------------------------------------------------------ fleet
+    def fleet(self, *, timeout_s: float = 2.0) -> list[str]:
+        """Key prefixes of every live service (liveliness tokens ``<prefix>/alive``), sorted."""
+        out = set()
+        for reply in self.session.liveliness().get("**/alive", timeout=timeout_s):
+            if reply.ok is not None:
+                k = str(reply.ok.key_expr)
+                out.add(k[: -len("/alive")] if k.endswith("/alive") else k)
+        return sorted(out)
+
+    # ------------------------------------------------------------------ life cycle
+    def close(self) -> None:
+        for s in self._subs:
+            try:
+                s.undeclare()
+            except zenoh.ZError:
+                pass
+        self._subs.clear()
+        if not self.session.is_closed():
+            self.session.close()
+
+    def __enter__(self) -> "HitchClient":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

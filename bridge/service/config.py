@@ -1,0 +1,204 @@
+"""Service configuration: embedded defaults, a TOML file, command-line flags (issue 7 §1).
+
+:class:`ServiceConfig` is a strict, frozen pydantic model. Sources are applied in order —
+embedded defaults, then a TOML file (``--config``), then flags — and every value is
+validated with an error naming the field and the allowed range
+(:class:`ServiceConfigError`). The defaults give a working service with nothing else:
+a Zenoh peer listening on ``tcp/127.0.0.1:7447`` with multicast scouting off, key prefix
+``hitch``, the in-process simulated cylinder ECU on a python-can ``virtual`` bus, profile
+``thesis-t132`` category 2, 50 Hz control, presets and maneuvers under
+``$XDG_DATA_HOME/hitch-planner`` (``~/.local/share/hitch-planner``).
+
+TOML layout (every key optional; the names are the field names below)::
+
+    [zenoh]    mode = "peer"; listen = ["tcp/127.0.0.1:7447"]; connect = []; prefix = "hitch"
+               security = "/etc/hitch/zenoh-security.json5"; scouting = false
+    [can]      interface = "virtual"; channel = "hitch"; simulate_ecu = true; stale_timeout_s = 0.2
+               sim_ground_speed = 1.5   # m/s of the simulated tractor (wheel-based speed, PGN 65096)
+    [hitch]    profile = "thesis-t132"; category = "2"; implement = "cat2-spreader-400";
+               control_rate = 50.0; state_rate = 50.0
+    [service]  data_dir = "/var/lib/hitch"; http = "127.0.0.1:8080"; workers = 4
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import tomllib
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from planner.toml_profiles import format_validation_error
+
+__all__ = [
+    "ServiceConfig",
+    "ServiceConfigError",
+    "DEFAULT_LISTEN",
+    "default_data_dir",
+    "load_service_config",
+    "validate_prefix",
+    "validate_endpoint",
+]
+
+#: Loopback only by default (issue 7 §6).
+DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
+_ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|unixsock-stream|ws)/[^\s]+$")
+_CHUNK = re.compile(r"^[A-Za-z0-9_\-.]+$")
+
+
+class ServiceConfigError(ValueError):
+    """A configuration value the service cannot use; the message names the field and the allowed values."""
+
+
+def default_data_dir(environ: dict[str, str] | None = None) -> Path:
+    """Per-user data folder: ``$XDG_DATA_HOME/hitch-planner`` or ``~/.local/share/hitch-planner``."""
+    env = os.environ if environ is None else environ
+    base = env.get("XDG_DATA_HOME") or str(Path.home() / ".local" / "share")
+    return Path(base) / "hitch-planner"
+
+
+def validate_prefix(prefix: str) -> str:
+    """A Zenoh key prefix without wildcards: chunks of ``[A-Za-z0-9_-.]`` separated by ``/``."""
+    if not isinstance(prefix, str) or not prefix:
+        raise ValueError("prefix must be a non-empty key expression such as 'hitch' or 'fleet/t07/hitch'")
+    for chunk in prefix.split("/"):
+        if not _CHUNK.match(chunk):
+            raise ValueError(f"prefix {prefix!r}: chunk {chunk!r} is not allowed (letters, digits, '_', '-', '.'; "
+                             "no wildcards, no empty chunks)")
+    return prefix
+
+
+def validate_endpoint(endpoint: str) -> str:
+    """A Zenoh locator ``<protocol>/<address>`` (tcp, udp, tls, quic, unixsock-stream, ws)."""
+    if not isinstance(endpoint, str) or not _ENDPOINT.match(endpoint):
+        raise ValueError(f"endpoint {endpoint!r} must look like 'tcp/127.0.0.1:7447' "
+                         "(protocol tcp, udp, tls, quic, unixsock-stream or ws)")
+    return endpoint
+
+
+class ServiceConfig(BaseModel):
+    """Everything one service instance needs; SI units (rates in Hz, times in s)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    mode: Literal["peer", "client"] = "peer"
+    #: default: DEFAULT_LISTEN for a peer, nothing for a client (a client connects, it does not listen)
+    listen: tuple[str, ...] | None = None
+    connect: tuple[str, ...] = ()
+    prefix: str = "hitch"
+    #: multicast scouting (off by default: loopback only, no discovery traffic)
+    scouting: bool = False
+    #: Zenoh security config (JSON5: usrpwd, access_control, TLS) merged into the session config
+    security: Path | None = None
+    can_interface: Literal["virtual", "socketcan", "udp_multicast"] = "virtual"
+    can_channel: str = "hitch"
+    #: run the simulated cylinder ECU in this process on the same bus
+    simulate_ecu: bool = True
+    stale_timeout_s: float = Field(0.2, ge=0.05, le=2.0)
+    #: ground speed of the simulated tractor (PGN 65096, for maneuver ``wait_for``) [m/s]
+    sim_ground_speed: float = Field(1.5, ge=0.0, le=20.0)
+    profile: str = "thesis-t132"
+    category: str | None = None
+    implement: str | None = None
+    control_rate: float = Field(50.0, ge=10.0, le=200.0)
+    state_rate: float = Field(50.0, ge=1.0, le=100.0)
+    data_dir: Path = Field(default_factory=default_data_dir)
+    http: str | None = None
+    #: the user the web terminal's commands run as when access control is on (must be in the ACL)
+    http_user: str | None = None
+    workers: int = Field(4, ge=1, le=32)
+
+    @field_validator("prefix")
+    @classmethod
+    def _prefix(cls, v: str) -> str:
+        return validate_prefix(v)
+
+    @field_validator("listen", "connect")
+    @classmethod
+    def _endpoints(cls, v: tuple[str, ...] | None) -> tuple[str, ...] | None:
+        return None if v is None else tuple(validate_endpoint(e) for e in v)
+
+    @field_validator("stale_timeout_s", "control_rate", "state_rate", "sim_ground_speed")
+    @classmethod
+    def _finite(cls, v: float) -> float:
+        if not math.isfinite(v):
+            raise ValueError("must be a finite number")
+        return v
+
+    @field_validator("http")
+    @classmethod
+    def _http(cls, v: str | None) -> str | None:
+        if v is not None and not re.match(r"^[^\s:]+:\d{1,5}$", v):
+            raise ValueError(f"http {v!r} must be HOST:PORT, e.g. 127.0.0.1:8080")
+        return v
+
+    @model_validator(mode="after")
+    def _mode_endpoints(self):
+        if self.listen is None:
+            object.__setattr__(self, "listen", (DEFAULT_LISTEN,) if self.mode == "peer" else ())
+        elif self.mode == "client" and self.listen:
+            raise ValueError("listen: a client does not listen (mode = 'client'); give connect endpoints only")
+        if self.mode == "client" and not self.connect:
+            raise ValueError("connect: a client needs at least one endpoint to connect to (a router or a peer)")
+        return self
+
+    def key(self, name: str) -> str:
+        """Full key of an API name: ``key("goto")`` → ``"hitch/goto"``."""
+        return f"{self.prefix}/{name}"
+
+    @property
+    def database_path(self) -> Path:
+        """The SQLite file of presets and maneuvers."""
+        return self.data_dir / "hitch.sqlite3"
+
+
+_TOML_SECTIONS = {
+    "zenoh": {"mode": "mode", "listen": "listen", "connect": "connect", "prefix": "prefix",
+              "security": "security", "scouting": "scouting"},
+    "can": {"interface": "can_interface", "channel": "can_channel", "simulate_ecu": "simulate_ecu",
+            "stale_timeout_s": "stale_timeout_s", "sim_ground_speed": "sim_ground_speed"},
+    "hitch": {"profile": "profile", "category": "category", "implement": "implement",
+              "control_rate": "control_rate", "state_rate": "state_rate"},
+    "service": {"data_dir": "data_dir", "http": "http", "http_user": "http_user", "workers": "workers"},
+}
+
+
+def _flatten_toml(data: dict, source: str) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for section, values in data.items():
+        if section not in _TOML_SECTIONS:
+            raise ServiceConfigError(f"invalid service config {source}: unknown section [{section}]; "
+                                     f"allowed: {', '.join(_TOML_SECTIONS)}")
+        if not isinstance(values, dict):
+            raise ServiceConfigError(f"invalid service config {source}: {section} must be a table")
+        for k, v in values.items():
+            if k not in _TOML_SECTIONS[section]:
+                raise ServiceConfigError(f"invalid service config {source}: unknown key {section}.{k}; allowed: "
+                                         f"{', '.join(_TOML_SECTIONS[section])}")
+            out[_TOML_SECTIONS[section][k]] = v
+    return out
+
+
+def load_service_config(path: str | Path | None = None, **overrides: Any) -> ServiceConfig:
+    """Defaults, then the TOML file at ``path`` (if any), then ``overrides`` (None values are ignored)."""
+    values: dict[str, Any] = {}
+    source = "flags"
+    if path is not None:
+        p = Path(path)
+        if not p.is_file():
+            raise ServiceConfigError(f"service config file {p} does not exist")
+        source = str(p)
+        try:
+            values.update(_flatten_toml(tomllib.loads(p.read_text(encoding="utf-8")), source))
+        except tomllib.TOMLDecodeError as exc:
+            raise ServiceConfigError(f"service config {p} is not valid TOML: {exc}") from None
+    values.update({k: v for k, v in overrides.items() if v is not None})
+    try:
+        return ServiceConfig.model_validate(values)
+    except ValidationError as exc:
+        lines = format_validation_error("service config", source, exc, ServiceConfig).splitlines()[1:]
+        raise ServiceConfigError(f"invalid service config ({source}): "
+                                 + "; ".join(ln.strip().removeprefix("<root>: ") for ln in lines)) from None

@@ -1,0 +1,385 @@
+"""The running service: CAN link (+ simulated ECU), motion control, Zenoh session (issue 7 §1-2).
+
+:class:`HitchService` wires the pieces and owns their life cycle:
+
+* CAN — a :class:`~bridge.can_link.CanLink` on the configured python-can bus, run in real time
+  by a :class:`~bridge.cli_sim.RealtimeRunner`; by default the simulated cylinder ECU
+  (:class:`~bridge.ecu_sim.can_node.EcuCanNode`) runs in the same process on the same
+  ``virtual`` channel, so every reference takes the real path: limits check, AD scaling, codec,
+  bus, ECU watchdog — and every measurement comes back the same way. A
+  :class:`~.odometer.WheelOdometer` reads the tractor's wheel-based distance (PGN 65096) for
+  maneuver ``wait_for`` steps; with the simulated ECU a :class:`~.odometer.SimulatedTractor`
+  sends it at ``sim_ground_speed``.
+* motion — a :class:`~.motion.MotionController` whose control thread streams references and
+  publishes ``<prefix>/state`` (50 Hz, ``express``: no batching, so the period stays regular);
+* Zenoh — one session (peer or client), one queryable per API key answering through
+  :meth:`~.api.ServiceAPI.handle` (quick keys inline in the Zenoh callback, planning keys on a
+  thread pool so a long plan never holds back ``stop``), ``<prefix>/events`` and the liveliness
+  token ``<prefix>/alive``;
+* storage — :class:`~.store.HitchStore` under the data directory.
+
+Every HitchModel instance is used by one thread only (their CasADi buffers are shared state):
+the control thread, the planning lock, the IK lock and the link each get their own.
+
+:meth:`close` is idempotent and fast (< 1 s): motion stopped and the reference stream ended,
+queryables and token undeclared, the session closed, the CAN threads stopped and the buses
+shut down, the database checkpointed and closed. :func:`serve` runs a service until SIGINT or
+SIGTERM.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import signal
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
+
+import zenoh
+
+from planner.ik_qp.hitch_ik import IKSolver
+from planner.kinematics import HitchModel
+from planner.limits.guard import Guard
+from planner.limits.tractor import load_tractor_profile
+from planner.trajectory import TrajectoryPlanner
+from planner.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
+
+from ..can_link import CanLink
+from ..cli_sim import RealtimeRunner, open_bus
+from ..ecu_sim.can_node import EcuCanNode
+from ..ecu_sim.ecu import CylinderECU
+from ..link_state import LinkConfig
+from .api import API_KEYS, ServiceAPI
+from .config import ServiceConfig
+from .motion import MotionController
+from .odometer import SimulatedTractor, WheelOdometer
+from .security import access_policy_from_file, apply_security, exposure_warnings
+from .store import HitchStore
+
+__all__ = ["HitchService", "ServiceStartError", "serve", "INLINE_KEYS", "to_json_bytes", "build_zenoh_config"]
+
+#: keys answered inside the Zenoh callback (fast, never plan); the others go to the worker pool
+INLINE_KEYS = frozenset({"ik", "jog", "stop", "mode", "config", "presets/list", "maneuvers/list"})
+
+
+class ServiceStartError(ValueError):
+    """The service cannot start (a port in use, a bus that cannot be opened …); says which and why."""
+
+
+def _finite(obj: Any) -> Any:
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    return obj
+
+
+def to_json_bytes(obj: Any) -> bytes:
+    """Strict JSON (no NaN/Infinity tokens: non-finite numbers become null)."""
+    try:
+        return json.dumps(obj, allow_nan=False, separators=(",", ":")).encode()
+    except ValueError:
+        return json.dumps(_finite(obj), allow_nan=False, separators=(",", ":")).encode()
+
+
+def build_zenoh_config(cfg: ServiceConfig) -> zenoh.Config:
+    """The session config: mode, endpoints, scouting, then the security file (if any)."""
+    z = zenoh.Config()
+    for path, value in (("mode", cfg.mode), ("listen/endpoints", list(cfg.listen)),
+                        ("connect/endpoints", list(cfg.connect)),
+                        ("scouting/multicast/enabled", cfg.scouting)):
+        z.insert_json5(path, json.dumps(value))
+    if cfg.security is not None:
+        apply_security(z, cfg.security)
+    return z
+
+
+class HitchService:
+    """One service instance (see the module docstring). ``start()`` then ``close()``."""
+
+    def __init__(self, config: ServiceConfig):
+        self.config = config
+        self.api: ServiceAPI | None = None
+        self.motion: MotionController | None = None
+        self.link: CanLink | None = None
+        self.ecu_node: EcuCanNode | None = None
+        self.odometer: WheelOdometer | None = None
+        self.store: HitchStore | None = None
+        self.session: zenoh.Session | None = None
+        self.warnings: list[str] = []
+        self.http = None
+        self._runners: list[RealtimeRunner] = []
+        self._buses: list = []
+        self._decls: list = []
+        self._pool: ThreadPoolExecutor | None = None
+        self._state_pub = self._event_pub = None
+        self._listeners: dict[str, list[Callable[[dict], None]]] = {"state": [], "event": []}
+        self._latest_state: dict | None = None
+        self._closed = False
+        self._close_lock = threading.Lock()
+        self.close_duration_s: float | None = None
+
+    # ------------------------------------------------------------------ building
+    def _model(self) -> HitchModel:
+        cfg = self.config
+        return HitchModel.from_profile(cfg.profile, cfg.category)
+
+    def _guard(self, model: HitchModel) -> Guard:
+        cfg = self.config
+        planner = TrajectoryPlanner(model, rate=cfg.control_rate)
+        implement = None
+        if cfg.implement is not None:
+            implement = load_tractor_profile(model.profile.stability.tractor_profile).implement(cfg.implement)
+        return Guard(planner, implement=implement)
+
+    def start(self) -> "HitchService":
+        cfg = self.config
+        try:
+            cfg.data_dir.mkdir(parents=True, exist_ok=True)
+            self.store = HitchStore(cfg.database_path)
+            control_model = self._model()
+            guard, plan_guard = self._guard(control_model), self._guard(self._model())
+            ik = IKSolver(self._model())
+            ik.solve((0.0, float(control_model.neutral_pose.z), 0.0, 0.0))   # warm the solver before serving
+            link_model = self._model()
+            if cfg.security is None:   # with a security file the operator chose the protection
+                self.warnings = exposure_warnings(cfg.listen, None)
+            self._start_can(link_model)
+            clock = self._runners[-1].now
+            state_every = max(1, round(cfg.control_rate / cfg.state_rate))
+            self.motion = MotionController(guard, plan_guard, self.link, clock, on_state=self._on_state,
+                                           on_event=self._on_event, state_every=state_every,
+                                           odometer=self.odometer.distance_m)
+            policy = access_policy_from_file(cfg.security, cfg.prefix) if cfg.security is not None else None
+            self.api = ServiceAPI(self.motion, ik, self.store, self._info(control_model, guard),
+                                  implement=cfg.implement, policy=policy)
+            self._pool = ThreadPoolExecutor(cfg.workers, thread_name_prefix="hitch-api")
+            self._open_zenoh()
+            self.motion.start()
+            if cfg.http is not None:
+                self._start_http(cfg.http)
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def _start_can(self, link_model: HitchModel) -> None:
+        """Simulated machine (ECU, tractor speed) if configured, the odometer, then the link (last:
+        its runner's clock is the service's clock)."""
+        cfg = self.config
+        if cfg.simulate_ecu:
+            ecu_bus = open_bus(cfg.can_interface, cfg.can_channel)
+            self._buses.append(ecu_bus)
+            self.ecu_node = EcuCanNode(CylinderECU(link_model.profile), ecu_bus)
+            self._runners.append(RealtimeRunner(self.ecu_node, max_wait_s=0.02).start())
+            tractor_bus = open_bus(cfg.can_interface, cfg.can_channel)
+            self._buses.append(tractor_bus)
+            self._runners.append(RealtimeRunner(SimulatedTractor(tractor_bus, cfg.sim_ground_speed),
+                                                max_wait_s=0.05).start())
+        odo_bus = open_bus(cfg.can_interface, cfg.can_channel)
+        self._buses.append(odo_bus)
+        self.odometer = WheelOdometer(odo_bus)
+        self._runners.append(RealtimeRunner(self.odometer, max_wait_s=0.05).start())
+        link_bus = open_bus(cfg.can_interface, cfg.can_channel)
+        self._buses.append(link_bus)
+        self.link = CanLink(link_model, link_bus, LinkConfig(control_rate_hz=cfg.control_rate,
+                                                             stale_after_s=cfg.stale_timeout_s))
+        self._runners.append(RealtimeRunner(self.link, max_wait_s=0.02).start())
+
+    def _open_zenoh(self) -> None:
+        cfg = self.config
+        try:
+            self.session = zenoh.open(build_zenoh_config(cfg))
+        except zenoh.ZError as exc:   # e.g. the port is taken, a TLS file is unreadable
+            raise ServiceStartError(f"cannot open the Zenoh session (listen {', '.join(cfg.listen) or '-'}, connect "
+                                    f"{', '.join(cfg.connect) or '-'}): {exc}") from None
+        s = self.session
+        self._state_pub = s.declare_publisher(cfg.key("state"), encoding=zenoh.Encoding.APPLICATION_JSON,
+                                              express=True, congestion_control=zenoh.CongestionControl.DROP,
+                                              priority=zenoh.Priority.DATA_HIGH)
+        self._event_pub = s.declare_publisher(cfg.key("events"), encoding=zenoh.Encoding.APPLICATION_JSON,
+                                              express=True)
+        for key in API_KEYS:
+            self._decls.append(s.declare_queryable(cfg.key(key), self._query_callback(key), complete=True))
+        self._decls.append(s.liveliness().declare_token(cfg.key("alive")))
+
+    def _start_http(self, addr: str) -> None:
+        try:
+            from ..web.server import start_http   # the operator terminal (issue 9), loaded only when asked for
+        except ImportError as exc:
+            raise ServiceStartError(f"--http {addr}: the operator terminal is not available ({exc})") from None
+        try:
+            self.http = start_http(self, addr, user=self.config.http_user)
+        except OSError as exc:                    # the port is taken, the address is not local …
+            raise ServiceStartError(f"--http {addr}: cannot listen ({exc})") from None
+
+    def _info(self, model: HitchModel, guard: Guard) -> dict:
+        cfg = self.config
+        tp = guard.planner
+        return {
+            "prefix": cfg.prefix, "profile": model.profile.name, "category": model.category,
+            "implement": cfg.implement, "control_rate": tp.rate, "state_rate": cfg.state_rate,
+            "can": {"interface": cfg.can_interface, "channel": cfg.can_channel, "simulated_ecu": cfg.simulate_ecu,
+                    "simulated_ground_speed": cfg.sim_ground_speed if cfg.simulate_ecu else None},
+            "limits": {
+                "workspace": {k: list(tp.workspace[k]) for k in CONTROLLED_POSE_NAMES},
+                "strokes": {n: [float(lo), float(hi)] for n, lo, hi in zip(ACTUATOR_NAMES, model.lower, model.upper)},
+                "actuator_velocity": dict(zip(ACTUATOR_NAMES, map(float, tp.limits.velocity))),
+                "actuator_acceleration": dict(zip(ACTUATOR_NAMES, map(float, tp.limits.acceleration))),
+            },
+            "modes": ["auto", "manual", "attach", "transport", "config"],
+        }
+
+    # ------------------------------------------------------------------ Zenoh callbacks
+    def _query_callback(self, key: str):
+        exact = self.config.key(key)
+
+        def on_query(query: zenoh.Query) -> None:
+            if str(query.key_expr) != exact:
+                # a wildcard query (e.g. 'hitch/**') reaches every queryable; answering it would run
+                # motion commands nobody asked for by name, so only exact keys are served
+                query.drop()
+                return
+            payload = b"" if query.payload is None else query.payload.to_bytes()
+            if key in INLINE_KEYS or self._pool is None:
+                self._answer(query, key, payload)
+            else:
+                try:
+                    self._pool.submit(self._answer, query, key, payload)
+                except RuntimeError:   # pool shut down: the service is closing
+                    self._answer(query, key, payload)
+        return on_query
+
+    def _answer(self, query: zenoh.Query, key: str, payload: bytes) -> None:
+        try:
+            if self.api is None or self._closed:
+                ok, reply = False, {"error": "unavailable", "message": f"{key}: the service is shutting down"}
+            else:
+                ok, reply = self.api.handle(key, payload, None)
+            data = to_json_bytes(reply)
+            if ok:
+                query.reply(query.key_expr, data, encoding=zenoh.Encoding.APPLICATION_JSON)
+            else:
+                query.reply_err(data, encoding=zenoh.Encoding.APPLICATION_JSON)
+        except Exception:   # the session closed under us: nothing left to answer to
+            pass
+        finally:
+            query.drop()
+
+    # ------------------------------------------------------------------ state and events
+    def add_listener(self, kind: str, callback: Callable[[dict], None]) -> None:
+        """In-process subscription to ``"state"`` or ``"event"`` dicts (e.g. the web terminal)."""
+        if kind not in self._listeners:
+            raise ValueError(f"kind must be 'state' or 'event', got {kind!r}")
+        self._listeners[kind].append(callback)
+
+    def remove_listener(self, kind: str, callback: Callable[[dict], None]) -> None:
+        if callback in self._listeners.get(kind, []):
+            self._listeners[kind].remove(callback)
+
+    @property
+    def latest_state(self) -> dict | None:
+        return self._latest_state
+
+    def _on_state(self, msg: dict) -> None:
+        self._latest_state = msg
+        pub = self._state_pub
+        if pub is not None and not self._closed:
+            try:
+                pub.put(to_json_bytes(msg))
+            except Exception:   # the session is closing
+                pass
+        for cb in list(self._listeners["state"]):
+            _call(cb, msg)
+
+    def _on_event(self, event: dict) -> None:
+        pub = self._event_pub
+        if pub is not None and not self._closed:
+            try:
+                pub.put(to_json_bytes(event))
+            except Exception:
+                pass
+        for cb in list(self._listeners["event"]):
+            _call(cb, event)
+
+    # ------------------------------------------------------------------ shutdown
+    def close(self) -> float:
+        """Stop motion, close Zenoh, CAN and the database; returns the time it took [s]."""
+        with self._close_lock:
+            if self._closed:
+                return self.close_duration_s or 0.0
+            t0 = time.monotonic()
+            if self.motion is not None:
+                self.motion.close()
+            self._closed = True
+            if self.http is not None:
+                _quiet(self.http.close)
+            for d in reversed(self._decls):
+                _quiet(d.undeclare)
+            self._decls.clear()
+            for p in (self._state_pub, self._event_pub):
+                if p is not None:
+                    _quiet(p.undeclare)
+            if self.session is not None:
+                _quiet(self.session.close)
+            if self._pool is not None:
+                self._pool.shutdown(wait=False, cancel_futures=True)
+            if self.link is not None:
+                now = self._runners[-1].now() if self._runners else 0.0
+                _quiet(lambda: self.link.stop(now))
+            for r in reversed(self._runners):
+                r.stop(0.5)
+            if self.link is not None:
+                _quiet(self.link.close)
+            for b in self._buses:
+                _quiet(b.shutdown)
+            if self.store is not None:
+                _quiet(self.store.close)
+            self.close_duration_s = time.monotonic() - t0
+            return self.close_duration_s
+
+    def __enter__(self) -> "HitchService":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _call(cb, arg) -> None:
+    try:
+        cb(arg)
+    except Exception:   # a listener's bug must not stop the control thread
+        pass
+
+
+def _quiet(fn) -> None:
+    try:
+        fn()
+    except Exception:
+        pass
+
+
+def serve(config: ServiceConfig, *, ready: Callable[[HitchService], None] | None = None) -> float:
+    """Run a service until SIGINT/SIGTERM; returns the shutdown time [s]."""
+    stop = threading.Event()
+    old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        service = HitchService(config).start()
+        try:
+            if ready is not None:
+                ready(service)
+            while not stop.wait(0.5):
+                if any(r.error is not None for r in service._runners):
+                    raise RuntimeError("a CAN thread stopped: " + "; ".join(
+                        repr(r.error) for r in service._runners if r.error is not None))
+        finally:
+            took = service.close()
+        return took
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)

@@ -1,0 +1,166 @@
+"""The WebSocket side of the operator terminal: fan-out of state and events, commands in (issue 9).
+
+:class:`ClientHub` lives on the web server's asyncio loop. For each page it keeps a *slot* with
+the newest state message (a slow page skips states, it never builds a backlog: what it draws is
+always the latest) and a bounded queue of events (events are not skipped unless a page falls
+200 behind). Commands ``{"id", "key", "payload"}`` are answered ``{"type": "reply", "id", "ok",
+"data"}`` through the service handler, run on a thread pool by the ``call`` coroutine the server
+hands in. Jog commands of one page are serialised: while one is in the handler only the newest
+waits (older ones are answered ``busy``), so a page holding a jog button never queues motion.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import json
+import re
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+from .settings import json_safe
+from .websocket import WebSocket
+
+__all__ = ["ClientHub", "Call", "EVENTS_KEPT", "MAX_PENDING", "API_NAME"]
+
+#: ``call(name, body_bytes) -> (ok, reply)`` on the server's loop
+Call = Callable[[str, bytes], Awaitable[tuple[bool, dict]]]
+#: events kept per page (and for pages that connect later)
+EVENTS_KEPT = 200
+#: commands of one page in the handler at once; more are answered ``busy``
+MAX_PENDING = 32
+#: a service API name: ``goto``, ``presets/save`` …
+API_NAME = re.compile(r"^[a-z]+(/[a-z]+)?$")
+
+
+class _Client:
+    """One page: the newest state (a slot), pending events, jog serialisation, running tasks."""
+
+    def __init__(self, ws: WebSocket, state: str | None):
+        self.ws = ws
+        self.state = state
+        self.events: collections.deque[str] = collections.deque(maxlen=EVENTS_KEPT)
+        self.wake = asyncio.Event()
+        self.jog_busy = False
+        self.jog_next: tuple[Any, bytes] | None = None
+        self.tasks: set[asyncio.Task] = set()
+        if state is not None:
+            self.wake.set()
+
+
+class ClientHub:
+    """All connected pages of one web server (use from its event loop only)."""
+
+    def __init__(self, call: Call, hello: dict):
+        self._call = call
+        self.hello = hello
+        self._clients: set[_Client] = set()
+        self.state_text: str | None = None
+
+    def __len__(self) -> int:
+        return len(self._clients)
+
+    # ------------------------------------------------------------------ fan-out
+    def state(self, state: dict) -> None:
+        """A new state message for every page (encoded once)."""
+        self.state_text = json.dumps({"type": "state", "data": json_safe(state)}, allow_nan=False)
+        for c in self._clients:
+            c.state = self.state_text
+            c.wake.set()
+
+    def event(self, event: dict) -> None:
+        text = json.dumps({"type": "event", "data": json_safe(event)}, allow_nan=False)
+        for c in self._clients:
+            c.events.append(text)
+            c.wake.set()
+
+    async def close_all(self, code: int = 1001, reason: str = "service shutting down") -> None:
+        for c in list(self._clients):
+            await c.ws.close(code, reason)
+            c.wake.set()
+
+    # ------------------------------------------------------------------ one page
+    async def serve(self, ws: WebSocket) -> None:
+        """Run one page's session until its WebSocket closes."""
+        client = _Client(ws, self.state_text)
+        self._clients.add(client)
+        sender = asyncio.create_task(self._sender(client))
+        try:
+            await ws.send_text(json.dumps({"type": "hello", "data": json_safe(self.hello)}, allow_nan=False))
+            while True:
+                msg = await ws.recv()
+                if msg is None:
+                    break
+                if len(client.tasks) >= MAX_PENDING:
+                    await self._reply(client, None, False, {"error": "busy", "message": f"more than {MAX_PENDING} "
+                                                                                       "commands of this page pending"})
+                    continue
+                task = asyncio.create_task(self._command(client, msg))
+                client.tasks.add(task)
+                task.add_done_callback(client.tasks.discard)
+        except (ConnectionError, OSError):
+            pass
+        finally:
+            self._clients.discard(client)
+            client.wake.set()
+            await ws.close(1000)
+            sender.cancel()
+
+    async def _sender(self, c: _Client) -> None:
+        try:
+            while not c.ws.closed:
+                await c.wake.wait()
+                c.wake.clear()
+                while c.events:
+                    await c.ws.send_text(c.events.popleft())
+                if c.state is not None:
+                    text, c.state = c.state, None
+                    await c.ws.send_text(text)
+        except (ConnectionError, OSError, asyncio.CancelledError):
+            return
+
+    async def _command(self, c: _Client, msg: str | bytes) -> None:
+        rid = None
+        try:
+            data = json.loads(msg)
+            if not isinstance(data, dict):
+                raise ValueError("a command is a JSON object {id, key, payload}")
+            rid, key, payload = data.get("id"), data.get("key"), data.get("payload", {})
+            if rid is not None and (isinstance(rid, bool) or not isinstance(rid, (int, str))):
+                rid = None
+                raise ValueError("id must be an integer or a string")
+            if not isinstance(key, str) or not API_NAME.match(key):
+                raise ValueError(f"key must be a service API name such as 'goto', got {key!r}")
+            body = json.dumps(payload, allow_nan=False).encode("utf-8")
+        except (ValueError, TypeError, RecursionError) as exc:
+            await self._reply(c, rid, False, {"error": "bad_request", "message": f"websocket command: {exc}"})
+            return
+        if key == "jog":
+            await self._jog(c, rid, body)
+            return
+        ok, reply = await self._call(key, body)
+        await self._reply(c, rid, ok, reply)
+
+    async def _jog(self, c: _Client, rid, body: bytes) -> None:
+        if c.jog_busy:
+            if c.jog_next is not None:   # superseded before it ran: answer it so the page is not left waiting
+                await self._reply(c, c.jog_next[0], False,
+                                  {"error": "busy", "message": "jog: superseded by a newer jog command"})
+            c.jog_next = (rid, body)
+            return
+        c.jog_busy = True
+        try:
+            nxt: tuple[Any, bytes] | None = (rid, body)
+            while nxt is not None:
+                ok, reply = await self._call("jog", nxt[1])
+                await self._reply(c, nxt[0], ok, reply)
+                nxt, c.jog_next = c.jog_next, None
+        finally:
+            c.jog_busy = False
+
+    async def _reply(self, c: _Client, rid, ok: bool, reply: dict) -> None:
+        try:
+            await c.ws.send_text(json.dumps({"type": "reply", "id": rid, "ok": ok, "data": json_safe(reply)},
+                                            allow_nan=False))
+        except (ConnectionError, OSError):
+            pass

@@ -1,0 +1,376 @@
+"""The operator terminal's HTTP + WebSocket server (issue 9), run inside the service process.
+
+One asyncio loop in its own thread serves:
+
+* ``GET /`` and the page's static files (``index.html``, ``app.js``, ``style.css``);
+* ``POST /api/<name>`` with a JSON body — ``<name>`` is a service API name (``goto``,
+  ``presets/save`` …). The body goes **unchanged** to the service's handler
+  ``handle(name, body_bytes, user) -> (ok, reply)`` (:meth:`bridge.service.api.ServiceAPI.handle`,
+  the function the Zenoh queryables call), so validation, precedence and access control are the
+  service's own. ``ok`` → 200 with the reply; otherwise the reply ``{"error", "message"}`` with
+  the status from :data:`~.settings.ERROR_STATUS`;
+* ``GET /api/state`` — the latest state message; ``GET /api/info`` — user and key prefix;
+* ``GET /ws`` — a WebSocket (:class:`~.hub.ClientHub`): every state message the service
+  publishes (50 Hz; a slow page gets the newest, never a backlog), every event, and command
+  replies.
+
+The state reaches the server through :meth:`WebServer.publish_state` /
+:meth:`WebServer.publish_event` (thread-safe, never blocking). :func:`start_http` connects them
+to the service's in-process listeners (``service.add_listener``), which receive the very dicts
+the service puts on ``<prefix>/state`` and ``<prefix>/events``; :func:`attach_zenoh` does the
+same from the Zenoh publications for a server outside the service process.
+
+Security: loopback unless another address is configured; requests whose ``Host`` is not this
+server (DNS rebinding) or whose ``Origin`` is another site (CSRF, cross-site WebSocket) are
+refused; commands run as the configured ``user`` and the service's access policy refuses them
+the way it refuses that user over Zenoh.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import threading
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+from .http import HttpError, HttpRequest, json_response, read_request, response_bytes
+from .hub import API_NAME, ClientHub
+from .settings import ERROR_STATUS, WebSettings, host_allowed, json_safe, origin_allowed, parse_address
+from .websocket import WebSocket, WebSocketError, accept_key
+
+__all__ = ["WebServer", "Handler", "attach_zenoh", "start_http"]
+
+log = logging.getLogger("hitch.web")
+
+#: ``handle(name, payload_bytes, user) -> (ok, reply)`` — the service API's one entry point
+Handler = Callable[[str, bytes, "str | None"], "tuple[bool, dict]"]
+_STATIC = {"/": "index.html", "/index.html": "index.html", "/app.js": "app.js", "/style.css": "style.css"}
+_TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8",
+          ".css": "text/css; charset=utf-8"}
+_CSP = ("default-src 'self'; script-src 'self'; style-src 'self'; img-src 'self' data:; "
+        "connect-src 'self'; frame-ancestors 'none'; base-uri 'none'; form-action 'none'")
+
+
+def _error(status: int, code: str, message: str, keep_alive: bool = True) -> bytes:
+    return json_response(status, {"error": code, "message": message}, keep_alive=keep_alive)
+
+
+class WebServer:
+    """HTTP + WebSocket front end of one service; see the module docstring.
+
+    Args:
+        handler: the service API handler (:data:`Handler`), called on a worker thread.
+        settings: address, user, static files (:class:`~.settings.WebSettings`).
+        info: extra fields for ``GET /api/info`` and the WebSocket hello (e.g. the key prefix).
+    """
+
+    def __init__(self, handler: Handler, settings: WebSettings | None = None, *, info: dict | None = None):
+        if not callable(handler):
+            raise ValueError("handler must be callable as handle(name, payload_bytes, user)")
+        self.handler = handler
+        self.settings = settings or WebSettings()
+        self.info = {"user": self.settings.user, **(info or {})}
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._server: asyncio.base_events.Server | None = None
+        self._thread: threading.Thread | None = None
+        self._pool = ThreadPoolExecutor(self.settings.workers, thread_name_prefix="hitch-web")
+        self._hub = ClientHub(self._call, self.info)
+        self._writers: set[asyncio.StreamWriter] = set()
+        self._state: dict | None = None
+        self._address: tuple[str, int] | None = None
+        self._on_close: list[Callable[[], None]] = []
+        self.counts = {"state": 0, "events": 0, "requests": 0}
+
+    # ------------------------------------------------------------------ life cycle
+    def start(self, timeout_s: float = 5.0) -> "WebServer":
+        """Bind and serve in a background thread; raises OSError if the address cannot be bound."""
+        if self._thread is not None:
+            raise RuntimeError("web server already started")
+        ready = threading.Event()
+        failure: list[BaseException] = []
+
+        def run() -> None:
+            loop = asyncio.new_event_loop()
+            try:
+                self._server = loop.run_until_complete(asyncio.start_server(
+                    self._connection, self.settings.host, self.settings.port, limit=64 * 1024))
+                self._address = tuple(self._server.sockets[0].getsockname()[:2])
+            except BaseException as exc:  # noqa: BLE001 — handed to the starting thread
+                failure.append(exc)
+                loop.close()
+                ready.set()
+                return
+            self._loop = loop
+            ready.set()
+            try:
+                loop.run_forever()
+            finally:
+                for task in asyncio.all_tasks(loop):
+                    task.cancel()
+                loop.run_until_complete(asyncio.sleep(0))
+                loop.close()
+
+        self._thread = threading.Thread(target=run, name="hitch-web-loop", daemon=True)
+        self._thread.start()
+        if not ready.wait(timeout_s):
+            where = f"{self.settings.host}:{self.settings.port}"
+            raise TimeoutError(f"web server did not bind {where} within {timeout_s} s")
+        if failure:
+            self._thread = None
+            raise failure[0]
+        if not self.settings.loopback:
+            log.warning("operator terminal listens on %s (not loopback): anyone on that network can open it", self.url)
+        return self
+
+    @property
+    def address(self) -> tuple[str, int]:
+        """(host, port) actually bound (port 0 → the chosen port)."""
+        if self._address is None:
+            raise RuntimeError("web server not started")
+        return self._address
+
+    @property
+    def url(self) -> str:
+        host, port = self.address
+        return f"http://[{host}]:{port}/" if ":" in host else f"http://{host}:{port}/"
+
+    def close(self, timeout_s: float = 1.0) -> None:
+        """Close every page's WebSocket (1001 'going away') and connection, stop listening, end the thread."""
+        for undo in self._on_close:
+            try:
+                undo()
+            except Exception:  # noqa: BLE001 — best effort at shutdown
+                pass
+        self._on_close.clear()
+        loop, thread = self._loop, self._thread
+        if loop is None or thread is None or loop.is_closed():
+            return
+
+        async def shutdown() -> None:
+            if self._server is not None:
+                self._server.close()
+            await self._hub.close_all(1001, "service shutting down")
+            for w in list(self._writers):
+                w.close()
+
+        try:
+            asyncio.run_coroutine_threadsafe(shutdown(), loop).result(timeout_s)
+        except Exception:  # noqa: BLE001 — best effort at shutdown
+            pass
+        try:
+            loop.call_soon_threadsafe(loop.stop)
+        except RuntimeError:
+            pass
+        thread.join(timeout_s)
+        self._thread = None
+        self._pool.shutdown(wait=False, cancel_futures=True)
+
+    def add_close_hook(self, fn: Callable[[], None]) -> None:
+        """Call ``fn()`` first thing in :meth:`close` (e.g. to remove a state listener)."""
+        self._on_close.append(fn)
+
+    def __enter__(self) -> "WebServer":
+        return self.start() if self._thread is None else self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ feed (any thread)
+    def _post(self, fn, arg) -> None:
+        loop = self._loop
+        if loop is not None and not loop.is_closed():
+            try:
+                loop.call_soon_threadsafe(fn, arg)
+            except RuntimeError:   # the loop closed between the check and the call
+                pass
+
+    def publish_state(self, state: dict) -> None:
+        """Hand one ``<prefix>/state`` message (a dict) to every page; thread-safe, never blocks."""
+        self._post(self._on_state, state)
+
+    def publish_event(self, event: dict) -> None:
+        """Hand one ``<prefix>/events`` message to every page; thread-safe, never blocks."""
+        self._post(self._on_event, event)
+
+    def _on_state(self, state: dict) -> None:
+        self._state = state
+        self.counts["state"] += 1
+        self._hub.state(state)
+
+    def _on_event(self, event: dict) -> None:
+        self.counts["events"] += 1
+        self._hub.event(event)
+
+    # ------------------------------------------------------------------ HTTP
+    async def _connection(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        self._writers.add(writer)
+        try:
+            while True:
+                try:
+                    req = await read_request(reader)
+                except HttpError as exc:
+                    writer.write(_error(exc.status, exc.code, str(exc), keep_alive=False))
+                    await writer.drain()
+                    return
+                if req is None:
+                    return
+                self.counts["requests"] += 1
+                if req.path == "/ws" and req.header("upgrade").lower() == "websocket":
+                    await self._websocket(req, reader, writer)
+                    return
+                writer.write(await self._respond(req))
+                await writer.drain()
+                if not req.keep_alive:
+                    return
+        except (ConnectionError, OSError, asyncio.IncompleteReadError):
+            return
+        finally:
+            self._writers.discard(writer)
+            try:
+                writer.close()
+            except (ConnectionError, OSError, RuntimeError):
+                pass
+
+    def _check(self, req: HttpRequest) -> bytes | None:
+        """The refusal for a request from elsewhere, or None."""
+        if not host_allowed(req.header("host"), self.address, self.settings):
+            return _error(421, "forbidden", f"Host {req.header('host')!r} is not this server (DNS rebinding "
+                                            "protection); add it to the terminal's extra hosts", req.keep_alive)
+        if not origin_allowed(req.header("origin"), req.header("host")):
+            return _error(403, "forbidden", f"Origin {req.header('origin')!r} may not use this terminal "
+                                            "(cross-site request)", req.keep_alive)
+        return None
+
+    async def _respond(self, req: HttpRequest) -> bytes:
+        ka = req.keep_alive
+        refusal = self._check(req)
+        if refusal is not None:
+            return refusal
+        if req.path in _STATIC:
+            if req.method not in ("GET", "HEAD"):
+                return _error(405, "bad_request", f"{req.method} is not allowed on {req.path}", ka)
+            name = _STATIC[req.path]
+            try:
+                body = (self.settings.static_dir / name).read_bytes()
+            except OSError:
+                return _error(404, "not_found", f"{name} is missing from {self.settings.static_dir}", ka)
+            return response_bytes(200, body, _TYPES[Path(name).suffix], headers={"Content-Security-Policy": _CSP},
+                                  keep_alive=ka, head_only=req.method == "HEAD")
+        if req.path == "/favicon.ico":
+            return response_bytes(204, keep_alive=ka)
+        if req.path == "/api/state" and req.method == "GET":
+            if self._state is None:
+                return _error(503, "unavailable", "the service has published no state yet", ka)
+            return json_response(200, json_safe(self._state), keep_alive=ka)
+        if req.path == "/api/info" and req.method == "GET":
+            return json_response(200, json_safe(self.info), keep_alive=ka)
+        if not req.path.startswith("/api/"):
+            return _error(404, "not_found", f"nothing at {req.path!r}", ka)
+        name = req.path[len("/api/"):]
+        if not API_NAME.match(name):
+            return _error(404, "unknown_key", f"unknown API path {req.path!r}", ka)
+        if req.method != "POST":
+            return _error(405, "bad_request", f"use POST for /api/{name}", ka)
+        ctype = req.header("content-type").split(";")[0].strip().lower()
+        if req.body and ctype != "application/json":
+            return _error(415, "bad_request", "send the request body with Content-Type: application/json", ka)
+        ok, reply = await self._call(name, req.body)
+        status = 200 if ok else ERROR_STATUS.get(str(reply.get("error")), 400)
+        return json_response(status, json_safe(reply), keep_alive=ka)
+
+    async def _call(self, name: str, body: bytes) -> tuple[bool, dict]:
+        """The service handler on a worker thread (it may plan for tens of milliseconds)."""
+        loop = asyncio.get_running_loop()
+        try:
+            ok, reply = await loop.run_in_executor(self._pool, self.handler, name, body, self.settings.user)
+        except Exception as exc:  # noqa: BLE001 — the handler promises not to raise; never trust it blindly
+            log.exception("handler raised for %s", name)
+            return False, {"error": "internal", "message": f"{name}: internal error {type(exc).__name__}"}
+        if not isinstance(reply, dict):
+            return False, {"error": "internal", "message": f"{name}: handler returned {type(reply).__name__}"}
+        return bool(ok), reply
+
+    # ------------------------------------------------------------------ WebSocket
+    async def _websocket(self, req: HttpRequest, reader, writer) -> None:
+        refusal = self._check(req)
+        try:
+            if refusal is None and (req.method != "GET" or req.header("sec-websocket-version") != "13"):
+                raise WebSocketError("a WebSocket needs GET with Sec-WebSocket-Version: 13")
+            accept = accept_key(req.header("sec-websocket-key")) if refusal is None else ""
+        except WebSocketError as exc:
+            refusal = _error(400, "bad_request", str(exc), keep_alive=False)
+        if refusal is not None:
+            writer.write(refusal)
+            await writer.drain()
+            return
+        writer.write(("HTTP/1.1 101 Switching Protocols\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+                      f"Sec-WebSocket-Accept: {accept}\r\n\r\n").encode("ascii"))
+        await writer.drain()
+        await self._hub.serve(WebSocket(reader, writer))
+
+
+def attach_zenoh(session: Any, prefix: str, server: WebServer) -> tuple[Any, Any]:
+    """Feed ``server`` from ``<prefix>/state`` and ``<prefix>/events`` on a Zenoh session.
+
+    For a terminal outside the service process. Returns the two subscribers (undeclare them, or
+    close the session, to stop). Samples that are not JSON objects are dropped.
+    """
+    def forward(publish: Callable[[dict], None]):
+        def cb(sample) -> None:
+            try:
+                data = json.loads(sample.payload.to_bytes())
+            except (ValueError, AttributeError):
+                return
+            if isinstance(data, dict):
+                publish(data)
+        return cb
+
+    return (session.declare_subscriber(f"{prefix}/state", forward(server.publish_state)),
+            session.declare_subscriber(f"{prefix}/events", forward(server.publish_event)))
+
+
+def start_http(service: Any, addr: str = "127.0.0.1:8080", *, user: str | None = None,
+               extra_hosts: tuple[str, ...] = ()) -> WebServer:
+    """Start the operator terminal of a running :class:`bridge.service.server.HitchService`.
+
+    Commands go to ``service.api.handle``; state and events come from
+    ``service.add_listener("state" | "event", …)`` (the dicts the service publishes on Zenoh),
+    or, without it, from the Zenoh publications through ``service.session`` (:func:`attach_zenoh`).
+    When the service's API has an access policy, ``user`` must name the user the page's commands
+    run as (ValueError otherwise: the page never bypasses the policy). Returns the started
+    :class:`WebServer`; ``close()`` it before the service.
+    """
+    api = getattr(service, "api", None) or service
+    handler = getattr(api, "handle", None)
+    if not callable(handler):
+        raise ValueError("service has no API handler (expected service.api.handle(key, payload, user))")
+    if getattr(api, "policy", None) is not None and user is None:
+        raise ValueError("http_user: the service has an access policy; name the user the page's commands run as "
+                         "(an operator to move the hitch, a viewer to watch)")
+    host, port = parse_address(addr)
+    config = getattr(service, "config", None)
+    if getattr(config, "security", None) is not None and getattr(api, "policy", None) is None:
+        log.warning("the service runs with a Zenoh security config but its API has no access policy: the "
+                    "operator terminal's commands are not checked against the access-control list")
+    prefix = getattr(config, "prefix", None)
+    server = WebServer(handler, WebSettings(host=host, port=port, user=user, extra_hosts=tuple(extra_hosts)),
+                       info={"prefix": prefix}).start()
+    try:
+        if callable(getattr(service, "add_listener", None)):
+            for kind, fn in (("state", server.publish_state), ("event", server.publish_event)):
+                service.add_listener(kind, fn)
+                if callable(getattr(service, "remove_listener", None)):
+                    server.add_close_hook(lambda kind=kind, fn=fn: service.remove_listener(kind, fn))
+        elif getattr(service, "session", None) is not None and prefix is not None:
+            for sub in attach_zenoh(service.session, prefix, server):
+                server.add_close_hook(sub.undeclare)
+        else:
+            raise ValueError("service offers neither add_listener() nor a Zenoh session: the page would show no state")
+    except Exception:
+        server.close()
+        raise
+    return server

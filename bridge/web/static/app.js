@@ -1,0 +1,635 @@
+// Hitch terminal: the operator page of the hitch service (issue 9). Plain ES2020, no build step.
+//
+// Everything shown comes from the service: `state` messages (what <prefix>/state publishes, 50 Hz)
+// and `event` messages over one WebSocket; every command goes to the service's own API handler
+// (`{id, key, payload}` → `{type: "reply", id, ok, data}`). The page keeps no state of its own
+// except what it draws, the held jog buttons and the jog speed.
+//
+// Units: the API is SI (m, rad, s). The page shows and takes mm and mrad (the thesis's units on
+// the terminal); conversions happen only in `show*` and in the goto form, named `_mm` / `_mrad`.
+"use strict";
+
+(() => {
+  const JOG_PERIOD_MS = 80;        // resend period while a jog button or key is held
+  const JOG_TTL_MS = 250;          // the service stops the jog this long after the last command
+  const JOG_MAX = { x: 0.05, z: 0.15, roll: 0.15, pitch: 0.15 };   // m/s, rad/s at 100 % jog speed
+  const STATE_STALE_MS = 500;      // no state for this long: the service is not publishing
+  const REQUEST_TIMEOUT_MS = 15000;
+  const KIN_CAUTION_S = 2.0, KIN_DANGER_S = 0.5;   // page colours for the kinematic margin (assumed)
+  const DOFS = ["x", "z", "roll", "pitch"];
+  const KEYS = { ArrowLeft: ["x", 1], ArrowRight: ["x", -1], ArrowUp: ["z", 1], ArrowDown: ["z", -1],
+    KeyD: ["roll", 1], KeyA: ["roll", -1], KeyW: ["pitch", 1], KeyS: ["pitch", -1] };
+  const MODE_NAMES = { auto: "Automatic", attach: "Implement attach", manual: "Manual", transport: "Transport",
+    config: "Configuration" };
+  const HELP = {
+    main: ["The main screen: live pose (x, z bars; roll, pitch needles), actuator strokes, margins and the commands.",
+      "Pick an operating mode at the top. STOP (or Esc / Space) stops any motion from any mode."],
+    auto: ["Cartesian control of the implement: jog x, z, roll and pitch while a button or key is held, go to a pose, recall presets, run maneuvers.",
+      "Near a workspace face the motion towards it stops and “Control limited” names the limit; motion away from it stays free.",
+      "Keys: ← → lateral x, ↑ ↓ height z, A D roll, S W pitch. Esc or Space: STOP."],
+    attach: ["Implement attach: slow jog only (a quarter of the normal speed) for hitching an implement; goto, presets and maneuvers are refused.",
+      "Stay clear of the lower links. Release the button to stop."],
+    manual: ["Manual: the service moves nothing; each cylinder is run from the tractor's own controls with only its per-cylinder limits.",
+      "Risky with an implement attached. Switch back to Automatic for Cartesian control."],
+    transport: ["Transport: the hitch is held for road travel; all motion is refused. STOP stays available."],
+    config: ["Configuration: the service's settings (profile, implement category, limits, control rate) are shown below; they are changed in the service's config file and take effect at its next start.",
+      "The jog speed slider on the Jog tab is this page's joystick sensitivity. No motion in this mode."],
+  };
+  const $ = (sel) => document.querySelector(sel);
+  const $$ = (sel) => Array.from(document.querySelectorAll(sel));
+  const svgNS = "http://www.w3.org/2000/svg";
+
+  const ui = {
+    config: null, state: null, lastStateMs: 0, drawn: true, frames: 0, rate: 0,
+    presets: [], maneuvers: [], maneuverSteps: {}, connected: false, closedReason: "",
+  };
+
+  // ------------------------------------------------------------------ formatting
+  const fmt = (v, digits = 0) => (v === null || v === undefined || !Number.isFinite(v)) ? "—" : v.toFixed(digits);
+  const show_mm = (m) => `${fmt(m * 1000, 1)} mm`;
+  const show_mrad = (rad) => `${fmt(rad * 1000, 1)} mrad`;
+  const showDof = (k, v) => (k === "x" || k === "z") ? show_mm(v) : show_mrad(v);
+  const showActuator = (n, v) => n === "lift" ? show_mrad(v) : show_mm(v);
+
+  function log(text, isError = false) {
+    const f = $("#log");
+    f.textContent = `${new Date().toLocaleTimeString()}  ${text}`;
+    f.classList.toggle("err", isError);
+  }
+
+  // ------------------------------------------------------------------ connection
+  class Link {
+    constructor() { this.ws = null; this.nextId = 1; this.pending = new Map(); this.retryMs = 500; }
+
+    connect() {
+      const ws = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`);
+      this.ws = ws;
+      ws.onopen = () => { this.retryMs = 500; ui.connected = true; ui.closedReason = ""; onConnected(); };
+      ws.onmessage = (ev) => this.dispatch(ev.data);
+      ws.onclose = (ev) => {
+        ui.connected = false;
+        ui.closedReason = ev.code === 1001 ? "the hitch service stopped" : "the connection to the hitch service was lost";
+        for (const [, p] of this.pending) p.resolve({ ok: false, data: { error: "disconnected", message: "not connected to the service" } });
+        this.pending.clear();
+        jog.releaseAll();
+        renderConnection();
+        setTimeout(() => this.connect(), this.retryMs);
+        this.retryMs = Math.min(this.retryMs * 2, 4000);
+      };
+    }
+
+    dispatch(text) {
+      let msg;
+      try { msg = JSON.parse(text); } catch (e) { return; }
+      if (msg.type === "state") onState(msg.data);
+      else if (msg.type === "event") onEvent(msg.data);
+      else if (msg.type === "hello") ui.hello = msg.data;
+      else if (msg.type === "reply") {
+        const p = this.pending.get(msg.id);
+        if (p) { this.pending.delete(msg.id); clearTimeout(p.timer); p.resolve({ ok: msg.ok, data: msg.data || {} }); }
+      }
+    }
+
+    // One API call: resolves {ok, data}; never rejects.
+    request(key, payload = {}) {
+      if (!this.ws || this.ws.readyState !== WebSocket.OPEN) {
+        return Promise.resolve({ ok: false, data: { error: "disconnected", message: `${key}: not connected to the service` } });
+      }
+      const id = this.nextId++;
+      return new Promise((resolve) => {
+        const timer = setTimeout(() => {
+          this.pending.delete(id);
+          resolve({ ok: false, data: { error: "timeout", message: `${key}: no answer within ${REQUEST_TIMEOUT_MS / 1000} s` } });
+        }, REQUEST_TIMEOUT_MS);
+        this.pending.set(id, { resolve, timer });
+        this.ws.send(JSON.stringify({ id, key, payload }));
+      });
+    }
+  }
+  const link = new Link();
+
+  async function call(key, payload, quiet = false) {
+    const r = await link.request(key, payload);
+    if (!r.ok && !quiet) log(r.data.message || `${key}: ${r.data.error}`, true);
+    return r;
+  }
+
+  async function onConnected() {
+    renderConnection();
+    const r = await call("config", {});
+    if (r.ok) { ui.config = r.data; buildGauges(); renderConfig(); }
+    refreshPresets();
+    refreshManeuvers();
+  }
+
+  // ------------------------------------------------------------------ gauges (SVG, built once per config)
+  function el(parent, name, attrs = {}, text) {
+    const e = document.createElementNS(svgNS, name);
+    for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v);
+    if (text !== undefined) e.textContent = text;
+    parent.appendChild(e);
+    return e;
+  }
+
+  // A linear bar: value → pixel along the track; `flip` puts the positive end on the left/top.
+  function buildBar(svg, dof, vertical) {
+    svg.textContent = "";
+    const [lo, hi] = ui.config.limits.workspace[dof];
+    const pad = 0.15 * (hi - lo), a = Math.min(lo, 0) - pad, b = Math.max(hi, 0) + pad;
+    const len = vertical ? 170 : 200, off = vertical ? 15 : 10;
+    // vertical: +z up; horizontal: +x (driver's left) on the left
+    const pos = (v) => off + (b - Math.max(a, Math.min(b, v))) / (b - a) * len;
+    const g = { pos, lo, hi, vertical };
+    if (vertical) {
+      el(svg, "rect", { class: "track", x: 26, y: off, width: 28, height: len });
+      g.fill = el(svg, "rect", { class: "fill", x: 28, width: 24 });
+      el(svg, "line", { class: "zero", x1: 20, x2: 60, y1: pos(0), y2: pos(0) });
+      for (const v of [lo, hi]) el(svg, "line", { class: "limit", x1: 20, x2: 60, y1: pos(v), y2: pos(v) });
+      g.target = el(svg, "path", { class: "target", d: "M0,0 l-9,-6 v12 z" });
+      el(svg, "text", { x: 2, y: 10 }, "z");
+      el(svg, "text", { x: 62, y: pos(hi) + 4, class: "dim" }, `${fmt(hi * 1000)}`);
+      el(svg, "text", { x: 62, y: pos(0) + 4, class: "dim" }, "0");
+      el(svg, "text", { x: 62, y: pos(lo) + 4, class: "dim" }, `${fmt(lo * 1000)}`);
+      el(svg, "text", { x: 62, y: 196, class: "dim" }, "mm");
+    } else {
+      el(svg, "rect", { class: "track", x: off, y: 24, width: len, height: 22 });
+      g.fill = el(svg, "rect", { class: "fill", y: 26, height: 18 });
+      el(svg, "line", { class: "zero", y1: 20, y2: 52, x1: pos(0), x2: pos(0) });
+      for (const v of [lo, hi]) el(svg, "line", { class: "limit", y1: 20, y2: 52, x1: pos(v), x2: pos(v) });
+      g.target = el(svg, "path", { class: "target", d: "M0,0 l-6,-8 h12 z" });
+      el(svg, "text", { x: off, y: 10 }, "x   ◀ left");
+      el(svg, "text", { x: off + len, y: 10, "text-anchor": "end" }, "right ▶");
+      el(svg, "text", { x: pos(hi), y: 64, class: "dim", "text-anchor": "middle" }, `${fmt(hi * 1000)}`);
+      el(svg, "text", { x: pos(0), y: 64, class: "dim", "text-anchor": "middle" }, "0");
+      el(svg, "text", { x: pos(lo), y: 64, class: "dim", "text-anchor": "middle" }, `${fmt(lo * 1000)} mm`);
+    }
+    return g;
+  }
+
+  function drawBar(g, v, target) {
+    if (!g) return;
+    const p0 = g.pos(0), p = g.pos(Number.isFinite(v) ? v : 0);
+    const span = g.hi - g.lo, near = Math.min(g.hi - v, v - g.lo) / span;
+    g.fill.setAttribute("class", `fill ${near <= 0.005 ? "danger" : near < 0.08 ? "caution" : ""}`);
+    if (g.vertical) { g.fill.setAttribute("y", Math.min(p0, p)); g.fill.setAttribute("height", Math.abs(p - p0)); }
+    else { g.fill.setAttribute("x", Math.min(p0, p)); g.fill.setAttribute("width", Math.abs(p - p0)); }
+    const show = Number.isFinite(target);
+    g.target.style.display = show ? "" : "none";
+    if (show) g.target.setAttribute("transform", g.vertical ? `translate(24,${g.pos(target)})` : `translate(${g.pos(target)},22)`);
+  }
+
+  // A needle dial over ±range (range = 1.3 × the larger limit); 0 points up.
+  function buildDial(svg, dof) {
+    svg.textContent = "";
+    const [lo, hi] = ui.config.limits.workspace[dof];
+    const range = 1.3 * Math.max(Math.abs(lo), Math.abs(hi), 1e-3);
+    const cx = 60, cy = 66, r = 48;
+    const ang = (v) => Math.max(-100, Math.min(100, v / range * 90)) * Math.PI / 180;
+    const pt = (v, rr) => [cx + rr * Math.sin(ang(v)), cy - rr * Math.cos(ang(v))];
+    const arc = (v0, v1) => { const [x0, y0] = pt(v0, r), [x1, y1] = pt(v1, r); return `M${x0},${y0} A${r},${r} 0 0 1 ${x1},${y1}`; };
+    el(svg, "path", { class: "arc", d: arc(-range, range) });
+    el(svg, "path", { class: "arc-ok", d: arc(lo, hi) });
+    for (const v of [lo, hi]) { const [x0, y0] = pt(v, r - 9), [x1, y1] = pt(v, r + 9); el(svg, "line", { class: "limit", x1: x0, y1: y0, x2: x1, y2: y1 }); }
+    const g = { ang, cx, cy, r, lo, hi };
+    g.target = el(svg, "line", { class: "target", x1: cx, y1: cy - r + 6, x2: cx, y2: cy - r - 8 });
+    g.needle = el(svg, "line", { class: "needle", x1: cx, y1: cy, x2: cx, y2: cy - r + 4 });
+    el(svg, "circle", { cx, cy, r: 5, fill: "#e8edf2" });
+    el(svg, "text", { x: 2, y: 12 }, dof);
+    g.label = el(svg, "text", { x: cx, y: 82, "text-anchor": "middle" }, "—");
+    return g;
+  }
+
+  function drawDial(g, v, target) {
+    if (!g) return;
+    const deg = (x) => g.ang(x) * 180 / Math.PI;
+    g.needle.setAttribute("transform", `rotate(${deg(Number.isFinite(v) ? v : 0)} ${g.cx} ${g.cy})`);
+    g.needle.setAttribute("class", `needle ${v <= g.lo + 1e-4 || v >= g.hi - 1e-4 ? "danger" : ""}`);
+    const show = Number.isFinite(target);
+    g.target.style.display = show ? "" : "none";
+    if (show) g.target.setAttribute("transform", `rotate(${deg(target)} ${g.cx} ${g.cy})`);
+    g.label.textContent = show_mrad(v);
+  }
+
+  const gauges = {};
+  function buildGauges() {
+    gauges.x = buildBar($("#g-x"), "x", false);
+    gauges.z = buildBar($("#g-z"), "z", true);
+    gauges.roll = buildDial($("#g-roll"), "roll");
+    gauges.pitch = buildDial($("#g-pitch"), "pitch");
+    const box = $("#actuators");
+    box.textContent = "";
+    gauges.act = {};
+    for (const [n, [lo, hi]] of Object.entries(ui.config.limits.strokes)) {
+      const row = document.createElement("div");
+      row.className = "act";
+      row.id = `act-${n}`;
+      row.innerHTML = `<span class="name">${n}</span><span class="barwrap"><span class="barfill"></span><span class="ref"></span>` +
+        `<span class="lo">${showActuator(n, lo)}</span><span class="hi">${showActuator(n, hi)}</span></span><span class="val">—</span>`;
+      box.appendChild(row);
+      gauges.act[n] = { lo, hi, fill: row.querySelector(".barfill"), ref: row.querySelector(".ref"), val: row.querySelector(".val") };
+    }
+  }
+
+  // ------------------------------------------------------------------ state → screen
+  function onState(s) {
+    ui.state = s;
+    ui.lastStateMs = performance.now();
+    ui.drawn = false;
+    requestAnimationFrame(draw);
+  }
+
+  function draw() {
+    if (ui.drawn || !ui.state) return;
+    ui.drawn = true;
+    ui.frames += 1;
+    const s = ui.state, pose = s.pose || {}, ref = (s.reference && s.reference.pose) || {};
+    if (ui.config) {
+      drawBar(gauges.x, pose.x, ref.x);
+      drawBar(gauges.z, pose.z, ref.z);
+      drawDial(gauges.roll, pose.roll, ref.roll);
+      drawDial(gauges.pitch, pose.pitch, ref.pitch);
+      drawActuators(s);
+    }
+    for (const k of DOFS) $(`#r-${k}`).textContent = showDof(k, pose[k]);
+    drawLimited(s.limited || {});
+    drawMargins(s);
+    drawModeAndMotion(s);
+    renderConnection();
+  }
+
+  function drawActuators(s) {
+    const q = s.actuators || {}, qr = (s.reference && s.reference.actuators) || {};
+    for (const [n, g] of Object.entries(gauges.act || {})) {
+      const v = q[n], frac = (v - g.lo) / (g.hi - g.lo);
+      const f = Math.max(0, Math.min(1, Number.isFinite(frac) ? frac : 0));
+      g.fill.style.width = `${(100 * f).toFixed(1)}%`;
+      const edge = Math.min(f, 1 - f);
+      g.fill.className = `barfill ${edge <= 0.01 ? "danger" : edge < 0.05 ? "caution" : ""}`;
+      const rf = (qr[n] - g.lo) / (g.hi - g.lo);
+      g.ref.style.display = Number.isFinite(rf) ? "" : "none";
+      if (Number.isFinite(rf)) g.ref.style.left = `calc(${(100 * Math.max(0, Math.min(1, rf))).toFixed(1)}% - 1px)`;
+      g.val.textContent = showActuator(n, v);
+    }
+  }
+
+  function drawLimited(limited) {
+    const entries = Object.entries(limited);
+    const box = $("#limited");
+    box.classList.toggle("hidden", entries.length === 0);
+    if (entries.length) {
+      box.textContent = "Control limited: " + entries.map(([k, v]) => {
+        const name = String(v);
+        return name.includes(":") && !name.includes(" ") ? `${name} (${k})` : `${k} — ${name}`;
+      }).join("; ");
+    }
+  }
+
+  function setLevel(row, level) { row.classList.remove("ok", "caution", "danger"); if (level) row.classList.add(level); }
+
+  function drawMargins(s) {
+    const km = s.kinematic_margin, row = $("#m-kin");
+    if (km) {
+      const t = km.time_s;
+      row.querySelector(".v").textContent = t === null || t === undefined ? "∞" : `${fmt(t, 2)} s`;
+      row.querySelector(".n").textContent = km.limit ? `to ${km.limit}` : "at rest";
+      setLevel(row, t === null || t === undefined || t > KIN_CAUTION_S ? "ok" : t > KIN_DANGER_S ? "caution" : "danger");
+    } else { row.querySelector(".v").textContent = "—"; setLevel(row, ""); }
+    const st = s.stability;
+    const levels = {};
+    for (const v of (st && st.violations) || []) levels[v.measure] = v.level === "hard" ? "danger" : "caution";
+    const values = st ? { ssm: `${fmt(st.ssm, 3)} m`, lsm: `${fmt(st.lsm, 3)} m`, esm: `${fmt(st.esm / 1000, 2)} kJ`,
+      front_axle_load: `${fmt(100 * st.front_axle_share, 1)} %` } : {};
+    for (const m of ["ssm", "lsm", "esm", "front_axle_load"]) {
+      const r = $(`#m-${m}`);
+      r.querySelector(".v").textContent = st ? values[m] : "—";
+      setLevel(r, st ? (levels[m] || "ok") : "");
+    }
+  }
+
+  function drawModeAndMotion(s) {
+    for (const b of $$("#modes button")) b.classList.toggle("active", b.dataset.mode === s.mode);
+    if (ui.mode !== s.mode) { ui.mode = s.mode; renderHelp(); }
+    const m = $("#motion");
+    m.textContent = s.moving ? `Moving: ${s.motion || "motion"} #${s.motion_id}` : "Idle";
+    m.className = `pill ${s.moving ? "warn" : ""}`;
+    drawManeuver(s.maneuver);
+    const e = s.ecu || {}, ecu = $("#ecu");
+    if (!e.online) { ecu.textContent = "ECU: offline"; ecu.className = "pill bad"; }
+    else if ((e.faults || []).length) { ecu.textContent = `ECU: fault ${e.faults.join(", ")}`; ecu.className = "pill bad"; }
+    else { ecu.textContent = e.streaming ? "ECU: online · driving" : "ECU: online · holding"; ecu.className = "pill good"; }
+  }
+
+  function renderConnection() {
+    const c = $("#conn"), banner = $("#banner");
+    const age = performance.now() - ui.lastStateMs;
+    let text, cls, alert = "";
+    if (!ui.connected) {
+      text = "Service: disconnected"; cls = "bad";
+      alert = `Service not reachable: ${ui.closedReason || "connecting"} — no live data; retrying…`;
+    } else if (!ui.state || age > STATE_STALE_MS) {
+      text = "Service: no state"; cls = "bad"; alert = "The service sends no state: the values shown are not live.";
+    } else { text = ui.rate > 0 ? `Service: connected · ${fmt(ui.rate)} Hz` : "Service: connected"; cls = "good"; }
+    c.textContent = text;
+    c.className = `pill ${cls}`;
+    banner.textContent = alert;
+    banner.classList.toggle("hidden", !alert);
+    document.body.classList.toggle("stale", Boolean(alert));
+    if (alert) {
+      $("#motion").textContent = "Motion: unknown"; $("#motion").className = "pill";
+      if (!ui.connected) { $("#ecu").textContent = "ECU: unknown"; $("#ecu").className = "pill bad"; }
+    }
+  }
+
+  // frame-rate meter (what the operator sees refreshing) and the staleness watchdog
+  setInterval(() => {
+    const now = performance.now();
+    ui.rate = ui.frames / ((now - (ui.rateSince || now - 1000)) / 1000);
+    ui.frames = 0; ui.rateSince = now;
+    document.body.dataset.fps = ui.rate.toFixed(1);
+    renderConnection();
+  }, 1000);
+
+  // ------------------------------------------------------------------ events
+  function onEvent(e) {
+    const name = e.event || "event";
+    let text = name.replace(/_/g, " ");
+    if (e.motion_id !== undefined) text += ` #${e.motion_id}`;
+    if (e.kind) text += ` (${e.kind})`;
+    if (e.reason) text += `: ${e.reason}`;
+    if (e.message) text += `: ${e.message}`;
+    if (e.maneuver) text = `maneuver ${e.maneuver}: ${name.replace("maneuver_", "")}` + (e.step !== undefined ? ` step ${e.step + 1}` : "") + (e.reason ? ` (${e.reason}: ${e.message || ""})` : "");
+    log(text, /abort|fault|limit/.test(name));
+    if (name === "maneuver_started" && e.steps) ui.maneuverSteps[e.maneuver] = e.steps;
+    if (name === "maneuver_finished" || name === "maneuver_aborted") {
+      $("#maneuver-result").textContent = name === "maneuver_finished"
+        ? `${e.maneuver} finished in ${fmt(e.elapsed, 1)} s` : `${e.maneuver} aborted: ${e.reason} — ${e.message || ""}`;
+      $("#maneuver-result").className = `result ${name === "maneuver_finished" ? "ok" : "err"}`;
+    }
+  }
+
+  // ------------------------------------------------------------------ STOP and modes
+  async function stop() {
+    jog.releaseAll();
+    const r = await link.request("stop", {});
+    if (r.ok) { log("STOP: motion stopped"); return; }
+    // the WebSocket is down: try the plain HTTP API of the same server
+    try {
+      const resp = await fetch("/api/stop", { method: "POST", headers: { "Content-Type": "application/json" }, body: "{}" });
+      log(resp.ok ? "STOP: motion stopped (HTTP)" : `STOP refused: ${(await resp.json()).message}`, !resp.ok);
+    } catch (e) { log("STOP could not reach the service", true); }
+  }
+  $("#stop").addEventListener("pointerdown", (ev) => { ev.preventDefault(); stop(); });
+  $("#stop").addEventListener("click", (ev) => { if (ev.detail === 0) stop(); });   // keyboard activation
+
+  function confirmDialog(title, text, okLabel = "Switch") {
+    return new Promise((resolve) => {
+      $("#confirm-title").textContent = title;
+      $("#confirm-text").textContent = text;
+      $("#confirm-ok").textContent = okLabel;
+      $("#confirm").classList.remove("hidden");
+      const done = (v) => { $("#confirm").classList.add("hidden"); $("#confirm-ok").onclick = $("#confirm-cancel").onclick = null; resolve(v); };
+      $("#confirm-ok").onclick = () => done(true);
+      $("#confirm-cancel").onclick = () => done(false);
+    });
+  }
+
+  for (const b of $$("#modes button")) {
+    b.addEventListener("click", async () => {
+      const mode = b.dataset.mode;
+      if (ui.state && ui.state.mode === mode) return;
+      if (mode === "manual" || mode === "attach") {
+        const ok = await confirmDialog(`Switch to ${MODE_NAMES[mode]} mode?`, HELP[mode].join(" "));
+        if (!ok) return;
+      }
+      const r = await call("mode", { mode });
+      if (r.ok) log(`mode: ${MODE_NAMES[r.data.mode] || r.data.mode}`);
+    });
+  }
+
+  function renderHelp() {
+    const mode = ui.mode || "main";
+    $("#help-title").textContent = `${MODE_NAMES[mode] || "Main"} mode`;
+    $("#help-text").innerHTML = "";
+    for (const p of [...(HELP[mode] || []), ...HELP.main]) {
+      const e = document.createElement("p"); e.textContent = p; $("#help-text").appendChild(e);
+    }
+  }
+
+  function renderConfig() {
+    const c = ui.config, dl = $("#config");
+    dl.textContent = "";
+    const w = c.limits.workspace;
+    const rows = [["profile", c.profile], ["category", c.category], ["implement", c.implement || "none"],
+      ["control rate", `${c.control_rate} Hz`], ["state rate", `${c.state_rate} Hz`],
+      ["workspace x", `${fmt(w.x[0] * 1000)} … ${fmt(w.x[1] * 1000)} mm`], ["workspace z", `${fmt(w.z[0] * 1000)} … ${fmt(w.z[1] * 1000)} mm`],
+      ["roll", `${fmt(w.roll[0] * 1000)} … ${fmt(w.roll[1] * 1000)} mrad`], ["pitch", `${fmt(w.pitch[0] * 1000)} … ${fmt(w.pitch[1] * 1000)} mrad`],
+      ["user", (ui.hello && ui.hello.user) || "(no access control)"]];
+    for (const [k, v] of rows) {
+      const dt = document.createElement("dt"), dd = document.createElement("dd");
+      dt.textContent = k; dd.textContent = v; dl.append(dt, dd);
+    }
+  }
+
+  // ------------------------------------------------------------------ jog (dead-man)
+  const jog = {
+    held: new Map(), timer: null,
+    rates() {
+      const speed = Number($("#jog-speed").value) / 100, v = { x: 0, z: 0, roll: 0, pitch: 0 };
+      for (const { dof, sign } of this.held.values()) v[dof] = Math.max(-JOG_MAX[dof], Math.min(JOG_MAX[dof], v[dof] + sign * JOG_MAX[dof] * speed));
+      return { vx: v.x, vz: v.z, vroll: v.roll, vpitch: v.pitch, ttl_ms: JOG_TTL_MS };
+    },
+    send() {
+      link.request("jog", this.rates()).then((r) => {
+        if (!r.ok && r.data.error !== "disconnected") { log(r.data.message || "jog refused", true); }
+      });
+    },
+    press(source, dof, sign) {
+      if (this.held.has(source)) return;
+      this.held.set(source, { dof, sign });
+      this.mark();
+      this.send();
+      if (!this.timer) this.timer = setInterval(() => this.send(), JOG_PERIOD_MS);
+    },
+    release(source) {
+      if (!this.held.delete(source)) return;
+      this.mark();
+      if (this.held.size === 0 && this.timer) { clearInterval(this.timer); this.timer = null; }   // release = stop sending
+      else if (this.held.size) this.send();
+    },
+    releaseAll() { for (const k of Array.from(this.held.keys())) this.release(k); },
+    mark() {
+      const active = new Set(Array.from(this.held.values()).map(({ dof, sign }) => `${dof}:${sign}`));
+      for (const b of $$("button.jog")) b.classList.toggle("held", active.has(`${b.dataset.dof}:${b.dataset.sign}`));
+    },
+  };
+  for (const b of $$("button.jog")) {
+    const source = `btn:${b.dataset.dof}:${b.dataset.sign}`;
+    b.addEventListener("pointerdown", (ev) => {
+      ev.preventDefault();
+      try { b.setPointerCapture(ev.pointerId); } catch (e) { /* synthetic events have no capture */ }
+      jog.press(source, b.dataset.dof, Number(b.dataset.sign));
+    });
+    for (const t of ["pointerup", "pointercancel", "lostpointercapture"]) b.addEventListener(t, () => jog.release(source));
+    b.addEventListener("contextmenu", (ev) => ev.preventDefault());
+  }
+  $("#jog-speed").addEventListener("input", () => { $("#jog-speed-out").textContent = `${$("#jog-speed").value} %`; });
+  window.addEventListener("blur", () => jog.releaseAll());
+  document.addEventListener("visibilitychange", () => { if (document.hidden) jog.releaseAll(); });
+
+  const typing = (ev) => ev.target instanceof HTMLInputElement && ev.target.type !== "range";
+  document.addEventListener("keydown", (ev) => {
+    if (ev.code === "Escape" || (ev.code === "Space" && !typing(ev))) {
+      ev.preventDefault();
+      if (!$("#confirm").classList.contains("hidden")) $("#confirm-cancel").click();
+      stop();
+      return;
+    }
+    if (typing(ev) || ev.repeat || !KEYS[ev.code]) return;
+    ev.preventDefault();
+    jog.press(`key:${ev.code}`, ...KEYS[ev.code]);
+  });
+  document.addEventListener("keyup", (ev) => jog.release(`key:${ev.code}`));
+
+  // ------------------------------------------------------------------ tabs, goto
+  for (const t of $$(".tabs button")) {
+    t.addEventListener("click", () => {
+      for (const o of $$(".tabs button")) o.classList.toggle("active", o === t);
+      for (const p of $$(".tab")) p.classList.toggle("hidden", p.id !== `tab-${t.dataset.tab}`);
+      if (t.dataset.tab === "presets") refreshPresets();
+      if (t.dataset.tab === "maneuvers") refreshManeuvers();
+    });
+  }
+
+  function gotoRequest() {
+    const f = $("#goto-form"), goal = {};
+    for (const k of DOFS) {
+      const raw = f.elements[k].value.trim();
+      if (raw === "") continue;
+      const v = Number(raw);
+      if (!Number.isFinite(v)) return { error: `${k}: not a number` };
+      goal[k] = v / 1000;   // the form takes mm and mrad: x_mm → m, roll_mrad → rad
+    }
+    if (!Object.keys(goal).length) return { error: "enter at least one of x, z, roll, pitch (empty = keep)" };
+    const speed = Number(f.elements.speed.value || 100);
+    return { goal, speed_scale: Math.max(0.01, Math.min(1, speed / 100)) };
+  }
+  function result(sel, text, ok) { const r = $(sel); r.textContent = text; r.className = `result ${ok ? "ok" : "err"}`; }
+
+  $("#goto-form").addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    const req = gotoRequest();
+    if (req.error) { result("#goto-result", req.error, false); return; }
+    const r = await call("goto", req);
+    result("#goto-result", r.ok ? `moving: motion #${r.data.motion_id}, ${fmt(r.data.duration, 2)} s` : r.data.message, r.ok);
+  });
+  $("#goto-plan").addEventListener("click", async () => {
+    const req = gotoRequest();
+    if (req.error) { result("#goto-result", req.error, false); return; }
+    const r = await call("plan", req);
+    if (!r.ok) result("#goto-result", r.data.message, false);
+    else result("#goto-result", r.data.ok ? `reachable: ${fmt(r.data.duration, 2)} s (${r.data.guard})` : `refused: ${r.data.refused}`, r.data.ok);
+  });
+  $("#goto-current").addEventListener("click", () => {
+    const p = (ui.state && ui.state.pose) || {}, f = $("#goto-form");
+    for (const k of DOFS) f.elements[k].value = Number.isFinite(p[k]) ? (p[k] * 1000).toFixed(1) : "";
+  });
+
+  // ------------------------------------------------------------------ presets
+  function item(list, name, sub, buttons) {
+    const li = document.createElement("li");
+    li.dataset.name = name;
+    const n = document.createElement("span");
+    n.className = "name"; n.textContent = name;
+    const s = document.createElement("span"); s.className = "sub"; s.textContent = sub; n.appendChild(s);
+    li.appendChild(n);
+    for (const [label, cls, fn] of buttons) {
+      const b = document.createElement("button");
+      b.type = "button"; b.textContent = label; b.className = cls; b.addEventListener("click", fn);
+      li.appendChild(b);
+    }
+    list.appendChild(li);
+    return li;
+  }
+
+  async function refreshPresets() {
+    const r = await call("presets/list", {}, true);
+    if (!r.ok) return;
+    const list = $("#preset-list");
+    list.textContent = "";
+    for (const p of r.data.presets) {
+      const sub = DOFS.map((k) => `${k} ${fmt(p.pose[k] * 1000, 0)}`).join(" · ");
+      item(list, p.name, sub, [
+        ["Go", "primary", async () => { const q = await call("presets/go", { name: p.name }); if (q.ok) log(`preset ${p.name}: moving, ${fmt(q.data.duration, 2)} s`); }],
+        ["Delete", "danger", async () => {
+          if (!(await confirmDialog(`Delete preset ${p.name}?`, "The stored pose is removed for this implement.", "Delete"))) return;
+          const q = await call("presets/delete", { name: p.name }); if (q.ok) { log(`preset ${p.name} deleted`); refreshPresets(); }
+        }],
+      ]);
+    }
+  }
+  $("#preset-form").addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    const name = ev.target.elements.name.value.trim();
+    const r = await call("presets/save", { name });
+    if (r.ok) { log(`preset ${r.data.saved} saved at the current pose`); ev.target.reset(); refreshPresets(); }
+  });
+
+  // ------------------------------------------------------------------ maneuvers
+  // the API's step index is 0-based; the operator reads step 1 … n
+  const stepErrors = (errors) => errors.map((e) => `${e.step === null ? "script" : "step " + (e.step + 1)}: ${e.message}`).join("; ");
+  async function refreshManeuvers() {
+    const r = await call("maneuvers/list", {}, true);
+    if (!r.ok) return;
+    const list = $("#maneuver-list");
+    list.textContent = "";
+    for (const m of r.data.maneuvers) {
+      ui.maneuverSteps[m.name] = m.steps;
+      const buttons = [
+        ["Validate", m.script === undefined ? "no-script" : "", async () => {
+          if (m.script === undefined) {   // maneuvers/list gives no script: validate it from the editor
+            result("#maneuver-result", `${m.name}: this service does not return stored scripts; paste the script under “New maneuver script” and press Validate (Run validates it again before moving)`, false);
+            return;
+          }
+          const q = await call("maneuvers/validate", { script: m.script });
+          if (q.ok) result("#maneuver-result", q.data.ok ? `${m.name}: valid, ${fmt(q.data.duration, 1)} s`
+            : `${m.name}: ` + stepErrors(q.data.errors), q.data.ok);
+          else result("#maneuver-result", q.data.message, false);
+        }],
+        ["Run", "primary", async () => { const q = await call("maneuvers/run", { name: m.name }); if (q.ok) result("#maneuver-result", `${m.name}: running, ${fmt(q.data.duration, 1)} s planned`, true); }],
+        ["Abort", "danger", async () => { await stop(); }],
+      ];
+      item(list, m.name, `${m.steps} steps${m.description ? " · " + m.description : ""}`, buttons);
+    }
+  }
+
+  function scriptRequest() {
+    const f = $("#maneuver-form");
+    return { name: f.elements.name.value.trim(), script: f.elements.script.value };
+  }
+  $("#maneuver-validate").addEventListener("click", async () => {
+    const q = await call("maneuvers/validate", { script: scriptRequest().script });
+    if (!q.ok) { result("#maneuver-result", q.data.message, false); return; }
+    result("#maneuver-result", q.data.ok ? `valid: ${fmt(q.data.duration, 1)} s from the current pose`
+      : stepErrors(q.data.errors), q.data.ok);
+  });
+  $("#maneuver-form").addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    const q = await call("maneuvers/save", scriptRequest());
+    if (q.ok) { result("#maneuver-result", `${q.data.saved} saved (${q.data.steps} steps)`, true); refreshManeuvers(); }
+    else result("#maneuver-result", q.data.message, false);
+  });
+
+  function drawManeuver(man) {
+    const bar = $("#maneuver-progress");
+    for (const li of $$("#maneuver-list li")) li.classList.toggle("running", Boolean(man) && li.dataset.name === man.name);
+    bar.classList.toggle("hidden", !man);
+    if (!man) return;
+    const steps = ui.maneuverSteps[man.name] || 0, step = Number.isInteger(man.step) ? man.step : 0;
+    bar.querySelector(".fill").style.width = steps ? `${(100 * step / steps).toFixed(0)}%` : "0%";
+    bar.querySelector(".text").textContent = `${man.name}: step ${step + 1}${steps ? " of " + steps : ""}`;
+  }
+
+  renderHelp();
+  renderConnection();
+  link.connect();
+})();

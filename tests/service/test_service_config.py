@@ -1,0 +1,78 @@
+"""ServiceConfig: embedded defaults, TOML file, flags over file, errors naming the field."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from bridge.service.config import ServiceConfigError, default_data_dir, load_service_config
+from bridge.service.server import build_zenoh_config, to_json_bytes
+
+
+def test_embedded_defaults_are_a_loopback_peer_with_the_simulated_ecu(monkeypatch, tmp_path):
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path))
+    c = load_service_config()
+    assert c.mode == "peer" and c.listen == ("tcp/127.0.0.1:7447",) and c.connect == () and not c.scouting
+    assert c.prefix == "hitch" and c.key("presets/go") == "hitch/presets/go"
+    assert (c.can_interface, c.can_channel, c.simulate_ecu) == ("virtual", "hitch", True)
+    assert (c.profile, c.category, c.control_rate, c.state_rate) == ("thesis-t132", None, 50.0, 50.0)
+    assert c.data_dir == tmp_path / "hitch-planner" and c.database_path.name == "hitch.sqlite3"
+    z = json.loads(build_zenoh_config(c).get_json("scouting/multicast/enabled"))
+    assert z is False
+
+
+def test_default_data_dir_without_xdg():
+    assert default_data_dir({}) == Path.home() / ".local" / "share" / "hitch-planner"
+    assert default_data_dir({"XDG_DATA_HOME": "/x"}) == Path("/x/hitch-planner")
+
+
+def test_toml_then_flags(tmp_path):
+    f = tmp_path / "svc.toml"
+    f.write_text('[zenoh]\nprefix = "fleet/t07/hitch"\nmode = "client"\nconnect = ["tcp/10.0.0.1:7447"]\n'
+                 '[hitch]\ncontrol_rate = 100.0\nimplement = "cat2-spreader-400"\n[service]\nworkers = 2\n')
+    c = load_service_config(f)
+    assert c.prefix == "fleet/t07/hitch" and c.mode == "client" and c.listen == () and c.control_rate == 100.0
+    assert c.implement == "cat2-spreader-400" and c.workers == 2
+    c = load_service_config(f, control_rate=40.0, prefix=None)          # a flag wins; None means "not given"
+    assert c.control_rate == 40.0 and c.prefix == "fleet/t07/hitch"
+
+
+@pytest.mark.parametrize("kwargs, text", [
+    ({"prefix": "fleet/*/hitch"}, "prefix"),
+    ({"prefix": "a//b"}, "chunk ''"),
+    ({"listen": ["127.0.0.1:7447"]}, "tcp/127.0.0.1:7447"),
+    ({"control_rate": 5.0}, "control_rate = 5.0"),
+    ({"control_rate": float("nan")}, "control_rate"),
+    ({"state_rate": 500.0}, "<= 100"),
+    ({"mode": "router"}, "mode"),
+    ({"mode": "client"}, "connect: a client needs"),
+    ({"mode": "client", "connect": ["tcp/127.0.0.1:1"], "listen": ["tcp/127.0.0.1:2"]}, "a client does not listen"),
+    ({"http": "8080"}, "HOST:PORT"),
+    ({"can_interface": "pcan"}, "can_interface"),
+])
+def test_bad_values_name_the_field(kwargs, text):
+    with pytest.raises(ServiceConfigError) as ei:
+        load_service_config(**kwargs)
+    assert text in str(ei.value) and "\n" not in str(ei.value)
+
+
+def test_bad_toml_is_refused_with_the_key(tmp_path):
+    f = tmp_path / "svc.toml"
+    f.write_text("[zenoh]\nport = 1\n")
+    with pytest.raises(ServiceConfigError, match=r"unknown key zenoh\.port; allowed: mode, listen"):
+        load_service_config(f)
+    f.write_text("[cluster]\n")
+    with pytest.raises(ServiceConfigError, match=r"unknown section \[cluster\]"):
+        load_service_config(f)
+    f.write_text("[zenoh\n")
+    with pytest.raises(ServiceConfigError, match="not valid TOML"):
+        load_service_config(f)
+    with pytest.raises(ServiceConfigError, match="does not exist"):
+        load_service_config(tmp_path / "missing.toml")
+
+
+def test_replies_are_strict_json():
+    out = json.loads(to_json_bytes({"a": float("inf"), "b": [float("nan"), 1.5], "c": {"d": -float("inf")}}))
+    assert out == {"a": None, "b": [None, 1.5], "c": {"d": None}}

@@ -508,3 +508,29 @@ def test_closing_handshake_echoes_valid_codes_only(web, sent, echoed):
         assert ws.message("close") == {"type": "close", "code": echoed}
     finally:
         ws.close()
+
+
+def test_terminal_runs_as_the_configured_user_under_the_security_files_acl(tmp_path):
+    """A service started with a security file (access control on) and --http-user: the page's
+    commands are authorised by the same ACL as Zenoh queries — a viewer may read and stop, not move."""
+    from bridge.service.config import load_service_config
+    from bridge.service.security import AccessPolicy, SecuritySettings, security_json5, write_users_file
+    from bridge.service.server import HitchService
+
+    users = write_users_file(tmp_path / "users.txt", {"olga": "o-secret", "victor": "v-secret"})
+    sec = tmp_path / "security.json5"
+    sec.write_text(security_json5(SecuritySettings(
+        users_file=users, access=AccessPolicy(prefix="hitch", operators=("olga",), viewers=("victor",)))))
+    cfg = load_service_config(data_dir=tmp_path / "data", listen=[f"tcp/127.0.0.1:{_free_port()}"],
+                              http="127.0.0.1:0", http_user="victor", security=sec,
+                              can_channel=f"web-acl-{os.getpid()}")
+    svc = HitchService(cfg).start()
+    try:
+        status, reply = _post(svc.http, "goto", {"goal": {"z": 0.2}})
+        assert status == 403 and reply["error"] == "forbidden" and "victor" in reply["message"]
+        status, reply = _post(svc.http, "stop", {})
+        assert status == 200 and reply["stopped"] is True
+        status, reply = _post(svc.http, "ik", {"x": 0.0, "z": 0.2, "roll": 0.0, "pitch": 0.0})
+        assert status == 200 and reply["status"] == "ok"
+    finally:
+        svc.close()

@@ -44,6 +44,7 @@ from planner.ik_qp.hitch_ik import IKSolver
 from planner.kinematics import HitchModel
 from planner.limits.guard import Guard
 from planner.limits.tractor import load_tractor_profile
+from planner.sensors import SensorScaling
 from planner.trajectory import TrajectoryPlanner
 from planner.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
 
@@ -175,7 +176,10 @@ class HitchService:
         if cfg.simulate_ecu:
             ecu_bus = open_bus(cfg.can_interface, cfg.can_channel)
             self._buses.append(ecu_bus)
-            self.ecu_node = EcuCanNode(CylinderECU(link_model.profile), ecu_bus)
+            # the twin starts with the hitch at the model's neutral pose (x = roll = pitch = 0)
+            scale = SensorScaling(link_model.profile)
+            neutral_counts = scale.counts_min + (link_model.neutral - scale.si_min) / scale.resolution
+            self.ecu_node = EcuCanNode(CylinderECU(link_model.profile, initial_counts=list(neutral_counts)), ecu_bus)
             self._runners.append(RealtimeRunner(self.ecu_node, max_wait_s=0.02).start())
             tractor_bus = open_bus(cfg.can_interface, cfg.can_channel)
             self._buses.append(tractor_bus)

@@ -335,7 +335,7 @@ class SQPSolver:
     def _line_search(self, problem, lay, cur, trial, d, merit, pred, nu, elastic, scale) -> float:
         """Backtracking on the merit with one second-order correction; the accepted point is
         left in ``trial``. Returns the step fraction, 0 on failure."""
-        st, mech = self.settings, self.mechanism
+        st = self.settings
         alpha = 1.0
         for _ in range(st.max_backtracks):
             q_try = self._q_try

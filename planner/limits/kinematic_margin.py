@@ -10,7 +10,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numpy as np
 
 from ..hard_limits import HardLimits
 from ..types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES

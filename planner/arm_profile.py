@@ -32,7 +32,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from .dh import DHChain, DHLink, build_dh_chain
-from .toml_profiles import builtin_profiles, format_validation_error, read_profile
+from .toml_profiles import builtin_profiles, check_profile_name, format_validation_error, read_profile
 from .transforms import euler_zyz_matrix, homogeneous
 
 __all__ = [
@@ -141,9 +141,7 @@ class ArmProfile(_Strict):
     @field_validator("name")
     @classmethod
     def _name(cls, v: str) -> str:
-        if not all(ch.isalnum() or ch in "-_." for ch in v):
-            raise ValueError("name may contain letters, digits, '-', '_' and '.' only")
-        return v
+        return check_profile_name(v)
 
     @model_validator(mode="after")
     def _unique(self):

@@ -14,7 +14,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from .toml_profiles import builtin_profiles, format_validation_error, read_profile
+from .toml_profiles import builtin_profiles, check_profile_name, format_validation_error, read_profile
 
 __all__ = [
     "ProfileError",
@@ -225,9 +225,7 @@ class Profile(_Strict):
     @field_validator("name")
     @classmethod
     def _name(cls, v: str) -> str:
-        if not all(c.isalnum() or c in "-_." for c in v):
-            raise ValueError("name may contain letters, digits, '-', '_' and '.' only")
-        return v
+        return check_profile_name(v)
 
     def category(self, name: str) -> Category:
         try:

@@ -9,7 +9,14 @@ from pathlib import Path
 
 from pydantic import BaseModel, ValidationError
 
-__all__ = ["builtin_profiles", "read_profile", "format_validation_error"]
+__all__ = ["builtin_profiles", "read_profile", "format_validation_error", "check_profile_name"]
+
+
+def check_profile_name(name: str) -> str:
+    """A profile's ``name``: letters, digits, '-', '_' and '.' only (it names files and keys)."""
+    if not all(c.isalnum() or c in "-_." for c in name):
+        raise ValueError("name may contain letters, digits, '-', '_' and '.' only")
+    return name
 
 
 def _folder(subfolder: str | None):

@@ -1,6 +1,6 @@
 """Closed-loop benchmark (issue 6): the same moves with thesis-style step references, with
-streamed trajectories and with trajectories streamed ahead by each unit controller's ramp lag
-(bridge.sim_run.unit_loop_lag_s), side by side, through the real CAN path (codec, virtual bus,
+the plan's actuator positions streamed as references ("trajectory") and with the unit loops'
+feed-forward reference (bridge.unit_loop, the product default: "trajectory+feedforward"), side by side, through the real CAN path (codec, virtual bus,
 simulated cylinder ECU node, planner link) in simulated time; bus load at the default rate; the
 watchdog's stop latency; how fast the simulation runs.
 
@@ -41,7 +41,7 @@ MOVES = (  # name, start, goal (SI); lengths in the comments
 )
 
 
-VARIANTS = ("step", "trajectory", "trajectory+lead")
+VARIANTS = ("step", "trajectory", "trajectory+feedforward")
 
 
 def _fmt(ratio) -> str:
@@ -86,7 +86,7 @@ def main() -> None:
     for name, start, goal in MOVES:
         for kind in VARIANTS:
             t0 = time.perf_counter()
-            settings = MoveSettings(reference=kind.split("+")[0], lead=kind.endswith("+lead"), start=start)
+            settings = MoveSettings(reference=kind.split("+")[0], feedforward=kind.endswith("+feedforward"), start=start)
             tr = run_move(model, goal, settings, sim)
             wall_s += time.perf_counter() - t0
             sim_s += float(tr.t[-1]) + 0.5

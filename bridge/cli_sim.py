@@ -206,7 +206,7 @@ def _cmd_sim_move(args) -> int:
     sim = SimSettings(noise_counts=args.noise_counts, gain_error=args.gain_error, seed=args.seed,
                       frame_loss=args.frame_loss, link=LinkConfig(control_rate_hz=rate))
     move = MoveSettings(reference=args.reference, start=args.start, speed_scale=args.speed_scale,
-                        lead=args.lead, max_time_s=args.max_time)
+                        feedforward=not args.no_feedforward, max_time_s=args.max_time)
     trace = run_move(model, args.to, move, sim)
     measured = build_move_figures(trace, "measured", band_position_m=args.band_position, band_angle_rad=args.band_angle)
     truth = build_move_figures(trace, "truth", band_position_m=args.band_position, band_angle_rad=args.band_angle)
@@ -281,8 +281,9 @@ def add_commands(sub) -> None:
     m.add_argument("--from", dest="start", type=parse_pose_arg, default=None, help="start pose (default: neutral)")
     m.add_argument("--reference", choices=REFERENCE_KINDS, default="trajectory",
                    help="step: goal actuators at once (thesis); trajectory: the plan streamed (default)")
-    m.add_argument("--lead", action="store_true",
-                   help="trajectory: stream each actuator ahead by its unit controller's ramp lag")
+    m.add_argument("--no-feedforward", action="store_true",
+                   help="trajectory: stream the plan's actuator positions as they are (each cylinder then "
+                        "lags by its own unit loop); default: the unit loops' feed-forward reference")
     m.add_argument("--plot", default=None, help="write a PNG of the run")
     m.add_argument("--rate", type=float, default=None, help="control rate [Hz], 1..200 (default: profile, 50)")
     m.add_argument("--speed-scale", type=float, default=1.0, help="fraction of full trajectory speed, (0, 1]")

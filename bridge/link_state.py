@@ -28,7 +28,8 @@ from .j1939 import CYLINDER_ECU_ADDRESS, PLANNER_ADDRESS
 
 __all__ = [
     "LinkConfig", "LinkCounters", "LinkError", "LinkFaultError", "LinkFaults", "LinkState",
-    "LinkStatus", "MeasurementAssembler", "ReferenceRefused", "check_address", "check_period",
+    "HITCH_POSITION_STEPS", "LinkStatus", "MeasurementAssembler", "ReferenceRefused", "check_address",
+    "check_period", "lift_counts_from_fraction",
 ]
 
 
@@ -50,6 +51,27 @@ def check_address(name: str, value: object, *, allow_none: bool = False) -> None
         return
     if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 253:
         raise ValueError(f"{name} must be a source address in 0..253, got {value!r}")
+
+
+#: Steps of the ISO 11783-7 hitch position field over the full travel (0.4 %/bit).
+HITCH_POSITION_STEPS = 250
+
+
+def lift_counts_from_fraction(fraction: float, counts_min: float, counts_max: float, *,
+                              on_count_grid: bool = True) -> float:
+    """Lift sensor reading [counts] from the rear hitch position [fraction of the calibrated travel].
+
+    The sender maps the reading linearly, ``(counts − counts_min) / span``, onto the 0.4 %
+    grid. While the span is at most 250 counts that grid is finer than one count, so the
+    nearest count is the reading itself, exactly (the fraction alone is off by up to half a
+    0.4 % step, 0.46 count for the thesis's 229-count lift). ``on_count_grid=False``, or a
+    longer span, gives the linear value.
+    """
+    span = counts_max - counts_min
+    counts = counts_min + fraction * span
+    if on_count_grid and span <= HITCH_POSITION_STEPS:
+        return float(math.floor(counts + 0.5))
+    return float(counts)
 
 
 def check_period(name: str, value: object, low: float, high: float) -> None:
@@ -79,6 +101,11 @@ class LinkConfig:
         reading_tolerance_counts: AD readings this far outside the calibrated span are
             still taken (AD noise at an end stop); farther out they are rejected.
         max_consecutive_tx_errors: failed sends in a row that raise the bus fault.
+        lift_on_count_grid: the hitch position (0.4 %/bit of the calibrated travel) comes
+            from an integer-count lift sensor (thesis table 3-2: 26..255): take the nearest
+            count, which recovers the reading exactly while the travel spans at most 250
+            counts (the 0.4 % grid is then finer than one count). False: use the fraction
+            as it is (a hitch sensor without a count grid).
         name: our ISO 11783-5 NAME (claimed at start, 250 ms contention window).
         claim_wait_s: contention window, s.
     """
@@ -94,6 +121,7 @@ class LinkConfig:
     heartbeat_period_s: float = HEARTBEAT_PERIOD_S
     reading_tolerance_counts: float = 2.0
     max_consecutive_tx_errors: int = 3
+    lift_on_count_grid: bool = True
     name: Name = field(default_factory=planner_name)
     claim_wait_s: float = CLAIM_WAIT_S
 
@@ -119,6 +147,8 @@ class LinkConfig:
         n = self.max_consecutive_tx_errors
         if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= 1000:
             raise ValueError(f"max_consecutive_tx_errors must be an integer in 1..1000, got {n!r}")
+        if not isinstance(self.lift_on_count_grid, bool):
+            raise ValueError(f"lift_on_count_grid must be true or false, got {self.lift_on_count_grid!r}")
         if not isinstance(self.name, Name):
             raise ValueError(f"name must be a bridge.address_claim.Name, got {type(self.name).__name__}")
 
@@ -141,8 +171,8 @@ class LinkState:
         t_s: link time of the newest frame that went into this state, s.
         measurement_t_s: arrival of the 0xFF22 frame used, s.
         lift_t_s: arrival of the rear hitch status used, s.
-        counts: the five readings in actuator order; the lift as its sensor-count
-            equivalent ``counts_min + fraction · span`` (float) of the hitch status.
+        counts: the five readings in actuator order; the lift as its sensor count
+            recovered from the hitch status (:func:`lift_counts_from_fraction`).
         lift_fraction: rear hitch position, fraction of the calibrated travel.
         actuators: actuators in SI (lift rad, others m) through the AD calibration.
         pose: forward kinematics of ``actuators``.
@@ -345,7 +375,8 @@ class MeasurementAssembler:
             return
         (t_m, (tilt, top, left, right)), (t_h, frac) = self._meas, self._hitch
         s = self._scaling
-        lift_counts = float(s.counts_min[0] + frac * (s.counts_max[0] - s.counts_min[0]))
+        lift_counts = lift_counts_from_fraction(frac, s.counts_min[0], s.counts_max[0],
+                                                on_count_grid=self._cfg.lift_on_count_grid)
         counts = (lift_counts, float(tilt), float(top), float(left), float(right))
         q = s.to_si(counts, tolerance_counts=self._cfg.reading_tolerance_counts)
         try:

@@ -32,7 +32,7 @@ from .ecu_sim.ecu import CylinderECU
 from .j1939 import bus_load
 from .link_state import LinkConfig
 
-__all__ = ["LossyBus", "SimError", "SimRig", "SimSettings", "unit_loop_lag_s"]
+__all__ = ["LossyBus", "SimError", "SimRig", "SimSettings"]
 
 
 class SimError(ValueError):
@@ -199,16 +199,3 @@ class SimRig:
 
     def __exit__(self, *exc) -> None:
         self.close()
-
-
-def unit_loop_lag_s(ecu: CylinderECU) -> np.ndarray:
-    """How long each cylinder of ``ecu`` lags a ramp reference, s (actuator order).
-
-    With k = a/(Kv L) (thesis 2.57) and dead-zone compensation, the unit loop is
-    ẋ ≈ (m a / L)·e for valve multiplier m; the derivative on the measurement adds T_F,
-    so a ramp is followed with a constant lag L/(m a) + T_F: 0.18 s lift, 0.35 s tilt and
-    top link, 0.87 s sway limiters for the thesis values. (The minimum flow Kv·dy_min
-    shortens the P part by the factor 1 − Kv·dy_min/v: under 5 % at planned speeds.)
-    """
-    a = ecu.config.a
-    return np.array([p.transport_delay_s / (p.valve_multiplier * a) + p.time_constant_s for p in ecu.params])

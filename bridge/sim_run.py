@@ -1,12 +1,13 @@
 """Running the simulated cylinder ECU and the planner link together over CAN (issue 6 §2, §4).
 
-The simulated rig (:class:`SimRig`, :class:`SimSettings`, :class:`LossyBus`,
-:func:`unit_loop_lag_s`) lives in :mod:`bridge.sim_rig` and is re-exported here: both nodes
+The simulated rig (:class:`SimRig`, :class:`SimSettings`, :class:`LossyBus`) lives in
+:mod:`bridge.sim_rig` and is re-exported here: both nodes
 on a private python-can ``virtual`` channel, advanced in simulated time (deterministic and
 much faster than real time; real time: :class:`bridge.cli_sim.RealtimeRunner`).
 
 :func:`run_move` is the closed-loop experiment of ``hitch sim move`` (a step reference,
-thesis style, or the Ruckig plan streamed at the control rate); :func:`build_move_figures`
+thesis style, or the Ruckig plan streamed at the control rate, by default through the unit
+loops' feed-forward of :mod:`bridge.unit_loop`); :func:`build_move_figures`
 turns its trace into the reported figures.
 """
 
@@ -20,7 +21,8 @@ import numpy as np
 from planner.kinematics import HitchModel
 from planner.trajectory import MotionState, TrajectoryPlanner
 
-from .sim_rig import LossyBus, SimError, SimRig, SimSettings, unit_loop_lag_s
+from .sim_rig import LossyBus, SimError, SimRig, SimSettings
+from .unit_loop import actuator_motion, build_unit_loops, feedforward_reference, safe_reference, unit_loop_lag_s
 
 __all__ = [
     "LossyBus", "MoveFigures", "MoveSettings", "MoveTrace", "REFERENCE_KINDS", "SimError", "SimRig",
@@ -40,9 +42,9 @@ class MoveSettings:
             (Ruckig plan samples streamed at the link's control rate).
         start: start pose (any of x, z, roll, pitch; default the neutral pose).
         speed_scale: fraction of full trajectory speed, (0, 1].
-        lead: trajectory only: stream each actuator's plan :func:`unit_loop_lag_s` ahead,
-            so the unit controllers' ramp lag (different per cylinder) cancels; the slow
-            cylinders' first reference is then τ_i into their plan (a bounded step).
+        feedforward: trajectory only: stream the reference under which each unit loop
+            follows its plan (:mod:`bridge.unit_loop`), instead of the plan's actuator
+            positions themselves (which each cylinder follows with its own lag).
         warmup_s: time for address claims and first measurements before the move, s.
         hold_s: the run ends once every valve command stayed zero this long, s.
         max_time_s: ... or this long after the move started, s.
@@ -51,7 +53,7 @@ class MoveSettings:
     reference: str = "trajectory"
     start: Mapping[str, float] | None = None
     speed_scale: float = 1.0
-    lead: bool = False
+    feedforward: bool = True
     warmup_s: float = 0.5
     hold_s: float = 1.0
     max_time_s: float = 30.0
@@ -77,7 +79,7 @@ class MoveTrace:
     true one (they differ by the AD quantisation), ``goal`` the goal pose.
     """
 
-    reference_kind: str  # "step", "trajectory" or "trajectory+lead"
+    reference_kind: str  # "step", "trajectory" or "trajectory+feedforward"
     start: np.ndarray
     truth_start: np.ndarray
     goal: np.ndarray
@@ -123,9 +125,11 @@ def run_move(model: HitchModel, goal: Mapping[str, float], move: MoveSettings | 
         plan = tp.plan_move(MotionState.at_rest(p0), dict(zip(_POSE, p1)), speed_scale=move.speed_scale)
         sp = tp.sample(plan)
         refs = sp.actuators
-        if move.lead:  # actuator i streams its own plan τ_i ahead (a value the plan takes, never beyond its end)
-            lag = unit_loop_lag_s(rig.ecu)
-            refs = np.column_stack([np.interp(np.minimum(sp.t + lag[i], sp.t[-1]), sp.t, refs[:, i]) for i in range(5)])
+        if move.feedforward:
+            loops = build_unit_loops(model.profile, rig.ecu.config.a)
+            refs = np.array([safe_reference(rig.link.check_reference, q, feedforward_reference(
+                loops, actuator_motion(plan.state_at, tp.inverse.solve_full, float(t), loops)))[0]
+                for t, q in zip(sp.t, refs)])
         return _drive(rig, model, sp.t, refs, lambda t: plan.state_at(t).position, p0, p1, plan.duration, move)
 
 
@@ -159,7 +163,7 @@ def _drive(rig: SimRig, model: HitchModel, times, refs, planned_at, p0, p1, dura
         if (quiet_since is not None and t - quiet_since >= move.hold_s - 1e-9) or t - t0 >= move.max_time_s - 1e-9:
             break
     cols = list(zip(*rows))
-    kind = move.reference + ("+lead" if move.lead and move.reference == "trajectory" else "")
+    kind = move.reference + ("+feedforward" if move.feedforward and move.reference == "trajectory" else "")
     return MoveTrace(kind, np.asarray(p0), truth_start, np.asarray(p1), float(duration), np.array(cols[0]),
                      *(np.array(c, dtype=float) for c in cols[1:]), link_counters=rig.link.counters.as_dict(),
                      node_counters=rig.node.counters.as_dict(), faults=rig.link.faults.reasons,

@@ -15,7 +15,18 @@ modifications (thesis §2.5.6, figure 2-21), all implemented here:
    the sign of ``e − T_F · dy/dt``;
 3. dead-zone compensation: a non-zero command is pushed out of the valve dead zone
    by adding ``±dz``;
-4. the command is cut to zero within ``cutoff_counts`` of the reference.
+4. the command is cut to zero near the reference, with hysteresis: a cylinder is driven
+   until the error is within ``settle_counts`` (0: the reading equals the reference); the
+   command is then zero for ``settle_wait_s`` (the oil in flight: transport delay and lag
+   still move the piston) unless the error leaves ``cutoff_counts``; if the reading is then
+   still within ``settle_counts`` the cylinder is *held* (command zero) while the reference
+   is unchanged and the error stays within ``cutoff_counts`` (1), so AD flicker and the
+   ±1-count jitter of a settled piston do not restart the valve; otherwise (it coasted one
+   count over) it is driven back. A new reference count, or a drift beyond the band, drives
+   again.
+   The thesis gives no distance ("a small distance of the reference"); settling on the
+   count itself is what makes the steady state quantisation-limited (half an AD step).
+   ``settle_counts = cutoff_counts`` is the plain cut-off without hysteresis.
 
 Output stage, in this order (documented assumption; the thesis figure 2-21 is not
 legible in the digest):  PD → cut-off → saturate to ±254 (controller range, the
@@ -70,8 +81,12 @@ class ControllerConfig:
     ``a``: tuning parameter of (thesis 2.57), 0 < a ≤ 2.  ``period_s``: controller
     sample time [s]; the thesis ECU's rate is not stated, 10 ms (100 Hz) is assumed
     (T_F = 0.01 s was identified at one sample of that rate and the position message is
-    sent at 100 Hz).  ``cutoff_counts``: command cut to zero when |error| ≤ this
-    [counts].  ``relay_margin_counts``: distance of the end-stop relay limits inside the
+    sent at 100 Hz).  ``settle_counts``: a driven cylinder stops when |error| ≤ this
+    [counts]; ``cutoff_counts``: a settled cylinder stays stopped while its reference is
+    unchanged and |error| ≤ this [counts] (≥ ``settle_counts``).  ``settle_wait_s``: how
+    long the command stays zero after reaching ``settle_counts`` before the cylinder is held
+    or driven back [s] (assumed 0.2 s: transport delay 0.1 s plus the lag, with margin).
+    ``relay_margin_counts``: distance of the end-stop relay limits inside the
     calibrated stroke ends [counts]; ``None`` → max(2, ceil(1 % of the count span)).
     ``relay_hysteresis_counts``: the relay releases this far back inside its limit.
     """
@@ -79,6 +94,8 @@ class ControllerConfig:
     a: float = THESIS_A
     period_s: float = 0.01
     cutoff_counts: int = 1
+    settle_counts: int = 0
+    settle_wait_s: float = 0.2
     relay_margin_counts: int | None = None
     relay_hysteresis_counts: int = 0
 
@@ -88,10 +105,15 @@ class ControllerConfig:
         if not (isinstance(self.period_s, (int, float)) and math.isfinite(self.period_s)
                 and 1e-4 <= self.period_s <= 1.0):
             raise ControllerError(f"period_s = {self.period_s!r} outside [1e-4, 1] s")
-        for name, lo, hi in (("cutoff_counts", 0, 100), ("relay_hysteresis_counts", 0, 100)):
+        for name, lo, hi in (("cutoff_counts", 0, 100), ("settle_counts", 0, 100), ("relay_hysteresis_counts", 0, 100)):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
                 raise ControllerError(f"{name} = {v!r} must be an integer in [{lo}, {hi}]")
+        if not (isinstance(self.settle_wait_s, (int, float)) and math.isfinite(self.settle_wait_s)
+                and 0.0 <= self.settle_wait_s <= 10.0):
+            raise ControllerError(f"settle_wait_s = {self.settle_wait_s!r} outside [0, 10] s")
+        if self.settle_counts > self.cutoff_counts:
+            raise ControllerError(f"settle_counts = {self.settle_counts} must not exceed cutoff_counts = {self.cutoff_counts}")
         m = self.relay_margin_counts
         if m is not None and (isinstance(m, bool) or not isinstance(m, int) or not 0 <= m <= 200):
             raise ControllerError(f"relay_margin_counts = {m!r} must be None or an integer in [0, 200]")
@@ -220,10 +242,20 @@ class UnitController:
         self.gains = build_controller_gains(params, config.a)
         self.relay = EndStopRelay(build_relay_limits(params, config))
         self._prev: int | None = None
+        self._wait_periods = math.ceil(config.settle_wait_s / config.period_s - 1e-9)
+        self._settled_on: int | None = None  # reference count reached (waiting or holding)
+        self._waited = 0                     # controller periods since it was reached
+
+    @property
+    def holding(self) -> bool:
+        """True while the cylinder is settled and held on its reference (command zero)."""
+        return self._settled_on is not None and self._waited >= self._wait_periods
 
     def reset(self) -> None:
-        """Forget the derivative memory and release the relay (ECU restart, controllers off)."""
+        """Forget the derivative memory and the settled state, release the relay (ECU restart, controllers off)."""
         self._prev = None
+        self._settled_on = None
+        self._waited = 0
         self.relay.reset()
 
     def observe(self, measurement_counts: int) -> None:
@@ -243,7 +275,16 @@ class UnitController:
         e = r - y
         s = e - g.derivative_time_s * rate
         pd = (g.k_pos if s > 0 else g.k_neg) * s
-        if abs(e) <= cfg.cutoff_counts or s == 0:
+        if self._settled_on is not None:
+            if r != self._settled_on or abs(e) > cfg.cutoff_counts:
+                self._settled_on = None      # new reference or drift beyond the band: drive again
+            elif self._waited < self._wait_periods:
+                self._waited += 1            # oil in flight: wait, then hold or drive back
+                if self._waited == self._wait_periods and abs(e) > cfg.settle_counts:
+                    self._settled_on = None  # coasted over: drive back
+        if self._settled_on is None and abs(e) <= cfg.settle_counts:
+            self._settled_on, self._waited = r, 0
+        if self._settled_on is not None or s == 0:
             valve = 0
         else:
             v = p.valve_multiplier * max(-VALVE_MAX, min(VALVE_MAX, pd))

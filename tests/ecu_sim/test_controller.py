@@ -82,16 +82,61 @@ def test_derivative_acts_on_the_measurement_not_the_error(params):
     assert out.error_counts == 3 and out.command == -18
 
 
-def test_cutoff_near_the_reference(params):
+def test_plain_cutoff_near_the_reference(params):
+    # settle_counts = cutoff_counts: the plain cut-off without hysteresis
     tilt = params["tilt"]
+    plain = ControllerConfig(cutoff_counts=1, settle_counts=1)
     for r in (479, 480, 481):
-        assert UnitController(tilt).update(r, 480).command == 0
+        assert UnitController(tilt, plain).update(r, 480).command == 0
     # e = 2: 28.98 → 14.49 → +5 → 19.49 → 19
-    assert UnitController(tilt).update(482, 480).command == 19
-    wide = ControllerConfig(cutoff_counts=3)
+    assert UnitController(tilt, plain).update(482, 480).command == 19
+    wide = ControllerConfig(cutoff_counts=3, settle_counts=3)
     assert UnitController(tilt, wide).update(483, 480).command == 0
     assert UnitController(tilt, wide).update(477, 480).command == 0
     assert UnitController(tilt, wide).update(484, 480).command != 0
+
+
+def test_default_cutoff_settles_on_the_count_and_holds_within_one(params):
+    tilt = params["tilt"]
+    c = UnitController(tilt)
+    cfg = c.config
+    assert (cfg.settle_counts, cfg.cutoff_counts, cfg.settle_wait_s, cfg.period_s) == (0, 1, 0.2, 0.01)
+    # driven: e = 1 is not close enough; 14.49·1 → ×0.5 = 7.24 → +5 = 12.24 → 12
+    out = c.update(481, 480)
+    assert out.command == 12 and not c.holding
+    # reached: command zero, 20 periods (0.2 s) of waiting for the oil in flight, then held
+    for k in range(20):
+        assert c.update(481, 481).command == 0 and not c.holding, k
+    assert c.update(481, 481).command == 0 and c.holding
+    # settled: the reading flickers by one count (AD noise, a piston on an AD edge): held
+    for y in (480, 482, 481, 480):
+        assert c.update(481, y).command == 0 and c.holding
+    # beyond the band: driven again. The reading moved 482 → 483 in 10 ms: rate 100,
+    # s = −2 − 0.01·100 = −3 → k_neg = 0.581/(0.452·0.1) = 12.854 → −38.56 → ×0.5 = −19.28
+    # → −5 = −24.28 → −24
+    assert c.update(481, 482).command == 0
+    assert c.update(481, 483).command == -24 and not c.holding
+    # a new reference one count away is driven to, not held: no one-count final error
+    c2 = UnitController(tilt, ControllerConfig(settle_wait_s=0.0))
+    assert c2.update(481, 481).command == 0 and c2.holding
+    out = c2.update(482, 481)
+    assert out.command > 0 and not c2.holding
+    assert c2.update(482, 482).command == 0 and c2.holding
+    c2.reset()
+    assert not c2.holding
+
+
+def test_a_cylinder_that_coasts_one_count_over_is_driven_back(params):
+    tilt = params["tilt"]
+    c = UnitController(tilt)
+    c.update(481, 479)
+    assert c.update(481, 481).command == 0            # reached, waiting
+    for _ in range(5):
+        assert c.update(481, 482).command == 0        # coasting over, within the band: wait
+    for _ in range(14):
+        assert c.update(481, 482).command == 0
+    out = c.update(481, 482)                          # 0.2 s after reaching: still one over
+    assert out.command < 0 and not c.holding          # driven back (not held one count off)
 
 
 def test_dead_zone_compensation_always_leaves_the_dead_zone(params):
@@ -190,6 +235,10 @@ def test_bad_input_and_configuration(params):
         ControllerConfig(period_s=float("nan"))
     with pytest.raises(ControllerError, match="cutoff_counts"):
         ControllerConfig(cutoff_counts=-1)
+    with pytest.raises(ControllerError, match="settle_counts = 2 must not exceed cutoff_counts = 1"):
+        ControllerConfig(settle_counts=2)
+    with pytest.raises(ControllerError, match="settle_wait_s"):
+        ControllerConfig(settle_wait_s=-0.1)
     with pytest.raises(ControllerError, match="relay_margin_counts"):
         build_relay_limits(params["top"], ControllerConfig(relay_margin_counts=150))
     with pytest.raises(ControllerError, match="low_counts"):

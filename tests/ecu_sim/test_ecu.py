@@ -85,8 +85,8 @@ def test_closed_loop_step_settles_on_every_cylinder(profile, direction):
     ref, ys, us, overshoot, settle = _step_figures(ecu, deltas)
     for i, n in enumerate(ACTUATOR_ORDER):
         print(f"{n:6s} step {deltas[i]:+4d} counts: overshoot {overshoot[i]} counts, settling (±2) {settle[i]:.2f} s")
-    # settles within the cut-off band and stays there: valves closed, piston at rest
-    assert np.all(np.abs(ys[-1] - ref) <= ecu.config.cutoff_counts)
+    # settles on the reference count (settle_counts = 0) and stays there: valves closed, piston at rest
+    assert np.all(np.abs(ys[-1] - ref) <= ecu.config.settle_counts)
     assert np.all(us[-100:] == 0)
     assert np.all(ys[-100:] == ys[-1])
     assert np.all(overshoot <= 1)

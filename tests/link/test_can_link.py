@@ -127,14 +127,15 @@ def test_measured_state_is_forward_kinematics_of_the_quantised_readings(rig, mod
     ecu = rig.ecu
     c = ecu.measurement_counts()
     s = SensorScaling(model.profile)
-    frac = round(250 * (c[0] - 26) / 229) / 250  # the rear hitch position, 0.4 %/bit
-    counts = np.array([26 + frac * 229, c[1], c[2], c[3], c[4]], dtype=float)
+    # the lift goes through the rear hitch position (0.4 %/bit) and comes back as its count
+    assert st.lift_fraction == round(250 * (c[0] - 26) / 229) / 250
+    counts = np.array(c, dtype=float)
     q = s.si_min + (counts - s.counts_min) * s.resolution
     assert np.allclose(st.actuators.as_array(), q, atol=1e-12)
     assert np.allclose(st.pose.as_array(), model.forward(q).pose.as_array(), atol=1e-12)
     truth = model.forward(np.array([p.counts_to_si(x) for p, x in zip(ecu.params, ecu.piston_counts())])).pose
-    # quantisation limit: lift 3.87 mrad/count (+ 1.8 mrad from the 0.4 % step) ~ 5 mm of z
-    assert abs(st.pose.z - truth.z) < 0.005 and abs(st.pose.x - truth.x) < 0.002
+    # quantisation limit: half an AD count; lift 3.87 mrad/count ~ 3.7 mm of z per count
+    assert abs(st.pose.z - truth.z) < 0.002 and abs(st.pose.x - truth.x) < 0.002
     assert st.system.controllers_on and st.system.watchdog_tripped
 
 

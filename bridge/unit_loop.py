@@ -41,8 +41,8 @@ from planner.types import ACTUATOR_NAMES
 from .ecu_sim.controller import THESIS_A
 
 __all__ = [
-    "ActuatorMotion", "UnitLoop", "actuator_motion", "build_unit_loops", "feedforward_reference",
-    "safe_reference", "unit_loop_lag_s",
+    "ActuatorMotion", "FeedforwardShaper", "UnitLoop", "actuator_motion", "build_unit_loops",
+    "feedforward_reference", "safe_reference", "unit_loop_lag_s",
 ]
 
 
@@ -163,3 +163,39 @@ def safe_reference(check: Callable[[np.ndarray], object], planned: np.ndarray, s
             continue
         return r, frac
     return planned.copy(), 0.0
+
+
+class FeedforwardShaper:
+    """The reference to stream for a motion, for a control loop that evaluates its motion each cycle.
+
+    ``loops``: :func:`build_unit_loops`; ``solve_full``: the exact inverse (pose → actuators,
+    Jacobian, …); ``check``: the link's hard-limit check (raises :class:`ValueError`).
+    ``enabled=False`` streams the planned actuators unchanged.
+    """
+
+    def __init__(self, loops: tuple[UnitLoop, ...], solve_full: Callable,
+                 check: Callable[[np.ndarray], object], *, enabled: bool = True) -> None:
+        self.loops, self._solve_full, self._check, self.enabled = loops, solve_full, check, bool(enabled)
+        self.pulled_back = 0
+        """References whose feed-forward the hard-limit check made smaller (a count)."""
+
+    def for_plan(self, state_at: Callable[[float], object], t: float, planned: np.ndarray) -> np.ndarray:
+        """Reference at time ``t`` of a pose plan ``state_at`` whose actuators at ``t`` are ``planned``."""
+        if not self.enabled:
+            return np.asarray(planned, float)
+        return self._safe(planned, feedforward_reference(self.loops, actuator_motion(state_at, self._solve_full, t, self.loops)))
+
+    def for_rates(self, planned: np.ndarray, rates: np.ndarray) -> np.ndarray:
+        """Reference for actuators moving at ``rates`` now, with nothing known ahead (jog): the
+        rates are taken as those one delay ahead, the acceleration as zero."""
+        if not self.enabled:
+            return np.asarray(planned, float)
+        planned, rates = np.asarray(planned, float), np.asarray(rates, float)
+        motion = ActuatorMotion(planned, rates, rates, np.zeros(5))
+        return self._safe(planned, feedforward_reference(self.loops, motion))
+
+    def _safe(self, planned: np.ndarray, shaped: np.ndarray) -> np.ndarray:
+        r, frac = safe_reference(self._check, planned, shaped)
+        if frac < 1.0:
+            self.pulled_back += 1
+        return r

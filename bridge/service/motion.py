@@ -2,8 +2,10 @@
 
 :class:`MotionController` owns the control thread. Every cycle (the control rate, 50 Hz by
 default, on absolute deadlines) it reads the link's status, evaluates the active motion at
-the current time, converts the pose-space reference to actuators with the exact inverse and
-hands them to :meth:`bridge.can_link.CanLink.send_reference` (which checks every hard limit
+the current time, converts the pose-space reference to actuators with the exact inverse, shapes
+them into the reference under which each cylinder's unit loop follows the motion
+(:class:`bridge.unit_loop.FeedforwardShaper`; the state's ``reference`` stays the planned one) and
+hands that to :meth:`bridge.can_link.CanLink.send_reference` (which checks every hard limit
 and the AD range before anything reaches the bus); the state snapshot is published first
 thing in the cycle, so its period is as regular as the wake-ups.
 
@@ -57,8 +59,9 @@ from .maneuvers import ValidationResult
 from .motion_planning import GotoPlanningMixin
 from .motion_types import (
     ATTACH_SPEED_SCALE, MODES, JogAccepted, JogMotion, MotionError, PlanMotion,
-    check_mode_allows, check_precedence, plan_state,
+    check_mode_allows, check_precedence, plan_state, streamed_reference,
 )
+from ..unit_loop import FeedforwardShaper, build_unit_loops
 from .periodic import PeriodicThread
 from .state_message import build_state_message, fault_transition
 
@@ -83,10 +86,13 @@ class MotionController(GotoPlanningMixin):
     def __init__(self, guard: Guard, plan_guard: Guard, link: Any, clock: Callable[[], float], *,
                  on_state: Callable[[dict], None] | None = None, on_event: Callable[[dict], None] | None = None,
                  state_every: int = 1, odometer: Callable[[], float | None] | None = None,
-                 mode: str = "auto", spawn: Callable[[Callable[[], None]], None] | None = None):
+                 mode: str = "auto", spawn: Callable[[Callable[[], None]], None] | None = None,
+                 feedforward: bool = True):
         self.guard, self.plan_guard = guard, plan_guard
         self.planner = guard.planner
         self.link = link
+        self.shaper = FeedforwardShaper(build_unit_loops(self.planner.model.profile), self.planner.inverse.solve_full,
+                                        link.check_reference, enabled=feedforward)
         self.clock = clock
         self.dt = 1.0 / self.planner.rate
         self._on_state = on_state or (lambda s: None)
@@ -307,7 +313,7 @@ class MotionController(GotoPlanningMixin):
             ref = self._reference_at(now, events)
             if ref is not None:
                 try:
-                    self.link.send_reference(ref[1], now)
+                    self.link.send_reference(streamed_reference(self.shaper, self._active, ref, now), now)
                     self._reference = ref
                 except ValueError as exc:   # ReferenceRefused / LinkFaultError: never streamed
                     what = "limit_reached" if type(exc).__name__ == "ReferenceRefused" else "fault"

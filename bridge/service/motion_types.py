@@ -16,7 +16,7 @@ from planner.trajectory import JogController, JogOutput, MotionState, Plan
 
 __all__ = ["MODES", "MOTION_MODES", "ATTACH_SPEED_SCALE", "MotionError", "MotionAccepted", "JogAccepted",
            "PlanMotion", "JogMotion", "check_mode_allows", "check_precedence", "plan_state", "reasons_json",
-           "stability_json"]
+           "stability_json", "streamed_reference"]
 
 #: operating modes (thesis HITCH.md §4: automatic, manual, implement attach, transport, configuration)
 MODES: tuple[str, ...] = ("auto", "manual", "attach", "transport", "config")
@@ -160,3 +160,14 @@ def plan_state(m: PlanMotion, t: float) -> MotionState:
     if m.prev is not None and t < m.t0:
         return plan_state(m.prev, t)
     return m.plan.state_at(t - m.t0)
+
+
+def streamed_reference(shaper, m: "PlanMotion | JogMotion | None", ref, now: float) -> np.ndarray:
+    """The actuator reference to stream for the planned ``ref`` = (state, q, q̇) of motion ``m``:
+    feed-forward through the unit loops (:class:`bridge.unit_loop.FeedforwardShaper`) for a plan
+    (looking ahead in it) or a jog (its rates now); the final reference itself while holding."""
+    if isinstance(m, PlanMotion):
+        return shaper.for_plan(lambda t: plan_state(m, t), now, ref[1])
+    if isinstance(m, JogMotion):
+        return shaper.for_rates(ref[1], ref[2])
+    return ref[1]

@@ -70,12 +70,30 @@ def watchdog_latency(model: HitchModel) -> float:
         return rig.now_s - last
 
 
+def random_moves(model: HitchModel, sim: SimSettings, n: int, seed: int) -> dict:
+    """Final errors and path deviations of ``n`` moves between random poses in 80 % of the
+    restricted workspace, with the product's reference (trajectory + feed-forward)."""
+    rng = np.random.default_rng(seed)
+    box = model.workspace
+    out: dict = {w: {"position_m": [], "angle_rad": [], "path_deviation_m": []} for w in ("measured", "truth")}
+    for _ in range(n):
+        start, goal = ({k: float(0.8 * rng.uniform(*box[k])) for k in ("x", "z", "roll", "pitch")} for _ in range(2))
+        tr = run_move(model, goal, MoveSettings(start=start), sim)
+        for w in out:
+            f = build_move_figures(tr, w)
+            out[w]["position_m"].append(f.final_error_position_m)
+            out[w]["angle_rad"].append(f.final_error_angle_rad)
+            out[w]["path_deviation_m"].append(f.max_path_deviation_m)
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--noise-counts", type=float, default=0.0)
     ap.add_argument("--gain-error", type=float, default=0.0)
     ap.add_argument("--frame-loss", type=float, default=0.0)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--random", type=int, default=30, help="random moves in the workspace for the steady-state figures")
     ap.add_argument("--json", default=None)
     args = ap.parse_args()
     model = HitchModel.from_profile()
@@ -122,6 +140,13 @@ def main() -> None:
         c.print(f"{name:>18}: " + "   ".join(
             f"{v}: {_fmt(ratios[name][v]['max_path_deviation_m'])}, {_fmt(ratios[name][v]['max_path_deviation_rad'])}"
             for v in VARIANTS[1:]))
+    steady = random_moves(model, sim, args.random, args.seed)
+    for which in ("measured", "truth"):
+        e = steady[which]
+        c.print(f"steady state over {args.random} random moves (trajectory+feedforward), {which}: position "
+                f"max {1e3 * max(e['position_m']):.2f} mm, p50 {1e3 * float(np.median(e['position_m'])):.2f} mm; angle "
+                f"max {1e3 * max(e['angle_rad']):.2f} mrad, p50 {1e3 * float(np.median(e['angle_rad'])):.2f} mrad; "
+                f"path deviation max {1e3 * max(e['path_deviation_m']):.2f} mm")
     budget = {rate: {8: rate + 100 + 100 + 10 + 10} for rate in (50, 100, 200)}
     load = {rate: {"worst_case_stuffing": bus_load(b), "no_stuffing": bus_load(b, worst_case_stuffing=False)}
             for rate, b in budget.items()}
@@ -135,6 +160,7 @@ def main() -> None:
     c.print(f"watchdog: valves zero {1e3 * latency:.1f} ms after the last reference")
     c.print(f"simulation speed: {sim_s:.1f} s simulated in {wall_s:.2f} s wall ({sim_s / wall_s:.0f}x real time)")
     write_json(args.json, {"machine": machine_note(), "settings": vars(args), "moves": results, "ratios": ratios,
+                           "random_moves": steady,
                            "bus_load": {str(k): v for k, v in load.items()}, "bus_load_measured": measured_load,
                            "watchdog_latency_s": latency, "sim_speed_x_real_time": sim_s / wall_s})
 

@@ -4,8 +4,9 @@
 that plan (on the planning guard, outside the control lock) and install a
 goto/preset/maneuver-step motion: :meth:`~GotoPlanningMixin.goto`,
 :meth:`~GotoPlanningMixin.preview`, :meth:`~GotoPlanningMixin.plan_step` and the start of a
-plan that replaces the running motion smoothly at a switch time ``_PLAN_LEAD_S`` ahead. It
-uses the controller's state (locks, guards, active motion, maneuver slot) and helpers, so it
+plan that replaces the running motion smoothly at a switch time ``_PLAN_LEAD_S`` ahead (if
+planning takes longer, again from 1.5 × the time it took; a plan from rest starts whenever it
+is ready, since a resting start does not age). It uses the controller's state (locks, guards, active motion, maneuver slot) and helpers, so it
 is only meant as a base of :class:`~bridge.service.motion.MotionController`.
 """
 
@@ -64,9 +65,12 @@ class GotoPlanningMixin:
                     raise MotionError("ecu", f"{kind} refused: {why}")
                 t_switch = now + lead
                 start = self._predict(t_switch)
+                from_rest = self._active is None and not start.moving   # holding: the start does not age
                 gen = self._generation
+            t_plan = self.clock()
             with self._plan_lock:
                 gp = self.plan_guard.plan(start, goal, speed_scale=speed_scale)   # PlanError / GuardRefusal
+            took = self.clock() - t_plan
             events: list[dict] = []
             with self._lock:
                 if from_maneuver and not self._maneuver.owns(runner):
@@ -76,8 +80,10 @@ class GotoPlanningMixin:
                         self._check_precedence()
                     continue                         # something else started meanwhile: re-plan from it
                 now = self.clock()
-                if now > t_switch - 0.25 * self.dt:
-                    lead *= 2                        # planning took longer than the lead: again, further ahead
+                if from_rest and self._active is None:
+                    t_switch = max(t_switch, now)    # from rest the plan may start whenever it is ready
+                elif now > t_switch - 0.25 * self.dt:
+                    lead = max(2 * lead, 1.5 * took + self.dt)   # planning took longer: again, further ahead
                     continue
                 prev = self._active if isinstance(self._active, PlanMotion) else None
                 if self._active is not None:

@@ -296,6 +296,7 @@ def test_goto_moves_the_gauges_and_they_settle_at_the_target(service, page, shot
     except AssertionError as exc:
         raise AssertionError(f"{exc}; last shown {last}") from None
     wait_js(page, "document.getElementById('motion').textContent === 'Idle'")
+    wait_js(page, "/^motion #\\d+ finished$/.test(document.getElementById('goto-result').textContent)")
     # the pose the page shows is the service's measured one, which meets the target unrounded
     measured = service.state()["pose"]
     assert within_issue6_target(measured, goal), (measured, goal)

@@ -41,7 +41,7 @@
 
   const ui = {
     config: null, state: null, lastStateMs: 0, drawn: true, frames: 0, rate: 0,
-    presets: [], maneuvers: [], maneuverSteps: {}, connected: false, closedReason: "",
+    presets: [], maneuvers: [], maneuverSteps: {}, connected: false, closedReason: "", gotoId: null,
   };
 
   // ------------------------------------------------------------------ formatting
@@ -360,6 +360,10 @@
     if (e.maneuver) text = `maneuver ${e.maneuver}: ${name.replace("maneuver_", "")}` + (e.step !== undefined ? ` step ${e.step + 1}` : "") + (e.reason ? ` (${e.reason}: ${e.message || ""})` : "");
     log(text, /abort|fault|limit/.test(name));
     if (name === "maneuver_started" && e.steps) ui.maneuverSteps[e.maneuver] = e.steps;
+    if (e.motion_id !== undefined && e.motion_id === ui.gotoId && /^motion_(finished|aborted)$|^limit_reached$|^fault$/.test(name)) {
+      result("#goto-result", name === "motion_finished" ? `motion #${e.motion_id} finished` : text, name === "motion_finished");
+      ui.gotoId = null;
+    }
     if (name === "maneuver_finished" || name === "maneuver_aborted") {
       $("#maneuver-result").textContent = name === "maneuver_finished"
         ? `${e.maneuver} finished in ${fmt(e.elapsed, 1)} s` : `${e.maneuver} aborted: ${e.reason} — ${e.message || ""}`;
@@ -519,7 +523,9 @@
     ev.preventDefault();
     const req = gotoRequest();
     if (req.error) { result("#goto-result", req.error, false); return; }
+    result("#goto-result", "", true);         // the last motion's outcome is no longer news
     const r = await call("goto", req);
+    ui.gotoId = r.ok ? r.data.motion_id : null;
     result("#goto-result", r.ok ? `moving: motion #${r.data.motion_id}, ${fmt(r.data.duration, 2)} s` : r.data.message, r.ok);
   });
   $("#goto-plan").addEventListener("click", async () => {

@@ -57,7 +57,8 @@ def _cmd_serve(args) -> int:
         simulate_ecu=False if args.no_sim_ecu else None, sim_ground_speed=args.sim_ground_speed,
         profile=args.profile, category=args.category,
         implement=args.implement, control_rate=args.control_rate, state_rate=args.state_rate,
-        data_dir=args.data_dir, http=args.http, http_user=args.http_user)
+        data_dir=args.data_dir, http=args.http, http_user=args.http_user,
+        feedforward=False if args.no_feedforward else None)
     sys.setswitchinterval(5e-4)   # threads waiting for the GIL (the 50 Hz loop) wait ≤ 0.5 ms, not 5 ms
 
     def ready(service) -> None:
@@ -84,6 +85,8 @@ def _add_serve(sub) -> None:
     p.add_argument("--can-interface", choices=("virtual", "socketcan", "udp_multicast"), default=None)
     p.add_argument("--can-channel", default=None, help="CAN channel (default hitch)")
     p.add_argument("--no-sim-ecu", action="store_true", help="do not run the simulated ECU in this process")
+    p.add_argument("--no-feedforward", action="store_true",
+                   help="stream the plan's actuator positions as they are, not the unit loops' feed-forward reference")
     p.add_argument("--sim-ground-speed", type=finite_float("--sim-ground-speed"), default=None,
                    help="m/s of the simulated tractor (wheel-based speed for maneuver wait_for; default 1.5)")
     p.add_argument("--profile", default=None, help="hitch profile (default thesis-t132)")

@@ -17,6 +17,7 @@ TOML layout (every key optional; the names are the field names below)::
                sim_ground_speed = 1.5   # m/s of the simulated tractor (wheel-based speed, PGN 65096)
     [hitch]    profile = "thesis-t132"; category = "2"; implement = "cat2-spreader-400";
                control_rate = 50.0; state_rate = 50.0
+               feedforward = true   # stream the unit loops' feed-forward reference (bridge.unit_loop)
     [service]  data_dir = "/var/lib/hitch"; http = "127.0.0.1:8080"; workers = 4
 """
 
@@ -90,13 +91,13 @@ class ServiceConfig(BaseModel):
     connect: tuple[str, ...] = ()
     prefix: str = "hitch"
     #: multicast scouting (off by default: loopback only, no discovery traffic)
-    scouting: bool = False
+    scouting: bool = Field(False, strict=True)
     #: Zenoh security config (JSON5: usrpwd, access_control, TLS) merged into the session config
     security: Path | None = None
     can_interface: Literal["virtual", "socketcan", "udp_multicast"] = "virtual"
     can_channel: str = "hitch"
     #: run the simulated cylinder ECU in this process on the same bus
-    simulate_ecu: bool = True
+    simulate_ecu: bool = Field(True, strict=True)
     stale_timeout_s: float = Field(0.2, ge=0.05, le=2.0)
     #: ground speed of the simulated tractor (PGN 65096, for maneuver ``wait_for``) [m/s]
     sim_ground_speed: float = Field(1.5, ge=0.0, le=20.0)
@@ -105,6 +106,8 @@ class ServiceConfig(BaseModel):
     implement: str | None = None
     control_rate: float = Field(50.0, ge=10.0, le=200.0)
     state_rate: float = Field(50.0, ge=1.0, le=100.0)
+    #: stream the unit loops' feed-forward reference (False: the plan's actuators as they are)
+    feedforward: bool = Field(True, strict=True)
     data_dir: Path = Field(default_factory=default_data_dir)
     http: str | None = None
     #: the user the web terminal's commands run as when access control is on (must be in the ACL)
@@ -161,7 +164,7 @@ _TOML_SECTIONS = {
     "can": {"interface": "can_interface", "channel": "can_channel", "simulate_ecu": "simulate_ecu",
             "stale_timeout_s": "stale_timeout_s", "sim_ground_speed": "sim_ground_speed"},
     "hitch": {"profile": "profile", "category": "category", "implement": "implement",
-              "control_rate": "control_rate", "state_rate": "state_rate"},
+              "control_rate": "control_rate", "state_rate": "state_rate", "feedforward": "feedforward"},
     "service": {"data_dir": "data_dir", "http": "http", "http_user": "http_user", "workers": "workers"},
 }
 

@@ -155,7 +155,7 @@ class HitchService:
             state_every = max(1, round(cfg.control_rate / cfg.state_rate))
             self.motion = MotionController(guard, plan_guard, self.link, clock, on_state=self._on_state,
                                            on_event=self._on_event, state_every=state_every,
-                                           odometer=self.odometer.distance_m)
+                                           odometer=self.odometer.distance_m, feedforward=cfg.feedforward)
             policy = access_policy_from_file(cfg.security, cfg.prefix) if cfg.security is not None else None
             self.api = ServiceAPI(self.motion, ik, self.store, self._info(control_model, guard),
                                   implement=cfg.implement, policy=policy)

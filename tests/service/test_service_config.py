@@ -18,6 +18,7 @@ def test_embedded_defaults_are_a_loopback_peer_with_the_simulated_ecu(monkeypatc
     assert c.prefix == "hitch" and c.key("presets/go") == "hitch/presets/go"
     assert (c.can_interface, c.can_channel, c.simulate_ecu) == ("virtual", "hitch", True)
     assert (c.profile, c.category, c.control_rate, c.state_rate) == ("thesis-t132", None, 50.0, 50.0)
+    assert c.feedforward is True
     assert c.data_dir == tmp_path / "hitch-planner" and c.database_path.name == "hitch.sqlite3"
     z = json.loads(build_zenoh_config(c).get_json("scouting/multicast/enabled"))
     assert z is False
@@ -31,10 +32,11 @@ def test_default_data_dir_without_xdg():
 def test_toml_then_flags(tmp_path):
     f = tmp_path / "svc.toml"
     f.write_text('[zenoh]\nprefix = "fleet/t07/hitch"\nmode = "client"\nconnect = ["tcp/10.0.0.1:7447"]\n'
-                 '[hitch]\ncontrol_rate = 100.0\nimplement = "cat2-spreader-400"\n[service]\nworkers = 2\n')
+                 '[hitch]\ncontrol_rate = 100.0\nimplement = "cat2-spreader-400"\nfeedforward = false\n'
+                 '[service]\nworkers = 2\n')
     c = load_service_config(f)
     assert c.prefix == "fleet/t07/hitch" and c.mode == "client" and c.listen == () and c.control_rate == 100.0
-    assert c.implement == "cat2-spreader-400" and c.workers == 2
+    assert c.implement == "cat2-spreader-400" and c.workers == 2 and c.feedforward is False
     c = load_service_config(f, control_rate=40.0, prefix=None)          # a flag wins; None means "not given"
     assert c.control_rate == 40.0 and c.prefix == "fleet/t07/hitch"
 
@@ -51,6 +53,8 @@ def test_toml_then_flags(tmp_path):
     ({"mode": "client", "connect": ["tcp/127.0.0.1:1"], "listen": ["tcp/127.0.0.1:2"]}, "a client does not listen"),
     ({"http": "8080"}, "HOST:PORT"),
     ({"can_interface": "pcan"}, "can_interface"),
+    ({"feedforward": "yes"}, "feedforward"),
+    ({"simulate_ecu": 1}, "simulate_ecu"),
 ])
 def test_bad_values_name_the_field(kwargs, text):
     with pytest.raises(ServiceConfigError) as ei:

@@ -391,7 +391,7 @@ class MotionController(GotoPlanningMixin):
         man = self._maneuver.describe()
         return build_state_message(seq=self._seq, now=now, status=status, stale_after_s=self.link.config.stale_after_s,
                                    guard=self.guard, mode=self._mode, motion_kind=kind, motion_id=self._last_id,
-                                   reference=ref, limited=self._limited, maneuver=man)
+                                   reference=ref, limited=self._limited, maneuver=man, feedforward=self.shaper)
 
     def _ev(self, name: str, m, **extra) -> dict:
         return {"event": name, "motion_id": m.motion_id, **{k: v for k, v in extra.items() if v is not None}}

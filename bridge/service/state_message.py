@@ -64,10 +64,12 @@ def fault_transition(reported: tuple[str, ...], status, events: list[dict]) -> t
 
 def build_state_message(*, seq: int, now: float, status, stale_after_s: float, guard: Guard, mode: str,
                         motion_kind: str | None, motion_id: int | None, reference, limited: dict,
-                        maneuver: dict | None) -> dict[str, Any]:
+                        maneuver: dict | None, feedforward=None) -> dict[str, Any]:
     """The message for one cycle. ``status``: the link's :class:`~bridge.link_state.LinkStatus` at
     clock time ``now`` [s]; ``reference``: (pose-space state, actuators q, actuator rates q̇) being
-    streamed, or None; ``stale_after_s``: the link's measurement age limit [s]."""
+    streamed, or None; ``stale_after_s``: the link's measurement age limit [s]; ``feedforward``: the
+    :class:`~bridge.unit_loop.FeedforwardShaper` (whether it is on, and how many references the
+    hard-limit check made it pull back towards the plan)."""
     ls = status.state
     msg: dict[str, Any] = {"t": time.time(), "clock": now, "seq": seq, "mode": mode, "moving": motion_kind is not None,
                            "motion_id": motion_id, "motion": motion_kind, "limited": dict(limited)}
@@ -97,6 +99,8 @@ def build_state_message(*, seq: int, now: float, status, stale_after_s: float, g
         "measurement_age_s": age if math.isfinite(age) else None,
         "references_sent": c.references_tx, "references_refused": c.references_refused,
     }
+    if feedforward is not None:
+        msg["ecu"]["feedforward"] = {"enabled": feedforward.enabled, "pulled_back": feedforward.pulled_back}
     msg["maneuver"] = maneuver
     return msg
 

@@ -43,6 +43,7 @@ def _goto_path(model, feedforward: bool):
             q = [p.counts_to_si(c) for p, c in zip(params, rig.ecu.piston_counts())]
             truth.append(model.forward(np.array(q)).pose.controlled())
         assert not states[-1]["moving"] and rig.link.status(rig.now_s).counters.references_refused == 0
+        assert states[-1]["ecu"]["feedforward"] == {"enabled": feedforward, "pulled_back": 0}
         return p0, np.array([0.05, 0.1732, p0[2], p0[3]]), np.array(measured), np.array(truth), mc
 
 
@@ -64,6 +65,7 @@ def test_goto_keeps_to_the_straight_line_through_the_can_path(runs):
     assert dev_ff <= 0.010 and _deviation_m(p0, p1, measured) <= 0.010
     assert dev_plain > 3 * dev_ff                     # unshaped: each cylinder lags by its own loop
     assert mc.shaper.enabled and not runs[False][4].shaper.enabled
+    assert mc.shaper.pulled_back == 0                 # nothing near a hard limit on this move
 
 
 def test_goto_ends_within_the_steady_state_targets(runs):

@@ -18,6 +18,8 @@ sys.path.insert(0, str(Path(__file__).parent))
 from _common import machine_note, percentiles_us, write_json  # noqa: E402
 
 from planner.kinematics import HitchModel  # noqa: E402
+from planner.limits.guard import Guard  # noqa: E402
+from planner.limits.tractor import load_tractor_profile  # noqa: E402
 from planner.trajectory import MotionState, TrajectoryPlanner, verify_setpoints  # noqa: E402
 
 DOFS = ("x", "z", "roll", "pitch")
@@ -31,6 +33,10 @@ def main() -> None:
     args = ap.parse_args()
     model = HitchModel.from_profile()
     tp = TrajectoryPlanner(model)
+    # the guard's check of every sample (FK, end stops, keep-outs, stability) with a heavy implement on a side slope
+    guard = Guard(tp, implement=load_tractor_profile().implement("cat2-power-harrow-1500"))
+    guard.set_slope(0.1, 0.0)
+    guard_times = []
     rng = np.random.default_rng(1)
     times, ratios, dev_pos, dev_ang, durations, violations = [], [], [], [], [], 0
     pbar = track(range(args.moves), description="plans")
@@ -46,6 +52,9 @@ def main() -> None:
                 break
         sp = plan.setpoints
         times.append(dt)
+        t0 = time.perf_counter()
+        guard.check_setpoints(sp)
+        guard_times.append(time.perf_counter() - t0)
         durations.append(plan.duration)
         ratios.append(plan.duration / plan.lower_bound)
         u = (p1 - p0) / np.linalg.norm(p1 - p0)
@@ -59,6 +68,7 @@ def main() -> None:
         "moves": args.moves,
         "duration_s": {"min": float(np.min(durations)), "median": float(np.median(durations)), "max": float(np.max(durations))},
         "plan_time_incl_ik_and_verification": {k.replace("_us", "_ms"): v / 1e3 for k, v in percentiles_us(times).items() if k != "n"},
+        "guard_check_time": {k.replace("_us", "_ms"): v / 1e3 for k, v in percentiles_us(guard_times).items() if k != "n"},
         "duration_over_lower_bound": {"median": float(np.median(ratios)), "max": float(np.max(ratios))},
         "straight_line_deviation": {"position_m_max": float(np.max(dev_pos)), "angle_rad_max": float(np.max(dev_ang))},
         "samples_over_a_limit": violations,
@@ -68,6 +78,9 @@ def main() -> None:
           f"(median {res['duration_s']['median']:.2f} s), 50 Hz samples, IK (closed form) + full limit check at every sample")
     pt = res["plan_time_incl_ik_and_verification"]
     print(f"planning time: p50 {pt['p50_ms']:.2f} ms   p99 {pt['p99_ms']:.2f} ms   max {pt['max_ms']:.2f} ms")
+    gt = res["guard_check_time"]
+    print(f"guard check (1500 kg implement, 0.1 rad side slope): p50 {gt['p50_ms']:.2f} ms   p99 {gt['p99_ms']:.2f} ms   "
+          f"max {gt['max_ms']:.2f} ms")
     print(f"duration / lower bound: median {res['duration_over_lower_bound']['median']:.3f}   max {res['duration_over_lower_bound']['max']:.3f}")
     print(f"straight-line deviation: {res['straight_line_deviation']['position_m_max']:.2e} m, "
           f"{res['straight_line_deviation']['angle_rad_max']:.2e} rad; samples over a limit: {violations}")

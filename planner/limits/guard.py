@@ -18,24 +18,29 @@ Jog motion is evaluated ``jog_horizon`` (~1 s) ahead along the commanded rates.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
 
-from ..kinematics import HitchModel
+from ..fast_function import FastFunction
+from ..kinematics import POINT_NAMES, HitchModel
 from ..trajectory import MotionState, Plan, PlanError, Setpoints, TrajectoryPlanner
 from ..types import ACTUATOR_NAMES
 from .end_stop import EndStopZone
 from .kinematic_margin import KinematicMargin, kinematic_margin
 from .stability import StabilityReport, StabilityThresholds, evaluate_stability
+from .stability_batch import StabilityBatch, evaluate_stability_batch
 from .tractor import ImplementRecord, Tractor, load_tractor_profile
 
 __all__ = ["Guard", "GuardDecision", "GuardReason", "GuardRefusal", "GuardedPlan"]
 
 Action = Literal["ok", "scaled", "refused"]
 _MEASURES = ("front_axle_load", "ssm", "lsm", "esm")
+_FK_CHUNK = 64          # samples per call of the mapped forward kinematics
+_FK_CLOSED_M = 0.5e-9   # closure residual [m] trusted in a batch (HitchModel.forward refuses > 1e-9)
+_KEEP_OUT_TOL_M = 1e-10  # bound on |batch - per-sample| keep-out distance [m] (rounding ~1e-15 m)
 
 
 @dataclass(frozen=True)
@@ -104,6 +109,7 @@ class Guard:
         self.end_stops = EndStopZone(self.model.lower, self.model.upper, planner.limits.velocity,
                                      prof.limits.end_stop_zone)
         self.keep_out = [(k.name, np.array(k.centre), k.radius) for k in prof.limits.keep_out]
+        self._points_map = FastFunction(self.model.points_function.map(_FK_CHUNK))
 
     # ------------------------------------------------------------------ configuration
     def set_slope(self, roll: float, pitch: float) -> None:
@@ -153,45 +159,141 @@ class Guard:
 
     # ------------------------------------------------------------------ plans
     def check_setpoints(self, sp: Setpoints) -> GuardDecision:
-        """Evaluate every sample of a plan; see the module docstring for the rules."""
-        reasons: list[GuardReason] = []
-        factor = 1.0
-        start = self.stability_at(sp.actuators[0])
+        """Evaluate every sample of a plan; see the module docstring for the rules.
+
+        All samples at once: forward kinematics through the mapped CasADi function, end-stop
+        factors, keep-out distances and stability measures vectorised (:mod:`.stability_batch`).
+        Decisions and reported values are those of evaluating each sample with
+        :meth:`stability_at` and :meth:`keep_out_clearance`: the samples reported (reasons,
+        worst), the suspect ones and those whose batch value lies within the batch's agreement
+        bound of a threshold are evaluated that way.
+        """
+        Q, QD, ts = np.asarray(sp.actuators, float), np.asarray(sp.actuator_velocity, float), sp.t
+        start = self.stability_at(Q[0])
         start_vals = _measure_values(start)
-        worst, worst_key = start, math.inf
         hard_th, caution_th = self._thresholds()
-        end_stop: GuardReason | None = None  # the smallest end-stop speed factor over the samples
-        for k in range(len(sp.t)):
-            q, qd, t = sp.actuators[k], sp.actuator_velocity[k], float(sp.t[k])
-            f, i = self.end_stops.speed_factor(q, qd)
-            if i is not None and f < factor:
-                factor = f
-                end_stop = GuardReason(f"end_stop:{ACTUATOR_NAMES[i]}", f, 1.0, t, "speed")
-            pts = self.model.forward(q).points
-            for name, dist, r in self.keep_out_clearance(q, pts):
-                if dist < r:
-                    reasons.append(GuardReason(f"keep_out:{name}", dist, r, t, "hard"))
-            rep = self.stability_at(q, pts)
-            vals = _measure_values(rep)
-            key = min(vals[m] / max(abs(hard_th[m]), 1e-9) for m in _MEASURES)
-            if key < worst_key:
-                worst, worst_key = rep, key
-            for m in _MEASURES:
-                v = vals[m]
-                improving_only = start_vals[m] < hard_th[m] and v >= start_vals[m] - 1e-9
-                if v < hard_th[m] and not improving_only:
-                    reasons.append(GuardReason(m, v, hard_th[m], t, "hard"))
-                elif v < caution_th[m] and not (start_vals[m] < caution_th[m] and v >= start_vals[m] - 1e-9):
-                    reasons.append(GuardReason(m, v, caution_th[m], t, "caution"))
+        H, C, S = (np.array([d[m] for m in _MEASURES]) for d in (hard_th, caution_th, start_vals))
+        Sm = S - 1e-9
+        cache = {Q[0].tobytes(): (self.keep_out_clearance(Q[0]), start)}
+
+        def exact(k: int) -> tuple[list, StabilityReport]:  # the per-sample path: keep-out clearances, report
+            key = Q[k].tobytes()
+            if key not in cache:
+                pts = self.model.forward(Q[k]).points
+                cache[key] = (self.keep_out_clearance(Q[k], pts), self.stability_at(Q[k], pts))
+            return cache[key]
+
+        P, suspect = self._points_batch(Q)
+        batch = evaluate_stability_batch(self.tractor, self.implement, *_implement_frames(P), *self.slope,
+                                         front_ballast=self.settings.front_ballast)
+        vals = batch.values
+        dist = self._keep_out_batch(P)
+        suspect |= batch.suspect | ~np.isfinite(dist).all(axis=0)
+        radii = np.array([r for _, _, r in self.keep_out]).reshape(-1, 1)
+        check = suspect | (np.abs(dist - radii) <= _KEEP_OUT_TOL_M).any(axis=0)
+        if not batch.exact:
+            tol = np.array([batch.tolerance[m] for m in _MEASURES])
+            near = (np.abs(vals - H) <= tol) | (np.abs(vals - C) <= tol)
+            near |= ((S < C) | (S < H)) & (np.abs(vals - Sm) <= tol)
+            check |= near.any(axis=1)
+        for k in np.flatnonzero(check):  # in sample order: the first failing sample raises, as before
+            clear, rep = exact(k)
+            dist[:, k] = [d for _, d, _ in clear]
+            vals[k] = [_measure_values(rep)[m] for m in _MEASURES]
+
+        with np.errstate(invalid="ignore"):
+            hard = (vals < H) & ~((S < H) & (vals >= Sm))
+            caution = ~hard & (vals < C) & ~((S < C) & (vals >= Sm))
+        events = []  # (t, k, order within a sample, reason): first occurrences only
+        for j, (name, _, r) in enumerate(self.keep_out):
+            if (k := _earliest(dist[j] < r, ts)) is not None:
+                d = exact(k)[0][j][1]
+                events.append((ts[k], k, j, GuardReason(f"keep_out:{name}", d, r, float(ts[k]), "hard")))
+        for j, m in enumerate(_MEASURES):
+            if (k := _earliest(hard[:, j], ts)) is not None:
+                v = _measure_values(exact(k)[1])[m]
+                events.append((ts[k], k, len(self.keep_out) + j, GuardReason(m, v, hard_th[m], float(ts[k]), "hard")))
+        worst = self._worst(vals, batch, hard_th, exact, start)
+        if events:  # the first crossing of each measure, earliest first
+            events.sort(key=lambda e: e[:3])
+            return GuardDecision("refused", 0.0, tuple(_dedupe(e[3] for e in events)), worst)
+
+        reasons, factor = [], 1.0
+        end_stop = self._end_stop_batch(Q, QD)
         if end_stop is not None:
-            reasons.insert(0, end_stop)
-        hard = sorted((r for r in reasons if r.level == "hard"), key=lambda r: r.t_s)
-        if hard:  # the first crossing of each measure, earliest first
-            return GuardDecision("refused", 0.0, tuple(_dedupe(hard)), worst)
-        if any(r.level == "caution" for r in reasons):
+            k, factor, i = end_stop
+            reasons.append(GuardReason(f"end_stop:{ACTUATOR_NAMES[i]}", factor, 1.0, float(ts[k]), "speed"))
+        cautions = []
+        for j, m in enumerate(_MEASURES):
+            if caution[:, j].any():
+                k = int(np.argmax(caution[:, j]))
+                v = _measure_values(exact(k)[1])[m]
+                cautions.append((k, j, GuardReason(m, v, caution_th[m], float(ts[k]), "caution")))
+        if cautions:
             factor = min(factor, self.settings.caution_speed_factor)
-        kept = tuple(_dedupe(reasons))
-        return GuardDecision("ok" if factor >= 1.0 else "scaled", factor, kept, worst)
+        reasons += [c[2] for c in sorted(cautions, key=lambda c: c[:2])]
+        return GuardDecision("ok" if factor >= 1.0 else "scaled", factor, tuple(_dedupe(reasons)), worst)
+
+    def _worst(self, vals: np.ndarray, batch: StabilityBatch, hard_th: dict[str, float],
+               exact: Callable[[int], tuple[list, StabilityReport]], start: StabilityReport) -> StabilityReport:
+        """Report of the first sample with the smallest min_m value_m / |hard_m| (as the per-sample loop);
+        ``vals`` (N, 4) batch values, those of samples already evaluated one by one replaced."""
+        scale = np.array([max(abs(hard_th[m]), 1e-9) for m in _MEASURES])
+        keys = np.min(vals / scale, axis=1)
+        for k in np.flatnonzero(np.isnan(vals).any(axis=1)):  # Python's min with NaN, as the loop had it
+            keys[k] = min(float(v) / s for v, s in zip(vals[k], scale))
+        tol = 0.0 if batch.exact else max(batch.tolerance[m] / s for m, s in zip(_MEASURES, scale))
+        if not np.any(keys == keys):
+            return start
+        cand = np.flatnonzero(keys <= np.nanmin(keys) + 2 * tol)
+        worst_k, worst_key = None, math.inf
+        for k in cand:
+            key = keys[k] if tol == 0.0 else min(v / s for v, s in zip(_measure_values(exact(k)[1]).values(), scale))
+            if key < worst_key:
+                worst_k, worst_key = k, key
+        return start if worst_k is None else exact(worst_k)[1]
+
+    # ------------------------------------------------------------------ batches (all samples of a plan)
+    def _points_batch(self, Q: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray]:
+        """FK points L, R, T, U, H (N, 3) [m] of actuator rows Q (N, 5), bit for bit those of
+        :meth:`HitchModel.forward`, and the rows it might refuse (not closing, not finite)."""
+        n, c = len(Q), _FK_CHUNK
+        pts, bad = np.empty((n, 3, len(POINT_NAMES))), np.empty(n, bool)
+        for s in range(0, n, c):
+            blk = Q[s:s + c]
+            m = len(blk)
+            if m < c:
+                blk = np.vstack([blk, np.repeat(blk[-1:], c - m, axis=0)])
+            f, pm, _, checks = self._points_map(blk.T)
+            pts[s:s + m] = pm.reshape(3, len(POINT_NAMES), c, order="F").transpose(2, 0, 1)[:m]
+            ok = (np.abs(checks[:4]) <= _FK_CLOSED_M).all(axis=0) & (np.abs(checks[4]) <= 1.0) & np.isfinite(f).all(axis=0)
+            bad[s:s + m] = ~ok[:m]
+        bad |= ~np.isfinite(Q).all(axis=1)
+        return {n: pts[:, :, POINT_NAMES.index(n)] for n in ("L", "R", "T", "U", "H")}, bad
+
+    def _keep_out_batch(self, P: dict[str, np.ndarray]) -> np.ndarray:
+        """(n_keep_out, N) distances [m] of the top link H–U from each keep-out centre."""
+        H, U = P["H"], P["U"]
+        d = U - H
+        out = np.empty((len(self.keep_out), len(H)))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            for j, (_, c, _) in enumerate(self.keep_out):
+                a = np.clip(np.einsum("ij,ij->i", c - H, d) / np.einsum("ij,ij->i", d, d), 0.0, 1.0)
+                out[j] = np.linalg.norm(H + a[:, None] * d - c, axis=1)
+        return out
+
+    def _end_stop_batch(self, Q: np.ndarray, QD: np.ndarray) -> tuple[int, float, int] | None:
+        """(sample, factor, actuator) of the smallest end-stop speed factor < 1 (first such sample), or None."""
+        allow = self.end_stops.allowed_speed(Q, np.sign(QD))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.where(np.abs(QD) > 1e-12, allow / np.abs(QD), np.inf)
+        i = np.argmin(ratio, axis=1)
+        rmin = ratio[np.arange(len(Q)), i]
+        binding = np.flatnonzero(rmin < 1.0)
+        if not binding.size:
+            return None
+        k = int(binding[np.argmin(rmin[binding])])
+        return k, float(rmin[k]), int(i[k])
 
     def plan(self, start: MotionState, goal: Mapping[str, float], *, speed_scale: float = 1.0) -> GuardedPlan:
         """Plan a move and pass it through the guard: returned unchanged or slowed; GuardRefusal if refused.
@@ -265,6 +367,22 @@ class Guard:
                    "lsm": th.lsm_caution, "esm": th.esm_caution}
         return hard, caution
 
+
+
+def _implement_frames(P: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Tool points T (N, 3) [m] and implement rotations (N, 3, 3) as :meth:`Guard.stability_at` builds them."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        xi = P["L"] - P["R"]
+        xi = xi / np.linalg.norm(xi, axis=1)[:, None]
+        zi = P["U"] - P["T"]
+        zi = zi / np.linalg.norm(zi, axis=1)[:, None]
+    return P["T"], np.stack([xi, np.cross(zi, xi), zi], axis=2)
+
+
+def _earliest(mask: np.ndarray, t: np.ndarray) -> int | None:
+    """Sample with the smallest time among ``mask`` (the first of equal times), or None."""
+    idx = np.flatnonzero(mask)
+    return int(idx[np.argmin(t[idx])]) if idx.size else None
 
 
 def _dedupe(reasons):

@@ -1,0 +1,194 @@
+"""Stability measures for many implement poses at once (vectorised over N samples of a plan).
+
+:func:`evaluate_stability_batch` computes, for N implement poses ``T`` (N, 3) [m] and
+``R_i`` (N, 3, 3), the measures :func:`planner.limits.stability.evaluate_stability` gives per
+pose: front-axle load [N], SSM [m], LSM [m] and ESM [J].  It follows the same formulas in the
+same order (build_load_case -> axle_loads, support_margins, energy_margins; see that module
+for conventions and sources) with the pose-independent parts (gravity, support frame, edge
+axes) taken from it, so the meaning cannot drift.
+
+Results agree with the per-sample function to rounding (BLAS dot products there, plain
+products and sums here), not bit for bit.  Each result therefore carries ``tolerance``: a
+bound per measure on |batch - per-sample| (10^4 times and more the rounding seen in tests),
+and the samples where the batch cannot vouch for that bound (``suspect``): inputs the
+per-sample function would reject (non-finite, rotation not proper within its 1e-6),
+non-finite values, and samples next to a jump of a measure: LSM where the travel line just
+crosses or misses the triangle, ESM where the CoM is next to the vertical plane through an
+edge.  A caller that must decide exactly as the per-sample function (the guard) re-evaluates
+those samples, and any whose value lies within ``tolerance`` of a threshold, with
+:func:`~planner.limits.stability.evaluate_stability`.
+
+Without an implement the measures do not depend on the pose: they are evaluated once with the
+per-sample function and broadcast, and ``exact`` is True.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .stability import _EDGES, _support_frame, evaluate_stability, gravity_direction
+from .tractor import STANDARD_GRAVITY, ImplementRecord, StabilityInputError, Tractor, _scalar
+
+__all__ = ["MEASURE_NAMES", "StabilityBatch", "evaluate_stability_batch"]
+
+#: Measure names, in the order of :attr:`StabilityBatch.values` columns (as the guard names them).
+MEASURE_NAMES: tuple[str, str, str, str] = ("front_axle_load", "ssm", "lsm", "esm")
+#: Relative size of the agreement bound (rounding is ~1e-15 of the same scales).
+_REL_TOL = 1e-11
+#: Rotation check of the per-sample function (tractor._rotation), and the margin kept to it.
+_ORTHO_TOL = 1e-6
+
+
+@dataclass(frozen=True)
+class StabilityBatch:
+    """Measures for N poses.  Arrays (N,); units N (front_axle_load), m (ssm, lsm), J (esm).
+
+    ``tolerance``: per measure, a bound on |value - evaluate_stability value| for samples not
+    ``suspect`` (same units).  ``exact``: the values are the per-sample function's, bit for bit.
+    """
+
+    front_axle_load: np.ndarray
+    ssm: np.ndarray
+    lsm: np.ndarray
+    esm: np.ndarray
+    suspect: np.ndarray
+    tolerance: dict[str, float]
+    exact: bool = False
+
+    @property
+    def values(self) -> np.ndarray:
+        """(N, 4) columns in :data:`MEASURE_NAMES` order."""
+        return np.column_stack([getattr(self, m) for m in MEASURE_NAMES])
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise dot product of (N, k) with (N, k) or (k,): sum of products in index order."""
+    out = a[:, 0] * (b[:, 0] if b.ndim == 2 else b[0])
+    for j in range(1, a.shape[1]):
+        out = out + a[:, j] * (b[:, j] if b.ndim == 2 else b[j])
+    return out
+
+
+def _norm(a: np.ndarray) -> np.ndarray:
+    return np.sqrt(_dot(a, a))
+
+
+def _pose_suspect(T: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """Poses the per-sample function might reject (tractor._vector3 / _rotation), with margin."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        finite = np.isfinite(T).all(axis=1) & np.isfinite(R).all(axis=(1, 2))
+        ortho = np.abs(np.einsum("nki,nkj->nij", R, R) - np.eye(3)).max(axis=(1, 2))
+        det = np.linalg.det(np.where(finite[:, None, None], R, 0.0))
+    return ~finite | ~(ortho <= 0.5 * _ORTHO_TOL) | ~(det > 0.5)
+
+
+def evaluate_stability_batch(tractor: Tractor, implement: ImplementRecord | None, T, R_i, slope_roll: float,
+                             slope_pitch: float, *, front_ballast: float = 0.0) -> StabilityBatch:
+    """Front-axle load [N], SSM [m], LSM [m], ESM [J] for N implement poses on one slope.
+
+    ``T`` (N, 3) [m] tool points and ``R_i`` (N, 3, 3) implement rotations in the tractor frame;
+    slopes [rad] and ``front_ballast`` [kg] as for
+    :func:`~planner.limits.stability.evaluate_stability`.  Raises StabilityInputError for a
+    slope, ballast or tractor the per-sample function rejects; see :class:`StabilityBatch`.
+    """
+    T = np.asarray(T, dtype=float)
+    R_i = np.asarray(R_i, dtype=float)
+    if T.ndim != 2 or T.shape[1] != 3 or R_i.shape != (T.shape[0], 3, 3):
+        raise StabilityInputError(f"T must be (N, 3) and R_i (N, 3, 3), got {T.shape} and {R_i.shape}")
+    n = T.shape[0]
+    if implement is None or n == 0:
+        # the per-sample measures ignore the pose: evaluate once, broadcast (exactly its values)
+        rep = evaluate_stability(tractor, None, None, None, slope_roll, slope_pitch, front_ballast=front_ballast)
+        cols = [np.full(n, v) for v in (rep.axle_loads.front, rep.ssm, rep.lsm, rep.esm)]
+        return StabilityBatch(*cols, suspect=np.zeros(n, bool), tolerance=dict.fromkeys(MEASURE_NAMES, 0.0),
+                              exact=True)
+
+    g = gravity_direction(slope_roll, slope_pitch)
+    ballast = _scalar("front_ballast", front_ballast, 0.0, 20_000.0)
+    suspect = _pose_suspect(T, R_i)
+
+    # build_load_case: p_i = T + R_i c_i, combined mass and CoM
+    c = np.asarray(implement.centre_of_mass, dtype=float)
+    with np.errstate(invalid="ignore", over="ignore"):
+        p_i = T + (R_i[:, :, 0] * c[0] + R_i[:, :, 1] * c[1] + R_i[:, :, 2] * c[2])
+    m = tractor.mass + ballast
+    moment = tractor.mass * tractor.centre_of_mass + ballast * tractor.front_ballast_point
+    m_i = implement.mass
+    m += m_i
+    p = (moment + m_i * p_i) / m
+
+    # axle_loads
+    W = m * STANDARD_GRAVITY * g
+    front = ((p[:, 1] - tractor.rear_axle[1]) * W[2] - (p[:, 2] - tractor.ground_z) * W[1]) / tractor.wheelbase
+
+    # support_margins
+    V, nrm, e1, e2, V2 = _support_frame(tractor)
+    denom = float(nrm @ g)
+    if abs(denom) < 1e-9:
+        raise StabilityInputError("slope: gravity is parallel to the support plane; no projection exists")
+    q = p + (_dot(V[0] - p, nrm) / denom)[:, None] * g
+    q2 = np.column_stack([_dot(q - V[0], e1), _dot(q - V[0], e2)])
+    travel = np.array([e1[1], e2[1]])
+    travel /= np.linalg.norm(travel)
+    d, s_lo, s_hi = [], np.full(n, -math.inf), np.full(n, math.inf)
+    misses, seg = np.zeros(n, bool), []
+    branch_near = np.zeros(n, bool)
+    # length scale of every point involved [m]: the agreement bounds are relative to it
+    reach = float(np.max(np.where(np.isfinite(T), np.abs(T), 0.0))) + float(np.linalg.norm(c))
+    length = 1.0 + max(float(np.max(np.abs(V))), float(np.max(np.abs(tractor.centre_of_mass))),
+                       float(np.max(np.abs(tractor.front_ballast_point))), reach)
+    mv_min = 1.0
+    for a, b, cc in _EDGES:
+        edge = V2[b] - V2[a]
+        mvec = np.array([-edge[1], edge[0]]) / np.linalg.norm(edge)
+        if mvec @ (V2[cc] - V2[a]) < 0:
+            mvec = -mvec
+        di = _dot(q2 - V2[a], mvec)
+        d.append(di)
+        mv = float(mvec @ travel)
+        if abs(mv) < 1e-12:
+            misses |= di < 0
+            branch_near |= np.abs(di) <= _REL_TOL * length / abs(denom)
+        elif mv > 0:
+            s_lo = np.maximum(s_lo, -di / mv)
+            mv_min = min(mv_min, abs(mv))
+        else:
+            s_hi = np.minimum(s_hi, -di / mv)
+            mv_min = min(mv_min, abs(mv))
+        ab = V2[b] - V2[a]
+        s = np.minimum(1.0, np.maximum(0.0, _dot(q2 - V2[a], ab) / float(ab @ ab)))
+        seg.append(_norm(q2 - (V2[a] + s[:, None] * ab)))
+    dmin = np.minimum(np.minimum(d[0], d[1]), d[2])
+    ssm = np.where(dmin > 0, dmin, -np.minimum(np.minimum(seg[0], seg[1]), seg[2]))
+    tol_len = _REL_TOL * length / (abs(denom) * mv_min)
+    branch_near |= np.abs(s_lo - s_hi) <= 2 * tol_len
+    lsm = np.where(misses | (s_lo > s_hi), ssm, np.minimum(-s_lo, s_hi))
+
+    # energy_margins
+    up = -g
+    energies = []
+    for a_i, b_i, c_i in _EDGES:
+        A = V[a_i]
+        axis = (V[b_i] - A) / np.linalg.norm(V[b_i] - A)
+        r = p - A
+        r_perp = r - _dot(r, axis)[:, None] * axis
+        rise = _norm(r_perp) * math.sqrt(max(0.0, 1.0 - float(axis @ up) ** 2)) - _dot(r_perp, up)
+        side = np.array([axis[1] * up[2] - axis[2] * up[1], axis[2] * up[0] - axis[0] * up[2],
+                         axis[0] * up[1] - axis[1] * up[0]])
+        if side @ (V[c_i] - A) < 0:
+            side = -side
+        side_r = _dot(r, side)
+        # the sign of side.r switches E between +-rise; it jumps there when the CoM is below the edge
+        branch_near |= np.abs(side_r) <= _REL_TOL * length
+        energies.append(np.sign(side_r) * m * STANDARD_GRAVITY * np.maximum(0.0, rise))
+    esm = np.minimum(np.minimum(energies[0], energies[1]), energies[2])
+
+    weight_scale = m * STANDARD_GRAVITY * length
+    tolerance = {"front_axle_load": _REL_TOL * weight_scale * (1.0 + 1.0 / tractor.wheelbase),
+                 "ssm": tol_len, "lsm": tol_len, "esm": _REL_TOL * weight_scale}
+    values = np.column_stack([front, ssm, lsm, esm])
+    suspect = suspect | branch_near | ~np.isfinite(values).all(axis=1)
+    return StabilityBatch(front, ssm, lsm, esm, suspect=suspect, tolerance=tolerance)

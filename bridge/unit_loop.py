@@ -87,7 +87,7 @@ def actuator_motion(state_at: Callable[[float], object], solve_full: Callable, t
     ``state_at(t)`` → pose state (``position``, ``velocity``, ``acceleration`` over x, z,
     roll, pitch); ``solve_full(pose)`` → (actuators, d actuators / d pose, …), the exact
     inverse. Velocities map through the Jacobian; the acceleration ahead as J·p̈ (the
-    curvature term J̇·ṗ is left out: it enters the reference only times T_F/G ≈ 0.01–0.06 s²).
+    curvature term J̇·ṗ is left out: it enters the reference only times T_F/G = 0.0017–0.0086 s²).
     """
     st = state_at(t)
     q, jac = solve_full(st.position)[:2]

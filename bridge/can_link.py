@@ -186,6 +186,10 @@ class CanLink:
         Raises:
             ReferenceRefused: naming the limit, the value and the bound.
         """
+        with self._lock:   # the model's evaluation buffers are shared with the link's own thread
+            return self._check_reference(actuators)
+
+    def _check_reference(self, actuators) -> PositionCounts:
         try:
             q = np.asarray(actuators, dtype=float).reshape(-1)
         except (TypeError, ValueError):

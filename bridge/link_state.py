@@ -102,10 +102,12 @@ class LinkConfig:
             still taken (AD noise at an end stop); farther out they are rejected.
         max_consecutive_tx_errors: failed sends in a row that raise the bus fault.
         lift_on_count_grid: the hitch position (0.4 %/bit of the calibrated travel) comes
-            from an integer-count lift sensor (thesis table 3-2: 26..255): take the nearest
-            count, which recovers the reading exactly while the travel spans at most 250
-            counts (the 0.4 % grid is then finer than one count). False: use the fraction
-            as it is (a hitch sensor without a count grid).
+            from an integer-count lift sensor (thesis table 3-2: 26..255) mapped as
+            (counts − counts_min)/span and rounded: take the nearest count, which recovers
+            the reading exactly while the travel spans at most 250 counts. False: use the
+            fraction as it is. None (default): True when the cylinder ECU sends the hitch
+            status (``hitch_status_address`` None: its mapping is ours), False when another
+            node (the tractor ECU) does, whose sensor and rounding we do not know.
         name: our ISO 11783-5 NAME (claimed at start, 250 ms contention window).
         claim_wait_s: contention window, s.
     """
@@ -121,7 +123,7 @@ class LinkConfig:
     heartbeat_period_s: float = HEARTBEAT_PERIOD_S
     reading_tolerance_counts: float = 2.0
     max_consecutive_tx_errors: int = 3
-    lift_on_count_grid: bool = True
+    lift_on_count_grid: bool | None = None
     name: Name = field(default_factory=planner_name)
     claim_wait_s: float = CLAIM_WAIT_S
 
@@ -147,8 +149,8 @@ class LinkConfig:
         n = self.max_consecutive_tx_errors
         if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= 1000:
             raise ValueError(f"max_consecutive_tx_errors must be an integer in 1..1000, got {n!r}")
-        if not isinstance(self.lift_on_count_grid, bool):
-            raise ValueError(f"lift_on_count_grid must be true or false, got {self.lift_on_count_grid!r}")
+        if self.lift_on_count_grid is not None and not isinstance(self.lift_on_count_grid, bool):
+            raise ValueError(f"lift_on_count_grid must be true, false or None, got {self.lift_on_count_grid!r}")
         if not isinstance(self.name, Name):
             raise ValueError(f"name must be a bridge.address_claim.Name, got {type(self.name).__name__}")
 
@@ -156,6 +158,11 @@ class LinkConfig:
     def control_period_s(self) -> float:
         """Reference stream period, s."""
         return 1.0 / self.control_rate_hz
+
+    @property
+    def lift_count_grid(self) -> bool:
+        """Whether the lift is taken on its sensor's count grid (see ``lift_on_count_grid``)."""
+        return self.hitch_status_address is None if self.lift_on_count_grid is None else self.lift_on_count_grid
 
     @property
     def hitch_source(self) -> int:
@@ -376,7 +383,7 @@ class MeasurementAssembler:
         (t_m, (tilt, top, left, right)), (t_h, frac) = self._meas, self._hitch
         s = self._scaling
         lift_counts = lift_counts_from_fraction(frac, s.counts_min[0], s.counts_max[0],
-                                                on_count_grid=self._cfg.lift_on_count_grid)
+                                                on_count_grid=self._cfg.lift_count_grid)
         counts = (lift_counts, float(tilt), float(top), float(left), float(right))
         q = s.to_si(counts, tolerance_counts=self._cfg.reading_tolerance_counts)
         try:

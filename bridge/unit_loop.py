@@ -16,7 +16,8 @@ y = q exactly (for this model):
 
     r(t) = q(t) + T_F q̇(t) + [q̇(t+L) + T_F q̈(t+L) − w·sign q̇(t+L)] / G
 
-(the minimum-flow term only while the P part stays on its side of zero). The plan is known
+(the minimum flow Kv±·dy_min takes the sign of the bracket, as the valve's does with the
+command, and only while the P part stays on its side of zero). The plan is known
 ahead, so q̇(t+L) is read from it. The reference leads the plan by about q̇/G; near the end
 of a move it runs beyond the goal by up to a_max/(2G²) before coming back to it — the
 overshoot the slow loop needs to stop on time; the piston itself does not overshoot.
@@ -135,8 +136,9 @@ def feedforward_reference(loops: tuple[UnitLoop, ...], motion: ActuatorMotion) -
     for i, u in enumerate(loops):
         v_ahead = float(motion.velocity_ahead[i])
         drive = v_ahead + u.lag_s * float(motion.acceleration_ahead[i])
-        w = u.min_flow_pos if v_ahead > 0 else u.min_flow_neg if v_ahead < 0 else 0.0
-        p_part = drive - np.sign(v_ahead) * w if abs(drive) > w else 0.0
+        sgn = float(np.sign(drive))          # the valve's minimum flow follows the command's sign
+        w = u.min_flow_pos if sgn > 0 else u.min_flow_neg if sgn < 0 else 0.0
+        p_part = drive - sgn * w if abs(drive) > w else 0.0
         r[i] = float(motion.q[i]) + u.lag_s * float(motion.velocity[i]) + p_part / u.gain_per_s
         r[i] = min(max(r[i], u.lower), u.upper)
     return r
@@ -185,13 +187,20 @@ class FeedforwardShaper:
             return np.asarray(planned, float)
         return self._safe(planned, feedforward_reference(self.loops, actuator_motion(state_at, self._solve_full, t, self.loops)))
 
-    def for_rates(self, planned: np.ndarray, rates: np.ndarray) -> np.ndarray:
-        """Reference for actuators moving at ``rates`` now, with nothing known ahead (jog): the
-        rates are taken as those one delay ahead, the acceleration as zero."""
+    def for_state(self, state, planned: np.ndarray, rates: np.ndarray) -> np.ndarray:
+        """Reference for a motion known only now (jog): pose-space ``state`` (position, velocity,
+        acceleration) with actuators ``planned`` moving at ``rates``. The rates one delay ahead
+        are extrapolated with the acceleration, v + L·a (J·p̈), and stop at zero rather than
+        change sign (a jog brakes to rest, it does not reverse by itself)."""
         if not self.enabled:
             return np.asarray(planned, float)
         planned, rates = np.asarray(planned, float), np.asarray(rates, float)
-        motion = ActuatorMotion(planned, rates, rates, np.zeros(5))
+        acc = self._solve_full(state.position)[1] @ np.asarray(state.acceleration, float)
+        delays = np.array([u.delay_s for u in self.loops])
+        v_ahead = rates + delays * acc
+        stops = v_ahead * rates < 0
+        v_ahead[stops], a_ahead = 0.0, np.where(stops, 0.0, acc)
+        motion = ActuatorMotion(planned, rates, v_ahead, a_ahead)
         return self._safe(planned, feedforward_reference(self.loops, motion))
 
     def _safe(self, planned: np.ndarray, shaped: np.ndarray) -> np.ndarray:

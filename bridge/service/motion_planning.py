@@ -6,13 +6,17 @@ goto/preset/maneuver-step motion: :meth:`~GotoPlanningMixin.goto`,
 :meth:`~GotoPlanningMixin.preview`, :meth:`~GotoPlanningMixin.plan_step` and the start of a
 plan that replaces the running motion smoothly at a switch time ``_PLAN_LEAD_S`` ahead (if
 planning takes longer, again from 1.5 × the time it took; a plan from rest starts whenever it
-is ready, since a resting start does not age). It uses the controller's state (locks, guards, active motion, maneuver slot) and helpers, so it
-is only meant as a base of :class:`~bridge.service.motion.MotionController`.
+is ready, since a resting start does not age, unless it was the measured pose and the pistons
+moved more than 5 mm / 5 mrad meanwhile). It uses the controller's state (locks, guards,
+active motion, maneuver slot) and helpers, so it is only meant as a base of
+:class:`~bridge.service.motion.MotionController`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
+
+import numpy as np
 
 from planner.trajectory import MotionState
 from planner.types import CONTROLLED_POSE_NAMES
@@ -24,6 +28,7 @@ from .state_message import link_problem
 __all__ = ["GotoPlanningMixin"]
 
 _PLAN_LEAD_S = 0.08       # a replacing plan starts this far ahead of the request (planning time)
+_MOVED = 5e-3             # m or rad: a measured start pose that moved more while planning is re-planned
 
 
 class GotoPlanningMixin:
@@ -81,6 +86,8 @@ class GotoPlanningMixin:
                     continue                         # something else started meanwhile: re-plan from it
                 now = self.clock()
                 if from_rest and self._active is None:
+                    if self._hold is None and np.max(np.abs(self._predict(now).position - start.position)) > _MOVED:
+                        continue                     # the measured start moved while planning (coasting): again
                     t_switch = max(t_switch, now)    # from rest the plan may start whenever it is ready
                 elif now > t_switch - 0.25 * self.dt:
                     lead = max(2 * lead, 1.5 * took + self.dt)   # planning took longer: again, further ahead

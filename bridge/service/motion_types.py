@@ -165,9 +165,9 @@ def plan_state(m: PlanMotion, t: float) -> MotionState:
 def streamed_reference(shaper, m: "PlanMotion | JogMotion | None", ref, now: float) -> np.ndarray:
     """The actuator reference to stream for the planned ``ref`` = (state, q, q̇) of motion ``m``:
     feed-forward through the unit loops (:class:`bridge.unit_loop.FeedforwardShaper`) for a plan
-    (looking ahead in it) or a jog (its rates now); the final reference itself while holding."""
+    (looking ahead in it) or a jog (its rates and acceleration now); the final reference itself while holding."""
     if isinstance(m, PlanMotion):
         return shaper.for_plan(lambda t: plan_state(m, t), now, ref[1])
     if isinstance(m, JogMotion):
-        return shaper.for_rates(ref[1], ref[2])
+        return shaper.for_state(ref[0], ref[1], ref[2])
     return ref[1]

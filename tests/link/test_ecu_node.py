@@ -138,6 +138,12 @@ def test_every_lift_count_survives_the_hitch_status_byte():
         assert lift_counts_from_fraction(frac, 26, 255) == c
         worst_linear = max(worst_linear, abs(lift_counts_from_fraction(frac, 26, 255, on_count_grid=False) - c))
     assert 0.4 < worst_linear <= 0.5 * 229 / 250 + 1e-9
+    # on by default only when our own ECU sends the hitch status (its mapping is known)
+    from bridge.link_state import LinkConfig
+    assert LinkConfig().lift_count_grid and not LinkConfig(hitch_status_address=240).lift_count_grid
+    assert LinkConfig(hitch_status_address=240, lift_on_count_grid=True).lift_count_grid
+    with pytest.raises(ValueError, match="lift_on_count_grid"):
+        LinkConfig(lift_on_count_grid="yes")
     # a span longer than the 250 steps cannot be recovered: linear value, not a wrong count
     assert lift_counts_from_fraction(0.5, 0, 600) == 300.0
     assert lift_counts_from_fraction(0.5004, 0, 600) == pytest.approx(300.24)

@@ -74,3 +74,30 @@ def test_goto_ends_within_the_steady_state_targets(runs):
     assert np.hypot(err[0], err[1]) <= 0.002 and np.max(np.abs(err[2:])) <= 0.002, err
     # the true pose: within half an AD step of every sensor of the measured one (lift: 3.7 mm of z)
     assert np.hypot(*(truth[-1] - p1)[:2]) <= 0.004 and np.max(np.abs((truth[-1] - p1)[2:])) <= 0.003
+
+
+def test_a_jog_into_the_workspace_face_does_not_carry_the_hitch_past_it(model):
+    """A jog is known only now: the feed-forward extrapolates its rates with its acceleration and
+    stops at zero, so braking at the z face does not lead the pistons past it (with the rates
+    alone the true z went 2.5 mm beyond the face)."""
+    z_max = model.workspace["z"][1]
+    peaks = {}
+    for ff in (True, False):
+        states: list[dict] = []
+        with SimRig(model) as rig:
+            rig.start()
+            rig.run_until(0.5)
+            mc = MotionController(Guard(TrajectoryPlanner(model)), Guard(TrajectoryPlanner(model)), rig.link,
+                                  lambda: rig.now_s, on_state=states.append, spawn=lambda fn: fn(), feedforward=ff)
+            mc.cycle()
+            params, z_true = rig.ecu.params, []
+            for _ in range(450):                             # 9 s of z+ at 50 mm/s: into the face and held there
+                mc.jog({"vz": 0.05}, 0.3)
+                rig.run_until(rig.now_s + 0.02)
+                mc.cycle()
+                q = [p.counts_to_si(c) for p, c in zip(params, rig.ecu.piston_counts())]
+                z_true.append(model.forward(np.array(q)).pose.z)
+            assert states[-1]["limited"], "the jog should be limited at the face"
+            assert states[-1]["reference"]["pose"]["z"] <= z_max + 1e-9
+            peaks[ff] = max(z_true) - z_max
+    assert peaks[True] <= 0.5e-3 and peaks[True] <= peaks[False] + 0.5e-3, peaks

@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 from bridge.service.motion import MotionController
+from bridge.service.motion_types import plan_state
 from bridge.sim_run import SimRig
+from planner.exact_inverse import ExactInverse
 from planner.limits.guard import Guard
 from planner.trajectory import TrajectoryPlanner
 
@@ -21,10 +23,12 @@ class SlowGuard(Guard):
 
     def __init__(self, planner, rig):
         super().__init__(planner)
-        self.rig, self.calls = rig, 0
+        self.rig, self.calls, self.during_first = rig, 0, None
 
     def plan(self, *args, **kwargs):
         self.calls += 1
+        if self.calls == 1 and self.during_first is not None:
+            self.during_first()
         self.rig.run_until(self.rig.now_s + PLAN_S)
         return super().plan(*args, **kwargs)
 
@@ -71,9 +75,29 @@ def test_a_slow_plan_replacing_a_motion_starts_on_a_longer_lead(setup):
     second = mc.goto({"z": -0.1}, speed_scale=0.5)
     # 0.08 s lead was too short; the next one is 1.5 × 0.7 + 0.02 = 1.07 s: accepted on the second try
     assert slow.calls == 3 and second.motion_id > first.motion_id
+    # the switch is smooth: the new plan starts from the replaced one's exact state at the switch time
+    pm = mc._active
+    old, new = plan_state(pm.prev, pm.t0), pm.plan.state_at(0.0)
+    for a, b in ((old.position, new.position), (old.velocity, new.velocity), (old.acceleration, new.acceleration)):
+        np.testing.assert_allclose(a, b, atol=1e-9)
+    assert np.linalg.norm(old.velocity) > 0.01                 # it was switched while moving
     names = [e["event"] for e in events]
     assert names.count("motion_started") == 2 and "motion_aborted" in names
     _run(rig, mc, second.duration + 2.0)
     assert abs(mc.current_state().position[1] + 0.1) < 1e-9
-    # the switch is smooth: the replaced plan ran until the switch time
-    assert np.all(np.isfinite(mc.current_state().position))
+
+
+def test_a_measured_start_that_moved_while_planning_is_planned_again(setup, model):
+    """No motion held (fresh controller): the start is the measured pose. If the pistons move
+    meanwhile (here: a reference streamed by someone else during the first planning), the plan
+    is made again from where they are, instead of stepping back to the old pose."""
+    rig, mc, slow, events = setup
+    assert mc._hold is None and mc._active is None
+    before = np.array([rig.link.latest_state().pose.z])
+    q_up = ExactInverse(model)(0.0, float(before[0]) + 0.05, 0.0, 0.0)
+    slow.during_first = lambda: rig.link.send_reference(q_up, rig.now_s)
+    acc = mc.goto({"x": 0.02}, speed_scale=1.0)
+    assert slow.calls >= 2, "the first plan's start had moved: planned again"
+    start_z = mc._active.plan.state_at(0.0).position[1]
+    assert abs(start_z - rig.link.latest_state().pose.z) < 5e-3 and start_z - before[0] > 0.02
+    assert acc.motion_id == 1

@@ -349,3 +349,23 @@ def test_result_does_not_depend_on_how_time_is_stepped(profile):
     one, many = run(1), run(377)
     assert np.array_equal(one[0], many[0]) and np.array_equal(one[1], many[1])
     assert one[2] == many[2] == 1
+
+
+def test_settled_cylinders_stay_put_under_ad_noise(profile):
+    """AD noise of 0.5 count: every cylinder settles on its reference (true piston within one
+    count) and, once settled, the hold band keeps the valves shut nearly all the time instead of
+    chasing the flicker (without the band, cutoff_counts = 0, they are open 33–40 % of the time)."""
+    ecu = CylinderECU(profile, rng=5, noise_counts=0.5)
+    spans = np.array([p.counts_max - p.counts_min for p in ecu.params])
+    ref = ecu.measurement_counts().copy() + np.round(0.1 * spans).astype(int)
+    active, t = [], 0.0
+    for k in range(int(round(12.0 / PERIOD))):
+        t = k * PERIOD
+        ecu.set_reference(ref, t)
+        ecu.step(t + PERIOD)
+        if t >= 6.0:                                   # well after the moves (≤ 3 s)
+            active.append(ecu.valve_commands() != 0)
+    duty = np.mean(active, axis=0)
+    print("valve duty after settling:", dict(zip(ACTUATOR_ORDER, np.round(duty, 3))))
+    assert np.all(np.abs(ecu.piston_counts() - ref) <= 1.0)
+    assert np.all(duty < 0.05)

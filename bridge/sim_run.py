@@ -22,11 +22,11 @@ from planner.kinematics import HitchModel
 from planner.trajectory import MotionState, TrajectoryPlanner
 
 from .sim_rig import LossyBus, SimError, SimRig, SimSettings
-from .unit_loop import actuator_motion, build_unit_loops, feedforward_reference, safe_reference, unit_loop_lag_s
+from .unit_loop import FeedforwardShaper, build_unit_loops
 
 __all__ = [
     "LossyBus", "MoveFigures", "MoveSettings", "MoveTrace", "REFERENCE_KINDS", "SimError", "SimRig",
-    "SimSettings", "build_move_figures", "run_move", "unit_loop_lag_s",
+    "SimSettings", "build_move_figures", "run_move",
 ]
 
 REFERENCE_KINDS = ("step", "trajectory")
@@ -126,10 +126,10 @@ def run_move(model: HitchModel, goal: Mapping[str, float], move: MoveSettings | 
         sp = tp.sample(plan)
         refs = sp.actuators
         if move.feedforward:
-            loops = build_unit_loops(model.profile, rig.ecu.config.a)
-            refs = np.array([safe_reference(rig.link.check_reference, q, feedforward_reference(
-                loops, actuator_motion(plan.state_at, tp.inverse.solve_full, float(t), loops)))[0]
-                for t, q in zip(sp.t, refs)])
+            shaper = FeedforwardShaper(build_unit_loops(model.profile, rig.ecu.config.a), tp.inverse.solve_full,
+                                       rig.link.check_reference)
+            refs = np.array([shaper.for_plan(plan.state_at, float(t), q, qd)
+                             for t, q, qd in zip(sp.t, sp.actuators, sp.actuator_velocity)])
         return _drive(rig, model, sp.t, refs, lambda t: plan.state_at(t).position, p0, p1, plan.duration, move)
 
 

@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from planner.profile import Profile
+from planner.sensors import SensorScaling
 from planner.types import ACTUATOR_NAMES
 
 from .ecu_sim.controller import THESIS_A
@@ -82,17 +83,16 @@ class ActuatorMotion:
 
 
 def actuator_motion(state_at: Callable[[float], object], solve_full: Callable, t: float,
-                    loops: tuple[UnitLoop, ...]) -> ActuatorMotion:
-    """Actuator motion of a pose plan at ``t`` and one transport delay ahead.
+                    loops: tuple[UnitLoop, ...], q: np.ndarray, velocity: np.ndarray) -> ActuatorMotion:
+    """Actuator motion of a pose plan whose actuators at ``t`` are ``q`` moving at ``velocity``
+    (the caller has them: the plan's samples, or the control cycle's inverse), and one
+    transport delay ahead.
 
     ``state_at(t)`` → pose state (``position``, ``velocity``, ``acceleration`` over x, z,
     roll, pitch); ``solve_full(pose)`` → (actuators, d actuators / d pose, …), the exact
     inverse. Velocities map through the Jacobian; the acceleration ahead as J·p̈ (the
     curvature term J̇·ṗ is left out: it enters the reference only times T_F/G = 0.0017–0.0086 s²).
     """
-    st = state_at(t)
-    q, jac = solve_full(st.position)[:2]
-    v = jac @ st.velocity
     v_ahead, a_ahead = np.empty(5), np.empty(5)
     delays = np.array([u.delay_s for u in loops])
     for d in np.unique(delays):
@@ -101,7 +101,7 @@ def actuator_motion(state_at: Callable[[float], object], solve_full: Callable, t
         pick = delays == d
         v_ahead[pick] = (jac_a @ ahead.velocity)[pick]
         a_ahead[pick] = (jac_a @ ahead.acceleration)[pick]
-    return ActuatorMotion(np.asarray(q, float), v, v_ahead, a_ahead)
+    return ActuatorMotion(np.asarray(q, float), np.asarray(velocity, float), v_ahead, a_ahead)
 
 
 def build_unit_loops(profile: Profile, a: float = THESIS_A) -> tuple[UnitLoop, ...]:
@@ -109,11 +109,11 @@ def build_unit_loops(profile: Profile, a: float = THESIS_A) -> tuple[UnitLoop, .
     if not (isinstance(a, (int, float)) and 0.0 < a <= 2.0):
         raise ValueError(f"a must be a number in (0, 2], got {a!r}")
     loops = []
-    for name in ACTUATOR_NAMES:
+    resolution = SensorScaling(profile).resolution                  # SI per count
+    for name, res in zip(ACTUATOR_NAMES, resolution):
         s = profile.actuator(name)
         if s.transport_delay <= 0:
             raise ValueError(f"actuators.{name}.transport_delay must be > 0 for the loop model, got {s.transport_delay}")
-        res = (s.max - s.min) / (s.counts_max - s.counts_min)       # SI per count
         loops.append(UnitLoop(name=name, gain_per_s=s.valve_multiplier * a / s.transport_delay,
                               delay_s=float(s.transport_delay), lag_s=float(s.time_constant),
                               min_flow_pos=s.kv_pos * s.min_flow * res, min_flow_neg=s.kv_neg * s.min_flow * res,
@@ -181,11 +181,14 @@ class FeedforwardShaper:
         self.pulled_back = 0
         """References whose feed-forward the hard-limit check made smaller (a count)."""
 
-    def for_plan(self, state_at: Callable[[float], object], t: float, planned: np.ndarray) -> np.ndarray:
-        """Reference at time ``t`` of a pose plan ``state_at`` whose actuators at ``t`` are ``planned``."""
+    def for_plan(self, state_at: Callable[[float], object], t: float, planned: np.ndarray,
+                 rates: np.ndarray) -> np.ndarray:
+        """Reference at time ``t`` of a pose plan ``state_at`` whose actuators at ``t`` are ``planned``
+        moving at ``rates``."""
         if not self.enabled:
             return np.asarray(planned, float)
-        return self._safe(planned, feedforward_reference(self.loops, actuator_motion(state_at, self._solve_full, t, self.loops)))
+        motion = actuator_motion(state_at, self._solve_full, t, self.loops, planned, rates)
+        return self._safe(planned, feedforward_reference(self.loops, motion))
 
     def for_state(self, state, planned: np.ndarray, rates: np.ndarray) -> np.ndarray:
         """Reference for a motion known only now (jog): pose-space ``state`` (position, velocity,

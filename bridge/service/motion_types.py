@@ -167,7 +167,7 @@ def streamed_reference(shaper, m: "PlanMotion | JogMotion | None", ref, now: flo
     feed-forward through the unit loops (:class:`bridge.unit_loop.FeedforwardShaper`) for a plan
     (looking ahead in it) or a jog (its rates and acceleration now); the final reference itself while holding."""
     if isinstance(m, PlanMotion):
-        return shaper.for_plan(lambda t: plan_state(m, t), now, ref[1])
+        return shaper.for_plan(lambda t: plan_state(m, t), now, ref[1], ref[2])
     if isinstance(m, JogMotion):
         return shaper.for_state(ref[0], ref[1], ref[2])
     return ref[1]

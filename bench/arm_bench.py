@@ -16,10 +16,10 @@ from rich.progress import track
 sys.path.insert(0, str(Path(__file__).parent))
 from _common import machine_note, write_json  # noqa: E402
 
-from planner.arm_analytic import build_spherical_wrist_arm, solve_arm_ik  # noqa: E402
-from planner.arm_profile import load_arm_profile  # noqa: E402
-from planner.dh import forward_kinematics  # noqa: E402
-from planner.ik_qp.arm_mechanism import arm_target, arm_weights, build_arm_mechanism  # noqa: E402
+from planner.arm.analytic import build_spherical_wrist_arm, solve_arm_ik  # noqa: E402
+from planner.arm.profile import load_arm_profile  # noqa: E402
+from planner.arm.dh import forward_kinematics  # noqa: E402
+from planner.arm.mechanism import arm_target, arm_weights, build_arm_mechanism  # noqa: E402
 from planner.ik_qp.problem import build_ik_problem  # noqa: E402
 from planner.ik_qp.sqp import SQPSolver  # noqa: E402
 

@@ -1,12 +1,12 @@
 """Closed-loop benchmark (issue 6): the same moves with thesis-style step references, with
 the plan's actuator positions streamed as references ("trajectory") and with the unit loops'
-feed-forward reference (bridge.unit_loop, the product default: "trajectory+feedforward"), side by side, through the real CAN path (codec, virtual bus,
+feed-forward reference (bridge.link.unit_loop, the product default: "trajectory+feedforward"), side by side, through the real CAN path (codec, virtual bus,
 simulated cylinder ECU node, planner link) in simulated time; bus load at the default rate; the
 watchdog's stop latency; how fast the simulation runs.
 
 Figures come from the pose the link measures over CAN (what a real planner sees) and from the
 simulation truth (forward kinematics of the simulated pistons). Path deviation is the distance
-from the straight segment start → goal in (x, z, roll, pitch); see bridge.sim_run.MoveFigures.
+from the straight segment start → goal in (x, z, roll, pitch); see bridge.sim.move.MoveFigures.
 
 Run: .venv/bin/python bench/closed_loop_bench.py [--noise-counts 0.5] [--frame-loss 0.05] [--json out.json]
 """
@@ -25,10 +25,10 @@ from rich.table import Table
 sys.path.insert(0, str(Path(__file__).parent))
 from _common import machine_note, write_json  # noqa: E402
 
-from bridge.j1939 import BITRATE_BPS, bus_load  # noqa: E402
-from bridge.sim_run import MoveSettings, SimRig, SimSettings, build_move_figures, run_move  # noqa: E402
-from planner.exact_inverse import ExactInverse  # noqa: E402
-from planner.kinematics import HitchModel  # noqa: E402
+from bridge.isobus.j1939 import BITRATE_BPS, bus_load  # noqa: E402
+from bridge.sim.move import MoveSettings, SimRig, SimSettings, build_move_figures, run_move  # noqa: E402
+from planner.model.exact_inverse import ExactInverse  # noqa: E402
+from planner.model.kinematics import HitchModel  # noqa: E402
 
 MOVES = (  # name, start, goal (SI); lengths in the comments
     ("z 200 mm", None, {"z": -0.0863}),

@@ -2,7 +2,7 @@
 
 Target sets: random poses inside the thesis's table 3-7 box (default interpretation), random
 poses outside it, and a continuous path of N steps. Ground truth for reachability: the hitch
-IK has one solution per pose (the closed-form inverse, planner.exact_inverse); a pose is
+IK has one solution per pose (the closed-form inverse, planner.model.exact_inverse); a pose is
 reachable iff that solution lies within every hard limit. The claim is cross-checked by an
 independent global search: multi-start IPOPT from random seeds inside the strokes on targets
 the closed form calls unreachable.
@@ -24,13 +24,13 @@ from rich.progress import Progress
 sys.path.insert(0, str(Path(__file__).parent))
 from _common import machine_note, write_json  # noqa: E402
 
-from planner.exact_inverse import ExactInverse  # noqa: E402
-from planner.hard_limits import HardLimits  # noqa: E402
+from planner.model.exact_inverse import ExactInverse  # noqa: E402
+from planner.model.hard_limits import HardLimits  # noqa: E402
 from planner.ik_qp.baselines import DLSIK, GeometricIK, HybridIK  # noqa: E402
 from planner.ik_qp.hitch_ik import IKSolver, default_weights  # noqa: E402
 from planner.ik_qp.hitch_mechanism import TASK_ROWS  # noqa: E402
-from planner.kinematics import FEATURE_NAMES, HitchModel  # noqa: E402
-from planner.types import KinematicsError  # noqa: E402
+from planner.model.kinematics import FEATURE_NAMES, HitchModel  # noqa: E402
+from planner.model.types import KinematicsError  # noqa: E402
 
 
 class IpoptIK:

@@ -16,9 +16,9 @@ from rich.progress import track
 sys.path.insert(0, str(Path(__file__).parent))
 from _common import machine_note, percentiles_us, write_json  # noqa: E402
 
-from planner.hard_limits import HardLimits  # noqa: E402
-from planner.kinematics import HitchModel  # noqa: E402
-from planner.types import KinematicsError  # noqa: E402
+from planner.model.hard_limits import HardLimits  # noqa: E402
+from planner.model.kinematics import HitchModel  # noqa: E402
+from planner.model.types import KinematicsError  # noqa: E402
 
 
 def main() -> None:

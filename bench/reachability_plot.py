@@ -19,9 +19,9 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 
-from planner.kinematics import HitchModel  # noqa: E402
-from planner.profile import load_profile, profile_from_dict  # noqa: E402
-from planner.workspace import Reachability  # noqa: E402
+from planner.model.kinematics import HitchModel  # noqa: E402
+from planner.profiles.hitch import load_profile, profile_from_dict  # noqa: E402
+from planner.model.workspace import Reachability  # noqa: E402
 
 DOFS = ("x", "z", "roll", "pitch")
 

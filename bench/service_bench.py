@@ -66,7 +66,7 @@ class Service:
     def __init__(self, data_dir: str, *extra: str):
         self.port = free_port()
         self.endpoint = f"tcp/127.0.0.1:{self.port}"
-        self.proc = subprocess.Popen([sys.executable, "-m", "bridge.cli", "serve", "--listen", self.endpoint,
+        self.proc = subprocess.Popen([sys.executable, "-m", "bridge.cli.main", "serve", "--listen", self.endpoint,
                                       "--data-dir", data_dir, *extra], cwd=ROOT, stdout=subprocess.PIPE,
                                      stderr=subprocess.STDOUT, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
         self.out: list[str] = []
@@ -267,13 +267,13 @@ def bench_jitter_idle(endpoint: str, seconds: float) -> dict:
 def bench_fuzz(n: int) -> dict:
     import can
 
-    from bridge.codec import PositionCounts, decode_frame
+    from bridge.isobus.codec import PositionCounts, decode_frame
     from bridge.service.config import load_service_config
     from bridge.service.server import HitchService
-    from planner.hard_limits import HardLimits
-    from planner.kinematics import HitchModel
-    from planner.sensors import SensorScaling
-    from planner.types import KinematicsError
+    from planner.model.hard_limits import HardLimits
+    from planner.model.kinematics import HitchModel
+    from planner.model.sensors import SensorScaling
+    from planner.model.types import KinematicsError
 
     port = free_port()
     channel = f"bench-fuzz-{os.getpid()}"

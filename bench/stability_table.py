@@ -15,7 +15,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).parent))
 from _common import machine_note, write_json  # noqa: E402
 
-from planner.kinematics import HitchModel  # noqa: E402
+from planner.model.kinematics import HitchModel  # noqa: E402
 from planner.limits.guard import Guard  # noqa: E402
 from planner.limits.tractor import load_tractor_profile  # noqa: E402
 from planner.trajectory import TrajectoryPlanner  # noqa: E402

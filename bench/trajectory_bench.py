@@ -17,7 +17,7 @@ from rich.progress import track
 sys.path.insert(0, str(Path(__file__).parent))
 from _common import machine_note, percentiles_us, write_json  # noqa: E402
 
-from planner.kinematics import HitchModel  # noqa: E402
+from planner.model.kinematics import HitchModel  # noqa: E402
 from planner.limits.guard import Guard  # noqa: E402
 from planner.limits.tractor import load_tractor_profile  # noqa: E402
 from planner.trajectory import MotionState, TrajectoryPlanner, verify_setpoints  # noqa: E402

@@ -28,16 +28,16 @@ from typing import Any
 from planner.ik_qp.result import Target
 from planner.limits.guard import GuardRefusal
 from planner.trajectory import MotionState, PlanError
-from planner.types import CONTROLLED_POSE_NAMES
+from planner.model.types import CONTROLLED_POSE_NAMES
 
-from .maneuvers import PlanningContext, validate
-from .motion_types import MODES, MotionError, stability_json
-from .schemas import (
+from bridge.service.maneuvers.language import PlanningContext, validate
+from bridge.service.motion.types import MODES, MotionError, stability_json
+from bridge.service.schemas import (
     API_KEYS, REQUESTS, JogRequest, ManeuverSave, ModeRequest, NameRequest, PlanRequest, PoseRequest, PresetGo,
     PresetSave, RequestError, ScriptRequest, parse_request,
 )
-from .security import MOTION_KEYS, AccessPolicy
-from .store import DEFAULT_IMPLEMENT, StoreError
+from bridge.service.security import MOTION_KEYS, AccessPolicy
+from bridge.service.store import DEFAULT_IMPLEMENT, StoreError
 
 __all__ = ["ServiceAPI", "API_KEYS"]
 

@@ -18,8 +18,8 @@ from typing import Any
 
 import zenoh
 
-from .config import DEFAULT_LISTEN, validate_endpoint, validate_prefix
-from .security import apply_security
+from bridge.service.config import DEFAULT_LISTEN, validate_endpoint, validate_prefix
+from bridge.service.security import apply_security
 
 __all__ = ["HitchClient", "ServiceError", "ServiceTimeout", "client_config"]
 

@@ -17,7 +17,7 @@ TOML layout (every key optional; the names are the field names below)::
                sim_ground_speed = 1.5   # m/s of the simulated tractor (wheel-based speed, PGN 65096)
     [hitch]    profile = "thesis-t132"; category = "2"; implement = "cat2-spreader-400";
                control_rate = 50.0; state_rate = 50.0
-               feedforward = true   # stream the unit loops' feed-forward reference (bridge.unit_loop)
+               feedforward = true   # stream the unit loops' feed-forward reference (bridge.link.unit_loop)
     [service]  data_dir = "/var/lib/hitch"; http = "127.0.0.1:8080"; workers = 4
 """
 
@@ -32,7 +32,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from planner.toml_profiles import format_validation_error
+from planner.profiles.loader import format_validation_error
 
 __all__ = [
     "ServiceConfig",

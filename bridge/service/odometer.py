@@ -10,7 +10,7 @@ before the first frame and when the tractor has been silent for ``stale_after_s`
 
 :class:`SimulatedTractor` is the other side for the simulated machine: it sends PGN 65096 from
 the tractor ECU's address at a constant ground speed. Both are bus nodes (``start``, ``poll``,
-``handle``, ``next_due_s``, ``bus``) driven by :class:`bridge.cli_sim.RealtimeRunner`.
+``handle``, ``next_due_s``, ``bus``) driven by :class:`bridge.link.realtime.RealtimeRunner`.
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ import math
 
 import can
 
-from ..codec import CodecError, WheelBasedSpeed, decode_frame, encode
-from ..j1939 import PGN_WHEEL_BASED_SPEED, TRACTOR_ECU_ADDRESS, MachineDirection, decode_id
+from bridge.isobus.codec import CodecError, WheelBasedSpeed, decode_frame, encode
+from bridge.isobus.j1939 import PGN_WHEEL_BASED_SPEED, TRACTOR_ECU_ADDRESS, MachineDirection, decode_id
 
 __all__ = ["WheelOdometer", "SimulatedTractor", "DISTANCE_WRAP_M"]
 

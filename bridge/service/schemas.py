@@ -17,9 +17,9 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from planner.types import CONTROLLED_POSE_NAMES
+from planner.model.types import CONTROLLED_POSE_NAMES
 
-from .maneuvers import NAME_PATTERN, POSE_BOUNDS
+from bridge.service.maneuvers.language import NAME_PATTERN, POSE_BOUNDS
 
 __all__ = ["API_KEYS", "MAX_PAYLOAD_BYTES", "REQUESTS", "RequestError", "parse_request", "Goal", "PoseRequest",
            "PlanRequest", "JogRequest", "ModeRequest", "NameRequest", "PresetSave", "PresetGo", "ScriptRequest",

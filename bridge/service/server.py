@@ -2,9 +2,9 @@
 
 :class:`HitchService` wires the pieces and owns their life cycle:
 
-* CAN — a :class:`~bridge.can_link.CanLink` on the configured python-can bus, run in real time
-  by a :class:`~bridge.cli_sim.RealtimeRunner`; by default the simulated cylinder ECU
-  (:class:`~bridge.ecu_sim.can_node.EcuCanNode`) runs in the same process on the same
+* CAN — a :class:`~bridge.link.can_link.CanLink` on the configured python-can bus, run in real time
+  by a :class:`~bridge.link.realtime.RealtimeRunner`; by default the simulated cylinder ECU
+  (:class:`~bridge.sim.can_node.EcuCanNode`) runs in the same process on the same
   ``virtual`` channel, so every reference takes the real path: limits check, AD scaling, codec,
   bus, ECU watchdog — and every measurement comes back the same way. A
   :class:`~.odometer.WheelOdometer` reads the tractor's wheel-based distance (PGN 65096) for
@@ -41,24 +41,24 @@ from typing import Any
 import zenoh
 
 from planner.ik_qp.hitch_ik import IKSolver
-from planner.kinematics import HitchModel
+from planner.model.kinematics import HitchModel
 from planner.limits.guard import Guard
 from planner.limits.tractor import load_tractor_profile
-from planner.sensors import SensorScaling
+from planner.model.sensors import SensorScaling
 from planner.trajectory import TrajectoryPlanner
-from planner.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
+from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
 
-from ..can_link import CanLink
-from ..cli_sim import RealtimeRunner, open_bus
-from ..ecu_sim.can_node import EcuCanNode
-from ..ecu_sim.ecu import CylinderECU
-from ..link_state import LinkConfig
-from .api import API_KEYS, ServiceAPI
-from .config import ServiceConfig
-from .motion import MotionController
-from .odometer import SimulatedTractor, WheelOdometer
-from .security import access_policy_from_file, apply_security, exposure_warnings
-from .store import HitchStore
+from bridge.link.can_link import CanLink
+from bridge.link.realtime import RealtimeRunner, open_bus
+from bridge.sim.can_node import EcuCanNode
+from bridge.sim.ecu import CylinderECU
+from bridge.link.state import LinkConfig
+from bridge.service.api import API_KEYS, ServiceAPI
+from bridge.service.config import ServiceConfig
+from bridge.service.motion.controller import MotionController
+from bridge.service.odometer import SimulatedTractor, WheelOdometer
+from bridge.service.security import access_policy_from_file, apply_security, exposure_warnings
+from bridge.service.store import HitchStore
 
 __all__ = ["HitchService", "ServiceStartError", "serve", "INLINE_KEYS", "to_json_bytes", "build_zenoh_config"]
 
@@ -214,7 +214,7 @@ class HitchService:
 
     def _start_http(self, addr: str) -> None:
         try:
-            from ..web.server import start_http   # the operator terminal (issue 9), loaded only when asked for
+            from bridge.web.server import start_http   # the operator terminal (issue 9), loaded only when asked for
         except ImportError as exc:
             raise ServiceStartError(f"--http {addr}: the operator terminal is not available ({exc})") from None
         try:

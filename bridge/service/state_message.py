@@ -20,9 +20,9 @@ from typing import Any
 import numpy as np
 
 from planner.limits.guard import Guard
-from planner.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES, KinematicsError
+from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES, KinematicsError
 
-from .motion_types import stability_json
+from bridge.service.motion.types import stability_json
 
 __all__ = ["build_state_message", "fault_transition", "link_problem"]
 
@@ -65,10 +65,10 @@ def fault_transition(reported: tuple[str, ...], status, events: list[dict]) -> t
 def build_state_message(*, seq: int, now: float, status, stale_after_s: float, guard: Guard, mode: str,
                         motion_kind: str | None, motion_id: int | None, reference, limited: dict,
                         maneuver: dict | None, feedforward=None) -> dict[str, Any]:
-    """The message for one cycle. ``status``: the link's :class:`~bridge.link_state.LinkStatus` at
+    """The message for one cycle. ``status``: the link's :class:`~bridge.link.state.LinkStatus` at
     clock time ``now`` [s]; ``reference``: (pose-space state, actuators q, actuator rates q̇) being
     streamed, or None; ``stale_after_s``: the link's measurement age limit [s]; ``feedforward``: the
-    :class:`~bridge.unit_loop.FeedforwardShaper` (whether it is on, and how many references the
+    :class:`~bridge.link.unit_loop.FeedforwardShaper` (whether it is on, and how many references the
     hard-limit check made it pull back towards the plan)."""
     ls = status.state
     msg: dict[str, Any] = {"t": time.time(), "clock": now, "seq": seq, "mode": mode, "moving": motion_kind is not None,

@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .maneuvers import POSE_BOUNDS, ManeuverScript, check_name, parse_maneuver
+from bridge.service.maneuvers.language import POSE_BOUNDS, ManeuverScript, check_name, parse_maneuver
 
 __all__ = ["StoreError", "Preset", "StoredManeuver", "HitchStore", "MIGRATIONS", "SCHEMA_VERSION",
            "DEFAULT_IMPLEMENT"]

@@ -18,8 +18,8 @@ import re
 from collections.abc import Awaitable, Callable
 from typing import Any
 
-from .settings import json_safe
-from .websocket import WebSocket
+from bridge.web.settings import json_safe
+from bridge.web.websocket import WebSocket
 
 __all__ = ["ClientHub", "Call", "EVENTS_KEPT", "MAX_PENDING", "API_NAME"]
 

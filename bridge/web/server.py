@@ -37,10 +37,10 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
-from .http import HttpError, HttpRequest, json_response, read_request, response_bytes
-from .hub import API_NAME, ClientHub
-from .settings import ERROR_STATUS, WebSettings, host_allowed, json_safe, origin_allowed, parse_address
-from .websocket import WebSocket, WebSocketError, accept_key
+from bridge.web.http import HttpError, HttpRequest, json_response, read_request, response_bytes
+from bridge.web.hub import API_NAME, ClientHub
+from bridge.web.settings import ERROR_STATUS, WebSettings, host_allowed, json_safe, origin_allowed, parse_address
+from bridge.web.websocket import WebSocket, WebSocketError, accept_key
 
 __all__ = ["WebServer", "Handler", "attach_zenoh", "start_http"]
 

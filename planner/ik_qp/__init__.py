@@ -1,10 +1,10 @@
 """Inverse kinematics as a constrained QP (issue 3): the mechanism-agnostic SQP core and the hitch IK."""
 
-from .hitch_ik import BACKENDS, IKSolver, default_weights
-from .mechanism import Mechanism, build_mechanism
-from .problem import IKProblem, IKSolution, TaskBounds, build_ik_problem
-from .result import IKResult, Target
-from .sqp import SQPSettings, SQPSolver
+from planner.ik_qp.hitch_ik import BACKENDS, IKSolver, default_weights
+from planner.ik_qp.mechanism import Mechanism, build_mechanism
+from planner.ik_qp.problem import IKProblem, IKSolution, TaskBounds, build_ik_problem
+from planner.ik_qp.result import IKResult, Target
+from planner.ik_qp.sqp import SQPSettings, SQPSolver
 
 __all__ = [
     "BACKENDS", "IKSolver", "default_weights", "Mechanism", "build_mechanism", "IKProblem", "IKSolution",

@@ -30,12 +30,12 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from ..angle_maps import AngleMaps
-from ..fast_function import FastFunction
-from ..geometry import LEFT, RIGHT, link_direction, side_geometry
-from ..kinematics import HitchModel
-from ..types import Actuators, KinematicsError
-from .result import IKResult, check_target
+from planner.model.angle_maps import AngleMaps
+from planner.model.fast_function import FastFunction
+from planner.model.geometry import LEFT, RIGHT, link_direction, side_geometry
+from planner.model.kinematics import HitchModel
+from planner.model.types import Actuators, KinematicsError
+from planner.ik_qp.result import IKResult, check_target
 
 __all__ = ["GeometricIK", "DLSIK", "HybridIK", "BaselineSettings"]
 

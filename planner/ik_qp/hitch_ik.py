@@ -17,14 +17,14 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..exact_inverse import ExactInverse
-from ..hard_limits import HardLimits
-from ..kinematics import HitchModel
-from ..types import Actuators, KinematicsError, Pose
-from .hitch_mechanism import build_hitch_mechanism
-from .problem import build_ik_problem
-from .result import IKResult, Target, check_target
-from .sqp import SQPSettings, SQPSolver
+from planner.model.exact_inverse import ExactInverse
+from planner.model.hard_limits import HardLimits
+from planner.model.kinematics import HitchModel
+from planner.model.types import Actuators, KinematicsError, Pose
+from planner.ik_qp.hitch_mechanism import build_hitch_mechanism
+from planner.ik_qp.problem import build_ik_problem
+from planner.ik_qp.result import IKResult, Target, check_target
+from planner.ik_qp.sqp import SQPSettings, SQPSolver
 
 __all__ = ["IKSolver", "default_weights", "BACKENDS"]
 
@@ -39,7 +39,7 @@ def default_weights(model: HitchModel) -> np.ndarray:
 
 
 class IKSolver:
-    """Constrained IK of one :class:`~planner.kinematics.HitchModel` (stateful: warm starts)."""
+    """Constrained IK of one :class:`~planner.model.kinematics.HitchModel` (stateful: warm starts)."""
 
     def __init__(
         self,

@@ -31,7 +31,7 @@ from typing import Callable, Sequence
 import casadi as ca
 import numpy as np
 
-from ..fast_function import FastFunction
+from planner.model.fast_function import FastFunction
 
 #: Default trust region per SQP iteration as a fraction of each finite stroke.
 DEFAULT_STEP_FRACTION = 0.25

@@ -14,7 +14,7 @@ from typing import Literal, Mapping
 
 import numpy as np
 
-from .mechanism import Mechanism
+from planner.ik_qp.mechanism import Mechanism
 
 __all__ = [
     "DEFAULT_DAMPING",

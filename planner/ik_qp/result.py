@@ -8,7 +8,7 @@ from typing import Literal
 
 import numpy as np
 
-from ..types import Actuators, Pose
+from planner.model.types import Actuators, Pose
 
 __all__ = ["Target", "IKResult", "check_target"]
 

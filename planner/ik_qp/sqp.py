@@ -35,9 +35,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .backends import QP_INFINITY, QPBackend, QPData, make_backend
-from .mechanism import LagrangianCurvature, LinearisationPoint, Mechanism
-from .problem import IKProblem, IKSolution, check_vector
+from planner.ik_qp.backends import QP_INFINITY, QPBackend, QPData, make_backend
+from planner.ik_qp.mechanism import LagrangianCurvature, LinearisationPoint, Mechanism
+from planner.ik_qp.problem import IKProblem, IKSolution, check_vector
 
 __all__ = ["SQPSolver", "SQPSettings"]
 

@@ -24,15 +24,15 @@ from typing import Literal
 
 import numpy as np
 
-from ..fast_function import FastFunction
-from ..kinematics import POINT_NAMES, HitchModel
-from ..trajectory import MotionState, Plan, PlanError, Setpoints, TrajectoryPlanner
-from ..types import ACTUATOR_NAMES
-from .end_stop import EndStopZone
-from .kinematic_margin import KinematicMargin, kinematic_margin
-from .stability import StabilityReport, StabilityThresholds, evaluate_stability
-from .stability_batch import StabilityBatch, evaluate_stability_batch
-from .tractor import ImplementRecord, Tractor, load_tractor_profile
+from planner.model.fast_function import FastFunction
+from planner.model.kinematics import POINT_NAMES, HitchModel
+from planner.trajectory import MotionState, Plan, PlanError, Setpoints, TrajectoryPlanner
+from planner.model.types import ACTUATOR_NAMES
+from planner.limits.end_stop import EndStopZone
+from planner.limits.kinematic_margin import KinematicMargin, kinematic_margin
+from planner.limits.stability import StabilityReport, StabilityThresholds, evaluate_stability
+from planner.limits.stability_batch import StabilityBatch, evaluate_stability_batch
+from planner.limits.tractor import ImplementRecord, Tractor, load_tractor_profile
 
 __all__ = ["Guard", "GuardDecision", "GuardReason", "GuardRefusal", "GuardedPlan"]
 

@@ -11,8 +11,8 @@ import math
 from dataclasses import dataclass
 
 
-from ..hard_limits import HardLimits
-from ..types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
+from planner.model.hard_limits import HardLimits
+from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
 
 __all__ = ["KinematicMargin", "kinematic_margin"]
 

@@ -37,7 +37,7 @@ from typing import Literal
 
 import numpy as np
 
-from .tractor import STANDARD_GRAVITY, ImplementRecord, StabilityInputError, Tractor, _rotation, _scalar, _vector3
+from planner.limits.tractor import STANDARD_GRAVITY, ImplementRecord, StabilityInputError, Tractor, _rotation, _scalar, _vector3
 
 __all__ = [
     "EDGE_NAMES", "StabilityInputError", "gravity_direction",

@@ -29,8 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .stability import _EDGES, _support_frame, evaluate_stability, gravity_direction
-from .tractor import STANDARD_GRAVITY, ImplementRecord, StabilityInputError, Tractor, _scalar
+from planner.limits.stability import _EDGES, _support_frame, evaluate_stability, gravity_direction
+from planner.limits.tractor import STANDARD_GRAVITY, ImplementRecord, StabilityInputError, Tractor, _scalar
 
 __all__ = ["MEASURE_NAMES", "StabilityBatch", "evaluate_stability_batch"]
 

@@ -1,6 +1,6 @@
 """Tractor parameters and implement records for the stability measures.
 
-Two layers, as in :mod:`planner.profile`: a strict pydantic schema that reads a tractor
+Two layers, as in :mod:`planner.profiles.hitch`: a strict pydantic schema that reads a tractor
 profile (TOML, e.g. ``planner/profiles/tractors/tractor-6t.toml``) and rejects unknown keys, wrong
 types, NaN/inf and out-of-range values with a :class:`TractorProfileError` naming the field;
 and frozen dataclass values (:class:`Tractor`, :class:`ImplementRecord`) taken by the pure
@@ -32,7 +32,7 @@ from typing import Literal, Mapping
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from ..toml_profiles import format_validation_error, read_profile
+from planner.profiles.loader import format_validation_error, read_profile
 
 __all__ = [
     "STANDARD_GRAVITY",

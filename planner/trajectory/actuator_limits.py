@@ -12,9 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..profile import Profile
-from ..sensors import SensorScaling
-from ..types import ACTUATOR_NAMES
+from planner.profiles.hitch import Profile
+from planner.model.sensors import SensorScaling
+from planner.model.types import ACTUATOR_NAMES
 
 __all__ = ["ActuatorLimits", "VALVE_COMMAND_MAX"]
 

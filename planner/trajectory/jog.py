@@ -17,9 +17,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig, Synchronization
 
-from ..types import CONTROLLED_POSE_NAMES
-from .plan import MotionState
-from .planner import TrajectoryPlanner
+from planner.model.types import CONTROLLED_POSE_NAMES
+from planner.trajectory.plan import MotionState
+from planner.trajectory.planner import TrajectoryPlanner
 
 __all__ = ["JogController", "JogOutput", "JOG_FIELDS"]
 

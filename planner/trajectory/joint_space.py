@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from ruckig import InputParameter, Result, Ruckig, Synchronization, Trajectory
 
-from .plan import PlanError, sample_times
+from planner.trajectory.plan import PlanError, sample_times
 
 __all__ = ["JointSamples", "plan_joint_move"]
 

@@ -14,11 +14,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..exact_inverse import ExactInverse
-from ..hard_limits import HardLimits
-from ..kinematics import HitchModel
-from ..types import ACTUATOR_NAMES, KinematicsError
-from .actuator_limits import ActuatorLimits
+from planner.model.exact_inverse import ExactInverse
+from planner.model.hard_limits import HardLimits
+from planner.model.kinematics import HitchModel
+from planner.model.types import ACTUATOR_NAMES, KinematicsError
+from planner.trajectory.actuator_limits import ActuatorLimits
 
 __all__ = ["MotionState", "Plan", "Setpoints", "PlanError", "sample_plan", "verify_setpoints", "Violation"]
 

@@ -19,13 +19,13 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from ruckig import ControlInterface, InputParameter, Result, Ruckig, Synchronization, Trajectory
 
-from ..exact_inverse import ExactInverse
-from ..hard_limits import HardLimits
-from ..kinematics import HitchModel
-from ..types import CONTROLLED_POSE_NAMES, KinematicsError
-from .actuator_limits import ActuatorLimits
-from .plan import MotionState, Plan, PlanError, Setpoints, sample_plan, verify_setpoints
-from .pose_limits import PoseLimits, box_limits, straight_line_limits
+from planner.model.exact_inverse import ExactInverse
+from planner.model.hard_limits import HardLimits
+from planner.model.kinematics import HitchModel
+from planner.model.types import CONTROLLED_POSE_NAMES, KinematicsError
+from planner.trajectory.actuator_limits import ActuatorLimits
+from planner.trajectory.plan import MotionState, Plan, PlanError, Setpoints, sample_plan, verify_setpoints
+from planner.trajectory.pose_limits import PoseLimits, box_limits, straight_line_limits
 
 __all__ = ["TrajectoryPlanner", "Waypoint"]
 
@@ -48,7 +48,7 @@ class Waypoint:
 
 
 class TrajectoryPlanner:
-    """Plans motions of one :class:`~planner.kinematics.HitchModel` within its workspace and limits."""
+    """Plans motions of one :class:`~planner.model.kinematics.HitchModel` within its workspace and limits."""
 
     def __init__(self, model: HitchModel, *, limits: ActuatorLimits | None = None, rate: float | None = None,
                  workspace: Mapping[str, tuple[float, float]] | None = None):

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..exact_inverse import ExactInverse
-from .actuator_limits import ActuatorLimits
+from planner.model.exact_inverse import ExactInverse
+from planner.trajectory.actuator_limits import ActuatorLimits
 
 __all__ = ["PoseLimits", "straight_line_limits", "box_limits"]
 

@@ -97,11 +97,11 @@ class QPBackend(Protocol):
 def make_backend(name: str, **options) -> QPBackend:
     """Create the backend ``name`` (one of :data:`BACKENDS`); ``options`` go to the solver."""
     if name == "osqp":
-        from .osqp_backend import OSQPBackend
+        from planner.ik_qp.backends.osqp_backend import OSQPBackend
 
         return OSQPBackend(**options)
     if name in BACKENDS:
-        from .qpsolvers_backend import QpsolversBackend
+        from planner.ik_qp.backends.qpsolvers_backend import QpsolversBackend
 
         return QpsolversBackend(name, **options)
     raise ValueError(f"backend: unknown QP backend {name!r}; allowed: {', '.join(BACKENDS)}")

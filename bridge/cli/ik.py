@@ -1,0 +1,47 @@
+"""CLI command ``hitch ik``: pose → actuators with the QP solver or a thesis baseline."""
+
+from __future__ import annotations
+
+import json
+
+from rich.console import Console
+
+from planner.ik_qp.baselines import DLSIK, GeometricIK, HybridIK
+from planner.ik_qp.hitch_ik import IKSolver
+from planner.ik_qp.result import Target
+
+from bridge.cli.model import add_model_options, finite_float, model_from_args
+
+__all__ = ["add_commands"]
+
+METHODS = {"qp": IKSolver, "dls": DLSIK, "hybrid": HybridIK, "geometric": GeometricIK}
+
+
+def _cmd_ik(args) -> int:
+    model = model_from_args(args)
+    target = Target(args.x, args.z, args.roll, args.pitch)
+    solver = METHODS[args.method](model)
+    res = solver.solve(target)
+    if args.json:
+        print(json.dumps(res.to_json()))
+    else:
+        c = Console()
+        c.print(f"status: [bold]{res.status}[/bold]" + (f" — {res.reason}" if res.reason else ""))
+        if res.actuators is not None:
+            c.print("actuators: " + "  ".join(f"{k}={v:.5f}" for k, v in res.actuators.as_dict().items()))
+            c.print("pose:      " + "  ".join(f"{k}={v:+.5f}" for k, v in res.pose.as_dict().items()))
+        if res.active:
+            c.print("active limits: " + ", ".join(res.active))
+        c.print(f"iterations {res.iterations}, residual {res.residual:.3g}, {res.solve_time_s * 1e6:.0f} µs")
+    return 0 if res.status != "failed" else 1
+
+
+def add_commands(sub) -> None:
+    p = sub.add_parser("ik", help="inverse kinematics: pose (x, z, roll, pitch) -> actuators")
+    p.add_argument("--x", type=finite_float("--x"), required=True, help="lateral position of T [m] (+ = driver's left)")
+    p.add_argument("--z", type=finite_float("--z"), required=True, help="height of T above pivot height [m]")
+    p.add_argument("--roll", type=finite_float("--roll"), required=True, help="roll [rad] (+ = right side higher)")
+    p.add_argument("--pitch", type=finite_float("--pitch"), required=True, help="pitch [rad] (+ = mast top forward)")
+    p.add_argument("--method", choices=sorted(METHODS), default="qp", help="solver (default qp)")
+    add_model_options(p)
+    p.set_defaults(handler=_cmd_ik)

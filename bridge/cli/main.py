@@ -1,0 +1,64 @@
+"""The ``hitch`` command line: argument parsing, dispatch and error reporting.
+
+Every command prints human-readable text by default and JSON with ``--json``. Errors
+exit with status 2 and one line on stderr (``hitch: error: …``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from bridge.cli.arm import add_arm_parser
+
+from bridge.cli import ik as cli_ik
+from bridge.cli import model as cli_model
+from bridge.cli import plan as cli_plan
+from bridge.cli import service as cli_service
+from bridge.cli import sim as cli_sim
+from bridge.cli import stability as cli_stability
+
+__all__ = ["main", "build_parser", "CLIError"]
+
+
+class CLIError(Exception):
+    """A user-facing error: printed as one line, exit status 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):  # one clear line instead of usage + message
+        raise CLIError(f"{self.prog}: {message}")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="hitch", description="Motion planning for an advanced tractor rear hitch (SI units).")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    cli_model.add_commands(sub)
+    cli_ik.add_commands(sub)
+    cli_plan.add_commands(sub)
+    cli_stability.add_commands(sub)
+    cli_sim.add_commands(sub)
+    cli_service.add_commands(sub)
+    add_arm_parser(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    try:
+        args = build_parser().parse_args(argv)
+        return int(args.handler(args) or 0)
+    except CLIError as exc:
+        print(f"hitch: error: {exc}", file=sys.stderr)
+    except (ValueError, KeyError) as exc:  # ProfileError, KinematicsError, PlanError, SensorRangeError, …
+        msg = str(exc).replace("\n", "; ")
+        print(f"hitch: error: {msg}", file=sys.stderr)
+    except KeyboardInterrupt:
+        return 130
+    except BrokenPipeError:  # e.g. `hitch plan --json | head`
+        sys.stderr.close()
+        return 0
+    return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

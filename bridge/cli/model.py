@@ -1,0 +1,182 @@
+"""CLI commands on the kinematic model: ``demo``, ``fk``, ``profile show``, ``profile fit-workspace``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+from planner.model.kinematics import HitchModel
+from planner.model.types import ACTUATOR_NAMES, POSE_NAMES
+
+__all__ = ["add_commands", "finite_float", "add_model_options", "model_from_args"]
+
+
+def finite_float(name: str):
+    """argparse type: a finite float, with an error naming the option."""
+
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
+        if not math.isfinite(v):
+            raise argparse.ArgumentTypeError(f"{name} must be finite, got {text!r}")
+        return v
+
+    return parse
+
+
+def add_model_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--profile", default="thesis-t132", help="built-in profile name or path to a .toml (default thesis-t132)")
+    p.add_argument("--category", default=None, help="ISO 730 implement category (default: the profile's, 2)")
+    p.add_argument("--json", action="store_true", help="print JSON")
+
+
+def model_from_args(args) -> HitchModel:
+    return HitchModel.from_profile(args.profile, args.category)
+
+
+def _vec(v) -> list[float]:
+    return [float(x) for x in np.asarray(v).reshape(-1)]
+
+
+def state_to_json(state) -> dict:
+    return {
+        "pose": state.pose.as_dict(),
+        "actuators": state.actuators.as_dict(),
+        "points": {k: _vec(v) for k, v in state.points.items()},
+        "link_angles": dict(zip(("theta_xl", "theta_zl", "theta_xr", "theta_zr"), state.link_angles)),
+        "top_link_angles": {"yaw": state.top_link_angles[0], "pitch": state.top_link_angles[1]},
+        "lower_span": state.lower_span,
+    }
+
+
+def _cmd_fk(args) -> int:
+    model = model_from_args(args)
+    q = np.array([args.lift, args.tilt, args.top, args.left, args.right])
+    state = model.forward(q)
+    if args.json:
+        print(json.dumps(state_to_json(state)))
+        return 0
+    c = Console()
+    p = state.pose
+    c.print(f"pose: x={p.x:+.4f} m  y={p.y:+.4f} m  z={p.z:+.4f} m  roll={p.roll:+.4f} rad  "
+            f"pitch={p.pitch:+.4f} rad  yaw={p.yaw:+.4f} rad")
+    c.print(f"lower span |L-R| = {state.lower_span:.4f} m (implement: {model.span:.4f} m); "
+            f"top-link angles yaw={state.top_link_angles[0]:+.4f} pitch={state.top_link_angles[1]:+.4f} rad")
+    t = Table("point", "x [m]", "y [m]", "z [m]")
+    for k, v in state.points.items():
+        t.add_row(k, *(f"{x:+.4f}" for x in v))
+    c.print(t)
+    return 0
+
+
+def profile_summary(model: HitchModel) -> dict:
+    prof = model.profile
+    return {
+        "profile": prof.name,
+        "description": prof.description,
+        "category": model.category,
+        "categories": list(prof.implement.categories),
+        "span": model.span,
+        "mast_height": model.mast_height,
+        "strokes": {n: [float(lo), float(hi)] for n, lo, hi in zip(ACTUATOR_NAMES, model.lower, model.upper)},
+        "neutral_actuators": dict(zip(ACTUATOR_NAMES, _vec(model.neutral))),
+        "neutral_pose": model.neutral_pose.as_dict(),
+        "top_link_reference": {"yaw": model.top_link_reference[0], "pitch": model.top_link_reference[1],
+                               "reference": prof.limits.top_link_angle_reference},
+        "limits": prof.limits.model_dump(),
+        "pivot_height": prof.geometry.pivot_height,
+        "thesis_box": {k: list(v) for k, v in model.thesis_box().items()},
+        "z_reference": prof.workspace.z_reference,
+        "workspace": None if model.workspace is None else {k: list(v) for k, v in model.workspace.items()},
+    }
+
+
+def _cmd_profile_show(args) -> int:
+    model = model_from_args(args)
+    s = profile_summary(model)
+    if args.json:
+        print(json.dumps(s))
+        return 0
+    c = Console()
+    c.print(f"[bold]{s['profile']}[/bold] — {s['description']}")
+    c.print(f"category {s['category']} (of {', '.join(s['categories'])}): span {s['span']:.4f} m (ball centres), "
+            f"mast height {s['mast_height']:.3f} m")
+    t = Table("actuator", "min", "max", "neutral", "unit")
+    for n in ACTUATOR_NAMES:
+        lo, hi = s["strokes"][n]
+        t.add_row(n, f"{lo:.4f}", f"{hi:.4f}", f"{s['neutral_actuators'][n]:.4f}", "rad" if n == "lift" else "m")
+    c.print(t)
+    c.print("neutral pose: " + "  ".join(f"{k}={v:+.4f}" for k, v in s["neutral_pose"].items()))
+    ws = s["workspace"]
+    c.print("restricted workspace: " + ("none for this category" if ws is None else
+            "  ".join(f"{k} [{a:+.4f}, {b:+.4f}]" for k, (a, b) in ws.items())))
+    lim = s["limits"]
+    c.print(f"top link: yaw ±{lim['top_link_yaw_max']} rad, pitch +{lim['top_link_pitch_up_max']}/"
+            f"-{lim['top_link_pitch_down_max']} rad from the {lim['top_link_angle_reference']} direction; "
+            f"ground clearance {lim['ground_clearance']} m (pivot height {s['pivot_height']} m)")
+    return 0
+
+
+def _cmd_fit_workspace(args) -> int:
+    from planner.model.workspace import fit_restricted_box
+
+    model = model_from_args(args)
+    res = fit_restricted_box(model)
+    if args.json:
+        print(json.dumps({"category": model.category, "box": {k: list(v) for k, v in res.box.items()},
+                          "stopped_by": res.stopped_by}))
+        return 0
+    print(f"[workspace.restricted.{model.category}]")
+    for k, (lo, hi) in res.box.items():
+        lo, hi = math.ceil(lo * 1e6) / 1e6, math.floor(hi * 1e6) / 1e6  # round inward
+        print(f"{k} = [{lo:.6f}, {hi:.6f}]   # {k}:min {res.stopped_by[k + ':min']}; {k}:max {res.stopped_by[k + ':max']}")
+    return 0
+
+
+def _cmd_demo(args) -> int:
+    model = model_from_args(args)
+    c = Console()
+    s = profile_summary(model)
+    c.print(f"[bold]hitch-planner demo[/bold] — profile {s['profile']}, category {model.category}")
+    c.print("neutral actuators: " + "  ".join(f"{k}={v:.4f}" for k, v in s["neutral_actuators"].items()))
+    c.print("neutral pose:      " + "  ".join(f"{k}={v:+.4f}" for k, v in s["neutral_pose"].items()))
+    t = Table(title="forward kinematics over the lift stroke (other actuators at neutral)")
+    for h in ("lift [rad]",) + tuple(f"{n} [{'m' if n in ('x', 'y', 'z') else 'rad'}]" for n in POSE_NAMES):
+        t.add_column(h, justify="right")
+    for lift in np.linspace(model.lower[0], model.upper[0], 7):
+        q = model.neutral.copy()
+        q[0] = lift
+        p = model.forward(q).pose
+        t.add_row(f"{lift:+.3f}", *(f"{v:+.4f}" for v in p.as_array()))
+    c.print(t)
+    return 0
+
+
+def add_commands(sub) -> None:
+    p = sub.add_parser("demo", help="print the default profile's neutral pose and a forward-kinematics table")
+    add_model_options(p)
+    p.set_defaults(handler=_cmd_demo)
+
+    p = sub.add_parser("fk", help="forward kinematics: actuators -> pose and points")
+    p.add_argument("--lift", type=finite_float("--lift"), required=True, help="lift-arm angle theta_E [rad]")
+    p.add_argument("--tilt", type=finite_float("--tilt"), required=True, help="tilt cylinder length [m]")
+    p.add_argument("--top", type=finite_float("--top"), required=True, help="top link length [m]")
+    p.add_argument("--left", type=finite_float("--left"), required=True, help="left sway limiter length [m]")
+    p.add_argument("--right", type=finite_float("--right"), required=True, help="right sway limiter length [m]")
+    add_model_options(p)
+    p.set_defaults(handler=_cmd_fk)
+
+    prof = sub.add_parser("profile", help="geometry profiles").add_subparsers(dest="profile_command", required=True)
+    p = prof.add_parser("show", help="show a profile with the selected category")
+    add_model_options(p)
+    p.set_defaults(handler=_cmd_profile_show)
+    p = prof.add_parser("fit-workspace", help="fit the restricted workspace box of a category (prints TOML)")
+    add_model_options(p)
+    p.set_defaults(handler=_cmd_fit_workspace)

@@ -1,0 +1,107 @@
+"""CLI command ``hitch plan``: a jerk-limited move between poses, as a table, JSON or a plot."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+from rich.console import Console
+
+from planner.trajectory import MotionState, TrajectoryPlanner
+from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
+
+from bridge.cli.model import add_model_options, model_from_args
+
+__all__ = ["add_commands", "parse_pose_arg"]
+
+
+def parse_pose_arg(text: str) -> dict[str, float]:
+    """'x=0.05,z=0.2' → {"x": 0.05, "z": 0.2} (any of x, z, roll, pitch)."""
+    out: dict[str, float] = {}
+    for part in filter(None, (p.strip() for p in text.split(","))):
+        if "=" not in part:
+            raise argparse.ArgumentTypeError(f"expected key=value pairs (x, z, roll, pitch), got {part!r}")
+        k, v = (s.strip() for s in part.split("=", 1))
+        if k not in CONTROLLED_POSE_NAMES:
+            raise argparse.ArgumentTypeError(f"unknown pose field {k!r}; allowed: x, z, roll, pitch")
+        try:
+            out[k] = float(v)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{k} must be a number, got {v!r}") from None
+        if not np.isfinite(out[k]):
+            raise argparse.ArgumentTypeError(f"{k} must be finite, got {v!r}")
+    if not out:
+        raise argparse.ArgumentTypeError("no pose fields given")
+    return out
+
+
+def plot_plan(path: str, sp, tp: TrajectoryPlanner) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(3, 1, figsize=(10, 10), sharex=True, constrained_layout=True)
+    names6 = ("x", "y", "z", "roll", "pitch", "yaw")
+    for i in (0, 2, 3, 4):
+        axes[0].plot(sp.t, sp.pose[:, i], label=f"{names6[i]} [{'m' if i < 3 else 'rad'}]")
+    axes[0].set_title("pose (x, z, roll, pitch)")
+    axes[0].legend(loc="best")
+    span = tp.model.upper - tp.model.lower
+    for i, n in enumerate(ACTUATOR_NAMES):
+        axes[1].plot(sp.t, (sp.actuators[:, i] - tp.model.lower[i]) / span[i], label=n)
+    axes[1].axhline(0, color="k", lw=0.8)
+    axes[1].axhline(1, color="k", lw=0.8)
+    axes[1].set_title("actuator positions, fraction of stroke (strokes at 0 and 1)")
+    axes[1].legend(loc="best")
+    for i, n in enumerate(ACTUATOR_NAMES):
+        line, = axes[2].plot(sp.t, sp.actuator_velocity[:, i] / tp.limits.velocity[i], label=n)
+    axes[2].axhline(1, color="r", ls="--", lw=1)
+    axes[2].axhline(-1, color="r", ls="--", lw=1, label="limit")
+    axes[2].set_title("actuator velocities, fraction of their limits")
+    axes[2].set_xlabel("t [s]")
+    axes[2].legend(loc="best")
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def _cmd_plan(args) -> int:
+    model = model_from_args(args)
+    tp = TrajectoryPlanner(model, rate=args.rate)
+    start = model.neutral_pose.controlled()
+    if args.start:
+        start = tp.goal_vector(start, args.start)
+        tp.check_in_workspace(start, "from")
+    plan = tp.plan_move(MotionState.at_rest(start), args.to, speed_scale=args.speed_scale)
+    sp = plan.setpoints  # verified at the planner's rate (--rate)
+    if args.plot:
+        plot_plan(args.plot, sp, tp)
+    if args.json:
+        print(json.dumps({
+            "duration": plan.duration, "lower_bound": plan.lower_bound, "rate": tp.rate,
+            "actuator_velocity_max": dict(zip(ACTUATOR_NAMES, map(float, tp.limits.velocity))),
+            "actuator_acceleration_max": dict(zip(ACTUATOR_NAMES, map(float, tp.limits.acceleration))),
+            "samples": sp.to_json(),
+        }))
+        return 0
+    c = Console()
+    c.print(f"duration {plan.duration:.3f} s (lower bound {plan.lower_bound:.3f} s, ratio "
+            f"{plan.duration / plan.lower_bound:.3f}), {len(sp.t)} samples at {tp.rate:g} Hz")
+    c.print("end pose: " + "  ".join(f"{k}={v:+.4f}" for k, v in zip(("x", "y", "z", "roll", "pitch", "yaw"), sp.pose[-1])))
+    c.print("peak |actuator velocity| / limit: " + "  ".join(
+        f"{n}={np.max(np.abs(sp.actuator_velocity[:, i])) / tp.limits.velocity[i]:.3f}" for i, n in enumerate(ACTUATOR_NAMES)))
+    if args.plot:
+        c.print(f"plot written to {args.plot}")
+    return 0
+
+
+def add_commands(sub) -> None:
+    p = sub.add_parser("plan", help="plan a jerk-limited move between poses (no motion)")
+    p.add_argument("--to", type=parse_pose_arg, required=True, help="goal, e.g. x=0.05,z=0.25 (unspecified DOF keep their value)")
+    p.add_argument("--from", dest="start", type=parse_pose_arg, default=None, help="start pose (default: neutral)")
+    p.add_argument("--rate", type=float, default=None, help="sampling rate [Hz], 1..200 (default: the profile's, 50)")
+    p.add_argument("--speed-scale", type=float, default=1.0, help="fraction of full speed, (0, 1]")
+    p.add_argument("--plot", default=None, help="write a PNG of pose, actuators and velocities with limits")
+    add_model_options(p)
+    p.set_defaults(handler=_cmd_plan)

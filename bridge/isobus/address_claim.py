@@ -1,0 +1,269 @@
+"""ISO 11783-5 / SAE J1939-81 NAME and address claiming as a pure state machine.
+
+A control function claims a source address by broadcasting Address Claimed
+(PGN 60928) with its 64-bit NAME, and may use the address once 250 ms pass
+without a contending claim (thesis section 1.3, ISO 11783-5). When two control
+functions claim the same address the one with the numerically lower NAME keeps
+it; the loser either claims another address (if arbitrary address capable) or
+sends Cannot Claim — Address Claimed from the null address 254 — and stays
+silent. A Request (PGN 59904) for PGN 60928 is answered with our claim.
+
+:class:`AddressClaimer` owns no thread and no clock: feed it received frames with
+``handle(frame, now_s)`` and call ``poll(now_s)`` periodically; both return the
+frames to transmit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import Enum
+
+import can
+
+from bridge.isobus.codec import AddressClaimed, CodecError, RequestPgn, decode_frame, encode
+from bridge.isobus.j1939 import (
+    GLOBAL_ADDRESS, NULL_ADDRESS, PGN_ADDRESS_CLAIMED, PGN_REQUEST,
+    PLANNER_ADDRESS, decode_id,
+)
+
+__all__ = [
+    "AddressClaimer",
+    "CLAIM_WAIT_S",
+    "ClaimState",
+    "Name",
+    "SELF_CONFIGURABLE_RANGE",
+    "cylinder_ecu_name",
+    "planner_name",
+]
+
+CLAIM_WAIT_S = 0.25
+"""Time without contention after which a claimed address may be used, s."""
+SELF_CONFIGURABLE_RANGE = (128, 247)
+"""Addresses an arbitrary-address-capable control function may pick (J1939-81)."""
+
+_LAYOUT = (  # (field, first bit, length) of the 64-bit NAME, J1939-81 / ISO 11783-5
+    ("identity_number", 0, 21),
+    ("manufacturer_code", 21, 11),
+    ("ecu_instance", 32, 3),
+    ("function_instance", 35, 5),
+    ("function", 40, 8),
+    ("reserved", 48, 1),
+    ("vehicle_system", 49, 7),
+    ("vehicle_system_instance", 56, 4),
+    ("industry_group", 60, 3),
+    ("arbitrary_address_capable", 63, 1),
+)
+
+
+@dataclass(frozen=True)
+class Name:
+    """An ISO 11783-5 / J1939-81 NAME; on contention the lower :attr:`value` wins.
+
+    Attributes:
+        identity_number: 21 bits, unique per manufacturer.
+        manufacturer_code: 11 bits, assigned by SAE / ISO (0 here: unassigned).
+        ecu_instance: 3 bits.
+        function_instance: 5 bits.
+        function: 8 bits; 130 = rear hitch control (industry group 2, vehicle
+            system 1).
+        vehicle_system: 7 bits ("device class"); 1 = tractor in industry group 2.
+        vehicle_system_instance: 4 bits.
+        industry_group: 3 bits; 2 = agricultural and forestry equipment.
+        arbitrary_address_capable: may move to another address on contention.
+        reserved: 1 bit, 0.
+    """
+
+    identity_number: int
+    manufacturer_code: int = 0
+    ecu_instance: int = 0
+    function_instance: int = 0
+    function: int = 130
+    vehicle_system: int = 1
+    vehicle_system_instance: int = 0
+    industry_group: int = 2
+    arbitrary_address_capable: bool = False
+    reserved: int = 0
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.arbitrary_address_capable, bool):
+            raise ValueError("Name.arbitrary_address_capable must be a bool, got "
+                             f"{self.arbitrary_address_capable!r}")
+        for field, _start, length in _LAYOUT[:-1]:
+            item = getattr(self, field)
+            if isinstance(item, bool) or not isinstance(item, int) or not 0 <= item < 1 << length:
+                raise ValueError(
+                    f"Name.{field} must be an integer in 0..{(1 << length) - 1}, got {item!r}")
+
+    @property
+    def value(self) -> int:
+        """The 64-bit NAME as sent little-endian in Address Claimed."""
+        return sum(int(getattr(self, field)) << start for field, start, _ in _LAYOUT)
+
+    @classmethod
+    def from_int(cls, value: int) -> Name:
+        """Split a 64-bit NAME into its fields."""
+        if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value < 1 << 64:
+            raise ValueError(f"NAME must be an integer in 0..2^64-1, got {value!r}")
+        fields = {f: (value >> start) & ((1 << n) - 1) for f, start, n in _LAYOUT}
+        fields["arbitrary_address_capable"] = bool(fields["arbitrary_address_capable"])
+        return cls(**fields)
+
+
+def planner_name(identity_number: int = 1, *, arbitrary_address_capable: bool = False) -> Name:
+    """The planner's NAME: agricultural tractor rear hitch control, ECU instance 0."""
+    return Name(identity_number, ecu_instance=0,
+                arbitrary_address_capable=arbitrary_address_capable)
+
+
+def cylinder_ecu_name(identity_number: int = 2) -> Name:
+    """The cylinder ECU's NAME: rear hitch control, ECU instance 1, fixed address."""
+    return Name(identity_number, ecu_instance=1)
+
+
+class ClaimState(Enum):
+    """Where an :class:`AddressClaimer` is."""
+
+    IDLE = "idle"  # not started
+    CLAIMING = "claiming"  # claim sent, waiting 250 ms for contention
+    CLAIMED = "claimed"  # address may be used
+    CANNOT_CLAIM = "cannot claim"  # lost; silent except Cannot Claim answers
+
+
+class AddressClaimer:
+    """Claims and defends one source address for ``name``.
+
+    Args:
+        name: our NAME.
+        preferred_address: the address to claim first (thesis: planner 166,
+            cylinder ECU 169).
+        wait_s: contention window after a claim, s (ISO 11783-5: 0.25).
+    """
+
+    def __init__(self, name: Name, preferred_address: int = PLANNER_ADDRESS, *,
+                 wait_s: float = CLAIM_WAIT_S) -> None:
+        if isinstance(preferred_address, bool) or not isinstance(preferred_address, int) or not (
+            0 <= preferred_address <= 253
+        ):
+            raise ValueError(f"preferred_address must be in 0..253, got {preferred_address!r}")
+        if not wait_s > 0:
+            raise ValueError(f"wait_s must be > 0 s, got {wait_s!r}")
+        self._name = name
+        self._preferred = preferred_address
+        self._wait_s = float(wait_s)
+        self._state = ClaimState.IDLE
+        self._address: int | None = None
+        self._deadline_s = 0.0
+        self._peers: dict[int, Name] = {}
+        self._pending: list[tuple[float, can.Message]] = []
+
+    @property
+    def name(self) -> Name:
+        """Our NAME."""
+        return self._name
+
+    @property
+    def state(self) -> ClaimState:
+        """Current state."""
+        return self._state
+
+    @property
+    def address(self) -> int | None:
+        """The address being claimed or held, ``None`` when idle or cannot claim."""
+        return self._address
+
+    @property
+    def claimed(self) -> bool:
+        """True once the address may be used for normal traffic."""
+        return self._state is ClaimState.CLAIMED
+
+    @property
+    def peers(self) -> dict[int, Name]:
+        """Other control functions seen claiming, by address (a copy)."""
+        return dict(self._peers)
+
+    def start(self, now_s: float) -> list[can.Message]:
+        """Send our first claim for the preferred address."""
+        self._peers.clear()
+        self._pending.clear()
+        return self._claim(self._preferred, now_s)
+
+    def poll(self, now_s: float) -> list[can.Message]:
+        """Advance time: finish the contention window, release delayed answers."""
+        if self._state is ClaimState.CLAIMING and now_s >= self._deadline_s:
+            self._state = ClaimState.CLAIMED
+        due = [msg for t, msg in self._pending if t <= now_s]
+        self._pending = [(t, msg) for t, msg in self._pending if t > now_s]
+        return due
+
+    def handle(self, frame: can.Message, now_s: float) -> list[can.Message]:
+        """Process one received frame; other PGNs and malformed frames are ignored."""
+        if self._state is ClaimState.IDLE or not frame.is_extended_id:
+            return []
+        try:
+            pgn = decode_id(frame.arbitration_id).pgn
+        except ValueError:
+            return []
+        if pgn not in (PGN_ADDRESS_CLAIMED, PGN_REQUEST):
+            return []
+        try:
+            decoded = decode_frame(frame)
+        except CodecError:
+            return []
+        if isinstance(decoded.payload, RequestPgn):
+            return self._on_request(decoded.payload.pgn, decoded.ident.destination_address, now_s)
+        if isinstance(decoded.payload, AddressClaimed):
+            other = Name.from_int(decoded.payload.name)
+            return self._on_claim(decoded.source_address, other, now_s)
+        return []
+
+    def _claim_frame(self, source: int) -> can.Message:
+        return encode(AddressClaimed(self._name.value), source=source, destination=GLOBAL_ADDRESS)
+
+    def _claim(self, address: int, now_s: float) -> list[can.Message]:
+        self._address = address
+        self._state = ClaimState.CLAIMING
+        self._deadline_s = now_s + self._wait_s
+        return [self._claim_frame(address)]
+
+    def _give_up(self) -> list[can.Message]:
+        self._state = ClaimState.CANNOT_CLAIM
+        self._address = None
+        return [self._claim_frame(NULL_ADDRESS)]
+
+    def _on_request(self, pgn: int, destination: int, now_s: float) -> list[can.Message]:
+        if pgn != PGN_ADDRESS_CLAIMED:
+            return []
+        if self._state is ClaimState.CANNOT_CLAIM:
+            if destination == GLOBAL_ADDRESS:
+                # J1939-81: pseudo-random 0..153 ms delay against simultaneous answers.
+                delay_s = (self._name.value % 154) / 1000.0
+                self._pending.append((now_s + delay_s, self._claim_frame(NULL_ADDRESS)))
+            return []
+        if destination not in (GLOBAL_ADDRESS, self._address):
+            return []
+        return [self._claim_frame(self._address)]
+
+    def _on_claim(self, source: int, other: Name, now_s: float) -> list[can.Message]:
+        if source == NULL_ADDRESS:
+            return []  # someone else's Cannot Claim
+        if other == self._name:
+            return []  # our own claim seen again (echo)
+        for address, peer in list(self._peers.items()):
+            if peer == other:
+                del self._peers[address]  # that NAME moved
+        self._peers[source] = other
+        if self._state is ClaimState.CANNOT_CLAIM or source != self._address:
+            return []
+        if self._name.value < other.value:
+            # We win: defend the address; a claim in progress restarts its window.
+            if self._state is ClaimState.CLAIMING:
+                self._deadline_s = now_s + self._wait_s
+            return [self._claim_frame(self._address)]
+        if not self._name.arbitrary_address_capable:
+            return self._give_up()
+        low, high = SELF_CONFIGURABLE_RANGE
+        free = [a for a in range(low, high + 1) if a not in self._peers]
+        if not free:
+            return self._give_up()
+        after = [a for a in free if a > source]
+        return self._claim((after or free)[0], now_s)

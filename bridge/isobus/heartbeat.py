@@ -1,0 +1,254 @@
+"""ISO 11783-7 heartbeat (PGN 61668): a pure sender and a pure monitor.
+
+Sender (ISO 11783-7 B.33.3.2): every 100 ms one frame whose sequence number is
+251 once after initialisation, then 0, 1, ..., 250, 0, ...; 254 signals a sender
+error and 255 a graceful shutdown.
+
+Monitor (B.33.3.3-4), per sender: the sequence must advance by one (after 250 or
+251 comes 0); up to two lost heartbeats (an advance of 2 or 3) are tolerated, a
+repeat or a larger jump is a sequence error; 252-253 are ignored; 251 means the
+sender restarted; more than 300 ms without a heartbeat is a communication error.
+After any error, eight consecutive correct heartbeats (or a restart, 251) return
+the monitor to operational.
+
+Neither class owns a thread or a clock: both are driven by ``now_s``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import Enum
+
+import can
+
+from bridge.isobus.codec import CodecError, Heartbeat, decode_frame, encode
+from bridge.isobus.j1939 import PGN_HEARTBEAT, PLANNER_ADDRESS, decode_id
+
+__all__ = [
+    "HEARTBEAT_PERIOD_S",
+    "HEARTBEAT_TIMEOUT_S",
+    "HeartbeatMonitor",
+    "HeartbeatSender",
+    "HeartbeatState",
+    "HeartbeatStatus",
+    "INITIAL_SEQUENCE",
+    "RECOVERY_COUNT",
+    "SEQUENCE_ERROR",
+    "SEQUENCE_MODULUS",
+    "SEQUENCE_SHUTDOWN",
+]
+
+HEARTBEAT_PERIOD_S = 0.1
+"""Transmission period, s."""
+HEARTBEAT_TIMEOUT_S = 0.3
+"""Silence after which the monitor reports a communication error, s."""
+INITIAL_SEQUENCE = 251
+"""Sequence number sent once after initialisation."""
+SEQUENCE_ERROR = 254
+"""Sequence number signalling an error in the sender."""
+SEQUENCE_SHUTDOWN = 255
+"""Sequence number signalling a graceful shutdown."""
+SEQUENCE_MODULUS = 251
+"""Normal sequence numbers run 0..250."""
+RECOVERY_COUNT = 8
+"""Consecutive correct heartbeats needed to leave an error state."""
+_MAX_ADVANCE = 3  # advance 2 or 3 = one or two heartbeats lost, tolerated
+_TIME_EPS_S = 1e-6  # a gap of exactly the timeout (within float noise) is still on time
+
+
+class HeartbeatSender:
+    """Periodic heartbeat frames from one source address.
+
+    Args:
+        source: our source address.
+        period_s: period, s (ISO 11783-7: 0.1).
+    """
+
+    def __init__(self, source: int = PLANNER_ADDRESS, *, period_s: float = HEARTBEAT_PERIOD_S
+                 ) -> None:
+        if not period_s > 0:
+            raise ValueError(f"period_s must be > 0 s, got {period_s!r}")
+        self._source = source
+        self._period_s = float(period_s)
+        self._sequence: int | None = None  # last sent counter value, None before start
+        self._anchor_s = 0.0  # frame k is due at anchor + k * period (no drift)
+        self._count = 0
+        self._fault = False
+
+    @property
+    def started(self) -> bool:
+        """True after :meth:`start`."""
+        return self._sequence is not None
+
+    @property
+    def fault(self) -> bool:
+        """While True the frames carry the error value 254."""
+        return self._fault
+
+    @fault.setter
+    def fault(self, value: bool) -> None:
+        self._fault = bool(value)
+
+    def start(self, now_s: float) -> list[can.Message]:
+        """(Re)initialise: send 251 now, the counter follows every period."""
+        self._sequence = INITIAL_SEQUENCE
+        self._anchor_s, self._count = now_s, 1
+        return [self._frame(INITIAL_SEQUENCE)]
+
+    def poll(self, now_s: float) -> list[can.Message]:
+        """Return the heartbeat due at ``now_s`` (at most one; no catch-up bursts)."""
+        if self._sequence is None:
+            return []
+        due_s = self._anchor_s + self._count * self._period_s
+        if now_s < due_s - _TIME_EPS_S:
+            return []
+        if now_s - due_s >= self._period_s - _TIME_EPS_S:  # a period or more late: re-phase
+            self._anchor_s, self._count = now_s, 1
+        else:
+            self._count += 1
+        if self._fault:
+            return [self._frame(SEQUENCE_ERROR)]
+        self._sequence = 0 if self._sequence >= SEQUENCE_MODULUS - 1 else self._sequence + 1
+        return [self._frame(self._sequence)]
+
+    def shutdown(self) -> list[can.Message]:
+        """Graceful disconnection: one frame with 255; the sender stops."""
+        self._sequence = None
+        return [self._frame(SEQUENCE_SHUTDOWN)]
+
+    def _frame(self, sequence: int) -> can.Message:
+        return encode(Heartbeat(sequence), source=self._source)
+
+
+class HeartbeatState(Enum):
+    """What the monitor concludes about one sender."""
+
+    WAITING = "waiting"  # nothing received yet
+    OPERATIONAL = "operational"
+    SEQUENCE_ERROR = "sequence error"  # repeat or jump of the counter
+    SENDER_ERROR = "sender error"  # the sender sent 254
+    SHUTDOWN = "shutdown"  # the sender sent 255
+    TIMEOUT = "timeout"  # more than the timeout without a heartbeat
+
+
+@dataclass(frozen=True)
+class HeartbeatStatus:
+    """A snapshot of a :class:`HeartbeatMonitor`.
+
+    Attributes:
+        state: current conclusion.
+        last_sequence: last sequence number received, ``None`` before the first.
+        age_s: time since the last heartbeat, s (``None`` before the first).
+        restarts: how many times the sender restarted (251 after the first frame).
+        sequence_errors: sequence errors seen.
+        timeouts: silences longer than the timeout seen.
+    """
+
+    state: HeartbeatState
+    last_sequence: int | None
+    age_s: float | None
+    restarts: int
+    sequence_errors: int
+    timeouts: int
+
+    @property
+    def healthy(self) -> bool:
+        """True only when operational."""
+        return self.state is HeartbeatState.OPERATIONAL
+
+
+class HeartbeatMonitor:
+    """Checks the heartbeat of one sender.
+
+    Args:
+        source: the sender's source address.
+        timeout_s: silence that counts as a communication error, s (0.3).
+    """
+
+    def __init__(self, source: int, *, timeout_s: float = HEARTBEAT_TIMEOUT_S) -> None:
+        if not timeout_s > 0:
+            raise ValueError(f"timeout_s must be > 0 s, got {timeout_s!r}")
+        self._source = source
+        self._timeout_s = float(timeout_s)
+        self._state = HeartbeatState.WAITING
+        self._last: int | None = None
+        self._counter: int | None = None  # last value in 0..251, for the advance check
+        self._last_rx_s: float | None = None
+        self._good_run = 0
+        self._restarts = 0
+        self._sequence_errors = 0
+        self._timeouts = 0
+
+    def handle(self, frame: can.Message, now_s: float) -> bool:
+        """Process a received frame; True if it was a heartbeat from our sender."""
+        if not frame.is_extended_id:
+            return False
+        try:
+            ident = decode_id(frame.arbitration_id)
+            if ident.pgn != PGN_HEARTBEAT or ident.source_address != self._source:
+                return False
+            sequence = decode_frame(frame).payload.sequence
+        except (CodecError, ValueError):
+            return False  # reserved 252-253 and malformed heartbeats are ignored
+        self.handle_sequence(sequence, now_s)
+        return True
+
+    def handle_sequence(self, sequence: int, now_s: float) -> None:
+        """Process one received sequence number at time ``now_s``."""
+        if isinstance(sequence, bool) or not isinstance(sequence, int) or not (
+            0 <= sequence <= 255
+        ):
+            raise ValueError(f"sequence must be an integer in 0..255, got {sequence!r}")
+        if sequence in (252, 253):
+            return
+        if self._last_rx_s is not None and now_s - self._last_rx_s > self._timeout_s + _TIME_EPS_S:
+            self._timeouts += 1
+            self._enter(HeartbeatState.TIMEOUT)
+        self._last_rx_s = now_s
+        first, self._last = self._last is None, sequence
+        if sequence == SEQUENCE_ERROR:
+            self._enter(HeartbeatState.SENDER_ERROR)
+        elif sequence == SEQUENCE_SHUTDOWN:
+            self._counter = None
+            self._enter(HeartbeatState.SHUTDOWN)
+        elif sequence == INITIAL_SEQUENCE:
+            self._restarts += 0 if first else 1
+            self._counter = INITIAL_SEQUENCE
+            self._state, self._good_run = HeartbeatState.OPERATIONAL, RECOVERY_COUNT
+        elif self._counter is None:
+            if first:  # joined a running sender: synchronise
+                self._state, self._good_run = HeartbeatState.OPERATIONAL, RECOVERY_COUNT
+            else:  # counting resumed after 255 without the initial 251
+                self._sequence_error()
+            self._counter = sequence
+        else:
+            base = -1 if self._counter == INITIAL_SEQUENCE else self._counter
+            advance = (sequence - base) % SEQUENCE_MODULUS
+            if advance == 0 or advance > _MAX_ADVANCE:  # repeat or jump
+                self._sequence_error()
+            elif advance == 1:
+                self._good_run += 1
+                if self._good_run >= RECOVERY_COUNT:
+                    self._state = HeartbeatState.OPERATIONAL
+            self._counter = sequence
+
+    def status(self, now_s: float) -> HeartbeatStatus:
+        """The monitor's conclusion at ``now_s``."""
+        state = self._state
+        age = None if self._last_rx_s is None else now_s - self._last_rx_s
+        if age is not None and age > self._timeout_s + _TIME_EPS_S:
+            state = HeartbeatState.TIMEOUT
+        return HeartbeatStatus(state, self._last, age, self._restarts,
+                               self._sequence_errors, self._timeouts)
+
+    def healthy(self, now_s: float) -> bool:
+        """True when the sender is operational and not silent."""
+        return self.status(now_s).healthy
+
+    def _sequence_error(self) -> None:
+        self._sequence_errors += 1
+        self._enter(HeartbeatState.SEQUENCE_ERROR)
+
+    def _enter(self, state: HeartbeatState) -> None:
+        self._state = state
+        self._good_run = 0

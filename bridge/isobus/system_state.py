@@ -1,0 +1,63 @@
+"""The cylinder ECU's system-state byte (byte 8 of 0xFF22, thesis table 5-2): what both ends of the bus agree on.
+
+System-state byte (byte 8 of 0xFF22, thesis table 5-2; bit meaning defined here):
+
+=====  =================================================================
+bit 0  controllers on (the ECU's on/off switch)
+bit 1  watchdog expired: valves held at zero (also before the first reference)
+bit 2  end-stop relay engaged on at least one cylinder
+bit 3  no reference received since the last (re)start
+4–7    restart counter modulo 16 (0 at first power-up, +1 per restart)
+=====  =================================================================
+
+A planner detects an ECU restart by a change of bits 4–7 or by bit 3 appearing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from bridge.isobus.messages import CodecError
+
+__all__ = [
+    "STATE_CONTROLLERS_ON",
+    "STATE_END_STOP_RELAY",
+    "STATE_NO_REFERENCE",
+    "STATE_RESTART_SHIFT",
+    "STATE_WATCHDOG_TRIPPED",
+    "SystemStatus",
+    "decode_system_state",
+]
+
+STATE_CONTROLLERS_ON = 0x01
+STATE_WATCHDOG_TRIPPED = 0x02
+STATE_END_STOP_RELAY = 0x04
+STATE_NO_REFERENCE = 0x08
+STATE_RESTART_SHIFT = 4
+
+
+@dataclass(frozen=True)
+class SystemStatus:
+    """Decoded system-state byte (see the module docstring for the bit layout)."""
+
+    controllers_on: bool
+    watchdog_tripped: bool
+    end_stop_relay: bool
+    no_reference_since_restart: bool
+    restart_count_mod16: int
+
+
+def decode_system_state(state: int) -> SystemStatus:
+    """Decode the system-state byte 0…255."""
+    if isinstance(state, bool) or not isinstance(state, (int, np.integer)) or not 0 <= int(state) <= 255:
+        raise CodecError(f"system state must be an integer byte 0…255, got {state!r}")
+    s = int(state)
+    return SystemStatus(
+        controllers_on=bool(s & STATE_CONTROLLERS_ON),
+        watchdog_tripped=bool(s & STATE_WATCHDOG_TRIPPED),
+        end_stop_relay=bool(s & STATE_END_STOP_RELAY),
+        no_reference_since_restart=bool(s & STATE_NO_REFERENCE),
+        restart_count_mod16=s >> STATE_RESTART_SHIFT,
+    )

@@ -1,0 +1,401 @@
+"""The planner side of the CAN bridge: reference stream out, measured state in (issue 6 §3).
+
+:class:`CanLink` talks to the cylinder ECU (real or :mod:`bridge.sim.can_node`):
+
+* **References.** :meth:`CanLink.send_reference` takes actuators in SI, checks them
+  against every hard limit (strokes, top-link angles, ground clearance — names as in
+  :mod:`planner.model.hard_limits`) and converts them with
+  :meth:`planner.model.sensors.SensorScaling.to_counts`; a reference that fails raises
+  :class:`~bridge.link.state.ReferenceRefused` naming the limit and never reaches the
+  bus. The accepted reference is streamed as 0xFF21 at the control rate (default
+  50 Hz): sent at once when the stream is idle or due, otherwise at the next period,
+  never faster. The ECU's watchdog needs this stream.
+* **Measurements.** 0xFF22 (tilt, top, right, left, system state) and the rear hitch
+  status (lift, fraction of travel) → SI through the AD calibration → exact forward
+  kinematics → :class:`~bridge.link.state.LinkState`.
+* **Safety.** A measurement older than ``stale_after_s`` (200 ms), an ECU heartbeat
+  silent > 300 ms / in error / shut down, an ECU restart (heartbeat 251 again, a
+  change of the restart counter or the no-reference bit reappearing in the system
+  state), a lost address claim or repeated send failures latch a fault and **stop the
+  reference stream**; the ECU's watchdog then zeroes its valves within its timeout
+  (100 ms). Motion resumes only on a fresh :meth:`send_reference`, accepted once the
+  causes are gone; the old reference is never resumed.
+* **Accounting.** Malformed frames (codec rejections), unknown PGNs (other ISOBUS
+  traffic — counted, not a fault), frames from other sources, our own echo
+  (udp_multicast), unavailable or out-of-span readings, dropped periodic frames
+  (inferred from arrival gaps), error frames and failed sends are counted in
+  :class:`~bridge.link.state.LinkCounters`.
+
+Time: the link owns no clock and no thread. Every method takes ``now_s`` (any
+monotonic clock in seconds). :meth:`poll` drains the bus without blocking — a
+simulation calls it from its simulated clock (:mod:`bridge.sim.move`); in real time a
+:class:`bridge.sim.move.RealtimeRunner` calls it from a background thread that blocks on the bus
+between deadlines (no busy loop). All public methods take an internal lock, so a
+service thread may call :meth:`send_reference` while the runner polls.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from dataclasses import replace
+
+import can
+import numpy as np
+
+from planner.model.hard_limits import HardLimits
+from planner.model.kinematics import HitchModel
+from planner.model.sensors import SensorRangeError, SensorScaling
+from planner.model.types import ACTUATOR_NAMES, KinematicsError
+
+from bridge.isobus.address_claim import AddressClaimer, ClaimState
+from bridge.isobus.codec import (
+    CodecError, EcuParameters, Heartbeat, PositionCounts, PositionMeasurement, RearHitchStatus,
+    load_codec,
+)
+from bridge.isobus.heartbeat import HeartbeatMonitor, HeartbeatSender, HeartbeatState
+from bridge.isobus.j1939 import PGN_ADDRESS_CLAIMED, PGN_REQUEST, decode_id
+from bridge.link.state import (
+    LinkConfig, LinkCounters, LinkFaultError, LinkFaults, LinkState, LinkStatus, MeasurementAssembler,
+    ReferenceRefused,
+)
+
+__all__ = ["CanLink"]
+
+_EPS_S = 1e-6  # float-time tolerance of the stream schedule
+_IDLE_WAKE_S = 0.01  # a real-time loop checks faults at least this often
+
+
+class CanLink:
+    """Planner-side link to one cylinder ECU over ``bus`` (see the module docstring).
+
+    Args:
+        model: kinematic model (its profile gives strokes and AD calibration).
+        bus: an open python-can bus.
+        config: addresses, rates, timeouts.
+        own_bus: close ``bus`` in :meth:`close`.
+    """
+
+    def __init__(self, model: HitchModel, bus: can.BusABC, config: LinkConfig | None = None, *,
+                 own_bus: bool = False) -> None:
+        self._model = model
+        self._bus = bus
+        self._own_bus = bool(own_bus)
+        self._cfg = config if config is not None else LinkConfig()
+        self._scaling = SensorScaling(model.profile)
+        self._hard = HardLimits.from_model(model)
+        self._codec = load_codec()
+        self._known_pgns = frozenset(decode_id(m.frame_id).pgn for m in self._codec.database.messages)
+        cfg = self._cfg
+        self._claimer = AddressClaimer(cfg.name, cfg.source_address, wait_s=cfg.claim_wait_s)
+        self._hb_tx = HeartbeatSender(cfg.source_address, period_s=cfg.heartbeat_period_s)
+        self._hb_rx = HeartbeatMonitor(cfg.ecu_address, timeout_s=cfg.heartbeat_timeout_s)
+        self._lock = threading.RLock()
+        self._counters = LinkCounters()
+        self._faults = LinkFaults()
+        self._last_malformed = ""
+        self._operating_s: float | None = None  # when our claim succeeded
+        self._last_poll_s = 0.0
+        self._reference: PositionCounts | None = None
+        self._streaming = False
+        self._next_tx_s = math.inf
+        self._tx_error_run = 0
+        self._rx = MeasurementAssembler(model, self._scaling, self._cfg, self._bump)
+
+    # -- read-only views ---------------------------------------------------------------
+    @property
+    def model(self) -> HitchModel:
+        return self._model
+
+    @property
+    def bus(self) -> can.BusABC:
+        return self._bus
+
+    @property
+    def config(self) -> LinkConfig:
+        return self._cfg
+
+    @property
+    def counters(self) -> LinkCounters:
+        """Frame counters (a snapshot)."""
+        return self._counters
+
+    @property
+    def faults(self) -> LinkFaults:
+        """Latched faults (a snapshot)."""
+        return self._faults
+
+    @property
+    def claimed(self) -> bool:
+        """Our address claim succeeded and holds."""
+        return self._claimer.claimed
+
+    @property
+    def streaming(self) -> bool:
+        """References are being sent."""
+        return self._streaming
+
+    def latest_state(self) -> LinkState | None:
+        """The newest measured state, or None before the first complete measurement."""
+        return self._rx.state
+
+    def status(self, now_s: float) -> LinkStatus:
+        """A consistent snapshot for a supervisor."""
+        with self._lock:
+            ref = self._reference.as_tuple() if self._reference is not None else None
+            return LinkStatus(now_s, self.claimed, self._streaming, ref, self._rx.state, self._faults,
+                              self._hb_rx.status(now_s), self._counters, self._last_malformed,
+                              self._rx.last_problem)
+
+    def next_due_s(self) -> float:
+        """When :meth:`poll` must run next (stream deadline, or the idle wake-up), s."""
+        return min(self._next_tx_s if self._streaming else math.inf, self._last_poll_s + _IDLE_WAKE_S)
+
+    # -- commands ----------------------------------------------------------------------
+    def start(self, now_s: float) -> None:
+        """Claim our address; heartbeat and streaming are possible once it is claimed."""
+        with self._lock:
+            self._operating_s = None
+            self._streaming = False
+            self._last_poll_s = now_s
+            self._send(self._claimer.start(now_s))
+
+    def stop(self, now_s: float) -> None:
+        """Stop streaming and say goodbye (heartbeat 255). The bus stays open."""
+        with self._lock:
+            self._streaming = False
+            if self._operating_s is not None:
+                self._send(self._hb_tx.shutdown())
+            self._operating_s = None
+
+    def close(self) -> None:
+        """Stop streaming and shut the bus down if the link owns it."""
+        with self._lock:
+            self._streaming = False
+            if self._own_bus:
+                self._bus.shutdown()
+
+    def stop_motion(self) -> None:
+        """Stop the reference stream (the ECU watchdog then zeroes the valves)."""
+        with self._lock:
+            self._streaming = False
+
+    def check_reference(self, actuators) -> PositionCounts:
+        """The 0xFF21 counts of ``actuators`` (SI, actuator order) if within every hard limit.
+
+        Raises:
+            ReferenceRefused: naming the limit, the value and the bound.
+        """
+        with self._lock:   # the model's evaluation buffers are shared with the link's own thread
+            return self._check_reference(actuators)
+
+    def _check_reference(self, actuators) -> PositionCounts:
+        try:
+            q = np.asarray(actuators, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            raise ReferenceRefused(f"reference must be 5 numbers {ACTUATOR_NAMES}, got {actuators!r}") from None
+        if q.size != 5:
+            raise ReferenceRefused(f"reference needs 5 values {ACTUATOR_NAMES}, got {q.size}")
+        for name, v in zip(ACTUATOR_NAMES, q):
+            if not math.isfinite(v):
+                raise ReferenceRefused(f"reference.{name} must be finite, got {v}")
+        try:
+            feats, _ = self._model.features(q)
+        except KinematicsError as exc:
+            raise ReferenceRefused(f"reference refused: the mechanism cannot take it ({exc})") from None
+        bad = self._hard.violations(q, feats, tol=1e-9)
+        if bad:
+            raise ReferenceRefused("reference refused: " + "; ".join(self._describe(n, q, feats) for n in bad))
+        try:
+            counts = self._scaling.to_counts(q)
+        except SensorRangeError as exc:
+            raise ReferenceRefused(f"reference refused: {exc}") from None
+        return PositionCounts(*(int(c) for c in counts))
+
+    def send_reference(self, actuators, now_s: float) -> PositionCounts:
+        """Check ``actuators`` (SI) and stream them from ``now_s`` on; a fresh command also
+        re-arms the link after a fault once its causes are gone.
+
+        Raises:
+            ReferenceRefused: outside a limit (nothing is sent).
+            LinkFaultError: no address, no measurement yet, or a fault still active.
+        """
+        with self._lock:
+            try:
+                counts = self.check_reference(actuators)
+                if not self.claimed:
+                    raise LinkFaultError(f"address {self._cfg.source_address} is not claimed "
+                                         f"({self._claimer.state.value})")
+                active = self._conditions(now_s)
+                if active:
+                    self._raise(active)
+                    raise LinkFaultError("motion refused, fault active: " + "; ".join(r for _, r in active))
+                if self._rx.state is None:
+                    raise LinkFaultError("motion refused: no complete measurement from the ECU yet")
+            except (ReferenceRefused, LinkFaultError):
+                self._bump(references_refused=1)
+                raise
+            self._faults = LinkFaults()
+            self._reference = counts
+            if not self._streaming or now_s >= self._next_tx_s - _EPS_S:
+                self._next_tx_s = now_s
+            self._streaming = True
+            self._stream(now_s)
+            return counts
+
+    def send_parameters(self, parameters: EcuParameters, now_s: float) -> None:
+        """Send a 0xFF23 parameters frame (e.g. controllers off) once."""
+        with self._lock:
+            if not self.claimed:
+                raise LinkFaultError(f"address {self._cfg.source_address} is not claimed")
+            self._send([self._codec.encode(parameters, source=self._cfg.source_address)])
+
+    # -- the loop ----------------------------------------------------------------------
+    def poll(self, now_s: float) -> None:
+        """Handle every waiting frame, run the claim and heartbeat, check faults, stream."""
+        with self._lock:
+            while (frame := self._bus.recv(timeout=0.0)) is not None:
+                self.handle(frame, now_s)
+            self._last_poll_s = now_s
+            self._send(self._claimer.poll(now_s))
+            if self._claimer.claimed:
+                if self._operating_s is None:
+                    self._operating_s = now_s
+                    self._send(self._hb_tx.start(now_s))
+                else:
+                    self._send(self._hb_tx.poll(now_s))
+            self._raise(self._conditions(now_s))
+            self._stream(now_s)
+
+    def handle(self, frame: can.Message, now_s: float) -> None:
+        """Process one received frame at ``now_s``."""
+        with self._lock:
+            self._bump(frames_rx=1)
+            if frame.is_error_frame:
+                self._bump(bus_errors=1)
+                return
+            if not frame.is_extended_id or frame.is_remote_frame:
+                self._bump(foreign=1)
+                return
+            try:
+                ident = decode_id(frame.arbitration_id)
+            except ValueError as exc:
+                self._malformed(str(exc))
+                return
+            self._send(self._claimer.handle(frame, now_s))
+            if ident.source_address == self._cfg.source_address:
+                self._bump(own_echo=1)
+                return
+            if ident.pgn in (PGN_ADDRESS_CLAIMED, PGN_REQUEST):
+                return
+            if ident.pgn not in self._known_pgns:
+                self._bump(unknown_pgn=1)
+                return
+            try:
+                payload = self._codec.decode_frame(frame).payload
+            except CodecError as exc:
+                self._malformed(str(exc))
+                return
+            src, cfg = ident.source_address, self._cfg
+            if isinstance(payload, Heartbeat) and src == cfg.ecu_address:
+                self._on_heartbeat(payload.sequence, now_s)
+            elif isinstance(payload, PositionMeasurement) and src == cfg.ecu_address:
+                restart = self._rx.on_measurement(payload, now_s)
+                if restart:
+                    self._on_restart(restart)
+            elif isinstance(payload, RearHitchStatus) and src == cfg.hitch_source:
+                self._rx.on_hitch_status(payload, now_s)
+            else:
+                self._bump(foreign=1)
+
+    # -- receive internals -------------------------------------------------------------
+    def _on_heartbeat(self, sequence: int, now_s: float) -> None:
+        self._bump(heartbeats_rx=1)
+        before = self._hb_rx.status(now_s).restarts
+        self._hb_rx.handle_sequence(sequence, now_s)
+        if self._hb_rx.status(now_s).restarts > before:
+            self._on_restart("ECU heartbeat restarted (251)")
+
+    def _on_restart(self, reason: str) -> None:
+        self._rx.forget_reference()
+        self._raise([("ecu_restart", reason)])
+
+    def _malformed(self, reason: str) -> None:
+        self._last_malformed = reason
+        self._bump(malformed=1)
+
+    # -- safety and sending ------------------------------------------------------------
+    def _conditions(self, now_s: float) -> list[tuple[str, str]]:
+        """Fault causes present now (name, reason); empty when motion may run."""
+        out: list[tuple[str, str]] = []
+        cfg = self._cfg
+        if self._claimer.state is ClaimState.CANNOT_CLAIM:
+            out.append(("address_lost", f"address {cfg.source_address} lost to a lower NAME"))
+        if self._tx_error_run >= cfg.max_consecutive_tx_errors:
+            out.append(("bus_error", f"{self._tx_error_run} sends failed in a row"))
+        if self._operating_s is None:
+            return out
+        st = self._rx.state
+        since = self._operating_s
+        for what, src, t in (("0xFF22 position measurement", cfg.ecu_address, st.measurement_t_s if st else since),
+                             ("rear hitch status (lift)", cfg.hitch_source, st.lift_t_s if st else since)):
+            if now_s - t > cfg.stale_after_s + _EPS_S:
+                out.append(("stale_measurement", f"no valid {what} from {src} for {now_s - t:.3f} s "
+                                                 f"(limit {cfg.stale_after_s:g} s)"))
+                break
+        hb = self._hb_rx.status(now_s)
+        if hb.state in (HeartbeatState.TIMEOUT, HeartbeatState.SENDER_ERROR, HeartbeatState.SHUTDOWN):
+            out.append(("ecu_heartbeat", f"ECU heartbeat {hb.state.value}"))
+        elif hb.state is HeartbeatState.WAITING and now_s - since > cfg.heartbeat_timeout_s + _EPS_S:
+            out.append(("ecu_heartbeat", f"no ECU heartbeat for {now_s - since:.3f} s"))
+        return out
+
+    def _raise(self, causes: list[tuple[str, str]]) -> None:
+        for name, reason in causes:
+            if not getattr(self._faults, name):
+                self._faults = replace(self._faults, **{name: True}, reasons=self._faults.reasons + (reason,))
+                self._bump(faults_raised=1)
+        if self._faults.any:
+            self._streaming = False
+
+    def _stream(self, now_s: float) -> None:
+        if not self._streaming or self._reference is None or now_s < self._next_tx_s - _EPS_S:
+            return
+        period = self._cfg.control_period_s
+        self._next_tx_s += period
+        if self._next_tx_s <= now_s + _EPS_S:
+            self._next_tx_s = now_s + period
+        if self._send([self._codec.encode(self._reference, source=self._cfg.source_address)]):
+            self._bump(references_tx=1)
+
+    def _send(self, frames: list[can.Message]) -> bool:
+        ok = True
+        for frame in frames:
+            try:
+                self._bus.send(frame)
+            except can.CanError:
+                ok = False
+                self._tx_error_run += 1
+                self._bump(tx_errors=1)
+            else:
+                self._tx_error_run = 0
+                self._bump(frames_tx=1)
+        return ok
+
+    def _bump(self, **deltas: int) -> None:
+        c = self._counters
+        self._counters = replace(c, **{k: getattr(c, k) + v for k, v in deltas.items()})
+
+    def _describe(self, name: str, q: np.ndarray, feats: np.ndarray) -> str:
+        h = self._hard
+        if name.startswith("stroke:"):
+            _, act, side = name.split(":")
+            i = ACTUATOR_NAMES.index(act)
+            unit = "rad" if act == "lift" else "m"
+            bound = h.actuator_lower[i] if side == "min" else h.actuator_upper[i]
+            return f"{name} ({act} = {q[i]:.4f} {unit}, limit {bound:.4f} {unit})"
+        for k, idx in enumerate(h.feature_index):
+            for names, bounds in ((h.names_lower, h.feature_lower), (h.names_upper, h.feature_upper)):
+                if names[k] == name:
+                    return f"{name} (value {feats[idx]:.4f}, limit {bounds[k]:.4f})"
+        return name

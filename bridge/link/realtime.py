@@ -1,0 +1,124 @@
+"""Running a CAN node in real time: opening a python-can bus and the loop that polls a node.
+
+:class:`RealtimeRunner` drives any :class:`BusNode` (the planner-side
+:class:`~bridge.link.can_link.CanLink`, or a simulated ECU node) on a background thread:
+poll the node, block on ``bus.recv`` until its next deadline, hand over a frame, repeat.
+No busy loop; node time is ``clock() - t0`` with t0 taken at :meth:`RealtimeRunner.start`.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from typing import Protocol
+
+import can
+
+from bridge.link.state import LinkError
+
+__all__ = ["BusNode", "INTERFACES", "RealtimeRunner", "open_bus"]
+
+INTERFACES = ("udp_multicast", "socketcan", "virtual")
+"""python-can interfaces the bridge runs on (virtual: in-process only)."""
+
+
+def open_bus(interface: str, channel: str | None = None, **kwargs) -> can.BusABC:
+    """Open a python-can bus on one of :data:`INTERFACES`.
+
+    ``channel`` defaults to python-can's default IPv4 group for ``udp_multicast``,
+    ``vcan0`` for ``socketcan`` and ``hitch`` for ``virtual``. udp_multicast delivers
+    our own frames back: the link and the ECU node drop frames from their own address.
+    """
+    if interface not in INTERFACES:
+        raise LinkError(f"interface must be one of {', '.join(INTERFACES)}, got {interface!r}")
+    if channel is None:
+        if interface == "udp_multicast":
+            from can.interfaces.udp_multicast import UdpMulticastBus
+            channel = UdpMulticastBus.DEFAULT_GROUP_IPv4
+        else:
+            channel = "vcan0" if interface == "socketcan" else "hitch"
+    try:
+        return can.Bus(interface=interface, channel=channel, **kwargs)
+    except (can.CanError, OSError, ImportError) as exc:
+        raise LinkError(f"cannot open {interface} channel {channel!r}: {exc}") from None
+
+
+class BusNode(Protocol):
+    """What :class:`RealtimeRunner` drives: a :class:`~bridge.can_link.CanLink` or an ECU node."""
+
+    @property
+    def bus(self) -> can.BusABC: ...
+
+    def start(self, now_s: float) -> None: ...
+
+    def poll(self, now_s: float) -> None: ...
+
+    def handle(self, frame: can.Message, now_s: float) -> None: ...
+
+    def next_due_s(self) -> float: ...
+
+
+class RealtimeRunner:
+    """Runs a :class:`BusNode` in real time on a background thread.
+
+    The thread polls the node, then blocks on ``bus.recv`` until the node's next
+    deadline (at most ``max_wait_s``), handles a frame if one came, and repeats: no
+    busy loop. Node time is ``clock() − t0``, t0 taken at :meth:`start`.
+    """
+
+    def __init__(self, node: BusNode, *, clock: Callable[[], float] = time.monotonic,
+                 max_wait_s: float = 0.05) -> None:
+        if not 0.0 < max_wait_s <= 1.0:
+            raise LinkError(f"max_wait_s must lie in (0, 1] s, got {max_wait_s!r}")
+        self._node = node
+        self._clock = clock
+        self._max_wait_s = float(max_wait_s)
+        self._t0 = clock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.error: BaseException | None = None
+        """The exception that ended the loop, if any."""
+
+    def now(self) -> float:
+        """Node time, s."""
+        return self._clock() - self._t0
+
+    def start(self) -> RealtimeRunner:
+        """Start the node at time 0, then the thread."""
+        if self._thread is not None:
+            raise LinkError("runner already started")
+        self._t0 = self._clock()
+        self._node.start(0.0)
+        self._thread = threading.Thread(target=self._run, name=f"{type(self._node).__name__}-rt", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        """Ask the thread to end and wait for it."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+
+    def wait(self, duration_s: float) -> bool:
+        """Sleep up to ``duration_s`` or until the loop ends; True if it ended."""
+        return self._stop.wait(duration_s)
+
+    def _run(self) -> None:
+        node = self._node
+        try:
+            while not self._stop.is_set():
+                node.poll(self.now())
+                wait = min(max(node.next_due_s() - self.now(), 0.0), self._max_wait_s)
+                frame = node.bus.recv(timeout=wait)
+                if frame is not None:
+                    node.handle(frame, self.now())
+        except BaseException as exc:  # handed to the owner, never lost
+            self.error = exc
+            self._stop.set()
+
+    def __enter__(self) -> RealtimeRunner:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()

@@ -1,0 +1,403 @@
+"""The state side of the planner-side CAN link (:mod:`bridge.link.can_link`): settings, the
+measured state and how it is assembled from frames, fault flags, frame counters and
+the errors a refused command raises.
+
+The value types are frozen snapshots: the link builds new ones, callers (CLI,
+simulation, a Zenoh service) read them without locks. :class:`MeasurementAssembler`
+turns decoded 0xFF22 and rear-hitch-status payloads into a :class:`LinkState` through
+the AD calibration (thesis tables 3-1, 3-2) and exact forward kinematics, and spots
+ECU restarts in the system-state byte. SI units throughout; AD counts only in fields
+named ``counts``/``*_counts``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field, fields
+
+from planner.model.kinematics import HitchModel
+from planner.model.sensors import SensorScaling
+from planner.model.types import ACTUATOR_NAMES, Actuators, KinematicsError, Pose
+
+from bridge.isobus.address_claim import CLAIM_WAIT_S, Name, planner_name
+from bridge.isobus.codec import PositionMeasurement, RearHitchStatus
+from bridge.isobus.system_state import SystemStatus, decode_system_state
+from bridge.isobus.heartbeat import HEARTBEAT_PERIOD_S, HEARTBEAT_TIMEOUT_S, HeartbeatStatus
+from bridge.isobus.j1939 import CYLINDER_ECU_ADDRESS, PLANNER_ADDRESS
+
+__all__ = [
+    "LinkConfig", "LinkCounters", "LinkError", "LinkFaultError", "LinkFaults", "LinkState",
+    "HITCH_POSITION_STEPS", "LinkStatus", "MeasurementAssembler", "ReferenceRefused", "check_address",
+    "check_period", "lift_counts_from_fraction",
+]
+
+
+class LinkError(ValueError):
+    """Base of the link's errors; the message names the field, limit or fault."""
+
+
+class ReferenceRefused(LinkError):
+    """A reference that must not reach the bus (outside a limit, not a number, unreachable)."""
+
+
+class LinkFaultError(LinkError):
+    """A command refused because the link is not in a state to move the machine."""
+
+
+def check_address(name: str, value: object, *, allow_none: bool = False) -> None:
+    """Raise :class:`ValueError` unless ``value`` is a source address 0..253 (or None if allowed)."""
+    if value is None and allow_none:
+        return
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 253:
+        raise ValueError(f"{name} must be a source address in 0..253, got {value!r}")
+
+
+#: Steps of the ISO 11783-7 hitch position field over the full travel (0.4 %/bit).
+HITCH_POSITION_STEPS = 250
+
+
+def lift_counts_from_fraction(fraction: float, counts_min: float, counts_max: float, *,
+                              on_count_grid: bool = True) -> float:
+    """Lift sensor reading [counts] from the rear hitch position [fraction of the calibrated travel].
+
+    The sender maps the reading linearly, ``(counts − counts_min) / span``, onto the 0.4 %
+    grid. While the span is at most 250 counts that grid is finer than one count, so the
+    nearest count is the reading itself, exactly (the fraction alone is off by up to half a
+    0.4 % step, 0.46 count for the thesis's 229-count lift). ``on_count_grid=False``, or a
+    longer span, gives the linear value.
+    """
+    span = counts_max - counts_min
+    counts = counts_min + fraction * span
+    if on_count_grid and span <= HITCH_POSITION_STEPS:
+        return float(math.floor(counts + 0.5))
+    return float(counts)
+
+
+def check_period(name: str, value: object, low: float, high: float) -> None:
+    """Raise :class:`ValueError` unless ``value`` is a number of seconds in [low, high]."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+            or not low <= value <= high:
+        raise ValueError(f"{name} must be a number of seconds in [{low:g}, {high:g}], got {value!r}")
+
+
+@dataclass(frozen=True)
+class LinkConfig:
+    """Settings of one :class:`~bridge.link.can_link.CanLink`.
+
+    Attributes:
+        source_address: our source address (thesis planner: 166).
+        ecu_address: the cylinder ECU's source address (thesis: 169); 0xFF22
+            measurements and heartbeats are taken from it only.
+        hitch_status_address: sender of the ISO 11783-7 rear hitch status carrying the
+            lift; ``None`` = the cylinder ECU (the simulated ECU sends it; on the thesis
+            tractor it was the TECU, 240).
+        control_rate_hz: reference stream rate, 1..200 Hz (profile default 50 Hz).
+        stale_after_s: a measurement older than this stops motion (issue 6: 0.2 s).
+        measurement_period_s: expected 0xFF22 period, s, for counting dropped frames.
+        hitch_status_period_s: expected rear hitch status period, s, likewise.
+        heartbeat_timeout_s: ECU heartbeat silence that stops motion (ISO 11783-7: 0.3 s).
+        heartbeat_period_s: our own heartbeat period (ISO 11783-7: 0.1 s).
+        reading_tolerance_counts: AD readings this far outside the calibrated span are
+            still taken (AD noise at an end stop); farther out they are rejected.
+        max_consecutive_tx_errors: failed sends in a row that raise the bus fault.
+        lift_on_count_grid: the hitch position (0.4 %/bit of the calibrated travel) comes
+            from an integer-count lift sensor (thesis table 3-2: 26..255) mapped as
+            (counts − counts_min)/span and rounded: take the nearest count, which recovers
+            the reading exactly while the travel spans at most 250 counts. False: use the
+            fraction as it is. None (default): True when the cylinder ECU sends the hitch
+            status (``hitch_status_address`` None: its mapping is ours), False when another
+            node (the tractor ECU) does, whose sensor and rounding we do not know.
+        name: our ISO 11783-5 NAME (claimed at start, 250 ms contention window).
+        claim_wait_s: contention window, s.
+    """
+
+    source_address: int = PLANNER_ADDRESS
+    ecu_address: int = CYLINDER_ECU_ADDRESS
+    hitch_status_address: int | None = None
+    control_rate_hz: float = 50.0
+    stale_after_s: float = 0.2
+    measurement_period_s: float = 0.01
+    hitch_status_period_s: float = 0.01
+    heartbeat_timeout_s: float = HEARTBEAT_TIMEOUT_S
+    heartbeat_period_s: float = HEARTBEAT_PERIOD_S
+    reading_tolerance_counts: float = 2.0
+    max_consecutive_tx_errors: int = 3
+    lift_on_count_grid: bool | None = None
+    name: Name = field(default_factory=planner_name)
+    claim_wait_s: float = CLAIM_WAIT_S
+
+    def __post_init__(self) -> None:
+        check_address("source_address", self.source_address)
+        check_address("ecu_address", self.ecu_address)
+        check_address("hitch_status_address", self.hitch_status_address, allow_none=True)
+        if self.source_address == self.ecu_address:
+            raise ValueError(f"source_address and ecu_address must differ, both {self.source_address}")
+        rate = self.control_rate_hz
+        if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not math.isfinite(rate) \
+                or not 1.0 <= rate <= 200.0:
+            raise ValueError(f"control_rate_hz must be a number in [1, 200] Hz, got {rate!r}")
+        check_period("stale_after_s", self.stale_after_s, 0.005, 10.0)
+        check_period("measurement_period_s", self.measurement_period_s, 0.001, 1.0)
+        check_period("hitch_status_period_s", self.hitch_status_period_s, 0.001, 1.0)
+        check_period("heartbeat_timeout_s", self.heartbeat_timeout_s, 0.01, 10.0)
+        check_period("heartbeat_period_s", self.heartbeat_period_s, 0.01, 10.0)
+        check_period("claim_wait_s", self.claim_wait_s, 0.001, 10.0)
+        tol = self.reading_tolerance_counts
+        if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not 0.0 <= tol <= 50.0:
+            raise ValueError(f"reading_tolerance_counts must be a number in [0, 50] counts, got {tol!r}")
+        n = self.max_consecutive_tx_errors
+        if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= 1000:
+            raise ValueError(f"max_consecutive_tx_errors must be an integer in 1..1000, got {n!r}")
+        if self.lift_on_count_grid is not None and not isinstance(self.lift_on_count_grid, bool):
+            raise ValueError(f"lift_on_count_grid must be true, false or None, got {self.lift_on_count_grid!r}")
+        if not isinstance(self.name, Name):
+            raise ValueError(f"name must be a bridge.isobus.address_claim.Name, got {type(self.name).__name__}")
+
+    @property
+    def control_period_s(self) -> float:
+        """Reference stream period, s."""
+        return 1.0 / self.control_rate_hz
+
+    @property
+    def lift_count_grid(self) -> bool:
+        """Whether the lift is taken on its sensor's count grid (see ``lift_on_count_grid``)."""
+        return self.hitch_status_address is None if self.lift_on_count_grid is None else self.lift_on_count_grid
+
+    @property
+    def hitch_source(self) -> int:
+        """Source address the lift (rear hitch status) is taken from."""
+        return self.ecu_address if self.hitch_status_address is None else self.hitch_status_address
+
+
+@dataclass(frozen=True)
+class LinkState:
+    """The machine as measured over the bus, through forward kinematics.
+
+    Attributes:
+        t_s: link time of the newest frame that went into this state, s.
+        measurement_t_s: arrival of the 0xFF22 frame used, s.
+        lift_t_s: arrival of the rear hitch status used, s.
+        counts: the five readings in actuator order; the lift as its sensor count
+            recovered from the hitch status (:func:`lift_counts_from_fraction`).
+        lift_fraction: rear hitch position, fraction of the calibrated travel.
+        actuators: actuators in SI (lift rad, others m) through the AD calibration.
+        pose: forward kinematics of ``actuators``.
+        system: the ECU's system-state byte, decoded.
+    """
+
+    t_s: float
+    measurement_t_s: float
+    lift_t_s: float
+    counts: tuple[float, float, float, float, float]
+    lift_fraction: float
+    actuators: Actuators
+    pose: Pose
+    system: SystemStatus
+
+    def age_s(self, now_s: float) -> float:
+        """Age of the older of the two measurement sources at ``now_s``, s."""
+        return now_s - min(self.measurement_t_s, self.lift_t_s)
+
+
+@dataclass(frozen=True)
+class LinkFaults:
+    """Latched faults; any of them stops the reference stream until a fresh command.
+
+    Attributes:
+        stale_measurement: no 0xFF22 or no lift for longer than ``stale_after_s``.
+        ecu_heartbeat: ECU heartbeat silent, in error (254) or shut down (255).
+        ecu_restart: the ECU restarted (heartbeat 251, restart counter or the
+            no-reference bit of the system state).
+        address_lost: our address claim was lost (cannot claim).
+        bus_error: ``max_consecutive_tx_errors`` sends failed in a row.
+        reasons: one line per fault raised since the last re-arm, oldest first.
+    """
+
+    stale_measurement: bool = False
+    ecu_heartbeat: bool = False
+    ecu_restart: bool = False
+    address_lost: bool = False
+    bus_error: bool = False
+    reasons: tuple[str, ...] = ()
+
+    @property
+    def any(self) -> bool:
+        """True if any fault is latched."""
+        return any(getattr(self, f.name) for f in fields(self) if f.name != "reasons")
+
+    def active(self) -> tuple[str, ...]:
+        """Names of the latched faults."""
+        return tuple(f.name for f in fields(self) if f.name != "reasons" and getattr(self, f.name))
+
+
+@dataclass(frozen=True)
+class LinkCounters:
+    """Frame counters of a link since it was built (monotonic).
+
+    ``unknown_pgn`` counts valid frames of PGNs the DBC does not describe (other ISOBUS
+    traffic: counted, never a fault); ``foreign`` frames of known PGNs from sources we
+    do not listen to; ``malformed`` frames rejected by the codec; ``dropped_*``
+    periodic frames inferred lost from arrival gaps; ``bus_errors`` error frames
+    received; ``tx_errors`` failed sends.
+    """
+
+    frames_rx: int = 0
+    frames_tx: int = 0
+    references_tx: int = 0
+    references_refused: int = 0
+    measurements_rx: int = 0
+    hitch_status_rx: int = 0
+    heartbeats_rx: int = 0
+    malformed: int = 0
+    unknown_pgn: int = 0
+    foreign: int = 0
+    own_echo: int = 0
+    unavailable_readings: int = 0
+    rejected_readings: int = 0
+    kinematics_failures: int = 0
+    dropped_measurements: int = 0
+    dropped_hitch_status: int = 0
+    bus_errors: int = 0
+    tx_errors: int = 0
+    faults_raised: int = 0
+
+    def as_dict(self) -> dict[str, int]:
+        """The counters by name."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+@dataclass(frozen=True)
+class LinkStatus:
+    """Everything a supervisor needs at one instant.
+
+    Attributes:
+        now_s: when the snapshot was taken (link time), s.
+        claimed: our address claim succeeded.
+        streaming: references are being sent.
+        reference_counts: the reference being streamed (actuator order), or None.
+        state: latest measured state, or None before the first complete measurement.
+        faults: latched faults.
+        heartbeat: the ECU heartbeat monitor's conclusion.
+        counters: frame counters.
+        last_malformed: the codec's reason for the last rejected frame, or "".
+        last_reading_problem: why the last reading was not used (unavailable, outside the
+            calibrated span, mechanism cannot close), or "".
+    """
+
+    now_s: float
+    claimed: bool
+    streaming: bool
+    reference_counts: tuple[int, ...] | None
+    state: LinkState | None
+    faults: LinkFaults
+    heartbeat: HeartbeatStatus
+    counters: LinkCounters
+    last_malformed: str = ""
+    last_reading_problem: str = ""
+
+
+class MeasurementAssembler:
+    """Builds :class:`LinkState` from the ECU's 0xFF22 and rear hitch status payloads.
+
+    Readings that are unavailable (J1939 "not available"/"error") or outside the
+    calibrated span by more than ``reading_tolerance_counts`` are rejected and counted;
+    the state keeps the arrival times of the two sources it was built from, so a
+    stream of rejected frames ages it (and the link's staleness check stops motion).
+
+    Args:
+        model: kinematic model (forward kinematics).
+        scaling: AD calibration of the same profile.
+        config: periods (for counting dropped frames) and the reading tolerance.
+        bump: ``bump(counter=delta, …)`` adds to the owner's :class:`LinkCounters`.
+    """
+
+    def __init__(self, model: HitchModel, scaling: SensorScaling, config: LinkConfig,
+                 bump: Callable[..., None]) -> None:
+        self._model = model
+        self._scaling = scaling
+        self._cfg = config
+        self._bump = bump
+        self._meas: tuple[float, tuple[int, int, int, int]] | None = None  # tilt, top, left, right
+        self._hitch: tuple[float, float] | None = None  # (t, fraction)
+        self._system: SystemStatus | None = None
+        self._rx_t: dict[str, float] = {}
+        self._restart_bits: int | None = None
+        self._ecu_had_reference = False
+        self.state: LinkState | None = None
+        """The newest complete state, or None."""
+        self.last_problem = ""
+        """Why the last reading was rejected ("" if none)."""
+
+    def forget_reference(self) -> None:
+        """The ECU restarted: its reference is gone until the link sends one again."""
+        self._ecu_had_reference = False
+
+    def on_measurement(self, m: PositionMeasurement, now_s: float) -> str | None:
+        """Take a 0xFF22 payload; returns a restart reason if the system state shows one."""
+        self._bump(measurements_rx=1)
+        self._count_gap("measurement", now_s, self._cfg.measurement_period_s, "dropped_measurements")
+        system = decode_system_state(m.system_state)
+        bits, restart = system.restart_count_mod16, None
+        if self._restart_bits is not None and bits != self._restart_bits:
+            restart = f"ECU restart counter {self._restart_bits} -> {bits}"
+        elif system.no_reference_since_restart and self._ecu_had_reference:
+            restart = "ECU lost its reference (no-reference bit set again)"
+        self._restart_bits = bits
+        self._ecu_had_reference = (self._ecu_had_reference and restart is None) or \
+            not system.no_reference_since_restart
+        self._system = system
+        readings = (m.tilt_counts, m.top_counts, m.left_counts, m.right_counts)
+        if any(r is None for r in readings):
+            self.last_problem = "0xFF22 reading not available or in error"
+            self._bump(unavailable_readings=1)
+        elif self._in_span(readings):
+            self._meas = (now_s, readings)
+            self._update(now_s)
+        return restart
+
+    def on_hitch_status(self, h: RearHitchStatus, now_s: float) -> None:
+        """Take a rear hitch status payload (the lift, fraction of travel)."""
+        self._bump(hitch_status_rx=1)
+        self._count_gap("hitch", now_s, self._cfg.hitch_status_period_s, "dropped_hitch_status")
+        if h.position is None:
+            self.last_problem = "rear hitch position not available or in error"
+            self._bump(unavailable_readings=1)
+            return
+        self._hitch = (now_s, float(h.position))
+        self._update(now_s)
+
+    def _in_span(self, readings) -> bool:
+        s, tol = self._scaling, self._cfg.reading_tolerance_counts
+        for i, r in enumerate(readings, start=1):
+            if not s.counts_min[i] - tol <= r <= s.counts_max[i] + tol:
+                self.last_problem = (f"{ACTUATOR_NAMES[i]} reading {r} counts outside the calibrated "
+                                     f"span [{s.counts_min[i]:.0f}, {s.counts_max[i]:.0f}] ± {tol:g}")
+                self._bump(rejected_readings=1)
+                return False
+        return True
+
+    def _update(self, now_s: float) -> None:
+        if self._meas is None or self._hitch is None or self._system is None:
+            return
+        (t_m, (tilt, top, left, right)), (t_h, frac) = self._meas, self._hitch
+        s = self._scaling
+        lift_counts = lift_counts_from_fraction(frac, s.counts_min[0], s.counts_max[0],
+                                                on_count_grid=self._cfg.lift_count_grid)
+        counts = (lift_counts, float(tilt), float(top), float(left), float(right))
+        q = s.to_si(counts, tolerance_counts=self._cfg.reading_tolerance_counts)
+        try:
+            hs = self._model.forward(q)
+        except KinematicsError as exc:
+            self.last_problem = f"measured actuators do not close the mechanism: {exc}"
+            self._bump(kinematics_failures=1)
+            return
+        self.state = LinkState(now_s, t_m, t_h, counts, frac, hs.actuators, hs.pose, self._system)
+
+    def _count_gap(self, key: str, now_s: float, period_s: float, counter: str) -> None:
+        prev = self._rx_t.get(key)
+        self._rx_t[key] = now_s
+        if prev is not None:
+            missed = int(math.floor((now_s - prev) / period_s + 0.5)) - 1
+            if missed > 0:
+                self._bump(**{counter: missed})

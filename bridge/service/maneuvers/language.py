@@ -1,0 +1,326 @@
+"""The maneuver language: YAML scripts of ordered hitch steps, parsed strictly and validated by planning.
+
+A maneuver is the headland-sequence idea of commercial hitch systems, written in pose space
+(SI: x, z [m]; roll, pitch [rad]; times [s]; distances [m])::
+
+    name: headland-lift                # optional; letters, digits, '-', '_', '.'
+    description: lift and centre at the headland
+    timeout: 45                        # optional, (0, 3600] s, default 60 s
+    steps:
+      - speed: 0.6                     # scale (0, 1] for the following motion steps
+      - goto: {z: 0.25, pitch: 0.05}   # partial pose: unspecified DOF keep their value
+      - wait_for: {distance: 12.0}     # metres travelled (wheel-based speed on the CAN bus)
+      - preset: work                   # or {name: work, speed_scale: 0.5}
+      - wait: 1.5                      # seconds
+      - goto: {x: 0.0, speed_scale: 1.0}
+
+Rules: :func:`parse_maneuver` reads the text with ``yaml.safe_load`` only, at most
+:data:`MAX_SCRIPT_BYTES` and :data:`MAX_STEPS`; anchors/aliases of mappings or lists are refused
+(no "billion laughs"); every step is a mapping with exactly one step key; unknown keys, wrong
+types, NaN/inf and out-of-range values are errors ``{"step": index, "message": ...}`` naming the
+field and the allowed range (``step`` is the 0-based index in ``steps``, ``None`` for the
+top level). Nothing raises but :class:`ManeuverError` (a ``ValueError``).
+
+Speed scale of a motion step: its own ``speed_scale`` if given; else, for a preset, the
+preset's stored speed scale; else the scale set by the last ``speed`` step (1.0 at the start).
+
+The step schema (one pydantic model per step kind, :class:`ManeuverScript`, the bounds and
+:func:`check_name`) is in :mod:`.maneuver_steps` and re-exported here.
+
+:func:`validate` plans every motion step from the given start state through a ``plan_step``
+callable (the service passes :func:`guarded_plan_step`, i.e. the trajectory planner and the
+stability guard) before anything moves, and checks that the planned time fits the timeout.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+import yaml
+from pydantic import BaseModel, ValidationError
+
+from planner.trajectory import MotionState
+
+from bridge.service.maneuvers.steps import (  # the step schema; re-exported (see __all__)
+    _KINDS, DEFAULT_TIMEOUT_S, MAX_TIMEOUT_S, NAME_PATTERN, POSE_BOUNDS, GotoStep, ManeuverScript, PresetStep,
+    SpeedStep, Step, WaitForStep, WaitStep, _Header, _show, check_name,
+)
+
+__all__ = [
+    "MAX_SCRIPT_BYTES", "MAX_STEPS", "DEFAULT_TIMEOUT_S", "POSE_BOUNDS", "NAME_PATTERN",
+    "ManeuverError", "StepError", "GotoStep", "PresetStep", "WaitStep", "WaitForStep", "SpeedStep",
+    "ManeuverScript", "PlannedStep", "ValidationResult", "PlanningContext", "PlanStep", "PresetLike",
+    "parse_maneuver", "validate", "guarded_plan_step", "check_name",
+]
+
+MAX_SCRIPT_BYTES = 64 * 1024
+MAX_STEPS = 500
+_MAX_DEPTH = 6
+_MAX_NODES = 20_000
+_UNITS = {"x": "m", "z": "m", "roll": "rad", "pitch": "rad", "seconds": "s", "distance": "m", "timeout": "s"}
+
+
+class ManeuverError(ValueError):
+    """A maneuver script that cannot be used; ``errors`` lists ``StepError`` values (step index + message)."""
+
+    def __init__(self, errors):
+        self.errors = tuple(errors)
+        super().__init__("; ".join(e.sentence() for e in self.errors[:5]))
+
+
+@dataclass(frozen=True)
+class StepError:
+    step: int | None  # 0-based index into ``steps``; None: the script as a whole
+    message: str
+
+    def to_json(self) -> dict:
+        return {"step": self.step, "message": self.message}
+
+    def sentence(self) -> str:
+        return self.message if self.step is None else f"step {self.step}: {self.message}"
+
+
+# ---------------------------------------------------------------------------------------- parsing
+def _range(model: type[BaseModel], name: str) -> str:
+    info = model.model_fields.get(name)
+    if info is None:
+        return ""
+    parts = [f"{sym} {getattr(m, a):.6g}" for m in info.metadata
+             for a, sym in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<=")) if getattr(m, a, None) is not None]
+    unit = _UNITS.get(name, "")
+    return f" (allowed: {name} {' and '.join(parts)}{' ' + unit if unit else ''})" if parts else ""
+
+
+def _errors(exc: ValidationError, model: type[BaseModel], where: str, step: int | None) -> list[StepError]:
+    out = []
+    for e in exc.errors(include_url=False):
+        loc = [str(p) for p in e["loc"]]
+        fld = loc[0] if loc else ""
+        path = ".".join([where] + loc) if where else ".".join(loc) or "script"
+        if e["type"] == "extra_forbidden":
+            allowed = ", ".join(model.model_fields)
+            out.append(StepError(step, f"{path}: unknown key (allowed: {allowed})"))
+            continue
+        msg = e["msg"].removeprefix("Value error, ")
+        if e["type"] == "missing":
+            msg = "is required"
+        elif e["type"] in ("greater_than", "greater_than_equal", "less_than", "less_than_equal"):
+            msg = "out of range"
+        elif e["type"] == "finite_number":
+            msg = "must be a finite number (NaN and infinity are not allowed)"
+        shown = "" if e["type"] == "missing" or not loc else f" = {_show(e.get('input'))}"
+        out.append(StepError(step, f"{path}{shown}: {msg}{_range(model, fld)}"))
+    return out
+
+
+def _check_structure(data: Any) -> str | None:
+    """Refuse shared containers (YAML aliases), deep nesting and huge node counts; non-string keys."""
+    seen: set[int] = set()
+    stack = [(data, 0)]
+    nodes = 0
+    while stack:
+        node, depth = stack.pop()
+        nodes += 1
+        if nodes > _MAX_NODES:
+            return f"the script has more than {_MAX_NODES} YAML nodes"
+        if isinstance(node, (dict, list)):
+            if id(node) in seen:
+                return "YAML anchors/aliases of mappings or lists are not allowed"
+            seen.add(id(node))
+            if depth >= _MAX_DEPTH:
+                return f"the script nests deeper than {_MAX_DEPTH} levels"
+            if isinstance(node, dict):
+                for k in node:
+                    if not isinstance(k, str):
+                        return f"mapping keys must be strings, got {_show(k)}"
+                stack.extend((v, depth + 1) for v in node.values())
+            else:
+                stack.extend((v, depth + 1) for v in node)
+    return None
+
+
+def _parse_step(i: int, raw: Any) -> tuple[Step | None, list[StepError]]:
+    kinds = ", ".join(_KINDS)
+    if not isinstance(raw, dict) or len(raw) != 1:
+        return None, [StepError(i, f"steps[{i}] must be a mapping with exactly one step key ({kinds}), "
+                                   f"got {_show(raw) if not isinstance(raw, dict) else ', '.join(map(str, raw)) or 'an empty mapping'}")]
+    (kind, value), = raw.items()
+    if kind not in _KINDS:
+        return None, [StepError(i, f"steps[{i}]: unknown step {_show(kind)} (allowed: {kinds})")]
+    model, scalar = _KINDS[kind]
+    if not isinstance(value, dict):
+        if scalar is None:
+            return None, [StepError(i, f"steps[{i}].{kind} must be a mapping, got {_show(value)}"
+                                       f" (fields: {', '.join(model.model_fields)})")]
+        value = {scalar: value}
+    try:
+        return model.model_validate(value), []
+    except ValidationError as exc:
+        return None, _errors(exc, model, f"steps[{i}].{kind}", i)
+
+
+def parse_maneuver(text: Any) -> ManeuverScript:
+    """Parse and schema-check a maneuver script; :class:`ManeuverError` lists every problem."""
+    if not isinstance(text, str):
+        raise ManeuverError([StepError(None, f"script must be YAML text, got {_show(text)}")])
+    size = len(text.encode("utf-8", "surrogatepass"))
+    if size > MAX_SCRIPT_BYTES:
+        raise ManeuverError([StepError(None, f"script is {size} bytes (allowed: at most {MAX_SCRIPT_BYTES} bytes)")])
+    try:
+        data = yaml.safe_load(text)
+    except Exception as exc:  # noqa: BLE001 — PyYAML's constructors also raise IndexError, AttributeError, …
+        where = getattr(exc, "problem_mark", None)
+        at = f" at line {where.line + 1}, column {where.column + 1}" if where is not None else ""
+        problem = ("nesting too deep" if isinstance(exc, RecursionError) else getattr(exc, "problem", None)
+                   or (str(exc)[:200] if isinstance(exc, (yaml.YAMLError, ValueError)) else f"bad value ({type(exc).__name__})"))
+        raise ManeuverError([StepError(None, f"script is not valid YAML{at}: {problem}")]) from None
+    if not isinstance(data, dict):
+        raise ManeuverError([StepError(None, f"script must be a mapping with 'steps' (and optional name, "
+                                             f"description, timeout), got {_show(data)}")])
+    problem = _check_structure(data)
+    if problem:
+        raise ManeuverError([StepError(None, problem)])
+    errors: list[StepError] = []
+    steps_raw = data.pop("steps", None)
+    try:
+        header = _Header.model_validate(data)
+    except ValidationError as exc:
+        header = None
+        errors.extend(_errors(exc, _Header, "", None))
+    if not isinstance(steps_raw, list) or not steps_raw:
+        errors.append(StepError(None, f"steps must be a non-empty list of steps (at most {MAX_STEPS}), "
+                                      f"got {'an empty list' if steps_raw == [] else _show(steps_raw)}"))
+        raise ManeuverError(errors)
+    if len(steps_raw) > MAX_STEPS:
+        errors.append(StepError(None, f"steps has {len(steps_raw)} entries (allowed: at most {MAX_STEPS})"))
+        raise ManeuverError(errors)
+    steps = []
+    for i, raw in enumerate(steps_raw):
+        step, errs = _parse_step(i, raw)
+        errors.extend(errs)
+        steps.append(step)
+    if errors:
+        raise ManeuverError(errors)
+    return ManeuverScript(header.name, header.description, header.timeout, tuple(steps))
+
+
+# ---------------------------------------------------------------------------------------- validation
+class PlanStep(Protocol):
+    """Plan a move from ``start`` to a (partial) goal at ``speed_scale``: (duration [s], end state).
+
+    Raises ``ValueError`` (``PlanError``, ``GuardRefusal``) with a message naming the limit.
+    """
+
+    def __call__(self, start: MotionState, goal: Mapping[str, float], speed_scale: float) -> tuple[float, MotionState]: ...
+
+
+class PresetLike(Protocol):
+    pose: Mapping[str, float]
+    speed_scale: float | None
+
+
+@dataclass(frozen=True)
+class PlanningContext:
+    """What :func:`validate` needs from the service: the start state, the planner and the presets."""
+
+    start: MotionState
+    plan_step: PlanStep
+    #: the preset of the current implement by name, or None if there is none
+    preset: Callable[[str], PresetLike | None]
+
+
+@dataclass(frozen=True)
+class PlannedStep:
+    """One step as it will run: full goal (motion steps), speed scale, planned start and duration [s]."""
+
+    index: int
+    kind: str
+    goal: Mapping[str, float] | None = None
+    speed_scale: float = 1.0
+    seconds: float = 0.0          # wait
+    distance_m: float = 0.0       # wait_for
+    start_s: float = 0.0          # planned start, excluding the time of earlier wait_for steps
+    duration_s: float = 0.0
+
+
+@dataclass(frozen=True)
+class ValidationResult:
+    """``duration``: planned time [s] of motions and waits (wait_for time depends on the tractor)."""
+
+    ok: bool
+    duration: float
+    errors: tuple[StepError, ...] = ()
+    script: ManeuverScript | None = None
+    steps: tuple[PlannedStep, ...] = ()
+    distance_m: float = 0.0       # total wait_for distance
+
+    def to_json(self) -> dict:
+        return {"ok": self.ok, "duration": self.duration, "errors": [e.to_json() for e in self.errors]}
+
+
+def guarded_plan_step(guard) -> PlanStep:
+    """A :class:`PlanStep` through :meth:`planner.limits.guard.Guard.plan`: limits and stability."""
+
+    def plan_step(start: MotionState, goal: Mapping[str, float], speed_scale: float) -> tuple[float, MotionState]:
+        gp = guard.plan(start, goal, speed_scale=speed_scale)
+        end = gp.plan.state_at(gp.plan.duration)
+        return float(gp.plan.duration), MotionState.at_rest(end.position)
+
+    return plan_step
+
+
+def _resolve(script: ManeuverScript, ctx: PlanningContext) -> tuple[list, list[StepError]]:
+    """(index, kind, partial goal, scale) per step; preset lookups first, so every unknown name is reported."""
+    out, errors, speed = [], [], 1.0
+    for i, s in enumerate(script.steps):
+        if isinstance(s, SpeedStep):
+            speed = s.scale
+        elif isinstance(s, GotoStep):
+            out.append((i, s, s.goal, s.speed_scale or speed))
+        elif isinstance(s, PresetStep):
+            p = ctx.preset(s.name)
+            if p is None:
+                errors.append(StepError(i, f"preset {s.name!r} does not exist for this implement"))
+                continue
+            out.append((i, s, dict(p.pose), s.speed_scale or p.speed_scale or speed))
+        else:
+            out.append((i, s, None, speed))
+    return out, errors
+
+
+def validate(script: str | ManeuverScript, ctx: PlanningContext) -> ValidationResult:
+    """Parse (if text), resolve presets, plan every motion step and check the timeout; never raises on bad input."""
+    if not isinstance(script, ManeuverScript):
+        try:
+            script = parse_maneuver(script)
+        except ManeuverError as exc:
+            return ValidationResult(False, 0.0, exc.errors)
+    resolved, errors = _resolve(script, ctx)
+    if errors:
+        return ValidationResult(False, 0.0, tuple(errors), script)
+    planned, t, dist, state = [], 0.0, 0.0, ctx.start
+    for i, step, goal, scale in resolved:
+        if isinstance(step, WaitStep):
+            planned.append(PlannedStep(i, "wait", seconds=step.seconds, start_s=t, duration_s=step.seconds))
+            t += step.seconds
+        elif isinstance(step, WaitForStep):
+            planned.append(PlannedStep(i, "wait_for", distance_m=step.distance, start_s=t))
+            dist += step.distance
+        else:
+            try:
+                duration, end = ctx.plan_step(state, goal, scale)
+            except ValueError as exc:
+                errors.append(StepError(i, f"{step.kind} cannot be planned: {exc}"))
+                break
+            full = dict(zip(POSE_BOUNDS, map(float, np.asarray(end.position, float))))
+            planned.append(PlannedStep(i, step.kind, full, scale, start_s=t, duration_s=float(duration)))
+            t += float(duration)
+            state = MotionState.at_rest(end.position)
+        if t > script.timeout_s:
+            errors.append(StepError(i, f"the maneuver would still run at {t:.2f} s, beyond its timeout "
+                                       f"(timeout = {script.timeout_s:g} s; allowed: timeout <= {MAX_TIMEOUT_S:g} s)"))
+            break
+    return ValidationResult(not errors, t, tuple(errors), script, tuple(planned), dist)

@@ -1,0 +1,153 @@
+"""The step schema of the maneuver language: one strict pydantic model per step kind.
+
+:class:`GotoStep`, :class:`PresetStep`, :class:`WaitStep`, :class:`WaitForStep` and
+:class:`SpeedStep` (the union :data:`Step`), the script header and the parsed
+:class:`ManeuverScript`, with the bounds they check (:data:`POSE_BOUNDS`,
+:data:`NAME_PATTERN`, timeouts) and :func:`check_name`. The language itself (parsing,
+error reporting, validation by planning) is in :mod:`bridge.service.maneuvers.language`, which
+re-exports these names.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+__all__ = [
+    "DEFAULT_TIMEOUT_S", "MAX_TIMEOUT_S", "POSE_BOUNDS", "NAME_PATTERN",
+    "GotoStep", "PresetStep", "WaitStep", "WaitForStep", "SpeedStep", "Step", "ManeuverScript", "check_name",
+]
+
+DEFAULT_TIMEOUT_S = 60.0
+MAX_TIMEOUT_S = 3600.0
+#: sanity bounds of a hitch pose (x, z [m]; roll, pitch [rad]); the workspace check is the planner's
+POSE_BOUNDS: Mapping[str, tuple[float, float]] = {"x": (-1.0, 1.0), "z": (-2.0, 2.0),
+                                                  "roll": (-math.pi / 2, math.pi / 2),
+                                                  "pitch": (-math.pi / 2, math.pi / 2)}
+#: names of maneuvers, presets and implements
+NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}$")
+
+
+def check_name(value: Any, what: str = "name") -> str:
+    """A name of 1–64 letters, digits, '-', '_', '.', starting with a letter or digit."""
+    if not isinstance(value, str) or not NAME_PATTERN.match(value):
+        raise ValueError(f"{what} must be 1-64 characters of letters, digits, '-', '_', '.' starting with a "
+                         f"letter or digit, got {_show(value)}")
+    return value
+
+
+def _show(value: Any) -> str:
+    """A short, safe rendering of a user value (containers are never expanded)."""
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= 10**15:
+        try:
+            return f"an integer of {len(str(abs(value)))} digits"
+        except ValueError:  # beyond Python's int-to-str limit
+            return "a huge integer"
+    if isinstance(value, (bool, int, float)) or value is None:
+        return repr(value)
+    if isinstance(value, str):
+        return repr(value if len(value) <= 40 else value[:40] + "…")
+    return f"a {type(value).__name__}"
+
+
+# ---------------------------------------------------------------------------------------- schema
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
+
+
+def _pose_field(k: str):
+    lo, hi = POSE_BOUNDS[k]
+    return Field(None, ge=lo, le=hi)
+
+
+class GotoStep(_Strict):
+    """Move to a (partial) pose: x, z [m], roll, pitch [rad]; optional speed scale (0, 1]."""
+
+    kind: ClassVar[str] = "goto"
+    x: float | None = _pose_field("x")
+    z: float | None = _pose_field("z")
+    roll: float | None = _pose_field("roll")
+    pitch: float | None = _pose_field("pitch")
+    speed_scale: float | None = Field(None, gt=0.0, le=1.0)
+
+    @model_validator(mode="after")
+    def _some_dof(self):
+        if all(getattr(self, k) is None for k in POSE_BOUNDS):
+            raise ValueError("goto needs at least one of x, z, roll, pitch")
+        return self
+
+    @property
+    def goal(self) -> dict[str, float]:
+        return {k: getattr(self, k) for k in POSE_BOUNDS if getattr(self, k) is not None}
+
+
+class PresetStep(_Strict):
+    """Move to a saved preset of the current implement; optional speed scale (0, 1]."""
+
+    kind: ClassVar[str] = "preset"
+    name: str
+    speed_scale: float | None = Field(None, gt=0.0, le=1.0)
+
+    @field_validator("name")
+    @classmethod
+    def _name(cls, v: str) -> str:
+        return check_name(v, "preset name")
+
+
+class WaitStep(_Strict):
+    """Wait ``seconds`` (0, 3600] s."""
+
+    kind: ClassVar[str] = "wait"
+    seconds: float = Field(gt=0.0, le=MAX_TIMEOUT_S)
+
+
+class WaitForStep(_Strict):
+    """Wait until the tractor has travelled ``distance`` (0, 10000] m (wheel-based speed)."""
+
+    kind: ClassVar[str] = "wait_for"
+    distance: float = Field(gt=0.0, le=10_000.0)
+
+
+class SpeedStep(_Strict):
+    """Speed scale (0, 1] for the following motion steps."""
+
+    kind: ClassVar[str] = "speed"
+    scale: float = Field(gt=0.0, le=1.0)
+
+
+Step = GotoStep | PresetStep | WaitStep | WaitForStep | SpeedStep
+#: step key → (model, name of the field a scalar value fills, or None if the value must be a mapping)
+_KINDS: Mapping[str, tuple[type[_Strict], str | None]] = {
+    "goto": (GotoStep, None), "preset": (PresetStep, "name"), "wait": (WaitStep, "seconds"),
+    "wait_for": (WaitForStep, None), "speed": (SpeedStep, "scale"),
+}
+
+
+class _Header(_Strict):
+    name: str | None = None
+    description: str = Field("", max_length=1000)
+    timeout: float = Field(DEFAULT_TIMEOUT_S, gt=0.0, le=MAX_TIMEOUT_S)
+
+    @field_validator("name")
+    @classmethod
+    def _name(cls, v):
+        return None if v is None else check_name(v, "name")
+
+
+@dataclass(frozen=True)
+class ManeuverScript:
+    """A parsed, schema-valid maneuver."""
+
+    name: str | None
+    description: str
+    timeout_s: float
+    steps: tuple[Step, ...]
+
+    def to_json(self) -> dict:
+        return {"name": self.name, "description": self.description, "timeout": self.timeout_s,
+                "steps": [{s.kind: s.model_dump(exclude_none=True)} for s in self.steps]}

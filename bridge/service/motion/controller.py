@@ -1,0 +1,405 @@
+"""The motion controller: one motion at a time, streamed to the ECU through the CAN link.
+
+:class:`MotionController` owns the control thread. Every cycle (the control rate, 50 Hz by
+default, on absolute deadlines) it reads the link's status, evaluates the active motion at
+the current time, converts the pose-space reference to actuators with the exact inverse, shapes
+them into the reference under which each cylinder's unit loop follows the motion
+(:class:`bridge.link.unit_loop.FeedforwardShaper`; the state's ``reference`` stays the planned one) and
+hands that to :meth:`bridge.link.can_link.CanLink.send_reference` (which checks every hard limit
+and the AD range before anything reaches the bus); the state snapshot is published first
+thing in the cycle, so its period is as regular as the wake-ups.
+
+Motions (each with a ``motion_id``, one at a time):
+
+* **goto / preset / maneuver step** — a guarded plan (:meth:`planner.limits.guard.Guard.plan`).
+  A new one replaces the running one smoothly: the new plan starts from the running motion's
+  position, velocity and acceleration at a switch time a few cycles ahead (planning takes
+  5-30 ms), so nothing jumps.
+* **jog** — pose rates with a time-to-live through :class:`planner.trajectory.JogController`,
+  rates re-checked every cycle by :meth:`Guard.check_jog` (stability ahead, end stops) and capped
+  at the workspace faces; when the TTL runs out the jog brakes to rest (dead-man).
+* **stop** — the jerk-limited shortest stop (:meth:`TrajectoryPlanner.plan_stop`).
+
+Precedence stop > jog > goto/preset/maneuver: a stop aborts anything and new motion is refused
+until it has come to rest; a jog aborts a goto or maneuver and takes over from its state; a goto
+is refused while a jog command is live (its TTL not expired) and replaces a jog that is braking.
+
+Modes: ``auto`` allows every motion; ``attach`` allows jog only, its rates capped at
+``ATTACH_SPEED_SCALE`` of full speed; ``manual`` (per-cylinder in the thesis), ``transport`` and
+``config`` refuse motion (stop is always allowed). A mode change while a motion (or a maneuver)
+runs is refused with the reason: send stop first — changing modes never stops the hitch by itself.
+
+Faults: when the link reports a fault (stale measurements, ECU heartbeat, ECU restart, bus
+error) or refuses a reference, the motion is aborted, the reference stream stops (the ECU
+watchdog zeroes its valves) and nothing moves until a fresh command. After a motion ends the
+final reference is held (streamed) so the ECU keeps the cylinders there.
+
+Times: one clock, the link's (``clock()`` [s]). Public methods may be called from any thread: one
+lock guards the control state; goto planning runs outside it on ``plan_guard`` (its own model;
+the planning methods are in :mod:`.motion_planning`).
+"""
+
+from __future__ import annotations
+
+import itertools
+import threading
+import time
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import numpy as np
+
+from planner.limits.guard import Guard
+from planner.trajectory import JogController, MotionState
+from planner.model.types import KinematicsError
+
+from bridge.service.maneuvers.runner import LoopState, ManeuverRunner
+from bridge.service.maneuvers.slot import ManeuverSlot
+from bridge.service.maneuvers.language import ValidationResult
+from bridge.service.motion.planning import GotoPlanningMixin
+from bridge.service.motion.types import (
+    ATTACH_SPEED_SCALE, MODES, JogAccepted, JogMotion, MotionError, PlanMotion,
+    check_mode_allows, check_precedence, plan_state, streamed_reference,
+)
+from bridge.link.unit_loop import FeedforwardShaper, build_unit_loops
+from bridge.service.periodic import PeriodicThread
+from bridge.service.state_message import build_state_message, fault_transition
+
+__all__ = ["MotionController"]
+
+
+class MotionController(GotoPlanningMixin):
+    """See the module docstring.
+
+    Args:
+        guard: guard (and its planner/model) used by the control thread only.
+        plan_guard: a second guard on its own model for planning requests (models are not
+            thread-safe: their CasADi buffers are shared).
+        link: a :class:`bridge.link.can_link.CanLink` (``send_reference``, ``status``, ``stop_motion``).
+        clock: the link's clock [s].
+        on_state / on_event: called with JSON-ready dicts (state every ``state_every`` cycles).
+        odometer: cumulative distance travelled by the tractor [m] or None (maneuver ``wait_for``).
+        spawn: runs the planning of a maneuver step off the control thread (default: a new thread;
+            tests pass ``lambda fn: fn()`` for deterministic runs).
+    """
+
+    def __init__(self, guard: Guard, plan_guard: Guard, link: Any, clock: Callable[[], float], *,
+                 on_state: Callable[[dict], None] | None = None, on_event: Callable[[dict], None] | None = None,
+                 state_every: int = 1, odometer: Callable[[], float | None] | None = None,
+                 mode: str = "auto", spawn: Callable[[Callable[[], None]], None] | None = None,
+                 feedforward: bool = True):
+        self.guard, self.plan_guard = guard, plan_guard
+        self.planner = guard.planner
+        self.link = link
+        self.shaper = FeedforwardShaper(build_unit_loops(self.planner.model.profile), self.planner.inverse.solve_full,
+                                        link.check_reference, enabled=feedforward)
+        self.clock = clock
+        self.dt = 1.0 / self.planner.rate
+        self._on_state = on_state or (lambda s: None)
+        self._on_event = on_event or (lambda e: None)
+        self._odometer = odometer or (lambda: None)
+        self._spawn = spawn or (lambda fn: threading.Thread(target=fn, name="hitch-maneuver-plan", daemon=True).start())
+        self.state_every = max(1, int(state_every))
+        self._lock = threading.RLock()
+        self._plan_lock = threading.Lock()
+        self._ids = itertools.count(1)
+        self._mode = mode if mode in MODES else "auto"
+        self._active: PlanMotion | JogMotion | None = None
+        self._hold: MotionState | None = None
+        self._last_id: int | None = None
+        self._generation = 0
+        self._maneuver = ManeuverSlot()
+        self._fault_reported: tuple[str, ...] = ()
+        self._limited: dict = {}
+        self._reference: tuple[MotionState, np.ndarray, np.ndarray] | None = None
+        self._seq = 0
+        self._cycle_n = 0
+        self._thread: PeriodicThread | None = None
+
+    # ------------------------------------------------------------------ life cycle
+    def start(self) -> "MotionController":
+        if self._thread is not None:
+            raise RuntimeError("motion controller already started")
+        self._thread = PeriodicThread(self.dt, self.cycle, name="hitch-control", on_error=self._on_cycle_error).start()
+        return self
+
+    @property
+    def overruns(self) -> int:
+        """Control cycles that started late (since start)."""
+        return 0 if self._thread is None else self._thread.overruns
+
+    def close(self, brake_s: float = 0.4) -> None:
+        """Stop any motion, end the control thread and the reference stream.
+
+        A moving hitch gets the jerk-limited stop for up to ``brake_s`` seconds; then the stream
+        ends and the ECU watchdog zeroes the valves (within its 100 ms) whatever is left.
+        """
+        if self._thread is not None and self._thread.alive and self._active is not None:
+            try:
+                self.stop()
+            except ValueError:
+                pass
+            deadline = time.monotonic() + brake_s
+            while self._active is not None and time.monotonic() < deadline:
+                time.sleep(self.dt / 2)
+        events: list[dict] = []
+        with self._lock:
+            self._abort_all("service shutting down", self.clock(), events)
+        self._emit_all(events)
+        if self._thread is not None:
+            self._thread.stop(0.5)
+        self.link.stop_motion()
+
+    # ------------------------------------------------------------------ queries
+    @property
+    def mode(self) -> str:
+        return self._mode
+
+    def current_state(self) -> MotionState:
+        """The commanded pose-space state now (or the measured pose at rest when idle)."""
+        with self._lock:
+            return self._predict(self.clock())
+
+    def set_mode(self, mode: str) -> str:
+        if mode not in MODES:
+            raise MotionError("bad_request", f"mode must be one of {', '.join(MODES)}, got {mode!r}")
+        with self._lock:
+            if mode != self._mode and (self._active is not None or self._maneuver.running):
+                what = f"motion {self._active.motion_id}" if self._active is not None else \
+                    f"maneuver {self._maneuver.id}"
+                raise MotionError("busy", f"mode change to {mode!r} refused while the hitch is moving "
+                                          f"({what}); send stop first")
+            if mode != self._mode:
+                old, self._mode = self._mode, mode
+                self._emit({"event": "mode_changed", "mode": mode, "previous": old})
+            return self._mode
+
+    # ------------------------------------------------------------------ commands
+    def jog(self, rates: Mapping[str, float], ttl_s: float) -> JogAccepted:
+        """Start or refresh a jog (pose rates, m/s and rad/s) for ``ttl_s`` seconds."""
+        v = np.array([float(rates.get(k, 0.0)) for k in ("vx", "vz", "vroll", "vpitch")])
+        with self._lock:
+            self._check_allowed("jog")
+            if self._mode == "attach":   # slow rates, same responsiveness (acceleration and jerk not scaled)
+                cap = ATTACH_SPEED_SCALE * self.planner.any_direction.velocity
+                v = np.clip(v, -cap, cap)
+            now = self.clock()
+            m = self._active
+            if isinstance(m, PlanMotion) and m.kind == "stop":
+                raise MotionError("busy", f"a stop is in progress (motion {m.motion_id}); jog is refused until "
+                                          "the hitch is at rest")
+            events: list[dict] = []
+            if not isinstance(m, JogMotion):
+                start = self._predict(now)
+                if m is not None:
+                    events.append(self._ev("motion_aborted", m, reason="replaced by jog"))
+                self._maneuver.abort(now, "interrupted", "a jog took over", events)
+                jc = JogController(self.planner, start)
+                m = JogMotion(next(self._ids), jc, v, now + ttl_s, t_state=now)
+                self._install(m)
+                events.append(self._ev("motion_started", m, kind="jog"))
+            acc = m.refresh(self.guard, v, now + ttl_s)
+        self._emit_all(events)
+        return acc
+
+    def stop(self) -> int | None:
+        """Abort anything; brake jerk-limited to rest. Returns the stop motion's id (None when at rest)."""
+        events: list[dict] = []
+        with self._lock:
+            now = self.clock()
+            self._maneuver.abort(now, "stop", "stop requested", events)
+            mid = self._brake(now, "stop requested", events)
+        self._emit_all(events)
+        return mid
+
+    def _brake(self, now: float, reason: str, events: list) -> int | None:
+        """Replace the active motion by the jerk-limited stop from its state now (id of the stop)."""
+        m = self._active
+        if m is None or (isinstance(m, PlanMotion) and m.kind == "stop"):
+            return None if m is None else m.motion_id
+        events.append(self._ev("motion_aborted", m, reason=reason))
+        t0 = m.t_state if isinstance(m, JogMotion) else now   # the time the predicted state belongs to
+        sm = PlanMotion("stop", next(self._ids), self.planner.plan_stop(self._predict(now)), t0)
+        self._install(sm)
+        events.append(self._ev("motion_started", sm, kind="stop", duration=sm.plan.duration))
+        return sm.motion_id
+
+    def run_maneuver(self, validated: ValidationResult, name: str | None) -> int:
+        """Start a validated maneuver (replaces a running goto/maneuver). Returns its id."""
+        with self._lock:
+            self._check_allowed("maneuver")
+            self._check_precedence()
+            events: list[dict] = []
+            self._maneuver.abort(self.clock(), "interrupted", "replaced by another maneuver", events)
+            mid = next(self._ids)
+            self._maneuver.start(validated, name, mid)
+            self._generation += 1
+        self._emit_all(events)
+        return mid
+
+    # ------------------------------------------------------------------ internals: starting plans
+    def _check_allowed(self, what: str) -> None:
+        check_mode_allows(self._mode, what)
+
+    def _check_precedence(self) -> None:
+        check_precedence(self._active, self.clock())
+
+    def _predict(self, t: float, *, require_link: bool = True) -> MotionState:
+        """Commanded state at clock time ``t``: the active motion's, the held one or the measured pose."""
+        m = self._active
+        if isinstance(m, PlanMotion):
+            return plan_state(m, t)
+        if isinstance(m, JogMotion):
+            return m.jog.state
+        if self._hold is not None:
+            return self._hold
+        ls = self.link.latest_state()
+        if ls is None:
+            if require_link:
+                raise MotionError("ecu", "no measurement from the cylinder ECU yet: the start pose is unknown")
+            return MotionState.at_rest(self.planner.model.neutral_pose.controlled())
+        return MotionState.at_rest(ls.pose.controlled())
+
+    def _expire_jog(self, now: float) -> bool:
+        """A jog whose command died becomes its jerk-limited stop, from the state it had at its
+        last step (so the reference stays continuous); True if that happened."""
+        m = self._active
+        if not isinstance(m, JogMotion) or now < m.expires:
+            return False
+        self._active = PlanMotion("jog", m.motion_id, self.planner.plan_stop(m.jog.state), m.t_state)
+        return True
+
+    def _install(self, m) -> None:
+        self._active = m
+        self._last_id = m.motion_id
+        self._generation += 1
+        self._hold = None
+
+    def _abort_all(self, reason: str, now: float, events: list) -> None:
+        self._maneuver.abort(now, "stop", reason, events)
+        if self._active is not None:
+            events.append(self._ev("motion_aborted", self._active, reason=reason))
+        self._active, self._hold = None, None
+        self._generation += 1
+
+    # ------------------------------------------------------------------ the control thread
+    def _on_cycle_error(self, exc: Exception) -> None:
+        """A bug in a cycle: report it, drop the motion, stop the stream; the loop keeps running."""
+        evs: list[dict] = []
+        with self._lock:
+            self._abort_all(f"internal error: {type(exc).__name__}: {exc}", self.clock(), evs)
+            self.link.stop_motion()
+        self._emit_all(evs + [{"event": "fault", "fault": "internal", "message": f"{type(exc).__name__}: {exc}"}])
+
+    def cycle(self) -> None:
+        """One control cycle (public for deterministic tests).
+
+        The state is published first, right after the wake-up, so its period is as regular as
+        the wake-ups: measured pose now, with the reference sent in the previous cycle (the one
+        the ECU is tracking). Then the motion is advanced and the new reference sent.
+        """
+        events: list[dict] = []
+        with self._lock:
+            now = self.clock()
+            status = self.link.status(now)
+            self._cycle_n += 1
+            msg = self._state_message(now, status) if self._cycle_n % self.state_every == 0 else None
+        if msg is not None:
+            self._on_state(msg)
+        with self._lock:
+            now = self.clock()
+            self._check_faults(status, now, events)
+            self._drive_maneuver(status, now, events)
+            ref = self._reference_at(now, events)
+            if ref is not None:
+                try:
+                    self.link.send_reference(streamed_reference(self.shaper, self._active, ref, now), now)
+                    self._reference = ref
+                except ValueError as exc:   # ReferenceRefused / LinkFaultError: never streamed
+                    what = "limit_reached" if type(exc).__name__ == "ReferenceRefused" else "fault"
+                    events.append({"event": what, "message": str(exc), "motion_id": self._last_id})
+                    self._abort_all(f"reference refused: {exc}", now, events)
+                    self.link.stop_motion()
+        self._emit_all(events)
+
+    def _check_faults(self, status, now: float, events: list) -> None:
+        """A fault raised since the last cycle aborts everything (a fault latched before a fresh
+        command does not: that command's first reference re-arms the link or is refused)."""
+        self._fault_reported, new = fault_transition(self._fault_reported, status, events)
+        if new and (self._active is not None or self._hold is not None or self._maneuver.running):
+            self._abort_all("link fault: " + "; ".join(status.faults.reasons or new), now, events)
+            self.link.stop_motion()
+
+    def _drive_maneuver(self, status, now: float, events: list) -> None:
+        m, runner, ls = self._active, self._maneuver.runner, status.state
+        loop = LoopState(isinstance(m, PlanMotion) and not m.finished(now), self._last_id,
+                         None if ls is None else ls.measurement_t_s)
+        cmd = self._maneuver.tick(now, loop, self._odometer(), events)
+        if cmd is not None and cmd.action == "goto":
+            goal, scale, step = dict(cmd.goal), cmd.speed_scale, cmd.step
+            self._spawn(lambda: self._maneuver_goto(runner, goal, scale, step))
+        elif cmd is not None and cmd.action == "stop":
+            self._brake(now, "maneuver aborted", events)
+
+    def _maneuver_goto(self, runner: ManeuverRunner, goal: dict, scale: float, step: int | None) -> None:
+        try:
+            self._start_plan(goal, scale, "maneuver", f"step {step}", from_maneuver=True, runner=runner)
+        except ValueError as exc:
+            events: list[dict] = []
+            with self._lock:
+                if self._maneuver.owns(runner):
+                    self._maneuver.abort(self.clock(), "plan_failed", f"step {step} cannot be planned: {exc}", events)
+            self._emit_all(events)
+
+    def _reference_at(self, now: float, events: list):
+        m = self._active
+        if isinstance(m, PlanMotion):
+            if m.prev is not None and now >= m.t0:
+                m.prev = None
+            st = plan_state(m, now)
+            self._limited = {} if m.finished(now) else m.limited()
+            if m.finished(now):
+                events.append(self._ev("motion_finished", m, kind=m.kind))
+                self._active, self._hold = None, MotionState.at_rest(st.position)
+        elif isinstance(m, JogMotion):
+            if self._expire_jog(now):
+                return self._reference_at(now, events)
+            out, evs = m.step(self.guard)
+            m.t_state = now
+            events.extend(evs)
+            self._limited = dict(m.limited)
+            return out.state, out.actuators, out.actuator_velocity
+        elif self._hold is not None:
+            st = self._hold
+        else:
+            self._limited = {}
+            return None
+        try:
+            q, jac, _ = self.planner.inverse.solve_full(st.position)
+        except KinematicsError as exc:
+            events.append({"event": "limit_reached", "message": f"reference not reachable: {exc}"})
+            self._abort_all(f"reference not reachable: {exc}", now, events)
+            return None
+        return st, q, jac @ st.velocity
+
+    # ------------------------------------------------------------------ state and events
+    def _state_message(self, now: float, status) -> dict:
+        self._seq += 1
+        m = self._active
+        kind = None if m is None else (m.kind if isinstance(m, PlanMotion) else "jog")
+        ref = self._reference if (m is not None or self._hold is not None) else None
+        man = self._maneuver.describe()
+        return build_state_message(seq=self._seq, now=now, status=status, stale_after_s=self.link.config.stale_after_s,
+                                   guard=self.guard, mode=self._mode, motion_kind=kind, motion_id=self._last_id,
+                                   reference=ref, limited=self._limited, maneuver=man, feedforward=self.shaper)
+
+    def _ev(self, name: str, m, **extra) -> dict:
+        return {"event": name, "motion_id": m.motion_id, **{k: v for k, v in extra.items() if v is not None}}
+
+    def _emit(self, e: dict) -> None:
+        self._on_event({"t": time.time(), **e})
+
+    def _emit_all(self, events: list[dict]) -> None:
+        for e in events:
+            self._emit(e)
+

@@ -1,0 +1,177 @@
+"""Serial-arm profiles: a DH table with joint limits, base and tool frames, from TOML.
+
+Every number is SI: lengths in metres, angles in radians. The schema is strict (pydantic
+strict mode, unknown keys rejected): a wrong type, a missing key or a value out of range
+raises :class:`ArmProfileError` whose message names the field, the value and what is allowed.
+
+Schema (``schema_version = 1``)::
+
+    name = "arm-source-example"        # letters, digits, '-', '_', '.'
+    description = "..."
+    [[joints]]                         # one table per joint, base to tool (1..12)
+    name = "waist"
+    type = "revolute"                  # or "prismatic"
+    a = 0.0                            # [m]   link length along x_i
+    alpha = 1.5707963267948966         # [rad] link twist about x_i
+    d = 0.100                          # [m]   offset along z_{i-1} (+ q if prismatic)
+    theta = 0.0                        # [rad] angle about z_{i-1} (+ q if revolute)
+    lower = -3.141592653589793         # joint limits [rad] (revolute) or [m] (prismatic)
+    upper = 3.141592653589793
+    [base]                             # optional: frame 0 in the world frame
+    position = [0.0, 0.0, 0.0]         # [m]
+    zyz = [0.0, 0.0, 0.0]              # [rad] ZYZ Euler angles (phi, theta, psi)
+    [tool]                             # optional: tool frame in frame n (same keys)
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from planner.arm.dh import DHChain, DHLink, build_dh_chain
+from planner.profiles.loader import builtin_profiles, check_profile_name, format_validation_error, read_profile
+from planner.arm.transforms import euler_zyz_matrix, homogeneous
+
+__all__ = [
+    "ArmProfileError",
+    "JointSpec",
+    "FrameSpec",
+    "ArmProfile",
+    "load_arm_profile",
+    "arm_profile_from_dict",
+    "available_arm_profiles",
+    "DEFAULT_ARM_PROFILE",
+]
+
+#: Built-in profile used when none is named.
+DEFAULT_ARM_PROFILE = "arm-source-example"
+_TWO_PI = 2.0 * math.pi
+_MAX_LENGTH = 100.0
+
+
+class ArmProfileError(ValueError):
+    """An arm profile that cannot be used; the message names field, value and allowed range."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
+
+
+class JointSpec(_Strict):
+    """One DH row and its joint (units in the module docstring)."""
+
+    name: str = Field(min_length=1, max_length=40)
+    type: Literal["revolute", "prismatic"] = "revolute"
+    a: float = Field(allow_inf_nan=False)
+    alpha: float = Field(allow_inf_nan=False)
+    d: float = Field(allow_inf_nan=False)
+    theta: float = Field(allow_inf_nan=False)
+    lower: float = Field(allow_inf_nan=False)
+    upper: float = Field(allow_inf_nan=False)
+
+    @field_validator("a", "d")
+    @classmethod
+    def _length(cls, v: float, info) -> float:
+        if abs(v) > _MAX_LENGTH:
+            raise ValueError(f"{info.field_name} = {v} m is outside the allowed [-{_MAX_LENGTH:g}, {_MAX_LENGTH:g}] m")
+        return v
+
+    @field_validator("alpha", "theta")
+    @classmethod
+    def _angle(cls, v: float, info) -> float:
+        if abs(v) > _TWO_PI:
+            raise ValueError(f"{info.field_name} = {v} rad is outside the allowed [-2π, 2π] rad")
+        return v
+
+    @model_validator(mode="after")
+    def _limits(self):
+        if not self.lower < self.upper:
+            raise ValueError(f"joint {self.name!r}: limits need lower < upper (got [{self.lower}, {self.upper}])")
+        bound, unit = (_TWO_PI, "rad") if self.type == "revolute" else (_MAX_LENGTH, "m")
+        for side in ("lower", "upper"):
+            v = getattr(self, side)
+            if abs(v) > bound:
+                raise ValueError(
+                    f"joint {self.name!r}: {side} = {v} {unit} is outside the allowed ±{bound:.6g} {unit} "
+                    f"for a {self.type} joint"
+                )
+        return self
+
+    def link(self) -> DHLink:
+        return DHLink(self.a, self.alpha, self.d, self.theta, self.type, self.lower, self.upper, self.name)
+
+
+class FrameSpec(_Strict):
+    """A fixed frame: position [m] and ZYZ Euler angles [rad] (arm thesis 2.10)."""
+
+    position: list[float] = Field(default_factory=lambda: [0.0, 0.0, 0.0], min_length=3, max_length=3)
+    zyz: list[float] = Field(default_factory=lambda: [0.0, 0.0, 0.0], min_length=3, max_length=3)
+
+    @field_validator("position")
+    @classmethod
+    def _position(cls, v: list[float]) -> list[float]:
+        if not all(math.isfinite(x) and abs(x) <= _MAX_LENGTH for x in v):
+            raise ValueError(f"position components must be finite and within ±{_MAX_LENGTH:g} m")
+        return v
+
+    @field_validator("zyz")
+    @classmethod
+    def _zyz(cls, v: list[float]) -> list[float]:
+        if not all(math.isfinite(x) and abs(x) <= _TWO_PI for x in v):
+            raise ValueError("zyz angles must be finite and within ±2π rad")
+        return v
+
+    def transform(self):
+        return homogeneous(euler_zyz_matrix(*self.zyz), self.position)
+
+
+class ArmProfile(_Strict):
+    """A serial arm: DH joints, base and tool frames."""
+
+    schema_version: Literal[1]
+    name: str = Field(min_length=1, max_length=80)
+    description: str = ""
+    joints: list[JointSpec] = Field(min_length=1, max_length=12)
+    base: FrameSpec = Field(default_factory=FrameSpec)
+    tool: FrameSpec = Field(default_factory=FrameSpec)
+
+    @field_validator("name")
+    @classmethod
+    def _name(cls, v: str) -> str:
+        return check_profile_name(v)
+
+    @model_validator(mode="after")
+    def _unique(self):
+        names = [j.name for j in self.joints]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f"joint names must be unique; repeated: {', '.join(dup)}")
+        return self
+
+    def chain(self) -> DHChain:
+        """The :class:`~planner.arm.dh.DHChain` this profile describes."""
+        return build_dh_chain([j.link() for j in self.joints], base=self.base.transform(), tool=self.tool.transform())
+
+
+def available_arm_profiles() -> list[str]:
+    """Names of the arm profiles shipped with the package (``planner/profiles/arms/*.toml``)."""
+    return builtin_profiles("arms")
+
+
+def arm_profile_from_dict(data: dict, source: str = "<dict>") -> ArmProfile:
+    """Validate an arm profile given as a dictionary (as parsed from TOML)."""
+    if not isinstance(data, dict):
+        raise ArmProfileError(f"arm profile {source} must be a table, got {type(data).__name__}")
+    try:
+        return ArmProfile.model_validate(data)
+    except ValidationError as exc:
+        raise ArmProfileError(format_validation_error("arm profile", source, exc, ArmProfile)) from None
+
+
+def load_arm_profile(name_or_path: str | Path = DEFAULT_ARM_PROFILE) -> ArmProfile:
+    """Load and validate an arm profile by built-in name (``arm-…``) or by file path."""
+    source, data = read_profile(name_or_path, subfolder="arms", kind="arm profile", error=ArmProfileError)
+    return arm_profile_from_dict(data, source=source)

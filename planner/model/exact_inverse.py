@@ -1,0 +1,120 @@
+"""Exact inverse of the hitch geometry without limits: pose (x, z, roll, pitch) → actuators.
+
+The thesis dropped its algebraic inverse (2.43-2.44) as a quartic with no way to pick
+the root. Working with vectors (its own recommendation, §4.4) the inverse is a 2×2
+root-finding problem followed by closed forms:
+
+1. With the implement span s fixed, the lower hitch points are L = T + (s/2)·n and
+   R = T − (s/2)·n, n the unit vector R→L given by roll and yaw. The unknowns y_T and
+   yaw follow from |L − L0| = |R − R0| = l_vv (thesis 2.19-2.20, 2.44), solved by
+   Newton from the symmetric solution.
+2. Link angles from L − L0 and R − R0 (inverse of thesis 2.19-2.20).
+3. Lift angle θ_E from the fixed left lift rod: circle of S (lift arm) ∩ sphere
+   |S − A_l| = d_AS, rearward branch (thesis 2.2-2.5); tilt = |A_r − S_r| (2.6);
+   limiters |B − C| (2.7-2.9); top link |U − H| with U on the mast (2.41-2.42).
+
+This is not the planner's IK (that one honours limits, see :mod:`planner.ik_qp`): it is
+the independent closed-form truth the QP IK and the tests are checked against.
+"""
+
+from __future__ import annotations
+
+import math
+
+import casadi as ca
+import numpy as np
+
+from planner.model.fast_function import FastFunction
+from planner.model.angle_maps import angles_to_actuators_sx
+from planner.model.geometry import LEFT, RIGHT, mast_frame, side_geometry
+from planner.model.kinematics import HitchModel
+from planner.model.types import Actuators, KinematicsError
+
+__all__ = ["ExactInverse"]
+
+_TOL_M = 1e-9
+
+
+def _build(model: HitchModel, newton: int = 8) -> ca.Function:
+    prof = model.profile
+    g = prof.geometry
+    left, right = side_geometry(prof, LEFT), side_geometry(prof, RIGHT)
+    s, d_mast, l_vv = model.span, model.mast_height, g.lower_link_length
+    L0, R0 = ca.DM(left.pivot), ca.DM(right.pivot)
+    target = ca.SX.sym("pose", 4)  # x, z, roll, pitch
+    x, z, roll, pitch = (target[i] for i in range(4))
+
+    def ends(y, yaw):
+        n = ca.vertcat(1.0, ca.tan(yaw), -ca.tan(roll))
+        n = n / ca.norm_2(n)
+        t = ca.vertcat(x, y, z)
+        return t + (s / 2) * n, t - (s / 2) * n
+
+    u = ca.SX.sym("u", 2)
+    le, re = ends(u[0], u[1])
+    res = ca.vertcat(ca.sumsqr(le - L0) - l_vv**2, ca.sumsqr(re - R0) - l_vv**2)
+    jac = ca.jacobian(res, u)
+    half_gap = (s - g.lower_link_pivot_span) / 2
+    y0 = ca.sqrt(ca.fmax(1e-6, l_vv**2 - half_gap**2 - z**2))
+    sol = ca.vertcat(y0, 0.0)
+    for _ in range(newton):
+        rk, jk = ca.substitute([res, jac], [u], [sol])
+        det = jk[0, 0] * jk[1, 1] - jk[0, 1] * jk[1, 0]
+        sol = sol - ca.vertcat(jk[1, 1] * rk[0] - jk[0, 1] * rk[1], -jk[1, 0] * rk[0] + jk[0, 0] * rk[1]) / det
+    L, R = ends(sol[0], sol[1])
+
+    def angles(end, pivot):
+        v = end - pivot
+        return ca.asin(ca.fmin(1.0, ca.fmax(-1.0, v[2] / l_vv))), ca.atan2(-v[0], v[1])
+
+    theta = ca.vertcat(*angles(L, L0), *angles(R, R0))
+    link_act, lift_arg = angles_to_actuators_sx(prof, theta)
+    lift, tilt, lim_l, lim_r = (link_act[i] for i in range(4))
+    _, u0, wv = mast_frame(L, R)
+    U = (L + R) / 2 + d_mast * (ca.cos(pitch) * u0 + ca.sin(pitch) * wv)
+    top = ca.norm_2(U - ca.DM(g.top_link_tractor_point))
+    q = ca.vertcat(lift, tilt, top, lim_l, lim_r)
+    checks = ca.vertcat(ca.norm_2(L - L0) - l_vv, ca.norm_2(R - R0) - l_vv, lift_arg)
+    outs = [q, ca.densify(ca.jacobian(q, target)), checks, ca.vertcat(sol[0], sol[1])]
+    return ca.Function("hitch_exact_inverse", [target], ca.cse(outs))
+
+
+class ExactInverse:
+    """Closed-form inverse kinematics of one :class:`~planner.model.kinematics.HitchModel` (no limits)."""
+
+    def __init__(self, model: HitchModel):
+        self.model = model
+        self.function = _build(model)
+        self._fast = FastFunction(self.function)
+
+    def __call__(self, x: float, z: float, roll: float, pitch: float) -> np.ndarray:
+        """Actuators (lift, tilt, top, left, right) reaching the pose exactly; KinematicsError if none."""
+        return self.solve(np.array([x, z, roll, pitch], dtype=float))[0]
+
+    def solve(self, target) -> tuple[np.ndarray, np.ndarray]:
+        """(actuators, d actuators / d (x, z, roll, pitch)) for a target of 4 values."""
+        q, jac, _ = self.solve_full(target)
+        return q, jac
+
+    def solve_full(self, target) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
+        """(actuators, d actuators / d target, (y_T [m], yaw [rad])) for a target of 4 values."""
+        t = np.asarray(target, dtype=float).reshape(-1)
+        if t.size != 4 or not np.all(np.isfinite(t)):
+            raise ValueError("target must be 4 finite numbers (x [m], z [m], roll [rad], pitch [rad])")
+        if abs(t[2]) >= math.pi / 2 or abs(t[3]) >= math.pi / 2:
+            raise KinematicsError("roll and pitch must lie within ±π/2")
+        q, jac, checks, y_yaw = self._fast(t)
+        c = checks[:, 0]
+        if not (abs(c[0]) <= _TOL_M and abs(c[1]) <= _TOL_M):
+            raise KinematicsError(
+                f"lower links cannot reach the implement at this pose (closure error {max(abs(c[0]), abs(c[1])):.3g} m)"
+            )
+        if not abs(c[2]) <= 1.0:
+            raise KinematicsError("the fixed left lift rod cannot reach the left lower link at this pose")
+        qv = q[:, 0].copy()
+        if not np.all(np.isfinite(qv)):
+            raise KinematicsError("degenerate pose")
+        return qv, jac.copy(), (float(y_yaw[0, 0]), float(y_yaw[1, 0]))
+
+    def actuators(self, x: float, z: float, roll: float, pitch: float) -> Actuators:
+        return Actuators.from_array(self(x, z, roll, pitch))

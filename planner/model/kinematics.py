@@ -1,0 +1,281 @@
+"""Exact forward kinematics of the 4-DOF advanced rear hitch (thesis §2.2).
+
+The model is built once per (profile, category) as CasADi symbolic functions
+actuators → named points → pose, so every derivative comes from automatic
+differentiation, and is evaluated through pre-bound buffers (~µs per call).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from planner.model.fast_function import FastFunction
+from planner.model.geometry import LEFT, RIGHT, closure_residual, direction_angles, lift_arm_end, link_points, mast_point, side_geometry, solve_link_angles
+from planner.profiles.hitch import Profile, load_profile
+from planner.model.types import ACTUATOR_NAMES, Actuators, HitchState, KinematicsError, Pose
+
+__all__ = ["HitchModel", "SymbolicModel", "FEATURE_NAMES", "POINT_NAMES"]
+
+#: Rows of the feature vector (pose, lower span, raw top-link angles, link-end heights).
+FEATURE_NAMES: tuple[str, ...] = (
+    "x", "y", "z", "roll", "pitch", "yaw",
+    "lower_span", "top_link_yaw", "top_link_pitch", "z_left_end", "z_right_end",
+)
+#: Names of the points returned by :meth:`HitchModel.forward` (``_l``/``_r`` = left/right).
+POINT_NAMES: tuple[str, ...] = (
+    "L0", "R0", "L", "R", "T", "U", "H", "Q_l", "Q_r", "S_l", "S_r",
+    "A_l", "A_r", "Bp_l", "Bp_r", "B_l", "B_r", "C_l", "C_r",
+)
+_RESIDUAL_CAUSES = (
+    "left lift rod cannot reach the left lower link",
+    "left sway limiter cannot reach its bracket with this length",
+    "tilt cylinder cannot reach the right lower link",
+    "right sway limiter cannot reach its bracket with this length",
+)
+_CLOSURE_TOL_M = 1e-9
+
+
+def _build(profile: Profile, category: str):
+    """Build the symbolic model: returns (points_fn, feature_fn).
+
+    The link angles θ = (θxl, θzl, θxr, θzr) are first kept symbolic: points,
+    features F(q, θ) and the closure equations G(q, θ) = 0 are written in (q, θ).
+    Values substitute θ*(q) from :func:`~planner.model.geometry.solve_link_angles`; the
+    Jacobian comes from the implicit-function theorem, dθ/dq = −G_θ⁻¹ G_q, which is
+    exact at the solution and far smaller than differentiating the iterations.
+    """
+    g = profile.geometry
+    left, right = side_geometry(profile, LEFT), side_geometry(profile, RIGHT)
+    mast = profile.category(category).mast_height
+    q = ca.SX.sym("q", 5)
+    th = ca.SX.sym("theta", 4)
+    lift, tilt, top, lim_l, lim_r = (q[i] for i in range(5))
+
+    s_l, s_r = lift_arm_end(left, lift), lift_arm_end(right, lift)
+    pl, pr = link_points(left, th[0], th[1]), link_points(right, th[2], th[3])
+    L, R = pl["end"], pr["end"]
+    H = ca.DM(g.top_link_tractor_point)
+    U, pitch, reach = mast_point(L, R, H, top, mast)
+    T = (L + R) / 2.0
+    v = L - R
+    roll = ca.atan2(-v[2], v[0])
+    yaw = ca.atan2(v[1], v[0])
+    tl_yaw, tl_pitch = direction_angles(U - H)
+    features = ca.vertcat(T[0], T[1], T[2], roll, pitch, yaw, ca.norm_2(v), tl_yaw, tl_pitch, L[2], R[2])
+    pts = {
+        "L0": ca.DM(left.pivot), "R0": ca.DM(right.pivot), "L": L, "R": R, "T": T, "U": U, "H": H,
+        "Q_l": ca.DM(left.lift_arm_pivot), "Q_r": ca.DM(right.lift_arm_pivot), "S_l": s_l, "S_r": s_r,
+        "A_l": pl["A"], "A_r": pr["A"], "Bp_l": pl["Bp"], "Bp_r": pr["Bp"], "B_l": pl["B"], "B_r": pr["B"],
+        "C_l": ca.DM(left.limiter_point), "C_r": ca.DM(right.limiter_point),
+    }
+    point_matrix = ca.densify(ca.horzcat(*(ca.SX(pts[n]) for n in POINT_NAMES)))
+
+    closure = ca.vertcat(
+        closure_residual(left, s_l, g.fixed_lift_rod_length, lim_l, th[0], th[1]),
+        closure_residual(right, s_r, tilt, lim_r, th[2], th[3]),
+    )
+    g_th = ca.jacobian(closure, th)  # block diagonal 2×2 + 2×2
+    g_q = ca.jacobian(closure, q)
+    dth_dq = ca.SX.zeros(4, 5)
+    for k in (0, 2):
+        blk = g_th[k:k + 2, k:k + 2]
+        det = blk[0, 0] * blk[1, 1] - blk[0, 1] * blk[1, 0]
+        inv = ca.vertcat(ca.horzcat(blk[1, 1], -blk[0, 1]), ca.horzcat(-blk[1, 0], blk[0, 0])) / det
+        dth_dq[k:k + 2, :] = -inv @ g_q[k:k + 2, :]
+    jac = ca.densify(ca.jacobian(features, q) + ca.jacobian(features, th) @ dth_dq)
+
+    txl, tzl, res_l = solve_link_angles(left, s_l, g.fixed_lift_rod_length, lim_l)
+    txr, tzr, res_r = solve_link_angles(right, s_r, tilt, lim_r)
+    th_star = ca.vertcat(txl, tzl, txr, tzr)
+    features, jac, point_matrix, reach = ca.substitute([features, jac, point_matrix, reach], [th], [th_star])
+    checks = ca.vertcat(res_l, res_r, reach)
+    # common-subexpression elimination: the substituted Newton graph is shared by all outputs
+    points_fn = ca.Function("hitch_points", [q], ca.cse([features, point_matrix, th_star, checks]))
+    feature_fn = ca.Function("hitch_features", [q], ca.cse([features, jac, checks]))
+    # NaN wherever the mechanism cannot close, so optimisers reject such points instead of
+    # trusting the finite garbage of a non-converged Newton iteration.
+    valid = ca.logic_and(ca.mmax(ca.fabs(ca.vertcat(res_l, res_r))) <= _CLOSURE_TOL_M, ca.fabs(reach) <= 1.0)
+    poison = ca.if_else(valid, 0.0, math.nan)
+    symbolic = SymbolicModel(q=q, features=features + poison, jacobian=jac + poison)
+    return points_fn, feature_fn, symbolic
+
+
+@dataclass(frozen=True)
+class SymbolicModel:
+    """CasADi SX expressions of the model in the actuator symbol ``q`` (5,).
+
+    ``features`` (:data:`FEATURE_NAMES`) and ``jacobian`` (11×5, implicit-function theorem)
+    evaluate to NaN where the mechanism cannot close.
+    """
+
+    q: ca.SX
+    features: ca.SX
+    jacobian: ca.SX
+
+
+class HitchModel:
+    """Kinematic model of one hitch profile with one implement category attached.
+
+    Attributes (SI): ``span`` ball-centre lower hitch span [m], ``mast_height`` d_T^U [m],
+    ``lower``/``upper`` actuator strokes (order :data:`~planner.model.types.ACTUATOR_NAMES`),
+    ``neutral`` actuators of the neutral pose, ``top_link_reference`` (yaw, pitch) [rad]
+    from which top-link angle limits are measured, ``workspace`` the restricted box
+    ``{"x": (min, max), "z": …, "roll": …, "pitch": …}`` in SI, or None if the profile
+    has none for this category.
+    """
+
+    def __init__(self, profile: Profile, category: str | None = None):
+        self.profile = profile
+        self.category = category if category is not None else profile.implement.default_category
+        profile.category(self.category)  # validates the name
+        self.span = profile.span(self.category)
+        self.mast_height = profile.category(self.category).mast_height
+        self.points_function, self.feature_function, self.symbolic = _build(profile, self.category)
+        self._points = FastFunction(self.points_function)
+        self._features = FastFunction(self.feature_function)
+        specs = [profile.actuator(n) for n in ACTUATOR_NAMES]
+        self.lower = np.array([s.min for s in specs])
+        self.upper = np.array([s.max for s in specs])
+        self.neutral = self._solve_neutral()
+        state = self.forward(self.neutral)
+        if profile.limits.top_link_angle_reference == "neutral":
+            self.top_link_reference = (state.top_link_angles[0], state.top_link_angles[1])
+        else:
+            self.top_link_reference = (0.0, 0.0)
+        self.neutral_pose = state.pose
+        self.workspace = self._workspace()
+
+    @classmethod
+    def from_profile(cls, name_or_path: str | Path = "thesis-t132", category: str | None = None) -> "HitchModel":
+        return cls(load_profile(name_or_path), category)
+
+    # ------------------------------------------------------------------ evaluation
+    def features(self, q) -> tuple[np.ndarray, np.ndarray]:
+        """Feature vector (:data:`FEATURE_NAMES`) and its 11×5 Jacobian at actuators ``q``.
+
+        Raises :class:`KinematicsError` when the mechanism cannot close. Returned
+        arrays are copies.
+        """
+        f, jac, checks = self._features(self._as_vector(q))
+        if not self._fast_ok(checks[:, 0], f[:, 0]):
+            self._check(checks[:, 0], f[:, 0], self._as_vector(q))
+        return f[:, 0].copy(), jac.copy()
+
+    def forward(self, actuators: Actuators | np.ndarray) -> HitchState:
+        """Exact forward kinematics: pose of T and the implement, and every named point."""
+        q = self._as_vector(actuators)
+        f, pts, angles, checks = self._points(q)
+        self._check(checks[:, 0], f[:, 0], q)
+        f = f[:, 0]
+        ref = getattr(self, "top_link_reference", (0.0, 0.0))
+        return HitchState(
+            actuators=Actuators.from_array(q),
+            pose=Pose.from_array(f[:6]),
+            points={n: pts[:, i].copy() for i, n in enumerate(POINT_NAMES)},
+            link_angles=tuple(float(a) for a in angles[:, 0]),
+            top_link_angles=(float(f[7] - ref[0]), float(f[8] - ref[1])),
+            lower_span=float(f[6]),
+        )
+
+    def pose(self, actuators) -> Pose:
+        return self.forward(actuators).pose
+
+    # ------------------------------------------------------------------ helpers
+    @staticmethod
+    def _as_vector(actuators) -> np.ndarray:
+        q = actuators.as_array() if isinstance(actuators, Actuators) else np.asarray(actuators, dtype=float).reshape(-1)
+        if q.size != 5:
+            raise ValueError(f"actuators: expected 5 values ({', '.join(ACTUATOR_NAMES)}), got {q.size}")
+        for name, v in zip(ACTUATOR_NAMES, q):
+            if not math.isfinite(v):
+                raise ValueError(f"actuators.{name} must be a finite number, got {v}")
+        return q
+
+    def _check(self, checks: np.ndarray, features: np.ndarray, q: np.ndarray | None = None) -> None:
+        bad = [i for i in range(4) if not abs(checks[i]) <= _CLOSURE_TOL_M]  # also catches NaN
+        if bad:
+            cause = self._closure_cause(q) if q is not None else None
+            r = checks[bad[0]]
+            raise KinematicsError(f"{cause or _RESIDUAL_CAUSES[bad[0]]} (closure error {r:.3g} m)")
+        if not abs(checks[4]) <= 1.0:
+            raise KinematicsError(
+                "top link cannot reach the implement mast with this length (circle-sphere miss, "
+                f"cos argument {checks[4]:.4g})"
+            )
+        if not np.all(np.isfinite(features)):
+            raise KinematicsError("degenerate configuration (lower-link ends coincide)")
+
+    @staticmethod
+    def _fast_ok(checks: np.ndarray, features: np.ndarray) -> bool:
+        return bool(
+            np.max(np.abs(checks[:4])) <= _CLOSURE_TOL_M and abs(checks[4]) <= 1.0 and np.isfinite(features).all()
+        )
+
+    def _closure_cause(self, q: np.ndarray) -> str | None:
+        """Which member cannot close, by reach intervals around the lower-link pivot.
+
+        B is at the fixed distance √(d_OB'² + d_BB'²) from the pivot and A at d_O^A, so
+        |B − C| and |A − S| must lie within the triangle-inequality intervals.
+        """
+        g = self.profile.geometry
+        rb = math.hypot(g.limiter_bracket_position, g.limiter_bracket_offset)
+        for k, side in enumerate((LEFT, RIGHT)):
+            sg = side_geometry(self.profile, side)
+            piv = np.array(sg.pivot)
+            dc = np.linalg.norm(np.array(sg.limiter_point) - piv)
+            lim = q[3 + k]
+            if not abs(dc - rb) <= lim <= dc + rb:
+                who = "left" if side == LEFT else "right"
+                return (f"{who} sway limiter length {lim:.4g} m cannot reach its bracket "
+                        f"(reachable {abs(dc - rb):.4g}..{dc + rb:.4g} m)")
+            qa = np.array(sg.lift_arm_pivot)
+            s_pt = qa + g.lift_arm_length * np.array([0.0, math.cos(q[0]), math.sin(q[0])])
+            ds = np.linalg.norm(s_pt - piv)
+            rod = g.fixed_lift_rod_length if side == LEFT else q[1]
+            if not abs(ds - g.lift_rod_attachment) <= rod <= ds + g.lift_rod_attachment:
+                who = "left lift rod" if side == LEFT else "tilt cylinder"
+                return (f"{who} length {rod:.4g} m cannot reach the lower link "
+                        f"(reachable {abs(ds - g.lift_rod_attachment):.4g}..{ds + g.lift_rod_attachment:.4g} m)")
+        return None
+
+    def _solve_neutral(self) -> np.ndarray:
+        """Neutral actuators: lift and tilt at their profile neutrals; limiters and top link
+        chosen so that x = 0, |L−R| = span and pitch = 0 (Newton on the exact model)."""
+        p = self.profile
+        q = np.array([
+            p.actuators.lift.neutral if p.actuators.lift.neutral is not None else (self.lower[0] + self.upper[0]) / 2,
+            p.actuators.tilt.neutral if p.actuators.tilt.neutral is not None else (self.lower[1] + self.upper[1]) / 2,
+            0.0, 0.0, 0.0,
+        ])
+        q[2:] = (self.lower[2:] + self.upper[2:]) / 2
+        free = [2, 3, 4]
+        for _ in range(50):
+            try:
+                f, jac = self.features(q)
+            except KinematicsError as exc:
+                raise KinematicsError(f"profile {p.name}: cannot find the neutral pose: {exc}") from None
+            r = np.array([f[0], f[6] - self.span, f[4]])
+            if np.max(np.abs(r)) < 1e-13:
+                return q
+            J = jac[[0, 6, 4]][:, free]
+            q[free] -= np.linalg.solve(J, r)
+        raise KinematicsError(f"profile {p.name}: neutral pose did not converge (residual {r})")
+
+    def _workspace(self) -> dict[str, tuple[float, float]] | None:
+        """The profile's restricted box for this category, or None when the profile has none
+        (fit one with :func:`planner.model.workspace.fit_restricted_box`; motion layers refuse
+        Cartesian motion without a workspace and say so)."""
+        box = self.profile.workspace.restricted.get(self.category)
+        return box.as_dict() if box is not None else None
+
+    def thesis_box(self) -> dict[str, tuple[float, float]]:
+        """Table 3-7 box in the tractor frame, with the profile's zero of z."""
+        ws = self.profile.workspace
+        z0 = self.neutral_pose.z if ws.z_reference == "neutral" else 0.0
+        b = ws.thesis_box.as_dict()
+        return {"x": b["x"], "z": (b["z"][0] + z0, b["z"][1] + z0), "roll": b["roll"], "pitch": b["pitch"]}

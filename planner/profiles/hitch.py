@@ -1,0 +1,272 @@
+"""Geometry profiles: loading and validating hitch descriptions from TOML.
+
+A profile holds every number the model needs, in SI units (m, rad, s). The schema
+is strict: unknown keys, wrong types and values outside their physical range are
+rejected with a :class:`ProfileError` whose message names the field, the value and
+what is allowed.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from planner.profiles.loader import builtin_profiles, check_profile_name, format_validation_error, read_profile
+
+__all__ = [
+    "ProfileError",
+    "Profile",
+    "ActuatorSpec",
+    "Category",
+    "load_profile",
+    "available_profiles",
+    "profile_from_dict",
+]
+
+ACTUATORS = ("lift", "tilt", "top", "left", "right")
+BOX_KEYS = ("x", "z", "roll", "pitch")
+
+
+#: Tuning parameter a of (thesis 2.57) used on the thesis's machine (thesis §3.1).
+THESIS_CONTROLLER_A = 0.581
+
+
+class ProfileError(ValueError):
+    """A profile that cannot be used; the message names field, value and allowed range."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=False)
+
+
+def _interval(name: str, value: tuple[float, float], *, angle: bool) -> tuple[float, float]:
+    lo, hi = value
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        raise ValueError(f"{name} bounds must be finite numbers")
+    if not lo < hi:
+        raise ValueError(f"{name} needs min < max (got [{lo}, {hi}])")
+    if angle and (abs(lo) > math.pi or abs(hi) > math.pi):
+        raise ValueError(f"{name} bounds are angles in radians and must lie within ±π")
+    return value
+
+
+class Box(_Strict):
+    """An axis-aligned box over the controlled DOF: x, z [m]; roll, pitch [rad]."""
+
+    x: tuple[float, float]
+    z: tuple[float, float]
+    roll: tuple[float, float]
+    pitch: tuple[float, float]
+
+    @model_validator(mode="after")
+    def _check(self):
+        for k in BOX_KEYS:
+            _interval(k, getattr(self, k), angle=k in ("roll", "pitch"))
+        return self
+
+    def as_dict(self) -> dict[str, tuple[float, float]]:
+        return {k: tuple(getattr(self, k)) for k in BOX_KEYS}
+
+
+class Geometry(_Strict):
+    lower_link_pivot_span: float = Field(gt=0, le=3.0)
+    lower_link_length: float = Field(gt=0, le=3.0)
+    lift_rod_attachment: float = Field(gt=0, le=3.0)
+    limiter_bracket_position: float = Field(gt=0, le=3.0)
+    limiter_bracket_offset: float = Field(ge=0, le=1.0)
+    fixed_lift_rod_length: float = Field(gt=0, le=3.0)
+    lift_arm_length: float = Field(gt=0, le=3.0)
+    lift_arm_pivot: tuple[float, float, float]
+    top_link_tractor_point: tuple[float, float, float]
+    limiter_tractor_point: tuple[float, float, float]
+    pivot_height: float = Field(gt=0, le=3.0)
+
+    @model_validator(mode="after")
+    def _check(self):
+        for name in ("lift_arm_pivot", "top_link_tractor_point", "limiter_tractor_point"):
+            v = getattr(self, name)
+            if not all(math.isfinite(c) and abs(c) <= 5.0 for c in v):
+                raise ValueError(f"{name} coordinates must be finite and within ±5 m")
+        if self.lift_rod_attachment >= self.lower_link_length:
+            raise ValueError("lift_rod_attachment must lie on the lower link (< lower_link_length)")
+        if self.limiter_bracket_position >= self.lower_link_length:
+            raise ValueError("limiter_bracket_position must lie on the lower link (< lower_link_length)")
+        return self
+
+
+class Category(_Strict):
+    """ISO 730 implement category: lower hitch span (inner faces, as in the standard) and mast height [m]."""
+
+    span: float = Field(gt=0, le=2.0)
+    mast_height: float = Field(gt=0, le=2.0)
+
+
+class Implement(_Strict):
+    ball_centre_correction: float = Field(ge=0, le=0.2)
+    default_category: str
+    categories: dict[str, Category]
+
+    @model_validator(mode="after")
+    def _check(self):
+        if not self.categories:
+            raise ValueError("categories must list at least one ISO 730 category")
+        if self.default_category not in self.categories:
+            raise ValueError(
+                f"default_category {self.default_category!r} is not one of {sorted(self.categories)}"
+            )
+        return self
+
+
+class ActuatorSpec(_Strict):
+    """One actuator: stroke, sensor calibration and identified valve dynamics (thesis 1.1)."""
+
+    min: float
+    max: float
+    counts_min: int = Field(ge=0, le=1023)
+    counts_max: int = Field(ge=0, le=1023)
+    valve_multiplier: float = Field(gt=0, le=1.0)
+    kv_pos: float = Field(gt=0, le=100.0)
+    kv_neg: float = Field(gt=0, le=100.0)
+    transport_delay: float = Field(ge=0, le=2.0)
+    time_constant: float = Field(ge=0, le=2.0)
+    min_flow: float = Field(ge=0, le=254)
+    dead_zone: float = Field(ge=0, le=254)
+    neutral: float | None = None
+
+    @model_validator(mode="after")
+    def _check(self):
+        _interval("stroke", (self.min, self.max), angle=False)
+        if self.counts_min >= self.counts_max:
+            raise ValueError(f"counts_min ({self.counts_min}) must be below counts_max ({self.counts_max})")
+        if self.neutral is not None and not (self.min <= self.neutral <= self.max):
+            raise ValueError(f"neutral {self.neutral} must lie within the stroke [{self.min}, {self.max}]")
+        return self
+
+
+class Actuators(_Strict):
+    lift: ActuatorSpec
+    tilt: ActuatorSpec
+    top: ActuatorSpec
+    left: ActuatorSpec
+    right: ActuatorSpec
+
+    @model_validator(mode="after")
+    def _check(self):
+        if not (-math.pi / 2 < self.lift.min < self.lift.max < math.pi / 2):
+            raise ValueError("lift is an angle [rad]: its stroke must lie within (-π/2, π/2)")
+        for n in ("tilt", "top", "left", "right"):
+            spec = getattr(self, n)
+            if spec.min <= 0 or spec.max > 5.0:
+                raise ValueError(f"{n} is a length [m]: its stroke must lie within (0, 5]")
+        return self
+
+
+class KeepOut(_Strict):
+    """A sphere the top link (segment H–U) must stay clear of, e.g. the remote-hydraulics couplers."""
+
+    name: str = Field(min_length=1, max_length=60)
+    centre: tuple[float, float, float]
+    radius: float = Field(gt=0, le=1.0)
+
+
+class Limits(_Strict):
+    top_link_yaw_max: float = Field(gt=0, le=math.pi / 2)
+    top_link_pitch_up_max: float = Field(gt=0, le=math.pi / 2)
+    top_link_pitch_down_max: float = Field(gt=0, le=math.pi / 2)
+    top_link_angle_reference: Literal["neutral", "horizontal"] = "neutral"
+    ground_clearance: float = Field(ge=-1.0, le=2.0)
+    keep_out: list[KeepOut] = Field(default_factory=list)
+    end_stop_zone: float = Field(default=0.05, ge=0.0, le=0.5)
+
+
+class Motion(_Strict):
+    """Motion limits derived from the valves (issue 4).
+
+    Actuator velocity limit = velocity_fraction × min(kv_pos, kv_neg) × 254 × valve_multiplier
+    (AD counts/s, thesis tables 3-3, 3-4) converted to SI; acceleration limit = velocity
+    limit / acceleration_time; jerk limit = acceleration limit / jerk_time.
+    """
+
+    velocity_fraction: float = Field(default=0.9, gt=0, le=1.0)
+    acceleration_time: float = Field(default=0.3, gt=0, le=10.0)
+    jerk_time: float = Field(default=0.15, gt=0, le=10.0)
+    control_rate: float = Field(default=50.0, ge=1.0, le=200.0)
+    #: tuning a of the cylinder ECU's unit controllers (thesis 2.57), 0.581 on the thesis's machine (thesis §3.1);
+    #: the planner needs it to invert the unit loops (feed-forward), the simulated ECU runs with it
+    controller_a: float = Field(default=THESIS_CONTROLLER_A, gt=0, le=2.0)
+
+
+class Stability(_Strict):
+    """Which tractor carries the hitch (a profile in planner/profiles/tractors/) and its front ballast [kg]."""
+
+    tractor_profile: str = "tractor-6t"
+    front_ballast: float = Field(default=0.0, ge=0.0, le=5000.0)
+    #: slow-down factor when a margin falls below its caution threshold (seed 003: 0.8)
+    caution_speed_factor: float = Field(default=0.8, gt=0.0, le=1.0)
+    #: how far ahead jog motion is evaluated [s] (seed 003: about one second)
+    jog_horizon: float = Field(default=1.0, gt=0.0, le=5.0)
+
+
+class Workspace(_Strict):
+    thesis_box: Box
+    z_reference: Literal["neutral", "pivot"] = "neutral"
+    #: restricted (operator-level) workspace per category, absolute in the tractor frame
+    restricted: dict[str, Box] = Field(default_factory=dict)
+
+
+class Profile(_Strict):
+    schema_version: Literal[1]
+    name: str = Field(min_length=1, max_length=80)
+    description: str = ""
+    geometry: Geometry
+    implement: Implement
+    actuators: Actuators
+    limits: Limits
+    workspace: Workspace
+    motion: Motion = Field(default_factory=Motion)
+    stability: Stability = Field(default_factory=Stability)
+
+    @field_validator("name")
+    @classmethod
+    def _name(cls, v: str) -> str:
+        return check_profile_name(v)
+
+    def category(self, name: str) -> Category:
+        try:
+            return self.implement.categories[name]
+        except KeyError:
+            raise ProfileError(
+                f"category {name!r} is not in profile {self.name!r}; allowed: {', '.join(self.implement.categories)}"
+            ) from None
+
+    def span(self, category: str) -> float:
+        """Ball-centre lower hitch span [m]: the ISO 730 span plus the correction.
+
+        This is the one place the +40 mm ball-centre correction (thesis §3.2) is applied.
+        """
+        return self.category(category).span + self.implement.ball_centre_correction
+
+    def actuator(self, name: str) -> ActuatorSpec:
+        return getattr(self.actuators, name)
+
+
+def available_profiles() -> list[str]:
+    """Names of the hitch profiles shipped with the package."""
+    return builtin_profiles(None)
+
+
+def load_profile(name_or_path: str | Path = "thesis-t132") -> Profile:
+    """Load and validate a profile by built-in name or file path."""
+    source, data = read_profile(name_or_path, subfolder=None, kind="profile", error=ProfileError)
+    return profile_from_dict(data, source=source)
+
+
+def profile_from_dict(data: dict, source: str = "<dict>") -> Profile:
+    """Validate a profile given as a dictionary (as parsed from TOML)."""
+    try:
+        return Profile.model_validate(data)
+    except ValidationError as exc:
+        raise ProfileError(format_validation_error("profile", source, exc, Profile)) from None

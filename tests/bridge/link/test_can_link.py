@@ -1,0 +1,362 @@
+"""The planner-side CAN link: reference checks and conversion, stream rate, measured state,
+stale-measurement stop, malformed/foreign frames, ECU restart, heartbeat and address faults,
+bus errors."""
+
+import math
+import uuid
+
+import can
+import numpy as np
+import pytest
+
+from bridge.isobus.address_claim import ClaimState, planner_name
+from bridge.link.can_link import CanLink
+from bridge.isobus.codec import (
+    AddressClaimed, Heartbeat, PositionCounts, PositionMeasurement, RearHitchStatus, decode_frame, encode,
+)
+from bridge.isobus.j1939 import PGN_POSITION_REFERENCE, decode_id
+from bridge.link.state import LinkConfig, LinkFaultError, ReferenceRefused
+from bridge.sim.move import SimRig, SimSettings
+from planner.model.exact_inverse import ExactInverse
+from planner.model.sensors import SensorScaling
+
+TICK = 0.001
+
+
+def drain(bus):
+    out = []
+    while (f := bus.recv(timeout=0.0)) is not None:
+        out.append(f)
+    return out
+
+
+def references_on(frames):
+    return [decode_frame(f).payload for f in frames if decode_id(f.arbitration_id).pgn == PGN_POSITION_REFERENCE]
+
+
+@pytest.fixture
+def rig(model):
+    with SimRig(model) as r:
+        r.start()
+        r.run_until(0.4)
+        yield r
+
+
+@pytest.fixture
+def tap(rig):
+    bus = can.Bus(interface="virtual", channel=rig.channel)
+    yield bus
+    bus.shutdown()
+
+
+def test_reference_counts_hand_computed(rig, model):
+    counts = rig.link.check_reference([0.300, 0.630, 0.800, 0.540, 0.540])
+    # thesis tables 3-1, 3-2: lift 26 + (0.300 + 0.223) / 0.886 * 229 = 161.18 -> 161;
+    # tilt 26 + 0.050 / 0.150 * 891 = 323; top 26 + 0.145 / 0.250 * 229 = 158.82 -> 159;
+    # left 30 + 0.040 / 0.080 * 480 = 270; right 26 + 0.040 / 0.075 * 477 = 280.4 -> 280
+    assert counts == PositionCounts(lift=161, tilt=323, top=159, left=270, right=280)
+
+
+@pytest.mark.parametrize("index, delta, limit", [
+    (0, +0.5, "stroke:lift:max"), (0, -0.5, "stroke:lift:min"), (1, +0.2, "stroke:tilt:max"),
+    (2, -0.3, "stroke:top:min"), (3, +0.1, "stroke:left:max"), (4, -0.1, "stroke:right:min"),
+])
+def test_out_of_stroke_reference_is_refused_by_name_and_never_sent(rig, tap, model, index, delta, limit):
+    q = model.neutral.copy()
+    q[index] += delta
+    with pytest.raises(ReferenceRefused) as err:
+        rig.link.send_reference(q, rig.next_tick_s)
+    assert limit in str(err.value) or "cannot take" in str(err.value)
+    rig.run_until(rig.now_s + 0.2)
+    assert references_on(drain(tap)) == []
+    assert rig.link.counters.references_refused == 1 and not rig.link.streaming
+
+
+@pytest.mark.parametrize("bad", [[0.2, 0.63, 0.75, 0.54], [math.nan, 0.63, 0.75, 0.54, 0.54], "lift", None])
+def test_malformed_reference_input_is_refused(rig, bad):
+    with pytest.raises(ReferenceRefused):
+        rig.link.send_reference(bad, rig.next_tick_s)
+
+
+def test_random_references_only_within_limits_reach_the_bus(rig, tap, model):
+    """Invariant over random actuator vectors (fixed seed): every reference on the bus is one the
+    hard limits accepted, inside the calibrated span; refused ones never appear."""
+    rng = np.random.default_rng(6)
+    scaling = SensorScaling(model.profile)
+    accepted, refused = set(), 0
+    for _ in range(120):
+        q = model.lower - 0.1 * (model.upper - model.lower) + 1.2 * (model.upper - model.lower) * rng.random(5)
+        try:
+            counts = rig.link.send_reference(q, rig.next_tick_s)
+        except ReferenceRefused:
+            refused += 1
+        else:
+            accepted.add(counts.as_tuple())
+            assert np.all(q >= model.lower) and np.all(q <= model.upper)
+        rig.run_until(rig.now_s + 0.02)
+    on_bus = {r.as_tuple() for r in references_on(drain(tap))}
+    assert len(accepted) > 10 and refused > 10  # both branches exercised
+    assert on_bus <= accepted and len(on_bus) >= len(accepted) - 1
+    for counts in on_bus:
+        assert all(scaling.counts_min[i] <= c <= scaling.counts_max[i] for i, c in enumerate(counts))
+
+
+def test_stream_rate_is_the_control_rate(rig, tap, model):
+    t0 = rig.next_tick_s
+    rig.link.send_reference(model.neutral, t0)
+    rig.run_until(t0 + 1.0, every_tick=lambda t: rig.link.send_reference(model.neutral, t))  # caller at 1 kHz
+    refs = references_on(drain(tap))
+    assert len(refs) == 51  # 50 Hz: t0 + 0.02 k, k = 0..50 inclusive
+    assert rig.node.counters.references == 51
+
+
+def test_stream_rate_configurable(model):
+    with SimRig(model, SimSettings(link=LinkConfig(control_rate_hz=20.0))) as rig:
+        tap = can.Bus(interface="virtual", channel=rig.channel)
+        rig.start()
+        rig.run_until(0.4)
+        t0 = rig.next_tick_s
+        rig.link.send_reference(model.neutral, t0)
+        rig.run_until(t0 + 0.999)
+        assert len(references_on(drain(tap))) == 20
+        tap.shutdown()
+
+
+def test_measured_state_is_forward_kinematics_of_the_quantised_readings(rig, model):
+    st = rig.link.latest_state()
+    ecu = rig.ecu
+    c = ecu.measurement_counts()
+    s = SensorScaling(model.profile)
+    # the lift goes through the rear hitch position (0.4 %/bit) and comes back as its count
+    assert st.lift_fraction == round(250 * (c[0] - 26) / 229) / 250
+    counts = np.array(c, dtype=float)
+    q = s.si_min + (counts - s.counts_min) * s.resolution
+    assert np.allclose(st.actuators.as_array(), q, atol=1e-12)
+    assert np.allclose(st.pose.as_array(), model.forward(q).pose.as_array(), atol=1e-12)
+    truth = model.forward(np.array([p.counts_to_si(x) for p, x in zip(ecu.params, ecu.piston_counts())])).pose
+    # quantisation limit: half an AD count; lift 3.87 mrad/count ~ 3.7 mm of z per count
+    assert abs(st.pose.z - truth.z) < 0.002 and abs(st.pose.x - truth.x) < 0.002
+    assert st.system.controllers_on and st.system.watchdog_tripped
+
+
+def test_stale_measurement_stops_motion_and_needs_a_fresh_command(rig, tap, model):
+    link = rig.link
+    goal = ExactInverse(model)(0.0, 0.25, 0.0, 0.0)
+    link.send_reference(goal, rig.next_tick_s)
+    rig.run_until(1.0)
+    assert link.streaming
+    t_last = link.latest_state().measurement_t_s
+    rig.ecu_paused = True  # the ECU falls silent
+    while not link.faults.any:
+        rig.tick()
+    assert link.faults.stale_measurement and not link.streaming
+    assert 0.2 < rig.now_s - t_last <= 0.2 + 1.5 * TICK  # > 200 ms, seen at the next 1 ms poll
+    drain(tap)
+    rig.run_until(rig.now_s + 0.1)
+    assert references_on(drain(tap)) == []
+    with pytest.raises(LinkFaultError, match="no valid 0xFF22"):
+        link.send_reference(goal, rig.next_tick_s)
+    rig.ecu_paused = False
+    rig.run_until(rig.now_s + 0.5)  # the ECU speaks again: no motion without a command
+    assert references_on(drain(tap)) == [] and not link.streaming
+    assert not rig.ecu.valve_commands().any()
+    with pytest.raises(LinkFaultError, match="heartbeat"):  # ISO 11783-7: 8 good heartbeats to recover
+        link.send_reference(goal, rig.next_tick_s)
+    rig.run_until(rig.now_s + 0.4)
+    link.send_reference(goal, rig.next_tick_s)  # a fresh command re-arms
+    rig.run_until(rig.now_s + 0.1)
+    assert link.streaming and not link.faults.any and len(references_on(drain(tap))) == 5
+    assert link.counters.faults_raised == 2  # stale, then the heartbeat timeout
+
+
+def test_malformed_foreign_and_unknown_frames_are_counted_not_used(rig, model):
+    link = rig.link
+    raw = can.Bus(interface="virtual", channel=rig.channel)
+    c = [int(v) for v in rig.ecu.measurement_counts()]  # lift, tilt, top, left, right
+    sys_state = rig.ecu.system_state()
+    good = PositionMeasurement(c[1] + 7, c[2], c[4], c[3], sys_state)
+    pm = encode(good, source=169)
+    c0 = link.counters
+    raw.send(can.Message(arbitration_id=pm.arbitration_id, is_extended_id=True, data=bytes(pm.data)[:6]))  # DLC 6
+    raw.send(can.Message(arbitration_id=pm.arbitration_id, is_extended_id=True,
+                         data=b"\xff\xbf" + bytes(pm.data)[2:]))  # tilt = 1022, the error code -> unavailable
+    raw.send(encode(PositionMeasurement(c[1], c[2], 600, c[3], sys_state), source=169))  # right 600 > 503
+    raw.send(encode(good, source=0x42))  # not the ECU
+    raw.send(can.Message(arbitration_id=(6 << 26) | (0xFE49 << 8) | 0x80, is_extended_id=True, data=b"\xff" * 8))
+    raw.send(can.Message(arbitration_id=0x100, is_extended_id=False, data=b"\x00"))
+    raw.send(can.Message(is_error_frame=True))
+    raw.send(encode(RearHitchStatus(position=None), source=169))
+    raw.send(pm)  # the one valid frame, last
+    link.poll(rig.now_s)
+    raw.shutdown()
+    c1 = link.counters
+    d = {k: getattr(c1, k) - getattr(c0, k) for k in c1.as_dict()}
+    assert (d["malformed"], d["unknown_pgn"], d["bus_errors"], d["foreign"]) == (1, 1, 1, 2)
+    assert (d["unavailable_readings"], d["rejected_readings"], d["measurements_rx"]) == (2, 1, 3)
+    assert not link.faults.any  # unknown ISOBUS traffic and single bad frames are not faults
+    status = link.status(rig.now_s)
+    assert "DLC 6" in status.last_malformed and "rear hitch position" in status.last_reading_problem
+    assert link.latest_state().counts[1] == c[1] + 7  # only the valid frame was used
+    rig.run_until(rig.now_s + 0.011)
+    assert link.latest_state().counts[1] == c[1]  # and the ECU's next frame replaces it
+
+
+def test_ecu_restart_is_detected_and_the_old_reference_never_resumes(rig, model):
+    link, node, ecu = rig.link, rig.node, rig.ecu
+    goal = ExactInverse(model)(0.0, 0.25, 0.0, 0.0)
+    link.send_reference(goal, rig.next_tick_s)
+    rig.run_until(1.0)
+    node.restart(rig.now_s)
+    rig.run_until(2.0)
+    f = link.faults
+    assert f.ecu_restart and not link.streaming
+    assert any("251" in r or "restart counter" in r for r in f.reasons)
+    assert ecu.reference_counts() is None and not ecu.valve_commands().any()
+    rig.run_until(2.5)
+    assert ecu.reference_counts() is None  # still nothing: the stream did not resume by itself
+    link.send_reference(goal, rig.next_tick_s)
+    rig.run_until(2.6)
+    assert link.streaming and not link.faults.any
+    assert list(ecu.reference_counts()) == list(link.check_reference(goal).as_tuple())
+
+
+def test_assembler_spots_restarts_in_the_system_state_byte(model):
+    """Restart counter change and the no-reference bit reappearing, each on its own (no heartbeat)."""
+    from bridge.link.state import MeasurementAssembler
+    bumps = {}
+    rx = MeasurementAssembler(model, SensorScaling(model.profile), LinkConfig(),
+                              lambda **d: [bumps.__setitem__(k, bumps.get(k, 0) + v) for k, v in d.items()])
+    readings = (323, 141, 265, 270)  # tilt, top, right, left
+    m = lambda state: PositionMeasurement(*readings, system_state=state)  # noqa: E731
+    assert rx.on_measurement(m(0b1011), 0.00) is None  # no reference yet, restart counter 0
+    assert rx.on_measurement(m(0b0001), 0.01) is None  # reference latched
+    assert "no-reference" in rx.on_measurement(m(0b1001), 0.02)  # lost it without a counter change
+    assert rx.on_measurement(m(0b1001), 0.03) is None  # reported once
+    assert "restart counter 0 -> 1" in rx.on_measurement(m(0b0001_1001), 0.04)
+    assert rx.state is None and bumps["measurements_rx"] == 5  # no lift yet: no state
+    rx.on_hitch_status(RearHitchStatus(position=0.504), 0.05)
+    assert rx.state is not None and rx.state.lift_fraction == 0.504
+    # 0.04 s -> 0.50 s at 10 ms: 46 periods, 45 frames missing
+    assert rx.on_measurement(m(0b0001_1001), 0.5) is None and bumps.get("dropped_measurements") == 45
+
+
+def test_missing_and_error_heartbeats_stop_motion(model):
+    """A hand-driven 'ECU' that sends measurements but no heartbeat, then heartbeat 254."""
+    ch = f"hb-{uuid.uuid4().hex}"
+    bus, ecu_bus = (can.Bus(interface="virtual", channel=ch) for _ in range(2))
+    link = CanLink(model, bus)
+    counts = SensorScaling(model.profile).to_counts(model.neutral)
+
+    def ecu_frames(t, heartbeat=None):
+        tilt, top, left, right = (int(c) for c in counts[1:])
+        ecu_bus.send(encode(PositionMeasurement(tilt, top, right, left, 1), source=169))
+        ecu_bus.send(encode(RearHitchStatus(position=0.5), source=169))
+        if heartbeat is not None:
+            ecu_bus.send(encode(Heartbeat(heartbeat), source=169))
+
+    link.start(0.0)
+    t, k = 0.0, 0
+    while t < 0.25 + 0.3:
+        k += 1
+        t = k * 0.01
+        ecu_frames(t)
+        link.poll(t)
+    assert not link.faults.any
+    ecu_frames(t + 0.01)
+    link.poll(t + 0.01)  # 0.31 s after the claim without a heartbeat
+    assert link.faults.ecu_heartbeat
+    seq = 251
+    for j in range(10):  # heartbeats arrive: a fresh command is accepted
+        ecu_frames(t + 0.02 + 0.1 * j, heartbeat=seq)
+        link.poll(t + 0.02 + 0.1 * j)
+        seq = 0 if seq == 251 else seq + 1
+    t = t + 0.02 + 0.9
+    link.send_reference(model.neutral, t)
+    assert link.streaming
+    ecu_frames(t + 0.01, heartbeat=254)
+    link.poll(t + 0.01)
+    assert link.faults.ecu_heartbeat and not link.streaming
+    assert any("sender error" in r for r in link.faults.reasons)
+    bus.shutdown()
+    ecu_bus.shutdown()
+
+
+def test_lost_address_claim_stops_the_link(rig, model):
+    rival = can.Bus(interface="virtual", channel=rig.channel)
+    rig.link.send_reference(model.neutral, rig.next_tick_s)
+    rival.send(encode(AddressClaimed(planner_name(identity_number=0).value), source=166))  # lower NAME
+    rig.tick()
+    rival.shutdown()
+    assert rig.link._claimer.state is ClaimState.CANNOT_CLAIM  # noqa: SLF001
+    assert rig.link.faults.address_lost and not rig.link.streaming
+    with pytest.raises(LinkFaultError, match="not claimed"):
+        rig.link.send_reference(model.neutral, rig.next_tick_s)
+
+
+class _BrokenBus(can.BusABC):
+    """Sends fail (e.g. bus-off); receives nothing."""
+
+    def __init__(self):
+        super().__init__(channel="broken")
+
+    def send(self, msg, timeout=None):
+        raise can.CanOperationError("bus off")
+
+    def _recv_internal(self, timeout):
+        return None, False
+
+
+def test_failed_sends_are_counted_and_raise_the_bus_fault(model):
+    link = CanLink(model, _BrokenBus(), own_bus=True)
+    link.start(0.0)
+    for k in range(1, 40):
+        link.poll(k * 0.01)
+    c = link.counters
+    assert c.tx_errors >= 3 and c.frames_tx == 0
+    assert link.faults.bus_error
+    link.close()
+
+
+def test_link_config_validation():
+    with pytest.raises(ValueError, match="control_rate_hz"):
+        LinkConfig(control_rate_hz=500)
+    with pytest.raises(ValueError, match="stale_after_s"):
+        LinkConfig(stale_after_s=-1)
+    with pytest.raises(ValueError, match="ecu_address"):
+        LinkConfig(ecu_address=166)
+    assert LinkConfig().control_period_s == pytest.approx(0.02) and LinkConfig().hitch_source == 169
+    assert LinkConfig(hitch_status_address=240).hitch_source == 240
+
+
+def test_link_and_ecu_node_in_real_time_on_a_virtual_bus(model):
+    """Both nodes on background threads (RealtimeRunner): claim, measure, stream, stop, close.
+    Only eventual behaviour is checked (no timing assertions)."""
+    import time
+
+    from bridge.link.realtime import RealtimeRunner, open_bus
+    from bridge.sim.can_node import EcuCanNode
+    from bridge.sim.ecu import CylinderECU
+
+    ch = f"rt-{uuid.uuid4().hex}"
+    ecu_bus, link_bus = open_bus("virtual", ch), open_bus("virtual", ch)
+    node = EcuCanNode(CylinderECU(model.profile), ecu_bus)
+    link = CanLink(model, link_bus, own_bus=True)
+    runners = [RealtimeRunner(node).start(), RealtimeRunner(link).start()]
+    try:
+        deadline = time.monotonic() + 5.0
+        while link.latest_state() is None and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert link.claimed and link.latest_state() is not None
+        goal = ExactInverse(model)(0.0, 0.2, 0.0, 0.0)
+        link.send_reference(goal, runners[1].now())
+        while node.ecu.reference_counts() is None and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert list(node.ecu.reference_counts()) == list(link.check_reference(goal).as_tuple())
+        link.stop_motion()
+    finally:
+        for r in runners:
+            r.stop()
+        link.close()
+        ecu_bus.shutdown()
+    assert all(r.error is None for r in runners)
+    assert link.counters.references_tx >= 1 and link.counters.malformed == 0

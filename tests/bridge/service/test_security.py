@@ -1,0 +1,394 @@
+"""Zenoh security: the generated config (ACL, usrpwd, TLS) and real sessions in separate processes on
+loopback — permitted and refused users, wildcard queries, TLS, mTLS, wrong CA, plain TCP."""
+
+import json
+import os
+import select
+import shutil
+import socket
+import stat
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from bridge.service.security import (
+    MOTION_KEYS, VIEWER_QUERIES, AccessPolicy, Credentials, SecurityError, SecuritySettings, TlsSettings,
+    apply_security, build_acl, build_security_config, exposure_warnings, motion_keys, security_json5,
+    security_sections, write_users_file,
+)
+
+USERS = {"alice": "alice-pw", "bob": "bob-pw", "carol": "carol-pw"}
+
+
+# ------------------------------------------------------------------------------------------ config
+@pytest.fixture
+def users_file(tmp_path):
+    return write_users_file(tmp_path / "users.txt", USERS)
+
+
+def test_users_file_is_private_and_in_zenoh_format(users_file):
+    assert stat.S_IMODE(users_file.stat().st_mode) == 0o600
+    assert users_file.read_text().splitlines() == ["alice:alice-pw", "bob:bob-pw", "carol:carol-pw"]
+    for bad in ({"a:b": "pw"}, {"a b": "pw"}, {"a": "two\nlines"}, {"a": ""}, {}):
+        with pytest.raises(SecurityError):
+            write_users_file(users_file.parent / "x.txt", bad)
+
+
+def test_acl_restricts_exactly_the_motion_keys(users_file):
+    acl = build_acl(AccessPolicy("fleet/t07/hitch", operators=("alice",), viewers=("bob", "carol")))
+    assert acl["enabled"] is True and acl["default_permission"] == "deny"
+    rules = {r["id"]: r for r in acl["rules"]}
+    assert rules["no_motion"]["permission"] == "deny"
+    assert rules["no_motion"]["key_exprs"] == [f"fleet/t07/hitch/{k}" for k in MOTION_KEYS]
+    assert rules["no_motion"]["flows"] == ["ingress", "egress"]
+    viewer_keys = set(rules["viewer_queries"]["key_exprs"])
+    assert viewer_keys == {f"fleet/t07/hitch/{k}" for k in VIEWER_QUERIES}
+    assert not viewer_keys & set(motion_keys("fleet/t07/hitch")) and not any("*" in k for k in viewer_keys)
+    pol = {p["id"]: p for p in acl["policies"]}
+    assert "no_motion" in pol["viewers"]["rules"] and "no_motion" not in pol["operators"]["rules"]
+    subj = {s["id"]: s for s in acl["subjects"]}
+    assert subj["operators_users"]["usernames"] == ["alice"]
+    assert subj["viewers_users"]["usernames"] == ["bob", "carol"]
+    # Zenoh itself accepts the section, and it round-trips through the config
+    cfg = apply_security(zenoh.Config(), SecuritySettings(users_file=users_file, access=AccessPolicy(
+        "fleet/t07/hitch", operators=("alice",), viewers=("bob", "carol"))))
+    assert json.loads(cfg.get_json("access_control"))["rules"][0]["id"] == "observe"
+    assert json.loads(cfg.get_json("transport/auth/usrpwd"))["dictionary_file"] == str(users_file.resolve())
+
+
+@pytest.mark.parametrize("kwargs, field", [
+    ({"operators": ("alice",), "viewers": ("alice",)}, "access.viewers"),
+    ({"operators": ("a:b",)}, "access.operators"),
+    ({"operators": "alice"}, "access.operators"),
+    ({}, "access"),
+    ({"prefix": "hitch/", "operators": ("a",)}, "prefix"),
+    ({"prefix": "hi tch//x", "operators": ("a",)}, "prefix"),
+    ({"operators": ("a",), "viewer_queries": ("goto",)}, "access.viewer_queries"),
+    ({"operators": ("a",), "viewer_queries": ("presets/*",)}, "access.viewer_queries"),
+])
+def test_bad_access_policies_name_the_field(kwargs, field):
+    with pytest.raises(SecurityError) as exc:
+        AccessPolicy(**kwargs)
+    assert exc.value.field == field
+
+
+def test_inconsistent_settings_are_refused(tmp_path, users_file):
+    with pytest.raises(SecurityError) as exc:  # usernames but no authentication: nothing could match
+        SecuritySettings(access=AccessPolicy(operators=("alice",)))
+    assert exc.value.field == "users_file"
+    with pytest.raises(SecurityError) as exc:
+        SecuritySettings(users_file=users_file, access=AccessPolicy(operator_cert_names=("op",)))
+    assert exc.value.field == "tls.mutual"
+    with pytest.raises(SecurityError) as exc:
+        SecuritySettings(users_file=tmp_path / "missing.txt")
+    assert exc.value.field == "users_file"
+    with pytest.raises(SecurityError) as exc:
+        TlsSettings(certificate=users_file)
+    assert exc.value.field == "tls.private_key"
+    with pytest.raises(SecurityError) as exc:
+        TlsSettings(root_ca=tmp_path / "nope.pem")
+    assert exc.value.field == "tls.root_ca"
+    with pytest.raises(SecurityError) as exc:
+        TlsSettings(root_ca=users_file, mutual=True)
+    assert exc.value.field == "tls.mutual"
+    with pytest.raises(SecurityError) as exc:
+        Credentials("alice", "")
+    assert exc.value.field == "credentials.password"
+    assert "alice-pw" not in repr(Credentials("alice", "alice-pw"))
+
+
+def test_security_file_round_trip_and_refusals(tmp_path, users_file):
+    settings = SecuritySettings(credentials=Credentials("svc", "svc-pw"), users_file=users_file,
+                                access=AccessPolicy(operators=("alice",), viewers=("bob",)))
+    path = tmp_path / "security.json5"
+    path.write_text(security_json5(settings))
+    assert security_sections(path) == security_sections(settings)
+    usrpwd = json.loads(security_sections(path)["transport/auth/usrpwd"])
+    assert (usrpwd["user"], usrpwd["password"]) == ("svc", "svc-pw")
+    # JSON5 with comments is read by Zenoh's own parser
+    path.write_text("// hitch\n{ access_control: { enabled: false, }, }\n")
+    assert json.loads(security_sections(path)["access_control"])["enabled"] is False
+    for text, needle in (('{mode: "client"}', "sets mode"), ('{listen: {endpoints: ["tcp/0.0.0.0:1"]}}', "listen"),
+                         ("{transport: {unicast: {max_links: 4}}}", "transport settings other"),
+                         ("{access_contrl: {}}", "not a valid Zenoh security config"),
+                         ("{access_control: {enabled: 1, bogus: 2}}", "not a valid Zenoh")):
+        path.write_text(text)
+        with pytest.raises(SecurityError, match=needle):
+            security_sections(path)
+    with pytest.raises(SecurityError, match="does not exist"):
+        security_sections(tmp_path / "absent.json5")
+
+
+def test_exposure_warnings(users_file):
+    assert exposure_warnings(["tcp/127.0.0.1:7447", "tcp/[::1]:7447", "tcp/localhost:1"], None) == []
+    w = exposure_warnings(["tcp/0.0.0.0:7447"], None)
+    assert len(w) == 3 and any("unencrypted" in s for s in w) and any("access_control" in s for s in w)
+    s = SecuritySettings(users_file=users_file, access=AccessPolicy(operators=("alice",)))
+    assert exposure_warnings(["tcp/192.168.1.5:7447"], s) == [
+        "tcp/192.168.1.5:7447 accepts unencrypted links from the network; use tls/… with a certificate"]
+    with pytest.raises(SecurityError) as exc:
+        exposure_warnings(["tls/127.0.0.1:7447"], s)
+    assert exc.value.field == "tls.certificate"
+
+
+# ------------------------------------------------------------------------------------------ sessions
+_SERVER = r"""
+import json, sys, threading, time
+import zenoh
+from bridge.service.security import apply_security
+# argv: mode (peer: the service listening; router: a bare router; client: the service behind a router),
+# endpoint, security file or settings JSON
+mode, endpoint, security = sys.argv[1], sys.argv[2], sys.argv[3]
+c = zenoh.Config()
+c.insert_json5("mode", json.dumps(mode))
+c.insert_json5("connect/endpoints" if mode == "client" else "listen/endpoints", json.dumps([endpoint]))
+c.insert_json5("scouting/multicast/enabled", "false")
+apply_security(c, security if security.endswith(".json5") else json.loads(security))
+s = zenoh.open(c)
+def answer(q):
+    q.reply(q.key_expr, json.dumps({{"key": str(q.key_expr)}}))
+keys = () if mode == "router" else ("goto", "ik", "presets/go", "presets/list", "mode")
+qs = [s.declare_queryable("hitch/" + k, answer) for k in keys]
+pub = None if mode == "router" else s.declare_publisher("hitch/state")
+done = threading.Event()
+threading.Thread(target=lambda: (sys.stdin.read(), done.set()), daemon=True).start()
+print("ready", flush=True)
+deadline = time.monotonic() + 40
+while not done.is_set() and time.monotonic() < deadline:
+    if pub is not None:
+        pub.put(b'{{"t": 0}}')
+    time.sleep(0.02)
+s.close()
+"""
+
+_CLIENT = r"""
+import json, sys, time
+import zenoh
+from bridge.service.security import Credentials, SecuritySettings, TlsSettings, apply_security
+a = json.loads(sys.argv[1])
+c = zenoh.Config()
+c.insert_json5("mode", '"client"')
+c.insert_json5("connect/endpoints", json.dumps([a["endpoint"]]))
+c.insert_json5("scouting/multicast/enabled", "false")
+creds = Credentials(a["user"], a["password"]) if a.get("user") else None
+tls = TlsSettings(**a["tls"]) if a.get("tls") else None
+apply_security(c, SecuritySettings(credentials=creds, tls=tls))
+try:
+    s = zenoh.open(c)
+except Exception as exc:
+    print(json.dumps({{"open": False, "error": str(exc)[:200]}}), flush=True)
+    sys.exit(0)
+states = []
+sub = s.declare_subscriber("hitch/state", lambda sample: states.append(1))
+time.sleep(0.4)
+replies = {{}}
+for key in a["keys"]:
+    replies[key] = [json.loads(r.ok.payload.to_string())["key"] for r in s.get(key, timeout=1.0) if r.ok]
+time.sleep(0.1)
+print(json.dumps({{"open": True, "replies": replies, "states": len(states)}}), flush=True)
+sub.undeclare()
+s.close()
+"""
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+class _Server:
+    def __init__(self, tmp_path, endpoint, settings, mode="peer"):
+        if isinstance(settings, SecuritySettings):
+            sec = tmp_path / f"security-{time.monotonic_ns()}.json5"
+            sec.write_text(security_json5(settings))
+            settings = str(sec)
+        script = tmp_path / "server.py"
+        script.write_text(_SERVER.format())
+        self.proc = subprocess.Popen([sys.executable, str(script), mode, endpoint, settings], stdin=subprocess.PIPE,
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        ready, _, _ = select.select([self.proc.stdout], [], [], 20)
+        line = self.proc.stdout.readline() if ready else ""
+        if line.strip() != "ready":
+            self.close()
+            pytest.fail(f"server did not start: {line!r} {self.proc.stderr.read()[-2000:]}")
+
+    def close(self):
+        try:
+            self.proc.stdin.close()
+            self.proc.wait(timeout=5)
+        except Exception:  # noqa: BLE001 — always end the process below
+            pass
+        finally:
+            if self.proc.poll() is None:
+                self.proc.kill()
+                self.proc.wait(timeout=5)
+            self.proc.stdout.close()
+            self.proc.stderr.close()
+
+
+def _clients(tmp_path, runs: dict[str, dict]) -> dict[str, dict]:
+    """Run every client in its own process, in parallel; name → its JSON report."""
+    script = tmp_path / "client.py"
+    script.write_text(_CLIENT.format())
+    procs = {n: subprocess.Popen([sys.executable, str(script), json.dumps(a)], stdout=subprocess.PIPE,
+                                 stderr=subprocess.PIPE, text=True) for n, a in runs.items()}
+    out = {}
+    try:
+        for n, p in procs.items():
+            stdout, stderr = p.communicate(timeout=30)
+            lines = [ln for ln in stdout.splitlines() if ln.startswith("{")]
+            assert lines, f"client {n} printed nothing: {stderr[-2000:]}"
+            out[n] = json.loads(lines[-1])
+    finally:
+        for p in procs.values():
+            if p.poll() is None:
+                p.kill()
+                p.wait(timeout=5)
+    return out
+
+
+@pytest.fixture
+def server(tmp_path):
+    started = []
+
+    def start(endpoint, settings, mode="peer"):
+        s = _Server(tmp_path, endpoint, settings, mode)
+        started.append(s)
+        return s
+
+    yield start
+    for s in started:
+        s.close()
+
+
+def test_acl_permitted_user_moves_refused_user_only_reads(tmp_path, users_file, server):
+    ep = f"tcp/127.0.0.1:{_free_port()}"
+    server(ep, SecuritySettings(users_file=users_file,
+                                access=AccessPolicy("hitch", operators=("alice",), viewers=("bob",))))
+    keys = ["hitch/goto", "hitch/ik", "hitch/presets/go", "hitch/presets/list", "hitch/mode", "hitch/**", "hitch/*"]
+    r = _clients(tmp_path, {
+        "alice": {"endpoint": ep, "user": "alice", "password": "alice-pw", "keys": keys},
+        "bob": {"endpoint": ep, "user": "bob", "password": "bob-pw", "keys": keys},
+        "carol": {"endpoint": ep, "user": "carol", "password": "carol-pw", "keys": keys},  # no role
+        "mallory": {"endpoint": ep, "user": "bob", "password": "guess", "keys": keys},
+        "anonymous": {"endpoint": ep, "keys": keys},
+    })
+    alice, bob, carol = r["alice"], r["bob"], r["carol"]
+    assert alice["open"] and alice["replies"]["hitch/goto"] == ["hitch/goto"]
+    assert alice["replies"]["hitch/presets/go"] == ["hitch/presets/go"] and alice["replies"]["hitch/mode"]
+    assert alice["replies"]["hitch/**"] == ["hitch/**"]  # wildcards reach an operator's queryables (consolidated)
+    assert alice["states"] > 0
+    assert bob["open"] and bob["states"] > 0  # the refused user still reads the state
+    assert bob["replies"]["hitch/ik"] == ["hitch/ik"] and bob["replies"]["hitch/presets/list"]
+    for k in ("hitch/goto", "hitch/presets/go", "hitch/mode", "hitch/**", "hitch/*"):
+        assert bob["replies"][k] == [], k  # motion keys, and wildcards that would reach them, are denied
+    assert carol["open"] and carol["states"] == 0 and not any(carol["replies"].values())
+    assert not r["mallory"]["open"] and not r["anonymous"]["open"]
+
+
+def test_acl_on_a_fleet_router_with_the_service_behind_it(tmp_path, users_file, server):
+    users = write_users_file(tmp_path / "router-users.txt", {**USERS, "svc-t07": "svc-pw"})
+    ep = f"tcp/127.0.0.1:{_free_port()}"
+    server(ep, SecuritySettings(users_file=users, access=AccessPolicy(
+        "hitch", operators=("alice",), viewers=("bob",), services=("svc-t07",))), mode="router")
+    service = build_security_config(SecuritySettings(credentials=Credentials("svc-t07", "svc-pw")))
+    server(ep, json.dumps(service), mode="client")
+    keys = ["hitch/goto", "hitch/ik", "hitch/**"]
+    r = _clients(tmp_path, {
+        "alice": {"endpoint": ep, "user": "alice", "password": "alice-pw", "keys": keys},
+        "bob": {"endpoint": ep, "user": "bob", "password": "bob-pw", "keys": keys},
+    })
+    assert r["alice"]["replies"] == {"hitch/goto": ["hitch/goto"], "hitch/ik": ["hitch/ik"], "hitch/**": ["hitch/**"]}
+    assert r["alice"]["states"] > 0
+    assert r["bob"]["replies"] == {"hitch/goto": [], "hitch/ik": ["hitch/ik"], "hitch/**": []}
+    assert r["bob"]["states"] > 0
+
+
+@pytest.fixture(scope="module")
+def pki(tmp_path_factory):
+    """A CA, a server certificate for 127.0.0.1, two client certificates and a rogue CA + certificate."""
+    # the openssl command ships with this machine kind (Debian); without it the TLS tests must fail, not skip
+    assert shutil.which("openssl") is not None, "the openssl command is needed to make test certificates"
+    d = tmp_path_factory.mktemp("pki")
+
+    def run(*args):
+        subprocess.run(["openssl", *args], cwd=d, check=True, capture_output=True, timeout=30)
+
+    def ca(name):
+        run("req", "-x509", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes", "-days", "2",
+            "-keyout", f"{name}-key.pem", "-out", f"{name}.pem", "-subj", f"/CN={name}",
+            "-addext", "basicConstraints=critical,CA:TRUE", "-addext", "keyUsage=critical,keyCertSign,cRLSign")
+
+    def leaf(name, issuer, san):
+        run("req", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes",
+            "-keyout", f"{name}-key.pem", "-out", f"{name}.csr", "-subj", f"/CN={name}")
+        (d / f"{name}.ext").write_text(f"subjectAltName={san}\nbasicConstraints=CA:FALSE\n"
+                                       "extendedKeyUsage=serverAuth,clientAuth\n")
+        run("x509", "-req", "-in", f"{name}.csr", "-CA", f"{issuer}.pem", "-CAkey", f"{issuer}-key.pem",
+            "-CAcreateserial", "-days", "2", "-out", f"{name}.pem", "-extfile", f"{name}.ext")
+
+    ca("hitch-ca")
+    ca("rogue-ca")
+    leaf("server", "hitch-ca", "IP:127.0.0.1,DNS:localhost")
+    leaf("operator-1", "hitch-ca", "DNS:operator-1")
+    leaf("viewer-1", "hitch-ca", "DNS:viewer-1")
+    leaf("rogue", "rogue-ca", "DNS:rogue")
+    return d
+
+
+def _tls(pki, ca="hitch-ca", cert=None, mutual=False):
+    out = {"root_ca": str(pki / f"{ca}.pem"), "mutual": mutual}
+    if cert:
+        out.update(certificate=str(pki / f"{cert}.pem"), private_key=str(pki / f"{cert}-key.pem"))
+    return out
+
+
+def test_tls_session_connects_wrong_ca_and_plain_tcp_do_not(tmp_path, pki, server):
+    port = _free_port()
+    server(f"tls/127.0.0.1:{port}", SecuritySettings(tls=TlsSettings(**_tls(pki, cert="server"))))
+    keys = ["hitch/ik"]
+    r = _clients(tmp_path, {
+        "good": {"endpoint": f"tls/127.0.0.1:{port}", "tls": _tls(pki), "keys": keys},
+        "wrong_ca": {"endpoint": f"tls/127.0.0.1:{port}", "tls": _tls(pki, ca="rogue-ca"), "keys": keys},
+        "plain_tcp": {"endpoint": f"tcp/127.0.0.1:{port}", "keys": keys},
+    })
+    assert r["good"]["open"] and r["good"]["replies"]["hitch/ik"] == ["hitch/ik"] and r["good"]["states"] > 0
+    assert not r["wrong_ca"]["open"]
+    assert not r["plain_tcp"]["open"]
+
+
+def test_mtls_needs_a_client_certificate_from_the_ca_and_maps_names_to_roles(tmp_path, pki, server):
+    port = _free_port()
+    ep = f"tls/127.0.0.1:{port}"
+    server(ep, SecuritySettings(tls=TlsSettings(**_tls(pki, cert="server", mutual=True)),
+                                access=AccessPolicy(operator_cert_names=("operator-1",),
+                                                    viewer_cert_names=("viewer-1",))))
+    keys = ["hitch/goto", "hitch/ik"]
+    r = _clients(tmp_path, {
+        "operator": {"endpoint": ep, "tls": _tls(pki, cert="operator-1", mutual=True), "keys": keys},
+        "viewer": {"endpoint": ep, "tls": _tls(pki, cert="viewer-1", mutual=True), "keys": keys},
+        "no_cert": {"endpoint": ep, "tls": _tls(pki), "keys": keys},
+        "rogue_cert": {"endpoint": ep, "tls": _tls(pki, cert="rogue", mutual=True), "keys": keys},
+    })
+    assert r["operator"]["open"] and r["operator"]["replies"] == {"hitch/goto": ["hitch/goto"], "hitch/ik": ["hitch/ik"]}
+    assert r["viewer"]["open"] and r["viewer"]["replies"] == {"hitch/goto": [], "hitch/ik": ["hitch/ik"]}
+    assert r["viewer"]["states"] > 0
+    assert not r["no_cert"]["open"]
+    assert not r["rogue_cert"]["open"]
+
+
+def test_build_security_config_for_a_mutual_tls_client(pki):
+    cfg = build_security_config(SecuritySettings(
+        credentials=Credentials("alice", "alice-pw"), tls=TlsSettings(**_tls(pki, cert="operator-1", mutual=True))))
+    tls = cfg["transport"]["link"]["tls"]
+    assert tls["enable_mtls"] is True and tls["verify_name_on_connect"] is True
+    assert tls["connect_certificate"] == str((pki / "operator-1.pem").resolve())
+    assert tls["connect_private_key"] == str((pki / "operator-1-key.pem").resolve())
+    assert cfg["transport"]["auth"]["usrpwd"] == {"user": "alice", "password": "alice-pw"}
+    assert "access_control" not in cfg
+    assert os.path.isabs(tls["root_ca_certificate"])

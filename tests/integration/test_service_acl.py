@@ -1,0 +1,69 @@
+"""``hitch serve --security FILE``: Zenoh user/password authentication and the access-control list
+of :mod:`bridge.service.security` on the real service, in its own process. An operator moves the
+hitch; a viewer reads state and uses IK but the motion keys do not answer him (denied by Zenoh);
+an unknown user cannot even open a session."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import pytest
+
+from bridge.service.client import HitchClient, ServiceError
+from bridge.service.security import AccessPolicy, Credentials, SecuritySettings, security_json5, write_users_file
+
+from tests.integration.service_process import ServiceProcess, free_port, hitch, wait_online
+
+
+def client_file(tmp_path, user: str, password: str):
+    p = tmp_path / f"{user}.json5"
+    p.write_text(security_json5(SecuritySettings(credentials=Credentials(user, password))))
+    return p
+
+
+@pytest.fixture(scope="module")
+def secured(tmp_path_factory):
+    d = tmp_path_factory.mktemp("acl")
+    users = write_users_file(d / "users.txt", {"alice": "alice-pw", "bob": "bob-pw"})
+    server = d / "server.json5"
+    server.write_text(security_json5(SecuritySettings(users_file=users,
+                                                      access=AccessPolicy(operators=("alice",), viewers=("bob",)))))
+    port = free_port()
+    svc = ServiceProcess(["--listen", f"tcp/127.0.0.1:{port}", "--data-dir", str(d / "data"), "--security", str(server)])
+    try:
+        yield f"tcp/127.0.0.1:{port}", client_file(d, "alice", "alice-pw"), client_file(d, "bob", "bob-pw"), d
+    finally:
+        svc.kill()
+
+
+def test_operator_moves_viewer_reads(secured):
+    ep, alice, bob, _ = secured
+    with HitchClient([ep], security=alice, timeout_s=10) as c:
+        wait_online(c)
+        r = c.goto({"z": 0.2})
+        assert r["accepted"]
+    with HitchClient([ep], security=bob, timeout_s=1.5) as c:
+        assert c.state()["motion_id"] == r["motion_id"]          # state is readable
+        assert c.ik(0.0, 0.1, 0.0, 0.0)["status"] == "ok"         # a non-motion query is answered
+        for key, body in (("goto", {"goal": {"z": 0.1}}), ("jog", {"vz": 0.01}), ("mode", {"mode": "manual"})):
+            with pytest.raises(ServiceError) as ei:
+                c.request(key, body)
+            assert ei.value.code == "timeout", key                # denied by the ACL: no queryable answers
+
+
+def test_cli_with_credentials(secured):
+    ep, alice, bob, _ = secured
+    p = hitch(ep, "mode", "--security", str(alice), "--json")
+    assert p.returncode == 0 and json.loads(p.stdout)["mode"] == "auto"
+    p = hitch(ep, "goto", "--to", "z=0.15", "--security", str(bob), "--timeout", "1.5")
+    assert p.returncode == 2 and "no reply" in p.stderr
+
+
+def test_unknown_user_cannot_connect(secured):
+    ep, _, _, d = secured
+    with pytest.raises(ServiceError) as ei:
+        with HitchClient([ep], security=client_file(d, "mallory", "guess"), timeout_s=1.0) as c:
+            c.state(timeout_s=1.0)
+    assert ei.value.code in ("connect", "timeout")
+    time.sleep(0.1)

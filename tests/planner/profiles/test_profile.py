@@ -1,0 +1,111 @@
+"""Profile loading: thesis numbers in SI, and validation errors field by field."""
+
+import copy
+import math
+import tomllib
+from importlib import resources
+
+import pytest
+
+from planner.profiles.hitch import ProfileError, available_profiles, load_profile, profile_from_dict
+
+
+@pytest.fixture(scope="module")
+def raw() -> dict:
+    return tomllib.loads((resources.files("planner") / "profiles" / "thesis-t132.toml").read_text())
+
+
+def test_default_profile_carries_the_thesis_numbers_in_si():
+    p = load_profile()
+    g = p.geometry
+    # table 3-5 (mm in the thesis)
+    assert (g.lower_link_pivot_span, g.lower_link_length) == (0.600, 0.960)
+    assert g.top_link_tractor_point == (0.0, 0.230, 0.520)
+    assert (g.lift_rod_attachment, g.limiter_bracket_position, g.fixed_lift_rod_length) == (0.300, 0.540, 0.630)
+    assert g.lift_arm_pivot == (0.0, -0.150, 0.580) and g.lift_arm_length == 0.300
+    assert g.limiter_bracket_offset == 0.290
+    # table 3-6 + the 40 mm ball-centre correction, applied in Profile.span only
+    assert p.implement.categories["2"].span == 0.825
+    assert p.span("2") == pytest.approx(0.865)
+    assert p.span("2N") == pytest.approx(0.683 + 0.040) and p.category("2N").mast_height == 0.610
+    assert list(p.implement.categories) == ["1N", "1", "2N", "2", "3N", "3", "4N", "4"]
+    # tables 3-1 .. 3-4
+    a = p.actuators
+    assert (a.tilt.min, a.tilt.max, a.tilt.counts_min, a.tilt.counts_max) == (0.580, 0.730, 26, 917)
+    assert (a.top.min, a.top.max, a.top.counts_min, a.top.counts_max) == (0.655, 0.905, 26, 255)
+    assert (a.right.min, a.right.max, a.right.counts_min, a.right.counts_max) == (0.500, 0.575, 26, 503)
+    assert (a.left.min, a.left.max, a.left.counts_min, a.left.counts_max) == (0.500, 0.580, 30, 510)
+    assert (a.lift.min, a.lift.max, a.lift.counts_min, a.lift.counts_max) == (-0.223, 0.663, 26, 255)
+    assert [getattr(a, n).valve_multiplier for n in ("tilt", "top", "lift", "right", "left")] == [0.5, 0.5, 1, 0.2, 0.2]
+    assert (a.left.kv_pos, a.left.kv_neg, a.lift.dead_zone, a.tilt.transport_delay) == (1.1085, 1.246, 6, 0.1)
+    # table 3-7 and §3.2 limits
+    assert p.workspace.thesis_box.z == (-0.330, 0.330)
+    assert (p.limits.top_link_yaw_max, p.limits.top_link_pitch_up_max) == (0.15, 0.35)
+    assert "thesis-t132" in available_profiles()
+
+
+def _mutate(raw, path, value):
+    d = copy.deepcopy(raw)
+    node = d
+    for k in path[:-1]:
+        node = node[k]
+    if value is KeyError:
+        del node[path[-1]]
+    else:
+        node[path[-1]] = value
+    return d
+
+
+@pytest.mark.parametrize(
+    "path, value, expect",
+    [
+        (("geometry", "lower_link_length"), -0.96, r"geometry\.lower_link_length = -0\.96: .*allowed: > 0"),
+        (("geometry", "lower_link_length"), "long", r"geometry\.lower_link_length = 'long'"),
+        (("geometry", "lift_arm_length"), 0.0, r"geometry\.lift_arm_length = 0\.0"),
+        (("geometry", "pivot_height"), KeyError, r"geometry\.pivot_height: Field required"),
+        (("geometry", "colour"), "red", r"geometry\.colour = 'red': unknown key"),
+        (("geometry", "lift_arm_pivot"), [0.0, 1.0], r"geometry\.lift_arm_pivot"),
+        (("geometry", "limiter_tractor_point"), [0.0, math.inf, 0.0], r"limiter_tractor_point coordinates must be finite"),
+        (("actuators", "tilt", "min"), 0.9, r"actuators\.tilt: .*min < max"),
+        (("actuators", "tilt", "counts_max"), 2000, r"actuators\.tilt\.counts_max = 2000: .*allowed: >= 0 and <= 1023\)"),
+        (("actuators", "lift", "max"), 2.0, r"actuators: .*lift is an angle"),
+        (("actuators", "tilt", "neutral"), 0.9, r"actuators\.tilt: .*neutral 0\.9 must lie within the stroke"),
+        (("actuators", "top", "valve_multiplier"), 0.0, r"actuators\.top\.valve_multiplier = 0\.0"),
+        (("limits", "top_link_yaw_max"), 2.0, r"limits\.top_link_yaw_max = 2\.0: .*allowed: > 0 and <= 1\.5708\)"),
+        (("limits", "top_link_angle_reference"), "sky", r"limits\.top_link_angle_reference = 'sky'"),
+        (("workspace", "z_reference"), "sea", r"workspace\.z_reference = 'sea'"),
+        (("workspace", "thesis_box", "roll"), [-4.0, 4.0], r"workspace\.thesis_box: .*within ±π"),
+        (("workspace", "thesis_box", "x"), [0.1, -0.1], r"workspace\.thesis_box: .*min < max"),
+        (("implement", "default_category"), "7", r"implement: .*default_category '7' is not one of"),
+        (("implement", "categories", "2", "span"), -1, r"implement\.categories\.2\.span = -1: .*allowed: > 0 and <= 2\)"),
+        (("schema_version",), 2, r"schema_version = 2"),
+        (("name",), "bad name!", r"name = 'bad name!'"),
+    ],
+)
+def test_validation_errors_name_field_value_and_range(raw, path, value, expect):
+    with pytest.raises(ProfileError, match=expect):
+        profile_from_dict(_mutate(raw, path, value), source="test")
+
+
+def test_file_errors(tmp_path):
+    with pytest.raises(ProfileError, match="not found; built-in profiles: .*thesis-t132"):
+        load_profile("no-such-profile")
+    with pytest.raises(ProfileError, match="does not exist"):
+        load_profile(tmp_path / "missing.toml")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("this is = = not toml")
+    with pytest.raises(ProfileError, match="not valid TOML"):
+        load_profile(bad)
+
+
+def test_profile_file_round_trip(tmp_path, raw):
+    import tomllib as _t
+    path = tmp_path / "copy.toml"
+    path.write_bytes((resources.files("planner") / "profiles" / "thesis-t132.toml").read_bytes())
+    assert load_profile(path) == load_profile("thesis-t132")
+    assert _t.loads(path.read_text()) == raw
+
+
+def test_unknown_category_names_the_allowed_ones():
+    with pytest.raises(ProfileError, match="allowed: 1N, 1, 2N, 2, 3N, 3, 4N, 4"):
+        load_profile().category("5")

@@ -1,11 +1,12 @@
 # hitch-planner: two commands for a new user.
-#   make run   -- set up .venv (if missing) and run the main job on embedded defaults
-#   make test  -- set up .venv with the test extra (if missing) and run the test suite
+#   make run   -- set up .venv (if missing) and run the service on embedded defaults
+#   make test  -- set up .venv with the test extra (if missing), check style and types, run every test
+# Also: make lint (ruff + mypy only), make quick (lint + tests not marked slow).
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 
-.PHONY: run test clean
+.PHONY: run test lint quick clean
 
 $(BIN)/hitch-installed: pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -16,8 +17,16 @@ $(BIN)/hitch-installed: pyproject.toml
 run: $(BIN)/hitch-installed
 	$(BIN)/hitch serve
 
-test: $(BIN)/hitch-installed
+lint: $(BIN)/hitch-installed
+	$(BIN)/ruff check planner bridge tests bench examples
+	$(BIN)/ruff format --check planner bridge tests bench examples
+	$(BIN)/mypy
+
+test: lint
 	$(BIN)/python -m pytest
+
+quick: lint
+	$(BIN)/python -m pytest -m "not slow"
 
 clean:
 	rm -rf $(VENV) build *.egg-info

@@ -31,8 +31,12 @@ def machine_note() -> dict:
 
 def percentiles_us(samples_s) -> dict:
     a = np.asarray(samples_s) * 1e6
-    return {"p50_us": float(np.percentile(a, 50)), "p99_us": float(np.percentile(a, 99)),
-            "max_us": float(a.max()), "n": int(a.size)}
+    return {
+        "p50_us": float(np.percentile(a, 50)),
+        "p99_us": float(np.percentile(a, 99)),
+        "max_us": float(a.max()),
+        "n": int(a.size),
+    }
 
 
 def write_json(path: str | None, data: dict) -> None:

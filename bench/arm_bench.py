@@ -17,9 +17,9 @@ sys.path.insert(0, str(Path(__file__).parent))
 from _common import machine_note, write_json  # noqa: E402
 
 from planner.arm.analytic import build_spherical_wrist_arm, solve_arm_ik  # noqa: E402
-from planner.arm.profile import load_arm_profile  # noqa: E402
 from planner.arm.dh import forward_kinematics  # noqa: E402
 from planner.arm.mechanism import arm_target, arm_weights, build_arm_mechanism  # noqa: E402
+from planner.arm.profile import load_arm_profile  # noqa: E402
 from planner.ik_qp.problem import build_ik_problem  # noqa: E402
 from planner.ik_qp.sqp import SQPSolver  # noqa: E402
 
@@ -54,18 +54,31 @@ def main() -> None:
         r = solver.solve(prob, seed=np.zeros(6))
         t_neu.append(time.perf_counter() - t0)
         neutral_ok += r.status == "ok"
-    res = {"machine": machine_note(), "n": args.n,
-           "analytic_fk_error_max": float(np.max(fk_err)), "analytic_solutions_checked": len(fk_err),
-           "qp_seeded_near_solution_converges_to_it": near_hits / args.n,
-           "qp_from_neutral_success": neutral_ok / args.n,
-           "time_ms_p50": {"analytic_all_8": 1e3 * float(np.median(t_an)), "qp_seeded": 1e3 * float(np.median(t_near)),
-                           "qp_neutral": 1e3 * float(np.median(t_neu))}}
+    res = {
+        "machine": machine_note(),
+        "n": args.n,
+        "analytic_fk_error_max": float(np.max(fk_err)),
+        "analytic_solutions_checked": len(fk_err),
+        "qp_seeded_near_solution_converges_to_it": near_hits / args.n,
+        "qp_from_neutral_success": neutral_ok / args.n,
+        "time_ms_p50": {
+            "analytic_all_8": 1e3 * float(np.median(t_an)),
+            "qp_seeded": 1e3 * float(np.median(t_near)),
+            "qp_neutral": 1e3 * float(np.median(t_neu)),
+        },
+    }
     print(f"machine: {res['machine']}")
-    print(f"{args.n} poses: all {len(fk_err)} analytic solutions match the target to {res['analytic_fk_error_max']:.1e}")
-    print(f"QP seeded near an analytic solution converges to it: {100 * res['qp_seeded_near_solution_converges_to_it']:.1f} %")
+    print(
+        f"{args.n} poses: all {len(fk_err)} analytic solutions match the target to {res['analytic_fk_error_max']:.1e}"
+    )
+    print(
+        f"QP seeded near an analytic solution converges to it: {100 * res['qp_seeded_near_solution_converges_to_it']:.1f} %"
+    )
     print(f"QP from the neutral seed reaches the target: {100 * res['qp_from_neutral_success']:.1f} %")
-    print("median time: analytic (all 8 + FK checks) {analytic_all_8:.3f} ms, QP seeded {qp_seeded:.3f} ms, "
-          "QP neutral {qp_neutral:.3f} ms".format(**res["time_ms_p50"]))
+    print(
+        "median time: analytic (all 8 + FK checks) {analytic_all_8:.3f} ms, QP seeded {qp_seeded:.3f} ms, "
+        "QP neutral {qp_neutral:.3f} ms".format(**res["time_ms_p50"])
+    )
     write_json(args.json, res)
 
 

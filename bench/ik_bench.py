@@ -24,11 +24,11 @@ from rich.progress import Progress
 sys.path.insert(0, str(Path(__file__).parent))
 from _common import machine_note, write_json  # noqa: E402
 
-from planner.model.exact_inverse import ExactInverse  # noqa: E402
-from planner.model.hard_limits import HardLimits  # noqa: E402
 from planner.ik_qp.baselines import DLSIK, GeometricIK, HybridIK  # noqa: E402
 from planner.ik_qp.hitch_ik import IKSolver, default_weights  # noqa: E402
 from planner.ik_qp.hitch_mechanism import TASK_ROWS  # noqa: E402
+from planner.model.exact_inverse import ExactInverse  # noqa: E402
+from planner.model.hard_limits import HardLimits  # noqa: E402
 from planner.model.kinematics import FEATURE_NAMES, HitchModel  # noqa: E402
 from planner.model.types import KinematicsError  # noqa: E402
 
@@ -49,22 +49,35 @@ class IpoptIK:
         g = ca.vertcat(f[FEATURE_NAMES.index("lower_span")] - model.span, f[list(self.hard.feature_index)])
         self.lbg = np.r_[0.0, self.hard.feature_lower]
         self.ubg = np.r_[0.0, self.hard.feature_upper]
-        opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.tol": 1e-12, "ipopt.acceptable_tol": 1e-10,
-                "ipopt.max_iter": 200, "ipopt.sb": "yes"}
+        opts = {
+            "ipopt.print_level": 0,
+            "print_time": False,
+            "ipopt.tol": 1e-12,
+            "ipopt.acceptable_tol": 1e-10,
+            "ipopt.max_iter": 200,
+            "ipopt.sb": "yes",
+        }
         self.solver = ca.nlpsol("ik", "ipopt", {"x": q, "p": p, "f": 0.5 * ca.sumsqr(w * err), "g": g}, opts)
         self.last = model.neutral.copy()
 
     def solve(self, target, seed=None):
         if seed is None and self.inverse is not None:  # same closed-form seed as the QP's default
             try:
-                seed = np.clip(self.inverse.solve(np.asarray(target, float))[0], self.hard.actuator_lower,
-                               self.hard.actuator_upper)
+                seed = np.clip(
+                    self.inverse.solve(np.asarray(target, float))[0], self.hard.actuator_lower, self.hard.actuator_upper
+                )
             except KinematicsError:
                 seed = None
         x0 = self.last if seed is None else seed
         t0 = time.perf_counter()
-        sol = self.solver(x0=x0, p=np.asarray(target, float), lbx=self.hard.actuator_lower, ubx=self.hard.actuator_upper,
-                          lbg=self.lbg, ubg=self.ubg)
+        sol = self.solver(
+            x0=x0,
+            p=np.asarray(target, float),
+            lbx=self.hard.actuator_lower,
+            ubx=self.hard.actuator_upper,
+            lbg=self.lbg,
+            ubg=self.ubg,
+        )
         dt = time.perf_counter() - t0
         st = self.solver.stats()
         q = np.array(sol["x"]).ravel()
@@ -119,8 +132,11 @@ def run_method(name, solver, targets, model, hard, truth, cold_seed, progress, t
         "false_ok_on_unreachable": int(np.sum(np.array(ok_flags)[~reach] & (rt[~reach] <= 1e-6))),
         "roundtrip_err_max": float(good.max()) if good.size else None,
         "roundtrip_err_p99": float(np.percentile(good, 99)) if good.size else None,
-        "solutions_within_limits": float(np.mean(np.array(in_limits)[np.isfinite(rt)])) if np.isfinite(rt).any() else None,
-        "time_p50_us": float(np.percentile(times, 50) * 1e6), "time_p99_us": float(np.percentile(times, 99) * 1e6),
+        "solutions_within_limits": float(np.mean(np.array(in_limits)[np.isfinite(rt)]))
+        if np.isfinite(rt).any()
+        else None,
+        "time_p50_us": float(np.percentile(times, 50) * 1e6),
+        "time_p99_us": float(np.percentile(times, 99) * 1e6),
         "iterations_mean": float(np.mean(iters)),
     }
 
@@ -128,7 +144,9 @@ def run_method(name, solver, targets, model, hard, truth, cold_seed, progress, t
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--n", type=int, default=1000)
-    ap.add_argument("--global-check", type=int, default=40, help="unreachable targets cross-checked by multi-start IPOPT")
+    ap.add_argument(
+        "--global-check", type=int, default=40, help="unreachable targets cross-checked by multi-start IPOPT"
+    )
     ap.add_argument("--json", default=None)
     args = ap.parse_args()
     model = HitchModel.from_profile()
@@ -149,8 +167,13 @@ def main() -> None:
     wlo = np.array([ws[k][0] for k in ("x", "z", "roll", "pitch")])
     whi = np.array([ws[k][1] for k in ("x", "z", "roll", "pitch")])
     s = np.linspace(0, 1, args.n)
-    path = wlo + (whi - wlo) * (0.5 + 0.45 * np.column_stack([np.sin(2 * np.pi * s), np.sin(4 * np.pi * s + 1),
-                                                               np.sin(6 * np.pi * s + 2), np.sin(2 * np.pi * s + 3)]))
+    path = wlo + (whi - wlo) * (
+        0.5
+        + 0.45
+        * np.column_stack(
+            [np.sin(2 * np.pi * s), np.sin(4 * np.pi * s + 1), np.sin(6 * np.pi * s + 2), np.sin(2 * np.pi * s + 3)]
+        )
+    )
     in_workspace = np.all((inside >= wlo) & (inside <= whi), axis=1)
 
     def reachable(t):
@@ -163,11 +186,16 @@ def main() -> None:
 
     sets = {"inside_box": inside, "outside_box": outside, "path": path}
     truth = {k: [reachable(t) for t in v] for k, v in sets.items()}
-    makers = {"qp-osqp": lambda: IKSolver(model, backend="osqp"), "qp-daqp": lambda: IKSolver(model, backend="daqp"),
-              "qp-osqp-last": lambda: IKSolver(model, backend="osqp", seed_strategy="last"),
-              "ipopt-cf": lambda: IpoptIK(model, closed_form_seed=True),
-              "dls": lambda: DLSIK(model), "hybrid": lambda: HybridIK(model), "geometric": lambda: GeometricIK(model),
-              "ipopt": lambda: IpoptIK(model)}
+    makers = {
+        "qp-osqp": lambda: IKSolver(model, backend="osqp"),
+        "qp-daqp": lambda: IKSolver(model, backend="daqp"),
+        "qp-osqp-last": lambda: IKSolver(model, backend="osqp", seed_strategy="last"),
+        "ipopt-cf": lambda: IpoptIK(model, closed_form_seed=True),
+        "dls": lambda: DLSIK(model),
+        "hybrid": lambda: HybridIK(model),
+        "geometric": lambda: GeometricIK(model),
+        "ipopt": lambda: IpoptIK(model),
+    }
     results: dict = {}
     total = sum(len(v) for v in sets.values()) * len(makers) * 2
     with Progress() as progress:
@@ -176,8 +204,9 @@ def main() -> None:
             for sname, targets in sets.items():
                 for mode, seed in (("warm", None), ("cold", model.neutral.copy())):
                     solver = make()
-                    results[(mname, sname, mode)] = run_method(mname, solver, targets, model, hard, truth[sname], seed,
-                                                               progress, task)
+                    results[(mname, sname, mode)] = run_method(
+                        mname, solver, targets, model, hard, truth[sname], seed, progress, task
+                    )
     # independent global search on targets the closed form calls unreachable
     ip = IpoptIK(model)
     unreachable = [t for t, r in zip(outside, truth["outside_box"]) if not r][: args.global_check]
@@ -194,38 +223,56 @@ def main() -> None:
     ws_mask = np.array(in_workspace, bool)
     qp_ws = results[("qp-osqp", "inside_box", "warm")]
     print(f"machine: {machine_note()}")
-    print(f"reachable by the closed form + limits: inside box {sum(truth['inside_box'])}/{args.n}, "
-          f"outside {sum(truth['outside_box'])}/{args.n}, path {sum(truth['path'])}/{args.n}; "
-          f"inside the restricted workspace: {int(ws_mask.sum())}")
-    print(f"global search (multi-start IPOPT, 20 random seeds each) on {len(unreachable)} targets called unreachable: "
-          f"{found} found reachable")
-    hdr = f"{'method':10s} {'set':12s} {'mode':5s} {'success':>8s} {'rt max':>9s} {'rt p99':>9s} {'in lim':>6s} " \
-          f"{'p50 µs':>9s} {'p99 µs':>9s} {'iter':>5s}"
+    print(
+        f"reachable by the closed form + limits: inside box {sum(truth['inside_box'])}/{args.n}, "
+        f"outside {sum(truth['outside_box'])}/{args.n}, path {sum(truth['path'])}/{args.n}; "
+        f"inside the restricted workspace: {int(ws_mask.sum())}"
+    )
+    print(
+        f"global search (multi-start IPOPT, 20 random seeds each) on {len(unreachable)} targets called unreachable: "
+        f"{found} found reachable"
+    )
+    hdr = (
+        f"{'method':10s} {'set':12s} {'mode':5s} {'success':>8s} {'rt max':>9s} {'rt p99':>9s} {'in lim':>6s} "
+        f"{'p50 µs':>9s} {'p99 µs':>9s} {'iter':>5s}"
+    )
     print(hdr)
     for (m, sname, mode), r in results.items():
         succ = "-" if r["success_on_reachable"] is None else f"{100 * r['success_on_reachable']:.1f}%"
         rtm = "-" if r["roundtrip_err_max"] is None else f"{r['roundtrip_err_max']:.1e}"
         rtp = "-" if r["roundtrip_err_p99"] is None else f"{r['roundtrip_err_p99']:.1e}"
         il = "-" if r["solutions_within_limits"] is None else f"{100 * r['solutions_within_limits']:.0f}%"
-        print(f"{m:10s} {sname:12s} {mode:5s} {succ:>8s} {rtm:>9s} {rtp:>9s} {il:>6s} {r['time_p50_us']:9.0f} "
-              f"{r['time_p99_us']:9.0f} {r['iterations_mean']:5.1f}")
+        print(
+            f"{m:10s} {sname:12s} {mode:5s} {succ:>8s} {rtm:>9s} {rtp:>9s} {il:>6s} {r['time_p50_us']:9.0f} "
+            f"{r['time_p99_us']:9.0f} {r['iterations_mean']:5.1f}"
+        )
     for sname in ("path", "inside_box"):
         ip_w = results[("ipopt", sname, "warm")]["time_p50_us"]
         ip_cf = results[("ipopt-cf", sname, "warm")]["time_p50_us"]
         qp_w = results[("qp-osqp", sname, "warm")]["time_p50_us"]
         qp_l = results[("qp-osqp-last", sname, "warm")]["time_p50_us"]
-        print(f"{sname}: QP-OSQP (closed-form seed) p50 {qp_w:.0f} µs vs IPOPT warm {ip_w:.0f} µs: {ip_w / qp_w:.1f}x, "
-              f"vs IPOPT with the same closed-form seed {ip_cf:.0f} µs: {ip_cf / qp_w:.1f}x; "
-              f"QP warm from the last solution {qp_l:.0f} µs vs IPOPT warm: {ip_w / qp_l:.1f}x")
+        print(
+            f"{sname}: QP-OSQP (closed-form seed) p50 {qp_w:.0f} µs vs IPOPT warm {ip_w:.0f} µs: {ip_w / qp_w:.1f}x, "
+            f"vs IPOPT with the same closed-form seed {ip_cf:.0f} µs: {ip_cf / qp_w:.1f}x; "
+            f"QP warm from the last solution {qp_l:.0f} µs vs IPOPT warm: {ip_w / qp_l:.1f}x"
+        )
     # model errors of the thesis baselines over the box (reachable targets)
     for m in ("geometric", "dls", "hybrid"):
         r = results[(m, "inside_box", "warm")]
-        print(f"{m} model error over the box (reachable targets): position max {r['pos_err_mm']['max']:.3f} mm "
-              f"(mean {r['pos_err_mm']['mean']:.3f}), angle max {r['ang_err_mrad']['max']:.3f} mrad "
-              f"(mean {r['ang_err_mrad']['mean']:.3f})")
-    write_json(args.json, {"machine": machine_note(), "global_check": {"targets": len(unreachable), "found": found},
-                           "results": {"|".join(k): v for k, v in results.items()},
-                           "qp_inside_box": qp_ws})
+        print(
+            f"{m} model error over the box (reachable targets): position max {r['pos_err_mm']['max']:.3f} mm "
+            f"(mean {r['pos_err_mm']['mean']:.3f}), angle max {r['ang_err_mrad']['max']:.3f} mrad "
+            f"(mean {r['ang_err_mrad']['mean']:.3f})"
+        )
+    write_json(
+        args.json,
+        {
+            "machine": machine_note(),
+            "global_check": {"targets": len(unreachable), "found": found},
+            "results": {"|".join(k): v for k, v in results.items()},
+            "qp_inside_box": qp_ws,
+        },
+    )
 
 
 if __name__ == "__main__":

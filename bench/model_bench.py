@@ -30,8 +30,11 @@ def main() -> None:
     rng = np.random.default_rng(0)
     q = m.neutral.copy()
     timings = {}
-    for name, fn in (("features+jacobian", lambda: m.features(q)), ("forward (all points)", lambda: m.forward(q)),
-                     ("raw buffer eval", m._features._eval)):
+    for name, fn in (
+        ("features+jacobian", lambda: m.features(q)),
+        ("forward (all points)", lambda: m.forward(q)),
+        ("raw buffer eval", m._features._eval),
+    ):
         for _ in range(1000):
             fn()
         t = []
@@ -60,8 +63,10 @@ def main() -> None:
     print(f"machine: {res['machine']}")
     for k, v in timings.items():
         print(f"{k:24s} p50 {v['p50_us']:7.2f} µs   p99 {v['p99_us']:7.2f} µs")
-    print(f"stroke box (5-D uniform, {args.samples} samples): mechanism closes {100 * closes / args.samples:.2f} %, "
-          f"closes and within top-link/ground limits {100 * within / args.samples:.2f} %")
+    print(
+        f"stroke box (5-D uniform, {args.samples} samples): mechanism closes {100 * closes / args.samples:.2f} %, "
+        f"closes and within top-link/ground limits {100 * within / args.samples:.2f} %"
+    )
     write_json(args.json, res)
 
 

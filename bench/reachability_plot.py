@@ -20,8 +20,8 @@ import numpy as np  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 
 from planner.model.kinematics import HitchModel  # noqa: E402
-from planner.profiles.hitch import load_profile, profile_from_dict  # noqa: E402
 from planner.model.workspace import Reachability  # noqa: E402
+from planner.profiles.hitch import load_profile, profile_from_dict  # noqa: E402
 
 DOFS = ("x", "z", "roll", "pitch")
 
@@ -51,8 +51,10 @@ def main() -> None:
     d = base.model_dump()
     d["limits"]["top_link_angle_reference"] = "horizontal"
     d["workspace"]["z_reference"] = "pivot"
-    rows = [("default: z from the neutral height, top-link angles from the neutral direction", HitchModel(base)),
-            ("literal: z from pivot height, top-link angles from the horizontal", HitchModel(profile_from_dict(d)))]
+    rows = [
+        ("default: z from the neutral height, top-link angles from the neutral direction", HitchModel(base)),
+        ("literal: z from pivot height, top-link angles from the horizontal", HitchModel(profile_from_dict(d))),
+    ]
     fig, axes = plt.subplots(2, 3, figsize=(13, 8.5), constrained_layout=True)
     for r, (title, model) in enumerate(rows):
         reach = Reachability(model)
@@ -63,17 +65,33 @@ def main() -> None:
             total.append(frac.mean())
             ax = axes[r, c]
             im = ax.pcolormesh(av, zv, frac, vmin=0, vmax=1, cmap="viridis", shading="nearest")
-            ax.add_patch(Rectangle((box[a][0], box["z"][0]), box[a][1] - box[a][0], box["z"][1] - box["z"][0],
-                                   fill=False, ls="--", ec="w", lw=1.5))
+            ax.add_patch(
+                Rectangle(
+                    (box[a][0], box["z"][0]),
+                    box[a][1] - box[a][0],
+                    box["z"][1] - box["z"][0],
+                    fill=False,
+                    ls="--",
+                    ec="w",
+                    lw=1.5,
+                )
+            )
             ws = base.workspace.restricted["2"].as_dict()
             if r == 0:
-                ax.add_patch(Rectangle((ws[a][0], ws["z"][0]), ws[a][1] - ws[a][0], ws["z"][1] - ws["z"][0],
-                                       fill=False, ec="r", lw=2))
+                ax.add_patch(
+                    Rectangle(
+                        (ws[a][0], ws["z"][0]), ws[a][1] - ws[a][0], ws["z"][1] - ws["z"][0], fill=False, ec="r", lw=2
+                    )
+                )
             ax.set_xlabel(f"{a} [{'m' if a == 'x' else 'rad'}]")
             ax.set_ylabel("z [m] (tractor frame)")
-        axes[r, 0].set_title(f"{title}\nreachable: {100 * np.mean(total):.0f} % of the thesis box", loc="left", fontsize=10)
+        axes[r, 0].set_title(
+            f"{title}\nreachable: {100 * np.mean(total):.0f} % of the thesis box", loc="left", fontsize=10
+        )
     fig.colorbar(im, ax=axes, shrink=0.6, label="fraction of the other two DOF reachable")
-    fig.suptitle("Thesis table 3-7 box (dashed) vs reachable set within hard limits; red: restricted workspace (cat. 2, default)")
+    fig.suptitle(
+        "Thesis table 3-7 box (dashed) vs reachable set within hard limits; red: restricted workspace (cat. 2, default)"
+    )
     fig.savefig(args.out, dpi=90)
     print(f"wrote {args.out}")
 

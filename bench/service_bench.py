@@ -66,9 +66,24 @@ class Service:
     def __init__(self, data_dir: str, *extra: str):
         self.port = free_port()
         self.endpoint = f"tcp/127.0.0.1:{self.port}"
-        self.proc = subprocess.Popen([sys.executable, "-m", "bridge.cli.main", "serve", "--listen", self.endpoint,
-                                      "--data-dir", data_dir, *extra], cwd=ROOT, stdout=subprocess.PIPE,
-                                     stderr=subprocess.STDOUT, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        self.proc = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "bridge.cli.main",
+                "serve",
+                "--listen",
+                self.endpoint,
+                "--data-dir",
+                data_dir,
+                *extra,
+            ],
+            cwd=ROOT,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        )
         self.out: list[str] = []
         self._ready = threading.Event()
         threading.Thread(target=self._read, daemon=True).start()
@@ -94,8 +109,9 @@ class Service:
 
 
 def role(name: str, *args: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, __file__, "--role", name, *args], cwd=ROOT, stdout=subprocess.PIPE,
-                            text=True)
+    return subprocess.Popen(
+        [sys.executable, __file__, "--role", name, *args], cwd=ROOT, stdout=subprocess.PIPE, text=True
+    )
 
 
 def random_poses(rng: np.random.Generator, n: int) -> list[dict]:
@@ -106,14 +122,23 @@ def random_poses(rng: np.random.Generator, n: int) -> list[dict]:
 
 def pct(a, qs=(50, 90, 99)) -> dict:
     a = np.asarray(a, float)
-    return {**{f"p{q}_ms": float(np.percentile(a, q) * 1e3) for q in qs}, "max_ms": float(a.max() * 1e3), "n": int(a.size)}
+    return {
+        **{f"p{q}_ms": float(np.percentile(a, q) * 1e3) for q in qs},
+        "max_ms": float(a.max() * 1e3),
+        "n": int(a.size),
+    }
 
 
 def jitter(times: list[float], period: float) -> dict:
     d = np.diff(np.asarray(times, float))
     j = np.abs(d - period)
-    return {"period_mean_ms": float(d.mean() * 1e3), "jitter_p50_ms": float(np.percentile(j, 50) * 1e3),
-            "jitter_p99_ms": float(np.percentile(j, 99) * 1e3), "jitter_max_ms": float(j.max() * 1e3), "n": int(d.size)}
+    return {
+        "period_mean_ms": float(d.mean() * 1e3),
+        "jitter_p50_ms": float(np.percentile(j, 50) * 1e3),
+        "jitter_p99_ms": float(np.percentile(j, 99) * 1e3),
+        "jitter_max_ms": float(j.max() * 1e3),
+        "n": int(d.size),
+    }
 
 
 # ---------------------------------------------------------------------------------------- roles (subprocesses)
@@ -121,10 +146,12 @@ def role_subscriber(a) -> None:
     """Record hitch/state arrivals for ``--seconds``; print JSON (arrival times, sender times, seqs)."""
     arrivals, sent, seqs = [], [], []
     with HitchClient([a.connect], timeout_s=5) as c:
+
         def on(s):
             arrivals.append(time.perf_counter())
             sent.append(s["t"])
             seqs.append(s["seq"])
+
         c.subscribe("state", on)
         print("subscribed", flush=True)
         time.sleep(a.seconds)
@@ -133,12 +160,34 @@ def role_subscriber(a) -> None:
 
 def fuzz_payloads(rng: np.random.Generator, n: int):
     """(key, bytes): invalid by construction — every one must be refused."""
-    keys = ["ik", "plan", "goto", "jog", "stop", "mode", "config", "presets/list", "presets/save", "presets/go",
-            "presets/delete", "maneuvers/validate", "maneuvers/save", "maneuvers/list", "maneuvers/run",
-            "maneuvers/delete"]
-    valid = {"ik": {"x": 0.0, "z": 0.1, "roll": 0.0, "pitch": 0.0}, "goto": {"goal": {"z": 0.1}},
-             "plan": {"goal": {"z": 0.1}}, "jog": {"vx": 0.01, "ttl_ms": 100}, "presets/save": {"name": "p"},
-             "presets/go": {"name": "p"}, "mode": {"mode": "auto"}, "maneuvers/validate": {"script": "steps: []"}}
+    keys = [
+        "ik",
+        "plan",
+        "goto",
+        "jog",
+        "stop",
+        "mode",
+        "config",
+        "presets/list",
+        "presets/save",
+        "presets/go",
+        "presets/delete",
+        "maneuvers/validate",
+        "maneuvers/save",
+        "maneuvers/list",
+        "maneuvers/run",
+        "maneuvers/delete",
+    ]
+    valid = {
+        "ik": {"x": 0.0, "z": 0.1, "roll": 0.0, "pitch": 0.0},
+        "goto": {"goal": {"z": 0.1}},
+        "plan": {"goal": {"z": 0.1}},
+        "jog": {"vx": 0.01, "ttl_ms": 100},
+        "presets/save": {"name": "p"},
+        "presets/go": {"name": "p"},
+        "mode": {"mode": "auto"},
+        "maneuvers/validate": {"script": "steps: []"},
+    }
     for i in range(n):
         key = keys[int(rng.integers(len(keys)))]
         base = valid.get(key, {})
@@ -151,13 +200,26 @@ def fuzz_payloads(rng: np.random.Generator, n: int):
         elif kind == 2:
             raw = json.dumps({**base, f"unknown_{int(rng.integers(1e6))}": [1, 2]}).encode()
         elif kind == 3:
-            raw = json.dumps({**base, "x": [float("nan"), float("inf"), -float("inf")][i % 3],
-                              "goal": {"z": float("nan")}}).encode()
+            raw = json.dumps(
+                {**base, "x": [float("nan"), float("inf"), -float("inf")][i % 3], "goal": {"z": float("nan")}}
+            ).encode()
         elif kind == 4:
-            raw = json.dumps({"x": "0", "z": None, "roll": True, "pitch": [], "goal": "up", "name": 42,
-                              "mode": 3, "vx": "fast", "script": 1.5, "ttl_ms": "long"}).encode()
+            raw = json.dumps(
+                {
+                    "x": "0",
+                    "z": None,
+                    "roll": True,
+                    "pitch": [],
+                    "goal": "up",
+                    "name": 42,
+                    "mode": 3,
+                    "vx": "fast",
+                    "script": 1.5,
+                    "ttl_ms": "long",
+                }
+            ).encode()
         elif kind == 5:
-            raw = (b'{"x": 1' + b"0" * int(rng.integers(310, 6000)) + b', "goal": {"z": 1e999}, "vx": -1e999}')
+            raw = b'{"x": 1' + b"0" * int(rng.integers(310, 6000)) + b', "goal": {"z": 1e999}, "vx": -1e999}'
         elif kind == 6:
             raw = b"[" * int(rng.integers(2000, 50000))
         elif kind == 7:
@@ -165,9 +227,15 @@ def fuzz_payloads(rng: np.random.Generator, n: int):
         elif kind == 8:
             raw = b'{"name": "' + b"a" * 120_000 + b'"}'
         else:
-            raw = json.dumps({**{k: 1e12 for k in ("x", "z", "roll", "pitch", "vx", "vz", "ttl_ms", "speed_scale")},
-                              "goal": {"x": -1e12}, "name": "../../etc/passwd", "mode": "warp",
-                              "script": 7}).encode()
+            raw = json.dumps(
+                {
+                    **{k: 1e12 for k in ("x", "z", "roll", "pitch", "vx", "vz", "ttl_ms", "speed_scale")},
+                    "goal": {"x": -1e12},
+                    "name": "../../etc/passwd",
+                    "mode": "warp",
+                    "script": 7,
+                }
+            ).encode()
         yield key, raw
 
 
@@ -188,7 +256,7 @@ def role_fuzzer(a) -> None:
                 else:
                     answered_err += 1
                     bad_codes[exc.code] = bad_codes.get(exc.code, 0) + 1
-            if i % 250 == 0:                                   # keep the hitch moving at its limits
+            if i % 250 == 0:  # keep the hitch moving at its limits
                 try:
                     if (i // 250) % 2 == 0:
                         c.goto(corners[int(rng.integers(len(corners)))])
@@ -198,10 +266,22 @@ def role_fuzzer(a) -> None:
                             c.jog(*map(float, v), ttl_ms=300)
                     extreme_ok += 1
                 except ServiceError:
-                    extreme_err += 1   # e.g. refused by the guard or busy: also fine, nothing unsafe moves
-    print(json.dumps({"sent": a.n, "answered_with_error": answered_err, "answered_ok": answered_ok,
-                      "timeouts": timeouts, "codes": bad_codes, "extreme_commands_accepted": extreme_ok,
-                      "extreme_commands_refused": extreme_err, "seconds": time.perf_counter() - t0}), flush=True)
+                    extreme_err += 1  # e.g. refused by the guard or busy: also fine, nothing unsafe moves
+    print(
+        json.dumps(
+            {
+                "sent": a.n,
+                "answered_with_error": answered_err,
+                "answered_ok": answered_ok,
+                "timeouts": timeouts,
+                "codes": bad_codes,
+                "extreme_commands_accepted": extreme_ok,
+                "extreme_commands_refused": extreme_err,
+                "seconds": time.perf_counter() - t0,
+            }
+        ),
+        flush=True,
+    )
 
 
 # ---------------------------------------------------------------------------------------- scenarios
@@ -246,14 +326,24 @@ def bench_sustained(endpoint: str, rate: float, seconds: float) -> dict:
         elapsed = time.perf_counter() - t0
     rec = json.loads(sub.stdout.readline())
     sub.wait(10)
-    return {"queries": n, "seconds": elapsed, "achieved_rate_per_s": n / elapsed, "errors": errors,
-            "timeouts": timeouts, "round_trip": pct(lat), "state_during_load": state_figures(rec)}
+    return {
+        "queries": n,
+        "seconds": elapsed,
+        "achieved_rate_per_s": n / elapsed,
+        "errors": errors,
+        "timeouts": timeouts,
+        "round_trip": pct(lat),
+        "state_during_load": state_figures(rec),
+    }
 
 
 def state_figures(rec: dict) -> dict:
     seqs = np.asarray(rec["seqs"])
-    return {"arrival": jitter(rec["arrivals"], 0.02), "sender": jitter(rec["sent"], 0.02),
-            "missing_seq": int((np.diff(seqs) - 1).sum()) if seqs.size > 1 else None}
+    return {
+        "arrival": jitter(rec["arrivals"], 0.02),
+        "sender": jitter(rec["sent"], 0.02),
+        "missing_seq": int((np.diff(seqs) - 1).sum()) if seqs.size > 1 else None,
+    }
 
 
 def bench_jitter_idle(endpoint: str, seconds: float) -> dict:
@@ -290,6 +380,7 @@ def bench_fuzz(n: int) -> dict:
             d = decode_frame(f)
             if isinstance(d.payload, PositionCounts):
                 refs.append(d.payload.as_tuple())
+
     th = threading.Thread(target=sniff, daemon=True)
     th.start()
     svc = HitchService(cfg).start()
@@ -312,21 +403,26 @@ def bench_fuzz(n: int) -> dict:
     model = HitchModel.from_profile("thesis-t132")
     scale, hard = SensorScaling(model.profile), HardLimits.from_model(model)
     lo_c, hi_c = scale.to_counts(model.lower), scale.to_counts(model.upper)
-    lo, hi = np.minimum(lo_c, hi_c), np.maximum(lo_c, hi_c)   # rint is monotonic: q in the strokes ⇒ counts here
+    lo, hi = np.minimum(lo_c, hi_c), np.maximum(lo_c, hi_c)  # rint is monotonic: q in the strokes ⇒ counts here
     stroke_bad = feature_bad = 0
     for r in refs:
-        counts = np.array(r, float)                                # PositionCounts.as_tuple: actuator order
+        counts = np.array(r, float)  # PositionCounts.as_tuple: actuator order
         if np.any(counts < lo - 1e-9) or np.any(counts > hi + 1e-9):
             stroke_bad += 1
             continue
         q = scale.to_si(counts, tolerance_counts=0.5)
         try:
             feats, _ = model.features(q)
-            feature_bad += bool(hard.violations(q, feats, tol=2e-3))   # half a count of quantisation
+            feature_bad += bool(hard.violations(q, feats, tol=2e-3))  # half a count of quantisation
         except KinematicsError:
             feature_bad += 1
-    return {**out, "service_alive_after": bool(alive), "references_sniffed": len(refs),
-            "references_outside_strokes": stroke_bad, "references_outside_other_limits": feature_bad}
+    return {
+        **out,
+        "service_alive_after": bool(alive),
+        "references_sniffed": len(refs),
+        "references_outside_strokes": stroke_bad,
+        "references_outside_other_limits": feature_bad,
+    }
 
 
 def bench_kill9(rounds: int, seconds: float) -> dict:
@@ -357,8 +453,13 @@ def bench_kill9(rounds: int, seconds: float) -> dict:
         svc2.proc.wait(10)
         lost = [a for a in acked if a not in present]
         lost_total += len(lost)
-        per_round.append({"acknowledged_this_round": len(acked) - n0, "lost": len(lost),
-                          "unacknowledged_but_present": len(present) - len(set(acked) & present)})
+        per_round.append(
+            {
+                "acknowledged_this_round": len(acked) - n0,
+                "lost": len(lost),
+                "unacknowledged_but_present": len(present) - len(set(acked) & present),
+            }
+        )
     return {"rounds": per_round, "acknowledged_total": len(acked), "lost_total": lost_total}
 
 
@@ -404,7 +505,7 @@ def main() -> None:
             if "ik" in only:
                 res["ik"] = bench_ik(svc.endpoint, 500 if q else 5000)
                 print("ik", json.dumps(res["ik"]), flush=True)
-            if "jitter" in only:   # several 20 s windows: on a shared machine single windows scatter
+            if "jitter" in only:  # several 20 s windows: on a shared machine single windows scatter
                 res["state_idle"] = [bench_jitter_idle(svc.endpoint, 3 if q else 20) for _ in range(1 if q else 3)]
                 for r in res["state_idle"]:
                     print("state idle", json.dumps(r), flush=True)
@@ -415,8 +516,13 @@ def main() -> None:
             svc.kill()
     if "fuzz" in only:
         res["fuzz"] = bench_fuzz(1000 if q else 10_000)
-        print("fuzz", json.dumps({k: v for k, v in res["fuzz"].items() if k != "answered_ok"}),
-              "answered_ok:", res["fuzz"]["answered_ok"][:5], flush=True)
+        print(
+            "fuzz",
+            json.dumps({k: v for k, v in res["fuzz"].items() if k != "answered_ok"}),
+            "answered_ok:",
+            res["fuzz"]["answered_ok"][:5],
+            flush=True,
+        )
     if "kill9" in only:
         res["kill9"] = bench_kill9(2 if q else 5, 1.0 if q else 2.0)
         print("kill9", json.dumps(res["kill9"]), flush=True)

@@ -15,9 +15,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).parent))
 from _common import machine_note, write_json  # noqa: E402
 
-from planner.model.kinematics import HitchModel  # noqa: E402
 from planner.limits.guard import Guard  # noqa: E402
 from planner.limits.tractor import load_tractor_profile  # noqa: E402
+from planner.model.kinematics import HitchModel  # noqa: E402
 from planner.trajectory import TrajectoryPlanner  # noqa: E402
 
 
@@ -38,18 +38,32 @@ def main() -> None:
             for z in heights:
                 q = tp.inverse(0.0, float(z), 0.0, 0.0)
                 r = g.stability_at(q)
-                rows.append({"implement": imp_name, "slope": label, "z_m": float(z),
-                             "front_axle_share": r.front_axle_share, "front_over_empty_weight":
-                             r.axle_loads.front / g.tractor.empty_weight, "ssm_m": r.ssm, "lsm_m": r.lsm,
-                             "esm_J": r.esm, "min_front_ballast_kg": r.min_front_ballast_kg, "ok": r.ok,
-                             "violations": [f"{v.measure}:{v.level}" for v in r.violations]})
+                rows.append(
+                    {
+                        "implement": imp_name,
+                        "slope": label,
+                        "z_m": float(z),
+                        "front_axle_share": r.front_axle_share,
+                        "front_over_empty_weight": r.axle_loads.front / g.tractor.empty_weight,
+                        "ssm_m": r.ssm,
+                        "lsm_m": r.lsm,
+                        "esm_J": r.esm,
+                        "min_front_ballast_kg": r.min_front_ballast_kg,
+                        "ok": r.ok,
+                        "violations": [f"{v.measure}:{v.level}" for v in r.violations],
+                    }
+                )
     print(f"machine: {machine_note()}")
-    print(f"{'implement':24s} {'slope':20s} {'z [m]':>7s} {'front %':>8s} {'front/empty':>11s} {'SSM m':>6s} "
-          f"{'LSM m':>6s} {'ESM J':>7s} {'ballast':>7s}  flags")
+    print(
+        f"{'implement':24s} {'slope':20s} {'z [m]':>7s} {'front %':>8s} {'front/empty':>11s} {'SSM m':>6s} "
+        f"{'LSM m':>6s} {'ESM J':>7s} {'ballast':>7s}  flags"
+    )
     for r in rows:
-        print(f"{r['implement']:24s} {r['slope']:20s} {r['z_m']:7.3f} {100 * r['front_axle_share']:8.1f} "
-              f"{r['front_over_empty_weight']:11.3f} {r['ssm_m']:6.3f} {r['lsm_m']:6.3f} {r['esm_J']:7.0f} "
-              f"{r['min_front_ballast_kg']:7.0f}  {'ok' if r['ok'] else 'REFUSE'} {' '.join(r['violations'])}")
+        print(
+            f"{r['implement']:24s} {r['slope']:20s} {r['z_m']:7.3f} {100 * r['front_axle_share']:8.1f} "
+            f"{r['front_over_empty_weight']:11.3f} {r['ssm_m']:6.3f} {r['lsm_m']:6.3f} {r['esm_J']:7.0f} "
+            f"{r['min_front_ballast_kg']:7.0f}  {'ok' if r['ok'] else 'REFUSE'} {' '.join(r['violations'])}"
+        )
     write_json(args.json, {"machine": machine_note(), "rows": rows})
 
 

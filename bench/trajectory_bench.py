@@ -17,9 +17,9 @@ from rich.progress import track
 sys.path.insert(0, str(Path(__file__).parent))
 from _common import machine_note, percentiles_us, write_json  # noqa: E402
 
-from planner.model.kinematics import HitchModel  # noqa: E402
 from planner.limits.guard import Guard  # noqa: E402
 from planner.limits.tractor import load_tractor_profile  # noqa: E402
+from planner.model.kinematics import HitchModel  # noqa: E402
 from planner.trajectory import MotionState, TrajectoryPlanner, verify_setpoints  # noqa: E402
 
 DOFS = ("x", "z", "roll", "pitch")
@@ -66,24 +66,40 @@ def main() -> None:
     res = {
         "machine": machine_note(),
         "moves": args.moves,
-        "duration_s": {"min": float(np.min(durations)), "median": float(np.median(durations)), "max": float(np.max(durations))},
-        "plan_time_incl_ik_and_verification": {k.replace("_us", "_ms"): v / 1e3 for k, v in percentiles_us(times).items() if k != "n"},
-        "guard_check_time": {k.replace("_us", "_ms"): v / 1e3 for k, v in percentiles_us(guard_times).items() if k != "n"},
+        "duration_s": {
+            "min": float(np.min(durations)),
+            "median": float(np.median(durations)),
+            "max": float(np.max(durations)),
+        },
+        "plan_time_incl_ik_and_verification": {
+            k.replace("_us", "_ms"): v / 1e3 for k, v in percentiles_us(times).items() if k != "n"
+        },
+        "guard_check_time": {
+            k.replace("_us", "_ms"): v / 1e3 for k, v in percentiles_us(guard_times).items() if k != "n"
+        },
         "duration_over_lower_bound": {"median": float(np.median(ratios)), "max": float(np.max(ratios))},
         "straight_line_deviation": {"position_m_max": float(np.max(dev_pos)), "angle_rad_max": float(np.max(dev_ang))},
         "samples_over_a_limit": violations,
     }
     print(f"machine: {res['machine']}")
-    print(f"{args.moves} moves, duration {res['duration_s']['min']:.2f}..{res['duration_s']['max']:.2f} s "
-          f"(median {res['duration_s']['median']:.2f} s), 50 Hz samples, IK (closed form) + full limit check at every sample")
+    print(
+        f"{args.moves} moves, duration {res['duration_s']['min']:.2f}..{res['duration_s']['max']:.2f} s "
+        f"(median {res['duration_s']['median']:.2f} s), 50 Hz samples, IK (closed form) + full limit check at every sample"
+    )
     pt = res["plan_time_incl_ik_and_verification"]
     print(f"planning time: p50 {pt['p50_ms']:.2f} ms   p99 {pt['p99_ms']:.2f} ms   max {pt['max_ms']:.2f} ms")
     gt = res["guard_check_time"]
-    print(f"guard check (1500 kg implement, 0.1 rad side slope): p50 {gt['p50_ms']:.2f} ms   p99 {gt['p99_ms']:.2f} ms   "
-          f"max {gt['max_ms']:.2f} ms")
-    print(f"duration / lower bound: median {res['duration_over_lower_bound']['median']:.3f}   max {res['duration_over_lower_bound']['max']:.3f}")
-    print(f"straight-line deviation: {res['straight_line_deviation']['position_m_max']:.2e} m, "
-          f"{res['straight_line_deviation']['angle_rad_max']:.2e} rad; samples over a limit: {violations}")
+    print(
+        f"guard check (1500 kg implement, 0.1 rad side slope): p50 {gt['p50_ms']:.2f} ms   p99 {gt['p99_ms']:.2f} ms   "
+        f"max {gt['max_ms']:.2f} ms"
+    )
+    print(
+        f"duration / lower bound: median {res['duration_over_lower_bound']['median']:.3f}   max {res['duration_over_lower_bound']['max']:.3f}"
+    )
+    print(
+        f"straight-line deviation: {res['straight_line_deviation']['position_m_max']:.2e} m, "
+        f"{res['straight_line_deviation']['angle_rad_max']:.2e} rad; samples over a limit: {violations}"
+    )
     write_json(args.json, res)
 
 

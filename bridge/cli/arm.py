@@ -18,8 +18,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -30,8 +30,8 @@ from planner.arm.analytic import (
     select_nearest_solution,
     solve_arm_ik,
 )
-from planner.arm.profile import DEFAULT_ARM_PROFILE, load_arm_profile
 from planner.arm.dh import check_joint_vector, forward_kinematics, limit_violations
+from planner.arm.profile import DEFAULT_ARM_PROFILE, load_arm_profile
 
 __all__ = ["arm_fk_command", "arm_ik_command", "add_arm_parser", "parse_floats"]
 
@@ -135,7 +135,9 @@ def _run_fk(args) -> int:
     print("tool rotation " + "; ".join(f"[{_fmt(r)}]" for r in out["rotation"]))
     if "wrist_centre" in out:
         print(f"wrist centre [{_fmt(out['wrist_centre'])}] m")
-    print("within joint limits" if out["within_limits"] else "OUTSIDE joint limits: " + "; ".join(out["limit_violations"]))
+    print(
+        "within joint limits" if out["within_limits"] else "OUTSIDE joint limits: " + "; ".join(out["limit_violations"])
+    )
     return 0
 
 
@@ -162,7 +164,9 @@ def add_arm_parser(subparsers) -> argparse.ArgumentParser:
 
     p = sub.add_parser("fk", help="forward kinematics of an arm profile: joints [rad] -> tool pose [m]")
     p.add_argument("--joints", type=parse_floats("--joints"), required=True, help="q1,...,qn [rad; m for prismatic]")
-    p.add_argument("--profile", default=DEFAULT_ARM_PROFILE, help=f"arm profile name or .toml path (default {DEFAULT_ARM_PROFILE})")
+    p.add_argument(
+        "--profile", default=DEFAULT_ARM_PROFILE, help=f"arm profile name or .toml path (default {DEFAULT_ARM_PROFILE})"
+    )
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(handler=_run_fk)
 
@@ -170,9 +174,15 @@ def add_arm_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--position", type=parse_floats("--position", 3), required=True, help="x,y,z [m]")
     p.add_argument("--rotation", type=parse_floats("--rotation", 9), required=True, help="r11,r12,...,r33 row-major")
     p.add_argument("--all", dest="all_solutions", action="store_true", help="all (up to eight) solutions")
-    p.add_argument("--reference", type=parse_floats("--reference", 6), default=None,
-                   help="q1,...,q6 [rad]: pick the admissible solution nearest this posture (default zeros)")
-    p.add_argument("--profile", default=DEFAULT_ARM_PROFILE, help=f"arm profile name or .toml path (default {DEFAULT_ARM_PROFILE})")
+    p.add_argument(
+        "--reference",
+        type=parse_floats("--reference", 6),
+        default=None,
+        help="q1,...,q6 [rad]: pick the admissible solution nearest this posture (default zeros)",
+    )
+    p.add_argument(
+        "--profile", default=DEFAULT_ARM_PROFILE, help=f"arm profile name or .toml path (default {DEFAULT_ARM_PROFILE})"
+    )
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(handler=_run_ik)
     return arm

@@ -6,11 +6,10 @@ import json
 
 from rich.console import Console
 
+from bridge.cli.model import add_model_options, finite_float, model_from_args
 from planner.ik_qp.baselines import DLSIK, GeometricIK, HybridIK
 from planner.ik_qp.hitch_ik import IKSolver
 from planner.ik_qp.result import Target
-
-from bridge.cli.model import add_model_options, finite_float, model_from_args
 
 __all__ = ["add_commands"]
 

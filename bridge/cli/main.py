@@ -9,14 +9,13 @@ from __future__ import annotations
 import argparse
 import sys
 
-from bridge.cli.arm import add_arm_parser
-
 from bridge.cli import ik as cli_ik
 from bridge.cli import model as cli_model
 from bridge.cli import plan as cli_plan
 from bridge.cli import service as cli_service
 from bridge.cli import sim as cli_sim
 from bridge.cli import stability as cli_stability
+from bridge.cli.arm import add_arm_parser
 
 __all__ = ["main", "build_parser", "CLIError"]
 

@@ -32,7 +32,9 @@ def finite_float(name: str):
 
 
 def add_model_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--profile", default="thesis-t132", help="built-in profile name or path to a .toml (default thesis-t132)")
+    p.add_argument(
+        "--profile", default="thesis-t132", help="built-in profile name or path to a .toml (default thesis-t132)"
+    )
     p.add_argument("--category", default=None, help="ISO 730 implement category (default: the profile's, 2)")
     p.add_argument("--json", action="store_true", help="print JSON")
 
@@ -65,10 +67,14 @@ def _cmd_fk(args) -> int:
         return 0
     c = Console()
     p = state.pose
-    c.print(f"pose: x={p.x:+.4f} m  y={p.y:+.4f} m  z={p.z:+.4f} m  roll={p.roll:+.4f} rad  "
-            f"pitch={p.pitch:+.4f} rad  yaw={p.yaw:+.4f} rad")
-    c.print(f"lower span |L-R| = {state.lower_span:.4f} m (implement: {model.span:.4f} m); "
-            f"top-link angles yaw={state.top_link_angles[0]:+.4f} pitch={state.top_link_angles[1]:+.4f} rad")
+    c.print(
+        f"pose: x={p.x:+.4f} m  y={p.y:+.4f} m  z={p.z:+.4f} m  roll={p.roll:+.4f} rad  "
+        f"pitch={p.pitch:+.4f} rad  yaw={p.yaw:+.4f} rad"
+    )
+    c.print(
+        f"lower span |L-R| = {state.lower_span:.4f} m (implement: {model.span:.4f} m); "
+        f"top-link angles yaw={state.top_link_angles[0]:+.4f} pitch={state.top_link_angles[1]:+.4f} rad"
+    )
     t = Table("point", "x [m]", "y [m]", "z [m]")
     for k, v in state.points.items():
         t.add_row(k, *(f"{x:+.4f}" for x in v))
@@ -88,8 +94,11 @@ def profile_summary(model: HitchModel) -> dict:
         "strokes": {n: [float(lo), float(hi)] for n, lo, hi in zip(ACTUATOR_NAMES, model.lower, model.upper)},
         "neutral_actuators": dict(zip(ACTUATOR_NAMES, _vec(model.neutral))),
         "neutral_pose": model.neutral_pose.as_dict(),
-        "top_link_reference": {"yaw": model.top_link_reference[0], "pitch": model.top_link_reference[1],
-                               "reference": prof.limits.top_link_angle_reference},
+        "top_link_reference": {
+            "yaw": model.top_link_reference[0],
+            "pitch": model.top_link_reference[1],
+            "reference": prof.limits.top_link_angle_reference,
+        },
         "limits": prof.limits.model_dump(),
         "pivot_height": prof.geometry.pivot_height,
         "thesis_box": {k: list(v) for k, v in model.thesis_box().items()},
@@ -106,8 +115,10 @@ def _cmd_profile_show(args) -> int:
         return 0
     c = Console()
     c.print(f"[bold]{s['profile']}[/bold] — {s['description']}")
-    c.print(f"category {s['category']} (of {', '.join(s['categories'])}): span {s['span']:.4f} m (ball centres), "
-            f"mast height {s['mast_height']:.3f} m")
+    c.print(
+        f"category {s['category']} (of {', '.join(s['categories'])}): span {s['span']:.4f} m (ball centres), "
+        f"mast height {s['mast_height']:.3f} m"
+    )
     t = Table("actuator", "min", "max", "neutral", "unit")
     for n in ACTUATOR_NAMES:
         lo, hi = s["strokes"][n]
@@ -115,12 +126,20 @@ def _cmd_profile_show(args) -> int:
     c.print(t)
     c.print("neutral pose: " + "  ".join(f"{k}={v:+.4f}" for k, v in s["neutral_pose"].items()))
     ws = s["workspace"]
-    c.print("restricted workspace: " + ("none for this category" if ws is None else
-            "  ".join(f"{k} [{a:+.4f}, {b:+.4f}]" for k, (a, b) in ws.items())))
+    c.print(
+        "restricted workspace: "
+        + (
+            "none for this category"
+            if ws is None
+            else "  ".join(f"{k} [{a:+.4f}, {b:+.4f}]" for k, (a, b) in ws.items())
+        )
+    )
     lim = s["limits"]
-    c.print(f"top link: yaw ±{lim['top_link_yaw_max']} rad, pitch +{lim['top_link_pitch_up_max']}/"
-            f"-{lim['top_link_pitch_down_max']} rad from the {lim['top_link_angle_reference']} direction; "
-            f"ground clearance {lim['ground_clearance']} m (pivot height {s['pivot_height']} m)")
+    c.print(
+        f"top link: yaw ±{lim['top_link_yaw_max']} rad, pitch +{lim['top_link_pitch_up_max']}/"
+        f"-{lim['top_link_pitch_down_max']} rad from the {lim['top_link_angle_reference']} direction; "
+        f"ground clearance {lim['ground_clearance']} m (pivot height {s['pivot_height']} m)"
+    )
     return 0
 
 
@@ -130,13 +149,22 @@ def _cmd_fit_workspace(args) -> int:
     model = model_from_args(args)
     res = fit_restricted_box(model)
     if args.json:
-        print(json.dumps({"category": model.category, "box": {k: list(v) for k, v in res.box.items()},
-                          "stopped_by": res.stopped_by}))
+        print(
+            json.dumps(
+                {
+                    "category": model.category,
+                    "box": {k: list(v) for k, v in res.box.items()},
+                    "stopped_by": res.stopped_by,
+                }
+            )
+        )
         return 0
     print(f"[workspace.restricted.{model.category}]")
     for k, (lo, hi) in res.box.items():
         lo, hi = math.ceil(lo * 1e6) / 1e6, math.floor(hi * 1e6) / 1e6  # round inward
-        print(f"{k} = [{lo:.6f}, {hi:.6f}]   # {k}:min {res.stopped_by[k + ':min']}; {k}:max {res.stopped_by[k + ':max']}")
+        print(
+            f"{k} = [{lo:.6f}, {hi:.6f}]   # {k}:min {res.stopped_by[k + ':min']}; {k}:max {res.stopped_by[k + ':max']}"
+        )
     return 0
 
 

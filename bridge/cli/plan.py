@@ -8,10 +8,9 @@ import json
 import numpy as np
 from rich.console import Console
 
-from planner.trajectory import MotionState, TrajectoryPlanner
-from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
-
 from bridge.cli.model import add_model_options, model_from_args
+from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
+from planner.trajectory import MotionState, TrajectoryPlanner
 
 __all__ = ["add_commands", "parse_pose_arg"]
 
@@ -56,7 +55,7 @@ def plot_plan(path: str, sp, tp: TrajectoryPlanner) -> None:
     axes[1].set_title("actuator positions, fraction of stroke (strokes at 0 and 1)")
     axes[1].legend(loc="best")
     for i, n in enumerate(ACTUATOR_NAMES):
-        line, = axes[2].plot(sp.t, sp.actuator_velocity[:, i] / tp.limits.velocity[i], label=n)
+        (line,) = axes[2].plot(sp.t, sp.actuator_velocity[:, i] / tp.limits.velocity[i], label=n)
     axes[2].axhline(1, color="r", ls="--", lw=1)
     axes[2].axhline(-1, color="r", ls="--", lw=1, label="limit")
     axes[2].set_title("actuator velocities, fraction of their limits")
@@ -78,19 +77,34 @@ def _cmd_plan(args) -> int:
     if args.plot:
         plot_plan(args.plot, sp, tp)
     if args.json:
-        print(json.dumps({
-            "duration": plan.duration, "lower_bound": plan.lower_bound, "rate": tp.rate,
-            "actuator_velocity_max": dict(zip(ACTUATOR_NAMES, map(float, tp.limits.velocity))),
-            "actuator_acceleration_max": dict(zip(ACTUATOR_NAMES, map(float, tp.limits.acceleration))),
-            "samples": sp.to_json(),
-        }))
+        print(
+            json.dumps(
+                {
+                    "duration": plan.duration,
+                    "lower_bound": plan.lower_bound,
+                    "rate": tp.rate,
+                    "actuator_velocity_max": dict(zip(ACTUATOR_NAMES, map(float, tp.limits.velocity))),
+                    "actuator_acceleration_max": dict(zip(ACTUATOR_NAMES, map(float, tp.limits.acceleration))),
+                    "samples": sp.to_json(),
+                }
+            )
+        )
         return 0
     c = Console()
-    c.print(f"duration {plan.duration:.3f} s (lower bound {plan.lower_bound:.3f} s, ratio "
-            f"{plan.duration / plan.lower_bound:.3f}), {len(sp.t)} samples at {tp.rate:g} Hz")
-    c.print("end pose: " + "  ".join(f"{k}={v:+.4f}" for k, v in zip(("x", "y", "z", "roll", "pitch", "yaw"), sp.pose[-1])))
-    c.print("peak |actuator velocity| / limit: " + "  ".join(
-        f"{n}={np.max(np.abs(sp.actuator_velocity[:, i])) / tp.limits.velocity[i]:.3f}" for i, n in enumerate(ACTUATOR_NAMES)))
+    c.print(
+        f"duration {plan.duration:.3f} s (lower bound {plan.lower_bound:.3f} s, ratio "
+        f"{plan.duration / plan.lower_bound:.3f}), {len(sp.t)} samples at {tp.rate:g} Hz"
+    )
+    c.print(
+        "end pose: " + "  ".join(f"{k}={v:+.4f}" for k, v in zip(("x", "y", "z", "roll", "pitch", "yaw"), sp.pose[-1]))
+    )
+    c.print(
+        "peak |actuator velocity| / limit: "
+        + "  ".join(
+            f"{n}={np.max(np.abs(sp.actuator_velocity[:, i])) / tp.limits.velocity[i]:.3f}"
+            for i, n in enumerate(ACTUATOR_NAMES)
+        )
+    )
     if args.plot:
         c.print(f"plot written to {args.plot}")
     return 0
@@ -98,7 +112,9 @@ def _cmd_plan(args) -> int:
 
 def add_commands(sub) -> None:
     p = sub.add_parser("plan", help="plan a jerk-limited move between poses (no motion)")
-    p.add_argument("--to", type=parse_pose_arg, required=True, help="goal, e.g. x=0.05,z=0.25 (unspecified DOF keep their value)")
+    p.add_argument(
+        "--to", type=parse_pose_arg, required=True, help="goal, e.g. x=0.05,z=0.25 (unspecified DOF keep their value)"
+    )
     p.add_argument("--from", dest="start", type=parse_pose_arg, default=None, help="start pose (default: neutral)")
     p.add_argument("--rate", type=float, default=None, help="sampling rate [Hz], 1..200 (default: the profile's, 50)")
     p.add_argument("--speed-scale", type=float, default=1.0, help="fraction of full speed, (0, 1]")

@@ -11,50 +11,62 @@ from __future__ import annotations
 
 import argparse
 import json
-import threading
 import time
-from collections.abc import Callable
-from typing import Protocol
 
-import can
 import numpy as np
 from rich.console import Console
 
-from planner.profiles.hitch import load_profile
-
 from bridge.cli.model import add_model_options, model_from_args
 from bridge.cli.plan import parse_pose_arg
-from bridge.sim.can_node import EcuCanNode
-from bridge.sim.ecu import ACTUATOR_ORDER, CylinderECU
 from bridge.link.realtime import INTERFACES, RealtimeRunner, open_bus
 from bridge.link.state import LinkConfig
+from bridge.sim.can_node import EcuCanNode
+from bridge.sim.ecu import ACTUATOR_ORDER, CylinderECU
 from bridge.sim.move import (
-    REFERENCE_KINDS, MoveFigures, MoveSettings, MoveTrace, SimError, SimSettings, build_move_figures,
+    REFERENCE_KINDS,
+    MoveFigures,
+    MoveSettings,
+    MoveTrace,
+    SimError,
+    SimSettings,
+    build_move_figures,
     run_move,
 )
+from planner.profiles.hitch import load_profile
 
 __all__ = ["add_commands", "move_json", "plot_move"]
 
 _POSE = ("x", "z", "roll", "pitch")
 
+
 # -- hitch sim move ------------------------------------------------------------------------
 def _figures_json(f: MoveFigures) -> dict:
-    return {"final_error": {"position_m": f.final_error_position_m, "angle_rad": f.final_error_angle_rad,
-                            **f.final_error},
-            "max_path_deviation_m": f.max_path_deviation_m, "max_path_deviation_rad": f.max_path_deviation_rad,
-            "overshoot": f.overshoot, "settling_time_s": f.settling_time_s}
+    return {
+        "final_error": {"position_m": f.final_error_position_m, "angle_rad": f.final_error_angle_rad, **f.final_error},
+        "max_path_deviation_m": f.max_path_deviation_m,
+        "max_path_deviation_rad": f.max_path_deviation_rad,
+        "overshoot": f.overshoot,
+        "settling_time_s": f.settling_time_s,
+    }
 
 
 def move_json(trace: MoveTrace, measured: MoveFigures, truth: MoveFigures) -> dict:
     """The ``--json`` document: figures from the CAN-measured pose at the top level,
     simulation truth under ``truth``, plus the run's context."""
-    return {"reference": trace.reference_kind,
-            "start": dict(zip(_POSE, map(float, trace.start))), "goal": dict(zip(_POSE, map(float, trace.goal))),
-            "plan_duration_s": trace.plan_duration_s, "run_duration_s": float(trace.t[-1]),
-            **_figures_json(measured), "truth": _figures_json(truth),
-            "settle_band": {"position_m": measured.band_position_m, "angle_rad": measured.band_angle_rad},
-            "bus_load": trace.bus_load, "faults": list(trace.faults),
-            "link": trace.link_counters, "ecu_node": trace.node_counters}
+    return {
+        "reference": trace.reference_kind,
+        "start": dict(zip(_POSE, map(float, trace.start))),
+        "goal": dict(zip(_POSE, map(float, trace.goal))),
+        "plan_duration_s": trace.plan_duration_s,
+        "run_duration_s": float(trace.t[-1]),
+        **_figures_json(measured),
+        "truth": _figures_json(truth),
+        "settle_band": {"position_m": measured.band_position_m, "angle_rad": measured.band_angle_rad},
+        "bus_load": trace.bus_load,
+        "faults": list(trace.faults),
+        "link": trace.link_counters,
+        "ecu_node": trace.node_counters,
+    }
 
 
 def plot_move(path: str, trace: MoveTrace, title: str = "") -> None:
@@ -68,7 +80,7 @@ def plot_move(path: str, trace: MoveTrace, title: str = "") -> None:
     t = trace.t
     for k, (i, unit, scale) in enumerate(((0, "mm", 1e3), (1, "mm", 1e3), (2, "mrad", 1e3), (3, "mrad", 1e3))):
         a = ax[0] if i < 2 else ax[1]
-        line, = a.plot(t, trace.planned[:, i] * scale, "--", lw=1, label=f"{_POSE[i]} planned")
+        (line,) = a.plot(t, trace.planned[:, i] * scale, "--", lw=1, label=f"{_POSE[i]} planned")
         a.plot(t, trace.measured[:, i] * scale, color=line.get_color(), lw=1.5, label=f"{_POSE[i]} measured (CAN)")
         a.plot(t, trace.truth[:, i] * scale, ":", color=line.get_color(), lw=1, label=f"{_POSE[i]} truth")
         a.set_ylabel(unit)
@@ -85,9 +97,10 @@ def plot_move(path: str, trace: MoveTrace, title: str = "") -> None:
     hi = np.nanmax(np.vstack([trace.reference, trace.measured_actuators]), axis=0)
     span = np.where(hi - lo > 1e-12, hi - lo, 1.0)
     for i, n in enumerate(ACTUATOR_ORDER):
-        line, = ax[3].plot(t, (trace.reference[:, i] - lo[i]) / span[i], "--", lw=1, label=f"{n} reference")
-        ax[3].plot(t, (trace.measured_actuators[:, i] - lo[i]) / span[i], color=line.get_color(), lw=1.5,
-                   label=f"{n} measured")
+        (line,) = ax[3].plot(t, (trace.reference[:, i] - lo[i]) / span[i], "--", lw=1, label=f"{n} reference")
+        ax[3].plot(
+            t, (trace.measured_actuators[:, i] - lo[i]) / span[i], color=line.get_color(), lw=1.5, label=f"{n} measured"
+        )
     ax[3].set_title("actuators, normalised to the range each covers in this move")
     ax[3].set_xlabel("t since the first command [s]")
     for a in ax:
@@ -100,10 +113,20 @@ def plot_move(path: str, trace: MoveTrace, title: str = "") -> None:
 def _cmd_sim_move(args) -> int:
     model = model_from_args(args)
     rate = args.rate if args.rate is not None else model.profile.motion.control_rate
-    sim = SimSettings(noise_counts=args.noise_counts, gain_error=args.gain_error, seed=args.seed,
-                      frame_loss=args.frame_loss, link=LinkConfig(control_rate_hz=rate))
-    move = MoveSettings(reference=args.reference, start=args.start, speed_scale=args.speed_scale,
-                        feedforward=not args.no_feedforward, max_time_s=args.max_time)
+    sim = SimSettings(
+        noise_counts=args.noise_counts,
+        gain_error=args.gain_error,
+        seed=args.seed,
+        frame_loss=args.frame_loss,
+        link=LinkConfig(control_rate_hz=rate),
+    )
+    move = MoveSettings(
+        reference=args.reference,
+        start=args.start,
+        speed_scale=args.speed_scale,
+        feedforward=not args.no_feedforward,
+        max_time_s=args.max_time,
+    )
     trace = run_move(model, args.to, move, sim)
     measured = build_move_figures(trace, "measured", band_position_m=args.band_position, band_angle_rad=args.band_angle)
     truth = build_move_figures(trace, "truth", band_position_m=args.band_position, band_angle_rad=args.band_angle)
@@ -113,14 +136,18 @@ def _cmd_sim_move(args) -> int:
         print(json.dumps(move_json(trace, measured, truth)))
         return 0
     c = Console()
-    c.print(f"{trace.reference_kind} reference, {len(trace.t)} samples over {trace.t[-1]:.2f} s simulated "
-            f"(plan {trace.plan_duration_s:.2f} s), bus load {100 * trace.bus_load:.1f} % of 250 kbit/s")
+    c.print(
+        f"{trace.reference_kind} reference, {len(trace.t)} samples over {trace.t[-1]:.2f} s simulated "
+        f"(plan {trace.plan_duration_s:.2f} s), bus load {100 * trace.bus_load:.1f} % of 250 kbit/s"
+    )
     for name, f in (("measured over CAN", measured), ("simulation truth", truth)):
         settle = "never" if f.settling_time_s is None else f"{f.settling_time_s:.2f} s"
-        c.print(f"{name:>18}: final error {1e3 * f.final_error_position_m:.2f} mm, "
-                f"{1e3 * f.final_error_angle_rad:.2f} mrad; "
-                f"path deviation {1e3 * f.max_path_deviation_m:.2f} mm, {1e3 * f.max_path_deviation_rad:.2f} mrad; "
-                f"overshoot {100 * f.overshoot:.2f} %; settling {settle}")
+        c.print(
+            f"{name:>18}: final error {1e3 * f.final_error_position_m:.2f} mm, "
+            f"{1e3 * f.final_error_angle_rad:.2f} mrad; "
+            f"path deviation {1e3 * f.max_path_deviation_m:.2f} mm, {1e3 * f.max_path_deviation_rad:.2f} mrad; "
+            f"overshoot {100 * f.overshoot:.2f} %; settling {settle}"
+        )
     if trace.faults:
         c.print("faults: " + "; ".join(trace.faults))
     if args.plot:
@@ -134,8 +161,9 @@ def _cmd_ecu_sim(args) -> int:
         raise SimError(f"--duration must be a positive number of seconds, got {args.duration}")
     if not (np.isfinite(args.status_every) and 0.05 <= args.status_every <= 3600):
         raise SimError(f"--status-every must lie in [0.05, 3600] s, got {args.status_every}")
-    ecu = CylinderECU(load_profile(args.profile), rng=args.seed, noise_counts=args.noise_counts,
-                      gain_error=args.gain_error)
+    ecu = CylinderECU(
+        load_profile(args.profile), rng=args.seed, noise_counts=args.noise_counts, gain_error=args.gain_error
+    )
     bus = open_bus(args.interface, args.channel)
     node = EcuCanNode(ecu, bus)
     runner = RealtimeRunner(node)
@@ -144,22 +172,31 @@ def _cmd_ecu_sim(args) -> int:
         runner.start()
         deadline = time.monotonic() + args.duration if args.duration else None
         while True:
-            step = args.status_every if deadline is None else min(args.status_every, max(deadline - time.monotonic(), 0))
+            step = (
+                args.status_every if deadline is None else min(args.status_every, max(deadline - time.monotonic(), 0))
+            )
             if runner.wait(step) or (deadline is not None and time.monotonic() >= deadline):
                 break
             if not args.json:
                 n = node.counters
-                c.print(f"t={runner.now():7.1f} s  {node.claim_state.value}  refs {n.references}  "
-                        f"tx {n.frames_tx}  malformed {n.malformed}  valves {list(ecu.valve_commands())}")
+                c.print(
+                    f"t={runner.now():7.1f} s  {node.claim_state.value}  refs {n.references}  "
+                    f"tx {n.frames_tx}  malformed {n.malformed}  valves {list(ecu.valve_commands())}"
+                )
     finally:
         runner.stop()
         node.shutdown(runner.now())
         bus.shutdown()
     if runner.error is not None:
         raise SimError(f"ECU node stopped: {runner.error}")
-    summary = {"interface": args.interface, "time_s": round(ecu.time_s, 3), "claim": node.claim_state.value,
-               "counters": node.counters.as_dict(), "watchdog_trips": ecu.watchdog.trip_count,
-               "measurement_counts": dict(zip(ACTUATOR_ORDER, map(int, ecu.measurement_counts())))}
+    summary = {
+        "interface": args.interface,
+        "time_s": round(ecu.time_s, 3),
+        "claim": node.claim_state.value,
+        "counters": node.counters.as_dict(),
+        "watchdog_trips": ecu.watchdog.trip_count,
+        "measurement_counts": dict(zip(ACTUATOR_ORDER, map(int, ecu.measurement_counts()))),
+    }
     print(json.dumps(summary) if args.json else summary)
     return 0
 
@@ -176,11 +213,18 @@ def add_commands(sub) -> None:
     m = ssub.add_parser("move", help="move to a pose through the CAN path in simulated time")
     m.add_argument("--to", type=parse_pose_arg, required=True, help="goal, e.g. x=0.05,z=0.25")
     m.add_argument("--from", dest="start", type=parse_pose_arg, default=None, help="start pose (default: neutral)")
-    m.add_argument("--reference", choices=REFERENCE_KINDS, default="trajectory",
-                   help="step: goal actuators at once (thesis); trajectory: the plan streamed (default)")
-    m.add_argument("--no-feedforward", action="store_true",
-                   help="trajectory: stream the plan's actuator positions as they are (each cylinder then "
-                        "lags by its own unit loop); default: the unit loops' feed-forward reference")
+    m.add_argument(
+        "--reference",
+        choices=REFERENCE_KINDS,
+        default="trajectory",
+        help="step: goal actuators at once (thesis); trajectory: the plan streamed (default)",
+    )
+    m.add_argument(
+        "--no-feedforward",
+        action="store_true",
+        help="trajectory: stream the plan's actuator positions as they are (each cylinder then "
+        "lags by its own unit loop); default: the unit loops' feed-forward reference",
+    )
     m.add_argument("--plot", default=None, help="write a PNG of the run")
     m.add_argument("--rate", type=float, default=None, help="control rate [Hz], 1..200 (default: profile, 50)")
     m.add_argument("--speed-scale", type=float, default=1.0, help="fraction of full trajectory speed, (0, 1]")
@@ -193,8 +237,9 @@ def add_commands(sub) -> None:
     m.set_defaults(handler=_cmd_sim_move)
     e = sub.add_parser("ecu-sim", help="run the simulated cylinder ECU on a CAN interface in real time")
     e.add_argument("--interface", choices=INTERFACES, default="udp_multicast", help="python-can interface")
-    e.add_argument("--channel", default=None,
-                   help="channel (udp_multicast: python-can's default IPv4 group; socketcan: vcan0)")
+    e.add_argument(
+        "--channel", default=None, help="channel (udp_multicast: python-can's default IPv4 group; socketcan: vcan0)"
+    )
     e.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: Ctrl-C)")
     e.add_argument("--status-every", type=float, default=1.0, help="status line period [s]")
     e.add_argument("--profile", default="thesis-t132", help="built-in profile name or path to a .toml")

@@ -6,12 +6,11 @@ import json
 
 from rich.console import Console
 
+from bridge.cli.model import add_model_options, finite_float, model_from_args
+from bridge.cli.plan import parse_pose_arg
 from planner.limits.guard import Guard
 from planner.limits.tractor import load_tractor_profile
 from planner.trajectory import TrajectoryPlanner
-
-from bridge.cli.model import add_model_options, finite_float, model_from_args
-from bridge.cli.plan import parse_pose_arg
 
 __all__ = ["add_commands"]
 
@@ -27,11 +26,19 @@ def _cmd_stability(args) -> int:
     rep = guard.stability_at(q)
     d = rep.as_dict()
     out = {
-        "axle_loads": d["axle_loads"], "front_axle_share": d["front_axle_share"], "ssm": d["ssm"], "lsm": d["lsm"],
-        "esm": d["esm"], "min_front_ballast": d["min_front_ballast"], "ok": d["ok"],
-        "violations": [{"measure": v["measure"], "value": v["value"], "threshold": v["threshold"], "level": v["level"]}
-                       for v in d["violations"]],
-        "weakest_edge": d["weakest_edge"], "implement": None if implement is None else implement.name,
+        "axle_loads": d["axle_loads"],
+        "front_axle_share": d["front_axle_share"],
+        "ssm": d["ssm"],
+        "lsm": d["lsm"],
+        "esm": d["esm"],
+        "min_front_ballast": d["min_front_ballast"],
+        "ok": d["ok"],
+        "violations": [
+            {"measure": v["measure"], "value": v["value"], "threshold": v["threshold"], "level": v["level"]}
+            for v in d["violations"]
+        ],
+        "weakest_edge": d["weakest_edge"],
+        "implement": None if implement is None else implement.name,
         "pose": dict(zip(("x", "z", "roll", "pitch"), map(float, pose))),
         "slope": {"roll": args.slope_roll, "pitch": args.slope_pitch},
     }
@@ -39,10 +46,16 @@ def _cmd_stability(args) -> int:
         print(json.dumps(out))
         return 0
     c = Console()
-    c.print(f"implement: {out['implement'] or 'none'}; slope roll {args.slope_roll:+.3f} rad, pitch {args.slope_pitch:+.3f} rad")
-    c.print(f"axle loads: front {out['axle_loads']['front']:.0f} N, rear {out['axle_loads']['rear']:.0f} N "
-            f"(front share {out['front_axle_share'] * 100:.1f} %)")
-    c.print(f"SSM {out['ssm']:.3f} m   LSM {out['lsm']:.3f} m   ESM {out['esm']:.0f} J   (weakest edge: {out['weakest_edge']})")
+    c.print(
+        f"implement: {out['implement'] or 'none'}; slope roll {args.slope_roll:+.3f} rad, pitch {args.slope_pitch:+.3f} rad"
+    )
+    c.print(
+        f"axle loads: front {out['axle_loads']['front']:.0f} N, rear {out['axle_loads']['rear']:.0f} N "
+        f"(front share {out['front_axle_share'] * 100:.1f} %)"
+    )
+    c.print(
+        f"SSM {out['ssm']:.3f} m   LSM {out['lsm']:.3f} m   ESM {out['esm']:.0f} J   (weakest edge: {out['weakest_edge']})"
+    )
     c.print(f"minimum front ballast (manual formula): {out['min_front_ballast']:.0f} kg")
     for v in out["violations"]:
         c.print(f"[red]{v['level']}[/red]: {v['measure']} = {v['value']:.4g} below {v['threshold']:.4g}")
@@ -53,8 +66,12 @@ def _cmd_stability(args) -> int:
 def add_commands(sub) -> None:
     p = sub.add_parser("stability", help="tractor + implement stability for a hitch pose and a slope")
     p.add_argument("--pose", type=parse_pose_arg, default=None, help="x=..,z=..,roll=..,pitch=.. (default: neutral)")
-    p.add_argument("--slope-roll", type=finite_float("--slope-roll"), default=0.0, help="tractor roll [rad], + = left side up")
-    p.add_argument("--slope-pitch", type=finite_float("--slope-pitch"), default=0.0, help="tractor pitch [rad], + = nose up")
+    p.add_argument(
+        "--slope-roll", type=finite_float("--slope-roll"), default=0.0, help="tractor roll [rad], + = left side up"
+    )
+    p.add_argument(
+        "--slope-pitch", type=finite_float("--slope-pitch"), default=0.0, help="tractor pitch [rad], + = nose up"
+    )
     p.add_argument("--implement", default=None, help="implement record of the tractor profile (default: none)")
     add_model_options(p)
     p.set_defaults(handler=_cmd_stability)

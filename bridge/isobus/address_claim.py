@@ -22,8 +22,12 @@ import can
 
 from bridge.isobus.codec import AddressClaimed, CodecError, RequestPgn, decode_frame, encode
 from bridge.isobus.j1939 import (
-    GLOBAL_ADDRESS, NULL_ADDRESS, PGN_ADDRESS_CLAIMED, PGN_REQUEST,
-    PLANNER_ADDRESS, decode_id,
+    GLOBAL_ADDRESS,
+    NULL_ADDRESS,
+    PGN_ADDRESS_CLAIMED,
+    PGN_REQUEST,
+    PLANNER_ADDRESS,
+    decode_id,
 )
 
 __all__ = [
@@ -86,13 +90,11 @@ class Name:
 
     def __post_init__(self) -> None:
         if not isinstance(self.arbitrary_address_capable, bool):
-            raise ValueError("Name.arbitrary_address_capable must be a bool, got "
-                             f"{self.arbitrary_address_capable!r}")
+            raise ValueError(f"Name.arbitrary_address_capable must be a bool, got {self.arbitrary_address_capable!r}")
         for field, _start, length in _LAYOUT[:-1]:
             item = getattr(self, field)
             if isinstance(item, bool) or not isinstance(item, int) or not 0 <= item < 1 << length:
-                raise ValueError(
-                    f"Name.{field} must be an integer in 0..{(1 << length) - 1}, got {item!r}")
+                raise ValueError(f"Name.{field} must be an integer in 0..{(1 << length) - 1}, got {item!r}")
 
     @property
     def value(self) -> int:
@@ -111,8 +113,7 @@ class Name:
 
 def planner_name(identity_number: int = 1, *, arbitrary_address_capable: bool = False) -> Name:
     """The planner's NAME: agricultural tractor rear hitch control, ECU instance 0."""
-    return Name(identity_number, ecu_instance=0,
-                arbitrary_address_capable=arbitrary_address_capable)
+    return Name(identity_number, ecu_instance=0, arbitrary_address_capable=arbitrary_address_capable)
 
 
 def cylinder_ecu_name(identity_number: int = 2) -> Name:
@@ -139,10 +140,11 @@ class AddressClaimer:
         wait_s: contention window after a claim, s (ISO 11783-5: 0.25).
     """
 
-    def __init__(self, name: Name, preferred_address: int = PLANNER_ADDRESS, *,
-                 wait_s: float = CLAIM_WAIT_S) -> None:
-        if isinstance(preferred_address, bool) or not isinstance(preferred_address, int) or not (
-            0 <= preferred_address <= 253
+    def __init__(self, name: Name, preferred_address: int = PLANNER_ADDRESS, *, wait_s: float = CLAIM_WAIT_S) -> None:
+        if (
+            isinstance(preferred_address, bool)
+            or not isinstance(preferred_address, int)
+            or not (0 <= preferred_address <= 253)
         ):
             raise ValueError(f"preferred_address must be in 0..253, got {preferred_address!r}")
         if not wait_s > 0:

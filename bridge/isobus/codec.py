@@ -24,27 +24,69 @@ import can
 import cantools
 
 from bridge.isobus.j1939 import (
-    CYLINDER_ECU_ADDRESS, GLOBAL_ADDRESS, JOYSTICK_ADDRESS, PLANNER_ADDRESS,
-    TRACTOR_ECU_ADDRESS, LimitStatus, MachineDirection, RawStatus, Switch,
-    classify_raw, decode_id, encode_id,
+    CYLINDER_ECU_ADDRESS,
+    GLOBAL_ADDRESS,
+    JOYSTICK_ADDRESS,
+    PLANNER_ADDRESS,
+    TRACTOR_ECU_ADDRESS,
+    LimitStatus,
+    MachineDirection,
+    RawStatus,
+    Switch,
+    classify_raw,
+    decode_id,
+    encode_id,
 )
 from bridge.isobus.messages import (
-    ACTUATORS, MAX_COUNTS, AddressClaimed, BasicJoystick, CodecError, Decoded, EcuParameters,
-    Heartbeat, JoystickAxis, MeasuredPose, Payload, PositionCounts, PositionMeasurement,
-    PressureMeasurement, RearHitchStatus, RequestPgn, WheelBasedSpeed,
+    ACTUATORS,
+    MAX_COUNTS,
+    AddressClaimed,
+    BasicJoystick,
+    CodecError,
+    Decoded,
+    EcuParameters,
+    Heartbeat,
+    JoystickAxis,
+    MeasuredPose,
+    Payload,
+    PositionCounts,
+    PositionMeasurement,
+    PressureMeasurement,
+    RearHitchStatus,
+    RequestPgn,
+    WheelBasedSpeed,
 )
 
 __all__ = [
-    "ACTUATORS", "AddressClaimed", "BasicJoystick", "Codec", "CodecError", "Decoded",
-    "EcuParameters", "FRAME_ID_MASK", "Heartbeat", "JoystickAxis",
-    "MAX_COUNTS", "MeasuredPose", "Payload", "PositionCounts",
-    "PositionMeasurement", "PressureMeasurement", "RearHitchStatus", "RequestPgn",
-    "WheelBasedSpeed", "decode", "decode_frame", "encode", "encode_position_reference",
+    "ACTUATORS",
+    "AddressClaimed",
+    "BasicJoystick",
+    "Codec",
+    "CodecError",
+    "Decoded",
+    "EcuParameters",
+    "FRAME_ID_MASK",
+    "Heartbeat",
+    "JoystickAxis",
+    "MAX_COUNTS",
+    "MeasuredPose",
+    "Payload",
+    "PositionCounts",
+    "PositionMeasurement",
+    "PressureMeasurement",
+    "RearHitchStatus",
+    "RequestPgn",
+    "WheelBasedSpeed",
+    "decode",
+    "decode_frame",
+    "encode",
+    "encode_position_reference",
     "load_codec",
 ]
 
 FRAME_ID_MASK = 0x03FFFF00
 """Identifier bits that select a DBC message: EDP, DP, PF, PS (not priority, SA)."""
+
 
 @dataclass(frozen=True)
 class _Field:
@@ -62,33 +104,44 @@ class _Field:
     required: bool = False
 
 
-def _f(name: str, *signals: str, kind: str = "value", enum: type[IntEnum] | None = None,
-       required: bool = False) -> _Field:
+def _f(
+    name: str, *signals: str, kind: str = "value", enum: type[IntEnum] | None = None, required: bool = False
+) -> _Field:
     return _Field(name, signals, kind, enum, required)
 
 
 def _axis_fields(axis: str, neg: str, pos: str) -> tuple[_Field, ...]:
     sw = dict(kind="enum", enum=Switch)
     a = axis.upper()
-    return (_f(f"{axis}_position", f"Jstk1{a}AxisPosition"),
-            _f(f"{axis}_neutral", f"Jstk1{a}AxisNeutral", **sw),
-            _f(f"{axis}_negative", f"Jstk1{a}Axis{neg}", **sw),
-            _f(f"{axis}_positive", f"Jstk1{a}Axis{pos}", **sw),
-            _f(f"{axis}_detent", f"Jstk1{a}AxisDetent", **sw))
+    return (
+        _f(f"{axis}_position", f"Jstk1{a}AxisPosition"),
+        _f(f"{axis}_neutral", f"Jstk1{a}AxisNeutral", **sw),
+        _f(f"{axis}_negative", f"Jstk1{a}Axis{neg}", **sw),
+        _f(f"{axis}_positive", f"Jstk1{a}Axis{pos}", **sw),
+        _f(f"{axis}_detent", f"Jstk1{a}AxisDetent", **sw),
+    )
 
 
 def _joystick_build(v: dict[str, Any], _message: Any) -> BasicJoystick:
-    axis = {a: JoystickAxis(*(v[f"{a}_{k}"] for k in ("position", "neutral", "negative",
-                                                      "positive", "detent"))) for a in "xy"}
+    axis = {
+        a: JoystickAxis(*(v[f"{a}_{k}"] for k in ("position", "neutral", "negative", "positive", "detent")))
+        for a in "xy"
+    }
     return BasicJoystick(x=axis["x"], y=axis["y"], buttons=v["buttons"])
 
 
 def _joystick_split(p: BasicJoystick, _message: Any) -> dict[str, Any]:
     out: dict[str, Any] = {"buttons": p.buttons}
     for a, ax in (("x", p.x), ("y", p.y)):
-        out.update({f"{a}_position": ax.position, f"{a}_neutral": ax.neutral,
-                    f"{a}_negative": ax.negative, f"{a}_positive": ax.positive,
-                    f"{a}_detent": ax.detent})
+        out.update(
+            {
+                f"{a}_position": ax.position,
+                f"{a}_neutral": ax.neutral,
+                f"{a}_negative": ax.negative,
+                f"{a}_positive": ax.positive,
+                f"{a}_detent": ax.detent,
+            }
+        )
     return out
 
 
@@ -115,50 +168,125 @@ class _Spec:
 
 
 _ENUM = dict(kind="enum", enum=Switch)
-_NAME_SIGNALS = ("IdentityNumber", "ManufacturerCode", "EcuInstance", "FunctionInstance",
-                 "Function", "NameReserved", "VehicleSystem", "VehicleSystemInstance",
-                 "IndustryGroup", "ArbitraryAddressCapable")
+_NAME_SIGNALS = (
+    "IdentityNumber",
+    "ManufacturerCode",
+    "EcuInstance",
+    "FunctionInstance",
+    "Function",
+    "NameReserved",
+    "VehicleSystem",
+    "VehicleSystemInstance",
+    "IndustryGroup",
+    "ArbitraryAddressCapable",
+)
 
 _SPECS = (
-    _Spec(PressureMeasurement, "PressureMeasurement", CYLINDER_ECU_ADDRESS, 6, (8,), (
-        _f("lift_pa", "LiftPressure"), _f("tilt_pa", "TiltPressure"),
-        _f("top_pa", "TopPressure"), _f("supply_pa", "SupplyPressure"))),
-    _Spec(PositionCounts, "PositionReference", PLANNER_ADDRESS, 3, (8,), tuple(
-        _f(a, f"{a.capitalize()}Reference", kind="count", required=True) for a in ACTUATORS)),
-    _Spec(PositionMeasurement, "PositionMeasurement", CYLINDER_ECU_ADDRESS, 3, (8,), tuple(
-        _f(f"{a}_counts", f"{a.capitalize()}Measurement", kind="count")
-        for a in ("tilt", "top", "right", "left")) + (
-        _f("system_state", "SystemState", kind="raw"),)),
-    _Spec(EcuParameters, "EcuParameters", PLANNER_ADDRESS, 6, (8,), (
-        _f("controllers_enabled", "ControllersEnable", kind="flag"),
-        _f("watchdog_timeout_s", "WatchdogTimeout"),
-        _f("valve_multipliers", *(f"{a.capitalize()}ValveMultiplier" for a in ACTUATORS)))),
-    _Spec(MeasuredPose, "MeasuredPose", PLANNER_ADDRESS, 6, (8,), (
-        _f("x_m", "PoseX"), _f("z_m", "PoseZ"), _f("roll_rad", "PoseRoll"),
-        _f("pitch_rad", "PosePitch"))),
-    _Spec(RearHitchStatus, "RearHitchStatus", TRACTOR_ECU_ADDRESS, 3, (8,), (
-        _f("position", "RearHitchPosition"), _f("in_work", "RearHitchInWork", **_ENUM),
-        _f("limit_status", "RearHitchLimitStatus", kind="enum", enum=LimitStatus),
-        _f("nominal_lower_link_force", "RearNominalLowerLinkForce"),
-        _f("draft_n", "RearDraft"),
-        _f("exit_reason_code", "RearHitchExitReasonCode", kind="count"))),
-    _Spec(WheelBasedSpeed, "WheelBasedSpeedDistance", TRACTOR_ECU_ADDRESS, 3, (8,), (
-        _f("speed_m_s", "WheelBasedMachineSpeed"), _f("distance_m", "WheelBasedMachineDistance"),
-        _f("max_power_time_s", "MaxTimeOfTractorPower"),
-        _f("direction", "WheelBasedMachineDirection", kind="enum", enum=MachineDirection),
-        _f("key_switch", "KeySwitchState", **_ENUM),
-        _f("start_stop", "ImplementStartStop", **_ENUM),
-        _f("direction_reversed", "OperatorDirectionReversed", **_ENUM))),
-    _Spec(Heartbeat, "Heartbeat", PLANNER_ADDRESS, 3, (1, 8), (
-        _f("sequence", "HeartbeatSequenceNumber", kind="raw"),)),
-    _Spec(BasicJoystick, "BasicJoystickMessage1", JOYSTICK_ADDRESS, 3, (8,),
-          _axis_fields("x", "LeftNeg", "RightPos") + _axis_fields("y", "BackNeg", "FwdPos")
-          + (_f("buttons", *(f"Jstk1Button{i}" for i in range(1, 13)), **_ENUM),),
-          _joystick_build, _joystick_split),
-    _Spec(AddressClaimed, "AddressClaimed", PLANNER_ADDRESS, 6, (8,),
-          tuple(_f(s, s, kind="raw") for s in _NAME_SIGNALS), _name_build, _name_split),
-    _Spec(RequestPgn, "RequestPGN", PLANNER_ADDRESS, 6, (3, 8), (
-        _f("pgn", "RequestedPGN", kind="raw"),)),
+    _Spec(
+        PressureMeasurement,
+        "PressureMeasurement",
+        CYLINDER_ECU_ADDRESS,
+        6,
+        (8,),
+        (
+            _f("lift_pa", "LiftPressure"),
+            _f("tilt_pa", "TiltPressure"),
+            _f("top_pa", "TopPressure"),
+            _f("supply_pa", "SupplyPressure"),
+        ),
+    ),
+    _Spec(
+        PositionCounts,
+        "PositionReference",
+        PLANNER_ADDRESS,
+        3,
+        (8,),
+        tuple(_f(a, f"{a.capitalize()}Reference", kind="count", required=True) for a in ACTUATORS),
+    ),
+    _Spec(
+        PositionMeasurement,
+        "PositionMeasurement",
+        CYLINDER_ECU_ADDRESS,
+        3,
+        (8,),
+        tuple(_f(f"{a}_counts", f"{a.capitalize()}Measurement", kind="count") for a in ("tilt", "top", "right", "left"))
+        + (_f("system_state", "SystemState", kind="raw"),),
+    ),
+    _Spec(
+        EcuParameters,
+        "EcuParameters",
+        PLANNER_ADDRESS,
+        6,
+        (8,),
+        (
+            _f("controllers_enabled", "ControllersEnable", kind="flag"),
+            _f("watchdog_timeout_s", "WatchdogTimeout"),
+            _f("valve_multipliers", *(f"{a.capitalize()}ValveMultiplier" for a in ACTUATORS)),
+        ),
+    ),
+    _Spec(
+        MeasuredPose,
+        "MeasuredPose",
+        PLANNER_ADDRESS,
+        6,
+        (8,),
+        (_f("x_m", "PoseX"), _f("z_m", "PoseZ"), _f("roll_rad", "PoseRoll"), _f("pitch_rad", "PosePitch")),
+    ),
+    _Spec(
+        RearHitchStatus,
+        "RearHitchStatus",
+        TRACTOR_ECU_ADDRESS,
+        3,
+        (8,),
+        (
+            _f("position", "RearHitchPosition"),
+            _f("in_work", "RearHitchInWork", **_ENUM),
+            _f("limit_status", "RearHitchLimitStatus", kind="enum", enum=LimitStatus),
+            _f("nominal_lower_link_force", "RearNominalLowerLinkForce"),
+            _f("draft_n", "RearDraft"),
+            _f("exit_reason_code", "RearHitchExitReasonCode", kind="count"),
+        ),
+    ),
+    _Spec(
+        WheelBasedSpeed,
+        "WheelBasedSpeedDistance",
+        TRACTOR_ECU_ADDRESS,
+        3,
+        (8,),
+        (
+            _f("speed_m_s", "WheelBasedMachineSpeed"),
+            _f("distance_m", "WheelBasedMachineDistance"),
+            _f("max_power_time_s", "MaxTimeOfTractorPower"),
+            _f("direction", "WheelBasedMachineDirection", kind="enum", enum=MachineDirection),
+            _f("key_switch", "KeySwitchState", **_ENUM),
+            _f("start_stop", "ImplementStartStop", **_ENUM),
+            _f("direction_reversed", "OperatorDirectionReversed", **_ENUM),
+        ),
+    ),
+    _Spec(Heartbeat, "Heartbeat", PLANNER_ADDRESS, 3, (1, 8), (_f("sequence", "HeartbeatSequenceNumber", kind="raw"),)),
+    _Spec(
+        BasicJoystick,
+        "BasicJoystickMessage1",
+        JOYSTICK_ADDRESS,
+        3,
+        (8,),
+        _axis_fields("x", "LeftNeg", "RightPos")
+        + _axis_fields("y", "BackNeg", "FwdPos")
+        + (_f("buttons", *(f"Jstk1Button{i}" for i in range(1, 13)), **_ENUM),),
+        _joystick_build,
+        _joystick_split,
+    ),
+    _Spec(
+        AddressClaimed,
+        "AddressClaimed",
+        PLANNER_ADDRESS,
+        6,
+        (8,),
+        tuple(_f(s, s, kind="raw") for s in _NAME_SIGNALS),
+        _name_build,
+        _name_split,
+    ),
+    _Spec(RequestPgn, "RequestPGN", PLANNER_ADDRESS, 6, (3, 8), (_f("pgn", "RequestedPGN", kind="raw"),)),
 )
 
 
@@ -173,8 +301,7 @@ def _range_text(sig: Any) -> str:
     return f"{sig.minimum:g}..{sig.maximum:g}{(' ' + sig.unit) if sig.unit else ''}"
 
 
-def _decode_signal(f: _Field, sig: Any, raw: int, unavailable: list[str],
-                   errors: list[str]) -> Any:
+def _decode_signal(f: _Field, sig: Any, raw: int, unavailable: list[str], errors: list[str]) -> Any:
     where = f"{sig.name} (field {f.name})"
     if f.kind == "enum":
         allowed = set(sig.choices) if sig.choices else {int(m) for m in f.enum}
@@ -263,8 +390,14 @@ class Codec:
         """The underlying cantools database."""
         return self._db
 
-    def encode(self, payload: Payload, *, source: int | None = None,
-               destination: int = GLOBAL_ADDRESS, priority: int | None = None) -> can.Message:
+    def encode(
+        self,
+        payload: Payload,
+        *,
+        source: int | None = None,
+        destination: int = GLOBAL_ADDRESS,
+        priority: int | None = None,
+    ) -> can.Message:
         """Encode ``payload`` into a 29-bit frame (unused bits 1).
 
         Args:
@@ -278,8 +411,7 @@ class Codec:
         if spec is None:
             raise CodecError(f"no CAN message for {type(payload).__name__}")
         message = self._db.get_message_by_name(spec.message)
-        values = (spec.split(payload, message) if spec.split
-                  else {f.name: getattr(payload, f.name) for f in spec.fields})
+        values = spec.split(payload, message) if spec.split else {f.name: getattr(payload, f.name) for f in spec.fields}
         raw: dict[str, int] = {}
         owner = type(payload).__name__
         for f in spec.fields:
@@ -293,10 +425,12 @@ class Codec:
                 raw[name] = _encode_signal(owner, f, message.get_signal_by_name(name), item)
         data = message.encode(raw, scaling=False, padding=True, strict=False)
         try:
-            can_id = encode_id(decode_id(message.frame_id).pgn,
-                               spec.source if source is None else source,
-                               priority=spec.priority if priority is None else priority,
-                               destination_address=destination)
+            can_id = encode_id(
+                decode_id(message.frame_id).pgn,
+                spec.source if source is None else source,
+                priority=spec.priority if priority is None else priority,
+                destination_address=destination,
+            )
         except ValueError as exc:
             raise CodecError(f"{owner}: {exc}") from None
         return can.Message(arbitration_id=can_id, is_extended_id=True, data=data)
@@ -315,21 +449,23 @@ class Codec:
         try:
             message = self._db.get_message_by_frame_id(lookup, force_extended_id=True)
         except KeyError:
-            raise CodecError(
-                f"unknown PGN 0x{ident.pgn:05X} (id 0x{msg.arbitration_id:08X})") from None
+            raise CodecError(f"unknown PGN 0x{ident.pgn:05X} (id 0x{msg.arbitration_id:08X})") from None
         spec = self._by_message[message.name]
         data = bytes(msg.data)
         if msg.dlc != len(data) or len(data) not in spec.dlcs:
-            raise CodecError(f"{message.name}: DLC {msg.dlc} with {len(data)} data bytes, "
-                             f"expected {' or '.join(map(str, spec.dlcs))}")
+            raise CodecError(
+                f"{message.name}: DLC {msg.dlc} with {len(data)} data bytes, "
+                f"expected {' or '.join(map(str, spec.dlcs))}"
+            )
         data = (data + b"\xff" * message.length)[: message.length]
         raw = message.decode(data, decode_choices=False, scaling=False)
         unavailable: list[str] = []
         errors: list[str] = []
         values: dict[str, Any] = {}
         for f in spec.fields:
-            items = tuple(_decode_signal(f, message.get_signal_by_name(n), raw[n], unavailable,
-                                         errors) for n in f.signals)
+            items = tuple(
+                _decode_signal(f, message.get_signal_by_name(n), raw[n], unavailable, errors) for n in f.signals
+            )
             values[f.name] = items if len(items) > 1 else items[0]
         try:
             payload = spec.build(values, message) if spec.build else spec.payload(**values)
@@ -348,8 +484,9 @@ def load_codec(path: str | None = None) -> Codec:
     return Codec.from_file(path)
 
 
-def encode(payload: Payload, *, source: int | None = None, destination: int = GLOBAL_ADDRESS,
-           priority: int | None = None) -> can.Message:
+def encode(
+    payload: Payload, *, source: int | None = None, destination: int = GLOBAL_ADDRESS, priority: int | None = None
+) -> can.Message:
     """Encode with the default codec; see :meth:`Codec.encode`."""
     return load_codec().encode(payload, source=source, destination=destination, priority=priority)
 

@@ -64,8 +64,7 @@ class HeartbeatSender:
         period_s: period, s (ISO 11783-7: 0.1).
     """
 
-    def __init__(self, source: int = PLANNER_ADDRESS, *, period_s: float = HEARTBEAT_PERIOD_S
-                 ) -> None:
+    def __init__(self, source: int = PLANNER_ADDRESS, *, period_s: float = HEARTBEAT_PERIOD_S) -> None:
         if not period_s > 0:
             raise ValueError(f"period_s must be > 0 s, got {period_s!r}")
         self._source = source
@@ -195,9 +194,7 @@ class HeartbeatMonitor:
 
     def handle_sequence(self, sequence: int, now_s: float) -> None:
         """Process one received sequence number at time ``now_s``."""
-        if isinstance(sequence, bool) or not isinstance(sequence, int) or not (
-            0 <= sequence <= 255
-        ):
+        if isinstance(sequence, bool) or not isinstance(sequence, int) or not (0 <= sequence <= 255):
             raise ValueError(f"sequence must be an integer in 0..255, got {sequence!r}")
         if sequence in (252, 253):
             return
@@ -238,8 +235,7 @@ class HeartbeatMonitor:
         age = None if self._last_rx_s is None else now_s - self._last_rx_s
         if age is not None and age > self._timeout_s + _TIME_EPS_S:
             state = HeartbeatState.TIMEOUT
-        return HeartbeatStatus(state, self._last, age, self._restarts,
-                               self._sequence_errors, self._timeouts)
+        return HeartbeatStatus(state, self._last, age, self._restarts, self._sequence_errors, self._timeouts)
 
     def healthy(self, now_s: float) -> bool:
         """True when the sender is operational and not silent."""

@@ -136,12 +136,7 @@ class J1939Id:
     def pgn(self) -> int:
         """Parameter group number (18 bits); PS counts only for PDU2."""
         group_extension = 0 if self.is_pdu1 else self.pdu_specific
-        return (
-            (self.extended_data_page << 17)
-            | (self.data_page << 16)
-            | (self.pdu_format << 8)
-            | group_extension
-        )
+        return (self.extended_data_page << 17) | (self.data_page << 16) | (self.pdu_format << 8) | group_extension
 
     @property
     def destination_address(self) -> int:
@@ -188,9 +183,7 @@ def encode_id(
     pdu_format = (pgn >> 8) & 0xFF
     if pdu_format < PDU2_THRESHOLD:
         if pgn & 0xFF:
-            raise ValueError(
-                f"pgn 0x{pgn:05X} is PDU1 (PF {pdu_format} < 240), its low byte must be 0"
-            )
+            raise ValueError(f"pgn 0x{pgn:05X} is PDU1 (PF {pdu_format} < 240), its low byte must be 0")
         pdu_specific = destination_address
     else:
         if destination_address != GLOBAL_ADDRESS:
@@ -338,8 +331,7 @@ def bus_load(
     total_bits_per_s = 0.0
     for dlc, rate in frames_per_second_by_dlc.items():
         if not (rate >= 0 and rate != float("inf")):
-            raise ValueError(
-                f"frames per second for dlc {dlc} must be finite and >= 0, got {rate!r}")
+            raise ValueError(f"frames per second for dlc {dlc} must be finite and >= 0, got {rate!r}")
         bits = frame_bits(dlc, extended=extended, worst_case_stuffing=worst_case_stuffing)
         total_bits_per_s += rate * bits
     return total_bits_per_s / bitrate_bps

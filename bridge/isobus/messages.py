@@ -15,10 +15,23 @@ from typing import Union
 from bridge.isobus.j1939 import J1939Id, LimitStatus, MachineDirection, Switch
 
 __all__ = [
-    "ACTUATORS", "AddressClaimed", "BasicJoystick", "CodecError", "Decoded",
-    "EcuParameters", "Heartbeat", "JoystickAxis", "MAX_COUNTS", "MeasuredPose", "Payload",
-    "PositionCounts", "PositionMeasurement", "PressureMeasurement", "RearHitchStatus",
-    "RequestPgn", "WheelBasedSpeed",
+    "ACTUATORS",
+    "AddressClaimed",
+    "BasicJoystick",
+    "CodecError",
+    "Decoded",
+    "EcuParameters",
+    "Heartbeat",
+    "JoystickAxis",
+    "MAX_COUNTS",
+    "MeasuredPose",
+    "Payload",
+    "PositionCounts",
+    "PositionMeasurement",
+    "PressureMeasurement",
+    "RearHitchStatus",
+    "RequestPgn",
+    "WheelBasedSpeed",
 ]
 
 ACTUATORS = ("lift", "tilt", "top", "left", "right")
@@ -103,7 +116,8 @@ class EcuParameters:
         if len(self.valve_multipliers) != len(ACTUATORS):
             raise CodecError(
                 f"EcuParameters.valve_multipliers needs {len(ACTUATORS)} entries "
-                f"{ACTUATORS}, got {len(self.valve_multipliers)}")
+                f"{ACTUATORS}, got {len(self.valve_multipliers)}"
+            )
 
 
 @dataclass(frozen=True)
@@ -239,8 +253,17 @@ class RequestPgn:
 
 
 Payload = Union[
-    PositionCounts, PositionMeasurement, PressureMeasurement, EcuParameters, MeasuredPose,
-    RearHitchStatus, WheelBasedSpeed, Heartbeat, BasicJoystick, AddressClaimed, RequestPgn,
+    PositionCounts,
+    PositionMeasurement,
+    PressureMeasurement,
+    EcuParameters,
+    MeasuredPose,
+    RearHitchStatus,
+    WheelBasedSpeed,
+    Heartbeat,
+    BasicJoystick,
+    AddressClaimed,
+    RequestPgn,
 ]
 
 

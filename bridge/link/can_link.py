@@ -43,22 +43,32 @@ from dataclasses import replace
 import can
 import numpy as np
 
-from planner.model.hard_limits import HardLimits
-from planner.model.kinematics import HitchModel
-from planner.model.sensors import SensorRangeError, SensorScaling
-from planner.model.types import ACTUATOR_NAMES, KinematicsError
-
 from bridge.isobus.address_claim import AddressClaimer, ClaimState
 from bridge.isobus.codec import (
-    CodecError, EcuParameters, Heartbeat, PositionCounts, PositionMeasurement, RearHitchStatus,
+    CodecError,
+    EcuParameters,
+    Heartbeat,
+    PositionCounts,
+    PositionMeasurement,
+    RearHitchStatus,
     load_codec,
 )
 from bridge.isobus.heartbeat import HeartbeatMonitor, HeartbeatSender, HeartbeatState
 from bridge.isobus.j1939 import PGN_ADDRESS_CLAIMED, PGN_REQUEST, decode_id
 from bridge.link.state import (
-    LinkConfig, LinkCounters, LinkFaultError, LinkFaults, LinkState, LinkStatus, MeasurementAssembler,
+    LinkConfig,
+    LinkCounters,
+    LinkFaultError,
+    LinkFaults,
+    LinkState,
+    LinkStatus,
+    MeasurementAssembler,
     ReferenceRefused,
 )
+from planner.model.hard_limits import HardLimits
+from planner.model.kinematics import HitchModel
+from planner.model.sensors import SensorRangeError, SensorScaling
+from planner.model.types import ACTUATOR_NAMES, KinematicsError
 
 __all__ = ["CanLink"]
 
@@ -76,8 +86,9 @@ class CanLink:
         own_bus: close ``bus`` in :meth:`close`.
     """
 
-    def __init__(self, model: HitchModel, bus: can.BusABC, config: LinkConfig | None = None, *,
-                 own_bus: bool = False) -> None:
+    def __init__(
+        self, model: HitchModel, bus: can.BusABC, config: LinkConfig | None = None, *, own_bus: bool = False
+    ) -> None:
         self._model = model
         self._bus = bus
         self._own_bus = bool(own_bus)
@@ -143,9 +154,18 @@ class CanLink:
         """A consistent snapshot for a supervisor."""
         with self._lock:
             ref = self._reference.as_tuple() if self._reference is not None else None
-            return LinkStatus(now_s, self.claimed, self._streaming, ref, self._rx.state, self._faults,
-                              self._hb_rx.status(now_s), self._counters, self._last_malformed,
-                              self._rx.last_problem)
+            return LinkStatus(
+                now_s,
+                self.claimed,
+                self._streaming,
+                ref,
+                self._rx.state,
+                self._faults,
+                self._hb_rx.status(now_s),
+                self._counters,
+                self._last_malformed,
+                self._rx.last_problem,
+            )
 
     def next_due_s(self) -> float:
         """When :meth:`poll` must run next (stream deadline, or the idle wake-up), s."""
@@ -186,7 +206,7 @@ class CanLink:
         Raises:
             ReferenceRefused: naming the limit, the value and the bound.
         """
-        with self._lock:   # the model's evaluation buffers are shared with the link's own thread
+        with self._lock:  # the model's evaluation buffers are shared with the link's own thread
             return self._check_reference(actuators)
 
     def _check_reference(self, actuators) -> PositionCounts:
@@ -224,8 +244,9 @@ class CanLink:
             try:
                 counts = self.check_reference(actuators)
                 if not self.claimed:
-                    raise LinkFaultError(f"address {self._cfg.source_address} is not claimed "
-                                         f"({self._claimer.state.value})")
+                    raise LinkFaultError(
+                        f"address {self._cfg.source_address} is not claimed ({self._claimer.state.value})"
+                    )
                 active = self._conditions(now_s)
                 if active:
                     self._raise(active)
@@ -337,11 +358,17 @@ class CanLink:
             return out
         st = self._rx.state
         since = self._operating_s
-        for what, src, t in (("0xFF22 position measurement", cfg.ecu_address, st.measurement_t_s if st else since),
-                             ("rear hitch status (lift)", cfg.hitch_source, st.lift_t_s if st else since)):
+        for what, src, t in (
+            ("0xFF22 position measurement", cfg.ecu_address, st.measurement_t_s if st else since),
+            ("rear hitch status (lift)", cfg.hitch_source, st.lift_t_s if st else since),
+        ):
             if now_s - t > cfg.stale_after_s + _EPS_S:
-                out.append(("stale_measurement", f"no valid {what} from {src} for {now_s - t:.3f} s "
-                                                 f"(limit {cfg.stale_after_s:g} s)"))
+                out.append(
+                    (
+                        "stale_measurement",
+                        f"no valid {what} from {src} for {now_s - t:.3f} s (limit {cfg.stale_after_s:g} s)",
+                    )
+                )
                 break
         hb = self._hb_rx.status(now_s)
         if hb.state in (HeartbeatState.TIMEOUT, HeartbeatState.SENDER_ERROR, HeartbeatState.SHUTDOWN):

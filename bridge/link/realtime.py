@@ -35,6 +35,7 @@ def open_bus(interface: str, channel: str | None = None, **kwargs) -> can.BusABC
     if channel is None:
         if interface == "udp_multicast":
             from can.interfaces.udp_multicast import UdpMulticastBus
+
             channel = UdpMulticastBus.DEFAULT_GROUP_IPv4
         else:
             channel = "vcan0" if interface == "socketcan" else "hitch"
@@ -67,8 +68,7 @@ class RealtimeRunner:
     busy loop. Node time is ``clock() − t0``, t0 taken at :meth:`start`.
     """
 
-    def __init__(self, node: BusNode, *, clock: Callable[[], float] = time.monotonic,
-                 max_wait_s: float = 0.05) -> None:
+    def __init__(self, node: BusNode, *, clock: Callable[[], float] = time.monotonic, max_wait_s: float = 0.05) -> None:
         if not 0.0 < max_wait_s <= 1.0:
             raise LinkError(f"max_wait_s must lie in (0, 1] s, got {max_wait_s!r}")
         self._node = node

@@ -16,20 +16,29 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 
+from bridge.isobus.address_claim import CLAIM_WAIT_S, Name, planner_name
+from bridge.isobus.codec import PositionMeasurement, RearHitchStatus
+from bridge.isobus.heartbeat import HEARTBEAT_PERIOD_S, HEARTBEAT_TIMEOUT_S, HeartbeatStatus
+from bridge.isobus.j1939 import CYLINDER_ECU_ADDRESS, PLANNER_ADDRESS
+from bridge.isobus.system_state import SystemStatus, decode_system_state
 from planner.model.kinematics import HitchModel
 from planner.model.sensors import SensorScaling
 from planner.model.types import ACTUATOR_NAMES, Actuators, KinematicsError, Pose
 
-from bridge.isobus.address_claim import CLAIM_WAIT_S, Name, planner_name
-from bridge.isobus.codec import PositionMeasurement, RearHitchStatus
-from bridge.isobus.system_state import SystemStatus, decode_system_state
-from bridge.isobus.heartbeat import HEARTBEAT_PERIOD_S, HEARTBEAT_TIMEOUT_S, HeartbeatStatus
-from bridge.isobus.j1939 import CYLINDER_ECU_ADDRESS, PLANNER_ADDRESS
-
 __all__ = [
-    "LinkConfig", "LinkCounters", "LinkError", "LinkFaultError", "LinkFaults", "LinkState",
-    "HITCH_POSITION_STEPS", "LinkStatus", "MeasurementAssembler", "ReferenceRefused", "check_address",
-    "check_period", "lift_counts_from_fraction",
+    "LinkConfig",
+    "LinkCounters",
+    "LinkError",
+    "LinkFaultError",
+    "LinkFaults",
+    "LinkState",
+    "HITCH_POSITION_STEPS",
+    "LinkStatus",
+    "MeasurementAssembler",
+    "ReferenceRefused",
+    "check_address",
+    "check_period",
+    "lift_counts_from_fraction",
 ]
 
 
@@ -57,8 +66,9 @@ def check_address(name: str, value: object, *, allow_none: bool = False) -> None
 HITCH_POSITION_STEPS = 250
 
 
-def lift_counts_from_fraction(fraction: float, counts_min: float, counts_max: float, *,
-                              on_count_grid: bool = True) -> float:
+def lift_counts_from_fraction(
+    fraction: float, counts_min: float, counts_max: float, *, on_count_grid: bool = True
+) -> float:
     """Lift sensor reading [counts] from the rear hitch position [fraction of the calibrated travel].
 
     The sender maps the reading linearly, ``(counts − counts_min) / span``, onto the 0.4 %
@@ -76,8 +86,12 @@ def lift_counts_from_fraction(fraction: float, counts_min: float, counts_max: fl
 
 def check_period(name: str, value: object, low: float, high: float) -> None:
     """Raise :class:`ValueError` unless ``value`` is a number of seconds in [low, high]."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-            or not low <= value <= high:
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float))
+        or not math.isfinite(value)
+        or not low <= value <= high
+    ):
         raise ValueError(f"{name} must be a number of seconds in [{low:g}, {high:g}], got {value!r}")
 
 
@@ -134,8 +148,12 @@ class LinkConfig:
         if self.source_address == self.ecu_address:
             raise ValueError(f"source_address and ecu_address must differ, both {self.source_address}")
         rate = self.control_rate_hz
-        if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not math.isfinite(rate) \
-                or not 1.0 <= rate <= 200.0:
+        if (
+            isinstance(rate, bool)
+            or not isinstance(rate, (int, float))
+            or not math.isfinite(rate)
+            or not 1.0 <= rate <= 200.0
+        ):
             raise ValueError(f"control_rate_hz must be a number in [1, 200] Hz, got {rate!r}")
         check_period("stale_after_s", self.stale_after_s, 0.005, 10.0)
         check_period("measurement_period_s", self.measurement_period_s, 0.001, 1.0)
@@ -312,8 +330,9 @@ class MeasurementAssembler:
         bump: ``bump(counter=delta, …)`` adds to the owner's :class:`LinkCounters`.
     """
 
-    def __init__(self, model: HitchModel, scaling: SensorScaling, config: LinkConfig,
-                 bump: Callable[..., None]) -> None:
+    def __init__(
+        self, model: HitchModel, scaling: SensorScaling, config: LinkConfig, bump: Callable[..., None]
+    ) -> None:
         self._model = model
         self._scaling = scaling
         self._cfg = config
@@ -344,8 +363,7 @@ class MeasurementAssembler:
         elif system.no_reference_since_restart and self._ecu_had_reference:
             restart = "ECU lost its reference (no-reference bit set again)"
         self._restart_bits = bits
-        self._ecu_had_reference = (self._ecu_had_reference and restart is None) or \
-            not system.no_reference_since_restart
+        self._ecu_had_reference = (self._ecu_had_reference and restart is None) or not system.no_reference_since_restart
         self._system = system
         readings = (m.tilt_counts, m.top_counts, m.left_counts, m.right_counts)
         if any(r is None for r in readings):
@@ -371,8 +389,10 @@ class MeasurementAssembler:
         s, tol = self._scaling, self._cfg.reading_tolerance_counts
         for i, r in enumerate(readings, start=1):
             if not s.counts_min[i] - tol <= r <= s.counts_max[i] + tol:
-                self.last_problem = (f"{ACTUATOR_NAMES[i]} reading {r} counts outside the calibrated "
-                                     f"span [{s.counts_min[i]:.0f}, {s.counts_max[i]:.0f}] ± {tol:g}")
+                self.last_problem = (
+                    f"{ACTUATOR_NAMES[i]} reading {r} counts outside the calibrated "
+                    f"span [{s.counts_min[i]:.0f}, {s.counts_max[i]:.0f}] ± {tol:g}"
+                )
                 self._bump(rejected_readings=1)
                 return False
         return True
@@ -382,8 +402,9 @@ class MeasurementAssembler:
             return
         (t_m, (tilt, top, left, right)), (t_h, frac) = self._meas, self._hitch
         s = self._scaling
-        lift_counts = lift_counts_from_fraction(frac, s.counts_min[0], s.counts_max[0],
-                                                on_count_grid=self._cfg.lift_count_grid)
+        lift_counts = lift_counts_from_fraction(
+            frac, s.counts_min[0], s.counts_max[0], on_count_grid=self._cfg.lift_count_grid
+        )
         counts = (lift_counts, float(tilt), float(top), float(left), float(right))
         q = s.to_si(counts, tolerance_counts=self._cfg.reading_tolerance_counts)
         try:

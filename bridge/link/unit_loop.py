@@ -36,14 +36,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planner.profiles.hitch import Profile
 from planner.model.sensors import SensorScaling
 from planner.model.types import ACTUATOR_NAMES
-
+from planner.profiles.hitch import Profile
 
 __all__ = [
-    "ActuatorMotion", "FeedforwardShaper", "UnitLoop", "actuator_motion", "build_unit_loops",
-    "feedforward_reference", "safe_reference", "unit_loop_lag_s",
+    "ActuatorMotion",
+    "FeedforwardShaper",
+    "UnitLoop",
+    "actuator_motion",
+    "build_unit_loops",
+    "feedforward_reference",
+    "safe_reference",
+    "unit_loop_lag_s",
 ]
 
 
@@ -81,8 +86,14 @@ class ActuatorMotion:
     acceleration_ahead: np.ndarray
 
 
-def actuator_motion(state_at: Callable[[float], object], solve_full: Callable, t: float,
-                    loops: tuple[UnitLoop, ...], q: np.ndarray, velocity: np.ndarray) -> ActuatorMotion:
+def actuator_motion(
+    state_at: Callable[[float], object],
+    solve_full: Callable,
+    t: float,
+    loops: tuple[UnitLoop, ...],
+    q: np.ndarray,
+    velocity: np.ndarray,
+) -> ActuatorMotion:
     """Actuator motion of a pose plan whose actuators at ``t`` are ``q`` moving at ``velocity``
     (the caller has them: the plan's samples, or the control cycle's inverse), and one
     transport delay ahead.
@@ -111,15 +122,25 @@ def build_unit_loops(profile: Profile, a: float | None = None) -> tuple[UnitLoop
     if not (isinstance(a, (int, float)) and 0.0 < a <= 2.0):
         raise ValueError(f"a must be a number in (0, 2], got {a!r}")
     loops = []
-    resolution = SensorScaling(profile).resolution                  # SI per count
+    resolution = SensorScaling(profile).resolution  # SI per count
     for name, res in zip(ACTUATOR_NAMES, resolution):
         s = profile.actuator(name)
         if s.transport_delay <= 0:
-            raise ValueError(f"actuators.{name}.transport_delay must be > 0 for the loop model, got {s.transport_delay}")
-        loops.append(UnitLoop(name=name, gain_per_s=s.valve_multiplier * a / s.transport_delay,
-                              delay_s=float(s.transport_delay), lag_s=float(s.time_constant),
-                              min_flow_pos=s.kv_pos * s.min_flow * res, min_flow_neg=s.kv_neg * s.min_flow * res,
-                              lower=float(s.min), upper=float(s.max)))
+            raise ValueError(
+                f"actuators.{name}.transport_delay must be > 0 for the loop model, got {s.transport_delay}"
+            )
+        loops.append(
+            UnitLoop(
+                name=name,
+                gain_per_s=s.valve_multiplier * a / s.transport_delay,
+                delay_s=float(s.transport_delay),
+                lag_s=float(s.time_constant),
+                min_flow_pos=s.kv_pos * s.min_flow * res,
+                min_flow_neg=s.kv_neg * s.min_flow * res,
+                lower=float(s.min),
+                upper=float(s.max),
+            )
+        )
     return tuple(loops)
 
 
@@ -138,7 +159,7 @@ def feedforward_reference(loops: tuple[UnitLoop, ...], motion: ActuatorMotion) -
     for i, u in enumerate(loops):
         v_ahead = float(motion.velocity_ahead[i])
         drive = v_ahead + u.lag_s * float(motion.acceleration_ahead[i])
-        sgn = float(np.sign(drive))          # the valve's minimum flow follows the command's sign
+        sgn = float(np.sign(drive))  # the valve's minimum flow follows the command's sign
         w = u.min_flow_pos if sgn > 0 else u.min_flow_neg if sgn < 0 else 0.0
         p_part = drive - sgn * w if abs(drive) > w else 0.0
         r[i] = float(motion.q[i]) + u.lag_s * float(motion.velocity[i]) + p_part / u.gain_per_s
@@ -146,8 +167,9 @@ def feedforward_reference(loops: tuple[UnitLoop, ...], motion: ActuatorMotion) -
     return r
 
 
-def safe_reference(check: Callable[[np.ndarray], object], planned: np.ndarray, shaped: np.ndarray,
-                   tries: int = 4) -> tuple[np.ndarray, float]:
+def safe_reference(
+    check: Callable[[np.ndarray], object], planned: np.ndarray, shaped: np.ndarray, tries: int = 4
+) -> tuple[np.ndarray, float]:
     """The shaped reference if ``check`` accepts it, else pulled back towards ``planned``.
 
     ``check(q)`` raises :class:`ValueError` for a reference outside a hard limit (the link's
@@ -177,14 +199,21 @@ class FeedforwardShaper:
     ``enabled=False`` streams the planned actuators unchanged.
     """
 
-    def __init__(self, loops: tuple[UnitLoop, ...], solve_full: Callable,
-                 check: Callable[[np.ndarray], object], *, enabled: bool = True) -> None:
+    def __init__(
+        self,
+        loops: tuple[UnitLoop, ...],
+        solve_full: Callable,
+        check: Callable[[np.ndarray], object],
+        *,
+        enabled: bool = True,
+    ) -> None:
         self.loops, self._solve_full, self._check, self.enabled = loops, solve_full, check, bool(enabled)
         self.pulled_back = 0
         """References whose feed-forward the hard-limit check made smaller (a count)."""
 
-    def for_plan(self, state_at: Callable[[float], object], t: float, planned: np.ndarray,
-                 rates: np.ndarray) -> np.ndarray:
+    def for_plan(
+        self, state_at: Callable[[float], object], t: float, planned: np.ndarray, rates: np.ndarray
+    ) -> np.ndarray:
         """Reference at time ``t`` of a pose plan ``state_at`` whose actuators at ``t`` are ``planned``
         moving at ``rates``."""
         if not self.enabled:

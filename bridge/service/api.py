@@ -25,19 +25,29 @@ import threading
 from collections.abc import Callable, Mapping
 from typing import Any
 
-from planner.ik_qp.result import Target
-from planner.limits.guard import GuardRefusal
-from planner.trajectory import MotionState, PlanError
-from planner.model.types import CONTROLLED_POSE_NAMES
-
 from bridge.service.maneuvers.language import PlanningContext, validate
 from bridge.service.motion.types import MODES, MotionError, stability_json
 from bridge.service.schemas import (
-    API_KEYS, REQUESTS, JogRequest, ManeuverSave, ModeRequest, NameRequest, PlanRequest, PoseRequest, PresetGo,
-    PresetSave, RequestError, ScriptRequest, parse_request,
+    API_KEYS,
+    REQUESTS,
+    JogRequest,
+    ManeuverSave,
+    ModeRequest,
+    NameRequest,
+    PlanRequest,
+    PoseRequest,
+    PresetGo,
+    PresetSave,
+    RequestError,
+    ScriptRequest,
+    parse_request,
 )
 from bridge.service.security import MOTION_KEYS, AccessPolicy
 from bridge.service.store import DEFAULT_IMPLEMENT, StoreError
+from planner.ik_qp.result import Target
+from planner.limits.guard import GuardRefusal
+from planner.model.types import CONTROLLED_POSE_NAMES
+from planner.trajectory import MotionState, PlanError
 
 __all__ = ["ServiceAPI", "API_KEYS"]
 
@@ -58,20 +68,38 @@ class ServiceAPI:
         policy: roles applied when a caller passes ``user``.
     """
 
-    def __init__(self, motion, ik, store, info: Mapping[str, Any], *, implement: str | None = None,
-                 policy: AccessPolicy | None = None):
+    def __init__(
+        self,
+        motion,
+        ik,
+        store,
+        info: Mapping[str, Any],
+        *,
+        implement: str | None = None,
+        policy: AccessPolicy | None = None,
+    ):
         self.motion, self.ik, self.store = motion, ik, store
         self.info = dict(info)
         self.implement = implement or DEFAULT_IMPLEMENT
         self.policy = policy
         self._ik_lock = threading.Lock()
         self._handlers: Mapping[str, Callable[[Any], dict]] = {
-            "ik": self._ik, "plan": self._plan, "goto": self._goto, "jog": self._jog, "stop": self._stop,
-            "mode": self._mode, "config": self._config, "presets/list": self._presets_list,
-            "presets/save": self._presets_save, "presets/go": self._presets_go,
-            "presets/delete": self._presets_delete, "maneuvers/validate": self._maneuvers_validate,
-            "maneuvers/save": self._maneuvers_save, "maneuvers/list": self._maneuvers_list,
-            "maneuvers/run": self._maneuvers_run, "maneuvers/delete": self._maneuvers_delete,
+            "ik": self._ik,
+            "plan": self._plan,
+            "goto": self._goto,
+            "jog": self._jog,
+            "stop": self._stop,
+            "mode": self._mode,
+            "config": self._config,
+            "presets/list": self._presets_list,
+            "presets/save": self._presets_save,
+            "presets/go": self._presets_go,
+            "presets/delete": self._presets_delete,
+            "maneuvers/validate": self._maneuvers_validate,
+            "maneuvers/save": self._maneuvers_save,
+            "maneuvers/list": self._maneuvers_list,
+            "maneuvers/run": self._maneuvers_run,
+            "maneuvers/delete": self._maneuvers_delete,
         }
         self.counts = {"ok": 0, "error": 0}
 
@@ -109,8 +137,11 @@ class ServiceAPI:
         if user in p.operators or (user in p.viewers and key in p.viewer_queries and key not in MOTION_KEYS):
             return
         role = "viewer" if user in p.viewers else "unknown user"
-        raise RequestError("forbidden", f"{key}: user {user!r} ({role}) may not use {key!r}; "
-                                        f"motion keys ({', '.join(MOTION_KEYS)}) need an operator")
+        raise RequestError(
+            "forbidden",
+            f"{key}: user {user!r} ({role}) may not use {key!r}; "
+            f"motion keys ({', '.join(MOTION_KEYS)}) need an operator",
+        )
 
     # ------------------------------------------------------------------ no motion
     def _ik(self, r: PoseRequest) -> dict:
@@ -120,23 +151,39 @@ class ServiceAPI:
         if res.status == "failed":
             raise RequestError("ik_failed", f"ik: no solution ({res.reason})")
         out = res.to_json()
-        return {"status": out["status"], "actuators": out["actuators"], "pose": out["pose"], "active": out["active"],
-                "residual": out["residual"], "solve_time_s": out["solve_time_s"]}
+        return {
+            "status": out["status"],
+            "actuators": out["actuators"],
+            "pose": out["pose"],
+            "active": out["active"],
+            "residual": out["residual"],
+            "solve_time_s": out["solve_time_s"],
+        }
 
     def _plan(self, r: PlanRequest) -> dict:
         try:
             gp = self.motion.preview(r.goal.as_dict(), r.speed_scale)
         except GuardRefusal as exc:
-            return {"ok": False, "duration": None, "refused": str(exc),
-                    "reasons": [x.to_json() for x in exc.decision.reasons],
-                    "stability": None if exc.decision.worst is None else stability_json(exc.decision.worst)}
+            return {
+                "ok": False,
+                "duration": None,
+                "refused": str(exc),
+                "reasons": [x.to_json() for x in exc.decision.reasons],
+                "stability": None if exc.decision.worst is None else stability_json(exc.decision.worst),
+            }
         except PlanError as exc:
             return {"ok": False, "duration": None, "refused": str(exc), "reasons": [], "stability": None}
         d = gp.decision
         end = gp.plan.state_at(gp.plan.duration).position
-        return {"ok": True, "duration": gp.plan.duration, "goal": _pose4(end), "guard": d.action,
-                "speed_factor": d.speed_factor, "reasons": [x.to_json() for x in d.reasons],
-                "stability": None if d.worst is None else stability_json(d.worst)}
+        return {
+            "ok": True,
+            "duration": gp.plan.duration,
+            "goal": _pose4(end),
+            "guard": d.action,
+            "speed_factor": d.speed_factor,
+            "reasons": [x.to_json() for x in d.reasons],
+            "stability": None if d.worst is None else stability_json(d.worst),
+        }
 
     def _config(self, _r) -> dict:
         return {**self.info, "mode": self.motion.mode, "implement": self.info.get("implement")}
@@ -159,8 +206,7 @@ class ServiceAPI:
 
     # ------------------------------------------------------------------ presets
     def _presets_list(self, _r) -> dict:
-        return {"presets": [p.to_json() for p in self.store.list_presets(self.implement)],
-                "implement": self.implement}
+        return {"presets": [p.to_json() for p in self.store.list_presets(self.implement)], "implement": self.implement}
 
     def _presets_save(self, r: PresetSave) -> dict:
         current = self.motion.current_state().position
@@ -184,19 +230,29 @@ class ServiceAPI:
     # ------------------------------------------------------------------ maneuvers
     def _context(self) -> PlanningContext:
         start = MotionState.at_rest(self.motion.current_state().position)
-        return PlanningContext(start, self.motion.plan_step,
-                               lambda n: self.store.get_preset(n, implement=self.implement))
+        return PlanningContext(
+            start, self.motion.plan_step, lambda n: self.store.get_preset(n, implement=self.implement)
+        )
 
     def _maneuvers_validate(self, r: ScriptRequest) -> dict:
         return validate(r.script, self._context()).to_json()
 
     def _maneuvers_save(self, r: ManeuverSave) -> dict:
-        stored = self.store.save_maneuver(r.name, r.script)   # ManeuverError (ValueError) lists the problems
+        stored = self.store.save_maneuver(r.name, r.script)  # ManeuverError (ValueError) lists the problems
         return {"saved": stored.name, "steps": len(stored.parsed.steps)}
 
     def _maneuvers_list(self, _r) -> dict:
-        return {"maneuvers": [{"name": m.name, "description": m.parsed.description, "steps": len(m.parsed.steps),
-                               "timeout": m.parsed.timeout_s} for m in self.store.list_maneuvers()]}
+        return {
+            "maneuvers": [
+                {
+                    "name": m.name,
+                    "description": m.parsed.description,
+                    "steps": len(m.parsed.steps),
+                    "timeout": m.parsed.timeout_s,
+                }
+                for m in self.store.list_maneuvers()
+            ]
+        }
 
     def _maneuvers_run(self, r: NameRequest) -> dict:
         m = self.store.get_maneuver(r.name)
@@ -205,14 +261,19 @@ class ServiceAPI:
         res = validate(m.parsed, self._context())
         if not res.ok:
             first = res.errors[0]
-            raise RequestError("invalid", f"maneuvers/run: {r.name!r} does not validate from the current pose: "
-                                          f"{first.sentence()}")
+            raise RequestError(
+                "invalid", f"maneuvers/run: {r.name!r} does not validate from the current pose: {first.sentence()}"
+            )
         mid = self.motion.run_maneuver(res, r.name)
-        return {"accepted": True, "motion_id": mid, "duration": res.duration, "steps": len(res.steps),
-                "maneuver": r.name}
+        return {
+            "accepted": True,
+            "motion_id": mid,
+            "duration": res.duration,
+            "steps": len(res.steps),
+            "maneuver": r.name,
+        }
 
     def _maneuvers_delete(self, r: NameRequest) -> dict:
         if not self.store.delete_maneuver(r.name):
             raise RequestError("not_found", f"maneuvers/delete: no maneuver {r.name!r}")
         return {"deleted": r.name}
-

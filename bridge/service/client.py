@@ -67,8 +67,15 @@ def _decode(payload: zenoh.ZBytes) -> Any:
 class HitchClient:
     """A Zenoh session to one service (``prefix``) or a fleet (``fleet()``, per-call prefixes)."""
 
-    def __init__(self, connect: Sequence[str] = (DEFAULT_LISTEN,), *, prefix: str = "hitch",
-                 timeout_s: float = 5.0, security: str | Path | None = None, mode: str = "client"):
+    def __init__(
+        self,
+        connect: Sequence[str] = (DEFAULT_LISTEN,),
+        *,
+        prefix: str = "hitch",
+        timeout_s: float = 5.0,
+        security: str | Path | None = None,
+        mode: str = "client",
+    ):
         self.prefix = validate_prefix(prefix)
         if not 0 < timeout_s <= 600:
             raise ValueError(f"timeout_s must lie in (0, 600] s, got {timeout_s!r}")
@@ -80,8 +87,14 @@ class HitchClient:
         self._subs: list = []
 
     # ------------------------------------------------------------------ requests
-    def request(self, key: str, payload: Mapping | bytes | str | None = None, *, prefix: str | None = None,
-                timeout_s: float | None = None) -> dict:
+    def request(
+        self,
+        key: str,
+        payload: Mapping | bytes | str | None = None,
+        *,
+        prefix: str | None = None,
+        timeout_s: float | None = None,
+    ) -> dict:
         """Query ``<prefix>/<key>``; the reply dict, or :class:`ServiceError`."""
         full = f"{validate_prefix(prefix) if prefix else self.prefix}/{key}"
         if isinstance(payload, Mapping):
@@ -96,8 +109,10 @@ class HitchClient:
             if not isinstance(err, dict):
                 err = {}
             raise ServiceError(str(err.get("error", "error")), str(err.get("message", "the service refused")))
-        raise ServiceTimeout(f"no reply from {full} within {t:g} s (is the service running and reachable, "
-                             "and may this user use that key?)")
+        raise ServiceTimeout(
+            f"no reply from {full} within {t:g} s (is the service running and reachable, "
+            "and may this user use that key?)"
+        )
 
     def ik(self, x: float, z: float, roll: float, pitch: float) -> dict:
         return self.request("ik", {"x": x, "z": z, "roll": roll, "pitch": pitch})
@@ -108,8 +123,9 @@ class HitchClient:
     def goto(self, goal: Mapping[str, float], speed_scale: float = 1.0) -> dict:
         return self.request("goto", {"goal": dict(goal), "speed_scale": speed_scale})
 
-    def jog(self, vx: float = 0.0, vz: float = 0.0, vroll: float = 0.0, vpitch: float = 0.0,
-            ttl_ms: float = 200.0) -> dict:
+    def jog(
+        self, vx: float = 0.0, vz: float = 0.0, vroll: float = 0.0, vpitch: float = 0.0, ttl_ms: float = 200.0
+    ) -> dict:
         return self.request("jog", {"vx": vx, "vz": vz, "vroll": vroll, "vpitch": vpitch, "ttl_ms": ttl_ms})
 
     def stop(self) -> dict:
@@ -138,6 +154,7 @@ class HitchClient:
                 q.put_nowait(d)
             except queue.Full:
                 pass
+
         self.subscribe(what, put)
         t = self.timeout_s if timeout_s is None else timeout_s
         while True:
@@ -160,6 +177,7 @@ class HitchClient:
             mid = s.get("motion_id")
             if isinstance(mid, int) and (mid > motion_id or (mid == motion_id and not s.get("moving"))):
                 done.set()
+
         self.subscribe("state", on_state)
         if not done.wait(timeout_s):
             raise ServiceTimeout(f"motion {motion_id} still running after {timeout_s:g} s")
@@ -186,7 +204,7 @@ class HitchClient:
         if not self.session.is_closed():
             self.session.close()
 
-    def __enter__(self) -> "HitchClient":
+    def __enter__(self) -> HitchClient:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -67,16 +67,20 @@ def validate_prefix(prefix: str) -> str:
         raise ValueError("prefix must be a non-empty key expression such as 'hitch' or 'fleet/t07/hitch'")
     for chunk in prefix.split("/"):
         if not _CHUNK.match(chunk):
-            raise ValueError(f"prefix {prefix!r}: chunk {chunk!r} is not allowed (letters, digits, '_', '-', '.'; "
-                             "no wildcards, no empty chunks)")
+            raise ValueError(
+                f"prefix {prefix!r}: chunk {chunk!r} is not allowed (letters, digits, '_', '-', '.'; "
+                "no wildcards, no empty chunks)"
+            )
     return prefix
 
 
 def validate_endpoint(endpoint: str) -> str:
     """A Zenoh locator ``<protocol>/<address>`` (tcp, udp, tls, quic, unixsock-stream, ws)."""
     if not isinstance(endpoint, str) or not _ENDPOINT.match(endpoint):
-        raise ValueError(f"endpoint {endpoint!r} must look like 'tcp/127.0.0.1:7447' "
-                         "(protocol tcp, udp, tls, quic, unixsock-stream or ws)")
+        raise ValueError(
+            f"endpoint {endpoint!r} must look like 'tcp/127.0.0.1:7447' "
+            "(protocol tcp, udp, tls, quic, unixsock-stream or ws)"
+        )
     return endpoint
 
 
@@ -159,12 +163,29 @@ class ServiceConfig(BaseModel):
 
 
 _TOML_SECTIONS = {
-    "zenoh": {"mode": "mode", "listen": "listen", "connect": "connect", "prefix": "prefix",
-              "security": "security", "scouting": "scouting"},
-    "can": {"interface": "can_interface", "channel": "can_channel", "simulate_ecu": "simulate_ecu",
-            "stale_timeout_s": "stale_timeout_s", "sim_ground_speed": "sim_ground_speed"},
-    "hitch": {"profile": "profile", "category": "category", "implement": "implement",
-              "control_rate": "control_rate", "state_rate": "state_rate", "feedforward": "feedforward"},
+    "zenoh": {
+        "mode": "mode",
+        "listen": "listen",
+        "connect": "connect",
+        "prefix": "prefix",
+        "security": "security",
+        "scouting": "scouting",
+    },
+    "can": {
+        "interface": "can_interface",
+        "channel": "can_channel",
+        "simulate_ecu": "simulate_ecu",
+        "stale_timeout_s": "stale_timeout_s",
+        "sim_ground_speed": "sim_ground_speed",
+    },
+    "hitch": {
+        "profile": "profile",
+        "category": "category",
+        "implement": "implement",
+        "control_rate": "control_rate",
+        "state_rate": "state_rate",
+        "feedforward": "feedforward",
+    },
     "service": {"data_dir": "data_dir", "http": "http", "http_user": "http_user", "workers": "workers"},
 }
 
@@ -173,14 +194,17 @@ def _flatten_toml(data: dict, source: str) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for section, values in data.items():
         if section not in _TOML_SECTIONS:
-            raise ServiceConfigError(f"invalid service config {source}: unknown section [{section}]; "
-                                     f"allowed: {', '.join(_TOML_SECTIONS)}")
+            raise ServiceConfigError(
+                f"invalid service config {source}: unknown section [{section}]; allowed: {', '.join(_TOML_SECTIONS)}"
+            )
         if not isinstance(values, dict):
             raise ServiceConfigError(f"invalid service config {source}: {section} must be a table")
         for k, v in values.items():
             if k not in _TOML_SECTIONS[section]:
-                raise ServiceConfigError(f"invalid service config {source}: unknown key {section}.{k}; allowed: "
-                                         f"{', '.join(_TOML_SECTIONS[section])}")
+                raise ServiceConfigError(
+                    f"invalid service config {source}: unknown key {section}.{k}; allowed: "
+                    f"{', '.join(_TOML_SECTIONS[section])}"
+                )
             out[_TOML_SECTIONS[section][k]] = v
     return out
 
@@ -203,5 +227,6 @@ def load_service_config(path: str | Path | None = None, **overrides: Any) -> Ser
         return ServiceConfig.model_validate(values)
     except ValidationError as exc:
         lines = format_validation_error("service config", source, exc, ServiceConfig).splitlines()[1:]
-        raise ServiceConfigError(f"invalid service config ({source}): "
-                                 + "; ".join(ln.strip().removeprefix("<root>: ") for ln in lines)) from None
+        raise ServiceConfigError(
+            f"invalid service config ({source}): " + "; ".join(ln.strip().removeprefix("<root>: ") for ln in lines)
+        ) from None

@@ -86,7 +86,7 @@ class WheelOdometer:
         if p.distance_m is not None:
             if self._last_field is not None:
                 step = (p.distance_m - self._last_field) % DISTANCE_WRAP_M
-                if step < 1000.0:                       # a reset of the sender's odometer is not travel
+                if step < 1000.0:  # a reset of the sender's odometer is not travel
                     self._total += step
             self._last_field = p.distance_m
         elif p.speed_m_s is not None and self._last_t is not None and self._last_speed is not None:
@@ -105,8 +105,7 @@ class WheelOdometer:
 class SimulatedTractor:
     """Sends PGN 65096 at ``speed_m_s`` (forward) every ``period_s`` from the tractor ECU (240)."""
 
-    def __init__(self, bus: can.BusABC, speed_m_s: float, *, period_s: float = 0.1,
-                 source: int = TRACTOR_ECU_ADDRESS):
+    def __init__(self, bus: can.BusABC, speed_m_s: float, *, period_s: float = 0.1, source: int = TRACTOR_ECU_ADDRESS):
         if not (isinstance(speed_m_s, (int, float)) and math.isfinite(speed_m_s) and 0.0 <= speed_m_s <= 64.0):
             raise ValueError(f"speed_m_s must be a number in [0, 64] m/s, got {speed_m_s!r}")
         if not 0.01 <= period_s <= 1.0:
@@ -127,11 +126,11 @@ class SimulatedTractor:
     def next_due_s(self) -> float:
         return self._due
 
-    def handle(self, frame: can.Message, now_s: float) -> None:   # a sender only
+    def handle(self, frame: can.Message, now_s: float) -> None:  # a sender only
         return None
 
     def poll(self, now_s: float) -> None:
-        while self._bus.recv(timeout=0.0) is not None:          # keep the receive queue empty
+        while self._bus.recv(timeout=0.0) is not None:  # keep the receive queue empty
             pass
         if self._t_last is None:
             self.start(now_s)
@@ -139,8 +138,9 @@ class SimulatedTractor:
         self._t_last = now_s
         if now_s + 1e-9 >= self._due:
             self._due = max(self._due + self.period_s, now_s)
-            msg = WheelBasedSpeed(speed_m_s=self.speed_m_s, distance_m=round(self._distance, 3),
-                                  direction=MachineDirection.FORWARD)
+            msg = WheelBasedSpeed(
+                speed_m_s=self.speed_m_s, distance_m=round(self._distance, 3), direction=MachineDirection.FORWARD
+            )
             try:
                 self._bus.send(encode(msg, source=self.source))
             except can.CanError:

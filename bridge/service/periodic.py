@@ -19,8 +19,15 @@ __all__ = ["PeriodicThread"]
 class PeriodicThread:
     """Runs ``fn()`` every ``period_s`` seconds in a daemon thread named ``name``."""
 
-    def __init__(self, period_s: float, fn: Callable[[], None], *, name: str,
-                 on_error: Callable[[Exception], None] | None = None, resync_after: int = 3):
+    def __init__(
+        self,
+        period_s: float,
+        fn: Callable[[], None],
+        *,
+        name: str,
+        on_error: Callable[[Exception], None] | None = None,
+        resync_after: int = 3,
+    ):
         if not 1e-4 <= period_s <= 10.0:
             raise ValueError(f"period_s must lie within [1e-4, 10] s, got {period_s!r}")
         self.period_s = float(period_s)
@@ -30,9 +37,9 @@ class PeriodicThread:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
         self.cycles = 0
-        self.overruns = 0   # cycles that started after their deadline
+        self.overruns = 0  # cycles that started after their deadline
 
-    def start(self) -> "PeriodicThread":
+    def start(self) -> PeriodicThread:
         self._thread.start()
         return self
 

@@ -17,15 +17,29 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from bridge.service.maneuvers.language import NAME_PATTERN, POSE_BOUNDS
 from planner.model.types import CONTROLLED_POSE_NAMES
 
-from bridge.service.maneuvers.language import NAME_PATTERN, POSE_BOUNDS
+__all__ = [
+    "API_KEYS",
+    "MAX_PAYLOAD_BYTES",
+    "REQUESTS",
+    "RequestError",
+    "parse_request",
+    "Goal",
+    "PoseRequest",
+    "PlanRequest",
+    "JogRequest",
+    "ModeRequest",
+    "NameRequest",
+    "PresetSave",
+    "PresetGo",
+    "ScriptRequest",
+    "ManeuverSave",
+    "Empty",
+]
 
-__all__ = ["API_KEYS", "MAX_PAYLOAD_BYTES", "REQUESTS", "RequestError", "parse_request", "Goal", "PoseRequest",
-           "PlanRequest", "JogRequest", "ModeRequest", "NameRequest", "PresetSave", "PresetGo", "ScriptRequest",
-           "ManeuverSave", "Empty"]
-
-MAX_PAYLOAD_BYTES = 96 * 1024   # a 64 KiB maneuver script, JSON-escaped, fits
+MAX_PAYLOAD_BYTES = 96 * 1024  # a 64 KiB maneuver script, JSON-escaped, fits
 _NAME = NAME_PATTERN.pattern
 
 
@@ -116,10 +130,21 @@ class ManeuverSave(_Strict):
 
 
 REQUESTS: Mapping[str, type[_Strict]] = {
-    "ik": PoseRequest, "plan": PlanRequest, "goto": PlanRequest, "jog": JogRequest, "stop": Empty,
-    "mode": ModeRequest, "config": Empty, "presets/list": Empty, "presets/save": PresetSave,
-    "presets/go": PresetGo, "presets/delete": NameRequest, "maneuvers/validate": ScriptRequest,
-    "maneuvers/save": ManeuverSave, "maneuvers/list": Empty, "maneuvers/run": NameRequest,
+    "ik": PoseRequest,
+    "plan": PlanRequest,
+    "goto": PlanRequest,
+    "jog": JogRequest,
+    "stop": Empty,
+    "mode": ModeRequest,
+    "config": Empty,
+    "presets/list": Empty,
+    "presets/save": PresetSave,
+    "presets/go": PresetGo,
+    "presets/delete": NameRequest,
+    "maneuvers/validate": ScriptRequest,
+    "maneuvers/save": ManeuverSave,
+    "maneuvers/list": Empty,
+    "maneuvers/run": NameRequest,
     "maneuvers/delete": NameRequest,
 }
 #: every API name (relative to the key prefix)
@@ -149,16 +174,32 @@ def _allowed(model: type[BaseModel], loc: tuple) -> str:
         if not isinstance(part, str) or m is None or part not in m.model_fields:
             break
         info = m.model_fields[part]
-        ann = [a for a in (getattr(info.annotation, "__args__", None) or (info.annotation,))
-               if isinstance(a, type) and issubclass(a, BaseModel)]
+        ann = [
+            a
+            for a in (getattr(info.annotation, "__args__", None) or (info.annotation,))
+            if isinstance(a, type) and issubclass(a, BaseModel)
+        ]
         m = ann[0] if ann else None
     if info is None:
         return ""
-    parts = [f"{sym} {getattr(c, a):.6g}" for c in info.metadata
-             for a, sym in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<=")) if getattr(c, a, None) is not None]
+    parts = [
+        f"{sym} {getattr(c, a):.6g}"
+        for c in info.metadata
+        for a, sym in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<="))
+        if getattr(c, a, None) is not None
+    ]
     name = str(loc[-1]) if loc else ""
-    unit = {"x": " m", "z": " m", "roll": " rad", "pitch": " rad", "vx": " m/s", "vz": " m/s", "vroll": " rad/s",
-            "vpitch": " rad/s", "ttl_ms": " ms"}.get(name, "")
+    unit = {
+        "x": " m",
+        "z": " m",
+        "roll": " rad",
+        "pitch": " rad",
+        "vx": " m/s",
+        "vz": " m/s",
+        "vroll": " rad/s",
+        "vpitch": " rad/s",
+        "ttl_ms": " ms",
+    }.get(name, "")
     return f" (allowed: {' and '.join(parts)}{unit})" if parts else ""
 
 
@@ -170,8 +211,11 @@ def _format(key: str, exc: ValidationError, model: type[BaseModel]) -> str:
         parent = model
         for p in loc[:-1]:
             ann = getattr(parent.model_fields.get(p), "annotation", None) if parent else None
-            subs = [a for a in (getattr(ann, "__args__", None) or (ann,))
-                    if isinstance(a, type) and issubclass(a, BaseModel)]
+            subs = [
+                a
+                for a in (getattr(ann, "__args__", None) or (ann,))
+                if isinstance(a, type) and issubclass(a, BaseModel)
+            ]
             parent = subs[0] if subs else None
         fields = ", ".join(parent.model_fields) if parent is not None and parent.model_fields else "none"
         return f"{key}: unknown field {path!r} (allowed fields: {fields})"
@@ -214,16 +258,17 @@ def parse_request(key: str, payload: bytes | bytearray | memoryview | str | None
             raise RequestError("bad_request", f"{key}: payload is not UTF-8 text (byte {exc.start})") from None
         except RecursionError:
             raise RequestError("bad_request", f"{key}: payload nests too deeply") from None
-        except ValueError as exc:   # JSONDecodeError, NaN/Infinity tokens, integers of > 4300 digits
+        except ValueError as exc:  # JSONDecodeError, NaN/Infinity tokens, integers of > 4300 digits
             raise RequestError("bad_request", f"{key}: payload is not valid JSON ({str(exc)[:80]})") from None
     if not isinstance(data, dict):
-        raise RequestError("bad_request", f"{key}: payload must be a JSON object with fields "
-                                          f"{', '.join(model.model_fields) or '(none)'}, got {_show(data)}")
+        raise RequestError(
+            "bad_request",
+            f"{key}: payload must be a JSON object with fields "
+            f"{', '.join(model.model_fields) or '(none)'}, got {_show(data)}",
+        )
     try:
         return model.model_validate(data)
     except ValidationError as exc:
         raise RequestError("bad_request", _format(key, exc, model)) from None
     except RecursionError:
         raise RequestError("bad_request", f"{key}: payload nests too deeply") from None
-
-

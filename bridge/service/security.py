@@ -39,17 +39,40 @@ import zenoh
 
 __all__ = [
     "access_policy_from_file",
-    "MOTION_KEYS", "VIEWER_QUERIES", "SECTIONS", "SecurityError", "Credentials", "AccessPolicy", "TlsSettings", "SecuritySettings",
-    "motion_keys", "build_acl", "build_security_config", "security_json5", "write_users_file",
-    "apply_security", "security_sections", "exposure_warnings",
+    "MOTION_KEYS",
+    "VIEWER_QUERIES",
+    "SECTIONS",
+    "SecurityError",
+    "Credentials",
+    "AccessPolicy",
+    "TlsSettings",
+    "SecuritySettings",
+    "motion_keys",
+    "build_acl",
+    "build_security_config",
+    "security_json5",
+    "write_users_file",
+    "apply_security",
+    "security_sections",
+    "exposure_warnings",
 ]
 
 #: API names that move the hitch (issue 7 §6); restricted to operators
 MOTION_KEYS: tuple[str, ...] = ("goto", "jog", "presets/go", "maneuvers/run", "mode")
 #: non-motion queries a viewer may send (API names under the prefix; exact keys, no wildcards)
-VIEWER_QUERIES: tuple[str, ...] = ("ik", "plan", "stop", "config", "presets/list", "presets/save",
-                                   "presets/delete", "maneuvers/validate", "maneuvers/save", "maneuvers/list",
-                                   "maneuvers/delete")
+VIEWER_QUERIES: tuple[str, ...] = (
+    "ik",
+    "plan",
+    "stop",
+    "config",
+    "presets/list",
+    "presets/save",
+    "presets/delete",
+    "maneuvers/validate",
+    "maneuvers/save",
+    "maneuvers/list",
+    "maneuvers/delete",
+)
 #: the Zenoh 1.10 ACL message kinds, by the direction a client-side user needs them in
 _OBSERVE_IN = ("declare_subscriber", "declare_liveliness_subscriber", "liveliness_query")
 _TO_CLIENT = ("put", "delete", "reply", "declare_queryable", "liveliness_token")
@@ -67,8 +90,13 @@ class SecurityError(ValueError):
 
 
 def _user(name: Any, what: str) -> str:
-    if not isinstance(name, str) or not name or len(name) > 64 or any(c in name for c in ":\n\r\t ") \
-            or not name.isprintable():
+    if (
+        not isinstance(name, str)
+        or not name
+        or len(name) > 64
+        or any(c in name for c in ":\n\r\t ")
+        or not name.isprintable()
+    ):
         raise SecurityError(what, f"a user name must be 1-64 printable characters without ':' or spaces, got {name!r}")
     return name
 
@@ -106,9 +134,9 @@ class AccessPolicy:
     """Who may do what under ``prefix`` (a key expression; ``fleet/*/hitch`` on a fleet router)."""
 
     prefix: str = "hitch"
-    operators: tuple[str, ...] = ()         # usernames allowed everything, motion included
-    viewers: tuple[str, ...] = ()           # usernames allowed state, events and non-motion queries
-    services: tuple[str, ...] = ()          # usernames of service nodes (behind a router): publish, answer
+    operators: tuple[str, ...] = ()  # usernames allowed everything, motion included
+    viewers: tuple[str, ...] = ()  # usernames allowed state, events and non-motion queries
+    services: tuple[str, ...] = ()  # usernames of service nodes (behind a router): publish, answer
     operator_cert_names: tuple[str, ...] = ()  # mTLS certificate common names with operator rights
     viewer_cert_names: tuple[str, ...] = ()
     service_cert_names: tuple[str, ...] = ()
@@ -121,8 +149,11 @@ class AccessPolicy:
             raise SecurityError("access.viewer_queries", "must be a list of API names such as 'ik'")
         for k in vq:
             if k in MOTION_KEYS or "*" in k or "$" in k:
-                raise SecurityError("access.viewer_queries", f"{k!r} is a motion key or a wildcard (allowed: exact "
-                                                             f"non-motion API names, e.g. {', '.join(VIEWER_QUERIES[:3])})")
+                raise SecurityError(
+                    "access.viewer_queries",
+                    f"{k!r} is a motion key or a wildcard (allowed: exact "
+                    f"non-motion API names, e.g. {', '.join(VIEWER_QUERIES[:3])})",
+                )
             _key(self.prefix, k, "access.viewer_queries")
         object.__setattr__(self, "viewer_queries", tuple(vq))
         seen: dict[str, str] = {}
@@ -141,8 +172,14 @@ class AccessPolicy:
             if isinstance(names, str) or not all(isinstance(n, str) and n and n.isprintable() for n in names):
                 raise SecurityError(f"access.{role}", "must be a list of non-empty certificate common names")
             object.__setattr__(self, role, tuple(names))
-        if not (self.operators or self.viewers or self.services or self.operator_cert_names
-                or self.viewer_cert_names or self.service_cert_names):
+        if not (
+            self.operators
+            or self.viewers
+            or self.services
+            or self.operator_cert_names
+            or self.viewer_cert_names
+            or self.service_cert_names
+        ):
             raise SecurityError("access", "names nobody: with default deny no one could reach the service")
 
 
@@ -164,8 +201,10 @@ class TlsSettings:
             if v is not None:
                 object.__setattr__(self, name, Path(v))
         if (self.certificate is None) != (self.private_key is None):
-            raise SecurityError("tls.private_key" if self.private_key is None else "tls.certificate",
-                                "certificate and private_key go together")
+            raise SecurityError(
+                "tls.private_key" if self.private_key is None else "tls.certificate",
+                "certificate and private_key go together",
+            )
         if self.mutual and (self.root_ca is None or self.certificate is None):
             raise SecurityError("tls.mutual", "mutual TLS needs root_ca, certificate and private_key")
         for name in ("root_ca", "certificate", "private_key"):
@@ -188,10 +227,16 @@ class SecuritySettings:
                 raise SecurityError("users_file", f"file {self.users_file} does not exist")
         a = self.access
         if a is not None and (a.operators or a.viewers or a.services) and self.users_file is None:
-            raise SecurityError("users_file", "the access policy names users, but without a users_file no link "
-                                              "is authenticated and no username can match")
-        if a is not None and (a.operator_cert_names or a.viewer_cert_names or a.service_cert_names) \
-                and (self.tls is None or not self.tls.mutual):
+            raise SecurityError(
+                "users_file",
+                "the access policy names users, but without a users_file no link "
+                "is authenticated and no username can match",
+            )
+        if (
+            a is not None
+            and (a.operator_cert_names or a.viewer_cert_names or a.service_cert_names)
+            and (self.tls is None or not self.tls.mutual)
+        ):
             raise SecurityError("tls.mutual", "certificate names in the access policy need mutual TLS")
 
 
@@ -199,27 +244,57 @@ def build_acl(policy: AccessPolicy) -> dict:
     """The ``access_control`` section: default deny; see :class:`AccessPolicy` and the module docstring."""
     everything = [_key(policy.prefix, "**")]
     rules = [
-        {"id": "observe", "permission": "allow", "flows": ["ingress"], "messages": list(_OBSERVE_IN),
-         "key_exprs": everything},
-        {"id": "to_client", "permission": "allow", "flows": ["egress"], "messages": list(_TO_CLIENT),
-         "key_exprs": everything},
+        {
+            "id": "observe",
+            "permission": "allow",
+            "flows": ["ingress"],
+            "messages": list(_OBSERVE_IN),
+            "key_exprs": everything,
+        },
+        {
+            "id": "to_client",
+            "permission": "allow",
+            "flows": ["egress"],
+            "messages": list(_TO_CLIENT),
+            "key_exprs": everything,
+        },
         # queries are allowed by exact key: ACL rules match keys *included* in theirs, so a wildcard
         # query such as 'hitch/**' (which would reach the motion queryables) matches none of these
-        {"id": "viewer_queries", "permission": "allow", "flows": ["ingress"], "messages": ["query"],
-         "key_exprs": [_key(policy.prefix, k, "access.viewer_queries") for k in policy.viewer_queries]},
-        {"id": "operator_queries", "permission": "allow", "flows": ["ingress"], "messages": ["query"],
-         "key_exprs": everything},
-        {"id": "no_motion", "permission": "deny", "flows": ["ingress", "egress"], "messages": list(_ALL),
-         "key_exprs": list(motion_keys(policy.prefix))},
-        {"id": "service", "permission": "allow", "flows": ["ingress", "egress"], "messages": list(_ALL),
-         "key_exprs": everything},
+        {
+            "id": "viewer_queries",
+            "permission": "allow",
+            "flows": ["ingress"],
+            "messages": ["query"],
+            "key_exprs": [_key(policy.prefix, k, "access.viewer_queries") for k in policy.viewer_queries],
+        },
+        {
+            "id": "operator_queries",
+            "permission": "allow",
+            "flows": ["ingress"],
+            "messages": ["query"],
+            "key_exprs": everything,
+        },
+        {
+            "id": "no_motion",
+            "permission": "deny",
+            "flows": ["ingress", "egress"],
+            "messages": list(_ALL),
+            "key_exprs": list(motion_keys(policy.prefix)),
+        },
+        {
+            "id": "service",
+            "permission": "allow",
+            "flows": ["ingress", "egress"],
+            "messages": list(_ALL),
+            "key_exprs": everything,
+        },
     ]
     subjects, policies = [], []
     for role, users, certs, rule_ids in (
-            ("operators", policy.operators, policy.operator_cert_names, ["observe", "to_client", "operator_queries"]),
-            ("viewers", policy.viewers, policy.viewer_cert_names,
-             ["observe", "to_client", "viewer_queries", "no_motion"]),
-            ("services", policy.services, policy.service_cert_names, ["service"])):
+        ("operators", policy.operators, policy.operator_cert_names, ["observe", "to_client", "operator_queries"]),
+        ("viewers", policy.viewers, policy.viewer_cert_names, ["observe", "to_client", "viewer_queries", "no_motion"]),
+        ("services", policy.services, policy.service_cert_names, ["service"]),
+    ):
         ids = []
         if users:
             subjects.append({"id": f"{role}_users", "usernames": list(users)})
@@ -229,8 +304,7 @@ def build_acl(policy: AccessPolicy) -> dict:
             ids.append(f"{role}_certs")
         if ids:
             policies.append({"id": role, "rules": rule_ids, "subjects": ids})
-    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
-            "policies": policies}
+    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
 
 
 def build_security_config(settings: SecuritySettings) -> dict:
@@ -308,16 +382,37 @@ def security_sections(source: SecuritySettings | Mapping | str | Path) -> dict[s
         raise SecurityError("security", f"{where} is not a valid Zenoh security config: {exc}") from None
     foreign = _foreign_settings(parsed)
     if foreign:
-        raise SecurityError("security", f"{where} sets {', '.join(foreign)}; a security file may only set "
-                                        f"{', '.join(SECTIONS)}")
+        raise SecurityError(
+            "security", f"{where} sets {', '.join(foreign)}; a security file may only set {', '.join(SECTIONS)}"
+        )
     return _as_sections(parsed)
 
 
 def _foreign_settings(parsed: zenoh.Config) -> list[str]:
     default = zenoh.Config()
     out = []
-    for top in ("mode", "connect", "listen", "open", "gateway", "region_name", "metadata", "stats", "scouting", "timestamping", "queries_default_timeout", "routing",
-                "aggregation", "qos", "adminspace", "namespace", "downsampling", "low_pass_filter", "plugins_loading", "plugins"):
+    for top in (
+        "mode",
+        "connect",
+        "listen",
+        "open",
+        "gateway",
+        "region_name",
+        "metadata",
+        "stats",
+        "scouting",
+        "timestamping",
+        "queries_default_timeout",
+        "routing",
+        "aggregation",
+        "qos",
+        "adminspace",
+        "namespace",
+        "downsampling",
+        "low_pass_filter",
+        "plugins_loading",
+        "plugins",
+    ):
         try:
             if json.loads(parsed.get_json(top)) != json.loads(default.get_json(top)):
                 out.append(top)
@@ -352,15 +447,22 @@ def access_policy_from_file(source: str | Path, prefix: str) -> AccessPolicy | N
     if not acl.get("enabled", False):
         return None
     users = {sub["id"]: tuple(sub.get("usernames", ())) for sub in acl.get("subjects", [])}
-    roles = {pol["id"]: tuple(u for sid in pol.get("subjects", []) for u in users.get(sid, ()))
-             for pol in acl.get("policies", [])}
+    roles = {
+        pol["id"]: tuple(u for sid in pol.get("subjects", []) for u in users.get(sid, ()))
+        for pol in acl.get("policies", [])
+    }
     viewer_rule = next((r for r in acl.get("rules", []) if r.get("id") == "viewer_queries"), None)
     queries = VIEWER_QUERIES
     if viewer_rule is not None:
         head = prefix.rstrip("/") + "/"
-        queries = tuple(k[len(head):] for k in viewer_rule.get("key_exprs", []) if k.startswith(head))
-    return AccessPolicy(prefix=prefix, operators=roles.get("operators", ()), viewers=roles.get("viewers", ()),
-                        services=roles.get("services", ()), viewer_queries=queries)
+        queries = tuple(k[len(head) :] for k in viewer_rule.get("key_exprs", []) if k.startswith(head))
+    return AccessPolicy(
+        prefix=prefix,
+        operators=roles.get("operators", ()),
+        viewers=roles.get("viewers", ()),
+        services=roles.get("services", ()),
+        viewer_queries=queries,
+    )
 
 
 def exposure_warnings(listen: Sequence[str], settings: SecuritySettings | None) -> list[str]:

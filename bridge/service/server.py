@@ -40,18 +40,8 @@ from typing import Any
 
 import zenoh
 
-from planner.ik_qp.hitch_ik import IKSolver
-from planner.model.kinematics import HitchModel
-from planner.limits.guard import Guard
-from planner.limits.tractor import load_tractor_profile
-from planner.model.sensors import SensorScaling
-from planner.trajectory import TrajectoryPlanner
-from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
-
 from bridge.link.can_link import CanLink
 from bridge.link.realtime import RealtimeRunner, open_bus
-from bridge.sim.can_node import EcuCanNode
-from bridge.sim.ecu import CylinderECU
 from bridge.link.state import LinkConfig
 from bridge.service.api import API_KEYS, ServiceAPI
 from bridge.service.config import ServiceConfig
@@ -59,6 +49,15 @@ from bridge.service.motion.controller import MotionController
 from bridge.service.odometer import SimulatedTractor, WheelOdometer
 from bridge.service.security import access_policy_from_file, apply_security, exposure_warnings
 from bridge.service.store import HitchStore
+from bridge.sim.can_node import EcuCanNode
+from bridge.sim.ecu import CylinderECU
+from planner.ik_qp.hitch_ik import IKSolver
+from planner.limits.guard import Guard
+from planner.limits.tractor import load_tractor_profile
+from planner.model.kinematics import HitchModel
+from planner.model.sensors import SensorScaling
+from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
+from planner.trajectory import TrajectoryPlanner
 
 __all__ = ["HitchService", "ServiceStartError", "serve", "INLINE_KEYS", "to_json_bytes", "build_zenoh_config"]
 
@@ -91,9 +90,12 @@ def to_json_bytes(obj: Any) -> bytes:
 def build_zenoh_config(cfg: ServiceConfig) -> zenoh.Config:
     """The session config: mode, endpoints, scouting, then the security file (if any)."""
     z = zenoh.Config()
-    for path, value in (("mode", cfg.mode), ("listen/endpoints", list(cfg.listen)),
-                        ("connect/endpoints", list(cfg.connect)),
-                        ("scouting/multicast/enabled", cfg.scouting)):
+    for path, value in (
+        ("mode", cfg.mode),
+        ("listen/endpoints", list(cfg.listen)),
+        ("connect/endpoints", list(cfg.connect)),
+        ("scouting/multicast/enabled", cfg.scouting),
+    ):
         z.insert_json5(path, json.dumps(value))
     if cfg.security is not None:
         apply_security(z, cfg.security)
@@ -138,7 +140,7 @@ class HitchService:
             implement = load_tractor_profile(model.profile.stability.tractor_profile).implement(cfg.implement)
         return Guard(planner, implement=implement)
 
-    def start(self) -> "HitchService":
+    def start(self) -> HitchService:
         cfg = self.config
         try:
             cfg.data_dir.mkdir(parents=True, exist_ok=True)
@@ -146,19 +148,28 @@ class HitchService:
             control_model = self._model()
             guard, plan_guard = self._guard(control_model), self._guard(self._model())
             ik = IKSolver(self._model())
-            ik.solve((0.0, float(control_model.neutral_pose.z), 0.0, 0.0))   # warm the solver before serving
+            ik.solve((0.0, float(control_model.neutral_pose.z), 0.0, 0.0))  # warm the solver before serving
             link_model = self._model()
-            if cfg.security is None:   # with a security file the operator chose the protection
+            if cfg.security is None:  # with a security file the operator chose the protection
                 self.warnings = exposure_warnings(cfg.listen, None)
             self._start_can(link_model)
             clock = self._runners[-1].now
             state_every = max(1, round(cfg.control_rate / cfg.state_rate))
-            self.motion = MotionController(guard, plan_guard, self.link, clock, on_state=self._on_state,
-                                           on_event=self._on_event, state_every=state_every,
-                                           odometer=self.odometer.distance_m, feedforward=cfg.feedforward)
+            self.motion = MotionController(
+                guard,
+                plan_guard,
+                self.link,
+                clock,
+                on_state=self._on_state,
+                on_event=self._on_event,
+                state_every=state_every,
+                odometer=self.odometer.distance_m,
+                feedforward=cfg.feedforward,
+            )
             policy = access_policy_from_file(cfg.security, cfg.prefix) if cfg.security is not None else None
-            self.api = ServiceAPI(self.motion, ik, self.store, self._info(control_model, guard),
-                                  implement=cfg.implement, policy=policy)
+            self.api = ServiceAPI(
+                self.motion, ik, self.store, self._info(control_model, guard), implement=cfg.implement, policy=policy
+            )
             self._pool = ThreadPoolExecutor(cfg.workers, thread_name_prefix="hitch-api")
             self._open_zenoh()
             self.motion.start()
@@ -183,53 +194,68 @@ class HitchService:
             self._runners.append(RealtimeRunner(self.ecu_node, max_wait_s=0.02).start())
             tractor_bus = open_bus(cfg.can_interface, cfg.can_channel)
             self._buses.append(tractor_bus)
-            self._runners.append(RealtimeRunner(SimulatedTractor(tractor_bus, cfg.sim_ground_speed),
-                                                max_wait_s=0.05).start())
+            self._runners.append(
+                RealtimeRunner(SimulatedTractor(tractor_bus, cfg.sim_ground_speed), max_wait_s=0.05).start()
+            )
         odo_bus = open_bus(cfg.can_interface, cfg.can_channel)
         self._buses.append(odo_bus)
         self.odometer = WheelOdometer(odo_bus)
         self._runners.append(RealtimeRunner(self.odometer, max_wait_s=0.05).start())
         link_bus = open_bus(cfg.can_interface, cfg.can_channel)
         self._buses.append(link_bus)
-        self.link = CanLink(link_model, link_bus, LinkConfig(control_rate_hz=cfg.control_rate,
-                                                             stale_after_s=cfg.stale_timeout_s))
+        self.link = CanLink(
+            link_model, link_bus, LinkConfig(control_rate_hz=cfg.control_rate, stale_after_s=cfg.stale_timeout_s)
+        )
         self._runners.append(RealtimeRunner(self.link, max_wait_s=0.02).start())
 
     def _open_zenoh(self) -> None:
         cfg = self.config
         try:
             self.session = zenoh.open(build_zenoh_config(cfg))
-        except zenoh.ZError as exc:   # e.g. the port is taken, a TLS file is unreadable
-            raise ServiceStartError(f"cannot open the Zenoh session (listen {', '.join(cfg.listen) or '-'}, connect "
-                                    f"{', '.join(cfg.connect) or '-'}): {exc}") from None
+        except zenoh.ZError as exc:  # e.g. the port is taken, a TLS file is unreadable
+            raise ServiceStartError(
+                f"cannot open the Zenoh session (listen {', '.join(cfg.listen) or '-'}, connect "
+                f"{', '.join(cfg.connect) or '-'}): {exc}"
+            ) from None
         s = self.session
-        self._state_pub = s.declare_publisher(cfg.key("state"), encoding=zenoh.Encoding.APPLICATION_JSON,
-                                              express=True, congestion_control=zenoh.CongestionControl.DROP,
-                                              priority=zenoh.Priority.DATA_HIGH)
-        self._event_pub = s.declare_publisher(cfg.key("events"), encoding=zenoh.Encoding.APPLICATION_JSON,
-                                              express=True)
+        self._state_pub = s.declare_publisher(
+            cfg.key("state"),
+            encoding=zenoh.Encoding.APPLICATION_JSON,
+            express=True,
+            congestion_control=zenoh.CongestionControl.DROP,
+            priority=zenoh.Priority.DATA_HIGH,
+        )
+        self._event_pub = s.declare_publisher(cfg.key("events"), encoding=zenoh.Encoding.APPLICATION_JSON, express=True)
         for key in API_KEYS:
             self._decls.append(s.declare_queryable(cfg.key(key), self._query_callback(key), complete=True))
         self._decls.append(s.liveliness().declare_token(cfg.key("alive")))
 
     def _start_http(self, addr: str) -> None:
         try:
-            from bridge.web.server import start_http   # the operator terminal (issue 9), loaded only when asked for
+            from bridge.web.server import start_http  # the operator terminal (issue 9), loaded only when asked for
         except ImportError as exc:
             raise ServiceStartError(f"--http {addr}: the operator terminal is not available ({exc})") from None
         try:
             self.http = start_http(self, addr, user=self.config.http_user)
-        except OSError as exc:                    # the port is taken, the address is not local …
+        except OSError as exc:  # the port is taken, the address is not local …
             raise ServiceStartError(f"--http {addr}: cannot listen ({exc})") from None
 
     def _info(self, model: HitchModel, guard: Guard) -> dict:
         cfg = self.config
         tp = guard.planner
         return {
-            "prefix": cfg.prefix, "profile": model.profile.name, "category": model.category,
-            "implement": cfg.implement, "control_rate": tp.rate, "state_rate": cfg.state_rate,
-            "can": {"interface": cfg.can_interface, "channel": cfg.can_channel, "simulated_ecu": cfg.simulate_ecu,
-                    "simulated_ground_speed": cfg.sim_ground_speed if cfg.simulate_ecu else None},
+            "prefix": cfg.prefix,
+            "profile": model.profile.name,
+            "category": model.category,
+            "implement": cfg.implement,
+            "control_rate": tp.rate,
+            "state_rate": cfg.state_rate,
+            "can": {
+                "interface": cfg.can_interface,
+                "channel": cfg.can_channel,
+                "simulated_ecu": cfg.simulate_ecu,
+                "simulated_ground_speed": cfg.sim_ground_speed if cfg.simulate_ecu else None,
+            },
             "limits": {
                 "workspace": {k: list(tp.workspace[k]) for k in CONTROLLED_POSE_NAMES},
                 "strokes": {n: [float(lo), float(hi)] for n, lo, hi in zip(ACTUATOR_NAMES, model.lower, model.upper)},
@@ -255,8 +281,9 @@ class HitchService:
             else:
                 try:
                     self._pool.submit(self._answer, query, key, payload)
-                except RuntimeError:   # pool shut down: the service is closing
+                except RuntimeError:  # pool shut down: the service is closing
                     self._answer(query, key, payload)
+
         return on_query
 
     def _answer(self, query: zenoh.Query, key: str, payload: bytes) -> None:
@@ -270,7 +297,7 @@ class HitchService:
                 query.reply(query.key_expr, data, encoding=zenoh.Encoding.APPLICATION_JSON)
             else:
                 query.reply_err(data, encoding=zenoh.Encoding.APPLICATION_JSON)
-        except Exception:   # the session closed under us: nothing left to answer to
+        except Exception:  # the session closed under us: nothing left to answer to
             pass
         finally:
             query.drop()
@@ -296,7 +323,7 @@ class HitchService:
         if pub is not None and not self._closed:
             try:
                 pub.put(to_json_bytes(msg))
-            except Exception:   # the session is closing
+            except Exception:  # the session is closing
                 pass
         for cb in list(self._listeners["state"]):
             _call(cb, msg)
@@ -347,7 +374,7 @@ class HitchService:
             self.close_duration_s = time.monotonic() - t0
             return self.close_duration_s
 
-    def __enter__(self) -> "HitchService":
+    def __enter__(self) -> HitchService:
         return self.start()
 
     def __exit__(self, *exc) -> None:
@@ -357,7 +384,7 @@ class HitchService:
 def _call(cb, arg) -> None:
     try:
         cb(arg)
-    except Exception:   # a listener's bug must not stop the control thread
+    except Exception:  # a listener's bug must not stop the control thread
         pass
 
 
@@ -379,8 +406,10 @@ def serve(config: ServiceConfig, *, ready: Callable[[HitchService], None] | None
                 ready(service)
             while not stop.wait(0.5):
                 if any(r.error is not None for r in service._runners):
-                    raise RuntimeError("a CAN thread stopped: " + "; ".join(
-                        repr(r.error) for r in service._runners if r.error is not None))
+                    raise RuntimeError(
+                        "a CAN thread stopped: "
+                        + "; ".join(repr(r.error) for r in service._runners if r.error is not None)
+                    )
         finally:
             took = service.close()
         return took

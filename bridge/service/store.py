@@ -38,8 +38,7 @@ from typing import Any
 
 from bridge.service.maneuvers.language import POSE_BOUNDS, ManeuverScript, check_name, parse_maneuver
 
-__all__ = ["StoreError", "Preset", "StoredManeuver", "HitchStore", "MIGRATIONS", "SCHEMA_VERSION",
-           "DEFAULT_IMPLEMENT"]
+__all__ = ["StoreError", "Preset", "StoredManeuver", "HitchStore", "MIGRATIONS", "SCHEMA_VERSION", "DEFAULT_IMPLEMENT"]
 
 #: the implement key used when the service runs without a named implement
 DEFAULT_IMPLEMENT = "default"
@@ -102,8 +101,13 @@ class StoredManeuver:
     updated_s: float = 0.0
 
     def to_json(self) -> dict:
-        return {"name": self.name, "script": self.script, "description": self.parsed.description,
-                "steps": len(self.parsed.steps), "timeout": self.parsed.timeout_s}
+        return {
+            "name": self.name,
+            "script": self.script,
+            "description": self.parsed.description,
+            "steps": len(self.parsed.steps),
+            "timeout": self.parsed.timeout_s,
+        }
 
 
 def _name(value: Any, what: str) -> str:
@@ -170,8 +174,11 @@ class HitchStore:
     def _migrate(self) -> None:
         version = self._db.execute("PRAGMA user_version").fetchone()[0]
         if version > SCHEMA_VERSION:
-            raise StoreError("schema_version", f"database {self.path} has schema version {version}, newer than "
-                                               f"this program supports (at most {SCHEMA_VERSION})")
+            raise StoreError(
+                "schema_version",
+                f"database {self.path} has schema version {version}, newer than "
+                f"this program supports (at most {SCHEMA_VERSION})",
+            )
         for v in range(version, SCHEMA_VERSION):
             self._db.execute("BEGIN IMMEDIATE")
             try:
@@ -192,8 +199,10 @@ class HitchStore:
     def pragmas(self) -> dict[str, Any]:
         """The durability settings in force: journal_mode ('wal') and synchronous (2 = FULL)."""
         with self._locked() as db:
-            return {"journal_mode": db.execute("PRAGMA journal_mode").fetchone()[0],
-                    "synchronous": db.execute("PRAGMA synchronous").fetchone()[0]}
+            return {
+                "journal_mode": db.execute("PRAGMA journal_mode").fetchone()[0],
+                "synchronous": db.execute("PRAGMA synchronous").fetchone()[0],
+            }
 
     def close(self) -> None:
         """Checkpoint the WAL into the database file and close; later calls raise StoreError."""
@@ -207,7 +216,7 @@ class HitchStore:
                 pass  # another process may hold a read lock; the WAL stays valid
             self._db.close()
 
-    def __enter__(self) -> "HitchStore":
+    def __enter__(self) -> HitchStore:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -233,37 +242,62 @@ class HitchStore:
             return cur.rowcount
 
     # ------------------------------------------------------------------ presets
-    def save_preset(self, name: str, pose: Mapping[str, float], *, implement: str = DEFAULT_IMPLEMENT,
-                    speed_scale: float | None = None) -> Preset:
+    def save_preset(
+        self,
+        name: str,
+        pose: Mapping[str, float],
+        *,
+        implement: str = DEFAULT_IMPLEMENT,
+        speed_scale: float | None = None,
+    ) -> Preset:
         """Insert or replace a preset (atomically, durably); returns what was stored."""
-        preset = Preset(_name(implement, "implement"), _name(name, "name"), _pose(pose), _scale(speed_scale),
-                        time.time())
+        preset = Preset(
+            _name(implement, "implement"), _name(name, "name"), _pose(pose), _scale(speed_scale), time.time()
+        )
         p = preset.pose
-        self._write("INSERT INTO presets (implement, name, x, z, roll, pitch, speed_scale, updated_s) "
-                    "VALUES (?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT (implement, name) DO UPDATE SET "
-                    "x = excluded.x, z = excluded.z, roll = excluded.roll, pitch = excluded.pitch, "
-                    "speed_scale = excluded.speed_scale, updated_s = excluded.updated_s",
-                    (preset.implement, preset.name, p["x"], p["z"], p["roll"], p["pitch"], preset.speed_scale,
-                     preset.updated_s))
+        self._write(
+            "INSERT INTO presets (implement, name, x, z, roll, pitch, speed_scale, updated_s) "
+            "VALUES (?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT (implement, name) DO UPDATE SET "
+            "x = excluded.x, z = excluded.z, roll = excluded.roll, pitch = excluded.pitch, "
+            "speed_scale = excluded.speed_scale, updated_s = excluded.updated_s",
+            (
+                preset.implement,
+                preset.name,
+                p["x"],
+                p["z"],
+                p["roll"],
+                p["pitch"],
+                preset.speed_scale,
+                preset.updated_s,
+            ),
+        )
         return preset
 
     def get_preset(self, name: str, *, implement: str = DEFAULT_IMPLEMENT) -> Preset | None:
         """The preset, or None if this implement has none of that name."""
         args = (_name(implement, "implement"), _name(name, "name"))
         with self._locked() as db:
-            row = db.execute("SELECT implement, name, x, z, roll, pitch, speed_scale, updated_s FROM presets "
-                             "WHERE implement = ? AND name = ?", args).fetchone()
+            row = db.execute(
+                "SELECT implement, name, x, z, roll, pitch, speed_scale, updated_s FROM presets "
+                "WHERE implement = ? AND name = ?",
+                args,
+            ).fetchone()
         return None if row is None else _preset(row)
 
     def list_presets(self, implement: str | None = DEFAULT_IMPLEMENT) -> list[Preset]:
         """Presets of one implement (``None``: of every implement), sorted by implement and name."""
         with self._locked() as db:
             if implement is None:
-                rows = db.execute("SELECT implement, name, x, z, roll, pitch, speed_scale, updated_s FROM presets "
-                                  "ORDER BY implement, name").fetchall()
+                rows = db.execute(
+                    "SELECT implement, name, x, z, roll, pitch, speed_scale, updated_s FROM presets "
+                    "ORDER BY implement, name"
+                ).fetchall()
             else:
-                rows = db.execute("SELECT implement, name, x, z, roll, pitch, speed_scale, updated_s FROM presets "
-                                  "WHERE implement = ? ORDER BY name", (_name(implement, "implement"),)).fetchall()
+                rows = db.execute(
+                    "SELECT implement, name, x, z, roll, pitch, speed_scale, updated_s FROM presets "
+                    "WHERE implement = ? ORDER BY name",
+                    (_name(implement, "implement"),),
+                ).fetchall()
         return [_preset(r) for r in rows]
 
     def delete_preset(self, name: str, *, implement: str = DEFAULT_IMPLEMENT) -> bool:
@@ -280,12 +314,17 @@ class HitchStore:
         name = _name(name, "name")
         parsed = self._parse(script)
         if parsed.name is not None and parsed.name != name:
-            raise StoreError("name", f"the script calls itself {parsed.name!r} but is saved as {name!r}; "
-                                     "make them equal or drop 'name:' from the script")
+            raise StoreError(
+                "name",
+                f"the script calls itself {parsed.name!r} but is saved as {name!r}; "
+                "make them equal or drop 'name:' from the script",
+            )
         stored = StoredManeuver(name, script, parsed, time.time())
-        self._write("INSERT INTO maneuvers (name, script, updated_s) VALUES (?, ?, ?) ON CONFLICT (name) "
-                    "DO UPDATE SET script = excluded.script, updated_s = excluded.updated_s",
-                    (name, script, stored.updated_s))
+        self._write(
+            "INSERT INTO maneuvers (name, script, updated_s) VALUES (?, ?, ?) ON CONFLICT (name) "
+            "DO UPDATE SET script = excluded.script, updated_s = excluded.updated_s",
+            (name, script, stored.updated_s),
+        )
         return stored
 
     def get_maneuver(self, name: str) -> StoredManeuver | None:

@@ -41,12 +41,22 @@ import can
 
 from bridge.isobus.address_claim import CLAIM_WAIT_S, AddressClaimer, ClaimState, Name, cylinder_ecu_name
 from bridge.isobus.codec import (
-    CodecError, EcuParameters, Heartbeat, PositionCounts, PositionMeasurement,
-    RearHitchStatus, load_codec,
+    CodecError,
+    EcuParameters,
+    Heartbeat,
+    PositionCounts,
+    PositionMeasurement,
+    RearHitchStatus,
+    load_codec,
 )
 from bridge.isobus.heartbeat import HEARTBEAT_PERIOD_S, HeartbeatMonitor, HeartbeatSender, HeartbeatStatus
 from bridge.isobus.j1939 import (
-    CYLINDER_ECU_ADDRESS, PGN_ADDRESS_CLAIMED, PGN_REQUEST, PLANNER_ADDRESS, LimitStatus, decode_id,
+    CYLINDER_ECU_ADDRESS,
+    PGN_ADDRESS_CLAIMED,
+    PGN_REQUEST,
+    PLANNER_ADDRESS,
+    LimitStatus,
+    decode_id,
 )
 from bridge.sim.ecu import CylinderECU
 
@@ -56,8 +66,12 @@ _EPS_S = 1e-6  # float-time tolerance of the periodic schedules
 
 
 def _check_period(name: str, value: object, low: float, high: float) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-            or not low <= value <= high:
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float))
+        or not math.isfinite(value)
+        or not low <= value <= high
+    ):
         raise ValueError(f"{name} must be a number of seconds in [{low:g}, {high:g}], got {value!r}")
 
 
@@ -92,8 +106,7 @@ class EcuNodeConfig:
     def __post_init__(self) -> None:
         for attr, allow_none in (("source_address", False), ("planner_address", True)):
             v = getattr(self, attr)
-            if not (v is None and allow_none) and (
-                    isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= 253):
+            if not (v is None and allow_none) and (isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= 253):
                 raise ValueError(f"{attr} must be a source address in 0..253, got {v!r}")
         _check_period("measurement_period_s", self.measurement_period_s, 0.001, 1.0)
         _check_period("hitch_status_period_s", self.hitch_status_period_s, 0.001, 1.0)
@@ -166,12 +179,11 @@ class EcuCanNode:
         self._cfg = config if config is not None else EcuNodeConfig()
         self._codec = load_codec()
         self._known_pgns = frozenset(decode_id(m.frame_id).pgn for m in self._codec.database.messages)
-        self._claimer = AddressClaimer(self._cfg.name, self._cfg.source_address,
-                                       wait_s=self._cfg.claim_wait_s)
-        self._heartbeat = HeartbeatSender(self._cfg.source_address,
-                                          period_s=self._cfg.heartbeat_period_s)
-        self._planner_hb = (HeartbeatMonitor(self._cfg.planner_address)
-                            if self._cfg.planner_address is not None else None)
+        self._claimer = AddressClaimer(self._cfg.name, self._cfg.source_address, wait_s=self._cfg.claim_wait_s)
+        self._heartbeat = HeartbeatSender(self._cfg.source_address, period_s=self._cfg.heartbeat_period_s)
+        self._planner_hb = (
+            HeartbeatMonitor(self._cfg.planner_address) if self._cfg.planner_address is not None else None
+        )
         self._measurement = _Schedule(self._cfg.measurement_period_s)
         self._hitch = _Schedule(self._cfg.hitch_status_period_s)
         self._counters = EcuNodeCounters()
@@ -217,10 +229,12 @@ class EcuCanNode:
     def next_due_s(self) -> float:
         """Earliest time something must be sent (for a real-time loop's sleep), s."""
         if not self._operating:
-            return math.inf if self._claimer.state is ClaimState.CANNOT_CLAIM else \
-                self._ecu.time_s + self._cfg.measurement_period_s
-        return min(self._measurement.due_s, self._hitch.due_s,
-                   self._ecu.time_s + self._cfg.heartbeat_period_s)
+            return (
+                math.inf
+                if self._claimer.state is ClaimState.CANNOT_CLAIM
+                else self._ecu.time_s + self._cfg.measurement_period_s
+            )
+        return min(self._measurement.due_s, self._hitch.due_s, self._ecu.time_s + self._cfg.heartbeat_period_s)
 
     # -- life cycle --------------------------------------------------------------------
     def start(self, now_s: float) -> None:
@@ -268,8 +282,7 @@ class EcuCanNode:
                 self._bump(malformed=1)
                 return
             self._send(self._claimer.handle(frame, now_s))
-            if ident.source_address == self._cfg.source_address or ident.pgn in (
-                    PGN_ADDRESS_CLAIMED, PGN_REQUEST):
+            if ident.source_address == self._cfg.source_address or ident.pgn in (PGN_ADDRESS_CLAIMED, PGN_REQUEST):
                 return  # our own echo (udp_multicast) or claim traffic, handled above
             if ident.pgn not in self._known_pgns:
                 self._bump(unknown_pgn=1)
@@ -288,8 +301,11 @@ class EcuCanNode:
                 else:
                     self._bump(ignored=1)
                 return
-            if (planner is not None and source != planner) or not self._claimer.claimed or \
-                    not isinstance(payload, (PositionCounts, EcuParameters)):
+            if (
+                (planner is not None and source != planner)
+                or not self._claimer.claimed
+                or not isinstance(payload, (PositionCounts, EcuParameters))
+            ):
                 self._bump(ignored=1)
                 return
             if isinstance(payload, PositionCounts):
@@ -309,8 +325,10 @@ class EcuCanNode:
     # -- internals ---------------------------------------------------------------------
     def _apply_parameters(self, p: EcuParameters, now_s: float) -> None:
         if any(m is not None for m in p.valve_multipliers):
-            self._last_malformed = ("EcuParameters.valve_multipliers: the simulated ECU's valve "
-                                    "multipliers are fixed by the profile (thesis table 3-3); frame not applied")
+            self._last_malformed = (
+                "EcuParameters.valve_multipliers: the simulated ECU's valve "
+                "multipliers are fixed by the profile (thesis table 3-3); frame not applied"
+            )
             self._bump(parameters_rejected=1)
             return
         self._ecu.step(now_s)
@@ -338,9 +356,13 @@ class EcuCanNode:
 
     def _measurement_frame(self) -> can.Message:
         c = [int(v) for v in self._ecu.measurement_counts()]  # lift, tilt, top, left, right
-        payload = PositionMeasurement(tilt_counts=_reading(c[1]), top_counts=_reading(c[2]),
-                                      right_counts=_reading(c[4]), left_counts=_reading(c[3]),
-                                      system_state=self._ecu.system_state())
+        payload = PositionMeasurement(
+            tilt_counts=_reading(c[1]),
+            top_counts=_reading(c[2]),
+            right_counts=_reading(c[4]),
+            left_counts=_reading(c[3]),
+            system_state=self._ecu.system_state(),
+        )
         return self._codec.encode(payload, source=self._cfg.source_address)
 
     def _hitch_frame(self) -> can.Message:

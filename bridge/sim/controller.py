@@ -51,9 +51,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planner.profiles.hitch import THESIS_CONTROLLER_A
-
 from bridge.sim.cylinder import AD_MAX_COUNTS, VALVE_MAX, CylinderParams
+from planner.profiles.hitch import THESIS_CONTROLLER_A
 
 __all__ = [
     "THESIS_A",
@@ -104,18 +103,24 @@ class ControllerConfig:
     def __post_init__(self) -> None:
         if not (isinstance(self.a, (int, float)) and math.isfinite(self.a) and 0 < self.a <= 2):
             raise ControllerError(f"a = {self.a!r} outside (0, 2]")
-        if not (isinstance(self.period_s, (int, float)) and math.isfinite(self.period_s)
-                and 1e-4 <= self.period_s <= 1.0):
+        if not (
+            isinstance(self.period_s, (int, float)) and math.isfinite(self.period_s) and 1e-4 <= self.period_s <= 1.0
+        ):
             raise ControllerError(f"period_s = {self.period_s!r} outside [1e-4, 1] s")
         for name, lo, hi in (("cutoff_counts", 0, 100), ("settle_counts", 0, 100), ("relay_hysteresis_counts", 0, 100)):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
                 raise ControllerError(f"{name} = {v!r} must be an integer in [{lo}, {hi}]")
-        if not (isinstance(self.settle_wait_s, (int, float)) and math.isfinite(self.settle_wait_s)
-                and 0.0 <= self.settle_wait_s <= 10.0):
+        if not (
+            isinstance(self.settle_wait_s, (int, float))
+            and math.isfinite(self.settle_wait_s)
+            and 0.0 <= self.settle_wait_s <= 10.0
+        ):
             raise ControllerError(f"settle_wait_s = {self.settle_wait_s!r} outside [0, 10] s")
         if self.settle_counts > self.cutoff_counts:
-            raise ControllerError(f"settle_counts = {self.settle_counts} must not exceed cutoff_counts = {self.cutoff_counts}")
+            raise ControllerError(
+                f"settle_counts = {self.settle_counts} must not exceed cutoff_counts = {self.cutoff_counts}"
+            )
         m = self.relay_margin_counts
         if m is not None and (isinstance(m, bool) or not isinstance(m, int) or not 0 <= m <= 200):
             raise ControllerError(f"relay_margin_counts = {m!r} must be None or an integer in [0, 200]")
@@ -130,7 +135,7 @@ class ControllerGains:
     k_neg: float
     kd_pos: float
     kd_neg: float
-    derivative_time_s: float   # T_F = k_d / k
+    derivative_time_s: float  # T_F = k_d / k
 
 
 @dataclass(frozen=True)
@@ -144,7 +149,9 @@ class RelayLimits:
 
     def __post_init__(self) -> None:
         if not self.low_counts < self.high_counts:
-            raise ControllerError(f"relay low_counts ({self.low_counts}) must be below high_counts ({self.high_counts})")
+            raise ControllerError(
+                f"relay low_counts ({self.low_counts}) must be below high_counts ({self.high_counts})"
+            )
         if self.hysteresis_counts < 0:
             raise ControllerError(f"relay hysteresis_counts must be >= 0, got {self.hysteresis_counts}")
 
@@ -246,7 +253,7 @@ class UnitController:
         self._prev: int | None = None
         self._wait_periods = math.ceil(config.settle_wait_s / config.period_s - 1e-9)
         self._settled_on: int | None = None  # reference count reached (waiting or holding)
-        self._waited = 0                     # controller periods since it was reached
+        self._waited = 0  # controller periods since it was reached
 
     @property
     def holding(self) -> bool:
@@ -279,9 +286,9 @@ class UnitController:
         pd = (g.k_pos if s > 0 else g.k_neg) * s
         if self._settled_on is not None:
             if r != self._settled_on or abs(e) > cfg.cutoff_counts:
-                self._settled_on = None      # new reference or drift beyond the band: drive again
+                self._settled_on = None  # new reference or drift beyond the band: drive again
             elif self._waited < self._wait_periods:
-                self._waited += 1            # oil in flight: wait, then hold or drive back
+                self._waited += 1  # oil in flight: wait, then hold or drive back
                 if self._waited == self._wait_periods and abs(e) > cfg.settle_counts:
                     self._settled_on = None  # coasted over: drive back
         if self._settled_on is None and abs(e) <= cfg.settle_counts:

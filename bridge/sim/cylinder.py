@@ -105,11 +105,22 @@ class CylinderParams:
     dead_zone: float
 
     def __post_init__(self) -> None:
-        for f in ("stroke_min", "stroke_max", "valve_multiplier", "kv_pos", "kv_neg",
-                  "transport_delay_s", "time_constant_s", "min_flow", "dead_zone"):
+        for f in (
+            "stroke_min",
+            "stroke_max",
+            "valve_multiplier",
+            "kv_pos",
+            "kv_neg",
+            "transport_delay_s",
+            "time_constant_s",
+            "min_flow",
+            "dead_zone",
+        ):
             _finite(f"{self.name}.{f}", getattr(self, f))
         if not self.stroke_min < self.stroke_max:
-            raise CylinderError(f"{self.name}: stroke_min ({self.stroke_min}) must be below stroke_max ({self.stroke_max})")
+            raise CylinderError(
+                f"{self.name}: stroke_min ({self.stroke_min}) must be below stroke_max ({self.stroke_max})"
+            )
         if not 0 <= self.counts_min < self.counts_max <= AD_MAX_COUNTS:
             raise CylinderError(
                 f"{self.name}: need 0 <= counts_min < counts_max <= {AD_MAX_COUNTS}, "
@@ -225,7 +236,7 @@ class Cylinder:
         self._rng = rng
         t = params.time_constant_s
         self._alpha = math.exp(-step_s / t) if t > 0 else 0.0
-        self._lag_gain = t * (1.0 - self._alpha)   # ∫ e^(−τ/T) dτ over one step
+        self._lag_gain = t * (1.0 - self._alpha)  # ∫ e^(−τ/T) dτ over one step
         self._delay_steps = int(round(params.transport_delay_s / step_s))
         self._line: deque[int] = deque([0] * self._delay_steps)
         if initial_counts is None:
@@ -234,8 +245,7 @@ class Cylinder:
             x0 = _finite(f"{params.name} initial_counts", initial_counts)
             if not params.counts_min <= x0 <= params.counts_max:
                 raise CylinderError(
-                    f"{params.name} initial_counts = {x0} outside the stroke "
-                    f"{params.counts_min}…{params.counts_max}"
+                    f"{params.name} initial_counts = {x0} outside the stroke {params.counts_min}…{params.counts_max}"
                 )
         self._x = x0
         self._q = 0.0

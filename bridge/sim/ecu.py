@@ -28,12 +28,9 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-
-from planner.profiles.hitch import Profile, load_profile
 
 from bridge.isobus.system_state import (
     STATE_CONTROLLERS_ON,
@@ -47,6 +44,7 @@ from bridge.isobus.system_state import (
 from bridge.sim.controller import ControllerConfig, ControllerOutput, UnitController
 from bridge.sim.cylinder import AD_MAX_COUNTS, Cylinder, CylinderParams, build_cylinder_params
 from bridge.sim.watchdog import Watchdog
+from planner.profiles.hitch import Profile, load_profile
 
 __all__ = [
     "ACTUATOR_ORDER",
@@ -63,6 +61,7 @@ __all__ = [
 
 #: Actuator order of every array in and out of the ECU.
 ACTUATOR_ORDER: tuple[str, ...] = ("lift", "tilt", "top", "left", "right")
+
 
 class ECUError(ValueError):
     """Bad input to the simulated ECU; the message names the field and the allowed range."""
@@ -227,15 +226,18 @@ class CylinderECU:
         the last AD sample and the valve commands held from ``time_s`` on (the watchdog
         is applied at ``time_s`` itself).
         """
-        if isinstance(until_s, bool) or not isinstance(until_s, (int, float, np.integer, np.floating)) \
-                or not math.isfinite(until_s):
+        if (
+            isinstance(until_s, bool)
+            or not isinstance(until_s, (int, float, np.integer, np.floating))
+            or not math.isfinite(until_s)
+        ):
             raise ECUError(f"time must be a finite number of seconds, got {until_s!r}")
         if until_s < self.time_s - 0.5 * self._h:
             raise ECUError(f"time {until_s} s is before the ECU's simulated time {self.time_s} s")
         target = math.floor(until_s / self._h + 1e-6)
         while self._tick < target:
             self._advance()
-        if self._watchdog.expired(self.time_s):   # the watchdog is a timer, not tied to ticks
+        if self._watchdog.expired(self.time_s):  # the watchdog is a timer, not tied to ticks
             self._valves = [0] * 5
 
     @property

@@ -18,15 +18,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bridge.link.unit_loop import FeedforwardShaper, build_unit_loops
+from bridge.sim.rig import LossyBus, SimError, SimRig, SimSettings
 from planner.model.kinematics import HitchModel
 from planner.trajectory import MotionState, TrajectoryPlanner
 
-from bridge.sim.rig import LossyBus, SimError, SimRig, SimSettings
-from bridge.link.unit_loop import FeedforwardShaper, build_unit_loops
-
 __all__ = [
-    "LossyBus", "MoveFigures", "MoveSettings", "MoveTrace", "REFERENCE_KINDS", "SimError", "SimRig",
-    "SimSettings", "build_move_figures", "run_move",
+    "LossyBus",
+    "MoveFigures",
+    "MoveSettings",
+    "MoveTrace",
+    "REFERENCE_KINDS",
+    "SimError",
+    "SimRig",
+    "SimSettings",
+    "build_move_figures",
+    "run_move",
 ]
 
 REFERENCE_KINDS = ("step", "trajectory")
@@ -97,8 +104,9 @@ class MoveTrace:
     bus_load: float
 
 
-def run_move(model: HitchModel, goal: Mapping[str, float], move: MoveSettings | None = None,
-             sim: SimSettings | None = None) -> MoveTrace:
+def run_move(
+    model: HitchModel, goal: Mapping[str, float], move: MoveSettings | None = None, sim: SimSettings | None = None
+) -> MoveTrace:
     """Drive the simulated ECU through the CAN path from ``move.start`` to ``goal``.
 
     Raises:
@@ -115,8 +123,10 @@ def run_move(model: HitchModel, goal: Mapping[str, float], move: MoveSettings | 
         rig.run_until(move.warmup_s)
         state = rig.link.latest_state()
         if state is None:
-            raise SimError(f"no measurement from the ECU after {move.warmup_s} s (faults: "
-                           f"{', '.join(rig.link.faults.reasons) or 'none'})")
+            raise SimError(
+                f"no measurement from the ECU after {move.warmup_s} s (faults: "
+                f"{', '.join(rig.link.faults.reasons) or 'none'})"
+            )
         p0 = state.pose.controlled()
         p1 = tp.goal_vector(p0, goal)
         tp.check_in_workspace(p1)
@@ -126,10 +136,15 @@ def run_move(model: HitchModel, goal: Mapping[str, float], move: MoveSettings | 
         sp = tp.sample(plan)
         refs = sp.actuators
         if move.feedforward:
-            shaper = FeedforwardShaper(build_unit_loops(model.profile, rig.ecu.config.a), tp.inverse.solve_full,
-                                       rig.link.check_reference)
-            refs = np.array([shaper.for_plan(plan.state_at, float(t), q, qd)
-                             for t, q, qd in zip(sp.t, sp.actuators, sp.actuator_velocity)])
+            shaper = FeedforwardShaper(
+                build_unit_loops(model.profile, rig.ecu.config.a), tp.inverse.solve_full, rig.link.check_reference
+            )
+            refs = np.array(
+                [
+                    shaper.for_plan(plan.state_at, float(t), q, qd)
+                    for t, q, qd in zip(sp.t, sp.actuators, sp.actuator_velocity)
+                ]
+            )
         return _drive(rig, model, sp.t, refs, lambda t: plan.state_at(t).position, p0, p1, plan.duration, move)
 
 
@@ -138,6 +153,7 @@ def _drive(rig: SimRig, model: HitchModel, times, refs, planned_at, p0, p1, dura
     t0, k, quiet_since, n, rows = rig.now_s, 0, None, 0, []
     every = max(1, round(0.01 / rig.settings.tick_s))
     params = rig.ecu.params
+
     def truth_pose() -> np.ndarray:  # forward kinematics of the simulated pistons (not measured)
         q = [p.counts_to_si(c) for p, c in zip(params, rig.ecu.piston_counts())]
         return model.forward(np.array(q)).pose.controlled()
@@ -158,16 +174,34 @@ def _drive(rig: SimRig, model: HitchModel, times, refs, planned_at, p0, p1, dura
         if n % every == 0:
             st = rig.link.latest_state()
             ref = [p.counts_to_si(c) for p, c in zip(params, rig.link.status(t).reference_counts)]
-            rows.append((t - t0, st.pose.controlled() if st else np.full(4, np.nan), truth_pose(), planned_at(t - t0), ref,
-                         st.actuators.as_array() if st else np.full(5, np.nan), valves.copy()))
+            rows.append(
+                (
+                    t - t0,
+                    st.pose.controlled() if st else np.full(4, np.nan),
+                    truth_pose(),
+                    planned_at(t - t0),
+                    ref,
+                    st.actuators.as_array() if st else np.full(5, np.nan),
+                    valves.copy(),
+                )
+            )
         if (quiet_since is not None and t - quiet_since >= move.hold_s - 1e-9) or t - t0 >= move.max_time_s - 1e-9:
             break
     cols = list(zip(*rows))
     kind = move.reference + ("+feedforward" if move.feedforward and move.reference == "trajectory" else "")
-    return MoveTrace(kind, np.asarray(p0), truth_start, np.asarray(p1), float(duration), np.array(cols[0]),
-                     *(np.array(c, dtype=float) for c in cols[1:]), link_counters=rig.link.counters.as_dict(),
-                     node_counters=rig.node.counters.as_dict(), faults=rig.link.faults.reasons,
-                     bus_load=rig.bus_load())
+    return MoveTrace(
+        kind,
+        np.asarray(p0),
+        truth_start,
+        np.asarray(p1),
+        float(duration),
+        np.array(cols[0]),
+        *(np.array(c, dtype=float) for c in cols[1:]),
+        link_counters=rig.link.counters.as_dict(),
+        node_counters=rig.node.counters.as_dict(),
+        faults=rig.link.faults.reasons,
+        bus_load=rig.bus_load(),
+    )
 
 
 @dataclass(frozen=True)
@@ -204,13 +238,22 @@ class MoveFigures:
     band_angle_rad: float
 
 
-def build_move_figures(trace: MoveTrace, which: str = "measured", *, band_position_m: float = 0.005,
-                       band_angle_rad: float = 0.005, final_window_s: float = 0.5) -> MoveFigures:
+def build_move_figures(
+    trace: MoveTrace,
+    which: str = "measured",
+    *,
+    band_position_m: float = 0.005,
+    band_angle_rad: float = 0.005,
+    final_window_s: float = 0.5,
+) -> MoveFigures:
     """The figures of ``trace`` from its ``measured`` or ``truth`` poses (see :class:`MoveFigures`)."""
     if which not in ("measured", "truth"):
         raise SimError(f"which must be 'measured' or 'truth', got {which!r}")
-    for name, v in (("band_position_m", band_position_m), ("band_angle_rad", band_angle_rad),
-                    ("final_window_s", final_window_s)):
+    for name, v in (
+        ("band_position_m", band_position_m),
+        ("band_angle_rad", band_angle_rad),
+        ("final_window_s", final_window_s),
+    ):
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 < v <= 10.0:
             raise SimError(f"{name} must be a number in (0, 10], got {v!r}")
     pose = getattr(trace, which)
@@ -235,4 +278,7 @@ def build_move_figures(trace: MoveTrace, which: str = "measured", *, band_positi
         max_path_deviation_m=float(np.max(np.hypot(e[:, 0], e[:, 1]))),
         max_path_deviation_rad=float(np.max(np.hypot(e[:, 2], e[:, 3]))),
         overshoot=float(max(0.0, np.max(s) - 1.0)) if dd > 0 else 0.0,
-        settling_time_s=settle, band_position_m=float(band_position_m), band_angle_rad=float(band_angle_rad))
+        settling_time_s=settle,
+        band_position_m=float(band_position_m),
+        band_angle_rad=float(band_angle_rad),
+    )

@@ -23,14 +23,13 @@ from dataclasses import dataclass, field
 import can
 import numpy as np
 
-from planner.model.kinematics import HitchModel
-from planner.model.sensors import SensorScaling
-
+from bridge.isobus.j1939 import bus_load
 from bridge.link.can_link import CanLink
+from bridge.link.state import LinkConfig
 from bridge.sim.can_node import EcuCanNode, EcuNodeConfig
 from bridge.sim.ecu import CylinderECU
-from bridge.isobus.j1939 import bus_load
-from bridge.link.state import LinkConfig
+from planner.model.kinematics import HitchModel
+from planner.model.sensors import SensorScaling
 
 __all__ = ["LossyBus", "SimError", "SimRig", "SimSettings"]
 
@@ -95,8 +94,11 @@ class SimSettings:
             raise SimError(f"tick_s must be 1..10 ms in whole ms, got {self.tick_s!r}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise SimError(f"seed must be a non-negative integer, got {self.seed!r}")
-        if isinstance(self.frame_loss, bool) or not isinstance(self.frame_loss, (int, float)) \
-                or not 0.0 <= self.frame_loss < 1.0:
+        if (
+            isinstance(self.frame_loss, bool)
+            or not isinstance(self.frame_loss, (int, float))
+            or not 0.0 <= self.frame_loss < 1.0
+        ):
             raise SimError(f"frame_loss must be a fraction in [0, 1), got {self.frame_loss!r}")
 
 
@@ -119,9 +121,17 @@ class SimRig:
         initial = None
         if initial_actuators is not None:  # unrounded counts: the pistons sit between AD steps
             sc = SensorScaling(model.profile)
-            initial = sc.counts_min + (np.asarray(initial_actuators, dtype=float).reshape(5) - sc.si_min) / sc.resolution
-        ecu = CylinderECU(model.profile, rng=noise_rng, noise_counts=s.noise_counts, gain_error=s.gain_error,
-                          watchdog_timeout_s=s.watchdog_timeout_s, initial_counts=initial)
+            initial = (
+                sc.counts_min + (np.asarray(initial_actuators, dtype=float).reshape(5) - sc.si_min) / sc.resolution
+            )
+        ecu = CylinderECU(
+            model.profile,
+            rng=noise_rng,
+            noise_counts=s.noise_counts,
+            gain_error=s.gain_error,
+            watchdog_timeout_s=s.watchdog_timeout_s,
+            initial_counts=initial,
+        )
         self.channel = channel = f"hitch-sim-{uuid.uuid4().hex}"
         """The private virtual channel (other buses may join it, e.g. in tests)."""
         buses = [can.Bus(interface="virtual", channel=channel) for _ in range(3)]

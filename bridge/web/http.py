@@ -13,8 +13,15 @@ from dataclasses import dataclass, field
 from http import HTTPStatus
 from urllib.parse import unquote, urlsplit
 
-__all__ = ["HttpError", "HttpRequest", "read_request", "response_bytes", "json_response",
-           "MAX_HEADER_BYTES", "MAX_BODY_BYTES"]
+__all__ = [
+    "HttpError",
+    "HttpRequest",
+    "read_request",
+    "response_bytes",
+    "json_response",
+    "MAX_HEADER_BYTES",
+    "MAX_BODY_BYTES",
+]
 
 MAX_HEADER_BYTES = 16 * 1024
 MAX_BODY_BYTES = 64 * 1024
@@ -97,8 +104,15 @@ async def read_request(reader: asyncio.StreamReader, *, max_body: int = MAX_BODY
     return HttpRequest(method, unquote(parts.path), parts.query, version, headers, body)
 
 
-def response_bytes(status: int, body: bytes = b"", content_type: str = "text/plain; charset=utf-8", *,
-                   headers: dict | None = None, keep_alive: bool = True, head_only: bool = False) -> bytes:
+def response_bytes(
+    status: int,
+    body: bytes = b"",
+    content_type: str = "text/plain; charset=utf-8",
+    *,
+    headers: dict | None = None,
+    keep_alive: bool = True,
+    head_only: bool = False,
+) -> bytes:
     """A complete response with ``Content-Length`` and conservative security headers."""
     reason = HTTPStatus(status).phrase
     all_headers = {

@@ -92,8 +92,12 @@ class ClientHub:
                 if msg is None:
                     break
                 if len(client.tasks) >= MAX_PENDING:
-                    await self._reply(client, None, False, {"error": "busy", "message": f"more than {MAX_PENDING} "
-                                                                                       "commands of this page pending"})
+                    await self._reply(
+                        client,
+                        None,
+                        False,
+                        {"error": "busy", "message": f"more than {MAX_PENDING} commands of this page pending"},
+                    )
                     continue
                 task = asyncio.create_task(self._command(client, msg))
                 client.tasks.add(task)
@@ -143,9 +147,10 @@ class ClientHub:
 
     async def _jog(self, c: _Client, rid, body: bytes) -> None:
         if c.jog_busy:
-            if c.jog_next is not None:   # superseded before it ran: answer it so the page is not left waiting
-                await self._reply(c, c.jog_next[0], False,
-                                  {"error": "busy", "message": "jog: superseded by a newer jog command"})
+            if c.jog_next is not None:  # superseded before it ran: answer it so the page is not left waiting
+                await self._reply(
+                    c, c.jog_next[0], False, {"error": "busy", "message": "jog: superseded by a newer jog command"}
+                )
             c.jog_next = (rid, body)
             return
         c.jog_busy = True
@@ -160,7 +165,8 @@ class ClientHub:
 
     async def _reply(self, c: _Client, rid, ok: bool, reply: dict) -> None:
         try:
-            await c.ws.send_text(json.dumps({"type": "reply", "id": rid, "ok": ok, "data": json_safe(reply)},
-                                            allow_nan=False))
+            await c.ws.send_text(
+                json.dumps({"type": "reply", "id": rid, "ok": ok, "data": json_safe(reply)}, allow_nan=False)
+            )
         except (ConnectionError, OSError):
             pass

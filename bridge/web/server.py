@@ -49,10 +49,15 @@ log = logging.getLogger("hitch.web")
 #: ``handle(name, payload_bytes, user) -> (ok, reply)`` — the service API's one entry point
 Handler = Callable[[str, bytes, "str | None"], "tuple[bool, dict]"]
 _STATIC = {"/": "index.html", "/index.html": "index.html", "/app.js": "app.js", "/style.css": "style.css"}
-_TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8",
-          ".css": "text/css; charset=utf-8"}
-_CSP = ("default-src 'self'; script-src 'self'; style-src 'self'; img-src 'self' data:; "
-        "connect-src 'self'; frame-ancestors 'none'; base-uri 'none'; form-action 'none'")
+_TYPES = {
+    ".html": "text/html; charset=utf-8",
+    ".js": "text/javascript; charset=utf-8",
+    ".css": "text/css; charset=utf-8",
+}
+_CSP = (
+    "default-src 'self'; script-src 'self'; style-src 'self'; img-src 'self' data:; "
+    "connect-src 'self'; frame-ancestors 'none'; base-uri 'none'; form-action 'none'"
+)
 
 
 def _error(status: int, code: str, message: str, keep_alive: bool = True) -> bytes:
@@ -86,7 +91,7 @@ class WebServer:
         self.counts = {"state": 0, "events": 0, "requests": 0}
 
     # ------------------------------------------------------------------ life cycle
-    def start(self, timeout_s: float = 5.0) -> "WebServer":
+    def start(self, timeout_s: float = 5.0) -> WebServer:
         """Bind and serve in a background thread; raises OSError if the address cannot be bound."""
         if self._thread is not None:
             raise RuntimeError("web server already started")
@@ -96,8 +101,9 @@ class WebServer:
         def run() -> None:
             loop = asyncio.new_event_loop()
             try:
-                self._server = loop.run_until_complete(asyncio.start_server(
-                    self._connection, self.settings.host, self.settings.port, limit=64 * 1024))
+                self._server = loop.run_until_complete(
+                    asyncio.start_server(self._connection, self.settings.host, self.settings.port, limit=64 * 1024)
+                )
                 self._address = tuple(self._server.sockets[0].getsockname()[:2])
             except BaseException as exc:  # noqa: BLE001 — handed to the starting thread
                 failure.append(exc)
@@ -173,7 +179,7 @@ class WebServer:
         """Call ``fn()`` first thing in :meth:`close` (e.g. to remove a state listener)."""
         self._on_close.append(fn)
 
-    def __enter__(self) -> "WebServer":
+    def __enter__(self) -> WebServer:
         return self.start() if self._thread is None else self
 
     def __exit__(self, *exc) -> None:
@@ -185,7 +191,7 @@ class WebServer:
         if loop is not None and not loop.is_closed():
             try:
                 loop.call_soon_threadsafe(fn, arg)
-            except RuntimeError:   # the loop closed between the check and the call
+            except RuntimeError:  # the loop closed between the check and the call
                 pass
 
     def publish_state(self, state: dict) -> None:
@@ -238,11 +244,20 @@ class WebServer:
     def _check(self, req: HttpRequest) -> bytes | None:
         """The refusal for a request from elsewhere, or None."""
         if not host_allowed(req.header("host"), self.address, self.settings):
-            return _error(421, "forbidden", f"Host {req.header('host')!r} is not this server (DNS rebinding "
-                                            "protection); add it to the terminal's extra hosts", req.keep_alive)
+            return _error(
+                421,
+                "forbidden",
+                f"Host {req.header('host')!r} is not this server (DNS rebinding "
+                "protection); add it to the terminal's extra hosts",
+                req.keep_alive,
+            )
         if not origin_allowed(req.header("origin"), req.header("host")):
-            return _error(403, "forbidden", f"Origin {req.header('origin')!r} may not use this terminal "
-                                            "(cross-site request)", req.keep_alive)
+            return _error(
+                403,
+                "forbidden",
+                f"Origin {req.header('origin')!r} may not use this terminal (cross-site request)",
+                req.keep_alive,
+            )
         return None
 
     async def _respond(self, req: HttpRequest) -> bytes:
@@ -258,8 +273,14 @@ class WebServer:
                 body = (self.settings.static_dir / name).read_bytes()
             except OSError:
                 return _error(404, "not_found", f"{name} is missing from {self.settings.static_dir}", ka)
-            return response_bytes(200, body, _TYPES[Path(name).suffix], headers={"Content-Security-Policy": _CSP},
-                                  keep_alive=ka, head_only=req.method == "HEAD")
+            return response_bytes(
+                200,
+                body,
+                _TYPES[Path(name).suffix],
+                headers={"Content-Security-Policy": _CSP},
+                keep_alive=ka,
+                head_only=req.method == "HEAD",
+            )
         if req.path == "/favicon.ico":
             return response_bytes(204, keep_alive=ka)
         if req.path == "/api/state" and req.method == "GET":
@@ -270,7 +291,7 @@ class WebServer:
             return json_response(200, json_safe(self.info), keep_alive=ka)
         if not req.path.startswith("/api/"):
             return _error(404, "not_found", f"nothing at {req.path!r}", ka)
-        name = req.path[len("/api/"):]
+        name = req.path[len("/api/") :]
         if not API_NAME.match(name):
             return _error(404, "unknown_key", f"unknown API path {req.path!r}", ka)
         if req.method != "POST":
@@ -307,8 +328,12 @@ class WebServer:
             writer.write(refusal)
             await writer.drain()
             return
-        writer.write(("HTTP/1.1 101 Switching Protocols\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
-                      f"Sec-WebSocket-Accept: {accept}\r\n\r\n").encode("ascii"))
+        writer.write(
+            (
+                "HTTP/1.1 101 Switching Protocols\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+                f"Sec-WebSocket-Accept: {accept}\r\n\r\n"
+            ).encode("ascii")
+        )
         await writer.drain()
         await self._hub.serve(WebSocket(reader, writer))
 
@@ -319,6 +344,7 @@ def attach_zenoh(session: Any, prefix: str, server: WebServer) -> tuple[Any, Any
     For a terminal outside the service process. Returns the two subscribers (undeclare them, or
     close the session, to stop). Samples that are not JSON objects are dropped.
     """
+
     def forward(publish: Callable[[dict], None]):
         def cb(sample) -> None:
             try:
@@ -327,14 +353,18 @@ def attach_zenoh(session: Any, prefix: str, server: WebServer) -> tuple[Any, Any
                 return
             if isinstance(data, dict):
                 publish(data)
+
         return cb
 
-    return (session.declare_subscriber(f"{prefix}/state", forward(server.publish_state)),
-            session.declare_subscriber(f"{prefix}/events", forward(server.publish_event)))
+    return (
+        session.declare_subscriber(f"{prefix}/state", forward(server.publish_state)),
+        session.declare_subscriber(f"{prefix}/events", forward(server.publish_event)),
+    )
 
 
-def start_http(service: Any, addr: str = "127.0.0.1:8080", *, user: str | None = None,
-               extra_hosts: tuple[str, ...] = ()) -> WebServer:
+def start_http(
+    service: Any, addr: str = "127.0.0.1:8080", *, user: str | None = None, extra_hosts: tuple[str, ...] = ()
+) -> WebServer:
     """Start the operator terminal of a running :class:`bridge.service.server.HitchService`.
 
     Commands go to ``service.api.handle``; state and events come from
@@ -349,16 +379,21 @@ def start_http(service: Any, addr: str = "127.0.0.1:8080", *, user: str | None =
     if not callable(handler):
         raise ValueError("service has no API handler (expected service.api.handle(key, payload, user))")
     if getattr(api, "policy", None) is not None and user is None:
-        raise ValueError("http_user: the service has an access policy; name the user the page's commands run as "
-                         "(an operator to move the hitch, a viewer to watch)")
+        raise ValueError(
+            "http_user: the service has an access policy; name the user the page's commands run as "
+            "(an operator to move the hitch, a viewer to watch)"
+        )
     host, port = parse_address(addr)
     config = getattr(service, "config", None)
     if getattr(config, "security", None) is not None and getattr(api, "policy", None) is None:
-        log.warning("the service runs with a Zenoh security config but its API has no access policy: the "
-                    "operator terminal's commands are not checked against the access-control list")
+        log.warning(
+            "the service runs with a Zenoh security config but its API has no access policy: the "
+            "operator terminal's commands are not checked against the access-control list"
+        )
     prefix = getattr(config, "prefix", None)
-    server = WebServer(handler, WebSettings(host=host, port=port, user=user, extra_hosts=tuple(extra_hosts)),
-                       info={"prefix": prefix}).start()
+    server = WebServer(
+        handler, WebSettings(host=host, port=port, user=user, extra_hosts=tuple(extra_hosts)), info={"prefix": prefix}
+    ).start()
     try:
         if callable(getattr(service, "add_listener", None)):
             for kind, fn in (("state", server.publish_state), ("event", server.publish_event)):

@@ -19,14 +19,35 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-__all__ = ["WebSettings", "STATIC_DIR", "ERROR_STATUS", "parse_address", "is_loopback", "host_allowed",
-           "origin_allowed", "json_safe"]
+__all__ = [
+    "WebSettings",
+    "STATIC_DIR",
+    "ERROR_STATUS",
+    "parse_address",
+    "is_loopback",
+    "host_allowed",
+    "origin_allowed",
+    "json_safe",
+]
 
 STATIC_DIR = Path(__file__).with_name("static")
 #: HTTP status of each service error code (:mod:`bridge.service.api`); unknown codes → 400
-ERROR_STATUS = {"bad_request": 400, "unknown_key": 404, "forbidden": 403, "mode": 409, "busy": 409,
-                "ecu": 503, "unavailable": 503, "unreachable": 422, "refused": 422, "ik_failed": 422,
-                "not_found": 404, "invalid": 422, "store": 500, "internal": 500}
+ERROR_STATUS = {
+    "bad_request": 400,
+    "unknown_key": 404,
+    "forbidden": 403,
+    "mode": 409,
+    "busy": 409,
+    "ecu": 503,
+    "unavailable": 503,
+    "unreachable": 422,
+    "refused": 422,
+    "ik_failed": 422,
+    "not_found": 404,
+    "invalid": 422,
+    "store": 500,
+    "internal": 500,
+}
 _USER = re.compile(r"[^\s:]{1,64}")
 
 
@@ -124,6 +145,6 @@ def json_safe(obj: Any) -> Any:
         return {str(k): json_safe(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
         return [json_safe(v) for v in obj]
-    if hasattr(obj, "tolist"):          # numpy scalar or array
+    if hasattr(obj, "tolist"):  # numpy scalar or array
         return json_safe(obj.tolist())
     return str(obj)

@@ -18,11 +18,22 @@ import struct
 from dataclasses import dataclass
 
 __all__ = [
-    "WebSocketError", "Frame", "WebSocket", "accept_key", "encode_frame", "decode_frame",
-    "OP_CONT", "OP_TEXT", "OP_BINARY", "OP_CLOSE", "OP_PING", "OP_PONG", "MAX_MESSAGE_BYTES",
+    "WebSocketError",
+    "Frame",
+    "WebSocket",
+    "accept_key",
+    "encode_frame",
+    "decode_frame",
+    "OP_CONT",
+    "OP_TEXT",
+    "OP_BINARY",
+    "OP_CLOSE",
+    "OP_PING",
+    "OP_PONG",
+    "MAX_MESSAGE_BYTES",
 ]
 
-_GUID = "258EAFA5-E914-47DA-95CA-C5AB0DC85B11"   # RFC 6455 §1.3
+_GUID = "258EAFA5-E914-47DA-95CA-C5AB0DC85B11"  # RFC 6455 §1.3
 OP_CONT, OP_TEXT, OP_BINARY, OP_CLOSE, OP_PING, OP_PONG = 0x0, 0x1, 0x2, 0x8, 0x9, 0xA
 _CONTROL = {OP_CLOSE, OP_PING, OP_PONG}
 _KNOWN = {OP_CONT, OP_TEXT, OP_BINARY} | _CONTROL
@@ -92,8 +103,9 @@ def encode_frame(opcode: int, payload: bytes = b"", *, fin: bool = True, mask: b
     return head + payload
 
 
-def decode_frame(data: bytes, *, require_mask: bool = True,
-                 max_bytes: int = MAX_MESSAGE_BYTES) -> tuple[Frame, int] | None:
+def decode_frame(
+    data: bytes, *, require_mask: bool = True, max_bytes: int = MAX_MESSAGE_BYTES
+) -> tuple[Frame, int] | None:
     """Decode one frame from the start of ``data``: ``(frame, bytes used)``, or None if incomplete."""
     if len(data) < 2:
         return None
@@ -123,10 +135,10 @@ def decode_frame(data: bytes, *, require_mask: bool = True,
     if masked:
         if len(data) < i + 4:
             return None
-        key, i = data[i:i + 4], i + 4
+        key, i = data[i : i + 4], i + 4
     if len(data) < i + n:
         return None
-    payload = data[i:i + n]
+    payload = data[i : i + n]
     return Frame(fin, opcode, _mask(payload, key) if masked else payload, masked), i + n
 
 
@@ -138,8 +150,9 @@ class WebSocket:
     several tasks: sends are serialised by a lock.
     """
 
-    def __init__(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, *,
-                 max_message_bytes: int = MAX_MESSAGE_BYTES):
+    def __init__(
+        self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, *, max_message_bytes: int = MAX_MESSAGE_BYTES
+    ):
         self._reader, self._writer = reader, writer
         self.max_message_bytes = max_message_bytes
         self._send_lock = asyncio.Lock()

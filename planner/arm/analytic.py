@@ -33,8 +33,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal, Sequence
+from typing import Literal
 
 import numpy as np
 
@@ -278,9 +279,17 @@ def solve_arm_ik(
 
     def result(solutions, reachable, reason, shoulder_singular=False, elbow_singular=False):
         return ArmIKResult(
-            position=p, rotation=R, rotation_defect=defect, projection_change=change,
-            wrist_centre=wc, solutions=tuple(solutions), reachable=reachable, reason=reason,
-            cos_elbow=float(c), shoulder_singular=shoulder_singular, elbow_singular=elbow_singular,
+            position=p,
+            rotation=R,
+            rotation_defect=defect,
+            projection_change=change,
+            wrist_centre=wc,
+            solutions=tuple(solutions),
+            reachable=reachable,
+            reason=reason,
+            cos_elbow=float(c),
+            shoulder_singular=shoulder_singular,
+            elbow_singular=elbow_singular,
         )
 
     if abs(c) > 1.0 + _REACH_TOL:
@@ -309,20 +318,29 @@ def solve_arm_ik(
             t3 = beta + _HALF_PI
             # Elbow above the shoulder-wrist line <=> sigma * sin(beta) < 0 (stretched: by branch).
             elbow = ("up" if sigma * sb < 0 else "down") if sb != 0.0 else ("down", "up")[branch]
-            R03 = (chain.links[0].transform(t1 - off[0]) @ chain.links[1].transform(t2 - off[1])
-                   @ chain.links[2].transform(t3 - off[2]))[:3, :3]
+            R03 = (
+                chain.links[0].transform(t1 - off[0])
+                @ chain.links[1].transform(t2 - off[1])
+                @ chain.links[2].transform(t3 - off[2])
+            )[:3, :3]
             zyz = solve_euler_zyz(R03.T @ R06, reference_phi=ref[3] + off[3], atol=max(rotation_tol, 1e-9))
             for wrist, angles in zip(("I", "II"), zyz.branches):
                 theta = (t1, t2, t3, angles.phi, angles.theta, angles.psi)
                 q = [wrap_angle(th - o) for th, o in zip(theta, off)]
                 joints, ok = _fit_joints(chain, q, ref)
                 frames = forward_kinematics(chain, joints)
-                solutions.append(ArmIKSolution(
-                    joints=joints, shoulder=shoulder, elbow=elbow, wrist=wrist, within_limits=ok,
-                    wrist_singular=zyz.singular,
-                    position_error=float(np.linalg.norm(frames.position - p)),
-                    rotation_error=rotation_distance(R, frames.rotation),
-                ))
+                solutions.append(
+                    ArmIKSolution(
+                        joints=joints,
+                        shoulder=shoulder,
+                        elbow=elbow,
+                        wrist=wrist,
+                        within_limits=ok,
+                        wrist_singular=zyz.singular,
+                        position_error=float(np.linalg.norm(frames.position - p)),
+                        rotation_error=rotation_distance(R, frames.rotation),
+                    )
+                )
     return result(solutions, True, "", shoulder_singular, elbow_singular)
 
 

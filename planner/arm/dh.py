@@ -23,8 +23,9 @@ radians. :func:`build_casadi_chain` gives the same model as CasADi functions
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Literal, Sequence
+from typing import Literal
 
 import casadi as ca
 import numpy as np

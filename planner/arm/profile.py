@@ -32,8 +32,8 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from planner.arm.dh import DHChain, DHLink, build_dh_chain
-from planner.profiles.loader import builtin_profiles, check_profile_name, format_validation_error, read_profile
 from planner.arm.transforms import euler_zyz_matrix, homogeneous
+from planner.profiles.loader import builtin_profiles, check_profile_name, format_validation_error, read_profile
 
 __all__ = [
     "ArmProfileError",

@@ -7,6 +7,17 @@ from planner.ik_qp.result import IKResult, Target
 from planner.ik_qp.sqp import SQPSettings, SQPSolver
 
 __all__ = [
-    "BACKENDS", "IKSolver", "default_weights", "Mechanism", "build_mechanism", "IKProblem", "IKSolution",
-    "TaskBounds", "build_ik_problem", "IKResult", "Target", "SQPSettings", "SQPSolver",
+    "BACKENDS",
+    "IKSolver",
+    "default_weights",
+    "Mechanism",
+    "build_mechanism",
+    "IKProblem",
+    "IKSolution",
+    "TaskBounds",
+    "build_ik_problem",
+    "IKResult",
+    "Target",
+    "SQPSettings",
+    "SQPSolver",
 ]

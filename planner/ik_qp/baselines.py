@@ -30,20 +30,20 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from planner.ik_qp.result import IKResult, check_target
 from planner.model.angle_maps import AngleMaps
 from planner.model.fast_function import FastFunction
 from planner.model.geometry import LEFT, RIGHT, link_direction, side_geometry
 from planner.model.kinematics import HitchModel
 from planner.model.types import Actuators, KinematicsError
-from planner.ik_qp.result import IKResult, check_target
 
 __all__ = ["GeometricIK", "DLSIK", "HybridIK", "BaselineSettings"]
 
 
 @dataclass(frozen=True)
 class BaselineSettings:
-    step: float = 1.0          # μ (thesis 2.54)
-    margin: float = 1e-6       # stop when ‖e‖∞ below this [m, rad]
+    step: float = 1.0  # μ (thesis 2.54)
+    margin: float = 1e-6  # stop when ‖e‖∞ below this [m, rad]
     max_iterations: int = 50
 
 
@@ -74,12 +74,18 @@ def _build_top_link(model: HitchModel):
     p = ca.SX.sym("p", 4)  # x, z, roll, pitch
     y_yaw = ca.SX.sym("yy", 2)
     roll, pitch, yaw = p[2], p[3], y_yaw[1]
-    rx = ca.vertcat(ca.horzcat(1, 0, 0), ca.horzcat(0, ca.cos(pitch), -ca.sin(pitch)), ca.horzcat(0, ca.sin(pitch), ca.cos(pitch)))
-    ry = ca.vertcat(ca.horzcat(ca.cos(roll), 0, ca.sin(roll)), ca.horzcat(0, 1, 0), ca.horzcat(-ca.sin(roll), 0, ca.cos(roll)))
-    rz = ca.vertcat(ca.horzcat(ca.cos(yaw), -ca.sin(yaw), 0), ca.horzcat(ca.sin(yaw), ca.cos(yaw), 0), ca.horzcat(0, 0, 1))
+    rx = ca.vertcat(
+        ca.horzcat(1, 0, 0), ca.horzcat(0, ca.cos(pitch), -ca.sin(pitch)), ca.horzcat(0, ca.sin(pitch), ca.cos(pitch))
+    )
+    ry = ca.vertcat(
+        ca.horzcat(ca.cos(roll), 0, ca.sin(roll)), ca.horzcat(0, 1, 0), ca.horzcat(-ca.sin(roll), 0, ca.cos(roll))
+    )
+    rz = ca.vertcat(
+        ca.horzcat(ca.cos(yaw), -ca.sin(yaw), 0), ca.horzcat(ca.sin(yaw), ca.cos(yaw), 0), ca.horzcat(0, 0, 1)
+    )
     T = ca.vertcat(p[0], y_yaw[0], p[1])
-    U = T + rz @ ry @ rx @ ca.DM([0.0, 0.0, model.mast_height])          # (thesis 2.40-2.41)
-    d = ca.norm_2(U - ca.DM(prof.geometry.top_link_tractor_point))        # (thesis 2.42)
+    U = T + rz @ ry @ rx @ ca.DM([0.0, 0.0, model.mast_height])  # (thesis 2.40-2.41)
+    d = ca.norm_2(U - ca.DM(prof.geometry.top_link_tractor_point))  # (thesis 2.42)
     return FastFunction(ca.Function("top_link", [p, y_yaw], [d, ca.densify(ca.jacobian(d, p))]))
 
 
@@ -95,7 +101,7 @@ class _Baseline:
         st = model.forward(model.neutral)
         txl, tzl, txr, tzr = st.link_angles
         self.neutral_theta = np.array([txl, txr, tzl, tzr])
-        self.theta = self.neutral_theta.copy()   # previous cycle's angles
+        self.theta = self.neutral_theta.copy()  # previous cycle's angles
         self.top = float(model.neutral[2])
 
     def reset(self) -> None:
@@ -113,14 +119,19 @@ class _Baseline:
         self.theta, self.top = theta.copy(), top
         err = state.pose.controlled() - target
         return IKResult(
-            actuators=Actuators.from_array(q), pose=state.pose, status="ok", active=(), iterations=iterations,
-            residual=float(np.max(np.abs(err))), solve_time_s=time.perf_counter() - t0,
+            actuators=Actuators.from_array(q),
+            pose=state.pose,
+            status="ok",
+            active=(),
+            iterations=iterations,
+            residual=float(np.max(np.abs(err))),
+            solve_time_s=time.perf_counter() - t0,
         )
 
     def _dls_step(self, theta: np.ndarray, target: np.ndarray):
         s, J, T, yaw, _, _ = self._s(theta)
         e = np.array([target[0], target[1], target[2], self.model.span]) - s[:, 0]
-        lam = 1.0 - 1.0 / np.linalg.norm(J, 2)                      # (thesis 2.53)
+        lam = 1.0 - 1.0 / np.linalg.norm(J, 2)  # (thesis 2.53)
         dtheta = J.T @ np.linalg.solve(J @ J.T + lam**2 * np.eye(4), e)  # (thesis 2.48)
         return dtheta, e, lam, float(T[1, 0]), float(yaw[0, 0])
 
@@ -137,11 +148,11 @@ class GeometricIK(_Baseline):
         tz0 = abs(self.neutral_theta[3])  # θ_z0: start-pose deviation of the links from y (2.36)
         a = math.asin(max(-1.0, min(1.0, x / l)))
         b = math.asin(max(-1.0, min(1.0, span * (1 - math.cos(roll)) / (2 * l))))
-        tzr, tzl = -a + b + tz0, -a - b - tz0                         # (thesis 2.36)
-        _, _, _, yaw, _, _ = self._s(self.theta)                      # previous cycle (2.37)
+        tzr, tzl = -a + b + tz0, -a - b - tz0  # (thesis 2.36)
+        _, _, _, yaw, _, _ = self._s(self.theta)  # previous cycle (2.37)
         gamma = float(yaw[0, 0])
-        h = span * math.cos(gamma) * math.sin(roll) / 2              # (thesis 2.38)
-        txl = math.asin(max(-1.0, min(1.0, (z - h) / l)))             # (thesis 2.39)
+        h = span * math.cos(gamma) * math.sin(roll) / 2  # (thesis 2.38)
+        txl = math.asin(max(-1.0, min(1.0, (z - h) / l)))  # (thesis 2.39)
         txr = math.asin(max(-1.0, min(1.0, (z + h) / l)))
         theta = np.array([txl, txr, tzl, tzr])
         _, _, T, yaw_new, _, _ = self._s(theta)
@@ -174,7 +185,7 @@ class DLSIK(_Baseline):
             _, ju = self._top(target, np.array([y_t, yaw]))
             ju = ju[0]
             dtop = (1 - lam) * (ju[0] * e[0] + ju[1] * e[1] + ju[2] * e[2]) + ju[3] * e_beta  # (2.52)
-            theta = theta + st.step * dtheta                            # (thesis 2.54)
+            theta = theta + st.step * dtheta  # (thesis 2.54)
             top = top + st.step * dtop
             if max(np.max(np.abs(e)), abs(e_beta)) < st.margin:
                 break

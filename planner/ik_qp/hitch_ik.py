@@ -17,14 +17,14 @@ from dataclasses import replace
 
 import numpy as np
 
-from planner.model.exact_inverse import ExactInverse
-from planner.model.hard_limits import HardLimits
-from planner.model.kinematics import HitchModel
-from planner.model.types import Actuators, KinematicsError, Pose
 from planner.ik_qp.hitch_mechanism import build_hitch_mechanism
 from planner.ik_qp.problem import build_ik_problem
 from planner.ik_qp.result import IKResult, Target, check_target
 from planner.ik_qp.sqp import SQPSettings, SQPSolver
+from planner.model.exact_inverse import ExactInverse
+from planner.model.hard_limits import HardLimits
+from planner.model.kinematics import HitchModel
+from planner.model.types import Actuators, KinematicsError, Pose
 
 __all__ = ["IKSolver", "default_weights", "BACKENDS"]
 
@@ -141,4 +141,3 @@ class IKSolver:
         if q.size != 5 or not np.all(np.isfinite(q)):
             raise ValueError("seed must be 5 finite actuator values (lift, tilt, top, left, right)")
         return np.clip(q, self.limits.actuator_lower, self.limits.actuator_upper)
-

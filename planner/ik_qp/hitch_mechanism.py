@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import casadi as ca
 
+from planner.ik_qp.mechanism import Mechanism
 from planner.model.hard_limits import FEATURE_LIMIT_ROWS, HardLimits
 from planner.model.kinematics import FEATURE_NAMES, HitchModel
 from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
-from planner.ik_qp.mechanism import Mechanism
 
 __all__ = ["build_hitch_mechanism", "TASK_ROWS"]
 

@@ -24,9 +24,9 @@ iteration needs into a single CasADi function (evaluated through
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Callable, Sequence
 
 import casadi as ca
 import numpy as np
@@ -86,8 +86,7 @@ def _check_function(fn, n: int, rows: int, field_name: str) -> None:
         raise ValueError(f"{field_name}: must return (value ({rows}x1), jacobian ({rows}x{n}))")
     if fn.size_out(0) != (rows, 1) or fn.size_out(1) != (rows, n):
         raise ValueError(
-            f"{field_name}: outputs must be ({rows}x1) and ({rows}x{n}), got "
-            f"{fn.size_out(0)} and {fn.size_out(1)}"
+            f"{field_name}: outputs must be ({rows}x1) and ({rows}x{n}), got {fn.size_out(0)} and {fn.size_out(1)}"
         )
 
 
@@ -146,9 +145,7 @@ class Mechanism:
         bad = np.flatnonzero(self.lower > self.upper)
         if bad.size:
             i = int(bad[0])
-            raise ValueError(
-                f"lower[{i}] ({self.actuator_names[i]}) = {self.lower[i]} exceeds upper = {self.upper[i]}"
-            )
+            raise ValueError(f"lower[{i}] ({self.actuator_names[i]}) = {self.lower[i]} exceeds upper = {self.upper[i]}")
         set_(self, "task_names", _names(self.task_names, "task_names"))
         if not self.task_names:
             raise ValueError("task_names: a mechanism needs at least one task row")
@@ -257,9 +254,15 @@ class Mechanism:
         l0 = ca.vertcat(ca.fmax(lower - q, -step), cl - c)
         u0 = ca.vertcat(ca.fmin(upper - q, step), cu - c)
         zero = ca.MX(0)
-        stats = ca.vertcat(ca.norm_2(we), ca.sum1(viol) if k else zero, ca.mmax(viol) if k else zero,
-                           ca.norm_inf(g), ca.mmax(ca.diag(H0)), ca.mmax(ca.fabs(C)) if k else zero,
-                           ca.norm_inf(q))
+        stats = ca.vertcat(
+            ca.norm_2(we),
+            ca.sum1(viol) if k else zero,
+            ca.mmax(viol) if k else zero,
+            ca.norm_inf(g),
+            ca.mmax(ca.diag(H0)),
+            ca.mmax(ca.fabs(C)) if k else zero,
+            ca.norm_inf(q),
+        )
         outs = [ca.densify(o) for o in (t, J, e, H0, g, c, C, l0, u0, stats)]
         outs.append(sum((ca.sum1(ca.sum2(o)) for o in outs[:7]), zero))
         names = ["t", "J", "e", "JtWWJ", "JtWWe", "c", "C", "l0", "u0", "stats", "check"]
@@ -344,8 +347,9 @@ class LinearisationPoint:
         ins = self._fn.inputs
         ins[5][:], ins[6][:] = mechanism.lower, mechanism.upper
 
-    def set_problem(self, target: np.ndarray, weights: np.ndarray, c_lower: np.ndarray,
-                    c_upper: np.ndarray, step: np.ndarray) -> None:
+    def set_problem(
+        self, target: np.ndarray, weights: np.ndarray, c_lower: np.ndarray, c_upper: np.ndarray, step: np.ndarray
+    ) -> None:
         """Bind the problem data (kept until the next call)."""
         ins = self._fn.inputs
         ins[1][:], ins[2][:], ins[3][:], ins[4][:], ins[7][:] = target, weights, c_lower, c_upper, step

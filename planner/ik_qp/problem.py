@@ -8,9 +8,10 @@ All values are SI (m, rad, s) in the units of the mechanism's tasks and actuator
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Literal, Mapping
+from typing import Literal
 
 import numpy as np
 
@@ -80,7 +81,7 @@ class TaskBounds:
 
 def build_task_bounds(
     mechanism: Mechanism,
-    bounds: "TaskBounds | Mapping[str, tuple[float, float]] | tuple",
+    bounds: TaskBounds | Mapping[str, tuple[float, float]] | tuple,
     label: str = "workspace",
 ) -> TaskBounds:
     """Validate task bounds given as a :class:`TaskBounds`, a mapping ``{task name: (lo, hi)}``
@@ -109,9 +110,7 @@ def build_task_bounds(
     bad = np.flatnonzero(lower > upper)
     if bad.size:
         i = int(bad[0])
-        raise ValueError(
-            f"task_bounds[{mechanism.task_names[i]!r}]: lower {lower[i]} exceeds upper {upper[i]}"
-        )
+        raise ValueError(f"task_bounds[{mechanism.task_names[i]!r}]: lower {lower[i]} exceeds upper {upper[i]}")
     if not isinstance(label, str) or not label:
         raise ValueError(f"task_bounds.label: must be a non-empty string, got {label!r}")
     return TaskBounds(lower=lower, upper=upper, label=label)
@@ -197,7 +196,12 @@ def build_ik_problem(
         w[~mask] = 0.0
     if not w.max() > 0:
         raise ValueError("weights: at least one task must have a positive weight")
-    if isinstance(damping, bool) or not isinstance(damping, (int, float, np.floating)) or not np.isfinite(damping) or damping <= 0:
+    if (
+        isinstance(damping, bool)
+        or not isinstance(damping, (int, float, np.floating))
+        or not np.isfinite(damping)
+        or damping <= 0
+    ):
         raise ValueError(f"damping: must be a finite number > 0, got {damping!r}")
     if max_step is None:
         step = mechanism.default_max_step
@@ -261,13 +265,19 @@ class IKSolution:
         return self.status == "ok"
 
     @classmethod
-    def without_valid_start(cls, mechanism: Mechanism, q: np.ndarray, solve_time_s: float) -> "IKSolution":
+    def without_valid_start(cls, mechanism: Mechanism, q: np.ndarray, solve_time_s: float) -> IKSolution:
         """``"failed"``: the mechanism gives non-finite values at every start tried (``task`` and
         ``error`` are zeros, ``residual`` and ``violation`` inf: never NaN)."""
         return cls(
-            q=q, status="failed",
+            q=q,
+            status="failed",
             reason=f"{mechanism.name}: non-finite mechanism values at the start and at mid-stroke "
-                   "(no valid start point)",
-            active=(), iterations=0, residual=math.inf, solve_time_s=solve_time_s,
-            task=np.zeros(mechanism.m), error=np.zeros(mechanism.m), violation=math.inf,
+            "(no valid start point)",
+            active=(),
+            iterations=0,
+            residual=math.inf,
+            solve_time_s=solve_time_s,
+            task=np.zeros(mechanism.m),
+            error=np.zeros(mechanism.m),
+            violation=math.inf,
         )

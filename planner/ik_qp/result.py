@@ -102,7 +102,7 @@ class IKResult:
     extra: dict = field(default_factory=dict, compare=False, repr=False)
 
     @classmethod
-    def failed(cls, reason: str, iterations: int = 0, solve_time_s: float = 0.0) -> "IKResult":
+    def failed(cls, reason: str, iterations: int = 0, solve_time_s: float = 0.0) -> IKResult:
         return cls(None, None, "failed", (), iterations, math.inf, solve_time_s, reason)
 
     def to_json(self) -> dict:

@@ -98,14 +98,19 @@ class _Layout:
         self.rows = rows
         self.k = k = self.p + self.r + rows.size
         side = list(mech.limit_names()) + [
-            (f"{label}:{mech.task_names[i]}:min", f"{label}:{mech.task_names[i]}:max") for i in rows]
+            (f"{label}:{mech.task_names[i]}:min", f"{label}:{mech.task_names[i]}:max") for i in rows
+        ]
         # Indexed like the QP rows (strokes, equalities, inequalities, task bounds);
         # equalities are no limits and have no names.
-        self.names_min = (tuple(f"stroke:{a}:min" for a in mech.actuator_names) + ("",) * self.p
-                          + tuple(s[0] for s in side))
-        self.names_max = (tuple(f"stroke:{a}:max" for a in mech.actuator_names) + ("",) * self.p
-                          + tuple(s[1] for s in side))
-        self.row_names = mech.equality_names + mech.inequality_names + tuple(f"{label}:{mech.task_names[i]}" for i in rows)
+        self.names_min = (
+            tuple(f"stroke:{a}:min" for a in mech.actuator_names) + ("",) * self.p + tuple(s[0] for s in side)
+        )
+        self.names_max = (
+            tuple(f"stroke:{a}:max" for a in mech.actuator_names) + ("",) * self.p + tuple(s[1] for s in side)
+        )
+        self.row_names = (
+            mech.equality_names + mech.inequality_names + tuple(f"{label}:{mech.task_names[i]}" for i in rows)
+        )
         self.cl = np.concatenate([np.zeros(self.p), mech.g_lower, np.zeros(rows.size)])
         self.cu = np.concatenate([np.zeros(self.p), mech.g_upper, np.zeros(rows.size)])
         fn = mech.linearisation_function(rows)
@@ -113,10 +118,10 @@ class _Layout:
         self.curvature = LagrangianCurvature(n)
         self.main = QPData(n, n + k)
         self.elastic = el = QPData(n + k, n + 3 * k)
-        el.A[n + k:n + 2 * k, n:] = np.eye(k)
-        el.A[n + 2 * k:, n:] = -np.eye(k)
-        el.l[n:n + k], el.u[n:n + k] = 0.0, QP_INFINITY
-        el.u[n + k:n + 2 * k], el.l[n + 2 * k:] = QP_INFINITY, -QP_INFINITY
+        el.A[n + k : n + 2 * k, n:] = np.eye(k)
+        el.A[n + 2 * k :, n:] = -np.eye(k)
+        el.l[n : n + k], el.u[n : n + k] = 0.0, QP_INFINITY
+        el.u[n + k : n + 2 * k], el.l[n + 2 * k :] = QP_INFINITY, -QP_INFINITY
 
     def set_problem(self, problem: IKProblem) -> None:
         """Bind the target, weights and (changing) task-bound values of ``problem``."""
@@ -143,16 +148,25 @@ class SQPSolver:
     solution (streaming targets along a path), or from the middle of the strokes.
     """
 
-    def __init__(self, mechanism: Mechanism, *, backend: str = "osqp", settings: SQPSettings | None = None,
-                 backend_options: dict | None = None, **overrides):
+    def __init__(
+        self,
+        mechanism: Mechanism,
+        *,
+        backend: str = "osqp",
+        settings: SQPSettings | None = None,
+        backend_options: dict | None = None,
+        **overrides,
+    ):
         if not isinstance(mechanism, Mechanism):
             raise ValueError(f"mechanism: expected a Mechanism, got {type(mechanism).__name__}")
         if settings is not None and not isinstance(settings, SQPSettings):
             raise ValueError(f"settings: expected SQPSettings, got {type(settings).__name__}")
         unknown = set(overrides) - set(SQPSettings.__dataclass_fields__)
         if unknown:
-            raise ValueError(f"SQPSolver: unknown setting(s) {sorted(unknown)}; allowed: "
-                             f"{', '.join(SQPSettings.__dataclass_fields__)}")
+            raise ValueError(
+                f"SQPSolver: unknown setting(s) {sorted(unknown)}; allowed: "
+                f"{', '.join(SQPSettings.__dataclass_fields__)}"
+            )
         self.settings: SQPSettings = replace(settings or SQPSettings(), **overrides)
         self.mechanism = mechanism
         self.backend: QPBackend = make_backend(backend, **(backend_options or {}))
@@ -174,8 +188,9 @@ class SQPSolver:
         if not isinstance(problem, IKProblem):
             raise ValueError(f"problem: expected an IKProblem (see build_ik_problem), got {type(problem).__name__}")
         if problem.mechanism is not self.mechanism:
-            raise ValueError(f"problem: built for mechanism {problem.mechanism.name!r}, "
-                             f"this solver is for {self.mechanism.name!r}")
+            raise ValueError(
+                f"problem: built for mechanism {problem.mechanism.name!r}, this solver is for {self.mechanism.name!r}"
+            )
         st = self.settings
         lay = self._layout(problem)
         cur, trial = lay.points
@@ -316,20 +331,20 @@ class SQPSolver:
         el = lay.elastic
         el.P[:n, :n] = qp.P
         rho = 100.0 * (1.0 + cur.g_inf * inv)  # > the (scaled) multipliers: exact penalty
-        el.P_flat_f[n * (n + k + 1):: n + k + 1] = 1e-3 * (cur.p_max + lam)  # conditioning only
+        el.P_flat_f[n * (n + k + 1) :: n + k + 1] = 1e-3 * (cur.p_max + lam)  # conditioning only
         el.c[:n], el.c[n:] = qp.c, rho
         el.l[:n], el.u[:n] = qp.l[:n], qp.u[:n]
-        el.A[n + k:n + 2 * k, :n] = cur.C
-        el.A[n + 2 * k:, :n] = cur.C
-        el.l[n + k:n + 2 * k] = qp.l[n:]
-        el.u[n + 2 * k:] = qp.u[n:]
+        el.A[n + k : n + 2 * k, :n] = cur.C
+        el.A[n + 2 * k :, :n] = cur.C
+        el.l[n + k : n + 2 * k] = qp.l[n:]
+        el.u[n + 2 * k :] = qp.u[n:]
         res = self.backend.solve(el, "elastic")
         if not res.solved:
             return None
         d = res.x[:n] * scale
         lin = cur.c + cur.C @ d
         v_lin = float(np.maximum(np.maximum(lay.cl - lin, lin - lay.cu), 0.0).sum())
-        y = np.concatenate([res.y[:n], res.y[n + k:n + 2 * k] + res.y[n + 2 * k:]]) * scale
+        y = np.concatenate([res.y[:n], res.y[n + k : n + 2 * k] + res.y[n + 2 * k :]]) * scale
         return d, y, v_lin, True, scale
 
     def _line_search(self, problem, lay, cur, trial, d, merit, pred, nu, elastic, scale) -> float:
@@ -346,8 +361,11 @@ class SQPSolver:
                     return alpha
                 if alpha == 1.0 and lay.k and not elastic and trial.v1 > cur.v1:
                     q_soc = self._second_order_correction(lay, cur, trial, d, scale)
-                    if (q_soc is not None and trial.load(q_soc)
-                            and merit - (trial.res + nu * trial.v1) >= st.armijo * pred):
+                    if (
+                        q_soc is not None
+                        and trial.load(q_soc)
+                        and merit - (trial.res + nu * trial.v1) >= st.armijo * pred
+                    ):
                         return 1.0
             alpha *= 0.5
         return 0.0
@@ -387,21 +405,33 @@ class SQPSolver:
         if cur.vinf > st.feasibility_tol:
             status = "failed"
             worst = int(np.argmax(np.maximum(lay.cl - cur.c, cur.c - lay.cu)))
-            reason = (f"no feasible point found: {lay.row_names[worst]} violated by {cur.vinf:.3g}"
-                      + (f" ({reason})" if reason else " (locally infeasible)"))
+            reason = f"no feasible point found: {lay.row_names[worst]} violated by {cur.vinf:.3g}" + (
+                f" ({reason})" if reason else " (locally infeasible)"
+            )
         elif cur.res <= st.reach_tol:
             status, reason = "ok", "target reached"
         else:
             status = "limited"
-            reason = (f"target out of reach: nearest reachable point, weighted residual {cur.res:.3g}"
-                      if stationary else f"{reason or 'stopped'} before convergence, weighted residual {cur.res:.3g}")
+            reason = (
+                f"target out of reach: nearest reachable point, weighted residual {cur.res:.3g}"
+                if stationary
+                else f"{reason or 'stopped'} before convergence, weighted residual {cur.res:.3g}"
+            )
         active, at_bound = self._limits(lay, cur, y, use_duals=status == "limited")
         if status == "limited":
             reason += f"; stopped by {', '.join(active)}" if active else "; no limit active (mechanism reach)"
         return IKSolution(
-            q=cur.q.copy(), status=status, reason=reason, active=active, iterations=iterations,
-            residual=float(cur.res), solve_time_s=time.perf_counter() - t_start, task=cur.t.copy(),
-            error=cur.e.copy(), violation=float(cur.vinf), at_bound=at_bound,
+            q=cur.q.copy(),
+            status=status,
+            reason=reason,
+            active=active,
+            iterations=iterations,
+            residual=float(cur.res),
+            solve_time_s=time.perf_counter() - t_start,
+            task=cur.t.copy(),
+            error=cur.e.copy(),
+            violation=float(cur.vinf),
+            at_bound=at_bound,
         )
 
     def _no_valid_point(self, seed, t_start: float) -> IKSolution:

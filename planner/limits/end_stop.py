@@ -18,8 +18,8 @@ __all__ = ["EndStopZone"]
 class EndStopZone:
     lower: np.ndarray
     upper: np.ndarray
-    velocity: np.ndarray          # full-speed limits (actuator units/s)
-    zone_fraction: float = 0.05   # of each stroke
+    velocity: np.ndarray  # full-speed limits (actuator units/s)
+    zone_fraction: float = 0.05  # of each stroke
 
     def allowed_speed(self, q: np.ndarray, direction: np.ndarray) -> np.ndarray:
         """Largest |q̇_i| allowed at q when moving with the sign of ``direction`` (0 = not moving)."""

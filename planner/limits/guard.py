@@ -24,40 +24,44 @@ from typing import Literal
 
 import numpy as np
 
-from planner.model.fast_function import FastFunction
-from planner.model.kinematics import POINT_NAMES, HitchModel
-from planner.trajectory import MotionState, Plan, PlanError, Setpoints, TrajectoryPlanner
-from planner.model.types import ACTUATOR_NAMES
 from planner.limits.end_stop import EndStopZone
 from planner.limits.kinematic_margin import KinematicMargin, kinematic_margin
 from planner.limits.stability import StabilityReport, StabilityThresholds, evaluate_stability
 from planner.limits.stability_batch import StabilityBatch, evaluate_stability_batch
 from planner.limits.tractor import ImplementRecord, Tractor, load_tractor_profile
+from planner.model.fast_function import FastFunction
+from planner.model.kinematics import POINT_NAMES, HitchModel
+from planner.model.types import ACTUATOR_NAMES
+from planner.trajectory import MotionState, Plan, PlanError, Setpoints, TrajectoryPlanner
 
 __all__ = ["Guard", "GuardDecision", "GuardReason", "GuardRefusal", "GuardedPlan"]
 
 Action = Literal["ok", "scaled", "refused"]
 _MEASURES = ("front_axle_load", "ssm", "lsm", "esm")
-_FK_CHUNK = 64          # samples per call of the mapped forward kinematics
-_FK_CLOSED_M = 0.5e-9   # closure residual [m] trusted in a batch (HitchModel.forward refuses > 1e-9)
+_FK_CHUNK = 64  # samples per call of the mapped forward kinematics
+_FK_CLOSED_M = 0.5e-9  # closure residual [m] trusted in a batch (HitchModel.forward refuses > 1e-9)
 _KEEP_OUT_TOL_M = 1e-10  # bound on |batch - per-sample| keep-out distance [m] (rounding ~1e-15 m)
 
 
 @dataclass(frozen=True)
 class GuardReason:
-    measure: str          # "ssm", "esm", "front_axle_load", "lsm", "keep_out:<name>", "end_stop:<actuator>"
+    measure: str  # "ssm", "esm", "front_axle_load", "lsm", "keep_out:<name>", "end_stop:<actuator>"
     value: float
     threshold: float
-    t_s: float            # time in the plan (jog: seconds ahead)
+    t_s: float  # time in the plan (jog: seconds ahead)
     level: Literal["hard", "caution", "speed"]
 
     def to_json(self) -> dict:
-        return {"measure": self.measure, "value": self.value, "threshold": self.threshold, "t": self.t_s,
-                "level": self.level}
+        return {
+            "measure": self.measure,
+            "value": self.value,
+            "threshold": self.threshold,
+            "t": self.t_s,
+            "level": self.level,
+        }
 
     def sentence(self) -> str:
-        return (f"{self.measure} would be {self.value:.4g} (threshold {self.threshold:.4g}) "
-                f"at t = {self.t_s:.2f} s")
+        return f"{self.measure} would be {self.value:.4g} (threshold {self.threshold:.4g}) at t = {self.t_s:.2f} s"
 
 
 @dataclass(frozen=True)
@@ -68,9 +72,12 @@ class GuardDecision:
     worst: StabilityReport | None = field(default=None, repr=False)
 
     def to_json(self) -> dict:
-        return {"action": self.action, "speed_factor": self.speed_factor,
-                "reasons": [r.to_json() for r in self.reasons],
-                "stability": None if self.worst is None else self.worst.as_dict()}
+        return {
+            "action": self.action,
+            "speed_factor": self.speed_factor,
+            "reasons": [r.to_json() for r in self.reasons],
+            "stability": None if self.worst is None else self.worst.as_dict(),
+        }
 
 
 class GuardRefusal(PlanError):
@@ -96,18 +103,27 @@ def _measure_values(rep: StabilityReport) -> dict[str, float]:
 class Guard:
     """Limits and stability guard for one hitch model, tractor and implement."""
 
-    def __init__(self, planner: TrajectoryPlanner, *, tractor: Tractor | None = None,
-                 implement: ImplementRecord | None = None, thresholds: StabilityThresholds | None = None):
+    def __init__(
+        self,
+        planner: TrajectoryPlanner,
+        *,
+        tractor: Tractor | None = None,
+        implement: ImplementRecord | None = None,
+        thresholds: StabilityThresholds | None = None,
+    ):
         self.planner = planner
         self.model: HitchModel = planner.model
         prof = self.model.profile
         self.settings = prof.stability
-        self.tractor = tractor or load_tractor_profile(prof.stability.tractor_profile).tractor(prof.geometry.pivot_height)
+        self.tractor = tractor or load_tractor_profile(prof.stability.tractor_profile).tractor(
+            prof.geometry.pivot_height
+        )
         self.implement = implement
         self.thresholds = thresholds or StabilityThresholds()
         self.slope = (0.0, 0.0)
-        self.end_stops = EndStopZone(self.model.lower, self.model.upper, planner.limits.velocity,
-                                     prof.limits.end_stop_zone)
+        self.end_stops = EndStopZone(
+            self.model.lower, self.model.upper, planner.limits.velocity, prof.limits.end_stop_zone
+        )
         self.keep_out = [(k.name, np.array(k.centre), k.radius) for k in prof.limits.keep_out]
         self._points_map = FastFunction(self.model.points_function.map(_FK_CHUNK))
 
@@ -132,8 +148,15 @@ class Guard:
         zi /= np.linalg.norm(zi)
         yi = np.cross(zi, xi)
         R = np.column_stack([xi, yi, zi])
-        return evaluate_stability(self.tractor, self.implement, P["T"], R, *self.slope, thresholds=self.thresholds,
-                                  front_ballast=self.settings.front_ballast)
+        return evaluate_stability(
+            self.tractor,
+            self.implement,
+            P["T"],
+            R,
+            *self.slope,
+            thresholds=self.thresholds,
+            front_ballast=self.settings.front_ballast,
+        )
 
     def keep_out_clearance(self, q, points=None) -> list[tuple[str, float, float]]:
         """(name, distance of the top link H–U from the sphere's centre, radius) for every keep-out."""
@@ -184,8 +207,9 @@ class Guard:
             return cache[key]
 
         P, suspect = self._points_batch(Q)
-        batch = evaluate_stability_batch(self.tractor, self.implement, *_implement_frames(P), *self.slope,
-                                         front_ballast=self.settings.front_ballast)
+        batch = evaluate_stability_batch(
+            self.tractor, self.implement, *_implement_frames(P), *self.slope, front_ballast=self.settings.front_ballast
+        )
         vals = batch.values
         dist = self._keep_out_batch(P)
         suspect |= batch.suspect | ~np.isfinite(dist).all(axis=0)
@@ -234,8 +258,14 @@ class Guard:
         reasons += [c[2] for c in sorted(cautions, key=lambda c: c[:2])]
         return GuardDecision("ok" if factor >= 1.0 else "scaled", factor, tuple(_dedupe(reasons)), worst)
 
-    def _worst(self, vals: np.ndarray, batch: StabilityBatch, hard_th: dict[str, float],
-               exact: Callable[[int], tuple[list, StabilityReport]], start: StabilityReport) -> StabilityReport:
+    def _worst(
+        self,
+        vals: np.ndarray,
+        batch: StabilityBatch,
+        hard_th: dict[str, float],
+        exact: Callable[[int], tuple[list, StabilityReport]],
+        start: StabilityReport,
+    ) -> StabilityReport:
         """Report of the first sample with the smallest min_m value_m / |hard_m| (as the per-sample loop);
         ``vals`` (N, 4) batch values, those of samples already evaluated one by one replaced."""
         scale = np.array([max(abs(hard_th[m]), 1e-9) for m in _MEASURES])
@@ -260,14 +290,18 @@ class Guard:
         n, c = len(Q), _FK_CHUNK
         pts, bad = np.empty((n, 3, len(POINT_NAMES))), np.empty(n, bool)
         for s in range(0, n, c):
-            blk = Q[s:s + c]
+            blk = Q[s : s + c]
             m = len(blk)
             if m < c:
                 blk = np.vstack([blk, np.repeat(blk[-1:], c - m, axis=0)])
             f, pm, _, checks = self._points_map(blk.T)
-            pts[s:s + m] = pm.reshape(3, len(POINT_NAMES), c, order="F").transpose(2, 0, 1)[:m]
-            ok = (np.abs(checks[:4]) <= _FK_CLOSED_M).all(axis=0) & (np.abs(checks[4]) <= 1.0) & np.isfinite(f).all(axis=0)
-            bad[s:s + m] = ~ok[:m]
+            pts[s : s + m] = pm.reshape(3, len(POINT_NAMES), c, order="F").transpose(2, 0, 1)[:m]
+            ok = (
+                (np.abs(checks[:4]) <= _FK_CLOSED_M).all(axis=0)
+                & (np.abs(checks[4]) <= 1.0)
+                & np.isfinite(f).all(axis=0)
+            )
+            bad[s : s + m] = ~ok[:m]
         bad |= ~np.isfinite(Q).all(axis=1)
         return {n: pts[:, :, POINT_NAMES.index(n)] for n in ("L", "R", "T", "U", "H")}, bad
 
@@ -361,12 +395,19 @@ class Guard:
 
     def _thresholds(self) -> tuple[dict, dict]:
         th, w = self.thresholds, self.tractor.empty_weight
-        hard = {"front_axle_load": th.front_axle_fraction_hard * w, "ssm": th.ssm_hard, "lsm": th.lsm_hard,
-                "esm": th.esm_hard}
-        caution = {"front_axle_load": th.front_axle_fraction_caution * w, "ssm": th.ssm_caution,
-                   "lsm": th.lsm_caution, "esm": th.esm_caution}
+        hard = {
+            "front_axle_load": th.front_axle_fraction_hard * w,
+            "ssm": th.ssm_hard,
+            "lsm": th.lsm_hard,
+            "esm": th.esm_hard,
+        }
+        caution = {
+            "front_axle_load": th.front_axle_fraction_caution * w,
+            "ssm": th.ssm_caution,
+            "lsm": th.lsm_caution,
+            "esm": th.esm_caution,
+        }
         return hard, caution
-
 
 
 def _implement_frames(P: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -391,4 +432,3 @@ def _dedupe(reasons):
         if (r.measure, r.level) not in seen:
             seen.add((r.measure, r.level))
             yield r
-

@@ -10,7 +10,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-
 from planner.model.hard_limits import HardLimits
 from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
 
@@ -19,23 +18,28 @@ __all__ = ["KinematicMargin", "kinematic_margin"]
 
 @dataclass(frozen=True)
 class KinematicMargin:
-    time_s: float                   # overall, ∞ at rest
-    limit: str                      # the limit that would be reached first ("" at rest)
-    per_dof: dict                   # "x" → {"time_s", "limit"}
+    time_s: float  # overall, ∞ at rest
+    limit: str  # the limit that would be reached first ("" at rest)
+    per_dof: dict  # "x" → {"time_s", "limit"}
 
     def to_json(self) -> dict:
         def t(v):
             return None if math.isinf(v) else v
-        return {"time_s": t(self.time_s), "limit": self.limit,
-                "per_dof": {k: {"time_s": t(v["time_s"]), "limit": v["limit"]} for k, v in self.per_dof.items()}}
+
+        return {
+            "time_s": t(self.time_s),
+            "limit": self.limit,
+            "per_dof": {k: {"time_s": t(v["time_s"]), "limit": v["limit"]} for k, v in self.per_dof.items()},
+        }
 
 
 def _time(dist: float, rate: float) -> float:
     return max(dist, 0.0) / rate if rate > 1e-12 else math.inf
 
 
-def kinematic_margin(pose, pose_velocity, q, q_velocity, features, feature_rates, hard: HardLimits,
-                     workspace: dict | None) -> KinematicMargin:
+def kinematic_margin(
+    pose, pose_velocity, q, q_velocity, features, feature_rates, hard: HardLimits, workspace: dict | None
+) -> KinematicMargin:
     """Margins from the pose (x, z, roll, pitch) and its rates, actuators and their rates,
     and the hard-limit feature rows with their rates."""
     candidates: list[tuple[float, str]] = []
@@ -45,7 +49,9 @@ def kinematic_margin(pose, pose_velocity, q, q_velocity, features, feature_rates
         if workspace is not None:
             lo, hi = workspace[k]
             v = pose_velocity[d]
-            best = min(best, (_time(hi - pose[d], v), f"workspace:{k}:max"), (_time(pose[d] - lo, -v), f"workspace:{k}:min"))
+            best = min(
+                best, (_time(hi - pose[d], v), f"workspace:{k}:max"), (_time(pose[d] - lo, -v), f"workspace:{k}:min")
+            )
         per_dof[k] = {"time_s": best[0], "limit": best[1] if math.isfinite(best[0]) else ""}
         candidates.append(best)
     for i, n in enumerate(ACTUATOR_NAMES):

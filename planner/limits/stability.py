@@ -37,13 +37,33 @@ from typing import Literal
 
 import numpy as np
 
-from planner.limits.tractor import STANDARD_GRAVITY, ImplementRecord, StabilityInputError, Tractor, _rotation, _scalar, _vector3
+from planner.limits.tractor import (
+    STANDARD_GRAVITY,
+    ImplementRecord,
+    StabilityInputError,
+    Tractor,
+    _rotation,
+    _scalar,
+    _vector3,
+)
 
 __all__ = [
-    "EDGE_NAMES", "StabilityInputError", "gravity_direction",
-    "LoadCase", "build_load_case", "AxleLoads", "axle_loads",
-    "SupportMargins", "support_margins", "EnergyMargins", "energy_margins",
-    "minimum_front_ballast", "StabilityThresholds", "StabilityViolation", "StabilityReport", "evaluate_stability",
+    "EDGE_NAMES",
+    "StabilityInputError",
+    "gravity_direction",
+    "LoadCase",
+    "build_load_case",
+    "AxleLoads",
+    "axle_loads",
+    "SupportMargins",
+    "support_margins",
+    "EnergyMargins",
+    "energy_margins",
+    "minimum_front_ballast",
+    "StabilityThresholds",
+    "StabilityViolation",
+    "StabilityReport",
+    "evaluate_stability",
 ]
 
 #: Support-triangle edges, in the order of every per-edge tuple.
@@ -85,8 +105,9 @@ class LoadCase:
     front_ballast: float
 
 
-def build_load_case(tractor: Tractor, implement: ImplementRecord | None, T=None, R_i=None,
-                    front_ballast: float = 0.0) -> LoadCase:
+def build_load_case(
+    tractor: Tractor, implement: ImplementRecord | None, T=None, R_i=None, front_ballast: float = 0.0
+) -> LoadCase:
     """Combine tractor, implement at pose (T, R_i) and a front ballast [kg] into one mass and CoM.
 
     The implement CoM is p_i = T + R_i c_i with c_i its CoM in the implement frame.  Without an
@@ -265,9 +286,17 @@ def energy_margins(tractor: Tractor, mass: float, centre_of_mass, gravity) -> En
     return EnergyMargins(tuple(out))
 
 
-def minimum_front_ballast(implement_mass: float, c: float, d: float, *, empty_mass: float,
-                          empty_front_axle_mass: float, wheelbase: float, ballast_arm: float,
-                          front_fraction: float = 0.2) -> float:
+def minimum_front_ballast(
+    implement_mass: float,
+    c: float,
+    d: float,
+    *,
+    empty_mass: float,
+    empty_front_axle_mass: float,
+    wheelbase: float,
+    ballast_arm: float,
+    front_fraction: float = 0.2,
+) -> float:
     """Minimum front ballast [kg] for a rear-mounted implement, as tractor/implement manuals give it.
 
         G_V,min = [G_H (c + d) - T_V b + 0.2 T_L b] / (a + b),   clipped at 0
@@ -356,15 +385,30 @@ class StabilityReport:
 
     def as_dict(self) -> dict:
         """JSON-ready summary (issue 5 §3 field names)."""
-        return {"axle_loads": {"front": self.axle_loads.front, "rear": self.axle_loads.rear},
-                "front_axle_share": self.front_axle_share, "ssm": self.ssm, "lsm": self.lsm, "esm": self.esm,
-                "min_front_ballast": self.min_front_ballast_kg, "ok": self.ok, "weakest_edge": self.weakest_edge,
-                "violations": [asdict(v) for v in self.violations]}
+        return {
+            "axle_loads": {"front": self.axle_loads.front, "rear": self.axle_loads.rear},
+            "front_axle_share": self.front_axle_share,
+            "ssm": self.ssm,
+            "lsm": self.lsm,
+            "esm": self.esm,
+            "min_front_ballast": self.min_front_ballast_kg,
+            "ok": self.ok,
+            "weakest_edge": self.weakest_edge,
+            "violations": [asdict(v) for v in self.violations],
+        }
 
 
-def evaluate_stability(tractor: Tractor, implement: ImplementRecord | None, T, R_i, slope_roll: float,
-                       slope_pitch: float, *, thresholds: StabilityThresholds = StabilityThresholds(),
-                       front_ballast: float = 0.0) -> StabilityReport:
+def evaluate_stability(
+    tractor: Tractor,
+    implement: ImplementRecord | None,
+    T,
+    R_i,
+    slope_roll: float,
+    slope_pitch: float,
+    *,
+    thresholds: StabilityThresholds = StabilityThresholds(),
+    front_ballast: float = 0.0,
+) -> StabilityReport:
     """Axle loads, SSM, LSM, ESM and the manual front-ballast advice for one pose and slope.
 
     ``T`` (3,) [m] and ``R_i`` (3x3) give the implement pose in the tractor frame; slopes [rad]
@@ -384,18 +428,38 @@ def evaluate_stability(tractor: Tractor, implement: ImplementRecord | None, T, R
     if implement is not None:
         c, d = load.tool_point[1] - tractor.rear_axle[1], load.implement_centre_of_mass[1] - load.tool_point[1]
     ballast = minimum_front_ballast(
-        load.implement_mass, c, d, empty_mass=tractor.mass, empty_front_axle_mass=tractor.empty_front_axle_mass,
-        wheelbase=tractor.wheelbase, ballast_arm=tractor.front_ballast_arm,
+        load.implement_mass,
+        c,
+        d,
+        empty_mass=tractor.mass,
+        empty_front_axle_mass=tractor.empty_front_axle_mass,
+        wheelbase=tractor.wheelbase,
+        ballast_arm=tractor.front_ballast_arm,
         front_fraction=thresholds.front_axle_fraction_hard,
     )
     th, w = thresholds, tractor.empty_weight
-    rows = (("front_axle_load", loads.front, th.front_axle_fraction_hard * w, th.front_axle_fraction_caution * w),
-            ("ssm", margins.ssm, th.ssm_hard, th.ssm_caution), ("lsm", margins.lsm, th.lsm_hard, th.lsm_caution),
-            ("esm", energy.esm, th.esm_hard, th.esm_caution))
-    violations = tuple(StabilityViolation(n, v, hard if v < hard else caution, "hard" if v < hard else "caution")
-                       for n, v, hard, caution in rows if v < caution)
+    rows = (
+        ("front_axle_load", loads.front, th.front_axle_fraction_hard * w, th.front_axle_fraction_caution * w),
+        ("ssm", margins.ssm, th.ssm_hard, th.ssm_caution),
+        ("lsm", margins.lsm, th.lsm_hard, th.lsm_caution),
+        ("esm", energy.esm, th.esm_hard, th.esm_caution),
+    )
+    violations = tuple(
+        StabilityViolation(n, v, hard if v < hard else caution, "hard" if v < hard else "caution")
+        for n, v, hard, caution in rows
+        if v < caution
+    )
     return StabilityReport(
-        axle_loads=loads, front_axle_share=loads.front_share, ssm=margins.ssm, lsm=margins.lsm, esm=energy.esm,
-        min_front_ballast_kg=ballast, ok=not any(v.level == "hard" for v in violations), violations=violations,
-        weakest_edge=margins.weakest_edge, load=load, margins=margins, energy=energy,
+        axle_loads=loads,
+        front_axle_share=loads.front_share,
+        ssm=margins.ssm,
+        lsm=margins.lsm,
+        esm=energy.esm,
+        min_front_ballast_kg=ballast,
+        ok=not any(v.level == "hard" for v in violations),
+        violations=violations,
+        weakest_edge=margins.weakest_edge,
+        load=load,
+        margins=margins,
+        energy=energy,
     )

@@ -85,8 +85,16 @@ def _pose_suspect(T: np.ndarray, R: np.ndarray) -> np.ndarray:
     return ~finite | ~(ortho <= 0.5 * _ORTHO_TOL) | ~(det > 0.5)
 
 
-def evaluate_stability_batch(tractor: Tractor, implement: ImplementRecord | None, T, R_i, slope_roll: float,
-                             slope_pitch: float, *, front_ballast: float = 0.0) -> StabilityBatch:
+def evaluate_stability_batch(
+    tractor: Tractor,
+    implement: ImplementRecord | None,
+    T,
+    R_i,
+    slope_roll: float,
+    slope_pitch: float,
+    *,
+    front_ballast: float = 0.0,
+) -> StabilityBatch:
     """Front-axle load [N], SSM [m], LSM [m], ESM [J] for N implement poses on one slope.
 
     ``T`` (N, 3) [m] tool points and ``R_i`` (N, 3, 3) implement rotations in the tractor frame;
@@ -103,8 +111,7 @@ def evaluate_stability_batch(tractor: Tractor, implement: ImplementRecord | None
         # the per-sample measures ignore the pose: evaluate once, broadcast (exactly its values)
         rep = evaluate_stability(tractor, None, None, None, slope_roll, slope_pitch, front_ballast=front_ballast)
         cols = [np.full(n, v) for v in (rep.axle_loads.front, rep.ssm, rep.lsm, rep.esm)]
-        return StabilityBatch(*cols, suspect=np.zeros(n, bool), tolerance=dict.fromkeys(MEASURE_NAMES, 0.0),
-                              exact=True)
+        return StabilityBatch(*cols, suspect=np.zeros(n, bool), tolerance=dict.fromkeys(MEASURE_NAMES, 0.0), exact=True)
 
     g = gravity_direction(slope_roll, slope_pitch)
     ballast = _scalar("front_ballast", front_ballast, 0.0, 20_000.0)
@@ -138,8 +145,12 @@ def evaluate_stability_batch(tractor: Tractor, implement: ImplementRecord | None
     branch_near = np.zeros(n, bool)
     # length scale of every point involved [m]: the agreement bounds are relative to it
     reach = float(np.max(np.where(np.isfinite(T), np.abs(T), 0.0))) + float(np.linalg.norm(c))
-    length = 1.0 + max(float(np.max(np.abs(V))), float(np.max(np.abs(tractor.centre_of_mass))),
-                       float(np.max(np.abs(tractor.front_ballast_point))), reach)
+    length = 1.0 + max(
+        float(np.max(np.abs(V))),
+        float(np.max(np.abs(tractor.centre_of_mass))),
+        float(np.max(np.abs(tractor.front_ballast_point))),
+        reach,
+    )
     mv_min = 1.0
     for a, b, cc in _EDGES:
         edge = V2[b] - V2[a]
@@ -176,8 +187,9 @@ def evaluate_stability_batch(tractor: Tractor, implement: ImplementRecord | None
         r = p - A
         r_perp = r - _dot(r, axis)[:, None] * axis
         rise = _norm(r_perp) * math.sqrt(max(0.0, 1.0 - float(axis @ up) ** 2)) - _dot(r_perp, up)
-        side = np.array([axis[1] * up[2] - axis[2] * up[1], axis[2] * up[0] - axis[0] * up[2],
-                         axis[0] * up[1] - axis[1] * up[0]])
+        side = np.array(
+            [axis[1] * up[2] - axis[2] * up[1], axis[2] * up[0] - axis[0] * up[2], axis[0] * up[1] - axis[1] * up[0]]
+        )
         if side @ (V[c_i] - A) < 0:
             side = -side
         side_r = _dot(r, side)
@@ -187,8 +199,12 @@ def evaluate_stability_batch(tractor: Tractor, implement: ImplementRecord | None
     esm = np.minimum(np.minimum(energies[0], energies[1]), energies[2])
 
     weight_scale = m * STANDARD_GRAVITY * length
-    tolerance = {"front_axle_load": _REL_TOL * weight_scale * (1.0 + 1.0 / tractor.wheelbase),
-                 "ssm": tol_len, "lsm": tol_len, "esm": _REL_TOL * weight_scale}
+    tolerance = {
+        "front_axle_load": _REL_TOL * weight_scale * (1.0 + 1.0 / tractor.wheelbase),
+        "ssm": tol_len,
+        "lsm": tol_len,
+        "esm": _REL_TOL * weight_scale,
+    }
     values = np.column_stack([front, ssm, lsm, esm])
     suspect = suspect | branch_near | ~np.isfinite(values).all(axis=1)
     return StabilityBatch(front, ssm, lsm, esm, suspect=suspect, tolerance=tolerance)

@@ -15,8 +15,8 @@ import numpy as np
 
 from planner.model.fast_function import FastFunction
 from planner.model.geometry import LEFT, RIGHT, lift_arm_end, link_points, side_geometry, solve_link_angles
-from planner.profiles.hitch import Profile
 from planner.model.types import KinematicsError
+from planner.profiles.hitch import Profile
 
 __all__ = ["angles_to_actuators_sx", "AngleMaps"]
 
@@ -64,5 +64,7 @@ class AngleMaps:
         """θ = (θxl, θzl, θxr, θzr) [rad] from the link actuators (exact loop closure)."""
         th, res = self._to_ang(np.array([lift, tilt, left, right], dtype=float))
         if not np.all(np.abs(res) <= 1e-9):
-            raise KinematicsError(f"lower links cannot close with these actuators (closure error {np.abs(res).max():.3g} m)")
+            raise KinematicsError(
+                f"lower links cannot close with these actuators (closure error {np.abs(res).max():.3g} m)"
+            )
         return th[:, 0].copy()

@@ -24,8 +24,8 @@ import math
 import casadi as ca
 import numpy as np
 
-from planner.model.fast_function import FastFunction
 from planner.model.angle_maps import angles_to_actuators_sx
+from planner.model.fast_function import FastFunction
 from planner.model.geometry import LEFT, RIGHT, mast_frame, side_geometry
 from planner.model.kinematics import HitchModel
 from planner.model.types import Actuators, KinematicsError

@@ -21,8 +21,7 @@ class FastFunction:
         self._buf, self._eval = function.buffer()
         self.inputs = [np.zeros(function.size1_in(i) * function.size2_in(i)) for i in range(function.n_in())]
         self.outputs = [
-            np.zeros((function.size1_out(i), function.size2_out(i)), order="F")
-            for i in range(function.n_out())
+            np.zeros((function.size1_out(i), function.size2_out(i)), order="F") for i in range(function.n_out())
         ]
         for i, arr in enumerate(self.inputs):
             self._buf.set_arg(i, memoryview(arr))

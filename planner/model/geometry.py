@@ -38,14 +38,14 @@ class SideGeometry:
     """Fixed numbers of one side [m], already mirrored into the tractor frame."""
 
     side: float
-    pivot: tuple[float, float, float]          # L0 or R0
+    pivot: tuple[float, float, float]  # L0 or R0
     lift_arm_pivot: tuple[float, float, float]  # Q
-    limiter_point: tuple[float, float, float]   # C
-    link_length: float                          # l_vv
-    rod_attachment: float                       # d_O^A
-    bracket_position: float                     # d_O^B'
-    bracket_offset: float                       # d_B^B'
-    lift_arm_length: float                      # d_S^Q
+    limiter_point: tuple[float, float, float]  # C
+    link_length: float  # l_vv
+    rod_attachment: float  # d_O^A
+    bracket_position: float  # d_O^B'
+    bracket_offset: float  # d_B^B'
+    lift_arm_length: float  # d_S^Q
 
 
 def side_geometry(profile: Profile, side: float) -> SideGeometry:

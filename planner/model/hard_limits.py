@@ -34,14 +34,14 @@ class HardLimits:
 
     actuator_lower: np.ndarray
     actuator_upper: np.ndarray
-    feature_index: tuple[int, ...]          # rows of FEATURE_NAMES with bounds
+    feature_index: tuple[int, ...]  # rows of FEATURE_NAMES with bounds
     feature_lower: np.ndarray
     feature_upper: np.ndarray
     names_lower: tuple[str, ...]
     names_upper: tuple[str, ...]
 
     @classmethod
-    def from_model(cls, model: HitchModel) -> "HardLimits":
+    def from_model(cls, model: HitchModel) -> HardLimits:
         lim = model.profile.limits
         yaw0, pitch0 = model.top_link_reference
         ground = -model.profile.geometry.pivot_height + lim.ground_clearance

@@ -15,21 +15,57 @@ import casadi as ca
 import numpy as np
 
 from planner.model.fast_function import FastFunction
-from planner.model.geometry import LEFT, RIGHT, closure_residual, direction_angles, lift_arm_end, link_points, mast_point, side_geometry, solve_link_angles
-from planner.profiles.hitch import Profile, load_profile
+from planner.model.geometry import (
+    LEFT,
+    RIGHT,
+    closure_residual,
+    direction_angles,
+    lift_arm_end,
+    link_points,
+    mast_point,
+    side_geometry,
+    solve_link_angles,
+)
 from planner.model.types import ACTUATOR_NAMES, Actuators, HitchState, KinematicsError, Pose
+from planner.profiles.hitch import Profile, load_profile
 
 __all__ = ["HitchModel", "SymbolicModel", "FEATURE_NAMES", "POINT_NAMES"]
 
 #: Rows of the feature vector (pose, lower span, raw top-link angles, link-end heights).
 FEATURE_NAMES: tuple[str, ...] = (
-    "x", "y", "z", "roll", "pitch", "yaw",
-    "lower_span", "top_link_yaw", "top_link_pitch", "z_left_end", "z_right_end",
+    "x",
+    "y",
+    "z",
+    "roll",
+    "pitch",
+    "yaw",
+    "lower_span",
+    "top_link_yaw",
+    "top_link_pitch",
+    "z_left_end",
+    "z_right_end",
 )
 #: Names of the points returned by :meth:`HitchModel.forward` (``_l``/``_r`` = left/right).
 POINT_NAMES: tuple[str, ...] = (
-    "L0", "R0", "L", "R", "T", "U", "H", "Q_l", "Q_r", "S_l", "S_r",
-    "A_l", "A_r", "Bp_l", "Bp_r", "B_l", "B_r", "C_l", "C_r",
+    "L0",
+    "R0",
+    "L",
+    "R",
+    "T",
+    "U",
+    "H",
+    "Q_l",
+    "Q_r",
+    "S_l",
+    "S_r",
+    "A_l",
+    "A_r",
+    "Bp_l",
+    "Bp_r",
+    "B_l",
+    "B_r",
+    "C_l",
+    "C_r",
 )
 _RESIDUAL_CAUSES = (
     "left lift rod cannot reach the left lower link",
@@ -68,10 +104,25 @@ def _build(profile: Profile, category: str):
     tl_yaw, tl_pitch = direction_angles(U - H)
     features = ca.vertcat(T[0], T[1], T[2], roll, pitch, yaw, ca.norm_2(v), tl_yaw, tl_pitch, L[2], R[2])
     pts = {
-        "L0": ca.DM(left.pivot), "R0": ca.DM(right.pivot), "L": L, "R": R, "T": T, "U": U, "H": H,
-        "Q_l": ca.DM(left.lift_arm_pivot), "Q_r": ca.DM(right.lift_arm_pivot), "S_l": s_l, "S_r": s_r,
-        "A_l": pl["A"], "A_r": pr["A"], "Bp_l": pl["Bp"], "Bp_r": pr["Bp"], "B_l": pl["B"], "B_r": pr["B"],
-        "C_l": ca.DM(left.limiter_point), "C_r": ca.DM(right.limiter_point),
+        "L0": ca.DM(left.pivot),
+        "R0": ca.DM(right.pivot),
+        "L": L,
+        "R": R,
+        "T": T,
+        "U": U,
+        "H": H,
+        "Q_l": ca.DM(left.lift_arm_pivot),
+        "Q_r": ca.DM(right.lift_arm_pivot),
+        "S_l": s_l,
+        "S_r": s_r,
+        "A_l": pl["A"],
+        "A_r": pr["A"],
+        "Bp_l": pl["Bp"],
+        "Bp_r": pr["Bp"],
+        "B_l": pl["B"],
+        "B_r": pr["B"],
+        "C_l": ca.DM(left.limiter_point),
+        "C_r": ca.DM(right.limiter_point),
     }
     point_matrix = ca.densify(ca.horzcat(*(ca.SX(pts[n]) for n in POINT_NAMES)))
 
@@ -83,10 +134,10 @@ def _build(profile: Profile, category: str):
     g_q = ca.jacobian(closure, q)
     dth_dq = ca.SX.zeros(4, 5)
     for k in (0, 2):
-        blk = g_th[k:k + 2, k:k + 2]
+        blk = g_th[k : k + 2, k : k + 2]
         det = blk[0, 0] * blk[1, 1] - blk[0, 1] * blk[1, 0]
         inv = ca.vertcat(ca.horzcat(blk[1, 1], -blk[0, 1]), ca.horzcat(-blk[1, 0], blk[0, 0])) / det
-        dth_dq[k:k + 2, :] = -inv @ g_q[k:k + 2, :]
+        dth_dq[k : k + 2, :] = -inv @ g_q[k : k + 2, :]
     jac = ca.densify(ca.jacobian(features, q) + ca.jacobian(features, th) @ dth_dq)
 
     txl, tzl, res_l = solve_link_angles(left, s_l, g.fixed_lift_rod_length, lim_l)
@@ -151,7 +202,7 @@ class HitchModel:
         self.workspace = self._workspace()
 
     @classmethod
-    def from_profile(cls, name_or_path: str | Path = "thesis-t132", category: str | None = None) -> "HitchModel":
+    def from_profile(cls, name_or_path: str | Path = "thesis-t132", category: str | None = None) -> HitchModel:
         return cls(load_profile(name_or_path), category)
 
     # ------------------------------------------------------------------ evaluation
@@ -231,27 +282,39 @@ class HitchModel:
             lim = q[3 + k]
             if not abs(dc - rb) <= lim <= dc + rb:
                 who = "left" if side == LEFT else "right"
-                return (f"{who} sway limiter length {lim:.4g} m cannot reach its bracket "
-                        f"(reachable {abs(dc - rb):.4g}..{dc + rb:.4g} m)")
+                return (
+                    f"{who} sway limiter length {lim:.4g} m cannot reach its bracket "
+                    f"(reachable {abs(dc - rb):.4g}..{dc + rb:.4g} m)"
+                )
             qa = np.array(sg.lift_arm_pivot)
             s_pt = qa + g.lift_arm_length * np.array([0.0, math.cos(q[0]), math.sin(q[0])])
             ds = np.linalg.norm(s_pt - piv)
             rod = g.fixed_lift_rod_length if side == LEFT else q[1]
             if not abs(ds - g.lift_rod_attachment) <= rod <= ds + g.lift_rod_attachment:
                 who = "left lift rod" if side == LEFT else "tilt cylinder"
-                return (f"{who} length {rod:.4g} m cannot reach the lower link "
-                        f"(reachable {abs(ds - g.lift_rod_attachment):.4g}..{ds + g.lift_rod_attachment:.4g} m)")
+                return (
+                    f"{who} length {rod:.4g} m cannot reach the lower link "
+                    f"(reachable {abs(ds - g.lift_rod_attachment):.4g}..{ds + g.lift_rod_attachment:.4g} m)"
+                )
         return None
 
     def _solve_neutral(self) -> np.ndarray:
         """Neutral actuators: lift and tilt at their profile neutrals; limiters and top link
         chosen so that x = 0, |L−R| = span and pitch = 0 (Newton on the exact model)."""
         p = self.profile
-        q = np.array([
-            p.actuators.lift.neutral if p.actuators.lift.neutral is not None else (self.lower[0] + self.upper[0]) / 2,
-            p.actuators.tilt.neutral if p.actuators.tilt.neutral is not None else (self.lower[1] + self.upper[1]) / 2,
-            0.0, 0.0, 0.0,
-        ])
+        q = np.array(
+            [
+                p.actuators.lift.neutral
+                if p.actuators.lift.neutral is not None
+                else (self.lower[0] + self.upper[0]) / 2,
+                p.actuators.tilt.neutral
+                if p.actuators.tilt.neutral is not None
+                else (self.lower[1] + self.upper[1]) / 2,
+                0.0,
+                0.0,
+                0.0,
+            ]
+        )
         q[2:] = (self.lower[2:] + self.upper[2:]) / 2
         free = [2, 3, 4]
         for _ in range(50):

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from planner.profiles.hitch import Profile
 from planner.model.types import ACTUATOR_NAMES
+from planner.profiles.hitch import Profile
 
 __all__ = ["SensorRangeError", "SensorScaling", "AD_COUNTS_MAX"]
 

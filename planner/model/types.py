@@ -6,8 +6,8 @@ All values are SI: metres for lengths, radians for angles.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Mapping
 
 import numpy as np
 
@@ -51,14 +51,14 @@ class Actuators:
         return np.array([self.lift, self.tilt, self.top, self.left, self.right], dtype=float)
 
     @classmethod
-    def from_array(cls, values) -> "Actuators":
+    def from_array(cls, values) -> Actuators:
         v = np.asarray(values, dtype=float).reshape(-1)
         if v.size != 5:
             raise ValueError(f"actuator vector needs 5 values (lift, tilt, top, left, right), got {v.size}")
         return cls(*(float(x) for x in v))
 
     @classmethod
-    def from_mapping(cls, values: Mapping[str, float]) -> "Actuators":
+    def from_mapping(cls, values: Mapping[str, float]) -> Actuators:
         missing = [n for n in ACTUATOR_NAMES if n not in values]
         if missing:
             raise ValueError(f"actuators: missing field(s) {', '.join(missing)}")
@@ -86,7 +86,7 @@ class Pose:
         return np.array([self.x, self.y, self.z, self.roll, self.pitch, self.yaw], dtype=float)
 
     @classmethod
-    def from_array(cls, values) -> "Pose":
+    def from_array(cls, values) -> Pose:
         v = np.asarray(values, dtype=float).reshape(-1)
         if v.size != 6:
             raise ValueError(f"pose vector needs 6 values (x, y, z, roll, pitch, yaw), got {v.size}")

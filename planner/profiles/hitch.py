@@ -114,9 +114,7 @@ class Implement(_Strict):
         if not self.categories:
             raise ValueError("categories must list at least one ISO 730 category")
         if self.default_category not in self.categories:
-            raise ValueError(
-                f"default_category {self.default_category!r} is not one of {sorted(self.categories)}"
-            )
+            raise ValueError(f"default_category {self.default_category!r} is not one of {sorted(self.categories)}")
         return self
 
 

@@ -29,7 +29,9 @@ def builtin_profiles(subfolder: str | None) -> list[str]:
     return sorted(p.name[:-5] for p in _folder(subfolder).iterdir() if p.name.endswith(".toml"))
 
 
-def read_profile(name_or_path: str | Path, *, subfolder: str | None, kind: str, error: type[Exception]) -> tuple[str, dict]:
+def read_profile(
+    name_or_path: str | Path, *, subfolder: str | None, kind: str, error: type[Exception]
+) -> tuple[str, dict]:
     """(source, parsed TOML) from a path to a .toml file or a built-in name; ``error`` on failure."""
     p = Path(name_or_path)
     if p.suffix == ".toml" or p.exists():
@@ -40,8 +42,10 @@ def read_profile(name_or_path: str | Path, *, subfolder: str | None, kind: str, 
         source = str(name_or_path)
         res = _folder(subfolder) / f"{source}.toml"
         if not res.is_file():
-            raise error(f"{kind} {source!r} not found; built-in {kind}s: {', '.join(builtin_profiles(subfolder))} "
-                        "(or give a path to a .toml file)")
+            raise error(
+                f"{kind} {source!r} not found; built-in {kind}s: {', '.join(builtin_profiles(subfolder))} "
+                "(or give a path to a .toml file)"
+            )
         text = res.read_text(encoding="utf-8")
     try:
         return source, tomllib.loads(text)
@@ -85,8 +89,9 @@ def format_validation_error(kind: str, source: str, err: ValidationError, schema
         allowed = _field_range(schema, tuple(e["loc"]))
         if not allowed:
             ctx = e.get("ctx") or {}
-            allowed = " and ".join(f"{op} {ctx[k]}" for k, op in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<="))
-                                   if k in ctx)
+            allowed = " and ".join(
+                f"{op} {ctx[k]}" for k, op in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<=")) if k in ctx
+            )
         if allowed:
             msg = f"{msg} (allowed: {allowed})"
         value = e.get("input")

@@ -12,9 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planner.profiles.hitch import Profile
 from planner.model.sensors import SensorScaling
 from planner.model.types import ACTUATOR_NAMES
+from planner.profiles.hitch import Profile
 
 __all__ = ["ActuatorLimits", "VALVE_COMMAND_MAX"]
 
@@ -31,18 +31,22 @@ class ActuatorLimits:
     jerk: np.ndarray
 
     @classmethod
-    def from_profile(cls, profile: Profile) -> "ActuatorLimits":
+    def from_profile(cls, profile: Profile) -> ActuatorLimits:
         res = SensorScaling(profile).resolution
         mo = profile.motion
-        flow_counts = np.array([
-            min(profile.actuator(n).kv_pos, profile.actuator(n).kv_neg) * VALVE_COMMAND_MAX
-            * profile.actuator(n).valve_multiplier for n in ACTUATOR_NAMES
-        ])
+        flow_counts = np.array(
+            [
+                min(profile.actuator(n).kv_pos, profile.actuator(n).kv_neg)
+                * VALVE_COMMAND_MAX
+                * profile.actuator(n).valve_multiplier
+                for n in ACTUATOR_NAMES
+            ]
+        )
         v = mo.velocity_fraction * flow_counts * res
         a = v / mo.acceleration_time
         return cls(velocity=v, acceleration=a, jerk=a / mo.jerk_time)
 
-    def scaled(self, factor: float) -> "ActuatorLimits":
+    def scaled(self, factor: float) -> ActuatorLimits:
         """Velocity × factor, acceleration × factor², jerk × factor³ (a slower copy of the same motion)."""
         return ActuatorLimits(self.velocity * factor, self.acceleration * factor**2, self.jerk * factor**3)
 

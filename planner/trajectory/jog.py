@@ -34,8 +34,8 @@ class JogOutput:
     state: MotionState
     actuators: np.ndarray
     actuator_velocity: np.ndarray
-    limited: dict = field(default_factory=dict)   # "x+" / "x-" … → limit name
-    expired: bool = False                         # the command's TTL ran out (dead-man stop)
+    limited: dict = field(default_factory=dict)  # "x+" / "x-" … → limit name
+    expired: bool = False  # the command's TTL ran out (dead-man stop)
 
     @property
     def moving(self) -> bool:
@@ -82,7 +82,9 @@ class JogController:
         if isinstance(rates, Mapping):
             unknown = set(rates) - set(JOG_FIELDS)
             if unknown:
-                raise ValueError(f"jog: unknown field(s) {', '.join(sorted(unknown))}; allowed: {', '.join(JOG_FIELDS)}")
+                raise ValueError(
+                    f"jog: unknown field(s) {', '.join(sorted(unknown))}; allowed: {', '.join(JOG_FIELDS)}"
+                )
             vals = [rates.get(k, 0.0) for k in JOG_FIELDS]
         else:
             vals = list(rates)

@@ -26,7 +26,9 @@ class JointSamples:
     acceleration: np.ndarray
 
 
-def plan_joint_move(q0, q1, *, velocity, acceleration, jerk, rate: float = 50.0, lower=None, upper=None) -> JointSamples:
+def plan_joint_move(
+    q0, q1, *, velocity, acceleration, jerk, rate: float = 50.0, lower=None, upper=None
+) -> JointSamples:
     """Rest-to-rest move q0 → q1 within per-joint limits; raises PlanError naming a violated limit."""
     q0, q1 = np.asarray(q0, float), np.asarray(q1, float)
     n = q0.size

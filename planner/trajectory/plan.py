@@ -36,7 +36,7 @@ class MotionState:
     acceleration: np.ndarray = field(default_factory=lambda: np.zeros(4))
 
     @classmethod
-    def at_rest(cls, position) -> "MotionState":
+    def at_rest(cls, position) -> MotionState:
         return cls(np.asarray(position, float).copy())
 
     @property
@@ -53,7 +53,7 @@ class Plan:
     duration: float
     lower_bound: float
     #: the verified samples at the planner's rate (None for plans that were not sampled, e.g. stops)
-    setpoints: "Setpoints | None" = field(default=None, repr=False)
+    setpoints: Setpoints | None = field(default=None, repr=False)
     #: how the plan was made: kind, speed factor, attempts
     info: dict = field(default_factory=dict)
 
@@ -83,10 +83,12 @@ class Setpoints:
     def to_json(self) -> list[dict]:
         names6 = ("x", "y", "z", "roll", "pitch", "yaw")
         return [
-            {"t": float(self.t[k]),
-             "pose": dict(zip(names6, map(float, self.pose[k]))),
-             "actuators": dict(zip(ACTUATOR_NAMES, map(float, self.actuators[k]))),
-             "actuator_velocity": dict(zip(ACTUATOR_NAMES, map(float, self.actuator_velocity[k])))}
+            {
+                "t": float(self.t[k]),
+                "pose": dict(zip(names6, map(float, self.pose[k]))),
+                "actuators": dict(zip(ACTUATOR_NAMES, map(float, self.actuators[k]))),
+                "actuator_velocity": dict(zip(ACTUATOR_NAMES, map(float, self.actuator_velocity[k]))),
+            }
             for k in range(len(self.t))
         ]
 
@@ -128,7 +130,12 @@ class Violation:
 
 
 def verify_setpoints(
-    sp: Setpoints, model: HitchModel, hard: HardLimits, limits: ActuatorLimits, *, rel_tol: float = 1e-6,
+    sp: Setpoints,
+    model: HitchModel,
+    hard: HardLimits,
+    limits: ActuatorLimits,
+    *,
+    rel_tol: float = 1e-6,
     check_acceleration: bool = True,
 ) -> list[Violation]:
     """Every limit on every sample; accelerations by central finite differences of the velocities."""
@@ -140,14 +147,23 @@ def verify_setpoints(
             out.append(Violation(name, float(sp.t[k]), float("nan"), float("nan")))
         over = np.abs(sp.actuator_velocity[k]) > limits.velocity * (1 + rel_tol)
         for i in np.flatnonzero(over):
-            out.append(Violation(f"velocity:{ACTUATOR_NAMES[i]}", float(sp.t[k]), float(sp.actuator_velocity[k, i]),
-                                 float(limits.velocity[i])))
+            out.append(
+                Violation(
+                    f"velocity:{ACTUATOR_NAMES[i]}",
+                    float(sp.t[k]),
+                    float(sp.actuator_velocity[k, i]),
+                    float(limits.velocity[i]),
+                )
+            )
     if check_acceleration and len(sp.t) >= 3:
         # forward differences: (v[k+1] − v[k]) / dt is the mean acceleration over the interval,
         # so it cannot exceed a bound the true acceleration respects
         acc = np.diff(sp.actuator_velocity, axis=0) / np.diff(sp.t)[:, None]
         allow = limits.acceleration * (1 + rel_tol)
         for k, i in zip(*np.nonzero(np.abs(acc) > allow)):
-            out.append(Violation(f"acceleration:{ACTUATOR_NAMES[i]}", float(sp.t[k]), float(acc[k, i]),
-                                 float(limits.acceleration[i])))
+            out.append(
+                Violation(
+                    f"acceleration:{ACTUATOR_NAMES[i]}", float(sp.t[k]), float(acc[k, i]), float(limits.acceleration[i])
+                )
+            )
     return out

@@ -33,8 +33,12 @@ _OK = (Result.Working, Result.Finished)
 
 
 def _check_scale(speed_scale) -> float:
-    if isinstance(speed_scale, bool) or not isinstance(speed_scale, (int, float)) or not math.isfinite(speed_scale) \
-            or not 0.0 < speed_scale <= 1.0:
+    if (
+        isinstance(speed_scale, bool)
+        or not isinstance(speed_scale, (int, float))
+        or not math.isfinite(speed_scale)
+        or not 0.0 < speed_scale <= 1.0
+    ):
         raise ValueError(f"speed_scale must be a number in (0, 1], got {speed_scale!r}")
     return float(speed_scale)
 
@@ -50,8 +54,14 @@ class Waypoint:
 class TrajectoryPlanner:
     """Plans motions of one :class:`~planner.model.kinematics.HitchModel` within its workspace and limits."""
 
-    def __init__(self, model: HitchModel, *, limits: ActuatorLimits | None = None, rate: float | None = None,
-                 workspace: Mapping[str, tuple[float, float]] | None = None):
+    def __init__(
+        self,
+        model: HitchModel,
+        *,
+        limits: ActuatorLimits | None = None,
+        rate: float | None = None,
+        workspace: Mapping[str, tuple[float, float]] | None = None,
+    ):
         self.model = model
         self.inverse = ExactInverse(model)
         self.hard = HardLimits.from_model(model)
@@ -94,9 +104,13 @@ class TrajectoryPlanner:
         for i, k in enumerate(CONTROLLED_POSE_NAMES):
             unit = "m" if k in ("x", "z") else "rad"
             if p[i] < self.lo[i] - 1e-9:
-                raise PlanError(f"{what}.{k} = {p[i]:.4f} {unit} is below the workspace (workspace:{k}:min = {self.lo[i]:.4f})")
+                raise PlanError(
+                    f"{what}.{k} = {p[i]:.4f} {unit} is below the workspace (workspace:{k}:min = {self.lo[i]:.4f})"
+                )
             if p[i] > self.hi[i] + 1e-9:
-                raise PlanError(f"{what}.{k} = {p[i]:.4f} {unit} is above the workspace (workspace:{k}:max = {self.hi[i]:.4f})")
+                raise PlanError(
+                    f"{what}.{k} = {p[i]:.4f} {unit} is above the workspace (workspace:{k}:max = {self.hi[i]:.4f})"
+                )
 
     def state_from_actuators(self, q, q_velocity=None) -> MotionState:
         """Pose-space state of actuators ``q`` moving at ``q_velocity`` (least squares through the FK Jacobian)."""
@@ -113,8 +127,9 @@ class TrajectoryPlanner:
         self.check_in_workspace(p1)
         return self._plan_segments(start, [(p1, np.zeros(4), scale)])
 
-    def plan_sequence(self, start: MotionState, waypoints: Sequence[Waypoint], *, blend: bool = False,
-                      blend_fraction: float = 0.5) -> Plan:
+    def plan_sequence(
+        self, start: MotionState, waypoints: Sequence[Waypoint], *, blend: bool = False, blend_fraction: float = 0.5
+    ) -> Plan:
         """Through waypoints, stopping at each (``blend=False``) or passing with non-zero velocity."""
         if not waypoints:
             raise ValueError("waypoints: at least one waypoint is needed")
@@ -130,8 +145,13 @@ class TrajectoryPlanner:
         if blend:
             chain = [start.position] + pts
             for k in range(len(pts) - 1):
-                vels[k] = self._blend_velocity(chain[k], chain[k + 1], chain[k + 2], blend_fraction,
-                                               min(waypoints[k].speed_scale, waypoints[k + 1].speed_scale))
+                vels[k] = self._blend_velocity(
+                    chain[k],
+                    chain[k + 1],
+                    chain[k + 2],
+                    blend_fraction,
+                    min(waypoints[k].speed_scale, waypoints[k + 1].speed_scale),
+                )
         return self._plan_segments(start, [(p, v, w.speed_scale) for p, v, w in zip(pts, vels, waypoints)])
 
     def plan_stop(self, state: MotionState) -> Plan:
@@ -176,8 +196,7 @@ class TrajectoryPlanner:
     # ------------------------------------------------------------------ internals
     def _abs_floor(self, state: MotionState) -> PoseLimits:
         """Limits never below the current |v|, |a| (Ruckig rejects states beyond its limits)."""
-        return PoseLimits(np.abs(state.velocity) * (1 + 1e-9), np.abs(state.acceleration) * (1 + 1e-9),
-                          np.zeros(4))
+        return PoseLimits(np.abs(state.velocity) * (1 + 1e-9), np.abs(state.acceleration) * (1 + 1e-9), np.zeros(4))
 
     def _segment_limits(self, p0, p1, start_moving: bool, scale: float) -> PoseLimits:
         try:
@@ -194,7 +213,9 @@ class TrajectoryPlanner:
         if np.linalg.norm(d) < 1e-12:
             return np.zeros(4)
         u = d / np.linalg.norm(d)
-        lim = np.minimum(self._segment_limits(a, b, True, scale).velocity, self._segment_limits(b, c, True, scale).velocity)
+        lim = np.minimum(
+            self._segment_limits(a, b, True, scale).velocity, self._segment_limits(b, c, True, scale).velocity
+        )
         with np.errstate(divide="ignore"):
             speed = float(np.min(np.where(np.abs(u) > 1e-12, lim / np.abs(u), np.inf)))
         return fraction * speed * u
@@ -207,8 +228,10 @@ class TrajectoryPlanner:
     def _solve_segment(self, state: MotionState, p1, v1, lim: PoseLimits) -> Trajectory:
         inp = self._input
         inp.control_interface = ControlInterface.Position
-        self._set_limits(inp, lim.floored(self._abs_floor(state)).floored(
-            PoseLimits(np.abs(v1) * (1 + 1e-9), np.zeros(4), np.zeros(4))))
+        self._set_limits(
+            inp,
+            lim.floored(self._abs_floor(state)).floored(PoseLimits(np.abs(v1) * (1 + 1e-9), np.zeros(4), np.zeros(4))),
+        )
         inp.current_position, inp.current_velocity = list(state.position), list(state.velocity)
         inp.current_acceleration = list(state.acceleration)
         inp.target_position, inp.target_velocity, inp.target_acceleration = list(p1), list(v1), [0.0] * 4
@@ -237,20 +260,32 @@ class TrajectoryPlanner:
             if not bad:
                 q0, q0d = sp.actuators[0], sp.actuator_velocity[0]
                 lb = self.lower_bound(q0, sp.actuators[-1], q0d)
-                return Plan(plan.segments, start, duration, lb, sp,
-                            {"kind": "move", "speed_factor": factor, "attempts": attempt + 1})
+                return Plan(
+                    plan.segments,
+                    start,
+                    duration,
+                    lb,
+                    sp,
+                    {"kind": "move", "speed_factor": factor, "attempts": attempt + 1},
+                )
             worst = bad[0]
             if worst.limit.startswith(("velocity:", "acceleration:")):
                 factor *= 0.9
                 continue
             raise PlanError(f"the plan would exceed {worst.limit} at t = {worst.t:.2f} s")
-        raise PlanError(f"the plan keeps exceeding {worst.limit} at t = {worst.t:.2f} s even at {factor:.2f} of full speed")
+        raise PlanError(
+            f"the plan keeps exceeding {worst.limit} at t = {worst.t:.2f} s even at {factor:.2f} of full speed"
+        )
 
     def _check_extrema(self, traj: Trajectory) -> None:
         for i, (k, ext) in enumerate(zip(CONTROLLED_POSE_NAMES, traj.position_extrema)):
             if ext.min < self.lo[i] - 1e-6:
-                raise PlanError(f"the trajectory would leave the workspace: {k} reaches {ext.min:.4f} at t = {ext.t_min:.2f} s "
-                                f"(workspace:{k}:min = {self.lo[i]:.4f})")
+                raise PlanError(
+                    f"the trajectory would leave the workspace: {k} reaches {ext.min:.4f} at t = {ext.t_min:.2f} s "
+                    f"(workspace:{k}:min = {self.lo[i]:.4f})"
+                )
             if ext.max > self.hi[i] + 1e-6:
-                raise PlanError(f"the trajectory would leave the workspace: {k} reaches {ext.max:.4f} at t = {ext.t_max:.2f} s "
-                                f"(workspace:{k}:max = {self.hi[i]:.4f})")
+                raise PlanError(
+                    f"the trajectory would leave the workspace: {k} reaches {ext.max:.4f} at t = {ext.t_max:.2f} s "
+                    f"(workspace:{k}:max = {self.hi[i]:.4f})"
+                )

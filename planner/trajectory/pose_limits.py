@@ -30,12 +30,15 @@ class PoseLimits:
     acceleration: np.ndarray
     jerk: np.ndarray
 
-    def scaled(self, factor: float) -> "PoseLimits":
+    def scaled(self, factor: float) -> PoseLimits:
         return PoseLimits(self.velocity * factor, self.acceleration * factor**2, self.jerk * factor**3)
 
-    def floored(self, floor: "PoseLimits") -> "PoseLimits":
-        return PoseLimits(np.maximum(self.velocity, floor.velocity), np.maximum(self.acceleration, floor.acceleration),
-                          np.maximum(self.jerk, floor.jerk))
+    def floored(self, floor: PoseLimits) -> PoseLimits:
+        return PoseLimits(
+            np.maximum(self.velocity, floor.velocity),
+            np.maximum(self.acceleration, floor.acceleration),
+            np.maximum(self.jerk, floor.jerk),
+        )
 
 
 def straight_line_limits(inverse: ExactInverse, p0, p1, limits: ActuatorLimits, points: int = 24) -> PoseLimits:
@@ -47,9 +50,9 @@ def straight_line_limits(inverse: ExactInverse, p0, p1, limits: ActuatorLimits, 
         return box_limits(inverse, [p0], limits)
     u = d / length
     s = np.linspace(0.0, length, points)
-    g = np.array([inverse.solve(p0 + si * u)[1] @ u for si in s])   # q'(s), (K, 5)
-    h = np.gradient(g, s, axis=0)                                   # q''(s)
-    k = np.gradient(h, s, axis=0)                                   # q'''(s)
+    g = np.array([inverse.solve(p0 + si * u)[1] @ u for si in s])  # q'(s), (K, 5)
+    h = np.gradient(g, s, axis=0)  # q''(s)
+    k = np.gradient(h, s, axis=0)  # q'''(s)
     ag, ah, ak = np.abs(g) + _EPS, np.abs(h), np.abs(k)
     vs = float(np.min(limits.velocity / ag))
     # leave room for the curvature terms, then take what the first-order term allows
@@ -71,7 +74,7 @@ def box_limits(inverse: ExactInverse, points, limits: ActuatorLimits) -> PoseLim
     best = None
     for p in points:
         G = np.abs(inverse.solve(np.asarray(p, float))[1])  # (5, 4)
-        axis = np.min(limits.velocity[:, None] / (G + _EPS), axis=0)      # each DOF alone
+        axis = np.min(limits.velocity[:, None] / (G + _EPS), axis=0)  # each DOF alone
         kappa = np.min(limits.velocity / (G @ axis + _EPS))
         cand = axis * kappa
         best = cand if best is None else np.minimum(best, cand)

@@ -14,7 +14,6 @@ import time
 import pytest
 
 from bridge.service.client import HitchClient, ServiceError
-
 from tests.integration.service_process import ROOT, ServiceProcess, free_port, hitch
 
 ROUTER = """
@@ -42,9 +41,22 @@ def fleet(tmp_path_factory):
     try:
         assert "router ready" in router.stdout.readline()
         for i, prefix in enumerate(PREFIXES):
-            services.append(ServiceProcess(["--mode", "client", "--connect", router_ep, "--prefix", prefix,
-                                            "--data-dir", str(tmp_path_factory.mktemp(f"t{i}")),
-                                            "--implement", "cat2-spreader-400" if i == 0 else "cat2-power-harrow-1500"]))
+            services.append(
+                ServiceProcess(
+                    [
+                        "--mode",
+                        "client",
+                        "--connect",
+                        router_ep,
+                        "--prefix",
+                        prefix,
+                        "--data-dir",
+                        str(tmp_path_factory.mktemp(f"t{i}")),
+                        "--implement",
+                        "cat2-spreader-400" if i == 0 else "cat2-power-harrow-1500",
+                    ]
+                )
+            )
         yield router_ep, services
     finally:
         for s in services:

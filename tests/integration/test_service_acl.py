@@ -12,7 +12,6 @@ import pytest
 
 from bridge.service.client import HitchClient, ServiceError
 from bridge.service.security import AccessPolicy, Credentials, SecuritySettings, security_json5, write_users_file
-
 from tests.integration.service_process import ServiceProcess, free_port, hitch, wait_online
 
 
@@ -27,10 +26,13 @@ def secured(tmp_path_factory):
     d = tmp_path_factory.mktemp("acl")
     users = write_users_file(d / "users.txt", {"alice": "alice-pw", "bob": "bob-pw"})
     server = d / "server.json5"
-    server.write_text(security_json5(SecuritySettings(users_file=users,
-                                                      access=AccessPolicy(operators=("alice",), viewers=("bob",)))))
+    server.write_text(
+        security_json5(SecuritySettings(users_file=users, access=AccessPolicy(operators=("alice",), viewers=("bob",))))
+    )
     port = free_port()
-    svc = ServiceProcess(["--listen", f"tcp/127.0.0.1:{port}", "--data-dir", str(d / "data"), "--security", str(server)])
+    svc = ServiceProcess(
+        ["--listen", f"tcp/127.0.0.1:{port}", "--data-dir", str(d / "data"), "--security", str(server)]
+    )
     try:
         yield f"tcp/127.0.0.1:{port}", client_file(d, "alice", "alice-pw"), client_file(d, "bob", "bob-pw"), d
     finally:
@@ -44,12 +46,12 @@ def test_operator_moves_viewer_reads(secured):
         r = c.goto({"z": 0.2})
         assert r["accepted"]
     with HitchClient([ep], security=bob, timeout_s=1.5) as c:
-        assert c.state()["motion_id"] == r["motion_id"]          # state is readable
-        assert c.ik(0.0, 0.1, 0.0, 0.0)["status"] == "ok"         # a non-motion query is answered
+        assert c.state()["motion_id"] == r["motion_id"]  # state is readable
+        assert c.ik(0.0, 0.1, 0.0, 0.0)["status"] == "ok"  # a non-motion query is answered
         for key, body in (("goto", {"goal": {"z": 0.1}}), ("jog", {"vz": 0.01}), ("mode", {"mode": "manual"})):
             with pytest.raises(ServiceError) as ei:
                 c.request(key, body)
-            assert ei.value.code == "timeout", key                # denied by the ACL: no queryable answers
+            assert ei.value.code == "timeout", key  # denied by the ACL: no queryable answers
 
 
 def test_cli_with_credentials(secured):

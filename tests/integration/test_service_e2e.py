@@ -7,20 +7,15 @@ Bounded timeouts everywhere; the service is always killed in the fixture's teard
 from __future__ import annotations
 
 import json
-import os
-import queue
 import signal
-import socket
-import subprocess
-import sys
-import threading
 import time
 
 import numpy as np
 import pytest
 
 from bridge.service.client import HitchClient, ServiceError
-from tests.integration.service_process import ROOT, ServiceProcess, free_port, hitch, wait_online
+from tests.integration.service_process import ServiceProcess, free_port, hitch, wait_online
+
 
 @pytest.fixture(scope="module")
 def service(tmp_path_factory):
@@ -50,10 +45,10 @@ def test_goto_moves_the_simulated_hitch_and_events_tell(service):
     events = []
     with HitchClient([ep]) as c:
         c.subscribe("events", events.append)
-        time.sleep(0.3)                                     # subscriber declared before the motion
+        time.sleep(0.3)  # subscriber declared before the motion
         r = c.goto({"z": 0.22, "x": 0.01})
         st = c.wait_motion(r["motion_id"], timeout_s=r["duration"] + 10)
-        time.sleep(1.0)                                      # settle (closed loop behind the reference)
+        time.sleep(1.0)  # settle (closed loop behind the reference)
         st = c.state()
     assert abs(st["pose"]["z"] - 0.22) < 5e-3 and abs(st["pose"]["x"] - 0.01) < 5e-3
     assert st["reference"]["pose"]["z"] == pytest.approx(0.22, abs=1e-9)
@@ -74,7 +69,7 @@ def test_cli_presets_and_errors(service):
     assert p.returncode == 0 and json.loads(p.stdout)["stopped"]
     p = hitch(ep, "preset", "go", "nowhere")
     assert p.returncode == 2 and "no preset 'nowhere'" in p.stderr
-    time.sleep(2.0)                                          # the stop has come to rest
+    time.sleep(2.0)  # the stop has come to rest
     p = hitch(ep, "goto", "--to", "x=0.9")
     assert p.returncode == 2 and "workspace:x:max" in p.stderr and p.stderr.count("\n") == 1
     p = hitch(ep, "preset", "delete", "work", "--json")
@@ -91,8 +86,14 @@ def test_fuzzed_queries_get_errors_and_the_service_lives(service):
         seq0 = c.state()["seq"]
         for i in range(300):
             key = keys[i % len(keys)]
-            raw = [bytes(rng.integers(0, 256, 40, dtype=np.uint8)), b'{"x": NaN}', b'{"goal": {"z": "high"}}',
-                   b'{"unknown": 1}', b"[" * 5000, b'{"vx": 1e999}'][i % 6]
+            raw = [
+                bytes(rng.integers(0, 256, 40, dtype=np.uint8)),
+                b'{"x": NaN}',
+                b'{"goal": {"z": "high"}}',
+                b'{"unknown": 1}',
+                b"[" * 5000,
+                b'{"vx": 1e999}',
+            ][i % 6]
             with pytest.raises(ServiceError) as ei:
                 c.request(key, raw)
             assert ei.value.code == "bad_request" and str(ei.value).startswith(key)
@@ -106,11 +107,11 @@ def test_sigterm_stops_the_service_cleanly(tmp_path):
     try:
         with HitchClient([f"tcp/127.0.0.1:{port}"], timeout_s=10.0) as c:
             wait_online(c)
-            c.goto({"z": 0.25})                              # moving when the signal comes
+            c.goto({"z": 0.25})  # moving when the signal comes
         svc.proc.send_signal(signal.SIGTERM)
         assert svc.proc.wait(10) == 0
         line = svc.wait_for("stopped in", 5)
-        assert int(line.split("stopped in")[1].split()[0]) < 5000   # reported [ms]; the 1 s target is benched
+        assert int(line.split("stopped in")[1].split()[0]) < 5000  # reported [ms]; the 1 s target is benched
     finally:
         svc.kill()
     assert (tmp_path / "hitch.sqlite3").exists() and not (tmp_path / "hitch.sqlite3-wal").exists()
@@ -137,16 +138,29 @@ def test_wildcard_queries_reach_no_handler(service):
 
 
 def test_access_policy_round_trips_through_the_security_file(tmp_path):
-    from bridge.service.security import (AccessPolicy, SecuritySettings, access_policy_from_file, security_json5,
-                                         write_users_file)
+    from bridge.service.security import (
+        AccessPolicy,
+        SecuritySettings,
+        access_policy_from_file,
+        security_json5,
+        write_users_file,
+    )
 
     users = write_users_file(tmp_path / "users.txt", {"alice": "a-secret", "bob": "b-secret"})
-    policy = AccessPolicy(prefix="fleet/t07/hitch", operators=("alice",), viewers=("bob",),
-                          viewer_queries=("ik", "config", "presets/list"))
+    policy = AccessPolicy(
+        prefix="fleet/t07/hitch",
+        operators=("alice",),
+        viewers=("bob",),
+        viewer_queries=("ik", "config", "presets/list"),
+    )
     path = tmp_path / "security.json5"
     path.write_text(security_json5(SecuritySettings(users_file=users, access=policy)))
     back = access_policy_from_file(path, "fleet/t07/hitch")
-    assert (back.operators, back.viewers, back.viewer_queries) == (("alice",), ("bob",), ("ik", "config", "presets/list"))
+    assert (back.operators, back.viewers, back.viewer_queries) == (
+        ("alice",),
+        ("bob",),
+        ("ik", "config", "presets/list"),
+    )
     plain = tmp_path / "plain.json5"
     plain.write_text(security_json5(SecuritySettings(users_file=users)))
     assert access_policy_from_file(plain, "hitch") is None

@@ -30,9 +30,17 @@ from pathlib import Path
 import pytest
 
 CHROMIUM = "/usr/bin/chromium"
-FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-         "--disable-background-networking", "--disable-component-update", "--disable-sync"]
-ISSUE6_TARGET = {"x": 2e-3, "z": 2e-3, "roll": 2e-3, "pitch": 2e-3}   # |(dx, dz)| <= 2 mm, angles <= 2 mrad
+FLAGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
+ISSUE6_TARGET = {"x": 2e-3, "z": 2e-3, "roll": 2e-3, "pitch": 2e-3}  # |(dx, dz)| <= 2 mm, angles <= 2 mrad
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -41,8 +49,10 @@ def _install_chromium() -> str:
     if Path(CHROMIUM).is_file():
         return CHROMIUM
     if shutil.which("apt-get") is None or os.geteuid() != 0:
-        pytest.fail(f"{CHROMIUM} is missing and cannot be installed here (needs root and apt-get): "
-                    "run `apt-get update && apt-get install -y chromium` first")
+        pytest.fail(
+            f"{CHROMIUM} is missing and cannot be installed here (needs root and apt-get): "
+            "run `apt-get update && apt-get install -y chromium` first"
+        )
     env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
     for cmd, timeout in ((["apt-get", "update"], 300), (["apt-get", "install", "-y", "chromium"], 900)):
         try:
@@ -83,10 +93,22 @@ class Service:
         self.url = f"http://127.0.0.1:{self.http_port}/"
         self.proc: subprocess.Popen | None = None
 
-    def start(self, timeout_s: float = 30.0) -> "Service":
-        cmd = [sys.executable, "-m", "bridge.cli.main", "serve", "--listen", f"tcp/127.0.0.1:{self.zenoh_port}",
-               "--http", f"127.0.0.1:{self.http_port}", "--data-dir", str(self.data_dir),
-               "--can-channel", f"web-browser-{os.getpid()}-{self.http_port}", *self.extra]
+    def start(self, timeout_s: float = 30.0) -> Service:
+        cmd = [
+            sys.executable,
+            "-m",
+            "bridge.cli.main",
+            "serve",
+            "--listen",
+            f"tcp/127.0.0.1:{self.zenoh_port}",
+            "--http",
+            f"127.0.0.1:{self.http_port}",
+            "--data-dir",
+            str(self.data_dir),
+            "--can-channel",
+            f"web-browser-{os.getpid()}-{self.http_port}",
+            *self.extra,
+        ]
         self.log = open(self.data_dir / "serve.log", "ab")
         self.proc = subprocess.Popen(cmd, cwd=ROOT, stdout=self.log, stderr=subprocess.STDOUT, start_new_session=True)
         deadline = time.monotonic() + timeout_s
@@ -107,8 +129,12 @@ class Service:
         return (self.data_dir / "serve.log").read_text(errors="replace")
 
     def api(self, name: str, payload: dict | None = None) -> tuple[int, dict]:
-        req = urllib.request.Request(self.url + f"api/{name}", data=json.dumps(payload or {}).encode(),
-                                     headers={"Content-Type": "application/json"}, method="POST")
+        req = urllib.request.Request(
+            self.url + f"api/{name}",
+            data=json.dumps(payload or {}).encode(),
+            headers={"Content-Type": "application/json"},
+            method="POST",
+        )
         try:
             with urllib.request.urlopen(req, timeout=10) as r:
                 return r.status, json.loads(r.read())
@@ -145,14 +171,21 @@ def page(chromium, service, tmp_path_factory):
     try:
         from playwright.sync_api import sync_playwright
     except ImportError:
-        pytest.fail("the playwright package is missing: pip install 'playwright>=1.45' (test extra); "
-                    "its browser download is not needed, the test uses Debian's chromium")
+        pytest.fail(
+            "the playwright package is missing: pip install 'playwright>=1.45' (test extra); "
+            "its browser download is not needed, the test uses Debian's chromium"
+        )
     pw = sync_playwright().start()
     ctx = None
     try:
         ctx = pw.chromium.launch_persistent_context(
-            str(tmp_path_factory.mktemp("chromium-profile")), executable_path=chromium, headless=True,
-            args=FLAGS, viewport={"width": 1024, "height": 600}, has_touch=True)   # the cab display
+            str(tmp_path_factory.mktemp("chromium-profile")),
+            executable_path=chromium,
+            headless=True,
+            args=FLAGS,
+            viewport={"width": 1024, "height": 600},
+            has_touch=True,
+        )  # the cab display
         pg = ctx.pages[0] if ctx.pages else ctx.new_page()
         pg.set_default_timeout(10_000)
         errors: list[str] = []
@@ -173,10 +206,10 @@ def within_issue6_target(pose: dict, goal: dict, display_round_m: float = 0.0) -
     limited"); ``display_round_m``: half the last digit of a readout (0.05 mm / 0.05 mrad) when
     ``pose`` comes from the page's text."""
     import math
+
     pos = math.hypot(pose["x"] - goal["x"], pose["z"] - goal["z"])
     ang = max(abs(pose["roll"] - goal["roll"]), abs(pose["pitch"] - goal["pitch"]))
-    return (pos <= ISSUE6_TARGET["x"] + math.sqrt(2) * display_round_m
-            and ang <= ISSUE6_TARGET["roll"] + display_round_m)
+    return pos <= ISSUE6_TARGET["x"] + math.sqrt(2) * display_round_m and ang <= ISSUE6_TARGET["roll"] + display_round_m
 
 
 def _num(text: str) -> float:
@@ -215,8 +248,10 @@ def wait_js(pg, expression: str, timeout: float = 10_000):
 
 
 def set_jog_speed(pg, percent: int):
-    pg.evaluate("(p) => { const s = document.getElementById('jog-speed'); s.value = p; "
-                "s.dispatchEvent(new Event('input')); }", percent)
+    pg.evaluate(
+        "(p) => { const s = document.getElementById('jog-speed'); s.value = p; s.dispatchEvent(new Event('input')); }",
+        percent,
+    )
     assert pg.text_content("#jog-speed-out") == f"{percent} %"
 
 
@@ -241,18 +276,18 @@ def test_page_loads_and_shows_the_published_state(service, page, shots):
     wait_js(page, "document.getElementById('conn').textContent.startsWith('Service: connected')")
     wait_js(page, "document.getElementById('ecu').textContent.includes('online')")
     wait_js(page, "Number(document.body.dataset.fps) > 0")
-    time.sleep(1.2)                                      # one full rate-meter window
+    time.sleep(1.2)  # one full rate-meter window
     fps = float(page.evaluate("document.body.dataset.fps"))
     assert fps >= 20, f"gauges refresh at {fps} Hz (issue 9: at least 20 Hz)"
     st, shown = service.state(), shown_pose(page)
-    for k in shown:                                      # at rest: the page shows the service's pose
+    for k in shown:  # at rest: the page shows the service's pose
         assert shown[k] == pytest.approx(st["pose"][k], abs=1e-4), k
     assert page.is_visible("#limited") is False
     # everything fits the 1024×600 cab display: no scrolling
     assert page.evaluate("[document.documentElement.scrollWidth, document.documentElement.scrollHeight]") == [1024, 600]
     assert page.text_content("#modes button.active") == "Auto"
     strokes = page.text_content("#act-top")
-    assert "655.0 mm" in strokes and "905.0 mm" in strokes   # the top link's stroke limits (thesis table 3-1)
+    assert "655.0 mm" in strokes and "905.0 mm" in strokes  # the top link's stroke limits (thesis table 3-1)
     page.screenshot(path=str(shots / "01-main.png"))
     assert page.errors == []
 
@@ -266,7 +301,7 @@ def test_save_a_preset_from_the_page(service, page, shots):
     status, listing = service.api("presets/list")
     (p,) = [p for p in listing["presets"] if p["name"] == "start"]
     st = service.state()
-    for k in ("x", "z", "roll", "pitch"):                # saved at the current pose
+    for k in ("x", "z", "roll", "pitch"):  # saved at the current pose
         assert p["pose"][k] == pytest.approx(st["pose"][k], abs=3e-3), k
     page.screenshot(path=str(shots / "02-presets.png"))
 
@@ -283,7 +318,7 @@ def test_goto_moves_the_gauges_and_they_settle_at_the_target(service, page, shot
         seen.append(shown_pose(page)["z"])
         time.sleep(0.05)
     page.screenshot(path=str(shots / "03-goto-moving.png"))
-    assert len(set(seen)) >= 5, f"the z gauge did not move: {seen}"       # live, not a frozen snapshot
+    assert len(set(seen)) >= 5, f"the z gauge did not move: {seen}"  # live, not a frozen snapshot
     assert abs(seen[-1] - goal["z"]) < abs(start["z"] - goal["z"])
 
     last: dict = {}
@@ -291,6 +326,7 @@ def test_goto_moves_the_gauges_and_they_settle_at_the_target(service, page, shot
     def settled():
         last.update(shown_pose(page))
         return within_issue6_target(last, goal, display_round_m=0.5e-4)
+
     try:
         wait_for(settled, 15, f"the gauges to settle within 2 mm / 2 mrad of {goal}")
     except AssertionError as exc:
@@ -305,7 +341,7 @@ def test_goto_moves_the_gauges_and_they_settle_at_the_target(service, page, shot
     # the target markers sit where the gauges settled
     assert page.evaluate("getComputedStyle(document.querySelector('#g-z .target')).display") != "none"
     ref = service.state()["reference"]["pose"]
-    assert all(ref[k] == pytest.approx(goal[k], abs=1e-6) for k in goal)   # the service's target is exact
+    assert all(ref[k] == pytest.approx(goal[k], abs=1e-6) for k in goal)  # the service's target is exact
 
 
 def test_preset_go_returns_to_the_saved_pose(service, page):
@@ -335,19 +371,19 @@ def test_jog_moves_only_while_the_button_is_held(service, page, shots):
         assert "held" in page.get_attribute("button.jog[data-dof='z'][data-sign='1']", "class")
         page.screenshot(path=str(shots / "05-jog-held.png"))
         z_held = shown_pose(page)["z"]
-        assert z_held > z0 + 0.01, (z0, z_held)          # moved up while held
+        assert z_held > z0 + 0.01, (z0, z_held)  # moved up while held
     finally:
         page.mouse.up()
     t_release = time.monotonic()
     wait_for(lambda: not service.state()["moving"], 2.0, "the jog to stop after release (TTL + braking)")
     assert time.monotonic() - t_release < 2.0
     ref = service.state()["reference"]["pose"]["z"]
-    time.sleep(1.0)                                        # the cylinders catch up with the held reference …
+    time.sleep(1.0)  # the cylinders catch up with the held reference …
     wait_js(page, "document.getElementById('motion').textContent === 'Idle'")
     z1 = shown_pose(page)["z"]
     time.sleep(0.5)
-    assert service.state()["reference"]["pose"]["z"] == ref        # … and nothing is commanded any more
-    assert shown_pose(page)["z"] == pytest.approx(z1, abs=1e-3)    # the gauge stays where it stopped
+    assert service.state()["reference"]["pose"]["z"] == ref  # … and nothing is commanded any more
+    assert shown_pose(page)["z"] == pytest.approx(z1, abs=1e-3)  # the gauge stays where it stopped
 
 
 def test_keyboard_jog_is_the_same_dead_man(service, page):
@@ -377,7 +413,7 @@ def test_stop_mid_motion(service, page, shots):
     wait_js(page, "document.getElementById('log').textContent.includes('stop')")
     time.sleep(0.5)
     st = service.state()
-    assert abs(st["pose"]["z"] - goal["z"]) > 0.05       # stopped well short of the goal
+    assert abs(st["pose"]["z"] - goal["z"]) > 0.05  # stopped well short of the goal
     page.screenshot(path=str(shots / "06-stopped.png"))
 
 
@@ -398,7 +434,7 @@ def test_forcing_a_limit_shows_control_limited_with_its_name(service, page, shot
     finally:
         page.mouse.up()
     x_max = service.api("config")[1]["limits"]["workspace"]["x"][1]
-    assert service.state()["reference"]["pose"]["x"] <= x_max + 1e-9   # never past the face
+    assert service.state()["reference"]["pose"]["x"] <= x_max + 1e-9  # never past the face
     page.wait_for_selector("#limited.hidden", state="attached", timeout=5_000)
 
 
@@ -411,11 +447,11 @@ def test_mode_selector_confirms_manual_and_attach_and_stop_works_over_the_dialog
     assert "Manual" in page.text_content("#confirm-title")
     page.screenshot(path=str(shots / "08-confirm-manual.png"))
     assert service.state()["moving"]
-    page.click("#stop")                                   # STOP stays on top of the dialog
+    page.click("#stop")  # STOP stays on top of the dialog
     wait_for(lambda: not service.state()["moving"], 3, "STOP pressed over the dialog to stop the motion")
     page.click("#confirm-cancel")
     time.sleep(0.3)
-    assert service.state()["mode"] == "auto"             # cancelled: nothing changed
+    assert service.state()["mode"] == "auto"  # cancelled: nothing changed
     page.click("#modes button[data-mode='attach']")
     page.click("#confirm-ok")
     wait_js(page, "document.querySelector('#modes button.active').dataset.mode === 'attach'")
@@ -425,8 +461,8 @@ def test_mode_selector_confirms_manual_and_attach_and_stop_works_over_the_dialog
     assert "slow jog only" in page.text_content("#help-text")
     page.screenshot(path=str(shots / "09-help-attach.png"))
     status, reply = service.api("goto", {"goal": {"z": 0.1}})
-    assert status == 409 and reply["error"] == "mode"     # the service's rule, not the page's
-    page.click("#modes button[data-mode='auto']")        # no confirmation back to automatic
+    assert status == 409 and reply["error"] == "mode"  # the service's rule, not the page's
+    page.click("#modes button[data-mode='auto']")  # no confirmation back to automatic
     wait_js(page, "document.querySelector('#modes button.active').dataset.mode === 'auto'")
     assert page.text_content("#help-title") == "Automatic mode"
 
@@ -454,8 +490,10 @@ def test_touch_hold_jogs_and_lifting_the_finger_stops(service, page):
 def test_maneuver_validate_run_and_live_progress(service, page, shots):
     at_rest(service, page)
     z = service.state()["pose"]["z"]
-    script = (f"name: headland\ndescription: lift, wait, lower\nsteps:\n  - goto: {{z: {min(z + 0.12, 0.28):.3f}}}\n"
-              f"  - wait: 1.0\n  - goto: {{z: {z:.3f}}}\n")
+    script = (
+        f"name: headland\ndescription: lift, wait, lower\nsteps:\n  - goto: {{z: {min(z + 0.12, 0.28):.3f}}}\n"
+        f"  - wait: 1.0\n  - goto: {{z: {z:.3f}}}\n"
+    )
     assert service.api("maneuvers/save", {"name": "headland", "script": script})[0] == 200
     tab(page, "maneuvers")
     page.wait_for_selector("#maneuver-list li[data-name='headland']")
@@ -468,8 +506,7 @@ def test_maneuver_validate_run_and_live_progress(service, page, shots):
     page.wait_for_selector("#maneuver-progress:not(.hidden)")
     wait_js(page, "document.querySelector('#maneuver-progress .text').textContent.includes('step 2 of 3')")
     page.screenshot(path=str(shots / "10-maneuver-progress.png"))
-    wait_js(page, "document.getElementById('maneuver-result').textContent.includes('finished')",
-                           timeout=20_000)
+    wait_js(page, "document.getElementById('maneuver-result').textContent.includes('finished')", timeout=20_000)
     page.wait_for_selector("#maneuver-progress", state="hidden", timeout=3_000)
 
 
@@ -479,11 +516,11 @@ def test_killing_the_service_is_shown_and_the_page_reconnects(service, page, sho
     assert "Service not reachable" in page.text_content("#banner")
     assert page.text_content("#conn") == "Service: disconnected"
     page.screenshot(path=str(shots / "11-service-down.png"))
-    service.start()                                       # same ports and data: the page comes back by itself
+    service.start()  # same ports and data: the page comes back by itself
     wait_js(page, "document.getElementById('conn').textContent.startsWith('Service: connected')", timeout=15_000)
     assert page.is_hidden("#banner")
     tab(page, "presets")
-    page.wait_for_selector("#preset-list li[data-name='start']")   # acknowledged preset survived kill -9
+    page.wait_for_selector("#preset-list li[data-name='start']")  # acknowledged preset survived kill -9
 
 
 def test_stability_margins_take_the_services_caution_colours(page, shots, tmp_path_factory):
@@ -496,7 +533,7 @@ def test_stability_margins_take_the_services_caution_colours(page, shots, tmp_pa
         levels = {v["measure"]: v["level"] for v in st["violations"]}
         assert levels.get("front_axle_load") == "caution", st
         wait_js(page, "document.getElementById('m-front_axle_load').classList.contains('caution')")
-        for m in ("ssm", "lsm", "esm"):                   # the measures the service does not flag stay "ok"
+        for m in ("ssm", "lsm", "esm"):  # the measures the service does not flag stay "ok"
             expected = {"caution": "caution", "hard": "danger"}.get(levels.get(m), "ok")
             assert expected in page.get_attribute(f"#m-{m}", "class"), m
         shown = _num(page.text_content("#m-front_axle_load .v")) / 100

@@ -42,18 +42,48 @@ import numpy as np
 import yaml
 from pydantic import BaseModel, ValidationError
 
+from bridge.service.maneuvers.steps import (  # the step schema; re-exported (see __all__)
+    _KINDS,
+    DEFAULT_TIMEOUT_S,
+    MAX_TIMEOUT_S,
+    NAME_PATTERN,
+    POSE_BOUNDS,
+    GotoStep,
+    ManeuverScript,
+    PresetStep,
+    SpeedStep,
+    Step,
+    WaitForStep,
+    WaitStep,
+    _Header,
+    _show,
+    check_name,
+)
 from planner.trajectory import MotionState
 
-from bridge.service.maneuvers.steps import (  # the step schema; re-exported (see __all__)
-    _KINDS, DEFAULT_TIMEOUT_S, MAX_TIMEOUT_S, NAME_PATTERN, POSE_BOUNDS, GotoStep, ManeuverScript, PresetStep,
-    SpeedStep, Step, WaitForStep, WaitStep, _Header, _show, check_name,
-)
-
 __all__ = [
-    "MAX_SCRIPT_BYTES", "MAX_STEPS", "DEFAULT_TIMEOUT_S", "POSE_BOUNDS", "NAME_PATTERN",
-    "ManeuverError", "StepError", "GotoStep", "PresetStep", "WaitStep", "WaitForStep", "SpeedStep",
-    "ManeuverScript", "PlannedStep", "ValidationResult", "PlanningContext", "PlanStep", "PresetLike",
-    "parse_maneuver", "validate", "guarded_plan_step", "check_name",
+    "MAX_SCRIPT_BYTES",
+    "MAX_STEPS",
+    "DEFAULT_TIMEOUT_S",
+    "POSE_BOUNDS",
+    "NAME_PATTERN",
+    "ManeuverError",
+    "StepError",
+    "GotoStep",
+    "PresetStep",
+    "WaitStep",
+    "WaitForStep",
+    "SpeedStep",
+    "ManeuverScript",
+    "PlannedStep",
+    "ValidationResult",
+    "PlanningContext",
+    "PlanStep",
+    "PresetLike",
+    "parse_maneuver",
+    "validate",
+    "guarded_plan_step",
+    "check_name",
 ]
 
 MAX_SCRIPT_BYTES = 64 * 1024
@@ -88,8 +118,12 @@ def _range(model: type[BaseModel], name: str) -> str:
     info = model.model_fields.get(name)
     if info is None:
         return ""
-    parts = [f"{sym} {getattr(m, a):.6g}" for m in info.metadata
-             for a, sym in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<=")) if getattr(m, a, None) is not None]
+    parts = [
+        f"{sym} {getattr(m, a):.6g}"
+        for m in info.metadata
+        for a, sym in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<="))
+        if getattr(m, a, None) is not None
+    ]
     unit = _UNITS.get(name, "")
     return f" (allowed: {name} {' and '.join(parts)}{' ' + unit if unit else ''})" if parts else ""
 
@@ -145,16 +179,26 @@ def _check_structure(data: Any) -> str | None:
 def _parse_step(i: int, raw: Any) -> tuple[Step | None, list[StepError]]:
     kinds = ", ".join(_KINDS)
     if not isinstance(raw, dict) or len(raw) != 1:
-        return None, [StepError(i, f"steps[{i}] must be a mapping with exactly one step key ({kinds}), "
-                                   f"got {_show(raw) if not isinstance(raw, dict) else ', '.join(map(str, raw)) or 'an empty mapping'}")]
-    (kind, value), = raw.items()
+        return None, [
+            StepError(
+                i,
+                f"steps[{i}] must be a mapping with exactly one step key ({kinds}), "
+                f"got {_show(raw) if not isinstance(raw, dict) else ', '.join(map(str, raw)) or 'an empty mapping'}",
+            )
+        ]
+    ((kind, value),) = raw.items()
     if kind not in _KINDS:
         return None, [StepError(i, f"steps[{i}]: unknown step {_show(kind)} (allowed: {kinds})")]
     model, scalar = _KINDS[kind]
     if not isinstance(value, dict):
         if scalar is None:
-            return None, [StepError(i, f"steps[{i}].{kind} must be a mapping, got {_show(value)}"
-                                       f" (fields: {', '.join(model.model_fields)})")]
+            return None, [
+                StepError(
+                    i,
+                    f"steps[{i}].{kind} must be a mapping, got {_show(value)}"
+                    f" (fields: {', '.join(model.model_fields)})",
+                )
+            ]
         value = {scalar: value}
     try:
         return model.model_validate(value), []
@@ -174,12 +218,25 @@ def parse_maneuver(text: Any) -> ManeuverScript:
     except Exception as exc:  # noqa: BLE001 — PyYAML's constructors also raise IndexError, AttributeError, …
         where = getattr(exc, "problem_mark", None)
         at = f" at line {where.line + 1}, column {where.column + 1}" if where is not None else ""
-        problem = ("nesting too deep" if isinstance(exc, RecursionError) else getattr(exc, "problem", None)
-                   or (str(exc)[:200] if isinstance(exc, (yaml.YAMLError, ValueError)) else f"bad value ({type(exc).__name__})"))
+        problem = (
+            "nesting too deep"
+            if isinstance(exc, RecursionError)
+            else getattr(exc, "problem", None)
+            or (
+                str(exc)[:200] if isinstance(exc, (yaml.YAMLError, ValueError)) else f"bad value ({type(exc).__name__})"
+            )
+        )
         raise ManeuverError([StepError(None, f"script is not valid YAML{at}: {problem}")]) from None
     if not isinstance(data, dict):
-        raise ManeuverError([StepError(None, f"script must be a mapping with 'steps' (and optional name, "
-                                             f"description, timeout), got {_show(data)}")])
+        raise ManeuverError(
+            [
+                StepError(
+                    None,
+                    f"script must be a mapping with 'steps' (and optional name, "
+                    f"description, timeout), got {_show(data)}",
+                )
+            ]
+        )
     problem = _check_structure(data)
     if problem:
         raise ManeuverError([StepError(None, problem)])
@@ -191,8 +248,13 @@ def parse_maneuver(text: Any) -> ManeuverScript:
         header = None
         errors.extend(_errors(exc, _Header, "", None))
     if not isinstance(steps_raw, list) or not steps_raw:
-        errors.append(StepError(None, f"steps must be a non-empty list of steps (at most {MAX_STEPS}), "
-                                      f"got {'an empty list' if steps_raw == [] else _show(steps_raw)}"))
+        errors.append(
+            StepError(
+                None,
+                f"steps must be a non-empty list of steps (at most {MAX_STEPS}), "
+                f"got {'an empty list' if steps_raw == [] else _show(steps_raw)}",
+            )
+        )
         raise ManeuverError(errors)
     if len(steps_raw) > MAX_STEPS:
         errors.append(StepError(None, f"steps has {len(steps_raw)} entries (allowed: at most {MAX_STEPS})"))
@@ -214,7 +276,9 @@ class PlanStep(Protocol):
     Raises ``ValueError`` (``PlanError``, ``GuardRefusal``) with a message naming the limit.
     """
 
-    def __call__(self, start: MotionState, goal: Mapping[str, float], speed_scale: float) -> tuple[float, MotionState]: ...
+    def __call__(
+        self, start: MotionState, goal: Mapping[str, float], speed_scale: float
+    ) -> tuple[float, MotionState]: ...
 
 
 class PresetLike(Protocol):
@@ -240,9 +304,9 @@ class PlannedStep:
     kind: str
     goal: Mapping[str, float] | None = None
     speed_scale: float = 1.0
-    seconds: float = 0.0          # wait
-    distance_m: float = 0.0       # wait_for
-    start_s: float = 0.0          # planned start, excluding the time of earlier wait_for steps
+    seconds: float = 0.0  # wait
+    distance_m: float = 0.0  # wait_for
+    start_s: float = 0.0  # planned start, excluding the time of earlier wait_for steps
     duration_s: float = 0.0
 
 
@@ -255,7 +319,7 @@ class ValidationResult:
     errors: tuple[StepError, ...] = ()
     script: ManeuverScript | None = None
     steps: tuple[PlannedStep, ...] = ()
-    distance_m: float = 0.0       # total wait_for distance
+    distance_m: float = 0.0  # total wait_for distance
 
     def to_json(self) -> dict:
         return {"ok": self.ok, "duration": self.duration, "errors": [e.to_json() for e in self.errors]}
@@ -320,7 +384,12 @@ def validate(script: str | ManeuverScript, ctx: PlanningContext) -> ValidationRe
             t += float(duration)
             state = MotionState.at_rest(end.position)
         if t > script.timeout_s:
-            errors.append(StepError(i, f"the maneuver would still run at {t:.2f} s, beyond its timeout "
-                                       f"(timeout = {script.timeout_s:g} s; allowed: timeout <= {MAX_TIMEOUT_S:g} s)"))
+            errors.append(
+                StepError(
+                    i,
+                    f"the maneuver would still run at {t:.2f} s, beyond its timeout "
+                    f"(timeout = {script.timeout_s:g} s; allowed: timeout <= {MAX_TIMEOUT_S:g} s)",
+                )
+            )
             break
     return ValidationResult(not errors, t, tuple(errors), script, tuple(planned), dist)

@@ -31,7 +31,6 @@ from dataclasses import dataclass
 from typing import Literal
 
 from bridge.isobus.heartbeat import HEARTBEAT_TIMEOUT_S
-
 from bridge.service.maneuvers.language import PlannedStep, ValidationResult
 
 __all__ = ["Command", "LoopState", "ManeuverRunner", "AbortReason", "RunnerStatus"]
@@ -45,16 +44,16 @@ RunnerStatus = Literal["pending", "running", "finished", "aborted"]
 class LoopState:
     """What the runner reads from the control loop each tick (times on the runner's clock [s])."""
 
-    moving: bool                        # a trajectory is being executed
-    motion_id: Hashable | None          # id of the running or the last motion
-    ecu_last_seen_s: float | None       # last message from the cylinder ECU; None: never heard
-    violation: str | None = None        # a predicted limit/stability violation ahead (guard message)
+    moving: bool  # a trajectory is being executed
+    motion_id: Hashable | None  # id of the running or the last motion
+    ecu_last_seen_s: float | None  # last message from the cylinder ECU; None: never heard
+    violation: str | None = None  # a predicted limit/stability violation ahead (guard message)
 
 
 @dataclass(frozen=True)
 class Command:
     action: Action
-    step: int | None = None                 # index of the script step (0-based)
+    step: int | None = None  # index of the script step (0-based)
     goal: Mapping[str, float] | None = None  # full pose (x, z [m]; roll, pitch [rad]) for ``goto``
     speed_scale: float = 1.0
     events: tuple[dict, ...] = ()
@@ -114,8 +113,15 @@ class ManeuverRunner:
             return Command("done")
         step = self.current_step
         self._status = "aborted"
-        event = {"event": "maneuver_aborted", "maneuver": self.name, "step": step, "reason": reason,
-                 "message": message, "t": now_s, "elapsed": now_s - self._t0}
+        event = {
+            "event": "maneuver_aborted",
+            "maneuver": self.name,
+            "step": step,
+            "reason": reason,
+            "message": message,
+            "t": now_s,
+            "elapsed": now_s - self._t0,
+        }
         return Command("stop", step=step, events=(event,))
 
     def step(self, now_s: float, state: LoopState, distance_travelled_m: float | None = None) -> Command:
@@ -130,8 +136,15 @@ class ManeuverRunner:
         events: list[dict] = []
         if self._status == "pending":
             self._status, self._t0 = "running", now_s
-            events.append({"event": "maneuver_started", "maneuver": self.name, "t": now_s,
-                           "steps": len(self._steps), "timeout": self.timeout_s})
+            events.append(
+                {
+                    "event": "maneuver_started",
+                    "maneuver": self.name,
+                    "t": now_s,
+                    "steps": len(self._steps),
+                    "timeout": self.timeout_s,
+                }
+            )
         reason = self._abort_reason(now_s, state)
         if reason is not None:
             cmd = self.abort(now_s, *reason)
@@ -144,8 +157,9 @@ class ManeuverRunner:
                     return Command("goto", ps.index, dict(ps.goal), ps.speed_scale, tuple(events))
             verdict = self._progress(ps, now_s, state, distance_travelled_m)
             if verdict == "interrupted":
-                cmd = self.abort(now_s, "interrupted", f"the motion of step {ps.index} was replaced by "
-                                                       f"motion {state.motion_id!r}")
+                cmd = self.abort(
+                    now_s, "interrupted", f"the motion of step {ps.index} was replaced by motion {state.motion_id!r}"
+                )
                 return Command(cmd.action, cmd.step, events=tuple(events) + cmd.events)
             if verdict == "waiting":
                 return Command("continue", ps.index, events=tuple(events))
@@ -164,8 +178,9 @@ class ManeuverRunner:
             return "ecu_silent", "the cylinder ECU has not been heard"
         silent = now_s - _finite("ecu_last_seen_s", state.ecu_last_seen_s)
         if silent > self.ecu_timeout_s:
-            return "ecu_silent", (f"the cylinder ECU has been silent for {silent:.3f} s "
-                                  f"(timeout {self.ecu_timeout_s:g} s)")
+            return "ecu_silent", (
+                f"the cylinder ECU has been silent for {silent:.3f} s (timeout {self.ecu_timeout_s:g} s)"
+            )
         if state.violation:
             return "predicted_violation", str(state.violation)
         return None
@@ -173,8 +188,14 @@ class ManeuverRunner:
     def _enter(self, ps: PlannedStep, now_s: float, state: LoopState, dist: float | None, events: list) -> None:
         self._entered, self._t_step, self._dist0 = True, now_s, dist
         self._motion_id, self._previous_motion = None, state.motion_id
-        ev = {"event": "maneuver_step", "maneuver": self.name, "step": ps.index, "kind": ps.kind, "t": now_s,
-              "progress": self._index / len(self._steps)}
+        ev = {
+            "event": "maneuver_step",
+            "maneuver": self.name,
+            "step": ps.index,
+            "kind": ps.kind,
+            "t": now_s,
+            "progress": self._index / len(self._steps),
+        }
         if ps.goal is not None:
             ev.update(goal=dict(ps.goal), speed_scale=ps.speed_scale, planned_duration=ps.duration_s)
         elif ps.kind == "wait":
@@ -184,7 +205,7 @@ class ManeuverRunner:
         events.append(ev)
 
     def _progress(self, ps: PlannedStep, now_s: float, state: LoopState, dist: float | None) -> str:
-        """"done", "waiting" or "interrupted" for the step in progress."""
+        """ "done", "waiting" or "interrupted" for the step in progress."""
         if ps.goal is not None:
             if self._motion_id is None:  # the service has not confirmed the start yet
                 return "waiting"

@@ -9,8 +9,8 @@ guards it.
 
 from __future__ import annotations
 
-from bridge.service.maneuvers.runner import Command, LoopState, ManeuverRunner
 from bridge.service.maneuvers.language import ValidationResult
+from bridge.service.maneuvers.runner import Command, LoopState, ManeuverRunner
 
 __all__ = ["ManeuverSlot"]
 

@@ -19,16 +19,29 @@ from typing import Any, ClassVar
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 __all__ = [
-    "DEFAULT_TIMEOUT_S", "MAX_TIMEOUT_S", "POSE_BOUNDS", "NAME_PATTERN",
-    "GotoStep", "PresetStep", "WaitStep", "WaitForStep", "SpeedStep", "Step", "ManeuverScript", "check_name",
+    "DEFAULT_TIMEOUT_S",
+    "MAX_TIMEOUT_S",
+    "POSE_BOUNDS",
+    "NAME_PATTERN",
+    "GotoStep",
+    "PresetStep",
+    "WaitStep",
+    "WaitForStep",
+    "SpeedStep",
+    "Step",
+    "ManeuverScript",
+    "check_name",
 ]
 
 DEFAULT_TIMEOUT_S = 60.0
 MAX_TIMEOUT_S = 3600.0
 #: sanity bounds of a hitch pose (x, z [m]; roll, pitch [rad]); the workspace check is the planner's
-POSE_BOUNDS: Mapping[str, tuple[float, float]] = {"x": (-1.0, 1.0), "z": (-2.0, 2.0),
-                                                  "roll": (-math.pi / 2, math.pi / 2),
-                                                  "pitch": (-math.pi / 2, math.pi / 2)}
+POSE_BOUNDS: Mapping[str, tuple[float, float]] = {
+    "x": (-1.0, 1.0),
+    "z": (-2.0, 2.0),
+    "roll": (-math.pi / 2, math.pi / 2),
+    "pitch": (-math.pi / 2, math.pi / 2),
+}
 #: names of maneuvers, presets and implements
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}$")
 
@@ -36,8 +49,10 @@ NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}$")
 def check_name(value: Any, what: str = "name") -> str:
     """A name of 1–64 letters, digits, '-', '_', '.', starting with a letter or digit."""
     if not isinstance(value, str) or not NAME_PATTERN.match(value):
-        raise ValueError(f"{what} must be 1-64 characters of letters, digits, '-', '_', '.' starting with a "
-                         f"letter or digit, got {_show(value)}")
+        raise ValueError(
+            f"{what} must be 1-64 characters of letters, digits, '-', '_', '.' starting with a "
+            f"letter or digit, got {_show(value)}"
+        )
     return value
 
 
@@ -123,8 +138,11 @@ class SpeedStep(_Strict):
 Step = GotoStep | PresetStep | WaitStep | WaitForStep | SpeedStep
 #: step key → (model, name of the field a scalar value fills, or None if the value must be a mapping)
 _KINDS: Mapping[str, tuple[type[_Strict], str | None]] = {
-    "goto": (GotoStep, None), "preset": (PresetStep, "name"), "wait": (WaitStep, "seconds"),
-    "wait_for": (WaitForStep, None), "speed": (SpeedStep, "scale"),
+    "goto": (GotoStep, None),
+    "preset": (PresetStep, "name"),
+    "wait": (WaitStep, "seconds"),
+    "wait_for": (WaitForStep, None),
+    "speed": (SpeedStep, "scale"),
 }
 
 
@@ -149,5 +167,9 @@ class ManeuverScript:
     steps: tuple[Step, ...]
 
     def to_json(self) -> dict:
-        return {"name": self.name, "description": self.description, "timeout": self.timeout_s,
-                "steps": [{s.kind: s.model_dump(exclude_none=True)} for s in self.steps]}
+        return {
+            "name": self.name,
+            "description": self.description,
+            "timeout": self.timeout_s,
+            "steps": [{s.kind: s.model_dump(exclude_none=True)} for s in self.steps],
+        }

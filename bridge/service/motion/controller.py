@@ -49,21 +49,28 @@ from typing import Any
 
 import numpy as np
 
-from planner.limits.guard import Guard
-from planner.trajectory import JogController, MotionState
-from planner.model.types import KinematicsError
-
+from bridge.link.unit_loop import FeedforwardShaper, build_unit_loops
+from bridge.service.maneuvers.language import ValidationResult
 from bridge.service.maneuvers.runner import LoopState, ManeuverRunner
 from bridge.service.maneuvers.slot import ManeuverSlot
-from bridge.service.maneuvers.language import ValidationResult
 from bridge.service.motion.planning import GotoPlanningMixin
 from bridge.service.motion.types import (
-    ATTACH_SPEED_SCALE, MODES, JogAccepted, JogMotion, MotionError, PlanMotion,
-    check_mode_allows, check_precedence, plan_state, streamed_reference,
+    ATTACH_SPEED_SCALE,
+    MODES,
+    JogAccepted,
+    JogMotion,
+    MotionError,
+    PlanMotion,
+    check_mode_allows,
+    check_precedence,
+    plan_state,
+    streamed_reference,
 )
-from bridge.link.unit_loop import FeedforwardShaper, build_unit_loops
 from bridge.service.periodic import PeriodicThread
 from bridge.service.state_message import build_state_message, fault_transition
+from planner.limits.guard import Guard
+from planner.model.types import KinematicsError
+from planner.trajectory import JogController, MotionState
 
 __all__ = ["MotionController"]
 
@@ -83,16 +90,30 @@ class MotionController(GotoPlanningMixin):
             tests pass ``lambda fn: fn()`` for deterministic runs).
     """
 
-    def __init__(self, guard: Guard, plan_guard: Guard, link: Any, clock: Callable[[], float], *,
-                 on_state: Callable[[dict], None] | None = None, on_event: Callable[[dict], None] | None = None,
-                 state_every: int = 1, odometer: Callable[[], float | None] | None = None,
-                 mode: str = "auto", spawn: Callable[[Callable[[], None]], None] | None = None,
-                 feedforward: bool = True):
+    def __init__(
+        self,
+        guard: Guard,
+        plan_guard: Guard,
+        link: Any,
+        clock: Callable[[], float],
+        *,
+        on_state: Callable[[dict], None] | None = None,
+        on_event: Callable[[dict], None] | None = None,
+        state_every: int = 1,
+        odometer: Callable[[], float | None] | None = None,
+        mode: str = "auto",
+        spawn: Callable[[Callable[[], None]], None] | None = None,
+        feedforward: bool = True,
+    ):
         self.guard, self.plan_guard = guard, plan_guard
         self.planner = guard.planner
         self.link = link
-        self.shaper = FeedforwardShaper(build_unit_loops(self.planner.model.profile), self.planner.inverse.solve_full,
-                                        link.check_reference, enabled=feedforward)
+        self.shaper = FeedforwardShaper(
+            build_unit_loops(self.planner.model.profile),
+            self.planner.inverse.solve_full,
+            link.check_reference,
+            enabled=feedforward,
+        )
         self.clock = clock
         self.dt = 1.0 / self.planner.rate
         self._on_state = on_state or (lambda s: None)
@@ -117,7 +138,7 @@ class MotionController(GotoPlanningMixin):
         self._thread: PeriodicThread | None = None
 
     # ------------------------------------------------------------------ life cycle
-    def start(self) -> "MotionController":
+    def start(self) -> MotionController:
         if self._thread is not None:
             raise RuntimeError("motion controller already started")
         self._thread = PeriodicThread(self.dt, self.cycle, name="hitch-control", on_error=self._on_cycle_error).start()
@@ -165,10 +186,12 @@ class MotionController(GotoPlanningMixin):
             raise MotionError("bad_request", f"mode must be one of {', '.join(MODES)}, got {mode!r}")
         with self._lock:
             if mode != self._mode and (self._active is not None or self._maneuver.running):
-                what = f"motion {self._active.motion_id}" if self._active is not None else \
-                    f"maneuver {self._maneuver.id}"
-                raise MotionError("busy", f"mode change to {mode!r} refused while the hitch is moving "
-                                          f"({what}); send stop first")
+                what = (
+                    f"motion {self._active.motion_id}" if self._active is not None else f"maneuver {self._maneuver.id}"
+                )
+                raise MotionError(
+                    "busy", f"mode change to {mode!r} refused while the hitch is moving ({what}); send stop first"
+                )
             if mode != self._mode:
                 old, self._mode = self._mode, mode
                 self._emit({"event": "mode_changed", "mode": mode, "previous": old})
@@ -180,14 +203,15 @@ class MotionController(GotoPlanningMixin):
         v = np.array([float(rates.get(k, 0.0)) for k in ("vx", "vz", "vroll", "vpitch")])
         with self._lock:
             self._check_allowed("jog")
-            if self._mode == "attach":   # slow rates, same responsiveness (acceleration and jerk not scaled)
+            if self._mode == "attach":  # slow rates, same responsiveness (acceleration and jerk not scaled)
                 cap = ATTACH_SPEED_SCALE * self.planner.any_direction.velocity
                 v = np.clip(v, -cap, cap)
             now = self.clock()
             m = self._active
             if isinstance(m, PlanMotion) and m.kind == "stop":
-                raise MotionError("busy", f"a stop is in progress (motion {m.motion_id}); jog is refused until "
-                                          "the hitch is at rest")
+                raise MotionError(
+                    "busy", f"a stop is in progress (motion {m.motion_id}); jog is refused until the hitch is at rest"
+                )
             events: list[dict] = []
             if not isinstance(m, JogMotion):
                 start = self._predict(now)
@@ -218,7 +242,7 @@ class MotionController(GotoPlanningMixin):
         if m is None or (isinstance(m, PlanMotion) and m.kind == "stop"):
             return None if m is None else m.motion_id
         events.append(self._ev("motion_aborted", m, reason=reason))
-        t0 = m.t_state if isinstance(m, JogMotion) else now   # the time the predicted state belongs to
+        t0 = m.t_state if isinstance(m, JogMotion) else now  # the time the predicted state belongs to
         sm = PlanMotion("stop", next(self._ids), self.planner.plan_stop(self._predict(now)), t0)
         self._install(sm)
         events.append(self._ev("motion_started", sm, kind="stop", duration=sm.plan.duration))
@@ -315,7 +339,7 @@ class MotionController(GotoPlanningMixin):
                 try:
                     self.link.send_reference(streamed_reference(self.shaper, self._active, ref, now), now)
                     self._reference = ref
-                except ValueError as exc:   # ReferenceRefused / LinkFaultError: never streamed
+                except ValueError as exc:  # ReferenceRefused / LinkFaultError: never streamed
                     what = "limit_reached" if type(exc).__name__ == "ReferenceRefused" else "fault"
                     events.append({"event": what, "message": str(exc), "motion_id": self._last_id})
                     self._abort_all(f"reference refused: {exc}", now, events)
@@ -332,8 +356,9 @@ class MotionController(GotoPlanningMixin):
 
     def _drive_maneuver(self, status, now: float, events: list) -> None:
         m, runner, ls = self._active, self._maneuver.runner, status.state
-        loop = LoopState(isinstance(m, PlanMotion) and not m.finished(now), self._last_id,
-                         None if ls is None else ls.measurement_t_s)
+        loop = LoopState(
+            isinstance(m, PlanMotion) and not m.finished(now), self._last_id, None if ls is None else ls.measurement_t_s
+        )
         cmd = self._maneuver.tick(now, loop, self._odometer(), events)
         if cmd is not None and cmd.action == "goto":
             goal, scale, step = dict(cmd.goal), cmd.speed_scale, cmd.step
@@ -389,9 +414,20 @@ class MotionController(GotoPlanningMixin):
         kind = None if m is None else (m.kind if isinstance(m, PlanMotion) else "jog")
         ref = self._reference if (m is not None or self._hold is not None) else None
         man = self._maneuver.describe()
-        return build_state_message(seq=self._seq, now=now, status=status, stale_after_s=self.link.config.stale_after_s,
-                                   guard=self.guard, mode=self._mode, motion_kind=kind, motion_id=self._last_id,
-                                   reference=ref, limited=self._limited, maneuver=man, feedforward=self.shaper)
+        return build_state_message(
+            seq=self._seq,
+            now=now,
+            status=status,
+            stale_after_s=self.link.config.stale_after_s,
+            guard=self.guard,
+            mode=self._mode,
+            motion_kind=kind,
+            motion_id=self._last_id,
+            reference=ref,
+            limited=self._limited,
+            maneuver=man,
+            feedforward=self.shaper,
+        )
 
     def _ev(self, name: str, m, **extra) -> dict:
         return {"event": name, "motion_id": m.motion_id, **{k: v for k, v in extra.items() if v is not None}}
@@ -402,4 +438,3 @@ class MotionController(GotoPlanningMixin):
     def _emit_all(self, events: list[dict]) -> None:
         for e in events:
             self._emit(e)
-

@@ -14,15 +14,33 @@ import numpy as np
 from planner.limits.guard import Guard, GuardDecision
 from planner.trajectory import JogController, JogOutput, MotionState, Plan
 
-__all__ = ["MODES", "MOTION_MODES", "ATTACH_SPEED_SCALE", "MotionError", "MotionAccepted", "JogAccepted",
-           "PlanMotion", "JogMotion", "check_mode_allows", "check_precedence", "plan_state", "reasons_json",
-           "stability_json", "streamed_reference"]
+__all__ = [
+    "MODES",
+    "MOTION_MODES",
+    "ATTACH_SPEED_SCALE",
+    "MotionError",
+    "MotionAccepted",
+    "JogAccepted",
+    "PlanMotion",
+    "JogMotion",
+    "check_mode_allows",
+    "check_precedence",
+    "plan_state",
+    "reasons_json",
+    "stability_json",
+    "streamed_reference",
+]
 
 #: operating modes (thesis HITCH.md §4: automatic, manual, implement attach, transport, configuration)
 MODES: tuple[str, ...] = ("auto", "manual", "attach", "transport", "config")
 #: what each mode allows: "all" motion, "jog" only, or "none" (stop is always allowed)
-MOTION_MODES: Mapping[str, str] = {"auto": "all", "attach": "jog", "manual": "none", "transport": "none",
-                                   "config": "none"}
+MOTION_MODES: Mapping[str, str] = {
+    "auto": "all",
+    "attach": "jog",
+    "manual": "none",
+    "transport": "none",
+    "config": "none",
+}
 #: jog speed scale in implement-attach mode (slow: the operator is near the hitch)
 ATTACH_SPEED_SCALE = 0.25
 
@@ -40,8 +58,9 @@ def check_mode_allows(mode: str, what: str) -> None:
     allowed = MOTION_MODES[mode]
     if allowed == "none" or (allowed == "jog" and what != "jog"):
         hint = "per-cylinder motion is not offered by this service" if mode == "manual" else "switch to mode 'auto'"
-        raise MotionError("mode", f"{what} is refused in mode {mode!r} "
-                                  f"({'jog only' if allowed == 'jog' else 'no motion'}; {hint})")
+        raise MotionError(
+            "mode", f"{what} is refused in mode {mode!r} ({'jog only' if allowed == 'jog' else 'no motion'}; {hint})"
+        )
 
 
 def reasons_json(decision: GuardDecision) -> dict[str, str]:
@@ -51,10 +70,17 @@ def reasons_json(decision: GuardDecision) -> dict[str, str]:
 
 def stability_json(rep) -> dict:
     """A stability report's margins as JSON: SSM, LSM [m], ESM [J], front-axle share, violations."""
-    return {"ok": rep.ok, "ssm": rep.ssm, "lsm": rep.lsm, "esm": rep.esm, "front_axle_share": rep.front_axle_share,
-            "weakest_edge": rep.weakest_edge,
-            "violations": [{"measure": v.measure, "value": v.value, "threshold": v.threshold, "level": v.level}
-                           for v in rep.violations]}
+    return {
+        "ok": rep.ok,
+        "ssm": rep.ssm,
+        "lsm": rep.lsm,
+        "esm": rep.esm,
+        "front_axle_share": rep.front_axle_share,
+        "weakest_edge": rep.weakest_edge,
+        "violations": [
+            {"measure": v.measure, "value": v.value, "threshold": v.threshold, "level": v.level} for v in rep.violations
+        ],
+    }
 
 
 @dataclass(frozen=True)
@@ -67,9 +93,14 @@ class MotionAccepted:
     decision: GuardDecision
 
     def to_json(self) -> dict:
-        return {"accepted": True, "motion_id": self.motion_id, "duration": self.duration,
-                "speed_factor": self.decision.speed_factor, "guard": self.decision.action,
-                "limited": reasons_json(self.decision)}
+        return {
+            "accepted": True,
+            "motion_id": self.motion_id,
+            "duration": self.duration,
+            "speed_factor": self.decision.speed_factor,
+            "guard": self.decision.action,
+            "limited": reasons_json(self.decision),
+        }
 
 
 @dataclass(frozen=True)
@@ -81,8 +112,13 @@ class JogAccepted:
     decision: GuardDecision
 
     def to_json(self) -> dict:
-        return {"accepted": True, "motion_id": self.motion_id, "limited": dict(self.limited),
-                "guard": self.decision.action, "speed_factor": self.decision.speed_factor}
+        return {
+            "accepted": True,
+            "motion_id": self.motion_id,
+            "limited": dict(self.limited),
+            "guard": self.decision.action,
+            "speed_factor": self.decision.speed_factor,
+        }
 
 
 @dataclass
@@ -97,7 +133,7 @@ class PlanMotion:
     motion_id: int
     plan: Plan
     t0: float
-    prev: "PlanMotion | None" = None
+    prev: PlanMotion | None = None
     decision: GuardDecision = field(default_factory=lambda: GuardDecision("ok"))
     label: str | None = None
 
@@ -117,9 +153,9 @@ class JogMotion:
     jog: JogController
     rates: np.ndarray
     expires: float
-    t_state: float = 0.0      # clock time of ``jog.state`` (its last step)
+    t_state: float = 0.0  # clock time of ``jog.state`` (its last step)
     limited: dict = field(default_factory=dict)
-    reported: set = field(default_factory=set)   # limits already announced by a limit_reached event
+    reported: set = field(default_factory=set)  # limits already announced by a limit_reached event
     decision: GuardDecision = field(default_factory=lambda: GuardDecision("ok"))
 
     def refresh(self, guard: Guard, rates: np.ndarray, expires: float) -> JogAccepted:
@@ -135,7 +171,7 @@ class JogMotion:
         Returns the step and a ``limit_reached`` event naming each limit that newly caps the jog
         (a workspace face, a stability measure ahead, an end-stop zone)."""
         allowed, self.decision = guard.check_jog(self.jog.state, self.rates)
-        self.jog.command(allowed, 1.0)   # the dead-man TTL is ours (``expires``), not the controller's
+        self.jog.command(allowed, 1.0)  # the dead-man TTL is ours (``expires``), not the controller's
         out = self.jog.step()
         self.limited = {**out.limited, **reasons_json(self.decision)}
         new = {k: v for k, v in self.limited.items() if k not in self.reported}
@@ -144,15 +180,20 @@ class JogMotion:
         return out, events
 
 
-def check_precedence(active: "PlanMotion | JogMotion | None", now: float) -> None:
+def check_precedence(active: PlanMotion | JogMotion | None, now: float) -> None:
     """:class:`MotionError` ("busy") when ``active`` outranks a new goto/preset/maneuver: a stop
     until it is at rest, a jog while its command is live (stop > jog > goto)."""
     if isinstance(active, PlanMotion) and active.kind == "stop":
-        raise MotionError("busy", f"a stop is in progress (motion {active.motion_id}); new motion is refused "
-                                  "until the hitch is at rest")
+        raise MotionError(
+            "busy",
+            f"a stop is in progress (motion {active.motion_id}); new motion is refused until the hitch is at rest",
+        )
     if isinstance(active, JogMotion) and now < active.expires:
-        raise MotionError("busy", f"a jog command is live (motion {active.motion_id}, {active.expires - now:.2f} s "
-                                  "left); jog has precedence over goto")
+        raise MotionError(
+            "busy",
+            f"a jog command is live (motion {active.motion_id}, {active.expires - now:.2f} s "
+            "left); jog has precedence over goto",
+        )
 
 
 def plan_state(m: PlanMotion, t: float) -> MotionState:
@@ -162,7 +203,7 @@ def plan_state(m: PlanMotion, t: float) -> MotionState:
     return m.plan.state_at(t - m.t0)
 
 
-def streamed_reference(shaper, m: "PlanMotion | JogMotion | None", ref, now: float) -> np.ndarray:
+def streamed_reference(shaper, m: PlanMotion | JogMotion | None, ref, now: float) -> np.ndarray:
     """The actuator reference to stream for the planned ``ref`` = (state, q, q̇) of motion ``m``:
     feed-forward through the unit loops (:class:`bridge.link.unit_loop.FeedforwardShaper`) for a plan
     (looking ahead in it) or a jog (its rates and acceleration now); the final reference itself while holding."""

@@ -69,8 +69,9 @@ def _dense_csc(values: np.ndarray, upper_only: bool):
         indptr.append(len(rows))
     flat_a = np.array(flat, dtype=np.intp)
     data = values.ravel(order="F")[flat_a].astype(float)
-    mat = sparse.csc_matrix((data, np.array(rows, dtype=np.int64), np.array(indptr, dtype=np.int64)),
-                            shape=(n_row, n_col))
+    mat = sparse.csc_matrix(
+        (data, np.array(rows, dtype=np.int64), np.array(indptr, dtype=np.int64)), shape=(n_row, n_col)
+    )
     return mat, flat_a
 
 

@@ -29,7 +29,10 @@ QPSOLVERS_OPTIONS: dict[str, dict] = {
     "quadprog": {},
     "proxqp": {"eps_abs": 1e-12, "eps_rel": 0.0, "max_iter": 10000, "backend": "dense"},
     "clarabel": {
-        "tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10, "tol_feas": 1e-10, "tol_ktratio": 1e-10,
+        "tol_gap_abs": 1e-10,
+        "tol_gap_rel": 1e-10,
+        "tol_feas": 1e-10,
+        "tol_ktratio": 1e-10,
         "max_iter": 200,
     },
 }
@@ -80,10 +83,14 @@ class QpsolversBackend:
         G = np.vstack(g_blocks)
         h = np.concatenate(h_blocks)
         problem = qpsolvers.Problem(
-            qp.P, qp.c,
-            G if G.shape[0] else None, h if G.shape[0] else None,
-            A[eq] if eq.any() else None, u[eq] if eq.any() else None,
-            lb if box else None, ub if box else None,
+            qp.P,
+            qp.c,
+            G if G.shape[0] else None,
+            h if G.shape[0] else None,
+            A[eq] if eq.any() else None,
+            u[eq] if eq.any() else None,
+            lb if box else None,
+            ub if box else None,
         )
         try:
             with warnings.catch_warnings():
@@ -104,7 +111,7 @@ class QpsolversBackend:
         z = np.asarray(sol.z) if sol.z is not None else np.zeros(0)
         n_up, n_lo = int(up.sum()), int(lo.sum())
         yg[up] += z[:n_up]
-        yg[lo] -= z[n_up:n_up + n_lo]
+        yg[lo] -= z[n_up : n_up + n_lo]
         if eq.any():
             yg[eq] = np.asarray(sol.y)
         if box:
@@ -112,6 +119,6 @@ class QpsolversBackend:
         else:
             k = n_up + n_lo
             nb_up = int(box_up.sum())
-            y[:nv][box_up] += z[k:k + nb_up]
-            y[:nv][box_lo] -= z[k + nb_up:]
+            y[:nv][box_up] += z[k : k + nb_up]
+            y[:nv][box_lo] -= z[k + nb_up :]
         return QPResult(np.asarray(sol.x, dtype=float).copy(), y, "solved", self.name)

@@ -12,8 +12,8 @@ import math
 import numpy as np
 import pytest
 
-from planner.arm.analytic import NoAdmissibleSolutionError, UnreachableTargetError
 from bridge.cli.arm import add_arm_parser, arm_fk_command, arm_ik_command
+from planner.arm.analytic import NoAdmissibleSolutionError, UnreachableTargetError
 
 MM, DEG = 1e-3, math.pi / 180
 P_TARGET = [0.100, 0.050, 0.120]  # (100, 50, 120) mm
@@ -37,7 +37,16 @@ def test_fk_command_reproduces_the_cad_frames():
     np.testing.assert_allclose(np.array(out["wrist_centre"]) / MM, CAD_WRIST_ORIGIN_MM, atol=1e-6)
     np.testing.assert_allclose(np.array(out["rotation"])[:, 2], [0.040602521, -0.991942517, -0.120006159], atol=1e-8)
     assert out["within_limits"] and out["limit_violations"] == []
-    assert list(out["origins"]) == ["base", "waist", "shoulder", "elbow", "forearm_roll", "wrist_bend", "flange_roll", "tool"]
+    assert list(out["origins"]) == [
+        "base",
+        "waist",
+        "shoulder",
+        "elbow",
+        "forearm_roll",
+        "wrist_bend",
+        "flange_roll",
+        "tool",
+    ]
     assert out["origins"]["forearm_roll"] == out["wrist_centre"]
 
 
@@ -85,8 +94,10 @@ def test_ik_command_with_a_profile_whose_limits_exclude_every_solution(tmp_path)
 
     text = (resources.files("planner") / "profiles" / "arms" / "arm-source-example.toml").read_text(encoding="utf-8")
     # Shoulder limited to [-0.1, 0.1] rad: no solution of the worked example has |q2| that small.
-    text = text.replace('name = "shoulder"           # source theta2, upper-arm elevation\ntype = "revolute"\na = 0.100                   # a2 = 100 mm\nalpha = 0.0\nd = 0.0\ntheta = 0.0\nlower = -3.141592653589793\nupper = 3.141592653589793',
-                        'name = "shoulder"\ntype = "revolute"\na = 0.100\nalpha = 0.0\nd = 0.0\ntheta = 0.0\nlower = -0.1\nupper = 0.1')
+    text = text.replace(
+        'name = "shoulder"           # source theta2, upper-arm elevation\ntype = "revolute"\na = 0.100                   # a2 = 100 mm\nalpha = 0.0\nd = 0.0\ntheta = 0.0\nlower = -3.141592653589793\nupper = 3.141592653589793',
+        'name = "shoulder"\ntype = "revolute"\na = 0.100\nalpha = 0.0\nd = 0.0\ntheta = 0.0\nlower = -0.1\nupper = 0.1',
+    )
     assert "lower = -0.1" in text
     path = tmp_path / "arm-tight.toml"
     path.write_text(text, encoding="utf-8")
@@ -119,9 +130,18 @@ def test_parser_round_trip(capsys):
 @pytest.mark.parametrize(
     "argv, message",
     [
-        (["arm", "ik", "--position=0.1,0.05", "--rotation=1,0,0,0,1,0,0,0,1"], "--position needs 3 comma-separated values"),
-        (["arm", "ik", "--position=0.1,0.05,x", "--rotation=1,0,0,0,1,0,0,0,1"], "--position must be comma-separated numbers"),
-        (["arm", "ik", "--position=0.1,0.05,0.1", "--rotation=1,0,0,0,1,0,0,0,nan"], "--rotation values must be finite"),
+        (
+            ["arm", "ik", "--position=0.1,0.05", "--rotation=1,0,0,0,1,0,0,0,1"],
+            "--position needs 3 comma-separated values",
+        ),
+        (
+            ["arm", "ik", "--position=0.1,0.05,x", "--rotation=1,0,0,0,1,0,0,0,1"],
+            "--position must be comma-separated numbers",
+        ),
+        (
+            ["arm", "ik", "--position=0.1,0.05,0.1", "--rotation=1,0,0,0,1,0,0,0,nan"],
+            "--rotation values must be finite",
+        ),
         (["arm", "fk"], "--joints"),
     ],
 )

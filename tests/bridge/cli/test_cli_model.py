@@ -16,8 +16,20 @@ def run(*args):
 
 def test_fk_json_matches_the_model(model):
     q = model.neutral
-    r = run("fk", "--lift", str(q[0]), "--tilt", str(q[1]), "--top", str(q[2]), "--left", str(q[3]),
-            "--right", str(q[4]), "--json")
+    r = run(
+        "fk",
+        "--lift",
+        str(q[0]),
+        "--tilt",
+        str(q[1]),
+        "--top",
+        str(q[2]),
+        "--left",
+        str(q[3]),
+        "--right",
+        str(q[4]),
+        "--json",
+    )
     assert r.returncode == 0, r.stderr
     d = json.loads(r.stdout)
     assert set(d["pose"]) == {"x", "y", "z", "roll", "pitch", "yaw"}
@@ -38,7 +50,10 @@ def test_profile_show_json():
     "args, message",
     [
         (["fk", "--lift", "0.2", "--tilt", "5", "--top", "0.75", "--left", "0.54", "--right", "0.54"], "tilt cylinder"),
-        (["fk", "--lift", "nan", "--tilt", "0.6", "--top", "0.75", "--left", "0.54", "--right", "0.54"], "--lift must be finite"),
+        (
+            ["fk", "--lift", "nan", "--tilt", "0.6", "--top", "0.75", "--left", "0.54", "--right", "0.54"],
+            "--lift must be finite",
+        ),
         (["fk", "--lift", "0.2"], "required"),
         (["profile", "show", "--category", "9"], "category '9' is not in profile"),
         (["profile", "show", "--profile", "nope"], "profile 'nope' not found"),

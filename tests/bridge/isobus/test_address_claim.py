@@ -6,7 +6,11 @@ import can
 import pytest
 
 from bridge.isobus.address_claim import (
-    AddressClaimer, ClaimState, Name, cylinder_ecu_name, planner_name,
+    AddressClaimer,
+    ClaimState,
+    Name,
+    cylinder_ecu_name,
+    planner_name,
 )
 from bridge.isobus.codec import AddressClaimed, RequestPgn, decode, encode
 
@@ -37,9 +41,17 @@ def test_name_round_trips_and_agrees_with_the_dbc_fields():
         msg = claim_frame(name, 166)
         assert bytes(msg.data) == value.to_bytes(8, "little")
         assert decode(msg) == AddressClaimed(value)
-    name = Name(identity_number=0x1FFFFF, manufacturer_code=0x7FF, ecu_instance=7,
-                function_instance=31, function=255, vehicle_system=127,
-                vehicle_system_instance=15, industry_group=7, arbitrary_address_capable=True)
+    name = Name(
+        identity_number=0x1FFFFF,
+        manufacturer_code=0x7FF,
+        ecu_instance=7,
+        function_instance=31,
+        function=255,
+        vehicle_system=127,
+        vehicle_system_instance=15,
+        industry_group=7,
+        arbitrary_address_capable=True,
+    )
     assert name.value == 0xFFFE_FFFF_FFFF_FFFF  # everything but the reserved bit 48
     signals = decode(claim_frame(name, 1))
     assert signals.name == name.value
@@ -102,8 +114,8 @@ def test_contention_lower_name_wins_loser_sends_cannot_claim_from_254():
     assert low.value < high.value
     a, b = AddressClaimer(low, 166), AddressClaimer(high, 166)
     bus = Bus([a, b])
-    bus.send(b, b.start(0.0), 0.0)   # the higher NAME claims first ...
-    bus.send(a, a.start(0.1), 0.1)   # ... the lower NAME contends
+    bus.send(b, b.start(0.0), 0.0)  # the higher NAME claims first ...
+    bus.send(a, a.start(0.1), 0.1)  # ... the lower NAME contends
     bus.run(0.6, t0=0.1)
     assert a.claimed and a.address == 166
     assert b.state is ClaimState.CANNOT_CLAIM and b.address is None

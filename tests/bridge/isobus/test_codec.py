@@ -7,10 +7,25 @@ import can
 import pytest
 
 from bridge.isobus.codec import (
-    ACTUATORS, AddressClaimed, BasicJoystick, CodecError, EcuParameters, Heartbeat,
-    JoystickAxis, MeasuredPose, PositionCounts, PositionMeasurement, PressureMeasurement,
-    RearHitchStatus, RequestPgn, WheelBasedSpeed, decode, decode_frame, encode,
-    encode_position_reference, load_codec,
+    ACTUATORS,
+    AddressClaimed,
+    BasicJoystick,
+    CodecError,
+    EcuParameters,
+    Heartbeat,
+    JoystickAxis,
+    MeasuredPose,
+    PositionCounts,
+    PositionMeasurement,
+    PressureMeasurement,
+    RearHitchStatus,
+    RequestPgn,
+    WheelBasedSpeed,
+    decode,
+    decode_frame,
+    encode,
+    encode_position_reference,
+    load_codec,
 )
 from bridge.isobus.j1939 import LimitStatus, MachineDirection, Switch
 
@@ -32,21 +47,25 @@ def pack_msb_first(values_and_widths, total_bytes=8) -> bytes:
 
 # Thesis table 3-1 calibration ends: tilt 917, top 255, right 503, left 30; state 0x05.
 # tilt  917 = 11 1001 0101, top 255 = 00 1111 1111, right 503 = 01 1111 0111, left 30 = 00 0001 1110
-HAND_FF22 = bytes([
-    0b11100101,  # byte 1: tilt bits 9..2
-    0b01001111,  # byte 2: tilt bits 1..0 | top bits 9..4
-    0b11110111,  # byte 3: top bits 3..0 | right bits 9..6
-    0b11011100,  # byte 4: right bits 5..0 | left bits 9..8
-    0b00011110,  # byte 5: left bits 7..0
-    0xFF, 0xFF,  # bytes 6-7 unused
-    0x05,        # byte 8 system state
-])
+HAND_FF22 = bytes(
+    [
+        0b11100101,  # byte 1: tilt bits 9..2
+        0b01001111,  # byte 2: tilt bits 1..0 | top bits 9..4
+        0b11110111,  # byte 3: top bits 3..0 | right bits 9..6
+        0b11011100,  # byte 4: right bits 5..0 | left bits 9..8
+        0b00011110,  # byte 5: left bits 7..0
+        0xFF,
+        0xFF,  # bytes 6-7 unused
+        0x05,  # byte 8 system state
+    ]
+)
 
 
 def test_hand_packed_ff22_decodes_to_the_thesis_readings():
     m = decode(frame(0x0CFF22A9, HAND_FF22))
-    assert m == PositionMeasurement(tilt_counts=917, top_counts=255, right_counts=503,
-                                    left_counts=30, system_state=0x05)
+    assert m == PositionMeasurement(
+        tilt_counts=917, top_counts=255, right_counts=503, left_counts=30, system_state=0x05
+    )
 
 
 def test_ff22_encodes_exactly_the_hand_packed_bytes_from_the_cylinder_ecu():
@@ -61,20 +80,19 @@ def test_ff22_layout_matches_independent_packing_on_random_values():
     for _ in range(300):
         t, o, r, l = (rnd.randrange(1022) for _ in range(4))
         state = rnd.randrange(256)
-        expected = (pack_msb_first([(t, 10), (o, 10), (r, 10), (l, 10)], 5)
-                    + b"\xff\xff" + bytes([state]))
+        expected = pack_msb_first([(t, 10), (o, 10), (r, 10), (l, 10)], 5) + b"\xff\xff" + bytes([state])
         assert bytes(encode(PositionMeasurement(t, o, r, l, state)).data) == expected
 
 
 # --- 0xFF21 position reference (project layout, MSB first like 0xFF22) ------------------------
+
 
 def test_position_reference_layout_hand_packed():
     counts = PositionCounts(lift=100, tilt=819, top=0, left=5, right=1021)
     # order on the bus: tilt, top, lift, right, left; 50 bits then 14 one-bits
     # tilt 11 0011 0011 | top 00 0000 0000 | lift 00 0110 0100
     # right 11 1111 1101 | left 00 0000 0101
-    hand = bytes([0b11001100, 0b11000000, 0b00000001, 0b10010011, 0b11111101,
-                  0b00000001, 0b01111111, 0xFF])
+    hand = bytes([0b11001100, 0b11000000, 0b00000001, 0b10010011, 0b11111101, 0b00000001, 0b01111111, 0xFF])
     msg = encode_position_reference(counts)
     assert bytes(msg.data) == hand
     assert msg.arbitration_id == 0x0CFF21A6  # priority 3, PGN 0xFF21, source 166
@@ -86,8 +104,7 @@ def test_position_reference_random_round_trip_and_independent_packing():
     for _ in range(300):
         c = PositionCounts(*(rnd.randrange(1022) for _ in ACTUATORS))
         msg = encode_position_reference(c, source=0x80)
-        expected = pack_msb_first([(c.tilt, 10), (c.top, 10), (c.lift, 10), (c.right, 10),
-                                   (c.left, 10)])
+        expected = pack_msb_first([(c.tilt, 10), (c.top, 10), (c.lift, 10), (c.right, 10), (c.left, 10)])
         assert bytes(msg.data) == expected
         assert msg.arbitration_id & 0xFF == 0x80
         assert decode(msg) == c
@@ -107,6 +124,7 @@ def test_reference_frame_with_unavailable_value_is_rejected():
 
 # --- unavailable values are not numbers --------------------------------------------------------
 
+
 def test_ff22_not_available_and_error_readings_become_none():
     data = pack_msb_first([(400, 10), (1022, 10), (300, 10), (1023, 10)], 5) + b"\xff\xff\x00"
     d = decode_frame(frame(0x0CFF22A9, data))
@@ -118,23 +136,32 @@ def test_ff22_not_available_and_error_readings_become_none():
 
 # --- ISO 11783-7 and J1939 messages, hand-packed ---------------------------------------------
 
+
 def test_rear_hitch_status_hand_packed():
-    hand = bytes([
-        125,          # position 50 % / 0.4 %
-        0b01000111,   # in-work 01 (bits 8,7), limit 000 (bits 6-4), reserved 111
-        125,          # nominal lower link force 0 %: (0 + 100) / 0.8
-        0x64, 0x7D,   # draft 1000 N: (1000 + 320000) / 10 = 32100 = 0x7D64, little-endian
-        0b11000000,   # exit/reason code 0, bits 8,7 reserved
-        0xFF, 0xFF,
-    ])
-    expected = RearHitchStatus(position=0.5, in_work=Switch.ON,
-                               limit_status=LimitStatus.NOT_LIMITED,
-                               nominal_lower_link_force=0.0, draft_n=1000.0, exit_reason_code=0)
+    hand = bytes(
+        [
+            125,  # position 50 % / 0.4 %
+            0b01000111,  # in-work 01 (bits 8,7), limit 000 (bits 6-4), reserved 111
+            125,  # nominal lower link force 0 %: (0 + 100) / 0.8
+            0x64,
+            0x7D,  # draft 1000 N: (1000 + 320000) / 10 = 32100 = 0x7D64, little-endian
+            0b11000000,  # exit/reason code 0, bits 8,7 reserved
+            0xFF,
+            0xFF,
+        ]
+    )
+    expected = RearHitchStatus(
+        position=0.5,
+        in_work=Switch.ON,
+        limit_status=LimitStatus.NOT_LIMITED,
+        nominal_lower_link_force=0.0,
+        draft_n=1000.0,
+        exit_reason_code=0,
+    )
     got = decode(frame(0x0CFE45F0, hand))
     assert got.position == pytest.approx(0.5) and got.draft_n == pytest.approx(1000.0)
     assert got.nominal_lower_link_force == pytest.approx(0.0, abs=1e-12)
-    assert (got.in_work, got.limit_status, got.exit_reason_code) == (Switch.ON,
-                                                                      LimitStatus.NOT_LIMITED, 0)
+    assert (got.in_work, got.limit_status, got.exit_reason_code) == (Switch.ON, LimitStatus.NOT_LIMITED, 0)
     assert bytes(encode(expected).data) == hand
 
 
@@ -153,32 +180,45 @@ def test_rear_hitch_status_position_not_available_and_reserved_values():
 
 
 def test_wheel_based_speed_hand_packed():
-    hand = bytes([0xC4, 0x09,                 # 2.5 m/s = 2500 mm/s
-                  0x40, 0xE2, 0x01, 0x00,     # 123.456 m = 123456 mm
-                  5,                          # 5 min of tractor power left
-                  0b00110101])                # reversed 00, start/stop 11, key 01, forward 01
-    w = WheelBasedSpeed(2.5, 123.456, 300.0, MachineDirection.FORWARD, Switch.ON,
-                        Switch.NOT_AVAILABLE, Switch.OFF)
+    hand = bytes(
+        [
+            0xC4,
+            0x09,  # 2.5 m/s = 2500 mm/s
+            0x40,
+            0xE2,
+            0x01,
+            0x00,  # 123.456 m = 123456 mm
+            5,  # 5 min of tractor power left
+            0b00110101,
+        ]
+    )  # reversed 00, start/stop 11, key 01, forward 01
+    w = WheelBasedSpeed(2.5, 123.456, 300.0, MachineDirection.FORWARD, Switch.ON, Switch.NOT_AVAILABLE, Switch.OFF)
     assert bytes(encode(w).data) == hand
     assert encode(w).arbitration_id == 0x0CFE48F0
     got = decode(frame(0x0CFE48F0, hand))
     assert got.speed_m_s == pytest.approx(2.5) and got.distance_m == pytest.approx(123.456)
     assert got.max_power_time_s == pytest.approx(300.0)
     assert (got.direction, got.key_switch, got.start_stop, got.direction_reversed) == (
-        MachineDirection.FORWARD, Switch.ON, Switch.NOT_AVAILABLE, Switch.OFF)
+        MachineDirection.FORWARD,
+        Switch.ON,
+        Switch.NOT_AVAILABLE,
+        Switch.OFF,
+    )
 
 
 def test_thesis_joystick_frame_decodes_for_jog():
-    hand = bytes([
-        0b00010000,  # X: position LSBs 00, right 01, left 00, neutral 00
-        0b01111101,  # X position bits 9..2: 500 = 0b01 1111 0100 -> 0x7D
-        0b00000001,  # Y: neutral 01
-        0x00,        # Y position 0
-        0b00001111,  # X detent 00, Y detent 00, reserved 1111
-        0b01000000,  # button 1 pressed (bits 8,7), buttons 2-4 released
-        0x00,        # buttons 5-8 released
-        0xFF,        # buttons 9-12 not available
-    ])
+    hand = bytes(
+        [
+            0b00010000,  # X: position LSBs 00, right 01, left 00, neutral 00
+            0b01111101,  # X position bits 9..2: 500 = 0b01 1111 0100 -> 0x7D
+            0b00000001,  # Y: neutral 01
+            0x00,  # Y position 0
+            0b00001111,  # X detent 00, Y detent 00, reserved 1111
+            0b01000000,  # button 1 pressed (bits 8,7), buttons 2-4 released
+            0x00,  # buttons 5-8 released
+            0xFF,  # buttons 9-12 not available
+        ]
+    )
     j = decode(frame(0x0CFDD605, hand))
     assert j.x.deflection == pytest.approx(0.5)
     assert j.y.deflection == 0.0
@@ -245,8 +285,9 @@ def test_address_claimed_data_is_the_little_endian_name_and_pdu1_lookup_works():
 
 
 def test_parameters_hand_packed_thesis_multipliers():
-    p = EcuParameters(controllers_enabled=True, watchdog_timeout_s=0.1,
-                      valve_multipliers=(1.0, 0.5, 0.5, 0.2, 0.2))  # lift, tilt, top, left, right
+    p = EcuParameters(
+        controllers_enabled=True, watchdog_timeout_s=0.1, valve_multipliers=(1.0, 0.5, 0.5, 0.2, 0.2)
+    )  # lift, tilt, top, left, right
     # byte1 0b111111_01, watchdog 10 x 10 ms, then tilt 100, top 100, lift 200, right 40, left 40
     assert bytes(encode(p).data) == bytes([0xFD, 10, 100, 100, 200, 40, 40, 0xFF])
     assert decode(encode(p)) == p
@@ -258,8 +299,7 @@ def test_parameters_hand_packed_thesis_multipliers():
     ("data", "match"),
     [
         (bytes([0xFE, 10, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF]), "ControllersEnable.*reserved"),
-        (bytes([0xFD, 0, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF]),
-         r"WatchdogTimeout.*outside 1\.\.250"),
+        (bytes([0xFD, 0, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF]), r"WatchdogTimeout.*outside 1\.\.250"),
         (bytes([0xFD, 10, 251, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF]), "TiltValveMultiplier.*reserved"),
     ],
 )
@@ -270,26 +310,43 @@ def test_parameters_reject_reserved_and_out_of_range(data, match):
 
 # --- round trips for every message ----------------------------------------------------------
 
+
 def _random_payloads(rnd: random.Random):
     sw = list(Switch)
     yield PositionCounts(*(rnd.randrange(1022) for _ in ACTUATORS))
-    yield PositionMeasurement(*(rnd.choice([None, rnd.randrange(1022)]) for _ in range(4)),
-                              rnd.randrange(256))
-    yield PressureMeasurement(*(rnd.choice([None, rnd.randrange(64256) * 1000.0])
-                                for _ in range(4)))
-    yield EcuParameters(rnd.choice([None, True, False]),
-                        rnd.choice([None, rnd.randrange(1, 251) / 100]),
-                        tuple(rnd.choice([None, rnd.randrange(251) * 0.005]) for _ in ACTUATORS))
+    yield PositionMeasurement(*(rnd.choice([None, rnd.randrange(1022)]) for _ in range(4)), rnd.randrange(256))
+    yield PressureMeasurement(*(rnd.choice([None, rnd.randrange(64256) * 1000.0]) for _ in range(4)))
+    yield EcuParameters(
+        rnd.choice([None, True, False]),
+        rnd.choice([None, rnd.randrange(1, 251) / 100]),
+        tuple(rnd.choice([None, rnd.randrange(251) * 0.005]) for _ in ACTUATORS),
+    )
     yield MeasuredPose(*(rnd.uniform(-3.2, 3.2) for _ in range(4)))
-    yield RearHitchStatus(rnd.randrange(251) * 0.004, rnd.choice(sw), rnd.choice(list(LimitStatus)),
-                          rnd.randrange(251) * 0.008 - 1, rnd.randrange(64256) * 10.0 - 320000,
-                          rnd.choice([None, rnd.randrange(62)]))
-    yield WheelBasedSpeed(rnd.randrange(64256) * 0.001, rnd.randrange(4211081216) * 0.001,
-                          rnd.randrange(251) * 60.0, rnd.choice(list(MachineDirection)),
-                          rnd.choice(sw), rnd.choice(sw), rnd.choice(sw))
+    yield RearHitchStatus(
+        rnd.randrange(251) * 0.004,
+        rnd.choice(sw),
+        rnd.choice(list(LimitStatus)),
+        rnd.randrange(251) * 0.008 - 1,
+        rnd.randrange(64256) * 10.0 - 320000,
+        rnd.choice([None, rnd.randrange(62)]),
+    )
+    yield WheelBasedSpeed(
+        rnd.randrange(64256) * 0.001,
+        rnd.randrange(4211081216) * 0.001,
+        rnd.randrange(251) * 60.0,
+        rnd.choice(list(MachineDirection)),
+        rnd.choice(sw),
+        rnd.choice(sw),
+        rnd.choice(sw),
+    )
     yield Heartbeat(rnd.choice(list(range(252)) + [254, 255]))
-    axis = lambda: JoystickAxis(rnd.choice([None, rnd.randrange(1001) / 1000]),  # noqa: E731
-                                rnd.choice(sw), rnd.choice(sw), Switch.OFF, rnd.choice(sw))
+    axis = lambda: JoystickAxis(
+        rnd.choice([None, rnd.randrange(1001) / 1000]),  # noqa: E731
+        rnd.choice(sw),
+        rnd.choice(sw),
+        Switch.OFF,
+        rnd.choice(sw),
+    )
     yield BasicJoystick(axis(), axis(), tuple(rnd.choice(sw) for _ in range(12)))
     yield AddressClaimed(rnd.randrange(1 << 64))
     yield RequestPgn(rnd.randrange(1 << 18))
@@ -329,6 +386,7 @@ def test_every_dbc_message_has_a_payload_type():
 
 # --- malformed frames and bad inputs ----------------------------------------------------------
 
+
 @pytest.mark.parametrize(
     ("msg", "match"),
     [
@@ -348,8 +406,7 @@ def test_malformed_frames_are_rejected_with_a_reason(msg, match):
 @pytest.mark.parametrize(
     ("payload", "match"),
     [
-        (EcuParameters(watchdog_timeout_s=3.0),
-         r"EcuParameters\.watchdog_timeout_s = 3\.0 outside 0\.01\.\.2\.5 s"),
+        (EcuParameters(watchdog_timeout_s=3.0), r"EcuParameters\.watchdog_timeout_s = 3\.0 outside 0\.01\.\.2\.5 s"),
         (EcuParameters(watchdog_timeout_s=0.0), r"watchdog_timeout_s = 0\.0 outside"),
         (EcuParameters(controllers_enabled=1), "must be True, False or None"),
         (MeasuredPose(x_m=float("nan")), r"MeasuredPose\.x_m must be finite"),

@@ -6,7 +6,13 @@ import cantools.j1939
 import pytest
 
 from bridge.isobus.j1939 import (
-    GLOBAL_ADDRESS, PGN_HEARTBEAT, RawStatus, bus_load, classify_raw, decode_id, encode_id,
+    GLOBAL_ADDRESS,
+    PGN_HEARTBEAT,
+    RawStatus,
+    bus_load,
+    classify_raw,
+    decode_id,
+    encode_id,
     frame_bits,
 )
 
@@ -57,8 +63,14 @@ def test_identifier_fields_agree_with_cantools_j1939_on_random_ids():
         can_id = rnd.randrange(1 << 29)
         ours = decode_id(can_id)
         theirs = cantools.j1939.frame_id_unpack(can_id)
-        assert (ours.priority, ours.extended_data_page, ours.data_page, ours.pdu_format,
-                ours.pdu_specific, ours.source_address) == tuple(theirs)
+        assert (
+            ours.priority,
+            ours.extended_data_page,
+            ours.data_page,
+            ours.pdu_format,
+            ours.pdu_specific,
+            ours.source_address,
+        ) == tuple(theirs)
         assert ours.pgn == cantools.j1939.pgn_from_frame_id(can_id)
         assert ours.can_id == can_id
 
@@ -72,16 +84,14 @@ def test_encode_decode_round_trip_on_random_fields():
         dest = rnd.randrange(256) if pdu1 else GLOBAL_ADDRESS
         sa, prio = rnd.randrange(256), rnd.randrange(8)
         ident = decode_id(encode_id(pgn, sa, priority=prio, destination_address=dest))
-        assert (ident.pgn, ident.source_address, ident.priority, ident.destination_address) == (
-            pgn, sa, prio, dest)
+        assert (ident.pgn, ident.source_address, ident.priority, ident.destination_address) == (pgn, sa, prio, dest)
 
 
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [
         (dict(pgn=0xEA05, source_address=1), "low byte must be 0"),
-        (dict(pgn=0xFF21, source_address=1, destination_address=169),
-         "destination_address must be 255"),
+        (dict(pgn=0xFF21, source_address=1, destination_address=169), "destination_address must be 255"),
         (dict(pgn=0xFF21, source_address=1, priority=8), r"priority must be in 0\.\.7"),
         (dict(pgn=0x40000, source_address=1), r"pgn must be in 0\.\.262143"),
         (dict(pgn=0xFF21, source_address=256), r"source_address must be in 0\.\.255"),
@@ -101,15 +111,26 @@ def test_decode_id_rejects_more_than_29_bits():
 @pytest.mark.parametrize(
     ("raw", "length", "status"),
     [
-        (250, 8, RawStatus.VALID), (251, 8, RawStatus.RESERVED), (253, 8, RawStatus.RESERVED),
-        (254, 8, RawStatus.ERROR), (255, 8, RawStatus.NOT_AVAILABLE),
-        (0xFAFF, 16, RawStatus.VALID), (0xFB00, 16, RawStatus.RESERVED),
-        (0xFE12, 16, RawStatus.ERROR), (0xFF00, 16, RawStatus.NOT_AVAILABLE),
-        (0xFAFFFFFF, 32, RawStatus.VALID), (0xFF000000, 32, RawStatus.NOT_AVAILABLE),
-        (1021, 10, RawStatus.VALID), (1022, 10, RawStatus.ERROR),
+        (250, 8, RawStatus.VALID),
+        (251, 8, RawStatus.RESERVED),
+        (253, 8, RawStatus.RESERVED),
+        (254, 8, RawStatus.ERROR),
+        (255, 8, RawStatus.NOT_AVAILABLE),
+        (0xFAFF, 16, RawStatus.VALID),
+        (0xFB00, 16, RawStatus.RESERVED),
+        (0xFE12, 16, RawStatus.ERROR),
+        (0xFF00, 16, RawStatus.NOT_AVAILABLE),
+        (0xFAFFFFFF, 32, RawStatus.VALID),
+        (0xFF000000, 32, RawStatus.NOT_AVAILABLE),
+        (1021, 10, RawStatus.VALID),
+        (1022, 10, RawStatus.ERROR),
         (1023, 10, RawStatus.NOT_AVAILABLE),
-        (1, 2, RawStatus.VALID), (2, 2, RawStatus.ERROR), (3, 2, RawStatus.NOT_AVAILABLE),
-        (61, 6, RawStatus.VALID), (62, 6, RawStatus.ERROR), (63, 6, RawStatus.NOT_AVAILABLE),
+        (1, 2, RawStatus.VALID),
+        (2, 2, RawStatus.ERROR),
+        (3, 2, RawStatus.NOT_AVAILABLE),
+        (61, 6, RawStatus.VALID),
+        (62, 6, RawStatus.ERROR),
+        (63, 6, RawStatus.NOT_AVAILABLE),
         (1, 1, RawStatus.VALID),
     ],
 )

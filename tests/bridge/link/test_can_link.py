@@ -10,11 +10,17 @@ import numpy as np
 import pytest
 
 from bridge.isobus.address_claim import ClaimState, planner_name
-from bridge.link.can_link import CanLink
 from bridge.isobus.codec import (
-    AddressClaimed, Heartbeat, PositionCounts, PositionMeasurement, RearHitchStatus, decode_frame, encode,
+    AddressClaimed,
+    Heartbeat,
+    PositionCounts,
+    PositionMeasurement,
+    RearHitchStatus,
+    decode_frame,
+    encode,
 )
 from bridge.isobus.j1939 import PGN_POSITION_REFERENCE, decode_id
+from bridge.link.can_link import CanLink
 from bridge.link.state import LinkConfig, LinkFaultError, ReferenceRefused
 from bridge.sim.move import SimRig, SimSettings
 from planner.model.exact_inverse import ExactInverse
@@ -57,10 +63,17 @@ def test_reference_counts_hand_computed(rig, model):
     assert counts == PositionCounts(lift=161, tilt=323, top=159, left=270, right=280)
 
 
-@pytest.mark.parametrize("index, delta, limit", [
-    (0, +0.5, "stroke:lift:max"), (0, -0.5, "stroke:lift:min"), (1, +0.2, "stroke:tilt:max"),
-    (2, -0.3, "stroke:top:min"), (3, +0.1, "stroke:left:max"), (4, -0.1, "stroke:right:min"),
-])
+@pytest.mark.parametrize(
+    "index, delta, limit",
+    [
+        (0, +0.5, "stroke:lift:max"),
+        (0, -0.5, "stroke:lift:min"),
+        (1, +0.2, "stroke:tilt:max"),
+        (2, -0.3, "stroke:top:min"),
+        (3, +0.1, "stroke:left:max"),
+        (4, -0.1, "stroke:right:min"),
+    ],
+)
 def test_out_of_stroke_reference_is_refused_by_name_and_never_sent(rig, tap, model, index, delta, limit):
     q = model.neutral.copy()
     q[index] += delta
@@ -178,8 +191,9 @@ def test_malformed_foreign_and_unknown_frames_are_counted_not_used(rig, model):
     pm = encode(good, source=169)
     c0 = link.counters
     raw.send(can.Message(arbitration_id=pm.arbitration_id, is_extended_id=True, data=bytes(pm.data)[:6]))  # DLC 6
-    raw.send(can.Message(arbitration_id=pm.arbitration_id, is_extended_id=True,
-                         data=b"\xff\xbf" + bytes(pm.data)[2:]))  # tilt = 1022, the error code -> unavailable
+    raw.send(
+        can.Message(arbitration_id=pm.arbitration_id, is_extended_id=True, data=b"\xff\xbf" + bytes(pm.data)[2:])
+    )  # tilt = 1022, the error code -> unavailable
     raw.send(encode(PositionMeasurement(c[1], c[2], 600, c[3], sys_state), source=169))  # right 600 > 503
     raw.send(encode(good, source=0x42))  # not the ECU
     raw.send(can.Message(arbitration_id=(6 << 26) | (0xFE49 << 8) | 0x80, is_extended_id=True, data=b"\xff" * 8))
@@ -223,9 +237,14 @@ def test_ecu_restart_is_detected_and_the_old_reference_never_resumes(rig, model)
 def test_assembler_spots_restarts_in_the_system_state_byte(model):
     """Restart counter change and the no-reference bit reappearing, each on its own (no heartbeat)."""
     from bridge.link.state import MeasurementAssembler
+
     bumps = {}
-    rx = MeasurementAssembler(model, SensorScaling(model.profile), LinkConfig(),
-                              lambda **d: [bumps.__setitem__(k, bumps.get(k, 0) + v) for k, v in d.items()])
+    rx = MeasurementAssembler(
+        model,
+        SensorScaling(model.profile),
+        LinkConfig(),
+        lambda **d: [bumps.__setitem__(k, bumps.get(k, 0) + v) for k, v in d.items()],
+    )
     readings = (323, 141, 265, 270)  # tilt, top, right, left
     m = lambda state: PositionMeasurement(*readings, system_state=state)  # noqa: E731
     assert rx.on_measurement(m(0b1011), 0.00) is None  # no reference yet, restart counter 0

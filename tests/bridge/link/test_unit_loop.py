@@ -14,14 +14,18 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from bridge.link.unit_loop import (
+    ActuatorMotion,
+    FeedforwardShaper,
+    build_unit_loops,
+    feedforward_reference,
+    safe_reference,
+)
 from bridge.sim.controller import UnitController
 from bridge.sim.cylinder import Cylinder, build_cylinder_params
-from bridge.link.unit_loop import (
-    ActuatorMotion, FeedforwardShaper, build_unit_loops, feedforward_reference, safe_reference,
-)
 from planner.model.exact_inverse import ExactInverse
-from planner.trajectory import MotionState
 from planner.model.types import ACTUATOR_NAMES
+from planner.trajectory import MotionState
 
 
 def test_loop_constants_hand_values(model):
@@ -48,8 +52,9 @@ def _smooth_move(t, t_end, dist):
 
 def test_shaped_reference_makes_the_linear_loop_follow_the_plan(model):
     """T_F ÿ + ẏ = G·[r − y − T_F ẏ](t − L), integrated at 0.1 ms with an exact delay line."""
-    u = replace(build_unit_loops(model.profile)[3], min_flow_pos=0.0, min_flow_neg=0.0,
-                lower=-1.0, upper=1.0)          # a sway limiter: the slowest loop, 1/G = 0.86 s
+    u = replace(
+        build_unit_loops(model.profile)[3], min_flow_pos=0.0, min_flow_neg=0.0, lower=-1.0, upper=1.0
+    )  # a sway limiter: the slowest loop, 1/G = 0.86 s
     h, t_end, dist = 1e-4, 2.0, 0.03
     n_delay = round(u.delay_s / h)
     errs = {}
@@ -62,14 +67,14 @@ def test_shaped_reference_makes_the_linear_loop_follow_the_plan(model):
             _, v_l, a_l = _smooth_move(np.array(t + u.delay_s), t_end, dist)
             motion = ActuatorMotion(*(np.full(5, float(x)) for x in (q, v, v_l, a_l)))
             r = feedforward_reference((u,) * 5, motion)[0] if shaped else float(q)
-            hist.append(r - y - u.lag_s * yd)   # the controller's PD input now, acting after L
+            hist.append(r - y - u.lag_s * yd)  # the controller's PD input now, acting after L
             ydd = (u.gain_per_s * hist.pop(0) - yd) / u.lag_s
             y, yd = y + h * yd, yd + h * ydd
             worst = max(worst, abs(y - float(_smooth_move(np.array(t + h), t_end, dist)[0])))
             if 0.9 < t < 1.1:
                 lag_err.append((float(q) - y, float(v)))
         errs[shaped] = (worst, lag_err)
-    assert errs[True][0] < 2e-4 * dist / 0.03        # follows the plan (Euler error only)
+    assert errs[True][0] < 2e-4 * dist / 0.03  # follows the plan (Euler error only)
     # unshaped it lags by centimetres (the ramp lag 1/G + T_F is checked against the ECU in
     # test_closed_loop.py); mid-move the piston is behind the plan
     e, v = errs[False][1][len(errs[False][1]) // 2]
@@ -81,10 +86,10 @@ def test_minimum_flow_is_compensated_with_the_sign_of_the_command(model):
     """Plant with the valve's minimum flow: T_F ÿ + ẏ = G·s(t − L) + w·sign s(t − L),
     s = r − y − T_F ẏ (dead-zone compensation makes any command give at least w). The shaped
     reference follows the plan when it knows w, and lags by about w/G when it does not."""
-    u = replace(build_unit_loops(model.profile)[3], lower=-1.0, upper=1.0)     # left limiter
-    assert u.min_flow_pos / u.gain_per_s > 2.5e-4                               # ≈ 1.9 counts
+    u = replace(build_unit_loops(model.profile)[3], lower=-1.0, upper=1.0)  # left limiter
+    assert u.min_flow_pos / u.gain_per_s > 2.5e-4  # ≈ 1.9 counts
     blind = replace(u, min_flow_pos=0.0, min_flow_neg=0.0)
-    h, t_end, dist = 1e-4, 3.0, -0.02                                           # a retracting move
+    h, t_end, dist = 1e-4, 3.0, -0.02  # a retracting move
     n_delay = round(u.delay_s / h)
     worst = {}
     for name, loop in (("known", u), ("blind", blind)):
@@ -120,7 +125,7 @@ def test_shaped_reference_against_the_simulated_cylinder_and_controller(model):
     for shaped in (True, False):
         cyl, ctl = Cylinder(p, initial_counts=start), UnitController(p)
         err = 0.0
-        for j in range(500):                                  # 5 s at the 10 ms controller period
+        for j in range(500):  # 5 s at the 10 ms controller period
             t = j * 0.01
             q, v, _ = _smooth_move(np.array(t), 3.0, 0.008)
             _, v_l, a_l = _smooth_move(np.array(t + u.delay_s), 3.0, 0.008)
@@ -140,12 +145,12 @@ def test_shaped_reference_against_the_simulated_cylinder_and_controller(model):
 def test_shaped_reference_stays_in_the_strokes_and_is_pulled_back_when_refused(model):
     loops = build_unit_loops(model.profile)
     q = np.array([u.upper for u in loops]) - 1e-4
-    v = np.array([1.0, 0.05, 0.05, 0.02, 0.02])              # fast towards the upper ends
+    v = np.array([1.0, 0.05, 0.05, 0.02, 0.02])  # fast towards the upper ends
     r = feedforward_reference(loops, ActuatorMotion(q, v, v, np.zeros(5)))
     assert np.all(r <= [u.upper for u in loops]) and np.all(r >= q)
     planned, shaped = np.zeros(5), np.full(5, 0.08)
 
-    def check(x):                                            # refuses anything beyond 0.025 m
+    def check(x):  # refuses anything beyond 0.025 m
         if np.any(x > 0.025):
             raise ValueError("limit")
 
@@ -180,7 +185,7 @@ def test_jog_reference_extrapolates_the_rates_and_stops_at_zero(model):
     pose = np.array([0.0, 0.1, 0.0, 0.0])
     q, jac = inverse.solve_full(pose)[:2]
     shaper = FeedforwardShaper(loops, inverse.solve_full, lambda x: None)
-    vz, az = 0.05, -0.2                                     # rising at 50 mm/s, braking at 0.2 m/s²
+    vz, az = 0.05, -0.2  # rising at 50 mm/s, braking at 0.2 m/s²
     st = MotionState(pose, np.array([0.0, vz, 0.0, 0.0]), np.array([0.0, az, 0.0, 0.0]))
     rates, acc = jac @ st.velocity, jac @ st.acceleration
     r = shaper.for_state(st, q, rates)
@@ -188,7 +193,9 @@ def test_jog_reference_extrapolates_the_rates_and_stops_at_zero(model):
     v_ahead = rates[0] + lift.delay_s * acc[0]
     drive = v_ahead + lift.lag_s * acc[0]
     w = lift.min_flow_pos if drive > 0 else lift.min_flow_neg
-    assert r[0] == pytest.approx(q[0] + lift.lag_s * rates[0] + (drive - np.sign(drive) * w) / lift.gain_per_s, rel=1e-12)
+    assert r[0] == pytest.approx(
+        q[0] + lift.lag_s * rates[0] + (drive - np.sign(drive) * w) / lift.gain_per_s, rel=1e-12
+    )
     # nearly stopped: v + L·a would reverse; the reference leads by no more than the lag of the rate now
     st2 = MotionState(pose, np.array([0.0, 0.005, 0.0, 0.0]), np.array([0.0, -0.2, 0.0, 0.0]))
     r2 = shaper.for_state(st2, q, jac @ st2.velocity)

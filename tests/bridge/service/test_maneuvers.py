@@ -8,11 +8,18 @@ import numpy as np
 import pytest
 import yaml
 
-from bridge.service.maneuvers.runner import LoopState, ManeuverRunner
 from bridge.service.maneuvers.language import (
-    MAX_SCRIPT_BYTES, MAX_STEPS, ManeuverError, ManeuverScript, PlanningContext, StepError, guarded_plan_step,
-    parse_maneuver, validate,
+    MAX_SCRIPT_BYTES,
+    MAX_STEPS,
+    ManeuverError,
+    ManeuverScript,
+    PlanningContext,
+    StepError,
+    guarded_plan_step,
+    parse_maneuver,
+    validate,
 )
+from bridge.service.maneuvers.runner import LoopState, ManeuverRunner
 from planner.limits.guard import Guard
 from planner.trajectory import MotionState, PlanError, TrajectoryPlanner
 
@@ -42,34 +49,37 @@ def test_parse_the_documented_example_and_round_trip():
     assert parse_maneuver("steps: [{wait: 1}]").timeout_s == 60.0  # the default timeout
 
 
-@pytest.mark.parametrize("text, step, needles", [
-    ("steps: [{goto: {z: 5}}]", 0, ["steps[0].goto.z = 5", "out of range", "z >= -2 and <= 2 m"]),
-    ("steps: [{wait: 1}, {goto: {yaw: 0.1}}]", 1, ["steps[1].goto.yaw", "unknown key", "x, z, roll, pitch"]),
-    ("steps: [{goto: {}}]", 0, ["at least one of x, z, roll, pitch"]),
-    ("steps: [{wait: -1}]", 0, ["seconds = -1", "seconds > 0 and <= 3600 s"]),
-    ("steps: [{wait: '3'}]", 0, ["seconds = '3'", "valid number"]),
-    ("steps: [{wait: .nan}]", 0, ["seconds = nan", "finite"]),
-    ("steps: [{speed: .inf}]", 0, ["scale = inf", "finite", "scale > 0 and <= 1"]),
-    ("steps: [{speed: yes}]", 0, ["scale = True"]),
-    ("steps: [{goto: {x: 1.0e+999}}]", 0, ["x = inf", "finite"]),
-    ("steps: [{goto: {z: 123456789012345678901234567890}}]", 0, ["integer of 30 digits", "out of range"]),
-    ("steps: [{wait_for: 3}]", 0, ["wait_for must be a mapping", "distance"]),
-    ("steps: [{wait_for: {distance: 0}}]", 0, ["distance = 0", "distance > 0 and <= 10000 m"]),
-    ("steps: [{preset: 'two words'}]", 0, ["preset.name = 'two words'", "letters, digits"]),
-    ("steps: [{preset: {speed_scale: 0.5}}]", 0, ["preset.name: is required"]),
-    ("steps: [{goto: {z: 0.1, speed_scale: 0}}]", 0, ["speed_scale = 0", "speed_scale > 0 and <= 1"]),
-    ("steps: [{fly: 1}]", 0, ["unknown step 'fly'", "goto, preset, wait, wait_for, speed"]),
-    ("steps: [{wait: 1, speed: 1}]", 0, ["exactly one step key", "wait, speed"]),
-    ("steps: [{wait: 1}, 7]", 1, ["steps[1] must be a mapping", "got 7"]),
-    ("timeout: 0\nsteps: [{wait: 1}]", None, ["timeout = 0", "timeout > 0 and <= 3600 s"]),
-    ("colour: red\nsteps: [{wait: 1}]", None, ["colour: unknown key", "name, description, timeout"]),
-    ("name: 'a/b'\nsteps: [{wait: 1}]", None, ["name = 'a/b'"]),
-    ("steps: []", None, ["non-empty list", "an empty list"]),
-    ("[1, 2]", None, ["must be a mapping with 'steps'"]),
-    ("steps: [{goto: {z: 0.1}", None, ["not valid YAML", "line 1"]),
-    ("{1: 2, steps: [{wait: 1}]}", None, ["keys must be strings"]),
-    ("a: &x [1, 2]\nb: *x\nsteps: [{wait: 1}]", None, ["aliases"]),
-])
+@pytest.mark.parametrize(
+    "text, step, needles",
+    [
+        ("steps: [{goto: {z: 5}}]", 0, ["steps[0].goto.z = 5", "out of range", "z >= -2 and <= 2 m"]),
+        ("steps: [{wait: 1}, {goto: {yaw: 0.1}}]", 1, ["steps[1].goto.yaw", "unknown key", "x, z, roll, pitch"]),
+        ("steps: [{goto: {}}]", 0, ["at least one of x, z, roll, pitch"]),
+        ("steps: [{wait: -1}]", 0, ["seconds = -1", "seconds > 0 and <= 3600 s"]),
+        ("steps: [{wait: '3'}]", 0, ["seconds = '3'", "valid number"]),
+        ("steps: [{wait: .nan}]", 0, ["seconds = nan", "finite"]),
+        ("steps: [{speed: .inf}]", 0, ["scale = inf", "finite", "scale > 0 and <= 1"]),
+        ("steps: [{speed: yes}]", 0, ["scale = True"]),
+        ("steps: [{goto: {x: 1.0e+999}}]", 0, ["x = inf", "finite"]),
+        ("steps: [{goto: {z: 123456789012345678901234567890}}]", 0, ["integer of 30 digits", "out of range"]),
+        ("steps: [{wait_for: 3}]", 0, ["wait_for must be a mapping", "distance"]),
+        ("steps: [{wait_for: {distance: 0}}]", 0, ["distance = 0", "distance > 0 and <= 10000 m"]),
+        ("steps: [{preset: 'two words'}]", 0, ["preset.name = 'two words'", "letters, digits"]),
+        ("steps: [{preset: {speed_scale: 0.5}}]", 0, ["preset.name: is required"]),
+        ("steps: [{goto: {z: 0.1, speed_scale: 0}}]", 0, ["speed_scale = 0", "speed_scale > 0 and <= 1"]),
+        ("steps: [{fly: 1}]", 0, ["unknown step 'fly'", "goto, preset, wait, wait_for, speed"]),
+        ("steps: [{wait: 1, speed: 1}]", 0, ["exactly one step key", "wait, speed"]),
+        ("steps: [{wait: 1}, 7]", 1, ["steps[1] must be a mapping", "got 7"]),
+        ("timeout: 0\nsteps: [{wait: 1}]", None, ["timeout = 0", "timeout > 0 and <= 3600 s"]),
+        ("colour: red\nsteps: [{wait: 1}]", None, ["colour: unknown key", "name, description, timeout"]),
+        ("name: 'a/b'\nsteps: [{wait: 1}]", None, ["name = 'a/b'"]),
+        ("steps: []", None, ["non-empty list", "an empty list"]),
+        ("[1, 2]", None, ["must be a mapping with 'steps'"]),
+        ("steps: [{goto: {z: 0.1}", None, ["not valid YAML", "line 1"]),
+        ("{1: 2, steps: [{wait: 1}]}", None, ["keys must be strings"]),
+        ("a: &x [1, 2]\nb: *x\nsteps: [{wait: 1}]", None, ["aliases"]),
+    ],
+)
 def test_bad_scripts_name_step_field_and_range(text, step, needles):
     with pytest.raises(ManeuverError) as exc:
         parse_maneuver(text)
@@ -94,7 +104,8 @@ def test_size_limits_and_yaml_bombs():
         parse_maneuver("steps:\n" + "  - wait: 1\n" * (MAX_STEPS + 1))
     assert len(parse_maneuver("steps:\n" + "  - wait: 1\n" * MAX_STEPS).steps) == MAX_STEPS
     laughs = "a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
-        f"{chr(98 + i)}: &{chr(98 + i)} [{', '.join(['*' + chr(97 + i)] * 9)}]\n" for i in range(8))
+        f"{chr(98 + i)}: &{chr(98 + i)} [{', '.join(['*' + chr(97 + i)] * 9)}]\n" for i in range(8)
+    )
     with pytest.raises(ManeuverError, match="aliases|deeper"):  # 9^9 references, refused without expanding
         parse_maneuver(laughs + "steps: [{wait: 1}]")
     with pytest.raises(ManeuverError, match="nesting too deep|deeper"):
@@ -104,8 +115,17 @@ def test_size_limits_and_yaml_bombs():
             parse_maneuver(bad)
 
 
-@pytest.mark.parametrize("text", ["!!timestamp 99999-01-01", "!!int", "!!python/object:os.system {}",
-                                  "steps: [{wait: !!binary 'x'}]", "steps: [{wait: !!float 'abc'}]", "\x00"])
+@pytest.mark.parametrize(
+    "text",
+    [
+        "!!timestamp 99999-01-01",
+        "!!int",
+        "!!python/object:os.system {}",
+        "steps: [{wait: !!binary 'x'}]",
+        "steps: [{wait: !!float 'abc'}]",
+        "\x00",
+    ],
+)
 def test_yaml_that_trips_the_parser_itself_is_a_clean_error(text):
     with pytest.raises(ManeuverError, match="not valid YAML") as exc:
         parse_maneuver(text)
@@ -116,7 +136,17 @@ def test_fuzzed_scripts_only_ever_raise_maneuver_error():
     rng = np.random.default_rng(11)
     base = HEADLAND
     alphabet = list("{}[]:,-'\"&*!|>#%@ \n\t0123456789.eE+naxzrolpitchwaspedgfy_") + [
-        "\x00", "é", ".nan", ".inf", "!!int", "!!timestamp 99999-01-01", "!!binary", "&a", "*a", "<<: *a"]
+        "\x00",
+        "é",
+        ".nan",
+        ".inf",
+        "!!int",
+        "!!timestamp 99999-01-01",
+        "!!binary",
+        "&a",
+        "*a",
+        "<<: *a",
+    ]
     parsed = rejected = 0
     for _ in range(600):
         chars = list(base)
@@ -183,15 +213,20 @@ def test_validation_chains_partial_goals_speeds_and_durations():
     goals = [c[1] for c in planner.calls]
     scales = [c[2] for c in planner.calls]
     np.testing.assert_allclose(starts[0], [0, 0, 0, 0])
-    np.testing.assert_allclose(starts[1], [0, 0.25, 0, 0.05])      # the partial goto kept x and roll
-    np.testing.assert_allclose(starts[2], [0.02, -0.1, 0, 0])      # the preset's full pose
+    np.testing.assert_allclose(starts[1], [0, 0.25, 0, 0.05])  # the partial goto kept x and roll
+    np.testing.assert_allclose(starts[2], [0.02, -0.1, 0, 0])  # the preset's full pose
     assert goals == [{"z": 0.25, "pitch": 0.05}, {"x": 0.02, "z": -0.1, "roll": 0.0, "pitch": 0.0}, {"x": 0.0}]
     assert scales == [0.6, 0.8, 1.0]  # `speed`, the preset's stored scale, the step's own scale
     expected = 0.25 / 0.06 + 0.35 / 0.08 + 1.5 + 0.02 / 0.1  # hand-computed from the double's law
     assert r.duration == pytest.approx(expected)
     assert r.distance_m == 12.0
-    assert [(p.index, p.kind) for p in r.steps] == [(1, "goto"), (2, "wait_for"), (3, "preset"), (4, "wait"),
-                                                   (5, "goto")]
+    assert [(p.index, p.kind) for p in r.steps] == [
+        (1, "goto"),
+        (2, "wait_for"),
+        (3, "preset"),
+        (4, "wait"),
+        (5, "goto"),
+    ]
     assert r.steps[4].goal == {"x": 0.0, "z": -0.1, "roll": 0.0, "pitch": 0.0}  # full goal for the runner
     assert r.to_json() == {"ok": True, "duration": r.duration, "errors": []}
 
@@ -275,7 +310,7 @@ def test_runner_walks_every_step_kind_in_order():
     assert c.action == "done" and c.events[-1]["event"] == "maneuver_finished"
     assert c.events[-1]["elapsed"] == pytest.approx(11.0)
     assert run.status == "finished"
-    assert run.step(11.02, _state(ecu=11.0)) .action == "done" and run.step(11.04, _state(ecu=11.0)).events == ()
+    assert run.step(11.02, _state(ecu=11.0)).action == "done" and run.step(11.04, _state(ecu=11.0)).events == ()
 
 
 def _started(text="steps: [{goto: {z: 0.1}}, {wait: 5}]", **kw):
@@ -285,13 +320,16 @@ def _started(text="steps: [{goto: {z: 0.1}}, {wait: 5}]", **kw):
     return run
 
 
-@pytest.mark.parametrize("now, state, reason", [
-    (61.0, _state(True, 8, 60.99), "timeout"),                     # default timeout 60 s
-    (1.0, _state(True, 8, 0.5), "ecu_silent"),                     # silent 0.5 s > 0.3 s
-    (1.0, _state(True, 8, None), "ecu_silent"),                    # never heard
-    (1.0, _state(True, 8, 0.99, "esm would be 4.1 kNm"), "predicted_violation"),
-    (1.0, _state(True, 9, 0.99), "interrupted"),                   # another motion replaced ours
-])
+@pytest.mark.parametrize(
+    "now, state, reason",
+    [
+        (61.0, _state(True, 8, 60.99), "timeout"),  # default timeout 60 s
+        (1.0, _state(True, 8, 0.5), "ecu_silent"),  # silent 0.5 s > 0.3 s
+        (1.0, _state(True, 8, None), "ecu_silent"),  # never heard
+        (1.0, _state(True, 8, 0.99, "esm would be 4.1 kNm"), "predicted_violation"),
+        (1.0, _state(True, 9, 0.99), "interrupted"),  # another motion replaced ours
+    ],
+)
 def test_runner_abort_conditions(now, state, reason):
     run = _started()
     c = run.step(now, state)
@@ -315,11 +353,11 @@ def test_runner_stop_request_and_tolerance_of_a_late_snapshot():
 
 def test_wait_for_rebases_a_reset_odometer_and_waits_without_distance():
     run = ManeuverRunner(_validated("steps: [{wait_for: {distance: 5}}]"))
-    assert run.step(0.0, _state(), None).action == "continue"       # no wheel speed yet
+    assert run.step(0.0, _state(), None).action == "continue"  # no wheel speed yet
     assert run.step(0.1, _state(ecu=0.1), 50.0).action == "continue"  # baseline 50 m
     assert run.step(0.2, _state(ecu=0.2), 54.0).action == "continue"
-    assert run.step(0.3, _state(ecu=0.3), 1.0).action == "continue"   # odometer reset → baseline 1 m
-    assert run.step(0.4, _state(ecu=0.4), 5.9).action == "continue"   # only 4.9 m since the reset
+    assert run.step(0.3, _state(ecu=0.3), 1.0).action == "continue"  # odometer reset → baseline 1 m
+    assert run.step(0.4, _state(ecu=0.4), 5.9).action == "continue"  # only 4.9 m since the reset
     assert run.step(0.5, _state(ecu=0.5), 6.0).action == "done"
 
 

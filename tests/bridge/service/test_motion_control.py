@@ -32,14 +32,21 @@ class Bench:
     def __init__(self, model):
         self.rig = SimRig(model)
         self.rig.start()
-        self.rig.run_until(0.5)          # address claims (250 ms) and the first measurements
+        self.rig.run_until(0.5)  # address claims (250 ms) and the first measurements
         self.states, self.events = [], []
-        ch = f"tractor-{uuid.uuid4().hex}"                 # the simulated tractor's wheel-based speed, 2 m/s
+        ch = f"tractor-{uuid.uuid4().hex}"  # the simulated tractor's wheel-based speed, 2 m/s
         self.buses = [can.Bus(interface="virtual", channel=ch) for _ in range(2)]
         self.tractor, self.odometer = SimulatedTractor(self.buses[0], 2.0), WheelOdometer(self.buses[1])
-        self.mc = MotionController(Guard(TrajectoryPlanner(model)), Guard(TrajectoryPlanner(model)), self.rig.link,
-                                   lambda: self.rig.now_s, on_state=self.states.append, on_event=self.events.append,
-                                   spawn=lambda fn: fn(), odometer=self.odometer.distance_m)
+        self.mc = MotionController(
+            Guard(TrajectoryPlanner(model)),
+            Guard(TrajectoryPlanner(model)),
+            self.rig.link,
+            lambda: self.rig.now_s,
+            on_state=self.states.append,
+            on_event=self.events.append,
+            spawn=lambda fn: fn(),
+            odometer=self.odometer.distance_m,
+        )
         self.run(0.1)
 
     def run(self, seconds: float, *, ecu: bool = True, each=None) -> None:
@@ -48,7 +55,7 @@ class Bench:
             t = self.rig.now_s + DT
             if ecu:
                 self.rig.run_until(t)
-            else:                                       # the ECU falls silent: only the link runs
+            else:  # the ECU falls silent: only the link runs
                 while self.rig.now_s < t - 1e-9:
                     self.rig._k += 1
                     self.rig.link.poll(self.rig.now_s)
@@ -74,7 +81,6 @@ class Bench:
     def names(self) -> list[str]:
         return [e["event"] for e in self.events]
 
-
     def close(self) -> None:
         self.rig.close()
         for b in self.buses:
@@ -94,10 +100,10 @@ def test_goto_reaches_the_goal_through_the_can_path(bench):
     assert acc.motion_id == 1 and acc.duration > 0
     bench.run(acc.duration + 1.5)
     assert not bench.states[-1]["moving"]
-    goal = np.array([0.02, 0.25, start[2], start[3]])       # partial goal: roll and pitch kept
+    goal = np.array([0.02, 0.25, start[2], start[3]])  # partial goal: roll and pitch kept
     np.testing.assert_allclose(bench.ref(), goal, atol=1e-9)
     err = bench.measured() - goal
-    assert abs(err[0]) < 5e-3 and abs(err[1]) < 5e-3, err       # closed loop, quantised sensors
+    assert abs(err[0]) < 5e-3 and abs(err[1]) < 5e-3, err  # closed loop, quantised sensors
     assert abs(err[2]) < 0.01 and abs(err[3]) < 0.01, err
     assert bench.names().count("motion_started") == 1 and bench.names().count("motion_finished") == 1
     fin = [e for e in bench.events if e["event"] == "motion_finished"][0]
@@ -110,8 +116,21 @@ def test_state_messages_are_consecutive_and_complete(bench):
     seqs = [s["seq"] for s in bench.states]
     assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))
     s = bench.states[-1]
-    for k in ("t", "seq", "pose", "actuators", "velocity", "mode", "moving", "motion_id", "limited",
-              "kinematic_margin", "stability", "ecu", "maneuver"):
+    for k in (
+        "t",
+        "seq",
+        "pose",
+        "actuators",
+        "velocity",
+        "mode",
+        "moving",
+        "motion_id",
+        "limited",
+        "kinematic_margin",
+        "stability",
+        "ecu",
+        "maneuver",
+    ):
         assert k in s
     assert set(s["ecu"]) >= {"online", "watchdog", "faults"}
     assert s["stability"]["ok"] and s["stability"]["ssm"] > 0
@@ -124,22 +143,28 @@ def test_a_new_goto_replaces_the_running_one_smoothly(bench):
     second = bench.mc.goto({"x": 0.04, "z": 0.0})
     new = bench.mc._active
     assert second.motion_id == first.motion_id + 1 and new.prev is old
-    handover = plan_state(old, new.t0)                     # the new plan starts from the old one's exact state
+    handover = plan_state(old, new.t0)  # the new plan starts from the old one's exact state
     np.testing.assert_allclose(new.plan.start.position, handover.position, atol=1e-12)
     np.testing.assert_allclose(new.plan.start.velocity, handover.velocity, atol=1e-12)
     np.testing.assert_allclose(new.plan.start.acceleration, handover.acceleration, atol=1e-12)
-    assert np.linalg.norm(handover.velocity) > 1e-3          # it really was moving
+    assert np.linalg.norm(handover.velocity) > 1e-3  # it really was moving
     bench.run_until_rest()
     vel = np.array([[s["velocity"][k] for k in POSE] for s in bench.states if s["reference"] is not None])
-    dv = np.abs(np.diff(vel, axis=0)) / DT                    # mean pose-space acceleration between cycles
-    tp = bench.mc.planner                                     # bound: the limits either plan may use
-    a_max = np.maximum.reduce([tp.any_direction.acceleration,
-                               straight_line_limits(tp.inverse, old.plan.start.position, old.plan.state_at(
-                                   old.plan.duration).position, tp.limits).acceleration,
-                               straight_line_limits(tp.inverse, handover.position, new.plan.state_at(
-                                   new.plan.duration).position, tp.limits).acceleration])
+    dv = np.abs(np.diff(vel, axis=0)) / DT  # mean pose-space acceleration between cycles
+    tp = bench.mc.planner  # bound: the limits either plan may use
+    a_max = np.maximum.reduce(
+        [
+            tp.any_direction.acceleration,
+            straight_line_limits(
+                tp.inverse, old.plan.start.position, old.plan.state_at(old.plan.duration).position, tp.limits
+            ).acceleration,
+            straight_line_limits(
+                tp.inverse, handover.position, new.plan.state_at(new.plan.duration).position, tp.limits
+            ).acceleration,
+        ]
+    )
     assert np.all(dv <= a_max * (1 + 1e-6) + 1e-9), (dv.max(axis=0), a_max)
-    jump = np.abs(vel[1:] - vel[:-1]).max(axis=0)             # a restart from rest would jump by |v| at once
+    jump = np.abs(vel[1:] - vel[:-1]).max(axis=0)  # a restart from rest would jump by |v| at once
     assert jump.max() < 0.5 * np.abs(handover.velocity).max()
     assert [e["reason"] for e in bench.events if e["event"] == "motion_aborted"] == ["replaced by goto"]
     np.testing.assert_allclose(bench.ref()[:2], [0.04, 0.0], atol=1e-9)
@@ -150,14 +175,14 @@ def test_jog_takes_over_a_goto_and_dies_with_its_ttl(bench):
     bench.run(0.5)
     j = bench.mc.jog({"vx": 0.02}, 0.2)
     assert "motion_aborted" in bench.names()
-    with pytest.raises(MotionError) as ei:               # jog > goto while the jog command is live
+    with pytest.raises(MotionError) as ei:  # jog > goto while the jog command is live
         bench.mc.goto({"z": 0.0})
     assert ei.value.code == "busy" and "jog" in str(ei.value)
     bench.run_until_rest()
     assert bench.states[-1]["motion_id"] == j.motion_id
     assert any(e["event"] == "motion_finished" and e["motion_id"] == j.motion_id for e in bench.events)
     assert np.allclose([bench.states[-1]["velocity"][k] for k in POSE], 0.0)
-    assert bench.mc.goto({"z": 0.1}).motion_id > j.motion_id   # after the dead-man stop, goto is accepted
+    assert bench.mc.goto({"z": 0.1}).motion_id > j.motion_id  # after the dead-man stop, goto is accepted
 
 
 def test_jog_stops_at_the_workspace_face_and_says_so(bench):
@@ -167,16 +192,17 @@ def test_jog_stops_at_the_workspace_face_and_says_so(bench):
     def hold():
         bench.mc.jog({"vx": 0.05}, 0.2)
         xs.append(bench.mc.current_state().position[0])
+
     bench.run(3.0, each=hold)
     assert max(xs) <= x_max + 1e-9
-    assert max(xs) > x_max - 0.005                        # it did get there
+    assert max(xs) > x_max - 0.005  # it did get there
     assert bench.states[-1]["limited"].get("x+") == "workspace:x:max"
     reached = [e for e in bench.events if e["event"] == "limit_reached"]
     assert reached and reached[0]["limits"].get("x+") == "workspace:x:max"
 
 
 def test_stop_has_precedence_and_goto_waits_for_rest(bench):
-    assert bench.mc.stop() is None                        # at rest: nothing to stop
+    assert bench.mc.stop() is None  # at rest: nothing to stop
     bench.mc.goto({"z": 0.28})
     bench.run(0.4)
     sid = bench.mc.stop()
@@ -203,7 +229,7 @@ def test_modes_gate_motion(bench):
     vz = []
     bench.run(1.0, each=lambda: (bench.mc.jog({"vz": 1.0}, 0.2), vz.append(bench.mc.current_state().velocity[1])))
     assert max(vz) <= ATTACH_SPEED_SCALE * vmax * (1 + 1e-6) and max(vz) > 0.5 * ATTACH_SPEED_SCALE * vmax
-    with pytest.raises(MotionError) as ei:               # mode change while moving: refused
+    with pytest.raises(MotionError) as ei:  # mode change while moving: refused
         bench.mc.set_mode("auto")
     assert ei.value.code == "busy"
     bench.run_until_rest()
@@ -215,12 +241,12 @@ def test_modes_gate_motion(bench):
 def test_ecu_silence_aborts_and_only_a_fresh_command_moves_again(bench):
     acc = bench.mc.goto({"z": 0.28})
     bench.run(0.5)
-    bench.run(0.4, ecu=False)                             # > 200 ms without measurements
+    bench.run(0.4, ecu=False)  # > 200 ms without measurements
     assert "fault" in bench.names()
     aborted = [e for e in bench.events if e["event"] == "motion_aborted"]
     assert aborted and aborted[-1]["motion_id"] == acc.motion_id and "fault" in aborted[-1]["reason"]
     assert not bench.rig.link.streaming and not bench.states[-1]["moving"]
-    bench.run(1.0)                                        # the ECU is back: nothing moves by itself
+    bench.run(1.0)  # the ECU is back: nothing moves by itself
     assert not bench.rig.link.streaming and bench.states[-1]["reference"] is None
     again = bench.mc.goto({"z": 0.1})
     bench.run(again.duration + 1.0)
@@ -238,8 +264,13 @@ def test_maneuver_runs_its_steps_and_a_stop_aborts_it(bench):
     assert names.count("maneuver_step") == 3 and "maneuver_finished" in names
     assert all(e.get("maneuver_id") == mid for e in bench.events if e["event"].startswith("maneuver_"))
     np.testing.assert_allclose(bench.ref()[:2], [0.03, 0.25], atol=1e-9)
-    bench.mc.run_maneuver(validate(script.replace("0.25", "0.0"), PlanningContext(
-        bench.mc.current_state(), bench.mc.plan_step, lambda name: None)), "m2")
+    bench.mc.run_maneuver(
+        validate(
+            script.replace("0.25", "0.0"),
+            PlanningContext(bench.mc.current_state(), bench.mc.plan_step, lambda name: None),
+        ),
+        "m2",
+    )
     bench.run(0.5)
     assert bench.states[-1]["maneuver"]["name"] == "m2"
     bench.mc.stop()
@@ -252,31 +283,36 @@ def test_wait_for_waits_for_the_distance_travelled(bench):
     script = "steps:\n  - wait_for: {distance: 3.0}\n  - goto: {z: 0.2}\n"
     res = validate(script, PlanningContext(bench.mc.current_state(), bench.mc.plan_step, lambda name: None))
     assert res.ok and res.distance_m == 3.0
-    bench.run(0.3)                                        # the odometer has heard the tractor
+    bench.run(0.3)  # the odometer has heard the tractor
     d0 = bench.odometer.distance_m()
     bench.mc.run_maneuver(res, "drive")
     starts = []
     bench.run(3.0, each=lambda: starts.append(bench.odometer.distance_m()) if bench.mc._active else None)
     assert starts, "the goto step never started"
-    travelled = starts[0] - d0                            # 2 m/s: the goto starts after ~1.5 s, ~3 m
+    travelled = starts[0] - d0  # 2 m/s: the goto starts after ~1.5 s, ~3 m
     assert 3.0 <= travelled <= 3.0 + 2.0 * 0.2, travelled
 
 
 def test_goto_right_after_a_jog_died_starts_from_its_braking_state(bench):
     def refresh():
         bench.mc.jog({"vx": 0.03}, 0.05)
-    bench.run(0.6, each=refresh)                         # jogging at speed, the command refreshed every cycle
+
+    bench.run(0.6, each=refresh)  # jogging at speed, the command refreshed every cycle
     v_jog = bench.mc.current_state().velocity[0]
     assert v_jog > 0.01
-    bench.rig.run_until(bench.rig.now_s + 0.06)           # the command dies, no cycle has run since
+    bench.rig.run_until(bench.rig.now_s + 0.06)  # the command dies, no cycle has run since
     acc = bench.mc.goto({"z": 0.2})
     new = bench.mc._active
-    assert new.prev is not None and new.prev.kind == "jog"   # the jog's braking plan runs until the switch
+    assert new.prev is not None and new.prev.kind == "jog"  # the jog's braking plan runs until the switch
     handover = plan_state(new.prev, new.t0)
     np.testing.assert_allclose(new.plan.start.velocity, handover.velocity, atol=1e-12)
     bench.run(acc.duration + 0.5)
     vel = np.array([[s["velocity"][k] for k in POSE] for s in bench.states if s["reference"] is not None])
     tp = bench.mc.planner
-    a_max = np.maximum(tp.any_direction.acceleration, straight_line_limits(
-        tp.inverse, handover.position, new.plan.state_at(new.plan.duration).position, tp.limits).acceleration)
+    a_max = np.maximum(
+        tp.any_direction.acceleration,
+        straight_line_limits(
+            tp.inverse, handover.position, new.plan.state_at(new.plan.duration).position, tp.limits
+        ).acceleration,
+    )
     assert np.all(np.abs(np.diff(vel, axis=0)) / DT <= a_max * (1 + 1e-6) + 1e-9)

@@ -13,8 +13,8 @@ import pytest
 
 from bridge.service.motion.controller import MotionController
 from bridge.sim.move import SimRig
-from planner.model.exact_inverse import ExactInverse
 from planner.limits.guard import Guard
+from planner.model.exact_inverse import ExactInverse
 from planner.trajectory import TrajectoryPlanner
 
 POSE = ("x", "z", "roll", "pitch")
@@ -27,9 +27,15 @@ def _goto_path(model, feedforward: bool):
     with SimRig(model, initial_actuators=start) as rig:
         rig.start()
         rig.run_until(0.5)
-        mc = MotionController(Guard(TrajectoryPlanner(model)), Guard(TrajectoryPlanner(model)), rig.link,
-                              lambda: rig.now_s, on_state=states.append, spawn=lambda fn: fn(),
-                              feedforward=feedforward)
+        mc = MotionController(
+            Guard(TrajectoryPlanner(model)),
+            Guard(TrajectoryPlanner(model)),
+            rig.link,
+            lambda: rig.now_s,
+            on_state=states.append,
+            spawn=lambda fn: fn(),
+            feedforward=feedforward,
+        )
         mc.cycle()
         p0 = np.array([states[-1]["pose"][k] for k in POSE])
         acc = mc.goto({"x": 0.05, "z": 0.1732})
@@ -63,9 +69,9 @@ def test_goto_keeps_to_the_straight_line_through_the_can_path(runs):
     dev_ff = _deviation_m(p0, p1, truth)
     dev_plain = _deviation_m(*runs[False][:2], runs[False][3])
     assert dev_ff <= 0.010 and _deviation_m(p0, p1, measured) <= 0.010
-    assert dev_plain > 3 * dev_ff                     # unshaped: each cylinder lags by its own loop
+    assert dev_plain > 3 * dev_ff  # unshaped: each cylinder lags by its own loop
     assert mc.shaper.enabled and not runs[False][4].shaper.enabled
-    assert mc.shaper.pulled_back == 0                 # nothing near a hard limit on this move
+    assert mc.shaper.pulled_back == 0  # nothing near a hard limit on this move
 
 
 def test_goto_ends_within_the_steady_state_targets(runs):
@@ -87,11 +93,18 @@ def test_a_jog_into_the_workspace_face_does_not_carry_the_hitch_past_it(model):
         with SimRig(model) as rig:
             rig.start()
             rig.run_until(0.5)
-            mc = MotionController(Guard(TrajectoryPlanner(model)), Guard(TrajectoryPlanner(model)), rig.link,
-                                  lambda: rig.now_s, on_state=states.append, spawn=lambda fn: fn(), feedforward=ff)
+            mc = MotionController(
+                Guard(TrajectoryPlanner(model)),
+                Guard(TrajectoryPlanner(model)),
+                rig.link,
+                lambda: rig.now_s,
+                on_state=states.append,
+                spawn=lambda fn: fn(),
+                feedforward=ff,
+            )
             mc.cycle()
             params, z_true = rig.ecu.params, []
-            for _ in range(450):                             # 9 s of z+ at 50 mm/s: into the face and held there
+            for _ in range(450):  # 9 s of z+ at 50 mm/s: into the face and held there
                 mc.jog({"vz": 0.05}, 0.3)
                 rig.run_until(rig.now_s + 0.02)
                 mc.cycle()

@@ -27,22 +27,23 @@ def test_distance_is_speed_times_time(buses):
     tractor, odo = SimulatedTractor(buses[0], 2.5), WheelOdometer(buses[1])
     tractor.start(0.0)
     odo.start(0.0)
-    assert odo.distance_m() is None                       # nothing heard yet
+    assert odo.distance_m() is None  # nothing heard yet
     t = 0.0
     while t < 10.0 - 1e-9:
         t = round(t + 0.01, 6)
         tractor.poll(t)
         odo.poll(t)
     assert odo.frames == pytest.approx(100, abs=1)
-    assert odo.distance_m() == pytest.approx(2.5 * 10.0, abs=2.5 * 0.1 + 1e-3)   # the last frame is ≤ 0.1 s old
-    for k in range(1, 200):                               # the tractor stops talking: stale after 1 s
+    assert odo.distance_m() == pytest.approx(2.5 * 10.0, abs=2.5 * 0.1 + 1e-3)  # the last frame is ≤ 0.1 s old
+    for k in range(1, 200):  # the tractor stops talking: stale after 1 s
         odo.poll(t + 0.01 * k)
     assert odo.distance_m() is None
 
 
 def send(bus, distance, speed=1.0, source=240):
-    bus.send(encode(WheelBasedSpeed(speed_m_s=speed, distance_m=distance, direction=MachineDirection.FORWARD),
-                    source=source))
+    bus.send(
+        encode(WheelBasedSpeed(speed_m_s=speed, distance_m=distance, direction=MachineDirection.FORWARD), source=source)
+    )
 
 
 def test_wrap_reset_and_foreign_sources(buses):
@@ -50,18 +51,18 @@ def test_wrap_reset_and_foreign_sources(buses):
     odo.start(0.0)
     send(tx, DISTANCE_WRAP_M - 1.0)
     odo.poll(0.1)
-    send(tx, 2.0)                                         # wrapped: 3 m travelled
+    send(tx, 2.0)  # wrapped: 3 m travelled
     odo.poll(0.2)
     assert odo.distance_m() == pytest.approx(3.0, abs=1e-3)
-    send(tx, 7.0, source=17)                              # another node's frame is not our tractor
+    send(tx, 7.0, source=17)  # another node's frame is not our tractor
     odo.poll(0.3)
     assert odo.distance_m() == pytest.approx(3.0, abs=1e-3)
-    send(tx, 100_000.0)                                   # the sender's odometer was reset: not travel
+    send(tx, 100_000.0)  # the sender's odometer was reset: not travel
     odo.poll(0.4)
     send(tx, 100_004.5)
     odo.poll(0.5)
     assert odo.distance_m() == pytest.approx(7.5, abs=1e-3)
-    tx.send(can.Message(arbitration_id=0x0CFE48F0, data=b"\x01\x02", is_extended_id=True))   # wrong DLC
+    tx.send(can.Message(arbitration_id=0x0CFE48F0, data=b"\x01\x02", is_extended_id=True))  # wrong DLC
     odo.poll(0.6)
     assert odo.malformed == 1 and odo.distance_m() == pytest.approx(7.5, abs=1e-3)
 

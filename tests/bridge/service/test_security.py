@@ -10,15 +10,26 @@ import stat
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import pytest
 import zenoh
 
 from bridge.service.security import (
-    MOTION_KEYS, VIEWER_QUERIES, AccessPolicy, Credentials, SecurityError, SecuritySettings, TlsSettings,
-    apply_security, build_acl, build_security_config, exposure_warnings, motion_keys, security_json5,
-    security_sections, write_users_file,
+    MOTION_KEYS,
+    VIEWER_QUERIES,
+    AccessPolicy,
+    Credentials,
+    SecurityError,
+    SecuritySettings,
+    TlsSettings,
+    apply_security,
+    build_acl,
+    build_security_config,
+    exposure_warnings,
+    motion_keys,
+    security_json5,
+    security_sections,
+    write_users_file,
 )
 
 USERS = {"alice": "alice-pw", "bob": "bob-pw", "carol": "carol-pw"}
@@ -54,22 +65,30 @@ def test_acl_restricts_exactly_the_motion_keys(users_file):
     assert subj["operators_users"]["usernames"] == ["alice"]
     assert subj["viewers_users"]["usernames"] == ["bob", "carol"]
     # Zenoh itself accepts the section, and it round-trips through the config
-    cfg = apply_security(zenoh.Config(), SecuritySettings(users_file=users_file, access=AccessPolicy(
-        "fleet/t07/hitch", operators=("alice",), viewers=("bob", "carol"))))
+    cfg = apply_security(
+        zenoh.Config(),
+        SecuritySettings(
+            users_file=users_file,
+            access=AccessPolicy("fleet/t07/hitch", operators=("alice",), viewers=("bob", "carol")),
+        ),
+    )
     assert json.loads(cfg.get_json("access_control"))["rules"][0]["id"] == "observe"
     assert json.loads(cfg.get_json("transport/auth/usrpwd"))["dictionary_file"] == str(users_file.resolve())
 
 
-@pytest.mark.parametrize("kwargs, field", [
-    ({"operators": ("alice",), "viewers": ("alice",)}, "access.viewers"),
-    ({"operators": ("a:b",)}, "access.operators"),
-    ({"operators": "alice"}, "access.operators"),
-    ({}, "access"),
-    ({"prefix": "hitch/", "operators": ("a",)}, "prefix"),
-    ({"prefix": "hi tch//x", "operators": ("a",)}, "prefix"),
-    ({"operators": ("a",), "viewer_queries": ("goto",)}, "access.viewer_queries"),
-    ({"operators": ("a",), "viewer_queries": ("presets/*",)}, "access.viewer_queries"),
-])
+@pytest.mark.parametrize(
+    "kwargs, field",
+    [
+        ({"operators": ("alice",), "viewers": ("alice",)}, "access.viewers"),
+        ({"operators": ("a:b",)}, "access.operators"),
+        ({"operators": "alice"}, "access.operators"),
+        ({}, "access"),
+        ({"prefix": "hitch/", "operators": ("a",)}, "prefix"),
+        ({"prefix": "hi tch//x", "operators": ("a",)}, "prefix"),
+        ({"operators": ("a",), "viewer_queries": ("goto",)}, "access.viewer_queries"),
+        ({"operators": ("a",), "viewer_queries": ("presets/*",)}, "access.viewer_queries"),
+    ],
+)
 def test_bad_access_policies_name_the_field(kwargs, field):
     with pytest.raises(SecurityError) as exc:
         AccessPolicy(**kwargs)
@@ -102,8 +121,11 @@ def test_inconsistent_settings_are_refused(tmp_path, users_file):
 
 
 def test_security_file_round_trip_and_refusals(tmp_path, users_file):
-    settings = SecuritySettings(credentials=Credentials("svc", "svc-pw"), users_file=users_file,
-                                access=AccessPolicy(operators=("alice",), viewers=("bob",)))
+    settings = SecuritySettings(
+        credentials=Credentials("svc", "svc-pw"),
+        users_file=users_file,
+        access=AccessPolicy(operators=("alice",), viewers=("bob",)),
+    )
     path = tmp_path / "security.json5"
     path.write_text(security_json5(settings))
     assert security_sections(path) == security_sections(settings)
@@ -112,10 +134,13 @@ def test_security_file_round_trip_and_refusals(tmp_path, users_file):
     # JSON5 with comments is read by Zenoh's own parser
     path.write_text("// hitch\n{ access_control: { enabled: false, }, }\n")
     assert json.loads(security_sections(path)["access_control"])["enabled"] is False
-    for text, needle in (('{mode: "client"}', "sets mode"), ('{listen: {endpoints: ["tcp/0.0.0.0:1"]}}', "listen"),
-                         ("{transport: {unicast: {max_links: 4}}}", "transport settings other"),
-                         ("{access_contrl: {}}", "not a valid Zenoh security config"),
-                         ("{access_control: {enabled: 1, bogus: 2}}", "not a valid Zenoh")):
+    for text, needle in (
+        ('{mode: "client"}', "sets mode"),
+        ('{listen: {endpoints: ["tcp/0.0.0.0:1"]}}', "listen"),
+        ("{transport: {unicast: {max_links: 4}}}", "transport settings other"),
+        ("{access_contrl: {}}", "not a valid Zenoh security config"),
+        ("{access_control: {enabled: 1, bogus: 2}}", "not a valid Zenoh"),
+    ):
         path.write_text(text)
         with pytest.raises(SecurityError, match=needle):
             security_sections(path)
@@ -129,7 +154,8 @@ def test_exposure_warnings(users_file):
     assert len(w) == 3 and any("unencrypted" in s for s in w) and any("access_control" in s for s in w)
     s = SecuritySettings(users_file=users_file, access=AccessPolicy(operators=("alice",)))
     assert exposure_warnings(["tcp/192.168.1.5:7447"], s) == [
-        "tcp/192.168.1.5:7447 accepts unencrypted links from the network; use tls/… with a certificate"]
+        "tcp/192.168.1.5:7447 accepts unencrypted links from the network; use tls/… with a certificate"
+    ]
     with pytest.raises(SecurityError) as exc:
         exposure_warnings(["tls/127.0.0.1:7447"], s)
     assert exc.value.field == "tls.certificate"
@@ -209,8 +235,13 @@ class _Server:
             settings = str(sec)
         script = tmp_path / "server.py"
         script.write_text(_SERVER.format())
-        self.proc = subprocess.Popen([sys.executable, str(script), mode, endpoint, settings], stdin=subprocess.PIPE,
-                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        self.proc = subprocess.Popen(
+            [sys.executable, str(script), mode, endpoint, settings],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
         ready, _, _ = select.select([self.proc.stdout], [], [], 20)
         line = self.proc.stdout.readline() if ready else ""
         if line.strip() != "ready":
@@ -235,8 +266,12 @@ def _clients(tmp_path, runs: dict[str, dict]) -> dict[str, dict]:
     """Run every client in its own process, in parallel; name → its JSON report."""
     script = tmp_path / "client.py"
     script.write_text(_CLIENT.format())
-    procs = {n: subprocess.Popen([sys.executable, str(script), json.dumps(a)], stdout=subprocess.PIPE,
-                                 stderr=subprocess.PIPE, text=True) for n, a in runs.items()}
+    procs = {
+        n: subprocess.Popen(
+            [sys.executable, str(script), json.dumps(a)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        )
+        for n, a in runs.items()
+    }
     out = {}
     try:
         for n, p in procs.items():
@@ -268,16 +303,21 @@ def server(tmp_path):
 
 def test_acl_permitted_user_moves_refused_user_only_reads(tmp_path, users_file, server):
     ep = f"tcp/127.0.0.1:{_free_port()}"
-    server(ep, SecuritySettings(users_file=users_file,
-                                access=AccessPolicy("hitch", operators=("alice",), viewers=("bob",))))
+    server(
+        ep,
+        SecuritySettings(users_file=users_file, access=AccessPolicy("hitch", operators=("alice",), viewers=("bob",))),
+    )
     keys = ["hitch/goto", "hitch/ik", "hitch/presets/go", "hitch/presets/list", "hitch/mode", "hitch/**", "hitch/*"]
-    r = _clients(tmp_path, {
-        "alice": {"endpoint": ep, "user": "alice", "password": "alice-pw", "keys": keys},
-        "bob": {"endpoint": ep, "user": "bob", "password": "bob-pw", "keys": keys},
-        "carol": {"endpoint": ep, "user": "carol", "password": "carol-pw", "keys": keys},  # no role
-        "mallory": {"endpoint": ep, "user": "bob", "password": "guess", "keys": keys},
-        "anonymous": {"endpoint": ep, "keys": keys},
-    })
+    r = _clients(
+        tmp_path,
+        {
+            "alice": {"endpoint": ep, "user": "alice", "password": "alice-pw", "keys": keys},
+            "bob": {"endpoint": ep, "user": "bob", "password": "bob-pw", "keys": keys},
+            "carol": {"endpoint": ep, "user": "carol", "password": "carol-pw", "keys": keys},  # no role
+            "mallory": {"endpoint": ep, "user": "bob", "password": "guess", "keys": keys},
+            "anonymous": {"endpoint": ep, "keys": keys},
+        },
+    )
     alice, bob, carol = r["alice"], r["bob"], r["carol"]
     assert alice["open"] and alice["replies"]["hitch/goto"] == ["hitch/goto"]
     assert alice["replies"]["hitch/presets/go"] == ["hitch/presets/go"] and alice["replies"]["hitch/mode"]
@@ -294,15 +334,24 @@ def test_acl_permitted_user_moves_refused_user_only_reads(tmp_path, users_file, 
 def test_acl_on_a_fleet_router_with_the_service_behind_it(tmp_path, users_file, server):
     users = write_users_file(tmp_path / "router-users.txt", {**USERS, "svc-t07": "svc-pw"})
     ep = f"tcp/127.0.0.1:{_free_port()}"
-    server(ep, SecuritySettings(users_file=users, access=AccessPolicy(
-        "hitch", operators=("alice",), viewers=("bob",), services=("svc-t07",))), mode="router")
+    server(
+        ep,
+        SecuritySettings(
+            users_file=users,
+            access=AccessPolicy("hitch", operators=("alice",), viewers=("bob",), services=("svc-t07",)),
+        ),
+        mode="router",
+    )
     service = build_security_config(SecuritySettings(credentials=Credentials("svc-t07", "svc-pw")))
     server(ep, json.dumps(service), mode="client")
     keys = ["hitch/goto", "hitch/ik", "hitch/**"]
-    r = _clients(tmp_path, {
-        "alice": {"endpoint": ep, "user": "alice", "password": "alice-pw", "keys": keys},
-        "bob": {"endpoint": ep, "user": "bob", "password": "bob-pw", "keys": keys},
-    })
+    r = _clients(
+        tmp_path,
+        {
+            "alice": {"endpoint": ep, "user": "alice", "password": "alice-pw", "keys": keys},
+            "bob": {"endpoint": ep, "user": "bob", "password": "bob-pw", "keys": keys},
+        },
+    )
     assert r["alice"]["replies"] == {"hitch/goto": ["hitch/goto"], "hitch/ik": ["hitch/ik"], "hitch/**": ["hitch/**"]}
     assert r["alice"]["states"] > 0
     assert r["bob"]["replies"] == {"hitch/goto": [], "hitch/ik": ["hitch/ik"], "hitch/**": []}
@@ -320,17 +369,63 @@ def pki(tmp_path_factory):
         subprocess.run(["openssl", *args], cwd=d, check=True, capture_output=True, timeout=30)
 
     def ca(name):
-        run("req", "-x509", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes", "-days", "2",
-            "-keyout", f"{name}-key.pem", "-out", f"{name}.pem", "-subj", f"/CN={name}",
-            "-addext", "basicConstraints=critical,CA:TRUE", "-addext", "keyUsage=critical,keyCertSign,cRLSign")
+        run(
+            "req",
+            "-x509",
+            "-newkey",
+            "ec",
+            "-pkeyopt",
+            "ec_paramgen_curve:prime256v1",
+            "-nodes",
+            "-days",
+            "2",
+            "-keyout",
+            f"{name}-key.pem",
+            "-out",
+            f"{name}.pem",
+            "-subj",
+            f"/CN={name}",
+            "-addext",
+            "basicConstraints=critical,CA:TRUE",
+            "-addext",
+            "keyUsage=critical,keyCertSign,cRLSign",
+        )
 
     def leaf(name, issuer, san):
-        run("req", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes",
-            "-keyout", f"{name}-key.pem", "-out", f"{name}.csr", "-subj", f"/CN={name}")
-        (d / f"{name}.ext").write_text(f"subjectAltName={san}\nbasicConstraints=CA:FALSE\n"
-                                       "extendedKeyUsage=serverAuth,clientAuth\n")
-        run("x509", "-req", "-in", f"{name}.csr", "-CA", f"{issuer}.pem", "-CAkey", f"{issuer}-key.pem",
-            "-CAcreateserial", "-days", "2", "-out", f"{name}.pem", "-extfile", f"{name}.ext")
+        run(
+            "req",
+            "-newkey",
+            "ec",
+            "-pkeyopt",
+            "ec_paramgen_curve:prime256v1",
+            "-nodes",
+            "-keyout",
+            f"{name}-key.pem",
+            "-out",
+            f"{name}.csr",
+            "-subj",
+            f"/CN={name}",
+        )
+        (d / f"{name}.ext").write_text(
+            f"subjectAltName={san}\nbasicConstraints=CA:FALSE\nextendedKeyUsage=serverAuth,clientAuth\n"
+        )
+        run(
+            "x509",
+            "-req",
+            "-in",
+            f"{name}.csr",
+            "-CA",
+            f"{issuer}.pem",
+            "-CAkey",
+            f"{issuer}-key.pem",
+            "-CAcreateserial",
+            "-days",
+            "2",
+            "-out",
+            f"{name}.pem",
+            "-extfile",
+            f"{name}.ext",
+        )
 
     ca("hitch-ca")
     ca("rogue-ca")
@@ -352,11 +447,14 @@ def test_tls_session_connects_wrong_ca_and_plain_tcp_do_not(tmp_path, pki, serve
     port = _free_port()
     server(f"tls/127.0.0.1:{port}", SecuritySettings(tls=TlsSettings(**_tls(pki, cert="server"))))
     keys = ["hitch/ik"]
-    r = _clients(tmp_path, {
-        "good": {"endpoint": f"tls/127.0.0.1:{port}", "tls": _tls(pki), "keys": keys},
-        "wrong_ca": {"endpoint": f"tls/127.0.0.1:{port}", "tls": _tls(pki, ca="rogue-ca"), "keys": keys},
-        "plain_tcp": {"endpoint": f"tcp/127.0.0.1:{port}", "keys": keys},
-    })
+    r = _clients(
+        tmp_path,
+        {
+            "good": {"endpoint": f"tls/127.0.0.1:{port}", "tls": _tls(pki), "keys": keys},
+            "wrong_ca": {"endpoint": f"tls/127.0.0.1:{port}", "tls": _tls(pki, ca="rogue-ca"), "keys": keys},
+            "plain_tcp": {"endpoint": f"tcp/127.0.0.1:{port}", "keys": keys},
+        },
+    )
     assert r["good"]["open"] and r["good"]["replies"]["hitch/ik"] == ["hitch/ik"] and r["good"]["states"] > 0
     assert not r["wrong_ca"]["open"]
     assert not r["plain_tcp"]["open"]
@@ -365,17 +463,27 @@ def test_tls_session_connects_wrong_ca_and_plain_tcp_do_not(tmp_path, pki, serve
 def test_mtls_needs_a_client_certificate_from_the_ca_and_maps_names_to_roles(tmp_path, pki, server):
     port = _free_port()
     ep = f"tls/127.0.0.1:{port}"
-    server(ep, SecuritySettings(tls=TlsSettings(**_tls(pki, cert="server", mutual=True)),
-                                access=AccessPolicy(operator_cert_names=("operator-1",),
-                                                    viewer_cert_names=("viewer-1",))))
+    server(
+        ep,
+        SecuritySettings(
+            tls=TlsSettings(**_tls(pki, cert="server", mutual=True)),
+            access=AccessPolicy(operator_cert_names=("operator-1",), viewer_cert_names=("viewer-1",)),
+        ),
+    )
     keys = ["hitch/goto", "hitch/ik"]
-    r = _clients(tmp_path, {
-        "operator": {"endpoint": ep, "tls": _tls(pki, cert="operator-1", mutual=True), "keys": keys},
-        "viewer": {"endpoint": ep, "tls": _tls(pki, cert="viewer-1", mutual=True), "keys": keys},
-        "no_cert": {"endpoint": ep, "tls": _tls(pki), "keys": keys},
-        "rogue_cert": {"endpoint": ep, "tls": _tls(pki, cert="rogue", mutual=True), "keys": keys},
-    })
-    assert r["operator"]["open"] and r["operator"]["replies"] == {"hitch/goto": ["hitch/goto"], "hitch/ik": ["hitch/ik"]}
+    r = _clients(
+        tmp_path,
+        {
+            "operator": {"endpoint": ep, "tls": _tls(pki, cert="operator-1", mutual=True), "keys": keys},
+            "viewer": {"endpoint": ep, "tls": _tls(pki, cert="viewer-1", mutual=True), "keys": keys},
+            "no_cert": {"endpoint": ep, "tls": _tls(pki), "keys": keys},
+            "rogue_cert": {"endpoint": ep, "tls": _tls(pki, cert="rogue", mutual=True), "keys": keys},
+        },
+    )
+    assert r["operator"]["open"] and r["operator"]["replies"] == {
+        "hitch/goto": ["hitch/goto"],
+        "hitch/ik": ["hitch/ik"],
+    }
     assert r["viewer"]["open"] and r["viewer"]["replies"] == {"hitch/goto": [], "hitch/ik": ["hitch/ik"]}
     assert r["viewer"]["states"] > 0
     assert not r["no_cert"]["open"]
@@ -383,8 +491,11 @@ def test_mtls_needs_a_client_certificate_from_the_ca_and_maps_names_to_roles(tmp
 
 
 def test_build_security_config_for_a_mutual_tls_client(pki):
-    cfg = build_security_config(SecuritySettings(
-        credentials=Credentials("alice", "alice-pw"), tls=TlsSettings(**_tls(pki, cert="operator-1", mutual=True))))
+    cfg = build_security_config(
+        SecuritySettings(
+            credentials=Credentials("alice", "alice-pw"), tls=TlsSettings(**_tls(pki, cert="operator-1", mutual=True))
+        )
+    )
     tls = cfg["transport"]["link"]["tls"]
     assert tls["enable_mtls"] is True and tls["verify_name_on_connect"] is True
     assert tls["connect_certificate"] == str((pki / "operator-1.pem").resolve())

@@ -22,11 +22,22 @@ from planner.limits.guard import Guard
 from planner.trajectory import TrajectoryPlanner
 
 VALID = {
-    "ik": {"x": 0.0, "z": 0.2, "roll": 0.0, "pitch": 0.0}, "plan": {"goal": {"z": 0.2}}, "goto": {"goal": {"z": 0.2}},
-    "jog": {"vx": 0.01, "ttl_ms": 100}, "stop": {}, "mode": {"mode": "auto"}, "config": {}, "presets/list": {},
-    "presets/save": {"name": "a"}, "presets/go": {"name": "a"}, "presets/delete": {"name": "a"},
-    "maneuvers/validate": {"script": "steps: [{wait: 1}]"}, "maneuvers/save": {"name": "m", "script": "steps: []"},
-    "maneuvers/list": {}, "maneuvers/run": {"name": "m"}, "maneuvers/delete": {"name": "m"},
+    "ik": {"x": 0.0, "z": 0.2, "roll": 0.0, "pitch": 0.0},
+    "plan": {"goal": {"z": 0.2}},
+    "goto": {"goal": {"z": 0.2}},
+    "jog": {"vx": 0.01, "ttl_ms": 100},
+    "stop": {},
+    "mode": {"mode": "auto"},
+    "config": {},
+    "presets/list": {},
+    "presets/save": {"name": "a"},
+    "presets/go": {"name": "a"},
+    "presets/delete": {"name": "a"},
+    "maneuvers/validate": {"script": "steps: [{wait: 1}]"},
+    "maneuvers/save": {"name": "m", "script": "steps: []"},
+    "maneuvers/list": {},
+    "maneuvers/run": {"name": "m"},
+    "maneuvers/delete": {"name": "m"},
 }
 MOTION_KEYS = ("goto", "jog", "presets/go", "maneuvers/run")
 
@@ -37,8 +48,14 @@ class Service:
         self.rig.start()
         self.rig.run_until(0.5)
         self.events = []
-        self.mc = MotionController(Guard(TrajectoryPlanner(model)), Guard(TrajectoryPlanner(model)), self.rig.link,
-                                   lambda: self.rig.now_s, on_event=self.events.append, spawn=lambda fn: fn())
+        self.mc = MotionController(
+            Guard(TrajectoryPlanner(model)),
+            Guard(TrajectoryPlanner(model)),
+            self.rig.link,
+            lambda: self.rig.now_s,
+            on_event=self.events.append,
+            spawn=lambda fn: fn(),
+        )
         self.mc.cycle()
         self.store = HitchStore(tmp_path / "hitch.sqlite3")
         self.api = ServiceAPI(self.mc, IKSolver(model), self.store, {"profile": "thesis-t132"})
@@ -66,23 +83,26 @@ def test_every_key_has_a_schema_and_a_valid_example():
     assert set(VALID) == set(API_KEYS) == set(REQUESTS)
     for key, payload in VALID.items():
         parse_request(key, json.dumps(payload).encode())
-    assert parse_request("stop", b"").model_dump() == {}          # an empty payload is {}
+    assert parse_request("stop", b"").model_dump() == {}  # an empty payload is {}
 
 
-@pytest.mark.parametrize("key, payload, expected", [
-    ("goto", {"goal": {"x": 2.0}}, ["goal.x", "<= 1", "m"]),
-    ("goto", {"goal": {"z": 0.1}, "speed_scale": 0}, ["speed_scale", "> 0", "<= 1"]),
-    ("goto", {"goal": {}}, ["goal", "at least one of x, z, roll, pitch"]),
-    ("goto", {"goal": {"z": 0.1}, "speed": 1}, ["unknown field 'speed'", "goal, speed_scale"]),
-    ("goto", {"goal": {"z": 0.1, "yaw": 0.0}}, ["unknown field 'goal.yaw'", "x, z, roll, pitch"]),
-    ("ik", {"x": 0.0, "z": "0.2", "roll": 0.0, "pitch": 0.0}, ["z", "'0.2'", "number"]),
-    ("ik", {"x": True, "z": 0.2, "roll": 0.0, "pitch": 0.0}, ["x = True"]),
-    ("ik", {"x": 0.0, "roll": 0.0, "pitch": 0.0}, ["'z' is required"]),
-    ("jog", {"vx": 0.1, "ttl_ms": 6000}, ["ttl_ms", "<= 5000", "ms"]),
-    ("jog", {"vx": 1e300}, ["vx", "out of range", "m/s"]),
-    ("mode", {"mode": "turbo"}, ["mode", "turbo"]),
-    ("presets/save", {"name": "../etc"}, ["name", "letters, digits"]),
-])
+@pytest.mark.parametrize(
+    "key, payload, expected",
+    [
+        ("goto", {"goal": {"x": 2.0}}, ["goal.x", "<= 1", "m"]),
+        ("goto", {"goal": {"z": 0.1}, "speed_scale": 0}, ["speed_scale", "> 0", "<= 1"]),
+        ("goto", {"goal": {}}, ["goal", "at least one of x, z, roll, pitch"]),
+        ("goto", {"goal": {"z": 0.1}, "speed": 1}, ["unknown field 'speed'", "goal, speed_scale"]),
+        ("goto", {"goal": {"z": 0.1, "yaw": 0.0}}, ["unknown field 'goal.yaw'", "x, z, roll, pitch"]),
+        ("ik", {"x": 0.0, "z": "0.2", "roll": 0.0, "pitch": 0.0}, ["z", "'0.2'", "number"]),
+        ("ik", {"x": True, "z": 0.2, "roll": 0.0, "pitch": 0.0}, ["x = True"]),
+        ("ik", {"x": 0.0, "roll": 0.0, "pitch": 0.0}, ["'z' is required"]),
+        ("jog", {"vx": 0.1, "ttl_ms": 6000}, ["ttl_ms", "<= 5000", "ms"]),
+        ("jog", {"vx": 1e300}, ["vx", "out of range", "m/s"]),
+        ("mode", {"mode": "turbo"}, ["mode", "turbo"]),
+        ("presets/save", {"name": "../etc"}, ["name", "letters, digits"]),
+    ],
+)
 def test_errors_name_the_field_and_the_allowed_range(key, payload, expected):
     with pytest.raises(RequestError) as ei:
         parse_request(key, json.dumps(payload))
@@ -91,17 +111,20 @@ def test_errors_name_the_field_and_the_allowed_range(key, payload, expected):
         assert text in str(ei.value), (text, str(ei.value))
 
 
-@pytest.mark.parametrize("raw, expected", [
-    (b'{"x": NaN, "z": 0, "roll": 0, "pitch": 0}', "NaN"),
-    (b'{"x": -Infinity, "z": 0, "roll": 0, "pitch": 0}', "Infinity"),
-    (b'{"x": 1e400, "z": 0, "roll": 0, "pitch": 0}', "finite"),
-    (b'{"x": 1' + b"0" * 5000 + b', "z": 0, "roll": 0, "pitch": 0}', "not valid JSON"),
-    (b"[" * 90_000, "nests too deeply"),
-    (b"\xff\xfe{}", "not UTF-8"),
-    (b'{"x": 0', "not valid JSON"),
-    (b"[1, 2]", "must be a JSON object"),
-    (b"{" + b" " * (MAX_PAYLOAD_BYTES + 1) + b"}", "bytes"),
-])
+@pytest.mark.parametrize(
+    "raw, expected",
+    [
+        (b'{"x": NaN, "z": 0, "roll": 0, "pitch": 0}', "NaN"),
+        (b'{"x": -Infinity, "z": 0, "roll": 0, "pitch": 0}', "Infinity"),
+        (b'{"x": 1e400, "z": 0, "roll": 0, "pitch": 0}', "finite"),
+        (b'{"x": 1' + b"0" * 5000 + b', "z": 0, "roll": 0, "pitch": 0}', "not valid JSON"),
+        (b"[" * 90_000, "nests too deeply"),
+        (b"\xff\xfe{}", "not UTF-8"),
+        (b'{"x": 0', "not valid JSON"),
+        (b"[1, 2]", "must be a JSON object"),
+        (b"{" + b" " * (MAX_PAYLOAD_BYTES + 1) + b"}", "bytes"),
+    ],
+)
 def test_malformed_payloads_are_refused_with_a_reason(raw, expected):
     with pytest.raises(RequestError) as ei:
         parse_request("ik", raw)
@@ -116,18 +139,18 @@ def fuzz_payloads(rng: np.random.Generator, n: int):
         kind = i % 8
         key = keys[rng.integers(len(keys))]
         base = json.dumps(VALID[key])
-        if kind == 0:                                            # random bytes (never an empty/blank payload)
+        if kind == 0:  # random bytes (never an empty/blank payload)
             raw = bytes(rng.integers(0, 256, rng.integers(1, 64), dtype=np.uint8))
             raw = b"\x00" + raw
-        elif kind == 1:                                          # truncated JSON
+        elif kind == 1:  # truncated JSON
             raw = base[: rng.integers(0, len(base) - 1)].encode() or b"{"
-        elif kind == 2:                                          # an unknown key
+        elif kind == 2:  # an unknown key
             d = json.loads(base)
             d[f"bogus{rng.integers(1000)}"] = 1
             raw = json.dumps(d).encode()
-        elif kind == 3:                                          # NaN / Infinity tokens
+        elif kind == 3:  # NaN / Infinity tokens
             raw = json.dumps({"x": float(["nan", "inf", "-inf"][i % 3])}).encode()
-        elif kind == 4:                                          # a required field with a wrong type
+        elif kind == 4:  # a required field with a wrong type
             key = required[rng.integers(len(required))]
             d = json.loads(json.dumps(VALID[key]))
             f = sorted(d)[rng.integers(len(d))]
@@ -135,12 +158,23 @@ def fuzz_payloads(rng: np.random.Generator, n: int):
             if isinstance(VALID[key][f], str) and isinstance(d[f], str):
                 d[f] = 7
             raw = json.dumps(d).encode()
-        elif kind == 5:                                          # huge numbers
-            raw = json.dumps({"x": 10.0 ** int(rng.integers(5, 300)), "z": 0, "roll": 0, "pitch": 0,
-                              "goal": {"x": 1e200}, "name": "a", "script": "", "vx": 1e9, "mode": None}).encode()
-        elif kind == 6:                                          # not an object
+        elif kind == 5:  # huge numbers
+            raw = json.dumps(
+                {
+                    "x": 10.0 ** int(rng.integers(5, 300)),
+                    "z": 0,
+                    "roll": 0,
+                    "pitch": 0,
+                    "goal": {"x": 1e200},
+                    "name": "a",
+                    "script": "",
+                    "vx": 1e9,
+                    "mode": None,
+                }
+            ).encode()
+        elif kind == 6:  # not an object
             raw = json.dumps([[1, 2], "text", 3.5, None][rng.integers(4)]).encode()
-        else:                                                    # a required field missing
+        else:  # a required field missing
             key = required[rng.integers(len(required))]
             d = dict(VALID[key])
             d.pop(sorted(k for k in d if REQUESTS[key].model_fields[k].is_required())[0])
@@ -159,7 +193,7 @@ def test_fuzzed_payloads_are_all_answered_with_errors_and_nothing_moves(svc):
     assert set(codes) == {"bad_request"}
     svc.run(0.2)
     assert svc.mc.current_state().moving is False and svc.events == []
-    assert svc.rig.link.counters.references_tx == 0                 # nothing was ever streamed
+    assert svc.rig.link.counters.references_tx == 0  # nothing was ever streamed
     ok, _ = svc.call("ik", VALID["ik"])
     assert ok
 
@@ -172,7 +206,7 @@ def test_ik_answers_match_forward_kinematics(svc, model, rng):
         assert ok and r["status"] == "ok", r
         q = np.array([r["actuators"][k] for k in ("lift", "tilt", "top", "left", "right")])
         np.testing.assert_allclose(model.pose(q).controlled(), p, atol=1e-6)
-    ok, r = svc.call("ik", {"x": 0.0, "z": 0.9, "roll": 0.0, "pitch": 0.0})    # out of reach: nearest pose
+    ok, r = svc.call("ik", {"x": 0.0, "z": 0.9, "roll": 0.0, "pitch": 0.0})  # out of reach: nearest pose
     assert ok and r["status"] == "limited" and r["active"] and r["pose"]["z"] < 0.9
 
 
@@ -248,13 +282,13 @@ def test_a_front_end_user_gets_the_access_policy(svc):
     ok, r = svc.call("goto", VALID["goto"], user="op")
     assert ok and r["accepted"]
     svc.run(r["duration"] + 0.2)
-    ok, r = svc.call("goto", {"goal": {"z": 0.1}}, user=None)      # None: the transport (Zenoh ACL) authorised it
+    ok, r = svc.call("goto", {"goal": {"z": 0.1}}, user=None)  # None: the transport (Zenoh ACL) authorised it
     assert ok and r["accepted"]
 
 
 def test_unknown_key_and_internal_errors_never_raise(svc):
     ok, r = svc.api.handle("teleport", b"{}", None)
     assert not ok and r["error"] == "unknown_key" and "goto" in r["message"]
-    svc.api.motion = None                                   # a broken collaborator: answered, not raised
+    svc.api.motion = None  # a broken collaborator: answered, not raised
     ok, r = svc.call("goto", VALID["goto"])
     assert not ok and r["error"] == "internal" and "AttributeError" in r["message"]

@@ -31,31 +31,36 @@ def test_default_data_dir_without_xdg():
 
 def test_toml_then_flags(tmp_path):
     f = tmp_path / "svc.toml"
-    f.write_text('[zenoh]\nprefix = "fleet/t07/hitch"\nmode = "client"\nconnect = ["tcp/10.0.0.1:7447"]\n'
-                 '[hitch]\ncontrol_rate = 100.0\nimplement = "cat2-spreader-400"\nfeedforward = false\n'
-                 '[service]\nworkers = 2\n')
+    f.write_text(
+        '[zenoh]\nprefix = "fleet/t07/hitch"\nmode = "client"\nconnect = ["tcp/10.0.0.1:7447"]\n'
+        '[hitch]\ncontrol_rate = 100.0\nimplement = "cat2-spreader-400"\nfeedforward = false\n'
+        "[service]\nworkers = 2\n"
+    )
     c = load_service_config(f)
     assert c.prefix == "fleet/t07/hitch" and c.mode == "client" and c.listen == () and c.control_rate == 100.0
     assert c.implement == "cat2-spreader-400" and c.workers == 2 and c.feedforward is False
-    c = load_service_config(f, control_rate=40.0, prefix=None)          # a flag wins; None means "not given"
+    c = load_service_config(f, control_rate=40.0, prefix=None)  # a flag wins; None means "not given"
     assert c.control_rate == 40.0 and c.prefix == "fleet/t07/hitch"
 
 
-@pytest.mark.parametrize("kwargs, text", [
-    ({"prefix": "fleet/*/hitch"}, "prefix"),
-    ({"prefix": "a//b"}, "chunk ''"),
-    ({"listen": ["127.0.0.1:7447"]}, "tcp/127.0.0.1:7447"),
-    ({"control_rate": 5.0}, "control_rate = 5.0"),
-    ({"control_rate": float("nan")}, "control_rate"),
-    ({"state_rate": 500.0}, "<= 100"),
-    ({"mode": "router"}, "mode"),
-    ({"mode": "client"}, "connect: a client needs"),
-    ({"mode": "client", "connect": ["tcp/127.0.0.1:1"], "listen": ["tcp/127.0.0.1:2"]}, "a client does not listen"),
-    ({"http": "8080"}, "HOST:PORT"),
-    ({"can_interface": "pcan"}, "can_interface"),
-    ({"feedforward": "yes"}, "feedforward"),
-    ({"simulate_ecu": 1}, "simulate_ecu"),
-])
+@pytest.mark.parametrize(
+    "kwargs, text",
+    [
+        ({"prefix": "fleet/*/hitch"}, "prefix"),
+        ({"prefix": "a//b"}, "chunk ''"),
+        ({"listen": ["127.0.0.1:7447"]}, "tcp/127.0.0.1:7447"),
+        ({"control_rate": 5.0}, "control_rate = 5.0"),
+        ({"control_rate": float("nan")}, "control_rate"),
+        ({"state_rate": 500.0}, "<= 100"),
+        ({"mode": "router"}, "mode"),
+        ({"mode": "client"}, "connect: a client needs"),
+        ({"mode": "client", "connect": ["tcp/127.0.0.1:1"], "listen": ["tcp/127.0.0.1:2"]}, "a client does not listen"),
+        ({"http": "8080"}, "HOST:PORT"),
+        ({"can_interface": "pcan"}, "can_interface"),
+        ({"feedforward": "yes"}, "feedforward"),
+        ({"simulate_ecu": 1}, "simulate_ecu"),
+    ],
+)
 def test_bad_values_name_the_field(kwargs, text):
     with pytest.raises(ServiceConfigError) as ei:
         load_service_config(**kwargs)

@@ -11,11 +11,11 @@ import pytest
 from bridge.service.motion.controller import MotionController
 from bridge.service.motion.types import plan_state
 from bridge.sim.move import SimRig
-from planner.model.exact_inverse import ExactInverse
 from planner.limits.guard import Guard
+from planner.model.exact_inverse import ExactInverse
 from planner.trajectory import TrajectoryPlanner
 
-PLAN_S = 0.7          # simulated planning time, longer than 0.08 + 0.16 + 0.32 + 0.64 s of doubling leads
+PLAN_S = 0.7  # simulated planning time, longer than 0.08 + 0.16 + 0.32 + 0.64 s of doubling leads
 
 
 class SlowGuard(Guard):
@@ -40,8 +40,14 @@ def setup(model):
     rig.run_until(0.5)
     events: list[dict] = []
     slow = SlowGuard(TrajectoryPlanner(model), rig)
-    mc = MotionController(Guard(TrajectoryPlanner(model)), slow, rig.link, lambda: rig.now_s,
-                          on_event=events.append, spawn=lambda fn: fn())
+    mc = MotionController(
+        Guard(TrajectoryPlanner(model)),
+        slow,
+        rig.link,
+        lambda: rig.now_s,
+        on_event=events.append,
+        spawn=lambda fn: fn(),
+    )
     mc.cycle()
     yield rig, mc, slow, events
     rig.close()
@@ -58,7 +64,7 @@ def test_a_slow_plan_from_rest_starts_when_ready(setup):
     rig, mc, slow, events = setup
     t_request = rig.now_s
     acc = mc.goto({"z": 0.2}, speed_scale=0.3)
-    assert slow.calls == 1                                   # planned once: no retry from rest
+    assert slow.calls == 1  # planned once: no retry from rest
     started = [e for e in events if e["event"] == "motion_started"]
     assert started and started[0]["motion_id"] == acc.motion_id
     assert rig.now_s - t_request == pytest.approx(PLAN_S, abs=1e-6)
@@ -70,7 +76,7 @@ def test_a_slow_plan_from_rest_starts_when_ready(setup):
 def test_a_slow_plan_replacing_a_motion_starts_on_a_longer_lead(setup):
     rig, mc, slow, events = setup
     first = mc.goto({"z": 0.25}, speed_scale=0.5)
-    _run(rig, mc, 1.0)                                       # moving now
+    _run(rig, mc, 1.0)  # moving now
     assert mc.current_state().moving
     second = mc.goto({"z": -0.1}, speed_scale=0.5)
     # 0.08 s lead was too short; the next one is 1.5 × 0.7 + 0.02 = 1.07 s: accepted on the second try
@@ -80,7 +86,7 @@ def test_a_slow_plan_replacing_a_motion_starts_on_a_longer_lead(setup):
     old, new = plan_state(pm.prev, pm.t0), pm.plan.state_at(0.0)
     for a, b in ((old.position, new.position), (old.velocity, new.velocity), (old.acceleration, new.acceleration)):
         np.testing.assert_allclose(a, b, atol=1e-9)
-    assert np.linalg.norm(old.velocity) > 0.01                 # it was switched while moving
+    assert np.linalg.norm(old.velocity) > 0.01  # it was switched while moving
     names = [e["event"] for e in events]
     assert names.count("motion_started") == 2 and "motion_aborted" in names
     _run(rig, mc, second.duration + 2.0)

@@ -53,31 +53,37 @@ def test_names_are_unique_per_implement(store):
     assert [p.name for p in store.list_presets()] == ["work"]  # the default implement's only
     assert store.list_presets()[0].implement == DEFAULT_IMPLEMENT
     assert [(p.implement, p.name) for p in store.list_presets(None)] == [
-        ("default", "work"), ("harrow", "transport"), ("plough", "transport")]
+        ("default", "work"),
+        ("harrow", "transport"),
+        ("plough", "transport"),
+    ]
     assert store.delete_preset("transport", implement="plough") is True
     assert store.delete_preset("transport", implement="plough") is False
     assert store.get_preset("transport", implement="harrow") is not None
     assert store.list_presets("plough") == []
 
 
-@pytest.mark.parametrize("kwargs, field", [
-    ({"name": "has space"}, "name"),
-    ({"name": ""}, "name"),
-    ({"name": "x" * 65}, "name"),
-    ({"name": 7}, "name"),
-    ({"implement": "../etc"}, "implement"),
-    ({"pose": {"x": 0.0, "z": 0.0, "roll": 0.0}}, "pose.pitch"),
-    ({"pose": {**POSE, "yaw": 0.0}}, "pose"),
-    ({"pose": {**POSE, "z": math.nan}}, "pose.z"),
-    ({"pose": {**POSE, "x": math.inf}}, "pose.x"),
-    ({"pose": {**POSE, "roll": 2.0}}, "pose.roll"),
-    ({"pose": {**POSE, "x": "0.1"}}, "pose.x"),
-    ({"pose": {**POSE, "x": True}}, "pose.x"),
-    ({"pose": [0, 0, 0, 0]}, "pose"),
-    ({"speed_scale": 0.0}, "speed_scale"),
-    ({"speed_scale": 1.5}, "speed_scale"),
-    ({"speed_scale": math.nan}, "speed_scale"),
-])
+@pytest.mark.parametrize(
+    "kwargs, field",
+    [
+        ({"name": "has space"}, "name"),
+        ({"name": ""}, "name"),
+        ({"name": "x" * 65}, "name"),
+        ({"name": 7}, "name"),
+        ({"implement": "../etc"}, "implement"),
+        ({"pose": {"x": 0.0, "z": 0.0, "roll": 0.0}}, "pose.pitch"),
+        ({"pose": {**POSE, "yaw": 0.0}}, "pose"),
+        ({"pose": {**POSE, "z": math.nan}}, "pose.z"),
+        ({"pose": {**POSE, "x": math.inf}}, "pose.x"),
+        ({"pose": {**POSE, "roll": 2.0}}, "pose.roll"),
+        ({"pose": {**POSE, "x": "0.1"}}, "pose.x"),
+        ({"pose": {**POSE, "x": True}}, "pose.x"),
+        ({"pose": [0, 0, 0, 0]}, "pose"),
+        ({"speed_scale": 0.0}, "speed_scale"),
+        ({"speed_scale": 1.5}, "speed_scale"),
+        ({"speed_scale": math.nan}, "speed_scale"),
+    ],
+)
 def test_bad_preset_values_name_the_field_and_store_nothing(store, kwargs, field):
     args = {"name": "ok", "pose": POSE, **kwargs}
     with pytest.raises(StoreError) as exc:
@@ -177,8 +183,9 @@ def test_concurrent_writers_and_readers(store):
         except Exception as exc:
             errors.append(exc)
 
-    threads = [threading.Thread(target=writer, args=(k,)) for k in range(6)] + \
-              [threading.Thread(target=reader) for _ in range(3)]
+    threads = [threading.Thread(target=writer, args=(k,)) for k in range(6)] + [
+        threading.Thread(target=reader) for _ in range(3)
+    ]
     for t in threads:
         t.start()
     for t in threads:

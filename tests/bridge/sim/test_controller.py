@@ -32,14 +32,14 @@ def params():
 def test_gains_follow_thesis_2_57(params):
     assert THESIS_A == 0.581
     g = build_controller_gains(params["tilt"])
-    assert g.k_pos == pytest.approx(14.488778, abs=1e-6)       # 0.581 / (0.401 · 0.1)
-    assert g.k_neg == pytest.approx(12.853982, abs=1e-6)       # 0.581 / (0.452 · 0.1)
-    assert g.kd_pos == pytest.approx(0.14488778, abs=1e-8)     # 0.581 · 0.01 / (0.401 · 0.1)
+    assert g.k_pos == pytest.approx(14.488778, abs=1e-6)  # 0.581 / (0.401 · 0.1)
+    assert g.k_neg == pytest.approx(12.853982, abs=1e-6)  # 0.581 / (0.452 · 0.1)
+    assert g.kd_pos == pytest.approx(0.14488778, abs=1e-8)  # 0.581 · 0.01 / (0.401 · 0.1)
     assert g.kd_neg == pytest.approx(0.12853982, abs=1e-8)
     g = build_controller_gains(params["left"], a=0.3)
     assert g.k_pos == pytest.approx(0.3 / 0.11085)
     assert g.k_neg == pytest.approx(0.3 / 0.1246)
-    for n in NAMES:   # k_d / k = T_F: the D term cancels the valve lag (1 + T_F s)
+    for n in NAMES:  # k_d / k = T_F: the D term cancels the valve lag (1 + T_F s)
         g = build_controller_gains(params[n])
         assert g.kd_pos / g.k_pos == pytest.approx(params[n].time_constant_s)
         assert g.kd_neg / g.k_neg == pytest.approx(params[n].time_constant_s)
@@ -78,7 +78,7 @@ def test_derivative_acts_on_the_measurement_not_the_error(params):
     assert out.rate_counts_per_s == pytest.approx(200.0)
     assert out.command == 48
     # braking: fast approach makes the command point backwards although e > 0
-    out = c.update(490, 487)       # rate 500, s = 3 − 5 = −2 → −25.71 → ×0.5 → −12.85 → −17.85 → −18
+    out = c.update(490, 487)  # rate 500, s = 3 − 5 = −2 → −25.71 → ×0.5 → −12.85 → −17.85 → −18
     assert out.error_counts == 3 and out.command == -18
 
 
@@ -130,13 +130,13 @@ def test_a_cylinder_that_coasts_one_count_over_is_driven_back(params):
     tilt = params["tilt"]
     c = UnitController(tilt)
     c.update(481, 479)
-    assert c.update(481, 481).command == 0            # reached, waiting
+    assert c.update(481, 481).command == 0  # reached, waiting
     for _ in range(5):
-        assert c.update(481, 482).command == 0        # coasting over, within the band: wait
+        assert c.update(481, 482).command == 0  # coasting over, within the band: wait
     for _ in range(14):
         assert c.update(481, 482).command == 0
-    out = c.update(481, 482)                          # 0.2 s after reaching: still one over
-    assert out.command < 0 and not c.holding          # driven back (not held one count off)
+    out = c.update(481, 482)  # 0.2 s after reaching: still one over
+    assert out.command < 0 and not c.holding  # driven back (not held one count off)
 
 
 def test_dead_zone_compensation_always_leaves_the_dead_zone(params):
@@ -174,9 +174,9 @@ def test_relay_limits_and_blocking(params):
     c = UnitController(tilt)
     out = c.update(1000, 908)
     assert out.valve_unlimited > 0 and out.relay_blocked and out.command == 0 and c.relay.engaged
-    out = c.update(500, 908)                # towards safety passes
+    out = c.update(500, 908)  # towards safety passes
     assert out.command < 0 and not out.relay_blocked
-    out = c.update(1000, 907)               # back inside: released (no hysteresis)
+    out = c.update(1000, 907)  # back inside: released (no hysteresis)
     assert out.command > 0 and not c.relay.engaged
     c = UnitController(tilt)
     assert c.update(0, 35).command == 0 and c.relay.engaged
@@ -186,9 +186,9 @@ def test_relay_limits_and_blocking(params):
 def test_relay_hysteresis(params):
     c = UnitController(params["tilt"], ControllerConfig(relay_hysteresis_counts=3))
     assert c.update(1000, 908).command == 0
-    assert c.update(1000, 906).command == 0       # 906 ≥ 908 − 3 = 905: still engaged
+    assert c.update(1000, 906).command == 0  # 906 ≥ 908 − 3 = 905: still engaged
     assert c.update(1000, 905).command == 0
-    assert c.update(1000, 904).command > 0        # released below 905
+    assert c.update(1000, 904).command > 0  # released below 905
     assert not c.relay.engaged
 
 
@@ -215,9 +215,9 @@ def test_linear_closed_loop_matches_the_delay_differential_equation():
         e = 540 - cyl.position_counts
         worst = max(worst, abs(e - _dde_error(t, 40.0, lam, p.transport_delay_s + cfg.period_s / 2)))
         peak = max(peak, -e)
-    assert worst < 2.0                      # counts, of a 40-count step (quantised measurement)
+    assert worst < 2.0  # counts, of a 40-count step (quantised measurement)
     analytic_peak = max(-_dde_error(0.001 * k, 40.0, lam, 0.105) for k in range(3000))
-    assert analytic_peak > 3.0              # a = 0.581 overshoots a little (λ·L > 1/e)
+    assert analytic_peak > 3.0  # a = 0.581 overshoots a little (λ·L > 1/e)
     assert peak == pytest.approx(analytic_peak, abs=1.5)
     assert abs(540 - cyl.position_counts) < 1.0
 

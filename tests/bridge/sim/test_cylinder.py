@@ -55,7 +55,13 @@ def test_parameters_are_the_thesis_tables(params):
         p = params[n]
         kvp, kvn, L, T, dymin, dz = TABLE_3_4[n]
         assert (p.kv_pos, p.kv_neg, p.transport_delay_s, p.time_constant_s, p.min_flow, p.dead_zone) == (
-            kvp, kvn, L, T, dymin, dz)
+            kvp,
+            kvn,
+            L,
+            T,
+            dymin,
+            dz,
+        )
         assert (p.stroke_min, p.stroke_max, p.counts_min, p.counts_max) == TABLE_3_1[n]
         assert p.valve_multiplier == TABLE_3_3[n]
 
@@ -100,7 +106,7 @@ def test_open_loop_step_matches_closed_form(params, name, u):
     c2 = Cylinder(p, initial_counts=x0)
     c2.run(u, 100)
     assert c2.position_counts == x0
-    c2.run(u, 200)                      # 20 time constants after the delay: lag settled
+    c2.run(u, 200)  # 20 time constants after the delay: lag settled
     assert c2.flow_counts_per_s == pytest.approx(qc, rel=1e-8)
     before = c2.position_counts
     c2.run(u, 100)
@@ -111,7 +117,7 @@ def test_integration_is_exact_independent_of_step(params):
     p = params["tilt"]
     a = Cylinder(p, step_s=1e-3, initial_counts=400.0)
     b = Cylinder(p, step_s=2.5e-4, initial_counts=400.0)
-    for u in (80, -30, 200, 0, -150):      # commands on a 10 ms grid
+    for u in (80, -30, 200, 0, -150):  # commands on a 10 ms grid
         a.run(u, 10)
         b.run(u, 40)
     a.run(0, 300)

@@ -42,12 +42,12 @@ def test_initial_state(profile):
     # neutral positions of the profile (lift 0.220 rad, tilt 0.630 m), mid-stroke otherwise
     tilt = ecu.params[1]
     assert ecu.measurement_counts()[1] == round(tilt.si_to_counts(0.630))
-    assert ecu.measurement_counts()[3] == 270        # left: (30 + 510) / 2
+    assert ecu.measurement_counts()[3] == 270  # left: (30 + 510) / 2
     assert ecu.measurement_counts().dtype.kind == "i"
     assert np.all(ecu.valve_commands() == 0)
     assert ecu.system_state() == STATE_CONTROLLERS_ON | STATE_WATCHDOG_TRIPPED | STATE_NO_REFERENCE
     x0 = ecu.piston_counts()
-    ecu.step(1.0)                                     # no reference: nothing moves
+    ecu.step(1.0)  # no reference: nothing moves
     assert np.array_equal(ecu.piston_counts(), x0)
     si = ecu.positions_si()
     for i, p in enumerate(ecu.params):
@@ -81,7 +81,7 @@ def _step_figures(ecu, deltas, duration=8.0):
 def test_closed_loop_step_settles_on_every_cylinder(profile, direction):
     ecu = CylinderECU(profile)
     spans = np.array([p.counts_max - p.counts_min for p in ecu.params])
-    deltas = direction * np.round(0.2 * spans).astype(int)       # 20 % of each stroke
+    deltas = direction * np.round(0.2 * spans).astype(int)  # 20 % of each stroke
     ref, ys, us, overshoot, settle = _step_figures(ecu, deltas)
     for i, n in enumerate(ACTUATOR_ORDER):
         print(f"{n:6s} step {deltas[i]:+4d} counts: overshoot {overshoot[i]} counts, settling (±2) {settle[i]:.2f} s")
@@ -130,14 +130,14 @@ def test_watchdog_zeroes_valves_within_timeout_and_motion_stops(profile):
 def test_watchdog_timeout_is_configurable(profile):
     ecu = CylinderECU(profile, watchdog_timeout_s=0.05)
     ref = ecu.measurement_counts() + np.array([0, 300, 0, 0, 0])
-    drive(ecu, ref, 0.0, 0.5, period=0.04)        # 40 ms < 50 ms: never trips
+    drive(ecu, ref, 0.0, 0.5, period=0.04)  # 40 ms < 50 ms: never trips
     assert ecu.watchdog.trip_count == 0 and ecu.valve_commands()[1] > 0
     ecu.step(0.48 + 0.049)
     assert ecu.valve_commands()[1] > 0
     ecu.step(0.48 + 0.05)
     assert np.all(ecu.valve_commands() == 0)
     slow = CylinderECU(profile, watchdog_timeout_s=0.05)
-    drive(slow, ref, 0.0, 0.5, period=0.06)       # 60 ms > 50 ms: trips between references
+    drive(slow, ref, 0.0, 0.5, period=0.06)  # 60 ms > 50 ms: trips between references
     assert slow.watchdog.trip_count >= 7
 
 
@@ -149,7 +149,7 @@ def test_controllers_off_means_valves_zero(profile):
     ecu.controllers_enabled = False
     assert np.all(ecu.valve_commands() == 0)
     assert not ecu.system_state() & STATE_CONTROLLERS_ON
-    drive(ecu, ref, 0.5, 0.8)                     # references keep coming: still zero
+    drive(ecu, ref, 0.5, 0.8)  # references keep coming: still zero
     assert np.all(ecu.valve_commands() == 0)
     x = ecu.piston_counts().copy()
     drive(ecu, ref, 0.8, 2.0)
@@ -171,14 +171,18 @@ def test_restart_is_visible_in_the_state_byte(profile):
     drive(ecu, ref, 0.0, 0.5)
     s = decode_system_state(ecu.system_state())
     assert (s.controllers_on, s.watchdog_tripped, s.no_reference_since_restart, s.restart_count_mod16) == (
-        True, False, False, 0)
+        True,
+        False,
+        False,
+        0,
+    )
     ecu.restart()
     assert np.all(ecu.valve_commands() == 0) and ecu.reference_counts() is None
     s = decode_system_state(ecu.system_state())
     assert (s.watchdog_tripped, s.no_reference_since_restart, s.restart_count_mod16) == (True, True, 1)
     ecu.step(0.8)
     x = ecu.piston_counts().copy()
-    ecu.step(1.5)                                 # no new reference: no motion
+    ecu.step(1.5)  # no new reference: no motion
     assert np.allclose(ecu.piston_counts(), x, atol=1e-6)
     drive(ecu, ref, 1.5, 1.5 + PERIOD)
     s = decode_system_state(ecu.system_state())
@@ -193,7 +197,7 @@ def test_end_stop_relay_in_the_loop(profile):
     ecu = CylinderECU(profile)
     top = ecu.params[2]
     ref = ecu.measurement_counts().copy()
-    ref[2] = top.counts_max                       # reference at the stroke end
+    ref[2] = top.counts_max  # reference at the stroke end
     drive(ecu, ref, 0.0, 6.0)
     assert ecu.relay_engaged()[2]
     assert ecu.system_state() & STATE_END_STOP_RELAY
@@ -201,7 +205,7 @@ def test_end_stop_relay_in_the_loop(profile):
     assert out.valve_unlimited > 0 and out.relay_blocked and ecu.valve_commands()[2] == 0
     high = ecu._controllers[2].relay.limits.high_counts
     assert high <= ecu.piston_counts()[2] < top.counts_max - 1
-    ref[2] = 140                                  # back towards safety: passes, relay releases
+    ref[2] = 140  # back towards safety: passes, relay releases
     drive(ecu, ref, 6.0, 12.0)
     assert not any(ecu.relay_engaged())
     assert not ecu.system_state() & STATE_END_STOP_RELAY
@@ -300,10 +304,10 @@ def test_watchdog_expires_exactly_at_the_timeout():
     from bridge.sim import Watchdog, WatchdogError
 
     w = Watchdog(0.1)
-    assert w.expired(0.0)                         # never fed
+    assert w.expired(0.0)  # never fed
     w.feed(0.5)
     assert not w.expired(0.5999)
-    assert w.expired(0.6)                         # age 0.1 s (0.6 − 0.5 < 0.1 in floats)
+    assert w.expired(0.6)  # age 0.1 s (0.6 − 0.5 < 0.1 in floats)
     assert w.trip_count == 1 and w.expired(0.61) and w.trip_count == 1
     w.feed(0.7)
     assert not w.expired(0.75)
@@ -319,12 +323,12 @@ def test_watchdog_acts_between_controller_ticks(profile):
     ecu = CylinderECU(profile)
     ref = ecu.measurement_counts() + np.array([0, 300, 0, 0, 0])
     drive(ecu, ref, 0.0, 0.99)
-    ecu.set_reference(ref, 0.995)                 # latched at the 1 ms step 995
+    ecu.set_reference(ref, 0.995)  # latched at the 1 ms step 995
     ecu.step(1.094)
     assert ecu.valve_commands()[1] > 0
     ecu.step(1.095)
     assert np.all(ecu.valve_commands() == 0)
-    ecu.step(1.099)                               # the next controller tick (1.100) is not needed
+    ecu.step(1.099)  # the next controller tick (1.100) is not needed
     assert np.all(ecu.valve_commands() == 0)
 
 
@@ -333,8 +337,8 @@ def test_result_does_not_depend_on_how_time_is_stepped(profile):
         ecu = CylinderECU(profile, rng=3, noise_counts=0.7)
         ref = ecu.measurement_counts() + np.array([30, 200, -40, 60, -50])
         ecu.set_reference(ref, 0.0)
-        ecu.set_reference(ref, 0.0554)            # last reference at the 1 ms step 55: expires off-tick
-        for t in (np.linspace(0.06, 1.0, chunks) if chunks > 1 else [1.0]):
+        ecu.set_reference(ref, 0.0554)  # last reference at the 1 ms step 55: expires off-tick
+        for t in np.linspace(0.06, 1.0, chunks) if chunks > 1 else [1.0]:
             ecu.step(float(t))
         return ecu.piston_counts(), ecu.measurement_counts(), ecu.watchdog.trip_count
 
@@ -355,7 +359,7 @@ def test_settled_cylinders_stay_put_under_ad_noise(profile):
         t = k * PERIOD
         ecu.set_reference(ref, t)
         ecu.step(t + PERIOD)
-        if t >= 6.0:                                   # well after the moves (≤ 3 s)
+        if t >= 6.0:  # well after the moves (≤ 3 s)
             active.append(ecu.valve_commands() != 0)
     duty = np.mean(active, axis=0)
     print("valve duty after settling:", dict(zip(ACTUATOR_ORDER, np.round(duty, 3))))

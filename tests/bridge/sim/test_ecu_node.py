@@ -15,12 +15,18 @@ import pytest
 
 from bridge.isobus.address_claim import ClaimState, cylinder_ecu_name
 from bridge.isobus.codec import (
-    AddressClaimed, EcuParameters, Heartbeat, PositionCounts, PositionMeasurement, RearHitchStatus,
-    decode_frame, encode,
+    AddressClaimed,
+    EcuParameters,
+    Heartbeat,
+    PositionCounts,
+    PositionMeasurement,
+    RearHitchStatus,
+    decode_frame,
+    encode,
 )
+from bridge.isobus.j1939 import PGN_HEARTBEAT, PGN_POSITION_MEASUREMENT, PGN_REAR_HITCH_STATUS, decode_id
 from bridge.sim import STATE_CONTROLLERS_ON, STATE_NO_REFERENCE, STATE_WATCHDOG_TRIPPED, CylinderECU
 from bridge.sim.can_node import EcuCanNode, EcuNodeConfig, lift_fraction
-from bridge.isobus.j1939 import PGN_HEARTBEAT, PGN_POSITION_MEASUREMENT, PGN_REAR_HITCH_STATUS, decode_id
 from bridge.sim.move import SimRig
 from planner.model.exact_inverse import ExactInverse
 
@@ -97,8 +103,9 @@ def test_start_up_claim_heartbeat_and_periodic_frames(buses):
     meas = by_pgn[PGN_POSITION_MEASUREMENT]
     assert len(meas) == 76 and np.allclose(np.diff([t for t, _ in meas]), 0.01)  # 100 Hz, 0.25 .. 1.00 s
     c = [int(v) for v in node.ecu.measurement_counts()]  # lift, tilt, top, left, right
-    assert meas[-1][1] == PositionMeasurement(c[1], c[2], c[4], c[3],
-                                              STATE_CONTROLLERS_ON | STATE_WATCHDOG_TRIPPED | STATE_NO_REFERENCE)
+    assert meas[-1][1] == PositionMeasurement(
+        c[1], c[2], c[4], c[3], STATE_CONTROLLERS_ON | STATE_WATCHDOG_TRIPPED | STATE_NO_REFERENCE
+    )
     hitch = by_pgn[PGN_REAR_HITCH_STATUS]
     assert len(hitch) == 76
     # neutral lift 0.220 rad: (0.220 + 0.223) / 0.886 * 229 + 26 = 140.5 -> AD 141 (half up);
@@ -131,6 +138,7 @@ def test_every_lift_count_survives_the_hitch_status_byte():
     The fraction alone is off by up to half a 0.4 % step (0.46 count); on the count grid the
     round trip is exact for all 230 readings of the thesis's lift (26..255, table 3-2)."""
     from bridge.link.state import lift_counts_from_fraction
+
     worst_linear = 0.0
     for c in range(26, 256):
         frame = encode(RearHitchStatus(position=lift_fraction(c, 26, 255)), source=169)
@@ -140,6 +148,7 @@ def test_every_lift_count_survives_the_hitch_status_byte():
     assert 0.4 < worst_linear <= 0.5 * 229 / 250 + 1e-9
     # on by default only when our own ECU sends the hitch status (its mapping is known)
     from bridge.link.state import LinkConfig
+
     assert LinkConfig().lift_count_grid and not LinkConfig(hitch_status_address=240).lift_count_grid
     assert LinkConfig(hitch_status_address=240, lift_on_count_grid=True).lift_count_grid
     with pytest.raises(ValueError, match="lift_on_count_grid"):
@@ -223,8 +232,9 @@ def test_malformed_and_foreign_frames_never_reach_the_ecu(buses):
         planner.send(f)
     planner.send(reference_frame(400, 100, 140, 200, 200, source=0x80))  # not the planner
     planner.send(can.Message(arbitration_id=0x123, is_extended_id=False, data=b"\x00" * 8))
-    planner.send(can.Message(arbitration_id=(6 << 26) | (0xFE49 << 8) | 0x80, is_extended_id=True,
-                             data=b"\xff" * 8))  # an ISOBUS PGN the DBC does not describe
+    planner.send(
+        can.Message(arbitration_id=(6 << 26) | (0xFE49 << 8) | 0x80, is_extended_id=True, data=b"\xff" * 8)
+    )  # an ISOBUS PGN the DBC does not describe
     planner.send(can.Message(is_error_frame=True))
     run([node], 0.3, 0.31)
     c = node.counters
@@ -283,9 +293,24 @@ def test_own_echo_is_ignored(buses):
 
 def test_ecu_sim_runs_as_its_own_process_on_udp_multicast():
     group = f"239.74.{np.random.default_rng().integers(1, 250)}.{os.getpid() % 250 + 1}"
-    proc = subprocess.Popen([sys.executable, "-m", "bridge.cli.main", "ecu-sim", "--interface", "udp_multicast",
-                             "--channel", group, "--duration", "20", "--json"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "bridge.cli.main",
+            "ecu-sim",
+            "--interface",
+            "udp_multicast",
+            "--channel",
+            group,
+            "--duration",
+            "20",
+            "--json",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     bus = can.Bus(interface="udp_multicast", channel=group)
     got, wanted = {}, {PGN_HEARTBEAT, PGN_POSITION_MEASUREMENT, PGN_REAR_HITCH_STATUS}
     try:

@@ -9,10 +9,16 @@ import pytest
 
 from bridge.cli.main import main
 from bridge.isobus.j1939 import bus_load
-from bridge.sim.move import (
-    MoveSettings, MoveTrace, SimError, SimRig, SimSettings, build_move_figures, run_move,
-)
 from bridge.link.unit_loop import build_unit_loops, unit_loop_lag_s
+from bridge.sim.move import (
+    MoveSettings,
+    MoveTrace,
+    SimError,
+    SimRig,
+    SimSettings,
+    build_move_figures,
+    run_move,
+)
 from planner.model.exact_inverse import ExactInverse
 from planner.model.sensors import SensorScaling
 from planner.trajectory import MotionState, TrajectoryPlanner
@@ -87,18 +93,38 @@ def synthetic_trace(poses, t=None):
     n = len(poses)
     t = np.arange(1, n + 1) * 0.01 if t is None else np.asarray(t, float)
     nan5 = np.full((n, 5), np.nan)
-    return MoveTrace("step", np.zeros(4), np.zeros(4), np.array([0.0, 0.2, 0.0, 0.0]), 0.0, t, poses, poses,
-                     poses, nan5, nan5, nan5, {}, {}, (), 0.0)
+    return MoveTrace(
+        "step",
+        np.zeros(4),
+        np.zeros(4),
+        np.array([0.0, 0.2, 0.0, 0.0]),
+        0.0,
+        t,
+        poses,
+        poses,
+        poses,
+        nan5,
+        nan5,
+        nan5,
+        {},
+        {},
+        (),
+        0.0,
+    )
 
 
 def test_figures_on_a_synthetic_trace():
     """Start 0, goal z = 0.2 m: hand-computed deviation, overshoot, settling and final error."""
-    tr = synthetic_trace([[0.0, 0.0, 0.0, 0.0],
-                          [0.003, 0.1, 0.0, 0.004],   # 3 mm aside, 4 mrad of pitch, mid-way
-                          [0.0, 0.21, 0.0, 0.0],     # 10 mm beyond the goal
-                          [0.0, -0.004, 0.0, 0.0],   # 4 mm behind the start
-                          [0.0, 0.199, 0.001, 0.0],
-                          [0.0, 0.201, 0.0, -0.001]])
+    tr = synthetic_trace(
+        [
+            [0.0, 0.0, 0.0, 0.0],
+            [0.003, 0.1, 0.0, 0.004],  # 3 mm aside, 4 mrad of pitch, mid-way
+            [0.0, 0.21, 0.0, 0.0],  # 10 mm beyond the goal
+            [0.0, -0.004, 0.0, 0.0],  # 4 mm behind the start
+            [0.0, 0.199, 0.001, 0.0],
+            [0.0, 0.201, 0.0, -0.001],
+        ]
+    )
     f = build_move_figures(tr, band_position_m=0.005, band_angle_rad=0.005, final_window_s=0.015)
     assert f.max_path_deviation_m == pytest.approx(0.010)
     assert f.max_path_deviation_rad == pytest.approx(0.004)
@@ -188,18 +214,24 @@ def test_unit_loop_lag_hand_values_and_against_the_simulated_ecu(model):
             rig.run_until(rig.next_tick_s, every_tick=ramp)
             if rig.now_s > t0 + 5.0:  # steady ramp (> 5 time constants): reference − piston, in time
                 x = rig.ecu.piston_counts()
-                r = np.array([p.si_to_counts(q) for p, q in zip(rig.ecu.params, model.neutral)]) + v_counts * (rig.now_s - t0)
+                r = np.array([p.si_to_counts(q) for p, q in zip(rig.ecu.params, model.neutral)]) + v_counts * (
+                    rig.now_s - t0
+                )
                 lags.append((r[[1, 3]] - x[[1, 3]]) / v_counts[[1, 3]])
     measured = np.mean(lags, axis=0)
     # the minimum flow Kv·dy_min (after the dead zone) does part of the work: the P part's lag
     # shrinks by (1 − Kv·dy_min / v); + 10 ms: the 50 Hz stream's zero-order hold
     p = [rig.ecu.params[i] for i in (1, 3)]
-    expected = [q.transport_delay_s / (q.valve_multiplier * 0.581) * (1 - q.kv_pos * q.min_flow / v)
-                + q.time_constant_s + 0.01 for q, v in zip(p, v_counts[[1, 3]])]
+    expected = [
+        q.transport_delay_s / (q.valve_multiplier * 0.581) * (1 - q.kv_pos * q.min_flow / v) + q.time_constant_s + 0.01
+        for q, v in zip(p, v_counts[[1, 3]])
+    ]
     # the valve command is an integer: the error can rest anywhere within ±0.5 valve unit / (m k),
     # k = a / (Kv L) (thesis 2.57), i.e. ±0.5 / (m k v) s of lag
-    slack = [0.005 + 0.5 / (q.valve_multiplier * 0.581 / (q.kv_pos * q.transport_delay_s) * v)
-             for q, v in zip(p, v_counts[[1, 3]])]
+    slack = [
+        0.005 + 0.5 / (q.valve_multiplier * 0.581 / (q.kv_pos * q.transport_delay_s) * v)
+        for q, v in zip(p, v_counts[[1, 3]])
+    ]
     assert abs(measured[0] - expected[0]) <= slack[0] and abs(measured[1] - expected[1]) <= slack[1]
     assert slack[0] < 0.01 and slack[1] < 0.06
 
@@ -208,8 +240,10 @@ def test_feedforward_meets_the_issue_targets_on_a_200_mm_diagonal_move(model):
     """Issue 6 targets on the 200 mm move x 100 mm + z 173 mm: path deviation ≤ 10 mm with
     trajectories and at least 5× smaller than with a step reference; steady state ≤ 2 mm, 2 mrad."""
     goal, start = {"x": 0.05, "z": 0.1732}, {"x": -0.05, "z": 0.0}
-    runs = {kind: run_move(model, goal, MoveSettings(reference=ref, start=start, feedforward=ff))
-            for kind, ref, ff in (("step", "step", False), ("plain", "trajectory", False), ("ff", "trajectory", True))}
+    runs = {
+        kind: run_move(model, goal, MoveSettings(reference=ref, start=start, feedforward=ff))
+        for kind, ref, ff in (("step", "step", False), ("plain", "trajectory", False), ("ff", "trajectory", True))
+    }
     assert runs["ff"].reference_kind == "trajectory+feedforward"
     for which in ("truth", "measured"):
         f = {k: build_move_figures(tr, which) for k, tr in runs.items()}

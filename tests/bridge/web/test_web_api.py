@@ -21,10 +21,18 @@ import time
 import numpy as np
 import pytest
 
-from bridge.web.settings import (ERROR_STATUS, WebSettings, host_allowed, json_safe, origin_allowed,
-                                 parse_address)
-from bridge.web.websocket import (OP_BINARY, OP_CLOSE, OP_PING, OP_PONG, OP_TEXT, WebSocketError, accept_key,
-                                  decode_frame, encode_frame)
+from bridge.web.settings import ERROR_STATUS, WebSettings, host_allowed, json_safe, origin_allowed, parse_address
+from bridge.web.websocket import (
+    OP_BINARY,
+    OP_CLOSE,
+    OP_PING,
+    OP_PONG,
+    OP_TEXT,
+    WebSocketError,
+    accept_key,
+    decode_frame,
+    encode_frame,
+)
 
 # ---------------------------------------------------------------------------------------------- RFC 6455
 
@@ -68,14 +76,17 @@ def test_frame_round_trip_over_random_payloads_and_lengths():
                 assert decode_frame(data[:cut], max_bytes=1 << 20) is None
 
 
-@pytest.mark.parametrize("data, match", [
-    (bytes([0x81, 0x05]) + b"Hello", "must be masked"),
-    (bytes([0xC1, 0x80, 1, 2, 3, 4]), "reserved bits"),
-    (bytes([0x83, 0x80, 1, 2, 3, 4]), "unknown opcode"),
-    (bytes([0x09, 0x80, 1, 2, 3, 4]), "cannot be fragmented"),
-    (bytes([0x89, 0xFE, 0x00, 0x80]), "at most 125 bytes"),
-    (bytes([0x82, 0xFF]) + struct.pack("!Q", 1 << 40), "exceeds the limit"),
-])
+@pytest.mark.parametrize(
+    "data, match",
+    [
+        (bytes([0x81, 0x05]) + b"Hello", "must be masked"),
+        (bytes([0xC1, 0x80, 1, 2, 3, 4]), "reserved bits"),
+        (bytes([0x83, 0x80, 1, 2, 3, 4]), "unknown opcode"),
+        (bytes([0x09, 0x80, 1, 2, 3, 4]), "cannot be fragmented"),
+        (bytes([0x89, 0xFE, 0x00, 0x80]), "at most 125 bytes"),
+        (bytes([0x82, 0xFF]) + struct.pack("!Q", 1 << 40), "exceeds the limit"),
+    ],
+)
 def test_decode_refuses_protocol_violations(data, match):
     with pytest.raises(WebSocketError, match=match):
         decode_frame(data)
@@ -84,8 +95,10 @@ def test_decode_refuses_protocol_violations(data, match):
 # ---------------------------------------------------------------------------------------------- settings
 
 
-@pytest.mark.parametrize("addr, expected", [("127.0.0.1:8080", ("127.0.0.1", 8080)), ("[::1]:0", ("::1", 0)),
-                                            ("localhost:65535", ("localhost", 65535))])
+@pytest.mark.parametrize(
+    "addr, expected",
+    [("127.0.0.1:8080", ("127.0.0.1", 8080)), ("[::1]:0", ("::1", 0)), ("localhost:65535", ("localhost", 65535))],
+)
 def test_parse_address(addr, expected):
     assert parse_address(addr) == expected
 
@@ -96,9 +109,17 @@ def test_parse_address_refuses_bad_input_naming_the_form(addr):
         parse_address(addr)
 
 
-@pytest.mark.parametrize("kwargs, field", [({"port": 70000}, "port"), ({"port": True}, "port"),
-                                           ({"user": "a b"}, "user"), ({"workers": 0}, "workers"),
-                                           ({"host": ""}, "host"), ({"extra_hosts": "x:1"}, "extra_hosts")])
+@pytest.mark.parametrize(
+    "kwargs, field",
+    [
+        ({"port": 70000}, "port"),
+        ({"port": True}, "port"),
+        ({"user": "a b"}, "user"),
+        ({"workers": 0}, "workers"),
+        ({"host": ""}, "host"),
+        ({"extra_hosts": "x:1"}, "extra_hosts"),
+    ],
+)
 def test_settings_refuse_bad_values_naming_the_field(kwargs, field):
     with pytest.raises(ValueError, match=field):
         WebSettings(**kwargs)
@@ -111,18 +132,18 @@ def test_loopback_by_default_and_host_checks():
     bound = ("127.0.0.1", 8080)
     for ok in ("127.0.0.1:8080", "localhost:8080", "LOCALHOST:8080", "[::1]:8080"):
         assert host_allowed(ok, bound, s), ok
-    for bad in ("evil.example:8080", "127.0.0.1:8081", "", "127.0.0.1"):   # DNS rebinding, wrong port, none
+    for bad in ("evil.example:8080", "127.0.0.1:8081", "", "127.0.0.1"):  # DNS rebinding, wrong port, none
         assert not host_allowed(bad, bound, s), bad
     assert host_allowed("cab.local:8080", bound, WebSettings(extra_hosts=("cab.local:8080",)))
     assert host_allowed("anything:1", ("0.0.0.0", 1), WebSettings(host="0.0.0.0"))
 
 
 def test_origin_check_is_same_origin_only():
-    assert origin_allowed("", "127.0.0.1:8080")                       # not a cross-site browser request
+    assert origin_allowed("", "127.0.0.1:8080")  # not a cross-site browser request
     assert origin_allowed("http://127.0.0.1:8080", "127.0.0.1:8080")
     assert not origin_allowed("http://evil.example", "127.0.0.1:8080")
     assert not origin_allowed("http://127.0.0.1:8081", "127.0.0.1:8080")
-    assert not origin_allowed("null", "127.0.0.1:8080")               # sandboxed iframe / file://
+    assert not origin_allowed("null", "127.0.0.1:8080")  # sandboxed iframe / file://
 
 
 def test_json_safe_never_emits_non_finite_numbers():
@@ -156,9 +177,12 @@ def service(tmp_path_factory):
     from bridge.service.config import load_service_config
     from bridge.service.server import HitchService
 
-    cfg = load_service_config(data_dir=tmp_path_factory.mktemp("web-data"),
-                              listen=[f"tcp/127.0.0.1:{_free_port()}"], http="127.0.0.1:0",
-                              can_channel=f"web-api-{os.getpid()}")
+    cfg = load_service_config(
+        data_dir=tmp_path_factory.mktemp("web-data"),
+        listen=[f"tcp/127.0.0.1:{_free_port()}"],
+        http="127.0.0.1:0",
+        can_channel=f"web-api-{os.getpid()}",
+    )
     svc = HitchService(cfg).start()
     deadline = time.monotonic() + 5
     while (svc.latest_state is None or not svc.latest_state["ecu"]["online"]) and time.monotonic() < deadline:
@@ -218,20 +242,23 @@ def _zenoh_get(service, name, payload: bytes):
     raise AssertionError("no Zenoh reply")
 
 
-@pytest.mark.parametrize("name, payload", [
-    ("ik", {"x": 0.01, "z": 0.1, "roll": 0.0, "pitch": -0.05}),
-    ("ik", {"x": 0.01, "z": 0.1, "roll": 0.0}),                       # missing field
-    ("ik", {"x": 0.01, "z": 0.1, "roll": 0.0, "pitch": -0.05, "yaw": 0}),  # unknown field
-    ("goto", {"goal": {"z": 5.0}}),                                   # out of range
-    ("mode", {"mode": "warp"}),
-    ("presets/go", {"name": "no-such-preset"}),
-    ("config", {}),
-])
+@pytest.mark.parametrize(
+    "name, payload",
+    [
+        ("ik", {"x": 0.01, "z": 0.1, "roll": 0.0, "pitch": -0.05}),
+        ("ik", {"x": 0.01, "z": 0.1, "roll": 0.0}),  # missing field
+        ("ik", {"x": 0.01, "z": 0.1, "roll": 0.0, "pitch": -0.05, "yaw": 0}),  # unknown field
+        ("goto", {"goal": {"z": 5.0}}),  # out of range
+        ("mode", {"mode": "warp"}),
+        ("presets/go", {"name": "no-such-preset"}),
+        ("config", {}),
+    ],
+)
 def test_http_answers_exactly_what_zenoh_answers(service, web, name, payload):
     body = json.dumps(payload).encode()
     status, reply = _post(web, name, body)
     ok, zreply = _zenoh_get(service, name, body)
-    drop = {"solve_time_s"}                      # a measured duration differs between two solves
+    drop = {"solve_time_s"}  # a measured duration differs between two solves
     assert {k: v for k, v in reply.items() if k not in drop} == {k: v for k, v in zreply.items() if k not in drop}
     assert (status == 200) == ok
     if not ok:
@@ -251,7 +278,7 @@ def test_http_protocol_errors(web):
     status, _, _ = _request(web, "GET", "/api/goto")
     assert status == 405
     status, _, data = _request(web, "POST", "/api/stop", b"{}", {"Content-Type": "text/plain"})
-    assert status == 415                          # a cross-site "simple" form post cannot reach the API
+    assert status == 415  # a cross-site "simple" form post cannot reach the API
     status, _, data = _request(web, "POST", "/api/stop", b"x" * (70 * 1024))
     assert status == 413 and b"exceeds the limit" in data
     with socket.create_connection((host, port), timeout=5) as s:
@@ -279,8 +306,14 @@ class _WSClient:
         host, port = web.address
         self.sock = socket.create_connection((host, port), timeout=5)
         self.key = base64.b64encode(os.urandom(16)).decode()
-        lines = ["GET /ws HTTP/1.1", f"Host: {host}:{port}", "Upgrade: websocket", "Connection: Upgrade",
-                 f"Sec-WebSocket-Key: {self.key}", "Sec-WebSocket-Version: 13"]
+        lines = [
+            "GET /ws HTTP/1.1",
+            f"Host: {host}:{port}",
+            "Upgrade: websocket",
+            "Connection: Upgrade",
+            f"Sec-WebSocket-Key: {self.key}",
+            "Sec-WebSocket-Version: 13",
+        ]
         if origin:
             lines.append(f"Origin: {origin}")
         self.sock.sendall(("\r\n".join(lines) + "\r\n\r\n").encode())
@@ -343,13 +376,25 @@ def test_websocket_handshake_and_live_state(service, web):
         hello = ws.message("hello")
         assert hello["data"]["prefix"] == service.config.prefix
         seqs = [ws.message("state")["data"]["seq"] for _ in range(10)]
-        assert all(b > a for a, b in zip(seqs, seqs[1:]))       # newest first, never out of order
+        assert all(b > a for a, b in zip(seqs, seqs[1:]))  # newest first, never out of order
         latest = ws.message("state")["data"]
-        assert set(latest) >= {"t", "seq", "pose", "actuators", "velocity", "mode", "moving", "motion_id", "limited",
-                               "kinematic_margin", "stability", "ecu"}
-        assert abs(latest["seq"] - service.latest_state["seq"]) <= 5   # the very messages the service publishes
+        assert set(latest) >= {
+            "t",
+            "seq",
+            "pose",
+            "actuators",
+            "velocity",
+            "mode",
+            "moving",
+            "motion_id",
+            "limited",
+            "kinematic_margin",
+            "stability",
+            "ecu",
+        }
+        assert abs(latest["seq"] - service.latest_state["seq"]) <= 5  # the very messages the service publishes
         ws.send(b"", OP_PING)
-        while ws.frame().opcode != OP_PONG:   # state frames may come first
+        while ws.frame().opcode != OP_PONG:  # state frames may come first
             pass
     finally:
         ws.close()
@@ -358,8 +403,12 @@ def test_websocket_handshake_and_live_state(service, web):
 def test_websocket_commands_go_through_the_same_handler(service, web):
     ws = _WSClient(web)
     try:
-        requests = [("config", {}), ("ik", {"x": 0.0, "z": 0.05, "roll": 0.0, "pitch": -0.05}),
-                    ("goto", {"goal": {"x": 7.0}}), ("jog", {"vx": "fast"})]
+        requests = [
+            ("config", {}),
+            ("ik", {"x": 0.0, "z": 0.05, "roll": 0.0, "pitch": -0.05}),
+            ("goto", {"goal": {"x": 7.0}}),
+            ("jog", {"vx": "fast"}),
+        ]
         for rid, (key, payload) in enumerate(requests):
             reply = ws.call(rid, key, payload)
             ok, direct = service.api.handle(key, json.dumps(payload).encode(), None)
@@ -430,7 +479,7 @@ def test_page_commands_run_as_the_configured_user(service):
     servers = []
     try:
         with pytest.raises(ValueError, match="http_user"):
-            start_http(service, "127.0.0.1:0")               # never a silent bypass of the policy
+            start_http(service, "127.0.0.1:0")  # never a silent bypass of the policy
         viewer = start_http(service, "127.0.0.1:0", user="watcher")
         operator = start_http(service, "127.0.0.1:0", user="driver")
         servers += [viewer, operator]
@@ -438,7 +487,7 @@ def test_page_commands_run_as_the_configured_user(service):
         status, reply = _post(viewer, "goto", body)
         ok, direct = service.api.handle("goto", json.dumps(body).encode(), "watcher")
         assert (status, reply) == (403, direct) and not ok and direct["error"] == "forbidden"
-        assert _post(viewer, "stop", {})[0] == 200            # a viewer may still stop
+        assert _post(viewer, "stop", {})[0] == 200  # a viewer may still stop
         assert _post(viewer, "presets/list", {})[0] == 200
         status, reply = _post(operator, "goto", body)
         assert status == 200 and reply["accepted"]
@@ -468,7 +517,7 @@ def test_every_jog_in_a_burst_gets_exactly_one_reply(service, web):
     ws = _WSClient(web)
     try:
         ids = list(range(100, 130))
-        for rid in ids:                                   # faster than the handler: most wait or are superseded
+        for rid in ids:  # faster than the handler: most wait or are superseded
             ws.send({"id": rid, "key": "jog", "payload": {"vz": 0.01, "ttl_ms": 100}})
         replies = {}
         while len(replies) < len(ids):
@@ -476,7 +525,7 @@ def test_every_jog_in_a_burst_gets_exactly_one_reply(service, web):
             assert msg["id"] not in replies, f"two replies for {msg['id']}"
             replies[msg["id"]] = msg
         assert set(replies) == set(ids)
-        assert replies[ids[0]]["ok"] and replies[ids[-1]]["ok"]   # the first runs, the newest always runs
+        assert replies[ids[0]]["ok"] and replies[ids[-1]]["ok"]  # the first runs, the newest always runs
         for r in replies.values():
             assert r["ok"] or r["data"]["error"] == "busy"
     finally:
@@ -491,15 +540,23 @@ def test_a_page_that_drops_mid_jog_stops_the_hitch_by_the_ttl(service, web):
     ws = _WSClient(web)
     ws.send({"id": 1, "key": "jog", "payload": {"vz": -0.05, "ttl_ms": 200}})
     assert ws.message("reply")["ok"]
-    ws.close()                                            # the page vanishes while "holding" the button
+    ws.close()  # the page vanishes while "holding" the button
     t0 = time.monotonic()
     while time.monotonic() - t0 < 3 and (service.latest_state["motion"] != "jog" or service.latest_state["moving"]):
         time.sleep(0.02)
     assert not service.latest_state["moving"]
 
 
-@pytest.mark.parametrize("sent, echoed", [(b"", 1000), (struct.pack("!H", 1000), 1000), (struct.pack("!H", 4001), 4001),
-                                          (struct.pack("!H", 1005), 1002), (struct.pack("!H", 999), 1002)])
+@pytest.mark.parametrize(
+    "sent, echoed",
+    [
+        (b"", 1000),
+        (struct.pack("!H", 1000), 1000),
+        (struct.pack("!H", 4001), 4001),
+        (struct.pack("!H", 1005), 1002),
+        (struct.pack("!H", 999), 1002),
+    ],
+)
 def test_closing_handshake_echoes_valid_codes_only(web, sent, echoed):
     ws = _WSClient(web)
     try:
@@ -519,11 +576,21 @@ def test_terminal_runs_as_the_configured_user_under_the_security_files_acl(tmp_p
 
     users = write_users_file(tmp_path / "users.txt", {"olga": "o-secret", "victor": "v-secret"})
     sec = tmp_path / "security.json5"
-    sec.write_text(security_json5(SecuritySettings(
-        users_file=users, access=AccessPolicy(prefix="hitch", operators=("olga",), viewers=("victor",)))))
-    cfg = load_service_config(data_dir=tmp_path / "data", listen=[f"tcp/127.0.0.1:{_free_port()}"],
-                              http="127.0.0.1:0", http_user="victor", security=sec,
-                              can_channel=f"web-acl-{os.getpid()}")
+    sec.write_text(
+        security_json5(
+            SecuritySettings(
+                users_file=users, access=AccessPolicy(prefix="hitch", operators=("olga",), viewers=("victor",))
+            )
+        )
+    )
+    cfg = load_service_config(
+        data_dir=tmp_path / "data",
+        listen=[f"tcp/127.0.0.1:{_free_port()}"],
+        http="127.0.0.1:0",
+        http_user="victor",
+        security=sec,
+        can_channel=f"web-acl-{os.getpid()}",
+    )
     svc = HitchService(cfg).start()
     try:
         status, reply = _post(svc.http, "goto", {"goal": {"z": 0.2}})

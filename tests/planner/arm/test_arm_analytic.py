@@ -24,8 +24,8 @@ from planner.arm.analytic import (
     select_nearest_solution,
     solve_arm_ik,
 )
-from planner.arm.profile import load_arm_profile
 from planner.arm.dh import DHLink, build_dh_chain, forward_kinematics
+from planner.arm.profile import load_arm_profile
 from planner.arm.transforms import (
     RotationMatrixError,
     homogeneous,
@@ -59,13 +59,21 @@ R03_PRINTED = np.array([[0.3872, -0.7202, 0.5757], [0.2726, -0.5071, -0.8177], [
 R36_PRINTED = np.array([[0.6170, 0.6674, 0.4169], [0.0313, -0.5502, 0.8344], [0.7863, -0.5019, -0.3604]])  # fig. 3.3
 # Figure 3.6 (CAD model set to the first solution), 9 decimals; axes are printed as rows.
 CAD_TOOL_ORIGIN_MM = np.array([99.999987887, 49.999179031, 119.999955725])
-CAD_TOOL_AXES = np.array([[-0.121938966, -0.124126689, 0.984745375],
-                          [-0.991706773, -0.025349718, -0.125996301],
-                          [0.040602521, -0.991942517, -0.120006159]]).T
+CAD_TOOL_AXES = np.array(
+    [
+        [-0.121938966, -0.124126689, 0.984745375],
+        [-0.991706773, -0.025349718, -0.125996301],
+        [0.040602521, -0.991942517, -0.120006159],
+    ]
+).T
 CAD_WRIST_ORIGIN_MM = np.array([99.187937468, 89.838029370, 122.400078914])
-CAD_WRIST_AXES = np.array([[0.387193038, 0.272621848, 0.880771752],
-                           [-0.720167121, -0.507068237, 0.473541044],
-                           [0.575709014, -0.817654653, 0.000000000]]).T
+CAD_WRIST_AXES = np.array(
+    [
+        [0.387193038, 0.272621848, 0.880771752],
+        [-0.720167121, -0.507068237, 0.473541044],
+        [0.575709014, -0.817654653, 0.000000000],
+    ]
+).T
 CAD_HALF_ULP = 0.5e-9
 
 # ----------------------------------------------------------------------------- verified values
@@ -95,7 +103,9 @@ def fk(arm, q_deg):
 
 def rounding_bound(frames, point, joints, step=HALF_ULP * DEG):
     """How far ``point`` [m] can move when each joint in ``joints`` (1-based) moves by ``step``."""
-    return sum(np.linalg.norm(np.cross(frames.frames[j - 1][:3, 2], point - frames.origin(j - 1))) * step for j in joints)
+    return sum(
+        np.linalg.norm(np.cross(frames.frames[j - 1][:3, 2], point - frames.origin(j - 1))) * step for j in joints
+    )
 
 
 def solutions_by_label(result):
@@ -171,8 +181,12 @@ def test_typeset_theta2_formulas_2_52_to_2_55():
     sm, k = -sp, a2 + a3 * c3
     deg = math.degrees
     verified = {key[:2]: VERIFIED_DEG[key][1] for key in VERIFIED_DEG}
-    assert deg(math.atan2(pwz * k - a3 * sp * r, r * k + pwz * a3 * sp)) == pytest.approx(verified[("right", "down")], abs=HALF_ULP)
-    assert deg(math.atan2(pwz * k + a3 * sp * r, r * k + pwz * a3 * sm)) == pytest.approx(verified[("right", "up")], abs=HALF_ULP)
+    assert deg(math.atan2(pwz * k - a3 * sp * r, r * k + pwz * a3 * sp)) == pytest.approx(
+        verified[("right", "down")], abs=HALF_ULP
+    )
+    assert deg(math.atan2(pwz * k + a3 * sp * r, r * k + pwz * a3 * sm)) == pytest.approx(
+        verified[("right", "up")], abs=HALF_ULP
+    )
     printed_253 = deg(math.atan2(pwz * k + a3 * sp * r, r * k + pwz * a3 * sp))
     printed_255 = deg(math.atan2(pwz * k - a3 * sm * r, r * k + pwz * a3 * sm))
     assert abs(printed_253 - verified[("left", "up")]) > 100 and abs(printed_255 - verified[("left", "down")]) > 100
@@ -320,8 +334,14 @@ def test_1000_random_poses_of_the_source_arm(arm):
 
 def test_random_poses_general_arm_with_offsets_base_and_tool():
     h = math.pi / 2
-    links = [DHLink(0, h, 0.45, 0.3), DHLink(1.2, 0, 0, -0.7), DHLink(0, h, 0, 2.0),
-             DHLink(0, -h, 0.9, 0.1), DHLink(0, h, 0, -0.4), DHLink(0, 0, 0.25, 1.1)]
+    links = [
+        DHLink(0, h, 0.45, 0.3),
+        DHLink(1.2, 0, 0, -0.7),
+        DHLink(0, h, 0, 2.0),
+        DHLink(0, -h, 0.9, 0.1),
+        DHLink(0, h, 0, -0.4),
+        DHLink(0, 0, 0.25, 1.1),
+    ]
     base = homogeneous(rotz(0.6) @ roty(0.2), [1.0, -0.5, 0.3])
     tool = homogeneous(rotx(0.3), [0.02, -0.01, 0.15])
     arm = build_spherical_wrist_arm(build_dh_chain(links, base=base, tool=tool))

@@ -29,10 +29,10 @@ def test_example_profile_is_table_2_1_with_the_worked_example_in_metres():
     chain = prof.chain()
     table = [(l.a, l.alpha, l.d, l.theta, l.kind) for l in chain.links]
     assert table == [
-        (0.0, H, 0.100, 0.0, "revolute"),   # base height a1 = 100 mm
+        (0.0, H, 0.100, 0.0, "revolute"),  # base height a1 = 100 mm
         (0.100, 0.0, 0.0, 0.0, "revolute"),  # a2 = 100 mm
-        (0.0, H, 0.0, H, "revolute"),        # θ3 offset: the source's frame-3 turn
-        (0.0, -H, 0.050, 0.0, "revolute"),   # source a3 = 50 mm as d4
+        (0.0, H, 0.0, H, "revolute"),  # θ3 offset: the source's frame-3 turn
+        (0.0, -H, 0.050, 0.0, "revolute"),  # source a3 = 50 mm as d4
         (0.0, H, 0.0, 0.0, "revolute"),
         (0.0, 0.0, 0.020, 0.0, "revolute"),  # tool 20 mm along z6
     ]
@@ -45,7 +45,7 @@ def test_example_profile_is_table_2_1_with_the_worked_example_in_metres():
 def test_load_from_path_and_frames(tmp_path):
     data = example_data()
     text = (resources.files("planner") / "profiles" / "arms" / "arm-source-example.toml").read_text(encoding="utf-8")
-    text += '\n[base]\nposition = [0.5, -0.25, 1.0]\nzyz = [0.3, 0.2, -0.1]\n[tool]\nposition = [0, 0, 0.1]\n'
+    text += "\n[base]\nposition = [0.5, -0.25, 1.0]\nzyz = [0.3, 0.2, -0.1]\n[tool]\nposition = [0, 0, 0.1]\n"
     path = tmp_path / "my-arm.toml"
     path.write_text(text, encoding="utf-8")
     chain = load_arm_profile(path).chain()
@@ -65,12 +65,18 @@ def test_integers_are_accepted_for_floats():
     [
         (lambda d: d["joints"][0].update(foo=1), r"joints\.0\.foo = 1: unknown key"),
         (lambda d: d["joints"][1].update(a="0.1"), r"joints\.1\.a = '0\.1': Input should be a valid number"),
-        (lambda d: d["joints"][1].update(a=250.0), r"joints\.1\.a = 250\.0: .*a = 250\.0 m is outside the allowed \[-100, 100\] m"),
+        (
+            lambda d: d["joints"][1].update(a=250.0),
+            r"joints\.1\.a = 250\.0: .*a = 250\.0 m is outside the allowed \[-100, 100\] m",
+        ),
         (lambda d: d["joints"][2].pop("d"), r"joints\.2\.d: Field required"),
         (lambda d: d["joints"][3].update(lower=1.0, upper=0.5), r"joint 'forearm_roll': limits need lower < upper"),
         (lambda d: d["joints"][3].update(upper=7.0), r"upper = 7\.0 rad is outside the allowed ±6\.28319 rad"),
         (lambda d: d["joints"][0].update(d=float("nan")), r"joints\.0\.d = nan: Input should be a finite number"),
-        (lambda d: d["joints"][0].update(type="helical"), r"joints\.0\.type = 'helical': Input should be 'revolute' or 'prismatic'"),
+        (
+            lambda d: d["joints"][0].update(type="helical"),
+            r"joints\.0\.type = 'helical': Input should be 'revolute' or 'prismatic'",
+        ),
         (lambda d: d["joints"][1].update(name="waist"), r"joint names must be unique; repeated: waist"),
         (lambda d: d.update(schema_version=2), r"schema_version = 2: Input should be 1"),
         (lambda d: d.update(name="bad name!"), r"name = 'bad name!': .*letters, digits"),

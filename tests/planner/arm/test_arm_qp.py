@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from planner.arm.analytic import build_spherical_wrist_arm, solve_arm_ik
-from planner.arm.profile import load_arm_profile
 from planner.arm.dh import forward_kinematics
 from planner.arm.mechanism import arm_target, arm_weights, build_arm_mechanism
+from planner.arm.profile import load_arm_profile
 from planner.ik_qp.problem import build_ik_problem
 from planner.ik_qp.sqp import SQPSolver
 from planner.trajectory import plan_joint_move
@@ -57,8 +57,9 @@ def test_qp_from_a_neutral_seed_reaches_the_target(setup, rng):
 
 def test_unreachable_arm_target_is_limited_not_nan(setup):
     chain, arm, mech = setup
-    r = SQPSolver(mech).solve(build_ik_problem(mech, arm_target([1.0, 0.0, 0.5], np.eye(3)), arm_weights()),
-                              seed=np.zeros(6))
+    r = SQPSolver(mech).solve(
+        build_ik_problem(mech, arm_target([1.0, 0.0, 0.5], np.eye(3)), arm_weights()), seed=np.zeros(6)
+    )
     assert r.status == "limited" and np.all(np.isfinite(r.q))
 
 

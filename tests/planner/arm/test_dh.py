@@ -11,7 +11,6 @@ import math
 import numpy as np
 import pytest
 
-from planner.arm.profile import load_arm_profile
 from planner.arm.dh import (
     DHLink,
     JointLimitError,
@@ -22,6 +21,7 @@ from planner.arm.dh import (
     geometric_jacobian,
     limit_violations,
 )
+from planner.arm.profile import load_arm_profile
 from planner.arm.transforms import homogeneous, rotx, roty, rotz, translation, vee
 
 SEED = 20261125
@@ -31,10 +31,16 @@ C, S = math.cos, math.sin
 
 def table21_chain(a2=0.7, d4=0.5, d6=0.2, d1=0.0, theta3=0.0):
     """The source's Table 2.1 (d1 = 0 there)."""
-    return build_dh_chain([
-        DHLink(0, H, d1, 0), DHLink(a2, 0, 0, 0), DHLink(0, H, 0, theta3),
-        DHLink(0, -H, d4, 0), DHLink(0, H, 0, 0), DHLink(0, 0, d6, 0),
-    ])
+    return build_dh_chain(
+        [
+            DHLink(0, H, d1, 0),
+            DHLink(a2, 0, 0, 0),
+            DHLink(0, H, 0, theta3),
+            DHLink(0, -H, d4, 0),
+            DHLink(0, H, 0, 0),
+            DHLink(0, 0, d6, 0),
+        ]
+    )
 
 
 def elementary_dh(a, alpha, d, theta):
@@ -54,12 +60,14 @@ def test_dh_transform_is_the_product_of_elementary_transforms():
 
 def printed_2_19(a, alpha, d, theta):
     """The source's 2.19 as typeset (a_1 read as a)."""
-    return np.array([
-        [C(theta), -S(theta) * C(alpha), C(theta) * S(alpha), a * C(theta)],
-        [S(theta), C(theta) * C(alpha), -S(alpha), d * C(theta)],
-        [0, S(alpha), C(alpha), 0],
-        [0, 0, 0, 1],
-    ])
+    return np.array(
+        [
+            [C(theta), -S(theta) * C(alpha), C(theta) * S(alpha), a * C(theta)],
+            [S(theta), C(theta) * C(alpha), -S(alpha), d * C(theta)],
+            [0, S(alpha), C(alpha), 0],
+            [0, 0, 0, 1],
+        ]
+    )
 
 
 def test_source_2_19_as_printed_fails():
@@ -77,26 +85,34 @@ def closed_form_0T6(q, a2, d4, d6):
     """n, s, a, p of the anthropomorphic arm with spherical wrist (2.21-2.24, corrected)."""
     c1, s1, c2, s2, c4, s4, c5, s5, c6, s6 = (f(x) for x in (q[0], q[1], q[3], q[4], q[5]) for f in (C, S))
     c23, s23 = C(q[1] + q[2]), S(q[1] + q[2])
-    n = np.array([
-        c1 * (c23 * (c4 * c5 * c6 - s4 * s6) - s23 * s5 * c6) + s1 * (s4 * c5 * c6 + c4 * s6),
-        s1 * (c23 * (c4 * c5 * c6 - s4 * s6) - s23 * s5 * c6) - c1 * (s4 * c5 * c6 + c4 * s6),
-        s23 * (c4 * c5 * c6 - s4 * s6) + c23 * s5 * c6,
-    ])
-    s = np.array([
-        c1 * (-c23 * (c4 * c5 * s6 + s4 * c6) + s23 * s5 * s6) + s1 * (-s4 * c5 * s6 + c4 * c6),
-        s1 * (-c23 * (c4 * c5 * s6 + s4 * c6) + s23 * s5 * s6) - c1 * (-s4 * c5 * s6 + c4 * c6),
-        -s23 * (c4 * c5 * s6 + s4 * c6) - c23 * s5 * s6,
-    ])
-    a = np.array([
-        c1 * (c23 * c4 * s5 + s23 * c5) + s1 * s4 * s5,
-        s1 * (c23 * c4 * s5 + s23 * c5) - c1 * s4 * s5,
-        s23 * c4 * s5 - c23 * c5,
-    ])
-    p = np.array([
-        a2 * c1 * c2 + d4 * c1 * s23 + d6 * a[0],
-        a2 * s1 * c2 + d4 * s1 * s23 + d6 * a[1],
-        a2 * s2 - d4 * c23 + d6 * a[2],
-    ])
+    n = np.array(
+        [
+            c1 * (c23 * (c4 * c5 * c6 - s4 * s6) - s23 * s5 * c6) + s1 * (s4 * c5 * c6 + c4 * s6),
+            s1 * (c23 * (c4 * c5 * c6 - s4 * s6) - s23 * s5 * c6) - c1 * (s4 * c5 * c6 + c4 * s6),
+            s23 * (c4 * c5 * c6 - s4 * s6) + c23 * s5 * c6,
+        ]
+    )
+    s = np.array(
+        [
+            c1 * (-c23 * (c4 * c5 * s6 + s4 * c6) + s23 * s5 * s6) + s1 * (-s4 * c5 * s6 + c4 * c6),
+            s1 * (-c23 * (c4 * c5 * s6 + s4 * c6) + s23 * s5 * s6) - c1 * (-s4 * c5 * s6 + c4 * c6),
+            -s23 * (c4 * c5 * s6 + s4 * c6) - c23 * s5 * s6,
+        ]
+    )
+    a = np.array(
+        [
+            c1 * (c23 * c4 * s5 + s23 * c5) + s1 * s4 * s5,
+            s1 * (c23 * c4 * s5 + s23 * c5) - c1 * s4 * s5,
+            s23 * c4 * s5 - c23 * c5,
+        ]
+    )
+    p = np.array(
+        [
+            a2 * c1 * c2 + d4 * c1 * s23 + d6 * a[0],
+            a2 * s1 * c2 + d4 * s1 * s23 + d6 * a[1],
+            a2 * s2 - d4 * c23 + d6 * a[2],
+        ]
+    )
     return n, s, a, p
 
 
@@ -127,12 +143,14 @@ def test_table21_chain_matches_corrected_closed_forms_and_typeset_ones_fail():
 def three_link_T03(q1, q2, q3, a2, a3):
     """The source's T03 of the three-link arm as in its Matlab listing (figure 3.3)."""
     c1, s1, c2, s2, c23, s23 = C(q1), S(q1), C(q2), S(q2), C(q2 + q3), S(q2 + q3)
-    return np.array([
-        [c1 * c23, -c1 * s23, s1, c1 * (a2 * c2 + a3 * c23)],
-        [s1 * c23, -s1 * s23, -c1, s1 * (a2 * c2 + a3 * c23)],
-        [s23, c23, 0, a2 * s2 + a3 * s23],
-        [0, 0, 0, 1],
-    ])
+    return np.array(
+        [
+            [c1 * c23, -c1 * s23, s1, c1 * (a2 * c2 + a3 * c23)],
+            [s1 * c23, -s1 * s23, -c1, s1 * (a2 * c2 + a3 * c23)],
+            [s23, c23, 0, a2 * s2 + a3 * s23],
+            [0, 0, 0, 1],
+        ]
+    )
 
 
 def test_three_link_T03_listing_is_right_and_2_37_2_25_as_printed_fail():
@@ -178,12 +196,14 @@ def test_wrist_transforms_2_59_to_2_62():
         p259 = np.array([[c4, 0, -s4, 0], [s4, 1, c4, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
         p260 = np.array([[c5, 0, s5, 0], [s5, 0, -c5, 0], [0, 1, 0, 0], [0, 0, 0, 1]])
         p261 = np.array([[c6, -s6, 0, 0], [s6, 1, c6, 0], [0, 0, 1, d6], [0, 0, 0, 1]])
-        p262 = np.array([
-            [c4 * c5 * c6, -c4 * c5 * s6 - s4 * c6, c4 * s5, c4 * s5 * d6],
-            [s4 * c5 * c6, -s4 * c5 * s6 + c4 * c6, s4 * s5, s4 * s5 * d6],
-            [-s5 * c6, s5 * s6, c5, d6],
-            [0, 0, 0, 1],
-        ])
+        p262 = np.array(
+            [
+                [c4 * c5 * c6, -c4 * c5 * s6 - s4 * c6, c4 * s5, c4 * s5 * d6],
+                [s4 * c5 * c6, -s4 * c5 * s6 + c4 * c6, s4 * s5, s4 * s5 * d6],
+                [-s5 * c6, s5 * s6, c5, d6],
+                [0, 0, 0, 1],
+            ]
+        )
         np.testing.assert_allclose(p260, A5, atol=1e-15)
         assert np.max(np.abs(p259 - A4)) > 0.5
         assert np.max(np.abs(p261 - A6)) > 0.5
@@ -200,10 +220,12 @@ def test_wrist_transforms_2_59_to_2_62():
 def test_prismatic_chain_by_hand():
     """Waist (revolute, height h) then a horizontal telescopic boom along z1 = (s1, -c1, 0)."""
     h = 0.8
-    chain = build_dh_chain([
-        DHLink(0, H, h, 0, name="waist"),
-        DHLink(0, 0, 0.1, 0, kind="prismatic", lower=0.0, upper=2.0, name="boom"),
-    ])
+    chain = build_dh_chain(
+        [
+            DHLink(0, H, h, 0, name="waist"),
+            DHLink(0, 0, 0.1, 0, kind="prismatic", lower=0.0, upper=2.0, name="boom"),
+        ]
+    )
     for q1, q2 in ((0.0, 0.5), (0.7, 1.3), (-2.0, 0.0)):
         fr = forward_kinematics(chain, [q1, q2])
         np.testing.assert_allclose(fr.position, [(q2 + 0.1) * S(q1), -(q2 + 0.1) * C(q1), h], atol=1e-15)
@@ -219,8 +241,9 @@ def test_base_and_tool_transforms():
     tool = homogeneous(roty(0.4), [0.0, 0.05, 0.12])
     chain = build_dh_chain(bare.links, base=base, tool=tool)
     for q in rng.uniform(-3, 3, size=(20, 6)):
-        np.testing.assert_allclose(forward_kinematics(chain, q).end,
-                                   base @ forward_kinematics(bare, q).end @ tool, atol=1e-14)
+        np.testing.assert_allclose(
+            forward_kinematics(chain, q).end, base @ forward_kinematics(bare, q).end @ tool, atol=1e-14
+        )
 
 
 # --------------------------------------------------------------------------- Jacobians and CasADi

@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from planner.model.exact_inverse import ExactInverse
-from planner.model.hard_limits import HardLimits
 from planner.ik_qp.baselines import DLSIK, GeometricIK, HybridIK
 from planner.ik_qp.hitch_ik import IKSolver
 from planner.ik_qp.result import Target
+from planner.model.exact_inverse import ExactInverse
+from planner.model.hard_limits import HardLimits
 from planner.model.workspace import Reachability
 
 DOFS = ("x", "z", "roll", "pitch")
@@ -58,9 +58,9 @@ def test_out_of_reach_returns_nearest_reachable_pose_with_the_limit(model, solve
         # far left (+x): the mast point U moves to +x, the top link yaws negative (README signs)
         (Target(0.12, n.z, 0.0, 0.0), "top_link_yaw_min"),
         (Target(-0.12, n.z, 0.0, 0.0), "top_link_yaw_max"),
-        (Target(0.0, 0.8, 0.0, 0.0), "top_link_pitch_max"),      # the top link tilts up before the lift ends
+        (Target(0.0, 0.8, 0.0, 0.0), "top_link_pitch_max"),  # the top link tilts up before the lift ends
         (Target(0.0, -0.8, 0.0, 0.0), "stroke:lift:min"),
-        (Target(0.0, n.z, 0.0, 0.6), "stroke:top:min"),           # mast far forward needs a short top link
+        (Target(0.0, n.z, 0.0, 0.6), "stroke:top:min"),  # mast far forward needs a short top link
         (Target(0.0, n.z, 0.0, -0.6), "stroke:top:max"),
     ]
     reach = Reachability(model)
@@ -126,9 +126,13 @@ def test_backends_agree_with_osqp(model, solver, backend, rng):
 
 @pytest.mark.parametrize(
     "bad, field",
-    [({"x": math.nan}, "x must be finite"), ({"z": math.inf}, "z must be finite"),
-     ({"roll": "0.1"}, "roll must be a number"), ({"pitch": None}, "pitch must be a number"),
-     ({"x": 1e9}, "x = 1000000000.0 is outside the accepted range")],
+    [
+        ({"x": math.nan}, "x must be finite"),
+        ({"z": math.inf}, "z must be finite"),
+        ({"roll": "0.1"}, "roll must be a number"),
+        ({"pitch": None}, "pitch must be a number"),
+        ({"x": 1e9}, "x = 1000000000.0 is outside the accepted range"),
+    ],
 )
 def test_bad_input_names_the_field(model, solver, bad, field):
     kw = {"x": 0.0, "z": 0.1, "roll": 0.0, "pitch": 0.0, **bad}
@@ -155,14 +159,22 @@ def test_baselines_agree_with_qp_near_neutral(model, solver, rng):
 
 def test_cli_ik_json(model):
     hitch = str(Path(sys.executable).with_name("hitch"))
-    r = subprocess.run([hitch, "ik", "--x", "0.02", "--z", "0.2", "--roll", "0.01", "--pitch", "0", "--json"],
-                       capture_output=True, text=True, timeout=120)
+    r = subprocess.run(
+        [hitch, "ik", "--x", "0.02", "--z", "0.2", "--roll", "0.01", "--pitch", "0", "--json"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 0, r.stderr
     d = json.loads(r.stdout)
     assert set(d) >= {"status", "actuators", "pose", "active", "iterations", "residual", "solve_time_s"}
     assert d["status"] == "ok" and set(d["actuators"]) == {"lift", "tilt", "top", "left", "right"}
     assert d["pose"]["x"] == pytest.approx(0.02, abs=1e-9)
     for m in ("dls", "hybrid", "geometric"):
-        r = subprocess.run([hitch, "ik", "--x", "0", "--z", "0.15", "--roll", "0", "--pitch", "0", "--method", m,
-                            "--json"], capture_output=True, text=True, timeout=120)
+        r = subprocess.run(
+            [hitch, "ik", "--x", "0", "--z", "0.15", "--roll", "0", "--pitch", "0", "--method", m, "--json"],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
         assert r.returncode == 0 and json.loads(r.stdout)["status"] == "ok"

@@ -30,15 +30,25 @@ def arm2(lower=(-1.5, 0.2), upper=(1.5, 2.6), elbow_min=None):
     y = L1 * ca.sin(q[0]) + L2 * ca.sin(q[0] + q[1])
     extra = {}
     if elbow_min is not None:
-        extra = dict(inequality=L1 * ca.sin(q[0]), inequality_names=["elbow_height"],
-                     g_lower=[elbow_min], g_upper=[np.inf])
-    return build_mechanism("arm2", q, ca.vertcat(x, y), actuator_names=["j1", "j2"], lower=lower,
-                           upper=upper, task_names=["x", "y"], **extra)
+        extra = dict(
+            inequality=L1 * ca.sin(q[0]), inequality_names=["elbow_height"], g_lower=[elbow_min], g_upper=[np.inf]
+        )
+    return build_mechanism(
+        "arm2",
+        q,
+        ca.vertcat(x, y),
+        actuator_names=["j1", "j2"],
+        lower=lower,
+        upper=upper,
+        task_names=["x", "y"],
+        **extra,
+    )
 
 
 def arm2_fk(q):
-    return np.array([L1 * math.cos(q[0]) + L2 * math.cos(q[0] + q[1]),
-                     L1 * math.sin(q[0]) + L2 * math.sin(q[0] + q[1])])
+    return np.array(
+        [L1 * math.cos(q[0]) + L2 * math.cos(q[0] + q[1]), L1 * math.sin(q[0]) + L2 * math.sin(q[0] + q[1])]
+    )
 
 
 def arm2_ik(x, y):
@@ -56,8 +66,15 @@ def arm3():
     lengths = (1.0, 0.8, 0.5)
     x = sum(l * ca.cos(a[i]) for i, l in enumerate(lengths))
     y = sum(l * ca.sin(a[i]) for i, l in enumerate(lengths))
-    return build_mechanism("arm3", q, ca.vertcat(x, y, a[2]), actuator_names=["j1", "j2", "j3"],
-                           lower=[-1.0, 0.2, -2.0], upper=[1.5, 2.4, 2.0], task_names=["x", "y", "phi"])
+    return build_mechanism(
+        "arm3",
+        q,
+        ca.vertcat(x, y, a[2]),
+        actuator_names=["j1", "j2", "j3"],
+        lower=[-1.0, 0.2, -2.0],
+        upper=[1.5, 2.4, 2.0],
+        task_names=["x", "y", "phi"],
+    )
 
 
 def bar(tilt=None, side_names=None):
@@ -70,12 +87,25 @@ def bar(tilt=None, side_names=None):
     task = ca.vertcat((xl + xr) / 2, (zl + zr) / 2, ca.atan2(zr - zl, xr - xl))
     extra = {}
     if tilt is not None:
-        extra = dict(inequality=zr - zl, inequality_names=["tilt"], g_lower=[-tilt], g_upper=[tilt],
-                     inequality_side_names=side_names)
+        extra = dict(
+            inequality=zr - zl,
+            inequality_names=["tilt"],
+            g_lower=[-tilt],
+            g_upper=[tilt],
+            inequality_side_names=side_names,
+        )
     return build_mechanism(
-        "bar", q, task, actuator_names=["xl", "zl", "xr", "zr"], lower=[-2, 0, -2, 0], upper=[2, 1, 2, 1],
-        task_names=["x", "z", "roll"], equality=ca.sqrt((xr - xl) ** 2 + (zr - zl) ** 2) - SPAN,
-        equality_names=["rigidity"], **extra)
+        "bar",
+        q,
+        task,
+        actuator_names=["xl", "zl", "xr", "zr"],
+        lower=[-2, 0, -2, 0],
+        upper=[2, 1, 2, 1],
+        task_names=["x", "z", "roll"],
+        equality=ca.sqrt((xr - xl) ** 2 + (zr - zl) ** 2) - SPAN,
+        equality_names=["rigidity"],
+        **extra,
+    )
 
 
 def bar_ik(x, z, roll):
@@ -178,8 +208,15 @@ def test_redundant_unbounded_mechanism(backend, rng):
     a = ca.cumsum(q)
     x = sum(l * ca.cos(a[i]) for i, l in enumerate((1.0, 0.8, 0.5)))
     y = sum(l * ca.sin(a[i]) for i, l in enumerate((1.0, 0.8, 0.5)))
-    mech = build_mechanism("redundant", q, ca.vertcat(x, y), actuator_names=["a", "b", "c"],
-                           lower=[-np.inf] * 3, upper=[np.inf] * 3, task_names=["x", "y"])
+    mech = build_mechanism(
+        "redundant",
+        q,
+        ca.vertcat(x, y),
+        actuator_names=["a", "b", "c"],
+        lower=[-np.inf] * 3,
+        upper=[np.inf] * 3,
+        task_names=["x", "y"],
+    )
     solver = SQPSolver(mech, backend=backend)
     for _ in range(15):
         target = np.array(mech.task(rng.uniform(-1.5, 1.5, 3))[0]).ravel()
@@ -278,8 +315,9 @@ def test_workspace_bounds_on_tasks(rigid_bar):
     assert sol.status == "limited" and sol.active == ("workspace:x:max",)
     np.testing.assert_allclose(sol.task, [0.5, 0.5, 0.1], atol=1e-9)
     # the same target inside the box, other label: reached, nothing active
-    inside = build_ik_problem(rigid_bar, [0.2, 0.5, 0.1],
-                              task_bounds=TaskBounds(np.array([-0.5, -1, -1]), np.array([0.5, 1, 1]), "box"))
+    inside = build_ik_problem(
+        rigid_bar, [0.2, 0.5, 0.1], task_bounds=TaskBounds(np.array([-0.5, -1, -1]), np.array([0.5, 1, 1]), "box")
+    )
     sol = solver.solve(inside)
     assert sol.status == "ok" and sol.active == ()
 
@@ -315,8 +353,8 @@ def random_qp(rng, n=4, n_eq=1, n_ineq=3):
     qp.c[:] = rng.normal(size=n) * 3
     qp.A[n:] = rng.normal(size=(n_eq + n_ineq, n))
     qp.l[:n], qp.u[:n] = -0.5, 0.5
-    qp.l[n:n + n_eq] = qp.u[n:n + n_eq] = rng.normal(size=n_eq) * 0.1
-    qp.l[n + n_eq:], qp.u[n + n_eq:] = -0.2, 1e30
+    qp.l[n : n + n_eq] = qp.u[n : n + n_eq] = rng.normal(size=n_eq) * 0.1
+    qp.l[n + n_eq :], qp.u[n + n_eq :] = -0.2, 1e30
     return qp
 
 
@@ -383,8 +421,15 @@ def test_warm_start_reduces_iterations_on_a_path(rng):
 def test_nan_region_is_never_propagated():
     # t0 = asin(q0) is NaN for |q0| > 1, but the strokes allow |q0| <= 3
     q = ca.SX.sym("q", 2)
-    mech = build_mechanism("asin", q, ca.vertcat(ca.asin(q[0]), q[1]), actuator_names=["a", "b"],
-                           lower=[-3, -1], upper=[3, 1], task_names=["t0", "t1"])
+    mech = build_mechanism(
+        "asin",
+        q,
+        ca.vertcat(ca.asin(q[0]), q[1]),
+        actuator_names=["a", "b"],
+        lower=[-3, -1],
+        upper=[3, 1],
+        task_names=["t0", "t1"],
+    )
     solver = SQPSolver(mech)
     for seed in ([2.5, 0.0], [-2.9, 0.5], [0.9, -0.5]):
         sol = solver.solve(build_ik_problem(mech, [0.6, 0.2], max_step=2.0), seed=seed)
@@ -399,8 +444,9 @@ def test_nan_region_is_never_propagated():
 
 def test_mechanism_invalid_everywhere_fails_without_nan():
     q = ca.SX.sym("q", 1)
-    mech = build_mechanism("broken", q, ca.sqrt(-1 - q[0] ** 2), actuator_names=["a"], lower=[-1],
-                           upper=[1], task_names=["t"])
+    mech = build_mechanism(
+        "broken", q, ca.sqrt(-1 - q[0] ** 2), actuator_names=["a"], lower=[-1], upper=[1], task_names=["t"]
+    )
     sol = SQPSolver(mech).solve(build_ik_problem(mech, [0.0]), seed=[0.5])
     assert sol.status == "failed" and "non-finite" in sol.reason
     assert not np.isnan(sol.q).any() and not np.isnan(sol.task).any() and not math.isnan(sol.residual)
@@ -408,8 +454,17 @@ def test_mechanism_invalid_everywhere_fails_without_nan():
 
 def test_infeasible_constraints_fail_with_reason():
     q = ca.SX.sym("q", 2)
-    mech = build_mechanism("impossible", q, q, actuator_names=["a", "b"], lower=[-1, -1], upper=[1, 1],
-                           task_names=["x", "y"], equality=q[0] ** 2 + 1, equality_names=["never_zero"])
+    mech = build_mechanism(
+        "impossible",
+        q,
+        q,
+        actuator_names=["a", "b"],
+        lower=[-1, -1],
+        upper=[1, 1],
+        task_names=["x", "y"],
+        equality=q[0] ** 2 + 1,
+        equality_names=["never_zero"],
+    )
     sol = SQPSolver(mech).solve(build_ik_problem(mech, [0.2, 0.3]))
     check_solution(sol, mech)
     assert sol.status == "failed" and "never_zero" in sol.reason
@@ -417,7 +472,8 @@ def test_infeasible_constraints_fail_with_reason():
 
 def test_iteration_limit_reported(rigid_bar):
     sol = SQPSolver(rigid_bar, max_iterations=1).solve(
-        build_ik_problem(rigid_bar, [0.5, 0.5, 0.3], max_step=0.01), seed=[0, 0.2, 1.5, 0.9])
+        build_ik_problem(rigid_bar, [0.5, 0.5, 0.3], max_step=0.01), seed=[0, 0.2, 1.5, 0.9]
+    )
     assert sol.status == "failed" and "iteration limit" in sol.reason
     check_solution(sol, rigid_bar)
 
@@ -429,8 +485,9 @@ def test_custom_task_error_wraps_angles():
         return (target - t + np.pi) % (2 * np.pi) - np.pi
 
     plain = build_mechanism("dial", q, q, actuator_names=["a"], lower=[-4], upper=[4], task_names=["phi"])
-    wrap = build_mechanism("dial", q, q, actuator_names=["a"], lower=[-4], upper=[4], task_names=["phi"],
-                           task_error=wrapped)
+    wrap = build_mechanism(
+        "dial", q, q, actuator_names=["a"], lower=[-4], upper=[4], task_names=["phi"], task_error=wrapped
+    )
     target, seed = [math.pi - 0.05], [-math.pi + 0.05]
     assert SQPSolver(plain).solve(build_ik_problem(plain, target), seed=seed).q[0] == pytest.approx(math.pi - 0.05)
     sol = SQPSolver(wrap).solve(build_ik_problem(wrap, target), seed=seed)

@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from planner.model.kinematics import HitchModel
 from planner.limits.end_stop import EndStopZone
 from planner.limits.guard import Guard, GuardRefusal
 from planner.limits.stability import StabilityThresholds
 from planner.limits.tractor import load_tractor_profile
+from planner.model.kinematics import HitchModel
 from planner.profiles.hitch import load_profile, profile_from_dict
 from planner.trajectory import MotionState, TrajectoryPlanner
 
@@ -36,8 +36,11 @@ def heavy():
 
 @pytest.fixture
 def guard(ballasted, heavy):
-    g = Guard(TrajectoryPlanner(ballasted), implement=heavy,
-              thresholds=StabilityThresholds(esm_hard=ESM_HARD, esm_caution=ESM_HARD))
+    g = Guard(
+        TrajectoryPlanner(ballasted),
+        implement=heavy,
+        thresholds=StabilityThresholds(esm_hard=ESM_HARD, esm_caution=ESM_HARD),
+    )
     g.set_slope(SLOPE, 0.0)
     return g
 
@@ -80,8 +83,11 @@ def test_lowering_it_is_allowed_even_from_below_the_threshold(guard):
 
 
 def test_caution_slows_the_motion(ballasted, heavy):
-    g = Guard(TrajectoryPlanner(ballasted), implement=heavy,
-              thresholds=StabilityThresholds(esm_hard=100.0, esm_caution=50_000.0))
+    g = Guard(
+        TrajectoryPlanner(ballasted),
+        implement=heavy,
+        thresholds=StabilityThresholds(esm_hard=100.0, esm_caution=50_000.0),
+    )
     start = MotionState.at_rest([0.0, g.planner.lo[1], 0.0, 0.0])
     gp = g.plan(start, {"z": 0.2})
     fast = g.planner.plan_move(start, {"z": 0.2})
@@ -162,8 +168,12 @@ def test_jog_is_evaluated_one_second_ahead(guard):
 
 def test_stability_cli_json():
     hitch = str(Path(sys.executable).with_name("hitch"))
-    r = subprocess.run([hitch, "stability", "--pose", "z=0.2", "--slope-roll", "0.1", "--implement",
-                        "cat2-spreader-400", "--json"], capture_output=True, text=True, timeout=120)
+    r = subprocess.run(
+        [hitch, "stability", "--pose", "z=0.2", "--slope-roll", "0.1", "--implement", "cat2-spreader-400", "--json"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 0, r.stderr
     d = json.loads(r.stdout)
     assert set(d) >= {"axle_loads", "front_axle_share", "ssm", "lsm", "esm", "min_front_ballast", "ok", "violations"}

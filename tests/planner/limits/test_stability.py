@@ -25,6 +25,8 @@ from planner.limits.stability import (
 )
 from planner.limits.tractor import (
     STANDARD_GRAVITY as G,
+)
+from planner.limits.tractor import (
     ImplementRecord,
     Tractor,
     TractorProfileError,
@@ -56,8 +58,17 @@ def flat_tractor(mass=6000.0, com=(0.0, -0.5, 1.0)):
 
     Ground at z = 0 (pivot height 0), so the support triangle is horizontal; CoM height = com[2].
     """
-    return Tractor("flat", mass, com, wheelbase=2.0, rear_track=2.0, rear_axle=[0, 0, 0.8],
-                   front_axle_pivot=[0, -2.0, 0.0], front_ballast_point=[0, -3.0, 0.5], ground_z=0.0)
+    return Tractor(
+        "flat",
+        mass,
+        com,
+        wheelbase=2.0,
+        rear_track=2.0,
+        rear_axle=[0, 0, 0.8],
+        front_axle_pivot=[0, -2.0, 0.0],
+        front_ballast_point=[0, -3.0, 0.5],
+        ground_z=0.0,
+    )
 
 
 def rot(axis, angle):
@@ -324,8 +335,9 @@ def test_report_fields_violations_and_thresholds(tractor, heavy):
     front = next(v for v in r.violations if v.measure == "front_axle_load")
     assert front.level == "hard" and front.threshold == pytest.approx(0.2 * 6000 * G) and front.value < front.threshold
     assert not r.ok
-    relaxed = StabilityThresholds(front_axle_fraction_hard=0.05, front_axle_fraction_caution=0.05,
-                                  esm_hard=0.0, esm_caution=0.0)
+    relaxed = StabilityThresholds(
+        front_axle_fraction_hard=0.05, front_axle_fraction_caution=0.05, esm_hard=0.0, esm_caution=0.0
+    )
     r2 = evaluate_stability(tractor, heavy, T, I3, 0.0, 0.25, thresholds=relaxed)
     assert r2.ok and all(v.level == "caution" for v in r2.violations)
     # Light implement on level ground: no violation at all.

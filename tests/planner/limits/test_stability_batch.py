@@ -13,14 +13,15 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from planner.model.kinematics import HitchModel
 from planner.limits.guard import Guard, GuardDecision, GuardReason, GuardRefusal, _implement_frames
 from planner.limits.stability import StabilityThresholds, evaluate_stability
 from planner.limits.stability_batch import MEASURE_NAMES, evaluate_stability_batch
-from planner.limits.tractor import STANDARD_GRAVITY as G, Tractor, load_tractor_profile
+from planner.limits.tractor import STANDARD_GRAVITY as G
+from planner.limits.tractor import Tractor, load_tractor_profile
+from planner.model.kinematics import HitchModel
+from planner.model.types import ACTUATOR_NAMES, KinematicsError
 from planner.profiles.hitch import load_profile, profile_from_dict
 from planner.trajectory import MotionState, Setpoints, TrajectoryPlanner
-from planner.model.types import ACTUATOR_NAMES, KinematicsError
 
 SLOPES = ((0.0, 0.0), (0.35, 0.0), (-0.25, 0.15), (0.0, -0.3), (0.2, 0.45))
 
@@ -44,8 +45,17 @@ def heavy(tractor_profile):
 
 def flat_tractor():
     """Support triangle on the ground plane (pivot on the ground), as in test_stability.py."""
-    return Tractor("flat", 6000.0, (0.0, -0.5, 1.0), wheelbase=2.0, rear_track=2.0, rear_axle=[0, 0, 0.8],
-                   front_axle_pivot=[0, -2.0, 0.0], front_ballast_point=[0, -3.0, 0.5], ground_z=0.0)
+    return Tractor(
+        "flat",
+        6000.0,
+        (0.0, -0.5, 1.0),
+        wheelbase=2.0,
+        rear_track=2.0,
+        rear_axle=[0, 0, 0.8],
+        front_axle_pivot=[0, -2.0, 0.0],
+        front_ballast_point=[0, -3.0, 0.5],
+        ground_z=0.0,
+    )
 
 
 # ----------------------------------------------------------------------------- the former per-sample check
@@ -186,7 +196,7 @@ def test_poses_the_per_sample_function_rejects_are_suspect(tractor_profile, heav
     T = np.array([[0, 1.0, 0.0], [0, 1.0, np.nan], [0, 1.0, 0.0], [0, 1.0, 0.0]])
     R = np.repeat(np.eye(3)[None], 4, axis=0)
     R[2] = np.diag([1.0, 1.0, 1.0 + 1e-5])  # not orthonormal within 1e-6
-    R[3] = np.diag([1.0, 1.0, -1.0])        # improper
+    R[3] = np.diag([1.0, 1.0, -1.0])  # improper
     b = evaluate_stability_batch(tractor, heavy, T, R, 0.1, 0.0)
     assert b.suspect.tolist() == [False, True, True, True]
     for k in (1, 2, 3):
@@ -208,8 +218,9 @@ def test_batch_from_plans_on_slopes_equals_stability_at(ballasted, heavy):
             ref = g.model.forward(sp.actuators[k]).points
             for n in P:
                 assert np.array_equal(P[n][k], ref[n])
-        batch = evaluate_stability_batch(g.tractor, heavy, *_implement_frames(P), *slope,
-                                         front_ballast=g.settings.front_ballast)
+        batch = evaluate_stability_batch(
+            g.tractor, heavy, *_implement_frames(P), *slope, front_ballast=g.settings.front_ballast
+        )
         scale = _scales(g.tractor, heavy, g.settings.front_ballast)
         for k in range(len(sp.t)):
             exact = _measure_values(g.stability_at(sp.actuators[k]))
@@ -236,16 +247,38 @@ def _guards(ballasted, heavy, model):
     tp = TrajectoryPlanner(ballasted)
     yield "no implement", Guard(tp), (0.0, 0.0)
     yield "no implement, steep", Guard(tp), (0.55, 0.2)
-    yield "heavy, slope, esm hard 5 kJ", Guard(tp, implement=heavy, thresholds=StabilityThresholds(
-        esm_hard=5000.0, esm_caution=5000.0)), (0.35, 0.0)
-    yield "heavy, caution band", Guard(tp, implement=heavy, thresholds=StabilityThresholds(
-        esm_hard=100.0, esm_caution=50_000.0)), (0.0, 0.0)
-    yield "heavy, nose up, all measures", Guard(tp, implement=heavy, thresholds=StabilityThresholds(
-        front_axle_fraction_hard=0.30, front_axle_fraction_caution=0.36, ssm_hard=0.45, ssm_caution=0.6,
-        lsm_hard=0.45, lsm_caution=0.6, esm_caution=20_000.0)), (-0.1, 0.25)
+    yield (
+        "heavy, slope, esm hard 5 kJ",
+        Guard(tp, implement=heavy, thresholds=StabilityThresholds(esm_hard=5000.0, esm_caution=5000.0)),
+        (0.35, 0.0),
+    )
+    yield (
+        "heavy, caution band",
+        Guard(tp, implement=heavy, thresholds=StabilityThresholds(esm_hard=100.0, esm_caution=50_000.0)),
+        (0.0, 0.0),
+    )
+    yield (
+        "heavy, nose up, all measures",
+        Guard(
+            tp,
+            implement=heavy,
+            thresholds=StabilityThresholds(
+                front_axle_fraction_hard=0.30,
+                front_axle_fraction_caution=0.36,
+                ssm_hard=0.45,
+                ssm_caution=0.6,
+                lsm_hard=0.45,
+                lsm_caution=0.6,
+                esm_caution=20_000.0,
+            ),
+        ),
+        (-0.1, 0.25),
+    )
     d = model.profile.model_dump()
-    d["limits"]["keep_out"] = [{"name": "couplers", "centre": [0.0, 0.45, 0.70], "radius": 0.05},
-                               {"name": "pto", "centre": [0.0, 0.30, 0.10], "radius": 0.02}]
+    d["limits"]["keep_out"] = [
+        {"name": "couplers", "centre": [0.0, 0.45, 0.70], "radius": 0.05},
+        {"name": "pto", "centre": [0.0, 0.30, 0.10], "radius": 0.02},
+    ]
     yield "keep-outs", Guard(TrajectoryPlanner(HitchModel(profile_from_dict(d)))), (0.0, 0.0)
     # the lowest z a hair above the lift's lower end stop: plans down there are slowed (test_guard.py)
     tp0 = TrajectoryPlanner(ballasted)
@@ -287,12 +320,16 @@ def test_thresholds_exactly_on_sample_values(ballasted, heavy):
         for k in (0, 1, n // 3, n // 2, n - 1):
             v = _measure_values(probe.stability_at(sp.actuators[k]))
             w = probe.tractor.empty_weight
-            for th in (StabilityThresholds(esm_hard=v["esm"], esm_caution=v["esm"]),
-                       StabilityThresholds(esm_hard=v["esm"] - 1e-9, esm_caution=v["esm"] + 1e-9),
-                       StabilityThresholds(ssm_hard=v["ssm"] - 0.3, ssm_caution=v["ssm"]),
-                       StabilityThresholds(lsm_hard=v["lsm"], lsm_caution=v["lsm"] + 0.2),
-                       StabilityThresholds(front_axle_fraction_hard=v["front_axle_load"] / w,
-                                           front_axle_fraction_caution=min(1.0, v["front_axle_load"] / w + 0.01))):
+            for th in (
+                StabilityThresholds(esm_hard=v["esm"], esm_caution=v["esm"]),
+                StabilityThresholds(esm_hard=v["esm"] - 1e-9, esm_caution=v["esm"] + 1e-9),
+                StabilityThresholds(ssm_hard=v["ssm"] - 0.3, ssm_caution=v["ssm"]),
+                StabilityThresholds(lsm_hard=v["lsm"], lsm_caution=v["lsm"] + 0.2),
+                StabilityThresholds(
+                    front_axle_fraction_hard=v["front_axle_load"] / w,
+                    front_axle_fraction_caution=min(1.0, v["front_axle_load"] / w + 0.01),
+                ),
+            ):
                 g = Guard(tp, implement=heavy, thresholds=th)
                 g.set_slope(0.3, 0.1)
                 assert_same_decision(g.check_setpoints(sp), reference_check(g, sp))
@@ -326,8 +363,11 @@ def test_a_sample_that_cannot_close_raises_as_before(model):
 
 
 def test_only_a_few_samples_are_evaluated_one_by_one(ballasted, heavy, monkeypatch):
-    g = Guard(TrajectoryPlanner(ballasted), implement=heavy,
-              thresholds=StabilityThresholds(esm_hard=100.0, esm_caution=50_000.0))
+    g = Guard(
+        TrajectoryPlanner(ballasted),
+        implement=heavy,
+        thresholds=StabilityThresholds(esm_hard=100.0, esm_caution=50_000.0),
+    )
     sp = g.planner.plan_move(MotionState.at_rest([0.0, -0.15, 0.0, 0.0]), {"z": 0.25}, speed_scale=0.3).setpoints
     assert len(sp.t) > 700
     calls = []

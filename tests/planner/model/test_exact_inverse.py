@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from tests.helpers import random_closing_actuators
 from planner.model.angle_maps import AngleMaps
 from planner.model.exact_inverse import ExactInverse
 from planner.model.types import KinematicsError
+from tests.helpers import random_closing_actuators
 
 
 @pytest.fixture(scope="module")

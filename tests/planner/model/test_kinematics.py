@@ -5,10 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from tests.helpers import random_closing_actuators
 from planner.model.geometry import link_direction
 from planner.model.kinematics import FEATURE_NAMES, POINT_NAMES, HitchModel
 from planner.model.types import Actuators, KinematicsError
+from tests.helpers import random_closing_actuators
 
 G = None
 
@@ -71,8 +71,12 @@ def test_link_angles_reproduce_points(model, rng):
         s = model.forward(q)
         txl, tzl, txr, tzr = s.link_angles
         l = model.profile.geometry.lower_link_length
-        np.testing.assert_allclose(s.points["L"], s.points["L0"] + l * np.array(link_direction(txl, tzl)).ravel(), atol=1e-12)
-        np.testing.assert_allclose(s.points["R"], s.points["R0"] + l * np.array(link_direction(txr, tzr)).ravel(), atol=1e-12)
+        np.testing.assert_allclose(
+            s.points["L"], s.points["L0"] + l * np.array(link_direction(txl, tzl)).ravel(), atol=1e-12
+        )
+        np.testing.assert_allclose(
+            s.points["R"], s.points["R0"] + l * np.array(link_direction(txr, tzr)).ravel(), atol=1e-12
+        )
 
 
 def test_jacobian_matches_central_differences(model, rng):
@@ -147,8 +151,13 @@ def test_neutral_pose(model):
 
 @pytest.mark.parametrize(
     "change, cause",
-    [({1: 5.0}, "tilt cylinder"), ({3: 3.0}, "left sway limiter"), ({4: 3.0}, "right sway limiter"),
-     ({2: 5.0}, "top link"), ({2: 0.01}, "top link")],
+    [
+        ({1: 5.0}, "tilt cylinder"),
+        ({3: 3.0}, "left sway limiter"),
+        ({4: 3.0}, "right sway limiter"),
+        ({2: 5.0}, "top link"),
+        ({2: 0.01}, "top link"),
+    ],
 )
 def test_impossible_actuators_raise_named_cause(model, change, cause):
     q = model.neutral.copy()
@@ -179,8 +188,16 @@ def test_never_nan_over_a_wide_box(model, rng):
 
 
 def test_every_category_builds_and_has_its_span():
-    for cat, span in [("1N", 0.400), ("1", 0.683), ("2N", 0.683), ("2", 0.825), ("3N", 0.825),
-                      ("3", 0.965), ("4N", 0.952), ("4", 1.1665)]:
+    for cat, span in [
+        ("1N", 0.400),
+        ("1", 0.683),
+        ("2N", 0.683),
+        ("2", 0.825),
+        ("3N", 0.825),
+        ("3", 0.965),
+        ("4N", 0.952),
+        ("4", 1.1665),
+    ]:
         m = HitchModel.from_profile(category=cat)
         assert m.span == pytest.approx(span + 0.040)
         assert m.forward(m.neutral).lower_span == pytest.approx(span + 0.040, abs=1e-12)

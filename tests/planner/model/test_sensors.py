@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from planner.profiles.hitch import load_profile
 from planner.model.sensors import SensorRangeError, SensorScaling
+from planner.profiles.hitch import load_profile
 
 
 def test_calibration_end_points_and_round_trip():

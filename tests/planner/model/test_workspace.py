@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from planner.model.kinematics import HitchModel
-from planner.model.workspace import Reachability, box_grid, fit_restricted_box
 from planner.model.types import KinematicsError
+from planner.model.workspace import Reachability, box_grid, fit_restricted_box
 
 CATS = ["1N", "1", "2N", "2", "3N", "3", "4N"]
 

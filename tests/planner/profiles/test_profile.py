@@ -65,9 +65,17 @@ def _mutate(raw, path, value):
         (("geometry", "pivot_height"), KeyError, r"geometry\.pivot_height: Field required"),
         (("geometry", "colour"), "red", r"geometry\.colour = 'red': unknown key"),
         (("geometry", "lift_arm_pivot"), [0.0, 1.0], r"geometry\.lift_arm_pivot"),
-        (("geometry", "limiter_tractor_point"), [0.0, math.inf, 0.0], r"limiter_tractor_point coordinates must be finite"),
+        (
+            ("geometry", "limiter_tractor_point"),
+            [0.0, math.inf, 0.0],
+            r"limiter_tractor_point coordinates must be finite",
+        ),
         (("actuators", "tilt", "min"), 0.9, r"actuators\.tilt: .*min < max"),
-        (("actuators", "tilt", "counts_max"), 2000, r"actuators\.tilt\.counts_max = 2000: .*allowed: >= 0 and <= 1023\)"),
+        (
+            ("actuators", "tilt", "counts_max"),
+            2000,
+            r"actuators\.tilt\.counts_max = 2000: .*allowed: >= 0 and <= 1023\)",
+        ),
         (("actuators", "lift", "max"), 2.0, r"actuators: .*lift is an angle"),
         (("actuators", "tilt", "neutral"), 0.9, r"actuators\.tilt: .*neutral 0\.9 must lie within the stroke"),
         (("actuators", "top", "valve_multiplier"), 0.0, r"actuators\.top\.valve_multiplier = 0\.0"),
@@ -77,7 +85,11 @@ def _mutate(raw, path, value):
         (("workspace", "thesis_box", "roll"), [-4.0, 4.0], r"workspace\.thesis_box: .*within ±π"),
         (("workspace", "thesis_box", "x"), [0.1, -0.1], r"workspace\.thesis_box: .*min < max"),
         (("implement", "default_category"), "7", r"implement: .*default_category '7' is not one of"),
-        (("implement", "categories", "2", "span"), -1, r"implement\.categories\.2\.span = -1: .*allowed: > 0 and <= 2\)"),
+        (
+            ("implement", "categories", "2", "span"),
+            -1,
+            r"implement\.categories\.2\.span = -1: .*allowed: > 0 and <= 2\)",
+        ),
         (("schema_version",), 2, r"schema_version = 2"),
         (("name",), "bad name!", r"name = 'bad name!'"),
     ],
@@ -100,6 +112,7 @@ def test_file_errors(tmp_path):
 
 def test_profile_file_round_trip(tmp_path, raw):
     import tomllib as _t
+
     path = tmp_path / "copy.toml"
     path.write_bytes((resources.files("planner") / "profiles" / "thesis-t132.toml").read_bytes())
     assert load_profile(path) == load_profile("thesis-t132")

@@ -3,8 +3,15 @@
 import numpy as np
 import pytest
 
-from planner.trajectory import (ActuatorLimits, JogController, MotionState, PlanError, TrajectoryPlanner, Waypoint,
-                                verify_setpoints)
+from planner.trajectory import (
+    ActuatorLimits,
+    JogController,
+    MotionState,
+    PlanError,
+    TrajectoryPlanner,
+    Waypoint,
+    verify_setpoints,
+)
 
 DOFS = ("x", "z", "roll", "pitch")
 
@@ -96,7 +103,11 @@ def test_replan_mid_motion_is_continuous(tp, model, rng):
 @pytest.mark.parametrize("blend", [False, True])
 def test_sequences_are_continuous_and_within_limits(tp, model, blend):
     p0 = model.neutral_pose.controlled()
-    wps = [Waypoint({"x": 0.04, "z": p0[1] + 0.05}), Waypoint({"z": p0[1] + 0.15}, 0.5), Waypoint({"x": -0.03, "roll": 0.03})]
+    wps = [
+        Waypoint({"x": 0.04, "z": p0[1] + 0.05}),
+        Waypoint({"z": p0[1] + 0.15}, 0.5),
+        Waypoint({"x": -0.03, "roll": 0.03}),
+    ]
     plan = tp.plan_sequence(MotionState.at_rest(p0), wps, blend=blend)
     # continuity at the joins
     t = 0.0

@@ -1,4 +1,4 @@
-"""Serial arm (issue 8): analytic 6R solutions vs the QP IK on the same core, 1000 random poses.
+"""Serial arm: analytic 6R solutions vs the QP IK on the same core, 1000 random poses.
 
 Run: .venv/bin/python bench/arm_bench.py [--n 1000] [--json out.json]
 """
@@ -72,7 +72,8 @@ def main() -> None:
         f"{args.n} poses: all {len(fk_err)} analytic solutions match the target to {res['analytic_fk_error_max']:.1e}"
     )
     print(
-        f"QP seeded near an analytic solution converges to it: {100 * res['qp_seeded_near_solution_converges_to_it']:.1f} %"
+        "QP seeded near an analytic solution converges to it: "
+        f"{100 * res['qp_seeded_near_solution_converges_to_it']:.1f} %"
     )
     print(f"QP from the neutral seed reaches the target: {100 * res['qp_from_neutral_success']:.1f} %")
     print(

@@ -1,6 +1,7 @@
-"""Closed-loop benchmark (issue 6): the same moves with thesis-style step references, with
+"""Closed-loop benchmark: the same moves with thesis-style step references, with
 the plan's actuator positions streamed as references ("trajectory") and with the unit loops'
-feed-forward reference (bridge.link.unit_loop, the product default: "trajectory+feedforward"), side by side, through the real CAN path (codec, virtual bus,
+feed-forward reference (bridge.link.unit_loop, the product default: "trajectory+feedforward"),
+side by side, through the real CAN path (codec, virtual bus,
 simulated cylinder ECU node, planner link) in simulated time; bus load at the default rate; the
 watchdog's stop latency; how fast the simulation runs.
 
@@ -183,7 +184,8 @@ def main() -> None:
         c.print(
             f"{name:>18}: "
             + "   ".join(
-                f"{v}: {_fmt(ratios[name][v]['max_path_deviation_m'])}, {_fmt(ratios[name][v]['max_path_deviation_rad'])}"
+                f"{v}: {_fmt(ratios[name][v]['max_path_deviation_m'])}, "
+                f"{_fmt(ratios[name][v]['max_path_deviation_rad'])}"
                 for v in VARIANTS[1:]
             )
         )

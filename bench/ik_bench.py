@@ -1,4 +1,4 @@
-"""IK benchmark (issue 3): QP (OSQP, DAQP), the thesis baselines and an IPOPT reference.
+"""IK benchmark: QP (OSQP, DAQP), the thesis baselines and an IPOPT reference.
 
 Target sets: random poses inside the thesis's table 3-7 box (default interpretation), random
 poses outside it, and a continuous path of N steps. Ground truth for reachability: the hitch
@@ -209,7 +209,7 @@ def main() -> None:
                     )
     # independent global search on targets the closed form calls unreachable
     ip = IpoptIK(model)
-    unreachable = [t for t, r in zip(outside, truth["outside_box"]) if not r][: args.global_check]
+    unreachable = [t for t, r in zip(outside, truth["outside_box"], strict=True) if not r][: args.global_check]
     found = 0
     for t in unreachable:
         for _ in range(20):

@@ -1,4 +1,4 @@
-"""Service benchmark (issue 7 targets), every figure measured against a running service.
+"""Service benchmark, every figure measured against a running service.
 
 Scenarios (each starts its own service; loopback only):
 
@@ -117,7 +117,7 @@ def role(name: str, *args: str) -> subprocess.Popen:
 def random_poses(rng: np.random.Generator, n: int) -> list[dict]:
     lo = np.array([WORKSPACE[k][0] for k in POSE])
     hi = np.array([WORKSPACE[k][1] for k in POSE])
-    return [dict(zip(POSE, map(float, lo + (hi - lo) * rng.random(4)))) for _ in range(n)]
+    return [dict(zip(POSE, map(float, lo + (hi - lo) * rng.random(4)), strict=True)) for _ in range(n)]
 
 
 def pct(a, qs=(50, 90, 99)) -> dict:
@@ -243,7 +243,7 @@ def role_fuzzer(a) -> None:
     """Send ``--n`` fuzzed payloads (and valid extreme motion commands between them); print JSON counts."""
     rng = np.random.default_rng(a.seed)
     answered_err, answered_ok, timeouts, bad_codes, extreme_ok, extreme_err = 0, [], 0, {}, 0, 0
-    corners = [{k: WORKSPACE[k][int(b)] for k, b in zip(POSE, bits)} for bits in np.ndindex(2, 2, 2, 2)]
+    corners = [{k: WORKSPACE[k][int(b)] for k, b in zip(POSE, bits, strict=True)} for bits in np.ndindex(2, 2, 2, 2)]
     t0 = time.perf_counter()
     with HitchClient([a.connect], timeout_s=5) as c:
         for i, (key, raw) in enumerate(fuzz_payloads(rng, a.n)):

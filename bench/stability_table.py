@@ -1,5 +1,5 @@
 """Stability margins of the default tractor with a light and a heavy category-2 implement over
-the hitch's height range (issue 5 closing table), on level ground and on slopes.
+the hitch's height range, on level ground and on slopes.
 
 Run: .venv/bin/python bench/stability_table.py [--json out.json]
 """

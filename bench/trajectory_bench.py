@@ -1,4 +1,4 @@
-"""Trajectory planning benchmark (issue 4): planning time for ~5 s moves with IK at every
+"""Trajectory planning benchmark: planning time for ~5 s moves with IK at every
 sample, duration ratio to the per-actuator lower bound, straight-line deviation, limit checks.
 
 Run: .venv/bin/python bench/trajectory_bench.py [--moves 200] [--json out.json]
@@ -46,7 +46,7 @@ def main() -> None:
             p1 = tp.lo + (tp.hi - tp.lo) * rng.random(4)
             p0, p1 = np.clip(p0, tp.lo, tp.hi), np.clip(p1, tp.lo, tp.hi)
             t0 = time.perf_counter()
-            plan = tp.plan_move(MotionState.at_rest(p0), dict(zip(DOFS, p1)))
+            plan = tp.plan_move(MotionState.at_rest(p0), dict(zip(DOFS, p1, strict=True)))
             dt = time.perf_counter() - t0
             if plan.duration >= args.min_duration:
                 break
@@ -84,7 +84,8 @@ def main() -> None:
     print(f"machine: {res['machine']}")
     print(
         f"{args.moves} moves, duration {res['duration_s']['min']:.2f}..{res['duration_s']['max']:.2f} s "
-        f"(median {res['duration_s']['median']:.2f} s), 50 Hz samples, IK (closed form) + full limit check at every sample"
+        f"(median {res['duration_s']['median']:.2f} s), 50 Hz samples, "
+        "IK (closed form) + full limit check at every sample"
     )
     pt = res["plan_time_incl_ik_and_verification"]
     print(f"planning time: p50 {pt['p50_ms']:.2f} ms   p99 {pt['p99_ms']:.2f} ms   max {pt['max_ms']:.2f} ms")
@@ -94,7 +95,8 @@ def main() -> None:
         f"max {gt['max_ms']:.2f} ms"
     )
     print(
-        f"duration / lower bound: median {res['duration_over_lower_bound']['median']:.3f}   max {res['duration_over_lower_bound']['max']:.3f}"
+        f"duration / lower bound: median {res['duration_over_lower_bound']['median']:.3f}   "
+        f"max {res['duration_over_lower_bound']['max']:.3f}"
     )
     print(
         f"straight-line deviation: {res['straight_line_deviation']['position_m_max']:.2e} m, "

@@ -27,10 +27,13 @@ from bridge.isobus.j1939 import (
     PGN_ADDRESS_CLAIMED,
     PGN_REQUEST,
     PLANNER_ADDRESS,
+    J1939Error,
     decode_id,
 )
+from planner.errors import HitchInputError
 
 __all__ = [
+    "AddressClaimError",
     "AddressClaimer",
     "CLAIM_WAIT_S",
     "ClaimState",
@@ -44,6 +47,11 @@ CLAIM_WAIT_S = 0.25
 """Time without contention after which a claimed address may be used, s."""
 SELF_CONFIGURABLE_RANGE = (128, 247)
 """Addresses an arbitrary-address-capable control function may pick (J1939-81)."""
+
+
+class AddressClaimError(HitchInputError):
+    """A NAME field, address or claim setting outside its allowed range."""
+
 
 _LAYOUT = (  # (field, first bit, length) of the 64-bit NAME, J1939-81 / ISO 11783-5
     ("identity_number", 0, 21),
@@ -90,11 +98,13 @@ class Name:
 
     def __post_init__(self) -> None:
         if not isinstance(self.arbitrary_address_capable, bool):
-            raise ValueError(f"Name.arbitrary_address_capable must be a bool, got {self.arbitrary_address_capable!r}")
+            raise AddressClaimError(
+                f"Name.arbitrary_address_capable must be a bool, got {self.arbitrary_address_capable!r}"
+            )
         for field, _start, length in _LAYOUT[:-1]:
             item = getattr(self, field)
             if isinstance(item, bool) or not isinstance(item, int) or not 0 <= item < 1 << length:
-                raise ValueError(f"Name.{field} must be an integer in 0..{(1 << length) - 1}, got {item!r}")
+                raise AddressClaimError(f"Name.{field} must be an integer in 0..{(1 << length) - 1}, got {item!r}")
 
     @property
     def value(self) -> int:
@@ -105,10 +115,20 @@ class Name:
     def from_int(cls, value: int) -> Name:
         """Split a 64-bit NAME into its fields."""
         if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value < 1 << 64:
-            raise ValueError(f"NAME must be an integer in 0..2^64-1, got {value!r}")
-        fields = {f: (value >> start) & ((1 << n) - 1) for f, start, n in _LAYOUT}
-        fields["arbitrary_address_capable"] = bool(fields["arbitrary_address_capable"])
-        return cls(**fields)
+            raise AddressClaimError(f"NAME must be an integer in 0..2^64-1, got {value!r}")
+        part = {f: (value >> start) & ((1 << n) - 1) for f, start, n in _LAYOUT}
+        return cls(
+            identity_number=part["identity_number"],
+            manufacturer_code=part["manufacturer_code"],
+            ecu_instance=part["ecu_instance"],
+            function_instance=part["function_instance"],
+            function=part["function"],
+            vehicle_system=part["vehicle_system"],
+            vehicle_system_instance=part["vehicle_system_instance"],
+            industry_group=part["industry_group"],
+            arbitrary_address_capable=bool(part["arbitrary_address_capable"]),
+            reserved=part["reserved"],
+        )
 
 
 def planner_name(identity_number: int = 1, *, arbitrary_address_capable: bool = False) -> Name:
@@ -146,9 +166,9 @@ class AddressClaimer:
             or not isinstance(preferred_address, int)
             or not (0 <= preferred_address <= 253)
         ):
-            raise ValueError(f"preferred_address must be in 0..253, got {preferred_address!r}")
+            raise AddressClaimError(f"preferred_address must be in 0..253, got {preferred_address!r}")
         if not wait_s > 0:
-            raise ValueError(f"wait_s must be > 0 s, got {wait_s!r}")
+            raise AddressClaimError(f"wait_s must be > 0 s, got {wait_s!r}")
         self._name = name
         self._preferred = preferred_address
         self._wait_s = float(wait_s)
@@ -203,7 +223,7 @@ class AddressClaimer:
             return []
         try:
             pgn = decode_id(frame.arbitration_id).pgn
-        except ValueError:
+        except J1939Error:
             return []
         if pgn not in (PGN_ADDRESS_CLAIMED, PGN_REQUEST):
             return []
@@ -241,7 +261,7 @@ class AddressClaimer:
                 delay_s = (self._name.value % 154) / 1000.0
                 self._pending.append((now_s + delay_s, self._claim_frame(NULL_ADDRESS)))
             return []
-        if destination not in (GLOBAL_ADDRESS, self._address):
+        if self._address is None or destination not in (GLOBAL_ADDRESS, self._address):
             return []
         return [self._claim_frame(self._address)]
 

@@ -8,20 +8,27 @@ in SI units. Decoding rejects — with a :class:`CodecError` saying why — remo
 DBC range; a "not available" or "error indicator" raw value becomes ``None`` (never a
 number). Encoding rejects out-of-range inputs the same way; ``None`` encodes as "not
 available".
+
+Each message is serialised in one place: a ``_MessageCodec`` subclass names the DBC
+message, its default source address and priority, its signals (typed descriptors:
+scaled value, count, raw integer, command flag, enumeration) and writes and reads the
+payload's fields one by one.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from dataclasses import dataclass
+from abc import ABC, abstractmethod
+from collections.abc import Iterable
+from dataclasses import dataclass, field
 from enum import IntEnum
 from functools import cache
 from importlib import resources
-from typing import Any
+from typing import Any, Generic, TypeVar, cast
 
 import can
 import cantools
+from cantools.database.can import Database, Message, Signal
 
 from bridge.isobus.j1939 import (
     CYLINDER_ECU_ADDRESS,
@@ -29,6 +36,7 @@ from bridge.isobus.j1939 import (
     JOYSTICK_ADDRESS,
     PLANNER_ADDRESS,
     TRACTOR_ECU_ADDRESS,
+    J1939Error,
     LimitStatus,
     MachineDirection,
     RawStatus,
@@ -87,293 +95,677 @@ __all__ = [
 FRAME_ID_MASK = 0x03FFFF00
 """Identifier bits that select a DBC message: EDP, DP, PF, PS (not priority, SA)."""
 
+T = TypeVar("T")
+E = TypeVar("E", bound=IntEnum)
+P = TypeVar("P")
+
+
+# --- DBC signal helpers -------------------------------------------------------------------
+
+
+def _raw_limits(sig: Signal) -> tuple[int, int]:
+    """Raw range that maps into the DBC signal's [minimum, maximum]."""
+    all_ones = (1 << sig.length) - 1
+    lo = 0 if sig.minimum is None else math.ceil((sig.minimum - sig.offset) / sig.scale - 1e-9)
+    hi = all_ones if sig.maximum is None else math.floor((sig.maximum - sig.offset) / sig.scale + 1e-9)
+    return max(lo, 0), min(hi, all_ones)
+
+
+def _range_text(sig: Signal) -> str:
+    lo, hi = _raw_limits(sig)
+    low = sig.minimum if sig.minimum is not None else lo * sig.scale + sig.offset
+    high = sig.maximum if sig.maximum is not None else hi * sig.scale + sig.offset
+    return f"{low:g}..{high:g}{(' ' + sig.unit) if sig.unit else ''}"
+
+
+def _in_range(where: str, sig: Signal, raw: int) -> int:
+    """``raw`` if it lies in the DBC range of ``sig``, else :class:`CodecError`."""
+    lo, hi = _raw_limits(sig)
+    if not lo <= raw <= hi:
+        raise CodecError(f"{where}: raw {raw} outside {lo}..{hi} ({_range_text(sig)})")
+    return raw
+
+
+def _j1939_status(where: str, sig: Signal, raw: int) -> RawStatus:
+    """The J1939-71 meaning of ``raw``; a reserved value raises :class:`CodecError`."""
+    status = classify_raw(raw, sig.length)
+    if status is RawStatus.RESERVED:
+        raise CodecError(f"{where}: raw {raw} is in the J1939 reserved range")
+    return status
+
+
+def _encode_number(where: str, sig: Signal, value: object, *, integral: bool, j1939: bool, required: bool) -> int:
+    """Raw value of a number (scaled unless ``integral``); ``None`` → "not available" unless required.
+
+    ``j1939``: the J1939 "not available"/"error"/reserved raw values may not carry a number.
+    """
+    if value is None:
+        if required or not j1939:
+            raise CodecError(f"{where} is required, got None")
+        return (1 << sig.length) - 1
+    if integral:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise CodecError(f"{where} must be an integer, got {value!r}")
+        raw = value
+    else:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise CodecError(f"{where} must be a number, got {value!r}")
+        if not math.isfinite(value):
+            raise CodecError(f"{where} must be finite, got {value!r}")
+        raw = round((value - sig.offset) / sig.scale)
+    lo, hi = _raw_limits(sig)
+    if not lo <= raw <= hi or (j1939 and classify_raw(raw, sig.length) is not RawStatus.VALID):
+        raise CodecError(f"{where} = {value!r} outside {_range_text(sig)}")
+    return raw
+
+
+@dataclass
+class _Notes:
+    """DBC signals of one frame that carried "not available" or the "error indicator"."""
+
+    unavailable: list[str] = field(default_factory=list)
+    errors: list[str] = field(default_factory=list)
+
+    def add(self, signal: str, status: RawStatus) -> None:
+        (self.unavailable if status is RawStatus.NOT_AVAILABLE else self.errors).append(signal)
+
+
+# --- typed signal descriptors -------------------------------------------------------------
+
 
 @dataclass(frozen=True)
-class _Field:
-    """Payload field ``name`` ↔ DBC signal(s); several signals make a tuple.
+class _Signal(ABC, Generic[T]):
+    """Payload field ``field_name`` ↔ DBC signal ``name``; ``T`` is the field's type."""
 
-    kind: "value" (scaled, unavailable → None), "count" (integer, unavailable →
-    None), "enum" (IntEnum, DBC VAL_ table = allowed raw values), "flag" (2-bit
-    command: 0 False, 1 True, 3 None), "raw" (integer within the DBC range).
+    field_name: str
+    name: str
+
+    @property
+    def where(self) -> str:
+        """How a decoding error names this signal."""
+        return f"{self.name} (field {self.field_name})"
+
+    def check_dbc(self, sig: Signal) -> None:
+        """Raise :class:`CodecError` if the DBC signal cannot carry this field."""
+
+    @abstractmethod
+    def encode(self, where: str, sig: Signal, value: object) -> int:
+        """The raw value of ``value`` (checked at run time: payloads are not type-checked)."""
+
+    @abstractmethod
+    def decode(self, sig: Signal, raw: int, notes: _Notes) -> T:
+        """The field value of ``raw``."""
+
+
+@dataclass(frozen=True)
+class _Scaled(_Signal[float | None]):
+    """A scaled physical value (SI); "not available" and "error indicator" are ``None``."""
+
+    def encode(self, where: str, sig: Signal, value: object) -> int:
+        return _encode_number(where, sig, value, integral=False, j1939=True, required=False)
+
+    def decode(self, sig: Signal, raw: int, notes: _Notes) -> float | None:
+        status = _j1939_status(self.where, sig, raw)
+        if status is not RawStatus.VALID:
+            notes.add(sig.name, status)
+            return None
+        return _in_range(self.where, sig, raw) * sig.scale + sig.offset
+
+
+@dataclass(frozen=True)
+class _Count(_Signal[int | None]):
+    """An integer count; "not available" and "error indicator" are ``None``."""
+
+    def encode(self, where: str, sig: Signal, value: object) -> int:
+        return _encode_number(where, sig, value, integral=True, j1939=True, required=False)
+
+    def decode(self, sig: Signal, raw: int, notes: _Notes) -> int | None:
+        status = _j1939_status(self.where, sig, raw)
+        if status is not RawStatus.VALID:
+            notes.add(sig.name, status)
+            return None
+        return _in_range(self.where, sig, raw)
+
+
+@dataclass(frozen=True)
+class _RequiredCount(_Signal[int]):
+    """An integer count that must be present: a frame without it is rejected."""
+
+    def encode(self, where: str, sig: Signal, value: object) -> int:
+        return _encode_number(where, sig, value, integral=True, j1939=True, required=True)
+
+    def decode(self, sig: Signal, raw: int, notes: _Notes) -> int:
+        status = _j1939_status(self.where, sig, raw)
+        if status is not RawStatus.VALID:
+            raise CodecError(f"{self.where}: {status.value} (raw {raw}) where a value is required")
+        return _in_range(self.where, sig, raw)
+
+
+@dataclass(frozen=True)
+class _Raw(_Signal[int]):
+    """An integer passed through within the DBC range (no J1939 special values)."""
+
+    def encode(self, where: str, sig: Signal, value: object) -> int:
+        return _encode_number(where, sig, value, integral=True, j1939=False, required=True)
+
+    def decode(self, sig: Signal, raw: int, notes: _Notes) -> int:
+        return _in_range(self.where, sig, raw)
+
+
+@dataclass(frozen=True)
+class _Flag(_Signal[bool | None]):
+    """A 2-bit command: 0 False, 1 True, 3 ``None`` ("no change"); 2 is reserved."""
+
+    def encode(self, where: str, sig: Signal, value: object) -> int:
+        if value is not None and not isinstance(value, bool):
+            raise CodecError(f"{where} must be True, False or None, got {value!r}")
+        return 3 if value is None else int(value)
+
+    def decode(self, sig: Signal, raw: int, notes: _Notes) -> bool | None:
+        if raw == 2:
+            raise CodecError(f"{self.where}: raw 2 is reserved (0 off, 1 on, 3 no change)")
+        return None if raw == 3 else bool(raw)
+
+
+@dataclass(frozen=True)
+class _Enum(_Signal[E]):
+    """An :class:`~enum.IntEnum`; the DBC ``VAL_`` table (if any) lists the allowed raw values."""
+
+    enum: type[E]
+
+    def check_dbc(self, sig: Signal) -> None:
+        if sig.choices and not set(sig.choices) <= {int(m) for m in self.enum}:
+            raise CodecError(f"DBC choices of {self.name} do not match {self.enum.__name__}")
+
+    def encode(self, where: str, sig: Signal, value: object) -> int:
+        try:  # the lookup ``self.enum(value)`` does, for any object
+            member = next((m for m in self.enum if m.value == value), None)
+        except (ValueError, TypeError):
+            member = None
+        if member is None:
+            raise CodecError(f"{where}: {value!r} is not a {self.enum.__name__}")
+        raw = int(member)
+        if sig.choices and raw not in sig.choices:
+            raise CodecError(f"{where}: {self.enum(raw).name} not allowed, raw {sorted(sig.choices)}")
+        return raw
+
+    def decode(self, sig: Signal, raw: int, notes: _Notes) -> E:
+        allowed = set(sig.choices) if sig.choices else {int(m) for m in self.enum}
+        if raw not in allowed:
+            raise CodecError(f"{self.where}: raw {raw} is reserved, allowed {sorted(allowed)}")
+        return self.enum(raw)
+
+
+@dataclass(frozen=True)
+class _Group(Generic[T]):
+    """A tuple-valued payload field carried by several DBC signals, in order."""
+
+    field_name: str
+    members: tuple[_Signal[T], ...]
+
+
+# --- one frame being written or read ------------------------------------------------------
+
+
+class _Writer:
+    """The raw signal values of one frame being encoded, each checked as it is put."""
+
+    def __init__(self, owner: str, message: Message) -> None:
+        self.owner = owner
+        self.message = message
+        self.raw: dict[str, int] = {}
+
+    def put(self, signal: _Signal[T], value: T) -> None:
+        """Encode ``value`` into ``signal``; errors name ``owner.field``."""
+        sig = self.message.get_signal_by_name(signal.name)
+        self.raw[signal.name] = signal.encode(f"{self.owner}.{signal.field_name}", sig, value)
+
+    def put_all(self, group: _Group[T], values: Iterable[T]) -> None:
+        """Encode a tuple-valued field, one entry per signal of ``group``."""
+        where = f"{self.owner}.{group.field_name}"
+        if not isinstance(values, Iterable):  # payload fields are not type-checked at run time
+            raise CodecError(f"{where} must be a sequence")
+        items = tuple(values)
+        if len(items) != len(group.members):
+            raise CodecError(f"{where} needs {len(group.members)} entries")
+        for signal, item in zip(group.members, items, strict=True):
+            self.put(signal, item)
+
+
+class _Reader:
+    """The decoded signal values of one received frame (decoded and checked on construction)."""
+
+    def __init__(self, message: Message, signals: Iterable[_Signal[Any]], raw: dict[str, int]) -> None:
+        self.message = message
+        self.notes = _Notes()
+        self._values: dict[str, object] = {
+            s.name: s.decode(message.get_signal_by_name(s.name), raw[s.name], self.notes) for s in signals
+        }
+
+    def get(self, signal: _Signal[T]) -> T:
+        """The value of ``signal``; of type ``T`` because ``signal.decode`` produced it."""
+        return cast(T, self._values[signal.name])
+
+    def get_all(self, group: _Group[T]) -> tuple[T, ...]:
+        """The values of a tuple-valued field."""
+        return tuple(self.get(s) for s in group.members)
+
+
+# --- one class per message ----------------------------------------------------------------
+
+
+class _MessageCodec(ABC, Generic[P]):
+    """How payload type ``P`` maps to one DBC message, both directions in one place.
+
+    ``signals`` lists every signal (or group) in the order frames are decoded and
+    checked; ``write`` puts the payload's fields, ``read`` builds the payload.
     """
 
-    name: str
-    signals: tuple[str, ...]
-    kind: str = "value"
-    enum: type[IntEnum] | None = None
-    required: bool = False
-
-
-def _f(
-    name: str, *signals: str, kind: str = "value", enum: type[IntEnum] | None = None, required: bool = False
-) -> _Field:
-    return _Field(name, signals, kind, enum, required)
-
-
-def _axis_fields(axis: str, neg: str, pos: str) -> tuple[_Field, ...]:
-    sw = dict(kind="enum", enum=Switch)
-    a = axis.upper()
-    return (
-        _f(f"{axis}_position", f"Jstk1{a}AxisPosition"),
-        _f(f"{axis}_neutral", f"Jstk1{a}AxisNeutral", **sw),
-        _f(f"{axis}_negative", f"Jstk1{a}Axis{neg}", **sw),
-        _f(f"{axis}_positive", f"Jstk1{a}Axis{pos}", **sw),
-        _f(f"{axis}_detent", f"Jstk1{a}AxisDetent", **sw),
-    )
-
-
-def _joystick_build(v: dict[str, Any], _message: Any) -> BasicJoystick:
-    axis = {
-        a: JoystickAxis(*(v[f"{a}_{k}"] for k in ("position", "neutral", "negative", "positive", "detent")))
-        for a in "xy"
-    }
-    return BasicJoystick(x=axis["x"], y=axis["y"], buttons=v["buttons"])
-
-
-def _joystick_split(p: BasicJoystick, _message: Any) -> dict[str, Any]:
-    out: dict[str, Any] = {"buttons": p.buttons}
-    for a, ax in (("x", p.x), ("y", p.y)):
-        out.update(
-            {
-                f"{a}_position": ax.position,
-                f"{a}_neutral": ax.neutral,
-                f"{a}_negative": ax.negative,
-                f"{a}_positive": ax.positive,
-                f"{a}_detent": ax.detent,
-            }
-        )
-    return out
-
-
-def _name_build(v: dict[str, Any], message: Any) -> AddressClaimed:
-    return AddressClaimed(sum(v[s.name] << s.start for s in message.signals))
-
-
-def _name_split(p: AddressClaimed, message: Any) -> dict[str, Any]:
-    return {s.name: (p.name >> s.start) & ((1 << s.length) - 1) for s in message.signals}
-
-
-@dataclass(frozen=True)
-class _Spec:
-    """How one payload type maps to one DBC message."""
-
-    payload: type
+    payload: type[P]
     message: str
     source: int
     priority: int
     dlcs: tuple[int, ...]
-    fields: tuple[_Field, ...]
-    build: Callable[[dict[str, Any], Any], Any] | None = None
-    split: Callable[[Any, Any], dict[str, Any]] | None = None
+    signals: tuple[_Signal[Any] | _Group[Any], ...]
+
+    def flat_signals(self) -> tuple[_Signal[Any], ...]:
+        """Every DBC signal of the message, groups expanded, in decoding order."""
+        out: list[_Signal[Any]] = []
+        for s in self.signals:
+            out.extend(s.members if isinstance(s, _Group) else (s,))
+        return tuple(out)
+
+    @abstractmethod
+    def write(self, p: P, out: _Writer) -> None:
+        """Put every field of ``p``."""
+
+    @abstractmethod
+    def read(self, r: _Reader) -> P:
+        """Build the payload from the decoded signals (may raise :class:`CodecError`)."""
 
 
-_ENUM = dict(kind="enum", enum=Switch)
-_NAME_SIGNALS = (
-    "IdentityNumber",
-    "ManufacturerCode",
-    "EcuInstance",
-    "FunctionInstance",
-    "Function",
-    "NameReserved",
-    "VehicleSystem",
-    "VehicleSystemInstance",
-    "IndustryGroup",
-    "ArbitraryAddressCapable",
+class _PressureCodec(_MessageCodec[PressureMeasurement]):
+    LIFT = _Scaled("lift_pa", "LiftPressure")
+    TILT = _Scaled("tilt_pa", "TiltPressure")
+    TOP = _Scaled("top_pa", "TopPressure")
+    SUPPLY = _Scaled("supply_pa", "SupplyPressure")
+
+    payload = PressureMeasurement
+    message = "PressureMeasurement"
+    source = CYLINDER_ECU_ADDRESS
+    priority = 6
+    dlcs = (8,)
+    signals = (LIFT, TILT, TOP, SUPPLY)
+
+    def write(self, p: PressureMeasurement, out: _Writer) -> None:
+        out.put(self.LIFT, p.lift_pa)
+        out.put(self.TILT, p.tilt_pa)
+        out.put(self.TOP, p.top_pa)
+        out.put(self.SUPPLY, p.supply_pa)
+
+    def read(self, r: _Reader) -> PressureMeasurement:
+        return PressureMeasurement(
+            lift_pa=r.get(self.LIFT), tilt_pa=r.get(self.TILT), top_pa=r.get(self.TOP), supply_pa=r.get(self.SUPPLY)
+        )
+
+
+class _PositionReferenceCodec(_MessageCodec[PositionCounts]):
+    LIFT = _RequiredCount("lift", "LiftReference")
+    TILT = _RequiredCount("tilt", "TiltReference")
+    TOP = _RequiredCount("top", "TopReference")
+    LEFT = _RequiredCount("left", "LeftReference")
+    RIGHT = _RequiredCount("right", "RightReference")
+
+    payload = PositionCounts
+    message = "PositionReference"
+    source = PLANNER_ADDRESS
+    priority = 3
+    dlcs = (8,)
+    signals = (LIFT, TILT, TOP, LEFT, RIGHT)  # ACTUATORS order
+
+    def write(self, p: PositionCounts, out: _Writer) -> None:
+        out.put(self.LIFT, p.lift)
+        out.put(self.TILT, p.tilt)
+        out.put(self.TOP, p.top)
+        out.put(self.LEFT, p.left)
+        out.put(self.RIGHT, p.right)
+
+    def read(self, r: _Reader) -> PositionCounts:
+        return PositionCounts(
+            lift=r.get(self.LIFT),
+            tilt=r.get(self.TILT),
+            top=r.get(self.TOP),
+            left=r.get(self.LEFT),
+            right=r.get(self.RIGHT),
+        )
+
+
+class _PositionMeasurementCodec(_MessageCodec[PositionMeasurement]):
+    TILT = _Count("tilt_counts", "TiltMeasurement")
+    TOP = _Count("top_counts", "TopMeasurement")
+    RIGHT = _Count("right_counts", "RightMeasurement")
+    LEFT = _Count("left_counts", "LeftMeasurement")
+    STATE = _Raw("system_state", "SystemState")
+
+    payload = PositionMeasurement
+    message = "PositionMeasurement"
+    source = CYLINDER_ECU_ADDRESS
+    priority = 3
+    dlcs = (8,)
+    signals = (TILT, TOP, RIGHT, LEFT, STATE)
+
+    def write(self, p: PositionMeasurement, out: _Writer) -> None:
+        out.put(self.TILT, p.tilt_counts)
+        out.put(self.TOP, p.top_counts)
+        out.put(self.RIGHT, p.right_counts)
+        out.put(self.LEFT, p.left_counts)
+        out.put(self.STATE, p.system_state)
+
+    def read(self, r: _Reader) -> PositionMeasurement:
+        return PositionMeasurement(
+            tilt_counts=r.get(self.TILT),
+            top_counts=r.get(self.TOP),
+            right_counts=r.get(self.RIGHT),
+            left_counts=r.get(self.LEFT),
+            system_state=r.get(self.STATE),
+        )
+
+
+class _EcuParametersCodec(_MessageCodec[EcuParameters]):
+    CONTROLLERS = _Flag("controllers_enabled", "ControllersEnable")
+    WATCHDOG = _Scaled("watchdog_timeout_s", "WatchdogTimeout")
+    MULTIPLIERS = _Group(
+        "valve_multipliers", tuple(_Scaled("valve_multipliers", f"{a.capitalize()}ValveMultiplier") for a in ACTUATORS)
+    )
+
+    payload = EcuParameters
+    message = "EcuParameters"
+    source = PLANNER_ADDRESS
+    priority = 6
+    dlcs = (8,)
+    signals = (CONTROLLERS, WATCHDOG, MULTIPLIERS)
+
+    def write(self, p: EcuParameters, out: _Writer) -> None:
+        out.put(self.CONTROLLERS, p.controllers_enabled)
+        out.put(self.WATCHDOG, p.watchdog_timeout_s)
+        out.put_all(self.MULTIPLIERS, p.valve_multipliers)
+
+    def read(self, r: _Reader) -> EcuParameters:
+        return EcuParameters(
+            controllers_enabled=r.get(self.CONTROLLERS),
+            watchdog_timeout_s=r.get(self.WATCHDOG),
+            valve_multipliers=r.get_all(self.MULTIPLIERS),
+        )
+
+
+class _MeasuredPoseCodec(_MessageCodec[MeasuredPose]):
+    X = _Scaled("x_m", "PoseX")
+    Z = _Scaled("z_m", "PoseZ")
+    ROLL = _Scaled("roll_rad", "PoseRoll")
+    PITCH = _Scaled("pitch_rad", "PosePitch")
+
+    payload = MeasuredPose
+    message = "MeasuredPose"
+    source = PLANNER_ADDRESS
+    priority = 6
+    dlcs = (8,)
+    signals = (X, Z, ROLL, PITCH)
+
+    def write(self, p: MeasuredPose, out: _Writer) -> None:
+        out.put(self.X, p.x_m)
+        out.put(self.Z, p.z_m)
+        out.put(self.ROLL, p.roll_rad)
+        out.put(self.PITCH, p.pitch_rad)
+
+    def read(self, r: _Reader) -> MeasuredPose:
+        return MeasuredPose(
+            x_m=r.get(self.X), z_m=r.get(self.Z), roll_rad=r.get(self.ROLL), pitch_rad=r.get(self.PITCH)
+        )
+
+
+class _RearHitchStatusCodec(_MessageCodec[RearHitchStatus]):
+    POSITION = _Scaled("position", "RearHitchPosition")
+    IN_WORK = _Enum("in_work", "RearHitchInWork", Switch)
+    LIMIT = _Enum("limit_status", "RearHitchLimitStatus", LimitStatus)
+    FORCE = _Scaled("nominal_lower_link_force", "RearNominalLowerLinkForce")
+    DRAFT = _Scaled("draft_n", "RearDraft")
+    EXIT_REASON = _Count("exit_reason_code", "RearHitchExitReasonCode")
+
+    payload = RearHitchStatus
+    message = "RearHitchStatus"
+    source = TRACTOR_ECU_ADDRESS
+    priority = 3
+    dlcs = (8,)
+    signals = (POSITION, IN_WORK, LIMIT, FORCE, DRAFT, EXIT_REASON)
+
+    def write(self, p: RearHitchStatus, out: _Writer) -> None:
+        out.put(self.POSITION, p.position)
+        out.put(self.IN_WORK, p.in_work)
+        out.put(self.LIMIT, p.limit_status)
+        out.put(self.FORCE, p.nominal_lower_link_force)
+        out.put(self.DRAFT, p.draft_n)
+        out.put(self.EXIT_REASON, p.exit_reason_code)
+
+    def read(self, r: _Reader) -> RearHitchStatus:
+        return RearHitchStatus(
+            position=r.get(self.POSITION),
+            in_work=r.get(self.IN_WORK),
+            limit_status=r.get(self.LIMIT),
+            nominal_lower_link_force=r.get(self.FORCE),
+            draft_n=r.get(self.DRAFT),
+            exit_reason_code=r.get(self.EXIT_REASON),
+        )
+
+
+class _WheelBasedSpeedCodec(_MessageCodec[WheelBasedSpeed]):
+    SPEED = _Scaled("speed_m_s", "WheelBasedMachineSpeed")
+    DISTANCE = _Scaled("distance_m", "WheelBasedMachineDistance")
+    POWER_TIME = _Scaled("max_power_time_s", "MaxTimeOfTractorPower")
+    DIRECTION = _Enum("direction", "WheelBasedMachineDirection", MachineDirection)
+    KEY = _Enum("key_switch", "KeySwitchState", Switch)
+    START_STOP = _Enum("start_stop", "ImplementStartStop", Switch)
+    REVERSED = _Enum("direction_reversed", "OperatorDirectionReversed", Switch)
+
+    payload = WheelBasedSpeed
+    message = "WheelBasedSpeedDistance"
+    source = TRACTOR_ECU_ADDRESS
+    priority = 3
+    dlcs = (8,)
+    signals = (SPEED, DISTANCE, POWER_TIME, DIRECTION, KEY, START_STOP, REVERSED)
+
+    def write(self, p: WheelBasedSpeed, out: _Writer) -> None:
+        out.put(self.SPEED, p.speed_m_s)
+        out.put(self.DISTANCE, p.distance_m)
+        out.put(self.POWER_TIME, p.max_power_time_s)
+        out.put(self.DIRECTION, p.direction)
+        out.put(self.KEY, p.key_switch)
+        out.put(self.START_STOP, p.start_stop)
+        out.put(self.REVERSED, p.direction_reversed)
+
+    def read(self, r: _Reader) -> WheelBasedSpeed:
+        return WheelBasedSpeed(
+            speed_m_s=r.get(self.SPEED),
+            distance_m=r.get(self.DISTANCE),
+            max_power_time_s=r.get(self.POWER_TIME),
+            direction=r.get(self.DIRECTION),
+            key_switch=r.get(self.KEY),
+            start_stop=r.get(self.START_STOP),
+            direction_reversed=r.get(self.REVERSED),
+        )
+
+
+class _HeartbeatCodec(_MessageCodec[Heartbeat]):
+    SEQUENCE = _Raw("sequence", "HeartbeatSequenceNumber")
+
+    payload = Heartbeat
+    message = "Heartbeat"
+    source = PLANNER_ADDRESS
+    priority = 3
+    dlcs = (1, 8)
+    signals = (SEQUENCE,)
+
+    def write(self, p: Heartbeat, out: _Writer) -> None:
+        out.put(self.SEQUENCE, p.sequence)
+
+    def read(self, r: _Reader) -> Heartbeat:
+        return Heartbeat(sequence=r.get(self.SEQUENCE))
+
+
+@dataclass(frozen=True)
+class _AxisSignals:
+    """The five signals of one joystick axis (J1939 Basic Joystick Message 1)."""
+
+    position: _Scaled
+    neutral: _Enum[Switch]
+    negative: _Enum[Switch]
+    positive: _Enum[Switch]
+    detent: _Enum[Switch]
+
+    @classmethod
+    def of(cls, axis: str, negative: str, positive: str) -> _AxisSignals:
+        a = axis.upper()
+        return cls(
+            _Scaled(f"{axis}_position", f"Jstk1{a}AxisPosition"),
+            _Enum(f"{axis}_neutral", f"Jstk1{a}AxisNeutral", Switch),
+            _Enum(f"{axis}_negative", f"Jstk1{a}Axis{negative}", Switch),
+            _Enum(f"{axis}_positive", f"Jstk1{a}Axis{positive}", Switch),
+            _Enum(f"{axis}_detent", f"Jstk1{a}AxisDetent", Switch),
+        )
+
+    @property
+    def signals(self) -> tuple[_Signal[Any], ...]:
+        return (self.position, self.neutral, self.negative, self.positive, self.detent)
+
+    def write(self, ax: JoystickAxis, out: _Writer) -> None:
+        out.put(self.position, ax.position)
+        out.put(self.neutral, ax.neutral)
+        out.put(self.negative, ax.negative)
+        out.put(self.positive, ax.positive)
+        out.put(self.detent, ax.detent)
+
+    def read(self, r: _Reader) -> JoystickAxis:
+        return JoystickAxis(
+            position=r.get(self.position),
+            neutral=r.get(self.neutral),
+            negative=r.get(self.negative),
+            positive=r.get(self.positive),
+            detent=r.get(self.detent),
+        )
+
+
+class _BasicJoystickCodec(_MessageCodec[BasicJoystick]):
+    X = _AxisSignals.of("x", "LeftNeg", "RightPos")
+    Y = _AxisSignals.of("y", "BackNeg", "FwdPos")
+    BUTTONS = _Group("buttons", tuple(_Enum("buttons", f"Jstk1Button{i}", Switch) for i in range(1, 13)))
+
+    payload = BasicJoystick
+    message = "BasicJoystickMessage1"
+    source = JOYSTICK_ADDRESS
+    priority = 3
+    dlcs = (8,)
+    signals = (*X.signals, *Y.signals, BUTTONS)
+
+    def write(self, p: BasicJoystick, out: _Writer) -> None:
+        self.X.write(p.x, out)
+        self.Y.write(p.y, out)
+        out.put_all(self.BUTTONS, p.buttons)
+
+    def read(self, r: _Reader) -> BasicJoystick:
+        return BasicJoystick(x=self.X.read(r), y=self.Y.read(r), buttons=r.get_all(self.BUTTONS))
+
+
+class _AddressClaimedCodec(_MessageCodec[AddressClaimed]):
+    """The 64-bit NAME split into the DBC's NAME fields (start bit and length from the DBC)."""
+
+    NAME = tuple(
+        _Raw(s, s)
+        for s in (
+            "IdentityNumber",
+            "ManufacturerCode",
+            "EcuInstance",
+            "FunctionInstance",
+            "Function",
+            "NameReserved",
+            "VehicleSystem",
+            "VehicleSystemInstance",
+            "IndustryGroup",
+            "ArbitraryAddressCapable",
+        )
+    )
+
+    payload = AddressClaimed
+    message = "AddressClaimed"
+    source = PLANNER_ADDRESS
+    priority = 6
+    dlcs = (8,)
+    signals = NAME
+
+    def write(self, p: AddressClaimed, out: _Writer) -> None:
+        for s in self.NAME:
+            sig = out.message.get_signal_by_name(s.name)
+            out.put(s, (p.name >> sig.start) & ((1 << sig.length) - 1))
+
+    def read(self, r: _Reader) -> AddressClaimed:
+        return AddressClaimed(name=sum(r.get(s) << r.message.get_signal_by_name(s.name).start for s in self.NAME))
+
+
+class _RequestPgnCodec(_MessageCodec[RequestPgn]):
+    PGN = _Raw("pgn", "RequestedPGN")
+
+    payload = RequestPgn
+    message = "RequestPGN"
+    source = PLANNER_ADDRESS
+    priority = 6
+    dlcs = (3, 8)
+    signals = (PGN,)
+
+    def write(self, p: RequestPgn, out: _Writer) -> None:
+        out.put(self.PGN, p.pgn)
+
+    def read(self, r: _Reader) -> RequestPgn:
+        return RequestPgn(pgn=r.get(self.PGN))
+
+
+_MESSAGES: tuple[_MessageCodec[Any], ...] = (
+    _PressureCodec(),
+    _PositionReferenceCodec(),
+    _PositionMeasurementCodec(),
+    _EcuParametersCodec(),
+    _MeasuredPoseCodec(),
+    _RearHitchStatusCodec(),
+    _WheelBasedSpeedCodec(),
+    _HeartbeatCodec(),
+    _BasicJoystickCodec(),
+    _AddressClaimedCodec(),
+    _RequestPgnCodec(),
 )
 
-_SPECS = (
-    _Spec(
-        PressureMeasurement,
-        "PressureMeasurement",
-        CYLINDER_ECU_ADDRESS,
-        6,
-        (8,),
-        (
-            _f("lift_pa", "LiftPressure"),
-            _f("tilt_pa", "TiltPressure"),
-            _f("top_pa", "TopPressure"),
-            _f("supply_pa", "SupplyPressure"),
-        ),
-    ),
-    _Spec(
-        PositionCounts,
-        "PositionReference",
-        PLANNER_ADDRESS,
-        3,
-        (8,),
-        tuple(_f(a, f"{a.capitalize()}Reference", kind="count", required=True) for a in ACTUATORS),
-    ),
-    _Spec(
-        PositionMeasurement,
-        "PositionMeasurement",
-        CYLINDER_ECU_ADDRESS,
-        3,
-        (8,),
-        tuple(_f(f"{a}_counts", f"{a.capitalize()}Measurement", kind="count") for a in ("tilt", "top", "right", "left"))
-        + (_f("system_state", "SystemState", kind="raw"),),
-    ),
-    _Spec(
-        EcuParameters,
-        "EcuParameters",
-        PLANNER_ADDRESS,
-        6,
-        (8,),
-        (
-            _f("controllers_enabled", "ControllersEnable", kind="flag"),
-            _f("watchdog_timeout_s", "WatchdogTimeout"),
-            _f("valve_multipliers", *(f"{a.capitalize()}ValveMultiplier" for a in ACTUATORS)),
-        ),
-    ),
-    _Spec(
-        MeasuredPose,
-        "MeasuredPose",
-        PLANNER_ADDRESS,
-        6,
-        (8,),
-        (_f("x_m", "PoseX"), _f("z_m", "PoseZ"), _f("roll_rad", "PoseRoll"), _f("pitch_rad", "PosePitch")),
-    ),
-    _Spec(
-        RearHitchStatus,
-        "RearHitchStatus",
-        TRACTOR_ECU_ADDRESS,
-        3,
-        (8,),
-        (
-            _f("position", "RearHitchPosition"),
-            _f("in_work", "RearHitchInWork", **_ENUM),
-            _f("limit_status", "RearHitchLimitStatus", kind="enum", enum=LimitStatus),
-            _f("nominal_lower_link_force", "RearNominalLowerLinkForce"),
-            _f("draft_n", "RearDraft"),
-            _f("exit_reason_code", "RearHitchExitReasonCode", kind="count"),
-        ),
-    ),
-    _Spec(
-        WheelBasedSpeed,
-        "WheelBasedSpeedDistance",
-        TRACTOR_ECU_ADDRESS,
-        3,
-        (8,),
-        (
-            _f("speed_m_s", "WheelBasedMachineSpeed"),
-            _f("distance_m", "WheelBasedMachineDistance"),
-            _f("max_power_time_s", "MaxTimeOfTractorPower"),
-            _f("direction", "WheelBasedMachineDirection", kind="enum", enum=MachineDirection),
-            _f("key_switch", "KeySwitchState", **_ENUM),
-            _f("start_stop", "ImplementStartStop", **_ENUM),
-            _f("direction_reversed", "OperatorDirectionReversed", **_ENUM),
-        ),
-    ),
-    _Spec(Heartbeat, "Heartbeat", PLANNER_ADDRESS, 3, (1, 8), (_f("sequence", "HeartbeatSequenceNumber", kind="raw"),)),
-    _Spec(
-        BasicJoystick,
-        "BasicJoystickMessage1",
-        JOYSTICK_ADDRESS,
-        3,
-        (8,),
-        _axis_fields("x", "LeftNeg", "RightPos")
-        + _axis_fields("y", "BackNeg", "FwdPos")
-        + (_f("buttons", *(f"Jstk1Button{i}" for i in range(1, 13)), **_ENUM),),
-        _joystick_build,
-        _joystick_split,
-    ),
-    _Spec(
-        AddressClaimed,
-        "AddressClaimed",
-        PLANNER_ADDRESS,
-        6,
-        (8,),
-        tuple(_f(s, s, kind="raw") for s in _NAME_SIGNALS),
-        _name_build,
-        _name_split,
-    ),
-    _Spec(RequestPgn, "RequestPGN", PLANNER_ADDRESS, 6, (3, 8), (_f("pgn", "RequestedPGN", kind="raw"),)),
-)
+
+def _load_database(path: str) -> Database:
+    db = cantools.database.load_file(path, frame_id_mask=FRAME_ID_MASK)
+    if not isinstance(db, Database):
+        raise CodecError(f"{path} is not a CAN database")
+    return db
 
 
-def _raw_limits(sig: Any) -> tuple[int, int]:
-    """Raw range that maps into the DBC signal's [minimum, maximum]."""
-    lo = math.ceil((sig.minimum - sig.offset) / sig.scale - 1e-9)
-    hi = math.floor((sig.maximum - sig.offset) / sig.scale + 1e-9)
-    return max(lo, 0), min(hi, (1 << sig.length) - 1)
-
-
-def _range_text(sig: Any) -> str:
-    return f"{sig.minimum:g}..{sig.maximum:g}{(' ' + sig.unit) if sig.unit else ''}"
-
-
-def _decode_signal(f: _Field, sig: Any, raw: int, unavailable: list[str], errors: list[str]) -> Any:
-    where = f"{sig.name} (field {f.name})"
-    if f.kind == "enum":
-        allowed = set(sig.choices) if sig.choices else {int(m) for m in f.enum}
-        if raw not in allowed:
-            raise CodecError(f"{where}: raw {raw} is reserved, allowed {sorted(allowed)}")
-        return f.enum(raw)
-    if f.kind == "flag":
-        if raw == 2:
-            raise CodecError(f"{where}: raw 2 is reserved (0 off, 1 on, 3 no change)")
-        return None if raw == 3 else bool(raw)
-    lo, hi = _raw_limits(sig)
-    if f.kind != "raw":
-        status = classify_raw(raw, sig.length)
-        if status in (RawStatus.NOT_AVAILABLE, RawStatus.ERROR):
-            if f.required:
-                raise CodecError(f"{where}: {status.value} (raw {raw}) where a value is required")
-            (unavailable if status is RawStatus.NOT_AVAILABLE else errors).append(sig.name)
-            return None
-        if status is RawStatus.RESERVED:
-            raise CodecError(f"{where}: raw {raw} is in the J1939 reserved range")
-    if not lo <= raw <= hi:
-        raise CodecError(f"{where}: raw {raw} outside {lo}..{hi} ({_range_text(sig)})")
-    return raw if f.kind in ("count", "raw") else raw * sig.scale + sig.offset
-
-
-def _encode_signal(owner: str, f: _Field, sig: Any, value: Any) -> int:
-    where = f"{owner}.{f.name}"
-    if f.kind == "enum":
-        try:
-            raw = int(f.enum(value))
-        except (ValueError, TypeError):
-            raise CodecError(f"{where}: {value!r} is not a {f.enum.__name__}") from None
-        if sig.choices and raw not in sig.choices:
-            raise CodecError(f"{where}: {f.enum(raw).name} not allowed, raw {sorted(sig.choices)}")
-        return raw
-    if f.kind == "flag":
-        if value is not None and not isinstance(value, bool):
-            raise CodecError(f"{where} must be True, False or None, got {value!r}")
-        return 3 if value is None else int(value)
-    if value is None:
-        if f.required or f.kind == "raw":
-            raise CodecError(f"{where} is required, got None")
-        return (1 << sig.length) - 1
-    integral = f.kind in ("count", "raw")
-    if isinstance(value, bool) or not isinstance(value, int if integral else (int, float)):
-        kind = "an integer" if integral else "a number"
-        raise CodecError(f"{where} must be {kind}, got {value!r}")
-    if not integral and not math.isfinite(value):
-        raise CodecError(f"{where} must be finite, got {value!r}")
-    raw = value if integral else round((value - sig.offset) / sig.scale)
-    lo, hi = _raw_limits(sig)
-    inside = lo <= raw <= hi
-    if not inside or (f.kind != "raw" and classify_raw(raw, sig.length) is not RawStatus.VALID):
-        raise CodecError(f"{where} = {value!r} outside {_range_text(sig)}")
-    return raw
+def _raw_int(message: Message, name: str, value: object) -> int:
+    """A raw (unscaled) signal value as cantools returns it: an integer."""
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise CodecError(f"{message.name}: raw value of {name} is not an integer, got {value!r}")
+    return value
 
 
 class Codec:
     """Encoder/decoder bound to one loaded DBC database (immutable after construction)."""
 
-    def __init__(self, database: Any) -> None:
+    def __init__(self, database: Database) -> None:
         self._db = database
-        self._by_type: dict[type, _Spec] = {}
-        self._by_message: dict[str, _Spec] = {}
-        for spec in _SPECS:
+        self._by_type: dict[type, _MessageCodec[Any]] = {}
+        self._by_message: dict[str, _MessageCodec[Any]] = {}
+        for spec in _MESSAGES:
             message = database.get_message_by_name(spec.message)
-            for f in spec.fields:
-                for name in f.signals:
-                    sig = message.get_signal_by_name(name)
-                    members = {int(m) for m in f.enum} if f.enum else set()
-                    if f.kind == "enum" and sig.choices and not set(sig.choices) <= members:
-                        raise ValueError(f"DBC choices of {name} do not match {f.enum.__name__}")
+            for s in spec.flat_signals():
+                s.check_dbc(message.get_signal_by_name(s.name))
             self._by_type[spec.payload] = spec
             self._by_message[spec.message] = spec
 
@@ -382,11 +774,11 @@ class Codec:
         """Load ``path`` (default: the packaged ``bridge/isobus/hitch.dbc``)."""
         if path is None:
             with resources.as_file(resources.files("bridge.isobus") / "hitch.dbc") as p:
-                return cls(cantools.database.load_file(str(p), frame_id_mask=FRAME_ID_MASK))
-        return cls(cantools.database.load_file(path, frame_id_mask=FRAME_ID_MASK))
+                return cls(_load_database(str(p)))
+        return cls(_load_database(path))
 
     @property
-    def database(self) -> Any:
+    def database(self) -> Database:
         """The underlying cantools database."""
         return self._db
 
@@ -411,19 +803,10 @@ class Codec:
         if spec is None:
             raise CodecError(f"no CAN message for {type(payload).__name__}")
         message = self._db.get_message_by_name(spec.message)
-        values = spec.split(payload, message) if spec.split else {f.name: getattr(payload, f.name) for f in spec.fields}
-        raw: dict[str, int] = {}
         owner = type(payload).__name__
-        for f in spec.fields:
-            try:
-                items = tuple(values[f.name]) if len(f.signals) > 1 else (values[f.name],)
-            except TypeError:
-                raise CodecError(f"{owner}.{f.name} must be a sequence") from None
-            if len(items) != len(f.signals):
-                raise CodecError(f"{owner}.{f.name} needs {len(f.signals)} entries")
-            for name, item in zip(f.signals, items):
-                raw[name] = _encode_signal(owner, f, message.get_signal_by_name(name), item)
-        data = message.encode(raw, scaling=False, padding=True, strict=False)
+        out = _Writer(owner, message)
+        spec.write(payload, out)
+        data = message.encode(out.raw, scaling=False, padding=True, strict=False)
         try:
             can_id = encode_id(
                 decode_id(message.frame_id).pgn,
@@ -431,7 +814,7 @@ class Codec:
                 priority=spec.priority if priority is None else priority,
                 destination_address=destination,
             )
-        except ValueError as exc:
+        except J1939Error as exc:
             raise CodecError(f"{owner}: {exc}") from None
         return can.Message(arbitration_id=can_id, is_extended_id=True, data=data)
 
@@ -443,7 +826,7 @@ class Codec:
             raise CodecError(f"11-bit id 0x{msg.arbitration_id:03X}: ISO 11783 uses 29-bit ids")
         try:
             ident = decode_id(msg.arbitration_id)
-        except ValueError as exc:
+        except J1939Error as exc:
             raise CodecError(str(exc)) from None
         lookup = ident.can_id | (0xFF00 if ident.is_pdu1 else 0)
         try:
@@ -458,20 +841,15 @@ class Codec:
                 f"expected {' or '.join(map(str, spec.dlcs))}"
             )
         data = (data + b"\xff" * message.length)[: message.length]
-        raw = message.decode(data, decode_choices=False, scaling=False)
-        unavailable: list[str] = []
-        errors: list[str] = []
-        values: dict[str, Any] = {}
-        for f in spec.fields:
-            items = tuple(
-                _decode_signal(f, message.get_signal_by_name(n), raw[n], unavailable, errors) for n in f.signals
-            )
-            values[f.name] = items if len(items) > 1 else items[0]
+        decoded = message.decode_simple(data, decode_choices=False, scaling=False)
+        raw = {name: _raw_int(message, name, value) for name, value in decoded.items()}
+        reader = _Reader(message, spec.flat_signals(), raw)
         try:
-            payload = spec.build(values, message) if spec.build else spec.payload(**values)
+            payload = spec.read(reader)
         except CodecError as exc:
             raise CodecError(f"{message.name}: {exc}") from None
-        return Decoded(ident, payload, tuple(unavailable), tuple(errors), float(msg.timestamp))
+        notes = reader.notes
+        return Decoded(ident, payload, tuple(notes.unavailable), tuple(notes.errors), float(msg.timestamp))
 
     def decode(self, msg: can.Message) -> Payload:
         """Decode ``msg`` into its payload dataclass."""

@@ -22,10 +22,12 @@ from enum import Enum
 import can
 
 from bridge.isobus.codec import CodecError, Heartbeat, decode_frame, encode
-from bridge.isobus.j1939 import PGN_HEARTBEAT, PLANNER_ADDRESS, decode_id
+from bridge.isobus.j1939 import PGN_HEARTBEAT, PLANNER_ADDRESS, J1939Error, decode_id
+from planner.errors import HitchInputError
 
 __all__ = [
     "HEARTBEAT_PERIOD_S",
+    "HeartbeatError",
     "HEARTBEAT_TIMEOUT_S",
     "HeartbeatMonitor",
     "HeartbeatSender",
@@ -56,6 +58,10 @@ _MAX_ADVANCE = 3  # advance 2 or 3 = one or two heartbeats lost, tolerated
 _TIME_EPS_S = 1e-6  # a gap of exactly the timeout (within float noise) is still on time
 
 
+class HeartbeatError(HitchInputError):
+    """A heartbeat period, timeout or sequence number outside its allowed range."""
+
+
 class HeartbeatSender:
     """Periodic heartbeat frames from one source address.
 
@@ -66,7 +72,7 @@ class HeartbeatSender:
 
     def __init__(self, source: int = PLANNER_ADDRESS, *, period_s: float = HEARTBEAT_PERIOD_S) -> None:
         if not period_s > 0:
-            raise ValueError(f"period_s must be > 0 s, got {period_s!r}")
+            raise HeartbeatError(f"period_s must be > 0 s, got {period_s!r}")
         self._source = source
         self._period_s = float(period_s)
         self._sequence: int | None = None  # last sent counter value, None before start
@@ -166,7 +172,7 @@ class HeartbeatMonitor:
 
     def __init__(self, source: int, *, timeout_s: float = HEARTBEAT_TIMEOUT_S) -> None:
         if not timeout_s > 0:
-            raise ValueError(f"timeout_s must be > 0 s, got {timeout_s!r}")
+            raise HeartbeatError(f"timeout_s must be > 0 s, got {timeout_s!r}")
         self._source = source
         self._timeout_s = float(timeout_s)
         self._state = HeartbeatState.WAITING
@@ -186,16 +192,19 @@ class HeartbeatMonitor:
             ident = decode_id(frame.arbitration_id)
             if ident.pgn != PGN_HEARTBEAT or ident.source_address != self._source:
                 return False
-            sequence = decode_frame(frame).payload.sequence
-        except (CodecError, ValueError):
+            payload = decode_frame(frame).payload
+        except (CodecError, J1939Error):
             return False  # reserved 252-253 and malformed heartbeats are ignored
+        if not isinstance(payload, Heartbeat):
+            return False
+        sequence = payload.sequence
         self.handle_sequence(sequence, now_s)
         return True
 
     def handle_sequence(self, sequence: int, now_s: float) -> None:
         """Process one received sequence number at time ``now_s``."""
         if isinstance(sequence, bool) or not isinstance(sequence, int) or not (0 <= sequence <= 255):
-            raise ValueError(f"sequence must be an integer in 0..255, got {sequence!r}")
+            raise HeartbeatError(f"sequence must be an integer in 0..255, got {sequence!r}")
         if sequence in (252, 253):
             return
         if self._last_rx_s is not None and now_s - self._last_rx_s > self._timeout_s + _TIME_EPS_S:

@@ -26,11 +26,14 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from enum import Enum, IntEnum
 
+from planner.errors import HitchInputError
+
 __all__ = [
     "BITRATE_BPS",
     "CYLINDER_ECU_ADDRESS",
     "GLOBAL_ADDRESS",
     "JOYSTICK_ADDRESS",
+    "J1939Error",
     "J1939Id",
     "LimitStatus",
     "MachineDirection",
@@ -90,12 +93,16 @@ PGN_ADDRESS_CLAIMED = 0xEE00  # 60928
 PGN_REQUEST = 0xEA00  # 59904
 
 
+class J1939Error(HitchInputError):
+    """An identifier field, raw value, DLC or bus-load input outside its J1939 range."""
+
+
 def _check_range(field: str, value: int, low: int, high: int) -> int:
-    """Return ``value`` if it is an int in ``[low, high]``, else raise ValueError."""
+    """Return ``value`` if it is an int in ``[low, high]``, else raise :class:`J1939Error`."""
     if isinstance(value, bool) or not isinstance(value, int):
-        raise ValueError(f"{field} must be an integer in {low}..{high}, got {value!r}")
+        raise J1939Error(f"{field} must be an integer in {low}..{high}, got {value!r}")
     if not low <= value <= high:
-        raise ValueError(f"{field} must be in {low}..{high}, got {value}")
+        raise J1939Error(f"{field} must be in {low}..{high}, got {value}")
     return value
 
 
@@ -176,18 +183,18 @@ def encode_id(
         The identifier as an int (< 2^29).
 
     Raises:
-        ValueError: naming the offending field and its allowed range.
+        J1939Error: naming the offending field and its allowed range.
     """
     _check_range("pgn", pgn, 0, 0x3FFFF)
     _check_range("destination_address", destination_address, 0, 255)
     pdu_format = (pgn >> 8) & 0xFF
     if pdu_format < PDU2_THRESHOLD:
         if pgn & 0xFF:
-            raise ValueError(f"pgn 0x{pgn:05X} is PDU1 (PF {pdu_format} < 240), its low byte must be 0")
+            raise J1939Error(f"pgn 0x{pgn:05X} is PDU1 (PF {pdu_format} < 240), its low byte must be 0")
         pdu_specific = destination_address
     else:
         if destination_address != GLOBAL_ADDRESS:
-            raise ValueError(
+            raise J1939Error(
                 f"pgn 0x{pgn:05X} is PDU2 (broadcast): destination_address must be "
                 f"{GLOBAL_ADDRESS}, got {destination_address}"
             )
@@ -206,7 +213,7 @@ def decode_id(can_id: int) -> J1939Id:
     """Split a 29-bit identifier into its J1939 fields.
 
     Raises:
-        ValueError: if ``can_id`` is not in 0..0x1FFFFFFF.
+        J1939Error: if ``can_id`` is not in 0..0x1FFFFFFF.
     """
     _check_range("can_id", can_id, 0, 0x1FFFFFFF)
     return J1939Id(
@@ -323,15 +330,15 @@ def bus_load(
         Load as a fraction of ``bitrate_bps`` (1.0 = saturated).
 
     Raises:
-        ValueError: for a DLC outside 0..8, a negative or non-finite rate or a
+        J1939Error: for a DLC outside 0..8, a negative or non-finite rate or a
             non-positive bit rate.
     """
     if not bitrate_bps > 0 or bitrate_bps == float("inf"):
-        raise ValueError(f"bitrate_bps must be a positive finite number, got {bitrate_bps!r}")
+        raise J1939Error(f"bitrate_bps must be a positive finite number, got {bitrate_bps!r}")
     total_bits_per_s = 0.0
     for dlc, rate in frames_per_second_by_dlc.items():
         if not (rate >= 0 and rate != float("inf")):
-            raise ValueError(f"frames per second for dlc {dlc} must be finite and >= 0, got {rate!r}")
+            raise J1939Error(f"frames per second for dlc {dlc} must be finite and >= 0, got {rate!r}")
         bits = frame_bits(dlc, extended=extended, worst_case_stuffing=worst_case_stuffing)
         total_bits_per_s += rate * bits
     return total_bits_per_s / bitrate_bps

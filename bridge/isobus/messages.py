@@ -10,9 +10,10 @@ available" (or "no change" for :class:`EcuParameters`).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Union
+from typing import TypeAlias
 
 from bridge.isobus.j1939 import J1939Id, LimitStatus, MachineDirection, Switch
+from planner.errors import HitchInputError
 
 __all__ = [
     "ACTUATORS",
@@ -40,7 +41,7 @@ MAX_COUNTS = 1021
 """Largest 10-bit AD value carried as a number (1022 = error, 1023 = not available)."""
 
 
-class CodecError(ValueError):
+class CodecError(HitchInputError):
     """A frame or payload that must not reach the planner; the message says why."""
 
 
@@ -252,19 +253,20 @@ class RequestPgn:
         _require_int("RequestPgn", "pgn", self.pgn, 0, 0x3FFFF)
 
 
-Payload = Union[
-    PositionCounts,
-    PositionMeasurement,
-    PressureMeasurement,
-    EcuParameters,
-    MeasuredPose,
-    RearHitchStatus,
-    WheelBasedSpeed,
-    Heartbeat,
-    BasicJoystick,
-    AddressClaimed,
-    RequestPgn,
-]
+Payload: TypeAlias = (
+    PositionCounts
+    | PositionMeasurement
+    | PressureMeasurement
+    | EcuParameters
+    | MeasuredPose
+    | RearHitchStatus
+    | WheelBasedSpeed
+    | Heartbeat
+    | BasicJoystick
+    | AddressClaimed
+    | RequestPgn
+)
+"""Any payload dataclass the codec maps to a CAN message."""
 
 
 @dataclass(frozen=True)

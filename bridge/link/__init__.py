@@ -1,1 +1,150 @@
-"""TODO"""
+"""The planner's side of the CAN bus: references out, measured state in, faults latched.
+
+* :mod:`bridge.link.can_link` — :class:`CanLink`, the link to one cylinder ECU;
+* :mod:`bridge.link.state` — its settings, measured state, faults, counters and errors;
+* :mod:`bridge.link.realtime` — opening a python-can bus and running a node in real time;
+* :mod:`bridge.link.unit_loop` — the feed-forward reference through the ECU's unit loops.
+
+The link runs without a simulator: nothing here imports ``bridge.sim``. The names below
+load lazily (PEP 562): ``import bridge.link`` imports none of the modules.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from bridge.link.can_link import CanLink
+    from bridge.link.realtime import (
+        INTERFACES,
+        BusNode,
+        RealtimeRunner,
+        open_bus,
+    )
+    from bridge.link.state import (
+        HITCH_POSITION_STEPS,
+        LinkConfig,
+        LinkCounters,
+        LinkError,
+        LinkFaultError,
+        LinkFaults,
+        LinkState,
+        LinkStatus,
+        MeasurementAssembler,
+        ReferenceRefused,
+        check_address,
+        check_period,
+        lift_counts_from_fraction,
+    )
+    from bridge.link.unit_loop import (
+        ActuatorMotion,
+        FeedforwardShaper,
+        PoseState,
+        SolveFull,
+        UnitLoop,
+        UnitLoopError,
+        actuator_motion,
+        build_unit_loops,
+        feedforward_reference,
+        safe_reference,
+        unit_loop_lag_s,
+    )
+
+#: public name -> the module that defines it
+_SOURCES: dict[str, str] = {
+    "CanLink": "bridge.link.can_link",
+    **dict.fromkeys(
+        (
+            "LinkConfig",
+            "LinkCounters",
+            "LinkError",
+            "LinkFaultError",
+            "LinkFaults",
+            "LinkState",
+            "HITCH_POSITION_STEPS",
+            "LinkStatus",
+            "MeasurementAssembler",
+            "ReferenceRefused",
+            "check_address",
+            "check_period",
+            "lift_counts_from_fraction",
+        ),
+        "bridge.link.state",
+    ),
+    **dict.fromkeys(
+        (
+            "BusNode",
+            "INTERFACES",
+            "RealtimeRunner",
+            "open_bus",
+        ),
+        "bridge.link.realtime",
+    ),
+    **dict.fromkeys(
+        (
+            "ActuatorMotion",
+            "FeedforwardShaper",
+            "PoseState",
+            "SolveFull",
+            "UnitLoop",
+            "UnitLoopError",
+            "actuator_motion",
+            "build_unit_loops",
+            "feedforward_reference",
+            "safe_reference",
+            "unit_loop_lag_s",
+        ),
+        "bridge.link.unit_loop",
+    ),
+}
+
+__all__ = [
+    # the link (bridge.link.can_link)
+    "CanLink",
+    # settings, state, faults, errors (bridge.link.state)
+    "LinkConfig",
+    "LinkCounters",
+    "LinkError",
+    "LinkFaultError",
+    "LinkFaults",
+    "LinkState",
+    "HITCH_POSITION_STEPS",
+    "LinkStatus",
+    "MeasurementAssembler",
+    "ReferenceRefused",
+    "check_address",
+    "check_period",
+    "lift_counts_from_fraction",
+    # real time (bridge.link.realtime)
+    "BusNode",
+    "INTERFACES",
+    "RealtimeRunner",
+    "open_bus",
+    # unit-loop feed-forward (bridge.link.unit_loop)
+    "ActuatorMotion",
+    "FeedforwardShaper",
+    "PoseState",
+    "SolveFull",
+    "UnitLoop",
+    "UnitLoopError",
+    "actuator_motion",
+    "build_unit_loops",
+    "feedforward_reference",
+    "safe_reference",
+    "unit_loop_lag_s",
+]
+
+
+def __getattr__(name: str) -> Any:
+    """Import a public name from its defining module on first use (PEP 562)."""
+    source = _SOURCES.get(name)
+    if source is None:
+        raise AttributeError(f"module 'bridge.link' has no attribute {name!r}")
+    value = getattr(importlib.import_module(source), name)
+    globals()[name] = value  # the next lookup does not come here
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

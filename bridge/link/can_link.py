@@ -1,6 +1,6 @@
-"""The planner side of the CAN bridge: reference stream out, measured state in (issue 6 §3).
+"""The planner side of the CAN bridge: reference stream out, measured state in.
 
-:class:`CanLink` talks to the cylinder ECU (real or :mod:`bridge.sim.can_node`):
+:class:`CanLink` talks to the cylinder ECU (the real one, or the simulated ``bridge.sim.can_node``):
 
 * **References.** :meth:`CanLink.send_reference` takes actuators in SI, checks them
   against every hard limit (strokes, top-link angles, ground clearance — names as in
@@ -28,8 +28,8 @@
 
 Time: the link owns no clock and no thread. Every method takes ``now_s`` (any
 monotonic clock in seconds). :meth:`poll` drains the bus without blocking — a
-simulation calls it from its simulated clock (:mod:`bridge.sim.move`); in real time a
-:class:`bridge.sim.move.RealtimeRunner` calls it from a background thread that blocks on the bus
+simulation calls it from its simulated clock (the rig of ``bridge.sim.rig``); in real time a
+:class:`bridge.link.realtime.RealtimeRunner` calls it from a background thread that blocks on the bus
 between deadlines (no busy loop). All public methods take an internal lock, so a
 service thread may call :meth:`send_reference` while the runner polls.
 """
@@ -42,6 +42,7 @@ from dataclasses import replace
 
 import can
 import numpy as np
+from numpy.typing import ArrayLike
 
 from bridge.isobus.address_claim import AddressClaimer, ClaimState
 from bridge.isobus.codec import (
@@ -54,7 +55,7 @@ from bridge.isobus.codec import (
     load_codec,
 )
 from bridge.isobus.heartbeat import HeartbeatMonitor, HeartbeatSender, HeartbeatState
-from bridge.isobus.j1939 import PGN_ADDRESS_CLAIMED, PGN_REQUEST, decode_id
+from bridge.isobus.j1939 import PGN_ADDRESS_CLAIMED, PGN_REQUEST, J1939Error, decode_id
 from bridge.link.state import (
     LinkConfig,
     LinkCounters,
@@ -200,7 +201,7 @@ class CanLink:
         with self._lock:
             self._streaming = False
 
-    def check_reference(self, actuators) -> PositionCounts:
+    def check_reference(self, actuators: ArrayLike) -> PositionCounts:
         """The 0xFF21 counts of ``actuators`` (SI, actuator order) if within every hard limit.
 
         Raises:
@@ -209,14 +210,14 @@ class CanLink:
         with self._lock:  # the model's evaluation buffers are shared with the link's own thread
             return self._check_reference(actuators)
 
-    def _check_reference(self, actuators) -> PositionCounts:
+    def _check_reference(self, actuators: ArrayLike) -> PositionCounts:
         try:
             q = np.asarray(actuators, dtype=float).reshape(-1)
         except (TypeError, ValueError):
             raise ReferenceRefused(f"reference must be 5 numbers {ACTUATOR_NAMES}, got {actuators!r}") from None
         if q.size != 5:
             raise ReferenceRefused(f"reference needs 5 values {ACTUATOR_NAMES}, got {q.size}")
-        for name, v in zip(ACTUATOR_NAMES, q):
+        for name, v in zip(ACTUATOR_NAMES, q, strict=True):
             if not math.isfinite(v):
                 raise ReferenceRefused(f"reference.{name} must be finite, got {v}")
         try:
@@ -232,7 +233,7 @@ class CanLink:
             raise ReferenceRefused(f"reference refused: {exc}") from None
         return PositionCounts(*(int(c) for c in counts))
 
-    def send_reference(self, actuators, now_s: float) -> PositionCounts:
+    def send_reference(self, actuators: ArrayLike, now_s: float) -> PositionCounts:
         """Check ``actuators`` (SI) and stream them from ``now_s`` on; a fresh command also
         re-arms the link after a fault once its causes are gone.
 
@@ -300,7 +301,7 @@ class CanLink:
                 return
             try:
                 ident = decode_id(frame.arbitration_id)
-            except ValueError as exc:
+            except J1939Error as exc:
                 self._malformed(str(exc))
                 return
             self._send(self._claimer.handle(frame, now_s))

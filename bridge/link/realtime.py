@@ -11,7 +11,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
-from typing import Protocol
+from typing import Any, Protocol
 
 import can
 
@@ -23,12 +23,13 @@ INTERFACES = ("udp_multicast", "socketcan", "virtual")
 """python-can interfaces the bridge runs on (virtual: in-process only)."""
 
 
-def open_bus(interface: str, channel: str | None = None, **kwargs) -> can.BusABC:
+def open_bus(interface: str, channel: str | None = None, **kwargs: Any) -> can.BusABC:
     """Open a python-can bus on one of :data:`INTERFACES`.
 
     ``channel`` defaults to python-can's default IPv4 group for ``udp_multicast``,
     ``vcan0`` for ``socketcan`` and ``hitch`` for ``virtual``. udp_multicast delivers
     our own frames back: the link and the ECU node drop frames from their own address.
+    ``kwargs`` go to :class:`can.Bus` as they are (interface-specific options).
     """
     if interface not in INTERFACES:
         raise LinkError(f"interface must be one of {', '.join(INTERFACES)}, got {interface!r}")
@@ -46,7 +47,7 @@ def open_bus(interface: str, channel: str | None = None, **kwargs) -> can.BusABC
 
 
 class BusNode(Protocol):
-    """What :class:`RealtimeRunner` drives: a :class:`~bridge.can_link.CanLink` or an ECU node."""
+    """What :class:`RealtimeRunner` drives: a :class:`~bridge.link.can_link.CanLink` or an ECU node."""
 
     @property
     def bus(self) -> can.BusABC: ...
@@ -120,5 +121,5 @@ class RealtimeRunner:
     def __enter__(self) -> RealtimeRunner:
         return self.start()
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.stop()

@@ -21,6 +21,7 @@ from bridge.isobus.codec import PositionMeasurement, RearHitchStatus
 from bridge.isobus.heartbeat import HEARTBEAT_PERIOD_S, HEARTBEAT_TIMEOUT_S, HeartbeatStatus
 from bridge.isobus.j1939 import CYLINDER_ECU_ADDRESS, PLANNER_ADDRESS
 from bridge.isobus.system_state import SystemStatus, decode_system_state
+from planner.errors import HitchInputError
 from planner.model.kinematics import HitchModel
 from planner.model.sensors import SensorScaling
 from planner.model.types import ACTUATOR_NAMES, Actuators, KinematicsError, Pose
@@ -42,8 +43,13 @@ __all__ = [
 ]
 
 
-class LinkError(ValueError):
-    """Base of the link's errors; the message names the field, limit or fault."""
+class LinkError(HitchInputError):
+    """Base of the link's errors; the message names the field, limit or fault.
+
+    A :class:`ValueError` (through :class:`~planner.errors.HitchInputError`): a setting
+    out of range, a refused reference and a command the link cannot take now are all
+    the caller's request failing, and callers catch them as ``ValueError``.
+    """
 
 
 class ReferenceRefused(LinkError):
@@ -55,11 +61,11 @@ class LinkFaultError(LinkError):
 
 
 def check_address(name: str, value: object, *, allow_none: bool = False) -> None:
-    """Raise :class:`ValueError` unless ``value`` is a source address 0..253 (or None if allowed)."""
+    """Raise :class:`LinkError` unless ``value`` is a source address 0..253 (or None if allowed)."""
     if value is None and allow_none:
         return
     if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 253:
-        raise ValueError(f"{name} must be a source address in 0..253, got {value!r}")
+        raise LinkError(f"{name} must be a source address in 0..253, got {value!r}")
 
 
 #: Steps of the ISO 11783-7 hitch position field over the full travel (0.4 %/bit).
@@ -85,14 +91,14 @@ def lift_counts_from_fraction(
 
 
 def check_period(name: str, value: object, low: float, high: float) -> None:
-    """Raise :class:`ValueError` unless ``value`` is a number of seconds in [low, high]."""
+    """Raise :class:`LinkError` unless ``value`` is a number of seconds in [low, high]."""
     if (
         isinstance(value, bool)
         or not isinstance(value, (int, float))
         or not math.isfinite(value)
         or not low <= value <= high
     ):
-        raise ValueError(f"{name} must be a number of seconds in [{low:g}, {high:g}], got {value!r}")
+        raise LinkError(f"{name} must be a number of seconds in [{low:g}, {high:g}], got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -107,7 +113,7 @@ class LinkConfig:
             lift; ``None`` = the cylinder ECU (the simulated ECU sends it; on the thesis
             tractor it was the TECU, 240).
         control_rate_hz: reference stream rate, 1..200 Hz (profile default 50 Hz).
-        stale_after_s: a measurement older than this stops motion (issue 6: 0.2 s).
+        stale_after_s: a measurement older than this stops motion (default 0.2 s).
         measurement_period_s: expected 0xFF22 period, s, for counting dropped frames.
         hitch_status_period_s: expected rear hitch status period, s, likewise.
         heartbeat_timeout_s: ECU heartbeat silence that stops motion (ISO 11783-7: 0.3 s).
@@ -146,7 +152,7 @@ class LinkConfig:
         check_address("ecu_address", self.ecu_address)
         check_address("hitch_status_address", self.hitch_status_address, allow_none=True)
         if self.source_address == self.ecu_address:
-            raise ValueError(f"source_address and ecu_address must differ, both {self.source_address}")
+            raise LinkError(f"source_address and ecu_address must differ, both {self.source_address}")
         rate = self.control_rate_hz
         if (
             isinstance(rate, bool)
@@ -154,7 +160,7 @@ class LinkConfig:
             or not math.isfinite(rate)
             or not 1.0 <= rate <= 200.0
         ):
-            raise ValueError(f"control_rate_hz must be a number in [1, 200] Hz, got {rate!r}")
+            raise LinkError(f"control_rate_hz must be a number in [1, 200] Hz, got {rate!r}")
         check_period("stale_after_s", self.stale_after_s, 0.005, 10.0)
         check_period("measurement_period_s", self.measurement_period_s, 0.001, 1.0)
         check_period("hitch_status_period_s", self.hitch_status_period_s, 0.001, 1.0)
@@ -163,14 +169,14 @@ class LinkConfig:
         check_period("claim_wait_s", self.claim_wait_s, 0.001, 10.0)
         tol = self.reading_tolerance_counts
         if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not 0.0 <= tol <= 50.0:
-            raise ValueError(f"reading_tolerance_counts must be a number in [0, 50] counts, got {tol!r}")
+            raise LinkError(f"reading_tolerance_counts must be a number in [0, 50] counts, got {tol!r}")
         n = self.max_consecutive_tx_errors
         if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= 1000:
-            raise ValueError(f"max_consecutive_tx_errors must be an integer in 1..1000, got {n!r}")
+            raise LinkError(f"max_consecutive_tx_errors must be an integer in 1..1000, got {n!r}")
         if self.lift_on_count_grid is not None and not isinstance(self.lift_on_count_grid, bool):
-            raise ValueError(f"lift_on_count_grid must be true, false or None, got {self.lift_on_count_grid!r}")
+            raise LinkError(f"lift_on_count_grid must be true, false or None, got {self.lift_on_count_grid!r}")
         if not isinstance(self.name, Name):
-            raise ValueError(f"name must be a bridge.isobus.address_claim.Name, got {type(self.name).__name__}")
+            raise LinkError(f"name must be a bridge.isobus.address_claim.Name, got {type(self.name).__name__}")
 
     @property
     def control_period_s(self) -> float:
@@ -365,12 +371,12 @@ class MeasurementAssembler:
         self._restart_bits = bits
         self._ecu_had_reference = (self._ecu_had_reference and restart is None) or not system.no_reference_since_restart
         self._system = system
-        readings = (m.tilt_counts, m.top_counts, m.left_counts, m.right_counts)
-        if any(r is None for r in readings):
+        tilt, top, left, right = m.tilt_counts, m.top_counts, m.left_counts, m.right_counts
+        if tilt is None or top is None or left is None or right is None:
             self.last_problem = "0xFF22 reading not available or in error"
             self._bump(unavailable_readings=1)
-        elif self._in_span(readings):
-            self._meas = (now_s, readings)
+        elif self._in_span((tilt, top, left, right)):
+            self._meas = (now_s, (tilt, top, left, right))
             self._update(now_s)
         return restart
 
@@ -385,7 +391,8 @@ class MeasurementAssembler:
         self._hitch = (now_s, float(h.position))
         self._update(now_s)
 
-    def _in_span(self, readings) -> bool:
+    def _in_span(self, readings: tuple[int, int, int, int]) -> bool:
+        """True if every reading (tilt, top, left, right) lies in its calibrated span ± tolerance."""
         s, tol = self._scaling, self._cfg.reading_tolerance_counts
         for i, r in enumerate(readings, start=1):
             if not s.counts_min[i] - tol <= r <= s.counts_max[i] + tol:

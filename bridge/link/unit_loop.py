@@ -1,7 +1,7 @@
 """Feed-forward through the cylinder ECU's unit loops: the reference that makes each
-cylinder follow its plan (issue 6 §4).
+cylinder follow its plan.
 
-The ECU closes one position loop per cylinder (thesis 2.56–2.57, :mod:`bridge.sim.controller`):
+The ECU closes one position loop per cylinder (thesis 2.56–2.57; simulated in ``bridge.sim.controller``):
 PD on the AD reading with k = a/(Kv L), k_d = k·T_F, derivative on the measurement,
 dead-zone compensation, the valve multiplier m. For commands outside the dead zone the valve
 and cylinder of (thesis 1.1) then move as
@@ -33,9 +33,11 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
+from planner.errors import HitchInputError
 from planner.model.sensors import SensorScaling
 from planner.model.types import ACTUATOR_NAMES
 from planner.profiles.hitch import Profile
@@ -43,13 +45,39 @@ from planner.profiles.hitch import Profile
 __all__ = [
     "ActuatorMotion",
     "FeedforwardShaper",
+    "PoseState",
+    "SolveFull",
     "UnitLoop",
+    "UnitLoopError",
     "actuator_motion",
     "build_unit_loops",
     "feedforward_reference",
     "safe_reference",
     "unit_loop_lag_s",
 ]
+
+
+class UnitLoopError(HitchInputError):
+    """A tuning or profile value the unit-loop model cannot take; the message names it."""
+
+
+class PoseState(Protocol):
+    """Pose-space state over (x, z, roll, pitch), SI: what a plan's ``state_at(t)`` returns
+    (:class:`planner.trajectory.plan.MotionState`)."""
+
+    @property
+    def position(self) -> np.ndarray: ...
+
+    @property
+    def velocity(self) -> np.ndarray: ...
+
+    @property
+    def acceleration(self) -> np.ndarray: ...
+
+
+SolveFull = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, object]]
+"""The exact inverse: pose (4,) → (actuators (5,), d actuators / d pose (5, 4), …)
+(:meth:`planner.model.exact_inverse.ExactInverse.solve_full`)."""
 
 
 @dataclass(frozen=True)
@@ -87,8 +115,8 @@ class ActuatorMotion:
 
 
 def actuator_motion(
-    state_at: Callable[[float], object],
-    solve_full: Callable,
+    state_at: Callable[[float], PoseState],
+    solve_full: SolveFull,
     t: float,
     loops: tuple[UnitLoop, ...],
     q: np.ndarray,
@@ -120,13 +148,13 @@ def build_unit_loops(profile: Profile, a: float | None = None) -> tuple[UnitLoop
     if a is None:
         a = profile.motion.controller_a
     if not (isinstance(a, (int, float)) and 0.0 < a <= 2.0):
-        raise ValueError(f"a must be a number in (0, 2], got {a!r}")
+        raise UnitLoopError(f"a must be a number in (0, 2], got {a!r}")
     loops = []
     resolution = SensorScaling(profile).resolution  # SI per count
-    for name, res in zip(ACTUATOR_NAMES, resolution):
+    for name, res in zip(ACTUATOR_NAMES, resolution, strict=True):
         s = profile.actuator(name)
         if s.transport_delay <= 0:
-            raise ValueError(
+            raise UnitLoopError(
                 f"actuators.{name}.transport_delay must be > 0 for the loop model, got {s.transport_delay}"
             )
         loops.append(
@@ -202,7 +230,7 @@ class FeedforwardShaper:
     def __init__(
         self,
         loops: tuple[UnitLoop, ...],
-        solve_full: Callable,
+        solve_full: SolveFull,
         check: Callable[[np.ndarray], object],
         *,
         enabled: bool = True,
@@ -212,7 +240,7 @@ class FeedforwardShaper:
         """References whose feed-forward the hard-limit check made smaller (a count)."""
 
     def for_plan(
-        self, state_at: Callable[[float], object], t: float, planned: np.ndarray, rates: np.ndarray
+        self, state_at: Callable[[float], PoseState], t: float, planned: np.ndarray, rates: np.ndarray
     ) -> np.ndarray:
         """Reference at time ``t`` of a pose plan ``state_at`` whose actuators at ``t`` are ``planned``
         moving at ``rates``."""
@@ -221,7 +249,7 @@ class FeedforwardShaper:
         motion = actuator_motion(state_at, self._solve_full, t, self.loops, planned, rates)
         return self._safe(planned, feedforward_reference(self.loops, motion))
 
-    def for_state(self, state, planned: np.ndarray, rates: np.ndarray) -> np.ndarray:
+    def for_state(self, state: PoseState, planned: np.ndarray, rates: np.ndarray) -> np.ndarray:
         """Reference for a motion known only now (jog): pose-space ``state`` (position, velocity,
         acceleration) with actuators ``planned`` moving at ``rates``. The rates one delay ahead
         are extrapolated with the acceleration, v + L·a (J·p̈), and stop at zero rather than

@@ -1,82 +1,217 @@
-"""Simulated cylinder ECU: the thesis's identified hydraulics, unit controllers and watchdog.
+"""The simulated cylinder ECU: the thesis's identified hydraulics, unit controllers and watchdog,
+on the CAN bus, and the rig that runs it against the planner link.
 
-The twin of the thesis's PhyCORE-MPC555 cylinder ECU (thesis §2.4–2.5.6), without
-the CAN wiring: :class:`CylinderECU` is stepped in simulated time by its caller.
+The twin of the thesis's PhyCORE-MPC555 cylinder ECU (thesis §2.4–2.5.6):
 
-* :mod:`.cylinder`   — one valve + cylinder, model (thesis 1.1) with dead zone, minimum
+* :mod:`bridge.sim.cylinder`   — one valve + cylinder, model (thesis 1.1) with dead zone, minimum
   flow, direction-dependent gains, end stops and 10-bit AD quantisation;
-* :mod:`.controller` — the modified PD unit controller (thesis 2.56–2.57) and the
+* :mod:`bridge.sim.controller` — the modified PD unit controller (thesis 2.56–2.57) and the
   relay-type end-stop protection;
-* :mod:`.watchdog`   — valves held at zero unless references keep arriving;
-* :mod:`.ecu`        — five of each, the on/off switch and the system-state byte.
+* :mod:`bridge.sim.watchdog`   — valves held at zero unless references keep arriving;
+* :mod:`bridge.sim.ecu`        — five of each and the on/off switch, stepped in simulated time;
+* :mod:`bridge.sim.can_node`   — the ECU as an ISO 11783 node (its messages, claim, heartbeat);
+* :mod:`bridge.sim.rig`        — ECU node and planner link on a private bus in simulated time;
+* :mod:`bridge.sim.move`       — the closed-loop move experiment of ``hitch sim move``.
 
-Everything inside runs in AD counts as the thesis ECU did; SI conversions are at the
-boundary (:meth:`CylinderParams.counts_to_si`, :meth:`CylinderECU.positions_si`).
+Inside the ECU everything runs in AD counts as the thesis ECU did; SI conversions are at
+the boundary (:meth:`CylinderParams.counts_to_si`, :meth:`CylinderECU.positions_si`). The
+system-state byte the ECU sends is defined by the protocol, in :mod:`bridge.isobus.system_state`.
+
+The names below load lazily (PEP 562): ``import bridge.sim`` imports none of the modules,
+so the ECU model loads without the planner link.
 """
 
-from bridge.sim.controller import (
-    THESIS_A,
-    ControllerConfig,
-    ControllerError,
-    ControllerGains,
-    ControllerOutput,
-    EndStopRelay,
-    RelayLimits,
-    UnitController,
-    build_controller_gains,
-    build_relay_limits,
-)
-from bridge.sim.cylinder import (
-    AD_MAX_COUNTS,
-    VALVE_MAX,
-    Cylinder,
-    CylinderError,
-    CylinderParams,
-    build_cylinder_params,
-    valve_flow_counts_per_s,
-)
-from bridge.sim.ecu import (
-    ACTUATOR_ORDER,
-    STATE_CONTROLLERS_ON,
-    STATE_END_STOP_RELAY,
-    STATE_NO_REFERENCE,
-    STATE_RESTART_SHIFT,
-    STATE_WATCHDOG_TRIPPED,
-    CylinderECU,
-    ECUError,
-    SystemStatus,
-    decode_system_state,
-)
-from bridge.sim.watchdog import Watchdog, WatchdogError
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from bridge.sim.can_node import (
+        EcuCanNode,
+        EcuNodeConfig,
+        EcuNodeCounters,
+        EcuNodeError,
+        lift_fraction,
+    )
+    from bridge.sim.controller import (
+        THESIS_A,
+        ControllerConfig,
+        ControllerError,
+        ControllerGains,
+        ControllerOutput,
+        EndStopRelay,
+        RelayLimits,
+        UnitController,
+        build_controller_gains,
+        build_relay_limits,
+    )
+    from bridge.sim.cylinder import (
+        AD_MAX_COUNTS,
+        VALVE_MAX,
+        Cylinder,
+        CylinderError,
+        CylinderParams,
+        build_cylinder_params,
+        valve_flow_counts_per_s,
+    )
+    from bridge.sim.ecu import (
+        ACTUATOR_ORDER,
+        CylinderECU,
+        ECUError,
+    )
+    from bridge.sim.move import (
+        REFERENCE_KINDS,
+        MoveFigures,
+        MoveSettings,
+        MoveTrace,
+        build_move_figures,
+        run_move,
+    )
+    from bridge.sim.rig import (
+        LossyBus,
+        SimError,
+        SimRig,
+        SimSettings,
+    )
+    from bridge.sim.watchdog import (
+        Watchdog,
+        WatchdogError,
+    )
+
+#: public name -> the module that defines it
+_SOURCES: dict[str, str] = {
+    **dict.fromkeys(
+        (
+            "AD_MAX_COUNTS",
+            "VALVE_MAX",
+            "CylinderError",
+            "CylinderParams",
+            "Cylinder",
+            "build_cylinder_params",
+            "valve_flow_counts_per_s",
+        ),
+        "bridge.sim.cylinder",
+    ),
+    **dict.fromkeys(
+        (
+            "THESIS_A",
+            "ControllerError",
+            "ControllerConfig",
+            "ControllerGains",
+            "RelayLimits",
+            "ControllerOutput",
+            "EndStopRelay",
+            "UnitController",
+            "build_controller_gains",
+            "build_relay_limits",
+        ),
+        "bridge.sim.controller",
+    ),
+    **dict.fromkeys(
+        (
+            "WatchdogError",
+            "Watchdog",
+        ),
+        "bridge.sim.watchdog",
+    ),
+    **dict.fromkeys(
+        (
+            "ACTUATOR_ORDER",
+            "CylinderECU",
+            "ECUError",
+        ),
+        "bridge.sim.ecu",
+    ),
+    **dict.fromkeys(
+        (
+            "EcuCanNode",
+            "EcuNodeConfig",
+            "EcuNodeCounters",
+            "EcuNodeError",
+            "lift_fraction",
+        ),
+        "bridge.sim.can_node",
+    ),
+    **dict.fromkeys(
+        (
+            "LossyBus",
+            "SimError",
+            "SimRig",
+            "SimSettings",
+        ),
+        "bridge.sim.rig",
+    ),
+    **dict.fromkeys(
+        (
+            "MoveFigures",
+            "MoveSettings",
+            "MoveTrace",
+            "REFERENCE_KINDS",
+            "build_move_figures",
+            "run_move",
+        ),
+        "bridge.sim.move",
+    ),
+}
 
 __all__ = [
+    # valve + cylinder (bridge.sim.cylinder)
+    "AD_MAX_COUNTS",
+    "VALVE_MAX",
+    "CylinderError",
+    "CylinderParams",
+    "Cylinder",
+    "build_cylinder_params",
+    "valve_flow_counts_per_s",
+    # unit controller and end-stop relay (bridge.sim.controller)
     "THESIS_A",
-    "ControllerConfig",
     "ControllerError",
+    "ControllerConfig",
     "ControllerGains",
+    "RelayLimits",
     "ControllerOutput",
     "EndStopRelay",
-    "RelayLimits",
     "UnitController",
     "build_controller_gains",
     "build_relay_limits",
-    "AD_MAX_COUNTS",
-    "VALVE_MAX",
-    "Cylinder",
-    "CylinderError",
-    "CylinderParams",
-    "build_cylinder_params",
-    "valve_flow_counts_per_s",
+    # watchdog (bridge.sim.watchdog)
+    "WatchdogError",
+    "Watchdog",
+    # the ECU (bridge.sim.ecu)
     "ACTUATOR_ORDER",
-    "STATE_CONTROLLERS_ON",
-    "STATE_END_STOP_RELAY",
-    "STATE_NO_REFERENCE",
-    "STATE_RESTART_SHIFT",
-    "STATE_WATCHDOG_TRIPPED",
     "CylinderECU",
     "ECUError",
-    "SystemStatus",
-    "decode_system_state",
-    "Watchdog",
-    "WatchdogError",
+    # the ECU on the bus (bridge.sim.can_node)
+    "EcuCanNode",
+    "EcuNodeConfig",
+    "EcuNodeCounters",
+    "EcuNodeError",
+    "lift_fraction",
+    # the rig (bridge.sim.rig)
+    "LossyBus",
+    "SimError",
+    "SimRig",
+    "SimSettings",
+    # closed-loop moves (bridge.sim.move)
+    "MoveFigures",
+    "MoveSettings",
+    "MoveTrace",
+    "REFERENCE_KINDS",
+    "build_move_figures",
+    "run_move",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    """Import a public name from its defining module on first use (PEP 562)."""
+    source = _SOURCES.get(name)
+    if source is None:
+        raise AttributeError(f"module 'bridge.sim' has no attribute {name!r}")
+    value = getattr(importlib.import_module(source), name)
+    globals()[name] = value  # the next lookup does not come here
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

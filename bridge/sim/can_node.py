@@ -1,7 +1,7 @@
-"""The simulated cylinder ECU as an ISO 11783 CAN node (issue 6 §2, the wiring).
+"""The simulated cylinder ECU as an ISO 11783 CAN node (the wiring).
 
 :class:`EcuCanNode` puts a :class:`~bridge.sim.ecu.CylinderECU` behind the same
-CAN API as the thesis's PhyCORE-MPC555 ECU (HITCH.md §4):
+CAN API as the thesis's PhyCORE-MPC555 ECU (the messages of ``bridge/isobus/hitch.dbc``):
 
 * receives 0xFF21 position references (→ :meth:`CylinderECU.set_reference`, which
   feeds the 100 ms watchdog), 0xFF23 parameters (controllers on/off, watchdog
@@ -27,7 +27,7 @@ into one pose and applies the same 200 ms staleness limit to it (configurable).
 
 Time: the node owns no clock. :meth:`poll` (drain the bus, step the ECU to ``now_s``,
 send what is due) is driven either by a simulated clock (deterministic runs, see
-:mod:`bridge.sim.move`) or in real time by :class:`bridge.link.can_link.RealtimeRunner`
+:mod:`bridge.sim.rig`) or in real time by :class:`bridge.link.realtime.RealtimeRunner`
 (``hitch ecu-sim``). A frame is handled at the ``now_s`` of the poll that reads it.
 """
 
@@ -55,14 +55,20 @@ from bridge.isobus.j1939 import (
     PGN_ADDRESS_CLAIMED,
     PGN_REQUEST,
     PLANNER_ADDRESS,
+    J1939Error,
     LimitStatus,
     decode_id,
 )
 from bridge.sim.ecu import CylinderECU
+from planner.errors import HitchInputError
 
-__all__ = ["EcuCanNode", "EcuNodeConfig", "EcuNodeCounters", "lift_fraction"]
+__all__ = ["EcuCanNode", "EcuNodeConfig", "EcuNodeCounters", "EcuNodeError", "lift_fraction"]
 
 _EPS_S = 1e-6  # float-time tolerance of the periodic schedules
+
+
+class EcuNodeError(HitchInputError):
+    """Bad settings of the simulated ECU node; the message names the field and the allowed range."""
 
 
 def _check_period(name: str, value: object, low: float, high: float) -> None:
@@ -72,7 +78,7 @@ def _check_period(name: str, value: object, low: float, high: float) -> None:
         or not math.isfinite(value)
         or not low <= value <= high
     ):
-        raise ValueError(f"{name} must be a number of seconds in [{low:g}, {high:g}], got {value!r}")
+        raise EcuNodeError(f"{name} must be a number of seconds in [{low:g}, {high:g}], got {value!r}")
 
 
 def lift_fraction(counts: float, counts_min: float, counts_max: float) -> float:
@@ -107,13 +113,13 @@ class EcuNodeConfig:
         for attr, allow_none in (("source_address", False), ("planner_address", True)):
             v = getattr(self, attr)
             if not (v is None and allow_none) and (isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= 253):
-                raise ValueError(f"{attr} must be a source address in 0..253, got {v!r}")
+                raise EcuNodeError(f"{attr} must be a source address in 0..253, got {v!r}")
         _check_period("measurement_period_s", self.measurement_period_s, 0.001, 1.0)
         _check_period("hitch_status_period_s", self.hitch_status_period_s, 0.001, 1.0)
         _check_period("heartbeat_period_s", self.heartbeat_period_s, 0.01, 10.0)
         _check_period("claim_wait_s", self.claim_wait_s, 0.001, 10.0)
         if not isinstance(self.name, Name):
-            raise ValueError(f"name must be a bridge.isobus.address_claim.Name, got {type(self.name).__name__}")
+            raise EcuNodeError(f"name must be a bridge.isobus.address_claim.Name, got {type(self.name).__name__}")
 
 
 @dataclass(frozen=True)
@@ -173,7 +179,7 @@ class EcuCanNode:
 
     def __init__(self, ecu: CylinderECU, bus: can.BusABC, config: EcuNodeConfig | None = None) -> None:
         if not isinstance(ecu, CylinderECU):
-            raise ValueError(f"ecu must be a CylinderECU, got {type(ecu).__name__}")
+            raise EcuNodeError(f"ecu must be a CylinderECU, got {type(ecu).__name__}")
         self._ecu = ecu
         self._bus = bus
         self._cfg = config if config is not None else EcuNodeConfig()
@@ -277,7 +283,7 @@ class EcuCanNode:
                 return
             try:
                 ident = decode_id(frame.arbitration_id)
-            except ValueError as exc:
+            except J1939Error as exc:
                 self._last_malformed = str(exc)
                 self._bump(malformed=1)
                 return

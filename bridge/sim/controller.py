@@ -52,6 +52,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bridge.sim.cylinder import AD_MAX_COUNTS, VALVE_MAX, CylinderParams
+from planner.errors import HitchInputError
 from planner.profiles.hitch import THESIS_CONTROLLER_A
 
 __all__ = [
@@ -71,7 +72,7 @@ __all__ = [
 THESIS_A = THESIS_CONTROLLER_A
 
 
-class ControllerError(ValueError):
+class ControllerError(HitchInputError):
     """Bad controller configuration or input; the message names the field and the allowed range."""
 
 

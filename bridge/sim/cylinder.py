@@ -49,6 +49,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from planner.errors import HitchInputError
+
 __all__ = [
     "AD_MAX_COUNTS",
     "VALVE_MAX",
@@ -65,7 +67,7 @@ AD_MAX_COUNTS = 1023
 VALVE_MAX = 254
 
 
-class CylinderError(ValueError):
+class CylinderError(HitchInputError):
     """Bad input to the cylinder model; the message names the field and the allowed range."""
 
 
@@ -311,6 +313,6 @@ class Cylinder:
     def measure(self) -> int:
         """One 10-bit AD sample [counts]: position + noise, rounded half up, clipped to 0…1023."""
         x = self._x
-        if self._noise > 0:
+        if self._noise > 0 and self._rng is not None:  # the constructor requires an rng with noise
             x += self._noise * float(self._rng.standard_normal())
         return int(min(max(math.floor(x + 0.5), 0), AD_MAX_COUNTS))

@@ -1,5 +1,5 @@
 """The simulated cylinder ECU: five cylinders, their unit controllers, the watchdog and
-the system-state byte, stepped in simulated time (thesis §2.4–2.5.6, issue 6 §2).
+the system-state byte, stepped in simulated time (thesis §2.4–2.5.6).
 
 This is the machine's twin behind the CAN API, without the CAN wiring: a caller
 (the CAN loop, a test, a bench script) delivers position references with
@@ -38,32 +38,21 @@ from bridge.isobus.system_state import (
     STATE_NO_REFERENCE,
     STATE_RESTART_SHIFT,
     STATE_WATCHDOG_TRIPPED,
-    SystemStatus,
-    decode_system_state,
 )
 from bridge.sim.controller import ControllerConfig, ControllerOutput, UnitController
 from bridge.sim.cylinder import AD_MAX_COUNTS, Cylinder, CylinderParams, build_cylinder_params
 from bridge.sim.watchdog import Watchdog
+from planner.errors import HitchInputError
 from planner.profiles.hitch import Profile, load_profile
 
-__all__ = [
-    "ACTUATOR_ORDER",
-    "STATE_CONTROLLERS_ON",
-    "STATE_WATCHDOG_TRIPPED",
-    "STATE_END_STOP_RELAY",
-    "STATE_NO_REFERENCE",
-    "STATE_RESTART_SHIFT",
-    "ECUError",
-    "SystemStatus",
-    "CylinderECU",
-    "decode_system_state",
-]
+__all__ = ["ACTUATOR_ORDER", "CylinderECU", "ECUError"]
 
 #: Actuator order of every array in and out of the ECU.
 ACTUATOR_ORDER: tuple[str, ...] = ("lift", "tilt", "top", "left", "right")
+_DEFAULT_CONTROLLER = ControllerConfig()  # frozen: one shared default is safe
 
 
-class ECUError(ValueError):
+class ECUError(HitchInputError):
     """Bad input to the simulated ECU; the message names the field and the allowed range."""
 
 
@@ -109,7 +98,7 @@ def _reference_counts(counts) -> tuple[int, ...]:
         if len(values) != 5:
             raise ECUError(f"reference needs 5 counts ({', '.join(ACTUATOR_ORDER)}), got {len(values)}")
     out = []
-    for n, v in zip(ACTUATOR_ORDER, values):
+    for n, v in zip(ACTUATOR_ORDER, values, strict=True):
         if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)):
             raise ECUError(f"reference {n} must be an integer count, got {v!r}")
         if not (math.isfinite(v) and float(v).is_integer()):
@@ -142,7 +131,7 @@ class CylinderECU:
         noise_counts=0.0,
         gain_error=None,
         watchdog_timeout_s: float = 0.1,
-        controller: ControllerConfig = ControllerConfig(),
+        controller: ControllerConfig = _DEFAULT_CONTROLLER,
         step_s: float = 1e-3,
         initial_counts=None,
         controllers_enabled: bool = True,
@@ -174,7 +163,7 @@ class CylinderECU:
         x0 = self._initial_counts(initial_counts)
         self._cylinders = tuple(
             Cylinder(p, step_s=self._h, gain_error=g, noise_counts=s, rng=self._rng, initial_counts=x)
-            for p, g, s, x in zip(self.params, gains, noise, x0)
+            for p, g, s, x in zip(self.params, gains, noise, x0, strict=True)
         )
         self._controllers = tuple(UnitController(p, controller) for p in self.params)
         self._watchdog = Watchdog(watchdog_timeout_s)
@@ -188,14 +177,14 @@ class CylinderECU:
 
     def _initial_counts(self, initial_counts) -> list[float]:
         out = []
-        for n, p in zip(ACTUATOR_ORDER, self.params):
+        for n, p in zip(ACTUATOR_ORDER, self.params, strict=True):
             neutral = self.profile.actuator(n).neutral
             out.append(p.si_to_counts(neutral) if neutral is not None else 0.5 * (p.counts_min + p.counts_max))
         if initial_counts is None:
             return out
         if isinstance(initial_counts, Mapping):
             given = _per_cylinder("initial_counts", {n: initial_counts[n] for n in initial_counts}, 0.0)
-            return [g if n in initial_counts else d for n, g, d in zip(ACTUATOR_ORDER, given, out)]
+            return [g if n in initial_counts else d for n, g, d in zip(ACTUATOR_ORDER, given, out, strict=True)]
         return _per_cylinder("initial_counts", initial_counts, 0.0)
 
     # -- inputs ------------------------------------------------------------------------
@@ -271,16 +260,16 @@ class CylinderECU:
             self._control(now)
         if self._watchdog.expired(now):
             self._valves = [0] * 5
-        for cyl, u in zip(self._cylinders, self._valves):
+        for cyl, u in zip(self._cylinders, self._valves, strict=True):
             cyl.step(u)
         self._tick += 1
 
     def _control(self, now: float) -> None:
         self._meas = [c.measure() for c in self._cylinders]
-        active = self._enabled and self._reference is not None and not self._watchdog.expired(now)
+        ref = self._reference if self._enabled and not self._watchdog.expired(now) else None
         for i, ctrl in enumerate(self._controllers):
-            if active:
-                out = ctrl.update(self._reference[i], self._meas[i])
+            if ref is not None:
+                out = ctrl.update(ref[i], self._meas[i])
                 self._outputs[i] = out
                 self._valves[i] = out.command
             else:
@@ -295,7 +284,7 @@ class CylinderECU:
 
     def positions_si(self) -> np.ndarray:
         """Last measurement converted to SI (lift [rad], others [m]) through the calibration."""
-        return np.array([p.counts_to_si(m) for p, m in zip(self.params, self._meas)])
+        return np.array([p.counts_to_si(m) for p, m in zip(self.params, self._meas, strict=True)])
 
     def piston_counts(self) -> np.ndarray:
         """True (unquantised, noise-free) piston positions [counts, float] — simulation truth."""
@@ -328,7 +317,7 @@ class CylinderECU:
         return self._watchdog
 
     def system_state(self) -> int:
-        """System-state byte (bit layout in the module docstring)."""
+        """System-state byte (bit layout: :mod:`bridge.isobus.system_state`)."""
         s = 0
         if self._enabled:
             s |= STATE_CONTROLLERS_ON

@@ -1,4 +1,4 @@
-"""Running the simulated cylinder ECU and the planner link together over CAN (issue 6 §2, §4).
+"""Running the simulated cylinder ECU and the planner link together over CAN: closed-loop moves.
 
 The simulated rig (:class:`SimRig`, :class:`SimSettings`, :class:`LossyBus`) lives in
 :mod:`bridge.sim.rig` and is re-exported here: both nodes
@@ -13,7 +13,7 @@ turns its trace into the reported figures.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -132,7 +132,7 @@ def run_move(
         tp.check_in_workspace(p1)
         if move.reference == "step":
             return _drive(rig, model, np.zeros(1), tp.inverse.solve(p1)[0][None, :], lambda t: p1, p0, p1, 0.0, move)
-        plan = tp.plan_move(MotionState.at_rest(p0), dict(zip(_POSE, p1)), speed_scale=move.speed_scale)
+        plan = tp.plan_move(MotionState.at_rest(p0), dict(zip(_POSE, p1, strict=True)), speed_scale=move.speed_scale)
         sp = tp.sample(plan)
         refs = sp.actuators
         if move.feedforward:
@@ -142,20 +142,45 @@ def run_move(
             refs = np.array(
                 [
                     shaper.for_plan(plan.state_at, float(t), q, qd)
-                    for t, q, qd in zip(sp.t, sp.actuators, sp.actuator_velocity)
+                    for t, q, qd in zip(sp.t, sp.actuators, sp.actuator_velocity, strict=True)
                 ]
             )
         return _drive(rig, model, sp.t, refs, lambda t: plan.state_at(t).position, p0, p1, plan.duration, move)
 
 
-def _drive(rig: SimRig, model: HitchModel, times, refs, planned_at, p0, p1, duration, move) -> MoveTrace:
-    """Stream ``refs`` at ``times`` after now, record every 10 ms, stop when the valves rest."""
-    t0, k, quiet_since, n, rows = rig.now_s, 0, None, 0, []
+@dataclass(frozen=True)
+class _Sample:
+    """One 10 ms row of a :class:`MoveTrace` (see there for the units)."""
+
+    t: float
+    measured: np.ndarray
+    truth: np.ndarray
+    planned: np.ndarray
+    reference: np.ndarray
+    measured_actuators: np.ndarray
+    valves: np.ndarray
+
+
+def _drive(
+    rig: SimRig,
+    model: HitchModel,
+    times: np.ndarray,
+    refs: np.ndarray,
+    planned_at: Callable[[float], np.ndarray],
+    p0: np.ndarray,
+    p1: np.ndarray,
+    duration: float,
+    move: MoveSettings,
+) -> MoveTrace:
+    """Stream ``refs`` (SI actuators) at ``times`` (s) after now, record every 10 ms, stop when the valves rest."""
+    t0, k, n = rig.now_s, 0, 0
+    quiet_since: float | None = None
+    rows: list[_Sample] = []
     every = max(1, round(0.01 / rig.settings.tick_s))
     params = rig.ecu.params
 
     def truth_pose() -> np.ndarray:  # forward kinematics of the simulated pistons (not measured)
-        q = [p.counts_to_si(c) for p, c in zip(params, rig.ecu.piston_counts())]
+        q = [p.counts_to_si(c) for p, c in zip(params, rig.ecu.piston_counts(), strict=True)]
         return model.forward(np.array(q)).pose.controlled()
 
     truth_start = truth_pose()
@@ -173,30 +198,39 @@ def _drive(rig: SimRig, model: HitchModel, times, refs, planned_at, p0, p1, dura
         quiet_since = (quiet_since if quiet_since is not None else t) if k == len(times) and not valves.any() else None
         if n % every == 0:
             st = rig.link.latest_state()
-            ref = [p.counts_to_si(c) for p, c in zip(params, rig.link.status(t).reference_counts)]
+            counts = rig.link.status(t).reference_counts
+            ref = (
+                np.full(5, np.nan)
+                if counts is None
+                else np.array([p.counts_to_si(c) for p, c in zip(params, counts, strict=True)])
+            )
             rows.append(
-                (
-                    t - t0,
-                    st.pose.controlled() if st else np.full(4, np.nan),
-                    truth_pose(),
-                    planned_at(t - t0),
-                    ref,
-                    st.actuators.as_array() if st else np.full(5, np.nan),
-                    valves.copy(),
+                _Sample(
+                    t=t - t0,
+                    measured=st.pose.controlled() if st else np.full(4, np.nan),
+                    truth=truth_pose(),
+                    planned=planned_at(t - t0),
+                    reference=ref,
+                    measured_actuators=st.actuators.as_array() if st else np.full(5, np.nan),
+                    valves=valves.copy(),
                 )
             )
         if (quiet_since is not None and t - quiet_since >= move.hold_s - 1e-9) or t - t0 >= move.max_time_s - 1e-9:
             break
-    cols = list(zip(*rows))
     kind = move.reference + ("+feedforward" if move.feedforward and move.reference == "trajectory" else "")
     return MoveTrace(
-        kind,
-        np.asarray(p0),
-        truth_start,
-        np.asarray(p1),
-        float(duration),
-        np.array(cols[0]),
-        *(np.array(c, dtype=float) for c in cols[1:]),
+        reference_kind=kind,
+        start=np.asarray(p0),
+        truth_start=truth_start,
+        goal=np.asarray(p1),
+        plan_duration_s=float(duration),
+        t=np.array([r.t for r in rows]),
+        measured=np.array([r.measured for r in rows], dtype=float),
+        truth=np.array([r.truth for r in rows], dtype=float),
+        planned=np.array([r.planned for r in rows], dtype=float),
+        reference=np.array([r.reference for r in rows], dtype=float),
+        measured_actuators=np.array([r.measured_actuators for r in rows], dtype=float),
+        valves=np.array([r.valves for r in rows], dtype=float),
         link_counters=rig.link.counters.as_dict(),
         node_counters=rig.node.counters.as_dict(),
         faults=rig.link.faults.reasons,
@@ -272,7 +306,7 @@ def build_move_figures(
     last_out = np.flatnonzero(outside)
     settle = None if outside[-1] else float(t[last_out[-1] + 1]) if len(last_out) else float(t[0])
     return MoveFigures(
-        final_error=dict(zip(_POSE, map(float, final))),
+        final_error=dict(zip(_POSE, map(float, final), strict=True)),
         final_error_position_m=float(np.hypot(final[0], final[1])),
         final_error_angle_rad=float(np.max(np.abs(final[2:]))),
         max_path_deviation_m=float(np.max(np.hypot(e[:, 0], e[:, 1]))),

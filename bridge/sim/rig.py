@@ -1,4 +1,4 @@
-"""The simulated rig: the cylinder ECU and the planner link together over CAN (issue 6 §2, §4).
+"""The simulated rig: the cylinder ECU and the planner link together over CAN.
 
 The nodes (:class:`~bridge.link.can_link.CanLink`, :class:`~bridge.sim.can_node.EcuCanNode`)
 own no clock. Here they run in **simulated time**: :class:`SimRig` puts both on a private
@@ -22,19 +22,21 @@ from dataclasses import dataclass, field
 
 import can
 import numpy as np
+from numpy.typing import ArrayLike
 
 from bridge.isobus.j1939 import bus_load
 from bridge.link.can_link import CanLink
 from bridge.link.state import LinkConfig
 from bridge.sim.can_node import EcuCanNode, EcuNodeConfig
 from bridge.sim.ecu import CylinderECU
+from planner.errors import HitchInputError
 from planner.model.kinematics import HitchModel
 from planner.model.sensors import SensorScaling
 
 __all__ = ["LossyBus", "SimError", "SimRig", "SimSettings"]
 
 
-class SimError(ValueError):
+class SimError(HitchInputError):
     """A simulation that cannot run as asked; the message names the field or the fault."""
 
 
@@ -52,7 +54,7 @@ class LossyBus(can.BusABC):
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         self._inner.send(msg, timeout)
 
-    def _recv_internal(self, timeout: float | None):
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         while (msg := self._inner.recv(timeout)) is not None:
             if self._rng.random() >= self._loss:
                 return msg, False
@@ -114,7 +116,9 @@ class SimRig:
         initial_actuators: start position of the pistons, SI (default: the profile's neutral).
     """
 
-    def __init__(self, model: HitchModel, settings: SimSettings | None = None, *, initial_actuators=None) -> None:
+    def __init__(
+        self, model: HitchModel, settings: SimSettings | None = None, *, initial_actuators: ArrayLike | None = None
+    ) -> None:
         self.settings = s = settings if settings is not None else SimSettings()
         rng = np.random.default_rng(s.seed)
         noise_rng, loss_rng = rng.spawn(2)
@@ -207,5 +211,5 @@ class SimRig:
     def __enter__(self) -> SimRig:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()

@@ -15,13 +15,15 @@ from __future__ import annotations
 
 import math
 
+from planner.errors import HitchInputError
+
 __all__ = ["WatchdogError", "Watchdog"]
 
 #: Float-time tolerance for the expiry comparison [s].
 _TIME_EPS_S = 1e-9
 
 
-class WatchdogError(ValueError):
+class WatchdogError(HitchInputError):
     """Bad watchdog configuration or time; the message names the field and the allowed range."""
 
 

@@ -78,10 +78,10 @@ def test_ff22_encodes_exactly_the_hand_packed_bytes_from_the_cylinder_ecu():
 def test_ff22_layout_matches_independent_packing_on_random_values():
     rnd = random.Random(522)
     for _ in range(300):
-        t, o, r, l = (rnd.randrange(1022) for _ in range(4))
+        tilt, top, right, left = (rnd.randrange(1022) for _ in range(4))
         state = rnd.randrange(256)
-        expected = pack_msb_first([(t, 10), (o, 10), (r, 10), (l, 10)], 5) + b"\xff\xff" + bytes([state])
-        assert bytes(encode(PositionMeasurement(t, o, r, l, state)).data) == expected
+        expected = pack_msb_first([(tilt, 10), (top, 10), (right, 10), (left, 10)], 5) + b"\xff\xff" + bytes([state])
+        assert bytes(encode(PositionMeasurement(tilt, top, right, left, state)).data) == expected
 
 
 # --- 0xFF21 position reference (project layout, MSB first like 0xFF22) ------------------------
@@ -340,13 +340,16 @@ def _random_payloads(rnd: random.Random):
         rnd.choice(sw),
     )
     yield Heartbeat(rnd.choice(list(range(252)) + [254, 255]))
-    axis = lambda: JoystickAxis(
-        rnd.choice([None, rnd.randrange(1001) / 1000]),  # noqa: E731
-        rnd.choice(sw),
-        rnd.choice(sw),
-        Switch.OFF,
-        rnd.choice(sw),
-    )
+
+    def axis() -> JoystickAxis:
+        return JoystickAxis(
+            rnd.choice([None, rnd.randrange(1001) / 1000]),
+            rnd.choice(sw),
+            rnd.choice(sw),
+            Switch.OFF,
+            rnd.choice(sw),
+        )
+
     yield BasicJoystick(axis(), axis(), tuple(rnd.choice(sw) for _ in range(12)))
     yield AddressClaimed(rnd.randrange(1 << 64))
     yield RequestPgn(rnd.randrange(1 << 18))
@@ -354,7 +357,7 @@ def _random_payloads(rnd: random.Random):
 
 def _close(a, b, tol):
     if isinstance(a, tuple):
-        return all(_close(x, y, tol) for x, y in zip(a, b))
+        return all(_close(x, y, tol) for x, y in zip(a, b, strict=True))
     if isinstance(a, float) and isinstance(b, float):
         return math.isclose(a, b, abs_tol=tol)
     if hasattr(a, "__dataclass_fields__"):

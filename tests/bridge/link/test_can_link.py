@@ -146,7 +146,9 @@ def test_measured_state_is_forward_kinematics_of_the_quantised_readings(rig, mod
     q = s.si_min + (counts - s.counts_min) * s.resolution
     assert np.allclose(st.actuators.as_array(), q, atol=1e-12)
     assert np.allclose(st.pose.as_array(), model.forward(q).pose.as_array(), atol=1e-12)
-    truth = model.forward(np.array([p.counts_to_si(x) for p, x in zip(ecu.params, ecu.piston_counts())])).pose
+    truth = model.forward(
+        np.array([p.counts_to_si(x) for p, x in zip(ecu.params, ecu.piston_counts(), strict=True)])
+    ).pose
     # quantisation limit: half an AD count; lift 3.87 mrad/count ~ 3.7 mm of z per count
     assert abs(st.pose.z - truth.z) < 0.002 and abs(st.pose.x - truth.x) < 0.002
     assert st.system.controllers_on and st.system.watchdog_tripped

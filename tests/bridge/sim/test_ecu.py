@@ -4,17 +4,14 @@ end-stop relay, system-state byte and reproducible noise."""
 import numpy as np
 import pytest
 
-from bridge.sim import (
-    ACTUATOR_ORDER,
+from bridge.isobus.system_state import (
     STATE_CONTROLLERS_ON,
     STATE_END_STOP_RELAY,
     STATE_NO_REFERENCE,
     STATE_WATCHDOG_TRIPPED,
-    ControllerConfig,
-    CylinderECU,
-    ECUError,
     decode_system_state,
 )
+from bridge.sim import ACTUATOR_ORDER, ControllerConfig, CylinderECU, ECUError
 from planner.profiles.hitch import load_profile
 
 PERIOD = 0.01
@@ -256,7 +253,7 @@ def test_gain_error_speeds_up_the_plant_not_the_controller(profile):
 def test_reference_input_forms_and_latching(profile):
     ecu = CylinderECU(profile)
     m = ecu.measurement_counts()
-    ecu.set_reference(dict(zip(ACTUATOR_ORDER, (int(v) for v in m))), 0.0155)
+    ecu.set_reference(dict(zip(ACTUATOR_ORDER, (int(v) for v in m), strict=True)), 0.0155)
     assert ecu.time_s == pytest.approx(0.015) and ecu.watchdog.last_feed_s == pytest.approx(0.015)
     ecu.set_reference(m.astype(np.int16), 0.02)
     ecu.set_reference([float(v) for v in m], 0.03)
@@ -362,6 +359,6 @@ def test_settled_cylinders_stay_put_under_ad_noise(profile):
         if t >= 6.0:  # well after the moves (≤ 3 s)
             active.append(ecu.valve_commands() != 0)
     duty = np.mean(active, axis=0)
-    print("valve duty after settling:", dict(zip(ACTUATOR_ORDER, np.round(duty, 3))))
+    print("valve duty after settling:", dict(zip(ACTUATOR_ORDER, np.round(duty, 3), strict=True)))
     assert np.all(np.abs(ecu.piston_counts() - ref) <= 1.0)
     assert np.all(duty < 0.05)

@@ -25,7 +25,8 @@ from bridge.isobus.codec import (
     encode,
 )
 from bridge.isobus.j1939 import PGN_HEARTBEAT, PGN_POSITION_MEASUREMENT, PGN_REAR_HITCH_STATUS, decode_id
-from bridge.sim import STATE_CONTROLLERS_ON, STATE_NO_REFERENCE, STATE_WATCHDOG_TRIPPED, CylinderECU
+from bridge.isobus.system_state import STATE_CONTROLLERS_ON, STATE_NO_REFERENCE, STATE_WATCHDOG_TRIPPED
+from bridge.sim import CylinderECU
 from bridge.sim.can_node import EcuCanNode, EcuNodeConfig, lift_fraction
 from bridge.sim.move import SimRig
 from planner.model.exact_inverse import ExactInverse
@@ -291,6 +292,7 @@ def test_own_echo_is_ignored(buses):
     assert c.frames_rx > 0 and c.malformed == 0 and c.references == 0 and c.ignored == 0
 
 
+@pytest.mark.slow
 def test_ecu_sim_runs_as_its_own_process_on_udp_multicast():
     group = f"239.74.{np.random.default_rng().integers(1, 250)}.{os.getpid() % 250 + 1}"
     proc = subprocess.Popen(

@@ -214,9 +214,9 @@ def test_unit_loop_lag_hand_values_and_against_the_simulated_ecu(model):
             rig.run_until(rig.next_tick_s, every_tick=ramp)
             if rig.now_s > t0 + 5.0:  # steady ramp (> 5 time constants): reference − piston, in time
                 x = rig.ecu.piston_counts()
-                r = np.array([p.si_to_counts(q) for p, q in zip(rig.ecu.params, model.neutral)]) + v_counts * (
-                    rig.now_s - t0
-                )
+                r = np.array(
+                    [p.si_to_counts(q) for p, q in zip(rig.ecu.params, model.neutral, strict=True)]
+                ) + v_counts * (rig.now_s - t0)
                 lags.append((r[[1, 3]] - x[[1, 3]]) / v_counts[[1, 3]])
     measured = np.mean(lags, axis=0)
     # the minimum flow Kv·dy_min (after the dead zone) does part of the work: the P part's lag
@@ -224,20 +224,20 @@ def test_unit_loop_lag_hand_values_and_against_the_simulated_ecu(model):
     p = [rig.ecu.params[i] for i in (1, 3)]
     expected = [
         q.transport_delay_s / (q.valve_multiplier * 0.581) * (1 - q.kv_pos * q.min_flow / v) + q.time_constant_s + 0.01
-        for q, v in zip(p, v_counts[[1, 3]])
+        for q, v in zip(p, v_counts[[1, 3]], strict=True)
     ]
     # the valve command is an integer: the error can rest anywhere within ±0.5 valve unit / (m k),
     # k = a / (Kv L) (thesis 2.57), i.e. ±0.5 / (m k v) s of lag
     slack = [
         0.005 + 0.5 / (q.valve_multiplier * 0.581 / (q.kv_pos * q.transport_delay_s) * v)
-        for q, v in zip(p, v_counts[[1, 3]])
+        for q, v in zip(p, v_counts[[1, 3]], strict=True)
     ]
     assert abs(measured[0] - expected[0]) <= slack[0] and abs(measured[1] - expected[1]) <= slack[1]
     assert slack[0] < 0.01 and slack[1] < 0.06
 
 
-def test_feedforward_meets_the_issue_targets_on_a_200_mm_diagonal_move(model):
-    """Issue 6 targets on the 200 mm move x 100 mm + z 173 mm: path deviation ≤ 10 mm with
+def test_feedforward_meets_the_closed_loop_targets_on_a_200_mm_diagonal_move(model):
+    """Closed-loop targets on the 200 mm move x 100 mm + z 173 mm: path deviation ≤ 10 mm with
     trajectories and at least 5× smaller than with a step reference; steady state ≤ 2 mm, 2 mrad."""
     goal, start = {"x": 0.05, "z": 0.1732}, {"x": -0.05, "z": 0.0}
     runs = {

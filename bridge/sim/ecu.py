@@ -49,7 +49,6 @@ __all__ = ["ACTUATOR_ORDER", "CylinderECU", "ECUError"]
 
 #: Actuator order of every array in and out of the ECU.
 ACTUATOR_ORDER: tuple[str, ...] = ("lift", "tilt", "top", "left", "right")
-_DEFAULT_CONTROLLER = ControllerConfig()  # frozen: one shared default is safe
 
 
 class ECUError(HitchInputError):
@@ -118,7 +117,8 @@ class CylinderECU:
     cylinder.  ``gain_error``: relative valve-gain error of the simulated plant (scalar,
     5-sequence or mapping by actuator name; the controllers keep the identified gains).
     ``watchdog_timeout_s``: see :mod:`bridge.sim.watchdog`.  ``controller``: shared
-    unit-controller settings.  ``step_s``: internal integration step [s].
+    unit-controller settings (default: :class:`ControllerConfig` with the profile's
+    ``motion.controller_a``).  ``step_s``: internal integration step [s].
     ``initial_counts``: start positions [counts] (default: the profile's neutral, else
     mid-stroke).  ``controllers_enabled``: initial position of the on/off switch.
     """
@@ -131,13 +131,15 @@ class CylinderECU:
         noise_counts=0.0,
         gain_error=None,
         watchdog_timeout_s: float = 0.1,
-        controller: ControllerConfig = _DEFAULT_CONTROLLER,
+        controller: ControllerConfig | None = None,
         step_s: float = 1e-3,
         initial_counts=None,
         controllers_enabled: bool = True,
     ) -> None:
         if not isinstance(profile, Profile):
             profile = load_profile(profile)
+        if controller is None:  # the machine's own tuning a (thesis 2.57), profile data
+            controller = ControllerConfig(a=profile.motion.controller_a)
         if not isinstance(controller, ControllerConfig):
             raise ECUError(f"controller must be a ControllerConfig, got {type(controller).__name__}")
         if isinstance(rng, np.random.Generator):

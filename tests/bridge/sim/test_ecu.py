@@ -362,3 +362,14 @@ def test_settled_cylinders_stay_put_under_ad_noise(profile):
     print("valve duty after settling:", dict(zip(ACTUATOR_ORDER, np.round(duty, 3), strict=True)))
     assert np.all(np.abs(ecu.piston_counts() - ref) <= 1.0)
     assert np.all(duty < 0.05)
+
+
+def test_the_ecu_runs_with_the_profiles_controller_tuning():
+    """The twin's unit controllers take a (thesis 2.57) from the profile, the same value the
+    planner's feed-forward inverts; a profile with another a gives another controller."""
+    from planner.profiles.hitch import THESIS_CONTROLLER_A, load_profile
+
+    profile = load_profile("thesis-t132")
+    assert CylinderECU(profile).config.a == profile.motion.controller_a == THESIS_CONTROLLER_A
+    other = profile.model_copy(update={"motion": profile.motion.model_copy(update={"controller_a": 0.4})})
+    assert CylinderECU(other).config.a == 0.4

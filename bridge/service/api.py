@@ -1,11 +1,11 @@
-"""The service API: the transport-independent request handler (issue 7 §2).
+"""The service API: the transport-independent request handler.
 
 :meth:`ServiceAPI.handle` ``(key, payload_bytes, user) -> (ok, reply)`` is the one entry point:
-the Zenoh queryables call it (``key`` relative to the prefix, e.g. ``"goto"``), and so can an
-HTTP front end later (issue 9). ``ok`` True → ``reply`` is the answer; False → ``reply`` is
-``{"error": code, "message": sentence}`` naming the field and the limit. It never raises and
-never returns NaN: every payload goes through :func:`~.schemas.parse_request` first (size, JSON,
-strict schema → ``bad_request``).
+the Zenoh queryables call it (``key`` relative to the prefix, e.g. ``"goto"``), and so does the
+operator terminal's HTTP/WebSocket front end (:mod:`bridge.web`). ``ok`` True → ``reply`` is the
+answer; False → ``reply`` is ``{"error": code, "message": sentence}`` naming the field and the
+limit. It never raises and never returns NaN: every payload goes through
+:func:`~bridge.service.schemas.parse_request` first (size, JSON, strict schema → ``bad_request``).
 
 Error codes: ``bad_request`` (payload), ``unknown_key``, ``forbidden`` (access policy),
 ``mode`` (the mode forbids it), ``busy`` (precedence: stop / jog in progress), ``ecu`` (link
@@ -15,8 +15,12 @@ validate), ``store``, ``internal``.
 
 Access: with Zenoh the access-control list of the session enforces who may use the motion keys
 (``user`` is None: already authorised). A front end that knows its user passes it, and the
-handler applies the same :class:`~.security.AccessPolicy` roles (operators: everything;
-viewers: :data:`~.security.VIEWER_QUERIES`; anyone else: nothing).
+handler applies the same :class:`~bridge.service.security.AccessPolicy` roles (operators:
+everything; viewers: :data:`~bridge.service.security.VIEWER_QUERIES`; anyone else: nothing).
+
+Replies are the ``to_json()`` of the values the motion controller and the store return
+(:mod:`bridge.service.motion.types`, :mod:`bridge.service.store`); the short confirmations
+(``saved``, ``deleted``, ``stopped``, ``mode``) are built here.
 """
 
 from __future__ import annotations
@@ -26,10 +30,12 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from bridge.service.maneuvers.language import PlanningContext, validate
-from bridge.service.motion.types import MODES, MotionError, stability_json
+from bridge.service.motion.controller import MotionController
+from bridge.service.motion.types import MODES, ManeuverAccepted, MotionError, PlanPreview, pose_dict
 from bridge.service.schemas import (
     API_KEYS,
     REQUESTS,
+    Empty,
     JogRequest,
     ManeuverSave,
     ModeRequest,
@@ -43,26 +49,25 @@ from bridge.service.schemas import (
     parse_request,
 )
 from bridge.service.security import MOTION_KEYS, AccessPolicy
-from bridge.service.store import DEFAULT_IMPLEMENT, StoreError
+from bridge.service.store import DEFAULT_IMPLEMENT, HitchStore, StoreError
+from planner.ik_qp.hitch_ik import IKSolver
 from planner.ik_qp.result import Target
 from planner.limits.guard import GuardRefusal
-from planner.model.types import CONTROLLED_POSE_NAMES
 from planner.trajectory import MotionState, PlanError
 
 __all__ = ["ServiceAPI", "API_KEYS"]
 
-
-def _pose4(p) -> dict[str, float]:
-    return {k: float(v) for k, v in zip(CONTROLLED_POSE_NAMES, p)}
+#: the fields of an IK result the ``ik`` reply carries (in this order)
+_IK_REPLY_FIELDS = ("status", "actuators", "pose", "active", "residual", "solve_time_s")
 
 
 class ServiceAPI:
-    """Request handling on top of a :class:`~.motion.MotionController`, an IK solver and a store.
+    """Request handling on top of a motion controller, an IK solver and a store.
 
     Args:
-        motion: the motion controller.
+        motion: the :class:`~bridge.service.motion.controller.MotionController`.
         ik: a :class:`planner.ik_qp.hitch_ik.IKSolver` on its own model (used under a lock).
-        store: a :class:`~.store.HitchStore`.
+        store: a :class:`~bridge.service.store.HitchStore`.
         info: the static part of the ``config`` reply (profile, limits, rates …).
         implement: the implement the presets belong to (None: the store's default).
         policy: roles applied when a caller passes ``user``.
@@ -70,9 +75,9 @@ class ServiceAPI:
 
     def __init__(
         self,
-        motion,
-        ik,
-        store,
+        motion: MotionController,
+        ik: IKSolver,
+        store: HitchStore,
         info: Mapping[str, Any],
         *,
         implement: str | None = None,
@@ -103,7 +108,9 @@ class ServiceAPI:
         }
         self.counts = {"ok": 0, "error": 0}
 
-    def handle(self, key: str, payload, user: str | None = None) -> tuple[bool, dict]:
+    def handle(
+        self, key: str, payload: bytes | bytearray | memoryview | str | None, user: str | None = None
+    ) -> tuple[bool, dict[str, Any]]:
         """Serve one request; never raises. ``key`` relative to the prefix (``"goto"``)."""
         try:
             self._authorise(key, user)
@@ -126,7 +133,7 @@ class ServiceAPI:
         self.counts["ok"] += 1
         return True, reply
 
-    def _err(self, code: str, message: str) -> tuple[bool, dict]:
+    def _err(self, code: str, message: str) -> tuple[bool, dict[str, Any]]:
         self.counts["error"] += 1
         return False, {"error": code, "message": message}
 
@@ -151,41 +158,16 @@ class ServiceAPI:
         if res.status == "failed":
             raise RequestError("ik_failed", f"ik: no solution ({res.reason})")
         out = res.to_json()
-        return {
-            "status": out["status"],
-            "actuators": out["actuators"],
-            "pose": out["pose"],
-            "active": out["active"],
-            "residual": out["residual"],
-            "solve_time_s": out["solve_time_s"],
-        }
+        return {k: out[k] for k in _IK_REPLY_FIELDS}
 
     def _plan(self, r: PlanRequest) -> dict:
         try:
-            gp = self.motion.preview(r.goal.as_dict(), r.speed_scale)
-        except GuardRefusal as exc:
-            return {
-                "ok": False,
-                "duration": None,
-                "refused": str(exc),
-                "reasons": [x.to_json() for x in exc.decision.reasons],
-                "stability": None if exc.decision.worst is None else stability_json(exc.decision.worst),
-            }
-        except PlanError as exc:
-            return {"ok": False, "duration": None, "refused": str(exc), "reasons": [], "stability": None}
-        d = gp.decision
-        end = gp.plan.state_at(gp.plan.duration).position
-        return {
-            "ok": True,
-            "duration": gp.plan.duration,
-            "goal": _pose4(end),
-            "guard": d.action,
-            "speed_factor": d.speed_factor,
-            "reasons": [x.to_json() for x in d.reasons],
-            "stability": None if d.worst is None else stability_json(d.worst),
-        }
+            preview = PlanPreview.planned(self.motion.preview(r.goal.as_dict(), r.speed_scale))
+        except PlanError as exc:  # the planner's or the guard's (GuardRefusal) refusal
+            preview = PlanPreview.refusal(exc)
+        return preview.to_json()
 
-    def _config(self, _r) -> dict:
+    def _config(self, _r: Empty) -> dict:
         return {**self.info, "mode": self.motion.mode, "implement": self.info.get("implement")}
 
     # ------------------------------------------------------------------ motion
@@ -196,7 +178,7 @@ class ServiceAPI:
         rates = {"vx": r.vx, "vz": r.vz, "vroll": r.vroll, "vpitch": r.vpitch}
         return self.motion.jog(rates, r.ttl_ms / 1000.0).to_json()
 
-    def _stop(self, _r) -> dict:
+    def _stop(self, _r: Empty) -> dict:
         return {"stopped": True, "motion_id": self.motion.stop()}
 
     def _mode(self, r: ModeRequest) -> dict:
@@ -205,14 +187,14 @@ class ServiceAPI:
         return {"mode": self.motion.set_mode(r.mode), "modes": list(MODES)}
 
     # ------------------------------------------------------------------ presets
-    def _presets_list(self, _r) -> dict:
+    def _presets_list(self, _r: Empty) -> dict:
         return {"presets": [p.to_json() for p in self.store.list_presets(self.implement)], "implement": self.implement}
 
     def _presets_save(self, r: PresetSave) -> dict:
         current = self.motion.current_state().position
         pose = self.motion.planner.goal_vector(current, r.pose.as_dict() if r.pose is not None else {})
         self.motion.planner.check_in_workspace(pose, "pose")
-        p = self.store.save_preset(r.name, _pose4(pose), implement=self.implement, speed_scale=r.speed_scale)
+        p = self.store.save_preset(r.name, pose_dict(pose), implement=self.implement, speed_scale=r.speed_scale)
         return {"saved": p.name, "pose": dict(p.pose), "implement": p.implement}
 
     def _presets_go(self, r: PresetGo) -> dict:
@@ -238,21 +220,11 @@ class ServiceAPI:
         return validate(r.script, self._context()).to_json()
 
     def _maneuvers_save(self, r: ManeuverSave) -> dict:
-        stored = self.store.save_maneuver(r.name, r.script)  # ManeuverError (ValueError) lists the problems
+        stored = self.store.save_maneuver(r.name, r.script)  # ManeuverError (a HitchInputError) lists the problems
         return {"saved": stored.name, "steps": len(stored.parsed.steps)}
 
-    def _maneuvers_list(self, _r) -> dict:
-        return {
-            "maneuvers": [
-                {
-                    "name": m.name,
-                    "description": m.parsed.description,
-                    "steps": len(m.parsed.steps),
-                    "timeout": m.parsed.timeout_s,
-                }
-                for m in self.store.list_maneuvers()
-            ]
-        }
+    def _maneuvers_list(self, _r: Empty) -> dict:
+        return {"maneuvers": [m.to_json(script=False) for m in self.store.list_maneuvers()]}
 
     def _maneuvers_run(self, r: NameRequest) -> dict:
         m = self.store.get_maneuver(r.name)
@@ -265,13 +237,7 @@ class ServiceAPI:
                 "invalid", f"maneuvers/run: {r.name!r} does not validate from the current pose: {first.sentence()}"
             )
         mid = self.motion.run_maneuver(res, r.name)
-        return {
-            "accepted": True,
-            "motion_id": mid,
-            "duration": res.duration,
-            "steps": len(res.steps),
-            "maneuver": r.name,
-        }
+        return ManeuverAccepted(mid, res.duration, len(res.steps), r.name).to_json()
 
     def _maneuvers_delete(self, r: NameRequest) -> dict:
         if not self.store.delete_maneuver(r.name):

@@ -20,12 +20,21 @@ import zenoh
 
 from bridge.service.config import DEFAULT_LISTEN, validate_endpoint, validate_prefix
 from bridge.service.security import apply_security
+from planner.errors import HitchInputError
 
-__all__ = ["HitchClient", "ServiceError", "ServiceTimeout", "client_config"]
+__all__ = ["HitchClient", "ClientError", "ServiceError", "ServiceTimeout", "client_config"]
 
 
-class ServiceError(ValueError):
-    """The service answered with an error: ``code`` (e.g. ``bad_request``) and its message."""
+class ClientError(HitchInputError):
+    """A client setting or argument it cannot use; the message names it and the allowed values."""
+
+
+class ServiceError(HitchInputError):
+    """The service answered with an error: ``code`` (e.g. ``bad_request``) and its message.
+
+    A :class:`~planner.errors.HitchInputError` (hence a ``ValueError``): the service refused the
+    request it was given.
+    """
 
     def __init__(self, code: str, message: str):
         self.code = code
@@ -42,10 +51,10 @@ class ServiceTimeout(ServiceError):
 def client_config(connect: Sequence[str], *, mode: str = "client", security: str | Path | None = None) -> zenoh.Config:
     """Zenoh config of a client session: connect to ``connect``, no scouting, optional security file."""
     if mode not in ("client", "peer"):
-        raise ValueError(f"mode must be 'client' or 'peer', got {mode!r}")
+        raise ClientError(f"mode must be 'client' or 'peer', got {mode!r}")
     eps = [validate_endpoint(e) for e in connect]
     if not eps:
-        raise ValueError("connect: at least one endpoint is needed, e.g. tcp/127.0.0.1:7447")
+        raise ClientError("connect: at least one endpoint is needed, e.g. tcp/127.0.0.1:7447")
     z = zenoh.Config()
     z.insert_json5("mode", json.dumps(mode))
     z.insert_json5("connect/endpoints", json.dumps(eps))
@@ -78,7 +87,7 @@ class HitchClient:
     ):
         self.prefix = validate_prefix(prefix)
         if not 0 < timeout_s <= 600:
-            raise ValueError(f"timeout_s must lie in (0, 600] s, got {timeout_s!r}")
+            raise ClientError(f"timeout_s must lie in (0, 600] s, got {timeout_s!r}")
         self.timeout_s = float(timeout_s)
         try:
             self.session = zenoh.open(client_config(connect, mode=mode, security=security))
@@ -105,7 +114,7 @@ class HitchClient:
         for reply in self.session.get(full, payload=data, timeout=t):
             if reply.ok is not None:
                 return _decode(reply.ok.payload)
-            err = _decode(reply.err.payload)
+            err = {} if reply.err is None else _decode(reply.err.payload)
             if not isinstance(err, dict):
                 err = {}
             raise ServiceError(str(err.get("error", "error")), str(err.get("message", "the service refused")))
@@ -141,7 +150,7 @@ class HitchClient:
     def subscribe(self, what: str, callback: Callable[[dict], None], *, prefix: str | None = None) -> None:
         """Call ``callback(dict)`` for every ``state`` or ``events`` sample (until :meth:`close`)."""
         if what not in ("state", "events"):
-            raise ValueError(f"what must be 'state' or 'events', got {what!r}")
+            raise ClientError(f"what must be 'state' or 'events', got {what!r}")
         key = f"{validate_prefix(prefix) if prefix else self.prefix}/{what}"
         self._subs.append(self.session.declare_subscriber(key, lambda s: callback(_decode(s.payload))))
 

@@ -1,4 +1,4 @@
-"""Service configuration: embedded defaults, a TOML file, command-line flags (issue 7 §1).
+"""Service configuration: embedded defaults, a TOML file, command-line flags.
 
 :class:`ServiceConfig` is a strict, frozen pydantic model. Sources are applied in order —
 embedded defaults, then a TOML file (``--config``), then flags — and every value is
@@ -32,6 +32,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from planner.errors import HitchInputError
 from planner.profiles.loader import format_validation_error
 
 __all__ = [
@@ -44,13 +45,13 @@ __all__ = [
     "validate_endpoint",
 ]
 
-#: Loopback only by default (issue 7 §6).
+#: Loopback only by default: nothing outside this machine reaches the service unless configured.
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|unixsock-stream|ws)/[^\s]+$")
 _CHUNK = re.compile(r"^[A-Za-z0-9_\-.]+$")
 
 
-class ServiceConfigError(ValueError):
+class ServiceConfigError(HitchInputError):
     """A configuration value the service cannot use; the message names the field and the allowed values."""
 
 
@@ -64,10 +65,10 @@ def default_data_dir(environ: dict[str, str] | None = None) -> Path:
 def validate_prefix(prefix: str) -> str:
     """A Zenoh key prefix without wildcards: chunks of ``[A-Za-z0-9_-.]`` separated by ``/``."""
     if not isinstance(prefix, str) or not prefix:
-        raise ValueError("prefix must be a non-empty key expression such as 'hitch' or 'fleet/t07/hitch'")
+        raise ServiceConfigError("prefix must be a non-empty key expression such as 'hitch' or 'fleet/t07/hitch'")
     for chunk in prefix.split("/"):
         if not _CHUNK.match(chunk):
-            raise ValueError(
+            raise ServiceConfigError(
                 f"prefix {prefix!r}: chunk {chunk!r} is not allowed (letters, digits, '_', '-', '.'; "
                 "no wildcards, no empty chunks)"
             )
@@ -77,7 +78,7 @@ def validate_prefix(prefix: str) -> str:
 def validate_endpoint(endpoint: str) -> str:
     """A Zenoh locator ``<protocol>/<address>`` (tcp, udp, tls, quic, unixsock-stream, ws)."""
     if not isinstance(endpoint, str) or not _ENDPOINT.match(endpoint):
-        raise ValueError(
+        raise ServiceConfigError(
             f"endpoint {endpoint!r} must look like 'tcp/127.0.0.1:7447' "
             "(protocol tcp, udp, tls, quic, unixsock-stream or ws)"
         )
@@ -132,24 +133,24 @@ class ServiceConfig(BaseModel):
     @classmethod
     def _finite(cls, v: float) -> float:
         if not math.isfinite(v):
-            raise ValueError("must be a finite number")
+            raise ServiceConfigError("must be a finite number")
         return v
 
     @field_validator("http")
     @classmethod
     def _http(cls, v: str | None) -> str | None:
         if v is not None and not re.match(r"^[^\s:]+:\d{1,5}$", v):
-            raise ValueError(f"http {v!r} must be HOST:PORT, e.g. 127.0.0.1:8080")
+            raise ServiceConfigError(f"http {v!r} must be HOST:PORT, e.g. 127.0.0.1:8080")
         return v
 
     @model_validator(mode="after")
-    def _mode_endpoints(self):
+    def _mode_endpoints(self) -> ServiceConfig:
         if self.listen is None:
             object.__setattr__(self, "listen", (DEFAULT_LISTEN,) if self.mode == "peer" else ())
         elif self.mode == "client" and self.listen:
-            raise ValueError("listen: a client does not listen (mode = 'client'); give connect endpoints only")
+            raise ServiceConfigError("listen: a client does not listen (mode = 'client'); give connect endpoints only")
         if self.mode == "client" and not self.connect:
-            raise ValueError("connect: a client needs at least one endpoint to connect to (a router or a peer)")
+            raise ServiceConfigError("connect: a client needs at least one endpoint to connect to (a router or a peer)")
         return self
 
     def key(self, name: str) -> str:

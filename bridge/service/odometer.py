@@ -1,6 +1,6 @@
 """Distance travelled by the tractor, from ISO 11783-7 wheel-based speed and distance (PGN 65096).
 
-Maneuver ``wait_for`` steps wait for metres travelled (issue 7 §3). The tractor ECU sends PGN
+Maneuver ``wait_for`` steps wait for metres travelled. The tractor ECU sends PGN
 65096 (speed 0.001 m/s/bit, distance 0.001 m/bit, wrapping at 4 211 081.215 m) about every
 100 ms. :class:`WheelOdometer` listens on the CAN bus and accumulates the distance field's
 increments (wrap-around handled; when the field is unavailable it integrates the speed), so
@@ -21,11 +21,16 @@ import can
 
 from bridge.isobus.codec import CodecError, WheelBasedSpeed, decode_frame, encode
 from bridge.isobus.j1939 import PGN_WHEEL_BASED_SPEED, TRACTOR_ECU_ADDRESS, MachineDirection, decode_id
+from planner.errors import HitchInputError
 
-__all__ = ["WheelOdometer", "SimulatedTractor", "DISTANCE_WRAP_M"]
+__all__ = ["WheelOdometer", "SimulatedTractor", "OdometerError", "DISTANCE_WRAP_M"]
 
 #: the distance field's range (32 bits at 0.001 m): it wraps here
 DISTANCE_WRAP_M = 4_211_081.215
+
+
+class OdometerError(HitchInputError):
+    """A setting of the odometer or the simulated tractor out of its range (named in the message)."""
 
 
 class WheelOdometer:
@@ -33,7 +38,7 @@ class WheelOdometer:
 
     def __init__(self, bus: can.BusABC, *, source: int | None = TRACTOR_ECU_ADDRESS, stale_after_s: float = 1.0):
         if not 0.05 <= stale_after_s <= 60.0:
-            raise ValueError(f"stale_after_s must lie within [0.05, 60] s, got {stale_after_s!r}")
+            raise OdometerError(f"stale_after_s must lie within [0.05, 60] s, got {stale_after_s!r}")
         self._bus = bus
         self.source = source
         self.stale_after_s = float(stale_after_s)
@@ -58,9 +63,13 @@ class WheelOdometer:
     def poll(self, now_s: float) -> None:
         self._now = now_s
         while (frame := self._bus.recv(timeout=0.0)) is not None:
-            self.handle(frame, now_s)
+            self.take(frame, now_s)
 
-    def handle(self, frame: can.Message, now_s: float) -> bool:
+    def handle(self, frame: can.Message, now_s: float) -> None:
+        """A frame from the bus (the :class:`~bridge.link.realtime.BusNode` hook): see :meth:`take`."""
+        self.take(frame, now_s)
+
+    def take(self, frame: can.Message, now_s: float) -> bool:
         """Take one frame; True if it was a wheel-based speed frame we accepted."""
         self._now = now_s
         if not frame.is_extended_id or frame.is_error_frame:
@@ -107,9 +116,9 @@ class SimulatedTractor:
 
     def __init__(self, bus: can.BusABC, speed_m_s: float, *, period_s: float = 0.1, source: int = TRACTOR_ECU_ADDRESS):
         if not (isinstance(speed_m_s, (int, float)) and math.isfinite(speed_m_s) and 0.0 <= speed_m_s <= 64.0):
-            raise ValueError(f"speed_m_s must be a number in [0, 64] m/s, got {speed_m_s!r}")
+            raise OdometerError(f"speed_m_s must be a number in [0, 64] m/s, got {speed_m_s!r}")
         if not 0.01 <= period_s <= 1.0:
-            raise ValueError(f"period_s must lie within [0.01, 1] s, got {period_s!r}")
+            raise OdometerError(f"period_s must lie within [0.01, 1] s, got {period_s!r}")
         self._bus = bus
         self.speed_m_s, self.period_s, self.source = float(speed_m_s), float(period_s), source
         self._distance = 0.0
@@ -133,8 +142,11 @@ class SimulatedTractor:
         while self._bus.recv(timeout=0.0) is not None:  # keep the receive queue empty
             pass
         if self._t_last is None:
-            self.start(now_s)
-        self._distance = (self._distance + self.speed_m_s * (now_s - self._t_last)) % DISTANCE_WRAP_M
+            self.start(now_s)  # nothing travelled yet
+            elapsed = 0.0
+        else:
+            elapsed = now_s - self._t_last
+        self._distance = (self._distance + self.speed_m_s * elapsed) % DISTANCE_WRAP_M
         self._t_last = now_s
         if now_s + 1e-9 >= self._due:
             self._due = max(self._due + self.period_s, now_s)

@@ -13,7 +13,13 @@ import threading
 import time
 from collections.abc import Callable
 
-__all__ = ["PeriodicThread"]
+from planner.errors import HitchInputError
+
+__all__ = ["PeriodicThread", "PeriodError"]
+
+
+class PeriodError(HitchInputError):
+    """A period outside the range a periodic thread can keep (named in the message)."""
 
 
 class PeriodicThread:
@@ -29,7 +35,7 @@ class PeriodicThread:
         resync_after: int = 3,
     ):
         if not 1e-4 <= period_s <= 10.0:
-            raise ValueError(f"period_s must lie within [1e-4, 10] s, got {period_s!r}")
+            raise PeriodError(f"period_s must lie within [1e-4, 10] s, got {period_s!r}")
         self.period_s = float(period_s)
         self._fn = fn
         self._on_error = on_error or (lambda exc: None)

@@ -1,4 +1,4 @@
-"""Request schemas of the service API and the payload parser (issue 7 §2).
+"""Request schemas of the service API and the payload parser.
 
 Every payload is bounded in size (:data:`MAX_PAYLOAD_BYTES`), decoded as UTF-8, parsed as JSON
 (``NaN``/``Infinity`` tokens, nesting that exhausts the parser and integers of thousands of
@@ -16,8 +16,10 @@ from collections.abc import Mapping
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic.fields import FieldInfo
 
 from bridge.service.maneuvers.language import NAME_PATTERN, POSE_BOUNDS
+from planner.errors import HitchInputError
 from planner.model.types import CONTROLLED_POSE_NAMES
 
 __all__ = [
@@ -47,7 +49,7 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False, frozen=True)
 
 
-def _dof(k: str, required: bool = False):
+def _dof(k: str, required: bool = False) -> Any:
     lo, hi = POSE_BOUNDS[k]
     return Field(... if required else None, ge=lo, le=hi)
 
@@ -70,9 +72,9 @@ class Goal(_Strict):
     pitch: float | None = _dof("pitch")
 
     @model_validator(mode="after")
-    def _some(self):
+    def _some(self) -> Goal:
         if all(getattr(self, k) is None for k in CONTROLLED_POSE_NAMES):
-            raise ValueError("needs at least one of x, z, roll, pitch")
+            raise RequestError("bad_request", "needs at least one of x, z, roll, pitch")
         return self
 
     def as_dict(self) -> dict[str, float]:
@@ -151,7 +153,7 @@ REQUESTS: Mapping[str, type[_Strict]] = {
 API_KEYS: tuple[str, ...] = tuple(REQUESTS)
 
 
-class RequestError(ValueError):
+class RequestError(HitchInputError):
     """A request that cannot be served; ``code`` is the API error code."""
 
     def __init__(self, code: str, message: str):
@@ -168,18 +170,24 @@ def _show(v: Any) -> str:
     return f"a JSON {'object' if isinstance(v, dict) else 'array' if isinstance(v, list) else type(v).__name__}"
 
 
-def _allowed(model: type[BaseModel], loc: tuple) -> str:
-    info, m = None, model
+def _submodel(annotation: Any) -> type[BaseModel] | None:
+    """The request model inside a field's annotation (``Goal | None`` → ``Goal``), if any."""
+    subs = [
+        a
+        for a in (getattr(annotation, "__args__", None) or (annotation,))
+        if isinstance(a, type) and issubclass(a, BaseModel)
+    ]
+    return subs[0] if subs else None
+
+
+def _allowed(model: type[BaseModel], loc: tuple[int | str, ...]) -> str:
+    info: FieldInfo | None = None
+    m: type[BaseModel] | None = model
     for part in loc:
         if not isinstance(part, str) or m is None or part not in m.model_fields:
             break
         info = m.model_fields[part]
-        ann = [
-            a
-            for a in (getattr(info.annotation, "__args__", None) or (info.annotation,))
-            if isinstance(a, type) and issubclass(a, BaseModel)
-        ]
-        m = ann[0] if ann else None
+        m = _submodel(info.annotation)
     if info is None:
         return ""
     parts = [
@@ -208,15 +216,10 @@ def _format(key: str, exc: ValidationError, model: type[BaseModel]) -> str:
     loc = tuple(p for p in e["loc"] if not (isinstance(p, str) and p.startswith("function-")))
     path = ".".join(map(str, loc)) or "payload"
     if e["type"] == "extra_forbidden":
-        parent = model
+        parent: type[BaseModel] | None = model
         for p in loc[:-1]:
-            ann = getattr(parent.model_fields.get(p), "annotation", None) if parent else None
-            subs = [
-                a
-                for a in (getattr(ann, "__args__", None) or (ann,))
-                if isinstance(a, type) and issubclass(a, BaseModel)
-            ]
-            parent = subs[0] if subs else None
+            info = parent.model_fields.get(p) if parent is not None and isinstance(p, str) else None
+            parent = None if info is None else _submodel(info.annotation)
         fields = ", ".join(parent.model_fields) if parent is not None and parent.model_fields else "none"
         return f"{key}: unknown field {path!r} (allowed fields: {fields})"
     msg = e["msg"].removeprefix("Value error, ")
@@ -233,11 +236,11 @@ def _format(key: str, exc: ValidationError, model: type[BaseModel]) -> str:
     return f"{key}: {path} = {_show(e.get('input'))} {msg}{_allowed(model, loc)}"
 
 
-def _reject_constant(token: str):
-    raise ValueError(f"{token} is not a number JSON allows")
+def _reject_constant(token: str) -> None:
+    raise RequestError("bad_request", f"{token} is not a number JSON allows")
 
 
-def parse_request(key: str, payload: bytes | bytearray | memoryview | str | None):
+def parse_request(key: str, payload: bytes | bytearray | memoryview | str | None) -> BaseModel:
     """Bytes → validated request model of ``key``; :class:`RequestError` naming the field otherwise."""
     model = REQUESTS.get(key)
     if model is None:

@@ -1,4 +1,4 @@
-"""Zenoh security for the hitch service (issue 7 §6): user/password authentication, access control
+"""Zenoh security for the hitch service: user/password authentication, access control
 on the motion keys, TLS and mutual TLS — built programmatically for Zenoh 1.10.
 
 The pieces, each a frozen value, combined in :class:`SecuritySettings`:
@@ -37,6 +37,8 @@ from typing import Any
 
 import zenoh
 
+from planner.errors import HitchInputError
+
 __all__ = [
     "access_policy_from_file",
     "MOTION_KEYS",
@@ -57,7 +59,7 @@ __all__ = [
     "exposure_warnings",
 ]
 
-#: API names that move the hitch (issue 7 §6); restricted to operators
+#: API names that move the hitch; restricted to operators
 MOTION_KEYS: tuple[str, ...] = ("goto", "jog", "presets/go", "maneuvers/run", "mode")
 #: non-motion queries a viewer may send (API names under the prefix; exact keys, no wildcards)
 VIEWER_QUERIES: tuple[str, ...] = (
@@ -81,7 +83,7 @@ _ALL = _OBSERVE_IN + ("query",) + _TO_CLIENT
 SECTIONS: tuple[str, ...] = ("transport/auth/usrpwd", "transport/link/tls", "access_control")
 
 
-class SecurityError(ValueError):
+class SecurityError(HitchInputError):
     """Security settings that cannot be used; ``field`` names the setting."""
 
     def __init__(self, field: str, message: str):
@@ -123,7 +125,7 @@ class Credentials:
     user: str
     password: str = field(repr=False)
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         _user(self.user, "credentials.user")
         if not isinstance(self.password, str) or not self.password or "\n" in self.password or len(self.password) > 256:
             raise SecurityError("credentials.password", "must be 1-256 characters on one line")
@@ -142,7 +144,7 @@ class AccessPolicy:
     service_cert_names: tuple[str, ...] = ()
     viewer_queries: tuple[str, ...] = VIEWER_QUERIES  # API names viewers may query
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         _key(self.prefix)
         vq = self.viewer_queries
         if isinstance(vq, str) or not all(isinstance(k, str) for k in vq):
@@ -195,7 +197,7 @@ class TlsSettings:
     mutual: bool = False
     verify_name: bool = True  # the server certificate must name the host connected to (e.g. IP:127.0.0.1)
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         for name in ("root_ca", "certificate", "private_key"):
             v = getattr(self, name)
             if v is not None:
@@ -220,7 +222,7 @@ class SecuritySettings:
     access: AccessPolicy | None = None
     tls: TlsSettings | None = None
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if self.users_file is not None:
             object.__setattr__(self, "users_file", Path(self.users_file))
             if not self.users_file.is_file():
@@ -322,7 +324,7 @@ def build_security_config(settings: SecuritySettings) -> dict:
         tls: dict[str, Any] = {"enable_mtls": t.mutual, "verify_name_on_connect": t.verify_name}
         if t.root_ca is not None:
             tls["root_ca_certificate"] = str(t.root_ca.resolve())
-        if t.certificate is not None:
+        if t.certificate is not None and t.private_key is not None:  # they go together (TlsSettings)
             cert, key = str(t.certificate.resolve()), str(t.private_key.resolve())
             tls.update(listen_certificate=cert, listen_private_key=key)
             if t.mutual:

@@ -1,4 +1,4 @@
-"""The running service: CAN link (+ simulated ECU), motion control, Zenoh session (issue 7 §1-2).
+"""The running service: CAN link (+ simulated ECU), motion control, Zenoh session.
 
 :class:`HitchService` wires the pieces and owns their life cycle:
 
@@ -10,13 +10,14 @@
   :class:`~.odometer.WheelOdometer` reads the tractor's wheel-based distance (PGN 65096) for
   maneuver ``wait_for`` steps; with the simulated ECU a :class:`~.odometer.SimulatedTractor`
   sends it at ``sim_ground_speed``.
-* motion — a :class:`~.motion.MotionController` whose control thread streams references and
+* motion — a :class:`~bridge.service.motion.controller.MotionController` whose control thread streams references and
   publishes ``<prefix>/state`` (50 Hz, ``express``: no batching, so the period stays regular);
 * Zenoh — one session (peer or client), one queryable per API key answering through
-  :meth:`~.api.ServiceAPI.handle` (quick keys inline in the Zenoh callback, planning keys on a
+  :meth:`~bridge.service.api.ServiceAPI.handle` (quick keys inline in the Zenoh callback, planning keys on a
   thread pool so a long plan never holds back ``stop``), ``<prefix>/events`` and the liveliness
   token ``<prefix>/alive``;
-* storage — :class:`~.store.HitchStore` under the data directory.
+* storage — :class:`~bridge.service.store.HitchStore` under the data directory;
+* the operator terminal (``http``) — :func:`bridge.web.server.start_http`, loaded only when asked for.
 
 Every HitchModel instance is used by one thread only (their CasADi buffers are shared state):
 the control thread, the planning lock, the IK lock and the link each get their own.
@@ -36,8 +37,9 @@ import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
+import can
 import zenoh
 
 from bridge.link.can_link import CanLink
@@ -46,11 +48,13 @@ from bridge.link.state import LinkConfig
 from bridge.service.api import API_KEYS, ServiceAPI
 from bridge.service.config import ServiceConfig
 from bridge.service.motion.controller import MotionController
+from bridge.service.motion.types import MODES, actuator_dict
 from bridge.service.odometer import SimulatedTractor, WheelOdometer
 from bridge.service.security import access_policy_from_file, apply_security, exposure_warnings
 from bridge.service.store import HitchStore
 from bridge.sim.can_node import EcuCanNode
 from bridge.sim.ecu import CylinderECU
+from planner.errors import HitchError, HitchInputError
 from planner.ik_qp.hitch_ik import IKSolver
 from planner.limits.guard import Guard
 from planner.limits.tractor import load_tractor_profile
@@ -59,14 +63,34 @@ from planner.model.sensors import SensorScaling
 from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
 from planner.trajectory import TrajectoryPlanner
 
-__all__ = ["HitchService", "ServiceStartError", "serve", "INLINE_KEYS", "to_json_bytes", "build_zenoh_config"]
+if TYPE_CHECKING:
+    from bridge.web.server import WebServer
+
+__all__ = [
+    "HitchService",
+    "HitchServiceError",
+    "ServiceStartError",
+    "ServiceStopped",
+    "serve",
+    "INLINE_KEYS",
+    "to_json_bytes",
+    "build_zenoh_config",
+]
 
 #: keys answered inside the Zenoh callback (fast, never plan); the others go to the worker pool
 INLINE_KEYS = frozenset({"ik", "jog", "stop", "mode", "config", "presets/list", "maneuvers/list"})
 
 
-class ServiceStartError(ValueError):
+class HitchServiceError(HitchInputError):
+    """The service asked for something it cannot do (e.g. an unknown listener kind)."""
+
+
+class ServiceStartError(HitchServiceError):
     """The service cannot start (a port in use, a bus that cannot be opened …); says which and why."""
+
+
+class ServiceStopped(HitchError, RuntimeError):
+    """The running service lost a part it cannot run without (a CAN thread stopped)."""
 
 
 def _finite(obj: Any) -> Any:
@@ -92,7 +116,7 @@ def build_zenoh_config(cfg: ServiceConfig) -> zenoh.Config:
     z = zenoh.Config()
     for path, value in (
         ("mode", cfg.mode),
-        ("listen/endpoints", list(cfg.listen)),
+        ("listen/endpoints", list(cfg.listen or ())),
         ("connect/endpoints", list(cfg.connect)),
         ("scouting/multicast/enabled", cfg.scouting),
     ):
@@ -115,14 +139,15 @@ class HitchService:
         self.store: HitchStore | None = None
         self.session: zenoh.Session | None = None
         self.warnings: list[str] = []
-        self.http = None
+        self.http: WebServer | None = None
         self._runners: list[RealtimeRunner] = []
-        self._buses: list = []
-        self._decls: list = []
+        self._buses: list[can.BusABC] = []
+        self._decls: list[Any] = []  # zenoh queryables and the liveliness token
         self._pool: ThreadPoolExecutor | None = None
-        self._state_pub = self._event_pub = None
-        self._listeners: dict[str, list[Callable[[dict], None]]] = {"state": [], "event": []}
-        self._latest_state: dict | None = None
+        self._state_pub: zenoh.Publisher | None = None
+        self._event_pub: zenoh.Publisher | None = None
+        self._listeners: dict[str, list[Callable[[dict[str, Any]], None]]] = {"state": [], "event": []}
+        self._latest_state: dict[str, Any] | None = None
         self._closed = False
         self._close_lock = threading.Lock()
         self.close_duration_s: float | None = None
@@ -151,19 +176,19 @@ class HitchService:
             ik.solve((0.0, float(control_model.neutral_pose.z), 0.0, 0.0))  # warm the solver before serving
             link_model = self._model()
             if cfg.security is None:  # with a security file the operator chose the protection
-                self.warnings = exposure_warnings(cfg.listen, None)
-            self._start_can(link_model)
+                self.warnings = exposure_warnings(cfg.listen or (), None)
+            link, odometer = self._start_can(link_model)
             clock = self._runners[-1].now
             state_every = max(1, round(cfg.control_rate / cfg.state_rate))
             self.motion = MotionController(
                 guard,
                 plan_guard,
-                self.link,
+                link,
                 clock,
                 on_state=self._on_state,
                 on_event=self._on_event,
                 state_every=state_every,
-                odometer=self.odometer.distance_m,
+                odometer=odometer.distance_m,
                 feedforward=cfg.feedforward,
             )
             policy = access_policy_from_file(cfg.security, cfg.prefix) if cfg.security is not None else None
@@ -180,9 +205,9 @@ class HitchService:
             raise
         return self
 
-    def _start_can(self, link_model: HitchModel) -> None:
+    def _start_can(self, link_model: HitchModel) -> tuple[CanLink, WheelOdometer]:
         """Simulated machine (ECU, tractor speed) if configured, the odometer, then the link (last:
-        its runner's clock is the service's clock)."""
+        its runner's clock is the service's clock). Returns the link and the odometer."""
         cfg = self.config
         if cfg.simulate_ecu:
             ecu_bus = open_bus(cfg.can_interface, cfg.can_channel)
@@ -199,14 +224,15 @@ class HitchService:
             )
         odo_bus = open_bus(cfg.can_interface, cfg.can_channel)
         self._buses.append(odo_bus)
-        self.odometer = WheelOdometer(odo_bus)
-        self._runners.append(RealtimeRunner(self.odometer, max_wait_s=0.05).start())
+        self.odometer = odometer = WheelOdometer(odo_bus)
+        self._runners.append(RealtimeRunner(odometer, max_wait_s=0.05).start())
         link_bus = open_bus(cfg.can_interface, cfg.can_channel)
         self._buses.append(link_bus)
-        self.link = CanLink(
+        self.link = link = CanLink(
             link_model, link_bus, LinkConfig(control_rate_hz=cfg.control_rate, stale_after_s=cfg.stale_timeout_s)
         )
-        self._runners.append(RealtimeRunner(self.link, max_wait_s=0.02).start())
+        self._runners.append(RealtimeRunner(link, max_wait_s=0.02).start())
+        return link, odometer
 
     def _open_zenoh(self) -> None:
         cfg = self.config
@@ -214,7 +240,7 @@ class HitchService:
             self.session = zenoh.open(build_zenoh_config(cfg))
         except zenoh.ZError as exc:  # e.g. the port is taken, a TLS file is unreadable
             raise ServiceStartError(
-                f"cannot open the Zenoh session (listen {', '.join(cfg.listen) or '-'}, connect "
+                f"cannot open the Zenoh session (listen {', '.join(cfg.listen or ()) or '-'}, connect "
                 f"{', '.join(cfg.connect) or '-'}): {exc}"
             ) from None
         s = self.session
@@ -232,7 +258,7 @@ class HitchService:
 
     def _start_http(self, addr: str) -> None:
         try:
-            from bridge.web.server import start_http  # the operator terminal (issue 9), loaded only when asked for
+            from bridge.web.server import start_http  # the operator terminal, loaded only when asked for
         except ImportError as exc:
             raise ServiceStartError(f"--http {addr}: the operator terminal is not available ({exc})") from None
         try:
@@ -240,7 +266,7 @@ class HitchService:
         except OSError as exc:  # the port is taken, the address is not local …
             raise ServiceStartError(f"--http {addr}: cannot listen ({exc})") from None
 
-    def _info(self, model: HitchModel, guard: Guard) -> dict:
+    def _info(self, model: HitchModel, guard: Guard) -> dict[str, Any]:
         cfg = self.config
         tp = guard.planner
         return {
@@ -258,15 +284,18 @@ class HitchService:
             },
             "limits": {
                 "workspace": {k: list(tp.workspace[k]) for k in CONTROLLED_POSE_NAMES},
-                "strokes": {n: [float(lo), float(hi)] for n, lo, hi in zip(ACTUATOR_NAMES, model.lower, model.upper)},
-                "actuator_velocity": dict(zip(ACTUATOR_NAMES, map(float, tp.limits.velocity))),
-                "actuator_acceleration": dict(zip(ACTUATOR_NAMES, map(float, tp.limits.acceleration))),
+                "strokes": {
+                    n: [float(lo), float(hi)]
+                    for n, lo, hi in zip(ACTUATOR_NAMES, model.lower, model.upper, strict=True)
+                },
+                "actuator_velocity": actuator_dict(tp.limits.velocity),
+                "actuator_acceleration": actuator_dict(tp.limits.acceleration),
             },
-            "modes": ["auto", "manual", "attach", "transport", "config"],
+            "modes": list(MODES),
         }
 
     # ------------------------------------------------------------------ Zenoh callbacks
-    def _query_callback(self, key: str):
+    def _query_callback(self, key: str) -> Callable[[zenoh.Query], None]:
         exact = self.config.key(key)
 
         def on_query(query: zenoh.Query) -> None:
@@ -303,21 +332,21 @@ class HitchService:
             query.drop()
 
     # ------------------------------------------------------------------ state and events
-    def add_listener(self, kind: str, callback: Callable[[dict], None]) -> None:
+    def add_listener(self, kind: str, callback: Callable[[dict[str, Any]], None]) -> None:
         """In-process subscription to ``"state"`` or ``"event"`` dicts (e.g. the web terminal)."""
         if kind not in self._listeners:
-            raise ValueError(f"kind must be 'state' or 'event', got {kind!r}")
+            raise HitchServiceError(f"kind must be 'state' or 'event', got {kind!r}")
         self._listeners[kind].append(callback)
 
-    def remove_listener(self, kind: str, callback: Callable[[dict], None]) -> None:
+    def remove_listener(self, kind: str, callback: Callable[[dict[str, Any]], None]) -> None:
         if callback in self._listeners.get(kind, []):
             self._listeners[kind].remove(callback)
 
     @property
-    def latest_state(self) -> dict | None:
+    def latest_state(self) -> dict[str, Any] | None:
         return self._latest_state
 
-    def _on_state(self, msg: dict) -> None:
+    def _on_state(self, msg: dict[str, Any]) -> None:
         self._latest_state = msg
         pub = self._state_pub
         if pub is not None and not self._closed:
@@ -328,7 +357,7 @@ class HitchService:
         for cb in list(self._listeners["state"]):
             _call(cb, msg)
 
-    def _on_event(self, event: dict) -> None:
+    def _on_event(self, event: dict[str, Any]) -> None:
         pub = self._event_pub
         if pub is not None and not self._closed:
             try:
@@ -360,13 +389,14 @@ class HitchService:
                 _quiet(self.session.close)
             if self._pool is not None:
                 self._pool.shutdown(wait=False, cancel_futures=True)
-            if self.link is not None:
+            link = self.link
+            if link is not None:
                 now = self._runners[-1].now() if self._runners else 0.0
-                _quiet(lambda: self.link.stop(now))
+                _quiet(lambda: link.stop(now))
             for r in reversed(self._runners):
                 r.stop(0.5)
-            if self.link is not None:
-                _quiet(self.link.close)
+            if link is not None:
+                _quiet(link.close)
             for b in self._buses:
                 _quiet(b.shutdown)
             if self.store is not None:
@@ -377,18 +407,18 @@ class HitchService:
     def __enter__(self) -> HitchService:
         return self.start()
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
 
-def _call(cb, arg) -> None:
+def _call(cb: Callable[[dict[str, Any]], None], arg: dict[str, Any]) -> None:
     try:
         cb(arg)
     except Exception:  # a listener's bug must not stop the control thread
         pass
 
 
-def _quiet(fn) -> None:
+def _quiet(fn: Callable[[], object]) -> None:
     try:
         fn()
     except Exception:
@@ -406,7 +436,7 @@ def serve(config: ServiceConfig, *, ready: Callable[[HitchService], None] | None
                 ready(service)
             while not stop.wait(0.5):
                 if any(r.error is not None for r in service._runners):
-                    raise RuntimeError(
+                    raise ServiceStopped(
                         "a CAN thread stopped: "
                         + "; ".join(repr(r.error) for r in service._runners if r.error is not None)
                     )

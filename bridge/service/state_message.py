@@ -1,4 +1,4 @@
-"""The ``<prefix>/state`` message: one JSON-ready dict per control cycle (issue 7 §2).
+"""The ``<prefix>/state`` message: one :class:`StateMessage` per control cycle, sent as its ``to_json()``.
 
 Fields: ``t`` (Unix time [s]), ``clock`` (link clock [s]), ``seq``; ``pose`` and ``actuators``
 as measured over CAN (forward kinematics of the ECU's readings; None before the first);
@@ -7,33 +7,50 @@ streamed); ``velocity`` (commanded pose rates [m/s, rad/s]); ``mode``, ``moving`
 ``motion_id``, ``motion`` (kind); ``limited`` (what caps the motion → the limit's name: the
 "Control limited" of the thesis terminal); ``kinematic_margin`` (time to the nearest limit at the
 commanded velocity, :mod:`planner.limits.kinematic_margin`); ``stability`` (tractor + implement
-margins at the measured pose); ``ecu`` (``online``, ``watchdog`` tripped, ``controllers_on``,
-latched ``faults`` and their reasons, heartbeat, streaming, reference counters); ``maneuver``.
+margins at the measured pose, :class:`~bridge.service.motion.types.StabilityMargins`); ``ecu``
+(:class:`EcuSummary`: ``online``, ``watchdog`` tripped, ``controllers_on``, latched ``faults`` and
+their reasons, heartbeat, streaming, reference counters, feed-forward); ``maneuver``
+(:class:`~bridge.service.maneuvers.slot.ManeuverProgress`).
 """
 
 from __future__ import annotations
 
 import math
 import time
-from typing import Any
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, TypeVar
 
 import numpy as np
 
-from bridge.service.motion.types import stability_json
+from bridge.link.state import LinkState, LinkStatus
+from bridge.link.unit_loop import FeedforwardShaper
+from bridge.service.maneuvers.slot import ManeuverProgress
+from bridge.service.motion.types import Event, Reference, StabilityMargins, actuator_dict, pose_dict
 from planner.limits.guard import Guard
-from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES, KinematicsError
+from planner.limits.kinematic_margin import KinematicMargin
+from planner.model.types import CONTROLLED_POSE_NAMES, KinematicsError
 
-__all__ = ["build_state_message", "fault_transition", "link_problem"]
+__all__ = [
+    "EcuSummary",
+    "FeedforwardStatus",
+    "StateMessage",
+    "build_state_message",
+    "fault_transition",
+    "link_problem",
+]
+
+_T = TypeVar("_T")
 
 
-def _safe(fn):
+def _safe(fn: Callable[[], _T]) -> _T | None:
     try:
         return fn()
     except (ValueError, KinematicsError):  # a measured pose the stability model cannot take
         return None
 
 
-def link_problem(status, now: float, stale_after_s: float) -> str | None:
+def link_problem(status: LinkStatus, now: float, stale_after_s: float) -> str | None:
     """Why motion cannot start now (None: it can). Latched faults whose causes are gone do not
     count: the first reference of a fresh command re-arms the link, which refuses it if a cause
     is still present."""
@@ -49,7 +66,9 @@ def link_problem(status, now: float, stale_after_s: float) -> str | None:
     return None
 
 
-def fault_transition(reported: tuple[str, ...], status, events: list[dict]) -> tuple[tuple[str, ...], tuple[str, ...]]:
+def fault_transition(
+    reported: tuple[str, ...], status: LinkStatus, events: list[Event]
+) -> tuple[tuple[str, ...], tuple[str, ...]]:
     """Compare the link's latched faults with those ``reported`` before; append a ``fault`` event
     when new ones appeared, ``fault_cleared`` when all are gone. Returns (faults now, new faults)."""
     faults = status.faults.active() if status.faults.any else ()
@@ -61,72 +80,156 @@ def fault_transition(reported: tuple[str, ...], status, events: list[dict]) -> t
     return faults, new
 
 
+@dataclass(frozen=True)
+class FeedforwardStatus:
+    """Whether the unit loops' feed-forward is streamed, and how many references the hard-limit
+    check made it pull back towards the plan (a count)."""
+
+    enabled: bool
+    pulled_back: int
+
+    def to_json(self) -> dict[str, Any]:
+        return {"enabled": self.enabled, "pulled_back": self.pulled_back}
+
+
+@dataclass(frozen=True)
+class EcuSummary:
+    """The cylinder ECU and the link as the terminal shows them (the state's ``ecu``)."""
+
+    online: bool
+    watchdog: bool
+    controllers_on: bool
+    faults: tuple[str, ...]
+    fault_reasons: tuple[str, ...]
+    heartbeat: str
+    streaming: bool
+    measurement_age_s: float | None
+    references_sent: int
+    references_refused: int
+    feedforward: FeedforwardStatus | None = None
+
+    @classmethod
+    def of(
+        cls, status: LinkStatus, now: float, stale_after_s: float, shaper: FeedforwardShaper | None = None
+    ) -> EcuSummary:
+        """From the link's ``status`` at clock time ``now`` [s] and its measurement age limit [s]."""
+        ls = status.state
+        age = ls.age_s(now) if ls is not None else math.inf
+        c = status.counters
+        return cls(
+            online=link_problem(status, now, stale_after_s) is None,
+            watchdog=bool(ls is not None and ls.system.watchdog_tripped),
+            controllers_on=bool(ls is not None and ls.system.controllers_on),
+            faults=tuple(status.faults.active()),
+            fault_reasons=tuple(status.faults.reasons),
+            heartbeat=status.heartbeat.state.value,
+            streaming=status.streaming,
+            measurement_age_s=age if math.isfinite(age) else None,
+            references_sent=c.references_tx,
+            references_refused=c.references_refused,
+            feedforward=None if shaper is None else FeedforwardStatus(shaper.enabled, shaper.pulled_back),
+        )
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "online": self.online,
+            "watchdog": self.watchdog,
+            "controllers_on": self.controllers_on,
+            "faults": list(self.faults),
+            "fault_reasons": list(self.fault_reasons),
+            "heartbeat": self.heartbeat,
+            "streaming": self.streaming,
+            "measurement_age_s": self.measurement_age_s,
+            "references_sent": self.references_sent,
+            "references_refused": self.references_refused,
+        }
+        if self.feedforward is not None:
+            out["feedforward"] = self.feedforward.to_json()
+        return out
+
+
+@dataclass(frozen=True)
+class StateMessage:
+    """One cycle's state (see the module docstring); ``measured`` is the link's newest state,
+    ``reference`` what is being streamed (None: nothing)."""
+
+    t: float
+    clock: float
+    seq: int
+    mode: str
+    motion: str | None
+    motion_id: int | None
+    limited: Mapping[str, str]
+    measured: LinkState | None
+    reference: Reference | None
+    kinematic_margin: KinematicMargin | None
+    stability: StabilityMargins | None
+    ecu: EcuSummary
+    maneuver: ManeuverProgress | None
+
+    def to_json(self) -> dict[str, Any]:
+        ls, ref = self.measured, self.reference
+        return {
+            "t": self.t,
+            "clock": self.clock,
+            "seq": self.seq,
+            "mode": self.mode,
+            "moving": self.motion is not None,
+            "motion_id": self.motion_id,
+            "motion": self.motion,
+            "limited": dict(self.limited),
+            "pose": None if ls is None else ls.pose.as_dict(),
+            "actuators": None if ls is None else ls.actuators.as_dict(),
+            "reference": None
+            if ref is None
+            else {"pose": pose_dict(ref.state.position), "actuators": actuator_dict(ref.actuators)},
+            "velocity": dict.fromkeys(CONTROLLED_POSE_NAMES, 0.0) if ref is None else pose_dict(ref.state.velocity),
+            "kinematic_margin": None if self.kinematic_margin is None else self.kinematic_margin.to_json(),
+            "stability": None if self.stability is None else self.stability.to_json(),
+            "ecu": self.ecu.to_json(),
+            "maneuver": None if self.maneuver is None else self.maneuver.to_json(),
+        }
+
+
 def build_state_message(
     *,
     seq: int,
     now: float,
-    status,
+    status: LinkStatus,
     stale_after_s: float,
     guard: Guard,
     mode: str,
     motion_kind: str | None,
     motion_id: int | None,
-    reference,
-    limited: dict,
-    maneuver: dict | None,
-    feedforward=None,
-) -> dict[str, Any]:
+    reference: Reference | None,
+    limited: Mapping[str, str],
+    maneuver: ManeuverProgress | None,
+    feedforward: FeedforwardShaper | None = None,
+) -> StateMessage:
     """The message for one cycle. ``status``: the link's :class:`~bridge.link.state.LinkStatus` at
-    clock time ``now`` [s]; ``reference``: (pose-space state, actuators q, actuator rates q̇) being
-    streamed, or None; ``stale_after_s``: the link's measurement age limit [s]; ``feedforward``: the
+    clock time ``now`` [s]; ``reference``: what is being streamed, or None; ``stale_after_s``: the
+    link's measurement age limit [s]; ``feedforward``: the
     :class:`~bridge.link.unit_loop.FeedforwardShaper` (whether it is on, and how many references the
     hard-limit check made it pull back towards the plan)."""
+    t = time.time()
     ls = status.state
-    msg: dict[str, Any] = {
-        "t": time.time(),
-        "clock": now,
-        "seq": seq,
-        "mode": mode,
-        "moving": motion_kind is not None,
-        "motion_id": motion_id,
-        "motion": motion_kind,
-        "limited": dict(limited),
-    }
-    msg["pose"] = None if ls is None else ls.pose.as_dict()
-    msg["actuators"] = None if ls is None else ls.actuators.as_dict()
     if reference is not None:
-        st, q, qd = reference
-        msg["reference"] = {
-            "pose": dict(zip(CONTROLLED_POSE_NAMES, map(float, st.position))),
-            "actuators": dict(zip(ACTUATOR_NAMES, map(float, q))),
-        }
-        msg["velocity"] = dict(zip(CONTROLLED_POSE_NAMES, map(float, st.velocity)))
-        msg["kinematic_margin"] = _safe(lambda: guard.margin(q, qd).to_json())
+        margin = _safe(lambda: guard.margin(reference.actuators, reference.rates))
     else:
-        msg["reference"] = None
-        msg["velocity"] = dict.fromkeys(CONTROLLED_POSE_NAMES, 0.0)
-        msg["kinematic_margin"] = (
-            None if ls is None else _safe(lambda: guard.margin(ls.actuators.as_array(), np.zeros(5)).to_json())
-        )
-    msg["stability"] = (
-        None if ls is None else _safe(lambda: stability_json(guard.stability_at(ls.actuators.as_array())))
+        margin = None if ls is None else _safe(lambda: guard.margin(ls.actuators.as_array(), np.zeros(5)))
+    stability = None if ls is None else _safe(lambda: StabilityMargins.of(guard.stability_at(ls.actuators.as_array())))
+    return StateMessage(
+        t=t,
+        clock=now,
+        seq=seq,
+        mode=mode,
+        motion=motion_kind,
+        motion_id=motion_id,
+        limited=dict(limited),
+        measured=ls,
+        reference=reference,
+        kinematic_margin=margin,
+        stability=stability,
+        ecu=EcuSummary.of(status, now, stale_after_s, feedforward),
+        maneuver=maneuver,
     )
-    hb = status.heartbeat
-    age = ls.age_s(now) if ls is not None else math.inf
-    c = status.counters
-    msg["ecu"] = {
-        "online": link_problem(status, now, stale_after_s) is None,
-        "watchdog": bool(ls is not None and ls.system.watchdog_tripped),
-        "controllers_on": bool(ls is not None and ls.system.controllers_on),
-        "faults": list(status.faults.active()),
-        "fault_reasons": list(status.faults.reasons),
-        "heartbeat": hb.state.value,
-        "streaming": status.streaming,
-        "measurement_age_s": age if math.isfinite(age) else None,
-        "references_sent": c.references_tx,
-        "references_refused": c.references_refused,
-    }
-    if feedforward is not None:
-        msg["ecu"]["feedforward"] = {"enabled": feedforward.enabled, "pulled_back": feedforward.pulled_back}
-    msg["maneuver"] = maneuver
-    return msg

@@ -1,10 +1,11 @@
-"""Presets and maneuvers in SQLite (issue 7 §3): durable, versioned, safe for a threaded service.
+"""Presets and maneuvers in SQLite: durable, versioned, safe for a threaded service.
 
 * **Presets** per implement: name → pose (x, z [m]; roll, pitch [rad]) and an optional speed
   scale (0, 1]; a name is unique per implement.
 * **Maneuvers**: name → YAML script text (unique name). The script is parsed and schema-checked
-  (:func:`~.maneuvers.parse_maneuver`) before it is stored; the parsed form is cached in memory,
-  keyed by the script text, so reading a maneuver back does not parse it again.
+  (:func:`~bridge.service.maneuvers.language.parse_maneuver`) before it is stored; the parsed
+  form is cached in memory, keyed by the script text, so reading a maneuver back does not parse
+  it again.
 
 Durability. The database runs in WAL mode with ``synchronous=FULL``: every commit appends to the
 write-ahead log and fsyncs it before ``save_…`` returns, so an acknowledged save survives the
@@ -30,13 +31,20 @@ import sqlite3
 import threading
 import time
 from collections import OrderedDict
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from bridge.service.maneuvers.language import POSE_BOUNDS, ManeuverScript, check_name, parse_maneuver
+from bridge.service.maneuvers.language import (
+    POSE_BOUNDS,
+    ManeuverSchemaError,
+    ManeuverScript,
+    check_name,
+    parse_maneuver,
+)
+from planner.errors import HitchInputError
 
 __all__ = ["StoreError", "Preset", "StoredManeuver", "HitchStore", "MIGRATIONS", "SCHEMA_VERSION", "DEFAULT_IMPLEMENT"]
 
@@ -68,7 +76,7 @@ SCHEMA_VERSION = len(MIGRATIONS)
 _CACHE_SIZE = 64
 
 
-class StoreError(ValueError):
+class StoreError(HitchInputError):
     """A value the store refuses, or a database it cannot use; ``field`` names the offending field."""
 
     def __init__(self, field: str, message: str):
@@ -86,8 +94,8 @@ class Preset:
     speed_scale: float | None = None
     updated_s: float = 0.0  # Unix time of the last save [s]
 
-    def to_json(self) -> dict:
-        out = {"name": self.name, "implement": self.implement, "pose": dict(self.pose)}
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"name": self.name, "implement": self.implement, "pose": dict(self.pose)}
         if self.speed_scale is not None:
             out["speed_scale"] = self.speed_scale
         return out
@@ -95,25 +103,26 @@ class Preset:
 
 @dataclass(frozen=True)
 class StoredManeuver:
+    """A saved maneuver: its name, script text, the parsed script and the Unix time of the last save [s]."""
+
     name: str
     script: str
     parsed: ManeuverScript = field(repr=False)
     updated_s: float = 0.0
 
-    def to_json(self) -> dict:
-        return {
-            "name": self.name,
-            "script": self.script,
-            "description": self.parsed.description,
-            "steps": len(self.parsed.steps),
-            "timeout": self.parsed.timeout_s,
-        }
+    def to_json(self, *, script: bool = True) -> dict[str, Any]:
+        """Name, script text (unless ``script`` is False: the listing), description, step count, timeout [s]."""
+        out: dict[str, Any] = {"name": self.name}
+        if script:
+            out["script"] = self.script
+        out.update(description=self.parsed.description, steps=len(self.parsed.steps), timeout=self.parsed.timeout_s)
+        return out
 
 
 def _name(value: Any, what: str) -> str:
     try:
         return check_name(value, what)
-    except ValueError as exc:
+    except ManeuverSchemaError as exc:
         raise StoreError(what, str(exc)) from None
 
 
@@ -219,17 +228,17 @@ class HitchStore:
     def __enter__(self) -> HitchStore:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
     @contextmanager
-    def _locked(self):
+    def _locked(self) -> Iterator[sqlite3.Connection]:
         with self._lock:
             if self._closed:
                 raise StoreError("store", f"database {self.path} is closed")
             yield self._db
 
-    def _write(self, sql: str, args: tuple) -> int:
+    def _write(self, sql: str, args: tuple[Any, ...]) -> int:
         with self._locked() as db:
             try:
                 db.execute("BEGIN IMMEDIATE")
@@ -350,7 +359,7 @@ class HitchStore:
             if hit is not None:
                 self._cache.move_to_end(key)
                 return hit
-        parsed = parse_maneuver(script)  # ManeuverError (a ValueError) with the step errors
+        parsed = parse_maneuver(script)  # ManeuverError (a HitchInputError) with the step errors
         with self._lock:
             self._cache[key] = parsed
             while len(self._cache) > _CACHE_SIZE:
@@ -358,6 +367,6 @@ class HitchStore:
         return parsed
 
 
-def _preset(row) -> Preset:
+def _preset(row: tuple[Any, ...]) -> Preset:
     implement, name, x, z, roll, pitch, scale, updated = row
     return Preset(implement, name, {"x": x, "z": z, "roll": roll, "pitch": pitch}, scale, updated)

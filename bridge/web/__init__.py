@@ -1,4 +1,4 @@
-"""The operator terminal in the browser (issue 9): the thesis's virtual terminal as a web page.
+"""The operator terminal in the browser: the thesis's virtual terminal as a web page.
 
 ``hitch serve --http 127.0.0.1:8080`` serves one page and a small HTTP/WebSocket API from the
 service process; the page shows what ``<prefix>/state`` publishes and sends commands through the
@@ -12,7 +12,76 @@ service's own API handler. Modules, one concept each:
 * :mod:`.websocket` — RFC 6455 framing and handshake;
 * ``static/``       — ``index.html``, ``app.js``, ``style.css`` (no build step).
 
-This package file imports nothing, so importing the service does not load the web server.
+The names below load lazily (PEP 562): this package file imports nothing, so importing the
+service does not load the web server.
 """
 
-__all__: list[str] = []
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from bridge.web.http import HttpError, HttpRequest
+    from bridge.web.hub import ClientHub, CommandError
+    from bridge.web.server import (
+        BindTimeout,
+        Handler,
+        WebServer,
+        WebServerError,
+        WebServerStateError,
+        attach_zenoh,
+        start_http,
+    )
+    from bridge.web.settings import WebSettings, WebSettingsError, parse_address
+    from bridge.web.websocket import WebSocket, WebSocketError
+
+#: public name -> the module that defines it
+_SOURCES: dict[str, str] = {
+    **dict.fromkeys(
+        ("WebServer", "WebServerError", "WebServerStateError", "BindTimeout", "Handler", "attach_zenoh", "start_http"),
+        "bridge.web.server",
+    ),
+    **dict.fromkeys(("ClientHub", "CommandError"), "bridge.web.hub"),
+    **dict.fromkeys(("WebSettings", "WebSettingsError", "parse_address"), "bridge.web.settings"),
+    **dict.fromkeys(("HttpError", "HttpRequest"), "bridge.web.http"),
+    **dict.fromkeys(("WebSocket", "WebSocketError"), "bridge.web.websocket"),
+}
+
+__all__ = [
+    # the server (bridge.web.server)
+    "WebServer",
+    "WebServerError",
+    "WebServerStateError",
+    "BindTimeout",
+    "Handler",
+    "attach_zenoh",
+    "start_http",
+    # the WebSocket sessions (bridge.web.hub)
+    "ClientHub",
+    "CommandError",
+    # settings and request checks (bridge.web.settings)
+    "WebSettings",
+    "WebSettingsError",
+    "parse_address",
+    # HTTP (bridge.web.http)
+    "HttpError",
+    "HttpRequest",
+    # WebSocket framing (bridge.web.websocket)
+    "WebSocket",
+    "WebSocketError",
+]
+
+
+def __getattr__(name: str) -> Any:
+    """Import a public name from its defining module on first use (PEP 562)."""
+    source = _SOURCES.get(name)
+    if source is None:
+        raise AttributeError(f"module 'bridge.web' has no attribute {name!r}")
+    value = getattr(importlib.import_module(source), name)
+    globals()[name] = value  # the next lookup does not come here
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

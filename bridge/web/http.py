@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 from http import HTTPStatus
 from urllib.parse import unquote, urlsplit
 
+from planner.errors import HitchInputError
+
 __all__ = [
     "HttpError",
     "HttpRequest",
@@ -28,7 +30,7 @@ MAX_BODY_BYTES = 64 * 1024
 _METHODS = {"GET", "HEAD", "POST", "OPTIONS", "PUT", "DELETE", "PATCH"}
 
 
-class HttpError(ValueError):
+class HttpError(HitchInputError):
     """A request the server answers with an error status; the message is shown to the client."""
 
     def __init__(self, status: int, message: str, code: str = "bad_request"):

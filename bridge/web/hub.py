@@ -1,4 +1,4 @@
-"""The WebSocket side of the operator terminal: fan-out of state and events, commands in (issue 9).
+"""The WebSocket side of the operator terminal: fan-out of state and events, commands in.
 
 :class:`ClientHub` lives on the web server's asyncio loop. For each page it keeps a *slot* with
 the newest state message (a slow page skips states, it never builds a backlog: what it draws is
@@ -20,8 +20,9 @@ from typing import Any
 
 from bridge.web.settings import json_safe
 from bridge.web.websocket import WebSocket
+from planner.errors import HitchInputError
 
-__all__ = ["ClientHub", "Call", "EVENTS_KEPT", "MAX_PENDING", "API_NAME"]
+__all__ = ["ClientHub", "Call", "CommandError", "EVENTS_KEPT", "MAX_PENDING", "API_NAME"]
 
 #: ``call(name, body_bytes) -> (ok, reply)`` on the server's loop
 Call = Callable[[str, bytes], Awaitable[tuple[bool, dict]]]
@@ -31,6 +32,10 @@ EVENTS_KEPT = 200
 MAX_PENDING = 32
 #: a service API name: ``goto``, ``presets/save`` …
 API_NAME = re.compile(r"^[a-z]+(/[a-z]+)?$")
+
+
+class CommandError(HitchInputError):
+    """A WebSocket command that is not ``{"id", "key", "payload"}`` as the page sends it."""
 
 
 class _Client:
@@ -128,13 +133,13 @@ class ClientHub:
         try:
             data = json.loads(msg)
             if not isinstance(data, dict):
-                raise ValueError("a command is a JSON object {id, key, payload}")
+                raise CommandError("a command is a JSON object {id, key, payload}")
             rid, key, payload = data.get("id"), data.get("key"), data.get("payload", {})
             if rid is not None and (isinstance(rid, bool) or not isinstance(rid, (int, str))):
                 rid = None
-                raise ValueError("id must be an integer or a string")
+                raise CommandError("id must be an integer or a string")
             if not isinstance(key, str) or not API_NAME.match(key):
-                raise ValueError(f"key must be a service API name such as 'goto', got {key!r}")
+                raise CommandError(f"key must be a service API name such as 'goto', got {key!r}")
             body = json.dumps(payload, allow_nan=False).encode("utf-8")
         except (ValueError, TypeError, RecursionError) as exc:
             await self._reply(c, rid, False, {"error": "bad_request", "message": f"websocket command: {exc}"})

@@ -1,4 +1,4 @@
-"""The operator terminal's HTTP + WebSocket server (issue 9), run inside the service process.
+"""The operator terminal's HTTP + WebSocket server, run inside the service process.
 
 One asyncio loop in its own thread serves:
 
@@ -29,6 +29,7 @@ the way it refuses that user over Zenoh.
 from __future__ import annotations
 
 import asyncio
+import functools
 import json
 import logging
 import threading
@@ -41,8 +42,9 @@ from bridge.web.http import HttpError, HttpRequest, json_response, read_request,
 from bridge.web.hub import API_NAME, ClientHub
 from bridge.web.settings import ERROR_STATUS, WebSettings, host_allowed, json_safe, origin_allowed, parse_address
 from bridge.web.websocket import WebSocket, WebSocketError, accept_key
+from planner.errors import HitchError, HitchInputError
 
-__all__ = ["WebServer", "Handler", "attach_zenoh", "start_http"]
+__all__ = ["WebServer", "WebServerError", "WebServerStateError", "BindTimeout", "Handler", "attach_zenoh", "start_http"]
 
 log = logging.getLogger("hitch.web")
 
@@ -60,6 +62,18 @@ _CSP = (
 )
 
 
+class WebServerError(HitchInputError):
+    """A web server that cannot be built from what it was given (no handler, no state source …)."""
+
+
+class WebServerStateError(HitchError, RuntimeError):
+    """The web server used out of order (started twice, asked for its address before it started)."""
+
+
+class BindTimeout(HitchError, TimeoutError):
+    """The web server's loop did not bind its address in time (an ``OSError``, like a taken port)."""
+
+
 def _error(status: int, code: str, message: str, keep_alive: bool = True) -> bytes:
     return json_response(status, {"error": code, "message": message}, keep_alive=keep_alive)
 
@@ -75,7 +89,7 @@ class WebServer:
 
     def __init__(self, handler: Handler, settings: WebSettings | None = None, *, info: dict | None = None):
         if not callable(handler):
-            raise ValueError("handler must be callable as handle(name, payload_bytes, user)")
+            raise WebServerError("handler must be callable as handle(name, payload_bytes, user)")
         self.handler = handler
         self.settings = settings or WebSettings()
         self.info = {"user": self.settings.user, **(info or {})}
@@ -94,7 +108,7 @@ class WebServer:
     def start(self, timeout_s: float = 5.0) -> WebServer:
         """Bind and serve in a background thread; raises OSError if the address cannot be bound."""
         if self._thread is not None:
-            raise RuntimeError("web server already started")
+            raise WebServerStateError("web server already started")
         ready = threading.Event()
         failure: list[BaseException] = []
 
@@ -124,7 +138,7 @@ class WebServer:
         self._thread.start()
         if not ready.wait(timeout_s):
             where = f"{self.settings.host}:{self.settings.port}"
-            raise TimeoutError(f"web server did not bind {where} within {timeout_s} s")
+            raise BindTimeout(f"web server did not bind {where} within {timeout_s} s")
         if failure:
             self._thread = None
             raise failure[0]
@@ -136,7 +150,7 @@ class WebServer:
     def address(self) -> tuple[str, int]:
         """(host, port) actually bound (port 0 → the chosen port)."""
         if self._address is None:
-            raise RuntimeError("web server not started")
+            raise WebServerStateError("web server not started")
         return self._address
 
     @property
@@ -345,7 +359,7 @@ def attach_zenoh(session: Any, prefix: str, server: WebServer) -> tuple[Any, Any
     close the session, to stop). Samples that are not JSON objects are dropped.
     """
 
-    def forward(publish: Callable[[dict], None]):
+    def forward(publish: Callable[[dict], None]) -> Callable[[Any], None]:
         def cb(sample) -> None:
             try:
                 data = json.loads(sample.payload.to_bytes())
@@ -371,15 +385,15 @@ def start_http(
     ``service.add_listener("state" | "event", …)`` (the dicts the service publishes on Zenoh),
     or, without it, from the Zenoh publications through ``service.session`` (:func:`attach_zenoh`).
     When the service's API has an access policy, ``user`` must name the user the page's commands
-    run as (ValueError otherwise: the page never bypasses the policy). Returns the started
-    :class:`WebServer`; ``close()`` it before the service.
+    run as (:class:`WebServerError`, a ``ValueError``, otherwise: the page never bypasses the
+    policy). Returns the started :class:`WebServer`; ``close()`` it before the service.
     """
     api = getattr(service, "api", None) or service
     handler = getattr(api, "handle", None)
     if not callable(handler):
-        raise ValueError("service has no API handler (expected service.api.handle(key, payload, user))")
+        raise WebServerError("service has no API handler (expected service.api.handle(key, payload, user))")
     if getattr(api, "policy", None) is not None and user is None:
-        raise ValueError(
+        raise WebServerError(
             "http_user: the service has an access policy; name the user the page's commands run as "
             "(an operator to move the hitch, a viewer to watch)"
         )
@@ -399,12 +413,14 @@ def start_http(
             for kind, fn in (("state", server.publish_state), ("event", server.publish_event)):
                 service.add_listener(kind, fn)
                 if callable(getattr(service, "remove_listener", None)):
-                    server.add_close_hook(lambda kind=kind, fn=fn: service.remove_listener(kind, fn))
+                    server.add_close_hook(functools.partial(service.remove_listener, kind, fn))
         elif getattr(service, "session", None) is not None and prefix is not None:
             for sub in attach_zenoh(service.session, prefix, server):
                 server.add_close_hook(sub.undeclare)
         else:
-            raise ValueError("service offers neither add_listener() nor a Zenoh session: the page would show no state")
+            raise WebServerError(
+                "service offers neither add_listener() nor a Zenoh session: the page would show no state"
+            )
     except Exception:
         server.close()
         raise

@@ -1,4 +1,4 @@
-"""Settings of the operator terminal's web server and its request checks (issue 9).
+"""Settings of the operator terminal's web server and its request checks.
 
 * :class:`WebSettings` — listen address (loopback by default), the user the page's commands
   run as, extra accepted host names;
@@ -19,8 +19,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from planner.errors import HitchInputError
+
 __all__ = [
     "WebSettings",
+    "WebSettingsError",
     "STATIC_DIR",
     "ERROR_STATUS",
     "parse_address",
@@ -51,16 +54,23 @@ ERROR_STATUS = {
 _USER = re.compile(r"[^\s:]{1,64}")
 
 
+class WebSettingsError(HitchInputError):
+    """A listen address or setting of the web server it cannot use (named in the message)."""
+
+
 def parse_address(addr: str) -> tuple[str, int]:
-    """``"127.0.0.1:8080"`` / ``"[::1]:8080"`` / ``"localhost:0"`` → (host, port); ValueError otherwise."""
+    """``"127.0.0.1:8080"`` / ``"[::1]:8080"`` / ``"localhost:0"`` → (host, port).
+
+    Anything else: :class:`WebSettingsError` naming the problem.
+    """
     if not isinstance(addr, str):
-        raise ValueError(f"http address must be a string HOST:PORT, got {addr!r}")
+        raise WebSettingsError(f"http address must be a string HOST:PORT, got {addr!r}")
     m = re.fullmatch(r"\[([0-9A-Fa-f:.]+)\]:(\d{1,5})|([^\s:\[\]]+):(\d{1,5})", addr.strip())
     if not m:
-        raise ValueError(f"http address {addr!r} must be HOST:PORT, e.g. 127.0.0.1:8080 (port 0-65535)")
+        raise WebSettingsError(f"http address {addr!r} must be HOST:PORT, e.g. 127.0.0.1:8080 (port 0-65535)")
     host, port = (m.group(1), m.group(2)) if m.group(1) else (m.group(3), m.group(4))
     if not 0 <= int(port) <= 65535:
-        raise ValueError(f"http address {addr!r}: port must be in 0-65535")
+        raise WebSettingsError(f"http address {addr!r}: port must be in 0-65535")
     return host, int(port)
 
 
@@ -92,17 +102,17 @@ class WebSettings:
     workers: int = 4
     static_dir: Path = STATIC_DIR
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if not isinstance(self.host, str) or not self.host or any(c.isspace() for c in self.host):
-            raise ValueError(f"host must be a host name or IP address, got {self.host!r}")
+            raise WebSettingsError(f"host must be a host name or IP address, got {self.host!r}")
         if isinstance(self.port, bool) or not isinstance(self.port, int) or not 0 <= self.port <= 65535:
-            raise ValueError(f"port must be an integer in 0-65535, got {self.port!r}")
+            raise WebSettingsError(f"port must be an integer in 0-65535, got {self.port!r}")
         if isinstance(self.workers, bool) or not isinstance(self.workers, int) or not 1 <= self.workers <= 32:
-            raise ValueError(f"workers must be an integer in 1-32, got {self.workers!r}")
+            raise WebSettingsError(f"workers must be an integer in 1-32, got {self.workers!r}")
         if self.user is not None and (not isinstance(self.user, str) or not _USER.fullmatch(self.user)):
-            raise ValueError(f"user must be 1-64 characters without spaces or ':', got {self.user!r}")
+            raise WebSettingsError(f"user must be 1-64 characters without spaces or ':', got {self.user!r}")
         if isinstance(self.extra_hosts, str) or not all(isinstance(h, str) and h for h in self.extra_hosts):
-            raise ValueError("extra_hosts must be a list of HOST:PORT strings")
+            raise WebSettingsError("extra_hosts must be a list of HOST:PORT strings")
         object.__setattr__(self, "extra_hosts", tuple(h.lower() for h in self.extra_hosts))
         object.__setattr__(self, "static_dir", Path(self.static_dir))
 

@@ -17,6 +17,8 @@ import hashlib
 import struct
 from dataclasses import dataclass
 
+from planner.errors import HitchInputError
+
 __all__ = [
     "WebSocketError",
     "Frame",
@@ -43,7 +45,7 @@ _RESERVED_CODES = {1004, 1005, 1006, 1015}
 MAX_MESSAGE_BYTES = 64 * 1024
 
 
-class WebSocketError(ValueError):
+class WebSocketError(HitchInputError):
     """A protocol violation by the peer; ``close_code`` is the RFC 6455 status to close with."""
 
     def __init__(self, message: str, close_code: int = 1002):

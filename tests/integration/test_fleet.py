@@ -16,6 +16,8 @@ import pytest
 from bridge.service.client import HitchClient, ServiceError
 from tests.integration.service_process import ROOT, ServiceProcess, free_port, hitch
 
+pytestmark = pytest.mark.slow  # several services and a router, each in its own process
+
 ROUTER = """
 import json, signal, sys, threading, zenoh
 c = zenoh.Config()

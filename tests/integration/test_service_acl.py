@@ -14,6 +14,8 @@ from bridge.service.client import HitchClient, ServiceError
 from bridge.service.security import AccessPolicy, Credentials, SecuritySettings, security_json5, write_users_file
 from tests.integration.service_process import ServiceProcess, free_port, hitch, wait_online
 
+pytestmark = pytest.mark.slow  # the service runs in its own process
+
 
 def client_file(tmp_path, user: str, password: str):
     p = tmp_path / f"{user}.json5"

@@ -16,6 +16,8 @@ import pytest
 from bridge.service.client import HitchClient, ServiceError
 from tests.integration.service_process import ServiceProcess, free_port, hitch, wait_online
 
+pytestmark = pytest.mark.slow  # the service runs in its own process
+
 
 @pytest.fixture(scope="module")
 def service(tmp_path_factory):

@@ -19,13 +19,14 @@ Rules: :func:`parse_maneuver` reads the text with ``yaml.safe_load`` only, at mo
 (no "billion laughs"); every step is a mapping with exactly one step key; unknown keys, wrong
 types, NaN/inf and out-of-range values are errors ``{"step": index, "message": ...}`` naming the
 field and the allowed range (``step`` is the 0-based index in ``steps``, ``None`` for the
-top level). Nothing raises but :class:`ManeuverError` (a ``ValueError``).
+top level). Nothing raises but :class:`ManeuverError` (a :class:`~planner.errors.HitchInputError`,
+hence a ``ValueError``).
 
 Speed scale of a motion step: its own ``speed_scale`` if given; else, for a preset, the
 preset's stored speed scale; else the scale set by the last ``speed`` step (1.0 at the start).
 
 The step schema (one pydantic model per step kind, :class:`ManeuverScript`, the bounds and
-:func:`check_name`) is in :mod:`.maneuver_steps` and re-exported here.
+:func:`check_name`) is in :mod:`bridge.service.maneuvers.steps` and re-exported here.
 
 :func:`validate` plans every motion step from the given start state through a ``plan_step``
 callable (the service passes :func:`guarded_plan_step`, i.e. the trajectory planner and the
@@ -34,9 +35,9 @@ stability guard) before anything moves, and checks that the planned time fits th
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import yaml
@@ -49,6 +50,7 @@ from bridge.service.maneuvers.steps import (  # the step schema; re-exported (se
     NAME_PATTERN,
     POSE_BOUNDS,
     GotoStep,
+    ManeuverSchemaError,
     ManeuverScript,
     PresetStep,
     SpeedStep,
@@ -59,7 +61,11 @@ from bridge.service.maneuvers.steps import (  # the step schema; re-exported (se
     _show,
     check_name,
 )
+from planner.errors import HitchInputError
 from planner.trajectory import MotionState
+
+if TYPE_CHECKING:
+    from planner.limits.guard import Guard
 
 __all__ = [
     "MAX_SCRIPT_BYTES",
@@ -68,6 +74,7 @@ __all__ = [
     "POSE_BOUNDS",
     "NAME_PATTERN",
     "ManeuverError",
+    "ManeuverSchemaError",
     "StepError",
     "GotoStep",
     "PresetStep",
@@ -93,10 +100,10 @@ _MAX_NODES = 20_000
 _UNITS = {"x": "m", "z": "m", "roll": "rad", "pitch": "rad", "seconds": "s", "distance": "m", "timeout": "s"}
 
 
-class ManeuverError(ValueError):
+class ManeuverError(HitchInputError):
     """A maneuver script that cannot be used; ``errors`` lists ``StepError`` values (step index + message)."""
 
-    def __init__(self, errors):
+    def __init__(self, errors: Iterable[StepError]):
         self.errors = tuple(errors)
         super().__init__("; ".join(e.sentence() for e in self.errors[:5]))
 
@@ -259,12 +266,13 @@ def parse_maneuver(text: Any) -> ManeuverScript:
     if len(steps_raw) > MAX_STEPS:
         errors.append(StepError(None, f"steps has {len(steps_raw)} entries (allowed: at most {MAX_STEPS})"))
         raise ManeuverError(errors)
-    steps = []
+    steps: list[Step] = []
     for i, raw in enumerate(steps_raw):
         step, errs = _parse_step(i, raw)
         errors.extend(errs)
-        steps.append(step)
-    if errors:
+        if step is not None:
+            steps.append(step)
+    if errors or header is None:  # a step or the header that did not parse has its errors listed
         raise ManeuverError(errors)
     return ManeuverScript(header.name, header.description, header.timeout, tuple(steps))
 
@@ -282,8 +290,17 @@ class PlanStep(Protocol):
 
 
 class PresetLike(Protocol):
-    pose: Mapping[str, float]
-    speed_scale: float | None
+    """What validation reads of a preset (e.g. a :class:`bridge.service.store.Preset`)."""
+
+    @property
+    def pose(self) -> Mapping[str, float]:
+        """x, z [m]; roll, pitch [rad]."""
+        ...
+
+    @property
+    def speed_scale(self) -> float | None:
+        """The preset's own speed scale (0, 1], or None."""
+        ...
 
 
 @dataclass(frozen=True)
@@ -325,7 +342,7 @@ class ValidationResult:
         return {"ok": self.ok, "duration": self.duration, "errors": [e.to_json() for e in self.errors]}
 
 
-def guarded_plan_step(guard) -> PlanStep:
+def guarded_plan_step(guard: Guard) -> PlanStep:
     """A :class:`PlanStep` through :meth:`planner.limits.guard.Guard.plan`: limits and stability."""
 
     def plan_step(start: MotionState, goal: Mapping[str, float], speed_scale: float) -> tuple[float, MotionState]:
@@ -336,22 +353,34 @@ def guarded_plan_step(guard) -> PlanStep:
     return plan_step
 
 
-def _resolve(script: ManeuverScript, ctx: PlanningContext) -> tuple[list, list[StepError]]:
-    """(index, kind, partial goal, scale) per step; preset lookups first, so every unknown name is reported."""
-    out, errors, speed = [], [], 1.0
+@dataclass(frozen=True)
+class _Resolved:
+    """A step with its partial goal (motion steps; presets looked up) and the speed scale it runs at."""
+
+    index: int
+    step: Step
+    goal: Mapping[str, float] | None
+    speed_scale: float
+
+
+def _resolve(script: ManeuverScript, ctx: PlanningContext) -> tuple[list[_Resolved], list[StepError]]:
+    """Every step but ``speed`` with its goal and scale; preset lookups first, so every unknown name is reported."""
+    out: list[_Resolved] = []
+    errors: list[StepError] = []
+    speed = 1.0
     for i, s in enumerate(script.steps):
         if isinstance(s, SpeedStep):
             speed = s.scale
         elif isinstance(s, GotoStep):
-            out.append((i, s, s.goal, s.speed_scale or speed))
+            out.append(_Resolved(i, s, s.goal, s.speed_scale or speed))
         elif isinstance(s, PresetStep):
             p = ctx.preset(s.name)
             if p is None:
                 errors.append(StepError(i, f"preset {s.name!r} does not exist for this implement"))
                 continue
-            out.append((i, s, dict(p.pose), s.speed_scale or p.speed_scale or speed))
+            out.append(_Resolved(i, s, dict(p.pose), s.speed_scale or p.speed_scale or speed))
         else:
-            out.append((i, s, None, speed))
+            out.append(_Resolved(i, s, None, speed))
     return out, errors
 
 
@@ -365,21 +394,23 @@ def validate(script: str | ManeuverScript, ctx: PlanningContext) -> ValidationRe
     resolved, errors = _resolve(script, ctx)
     if errors:
         return ValidationResult(False, 0.0, tuple(errors), script)
-    planned, t, dist, state = [], 0.0, 0.0, ctx.start
-    for i, step, goal, scale in resolved:
+    planned: list[PlannedStep] = []
+    t, dist, state = 0.0, 0.0, ctx.start
+    for r in resolved:
+        i, step, goal, scale = r.index, r.step, r.goal, r.speed_scale
         if isinstance(step, WaitStep):
             planned.append(PlannedStep(i, "wait", seconds=step.seconds, start_s=t, duration_s=step.seconds))
             t += step.seconds
         elif isinstance(step, WaitForStep):
             planned.append(PlannedStep(i, "wait_for", distance_m=step.distance, start_s=t))
             dist += step.distance
-        else:
+        elif goal is not None:  # goto, preset: a motion
             try:
                 duration, end = ctx.plan_step(state, goal, scale)
             except ValueError as exc:
                 errors.append(StepError(i, f"{step.kind} cannot be planned: {exc}"))
                 break
-            full = dict(zip(POSE_BOUNDS, map(float, np.asarray(end.position, float))))
+            full = dict(zip(POSE_BOUNDS, map(float, np.asarray(end.position, float)), strict=True))
             planned.append(PlannedStep(i, step.kind, full, scale, start_s=t, duration_s=float(duration)))
             t += float(duration)
             state = MotionState.at_rest(end.position)

@@ -18,9 +18,9 @@ first tick), the ECU silent for more than ``ecu_timeout_s``, a predicted violati
 by the guard, and the running motion replaced by another one (a jog, goto or stop from a
 client: ``interrupted``); a stop request arrives through :meth:`ManeuverRunner.abort`.
 
-Motion steps carry the full goal poses planned by :func:`~.maneuvers.validate`, so what runs is
-exactly what was validated; the service validates again from the current state when a run
-starts.
+Motion steps carry the full goal poses planned by
+:func:`~bridge.service.maneuvers.language.validate`, so what runs is exactly what was validated;
+the service validates again from the current state when a run starts.
 """
 
 from __future__ import annotations
@@ -28,12 +28,18 @@ from __future__ import annotations
 import math
 from collections.abc import Hashable, Mapping
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 from bridge.isobus.heartbeat import HEARTBEAT_TIMEOUT_S
 from bridge.service.maneuvers.language import PlannedStep, ValidationResult
+from planner.errors import HitchInputError
 
-__all__ = ["Command", "LoopState", "ManeuverRunner", "AbortReason", "RunnerStatus"]
+__all__ = ["Command", "LoopState", "ManeuverRunner", "ManeuverRunError", "AbortReason", "RunnerStatus"]
+
+
+class ManeuverRunError(HitchInputError):
+    """The runner driven with values it cannot take (a non-finite time, an unvalidated maneuver …)."""
+
 
 Action = Literal["goto", "continue", "stop", "done"]
 AbortReason = Literal["stop", "timeout", "ecu_silent", "predicted_violation", "interrupted", "plan_failed"]
@@ -56,14 +62,14 @@ class Command:
     step: int | None = None  # index of the script step (0-based)
     goal: Mapping[str, float] | None = None  # full pose (x, z [m]; roll, pitch [rad]) for ``goto``
     speed_scale: float = 1.0
-    events: tuple[dict, ...] = ()
+    events: tuple[dict[str, Any], ...] = ()
 
 
-def _finite(name: str, value, *, minimum: float | None = None) -> float:
+def _finite(name: str, value: object, *, minimum: float | None = None) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise ValueError(f"{name} must be a finite number, got {value!r}")
+        raise ManeuverRunError(f"{name} must be a finite number, got {value!r}")
     if minimum is not None and value < minimum:
-        raise ValueError(f"{name} must be >= {minimum:g}, got {value!r}")
+        raise ManeuverRunError(f"{name} must be >= {minimum:g}, got {value!r}")
     return float(value)
 
 
@@ -72,7 +78,7 @@ class ManeuverRunner:
 
     def __init__(self, validated: ValidationResult, *, ecu_timeout_s: float = HEARTBEAT_TIMEOUT_S):
         if not isinstance(validated, ValidationResult) or not validated.ok or validated.script is None:
-            raise ValueError("validated must be a successful ValidationResult (validate() returned ok = False)")
+            raise ManeuverRunError("validated must be a successful ValidationResult (validate() returned ok = False)")
         self.name = validated.script.name
         self.timeout_s = validated.script.timeout_s
         self.ecu_timeout_s = _finite("ecu_timeout_s", ecu_timeout_s, minimum=1e-3)
@@ -101,9 +107,9 @@ class ManeuverRunner:
     def motion_started(self, motion_id: Hashable) -> None:
         """The service started the motion of the last ``goto`` command under ``motion_id``."""
         if self._status != "running" or not self._entered or self._steps[self._index].goal is None:
-            raise ValueError("motion_started: the runner has not asked for a motion")
+            raise ManeuverRunError("motion_started: the runner has not asked for a motion")
         if motion_id is None:
-            raise ValueError("motion_id must not be None")
+            raise ManeuverRunError("motion_id must not be None")
         self._motion_id = motion_id
 
     def abort(self, now_s: float, reason: AbortReason, message: str) -> Command:
@@ -130,10 +136,10 @@ class ManeuverRunner:
         if distance_travelled_m is not None:
             distance_travelled_m = _finite("distance_travelled_m", distance_travelled_m, minimum=0.0)
         if not isinstance(state, LoopState):
-            raise ValueError("state must be a LoopState")
+            raise ManeuverRunError("state must be a LoopState")
         if self._status in ("finished", "aborted"):
             return Command("done")
-        events: list[dict] = []
+        events: list[dict[str, Any]] = []
         if self._status == "pending":
             self._status, self._t0 = "running", now_s
             events.append(
@@ -185,10 +191,12 @@ class ManeuverRunner:
             return "predicted_violation", str(state.violation)
         return None
 
-    def _enter(self, ps: PlannedStep, now_s: float, state: LoopState, dist: float | None, events: list) -> None:
+    def _enter(
+        self, ps: PlannedStep, now_s: float, state: LoopState, dist: float | None, events: list[dict[str, Any]]
+    ) -> None:
         self._entered, self._t_step, self._dist0 = True, now_s, dist
         self._motion_id, self._previous_motion = None, state.motion_id
-        ev = {
+        ev: dict[str, Any] = {
             "event": "maneuver_step",
             "maneuver": self.name,
             "step": ps.index,

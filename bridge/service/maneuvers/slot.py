@@ -1,21 +1,39 @@
 """The maneuver slot of the motion controller: at most one running maneuver.
 
-Holds the :class:`~.maneuver_runner.ManeuverRunner` of the running maneuver with the id and
-name the service gave it, forwards the control loop's ticks and tags the runner's events
-(``maneuver_started``, ``maneuver_step``, ``maneuver_finished``, ``maneuver_aborted``) with
-``maneuver_id`` for ``<prefix>/events``. Not thread-safe by itself: the controller's lock
-guards it.
+Holds the :class:`~bridge.service.maneuvers.runner.ManeuverRunner` of the running maneuver with
+the id and name the service gave it, forwards the control loop's ticks and tags the runner's
+events (``maneuver_started``, ``maneuver_step``, ``maneuver_finished``, ``maneuver_aborted``) with
+``maneuver_id`` for ``<prefix>/events``; :class:`ManeuverProgress` is the state message's
+``maneuver``. Not thread-safe by itself: the controller's lock guards it.
 """
 
 from __future__ import annotations
 
-from bridge.service.maneuvers.language import ValidationResult
-from bridge.service.maneuvers.runner import Command, LoopState, ManeuverRunner
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import Any
 
-__all__ = ["ManeuverSlot"]
+from bridge.service.maneuvers.language import ValidationResult
+from bridge.service.maneuvers.runner import AbortReason, Command, LoopState, ManeuverRunner
+
+__all__ = ["ManeuverSlot", "ManeuverProgress"]
+
+
+@dataclass(frozen=True)
+class ManeuverProgress:
+    """The running maneuver: its name, id (``motion_id``) and the script step in progress."""
+
+    name: str | None
+    motion_id: int | None
+    step: int | None
+
+    def to_json(self) -> dict[str, Any]:
+        return {"name": self.name, "motion_id": self.motion_id, "step": self.step}
 
 
 class ManeuverSlot:
+    """At most one running maneuver (see the module docstring)."""
+
     def __init__(self) -> None:
         self.runner: ManeuverRunner | None = None
         self.id: int | None = None
@@ -33,13 +51,15 @@ class ManeuverSlot:
         """Is ``runner`` still the running maneuver (not aborted or replaced meanwhile)?"""
         return runner is not None and runner is self.runner
 
-    def abort(self, now: float, reason: str, message: str, events: list[dict]) -> None:
+    def abort(self, now: float, reason: AbortReason, message: str, events: list[dict[str, Any]]) -> None:
         """Abort the running maneuver (if any), appending its ``maneuver_aborted`` event."""
         if self.runner is not None:
             events.extend(self._tag(self.runner.abort(now, reason, message).events))
             self.runner = None
 
-    def tick(self, now: float, loop: LoopState, distance_m: float | None, events: list[dict]) -> Command | None:
+    def tick(
+        self, now: float, loop: LoopState, distance_m: float | None, events: list[dict[str, Any]]
+    ) -> Command | None:
         """One control tick; the runner's command (None when nothing runs). After ``stop`` or
         ``done`` the slot is empty."""
         if self.runner is None:
@@ -50,11 +70,11 @@ class ManeuverSlot:
             self.runner = None
         return cmd
 
-    def describe(self) -> dict | None:
-        """``{"name", "motion_id", "step"}`` of the running maneuver for the state message."""
+    def progress(self) -> ManeuverProgress | None:
+        """The running maneuver for the state message (None when none runs)."""
         if self.runner is None:
             return None
-        return {"name": self.name, "motion_id": self.id, "step": self.runner.current_step}
+        return ManeuverProgress(self.name, self.id, self.runner.current_step)
 
-    def _tag(self, events) -> list[dict]:
+    def _tag(self, events: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
         return [{**e, "maneuver_id": self.id} for e in events]

@@ -18,7 +18,10 @@ from typing import Any, ClassVar
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from planner.errors import HitchInputError
+
 __all__ = [
+    "ManeuverSchemaError",
     "DEFAULT_TIMEOUT_S",
     "MAX_TIMEOUT_S",
     "POSE_BOUNDS",
@@ -46,10 +49,17 @@ POSE_BOUNDS: Mapping[str, tuple[float, float]] = {
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}$")
 
 
+class ManeuverSchemaError(HitchInputError):
+    """A value the step schema refuses (a name, a goto without a pose); the message says what is allowed.
+
+    Raised by :func:`check_name`; inside the step models pydantic turns it into a validation error.
+    """
+
+
 def check_name(value: Any, what: str = "name") -> str:
     """A name of 1–64 letters, digits, '-', '_', '.', starting with a letter or digit."""
     if not isinstance(value, str) or not NAME_PATTERN.match(value):
-        raise ValueError(
+        raise ManeuverSchemaError(
             f"{what} must be 1-64 characters of letters, digits, '-', '_', '.' starting with a "
             f"letter or digit, got {_show(value)}"
         )
@@ -75,7 +85,7 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
 
 
-def _pose_field(k: str):
+def _pose_field(k: str) -> Any:
     lo, hi = POSE_BOUNDS[k]
     return Field(None, ge=lo, le=hi)
 
@@ -91,9 +101,9 @@ class GotoStep(_Strict):
     speed_scale: float | None = Field(None, gt=0.0, le=1.0)
 
     @model_validator(mode="after")
-    def _some_dof(self):
+    def _some_dof(self) -> GotoStep:
         if all(getattr(self, k) is None for k in POSE_BOUNDS):
-            raise ValueError("goto needs at least one of x, z, roll, pitch")
+            raise ManeuverSchemaError("goto needs at least one of x, z, roll, pitch")
         return self
 
     @property
@@ -137,7 +147,7 @@ class SpeedStep(_Strict):
 
 Step = GotoStep | PresetStep | WaitStep | WaitForStep | SpeedStep
 #: step key → (model, name of the field a scalar value fills, or None if the value must be a mapping)
-_KINDS: Mapping[str, tuple[type[_Strict], str | None]] = {
+_KINDS: Mapping[str, tuple[type[Step], str | None]] = {
     "goto": (GotoStep, None),
     "preset": (PresetStep, "name"),
     "wait": (WaitStep, "seconds"),
@@ -153,7 +163,7 @@ class _Header(_Strict):
 
     @field_validator("name")
     @classmethod
-    def _name(cls, v):
+    def _name(cls, v: str | None) -> str | None:
         return None if v is None else check_name(v, "name")
 
 

@@ -1,1 +1,119 @@
-"""TODO"""
+"""The motion controller of the service: one motion at a time, streamed to the ECU over CAN.
+
+* :mod:`bridge.service.motion.controller` — :class:`MotionController`: the control thread,
+  goto/preset/maneuver-step planning and the smooth hand-over, jog, stop, modes, faults;
+* :mod:`bridge.service.motion.link_port` — :class:`LinkPort`, what the controller needs of the
+  CAN link (:class:`bridge.link.can_link.CanLink` satisfies it);
+* :mod:`bridge.service.motion.types` — its values: modes, refusals (:class:`MotionError`), the
+  accepted-motion replies, the plan preview, the active-motion records, the streamed reference.
+
+The names below load lazily (PEP 562): ``import bridge.service.motion`` imports none of the modules.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from bridge.service.motion.controller import MotionController, MotionControllerError
+    from bridge.service.motion.link_port import LinkPort
+    from bridge.service.motion.types import (
+        ATTACH_SPEED_SCALE,
+        MODES,
+        MOTION_MODES,
+        ActiveMotion,
+        Event,
+        JogAccepted,
+        JogMotion,
+        ManeuverAccepted,
+        MotionAccepted,
+        MotionError,
+        PlanMotion,
+        PlanPreview,
+        Reference,
+        StabilityMargins,
+        actuator_dict,
+        check_mode_allows,
+        check_precedence,
+        guard_limits,
+        plan_state,
+        pose_dict,
+        streamed_reference,
+    )
+
+#: public name -> the module that defines it
+_SOURCES: dict[str, str] = {
+    **dict.fromkeys(("MotionController", "MotionControllerError"), "bridge.service.motion.controller"),
+    **dict.fromkeys(("LinkPort",), "bridge.service.motion.link_port"),
+    **dict.fromkeys(
+        (
+            "MODES",
+            "MOTION_MODES",
+            "ATTACH_SPEED_SCALE",
+            "Event",
+            "MotionError",
+            "MotionAccepted",
+            "JogAccepted",
+            "ManeuverAccepted",
+            "PlanPreview",
+            "StabilityMargins",
+            "PlanMotion",
+            "JogMotion",
+            "ActiveMotion",
+            "Reference",
+            "actuator_dict",
+            "check_mode_allows",
+            "check_precedence",
+            "guard_limits",
+            "plan_state",
+            "pose_dict",
+            "streamed_reference",
+        ),
+        "bridge.service.motion.types",
+    ),
+}
+
+__all__ = [
+    # the controller (bridge.service.motion.controller)
+    "MotionController",
+    "MotionControllerError",
+    # its seam to the CAN link (bridge.service.motion.link_port)
+    "LinkPort",
+    # its values (bridge.service.motion.types)
+    "MODES",
+    "MOTION_MODES",
+    "ATTACH_SPEED_SCALE",
+    "Event",
+    "MotionError",
+    "MotionAccepted",
+    "JogAccepted",
+    "ManeuverAccepted",
+    "PlanPreview",
+    "StabilityMargins",
+    "PlanMotion",
+    "JogMotion",
+    "ActiveMotion",
+    "Reference",
+    "actuator_dict",
+    "check_mode_allows",
+    "check_precedence",
+    "guard_limits",
+    "plan_state",
+    "pose_dict",
+    "streamed_reference",
+]
+
+
+def __getattr__(name: str) -> Any:
+    """Import a public name from its defining module on first use (PEP 562)."""
+    source = _SOURCES.get(name)
+    if source is None:
+        raise AttributeError(f"module 'bridge.service.motion' has no attribute {name!r}")
+    value = getattr(importlib.import_module(source), name)
+    globals()[name] = value  # the next lookup does not come here
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -5,16 +5,20 @@ default, on absolute deadlines) it reads the link's status, evaluates the active
 the current time, converts the pose-space reference to actuators with the exact inverse, shapes
 them into the reference under which each cylinder's unit loop follows the motion
 (:class:`bridge.link.unit_loop.FeedforwardShaper`; the state's ``reference`` stays the planned one) and
-hands that to :meth:`bridge.link.can_link.CanLink.send_reference` (which checks every hard limit
-and the AD range before anything reaches the bus); the state snapshot is published first
-thing in the cycle, so its period is as regular as the wake-ups.
+hands that to the link's ``send_reference`` (:class:`~bridge.service.motion.link_port.LinkPort`;
+:meth:`bridge.link.can_link.CanLink.send_reference` checks every hard limit and the AD range before
+anything reaches the bus); the state snapshot is published first thing in the cycle, so its period
+is as regular as the wake-ups.
 
 Motions (each with a ``motion_id``, one at a time):
 
 * **goto / preset / maneuver step** — a guarded plan (:meth:`planner.limits.guard.Guard.plan`).
   A new one replaces the running one smoothly: the new plan starts from the running motion's
-  position, velocity and acceleration at a switch time a few cycles ahead (planning takes
-  5-30 ms), so nothing jumps.
+  position, velocity and acceleration at a switch time ``_PLAN_LEAD_S`` ahead (planning takes
+  5-30 ms), so nothing jumps. If planning took longer than the lead, it is planned again from a
+  lead of 1.5 × the time it took; a plan from rest starts whenever it is ready (a resting start
+  does not age), unless that start was the measured pose and the pistons moved more than
+  5 mm / 5 mrad meanwhile.
 * **jog** — pose rates with a time-to-live through :class:`planner.trajectory.JogController`,
   rates re-checked every cycle by :meth:`Guard.check_jog` (stability ahead, end stops) and capped
   at the workspace faces; when the TTL runs out the jog brakes to rest (dead-man).
@@ -35,8 +39,11 @@ watchdog zeroes its valves) and nothing moves until a fresh command. After a mot
 final reference is held (streamed) so the ECU keeps the cylinders there.
 
 Times: one clock, the link's (``clock()`` [s]). Public methods may be called from any thread: one
-lock guards the control state; goto planning runs outside it on ``plan_guard`` (its own model;
-the planning methods are in :mod:`.motion_planning`).
+lock guards the control state; goto planning runs outside it on ``plan_guard`` (its own model,
+under its own lock), and a generation counter tells whether something else started meanwhile.
+The values the controller works with are in :mod:`bridge.service.motion.types`, its running
+maneuver in :mod:`bridge.service.maneuvers.slot`, its state message in
+:mod:`bridge.service.state_message`.
 """
 
 from __future__ import annotations
@@ -49,40 +56,56 @@ from typing import Any
 
 import numpy as np
 
+from bridge.link.state import LinkStatus, ReferenceRefused
 from bridge.link.unit_loop import FeedforwardShaper, build_unit_loops
-from bridge.service.maneuvers.language import ValidationResult
+from bridge.service.maneuvers.language import ValidationResult, guarded_plan_step
 from bridge.service.maneuvers.runner import LoopState, ManeuverRunner
 from bridge.service.maneuvers.slot import ManeuverSlot
-from bridge.service.motion.planning import GotoPlanningMixin
+from bridge.service.motion.link_port import LinkPort
 from bridge.service.motion.types import (
     ATTACH_SPEED_SCALE,
     MODES,
+    ActiveMotion,
+    Event,
     JogAccepted,
     JogMotion,
+    MotionAccepted,
     MotionError,
     PlanMotion,
+    Reference,
     check_mode_allows,
     check_precedence,
     plan_state,
+    pose_dict,
     streamed_reference,
 )
 from bridge.service.periodic import PeriodicThread
-from bridge.service.state_message import build_state_message, fault_transition
-from planner.limits.guard import Guard
+from bridge.service.state_message import build_state_message, fault_transition, link_problem
+from planner.errors import HitchError
+from planner.limits.guard import Guard, GuardedPlan
 from planner.model.types import KinematicsError
 from planner.trajectory import JogController, MotionState
 
-__all__ = ["MotionController"]
+__all__ = ["MotionController", "MotionControllerError"]
+
+_PLAN_LEAD_S = 0.08  # a replacing plan starts this far ahead of the request (planning time) [s]
+_MOVED = 5e-3  # m or rad: a measured start pose that moved more while planning is re-planned
+_PLAN_TRIES = 4  # plans made for one goto before it is refused as too busy
 
 
-class MotionController(GotoPlanningMixin):
+class MotionControllerError(HitchError, RuntimeError):
+    """The controller used out of order (started twice)."""
+
+
+class MotionController:
     """See the module docstring.
 
     Args:
         guard: guard (and its planner/model) used by the control thread only.
         plan_guard: a second guard on its own model for planning requests (models are not
             thread-safe: their CasADi buffers are shared).
-        link: a :class:`bridge.link.can_link.CanLink` (``send_reference``, ``status``, ``stop_motion``).
+        link: the CAN link (:class:`~bridge.service.motion.link_port.LinkPort`, e.g. a
+            :class:`bridge.link.can_link.CanLink`).
         clock: the link's clock [s].
         on_state / on_event: called with JSON-ready dicts (state every ``state_every`` cycles).
         odometer: cumulative distance travelled by the tractor [m] or None (maneuver ``wait_for``).
@@ -94,11 +117,11 @@ class MotionController(GotoPlanningMixin):
         self,
         guard: Guard,
         plan_guard: Guard,
-        link: Any,
+        link: LinkPort,
         clock: Callable[[], float],
         *,
-        on_state: Callable[[dict], None] | None = None,
-        on_event: Callable[[dict], None] | None = None,
+        on_state: Callable[[dict[str, Any]], None] | None = None,
+        on_event: Callable[[Event], None] | None = None,
         state_every: int = 1,
         odometer: Callable[[], float | None] | None = None,
         mode: str = "auto",
@@ -116,23 +139,26 @@ class MotionController(GotoPlanningMixin):
         )
         self.clock = clock
         self.dt = 1.0 / self.planner.rate
-        self._on_state = on_state or (lambda s: None)
-        self._on_event = on_event or (lambda e: None)
-        self._odometer = odometer or (lambda: None)
-        self._spawn = spawn or (lambda fn: threading.Thread(target=fn, name="hitch-maneuver-plan", daemon=True).start())
+        self._on_state: Callable[[dict[str, Any]], None] = on_state or (lambda s: None)
+        self._on_event: Callable[[Event], None] = on_event or (lambda e: None)
+        self._odometer: Callable[[], float | None] = odometer or (lambda: None)
+        self._spawn: Callable[[Callable[[], None]], None] = spawn or (
+            lambda fn: threading.Thread(target=fn, name="hitch-maneuver-plan", daemon=True).start()
+        )
+        self._plan_step = guarded_plan_step(plan_guard)
         self.state_every = max(1, int(state_every))
         self._lock = threading.RLock()
         self._plan_lock = threading.Lock()
         self._ids = itertools.count(1)
         self._mode = mode if mode in MODES else "auto"
-        self._active: PlanMotion | JogMotion | None = None
+        self._active: ActiveMotion | None = None
         self._hold: MotionState | None = None
         self._last_id: int | None = None
         self._generation = 0
         self._maneuver = ManeuverSlot()
         self._fault_reported: tuple[str, ...] = ()
-        self._limited: dict = {}
-        self._reference: tuple[MotionState, np.ndarray, np.ndarray] | None = None
+        self._limited: dict[str, str] = {}
+        self._reference: Reference | None = None
         self._seq = 0
         self._cycle_n = 0
         self._thread: PeriodicThread | None = None
@@ -140,7 +166,7 @@ class MotionController(GotoPlanningMixin):
     # ------------------------------------------------------------------ life cycle
     def start(self) -> MotionController:
         if self._thread is not None:
-            raise RuntimeError("motion controller already started")
+            raise MotionControllerError("motion controller already started")
         self._thread = PeriodicThread(self.dt, self.cycle, name="hitch-control", on_error=self._on_cycle_error).start()
         return self
 
@@ -163,7 +189,7 @@ class MotionController(GotoPlanningMixin):
             deadline = time.monotonic() + brake_s
             while self._active is not None and time.monotonic() < deadline:
                 time.sleep(self.dt / 2)
-        events: list[dict] = []
+        events: list[Event] = []
         with self._lock:
             self._abort_all("service shutting down", self.clock(), events)
         self._emit_all(events)
@@ -197,7 +223,25 @@ class MotionController(GotoPlanningMixin):
                 self._emit({"event": "mode_changed", "mode": mode, "previous": old})
             return self._mode
 
+    def preview(self, goal: Mapping[str, float], speed_scale: float = 1.0) -> GuardedPlan:
+        """The guarded plan a goto would run now (no motion); raises PlanError / GuardRefusal."""
+        with self._lock:
+            start = self._predict(self.clock() + _PLAN_LEAD_S, require_link=False)
+        with self._plan_lock:
+            return self.plan_guard.plan(start, goal, speed_scale=speed_scale)
+
+    def plan_step(self, start: MotionState, goal: Mapping[str, float], speed_scale: float) -> tuple[float, MotionState]:
+        """Guarded planning on the planning guard (for maneuver validation): (duration [s], end state)."""
+        with self._plan_lock:
+            return self._plan_step(start, goal, speed_scale)
+
     # ------------------------------------------------------------------ commands
+    def goto(
+        self, goal: Mapping[str, float], speed_scale: float = 1.0, *, kind: str = "goto", label: str | None = None
+    ) -> MotionAccepted:
+        """Plan and start a move to a (partial) goal; replaces a running goto/preset/maneuver."""
+        return self._start_plan(goal, speed_scale, kind, label, runner=None)
+
     def jog(self, rates: Mapping[str, float], ttl_s: float) -> JogAccepted:
         """Start or refresh a jog (pose rates, m/s and rad/s) for ``ttl_s`` seconds."""
         v = np.array([float(rates.get(k, 0.0)) for k in ("vx", "vz", "vroll", "vpitch")])
@@ -212,7 +256,7 @@ class MotionController(GotoPlanningMixin):
                 raise MotionError(
                     "busy", f"a stop is in progress (motion {m.motion_id}); jog is refused until the hitch is at rest"
                 )
-            events: list[dict] = []
+            events: list[Event] = []
             if not isinstance(m, JogMotion):
                 start = self._predict(now)
                 if m is not None:
@@ -228,7 +272,7 @@ class MotionController(GotoPlanningMixin):
 
     def stop(self) -> int | None:
         """Abort anything; brake jerk-limited to rest. Returns the stop motion's id (None when at rest)."""
-        events: list[dict] = []
+        events: list[Event] = []
         with self._lock:
             now = self.clock()
             self._maneuver.abort(now, "stop", "stop requested", events)
@@ -236,24 +280,12 @@ class MotionController(GotoPlanningMixin):
         self._emit_all(events)
         return mid
 
-    def _brake(self, now: float, reason: str, events: list) -> int | None:
-        """Replace the active motion by the jerk-limited stop from its state now (id of the stop)."""
-        m = self._active
-        if m is None or (isinstance(m, PlanMotion) and m.kind == "stop"):
-            return None if m is None else m.motion_id
-        events.append(self._ev("motion_aborted", m, reason=reason))
-        t0 = m.t_state if isinstance(m, JogMotion) else now  # the time the predicted state belongs to
-        sm = PlanMotion("stop", next(self._ids), self.planner.plan_stop(self._predict(now)), t0)
-        self._install(sm)
-        events.append(self._ev("motion_started", sm, kind="stop", duration=sm.plan.duration))
-        return sm.motion_id
-
     def run_maneuver(self, validated: ValidationResult, name: str | None) -> int:
         """Start a validated maneuver (replaces a running goto/maneuver). Returns its id."""
         with self._lock:
             self._check_allowed("maneuver")
             self._check_precedence()
-            events: list[dict] = []
+            events: list[Event] = []
             self._maneuver.abort(self.clock(), "interrupted", "replaced by another maneuver", events)
             mid = next(self._ids)
             self._maneuver.start(validated, name, mid)
@@ -262,6 +294,83 @@ class MotionController(GotoPlanningMixin):
         return mid
 
     # ------------------------------------------------------------------ internals: starting plans
+    def _start_plan(
+        self,
+        goal: Mapping[str, float],
+        speed_scale: float,
+        kind: str,
+        label: str | None,
+        *,
+        runner: ManeuverRunner | None,
+    ) -> MotionAccepted:
+        """Plan (outside the control lock) and install a goto/preset/maneuver-step motion.
+
+        A command (``runner`` None) is checked against the mode and the precedence and aborts a
+        running maneuver; a maneuver step (``runner`` its maneuver) is dropped when that maneuver
+        ended meanwhile. The plan starts from the predicted state at the switch time; it is made
+        again (up to ``_PLAN_TRIES`` times) when something else started meanwhile, when the
+        switch time passed while planning, or when a measured start pose moved.
+        """
+        from_maneuver = runner is not None
+        lead = _PLAN_LEAD_S
+        for _ in range(_PLAN_TRIES):
+            with self._lock:
+                now = self.clock()
+                if not from_maneuver:
+                    self._check_allowed(kind)
+                    self._check_precedence()
+                self._expire_jog(now)  # a dying jog is replaced from its braking plan
+                why = link_problem(self.link.status(now), now, self.link.config.stale_after_s)
+                if why:
+                    raise MotionError("ecu", f"{kind} refused: {why}")
+                t_switch = now + lead
+                start = self._predict(t_switch)
+                from_rest = self._active is None and not start.moving  # holding: the start does not age
+                gen = self._generation
+            t_plan = self.clock()
+            with self._plan_lock:
+                gp = self.plan_guard.plan(start, goal, speed_scale=speed_scale)  # PlanError / GuardRefusal
+            took = self.clock() - t_plan
+            events: list[Event] = []
+            with self._lock:
+                if from_maneuver and not self._maneuver.owns(runner):
+                    raise MotionError("busy", "the maneuver was aborted while its step was being planned")
+                if self._generation != gen:
+                    if not from_maneuver:
+                        self._check_precedence()
+                    continue  # something else started meanwhile: re-plan from it
+                now = self.clock()
+                if from_rest and self._active is None:
+                    if self._hold is None and np.max(np.abs(self._predict(now).position - start.position)) > _MOVED:
+                        continue  # the measured start moved while planning (coasting): again
+                    t_switch = max(t_switch, now)  # from rest the plan may start whenever it is ready
+                elif now > t_switch - 0.25 * self.dt:
+                    lead = max(2 * lead, 1.5 * took + self.dt)  # planning took longer: again, further ahead
+                    continue
+                prev = self._active if isinstance(self._active, PlanMotion) else None
+                if self._active is not None:
+                    events.append(self._ev("motion_aborted", self._active, reason=f"replaced by {kind}"))
+                if not from_maneuver:
+                    self._maneuver.abort(now, "interrupted", f"replaced by {kind}", events)
+                pm = PlanMotion(kind, next(self._ids), gp.plan, t_switch, prev, gp.decision, label)
+                self._install(pm)
+                events.append(
+                    self._ev(
+                        "motion_started",
+                        pm,
+                        kind=kind,
+                        duration=gp.plan.duration,
+                        goal=pose_dict(gp.plan.state_at(gp.plan.duration).position),
+                        label=label,
+                    )
+                )
+                if runner is not None:
+                    runner.motion_started(pm.motion_id)
+                acc = MotionAccepted(pm.motion_id, gp.plan.duration, kind, gp.decision)
+            self._emit_all(events)
+            return acc
+        raise MotionError("busy", f"{kind} could not be started: the service is too busy to plan in time")
+
     def _check_allowed(self, what: str) -> None:
         check_mode_allows(self._mode, what)
 
@@ -284,6 +393,18 @@ class MotionController(GotoPlanningMixin):
             return MotionState.at_rest(self.planner.model.neutral_pose.controlled())
         return MotionState.at_rest(ls.pose.controlled())
 
+    def _brake(self, now: float, reason: str, events: list[Event]) -> int | None:
+        """Replace the active motion by the jerk-limited stop from its state now (id of the stop)."""
+        m = self._active
+        if m is None or (isinstance(m, PlanMotion) and m.kind == "stop"):
+            return None if m is None else m.motion_id
+        events.append(self._ev("motion_aborted", m, reason=reason))
+        t0 = m.t_state if isinstance(m, JogMotion) else now  # the time the predicted state belongs to
+        sm = PlanMotion("stop", next(self._ids), self.planner.plan_stop(self._predict(now)), t0)
+        self._install(sm)
+        events.append(self._ev("motion_started", sm, kind="stop", duration=sm.plan.duration))
+        return sm.motion_id
+
     def _expire_jog(self, now: float) -> bool:
         """A jog whose command died becomes its jerk-limited stop, from the state it had at its
         last step (so the reference stays continuous); True if that happened."""
@@ -293,13 +414,13 @@ class MotionController(GotoPlanningMixin):
         self._active = PlanMotion("jog", m.motion_id, self.planner.plan_stop(m.jog.state), m.t_state)
         return True
 
-    def _install(self, m) -> None:
+    def _install(self, m: ActiveMotion) -> None:
         self._active = m
         self._last_id = m.motion_id
         self._generation += 1
         self._hold = None
 
-    def _abort_all(self, reason: str, now: float, events: list) -> None:
+    def _abort_all(self, reason: str, now: float, events: list[Event]) -> None:
         self._maneuver.abort(now, "stop", reason, events)
         if self._active is not None:
             events.append(self._ev("motion_aborted", self._active, reason=reason))
@@ -309,7 +430,7 @@ class MotionController(GotoPlanningMixin):
     # ------------------------------------------------------------------ the control thread
     def _on_cycle_error(self, exc: Exception) -> None:
         """A bug in a cycle: report it, drop the motion, stop the stream; the loop keeps running."""
-        evs: list[dict] = []
+        evs: list[Event] = []
         with self._lock:
             self._abort_all(f"internal error: {type(exc).__name__}: {exc}", self.clock(), evs)
             self.link.stop_motion()
@@ -322,7 +443,7 @@ class MotionController(GotoPlanningMixin):
         the wake-ups: measured pose now, with the reference sent in the previous cycle (the one
         the ECU is tracking). Then the motion is advanced and the new reference sent.
         """
-        events: list[dict] = []
+        events: list[Event] = []
         with self._lock:
             now = self.clock()
             status = self.link.status(now)
@@ -340,13 +461,13 @@ class MotionController(GotoPlanningMixin):
                     self.link.send_reference(streamed_reference(self.shaper, self._active, ref, now), now)
                     self._reference = ref
                 except ValueError as exc:  # ReferenceRefused / LinkFaultError: never streamed
-                    what = "limit_reached" if type(exc).__name__ == "ReferenceRefused" else "fault"
+                    what = "limit_reached" if isinstance(exc, ReferenceRefused) else "fault"
                     events.append({"event": what, "message": str(exc), "motion_id": self._last_id})
                     self._abort_all(f"reference refused: {exc}", now, events)
                     self.link.stop_motion()
         self._emit_all(events)
 
-    def _check_faults(self, status, now: float, events: list) -> None:
+    def _check_faults(self, status: LinkStatus, now: float, events: list[Event]) -> None:
         """A fault raised since the last cycle aborts everything (a fault latched before a fresh
         command does not: that command's first reference re-arms the link or is refused)."""
         self._fault_reported, new = fault_transition(self._fault_reported, status, events)
@@ -354,29 +475,31 @@ class MotionController(GotoPlanningMixin):
             self._abort_all("link fault: " + "; ".join(status.faults.reasons or new), now, events)
             self.link.stop_motion()
 
-    def _drive_maneuver(self, status, now: float, events: list) -> None:
+    def _drive_maneuver(self, status: LinkStatus, now: float, events: list[Event]) -> None:
         m, runner, ls = self._active, self._maneuver.runner, status.state
         loop = LoopState(
             isinstance(m, PlanMotion) and not m.finished(now), self._last_id, None if ls is None else ls.measurement_t_s
         )
         cmd = self._maneuver.tick(now, loop, self._odometer(), events)
-        if cmd is not None and cmd.action == "goto":
-            goal, scale, step = dict(cmd.goal), cmd.speed_scale, cmd.step
-            self._spawn(lambda: self._maneuver_goto(runner, goal, scale, step))
-        elif cmd is not None and cmd.action == "stop":
+        if cmd is None:
+            return
+        if cmd.action == "goto" and runner is not None and cmd.goal is not None:  # a running maneuver's motion step
+            goal, scale, step, owner = dict(cmd.goal), cmd.speed_scale, cmd.step, runner
+            self._spawn(lambda: self._maneuver_goto(owner, goal, scale, step))
+        elif cmd.action == "stop":
             self._brake(now, "maneuver aborted", events)
 
-    def _maneuver_goto(self, runner: ManeuverRunner, goal: dict, scale: float, step: int | None) -> None:
+    def _maneuver_goto(self, runner: ManeuverRunner, goal: Mapping[str, float], scale: float, step: int | None) -> None:
         try:
-            self._start_plan(goal, scale, "maneuver", f"step {step}", from_maneuver=True, runner=runner)
+            self._start_plan(goal, scale, "maneuver", f"step {step}", runner=runner)
         except ValueError as exc:
-            events: list[dict] = []
+            events: list[Event] = []
             with self._lock:
                 if self._maneuver.owns(runner):
                     self._maneuver.abort(self.clock(), "plan_failed", f"step {step} cannot be planned: {exc}", events)
             self._emit_all(events)
 
-    def _reference_at(self, now: float, events: list):
+    def _reference_at(self, now: float, events: list[Event]) -> Reference | None:
         m = self._active
         if isinstance(m, PlanMotion):
             if m.prev is not None and now >= m.t0:
@@ -393,7 +516,7 @@ class MotionController(GotoPlanningMixin):
             m.t_state = now
             events.extend(evs)
             self._limited = dict(m.limited)
-            return out.state, out.actuators, out.actuator_velocity
+            return Reference(out.state, out.actuators, out.actuator_velocity)
         elif self._hold is not None:
             st = self._hold
         else:
@@ -405,15 +528,14 @@ class MotionController(GotoPlanningMixin):
             events.append({"event": "limit_reached", "message": f"reference not reachable: {exc}"})
             self._abort_all(f"reference not reachable: {exc}", now, events)
             return None
-        return st, q, jac @ st.velocity
+        return Reference(st, q, jac @ st.velocity)
 
     # ------------------------------------------------------------------ state and events
-    def _state_message(self, now: float, status) -> dict:
+    def _state_message(self, now: float, status: LinkStatus) -> dict[str, Any]:
         self._seq += 1
         m = self._active
         kind = None if m is None else (m.kind if isinstance(m, PlanMotion) else "jog")
         ref = self._reference if (m is not None or self._hold is not None) else None
-        man = self._maneuver.describe()
         return build_state_message(
             seq=self._seq,
             now=now,
@@ -425,16 +547,16 @@ class MotionController(GotoPlanningMixin):
             motion_id=self._last_id,
             reference=ref,
             limited=self._limited,
-            maneuver=man,
+            maneuver=self._maneuver.progress(),
             feedforward=self.shaper,
-        )
+        ).to_json()
 
-    def _ev(self, name: str, m, **extra) -> dict:
+    def _ev(self, name: str, m: ActiveMotion, **extra: Any) -> Event:
         return {"event": name, "motion_id": m.motion_id, **{k: v for k, v in extra.items() if v is not None}}
 
-    def _emit(self, e: dict) -> None:
+    def _emit(self, e: Event) -> None:
         self._on_event({"t": time.time(), **e})
 
-    def _emit_all(self, events: list[dict]) -> None:
+    def _emit_all(self, events: list[Event]) -> None:
         for e in events:
             self._emit(e)

@@ -1,33 +1,50 @@
 """Values of the motion controller: modes, refusals, accepted motions, the active-motion records.
 
-Kept apart from :mod:`.motion` (the controller and its thread) so the API layer and the state
-message can use them without the controller.
+Kept apart from :mod:`bridge.service.motion.controller` (the controller and its thread) so the
+API layer and the state message can use them without the controller.
+
+Every value the service sends as JSON has a ``to_json()`` method returning a JSON-ready dict
+(:class:`MotionAccepted`, :class:`JogAccepted`, :class:`ManeuverAccepted`, :class:`PlanPreview`,
+:class:`StabilityMargins`); pose and actuator vectors become dicts by name through
+:func:`pose_dict` and :func:`actuator_dict`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
-from planner.limits.guard import Guard, GuardDecision
-from planner.trajectory import JogController, JogOutput, MotionState, Plan
+from bridge.link.unit_loop import FeedforwardShaper
+from planner.errors import HitchInputError
+from planner.limits.guard import Guard, GuardDecision, GuardedPlan, GuardRefusal
+from planner.limits.stability import StabilityReport, StabilityViolation
+from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
+from planner.trajectory import JogController, JogOutput, MotionState, Plan, PlanError
 
 __all__ = [
     "MODES",
     "MOTION_MODES",
     "ATTACH_SPEED_SCALE",
+    "Event",
     "MotionError",
     "MotionAccepted",
     "JogAccepted",
+    "ManeuverAccepted",
+    "PlanPreview",
+    "StabilityMargins",
     "PlanMotion",
     "JogMotion",
+    "ActiveMotion",
+    "Reference",
+    "actuator_dict",
     "check_mode_allows",
     "check_precedence",
+    "guard_limits",
     "plan_state",
-    "reasons_json",
-    "stability_json",
+    "pose_dict",
     "streamed_reference",
 ]
 
@@ -44,13 +61,26 @@ MOTION_MODES: Mapping[str, str] = {
 #: jog speed scale in implement-attach mode (slow: the operator is near the hitch)
 ATTACH_SPEED_SCALE = 0.25
 
+#: one ``<prefix>/events`` message (a JSON-ready dict with an ``event`` name)
+Event = dict[str, Any]
 
-class MotionError(ValueError):
+
+class MotionError(HitchInputError):
     """A motion command refused; ``code`` is the API error code (mode, busy, ecu, bad_request)."""
 
     def __init__(self, code: str, message: str):
         self.code = code
         super().__init__(message)
+
+
+def pose_dict(p: Iterable[float]) -> dict[str, float]:
+    """A controlled pose (or its rates) by name: x, z [m]; roll, pitch [rad] (per second for rates)."""
+    return dict(zip(CONTROLLED_POSE_NAMES, map(float, p), strict=True))
+
+
+def actuator_dict(q: Iterable[float]) -> dict[str, float]:
+    """Actuator coordinates by name: lift [rad]; tilt, top, left, right [m]."""
+    return dict(zip(ACTUATOR_NAMES, map(float, q), strict=True))
 
 
 def check_mode_allows(mode: str, what: str) -> None:
@@ -63,24 +93,86 @@ def check_mode_allows(mode: str, what: str) -> None:
         )
 
 
-def reasons_json(decision: GuardDecision) -> dict[str, str]:
+def guard_limits(decision: GuardDecision) -> dict[str, str]:
     """The guard's reasons as ``{measure: "level: sentence"}`` (the "control limited" entries)."""
     return {r.measure: f"{r.level}: {r.sentence()}" for r in decision.reasons}
 
 
-def stability_json(rep) -> dict:
-    """A stability report's margins as JSON: SSM, LSM [m], ESM [J], front-axle share, violations."""
-    return {
-        "ok": rep.ok,
-        "ssm": rep.ssm,
-        "lsm": rep.lsm,
-        "esm": rep.esm,
-        "front_axle_share": rep.front_axle_share,
-        "weakest_edge": rep.weakest_edge,
-        "violations": [
-            {"measure": v.measure, "value": v.value, "threshold": v.threshold, "level": v.level} for v in rep.violations
-        ],
-    }
+@dataclass(frozen=True)
+class StabilityMargins:
+    """A stability report's margins as the service shows them: SSM, LSM [m], ESM [J], the
+    front-axle share of the weight, the weakest edge and the thresholds crossed."""
+
+    ok: bool
+    ssm: float
+    lsm: float
+    esm: float
+    front_axle_share: float
+    weakest_edge: str
+    violations: tuple[StabilityViolation, ...] = ()
+
+    @classmethod
+    def of(cls, rep: StabilityReport) -> StabilityMargins:
+        return cls(rep.ok, rep.ssm, rep.lsm, rep.esm, rep.front_axle_share, rep.weakest_edge, tuple(rep.violations))
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "ok": self.ok,
+            "ssm": self.ssm,
+            "lsm": self.lsm,
+            "esm": self.esm,
+            "front_axle_share": self.front_axle_share,
+            "weakest_edge": self.weakest_edge,
+            "violations": [
+                {"measure": v.measure, "value": v.value, "threshold": v.threshold, "level": v.level}
+                for v in self.violations
+            ],
+        }
+
+
+def _stability(decision: GuardDecision) -> dict[str, Any] | None:
+    return None if decision.worst is None else StabilityMargins.of(decision.worst).to_json()
+
+
+@dataclass(frozen=True)
+class PlanPreview:
+    """The answer to a ``plan`` request: the guarded plan a goto would run now, or why there is none.
+
+    ``duration`` [s] and ``goal`` (the full end pose) when planned; ``refused``: the refusal's
+    sentence otherwise; ``decision``: the guard's (None when the planner refused before the guard).
+    """
+
+    ok: bool
+    duration: float | None = None
+    goal: Mapping[str, float] | None = None
+    decision: GuardDecision | None = None
+    refused: str | None = None
+
+    @classmethod
+    def planned(cls, gp: GuardedPlan) -> PlanPreview:
+        end = gp.plan.state_at(gp.plan.duration).position
+        return cls(True, gp.plan.duration, pose_dict(end), gp.decision)
+
+    @classmethod
+    def refusal(cls, exc: PlanError) -> PlanPreview:
+        """A plan the planner (:class:`PlanError`) or the guard (:class:`GuardRefusal`) refused."""
+        return cls(False, decision=exc.decision if isinstance(exc, GuardRefusal) else None, refused=str(exc))
+
+    def to_json(self) -> dict[str, Any]:
+        d = self.decision
+        reasons = [] if d is None else [r.to_json() for r in d.reasons]
+        stability = None if d is None else _stability(d)
+        if not self.ok or d is None:
+            return {"ok": False, "duration": None, "refused": self.refused, "reasons": reasons, "stability": stability}
+        return {
+            "ok": True,
+            "duration": self.duration,
+            "goal": None if self.goal is None else dict(self.goal),
+            "guard": d.action,
+            "speed_factor": d.speed_factor,
+            "reasons": reasons,
+            "stability": stability,
+        }
 
 
 @dataclass(frozen=True)
@@ -92,14 +184,14 @@ class MotionAccepted:
     kind: str
     decision: GuardDecision
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         return {
             "accepted": True,
             "motion_id": self.motion_id,
             "duration": self.duration,
             "speed_factor": self.decision.speed_factor,
             "guard": self.decision.action,
-            "limited": reasons_json(self.decision),
+            "limited": guard_limits(self.decision),
         }
 
 
@@ -108,16 +200,35 @@ class JogAccepted:
     """A started or refreshed jog; ``limited`` maps a direction/measure to the limit that caps it."""
 
     motion_id: int
-    limited: dict
+    limited: Mapping[str, str]
     decision: GuardDecision
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         return {
             "accepted": True,
             "motion_id": self.motion_id,
             "limited": dict(self.limited),
             "guard": self.decision.action,
             "speed_factor": self.decision.speed_factor,
+        }
+
+
+@dataclass(frozen=True)
+class ManeuverAccepted:
+    """A started maneuver: its id, planned duration [s] (motions and waits), step count and name."""
+
+    motion_id: int
+    duration: float
+    steps: int
+    name: str
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "accepted": True,
+            "motion_id": self.motion_id,
+            "duration": self.duration,
+            "steps": self.steps,
+            "maneuver": self.name,
         }
 
 
@@ -142,7 +253,7 @@ class PlanMotion:
 
     def limited(self) -> dict[str, str]:
         """What slows this plan (a guard caution or the end-stop zone), for the state's ``limited``."""
-        return reasons_json(self.decision) if self.decision.action == "scaled" else {}
+        return guard_limits(self.decision) if self.decision.action == "scaled" else {}
 
 
 @dataclass
@@ -154,8 +265,8 @@ class JogMotion:
     rates: np.ndarray
     expires: float
     t_state: float = 0.0  # clock time of ``jog.state`` (its last step)
-    limited: dict = field(default_factory=dict)
-    reported: set = field(default_factory=set)  # limits already announced by a limit_reached event
+    limited: dict[str, str] = field(default_factory=dict)
+    reported: set[str] = field(default_factory=set)  # limits already announced by a limit_reached event
     decision: GuardDecision = field(default_factory=lambda: GuardDecision("ok"))
 
     def refresh(self, guard: Guard, rates: np.ndarray, expires: float) -> JogAccepted:
@@ -163,24 +274,38 @@ class JogMotion:
         self.rates, self.expires = np.asarray(rates, float), float(expires)
         allowed, self.decision = guard.check_jog(self.jog.state, self.rates)
         _, flags = self.jog.clipped_rates(allowed)
-        self.limited = {**flags, **reasons_json(self.decision)}
+        self.limited = {**flags, **guard_limits(self.decision)}
         return JogAccepted(self.motion_id, dict(self.limited), self.decision)
 
-    def step(self, guard: Guard) -> tuple[JogOutput, list[dict]]:
+    def step(self, guard: Guard) -> tuple[JogOutput, list[Event]]:
         """One control cycle: the rates re-checked ahead by the guard, then the jerk-limited step.
         Returns the step and a ``limit_reached`` event naming each limit that newly caps the jog
         (a workspace face, a stability measure ahead, an end-stop zone)."""
         allowed, self.decision = guard.check_jog(self.jog.state, self.rates)
         self.jog.command(allowed, 1.0)  # the dead-man TTL is ours (``expires``), not the controller's
         out = self.jog.step()
-        self.limited = {**out.limited, **reasons_json(self.decision)}
+        self.limited = {**out.limited, **guard_limits(self.decision)}
         new = {k: v for k, v in self.limited.items() if k not in self.reported}
         self.reported = set(self.limited)
-        events = [{"event": "limit_reached", "motion_id": self.motion_id, "limits": new}] if new else []
+        events: list[Event] = [{"event": "limit_reached", "motion_id": self.motion_id, "limits": new}] if new else []
         return out, events
 
 
-def check_precedence(active: PlanMotion | JogMotion | None, now: float) -> None:
+#: the motion the controller runs (one at a time)
+ActiveMotion = PlanMotion | JogMotion
+
+
+@dataclass(frozen=True)
+class Reference:
+    """What is streamed for one cycle: the commanded pose-space ``state``, its ``actuators`` q
+    (lift [rad], the others [m]) and their ``rates`` q̇ (per second)."""
+
+    state: MotionState
+    actuators: np.ndarray
+    rates: np.ndarray
+
+
+def check_precedence(active: ActiveMotion | None, now: float) -> None:
     """:class:`MotionError` ("busy") when ``active`` outranks a new goto/preset/maneuver: a stop
     until it is at rest, a jog while its command is live (stop > jog > goto)."""
     if isinstance(active, PlanMotion) and active.kind == "stop":
@@ -203,12 +328,12 @@ def plan_state(m: PlanMotion, t: float) -> MotionState:
     return m.plan.state_at(t - m.t0)
 
 
-def streamed_reference(shaper, m: PlanMotion | JogMotion | None, ref, now: float) -> np.ndarray:
-    """The actuator reference to stream for the planned ``ref`` = (state, q, q̇) of motion ``m``:
-    feed-forward through the unit loops (:class:`bridge.link.unit_loop.FeedforwardShaper`) for a plan
-    (looking ahead in it) or a jog (its rates and acceleration now); the final reference itself while holding."""
+def streamed_reference(shaper: FeedforwardShaper, m: ActiveMotion | None, ref: Reference, now: float) -> np.ndarray:
+    """The actuator reference to stream for the planned ``ref`` of motion ``m``: feed-forward
+    through the unit loops (:class:`bridge.link.unit_loop.FeedforwardShaper`) for a plan (looking
+    ahead in it) or a jog (its rates and acceleration now); the final reference itself while holding."""
     if isinstance(m, PlanMotion):
-        return shaper.for_plan(lambda t: plan_state(m, t), now, ref[1], ref[2])
+        return shaper.for_plan(lambda t: plan_state(m, t), now, ref.actuators, ref.rates)
     if isinstance(m, JogMotion):
-        return shaper.for_state(ref[0], ref[1], ref[2])
-    return ref[1]
+        return shaper.for_state(ref.state, ref.actuators, ref.rates)
+    return ref.actuators

@@ -1,4 +1,4 @@
-// Hitch terminal: the operator page of the hitch service (issue 9). Plain ES2020, no build step.
+// Hitch terminal: the operator page of the hitch service. Plain ES2020, no build step.
 //
 // Everything shown comes from the service: `state` messages (what <prefix>/state publishes, 50 Hz)
 // and `event` messages over one WebSocket; every command goes to the service's own API handler

@@ -3,7 +3,7 @@ virtual bus, :class:`bridge.sim.move.SimRig`), control cycles driven by the test
 
 Truth used: the goal itself (the commanded reference must end exactly there; the measured pose
 within the closed loop's accuracy), the workspace box, the jerk-limited plan continuity (the new
-plan starts from the old plan's exact state), and the precedence rules of issue 7.
+plan starts from the old plan's exact state), and the precedence rules stop > jog > goto.
 """
 
 from __future__ import annotations

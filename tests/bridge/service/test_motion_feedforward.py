@@ -1,6 +1,7 @@
-"""The service's motion controller streams the unit loops' feed-forward reference (issue 6 §4 in
-the product path): a goto through the real CAN path (link + simulated ECU, simulated time, cycles
-at 50 Hz) keeps to the straight pose line and ends within the issue's steady-state targets.
+"""The service's motion controller streams the unit loops' feed-forward reference (in the product
+path, not only in the closed-loop bench): a goto through the real CAN path (link + simulated ECU,
+simulated time, cycles at 50 Hz) keeps to the straight pose line and ends within the closed loop's
+steady-state targets.
 
 Truth used: the straight segment start → goal in (x, z); the goal; the same run with the
 plan's actuators streamed unshaped (the cylinders' different lags bend the path).
@@ -46,7 +47,7 @@ def _goto_path(model, feedforward: bool):
             rig.run_until(rig.now_s + 0.02)
             mc.cycle()
             measured.append([states[-1]["pose"][k] for k in POSE])
-            q = [p.counts_to_si(c) for p, c in zip(params, rig.ecu.piston_counts())]
+            q = [p.counts_to_si(c) for p, c in zip(params, rig.ecu.piston_counts(), strict=True)]
             truth.append(model.forward(np.array(q)).pose.controlled())
         assert not states[-1]["moving"] and rig.link.status(rig.now_s).counters.references_refused == 0
         assert states[-1]["ecu"]["feedforward"] == {"enabled": feedforward, "pulled_back": 0}
@@ -108,7 +109,7 @@ def test_a_jog_into_the_workspace_face_does_not_carry_the_hitch_past_it(model):
                 mc.jog({"vz": 0.05}, 0.3)
                 rig.run_until(rig.now_s + 0.02)
                 mc.cycle()
-                q = [p.counts_to_si(c) for p, c in zip(params, rig.ecu.piston_counts())]
+                q = [p.counts_to_si(c) for p, c in zip(params, rig.ecu.piston_counts(), strict=True)]
                 z_true.append(model.forward(np.array(q)).pose.z)
             assert states[-1]["limited"], "the jog should be limited at the face"
             assert states[-1]["reference"]["pose"]["z"] <= z_max + 1e-9

@@ -301,6 +301,7 @@ def server(tmp_path):
         s.close()
 
 
+@pytest.mark.slow  # Zenoh peers in their own processes
 def test_acl_permitted_user_moves_refused_user_only_reads(tmp_path, users_file, server):
     ep = f"tcp/127.0.0.1:{_free_port()}"
     server(
@@ -331,6 +332,7 @@ def test_acl_permitted_user_moves_refused_user_only_reads(tmp_path, users_file, 
     assert not r["mallory"]["open"] and not r["anonymous"]["open"]
 
 
+@pytest.mark.slow  # Zenoh peers in their own processes
 def test_acl_on_a_fleet_router_with_the_service_behind_it(tmp_path, users_file, server):
     users = write_users_file(tmp_path / "router-users.txt", {**USERS, "svc-t07": "svc-pw"})
     ep = f"tcp/127.0.0.1:{_free_port()}"
@@ -443,6 +445,7 @@ def _tls(pki, ca="hitch-ca", cert=None, mutual=False):
     return out
 
 
+@pytest.mark.slow  # Zenoh peers in their own processes
 def test_tls_session_connects_wrong_ca_and_plain_tcp_do_not(tmp_path, pki, server):
     port = _free_port()
     server(f"tls/127.0.0.1:{port}", SecuritySettings(tls=TlsSettings(**_tls(pki, cert="server"))))
@@ -460,6 +463,7 @@ def test_tls_session_connects_wrong_ca_and_plain_tcp_do_not(tmp_path, pki, serve
     assert not r["plain_tcp"]["open"]
 
 
+@pytest.mark.slow  # Zenoh peers in their own processes
 def test_mtls_needs_a_client_certificate_from_the_ca_and_maps_names_to_roles(tmp_path, pki, server):
     port = _free_port()
     ep = f"tls/127.0.0.1:{port}"

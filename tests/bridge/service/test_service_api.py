@@ -202,7 +202,7 @@ def test_ik_answers_match_forward_kinematics(svc, model, rng):
     tp = svc.mc.planner
     for _ in range(20):
         p = tp.lo + (tp.hi - tp.lo) * rng.random(4)
-        ok, r = svc.call("ik", dict(zip(("x", "z", "roll", "pitch"), map(float, p))))
+        ok, r = svc.call("ik", dict(zip(("x", "z", "roll", "pitch"), map(float, p), strict=True)))
         assert ok and r["status"] == "ok", r
         q = np.array([r["actuators"][k] for k in ("lift", "tilt", "top", "left", "right")])
         np.testing.assert_allclose(model.pose(q).controlled(), p, atol=1e-6)

@@ -27,7 +27,7 @@ def store(tmp_path):
 
 
 def test_preset_round_trip_is_exact_and_replaces_atomically(store, rng):
-    poses = {f"p{i}": dict(zip(POSE, rng.uniform(-0.3, 0.3, 4))) for i in range(20)}
+    poses = {f"p{i}": dict(zip(POSE, rng.uniform(-0.3, 0.3, 4), strict=True)) for i in range(20)}
     for name, pose in poses.items():
         store.save_preset(name, pose, implement="cat2-spreader", speed_scale=0.5)
     got = {p.name: p for p in store.list_presets("cat2-spreader")}
@@ -207,6 +207,7 @@ while True:
 """
 
 
+@pytest.mark.slow  # a writer process killed with SIGKILL
 def test_kill_9_during_preset_writes_loses_no_acknowledged_preset(tmp_path):
     path = tmp_path / "durable.sqlite3"
     script = tmp_path / "writer.py"

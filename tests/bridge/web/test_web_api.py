@@ -1,4 +1,4 @@
-"""The operator terminal's server (issue 9): RFC 6455 framing, request checks, and the HTTP/WebSocket
+"""The operator terminal's server: RFC 6455 framing, request checks, and the HTTP/WebSocket
 API of a real running service (simulated ECU on a virtual CAN bus, real Zenoh session).
 
 Independent truths: the RFC 6455 worked examples (handshake key, frames of §5.7); the service's
@@ -11,6 +11,7 @@ from __future__ import annotations
 import base64
 import hashlib
 import http.client
+import itertools
 import json
 import math
 import os
@@ -376,7 +377,7 @@ def test_websocket_handshake_and_live_state(service, web):
         hello = ws.message("hello")
         assert hello["data"]["prefix"] == service.config.prefix
         seqs = [ws.message("state")["data"]["seq"] for _ in range(10)]
-        assert all(b > a for a, b in zip(seqs, seqs[1:]))  # newest first, never out of order
+        assert all(b > a for a, b in itertools.pairwise(seqs))  # newest first, never out of order
         latest = ws.message("state")["data"]
         assert set(latest) >= {
             "t",
@@ -443,7 +444,7 @@ def test_motion_over_http_reaches_the_target_seen_in_the_state(service, web):
                 break
         assert not st["moving"]
         # the motion ends exactly at the goal (the held reference) and the measured pose follows it
-        # (issue 6 path deviation ≤ 10 mm; AD-quantised sensors through forward kinematics)
+        # (path deviation ≤ 10 mm; AD-quantised sensors through forward kinematics)
         for k, v in goal.items():
             assert st["reference"]["pose"][k] == pytest.approx(v, abs=1e-6), k
         deadline = time.monotonic() + 5

@@ -10,7 +10,8 @@ commands on an argparse sub-parser set (the ``hitch`` CLI plugs it in)::
 Units: positions in metres, joints in radians, the rotation matrix row by row. Write values
 that start with a minus sign as ``--rotation=-0.12,...`` (argparse would take ``-0.12,...``
 for an option). Each command's handler prints JSON with ``--json`` and a table otherwise and
-returns the exit status; errors are raised as ``ValueError`` subclasses for the CLI to report.
+returns the exit status; errors are raised as :class:`~planner.errors.HitchInputError`
+subclasses (bad input, also ``ValueError``) for the CLI to report.
 """
 
 from __future__ import annotations

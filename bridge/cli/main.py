@@ -1,13 +1,16 @@
 """The ``hitch`` command line: argument parsing, dispatch and error reporting.
 
-Every command prints human-readable text by default and JSON with ``--json``. Errors
-exit with status 2 and one line on stderr (``hitch: error: …``).
+Every command prints human-readable text by default and JSON with ``--json``. An error the
+project raises on purpose (any :class:`~planner.errors.HitchError`: bad arguments, a profile
+that does not validate, a pose out of reach, a refused request …) exits with status 2 and one
+line on stderr (``hitch: error: …``). Any other exception is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+from typing import NoReturn
 
 from bridge.cli import ik as cli_ik
 from bridge.cli import model as cli_model
@@ -16,16 +19,14 @@ from bridge.cli import service as cli_service
 from bridge.cli import sim as cli_sim
 from bridge.cli import stability as cli_stability
 from bridge.cli.arm import add_arm_parser
+from bridge.cli.errors import CLIError
+from planner.errors import HitchError
 
 __all__ = ["main", "build_parser", "CLIError"]
 
 
-class CLIError(Exception):
-    """A user-facing error: printed as one line, exit status 2."""
-
-
 class _Parser(argparse.ArgumentParser):
-    def error(self, message: str):  # one clear line instead of usage + message
+    def error(self, message: str) -> NoReturn:  # one clear line instead of usage + message
         raise CLIError(f"{self.prog}: {message}")
 
 
@@ -46,9 +47,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         args = build_parser().parse_args(argv)
         return int(args.handler(args) or 0)
-    except CLIError as exc:
-        print(f"hitch: error: {exc}", file=sys.stderr)
-    except (ValueError, KeyError) as exc:  # ProfileError, KinematicsError, PlanError, SensorRangeError, …
+    except HitchError as exc:  # CLIError, ProfileError, KinematicsError, PlanError, ServiceError, …
         msg = str(exc).replace("\n", "; ")
         print(f"hitch: error: {msg}", file=sys.stderr)
     except KeyboardInterrupt:

@@ -52,7 +52,7 @@ def state_to_json(state) -> dict:
         "pose": state.pose.as_dict(),
         "actuators": state.actuators.as_dict(),
         "points": {k: _vec(v) for k, v in state.points.items()},
-        "link_angles": dict(zip(("theta_xl", "theta_zl", "theta_xr", "theta_zr"), state.link_angles)),
+        "link_angles": dict(zip(("theta_xl", "theta_zl", "theta_xr", "theta_zr"), state.link_angles, strict=True)),
         "top_link_angles": {"yaw": state.top_link_angles[0], "pitch": state.top_link_angles[1]},
         "lower_span": state.lower_span,
     }
@@ -91,8 +91,10 @@ def profile_summary(model: HitchModel) -> dict:
         "categories": list(prof.implement.categories),
         "span": model.span,
         "mast_height": model.mast_height,
-        "strokes": {n: [float(lo), float(hi)] for n, lo, hi in zip(ACTUATOR_NAMES, model.lower, model.upper)},
-        "neutral_actuators": dict(zip(ACTUATOR_NAMES, _vec(model.neutral))),
+        "strokes": {
+            n: [float(lo), float(hi)] for n, lo, hi in zip(ACTUATOR_NAMES, model.lower, model.upper, strict=True)
+        },
+        "neutral_actuators": dict(zip(ACTUATOR_NAMES, _vec(model.neutral), strict=True)),
         "neutral_pose": model.neutral_pose.as_dict(),
         "top_link_reference": {
             "yaw": model.top_link_reference[0],

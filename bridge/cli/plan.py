@@ -74,6 +74,8 @@ def _cmd_plan(args) -> int:
         tp.check_in_workspace(start, "from")
     plan = tp.plan_move(MotionState.at_rest(start), args.to, speed_scale=args.speed_scale)
     sp = plan.setpoints  # verified at the planner's rate (--rate)
+    if sp is None:  # a move is always sampled by plan_move; only stop plans come without samples
+        sp = tp.sample(plan)
     if args.plot:
         plot_plan(args.plot, sp, tp)
     if args.json:
@@ -83,8 +85,10 @@ def _cmd_plan(args) -> int:
                     "duration": plan.duration,
                     "lower_bound": plan.lower_bound,
                     "rate": tp.rate,
-                    "actuator_velocity_max": dict(zip(ACTUATOR_NAMES, map(float, tp.limits.velocity))),
-                    "actuator_acceleration_max": dict(zip(ACTUATOR_NAMES, map(float, tp.limits.acceleration))),
+                    "actuator_velocity_max": dict(zip(ACTUATOR_NAMES, map(float, tp.limits.velocity), strict=True)),
+                    "actuator_acceleration_max": dict(
+                        zip(ACTUATOR_NAMES, map(float, tp.limits.acceleration), strict=True)
+                    ),
                     "samples": sp.to_json(),
                 }
             )
@@ -96,7 +100,8 @@ def _cmd_plan(args) -> int:
         f"{plan.duration / plan.lower_bound:.3f}), {len(sp.t)} samples at {tp.rate:g} Hz"
     )
     c.print(
-        "end pose: " + "  ".join(f"{k}={v:+.4f}" for k, v in zip(("x", "y", "z", "roll", "pitch", "yaw"), sp.pose[-1]))
+        "end pose: "
+        + "  ".join(f"{k}={v:+.4f}" for k, v in zip(("x", "y", "z", "roll", "pitch", "yaw"), sp.pose[-1], strict=True))
     )
     c.print(
         "peak |actuator velocity| / limit: "

@@ -1,4 +1,4 @@
-"""CLI commands of the Zenoh service (issue 7 §1, §4, §5).
+"""CLI commands of the Zenoh service: run it, and talk to a running one.
 
 ``hitch serve`` runs the service (embedded defaults; flags or ``--config FILE.toml``).
 Client commands talk to a running service over Zenoh, each with ``--connect ENDPOINT``
@@ -8,7 +8,8 @@ Client commands talk to a running service over Zenoh, each with ``--connect ENDP
 ``hitch goto|jog|stop|mode|state [--follow]``, ``hitch preset save|list|go|delete``,
 ``hitch maneuver validate|save|list|run|delete``, ``hitch fleet ls``.
 
-A refused request exits with status 2 and the service's message on one line.
+A refused request (:class:`~bridge.service.client.ServiceError`) exits with status 2 and the
+service's message on one line.
 """
 
 from __future__ import annotations
@@ -20,9 +21,11 @@ from pathlib import Path
 
 from rich.console import Console
 
+from bridge.cli.errors import CLIError
 from bridge.cli.model import finite_float
 from bridge.cli.plan import parse_pose_arg
 from bridge.service.config import DEFAULT_LISTEN, load_service_config
+from planner.errors import HitchError
 
 __all__ = ["add_commands"]
 
@@ -79,7 +82,7 @@ def _cmd_serve(args) -> int:
         for w in service.warnings:
             print(f"hitch serve: warning: {w}", file=sys.stderr)
         print(
-            f"hitch serve: ready on {', '.join(cfg.listen) or '(no listener)'}"
+            f"hitch serve: ready on {', '.join(cfg.listen or ()) or '(no listener)'}"
             f"{' connected to ' + ', '.join(cfg.connect) if cfg.connect else ''} prefix {cfg.prefix!r}, "
             f"data {cfg.database_path}",
             flush=True,
@@ -268,7 +271,7 @@ def _cmd_preset(args) -> int:
 def _read_script(path: str) -> str:
     p = Path(path)
     if not p.is_file():
-        raise ValueError(f"maneuver file {p} does not exist")
+        raise CLIError(f"maneuver file {p} does not exist")
     return p.read_text(encoding="utf-8")
 
 
@@ -326,7 +329,7 @@ def _cmd_fleet(args) -> int:
                         "mode": st.get("mode"),
                     }
                 )
-            except ValueError as exc:  # ServiceError: that service refused or did not answer
+            except HitchError as exc:  # ServiceError: that service refused or did not answer
                 rows.append({"prefix": prefix, "error": str(exc)})
         _print(
             args,

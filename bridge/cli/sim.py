@@ -55,8 +55,8 @@ def move_json(trace: MoveTrace, measured: MoveFigures, truth: MoveFigures) -> di
     simulation truth under ``truth``, plus the run's context."""
     return {
         "reference": trace.reference_kind,
-        "start": dict(zip(_POSE, map(float, trace.start))),
-        "goal": dict(zip(_POSE, map(float, trace.goal))),
+        "start": dict(zip(_POSE, map(float, trace.start), strict=True)),
+        "goal": dict(zip(_POSE, map(float, trace.goal), strict=True)),
         "plan_duration_s": trace.plan_duration_s,
         "run_duration_s": float(trace.t[-1]),
         **_figures_json(measured),
@@ -78,7 +78,7 @@ def plot_move(path: str, trace: MoveTrace, title: str = "") -> None:
 
     fig, ax = plt.subplots(4, 1, figsize=(10, 12), sharex=True, constrained_layout=True)
     t = trace.t
-    for k, (i, unit, scale) in enumerate(((0, "mm", 1e3), (1, "mm", 1e3), (2, "mrad", 1e3), (3, "mrad", 1e3))):
+    for i, unit, scale in ((0, "mm", 1e3), (1, "mm", 1e3), (2, "mrad", 1e3), (3, "mrad", 1e3)):
         a = ax[0] if i < 2 else ax[1]
         (line,) = a.plot(t, trace.planned[:, i] * scale, "--", lw=1, label=f"{_POSE[i]} planned")
         a.plot(t, trace.measured[:, i] * scale, color=line.get_color(), lw=1.5, label=f"{_POSE[i]} measured (CAN)")
@@ -195,7 +195,7 @@ def _cmd_ecu_sim(args) -> int:
         "claim": node.claim_state.value,
         "counters": node.counters.as_dict(),
         "watchdog_trips": ecu.watchdog.trip_count,
-        "measurement_counts": dict(zip(ACTUATOR_ORDER, map(int, ecu.measurement_counts()))),
+        "measurement_counts": dict(zip(ACTUATOR_ORDER, map(int, ecu.measurement_counts()), strict=True)),
     }
     print(json.dumps(summary) if args.json else summary)
     return 0

@@ -39,7 +39,7 @@ def _cmd_stability(args) -> int:
         ],
         "weakest_edge": d["weakest_edge"],
         "implement": None if implement is None else implement.name,
-        "pose": dict(zip(("x", "z", "roll", "pitch"), map(float, pose))),
+        "pose": dict(zip(("x", "z", "roll", "pitch"), map(float, pose), strict=True)),
         "slope": {"roll": args.slope_roll, "pitch": args.slope_pitch},
     }
     if args.json:
@@ -47,14 +47,16 @@ def _cmd_stability(args) -> int:
         return 0
     c = Console()
     c.print(
-        f"implement: {out['implement'] or 'none'}; slope roll {args.slope_roll:+.3f} rad, pitch {args.slope_pitch:+.3f} rad"
+        f"implement: {out['implement'] or 'none'}; "
+        f"slope roll {args.slope_roll:+.3f} rad, pitch {args.slope_pitch:+.3f} rad"
     )
     c.print(
         f"axle loads: front {out['axle_loads']['front']:.0f} N, rear {out['axle_loads']['rear']:.0f} N "
         f"(front share {out['front_axle_share'] * 100:.1f} %)"
     )
     c.print(
-        f"SSM {out['ssm']:.3f} m   LSM {out['lsm']:.3f} m   ESM {out['esm']:.0f} J   (weakest edge: {out['weakest_edge']})"
+        f"SSM {out['ssm']:.3f} m   LSM {out['lsm']:.3f} m   ESM {out['esm']:.0f} J   "
+        f"(weakest edge: {out['weakest_edge']})"
     )
     c.print(f"minimum front ballast (manual formula): {out['min_front_ballast']:.0f} kg")
     for v in out["violations"]:

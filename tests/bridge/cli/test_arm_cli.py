@@ -95,7 +95,10 @@ def test_ik_command_with_a_profile_whose_limits_exclude_every_solution(tmp_path)
     text = (resources.files("planner") / "profiles" / "arms" / "arm-source-example.toml").read_text(encoding="utf-8")
     # Shoulder limited to [-0.1, 0.1] rad: no solution of the worked example has |q2| that small.
     text = text.replace(
-        'name = "shoulder"           # source theta2, upper-arm elevation\ntype = "revolute"\na = 0.100                   # a2 = 100 mm\nalpha = 0.0\nd = 0.0\ntheta = 0.0\nlower = -3.141592653589793\nupper = 3.141592653589793',
+        'name = "shoulder"           # source theta2, upper-arm elevation\n'
+        'type = "revolute"\n'
+        "a = 0.100                   # a2 = 100 mm\n"
+        "alpha = 0.0\nd = 0.0\ntheta = 0.0\nlower = -3.141592653589793\nupper = 3.141592653589793",
         'name = "shoulder"\ntype = "revolute"\na = 0.100\nalpha = 0.0\nd = 0.0\ntheta = 0.0\nlower = -0.1\nupper = 0.1',
     )
     assert "lower = -0.1" in text

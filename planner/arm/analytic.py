@@ -41,6 +41,7 @@ import numpy as np
 
 from planner.arm.dh import DHChain, check_joint_vector, forward_kinematics, limit_violations
 from planner.arm.transforms import (
+    ArmInputError,
     check_rotation,
     homogeneous,
     invert_transform,
@@ -50,6 +51,7 @@ from planner.arm.transforms import (
     solve_euler_zyz,
     wrap_angle,
 )
+from planner.errors import HitchInputError
 
 __all__ = [
     "ArmStructureError",
@@ -70,17 +72,26 @@ _ZERO_A = (0, 2, 3, 4, 5)
 _ZERO_D = (1, 2, 4)
 #: Relative tolerance on |cos β| - 1 before a target counts as outside the workspace.
 _REACH_TOL = 1e-12
+Shoulder = Literal["right", "left"]
+Elbow = Literal["up", "down"]
+Wrist = Literal["I", "II"]
+#: Shoulder sides with the sign of the arm-plane distance ρ.
+_SHOULDERS: tuple[tuple[Shoulder, float], ...] = (("right", 1.0), ("left", -1.0))
+#: Elbow label of the two branches when the arm is stretched (sin β = 0).
+_STRETCHED_ELBOW: tuple[Elbow, Elbow] = ("down", "up")
+#: Wrist branch labels, in the order of :attr:`~planner.arm.transforms.ZYZSolution.branches`.
+_WRISTS: tuple[Wrist, Wrist] = ("I", "II")
 
 
-class ArmStructureError(ValueError):
+class ArmStructureError(HitchInputError):
     """The DH chain is not a 6R anthropomorphic arm with a spherical wrist."""
 
 
-class UnreachableTargetError(ValueError):
+class UnreachableTargetError(HitchInputError):
     """The target pose is outside the arm's workspace; the message gives the reason."""
 
 
-class NoAdmissibleSolutionError(ValueError):
+class NoAdmissibleSolutionError(HitchInputError):
     """Every analytic solution violates a joint limit; the message lists them."""
 
 
@@ -142,9 +153,9 @@ class ArmIKSolution:
     """
 
     joints: tuple[float, ...]
-    shoulder: Literal["right", "left"]
-    elbow: Literal["up", "down"]
-    wrist: Literal["I", "II"]
+    shoulder: Shoulder
+    elbow: Elbow
+    wrist: Wrist
     within_limits: bool
     wrist_singular: bool
     position_error: float
@@ -204,9 +215,9 @@ def _vec3(value, name: str) -> np.ndarray:
     try:
         v = np.array(value, dtype=float).reshape(-1)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be 3 numbers [m], got {value!r}") from None
+        raise ArmInputError(f"{name} must be 3 numbers [m], got {value!r}") from None
     if v.size != 3 or not np.all(np.isfinite(v)):
-        raise ValueError(f"{name} must be 3 finite numbers (x, y, z) [m], got {v.tolist()}")
+        raise ArmInputError(f"{name} must be 3 finite numbers (x, y, z) [m], got {v.tolist()}")
     return v
 
 
@@ -223,9 +234,14 @@ def _fit_joint(angle: float, lower: float, upper: float, reference: float) -> fl
 
 
 def _fit_joints(chain: DHChain, q: Sequence[float], reference: np.ndarray) -> tuple[tuple[float, ...], bool]:
-    fitted = [_fit_joint(x, link.lower, link.upper, r) for x, link, r in zip(q, chain.links, reference)]
-    if any(x is None for x in fitted):
-        return tuple(float(x) for x in q), False
+    """Each joint's 2π-equivalent inside its limits nearest ``reference``, and True; or ``q``
+    unchanged and False when some joint has none."""
+    fitted: list[float] = []
+    for x, link, r in zip(q, chain.links, reference, strict=True):
+        f = _fit_joint(x, link.lower, link.upper, r)
+        if f is None:
+            return tuple(float(v) for v in q), False
+        fitted.append(f)
     return tuple(float(x) for x in fitted), True
 
 
@@ -309,7 +325,7 @@ def solve_arm_ik(
     theta1 = (ref[0] + off[0]) if shoulder_singular else math.atan2(y, x)
 
     solutions = []
-    for shoulder, sigma in (("right", 1.0), ("left", -1.0)):
+    for shoulder, sigma in _SHOULDERS:
         t1 = theta1 if sigma > 0 else theta1 + math.pi
         rho = sigma * rho0
         for branch, sb in enumerate((s_abs, -s_abs)):
@@ -317,16 +333,16 @@ def solve_arm_ik(
             t2 = math.atan2(z, rho) - math.atan2(d4 * sb, a2 + d4 * c)
             t3 = beta + _HALF_PI
             # Elbow above the shoulder-wrist line <=> sigma * sin(beta) < 0 (stretched: by branch).
-            elbow = ("up" if sigma * sb < 0 else "down") if sb != 0.0 else ("down", "up")[branch]
+            elbow: Elbow = ("up" if sigma * sb < 0 else "down") if sb != 0.0 else _STRETCHED_ELBOW[branch]
             R03 = (
                 chain.links[0].transform(t1 - off[0])
                 @ chain.links[1].transform(t2 - off[1])
                 @ chain.links[2].transform(t3 - off[2])
             )[:3, :3]
             zyz = solve_euler_zyz(R03.T @ R06, reference_phi=ref[3] + off[3], atol=max(rotation_tol, 1e-9))
-            for wrist, angles in zip(("I", "II"), zyz.branches):
+            for wrist, angles in zip(_WRISTS, zyz.branches, strict=False):  # one branch when wrist-singular
                 theta = (t1, t2, t3, angles.phi, angles.theta, angles.psi)
-                q = [wrap_angle(th - o) for th, o in zip(theta, off)]
+                q = [wrap_angle(th - o) for th, o in zip(theta, off, strict=True)]
                 joints, ok = _fit_joints(chain, q, ref)
                 frames = forward_kinematics(chain, joints)
                 solutions.append(
@@ -362,7 +378,7 @@ def select_nearest_solution(
     ref = check_joint_vector(chain, reference, "reference")
     w = np.ones(6) if weights is None else check_joint_vector(chain, weights, "weights")
     if np.any(w < 0):
-        raise ValueError(f"weights must be >= 0, got {w.tolist()}")
+        raise ArmInputError(f"weights must be >= 0, got {w.tolist()}")
     if not result.reachable:
         raise UnreachableTargetError(result.reason)
     best, best_cost = None, math.inf

@@ -30,7 +30,8 @@ from typing import Literal
 import casadi as ca
 import numpy as np
 
-from planner.arm.transforms import check_transform, homogeneous_ca, rotx_ca, rotz_ca
+from planner.arm.transforms import ArmInputError, check_transform, homogeneous_ca, rotx_ca, rotz_ca
+from planner.errors import HitchInputError
 
 __all__ = [
     "JointKind",
@@ -56,7 +57,7 @@ _MAX_REVOLUTE = 2.0 * math.pi
 _MAX_LENGTH = 100.0
 
 
-class JointLimitError(ValueError):
+class JointLimitError(HitchInputError):
     """A joint vector outside the chain's joint limits; the message names joint, value, range."""
 
 
@@ -97,25 +98,26 @@ class DHLink:
             try:
                 v = float(v)
             except (TypeError, ValueError):
-                raise ValueError(f"{label}.{f} must be a number, got {v!r}") from None
+                raise ArmInputError(f"{label}.{f} must be a number, got {v!r}") from None
             if not math.isfinite(v):
-                raise ValueError(f"{label}.{f} must be finite, got {v}")
+                raise ArmInputError(f"{label}.{f} must be finite, got {v}")
             object.__setattr__(self, f, v)
         if self.kind not in _KINDS:
-            raise ValueError(f"{label}.kind must be one of {_KINDS}, got {self.kind!r}")
+            raise ArmInputError(f"{label}.kind must be one of {_KINDS}, got {self.kind!r}")
         for f in ("a", "d"):
             if abs(getattr(self, f)) > _MAX_LENGTH:
-                raise ValueError(f"{label}.{f} = {getattr(self, f)} m is outside the allowed ±{_MAX_LENGTH} m")
+                raise ArmInputError(f"{label}.{f} = {getattr(self, f)} m is outside the allowed ±{_MAX_LENGTH} m")
         for f in ("alpha", "theta"):
             if abs(getattr(self, f)) > 2.0 * math.pi:
-                raise ValueError(f"{label}.{f} = {getattr(self, f)} rad is outside the allowed ±2π")
+                raise ArmInputError(f"{label}.{f} = {getattr(self, f)} rad is outside the allowed ±2π")
         if not self.lower < self.upper:
-            raise ValueError(f"{label}: joint limits need lower < upper, got [{self.lower}, {self.upper}]")
+            raise ArmInputError(f"{label}: joint limits need lower < upper, got [{self.lower}, {self.upper}]")
         bound = _MAX_REVOLUTE if self.kind == "revolute" else _MAX_LENGTH
         unit = "rad" if self.kind == "revolute" else "m"
         if abs(self.lower) > bound or abs(self.upper) > bound:
-            raise ValueError(
-                f"{label}: {self.kind} joint limits [{self.lower}, {self.upper}] {unit} must lie within ±{bound:.6g} {unit}"
+            raise ArmInputError(
+                f"{label}: {self.kind} joint limits [{self.lower}, {self.upper}] {unit} "
+                f"must lie within ±{bound:.6g} {unit}"
             )
 
     def parameters(self, q: float) -> tuple[float, float, float, float]:
@@ -191,15 +193,15 @@ def build_dh_chain(links: Sequence[DHLink], *, base=None, tool=None) -> DHChain:
     """
     links = tuple(links)
     if not links:
-        raise ValueError("links: a chain needs at least one link")
+        raise ArmInputError("links: a chain needs at least one link")
     named = []
     for i, link in enumerate(links, start=1):
         if not isinstance(link, DHLink):
-            raise ValueError(f"links[{i - 1}] must be a DHLink, got {type(link).__name__}")
+            raise ArmInputError(f"links[{i - 1}] must be a DHLink, got {type(link).__name__}")
         named.append(link if link.name else DHLink(**{**link.__dict__, "name": f"joint{i}"}))
     names = [link.name for link in named]
     if len(set(names)) != len(names):
-        raise ValueError(f"links: joint names must be unique, got {names}")
+        raise ArmInputError(f"links: joint names must be unique, got {names}")
     B = _readonly(check_transform(np.eye(4) if base is None else base, "base"))
     T = _readonly(check_transform(np.eye(4) if tool is None else tool, "tool"))
     return DHChain(tuple(named), B, T)
@@ -210,13 +212,13 @@ def check_joint_vector(chain: DHChain, q, name: str = "q") -> np.ndarray:
     try:
         v = np.array(q, dtype=float).reshape(-1)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be {chain.n} joint values, got {q!r}") from None
+        raise ArmInputError(f"{name} must be {chain.n} joint values, got {q!r}") from None
     if v.size != chain.n:
-        raise ValueError(f"{name} must have {chain.n} joint values ({', '.join(chain.names)}), got {v.size}")
+        raise ArmInputError(f"{name} must have {chain.n} joint values ({', '.join(chain.names)}), got {v.size}")
     bad = np.flatnonzero(~np.isfinite(v))
     if bad.size:
         i = int(bad[0])
-        raise ValueError(f"{name}[{i}] ({chain.links[i].name}) must be finite, got {v[i]}")
+        raise ArmInputError(f"{name}[{i}] ({chain.links[i].name}) must be finite, got {v[i]}")
     return v
 
 
@@ -224,7 +226,7 @@ def limit_violations(chain: DHChain, q, *, tol: float = 0.0) -> tuple[str, ...]:
     """Human-readable list of joint-limit violations of ``q`` (empty when within limits)."""
     v = check_joint_vector(chain, q)
     out = []
-    for link, x in zip(chain.links, v):
+    for link, x in zip(chain.links, v, strict=True):
         if x < link.lower - tol or x > link.upper + tol:
             unit = "rad" if link.kind == "revolute" else "m"
             out.append(f"{link.name} = {x:.6g} {unit} outside [{link.lower:.6g}, {link.upper:.6g}]")
@@ -272,7 +274,7 @@ def forward_kinematics(chain: DHChain, q, *, check_limits: bool = False) -> Chai
             raise JointLimitError("joint limits violated: " + "; ".join(bad))
     T = np.array(chain.base)
     frames = [_readonly(T)]
-    for link, x in zip(chain.links, v):
+    for link, x in zip(chain.links, v, strict=True):
         T = T @ link.transform(x)
         frames.append(_readonly(T))
     frames.append(_readonly(T @ chain.tool))

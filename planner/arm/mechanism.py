@@ -1,4 +1,4 @@
-"""A Denavit–Hartenberg arm as a :class:`~planner.ik_qp.mechanism.Mechanism` (issue 8).
+"""A Denavit–Hartenberg arm as a :class:`~planner.ik_qp.mechanism.Mechanism` of the SQP core.
 
 Task: the tool pose as t(q) = [p (3); vec(R) (9)] — position [m] and the rotation matrix.
 Its error target − t weights the position and the chordal distance ‖R_target − R‖_F, a

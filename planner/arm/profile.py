@@ -33,6 +33,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from planner.arm.dh import DHChain, DHLink, build_dh_chain
 from planner.arm.transforms import euler_zyz_matrix, homogeneous
+from planner.errors import HitchInputError
 from planner.profiles.loader import builtin_profiles, check_profile_name, format_validation_error, read_profile
 
 __all__ = [
@@ -52,7 +53,7 @@ _TWO_PI = 2.0 * math.pi
 _MAX_LENGTH = 100.0
 
 
-class ArmProfileError(ValueError):
+class ArmProfileError(HitchInputError):
     """An arm profile that cannot be used; the message names field, value and allowed range."""
 
 
@@ -76,25 +77,27 @@ class JointSpec(_Strict):
     @classmethod
     def _length(cls, v: float, info) -> float:
         if abs(v) > _MAX_LENGTH:
-            raise ValueError(f"{info.field_name} = {v} m is outside the allowed [-{_MAX_LENGTH:g}, {_MAX_LENGTH:g}] m")
+            raise ArmProfileError(
+                f"{info.field_name} = {v} m is outside the allowed [-{_MAX_LENGTH:g}, {_MAX_LENGTH:g}] m"
+            )
         return v
 
     @field_validator("alpha", "theta")
     @classmethod
     def _angle(cls, v: float, info) -> float:
         if abs(v) > _TWO_PI:
-            raise ValueError(f"{info.field_name} = {v} rad is outside the allowed [-2π, 2π] rad")
+            raise ArmProfileError(f"{info.field_name} = {v} rad is outside the allowed [-2π, 2π] rad")
         return v
 
     @model_validator(mode="after")
     def _limits(self):
         if not self.lower < self.upper:
-            raise ValueError(f"joint {self.name!r}: limits need lower < upper (got [{self.lower}, {self.upper}])")
+            raise ArmProfileError(f"joint {self.name!r}: limits need lower < upper (got [{self.lower}, {self.upper}])")
         bound, unit = (_TWO_PI, "rad") if self.type == "revolute" else (_MAX_LENGTH, "m")
         for side in ("lower", "upper"):
             v = getattr(self, side)
             if abs(v) > bound:
-                raise ValueError(
+                raise ArmProfileError(
                     f"joint {self.name!r}: {side} = {v} {unit} is outside the allowed ±{bound:.6g} {unit} "
                     f"for a {self.type} joint"
                 )
@@ -114,14 +117,14 @@ class FrameSpec(_Strict):
     @classmethod
     def _position(cls, v: list[float]) -> list[float]:
         if not all(math.isfinite(x) and abs(x) <= _MAX_LENGTH for x in v):
-            raise ValueError(f"position components must be finite and within ±{_MAX_LENGTH:g} m")
+            raise ArmProfileError(f"position components must be finite and within ±{_MAX_LENGTH:g} m")
         return v
 
     @field_validator("zyz")
     @classmethod
     def _zyz(cls, v: list[float]) -> list[float]:
         if not all(math.isfinite(x) and abs(x) <= _TWO_PI for x in v):
-            raise ValueError("zyz angles must be finite and within ±2π rad")
+            raise ArmProfileError("zyz angles must be finite and within ±2π rad")
         return v
 
     def transform(self):
@@ -148,7 +151,7 @@ class ArmProfile(_Strict):
         names = [j.name for j in self.joints]
         dup = sorted({n for n in names if names.count(n) > 1})
         if dup:
-            raise ValueError(f"joint names must be unique; repeated: {', '.join(dup)}")
+            raise ArmProfileError(f"joint names must be unique; repeated: {', '.join(dup)}")
         return self
 
     def chain(self) -> DHChain:

@@ -1,7 +1,7 @@
 """Rotations and homogeneous transforms: elementary rotations, ZYZ Euler angles, SE(3) helpers.
 
-Conventions (those of the serial-arm source, ``seeds/001_6102af73ed73f2a9.txt``; equation
-numbers are written ``(arm thesis 2.7)``):
+Conventions (those of the serial-arm source, a Tampere bachelor's thesis, see ``docs/arm.md``;
+equation numbers are written ``(arm thesis 2.7)``):
 
 * A rotation matrix holds the axes of the moving frame as *columns*, expressed in the
   reference frame (arm thesis 2.6). Post-multiplying rotates about the moving frame's own
@@ -25,7 +25,10 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from planner.errors import HitchInputError
+
 __all__ = [
+    "ArmInputError",
     "RotationMatrixError",
     "rotx",
     "roty",
@@ -57,7 +60,12 @@ __all__ = [
 _NEAR_SINGULAR = 1e-4
 
 
-class RotationMatrixError(ValueError):
+class ArmInputError(HitchInputError):
+    """A malformed argument to the serial-arm code (not a number, wrong size, not finite, out of
+    range); the message names the field and what is allowed."""
+
+
+class RotationMatrixError(HitchInputError):
     """A matrix that should be a rotation (or a homogeneous transform) is not one."""
 
 
@@ -65,9 +73,9 @@ def _angle(value, name: str) -> float:
     try:
         a = float(value)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number [rad], got {value!r}") from None
+        raise ArmInputError(f"{name} must be a number [rad], got {value!r}") from None
     if not math.isfinite(a):
-        raise ValueError(f"{name} must be a finite angle [rad], got {a}")
+        raise ArmInputError(f"{name} must be a finite angle [rad], got {a}")
     return a
 
 
@@ -114,11 +122,11 @@ def _vector3(value, name: str) -> np.ndarray:
     try:
         v = np.array(value, dtype=float).reshape(-1)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be 3 numbers [m], got {value!r}") from None
+        raise ArmInputError(f"{name} must be 3 numbers [m], got {value!r}") from None
     if v.size != 3:
-        raise ValueError(f"{name} must have 3 components (x, y, z) [m], got {v.size}")
+        raise ArmInputError(f"{name} must have 3 components (x, y, z) [m], got {v.size}")
     if not np.all(np.isfinite(v)):
-        raise ValueError(f"{name} must be finite, got {v.tolist()}")
+        raise ArmInputError(f"{name} must be finite, got {v.tolist()}")
     return v
 
 
@@ -340,7 +348,7 @@ def solve_euler_zyz(
     R = check_rotation(R, "R", atol=atol)
     ref = _angle(reference_phi, "reference_phi")
     if not (0.0 <= singular_tol < 1.0):
-        raise ValueError(f"singular_tol must lie in [0, 1), got {singular_tol}")
+        raise ArmInputError(f"singular_tol must lie in [0, 1), got {singular_tol}")
     r13, r23, r33 = R[0, 2], R[1, 2], R[2, 2]
     st = math.hypot(r13, r23)
     if st <= singular_tol:

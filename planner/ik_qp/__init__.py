@@ -1,5 +1,6 @@
-"""Inverse kinematics as a constrained QP (issue 3): the mechanism-agnostic SQP core and the hitch IK."""
+"""Inverse kinematics as a constrained QP: the mechanism-agnostic SQP core and the hitch IK."""
 
+from planner.ik_qp.errors import IKInputError
 from planner.ik_qp.hitch_ik import BACKENDS, IKSolver, default_weights
 from planner.ik_qp.mechanism import Mechanism, build_mechanism
 from planner.ik_qp.problem import IKProblem, IKSolution, TaskBounds, build_ik_problem
@@ -8,6 +9,7 @@ from planner.ik_qp.sqp import SQPSettings, SQPSolver
 
 __all__ = [
     "BACKENDS",
+    "IKInputError",
     "IKSolver",
     "default_weights",
     "Mechanism",

@@ -51,10 +51,10 @@ def _build_angle_space(model: HitchModel):
     """θ = (θxl, θxr, θzl, θzr) → s = [x_T, z_T, α, |L−R|], J = ∂s/∂θ (thesis 2.46, 2.50), ends, yaw."""
     prof = model.profile
     left, right = side_geometry(prof, LEFT), side_geometry(prof, RIGHT)
-    l = prof.geometry.lower_link_length
+    l_vv = prof.geometry.lower_link_length
     th = ca.SX.sym("theta", 4)
-    L = ca.DM(left.pivot) + l * link_direction(th[0], th[2])
-    R = ca.DM(right.pivot) + l * link_direction(th[1], th[3])
+    L = ca.DM(left.pivot) + l_vv * link_direction(th[0], th[2])
+    R = ca.DM(right.pivot) + l_vv * link_direction(th[1], th[3])
     T = (L + R) / 2
     v = L - R
     s = ca.vertcat(T[0], T[2], ca.atan2(-v[2], v[0]), ca.norm_2(v))
@@ -144,16 +144,16 @@ class GeometricIK(_Baseline):
     def solve(self, target_pose) -> IKResult:
         t0 = time.perf_counter()
         x, z, roll, pitch = check_target(target_pose)
-        l, span = self.model.profile.geometry.lower_link_length, self.model.span
+        l_vv, span = self.model.profile.geometry.lower_link_length, self.model.span
         tz0 = abs(self.neutral_theta[3])  # θ_z0: start-pose deviation of the links from y (2.36)
-        a = math.asin(max(-1.0, min(1.0, x / l)))
-        b = math.asin(max(-1.0, min(1.0, span * (1 - math.cos(roll)) / (2 * l))))
+        a = math.asin(max(-1.0, min(1.0, x / l_vv)))
+        b = math.asin(max(-1.0, min(1.0, span * (1 - math.cos(roll)) / (2 * l_vv))))
         tzr, tzl = -a + b + tz0, -a - b - tz0  # (thesis 2.36)
         _, _, _, yaw, _, _ = self._s(self.theta)  # previous cycle (2.37)
         gamma = float(yaw[0, 0])
         h = span * math.cos(gamma) * math.sin(roll) / 2  # (thesis 2.38)
-        txl = math.asin(max(-1.0, min(1.0, (z - h) / l)))  # (thesis 2.39)
-        txr = math.asin(max(-1.0, min(1.0, (z + h) / l)))
+        txl = math.asin(max(-1.0, min(1.0, (z - h) / l_vv)))  # (thesis 2.39)
+        txr = math.asin(max(-1.0, min(1.0, (z + h) / l_vv)))
         theta = np.array([txl, txr, tzl, tzr])
         _, _, T, yaw_new, _, _ = self._s(theta)
         d, _ = self._top(np.array([x, z, roll, pitch]), np.array([T[1, 0], gamma]))  # (thesis 2.40-2.42)
@@ -211,7 +211,8 @@ class HybridIK(_Baseline):
         st = self.settings
         theta = self.theta.copy()
         k = 0
-        for k in range(1, st.max_iterations + 1):
+        for _ in range(st.max_iterations):
+            k += 1
             dtheta, e, _, _, _ = self._dls_step(theta, target)
             theta = theta + st.step * dtheta
             if np.max(np.abs(e)) < st.margin:

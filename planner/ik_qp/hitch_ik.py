@@ -13,12 +13,15 @@ one solution per pose, so a small change of target gives a small change of actua
 from __future__ import annotations
 
 import time
+from collections.abc import Iterable, Mapping
 from dataclasses import replace
 
 import numpy as np
+from numpy.typing import ArrayLike
 
+from planner.ik_qp.errors import IKInputError
 from planner.ik_qp.hitch_mechanism import build_hitch_mechanism
-from planner.ik_qp.problem import build_ik_problem
+from planner.ik_qp.problem import IKProblem, build_ik_problem
 from planner.ik_qp.result import IKResult, Target, check_target
 from planner.ik_qp.sqp import SQPSettings, SQPSolver
 from planner.model.exact_inverse import ExactInverse
@@ -52,29 +55,35 @@ class IKSolver:
         seed_strategy: str = "closed_form",
     ):
         if backend not in BACKENDS:
-            raise ValueError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
+            raise IKInputError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
         self.model = model
         self.limits = limits or HardLimits.from_model(model)
         self.mechanism = build_hitch_mechanism(model, self.limits)
         self.sqp = SQPSolver(self.mechanism, backend=backend, settings=settings or SQPSettings())
         self.use_workspace = use_workspace
         if use_workspace and model.workspace is None:
-            raise ValueError(
+            raise IKInputError(
                 f"use_workspace: profile {model.profile.name} has no restricted workspace for category {model.category}"
             )
         if seed_strategy not in ("closed_form", "last"):
-            raise ValueError(f"seed_strategy must be 'closed_form' or 'last', got {seed_strategy!r}")
+            raise IKInputError(f"seed_strategy must be 'closed_form' or 'last', got {seed_strategy!r}")
         self.seed_strategy = seed_strategy
         self.inverse = ExactInverse(model)
         self.weights = default_weights(model)
         self.last = model.neutral.copy()
-        self._problems: dict = {}
+        self._problems: dict[tuple[bytes, bool], IKProblem] = {}
 
-    def reset(self, actuators=None) -> None:
+    def reset(self, actuators: ArrayLike | None = None) -> None:
         """Forget the warm start (next solve starts from ``actuators`` or the neutral pose)."""
         self.last = self.model.neutral.copy() if actuators is None else np.asarray(actuators, dtype=float).copy()
 
-    def solve(self, target, seed=None, *, use_workspace: bool | None = None) -> IKResult:
+    def solve(
+        self,
+        target: Target | Mapping[str, float] | Iterable[float],
+        seed: Actuators | ArrayLike | None = None,
+        *,
+        use_workspace: bool | None = None,
+    ) -> IKResult:
         """Solve for a :class:`~planner.ik_qp.result.Target` (or mapping / 4 numbers).
 
         ``seed``: actuators to start from (default: the last solution). Raises ValueError
@@ -113,7 +122,7 @@ class IKSolver:
             extra={"weighted_residual": sol.residual, "at_bound": sol.at_bound, "violation": sol.violation},
         )
 
-    def _problem(self, target: np.ndarray, weights: np.ndarray, use_workspace: bool):
+    def _problem(self, target: np.ndarray, weights: np.ndarray, use_workspace: bool) -> IKProblem:
         """The validated problem for these weights and bounds, reused with only the target replaced
         (the target was validated by :func:`check_target`)."""
         key = (weights.tobytes(), use_workspace)
@@ -125,7 +134,7 @@ class IKSolver:
             return cached
         return replace(cached, target=target)
 
-    def _default_seed(self, x, z, roll, pitch) -> np.ndarray:
+    def _default_seed(self, x: float, z: float, roll: float, pitch: float) -> np.ndarray:
         """The closed-form inverse clipped into the strokes (then the SQP only certifies or
         corrects it), falling back to the last solution when the closed form has none."""
         if self.seed_strategy == "closed_form":
@@ -136,8 +145,8 @@ class IKSolver:
                 pass
         return self.last
 
-    def _seed(self, seed) -> np.ndarray:
+    def _seed(self, seed: Actuators | ArrayLike) -> np.ndarray:
         q = seed.as_array() if isinstance(seed, Actuators) else np.asarray(seed, dtype=float).reshape(-1)
         if q.size != 5 or not np.all(np.isfinite(q)):
-            raise ValueError("seed must be 5 finite actuator values (lift, tilt, top, left, right)")
+            raise IKInputError("seed must be 5 finite actuator values (lift, tilt, top, left, right)")
         return np.clip(q, self.limits.actuator_lower, self.limits.actuator_upper)

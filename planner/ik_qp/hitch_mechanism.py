@@ -14,6 +14,7 @@ import casadi as ca
 from planner.ik_qp.mechanism import Mechanism
 from planner.model.hard_limits import FEATURE_LIMIT_ROWS, HardLimits
 from planner.model.kinematics import FEATURE_NAMES, HitchModel
+from planner.model.limit_names import LimitName
 from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
 
 __all__ = ["build_hitch_mechanism", "TASK_ROWS"]
@@ -23,13 +24,14 @@ TASK_ROWS = tuple(FEATURE_NAMES.index(n) for n in CONTROLLED_POSE_NAMES)
 
 
 def build_hitch_mechanism(model: HitchModel, limits: HardLimits | None = None) -> Mechanism:
+    """The hitch of ``model`` as a mechanism, with the hard limits ``limits`` (default: the model's)."""
     limits = limits or HardLimits.from_model(model)
     sym = model.symbolic
     q, f, jac = sym.q, sym.features, sym.jacobian
     span_row = FEATURE_NAMES.index("lower_span")
     ineq_rows = list(limits.feature_index)
 
-    def fn(label, rows, offset=0.0):
+    def fn(label: str, rows: list[int], offset: float = 0.0) -> ca.Function:
         return ca.Function(f"hitch_{label}", [q], [f[rows] - offset, jac[rows, :]])
 
     return Mechanism(
@@ -45,5 +47,8 @@ def build_hitch_mechanism(model: HitchModel, limits: HardLimits | None = None) -
         inequality_names=tuple(r[0] for r in FEATURE_LIMIT_ROWS),
         g_lower=limits.feature_lower,
         g_upper=limits.feature_upper,
-        inequality_side_names=tuple((r[1], r[2] or f"{r[0]}_max") for r in FEATURE_LIMIT_ROWS),
+        # the clearance rows have no upper bound; their never-reached max sides are named z_<side>_end_max
+        inequality_side_names=tuple(
+            (r[1], r[2] or str(LimitName(r[0], side="max", flat=True))) for r in FEATURE_LIMIT_ROWS
+        ),
     )

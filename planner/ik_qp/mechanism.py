@@ -27,10 +27,12 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import TypeVar
 
 import casadi as ca
 import numpy as np
 
+from planner.ik_qp.errors import IKInputError
 from planner.model.fast_function import FastFunction
 
 #: Default trust region per SQP iteration as a fraction of each finite stroke.
@@ -50,15 +52,17 @@ __all__ = [
 
 #: ``error(target, t) -> e``: task error with ``e(q + dq) ≈ e(q) − J dq`` (default ``target − t``).
 TaskError = Callable[[np.ndarray, np.ndarray], np.ndarray]
+#: A CasADi symbolic type; all expressions given to :func:`build_mechanism` share one.
+Symbolic = TypeVar("Symbolic", ca.SX, ca.MX)
 
 
 def _names(value, field_name: str) -> tuple[str, ...]:
     names = tuple(value)
     for name in names:
         if not isinstance(name, str) or not name:
-            raise ValueError(f"{field_name}: every name must be a non-empty string, got {name!r}")
+            raise IKInputError(f"{field_name}: every name must be a non-empty string, got {name!r}")
     if len(set(names)) != len(names):
-        raise ValueError(f"{field_name}: names must be unique, got {names}")
+        raise IKInputError(f"{field_name}: names must be unique, got {names}")
     return names
 
 
@@ -66,26 +70,26 @@ def _vector(value, size: int, field_name: str, *, allow_inf: bool) -> np.ndarray
     try:
         arr = np.array(value, dtype=float).reshape(-1)
     except (TypeError, ValueError):
-        raise ValueError(f"{field_name}: expected {size} numbers, got {value!r}") from None
+        raise IKInputError(f"{field_name}: expected {size} numbers, got {value!r}") from None
     if arr.size != size:
-        raise ValueError(f"{field_name}: expected {size} values, got {arr.size}")
+        raise IKInputError(f"{field_name}: expected {size} values, got {arr.size}")
     bad = np.isnan(arr) if allow_inf else ~np.isfinite(arr)
     if bad.any():
         allowed = "numbers or ±inf" if allow_inf else "finite numbers"
-        raise ValueError(f"{field_name}[{int(np.flatnonzero(bad)[0])}] must be {allowed}, got {arr[bad][0]}")
+        raise IKInputError(f"{field_name}[{int(np.flatnonzero(bad)[0])}] must be {allowed}, got {arr[bad][0]}")
     arr.setflags(write=False)
     return arr
 
 
 def _check_function(fn, n: int, rows: int, field_name: str) -> None:
     if not isinstance(fn, ca.Function):
-        raise ValueError(f"{field_name}: expected a casadi.Function, got {type(fn).__name__}")
+        raise IKInputError(f"{field_name}: expected a casadi.Function, got {type(fn).__name__}")
     if fn.n_in() != 1 or fn.size1_in(0) * fn.size2_in(0) != n:
-        raise ValueError(f"{field_name}: must take one input of {n} values (the actuator vector)")
+        raise IKInputError(f"{field_name}: must take one input of {n} values (the actuator vector)")
     if fn.n_out() < 2:
-        raise ValueError(f"{field_name}: must return (value ({rows}x1), jacobian ({rows}x{n}))")
+        raise IKInputError(f"{field_name}: must return (value ({rows}x1), jacobian ({rows}x{n}))")
     if fn.size_out(0) != (rows, 1) or fn.size_out(1) != (rows, n):
-        raise ValueError(
+        raise IKInputError(
             f"{field_name}: outputs must be ({rows}x1) and ({rows}x{n}), got {fn.size_out(0)} and {fn.size_out(1)}"
         )
 
@@ -135,30 +139,32 @@ class Mechanism:
     def __post_init__(self) -> None:
         set_ = object.__setattr__
         if not isinstance(self.name, str) or not self.name:
-            raise ValueError(f"name: must be a non-empty string, got {self.name!r}")
+            raise IKInputError(f"name: must be a non-empty string, got {self.name!r}")
         set_(self, "actuator_names", _names(self.actuator_names, "actuator_names"))
         n = len(self.actuator_names)
         if n == 0:
-            raise ValueError("actuator_names: a mechanism needs at least one actuator")
+            raise IKInputError("actuator_names: a mechanism needs at least one actuator")
         set_(self, "lower", _vector(self.lower, n, "lower", allow_inf=True))
         set_(self, "upper", _vector(self.upper, n, "upper", allow_inf=True))
         bad = np.flatnonzero(self.lower > self.upper)
         if bad.size:
             i = int(bad[0])
-            raise ValueError(f"lower[{i}] ({self.actuator_names[i]}) = {self.lower[i]} exceeds upper = {self.upper[i]}")
+            raise IKInputError(
+                f"lower[{i}] ({self.actuator_names[i]}) = {self.lower[i]} exceeds upper = {self.upper[i]}"
+            )
         set_(self, "task_names", _names(self.task_names, "task_names"))
         if not self.task_names:
-            raise ValueError("task_names: a mechanism needs at least one task row")
+            raise IKInputError("task_names: a mechanism needs at least one task row")
         _check_function(self.task, n, len(self.task_names), "task")
         set_(self, "equality_names", _names(self.equality_names, "equality_names"))
         if self.equality is None and self.equality_names:
-            raise ValueError("equality_names: given without an equality function")
+            raise IKInputError("equality_names: given without an equality function")
         if self.equality is not None:
             _check_function(self.equality, n, len(self.equality_names), "equality")
         set_(self, "inequality_names", _names(self.inequality_names, "inequality_names"))
         r = len(self.inequality_names)
         if self.inequality is None and r:
-            raise ValueError("inequality_names: given without an inequality function")
+            raise IKInputError("inequality_names: given without an inequality function")
         if self.inequality is not None:
             _check_function(self.inequality, n, r, "inequality")
         set_(self, "g_lower", _vector(self.g_lower, r, "g_lower", allow_inf=True))
@@ -166,15 +172,15 @@ class Mechanism:
         bad = np.flatnonzero(self.g_lower > self.g_upper)
         if bad.size:
             i = int(bad[0])
-            raise ValueError(
+            raise IKInputError(
                 f"g_lower[{i}] ({self.inequality_names[i]}) = {self.g_lower[i]} exceeds g_upper = {self.g_upper[i]}"
             )
         if self.task_error is not None and not callable(self.task_error):
-            raise ValueError("task_error: must be callable error(target, t) -> e")
+            raise IKInputError("task_error: must be callable error(target, t) -> e")
         if self.inequality_side_names is not None:
             pairs = tuple((str(a), str(b)) for a, b in self.inequality_side_names)
             if len(pairs) != r:
-                raise ValueError(f"inequality_side_names: expected {r} (min, max) pairs, got {len(pairs)}")
+                raise IKInputError(f"inequality_side_names: expected {r} (min, max) pairs, got {len(pairs)}")
             set_(self, "inequality_side_names", pairs)
 
     # ------------------------------------------------------------------ sizes
@@ -275,21 +281,21 @@ class Mechanism:
             return ca.Function(fn.name(), ins, outs, in_names, names, {"cse": True})
         # Task, equality and inequality often share one model graph: eliminate the common
         # subexpressions (3x fewer instructions on the hitch, ~5 µs instead of ~16 µs).
-        return ca.Function(sx.name(), sx.sx_in(), sx(*sx.sx_in()), in_names, names, {"cse": True})
+        return ca.Function(sx.name(), sx.sx_in(), sx.call(sx.sx_in()), in_names, names, {"cse": True})
 
 
 def build_mechanism(
     name: str,
-    q: ca.SX | ca.MX,
-    task: ca.SX | ca.MX,
+    q: Symbolic,
+    task: Symbolic,
     *,
     actuator_names: Sequence[str],
     lower,
     upper,
     task_names: Sequence[str],
-    equality: ca.SX | ca.MX | None = None,
+    equality: Symbolic | None = None,
     equality_names: Sequence[str] = (),
-    inequality: ca.SX | ca.MX | None = None,
+    inequality: Symbolic | None = None,
     inequality_names: Sequence[str] = (),
     g_lower=(),
     g_upper=(),
@@ -301,9 +307,9 @@ def build_mechanism(
     Jacobians come from CasADi automatic differentiation (dense).
     """
 
-    def fn(label: str, expr):
-        expr = ca.vec(expr)
-        return ca.Function(f"{name}_{label}", [q], [ca.densify(expr), ca.densify(ca.jacobian(expr, q))])
+    def fn(label: str, expr: Symbolic) -> ca.Function:
+        v = ca.vec(expr)
+        return ca.Function(f"{name}_{label}", [q], [ca.densify(v), ca.densify(ca.jacobian(v, q))])
 
     return Mechanism(
         name=name,

@@ -15,6 +15,7 @@ from typing import Literal
 
 import numpy as np
 
+from planner.ik_qp.errors import IKInputError
 from planner.ik_qp.mechanism import Mechanism
 
 __all__ = [
@@ -43,21 +44,21 @@ def check_vector(value, size: int, field_name: str, *, allow_inf: bool = False) 
     """A read-only float array of shape ``(size,)`` ((size, 1) and (1, size) accepted), all
     finite (or ±inf with ``allow_inf``); else ``ValueError`` naming ``field_name``."""
     if isinstance(value, (str, bytes)):
-        raise ValueError(f"{field_name}: expected {size} numbers, got a string")
+        raise IKInputError(f"{field_name}: expected {size} numbers, got a string")
     try:
         arr = np.array(value, dtype=float)
     except (TypeError, ValueError):
-        raise ValueError(f"{field_name}: expected {size} numbers, got {value!r}") from None
+        raise IKInputError(f"{field_name}: expected {size} numbers, got {value!r}") from None
     if arr.shape != (size,):
         if arr.size == size and arr.ndim == 2 and 1 in arr.shape:
             arr = arr.reshape(-1)
         else:
-            raise ValueError(f"{field_name}: expected shape ({size},), got {arr.shape}")
+            raise IKInputError(f"{field_name}: expected shape ({size},), got {arr.shape}")
     ok = not np.isnan(arr).any() if allow_inf else np.isfinite(arr).all()
     if not ok:
         i = int(np.flatnonzero(np.isnan(arr) if allow_inf else ~np.isfinite(arr))[0])
         allowed = "a number or ±inf" if allow_inf else "a finite number"
-        raise ValueError(f"{field_name}[{i}] must be {allowed}, got {arr[i]}")
+        raise IKInputError(f"{field_name}[{i}] must be {allowed}, got {arr[i]}")
     return _readonly(arr)
 
 
@@ -66,7 +67,7 @@ class TaskBounds:
     """Extra hard bounds ``lower <= t(q) <= upper`` on task values (e.g. a workspace box).
 
     Rows with both sides infinite are not constraints. Active sides are reported as
-    ``<label>:<task name>:min|max`` (e.g. ``workspace:x:max``).
+    ``<label>:<task name>:min|max`` (e.g. ``workspace:x:max``); the label has no ``:``.
     """
 
     lower: np.ndarray
@@ -93,26 +94,30 @@ def build_task_bounds(
         lower, upper = np.full(m, -np.inf), np.full(m, np.inf)
         for key, pair in bounds.items():
             if key not in mechanism.task_names:
-                raise ValueError(f"task_bounds: unknown task {key!r}; allowed: {', '.join(mechanism.task_names)}")
+                raise IKInputError(f"task_bounds: unknown task {key!r}; allowed: {', '.join(mechanism.task_names)}")
             try:
                 lo, hi = (float(v) for v in pair)
             except (TypeError, ValueError):
-                raise ValueError(f"task_bounds[{key!r}]: expected (lower, upper) numbers, got {pair!r}") from None
+                raise IKInputError(f"task_bounds[{key!r}]: expected (lower, upper) numbers, got {pair!r}") from None
             i = mechanism.task_names.index(key)
             lower[i], upper[i] = lo, hi
     else:
         try:
             lower, upper = bounds
         except (TypeError, ValueError):
-            raise ValueError("task_bounds: expected a mapping {task: (lo, hi)} or a pair (lower, upper)") from None
+            raise IKInputError("task_bounds: expected a mapping {task: (lo, hi)} or a pair (lower, upper)") from None
     lower = check_vector(lower, m, "task_bounds.lower", allow_inf=True)
     upper = check_vector(upper, m, "task_bounds.upper", allow_inf=True)
     bad = np.flatnonzero(lower > upper)
     if bad.size:
         i = int(bad[0])
-        raise ValueError(f"task_bounds[{mechanism.task_names[i]!r}]: lower {lower[i]} exceeds upper {upper[i]}")
+        raise IKInputError(f"task_bounds[{mechanism.task_names[i]!r}]: lower {lower[i]} exceeds upper {upper[i]}")
     if not isinstance(label, str) or not label:
-        raise ValueError(f"task_bounds.label: must be a non-empty string, got {label!r}")
+        raise IKInputError(f"task_bounds.label: must be a non-empty string, got {label!r}")
+    if ":" in label:
+        raise IKInputError(
+            f"task_bounds.label: must not contain ':' (limits are named <label>:<task>:min|max), got {label!r}"
+        )
     return TaskBounds(lower=lower, upper=upper, label=label)
 
 
@@ -147,7 +152,7 @@ class IKProblem:
 
     @property
     def extra_bounds(self) -> TaskBounds | None:
-        """Alias of :attr:`task_bounds` (the name used in issue 3's interface sketch)."""
+        """Alias of :attr:`task_bounds` (the name of the original interface sketch)."""
         return self.task_bounds
 
 
@@ -182,27 +187,27 @@ def build_ik_problem(
         ValueError: naming the offending field and its allowed range.
     """
     if not isinstance(mechanism, Mechanism):
-        raise ValueError(f"mechanism: expected a Mechanism, got {type(mechanism).__name__}")
+        raise IKInputError(f"mechanism: expected a Mechanism, got {type(mechanism).__name__}")
     m, n = mechanism.m, mechanism.n
     target = check_vector(target, m, "target")
     w = np.ones(m) if weights is None else np.array(check_vector(weights, m, "weights"))
     if w.min() < 0:
         i = int(np.flatnonzero(w < 0)[0])
-        raise ValueError(f"weights[{i}] ({mechanism.task_names[i]}) must be >= 0, got {w[i]}")
+        raise IKInputError(f"weights[{i}] ({mechanism.task_names[i]}) must be >= 0, got {w[i]}")
     if active_tasks is not None:
         mask = np.array(active_tasks)
         if mask.shape != (m,) or mask.dtype != bool:
-            raise ValueError(f"active_tasks: expected a boolean mask of shape ({m},), got {mask.dtype} {mask.shape}")
+            raise IKInputError(f"active_tasks: expected a boolean mask of shape ({m},), got {mask.dtype} {mask.shape}")
         w[~mask] = 0.0
     if not w.max() > 0:
-        raise ValueError("weights: at least one task must have a positive weight")
+        raise IKInputError("weights: at least one task must have a positive weight")
     if (
         isinstance(damping, bool)
         or not isinstance(damping, (int, float, np.floating))
         or not np.isfinite(damping)
         or damping <= 0
     ):
-        raise ValueError(f"damping: must be a finite number > 0, got {damping!r}")
+        raise IKInputError(f"damping: must be a finite number > 0, got {damping!r}")
     if max_step is None:
         step = mechanism.default_max_step
     else:
@@ -210,7 +215,7 @@ def build_ik_problem(
         step = np.array(check_vector(step, n, "max_step"))
         if (step <= 0).any():
             i = int(np.flatnonzero(step <= 0)[0])
-            raise ValueError(f"max_step[{i}] ({mechanism.actuator_names[i]}) must be > 0, got {step[i]}")
+            raise IKInputError(f"max_step[{i}] ({mechanism.actuator_names[i]}) must be > 0, got {step[i]}")
     bounds = build_task_bounds(mechanism, task_bounds) if task_bounds is not None else None
     if bounds is not None and bounds.rows.size == 0:
         bounds = None

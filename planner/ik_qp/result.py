@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
 
+from planner.ik_qp.errors import IKInputError
 from planner.model.types import Actuators, Pose
 
 __all__ = ["Target", "IKResult", "check_target"]
@@ -17,16 +19,16 @@ _TARGET_FIELDS = ("x", "z", "roll", "pitch")
 _TARGET_RANGE = {"x": 10.0, "z": 10.0, "roll": math.pi / 2, "pitch": math.pi / 2}
 
 
-def _finite(name: str, value) -> float:
+def _finite(name: str, value: object) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
-        raise ValueError(f"{name} must be a number, got {type(value).__name__} {value!r}")
+        raise IKInputError(f"{name} must be a number, got {type(value).__name__} {value!r}")
     v = float(value)
     if not math.isfinite(v):
-        raise ValueError(f"{name} must be finite, got {v}")
+        raise IKInputError(f"{name} must be finite, got {v}")
     lim = _TARGET_RANGE[name]
     if abs(v) > lim:
         unit = "m" if name in ("x", "z") else "rad"
-        raise ValueError(f"{name} = {v} is outside the accepted range ±{lim:.4g} {unit}")
+        raise IKInputError(f"{name} = {v} is outside the accepted range ±{lim:.4g} {unit}")
     return v
 
 
@@ -51,34 +53,36 @@ class Target:
         if self.weights is not None:
             w = tuple(self.weights)
             if len(w) != 4:
-                raise ValueError(f"weights must have 4 values (x, z, roll, pitch), got {len(w)}")
-            for n, v in zip(_TARGET_FIELDS, w):
+                raise IKInputError(f"weights must have 4 values (x, z, roll, pitch), got {len(w)}")
+            for n, v in zip(_TARGET_FIELDS, w, strict=True):
                 if isinstance(v, bool) or not isinstance(v, (int, float, np.floating)) or not math.isfinite(v) or v < 0:
-                    raise ValueError(f"weights.{n} must be a finite number >= 0, got {v!r}")
+                    raise IKInputError(f"weights.{n} must be a finite number >= 0, got {v!r}")
             if not any(v > 0 for v in w):
-                raise ValueError("weights: at least one weight must be > 0")
+                raise IKInputError("weights: at least one weight must be > 0")
             object.__setattr__(self, "weights", tuple(float(v) for v in w))
 
     def as_array(self) -> np.ndarray:
         return np.array([self.x, self.z, self.roll, self.pitch])
 
 
-def check_target(target) -> tuple[float, float, float, float]:
+def check_target(target: Target | Mapping[str, float] | Iterable[float]) -> tuple[float, float, float, float]:
     """(x, z, roll, pitch) from a :class:`Target`, a mapping or a 4-sequence; ValueError naming the field."""
     if isinstance(target, Target):
         return target.x, target.z, target.roll, target.pitch
     if isinstance(target, dict):
         missing = [n for n in _TARGET_FIELDS if n not in target]
         if missing:
-            raise ValueError(f"target: missing field(s) {', '.join(missing)}")
-        return tuple(_finite(n, target[n]) for n in _TARGET_FIELDS)  # type: ignore[return-value]
+            raise IKInputError(f"target: missing field(s) {', '.join(missing)}")
+        v = [_finite(n, target[n]) for n in _TARGET_FIELDS]
+        return v[0], v[1], v[2], v[3]
     try:
         vals = list(target)
     except TypeError:
-        raise ValueError(f"target must be a Target, a mapping or 4 numbers, got {type(target).__name__}") from None
+        raise IKInputError(f"target must be a Target, a mapping or 4 numbers, got {type(target).__name__}") from None
     if len(vals) != 4:
-        raise ValueError(f"target needs 4 values (x, z, roll, pitch), got {len(vals)}")
-    return tuple(_finite(n, v) for n, v in zip(_TARGET_FIELDS, vals))  # type: ignore[return-value]
+        raise IKInputError(f"target needs 4 values (x, z, roll, pitch), got {len(vals)}")
+    v = [_finite(n, x) for n, x in zip(_TARGET_FIELDS, vals, strict=True)]
+    return v[0], v[1], v[2], v[3]
 
 
 @dataclass(frozen=True)

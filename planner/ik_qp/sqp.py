@@ -1,4 +1,4 @@
-"""The SQP inverse-kinematics solver: one QP per iteration, ℓ1-merit line search (issue 3 §1).
+"""The SQP inverse-kinematics solver: one QP per iteration, ℓ1-merit line search.
 
 Iteration ``k`` at actuators ``q``:
 
@@ -32,12 +32,16 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from planner.ik_qp.backends import QP_INFINITY, QPBackend, QPData, make_backend
+from planner.ik_qp.errors import IKInputError
 from planner.ik_qp.mechanism import LagrangianCurvature, LinearisationPoint, Mechanism
-from planner.ik_qp.problem import IKProblem, IKSolution, check_vector
+from planner.ik_qp.problem import IKProblem, IKSolution, Status, check_vector
+from planner.model.limit_names import LimitName
 
 __all__ = ["SQPSolver", "SQPSettings"]
 
@@ -79,13 +83,62 @@ class SQPSettings:
         for name, v in vars(self).items():
             if name in ("max_iterations", "max_backtracks"):
                 if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                    raise ValueError(f"{name}: must be an integer >= 1, got {v!r}")
+                    raise IKInputError(f"{name}: must be an integer >= 1, got {v!r}")
             elif isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-                raise ValueError(f"{name}: must be a finite number > 0, got {v!r}")
+                raise IKInputError(f"{name}: must be a finite number > 0, got {v!r}")
         if not self.armijo < 0.5:
-            raise ValueError(f"armijo: must be in (0, 0.5), got {self.armijo!r}")
+            raise IKInputError(f"armijo: must be in (0, 0.5), got {self.armijo!r}")
         if self.min_damping > self.max_damping:
-            raise ValueError("min_damping: must not exceed max_damping")
+            raise IKInputError("min_damping: must not exceed max_damping")
+
+
+@dataclass(frozen=True)
+class _QPStep:
+    """One solved QP at the current point (:meth:`SQPSolver._step`).
+
+    Attributes:
+        d: Step ``(n,)`` [actuator units].
+        y: Multipliers ``(n + k,)`` of the box rows and the constraint rows ``c`` (OSQP signs,
+            in the units of the unscaled QP).
+        v_lin: ℓ1 violation of the linearised constraints ``c + C d`` [constraint units];
+            0 for the main QP (it meets them).
+        elastic: The step comes from the restoration (elastic) QP.
+        scale: Expected step size ``s`` the QP was posed in (``d / s`` is O(1)) [actuator units].
+    """
+
+    d: np.ndarray
+    y: np.ndarray
+    v_lin: float
+    elastic: bool
+    scale: float
+
+
+@dataclass(frozen=True)
+class _MeritModel:
+    """The exact-penalty merit of one iteration, ``M(q) = ‖W e(q)‖ + ν ‖violation(q)‖₁``.
+
+    Attributes:
+        value: ``M`` at the current point [weighted task units].
+        predicted: Decrease of ``M`` the QP model predicts for the full step (none left: stationary).
+        penalty: ``ν`` [weighted task units per constraint unit].
+    """
+
+    value: float
+    predicted: float
+    penalty: float
+
+    def at(self, point: LinearisationPoint) -> float:
+        """``M`` at a loaded point."""
+        return point.res + self.penalty * point.v1
+
+
+@dataclass(frozen=True)
+class _LimitReport:
+    """Limit names at the solution: ``at_bound`` within ``active_tol``; ``active`` also carry a
+    multiplier pushing against the bound (those that stop an out-of-reach target)."""
+
+    active: tuple[str, ...]
+    at_bound: tuple[str, ...]
 
 
 class _Layout:
@@ -97,23 +150,28 @@ class _Layout:
         n, self.p, self.r = mech.n, mech.p, mech.r
         self.rows = rows
         self.k = k = self.p + self.r + rows.size
+        tasks = [mech.task_names[i] for i in rows.tolist()]
+        # inequality rows keep the mechanism's own names (any string); task bounds and strokes
+        # are named as LimitName spells them: <label>:<task>:min|max, stroke:<actuator>:min|max
         side = list(mech.limit_names()) + [
-            (f"{label}:{mech.task_names[i]}:min", f"{label}:{mech.task_names[i]}:max") for i in rows
+            (str(LimitName(label, t, "min")), str(LimitName(label, t, "max"))) for t in tasks
         ]
         # Indexed like the QP rows (strokes, equalities, inequalities, task bounds);
         # equalities are no limits and have no names.
         self.names_min = (
-            tuple(f"stroke:{a}:min" for a in mech.actuator_names) + ("",) * self.p + tuple(s[0] for s in side)
+            tuple(str(LimitName("stroke", a, "min")) for a in mech.actuator_names)
+            + ("",) * self.p
+            + tuple(s[0] for s in side)
         )
         self.names_max = (
-            tuple(f"stroke:{a}:max" for a in mech.actuator_names) + ("",) * self.p + tuple(s[1] for s in side)
+            tuple(str(LimitName("stroke", a, "max")) for a in mech.actuator_names)
+            + ("",) * self.p
+            + tuple(s[1] for s in side)
         )
-        self.row_names = (
-            mech.equality_names + mech.inequality_names + tuple(f"{label}:{mech.task_names[i]}" for i in rows)
-        )
+        self.row_names = mech.equality_names + mech.inequality_names + tuple(str(LimitName(label, t)) for t in tasks)
         self.cl = np.concatenate([np.zeros(self.p), mech.g_lower, np.zeros(rows.size)])
         self.cu = np.concatenate([np.zeros(self.p), mech.g_upper, np.zeros(rows.size)])
-        fn = mech.linearisation_function(rows)
+        fn = mech.linearisation_function(rows.tolist())
         self.points = (LinearisationPoint(mech, fn), LinearisationPoint(mech, fn))
         self.curvature = LagrangianCurvature(n)
         self.main = QPData(n, n + k)
@@ -125,9 +183,9 @@ class _Layout:
 
     def set_problem(self, problem: IKProblem) -> None:
         """Bind the target, weights and (changing) task-bound values of ``problem``."""
-        if self.rows.size:
+        tb = problem.task_bounds
+        if tb is not None and self.rows.size:
             pr = self.p + self.r
-            tb = problem.task_bounds
             self.cl[pr:], self.cu[pr:] = tb.lower[self.rows], tb.upper[self.rows]
         for point in self.points:
             point.set_problem(problem.target, problem.weights, self.cl, self.cu, problem.max_step)
@@ -154,23 +212,23 @@ class SQPSolver:
         *,
         backend: str = "osqp",
         settings: SQPSettings | None = None,
-        backend_options: dict | None = None,
-        **overrides,
+        backend_options: dict[str, Any] | None = None,
+        **overrides: Any,
     ):
         if not isinstance(mechanism, Mechanism):
-            raise ValueError(f"mechanism: expected a Mechanism, got {type(mechanism).__name__}")
+            raise IKInputError(f"mechanism: expected a Mechanism, got {type(mechanism).__name__}")
         if settings is not None and not isinstance(settings, SQPSettings):
-            raise ValueError(f"settings: expected SQPSettings, got {type(settings).__name__}")
+            raise IKInputError(f"settings: expected SQPSettings, got {type(settings).__name__}")
         unknown = set(overrides) - set(SQPSettings.__dataclass_fields__)
         if unknown:
-            raise ValueError(
+            raise IKInputError(
                 f"SQPSolver: unknown setting(s) {sorted(unknown)}; allowed: "
                 f"{', '.join(SQPSettings.__dataclass_fields__)}"
             )
         self.settings: SQPSettings = replace(settings or SQPSettings(), **overrides)
         self.mechanism = mechanism
         self.backend: QPBackend = make_backend(backend, **(backend_options or {}))
-        self._layouts: dict[tuple, _Layout] = {}
+        self._layouts: dict[tuple[tuple[int, ...], str], _Layout] = {}
         self.last_q: np.ndarray | None = None
         lo, hi = mechanism.lower, mechanism.upper
         both = np.isfinite(lo) & np.isfinite(hi)
@@ -181,14 +239,14 @@ class SQPSolver:
         """Forget the last solution (the next solve without seed starts mid-stroke)."""
         self.last_q = None
 
-    def solve(self, problem: IKProblem, seed=None) -> IKSolution:
+    def solve(self, problem: IKProblem, seed: ArrayLike | None = None) -> IKSolution:
         """Solve ``problem`` from ``seed`` (``(n,)``, clipped into the strokes), else from the
         last solution, else from mid-stroke."""
         t_start = time.perf_counter()
         if not isinstance(problem, IKProblem):
-            raise ValueError(f"problem: expected an IKProblem (see build_ik_problem), got {type(problem).__name__}")
+            raise IKInputError(f"problem: expected an IKProblem (see build_ik_problem), got {type(problem).__name__}")
         if problem.mechanism is not self.mechanism:
-            raise ValueError(
+            raise IKInputError(
                 f"problem: built for mechanism {problem.mechanism.name!r}, this solver is for {self.mechanism.name!r}"
             )
         st = self.settings
@@ -219,24 +277,23 @@ class SQPSolver:
                     reason = f"QP backend {self.backend.name!r} failed at every damping"
                     break
                 continue
-            d, y_last, v_lin, elastic, scale = step
+            d, y_last = step.d, step.y
             # ‖W (e − J d)‖ of the quadratic model (Gauss–Newton terms, plus S when used).
             quad = d @ cur.H0 @ d + (d @ curv.S @ d if use_curv else 0.0)
             model = math.sqrt(max(cur.res * cur.res - 2.0 * (cur.g @ d) + quad, 0.0))
-            increase, drop = model - cur.res, cur.v1 - v_lin
+            increase, drop = model - cur.res, cur.v1 - step.v_lin
             if use_curv and increase > 0.0:  # S made a poor model: back to Gauss–Newton
                 use_curv = False
                 curv.reset()
                 continue
             if drop > 0.0 and increase > 0.0:
                 nu = max(nu, 2.0 * increase / drop)
-            pred = nu * max(drop, 0.0) - increase
-            merit = cur.res + nu * cur.v1
+            merit = _MeritModel(cur.res + nu * cur.v1, nu * max(drop, 0.0) - increase, nu)
             d_norm = float(np.abs(d).max())
-            if d_norm <= st.step_tol * max(1.0, cur.q_inf) or pred <= 1e-15 * max(merit, 1e-300):
+            if d_norm <= st.step_tol * max(1.0, cur.q_inf) or merit.predicted <= 1e-15 * max(merit.value, 1e-300):
                 stationary = True
                 break
-            alpha = self._line_search(problem, lay, cur, trial, d, merit, pred, nu, elastic, scale)
+            alpha = self._line_search(lay, cur, trial, step, merit)
             if alpha > 0.0:
                 cur, trial = trial, cur
                 if use_curv and alpha < 1.0:  # the curvature estimate misleads: Gauss–Newton
@@ -245,17 +302,17 @@ class SQPSolver:
                 elif alpha == 1.0 and d_norm > 0.1 * d_prev and float(np.abs(d / problem.max_step).max()) < 0.5:
                     # Local, linear convergence to a non-zero residual (out of reach, curved
                     # active limits): learn and use the curvature Gauss–Newton misses.
-                    curv.update(cur, trial, y_last[n:])
+                    curv.update(cur, trial, step.y[n:])
                     use_curv = curv.pairs > 0 and cur.res > 0.3 * trial.res
                 d_prev = d_norm
                 if alpha < 1.0:
                     mu = min(mu * 4.0, st.max_damping)
-                elif merit - (cur.res + nu * cur.v1) > 0.75 * pred:
+                elif merit.value - merit.at(cur) > 0.75 * merit.predicted:
                     mu = max(mu * 0.25, st.min_damping)
             elif use_curv:  # the curvature estimate misled: back to Gauss–Newton
                 use_curv = False
                 curv.reset()
-            elif pred <= 1e-10 * merit:  # no decrease possible at working precision
+            elif merit.predicted <= 1e-10 * merit.value:  # no decrease possible at working precision
                 stationary = True
                 break
             else:
@@ -268,14 +325,14 @@ class SQPSolver:
         tb = problem.task_bounds
         rows = tb.rows if tb is not None else np.zeros(0, dtype=np.intp)
         label = tb.label if tb is not None else ""
-        key = (tuple(rows), label)
+        key = (tuple(rows.tolist()), label)
         lay = self._layouts.get(key)
         if lay is None:
             lay = self._layouts[key] = _Layout(self.mechanism, rows, label)
         lay.set_problem(problem)
         return lay
 
-    def _start(self, seed, cur: LinearisationPoint) -> bool:
+    def _start(self, seed: ArrayLike | None, cur: LinearisationPoint) -> bool:
         """Load the first valid start among the seed (or the last solution) and mid-stroke."""
         mech = self.mechanism
         candidates: list[np.ndarray] = []
@@ -291,8 +348,11 @@ class SQPSolver:
         np.maximum(q, self.mechanism.lower, out=q)
         return np.minimum(q, self.mechanism.upper, out=q)
 
-    def _step(self, problem: IKProblem, lay: _Layout, cur: LinearisationPoint, lam: float, S=None):
-        """Solve the QP at ``cur``: ``(d, y (n+k), linearised ℓ1 violation, elastic?, s)`` or ``None``.
+    def _step(
+        self, problem: IKProblem, lay: _Layout, cur: LinearisationPoint, lam: float, S: np.ndarray | None = None
+    ) -> _QPStep | None:
+        """Solve the QP at ``cur`` with damping ``lam`` (and curvature estimate ``S`` (n, n) when
+        given): the step, or ``None`` when no QP could be solved.
 
         The QP is posed in ``d / s`` with ``s`` the expected step size, so its data are O(1)
         at every iteration and the backend's tolerances act relative to the step.
@@ -324,7 +384,7 @@ class SQPSolver:
         np.minimum(qp.u[:n], _TRUST_CAP, out=qp.u[:n])
         res = self.backend.solve(qp, "main")
         if res.solved:
-            return res.x[:n] * scale, res.y * scale, 0.0, False, scale
+            return _QPStep(res.x[:n] * scale, res.y * scale, 0.0, False, scale)
         if not k or S is not None or (res.status != "infeasible" and cur.vinf <= self.settings.feasibility_tol):
             return None  # numerical failure (or curvature step): no restoration
         # Restoration: elastic QP, slacks t >= 0 with |violation of c + C d| <= t, cost rho·Σt.
@@ -345,47 +405,51 @@ class SQPSolver:
         lin = cur.c + cur.C @ d
         v_lin = float(np.maximum(np.maximum(lay.cl - lin, lin - lay.cu), 0.0).sum())
         y = np.concatenate([res.y[:n], res.y[n + k : n + 2 * k] + res.y[n + 2 * k :]]) * scale
-        return d, y, v_lin, True, scale
+        return _QPStep(d, y, v_lin, True, scale)
 
-    def _line_search(self, problem, lay, cur, trial, d, merit, pred, nu, elastic, scale) -> float:
+    def _line_search(
+        self, lay: _Layout, cur: LinearisationPoint, trial: LinearisationPoint, step: _QPStep, merit: _MeritModel
+    ) -> float:
         """Backtracking on the merit with one second-order correction; the accepted point is
         left in ``trial``. Returns the step fraction, 0 on failure."""
         st = self.settings
         alpha = 1.0
         for _ in range(st.max_backtracks):
             q_try = self._q_try
-            np.multiply(d, alpha, out=q_try)
+            np.multiply(step.d, alpha, out=q_try)
             q_try += cur.q
             if trial.load(self._clip(q_try)):
-                if merit - (trial.res + nu * trial.v1) >= st.armijo * alpha * pred:
+                if merit.value - merit.at(trial) >= st.armijo * alpha * merit.predicted:
                     return alpha
-                if alpha == 1.0 and lay.k and not elastic and trial.v1 > cur.v1:
-                    q_soc = self._second_order_correction(lay, cur, trial, d, scale)
+                if alpha == 1.0 and lay.k and not step.elastic and trial.v1 > cur.v1:
+                    q_soc = self._second_order_correction(lay, cur, trial, step)
                     if (
                         q_soc is not None
                         and trial.load(q_soc)
-                        and merit - (trial.res + nu * trial.v1) >= st.armijo * pred
+                        and merit.value - merit.at(trial) >= st.armijo * merit.predicted
                     ):
                         return 1.0
             alpha *= 0.5
         return 0.0
 
-    def _second_order_correction(self, lay, cur, trial, d, scale):
-        """Re-solve the QP with the constraints shifted by their curvature along ``d``
+    def _second_order_correction(
+        self, lay: _Layout, cur: LinearisationPoint, trial: LinearisationPoint, step: _QPStep
+    ) -> np.ndarray | None:
+        """Re-solve the QP with the constraints shifted by their curvature along ``step.d``
         (``c(q + d) − C d`` for ``c``): counters the Maratos effect (Nocedal & Wright §18.3)."""
         n, qp = self.mechanism.n, lay.main
         # trial.l0[n:] = cl − c(q + d), so cl − (c(q + d) − C d) = trial.l0[n:] + C d
-        shift = cur.C @ d
-        np.multiply(trial.l0[n:] + shift, 1.0 / scale, out=qp.l[n:])
-        np.multiply(trial.u0[n:] + shift, 1.0 / scale, out=qp.u[n:])
+        shift = cur.C @ step.d
+        np.multiply(trial.l0[n:] + shift, 1.0 / step.scale, out=qp.l[n:])
+        np.multiply(trial.u0[n:] + shift, 1.0 / step.scale, out=qp.u[n:])
         res = self.backend.solve(qp, "main", matrices_changed=False)
         if not res.solved:
             return None
-        return self._clip(cur.q + res.x[:n] * scale)
+        return self._clip(cur.q + res.x[:n] * step.scale)
 
-    def _limits(self, lay: _Layout, cur: LinearisationPoint, y, use_duals: bool):
-        """``(active, at_bound)`` limit names at ``cur``: at bound within ``active_tol``;
-        active also needs a multiplier pushing against the bound (last QP)."""
+    def _limits(self, lay: _Layout, cur: LinearisationPoint, y: np.ndarray | None, use_duals: bool) -> _LimitReport:
+        """Limit names at ``cur``: at bound within ``active_tol``; active also needs a multiplier
+        ``y`` of the last QP pushing against the bound."""
         mech, tol, n, p = self.mechanism, self.settings.active_tol, self.mechanism.n, lay.p
         lo = np.flatnonzero(cur.q - mech.lower <= tol).tolist()
         hi = np.flatnonzero(mech.upper - cur.q <= tol).tolist()
@@ -394,14 +458,25 @@ class SQPSolver:
             hi += (np.flatnonzero(lay.cu[p:] - cur.c[p:] <= tol) + n + p).tolist()
         at_bound = tuple(lay.names_min[i] for i in lo) + tuple(lay.names_max[i] for i in hi)
         if not (use_duals and y is not None and at_bound):
-            return (), at_bound
+            return _LimitReport((), at_bound)
         # Multipliers balance the task gradient JᵀW²e; much smaller ones are solver noise.
         noise = 1e-7 * max(float(np.abs(cur.g).max()), 1e-300)
         active = tuple(lay.names_min[i] for i in lo if y[i] < -noise)
-        return active + tuple(lay.names_max[i] for i in hi if y[i] > noise), at_bound
+        return _LimitReport(active + tuple(lay.names_max[i] for i in hi if y[i] > noise), at_bound)
 
-    def _finish(self, problem, lay, cur, y, iterations, stationary, reason, t_start) -> IKSolution:
+    def _finish(
+        self,
+        problem: IKProblem,
+        lay: _Layout,
+        cur: LinearisationPoint,
+        y: np.ndarray | None,
+        iterations: int,
+        stationary: bool,
+        reason: str,
+        t_start: float,
+    ) -> IKSolution:
         st = self.settings
+        status: Status
         if cur.vinf > st.feasibility_tol:
             status = "failed"
             worst = int(np.argmax(np.maximum(lay.cl - cur.c, cur.c - lay.cu)))
@@ -417,7 +492,8 @@ class SQPSolver:
                 if stationary
                 else f"{reason or 'stopped'} before convergence, weighted residual {cur.res:.3g}"
             )
-        active, at_bound = self._limits(lay, cur, y, use_duals=status == "limited")
+        limits = self._limits(lay, cur, y, use_duals=status == "limited")
+        active, at_bound = limits.active, limits.at_bound
         if status == "limited":
             reason += f"; stopped by {', '.join(active)}" if active else "; no limit active (mechanism reach)"
         return IKSolution(
@@ -434,6 +510,6 @@ class SQPSolver:
             at_bound=at_bound,
         )
 
-    def _no_valid_point(self, seed, t_start: float) -> IKSolution:
+    def _no_valid_point(self, seed: ArrayLike | None, t_start: float) -> IKSolution:
         q = self._clip(self._mid.copy() if seed is None else np.array(seed, dtype=float).reshape(-1))
         return IKSolution.without_valid_start(self.mechanism, q, time.perf_counter() - t_start)

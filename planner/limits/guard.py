@@ -1,4 +1,4 @@
-"""The guard every motion passes through: limits and tractor stability, evaluated ahead (issue 5).
+"""The guard every motion passes through: limits and tractor stability, evaluated ahead.
 
 :class:`Guard` takes a plan (or a jog command) and returns it unchanged, scaled or
 refused with reasons. For a plan it evaluates every sample before anything moves:
@@ -6,7 +6,7 @@ refused with reasons. For a plan it evaluates every sample before anything moves
 * free workspace: strokes, top-link angles, ground clearance (the samples are already
   verified by the planner) and the profile's keep-out spheres for the top link;
 * the end-stop zone: velocity scaled down so no actuator reaches an end stop at speed;
-* tractor + implement stability for the current slope (seed 003 / RELATED.md B):
+* tractor + implement stability for the current slope (seed 003):
   below a caution threshold the motion is slowed (factor 0.8); a plan that would cross
   a hard threshold is refused, naming the measure, the value, the threshold and the time
   in the plan — unless the motion improves a margin that is already low (never makes
@@ -23,16 +23,19 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from planner.limits.end_stop import EndStopZone
 from planner.limits.kinematic_margin import KinematicMargin, kinematic_margin
 from planner.limits.stability import StabilityReport, StabilityThresholds, evaluate_stability
 from planner.limits.stability_batch import StabilityBatch, evaluate_stability_batch
-from planner.limits.tractor import ImplementRecord, Tractor, load_tractor_profile
+from planner.limits.tractor import ImplementRecord, StabilityInputError, Tractor, load_tractor_profile
 from planner.model.fast_function import FastFunction
 from planner.model.kinematics import POINT_NAMES, HitchModel
+from planner.model.limit_names import LimitName
 from planner.model.types import ACTUATOR_NAMES
-from planner.trajectory import MotionState, Plan, PlanError, Setpoints, TrajectoryPlanner
+from planner.trajectory.plan import MotionState, Plan, PlanError, Setpoints
+from planner.trajectory.planner import TrajectoryPlanner
 
 __all__ = ["Guard", "GuardDecision", "GuardReason", "GuardRefusal", "GuardedPlan"]
 
@@ -41,6 +44,10 @@ _MEASURES = ("front_axle_load", "ssm", "lsm", "esm")
 _FK_CHUNK = 64  # samples per call of the mapped forward kinematics
 _FK_CLOSED_M = 0.5e-9  # closure residual [m] trusted in a batch (HitchModel.forward refuses > 1e-9)
 _KEEP_OUT_TOL_M = 1e-10  # bound on |batch - per-sample| keep-out distance [m] (rounding ~1e-15 m)
+#: ``end_stop:<actuator>`` per actuator, order ACTUATOR_NAMES.
+_END_STOP_NAMES: tuple[str, ...] = tuple(str(LimitName("end_stop", n)) for n in ACTUATOR_NAMES)
+#: per sample: keep-out clearances (name, distance [m], radius [m]) and the stability report
+_Exact = tuple[list[tuple[str, float, float]], StabilityReport]
 
 
 @dataclass(frozen=True)
@@ -125,6 +132,7 @@ class Guard:
             self.model.lower, self.model.upper, planner.limits.velocity, prof.limits.end_stop_zone
         )
         self.keep_out = [(k.name, np.array(k.centre), k.radius) for k in prof.limits.keep_out]
+        self._keep_out_names = tuple(str(LimitName("keep_out", k.name)) for k in prof.limits.keep_out)
         self._points_map = FastFunction(self.model.points_function.map(_FK_CHUNK))
 
     # ------------------------------------------------------------------ configuration
@@ -132,7 +140,7 @@ class Guard:
         """Tractor attitude from its IMU [rad] (stability module convention)."""
         for n, v in (("slope_roll", roll), ("slope_pitch", pitch)):
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or abs(v) >= math.pi / 2:
-                raise ValueError(f"{n} must be a finite angle within ±π/2 rad, got {v!r}")
+                raise StabilityInputError(f"{n} must be a finite angle within ±π/2 rad, got {v!r}")
         self.slope = (float(roll), float(pitch))
 
     def set_implement(self, implement: ImplementRecord | None) -> None:
@@ -199,7 +207,7 @@ class Guard:
         Sm = S - 1e-9
         cache = {Q[0].tobytes(): (self.keep_out_clearance(Q[0]), start)}
 
-        def exact(k: int) -> tuple[list, StabilityReport]:  # the per-sample path: keep-out clearances, report
+        def exact(k: int) -> _Exact:  # the per-sample path: keep-out clearances, report
             key = Q[k].tobytes()
             if key not in cache:
                 pts = self.model.forward(Q[k]).points
@@ -220,7 +228,7 @@ class Guard:
             near = (np.abs(vals - H) <= tol) | (np.abs(vals - C) <= tol)
             near |= ((S < C) | (S < H)) & (np.abs(vals - Sm) <= tol)
             check |= near.any(axis=1)
-        for k in np.flatnonzero(check):  # in sample order: the first failing sample raises, as before
+        for k in np.flatnonzero(check).tolist():  # in sample order: the first failing sample raises, as before
             clear, rep = exact(k)
             dist[:, k] = [d for _, d, _ in clear]
             vals[k] = [_measure_values(rep)[m] for m in _MEASURES]
@@ -228,31 +236,34 @@ class Guard:
         with np.errstate(invalid="ignore"):
             hard = (vals < H) & ~((S < H) & (vals >= Sm))
             caution = ~hard & (vals < C) & ~((S < C) & (vals >= Sm))
-        events = []  # (t, k, order within a sample, reason): first occurrences only
-        for j, (name, _, r) in enumerate(self.keep_out):
-            if (k := _earliest(dist[j] < r, ts)) is not None:
-                d = exact(k)[0][j][1]
-                events.append((ts[k], k, j, GuardReason(f"keep_out:{name}", d, r, float(ts[k]), "hard")))
+        events: list[tuple[float, int, int, GuardReason]] = []  # (t, k, order in a sample, reason): first only
+        for j, (_, _, r) in enumerate(self.keep_out):
+            if (k_ko := _earliest(dist[j] < r, ts)) is not None:
+                d = exact(k_ko)[0][j][1]
+                t_ko = float(ts[k_ko])
+                events.append((t_ko, k_ko, j, GuardReason(self._keep_out_names[j], d, r, t_ko, "hard")))
         for j, m in enumerate(_MEASURES):
-            if (k := _earliest(hard[:, j], ts)) is not None:
-                v = _measure_values(exact(k)[1])[m]
-                events.append((ts[k], k, len(self.keep_out) + j, GuardReason(m, v, hard_th[m], float(ts[k]), "hard")))
+            if (k_hard := _earliest(hard[:, j], ts)) is not None:
+                v = _measure_values(exact(k_hard)[1])[m]
+                t_hard = float(ts[k_hard])
+                events.append((t_hard, k_hard, len(self.keep_out) + j, GuardReason(m, v, hard_th[m], t_hard, "hard")))
         worst = self._worst(vals, batch, hard_th, exact, start)
         if events:  # the first crossing of each measure, earliest first
             events.sort(key=lambda e: e[:3])
             return GuardDecision("refused", 0.0, tuple(_dedupe(e[3] for e in events)), worst)
 
-        reasons, factor = [], 1.0
+        reasons: list[GuardReason] = []
+        factor = 1.0
         end_stop = self._end_stop_batch(Q, QD)
         if end_stop is not None:
-            k, factor, i = end_stop
-            reasons.append(GuardReason(f"end_stop:{ACTUATOR_NAMES[i]}", factor, 1.0, float(ts[k]), "speed"))
-        cautions = []
+            k_end, factor, i = end_stop
+            reasons.append(GuardReason(_END_STOP_NAMES[i], factor, 1.0, float(ts[k_end]), "speed"))
+        cautions: list[tuple[int, int, GuardReason]] = []
         for j, m in enumerate(_MEASURES):
             if caution[:, j].any():
-                k = int(np.argmax(caution[:, j]))
-                v = _measure_values(exact(k)[1])[m]
-                cautions.append((k, j, GuardReason(m, v, caution_th[m], float(ts[k]), "caution")))
+                k_c = int(np.argmax(caution[:, j]))
+                v = _measure_values(exact(k_c)[1])[m]
+                cautions.append((k_c, j, GuardReason(m, v, caution_th[m], float(ts[k_c]), "caution")))
         if cautions:
             factor = min(factor, self.settings.caution_speed_factor)
         reasons += [c[2] for c in sorted(cautions, key=lambda c: c[:2])]
@@ -263,22 +274,27 @@ class Guard:
         vals: np.ndarray,
         batch: StabilityBatch,
         hard_th: dict[str, float],
-        exact: Callable[[int], tuple[list, StabilityReport]],
+        exact: Callable[[int], _Exact],
         start: StabilityReport,
     ) -> StabilityReport:
         """Report of the first sample with the smallest min_m value_m / |hard_m| (as the per-sample loop);
         ``vals`` (N, 4) batch values, those of samples already evaluated one by one replaced."""
         scale = np.array([max(abs(hard_th[m]), 1e-9) for m in _MEASURES])
         keys = np.min(vals / scale, axis=1)
-        for k in np.flatnonzero(np.isnan(vals).any(axis=1)):  # Python's min with NaN, as the loop had it
-            keys[k] = min(float(v) / s for v, s in zip(vals[k], scale))
-        tol = 0.0 if batch.exact else max(batch.tolerance[m] / s for m, s in zip(_MEASURES, scale))
+        for k in np.flatnonzero(np.isnan(vals).any(axis=1)).tolist():  # Python's min with NaN, as the loop had
+            keys[k] = min(float(v) / s for v, s in zip(vals[k], scale, strict=True))
+        tol = 0.0 if batch.exact else max(batch.tolerance[m] / s for m, s in zip(_MEASURES, scale, strict=True))
         if not np.any(keys == keys):
             return start
         cand = np.flatnonzero(keys <= np.nanmin(keys) + 2 * tol)
-        worst_k, worst_key = None, math.inf
-        for k in cand:
-            key = keys[k] if tol == 0.0 else min(v / s for v, s in zip(_measure_values(exact(k)[1]).values(), scale))
+        worst_k: int | None = None
+        worst_key = math.inf
+        for k in cand.tolist():
+            key = (
+                keys[k]
+                if tol == 0.0
+                else min(v / s for v, s in zip(_measure_values(exact(k)[1]).values(), scale, strict=True))
+            )
             if key < worst_key:
                 worst_k, worst_key = k, key
         return start if worst_k is None else exact(worst_k)[1]
@@ -336,10 +352,11 @@ class Guard:
         factor is applied once; the end-stop factor (with a 2 % margin) until every sample
         keeps to the end-stop zone speed.
         """
-        total, caution_applied, reasons = 1.0, False, []
+        total, caution_applied = 1.0, False
+        reasons: list[GuardReason] = []
         for _ in range(8):
             plan = self.planner.plan_move(start, goal, speed_scale=speed_scale * total)
-            sp = plan.setpoints
+            sp = plan.sampled()
             dec = self.check_setpoints(sp)
             if dec.action == "refused":
                 raise GuardRefusal(dec)
@@ -352,12 +369,12 @@ class Guard:
                 total *= self.settings.caution_speed_factor
                 caution_applied = True
             else:
-                action = "ok" if total >= 1.0 else "scaled"
+                action: Action = "ok" if total >= 1.0 else "scaled"
                 return GuardedPlan(plan, sp, GuardDecision(action, total, tuple(_dedupe(reasons)), dec.worst))
         raise GuardRefusal(GuardDecision("refused", 0.0, tuple(_dedupe(reasons)), dec.worst))
 
     # ------------------------------------------------------------------ jog
-    def check_jog(self, state: MotionState, rates) -> tuple[np.ndarray, GuardDecision]:
+    def check_jog(self, state: MotionState, rates: ArrayLike) -> tuple[np.ndarray, GuardDecision]:
         """Rates allowed for jog from ``state``: evaluated ``jog_horizon`` seconds ahead.
 
         A hard stability violation ahead that the motion makes worse stops the motion (rates
@@ -374,7 +391,8 @@ class Guard:
         now, ahead = _measure_values(self.stability_at(q_now)), self.stability_at(q_ahead)
         vals = _measure_values(ahead)
         hard_th, caution_th = self._thresholds()
-        reasons, factor = [], 1.0
+        reasons: list[GuardReason] = []
+        factor = 1.0
         for m in _MEASURES:
             worse = vals[m] < now[m] - 1e-9
             if vals[m] < hard_th[m] and worse:
@@ -382,18 +400,18 @@ class Guard:
             elif vals[m] < caution_th[m] and worse:
                 reasons.append(GuardReason(m, vals[m], caution_th[m], h, "caution"))
                 factor = min(factor, self.settings.caution_speed_factor)
-        for name, dist, r in self.keep_out_clearance(q_ahead):
+        for j, (_, dist, r) in enumerate(self.keep_out_clearance(q_ahead)):
             if dist < r:
-                reasons.append(GuardReason(f"keep_out:{name}", dist, r, h, "hard"))
+                reasons.append(GuardReason(self._keep_out_names[j], dist, r, h, "hard"))
         if any(r.level == "hard" for r in reasons):
             return np.zeros(4), GuardDecision("refused", 0.0, tuple(reasons), ahead)
         f_end, i = self.end_stops.speed_factor(q_now, jac @ rates)
         if i is not None:
-            reasons.append(GuardReason(f"end_stop:{ACTUATOR_NAMES[i]}", f_end, 1.0, 0.0, "speed"))
+            reasons.append(GuardReason(_END_STOP_NAMES[i], f_end, 1.0, 0.0, "speed"))
             factor = min(factor, f_end)
         return rates * factor, GuardDecision("ok" if factor >= 1.0 else "scaled", factor, tuple(reasons), ahead)
 
-    def _thresholds(self) -> tuple[dict, dict]:
+    def _thresholds(self) -> tuple[dict[str, float], dict[str, float]]:
         th, w = self.thresholds, self.tractor.empty_weight
         hard = {
             "front_axle_load": th.front_axle_fraction_hard * w,

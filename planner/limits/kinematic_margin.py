@@ -1,29 +1,41 @@
-"""Kinematic margin (seed 003): time to the nearest limit at the current velocity.
+"""Kinematic margin: time to the nearest limit at the current velocity.
 
 For each limit the time is distance-to-limit / rate-towards-it (∞ when moving away or at
 rest). Reported per controlled DOF (the workspace faces) and overall (workspace faces,
-actuator strokes, top-link angles, ground clearance), with the limit's name.
+actuator strokes, top-link angles, ground clearance), with the limit's name
+(:class:`~planner.model.limit_names.LimitName` spelling).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import TypedDict
 
-from planner.model.hard_limits import HardLimits
-from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
+import numpy as np
 
-__all__ = ["KinematicMargin", "kinematic_margin"]
+from planner.model.hard_limits import STROKE_NAMES, WORKSPACE_NAMES, HardLimits
+from planner.model.types import CONTROLLED_POSE_NAMES
+
+__all__ = ["DofMargin", "KinematicMargin", "kinematic_margin"]
+
+
+class DofMargin(TypedDict):
+    """Margin of one controlled DOF: time to its nearest workspace face [s] (∞ at rest) and its name."""
+
+    time_s: float
+    limit: str
 
 
 @dataclass(frozen=True)
 class KinematicMargin:
-    time_s: float  # overall, ∞ at rest
+    time_s: float  # overall [s], ∞ at rest
     limit: str  # the limit that would be reached first ("" at rest)
-    per_dof: dict  # "x" → {"time_s", "limit"}
+    per_dof: dict[str, DofMargin]  # "x" → {"time_s", "limit"}
 
     def to_json(self) -> dict:
-        def t(v):
+        def t(v: float) -> float | None:
             return None if math.isinf(v) else v
 
         return {
@@ -38,31 +50,36 @@ def _time(dist: float, rate: float) -> float:
 
 
 def kinematic_margin(
-    pose, pose_velocity, q, q_velocity, features, feature_rates, hard: HardLimits, workspace: dict | None
+    pose: np.ndarray,
+    pose_velocity: np.ndarray,
+    q: np.ndarray,
+    q_velocity: np.ndarray,
+    features: np.ndarray,
+    feature_rates: np.ndarray,
+    hard: HardLimits,
+    workspace: Mapping[str, tuple[float, float]] | None,
 ) -> KinematicMargin:
-    """Margins from the pose (x, z, roll, pitch) and its rates, actuators and their rates,
-    and the hard-limit feature rows with their rates."""
+    """Margins from the pose (x, z, roll, pitch) [m, rad] and its rates, actuators and their rates,
+    and the hard-limit feature rows with their rates (per second)."""
     candidates: list[tuple[float, str]] = []
-    per_dof = {}
-    for d, k in enumerate(CONTROLLED_POSE_NAMES):
+    per_dof: dict[str, DofMargin] = {}
+    for d, (k, (name_min, name_max)) in enumerate(zip(CONTROLLED_POSE_NAMES, WORKSPACE_NAMES, strict=True)):
         best = (math.inf, "")
         if workspace is not None:
             lo, hi = workspace[k]
             v = pose_velocity[d]
-            best = min(
-                best, (_time(hi - pose[d], v), f"workspace:{k}:max"), (_time(pose[d] - lo, -v), f"workspace:{k}:min")
-            )
+            best = min(best, (_time(hi - pose[d], v), name_max), (_time(pose[d] - lo, -v), name_min))
         per_dof[k] = {"time_s": best[0], "limit": best[1] if math.isfinite(best[0]) else ""}
         candidates.append(best)
-    for i, n in enumerate(ACTUATOR_NAMES):
+    for i, (name_min, name_max) in enumerate(STROKE_NAMES):
         v = q_velocity[i]
-        candidates.append((_time(hard.actuator_upper[i] - q[i], v), f"stroke:{n}:max"))
-        candidates.append((_time(q[i] - hard.actuator_lower[i], -v), f"stroke:{n}:min"))
+        candidates.append((_time(hard.actuator_upper[i] - q[i], v), name_max))
+        candidates.append((_time(q[i] - hard.actuator_lower[i], -v), name_min))
     f = features[list(hard.feature_index)]
     fr = feature_rates[list(hard.feature_index)]
-    for k in range(len(f)):
-        if hard.names_upper[k] and math.isfinite(hard.feature_upper[k]):
-            candidates.append((_time(hard.feature_upper[k] - f[k], fr[k]), hard.names_upper[k]))
-        candidates.append((_time(f[k] - hard.feature_lower[k], -fr[k]), hard.names_lower[k]))
+    for j in range(len(f)):
+        if hard.names_upper[j] and math.isfinite(hard.feature_upper[j]):
+            candidates.append((_time(hard.feature_upper[j] - f[j], fr[j]), hard.names_upper[j]))
+        candidates.append((_time(f[j] - hard.feature_lower[j], -fr[j]), hard.names_lower[j]))
     t, name = min(candidates)
     return KinematicMargin(t, name if math.isfinite(t) else "", per_dof)

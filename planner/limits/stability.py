@@ -49,6 +49,7 @@ from planner.limits.tractor import (
 
 __all__ = [
     "EDGE_NAMES",
+    "Measure",
     "StabilityInputError",
     "gravity_direction",
     "LoadCase",
@@ -68,6 +69,8 @@ __all__ = [
 
 #: Support-triangle edges, in the order of every per-edge tuple.
 EDGE_NAMES: tuple[str, str, str] = ("rear", "right", "left")
+#: A stability measure: front-axle load [N], SSM [m], LSM [m], ESM [J].
+Measure = Literal["front_axle_load", "ssm", "lsm", "esm"]
 _EDGES = ((0, 1, 2), (1, 2, 0), (2, 0, 1))  # (A, B, opposite vertex) over Tractor.support_vertices
 
 
@@ -242,7 +245,7 @@ def support_margins(tractor: Tractor, centre_of_mass, gravity) -> SupportMargins
     else:
         lsm_front, lsm_rear = -s_lo, s_hi
     q.setflags(write=False)
-    return SupportMargins(q, tuple(d), float(ssm), float(lsm_front), float(lsm_rear))
+    return SupportMargins(q, (d[0], d[1], d[2]), float(ssm), float(lsm_front), float(lsm_rear))
 
 
 @dataclass(frozen=True)
@@ -283,7 +286,7 @@ def energy_margins(tractor: Tractor, mass: float, centre_of_mass, gravity) -> En
             side = -side
         sign = float(np.sign(side @ r))
         out.append(sign * m * STANDARD_GRAVITY * max(0.0, float(rise)))
-    return EnergyMargins(tuple(out))
+    return EnergyMargins((out[0], out[1], out[2]))
 
 
 def minimum_front_ballast(
@@ -354,7 +357,7 @@ class StabilityThresholds:
 class StabilityViolation:
     """A measure below a threshold: value and threshold in the measure's unit (N, m or J)."""
 
-    measure: Literal["front_axle_load", "ssm", "lsm", "esm"]
+    measure: Measure
     value: float
     threshold: float
     level: Literal["hard", "caution"]
@@ -384,7 +387,7 @@ class StabilityReport:
         return bool(self.violations)
 
     def as_dict(self) -> dict:
-        """JSON-ready summary (issue 5 §3 field names)."""
+        """JSON-ready summary: axle loads [N], front-axle share, SSM, LSM [m], ESM [J], ballast advice [kg]."""
         return {
             "axle_loads": {"front": self.axle_loads.front, "rear": self.axle_loads.rear},
             "front_axle_share": self.front_axle_share,
@@ -425,8 +428,9 @@ def evaluate_stability(
     margins = support_margins(tractor, load.centre_of_mass, g)
     energy = energy_margins(tractor, load.mass, load.centre_of_mass, g)
     c = d = 0.0  # the manuals' c (rear axle -> lower-link balls) and d (balls -> implement CoG) [m]
-    if implement is not None:
-        c, d = load.tool_point[1] - tractor.rear_axle[1], load.implement_centre_of_mass[1] - load.tool_point[1]
+    t_pt, p_impl = load.tool_point, load.implement_centre_of_mass
+    if t_pt is not None and p_impl is not None:  # both are set exactly when there is an implement
+        c, d = t_pt[1] - tractor.rear_axle[1], p_impl[1] - t_pt[1]
     ballast = minimum_front_ballast(
         load.implement_mass,
         c,
@@ -438,7 +442,7 @@ def evaluate_stability(
         front_fraction=thresholds.front_axle_fraction_hard,
     )
     th, w = thresholds, tractor.empty_weight
-    rows = (
+    rows: tuple[tuple[Measure, float, float, float], ...] = (
         ("front_axle_load", loads.front, th.front_axle_fraction_hard * w, th.front_axle_fraction_caution * w),
         ("ssm", margins.ssm, th.ssm_hard, th.ssm_caution),
         ("lsm", margins.lsm, th.lsm_hard, th.lsm_caution),

@@ -110,8 +110,15 @@ def evaluate_stability_batch(
     if implement is None or n == 0:
         # the per-sample measures ignore the pose: evaluate once, broadcast (exactly its values)
         rep = evaluate_stability(tractor, None, None, None, slope_roll, slope_pitch, front_ballast=front_ballast)
-        cols = [np.full(n, v) for v in (rep.axle_loads.front, rep.ssm, rep.lsm, rep.esm)]
-        return StabilityBatch(*cols, suspect=np.zeros(n, bool), tolerance=dict.fromkeys(MEASURE_NAMES, 0.0), exact=True)
+        return StabilityBatch(
+            front_axle_load=np.full(n, rep.axle_loads.front),
+            ssm=np.full(n, rep.ssm),
+            lsm=np.full(n, rep.lsm),
+            esm=np.full(n, rep.esm),
+            suspect=np.zeros(n, bool),
+            tolerance=dict.fromkeys(MEASURE_NAMES, 0.0),
+            exact=True,
+        )
 
     g = gravity_direction(slope_roll, slope_pitch)
     ballast = _scalar("front_ballast", front_ballast, 0.0, 20_000.0)

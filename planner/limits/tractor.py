@@ -33,6 +33,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from planner.errors import HitchInputError
 from planner.profiles.loader import format_validation_error, read_profile
 
 __all__ = [
@@ -58,7 +59,7 @@ ISO730_CATEGORIES: tuple[str, ...] = ("1N", "1", "2N", "2", "3N", "3", "4N", "4"
 Category = Literal["1N", "1", "2N", "2", "3N", "3", "4N", "4"]
 
 
-class StabilityInputError(ValueError):
+class StabilityInputError(HitchInputError):
     """A tractor, implement, pose or slope the stability measures cannot use; names the field."""
 
 
@@ -245,13 +246,13 @@ class TractorSpec(_Strict):
         y_r, y_f = self.rear_axle.y, self.rear_axle.y - self.wheelbase
         com = self.centre_of_mass
         if not y_f < com.y < y_r:
-            raise ValueError(
+            raise TractorProfileError(
                 f"centre_of_mass.y = {com.y} must lie between the front axle (y = {y_f:.3f}) "
                 f"and the rear axle (y = {y_r:.3f})"
             )
         half = 0.5 * self.rear_track * (com.y - y_f) / self.wheelbase  # triangle half-width at com.y
         if abs(com.x) >= half:
-            raise ValueError(
+            raise TractorProfileError(
                 f"centre_of_mass.x = {com.x} puts the empty tractor outside its support triangle "
                 f"(|x| must be < {half:.3f} m at y = {com.y})"
             )
@@ -259,7 +260,7 @@ class TractorSpec(_Strict):
             implied = self.mass * (y_r - com.y) / self.wheelbase
             if abs(implied - self.front_axle_mass_empty) > 0.01 * self.mass:
                 y_match = y_r - self.front_axle_mass_empty * self.wheelbase / self.mass
-                raise ValueError(
+                raise TractorProfileError(
                     f"front_axle_mass_empty = {self.front_axle_mass_empty} kg disagrees with centre_of_mass.y = "
                     f"{com.y} (which implies {implied:.1f} kg; allowed difference 1 % of mass). "
                     f"centre_of_mass.y = {y_match:.4f} would match"
@@ -279,7 +280,7 @@ class ImplementSpec(_Strict):
     @classmethod
     def _com(cls, v):
         if not all(abs(c) <= 10.0 for c in v):
-            raise ValueError("coordinates must lie within ±10 m")
+            raise TractorProfileError("coordinates must lie within ±10 m")
         return v
 
 
@@ -303,12 +304,12 @@ def build_tractor(spec: TractorSpec, pivot_height: float, name: str = "tractor")
     return Tractor(
         name=name,
         mass=spec.mass,
-        centre_of_mass=[spec.centre_of_mass.x, spec.centre_of_mass.y, spec.centre_of_mass.height - h],
+        centre_of_mass=np.array([spec.centre_of_mass.x, spec.centre_of_mass.y, spec.centre_of_mass.height - h]),
         wheelbase=spec.wheelbase,
         rear_track=spec.rear_track,
-        rear_axle=[0.0, y_r, spec.rear_axle.height - h],
-        front_axle_pivot=[0.0, y_f, spec.front_axle_pivot.height - h],
-        front_ballast_point=[0.0, y_f - spec.front_ballast.arm, spec.front_ballast.height - h],
+        rear_axle=np.array([0.0, y_r, spec.rear_axle.height - h]),
+        front_axle_pivot=np.array([0.0, y_f, spec.front_axle_pivot.height - h]),
+        front_ballast_point=np.array([0.0, y_f - spec.front_ballast.arm, spec.front_ballast.height - h]),
         ground_z=-h,
     )
 

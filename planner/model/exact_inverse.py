@@ -23,12 +23,13 @@ import math
 
 import casadi as ca
 import numpy as np
+from numpy.typing import ArrayLike
 
 from planner.model.angle_maps import angles_to_actuators_sx
 from planner.model.fast_function import FastFunction
 from planner.model.geometry import LEFT, RIGHT, mast_frame, side_geometry
 from planner.model.kinematics import HitchModel
-from planner.model.types import Actuators, KinematicsError
+from planner.model.types import Actuators, KinematicsError, ModelInputError
 
 __all__ = ["ExactInverse"]
 
@@ -91,16 +92,16 @@ class ExactInverse:
         """Actuators (lift, tilt, top, left, right) reaching the pose exactly; KinematicsError if none."""
         return self.solve(np.array([x, z, roll, pitch], dtype=float))[0]
 
-    def solve(self, target) -> tuple[np.ndarray, np.ndarray]:
+    def solve(self, target: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """(actuators, d actuators / d (x, z, roll, pitch)) for a target of 4 values."""
         q, jac, _ = self.solve_full(target)
         return q, jac
 
-    def solve_full(self, target) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
+    def solve_full(self, target: ArrayLike) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
         """(actuators, d actuators / d target, (y_T [m], yaw [rad])) for a target of 4 values."""
         t = np.asarray(target, dtype=float).reshape(-1)
         if t.size != 4 or not np.all(np.isfinite(t)):
-            raise ValueError("target must be 4 finite numbers (x [m], z [m], roll [rad], pitch [rad])")
+            raise ModelInputError("target must be 4 finite numbers (x [m], z [m], roll [rad], pitch [rad])")
         if abs(t[2]) >= math.pi / 2 or abs(t[3]) >= math.pi / 2:
             raise KinematicsError("roll and pitch must lie within ±π/2")
         q, jac, checks, y_yaw = self._fast(t)

@@ -3,9 +3,10 @@
 Hard limits are what the machine cannot or must not exceed: actuator strokes (thesis
 table 3-1/3-2), top-link angles relative to its tractor mount (thesis §3.2: 0.15 rad
 each way horizontally, 0.35 rad upwards) and the lower-link ends' ground clearance.
-Names follow one scheme everywhere (IK ``active`` lists, refusals, "Control limited"):
-``stroke:<actuator>:min|max``, ``top_link_yaw_min|max``, ``top_link_pitch_min|max``,
-``ground_clearance_left|right``, ``workspace:<dof>:min|max``.
+Names follow one scheme everywhere (IK ``active`` lists, refusals, "Control limited"),
+:class:`~planner.model.limit_names.LimitName`: ``stroke:<actuator>:min|max``,
+``top_link_yaw_min|max``, ``top_link_pitch_min|max``, ``ground_clearance_left|right``,
+``workspace:<dof>:min|max``.
 """
 
 from __future__ import annotations
@@ -15,16 +16,34 @@ from dataclasses import dataclass
 import numpy as np
 
 from planner.model.kinematics import FEATURE_NAMES, HitchModel
-from planner.model.types import ACTUATOR_NAMES
+from planner.model.limit_names import LimitName
+from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
 
-__all__ = ["HardLimits", "FEATURE_LIMIT_ROWS"]
+__all__ = ["HardLimits", "FEATURE_LIMIT_ROWS", "LimitName", "STROKE_NAMES", "WORKSPACE_NAMES"]
 
-#: Feature rows that carry hard limits, with the names used for their min/max sides.
+#: Feature rows that carry hard limits, with the names used for their min/max sides ("" = none).
 FEATURE_LIMIT_ROWS: tuple[tuple[str, str, str], ...] = (
-    ("top_link_yaw", "top_link_yaw_min", "top_link_yaw_max"),
-    ("top_link_pitch", "top_link_pitch_min", "top_link_pitch_max"),
-    ("z_left_end", "ground_clearance_left", ""),
-    ("z_right_end", "ground_clearance_right", ""),
+    (
+        "top_link_yaw",
+        str(LimitName("top_link_yaw", side="min", flat=True)),
+        str(LimitName("top_link_yaw", side="max", flat=True)),
+    ),
+    (
+        "top_link_pitch",
+        str(LimitName("top_link_pitch", side="min", flat=True)),
+        str(LimitName("top_link_pitch", side="max", flat=True)),
+    ),
+    ("z_left_end", str(LimitName("ground_clearance", "left", flat=True)), ""),
+    ("z_right_end", str(LimitName("ground_clearance", "right", flat=True)), ""),
+)
+#: ``(stroke:<actuator>:min, stroke:<actuator>:max)`` per actuator, order ACTUATOR_NAMES.
+STROKE_NAMES: tuple[tuple[str, str], ...] = tuple(
+    (str(LimitName("stroke", n, "min")), str(LimitName("stroke", n, "max"))) for n in ACTUATOR_NAMES
+)
+#: ``(workspace:<dof>:min, workspace:<dof>:max)`` per controlled DOF, order CONTROLLED_POSE_NAMES:
+#: the faces of the restricted workspace (a soft limit the motion layers add to the hard ones).
+WORKSPACE_NAMES: tuple[tuple[str, str], ...] = tuple(
+    (str(LimitName("workspace", k, "min")), str(LimitName("workspace", k, "max"))) for k in CONTROLLED_POSE_NAMES
 )
 
 
@@ -60,11 +79,11 @@ class HardLimits:
     def violations(self, q: np.ndarray, features: np.ndarray, tol: float = 1e-9) -> tuple[str, ...]:
         """Names of the hard limits that ``q`` (actuators) and its ``features`` exceed by more than ``tol``."""
         out = []
-        for i, name in enumerate(ACTUATOR_NAMES):
+        for i, (name_min, name_max) in enumerate(STROKE_NAMES):
             if q[i] < self.actuator_lower[i] - tol:
-                out.append(f"stroke:{name}:min")
+                out.append(name_min)
             elif q[i] > self.actuator_upper[i] + tol:
-                out.append(f"stroke:{name}:max")
+                out.append(name_max)
         f = features[list(self.feature_index)]
         for k in range(len(f)):
             if f[k] < self.feature_lower[k] - tol:

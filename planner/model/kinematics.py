@@ -26,7 +26,7 @@ from planner.model.geometry import (
     side_geometry,
     solve_link_angles,
 )
-from planner.model.types import ACTUATOR_NAMES, Actuators, HitchState, KinematicsError, Pose
+from planner.model.types import ACTUATOR_NAMES, Actuators, HitchState, KinematicsError, ModelInputError, Pose
 from planner.profiles.hitch import Profile, load_profile
 
 __all__ = ["HitchModel", "SymbolicModel", "FEATURE_NAMES", "POINT_NAMES"]
@@ -76,8 +76,8 @@ _RESIDUAL_CAUSES = (
 _CLOSURE_TOL_M = 1e-9
 
 
-def _build(profile: Profile, category: str):
-    """Build the symbolic model: returns (points_fn, feature_fn).
+def _build(profile: Profile, category: str) -> tuple[ca.Function, ca.Function, SymbolicModel]:
+    """Build the symbolic model: returns (points_fn, feature_fn, symbolic).
 
     The link angles θ = (θxl, θzl, θxr, θzr) are first kept symbolic: points,
     features F(q, θ) and the closure equations G(q, θ) = 0 are written in (q, θ).
@@ -224,11 +224,12 @@ class HitchModel:
         self._check(checks[:, 0], f[:, 0], q)
         f = f[:, 0]
         ref = getattr(self, "top_link_reference", (0.0, 0.0))
+        th = angles[:, 0]
         return HitchState(
             actuators=Actuators.from_array(q),
             pose=Pose.from_array(f[:6]),
             points={n: pts[:, i].copy() for i, n in enumerate(POINT_NAMES)},
-            link_angles=tuple(float(a) for a in angles[:, 0]),
+            link_angles=(float(th[0]), float(th[1]), float(th[2]), float(th[3])),
             top_link_angles=(float(f[7] - ref[0]), float(f[8] - ref[1])),
             lower_span=float(f[6]),
         )
@@ -241,10 +242,10 @@ class HitchModel:
     def _as_vector(actuators) -> np.ndarray:
         q = actuators.as_array() if isinstance(actuators, Actuators) else np.asarray(actuators, dtype=float).reshape(-1)
         if q.size != 5:
-            raise ValueError(f"actuators: expected 5 values ({', '.join(ACTUATOR_NAMES)}), got {q.size}")
-        for name, v in zip(ACTUATOR_NAMES, q):
+            raise ModelInputError(f"actuators: expected 5 values ({', '.join(ACTUATOR_NAMES)}), got {q.size}")
+        for name, v in zip(ACTUATOR_NAMES, q, strict=True):
             if not math.isfinite(v):
-                raise ValueError(f"actuators.{name} must be a finite number, got {v}")
+                raise ModelInputError(f"actuators.{name} must be a finite number, got {v}")
         return q
 
     def _check(self, checks: np.ndarray, features: np.ndarray, q: np.ndarray | None = None) -> None:

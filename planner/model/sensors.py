@@ -8,7 +8,9 @@ counts_max). Readings outside the calibrated span are reported with a
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
+from planner.errors import HitchInputError
 from planner.model.types import ACTUATOR_NAMES
 from planner.profiles.hitch import Profile
 
@@ -18,7 +20,7 @@ __all__ = ["SensorRangeError", "SensorScaling", "AD_COUNTS_MAX"]
 AD_COUNTS_MAX = 1023
 
 
-class SensorRangeError(ValueError):
+class SensorRangeError(HitchInputError):
     """A reading or command outside the calibrated span; names the actuator, value and span."""
 
 
@@ -34,14 +36,14 @@ class SensorScaling:
         #: SI units per count [m/count or rad/count]
         self.resolution = (self.si_max - self.si_min) / (self.counts_max - self.counts_min)
 
-    def to_counts(self, q, *, tolerance_counts: float = 0.5) -> np.ndarray:
+    def to_counts(self, q: ArrayLike, *, tolerance_counts: float = 0.5) -> np.ndarray:
         """Nearest integer counts of actuators ``q`` (SI); raises if beyond the calibrated span."""
         q = np.asarray(q, dtype=float).reshape(5)
         counts = self.counts_min + (q - self.si_min) / self.resolution
         self._check(counts, tolerance_counts, "command")
         return np.clip(np.rint(counts), self.counts_min, self.counts_max).astype(int)
 
-    def to_si(self, counts, *, tolerance_counts: float = 0.0) -> np.ndarray:
+    def to_si(self, counts: ArrayLike, *, tolerance_counts: float = 0.0) -> np.ndarray:
         """Actuators (SI) from raw counts; raises if a reading lies outside the calibrated span."""
         c = np.asarray(counts, dtype=float).reshape(5)
         self._check(c, tolerance_counts, "reading")
@@ -50,7 +52,7 @@ class SensorScaling:
     def _check(self, counts: np.ndarray, tol: float, what: str) -> None:
         bad = [
             f"{n} {what} {c:.1f} counts outside the calibrated span [{lo:.0f}, {hi:.0f}]"
-            for n, c, lo, hi in zip(ACTUATOR_NAMES, counts, self.counts_min, self.counts_max)
+            for n, c, lo, hi in zip(ACTUATOR_NAMES, counts, self.counts_min, self.counts_max, strict=True)
             if not (lo - tol <= c <= hi + tol)
         ]
         if bad:

@@ -10,6 +10,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import ArrayLike
+
+from planner.errors import HitchInputError
 
 __all__ = [
     "ACTUATOR_NAMES",
@@ -19,6 +22,7 @@ __all__ = [
     "Pose",
     "HitchState",
     "KinematicsError",
+    "ModelInputError",
 ]
 
 #: Order of the actuator vector everywhere (arrays, CAN references, plots).
@@ -29,8 +33,16 @@ POSE_NAMES: tuple[str, ...] = ("x", "y", "z", "roll", "pitch", "yaw")
 CONTROLLED_POSE_NAMES: tuple[str, ...] = ("x", "z", "roll", "pitch")
 
 
-class KinematicsError(ValueError):
+class KinematicsError(HitchInputError):
     """An actuator vector or pose no mechanism can take; the message names the cause."""
+
+
+class ModelInputError(HitchInputError):
+    """An argument the model does not accept (wrong size, not a finite number); names the field.
+
+    Distinct from :class:`KinematicsError`: a well-formed vector the mechanism cannot take is a
+    kinematics error, a malformed one is this.
+    """
 
 
 @dataclass(frozen=True)
@@ -51,17 +63,17 @@ class Actuators:
         return np.array([self.lift, self.tilt, self.top, self.left, self.right], dtype=float)
 
     @classmethod
-    def from_array(cls, values) -> Actuators:
+    def from_array(cls, values: ArrayLike) -> Actuators:
         v = np.asarray(values, dtype=float).reshape(-1)
         if v.size != 5:
-            raise ValueError(f"actuator vector needs 5 values (lift, tilt, top, left, right), got {v.size}")
+            raise ModelInputError(f"actuator vector needs 5 values (lift, tilt, top, left, right), got {v.size}")
         return cls(*(float(x) for x in v))
 
     @classmethod
     def from_mapping(cls, values: Mapping[str, float]) -> Actuators:
         missing = [n for n in ACTUATOR_NAMES if n not in values]
         if missing:
-            raise ValueError(f"actuators: missing field(s) {', '.join(missing)}")
+            raise ModelInputError(f"actuators: missing field(s) {', '.join(missing)}")
         return cls(*(float(values[n]) for n in ACTUATOR_NAMES))
 
     def as_dict(self) -> dict[str, float]:
@@ -86,10 +98,10 @@ class Pose:
         return np.array([self.x, self.y, self.z, self.roll, self.pitch, self.yaw], dtype=float)
 
     @classmethod
-    def from_array(cls, values) -> Pose:
+    def from_array(cls, values: ArrayLike) -> Pose:
         v = np.asarray(values, dtype=float).reshape(-1)
         if v.size != 6:
-            raise ValueError(f"pose vector needs 6 values (x, y, z, roll, pitch, yaw), got {v.size}")
+            raise ModelInputError(f"pose vector needs 6 values (x, y, z, roll, pitch, yaw), got {v.size}")
         return cls(*(float(x) for x in v))
 
     def controlled(self) -> np.ndarray:

@@ -10,11 +10,17 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from planner.profiles.loader import builtin_profiles, check_profile_name, format_validation_error, read_profile
+from planner.profiles.loader import (
+    ProfileError,
+    builtin_profiles,
+    check_profile_name,
+    format_validation_error,
+    read_profile,
+)
 
 __all__ = [
     "ProfileError",
@@ -24,6 +30,7 @@ __all__ = [
     "load_profile",
     "available_profiles",
     "profile_from_dict",
+    "THESIS_CONTROLLER_A",
 ]
 
 ACTUATORS = ("lift", "tilt", "top", "left", "right")
@@ -34,10 +41,6 @@ BOX_KEYS = ("x", "z", "roll", "pitch")
 THESIS_CONTROLLER_A = 0.581
 
 
-class ProfileError(ValueError):
-    """A profile that cannot be used; the message names field, value and allowed range."""
-
-
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, strict=False)
 
@@ -45,11 +48,11 @@ class _Strict(BaseModel):
 def _interval(name: str, value: tuple[float, float], *, angle: bool) -> tuple[float, float]:
     lo, hi = value
     if not (math.isfinite(lo) and math.isfinite(hi)):
-        raise ValueError(f"{name} bounds must be finite numbers")
+        raise ProfileError(f"{name} bounds must be finite numbers")
     if not lo < hi:
-        raise ValueError(f"{name} needs min < max (got [{lo}, {hi}])")
+        raise ProfileError(f"{name} needs min < max (got [{lo}, {hi}])")
     if angle and (abs(lo) > math.pi or abs(hi) > math.pi):
-        raise ValueError(f"{name} bounds are angles in radians and must lie within ±π")
+        raise ProfileError(f"{name} bounds are angles in radians and must lie within ±π")
     return value
 
 
@@ -89,11 +92,11 @@ class Geometry(_Strict):
         for name in ("lift_arm_pivot", "top_link_tractor_point", "limiter_tractor_point"):
             v = getattr(self, name)
             if not all(math.isfinite(c) and abs(c) <= 5.0 for c in v):
-                raise ValueError(f"{name} coordinates must be finite and within ±5 m")
+                raise ProfileError(f"{name} coordinates must be finite and within ±5 m")
         if self.lift_rod_attachment >= self.lower_link_length:
-            raise ValueError("lift_rod_attachment must lie on the lower link (< lower_link_length)")
+            raise ProfileError("lift_rod_attachment must lie on the lower link (< lower_link_length)")
         if self.limiter_bracket_position >= self.lower_link_length:
-            raise ValueError("limiter_bracket_position must lie on the lower link (< lower_link_length)")
+            raise ProfileError("limiter_bracket_position must lie on the lower link (< lower_link_length)")
         return self
 
 
@@ -112,9 +115,9 @@ class Implement(_Strict):
     @model_validator(mode="after")
     def _check(self):
         if not self.categories:
-            raise ValueError("categories must list at least one ISO 730 category")
+            raise ProfileError("categories must list at least one ISO 730 category")
         if self.default_category not in self.categories:
-            raise ValueError(f"default_category {self.default_category!r} is not one of {sorted(self.categories)}")
+            raise ProfileError(f"default_category {self.default_category!r} is not one of {sorted(self.categories)}")
         return self
 
 
@@ -138,9 +141,9 @@ class ActuatorSpec(_Strict):
     def _check(self):
         _interval("stroke", (self.min, self.max), angle=False)
         if self.counts_min >= self.counts_max:
-            raise ValueError(f"counts_min ({self.counts_min}) must be below counts_max ({self.counts_max})")
+            raise ProfileError(f"counts_min ({self.counts_min}) must be below counts_max ({self.counts_max})")
         if self.neutral is not None and not (self.min <= self.neutral <= self.max):
-            raise ValueError(f"neutral {self.neutral} must lie within the stroke [{self.min}, {self.max}]")
+            raise ProfileError(f"neutral {self.neutral} must lie within the stroke [{self.min}, {self.max}]")
         return self
 
 
@@ -154,11 +157,11 @@ class Actuators(_Strict):
     @model_validator(mode="after")
     def _check(self):
         if not (-math.pi / 2 < self.lift.min < self.lift.max < math.pi / 2):
-            raise ValueError("lift is an angle [rad]: its stroke must lie within (-π/2, π/2)")
+            raise ProfileError("lift is an angle [rad]: its stroke must lie within (-π/2, π/2)")
         for n in ("tilt", "top", "left", "right"):
             spec = getattr(self, n)
             if spec.min <= 0 or spec.max > 5.0:
-                raise ValueError(f"{n} is a length [m]: its stroke must lie within (0, 5]")
+                raise ProfileError(f"{n} is a length [m]: its stroke must lie within (0, 5]")
         return self
 
 
@@ -181,7 +184,7 @@ class Limits(_Strict):
 
 
 class Motion(_Strict):
-    """Motion limits derived from the valves (issue 4).
+    """Motion limits derived from the valves.
 
     Actuator velocity limit = velocity_fraction × min(kv_pos, kv_neg) × 254 × valve_multiplier
     (AD counts/s, thesis tables 3-3, 3-4) converted to SI; acceleration limit = velocity
@@ -262,7 +265,7 @@ def load_profile(name_or_path: str | Path = "thesis-t132") -> Profile:
     return profile_from_dict(data, source=source)
 
 
-def profile_from_dict(data: dict, source: str = "<dict>") -> Profile:
+def profile_from_dict(data: dict[str, Any], source: str = "<dict>") -> Profile:
     """Validate a profile given as a dictionary (as parsed from TOML)."""
     try:
         return Profile.model_validate(data)

@@ -5,21 +5,34 @@ from __future__ import annotations
 
 import tomllib
 from importlib import resources
+from importlib.resources.abc import Traversable
 from pathlib import Path
+from typing import Any
 
 from pydantic import BaseModel, ValidationError
 
-__all__ = ["builtin_profiles", "read_profile", "format_validation_error", "check_profile_name"]
+from planner.errors import HitchInputError
+
+__all__ = ["ProfileError", "builtin_profiles", "read_profile", "format_validation_error", "check_profile_name"]
+
+
+class ProfileError(HitchInputError):
+    """A profile that cannot be used; the message names field, value and allowed range.
+
+    Raised for hitch profiles (re-exported by :mod:`planner.profiles.hitch`); arm and tractor
+    profiles have their own classes. Inside the pydantic validators it is caught by pydantic
+    (it is a ValueError) and reported as one line of the validation message.
+    """
 
 
 def check_profile_name(name: str) -> str:
     """A profile's ``name``: letters, digits, '-', '_' and '.' only (it names files and keys)."""
     if not all(c.isalnum() or c in "-_." for c in name):
-        raise ValueError("name may contain letters, digits, '-', '_' and '.' only")
+        raise ProfileError("name may contain letters, digits, '-', '_' and '.' only")
     return name
 
 
-def _folder(subfolder: str | None):
+def _folder(subfolder: str | None) -> Traversable:
     base = resources.files("planner") / "profiles"
     return base / subfolder if subfolder else base
 
@@ -30,8 +43,8 @@ def builtin_profiles(subfolder: str | None) -> list[str]:
 
 
 def read_profile(
-    name_or_path: str | Path, *, subfolder: str | None, kind: str, error: type[Exception]
-) -> tuple[str, dict]:
+    name_or_path: str | Path, *, subfolder: str | None, kind: str, error: type[HitchInputError]
+) -> tuple[str, dict[str, Any]]:
     """(source, parsed TOML) from a path to a .toml file or a built-in name; ``error`` on failure."""
     p = Path(name_or_path)
     if p.suffix == ".toml" or p.exists():
@@ -53,7 +66,7 @@ def read_profile(
         raise error(f"{kind} {source} is not valid TOML: {exc}") from None
 
 
-def _field_range(model: type[BaseModel] | None, loc: tuple) -> str:
+def _field_range(model: type[BaseModel] | None, loc: tuple[int | str, ...]) -> str:
     """'> 0 and <= 1.5708' from the schema's constraints of the field at ``loc`` (or '')."""
     info = None
     for part in loc:
@@ -64,8 +77,9 @@ def _field_range(model: type[BaseModel] | None, loc: tuple) -> str:
         info = model.model_fields[part]
         ann = info.annotation
         model = ann if isinstance(ann, type) and issubclass(ann, BaseModel) else None
-        if model is None and getattr(ann, "__args__", None):
-            inner = [a for a in ann.__args__ if isinstance(a, type) and issubclass(a, BaseModel)]
+        args = getattr(ann, "__args__", None) or ()
+        if model is None and args:
+            inner = [a for a in args if isinstance(a, type) and issubclass(a, BaseModel)]
             model = inner[0] if inner else None
     if info is None:
         return ""

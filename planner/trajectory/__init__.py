@@ -1,9 +1,19 @@
-"""Jerk-limited, time-synchronised trajectories between implement poses (issue 4)."""
+"""Jerk-limited, time-synchronised trajectories between implement poses (Ruckig in pose space),
+sampled into verified actuator setpoints; jog; joint-space moves."""
 
 from planner.trajectory.actuator_limits import ActuatorLimits
-from planner.trajectory.jog import JOG_FIELDS, JogController, JogOutput
+from planner.trajectory.jog import JOG_FIELDS, JogController, JogError, JogOutput
 from planner.trajectory.joint_space import JointSamples, plan_joint_move
-from planner.trajectory.plan import MotionState, Plan, PlanError, Setpoints, Violation, sample_plan, verify_setpoints
+from planner.trajectory.plan import (
+    MotionState,
+    Plan,
+    PlanError,
+    Setpoints,
+    TrajectoryInputError,
+    Violation,
+    sample_plan,
+    verify_setpoints,
+)
 from planner.trajectory.planner import TrajectoryPlanner, Waypoint
 from planner.trajectory.pose_limits import PoseLimits, box_limits, straight_line_limits
 
@@ -12,6 +22,7 @@ __all__ = [
     "MotionState",
     "Plan",
     "PlanError",
+    "TrajectoryInputError",
     "Setpoints",
     "Violation",
     "sample_plan",
@@ -19,6 +30,7 @@ __all__ = [
     "TrajectoryPlanner",
     "Waypoint",
     "JogController",
+    "JogError",
     "JogOutput",
     "JOG_FIELDS",
     "JointSamples",

@@ -1,4 +1,4 @@
-"""Per-actuator velocity, acceleration and jerk limits from the valves (issue 4).
+"""Per-actuator velocity, acceleration and jerk limits from the valves.
 
 The fastest a cylinder moves is its valve's full flow: identified gain × maximum
 command × valve multiplier (thesis tables 3-3, 3-4), in AD counts per second, converted
@@ -52,7 +52,7 @@ class ActuatorLimits:
 
     def as_dict(self) -> dict[str, dict[str, float]]:
         return {
-            "velocity": dict(zip(ACTUATOR_NAMES, map(float, self.velocity))),
-            "acceleration": dict(zip(ACTUATOR_NAMES, map(float, self.acceleration))),
-            "jerk": dict(zip(ACTUATOR_NAMES, map(float, self.jerk))),
+            "velocity": dict(zip(ACTUATOR_NAMES, map(float, self.velocity), strict=True)),
+            "acceleration": dict(zip(ACTUATOR_NAMES, map(float, self.acceleration), strict=True)),
+            "jerk": dict(zip(ACTUATOR_NAMES, map(float, self.jerk), strict=True)),
         }

@@ -11,19 +11,25 @@ face: motion in that direction stops smoothly, the per-direction flag names the 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig, Synchronization
 
+from planner.errors import HitchError
+from planner.model.hard_limits import WORKSPACE_NAMES
 from planner.model.types import CONTROLLED_POSE_NAMES
-from planner.trajectory.plan import MotionState
+from planner.trajectory.plan import MotionState, TrajectoryInputError
 from planner.trajectory.planner import TrajectoryPlanner
 
-__all__ = ["JogController", "JogOutput", "JOG_FIELDS"]
+__all__ = ["JogController", "JogError", "JogOutput", "JOG_FIELDS"]
 
 JOG_FIELDS = ("vx", "vz", "vroll", "vpitch")
+
+
+class JogError(HitchError, RuntimeError):
+    """Ruckig could not compute the next jog cycle: an internal failure, not bad input."""
 
 
 @dataclass(frozen=True)
@@ -34,7 +40,7 @@ class JogOutput:
     state: MotionState
     actuators: np.ndarray
     actuator_velocity: np.ndarray
-    limited: dict = field(default_factory=dict)  # "x+" / "x-" … → limit name
+    limited: dict[str, str] = field(default_factory=dict)  # "x+" / "x-" … → limit name
     expired: bool = False  # the command's TTL ran out (dead-man stop)
 
     @property
@@ -77,46 +83,46 @@ class JogController:
         self._cmd = np.zeros(4)
         self._cmd_expires = -math.inf
 
-    def command(self, rates, ttl_s: float, now_s: float | None = None) -> None:
+    def command(self, rates: Mapping[str, float] | Iterable[float], ttl_s: float, now_s: float | None = None) -> None:
         """Set the rates (mapping with vx, vz, vroll, vpitch or 4 numbers; m/s, rad/s) for ``ttl_s`` seconds."""
         if isinstance(rates, Mapping):
             unknown = set(rates) - set(JOG_FIELDS)
             if unknown:
-                raise ValueError(
+                raise TrajectoryInputError(
                     f"jog: unknown field(s) {', '.join(sorted(unknown))}; allowed: {', '.join(JOG_FIELDS)}"
                 )
             vals = [rates.get(k, 0.0) for k in JOG_FIELDS]
         else:
             vals = list(rates)
             if len(vals) != 4:
-                raise ValueError("jog: 4 rates needed (vx, vz, vroll, vpitch)")
-        for k, v in zip(JOG_FIELDS, vals):
+                raise TrajectoryInputError("jog: 4 rates needed (vx, vz, vroll, vpitch)")
+        for k, v in zip(JOG_FIELDS, vals, strict=True):
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise ValueError(f"jog.{k} must be a finite number, got {v!r}")
+                raise TrajectoryInputError(f"jog.{k} must be a finite number, got {v!r}")
         if isinstance(ttl_s, bool) or not isinstance(ttl_s, (int, float)) or not 0 < ttl_s <= 5.0:
-            raise ValueError(f"jog ttl must lie within (0, 5] s, got {ttl_s!r}")
+            raise TrajectoryInputError(f"jog ttl must lie within (0, 5] s, got {ttl_s!r}")
         now = self.t if now_s is None else now_s
         self._cmd = np.array(vals, dtype=float)
         self._cmd_expires = now + ttl_s
 
-    def clipped_rates(self, rates) -> tuple[np.ndarray, dict]:
+    def clipped_rates(self, rates: np.ndarray) -> tuple[np.ndarray, dict[str, str]]:
         """Rates after the jog speed limits and the braking caps at the workspace faces, with flags."""
         v = np.clip(np.asarray(rates, float), -self.limits.velocity, self.limits.velocity)
-        flags = {}
+        flags: dict[str, str] = {}
         p = self.state.position
         cur = self.state.velocity
-        for d, k in enumerate(CONTROLLED_POSE_NAMES):
+        for d, (k, (name_min, name_max)) in enumerate(zip(CONTROLLED_POSE_NAMES, WORKSPACE_NAMES, strict=True)):
             a, j = self.limits.acceleration[d], self.limits.jerk[d]
             slack = 2 * abs(cur[d]) * self.dt  # one cycle of reaction plus the discrete step
             up = _braking_speed(self.planner.hi[d] - p[d] - slack, a, j)
             down = _braking_speed(p[d] - self.planner.lo[d] - slack, a, j)
             if v[d] > up:
                 if rates[d] > 0:
-                    flags[f"{k}+"] = f"workspace:{k}:max"
+                    flags[f"{k}+"] = name_max
                 v[d] = max(up, 0.0) if rates[d] > 0 else v[d]
             if v[d] < -down:
                 if rates[d] < 0:
-                    flags[f"{k}-"] = f"workspace:{k}:min"
+                    flags[f"{k}-"] = name_min
                 v[d] = -max(down, 0.0) if rates[d] < 0 else v[d]
         return v, flags
 
@@ -134,7 +140,7 @@ class JogController:
         inp.target_acceleration = [0.0] * 4
         res = self._ruckig.update(inp, self._out)
         if res not in (Result.Working, Result.Finished):
-            raise RuntimeError(f"jog: ruckig failed ({res})")
+            raise JogError(f"jog: ruckig failed ({res})")
         out = self._out
         self.state = MotionState(np.array(out.new_position), np.array(out.new_velocity), np.array(out.new_acceleration))
         self.t = now

@@ -1,4 +1,4 @@
-"""Joint-space moves: time-synchronised jerk-limited Ruckig profiles for any mechanism (issue 8).
+"""Joint-space moves: time-synchronised jerk-limited Ruckig profiles for any mechanism.
 
 Every joint starts and stops together; positions, velocities and accelerations sampled at a
 rate. Used for serial arms (and for per-actuator moves of the hitch, e.g. manual mode).
@@ -12,13 +12,16 @@ from dataclasses import dataclass
 import numpy as np
 from ruckig import InputParameter, Result, Ruckig, Synchronization, Trajectory
 
-from planner.trajectory.plan import PlanError, sample_times
+from planner.trajectory.plan import PlanError, TrajectoryInputError, sample_times
 
 __all__ = ["JointSamples", "plan_joint_move"]
 
 
 @dataclass(frozen=True)
 class JointSamples:
+    """Samples of a joint-space move: duration [s], times t (N,) [s], position, velocity and
+    acceleration (N, n) in joint units (rad or m) per s⁰, s¹, s²."""
+
     duration: float
     t: np.ndarray
     position: np.ndarray
@@ -35,9 +38,9 @@ def plan_joint_move(
     for name, v in (("velocity", velocity), ("acceleration", acceleration), ("jerk", jerk)):
         arr = np.broadcast_to(np.asarray(v, float), (n,))
         if not np.all(np.isfinite(arr)) or np.any(arr <= 0):
-            raise ValueError(f"{name} limits must be finite and > 0")
+            raise TrajectoryInputError(f"{name} limits must be finite and > 0")
     if not (1.0 <= rate <= 1000.0):
-        raise ValueError(f"rate must lie within 1..1000 Hz, got {rate}")
+        raise TrajectoryInputError(f"rate must lie within 1..1000 Hz, got {rate}")
     for name, q in (("start", q0), ("goal", q1)):
         if lower is not None and np.any(q < np.asarray(lower) - 1e-12):
             raise PlanError(f"{name} joint {int(np.argmax(np.asarray(lower) - q))} is below its limit")

@@ -11,20 +11,46 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
+from ruckig import Trajectory
 
+from planner.errors import HitchInputError
 from planner.model.exact_inverse import ExactInverse
 from planner.model.hard_limits import HardLimits
 from planner.model.kinematics import HitchModel
-from planner.model.types import ACTUATOR_NAMES, KinematicsError
+from planner.model.limit_names import LimitName
+from planner.model.types import ACTUATOR_NAMES, POSE_NAMES, KinematicsError
 from planner.trajectory.actuator_limits import ActuatorLimits
 
-__all__ = ["MotionState", "Plan", "Setpoints", "PlanError", "sample_plan", "verify_setpoints", "Violation"]
+__all__ = [
+    "MotionState",
+    "Plan",
+    "Setpoints",
+    "PlanError",
+    "TrajectoryInputError",
+    "sample_plan",
+    "verify_setpoints",
+    "Violation",
+]
+
+#: ``velocity:<actuator>`` and ``acceleration:<actuator>``, order ACTUATOR_NAMES.
+_VELOCITY_NAMES: tuple[str, ...] = tuple(str(LimitName("velocity", n)) for n in ACTUATOR_NAMES)
+_ACCELERATION_NAMES: tuple[str, ...] = tuple(str(LimitName("acceleration", n)) for n in ACTUATOR_NAMES)
 
 
-class PlanError(ValueError):
+class PlanError(HitchInputError):
     """A motion that cannot be planned within the limits; the message names the limit."""
+
+
+class TrajectoryInputError(HitchInputError):
+    """A malformed request to the trajectory layer (speed scale, rate, goal, waypoint, jog command,
+    joint-move limits); the message names the field and what is allowed.
+
+    Not a :class:`PlanError`: the request is refused before any planning.
+    """
 
 
 @dataclass(frozen=True)
@@ -36,7 +62,7 @@ class MotionState:
     acceleration: np.ndarray = field(default_factory=lambda: np.zeros(4))
 
     @classmethod
-    def at_rest(cls, position) -> MotionState:
+    def at_rest(cls, position: ArrayLike) -> MotionState:
         return cls(np.asarray(position, float).copy())
 
     @property
@@ -48,14 +74,14 @@ class MotionState:
 class Plan:
     """A chain of Ruckig trajectories; segment k starts where k−1 ends (p, v, a continuous)."""
 
-    segments: tuple  # ruckig.Trajectory objects (owned, not reused)
+    segments: tuple[Trajectory, ...]  # owned, not reused
     start: MotionState
     duration: float
     lower_bound: float
     #: the verified samples at the planner's rate (None for plans that were not sampled, e.g. stops)
     setpoints: Setpoints | None = field(default=None, repr=False)
     #: how the plan was made: kind, speed factor, attempts
-    info: dict = field(default_factory=dict)
+    info: dict[str, Any] = field(default_factory=dict)
 
     def state_at(self, t: float) -> MotionState:
         """Pose-space state at time t (clamped to [0, duration])."""
@@ -66,6 +92,13 @@ class Plan:
                 return MotionState(np.array(p), np.array(v), np.array(a))
             t -= seg.duration
         raise AssertionError("unreachable")  # pragma: no cover
+
+    def sampled(self) -> Setpoints:
+        """The verified samples of a planned move; :class:`PlanError` for a plan made without
+        them (a stop)."""
+        if self.setpoints is None:
+            raise PlanError(f"this plan ({self.info.get('kind', 'unsampled')}) carries no verified setpoints")
+        return self.setpoints
 
 
 @dataclass(frozen=True)
@@ -80,14 +113,13 @@ class Setpoints:
     actuators: np.ndarray
     actuator_velocity: np.ndarray
 
-    def to_json(self) -> list[dict]:
-        names6 = ("x", "y", "z", "roll", "pitch", "yaw")
+    def to_json(self) -> list[dict[str, Any]]:
         return [
             {
                 "t": float(self.t[k]),
-                "pose": dict(zip(names6, map(float, self.pose[k]))),
-                "actuators": dict(zip(ACTUATOR_NAMES, map(float, self.actuators[k]))),
-                "actuator_velocity": dict(zip(ACTUATOR_NAMES, map(float, self.actuator_velocity[k]))),
+                "pose": dict(zip(POSE_NAMES, map(float, self.pose[k]), strict=True)),
+                "actuators": dict(zip(ACTUATOR_NAMES, map(float, self.actuators[k]), strict=True)),
+                "actuator_velocity": dict(zip(ACTUATOR_NAMES, map(float, self.actuator_velocity[k]), strict=True)),
             }
             for k in range(len(self.t))
         ]
@@ -123,6 +155,9 @@ def sample_plan(plan: Plan, inverse: ExactInverse, rate: float) -> Setpoints:
 
 @dataclass(frozen=True)
 class Violation:
+    """A limit a sample exceeds: its name (``str`` of a :class:`~planner.model.limit_names.LimitName`),
+    the sample time [s], the value and the bound (NaN for the hard limits, whose values differ in unit)."""
+
     limit: str
     t: float
     value: float
@@ -138,7 +173,7 @@ def verify_setpoints(
     rel_tol: float = 1e-6,
     check_acceleration: bool = True,
 ) -> list[Violation]:
-    """Every limit on every sample; accelerations by central finite differences of the velocities."""
+    """Every limit on every sample; accelerations by forward differences of the velocities."""
     out: list[Violation] = []
     for k in range(len(sp.t)):
         q = sp.actuators[k]
@@ -146,10 +181,10 @@ def verify_setpoints(
         for name in hard.violations(q, f, tol=1e-9):
             out.append(Violation(name, float(sp.t[k]), float("nan"), float("nan")))
         over = np.abs(sp.actuator_velocity[k]) > limits.velocity * (1 + rel_tol)
-        for i in np.flatnonzero(over):
+        for i in np.flatnonzero(over).tolist():
             out.append(
                 Violation(
-                    f"velocity:{ACTUATOR_NAMES[i]}",
+                    _VELOCITY_NAMES[i],
                     float(sp.t[k]),
                     float(sp.actuator_velocity[k, i]),
                     float(limits.velocity[i]),
@@ -160,10 +195,9 @@ def verify_setpoints(
         # so it cannot exceed a bound the true acceleration respects
         acc = np.diff(sp.actuator_velocity, axis=0) / np.diff(sp.t)[:, None]
         allow = limits.acceleration * (1 + rel_tol)
-        for k, i in zip(*np.nonzero(np.abs(acc) > allow)):
+        rows, cols = np.nonzero(np.abs(acc) > allow)
+        for k, i in zip(rows.tolist(), cols.tolist(), strict=True):
             out.append(
-                Violation(
-                    f"acceleration:{ACTUATOR_NAMES[i]}", float(sp.t[k]), float(acc[k, i]), float(limits.acceleration[i])
-                )
+                Violation(_ACCELERATION_NAMES[i], float(sp.t[k]), float(acc[k, i]), float(limits.acceleration[i]))
             )
     return out

@@ -17,14 +17,23 @@ import math
 from collections.abc import Mapping, Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 from ruckig import ControlInterface, InputParameter, Result, Ruckig, Synchronization, Trajectory
 
 from planner.model.exact_inverse import ExactInverse
-from planner.model.hard_limits import HardLimits
+from planner.model.hard_limits import WORKSPACE_NAMES, HardLimits
 from planner.model.kinematics import HitchModel
 from planner.model.types import CONTROLLED_POSE_NAMES, KinematicsError
 from planner.trajectory.actuator_limits import ActuatorLimits
-from planner.trajectory.plan import MotionState, Plan, PlanError, Setpoints, sample_plan, verify_setpoints
+from planner.trajectory.plan import (
+    MotionState,
+    Plan,
+    PlanError,
+    Setpoints,
+    TrajectoryInputError,
+    sample_plan,
+    verify_setpoints,
+)
 from planner.trajectory.pose_limits import PoseLimits, box_limits, straight_line_limits
 
 __all__ = ["TrajectoryPlanner", "Waypoint"]
@@ -32,14 +41,14 @@ __all__ = ["TrajectoryPlanner", "Waypoint"]
 _OK = (Result.Working, Result.Finished)
 
 
-def _check_scale(speed_scale) -> float:
+def _check_scale(speed_scale: object) -> float:
     if (
         isinstance(speed_scale, bool)
         or not isinstance(speed_scale, (int, float))
         or not math.isfinite(speed_scale)
         or not 0.0 < speed_scale <= 1.0
     ):
-        raise ValueError(f"speed_scale must be a number in (0, 1], got {speed_scale!r}")
+        raise TrajectoryInputError(f"speed_scale must be a number in (0, 1], got {speed_scale!r}")
     return float(speed_scale)
 
 
@@ -68,14 +77,17 @@ class TrajectoryPlanner:
         self.limits = limits or ActuatorLimits.from_profile(model.profile)
         self.rate = float(rate if rate is not None else model.profile.motion.control_rate)
         if not 1.0 <= self.rate <= 200.0:
-            raise ValueError(f"rate must lie within 1..200 Hz, got {self.rate}")
+            raise TrajectoryInputError(f"rate must lie within 1..200 Hz, got {self.rate}")
         ws = workspace if workspace is not None else model.workspace
         if ws is None:
             raise PlanError(f"no restricted workspace for category {model.category}: Cartesian motion is refused")
         self.workspace = {k: (float(ws[k][0]), float(ws[k][1])) for k in CONTROLLED_POSE_NAMES}
         self.lo = np.array([self.workspace[k][0] for k in CONTROLLED_POSE_NAMES])
         self.hi = np.array([self.workspace[k][1] for k in CONTROLLED_POSE_NAMES])
-        corners = [np.array(c) for c in itertools.product(*[(a, (a + b) / 2, b) for a, b in zip(self.lo, self.hi)])]
+        corners = [
+            np.array(c)
+            for c in itertools.product(*[(a, (a + b) / 2, b) for a, b in zip(self.lo, self.hi, strict=True)])
+        ]
         self.any_direction = box_limits(self.inverse, corners, self.limits)
         self._ruckig = Ruckig(4)
         self._input = InputParameter(4)
@@ -84,35 +96,38 @@ class TrajectoryPlanner:
         self._traj1 = Trajectory(1)
 
     # ------------------------------------------------------------------ goals
-    def goal_vector(self, current, goal: Mapping[str, float]) -> np.ndarray:
+    def goal_vector(self, current: ArrayLike, goal: Mapping[str, float]) -> np.ndarray:
         """Full goal (x, z, roll, pitch) from a partial mapping; unspecified DOF keep ``current``."""
         if not isinstance(goal, Mapping):
-            raise ValueError(f"goal must be a mapping with any of {', '.join(CONTROLLED_POSE_NAMES)}")
+            raise TrajectoryInputError(f"goal must be a mapping with any of {', '.join(CONTROLLED_POSE_NAMES)}")
         unknown = set(goal) - set(CONTROLLED_POSE_NAMES)
         if unknown:
-            raise ValueError(f"goal: unknown field(s) {', '.join(sorted(unknown))}; allowed: x, z, roll, pitch")
+            raise TrajectoryInputError(
+                f"goal: unknown field(s) {', '.join(sorted(unknown))}; allowed: x, z, roll, pitch"
+            )
         out = np.asarray(current, float).copy()
         for i, k in enumerate(CONTROLLED_POSE_NAMES):
             if k in goal:
                 v = goal[k]
                 if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                    raise ValueError(f"goal.{k} must be a finite number, got {v!r}")
+                    raise TrajectoryInputError(f"goal.{k} must be a finite number, got {v!r}")
                 out[i] = float(v)
         return out
 
-    def check_in_workspace(self, p, what: str = "goal") -> None:
-        for i, k in enumerate(CONTROLLED_POSE_NAMES):
+    def check_in_workspace(self, p: np.ndarray, what: str = "goal") -> None:
+        """PlanError naming the workspace face when pose ``p`` (x, z, roll, pitch) lies outside the workspace."""
+        for i, (k, (name_min, name_max)) in enumerate(zip(CONTROLLED_POSE_NAMES, WORKSPACE_NAMES, strict=True)):
             unit = "m" if k in ("x", "z") else "rad"
             if p[i] < self.lo[i] - 1e-9:
                 raise PlanError(
-                    f"{what}.{k} = {p[i]:.4f} {unit} is below the workspace (workspace:{k}:min = {self.lo[i]:.4f})"
+                    f"{what}.{k} = {p[i]:.4f} {unit} is below the workspace ({name_min} = {self.lo[i]:.4f})"
                 )
             if p[i] > self.hi[i] + 1e-9:
                 raise PlanError(
-                    f"{what}.{k} = {p[i]:.4f} {unit} is above the workspace (workspace:{k}:max = {self.hi[i]:.4f})"
+                    f"{what}.{k} = {p[i]:.4f} {unit} is above the workspace ({name_max} = {self.hi[i]:.4f})"
                 )
 
-    def state_from_actuators(self, q, q_velocity=None) -> MotionState:
+    def state_from_actuators(self, q: ArrayLike, q_velocity: ArrayLike | None = None) -> MotionState:
         """Pose-space state of actuators ``q`` moving at ``q_velocity`` (least squares through the FK Jacobian)."""
         f, jac = self.model.features(np.asarray(q, float))
         rows = [0, 2, 3, 4]
@@ -132,11 +147,11 @@ class TrajectoryPlanner:
     ) -> Plan:
         """Through waypoints, stopping at each (``blend=False``) or passing with non-zero velocity."""
         if not waypoints:
-            raise ValueError("waypoints: at least one waypoint is needed")
+            raise TrajectoryInputError("waypoints: at least one waypoint is needed")
         pts, prev = [], start.position
         for k, w in enumerate(waypoints):
             if not isinstance(w, Waypoint):
-                raise ValueError(f"waypoints[{k}] must be a Waypoint")
+                raise TrajectoryInputError(f"waypoints[{k}] must be a Waypoint")
             p = self.goal_vector(prev, w.goal)
             self.check_in_workspace(p, f"waypoints[{k}]")
             pts.append(p)
@@ -152,7 +167,7 @@ class TrajectoryPlanner:
                     blend_fraction,
                     min(waypoints[k].speed_scale, waypoints[k + 1].speed_scale),
                 )
-        return self._plan_segments(start, [(p, v, w.speed_scale) for p, v, w in zip(pts, vels, waypoints)])
+        return self._plan_segments(start, [(p, v, w.speed_scale) for p, v, w in zip(pts, vels, waypoints, strict=True)])
 
     def plan_stop(self, state: MotionState) -> Plan:
         """The jerk-limited shortest stop from ``state`` (each DOF brakes at its any-direction limits)."""
@@ -173,7 +188,7 @@ class TrajectoryPlanner:
     def sample(self, plan: Plan, rate: float | None = None) -> Setpoints:
         r = self.rate if rate is None else float(rate)
         if not 1.0 <= r <= 200.0:
-            raise ValueError(f"rate must lie within 1..200 Hz, got {r}")
+            raise TrajectoryInputError(f"rate must lie within 1..200 Hz, got {r}")
         return sample_plan(plan, self.inverse, r)
 
     def lower_bound(self, q0, q1, q0_velocity=None) -> float:
@@ -278,14 +293,15 @@ class TrajectoryPlanner:
         )
 
     def _check_extrema(self, traj: Trajectory) -> None:
-        for i, (k, ext) in enumerate(zip(CONTROLLED_POSE_NAMES, traj.position_extrema)):
+        extrema = zip(CONTROLLED_POSE_NAMES, WORKSPACE_NAMES, traj.position_extrema, strict=True)
+        for i, (k, (name_min, name_max), ext) in enumerate(extrema):
             if ext.min < self.lo[i] - 1e-6:
                 raise PlanError(
                     f"the trajectory would leave the workspace: {k} reaches {ext.min:.4f} at t = {ext.t_min:.2f} s "
-                    f"(workspace:{k}:min = {self.lo[i]:.4f})"
+                    f"({name_min} = {self.lo[i]:.4f})"
                 )
             if ext.max > self.hi[i] + 1e-6:
                 raise PlanError(
                     f"the trajectory would leave the workspace: {k} reaches {ext.max:.4f} at t = {ext.t_max:.2f} s "
-                    f"(workspace:{k}:max = {self.hi[i]:.4f})"
+                    f"({name_max} = {self.hi[i]:.4f})"
                 )

@@ -10,12 +10,15 @@ times |u_d|, so a phase-synchronised Ruckig profile moves exactly along the line
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from planner.model.exact_inverse import ExactInverse
 from planner.trajectory.actuator_limits import ActuatorLimits
+from planner.trajectory.plan import TrajectoryInputError
 
 __all__ = ["PoseLimits", "straight_line_limits", "box_limits"]
 
@@ -41,16 +44,18 @@ class PoseLimits:
         )
 
 
-def straight_line_limits(inverse: ExactInverse, p0, p1, limits: ActuatorLimits, points: int = 24) -> PoseLimits:
+def straight_line_limits(
+    inverse: ExactInverse, p0: ArrayLike, p1: ArrayLike, limits: ActuatorLimits, points: int = 24
+) -> PoseLimits:
     """Pose limits for the straight segment p0 → p1 (both reachable; every point must be)."""
-    p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
-    d = p1 - p0
+    a, b = np.asarray(p0, float), np.asarray(p1, float)
+    d = b - a
     length = float(np.linalg.norm(d))
     if length < _EPS:
-        return box_limits(inverse, [p0], limits)
+        return box_limits(inverse, [a], limits)
     u = d / length
     s = np.linspace(0.0, length, points)
-    g = np.array([inverse.solve(p0 + si * u)[1] @ u for si in s])  # q'(s), (K, 5)
+    g = np.array([inverse.solve(a + si * u)[1] @ u for si in s])  # q'(s), (K, 5)
     h = np.gradient(g, s, axis=0)  # q''(s)
     k = np.gradient(h, s, axis=0)  # q'''(s)
     ag, ah, ak = np.abs(g) + _EPS, np.abs(h), np.abs(k)
@@ -67,17 +72,19 @@ def straight_line_limits(inverse: ExactInverse, p0, p1, limits: ActuatorLimits, 
     return PoseLimits(vs * au, as_ * au, max(js, _EPS) * au)
 
 
-def box_limits(inverse: ExactInverse, points, limits: ActuatorLimits) -> PoseLimits:
+def box_limits(inverse: ExactInverse, points: Iterable[ArrayLike], limits: ActuatorLimits) -> PoseLimits:
     """Per-DOF pose limits valid in ANY direction at the given points: with |ṗ_d| ≤ v_d for
     all d, Σ_d |G_id|·v_d ≤ v_i for every actuator i (likewise for acceleration and jerk,
     with a factor 0.8 for the neglected curvature terms). Used for jog, stops and blends."""
-    best = None
+    best: np.ndarray | None = None
     for p in points:
         G = np.abs(inverse.solve(np.asarray(p, float))[1])  # (5, 4)
         axis = np.min(limits.velocity[:, None] / (G + _EPS), axis=0)  # each DOF alone
         kappa = np.min(limits.velocity / (G @ axis + _EPS))
         cand = axis * kappa
         best = cand if best is None else np.minimum(best, cand)
+    if best is None:
+        raise TrajectoryInputError("box_limits: at least one point is needed")
     # acceleration and jerk in the same proportion as the actuators' own ratios
     ratio_a = float(np.min(limits.acceleration / limits.velocity)) * 0.8
     ratio_j = float(np.min(limits.jerk / limits.acceleration)) * 0.8

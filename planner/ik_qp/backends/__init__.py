@@ -1,22 +1,17 @@
 """QP backends of the SQP core: one problem form, one result type, several solvers.
 
-Every QP is stated in OSQP form ``min ½ xᵀPx + cᵀx  s.t.  l <= A x <= u`` where the first
-``n_var`` rows of ``A`` are the identity (box rows on the variables) and the remaining rows
-are general constraints (``l == u`` marks an equality; ``|bound| >= QP_INFINITY`` is none). Multipliers follow the OSQP sign
-convention: ``P x + c + Aᵀ y = 0``, ``y_i > 0`` when row ``i`` is at its upper side,
-``y_i < 0`` at its lower side.
-
-Backends: ``"osqp"`` (default; one persistent ``osqp.OSQP`` per problem key and shape,
+The form and types are in :mod:`planner.ik_qp.backends.base` (OSQP form, OSQP multiplier
+signs). Backends: ``"osqp"`` (default; one persistent ``osqp.OSQP`` per problem key and shape,
 ``update()``-d and warm-started) and, through qpsolvers, ``"daqp"``, ``"quadprog"``,
-``"proxqp"`` and ``"clarabel"``.
+``"proxqp"`` and ``"clarabel"``; each is imported when first asked for.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Literal, Protocol
+from typing import Any
 
-import numpy as np
+from planner.ik_qp.backends.base import BACKENDS, QP_INFINITY, QPBackend, QPData, QPResult, QPStatus
+from planner.ik_qp.errors import IKInputError
 
 __all__ = [
     "BACKENDS",
@@ -28,73 +23,8 @@ __all__ = [
     "make_backend",
 ]
 
-#: Names accepted by :func:`make_backend`.
-BACKENDS: tuple[str, ...] = ("osqp", "daqp", "quadprog", "proxqp", "clarabel")
 
-QPStatus = Literal["solved", "infeasible", "failed"]
-
-#: Bounds with ``|value| >= QP_INFINITY`` are infinite (OSQP's ``OSQP_INFTY``).
-QP_INFINITY = 1e30
-
-
-class QPData:
-    """Pre-allocated buffers of one QP in OSQP form (mutable workspace, reused every iteration).
-
-    Attributes:
-        P: ``(n_var, n_var)`` symmetric positive semidefinite cost matrix.
-        c: ``(n_var,)`` linear cost.
-        A: ``(n_row, n_var)`` constraint matrix; ``A[:n_var]`` is the identity.
-        P_flat_f, A_flat_f: Column-major flat views of ``P`` and ``A``.
-        l, u: ``(n_row,)`` bounds (``±QP_INFINITY`` or beyond = none, ``l == u`` for equalities).
-    """
-
-    __slots__ = ("n_var", "n_row", "P", "c", "A", "l", "u", "P_flat_f", "A_flat_f")
-
-    def __init__(self, n_var: int, n_row: int):
-        if n_row < n_var:
-            raise ValueError(f"n_row ({n_row}) must include the {n_var} box rows")
-        self.n_var, self.n_row = n_var, n_row
-        # Column-major storage: the column-major flat views feed CSC data without copies.
-        self.P = np.zeros((n_var, n_var), order="F")
-        self.c = np.zeros(n_var)
-        self.A = np.zeros((n_row, n_var), order="F")
-        self.A[:n_var] = np.eye(n_var)
-        self.l = np.zeros(n_row)
-        self.u = np.zeros(n_row)
-        self.P_flat_f = self.P.reshape(-1, order="F")
-        self.A_flat_f = self.A.reshape(-1, order="F")
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        return self.n_var, self.n_row
-
-
-@dataclass(frozen=True, slots=True)
-class QPResult:
-    """Solution of one QP: primal ``x`` (n_var,), multipliers ``y`` (n_row, OSQP signs)."""
-
-    x: np.ndarray
-    y: np.ndarray
-    status: QPStatus
-    detail: str = ""
-
-    @property
-    def solved(self) -> bool:
-        return self.status == "solved"
-
-
-class QPBackend(Protocol):
-    """A QP solver. ``key`` names a persistent problem (e.g. ``"main"``, ``"elastic"``);
-    ``matrices_changed=False`` promises ``P`` and ``A`` are unchanged since the last solve
-    of that key (only ``c``, ``l``, ``u`` moved), which lets persistent solvers skip a
-    refactorisation."""
-
-    name: str
-
-    def solve(self, qp: QPData, key: str, matrices_changed: bool = True) -> QPResult: ...
-
-
-def make_backend(name: str, **options) -> QPBackend:
+def make_backend(name: str, **options: Any) -> QPBackend:
     """Create the backend ``name`` (one of :data:`BACKENDS`); ``options`` go to the solver."""
     if name == "osqp":
         from planner.ik_qp.backends.osqp_backend import OSQPBackend
@@ -104,4 +34,4 @@ def make_backend(name: str, **options) -> QPBackend:
         from planner.ik_qp.backends.qpsolvers_backend import QpsolversBackend
 
         return QpsolversBackend(name, **options)
-    raise ValueError(f"backend: unknown QP backend {name!r}; allowed: {', '.join(BACKENDS)}")
+    raise IKInputError(f"backend: unknown QP backend {name!r}; allowed: {', '.join(BACKENDS)}")

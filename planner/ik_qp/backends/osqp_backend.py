@@ -29,7 +29,8 @@ import osqp
 from osqp.interface import SolverStatus
 from scipy import sparse  # required by osqp.OSQP.setup (osqp depends on scipy); no numerics here
 
-from . import QP_INFINITY, QPData, QPResult
+from planner.ik_qp.backends.base import QP_INFINITY, QPData, QPResult, QPStatus
+from planner.ik_qp.errors import IKInputError
 
 __all__ = ["OSQPBackend", "OSQP_SETTINGS", "polish_solution"]
 
@@ -75,21 +76,32 @@ def _dense_csc(values: np.ndarray, upper_only: bool):
     return mat, flat_a
 
 
-def polish_solution(P, c, A, l, u, x, y, *, rounds: int = 4, tol: float = 1e-10):
-    """Exact solution of ``min ½xᵀPx + cᵀx s.t. l <= Ax <= u`` on the active set suggested by
+def polish_solution(
+    P: np.ndarray,
+    c: np.ndarray,
+    A: np.ndarray,
+    lb: np.ndarray,
+    ub: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    *,
+    rounds: int = 4,
+    tol: float = 1e-10,
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Exact solution of ``min ½xᵀPx + cᵀx s.t. lb <= Ax <= ub`` on the active set suggested by
     an approximate primal-dual pair ``(x, y)`` (OSQP's rule: lower-active where
-    ``Ax − l < −y``, upper-active where ``u − Ax < y``; equalities always active).
+    ``Ax − lb < −y``, upper-active where ``ub − Ax < y``; equalities always active).
 
     Returns ``(x, y)`` verified to be primal feasible within ``tol · max(1, ‖(x, y)‖∞)`` with
     correctly signed multipliers, or ``None``. Violated rows are added and wrongly signed
     ones dropped for up to ``rounds`` re-solves of the (dense) KKT system.
     """
-    n, m = P.shape[0], l.size
+    n, m = P.shape[0], lb.size
     z = A @ x
-    eq = l == u
-    lower = z - l < -y
+    eq = lb == ub
+    lower = z - lb < -y
     lower |= eq
-    upper = u - z < y
+    upper = ub - z < y
     upper &= ~lower
     ineq_lower = lower & ~eq
     for _ in range(rounds):
@@ -100,7 +112,7 @@ def polish_solution(P, c, A, l, u, x, y, *, rounds: int = 4, tol: float = 1e-10)
         Aa = A[idx]
         K[n:, :n] = Aa
         K[:n, n:] = Aa.T
-        rhs = np.concatenate((-c, np.where(lower[idx], l[idx], u[idx])))
+        rhs = np.concatenate((-c, np.where(lower[idx], lb[idx], ub[idx])))
         try:
             sol = np.linalg.solve(K, rhs)
         except np.linalg.LinAlgError:  # degenerate (dependent) active rows
@@ -113,8 +125,8 @@ def polish_solution(P, c, A, l, u, x, y, *, rounds: int = 4, tol: float = 1e-10)
         ys[idx] = sol[n:]
         z = A @ xs
         t = tol * max(1.0, size)
-        viol_lo = z < l - t
-        viol_up = z > u + t
+        viol_lo = z < lb - t
+        viol_up = z > ub + t
         wrong_lo = ineq_lower & (ys > t)
         wrong_up = upper & (ys < -t)
         bad = viol_lo | viol_up
@@ -148,15 +160,18 @@ class _Persistent:
         needed = ("update_data_vec", "update_data_mat", "solve", "solution", "info")
         self.raw = raw if raw is not None and all(hasattr(raw, a) for a in needed) else None
 
-    def update(self, c, l, u, Px, Ax) -> None:
+    def update(
+        self, c: np.ndarray, lb: np.ndarray, ub: np.ndarray, Px: np.ndarray | None, Ax: np.ndarray | None
+    ) -> None:
+        """New cost ``c`` and bounds ``lb``, ``ub``; new matrix values ``Px``, ``Ax`` unless None."""
         if self.raw is not None:
-            self.raw.update_data_vec(c, l, u)
+            self.raw.update_data_vec(c, lb, ub)
             if Px is not None:
                 self.raw.update_data_mat(Px, None, Ax, None)
         elif Px is not None:
-            self.solver.update(q=c, l=l, u=u, Px=Px, Ax=Ax)
+            self.solver.update(q=c, l=lb, u=ub, Px=Px, Ax=Ax)
         else:
-            self.solver.update(q=c, l=l, u=u)
+            self.solver.update(q=c, l=lb, u=ub)
 
     def warm_start_zero_step(self) -> None:
         """Warm start from ``x = 0`` keeping the last multipliers: a new SQP iteration's step
@@ -192,11 +207,11 @@ class OSQPBackend:
         allowed = set(OSQP_SETTINGS) | {"sigma", "scaling", "time_limit", "polish_refine_iter", "delta"}
         unknown = set(settings) - allowed
         if unknown:
-            raise ValueError(f"osqp settings: unknown {sorted(unknown)}; allowed: {sorted(allowed)}")
+            raise IKInputError(f"osqp settings: unknown {sorted(unknown)}; allowed: {sorted(allowed)}")
         self.settings = {**OSQP_SETTINGS, **settings}
         self.raw_bindings = bool(raw_bindings)
         if isinstance(max_rounds, bool) or not isinstance(max_rounds, int) or max_rounds < 1:
-            raise ValueError(f"max_rounds: must be an integer >= 1, got {max_rounds!r}")
+            raise IKInputError(f"max_rounds: must be an integer >= 1, got {max_rounds!r}")
         self.max_rounds = max_rounds
         self.setups = 0
         self._problems: dict[str, _Persistent] = {}
@@ -209,8 +224,8 @@ class OSQPBackend:
         P, p_flat = _dense_csc(qp.P, upper_only=True)
         A, a_flat = _dense_csc(qp.A, upper_only=False)
         solver = osqp.OSQP()
-        l, u = np.maximum(qp.l, -QP_INFINITY), np.minimum(qp.u, QP_INFINITY)
-        solver.setup(P=P, q=qp.c.copy(), A=A, l=l, u=u, **self.settings)
+        lb, ub = np.maximum(qp.l, -QP_INFINITY), np.minimum(qp.u, QP_INFINITY)
+        solver.setup(P=P, q=qp.c.copy(), A=A, l=lb, u=ub, **self.settings)
         entry = _Persistent(solver, qp.shape, p_flat, a_flat, self.raw_bindings)
         self.setups += 1
         self._problems[key] = entry
@@ -258,7 +273,8 @@ class OSQPBackend:
                 entry.polished += 1
                 entry.last_status = "solved"
                 return QPResult(polished[0], polished[1], "solved", "polished ADMM iterate")
-        entry.last_status = "infeasible" if status in _INFEASIBLE else "failed"
+        outcome: QPStatus = "infeasible" if status in _INFEASIBLE else "failed"
+        entry.last_status = outcome
         # Do not warm-start the next solve from a diverged iterate.
         entry.solver.warm_start(x=np.zeros(qp.n_var), y=np.zeros(qp.n_row))
-        return QPResult(np.zeros(qp.n_var), np.zeros(qp.n_row), entry.last_status, text)
+        return QPResult(np.zeros(qp.n_var), np.zeros(qp.n_row), outcome, text)

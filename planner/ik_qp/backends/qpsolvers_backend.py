@@ -15,11 +15,13 @@ through its elastic QP or more damping.
 from __future__ import annotations
 
 import warnings
+from typing import Any
 
 import numpy as np
 import qpsolvers
 
-from . import BACKENDS, QP_INFINITY, QPData, QPResult
+from planner.ik_qp.backends.base import BACKENDS, QP_INFINITY, QPData, QPResult, QPStatus
+from planner.ik_qp.errors import IKInputError
 
 __all__ = ["QpsolversBackend", "QPSOLVERS_OPTIONS"]
 
@@ -41,17 +43,17 @@ QPSOLVERS_OPTIONS: dict[str, dict] = {
 class QpsolversBackend:
     """One qpsolvers solver (``"daqp"``, ``"quadprog"``, ``"proxqp"`` or ``"clarabel"``)."""
 
-    def __init__(self, name: str, **options):
+    def __init__(self, name: str, **options: Any):
         if name not in BACKENDS or name == "osqp":
             allowed = ", ".join(b for b in BACKENDS if b != "osqp")
-            raise ValueError(f"backend: {name!r} is not a qpsolvers backend here; allowed: {allowed}")
+            raise IKInputError(f"backend: {name!r} is not a qpsolvers backend here; allowed: {allowed}")
         if name not in qpsolvers.available_solvers:
-            raise ValueError(f"backend: {name!r} is not installed (available: {qpsolvers.available_solvers})")
+            raise IKInputError(f"backend: {name!r} is not installed (available: {qpsolvers.available_solvers})")
         self.name = name
         self.options = {**QPSOLVERS_OPTIONS[name], **options}
 
     @staticmethod
-    def _nearly_solved(sol, qp: QPData) -> bool:
+    def _nearly_solved(sol: qpsolvers.Solution, qp: QPData) -> bool:
         """Clarabel stops with ``InsufficientProgress``/``AlmostSolved`` when the (scaled) QP
         is already solved to about its tolerance: accept a finite, primal-feasible point."""
         status = str(sol.extras.get("status", "")) if sol.extras else ""
@@ -67,16 +69,15 @@ class QpsolversBackend:
     def solve(self, qp: QPData, key: str, matrices_changed: bool = True) -> QPResult:
         """Solve ``qp`` (``key`` and ``matrices_changed`` are irrelevant: nothing persists)."""
         nv = qp.n_var
-        A, l, u = qp.A[nv:], qp.l[nv:], qp.u[nv:]
+        A, row_lb, row_ub = qp.A[nv:], qp.l[nv:], qp.u[nv:]
         lb, ub = qp.l[:nv], qp.u[:nv]
-        eq = l == u
-        up = ~eq & (np.abs(u) < QP_INFINITY)
-        lo = ~eq & (np.abs(l) < QP_INFINITY)
+        eq = row_lb == row_ub
+        up = ~eq & (np.abs(row_ub) < QP_INFINITY)
+        lo = ~eq & (np.abs(row_lb) < QP_INFINITY)
         box = bool(np.all(np.abs(lb) < QP_INFINITY) and np.all(np.abs(ub) < QP_INFINITY))
-        g_blocks, h_blocks = [A[up], -A[lo]], [u[up], -l[lo]]
-        box_up = box_lo = None
+        g_blocks, h_blocks = [A[up], -A[lo]], [row_ub[up], -row_lb[lo]]
+        box_up, box_lo = np.abs(ub) < QP_INFINITY, np.abs(lb) < QP_INFINITY
         if not box:  # infinite box sides: finite ones become general rows
-            box_up, box_lo = np.abs(ub) < QP_INFINITY, np.abs(lb) < QP_INFINITY
             eye = np.eye(nv)
             g_blocks += [eye[box_up], -eye[box_lo]]
             h_blocks += [ub[box_up], -lb[box_lo]]
@@ -88,7 +89,7 @@ class QpsolversBackend:
             G if G.shape[0] else None,
             h if G.shape[0] else None,
             A[eq] if eq.any() else None,
-            u[eq] if eq.any() else None,
+            row_ub[eq] if eq.any() else None,
             lb if box else None,
             ub if box else None,
         )
@@ -98,7 +99,7 @@ class QpsolversBackend:
                 sol = qpsolvers.solve_problem(problem, solver=self.name, **self.options)
         except Exception as exc:  # solver-specific errors (e.g. quadprog "constraints are inconsistent")
             text = str(exc)
-            status = "infeasible" if "inconsistent" in text or "infeasible" in text.lower() else "failed"
+            status: QPStatus = "infeasible" if "inconsistent" in text or "infeasible" in text.lower() else "failed"
             return QPResult(np.zeros(nv), np.zeros(qp.n_row), status, f"{self.name}: {text}")
         if not sol.found and self._nearly_solved(sol, qp):
             sol.found = True

@@ -402,7 +402,10 @@ def test_wrist_singularity_uses_the_reference(arm):
 # ============================================================================= selection and limits
 def limited_arm(limits):
     base = load_arm_profile().chain()
-    links = [DHLink(l.a, l.alpha, l.d, l.theta, l.kind, lo, hi, l.name) for l, (lo, hi) in zip(base.links, limits)]
+    links = [
+        DHLink(k.a, k.alpha, k.d, k.theta, k.kind, lo, hi, k.name)
+        for k, (lo, hi) in zip(base.links, limits, strict=True)
+    ]
     return build_spherical_wrist_arm(build_dh_chain(links))
 
 
@@ -419,14 +422,14 @@ def test_selection_respects_limits_and_minimises_distance():
     arm = limited_arm([(-pi, pi), (-1.0, 1.5), (-pi, pi), (-pi, pi), (0.05, pi), (0.0, 2 * pi)])
     rng = np.random.default_rng(SEED)
     checked = 0
-    for q, p, R in random_targets(arm.chain, rng, 200):
+    for _, p, R in random_targets(arm.chain, rng, 200):
         res = solve_arm_ik(arm, p, R)
         ref = rng.uniform(-2, 2, 6)
         # Independent brute force over every 2π-equivalent of every solution.
         best_cost, feasible = math.inf, False
         for s in res.solutions:
             options = []
-            for x, lo, hi, r in zip(s.joints, arm.chain.lower, arm.chain.upper, ref):
+            for x, lo, hi, r in zip(s.joints, arm.chain.lower, arm.chain.upper, ref, strict=True):
                 cands = [x + 2 * pi * k for k in range(-3, 4) if lo - 1e-12 <= x + 2 * pi * k <= hi + 1e-12]
                 options.append(min((c - r) ** 2 for c in cands) if cands else None)
             if None not in options:

@@ -27,7 +27,7 @@ def test_example_profile_is_table_2_1_with_the_worked_example_in_metres():
     prof = load_arm_profile("arm-source-example")
     assert "arm-source-example" in available_arm_profiles()
     chain = prof.chain()
-    table = [(l.a, l.alpha, l.d, l.theta, l.kind) for l in chain.links]
+    table = [(k.a, k.alpha, k.d, k.theta, k.kind) for k in chain.links]
     assert table == [
         (0.0, H, 0.100, 0.0, "revolute"),  # base height a1 = 100 mm
         (0.100, 0.0, 0.0, 0.0, "revolute"),  # a2 = 100 mm

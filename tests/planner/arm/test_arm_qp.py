@@ -1,4 +1,4 @@
-"""The serial arm through the same SQP core, checked against the closed-form 6R solutions (issue 8)."""
+"""The serial arm through the same SQP core, checked against the closed-form 6R solutions."""
 
 import numpy as np
 import pytest
@@ -66,8 +66,8 @@ def test_unreachable_arm_target_is_limited_not_nan(setup):
 def test_joint_space_ruckig_move_between_two_arm_poses(setup, rng):
     chain, arm, _ = setup
     q0, q1 = rng.uniform(-1, 1, 6), rng.uniform(-1, 1, 6)
-    lo = np.array([l.lower for l in chain.links])
-    hi = np.array([l.upper for l in chain.links])
+    lo = np.array([link.lower for link in chain.links])
+    hi = np.array([link.upper for link in chain.links])
     js = plan_joint_move(q0, q1, velocity=1.0, acceleration=2.0, jerk=10.0, rate=100.0, lower=lo, upper=hi)
     np.testing.assert_allclose(js.position[0], q0, atol=1e-12)
     np.testing.assert_allclose(js.position[-1], q1, atol=1e-12)

@@ -76,7 +76,7 @@ def test_source_2_19_as_printed_fails():
     wrong = set()
     for a, alpha, d, theta in rng.uniform(0.2, 1.3, size=(20, 4)):
         diff = np.abs(printed_2_19(a, alpha, d, theta) - elementary_dh(a, alpha, d, theta)) > 1e-9
-        wrong |= {(int(i) + 1, int(j) + 1) for i, j in zip(*np.nonzero(diff))}
+        wrong |= {(int(i) + 1, int(j) + 1) for i, j in zip(*np.nonzero(diff), strict=True)}
     assert wrong == {(1, 3), (2, 3), (2, 4), (3, 4)}
 
 
@@ -282,7 +282,7 @@ def test_casadi_functions_equal_numpy(make):
         np.testing.assert_allclose(np.array(p).ravel(), fr.position, atol=1e-14)
         np.testing.assert_allclose(np.array(R), fr.rotation, atol=1e-14)
         np.testing.assert_allclose(np.array(fns.jacobian(q)), geometric_jacobian(chain, q), atol=1e-13)
-        for T_ca, T in zip(fns.frames(q), fr.frames):
+        for T_ca, T in zip(fns.frames(q), fr.frames, strict=True):
             np.testing.assert_allclose(np.array(T_ca), T, atol=1e-14)
         x, dx = (np.array(v) for v in fns.pose(q))
         np.testing.assert_allclose(x.ravel(), np.concatenate([fr.position, fr.rotation.T.ravel()]), atol=1e-14)

@@ -216,7 +216,9 @@ def test_zyz_round_trip_both_branches_random():
 
 def test_zyz_recovers_generating_angles():
     rng = np.random.default_rng(SEED)
-    for phi, theta, psi in zip(rng.uniform(-3.1, 3.1, 200), rng.uniform(0.01, 3.13, 200), rng.uniform(-3.1, 3.1, 200)):
+    for phi, theta, psi in zip(
+        rng.uniform(-3.1, 3.1, 200), rng.uniform(0.01, 3.13, 200), rng.uniform(-3.1, 3.1, 200), strict=True
+    ):
         sol = solve_euler_zyz(euler_zyz_matrix(phi, theta, psi))
         np.testing.assert_allclose(sol.branches[0].as_tuple(), (phi, theta, psi), atol=1e-12)
 

@@ -64,8 +64,8 @@ def arm3():
     q = ca.SX.sym("q", 3)
     a = ca.cumsum(q)
     lengths = (1.0, 0.8, 0.5)
-    x = sum(l * ca.cos(a[i]) for i, l in enumerate(lengths))
-    y = sum(l * ca.sin(a[i]) for i, l in enumerate(lengths))
+    x = sum(length * ca.cos(a[i]) for i, length in enumerate(lengths))
+    y = sum(length * ca.sin(a[i]) for i, length in enumerate(lengths))
     return build_mechanism(
         "arm3",
         q,
@@ -206,8 +206,8 @@ def test_redundant_unbounded_mechanism(backend, rng):
     # 3 joints, 2 tasks, no strokes: the damping picks a step in the null space
     q = ca.SX.sym("q", 3)
     a = ca.cumsum(q)
-    x = sum(l * ca.cos(a[i]) for i, l in enumerate((1.0, 0.8, 0.5)))
-    y = sum(l * ca.sin(a[i]) for i, l in enumerate((1.0, 0.8, 0.5)))
+    x = sum(length * ca.cos(a[i]) for i, length in enumerate((1.0, 0.8, 0.5)))
+    y = sum(length * ca.sin(a[i]) for i, length in enumerate((1.0, 0.8, 0.5)))
     mech = build_mechanism(
         "redundant",
         q,
@@ -338,7 +338,7 @@ def test_all_backends_agree(arm, rigid_bar):
     cases = problems_for_backends(arm, rigid_bar)
     reference = [SQPSolver(m).solve(build_ik_problem(m, t), seed=s) for m, t, s in cases]
     for backend in BACKENDS[1:]:
-        for (mech, target, seed), ref in zip(cases, reference):
+        for (mech, target, seed), ref in zip(cases, reference, strict=True):
             sol = SQPSolver(mech, backend=backend).solve(build_ik_problem(mech, target), seed=seed)
             check_solution(sol, mech)
             assert sol.status == ref.status, (backend, sol.reason)
@@ -406,7 +406,7 @@ def test_warm_start_reduces_iterations_on_a_path(rng):
     targets = [np.array(mech.task(q)[0]).ravel() for q in q_path]
     warm, cold = SQPSolver(mech), SQPSolver(mech)
     warm_its = cold_its = 0
-    for q, target in zip(q_path, targets):
+    for q, target in zip(q_path, targets, strict=True):
         problem = build_ik_problem(mech, target)
         a = warm.solve(problem)  # starts from the previous solution
         b = cold.solve(problem, seed=np.array([0.25, 1.3, 0.0]))

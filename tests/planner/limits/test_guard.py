@@ -136,7 +136,7 @@ def test_plan_into_an_end_stop_is_slowed(model):
     assert gp.decision.action == "scaled" and gp.decision.reasons[0].measure == "end_stop:lift"
     assert gp.setpoints.actuators[-1][0] == pytest.approx(target, abs=1e-9)
     zone = g.end_stops
-    for q, qd in zip(gp.setpoints.actuators, gp.setpoints.actuator_velocity):
+    for q, qd in zip(gp.setpoints.actuators, gp.setpoints.actuator_velocity, strict=True):
         assert np.all(np.abs(qd) <= zone.allowed_speed(q, np.sign(qd)) + 1e-9)
 
 

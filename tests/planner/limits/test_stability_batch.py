@@ -211,7 +211,7 @@ def test_batch_from_plans_on_slopes_equals_stability_at(ballasted, heavy):
     for slope in SLOPES:
         g.set_slope(*slope)
         p0, p1 = tp.lo + (tp.hi - tp.lo) * rng.random((2, 4))
-        sp = tp.plan_move(MotionState.at_rest(p0), dict(zip(("x", "z", "roll", "pitch"), p1))).setpoints
+        sp = tp.plan_move(MotionState.at_rest(p0), dict(zip(("x", "z", "roll", "pitch"), p1, strict=True))).setpoints
         P, bad = g._points_batch(sp.actuators)
         assert not bad.any()
         for k in range(0, len(sp.t), 7):  # the mapped FK is HitchModel.forward, bit for bit
@@ -240,7 +240,11 @@ def _plans(tp, rng, n_random):
     yield MotionState.at_rest([lo[0], 0.1, 0.0, hi[3]]), {"x": hi[0], "roll": lo[2], "pitch": lo[3]}, 1.0
     for _ in range(n_random):
         p0, p1 = lo + (hi - lo) * rng.random((2, 4))
-        yield MotionState.at_rest(p0), dict(zip(("x", "z", "roll", "pitch"), p1)), float(rng.choice([0.5, 1.0]))
+        yield (
+            MotionState.at_rest(p0),
+            dict(zip(("x", "z", "roll", "pitch"), p1, strict=True)),
+            float(rng.choice([0.5, 1.0])),
+        )
 
 
 def _guards(ballasted, heavy, model):

@@ -70,12 +70,12 @@ def test_link_angles_reproduce_points(model, rng):
     for q in random_closing_actuators(model, rng, 50):
         s = model.forward(q)
         txl, tzl, txr, tzr = s.link_angles
-        l = model.profile.geometry.lower_link_length
+        l_vv = model.profile.geometry.lower_link_length
         np.testing.assert_allclose(
-            s.points["L"], s.points["L0"] + l * np.array(link_direction(txl, tzl)).ravel(), atol=1e-12
+            s.points["L"], s.points["L0"] + l_vv * np.array(link_direction(txl, tzl)).ravel(), atol=1e-12
         )
         np.testing.assert_allclose(
-            s.points["R"], s.points["R0"] + l * np.array(link_direction(txr, tzr)).ravel(), atol=1e-12
+            s.points["R"], s.points["R0"] + l_vv * np.array(link_direction(txr, tzr)).ravel(), atol=1e-12
         )
 
 

@@ -33,7 +33,7 @@ def test_default_box_is_maximal_and_inside_the_thesis_box(model):
     for k in ("x", "z", "roll", "pitch"):
         step = 0.01 * (outer[k][1] - outer[k][0])
         assert outer[k][0] - 1e-9 <= box[k][0] and box[k][1] <= outer[k][1] + 1e-9
-        for side, sign in ((0, -1), (1, 1)):
+        for side in (0, 1):
             if abs(box[k][side] - outer[k][side]) < 1e-6:
                 continue
             grown = dict(box)

@@ -41,7 +41,7 @@ def fd_check(tp, sp):
 def test_point_to_point_limits_endpoints_and_straight_line(tp, rng):
     for _ in range(12):
         p0, p1 = random_pose(tp, rng), random_pose(tp, rng)
-        plan = tp.plan_move(MotionState.at_rest(p0), dict(zip(DOFS, p1)))
+        plan = tp.plan_move(MotionState.at_rest(p0), dict(zip(DOFS, p1, strict=True)))
         sp = tp.sample(plan)
         assert verify_setpoints(sp, tp.model, tp.hard, tp.limits) == []
         fd_check(tp, sp)
@@ -87,10 +87,10 @@ def test_goal_outside_workspace_is_refused_naming_the_limit(tp, model):
 def test_replan_mid_motion_is_continuous(tp, model, rng):
     for _ in range(5):
         p0, p1, p2 = random_pose(tp, rng), random_pose(tp, rng), random_pose(tp, rng)
-        first = tp.plan_move(MotionState.at_rest(p0), dict(zip(DOFS, p1)))
+        first = tp.plan_move(MotionState.at_rest(p0), dict(zip(DOFS, p1, strict=True)))
         t_switch = first.duration * rng.uniform(0.2, 0.7)
         st = first.state_at(t_switch)
-        second = tp.plan_move(st, dict(zip(DOFS, p2)))
+        second = tp.plan_move(st, dict(zip(DOFS, p2, strict=True)))
         s0 = second.state_at(0.0)
         np.testing.assert_allclose(s0.position, st.position, atol=1e-12)
         np.testing.assert_allclose(s0.velocity, st.velocity, atol=1e-12)
@@ -111,7 +111,7 @@ def test_sequences_are_continuous_and_within_limits(tp, model, blend):
     plan = tp.plan_sequence(MotionState.at_rest(p0), wps, blend=blend)
     # continuity at the joins
     t = 0.0
-    for a, b in zip(plan.segments[:-1], plan.segments[1:]):
+    for a, b in zip(plan.segments[:-1], plan.segments[1:], strict=True):
         pa, va, aa = a.at_time(a.duration)
         pb, vb, ab = b.at_time(0.0)
         np.testing.assert_allclose([pa, va, aa], [pb, vb, ab], atol=1e-12)
@@ -126,7 +126,7 @@ def test_sequences_are_continuous_and_within_limits(tp, model, blend):
 def test_stop_is_bounded_and_ends_at_rest(tp, model, rng):
     for _ in range(5):
         p0, p1 = random_pose(tp, rng), random_pose(tp, rng)
-        plan = tp.plan_move(MotionState.at_rest(p0), dict(zip(DOFS, p1)))
+        plan = tp.plan_move(MotionState.at_rest(p0), dict(zip(DOFS, p1, strict=True)))
         st = plan.state_at(plan.duration / 2)
         stop = tp.plan_stop(st)
         end = stop.state_at(stop.duration)

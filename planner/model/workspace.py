@@ -5,7 +5,8 @@ A pose (x, z, roll, pitch) is *reachable* when the exact inverse
 actuators respect every hard limit (:class:`~planner.model.hard_limits.HardLimits`).
 
 The restricted workspace is an axis-aligned box that lies wholly inside the reachable
-set (seed 003's "restricted workspace"). :func:`fit_restricted_box` grows it from the
+set (the free-gait source's "restricted workspace", docs/source_thesis.md §9).
+:func:`fit_restricted_box` grows it from the
 neutral pose, face by face in equal relative steps of the thesis's table 3-7 ranges,
 as long as every grid point of the grown face is reachable and the face stays within
 the table 3-7 box. The result is maximal: no face can move outwards by one more step.

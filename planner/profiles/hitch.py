@@ -205,9 +205,9 @@ class Stability(_Strict):
 
     tractor_profile: str = "tractor-6t"
     front_ballast: float = Field(default=0.0, ge=0.0, le=5000.0)
-    #: slow-down factor when a margin falls below its caution threshold (seed 003: 0.8)
+    #: slow-down factor when a margin falls below its caution threshold (free-gait source: 0.8)
     caution_speed_factor: float = Field(default=0.8, gt=0.0, le=1.0)
-    #: how far ahead jog motion is evaluated [s] (seed 003: about one second)
+    #: how far ahead jog motion is evaluated [s] (free-gait source: about one second)
     jog_horizon: float = Field(default=1.0, gt=0.0, le=5.0)
 
 

@@ -1,16 +1,28 @@
-"""Helpers shared by the benchmarks: machine note, percentiles, JSON output."""
+"""Helpers shared by the benchmarks: machine note, percentiles, JSON output, loopback ports,
+process CPU time from /proc and process-group clean-up."""
 
 from __future__ import annotations
 
 import json
 import os
 import platform
+import signal
+import socket
 import subprocess
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["machine_note", "percentiles_us", "write_json"]
+__all__ = [
+    "free_port",
+    "kill_group",
+    "machine_note",
+    "percentiles_ms",
+    "percentiles_us",
+    "proc_cpu_seconds",
+    "write_json",
+]
 
 
 def machine_note() -> dict:
@@ -43,3 +55,40 @@ def write_json(path: str | None, data: dict) -> None:
     if path:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         Path(path).write_text(json.dumps(data, indent=2))
+
+
+def percentiles_ms(samples_s: Iterable[float], qs: tuple[int, ...] = (50, 99)) -> dict:
+    """``p<q>_ms`` for each q, ``max_ms`` and ``n`` of samples given in seconds; None values for no sample."""
+    a = np.asarray(list(samples_s), float) * 1e3
+    a = a[np.isfinite(a)]
+    if a.size == 0:
+        return {**{f"p{q}_ms": None for q in qs}, "max_ms": None, "n": 0}
+    return {**{f"p{q}_ms": float(np.percentile(a, q)) for q in qs}, "max_ms": float(a.max()), "n": int(a.size)}
+
+
+def free_port() -> int:
+    """A free TCP port on 127.0.0.1 (loopback only)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def proc_cpu_seconds(pid: int) -> float:
+    """utime + stime of process ``pid`` from ``/proc/<pid>/stat`` [s] (all its threads, not its children)."""
+    text = Path(f"/proc/{pid}/stat").read_text()
+    fields = text[text.rindex(")") + 2 :].split()  # after "pid (comm) ": field 3 (state) is index 0
+    ticks = int(fields[11]) + int(fields[12])  # fields 14 utime and 15 stime, in clock ticks
+    return ticks / os.sysconf("SC_CLK_TCK")
+
+
+def kill_group(proc: subprocess.Popen, timeout_s: float = 5.0) -> None:
+    """SIGKILL the process group of ``proc`` (started with ``start_new_session=True``) and reap it."""
+    if proc.poll() is None:
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            pass
+    try:
+        proc.wait(timeout_s)
+    except subprocess.TimeoutExpired:
+        pass

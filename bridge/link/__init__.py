@@ -3,6 +3,7 @@
 * :mod:`bridge.link.can_link` — :class:`CanLink`, the link to one cylinder ECU;
 * :mod:`bridge.link.state` — its settings, measured state, faults, counters and errors;
 * :mod:`bridge.link.realtime` — opening a python-can bus and running a node in real time;
+* :mod:`bridge.link.loopback` — a CAN hub on 127.0.0.1 for nodes in other processes;
 * :mod:`bridge.link.unit_loop` — the feed-forward reference through the ECU's unit loops.
 
 The link runs without a simulator: nothing here imports ``bridge.sim``. The names below
@@ -16,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from bridge.link.can_link import CanLink
+    from bridge.link.loopback import DEFAULT_HUB_PORT, LOOPBACK_HOST, LoopbackHub, hub_url
     from bridge.link.realtime import (
         INTERFACES,
         BusNode,
@@ -81,6 +83,7 @@ _SOURCES: dict[str, str] = {
         ),
         "bridge.link.realtime",
     ),
+    **dict.fromkeys(("DEFAULT_HUB_PORT", "LOOPBACK_HOST", "LoopbackHub", "hub_url"), "bridge.link.loopback"),
     **dict.fromkeys(
         (
             "ActuatorMotion",
@@ -121,6 +124,11 @@ __all__ = [
     "INTERFACES",
     "RealtimeRunner",
     "open_bus",
+    # loopback hub (bridge.link.loopback)
+    "DEFAULT_HUB_PORT",
+    "LOOPBACK_HOST",
+    "LoopbackHub",
+    "hub_url",
     # unit-loop feed-forward (bridge.link.unit_loop)
     "ActuatorMotion",
     "FeedforwardShaper",

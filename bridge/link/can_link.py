@@ -16,8 +16,10 @@
 * **Safety.** A measurement older than ``stale_after_s`` (200 ms), an ECU heartbeat
   silent > 300 ms / in error / shut down, an ECU restart (heartbeat 251 again, a
   change of the restart counter or the no-reference bit reappearing in the system
-  state), a lost address claim or repeated send failures latch a fault and **stop the
-  reference stream**; the ECU's watchdog then zeroes its valves within its timeout
+  state), references that do not arrive (while streaming, the ECU's system state says
+  its watchdog expired), a lost address claim or repeated send failures latch a fault
+  (:class:`~bridge.link.state.LinkFaults` lists each, how fast and whether it latches)
+  and **stop the reference stream**; the ECU's watchdog then zeroes its valves within its timeout
   (100 ms). Motion resumes only on a fresh :meth:`send_reference`, accepted once the
   causes are gone; the old reference is never resumed.
 * **Accounting.** Malformed frames (codec rejections), unknown PGNs (other ISOBUS
@@ -56,6 +58,7 @@ from bridge.isobus.codec import (
 )
 from bridge.isobus.heartbeat import HeartbeatMonitor, HeartbeatSender, HeartbeatState
 from bridge.isobus.j1939 import PGN_ADDRESS_CLAIMED, PGN_REQUEST, J1939Error, decode_id
+from bridge.isobus.system_state import STATE_WATCHDOG_TRIPPED
 from bridge.link.state import (
     LinkConfig,
     LinkCounters,
@@ -110,6 +113,7 @@ class CanLink:
         self._last_poll_s = 0.0
         self._reference: PositionCounts | None = None
         self._streaming = False
+        self._stream_since_s = math.inf  # when the current stream started
         self._next_tx_s = math.inf
         self._tx_error_run = 0
         self._rx = MeasurementAssembler(model, self._scaling, self._cfg, self._bump)
@@ -196,6 +200,22 @@ class CanLink:
             if self._own_bus:
                 self._bus.shutdown()
 
+    def fault_causes(self, now_s: float) -> tuple[str, ...]:
+        """Names of the condition faults whose causes are present at ``now_s`` (see
+        :class:`~bridge.link.state.LinkFaults`); event faults never appear here."""
+        with self._lock:
+            return tuple(dict.fromkeys(name for name, _ in self._conditions(now_s)))
+
+    def clear_faults(self, now_s: float) -> LinkFaults:
+        """Acknowledge: clear the latched faults whose causes are gone at ``now_s``, keep the
+        others (their reasons too). Never starts the stream; returns the faults left."""
+        with self._lock:
+            present = set(self.fault_causes(now_s))
+            keep = {name: name in present for name in self._faults.active()}
+            reasons = self._faults.reasons if any(keep.values()) else ()
+            self._faults = replace(LinkFaults(), **{k: v for k, v in keep.items() if v}, reasons=reasons)
+            return self._faults
+
     def stop_motion(self) -> None:
         """Stop the reference stream (the ECU watchdog then zeroes the valves)."""
         with self._lock:
@@ -259,6 +279,8 @@ class CanLink:
                 raise
             self._faults = LinkFaults()
             self._reference = counts
+            if not self._streaming:
+                self._stream_since_s = now_s
             if not self._streaming or now_s >= self._next_tx_s - _EPS_S:
                 self._next_tx_s = now_s
             self._streaming = True
@@ -325,6 +347,8 @@ class CanLink:
                 restart = self._rx.on_measurement(payload, now_s)
                 if restart:
                     self._on_restart(restart)
+                else:
+                    self._check_references_arrive(payload.system_state, now_s)
             elif isinstance(payload, RearHitchStatus) and src == cfg.hitch_source:
                 self._rx.on_hitch_status(payload, now_s)
             else:
@@ -337,6 +361,23 @@ class CanLink:
         self._hb_rx.handle_sequence(sequence, now_s)
         if self._hb_rx.status(now_s).restarts > before:
             self._on_restart("ECU heartbeat restarted (251)")
+
+    def _check_references_arrive(self, system_state: int, now_s: float) -> None:
+        """While streaming, a measurement saying the ECU's watchdog expired proves that our
+        references do not reach it (once the stream is older than the allowed latency)."""
+        if not self._streaming or not system_state & STATE_WATCHDOG_TRIPPED:
+            return
+        running_s = now_s - self._stream_since_s
+        if running_s > self._cfg.references_lost_after_s + _EPS_S:
+            self._raise(
+                [
+                    (
+                        "references_lost",
+                        f"the ECU reports its watchdog expired after {running_s:.3f} s of streaming "
+                        f"(references do not arrive; limit {self._cfg.references_lost_after_s:g} s)",
+                    )
+                ]
+            )
 
     def _on_restart(self, reason: str) -> None:
         self._rx.forget_reference()

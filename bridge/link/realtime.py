@@ -19,15 +19,18 @@ from bridge.link.state import LinkError
 
 __all__ = ["BusNode", "INTERFACES", "RealtimeRunner", "open_bus"]
 
-INTERFACES = ("udp_multicast", "socketcan", "virtual")
-"""python-can interfaces the bridge runs on (virtual: in-process only)."""
+INTERFACES = ("udp_multicast", "socketcan", "virtual", "remote")
+"""python-can interfaces the bridge runs on (virtual: in-process only; remote: processes on
+this computer through a :class:`~bridge.link.loopback.LoopbackHub` on 127.0.0.1)."""
 
 
 def open_bus(interface: str, channel: str | None = None, **kwargs: Any) -> can.BusABC:
     """Open a python-can bus on one of :data:`INTERFACES`.
 
     ``channel`` defaults to python-can's default IPv4 group for ``udp_multicast``,
-    ``vcan0`` for ``socketcan`` and ``hitch`` for ``virtual``. udp_multicast delivers
+    ``vcan0`` for ``socketcan``, ``hitch`` for ``virtual`` and the default hub
+    ``ws://127.0.0.1:54701/`` for ``remote`` (a :class:`~bridge.link.loopback.LoopbackHub`
+    must be running there). udp_multicast delivers
     our own frames back: the link and the ECU node drop frames from their own address.
     ``kwargs`` go to :class:`can.Bus` as they are (interface-specific options).
     """
@@ -38,6 +41,10 @@ def open_bus(interface: str, channel: str | None = None, **kwargs: Any) -> can.B
             from can.interfaces.udp_multicast import UdpMulticastBus
 
             channel = UdpMulticastBus.DEFAULT_GROUP_IPv4
+        elif interface == "remote":
+            from bridge.link.loopback import hub_url
+
+            channel = hub_url()
         else:
             channel = "vcan0" if interface == "socketcan" else "hitch"
     try:

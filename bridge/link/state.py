@@ -130,6 +130,12 @@ class LinkConfig:
             node (the tractor ECU) does, whose sensor and rounding we do not know.
         name: our ISO 11783-5 NAME (claimed at start, 250 ms contention window).
         claim_wait_s: contention window, s.
+        ecu_watchdog_timeout_s: the ECU's reference watchdog, s (thesis ECU: 0.1 s). While
+            references stream, a 0xFF22 whose system state says "watchdog expired" proves
+            that they do not arrive (fault ``references_lost``).
+        link_latency_s: transport allowance per direction on top of the watchdog, s.
+            A measurement is believed about the stream only once the stream has run for
+            :attr:`references_lost_after_s`.
     """
 
     source_address: int = PLANNER_ADDRESS
@@ -146,6 +152,8 @@ class LinkConfig:
     lift_on_count_grid: bool | None = None
     name: Name = field(default_factory=planner_name)
     claim_wait_s: float = CLAIM_WAIT_S
+    ecu_watchdog_timeout_s: float = 0.1
+    link_latency_s: float = 0.02
 
     def __post_init__(self) -> None:
         check_address("source_address", self.source_address)
@@ -167,6 +175,8 @@ class LinkConfig:
         check_period("heartbeat_timeout_s", self.heartbeat_timeout_s, 0.01, 10.0)
         check_period("heartbeat_period_s", self.heartbeat_period_s, 0.01, 10.0)
         check_period("claim_wait_s", self.claim_wait_s, 0.001, 10.0)
+        check_period("ecu_watchdog_timeout_s", self.ecu_watchdog_timeout_s, 0.001, 10.0)
+        check_period("link_latency_s", self.link_latency_s, 0.0, 1.0)
         tol = self.reading_tolerance_counts
         if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not 0.0 <= tol <= 50.0:
             raise LinkError(f"reading_tolerance_counts must be a number in [0, 50] counts, got {tol!r}")
@@ -177,6 +187,14 @@ class LinkConfig:
             raise LinkError(f"lift_on_count_grid must be true, false or None, got {self.lift_on_count_grid!r}")
         if not isinstance(self.name, Name):
             raise LinkError(f"name must be a bridge.isobus.address_claim.Name, got {type(self.name).__name__}")
+
+    @property
+    def references_lost_after_s(self) -> float:
+        """How long a stream runs before a "watchdog expired" measurement means its references
+        are lost, s: the ECU's watchdog, the transport allowance and one measurement period
+        (0.1 + 0.02 + 0.01 = 0.13 s by default). Measurements older than that cannot
+        describe the stream yet."""
+        return self.ecu_watchdog_timeout_s + self.link_latency_s + self.measurement_period_s
 
     @property
     def control_period_s(self) -> float:
@@ -226,16 +244,48 @@ class LinkState:
 
 @dataclass(frozen=True)
 class LinkFaults:
-    """Latched faults; any of them stops the reference stream until a fresh command.
+    """Latched link faults; any of them stops the reference stream at once (the ECU's
+    watchdog then zeroes its valves within its 100 ms timeout, and the machine holds).
+
+    Every fault **latches in the link**: the stream stays stopped, and the old reference is
+    never resumed, until a fresh :meth:`~bridge.link.can_link.CanLink.send_reference` is
+    accepted; that command clears all latched faults, and is refused while a fault's cause
+    is still present. :meth:`~bridge.link.can_link.CanLink.fault_causes` tells which causes
+    are present now; :meth:`~bridge.link.can_link.CanLink.clear_faults` clears the latched
+    faults whose causes are gone without moving (an acknowledge). Two kinds:
+
+    * **Condition faults** have a cause that can be re-checked — they may clear themselves
+      when data is fresh again (the cause disappears from ``fault_causes``):
+      ``stale_measurement``, ``ecu_heartbeat``, ``address_lost``, ``bus_error``.
+    * **Event faults** record something that happened and has no present cause to re-check —
+      they stay latched until a fresh command or an acknowledge: ``ecu_restart``,
+      ``references_lost``.
 
     Attributes:
-        stale_measurement: no 0xFF22 or no lift for longer than ``stale_after_s``.
-        ecu_heartbeat: ECU heartbeat silent, in error (254) or shut down (255).
-        ecu_restart: the ECU restarted (heartbeat 251, restart counter or the
-            no-reference bit of the system state).
-        address_lost: our address claim was lost (cannot claim).
-        bus_error: ``max_consecutive_tx_errors`` sends failed in a row.
+        stale_measurement: no valid 0xFF22 (ECU → planner) or no lift (rear hitch status)
+            for longer than ``stale_after_s`` (200 ms); raised at the first poll after
+            that (within 1 ms in simulated time, within the runner's 10 ms idle wake-up in
+            real time). Covers ECU → planner loss. Condition: gone when both are fresh.
+        ecu_heartbeat: ECU heartbeat silent for more than ``heartbeat_timeout_s``
+            (ISO 11783-7: 300 ms), or it says error (254) / shut down (255); raised at the
+            next poll. Condition: gone with the next valid heartbeat.
+        ecu_restart: the ECU restarted (heartbeat 251 again, a change of the restart
+            counter, or the no-reference bit of the system state reappearing); raised on
+            the frame that shows it. Event.
+        references_lost: while the link streams references, a 0xFF22 arrived whose
+            system state says the ECU's watchdog expired (bit 1): the ECU has had no
+            reference for its watchdog timeout, so planner → ECU frames are lost (or the
+            stream stalled). Believed only once the stream has run for
+            ``references_lost_after_s`` (130 ms); raised on that frame, i.e. at most
+            watchdog (100 ms) + one reference period (20 ms) + one measurement period
+            (10 ms) + transport after the first lost reference (about 130 ms). Event.
+        address_lost: our address claim was lost (cannot claim); raised at the next poll.
+            Condition (it stays present until the link is restarted).
+        bus_error: ``max_consecutive_tx_errors`` (3) sends failed in a row; raised at the
+            failing send. Condition: gone with the next successful send.
         reasons: one line per fault raised since the last re-arm, oldest first.
+
+    The field names are stable: the service reports them as fault names.
     """
 
     stale_measurement: bool = False
@@ -243,6 +293,7 @@ class LinkFaults:
     ecu_restart: bool = False
     address_lost: bool = False
     bus_error: bool = False
+    references_lost: bool = False
     reasons: tuple[str, ...] = ()
 
     @property

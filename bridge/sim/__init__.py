@@ -10,6 +10,7 @@ The twin of the thesis's PhyCORE-MPC555 cylinder ECU (thesis §2.4–2.5.6):
 * :mod:`bridge.sim.watchdog`   — valves held at zero unless references keep arriving;
 * :mod:`bridge.sim.ecu`        — five of each and the on/off switch, stepped in simulated time;
 * :mod:`bridge.sim.can_node`   — the ECU as an ISO 11783 node (its messages, claim, heartbeat);
+* :mod:`bridge.sim.fault_injector` — the node's bus through injected faults (cut, loss, delay, restart);
 * :mod:`bridge.sim.rig`        — ECU node and planner link on a private bus in simulated time;
 * :mod:`bridge.sim.move`       — the closed-loop move experiment of ``hitch sim move``.
 
@@ -59,6 +60,14 @@ if TYPE_CHECKING:
         ACTUATOR_ORDER,
         CylinderECU,
         ECUError,
+    )
+    from bridge.sim.fault_injector import (
+        CUTS,
+        MAX_DELAY_MS,
+        FaultCounters,
+        FaultError,
+        FaultInjector,
+        FaultSettings,
     )
     from bridge.sim.move import (
         REFERENCE_KINDS,
@@ -135,6 +144,17 @@ _SOURCES: dict[str, str] = {
     ),
     **dict.fromkeys(
         (
+            "CUTS",
+            "MAX_DELAY_MS",
+            "FaultCounters",
+            "FaultError",
+            "FaultInjector",
+            "FaultSettings",
+        ),
+        "bridge.sim.fault_injector",
+    ),
+    **dict.fromkeys(
+        (
             "LossyBus",
             "SimError",
             "SimRig",
@@ -188,6 +208,13 @@ __all__ = [
     "EcuNodeCounters",
     "EcuNodeError",
     "lift_fraction",
+    # fault injection (bridge.sim.fault_injector)
+    "CUTS",
+    "MAX_DELAY_MS",
+    "FaultCounters",
+    "FaultError",
+    "FaultInjector",
+    "FaultSettings",
     # the rig (bridge.sim.rig)
     "LossyBus",
     "SimError",

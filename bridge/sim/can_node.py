@@ -25,6 +25,13 @@ ISO 11783-7 sends the rear hitch status every 100 ms; here it defaults to the
 0xFF22 period (10 ms) because the planner combines it with the four other readings
 into one pose and applies the same 200 ms staleness limit to it (configurable).
 
+Fault injection: the node's bus always goes through a
+:class:`~bridge.sim.fault_injector.FaultInjector` (no fault by default: frames pass at once);
+:meth:`EcuCanNode.apply_fault` changes what it injects at run time (cut a direction, lose or
+delay frames, restart the ECU). The system-state byte of every 0xFF22 says whether the
+watchdog has expired (bit 1): with references cut, the planner reads from it that they do
+not arrive.
+
 Time: the node owns no clock. :meth:`poll` (drain the bus, step the ECU to ``now_s``,
 send what is due) is driven either by a simulated clock (deterministic runs, see
 :mod:`bridge.sim.rig`) or in real time by :class:`bridge.link.realtime.RealtimeRunner`
@@ -35,6 +42,8 @@ from __future__ import annotations
 
 import math
 import threading
+import time
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, fields, replace
 
 import can
@@ -60,6 +69,7 @@ from bridge.isobus.j1939 import (
     decode_id,
 )
 from bridge.sim.ecu import CylinderECU
+from bridge.sim.fault_injector import FaultCounters, FaultInjector, FaultSettings
 from planner.errors import HitchInputError
 
 __all__ = ["EcuCanNode", "EcuNodeConfig", "EcuNodeCounters", "EcuNodeError", "lift_fraction"]
@@ -173,15 +183,30 @@ class EcuCanNode:
 
     Args:
         ecu: the simulated ECU (its clock is advanced by :meth:`poll`).
-        bus: an open python-can bus; the node never closes it (the owner does).
+        bus: an open python-can bus; the node never closes it (the owner does). The node
+            reads and sends through a :class:`~bridge.sim.fault_injector.FaultInjector`
+            around it (:attr:`bus`).
         config: addresses, periods, NAME.
+        fault_clock: the clock injected delays are measured on, s (default
+            ``time.monotonic``; a simulation passes its simulated clock).
+        fault_seed: seed of the injected frame loss.
     """
 
-    def __init__(self, ecu: CylinderECU, bus: can.BusABC, config: EcuNodeConfig | None = None) -> None:
+    def __init__(
+        self,
+        ecu: CylinderECU,
+        bus: can.BusABC,
+        config: EcuNodeConfig | None = None,
+        *,
+        fault_clock: Callable[[], float] = time.monotonic,
+        fault_seed: int = 0,
+    ) -> None:
         if not isinstance(ecu, CylinderECU):
             raise EcuNodeError(f"ecu must be a CylinderECU, got {type(ecu).__name__}")
         self._ecu = ecu
-        self._bus = bus
+        self._faults = FaultInjector(bus, seed=fault_seed, clock=fault_clock)
+        self._bus: can.BusABC = self._faults
+        self._restart_pending = False
         self._cfg = config if config is not None else EcuNodeConfig()
         self._codec = load_codec()
         self._known_pgns = frozenset(decode_id(m.frame_id).pgn for m in self._codec.database.messages)
@@ -205,8 +230,37 @@ class EcuCanNode:
 
     @property
     def bus(self) -> can.BusABC:
-        """The bus the node sends on and reads from."""
+        """The bus the node sends on and reads from: the fault injector around the bus given."""
         return self._bus
+
+    @property
+    def fault_settings(self) -> FaultSettings:
+        """The faults injected now (``restart_ecu`` as last requested)."""
+        return self._faults.settings
+
+    @property
+    def fault_counters(self) -> FaultCounters:
+        """What the fault injector did to frames so far."""
+        return self._faults.counters
+
+    def apply_fault(self, settings: FaultSettings | Mapping[str, object]) -> FaultSettings:
+        """Inject ``settings`` from now on (thread-safe; any thread may call it).
+
+        ``settings`` is a :class:`~bridge.sim.fault_injector.FaultSettings` or its JSON object
+        ``{"cut", "loss", "delay_ms", "restart_ecu"}`` (missing keys: no fault; the whole
+        setting is replaced). ``restart_ecu`` restarts the ECU once, at the node's next
+        :meth:`poll` (restart counter +1, no-reference bit, address claimed again).
+        Returns the settings now in force.
+
+        Raises:
+            FaultError: a setting out of range, naming the field and the allowed range.
+        """
+        s = settings if isinstance(settings, FaultSettings) else FaultSettings.from_mapping(settings)
+        self._faults.apply(s)
+        if s.restart_ecu:
+            with self._lock:
+                self._restart_pending = True
+        return s
 
     @property
     def config(self) -> EcuNodeConfig:
@@ -265,6 +319,10 @@ class EcuCanNode:
         """Handle every frame waiting on the bus at ``now_s``, advance the ECU to ``now_s``
         and send what is due. Never blocks."""
         with self._lock:
+            if self._restart_pending:
+                self._restart_pending = False
+                self.restart(now_s)
+            self._faults.flush()
             while (frame := self._bus.recv(timeout=0.0)) is not None:
                 self.handle(frame, now_s)
             self._ecu.step(now_s)

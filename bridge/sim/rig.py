@@ -142,13 +142,15 @@ class SimRig:
         if s.frame_loss > 0.0:
             buses[:2] = [LossyBus(b, s.frame_loss, loss_rng) for b in buses[:2]]
         self._buses = buses
-        self.node = EcuCanNode(ecu, buses[0], s.node)
+        self.node = EcuCanNode(ecu, buses[0], s.node, fault_clock=lambda: self.now_s, fault_seed=s.seed)
+        """The ECU node; its :meth:`~bridge.sim.can_node.EcuCanNode.apply_fault` injects faults on
+        simulated time."""
         self.link = CanLink(model, buses[1], s.link)
         self._tap = buses[2]
         self._k = 0
         self._tick_ms = int(round(s.tick_s * 1e3))
         self.ecu_paused = False
-        """Fault injection: while True the ECU node is not polled (a stalled ECU or a cut
+        """A stalled ECU: while True the ECU node is not polled (a stalled ECU or a cut
         cable): it neither sends nor reads; its frames wait in its queue."""
         self.frames_by_dlc: dict[int, int] = {}
         """Frames seen on the bus since the last :meth:`reset_traffic`, by DLC."""

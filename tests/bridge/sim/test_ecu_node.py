@@ -1,12 +1,8 @@
 """The simulated cylinder ECU as a CAN node: start-up (claim, heartbeat, measurements) timing,
 hand-checked frames, watchdog through the bus, parameters, malformed frames, address-claim
-contention, restart, own echo, and the ECU as its own process on udp_multicast."""
+contention, restart, own echo. (The ECU as its own process: tests/integration/test_ecu_process.py,
+on the loopback hub.)"""
 
-import os
-import signal
-import subprocess
-import sys
-import time
 import uuid
 
 import can
@@ -290,41 +286,3 @@ def test_own_echo_is_ignored(buses):
     assert node.claim_state is ClaimState.CLAIMED
     c = node.counters
     assert c.frames_rx > 0 and c.malformed == 0 and c.references == 0 and c.ignored == 0
-
-
-@pytest.mark.slow
-def test_ecu_sim_runs_as_its_own_process_on_udp_multicast():
-    group = f"239.74.{np.random.default_rng().integers(1, 250)}.{os.getpid() % 250 + 1}"
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "bridge.cli.main",
-            "ecu-sim",
-            "--interface",
-            "udp_multicast",
-            "--channel",
-            group,
-            "--duration",
-            "20",
-            "--json",
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    bus = can.Bus(interface="udp_multicast", channel=group)
-    got, wanted = {}, {PGN_HEARTBEAT, PGN_POSITION_MEASUREMENT, PGN_REAR_HITCH_STATUS}
-    try:
-        deadline = time.monotonic() + 15
-        while time.monotonic() < deadline and not wanted <= set(got):
-            f = bus.recv(timeout=0.5)
-            if f is not None and decode_id(f.arbitration_id).source_address == 169:
-                got.setdefault(decode_id(f.arbitration_id).pgn, decode_frame(f).payload)
-    finally:
-        bus.shutdown()
-        proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=10)
-    assert wanted <= set(got), err
-    assert isinstance(got[PGN_REAR_HITCH_STATUS], RearHitchStatus)
-    assert proc.returncode in (0, 130)

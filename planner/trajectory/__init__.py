@@ -1,7 +1,9 @@
 """Jerk-limited, time-synchronised trajectories between implement poses (Ruckig in pose space),
-sampled into verified actuator setpoints; jog; joint-space moves."""
+sampled into verified actuator setpoints; jog; joint-space moves; braking from a moving state with
+the actuators' real limits."""
 
 from planner.trajectory.actuator_limits import ActuatorLimits
+from planner.trajectory.braking import StopProbe, braking_limits
 from planner.trajectory.jog import JOG_FIELDS, JogController, JogError, JogOutput
 from planner.trajectory.joint_space import JointSamples, plan_joint_move
 from planner.trajectory.plan import (
@@ -38,4 +40,6 @@ __all__ = [
     "PoseLimits",
     "box_limits",
     "straight_line_limits",
+    "StopProbe",
+    "braking_limits",
 ]

@@ -4,10 +4,18 @@ From rest, a move follows a straight line in pose space (x, z, roll, pitch): the
 limits are the path's scalar limits times |u_d| (:func:`~.pose_limits.straight_line_limits`)
 and Ruckig's phase synchronisation keeps every DOF on the line, starting and stopping
 together. From a moving state (a re-plan), Ruckig time-synchronises from the current
-position, velocity and acceleration, so nothing jumps. Every plan is sampled and verified
+position, velocity and acceleration, so nothing jumps; when that re-plan could not stay in
+the workspace with the any-direction limits, the moving DOF may brake with the actuators'
+real limits along the current motion (:mod:`.braking`). Every plan is sampled and verified
 against every limit before it is returned; when a sample is over a limit the limits are
 scaled down and the plan recomputed. Community Ruckig ignores position limits, so the
-trajectory's position extrema are checked against the workspace here.
+trajectory's position extrema are checked against the workspace here; a plan that starts
+outside the workspace (after manual motion, say) may move back in, but no further out in
+any DOF than where it starts.
+
+Stops (:meth:`TrajectoryPlanner.plan_stop`) brake with the any-direction limits, or with the
+real ones (:func:`~.braking.braking_limits`) from a state beyond those limits or whose
+any-direction stop would leave the workspace.
 """
 
 from __future__ import annotations
@@ -25,6 +33,7 @@ from planner.model.hard_limits import WORKSPACE_NAMES, HardLimits
 from planner.model.kinematics import HitchModel
 from planner.model.types import CONTROLLED_POSE_NAMES, KinematicsError
 from planner.trajectory.actuator_limits import ActuatorLimits
+from planner.trajectory.braking import StopProbe, beyond, braking_limits, current_floor
 from planner.trajectory.plan import (
     MotionState,
     Plan,
@@ -94,6 +103,7 @@ class TrajectoryPlanner:
         self._ruckig1 = Ruckig(1)
         self._input1 = InputParameter(1)
         self._traj1 = Trajectory(1)
+        self._probe = StopProbe()
 
     # ------------------------------------------------------------------ goals
     def goal_vector(self, current: ArrayLike, goal: Mapping[str, float]) -> np.ndarray:
@@ -170,20 +180,29 @@ class TrajectoryPlanner:
         return self._plan_segments(start, [(p, v, w.speed_scale) for p, v, w in zip(pts, vels, waypoints, strict=True)])
 
     def plan_stop(self, state: MotionState) -> Plan:
-        """The jerk-limited shortest stop from ``state`` (each DOF brakes at its any-direction limits)."""
-        inp = self._input
-        self._set_limits(inp, self.any_direction.floored(self._abs_floor(state)))
-        inp.control_interface = ControlInterface.Velocity
-        inp.synchronization = Synchronization.No
-        inp.current_position, inp.current_velocity = list(state.position), list(state.velocity)
-        inp.current_acceleration = list(state.acceleration)
-        inp.target_velocity, inp.target_acceleration = [0.0] * 4, [0.0] * 4
-        traj = Trajectory(4)
-        res = self._ruckig.calculate(inp, traj)
-        inp.control_interface = ControlInterface.Position
-        if res not in _OK:
-            raise PlanError(f"stop could not be computed (ruckig {res})")
+        """The jerk-limited shortest stop from ``state``, each DOF braking on its own.
+
+        With the any-direction limits when the state keeps within them and that stop stays in
+        the workspace (or, outside it, goes no further out); otherwise with the actuators' real
+        limits along the current motion (:meth:`braking_limits`), e.g. from a goto at full speed.
+        """
+        lim = self.any_direction.floored(self._abs_floor(state))
+        if state.moving and (np.any(beyond(state, self.any_direction)) or self.stop_leaves_workspace(state, lim)):
+            lim = self.braking_limits(state)
+        traj = self._probe.trajectory(state, lim)
         return Plan((traj,), state, traj.duration, 0.0, info={"kind": "stop"})
+
+    def braking_limits(self, state: MotionState) -> PoseLimits:
+        """Per-DOF limits for braking ``state`` with the actuators' real limits along its motion
+        (never below the any-direction limits nor the state's |v|, |a|; see :mod:`.braking`)."""
+        return braking_limits(self.inverse, state, self.limits, self.any_direction)
+
+    def stop_leaves_workspace(self, state: MotionState, limits: PoseLimits) -> bool:
+        """The shortest stop from ``state`` within ``limits`` passes a workspace face (from outside
+        the workspace: goes further out than where it starts)."""
+        p = np.asarray(state.position, float)
+        lo, hi = self._probe.extent(state, limits)
+        return bool(np.any(lo < np.minimum(self.lo, p) - 1e-9) or np.any(hi > np.maximum(self.hi, p) + 1e-9))
 
     def sample(self, plan: Plan, rate: float | None = None) -> Setpoints:
         r = self.rate if rate is None else float(rate)
@@ -211,7 +230,7 @@ class TrajectoryPlanner:
     # ------------------------------------------------------------------ internals
     def _abs_floor(self, state: MotionState) -> PoseLimits:
         """Limits never below the current |v|, |a| (Ruckig rejects states beyond its limits)."""
-        return PoseLimits(np.abs(state.velocity) * (1 + 1e-9), np.abs(state.acceleration) * (1 + 1e-9), np.zeros(4))
+        return current_floor(state)
 
     def _segment_limits(self, p0, p1, start_moving: bool, scale: float) -> PoseLimits:
         try:
@@ -258,31 +277,46 @@ class TrajectoryPlanner:
         return traj
 
     def _plan_segments(self, start: MotionState, targets) -> Plan:
+        """Plan the chain; a re-plan from a moving state that would leave the workspace with the
+        any-direction limits is made again with the real braking limits (:meth:`braking_limits`)
+        for the DOF the motion carries."""
+        try:
+            return self._plan_chain(start, targets, None)
+        except _LeavesWorkspace as exc:
+            if not start.moving:
+                raise PlanError(str(exc)) from None
+            brake = self.braking_limits(start)
+        try:
+            return self._plan_chain(start, targets, brake)
+        except _LeavesWorkspace as exc:
+            raise PlanError(str(exc)) from None
+
+    def _plan_chain(self, start: MotionState, targets, brake: PoseLimits | None) -> Plan:
         factor = 1.0
         for attempt in range(12):
             segs, state = [], start
-            for p1, v1, scale in targets:
+            for k, (p1, v1, scale) in enumerate(targets):
                 lim = self._segment_limits(state.position, p1, state.moving or bool(np.any(v1)), scale * factor)
+                if k == 0 and brake is not None:
+                    lim = lim.floored(brake.scaled(factor))
                 traj = self._solve_segment(state, p1, v1, lim)
-                self._check_extrema(traj)
+                # the first segment may start outside the workspace: it must not go further out
+                self._check_extrema(traj, start.position if k == 0 else None)
                 segs.append(traj)
                 p, v, a = traj.at_time(traj.duration)
                 state = MotionState(np.array(p), np.array(v), np.array(a))
             duration = float(sum(s.duration for s in segs))
             plan = Plan(tuple(segs), start, duration, 0.0)
             sp = self.sample(plan)
+            self._check_samples(sp, start.position, segs[0].duration)
             bad = verify_setpoints(sp, self.model, self.hard, self.limits)
             if not bad:
                 q0, q0d = sp.actuators[0], sp.actuator_velocity[0]
                 lb = self.lower_bound(q0, sp.actuators[-1], q0d)
-                return Plan(
-                    plan.segments,
-                    start,
-                    duration,
-                    lb,
-                    sp,
-                    {"kind": "move", "speed_factor": factor, "attempts": attempt + 1},
-                )
+                info = {"kind": "move", "speed_factor": factor, "attempts": attempt + 1}
+                if brake is not None:
+                    info["braking"] = "actuator limits"
+                return Plan(plan.segments, start, duration, lb, sp, info)
             worst = bad[0]
             if worst.limit.startswith(("velocity:", "acceleration:")):
                 factor *= 0.9
@@ -292,16 +326,50 @@ class TrajectoryPlanner:
             f"the plan keeps exceeding {worst.limit} at t = {worst.t:.2f} s even at {factor:.2f} of full speed"
         )
 
-    def _check_extrema(self, traj: Trajectory) -> None:
+    def _check_extrema(self, traj: Trajectory, start: np.ndarray | None = None) -> None:
+        """Every DOF of ``traj`` within the workspace; with a ``start`` pose outside it, within
+        the workspace widened to that start (back in is allowed, further out is not)."""
+        lo, hi = self.lo, self.hi
+        if start is not None:
+            lo, hi = np.minimum(lo, start), np.maximum(hi, start)
         extrema = zip(CONTROLLED_POSE_NAMES, WORKSPACE_NAMES, traj.position_extrema, strict=True)
         for i, (k, (name_min, name_max), ext) in enumerate(extrema):
-            if ext.min < self.lo[i] - 1e-6:
-                raise PlanError(
+            if ext.min < lo[i] - 1e-6:
+                raise _LeavesWorkspace(
                     f"the trajectory would leave the workspace: {k} reaches {ext.min:.4f} at t = {ext.t_min:.2f} s "
-                    f"({name_min} = {self.lo[i]:.4f})"
+                    f"({name_min} = {self.lo[i]:.4f}{_start_note(lo[i], self.lo[i])})"
                 )
-            if ext.max > self.hi[i] + 1e-6:
-                raise PlanError(
+            if ext.max > hi[i] + 1e-6:
+                raise _LeavesWorkspace(
                     f"the trajectory would leave the workspace: {k} reaches {ext.max:.4f} at t = {ext.t_max:.2f} s "
-                    f"({name_max} = {self.hi[i]:.4f})"
+                    f"({name_max} = {self.hi[i]:.4f}{_start_note(hi[i], self.hi[i])})"
                 )
+
+    def _check_samples(self, sp: Setpoints, start: np.ndarray, first: float) -> None:
+        """Every sample within the workspace (those of the first segment, ending at ``first`` [s],
+        within it widened to ``start``): Ruckig's position extrema of a time-synchronised profile
+        from a moving state can miss an excursion, the samples do not (to ~a·dt²/8 at a turn)."""
+        pose = sp.pose[:, [0, 2, 3, 4]]
+        in_first = (sp.t <= first + 1e-12)[:, None]
+        lo = np.where(in_first, np.minimum(self.lo, start), self.lo) - 1e-6
+        hi = np.where(in_first, np.maximum(self.hi, start), self.hi) + 1e-6
+        for i, (k, (name_min, name_max)) in enumerate(zip(CONTROLLED_POSE_NAMES, WORKSPACE_NAMES, strict=True)):
+            for side, bad, name, face in (
+                ("min", pose[:, i] < lo[:, i], name_min, self.lo[i]),
+                ("max", pose[:, i] > hi[:, i], name_max, self.hi[i]),
+            ):
+                if np.any(bad):
+                    j = int(np.flatnonzero(bad)[0])
+                    bound = float((lo if side == "min" else hi)[j, i]) + (1e-6 if side == "min" else -1e-6)
+                    raise _LeavesWorkspace(
+                        f"the trajectory would leave the workspace: {k} reaches {pose[j, i]:.4f} at "
+                        f"t = {sp.t[j]:.2f} s ({name} = {face:.4f}{_start_note(bound, face)})"
+                    )
+
+
+class _LeavesWorkspace(PlanError):
+    """A trajectory passing a workspace face (internal: a moving re-plan is tried again with the braking limits)."""
+
+
+def _start_note(bound: float, face: float) -> str:
+    return "" if bound == face else f"; it starts outside at {bound:.4f} and may only move back in"

@@ -1,0 +1,144 @@
+"""Motion switches brake with the actuators' real limits and stay in the workspace; from outside
+the workspace a motion back in is allowed, one further out is refused naming the face.
+
+Truth used: the workspace box; a goto heading at a face stops exactly on it, so any brake from
+its state with the limits it was allowed to use stops before the face; the actuator limits
+(velocities through the exact inverse); the start pose (a motion back in never goes further out).
+"""
+
+import numpy as np
+import pytest
+
+from planner.limits.guard import Guard
+from planner.trajectory import JogController, MotionState, PlanError, TrajectoryPlanner
+
+DOFS = ("x", "z", "roll", "pitch")
+BOUND = 2e-3  # m or rad: the sensor quantisation a motion may leave the workspace by
+FACES = [((d, s),) for d in range(4) for s in (1, -1)] + [
+    ((0, 1), (1, 1)),
+    ((0, -1), (1, -1)),
+    ((1, 1), (2, 1), (3, 1)),
+    ((1, -1), (2, -1), (3, -1)),
+    ((0, 1), (1, -1), (2, 1), (3, -1)),
+]
+
+
+def _face_id(face) -> str:
+    return "+".join(f"{DOFS[d]}{'+' if s > 0 else '-'}" for d, s in face)
+
+
+@pytest.fixture(scope="module")
+def tp(model):
+    return TrajectoryPlanner(model)
+
+
+def outside(tp, p) -> np.ndarray:
+    return np.maximum(np.maximum(p - tp.hi, tp.lo - p), 0.0)
+
+
+def full_speed_goto(tp, face):
+    """A goto from the opposite faces to these ones (the other DOF mid-range): its top speed."""
+    p0, goal = (tp.lo + tp.hi) / 2, (tp.lo + tp.hi) / 2
+    for d, s in face:
+        p0[d], goal[d] = (tp.lo[d], tp.hi[d]) if s > 0 else (tp.hi[d], tp.lo[d])
+    return tp.plan_move(MotionState.at_rest(p0), dict(zip(DOFS, goal, strict=True)))
+
+
+@pytest.mark.parametrize("face", FACES, ids=_face_id)
+def test_jog_taking_over_a_full_speed_goto_stays_in_the_workspace(tp, face):
+    plan = full_speed_goto(tp, face)
+    towards = np.zeros(4)
+    for d, s in face:
+        towards[d] = s
+    worst = np.zeros(4)
+    for frac in np.linspace(0.6, 1.0, 11):  # the goto's top speed, its braking for the face, its end
+        start = plan.state_at(frac * plan.duration)
+        for rates in (np.zeros(4), towards):  # let go, or jog on towards the face
+            jog = JogController(tp, start)
+            for k in range(400):
+                if k < 50:
+                    jog.command(rates, 0.2)
+                out = jog.step()
+                worst = np.maximum(worst, outside(tp, out.state.position))
+                assert np.all(np.abs(out.actuator_velocity) <= tp.limits.velocity * (1 + 1e-6))
+                if k > 60 and not out.moving:
+                    break
+            assert not out.moving
+    assert np.all(worst <= BOUND), worst
+
+
+@pytest.mark.parametrize("face", FACES[:8], ids=_face_id)
+def test_stop_of_a_full_speed_goto_stays_in_the_workspace(tp, face):
+    plan = full_speed_goto(tp, face)
+    for frac in np.linspace(0.6, 1.0, 11):
+        st = plan.state_at(frac * plan.duration)
+        stop = tp.plan_stop(st)
+        ps = np.array([stop.state_at(t).position for t in np.linspace(0.0, stop.duration, 200)])
+        assert np.all(outside(tp, ps) <= BOUND), (frac, outside(tp, ps).max(axis=0))
+        np.testing.assert_allclose(stop.state_at(stop.duration).velocity, 0.0, atol=1e-12)
+
+
+def test_a_goto_replacing_a_fast_goto_stays_in_the_workspace(tp):
+    guard = Guard(tp)
+    accepted = 0
+    for face in FACES[:8]:
+        plan = full_speed_goto(tp, face)
+        other = DOFS[(face[0][0] + 1) % 4]
+        for frac in np.linspace(0.5, 0.97, 12):
+            st = plan.state_at(frac * plan.duration)
+            try:
+                gp = guard.plan(st, {other: 0.5 * tp.lo[DOFS.index(other)]})
+            except PlanError as exc:  # refused while moving: the running goto goes on, inside
+                assert "workspace" in str(exc)
+                continue
+            accepted += 1
+            pose = gp.setpoints.pose[:, [0, 2, 3, 4]]
+            assert np.all(outside(tp, pose) <= 1e-5), (face, frac, outside(tp, pose).max(axis=0))
+    assert accepted >= 70  # most are accepted (braking with the real limits where needed)
+
+
+def test_random_jogging_never_leaves_the_workspace(tp):
+    rng = np.random.default_rng(3)
+    worst = np.zeros(4)
+    for _ in range(12):
+        jog = JogController(tp, MotionState.at_rest(tp.lo + (tp.hi - tp.lo) * rng.random(4)))
+        for k in range(250):
+            if k % 25 == 0:  # a new direction every 0.5 s, up to 1.5 x the jog speed (clipped)
+                cmd = rng.normal(size=4) * tp.any_direction.velocity * 1.5
+            if k % 5 == 0 and k < 200:
+                jog.command(cmd, 0.2)
+            out = jog.step()
+            worst = np.maximum(worst, outside(tp, out.state.position))
+    assert np.all(worst <= 1e-4), worst
+
+
+@pytest.mark.parametrize("dof", range(4), ids=DOFS)
+@pytest.mark.parametrize("side", (1, -1), ids=("max", "min"))
+def test_from_outside_the_workspace_back_in_is_allowed_further_out_refused(tp, dof, side):
+    guard = Guard(tp)
+    centre = (tp.lo + tp.hi) / 2
+    start = centre.copy()
+    start[dof] = (tp.hi[dof] if side > 0 else tp.lo[dof]) + side * 0.01  # 10 mm / 10 mrad outside
+    face = f"workspace:{DOFS[dof]}:{'max' if side > 0 else 'min'}"
+    gp = guard.plan(MotionState.at_rest(start), dict(zip(DOFS, centre, strict=True)))
+    p = gp.setpoints.pose[:, [0, 2, 3, 4]][:, dof]
+    assert np.all(side * np.diff(p) <= 1e-12)  # monotonically back in
+    assert p[-1] == pytest.approx(centre[dof], abs=1e-9)
+    # further out: refused, naming the face
+    with pytest.raises(PlanError, match=face):
+        guard.plan(MotionState.at_rest(start), {DOFS[dof]: start[dof] + side * 0.01})
+    moving_out = np.zeros(4)
+    moving_out[dof] = side * 0.5 * tp.any_direction.velocity[dof]
+    with pytest.raises(PlanError, match=face):  # from outside, moving on outwards: the plan goes further out
+        guard.plan(MotionState(start, moving_out, np.zeros(4)), dict(zip(DOFS, centre, strict=True)))
+    # a jog from outside: inwards it moves, outwards it is held at its rate cap
+    jog = JogController(tp, MotionState.at_rest(start))
+    jog.command(-side * np.eye(4)[dof], 0.2)
+    for _ in range(10):
+        out = jog.step()
+    assert side * (out.state.position[dof] - start[dof]) < -1e-4
+    jog = JogController(tp, MotionState.at_rest(start))
+    jog.command(side * np.eye(4)[dof], 0.2)
+    for _ in range(10):
+        out = jog.step()
+    assert out.state.position[dof] == pytest.approx(start[dof], abs=1e-12) and face in out.limited.values()

@@ -19,6 +19,8 @@ TOML layout (every key optional; the names are the field names below)::
                control_rate = 50.0; state_rate = 50.0
                feedforward = true   # stream the unit loops' feed-forward reference (bridge.link.unit_loop)
     [service]  data_dir = "/var/lib/hitch"; http = "127.0.0.1:8080"; workers = 4
+               max_presets_per_user = 1000; max_maneuvers_per_user = 200
+               max_script_bytes_per_user = 4194304   # the store's limits per user (store.StoreLimits)
 """
 
 from __future__ import annotations
@@ -28,12 +30,15 @@ import os
 import re
 import tomllib
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from planner.errors import HitchInputError
 from planner.profiles.loader import format_validation_error
+
+if TYPE_CHECKING:
+    from bridge.service.store import StoreLimits
 
 __all__ = [
     "ServiceConfig",
@@ -99,7 +104,7 @@ class ServiceConfig(BaseModel):
     scouting: bool = Field(False, strict=True)
     #: Zenoh security config (JSON5: usrpwd, access_control, TLS) merged into the session config
     security: Path | None = None
-    can_interface: Literal["virtual", "socketcan", "udp_multicast"] = "virtual"
+    can_interface: Literal["virtual", "socketcan", "udp_multicast", "remote"] = "virtual"
     can_channel: str = "hitch"
     #: run the simulated cylinder ECU in this process on the same bus
     simulate_ecu: bool = Field(True, strict=True)
@@ -118,6 +123,10 @@ class ServiceConfig(BaseModel):
     #: the user the web terminal's commands run as when access control is on (must be in the ACL)
     http_user: str | None = None
     workers: int = Field(4, ge=1, le=32)
+    #: per-user limits of the presets and maneuvers store (see bridge.service.store.StoreLimits)
+    max_presets_per_user: int = Field(1000, ge=1, le=100_000, strict=True)
+    max_maneuvers_per_user: int = Field(200, ge=1, le=10_000, strict=True)
+    max_script_bytes_per_user: int = Field(4 * 1024 * 1024, ge=64 * 1024, le=1024**3, strict=True)
 
     @field_validator("prefix")
     @classmethod
@@ -162,6 +171,12 @@ class ServiceConfig(BaseModel):
         """The SQLite file of presets and maneuvers."""
         return self.data_dir / "hitch.sqlite3"
 
+    def store_limits(self) -> StoreLimits:
+        """The store's per-user limits (``HitchStore(config.database_path, limits=config.store_limits())``)."""
+        from bridge.service.store import StoreLimits  # the store loads only when a service runs
+
+        return StoreLimits(self.max_presets_per_user, self.max_maneuvers_per_user, self.max_script_bytes_per_user)
+
 
 _TOML_SECTIONS = {
     "zenoh": {
@@ -187,7 +202,15 @@ _TOML_SECTIONS = {
         "state_rate": "state_rate",
         "feedforward": "feedforward",
     },
-    "service": {"data_dir": "data_dir", "http": "http", "http_user": "http_user", "workers": "workers"},
+    "service": {
+        "data_dir": "data_dir",
+        "http": "http",
+        "http_user": "http_user",
+        "workers": "workers",
+        "max_presets_per_user": "max_presets_per_user",
+        "max_maneuvers_per_user": "max_maneuvers_per_user",
+        "max_script_bytes_per_user": "max_script_bytes_per_user",
+    },
 }
 
 

@@ -1,36 +1,56 @@
 """Request schemas of the service API and the payload parser.
 
 Every payload is bounded in size (:data:`MAX_PAYLOAD_BYTES`), decoded as UTF-8, parsed as JSON
-(``NaN``/``Infinity`` tokens, nesting that exhausts the parser and integers of thousands of
-digits are refused) and validated by a strict pydantic model per API key (:data:`REQUESTS`):
-unknown fields, wrong types (no coercion: ``"1"`` is not a number, ``true`` is not 1),
-non-finite numbers and out-of-range values are refused. :func:`parse_request` raises
+(``NaN``/``Infinity`` tokens and numbers that overflow to infinity are refused naming their field;
+a key written twice in one object is refused naming the key; nesting that exhausts the parser and
+integers of thousands of digits are refused) and validated by a strict pydantic model per API key
+(:data:`REQUESTS`): unknown fields, wrong types (no coercion: ``"1"`` is not a number, ``true`` is
+not 1), non-finite numbers and out-of-range values are refused. :func:`parse_request` raises
 :class:`RequestError` with a one-sentence message naming the key, the field, the value and the
-allowed range. Units: x, z [m]; roll, pitch [rad]; rates [m/s, rad/s]; ``ttl_ms`` [ms].
+allowed range. Units: x, z [m]; roll, pitch [rad]; rates [m/s, rad/s]; ``ttl_ms``, ``deadline_ms`` [ms].
+
+* ``stop`` takes any payload (none, ``{}``, extra fields, garbage): whatever is sent to stop, stops.
+* ``speed_scale`` lies in [:data:`MIN_SPEED_SCALE`, 1] = [0.05, 1]: plan time grows as 1/scale, and
+  at 0.05 a move across the whole workspace plans in a fraction of a second.
+* Every motion request (``goto``, ``presets/go``, ``maneuvers/run``, ``jog``) carries
+  ``deadline_ms`` (integer 1…60000, default 1000): a request that cannot start within it is
+  refused with ``busy`` by the service, never run later.
+* With the workspace (``parse_request(..., workspace=...)``, the service passes its
+  ``limits.workspace``), a ``goto`` goal or a ``presets/save`` pose outside it is refused before
+  the schema's sanity bounds (±1 m, ±2 m, ±π/2) with ``unreachable``, naming the workspace range of
+  every violated DOF and hinting at mm/deg when the value fits in those units
+  (:func:`check_pose_in_workspace`).
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
+import math
+from collections.abc import Mapping, Sequence
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 from pydantic.fields import FieldInfo
 
-from bridge.service.maneuvers.language import NAME_PATTERN, POSE_BOUNDS
+from bridge.service.maneuvers.language import MIN_SPEED_SCALE, NAME_PATTERN, POSE_BOUNDS
 from planner.errors import HitchInputError
 from planner.model.types import CONTROLLED_POSE_NAMES
 
 __all__ = [
     "API_KEYS",
+    "ANY_PAYLOAD_KEYS",
     "MAX_PAYLOAD_BYTES",
+    "MIN_SPEED_SCALE",
+    "DEFAULT_DEADLINE_MS",
+    "MAX_DEADLINE_MS",
+    "check_pose_in_workspace",
     "REQUESTS",
     "RequestError",
     "parse_request",
     "Goal",
     "PoseRequest",
     "PlanRequest",
+    "GotoRequest",
     "JogRequest",
     "ModeRequest",
     "NameRequest",
@@ -38,11 +58,17 @@ __all__ = [
     "PresetGo",
     "ScriptRequest",
     "ManeuverSave",
+    "ManeuverRun",
+    "StopRequest",
+    "SimFaultRequest",
     "Empty",
 ]
 
 MAX_PAYLOAD_BYTES = 96 * 1024  # a 64 KiB maneuver script, JSON-escaped, fits
 _NAME = NAME_PATTERN.pattern
+#: deadline of a motion request [ms]: it must start within this time or is refused with ``busy``
+DEFAULT_DEADLINE_MS = 1000
+MAX_DEADLINE_MS = 60_000
 
 
 class _Strict(BaseModel):
@@ -81,16 +107,31 @@ class Goal(_Strict):
         return {k: getattr(self, k) for k in CONTROLLED_POSE_NAMES if getattr(self, k) is not None}
 
 
-_SCALE = Field(1.0, gt=0.0, le=1.0)
+def _scale(default: float | None) -> Any:
+    return Field(default, ge=MIN_SPEED_SCALE, le=1.0)
+
+
+def _deadline() -> Any:
+    return Field(DEFAULT_DEADLINE_MS, ge=1, le=MAX_DEADLINE_MS)
 
 
 class Empty(_Strict):
     pass
 
 
+class StopRequest(_Strict):
+    """``stop`` has no fields, and :func:`parse_request` never looks at its payload: any payload stops."""
+
+
 class PlanRequest(_Strict):
     goal: Goal
-    speed_scale: float = _SCALE
+    speed_scale: float = _scale(1.0)
+
+
+class GotoRequest(PlanRequest):
+    """A goto: a plan request with the deadline [ms] by which the motion must start."""
+
+    deadline_ms: int = _deadline()
 
 
 class JogRequest(_Strict):
@@ -101,6 +142,7 @@ class JogRequest(_Strict):
     vroll: float = Field(0.0, ge=-1.0, le=1.0)
     vpitch: float = Field(0.0, ge=-1.0, le=1.0)
     ttl_ms: float = Field(200.0, gt=0.0, le=5000.0)
+    deadline_ms: int = _deadline()
 
 
 class ModeRequest(_Strict):
@@ -114,12 +156,13 @@ class NameRequest(_Strict):
 class PresetSave(_Strict):
     name: str = Field(pattern=_NAME)
     pose: Goal | None = None
-    speed_scale: float | None = Field(None, gt=0.0, le=1.0)
+    speed_scale: float | None = _scale(None)
 
 
 class PresetGo(_Strict):
     name: str = Field(pattern=_NAME)
-    speed_scale: float | None = Field(None, gt=0.0, le=1.0)
+    speed_scale: float | None = _scale(None)
+    deadline_ms: int = _deadline()
 
 
 class ScriptRequest(_Strict):
@@ -131,12 +174,28 @@ class ManeuverSave(_Strict):
     script: str = Field(max_length=64 * 1024)
 
 
+class ManeuverRun(NameRequest):
+    """Run a stored maneuver; it must start within ``deadline_ms``."""
+
+    deadline_ms: int = _deadline()
+
+
+class SimFaultRequest(_Strict):
+    """Fault injection in the twin (``sim/fault``): a cut direction, frame loss [0, 1], extra
+    delay [ms] and a one-off ECU restart; the whole setting is replaced (missing: no fault)."""
+
+    cut: Literal["none", "planner_to_ecu", "ecu_to_planner", "both"] = "none"
+    loss: float = Field(0.0, ge=0.0, le=1.0)
+    delay_ms: float = Field(0.0, ge=0.0, le=5000.0)
+    restart_ecu: bool = False
+
+
 REQUESTS: Mapping[str, type[_Strict]] = {
     "ik": PoseRequest,
     "plan": PlanRequest,
-    "goto": PlanRequest,
+    "goto": GotoRequest,
     "jog": JogRequest,
-    "stop": Empty,
+    "stop": StopRequest,
     "mode": ModeRequest,
     "config": Empty,
     "presets/list": Empty,
@@ -146,11 +205,17 @@ REQUESTS: Mapping[str, type[_Strict]] = {
     "maneuvers/validate": ScriptRequest,
     "maneuvers/save": ManeuverSave,
     "maneuvers/list": Empty,
-    "maneuvers/run": NameRequest,
+    "maneuvers/run": ManeuverRun,
     "maneuvers/delete": NameRequest,
+    "faults/ack": Empty,
+    "sim/fault": SimFaultRequest,
 }
 #: every API name (relative to the key prefix)
 API_KEYS: tuple[str, ...] = tuple(REQUESTS)
+#: keys whose payload is never read: anything sent to them is accepted (whatever is sent to stop, stops)
+ANY_PAYLOAD_KEYS: frozenset[str] = frozenset({"stop"})
+#: keys whose pose fields are checked against the workspace (when known) before the schema: key → field
+_POSE_FIELDS: Mapping[str, str] = {"goto": "goal", "presets/save": "pose"}
 
 
 class RequestError(HitchInputError):
@@ -207,6 +272,7 @@ def _allowed(model: type[BaseModel], loc: tuple[int | str, ...]) -> str:
         "vroll": " rad/s",
         "vpitch": " rad/s",
         "ttl_ms": " ms",
+        "deadline_ms": " ms",
     }.get(name, "")
     return f" (allowed: {' and '.join(parts)}{unit})" if parts else ""
 
@@ -233,18 +299,108 @@ def _format(key: str, exc: ValidationError, model: type[BaseModel]) -> str:
         msg = "must be 1-64 letters, digits, '-', '_', '.' starting with a letter or digit"
     elif e["type"] == "model_type":
         msg = "must be a JSON object"
+    elif e["type"] == "int_type":
+        msg = "must be an integer"
     return f"{key}: {path} = {_show(e.get('input'))} {msg}{_allowed(model, loc)}"
 
 
-def _reject_constant(token: str) -> None:
-    raise RequestError("bad_request", f"{token} is not a number JSON allows")
+class _NonFinite:
+    """Stands in for a NaN/Infinity token (or a number that overflows) until its field is known."""
+
+    __slots__ = ("token",)
+
+    def __init__(self, token: str):
+        self.token = token
 
 
-def parse_request(key: str, payload: bytes | bytearray | memoryview | str | None) -> BaseModel:
-    """Bytes → validated request model of ``key``; :class:`RequestError` naming the field otherwise."""
+def _constant(token: str) -> _NonFinite:
+    return _NonFinite(token)
+
+
+def _float(text: str) -> float | _NonFinite:
+    v = float(text)
+    return v if math.isfinite(v) else _NonFinite(text if len(text) <= 40 else f"a number of {len(text)} digits")
+
+
+class _DuplicateKey(RequestError):
+    def __init__(self, name: str):
+        self.name = name
+        super().__init__("bad_request", name)
+
+
+def _pairs(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in pairs:
+        if k in out:
+            raise _DuplicateKey(k)
+        out[k] = v
+    return out
+
+
+def _find_non_finite(data: Any) -> tuple[str, str] | None:
+    """(path, token) of the first NaN/Infinity in the decoded payload, if any (iterative: no recursion)."""
+    stack: list[tuple[Any, str]] = [(data, "")]
+    while stack:
+        node, path = stack.pop()
+        if isinstance(node, _NonFinite):
+            return path or "payload", node.token
+        if isinstance(node, dict):
+            stack.extend((v, f"{path}.{k}" if path else str(k)) for k, v in reversed(node.items()))
+        elif isinstance(node, list):
+            stack.extend((v, f"{path}[{i}]") for i, v in reversed(list(enumerate(node))))
+    return None
+
+
+_UNIT = {"x": "m", "z": "m", "roll": "rad", "pitch": "rad"}
+
+
+def check_pose_in_workspace(
+    pose: Mapping[str, Any], workspace: Mapping[str, Sequence[float]] | None, *, key: str = "goto", what: str = "goal"
+) -> None:
+    """:class:`RequestError` (``unreachable``) naming the workspace range of every DOF of ``pose``
+    outside ``workspace`` (DOF name → [min, max]; x, z [m], roll, pitch [rad]), with a hint when
+    the value fits in mm (x, z) or degrees (roll, pitch). Non-numbers are left to the schema;
+    ``workspace`` None: nothing to check."""
+    if not workspace or not isinstance(pose, Mapping):
+        return
+    problems = []
+    for k in ("x", "z", "roll", "pitch"):
+        v, rng = pose.get(k), workspace.get(k)
+        if rng is None or isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            continue
+        lo, hi = float(rng[0]), float(rng[1])
+        if lo - 1e-9 <= v <= hi + 1e-9:
+            continue
+        unit = _UNIT[k]
+        side = "below" if v < lo else "above"
+        limit = f"workspace:{k}:{'min' if v < lo else 'max'}"
+        text = f"{what}.{k} = {v:.6g} {unit} is {side} the workspace ({k} from {lo:.4g} to {hi:.4g} {unit}, {limit})"
+        if unit == "m" and abs(v) >= 1.0 and lo <= v / 1000.0 <= hi:
+            text += f"; did you mean mm? {v:.6g} mm = {v / 1000.0:.6g} m"
+        elif unit == "rad" and abs(v) >= 1.0 and lo <= math.radians(v) <= hi:
+            text += f"; did you mean degrees? {v:.6g} deg = {math.radians(v):.6g} rad"
+        problems.append(text)
+    if problems:
+        raise RequestError("unreachable", f"{key}: outside the workspace: " + "; ".join(problems))
+
+
+def parse_request(
+    key: str,
+    payload: bytes | bytearray | memoryview | str | None,
+    *,
+    workspace: Mapping[str, Sequence[float]] | None = None,
+) -> BaseModel:
+    """Bytes → validated request model of ``key``; :class:`RequestError` naming the field otherwise.
+
+    ``workspace`` (DOF → [min, max], the service's ``limits.workspace``): pose fields of ``goto``
+    and ``presets/save`` outside it are refused first, naming the workspace range
+    (:func:`check_pose_in_workspace`).
+    """
     model = REQUESTS.get(key)
     if model is None:
         raise RequestError("unknown_key", f"unknown API key {key!r}; allowed: {', '.join(API_KEYS)}")
+    if key in ANY_PAYLOAD_KEYS:
+        return model()  # never decoded: a stop must not be refused for what came with it
     raw = b"" if payload is None else payload
     if isinstance(raw, str):
         raw = raw.encode("utf-8", "surrogatepass")
@@ -256,7 +412,11 @@ def parse_request(key: str, payload: bytes | bytearray | memoryview | str | None
     else:
         try:
             text = raw.decode("utf-8")
-            data = json.loads(text, parse_constant=_reject_constant)
+            data = json.loads(text, parse_constant=_constant, parse_float=_float, object_pairs_hook=_pairs)
+        except _DuplicateKey as exc:
+            raise RequestError(
+                "bad_request", f"{key}: duplicate key {_show(exc.name)} in the payload (each field may appear once)"
+            ) from None
         except UnicodeDecodeError as exc:
             raise RequestError("bad_request", f"{key}: payload is not UTF-8 text (byte {exc.start})") from None
         except RecursionError:
@@ -269,6 +429,16 @@ def parse_request(key: str, payload: bytes | bytearray | memoryview | str | None
             f"{key}: payload must be a JSON object with fields "
             f"{', '.join(model.model_fields) or '(none)'}, got {_show(data)}",
         )
+    bad = _find_non_finite(data)
+    if bad is not None:
+        path, token = bad
+        loc = tuple(path.split("."))
+        raise RequestError(
+            "bad_request",
+            f"{key}: {path} = {token} must be a finite number (NaN and infinity are not allowed){_allowed(model, loc)}",
+        )
+    if key in _POSE_FIELDS and workspace is not None:
+        check_pose_in_workspace(data.get(_POSE_FIELDS[key]) or {}, workspace, key=key, what=_POSE_FIELDS[key])
     try:
         return model.model_validate(data)
     except ValidationError as exc:

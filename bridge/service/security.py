@@ -7,10 +7,15 @@ The pieces, each a frozen value, combined in :class:`SecuritySettings`:
   sent when it opens a link; ``users_file`` — the ``user:password`` dictionary every incoming link
   must authenticate against (``transport/auth/usrpwd/dictionary_file``; :func:`write_users_file`).
 * :class:`AccessPolicy` — the ``access_control`` section: default deny; under the key prefix,
-  *operators* may use everything, *viewers* everything but the motion keys
-  (:func:`motion_keys`: ``goto``, ``jog``, ``presets/go``, ``maneuvers/run``, ``mode``), and
-  *services* (service nodes behind a router) may publish and answer. Subjects are Zenoh
-  usernames (from usrpwd) and, with mTLS, certificate common names.
+  *operators* may use everything, *viewers* only the reading queries (:data:`VIEWER_QUERIES`:
+  ``ik``, ``plan``, ``stop``, ``config``, ``presets/list``, ``maneuvers/validate``,
+  ``maneuvers/list``) — never the operator keys (:data:`OPERATOR_KEYS`: the motion keys
+  :data:`MOTION_KEYS` ``goto``, ``jog``, ``presets/go``, ``maneuvers/run``, ``mode`` and the
+  writing keys :data:`WRITE_KEYS` ``presets/save``, ``presets/delete``, ``maneuvers/save``,
+  ``maneuvers/delete``, ``faults/ack``, ``sim/fault``, ``track/…``) — and *services* (service
+  nodes behind a router) may publish and answer. Subjects are Zenoh usernames (from usrpwd) and,
+  with mTLS, certificate common names. Every API key is either a reading key or an operator key
+  (:func:`key_access`); a key in neither is refused to viewers.
 * :class:`TlsSettings` — ``transport/link/tls``: a certificate and key (used both to listen on
   ``tls/…`` and, with ``mutual``, to present a client certificate), the CA to verify the other side,
   ``enable_mtls`` for mutual authentication.
@@ -42,7 +47,11 @@ from planner.errors import HitchInputError
 __all__ = [
     "access_policy_from_file",
     "MOTION_KEYS",
+    "WRITE_KEYS",
+    "WRITE_PREFIXES",
+    "OPERATOR_KEYS",
     "VIEWER_QUERIES",
+    "key_access",
     "SECTIONS",
     "SecurityError",
     "Credentials",
@@ -50,6 +59,7 @@ __all__ = [
     "TlsSettings",
     "SecuritySettings",
     "motion_keys",
+    "write_keys",
     "build_acl",
     "build_security_config",
     "security_json5",
@@ -57,23 +67,34 @@ __all__ = [
     "apply_security",
     "security_sections",
     "exposure_warnings",
+    "read_users",
 ]
 
 #: API names that move the hitch; restricted to operators
 MOTION_KEYS: tuple[str, ...] = ("goto", "jog", "presets/go", "maneuvers/run", "mode")
-#: non-motion queries a viewer may send (API names under the prefix; exact keys, no wildcards)
+#: API names that change stored data or the service's state without moving; restricted to operators
+WRITE_KEYS: tuple[str, ...] = (
+    "presets/save",
+    "presets/delete",
+    "maneuvers/save",
+    "maneuvers/delete",
+    "faults/ack",
+    "sim/fault",
+)
+#: API name prefixes whose every key writes (restricted to operators): the track recorder's keys
+WRITE_PREFIXES: tuple[str, ...] = ("track/",)
+#: every API name restricted to operators (plus any key under WRITE_PREFIXES)
+OPERATOR_KEYS: tuple[str, ...] = MOTION_KEYS + WRITE_KEYS
+#: the reading queries a viewer may send (API names under the prefix; exact keys, no wildcards).
+#: ``stop`` is deliberately open: anyone who can see the hitch may stop it.
 VIEWER_QUERIES: tuple[str, ...] = (
     "ik",
     "plan",
     "stop",
     "config",
     "presets/list",
-    "presets/save",
-    "presets/delete",
     "maneuvers/validate",
-    "maneuvers/save",
     "maneuvers/list",
-    "maneuvers/delete",
 )
 #: the Zenoh 1.10 ACL message kinds, by the direction a client-side user needs them in
 _OBSERVE_IN = ("declare_subscriber", "declare_liveliness_subscriber", "liveliness_query")
@@ -118,6 +139,20 @@ def motion_keys(prefix: str = "hitch") -> tuple[str, ...]:
     return tuple(_key(prefix, k) for k in MOTION_KEYS)
 
 
+def write_keys(prefix: str = "hitch") -> tuple[str, ...]:
+    """The full writing keys under ``prefix`` (``hitch/presets/save`` …, ``hitch/track/**``)."""
+    return tuple(_key(prefix, k) for k in WRITE_KEYS) + tuple(_key(prefix, f"{p}**") for p in WRITE_PREFIXES)
+
+
+def key_access(key: str) -> str | None:
+    """``"write"`` for an operator key (motion or data), ``"read"`` for a reading query, None if unknown."""
+    if key in OPERATOR_KEYS or key.startswith(WRITE_PREFIXES):
+        return "write"
+    if key in VIEWER_QUERIES:
+        return "read"
+    return None
+
+
 @dataclass(frozen=True)
 class Credentials:
     """This node's user and password for usrpwd authentication (the password is not shown in repr)."""
@@ -150,11 +185,12 @@ class AccessPolicy:
         if isinstance(vq, str) or not all(isinstance(k, str) for k in vq):
             raise SecurityError("access.viewer_queries", "must be a list of API names such as 'ik'")
         for k in vq:
-            if k in MOTION_KEYS or "*" in k or "$" in k:
+            if key_access(k) == "write" or "*" in k or "$" in k:
                 raise SecurityError(
                     "access.viewer_queries",
-                    f"{k!r} is a motion key or a wildcard (allowed: exact "
-                    f"non-motion API names, e.g. {', '.join(VIEWER_QUERIES[:3])})",
+                    f"{k!r} is an operator key (it moves the hitch or writes data) or a wildcard "
+                    f"(allowed: exact reading API names: {', '.join(VIEWER_QUERIES)}); "
+                    "a security file listing it for viewers was written by an older version: regenerate it",
                 )
             _key(self.prefix, k, "access.viewer_queries")
         object.__setattr__(self, "viewer_queries", tuple(vq))
@@ -183,6 +219,28 @@ class AccessPolicy:
             or self.service_cert_names
         ):
             raise SecurityError("access", "names nobody: with default deny no one could reach the service")
+
+    def role(self, user: str) -> str | None:
+        """``"operator"``, ``"viewer"``, ``"service"`` or None (a username in no role)."""
+        for role, names in (("operator", self.operators), ("viewer", self.viewers), ("service", self.services)):
+            if user in names:
+                return role
+        return None
+
+    def permits(self, user: str, key: str) -> bool:
+        """May ``user`` use API name ``key``? Operators: everything; viewers: :attr:`viewer_queries`
+        that are not operator keys; everyone else (services included, which answer, not ask): nothing."""
+        role = self.role(user)
+        if role == "operator":
+            return True
+        return role == "viewer" and key in self.viewer_queries and key_access(key) != "write"
+
+    def refusal(self, user: str, key: str) -> str:
+        """The sentence that refuses ``user`` the key ``key``."""
+        head = f"{key}: user {user!r} ({self.role(user) or 'unknown user'}) may not use {key!r}"
+        if key_access(key) == "write":
+            return f"{head}; it {'moves the hitch' if key in MOTION_KEYS else 'writes data'} and needs an operator"
+        return f"{head} (viewers may use: {', '.join(self.viewer_queries)}; everything else needs an operator)"
 
 
 @dataclass(frozen=True)
@@ -284,6 +342,13 @@ def build_acl(policy: AccessPolicy) -> dict:
             "key_exprs": list(motion_keys(policy.prefix)),
         },
         {
+            "id": "no_writes",
+            "permission": "deny",
+            "flows": ["ingress", "egress"],
+            "messages": list(_ALL),
+            "key_exprs": list(write_keys(policy.prefix)),
+        },
+        {
             "id": "service",
             "permission": "allow",
             "flows": ["ingress", "egress"],
@@ -294,7 +359,12 @@ def build_acl(policy: AccessPolicy) -> dict:
     subjects, policies = [], []
     for role, users, certs, rule_ids in (
         ("operators", policy.operators, policy.operator_cert_names, ["observe", "to_client", "operator_queries"]),
-        ("viewers", policy.viewers, policy.viewer_cert_names, ["observe", "to_client", "viewer_queries", "no_motion"]),
+        (
+            "viewers",
+            policy.viewers,
+            policy.viewer_cert_names,
+            ["observe", "to_client", "viewer_queries", "no_motion", "no_writes"],
+        ),
         ("services", policy.services, policy.service_cert_names, ["service"]),
     ):
         ids = []
@@ -465,6 +535,29 @@ def access_policy_from_file(source: str | Path, prefix: str) -> AccessPolicy | N
         services=roles.get("services", ()),
         viewer_queries=queries,
     )
+
+
+def read_users(source: str | Path) -> dict[str, str]:
+    """The ``user -> password`` dictionary a security file authenticates links against (its
+    ``transport/auth/usrpwd/dictionary_file``, as :func:`write_users_file` writes it), e.g. for the
+    operator terminal's login; {} when the file names none."""
+    usrpwd = json.loads(security_sections(source).get("transport/auth/usrpwd") or "{}") or {}
+    path = usrpwd.get("dictionary_file")
+    if not path:
+        return {}
+    try:
+        lines = Path(path).read_text(encoding="utf-8").splitlines()
+    except OSError as exc:
+        raise SecurityError("users_file", f"cannot read {path}: {exc}") from None
+    users: dict[str, str] = {}
+    for n, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        user, sep, password = line.partition(":")
+        if not sep:
+            raise SecurityError("users_file", f"{path} line {n}: expected user:password")
+        users[_user(user, "users_file")] = password
+    return users
 
 
 def exposure_warnings(listen: Sequence[str], settings: SecuritySettings | None) -> list[str]:

@@ -1,11 +1,22 @@
 """Presets and maneuvers in SQLite: durable, versioned, safe for a threaded service.
 
 * **Presets** per implement: name → pose (x, z [m]; roll, pitch [rad]) and an optional speed
-  scale (0, 1]; a name is unique per implement.
+  scale [0.05, 1]; a name is unique per implement.
 * **Maneuvers**: name → YAML script text (unique name). The script is parsed and schema-checked
-  (:func:`~bridge.service.maneuvers.language.parse_maneuver`) before it is stored; the parsed
-  form is cached in memory, keyed by the script text, so reading a maneuver back does not parse
-  it again.
+  (:func:`~bridge.service.maneuvers.language.parse_maneuver`) exactly once, when it is saved; the
+  parsed form (its normalised JSON) and the listing fields (description, step count, timeout,
+  size) are stored with it. Listing reads those columns and parses nothing; reading one maneuver
+  back rebuilds it from the stored form without YAML. Cost of a list: one query, independent of
+  the scripts' sizes; of a read: one maneuver.
+* **Owners and limits** (:class:`StoreLimits`): every row records the user who saved it last
+  (``owner``; ``""`` when the transport authorised the request without naming a user, as Zenoh's
+  access control does). Per owner the store refuses more than ``max_presets_per_user`` presets,
+  ``max_maneuvers_per_user`` maneuvers and ``max_script_bytes_per_user`` bytes of script text
+  (each script at most :data:`~bridge.service.maneuvers.language.MAX_SCRIPT_BYTES`); the
+  :class:`StoreError` names the limit (its ``field``). Replacing a name you already count does
+  not count twice.
+* **Integrity**: at open, ``PRAGMA quick_check`` must answer ``ok``; a database with damaged pages
+  is refused (:class:`StoreError` naming the file) instead of starting and failing later.
 
 Durability. The database runs in WAL mode with ``synchronous=FULL``: every commit appends to the
 write-ahead log and fsyncs it before ``save_…`` returns, so an acknowledged save survives the
@@ -25,19 +36,21 @@ each in its own transaction. A database written by a newer program (a higher ver
 
 from __future__ import annotations
 
-import hashlib
+import json
 import math
 import sqlite3
 import threading
 import time
 from collections import OrderedDict
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from bridge.service.maneuvers.language import (
+    MAX_SCRIPT_BYTES,
+    MIN_SPEED_SCALE,
     POSE_BOUNDS,
     ManeuverSchemaError,
     ManeuverScript,
@@ -46,7 +59,17 @@ from bridge.service.maneuvers.language import (
 )
 from planner.errors import HitchInputError
 
-__all__ = ["StoreError", "Preset", "StoredManeuver", "HitchStore", "MIGRATIONS", "SCHEMA_VERSION", "DEFAULT_IMPLEMENT"]
+__all__ = [
+    "StoreError",
+    "StoreLimits",
+    "Preset",
+    "StoredManeuver",
+    "ManeuverSummary",
+    "HitchStore",
+    "MIGRATIONS",
+    "SCHEMA_VERSION",
+    "DEFAULT_IMPLEMENT",
+]
 
 #: the implement key used when the service runs without a named implement
 DEFAULT_IMPLEMENT = "default"
@@ -71,6 +94,20 @@ MIGRATIONS: tuple[str, ...] = (
         updated_s REAL NOT NULL
     ) WITHOUT ROWID;
     """,
+    # 1 → 2: owners, the parsed form and the listing fields of a maneuver (rows of version 1 are
+    # parsed once at open, see HitchStore._backfill)
+    """
+    ALTER TABLE presets ADD COLUMN owner TEXT NOT NULL DEFAULT '';
+    ALTER TABLE maneuvers ADD COLUMN owner TEXT NOT NULL DEFAULT '';
+    ALTER TABLE maneuvers ADD COLUMN parsed TEXT;
+    ALTER TABLE maneuvers ADD COLUMN problem TEXT;
+    ALTER TABLE maneuvers ADD COLUMN description TEXT NOT NULL DEFAULT '';
+    ALTER TABLE maneuvers ADD COLUMN steps INTEGER NOT NULL DEFAULT 0;
+    ALTER TABLE maneuvers ADD COLUMN timeout_s REAL NOT NULL DEFAULT 0;
+    ALTER TABLE maneuvers ADD COLUMN size_bytes INTEGER NOT NULL DEFAULT 0;
+    CREATE INDEX presets_owner ON presets (owner);
+    CREATE INDEX maneuvers_owner ON maneuvers (owner);
+    """,
 )
 SCHEMA_VERSION = len(MIGRATIONS)
 _CACHE_SIZE = 64
@@ -85,14 +122,31 @@ class StoreError(HitchInputError):
 
 
 @dataclass(frozen=True)
+class StoreLimits:
+    """Per-owner limits of the store (see the module docstring); each must be >= 1."""
+
+    max_presets_per_user: int = 1000  # over every implement
+    max_maneuvers_per_user: int = 200
+    #: total script text of one owner's maneuvers [bytes] (one script: at most MAX_SCRIPT_BYTES)
+    max_script_bytes_per_user: int = 4 * 1024 * 1024
+
+    def __post_init__(self) -> None:
+        for name in ("max_presets_per_user", "max_maneuvers_per_user", "max_script_bytes_per_user"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise StoreError(name, f"must be an integer >= 1, got {v!r}")
+
+
+@dataclass(frozen=True)
 class Preset:
-    """A saved pose of one implement: x, z [m]; roll, pitch [rad]; optional speed scale (0, 1]."""
+    """A saved pose of one implement: x, z [m]; roll, pitch [rad]; optional speed scale [0.05, 1]."""
 
     implement: str
     name: str
     pose: Mapping[str, float]
     speed_scale: float | None = None
     updated_s: float = 0.0  # Unix time of the last save [s]
+    owner: str = ""  # who saved it last ("" when the transport named no user)
 
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {"name": self.name, "implement": self.implement, "pose": dict(self.pose)}
@@ -109,6 +163,7 @@ class StoredManeuver:
     script: str
     parsed: ManeuverScript = field(repr=False)
     updated_s: float = 0.0
+    owner: str = ""
 
     def to_json(self, *, script: bool = True) -> dict[str, Any]:
         """Name, script text (unless ``script`` is False: the listing), description, step count, timeout [s]."""
@@ -116,6 +171,37 @@ class StoredManeuver:
         if script:
             out["script"] = self.script
         out.update(description=self.parsed.description, steps=len(self.parsed.steps), timeout=self.parsed.timeout_s)
+        return out
+
+
+@dataclass(frozen=True)
+class ManeuverSummary:
+    """A maneuver in the listing: the fields stored at save, nothing parsed.
+
+    ``problem`` is set for a row saved by an older program that no longer parses (save it again).
+    """
+
+    name: str
+    description: str
+    steps: int
+    timeout_s: float
+    size_bytes: int
+    updated_s: float = 0.0
+    owner: str = ""
+    problem: str | None = None
+
+    def to_json(self, *, script: bool = False) -> dict[str, Any]:
+        """Name, description, step count, timeout [s] (and ``problem`` if any); a summary has no script text."""
+        if script:
+            raise StoreError("script", "a maneuver summary has no script text; read it with get_maneuver")
+        out: dict[str, Any] = {
+            "name": self.name,
+            "description": self.description,
+            "steps": self.steps,
+            "timeout": self.timeout_s,
+        }
+        if self.problem is not None:
+            out["problem"] = self.problem
         return out
 
 
@@ -147,23 +233,41 @@ def _pose(pose: Any) -> dict[str, float]:
 def _scale(v: Any) -> float | None:
     if v is None:
         return None
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not 0.0 < v <= 1.0:
-        raise StoreError("speed_scale", f"must be a number in (0, 1] or absent, got {v!r}")
+    if (
+        isinstance(v, bool)
+        or not isinstance(v, (int, float))
+        or not math.isfinite(v)
+        or not MIN_SPEED_SCALE <= v <= 1.0
+    ):
+        raise StoreError("speed_scale", f"must be a number in [{MIN_SPEED_SCALE:g}, 1] or absent, got {v!r}")
     return float(v)
+
+
+def _owner(v: Any) -> str:
+    if v is None:
+        return ""
+    if not isinstance(v, str) or len(v) > 64 or not v.isprintable():
+        raise StoreError("owner", f"must be a user name of at most 64 printable characters, got {v!r}")
+    return v
+
+
+def _who(owner: str) -> str:
+    return f"user {owner!r}" if owner else "the anonymous user (no user named by the transport)"
 
 
 class HitchStore:
     """Presets and maneuvers in one SQLite file; see the module docstring."""
 
-    def __init__(self, path: str | Path, *, timeout_s: float = 5.0):
+    def __init__(self, path: str | Path, *, timeout_s: float = 5.0, limits: StoreLimits | None = None):
         self.path = Path(path)
+        self.limits = limits if limits is not None else StoreLimits()
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._db = sqlite3.connect(self.path, timeout=timeout_s, isolation_level=None, check_same_thread=False)
         except (OSError, sqlite3.Error) as exc:
             raise StoreError("path", f"cannot open database {self.path}: {exc}") from None
         self._lock = threading.RLock()
-        self._cache: OrderedDict[str, ManeuverScript] = OrderedDict()
+        self._cache: OrderedDict[tuple[str, float], ManeuverScript] = OrderedDict()
         self._closed = False
         try:
             mode = self._db.execute("PRAGMA journal_mode=WAL").fetchone()[0]
@@ -171,7 +275,9 @@ class HitchStore:
                 raise StoreError("path", f"database {self.path} cannot use WAL mode (got {mode})")
             self._db.execute("PRAGMA synchronous=FULL")
             self._db.execute("PRAGMA foreign_keys=ON")
+            self._check_integrity()
             self._migrate()
+            self._backfill()
         except sqlite3.DatabaseError as exc:
             self._db.close()
             raise StoreError("path", f"{self.path} is not a usable SQLite database: {exc}") from None
@@ -180,6 +286,36 @@ class HitchStore:
             raise
 
     # ------------------------------------------------------------------ lifecycle
+    def _check_integrity(self) -> None:
+        """``PRAGMA quick_check``: a database with damaged pages is refused at open, naming the file."""
+        try:
+            problems = [str(r[0]) for r in self._db.execute("PRAGMA quick_check(5)").fetchall()]
+        except sqlite3.DatabaseError as exc:  # pages so damaged that the check itself cannot read them
+            problems = [str(exc)]
+        if problems != ["ok"]:
+            raise StoreError(
+                "path",
+                f"database {self.path} is damaged (PRAGMA quick_check: {'; '.join(problems)[:300]}); "
+                "restore it from a backup or move it away to start with an empty store",
+            )
+
+    def _backfill(self) -> None:
+        """Parse, once, maneuvers stored without their parsed form (rows of schema version 1)."""
+        rows = self._db.execute(
+            "SELECT name, script FROM maneuvers WHERE parsed IS NULL AND problem IS NULL"
+        ).fetchall()
+        for name, script in rows:
+            try:
+                parsed, problem = parse_maneuver(script), None
+            except HitchInputError as exc:
+                parsed, problem = None, str(exc)[:500]
+            cols = _listing(parsed, script)
+            self._db.execute(
+                "UPDATE maneuvers SET parsed = ?, problem = ?, description = ?, steps = ?, timeout_s = ?, "
+                "size_bytes = ? WHERE name = ?",
+                (cols[0], problem or (None if parsed is not None else "does not parse"), *cols[1:], name),
+            )
+
     def _migrate(self) -> None:
         version = self._db.execute("PRAGMA user_version").fetchone()[0]
         if version > SCHEMA_VERSION:
@@ -238,16 +374,23 @@ class HitchStore:
                 raise StoreError("store", f"database {self.path} is closed")
             yield self._db
 
-    def _write(self, sql: str, args: tuple[Any, ...]) -> int:
+    def _write(self, sql: str, args: tuple[Any, ...], check: Callable[[sqlite3.Connection], None] | None = None) -> int:
+        """One statement in an immediate transaction; ``check`` (the limits) runs inside it first."""
         with self._locked() as db:
             try:
                 db.execute("BEGIN IMMEDIATE")
+                if check is not None:
+                    check(db)
                 cur = db.execute(sql, args)
                 db.execute("COMMIT")
             except sqlite3.Error as exc:
                 if db.in_transaction:
                     db.execute("ROLLBACK")
                 raise StoreError("database", f"write failed: {exc}") from None
+            except BaseException:
+                if db.in_transaction:
+                    db.execute("ROLLBACK")
+                raise
             return cur.rowcount
 
     # ------------------------------------------------------------------ presets
@@ -258,17 +401,41 @@ class HitchStore:
         *,
         implement: str = DEFAULT_IMPLEMENT,
         speed_scale: float | None = None,
+        owner: str | None = None,
     ) -> Preset:
-        """Insert or replace a preset (atomically, durably); returns what was stored."""
+        """Insert or replace a preset (atomically, durably); returns what was stored.
+
+        ``owner``: the user saving it (None: no user named); :class:`StoreError` with field
+        ``max_presets_per_user`` when a new name would exceed the owner's limit.
+        """
         preset = Preset(
-            _name(implement, "implement"), _name(name, "name"), _pose(pose), _scale(speed_scale), time.time()
+            _name(implement, "implement"),
+            _name(name, "name"),
+            _pose(pose),
+            _scale(speed_scale),
+            time.time(),
+            _owner(owner),
         )
         p = preset.pose
+        limit = self.limits.max_presets_per_user
+
+        def check(db: sqlite3.Connection) -> None:
+            (n,) = db.execute(
+                "SELECT COUNT(*) FROM presets WHERE owner = ? AND NOT (implement = ? AND name = ?)",
+                (preset.owner, preset.implement, preset.name),
+            ).fetchone()
+            if n >= limit:
+                raise StoreError(
+                    "max_presets_per_user",
+                    f"{_who(preset.owner)} already has {n} presets (limit: max_presets_per_user = {limit}); "
+                    "delete one or save under an existing name",
+                )
+
         self._write(
-            "INSERT INTO presets (implement, name, x, z, roll, pitch, speed_scale, updated_s) "
-            "VALUES (?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT (implement, name) DO UPDATE SET "
+            "INSERT INTO presets (implement, name, x, z, roll, pitch, speed_scale, updated_s, owner) "
+            "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT (implement, name) DO UPDATE SET "
             "x = excluded.x, z = excluded.z, roll = excluded.roll, pitch = excluded.pitch, "
-            "speed_scale = excluded.speed_scale, updated_s = excluded.updated_s",
+            "speed_scale = excluded.speed_scale, updated_s = excluded.updated_s, owner = excluded.owner",
             (
                 preset.implement,
                 preset.name,
@@ -278,7 +445,9 @@ class HitchStore:
                 p["pitch"],
                 preset.speed_scale,
                 preset.updated_s,
+                preset.owner,
             ),
+            check,
         )
         return preset
 
@@ -287,7 +456,7 @@ class HitchStore:
         args = (_name(implement, "implement"), _name(name, "name"))
         with self._locked() as db:
             row = db.execute(
-                "SELECT implement, name, x, z, roll, pitch, speed_scale, updated_s FROM presets "
+                "SELECT implement, name, x, z, roll, pitch, speed_scale, updated_s, owner FROM presets "
                 "WHERE implement = ? AND name = ?",
                 args,
             ).fetchone()
@@ -298,12 +467,12 @@ class HitchStore:
         with self._locked() as db:
             if implement is None:
                 rows = db.execute(
-                    "SELECT implement, name, x, z, roll, pitch, speed_scale, updated_s FROM presets "
+                    "SELECT implement, name, x, z, roll, pitch, speed_scale, updated_s, owner FROM presets "
                     "ORDER BY implement, name"
                 ).fetchall()
             else:
                 rows = db.execute(
-                    "SELECT implement, name, x, z, roll, pitch, speed_scale, updated_s FROM presets "
+                    "SELECT implement, name, x, z, roll, pitch, speed_scale, updated_s, owner FROM presets "
                     "WHERE implement = ? ORDER BY name",
                     (_name(implement, "implement"),),
                 ).fetchall()
@@ -315,58 +484,120 @@ class HitchStore:
         return self._write("DELETE FROM presets WHERE implement = ? AND name = ?", args) > 0
 
     # ------------------------------------------------------------------ maneuvers
-    def save_maneuver(self, name: str, script: str) -> StoredManeuver:
-        """Parse (ManeuverError lists the problems) and insert or replace a maneuver.
+    def save_maneuver(self, name: str, script: str, *, owner: str | None = None) -> StoredManeuver:
+        """Parse (once; ManeuverError lists the problems) and insert or replace a maneuver.
 
-        A ``name:`` inside the script, if any, must equal ``name``.
+        A ``name:`` inside the script, if any, must equal ``name``. ``owner``: the user saving it;
+        :class:`StoreError` with field ``max_maneuvers_per_user`` or ``max_script_bytes_per_user``
+        when the owner's limits would be exceeded.
         """
-        name = _name(name, "name")
-        parsed = self._parse(script)
+        name, who = _name(name, "name"), _owner(owner)
+        if not isinstance(script, str):
+            raise StoreError("script", f"must be YAML text, got {type(script).__name__}")
+        parsed = parse_maneuver(script)  # ManeuverError (a HitchInputError) with the step errors
         if parsed.name is not None and parsed.name != name:
             raise StoreError(
                 "name",
                 f"the script calls itself {parsed.name!r} but is saved as {name!r}; "
                 "make them equal or drop 'name:' from the script",
             )
-        stored = StoredManeuver(name, script, parsed, time.time())
+        stored = StoredManeuver(name, script, parsed, time.time(), who)
+        form, description, steps, timeout_s, size = _listing(parsed, script)
+        max_count, max_bytes = self.limits.max_maneuvers_per_user, self.limits.max_script_bytes_per_user
+
+        def check(db: sqlite3.Connection) -> None:
+            n, total = db.execute(
+                "SELECT COUNT(*), COALESCE(SUM(size_bytes), 0) FROM maneuvers WHERE owner = ? AND name != ?",
+                (who, name),
+            ).fetchone()
+            if n >= max_count:
+                raise StoreError(
+                    "max_maneuvers_per_user",
+                    f"{_who(who)} already has {n} maneuvers (limit: max_maneuvers_per_user = {max_count}); "
+                    "delete one or save under an existing name",
+                )
+            if total + size > max_bytes:
+                raise StoreError(
+                    "max_script_bytes_per_user",
+                    f"{_who(who)} would store {total + size} bytes of scripts with this one of {size} bytes "
+                    f"(limit: max_script_bytes_per_user = {max_bytes} bytes; one script at most "
+                    f"{MAX_SCRIPT_BYTES} bytes)",
+                )
+
         self._write(
-            "INSERT INTO maneuvers (name, script, updated_s) VALUES (?, ?, ?) ON CONFLICT (name) "
-            "DO UPDATE SET script = excluded.script, updated_s = excluded.updated_s",
-            (name, script, stored.updated_s),
+            "INSERT INTO maneuvers (name, script, updated_s, owner, parsed, problem, description, steps, timeout_s, "
+            "size_bytes) VALUES (?, ?, ?, ?, ?, NULL, ?, ?, ?, ?) ON CONFLICT (name) DO UPDATE SET "
+            "script = excluded.script, updated_s = excluded.updated_s, owner = excluded.owner, "
+            "parsed = excluded.parsed, problem = NULL, description = excluded.description, steps = excluded.steps, "
+            "timeout_s = excluded.timeout_s, size_bytes = excluded.size_bytes",
+            (name, script, stored.updated_s, who, form, description, steps, timeout_s, size),
+            check,
         )
+        with self._lock:
+            self._remember((name, stored.updated_s), parsed)
         return stored
 
     def get_maneuver(self, name: str) -> StoredManeuver | None:
+        """The maneuver with its parsed form (rebuilt from the stored form, no YAML), or None.
+
+        A row saved by an older program that no longer parses raises :class:`StoreError` (``script``).
+        """
         args = (_name(name, "name"),)
         with self._locked() as db:
-            row = db.execute("SELECT name, script, updated_s FROM maneuvers WHERE name = ?", args).fetchone()
-        return None if row is None else StoredManeuver(row[0], row[1], self._parse(row[1]), row[2])
+            row = db.execute(
+                "SELECT name, script, updated_s, owner, parsed, problem FROM maneuvers WHERE name = ?", args
+            ).fetchone()
+        if row is None:
+            return None
+        n, script, updated, owner, form, problem = row
+        if form is None:
+            raise StoreError(
+                "script", f"stored maneuver {n!r} does not parse with this program ({problem}); save it again"
+            )
+        key = (n, float(updated))
+        with self._lock:
+            parsed = self._cache.get(key)
+            if parsed is not None:
+                self._cache.move_to_end(key)
+        if parsed is None:
+            try:
+                parsed = ManeuverScript.from_json(json.loads(form))
+            except (ValueError, ManeuverSchemaError) as exc:
+                raise StoreError("script", f"stored maneuver {n!r} is damaged ({exc}); save it again") from None
+            with self._lock:
+                self._remember(key, parsed)
+        return StoredManeuver(n, script, parsed, updated, owner)
 
-    def list_maneuvers(self) -> list[StoredManeuver]:
+    def list_maneuvers(self) -> list[ManeuverSummary]:
+        """Every maneuver's listing fields, sorted by name: one query, nothing parsed."""
         with self._locked() as db:
-            rows = db.execute("SELECT name, script, updated_s FROM maneuvers ORDER BY name").fetchall()
-        return [StoredManeuver(n, s, self._parse(s), t) for n, s, t in rows]
+            rows = db.execute(
+                "SELECT name, description, steps, timeout_s, size_bytes, updated_s, owner, problem "
+                "FROM maneuvers ORDER BY name"
+            ).fetchall()
+        return [ManeuverSummary(*r) for r in rows]
 
     def delete_maneuver(self, name: str) -> bool:
         return self._write("DELETE FROM maneuvers WHERE name = ?", (_name(name, "name"),)) > 0
 
-    def _parse(self, script: str) -> ManeuverScript:
-        if not isinstance(script, str):
-            raise StoreError("script", f"must be YAML text, got {type(script).__name__}")
-        key = hashlib.sha256(script.encode("utf-8", "surrogatepass")).hexdigest()
-        with self._lock:
-            hit = self._cache.get(key)
-            if hit is not None:
-                self._cache.move_to_end(key)
-                return hit
-        parsed = parse_maneuver(script)  # ManeuverError (a HitchInputError) with the step errors
-        with self._lock:
-            self._cache[key] = parsed
-            while len(self._cache) > _CACHE_SIZE:
-                self._cache.popitem(last=False)
-        return parsed
+    def _remember(self, key: tuple[str, float], parsed: ManeuverScript) -> None:
+        self._cache[key] = parsed
+        self._cache.move_to_end(key)
+        while len(self._cache) > _CACHE_SIZE:
+            self._cache.popitem(last=False)
+
+
+def _listing(parsed: ManeuverScript | None, script: str) -> tuple[str | None, str, int, float, int]:
+    """The stored form and listing columns of a maneuver: parsed JSON, description, steps, timeout, size."""
+    size = len(script.encode("utf-8", "surrogatepass"))
+    if parsed is None:
+        return None, "", 0, 0.0, size
+    form = json.dumps(parsed.to_json(), allow_nan=False, separators=(",", ":"))
+    return form, parsed.description, len(parsed.steps), parsed.timeout_s, size
 
 
 def _preset(row: tuple[Any, ...]) -> Preset:
-    implement, name, x, z, roll, pitch, scale, updated = row
-    return Preset(implement, name, {"x": x, "z": z, "roll": roll, "pitch": pitch}, scale, updated)
+    implement, name, x, z, roll, pitch, scale, updated, owner = row
+    if scale is not None:  # saved by an older program below today's bound: runs at the bound
+        scale = max(float(scale), MIN_SPEED_SCALE)
+    return Preset(implement, name, {"x": x, "z": z, "roll": roll, "pitch": pitch}, scale, updated, owner)

@@ -2,13 +2,20 @@
 
 Enough for one page, its static files, a JSON API and the WebSocket upgrade: request line,
 headers, ``Content-Length`` bodies (no chunked uploads), keep-alive. Sizes are bounded so a
-misbehaving client cannot make the service allocate without limit.
+misbehaving client cannot make the service allocate without limit, and so is time: a client
+that keeps a connection open without starting a request is closed after ``idle_timeout_s``
+(:data:`IDLE_TIMEOUT_S`), one that has started a request must finish its header within
+``header_timeout_s`` (:data:`HEADER_TIMEOUT_S`, a "slowloris" gets 408) and its body within
+``body_timeout_s``. A request has at most one ``Content-Length`` (digits only), ``Host`` and
+``Transfer-Encoding`` header: two are refused with 400 (never "the last one wins", which lets
+two parsers disagree about where a request ends).
 """
 
 from __future__ import annotations
 
 import asyncio
 import json
+import re
 from dataclasses import dataclass, field
 from http import HTTPStatus
 from urllib.parse import unquote, urlsplit
@@ -23,11 +30,23 @@ __all__ = [
     "json_response",
     "MAX_HEADER_BYTES",
     "MAX_BODY_BYTES",
+    "HEADER_TIMEOUT_S",
+    "IDLE_TIMEOUT_S",
+    "BODY_TIMEOUT_S",
 ]
 
 MAX_HEADER_BYTES = 16 * 1024
 MAX_BODY_BYTES = 64 * 1024
+#: from the first byte of a request to the end of its header [s]
+HEADER_TIMEOUT_S = 10.0
+#: a kept-alive connection waiting for its next request is closed after this time [s]
+IDLE_TIMEOUT_S = 120.0
+#: from the end of the header to the end of the body [s]
+BODY_TIMEOUT_S = 10.0
 _METHODS = {"GET", "HEAD", "POST", "OPTIONS", "PUT", "DELETE", "PATCH"}
+#: headers a request may carry only once (two could be read differently by a proxy and by us)
+_SINGLE = ("content-length", "host", "transfer-encoding")
+_DIGITS = re.compile(r"[0-9]{1,15}")
 
 
 class HttpError(HitchInputError):
@@ -61,18 +80,52 @@ class HttpRequest:
         return "close" not in conn
 
 
-async def read_request(reader: asyncio.StreamReader, *, max_body: int = MAX_BODY_BYTES) -> HttpRequest | None:
-    """Read one request; None at a clean end of stream. Raises :class:`HttpError` on bad input."""
-    try:
-        head = await reader.readuntil(b"\r\n\r\n")
-    except asyncio.IncompleteReadError as exc:
-        if not exc.partial.strip():
+async def _read_head(reader: asyncio.StreamReader, idle_timeout_s: float, header_timeout_s: float) -> bytes | None:
+    """The header up to and including the blank line; None at a clean end of stream or when idle."""
+    loop = asyncio.get_running_loop()
+    for _ in range(64):  # stray CRLFs between kept-alive requests may be ignored (RFC 9112 2.2), a few of them
+        try:
+            first = await asyncio.wait_for(reader.read(1), idle_timeout_s)
+        except TimeoutError:
+            return None  # an idle kept-alive connection: close it quietly
+        if not first:
             return None
-        raise HttpError(400, "incomplete request header") from None
-    except asyncio.LimitOverrunError:
-        raise HttpError(431, f"request header larger than {MAX_HEADER_BYTES} bytes") from None
-    if len(head) > MAX_HEADER_BYTES:
-        raise HttpError(431, f"request header larger than {MAX_HEADER_BYTES} bytes")
+        deadline = loop.time() + header_timeout_s
+        head = bytearray(first)
+        while not head.endswith(b"\r\n\r\n") and head != b"\r\n":
+            remaining = deadline - loop.time()
+            try:
+                if remaining <= 0:
+                    raise TimeoutError
+                head += await asyncio.wait_for(reader.readuntil(b"\n"), remaining)
+            except TimeoutError:
+                raise HttpError(408, f"request header not complete within {header_timeout_s:g} s", "timeout") from None
+            except asyncio.IncompleteReadError as exc:
+                if not (bytes(head) + exc.partial).strip():
+                    return None
+                raise HttpError(400, "incomplete request header") from None
+            except asyncio.LimitOverrunError:
+                raise HttpError(431, f"request header larger than {MAX_HEADER_BYTES} bytes") from None
+            if len(head) > MAX_HEADER_BYTES:
+                raise HttpError(431, f"request header larger than {MAX_HEADER_BYTES} bytes")
+        if head != b"\r\n":
+            return bytes(head)
+    raise HttpError(400, "too many empty lines before the request line")
+
+
+async def read_request(
+    reader: asyncio.StreamReader,
+    *,
+    max_body: int = MAX_BODY_BYTES,
+    header_timeout_s: float = HEADER_TIMEOUT_S,
+    idle_timeout_s: float = IDLE_TIMEOUT_S,
+    body_timeout_s: float = BODY_TIMEOUT_S,
+) -> HttpRequest | None:
+    """Read one request; None at a clean end of stream (or an idle connection). Raises
+    :class:`HttpError` on bad input (408 when the header or body does not arrive in time)."""
+    head = await _read_head(reader, idle_timeout_s, header_timeout_s)
+    if head is None:
+        return None
     try:
         lines = head.decode("latin-1").split("\r\n")
         method, target, version = lines[0].split(" ")
@@ -87,19 +140,22 @@ async def read_request(reader: asyncio.StreamReader, *, max_body: int = MAX_BODY
         name, sep, value = line.partition(":")
         if not sep or not name.strip() or name != name.strip():
             raise HttpError(400, f"malformed header line {line[:40]!r}")
-        headers[name.lower()] = value.strip()
-    if "chunked" in headers.get("transfer-encoding", "").lower():
-        raise HttpError(411, "chunked request bodies are not supported; send Content-Length")
-    try:
-        length = int(headers.get("content-length", "0"))
-    except ValueError:
-        raise HttpError(400, "Content-Length must be an integer") from None
-    if length < 0:
-        raise HttpError(400, "Content-Length must be >= 0")
+        key = name.lower()
+        if key in _SINGLE and key in headers:
+            raise HttpError(400, f"the request has more than one {name} header (exactly one is allowed)")
+        headers[key] = value.strip()
+    if "transfer-encoding" in headers:
+        raise HttpError(411, "Transfer-Encoding (chunked) request bodies are not supported; send Content-Length")
+    raw_length = headers.get("content-length", "0")
+    if not _DIGITS.fullmatch(raw_length):
+        raise HttpError(400, f"Content-Length must be a non-negative integer of digits, got {raw_length[:20]!r}")
+    length = int(raw_length)
     if length > max_body:
         raise HttpError(413, f"request body of {length} bytes exceeds the limit of {max_body} bytes")
     try:
-        body = await reader.readexactly(length) if length else b""
+        body = await asyncio.wait_for(reader.readexactly(length), body_timeout_s) if length else b""
+    except TimeoutError:
+        raise HttpError(408, f"request body not complete within {body_timeout_s:g} s", "timeout") from None
     except asyncio.IncompleteReadError:
         raise HttpError(400, "request body shorter than Content-Length") from None
     parts = urlsplit(target)

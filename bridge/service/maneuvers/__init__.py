@@ -44,6 +44,7 @@ if TYPE_CHECKING:
     from bridge.service.maneuvers.steps import (
         DEFAULT_TIMEOUT_S,
         MAX_TIMEOUT_S,
+        MIN_SPEED_SCALE,
         NAME_PATTERN,
         POSE_BOUNDS,
         GotoStep,
@@ -64,6 +65,7 @@ _SOURCES: dict[str, str] = {
             "ManeuverSchemaError",
             "DEFAULT_TIMEOUT_S",
             "MAX_TIMEOUT_S",
+            "MIN_SPEED_SCALE",
             "POSE_BOUNDS",
             "NAME_PATTERN",
             "GotoStep",
@@ -106,6 +108,7 @@ __all__ = [
     "ManeuverSchemaError",
     "DEFAULT_TIMEOUT_S",
     "MAX_TIMEOUT_S",
+    "MIN_SPEED_SCALE",
     "POSE_BOUNDS",
     "NAME_PATTERN",
     "GotoStep",

@@ -14,9 +14,11 @@ A maneuver is the headland-sequence idea of commercial hitch systems, written in
       - wait: 1.5                      # seconds
       - goto: {x: 0.0, speed_scale: 1.0}
 
-Rules: :func:`parse_maneuver` reads the text with ``yaml.safe_load`` only, at most
+Rules: :func:`parse_maneuver` reads the text with PyYAML's safe loader only, at most
 :data:`MAX_SCRIPT_BYTES` and :data:`MAX_STEPS`; anchors/aliases of mappings or lists are refused
-(no "billion laughs"); every step is a mapping with exactly one step key; unknown keys, wrong
+(no "billion laughs"); a key written twice in one mapping is an error naming the key and its line
+(plain YAML keeps the last one silently); every step is a mapping with exactly one step key;
+speed scales are at least :data:`MIN_SPEED_SCALE` (0.05: plan time grows as 1/scale); unknown keys, wrong
 types, NaN/inf and out-of-range values are errors ``{"step": index, "message": ...}`` naming the
 field and the allowed range (``step`` is the 0-based index in ``steps``, ``None`` for the
 top level). Nothing raises but :class:`ManeuverError` (a :class:`~planner.errors.HitchInputError`,
@@ -47,6 +49,7 @@ from bridge.service.maneuvers.steps import (  # the step schema; re-exported (se
     _KINDS,
     DEFAULT_TIMEOUT_S,
     MAX_TIMEOUT_S,
+    MIN_SPEED_SCALE,
     NAME_PATTERN,
     POSE_BOUNDS,
     GotoStep,
@@ -71,6 +74,7 @@ __all__ = [
     "MAX_SCRIPT_BYTES",
     "MAX_STEPS",
     "DEFAULT_TIMEOUT_S",
+    "MIN_SPEED_SCALE",
     "POSE_BOUNDS",
     "NAME_PATTERN",
     "ManeuverError",
@@ -157,6 +161,33 @@ def _errors(exc: ValidationError, model: type[BaseModel], where: str, step: int 
     return out
 
 
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, but a key written twice in one mapping is an error (naming the key and line)."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        seen: dict[Any, Any] = {}
+        for key_node, _ in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge" or not isinstance(key_node, yaml.ScalarNode):
+                continue  # '<<' merges may override; non-scalar keys are refused later
+            key = self.construct_object(key_node, deep=False)
+            try:
+                first = seen.setdefault(key, key_node)
+            except TypeError:  # an unhashable key: the base constructor reports it
+                continue
+            if first is not key_node:
+                raise yaml.constructor.ConstructorError(
+                    f"while constructing a mapping (first {key!r} at line {first.start_mark.line + 1})",
+                    node.start_mark,
+                    f"duplicate key {_show(key)} (each key may appear once in a mapping)",
+                    key_node.start_mark,
+                )
+        return super().construct_mapping(node, deep=deep)
+
+
+def _load_yaml(text: str) -> Any:
+    return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 — a SafeLoader subclass
+
+
 def _check_structure(data: Any) -> str | None:
     """Refuse shared containers (YAML aliases), deep nesting and huge node counts; non-string keys."""
     seen: set[int] = set()
@@ -221,7 +252,7 @@ def parse_maneuver(text: Any) -> ManeuverScript:
     if size > MAX_SCRIPT_BYTES:
         raise ManeuverError([StepError(None, f"script is {size} bytes (allowed: at most {MAX_SCRIPT_BYTES} bytes)")])
     try:
-        data = yaml.safe_load(text)
+        data = _load_yaml(text)
     except Exception as exc:  # noqa: BLE001 — PyYAML's constructors also raise IndexError, AttributeError, …
         where = getattr(exc, "problem_mark", None)
         at = f" at line {where.line + 1}, column {where.column + 1}" if where is not None else ""

@@ -24,6 +24,7 @@ __all__ = [
     "ManeuverSchemaError",
     "DEFAULT_TIMEOUT_S",
     "MAX_TIMEOUT_S",
+    "MIN_SPEED_SCALE",
     "POSE_BOUNDS",
     "NAME_PATTERN",
     "GotoStep",
@@ -38,6 +39,9 @@ __all__ = [
 
 DEFAULT_TIMEOUT_S = 60.0
 MAX_TIMEOUT_S = 3600.0
+#: the lowest speed scale a motion may ask for: plan time grows as 1/scale (a full-workspace move
+#: plans in ~0.2 s at 0.05, ~10 s at 0.001), so lower scales are refused, never planned
+MIN_SPEED_SCALE = 0.05
 #: sanity bounds of a hitch pose (x, z [m]; roll, pitch [rad]); the workspace check is the planner's
 POSE_BOUNDS: Mapping[str, tuple[float, float]] = {
     "x": (-1.0, 1.0),
@@ -91,14 +95,14 @@ def _pose_field(k: str) -> Any:
 
 
 class GotoStep(_Strict):
-    """Move to a (partial) pose: x, z [m], roll, pitch [rad]; optional speed scale (0, 1]."""
+    """Move to a (partial) pose: x, z [m], roll, pitch [rad]; optional speed scale [0.05, 1]."""
 
     kind: ClassVar[str] = "goto"
     x: float | None = _pose_field("x")
     z: float | None = _pose_field("z")
     roll: float | None = _pose_field("roll")
     pitch: float | None = _pose_field("pitch")
-    speed_scale: float | None = Field(None, gt=0.0, le=1.0)
+    speed_scale: float | None = Field(None, ge=MIN_SPEED_SCALE, le=1.0)
 
     @model_validator(mode="after")
     def _some_dof(self) -> GotoStep:
@@ -112,11 +116,11 @@ class GotoStep(_Strict):
 
 
 class PresetStep(_Strict):
-    """Move to a saved preset of the current implement; optional speed scale (0, 1]."""
+    """Move to a saved preset of the current implement; optional speed scale [0.05, 1]."""
 
     kind: ClassVar[str] = "preset"
     name: str
-    speed_scale: float | None = Field(None, gt=0.0, le=1.0)
+    speed_scale: float | None = Field(None, ge=MIN_SPEED_SCALE, le=1.0)
 
     @field_validator("name")
     @classmethod
@@ -139,10 +143,10 @@ class WaitForStep(_Strict):
 
 
 class SpeedStep(_Strict):
-    """Speed scale (0, 1] for the following motion steps."""
+    """Speed scale [0.05, 1] for the following motion steps."""
 
     kind: ClassVar[str] = "speed"
-    scale: float = Field(gt=0.0, le=1.0)
+    scale: float = Field(ge=MIN_SPEED_SCALE, le=1.0)
 
 
 Step = GotoStep | PresetStep | WaitStep | WaitForStep | SpeedStep
@@ -183,3 +187,23 @@ class ManeuverScript:
             "timeout": self.timeout_s,
             "steps": [{s.kind: s.model_dump(exclude_none=True)} for s in self.steps],
         }
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> ManeuverScript:
+        """The script back from :meth:`to_json` (no YAML: one model validation per step).
+
+        Raises :class:`ManeuverSchemaError` if ``data`` is not such a form.
+        """
+        try:
+            steps = []
+            for entry in data["steps"]:
+                ((kind, value),) = entry.items()
+                steps.append(_KINDS[kind][0].model_validate(value))
+            header = _Header.model_validate(
+                {"name": data["name"], "description": data["description"], "timeout": data["timeout"]}
+            )
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:  # pydantic's ValidationError is a ValueError
+            raise ManeuverSchemaError(
+                f"not a parsed maneuver script ({type(exc).__name__}: {str(exc)[:120]})"
+            ) from None
+        return cls(header.name, header.description, header.timeout, tuple(steps))

@@ -177,7 +177,8 @@ apply_security(c, security if security.endswith(".json5") else json.loads(securi
 s = zenoh.open(c)
 def answer(q):
     q.reply(q.key_expr, json.dumps({{"key": str(q.key_expr)}}))
-keys = () if mode == "router" else ("goto", "ik", "presets/go", "presets/list", "mode")
+keys = ("goto", "ik", "presets/go", "presets/list", "mode", "presets/save", "maneuvers/delete")
+keys = () if mode == "router" else keys
 qs = [s.declare_queryable("hitch/" + k, answer) for k in keys]
 pub = None if mode == "router" else s.declare_publisher("hitch/state")
 done = threading.Event()
@@ -309,6 +310,7 @@ def test_acl_permitted_user_moves_refused_user_only_reads(tmp_path, users_file, 
         SecuritySettings(users_file=users_file, access=AccessPolicy("hitch", operators=("alice",), viewers=("bob",))),
     )
     keys = ["hitch/goto", "hitch/ik", "hitch/presets/go", "hitch/presets/list", "hitch/mode", "hitch/**", "hitch/*"]
+    keys += ["hitch/presets/save", "hitch/maneuvers/delete"]  # writing keys: operators only
     r = _clients(
         tmp_path,
         {
@@ -323,11 +325,16 @@ def test_acl_permitted_user_moves_refused_user_only_reads(tmp_path, users_file, 
     assert alice["open"] and alice["replies"]["hitch/goto"] == ["hitch/goto"]
     assert alice["replies"]["hitch/presets/go"] == ["hitch/presets/go"] and alice["replies"]["hitch/mode"]
     assert alice["replies"]["hitch/**"] == ["hitch/**"]  # wildcards reach an operator's queryables (consolidated)
+    assert (
+        alice["replies"]["hitch/presets/save"] == ["hitch/presets/save"] and alice["replies"]["hitch/maneuvers/delete"]
+    )
     assert alice["states"] > 0
     assert bob["open"] and bob["states"] > 0  # the refused user still reads the state
     assert bob["replies"]["hitch/ik"] == ["hitch/ik"] and bob["replies"]["hitch/presets/list"]
     for k in ("hitch/goto", "hitch/presets/go", "hitch/mode", "hitch/**", "hitch/*"):
         assert bob["replies"][k] == [], k  # motion keys, and wildcards that would reach them, are denied
+    for k in ("hitch/presets/save", "hitch/maneuvers/delete"):
+        assert bob["replies"][k] == [], k  # a viewer cannot overwrite or delete an operator's data
     assert carol["open"] and carol["states"] == 0 and not any(carol["replies"].values())
     assert not r["mallory"]["open"] and not r["anonymous"]["open"]
 

@@ -85,3 +85,35 @@ def test_bad_toml_is_refused_with_the_key(tmp_path):
 def test_replies_are_strict_json():
     out = json.loads(to_json_bytes({"a": float("inf"), "b": [float("nan"), 1.5], "c": {"d": -float("inf")}}))
     assert out == {"a": None, "b": [None, 1.5], "c": {"d": None}}
+
+
+def test_store_limits_per_user_from_toml_with_errors_naming_the_field(tmp_path):
+    assert load_service_config().store_limits().max_maneuvers_per_user == 200
+    f = tmp_path / "service.toml"
+    f.write_text("[service]\nmax_presets_per_user = 5\nmax_maneuvers_per_user = 3\nmax_script_bytes_per_user = 70000\n")
+    limits = load_service_config(f).store_limits()
+    assert (limits.max_presets_per_user, limits.max_maneuvers_per_user, limits.max_script_bytes_per_user) == (
+        5,
+        3,
+        70000,
+    )
+    with pytest.raises(ServiceConfigError, match="max_maneuvers_per_user"):
+        load_service_config(max_maneuvers_per_user=0)
+    with pytest.raises(ServiceConfigError, match="max_script_bytes_per_user"):
+        load_service_config(max_script_bytes_per_user=1000)  # below one script's maximum
+
+
+def test_every_link_interface_is_a_service_interface():
+    """The service accepts every python-can interface the link can open (the loopback hub's
+    ``remote`` included), and the ``serve`` option offers the same list."""
+    import argparse
+
+    from bridge.cli.service import add_commands
+    from bridge.link.realtime import INTERFACES
+
+    for name in INTERFACES:
+        assert load_service_config(can_interface=name).can_interface == name
+    parser = argparse.ArgumentParser()
+    add_commands(parser.add_subparsers(dest="command"))
+    serve = parser.parse_args(["serve", "--can-interface", "remote"])
+    assert serve.can_interface == "remote"

@@ -240,3 +240,152 @@ def test_kill_9_during_preset_writes_loses_no_acknowledged_preset(tmp_path):
     for n in acknowledged:
         i = int(n[1:])
         assert present[n].pose["x"] == i * 1e-6 and present[n].pose["pitch"] == -i * 1e-7
+
+
+# ------------------------------------------------------------------------------------------ bounded costs
+def _script(i: int, steps: int = 40) -> str:
+    body = "".join(f"  - goto: {{z: {0.001 * (k % 100):.3f}}}\n  - wait: 0.{k % 9 + 1}\n" for k in range(steps // 2))
+    return f"description: script {i}\ntimeout: 3000\nsteps:\n{body}"
+
+
+@pytest.fixture
+def parse_counter(monkeypatch):
+    """Counts every YAML parse of a maneuver script (the store's and the language's)."""
+    import bridge.service.maneuvers.language as language
+    import bridge.service.store as store_module
+
+    calls = []
+    real = language.parse_maneuver
+
+    def counting(text):
+        calls.append(text)
+        return real(text)
+
+    monkeypatch.setattr(store_module, "parse_maneuver", counting)
+    monkeypatch.setattr(language, "parse_maneuver", counting)
+    return calls
+
+
+def test_listing_70_stored_maneuvers_parses_none_of_them(store, parse_counter):
+    """One list over 70 stored scripts used to re-parse all 70 (an LRU of 64 thrashed by a scan)."""
+    for i in range(70):
+        store.save_maneuver(f"m{i:02d}", _script(i))
+    assert len(parse_counter) == 70  # each parsed exactly once, at save
+    parse_counter.clear()
+    for _ in range(3):
+        listed = store.list_maneuvers()
+        assert [m.name for m in listed] == [f"m{i:02d}" for i in range(70)]
+    assert parse_counter == []  # the listing reads stored columns
+    first = listed[0].to_json()
+    assert first == {"name": "m00", "description": "script 0", "steps": 40, "timeout": 3000.0}
+    assert listed[5].size_bytes == len(_script(5).encode())
+
+
+def test_reading_a_maneuver_back_never_parses_yaml_even_after_reopening(tmp_path, parse_counter):
+    path = tmp_path / "h.sqlite3"
+    with HitchStore(path) as s:
+        saved = {f"m{i}": s.save_maneuver(f"m{i}", _script(i)).parsed for i in range(5)}
+    parse_counter.clear()
+    with HitchStore(path) as s:  # a new process: nothing cached in memory
+        for name, parsed in saved.items():
+            got = s.get_maneuver(name)
+            assert got is not None and got.parsed == parsed  # rebuilt from the stored form, identical
+    assert parse_counter == []
+
+
+def test_validate_costs_one_parse_however_many_are_stored(model, tmp_path, parse_counter):
+    from bridge.service.maneuvers.language import PlanningContext, validate
+    from planner.trajectory import MotionState
+
+    with HitchStore(tmp_path / "h.sqlite3") as s:
+        for i in range(70):
+            s.save_maneuver(f"m{i:02d}", _script(i, steps=4))
+        parse_counter.clear()
+        ctx = PlanningContext(
+            MotionState.at_rest(np.zeros(4)),
+            lambda start, goal, scale: (1.0, MotionState.at_rest(np.zeros(4))),
+            lambda n: s.get_preset(n),
+        )
+        assert validate("steps: [{wait: 1}, {goto: {z: 0.1}}]", ctx).ok
+    assert len(parse_counter) == 1
+
+
+def test_a_version_1_database_is_migrated_and_its_maneuvers_parsed_once_at_open(tmp_path, parse_counter):
+    from bridge.service.store import MIGRATIONS
+
+    path = tmp_path / "v1.sqlite3"
+    db = sqlite3.connect(path)
+    db.executescript(MIGRATIONS[0])
+    db.execute("INSERT INTO maneuvers VALUES ('old', 'steps: [{wait: 1}, {goto: {z: 0.1}}]', 1.0)")
+    db.execute("INSERT INTO maneuvers VALUES ('broken', 'steps: [{wait: 1, wait: 2}]', 2.0)")  # a duplicate key
+    db.execute("INSERT INTO presets VALUES ('default', 'slow', 0, 0.1, 0, 0, 0.001, 3.0)")
+    db.execute("PRAGMA user_version = 1")
+    db.commit()
+    db.close()
+    with HitchStore(path) as s:
+        assert s.schema_version == SCHEMA_VERSION
+        assert len(parse_counter) == 2  # at open, once each
+        listed = {m.name: m for m in s.list_maneuvers()}
+        assert listed["old"].steps == 2 and listed["old"].problem is None
+        assert "duplicate key 'wait'" in listed["broken"].to_json()["problem"]
+        assert s.get_maneuver("old").parsed.steps[1].z == 0.1
+        with pytest.raises(StoreError, match="save it again") as exc:
+            s.get_maneuver("broken")
+        assert exc.value.field == "script"
+        assert s.get_preset("slow").speed_scale == 0.05  # below today's bound: runs at the bound
+    parse_counter.clear()
+    with HitchStore(path):
+        assert parse_counter == []  # migrated once
+
+
+# ------------------------------------------------------------------------------------------ limits per user
+def test_count_and_size_limits_per_user_name_the_limit(tmp_path):
+    from bridge.service.store import StoreLimits
+
+    limits = StoreLimits(max_presets_per_user=3, max_maneuvers_per_user=2, max_script_bytes_per_user=200)
+    with HitchStore(tmp_path / "h.sqlite3", limits=limits) as s:
+        for i in range(3):
+            s.save_preset(f"p{i}", POSE, owner="alice", implement=f"imp{i % 2}")
+        with pytest.raises(StoreError, match="limit: max_presets_per_user = 3") as exc:
+            s.save_preset("p3", POSE, owner="alice")
+        assert exc.value.field == "max_presets_per_user" and "'alice'" in str(exc.value)
+        s.save_preset("p1", POSE, owner="alice", implement="imp1")  # replacing one of hers does not count twice
+        s.save_preset("p3", POSE, owner="bob")  # another user has his own quota
+        assert s.get_preset("p3").owner == "bob"
+        s.save_maneuver("a", "steps: [{wait: 1}]", owner="alice")
+        s.save_maneuver("b", "steps: [{wait: 2}]", owner="alice")
+        with pytest.raises(StoreError, match="limit: max_maneuvers_per_user = 2") as exc:
+            s.save_maneuver("c", "steps: [{wait: 3}]", owner="alice")
+        assert exc.value.field == "max_maneuvers_per_user"
+        s.save_maneuver("b", "steps: [{wait: 4}]", owner="alice")  # a replacement fits
+        with pytest.raises(StoreError, match="limit: max_script_bytes_per_user = 200 bytes") as exc:
+            s.save_maneuver("big", "description: " + "x" * 190 + "\nsteps: [{wait: 1}]", owner="carol")
+        assert exc.value.field == "max_script_bytes_per_user"
+        with pytest.raises(StoreError, match="anonymous"):
+            for i in range(4):
+                s.save_preset(f"anon{i}", POSE)  # no user named (Zenoh): one shared quota
+        assert [m.name for m in s.list_maneuvers()] == ["a", "b"]
+        assert s.get_maneuver("b").parsed.steps[0].seconds == 4.0
+    with pytest.raises(StoreError, match="max_presets_per_user"):
+        StoreLimits(max_presets_per_user=0)
+
+
+# ------------------------------------------------------------------------------------------ integrity
+def test_a_database_with_damaged_pages_is_refused_at_open_naming_the_file(tmp_path):
+    path = tmp_path / "damaged.sqlite3"
+    with HitchStore(path) as s:
+        for i in range(300):
+            s.save_preset(f"preset-{i:04d}-{'x' * 40}", POSE)
+    data = bytearray(path.read_bytes())
+    pages = len(data) // 4096
+    assert pages > 8
+    page = pages // 2
+    data[page * 4096 : (page + 1) * 4096] = b"\xa5" * 4096  # one b-tree page overwritten
+    path.write_bytes(bytes(data))
+    db = sqlite3.connect(path)  # the header is intact: opening and reading the schema version still work
+    assert db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION
+    db.close()
+    with pytest.raises(StoreError) as exc:
+        HitchStore(path)
+    assert exc.value.field == "path" and str(path) in str(exc.value) and "damaged" in str(exc.value)
+    assert "quick_check" in str(exc.value)

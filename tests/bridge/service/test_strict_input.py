@@ -1,0 +1,170 @@
+"""Strict request input: NaN/Infinity named by field, duplicate keys refused, the speed-scale lower
+bound, stop with any payload, ``deadline_ms`` on every motion request, and workspace errors that
+name the workspace range of every violated DOF (with a mm/deg hint)."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from bridge.service.schemas import (
+    DEFAULT_DEADLINE_MS,
+    MAX_DEADLINE_MS,
+    MIN_SPEED_SCALE,
+    REQUESTS,
+    RequestError,
+    check_pose_in_workspace,
+    parse_request,
+)
+from planner.limits.guard import Guard
+from planner.trajectory import MotionState, TrajectoryPlanner
+
+#: the workspace of thesis-t132 category 2 (as the service's ``limits.workspace``)
+WS = {"x": [-0.06, 0.06], "z": [-0.21627, 0.311729], "roll": [-0.058, 0.058], "pitch": [-0.1, 0.058]}
+
+
+def _refusal(key, raw, **kw) -> RequestError:
+    with pytest.raises(RequestError) as exc:
+        parse_request(key, raw, **kw)
+    return exc.value
+
+
+# ------------------------------------------------------------------------------------------ NaN / Infinity
+@pytest.mark.parametrize(
+    "key, raw, field, token",
+    [
+        ("ik", b'{"x": NaN, "z": 0, "roll": 0, "pitch": 0}', "x =", "NaN"),
+        ("goto", b'{"goal": {"z": Infinity}}', "goal.z =", "Infinity"),
+        ("goto", b'{"goal": {"z": 0.1}, "speed_scale": -Infinity}', "speed_scale =", "-Infinity"),
+        ("jog", b'{"vx": 1e999}', "vx =", "1e999"),  # overflows to infinity
+        ("presets/save", b'{"name": "a", "pose": {"pitch": NaN}}', "pose.pitch =", "NaN"),
+    ],
+)
+def test_non_finite_numbers_are_refused_naming_the_field(key, raw, field, token):
+    e = _refusal(key, raw)
+    assert e.code == "bad_request" and str(e).startswith(f"{key}: ")
+    assert f"{field} {token}" in str(e) and "finite" in str(e), str(e)
+
+
+def test_a_non_finite_number_in_the_allowed_range_message():
+    e = _refusal("goto", b'{"goal": {"z": NaN}}')
+    assert "goal.z = NaN" in str(e) and "(allowed: >= -2 and <= 2 m)" in str(e)
+
+
+# ------------------------------------------------------------------------------------------ duplicate keys
+@pytest.mark.parametrize(
+    "key, raw, name",
+    [
+        ("goto", b'{"goal": {"z": 0.1, "z": 0.3}}', "'z'"),
+        ("goto", b'{"goal": {"z": 0.1}, "speed_scale": 0.5, "speed_scale": 1.0}', "'speed_scale'"),
+        ("presets/save", b'{"name": "work", "name": "other"}', "'name'"),
+        ("stop", b'{"a": 1, "a": 2}', None),  # stop never reads its payload
+    ],
+)
+def test_duplicate_json_keys_are_refused_naming_the_key(key, raw, name):
+    if name is None:
+        assert parse_request(key, raw).model_dump() == {}
+        return
+    e = _refusal(key, raw)
+    assert e.code == "bad_request" and f"duplicate key {name}" in str(e), str(e)
+
+
+# ------------------------------------------------------------------------------------------ speed scale
+@pytest.mark.parametrize("scale", [1e-4, 1e-3, 0.049, 0.0, -0.5])
+@pytest.mark.parametrize("key", ["plan", "goto", "presets/go", "presets/save"])
+def test_speed_scale_below_the_documented_bound_is_refused(key, scale):
+    payload = {"goal": {"z": 0.1}} if key in ("plan", "goto") else {"name": "a"}
+    e = _refusal(key, json.dumps({**payload, "speed_scale": scale}))
+    assert e.code == "bad_request" and "speed_scale" in str(e) and f">= {MIN_SPEED_SCALE:g}" in str(e), str(e)
+    assert "Result" not in str(e)
+    assert parse_request(key, json.dumps({**payload, "speed_scale": MIN_SPEED_SCALE}))
+
+
+def test_a_plan_at_the_lowest_speed_scale_stays_small(model):
+    """At the bound, a move across the whole workspace is one bounded plan (independent truth: its
+    duration is the full-speed duration over the scale; the plan is short enough to compute)."""
+    g = Guard(TrajectoryPlanner(model))
+    lo = {k: v[0] * 0.9 for k, v in WS.items()}
+    hi = {k: v[1] * 0.9 for k, v in WS.items()}
+    start = MotionState.at_rest(g.planner.goal_vector(np.zeros(4), lo))
+    fast = g.plan(start, hi, speed_scale=1.0).plan.duration
+    slow = g.plan(start, hi, speed_scale=MIN_SPEED_SCALE).plan.duration
+    assert slow == pytest.approx(fast / MIN_SPEED_SCALE, rel=0.05)
+    assert slow < 200.0  # seconds of motion, i.e. a bounded number of samples to plan
+
+
+# ------------------------------------------------------------------------------------------ stop
+@pytest.mark.parametrize(
+    "raw",
+    [None, b"", b"{}", b'{"reason": "operator"}', b"garbage \xff\xfe", b"[1, 2]", b"null", b"{" * 100_000, "text"],
+)
+def test_any_payload_sent_to_stop_stops(raw):
+    assert parse_request("stop", raw).model_dump() == {}
+
+
+# ------------------------------------------------------------------------------------------ deadline_ms
+MOTION_REQUESTS = {
+    "goto": {"goal": {"z": 0.1}},
+    "presets/go": {"name": "a"},
+    "maneuvers/run": {"name": "m"},
+    "jog": {"vz": 0.01},
+}
+
+
+@pytest.mark.parametrize("key", list(MOTION_REQUESTS))
+def test_every_motion_request_carries_a_deadline(key):
+    base = MOTION_REQUESTS[key]
+    assert parse_request(key, json.dumps(base)).deadline_ms == DEFAULT_DEADLINE_MS == 1000
+    assert parse_request(key, json.dumps({**base, "deadline_ms": 1})).deadline_ms == 1
+    assert parse_request(key, json.dumps({**base, "deadline_ms": MAX_DEADLINE_MS})).deadline_ms == 60_000
+    for bad, needle in ((0, "out of range"), (60_001, "out of range"), (1.5, "integer"), (True, "integer")):
+        e = _refusal(key, json.dumps({**base, "deadline_ms": bad}))
+        assert "deadline_ms" in str(e) and needle in str(e), str(e)
+        assert ">= 1 and <= 60000 ms" in str(e)
+
+
+def test_only_motion_requests_have_a_deadline():
+    with_deadline = {k for k, m in REQUESTS.items() if "deadline_ms" in m.model_fields}
+    assert with_deadline == set(MOTION_REQUESTS)
+
+
+# ------------------------------------------------------------------------------------------ workspace
+def test_a_goal_outside_the_workspace_names_the_workspace_range_of_every_dof():
+    e = _refusal("goto", json.dumps({"goal": {"x": 30, "z": 250, "roll": 0.2, "pitch": 3}}), workspace=WS)
+    msg = str(e)
+    assert e.code == "unreachable" and msg.startswith("goto: outside the workspace")
+    x_text = "goal.x = 30 m is above the workspace (x from -0.06 to 0.06 m, workspace:x:max)"
+    assert x_text + "; did you mean mm? 30 mm = 0.03 m" in msg
+    assert (
+        "goal.z = 250 m is above the workspace (z from -0.2163 to 0.3117 m, workspace:z:max); did you mean mm?" in msg
+    )
+    assert "goal.roll = 0.2 rad is above the workspace (roll from -0.058 to 0.058 rad, workspace:roll:max)" in msg
+    assert "goal.pitch = 3 rad" in msg and "did you mean degrees? 3 deg = 0.0523599 rad" in msg
+    assert "<= 2" not in msg and "<= 1" not in msg  # not the schema's sanity bounds
+    assert (
+        "roll = 0.2 rad is above the workspace (roll from -0.058 to 0.058 rad, workspace:roll:max); did you" not in msg
+    )  # no hint
+
+
+def test_workspace_hints_only_when_the_value_fits_in_mm():
+    e = _refusal("goto", json.dumps({"goal": {"z": 0.5}}), workspace=WS)  # metres, just too high: no mm hint
+    assert "goal.z = 0.5 m is above" in str(e) and "mm" not in str(e)
+    e = _refusal("goto", json.dumps({"goal": {"z": -5000}}), workspace=WS)  # -5 m: too far for mm too
+    assert "below the workspace" in str(e) and "did you mean" not in str(e)
+
+
+def test_preset_poses_are_checked_against_the_workspace():
+    e = _refusal("presets/save", json.dumps({"name": "a", "pose": {"z": 120}}), workspace=WS)
+    assert e.code == "unreachable" and "pose.z = 120 m" in str(e) and "z from -0.2163 to 0.3117 m" in str(e)
+    with pytest.raises(RequestError, match="presets/go: outside the workspace: pose.x = 0.1 m"):
+        check_pose_in_workspace({"x": 0.1, "z": 0.0, "roll": 0.0, "pitch": 0.0}, WS, key="presets/go", what="pose")
+    check_pose_in_workspace({"x": 0.06, "z": 0.0, "roll": 0.0, "pitch": 0.0}, WS)  # on the face: fine
+    check_pose_in_workspace({"z": math.nan}, WS)  # non-numbers are the schema's business
+    check_pose_in_workspace({"z": 9.0}, None)  # no workspace known: nothing to check
+
+
+def test_inside_the_workspace_and_without_one_the_schema_decides():
+    assert parse_request("goto", json.dumps({"goal": {"z": 0.3}}), workspace=WS).goal.z == 0.3
+    e = _refusal("goto", json.dumps({"goal": {"x": 2.0}}))  # no workspace: the schema's sanity bound
+    assert e.code == "bad_request" and "<= 1" in str(e)

@@ -8,10 +8,12 @@ limit. It never raises and never returns NaN: every payload goes through
 :func:`~bridge.service.schemas.parse_request` first (size, JSON, strict schema → ``bad_request``).
 
 Error codes: ``bad_request`` (payload), ``unknown_key``, ``forbidden`` (access policy),
-``mode`` (the mode forbids it), ``busy`` (precedence: stop / jog in progress), ``ecu`` (link
-not ready or faulted), ``unreachable`` (outside the workspace or limits), ``refused``
-(stability guard), ``ik_failed``, ``not_found``, ``invalid`` (a maneuver that does not
-validate), ``store``, ``internal``.
+``mode`` (the mode forbids it), ``busy`` (precedence: stop / jog in progress; a motion request
+that cannot start by its deadline (field deadline_ms) or that a later stop cancelled; too many expensive
+requests of one user in flight, :data:`EXPENSIVE_KEYS`), ``ecu`` (link not ready, or a fault held:
+docs/faults.md), ``unavailable`` (the sim/fault key without a simulated ECU), ``unreachable``
+(outside the workspace or limits), ``refused`` (stability guard), ``ik_failed``, ``not_found``,
+``invalid`` (a maneuver that does not validate), ``store``, ``internal``.
 
 Access: with Zenoh the access-control list of the session enforces who may use the motion keys
 (``user`` is None: already authorised). A front end that knows its user passes it, and the
@@ -26,6 +28,7 @@ Replies are the ``to_json()`` of the values the motion controller and the store 
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -36,7 +39,9 @@ from bridge.service.schemas import (
     API_KEYS,
     REQUESTS,
     Empty,
+    GotoRequest,
     JogRequest,
+    ManeuverRun,
     ManeuverSave,
     ModeRequest,
     NameRequest,
@@ -46,16 +51,23 @@ from bridge.service.schemas import (
     PresetSave,
     RequestError,
     ScriptRequest,
+    SimFaultRequest,
+    check_pose_in_workspace,
     parse_request,
 )
-from bridge.service.security import MOTION_KEYS, AccessPolicy
+from bridge.service.security import AccessPolicy
 from bridge.service.store import DEFAULT_IMPLEMENT, HitchStore, StoreError
 from planner.ik_qp.hitch_ik import IKSolver
 from planner.ik_qp.result import Target
 from planner.limits.guard import GuardRefusal
 from planner.trajectory import MotionState, PlanError
 
-__all__ = ["ServiceAPI", "API_KEYS"]
+__all__ = ["ServiceAPI", "API_KEYS", "EXPENSIVE_KEYS", "MAX_IN_FLIGHT_PER_USER"]
+
+#: requests whose cost is not bounded by the control loop (planning, validation): admission-controlled
+EXPENSIVE_KEYS = frozenset({"plan", "maneuvers/validate"})
+#: expensive requests one user may have running at a time; more are refused with ``busy`` at once
+MAX_IN_FLIGHT_PER_USER = 2
 
 #: the fields of an IK result the ``ik`` reply carries (in this order)
 _IK_REPLY_FIELDS = ("status", "actuators", "pose", "active", "residual", "solve_time_s")
@@ -82,12 +94,17 @@ class ServiceAPI:
         *,
         implement: str | None = None,
         policy: AccessPolicy | None = None,
+        sim_fault: Callable[[Mapping[str, Any]], Any] | None = None,
     ):
         self.motion, self.ik, self.store = motion, ik, store
+        self.sim_fault = sim_fault  # the simulated ECU's fault injection (None: a real ECU, or none)
+        self._in_flight: dict[str, int] = {}  # expensive requests running, per user
+        self._in_flight_lock = threading.Lock()
         self.info = dict(info)
         self.implement = implement or DEFAULT_IMPLEMENT
         self.policy = policy
         self._ik_lock = threading.Lock()
+        self._caller = threading.local()  # .user: the user of the request this thread is serving (store owner)
         self._handlers: Mapping[str, Callable[[Any], dict]] = {
             "ik": self._ik,
             "plan": self._plan,
@@ -105,16 +122,46 @@ class ServiceAPI:
             "maneuvers/list": self._maneuvers_list,
             "maneuvers/run": self._maneuvers_run,
             "maneuvers/delete": self._maneuvers_delete,
+            "faults/ack": self._faults_ack,
+            "sim/fault": self._sim_fault,
         }
         self.counts = {"ok": 0, "error": 0}
+        #: optional ``on_request(key, user, payload, ok, reply)`` after every request (the black box)
+        self.on_request: Callable[..., None] | None = None
 
     def handle(
-        self, key: str, payload: bytes | bytearray | memoryview | str | None, user: str | None = None
+        self,
+        key: str,
+        payload: bytes | bytearray | memoryview | str | None,
+        user: str | None = None,
+        *,
+        received: float | None = None,
     ) -> tuple[bool, dict[str, Any]]:
-        """Serve one request; never raises. ``key`` relative to the prefix (``"goto"``)."""
+        """Serve one request; never raises. ``key`` relative to the prefix (``"goto"``).
+
+        ``received``: ``time.monotonic()`` when the request arrived (default: now). A motion
+        request's ``deadline_ms`` counts from then, and a stop sent after it cancels it, so time
+        spent waiting in a queue is not forgiven."""
+        self._caller.received = time.monotonic() if received is None else float(received)
+        ok, reply = self._handle(key, payload, user)
+        hook = self.on_request
+        if hook is not None:
+            try:
+                hook(key, user, payload, ok, reply)
+            except Exception:  # noqa: BLE001 — a recorder's bug must not fail the request
+                pass
+        return ok, reply
+
+    def _handle(
+        self, key: str, payload: bytes | bytearray | memoryview | str | None, user: str | None
+    ) -> tuple[bool, dict[str, Any]]:
+        admitted: str | None = None
         try:
             self._authorise(key, user)
-            req = parse_request(key, payload)
+            self._caller.user = user
+            if key in EXPENSIVE_KEYS:
+                admitted = self._admit(key, user)
+            req = parse_request(key, payload, workspace=(self.info.get("limits") or {}).get("workspace"))
             reply = self._handlers[key](req)
         except RequestError as exc:
             return self._err(exc.code, str(exc))
@@ -130,6 +177,10 @@ class ServiceAPI:
             return self._err("bad_request", f"{key}: {exc}")
         except Exception as exc:  # noqa: BLE001 — a bug must not kill the service or leave a query open
             return self._err("internal", f"{key}: internal error {type(exc).__name__}: {str(exc)[:200]}")
+        finally:
+            if admitted is not None:
+                with self._in_flight_lock:
+                    self._in_flight[admitted] -= 1
         self.counts["ok"] += 1
         return True, reply
 
@@ -137,18 +188,33 @@ class ServiceAPI:
         self.counts["error"] += 1
         return False, {"error": code, "message": message}
 
+    def _admit(self, key: str, user: str | None) -> str:
+        """Admission control: at most :data:`MAX_IN_FLIGHT_PER_USER` expensive requests (plan,
+        validate) of one user at a time; beyond that ``busy`` at once. Returns the user's slot."""
+        who = user or "-"
+        with self._in_flight_lock:
+            n = self._in_flight.get(who, 0)
+            if n >= MAX_IN_FLIGHT_PER_USER:
+                raise RequestError(
+                    "busy",
+                    f"{key}: {n} expensive requests ({', '.join(sorted(EXPENSIVE_KEYS))}) of "
+                    f"{'this user' if user else 'this client'} are running (allowed: {MAX_IN_FLIGHT_PER_USER} "
+                    "at a time); send it again when one has been answered",
+                )
+            self._in_flight[who] = n + 1
+        return who
+
+    def _timing(self, deadline_ms: int) -> tuple[float, float]:
+        """(deadline on the motion clock [s], arrival ``time.monotonic()``) of this thread's request."""
+        received = float(getattr(self._caller, "received", None) or time.monotonic())
+        waited = max(0.0, time.monotonic() - received)
+        return self.motion.clock() + deadline_ms / 1000.0 - waited, received
+
     def _authorise(self, key: str, user: str | None) -> None:
         if user is None or self.policy is None or key not in REQUESTS:
             return
-        p = self.policy
-        if user in p.operators or (user in p.viewers and key in p.viewer_queries and key not in MOTION_KEYS):
-            return
-        role = "viewer" if user in p.viewers else "unknown user"
-        raise RequestError(
-            "forbidden",
-            f"{key}: user {user!r} ({role}) may not use {key!r}; "
-            f"motion keys ({', '.join(MOTION_KEYS)}) need an operator",
-        )
+        if not self.policy.permits(user, key):  # operator keys (motion and writes) need an operator
+            raise RequestError("forbidden", self.policy.refusal(user, key))
 
     # ------------------------------------------------------------------ no motion
     def _ik(self, r: PoseRequest) -> dict:
@@ -171,15 +237,33 @@ class ServiceAPI:
         return {**self.info, "mode": self.motion.mode, "implement": self.info.get("implement")}
 
     # ------------------------------------------------------------------ motion
-    def _goto(self, r: PlanRequest) -> dict:
-        return self.motion.goto(r.goal.as_dict(), r.speed_scale).to_json()
+    def _goto(self, r: GotoRequest) -> dict:
+        deadline, issued = self._timing(r.deadline_ms)
+        return self.motion.goto(r.goal.as_dict(), r.speed_scale, deadline=deadline, issued=issued).to_json()
 
     def _jog(self, r: JogRequest) -> dict:
+        deadline, _ = self._timing(r.deadline_ms)
+        if self.motion.clock() > deadline:  # a jog that waited past its deadline is not run
+            raise MotionError("busy", f"refused: it arrived more than {r.deadline_ms} ms ago (its deadline)")
         rates = {"vx": r.vx, "vz": r.vz, "vroll": r.vroll, "vpitch": r.vpitch}
         return self.motion.jog(rates, r.ttl_ms / 1000.0).to_json()
 
-    def _stop(self, _r: Empty) -> dict:
+    def _stop(self, _r: object) -> dict:  # whatever came with it: a stop stops
         return {"stopped": True, "motion_id": self.motion.stop()}
+
+    def _faults_ack(self, _r: Empty) -> dict:
+        return self.motion.ack_faults().to_json()
+
+    def _sim_fault(self, r: SimFaultRequest) -> dict:
+        if self.sim_fault is None:
+            raise RequestError(
+                "unavailable",
+                "sim/fault: no simulated ECU runs in this service (a real ECU is connected, or the twin runs "
+                "in another process); fault injection is only for the twin",
+            )
+        applied = self.sim_fault(r.model_dump())
+        to_json = getattr(applied, "to_json", None)
+        return {"applied": to_json() if callable(to_json) else r.model_dump()}
 
     def _mode(self, r: ModeRequest) -> dict:
         if r.mode is None:
@@ -194,15 +278,25 @@ class ServiceAPI:
         current = self.motion.current_state().position
         pose = self.motion.planner.goal_vector(current, r.pose.as_dict() if r.pose is not None else {})
         self.motion.planner.check_in_workspace(pose, "pose")
-        p = self.store.save_preset(r.name, pose_dict(pose), implement=self.implement, speed_scale=r.speed_scale)
+        p = self.store.save_preset(
+            r.name,
+            pose_dict(pose),
+            implement=self.implement,
+            speed_scale=r.speed_scale,
+            owner=getattr(self._caller, "user", None),
+        )
         return {"saved": p.name, "pose": dict(p.pose), "implement": p.implement}
 
     def _presets_go(self, r: PresetGo) -> dict:
         p = self.store.get_preset(r.name, implement=self.implement)
         if p is None:
             raise RequestError("not_found", f"presets/go: no preset {r.name!r} for implement {self.implement!r}")
+        workspace = (self.info.get("limits") or {}).get("workspace")
+        check_pose_in_workspace(p.pose, workspace, key="presets/go", what="pose")  # names the range of every DOF
         scale = r.speed_scale or p.speed_scale or 1.0
-        return {**self.motion.goto(dict(p.pose), scale, kind="preset", label=p.name).to_json(), "preset": p.name}
+        deadline, issued = self._timing(r.deadline_ms)
+        acc = self.motion.goto(dict(p.pose), scale, kind="preset", label=p.name, deadline=deadline, issued=issued)
+        return {**acc.to_json(), "preset": p.name}
 
     def _presets_delete(self, r: NameRequest) -> dict:
         if not self.store.delete_preset(r.name, implement=self.implement):
@@ -220,13 +314,14 @@ class ServiceAPI:
         return validate(r.script, self._context()).to_json()
 
     def _maneuvers_save(self, r: ManeuverSave) -> dict:
-        stored = self.store.save_maneuver(r.name, r.script)  # ManeuverError (a HitchInputError) lists the problems
+        # ManeuverError (a HitchInputError) lists the problems
+        stored = self.store.save_maneuver(r.name, r.script, owner=getattr(self._caller, "user", None))
         return {"saved": stored.name, "steps": len(stored.parsed.steps)}
 
     def _maneuvers_list(self, _r: Empty) -> dict:
         return {"maneuvers": [m.to_json(script=False) for m in self.store.list_maneuvers()]}
 
-    def _maneuvers_run(self, r: NameRequest) -> dict:
+    def _maneuvers_run(self, r: ManeuverRun) -> dict:
         m = self.store.get_maneuver(r.name)
         if m is None:
             raise RequestError("not_found", f"maneuvers/run: no maneuver {r.name!r}")
@@ -236,7 +331,8 @@ class ServiceAPI:
             raise RequestError(
                 "invalid", f"maneuvers/run: {r.name!r} does not validate from the current pose: {first.sentence()}"
             )
-        mid = self.motion.run_maneuver(res, r.name)
+        deadline, issued = self._timing(r.deadline_ms)
+        mid = self.motion.run_maneuver(res, r.name, deadline=deadline, issued=issued)
         return ManeuverAccepted(mid, res.duration, len(res.steps), r.name).to_json()
 
     def _maneuvers_delete(self, r: NameRequest) -> dict:

@@ -129,8 +129,12 @@ class HitchClient:
     def plan(self, goal: Mapping[str, float], speed_scale: float = 1.0) -> dict:
         return self.request("plan", {"goal": dict(goal), "speed_scale": speed_scale})
 
-    def goto(self, goal: Mapping[str, float], speed_scale: float = 1.0) -> dict:
-        return self.request("goto", {"goal": dict(goal), "speed_scale": speed_scale})
+    def goto(self, goal: Mapping[str, float], speed_scale: float = 1.0, *, deadline_ms: int | None = None) -> dict:
+        """Start a move; ``deadline_ms``: it must start moving within this, else ``busy`` (service default 1000)."""
+        body: dict[str, Any] = {"goal": dict(goal), "speed_scale": speed_scale}
+        if deadline_ms is not None:
+            body["deadline_ms"] = int(deadline_ms)
+        return self.request("goto", body)
 
     def jog(
         self, vx: float = 0.0, vz: float = 0.0, vroll: float = 0.0, vpitch: float = 0.0, ttl_ms: float = 200.0
@@ -139,6 +143,16 @@ class HitchClient:
 
     def stop(self) -> dict:
         return self.request("stop", {})
+
+    def ack_faults(self) -> dict:
+        """Acknowledge the latched faults (``faults/ack``, operators): ``{"acknowledged": [...], "faults": [...]}``."""
+        return self.request("faults/ack", {})
+
+    def sim_fault(self, settings: Mapping[str, Any]) -> dict:
+        """Inject faults in the twin (``sim/fault``, operators; refused ``unavailable`` with a real ECU):
+        ``{"cut": "none"|"planner_to_ecu"|"ecu_to_planner"|"both", "loss": 0…1, "delay_ms": ≥ 0,
+        "restart_ecu": bool}``; missing keys mean no fault."""
+        return self.request("sim/fault", dict(settings))
 
     def mode(self, mode: str | None = None) -> dict:
         return self.request("mode", {} if mode is None else {"mode": mode})

@@ -13,11 +13,21 @@
 * motion — a :class:`~bridge.service.motion.controller.MotionController` whose control thread streams references and
   publishes ``<prefix>/state`` (50 Hz, ``express``: no batching, so the period stays regular);
 * Zenoh — one session (peer or client), one queryable per API key answering through
-  :meth:`~bridge.service.api.ServiceAPI.handle` (quick keys inline in the Zenoh callback, planning keys on a
-  thread pool so a long plan never holds back ``stop``), ``<prefix>/events`` and the liveliness
-  token ``<prefix>/alive``;
+  :meth:`~bridge.service.api.ServiceAPI.handle` in one of three lanes (:data:`INLINE_KEYS`: O(1) keys,
+  ``stop`` first of all, answered in the Zenoh callback; :data:`MOTION_KEYS_LANE`: goto, preset,
+  maneuver run on their own small pool, so no planning or storage request queues ahead of them;
+  everything else — planning, validation, storage, IK — on the worker pool, whose queue is bounded:
+  beyond it a request is refused ``busy`` at once), each request stamped with its arrival time
+  (its ``deadline_ms`` counts from then); ``<prefix>/events`` and the liveliness token
+  ``<prefix>/alive``;
 * storage — :class:`~bridge.service.store.HitchStore` under the data directory;
 * the operator terminal (``http``) — :func:`bridge.web.server.start_http`, loaded only when asked for.
+
+Real time: the control thread and the CAN threads run at a raised OS priority (nice
+:data:`REALTIME_NICE`, needs root or CAP_SYS_NICE; otherwise a warning and an event say so and the
+service runs on), and the interpreter's switch interval is set to :data:`SWITCH_INTERVAL_S` so a
+thread that computes (a plan) hands the GIL to the control thread within about a millisecond
+(``docs/faults.md``, *Threads or processes*).
 
 Every HitchModel instance is used by one thread only (their CasADi buffers are shared state):
 the control thread, the planning lock, the IK lock and the link each get their own.
@@ -32,7 +42,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -50,7 +62,7 @@ from bridge.service.config import ServiceConfig
 from bridge.service.motion.controller import MotionController
 from bridge.service.motion.types import MODES, actuator_dict
 from bridge.service.odometer import SimulatedTractor, WheelOdometer
-from bridge.service.security import access_policy_from_file, apply_security, exposure_warnings
+from bridge.service.security import access_policy_from_file, apply_security, exposure_warnings, read_users
 from bridge.service.store import HitchStore
 from bridge.sim.can_node import EcuCanNode
 from bridge.sim.ecu import CylinderECU
@@ -73,12 +85,26 @@ __all__ = [
     "ServiceStopped",
     "serve",
     "INLINE_KEYS",
+    "MOTION_KEYS_LANE",
+    "raise_thread_priority",
     "to_json_bytes",
     "build_zenoh_config",
 ]
 
-#: keys answered inside the Zenoh callback (fast, never plan); the others go to the worker pool
-INLINE_KEYS = frozenset({"ik", "jog", "stop", "mode", "config", "presets/list", "maneuvers/list"})
+#: keys answered inside the Zenoh callback: O(1), no planning, no storage (``stop`` never waits for a pool)
+INLINE_KEYS = frozenset({"jog", "stop", "mode", "config", "faults/ack", "sim/fault"})
+#: motion requests: their own pool, so planning, validation and storage requests never queue ahead of them
+MOTION_KEYS_LANE = frozenset({"goto", "presets/go", "maneuvers/run"})
+#: threads of the motion lane
+MOTION_WORKERS = 2
+#: requests the worker pool takes per worker before further ones are refused ``busy`` at once
+QUEUE_PER_WORKER = 2
+#: nice value of the control and CAN threads (lower runs first; needs root or CAP_SYS_NICE)
+REALTIME_NICE = -10
+#: the interpreter's switch interval while a service runs [s] (Python's default: 0.005)
+SWITCH_INTERVAL_S = 0.001
+#: threads raised to :data:`REALTIME_NICE` (by name)
+REALTIME_THREADS = frozenset({"hitch-control", "CanLink-rt", "EcuCanNode-rt"})
 
 
 class HitchServiceError(HitchInputError):
@@ -144,6 +170,10 @@ class HitchService:
         self._buses: list[can.BusABC] = []
         self._decls: list[Any] = []  # zenoh queryables and the liveliness token
         self._pool: ThreadPoolExecutor | None = None
+        self._motion_pool: ThreadPoolExecutor | None = None
+        self._queued = 0  # requests waiting in or running on the worker pool
+        self._queued_lock = threading.Lock()
+        self._switch_interval: float | None = None  # the interpreter's, restored at close
         self._state_pub: zenoh.Publisher | None = None
         self._event_pub: zenoh.Publisher | None = None
         self._listeners: dict[str, list[Callable[[dict[str, Any]], None]]] = {"state": [], "event": []}
@@ -169,7 +199,7 @@ class HitchService:
         cfg = self.config
         try:
             cfg.data_dir.mkdir(parents=True, exist_ok=True)
-            self.store = HitchStore(cfg.database_path)
+            self.store = HitchStore(cfg.database_path, limits=cfg.store_limits())
             control_model = self._model()
             guard, plan_guard = self._guard(control_model), self._guard(self._model())
             ik = IKSolver(self._model())
@@ -192,12 +222,23 @@ class HitchService:
                 feedforward=cfg.feedforward,
             )
             policy = access_policy_from_file(cfg.security, cfg.prefix) if cfg.security is not None else None
+            ecu_node = self.ecu_node
             self.api = ServiceAPI(
-                self.motion, ik, self.store, self._info(control_model, guard), implement=cfg.implement, policy=policy
+                self.motion,
+                ik,
+                self.store,
+                self._info(control_model, guard),
+                implement=cfg.implement,
+                policy=policy,
+                sim_fault=None if ecu_node is None else ecu_node.apply_fault,
             )
             self._pool = ThreadPoolExecutor(cfg.workers, thread_name_prefix="hitch-api")
+            self._motion_pool = ThreadPoolExecutor(MOTION_WORKERS, thread_name_prefix="hitch-motion")
             self._open_zenoh()
+            self._switch_interval = sys.getswitchinterval()
+            sys.setswitchinterval(SWITCH_INTERVAL_S)
             self.motion.start()
+            self._raise_priorities()
             if cfg.http is not None:
                 self._start_http(cfg.http)
         except BaseException:
@@ -234,6 +275,24 @@ class HitchService:
         self._runners.append(RealtimeRunner(link, max_wait_s=0.02).start())
         return link, odometer
 
+    def _raise_priorities(self) -> None:
+        """The control and CAN threads at :data:`REALTIME_NICE`; when not permitted a warning and a
+        ``realtime`` event say so, and the service runs on at normal priority."""
+        failed: list[str] = []
+        for t in threading.enumerate():
+            if t.name in REALTIME_THREADS and t.native_id is not None:
+                why = raise_thread_priority(t.native_id, REALTIME_NICE)
+                if why is not None:
+                    failed.append(f"{t.name}: {why}")
+        if failed and self.motion is not None:
+            text = (
+                f"cannot raise the control and CAN threads to nice {REALTIME_NICE} ({'; '.join(sorted(set(failed)))}); "
+                "running at normal priority (run as root or with CAP_SYS_NICE for a steadier control period)"
+            )
+            self.warnings.append(text)
+            self.motion.outbox.put_event({"event": "realtime", "priority_raised": False, "message": text})
+            self.motion.outbox.flush()
+
     def _open_zenoh(self) -> None:
         cfg = self.config
         try:
@@ -262,7 +321,8 @@ class HitchService:
         except ImportError as exc:
             raise ServiceStartError(f"--http {addr}: the operator terminal is not available ({exc})") from None
         try:
-            self.http = start_http(self, addr, user=self.config.http_user)
+            users = read_users(self.config.security) if self.config.security is not None else None
+            self.http = start_http(self, addr, user=self.config.http_user, users=users)
         except OSError as exc:  # the port is taken, the address is not local …
             raise ServiceStartError(f"--http {addr}: cannot listen ({exc})") from None
 
@@ -304,32 +364,61 @@ class HitchService:
                 # motion commands nobody asked for by name, so only exact keys are served
                 query.drop()
                 return
+            received = time.monotonic()
             payload = b"" if query.payload is None else query.payload.to_bytes()
-            if key in INLINE_KEYS or self._pool is None:
-                self._answer(query, key, payload)
-            else:
-                try:
-                    self._pool.submit(self._answer, query, key, payload)
-                except RuntimeError:  # pool shut down: the service is closing
-                    self._answer(query, key, payload)
+            self.dispatch(key, payload, lambda ok, data: _reply(query, ok, data), received=received)
 
         return on_query
 
-    def _answer(self, query: zenoh.Query, key: str, payload: bytes) -> None:
+    def dispatch(
+        self, key: str, payload: bytes, respond: Callable[[bool, bytes], None], *, received: float | None = None
+    ) -> None:
+        """Answer one request in its lane (see the module docstring): ``respond(ok, json_bytes)``
+        is called exactly once, from the lane's thread. ``received``: its arrival
+        (``time.monotonic()``, default now)."""
+        t = time.monotonic() if received is None else received
+        pool = self._motion_pool if key in MOTION_KEYS_LANE else None if key in INLINE_KEYS else self._pool
+        if pool is None:
+            self._answer(respond, key, payload, t)
+            return
+        if pool is self._pool:
+            with self._queued_lock:
+                full = self._queued >= QUEUE_PER_WORKER * self.config.workers
+                if not full:
+                    self._queued += 1
+            if full:
+                respond(
+                    False,
+                    to_json_bytes(
+                        {
+                            "error": "busy",
+                            "message": f"{key}: {self._queued} requests are waiting for the service's workers "
+                            f"(allowed: {QUEUE_PER_WORKER * self.config.workers}); send it again later",
+                        }
+                    ),
+                )
+                return
+        try:
+            pool.submit(self._answer, respond, key, payload, t, pool is self._pool)
+        except RuntimeError:  # pool shut down: the service is closing
+            self._answer(respond, key, payload, t, pool is self._pool)
+
+    def _answer(
+        self, respond: Callable[[bool, bytes], None], key: str, payload: bytes, received: float, queued: bool = False
+    ) -> None:
         try:
             if self.api is None or self._closed:
                 ok, reply = False, {"error": "unavailable", "message": f"{key}: the service is shutting down"}
             else:
-                ok, reply = self.api.handle(key, payload, None)
+                ok, reply = self.api.handle(key, payload, None, received=received)
             data = to_json_bytes(reply)
-            if ok:
-                query.reply(query.key_expr, data, encoding=zenoh.Encoding.APPLICATION_JSON)
-            else:
-                query.reply_err(data, encoding=zenoh.Encoding.APPLICATION_JSON)
-        except Exception:  # the session closed under us: nothing left to answer to
-            pass
+        except Exception as exc:  # noqa: BLE001 — the query is answered whatever happened
+            ok, data = False, to_json_bytes({"error": "internal", "message": f"{key}: {type(exc).__name__}"})
         finally:
-            query.drop()
+            if queued:
+                with self._queued_lock:
+                    self._queued -= 1
+        respond(ok, data)
 
     # ------------------------------------------------------------------ state and events
     def add_listener(self, kind: str, callback: Callable[[dict[str, Any]], None]) -> None:
@@ -387,8 +476,11 @@ class HitchService:
                     _quiet(p.undeclare)
             if self.session is not None:
                 _quiet(self.session.close)
-            if self._pool is not None:
-                self._pool.shutdown(wait=False, cancel_futures=True)
+            for pool in (self._pool, self._motion_pool):
+                if pool is not None:
+                    pool.shutdown(wait=False, cancel_futures=True)
+            if self._switch_interval is not None:
+                sys.setswitchinterval(self._switch_interval)
             link = self.link
             if link is not None:
                 now = self._runners[-1].now() if self._runners else 0.0
@@ -409,6 +501,34 @@ class HitchService:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _reply(query: zenoh.Query, ok: bool, data: bytes) -> None:
+    """Answer a Zenoh query once and finalise it."""
+    try:
+        if ok:
+            query.reply(query.key_expr, data, encoding=zenoh.Encoding.APPLICATION_JSON)
+        else:
+            query.reply_err(data, encoding=zenoh.Encoding.APPLICATION_JSON)
+    except Exception:  # the session closed under us: nothing left to answer to
+        pass
+    finally:
+        query.drop()
+
+
+def raise_thread_priority(native_id: int, nice: int) -> str | None:
+    """Set the nice value of one thread (Linux: a thread is a schedulable task with its own id);
+    None when done, else why not (not permitted, not supported)."""
+    setpriority = getattr(os, "setpriority", None)
+    if setpriority is None:
+        return "os.setpriority is not available on this system"
+    try:
+        setpriority(os.PRIO_PROCESS, native_id, nice)
+    except PermissionError:
+        return "not permitted"
+    except OSError as exc:
+        return str(exc)
+    return None
 
 
 def _call(cb: Callable[[dict[str, Any]], None], arg: dict[str, Any]) -> None:

@@ -8,16 +8,21 @@ streamed); ``velocity`` (commanded pose rates [m/s, rad/s]); ``mode``, ``moving`
 "Control limited" of the thesis terminal); ``kinematic_margin`` (time to the nearest limit at the
 commanded velocity, :mod:`planner.limits.kinematic_margin`); ``stability`` (tractor + implement
 margins at the measured pose, :class:`~bridge.service.motion.types.StabilityMargins`); ``ecu``
-(:class:`EcuSummary`: ``online``, ``watchdog`` tripped, ``controllers_on``, latched ``faults`` and
-their reasons, heartbeat, streaming, reference counters, feed-forward); ``maneuver``
-(:class:`~bridge.service.maneuvers.slot.ManeuverProgress`).
+(:class:`EcuSummary`: ``online``, ``watchdog`` tripped, ``controllers_on``, the ``faults`` the
+motion controller holds and their reasons, ``ack_required`` (those that latch until
+``faults/ack``), the link's own latched flags ``link_faults``, heartbeat, streaming, reference
+counters, feed-forward); ``maneuver`` (:class:`~bridge.service.maneuvers.slot.ManeuverProgress`).
+
+At rest the guard's evaluations (kinematic margin, stability) do not change: an
+:class:`EvaluationCache` keeps the last ones and recomputes only when the measured counts or the
+reference change.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Hashable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
@@ -26,12 +31,13 @@ import numpy as np
 from bridge.link.state import LinkState, LinkStatus
 from bridge.link.unit_loop import FeedforwardShaper
 from bridge.service.maneuvers.slot import ManeuverProgress
-from bridge.service.motion.types import Event, Reference, StabilityMargins, actuator_dict, pose_dict
+from bridge.service.motion.types import Event, Fault, Reference, StabilityMargins, actuator_dict, pose_dict
 from planner.limits.guard import Guard
 from planner.limits.kinematic_margin import KinematicMargin
 from planner.model.types import CONTROLLED_POSE_NAMES, KinematicsError
 
 __all__ = [
+    "EvaluationCache",
     "EcuSummary",
     "FeedforwardStatus",
     "StateMessage",
@@ -64,6 +70,24 @@ def link_problem(status: LinkStatus, now: float, stale_after_s: float) -> str | 
     if not status.heartbeat.healthy:
         return f"the ECU heartbeat is {status.heartbeat.state.value}"
     return None
+
+
+class EvaluationCache:
+    """One remembered value per slot (``margin``, ``stability``): :meth:`get` recomputes only when
+    the key changes. ``evaluations`` counts the computations (idle cost tests)."""
+
+    def __init__(self) -> None:
+        self._slots: dict[str, tuple[Hashable, Any]] = {}
+        self.evaluations = 0
+
+    def get(self, slot: str, key: Hashable, fn: Callable[[], _T]) -> _T:
+        hit = self._slots.get(slot)
+        if hit is not None and hit[0] == key:
+            return hit[1]
+        value = fn()
+        self.evaluations += 1
+        self._slots[slot] = (key, value)
+        return value
 
 
 def fault_transition(
@@ -107,27 +131,38 @@ class EcuSummary:
     references_sent: int
     references_refused: int
     feedforward: FeedforwardStatus | None = None
+    ack_required: tuple[str, ...] = ()
+    link_faults: tuple[str, ...] = ()
 
     @classmethod
     def of(
-        cls, status: LinkStatus, now: float, stale_after_s: float, shaper: FeedforwardShaper | None = None
+        cls,
+        status: LinkStatus,
+        now: float,
+        stale_after_s: float,
+        shaper: FeedforwardShaper | None = None,
+        faults: Sequence[Fault] | None = None,
     ) -> EcuSummary:
-        """From the link's ``status`` at clock time ``now`` [s] and its measurement age limit [s]."""
+        """From the link's ``status`` at clock time ``now`` [s] and its measurement age limit [s];
+        ``faults``: what the motion controller holds (None: the link's latched flags)."""
         ls = status.state
         age = ls.age_s(now) if ls is not None else math.inf
         c = status.counters
+        link_faults = tuple(status.faults.active())
         return cls(
             online=link_problem(status, now, stale_after_s) is None,
             watchdog=bool(ls is not None and ls.system.watchdog_tripped),
             controllers_on=bool(ls is not None and ls.system.controllers_on),
-            faults=tuple(status.faults.active()),
-            fault_reasons=tuple(status.faults.reasons),
+            faults=link_faults if faults is None else tuple(f.name for f in faults),
+            fault_reasons=tuple(status.faults.reasons) if faults is None else tuple(f.reason for f in faults),
             heartbeat=status.heartbeat.state.value,
             streaming=status.streaming,
             measurement_age_s=age if math.isfinite(age) else None,
             references_sent=c.references_tx,
             references_refused=c.references_refused,
             feedforward=None if shaper is None else FeedforwardStatus(shaper.enabled, shaper.pulled_back),
+            ack_required=() if faults is None else tuple(f.name for f in faults if f.latches),
+            link_faults=link_faults,
         )
 
     def to_json(self) -> dict[str, Any]:
@@ -137,6 +172,8 @@ class EcuSummary:
             "controllers_on": self.controllers_on,
             "faults": list(self.faults),
             "fault_reasons": list(self.fault_reasons),
+            "ack_required": list(self.ack_required),
+            "link_faults": list(self.link_faults),
             "heartbeat": self.heartbeat,
             "streaming": self.streaming,
             "measurement_age_s": self.measurement_age_s,
@@ -205,19 +242,41 @@ def build_state_message(
     limited: Mapping[str, str],
     maneuver: ManeuverProgress | None,
     feedforward: FeedforwardShaper | None = None,
+    faults: Sequence[Fault] | None = None,
+    cache: EvaluationCache | None = None,
 ) -> StateMessage:
     """The message for one cycle. ``status``: the link's :class:`~bridge.link.state.LinkStatus` at
     clock time ``now`` [s]; ``reference``: what is being streamed, or None; ``stale_after_s``: the
     link's measurement age limit [s]; ``feedforward``: the
     :class:`~bridge.link.unit_loop.FeedforwardShaper` (whether it is on, and how many references the
-    hard-limit check made it pull back towards the plan)."""
+    hard-limit check made it pull back towards the plan); ``faults``: what the motion controller
+    holds; ``cache``: keeps the guard's evaluations while their inputs do not change."""
     t = time.time()
     ls = status.state
+    memo = cache if cache is not None else EvaluationCache()
+    margin: KinematicMargin | None
     if reference is not None:
-        margin = _safe(lambda: guard.margin(reference.actuators, reference.rates))
+        ref = reference
+        key: Hashable = ("reference", ref.actuators.tobytes(), ref.rates.tobytes())
+        margin = memo.get("margin", key, lambda: _safe(lambda: guard.margin(ref.actuators, ref.rates)))
+    elif ls is not None:
+        meas = ls
+        margin = memo.get(
+            "margin",
+            ("measured", meas.counts),
+            lambda: _safe(lambda: guard.margin(meas.actuators.as_array(), np.zeros(5))),
+        )
     else:
-        margin = None if ls is None else _safe(lambda: guard.margin(ls.actuators.as_array(), np.zeros(5)))
-    stability = None if ls is None else _safe(lambda: StabilityMargins.of(guard.stability_at(ls.actuators.as_array())))
+        margin = None
+    if ls is None:
+        stability = None
+    else:
+        at = ls
+        stability = memo.get(
+            "stability",
+            at.counts,
+            lambda: _safe(lambda: StabilityMargins.of(guard.stability_at(at.actuators.as_array()))),
+        )
     return StateMessage(
         t=t,
         clock=now,
@@ -230,6 +289,6 @@ def build_state_message(
         reference=reference,
         kinematic_margin=margin,
         stability=stability,
-        ecu=EcuSummary.of(status, now, stale_after_s, feedforward),
+        ecu=EcuSummary.of(status, now, stale_after_s, feedforward, faults),
         maneuver=maneuver,
     )

@@ -4,8 +4,11 @@
   goto/preset/maneuver-step planning and the smooth hand-over, jog, stop, modes, faults;
 * :mod:`bridge.service.motion.link_port` — :class:`LinkPort`, what the controller needs of the
   CAN link (:class:`bridge.link.can_link.CanLink` satisfies it);
+* :mod:`bridge.service.motion.outbox` — :class:`Outbox`: events numbered (``seq``) and delivered
+  in order, state messages serialised, off the control thread;
 * :mod:`bridge.service.motion.types` — its values: modes, refusals (:class:`MotionError`), the
-  accepted-motion replies, the plan preview, the active-motion records, the streamed reference.
+  accepted-motion replies, the plan preview, the active-motion records, the streamed reference,
+  the fault records and policy constants (``docs/faults.md``).
 
 The names below load lazily (PEP 562): ``import bridge.service.motion`` imports none of the modules.
 """
@@ -18,12 +21,18 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from bridge.service.motion.controller import MotionController, MotionControllerError
     from bridge.service.motion.link_port import LinkPort
+    from bridge.service.motion.outbox import Outbox
     from bridge.service.motion.types import (
         ATTACH_SPEED_SCALE,
+        DEFAULT_DEADLINE_S,
+        FAULT_CLEAR_AFTER_S,
         MODES,
         MOTION_MODES,
+        SELF_CLEARING_FAULTS,
         ActiveMotion,
         Event,
+        Fault,
+        FaultAck,
         JogAccepted,
         JogMotion,
         ManeuverAccepted,
@@ -46,8 +55,14 @@ if TYPE_CHECKING:
 _SOURCES: dict[str, str] = {
     **dict.fromkeys(("MotionController", "MotionControllerError"), "bridge.service.motion.controller"),
     **dict.fromkeys(("LinkPort",), "bridge.service.motion.link_port"),
+    **dict.fromkeys(("Outbox",), "bridge.service.motion.outbox"),
     **dict.fromkeys(
         (
+            "DEFAULT_DEADLINE_S",
+            "FAULT_CLEAR_AFTER_S",
+            "SELF_CLEARING_FAULTS",
+            "Fault",
+            "FaultAck",
             "MODES",
             "MOTION_MODES",
             "ATTACH_SPEED_SCALE",
@@ -80,7 +95,14 @@ __all__ = [
     "MotionControllerError",
     # its seam to the CAN link (bridge.service.motion.link_port)
     "LinkPort",
+    # its outbox (bridge.service.motion.outbox)
+    "Outbox",
     # its values (bridge.service.motion.types)
+    "DEFAULT_DEADLINE_S",
+    "FAULT_CLEAR_AFTER_S",
+    "SELF_CLEARING_FAULTS",
+    "Fault",
+    "FaultAck",
     "MODES",
     "MOTION_MODES",
     "ATTACH_SPEED_SCALE",

@@ -33,14 +33,32 @@ Modes: ``auto`` allows every motion; ``attach`` allows jog only, its rates cappe
 ``config`` refuse motion (stop is always allowed). A mode change while a motion (or a maneuver)
 runs is refused with the reason: send stop first — changing modes never stops the hitch by itself.
 
-Faults: when the link reports a fault (stale measurements, ECU heartbeat, ECU restart, bus
-error) or refuses a reference, the motion is aborted, the reference stream stops (the ECU
-watchdog zeroes its valves) and nothing moves until a fresh command. After a motion ends the
-final reference is held (streamed) so the ECU keeps the cylinders there.
+Faults (``docs/faults.md``): when the link reports a fault or refuses a reference, the motion
+is aborted, the reference stream stops (the ECU watchdog zeroes its valves) and nothing moves
+until a fresh command — an old plan is never resumed. The controller keeps its own fault record
+(:class:`~bridge.service.motion.types.Fault`): ``stale_measurement`` and ``ecu_heartbeat``
+(:data:`~bridge.service.motion.types.SELF_CLEARING_FAULTS`) clear themselves, with a
+``fault_cleared`` event, once the ECU's data has been fresh for
+:data:`~bridge.service.motion.types.FAULT_CLEAR_AFTER_S`; every other fault latches until
+:meth:`MotionController.ack_faults` (``faults/ack``). While any fault is held, motion is refused
+(code ``ecu``, naming it); stop is always accepted. After a motion ends the final reference is
+held (streamed) so the ECU keeps the cylinders there.
+
+Deadlines: a goto, preset or maneuver may carry a ``deadline`` (clock time [s]) and the
+``issued`` time of its request (``time.monotonic()`` when it arrived). One that cannot start
+moving by its deadline, or that arrived before the latest stop, is refused with ``busy``; it is
+never run later.
 
 Times: one clock, the link's (``clock()`` [s]). Public methods may be called from any thread: one
-lock guards the control state; goto planning runs outside it on ``plan_guard`` (its own model,
-under its own lock), and a generation counter tells whether something else started meanwhile.
+lock guards the control state and is only held for O(1) work (no planning, validation, storage
+or serialisation under it); goto planning runs outside it on ``plan_guard`` (its own model,
+under its own lock, waited for no longer than the request's deadline), and a generation counter
+tells whether something else started meanwhile. The plan is handed to the control thread as the
+new active motion, which takes over from the running one at its switch time. Events are numbered
+(``seq``) under the lock and delivered in that order, and state messages serialised, by the
+:class:`~bridge.service.motion.outbox.Outbox` (its own thread once :meth:`MotionController.start`
+ran). At rest nothing is recomputed per cycle: the held reference, its inverse and the state
+message's guard evaluations are kept while the pose does not change.
 The values the controller works with are in :mod:`bridge.service.motion.types`, its running
 maneuver in :mod:`bridge.service.maneuvers.slot`, its state message in
 :mod:`bridge.service.state_message`.
@@ -49,6 +67,7 @@ maneuver in :mod:`bridge.service.maneuvers.slot`, its state message in
 from __future__ import annotations
 
 import itertools
+import math
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -56,17 +75,22 @@ from typing import Any
 
 import numpy as np
 
-from bridge.link.state import LinkStatus, ReferenceRefused
+from bridge.link.state import LinkFaultError, LinkStatus, ReferenceRefused
 from bridge.link.unit_loop import FeedforwardShaper, build_unit_loops
 from bridge.service.maneuvers.language import ValidationResult, guarded_plan_step
 from bridge.service.maneuvers.runner import LoopState, ManeuverRunner
 from bridge.service.maneuvers.slot import ManeuverSlot
 from bridge.service.motion.link_port import LinkPort
+from bridge.service.motion.outbox import Outbox
 from bridge.service.motion.types import (
     ATTACH_SPEED_SCALE,
+    FAULT_CLEAR_AFTER_S,
     MODES,
+    SELF_CLEARING_FAULTS,
     ActiveMotion,
     Event,
+    Fault,
+    FaultAck,
     JogAccepted,
     JogMotion,
     MotionAccepted,
@@ -80,7 +104,7 @@ from bridge.service.motion.types import (
     streamed_reference,
 )
 from bridge.service.periodic import PeriodicThread
-from bridge.service.state_message import build_state_message, fault_transition, link_problem
+from bridge.service.state_message import EvaluationCache, StateMessage, build_state_message, link_problem
 from planner.errors import HitchError
 from planner.limits.guard import Guard, GuardedPlan
 from planner.model.types import KinematicsError
@@ -107,7 +131,8 @@ class MotionController:
         link: the CAN link (:class:`~bridge.service.motion.link_port.LinkPort`, e.g. a
             :class:`bridge.link.can_link.CanLink`).
         clock: the link's clock [s].
-        on_state / on_event: called with JSON-ready dicts (state every ``state_every`` cycles).
+        on_state / on_event: called with JSON-ready dicts (state every ``state_every`` cycles),
+            in order, from the outbox (its own thread once started; else the calling thread).
         odometer: cumulative distance travelled by the tractor [m] or None (maneuver ``wait_for``).
         spawn: runs the planning of a maneuver step off the control thread (default: a new thread;
             tests pass ``lambda fn: fn()`` for deterministic runs).
@@ -139,8 +164,7 @@ class MotionController:
         )
         self.clock = clock
         self.dt = 1.0 / self.planner.rate
-        self._on_state: Callable[[dict[str, Any]], None] = on_state or (lambda s: None)
-        self._on_event: Callable[[Event], None] = on_event or (lambda e: None)
+        self.outbox = Outbox(on_event or (lambda e: None), on_state or (lambda s: None))
         self._odometer: Callable[[], float | None] = odometer or (lambda: None)
         self._spawn: Callable[[Callable[[], None]], None] = spawn or (
             lambda fn: threading.Thread(target=fn, name="hitch-maneuver-plan", daemon=True).start()
@@ -153,22 +177,34 @@ class MotionController:
         self._mode = mode if mode in MODES else "auto"
         self._active: ActiveMotion | None = None
         self._hold: MotionState | None = None
+        self._hold_ref: Reference | None = None  # the held reference, computed once per hold
         self._last_id: int | None = None
         self._generation = 0
         self._maneuver = ManeuverSlot()
-        self._fault_reported: tuple[str, ...] = ()
+        self._link_reported: tuple[str, ...] = ()  # the link's latched faults seen last cycle
+        self._faults: dict[str, Fault] = {}  # what the controller holds (docs/faults.md)
+        self._fresh_since: float | None = None  # data fresh again since (self-clearing faults)
+        self._stopped_at = -math.inf  # time.monotonic() of the latest stop
         self._limited: dict[str, str] = {}
         self._reference: Reference | None = None
+        self._eval_cache = EvaluationCache()
         self._seq = 0
         self._cycle_n = 0
         self._thread: PeriodicThread | None = None
 
     # ------------------------------------------------------------------ life cycle
     def start(self) -> MotionController:
+        """Start the outbox thread and the control thread."""
         if self._thread is not None:
             raise MotionControllerError("motion controller already started")
+        self.outbox.start()
         self._thread = PeriodicThread(self.dt, self.cycle, name="hitch-control", on_error=self._on_cycle_error).start()
         return self
+
+    @property
+    def thread(self) -> PeriodicThread | None:
+        """The control thread (None before :meth:`start`)."""
+        return self._thread
 
     @property
     def overruns(self) -> int:
@@ -192,15 +228,22 @@ class MotionController:
         events: list[Event] = []
         with self._lock:
             self._abort_all("service shutting down", self.clock(), events)
-        self._emit_all(events)
+            self._post(events)
         if self._thread is not None:
             self._thread.stop(0.5)
         self.link.stop_motion()
+        self.outbox.stop(0.5)
 
     # ------------------------------------------------------------------ queries
     @property
     def mode(self) -> str:
         return self._mode
+
+    @property
+    def faults(self) -> tuple[Fault, ...]:
+        """The faults the controller holds now (oldest first)."""
+        with self._lock:
+            return tuple(self._faults.values())
 
     def current_state(self) -> MotionState:
         """The commanded pose-space state now (or the measured pose at rest when idle)."""
@@ -220,8 +263,9 @@ class MotionController:
                 )
             if mode != self._mode:
                 old, self._mode = self._mode, mode
-                self._emit({"event": "mode_changed", "mode": mode, "previous": old})
-            return self._mode
+                self._post([{"event": "mode_changed", "mode": mode, "previous": old}])
+        self.outbox.flush()
+        return mode
 
     def preview(self, goal: Mapping[str, float], speed_scale: float = 1.0) -> GuardedPlan:
         """The guarded plan a goto would run now (no motion); raises PlanError / GuardRefusal."""
@@ -237,16 +281,28 @@ class MotionController:
 
     # ------------------------------------------------------------------ commands
     def goto(
-        self, goal: Mapping[str, float], speed_scale: float = 1.0, *, kind: str = "goto", label: str | None = None
+        self,
+        goal: Mapping[str, float],
+        speed_scale: float = 1.0,
+        *,
+        kind: str = "goto",
+        label: str | None = None,
+        deadline: float | None = None,
+        issued: float | None = None,
     ) -> MotionAccepted:
-        """Plan and start a move to a (partial) goal; replaces a running goto/preset/maneuver."""
-        return self._start_plan(goal, speed_scale, kind, label, runner=None)
+        """Plan and start a move to a (partial) goal; replaces a running goto/preset/maneuver.
+
+        ``deadline``: clock time [s] by which it must start moving, else ``busy`` (None: no limit);
+        ``issued``: ``time.monotonic()`` when its request arrived (a stop after that cancels it).
+        """
+        return self._start_plan(goal, speed_scale, kind, label, runner=None, deadline=deadline, issued=issued)
 
     def jog(self, rates: Mapping[str, float], ttl_s: float) -> JogAccepted:
         """Start or refresh a jog (pose rates, m/s and rad/s) for ``ttl_s`` seconds."""
         v = np.array([float(rates.get(k, 0.0)) for k in ("vx", "vz", "vroll", "vpitch")])
         with self._lock:
             self._check_allowed("jog")
+            self._check_no_fault("jog")
             if self._mode == "attach":  # slow rates, same responsiveness (acceleration and jerk not scaled)
                 cap = ATTACH_SPEED_SCALE * self.planner.any_direction.velocity
                 v = np.clip(v, -cap, cap)
@@ -267,31 +323,62 @@ class MotionController:
                 self._install(m)
                 events.append(self._ev("motion_started", m, kind="jog"))
             acc = m.refresh(self.guard, v, now + ttl_s)
-        self._emit_all(events)
+            self._post(events)
+        self.outbox.flush()
         return acc
 
     def stop(self) -> int | None:
-        """Abort anything; brake jerk-limited to rest. Returns the stop motion's id (None when at rest)."""
+        """Abort anything; brake jerk-limited to rest. Returns the stop motion's id (None when at rest).
+
+        Every motion request that arrived before it and has not started yet is cancelled.
+        """
         events: list[Event] = []
         with self._lock:
+            self._stopped_at = time.monotonic()
             now = self.clock()
             self._maneuver.abort(now, "stop", "stop requested", events)
             mid = self._brake(now, "stop requested", events)
-        self._emit_all(events)
+            self._post(events)
+        self.outbox.flush()
         return mid
 
-    def run_maneuver(self, validated: ValidationResult, name: str | None) -> int:
-        """Start a validated maneuver (replaces a running goto/maneuver). Returns its id."""
+    def run_maneuver(
+        self,
+        validated: ValidationResult,
+        name: str | None,
+        *,
+        deadline: float | None = None,
+        issued: float | None = None,
+    ) -> int:
+        """Start a validated maneuver (replaces a running goto/maneuver). Returns its id.
+
+        ``deadline`` and ``issued`` as for :meth:`goto`."""
         with self._lock:
-            self._check_allowed("maneuver")
-            self._check_precedence()
+            self._check_startable("maneuver", self.clock(), deadline, issued)
             events: list[Event] = []
             self._maneuver.abort(self.clock(), "interrupted", "replaced by another maneuver", events)
             mid = next(self._ids)
             self._maneuver.start(validated, name, mid)
             self._generation += 1
-        self._emit_all(events)
+            self._post(events)
+        self.outbox.flush()
         return mid
+
+    def ack_faults(self) -> FaultAck:
+        """Acknowledge the latched faults (``faults/ack``): they are cleared, with a
+        ``fault_cleared`` event; self-clearing faults whose data is not fresh yet stay. Motion
+        needs a new command afterwards (nothing resumes)."""
+        with self._lock:
+            acked = tuple(n for n, f in self._faults.items() if f.latches)
+            for n in acked:
+                del self._faults[n]
+            if acked:
+                self._post(
+                    [{"event": "fault_cleared", "cleared": list(acked), "by": "ack", "faults": list(self._faults)}]
+                )
+            remaining = tuple(self._faults)
+        self.outbox.flush()
+        return FaultAck(acked, remaining)
 
     # ------------------------------------------------------------------ internals: starting plans
     def _start_plan(
@@ -302,14 +389,18 @@ class MotionController:
         label: str | None,
         *,
         runner: ManeuverRunner | None,
+        deadline: float | None = None,
+        issued: float | None = None,
     ) -> MotionAccepted:
         """Plan (outside the control lock) and install a goto/preset/maneuver-step motion.
 
-        A command (``runner`` None) is checked against the mode and the precedence and aborts a
-        running maneuver; a maneuver step (``runner`` its maneuver) is dropped when that maneuver
-        ended meanwhile. The plan starts from the predicted state at the switch time; it is made
-        again (up to ``_PLAN_TRIES`` times) when something else started meanwhile, when the
-        switch time passed while planning, or when a measured start pose moved.
+        A command (``runner`` None) is checked against the mode, the precedence, the faults held,
+        its deadline and the latest stop, and aborts a running maneuver; a maneuver step
+        (``runner`` its maneuver) is dropped when that maneuver ended meanwhile. The plan starts
+        from the predicted state at the switch time; it is made again (up to ``_PLAN_TRIES``
+        times) when something else started meanwhile, when the switch time passed while
+        planning, or when a measured start pose moved. A switch time after the deadline is
+        refused (``busy``): the motion is never started later than asked.
         """
         from_maneuver = runner is not None
         lead = _PLAN_LEAD_S
@@ -317,8 +408,7 @@ class MotionController:
             with self._lock:
                 now = self.clock()
                 if not from_maneuver:
-                    self._check_allowed(kind)
-                    self._check_precedence()
+                    self._check_startable(kind, now, deadline, issued)
                 self._expire_jog(now)  # a dying jog is replaced from its braking plan
                 why = link_problem(self.link.status(now), now, self.link.config.stale_after_s)
                 if why:
@@ -328,16 +418,21 @@ class MotionController:
                 from_rest = self._active is None and not start.moving  # holding: the start does not age
                 gen = self._generation
             t_plan = self.clock()
-            with self._plan_lock:
+            wait = None if deadline is None else max(0.0, deadline - t_plan)
+            if not self._plan_lock.acquire(timeout=-1 if wait is None else wait):
+                raise MotionError("busy", f"{kind} refused: the planner stayed busy past its deadline; not run later")
+            try:
                 gp = self.plan_guard.plan(start, goal, speed_scale=speed_scale)  # PlanError / GuardRefusal
+            finally:
+                self._plan_lock.release()
             took = self.clock() - t_plan
             events: list[Event] = []
             with self._lock:
                 if from_maneuver and not self._maneuver.owns(runner):
                     raise MotionError("busy", "the maneuver was aborted while its step was being planned")
+                if not from_maneuver:
+                    self._check_startable(kind, self.clock(), deadline, issued)
                 if self._generation != gen:
-                    if not from_maneuver:
-                        self._check_precedence()
                     continue  # something else started meanwhile: re-plan from it
                 now = self.clock()
                 if from_rest and self._active is None:
@@ -347,6 +442,12 @@ class MotionController:
                 elif now > t_switch - 0.25 * self.dt:
                     lead = max(2 * lead, 1.5 * took + self.dt)  # planning took longer: again, further ahead
                     continue
+                if deadline is not None and t_switch > deadline + 1e-9:
+                    raise MotionError(
+                        "busy",
+                        f"{kind} refused: it could start moving only {t_switch - deadline:.3f} s after its "
+                        "deadline (planning took too long); not run later",
+                    )
                 prev = self._active if isinstance(self._active, PlanMotion) else None
                 if self._active is not None:
                     events.append(self._ev("motion_aborted", self._active, reason=f"replaced by {kind}"))
@@ -367,9 +468,37 @@ class MotionController:
                 if runner is not None:
                     runner.motion_started(pm.motion_id)
                 acc = MotionAccepted(pm.motion_id, gp.plan.duration, kind, gp.decision)
-            self._emit_all(events)
+                self._post(events)
+            self.outbox.flush()
             return acc
         raise MotionError("busy", f"{kind} could not be started: the service is too busy to plan in time")
+
+    def _check_startable(self, kind: str, now: float, deadline: float | None, issued: float | None) -> None:
+        """A command may start now: mode, precedence, no fault held, not cancelled by a later stop,
+        its deadline not passed (all O(1), under the lock)."""
+        self._check_allowed(kind)
+        self._check_precedence()
+        self._check_no_fault(kind)
+        if issued is not None and issued <= self._stopped_at:
+            raise MotionError("busy", f"{kind} cancelled: a stop was sent after this request arrived; not run later")
+        if deadline is not None and now > deadline:
+            raise MotionError(
+                "busy",
+                f"{kind} refused: its deadline passed {now - deadline:.3f} s ago (the service was busy); not run later",
+            )
+
+    def _check_no_fault(self, kind: str) -> None:
+        if not self._faults:
+            return
+        held = list(self._faults.values())
+        latched = [f.name for f in held if f.latches]
+        what = "; ".join(f"{f.name} ({f.reason})" for f in held)
+        hint = (
+            f"acknowledge {', '.join(latched)} with faults/ack once the cause is fixed"
+            if latched
+            else "it clears itself once the ECU's data is fresh again"
+        )
+        raise MotionError("ecu", f"{kind} refused: fault held: {what}; {hint}")
 
     def _check_allowed(self, what: str) -> None:
         check_mode_allows(self._mode, what)
@@ -418,45 +547,62 @@ class MotionController:
         self._active = m
         self._last_id = m.motion_id
         self._generation += 1
-        self._hold = None
+        self._hold = self._hold_ref = None
 
     def _abort_all(self, reason: str, now: float, events: list[Event]) -> None:
         self._maneuver.abort(now, "stop", reason, events)
         if self._active is not None:
             events.append(self._ev("motion_aborted", self._active, reason=reason))
-        self._active, self._hold = None, None
+        self._active, self._hold, self._hold_ref = None, None, None
         self._generation += 1
 
     # ------------------------------------------------------------------ the control thread
     def _on_cycle_error(self, exc: Exception) -> None:
-        """A bug in a cycle: report it, drop the motion, stop the stream; the loop keeps running."""
+        """A bug in a cycle: report it, drop the motion, stop the stream, latch ``internal``; the
+        loop keeps running."""
         evs: list[Event] = []
         with self._lock:
-            self._abort_all(f"internal error: {type(exc).__name__}: {exc}", self.clock(), evs)
+            now = self.clock()
+            self._abort_all(f"internal error: {type(exc).__name__}: {exc}", now, evs)
             self.link.stop_motion()
-        self._emit_all(evs + [{"event": "fault", "fault": "internal", "message": f"{type(exc).__name__}: {exc}"}])
+            msg = f"{type(exc).__name__}: {exc}"
+            self._faults["internal"] = Fault("internal", msg[:300], True, now)
+            evs.append(
+                {
+                    "event": "fault",
+                    "fault": "internal",
+                    "new": ["internal"],
+                    "faults": list(self._faults),
+                    "ack_required": True,
+                    "message": msg,
+                }
+            )
+            self._post(evs)
+        self.outbox.flush()
 
     def cycle(self) -> None:
         """One control cycle (public for deterministic tests).
 
         The state is published first, right after the wake-up, so its period is as regular as
         the wake-ups: measured pose now, with the reference sent in the previous cycle (the one
-        the ECU is tracking). Then the motion is advanced and the new reference sent.
+        the ECU is tracking). Then the motion is advanced and the new reference sent. Bounded
+        work: no planning, no storage, no serialisation (the outbox does that).
         """
         events: list[Event] = []
         with self._lock:
             now = self.clock()
             status = self.link.status(now)
             self._cycle_n += 1
-            msg = self._state_message(now, status) if self._cycle_n % self.state_every == 0 else None
-        if msg is not None:
-            self._on_state(msg)
+            if self._cycle_n % self.state_every == 0:
+                self.outbox.put_state(self._state_message(now, status))
+        self.outbox.flush()
         with self._lock:
             now = self.clock()
             self._check_faults(status, now, events)
             self._drive_maneuver(status, now, events)
             ref = self._reference_at(now, events)
-            if ref is not None:
+            if ref is not None and not (ref is self._reference and self._active is None and status.streaming):
+                # (a held reference the link streams already is not checked and sent again)
                 try:
                     self.link.send_reference(streamed_reference(self.shaper, self._active, ref, now), now)
                     self._reference = ref
@@ -465,15 +611,76 @@ class MotionController:
                     events.append({"event": what, "message": str(exc), "motion_id": self._last_id})
                     self._abort_all(f"reference refused: {exc}", now, events)
                     self.link.stop_motion()
-        self._emit_all(events)
+                    if isinstance(exc, LinkFaultError):  # the link's latched faults that are still there
+                        self._latch_link_faults(status, now)
+            self._post(events)
+        self.outbox.flush()
+
+    def _latch_link_faults(self, status: LinkStatus, now: float) -> None:
+        for name in status.faults.active():
+            if name not in SELF_CLEARING_FAULTS and name not in self._faults:
+                self._faults[name] = Fault(name, self._reason(name, status), True, now)
+
+    def _reason(self, name: str, status: LinkStatus) -> str:
+        hint = name.replace("_", " ").split()[-1]
+        for r in status.faults.reasons:
+            if hint.lower() in r.lower():
+                return r
+        return "; ".join(status.faults.reasons) or name
+
+    def _cause_present(self, name: str, status: LinkStatus, now: float, link_faults: tuple[str, ...]) -> bool:
+        """Whether the cause of a self-clearing fault is there now (judged from the data itself)."""
+        if name == "stale_measurement":
+            ls = status.state
+            return ls is None or ls.age_s(now) > self.link.config.stale_after_s
+        if name == "ecu_heartbeat":
+            return not status.heartbeat.healthy
+        return name in link_faults
 
     def _check_faults(self, status: LinkStatus, now: float, events: list[Event]) -> None:
-        """A fault raised since the last cycle aborts everything (a fault latched before a fresh
-        command does not: that command's first reference re-arms the link or is refused)."""
-        self._fault_reported, new = fault_transition(self._fault_reported, status, events)
-        if new and (self._active is not None or self._hold is not None or self._maneuver.running):
-            self._abort_all("link fault: " + "; ".join(status.faults.reasons or new), now, events)
-            self.link.stop_motion()
+        """The fault policy (``docs/faults.md``). A fault the link raised since the last cycle is
+        held and aborts everything (an old plan never resumes); self-clearing ones are released
+        once their data has been fresh for ``FAULT_CLEAR_AFTER_S``, with a ``fault_cleared`` event."""
+        link_faults = status.faults.active() if status.faults.any else ()
+        raised = [f for f in link_faults if f not in self._link_reported and f not in self._faults]
+        for f in link_faults:  # cleared here, still latched in the link, and its cause came back
+            if f in SELF_CLEARING_FAULTS and f not in self._faults and f not in raised:
+                if self._cause_present(f, status, now, link_faults):
+                    raised.append(f)
+        self._link_reported = link_faults
+        if raised:
+            for f in raised:
+                self._faults[f] = Fault(f, self._reason(f, status), f not in SELF_CLEARING_FAULTS, now)
+            self._fresh_since = None
+            latched = [f for f in raised if f not in SELF_CLEARING_FAULTS]
+            events.append(
+                {
+                    "event": "fault",
+                    "faults": list(self._faults),
+                    "new": raised,
+                    "ack_required": bool(latched),
+                    "message": "; ".join(status.faults.reasons) or ", ".join(raised),
+                }
+            )
+            if self._active is not None or self._hold is not None or self._maneuver.running:
+                self._abort_all("link fault: " + "; ".join(status.faults.reasons or raised), now, events)
+                self.link.stop_motion()
+            return
+        clearing = [n for n, f in self._faults.items() if not f.latches]
+        if not clearing:
+            return
+        if any(self._cause_present(n, status, now, link_faults) for n in clearing):
+            self._fresh_since = None
+            return
+        if self._fresh_since is None:
+            self._fresh_since = now
+        if now - self._fresh_since >= FAULT_CLEAR_AFTER_S - 1e-9:
+            for n in clearing:
+                del self._faults[n]
+            self._fresh_since = None
+            events.append(
+                {"event": "fault_cleared", "cleared": clearing, "by": "fresh data", "faults": list(self._faults)}
+            )
 
     def _drive_maneuver(self, status: LinkStatus, now: float, events: list[Event]) -> None:
         m, runner, ls = self._active, self._maneuver.runner, status.state
@@ -497,7 +704,8 @@ class MotionController:
             with self._lock:
                 if self._maneuver.owns(runner):
                     self._maneuver.abort(self.clock(), "plan_failed", f"step {step} cannot be planned: {exc}", events)
-            self._emit_all(events)
+                self._post(events)
+            self.outbox.flush()
 
     def _reference_at(self, now: float, events: list[Event]) -> Reference | None:
         m = self._active
@@ -508,7 +716,7 @@ class MotionController:
             self._limited = {} if m.finished(now) else m.limited()
             if m.finished(now):
                 events.append(self._ev("motion_finished", m, kind=m.kind))
-                self._active, self._hold = None, MotionState.at_rest(st.position)
+                self._active, self._hold, self._hold_ref = None, MotionState.at_rest(st.position), None
         elif isinstance(m, JogMotion):
             if self._expire_jog(now):
                 return self._reference_at(now, events)
@@ -518,6 +726,8 @@ class MotionController:
             self._limited = dict(m.limited)
             return Reference(out.state, out.actuators, out.actuator_velocity)
         elif self._hold is not None:
+            if self._hold_ref is not None:  # at rest: nothing changed, nothing recomputed
+                return self._hold_ref
             st = self._hold
         else:
             self._limited = {}
@@ -528,10 +738,13 @@ class MotionController:
             events.append({"event": "limit_reached", "message": f"reference not reachable: {exc}"})
             self._abort_all(f"reference not reachable: {exc}", now, events)
             return None
-        return Reference(st, q, jac @ st.velocity)
+        ref = Reference(st, q, jac @ st.velocity)
+        if m is None:
+            self._hold_ref = ref
+        return ref
 
     # ------------------------------------------------------------------ state and events
-    def _state_message(self, now: float, status: LinkStatus) -> dict[str, Any]:
+    def _state_message(self, now: float, status: LinkStatus) -> StateMessage:
         self._seq += 1
         m = self._active
         kind = None if m is None else (m.kind if isinstance(m, PlanMotion) else "jog")
@@ -549,14 +762,15 @@ class MotionController:
             limited=self._limited,
             maneuver=self._maneuver.progress(),
             feedforward=self.shaper,
-        ).to_json()
+            faults=tuple(self._faults.values()),
+            cache=self._eval_cache,
+        )
 
     def _ev(self, name: str, m: ActiveMotion, **extra: Any) -> Event:
         return {"event": name, "motion_id": m.motion_id, **{k: v for k, v in extra.items() if v is not None}}
 
-    def _emit(self, e: Event) -> None:
-        self._on_event({"t": time.time(), **e})
-
-    def _emit_all(self, events: list[Event]) -> None:
+    def _post(self, events: list[Event]) -> None:
+        """Number and queue ``events`` (call under the lock: the numbering is the order things
+        happened in); :meth:`Outbox.flush` after the lock delivers them."""
         for e in events:
-            self._emit(e)
+            self.outbox.put_event(e)

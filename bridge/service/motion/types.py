@@ -39,6 +39,11 @@ __all__ = [
     "JogMotion",
     "ActiveMotion",
     "Reference",
+    "Fault",
+    "FaultAck",
+    "SELF_CLEARING_FAULTS",
+    "FAULT_CLEAR_AFTER_S",
+    "DEFAULT_DEADLINE_S",
     "actuator_dict",
     "check_mode_allows",
     "check_precedence",
@@ -48,7 +53,7 @@ __all__ = [
     "streamed_reference",
 ]
 
-#: operating modes (thesis HITCH.md §4: automatic, manual, implement attach, transport, configuration)
+#: operating modes (thesis §4, see docs/source_thesis.md: automatic, manual, implement attach, transport, configuration)
 MODES: tuple[str, ...] = ("auto", "manual", "attach", "transport", "config")
 #: what each mode allows: "all" motion, "jog" only, or "none" (stop is always allowed)
 MOTION_MODES: Mapping[str, str] = {
@@ -61,6 +66,14 @@ MOTION_MODES: Mapping[str, str] = {
 #: jog speed scale in implement-attach mode (slow: the operator is near the hitch)
 ATTACH_SPEED_SCALE = 0.25
 
+#: faults that clear themselves once the data they are about is fresh again (``docs/faults.md``);
+#: every other fault — including names this version does not know — latches until ``faults/ack``
+SELF_CLEARING_FAULTS: frozenset[str] = frozenset({"stale_measurement", "ecu_heartbeat"})
+#: how long the data must be fresh without a break before a self-clearing fault clears [s]
+FAULT_CLEAR_AFTER_S = 0.25
+#: the deadline of a motion request that names none: it must start moving within this [s]
+DEFAULT_DEADLINE_S = 1.0
+
 #: one ``<prefix>/events`` message (a JSON-ready dict with an ``event`` name)
 Event = dict[str, Any]
 
@@ -71,6 +84,33 @@ class MotionError(HitchInputError):
     def __init__(self, code: str, message: str):
         self.code = code
         super().__init__(message)
+
+
+@dataclass(frozen=True)
+class Fault:
+    """A fault as the motion controller holds it: its ``name`` (a :class:`bridge.link.state.LinkFaults`
+    field, or ``internal``), the ``reason`` sentence, whether it ``latches`` until acknowledged, and
+    the clock time it was raised [s]."""
+
+    name: str
+    reason: str
+    latches: bool
+    since: float
+
+    def to_json(self) -> dict[str, Any]:
+        return {"fault": self.name, "reason": self.reason, "latches": self.latches, "since": self.since}
+
+
+@dataclass(frozen=True)
+class FaultAck:
+    """The answer to ``faults/ack``: the latched faults ``acknowledged`` (cleared) and the faults
+    still held afterwards (self-clearing ones whose data is not fresh yet)."""
+
+    acknowledged: tuple[str, ...]
+    remaining: tuple[str, ...]
+
+    def to_json(self) -> dict[str, Any]:
+        return {"acknowledged": list(self.acknowledged), "faults": list(self.remaining)}
 
 
 def pose_dict(p: Iterable[float]) -> dict[str, float]:

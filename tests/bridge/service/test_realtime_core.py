@@ -1,0 +1,365 @@
+"""The service's real-time core in simulated time: events numbered and in order, deadlines instead of
+late execution, a stop that cancels what is queued and takes any payload, admission control of
+expensive requests, the fault policy (self-clearing vs latched until ``faults/ack``), nothing
+recomputed at rest, and the twin's fault injection through the API.
+
+Truth used: the order in which the test itself made things happen (a cycle run inside an event
+delivery happens after the motion started), the request's own deadline and arrival time, the
+written fault policy (``docs/faults.md``), and call counts of the exact inverse.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from bridge.service.api import MAX_IN_FLIGHT_PER_USER, ServiceAPI
+from bridge.service.motion.controller import MotionController
+from bridge.service.motion.types import FAULT_CLEAR_AFTER_S, MotionError
+from bridge.service.store import HitchStore
+from bridge.sim.move import SimRig
+from planner.ik_qp.hitch_ik import IKSolver
+from planner.limits.guard import Guard
+from planner.trajectory import TrajectoryPlanner
+
+DT = 0.02
+
+
+class Rig:
+    """A controller and its API on a simulated rig; cycles driven by the test every 20 ms."""
+
+    def __init__(self, model, tmp_path, *, plan_guard=None, sim_fault=None):
+        self.rig = SimRig(model)
+        self.rig.start()
+        self.rig.run_until(0.5)
+        self.events: list[dict] = []
+        self.states: list[dict] = []
+        self.mc = MotionController(
+            Guard(TrajectoryPlanner(model)),
+            plan_guard or Guard(TrajectoryPlanner(model)),
+            self.rig.link,
+            lambda: self.rig.now_s,
+            on_event=self.events.append,
+            on_state=self.states.append,
+            spawn=lambda fn: fn(),
+        )
+        self.store = HitchStore(tmp_path / "hitch.sqlite3")
+        self.api = ServiceAPI(self.mc, IKSolver(model), self.store, {"profile": "thesis-t132"}, sim_fault=sim_fault)
+        self.run(0.1)
+
+    def run(self, seconds: float, *, ecu: bool = True) -> None:
+        end = self.rig.now_s + seconds
+        while self.rig.now_s < end - 1e-9:
+            t = self.rig.now_s + DT
+            if ecu:
+                self.rig.run_until(t)
+            else:  # the ECU falls silent: only the link runs
+                while self.rig.now_s < t - 1e-9:
+                    self.rig._k += 1
+                    self.rig.link.poll(self.rig.now_s)
+            self.mc.cycle()
+
+    def call(self, key, payload=None, **kw):
+        data = payload if isinstance(payload, (bytes, str)) else json.dumps(payload if payload is not None else {})
+        return self.api.handle(key, data, **kw)
+
+    def names(self) -> list[str]:
+        return [e["event"] for e in self.events]
+
+    def close(self) -> None:
+        self.store.close()
+        self.rig.close()
+
+
+@pytest.fixture
+def r(model, tmp_path):
+    rig = Rig(model, tmp_path)
+    yield rig
+    rig.close()
+
+
+# ---------------------------------------------------------------------------- events in order
+def test_events_are_numbered_and_never_overtake_each_other(r):
+    """A control cycle that runs while the requester is still delivering its events (here: inside
+    the delivery of the first one) must not get its ``motion_finished`` out before the requester's
+    ``motion_started``. Fails on the old code (events emitted after the lock, by each thread)."""
+    r.mc.goto({"z": 0.25})
+    r.run(0.3)  # moving: the next goto replaces it (events: aborted, started)
+    nested = {"done": False}
+
+    def deliver(e):
+        r.events.append(e)
+        if e["event"] == "motion_aborted" and not nested["done"]:
+            nested["done"] = True
+            r.run(8.0)  # the control thread runs on and finishes the new motion meanwhile
+
+    r.mc.outbox._on_event = deliver  # the listener that interleaves
+    acc = r.mc.goto({"z": 0.24})
+    mine = [e["event"] for e in r.events if e.get("motion_id") == acc.motion_id]
+    assert mine[:2] == ["motion_started", "motion_finished"], mine
+    seqs = [e["seq"] for e in r.events]
+    assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)
+    assert seqs == list(range(1, len(seqs) + 1))  # one per event, none lost
+
+
+# ---------------------------------------------------------------------------- deadlines, stop
+def test_a_goto_that_waited_past_its_deadline_is_refused_not_run_later(r):
+    """The old defect: a goto stuck behind slow requests started long after its client gave up.
+    Arriving 6 s ago with the default 1 s deadline it is refused ``busy``; nothing moves."""
+    ok, reply = r.call("goto", {"goal": {"z": 0.2}}, received=time.monotonic() - 6.0)
+    assert not ok and reply["error"] == "busy" and "deadline" in reply["message"], reply
+    r.run(0.5)
+    assert "motion_started" not in r.names() and not r.states[-1]["moving"]
+    ok, reply = r.call("goto", {"goal": {"z": 0.2}, "deadline_ms": 10_000}, received=time.monotonic() - 6.0)
+    assert ok, reply  # its own, longer deadline: still in time
+
+
+def test_a_stop_cancels_every_motion_request_that_arrived_before_it(r):
+    queued = time.monotonic()  # a goto and a maneuver run waiting in a queue ...
+    r.store.save_maneuver("m", "steps:\n  - goto: {z: 0.2}\n")
+    ok, _ = r.call("stop", {})  # ... when the operator stops (the hitch is at rest)
+    assert ok
+    for key, body in (("goto", {"goal": {"z": 0.2}}), ("maneuvers/run", {"name": "m"})):
+        ok, reply = r.call(key, body, received=queued)
+        assert not ok and reply["error"] == "busy" and "stop" in reply["message"], reply
+    r.run(0.5)
+    assert "motion_started" not in r.names()
+    ok, reply = r.call("goto", {"goal": {"z": 0.2}})  # sent after the stop: runs
+    assert ok, reply
+
+
+def test_a_plan_that_cannot_start_by_the_deadline_is_refused(model, tmp_path):
+    class SlowGuard(Guard):  # planning takes 1.5 s of the rig's time
+        def plan(self, *a, **k):
+            rig.rig.run_until(rig.rig.now_s + 1.5)
+            return super().plan(*a, **k)
+
+    rig = Rig(model, tmp_path, plan_guard=SlowGuard(TrajectoryPlanner(model)))
+    try:
+        with pytest.raises(MotionError) as ei:
+            rig.mc.goto({"z": 0.2}, deadline=rig.rig.now_s + 1.0)
+        assert ei.value.code == "busy" and "deadline" in str(ei.value)
+        rig.run(0.5)
+        assert "motion_started" not in rig.names()
+        acc = rig.mc.goto({"z": 0.2}, deadline=rig.rig.now_s + 3.0)  # a deadline it can keep
+        assert acc.motion_id > 0
+    finally:
+        rig.close()
+
+
+def test_a_goto_does_not_wait_for_a_busy_planner_past_its_deadline(r):
+    """The planning lock is held (four slow plans); the goto gives up at its deadline (wall time)."""
+    assert r.mc._plan_lock.acquire(timeout=1.0)
+    try:
+        t0 = time.monotonic()
+        ok, reply = r.call("goto", {"goal": {"z": 0.2}, "deadline_ms": 200})
+        took = time.monotonic() - t0
+    finally:
+        r.mc._plan_lock.release()
+    assert not ok and reply["error"] == "busy", reply
+    assert took < 5.0  # it gave up (0.2 s plus scheduling), it did not wait for the planner
+    r.run(0.3)
+    assert "motion_started" not in r.names()
+
+
+@pytest.mark.parametrize("payload", [b"", b"{}", b'{"why": "because"}', b"not json at all {", b"\xff\xfe", b"[1,2]"])
+def test_any_payload_sent_to_stop_stops(r, payload):
+    r.mc.goto({"z": 0.25})
+    r.run(0.4)
+    ok, reply = r.call("stop", payload)
+    assert ok and reply["stopped"] and reply["motion_id"] is not None, reply
+    r.run(2.0)
+    assert any(e["event"] == "motion_finished" and e["motion_id"] == reply["motion_id"] for e in r.events)
+
+
+def test_expensive_requests_are_admitted_a_few_per_user(r):
+    gate, entered = threading.Event(), threading.Semaphore(0)
+    real = r.mc.preview
+
+    def slow_preview(*a, **k):
+        entered.release()
+        gate.wait(5.0)
+        return real(*a, **k)
+
+    r.mc.preview = slow_preview
+    body = {"goal": {"z": 0.2}}
+    results: list = []
+    ts = [
+        threading.Thread(target=lambda: results.append(r.call("plan", body, user=None)))
+        for _ in range(MAX_IN_FLIGHT_PER_USER)
+    ]
+    for t in ts:
+        t.start()
+    for _ in ts:
+        assert entered.acquire(timeout=5.0)
+    try:
+        ok, reply = r.call("plan", body)  # one more of the same user: at once busy
+        assert not ok and reply["error"] == "busy" and "at a time" in reply["message"], reply
+        ok, reply = r.call("maneuvers/validate", {"script": "steps: [{wait: 1}]"})
+        assert not ok and reply["error"] == "busy"
+        ok, _ = r.call("stop", {})  # cheap requests are not held back
+        assert ok
+    finally:
+        gate.set()
+        for t in ts:
+            t.join(10.0)
+    assert all(ok for ok, _ in results)
+    ok, _ = r.call("plan", body)  # answered ones free their slot
+    assert ok
+
+
+# ---------------------------------------------------------------------------- fault policy
+def test_a_stale_measurement_clears_itself_with_an_event_and_never_resumes(r):
+    """ECU silent while holding (a loaded computer, a loose plug): the fault is raised, the hold
+    dropped; once the data is fresh again it clears itself with an event (not silently by the next
+    goto), and nothing moves until a new command."""
+    acc = r.mc.goto({"z": 0.22})
+    r.run(acc.duration + 0.3)
+    assert r.rig.link.streaming  # holding the final pose
+    r.run(0.4, ecu=False)
+    faults = [e for e in r.events if e["event"] == "fault"]
+    assert faults and "stale_measurement" in faults[0]["new"] and not any(f["ack_required"] for f in faults)
+    assert not r.rig.link.streaming and "stale_measurement" in r.states[-1]["ecu"]["faults"]
+    with pytest.raises(MotionError) as ei:  # while the fault is held: no motion
+        r.mc.goto({"z": 0.1})
+    assert ei.value.code == "ecu" and "stale_measurement" in str(ei.value)
+    r.run(FAULT_CLEAR_AFTER_S + 1.2)  # data fresh again (the heartbeat recovers after 8 in sequence)
+    cleared = [e for e in r.events if e["event"] == "fault_cleared"]
+    assert cleared and "stale_measurement" in cleared[-1]["cleared"] and cleared[-1]["by"] == "fresh data"
+    assert r.states[-1]["ecu"]["faults"] == [] and not r.rig.link.streaming  # nothing resumed
+    assert cleared[-1]["seq"] > faults[-1]["seq"]
+    r.mc.goto({"z": 0.1})  # a new command moves again
+
+
+def test_a_latched_fault_needs_an_acknowledge(r):
+    """An internal error (a bug in a cycle) latches: motion is refused naming faults/ack until an
+    operator acknowledges it; the ack is an event and nothing resumes by itself."""
+    r.mc.goto({"z": 0.25})
+    r.run(0.3)
+    boom = RuntimeError("injected")
+
+    def broken(*a, **k):
+        raise boom
+
+    real, r.mc.planner.inverse.solve_full = r.mc.planner.inverse.solve_full, broken
+    try:
+        r.mc._thread = None
+        try:
+            r.mc.cycle()
+        except RuntimeError as exc:  # the periodic thread hands it to on_error
+            r.mc._on_cycle_error(exc)
+    finally:
+        r.mc.planner.inverse.solve_full = real
+    assert r.names()[-1] == "fault" and r.events[-1]["ack_required"]
+    r.run(1.0)
+    assert r.states[-1]["ecu"]["ack_required"] == ["internal"] and not r.states[-1]["moving"]
+    ok, reply = r.call("goto", {"goal": {"z": 0.1}})
+    assert not ok and reply["error"] == "ecu" and "faults/ack" in reply["message"], reply
+    ok, reply = r.call("jog", {"vz": 0.01})
+    assert not ok and reply["error"] == "ecu"
+    ok, reply = r.call("faults/ack", {})
+    assert ok and reply["acknowledged"] == ["internal"] and reply["faults"] == [], reply
+    assert r.events[-1]["event"] == "fault_cleared" and r.events[-1]["by"] == "ack"
+    r.run(0.5)
+    assert not r.states[-1]["moving"] and r.states[-1]["ecu"]["faults"] == []  # nothing resumed
+    ok, reply = r.call("goto", {"goal": {"z": 0.1}})
+    assert ok, reply
+
+
+def test_faults_ack_is_for_operators_only(model, tmp_path):
+    from bridge.service.security import AccessPolicy
+
+    rig = Rig(model, tmp_path)
+    try:
+        rig.api.policy = AccessPolicy(operators=("op",), viewers=("viewer",))
+        for key in ("faults/ack", "sim/fault"):
+            ok, reply = rig.call(key, {}, user="viewer")
+            assert not ok and reply["error"] == "forbidden", reply
+        ok, _ = rig.call("faults/ack", {}, user="op")
+        assert ok
+    finally:
+        rig.close()
+
+
+# ---------------------------------------------------------------------------- idle cost
+def test_nothing_is_recomputed_at_rest(r):
+    acc = r.mc.goto({"z": 0.2})
+    r.run(acc.duration + 0.5)  # finished: holding the final pose
+    assert not r.states[-1]["moving"] and r.rig.link.streaming
+    inv = r.mc.planner.inverse
+    calls = {"n": 0}
+    real = inv.solve_full
+
+    def counting(*a, **k):
+        calls["n"] += 1
+        return real(*a, **k)
+
+    inv.solve_full = counting
+    try:
+        r.run(0.3)  # the measured pose settles
+        n0, e0, s0 = calls["n"], r.mc._eval_cache.evaluations, len(r.states)
+        sent0 = r.rig.link.counters.references_tx
+        r.run(2.0)  # 100 idle cycles
+    finally:
+        inv.solve_full = real
+    assert len(r.states) - s0 == 100  # the state is still published at its rate
+    assert calls["n"] - n0 == 0, "the held reference was recomputed"
+    assert r.mc._eval_cache.evaluations - e0 <= 4, "guard evaluations repeated at an unchanged pose"
+    assert r.rig.link.counters.references_tx - sent0 >= 95  # the link streams the held reference on its own
+    held = r.states[-1]["reference"]["pose"]
+    assert held["z"] == pytest.approx(0.2, abs=1e-9)
+
+
+# ---------------------------------------------------------------------------- fault injection
+def test_sim_fault_without_a_simulated_ecu_is_unavailable(r):
+    ok, reply = r.call("sim/fault", {"cut": "both"})
+    assert not ok and reply["error"] == "unavailable" and "simulated ECU" in reply["message"], reply
+
+
+def test_sim_fault_reaches_the_twin(model, tmp_path):
+    rig = Rig(model, tmp_path)
+    rig.api.sim_fault = rig.rig.node.apply_fault
+    try:
+        ok, reply = rig.call("sim/fault", {"cut": "planner_to_ecu", "loss": 0.0, "delay_ms": 0})
+        assert ok and reply["applied"]["cut"] == "planner_to_ecu", reply
+        ok, reply = rig.call("sim/fault", {"cut": "sideways"})
+        assert not ok and reply["error"] == "bad_request" and "cut" in reply["message"]
+        ok, _ = rig.call("sim/fault", {})  # no fault
+        assert ok
+    finally:
+        rig.close()
+
+
+def test_a_one_way_loss_injected_in_the_twin_aborts_and_nothing_moves_after_it(model, tmp_path):
+    """planner → ECU cut while moving: the link's ``references_lost`` (or any fault) aborts the
+    motion; when frames flow again nothing moves without a new command (and, the fault latching,
+    not before an acknowledge)."""
+    rig = Rig(model, tmp_path)
+    rig.api.sim_fault = rig.rig.node.apply_fault
+    try:
+        acc = rig.mc.goto({"z": 0.28})
+        rig.run(0.5)
+        rig.call("sim/fault", {"cut": "planner_to_ecu"})  # references stop arriving at the ECU
+        rig.run(0.6)
+        faults = [e for e in rig.events if e["event"] == "fault"]
+        assert faults, "one-way loss not detected"
+        aborted = [e for e in rig.events if e["event"] == "motion_aborted"]
+        assert aborted and aborted[-1]["motion_id"] == acc.motion_id
+        rig.call("sim/fault", {"cut": "none"})
+        z0 = rig.rig.link.latest_state().pose.z
+        rig.run(2.0)  # the link is back: nothing moves without a new command
+        assert abs(rig.rig.link.latest_state().pose.z - z0) < 2e-3
+        assert not rig.states[-1]["moving"]
+        if faults[-1]["ack_required"]:
+            assert not rig.call("goto", {"goal": {"z": 0.1}})[0]
+            assert rig.call("faults/ack", {})[0]
+        ok, reply = rig.call("goto", {"goal": {"z": 0.1}})
+        assert ok, reply
+        rig.run(3.0)
+        assert np.isclose(rig.states[-1]["reference"]["pose"]["z"], 0.1, atol=1e-9)
+    finally:
+        rig.close()

@@ -15,6 +15,8 @@ from typing import NoReturn
 from bridge.cli import ik as cli_ik
 from bridge.cli import model as cli_model
 from bridge.cli import plan as cli_plan
+from bridge.cli import records as cli_records
+from bridge.cli import router as cli_router
 from bridge.cli import service as cli_service
 from bridge.cli import sim as cli_sim
 from bridge.cli import stability as cli_stability
@@ -39,6 +41,8 @@ def build_parser() -> argparse.ArgumentParser:
     cli_stability.add_commands(sub)
     cli_sim.add_commands(sub)
     cli_service.add_commands(sub)
+    cli_records.add_commands(sub)
+    cli_router.add_commands(sub)
     add_arm_parser(sub)
     return parser
 

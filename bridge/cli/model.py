@@ -7,13 +7,13 @@ import json
 import math
 
 import numpy as np
-from rich.console import Console
 from rich.table import Table
 
+from bridge.cli.output import console, esc
 from planner.model.kinematics import HitchModel
 from planner.model.types import ACTUATOR_NAMES, POSE_NAMES
 
-__all__ = ["add_commands", "finite_float", "add_model_options", "model_from_args"]
+__all__ = ["add_commands", "finite_float", "bounded_float", "add_model_options", "model_from_args"]
 
 
 def finite_float(name: str):
@@ -26,6 +26,22 @@ def finite_float(name: str):
             raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
         if not math.isfinite(v):
             raise argparse.ArgumentTypeError(f"{name} must be finite, got {text!r}")
+        return v
+
+    return parse
+
+
+def bounded_float(name: str, lo: float, hi: float, *, unit: str = "", lo_open: bool = True):
+    """argparse type: a finite float in ``(lo, hi]`` (``[lo, hi]`` if not ``lo_open``), the error naming
+    the option and the allowed range."""
+    finite = finite_float(name)
+    left = "(" if lo_open else "["
+    allowed = f"{left}{lo:g}, {hi:g}]{' ' + unit if unit else ''}"
+
+    def parse(text: str) -> float:
+        v = finite(text)
+        if not ((lo < v) if lo_open else (lo <= v)) or v > hi:
+            raise argparse.ArgumentTypeError(f"{name} must lie in {allowed}, got {text}")
         return v
 
     return parse
@@ -65,7 +81,7 @@ def _cmd_fk(args) -> int:
     if args.json:
         print(json.dumps(state_to_json(state)))
         return 0
-    c = Console()
+    c = console()
     p = state.pose
     c.print(
         f"pose: x={p.x:+.4f} m  y={p.y:+.4f} m  z={p.z:+.4f} m  roll={p.roll:+.4f} rad  "
@@ -77,7 +93,7 @@ def _cmd_fk(args) -> int:
     )
     t = Table("point", "x [m]", "y [m]", "z [m]")
     for k, v in state.points.items():
-        t.add_row(k, *(f"{x:+.4f}" for x in v))
+        t.add_row(esc(k), *(f"{x:+.4f}" for x in v))
     c.print(t)
     return 0
 
@@ -115,10 +131,10 @@ def _cmd_profile_show(args) -> int:
     if args.json:
         print(json.dumps(s))
         return 0
-    c = Console()
-    c.print(f"[bold]{s['profile']}[/bold] — {s['description']}")
+    c = console()
+    c.print(f"[bold]{esc(s['profile'])}[/bold] — {esc(s['description'])}")
     c.print(
-        f"category {s['category']} (of {', '.join(s['categories'])}): span {s['span']:.4f} m (ball centres), "
+        f"category {esc(s['category'])} (of {esc(', '.join(s['categories']))}): span {s['span']:.4f} m (ball centres), "
         f"mast height {s['mast_height']:.3f} m"
     )
     t = Table("actuator", "min", "max", "neutral", "unit")
@@ -172,9 +188,9 @@ def _cmd_fit_workspace(args) -> int:
 
 def _cmd_demo(args) -> int:
     model = model_from_args(args)
-    c = Console()
+    c = console()
     s = profile_summary(model)
-    c.print(f"[bold]hitch-planner demo[/bold] — profile {s['profile']}, category {model.category}")
+    c.print(f"[bold]hitch-planner demo[/bold] — profile {esc(s['profile'])}, category {esc(model.category)}")
     c.print("neutral actuators: " + "  ".join(f"{k}={v:.4f}" for k, v in s["neutral_actuators"].items()))
     c.print("neutral pose:      " + "  ".join(f"{k}={v:+.4f}" for k, v in s["neutral_pose"].items()))
     t = Table(title="forward kinematics over the lift stroke (other actuators at neutral)")

@@ -6,9 +6,9 @@ import argparse
 import json
 
 import numpy as np
-from rich.console import Console
 
 from bridge.cli.model import add_model_options, model_from_args
+from bridge.cli.output import console, esc
 from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
 from planner.trajectory import MotionState, TrajectoryPlanner
 
@@ -24,6 +24,8 @@ def parse_pose_arg(text: str) -> dict[str, float]:
         k, v = (s.strip() for s in part.split("=", 1))
         if k not in CONTROLLED_POSE_NAMES:
             raise argparse.ArgumentTypeError(f"unknown pose field {k!r}; allowed: x, z, roll, pitch")
+        if k in out:
+            raise argparse.ArgumentTypeError(f"pose field {k!r} given twice; give each of x, z, roll, pitch once")
         try:
             out[k] = float(v)
         except ValueError:
@@ -94,7 +96,7 @@ def _cmd_plan(args) -> int:
             )
         )
         return 0
-    c = Console()
+    c = console()
     c.print(
         f"duration {plan.duration:.3f} s (lower bound {plan.lower_bound:.3f} s, ratio "
         f"{plan.duration / plan.lower_bound:.3f}), {len(sp.t)} samples at {tp.rate:g} Hz"
@@ -111,7 +113,7 @@ def _cmd_plan(args) -> int:
         )
     )
     if args.plot:
-        c.print(f"plot written to {args.plot}")
+        c.print(f"plot written to {esc(args.plot)}")
     return 0
 
 

@@ -6,28 +6,47 @@ Client commands talk to a running service over Zenoh, each with ``--connect ENDP
 (the client's credentials / TLS CA) and ``--json``:
 
 ``hitch goto|jog|stop|mode|state [--follow]``, ``hitch preset save|list|go|delete``,
-``hitch maneuver validate|save|list|run|delete``, ``hitch fleet ls``.
+``hitch maneuver validate|save|list|run|delete``, ``hitch faults ack``, ``hitch fleet ls``.
 
 A refused request (:class:`~bridge.service.client.ServiceError`) exits with status 2 and the
-service's message on one line.
+service's message on one line; no answer at all names the endpoint tried and says to start
+``hitch serve``. ``goto``, ``preset go`` and ``maneuver run`` take ``--wait`` (until the motion
+or maneuver has ended); Ctrl-C then stops the motion (a ``stop`` is sent and its answer
+awaited, at most :data:`STOP_TIMEOUT_S`) unless ``--detach`` is given, which leaves the motion
+running as it is. Text from the service is printed as it is (no rich markup or emoji codes).
+
+``hitch serve --can-log FILE`` records the bus (:class:`~bridge.service.blackbox.CanRecorder`);
+the service's black box (:class:`~bridge.service.blackbox.EventLog`) is always written to
+``<data dir>/log/events.jsonl`` (``hitch log``).
 """
 
 from __future__ import annotations
 
+import argparse
 import json
+import re
+import signal
 import sys
+import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
-
-from rich.console import Console
+from typing import Any
 
 from bridge.cli.errors import CLIError
-from bridge.cli.model import finite_float
+from bridge.cli.model import bounded_float, finite_float
+from bridge.cli.output import console, esc
 from bridge.cli.plan import parse_pose_arg
+from bridge.link.realtime import INTERFACES
 from bridge.service.config import DEFAULT_LISTEN, load_service_config
 from planner.errors import HitchError
 
-__all__ = ["add_commands"]
+__all__ = ["add_commands", "STOP_TIMEOUT_S"]
+
+#: the longest a Ctrl-C'd command waits for the answer to its ``stop`` [s]
+STOP_TIMEOUT_S = 3.0
+#: the longest ``maneuver run --wait`` waits (the service aborts a maneuver at its timeout, ≤ 3600 s)
+_MANEUVER_WAIT_S = 3600.0 + 30.0
 
 
 def _client(args):
@@ -38,11 +57,15 @@ def _client(args):
     )
 
 
-def _print(args, reply: dict, text: str | None = None) -> None:
+def _print(args, reply: dict, text: str | None = None, *, markup: bool = False) -> None:
+    """JSON with ``--json``, else ``text``: printed as it is, or as rich markup when ``markup`` (the
+    caller escaped the data in it with :func:`~bridge.cli.output.esc`)."""
     if args.json:
         print(json.dumps(reply))
     else:
-        Console(soft_wrap=True).print(text if text is not None else json.dumps(reply, indent=1))
+        console(soft_wrap=True).print(
+            text if text is not None else json.dumps(reply, indent=1), markup=markup, highlight=False
+        )
 
 
 def _fmt_pose(p: dict | None) -> str:
@@ -76,19 +99,38 @@ def _cmd_serve(args) -> int:
         http_user=args.http_user,
         feedforward=False if args.no_feedforward else None,
     )
+    from bridge.service.blackbox import CanRecorder, EventLog, event_log_path
+
     sys.setswitchinterval(5e-4)  # threads waiting for the GIL (the 50 Hz loop) wait ≤ 0.5 ms, not 5 ms
+    recorder = CanRecorder(args.can_log, cfg.can_interface, cfg.can_channel) if args.can_log else None
+    blackbox: EventLog | None = None
 
     def ready(service) -> None:
+        nonlocal blackbox
+        blackbox = EventLog(event_log_path(cfg.data_dir))
+        blackbox.attach(service)
+        blackbox.record("service", what="started", prefix=cfg.prefix, listen=list(cfg.listen or ()))
         for w in service.warnings:
             print(f"hitch serve: warning: {w}", file=sys.stderr)
+        http = getattr(service, "http", None)
+        if http is not None:
+            print(f"hitch serve: operator terminal at {http.url}", flush=True)
         print(
             f"hitch serve: ready on {', '.join(cfg.listen or ()) or '(no listener)'}"
             f"{' connected to ' + ', '.join(cfg.connect) if cfg.connect else ''} prefix {cfg.prefix!r}, "
-            f"data {cfg.database_path}",
+            f"data {cfg.database_path}, log {event_log_path(cfg.data_dir)}"
+            + (f", CAN log {args.can_log}" if recorder is not None else ""),
             flush=True,
         )
 
-    took = serve(cfg, ready=ready)
+    try:
+        took = serve(cfg, ready=ready)
+    finally:
+        if blackbox is not None:
+            blackbox.record("service", what="stopped")
+            blackbox.close()
+        if recorder is not None:
+            recorder.close()
     print(f"hitch serve: stopped in {took * 1000:.0f} ms", flush=True)
     return 0
 
@@ -107,7 +149,7 @@ def _add_serve(sub) -> None:
     p.add_argument("--connect", action="append", default=None, metavar="ENDPOINT", help="connect endpoint (repeatable)")
     p.add_argument("--prefix", default=None, help="key prefix (default hitch; a fleet: fleet/t07/hitch)")
     p.add_argument("--security", default=None, help="Zenoh security config (JSON5: usrpwd, access_control, TLS)")
-    p.add_argument("--can-interface", choices=("virtual", "socketcan", "udp_multicast"), default=None)
+    p.add_argument("--can-interface", choices=INTERFACES, default=None)
     p.add_argument("--can-channel", default=None, help="CAN channel (default hitch)")
     p.add_argument("--no-sim-ecu", action="store_true", help="do not run the simulated ECU in this process")
     p.add_argument(
@@ -141,7 +183,13 @@ def _add_serve(sub) -> None:
         "--http-user",
         default=None,
         metavar="USER",
-        help="user the terminal's commands run as when access control is on (needed then)",
+        help="user the terminal runs as without a login (security files with users require a login; ignored then)",
+    )
+    p.add_argument(
+        "--can-log",
+        default=None,
+        metavar="FILE",
+        help="record every CAN frame to FILE (.asc, .blf or candump .log; replay with `hitch replay FILE`)",
     )
     p.set_defaults(handler=_cmd_serve)
 
@@ -157,27 +205,154 @@ def _client_options(p) -> None:
     )
     p.add_argument("--prefix", default="hitch", help="key prefix of the service (default hitch)")
     p.add_argument("--security", default=None, help="Zenoh security config of this client (credentials, TLS CA)")
-    p.add_argument("--timeout", type=finite_float("--timeout"), default=5.0, help="seconds to wait for a reply")
+    p.add_argument(
+        "--timeout",
+        type=bounded_float("--timeout", 0.0, 600.0, unit="s"),
+        default=5.0,
+        help="seconds to wait for a reply, (0, 600] (default 5)",
+    )
     p.add_argument("--json", action="store_true", help="print JSON")
 
 
+def _wait_options(p) -> None:
+    p.add_argument("--wait", action="store_true", help="wait until the motion has ended; Ctrl-C then stops it")
+    p.add_argument("--detach", action="store_true", help="with --wait: Ctrl-C only stops waiting, the motion goes on")
+
+
+def _alive(c, timeout_s: float = 1.0) -> bool:
+    """Does a service with the client's prefix hold its liveliness token?"""
+    try:
+        for reply in c.session.liveliness().get(f"{c.prefix}/alive", timeout=timeout_s):
+            if reply.ok is not None:
+                return True
+    except Exception:  # noqa: BLE001 — the session is closing: nothing is known
+        return False
+    return False
+
+
+def _service_down(args, exc: Exception) -> CLIError:
+    tried = ", ".join(args.connect or [DEFAULT_LISTEN])
+    why = re.sub(r"\s+at \S+\.rs:\d+\.?", "", str(exc)).strip()  # Zenoh's source location is noise here
+    return CLIError(
+        f"{why} — no hitch service with prefix {args.prefix!r} answers at {tried}; start one with "
+        f"`hitch serve` (it listens on {DEFAULT_LISTEN} by default) or give its endpoint with --connect ENDPOINT"
+    )
+
+
 def _run(args, fn) -> int:
-    with _client(args) as c:
-        return fn(c)
+    from bridge.service.client import ServiceError, ServiceTimeout
+
+    try:
+        with _client(args) as c:
+            try:
+                return fn(c)
+            except ServiceTimeout as exc:
+                if _alive(c):  # the service is up: slow, or this user may not use that key
+                    raise
+                raise _service_down(args, exc) from None
+    except ServiceError as exc:
+        if exc.code == "connect":  # no router or service accepted the session
+            raise _service_down(args, exc) from None
+        raise
+
+
+def _stop_after_interrupt(c, motion_id: object) -> None:
+    """Ctrl-C during a motion command: send ``stop`` and wait (bounded) for its answer; a second
+    Ctrl-C meanwhile is ignored, so the stop is not cut short."""
+    from bridge.service.client import ServiceError
+
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    t0 = time.monotonic()
+    try:
+        r = c.request("stop", {}, timeout_s=STOP_TIMEOUT_S)
+        print(
+            f"hitch: interrupted: stop sent (motion {r.get('motion_id', motion_id)}), "
+            f"answered in {(time.monotonic() - t0) * 1000:.0f} ms",
+            file=sys.stderr,
+            flush=True,
+        )
+    except ServiceError as exc:
+        print(
+            f"hitch: interrupted: the stop was not confirmed ({exc}); stop the hitch another way (`hitch stop`, STOP)",
+            file=sys.stderr,
+            flush=True,
+        )
+    finally:
+        signal.signal(signal.SIGINT, old)
+
+
+def _motion(args, c, start: Callable[[], dict], wait: Callable[[dict], dict]) -> tuple[dict, dict | None]:
+    """Start a motion (``start()`` → the reply) and, with ``--wait``, wait for its end (``wait(reply)``).
+
+    Ctrl-C (while starting or waiting) sends ``stop`` unless ``--detach``; then KeyboardInterrupt
+    goes on up (exit status 130).
+    """
+    reply: dict | None = None
+    try:
+        reply = start()
+        return reply, (wait(reply) if args.wait else None)
+    except KeyboardInterrupt:
+        if args.detach:
+            if reply is not None:
+                print(
+                    f"hitch: interrupted: motion {reply.get('motion_id')} goes on (--detach)",
+                    file=sys.stderr,
+                    flush=True,
+                )
+        else:
+            _stop_after_interrupt(c, None if reply is None else reply.get("motion_id"))
+        raise
+
+
+def _wait_motion(args, c, r: dict) -> dict:
+    st = c.wait_motion(r["motion_id"], timeout_s=max(args.timeout, float(r.get("duration", 0.0)) + 10.0))
+    return {"pose": st.get("pose"), "motion_id": st.get("motion_id"), "moving": st.get("moving")}
+
+
+def _wait_maneuver(c, maneuver_id: object, timeout_s: float) -> dict:
+    """Block until maneuver ``maneuver_id`` has finished or was aborted; its outcome event (or the last state)."""
+    from bridge.service.client import ServiceTimeout
+
+    done, outcome_seen = threading.Event(), threading.Event()
+    out: dict[str, Any] = {}
+    seen = [False]
+    t0 = time.monotonic()
+
+    def on_event(e: dict) -> None:
+        if e.get("maneuver_id") == maneuver_id and e.get("event") in ("maneuver_finished", "maneuver_aborted"):
+            out["outcome"] = e
+            outcome_seen.set()
+            done.set()
+
+    def on_state(s: dict) -> None:
+        out["state"] = s
+        m = s.get("maneuver")
+        if isinstance(m, dict) and m.get("motion_id") == maneuver_id:
+            seen[0] = True
+        elif seen[0] or time.monotonic() - t0 > 2.0:  # it ran and ended, or ended before we looked
+            done.set()
+
+    c.subscribe("events", on_event)
+    c.subscribe("state", on_state)
+    if not done.wait(timeout_s):
+        raise ServiceTimeout(f"maneuver {maneuver_id} still running after {timeout_s:g} s")
+    outcome_seen.wait(1.0)  # the outcome event follows the state that shows the end
+    return dict(out)
 
 
 def _cmd_goto(args) -> int:
     def go(c) -> int:
-        r = c.goto(args.to, args.speed_scale)
-        if args.wait:
-            st = c.wait_motion(r["motion_id"], timeout_s=max(args.timeout, r["duration"] + 10.0))
-            r = {**r, "final": {"pose": st.get("pose"), "motion_id": st.get("motion_id"), "moving": st.get("moving")}}
+        r, final = _motion(
+            args, c, lambda: c.goto(args.to, args.speed_scale), lambda reply: _wait_motion(args, c, reply)
+        )
+        if final is not None:
+            r = {**r, "final": final}
         _print(
             args,
             r,
             f"motion {r['motion_id']} accepted, {r['duration']:.2f} s"
             + (f" (slowed x{r['speed_factor']:.2f})" if r["speed_factor"] < 1 else "")
-            + (f"; now at {_fmt_pose(r['final']['pose'])}" if args.wait else ""),
+            + (f"; now at {_fmt_pose(final['pose'])}" if final is not None else ""),
         )
         return 0
 
@@ -186,13 +361,14 @@ def _cmd_goto(args) -> int:
 
 def _cmd_jog(args) -> int:
     def jog(c) -> int:
-        end = time.monotonic() + args.duration
+        end = time.monotonic() + (args.duration or 0.0)
         period = min(0.1, args.ttl_ms / 2000.0)
         r = c.jog(args.vx, args.vz, args.vroll, args.vpitch, args.ttl_ms)
         while time.monotonic() < end:  # dead-man: keep refreshing while "held"
             time.sleep(period)
             r = c.jog(args.vx, args.vz, args.vroll, args.vpitch, args.ttl_ms)
-        _print(args, r, f"jog motion {r['motion_id']}" + (f", limited: {r['limited']}" if r["limited"] else ""))
+        limited = r.get("limited")
+        _print(args, r, f"jog motion {r['motion_id']}" + (f", limited: {limited}" if limited else ""))
         return 0
 
     return _run(args, jog)
@@ -216,26 +392,37 @@ def _cmd_mode(args) -> int:
     return _run(args, mode)
 
 
+def _cmd_faults(args) -> int:
+    def ack(c) -> int:
+        fn = getattr(c, "ack_faults", None)
+        r = fn() if callable(fn) else c.request("faults/ack", {})
+        details = ", ".join(f"{k}: {v}" for k, v in r.items()) if isinstance(r, dict) else str(r)
+        _print(args, r, "faults acknowledged" + (f" ({details})" if details else ""))
+        return 0
+
+    return _run(args, ack)
+
+
 def _state_line(s: dict) -> str:
+    """One line of rich markup (data escaped)."""
     ecu = s.get("ecu") or {}
     lim = s.get("limited") or {}
-    return (
+    return esc(
         f"#{s.get('seq')} {s.get('mode')} {'moving' if s.get('moving') else 'at rest'} "
         f"motion {s.get('motion_id')}  pose {_fmt_pose(s.get('pose'))}  ECU "
         f"{'online' if ecu.get('online') else 'OFFLINE'}"
-        f"{' ' + ','.join(ecu.get('faults', [])) if ecu.get('faults') else ''}"
-        + (f"  [red]control limited: {', '.join(f'{k}: {v}' for k, v in lim.items())}[/red]" if lim else "")
-    )
+        f"{' ' + ','.join(map(str, ecu.get('faults', []))) if ecu.get('faults') else ''}"
+    ) + (f"  [red]control limited: {esc(', '.join(f'{k}: {v}' for k, v in lim.items()))}[/red]" if lim else "")
 
 
 def _cmd_state(args) -> int:
     def state(c) -> int:
         if not args.follow:
             s = c.state()
-            _print(args, s, _state_line(s))
+            _print(args, s, _state_line(s), markup=True)
             return 0
         for n, s in enumerate(c.follow("state"), 1):
-            _print(args, s, _state_line(s))
+            _print(args, s, _state_line(s), markup=True)
             if args.count and n >= args.count:
                 return 0
         return 0
@@ -258,8 +445,17 @@ def _cmd_preset(args) -> int:
             _print(args, r, f"saved {r['saved']}: {_fmt_pose(r['pose'])}")
         elif args.action == "go":
             body = {"name": args.name, **({"speed_scale": args.speed_scale} if args.speed_scale is not None else {})}
-            r = c.request("presets/go", body)
-            _print(args, r, f"motion {r['motion_id']} to preset {args.name}, {r['duration']:.2f} s")
+            r, final = _motion(
+                args, c, lambda: c.request("presets/go", body), lambda reply: _wait_motion(args, c, reply)
+            )
+            if final is not None:
+                r = {**r, "final": final}
+            _print(
+                args,
+                r,
+                f"motion {r['motion_id']} to preset {args.name}, {r['duration']:.2f} s"
+                + (f"; now at {_fmt_pose(final['pose'])}" if final is not None else ""),
+            )
         else:
             r = c.request("presets/delete", {"name": args.name})
             _print(args, r, f"deleted {r['deleted']}")
@@ -273,6 +469,16 @@ def _read_script(path: str) -> str:
     if not p.is_file():
         raise CLIError(f"maneuver file {p} does not exist")
     return p.read_text(encoding="utf-8")
+
+
+def _maneuver_outcome(out: dict) -> str:
+    e = out.get("outcome")
+    if not isinstance(e, dict):
+        return "ended"
+    if e.get("event") == "maneuver_finished":
+        return "finished"
+    why = e.get("reason") or ""
+    return "aborted" + (f" ({why}{': ' + str(e['message']) if e.get('message') else ''})" if why else "")
 
 
 def _cmd_maneuver(args) -> int:
@@ -303,8 +509,19 @@ def _cmd_maneuver(args) -> int:
                 or "(no maneuvers)",
             )
         elif a == "run":
-            r = c.request("maneuvers/run", {"name": args.name})
-            _print(args, r, f"maneuver {args.name} started (id {r['motion_id']}, planned {r['duration']:.2f} s)")
+            r, final = _motion(
+                args,
+                c,
+                lambda: c.request("maneuvers/run", {"name": args.name}),
+                lambda reply: _wait_maneuver(c, reply["motion_id"], _MANEUVER_WAIT_S),
+            )
+            text = f"maneuver {args.name} started (id {r['motion_id']}, planned {r['duration']:.2f} s)"
+            if final is not None:
+                r = {**r, "outcome": final.get("outcome")}
+                text += f"; {_maneuver_outcome(final)}"
+            _print(args, r, text)
+            if final is not None and isinstance(final.get("outcome"), dict):
+                return 0 if final["outcome"].get("event") == "maneuver_finished" else 1
         else:
             r = c.request("maneuvers/delete", {"name": args.name})
             _print(args, r, f"deleted {r['deleted']}")
@@ -357,15 +574,25 @@ def add_commands(sub) -> None:
         "--to", type=parse_pose_arg, required=True, help="goal, e.g. x=0.02,z=0.25 (others keep their value)"
     )
     p.add_argument("--speed-scale", type=finite_float("--speed-scale"), default=1.0, help="(0, 1], default 1")
-    p.add_argument("--wait", action="store_true", help="wait until the motion has ended and print the pose")
+    _wait_options(p)
     _client_options(p)
     p.set_defaults(handler=_cmd_goto)
 
     p = sub.add_parser("jog", help="jog at pose rates while the command is repeated (dead-man)")
     for n, unit in (("vx", "m/s"), ("vz", "m/s"), ("vroll", "rad/s"), ("vpitch", "rad/s")):
         p.add_argument(f"--{n}", type=finite_float(f"--{n}"), default=0.0, help=f"rate [{unit}]")
-    p.add_argument("--ttl-ms", type=finite_float("--ttl-ms"), default=200.0, help="life of each command, ms")
-    p.add_argument("--duration", type=finite_float("--duration"), default=0.0, help="keep jogging this long, s")
+    p.add_argument(
+        "--ttl-ms",
+        type=bounded_float("--ttl-ms", 0.0, 5000.0, unit="ms"),
+        default=200.0,
+        help="life of each command, (0, 5000] ms (default 200)",
+    )
+    p.add_argument(
+        "--duration",
+        type=bounded_float("--duration", 0.0, 3600.0, unit="s"),
+        default=None,
+        help="keep jogging this long, (0, 3600] s (default: one command of --ttl-ms)",
+    )
     _client_options(p)
     p.set_defaults(handler=_cmd_jog)
 
@@ -380,7 +607,7 @@ def add_commands(sub) -> None:
 
     p = sub.add_parser("state", help="the service's published state")
     p.add_argument("--follow", action="store_true", help="keep printing every sample")
-    p.add_argument("--count", type=int, default=0, help="with --follow: stop after N samples")
+    p.add_argument("--count", type=_count, default=0, help="with --follow: stop after N samples (0: never)")
     _client_options(p)
     p.set_defaults(handler=_cmd_state)
 
@@ -394,6 +621,8 @@ def add_commands(sub) -> None:
             q.add_argument("--pose", type=parse_pose_arg, default=None, help="x=..,z=.. (default: the current pose)")
         if action in ("save", "go"):
             q.add_argument("--speed-scale", type=finite_float("--speed-scale"), default=None)
+        if action == "go":
+            _wait_options(q)
         _client_options(q)
         q.set_defaults(handler=_cmd_preset)
 
@@ -409,6 +638,8 @@ def add_commands(sub) -> None:
         q = ms.add_parser(action)
         for a in pos:
             q.add_argument(a)
+        if action == "run":
+            _wait_options(q)
         _client_options(q)
         q.set_defaults(handler=_cmd_maneuver)
 
@@ -417,3 +648,19 @@ def add_commands(sub) -> None:
     q = fs.add_parser("ls", help="list live services (liveliness tokens) with their profile and mode")
     _client_options(q)
     q.set_defaults(handler=_cmd_fleet)
+
+    p = sub.add_parser("faults", help="latched faults of the service")
+    fs = p.add_subparsers(dest="action", required=True, parser_class=type(p))
+    q = fs.add_parser("ack", help="acknowledge latched faults (those whose cause is gone are cleared)")
+    _client_options(q)
+    q.set_defaults(handler=_cmd_faults)
+
+
+def _count(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--count must be a whole number >= 0, got {text!r}") from None
+    if n < 0:
+        raise argparse.ArgumentTypeError(f"--count must be a whole number >= 0, got {text}")
+    return n

@@ -1,10 +1,13 @@
-"""CLI commands ``hitch sim move`` and ``hitch ecu-sim``, and the real-time node runner.
+"""CLI commands ``hitch sim move``, ``hitch sim fault``, ``hitch ecu-sim`` and ``hitch can-hub``.
 
 ``hitch sim move`` runs :func:`bridge.sim.move.run_move` in simulated time (see
 :mod:`bridge.sim.move` for how time is handled) and reports the figures of the move.
 ``hitch ecu-sim`` runs the simulated cylinder ECU as its own process on a real
 python-can interface, in real time, with :class:`RealtimeRunner`, until Ctrl-C or
-``--duration``; the bus is closed on every exit path.
+``--duration`` (either way it prints its summary); the bus is closed on every exit path. ``--interface remote`` joins a
+``hitch can-hub`` (a CAN hub on 127.0.0.1: cross-process CAN without multicast).
+``hitch sim fault`` asks a running service whose ECU is simulated to inject link faults
+(service key ``sim/fault``).
 """
 
 from __future__ import annotations
@@ -16,12 +19,13 @@ import time
 import numpy as np
 from rich.console import Console
 
-from bridge.cli.model import add_model_options, model_from_args
+from bridge.cli.model import add_model_options, finite_float, model_from_args
 from bridge.cli.plan import parse_pose_arg
 from bridge.link.realtime import INTERFACES, RealtimeRunner, open_bus
 from bridge.link.state import LinkConfig
 from bridge.sim.can_node import EcuCanNode
 from bridge.sim.ecu import ACTUATOR_ORDER, CylinderECU
+from bridge.sim.fault_injector import CUTS, MAX_DELAY_MS, FaultSettings
 from bridge.sim.move import (
     REFERENCE_KINDS,
     MoveFigures,
@@ -183,6 +187,8 @@ def _cmd_ecu_sim(args) -> int:
                     f"t={runner.now():7.1f} s  {node.claim_state.value}  refs {n.references}  "
                     f"tx {n.frames_tx}  malformed {n.malformed}  valves {list(ecu.valve_commands())}"
                 )
+    except KeyboardInterrupt:  # Ctrl-C is the normal end: stop cleanly and print the summary
+        pass
     finally:
         runner.stop()
         node.shutdown(runner.now())
@@ -198,6 +204,38 @@ def _cmd_ecu_sim(args) -> int:
         "measurement_counts": dict(zip(ACTUATOR_ORDER, map(int, ecu.measurement_counts()), strict=True)),
     }
     print(json.dumps(summary) if args.json else summary)
+    return 0
+
+
+# -- hitch sim fault -----------------------------------------------------------------------
+def _cmd_sim_fault(args) -> int:
+    settings = FaultSettings(cut=args.cut, loss=args.loss, delay_ms=args.delay_ms, restart_ecu=args.restart_ecu)
+    from bridge.service.client import HitchClient  # zenoh only for the commands that talk to a service
+    from bridge.service.config import DEFAULT_LISTEN
+
+    with HitchClient(
+        args.connect or [DEFAULT_LISTEN], prefix=args.prefix, timeout_s=args.timeout, security=args.security
+    ) as client:
+        reply = client.request("sim/fault", settings.to_json())
+    if args.json:
+        print(json.dumps(reply))
+    else:
+        Console(soft_wrap=True).print(json.dumps(reply, indent=1))
+    return 0
+
+
+# -- hitch can-hub -------------------------------------------------------------------------
+def _cmd_can_hub(args) -> int:
+    from bridge.link.loopback import LoopbackHub
+
+    hub = LoopbackHub(args.port)
+    Console(stderr=True).print(f"CAN hub on {hub.url} (open buses with --interface remote --channel {hub.url})")
+    try:
+        hub.serve_forever()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        hub.close()
     return 0
 
 
@@ -235,10 +273,28 @@ def add_commands(sub) -> None:
     _add_plant_options(m)
     add_model_options(m)
     m.set_defaults(handler=_cmd_sim_move)
+    f = ssub.add_parser("fault", help="inject link faults into a running service's simulated ECU")
+    f.add_argument("--cut", choices=CUTS, default="none", help="cut one direction or both (default none)")
+    f.add_argument("--loss", type=finite_float("--loss"), default=0.0, help="frame loss probability, [0, 1]")
+    f.add_argument(
+        "--delay-ms", type=finite_float("--delay-ms"), default=0.0, help=f"frame delay [ms], [0, {MAX_DELAY_MS:g}]"
+    )
+    f.add_argument("--restart-ecu", action="store_true", help="restart the simulated ECU once")
+    f.add_argument(
+        "--connect", action="append", default=None, metavar="ENDPOINT", help="service or router endpoint (repeatable)"
+    )
+    f.add_argument("--prefix", default="hitch", help="key prefix of the service (default hitch)")
+    f.add_argument("--security", default=None, help="Zenoh security config of this client (credentials, TLS CA)")
+    f.add_argument("--timeout", type=finite_float("--timeout"), default=5.0, help="seconds to wait for a reply")
+    f.add_argument("--json", action="store_true", help="print JSON")
+    f.set_defaults(handler=_cmd_sim_fault)
     e = sub.add_parser("ecu-sim", help="run the simulated cylinder ECU on a CAN interface in real time")
     e.add_argument("--interface", choices=INTERFACES, default="udp_multicast", help="python-can interface")
     e.add_argument(
-        "--channel", default=None, help="channel (udp_multicast: python-can's default IPv4 group; socketcan: vcan0)"
+        "--channel",
+        default=None,
+        help="channel (udp_multicast: python-can's default IPv4 group; socketcan: vcan0; "
+        "remote: a hitch can-hub, default ws://127.0.0.1:54701/)",
     )
     e.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: Ctrl-C)")
     e.add_argument("--status-every", type=float, default=1.0, help="status line period [s]")
@@ -246,3 +302,6 @@ def add_commands(sub) -> None:
     e.add_argument("--json", action="store_true", help="print the final summary as JSON")
     _add_plant_options(e)
     e.set_defaults(handler=_cmd_ecu_sim)
+    h = sub.add_parser("can-hub", help="a CAN hub on 127.0.0.1 for nodes in several processes (--interface remote)")
+    h.add_argument("--port", type=int, default=54701, help="TCP port on 127.0.0.1 (default 54701; 0: any free one)")
+    h.set_defaults(handler=_cmd_can_hub)

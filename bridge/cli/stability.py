@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import json
 
-from rich.console import Console
-
 from bridge.cli.model import add_model_options, finite_float, model_from_args
+from bridge.cli.output import console, esc
 from bridge.cli.plan import parse_pose_arg
 from planner.limits.guard import Guard
 from planner.limits.tractor import load_tractor_profile
@@ -45,9 +44,9 @@ def _cmd_stability(args) -> int:
     if args.json:
         print(json.dumps(out))
         return 0
-    c = Console()
+    c = console()
     c.print(
-        f"implement: {out['implement'] or 'none'}; "
+        f"implement: {esc(out['implement'] or 'none')}; "
         f"slope roll {args.slope_roll:+.3f} rad, pitch {args.slope_pitch:+.3f} rad"
     )
     c.print(
@@ -56,11 +55,11 @@ def _cmd_stability(args) -> int:
     )
     c.print(
         f"SSM {out['ssm']:.3f} m   LSM {out['lsm']:.3f} m   ESM {out['esm']:.0f} J   "
-        f"(weakest edge: {out['weakest_edge']})"
+        f"(weakest edge: {esc(out['weakest_edge'])})"
     )
     c.print(f"minimum front ballast (manual formula): {out['min_front_ballast']:.0f} kg")
     for v in out["violations"]:
-        c.print(f"[red]{v['level']}[/red]: {v['measure']} = {v['value']:.4g} below {v['threshold']:.4g}")
+        c.print(f"[red]{esc(v['level'])}[/red]: {esc(v['measure'])} = {v['value']:.4g} below {v['threshold']:.4g}")
     c.print("[green]ok[/green]" if out["ok"] else "[red]NOT OK[/red]")
     return 0
 

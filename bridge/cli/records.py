@@ -1,0 +1,170 @@
+"""CLI commands on the black box: ``hitch log [--follow]`` and ``hitch replay FILE``.
+
+``hitch log`` prints the service's event log (``<data dir>/log/events.jsonl`` and its rotated
+files, oldest first; :mod:`bridge.service.blackbox`): who asked what, accepted or refused,
+faults and motion outcomes. ``--follow`` then keeps printing new records (Ctrl-C ends it).
+``hitch replay FILE`` reads a CAN log recorded with ``hitch serve --can-log FILE`` (or any
+``.asc``/``.blf``/candump ``.log`` of the same bus) into a CAN link and prints what it decodes:
+references, measurements with the measured pose, heartbeats (``--all``) and the faults the link
+raises in the log's time.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from enum import Enum
+from pathlib import Path
+from typing import Any
+
+from bridge.cli.model import add_model_options, bounded_float, model_from_args
+from bridge.cli.output import console
+
+__all__ = ["add_commands", "format_record"]
+
+_QUIET_MESSAGES = frozenset({"Heartbeat", "AddressClaimed", "RequestPgn", "WheelBasedSpeed", "PressureMeasurement"})
+
+
+def _when(t: Any) -> str:
+    if not isinstance(t, (int, float)):
+        return "-"
+    return time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(t)) + f".{int((t % 1) * 1000):03d}"
+
+
+def format_record(rec: dict[str, Any]) -> str:
+    """One line of plain text for an event-log record."""
+    kind = rec.get("kind")
+    head = f"{_when(rec.get('t'))} #{rec.get('seq', '-')} "
+    if kind == "request":
+        who = rec.get("user") or "-"
+        if rec.get("accepted"):
+            what = "accepted" + (f" (motion {rec['motion_id']})" if rec.get("motion_id") is not None else "")
+        else:
+            what = f"REFUSED {rec.get('error')}: {rec.get('message', '')}"
+        body = f" {rec['request']}" if rec.get("request") else ""
+        return f"{head}request {rec.get('key')} by {who}{body}: {what}"
+    if kind == "event":
+        skip = {"t", "seq", "kind", "event", "event_t"}
+        rest = ", ".join(f"{k}={v}" for k, v in rec.items() if k not in skip)
+        return f"{head}event {rec.get('event')}" + (f": {rest}" if rest else "")
+    skip = {"t", "seq", "kind"}
+    rest = ", ".join(f"{k}={v}" for k, v in rec.items() if k not in skip)
+    return f"{head}{kind}" + (f": {rest}" if rest else "")
+
+
+def _cmd_log(args) -> int:
+    from bridge.service.blackbox import event_log_path, follow_events, read_events
+    from bridge.service.config import default_data_dir
+
+    path = event_log_path(args.data_dir or default_data_dir())
+    c = console(soft_wrap=True)
+
+    def show(rec: dict[str, Any]) -> None:
+        if args.json:
+            print(json.dumps(rec), flush=True)
+        else:
+            c.print(format_record(rec), markup=False, highlight=False)
+
+    records = read_events(path)
+    if not records and not args.follow and not path.exists():
+        c.print(f"(no event log at {path}; `hitch serve` writes it)", markup=False, highlight=False)
+        return 0
+    for rec in records[-args.last :] if args.last else records:
+        show(rec)
+    if args.follow:
+        try:
+            for rec in follow_events(path):
+                show(rec)
+        except KeyboardInterrupt:
+            return 0
+    return 0
+
+
+def _fmt_fields(fields: dict[str, Any]) -> str:
+    out = []
+    for k, v in fields.items():
+        if isinstance(v, Enum):
+            v = v.name
+        elif isinstance(v, dict):
+            v = "/".join(str(x) for x in v.values())
+        elif isinstance(v, float):
+            v = f"{v:.4g}"
+        out.append(f"{k}={v}")
+    return " ".join(out)
+
+
+def _cmd_replay(args) -> int:
+    from bridge.service.blackbox import replay_can_log
+
+    model = model_from_args(args)
+    c = console(soft_wrap=True)
+    counts: dict[str, int] = {}
+    faults = 0
+    last_pose_t = -float("inf")
+    for r in replay_can_log(Path(args.file), model, stale_after_s=args.stale_after):
+        if args.json:
+            print(json.dumps(r.to_json()))
+        if r.name == "fault":
+            faults += len(r.faults)
+            for f in r.faults if not args.json else ():
+                c.print(f"{r.t_s:9.3f} s  FAULT {f}", markup=False, highlight=False)
+            continue
+        counts[r.name] = counts.get(r.name, 0) + 1
+        if args.json:
+            continue
+        if r.error:
+            c.print(f"{r.t_s:9.3f} s  {r.name} from {r.source}: not decoded ({r.error})", markup=False, highlight=False)
+            continue
+        if not args.all and r.name in _QUIET_MESSAGES:
+            continue
+        if r.pose is not None and not args.all and r.t_s - last_pose_t < args.interval:
+            continue
+        line = f"{r.t_s:9.3f} s  {r.name} from {r.source}: {_fmt_fields(dict(r.fields))}"
+        if r.pose is not None:
+            last_pose_t = r.t_s
+            p = r.pose
+            line += (
+                f"  -> pose x={p['x']:+.4f} m z={p['z']:+.4f} m roll={p['roll']:+.4f} rad pitch={p['pitch']:+.4f} rad"
+            )
+        c.print(line, markup=False, highlight=False)
+    if not args.json:
+        c.print(
+            f"{sum(counts.values())} frames: "
+            + (", ".join(f"{n} {k}" for k, n in sorted(counts.items())) or "none")
+            + f"; {faults} faults raised",
+            markup=False,
+            highlight=False,
+        )
+    return 0
+
+
+def add_commands(sub) -> None:
+    p = sub.add_parser("log", help="the service's event log (black box): requests, faults, motion outcomes")
+    p.add_argument("--follow", action="store_true", help="keep printing new records (Ctrl-C ends it)")
+    p.add_argument(
+        "--data-dir",
+        type=Path,
+        default=None,
+        help="the service's data dir (default $XDG_DATA_HOME/hitch-planner, ~/.local/share/hitch-planner)",
+    )
+    p.add_argument("--last", type=int, default=0, help="print only the last N records first (0: all)")
+    p.add_argument("--json", action="store_true", help="print the records as JSON lines")
+    p.set_defaults(handler=_cmd_log)
+
+    p = sub.add_parser("replay", help="replay a recorded CAN log (hitch serve --can-log) into a link, decoded")
+    p.add_argument("file", help="the log: .asc, .blf or candump .log")
+    p.add_argument("--all", action="store_true", help="every frame (heartbeats, claims, every measurement)")
+    p.add_argument(
+        "--interval",
+        type=bounded_float("--interval", 0.0, 3600.0, unit="s", lo_open=False),
+        default=0.1,
+        help="print a measured pose at most this often, [0, 3600] s (default 0.1)",
+    )
+    p.add_argument(
+        "--stale-after",
+        type=bounded_float("--stale-after", 0.0, 10.0, unit="s"),
+        default=0.2,
+        help="the link's stale-measurement limit, (0, 10] s (default 0.2, the service's)",
+    )
+    add_model_options(p)
+    p.set_defaults(handler=_cmd_replay)

@@ -1,0 +1,72 @@
+"""CLI command ``hitch router``: a Zenoh router for a fleet of services.
+
+Services run as Zenoh clients (``hitch serve --mode client --connect tcp/ROUTER:7447 --prefix
+fleet/t07/hitch``) and operators' commands connect to the router (``hitch fleet ls --connect
+tcp/ROUTER:7447``). The router is the eclipse-zenoh package in router mode with multicast
+scouting off: it only listens on the given endpoints. Ctrl-C (SIGINT) or SIGTERM stops it.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import threading
+
+from bridge.cli.errors import CLIError
+from bridge.service.config import DEFAULT_LISTEN, validate_endpoint
+
+__all__ = ["add_commands", "router_config"]
+
+
+def router_config(listen: list[str], security: str | None = None):
+    """The zenoh.Config of a router listening on ``listen`` (no multicast scouting)."""
+    import zenoh
+
+    from bridge.service.security import apply_security
+
+    eps = [validate_endpoint(e) for e in listen]
+    z = zenoh.Config()
+    z.insert_json5("mode", json.dumps("router"))
+    z.insert_json5("listen/endpoints", json.dumps(eps))
+    z.insert_json5("connect/endpoints", "[]")
+    z.insert_json5("scouting/multicast/enabled", "false")
+    if security is not None:
+        apply_security(z, security)
+    return z
+
+
+def _cmd_router(args) -> int:
+    import zenoh
+
+    listen = args.listen or [DEFAULT_LISTEN]
+    stop = threading.Event()
+    old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        try:
+            session = zenoh.open(router_config(listen, args.security))
+        except zenoh.ZError as exc:
+            raise CLIError(f"hitch router: cannot listen on {', '.join(listen)}: {exc}") from None
+        try:
+            print(f"hitch router: ready on {', '.join(listen)} (zid {session.info.zid()})", flush=True)
+            while not stop.wait(0.5):
+                pass
+        finally:
+            session.close()
+        print("hitch router: stopped", flush=True)
+        return 0
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def add_commands(sub) -> None:
+    p = sub.add_parser("router", help="run a Zenoh router for a fleet (services and clients connect to it)")
+    p.add_argument(
+        "--listen",
+        action="append",
+        default=None,
+        metavar="ENDPOINT",
+        help=f"listen endpoint (repeatable; default {DEFAULT_LISTEN})",
+    )
+    p.add_argument("--security", default=None, help="Zenoh security config (JSON5: usrpwd, access_control, TLS)")
+    p.set_defaults(handler=_cmd_router)

@@ -1,0 +1,493 @@
+"""The black box: a rotating JSON-lines event log, a CAN bus recorder and a replay of recorded buses.
+
+:class:`EventLog` writes one JSON object per line to ``<data_dir>/log/events.jsonl`` (see
+:func:`event_log_path`), rotated by size (:class:`logging.handlers.RotatingFileHandler`:
+``events.jsonl.1`` … ``.N``, the oldest dropped). Each record carries ``t`` (wall clock, s since
+the epoch), ``seq`` (1, 2, … per log) and ``kind``:
+
+* ``request`` — who asked what and what came of it: ``key``, ``user`` (None: authorised by
+  Zenoh's access control), ``accepted`` (bool), ``error`` and ``message`` of a refusal,
+  ``motion_id`` of an accepted motion, ``request`` (the JSON body of a writing request,
+  capped at :data:`MAX_BODY_CHARS` characters);
+* ``event`` — an event of the service as published on ``<prefix>/events`` (faults, motion
+  and maneuver outcomes, mode changes …), its fields as they are, the service's time ``t``
+  kept as ``event_t``;
+* ``service`` — start and stop of the service; ``dropped`` — records lost because the
+  writer fell behind (``count``).
+
+:meth:`EventLog.record` never blocks and never raises: the record goes into a bounded queue
+that a writer thread empties, so the control thread that reports an event does no file I/O.
+Attach it with :meth:`EventLog.attach` (the service's ``event`` listener and the API's
+``on_request`` hook).
+
+:class:`CanRecorder` records every frame of a bus with python-can's own writers
+(:class:`can.Logger`: ``.asc``, ``.blf``, candump ``.log``, ``.csv`` … by the file's suffix)
+through a listener bus of its own on the same channel. :func:`replay_can_log` reads a recorded
+log (:class:`can.LogReader`) into a :class:`~bridge.link.can_link.CanLink` on a private channel,
+in the log's time, and yields what the link made of it: decoded frames, measured poses and the
+faults the link raised.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import logging.handlers
+import math
+import os
+import queue
+import threading
+import time
+import uuid
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from dataclasses import asdict, dataclass, field, is_dataclass
+from enum import Enum
+from pathlib import Path
+from typing import Any
+
+import can
+
+from planner.errors import HitchInputError
+
+__all__ = [
+    "BlackBoxError",
+    "EventLog",
+    "CanRecorder",
+    "ReplayRecord",
+    "event_log_path",
+    "read_events",
+    "follow_events",
+    "replay_can_log",
+    "WRITING_KEYS",
+    "MAX_BODY_CHARS",
+]
+
+#: request keys whose JSON body is kept in the log (they change the machine or the stored data)
+WRITING_KEYS = frozenset(
+    {
+        "goto",
+        "jog",
+        "stop",
+        "mode",
+        "presets/save",
+        "presets/go",
+        "presets/delete",
+        "maneuvers/save",
+        "maneuvers/run",
+        "maneuvers/delete",
+        "faults/ack",
+        "sim/fault",
+    }
+)
+#: a logged request body is cut to this many characters
+MAX_BODY_CHARS = 2000
+_LOG_NAME = "events.jsonl"
+
+
+class BlackBoxError(HitchInputError):
+    """A log setting or file that cannot be used; the message names it and what is allowed."""
+
+
+def event_log_path(data_dir: str | Path) -> Path:
+    """The event log of a service whose data dir is ``data_dir``: ``data_dir/log/events.jsonl``."""
+    return Path(data_dir) / "log" / _LOG_NAME
+
+
+def _plain(value: Any) -> Any:
+    """A JSON-able rendering of event values (dataclasses, enums, numpy scalars, non-finite floats)."""
+    if isinstance(value, Enum):
+        return _plain(value.value)
+    if is_dataclass(value) and not isinstance(value, type):
+        return _plain(asdict(value))
+    if isinstance(value, Mapping):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple, set, frozenset)):
+        return [_plain(v) for v in value]
+    if isinstance(value, bool) or value is None or isinstance(value, (int, str)):
+        return value
+    if isinstance(value, float):
+        return value if math.isfinite(value) else str(value)
+    try:
+        f = float(value)
+    except (TypeError, ValueError):
+        return str(value)
+    return f if math.isfinite(f) else str(f)
+
+
+class EventLog:
+    """Rotating JSON-lines log written by its own thread (see the module docstring).
+
+    Args:
+        path: the log file (its folder is created).
+        max_bytes: rotate when the file would grow beyond this, (0, 1e10] bytes.
+        backup_count: rotated files kept, 1..1000.
+        queue_size: records waiting for the writer, 1..1e6; more are counted as dropped.
+    """
+
+    def __init__(
+        self, path: str | Path, *, max_bytes: int = 5_000_000, backup_count: int = 5, queue_size: int = 10_000
+    ) -> None:
+        if isinstance(max_bytes, bool) or not isinstance(max_bytes, int) or not 0 < max_bytes <= 10**10:
+            raise BlackBoxError(f"max_bytes must be an integer in (0, 1e10], got {max_bytes!r}")
+        if isinstance(backup_count, bool) or not isinstance(backup_count, int) or not 1 <= backup_count <= 1000:
+            raise BlackBoxError(f"backup_count must be an integer in 1..1000, got {backup_count!r}")
+        if isinstance(queue_size, bool) or not isinstance(queue_size, int) or not 1 <= queue_size <= 10**6:
+            raise BlackBoxError(f"queue_size must be an integer in 1..1000000, got {queue_size!r}")
+        self.path = Path(path)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._handler = logging.handlers.RotatingFileHandler(
+                self.path, maxBytes=max_bytes, backupCount=backup_count, encoding="utf-8"
+            )
+        except OSError as exc:
+            raise BlackBoxError(f"event log {self.path}: cannot open ({exc})") from None
+        self._handler.setFormatter(logging.Formatter("%(message)s"))
+        self._queue: queue.Queue[dict[str, Any] | None] = queue.Queue(maxsize=queue_size)
+        self._lock = threading.Lock()
+        self._seq = 0
+        self._dropped = 0
+        self._dropped_reported = 0
+        self._closed = False
+        self._thread = threading.Thread(target=self._write_loop, name="hitch-blackbox", daemon=True)
+        self._thread.start()
+
+    # ------------------------------------------------------------------ recording (never blocks)
+    @property
+    def dropped(self) -> int:
+        """Records lost because the queue was full."""
+        return self._dropped
+
+    def record(self, kind: str, **fields: Any) -> bool:
+        """Queue one record; False (and counted as dropped) when the writer is behind or closed."""
+        if self._closed:
+            return False
+        rec = {"t": time.time(), "kind": kind, **fields}
+        try:
+            self._queue.put_nowait(rec)
+        except queue.Full:
+            with self._lock:
+                self._dropped += 1
+            return False
+        return True
+
+    def on_event(self, event: Mapping[str, Any]) -> None:
+        """Listener for the service's ``event`` dicts."""
+        e = dict(event)
+        if "t" in e:
+            e["event_t"] = e.pop("t")
+        e.pop("kind", None)
+        if "seq" in e:  # the service's own event sequence number; ``seq`` is the log's
+            e["event_seq"] = e.pop("seq")
+        self.record("event", **e)
+
+    def on_request(
+        self, key: str, user: str | None, payload: bytes | bytearray | memoryview | str | None, ok: bool, reply: Any
+    ) -> None:
+        """Hook for :class:`~bridge.service.api.ServiceAPI` (``on_request``): one ``request`` record."""
+        rec: dict[str, Any] = {"key": key, "user": user, "accepted": bool(ok)}
+        if isinstance(reply, Mapping):
+            if ok:
+                if reply.get("motion_id") is not None:
+                    rec["motion_id"] = reply.get("motion_id")
+            else:
+                rec["error"] = reply.get("error")
+                rec["message"] = str(reply.get("message", ""))[:MAX_BODY_CHARS]
+        if key in WRITING_KEYS and payload is not None:
+            try:
+                text = payload if isinstance(payload, str) else bytes(payload).decode("utf-8", "replace")
+            except (TypeError, ValueError):
+                text = ""
+            if text:
+                rec["request"] = text[:MAX_BODY_CHARS]
+        self.record("request", **rec)
+
+    def attach(self, service: Any) -> None:
+        """Record the events of a started :class:`~bridge.service.server.HitchService` and, when its API
+        has the ``on_request`` hook, its requests."""
+        service.add_listener("event", self.on_event)
+        api = getattr(service, "api", None)
+        if api is not None and hasattr(api, "on_request"):
+            api.on_request = self.on_request
+
+    # ------------------------------------------------------------------ writer thread
+    def _write_loop(self) -> None:
+        while True:
+            rec = self._queue.get()
+            try:
+                if rec is None:
+                    return
+                with self._lock:
+                    lost = self._dropped - self._dropped_reported
+                    self._dropped_reported = self._dropped
+                if lost:
+                    self._write({"t": time.time(), "kind": "dropped", "count": lost})
+                self._write(rec)
+            finally:
+                self._queue.task_done()
+
+    def _write(self, rec: dict[str, Any]) -> None:
+        self._seq += 1
+        line = json.dumps({"seq": self._seq, **_plain(rec)}, separators=(",", ":"), allow_nan=False)
+        self._handler.emit(logging.makeLogRecord({"msg": line, "args": None}))
+
+    def flush(self, timeout_s: float = 5.0) -> bool:
+        """Wait (bounded) until every queued record is written; True if the queue emptied."""
+        end = time.monotonic() + timeout_s
+        while self._queue.unfinished_tasks and self._thread.is_alive():
+            if time.monotonic() >= end:
+                return False
+            time.sleep(0.005)
+        return True
+
+    def close(self, timeout_s: float = 5.0) -> None:
+        """Write what is queued (bounded wait), stop the writer and close the file."""
+        if self._closed:
+            return
+        self._closed = True
+        end = time.monotonic() + timeout_s
+        while True:
+            try:
+                self._queue.put(None, timeout=max(0.01, end - time.monotonic()))
+                break
+            except queue.Full:
+                if time.monotonic() >= end:
+                    break
+        self._thread.join(max(0.0, end - time.monotonic()))
+        self._handler.close()
+
+    def __enter__(self) -> EventLog:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+# ---------------------------------------------------------------------------------------- reading
+def _log_files(path: Path) -> list[Path]:
+    """Rotated files oldest first, then the live file."""
+    rotated = []
+    for p in path.parent.glob(path.name + ".*"):
+        suffix = p.name[len(path.name) + 1 :]
+        if suffix.isdigit():
+            rotated.append((int(suffix), p))
+    return [p for _, p in sorted(rotated, reverse=True)] + ([path] if path.exists() else [])
+
+
+def _parse_line(line: str) -> dict[str, Any] | None:
+    line = line.strip()
+    if not line:
+        return None
+    try:
+        rec = json.loads(line)
+    except ValueError:
+        return {"kind": "unreadable", "line": line[:200]}
+    return rec if isinstance(rec, dict) else {"kind": "unreadable", "line": line[:200]}
+
+
+def read_events(path: str | Path) -> list[dict[str, Any]]:
+    """Every record of the log at ``path`` and its rotated files, oldest first."""
+    p = Path(path)
+    out: list[dict[str, Any]] = []
+    for f in _log_files(p):
+        try:
+            text = f.read_text(encoding="utf-8", errors="replace")
+        except OSError:
+            continue  # rotated away meanwhile
+        out.extend(r for r in map(_parse_line, text.splitlines()) if r is not None)
+    return out
+
+
+def follow_events(
+    path: str | Path, *, poll_s: float = 0.2, should_stop: Callable[[], bool] = lambda: False
+) -> Iterator[dict[str, Any]]:
+    """New records of the live log as they are written (like ``tail -F``: follows rotation)."""
+    p = Path(path)
+    f = None
+    partial = ""
+    try:
+        if p.exists():
+            f = p.open("r", encoding="utf-8", errors="replace")
+            f.seek(0, 2)  # only what is written from now on
+        while not should_stop():
+            if f is None:
+                try:
+                    f = p.open("r", encoding="utf-8", errors="replace")
+                except OSError:
+                    time.sleep(poll_s)
+                    continue
+            chunk = f.read()
+            if chunk:
+                lines = (partial + chunk).split("\n")
+                partial = lines.pop()
+                for line in lines:
+                    rec = _parse_line(line)
+                    if rec is not None:
+                        yield rec
+                continue
+            try:
+                replaced = os.stat(p).st_ino != os.fstat(f.fileno()).st_ino
+            except OSError:
+                replaced = True
+            if replaced:  # rotated: the old file was read to its end above; go on with the new one
+                f.close()
+                f, partial = None, ""
+                continue
+            time.sleep(poll_s)
+    finally:
+        if f is not None:
+            f.close()
+
+
+# ---------------------------------------------------------------------------------------- CAN
+class CanRecorder:
+    """Record every frame of ``interface``/``channel`` to ``path`` with :class:`can.Logger`.
+
+    Opens its own listener bus on the channel (the service's buses are not touched) and a
+    :class:`can.Notifier` thread. ``close()`` stops it and closes the file.
+    """
+
+    def __init__(self, path: str | Path, interface: str, channel: str | None = None) -> None:
+        from bridge.link.realtime import open_bus
+
+        self.path = Path(path)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._writer = can.Logger(str(self.path))
+        except (ValueError, OSError, ImportError) as exc:  # unknown suffix, unwritable file
+            raise BlackBoxError(
+                f"--can-log {self.path}: cannot record ({exc}); suffixes: .asc, .blf, .log (candump), .csv"
+            ) from None
+        try:
+            self._bus = open_bus(interface, channel)
+        except HitchInputError:
+            self._writer.stop()
+            raise
+        self._notifier = can.Notifier(self._bus, [self._writer], timeout=0.1)
+        self._closed = False
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        self._notifier.stop(timeout=2.0)  # stops its listeners too: the writer flushes and closes the file
+        self._bus.shutdown()
+
+    def __enter__(self) -> CanRecorder:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+@dataclass(frozen=True)
+class ReplayRecord:
+    """One replayed frame: log time ``t_s`` (from the first frame), J1939 source, message and fields.
+
+    ``pose`` is the link's measured pose (x, z [m], roll, pitch [rad]) after a measurement;
+    ``error`` the codec's reason for a frame it could not decode. A record named ``fault`` (no
+    source) lists the faults the link raised at ``t_s`` (their reasons), between or at frames.
+    """
+
+    t_s: float
+    source: int | None
+    name: str
+    fields: Mapping[str, Any] = field(default_factory=dict)
+    pose: Mapping[str, float] | None = None
+    faults: tuple[str, ...] = ()
+    error: str = ""
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "t": self.t_s,
+            "source": self.source,
+            "message": self.name,
+            "fields": _plain(self.fields),
+            "pose": None if self.pose is None else dict(self.pose),
+            "faults": list(self.faults),
+            **({"error": self.error} if self.error else {}),
+        }
+
+
+#: source address of the replaying link (J1939: off-board diagnostic-service tool #1), so the
+#: recorded planner's frames are read as another node's
+REPLAY_ADDRESS = 249
+#: the replaying link is polled at least this often through gaps of the log [s]
+_REPLAY_STEP_S = 0.01
+
+
+def _frames(path: Path) -> Iterable[can.Message]:
+    if not path.is_file():
+        raise BlackBoxError(f"CAN log {path} does not exist")
+    try:
+        return can.LogReader(str(path))
+    except (ValueError, OSError, ImportError) as exc:
+        raise BlackBoxError(
+            f"CAN log {path}: cannot read ({exc}); suffixes: .asc, .blf, .log (candump), .csv"
+        ) from None
+
+
+def replay_can_log(path: str | Path, model: Any, *, stale_after_s: float = 0.2) -> Iterator[ReplayRecord]:
+    """Feed a recorded CAN log into a :class:`~bridge.link.can_link.CanLink` in the log's time.
+
+    ``model`` is the :class:`~planner.model.kinematics.HitchModel` of the recorded machine. The
+    link runs on a private virtual channel (it sends nowhere) with its own address
+    (:data:`REPLAY_ADDRESS`), so every recorded node — the planner's references included — is
+    read as traffic. Yields one :class:`ReplayRecord` per frame, and one named ``fault`` when the
+    link raises faults (checked at least every 10 ms of log time, so a silence shows when its
+    limit passed).
+    """
+    from bridge.isobus.codec import CodecError, load_codec
+    from bridge.isobus.j1939 import J1939Error, decode_id
+    from bridge.link.can_link import CanLink
+    from bridge.link.realtime import open_bus
+    from bridge.link.state import LinkConfig
+
+    codec = load_codec()
+    cfg = LinkConfig(source_address=REPLAY_ADDRESS, stale_after_s=stale_after_s)
+    bus = open_bus("virtual", f"hitch-replay-{uuid.uuid4().hex}")
+    link = CanLink(model, bus, cfg, own_bus=True)
+    try:
+        t0: float | None = None
+        link.start(-cfg.claim_wait_s - 0.01)
+        link.poll(-0.001)  # the claim is made before the first recorded frame
+        last, seen = -0.001, len(link.faults.reasons)
+        for msg in _frames(Path(path)):
+            if t0 is None:
+                t0 = float(msg.timestamp)
+            t = float(msg.timestamp) - t0
+            try:
+                source: int | None = decode_id(msg.arbitration_id).source_address if msg.is_extended_id else None
+            except J1939Error:
+                source = None
+            step = max(_REPLAY_STEP_S, (t - last) / 1000.0)  # the link's checks run through gaps, bounded
+            while last + step < t:
+                last += step
+                link.poll(last)
+                reasons = link.faults.reasons
+                if len(reasons) > seen:
+                    yield ReplayRecord(last, None, "fault", faults=tuple(reasons[seen:]))
+                seen = len(reasons)
+            last = max(last, t)
+            state_before = link.status(t).state
+            link.handle(msg, t)
+            link.poll(t)
+            status = link.status(t)
+            if len(status.faults.reasons) > seen:
+                yield ReplayRecord(t, None, "fault", faults=tuple(status.faults.reasons[seen:]))
+            seen = len(status.faults.reasons)
+            try:
+                decoded = codec.decode_frame(msg)
+            except CodecError as exc:
+                name = "error_frame" if msg.is_error_frame else f"0x{msg.arbitration_id:08X}"
+                yield ReplayRecord(t, source, name, error=str(exc))
+                continue
+            payload = decoded.payload
+            fields = asdict(payload) if is_dataclass(payload) and not isinstance(payload, type) else {}
+            state = status.state
+            pose = None
+            if state is not None and state is not state_before:
+                p = state.pose
+                pose = {"x": float(p.x), "z": float(p.z), "roll": float(p.roll), "pitch": float(p.pitch)}
+            yield ReplayRecord(t, source, type(payload).__name__, fields, pose)
+    finally:
+        link.close()

@@ -1,0 +1,187 @@
+"""Operator-facing behaviour of ``hitch`` that needs no running service.
+
+Truth: the values we pass in (a limit name the solver itself reports, text we write into an event
+log, the options we give) must come out exactly as they are, and every refused option names
+itself and its allowed range.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import pytest
+
+from bridge.cli import service as cli_service
+from bridge.cli.main import main
+from bridge.cli.output import console, esc
+from bridge.service.blackbox import EventLog, event_log_path
+from tests.integration.service_process import free_port
+
+
+def _err_line(capsys) -> str:
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("hitch: error: "), lines
+    return lines[0]
+
+
+# ---------------------------------------------------------------------------------------- markup
+def test_a_limit_name_with_an_emoji_code_prints_as_it_is(capsys):
+    # pitch 0.6 rad is beyond the top link's stroke: the solver names "stroke:top:min" (":top:" is 🔝)
+    assert main(["ik", "--x", "0", "--z", "0.2", "--roll", "0", "--pitch", "0.6"]) == 0
+    out = capsys.readouterr().out
+    assert "stroke:top:min" in out and "🔝" not in out
+    assert main(["ik", "--x", "0", "--z", "0.2", "--roll", "0", "--pitch", "0.6", "--json"]) == 0
+    assert "stroke:top:min" in json.loads(capsys.readouterr().out)["active"]
+
+
+def test_service_replies_and_state_lines_print_data_verbatim(capsys):
+    args = argparse.Namespace(json=False)
+    cli_service._print(args, {}, "limited: workspace:x:max [red]not markup[/red] :thumbs_up:")
+    assert capsys.readouterr().out.strip() == "limited: workspace:x:max [red]not markup[/red] :thumbs_up:"
+    state = {
+        "seq": 3,
+        "mode": "auto",
+        "moving": True,
+        "motion_id": 4,
+        "pose": {"x": 0.0, "z": 0.1},
+        "ecu": {"online": True, "faults": ["stale:x:[b]"]},
+        "limited": {"workspace:x:max": "[bold]braking"},
+    }
+    cli_service._print(args, state, cli_service._state_line(state), markup=True)
+    out = capsys.readouterr().out
+    assert "stale:x:[b]" in out and "workspace:x:max: [bold]braking" in out and "❌" not in out
+
+
+def test_console_and_esc_helpers():
+    c = console(record=True, width=200)
+    c.print(f"[bold]{esc('[red]x[/red] :x:')}[/bold]")
+    assert c.export_text().strip() == "[red]x[/red] :x:"
+
+
+# ---------------------------------------------------------------------------------------- options
+def test_a_repeated_pose_key_is_refused_naming_it(capsys):
+    assert main(["plan", "--to", "x=0.01,x=0.02"]) == 2
+    line = _err_line(capsys)
+    assert "--to" in line and "'x' given twice" in line
+    assert main(["goto", "--to", "z=0.1,roll=0,z=0.2"]) == 2
+    assert "'z' given twice" in _err_line(capsys)
+
+
+@pytest.mark.parametrize(
+    "argv, needles",
+    [
+        (["jog", "--vz", "0.05", "--duration", "0"], ("--duration", "(0, 3600] s", "got 0")),
+        (["jog", "--vz", "0.05", "--duration", "-1"], ("--duration", "(0, 3600] s")),
+        (["jog", "--vz", "0.05", "--ttl-ms", "0"], ("--ttl-ms", "(0, 5000] ms")),
+        (["jog", "--vz", "0.05", "--ttl-ms", "-50"], ("--ttl-ms", "(0, 5000] ms")),
+        (["jog", "--vz", "0.05", "--ttl-ms", "nan"], ("--ttl-ms", "finite")),
+        (["stop", "--timeout", "0"], ("--timeout", "(0, 600] s")),
+        (["goto", "--to", "z=0.1", "--timeout", "-3"], ("--timeout", "(0, 600] s")),
+        (["state", "--count", "-1"], ("--count", ">= 0")),
+        (["replay", "x.asc", "--stale-after", "0"], ("--stale-after", "(0, 10] s")),
+    ],
+)
+def test_non_positive_durations_and_ttls_are_refused_with_the_range(capsys, argv, needles):
+    assert main(argv) == 2
+    line = _err_line(capsys)
+    for n in needles:
+        assert n in line
+
+
+def test_wait_and_detach_are_options_of_every_long_motion_command():
+    from bridge.cli.main import build_parser
+
+    p = build_parser()
+    for argv in (["goto", "--to", "z=0.1"], ["preset", "go", "work"], ["maneuver", "run", "headland"]):
+        a = p.parse_args([*argv, "--wait", "--detach"])
+        assert a.wait and a.detach
+        a = p.parse_args(argv)
+        assert not a.wait and not a.detach
+
+
+def test_a_service_that_is_down_says_to_start_hitch_serve_and_names_the_endpoint(capsys):
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    assert main(["stop", "--connect", ep, "--timeout", "1"]) == 2
+    line = _err_line(capsys)
+    assert "`hitch serve`" in line and ep in line and ".rs:" not in line
+
+
+def test_faults_ack_uses_the_client_method_or_the_faults_ack_key(monkeypatch, capsys):
+    calls: list = []
+
+    class Bare:  # a client without ack_faults: the generic request on faults/ack
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            pass
+
+        def request(self, key, payload=None, **kw):
+            calls.append((key, payload))
+            return {"cleared": ["stale_measurement"]}
+
+    class WithAck(Bare):
+        def ack_faults(self):
+            calls.append(("ack_faults",))
+            return {"cleared": []}
+
+    for cls in (Bare, WithAck):
+        monkeypatch.setattr(cli_service, "_client", lambda args, cls=cls: cls())
+        assert main(["faults", "ack"]) == 0
+    assert calls == [("faults/ack", {}), ("ack_faults",)]
+    out = capsys.readouterr().out
+    assert "faults acknowledged" in out and "stale_measurement" in out
+
+
+# ---------------------------------------------------------------------------------------- black box
+def test_hitch_log_prints_the_records_verbatim(tmp_path, capsys):
+    log = EventLog(event_log_path(tmp_path))
+    log.on_request("presets/save", "viewer1", b'{"name": "w"}', False, {"error": "forbidden", "message": "[b]no[/b]"})
+    log.on_event({"t": 1.0, "event": "fault", "fault": "stale_measurement", "message": "workspace:x:max"})
+    log.close()
+    assert main(["log", "--data-dir", str(tmp_path)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 2
+    assert "request presets/save by viewer1" in lines[0] and "REFUSED forbidden: [b]no[/b]" in lines[0]
+    assert "event fault" in lines[1] and "workspace:x:max" in lines[1]
+    assert main(["log", "--data-dir", str(tmp_path), "--json", "--last", "1"]) == 0
+    (only,) = capsys.readouterr().out.splitlines()
+    assert json.loads(only)["fault"] == "stale_measurement"
+
+
+def test_hitch_log_without_a_log_says_where_it_looked(tmp_path, capsys):
+    assert main(["log", "--data-dir", str(tmp_path)]) == 0
+    assert "no event log" in capsys.readouterr().out
+
+
+def test_hitch_replay_prints_decoded_frames_poses_and_faults(tmp_path, capsys):
+    import can
+    import numpy as np
+
+    from bridge.isobus.codec import load_codec
+    from bridge.isobus.messages import PositionMeasurement, RearHitchStatus
+    from planner.model.kinematics import HitchModel
+    from planner.model.sensors import SensorScaling
+
+    model = HitchModel.from_profile("thesis-t132")
+    scale = SensorScaling(model.profile)
+    c = np.rint(scale.counts_min + (model.neutral - scale.si_min) / scale.resolution).astype(int)  # neutral
+    fraction = (c[0] - scale.counts_min[0]) / (scale.counts_max[0] - scale.counts_min[0])
+    meas = PositionMeasurement(int(c[1]), int(c[2]), int(c[4]), int(c[3]), 0)
+    codec = load_codec()
+    path = tmp_path / "bus.asc"
+    with can.ASCWriter(str(path)) as w:
+        for k, p in enumerate([RearHitchStatus(position=float(fraction)), meas] * 2):
+            m = codec.encode(p, source=169)
+            m.timestamp = 100.0 + 0.05 * k
+            w.on_message_received(m)
+        m = codec.encode(meas, source=169)
+        m.timestamp = 101.0  # after a silence
+        w.on_message_received(m)
+    assert main(["replay", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "PositionMeasurement from 169" in out and "-> pose x=" in out
+    assert "FAULT" in out and "5 frames" in out
+    assert main(["replay", str(tmp_path / "missing.asc")]) == 2
+    assert "does not exist" in _err_line(capsys)

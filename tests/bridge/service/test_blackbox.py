@@ -1,0 +1,247 @@
+"""The black box (bridge.service.blackbox): event log, CAN recorder and replay.
+
+Truth: the records we put in (read back line by line as JSON), the size limit and file count we
+set for rotation, the frames we send (compared with python-can's own readers), and for the replay
+the AD calibration + forward kinematics of the counts we encoded (computed here independently
+of the link).
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+
+import can
+import numpy as np
+import pytest
+
+from bridge.isobus.codec import load_codec
+from bridge.isobus.messages import Heartbeat, PositionCounts, PositionMeasurement, RearHitchStatus
+from bridge.service.blackbox import (
+    BlackBoxError,
+    CanRecorder,
+    EventLog,
+    event_log_path,
+    follow_events,
+    read_events,
+    replay_can_log,
+)
+from planner.model.kinematics import HitchModel
+from planner.model.sensors import SensorScaling
+
+
+# ---------------------------------------------------------------------------------------- event log
+def test_records_are_json_lines_in_order_with_who_what_and_outcome(tmp_path):
+    path = event_log_path(tmp_path)
+    assert path == tmp_path / "log" / "events.jsonl"
+    log = EventLog(path)
+    log.on_request("goto", "alice", b'{"goal": {"z": 0.2}}', True, {"motion_id": 7, "duration": 1.0})
+    log.on_request("presets/save", "bob", b'{"name": "w"}', False, {"error": "forbidden", "message": "viewer"})
+    log.on_request("config", None, b"", True, {"profile": "p"})
+    log.on_event({"t": 12.5, "event": "fault", "fault": "stale_measurement", "message": "no 0xFF22"})
+    log.on_event({"t": 13.0, "event": "motion_finished", "motion_id": 7, "seq": 41})
+    log.close()
+    lines = path.read_text(encoding="utf-8").splitlines()
+    recs = [json.loads(x) for x in lines]
+    assert [r["seq"] for r in recs] == [1, 2, 3, 4, 5]
+    assert recs[0] == {**recs[0], "kind": "request", "key": "goto", "user": "alice", "accepted": True, "motion_id": 7}
+    assert json.loads(recs[0]["request"]) == {"goal": {"z": 0.2}}
+    assert recs[1]["accepted"] is False and recs[1]["error"] == "forbidden" and recs[1]["user"] == "bob"
+    assert "request" not in recs[2]  # a reading request's body is not kept
+    assert recs[3]["kind"] == "event" and recs[3]["fault"] == "stale_measurement" and recs[3]["event_t"] == 12.5
+    assert recs[4]["event"] == "motion_finished" and recs[4]["event_seq"] == 41 and recs[4]["seq"] == 5
+    assert read_events(path) == recs
+
+
+def test_the_log_rotates_by_size_and_keeps_a_bounded_number_of_files(tmp_path):
+    path = event_log_path(tmp_path)
+    log = EventLog(path, max_bytes=2000, backup_count=3)
+    for i in range(400):
+        assert log.record("test", i=i, pad="x" * 40)
+    log.close()
+    files = sorted(p.name for p in path.parent.iterdir())
+    assert files == ["events.jsonl", "events.jsonl.1", "events.jsonl.2", "events.jsonl.3"]
+    for p in path.parent.iterdir():
+        assert p.stat().st_size <= 2000
+    recs = read_events(path)
+    seqs = [r["seq"] for r in recs]
+    assert seqs == sorted(seqs) and seqs[-1] == 400  # oldest first, the newest kept
+    assert len(recs) < 400  # the oldest were dropped with the oldest file
+    assert [r["i"] for r in recs] == [s - 1 for s in seqs]
+
+
+def test_record_never_blocks_and_counts_what_it_drops(tmp_path):
+    log = EventLog(event_log_path(tmp_path), queue_size=5)
+    gate = threading.Event()
+    real = log._write
+
+    def slow_write(rec):
+        gate.wait(5.0)
+        real(rec)
+
+    log._write = slow_write  # the writer is stuck on the disk
+    t0 = time.monotonic()
+    results = [log.record("test", i=i) for i in range(50)]
+    assert time.monotonic() - t0 < 1.0  # the caller (the control thread) was never held up
+    assert results.count(False) == log.dropped > 0
+    gate.set()
+    log.close()
+    recs = read_events(event_log_path(tmp_path))
+    dropped = [r for r in recs if r["kind"] == "dropped"]
+    assert sum(r["count"] for r in dropped) == log.dropped
+    assert [r["i"] for r in recs if r["kind"] == "test"] == [i for i, ok in enumerate(results) if ok]
+
+
+def test_non_json_values_are_rendered_and_bad_settings_refused(tmp_path):
+    log = EventLog(event_log_path(tmp_path))
+    log.record("test", value=float("nan"), arr=np.float64(0.5), t2=(1, 2))
+    log.close()
+    (rec,) = read_events(event_log_path(tmp_path))
+    assert rec["value"] == "nan" and rec["arr"] == 0.5 and rec["t2"] == [1, 2]
+    for kw, needle in (({"max_bytes": 0}, "max_bytes"), ({"backup_count": 0}, "backup_count")):
+        with pytest.raises(BlackBoxError, match=needle):
+            EventLog(event_log_path(tmp_path), **kw)
+
+
+def test_follow_yields_new_records_across_a_rotation(tmp_path):
+    path = event_log_path(tmp_path)
+    log = EventLog(path, max_bytes=600, backup_count=2)
+    log.record("old")
+    assert log.flush()
+    got: list[dict] = []
+    end = time.monotonic() + 10.0
+
+    def reader() -> None:
+        for rec in follow_events(path, poll_s=0.02, should_stop=lambda: len(got) >= 20 or time.monotonic() > end):
+            got.append(rec)
+
+    th = threading.Thread(target=reader)
+    th.start()
+    time.sleep(0.2)
+    for i in range(20):
+        log.record("new", i=i, pad="y" * 40)
+        time.sleep(0.01)
+    log.close()
+    th.join(12.0)
+    assert [r["i"] for r in got] == list(range(20))  # nothing lost or repeated; the old record not re-read
+    assert (path.parent / "events.jsonl.1").exists()  # it did rotate meanwhile
+
+
+def test_the_api_hook_sees_every_request_and_its_failure_cannot_fail_the_request():
+    from bridge.service.api import ServiceAPI
+
+    class Motion:  # what the `config` request reads; a goto with a bad body never reaches the motion
+        mode = "auto"
+
+    api = ServiceAPI(Motion(), None, None, {"profile": "p"})  # type: ignore[arg-type]
+    seen: list[tuple] = []
+    api.on_request = lambda *a: seen.append(a)
+    ok, reply = api.handle("config", b"{}", "alice")
+    assert ok and seen[-1][:2] == ("config", "alice") and seen[-1][3] is True
+    ok, reply = api.handle("goto", b"{not json", None)
+    assert not ok and seen[-1][0] == "goto" and seen[-1][3] is False and seen[-1][4] == reply
+
+    def broken(*a):
+        raise RuntimeError("recorder bug")
+
+    api.on_request = broken
+    assert api.handle("config", b"{}", None)[0]
+
+
+# ---------------------------------------------------------------------------------------- CAN
+def _frames() -> list[can.Message]:
+    codec = load_codec()
+    return [
+        codec.encode(Heartbeat(7), source=169),
+        codec.encode(PositionCounts(300, 400, 500, 600, 700), source=166),
+        codec.encode(PositionMeasurement(401, 502, 703, 604, 0), source=169),
+        can.Message(arbitration_id=0x18FEEEAB, is_extended_id=True, data=bytes(range(8))),
+    ]
+
+
+@pytest.mark.parametrize("suffix", [".asc", ".log", ".blf"])
+def test_recorder_round_trip_through_python_can_readers(tmp_path, suffix):
+    channel = f"bb-rec-{suffix[1:]}"
+    path = tmp_path / f"bus{suffix}"
+    rec = CanRecorder(path, "virtual", channel)
+    sender = can.Bus(interface="virtual", channel=channel)
+    try:
+        sent = _frames()
+        for f in sent:
+            sender.send(f)
+            time.sleep(0.01)
+        time.sleep(0.3)  # the notifier thread writes them
+    finally:
+        rec.close()
+        sender.shutdown()
+    back = [m for m in can.LogReader(str(path)) if not m.is_error_frame]
+    assert [(m.arbitration_id, bytes(m.data), m.is_extended_id) for m in back] == [
+        (m.arbitration_id, bytes(m.data), True) for m in sent
+    ]
+
+
+def test_recorder_refuses_an_unknown_suffix(tmp_path):
+    with pytest.raises(BlackBoxError, match="--can-log"):
+        CanRecorder(tmp_path / "bus.unknownformat", "virtual", "bb-bad")
+
+
+def test_replay_decodes_known_frames_into_the_measured_pose_and_raises_a_stale_fault(tmp_path):
+    model = HitchModel.from_profile("thesis-t132")
+    scale = SensorScaling(model.profile)
+    counts = np.rint(scale.counts_min + (model.neutral - scale.si_min) / scale.resolution).astype(int)
+    counts[1] += 12  # tilt off neutral: a non-trivial roll
+    lift_min, lift_max = float(scale.counts_min[0]), float(scale.counts_max[0])
+    fraction = (counts[0] - lift_min) / (lift_max - lift_min)
+    codec = load_codec()
+    meas = PositionMeasurement(int(counts[1]), int(counts[2]), int(counts[4]), int(counts[3]), 0)
+    frames: list[can.Message] = []
+    t = 1000.0
+    for k in range(20):  # 200 ms of a healthy ECU: 100 Hz measurement, hitch status and heartbeat at 10 Hz
+        tk = t + 0.01 * k
+        frames.append(codec.encode(meas, source=169))
+        frames[-1].timestamp = tk
+        if k % 10 == 0:
+            for p in (RearHitchStatus(position=fraction), Heartbeat(k // 10)):
+                frames.append(codec.encode(p, source=169))
+                frames[-1].timestamp = tk
+    ref = codec.encode(PositionCounts(*map(int, counts)), source=166)
+    ref.timestamp = t + 0.2
+    frames.append(ref)
+    late = codec.encode(meas, source=169)  # after a 600 ms silence: the link must call it stale
+    late.timestamp = t + 0.8
+    frames.append(late)
+    path = tmp_path / "bus.log"
+    with can.CanutilsLogWriter(str(path), channel="vcan0") as w:
+        for f in frames:
+            w.on_message_received(f)
+    everything = list(replay_can_log(path, model))
+    fault_recs = [r for r in everything if r.name == "fault"]
+    recs = [r for r in everything if r.name != "fault"]
+    assert len(recs) == len(frames)
+    assert recs[0].t_s == 0.0 and recs[-1].t_s == pytest.approx(0.8, abs=1e-6)
+    expected = model.forward(scale.to_si(counts)).pose  # AD calibration + FK of what we encoded
+    poses = [r.pose for r in recs if r.pose is not None]
+    assert poses, "no measured pose came out of the replay"
+    for got in poses:
+        for k in ("x", "z", "roll", "pitch"):
+            assert got[k] == pytest.approx(getattr(expected, k), abs=1e-9)
+    refs = [r for r in recs if r.name == "PositionCounts"]
+    assert len(refs) == 1 and refs[0].source == 166 and refs[0].fields["tilt"] == counts[1]
+    assert [r.name for r in recs[:3]] == ["PositionMeasurement", "RearHitchStatus", "Heartbeat"]
+    # the last hitch status (the lift) came at 0.1 s: the 0.2 s stale limit passes at 0.3 s, in the silence
+    assert fault_recs, "the 600 ms silence raised no fault"
+    first = fault_recs[0]
+    assert first.t_s == pytest.approx(0.3, abs=0.025)
+    assert any("stale" in f or "no valid" in f for f in first.faults) and "lift" in first.faults[0]
+    assert json.dumps([r.to_json() for r in everything])  # JSON-able for `hitch replay --json`
+
+
+def test_replay_of_a_missing_or_unknown_file_is_a_clear_error(tmp_path):
+    model = HitchModel.from_profile("thesis-t132")
+    with pytest.raises(BlackBoxError, match="does not exist"):
+        list(replay_can_log(tmp_path / "nope.asc", model))
+    bad = tmp_path / "bus.weird"
+    bad.write_text("x", encoding="utf-8")
+    with pytest.raises(BlackBoxError, match="cannot read"):
+        list(replay_can_log(bad, model))

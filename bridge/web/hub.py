@@ -5,8 +5,15 @@ the newest state message (a slow page skips states, it never builds a backlog: w
 always the latest) and a bounded queue of events (events are not skipped unless a page falls
 200 behind). Commands ``{"id", "key", "payload"}`` are answered ``{"type": "reply", "id", "ok",
 "data"}`` through the service handler, run on a thread pool by the ``call`` coroutine the server
-hands in. Jog commands of one page are serialised: while one is in the handler only the newest
-waits (older ones are answered ``busy``), so a page holding a jog button never queues motion.
+hands in, as the page's user. Jog commands of one page are serialised: while one is in the handler
+only the newest waits (older ones are answered ``busy``), so a page holding a jog button never
+queues motion. ``stop`` is never answered ``busy`` and never waits for the page's other commands.
+
+With a login (a :class:`~.sessions.SessionStore`), a page's WebSocket belongs to its session:
+every command but ``stop`` needs the session still open (otherwise it is answered
+``unauthenticated`` and the socket closes with 4401) and the session's CSRF token in the
+command's ``csrf`` field (otherwise ``forbidden``); a page whose session ends (expiry, logout)
+is closed with 4401 too.
 """
 
 from __future__ import annotations
@@ -18,14 +25,17 @@ import re
 from collections.abc import Awaitable, Callable
 from typing import Any
 
+from bridge.web.sessions import Session, SessionStore
 from bridge.web.settings import json_safe
 from bridge.web.websocket import WebSocket
 from planner.errors import HitchInputError
 
-__all__ = ["ClientHub", "Call", "CommandError", "EVENTS_KEPT", "MAX_PENDING", "API_NAME"]
+__all__ = ["ClientHub", "Call", "CommandError", "EVENTS_KEPT", "MAX_PENDING", "API_NAME", "CLOSE_SESSION_ENDED"]
 
-#: ``call(name, body_bytes) -> (ok, reply)`` on the server's loop
-Call = Callable[[str, bytes], Awaitable[tuple[bool, dict]]]
+#: ``call(name, body_bytes, user) -> (ok, reply)`` on the server's loop
+Call = Callable[[str, bytes, "str | None"], Awaitable[tuple[bool, dict]]]
+#: WebSocket close code when the page's session ended or was never valid (4000-4999: application codes)
+CLOSE_SESSION_ENDED = 4401
 #: events kept per page (and for pages that connect later)
 EVENTS_KEPT = 200
 #: commands of one page in the handler at once; more are answered ``busy``
@@ -41,9 +51,11 @@ class CommandError(HitchInputError):
 class _Client:
     """One page: the newest state (a slot), pending events, jog serialisation, running tasks."""
 
-    def __init__(self, ws: WebSocket, state: str | None):
+    def __init__(self, ws: WebSocket, state: str | None, session: Session | None, user: str | None):
         self.ws = ws
         self.state = state
+        self.session = session
+        self.user = user
         self.events: collections.deque[str] = collections.deque(maxlen=EVENTS_KEPT)
         self.wake = asyncio.Event()
         self.jog_busy = False
@@ -56,9 +68,10 @@ class _Client:
 class ClientHub:
     """All connected pages of one web server (use from its event loop only)."""
 
-    def __init__(self, call: Call, hello: dict):
+    def __init__(self, call: Call, hello: dict, sessions: SessionStore | None = None):
         self._call = call
         self.hello = hello
+        self.sessions = sessions
         self._clients: set[_Client] = set()
         self.state_text: str | None = None
 
@@ -84,19 +97,36 @@ class ClientHub:
             await c.ws.close(code, reason)
             c.wake.set()
 
+    async def close_session(self, token: str, reason: str = "logged out") -> None:
+        """Close the pages of one session (4401), e.g. at logout."""
+        for c in list(self._clients):
+            if c.session is not None and c.session.token == token:
+                await c.ws.close(CLOSE_SESSION_ENDED, reason)
+                c.wake.set()
+
+    def _session_alive(self, c: _Client) -> bool:
+        return c.session is None or (self.sessions is not None and self.sessions.get(c.session.token) is not None)
+
     # ------------------------------------------------------------------ one page
-    async def serve(self, ws: WebSocket) -> None:
-        """Run one page's session until its WebSocket closes."""
-        client = _Client(ws, self.state_text)
+    async def serve(self, ws: WebSocket, session: Session | None = None, user: str | None = None) -> None:
+        """Run one page until its WebSocket closes; its commands run as ``session.user`` (with a
+        login) or ``user`` (without)."""
+        if self.sessions is not None and session is None:
+            await ws.close(CLOSE_SESSION_ENDED, "log in first")
+            return
+        who = session.user if session is not None else user
+        client = _Client(ws, self.state_text, session, who)
         self._clients.add(client)
         sender = asyncio.create_task(self._sender(client))
+        hello = {**self.hello, "user": who, "role": None if session is None else session.role}
+        hello["login"] = self.sessions is not None
         try:
-            await ws.send_text(json.dumps({"type": "hello", "data": json_safe(self.hello)}, allow_nan=False))
+            await ws.send_text(json.dumps({"type": "hello", "data": json_safe(hello)}, allow_nan=False))
             while True:
                 msg = await ws.recv()
                 if msg is None:
                     break
-                if len(client.tasks) >= MAX_PENDING:
+                if len(client.tasks) >= MAX_PENDING and not _is_stop(msg):
                     await self._reply(
                         client,
                         None,
@@ -120,6 +150,9 @@ class ClientHub:
             while not c.ws.closed:
                 await c.wake.wait()
                 c.wake.clear()
+                if not self._session_alive(c):
+                    await c.ws.close(CLOSE_SESSION_ENDED, "session expired: log in again")
+                    return
                 while c.events:
                     await c.ws.send_text(c.events.popleft())
                 if c.state is not None:
@@ -134,7 +167,7 @@ class ClientHub:
             data = json.loads(msg)
             if not isinstance(data, dict):
                 raise CommandError("a command is a JSON object {id, key, payload}")
-            rid, key, payload = data.get("id"), data.get("key"), data.get("payload", {})
+            rid, key, payload, csrf = data.get("id"), data.get("key"), data.get("payload", {}), data.get("csrf")
             if rid is not None and (isinstance(rid, bool) or not isinstance(rid, (int, str))):
                 rid = None
                 raise CommandError("id must be an integer or a string")
@@ -144,10 +177,25 @@ class ClientHub:
         except (ValueError, TypeError, RecursionError) as exc:
             await self._reply(c, rid, False, {"error": "bad_request", "message": f"websocket command: {exc}"})
             return
+        if key != "stop" and c.session is not None:  # stop needs no session: anyone may stop the hitch
+            if not self._session_alive(c):
+                await self._reply(
+                    c, rid, False, {"error": "unauthenticated", "message": f"{key}: session expired; log in again"}
+                )
+                await c.ws.close(CLOSE_SESSION_ENDED, "session expired: log in again")
+                return
+            if not c.session.csrf_ok(csrf):
+                await self._reply(
+                    c,
+                    rid,
+                    False,
+                    {"error": "forbidden", "message": f"{key}: missing or wrong CSRF token (reload the page)"},
+                )
+                return
         if key == "jog":
             await self._jog(c, rid, body)
             return
-        ok, reply = await self._call(key, body)
+        ok, reply = await self._call(key, body, c.user)
         await self._reply(c, rid, ok, reply)
 
     async def _jog(self, c: _Client, rid, body: bytes) -> None:
@@ -162,7 +210,7 @@ class ClientHub:
         try:
             nxt: tuple[Any, bytes] | None = (rid, body)
             while nxt is not None:
-                ok, reply = await self._call("jog", nxt[1])
+                ok, reply = await self._call("jog", nxt[1], c.user)
                 await self._reply(c, nxt[0], ok, reply)
                 nxt, c.jog_next = c.jog_next, None
         finally:
@@ -175,3 +223,12 @@ class ClientHub:
             )
         except (ConnectionError, OSError):
             pass
+
+
+def _is_stop(msg: str | bytes) -> bool:
+    """Does this raw command look like a ``stop`` (so it skips the pending-commands limit)?"""
+    try:
+        data = json.loads(msg)
+    except (ValueError, TypeError, RecursionError):
+        return False
+    return isinstance(data, dict) and data.get("key") == "stop"

@@ -12,7 +12,9 @@ One asyncio loop in its own thread serves:
 * ``GET /api/state`` — the latest state message; ``GET /api/info`` — user and key prefix;
 * ``GET /ws`` — a WebSocket (:class:`~.hub.ClientHub`): every state message the service
   publishes (50 Hz; a slow page gets the newest, never a backlog), every event, and command
-  replies.
+  replies;
+* ``GET /api/session``, ``POST /api/login`` ``{"user", "password"}``, ``POST /api/logout`` — the
+  login (:mod:`.sessions`), when the terminal has accounts.
 
 The state reaches the server through :meth:`WebServer.publish_state` /
 :meth:`WebServer.publish_event` (thread-safe, never blocking). :func:`start_http` connects them
@@ -22,8 +24,13 @@ same from the Zenoh publications for a server outside the service process.
 
 Security: loopback unless another address is configured; requests whose ``Host`` is not this
 server (DNS rebinding) or whose ``Origin`` is another site (CSRF, cross-site WebSocket) are
-refused; commands run as the configured ``user`` and the service's access policy refuses them
-the way it refuses that user over Zenoh.
+refused. With access control on, the terminal has a login (:class:`~.sessions.Accounts`, the
+users of the security file): everything but the page's static files, ``/api/session``,
+``/api/login`` and ``stop`` needs a session cookie, every state-changing request the session's
+CSRF token, and commands run as the logged-in user, whom the service's access policy refuses the
+way it refuses that user over Zenoh. Without access control there is no login and commands run
+as the configured ``user`` (normally none). ``stop`` runs on a thread of its own: it never waits
+for other requests of the terminal.
 """
 
 from __future__ import annotations
@@ -33,13 +40,24 @@ import functools
 import json
 import logging
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
 from bridge.web.http import HttpError, HttpRequest, json_response, read_request, response_bytes
 from bridge.web.hub import API_NAME, ClientHub
+from bridge.web.sessions import (
+    Accounts,
+    LoginError,
+    LoginThrottle,
+    Session,
+    SessionStore,
+    clear_cookie,
+    cookie_name,
+    cookie_value,
+    set_cookie,
+)
 from bridge.web.settings import ERROR_STATUS, WebSettings, host_allowed, json_safe, origin_allowed, parse_address
 from bridge.web.websocket import WebSocket, WebSocketError, accept_key
 from planner.errors import HitchError, HitchInputError
@@ -74,8 +92,39 @@ class BindTimeout(HitchError, TimeoutError):
     """The web server's loop did not bind its address in time (an ``OSError``, like a taken port)."""
 
 
+#: how long a failed login waits before its answer [s] (slows guessing on one connection)
+LOGIN_FAILURE_DELAY_S = 0.5
+#: the login routes (answered by the terminal, not the service)
+_LOGIN_ROUTES = ("/api/session", "/api/login", "/api/logout")
+
+
 def _error(status: int, code: str, message: str, keep_alive: bool = True) -> bytes:
     return json_response(status, {"error": code, "message": message}, keep_alive=keep_alive)
+
+
+def _json(status: int, obj: Any, keep_alive: bool, headers: dict | None = None) -> bytes:
+    body = json.dumps(json_safe(obj), allow_nan=False, separators=(",", ":")).encode("utf-8")
+    return response_bytes(status, body, "application/json", headers=headers, keep_alive=keep_alive)
+
+
+def _login_fields(body: bytes) -> tuple[str, str]:
+    """``{"user", "password"}`` from a login body; :class:`LoginError` (400) naming the field otherwise."""
+    try:
+        data = json.loads(body or b"null")
+    except (ValueError, RecursionError):
+        raise LoginError("login: the body must be JSON {user, password}", 400, "bad_request") from None
+    if not isinstance(data, dict):
+        raise LoginError("login: the body must be a JSON object {user, password}", 400, "bad_request")
+    extra = sorted(set(data) - {"user", "password"})
+    if extra:
+        raise LoginError(f"login: unknown field {extra[0]!r} (allowed: user, password)", 400, "bad_request")
+    out = []
+    for name, limit in (("user", 64), ("password", 256)):
+        v = data.get(name)
+        if not isinstance(v, str) or not v or len(v) > limit:
+            raise LoginError(f"login: {name} must be a string of 1-{limit} characters", 400, "bad_request")
+        out.append(v)
+    return out[0], out[1]
 
 
 class WebServer:
@@ -85,19 +134,32 @@ class WebServer:
         handler: the service API handler (:data:`Handler`), called on a worker thread.
         settings: address, user, static files (:class:`~.settings.WebSettings`).
         info: extra fields for ``GET /api/info`` and the WebSocket hello (e.g. the key prefix).
+        accounts: who may log in (:class:`~.sessions.Accounts`); None: no login, commands run as
+            ``settings.user``.
     """
 
-    def __init__(self, handler: Handler, settings: WebSettings | None = None, *, info: dict | None = None):
+    def __init__(
+        self,
+        handler: Handler,
+        settings: WebSettings | None = None,
+        *,
+        info: dict | None = None,
+        accounts: Accounts | None = None,
+    ):
         if not callable(handler):
             raise WebServerError("handler must be callable as handle(name, payload_bytes, user)")
         self.handler = handler
         self.settings = settings or WebSettings()
-        self.info = {"user": self.settings.user, **(info or {})}
+        self.accounts = accounts
+        self.sessions = SessionStore(self.settings.session_ttl_s) if accounts is not None else None
+        self.throttle = LoginThrottle()
+        self.info = {"user": None if accounts is not None else self.settings.user, **(info or {})}
         self._loop: asyncio.AbstractEventLoop | None = None
         self._server: asyncio.base_events.Server | None = None
         self._thread: threading.Thread | None = None
         self._pool = ThreadPoolExecutor(self.settings.workers, thread_name_prefix="hitch-web")
-        self._hub = ClientHub(self._call, self.info)
+        self._stop_pool = ThreadPoolExecutor(1, thread_name_prefix="hitch-web-stop")  # stop never queues
+        self._hub = ClientHub(self._call, self.info, self.sessions)
         self._writers: set[asyncio.StreamWriter] = set()
         self._state: dict | None = None
         self._address: tuple[str, int] | None = None
@@ -188,6 +250,7 @@ class WebServer:
         thread.join(timeout_s)
         self._thread = None
         self._pool.shutdown(wait=False, cancel_futures=True)
+        self._stop_pool.shutdown(wait=False, cancel_futures=True)
 
     def add_close_hook(self, fn: Callable[[], None]) -> None:
         """Call ``fn()`` first thing in :meth:`close` (e.g. to remove a state listener)."""
@@ -274,11 +337,77 @@ class WebServer:
             )
         return None
 
+    # ------------------------------------------------------------------ login
+    @property
+    def login_required(self) -> bool:
+        return self.sessions is not None
+
+    def _cookie(self) -> str:
+        return cookie_name(self.address[1])
+
+    def _session(self, req: HttpRequest) -> Session | None:
+        if self.sessions is None:
+            return None
+        return self.sessions.get(cookie_value(req.header("cookie"), self._cookie()))
+
+    def _session_reply(self, s: Session | None) -> dict:
+        store = self.sessions
+        return {
+            "login": store is not None,
+            "authenticated": s is not None,
+            "user": s.user if s is not None else (None if store is not None else self.settings.user),
+            "role": None if s is None else s.role,
+            "csrf": None if s is None else s.csrf,
+            "expires_in_s": None if s is None or store is None else round(s.remaining_s(store.clock()), 1),
+        }
+
+    async def _login_route(self, req: HttpRequest) -> bytes:
+        ka = req.keep_alive
+        if req.path == "/api/session":
+            if req.method != "GET":
+                return _error(405, "bad_request", "use GET for /api/session", ka)
+            return _json(200, self._session_reply(self._session(req)), ka)
+        if req.method != "POST":
+            return _error(405, "bad_request", f"use POST for {req.path}", ka)
+        if req.path == "/api/logout":
+            s = self._session(req)
+            if s is not None and not s.csrf_ok(req.header("x-csrf-token")):
+                return _error(403, "forbidden", "logout: missing or wrong X-CSRF-Token header", ka)
+            if s is not None and self.sessions is not None:
+                self.sessions.close(s.token)
+                await self._hub.close_session(s.token)
+            headers = {"Set-Cookie": clear_cookie(self._cookie())} if self.sessions is not None else None
+            return _json(200, {"logged_out": s is not None}, ka, headers)
+        # /api/login
+        if self.accounts is None or self.sessions is None:
+            return _error(404, "not_found", "this terminal has no login (access control is off)", ka)
+        if req.header("content-type").split(";")[0].strip().lower() != "application/json":
+            return _error(415, "bad_request", "send the login with Content-Type: application/json", ka)
+        user = ""
+        try:
+            user, password = _login_fields(req.body)
+            self.throttle.check(user)
+            role = self.accounts.verify(user, password)
+        except LoginError as exc:
+            if exc.code in ("unauthenticated", "forbidden") and user:
+                self.throttle.failed(user)
+                log.warning("operator terminal: failed login for %r", user)
+                await asyncio.sleep(LOGIN_FAILURE_DELAY_S)
+            return _error(exc.status, exc.code, str(exc), ka)
+        self.throttle.succeeded(user)
+        s = self.sessions.open(user, role)
+        log.info("operator terminal: %s logged in as %s", user, role)
+        headers = {"Set-Cookie": set_cookie(self._cookie(), s.token, self.sessions.ttl_s)}
+        return _json(200, self._session_reply(s), ka, headers)
+
+    # ------------------------------------------------------------------ routes
     async def _respond(self, req: HttpRequest) -> bytes:
         ka = req.keep_alive
         refusal = self._check(req)
         if refusal is not None:
             return refusal
+        if req.path in _LOGIN_ROUTES:
+            return await self._login_route(req)
         if req.path in _STATIC:
             if req.method not in ("GET", "HEAD"):
                 return _error(405, "bad_request", f"{req.method} is not allowed on {req.path}", ka)
@@ -297,12 +426,18 @@ class WebServer:
             )
         if req.path == "/favicon.ico":
             return response_bytes(204, keep_alive=ka)
+        session = self._session(req)
+        if self.login_required and session is None and not (req.path == "/api/stop" and req.method == "POST"):
+            return _error(401, "unauthenticated", f"{req.path}: log in first (POST /api/login)", ka)
         if req.path == "/api/state" and req.method == "GET":
             if self._state is None:
                 return _error(503, "unavailable", "the service has published no state yet", ka)
             return json_response(200, json_safe(self._state), keep_alive=ka)
         if req.path == "/api/info" and req.method == "GET":
-            return json_response(200, json_safe(self.info), keep_alive=ka)
+            info = dict(self.info)
+            if session is not None:
+                info.update(user=session.user, role=session.role)
+            return json_response(200, json_safe(info), keep_alive=ka)
         if not req.path.startswith("/api/"):
             return _error(404, "not_found", f"nothing at {req.path!r}", ka)
         name = req.path[len("/api/") :]
@@ -313,15 +448,20 @@ class WebServer:
         ctype = req.header("content-type").split(";")[0].strip().lower()
         if req.body and ctype != "application/json":
             return _error(415, "bad_request", "send the request body with Content-Type: application/json", ka)
-        ok, reply = await self._call(name, req.body)
+        if session is not None and name != "stop" and not session.csrf_ok(req.header("x-csrf-token")):
+            return _error(403, "forbidden", f"{name}: missing or wrong X-CSRF-Token header (from the login)", ka)
+        user = session.user if session is not None else (None if self.login_required else self.settings.user)
+        ok, reply = await self._call(name, req.body, user)
         status = 200 if ok else ERROR_STATUS.get(str(reply.get("error")), 400)
         return json_response(status, json_safe(reply), keep_alive=ka)
 
-    async def _call(self, name: str, body: bytes) -> tuple[bool, dict]:
-        """The service handler on a worker thread (it may plan for tens of milliseconds)."""
+    async def _call(self, name: str, body: bytes, user: str | None) -> tuple[bool, dict]:
+        """The service handler on a worker thread (it may plan for tens of milliseconds); ``stop``
+        on its own thread, so it never waits behind other requests."""
         loop = asyncio.get_running_loop()
+        pool = self._stop_pool if name == "stop" else self._pool
         try:
-            ok, reply = await loop.run_in_executor(self._pool, self.handler, name, body, self.settings.user)
+            ok, reply = await loop.run_in_executor(pool, self.handler, name, body, user)
         except Exception as exc:  # noqa: BLE001 — the handler promises not to raise; never trust it blindly
             log.exception("handler raised for %s", name)
             return False, {"error": "internal", "message": f"{name}: internal error {type(exc).__name__}"}
@@ -349,7 +489,8 @@ class WebServer:
             ).encode("ascii")
         )
         await writer.drain()
-        await self._hub.serve(WebSocket(reader, writer))
+        session = self._session(req)  # None with a login: the hub closes the socket with 4401 (log in first)
+        await self._hub.serve(WebSocket(reader, writer), session, self.settings.user)
 
 
 def attach_zenoh(session: Any, prefix: str, server: WebServer) -> tuple[Any, Any]:
@@ -376,37 +517,69 @@ def attach_zenoh(session: Any, prefix: str, server: WebServer) -> tuple[Any, Any
     )
 
 
+def _role_of(policy: Any) -> Callable[[str], str | None]:
+    """The role a user has under the service's access policy (duck-typed: ``operators``,
+    ``viewers``); without a policy every authenticated user may do everything (an operator)."""
+    if policy is None:
+        return lambda _user: "operator"
+    operators, viewers = tuple(getattr(policy, "operators", ())), tuple(getattr(policy, "viewers", ()))
+    return lambda user: "operator" if user in operators else "viewer" if user in viewers else None
+
+
 def start_http(
-    service: Any, addr: str = "127.0.0.1:8080", *, user: str | None = None, extra_hosts: tuple[str, ...] = ()
+    service: Any,
+    addr: str = "127.0.0.1:8080",
+    *,
+    user: str | None = None,
+    extra_hosts: tuple[str, ...] = (),
+    users: Mapping[str, str] | None = None,
 ) -> WebServer:
     """Start the operator terminal of a running :class:`bridge.service.server.HitchService`.
 
     Commands go to ``service.api.handle``; state and events come from
-    ``service.add_listener("state" | "event", …)`` (the dicts the service publishes on Zenoh),
+    ``service.add_listener("state" | "event", …)`` (the dicts the service puts on Zenoh),
     or, without it, from the Zenoh publications through ``service.session`` (:func:`attach_zenoh`).
-    When the service's API has an access policy, ``user`` must name the user the page's commands
-    run as (:class:`WebServerError`, a ``ValueError``, otherwise: the page never bypasses the
-    policy). Returns the started :class:`WebServer`; ``close()`` it before the service.
+
+    ``users``: the ``user -> password`` dictionary of the service's security file. Given (not
+    empty), the terminal has a login against it; roles come from the API's access policy
+    (``service.api.policy``: operators move, viewers watch and stop; users in no role cannot log
+    in; without a policy every user is an operator) and commands run as the logged-in user.
+    ``user`` (``--http-user``) is then not used. When the API has an access policy but no
+    ``users`` are given, :class:`WebServerError` (a ``ValueError``): a terminal without a login
+    would let anyone who opens the page act as one fixed user. Without access control and
+    ``users`` there is no login; commands run as ``user`` (normally None). Returns the started
+    :class:`WebServer`; ``close()`` it before the service.
     """
     api = getattr(service, "api", None) or service
     handler = getattr(api, "handle", None)
     if not callable(handler):
         raise WebServerError("service has no API handler (expected service.api.handle(key, payload, user))")
-    if getattr(api, "policy", None) is not None and user is None:
+    policy = getattr(api, "policy", None)
+    accounts: Accounts | None = None
+    if users:
+        accounts = Accounts(users, _role_of(policy))
+        if user is not None:
+            log.warning("http_user %r is not used: the operator terminal has a login (access control is on)", user)
+            user = None
+    elif policy is not None:
         raise WebServerError(
-            "http_user: the service has an access policy; name the user the page's commands run as "
-            "(an operator to move the hitch, a viewer to watch)"
+            "http login: the service has an access policy, so the operator terminal needs a login against the "
+            "user/password file of the security file (transport/auth/usrpwd/dictionary_file); http_user alone "
+            "would let anyone who opens the page act as that user"
         )
     host, port = parse_address(addr)
     config = getattr(service, "config", None)
-    if getattr(config, "security", None) is not None and getattr(api, "policy", None) is None:
+    if getattr(config, "security", None) is not None and policy is None:
         log.warning(
             "the service runs with a Zenoh security config but its API has no access policy: the "
             "operator terminal's commands are not checked against the access-control list"
         )
     prefix = getattr(config, "prefix", None)
     server = WebServer(
-        handler, WebSettings(host=host, port=port, user=user, extra_hosts=tuple(extra_hosts)), info={"prefix": prefix}
+        handler,
+        WebSettings(host=host, port=port, user=user, extra_hosts=tuple(extra_hosts)),
+        info={"prefix": prefix},
+        accounts=accounts,
     ).start()
     try:
         if callable(getattr(service, "add_listener", None)):

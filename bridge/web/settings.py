@@ -1,7 +1,7 @@
 """Settings of the operator terminal's web server and its request checks.
 
 * :class:`WebSettings` — listen address (loopback by default), the user the page's commands
-  run as, extra accepted host names;
+  run as without a login, extra accepted host names, the login session's lifetime;
 * :func:`parse_address` — ``HOST:PORT`` → (host, port);
 * :func:`host_allowed` / :func:`origin_allowed` — DNS-rebinding and cross-site (CSRF,
   cross-site WebSocket hijacking) protection: a page from another site cannot drive the hitch
@@ -50,6 +50,9 @@ ERROR_STATUS = {
     "invalid": 422,
     "store": 500,
     "internal": 500,
+    # the terminal's own (login): no or an expired session, too many failed logins
+    "unauthenticated": 401,
+    "too_many_logins": 429,
 }
 _USER = re.compile(r"[^\s:]{1,64}")
 
@@ -89,10 +92,11 @@ class WebSettings:
     """Where to listen and whom the page's commands run as.
 
     ``host``/``port``: the listen address (loopback unless configured; port 0 = any free port).
-    ``user``: the user name passed to the service handler, whose access policy decides (None
-    only when the service has no access policy). ``extra_hosts``: further ``Host`` header values
+    ``user``: the user name passed to the service handler when the terminal has no login (with a
+    login the logged-in user is passed). ``extra_hosts``: further ``Host`` header values
     accepted, e.g. ``"cab-display.local:8080"`` when listening on a LAN address. ``workers``:
-    threads running handler calls. ``static_dir``: the page's files.
+    threads running handler calls (``stop`` has its own). ``static_dir``: the page's files.
+    ``session_ttl_s``: lifetime of a login session [s] (60 s … 7 days).
     """
 
     host: str = "127.0.0.1"
@@ -101,6 +105,7 @@ class WebSettings:
     extra_hosts: tuple[str, ...] = ()
     workers: int = 4
     static_dir: Path = STATIC_DIR
+    session_ttl_s: float = 8 * 3600.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.host, str) or not self.host or any(c.isspace() for c in self.host):
@@ -113,6 +118,9 @@ class WebSettings:
             raise WebSettingsError(f"user must be 1-64 characters without spaces or ':', got {self.user!r}")
         if isinstance(self.extra_hosts, str) or not all(isinstance(h, str) and h for h in self.extra_hosts):
             raise WebSettingsError("extra_hosts must be a list of HOST:PORT strings")
+        ttl = self.session_ttl_s
+        if isinstance(ttl, bool) or not isinstance(ttl, (int, float)) or not 60.0 <= ttl <= 7 * 86400.0:
+            raise WebSettingsError(f"session_ttl_s must be a number of seconds in 60-604800, got {ttl!r}")
         object.__setattr__(self, "extra_hosts", tuple(h.lower() for h in self.extra_hosts))
         object.__setattr__(self, "static_dir", Path(self.static_dir))
 

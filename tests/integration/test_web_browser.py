@@ -15,6 +15,7 @@ limit's name, and the service process being gone.
 
 from __future__ import annotations
 
+import http.cookiejar
 import json
 import os
 import re
@@ -87,13 +88,31 @@ def _free_port() -> int:
 
 
 class Service:
-    """``hitch serve --http`` in its own process (own process group, killed in teardown)."""
+    """``hitch serve --http`` in its own process (own process group, killed in teardown).
 
-    def __init__(self, data_dir: Path, *extra: str):
+    ``login``: (user, password) the test's own requests log in with (a service with access control)."""
+
+    def __init__(self, data_dir: Path, *extra: str, login: tuple[str, str] | None = None):
         self.data_dir, self.extra = data_dir, list(extra)
         self.http_port, self.zenoh_port = _free_port(), _free_port()
         self.url = f"http://127.0.0.1:{self.http_port}/"
         self.proc: subprocess.Popen | None = None
+        self.login = login
+        self.csrf: str | None = None
+        self._opener = urllib.request.build_opener(urllib.request.HTTPCookieProcessor(http.cookiejar.CookieJar()))
+
+    def _log_in(self) -> None:
+        if self.login is None or self.csrf is not None:
+            return
+        user, password = self.login
+        req = urllib.request.Request(
+            self.url + "api/login",
+            data=json.dumps({"user": user, "password": password}).encode(),
+            headers={"Content-Type": "application/json"},
+            method="POST",
+        )
+        with self._opener.open(req, timeout=10) as r:
+            self.csrf = json.loads(r.read())["csrf"]
 
     def start(self, timeout_s: float = 30.0) -> Service:
         cmd = [
@@ -131,20 +150,22 @@ class Service:
         return (self.data_dir / "serve.log").read_text(errors="replace")
 
     def api(self, name: str, payload: dict | None = None) -> tuple[int, dict]:
+        self._log_in()
+        headers = {"Content-Type": "application/json"}
+        if self.csrf is not None:
+            headers["X-CSRF-Token"] = self.csrf
         req = urllib.request.Request(
-            self.url + f"api/{name}",
-            data=json.dumps(payload or {}).encode(),
-            headers={"Content-Type": "application/json"},
-            method="POST",
+            self.url + f"api/{name}", data=json.dumps(payload or {}).encode(), headers=headers, method="POST"
         )
         try:
-            with urllib.request.urlopen(req, timeout=10) as r:
+            with self._opener.open(req, timeout=10) as r:
                 return r.status, json.loads(r.read())
         except urllib.error.HTTPError as exc:
             return exc.code, json.loads(exc.read())
 
     def state(self) -> dict:
-        with urllib.request.urlopen(self.url + "api/state", timeout=2) as r:
+        self._log_in()
+        with self._opener.open(self.url + "api/state", timeout=2) as r:
             return json.loads(r.read())
 
     def kill(self, sig: int = signal.SIGKILL) -> None:
@@ -158,6 +179,7 @@ class Service:
         if getattr(self, "log", None) is not None:
             self.log.close()
             self.log = None
+        self.csrf = None  # a new service process knows no session
 
 
 @pytest.fixture(scope="module")
@@ -317,11 +339,13 @@ def test_goto_moves_the_gauges_and_they_settle_at_the_target(service, page, shot
     start = shown_pose(page)
     goto_target(service, page, goal)
     wait_js(page, "document.getElementById('motion').textContent.startsWith('Moving')")
-    seen = []
+    seen, activity = [], set()
     t0 = time.monotonic()
     while time.monotonic() - t0 < 0.8:
         seen.append(shown_pose(page)["z"])
+        activity.add(page.get_attribute("#ecu", "data-activity"))
         time.sleep(0.05)
+    assert "driving" in activity, activity  # valve activity: the reference moves, the ECU drives
     page.screenshot(path=str(shots / "03-goto-moving.png"))
     assert len(set(seen)) >= 5, f"the z gauge did not move: {seen}"  # live, not a frozen snapshot
     assert abs(seen[-1] - goal["z"]) < abs(start["z"] - goal["z"])
@@ -338,6 +362,7 @@ def test_goto_moves_the_gauges_and_they_settle_at_the_target(service, page, shot
         raise AssertionError(f"{exc}; last shown {last}") from None
     wait_js(page, "document.getElementById('motion').textContent === 'Idle'")
     wait_js(page, "/^motion #\\d+ finished$/.test(document.getElementById('goto-result').textContent)")
+    wait_js(page, "document.getElementById('ecu').dataset.activity === 'holding'")  # settled: valves at rest
     # the pose the page shows is the service's measured one, which meets the target unrounded
     measured = service.state()["pose"]
     assert within_steady_state_target(measured, goal), (measured, goal)
@@ -547,3 +572,212 @@ def test_stability_margins_take_the_services_caution_colours(page, shots, tmp_pa
     finally:
         heavy.kill(signal.SIGTERM)
         heavy.kill()
+
+
+# ---------------------------------------------------------------------------------------------- units, faults, header
+def _connected(pg, url: str) -> None:
+    if pg.url != url:
+        pg.goto(url)
+    wait_js(pg, "document.getElementById('conn').textContent.startsWith('Service: connected')", timeout=15_000)
+
+
+def test_inputs_say_their_unit_and_range_and_refusals_come_in_display_units(service, page):
+    _connected(page, service.url)
+    at_rest(service, page)
+    workspace = service.api("config")[1]["limits"]["workspace"]
+    tab(page, "goto")
+    for k, unit in (("x", "mm"), ("z", "mm"), ("roll", "mrad"), ("pitch", "mrad")):
+        lo, hi = (1000 * v for v in workspace[k])
+        shown = page.text_content(f"#range-{k}")
+        assert [_num(t) for t in shown.split("…")] == [pytest.approx(lo, abs=0.05), pytest.approx(hi, abs=0.05)], k
+        field = f"#goto-form input[name={k}]"
+        assert shown in page.get_attribute(field, "placeholder")
+        title = page.get_attribute(field, "title")
+        assert f" in {unit}," in title and shown in title, title
+        assert page.text_content(f"#goto-form label:has(input[name={k}]) .unit").startswith(unit)
+    # every input of the page names its unit or range (title or placeholder)
+    untitled = page.evaluate(
+        "Array.from(document.querySelectorAll('input, textarea')).filter(e => !(e.title || e.placeholder))"
+        ".map(e => e.name || e.id)"
+    )
+    assert untitled == []
+    assert "10–100 %" in page.get_attribute("#jog-speed", "title")
+    assert "1–100 %" in page.get_attribute("#goto-form input[name=speed]", "title")
+    assert "m and rad" in page.get_attribute("#maneuver-form textarea", "title")
+    # a goal 100 mm above the workspace: the service refuses in SI, the page shows mm
+    z_mm = round(1000 * workspace["z"][1]) + 100
+    status, reply = service.api("goto", {"goal": {"z": z_mm / 1000}})
+    assert status == 422 and re.search(r"\d m\b", reply["message"]), reply  # the service's own words are SI
+    for button in ("#goto-plan", "#goto-go"):
+        for k in ("x", "roll", "pitch"):
+            page.fill(f"#goto-form input[name={k}]", "")
+        page.fill("#goto-form input[name=z]", str(z_mm))
+        page.evaluate("document.getElementById('goto-result').textContent = ''")
+        page.click(button)
+        wait_js(page, "document.getElementById('goto-result').textContent.length > 0")
+        text = page.text_content("#goto-result")
+        assert f"{z_mm} mm" in text, text
+        face = re.search(r"(?:workspace:z:max = |to )(-?\d+(?:\.\d+)?) mm", text)
+        assert face and float(face.group(1)) == pytest.approx(1000 * workspace["z"][1], abs=0.05), text
+        assert not re.search(r"\d\s*(m|rad)\b", text), f"SI units left in {text!r}"
+        assert "err" in page.get_attribute("#goto-result", "class")
+    assert not service.state()["moving"]
+
+
+def test_latched_faults_are_acknowledged_from_the_header(service, page, shots):
+    _connected(page, service.url)
+    at_rest(service, page)
+    status, reply = service.api("sim/fault", {"restart_ecu": True})  # the twin restarts: an event fault latches
+    assert status == 200, reply
+    page.wait_for_selector("#faults-ack:not(.hidden)", timeout=5_000)
+    assert "fault" in page.text_content("#ecu") and "ecu_restart" in page.text_content("#ecu")
+    page.screenshot(path=str(shots / "13-fault-acknowledge.png"))
+    page.click("#faults-ack")
+    # the reply ("faults acknowledged: …") or the service's event that follows it ("… cleared: … (ack)")
+    wait_js(
+        page,
+        "/faults acknowledged: ecu_restart|fault cleared: ecu_restart \\(ack\\)/"
+        ".test(document.getElementById('log').textContent)",
+    )
+    page.wait_for_selector("#faults-ack", state="hidden", timeout=5_000)
+    assert service.state()["ecu"]["faults"] == []
+    # with nothing latched the service's answer is shown as it is: no error, nothing moves
+    page.evaluate("document.getElementById('faults-ack').click()")
+    wait_js(page, "document.getElementById('log').textContent.includes('none latched')")
+    assert not service.state()["moving"]
+
+
+def _fault_names() -> list[str]:
+    """Every fault the link can latch (the longest fault text is all of them at once)."""
+    from dataclasses import fields
+
+    from bridge.link.state import LinkFaults
+
+    return [f.name for f in fields(LinkFaults) if f.name != "reasons"]
+
+
+@pytest.mark.parametrize("size", [(1024, 600), (800, 480)])
+def test_the_longest_fault_text_never_pushes_stop_off_screen(service, page, shots, size):
+    """A terminal fed the service's own state with every fault latched (a WebServer in this process,
+    its commands forwarded to the service): STOP stays whole inside the viewport."""
+    import threading
+
+    from bridge.web.server import WebServer
+    from bridge.web.settings import WebSettings
+
+    base = service.state()
+    names = _fault_names()
+    reasons = [
+        f"{n}: " + "the cylinder ECU reported a condition that needs the operator's attention " * 2 for n in names
+    ]
+    state = {**base, "ecu": {**base["ecu"], "faults": names, "ack_required": names, "fault_reasons": reasons}}
+    web = WebServer(lambda name, body, user: _forward(service, name, body), WebSettings(port=0)).start()
+    done = threading.Event()
+
+    def feed() -> None:
+        seq = state["seq"]
+        while not done.wait(0.05):
+            seq += 1
+            web.publish_state({**state, "seq": seq})
+
+    feeder = threading.Thread(target=feed, daemon=True)
+    feeder.start()
+    width, height = size
+    try:
+        page.set_viewport_size({"width": width, "height": height})
+        _connected(page, web.url)
+        wait_js(page, f"document.getElementById('ecu').textContent.includes('{names[-1]}')")
+        for sel in ("#stop", "#faults-ack", "#modes"):
+            box = page.locator(sel).bounding_box()
+            assert box is not None, sel
+            assert box["x"] >= 0 and box["y"] >= 0, (sel, box)
+            assert box["x"] + box["width"] <= width + 0.5 and box["y"] + box["height"] <= height + 0.5, (sel, box, size)
+        stop, ecu = page.locator("#stop").bounding_box(), page.locator("#ecu").bounding_box()
+        assert ecu["x"] + ecu["width"] <= stop["x"], (ecu, stop)  # the pill shortens, it does not run under STOP
+        assert stop["width"] >= 100 and stop["height"] >= 48  # still a big target
+        hit = page.evaluate(
+            "([x, y]) => document.elementFromPoint(x, y).id", [stop["x"] + stop["width"] / 2, stop["y"] + 5]
+        )
+        assert hit == "stop"
+        assert names[-1] in page.get_attribute("#ecu", "title")  # the full text stays available
+        page.screenshot(path=str(shots / f"14-faults-{width}x{height}.png"))
+    finally:
+        done.set()
+        feeder.join(2)
+        page.set_viewport_size({"width": 1024, "height": 600})
+        page.goto(service.url)
+        web.close()
+
+
+def _forward(service, name: str, body: bytes) -> tuple[bool, dict]:
+    status, reply = service.api(name, json.loads(body or b"{}"))
+    return status == 200, reply
+
+
+# ---------------------------------------------------------------------------------------------- login
+@pytest.fixture(scope="module")
+def secured(tmp_path_factory):
+    """``hitch serve`` with a security file (olga operates, victor views) and ``--http-user olga``."""
+    from bridge.service.security import AccessPolicy, SecuritySettings, security_json5, write_users_file
+
+    d = tmp_path_factory.mktemp("hitch-serve-secured")
+    users = write_users_file(d / "users.txt", {"olga": "o-secret", "victor": "v-secret"})
+    sec = d / "security.json5"
+    sec.write_text(
+        security_json5(
+            SecuritySettings(
+                users_file=users, access=AccessPolicy(prefix="hitch", operators=("olga",), viewers=("victor",))
+            )
+        )
+    )
+    svc = Service(d, "--security", str(sec), "--http-user", "olga", login=("olga", "o-secret")).start()
+    yield svc
+    svc.kill(signal.SIGTERM)
+    svc.kill()
+
+
+def test_with_access_control_the_page_asks_for_a_login(secured, page, shots):
+    pg = page.context.new_page()
+    pg.set_default_timeout(10_000)
+    try:
+        pg.goto(secured.url)
+        pg.wait_for_selector("#login:not(.hidden)")
+        assert pg.is_hidden("main") and pg.is_visible("#stop")  # nothing to see or move, STOP stays
+        pg.screenshot(path=str(shots / "15-login.png"))
+        pg.fill("#login-form input[name=user]", "victor")
+        pg.fill("#login-form input[name=password]", "wrong")
+        pg.click("#login-go")
+        wait_js(pg, "document.getElementById('login-result').textContent.includes('wrong user name or password')")
+        pg.fill("#login-form input[name=password]", "v-secret")
+        pg.click("#login-go")
+        wait_js(pg, "document.getElementById('conn').textContent.startsWith('Service: connected')", timeout=15_000)
+        assert pg.text_content("#user") == "victor · viewer"
+        assert "hitch_session" not in pg.evaluate("document.cookie")  # HttpOnly: no script reads the session
+        tab(pg, "jog")
+        assert pg.is_disabled("button.jog[data-dof='z'][data-sign='1']")
+        tab(pg, "goto")
+        assert pg.is_disabled("#goto-go")
+        # the viewer's own command through the page: refused by the service as victor, not run as --http-user olga
+        pg.evaluate("document.getElementById('goto-go').disabled = false")
+        pg.fill("#goto-form input[name=z]", "100")
+        pg.click("#goto-go")
+        wait_js(pg, "document.getElementById('goto-result').textContent.includes('victor')")
+        assert not secured.state()["moving"]
+        pg.click("#stop")  # a viewer may stop
+        wait_js(pg, "document.getElementById('log').textContent.includes('STOP: motion stopped')")
+        tab(pg, "help")
+        pg.click("#logout")
+        pg.wait_for_selector("#login:not(.hidden)")
+        pg.fill("#login-form input[name=user]", "olga")
+        pg.fill("#login-form input[name=password]", "o-secret")
+        pg.click("#login-go")
+        wait_js(pg, "document.getElementById('conn').textContent.startsWith('Service: connected')", timeout=15_000)
+        assert pg.text_content("#user") == "olga · operator"
+        z0 = secured.state()["pose"]["z"]
+        goal = {"z": 0.1 if z0 < 0.05 else 0.0}
+        goto_target(secured, pg, goal, speed=50)  # an operator's goto through the page (with the CSRF token)
+        wait_for(lambda: secured.state()["moving"], 5, "the logged-in operator's goto to start")
+        pg.click("#stop")
+        wait_for(lambda: not secured.state()["moving"], 5, "STOP")
+    finally:
+        pg.close()

@@ -6,7 +6,12 @@
 // except what it draws, the held jog buttons and the jog speed.
 //
 // Units: the API is SI (m, rad, s). The page shows and takes mm and mrad (the thesis's units on
-// the terminal); conversions happen only in `show*` and in the goto form, named `_mm` / `_mrad`.
+// the terminal); conversions happen only in `show*`, in the goto form (`_mm` / `_mrad`) and in
+// `displayUnits`, which rewrites the service's SI numbers in refusals and events.
+//
+// Login: with access control on (`GET /api/session` says `login`), the page asks for a user and
+// password (`POST /api/login`); the session lives in an HttpOnly cookie, and every command carries
+// the session's CSRF token (`csrf` in a WebSocket command). STOP never needs a login.
 "use strict";
 
 (() => {
@@ -16,6 +21,11 @@
   const STATE_STALE_MS = 500;      // no state for this long: the service is not publishing
   const REQUEST_TIMEOUT_MS = 15000;
   const KIN_CAUTION_S = 2.0, KIN_DANGER_S = 0.5;   // page colours for the kinematic margin (assumed)
+  // ECU pill: the valves drive while the reference moves or the measurement is farther from the
+  // reference than this share of each actuator's stroke range (a few AD counts; the ECU's own
+  // hold band is its settle band of ±1 count), otherwise the ECU holds (valves at zero)
+  const ECU_HOLD_FRACTION = 0.005;
+  const REF_MOVING = 1e-6;         // m/s, rad/s: a reference velocity above this is motion
   const DOFS = ["x", "z", "roll", "pitch"];
   const KEYS = { ArrowLeft: ["x", 1], ArrowRight: ["x", -1], ArrowUp: ["z", 1], ArrowDown: ["z", -1],
     KeyD: ["roll", 1], KeyA: ["roll", -1], KeyW: ["pitch", 1], KeyS: ["pitch", -1] };
@@ -42,6 +52,7 @@
   const ui = {
     config: null, state: null, lastStateMs: 0, drawn: true, frames: 0, rate: 0,
     presets: [], maneuvers: [], maneuverSteps: {}, connected: false, closedReason: "", gotoId: null,
+    session: null,   // GET /api/session: {login, authenticated, user, role, csrf}
   };
 
   // ------------------------------------------------------------------ formatting
@@ -51,9 +62,36 @@
   const showDof = (k, v) => (k === "x" || k === "z") ? show_mm(v) : show_mrad(v);
   const showActuator = (n, v) => n === "lift" ? show_mrad(v) : show_mm(v);
 
+  // The service's sentences carry SI numbers ("goal.z = 0.5 m … (z from -0.2163 to 0.3117 m)",
+  // "workspace:z:max = 0.3117"); the operator reads mm and mrad: every length [m] and angle [rad]
+  // (with its rates) is rewritten ×1000, and bare numbers after a DOF name (x, z: mm; roll, pitch:
+  // mrad) too. Times, percentages and counts stay.
+  const NUM = String.raw`[-−+]?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?`;
+  const UNIT = String.raw`(m|rad)(\/s²|\/s\^2|\/s2|\/s)?(?![A-Za-z0-9_²])`;
+  const milli = (t) => { const v = Number(t.replace("−", "-")) * 1000; return Number.isFinite(v) ? String(Number(v.toFixed(2))) : t; };
+  const milliUnit = (u, rate) => `m${u}${rate || ""}`;
+  const DOF_UNIT = { x: "mm", z: "mm", roll: "mrad", pitch: "mrad" };
+  function displayUnits(text) {
+    if (typeof text !== "string") return text;
+    const guard = String.raw`(?<![\w.])`;
+    // the service's "did you mean mm?" hint is for SI callers: this page's fields already take mm
+    let t = text.replace(/;?\s*did you mean mm\?[^;)]*/g, "");
+    // [a, b] m · a … b m · from a to b m · >= a and <= b m
+    t = t.replace(new RegExp(String.raw`\[\s*(${NUM})\s*,\s*(${NUM})\s*\]\s*${UNIT}`, "g"),
+      (_, a, b, u, r) => `[${milli(a)}, ${milli(b)}] ${milliUnit(u, r)}`);
+    t = t.replace(new RegExp(String.raw`${guard}(${NUM})(\s*(?:…|\.\.\.?|–|\bto\b|\band\b\s*[<>]=?)\s*)(${NUM})\s*${UNIT}`, "g"),
+      (_, a, mid, b, u, r) => `${milli(a)}${mid}${milli(b)} ${milliUnit(u, r)}`);
+    t = t.replace(new RegExp(String.raw`${guard}(${NUM})\s*${UNIT}`, "g"), (_, a, u, r) => `${milli(a)} ${milliUnit(u, r)}`);
+    // bare numbers named by a DOF: "goal.z = 0.5", "z reaches 0.31", "workspace:z:max = 0.3117"
+    t = t.replace(new RegExp(String.raw`(\b(?:workspace:)?(x|z|roll|pitch)(?::(?:min|max))?\s*(?:=|reaches)\s*)(${NUM})(?![\d.eE])(?!\s*(?:mm|mrad|m|rad|s|ms|deg|counts?)(?![A-Za-z])|\s*[%°])`, "g"),
+      (_, head, dof, a) => `${head}${milli(a)} ${DOF_UNIT[dof]}`);
+    return t;
+  }
+  window.hitchTerminal = { displayUnits };   // for the browser test (the page keeps its CSP: no eval)
+
   function log(text, isError = false) {
     const f = $("#log");
-    f.textContent = `${new Date().toLocaleTimeString()}  ${text}`;
+    f.textContent = `${new Date().toLocaleTimeString()}  ${displayUnits(text)}`;
     f.classList.toggle("err", isError);
   }
 
@@ -73,7 +111,8 @@
         this.pending.clear();
         jog.releaseAll();
         renderConnection();
-        setTimeout(() => this.connect(), this.retryMs);
+        if (ev.code === 4401) { checkSession(ev.reason || "session ended"); return; }   // logged out or expired
+        setTimeout(() => (ui.session && ui.session.login ? checkSession("") : this.connect()), this.retryMs);
         this.retryMs = Math.min(this.retryMs * 2, 4000);
       };
     }
@@ -102,7 +141,9 @@
           resolve({ ok: false, data: { error: "timeout", message: `${key}: no answer within ${REQUEST_TIMEOUT_MS / 1000} s` } });
         }, REQUEST_TIMEOUT_MS);
         this.pending.set(id, { resolve, timer });
-        this.ws.send(JSON.stringify({ id, key, payload }));
+        const cmd = { id, key, payload };
+        if (ui.session && ui.session.csrf) cmd.csrf = ui.session.csrf;   // every command carries the CSRF token
+        this.ws.send(JSON.stringify(cmd));
       });
     }
   }
@@ -117,9 +158,90 @@
   async function onConnected() {
     renderConnection();
     const r = await call("config", {});
-    if (r.ok) { ui.config = r.data; buildGauges(); renderConfig(); }
+    if (r.ok) { ui.config = r.data; buildGauges(); renderConfig(); renderRanges(); }
     refreshPresets();
     refreshManeuvers();
+  }
+
+  // ------------------------------------------------------------------ login
+  async function fetchSession() {
+    try {
+      const resp = await fetch("/api/session", { headers: { Accept: "application/json" } });
+      return resp.ok ? await resp.json() : null;
+    } catch (e) { return null; }
+  }
+
+  // Ask the server who we are; show the login form or (re)connect the WebSocket.
+  async function checkSession(reason) {
+    const s = await fetchSession();
+    if (s === null) { setTimeout(() => checkSession(reason), link.retryMs); link.retryMs = Math.min(link.retryMs * 2, 4000); return; }
+    ui.session = s;
+    if (s.login && !s.authenticated) { showLogin(reason); return; }
+    document.body.classList.remove("logged-out");
+    $("#login").classList.add("hidden");
+    renderUser();
+    if (!link.ws || link.ws.readyState === WebSocket.CLOSED) link.connect();
+  }
+
+  function showLogin(reason) {
+    ui.session = { ...(ui.session || {}), authenticated: false, csrf: null, role: null };
+    document.body.classList.add("logged-out");
+    $("#login").classList.remove("hidden");
+    renderUser();
+    renderConnection();
+    $("#login-result").textContent = reason && reason !== "log in first" ? reason : "";
+    $("#login-result").className = "result err";
+    $("#login-form").elements.user.focus();
+  }
+
+  $("#login-form").addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    const f = ev.target;
+    let resp, data;
+    try {
+      resp = await fetch("/api/login", { method: "POST", headers: { "Content-Type": "application/json" },
+        body: JSON.stringify({ user: f.elements.user.value.trim(), password: f.elements.password.value }) });
+      data = await resp.json();
+    } catch (e) { result("#login-result", "login: the service is not reachable", false); return; }
+    f.elements.password.value = "";
+    if (!resp.ok) { result("#login-result", data.message || `login refused (${resp.status})`, false); return; }
+    ui.session = data;
+    result("#login-result", "", true);
+    await checkSession("");
+  });
+
+  $("#logout").addEventListener("click", async () => {
+    try {
+      await fetch("/api/logout", { method: "POST", headers: { "Content-Type": "application/json",
+        "X-CSRF-Token": (ui.session && ui.session.csrf) || "" }, body: "{}" });
+    } catch (e) { /* the server forgets the session at its expiry anyway */ }
+    jog.releaseAll();
+    showLogin("logged out");
+  });
+
+  function renderUser() {
+    const s = ui.session || {}, u = $("#user"), viewer = s.authenticated && s.role === "viewer";
+    u.classList.toggle("hidden", !s.login || !s.authenticated);
+    u.textContent = s.authenticated ? `${s.user} · ${s.role}` : "";
+    $("#logout").classList.toggle("hidden", !s.login || !s.authenticated);
+    document.body.classList.toggle("viewer", Boolean(viewer));
+    // a viewer watches and stops: the service refuses motion anyway, the page says so up front
+    for (const b of $$(".motion-only")) { b.disabled = Boolean(viewer); b.title = viewer ? `${s.user} is a viewer: watch and STOP only` : (b.dataset.title || ""); }
+  }
+
+  // ------------------------------------------------------------------ input ranges (from the service's config)
+  function renderRanges() {
+    const w = ui.config && ui.config.limits && ui.config.limits.workspace;
+    if (!w) return;
+    const f = $("#goto-form");
+    for (const k of DOFS) {
+      const [lo, hi] = w[k], unit = DOF_UNIT[k], range = `${fmt(lo * 1000, 1)} … ${fmt(hi * 1000, 1)}`;
+      $(`#range-${k}`).textContent = range;
+      const input = f.elements[k];
+      input.placeholder = `keep · ${range}`;
+      input.title = `${k} in ${unit}, workspace ${range} ${unit}; empty = keep`;
+      input.dataset.min = String(lo * 1000); input.dataset.max = String(hi * 1000);
+    }
   }
 
   // ------------------------------------------------------------------ gauges (SVG, built once per config)
@@ -313,17 +435,54 @@
     m.textContent = s.moving ? `Moving: ${s.motion || "motion"} #${s.motion_id}` : "Idle";
     m.className = `pill ${s.moving ? "warn" : ""}`;
     drawManeuver(s.maneuver);
-    const e = s.ecu || {}, ecu = $("#ecu");
+    const e = s.ecu || {}, ecu = $("#ecu"), faults = e.faults || [];
+    const activity = ecuActivity(s);
     if (!e.online) { ecu.textContent = "ECU: offline"; ecu.className = "pill bad"; }
-    else if ((e.faults || []).length) { ecu.textContent = `ECU: fault ${e.faults.join(", ")}`; ecu.className = "pill bad"; }
-    else { ecu.textContent = e.streaming ? "ECU: online · driving" : "ECU: online · holding"; ecu.className = "pill good"; }
+    else if (faults.length) { ecu.textContent = `ECU fault: ${faults.join(", ")} · ${activity}`; ecu.className = "pill bad"; }
+    else { ecu.textContent = `ECU: online · ${activity}`; ecu.className = "pill good"; }
+    ecu.dataset.activity = activity;
+    ecu.title = [`Cylinder ECU: ${activity}`, ...(e.fault_reasons || [])].join("\n");
+    $("#faults-ack").classList.toggle("hidden", faults.length === 0);
   }
+
+  // Valve activity from what the state carries: the ECU drives its valves towards the reference
+  // (the reference moves, or the measured strokes are away from it); otherwise it holds. With
+  // the watchdog expired or the controllers off the valves are at zero whatever the reference.
+  function ecuActivity(s) {
+    const e = s.ecu || {};
+    if (e.controllers_on === false) return "valves off";
+    // the watchdog bit is also set before the first reference; while the service moves it means
+    // the references do not arrive and the ECU has zeroed its valves
+    if (e.watchdog) return s.moving ? "holding (watchdog)" : "holding";
+    const ref = s.reference && s.reference.actuators, q = s.actuators || {}, v = s.velocity || {};
+    if (!ref) return "holding";
+    if (DOFS.some((k) => Math.abs(v[k] || 0) > REF_MOVING)) return "driving";
+    const strokes = (ui.config && ui.config.limits && ui.config.limits.strokes) || {};
+    for (const [n, [lo, hi]] of Object.entries(strokes)) {
+      if (Number.isFinite(ref[n]) && Number.isFinite(q[n]) && Math.abs(ref[n] - q[n]) > ECU_HOLD_FRACTION * (hi - lo)) return "driving";
+    }
+    return "holding";
+  }
+
+  $("#faults-ack").addEventListener("click", async () => {
+    const b = $("#faults-ack");
+    b.disabled = true;
+    const r = await call("faults/ack", {});
+    b.disabled = false;
+    if (r.ok) {
+      const left = r.data.faults || [];
+      log(`faults acknowledged: ${(r.data.acknowledged || []).join(", ") || "none latched"}` +
+        (left.length ? `; still present: ${left.join(", ")}` : ""), left.length > 0);
+    }
+  });
 
   function renderConnection() {
     const c = $("#conn"), banner = $("#banner");
     const age = performance.now() - ui.lastStateMs;
     let text, cls, alert = "";
-    if (!ui.connected) {
+    if (document.body.classList.contains("logged-out")) {
+      text = "Service: log in"; cls = "warn";   // not connected on purpose: no alarm, nothing is shown
+    } else if (!ui.connected) {
       text = "Service: disconnected"; cls = "bad";
       alert = `Service not reachable: ${ui.closedReason || "connecting"} — no live data; retrying…`;
     } else if (!ui.state || age > STATE_STALE_MS) {
@@ -355,10 +514,11 @@
     let text = name.replace(/_/g, " ");
     if (e.motion_id !== undefined) text += ` #${e.motion_id}`;
     if (e.kind) text += ` (${e.kind})`;
+    if (Array.isArray(e.cleared)) text += `: ${e.cleared.join(", ")}` + (e.by ? ` (${e.by})` : "");
     if (e.reason) text += `: ${e.reason}`;
     if (e.message) text += `: ${e.message}`;
     if (e.maneuver) text = `maneuver ${e.maneuver}: ${name.replace("maneuver_", "")}` + (e.step !== undefined ? ` step ${e.step + 1}` : "") + (e.reason ? ` (${e.reason}: ${e.message || ""})` : "");
-    log(text, /abort|fault|limit/.test(name));
+    log(text, /abort|fault$|limit/.test(name));
     if (name === "maneuver_started" && e.steps) ui.maneuverSteps[e.maneuver] = e.steps;
     if (e.motion_id !== undefined && e.motion_id === ui.gotoId && /^motion_(finished|aborted)$|^limit_reached$|^fault$/.test(name)) {
       result("#goto-result", name === "motion_finished" ? `motion #${e.motion_id} finished` : text, name === "motion_finished");
@@ -427,7 +587,7 @@
       ["control rate", `${c.control_rate} Hz`], ["state rate", `${c.state_rate} Hz`],
       ["workspace x", `${fmt(w.x[0] * 1000)} … ${fmt(w.x[1] * 1000)} mm`], ["workspace z", `${fmt(w.z[0] * 1000)} … ${fmt(w.z[1] * 1000)} mm`],
       ["roll", `${fmt(w.roll[0] * 1000)} … ${fmt(w.roll[1] * 1000)} mrad`], ["pitch", `${fmt(w.pitch[0] * 1000)} … ${fmt(w.pitch[1] * 1000)} mrad`],
-      ["user", (ui.hello && ui.hello.user) || "(no access control)"]];
+      ["user", ui.hello && ui.hello.login ? `${ui.hello.user} (${ui.hello.role})` : (ui.hello && ui.hello.user) || "(no access control)"]];
     for (const [k, v] of rows) {
       const dt = document.createElement("dt"), dd = document.createElement("dd");
       dt.textContent = k; dd.textContent = v; dl.append(dt, dd);
@@ -448,7 +608,7 @@
       });
     },
     press(source, dof, sign) {
-      if (this.held.has(source)) return;
+      if (this.held.has(source) || document.body.classList.contains("viewer")) return;
       this.held.set(source, { dof, sign });
       this.mark();
       this.send();
@@ -517,7 +677,7 @@
     const speed = Number(f.elements.speed.value || 100);
     return { goal, speed_scale: Math.max(0.01, Math.min(1, speed / 100)) };
   }
-  function result(sel, text, ok) { const r = $(sel); r.textContent = text; r.className = `result ${ok ? "ok" : "err"}`; }
+  function result(sel, text, ok) { const r = $(sel); r.textContent = displayUnits(text); r.className = `result ${ok ? "ok" : "err"}`; }
 
   $("#goto-form").addEventListener("submit", async (ev) => {
     ev.preventDefault();
@@ -565,13 +725,14 @@
     for (const p of r.data.presets) {
       const sub = DOFS.map((k) => `${k} ${fmt(p.pose[k] * 1000, 0)}`).join(" · ");
       item(list, p.name, sub, [
-        ["Go", "primary", async () => { const q = await call("presets/go", { name: p.name }); if (q.ok) log(`preset ${p.name}: moving, ${fmt(q.data.duration, 2)} s`); }],
+        ["Go", "primary motion-only", async () => { const q = await call("presets/go", { name: p.name }); if (q.ok) log(`preset ${p.name}: moving, ${fmt(q.data.duration, 2)} s`); }],
         ["Delete", "danger", async () => {
           if (!(await confirmDialog(`Delete preset ${p.name}?`, "The stored pose is removed for this implement.", "Delete"))) return;
           const q = await call("presets/delete", { name: p.name }); if (q.ok) { log(`preset ${p.name} deleted`); refreshPresets(); }
         }],
       ]);
     }
+    renderUser();
   }
   $("#preset-form").addEventListener("submit", async (ev) => {
     ev.preventDefault();
@@ -601,11 +762,12 @@
             : `${m.name}: ` + stepErrors(q.data.errors), q.data.ok);
           else result("#maneuver-result", q.data.message, false);
         }],
-        ["Run", "primary", async () => { const q = await call("maneuvers/run", { name: m.name }); if (q.ok) result("#maneuver-result", `${m.name}: running, ${fmt(q.data.duration, 1)} s planned`, true); }],
+        ["Run", "primary motion-only", async () => { const q = await call("maneuvers/run", { name: m.name }); if (q.ok) result("#maneuver-result", `${m.name}: running, ${fmt(q.data.duration, 1)} s planned`, true); }],
         ["Abort", "danger", async () => { await stop(); }],
       ];
       item(list, m.name, `${m.steps} steps${m.description ? " · " + m.description : ""}`, buttons);
     }
+    renderUser();
   }
 
   function scriptRequest() {
@@ -635,7 +797,8 @@
     bar.querySelector(".text").textContent = `${man.name}: step ${step + 1}${steps ? " of " + steps : ""}`;
   }
 
+  for (const b of $$(".motion-only")) b.dataset.title = b.title || "";
   renderHelp();
   renderConnection();
-  link.connect();
+  checkSession("");
 })();

@@ -303,7 +303,7 @@ def test_requests_from_other_sites_are_refused(web):
 class _WSClient:
     """A minimal RFC 6455 client on a raw socket (masked frames; the browser test uses Chromium's)."""
 
-    def __init__(self, web, origin: str | None = None):
+    def __init__(self, web, origin: str | None = None, headers: dict | None = None):
         host, port = web.address
         self.sock = socket.create_connection((host, port), timeout=5)
         self.key = base64.b64encode(os.urandom(16)).decode()
@@ -317,6 +317,7 @@ class _WSClient:
         ]
         if origin:
             lines.append(f"Origin: {origin}")
+        lines += [f"{k}: {v}" for k, v in (headers or {}).items()]
         self.sock.sendall(("\r\n".join(lines) + "\r\n\r\n").encode())
         self.buf = b""
         while b"\r\n\r\n" not in self.buf:
@@ -471,7 +472,30 @@ def test_presets_round_trip_over_http(web):
 # ---------------------------------------------------------------------------------------------- access control
 
 
-def test_page_commands_run_as_the_configured_user(service):
+def _rest(service) -> None:
+    """Stop and wait until the hitch is at rest (a goto while another motion runs may be refused)."""
+    service.api.handle("stop", b"{}", None)
+    deadline = time.monotonic() + 5
+    while service.latest_state["moving"] and time.monotonic() < deadline:
+        time.sleep(0.05)
+
+
+def _login(web, user: str, password: str) -> tuple[int, dict, dict]:
+    """POST /api/login; (status, reply, {"Cookie": ..., "X-CSRF-Token": ...} for the next requests)."""
+    status, headers, data = _request(web, "POST", "/api/login", json.dumps({"user": user, "password": password}))
+    reply = json.loads(data)
+    auth: dict = {}
+    if status == 200:
+        auth = {"Cookie": headers["Set-Cookie"].split(";")[0], "X-CSRF-Token": reply["csrf"]}
+    return status, reply, auth
+
+
+def _post_as(web, name, payload, auth: dict | None = None):
+    status, _, data = _request(web, "POST", f"/api/{name}", json.dumps(payload).encode(), auth or {})
+    return status, json.loads(data)
+
+
+def test_page_commands_run_as_the_logged_in_user(service):
     from bridge.service.security import AccessPolicy
     from bridge.web.server import start_http
 
@@ -481,17 +505,23 @@ def test_page_commands_run_as_the_configured_user(service):
     try:
         with pytest.raises(ValueError, match="http_user"):
             start_http(service, "127.0.0.1:0")  # never a silent bypass of the policy
-        viewer = start_http(service, "127.0.0.1:0", user="watcher")
-        operator = start_http(service, "127.0.0.1:0", user="driver")
-        servers += [viewer, operator]
+        with pytest.raises(ValueError, match="login"):
+            start_http(service, "127.0.0.1:0", user="driver")  # nor one fixed user whoever opens the page becomes
+        web = start_http(service, "127.0.0.1:0", user="driver", users={"driver": "d-pw", "watcher": "w-pw"})
+        servers.append(web)
         body = {"goal": {"z": 0.06}}
-        status, reply = _post(viewer, "goto", body)
+        assert _post_as(web, "goto", body)[0] == 401  # the configured user is not used: no login, no motion
+        _, _, viewer = _login(web, "watcher", "w-pw")
+        status, reply = _post_as(web, "goto", body, viewer)
         ok, direct = service.api.handle("goto", json.dumps(body).encode(), "watcher")
         assert (status, reply) == (403, direct) and not ok and direct["error"] == "forbidden"
-        assert _post(viewer, "stop", {})[0] == 200  # a viewer may still stop
-        assert _post(viewer, "presets/list", {})[0] == 200
-        status, reply = _post(operator, "goto", body)
-        assert status == 200 and reply["accepted"]
+        assert _post_as(web, "stop", {}, viewer)[0] == 200  # a viewer may still stop
+        assert _post_as(web, "presets/list", {}, viewer)[0] == 200
+        _rest(service)
+        _, session, operator = _login(web, "driver", "d-pw")
+        assert (session["user"], session["role"]) == ("driver", "operator")
+        status, reply = _post_as(web, "goto", body, operator)
+        assert status == 200 and reply["accepted"], reply
     finally:
         for s in servers:
             s.close()
@@ -568,15 +598,17 @@ def test_closing_handshake_echoes_valid_codes_only(web, sent, echoed):
         ws.close()
 
 
-def test_terminal_runs_as_the_configured_user_under_the_security_files_acl(tmp_path):
-    """A service started with a security file (access control on) and --http-user: the page's
-    commands are authorised by the same ACL as Zenoh queries — a viewer may read and stop, not move."""
+@pytest.fixture(scope="module")
+def secured(tmp_path_factory):
+    """A service started with a security file (access control on: olga operates, victor views) and
+    ``http_user = olga`` — the set-up in which the terminal used to accept motion from anyone."""
     from bridge.service.config import load_service_config
     from bridge.service.security import AccessPolicy, SecuritySettings, security_json5, write_users_file
     from bridge.service.server import HitchService
 
-    users = write_users_file(tmp_path / "users.txt", {"olga": "o-secret", "victor": "v-secret"})
-    sec = tmp_path / "security.json5"
+    tmp = tmp_path_factory.mktemp("web-secured")
+    users = write_users_file(tmp / "users.txt", {"olga": "o-secret", "victor": "v-secret", "nobody": "n-secret"})
+    sec = tmp / "security.json5"
     sec.write_text(
         security_json5(
             SecuritySettings(
@@ -585,20 +617,213 @@ def test_terminal_runs_as_the_configured_user_under_the_security_files_acl(tmp_p
         )
     )
     cfg = load_service_config(
-        data_dir=tmp_path / "data",
+        data_dir=tmp / "data",
         listen=[f"tcp/127.0.0.1:{_free_port()}"],
         http="127.0.0.1:0",
-        http_user="victor",
+        http_user="olga",
         security=sec,
         can_channel=f"web-acl-{os.getpid()}",
     )
     svc = HitchService(cfg).start()
+    deadline = time.monotonic() + 5
+    while (svc.latest_state is None or not svc.latest_state["ecu"]["online"]) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    yield svc
+    svc.close()
+
+
+def test_with_access_control_the_terminal_refuses_motion_without_a_login(secured):
+    """Fails on the terminal without a login: it ran every request as ``--http-user`` (here an operator)."""
+    web = secured.http
+    status, reply = _post_as(web, "goto", {"goal": {"z": 0.2}})
+    assert status == 401 and reply["error"] == "unauthenticated", reply
+    for name in ("jog", "mode", "presets/save"):
+        assert _post_as(web, name, {})[0] == 401, name
+    assert _request(web, "GET", "/api/state")[0] == 401  # nor does it show the state
+    time.sleep(0.3)
+    assert not secured.latest_state["moving"]
+    ws = _WSClient(web)  # a WebSocket without the session cookie: closed before any state
     try:
-        status, reply = _post(svc.http, "goto", {"goal": {"z": 0.2}})
-        assert status == 403 and reply["error"] == "forbidden" and "victor" in reply["message"]
-        status, reply = _post(svc.http, "stop", {})
-        assert status == 200 and reply["stopped"] is True
-        status, reply = _post(svc.http, "ik", {"x": 0.0, "z": 0.2, "roll": 0.0, "pitch": 0.0})
-        assert status == 200 and reply["status"] == "ok"
+        assert ws.status_line.startswith("HTTP/1.1 101")
+        assert ws.message() == {"type": "close", "code": 4401}
     finally:
-        svc.close()
+        ws.close()
+    # the page itself (with its login form) and STOP stay reachable without a login
+    status, _, body = _request(web, "GET", "/")
+    assert status == 200 and b'id="login"' in body
+    status, reply = _post_as(web, "stop", {})
+    assert status == 200 and reply["stopped"] is True
+
+
+def test_login_sets_a_strict_session_cookie_and_a_csrf_token(secured):
+    web = secured.http
+    status, reply, _ = _login(web, "olga", "wrong")
+    assert status == 401 and reply == {"error": "unauthenticated", "message": "login: wrong user name or password"}
+    assert _login(web, "mallory", "o-secret")[1] == reply  # an unknown user gets the same answer
+    status, reply, _ = _login(web, "nobody", "n-secret")  # in the users file but in no role of the ACL
+    assert status == 403 and "no role" in reply["message"]
+    status, headers, data = _request(web, "POST", "/api/login", json.dumps({"user": "olga", "password": "o-secret"}))
+    assert status == 200
+    cookie = headers["Set-Cookie"]
+    attrs = {a.strip().split("=")[0].lower(): a.strip() for a in cookie.split(";")[1:]}
+    assert {"httponly", "samesite", "max-age", "path"} <= set(attrs), cookie
+    assert attrs["samesite"] == "SameSite=Strict" and attrs["path"] == "Path=/"
+    assert 60 <= int(attrs["max-age"].split("=")[1]) <= 7 * 86400
+    token = cookie.split(";")[0].split("=", 1)[1]
+    reply = json.loads(data)
+    assert (reply["user"], reply["role"], reply["authenticated"]) == ("olga", "operator", True)
+    assert len(token) >= 40 and len(reply["csrf"]) >= 40 and token != reply["csrf"]
+    assert token not in data.decode()  # the session token is only in the HttpOnly cookie
+    _, again, auth2 = _login(web, "olga", "o-secret")
+    assert auth2["Cookie"] != cookie.split(";")[0] and again["csrf"] != reply["csrf"]  # random per login
+    _, _, data = _request(web, "GET", "/api/session", headers={"Cookie": cookie.split(";")[0]})
+    assert json.loads(data)["csrf"] == reply["csrf"] and json.loads(data)["user"] == "olga"
+    status, reply = _post_as(web, "login", {"user": "olga"})
+    assert status == 400 and "password" in reply["message"]
+
+
+def test_every_state_changing_request_needs_the_csrf_token(secured):
+    web = secured.http
+    _, _, auth = _login(web, "olga", "o-secret")
+    cookie_only = {"Cookie": auth["Cookie"]}
+    for name, payload in (("goto", {"goal": {"z": 0.1}}), ("presets/save", {"name": "csrf-test"}), ("mode", {})):
+        status, reply = _post_as(web, name, payload, cookie_only)
+        assert status == 403 and "CSRF" in reply["message"], (name, reply)
+        status, reply = _post_as(web, name, payload, {**cookie_only, "X-CSRF-Token": "x" * 43})
+        assert status == 403 and "CSRF" in reply["message"], (name, reply)
+    assert _post_as(web, "presets/save", {"name": "csrf-test"}, auth)[0] == 200
+    assert _post_as(web, "presets/delete", {"name": "csrf-test"}, auth)[0] == 200
+    ws = _WSClient(web, headers=cookie_only)
+    try:
+        hello = ws.message("hello")["data"]
+        assert (hello["user"], hello["role"], hello["login"]) == ("olga", "operator", True)
+        reply = ws.call(1, "presets/list", {})
+        assert not reply["ok"] and reply["data"]["error"] == "forbidden" and "CSRF" in reply["data"]["message"]
+        ws.send({"id": 2, "key": "presets/list", "payload": {}, "csrf": auth["X-CSRF-Token"]})
+        assert ws.message("reply")["ok"]
+        ws.send({"id": 3, "key": "stop", "payload": {}})  # stop needs no token
+        assert ws.message("reply")["ok"]
+    finally:
+        ws.close()
+
+
+def test_commands_run_as_the_logged_in_user_with_that_users_role(secured):
+    web = secured.http
+    _, _, viewer = _login(web, "victor", "v-secret")
+    body = {"goal": {"z": 0.2}}
+    status, reply = _post_as(web, "goto", body, viewer)
+    ok, direct = secured.api.handle("goto", json.dumps(body).encode(), "victor")
+    assert (status, reply) == (403, direct) and "victor" in reply["message"]  # not the http_user olga
+    assert _post_as(web, "ik", {"x": 0.0, "z": 0.2, "roll": 0.0, "pitch": 0.0}, viewer)[0] == 200
+    ws = _WSClient(web, headers={"Cookie": viewer["Cookie"]})
+    try:
+        assert ws.message("hello")["data"]["role"] == "viewer"
+        ws.send({"id": 1, "key": "jog", "payload": {"vz": 0.01, "ttl_ms": 100}, "csrf": viewer["X-CSRF-Token"]})
+        reply = ws.message("reply")
+        assert not reply["ok"] and reply["data"]["error"] == "forbidden" and "victor" in reply["data"]["message"]
+    finally:
+        ws.close()
+    _rest(secured)
+    _, _, operator = _login(web, "olga", "o-secret")
+    status, reply = _post_as(web, "goto", {"goal": {"z": 0.06}}, operator)
+    assert status == 200 and reply["accepted"], reply
+    assert _post_as(web, "stop", {}, operator)[0] == 200
+
+
+def test_logout_and_expiry_end_the_session_and_its_pages(secured):
+    web = secured.http
+    _, _, auth = _login(web, "olga", "o-secret")
+    ws = _WSClient(web, headers={"Cookie": auth["Cookie"]})
+    try:
+        ws.message("hello")
+        assert _request(web, "POST", "/api/logout", b"{}", {"Cookie": auth["Cookie"]})[0] == 403  # needs the token
+        status, headers, _ = _request(web, "POST", "/api/logout", b"{}", auth)
+        assert status == 200 and "Max-Age=0" in headers["Set-Cookie"]
+        assert ws.message("close") == {"type": "close", "code": 4401}
+    finally:
+        ws.close()
+    assert _post_as(web, "presets/list", {}, auth)[0] == 401
+    # expiry: the session store's clock runs past the lifetime
+    _, _, auth = _login(web, "olga", "o-secret")
+    ws = _WSClient(web, headers={"Cookie": auth["Cookie"]})
+    store = web.sessions
+    real = store.clock
+    try:
+        ws.message("hello")
+        assert _post_as(web, "presets/list", {}, auth)[0] == 200
+        store.clock = lambda: real() + store.ttl_s + 1
+        assert _post_as(web, "presets/list", {}, auth)[0] == 401
+        assert ws.message("close") == {"type": "close", "code": 4401}  # the page's state stream ends too
+    finally:
+        store.clock = real
+        ws.close()
+
+
+def test_failed_logins_are_throttled_per_user():
+    from bridge.web.sessions import LoginError, LoginThrottle
+
+    now = [0.0]
+    t = LoginThrottle(max_failures=5, window_s=60, lockout_s=30, clock=lambda: now[0])
+    for _ in range(4):
+        t.failed("olga")
+        t.check("olga")
+    t.failed("olga")
+    with pytest.raises(LoginError, match="too many failed logins") as exc:
+        t.check("olga")
+    assert exc.value.status == 429
+    t.check("victor")  # per user
+    now[0] = 31.0
+    t.check("olga")
+    for _ in range(4):
+        t.failed("olga")
+    now[0] = 100.0  # the old failures left the window
+    t.failed("olga")
+    t.check("olga")
+
+
+def test_sessions_expire_and_stay_bounded():
+    from bridge.web.sessions import SessionStore
+
+    now = [0.0]
+    store = SessionStore(ttl_s=100, max_sessions=3, clock=lambda: now[0])
+    a = store.open("olga", "operator")
+    assert store.get(a.token) == a and store.get("forged") is None and store.get(None) is None
+    others = [store.open("victor", "viewer") for _ in range(3)]
+    assert store.get(a.token) is None and len(store) == 3  # the oldest went first
+    now[0] = 100.0
+    assert all(store.get(s.token) is None for s in others) and len(store) == 0
+    assert len({s.token for s in others} | {s.csrf for s in others}) == 6
+    with pytest.raises(ValueError, match="session_ttl_s"):
+        WebSettings(session_ttl_s=1)
+
+
+def test_stop_never_waits_behind_slow_requests():
+    """Fails on the terminal that ran stop on the same worker pool as every other request."""
+    import threading
+
+    from bridge.web.server import WebServer
+
+    release, stopped = threading.Event(), threading.Event()
+
+    def handler(name, body, user):
+        if name == "stop":
+            stopped.set()
+            return True, {"stopped": True}
+        release.wait(20)  # a slow plan / validate
+        return True, {}
+
+    web = WebServer(handler, WebSettings(port=0, workers=2)).start()
+    ws = _WSClient(web)
+    try:
+        ws.message("hello")
+        for rid in range(6):  # more slow requests than workers
+            ws.send({"id": rid, "key": "plan", "payload": {}})
+        time.sleep(0.2)
+        ws.send({"id": "s", "key": "stop", "payload": {}})
+        assert stopped.wait(10), "stop waited behind the slow requests"
+        assert ws.message("reply")["id"] == "s"
+        assert _post(web, "stop", {}) == (200, {"stopped": True})
+    finally:
+        release.set()
+        ws.close()
+        web.close()

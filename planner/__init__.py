@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from planner._lazy import lazy_exports
+from planner.lazy import lazy_exports
 
 if TYPE_CHECKING:
     from planner.errors import HitchError, HitchInputError

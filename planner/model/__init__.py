@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from planner._lazy import lazy_exports
+from planner.lazy import lazy_exports
 
 if TYPE_CHECKING:
     from planner.model.angle_maps import AngleMaps

@@ -1,4 +1,4 @@
-"""Lazy public names of the planner's package facades (PEP 562).
+"""Lazy public names of the package facades (PEP 562), for planner's and bridge's ``__init__`` files.
 
 A facade ``__init__`` lists its public names with their defining modules and gets module-level
 ``__getattr__`` / ``__dir__`` from :func:`lazy_exports`: a name is imported from its defining

@@ -21,7 +21,7 @@ import math
 from abc import ABC, abstractmethod
 from collections.abc import Iterable
 from dataclasses import dataclass, field
-from enum import IntEnum
+from enum import Enum, IntEnum
 from functools import cache
 from importlib import resources
 from typing import Any, Generic, TypeVar, cast
@@ -760,6 +760,10 @@ class Codec:
 
     def __init__(self, database: Database) -> None:
         self._db = database
+        # Memos of the last frames encoded and decoded (a pure function of their key; at rest the
+        # same frames repeat at up to 100 Hz). Only successes are stored; bounded by _MEMO_SIZE.
+        self._encoded: dict[tuple[Any, ...], tuple[int, bytes]] = {}
+        self._decoded: dict[tuple[int, int, bytes], Decoded] = {}
         self._by_type: dict[type, _MessageCodec[Any]] = {}
         self._by_message: dict[str, _MessageCodec[Any]] = {}
         for spec in _MESSAGES:
@@ -799,6 +803,16 @@ class Codec:
             destination: destination address, PDU1 messages only (default global).
             priority: 0..7 (default per message: 3 control, 6 others).
         """
+        key = _memo_key(payload, source, destination, priority)
+        hit = None if key is None else self._encoded.get(key)
+        if hit is not None:
+            return can.Message(arbitration_id=hit[0], is_extended_id=True, data=hit[1])
+        msg = self._encode(payload, source, destination, priority)
+        if key is not None:
+            _remember(self._encoded, key, (msg.arbitration_id, bytes(msg.data)))
+        return msg
+
+    def _encode(self, payload: Payload, source: int | None, destination: int, priority: int | None) -> can.Message:
         spec = self._by_type.get(type(payload))
         if spec is None:
             raise CodecError(f"no CAN message for {type(payload).__name__}")
@@ -820,6 +834,17 @@ class Codec:
 
     def decode_frame(self, msg: can.Message) -> Decoded:
         """Decode ``msg`` with its identifier fields and unavailable-signal lists."""
+        if msg.is_extended_id and not (msg.is_error_frame or msg.is_remote_frame):
+            key = (msg.arbitration_id, msg.dlc, bytes(msg.data))
+            hit = self._decoded.get(key)
+            if hit is None:
+                d = self._decode_frame(msg)
+                _remember(self._decoded, key, d)
+                return d
+            return Decoded(hit.ident, hit.payload, hit.unavailable, hit.errors, float(msg.timestamp))
+        return self._decode_frame(msg)
+
+    def _decode_frame(self, msg: can.Message) -> Decoded:
         if msg.is_error_frame or msg.is_remote_frame:
             raise CodecError(f"{'error' if msg.is_error_frame else 'remote'} frame carries no data")
         if not msg.is_extended_id:
@@ -854,6 +879,34 @@ class Codec:
     def decode(self, msg: can.Message) -> Payload:
         """Decode ``msg`` into its payload dataclass."""
         return self.decode_frame(msg).payload
+
+
+_MEMO_SIZE = 64
+"""Entries each codec memo holds before it starts over (the frames of a hitch at rest are a handful)."""
+
+
+def _memo_key(payload: object, source: int | None, destination: int, priority: int | None) -> tuple[Any, ...] | None:
+    """The encode memo key: the arguments and each payload field, each with its exact type (so 1,
+    1.0 and True stay apart), or None (no memo) unless every field is a plain number, string,
+    None or enum member."""
+    try:
+        values = tuple(vars(payload).values())
+    except TypeError:
+        return None
+    for v in values:
+        if type(v) not in _MEMO_LEAVES and not isinstance(v, Enum):
+            return None
+    args = (source, destination, priority)
+    return (type(payload), *((type(v), v) for v in args), *((type(v), v) for v in values))
+
+
+_MEMO_LEAVES = (int, float, str, bool, type(None))
+
+
+def _remember(memo: dict[Any, Any], key: Any, value: Any) -> None:
+    if len(memo) >= _MEMO_SIZE:
+        memo.clear()
+    memo[key] = value
 
 
 @cache

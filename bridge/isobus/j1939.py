@@ -215,8 +215,12 @@ def decode_id(can_id: int) -> J1939Id:
     Raises:
         J1939Error: if ``can_id`` is not in 0..0x1FFFFFFF.
     """
+    if type(can_id) is int:  # a plain int (not a bool): a pure function of it, memoised
+        hit = _DECODED_IDS.get(can_id)
+        if hit is not None:
+            return hit
     _check_range("can_id", can_id, 0, 0x1FFFFFFF)
-    return J1939Id(
+    ident = J1939Id(
         priority=(can_id >> 26) & 0x7,
         extended_data_page=(can_id >> 25) & 1,
         data_page=(can_id >> 24) & 1,
@@ -224,6 +228,16 @@ def decode_id(can_id: int) -> J1939Id:
         pdu_specific=(can_id >> 8) & 0xFF,
         source_address=can_id & 0xFF,
     )
+    if type(can_id) is int:
+        if len(_DECODED_IDS) >= _DECODED_IDS_SIZE:
+            _DECODED_IDS.clear()
+        _DECODED_IDS[can_id] = ident
+    return ident
+
+
+_DECODED_IDS: dict[int, J1939Id] = {}
+"""The identifiers decoded lately (a bus carries a handful; frozen values, shared safely)."""
+_DECODED_IDS_SIZE = 256
 
 
 class RawStatus(Enum):

@@ -453,7 +453,10 @@ class CanLink:
 
     def _bump(self, **deltas: int) -> None:
         c = self._counters
-        self._counters = replace(c, **{k: getattr(c, k) + v for k, v in deltas.items()})
+        values = dict(c.__dict__)  # as dataclasses.replace, without its per-field introspection (per frame)
+        for k, v in deltas.items():
+            values[k] += v
+        self._counters = type(c)(**values)
 
     def _describe(self, name: str, q: np.ndarray, feats: np.ndarray) -> str:
         h = self._hard

@@ -44,7 +44,7 @@ import math
 import threading
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, fields
 
 import can
 
@@ -450,7 +450,10 @@ class EcuCanNode:
 
     def _bump(self, **deltas: int) -> None:
         c = self._counters
-        self._counters = replace(c, **{k: getattr(c, k) + v for k, v in deltas.items()})
+        values = dict(c.__dict__)  # as dataclasses.replace, without its per-field introspection (per frame)
+        for k, v in deltas.items():
+            values[k] += v
+        self._counters = type(c)(**values)
 
 
 def _reading(counts: int) -> int | None:

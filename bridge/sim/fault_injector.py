@@ -29,7 +29,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, fields
 
 import can
 import numpy as np
@@ -265,7 +265,10 @@ class FaultInjector(can.BusABC):
 
     def _bump(self, **deltas: int) -> None:
         c = self._counters
-        self._counters = replace(c, **{k: getattr(c, k) + v for k, v in deltas.items()})
+        values = dict(c.__dict__)  # as dataclasses.replace, without its per-field introspection (per frame)
+        for k, v in deltas.items():
+            values[k] += v
+        self._counters = type(c)(**values)
 
     def shutdown(self) -> None:
         """Stop using the injector; the wrapped bus stays open (its owner shuts it down)."""

@@ -602,7 +602,7 @@ def test_inputs_say_their_unit_and_range_and_refusals_come_in_display_units(serv
     )
     assert untitled == []
     assert "10–100 %" in page.get_attribute("#jog-speed", "title")
-    assert "1–100 %" in page.get_attribute("#goto-form input[name=speed]", "title")
+    assert "5–100 %" in page.get_attribute("#goto-form input[name=speed]", "title")
     assert "m and rad" in page.get_attribute("#maneuver-form textarea", "title")
     # a goal 100 mm above the workspace: the service refuses in SI, the page shows mm
     z_mm = round(1000 * workspace["z"][1]) + 100
@@ -630,6 +630,8 @@ def test_latched_faults_are_acknowledged_from_the_header(service, page, shots):
     status, reply = service.api("sim/fault", {"restart_ecu": True})  # the twin restarts: an event fault latches
     assert status == 200, reply
     page.wait_for_selector("#faults-ack:not(.hidden)", timeout=5_000)
+    # a restart first shows the gap it leaves (stale measurement, heartbeat), then the latched restart
+    wait_js(page, "document.getElementById('ecu').textContent.includes('ecu_restart')")
     assert "fault" in page.text_content("#ecu") and "ecu_restart" in page.text_content("#ecu")
     page.screenshot(path=str(shots / "13-fault-acknowledge.png"))
     page.click("#faults-ack")

@@ -675,7 +675,7 @@
     }
     if (!Object.keys(goal).length) return { error: "enter at least one of x, z, roll, pitch (empty = keep)" };
     const speed = Number(f.elements.speed.value || 100);
-    return { goal, speed_scale: Math.max(0.01, Math.min(1, speed / 100)) };
+    return { goal, speed_scale: Math.max(0.05, Math.min(1, speed / 100)) };
   }
   function result(sel, text, ok) { const r = $(sel); r.textContent = displayUnits(text); r.className = `result ${ok ? "ok" : "err"}`; }
 

@@ -18,9 +18,8 @@ on their own after the scenario's duration):
 * ``cpu`` — idle CPU of ``hitch serve`` (its own process) at rest, no load: utime + stime from
   ``/proc/<pid>/stat`` over ``--cpu-duration`` s, as % of one core. Once with the embedded simulated ECU
   (the default ``hitch serve``) and once for the planner side alone: the ECU then runs as
-  ``hitch ecu-sim`` on a loopback CAN transport (an interface of ``bridge.link.realtime.INTERFACES``
-  other than virtual, socketcan and udp_multicast); without one that figure is reported as not
-  measurable.
+  ``hitch ecu-sim --interface remote`` on a CAN hub bound to 127.0.0.1 (``bridge.link.loopback``);
+  without one that figure is reported as not measurable.
 * ``faults`` — one-way (and two-way) link loss during a full-speed goto, through the twin's
   ``sim/fault`` key (``{"cut": "planner_to_ecu" | "ecu_to_planner" | "both" | "none"}``); skipped with a
   line saying why when the service refuses the key.

@@ -2,11 +2,22 @@
 sample, duration ratio to the per-actuator lower bound, straight-line deviation, limit checks.
 
 Run: .venv/bin/python bench/trajectory_bench.py [--moves 200] [--json out.json]
+
+``--compare-with DIR`` measures instead a whole guarded goto plan (``Guard.plan``: the
+planner, sampling through the exact inverse, verification of every sample, the guard's
+checks with a 1500 kg implement on a 0.1 rad side slope, the caution re-plan) of ~5 s moves,
+for the code in DIR (e.g. a ``git worktree add --detach /tmp/hp-old HEAD`` of an earlier
+commit) and for this tree side by side: two worker processes, one per tree, plan the same
+moves alternately (old, new, old, new, ...) under the same load, and the setpoints and
+decisions of both are compared.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -25,12 +36,153 @@ from planner.trajectory import MotionState, TrajectoryPlanner, verify_setpoints 
 DOFS = ("x", "z", "roll", "pitch")
 
 
+def _goto_setup():
+    model = HitchModel.from_profile()
+    tp = TrajectoryPlanner(model)
+    guard = Guard(tp, implement=load_tractor_profile().implement("cat2-power-harrow-1500"))
+    guard.set_slope(0.1, 0.0)
+    return tp, guard
+
+
+def _worker() -> None:
+    """One tree's side of ``--compare-with``: commands on stdin, one JSON line per answer."""
+    tp, guard = _goto_setup()
+    out = sys.stdout
+    for line in sys.stdin:
+        cmd = json.loads(line)
+        if cmd["op"] == "cases":  # pick moves of the wanted duration (deterministic for a seed)
+            rng = np.random.default_rng(cmd["seed"])
+            cases: list[list[float]] = []
+            while len(cases) < cmd["n"]:
+                p0 = tp.lo + (tp.hi - tp.lo) * rng.choice([0.02, 0.98], 4) + rng.normal(0, 0.01, 4) * (tp.hi - tp.lo)
+                p1 = tp.lo + (tp.hi - tp.lo) * rng.random(4)
+                p0, p1 = np.clip(p0, tp.lo, tp.hi), np.clip(p1, tp.lo, tp.hi)
+                try:
+                    gp = guard.plan(MotionState.at_rest(p0), dict(zip(DOFS, p1, strict=True)))
+                except Exception:  # noqa: BLE001 - a refused or unplannable move is simply not a case
+                    continue
+                if cmd["lo"] <= gp.plan.duration <= cmd["hi"]:
+                    cases.append([*p0.tolist(), *p1.tolist()])
+            out.write(json.dumps({"cases": cases}) + "\n")
+        elif cmd["op"] == "plan":
+            c = np.asarray(cmd["case"], float)
+            start, goal = MotionState.at_rest(c[:4]), dict(zip(DOFS, c[4:], strict=True))
+            t0 = time.perf_counter()
+            gp = guard.plan(start, goal)
+            dt = time.perf_counter() - t0
+            res: dict = {"dt": dt, "duration": gp.plan.duration, "samples": len(gp.setpoints.t)}
+            if cmd.get("result"):
+                res |= {
+                    "q": gp.setpoints.actuators.tolist(),
+                    "qd": gp.setpoints.actuator_velocity.tolist(),
+                    "pose": gp.setpoints.pose.tolist(),
+                    "decision": gp.decision.to_json(),
+                }
+            out.write(json.dumps(res) + "\n")
+        out.flush()
+
+
+def _max_diff(a, b) -> float:
+    """Largest |a - b| over equal nested JSON values (inf where the structure or a string differs)."""
+    if isinstance(a, dict):
+        return max((_max_diff(a[k], b[k]) for k in a), default=0.0) if a.keys() == b.keys() else float("inf")
+    if isinstance(a, list):
+        return max((_max_diff(x, y) for x, y in zip(a, b, strict=True)), default=0.0) if len(a) == len(b) else 1e300
+    if isinstance(a, (int, float)) and isinstance(b, (int, float)) and not isinstance(a, bool):
+        return 0.0 if a == b else abs(float(a) - float(b)) / max(1.0, abs(float(a)))
+    return 0.0 if a == b else float("inf")
+
+
+def compare(args) -> None:
+    """Guarded goto plans of the code in ``args.compare_with`` and of this tree, alternately."""
+    here = Path(__file__).resolve().parent.parent
+    trees = {"old": Path(args.compare_with).resolve(), "new": here}
+    procs = {}
+    for name, root in trees.items():
+        env = {**os.environ, "PYTHONPATH": str(root)}
+        procs[name] = subprocess.Popen(
+            [sys.executable, __file__, "--worker"], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env
+        )
+
+    def ask(name: str, cmd: dict) -> dict:
+        p = procs[name]
+        assert p.stdin is not None and p.stdout is not None
+        p.stdin.write(json.dumps(cmd) + "\n")
+        p.stdin.flush()
+        line = p.stdout.readline()
+        if not line:
+            raise RuntimeError(f"the {name} worker ended")
+        return json.loads(line)
+
+    try:
+        sel = {"op": "cases", "seed": 1, "n": args.goto_moves, "lo": 4.5, "hi": 5.5}
+        cases = ask("new", sel)["cases"]
+        times: dict[str, list[float]] = {"old": [], "new": []}
+        worst, durations, samples = 0.0, [], []
+        for c in cases:  # results once (outside the timing), then alternating timed repetitions
+            r = {n: ask(n, {"op": "plan", "case": c, "result": True}) for n in ("old", "new")}
+            worst = max(
+                worst,
+                _max_diff(
+                    {k: r["old"][k] for k in ("q", "qd", "pose", "decision")},
+                    {k: r["new"][k] for k in ("q", "qd", "pose", "decision")},
+                ),
+            )
+            durations.append(r["new"]["duration"])
+            samples.append(r["new"]["samples"])
+        load0 = os.getloadavg()
+        for _ in range(args.repeat):
+            for c in cases:
+                for n in ("old", "new"):
+                    times[n].append(ask(n, {"op": "plan", "case": c})["dt"])
+        load1 = os.getloadavg()
+    finally:
+        for p in procs.values():
+            if p.stdin is not None:
+                p.stdin.close()
+            p.wait(10)
+    res = {
+        "machine": machine_note(),
+        "load_average_1_5_15": {"before": list(load0), "after": list(load1)},
+        "old_tree": str(trees["old"]),
+        "moves": len(cases),
+        "repeat": args.repeat,
+        "duration_s": {"min": min(durations), "median": float(np.median(durations)), "max": max(durations)},
+        "samples_median": float(np.median(samples)),
+        "guard_plan_ms": {
+            n: {k.replace("_us", "_ms"): v / 1e3 for k, v in percentiles_us(t).items() if k != "n"}
+            for n, t in times.items()
+        },
+        "max_rel_diff_old_new": worst,
+    }
+    old, new = res["guard_plan_ms"]["old"], res["guard_plan_ms"]["new"]
+    print(f"machine: {res['machine']}; load average before {load0[0]:.2f} {load0[1]:.2f}, after {load1[0]:.2f}")
+    print(
+        f"{len(cases)} guarded goto plans x {args.repeat}, duration {res['duration_s']['min']:.2f}.."
+        f"{res['duration_s']['max']:.2f} s (median {res['duration_s']['median']:.2f} s, "
+        f"{res['samples_median']:.0f} samples of the returned plan), alternating old/new"
+    )
+    for n, v in (("old", old), ("new", new)):
+        print(f"Guard.plan {n}: p50 {v['p50_ms']:.2f} ms   p99 {v['p99_ms']:.2f} ms   max {v['max_ms']:.2f} ms")
+    print(f"ratio old/new: p50 {old['p50_ms'] / new['p50_ms']:.2f}x   p99 {old['p99_ms'] / new['p99_ms']:.2f}x")
+    print(f"setpoints and decisions old vs new: largest difference {worst:.3g} (relative above 1)")
+    write_json(args.json, res)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--moves", type=int, default=200)
     ap.add_argument("--min-duration", type=float, default=4.0, help="keep moves at least this long [s]")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--compare-with", default=None, help="a checkout of older code: Guard.plan old vs new")
+    ap.add_argument("--goto-moves", type=int, default=40, help="--compare-with: moves of 4.5..5.5 s")
+    ap.add_argument("--repeat", type=int, default=5, help="--compare-with: timed plans of each move per tree")
+    ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.worker:
+        return _worker()
+    if args.compare_with:
+        return compare(args)
     model = HitchModel.from_profile()
     tp = TrajectoryPlanner(model)
     # the guard's check of every sample (FK, end stops, keep-outs, stability) with a heavy implement on a side slope

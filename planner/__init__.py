@@ -54,6 +54,7 @@ if TYPE_CHECKING:
     from planner.trajectory.jog import JogController
     from planner.trajectory.plan import MotionState, Plan, PlanError, Setpoints
     from planner.trajectory.planner import TrajectoryPlanner, Waypoint
+    from planner.trajectory.track import TrackFollower
 
 #: public name -> the module that defines it
 _SOURCES: dict[str, str] = {
@@ -76,6 +77,7 @@ _SOURCES: dict[str, str] = {
     **dict.fromkeys(("MotionState", "Plan", "PlanError", "Setpoints"), "planner.trajectory.plan"),
     **dict.fromkeys(("TrajectoryPlanner", "Waypoint"), "planner.trajectory.planner"),
     "JogController": "planner.trajectory.jog",
+    "TrackFollower": "planner.trajectory.track",
     **dict.fromkeys(("Guard", "GuardDecision", "GuardRefusal", "GuardedPlan"), "planner.limits.guard"),
     "StabilityThresholds": "planner.limits.stability",
     "load_tractor_profile": "planner.limits.tractor",
@@ -114,6 +116,7 @@ __all__ = [
     "TrajectoryPlanner",
     "Waypoint",
     "JogController",
+    "TrackFollower",
     "Guard",
     "GuardDecision",
     "GuardRefusal",

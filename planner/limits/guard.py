@@ -27,21 +27,19 @@ from numpy.typing import ArrayLike
 
 from planner.limits.end_stop import EndStopZone
 from planner.limits.kinematic_margin import KinematicMargin, kinematic_margin
-from planner.limits.stability import StabilityReport, StabilityThresholds, evaluate_stability
+from planner.limits.stability import StabilityReport, StabilityThresholds, _cross3, evaluate_stability
 from planner.limits.stability_batch import StabilityBatch, evaluate_stability_batch
 from planner.limits.tractor import ImplementRecord, StabilityInputError, Tractor, load_tractor_profile
-from planner.model.fast_function import FastFunction
 from planner.model.kinematics import POINT_NAMES, HitchModel
 from planner.model.limit_names import LimitName
 from planner.model.types import ACTUATOR_NAMES
-from planner.trajectory.plan import MotionState, Plan, PlanError, Setpoints
+from planner.trajectory.plan import MotionState, Plan, PlanError, Setpoints, forward_batch
 from planner.trajectory.planner import TrajectoryPlanner
 
 __all__ = ["Guard", "GuardDecision", "GuardReason", "GuardRefusal", "GuardedPlan"]
 
 Action = Literal["ok", "scaled", "refused"]
 _MEASURES = ("front_axle_load", "ssm", "lsm", "esm")
-_FK_CHUNK = 64  # samples per call of the mapped forward kinematics
 _FK_CLOSED_M = 0.5e-9  # closure residual [m] trusted in a batch (HitchModel.forward refuses > 1e-9)
 _KEEP_OUT_TOL_M = 1e-10  # bound on |batch - per-sample| keep-out distance [m] (rounding ~1e-15 m)
 #: ``end_stop:<actuator>`` per actuator, order ACTUATOR_NAMES.
@@ -133,7 +131,6 @@ class Guard:
         )
         self.keep_out = [(k.name, np.array(k.centre), k.radius) for k in prof.limits.keep_out]
         self._keep_out_names = tuple(str(LimitName("keep_out", k.name)) for k in prof.limits.keep_out)
-        self._points_map = FastFunction(self.model.points_function.map(_FK_CHUNK))
 
     # ------------------------------------------------------------------ configuration
     def set_slope(self, roll: float, pitch: float) -> None:
@@ -154,7 +151,7 @@ class Guard:
         xi /= np.linalg.norm(xi)
         zi = P["U"] - P["T"]
         zi /= np.linalg.norm(zi)
-        yi = np.cross(zi, xi)
+        yi = _cross3(zi, xi)  # np.cross's products and differences, without its overhead
         R = np.column_stack([xi, yi, zi])
         return evaluate_stability(
             self.tractor,
@@ -199,22 +196,27 @@ class Guard:
         worst), the suspect ones and those whose batch value lies within the batch's agreement
         bound of a threshold are evaluated that way.
         """
+        return self._check_setpoints(sp, {})
+
+    def _check_setpoints(self, sp: Setpoints, cache: dict[bytes, _Exact]) -> GuardDecision:
+        """:meth:`check_setpoints` with ``cache``: the per-sample results by actuator bytes, to
+        share between the plans of one :meth:`plan` (same slope, implement and thresholds)."""
         Q, QD, ts = np.asarray(sp.actuators, float), np.asarray(sp.actuator_velocity, float), sp.t
-        start = self.stability_at(Q[0])
-        start_vals = _measure_values(start)
-        hard_th, caution_th = self._thresholds()
-        H, C, S = (np.array([d[m] for m in _MEASURES]) for d in (hard_th, caution_th, start_vals))
-        Sm = S - 1e-9
-        cache = {Q[0].tobytes(): (self.keep_out_clearance(Q[0]), start)}
+        P, suspect = self._points_batch(Q)
+        fk_ok = ~suspect  # rows whose batch points are HitchModel.forward's, bit for bit
 
         def exact(k: int) -> _Exact:  # the per-sample path: keep-out clearances, report
             key = Q[k].tobytes()
             if key not in cache:
-                pts = self.model.forward(Q[k]).points
+                pts = {n: P[n][k].copy() for n in P} if fk_ok[k] else self.model.forward(Q[k]).points
                 cache[key] = (self.keep_out_clearance(Q[k], pts), self.stability_at(Q[k], pts))
             return cache[key]
 
-        P, suspect = self._points_batch(Q)
+        start = exact(0)[1]
+        start_vals = _measure_values(start)
+        hard_th, caution_th = self._thresholds()
+        H, C, S = (np.array([d[m] for m in _MEASURES]) for d in (hard_th, caution_th, start_vals))
+        Sm = S - 1e-9
         batch = evaluate_stability_batch(
             self.tractor, self.implement, *_implement_frames(P), *self.slope, front_ballast=self.settings.front_ballast
         )
@@ -303,22 +305,10 @@ class Guard:
     def _points_batch(self, Q: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray]:
         """FK points L, R, T, U, H (N, 3) [m] of actuator rows Q (N, 5), bit for bit those of
         :meth:`HitchModel.forward`, and the rows it might refuse (not closing, not finite)."""
-        n, c = len(Q), _FK_CHUNK
-        pts, bad = np.empty((n, 3, len(POINT_NAMES))), np.empty(n, bool)
-        for s in range(0, n, c):
-            blk = Q[s : s + c]
-            m = len(blk)
-            if m < c:
-                blk = np.vstack([blk, np.repeat(blk[-1:], c - m, axis=0)])
-            f, pm, _, checks = self._points_map(blk.T)
-            pts[s : s + m] = pm.reshape(3, len(POINT_NAMES), c, order="F").transpose(2, 0, 1)[:m]
-            ok = (
-                (np.abs(checks[:4]) <= _FK_CLOSED_M).all(axis=0)
-                & (np.abs(checks[4]) <= 1.0)
-                & np.isfinite(f).all(axis=0)
-            )
-            bad[s : s + m] = ~ok[:m]
-        bad |= ~np.isfinite(Q).all(axis=1)
+        f, pts, checks = forward_batch(self.model)(Q)  # shared with the planner's verification of these samples
+        with np.errstate(invalid="ignore"):
+            ok = (np.abs(checks[:, :4]) <= _FK_CLOSED_M).all(axis=1) & (np.abs(checks[:, 4]) <= 1.0)
+            bad = ~(ok & np.isfinite(f).all(axis=1)) | ~np.isfinite(Q).all(axis=1)
         return {n: pts[:, :, POINT_NAMES.index(n)] for n in ("L", "R", "T", "U", "H")}, bad
 
     def _keep_out_batch(self, P: dict[str, np.ndarray]) -> np.ndarray:
@@ -354,10 +344,15 @@ class Guard:
         """
         total, caution_applied = 1.0, False
         reasons: list[GuardReason] = []
+        cache: dict[bytes, _Exact] = {}  # per-sample results: the plans share start and goal
+        context = self._context()
         for _ in range(8):
             plan = self.planner.plan_move(start, goal, speed_scale=speed_scale * total)
             sp = plan.sampled()
-            dec = self.check_setpoints(sp)
+            if self._context() != context:  # changed meanwhile (another thread): evaluate afresh
+                cache.clear()
+                context = self._context()
+            dec = self._check_setpoints(sp, cache)
             if dec.action == "refused":
                 raise GuardRefusal(dec)
             reasons.extend(r for r in dec.reasons if r not in reasons)
@@ -410,6 +405,10 @@ class Guard:
             reasons.append(GuardReason(_END_STOP_NAMES[i], f_end, 1.0, 0.0, "speed"))
             factor = min(factor, f_end)
         return rates * factor, GuardDecision("ok" if factor >= 1.0 else "scaled", factor, tuple(reasons), ahead)
+
+    def _context(self) -> tuple:
+        """What the per-sample results depend on besides the actuators."""
+        return (self.slope, self.implement, id(self.tractor), self.thresholds, self.settings.front_ballast)
 
     def _thresholds(self) -> tuple[dict[str, float], dict[str, float]]:
         th, w = self.thresholds, self.tractor.empty_weight

@@ -32,6 +32,7 @@ Forward overturn over the front wheels and the front-axle oscillation stops are 
 from __future__ import annotations
 
 import math
+import weakref
 from dataclasses import asdict, dataclass, field
 from typing import Literal
 
@@ -72,6 +73,9 @@ EDGE_NAMES: tuple[str, str, str] = ("rear", "right", "left")
 #: A stability measure: front-axle load [N], SSM [m], LSM [m], ESM [J].
 Measure = Literal["front_axle_load", "ssm", "lsm", "esm"]
 _EDGES = ((0, 1, 2), (1, 2, 0), (2, 0, 1))  # (A, B, opposite vertex) over Tractor.support_vertices
+#: pose-independent parts of the margins per tractor (a Tractor is frozen, its arrays read-only)
+_SUPPORT_CACHE: weakref.WeakKeyDictionary[Tractor, tuple] = weakref.WeakKeyDictionary()
+_ENERGY_CACHE: weakref.WeakKeyDictionary[Tractor, dict[bytes, tuple]] = weakref.WeakKeyDictionary()
 
 
 def _cross3(a, b) -> np.ndarray:
@@ -158,9 +162,15 @@ def axle_loads(tractor: Tractor, mass: float, centre_of_mass, gravity) -> AxleLo
     front.  Friction acts at ground level and has no moment about that line.  On level ground
     this is the manuals' T_V = T_L (y_r - p_y) / b.
     """
-    W = _scalar("mass", mass, 0.0, 100_000.0, open_lo=True) * STANDARD_GRAVITY * _unit_gravity(gravity)
+    m = _scalar("mass", mass, 0.0, 100_000.0, open_lo=True)
+    g = _unit_gravity(gravity)
+    return _axle_loads(tractor, m, _vector3("centre_of_mass", centre_of_mass), g)
+
+
+def _axle_loads(tractor: Tractor, mass: float, p: np.ndarray, g: np.ndarray) -> AxleLoads:
+    """:func:`axle_loads` of inputs already checked."""
+    W = mass * STANDARD_GRAVITY * g
     y_r = tractor.rear_axle[1]
-    p = _vector3("centre_of_mass", centre_of_mass)
     front = ((p[1] - y_r) * W[2] - (p[2] - tractor.ground_z) * W[1]) / tractor.wheelbase
     return AxleLoads(float(front), float(-W[2] - front))
 
@@ -208,28 +218,44 @@ class SupportMargins:
         return EDGE_NAMES[int(np.argmin(self.edge_distances))]
 
 
+def _support_constants(tractor: Tractor):
+    """The pose-independent part of :func:`support_margins` (kept per tractor: its arrays are
+    read-only): support frame, unit travel direction in plane coordinates, and per edge
+    (start vertex in the plane, unit inward normal m, m . travel)."""
+    const = _SUPPORT_CACHE.get(tractor)
+    if const is None:
+        V, n, e1, e2, V2 = _support_frame(tractor)
+        travel = np.array([e1[1], e2[1]])  # tractor y axis (rearward) in plane coordinates
+        travel /= np.linalg.norm(travel)
+        edges = []
+        for a, b, c in _EDGES:
+            edge = V2[b] - V2[a]
+            m = np.array([-edge[1], edge[0]]) / np.linalg.norm(edge)
+            if m @ (V2[c] - V2[a]) < 0:
+                m = -m
+            edges.append((V2[a], m, float(m @ travel)))
+        const = _SUPPORT_CACHE[tractor] = (V, n, e1, e2, V2, tuple(edges))
+    return const
+
+
 def support_margins(tractor: Tractor, centre_of_mass, gravity) -> SupportMargins:
     """SSM and LSM of ``centre_of_mass`` (3,) [m] for gravity direction ``gravity`` (unit, (3,))."""
-    p = _vector3("centre_of_mass", centre_of_mass)
-    g = _unit_gravity(gravity)
-    V, n, e1, e2, V2 = _support_frame(tractor)
+    return _support_margins(tractor, _vector3("centre_of_mass", centre_of_mass), _unit_gravity(gravity))
+
+
+def _support_margins(tractor: Tractor, p: np.ndarray, g: np.ndarray) -> SupportMargins:
+    """:func:`support_margins` of inputs already checked."""
+    V, n, e1, e2, V2, edges = _support_constants(tractor)
     denom = float(n @ g)
     if abs(denom) < 1e-9:
         raise StabilityInputError("slope: gravity is parallel to the support plane; no projection exists")
     q = p + (float(n @ (V[0] - p)) / denom) * g
     q2 = np.array([(q - V[0]) @ e1, (q - V[0]) @ e2])
-    travel = np.array([e1[1], e2[1]])  # tractor y axis (rearward) in plane coordinates
-    travel /= np.linalg.norm(travel)
     d, s_lo, s_hi, misses = [], -math.inf, math.inf, False
-    for a, b, c in _EDGES:
-        edge = V2[b] - V2[a]
-        m = np.array([-edge[1], edge[0]]) / np.linalg.norm(edge)
-        if m @ (V2[c] - V2[a]) < 0:
-            m = -m
-        di = float(m @ (q2 - V2[a]))
+    for va, m, mv in edges:
+        di = float(m @ (q2 - va))
         d.append(di)
         # Cyrus-Beck clipping of the travel line q2 + s * travel: di + s (m . travel) >= 0
-        mv = float(m @ travel)
         if abs(mv) < 1e-12:
             misses |= di < 0
         elif mv > 0:
@@ -272,21 +298,44 @@ def energy_margins(tractor: Tractor, mass: float, centre_of_mass, gravity) -> En
     """
     m = _scalar("mass", mass, 0.0, 100_000.0, open_lo=True)
     p = _vector3("centre_of_mass", centre_of_mass)
-    up = -_unit_gravity(gravity)
-    V = tractor.support_vertices
+    return _energy_margins(tractor, m, p, _unit_gravity(gravity))
+
+
+def _energy_margins(tractor: Tractor, m: float, p: np.ndarray, g: np.ndarray) -> EnergyMargins:
+    """:func:`energy_margins` of inputs already checked."""
+    up = -g
     out = []
-    for a_i, b_i, c_i in _EDGES:
-        A = V[a_i]
-        axis = (V[b_i] - A) / np.linalg.norm(V[b_i] - A)
+    for A, axis, lift, side in _energy_constants(tractor, up):
         r = p - A
         r_perp = r - (r @ axis) * axis
-        rise = np.linalg.norm(r_perp) * math.sqrt(max(0.0, 1.0 - float(axis @ up) ** 2)) - float(r_perp @ up)
-        side = _cross3(axis, up)  # normal of the vertical plane through the edge
-        if side @ (V[c_i] - A) < 0:
-            side = -side
+        rise = np.linalg.norm(r_perp) * lift - float(r_perp @ up)
         sign = float(np.sign(side @ r))
         out.append(sign * m * STANDARD_GRAVITY * max(0.0, float(rise)))
     return EnergyMargins((out[0], out[1], out[2]))
+
+
+def _energy_constants(tractor: Tractor, up: np.ndarray):
+    """Per edge of :func:`energy_margins`: start vertex A, unit axis, sqrt(1 - (axis . up)^2)
+    and the normal of the vertical plane through the edge towards the third vertex (kept per
+    tractor and up direction)."""
+    per_up = _ENERGY_CACHE.setdefault(tractor, {})
+    key = up.tobytes()
+    const = per_up.get(key)
+    if const is None:
+        V = tractor.support_vertices
+        edges = []
+        for a_i, b_i, c_i in _EDGES:
+            A = V[a_i]
+            axis = (V[b_i] - A) / np.linalg.norm(V[b_i] - A)
+            lift = math.sqrt(max(0.0, 1.0 - float(axis @ up) ** 2))
+            side = _cross3(axis, up)  # normal of the vertical plane through the edge
+            if side @ (V[c_i] - A) < 0:
+                side = -side
+            edges.append((A, axis, lift, side))
+        if len(per_up) >= 32:  # slopes change: keep the last few
+            per_up.clear()
+        const = per_up[key] = tuple(edges)
+    return const
 
 
 def minimum_front_ballast(
@@ -424,9 +473,11 @@ def evaluate_stability(
         raise StabilityInputError("thresholds must be a StabilityThresholds")
     g = gravity_direction(slope_roll, slope_pitch)
     load = build_load_case(tractor, implement, T, R_i, front_ballast)
-    loads = axle_loads(tractor, load.mass, load.centre_of_mass, g)
-    margins = support_margins(tractor, load.centre_of_mass, g)
-    energy = energy_margins(tractor, load.mass, load.centre_of_mass, g)
+    # the load case is checked (finite, total mass within 90 t) and g is a unit vector: the
+    # measures without checking their inputs again
+    loads = _axle_loads(tractor, load.mass, load.centre_of_mass, g)
+    margins = _support_margins(tractor, load.centre_of_mass, g)
+    energy = _energy_margins(tractor, load.mass, load.centre_of_mass, g)
     c = d = 0.0  # the manuals' c (rear axle -> lower-link balls) and d (balls -> implement CoG) [m]
     t_pt, p_impl = load.tool_point, load.implement_centre_of_mass
     if t_pt is not None and p_impl is not None:  # both are set exactly when there is an implement

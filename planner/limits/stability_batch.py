@@ -7,8 +7,8 @@ same order (build_load_case -> axle_loads, support_margins, energy_margins; see 
 for conventions and sources) with the pose-independent parts (gravity, support frame, edge
 axes) taken from it, so the meaning cannot drift.
 
-Results agree with the per-sample function to rounding (BLAS dot products there, plain
-products and sums here), not bit for bit.  Each result therefore carries ``tolerance``: a
+Results agree with the per-sample function to rounding (its dot products of 3-vectors, here
+matrix-vector products and einsum over all poses), not bit for bit.  Each result therefore carries ``tolerance``: a
 bound per measure on |batch - per-sample| (10^4 times and more the rounding seen in tests),
 and the samples where the batch cannot vouch for that bound (``suspect``): inputs the
 per-sample function would reject (non-finite, rotation not proper within its 1e-6),
@@ -29,7 +29,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planner.limits.stability import _EDGES, _support_frame, evaluate_stability, gravity_direction
+from planner.limits.stability import (
+    _EDGES,
+    _energy_constants,
+    _support_constants,
+    evaluate_stability,
+    gravity_direction,
+)
 from planner.limits.tractor import STANDARD_GRAVITY, ImplementRecord, StabilityInputError, Tractor, _scalar
 
 __all__ = ["MEASURE_NAMES", "StabilityBatch", "evaluate_stability_batch"]
@@ -65,11 +71,8 @@ class StabilityBatch:
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise dot product of (N, k) with (N, k) or (k,): sum of products in index order."""
-    out = a[:, 0] * (b[:, 0] if b.ndim == 2 else b[0])
-    for j in range(1, a.shape[1]):
-        out = out + a[:, j] * (b[:, j] if b.ndim == 2 else b[j])
-    return out
+    """Row-wise dot product of (N, k) with (N, k) or (k,) (one call: matrix-vector product or einsum)."""
+    return a @ b if b.ndim == 1 else np.einsum("ij,ij->i", a, b)
 
 
 def _norm(a: np.ndarray) -> np.ndarray:
@@ -77,11 +80,14 @@ def _norm(a: np.ndarray) -> np.ndarray:
 
 
 def _pose_suspect(T: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """Poses the per-sample function might reject (tractor._vector3 / _rotation), with margin."""
+    """Poses the per-sample function might reject (tractor._vector3 / _rotation), with margin:
+    the Gram matrix R^T R off the identity, the determinant (triple product of the columns)."""
     with np.errstate(invalid="ignore", over="ignore"):
         finite = np.isfinite(T).all(axis=1) & np.isfinite(R).all(axis=(1, 2))
-        ortho = np.abs(np.einsum("nki,nkj->nij", R, R) - np.eye(3)).max(axis=(1, 2))
-        det = np.linalg.det(np.where(finite[:, None, None], R, 0.0))
+        Rf = np.where(finite[:, None, None], R, 0.0)
+        ortho = np.abs(np.matmul(Rf.transpose(0, 2, 1), Rf) - np.eye(3)).max(axis=(1, 2))
+        c0, c1, c2 = Rf[:, :, 0], Rf[:, :, 1], Rf[:, :, 2]
+        det = np.einsum("ij,ij->i", np.cross(c0, c1), c2)
     return ~finite | ~(ortho <= 0.5 * _ORTHO_TOL) | ~(det > 0.5)
 
 
@@ -138,17 +144,15 @@ def evaluate_stability_batch(
     W = m * STANDARD_GRAVITY * g
     front = ((p[:, 1] - tractor.rear_axle[1]) * W[2] - (p[:, 2] - tractor.ground_z) * W[1]) / tractor.wheelbase
 
-    # support_margins
-    V, nrm, e1, e2, V2 = _support_frame(tractor)
+    # support_margins (its pose-independent part: frame, edges)
+    V, nrm, e1, e2, V2, edges = _support_constants(tractor)
     denom = float(nrm @ g)
     if abs(denom) < 1e-9:
         raise StabilityInputError("slope: gravity is parallel to the support plane; no projection exists")
     q = p + (_dot(V[0] - p, nrm) / denom)[:, None] * g
-    q2 = np.column_stack([_dot(q - V[0], e1), _dot(q - V[0], e2)])
-    travel = np.array([e1[1], e2[1]])
-    travel /= np.linalg.norm(travel)
-    d, s_lo, s_hi = [], np.full(n, -math.inf), np.full(n, math.inf)
-    misses, seg = np.zeros(n, bool), []
+    q2 = (q - V[0]) @ np.column_stack([e1, e2])
+    s_lo, s_hi = np.full(n, -math.inf), np.full(n, math.inf)
+    misses = np.zeros(n, bool)
     branch_near = np.zeros(n, bool)
     # length scale of every point involved [m]: the agreement bounds are relative to it
     reach = float(np.max(np.where(np.isfinite(T), np.abs(T), 0.0))) + float(np.linalg.norm(c))
@@ -158,15 +162,14 @@ def evaluate_stability_batch(
         float(np.max(np.abs(tractor.front_ballast_point))),
         reach,
     )
+    Va = np.array([e[0] for e in edges])  # (3, 2) edge start, inward unit normal, end - start
+    M = np.array([e[1] for e in edges])
+    AB = V2[[b for _, b, _ in _EDGES]] - V2[[a for a, _, _ in _EDGES]]
+    rel = q2[:, None, :] - Va  # (N, 3, 2)
+    D = np.einsum("nek,ek->ne", rel, M)  # signed distances to the edge lines
     mv_min = 1.0
-    for a, b, cc in _EDGES:
-        edge = V2[b] - V2[a]
-        mvec = np.array([-edge[1], edge[0]]) / np.linalg.norm(edge)
-        if mvec @ (V2[cc] - V2[a]) < 0:
-            mvec = -mvec
-        di = _dot(q2 - V2[a], mvec)
-        d.append(di)
-        mv = float(mvec @ travel)
+    for i, (_, _, mv) in enumerate(edges):
+        di = D[:, i]
         if abs(mv) < 1e-12:
             misses |= di < 0
             branch_near |= np.abs(di) <= _REL_TOL * length / abs(denom)
@@ -176,34 +179,26 @@ def evaluate_stability_batch(
         else:
             s_hi = np.minimum(s_hi, -di / mv)
             mv_min = min(mv_min, abs(mv))
-        ab = V2[b] - V2[a]
-        s = np.minimum(1.0, np.maximum(0.0, _dot(q2 - V2[a], ab) / float(ab @ ab)))
-        seg.append(_norm(q2 - (V2[a] + s[:, None] * ab)))
-    dmin = np.minimum(np.minimum(d[0], d[1]), d[2])
-    ssm = np.where(dmin > 0, dmin, -np.minimum(np.minimum(seg[0], seg[1]), seg[2]))
+    s = np.minimum(1.0, np.maximum(0.0, np.einsum("nek,ek->ne", rel, AB) / np.einsum("ek,ek->e", AB, AB)))
+    off = rel - s[:, :, None] * AB
+    seg = np.sqrt(np.einsum("nek,nek->ne", off, off))  # distances to the edge segments
+    dmin = np.minimum(np.minimum(D[:, 0], D[:, 1]), D[:, 2])
+    ssm = np.where(dmin > 0, dmin, -np.minimum(np.minimum(seg[:, 0], seg[:, 1]), seg[:, 2]))
     tol_len = _REL_TOL * length / (abs(denom) * mv_min)
     branch_near |= np.abs(s_lo - s_hi) <= 2 * tol_len
     lsm = np.where(misses | (s_lo > s_hi), ssm, np.minimum(-s_lo, s_hi))
 
-    # energy_margins
+    # energy_margins (per edge: start, unit axis, sqrt(1 - (axis . up)^2), vertical plane normal)
     up = -g
-    energies = []
-    for a_i, b_i, c_i in _EDGES:
-        A = V[a_i]
-        axis = (V[b_i] - A) / np.linalg.norm(V[b_i] - A)
-        r = p - A
-        r_perp = r - _dot(r, axis)[:, None] * axis
-        rise = _norm(r_perp) * math.sqrt(max(0.0, 1.0 - float(axis @ up) ** 2)) - _dot(r_perp, up)
-        side = np.array(
-            [axis[1] * up[2] - axis[2] * up[1], axis[2] * up[0] - axis[0] * up[2], axis[0] * up[1] - axis[1] * up[0]]
-        )
-        if side @ (V[c_i] - A) < 0:
-            side = -side
-        side_r = _dot(r, side)
-        # the sign of side.r switches E between +-rise; it jumps there when the CoM is below the edge
-        branch_near |= np.abs(side_r) <= _REL_TOL * length
-        energies.append(np.sign(side_r) * m * STANDARD_GRAVITY * np.maximum(0.0, rise))
-    esm = np.minimum(np.minimum(energies[0], energies[1]), energies[2])
+    A, AX, LIFT, SIDE = (np.array(x) for x in zip(*_energy_constants(tractor, up), strict=True))
+    r = p[:, None, :] - A  # (N, 3, 3)
+    r_perp = r - np.einsum("nek,ek->ne", r, AX)[:, :, None] * AX
+    rise = np.sqrt(np.einsum("nek,nek->ne", r_perp, r_perp)) * LIFT - r_perp @ up
+    side_r = np.einsum("nek,ek->ne", r, SIDE)
+    # the sign of side.r switches E between +-rise; it jumps there when the CoM is below the edge
+    branch_near |= (np.abs(side_r) <= _REL_TOL * length).any(axis=1)
+    energies = np.sign(side_r) * m * STANDARD_GRAVITY * np.maximum(0.0, rise)
+    esm = np.minimum(np.minimum(energies[:, 0], energies[:, 1]), energies[:, 2])
 
     weight_scale = m * STANDARD_GRAVITY * length
     tolerance = {

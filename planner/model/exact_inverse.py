@@ -20,23 +20,43 @@ the independent closed-form truth the QP IK and the tests are checked against.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 
 from planner.model.angle_maps import angles_to_actuators_sx
-from planner.model.fast_function import FastFunction
+from planner.model.fast_function import FastFunction, MappedFunction
 from planner.model.geometry import LEFT, RIGHT, mast_frame, side_geometry
 from planner.model.kinematics import HitchModel
 from planner.model.types import Actuators, KinematicsError, ModelInputError
 
-__all__ = ["ExactInverse"]
+__all__ = ["ExactInverse", "InverseBatch"]
 
 _TOL_M = 1e-9
 
 
-def _build(model: HitchModel, newton: int = 8) -> ca.Function:
+@dataclass(frozen=True)
+class InverseBatch:
+    """The exact inverse at N poses: actuators (N, 5), their velocities (N, 5) for the given
+    pose velocities, y_T [m] and yaw [rad] (N,), and ``ok`` (N,): the rows
+    :meth:`ExactInverse.solve_full` accepts (the others hold unchecked values)."""
+
+    actuators: np.ndarray
+    actuator_velocity: np.ndarray
+    y: np.ndarray
+    yaw: np.ndarray
+    ok: np.ndarray
+
+
+def _build(model: HitchModel, newton: int = 8, *, rate: bool = False) -> ca.Function:
+    """pose → (actuators, d actuators / d pose, checks, (y_T, yaw)); with ``rate``, (pose, pose
+    velocity) → (actuators, actuator velocity, checks, (y_T, yaw)) by the same instructions
+    for every value, the velocity by forward AD through the closed forms and the last Newton
+    step only. At the converged solution that is the implicit-function derivative, which
+    differentiating every iteration reaches as well: the terms the earlier iterations add are
+    proportional to the residual before the last step (~1e-16 m over the workspace)."""
     prof = model.profile
     g = prof.geometry
     left, right = side_geometry(prof, LEFT), side_geometry(prof, RIGHT)
@@ -58,7 +78,11 @@ def _build(model: HitchModel, newton: int = 8) -> ca.Function:
     half_gap = (s - g.lower_link_pivot_span) / 2
     y0 = ca.sqrt(ca.fmax(1e-6, l_vv**2 - half_gap**2 - z**2))
     sol = ca.vertcat(y0, 0.0)
-    for _ in range(newton):
+    before, last = sol, sol
+    for k in range(newton):
+        if rate and k == newton - 1:  # the last step from a free symbol (bound to the iterate below)
+            before, sol = sol, ca.SX.sym("u_last", 2)
+            last = sol
         rk, jk = ca.substitute([res, jac], [u], [sol])
         det = jk[0, 0] * jk[1, 1] - jk[0, 1] * jk[1, 0]
         sol = sol - ca.vertcat(jk[1, 1] * rk[0] - jk[0, 1] * rk[1], -jk[1, 0] * rk[0] + jk[0, 0] * rk[1]) / det
@@ -76,6 +100,14 @@ def _build(model: HitchModel, newton: int = 8) -> ca.Function:
     top = ca.norm_2(U - ca.DM(g.top_link_tractor_point))
     q = ca.vertcat(lift, tilt, top, lim_l, lim_r)
     checks = ca.vertcat(ca.norm_2(L - L0) - l_vv, ca.norm_2(R - R0) - l_vv, lift_arg)
+    if rate:
+        v = ca.SX.sym("pose_velocity", 4)
+        outs = [q, ca.jtimes(q, target, v), checks, ca.vertcat(sol[0], sol[1])]
+        step = ca.Function("step", [target, last, v], outs)
+        newton_start = ca.Function("newton_start", [target], [before])
+        p, pv = ca.SX.sym("pose", 4), ca.SX.sym("pose_velocity", 4)
+        values: list[ca.SX] = list(step(p, newton_start(p), pv))  # the graphs inlined, as symbols
+        return ca.Function("hitch_exact_inverse_rate", [p, pv], ca.cse(values))
     outs = [q, ca.densify(ca.jacobian(q, target)), checks, ca.vertcat(sol[0], sol[1])]
     return ca.Function("hitch_exact_inverse", [target], ca.cse(outs))
 
@@ -87,6 +119,7 @@ class ExactInverse:
         self.model = model
         self.function = _build(model)
         self._fast = FastFunction(self.function)
+        self._batch: MappedFunction | None = None
 
     def __call__(self, x: float, z: float, roll: float, pitch: float) -> np.ndarray:
         """Actuators (lift, tilt, top, left, right) reaching the pose exactly; KinematicsError if none."""
@@ -100,22 +133,53 @@ class ExactInverse:
     def solve_full(self, target: ArrayLike) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
         """(actuators, d actuators / d target, (y_T [m], yaw [rad])) for a target of 4 values."""
         t = np.asarray(target, dtype=float).reshape(-1)
-        if t.size != 4 or not np.all(np.isfinite(t)):
+        tl = t.tolist()
+        if len(tl) != 4 or not all(map(math.isfinite, tl)):
             raise ModelInputError("target must be 4 finite numbers (x [m], z [m], roll [rad], pitch [rad])")
-        if abs(t[2]) >= math.pi / 2 or abs(t[3]) >= math.pi / 2:
+        if abs(tl[2]) >= math.pi / 2 or abs(tl[3]) >= math.pi / 2:
             raise KinematicsError("roll and pitch must lie within ±π/2")
         q, jac, checks, y_yaw = self._fast(t)
-        c = checks[:, 0]
-        if not (abs(c[0]) <= _TOL_M and abs(c[1]) <= _TOL_M):
+        c0, c1, c2 = checks[:, 0].tolist()
+        if not (abs(c0) <= _TOL_M and abs(c1) <= _TOL_M):
             raise KinematicsError(
-                f"lower links cannot reach the implement at this pose (closure error {max(abs(c[0]), abs(c[1])):.3g} m)"
+                f"lower links cannot reach the implement at this pose (closure error {max(abs(c0), abs(c1)):.3g} m)"
             )
-        if not abs(c[2]) <= 1.0:
+        if not abs(c2) <= 1.0:
             raise KinematicsError("the fixed left lift rod cannot reach the left lower link at this pose")
         qv = q[:, 0].copy()
-        if not np.all(np.isfinite(qv)):
+        if not all(map(math.isfinite, qv.tolist())):
             raise KinematicsError("degenerate pose")
         return qv, jac.copy(), (float(y_yaw[0, 0]), float(y_yaw[1, 0]))
+
+    def solve_batch(self, targets: ArrayLike, velocities: ArrayLike) -> InverseBatch:
+        """The inverse at N targets (N, 4) moving at ``velocities`` (N, 4) (x, z, roll, pitch and
+        their rates) in one mapped evaluation.
+
+        Actuators, y_T and yaw are those of :meth:`solve_full`, bit for bit; the actuator
+        velocities are d actuators / d target · velocity as one forward directional derivative
+        (``jac @ velocity`` of :meth:`solve_full` to rounding, ~1e-16 relative; see
+        :func:`_build`). Rows with ``ok`` False are those :meth:`solve_full` refuses; ask it
+        for the reason.
+        """
+        p = np.asarray(targets, dtype=float)
+        v = np.asarray(velocities, dtype=float)
+        if p.ndim != 2 or p.shape[1] != 4 or v.shape != p.shape:
+            raise ModelInputError(f"targets and velocities must both be (N, 4), got {p.shape} and {v.shape}")
+        if self._batch is None:
+            self._batch = MappedFunction(_build(self.model, rate=True))
+        finite = np.isfinite(p).all(axis=1)
+        q, qd, checks, y_yaw = self._batch(p.T, v.T)
+        with np.errstate(invalid="ignore"):
+            ok = (
+                finite
+                & (np.abs(p[:, 2]) < math.pi / 2)
+                & (np.abs(p[:, 3]) < math.pi / 2)
+                & (np.abs(checks[0]) <= _TOL_M)
+                & (np.abs(checks[1]) <= _TOL_M)
+                & (np.abs(checks[2]) <= 1.0)
+                & np.isfinite(q).all(axis=0)
+            )
+        return InverseBatch(q.T, qd.T, y_yaw[0].copy(), y_yaw[1].copy(), ok)
 
     def actuators(self, x: float, z: float, roll: float, pitch: float) -> Actuators:
         return Actuators.from_array(self(x, z, roll, pitch))

@@ -13,7 +13,7 @@ from numpy.typing import ArrayLike
 
 from planner.model.types import ModelInputError
 
-__all__ = ["FastFunction"]
+__all__ = ["FastFunction", "MappedFunction"]
 
 
 class FastFunction:
@@ -53,3 +53,50 @@ class FastFunction:
                 dst[:] = np.ravel(src, order="F")
         self._eval()
         return self.outputs
+
+
+class MappedFunction:
+    """A CasADi ``Function`` of column-vector inputs evaluated over N columns at once.
+
+    ``function.map(c)`` for chunk sizes ``chunks`` (largest first, the last 1), each through
+    a :class:`FastFunction` built on first use: N columns cost ⌈N / c⌉ + a few calls instead
+    of N. Every column is evaluated by the same instructions as ``function`` alone, so the
+    values are those of N single calls, bit for bit.
+    """
+
+    def __init__(self, function: ca.Function, chunks: tuple[int, ...] = (64, 8, 1)):
+        for i in range(function.n_in()):
+            if function.size2_in(i) != 1:
+                raise ModelInputError(f"input {i} of {function.name()} must be a column vector")
+        if not chunks or chunks[-1] != 1 or list(chunks) != sorted(chunks, reverse=True):
+            raise ModelInputError(f"chunks must be decreasing and end with 1, got {chunks}")
+        self.function = function
+        self.chunks = tuple(int(c) for c in chunks)
+        self._fast: dict[int, FastFunction] = {}
+
+    def _chunk(self, c: int) -> FastFunction:
+        fast = self._fast.get(c)
+        if fast is None:
+            fast = self._fast[c] = FastFunction(self.function if c == 1 else self.function.map(c))
+        return fast
+
+    def __call__(self, *args: np.ndarray) -> list[np.ndarray]:
+        """Inputs ``args[i]`` of shape (size of input i, N); returns, per output, a new array
+        (rows, columns of the output × N): column block k is the output for input column k."""
+        fn = self.function
+        if len(args) != fn.n_in():
+            raise ModelInputError(f"{fn.name()}: expected {fn.n_in()} inputs of N columns each, got {len(args)}")
+        cols = [np.asarray(a, float).reshape(fn.size1_in(i), -1) for i, a in enumerate(args)]
+        n = cols[0].shape[1] if cols else 0
+        if any(c.shape[1] != n for c in cols):
+            raise ModelInputError(f"{fn.name()}: every input must have the same number of columns")
+        widths = [fn.size2_out(i) for i in range(fn.n_out())]
+        outs = [np.empty((fn.size1_out(i), w * n), order="F") for i, w in enumerate(widths)]
+        s = 0
+        for c in self.chunks:
+            while n - s >= c:
+                res = self._chunk(c)(*(col[:, s : s + c] for col in cols))
+                for out, r, w in zip(outs, res, widths, strict=True):
+                    out[:, s * w : (s + c) * w] = r
+                s += c
+        return outs

@@ -1,9 +1,17 @@
 """Jerk-limited, time-synchronised trajectories between implement poses (Ruckig in pose space),
-sampled into verified actuator setpoints; jog; joint-space moves; braking from a moving state with
-the actuators' real limits."""
+sampled into verified actuator setpoints; jog; track (streamed setpoints); joint-space moves; braking
+from a moving state with the actuators' real limits; the ideal follower (the physical tracking limit)."""
 
 from planner.trajectory.actuator_limits import ActuatorLimits
 from planner.trajectory.braking import StopProbe, braking_limits
+from planner.trajectory.ideal_follower import (
+    IdealFollow,
+    IdealFollower,
+    IdealGain,
+    ideal_bandwidth_hz,
+    ideal_follow,
+    ideal_sine_gain,
+)
 from planner.trajectory.jog import JOG_FIELDS, JogController, JogError, JogOutput
 from planner.trajectory.joint_space import JointSamples, plan_joint_move
 from planner.trajectory.plan import (
@@ -18,6 +26,15 @@ from planner.trajectory.plan import (
 )
 from planner.trajectory.planner import TrajectoryPlanner, Waypoint
 from planner.trajectory.pose_limits import PoseLimits, box_limits, straight_line_limits
+from planner.trajectory.track import (
+    SeqFilter,
+    TrackError,
+    TrackFollower,
+    TrackInputError,
+    TrackOutput,
+    TrackSetpoint,
+    TrackStateError,
+)
 
 __all__ = [
     "ActuatorLimits",
@@ -42,4 +59,17 @@ __all__ = [
     "straight_line_limits",
     "StopProbe",
     "braking_limits",
+    "TrackFollower",
+    "TrackSetpoint",
+    "TrackOutput",
+    "TrackError",
+    "TrackInputError",
+    "TrackStateError",
+    "SeqFilter",
+    "IdealFollower",
+    "IdealFollow",
+    "IdealGain",
+    "ideal_sine_gain",
+    "ideal_bandwidth_hz",
+    "ideal_follow",
 ]

@@ -9,7 +9,10 @@ angles, ground clearance, actuator velocity, and acceleration by finite differen
 
 from __future__ import annotations
 
+import itertools
 import math
+import threading
+import weakref
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -19,10 +22,11 @@ from ruckig import Trajectory
 
 from planner.errors import HitchInputError
 from planner.model.exact_inverse import ExactInverse
-from planner.model.hard_limits import HardLimits
-from planner.model.kinematics import HitchModel
+from planner.model.fast_function import MappedFunction
+from planner.model.hard_limits import STROKE_NAMES, HardLimits
+from planner.model.kinematics import FEATURE_NAMES, POINT_NAMES, HitchModel
 from planner.model.limit_names import LimitName
-from planner.model.types import ACTUATOR_NAMES, POSE_NAMES, KinematicsError
+from planner.model.types import ACTUATOR_NAMES, POSE_NAMES, KinematicsError, ModelInputError
 from planner.trajectory.actuator_limits import ActuatorLimits
 
 __all__ = [
@@ -34,11 +38,16 @@ __all__ = [
     "sample_plan",
     "verify_setpoints",
     "Violation",
+    "ForwardBatch",
+    "forward_batch",
+    "plan_states",
 ]
 
 #: ``velocity:<actuator>`` and ``acceleration:<actuator>``, order ACTUATOR_NAMES.
 _VELOCITY_NAMES: tuple[str, ...] = tuple(str(LimitName("velocity", n)) for n in ACTUATOR_NAMES)
 _ACCELERATION_NAMES: tuple[str, ...] = tuple(str(LimitName("acceleration", n)) for n in ACTUATOR_NAMES)
+#: closure residual [m] a batch row must keep to be trusted without the per-sample check (that one refuses > 1e-9)
+_FK_CLOSED_M = 0.5e-9
 
 
 class PlanError(HitchInputError):
@@ -133,24 +142,135 @@ def sample_times(duration: float, rate: float) -> np.ndarray:
     return t
 
 
+def plan_states(plan: Plan, ts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Positions and velocities (N, 4) of ``plan`` at times ``ts`` (N,): :meth:`Plan.state_at`
+    of every time, without building a state per sample.
+
+    A plan of one segment without brake or acceleration pre-profiles is evaluated from its
+    jerk-limited profiles for all times at once, as Ruckig's ``at_time`` integrates them
+    (p + t (v + t (a/2 + t j/6)), same operations, so the same values); times at or past a
+    profile's end go through ``at_time``.
+    """
+    tt = np.minimum(np.maximum(ts, 0.0), plan.duration)  # as state_at clamps
+    if len(plan.segments) == 1:
+        states = _profile_states(plan.segments[0], tt)
+        if states is not None:
+            return states
+    segs = plan.segments
+    durations = [s.duration for s in segs]
+    states_list = []
+    last = len(segs) - 1
+    for t in tt.tolist():
+        for i, seg in enumerate(segs):  # as state_at: the first segment that holds t
+            if t <= durations[i] or i == last:
+                states_list.append(seg.at_time(min(t, durations[i])))
+                break
+            t -= durations[i]
+    return _stack(states_list, len(tt))
+
+
+def _stack(states: list, n: int) -> tuple[np.ndarray, np.ndarray]:
+    flat = itertools.chain.from_iterable(itertools.chain.from_iterable(states))  # (p, v, a) of 4 each
+    arr = np.fromiter(flat, float, 12 * n).reshape(n, 3, 4)
+    return arr[:, 0].copy(), arr[:, 1].copy()
+
+
+def _profile_states(traj: Trajectory, tt: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """States of a one-section trajectory at times ``tt`` (within its duration) from its
+    profiles; None when a profile has a brake or acceleration pre-profile (``at_time`` then)."""
+    sections = traj.profiles
+    if len(sections) != 1 or len(sections[0]) != 4:
+        return None
+    d = traj.duration
+    n = len(tt)
+    pos, vel = np.empty((n, 4)), np.empty((n, 4))
+    late = np.zeros(n, bool)
+    for dof, pr in enumerate(sections[0]):
+        pre = [getattr(pr, name, None) for name in ("brake", "accel")]
+        if any(b is None or b.duration != 0.0 for b in pre) or len(pr.t) != 7:
+            return None
+        t_sum, acc = [], 0.0
+        for t in pr.t:  # Ruckig's cumulative phase times
+            acc += t
+            t_sum.append(acc)
+        idx = np.searchsorted(t_sum, tt, side="right")  # std::upper_bound
+        late |= tt >= t_sum[6]
+        idx = np.minimum(idx, 6)
+        t_diff = np.where(idx > 0, tt - np.array([0.0, *t_sum])[idx], tt)
+        p0, v0, a0, j = (np.asarray(x, float)[idx] for x in (pr.p, pr.v, pr.a, pr.j))
+        pos[:, dof] = p0 + t_diff * (v0 + t_diff * (a0 / 2 + t_diff * j / 6))
+        vel[:, dof] = v0 + t_diff * (a0 + t_diff * j / 2)
+    late |= tt >= d
+    for k in np.flatnonzero(late).tolist():  # the end (and a profile ending before it)
+        p, v, _ = traj.at_time(min(float(tt[k]), d))
+        pos[k], vel[k] = p, v
+    return pos, vel
+
+
 def sample_plan(plan: Plan, inverse: ExactInverse, rate: float) -> Setpoints:
-    """Sample at ``rate`` [Hz] (plus the exact endpoint); IK by the closed-form inverse."""
+    """Sample at ``rate`` [Hz] (plus the exact endpoint); IK by the closed-form inverse.
+
+    All samples in one mapped evaluation of the inverse (:meth:`ExactInverse.solve_batch`);
+    a sample it cannot solve is refused with the reason :meth:`ExactInverse.solve_full` gives.
+    """
     ts = sample_times(plan.duration, rate)
-    n = len(ts)
-    pose, pv = np.zeros((n, 6)), np.zeros((n, 4))
-    q, qd = np.zeros((n, 5)), np.zeros((n, 5))
-    for k, t in enumerate(ts):
-        st = plan.state_at(t)
+    pos, vel = plan_states(plan, ts)
+    inv = inverse.solve_batch(pos, vel)
+    q, qd, y, yaw = inv.actuators, inv.actuator_velocity, inv.y, inv.yaw
+    for k in np.flatnonzero(~inv.ok).tolist():  # in time order: the first unreachable sample refuses
         try:
-            qk, jac, (y, yaw) = inverse.solve_full(st.position)
+            qk, jac, (yk, yawk) = inverse.solve_full(pos[k])
         except KinematicsError as exc:
-            raise PlanError(f"sample at t = {t:.3f} s is not reachable: {exc}") from None
-        x, z, roll, pitch = st.position
-        pose[k] = (x, y, z, roll, pitch, yaw)
-        pv[k] = st.velocity
-        q[k] = qk
-        qd[k] = jac @ st.velocity
-    return Setpoints(rate, ts, pose, pv, q, qd)
+            raise PlanError(f"sample at t = {ts[k]:.3f} s is not reachable: {exc}") from None
+        q[k], qd[k], y[k], yaw[k] = qk, jac @ vel[k], yk, yawk
+    pose = np.column_stack([pos[:, 0], y, pos[:, 1], pos[:, 2], pos[:, 3], yaw])
+    return Setpoints(rate, ts, pose, vel, q, qd)
+
+
+class ForwardBatch:
+    """Forward kinematics of many actuator rows through the model's mapped points function,
+    the values of :meth:`HitchModel.forward` / :meth:`HitchModel.features`, bit for bit.
+
+    The last result is kept: the planner's verification and the guard evaluate the same
+    samples once. The arrays returned are read-only. One instance serves every planner and
+    guard of a model (:func:`forward_batch`): calls are serialised.
+    """
+
+    def __init__(self, model: HitchModel):
+        self._map = MappedFunction(model.points_function)
+        self._key: bytes | None = None
+        self._value: tuple[np.ndarray, np.ndarray, np.ndarray] = (np.empty(0), np.empty(0), np.empty(0))
+        self._lock = threading.Lock()
+
+    def __call__(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """For actuator rows ``q`` (N, 5): features (N, 11, order FEATURE_NAMES), points
+        (N, 3, len(POINT_NAMES)) [m] and the closure checks (N, 5) (4 residuals [m], reach)."""
+        q = np.ascontiguousarray(q, dtype=float)
+        if q.ndim != 2 or q.shape[1] != len(ACTUATOR_NAMES):
+            raise ModelInputError(f"actuators: expected rows of 5 values ({', '.join(ACTUATOR_NAMES)}), got {q.shape}")
+        key = q.tobytes() + bytes(str(q.shape), "ascii")
+        with self._lock:
+            if key != self._key:
+                f, pm, _, checks = self._map(q.T)
+                pts = pm.reshape(3, len(POINT_NAMES), len(q), order="F").transpose(2, 0, 1)
+                value = (f.T.copy(), np.ascontiguousarray(pts), checks.T.copy())
+                for a in value:
+                    a.setflags(write=False)
+                self._key, self._value = key, value
+            return self._value
+
+
+_FORWARD: weakref.WeakKeyDictionary[HitchModel, ForwardBatch] = weakref.WeakKeyDictionary()
+_FORWARD_LOCK = threading.Lock()
+
+
+def forward_batch(model: HitchModel) -> ForwardBatch:
+    """The (shared) :class:`ForwardBatch` of ``model``."""
+    with _FORWARD_LOCK:
+        fb = _FORWARD.get(model)
+        if fb is None:
+            fb = _FORWARD[model] = ForwardBatch(model)
+        return fb
 
 
 @dataclass(frozen=True)
@@ -173,23 +293,52 @@ def verify_setpoints(
     rel_tol: float = 1e-6,
     check_acceleration: bool = True,
 ) -> list[Violation]:
-    """Every limit on every sample; accelerations by forward differences of the velocities."""
+    """Every limit on every sample; accelerations by forward differences of the velocities.
+
+    The forward kinematics of all samples in one mapped evaluation (:func:`forward_batch`);
+    a sample whose mechanism might not close is evaluated alone (:meth:`HitchModel.features`
+    raises as for any sample).
+    """
     out: list[Violation] = []
-    for k in range(len(sp.t)):
-        q = sp.actuators[k]
-        f, _ = model.features(q)
-        for name in hard.violations(q, f, tol=1e-9):
-            out.append(Violation(name, float(sp.t[k]), float("nan"), float("nan")))
-        over = np.abs(sp.actuator_velocity[k]) > limits.velocity * (1 + rel_tol)
-        for i in np.flatnonzero(over).tolist():
-            out.append(
-                Violation(
-                    _VELOCITY_NAMES[i],
-                    float(sp.t[k]),
-                    float(sp.actuator_velocity[k, i]),
-                    float(limits.velocity[i]),
-                )
+    Q = np.asarray(sp.actuators, float)
+    n = len(sp.t)
+    F = np.empty((n, len(FEATURE_NAMES)))
+    if n:
+        f_b, _, checks = forward_batch(model)(Q)
+        F[:] = f_b
+        with np.errstate(invalid="ignore"):
+            sure = (
+                np.isfinite(Q).all(axis=1)
+                & (np.abs(checks[:, :4]) <= _FK_CLOSED_M).all(axis=1)
+                & (np.abs(checks[:, 4]) <= 1.0)
+                & np.isfinite(f_b).all(axis=1)
             )
+        for k in np.flatnonzero(~sure).tolist():  # in time order: the first failing sample raises
+            F[k] = model.features(Q[k])[0]
+    tol = 1e-9  # as HardLimits.violations
+    with np.errstate(invalid="ignore"):
+        q_lo = Q < hard.actuator_lower - tol
+        q_hi = ~q_lo & (Q > hard.actuator_upper + tol)
+        Fl = F[:, list(hard.feature_index)]
+        f_lo = Fl < hard.feature_lower - tol
+        f_hi = ~f_lo & (Fl > hard.feature_upper + tol)
+        over = np.abs(sp.actuator_velocity) > limits.velocity * (1 + rel_tol)
+    hard_any = q_lo.any(axis=1) | q_hi.any(axis=1) | f_lo.any(axis=1) | f_hi.any(axis=1)
+    for k in np.flatnonzero(hard_any | over.any(axis=1)).tolist():  # per sample: hard limits, then velocity
+        t = float(sp.t[k])
+        names = [
+            STROKE_NAMES[i][0] if q_lo[k, i] else STROKE_NAMES[i][1]
+            for i in range(Q.shape[1])
+            if q_lo[k, i] or q_hi[k, i]
+        ]
+        names += [
+            hard.names_lower[i] if f_lo[k, i] else hard.names_upper[i]
+            for i in range(Fl.shape[1])
+            if f_lo[k, i] or f_hi[k, i]
+        ]
+        out += [Violation(name, t, float("nan"), float("nan")) for name in names]
+        for i in np.flatnonzero(over[k]).tolist():
+            out.append(Violation(_VELOCITY_NAMES[i], t, float(sp.actuator_velocity[k, i]), float(limits.velocity[i])))
     if check_acceleration and len(sp.t) >= 3:
         # forward differences: (v[k+1] − v[k]) / dt is the mean acceleration over the interval,
         # so it cannot exceed a bound the true acceleration respects

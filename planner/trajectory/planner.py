@@ -104,6 +104,7 @@ class TrajectoryPlanner:
         self._input1 = InputParameter(1)
         self._traj1 = Trajectory(1)
         self._probe = StopProbe()
+        self._line_cache: dict[tuple[bytes, bytes], tuple[ActuatorLimits, PoseLimits]] = {}
 
     # ------------------------------------------------------------------ goals
     def goal_vector(self, current: ArrayLike, goal: Mapping[str, float]) -> np.ndarray:
@@ -234,11 +235,24 @@ class TrajectoryPlanner:
 
     def _segment_limits(self, p0, p1, start_moving: bool, scale: float) -> PoseLimits:
         try:
-            lim = straight_line_limits(self.inverse, p0, p1, self.limits).scaled(scale)
+            lim = self._line_limits(np.asarray(p0, float), np.asarray(p1, float)).scaled(scale)
         except KinematicsError as exc:
             raise PlanError(f"the straight line to the goal leaves the reachable set: {exc}") from None
         if start_moving:  # other DOF may carry velocity: allow them the any-direction limits
             lim = lim.floored(self.any_direction.scaled(scale))
+        return lim
+
+    def _line_limits(self, p0: np.ndarray, p1: np.ndarray) -> PoseLimits:
+        """:func:`straight_line_limits` of p0 → p1 with the current actuator limits; the last few
+        are kept (a guarded move plans the same line again, slower)."""
+        key = (p0.tobytes(), p1.tobytes())
+        hit = self._line_cache.get(key)
+        if hit is not None and hit[0] is self.limits:
+            return hit[1]
+        lim = straight_line_limits(self.inverse, p0, p1, self.limits)
+        if len(self._line_cache) >= 8:
+            self._line_cache.pop(next(iter(self._line_cache)))
+        self._line_cache[key] = (self.limits, lim)
         return lim
 
     def _blend_velocity(self, a, b, c, fraction: float, scale: float) -> np.ndarray:
@@ -350,6 +364,8 @@ class TrajectoryPlanner:
         within it widened to ``start``): Ruckig's position extrema of a time-synchronised profile
         from a moving state can miss an excursion, the samples do not (to ~a·dt²/8 at a turn)."""
         pose = sp.pose[:, [0, 2, 3, 4]]
+        if np.all(pose.min(axis=0) >= self.lo - 1e-6) and np.all(pose.max(axis=0) <= self.hi + 1e-6):
+            return  # within the workspace itself (the bounds below are never tighter)
         in_first = (sp.t <= first + 1e-12)[:, None]
         lo = np.where(in_first, np.minimum(self.lo, start), self.lo) - 1e-6
         hi = np.where(in_first, np.maximum(self.hi, start), self.hi) + 1e-6

@@ -12,9 +12,13 @@ import numpy as np
 import pytest
 
 from planner.limits.stability import (
+    _EDGES,
     EDGE_NAMES,
     StabilityInputError,
     StabilityThresholds,
+    _cross3,
+    _segment_distance,
+    _support_frame,
     axle_loads,
     build_load_case,
     energy_margins,
@@ -427,3 +431,72 @@ def test_default_profile_values(profile, tractor):
         profile.implement("no-such-implement")
     assert profile.implement("cat2-spreader-400") == ImplementRecord("cat2-spreader-400", "2", 400, [0, 0.55, 0.45])
     assert EDGE_NAMES == ("rear", "right", "left")
+
+
+# ----------------------------------------------------------------------------- pose-independent parts kept
+def reference_support_margins(tractor, p, g):
+    """The former support_margins, recomputing the support frame and the edges on every call."""
+    V, n, e1, e2, V2 = _support_frame(tractor)
+    q = p + (float(n @ (V[0] - p)) / float(n @ g)) * g
+    q2 = np.array([(q - V[0]) @ e1, (q - V[0]) @ e2])
+    travel = np.array([e1[1], e2[1]])
+    travel /= np.linalg.norm(travel)
+    d, s_lo, s_hi, misses = [], -math.inf, math.inf, False
+    for a, b, c in _EDGES:
+        edge = V2[b] - V2[a]
+        m = np.array([-edge[1], edge[0]]) / np.linalg.norm(edge)
+        if m @ (V2[c] - V2[a]) < 0:
+            m = -m
+        di = float(m @ (q2 - V2[a]))
+        d.append(di)
+        mv = float(m @ travel)
+        if abs(mv) < 1e-12:
+            misses |= di < 0
+        elif mv > 0:
+            s_lo = max(s_lo, -di / mv)
+        else:
+            s_hi = min(s_hi, -di / mv)
+    if min(d) > 0:
+        ssm = min(d)
+    else:
+        ssm = -min(_segment_distance(q2, V2[a], V2[b]) for a, b, _ in _EDGES)
+    lsm = (ssm, ssm) if misses or s_lo > s_hi else (-s_lo, s_hi)
+    return q, tuple(d), float(ssm), float(lsm[0]), float(lsm[1])
+
+
+def reference_energies(tractor, mass, p, g):
+    """The former energy_margins, recomputing every edge's axis and plane on every call."""
+    up, V, out = -g, tractor.support_vertices, []
+    for a_i, b_i, c_i in _EDGES:
+        A = V[a_i]
+        axis = (V[b_i] - A) / np.linalg.norm(V[b_i] - A)
+        r = p - A
+        r_perp = r - (r @ axis) * axis
+        rise = np.linalg.norm(r_perp) * math.sqrt(max(0.0, 1.0 - float(axis @ up) ** 2)) - float(r_perp @ up)
+        side = np.cross(axis, up)
+        if side @ (V[c_i] - A) < 0:
+            side = -side
+        out.append(float(np.sign(side @ r)) * mass * G * max(0.0, float(rise)))
+    return tuple(out)
+
+
+def test_kept_support_and_edge_constants_give_the_former_values_bit_for_bit(tractor):
+    """Two tractors and many slopes interleaved (the kept parts per tractor and slope)."""
+    rng = np.random.default_rng(5)
+    tractors = [tractor, flat_tractor(), tractor]
+    for k in range(300):
+        t = tractors[k % 3]
+        g = gravity_direction(*(rng.uniform(-0.6, 0.6, 2) if k % 5 else (0.0, 0.0)))
+        p = np.array([0.0, -1.0, 1.0]) + rng.normal(0, [1.2, 2.0, 0.8])
+        sm = support_margins(t, p, g)
+        q, d, ssm, lf, lr = reference_support_margins(t, p, g)
+        assert np.array_equal(sm.projection, q) and sm.edge_distances == d
+        assert (sm.ssm, sm.lsm_front, sm.lsm_rear) == (ssm, lf, lr)
+        assert energy_margins(t, 7500.0, p, g).edge_energies == reference_energies(t, 7500.0, p, g)
+
+
+def test_cross3_is_np_cross_bit_for_bit():
+    rng = np.random.default_rng(6)
+    for _ in range(500):
+        a, b = rng.normal(size=3) * 10.0 ** rng.integers(-3, 3), rng.normal(size=3)
+        assert np.array_equal(_cross3(a, b), np.cross(a, b))

@@ -379,3 +379,51 @@ def test_only_a_few_samples_are_evaluated_one_by_one(ballasted, heavy, monkeypat
     monkeypatch.setattr(Guard, "stability_at", lambda self, q, points=None: calls.append(1) or orig(self, q, points))
     dec = g.check_setpoints(sp)
     assert dec.action == "scaled" and len(calls) <= 6, len(calls)
+
+
+def reference_plan(g: Guard, start, goal, speed_scale=1.0):
+    """Guard.plan as it was: every plan checked afresh with check_setpoints (nothing shared)."""
+    total, caution_applied, reasons = 1.0, False, []
+    for _ in range(8):
+        plan = g.planner.plan_move(start, goal, speed_scale=speed_scale * total)
+        sp = plan.sampled()
+        dec = g.check_setpoints(sp)
+        if dec.action == "refused":
+            raise GuardRefusal(dec)
+        reasons.extend(r for r in dec.reasons if r not in reasons)
+        end_stop = min((r.value for r in dec.reasons if r.level == "speed"), default=1.0)
+        caution = any(r.level == "caution" for r in dec.reasons)
+        if end_stop < 1.0:
+            total *= end_stop * 0.98
+        elif caution and not caution_applied:
+            total *= g.settings.caution_speed_factor
+            caution_applied = True
+        else:
+            return sp, GuardDecision("ok" if total >= 1.0 else "scaled", total, tuple(_dedupe(reasons)), dec.worst)
+    raise GuardRefusal(GuardDecision("refused", 0.0, tuple(_dedupe(reasons)), dec.worst))
+
+
+def test_plans_sharing_per_sample_results_decide_as_checked_afresh(ballasted, heavy):
+    """Guard.plan keeps the per-sample results between its plans (start and goal recur); the
+    plans and decisions are those of checking every plan on its own, also after a slope change."""
+    tp = TrajectoryPlanner(ballasted)
+    g = Guard(tp, implement=heavy)
+    rng = np.random.default_rng(11)
+    seen = set()
+    for k in range(10):
+        g.set_slope(0.1 if k % 2 else 0.25, 0.05 * (k % 3))
+        p0 = tp.lo + (tp.hi - tp.lo) * rng.choice([0.05, 0.95], 4)
+        goal = dict(zip(("x", "z", "roll", "pitch"), tp.lo + (tp.hi - tp.lo) * rng.random(4), strict=True))
+        try:
+            sp_ref, dec_ref = reference_plan(g, MotionState.at_rest(p0), goal)
+        except GuardRefusal as ref:
+            with pytest.raises(GuardRefusal) as new:
+                g.plan(MotionState.at_rest(p0), goal)
+            assert_same_decision(new.value.decision, ref.decision)
+            seen.add("refused")
+            continue
+        gp = g.plan(MotionState.at_rest(p0), goal)
+        assert np.array_equal(gp.setpoints.actuators, sp_ref.actuators)
+        assert_same_decision(gp.decision, dec_ref)
+        seen.add(gp.decision.action)
+    assert "scaled" in seen  # the caution re-plan (the case that shares results) happened

@@ -5,7 +5,7 @@ import pytest
 
 from planner.model.angle_maps import AngleMaps
 from planner.model.exact_inverse import ExactInverse
-from planner.model.types import KinematicsError
+from planner.model.types import KinematicsError, ModelInputError
 from tests.helpers import random_closing_actuators
 
 
@@ -63,3 +63,41 @@ def test_angle_maps_round_trip(model, rng):
         th = np.array(model.forward(q).link_angles)
         np.testing.assert_allclose(maps.to_angles(*q[[0, 1, 3, 4]]), th, atol=1e-12)
         np.testing.assert_allclose(maps.to_actuators(th), q[[0, 1, 3, 4]], atol=1e-12)
+
+
+def test_batch_inverse_is_solve_full_row_by_row(model, inverse, rng):
+    """solve_batch: actuators, y_T and yaw bit for bit those of solve_full; the actuator velocity
+    its jac @ v to 1e-12; ``ok`` exactly the rows solve_full accepts (also out of the workspace)."""
+    ws = model.workspace
+    lo = np.array([ws[k][0] for k in ("x", "z", "roll", "pitch")]) - 0.05
+    hi = np.array([ws[k][1] for k in ("x", "z", "roll", "pitch")]) + 0.05
+    P = lo + (hi - lo) * rng.random((400, 4))
+    V = rng.normal(0.0, 0.3, (400, 4))
+    P[5] = [0.0, -3.0, 0.0, 0.0]  # far below any reach
+    P[6, 2] = np.pi / 2  # roll at the singular limit
+    P[7, 3] = -np.pi / 2
+    P[8, 1] = np.nan
+    P[9, 0] = np.inf
+    b = inverse.solve_batch(P, V)
+    assert b.actuators.shape == b.actuator_velocity.shape == (400, 5) and b.y.shape == b.yaw.shape == (400,)
+    refused = 0
+    for k in range(len(P)):
+        try:
+            q, jac, (y, yaw) = inverse.solve_full(P[k])
+        except (KinematicsError, ModelInputError):
+            assert not b.ok[k], k
+            refused += 1
+            continue
+        assert b.ok[k], k
+        assert np.array_equal(b.actuators[k], q) and b.y[k] == y and b.yaw[k] == yaw, k
+        np.testing.assert_allclose(b.actuator_velocity[k], jac @ V[k], rtol=0, atol=1e-12)
+    assert refused >= 5
+
+
+def test_batch_inverse_refuses_bad_shapes(inverse):
+    with pytest.raises(ModelInputError, match="targets and velocities"):
+        inverse.solve_batch(np.zeros((3, 4)), np.zeros((3, 3)))
+    with pytest.raises(ModelInputError, match="targets and velocities"):
+        inverse.solve_batch(np.zeros(4), np.zeros(4))
+    empty = inverse.solve_batch(np.zeros((0, 4)), np.zeros((0, 4)))
+    assert empty.actuators.shape == (0, 5) and empty.ok.shape == (0,)

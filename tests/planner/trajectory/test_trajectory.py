@@ -2,16 +2,26 @@
 
 import numpy as np
 import pytest
+from ruckig import InputParameter, Ruckig, Trajectory
 
+from planner.model.kinematics import POINT_NAMES
+from planner.model.limit_names import LimitName
+from planner.model.types import ACTUATOR_NAMES, KinematicsError, ModelInputError
 from planner.trajectory import (
     ActuatorLimits,
     JogController,
     MotionState,
+    Plan,
     PlanError,
+    Setpoints,
     TrajectoryPlanner,
+    Violation,
     Waypoint,
+    sample_plan,
+    straight_line_limits,
     verify_setpoints,
 )
+from planner.trajectory.plan import _profile_states, forward_batch, plan_states, sample_times
 
 DOFS = ("x", "z", "roll", "pitch")
 
@@ -175,3 +185,185 @@ def test_actuator_limits_come_from_the_valves(model):
     assert lim.velocity[1] == pytest.approx(0.9 * 0.401 * 254 * 0.5 * 0.150 / 891)
     assert lim.acceleration[1] == pytest.approx(lim.velocity[1] / 0.3)
     assert lim.jerk[1] == pytest.approx(lim.acceleration[1] / 0.15)
+
+
+# ---------------------------------------------------------------------------- batched sampling and verification
+def reference_sample(plan, inverse, rate):
+    """The former per-sample sampling: Plan.state_at and ExactInverse.solve_full at every sample."""
+    ts = sample_times(plan.duration, rate)
+    n = len(ts)
+    pose, pv, q, qd = np.zeros((n, 6)), np.zeros((n, 4)), np.zeros((n, 5)), np.zeros((n, 5))
+    for k, t in enumerate(ts):
+        st = plan.state_at(t)
+        try:
+            qk, jac, (y, yaw) = inverse.solve_full(st.position)
+        except KinematicsError as exc:
+            raise PlanError(f"sample at t = {t:.3f} s is not reachable: {exc}") from None
+        x, z, roll, pitch = st.position
+        pose[k] = (x, y, z, roll, pitch, yaw)
+        pv[k], q[k], qd[k] = st.velocity, qk, jac @ st.velocity
+    return Setpoints(rate, ts, pose, pv, q, qd)
+
+
+def reference_verify(sp, model, hard, limits, rel_tol=1e-6):
+    """The former per-sample verification (HitchModel.features and HardLimits.violations per sample)."""
+    out = []
+    for k in range(len(sp.t)):
+        f, _ = model.features(sp.actuators[k])
+        out += [Violation(n, float(sp.t[k]), float("nan"), float("nan")) for n in hard.violations(sp.actuators[k], f)]
+        for i in np.flatnonzero(np.abs(sp.actuator_velocity[k]) > limits.velocity * (1 + rel_tol)).tolist():
+            v, b = float(sp.actuator_velocity[k, i]), float(limits.velocity[i])
+            out.append(Violation(str(LimitName("velocity", ACTUATOR_NAMES[i])), float(sp.t[k]), v, b))
+    acc = np.diff(sp.actuator_velocity, axis=0) / np.diff(sp.t)[:, None]
+    rows, cols = np.nonzero(np.abs(acc) > limits.acceleration * (1 + rel_tol))
+    for k, i in zip(rows.tolist(), cols.tolist(), strict=True):
+        name = str(LimitName("acceleration", ACTUATOR_NAMES[i]))
+        out.append(Violation(name, float(sp.t[k]), float(acc[k, i]), float(limits.acceleration[i])))
+    return out
+
+
+def same_violations(a, b):
+    """Equal lists of violations (NaN values, as for the hard limits, compare equal)."""
+    num = [np.array([(v.t, v.value, v.bound) for v in x], float).reshape(-1, 3) for x in (a, b)]
+    return [v.limit for v in a] == [v.limit for v in b] and np.array_equal(*num, equal_nan=True)
+
+
+def _plans(tp, rng):
+    """Moves between random poses, a re-plan from a moving state, a blended sequence (several segments)."""
+    plans = [
+        tp.plan_move(
+            MotionState.at_rest(random_pose(tp, rng)),
+            dict(zip(DOFS, random_pose(tp, rng), strict=True)),
+            speed_scale=float(rng.choice([1.0, 0.4])),
+        )
+        for _ in range(8)
+    ]
+    mid = (tp.lo + tp.hi) / 2
+    moving = MotionState(mid, np.array([0.05, -0.03, 0.01, 0.0]), np.array([0.0, 0.1, 0.0, 0.0]))
+    plans.append(tp.plan_move(moving, {"x": tp.hi[0], "z": tp.lo[1]}))
+    at = tp.lo + (tp.hi - tp.lo) * np.array([[0.5, 0.8, 0.5, 0.5], [0.2, 0.7, 0.7, 0.5], [0.3, 0.2, 0.6, 0.4]])
+    wps = [Waypoint({"z": at[0, 1]}), Waypoint({"x": at[1, 0], "roll": at[1, 2]}, 0.5), Waypoint({"z": at[2, 1]})]
+    plans.append(tp.plan_sequence(MotionState.at_rest(mid), wps, blend=True))
+    assert len(plans[-1].segments) == 3
+    return plans
+
+
+def test_batched_sampling_equals_the_per_sample_loop(tp, rng):
+    """Times, poses, pose velocities and actuators bit for bit; actuator velocities to 1e-12
+    (one directional derivative instead of jac @ v)."""
+    for plan in _plans(tp, rng):
+        for rate in (tp.rate, 37.0):
+            new, ref = sample_plan(plan, tp.inverse, rate), reference_sample(plan, tp.inverse, rate)
+            for name in ("t", "pose", "pose_velocity", "actuators"):
+                assert np.array_equal(getattr(new, name), getattr(ref, name)), name
+            np.testing.assert_allclose(new.actuator_velocity, ref.actuator_velocity, rtol=0, atol=1e-12)
+        if plan.setpoints is not None:  # the planner's own samples are those too
+            assert np.array_equal(plan.setpoints.actuators, reference_sample(plan, tp.inverse, tp.rate).actuators)
+
+
+def test_an_unreachable_sample_is_refused_as_before(tp, model):
+    """A trajectory that leaves the reachable set: the same PlanError, naming the first such sample."""
+    p0 = model.neutral_pose.controlled()
+    inp = InputParameter(4)
+    inp.current_position, inp.target_position = list(p0), list(p0 + [0.0, -2.0, 0.0, 0.0])
+    inp.max_velocity, inp.max_acceleration, inp.max_jerk = [0.5] * 4, [1.0] * 4, [5.0] * 4
+    traj = Trajectory(4)
+    Ruckig(4).calculate(inp, traj)
+    plan = Plan((traj,), MotionState.at_rest(p0), traj.duration, 0.0)
+    with pytest.raises(PlanError, match="is not reachable") as new:
+        sample_plan(plan, tp.inverse, tp.rate)
+    with pytest.raises(PlanError) as ref:
+        reference_sample(plan, tp.inverse, tp.rate)
+    assert str(new.value) == str(ref.value)
+
+
+def test_batched_verification_equals_the_per_sample_loop(tp, rng):
+    """Every violation (hard limits, velocity, acceleration) in the same order with the same values."""
+    found = 0
+    for plan in _plans(tp, rng):
+        sp = plan.setpoints or sample_plan(plan, tp.inverse, tp.rate)
+        assert same_violations(
+            verify_setpoints(sp, tp.model, tp.hard, tp.limits), reference_verify(sp, tp.model, tp.hard, tp.limits)
+        )
+        wobble = 1 + 0.04 * np.sin(9 * sp.t)[:, None] * np.array([1, -1, 1, 0.5, -0.5])
+        bad = Setpoints(sp.rate, sp.t, sp.pose, sp.pose_velocity, sp.actuators * wobble, sp.actuator_velocity * 2.5)
+        new, ref = (
+            verify_setpoints(bad, tp.model, tp.hard, tp.limits),
+            reference_verify(bad, tp.model, tp.hard, tp.limits),
+        )
+        assert same_violations(new, ref)
+        found += len(new)
+    assert found > 100
+
+
+def test_verification_raises_as_before_for_a_sample_that_cannot_close(tp, model):
+    sp = tp.plan_move(MotionState.at_rest(model.neutral_pose.controlled()), {"z": tp.hi[1]}).setpoints
+    q = sp.actuators.copy()
+    q[17, 3] = 5.0  # a sway limiter far beyond its reach
+    bad = Setpoints(sp.rate, sp.t, sp.pose, sp.pose_velocity, q, sp.actuator_velocity)
+    with pytest.raises(KinematicsError) as new:
+        verify_setpoints(bad, model, tp.hard, tp.limits)
+    with pytest.raises(KinematicsError) as ref:
+        reference_verify(bad, model, tp.hard, tp.limits)
+    assert str(new.value) == str(ref.value)
+
+
+def test_forward_batch_is_forward_bit_for_bit_and_read_only(tp, model, rng):
+    sp = tp.plan_move(
+        MotionState.at_rest(random_pose(tp, rng)), dict(zip(DOFS, random_pose(tp, rng), strict=True))
+    ).setpoints
+    fb = forward_batch(model)
+    assert forward_batch(model) is fb
+    other = sp.actuators[::-1].copy()
+    for Q in (sp.actuators, other, sp.actuators):  # the kept result follows the rows asked for
+        f, pts, checks = fb(Q)
+        assert not (f.flags.writeable or pts.flags.writeable or checks.flags.writeable)
+        for k in range(0, len(Q), 7):
+            st = model.forward(Q[k])
+            assert np.array_equal(f[k], model.features(Q[k])[0])
+            for i, name in enumerate(POINT_NAMES):
+                assert np.array_equal(pts[k, :, i], st.points[name]), name
+
+
+def test_plan_states_are_state_at_bit_for_bit(tp, rng):
+    """From the profiles (one segment), through at_time (several segments, a brake pre-profile
+    from a state beyond the limits, times past the segment's end): the states of state_at."""
+    plans = _plans(tp, rng)
+    inp = InputParameter(4)  # moving faster than the limits: Ruckig brakes first
+    mid = (tp.lo + tp.hi) / 2
+    inp.current_position, inp.current_velocity, inp.target_position = list(mid), [0.2, -0.2, 0.1, 0.0], list(tp.hi)
+    inp.max_velocity, inp.max_acceleration, inp.max_jerk = [0.05] * 4, [0.2] * 4, [1.0] * 4
+    braking = Trajectory(4)
+    Ruckig(4).calculate(inp, braking)
+    assert any(p.brake.duration > 0 for p in braking.profiles[0])
+    plans.append(Plan((braking,), MotionState(mid, np.array(inp.current_velocity)), braking.duration, 0.0))
+    seg = plans[0].segments[0]
+    assert _profile_states(seg, sample_times(seg.duration, 50.0)) is not None  # a move: from its profiles
+    assert _profile_states(braking, sample_times(braking.duration, 50.0)) is None
+    plans.append(Plan((seg,), plans[0].start, seg.duration + 0.3, 0.0))  # held at the end
+    for plan in plans:
+        ts = np.concatenate([sample_times(plan.duration, 50.0), rng.uniform(-0.1, plan.duration + 0.1, 40)])
+        pos, vel = plan_states(plan, ts)
+        for k, t in enumerate(ts):
+            st = plan.state_at(t)
+            assert np.array_equal(pos[k], st.position) and np.array_equal(vel[k], st.velocity), (k, t)
+
+
+def test_line_limits_are_kept_per_line_and_actuator_limits(model, rng):
+    """A guarded move plans the same line twice: the kept limits are those computed afresh,
+    and other actuator limits (or another line) are computed again."""
+    tp = TrajectoryPlanner(model)
+    p0, p1 = random_pose(tp, rng), random_pose(tp, rng)
+    a = tp._line_limits(p0, p1)
+    assert tp._line_limits(p0.copy(), p1.copy()) is a
+    fresh = straight_line_limits(tp.inverse, p0, p1, tp.limits)
+    assert all(np.array_equal(getattr(a, f), getattr(fresh, f)) for f in ("velocity", "acceleration", "jerk"))
+    tp.limits = ActuatorLimits(tp.limits.velocity * 0.5, tp.limits.acceleration, tp.limits.jerk)
+    b = tp._line_limits(p0, p1)
+    assert b is not a and np.array_equal(b.velocity, straight_line_limits(tp.inverse, p0, p1, tp.limits).velocity)
+    assert tp._line_limits(p1, p0) is not b
+
+
+def test_forward_batch_refuses_rows_that_are_not_actuators(model):
+    with pytest.raises(ModelInputError, match="actuators"):
+        forward_batch(model)(np.zeros((10, 4)))

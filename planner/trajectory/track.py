@@ -1,0 +1,687 @@
+"""Track mode: streamed pose setpoints followed with jerk-limited motion, re-targeted every control cycle.
+
+A client streams setpoints (pose, optionally pose velocity) at up to 100 Hz; every control
+cycle (``1/planner.rate``) :meth:`TrackFollower.step` re-targets Ruckig as an online
+generator from the current position, velocity and acceleration: position interface, the
+target the latest setpoint (extrapolated with its velocity to the cycle's time) clipped to the
+workspace, its velocity clipped to the pose velocity limits and capped near a face so that a
+jerk-limited stop from it still fits before the face. Each tracked DOF moves time-optimally on
+its own (no synchronisation) within the *subset limits* (:func:`subset_limits`): the largest
+per-DOF limits the actuators allow for any combination of the DOFs that move (the tracked ones,
+and untracked ones still braking from a take-over) anywhere in the workspace range of those DOFs
+(the others where they are); untracked DOFs brake to rest (they hold their start value when the
+follower starts at rest) and then hold still. So a session tracking fewer DOFs is not bound by the
+any-direction limits over all four (about half of what one DOF alone may do). The limits hold for
+the whole session (computed once, again only when an untracked DOF came to rest: then they grow),
+so the Jacobian's change from cycle to cycle is covered by construction.
+
+Safety follows :class:`~.jog.JogController`: a DOF moving faster or accelerating harder than
+the subset limits (a take-over of a full-speed goto) brakes with the actuators' real limits along
+the current motion (:func:`~.braking.braking_limits`) to the pose speed limit (towards its
+target) or to rest (away from it); and every cycle the state one cycle ahead must still be
+able to stop within the workspace (:class:`~.braking.StopProbe`), else that DOF brakes now.
+
+Staleness: when no setpoint arrived within ``ttl_s`` the follower brakes to rest
+(``stale=True``) and stays latched: a later setpoint is refused (:class:`TrackStateError`)
+unless the follower was built with ``resume_after_stale=True`` or the caller calls
+:meth:`TrackFollower.resume` (the policy is the caller's; the motion controller ends the
+session instead). :meth:`TrackFollower.stop` brakes to rest the same way, :attr:`TrackFollower.finished` once at rest.
+Braking to rest uses the planned stop's limits (:meth:`~.planner.TrajectoryPlanner.plan_stop`: the
+any-direction limits, or the real braking limits along the motion when the state moves beyond them
+or that stop would leave the workspace), so a stale stream stops as a planned stop would.
+
+Sequence numbers are the service's business; :class:`SeqFilter` is the pure rule it uses
+(strictly increasing per session, the others counted and ignored).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Collection, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+from ruckig import ControlInterface, InputParameter, Result, Ruckig, RuckigError, Synchronization, Trajectory
+
+from planner.errors import HitchError
+from planner.model.exact_inverse import ExactInverse
+from planner.model.hard_limits import WORKSPACE_NAMES
+from planner.model.limit_names import LimitName
+from planner.model.types import CONTROLLED_POSE_NAMES, KinematicsError
+from planner.trajectory.actuator_limits import ActuatorLimits
+from planner.trajectory.braking import StopProbe, beyond, current_floor
+from planner.trajectory.plan import MotionState, PlanError, TrajectoryInputError
+from planner.trajectory.planner import TrajectoryPlanner
+from planner.trajectory.pose_limits import PoseLimits
+
+__all__ = [
+    "SeqFilter",
+    "TrackError",
+    "TrackFollower",
+    "TrackInputError",
+    "TrackOutput",
+    "TrackSetpoint",
+    "TrackStateError",
+    "TRACK_DOFS",
+    "SUBSET_GRID",
+    "SUBSET_MARGIN",
+    "subset_limits",
+]
+
+#: The DOFs a track session may follow (SI: m, m, rad, rad).
+TRACK_DOFS = CONTROLLED_POSE_NAMES
+_UNITS = {"x": "m", "z": "m", "roll": "rad", "pitch": "rad"}
+#: Setpoints further than this outside the workspace [m or rad] are not plausible SI values (mm, deg).
+PLAUSIBLE_MARGIN = 0.5
+#: Largest plausible setpoint velocity [m/s or rad/s]; below it a velocity is clipped to the limits.
+PLAUSIBLE_VELOCITY = 1.0
+#: Largest plausible setpoint acceleration [m/s² or rad/s²]; below it clipped to the limits.
+PLAUSIBLE_ACCELERATION = 10.0
+_OK = (Result.Working, Result.Finished)
+_VELOCITY_NAMES = tuple(str(LimitName("velocity", k)) for k in CONTROLLED_POSE_NAMES)
+_POS, _VEL = ControlInterface.Position, ControlInterface.Velocity
+#: Grid points per active DOF over its workspace range on which the Jacobian is sampled (1-2 DOFs / 3-4).
+SUBSET_GRID = (5, 3)
+#: Share of the actuator limits the subset limits use: room for what the bound leaves out (the
+#: second-order change of the Jacobian between grid points, the third derivative of the inverse in
+#: the jerk).
+SUBSET_MARGIN = 0.95
+_REL = 1e-6  # Ruckig's rounding at a limit (as braking.beyond)
+
+
+def subset_limits(
+    inverse: ExactInverse,
+    pose: np.ndarray,
+    active: np.ndarray,
+    limits: ActuatorLimits,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    margin: float = SUBSET_MARGIN,
+) -> PoseLimits | None:
+    """Per-DOF pose limits for any combination of the ``active`` DOFs moving anywhere in [lo, hi]
+    (the other DOFs at rest where ``pose`` has them); None when the curvature leaves no room (the
+    caller keeps the any-direction limits). Inactive DOFs get 0 (the caller fills them).
+
+    The exact inverse's Jacobian G = ∂q/∂p (5 actuators × the active DOFs) is sampled on a grid
+    over the active DOFs' ranges (:data:`SUBSET_GRID` points each, all combinations); ḡ_id = the
+    largest |G_id| there plus half the largest change between neighbouring grid points (the
+    first-order variation within a cell), H̄_ide the largest |ΔG_id/Δp_e| between neighbours.
+    Velocity: each DOF alone v_d⁰ = min_i v̂_i/ḡ_id, all of them scaled by
+    κ = min(1, min_i v̂_i/Σ_d ḡ_id·v_d⁰), so Σ_d ḡ_id·|ṗ_d| ≤ v̂_i for every actuator i in any
+    combination (one DOF: κ = 1, the tightest actuator through its Jacobian column, as the ideal
+    follower). Acceleration q̈ = G·p̈ + H(ṗ, ṗ): a_d = ρ·v_d with Σ_d ḡ_id·a_d + Σ_de H̄_ide·v_d·v_e
+    ≤ â_i; jerk q⃛ = G·p⃛ + 3H(ṗ, p̈) + …: j_d = σ·a_d with Σ_d ḡ_id·j_d + 3Σ_de H̄_ide·v_d·a_e ≤ ĵ_i;
+    v̂, â, ĵ the actuator limits × ``margin``.
+    """
+    p = np.asarray(pose, float)
+    idx = np.flatnonzero(active)
+    n = len(idx)
+    k = SUBSET_GRID[0] if n <= 2 else SUBSET_GRID[1]
+    axes = [np.linspace(lo[e], hi[e], k) for e in idx.tolist()]
+    grid = np.empty((k,) * n + (5, n))
+    for ij in itertools.product(range(k), repeat=n):
+        q = p.copy()
+        q[idx] = [axes[m][j] for m, j in enumerate(ij)]
+        grid[ij] = inverse.solve(q)[1][:, idx]
+    flat = np.abs(grid.reshape(-1, 5, n))
+    step = np.zeros((5, n))
+    h = np.zeros((5, n, n))  # h[i, d, e] ≥ |∂G_id / ∂p_e|
+    for m in range(n):
+        dg = np.abs(np.diff(grid, axis=m)).reshape(-1, 5, n).max(axis=0)
+        step = np.maximum(step, dg)
+        h[:, :, m] = dg / (axes[m][1] - axes[m][0])
+    g = flat.max(axis=0) + 0.5 * step + 1e-12
+    vmax, amax, jmax = limits.velocity * margin, limits.acceleration * margin, limits.jerk * margin
+    axis = np.min(vmax[:, None] / g, axis=0)
+    v = axis * min(1.0, float(np.min(vmax / (g @ axis))))
+    room_a = amax - np.einsum("ide,d,e->i", h, v, v)
+    if np.any(room_a <= 0):
+        return None
+    acc = v * float(np.min(room_a / (g @ v)))
+    room_j = jmax - 3 * np.einsum("ide,d,e->i", h, v, acc)
+    if np.any(room_j <= 0):
+        return None
+    jerk = acc * float(np.min(room_j / (g @ acc)))
+    out = [np.zeros(4), np.zeros(4), np.zeros(4)]
+    for arr, val in zip(out, (v, acc, jerk), strict=True):
+        arr[idx] = val
+    return PoseLimits(*out)
+
+
+class TrackInputError(TrajectoryInputError):
+    """A malformed setpoint, TTL, DOF set or time; the message names the field and the allowed range."""
+
+
+class TrackError(HitchError, RuntimeError):
+    """Ruckig could not compute a track cycle: an internal failure, not bad input."""
+
+
+class TrackStateError(HitchError, RuntimeError):
+    """A setpoint the follower does not take in its state: after :meth:`TrackFollower.stop`, or after the
+    stream went stale without ``resume_after_stale`` / :meth:`TrackFollower.resume`."""
+
+
+@dataclass(frozen=True)
+class TrackSetpoint:
+    """A setpoint as taken: the requested pose and velocity (full vectors, untracked DOFs at their held
+    value and 0) and the target after clipping, with the names of the limits that clipped it."""
+
+    t: float
+    requested_position: np.ndarray
+    requested_velocity: np.ndarray
+    position: np.ndarray  # clipped to the workspace
+    velocity: np.ndarray  # clipped to the pose velocity limits (not yet capped at a face: see TrackOutput)
+    acceleration: np.ndarray  # given or estimated from consecutive velocities, within the acceleration limits
+    limited: dict[str, str] = field(default_factory=dict)  # "x" → "workspace:x:max", "vx" → "velocity:x"
+
+    @property
+    def control_limited(self) -> bool:
+        return bool(self.limited)
+
+
+@dataclass(frozen=True)
+class TrackOutput:
+    """One control cycle of track mode: the new pose-space state and its actuators.
+
+    ``limited`` names what limited the motion this cycle: the setpoint's clipping (``"x"``,
+    ``"vx"``) and a face the state had to brake for (``"x"`` → ``workspace:x:max``).
+    ``braking``: some DOF is not tracking its target this cycle (stale or stopped stream, a
+    take-over beyond the pose limits, a face ahead).
+    """
+
+    t: float
+    state: MotionState
+    actuators: np.ndarray
+    actuator_velocity: np.ndarray
+    limited: dict[str, str] = field(default_factory=dict)
+    stale: bool = False
+    braking: bool = False
+
+    @property
+    def moving(self) -> bool:
+        return self.state.moving
+
+
+class SeqFilter:
+    """Accepts strictly increasing sequence numbers of one session; counts the others (ignored)."""
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        """A new session: any sequence number is accepted next."""
+        self.last: int | None = None
+        self.accepted = 0
+        self.ignored = 0
+
+    def accept(self, seq: int) -> bool:
+        """True for a sequence number above every one accepted before (then it is the last one)."""
+        if isinstance(seq, bool) or not isinstance(seq, int) or seq < 0:
+            raise TrackInputError(f"seq must be an integer >= 0, got {seq!r}")
+        if self.last is not None and seq <= self.last:
+            self.ignored += 1
+            return False
+        self.last = seq
+        self.accepted += 1
+        return True
+
+
+def _braking_speed(distance: float, a: float, j: float) -> float:
+    """Largest speed from which a jerk-limited stop (a ≤ a_max, |jerk| ≤ j, from zero acceleration)
+    fits in ``distance``: the stop takes at most v²/(2a) + v·a/(2j)."""
+    if distance <= 0:
+        return 0.0
+    b = a / (2 * j)
+    return a * (-b + math.sqrt(b * b + 2 * distance / a))
+
+
+def _arrays(lim: PoseLimits) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    return lim.velocity, lim.acceleration, lim.jerk
+
+
+def _number(v: object, what: str) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise TrackInputError(f"{what} must be a finite number, got {v!r}")
+    return float(v)
+
+
+class TrackFollower:
+    """Follows streamed pose setpoints with online jerk-limited motion within the planner's workspace.
+
+    Args:
+        planner: limits, workspace, control rate and exact inverse.
+        start: the state the follower takes over (at rest, or moving: a goto, a jog).
+        dofs: the tracked DOFs (a subset of x, z, roll, pitch); the others brake to rest and hold.
+        ttl_s: a setpoint lives this long (0 < ttl ≤ 5 s); without a fresh one the follower brakes.
+        t0_s: the time of ``start`` (the TTL of the session counts from it until the first setpoint).
+        resume_after_stale: track a fresh setpoint after the stream went stale (default: refuse it).
+    """
+
+    def __init__(
+        self,
+        planner: TrajectoryPlanner,
+        start: MotionState,
+        dofs: Collection[str],
+        ttl_s: float,
+        *,
+        t0_s: float = 0.0,
+        resume_after_stale: bool = False,
+    ):
+        if isinstance(dofs, str) or not isinstance(dofs, Collection):
+            raise TrackInputError(f"dofs must be a collection of DOF names out of {', '.join(TRACK_DOFS)}")
+        unknown = set(dofs) - set(TRACK_DOFS)
+        if unknown or not dofs:
+            raise TrackInputError(
+                f"dofs: unknown or none {sorted(map(str, unknown))}; allowed: a non-empty subset of "
+                f"{', '.join(TRACK_DOFS)}"
+            )
+        ttl = _number(ttl_s, "ttl_s")
+        if not 0.0 < ttl <= 5.0:
+            raise TrackInputError(f"ttl_s must lie within (0, 5] s, got {ttl_s!r}")
+        self.planner = planner
+        self.dofs = tuple(k for k in TRACK_DOFS if k in dofs)
+        self.tracked = np.array([k in self.dofs for k in TRACK_DOFS])
+        self.ttl_s = ttl
+        self.resume_after_stale = bool(resume_after_stale)
+        self.dt = 1.0 / planner.rate
+        self._any = planner.any_direction
+        self.limits = self._any  # the subset limits in force (set by reset)
+        self.refreshes = 0  # subset limits computed (every few cycles at full speed)
+        self._lo_ok = planner.lo - PLAUSIBLE_MARGIN
+        self._hi_ok = planner.hi + PLAUSIBLE_MARGIN
+        # one Ruckig, input and trajectory, reused every cycle (calculate, then the state one cycle in)
+        self._ruckig = Ruckig(4)
+        self._in = InputParameter(4)
+        self._in.synchronization = Synchronization.No
+        self._traj = Trajectory(4)
+        self._probe = StopProbe()
+        self.fallbacks = 0  # cycles Ruckig refused, braked to rest instead (should stay 0)
+        self.reset(start, t0_s)
+
+    # ------------------------------------------------------------------ session
+    def reset(self, state: MotionState, t0_s: float = 0.0) -> None:
+        """Take over ``state`` at time ``t0_s``: holding its position until the first setpoint."""
+        self.state = state
+        self.t = _number(t0_s, "t0_s")
+        self.hold = np.asarray(state.position, float).copy()
+        self._sp: TrackSetpoint | None = None
+        self._last_v: np.ndarray | None = None
+        self._last_s = self.t
+        self._stale = False
+        self._stopping = False
+        self._brake: PoseLimits | None = None  # real braking limits of the current braking episode (lazily)
+        self._active: np.ndarray | None = None
+        self._rest: PoseLimits | None = None  # the limits of the stop to rest (stale, stopped)
+        self._refresh()
+
+    @property
+    def stale(self) -> bool:
+        """The stream went stale (latched until :meth:`resume` or a setpoint with ``resume_after_stale``)."""
+        return self._stale
+
+    @property
+    def stopping(self) -> bool:
+        return self._stopping
+
+    @property
+    def finished(self) -> bool:
+        """Stopped (by :meth:`stop` or a stale stream) and at rest."""
+        return (self._stopping or self._stale) and not self.state.moving
+
+    @property
+    def setpoint(self) -> TrackSetpoint | None:
+        return self._sp
+
+    def stop(self) -> None:
+        """End the session smoothly: the shortest jerk-limited stop from the current state (target velocity 0)."""
+        self._stopping = True
+
+    def resume(self) -> None:
+        """Clear a stale latch: the next setpoint is tracked again (the caller's decision)."""
+        self._stale = False
+
+    # ------------------------------------------------------------------ input
+    def set_setpoint(
+        self,
+        pose: Mapping[str, float],
+        velocity: Mapping[str, float] | None = None,
+        now_s: float | None = None,
+        *,
+        acceleration: Mapping[str, float] | None = None,
+    ) -> TrackSetpoint:
+        """Take a setpoint: every tracked DOF's pose [m, rad], optionally its velocity [m/s, rad/s]
+        (missing DOFs 0), arriving at ``now_s`` (default: the follower's time).
+
+        Validated (finite numbers, tracked DOF names only, plausible SI values) then clipped to
+        the workspace and the pose velocity limits; ``limited`` names the limits that clipped it.
+        The target acceleration is ``acceleration`` [m/s², rad/s²] when given, else the difference of
+        this and the previous setpoint's velocities (both given, at most ``ttl_s`` apart), else 0;
+        clipped to the acceleration limits (without it a re-targeted follower lags a curved path).
+        """
+        now = self.t if now_s is None else _number(now_s, "now_s")
+        if self._stopping:
+            raise TrackStateError("track: the session is stopping; no further setpoints are taken")
+        if self._stale and not self.resume_after_stale:
+            raise TrackStateError(
+                f"track: the setpoint stream went stale (no setpoint within {self.ttl_s:g} s); "
+                "resume() before streaming again"
+            )
+        p_req, v_req = self._validate(pose, velocity)
+        p, v = p_req.copy(), v_req.copy()
+        acc = self._acceleration(acceleration, velocity, v_req, now)
+        limited: dict[str, str] = {}
+        lo, hi = self.planner.lo, self.planner.hi
+        for d, (k, (name_min, name_max)) in enumerate(zip(TRACK_DOFS, WORKSPACE_NAMES, strict=True)):
+            if not self.tracked[d]:
+                continue
+            if p[d] > hi[d]:
+                p[d], limited[k] = hi[d], name_max
+            elif p[d] < lo[d]:
+                p[d], limited[k] = lo[d], name_min
+            if abs(v[d]) > self._v_lim[d]:
+                v[d] = math.copysign(self._v_lim[d], v[d])
+                limited[f"v{k}"] = _VELOCITY_NAMES[d]
+        acc = np.clip(acc, -self._a_lim, self._a_lim)
+        # a reachable target state: |v| + a²/(2j) within the velocity limit (Ruckig refuses it otherwise)
+        room = np.maximum(self._v_lim * (1 - 1e-6) - np.abs(v), 0.0)
+        acc = np.sign(acc) * np.minimum(np.abs(acc), np.sqrt(2 * self._j_lim * room))
+        acc = np.where(self.tracked, acc, 0.0)
+        sp = TrackSetpoint(now, p_req, v_req, p, v, acc, limited)
+        self._sp = sp
+        self._last_s = now
+        self._last_v = v_req if velocity is not None else None
+        self._stale = False
+        return sp
+
+    def _acceleration(
+        self,
+        acceleration: Mapping[str, float] | None,
+        velocity: Mapping[str, float] | None,
+        v_req: np.ndarray,
+        now: float,
+    ) -> np.ndarray:
+        acc = np.zeros(4)
+        if acceleration is not None:
+            if not isinstance(acceleration, Mapping):
+                raise TrackInputError(f"setpoint.acceleration must be a mapping with any of {', '.join(self.dofs)}")
+            bad = set(acceleration) - set(self.dofs)
+            if bad:
+                raise TrackInputError(
+                    f"setpoint.acceleration: field(s) {', '.join(sorted(map(str, bad)))} not tracked in this "
+                    f"session; allowed: {', '.join(self.dofs)}"
+                )
+            for d, k in enumerate(TRACK_DOFS):
+                if k in acceleration:
+                    w = _number(acceleration[k], f"setpoint.acceleration.{k}")
+                    if abs(w) > PLAUSIBLE_ACCELERATION:
+                        raise TrackInputError(
+                            f"setpoint.acceleration.{k} = {w:g} {_UNITS[k]}/s² is not a plausible SI value: allowed "
+                            f"±{PLAUSIBLE_ACCELERATION:g} {_UNITS[k]}/s² (beyond ±{self._a_lim[d]:.4f} it is clipped)"
+                        )
+                    acc[d] = w
+            return acc
+        prev = self._sp
+        if velocity is not None and self._last_v is not None and prev is not None and 0 < now - prev.t <= self.ttl_s:
+            acc = (v_req - self._last_v) / (now - prev.t)
+        return acc
+
+    def _validate(
+        self, pose: Mapping[str, float], velocity: Mapping[str, float] | None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        if not isinstance(pose, Mapping):
+            raise TrackInputError(f"setpoint.pose must be a mapping with {', '.join(self.dofs)}")
+        if velocity is not None and not isinstance(velocity, Mapping):
+            raise TrackInputError(f"setpoint.velocity must be a mapping with any of {', '.join(self.dofs)}")
+        for what, m in (("pose", pose), ("velocity", velocity or {})):
+            bad = set(m) - set(self.dofs)
+            if bad:
+                names = ", ".join(sorted(map(str, bad)))
+                raise TrackInputError(
+                    f"setpoint.{what}: field(s) {names} not tracked in this session; allowed: {', '.join(self.dofs)}"
+                )
+        missing = [k for k in self.dofs if k not in pose]
+        if missing:
+            raise TrackInputError(
+                f"setpoint.pose: missing field(s) {', '.join(missing)}; required: {', '.join(self.dofs)}"
+            )
+        p = self.hold.copy()
+        v = np.zeros(4)
+        for d, k in enumerate(TRACK_DOFS):
+            if k in pose:
+                x = _number(pose[k], f"setpoint.pose.{k}")
+                if not self._lo_ok[d] <= x <= self._hi_ok[d]:
+                    raise TrackInputError(
+                        f"setpoint.pose.{k} = {x:g} {_UNITS[k]} is not a plausible SI value: allowed "
+                        f"[{self._lo_ok[d]:.3f}, {self._hi_ok[d]:.3f}] {_UNITS[k]} (beyond the workspace "
+                        f"[{self.planner.lo[d]:.3f}, {self.planner.hi[d]:.3f}] it is clipped)"
+                    )
+                p[d] = x
+            if velocity is not None and k in velocity:
+                w = _number(velocity[k], f"setpoint.velocity.{k}")
+                if abs(w) > PLAUSIBLE_VELOCITY:
+                    raise TrackInputError(
+                        f"setpoint.velocity.{k} = {w:g} {_UNITS[k]}/s is not a plausible SI value: allowed "
+                        f"±{PLAUSIBLE_VELOCITY:g} {_UNITS[k]}/s (beyond ±{self._v_lim[d]:.4f} it is clipped)"
+                    )
+                v[d] = w
+        return p, v
+
+    # ------------------------------------------------------------------ the cycle
+    def target(self, now_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, str]]:
+        """The cycle's target (position, velocity, acceleration, flags) at ``now_s``: the setpoint
+        extrapolated with its velocity, clipped to the workspace, its velocity capped so that a
+        jerk-limited stop from the target fits before the face (its acceleration then dropped when
+        it pushes towards the face)."""
+        sp = self._sp
+        lo, hi = self.planner.lo, self.planner.hi
+        if sp is None:
+            return self.hold.copy(), np.zeros(4), np.zeros(4), {}
+        flags = dict(sp.limited)
+        p = sp.position + sp.velocity * max(now_s - sp.t, 0.0)
+        # the limits may have changed since the setpoint was taken (a new box): a reachable target again
+        vl, al = self._v_lim, self._a_lim
+        v = np.clip(sp.velocity, -vl, vl)
+        room = np.maximum(vl * (1 - 1e-6) - np.abs(v), 0.0)
+        acc = np.clip(sp.acceleration, -al, al)
+        acc = np.sign(acc) * np.minimum(np.abs(acc), np.sqrt(2 * self._j_lim * room))
+        for d, (k, (name_min, name_max)) in enumerate(zip(TRACK_DOFS, WORKSPACE_NAMES, strict=True)):
+            if not self.tracked[d]:
+                continue
+            if p[d] >= hi[d]:
+                p[d] = hi[d]
+                flags.setdefault(k, name_max)
+            elif p[d] <= lo[d]:
+                p[d] = lo[d]
+                flags.setdefault(k, name_min)
+            a, j = self._a_lim[d], self._j_lim[d]
+            up, down = _braking_speed(hi[d] - p[d], a, j), _braking_speed(p[d] - lo[d], a, j)
+            # the stop from (v, a) pushing outwards ends no further than one from |v| + a²/(2j) at a = 0
+            if acc[d] > 0 and max(v[d], 0.0) + acc[d] ** 2 / (2 * j) > up:
+                acc[d] = 0.0
+            elif acc[d] < 0 and max(-v[d], 0.0) + acc[d] ** 2 / (2 * j) > down:
+                acc[d] = 0.0
+            if v[d] > up:
+                v[d] = up
+                flags[f"v{k}"] = name_max
+            elif v[d] < -down:
+                v[d] = -down
+                flags[f"v{k}"] = name_min
+        return p, v, acc, flags
+
+    def step(self, now_s: float | None = None) -> TrackOutput:
+        """Advance one control cycle (dt = 1/rate) to time ``now_s`` (default: t + dt)."""
+        now = self.t + self.dt if now_s is None else _number(now_s, "now_s")
+        if not self._stale and not self._stopping and now - self._last_s > self.ttl_s:
+            self._stale = True
+        to_rest = self._stale or self._stopping
+        flags: dict[str, str]
+        state = self.state
+        if to_rest:  # the planned stop's limits, chosen once (see the module docstring)
+            lim = self._rest_limits()
+            p_t, v_t, a_t, flags = self.hold, np.zeros(4), np.zeros(4), {}
+            vel_mode = np.ones(4, bool)
+            brake = np.zeros(4, bool)
+        else:
+            self._rest = None
+            self._refresh()
+            lim = self.limits
+            p_t, v_t, a_t, flags = self.target(now)
+            vel_mode = ~self.tracked
+            brake = beyond(state, lim, _REL)
+        v_lim = lim.velocity
+        tv = np.where(vel_mode, 0.0, v_t)
+        ta = np.where(vel_mode, 0.0, a_t)
+        p_now, v_now = state.position, state.velocity
+        for i in np.flatnonzero(brake & ~vel_mode).tolist():  # beyond the pose limits: slow down (towards) or stop
+            towards = v_now[i] * (p_t[i] - p_now[i]) > 0
+            vel_mode[i] = True
+            tv[i] = float(np.clip(v_now[i], -v_lim[i], v_lim[i])) if towards else 0.0
+            ta[i] = 0.0
+        try:
+            nxt = self._advance(p_t, tv, ta, vel_mode, brake, lim)
+            for _ in range(3):
+                up, down = self._cannot_stop(nxt, lim)  # cheap: the pose limits first
+                if not (np.any(up) or np.any(down)):
+                    break
+                up, down = self._cannot_stop(nxt, self._braking(lim))
+                # braking to rest with the real limits already: nothing more to do for that DOF
+                up &= ~(brake & vel_mode & (tv <= 0))
+                down &= ~(brake & vel_mode & (tv >= 0))
+                if not (np.any(up) or np.any(down)):
+                    break
+                for d, (k, (name_min, name_max)) in enumerate(zip(TRACK_DOFS, WORKSPACE_NAMES, strict=True)):
+                    if up[d] or down[d]:
+                        vel_mode[d] = True
+                        tv[d] = min(tv[d], 0.0) if up[d] else max(tv[d], 0.0)
+                        ta[d] = 0.0
+                        if self.tracked[d] and not to_rest:
+                            flags[k] = name_max if up[d] else name_min
+                brake = brake | up | down
+                nxt = self._advance(p_t, tv, ta, vel_mode, brake, lim)
+        except (TrackError, PlanError):  # never stuck: the shortest stop with the real limits
+            self.fallbacks += 1
+            vel_mode[:] = True
+            tv[:] = 0.0
+            ta[:] = 0.0
+            brake[:] = True
+            try:
+                nxt = self._advance(p_t, tv, ta, vel_mode, brake, lim)
+            except (TrackError, PlanError) as exc:
+                raise TrackError(f"track: {exc}") from None
+        self.state = nxt
+        self.t = now
+        if not np.any(brake):
+            self._brake = None
+        if to_rest and not nxt.moving:
+            self.hold = np.asarray(nxt.position, float).copy()
+        q, jac, _ = self.planner.inverse.solve_full(nxt.position)
+        braking = bool(to_rest or np.any(vel_mode & self.tracked))
+        return TrackOutput(now, nxt, q, jac @ nxt.velocity, flags, self._stale, braking)
+
+    # ------------------------------------------------------------------ for the guard
+    def guard_rates(self, horizon_s: float) -> np.ndarray:
+        """A constant rate vector that reaches, after ``horizon_s``, where the motion heads: the target
+        extrapolated by the horizon and clipped to the workspace (zero when braking to rest).
+
+        :meth:`planner.limits.guard.Guard.check_jog` evaluates stability at ``position + rates·horizon``:
+        pass it ``(follower.state, follower.guard_rates(guard.settings.jog_horizon))``.
+        """
+        h = _number(horizon_s, "horizon_s")
+        if h <= 0:
+            raise TrackInputError(f"horizon_s must be > 0 s, got {horizon_s!r}")
+        if self._stale or self._stopping or self._sp is None:
+            return np.zeros(4)
+        p_t, v_t, _, _ = self.target(self.t)
+        ahead = np.where(self.tracked, np.clip(p_t + v_t * h, self.planner.lo, self.planner.hi), self.state.position)
+        return (ahead - self.state.position) / h
+
+    # ------------------------------------------------------------------ internals
+    def _refresh(self) -> None:
+        """The subset limits of the DOFs that move: at the start, and when an untracked DOF came to rest
+        (fewer DOFs move: the limits grow; else the previous ones, still valid, are kept); cheap otherwise."""
+        st = self.state
+        active = self.tracked | (st.velocity != 0) | (st.acceleration != 0)
+        if self._active is not None and np.array_equal(active, self._active):
+            return
+        tp = self.planner
+        try:
+            new = subset_limits(tp.inverse, st.position, active, tp.limits, tp.lo, tp.hi)
+        except KinematicsError:
+            new = None
+        base = self._any if self._active is None else self.limits
+        self._active = active
+        if new is None:
+            self.limits = base
+        else:
+            cand = PoseLimits(*(np.where(active, x, y) for x, y in zip(_arrays(new), _arrays(self._any), strict=True)))
+            # one valid set or the other, never mixed per DOF: the subset limits where they are the larger
+            ok = all(np.all(x[active] >= y[active]) for x, y in zip(_arrays(cand), _arrays(base), strict=True))
+            self.limits = cand if ok else base
+        self.refreshes += 1
+        lim = self.limits
+        self._v_lim, self._a_lim, self._j_lim = lim.velocity, lim.acceleration, lim.jerk
+
+    def _rest_limits(self) -> PoseLimits:
+        """The limits of the stop to rest, chosen at its first cycle as
+        :meth:`~.planner.TrajectoryPlanner.plan_stop` does (then the per-cycle re-plan is that stop)."""
+        if self._rest is None:
+            st, tp = self.state, self.planner
+            lim = self._any.floored(current_floor(st))
+            if st.moving and (np.any(beyond(st, self._any)) or tp.stop_leaves_workspace(st, lim)):
+                lim = tp.braking_limits(st)
+            self._rest = lim
+        return self._rest
+
+    def _braking(self, lim: PoseLimits) -> PoseLimits:
+        """The real braking limits of the current motion (computed once per braking episode), floored
+        by ``lim`` and by the state's |v|, |a|."""
+        if self._brake is None:
+            self._brake = self.planner.braking_limits(self.state)
+        return self._brake.floored(lim).floored(current_floor(self.state))
+
+    def _advance(
+        self,
+        p_t: np.ndarray,
+        tv: np.ndarray,
+        ta: np.ndarray,
+        vel_mode: np.ndarray,
+        brake: np.ndarray,
+        lim: PoseLimits,
+    ) -> MotionState:
+        """The state one cycle ahead: Ruckig from the current state, position interface towards
+        (``p_t``, ``tv``, ``ta``) or velocity interface towards ``tv`` (``vel_mode``) within ``lim``;
+        ``brake``: the real limits."""
+        st = self.state
+        vl, al, jl = lim.velocity, lim.acceleration, lim.jerk
+        if np.any(brake):  # the real limits, floored by the state's |v|, |a| (the others keep within theirs)
+            real = self._braking(lim)
+            vl = np.where(brake, real.velocity, vl)
+            al = np.where(brake, real.acceleration, al)
+            jl = np.where(brake, real.jerk, jl)
+        inp = self._in
+        inp.per_dof_control_interface = [_VEL if m else _POS for m in vel_mode.tolist()]
+        inp.max_velocity = np.maximum(vl, np.maximum(np.abs(tv), 1e-9)).tolist()
+        inp.max_acceleration = np.maximum(al, 1e-9).tolist()
+        inp.max_jerk = np.maximum(jl, 1e-9).tolist()
+        inp.current_position = st.position.tolist()
+        inp.current_velocity = st.velocity.tolist()
+        inp.current_acceleration = st.acceleration.tolist()
+        inp.target_position = p_t.tolist()
+        inp.target_velocity = tv.tolist()
+        inp.target_acceleration = ta.tolist()
+        try:
+            res = self._ruckig.calculate(inp, self._traj)
+        except RuckigError as exc:
+            raise TrackError(f"track: ruckig refused the cycle ({str(exc).strip()})") from None
+        if res not in _OK:
+            raise TrackError(f"track: ruckig failed ({res})")
+        p, v, a = self._traj.at_time(self.dt)  # past its duration: on at the target velocity
+        return MotionState(np.array(p), np.array(v), np.array(a))
+
+    def _cannot_stop(self, state: MotionState, limits: PoseLimits) -> tuple[np.ndarray, np.ndarray]:
+        """Per DOF: the shortest stop from ``state`` passes the upper / lower face (beyond the current
+        position when that is already outside)."""
+        lo, hi = self._probe.extent(state, limits)
+        p = self.state.position
+        return hi > np.maximum(self.planner.hi, p) + 1e-9, lo < np.minimum(self.planner.lo, p) - 1e-9

@@ -1,0 +1,415 @@
+"""Track mode: streamed setpoints followed with jerk-limited motion within the limits and the workspace.
+
+Truth used: the streamed signal itself (a slow sine inside the limits); the actuator limits
+(finite differences of the streamed actuator references, through the exact inverse); the follower's
+pose limits in force each cycle (finite differences of the output, not Ruckig's own state only),
+and that they are the subset's, larger than the any-direction ones; the workspace box
+and its face names; the actuator limits (velocities through the exact inverse); the shortest stop
+the planner plans from the same state (:meth:`TrajectoryPlanner.plan_stop`); a full-speed goto's
+states to take over.
+"""
+
+import math
+
+import numpy as np
+import pytest
+
+from planner.errors import HitchInputError
+from planner.trajectory import MotionState, TrajectoryPlanner
+from planner.trajectory.track import SeqFilter, TrackFollower, TrackInputError, TrackStateError
+
+DOFS = ("x", "z", "roll", "pitch")
+BOUND = 2e-3  # m or rad: the sensor quantisation a motion may leave the workspace by (as for jog and stops)
+REL = 1e-6  # Ruckig's rounding at a limit
+
+
+@pytest.fixture(scope="module")
+def tp(model):
+    return TrajectoryPlanner(model)
+
+
+def centre(tp) -> np.ndarray:
+    return (tp.lo + tp.hi) / 2
+
+
+def outside(tp, p) -> np.ndarray:
+    return np.maximum(np.maximum(p - tp.hi, tp.lo - p), 0.0)
+
+
+def step_recording(follower, lims):
+    """One step, recording the pose limits it moved within."""
+    out = follower.step()
+    lims.append(follower.limits)
+    return out
+
+
+def run_stream(tp, follower, pose_at, vel_at, cycles, *, setpoint_rate=100.0):
+    """Setpoints at ``setpoint_rate`` between control cycles; returns the outputs."""
+    outs = []
+    dt = follower.dt
+    per = max(1, round(setpoint_rate * dt))
+    for _ in range(cycles):
+        t0 = follower.t
+        for i in range(per):
+            ts = t0 + dt * (i + 1) / per
+            follower.set_setpoint(pose_at(ts), vel_at(ts) if vel_at else None, ts)
+        outs.append(follower.step())
+    return outs
+
+
+def test_a_slow_sine_inside_the_limits_is_followed_closely(tp):
+    c = centre(tp)
+    amp = np.array([0.02, 0.04, 0.01, 0.02])
+    w = 2 * math.pi * 0.1  # velocity A·ω ≤ 0.6 of the pose limits, acceleration far below
+    assert np.all(amp * w <= 0.6 * tp.any_direction.velocity)
+    tr = TrackFollower(tp, MotionState.at_rest(c), DOFS, 0.2)
+
+    def pose(t):
+        return dict(zip(DOFS, (c + amp * math.sin(w * t)).tolist(), strict=True))
+
+    def vel(t):
+        return dict(zip(DOFS, (amp * w * math.cos(w * t)).tolist(), strict=True))
+
+    outs = run_stream(tp, tr, pose, vel, 600)
+    err = np.array([o.state.position - (c + amp * math.sin(w * o.t)) for o in outs])
+    assert np.all(np.abs(err[150:]) <= 0.02 * amp), np.abs(err[150:]).max(axis=0)  # after 3 s: within 2 %
+    assert not any(o.limited for o in outs[150:]) and not any(o.stale for o in outs)
+    # without the velocity (positions only) it still follows, lagging more, never beyond the limits
+    tr2 = TrackFollower(tp, MotionState.at_rest(c), DOFS, 0.2)
+    outs2 = run_stream(tp, tr2, pose, None, 600)
+    err2 = np.array([o.state.position - (c + amp * math.sin(w * o.t)) for o in outs2])
+    assert np.all(np.abs(err2[150:]) <= 0.5 * amp)
+
+
+def check_pose_limits(tp, states, dt, lims=None):
+    """Finite differences of a sequence of states (one control cycle apart) within the pose limits:
+    ``lims`` the limits of each step (the larger of this and the previous step's: a hand-over between
+    two boxes brakes into the new ones), default the any-direction limits."""
+    n = len(states) - 1
+    if lims is None:
+        lims = [tp.any_direction] * n
+    assert len(lims) == n
+    kinds = ("velocity", "acceleration", "jerk")
+    L = {k: np.array([getattr(x, k) for x in lims]) for k in kinds}
+    L = {k: np.maximum(v, np.vstack([v[:1], v[:-1]])) for k, v in L.items()}
+    P = np.array([s.position for s in states])
+    V = np.array([s.velocity for s in states])
+    A = np.array([s.acceleration for s in states])
+    tol = 1 + 1e-6
+    assert np.all(np.abs(np.diff(P, axis=0)) / dt <= L["velocity"] * tol), "finite-difference velocity"
+    assert np.all(np.abs(np.diff(V, axis=0)) / dt <= L["acceleration"] * tol), "finite-difference acceleration"
+    assert np.all(np.abs(np.diff(A, axis=0)) / dt <= L["jerk"] * tol), "finite-difference jerk"
+    assert np.all(np.abs(V[1:]) <= L["velocity"] * tol) and np.all(np.abs(A[1:]) <= L["acceleration"] * tol)
+
+
+def check_actuator_limits(tp, q0, outs, dt):
+    """The streamed actuator references (from ``q0`` at rest): their finite-difference velocity and
+    acceleration, and the streamed actuator velocities, within the actuator limits."""
+    Q = np.vstack([q0, q0, [o.actuators for o in outs]])  # at rest before the first cycle
+    QD = np.array([o.actuator_velocity for o in outs])
+    tol = 1 + 1e-6
+    fd_v = np.abs(np.diff(Q, axis=0)) / dt
+    fd_a = np.abs(np.diff(Q, 2, axis=0)) / dt**2
+    assert np.all(fd_v <= tp.limits.velocity * tol), (fd_v / tp.limits.velocity).max(axis=0)
+    assert np.all(fd_a <= tp.limits.acceleration * tol), (fd_a / tp.limits.acceleration).max(axis=0)
+    assert np.all(np.abs(QD) <= tp.limits.velocity * tol), (np.abs(QD) / tp.limits.velocity).max(axis=0)
+    return fd_v.max(axis=0) / tp.limits.velocity, fd_a.max(axis=0) / tp.limits.acceleration
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_random_streams_never_exceed_the_pose_limits(tp, seed):
+    rng = np.random.default_rng(seed)
+    c = centre(tp)
+    half = (tp.hi - tp.lo) / 2
+    tr = TrackFollower(tp, MotionState.at_rest(c), DOFS, 0.2)
+    outs, lims = [], []
+    goal, gv = c, np.zeros(4)
+    for _ in range(300):  # a new random target every ~0.3 s, noise at 100 Hz, random (clipped) velocities
+        if rng.random() < 0.07:
+            goal = c + half * rng.uniform(-1.3, 1.3, 4)
+            gv = rng.normal(0, 1, 4) * tp.any_direction.velocity
+        for i in (1, 2):
+            ts = tr.t + tr.dt * i / 2
+            noisy = goal + rng.normal(0, 0.002, 4)
+            tr.set_setpoint(dict(zip(DOFS, noisy.tolist(), strict=True)), dict(zip(DOFS, gv.tolist(), strict=True)), ts)
+        outs.append(step_recording(tr, lims))
+    check_pose_limits(tp, [MotionState.at_rest(c)] + [o.state for o in outs], tr.dt, lims)
+    check_actuator_limits(tp, tp.inverse.solve(c)[0], outs, tr.dt)
+    P = np.array([o.state.position for o in outs])
+    assert np.all(outside(tp, P) <= BOUND)
+    assert tr.fallbacks == 0
+
+
+@pytest.mark.parametrize("d", range(4))
+@pytest.mark.parametrize("side", (1, -1))
+def test_setpoints_far_outside_are_clipped_named_and_never_left(tp, d, side):
+    rng = np.random.default_rng(10 + d)
+    c = centre(tp)
+    tr = TrackFollower(tp, MotionState.at_rest(c), DOFS, 0.5)
+    k = DOFS[d]
+    face = f"workspace:{k}:{'max' if side > 0 else 'min'}"
+    worst = np.zeros(4)
+    for _ in range(400):
+        goal = c.copy()
+        goal[d] = (tp.hi[d] if side > 0 else tp.lo[d]) + side * rng.uniform(0.01, 0.4)
+        vel = {k: side * 0.5}  # plausible, beyond the limits: clipped as well
+        sp = tr.set_setpoint(dict(zip(DOFS, goal.tolist(), strict=True)), vel, tr.t)
+        assert sp.limited[k] == face
+        assert sp.limited[f"v{k}"] == f"velocity:{k}"
+        assert sp.position[d] == (tp.hi[d] if side > 0 else tp.lo[d])
+        out = tr.step()
+        assert out.limited[k] == face
+        worst = np.maximum(worst, outside(tp, out.state.position))
+    assert np.all(worst <= BOUND), worst
+    assert abs(out.state.position[d] - sp.position[d]) < 1e-6 and not out.moving  # at rest on the face
+
+
+def test_a_step_setpoint_gives_a_continuous_jerk_limited_response(tp):
+    c = centre(tp)
+    tr = TrackFollower(tp, MotionState.at_rest(c), ("x", "z"), 5.0)
+    goal = c + np.array([0.05, -0.1, 0.0, 0.0])
+    tr.set_setpoint({"x": goal[0], "z": goal[1]}, None, 0.0)
+    lim = tr.limits
+    lims: list = []
+    outs = [step_recording(tr, lims) for _ in range(300)]
+    check_pose_limits(tp, [MotionState.at_rest(c)] + [o.state for o in outs], tr.dt, lims)
+    check_actuator_limits(tp, tp.inverse.solve(c)[0], outs, tr.dt)
+    first = outs[0].state
+    # continuous from rest: one cycle of jerk at most gives |a| ≤ j·dt, |v| ≤ j·dt²/2
+    assert np.all(np.abs(first.acceleration) <= lim.jerk * tr.dt * (1 + REL))
+    assert np.all(np.abs(first.velocity) <= lim.jerk * tr.dt**2 / 2 * (1 + REL))
+    np.testing.assert_allclose(outs[-1].state.position, goal, atol=1e-9)
+    assert not outs[-1].moving
+    np.testing.assert_allclose([o.state.position[2:] for o in outs], np.tile(c[2:], (300, 1)), atol=1e-12)
+
+
+def full_speed_goto(tp, d, s):
+    p0, goal = centre(tp), centre(tp)
+    p0[d], goal[d] = (tp.lo[d], tp.hi[d]) if s > 0 else (tp.hi[d], tp.lo[d])
+    return tp.plan_move(MotionState.at_rest(p0), dict(zip(DOFS, goal, strict=True))), goal
+
+
+@pytest.mark.parametrize(("d", "s"), [(0, 1), (1, 1), (1, -1), (2, -1), (3, 1)])
+def test_taking_over_a_full_speed_goto_brakes_with_real_limits_and_stays_inside(tp, d, s):
+    plan, goal = full_speed_goto(tp, d, s)
+    beyond_seen = False
+    for frac in (0.5, 0.7, 0.85, 0.95):
+        start = plan.state_at(frac * plan.duration)
+        lim = TrackFollower(tp, start, DOFS, 0.1).limits  # the follower's limits (four DOFs tracked)
+        beyond = bool(np.any(np.abs(start.velocity) > lim.velocity * (1 + 1e-6)))
+        beyond_seen |= beyond
+        for target in (goal, goal + s * 0.3 * np.eye(4)[d]):  # the goto's goal, or far beyond the face
+            tr = TrackFollower(tp, start, DOFS, 0.1)
+            outs = []
+            for _ in range(400):
+                tr.set_setpoint(dict(zip(DOFS, target.tolist(), strict=True)), None, tr.t)
+                outs.append(tr.step())
+            if beyond:
+                assert outs[0].braking
+            P = np.array([o.state.position for o in outs])
+            assert np.all(outside(tp, P) <= BOUND), outside(tp, P).max(axis=0)
+            QD = np.array([o.actuator_velocity for o in outs])
+            assert np.all(np.abs(QD) <= tp.limits.velocity * (1 + 1e-6))
+            assert not outs[-1].moving
+            np.testing.assert_allclose(outs[-1].state.position, np.clip(target, tp.lo, tp.hi), atol=1e-6)
+            assert tr.fallbacks == 0
+    assert beyond_seen  # the goto did move beyond the track limits: the braking path was exercised
+
+
+def test_a_stale_stream_brakes_to_rest_as_the_planned_stop(tp):
+    c = centre(tp)
+    tr = TrackFollower(tp, MotionState.at_rest(c), DOFS, 0.1)
+    v = 0.8 * tp.any_direction.velocity * np.array([1, -1, 1, -1])
+    for _ in range(60):  # a ramp at 80 % of the speed limits, stream at the control rate
+        t = tr.t + tr.dt
+        pose = dict(zip(DOFS, (c - 0.4 * v + v * t).tolist(), strict=True))
+        tr.set_setpoint(pose, dict(zip(DOFS, v.tolist(), strict=True)), t)
+        tr.step()
+    assert tr.state.moving
+    last_sp = tr.t
+    for _ in range(20):
+        prev = tr.state
+        out = tr.step()
+        if out.stale:
+            break
+        assert tr.t - last_sp <= 0.1 + 1e-9
+    assert out.stale and tr.t - last_sp > 0.1
+    # the first stale cycle braked from ``prev``: the same stop as the planned one from that state
+    stop = tp.plan_stop(prev)
+    stops = [out] + [tr.step() for _ in range(int(stop.duration * tp.rate) + 5)]
+    assert all(o.stale and o.braking for o in stops)
+    assert not stops[-1].moving and tr.finished
+    end = stop.state_at(stop.duration).position
+    np.testing.assert_allclose(stops[-1].state.position, end, atol=1e-6)
+    assert np.all(np.abs(stops[-1].state.position - prev.position) <= np.abs(end - prev.position) + 1e-6)
+    check_pose_limits(tp, [prev] + [o.state for o in stops], tr.dt)
+    # staleness latches: a fresh setpoint is refused unless the caller resumes
+    with pytest.raises(TrackStateError, match="stale"):
+        tr.set_setpoint(dict(zip(DOFS, c.tolist(), strict=True)), None, tr.t)
+    tr.resume()
+    tr.set_setpoint(dict(zip(DOFS, c.tolist(), strict=True)), None, tr.t)
+    assert not tr.step().stale
+    auto = TrackFollower(tp, MotionState.at_rest(c), DOFS, 0.1, resume_after_stale=True)
+    for _ in range(10):
+        auto.step()
+    assert auto.stale
+    auto.set_setpoint(dict(zip(DOFS, c.tolist(), strict=True)), None, auto.t)
+    assert not auto.stale
+
+
+def test_stop_ends_at_rest_and_takes_no_more_setpoints(tp):
+    c = centre(tp)
+    tr = TrackFollower(tp, MotionState.at_rest(c), ("z",), 1.0)
+    tr.set_setpoint({"z": tp.hi[1]}, None, 0.0)
+    for _ in range(40):
+        tr.step()
+    moving = tr.state
+    assert moving.moving
+    tr.stop()
+    outs = [tr.step() for _ in range(200)]
+    assert tr.finished and all(o.braking for o in outs)
+    end = tp.plan_stop(moving).state_at(1e3).position
+    np.testing.assert_allclose(outs[-1].state.position, end, atol=1e-6)
+    with pytest.raises(TrackStateError, match="stopping"):
+        tr.set_setpoint({"z": c[1]}, None, tr.t)
+
+
+@pytest.mark.parametrize(
+    ("pose", "velocity", "field"),
+    [
+        ({"x": math.nan, "z": 0.1}, None, "setpoint.pose.x"),
+        ({"x": 0.0, "z": math.inf}, None, "setpoint.pose.z"),
+        ({"x": 0.0, "z": 0.1, "yaw": 0.0}, None, "yaw"),
+        ({"x": 0.0, "z": 0.1, "roll": 0.0}, None, "roll"),  # not tracked in this session
+        ({"x": 0.0}, None, "missing field(s) z"),
+        ({"x": 0.0, "z": 0.1}, {"pitch": 0.0}, "setpoint.velocity"),
+        ({"x": 0.0, "z": 0.1}, {"x": math.nan}, "setpoint.velocity.x"),
+        ({"x": 30.0, "z": 0.1}, None, "setpoint.pose.x"),  # millimetres
+        ({"x": 0.0, "z": 0.1}, {"z": 20.0}, "setpoint.velocity.z"),  # mm/s
+        ({"x": True, "z": 0.1}, None, "setpoint.pose.x"),
+        ("x=0", None, "setpoint.pose"),
+    ],
+)
+def test_invalid_setpoints_raise_naming_the_field(tp, pose, velocity, field):
+    tr = TrackFollower(tp, MotionState.at_rest(centre(tp)), ("x", "z"), 0.2)
+    with pytest.raises(TrackInputError, match=field.replace("(", r"\(").replace(")", r"\)")) as exc:
+        tr.set_setpoint(pose, velocity, 0.0)
+    assert isinstance(exc.value, HitchInputError)
+    assert tr.setpoint is None  # nothing taken
+
+
+def test_plausibility_messages_give_the_allowed_range(tp):
+    tr = TrackFollower(tp, MotionState.at_rest(centre(tp)), ("x", "z"), 0.2)
+    with pytest.raises(TrackInputError, match=r"allowed \[-0\.560, 0\.560\] m"):
+        tr.set_setpoint({"x": 30.0, "z": 0.1}, None, 0.0)
+
+
+@pytest.mark.parametrize(
+    ("dofs", "ttl"), [((), 0.2), (("yaw",), 0.2), ("x", 0.2), (("x",), 0.0), (("x",), 6.0), (("x",), math.nan)]
+)
+def test_invalid_sessions_are_refused(tp, dofs, ttl):
+    with pytest.raises(TrackInputError):
+        TrackFollower(tp, MotionState.at_rest(centre(tp)), dofs, ttl)
+
+
+def test_untracked_dofs_hold_their_start_value(tp):
+    c = centre(tp)
+    tr = TrackFollower(tp, MotionState.at_rest(c), ("roll",), 1.0)
+    for _ in range(100):
+        tr.set_setpoint({"roll": tp.hi[2]}, None, tr.t)
+        out = tr.step()
+    np.testing.assert_allclose(out.state.position[[0, 1, 3]], c[[0, 1, 3]], atol=0)
+    assert out.state.position[2] > c[2]
+
+
+def test_guard_rates_point_where_the_motion_heads(tp):
+    c = centre(tp)
+    tr = TrackFollower(tp, MotionState.at_rest(c), ("x",), 1.0)
+    np.testing.assert_array_equal(tr.guard_rates(1.0), np.zeros(4))
+    tr.set_setpoint({"x": c[0] + 0.02}, {"x": 0.01}, 0.0)
+    np.testing.assert_allclose(tr.guard_rates(1.0), [0.03, 0, 0, 0], atol=1e-12)
+    tr.set_setpoint({"x": tp.hi[0]}, {"x": 0.01}, 0.0)  # at the face: heading no further
+    np.testing.assert_allclose(tr.guard_rates(1.0), [tp.hi[0] - c[0], 0, 0, 0], atol=1e-12)
+
+
+def test_seq_filter_accepts_strictly_increasing_numbers():
+    f = SeqFilter()
+    got = [f.accept(s) for s in (0, 1, 1, 5, 3, 6, 6, 7)]
+    assert got == [True, True, False, True, False, True, False, True]
+    assert (f.accepted, f.ignored, f.last) == (5, 3, 7)
+    f.reset()
+    assert f.accept(2) and f.last == 2 and f.ignored == 0
+    for bad in (-1, 1.5, True, "3"):
+        with pytest.raises(TrackInputError, match="seq"):
+            f.accept(bad)
+
+
+SUBSETS = [("x",), ("z",), ("roll",), ("pitch",), ("x", "z"), ("roll", "pitch"), ("z", "roll", "pitch")]
+
+
+@pytest.mark.parametrize("dof", DOFS)
+def test_one_tracked_dof_gets_what_the_actuators_allow_it_alone(tp, dof):
+    # independent truth: the tightest actuator through that DOF's Jacobian column (the ideal follower's
+    # limits at the neutral pose) bounds it from above; the any-direction limits are about half of it
+    from planner.trajectory.ideal_follower import dof_limits
+
+    d = DOFS.index(dof)
+    alone = dof_limits(tp, dof)
+    lim = TrackFollower(tp, MotionState.at_rest(centre(tp)), (dof,), 0.2).limits
+    for kind, top in (("velocity", alone.velocity), ("acceleration", alone.acceleration), ("jerk", alone.jerk)):
+        got = getattr(lim, kind)[d]
+        assert 0.75 * top <= got <= top, (kind, got, top)
+        assert got >= 1.5 * getattr(tp.any_direction, kind)[d], (kind, got)
+
+
+@pytest.mark.parametrize("dofs", SUBSETS)
+@pytest.mark.parametrize("seed", range(2))
+def test_random_streams_of_a_subset_keep_every_actuator_within_its_limits(tp, dofs, seed):
+    # truth: the actuator limits, on finite differences of the streamed actuator references
+    rng = np.random.default_rng(100 + seed)
+    c = centre(tp)
+    half = (tp.hi - tp.lo) / 2
+    tracked = np.array([k in dofs for k in DOFS])
+    tr = TrackFollower(tp, MotionState.at_rest(c), dofs, 0.2)
+    outs, lims = [], []
+    goal, gv = c, np.zeros(4)
+    for _ in range(400):
+        if rng.random() < 0.08:  # jumps across the workspace (and beyond it), full-speed velocities
+            goal = c + half * rng.uniform(-1.3, 1.3, 4)
+            gv = rng.normal(0, 1.5, 4) * tr.limits.velocity
+        for i in (1, 2):
+            ts = tr.t + tr.dt * i / 2
+            noisy = goal + rng.normal(0, 0.002, 4)
+            tr.set_setpoint(
+                {k: float(noisy[d]) for d, k in enumerate(DOFS) if tracked[d]},
+                {k: float(gv[d]) for d, k in enumerate(DOFS) if tracked[d]},
+                ts,
+            )
+        outs.append(step_recording(tr, lims))
+    fd_v, fd_a = check_actuator_limits(tp, tp.inverse.solve(c)[0], outs, tr.dt)
+    # the stream did drive an actuator near its limits (1-2 DOFs; the any-direction limits reach about half)
+    assert fd_v.max() > (0.8 if len(dofs) <= 2 else 0.5) and fd_a.max() > 0.5, (fd_v, fd_a)
+    check_pose_limits(tp, [MotionState.at_rest(c)] + [o.state for o in outs], tr.dt, lims)
+    P = np.array([o.state.position for o in outs])
+    assert np.all(outside(tp, P) <= BOUND)
+    np.testing.assert_array_equal(P[:, ~tracked], np.tile(c[~tracked], (len(P), 1)))  # the others hold
+    assert tr.fallbacks == 0
+
+
+@pytest.mark.parametrize(("d", "s"), [(0, 1), (1, -1), (2, 1), (3, -1)])
+def test_a_single_dof_track_takes_over_a_full_speed_goto_of_that_dof(tp, d, s):
+    # the goto moves along one DOF with that line's limits; tracking that DOF alone continues it
+    plan, goal = full_speed_goto(tp, d, s)
+    for frac in (0.3, 0.6, 0.9):
+        start = plan.state_at(frac * plan.duration)
+        tr = TrackFollower(tp, start, (DOFS[d],), 0.1)
+        outs = []
+        for _ in range(300):
+            tr.set_setpoint({DOFS[d]: float(goal[d] + s * 0.2)}, None, tr.t)  # beyond the face
+            outs.append(tr.step())
+        P = np.array([o.state.position for o in outs])
+        assert np.all(outside(tp, P) <= BOUND), outside(tp, P).max(axis=0)
+        QD = np.array([o.actuator_velocity for o in outs])
+        assert np.all(np.abs(QD) <= tp.limits.velocity * (1 + 1e-6))
+        assert not outs[-1].moving and tr.fallbacks == 0
+        np.testing.assert_allclose(outs[-1].state.position[d], goal[d], atol=1e-6)

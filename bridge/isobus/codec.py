@@ -13,6 +13,15 @@ Each message is serialised in one place: a ``_MessageCodec`` subclass names the 
 message, its default source address and priority, its signals (typed descriptors:
 scaled value, count, raw integer, command flag, enumeration) and writes and reads the
 payload's fields one by one.
+
+The slope-sensor messages are standard SAE J1939-71 parameter groups whose definition (the
+J1939 digital annex) is not public; their layouts here follow the public manual Axiomatic
+UMAX0608XX-1000 "Tri-Axial J1939 CAN Inclinometer", version 9B, sections 2.5.1.1 (SSI, PGN
+61459) and 2.5.1.2 (SSI2, PGN 61481), cross-checked against the public DBC in
+rusefi/can-log-tools (SSI) and the ifm JD inclination-sensor manual, section 8.3 (SSI2). Their
+DBC units are the definition's (deg, deg/s, ms); the ``_deg``-free payload fields are SI (rad,
+rad/s, s), converted here. The ground-distance (0xFF26) and crop-row (0xFF27) messages are
+proprietary project layouts (no standard message exists; see ``docs/sensors.md``).
 """
 
 from __future__ import annotations
@@ -47,12 +56,17 @@ from bridge.isobus.j1939 import (
 )
 from bridge.isobus.messages import (
     ACTUATORS,
+    GROUND_SENSOR_ADDRESS,
     MAX_COUNTS,
+    ROW_CAMERA_ADDRESS,
+    SLOPE_SENSOR_ADDRESS,
     AddressClaimed,
     BasicJoystick,
     CodecError,
     Decoded,
     EcuParameters,
+    FigureOfMerit,
+    GroundDistance,
     Heartbeat,
     JoystickAxis,
     MeasuredPose,
@@ -62,6 +76,9 @@ from bridge.isobus.messages import (
     PressureMeasurement,
     RearHitchStatus,
     RequestPgn,
+    RowGuidance,
+    SlopeSensorInformation,
+    SlopeSensorInformation2,
     WheelBasedSpeed,
 )
 
@@ -74,6 +91,8 @@ __all__ = [
     "Decoded",
     "EcuParameters",
     "FRAME_ID_MASK",
+    "FigureOfMerit",
+    "GroundDistance",
     "Heartbeat",
     "JoystickAxis",
     "MAX_COUNTS",
@@ -84,6 +103,9 @@ __all__ = [
     "PressureMeasurement",
     "RearHitchStatus",
     "RequestPgn",
+    "RowGuidance",
+    "SlopeSensorInformation",
+    "SlopeSensorInformation2",
     "WheelBasedSpeed",
     "decode",
     "decode_frame",
@@ -210,6 +232,38 @@ class _Scaled(_Signal[float | None]):
             notes.add(sig.name, status)
             return None
         return _in_range(self.where, sig, raw) * sig.scale + sig.offset
+
+
+@dataclass(frozen=True)
+class _Converted(_Scaled):
+    """A scaled value whose DBC unit is not SI (the slope sensor's deg, deg/s, ms).
+
+    The payload field is in SI: field = DBC value x ``si_per_unit`` (e.g. pi/180 for deg -> rad);
+    the conversion happens here, at the codec boundary, and errors give both units.
+    """
+
+    si_per_unit: float = 1.0
+    si_unit: str = ""
+
+    def encode(self, where: str, sig: Signal, value: object) -> int:
+        if value is None or isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            return super().encode(where, sig, value)  # the same None / type / finite errors
+        try:
+            return super().encode(where, sig, value / self.si_per_unit)
+        except CodecError:
+            lo, hi = _raw_limits(sig)
+            low, high = ((r * sig.scale + sig.offset) * self.si_per_unit for r in (lo, hi))
+            raise CodecError(
+                f"{where} = {value!r} outside {low:.6g}..{high:.6g} {self.si_unit} ({_range_text(sig)} on the wire)"
+            ) from None
+
+    def decode(self, sig: Signal, raw: int, notes: _Notes) -> float | None:
+        value = super().decode(sig, raw, notes)
+        return None if value is None else value * self.si_per_unit
+
+
+_RAD_PER_DEG = math.pi / 180.0
+_S_PER_MS = 1e-3
 
 
 @dataclass(frozen=True)
@@ -726,6 +780,125 @@ class _RequestPgnCodec(_MessageCodec[RequestPgn]):
         return RequestPgn(pgn=r.get(self.PGN))
 
 
+class _SlopeSensorCodec(_MessageCodec[SlopeSensorInformation]):
+    """SSI, PGN 61459: layout from Axiomatic UMAX0608XX-1000 v9B section 2.5.1.1 (see ``hitch.dbc``)."""
+
+    PITCH = _Converted("pitch_rad", "SsiPitchAngle", _RAD_PER_DEG, "rad")
+    ROLL = _Converted("roll_rad", "SsiRollAngle", _RAD_PER_DEG, "rad")
+    RATE = _Converted("pitch_rate_rad_s", "SsiPitchRate", _RAD_PER_DEG, "rad/s")
+    PITCH_MERIT = _Enum("pitch_merit", "SsiPitchAngleFigureOfMerit", FigureOfMerit)
+    ROLL_MERIT = _Enum("roll_merit", "SsiRollAngleFigureOfMerit", FigureOfMerit)
+    RATE_MERIT = _Enum("pitch_rate_merit", "SsiPitchRateFigureOfMerit", FigureOfMerit)
+    COMPENSATED = _Enum("compensated", "SsiPitchAndRollCompensated", Switch)
+    LATENCY = _Converted("latency_s", "SsiMeasurementLatency", _S_PER_MS, "s")
+
+    payload = SlopeSensorInformation
+    message = "SlopeSensorInformation"
+    source = SLOPE_SENSOR_ADDRESS
+    priority = 3
+    dlcs = (8,)
+    signals = (PITCH, ROLL, RATE, PITCH_MERIT, ROLL_MERIT, RATE_MERIT, COMPENSATED, LATENCY)
+
+    def write(self, p: SlopeSensorInformation, out: _Writer) -> None:
+        out.put(self.PITCH, p.pitch_rad)
+        out.put(self.ROLL, p.roll_rad)
+        out.put(self.RATE, p.pitch_rate_rad_s)
+        out.put(self.PITCH_MERIT, p.pitch_merit)
+        out.put(self.ROLL_MERIT, p.roll_merit)
+        out.put(self.RATE_MERIT, p.pitch_rate_merit)
+        out.put(self.COMPENSATED, p.compensated)
+        out.put(self.LATENCY, p.latency_s)
+
+    def read(self, r: _Reader) -> SlopeSensorInformation:
+        return SlopeSensorInformation(
+            pitch_rad=r.get(self.PITCH),
+            roll_rad=r.get(self.ROLL),
+            pitch_rate_rad_s=r.get(self.RATE),
+            pitch_merit=r.get(self.PITCH_MERIT),
+            roll_merit=r.get(self.ROLL_MERIT),
+            pitch_rate_merit=r.get(self.RATE_MERIT),
+            compensated=r.get(self.COMPENSATED),
+            latency_s=r.get(self.LATENCY),
+        )
+
+
+class _SlopeSensor2Codec(_MessageCodec[SlopeSensorInformation2]):
+    """SSI2, PGN 61481: Axiomatic UMAX0608XX-1000 v9B section 2.5.1.2, ifm JD manual section 8.3."""
+
+    PITCH = _Converted("pitch_rad", "Ssi2PitchAngle", _RAD_PER_DEG, "rad")
+    ROLL = _Converted("roll_rad", "Ssi2RollAngle", _RAD_PER_DEG, "rad")
+    PITCH_COMP = _Enum("pitch_compensated", "Ssi2PitchCompensation", Switch)
+    PITCH_MERIT = _Enum("pitch_merit", "Ssi2PitchFigureOfMerit", FigureOfMerit)
+    ROLL_COMP = _Enum("roll_compensated", "Ssi2RollCompensation", Switch)
+    ROLL_MERIT = _Enum("roll_merit", "Ssi2RollFigureOfMerit", FigureOfMerit)
+    LATENCY = _Converted("latency_s", "Ssi2MeasurementLatency", _S_PER_MS, "s")
+
+    payload = SlopeSensorInformation2
+    message = "SlopeSensorInformation2"
+    source = SLOPE_SENSOR_ADDRESS
+    priority = 3
+    dlcs = (8,)
+    signals = (PITCH, ROLL, PITCH_COMP, PITCH_MERIT, ROLL_COMP, ROLL_MERIT, LATENCY)
+
+    def write(self, p: SlopeSensorInformation2, out: _Writer) -> None:
+        out.put(self.PITCH, p.pitch_rad)
+        out.put(self.ROLL, p.roll_rad)
+        out.put(self.PITCH_COMP, p.pitch_compensated)
+        out.put(self.PITCH_MERIT, p.pitch_merit)
+        out.put(self.ROLL_COMP, p.roll_compensated)
+        out.put(self.ROLL_MERIT, p.roll_merit)
+        out.put(self.LATENCY, p.latency_s)
+
+    def read(self, r: _Reader) -> SlopeSensorInformation2:
+        return SlopeSensorInformation2(
+            pitch_rad=r.get(self.PITCH),
+            roll_rad=r.get(self.ROLL),
+            pitch_compensated=r.get(self.PITCH_COMP),
+            pitch_merit=r.get(self.PITCH_MERIT),
+            roll_compensated=r.get(self.ROLL_COMP),
+            roll_merit=r.get(self.ROLL_MERIT),
+            latency_s=r.get(self.LATENCY),
+        )
+
+
+class _GroundDistanceCodec(_MessageCodec[GroundDistance]):
+    DISTANCE = _Scaled("distance_m", "GroundDistance")
+    MERIT = _Enum("merit", "GroundDistanceFigureOfMerit", FigureOfMerit)
+
+    payload = GroundDistance
+    message = "ImplementGroundDistance"
+    source = GROUND_SENSOR_ADDRESS
+    priority = 6
+    dlcs = (8,)
+    signals = (DISTANCE, MERIT)
+
+    def write(self, p: GroundDistance, out: _Writer) -> None:
+        out.put(self.DISTANCE, p.distance_m)
+        out.put(self.MERIT, p.merit)
+
+    def read(self, r: _Reader) -> GroundDistance:
+        return GroundDistance(distance_m=r.get(self.DISTANCE), merit=r.get(self.MERIT))
+
+
+class _RowGuidanceCodec(_MessageCodec[RowGuidance]):
+    OFFSET = _Scaled("offset_m", "RowLateralOffset")
+    MERIT = _Enum("merit", "RowOffsetFigureOfMerit", FigureOfMerit)
+
+    payload = RowGuidance
+    message = "RowGuidanceOffset"
+    source = ROW_CAMERA_ADDRESS
+    priority = 6
+    dlcs = (8,)
+    signals = (OFFSET, MERIT)
+
+    def write(self, p: RowGuidance, out: _Writer) -> None:
+        out.put(self.OFFSET, p.offset_m)
+        out.put(self.MERIT, p.merit)
+
+    def read(self, r: _Reader) -> RowGuidance:
+        return RowGuidance(offset_m=r.get(self.OFFSET), merit=r.get(self.MERIT))
+
+
 _MESSAGES: tuple[_MessageCodec[Any], ...] = (
     _PressureCodec(),
     _PositionReferenceCodec(),
@@ -738,6 +911,10 @@ _MESSAGES: tuple[_MessageCodec[Any], ...] = (
     _BasicJoystickCodec(),
     _AddressClaimedCodec(),
     _RequestPgnCodec(),
+    _SlopeSensorCodec(),
+    _SlopeSensor2Codec(),
+    _GroundDistanceCodec(),
+    _RowGuidanceCodec(),
 )
 
 
@@ -799,7 +976,8 @@ class Codec:
         Args:
             payload: one of the payload dataclasses.
             source: source address (default per message: planner 166, cylinder ECU
-                169, tractor ECU 240, joystick 5).
+                169, tractor ECU 240, joystick 5, slope sensor 226, ground-distance
+                sensor 227, row camera 228).
             destination: destination address, PDU1 messages only (default global).
             priority: 0..7 (default per message: 3 control, 6 others).
         """

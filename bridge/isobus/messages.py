@@ -10,6 +10,7 @@ available" (or "no change" for :class:`EcuParameters`).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import IntEnum
 from typing import TypeAlias
 
 from bridge.isobus.j1939 import J1939Id, LimitStatus, MachineDirection, Switch
@@ -22,16 +23,28 @@ __all__ = [
     "CodecError",
     "Decoded",
     "EcuParameters",
+    "FigureOfMerit",
+    "GROUND_SENSOR_ADDRESS",
+    "GroundDistance",
     "Heartbeat",
     "JoystickAxis",
     "MAX_COUNTS",
     "MeasuredPose",
+    "PGN_GROUND_DISTANCE",
+    "PGN_ROW_GUIDANCE",
+    "PGN_SLOPE_SENSOR_INFORMATION",
+    "PGN_SLOPE_SENSOR_INFORMATION_2",
     "Payload",
     "PositionCounts",
     "PositionMeasurement",
     "PressureMeasurement",
     "RearHitchStatus",
+    "ROW_CAMERA_ADDRESS",
     "RequestPgn",
+    "RowGuidance",
+    "SLOPE_SENSOR_ADDRESS",
+    "SlopeSensorInformation",
+    "SlopeSensorInformation2",
     "WheelBasedSpeed",
 ]
 
@@ -39,6 +52,21 @@ ACTUATORS = ("lift", "tilt", "top", "left", "right")
 """Actuator order used by every tuple-valued field of this module."""
 MAX_COUNTS = 1021
 """Largest 10-bit AD value carried as a number (1022 = error, 1023 = not available)."""
+
+PGN_SLOPE_SENSOR_INFORMATION = 61459  # 0xF013
+"""SAE J1939-71 Slope Sensor Information (SSI)."""
+PGN_SLOPE_SENSOR_INFORMATION_2 = 61481  # 0xF029
+"""SAE J1939-71 Slope Sensor Information 2 (SSI2, extended range)."""
+PGN_GROUND_DISTANCE = 0xFF26
+"""Proprietary: implement ground distance (project layout, no standard message exists)."""
+PGN_ROW_GUIDANCE = 0xFF27
+"""Proprietary: crop-row lateral offset (project layout, no standard message exists)."""
+SLOPE_SENSOR_ADDRESS = 0xE2
+"""Source address of the tractor's slope sensor (226, self-configurable range; project choice)."""
+GROUND_SENSOR_ADDRESS = 0xE3
+"""Source address of the implement's ground-distance sensor (227; project choice)."""
+ROW_CAMERA_ADDRESS = 0xE4
+"""Source address of the crop-row camera (228; project choice)."""
 
 
 class CodecError(HitchInputError):
@@ -253,6 +281,85 @@ class RequestPgn:
         _require_int("RequestPgn", "pgn", self.pgn, 0, 0x3FFFF)
 
 
+class FigureOfMerit(IntEnum):
+    """J1939 figure of merit of a slope-sensor value (SPN 3323-3325, 4979, 4981), 2 bits."""
+
+    FULLY_FUNCTIONAL = 0
+    """Data within the sensor's specification."""
+    DEGRADED = 1
+    """Data suspect due to environmental conditions."""
+    ERROR = 2
+    NOT_AVAILABLE = 3
+
+
+@dataclass(frozen=True)
+class SlopeSensorInformation:
+    """SAE J1939-71 Slope Sensor Information (SSI), PGN 61459 (0xF013), in rad, rad/s, s.
+
+    Layout (0.002 deg/bit, offset -64 deg, -64..64.51 deg on the wire) in ``hitch.dbc``; public
+    source: Axiomatic UMAX0608XX-1000 "Tri-Axial J1939 CAN Inclinometer" v9B, section 2.5.1.1.
+    Signs follow SAE J670 (x forward, y right, z down): pitch positive nose up, roll positive
+    right side down. ``None`` = not available (or error indicator, see :class:`Decoded`).
+
+    Attributes:
+        pitch_rad: pitch angle (SPN 3318), within ±64 deg.
+        roll_rad: roll angle (SPN 3319), within ±64 deg.
+        pitch_rate_rad_s: pitch rate (SPN 3322), within ±64 deg/s.
+        pitch_merit, roll_merit, pitch_rate_merit: figures of merit (SPN 3323-3325).
+        compensated: pitch and roll compensated (SPN 3326): ON = compensation on.
+        latency_s: roll and pitch measurement latency (SPN 3327), 0..0.125 s, 0.5 ms steps.
+    """
+
+    pitch_rad: float | None = None
+    roll_rad: float | None = None
+    pitch_rate_rad_s: float | None = None
+    pitch_merit: FigureOfMerit = FigureOfMerit.NOT_AVAILABLE
+    roll_merit: FigureOfMerit = FigureOfMerit.NOT_AVAILABLE
+    pitch_rate_merit: FigureOfMerit = FigureOfMerit.NOT_AVAILABLE
+    compensated: Switch = Switch.NOT_AVAILABLE
+    latency_s: float | None = None
+
+
+@dataclass(frozen=True)
+class SlopeSensorInformation2:
+    """SAE J1939-71 Slope Sensor Information 2 (SSI2, extended range), PGN 61481 (0xF029), rad, s.
+
+    1/32768 deg/bit, offset -250 deg (-250..252 deg on the wire); public sources: Axiomatic
+    UMAX0608XX-1000 v9B section 2.5.1.2 and the ifm JD inclination sensor manual section 8.3.
+    Signs as :class:`SlopeSensorInformation`.
+    """
+
+    pitch_rad: float | None = None
+    roll_rad: float | None = None
+    pitch_compensated: Switch = Switch.NOT_AVAILABLE
+    pitch_merit: FigureOfMerit = FigureOfMerit.NOT_AVAILABLE
+    roll_compensated: Switch = Switch.NOT_AVAILABLE
+    roll_merit: FigureOfMerit = FigureOfMerit.NOT_AVAILABLE
+    latency_s: float | None = None
+
+
+@dataclass(frozen=True)
+class GroundDistance:
+    """Implement ground distance, proprietary PGN 0xFF26 (project layout): m, 0.1 mm steps, 0..6.4255 m.
+
+    The distance from the implement's ground sensor to the ground below it.
+    """
+
+    distance_m: float | None = None
+    merit: FigureOfMerit = FigureOfMerit.NOT_AVAILABLE
+
+
+@dataclass(frozen=True)
+class RowGuidance:
+    """Crop-row lateral offset, proprietary PGN 0xFF27 (project layout): m, 0.1 mm steps, -3.2..3.2255 m.
+
+    The crop row's lateral position relative to the implement centre, + to the left (hitch frame x).
+    """
+
+    offset_m: float | None = None
+    merit: FigureOfMerit = FigureOfMerit.NOT_AVAILABLE
+
+
 Payload: TypeAlias = (
     PositionCounts
     | PositionMeasurement
@@ -265,6 +372,10 @@ Payload: TypeAlias = (
     | BasicJoystick
     | AddressClaimed
     | RequestPgn
+    | SlopeSensorInformation
+    | SlopeSensorInformation2
+    | GroundDistance
+    | RowGuidance
 )
 """Any payload dataclass the codec maps to a CAN message."""
 

@@ -4,7 +4,8 @@
 * :mod:`bridge.link.state` — its settings, measured state, faults, counters and errors;
 * :mod:`bridge.link.realtime` — opening a python-can bus and running a node in real time;
 * :mod:`bridge.link.loopback` — a CAN hub on 127.0.0.1 for nodes in other processes;
-* :mod:`bridge.link.unit_loop` — the feed-forward reference through the ECU's unit loops.
+* :mod:`bridge.link.unit_loop` — the feed-forward reference through the ECU's unit loops;
+* :mod:`bridge.link.tractor_sensors` — the tractor's sensors (slope, ground, row, wheel speed) read from the bus.
 
 The link runs without a simulator: nothing here imports ``bridge.sim``. The names below
 load lazily (PEP 562): ``import bridge.link`` imports none of the modules.
@@ -39,6 +40,15 @@ if TYPE_CHECKING:
         check_address,
         check_period,
         lift_counts_from_fraction,
+    )
+    from bridge.link.tractor_sensors import (
+        Plausibility,
+        SignalReading,
+        TractorReadings,
+        TractorSensorCounters,
+        TractorSensors,
+        TractorSensorsConfig,
+        WheelDistance,
     )
     from bridge.link.unit_loop import (
         ActuatorMotion,
@@ -87,6 +97,18 @@ _SOURCES: dict[str, str] = {
     **dict.fromkeys(("DEFAULT_HUB_PORT", "LOOPBACK_HOST", "LoopbackHub", "hub_url"), "bridge.link.loopback"),
     **dict.fromkeys(
         (
+            "Plausibility",
+            "SignalReading",
+            "TractorReadings",
+            "TractorSensorCounters",
+            "TractorSensors",
+            "TractorSensorsConfig",
+            "WheelDistance",
+        ),
+        "bridge.link.tractor_sensors",
+    ),
+    **dict.fromkeys(
+        (
             "ActuatorMotion",
             "FeedforwardShaper",
             "PoseState",
@@ -130,6 +152,14 @@ __all__ = [
     "LOOPBACK_HOST",
     "LoopbackHub",
     "hub_url",
+    # the tractor's sensors (bridge.link.tractor_sensors)
+    "Plausibility",
+    "SignalReading",
+    "TractorReadings",
+    "TractorSensorCounters",
+    "TractorSensors",
+    "TractorSensorsConfig",
+    "WheelDistance",
     # unit-loop feed-forward (bridge.link.unit_loop)
     "ActuatorMotion",
     "FeedforwardShaper",

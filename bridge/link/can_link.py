@@ -57,7 +57,15 @@ from bridge.isobus.codec import (
     load_codec,
 )
 from bridge.isobus.heartbeat import HeartbeatMonitor, HeartbeatSender, HeartbeatState
-from bridge.isobus.j1939 import PGN_ADDRESS_CLAIMED, PGN_REQUEST, J1939Error, decode_id
+from bridge.isobus.j1939 import (
+    PGN_ADDRESS_CLAIMED,
+    PGN_HEARTBEAT,
+    PGN_POSITION_MEASUREMENT,
+    PGN_REAR_HITCH_STATUS,
+    PGN_REQUEST,
+    J1939Error,
+    decode_id,
+)
 from bridge.isobus.system_state import STATE_WATCHDOG_TRIPPED
 from bridge.link.state import (
     LinkConfig,
@@ -78,6 +86,10 @@ __all__ = ["CanLink"]
 
 _EPS_S = 1e-6  # float-time tolerance of the stream schedule
 _IDLE_WAKE_S = 0.01  # a real-time loop checks faults at least this often
+
+
+#: the messages the link reads (every other known message is counted ``foreign`` without decoding it)
+_CONSUMED_PGNS = frozenset({PGN_HEARTBEAT, PGN_POSITION_MEASUREMENT, PGN_REAR_HITCH_STATUS})
 
 
 class CanLink:
@@ -334,6 +346,9 @@ class CanLink:
                 return
             if ident.pgn not in self._known_pgns:
                 self._bump(unknown_pgn=1)
+                return
+            if ident.pgn not in _CONSUMED_PGNS:  # another node's traffic (slope sensor, pressures …): not decoded
+                self._bump(foreign=1)
                 return
             try:
                 payload = self._codec.decode_frame(frame).payload

@@ -17,7 +17,7 @@ import can
 
 from bridge.link.state import LinkError
 
-__all__ = ["BusNode", "INTERFACES", "RealtimeRunner", "open_bus"]
+__all__ = ["BusNode", "BusPort", "INTERFACES", "RealtimeRunner", "SharedBusNodes", "open_bus"]
 
 INTERFACES = ("udp_multicast", "socketcan", "virtual", "remote")
 """python-can interfaces the bridge runs on (virtual: in-process only; remote: processes on
@@ -76,7 +76,14 @@ class RealtimeRunner:
     busy loop. Node time is ``clock() − t0``, t0 taken at :meth:`start`.
     """
 
-    def __init__(self, node: BusNode, *, clock: Callable[[], float] = time.monotonic, max_wait_s: float = 0.05) -> None:
+    def __init__(
+        self,
+        node: BusNode,
+        *,
+        clock: Callable[[], float] = time.monotonic,
+        max_wait_s: float = 0.05,
+        name: str | None = None,
+    ) -> None:
         if not 0.0 < max_wait_s <= 1.0:
             raise LinkError(f"max_wait_s must lie in (0, 1] s, got {max_wait_s!r}")
         self._node = node
@@ -85,6 +92,7 @@ class RealtimeRunner:
         self._t0 = clock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._name = name or f"{type(node).__name__}-rt"
         self.error: BaseException | None = None
         """The exception that ended the loop, if any."""
 
@@ -98,7 +106,7 @@ class RealtimeRunner:
             raise LinkError("runner already started")
         self._t0 = self._clock()
         self._node.start(0.0)
-        self._thread = threading.Thread(target=self._run, name=f"{type(self._node).__name__}-rt", daemon=True)
+        self._thread = threading.Thread(target=self._run, name=self._name, daemon=True)
         self._thread.start()
         return self
 
@@ -130,3 +138,57 @@ class RealtimeRunner:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+
+class BusPort(can.BusABC):
+    """One node's side of a bus it shares with other nodes of one runner (:class:`SharedBusNodes`).
+
+    Sends go to the shared bus; nothing is received here (the runner hands every frame to every
+    node), so a node that drains its bus in ``poll`` takes nothing from the others. Shutting a
+    port down leaves the shared bus open (its owner shuts it down).
+    """
+
+    def __init__(self, shared: can.BusABC) -> None:
+        self._shared = shared
+        super().__init__(channel=shared.channel_info)
+        self._is_shutdown = True  # a port holds nothing to release (python-can warns about open buses)
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self._shared.send(msg, timeout)
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        return None, False
+
+
+class SharedBusNodes:
+    """Several nodes on one bus, run by one :class:`RealtimeRunner` (a :class:`BusNode`).
+
+    Every received frame is handed to every node; each node sends through its own
+    :class:`BusPort` of the shared bus. One bus instead of one per node: on a python-can
+    ``virtual`` channel every frame is copied into every bus's queue and wakes its thread, so
+    fewer buses cost less per frame (the machine twin and the planner each use one).
+    """
+
+    def __init__(self, bus: can.BusABC, nodes: list[BusNode]) -> None:
+        if not nodes:
+            raise LinkError("SharedBusNodes needs at least one node")
+        self._bus, self.nodes = bus, list(nodes)
+
+    @property
+    def bus(self) -> can.BusABC:
+        return self._bus
+
+    def start(self, now_s: float) -> None:
+        for n in self.nodes:
+            n.start(now_s)
+
+    def poll(self, now_s: float) -> None:
+        for n in self.nodes:
+            n.poll(now_s)
+
+    def handle(self, frame: can.Message, now_s: float) -> None:
+        for n in self.nodes:
+            n.handle(frame, now_s)
+
+    def next_due_s(self) -> float:
+        return min(n.next_due_s() for n in self.nodes)

@@ -12,7 +12,11 @@ The twin of the thesis's PhyCORE-MPC555 cylinder ECU (thesis §2.4–2.5.6):
 * :mod:`bridge.sim.can_node`   — the ECU as an ISO 11783 node (its messages, claim, heartbeat);
 * :mod:`bridge.sim.fault_injector` — the node's bus through injected faults (cut, loss, delay, restart);
 * :mod:`bridge.sim.rig`        — ECU node and planner link on a private bus in simulated time;
-* :mod:`bridge.sim.move`       — the closed-loop move experiment of ``hitch sim move``.
+* :mod:`bridge.sim.move`       — the closed-loop move experiment of ``hitch sim move``;
+* :mod:`bridge.sim.terrain`    — the tractor driving over terrain: attitude, implement ground, crop row;
+* :mod:`bridge.sim.sensors`    — the tractor's sensor payloads (slope, wheel speed, ground, row);
+* :mod:`bridge.sim.scenario`   — terrain scenarios from TOML (built-ins in ``bridge/sim/scenarios/``);
+* :mod:`bridge.sim.tractor_node` — the twin's tractor on the bus (its sensors' CAN messages).
 
 Inside the ECU everything runs in AD counts as the thesis ECU did; SI conversions are at
 the boundary (:meth:`CylinderParams.counts_to_si`, :meth:`CylinderECU.positions_si`). The
@@ -83,6 +87,32 @@ if TYPE_CHECKING:
         SimError,
         SimRig,
         SimSettings,
+    )
+    from bridge.sim.scenario import (
+        Scenario,
+        ScenarioError,
+        builtin_scenarios,
+        load_scenario,
+        scenario_from_dict,
+    )
+    from bridge.sim.sensors import TwinSensors
+    from bridge.sim.terrain import (
+        CrossSlopeWave,
+        RowSignal,
+        SampledGround,
+        SineGround,
+        SpeedProfile,
+        TerrainError,
+        TerrainTwin,
+        TractorGeometry,
+        TractorState,
+        Undulation,
+    )
+    from bridge.sim.tractor_node import (
+        TractorNodeConfig,
+        TractorNodeError,
+        TractorTwinNode,
+        hitch_height_from_ecu,
     )
     from bridge.sim.watchdog import (
         Watchdog,
@@ -174,6 +204,39 @@ _SOURCES: dict[str, str] = {
         ),
         "bridge.sim.move",
     ),
+    **dict.fromkeys(
+        (
+            "CrossSlopeWave",
+            "RowSignal",
+            "SampledGround",
+            "SineGround",
+            "SpeedProfile",
+            "TerrainError",
+            "TerrainTwin",
+            "TractorGeometry",
+            "TractorState",
+            "Undulation",
+        ),
+        "bridge.sim.terrain",
+    ),
+    **dict.fromkeys(
+        ("TwinSensors",),
+        "bridge.sim.sensors",
+    ),
+    **dict.fromkeys(
+        ("TractorNodeConfig", "TractorNodeError", "TractorTwinNode", "hitch_height_from_ecu"),
+        "bridge.sim.tractor_node",
+    ),
+    **dict.fromkeys(
+        (
+            "Scenario",
+            "ScenarioError",
+            "builtin_scenarios",
+            "load_scenario",
+            "scenario_from_dict",
+        ),
+        "bridge.sim.scenario",
+    ),
 }
 
 __all__ = [
@@ -228,6 +291,28 @@ __all__ = [
     "REFERENCE_KINDS",
     "build_move_figures",
     "run_move",
+    # the terrain twin (bridge.sim.terrain, .sensors, .scenario)
+    "CrossSlopeWave",
+    "RowSignal",
+    "SampledGround",
+    "SineGround",
+    "SpeedProfile",
+    "TerrainError",
+    "TerrainTwin",
+    "TractorGeometry",
+    "TractorState",
+    "Undulation",
+    "TwinSensors",
+    # the twin's tractor on the bus (bridge.sim.tractor_node)
+    "TractorNodeConfig",
+    "TractorNodeError",
+    "TractorTwinNode",
+    "hitch_height_from_ecu",
+    "Scenario",
+    "ScenarioError",
+    "builtin_scenarios",
+    "load_scenario",
+    "scenario_from_dict",
 ]
 
 

@@ -62,6 +62,9 @@ from bridge.isobus.heartbeat import HEARTBEAT_PERIOD_S, HeartbeatMonitor, Heartb
 from bridge.isobus.j1939 import (
     CYLINDER_ECU_ADDRESS,
     PGN_ADDRESS_CLAIMED,
+    PGN_HEARTBEAT,
+    PGN_PARAMETERS,
+    PGN_POSITION_REFERENCE,
     PGN_REQUEST,
     PLANNER_ADDRESS,
     J1939Error,
@@ -73,6 +76,9 @@ from bridge.sim.fault_injector import FaultCounters, FaultInjector, FaultSetting
 from planner.errors import HitchInputError
 
 __all__ = ["EcuCanNode", "EcuNodeConfig", "EcuNodeCounters", "EcuNodeError", "lift_fraction"]
+
+#: the messages the ECU reads (every other known message is counted ``ignored`` without decoding it)
+_CONSUMED_PGNS = frozenset({PGN_HEARTBEAT, PGN_POSITION_REFERENCE, PGN_PARAMETERS})
 
 _EPS_S = 1e-6  # float-time tolerance of the periodic schedules
 
@@ -350,6 +356,9 @@ class EcuCanNode:
                 return  # our own echo (udp_multicast) or claim traffic, handled above
             if ident.pgn not in self._known_pgns:
                 self._bump(unknown_pgn=1)
+                return
+            if ident.pgn not in _CONSUMED_PGNS:  # other nodes' traffic (measurements, the tractor's sensors …)
+                self._bump(ignored=1)
                 return
             try:
                 decoded = self._codec.decode_frame(frame)

@@ -292,6 +292,8 @@ class Cylinder:
         if self._delay_steps:
             self._line.append(u)
             u = self._line.popleft()
+        if self._q == 0.0 and -self.params.dead_zone <= u <= self.params.dead_zone:
+            return  # at rest with a closed valve: q_cmd = 0 and the lag is settled, so x and q stay exactly
         qc = valve_flow_counts_per_s(self.params, u, self._gain)
         dq = self._q - qc
         if self.params.time_constant_s > 0:

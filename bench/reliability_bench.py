@@ -5,8 +5,10 @@ multicast; every child runs in its own process group and is killed in a ``finall
 on their own after the scenario's duration):
 
 * ``load`` — **moving under load**: the service runs in this process (:class:`HitchService` with a
-  :class:`ServiceConfig`) with the simulated ECU on an in-process python-can ``virtual`` channel; a
-  sniffer bus on the same channel records every frame. Everything that loads the service runs in OTHER
+  :class:`ServiceConfig`) with the simulated ECU on a python-can ``virtual`` channel. With the control
+  core in its own process (the default) the channel is in that process, which records every frame to
+  its CAN log (``can_log``, candump format, flushed every 0.25 s); with ``--control-core thread`` a
+  sniffer bus in this process records them. Everything that loads the service runs in OTHER
   processes, so this process's GIL carries only the service and the sniffer: a *mover* (back-and-forth
   full-speed gotos over 80 % of the workspace, every ``--stop-every``-th one stopped at a random time of
   its cruise), ``--clients`` load clients (threads in ``--clients-per-process`` processes, each with its own
@@ -15,8 +17,9 @@ on their own after the scenario's duration):
   ``--maneuvers`` scripts and 10 presets were stored, a *monitor* recording ``state`` and ``events``, and
   ``--hogs-per-core`` × cores CPU-bound processes, for ``--duration`` s. Then **idle** for
   ``--idle-duration`` s under the same hogs (the hitch holding after its last motion, no clients).
-* ``cpu`` — idle CPU of ``hitch serve`` (its own process) at rest, no load: utime + stime from
-  ``/proc/<pid>/stat`` over ``--cpu-duration`` s, as % of one core. Once with the embedded simulated ECU
+* ``cpu`` — idle CPU of ``hitch serve`` at rest, no load: utime + stime from ``/proc/<pid>/stat`` of the
+  service and every process it started (its control core and planning processes) over
+  ``--cpu-duration`` s, summed, as % of one core. Once with the embedded simulated ECU
   (the default ``hitch serve``) and once for the planner side alone: the ECU then runs as
   ``hitch ecu-sim --interface remote`` on a CAN hub bound to 127.0.0.1 (``bridge.link.loopback``);
   without one that figure is reported as not measurable.
@@ -532,10 +535,51 @@ class Sniffer:
         self.bus.shutdown()
 
 
-class InProcessService:
-    """:class:`HitchService` in this process on a private virtual channel, with a :class:`Sniffer`."""
+class LogSniffer(Sniffer):
+    """The same frames read from the service's CAN log (``can_log``, candump format, flushed every
+    0.25 s) when the control core runs in its own process (its virtual channel is not in this one).
+    Timestamps are the sender's: python-can's virtual bus stamps a frame in ``send`` and the recorder
+    writes that stamp."""
 
-    def __init__(self, data_dir: str) -> None:
+    def __init__(self, path: Path) -> None:  # noqa: D107 — no bus of its own
+        self.path = path
+        self.refs = []
+        self.meas = []
+
+    def _read(self) -> None:
+        import can
+
+        refs: list[tuple[float, int, bytes]] = []
+        meas: list[tuple[float, int]] = []
+        if self.path.exists():
+            try:
+                for f in can.LogReader(str(self.path)):
+                    pgn = pgn_of(f.arbitration_id)
+                    if pgn == REFERENCE_PGN:
+                        refs.append((f.timestamp, f.arbitration_id, bytes(f.data)))
+                    elif pgn == MEASUREMENT_PGN and len(f.data) == 8:
+                        meas.append((f.timestamp, f.data[7]))
+            except (ValueError, IndexError):  # a line being written: what came before it is complete
+                pass
+        self.refs, self.meas = refs, meas
+
+    def reference_times(self) -> list[float]:
+        self._read()
+        return super().reference_times()
+
+    def reference_counts(self) -> list[tuple[float, tuple[int, ...]]]:
+        self._read()
+        return super().reference_counts()
+
+    def close(self) -> None:
+        pass
+
+
+class InProcessService:
+    """:class:`HitchService` in this process on a private virtual channel, with a :class:`Sniffer`
+    (or, with the control core in its own process, a :class:`LogSniffer` on the core's CAN log)."""
+
+    def __init__(self, data_dir: str, planning_processes: int | None = None, control_core: str | None = None) -> None:
         from bridge.service.client import HitchClient
         from bridge.service.config import load_service_config
         from bridge.service.server import HitchService
@@ -543,8 +587,19 @@ class InProcessService:
         port = free_port()
         self.endpoint = f"tcp/127.0.0.1:{port}"
         channel = f"bench-reliability-{os.getpid()}-{port}"
-        cfg = load_service_config(listen=[self.endpoint], data_dir=data_dir, can_channel=channel)
-        self.sniffer = Sniffer(channel)
+        log = Path(data_dir) / "bus.log"
+        cfg = load_service_config(
+            listen=[self.endpoint],
+            data_dir=data_dir,
+            can_channel=channel,
+            planning_processes=planning_processes,
+            control_core=control_core,
+        )
+        if cfg.control_core == "process":
+            cfg = cfg.model_copy(update={"can_log": log})
+            self.sniffer: Sniffer = LogSniffer(log)
+        else:
+            self.sniffer = Sniffer(channel)
         self.svc = HitchService(cfg)
         try:
             self.svc.start()
@@ -560,7 +615,7 @@ class InProcessService:
         """The simulated ECU's own trip counter (None if this build does not expose it)."""
         try:
             return int(self.svc.ecu_node.ecu.watchdog.trip_count)  # type: ignore[union-attr]
-        except AttributeError:
+        except AttributeError:  # the ECU runs in the core's process: the bus's watchdog bit counts
             return None
 
     def close(self) -> None:
@@ -590,7 +645,7 @@ def bench_load(a: argparse.Namespace) -> dict:
     from bridge.service.client import HitchClient
 
     tmp = tempfile.mkdtemp(prefix="hitch-reliability-")
-    service = InProcessService(tmp)
+    service = InProcessService(tmp, a.planning_processes, a.control_core)
     procs: list[subprocess.Popen] = []
     hogs: list[subprocess.Popen] = []
     res: dict[str, Any] = {}
@@ -769,6 +824,33 @@ class ServeProcess:
         kill_group(self.proc)
 
 
+def process_tree(pid: int) -> list[int]:
+    """``pid`` and every descendant (the service's control core and planning processes), from /proc."""
+    children: dict[int, list[int]] = {}
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            stat = (d / "stat").read_text()
+        except OSError:
+            continue
+        ppid = int(stat.rsplit(")", 1)[1].split()[1])
+        children.setdefault(ppid, []).append(int(d.name))
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        out.append(p)
+        todo.extend(children.get(p, []))
+    return out
+
+
+def tree_cpu(pid: int, seconds: float) -> tuple[float, dict[int, float]]:
+    """CPU of ``pid`` and its descendants over ``seconds``: total and per process, % of one core."""
+    pids = process_tree(pid)
+    per = cpu_window(pids, seconds)
+    return sum(per), dict(zip(pids, per, strict=True))
+
+
 def cpu_window(pids: Sequence[int], seconds: float) -> list[float]:
     """CPU of each pid over ``seconds`` as % of one core (utime + stime from /proc)."""
     c0, w0 = [proc_cpu_seconds(p) for p in pids], time.monotonic()
@@ -787,7 +869,8 @@ def bench_cpu(a: argparse.Namespace) -> dict:
         why = srv.wait_online(60)
         if why is None:
             time.sleep(3.0)  # start-up work done
-            res["embedded_ecu_pct"] = cpu_window([srv.proc.pid], a.cpu_duration)[0]
+            res["embedded_ecu_pct"], per = tree_cpu(srv.proc.pid, a.cpu_duration)
+            res["embedded_ecu_per_process_pct"] = {str(k): v for k, v in per.items()}
         else:
             res["embedded_ecu_pct"], res["embedded_ecu_note"] = None, why
     finally:
@@ -823,8 +906,17 @@ def bench_cpu(a: argparse.Namespace) -> dict:
         why = srv.wait_online(60)
         if why is None and ecu.poll() is None:
             time.sleep(3.0)
-            planner, ecu_pct = cpu_window([srv.proc.pid, ecu.pid], a.cpu_duration)
-            res.update({"planner_only_pct": planner, "ecu_process_pct": ecu_pct, "transport": f"remote {hub.url}"})
+            tree = process_tree(srv.proc.pid)
+            per_pct = cpu_window([*tree, ecu.pid], a.cpu_duration)
+            planner, ecu_pct = sum(per_pct[:-1]), per_pct[-1]
+            res.update(
+                {
+                    "planner_only_pct": planner,
+                    "planner_per_process_pct": {str(k): v for k, v in zip(tree, per_pct, strict=False)},
+                    "ecu_process_pct": ecu_pct,
+                    "transport": f"remote {hub.url}",
+                }
+            )
         else:
             last = (why or "hitch ecu-sim exited").strip().splitlines()[-1]
             res["planner_only_pct"] = None
@@ -1038,24 +1130,26 @@ def table(res: dict) -> list[str]:
     def zero(*counts: Any) -> str:
         return "ok" if all((c or 0) == 0 for c in counts) else "FAIL"
 
-    if "load" in res:
+    for load_key, head in (("load_in_threads", "[core+planning in threads] "), ("load", "")):
+        if load_key not in res:
+            continue
         for phase in ("moving", "idle"):
-            ph = res["load"][phase]
+            ph = res[load_key][phase]
             p = ph["reference_period"]
             v = "-"
             if p["n"] and phase == "moving":
                 good = verdict(p["p99_ms"], T["period_p99_ms"]) == verdict(p["max_ms"], T["period_max_ms"]) == "ok"
                 v = "ok" if good else "FAIL"
             tgt = "p99 ≤ 25, max ≤ 60" if phase == "moving" else ""
-            add(f"{phase}: reference period ms", p["p50_ms"], p["p99_ms"], p["max_ms"], p["n"], tgt, v)
+            add(f"{head}{phase}: reference period ms", p["p50_ms"], p["p99_ms"], p["max_ms"], p["n"], tgt, v)
             over = f"{p['over_25_ms']} / {p['over_60_ms']} / {p['over_100_ms']}"
-            add(f"{phase}: periods > 25 / 60 / 100 ms", n=over)
+            add(f"{head}{phase}: periods > 25 / 60 / 100 ms", n=over)
             wd, bus = ph["watchdog_trips_ecu_counter"], ph["watchdog_trips_on_bus"]
-            add(f"{phase}: watchdog trips (ECU / bus)", n=f"{fmt(wd)} / {bus}", tgt="0", v=zero(wd, bus))
+            add(f"{head}{phase}: watchdog trips (ECU / bus)", n=f"{fmt(wd)} / {bus}", tgt="0", v=zero(wd, bus))
             ff = ph["false_faults"]
             names = ",".join(ff["fault_names_in_state"]) or "none"
             add(
-                f"{phase}: false faults (events; in state: {names})",
+                f"{head}{phase}: false faults (events; in state: {names})",
                 n=ff["fault_events"],
                 tgt="0",
                 v=zero(ff["fault_events"], len(ff["fault_names_in_state"])),
@@ -1070,7 +1164,7 @@ def table(res: dict) -> list[str]:
                 s = ph[key]
                 honoured = key == "stop_honoured"
                 add(
-                    f"moving: {label} ms",
+                    f"{head}moving: {label} ms",
                     s["p50_ms"],
                     s["p99_ms"],
                     s["max_ms"],
@@ -1078,11 +1172,11 @@ def table(res: dict) -> list[str]:
                     "p99 ≤ 50" if honoured else "",
                     verdict(s["p99_ms"], T["stop_p99_ms"]) if honoured else "",
                 )
-            add("moving: stops sent / unmatched", n=f"{ph['stops_sent']} / {ph['stops_unmatched']}")
+            add(f"{head}moving: stops sent / unmatched", n=f"{ph['stops_sent']} / {ph['stops_unmatched']}")
             for k, r in sorted(ph["requests"].items()):
                 bad = sum(m for c, m in r["codes"].items() if c != "ok")
                 add(
-                    f"load: {k} ms (refused {bad})",
+                    f"{head}load: {k} ms (refused {bad})",
                     r["p50_ms_median_of_parts"],
                     r["p99_ms_worst_part"],
                     r["max_ms"],
@@ -1147,6 +1241,24 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument("--fault-hold", type=float, default=1.0, help="how long a link cut lasts [s]")
     ap.add_argument("--fault-watch", type=float, default=2.0, help="motion watched after the link returns [s]")
     ap.add_argument("--jog-seconds", type=float, default=1.5, help="jog into a face this long [s]")
+    ap.add_argument(
+        "--planning-processes",
+        type=int,
+        default=None,
+        help="the service's planning processes (default: the service's default; 0: planning in its threads)",
+    )
+    ap.add_argument(
+        "--control-core",
+        choices=("process", "thread"),
+        default=None,
+        help="where the service's control core runs (default: the service's default)",
+    )
+    ap.add_argument(
+        "--compare-threads",
+        action="store_true",
+        help="run `load` twice: first with the control core and planning in the service's threads, then as "
+        "configured (side by side)",
+    )
     ap.add_argument("--json", default=None, help="write the results as JSON to this file")
     a = ap.parse_args(argv)
     if a.role is not None:
@@ -1171,6 +1283,11 @@ def main(argv: Sequence[str] | None = None) -> None:
         "args": {k: v for k, v in vars(a).items() if k not in ("role", "connect", "seconds", "threads", "seed", "out")},
     }
     bench = {"load": bench_load, "cpu": bench_cpu, "faults": bench_faults, "jog": bench_jog}
+    if "load" in only and a.compare_threads:
+        print("--- load, control core and planning in the service's threads", flush=True)
+        res["load_in_threads"] = bench_load(
+            argparse.Namespace(**{**vars(a), "planning_processes": 0, "control_core": "thread"})
+        )
     for name in ("load", "cpu", "faults", "jog"):
         if name in only:
             print(f"--- {name}", flush=True)

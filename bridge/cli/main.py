@@ -20,6 +20,7 @@ from bridge.cli import router as cli_router
 from bridge.cli import service as cli_service
 from bridge.cli import sim as cli_sim
 from bridge.cli import stability as cli_stability
+from bridge.cli import track as cli_track
 from bridge.cli.arm import add_arm_parser
 from bridge.cli.errors import CLIError
 from planner.errors import HitchError
@@ -41,6 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
     cli_stability.add_commands(sub)
     cli_sim.add_commands(sub)
     cli_service.add_commands(sub)
+    cli_track.add_commands(sub)
     cli_records.add_commands(sub)
     cli_router.add_commands(sub)
     add_arm_parser(sub)

@@ -98,11 +98,14 @@ def _cmd_serve(args) -> int:
         http=args.http,
         http_user=args.http_user,
         feedforward=False if args.no_feedforward else None,
+        planning_processes=args.planning_processes,
+        can_log=args.can_log,
     )
     from bridge.service.blackbox import CanRecorder, EventLog, event_log_path
 
     sys.setswitchinterval(5e-4)  # threads waiting for the GIL (the 50 Hz loop) wait ≤ 0.5 ms, not 5 ms
-    recorder = CanRecorder(args.can_log, cfg.can_interface, cfg.can_channel) if args.can_log else None
+    if cfg.can_log is not None:  # refuse a bad suffix before anything starts (the recorder runs with the CAN buses)
+        CanRecorder.check_path(cfg.can_log)
     blackbox: EventLog | None = None
 
     def ready(service) -> None:
@@ -119,7 +122,7 @@ def _cmd_serve(args) -> int:
             f"hitch serve: ready on {', '.join(cfg.listen or ()) or '(no listener)'}"
             f"{' connected to ' + ', '.join(cfg.connect) if cfg.connect else ''} prefix {cfg.prefix!r}, "
             f"data {cfg.database_path}, log {event_log_path(cfg.data_dir)}"
-            + (f", CAN log {args.can_log}" if recorder is not None else ""),
+            + (f", CAN log {cfg.can_log}" if cfg.can_log is not None else ""),
             flush=True,
         )
 
@@ -129,8 +132,6 @@ def _cmd_serve(args) -> int:
         if blackbox is not None:
             blackbox.record("service", what="stopped")
             blackbox.close()
-        if recorder is not None:
-            recorder.close()
     print(f"hitch serve: stopped in {took * 1000:.0f} ms", flush=True)
     return 0
 
@@ -184,6 +185,13 @@ def _add_serve(sub) -> None:
         default=None,
         metavar="USER",
         help="user the terminal runs as without a login (security files with users require a login; ignored then)",
+    )
+    p.add_argument(
+        "--planning-processes",
+        type=int,
+        default=None,
+        metavar="N",
+        help="processes for plan previews, maneuver validation and IK, 0..32 (default 2; 0: in the service's threads)",
     )
     p.add_argument(
         "--can-log",

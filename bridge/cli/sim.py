@@ -38,7 +38,7 @@ from bridge.sim.move import (
 )
 from planner.profiles.hitch import load_profile
 
-__all__ = ["add_commands", "move_json", "plot_move"]
+__all__ = ["add_commands", "move_json", "plot_move", "plot_track"]
 
 _POSE = ("x", "z", "roll", "pitch")
 
@@ -159,6 +159,72 @@ def _cmd_sim_move(args) -> int:
     return 0
 
 
+# -- hitch sim track -----------------------------------------------------------------------
+def plot_track(path: str, result) -> None:
+    """PNG of a closed loop: setpoint, tractor-frame reference, measured and truth of the DOF; the job's error."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    d, r = result.dof_index, result
+    unit = "mm" if r.dof in ("x", "z") else "mrad"
+    fig, ax = plt.subplots(2, 1, figsize=(11, 7), sharex=True, constrained_layout=True)
+    ax[0].plot(r.t, r.demand * 1e3, color="k", lw=1, label=f"demand ({r.dof} for zero error, tractor frame)")
+    ax[0].plot(r.t, r.reference[:, d] * 1e3, "--", lw=1, label="reference (controller)")
+    ax[0].plot(r.t, r.measured[:, d] * 1e3, lw=1, label="measured (CAN)")
+    ax[0].plot(r.t, r.truth[:, d] * 1e3, ":", lw=1, label="truth")
+    if r.frame == "tractor" and np.any(np.isfinite(r.setpoint)):
+        ax[0].plot(r.t, r.setpoint * 1e3, lw=0.6, alpha=0.6, label="setpoint")
+    ax[0].set_ylabel(f"{r.dof} [{unit}]")
+    ax[0].set_title(f"{r.scenario}: {r.job}, strategy {r.strategy} (frame {r.frame})")
+    ax[1].plot(r.t, r.error * 1e3, lw=1, label=f"error ({r.job}), RMS {r.figures.rms * 1e3:.2f} {unit}")
+    ax[1].axvline(r.t[r.evaluated][0] if r.evaluated.any() else 0.0, color="grey", lw=0.8, ls=":")
+    ax[1].set_ylabel(f"error [{unit}]")
+    ax[1].set_xlabel("scenario time since the loop started [s]")
+    for a in ax:
+        a.grid(alpha=0.3)
+        a.legend(loc="upper right", fontsize=7)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def _cmd_sim_track(args) -> int:
+    from bridge.service.track_loop import LoopSettings, run_track_loop
+
+    model = model_from_args(args)
+    settings = LoopSettings(strategy=args.strategy, job=args.job, duration_s=args.duration)
+    result = run_track_loop(model, args.scenario, settings)
+    if args.plot:
+        plot_track(args.plot, result)
+    summary = result.summary()
+    if args.json_file:
+        with open(args.json_file, "w", encoding="utf-8") as fh:
+            json.dump(summary, fh, indent=1)
+    c = Console(soft_wrap=True)
+    unit, k = ("mm", 1e3) if result.dof in ("x", "z") else ("mrad", 1e3)
+    f, fi = result.figures, result.figures_inside
+    c.print(
+        f"{result.scenario}: {result.job} ({result.dof}), strategy {result.strategy}, frame {result.frame}, "
+        f"{summary['duration_s']:.1f} s simulated"
+    )
+    c.print(f"error RMS {f.rms * k:.2f} {unit}, p95 {f.p95 * k:.2f} {unit}, max {f.max * k:.2f} {unit} (n = {f.n})")
+    c.print(
+        f"inside workspace and limits ({100 * result.inside_fraction:.0f} % of the samples): "
+        f"RMS {fi.rms * k:.2f} {unit}, max {fi.max * k:.2f} {unit}"
+    )
+    c.print("counts: " + ", ".join(f"{n} {v}" for n, v in result.counts.items()))
+    for note in result.notes:
+        c.print(f"note: {note}")
+    if result.faults:
+        c.print("faults: " + "; ".join(result.faults))
+    if args.plot:
+        c.print(f"plot written to {args.plot}")
+    if args.json_file:
+        c.print(f"summary written to {args.json_file}")
+    return 0
+
+
 # -- hitch ecu-sim -------------------------------------------------------------------------
 def _cmd_ecu_sim(args) -> int:
     if args.duration is not None and not (np.isfinite(args.duration) and args.duration > 0):
@@ -273,6 +339,18 @@ def add_commands(sub) -> None:
     _add_plant_options(m)
     add_model_options(m)
     m.set_defaults(handler=_cmd_sim_move)
+    tr = ssub.add_parser("track", help="closed-loop continuous control of a terrain scenario in simulated time")
+    tr.add_argument("scenario", help="built-in scenario (flat, levelling, guidance, terrain) or a .toml path")
+    tr.add_argument("--strategy", choices=("track", "goto_stream", "hold"), default="track", help="default track")
+    tr.add_argument(
+        "--job", choices=("levelling", "guidance", "terrain"), default=None, help="default: from the scenario"
+    )
+    tr.add_argument("--duration", type=float, default=None, help="scenario seconds to run (default: the scenario's)")
+    tr.add_argument("--plot", default=None, help="write a PNG of the run")
+    tr.add_argument("--json", dest="json_file", default=None, metavar="FILE", help="write the summary as JSON")
+    tr.add_argument("--profile", default="thesis-t132", help="built-in profile name or path to a .toml")
+    tr.add_argument("--category", default=None, help="ISO 730 implement category (default: the profile's, 2)")
+    tr.set_defaults(handler=_cmd_sim_track)
     f = ssub.add_parser("fault", help="inject link faults into a running service's simulated ECU")
     f.add_argument("--cut", choices=CUTS, default="none", help="cut one direction or both (default none)")
     f.add_argument("--loss", type=finite_float("--loss"), default=0.0, help="frame loss probability, [0, 1]")

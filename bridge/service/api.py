@@ -32,9 +32,10 @@ import time
 from collections.abc import Callable, Mapping
 from typing import Any
 
-from bridge.service.maneuvers.language import PlanningContext, validate
+from bridge.service.maneuvers.language import ManeuverError, ManeuverScript, ValidationResult, parse_maneuver
 from bridge.service.motion.controller import MotionController
-from bridge.service.motion.types import MODES, ManeuverAccepted, MotionError, PlanPreview, pose_dict
+from bridge.service.motion.types import MODES, ManeuverAccepted, MotionError, pose_dict
+from bridge.service.planning import InProcessPlanning, Planning
 from bridge.service.schemas import (
     API_KEYS,
     REQUESTS,
@@ -52,13 +53,16 @@ from bridge.service.schemas import (
     RequestError,
     ScriptRequest,
     SimFaultRequest,
+    TrackSetpoint,
+    TrackStart,
+    TrackStop,
     check_pose_in_workspace,
     parse_request,
 )
 from bridge.service.security import AccessPolicy
 from bridge.service.store import DEFAULT_IMPLEMENT, HitchStore, StoreError
+from bridge.service.workers import PresetPose, WorkerError, referenced_presets
 from planner.ik_qp.hitch_ik import IKSolver
-from planner.ik_qp.result import Target
 from planner.limits.guard import GuardRefusal
 from planner.trajectory import MotionState, PlanError
 
@@ -78,32 +82,36 @@ class ServiceAPI:
 
     Args:
         motion: the :class:`~bridge.service.motion.controller.MotionController`.
-        ik: a :class:`planner.ik_qp.hitch_ik.IKSolver` on its own model (used under a lock).
+        ik: a :class:`planner.ik_qp.hitch_ik.IKSolver` on its own model (used under a lock) for the
+            in-process planning (when ``planning`` is None).
         store: a :class:`~bridge.service.store.HitchStore`.
         info: the static part of the ``config`` reply (profile, limits, rates …).
         implement: the implement the presets belong to (None: the store's default).
         policy: roles applied when a caller passes ``user``.
+        planning: where ``plan``, validation and ``ik`` run (:class:`~bridge.service.planning.Planning`;
+            default: :class:`~bridge.service.planning.InProcessPlanning` on ``motion`` and ``ik``).
     """
 
     def __init__(
         self,
         motion: MotionController,
-        ik: IKSolver,
+        ik: IKSolver | None,
         store: HitchStore,
         info: Mapping[str, Any],
         *,
         implement: str | None = None,
         policy: AccessPolicy | None = None,
         sim_fault: Callable[[Mapping[str, Any]], Any] | None = None,
+        planning: Planning | None = None,
     ):
-        self.motion, self.ik, self.store = motion, ik, store
+        self.motion, self.store = motion, store
+        self.planning: Planning = planning if planning is not None else InProcessPlanning(motion, ik)
         self.sim_fault = sim_fault  # the simulated ECU's fault injection (None: a real ECU, or none)
         self._in_flight: dict[str, int] = {}  # expensive requests running, per user
         self._in_flight_lock = threading.Lock()
         self.info = dict(info)
         self.implement = implement or DEFAULT_IMPLEMENT
         self.policy = policy
-        self._ik_lock = threading.Lock()
         self._caller = threading.local()  # .user: the user of the request this thread is serving (store owner)
         self._handlers: Mapping[str, Callable[[Any], dict]] = {
             "ik": self._ik,
@@ -124,6 +132,9 @@ class ServiceAPI:
             "maneuvers/delete": self._maneuvers_delete,
             "faults/ack": self._faults_ack,
             "sim/fault": self._sim_fault,
+            "track/start": self._track_start,
+            "track/setpoint": self._track_setpoint,
+            "track/stop": self._track_stop,
         }
         self.counts = {"ok": 0, "error": 0}
         #: optional ``on_request(key, user, payload, ok, reply)`` after every request (the black box)
@@ -173,6 +184,8 @@ class ServiceAPI:
             return self._err("unreachable", f"{key}: {exc}")
         except StoreError as exc:
             return self._err("store", f"{key}: {exc}")
+        except WorkerError as exc:
+            return self._err(exc.code, f"{key}: {exc}")
         except ValueError as exc:
             return self._err("bad_request", f"{key}: {exc}")
         except Exception as exc:  # noqa: BLE001 — a bug must not kill the service or leave a query open
@@ -218,20 +231,12 @@ class ServiceAPI:
 
     # ------------------------------------------------------------------ no motion
     def _ik(self, r: PoseRequest) -> dict:
-        target = Target(r.x, r.z, r.roll, r.pitch)
-        with self._ik_lock:
-            res = self.ik.solve(target)
-        if res.status == "failed":
-            raise RequestError("ik_failed", f"ik: no solution ({res.reason})")
-        out = res.to_json()
+        out = self.planning.ik((r.x, r.z, r.roll, r.pitch))  # ik_failed: "ik: no solution (…)"
         return {k: out[k] for k in _IK_REPLY_FIELDS}
 
     def _plan(self, r: PlanRequest) -> dict:
-        try:
-            preview = PlanPreview.planned(self.motion.preview(r.goal.as_dict(), r.speed_scale))
-        except PlanError as exc:  # the planner's or the guard's (GuardRefusal) refusal
-            preview = PlanPreview.refusal(exc)
-        return preview.to_json()
+        start = self.motion.preview_start()
+        return self.planning.preview(start, r.goal.as_dict(), r.speed_scale)
 
     def _config(self, _r: Empty) -> dict:
         return {**self.info, "mode": self.motion.mode, "implement": self.info.get("implement")}
@@ -250,6 +255,16 @@ class ServiceAPI:
 
     def _stop(self, _r: object) -> dict:  # whatever came with it: a stop stops
         return {"stopped": True, "motion_id": self.motion.stop()}
+
+    def _track_start(self, r: TrackStart) -> dict:
+        return self.motion.track_start(r.frame, tuple(r.dof), r.ttl_ms / 1000.0).to_json()
+
+    def _track_setpoint(self, r: TrackSetpoint) -> dict:
+        velocity = None if r.velocity is None else r.velocity.as_dict()
+        return self.motion.track_setpoint(r.session, r.seq, r.pose.as_dict(), velocity)
+
+    def _track_stop(self, r: TrackStop) -> dict:
+        return self.motion.track_stop(r.session)
 
     def _faults_ack(self, _r: Empty) -> dict:
         return self.motion.ack_faults().to_json()
@@ -304,14 +319,23 @@ class ServiceAPI:
         return {"deleted": r.name}
 
     # ------------------------------------------------------------------ maneuvers
-    def _context(self) -> PlanningContext:
+    def _validated(self, script: str | ManeuverScript) -> ValidationResult:
+        """Validation from the current pose (parsed here, planned by :attr:`planning`); never raises on a bad script."""
+        if not isinstance(script, ManeuverScript):
+            try:
+                script = parse_maneuver(script)
+            except ManeuverError as exc:
+                return ValidationResult(False, 0.0, exc.errors)
+        presets: dict[str, PresetPose] = {}
+        for name in referenced_presets(script):
+            p = self.store.get_preset(name, implement=self.implement)
+            if p is not None:
+                presets[name] = PresetPose(dict(p.pose), p.speed_scale)
         start = MotionState.at_rest(self.motion.current_state().position)
-        return PlanningContext(
-            start, self.motion.plan_step, lambda n: self.store.get_preset(n, implement=self.implement)
-        )
+        return self.planning.validate(script, start, presets)
 
     def _maneuvers_validate(self, r: ScriptRequest) -> dict:
-        return validate(r.script, self._context()).to_json()
+        return self._validated(r.script).to_json()
 
     def _maneuvers_save(self, r: ManeuverSave) -> dict:
         # ManeuverError (a HitchInputError) lists the problems
@@ -325,7 +349,7 @@ class ServiceAPI:
         m = self.store.get_maneuver(r.name)
         if m is None:
             raise RequestError("not_found", f"maneuvers/run: no maneuver {r.name!r}")
-        res = validate(m.parsed, self._context())
+        res = self._validated(m.parsed)
         if not res.ok:
             first = res.errors[0]
             raise RequestError(

@@ -46,6 +46,7 @@ from pathlib import Path
 from typing import Any
 
 import can
+from can.io.generic import TextIOMessageWriter
 
 from planner.errors import HitchInputError
 
@@ -339,6 +340,27 @@ def follow_events(
 
 
 # ---------------------------------------------------------------------------------------- CAN
+#: a text CAN log is flushed to the file at least this often while frames arrive [s] (a crash loses less)
+FLUSH_EVERY_S = 0.25
+
+
+class _Flusher(can.Listener):
+    """Flushes a text log writer's file every ``every_s`` seconds of frames (runs after the writer)."""
+
+    def __init__(self, writer: TextIOMessageWriter, every_s: float) -> None:
+        self._writer, self._every_s = writer, every_s
+        self._last = time.monotonic()
+
+    def on_message_received(self, msg: can.Message) -> None:
+        now = time.monotonic()
+        if now - self._last >= self._every_s:
+            self._last = now
+            try:
+                self._writer.file.flush()
+            except (OSError, ValueError):  # closed meanwhile
+                pass
+
+
 class CanRecorder:
     """Record every frame of ``interface``/``channel`` to ``path`` with :class:`can.Logger`.
 
@@ -362,8 +384,23 @@ class CanRecorder:
         except HitchInputError:
             self._writer.stop()
             raise
-        self._notifier = can.Notifier(self._bus, [self._writer], timeout=0.1)
+        listeners: list[can.Listener] = [self._writer]
+        if isinstance(self._writer, TextIOMessageWriter):  # text logs reach the disk within 0.25 s
+            listeners.append(_Flusher(self._writer, FLUSH_EVERY_S))
+        self._notifier = can.Notifier(self._bus, listeners, timeout=0.1)
         self._closed = False
+
+    @staticmethod
+    def check_path(path: str | Path) -> None:
+        """Refuse a file :class:`can.Logger` cannot write (unknown suffix, unwritable) before recording starts."""
+        p = Path(path)
+        try:
+            p.parent.mkdir(parents=True, exist_ok=True)
+            can.Logger(str(p)).stop()
+        except (ValueError, OSError, ImportError) as exc:
+            raise BlackBoxError(
+                f"--can-log {p}: cannot record ({exc}); suffixes: .asc, .blf, .log (candump), .csv"
+            ) from None
 
     def close(self) -> None:
         if self._closed:

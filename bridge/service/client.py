@@ -4,12 +4,15 @@
 listen), sends JSON queries to ``<prefix>/<key>`` and returns the reply as a dict or raises
 :class:`ServiceError` carrying the service's ``error`` code and ``message``.
 :meth:`HitchClient.fleet` lists the live services through their liveliness tokens
-(``**/alive``): each token's key minus ``/alive`` is a service's key prefix.
+(``**/alive``): each token's key minus ``/alive`` is a service's key prefix. Track mode
+(``docs/tracking.md``): :meth:`HitchClient.track_start`, :meth:`~HitchClient.track_setpoint` (a Zenoh
+put, never blocking) and :meth:`~HitchClient.track_stop`.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import queue
 import threading
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -73,6 +76,36 @@ def _decode(payload: zenoh.ZBytes) -> Any:
         return {"error": "bad_reply", "message": "the reply is not JSON"}
 
 
+def _undeclare(decl: Any) -> None:
+    try:
+        decl.undeclare()
+    except zenoh.ZError:
+        pass
+
+
+def _setpoint_body(session: int, seq: int, pose: Mapping[str, float], velocity: Mapping[str, float] | None) -> bytes:
+    """The JSON of one ``track/setpoint``; :class:`ClientError` naming the field for a value the service
+    would refuse anyway (never a NaN on the wire)."""
+    for name, v, lo in (("session", session, 1), ("seq", seq, 0)):
+        if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+            raise ClientError(f"{name} must be an integer >= {lo}, got {v!r}")
+    body: dict[str, Any] = {"session": session, "seq": seq}
+    for what, m in (("pose", pose), ("velocity", velocity)):
+        if m is None:
+            continue
+        if not isinstance(m, Mapping) or not m:
+            raise ClientError(f"{what} must be a non-empty mapping of x, z, roll, pitch to SI values, got {m!r}")
+        out: dict[str, float] = {}
+        for k, val in m.items():
+            if k not in ("x", "z", "roll", "pitch"):
+                raise ClientError(f"{what}: unknown field {k!r}; allowed: x, z, roll, pitch")
+            if isinstance(val, bool) or not isinstance(val, (int, float)) or not math.isfinite(val):
+                raise ClientError(f"{what}.{k} must be a finite number [SI: m, rad, m/s, rad/s], got {val!r}")
+            out[k] = float(val)
+        body[what] = out
+    return json.dumps(body).encode("utf-8")
+
+
 class HitchClient:
     """A Zenoh session to one service (``prefix``) or a fleet (``fleet()``, per-call prefixes)."""
 
@@ -94,6 +127,8 @@ class HitchClient:
         except zenoh.ZError as exc:
             raise ServiceError("connect", f"cannot open a Zenoh session to {', '.join(connect)}: {exc}") from None
         self._subs: list = []
+        self._track_lock = threading.Lock()
+        self._track_pub: tuple[str, int, Any] | None = None  # (key, session, publisher) of the live setpoint stream
 
     # ------------------------------------------------------------------ requests
     def request(
@@ -157,6 +192,71 @@ class HitchClient:
     def mode(self, mode: str | None = None) -> dict:
         return self.request("mode", {} if mode is None else {"mode": mode})
 
+    # ------------------------------------------------------------------ track mode (docs/tracking.md)
+    def track_start(self, frame: str = "tractor", dof: Sequence[str] = ("z",), ttl_ms: int = 200) -> dict:
+        """Start a track session (``track/start``, operators): setpoints of ``dof`` (a subset of x, z,
+        roll, pitch) in ``frame`` (``tractor``, ``level``, ``ground``); without a setpoint within
+        ``ttl_ms`` (50…1000 ms) the hitch brakes to rest and the session ends. The reply:
+        ``{"accepted", "session", "motion_id", "frame", "dof", "ttl_ms"}``."""
+        if isinstance(dof, str):
+            raise ClientError(f"dof must be a list of DOF names such as ['x', 'z'], got the string {dof!r}")
+        return self.request("track/start", {"frame": frame, "dof": list(dof), "ttl_ms": ttl_ms})
+
+    def track_setpoint(
+        self,
+        session: int,
+        seq: int,
+        pose: Mapping[str, float],
+        velocity: Mapping[str, float] | None = None,
+    ) -> None:
+        """Stream one setpoint (a Zenoh put on ``track/setpoint``, express, priority DATA_HIGH, dropped
+        rather than queued under congestion: it never blocks and gets no answer). ``pose`` [m, rad]:
+        every DOF of the session in its frame; ``velocity`` [m/s, rad/s] optional; ``seq`` strictly
+        increasing (the service ignores older ones). Refusals show in the state's ``track`` entry
+        (``rejected``, ``last_rejection``) and as ``track_setpoint_rejected`` events. One publisher per
+        session, declared at its first setpoint and reused."""
+        data = _setpoint_body(session, seq, pose, velocity)
+        with self._track_lock:
+            key = f"{self.prefix}/track/setpoint"
+            cur = self._track_pub
+            if cur is None or cur[0] != key or cur[1] != session:
+                if cur is not None:
+                    _undeclare(cur[2])
+                pub = self.session.declare_publisher(
+                    key,
+                    encoding=zenoh.Encoding.APPLICATION_JSON,
+                    express=True,
+                    congestion_control=zenoh.CongestionControl.DROP,
+                    priority=zenoh.Priority.DATA_HIGH,
+                )
+                cur = self._track_pub = (key, session, pub)
+            cur[2].put(data)
+
+    def track_setpoint_request(
+        self,
+        session: int,
+        seq: int,
+        pose: Mapping[str, float],
+        velocity: Mapping[str, float] | None = None,
+        *,
+        timeout_s: float | None = None,
+    ) -> dict:
+        """The same setpoint as a query: ``{"accepted", "limited", …}`` or :class:`ServiceError` naming
+        why it was refused (e.g. the first setpoint of a stream, to see a bad value at once)."""
+        return self.request("track/setpoint", _setpoint_body(session, seq, pose, velocity), timeout_s=timeout_s)
+
+    def track_stop(self, session: int | None = None, *, timeout_s: float | None = None) -> dict:
+        """End the live track session smoothly (``track/stop``; ``session`` None: whichever is live):
+        ``{"stopping", "session", "motion_id"}``; the setpoint publisher of that session is released."""
+        try:
+            return self.request("track/stop", {} if session is None else {"session": session}, timeout_s=timeout_s)
+        finally:
+            with self._track_lock:
+                cur = self._track_pub
+                if cur is not None and (session is None or cur[1] == session):
+                    _undeclare(cur[2])
+                    self._track_pub = None
+
     def config(self, prefix: str | None = None) -> dict:
         return self.request("config", {}, prefix=prefix)
 
@@ -218,6 +318,10 @@ class HitchClient:
 
     # ------------------------------------------------------------------ life cycle
     def close(self) -> None:
+        with self._track_lock:
+            if self._track_pub is not None:
+                _undeclare(self._track_pub[2])
+                self._track_pub = None
         for s in self._subs:
             try:
                 s.undeclare()

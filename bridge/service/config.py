@@ -18,7 +18,7 @@ TOML layout (every key optional; the names are the field names below)::
     [hitch]    profile = "thesis-t132"; category = "2"; implement = "cat2-spreader-400";
                control_rate = 50.0; state_rate = 50.0
                feedforward = true   # stream the unit loops' feed-forward reference (bridge.link.unit_loop)
-    [service]  data_dir = "/var/lib/hitch"; http = "127.0.0.1:8080"; workers = 4
+    [service]  data_dir = "/var/lib/hitch"; http = "127.0.0.1:8080"; workers = 4; planning_processes = 2
                max_presets_per_user = 1000; max_maneuvers_per_user = 200
                max_script_bytes_per_user = 4194304   # the store's limits per user (store.StoreLimits)
 """
@@ -123,6 +123,12 @@ class ServiceConfig(BaseModel):
     #: the user the web terminal's commands run as when access control is on (must be in the ACL)
     http_user: str | None = None
     workers: int = Field(4, ge=1, le=32)
+    #: where the control core runs: "process" (its own, bridge.service.core) or "thread" (in the service's)
+    control_core: Literal["process", "thread"] = "process"
+    #: record every CAN frame to this file (.asc, .blf, candump .log; python-can's writers)
+    can_log: Path | None = None
+    #: processes for plan previews, maneuver validation and IK (bridge.service.workers); 0: on the worker threads
+    planning_processes: int = Field(2, ge=0, le=32, strict=True)
     #: per-user limits of the presets and maneuvers store (see bridge.service.store.StoreLimits)
     max_presets_per_user: int = Field(1000, ge=1, le=100_000, strict=True)
     max_maneuvers_per_user: int = Field(200, ge=1, le=10_000, strict=True)
@@ -207,6 +213,8 @@ _TOML_SECTIONS = {
         "http": "http",
         "http_user": "http_user",
         "workers": "workers",
+        "planning_processes": "planning_processes",
+        "control_core": "control_core",
         "max_presets_per_user": "max_presets_per_user",
         "max_maneuvers_per_user": "max_maneuvers_per_user",
         "max_script_bytes_per_user": "max_script_bytes_per_user",

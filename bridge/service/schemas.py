@@ -61,6 +61,10 @@ __all__ = [
     "ManeuverRun",
     "StopRequest",
     "SimFaultRequest",
+    "TrackStart",
+    "TrackStop",
+    "TrackSetpoint",
+    "TrackVelocity",
     "Empty",
 ]
 
@@ -190,6 +194,49 @@ class SimFaultRequest(_Strict):
     restart_ecu: bool = False
 
 
+class TrackStart(_Strict):
+    """Start a track session: setpoints of ``dof`` in ``frame`` (tractor, level: roll/pitch relative to
+    gravity, ground: z above the ground); without a setpoint within ``ttl_ms`` the hitch brakes to rest."""
+
+    frame: Literal["tractor", "level", "ground"] = "tractor"
+    dof: list[Literal["x", "z", "roll", "pitch"]] = Field(min_length=1, max_length=4)
+    ttl_ms: int = Field(200, ge=50, le=1000)
+
+    @model_validator(mode="after")
+    def _unique(self) -> TrackStart:
+        if len(set(self.dof)) != len(self.dof):
+            raise RequestError("bad_request", f"dof: each of x, z, roll, pitch at most once, got {list(self.dof)}")
+        return self
+
+
+class TrackStop(_Strict):
+    """End the live track session smoothly (``session`` None: whichever is live)."""
+
+    session: int | None = Field(None, ge=1)
+
+
+class TrackVelocity(_Strict):
+    """Setpoint velocity [m/s, rad/s] of some DOF (missing: 0)."""
+
+    x: float | None = Field(None, ge=-1.0, le=1.0)
+    z: float | None = Field(None, ge=-1.0, le=1.0)
+    roll: float | None = Field(None, ge=-1.0, le=1.0)
+    pitch: float | None = Field(None, ge=-1.0, le=1.0)
+
+    def as_dict(self) -> dict[str, float]:
+        return {k: getattr(self, k) for k in CONTROLLED_POSE_NAMES if getattr(self, k) is not None}
+
+
+class TrackSetpoint(_Strict):
+    """One streamed setpoint (``track/setpoint``, a Zenoh put at up to 100 Hz): the session's DOFs in its
+    frame [m, rad], optionally their velocity; ``seq`` strictly increasing (older ones are ignored)."""
+
+    session: int = Field(ge=1)
+    seq: int = Field(ge=0, le=2**53)
+    pose: Goal
+    velocity: TrackVelocity | None = None
+
+
 REQUESTS: Mapping[str, type[_Strict]] = {
     "ik": PoseRequest,
     "plan": PlanRequest,
@@ -209,6 +256,9 @@ REQUESTS: Mapping[str, type[_Strict]] = {
     "maneuvers/delete": NameRequest,
     "faults/ack": Empty,
     "sim/fault": SimFaultRequest,
+    "track/start": TrackStart,
+    "track/setpoint": TrackSetpoint,
+    "track/stop": TrackStop,
 }
 #: every API name (relative to the key prefix)
 API_KEYS: tuple[str, ...] = tuple(REQUESTS)

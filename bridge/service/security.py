@@ -334,6 +334,14 @@ def build_acl(policy: AccessPolicy) -> dict:
             "messages": ["query"],
             "key_exprs": everything,
         },
+        # the streamed track setpoints are puts, not queries (operators only; viewers: no_writes)
+        {
+            "id": "operator_puts",
+            "permission": "allow",
+            "flows": ["ingress", "egress"],
+            "messages": ["put", "declare_subscriber"],  # the service's subscriber is declared to the publisher
+            "key_exprs": [_key(policy.prefix, "track/setpoint")],
+        },
         {
             "id": "no_motion",
             "permission": "deny",
@@ -358,7 +366,12 @@ def build_acl(policy: AccessPolicy) -> dict:
     ]
     subjects, policies = [], []
     for role, users, certs, rule_ids in (
-        ("operators", policy.operators, policy.operator_cert_names, ["observe", "to_client", "operator_queries"]),
+        (
+            "operators",
+            policy.operators,
+            policy.operator_cert_names,
+            ["observe", "to_client", "operator_queries", "operator_puts"],
+        ),
         (
             "viewers",
             policy.viewers,

@@ -41,7 +41,6 @@ SIGTERM.
 from __future__ import annotations
 
 import json
-import math
 import os
 import signal
 import sys
@@ -51,28 +50,23 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any
 
-import can
 import zenoh
 
 from bridge.link.can_link import CanLink
-from bridge.link.realtime import RealtimeRunner, open_bus
-from bridge.link.state import LinkConfig
+from bridge.link.realtime import RealtimeRunner
 from bridge.service.api import API_KEYS, ServiceAPI
 from bridge.service.config import ServiceConfig
+from bridge.service.core.client import CoreProcess, MotionProxy
+from bridge.service.machine import CanParts, build_controller, build_model, service_info, start_can
 from bridge.service.motion.controller import MotionController
-from bridge.service.motion.types import MODES, actuator_dict
-from bridge.service.odometer import SimulatedTractor, WheelOdometer
+from bridge.service.planning import Planning
 from bridge.service.security import access_policy_from_file, apply_security, exposure_warnings, read_users
 from bridge.service.store import HitchStore
+from bridge.service.wire import to_json_bytes
+from bridge.service.workers import PlanningWorkers, WorkerSpec
 from bridge.sim.can_node import EcuCanNode
-from bridge.sim.ecu import CylinderECU
 from planner.errors import HitchError, HitchInputError
 from planner.ik_qp.hitch_ik import IKSolver
-from planner.limits.guard import Guard
-from planner.limits.tractor import load_tractor_profile
-from planner.model.kinematics import HitchModel
-from planner.model.sensors import SensorScaling
-from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
 from planner.trajectory import TrajectoryPlanner
 
 if TYPE_CHECKING:
@@ -92,7 +86,9 @@ __all__ = [
 ]
 
 #: keys answered inside the Zenoh callback: O(1), no planning, no storage (``stop`` never waits for a pool)
-INLINE_KEYS = frozenset({"jog", "stop", "mode", "config", "faults/ack", "sim/fault"})
+INLINE_KEYS = frozenset(
+    {"jog", "stop", "mode", "config", "faults/ack", "sim/fault", "track/start", "track/setpoint", "track/stop"}
+)
 #: motion requests: their own pool, so planning, validation and storage requests never queue ahead of them
 MOTION_KEYS_LANE = frozenset({"goto", "presets/go", "maneuvers/run"})
 #: threads of the motion lane
@@ -103,6 +99,10 @@ QUEUE_PER_WORKER = 2
 REALTIME_NICE = -10
 #: the interpreter's switch interval while a service runs [s] (Python's default: 0.005)
 SWITCH_INTERVAL_S = 0.001
+#: nice value of every other thread the service starts (request handling, Zenoh, outbox): above CPU-bound
+#: programs (0), below the control and CAN threads; their work is O(1) (the expensive requests run in the
+#: planning processes at nice +5), so a thread holding the interpreter lock is rarely put aside
+SERVICE_NICE = -5
 #: threads raised to :data:`REALTIME_NICE` (by name)
 REALTIME_THREADS = frozenset({"hitch-control", "CanLink-rt", "EcuCanNode-rt"})
 
@@ -117,24 +117,6 @@ class ServiceStartError(HitchServiceError):
 
 class ServiceStopped(HitchError, RuntimeError):
     """The running service lost a part it cannot run without (a CAN thread stopped)."""
-
-
-def _finite(obj: Any) -> Any:
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: _finite(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_finite(v) for v in obj]
-    return obj
-
-
-def to_json_bytes(obj: Any) -> bytes:
-    """Strict JSON (no NaN/Infinity tokens: non-finite numbers become null)."""
-    try:
-        return json.dumps(obj, allow_nan=False, separators=(",", ":")).encode()
-    except ValueError:
-        return json.dumps(_finite(obj), allow_nan=False, separators=(",", ":")).encode()
 
 
 def build_zenoh_config(cfg: ServiceConfig) -> zenoh.Config:
@@ -158,17 +140,18 @@ class HitchService:
     def __init__(self, config: ServiceConfig):
         self.config = config
         self.api: ServiceAPI | None = None
-        self.motion: MotionController | None = None
+        self.motion: MotionController | None = None  # the controller when the core runs in this process
+        self.core: CoreProcess | None = None  # the control core's process (``control_core = "process"``)
         self.link: CanLink | None = None
         self.ecu_node: EcuCanNode | None = None
-        self.odometer: WheelOdometer | None = None
+        self.parts: CanParts | None = None
         self.store: HitchStore | None = None
+        self.planning: PlanningWorkers | None = None  # the planning processes (None: in-process planning)
         self.session: zenoh.Session | None = None
         self.warnings: list[str] = []
         self.http: WebServer | None = None
         self._runners: list[RealtimeRunner] = []
-        self._buses: list[can.BusABC] = []
-        self._decls: list[Any] = []  # zenoh queryables and the liveliness token
+        self._decls: list[Any] = []  # zenoh queryables, subscribers and the liveliness token
         self._pool: ThreadPoolExecutor | None = None
         self._motion_pool: ThreadPoolExecutor | None = None
         self._queued = 0  # requests waiting in or running on the worker pool
@@ -181,104 +164,101 @@ class HitchService:
         self._closed = False
         self._close_lock = threading.Lock()
         self.close_duration_s: float | None = None
+        self._service_nice_failed: str | None = None  # why the service threads could not be raised
+        self._recorder: Any = None  # the CAN recorder when the core runs here
 
-    # ------------------------------------------------------------------ building
-    def _model(self) -> HitchModel:
-        cfg = self.config
-        return HitchModel.from_profile(cfg.profile, cfg.category)
-
-    def _guard(self, model: HitchModel) -> Guard:
-        cfg = self.config
-        planner = TrajectoryPlanner(model, rate=cfg.control_rate)
-        implement = None
-        if cfg.implement is not None:
-            implement = load_tractor_profile(model.profile.stability.tractor_profile).implement(cfg.implement)
-        return Guard(planner, implement=implement)
+    @property
+    def core_in_process(self) -> bool:
+        """Whether the control core runs as threads of this process (else in :attr:`core`'s process)."""
+        return self.core is None
 
     def start(self) -> HitchService:
+        # every thread started from here on (ours, Zenoh's, the pools') inherits this thread's nice value
+        me = threading.get_native_id()
+        caller_nice = _thread_nice(me)
+        self._service_nice_failed = raise_thread_priority(me, SERVICE_NICE) if caller_nice is not None else None
+        try:
+            return self._start()
+        finally:
+            if caller_nice is not None:
+                raise_thread_priority(me, caller_nice)  # the caller's own thread as it was (lowering is permitted)
+
+    def _start(self) -> HitchService:
         cfg = self.config
         try:
             cfg.data_dir.mkdir(parents=True, exist_ok=True)
             self.store = HitchStore(cfg.database_path, limits=cfg.store_limits())
-            control_model = self._model()
-            guard, plan_guard = self._guard(control_model), self._guard(self._model())
-            ik = IKSolver(self._model())
-            ik.solve((0.0, float(control_model.neutral_pose.z), 0.0, 0.0))  # warm the solver before serving
-            link_model = self._model()
+            ik: IKSolver | None = None
+            planning: Planning | None = None
+            if cfg.planning_processes > 0:  # they build their models while the rest starts
+                spec = WorkerSpec(cfg.profile, cfg.category, cfg.control_rate, cfg.implement)
+                planning = self.planning = PlanningWorkers(spec, cfg.planning_processes).start()
+            else:
+                ik = IKSolver(build_model(cfg))
+                ik.solve((0.0, float(build_model(cfg).neutral_pose.z), 0.0, 0.0))  # warm the solver before serving
             if cfg.security is None:  # with a security file the operator chose the protection
                 self.warnings = exposure_warnings(cfg.listen or (), None)
-            link, odometer = self._start_can(link_model)
-            clock = self._runners[-1].now
-            state_every = max(1, round(cfg.control_rate / cfg.state_rate))
-            self.motion = MotionController(
-                guard,
-                plan_guard,
-                link,
-                clock,
-                on_state=self._on_state,
-                on_event=self._on_event,
-                state_every=state_every,
-                odometer=odometer.distance_m,
-                feedforward=cfg.feedforward,
-            )
             policy = access_policy_from_file(cfg.security, cfg.prefix) if cfg.security is not None else None
-            ecu_node = self.ecu_node
+            own_process = cfg.control_core == "process" and cfg.security is None
+            if cfg.control_core == "process" and not own_process:
+                self.warnings.append(
+                    "with a security file the control core runs in the service's own process (threads): its own "
+                    "Zenoh link would need credentials of its own"
+                )
+            private = None if not own_process or cfg.mode == "client" else f"tcp/127.0.0.1:{_free_port()}"
+            self._open_zenoh(private)
+            motion: Any
+            if own_process:
+                endpoints = [private] if private is not None else list(cfg.connect)
+                self.core = core = CoreProcess(cfg, endpoints, on_note=self._core_note).start()
+                self.warnings.extend(core.ready.get("warnings", []))
+                motion = MotionProxy(core, TrajectoryPlanner(build_model(cfg), rate=cfg.control_rate))
+                info = dict(core.ready["info"])
+                sim_fault = motion.sim_fault if core.ready.get("simulated_ecu") else None
+            else:
+                if cfg.can_log is not None:  # records the in-process bus (the core process records its own)
+                    from bridge.service.blackbox import CanRecorder
+
+                    self._recorder = CanRecorder(cfg.can_log, cfg.can_interface, cfg.can_channel)
+                self.parts = parts = start_can(cfg, runners_out=self._runners)
+                self.link, self.ecu_node = parts.link, parts.ecu_node
+                self.motion, guard = build_controller(cfg, parts, on_state=self._on_state, on_event=self._on_event)
+                motion, info = self.motion, service_info(cfg, guard)
+                ecu_node = parts.ecu_node
+                sim_fault = None if ecu_node is None else ecu_node.apply_fault
             self.api = ServiceAPI(
-                self.motion,
+                motion,
                 ik,
                 self.store,
-                self._info(control_model, guard),
+                info,
                 implement=cfg.implement,
                 policy=policy,
-                sim_fault=None if ecu_node is None else ecu_node.apply_fault,
+                sim_fault=sim_fault,
+                planning=planning,
             )
             self._pool = ThreadPoolExecutor(cfg.workers, thread_name_prefix="hitch-api")
             self._motion_pool = ThreadPoolExecutor(MOTION_WORKERS, thread_name_prefix="hitch-motion")
-            self._open_zenoh()
+            self._declare_api()
             self._switch_interval = sys.getswitchinterval()
             sys.setswitchinterval(SWITCH_INTERVAL_S)
-            self.motion.start()
-            self._raise_priorities()
+            if self.motion is not None:
+                self.motion.start()
+                self._raise_priorities()
             if cfg.http is not None:
                 self._start_http(cfg.http)
+            if self.planning is not None:  # built their models meanwhile: ready before the service says so
+                self.planning.warm(60.0)
         except BaseException:
             self.close()
             raise
         return self
 
-    def _start_can(self, link_model: HitchModel) -> tuple[CanLink, WheelOdometer]:
-        """Simulated machine (ECU, tractor speed) if configured, the odometer, then the link (last:
-        its runner's clock is the service's clock). Returns the link and the odometer."""
-        cfg = self.config
-        if cfg.simulate_ecu:
-            ecu_bus = open_bus(cfg.can_interface, cfg.can_channel)
-            self._buses.append(ecu_bus)
-            # the twin starts with the hitch at the model's neutral pose (x = roll = pitch = 0)
-            scale = SensorScaling(link_model.profile)
-            neutral_counts = scale.counts_min + (link_model.neutral - scale.si_min) / scale.resolution
-            self.ecu_node = EcuCanNode(CylinderECU(link_model.profile, initial_counts=list(neutral_counts)), ecu_bus)
-            self._runners.append(RealtimeRunner(self.ecu_node, max_wait_s=0.02).start())
-            tractor_bus = open_bus(cfg.can_interface, cfg.can_channel)
-            self._buses.append(tractor_bus)
-            self._runners.append(
-                RealtimeRunner(SimulatedTractor(tractor_bus, cfg.sim_ground_speed), max_wait_s=0.05).start()
-            )
-        odo_bus = open_bus(cfg.can_interface, cfg.can_channel)
-        self._buses.append(odo_bus)
-        self.odometer = odometer = WheelOdometer(odo_bus)
-        self._runners.append(RealtimeRunner(odometer, max_wait_s=0.05).start())
-        link_bus = open_bus(cfg.can_interface, cfg.can_channel)
-        self._buses.append(link_bus)
-        self.link = link = CanLink(
-            link_model, link_bus, LinkConfig(control_rate_hz=cfg.control_rate, stale_after_s=cfg.stale_timeout_s)
-        )
-        self._runners.append(RealtimeRunner(link, max_wait_s=0.02).start())
-        return link, odometer
-
     def _raise_priorities(self) -> None:
         """The control and CAN threads at :data:`REALTIME_NICE`; when not permitted a warning and a
         ``realtime`` event say so, and the service runs on at normal priority."""
         failed: list[str] = []
+        if self._service_nice_failed is not None:
+            failed.append(f"service threads (nice {SERVICE_NICE}): {self._service_nice_failed}")
         for t in threading.enumerate():
             if t.name in REALTIME_THREADS and t.native_id is not None:
                 why = raise_thread_priority(t.native_id, REALTIME_NICE)
@@ -293,27 +273,66 @@ class HitchService:
             self.motion.outbox.put_event({"event": "realtime", "priority_raised": False, "message": text})
             self.motion.outbox.flush()
 
-    def _open_zenoh(self) -> None:
+    def _open_zenoh(self, private_listen: str | None) -> None:
+        """The service's session (plus a private loopback listener for the core process, if any)."""
         cfg = self.config
+        z = build_zenoh_config(cfg)
+        if private_listen is not None:
+            z.insert_json5("listen/endpoints", json.dumps([*list(cfg.listen or ()), private_listen]))
         try:
-            self.session = zenoh.open(build_zenoh_config(cfg))
+            self.session = zenoh.open(z)
         except zenoh.ZError as exc:  # e.g. the port is taken, a TLS file is unreadable
             raise ServiceStartError(
                 f"cannot open the Zenoh session (listen {', '.join(cfg.listen or ()) or '-'}, connect "
                 f"{', '.join(cfg.connect) or '-'}): {exc}"
             ) from None
-        s = self.session
-        self._state_pub = s.declare_publisher(
-            cfg.key("state"),
-            encoding=zenoh.Encoding.APPLICATION_JSON,
-            express=True,
-            congestion_control=zenoh.CongestionControl.DROP,
-            priority=zenoh.Priority.DATA_HIGH,
-        )
-        self._event_pub = s.declare_publisher(cfg.key("events"), encoding=zenoh.Encoding.APPLICATION_JSON, express=True)
+
+    def _declare_api(self) -> None:
+        """Queryables of the API keys (``stop`` and the setpoint stream: the core's own when it has a
+        process), the state and event publishers or subscriptions, the liveliness token."""
+        cfg, s = self.config, self.session
+        assert s is not None
+        if self.core is None:
+            self._state_pub = s.declare_publisher(
+                cfg.key("state"),
+                encoding=zenoh.Encoding.APPLICATION_JSON,
+                express=True,
+                congestion_control=zenoh.CongestionControl.DROP,
+                priority=zenoh.Priority.DATA_HIGH,
+            )
+            self._event_pub = s.declare_publisher(
+                cfg.key("events"), encoding=zenoh.Encoding.APPLICATION_JSON, express=True
+            )
+            # the setpoint stream is put, not queried: refusals are counted and announced as events
+            self._decls.append(s.declare_subscriber(cfg.key("track/setpoint"), self._on_setpoint))
+        else:  # the core publishes; this process's listeners (terminal, black box) hear it like any client
+            self._decls.append(s.declare_subscriber(cfg.key("state"), self._on_published("state")))
+            self._decls.append(s.declare_subscriber(cfg.key("events"), self._on_published("event")))
         for key in API_KEYS:
+            if key == "stop" and self.core is not None:
+                continue  # answered by the core process itself: no request here can delay it
             self._decls.append(s.declare_queryable(cfg.key(key), self._query_callback(key), complete=True))
         self._decls.append(s.liveliness().declare_token(cfg.key("alive")))
+
+    def _core_note(self, note: dict[str, Any]) -> None:
+        """A request the core answered itself (``stop``): given to the API's request hook (the black box)."""
+        api = self.api
+        hook = None if api is None else api.on_request
+        if hook is not None and note.get("request"):
+            hook(str(note["request"]), None, bytes(note.get("payload") or b""), bool(note.get("ok")), note.get("reply"))
+
+    def _on_published(self, kind: str) -> Callable[[zenoh.Sample], None]:
+        def on_sample(sample: zenoh.Sample) -> None:
+            try:
+                msg = json.loads(sample.payload.to_bytes())
+            except ValueError:
+                return
+            if kind == "state":
+                self._latest_state = msg
+            for cb in list(self._listeners[kind]):
+                _call(cb, msg)
+
+        return on_sample
 
     def _start_http(self, addr: str) -> None:
         try:
@@ -325,34 +344,6 @@ class HitchService:
             self.http = start_http(self, addr, user=self.config.http_user, users=users)
         except OSError as exc:  # the port is taken, the address is not local …
             raise ServiceStartError(f"--http {addr}: cannot listen ({exc})") from None
-
-    def _info(self, model: HitchModel, guard: Guard) -> dict[str, Any]:
-        cfg = self.config
-        tp = guard.planner
-        return {
-            "prefix": cfg.prefix,
-            "profile": model.profile.name,
-            "category": model.category,
-            "implement": cfg.implement,
-            "control_rate": tp.rate,
-            "state_rate": cfg.state_rate,
-            "can": {
-                "interface": cfg.can_interface,
-                "channel": cfg.can_channel,
-                "simulated_ecu": cfg.simulate_ecu,
-                "simulated_ground_speed": cfg.sim_ground_speed if cfg.simulate_ecu else None,
-            },
-            "limits": {
-                "workspace": {k: list(tp.workspace[k]) for k in CONTROLLED_POSE_NAMES},
-                "strokes": {
-                    n: [float(lo), float(hi)]
-                    for n, lo, hi in zip(ACTUATOR_NAMES, model.lower, model.upper, strict=True)
-                },
-                "actuator_velocity": actuator_dict(tp.limits.velocity),
-                "actuator_acceleration": actuator_dict(tp.limits.acceleration),
-            },
-            "modes": list(MODES),
-        }
 
     # ------------------------------------------------------------------ Zenoh callbacks
     def _query_callback(self, key: str) -> Callable[[zenoh.Query], None]:
@@ -369,6 +360,14 @@ class HitchService:
             self.dispatch(key, payload, lambda ok, data: _reply(query, ok, data), received=received)
 
         return on_query
+
+    def _on_setpoint(self, sample: zenoh.Sample) -> None:
+        """A ``track/setpoint`` put: handled at once (O(1)); its reply goes nowhere (rejections are
+        counted in the state's ``track`` entry and announced by a ``track_setpoint_rejected`` event)."""
+        api = self.api
+        if api is None or self._closed:
+            return
+        api.handle("track/setpoint", sample.payload.to_bytes(), None, received=time.monotonic())
 
     def dispatch(
         self, key: str, payload: bytes, respond: Callable[[bool, bytes], None], *, received: float | None = None
@@ -465,6 +464,8 @@ class HitchService:
             t0 = time.monotonic()
             if self.motion is not None:
                 self.motion.close()
+            if self.core is not None:
+                _quiet(self.core.close)  # it brakes, ends its stream and its session
             self._closed = True
             if self.http is not None:
                 _quiet(self.http.close)
@@ -479,18 +480,17 @@ class HitchService:
             for pool in (self._pool, self._motion_pool):
                 if pool is not None:
                     pool.shutdown(wait=False, cancel_futures=True)
+            if self.planning is not None:
+                _quiet(self.planning.close)
             if self._switch_interval is not None:
                 sys.setswitchinterval(self._switch_interval)
-            link = self.link
-            if link is not None:
-                now = self._runners[-1].now() if self._runners else 0.0
-                _quiet(lambda: link.stop(now))
-            for r in reversed(self._runners):
-                r.stop(0.5)
-            if link is not None:
-                _quiet(link.close)
-            for b in self._buses:
-                _quiet(b.shutdown)
+            if self.parts is not None:
+                self.parts.close()
+            else:  # a start that failed half-way: the runners it started
+                for r in reversed(self._runners):
+                    r.stop(0.5)
+            if self._recorder is not None:
+                _quiet(self._recorder.close)
             if self.store is not None:
                 _quiet(self.store.close)
             self.close_duration_s = time.monotonic() - t0
@@ -501,6 +501,15 @@ class HitchService:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _free_port() -> int:
+    """A TCP port free on 127.0.0.1 now (for the core's private link)."""
+    import socket
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
 
 
 def _reply(query: zenoh.Query, ok: bool, data: bytes) -> None:
@@ -514,6 +523,17 @@ def _reply(query: zenoh.Query, ok: bool, data: bytes) -> None:
         pass
     finally:
         query.drop()
+
+
+def _thread_nice(native_id: int) -> int | None:
+    """The nice value of one thread (None where the system cannot tell)."""
+    getpriority = getattr(os, "getpriority", None)
+    if getpriority is None:
+        return None
+    try:
+        return int(getpriority(os.PRIO_PROCESS, native_id))
+    except OSError:
+        return None
 
 
 def raise_thread_priority(native_id: int, nice: int) -> str | None:
@@ -555,6 +575,9 @@ def serve(config: ServiceConfig, *, ready: Callable[[HitchService], None] | None
             if ready is not None:
                 ready(service)
             while not stop.wait(0.5):
+                core = service.core
+                if core is not None and not core.alive:
+                    raise ServiceStopped(core.ended or "the control core ended")
                 if any(r.error is not None for r in service._runners):
                     raise ServiceStopped(
                         "a CAN thread stopped: "

@@ -203,6 +203,7 @@ class StateMessage:
     stability: StabilityMargins | None
     ecu: EcuSummary
     maneuver: ManeuverProgress | None
+    track: Mapping[str, Any] | None = None  # the live track session (TrackMotion.progress())
 
     def to_json(self) -> dict[str, Any]:
         ls, ref = self.measured, self.reference
@@ -225,6 +226,7 @@ class StateMessage:
             "stability": None if self.stability is None else self.stability.to_json(),
             "ecu": self.ecu.to_json(),
             "maneuver": None if self.maneuver is None else self.maneuver.to_json(),
+            "track": None if self.track is None else dict(self.track),
         }
 
 
@@ -244,6 +246,7 @@ def build_state_message(
     feedforward: FeedforwardShaper | None = None,
     faults: Sequence[Fault] | None = None,
     cache: EvaluationCache | None = None,
+    track: Mapping[str, Any] | None = None,
 ) -> StateMessage:
     """The message for one cycle. ``status``: the link's :class:`~bridge.link.state.LinkStatus` at
     clock time ``now`` [s]; ``reference``: what is being streamed, or None; ``stale_after_s``: the
@@ -291,4 +294,5 @@ def build_state_message(
         stability=stability,
         ecu=EcuSummary.of(status, now, stale_after_s, feedforward, faults),
         maneuver=maneuver,
+        track=track,
     )

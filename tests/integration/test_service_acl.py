@@ -71,3 +71,23 @@ def test_unknown_user_cannot_connect(secured):
             c.state(timeout_s=1.0)
     assert ei.value.code in ("connect", "timeout")
     time.sleep(0.1)
+
+
+def test_only_an_operator_can_stream_track_setpoints(secured):
+    # the setpoint stream is Zenoh puts: without an ACL rule for them an operator's stream was denied
+    ep, alice, bob, _ = secured
+    with HitchClient([ep], security=alice, timeout_s=10) as c, HitchClient([ep], security=bob, timeout_s=2) as v:
+        wait_online(c)
+        z0 = c.state()["pose"]["z"]
+        session = c.track_start("tractor", ["z"], 500)["session"]
+        for i in range(1, 30):  # the viewer's puts are denied by Zenoh: they never reach the service
+            v.track_setpoint(session, 1000 + i, {"z": z0 - 0.05})
+            time.sleep(0.01)
+        for i in range(1, 60):
+            c.track_setpoint(session, i, {"z": z0 + 0.03})
+            time.sleep(0.02)
+        st = c.state()
+        assert st["track"]["session"] == session
+        assert st["track"]["setpoints"] >= 50 and st["track"]["ignored_seq"] == 0, st["track"]
+        assert st["track"]["target"]["z"] > z0
+        c.track_stop(session)

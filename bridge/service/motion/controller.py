@@ -71,7 +71,7 @@ import math
 import threading
 import time
 from collections.abc import Callable, Mapping
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -87,6 +87,7 @@ from bridge.service.motion.types import (
     FAULT_CLEAR_AFTER_S,
     MODES,
     SELF_CLEARING_FAULTS,
+    TRACK_FRAMES,
     ActiveMotion,
     Event,
     Fault,
@@ -97,6 +98,8 @@ from bridge.service.motion.types import (
     MotionError,
     PlanMotion,
     Reference,
+    TrackAccepted,
+    TrackMotion,
     check_mode_allows,
     check_precedence,
     plan_state,
@@ -109,8 +112,9 @@ from planner.errors import HitchError
 from planner.limits.guard import Guard, GuardedPlan
 from planner.model.types import KinematicsError
 from planner.trajectory import JogController, MotionState
+from planner.trajectory.track import TrackFollower, TrackInputError, TrackStateError
 
-__all__ = ["MotionController", "MotionControllerError"]
+__all__ = ["MotionController", "MotionControllerError", "TrackSensors"]
 
 _PLAN_LEAD_S = 0.08  # a replacing plan starts this far ahead of the request (planning time) [s]
 _MOVED = 5e-3  # m or rad: a measured start pose that moved more while planning is re-planned
@@ -119,6 +123,26 @@ _PLAN_TRIES = 4  # plans made for one goto before it is refused as too busy
 
 class MotionControllerError(HitchError, RuntimeError):
     """The controller used out of order (started twice)."""
+
+
+class TrackSensors(Protocol):
+    """The tractor's sensors a track session's frames need (fresh readings only, else None)."""
+
+    def attitude(self, now: float) -> tuple[float, float] | None:
+        """Tractor body roll and pitch relative to gravity [rad] (slope sensor; SAE J670 signs:
+        roll positive right side down, pitch positive nose up)."""
+        ...
+
+    def ground_distance(self, now: float) -> float | None:
+        """Height of the implement's reference point above the ground below it [m]."""
+        ...
+
+    # optional: ``attitude_rate(now) -> (roll rate, pitch rate) | None`` [rad/s] and
+    # ``ground_distance_rate(now) -> float | None`` [m/s] (the frame's own motion, added to setpoint velocities)
+
+
+#: a rejected setpoint is announced at most this often per session [s] (each one is counted)
+_REJECTION_EVENT_EVERY_S = 1.0
 
 
 class MotionController:
@@ -136,6 +160,8 @@ class MotionController:
         odometer: cumulative distance travelled by the tractor [m] or None (maneuver ``wait_for``).
         spawn: runs the planning of a maneuver step off the control thread (default: a new thread;
             tests pass ``lambda fn: fn()`` for deterministic runs).
+        sensors: the tractor's slope and ground-distance readings (:class:`TrackSensors`) for track
+            sessions in the ``level`` and ``ground`` frames (None: only the ``tractor`` frame).
     """
 
     def __init__(
@@ -152,6 +178,7 @@ class MotionController:
         mode: str = "auto",
         spawn: Callable[[Callable[[], None]], None] | None = None,
         feedforward: bool = True,
+        sensors: TrackSensors | None = None,
     ):
         self.guard, self.plan_guard = guard, plan_guard
         self.planner = guard.planner
@@ -191,6 +218,9 @@ class MotionController:
         self._seq = 0
         self._cycle_n = 0
         self._thread: PeriodicThread | None = None
+        self.sensors = sensors
+        self._sessions = itertools.count(1)
+        self._rejection_event_at = -math.inf
 
     # ------------------------------------------------------------------ life cycle
     def start(self) -> MotionController:
@@ -269,8 +299,15 @@ class MotionController:
 
     def preview(self, goal: Mapping[str, float], speed_scale: float = 1.0) -> GuardedPlan:
         """The guarded plan a goto would run now (no motion); raises PlanError / GuardRefusal."""
+        return self.preview_from(self.preview_start(), goal, speed_scale)
+
+    def preview_start(self) -> MotionState:
+        """The state a goto sent now would start from (O(1); the neutral pose before any measurement)."""
         with self._lock:
-            start = self._predict(self.clock() + _PLAN_LEAD_S, require_link=False)
+            return self._predict(self.clock() + _PLAN_LEAD_S, require_link=False)
+
+    def preview_from(self, start: MotionState, goal: Mapping[str, float], speed_scale: float = 1.0) -> GuardedPlan:
+        """The guarded plan from ``start`` on the planning guard (under its lock; no motion)."""
         with self._plan_lock:
             return self.plan_guard.plan(start, goal, speed_scale=speed_scale)
 
@@ -341,6 +378,175 @@ class MotionController:
             self._post(events)
         self.outbox.flush()
         return mid
+
+    # ------------------------------------------------------------------ track mode
+    def track_start(self, frame: str, dofs: tuple[str, ...] | list[str], ttl_s: float) -> TrackAccepted:
+        """Start a track session (``docs/tracking.md``): setpoints of ``dofs`` in ``frame`` follow with
+        online jerk-limited motion; without a setpoint within ``ttl_s`` the hitch brakes to rest and
+        the session ends. Takes over a running goto or maneuver (aborted) from its state; refused
+        while a stop brakes or a jog command is live (stop > jog > track > goto)."""
+        if frame not in TRACK_FRAMES:
+            raise MotionError("bad_request", f"frame must be one of {', '.join(TRACK_FRAMES)}, got {frame!r}")
+        with self._lock:
+            self._check_allowed("track")
+            self._check_no_fault("track")
+            now = self.clock()
+            m = self._active
+            if isinstance(m, PlanMotion) and m.kind == "stop":
+                raise MotionError("busy", f"a stop is in progress (motion {m.motion_id}); track is refused until rest")
+            if isinstance(m, JogMotion) and now < m.expires:
+                raise MotionError(
+                    "busy", f"a jog command is live (motion {m.motion_id}); jog has precedence over track"
+                )
+            why = link_problem(self.link.status(now), now, self.link.config.stale_after_s)
+            if why:
+                raise MotionError("ecu", f"track refused: {why}")
+            self._frame_readings(frame, now, "track refused")  # the frame's sensor must be there now
+            start = self._predict(now)
+            try:
+                follower = TrackFollower(self.planner, start, dofs, ttl_s, t0_s=now)
+            except TrackInputError as exc:
+                raise MotionError("bad_request", str(exc)) from None
+            events: list[Event] = []
+            if m is not None:
+                events.append(self._ev("motion_aborted", m, reason="replaced by track"))
+            self._maneuver.abort(now, "interrupted", "a track session took over", events)
+            tm = TrackMotion(next(self._ids), next(self._sessions), follower, frame, t_state=now)
+            self._install(tm)
+            events.append(
+                self._ev("motion_started", tm, kind="track", session=tm.session, frame=frame, dof=list(tm.dofs))
+            )
+            self._post(events)
+        self.outbox.flush()
+        return TrackAccepted(tm.session, tm.motion_id, frame, tm.dofs, float(ttl_s))
+
+    def track_setpoint(
+        self,
+        session: int,
+        seq: int,
+        pose: Mapping[str, float],
+        velocity: Mapping[str, float] | None = None,
+    ) -> dict[str, Any]:
+        """One streamed setpoint (O(1)): ``pose`` [m, rad] of the session's DOFs in its frame,
+        optionally their ``velocity`` [m/s, rad/s]. Returns ``{"accepted", "limited", …}``; an old or
+        out-of-order ``seq`` is ignored (counted). Raises :class:`MotionError` for a session that is
+        not the live one or a setpoint that cannot be taken (the reason names the field / sensor)."""
+        with self._lock:
+            m = self._active
+            if not isinstance(m, TrackMotion) or m.session != session:
+                live = f"the live session is {m.session}" if isinstance(m, TrackMotion) else "no session is live"
+                raise MotionError("not_found", f"session {session} is not live ({live})")
+            if not m.seq.accept(seq):
+                return {"accepted": False, "ignored": "seq", "session": session, "seq": seq}
+            now = self.clock()
+            try:
+                target = self._to_tractor_frame(m, pose, now)
+                sp = m.follower.set_setpoint(target, self._frame_velocity(m, pose, velocity, now), now)
+            except (TrackInputError, TrackStateError, MotionError) as exc:
+                m.rejected += 1
+                m.last_rejection = str(exc)
+                if now - self._rejection_event_at >= _REJECTION_EVENT_EVERY_S:
+                    self._rejection_event_at = now
+                    self._post(
+                        [
+                            {
+                                "event": "track_setpoint_rejected",
+                                "motion_id": m.motion_id,
+                                "session": session,
+                                "rejected": m.rejected,
+                                "message": str(exc),
+                            }
+                        ]
+                    )
+                code = exc.code if isinstance(exc, MotionError) else "bad_request"
+                raise MotionError(code, str(exc).removeprefix("track/setpoint: ")) from None
+            m.accepted += 1
+        self.outbox.flush()
+        return {"accepted": True, "session": session, "seq": seq, "limited": dict(sp.limited)}
+
+    def track_stop(self, session: int | None = None) -> dict[str, Any]:
+        """End the live track session smoothly (the shortest jerk-limited stop); ``session`` None: whichever is live."""
+        with self._lock:
+            m = self._active
+            if not isinstance(m, TrackMotion) or (session is not None and m.session != session):
+                live = f"the live session is {m.session}" if isinstance(m, TrackMotion) else "no session is live"
+                raise MotionError("not_found", f"session {session} is not live ({live})")
+            if m.reason is None:
+                m.reason = "track/stop"
+            m.follower.stop()
+            return {"stopping": True, "session": m.session, "motion_id": m.motion_id}
+
+    def _frame_velocity(
+        self, m: TrackMotion, pose: Mapping[str, float], velocity: Mapping[str, float] | None, now: float
+    ) -> Mapping[str, float] | None:
+        """A setpoint's velocity in the tractor frame: the frame's own motion added (``docs/tracking.md``):
+        ``level``: + the tractor's roll and pitch rates; ``ground``: + the rate of the ground height under
+        the implement (ż_ref − ḋ, the hitch's commanded rate less the ground distance's). Sensors without
+        rates (or a frame without motion): the velocity as given."""
+        if m.frame == "tractor" or self.sensors is None:
+            return velocity
+        out = dict(velocity or {})
+        if m.frame == "level":
+            rate_of = getattr(self.sensors, "attitude_rate", None)
+            rates = None if rate_of is None else rate_of(now)
+            if rates is None:
+                return velocity
+            for k, r in zip(("roll", "pitch"), rates, strict=True):
+                if k in pose:
+                    out[k] = float(out.get(k, 0.0)) + float(r)
+            return out
+        rate_of = getattr(self.sensors, "ground_distance_rate", None)
+        d_rate = None if rate_of is None else rate_of(now)
+        if d_rate is None or "z" not in pose:
+            return velocity
+        z_rate = float(m.follower.state.velocity[1])
+        out["z"] = float(out.get("z", 0.0)) + z_rate - float(d_rate)
+        return out
+
+    def _frame_readings(self, frame: str, now: float, what: str) -> tuple[tuple[float, float] | None, float | None]:
+        """The sensor readings ``frame`` needs now: (attitude, ground distance); MotionError when missing."""
+        if frame == "tractor":
+            return None, None
+        sensors = self.sensors
+        if frame == "level":
+            att = None if sensors is None else sensors.attitude(now)
+            if att is None:
+                raise MotionError(
+                    "unavailable", f"{what}: frame 'level' needs the tractor's slope sensor (no fresh reading)"
+                )
+            return att, None
+        dist = None if sensors is None else sensors.ground_distance(now)
+        if dist is None:
+            raise MotionError(
+                "unavailable", f"{what}: frame 'ground' needs the implement's ground-distance sensor (no fresh reading)"
+            )
+        return None, dist
+
+    def _to_tractor_frame(self, m: TrackMotion, pose: Mapping[str, float], now: float) -> dict[str, float]:
+        """A setpoint in the session's frame as a tractor-frame pose (``docs/tracking.md``):
+
+        * ``level``: roll and pitch relative to gravity. The slope sensor's roll φ (right side down)
+          lowers the hitch's right side, its pitch θ (nose up) tilts the mast rearward, so
+          roll_tractor = roll_level + φ, pitch_tractor = pitch_level + θ;
+        * ``ground``: z as the height above the ground under the implement: with the measured hitch
+          height z_m and the ground distance d read at it, z_tractor = z_m + (z_ground − d).
+        """
+        out = dict(pose)
+        if m.frame == "tractor":
+            return out
+        att, dist = self._frame_readings(m.frame, now, "setpoint refused")
+        if att is not None:
+            roll, pitch = att
+            if "roll" in out:
+                out["roll"] = float(out["roll"]) + roll
+            if "pitch" in out:
+                out["pitch"] = float(out["pitch"]) + pitch
+        if dist is not None and "z" in out:
+            ls = self.link.latest_state()
+            if ls is None:
+                raise MotionError("unavailable", "setpoint refused: no measured hitch height yet (frame 'ground')")
+            out["z"] = float(ls.pose.controlled()[1]) + (float(out["z"]) - dist)
+        return out
 
     def run_maneuver(
         self,
@@ -513,6 +719,8 @@ class MotionController:
             return plan_state(m, t)
         if isinstance(m, JogMotion):
             return m.jog.state
+        if isinstance(m, TrackMotion):
+            return m.follower.state
         if self._hold is not None:
             return self._hold
         ls = self.link.latest_state()
@@ -528,7 +736,7 @@ class MotionController:
         if m is None or (isinstance(m, PlanMotion) and m.kind == "stop"):
             return None if m is None else m.motion_id
         events.append(self._ev("motion_aborted", m, reason=reason))
-        t0 = m.t_state if isinstance(m, JogMotion) else now  # the time the predicted state belongs to
+        t0 = m.t_state if isinstance(m, (JogMotion, TrackMotion)) else now  # the time the predicted state belongs to
         sm = PlanMotion("stop", next(self._ids), self.planner.plan_stop(self._predict(now)), t0)
         self._install(sm)
         events.append(self._ev("motion_started", sm, kind="stop", duration=sm.plan.duration))
@@ -725,6 +933,16 @@ class MotionController:
             events.extend(evs)
             self._limited = dict(m.limited)
             return Reference(out.state, out.actuators, out.actuator_velocity)
+        elif isinstance(m, TrackMotion):
+            tout, evs = m.step(self.guard, now)
+            events.extend(evs)
+            self._limited = dict(m.limited)
+            ref = Reference(tout.state, tout.actuators, tout.actuator_velocity)
+            if m.follower.finished:
+                events.append(self._ev("motion_finished", m, kind="track", session=m.session, reason=m.reason))
+                self._active, self._hold, self._hold_ref = None, MotionState.at_rest(tout.state.position), None
+                self._limited = {}
+            return ref
         elif self._hold is not None:
             if self._hold_ref is not None:  # at rest: nothing changed, nothing recomputed
                 return self._hold_ref
@@ -747,7 +965,11 @@ class MotionController:
     def _state_message(self, now: float, status: LinkStatus) -> StateMessage:
         self._seq += 1
         m = self._active
-        kind = None if m is None else (m.kind if isinstance(m, PlanMotion) else "jog")
+        kind = (
+            None
+            if m is None
+            else (m.kind if isinstance(m, PlanMotion) else "jog" if isinstance(m, JogMotion) else "track")
+        )
         ref = self._reference if (m is not None or self._hold is not None) else None
         return build_state_message(
             seq=self._seq,
@@ -764,6 +986,7 @@ class MotionController:
             feedforward=self.shaper,
             faults=tuple(self._faults.values()),
             cache=self._eval_cache,
+            track=m.progress() if isinstance(m, TrackMotion) else None,
         )
 
     def _ev(self, name: str, m: ActiveMotion, **extra: Any) -> Event:

@@ -23,6 +23,7 @@ from planner.limits.guard import Guard, GuardDecision, GuardedPlan, GuardRefusal
 from planner.limits.stability import StabilityReport, StabilityViolation
 from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
 from planner.trajectory import JogController, JogOutput, MotionState, Plan, PlanError
+from planner.trajectory.track import SeqFilter, TrackFollower, TrackOutput
 
 __all__ = [
     "MODES",
@@ -37,6 +38,10 @@ __all__ = [
     "StabilityMargins",
     "PlanMotion",
     "JogMotion",
+    "TrackMotion",
+    "TrackAccepted",
+    "TRACK_FRAMES",
+    "TRACK_GUARD_EVERY",
     "ActiveMotion",
     "Reference",
     "Fault",
@@ -331,8 +336,109 @@ class JogMotion:
         return out, events
 
 
+#: the frames a track session's setpoints may be given in (``docs/tracking.md``)
+TRACK_FRAMES: tuple[str, ...] = ("tractor", "level", "ground")
+#: a track session's stability check 1 s ahead runs every this many control cycles (it costs ~0.4 ms)
+TRACK_GUARD_EVERY = 5
+
+
+@dataclass(frozen=True)
+class TrackAccepted:
+    """A started track session: its ``session`` id (setpoints name it), the motion id, frame, DOFs, TTL [s]."""
+
+    session: int
+    motion_id: int
+    frame: str
+    dofs: tuple[str, ...]
+    ttl_s: float
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "accepted": True,
+            "session": self.session,
+            "motion_id": self.motion_id,
+            "frame": self.frame,
+            "dof": list(self.dofs),
+            "ttl_ms": round(self.ttl_s * 1000.0),
+        }
+
+
+@dataclass
+class TrackMotion:
+    """A live track session (streamed setpoints followed online; mutable record of the control thread).
+
+    ``frame``: what the setpoints mean (:data:`TRACK_FRAMES`); ``seq`` drops old and out-of-order
+    setpoints; ``reason`` says why the session ends once the follower brakes (stale, stop, guard).
+    """
+
+    motion_id: int
+    session: int
+    follower: TrackFollower
+    frame: str
+    t_state: float = 0.0  # clock time of ``follower.state`` (its last step)
+    seq: SeqFilter = field(default_factory=SeqFilter)
+    limited: dict[str, str] = field(default_factory=dict)
+    reported: set[str] = field(default_factory=set)
+    decision: GuardDecision = field(default_factory=lambda: GuardDecision("ok"))
+    reason: str | None = None
+    accepted: int = 0  # setpoints taken
+    rejected: int = 0  # setpoints refused (bad values, frame sensor missing)
+    last_rejection: str | None = None
+    cycles: int = 0
+
+    @property
+    def dofs(self) -> tuple[str, ...]:
+        return self.follower.dofs
+
+    @property
+    def ending(self) -> bool:
+        """Braking to its end (stale stream, ``track/stop``, a guard refusal): a goto may replace it."""
+        return self.follower.stale or self.follower.stopping
+
+    def step(self, guard: Guard, now: float) -> tuple[TrackOutput, list[Event]]:
+        """One control cycle of the follower; every :data:`TRACK_GUARD_EVERY` cycles the stability 1 s
+        ahead along its current rates (:meth:`Guard.check_jog`): a motion the guard refuses (a hard
+        stability or keep-out limit ahead) ends the session, braking now. Returns the step and a
+        ``limit_reached`` event for newly hit limits."""
+        self.cycles += 1
+        events: list[Event] = []
+        if self.cycles % TRACK_GUARD_EVERY == 1 and not self.ending:
+            rates = self.follower.guard_rates(1.0)
+            _, self.decision = guard.check_jog(self.follower.state, rates)
+            if self.decision.action == "refused":  # a hard limit ahead (caution or an end-stop zone: reported)
+                self.reason = "guard: " + "; ".join(guard_limits(self.decision).values() or ["motion refused ahead"])
+                self.follower.stop()
+        out = self.follower.step(now)
+        self.t_state = now
+        self.limited = {**out.limited, **guard_limits(self.decision)}
+        new = {k: v for k, v in self.limited.items() if k not in self.reported}
+        self.reported = set(self.limited)
+        if new:
+            events.append({"event": "limit_reached", "motion_id": self.motion_id, "limits": new})
+        if out.stale and self.reason is None:
+            self.reason = f"stale: no setpoint within {self.follower.ttl_s * 1000:.0f} ms"
+        return out, events
+
+    def progress(self) -> dict[str, Any]:
+        """The state message's ``track`` entry."""
+        sp = self.follower.setpoint
+        return {
+            "session": self.session,
+            "frame": self.frame,
+            "dof": list(self.dofs),
+            "setpoints": self.accepted,
+            "rejected": self.rejected,
+            "ignored_seq": self.seq.ignored,
+            "stale": self.follower.stale,
+            "ending": self.ending,
+            "target": None if sp is None else pose_dict(sp.position),
+            "control_limited": dict(self.limited),
+            "last_rejection": self.last_rejection,
+        }
+
+
 #: the motion the controller runs (one at a time)
-ActiveMotion = PlanMotion | JogMotion
+ActiveMotion = PlanMotion | JogMotion | TrackMotion
 
 
 @dataclass(frozen=True)
@@ -359,6 +465,12 @@ def check_precedence(active: ActiveMotion | None, now: float) -> None:
             f"a jog command is live (motion {active.motion_id}, {active.expires - now:.2f} s "
             "left); jog has precedence over goto",
         )
+    if isinstance(active, TrackMotion) and not active.ending:
+        raise MotionError(
+            "busy",
+            f"track session {active.session} is active (motion {active.motion_id}); send track/stop first "
+            "(track has precedence over goto)",
+        )
 
 
 def plan_state(m: PlanMotion, t: float) -> MotionState:
@@ -374,6 +486,6 @@ def streamed_reference(shaper: FeedforwardShaper, m: ActiveMotion | None, ref: R
     ahead in it) or a jog (its rates and acceleration now); the final reference itself while holding."""
     if isinstance(m, PlanMotion):
         return shaper.for_plan(lambda t: plan_state(m, t), now, ref.actuators, ref.rates)
-    if isinstance(m, JogMotion):
+    if isinstance(m, (JogMotion, TrackMotion)):
         return shaper.for_state(ref.state, ref.actuators, ref.rates)
     return ref.actuators

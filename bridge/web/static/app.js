@@ -3,7 +3,7 @@
 // Everything shown comes from the service: `state` messages (what <prefix>/state publishes, 50 Hz)
 // and `event` messages over one WebSocket; every command goes to the service's own API handler
 // (`{id, key, payload}` → `{type: "reply", id, ok, data}`). The page keeps no state of its own
-// except what it draws, the held jog buttons and the jog speed.
+// except what it draws, the held jog buttons, the jog speed and its own levelling session.
 //
 // Units: the API is SI (m, rad, s). The page shows and takes mm and mrad (the thesis's units on
 // the terminal); conversions happen only in `show*`, in the goto form (`_mm` / `_mrad`) and in
@@ -18,6 +18,8 @@
   const JOG_PERIOD_MS = 80;        // resend period while a jog button or key is held
   const JOG_TTL_MS = 250;          // the service stops the jog this long after the last command
   const JOG_MAX = { x: 0.05, z: 0.15, roll: 0.15, pitch: 0.15 };   // m/s, rad/s at 100 % jog speed
+  const LEVEL_PERIOD_MS = 100;     // levelling: a track/setpoint {roll: 0} this often while on and visible
+  const LEVEL_TTL_MS = 500;        // the service brakes this long after the last setpoint (the dead-man)
   const STATE_STALE_MS = 500;      // no state for this long: the service is not publishing
   const REQUEST_TIMEOUT_MS = 15000;
   const KIN_CAUTION_S = 2.0, KIN_DANGER_S = 0.5;   // page colours for the kinematic margin (assumed)
@@ -110,6 +112,7 @@
         for (const [, p] of this.pending) p.resolve({ ok: false, data: { error: "disconnected", message: "not connected to the service" } });
         this.pending.clear();
         jog.releaseAll();
+        level.halt("the connection was lost: setpoints stopped, the service brakes");
         renderConnection();
         if (ev.code === 4401) { checkSession(ev.reason || "session ended"); return; }   // logged out or expired
         setTimeout(() => (ui.session && ui.session.login ? checkSession("") : this.connect()), this.retryMs);
@@ -374,6 +377,7 @@
     }
     for (const k of DOFS) $(`#r-${k}`).textContent = showDof(k, pose[k]);
     drawLimited(s.limited || {});
+    level.draw(s);
     drawMargins(s);
     drawModeAndMotion(s);
     renderConnection();
@@ -524,6 +528,7 @@
       result("#goto-result", name === "motion_finished" ? `motion #${e.motion_id} finished` : text, name === "motion_finished");
       ui.gotoId = null;
     }
+    level.onEvent(e);
     if (name === "maneuver_finished" || name === "maneuver_aborted") {
       $("#maneuver-result").textContent = name === "maneuver_finished"
         ? `${e.maneuver} finished in ${fmt(e.elapsed, 1)} s` : `${e.maneuver} aborted: ${e.reason} — ${e.message || ""}`;
@@ -534,6 +539,7 @@
   // ------------------------------------------------------------------ STOP and modes
   async function stop() {
     jog.releaseAll();
+    level.halt("STOP");
     const r = await link.request("stop", {});
     if (r.ok) { log("STOP: motion stopped"); return; }
     // the WebSocket is down: try the plain HTTP API of the same server
@@ -638,7 +644,11 @@
   }
   $("#jog-speed").addEventListener("input", () => { $("#jog-speed-out").textContent = `${$("#jog-speed").value} %`; });
   window.addEventListener("blur", () => jog.releaseAll());
-  document.addEventListener("visibilitychange", () => { if (document.hidden) jog.releaseAll(); });
+  document.addEventListener("visibilitychange", () => {
+    if (!document.hidden) return;
+    jog.releaseAll();
+    level.halt("the page was hidden: setpoints stopped, the service brakes");
+  });
 
   const typing = (ev) => ev.target instanceof HTMLInputElement && ev.target.type !== "range";
   document.addEventListener("keydown", (ev) => {
@@ -653,6 +663,111 @@
     jog.press(`key:${ev.code}`, ...KEYS[ev.code]);
   });
   document.addEventListener("keyup", (ev) => jog.release(`key:${ev.code}`));
+
+  // ------------------------------------------------------------------ levelling (track mode, frame level)
+  // On: track/start {frame: "level", dof: ["roll"], ttl_ms: 500}, then track/setpoint {roll: 0} every
+  // 100 ms while the toggle is on, the page visible and the WebSocket open. Hiding the page or losing the
+  // connection only stops sending: the service brakes 500 ms after the last setpoint (the dead-man).
+  // Off: track/stop. What is shown comes from the state's `track` entry and the service's events.
+  function limitWords(key, name) {
+    const n = String(name);
+    let m = /^workspace:(x|z|roll|pitch):(min|max)$/.exec(n);
+    if (m) {
+      const w = ui.config && ui.config.limits && ui.config.limits.workspace && ui.config.limits.workspace[m[1]];
+      const v = w ? w[m[2] === "max" ? 1 : 0] : null;
+      return `${m[1]} at its ${m[2] === "max" ? "upper" : "lower"} workspace limit` + (v === null ? "" : ` (${showDof(m[1], v)})`);
+    }
+    m = /^velocity:(x|z|roll|pitch)$/.exec(n);
+    if (m) return `${m[1]} at its speed limit`;
+    m = /^acceleration:(x|z|roll|pitch)$/.exec(n);
+    if (m) return `${m[1]} at its acceleration limit`;
+    m = /^(x|z|roll|pitch)$/.exec(key);
+    if (m && /workspace/.test(n)) return `${m[1]} braking before the workspace face (${displayUnits(n)})`;
+    return displayUnits(`${key}: ${n}`);
+  }
+
+  const level = {
+    on: false, busy: false, session: null, motionId: null, seq: 0, timer: null, note: "", noteErr: false,
+    async start() {
+      if (this.on || this.busy || document.body.classList.contains("viewer")) return;
+      this.busy = true; this.note = "starting…"; this.noteErr = false; this.render();
+      const r = await call("track/start", { frame: "level", dof: ["roll"], ttl_ms: LEVEL_TTL_MS }, true);
+      this.busy = false;
+      if (!r.ok) { this.note = r.data.message || `track/start: ${r.data.error}`; this.noteErr = true; log(this.note, true); this.render(); return; }
+      if (document.hidden || !ui.connected) {   // hidden while starting: never stream from a hidden page
+        this.session = r.data.session; this.halt("the page was hidden: setpoints stopped, the service brakes"); return;
+      }
+      this.on = true; this.session = r.data.session; this.motionId = r.data.motion_id; this.seq = 0;
+      this.note = ""; this.noteErr = false;
+      log(`levelling on: track session ${this.session} (frame level, roll 0 mrad)`);
+      this.send();
+      this.timer = setInterval(() => this.send(), LEVEL_PERIOD_MS);
+      this.render();
+    },
+    send() {
+      if (!this.on || this.session === null) return;
+      if (document.hidden || !ui.connected) { this.halt("the page was hidden: setpoints stopped, the service brakes"); return; }
+      const session = this.session;
+      link.request("track/setpoint", { session, seq: this.seq++, pose: { roll: 0 } }).then((r) => {
+        if (r.ok || r.data.error === "disconnected" || session !== this.session) return;
+        if (r.data.error === "not_found") { this.halt(`levelling ended: ${r.data.message}`, true); return; }
+        this.note = r.data.message || `setpoint refused: ${r.data.error}`; this.noteErr = true; this.render();
+      });
+    },
+    async stop() {
+      const session = this.session;
+      this.halt("");
+      if (session === null) return;
+      const r = await call("track/stop", { session }, true);
+      if (r.ok) { this.note = "off: braking to rest"; this.noteErr = false; log(`levelling off: track/stop (session ${session})`); }
+      else if (r.data.error !== "not_found") { this.note = r.data.message || "track/stop refused"; this.noteErr = true; log(this.note, true); }
+      this.render();
+    },
+    // stop streaming (no request): the service brakes at the TTL
+    halt(why, isError = false) {
+      if (this.timer) { clearInterval(this.timer); this.timer = null; }
+      const was = this.on;
+      this.on = false; this.session = null;
+      if (was && why) { this.note = why; this.noteErr = isError; }
+      this.render();
+    },
+    onEvent(e) {
+      if (this.motionId === null || e.motion_id !== this.motionId) return;
+      if (e.event === "motion_finished" || e.event === "motion_aborted") {
+        const why = e.reason || e.event.replace("motion_", "");
+        this.halt("");
+        this.note = `off: ${why}`; this.noteErr = why !== "track/stop";
+        this.motionId = null;
+        this.render();
+      }
+    },
+    render() {
+      const b = $("#level-toggle");
+      b.setAttribute("aria-pressed", this.on ? "true" : "false");
+      b.textContent = this.busy ? "Levelling: …" : `Levelling: ${this.on ? "on" : "off"}`;
+      const st = $("#level-status");
+      st.textContent = this.on ? `on · session ${this.session} · roll 0 mrad to gravity`
+        : (this.note ? displayUnits(this.note) : "off · roll 0 mrad to gravity when on");
+      st.className = this.noteErr && !this.on ? "err" : "";
+    },
+    draw(s) {
+      const t = s.track, counts = $("#level-counts"), box = $("#level-limited");
+      if (!t) { counts.textContent = ""; box.classList.add("hidden"); return; }
+      const mine = this.session !== null && t.session === this.session;
+      const target = t.target && Number.isFinite(t.target.roll) ? ` · target ${show_mrad(t.target.roll)}` : "";
+      counts.textContent = `${mine ? "" : `track session ${t.session} (${t.frame}, ${(t.dof || []).join(", ")}) · `}` +
+        `setpoints ${t.setpoints} · rejected ${t.rejected} · ignored ${t.ignored_seq}` + target +
+        (t.stale ? " · stale: braking" : t.ending ? " · ending" : "");
+      counts.title = "setpoints taken, rejected and ignored (old sequence numbers) by the service; target: the roll it " +
+        "aims at in the tractor frame (0 mrad to gravity + the slope sensor's roll)" +
+        (t.last_rejection ? `; last rejection: ${displayUnits(t.last_rejection)}` : "");
+      const lim = Object.entries(t.control_limited || {});
+      box.classList.toggle("hidden", lim.length === 0);
+      if (lim.length) box.textContent = "Control limited: " + lim.map(([k, v]) => limitWords(k, v)).join("; ");
+    },
+  };
+  $("#level-toggle").addEventListener("click", () => { if (level.on) level.stop(); else level.start(); });
+  window.hitchTerminal.limitWords = limitWords;   // for the browser test
 
   // ------------------------------------------------------------------ tabs, goto
   for (const t of $$(".tabs button")) {

@@ -178,14 +178,14 @@ def test_any_payload_sent_to_stop_stops(r, payload):
 
 def test_expensive_requests_are_admitted_a_few_per_user(r):
     gate, entered = threading.Event(), threading.Semaphore(0)
-    real = r.mc.preview
+    real = r.mc.preview_from
 
     def slow_preview(*a, **k):
         entered.release()
         gate.wait(5.0)
         return real(*a, **k)
 
-    r.mc.preview = slow_preview
+    r.mc.preview_from = slow_preview
     body = {"goal": {"z": 0.2}}
     results: list = []
     ts = [

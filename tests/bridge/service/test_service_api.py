@@ -40,6 +40,9 @@ VALID = {
     "maneuvers/delete": {"name": "m"},
     "faults/ack": {},
     "sim/fault": {"cut": "planner_to_ecu", "loss": 0.1, "delay_ms": 20, "restart_ecu": False},
+    "track/start": {"frame": "tractor", "dof": ["x", "z"], "ttl_ms": 200},
+    "track/setpoint": {"session": 1, "seq": 1, "pose": {"x": 0.01}, "velocity": {"x": 0.0}},
+    "track/stop": {},
 }
 MOTION_KEYS = ("goto", "jog", "presets/go", "maneuvers/run")
 

@@ -24,7 +24,12 @@ PLAN_S = 1.5  # each slow plan holds the planner this long
 @pytest.fixture
 def service(tmp_path):
     port = free_port()
-    svc = HitchService(ServiceConfig(listen=[f"tcp/127.0.0.1:{port}"], data_dir=tmp_path)).start()
+    # the controller in this process (its planning guard is slowed below) and planning on its threads:
+    # the arrangement in which the old defect showed
+    cfg = ServiceConfig(
+        listen=[f"tcp/127.0.0.1:{port}"], data_dir=tmp_path, control_core="thread", planning_processes=0
+    )
+    svc = HitchService(cfg).start()
     try:
         yield svc, f"tcp/127.0.0.1:{port}"
     finally:

@@ -1,0 +1,697 @@
+"""``hitch track``: stream setpoints to the service's track mode (``docs/tracking.md``).
+
+A session is started with ``track/start`` (``--frame``, ``--dof``, ``--ttl-ms``), setpoints are put on
+``track/setpoint`` at ``--rate`` Hz from a signal, and at the end (``--duration``, the end of the file,
+or Ctrl-C) ``track/stop`` is sent and the command waits until the service reports the motion finished.
+
+Signals, all SI (m, rad, s):
+
+* ``--sine x=0.02@0.05Hz,roll=0.01@0.1Hz``: ``centre + A·sin(2π·f·t)`` per DOF with its velocity
+  ``A·2π·f·cos(2π·f·t)``; the centre is the pose at the start (read from the state), except roll and
+  pitch in frame ``level`` (centre 0: level) and z in frame ``ground`` (``--around z=H`` required);
+  ``--around`` sets any centre.
+* ``--from-file signal.csv``: a header ``t`` [s] and DOF names (``x``, ``z`` [m], ``roll``,
+  ``pitch`` [rad]), optionally ``v_<dof>`` velocities [m/s, rad/s]; linear interpolation at the rate;
+  played from the first row's time. Units in the header (``z_mm``, ``z [m]``) are refused.
+
+DOFs in ``--dof`` without a signal hold their centre. :class:`SineSignal`, :class:`CsvSignal` and
+:func:`setpoints` are pure (``--dry-run`` prints the first setpoints without connecting).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import re
+import signal as signals
+import sys
+import threading
+import time
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from bridge.cli.errors import CLIError
+from bridge.cli.model import bounded_float
+from bridge.cli.output import console, esc
+from bridge.cli.plan import parse_pose_arg
+from bridge.cli.service import STOP_TIMEOUT_S, _client_options, _run
+from planner.errors import HitchError
+
+__all__ = [
+    "CsvSignal",
+    "SineSignal",
+    "SineTerm",
+    "TrackSignal",
+    "add_commands",
+    "parse_dofs",
+    "parse_sine",
+    "read_signal_csv",
+    "setpoints",
+]
+
+DOFS: tuple[str, ...] = ("x", "z", "roll", "pitch")
+FRAMES: tuple[str, ...] = ("tractor", "level", "ground")
+_UNIT = {"x": "m", "z": "m", "roll": "rad", "pitch": "rad"}
+#: largest sine amplitude [m or rad]: beyond it a value is not a plausible SI value (mm, deg)
+MAX_AMPLITUDE = 0.5
+#: highest sine frequency [Hz]
+MAX_FREQUENCY_HZ = 10.0
+#: highest setpoint rate [Hz] (the service takes setpoints at up to 100 Hz)
+MAX_RATE_HZ = 100.0
+#: setpoints ``--dry-run`` prints
+DRY_RUN_COUNT = 10
+#: the longest the command waits for the service to report the motion finished after track/stop [s]
+FINISH_TIMEOUT_S = 15.0
+#: progress lines this often [s]
+PROGRESS_EVERY_S = 1.0
+
+
+# ---------------------------------------------------------------------------------------- signals
+@dataclass(frozen=True)
+class SineTerm:
+    """``amplitude`` [m or rad] at ``frequency_hz`` of one DOF."""
+
+    dof: str
+    amplitude: float
+    frequency_hz: float
+
+
+def parse_sine(text: str) -> tuple[SineTerm, ...]:
+    """``"x=0.02@0.05Hz,roll=0.01@0.1Hz"`` → terms (argparse type: errors name ``--sine`` and the range)."""
+    terms: list[SineTerm] = []
+    for part in filter(None, (p.strip() for p in text.split(","))):
+        m = re.fullmatch(r"([a-z]+)\s*=\s*([^@\s]+)\s*@\s*([^\s]+?)\s*(hz)?", part, flags=re.IGNORECASE)
+        if m is None:
+            raise argparse.ArgumentTypeError(
+                f"--sine: {part!r} is not DOF=AMPLITUDE@FREQUENCYHz, e.g. x=0.02@0.05Hz (SI: m, rad; Hz)"
+            )
+        dof, a_text, f_text = m.group(1), m.group(2), m.group(3)
+        if dof not in DOFS:
+            raise argparse.ArgumentTypeError(f"--sine: unknown DOF {dof!r}; allowed: {', '.join(DOFS)}")
+        if any(t.dof == dof for t in terms):
+            raise argparse.ArgumentTypeError(f"--sine: DOF {dof!r} given twice; give each of x, z, roll, pitch once")
+        unit = _UNIT[dof]
+        try:
+            a, f = float(a_text), float(f_text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"--sine {dof}: amplitude and frequency must be numbers, got {a_text!r} and {f_text!r}"
+            ) from None
+        if not (math.isfinite(a) and 0.0 < a <= MAX_AMPLITUDE):
+            hint = f" (SI units: {unit}, not mm or deg)" if math.isfinite(a) and a > MAX_AMPLITUDE else ""
+            raise argparse.ArgumentTypeError(
+                f"--sine {dof}: amplitude must lie in (0, {MAX_AMPLITUDE:g}] {unit}, got {a_text}{hint}"
+            )
+        if not (math.isfinite(f) and 0.0 < f <= MAX_FREQUENCY_HZ):
+            raise argparse.ArgumentTypeError(
+                f"--sine {dof}: frequency must lie in (0, {MAX_FREQUENCY_HZ:g}] Hz, got {f_text}"
+            )
+        terms.append(SineTerm(dof, a, f))
+    if not terms:
+        raise argparse.ArgumentTypeError("--sine: no terms given, e.g. x=0.02@0.05Hz,roll=0.01@0.1Hz")
+    return tuple(terms)
+
+
+def parse_dofs(text: str) -> tuple[str, ...]:
+    """``"x,z"`` → ``("x", "z")`` in the canonical order (argparse type)."""
+    names = [p.strip() for p in text.split(",") if p.strip()]
+    for n in names:
+        if n not in DOFS:
+            raise argparse.ArgumentTypeError(f"--dof: unknown DOF {n!r}; allowed: a subset of {', '.join(DOFS)}")
+    if len(set(names)) != len(names):
+        raise argparse.ArgumentTypeError(f"--dof: each of {', '.join(DOFS)} at most once, got {text!r}")
+    if not names:
+        raise argparse.ArgumentTypeError(f"--dof: at least one of {', '.join(DOFS)}")
+    return tuple(k for k in DOFS if k in names)
+
+
+class TrackSignal(Protocol):
+    """A setpoint signal: pose [m, rad] and velocity [m/s, rad/s] (None: not given) at time ``t`` [s]."""
+
+    @property
+    def dofs(self) -> tuple[str, ...]: ...
+
+    @property
+    def duration_s(self) -> float | None: ...
+
+    def sample(self, t: float) -> tuple[dict[str, float], dict[str, float] | None]: ...
+
+
+@dataclass(frozen=True)
+class SineSignal:
+    """``centre[k] + A·sin(2π f t)`` for each term, the held DOFs at ``centre`` (velocity 0)."""
+
+    terms: tuple[SineTerm, ...]
+    centre: Mapping[str, float]
+    held: tuple[str, ...] = ()
+    duration_s: float | None = None
+
+    @property
+    def dofs(self) -> tuple[str, ...]:
+        names = {t.dof for t in self.terms} | set(self.held)
+        return tuple(k for k in DOFS if k in names)
+
+    def sample(self, t: float) -> tuple[dict[str, float], dict[str, float] | None]:
+        pose = {k: float(self.centre[k]) for k in self.held}
+        vel = {k: 0.0 for k in self.held}
+        for term in self.terms:
+            w = 2.0 * math.pi * term.frequency_hz
+            pose[term.dof] = float(self.centre[term.dof]) + term.amplitude * math.sin(w * t)
+            vel[term.dof] = term.amplitude * w * math.cos(w * t)
+        return pose, vel
+
+
+@dataclass(frozen=True)
+class CsvSignal:
+    """A recorded signal: times ``t`` [s] (from 0, strictly increasing), positions and optional
+    velocities per DOF; linear interpolation, held at the ends; ``held`` DOFs at ``centre``."""
+
+    path: str
+    t: np.ndarray
+    positions: Mapping[str, np.ndarray]
+    velocities: Mapping[str, np.ndarray] = field(default_factory=dict)
+    held: tuple[str, ...] = ()
+    centre: Mapping[str, float] = field(default_factory=dict)
+    duration: float | None = None
+
+    @property
+    def dofs(self) -> tuple[str, ...]:
+        names = set(self.positions) | set(self.held)
+        return tuple(k for k in DOFS if k in names)
+
+    @property
+    def span_s(self) -> float:
+        return float(self.t[-1])
+
+    @property
+    def duration_s(self) -> float | None:
+        return self.span_s if self.duration is None else self.duration
+
+    def sample(self, t: float) -> tuple[dict[str, float], dict[str, float] | None]:
+        pose = {k: float(np.interp(t, self.t, v)) for k, v in self.positions.items()}
+        pose.update({k: float(self.centre[k]) for k in self.held})
+        if not self.velocities:
+            return pose, None
+        vel = {k: float(np.interp(t, self.t, v)) for k, v in self.velocities.items()}
+        vel.update({k: 0.0 for k in self.held})
+        return pose, vel
+
+
+_UNIT_SUFFIX = re.compile(
+    r"^(?P<name>[a-z_]+?)\s*(?:[\[(].*[\])]|_(?:m|mm|cm|rad|mrad|deg|s|ms|m_s|mm_s|rad_s|deg_s)|\s+(?:m|mm|rad|deg|s))$",
+    re.IGNORECASE,
+)
+
+
+def _column_kind(name: str) -> tuple[str, str] | None:
+    """(``"t"`` | ``"pos"`` | ``"vel"``, dof) of a header cell, None when unknown."""
+    if name == "t":
+        return "t", ""
+    if name in DOFS:
+        return "pos", name
+    if name.startswith("v_") and name[2:] in DOFS:
+        return "vel", name[2:]
+    return None
+
+
+def read_signal_csv(path: str | Path) -> CsvSignal:
+    """Read a signal file (see the module docstring); :class:`CLIError` naming the file, line and column."""
+    p = Path(path)
+    if not p.is_file():
+        raise CLIError(f"--from-file {p}: no such file")
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise CLIError(f"--from-file {p}: cannot read it ({exc})") from None
+    rows = [(n, r) for n, r in enumerate(csv.reader(text.splitlines()), 1) if r and not r[0].lstrip().startswith("#")]
+    rows = [(n, r) for n, r in rows if any(c.strip() for c in r)]
+    if not rows:
+        raise CLIError(f"{p}: empty; expected a header such as 't,z,roll' and rows of numbers (SI: s, m, rad)")
+    head_line, header = rows[0]
+    names = [h.strip() for h in header]
+    kinds: list[tuple[str, str]] = []
+    for col, name in enumerate(names, 1):
+        kind = _column_kind(name)
+        if kind is None:
+            m = _UNIT_SUFFIX.match(name)
+            if m is not None and _column_kind(m.group("name")) is not None:
+                raise CLIError(
+                    f"{p}: line {head_line}, column {col} ({name!r}): units in the header are not allowed — the "
+                    f"values are SI (t in s, x z in m, roll pitch in rad, v_<dof> in m/s or rad/s); name the "
+                    f"column {m.group('name')!r}"
+                )
+            raise CLIError(
+                f"{p}: line {head_line}, column {col}: unknown column {name!r}; allowed: t, "
+                f"{', '.join(DOFS)}, {', '.join('v_' + k for k in DOFS)} (SI units)"
+            )
+        if kind in kinds:
+            raise CLIError(f"{p}: line {head_line}, column {col}: column {name!r} given twice")
+        kinds.append(kind)
+    if ("t", "") not in kinds:
+        raise CLIError(f"{p}: line {head_line}: no 't' column (time in s)")
+    pos = [d for k, d in kinds if k == "pos"]
+    if not pos:
+        raise CLIError(f"{p}: line {head_line}: no DOF column; give at least one of {', '.join(DOFS)}")
+    for col, (k, d) in enumerate(kinds, 1):
+        if k == "vel" and d not in pos:
+            raise CLIError(f"{p}: line {head_line}, column {col}: v_{d} without a {d} column")
+    data: list[list[float]] = []
+    last_t: float | None = None
+    for n, row in rows[1:]:
+        if len(row) != len(names):
+            raise CLIError(f"{p}: line {n}: {len(row)} values, the header has {len(names)} columns")
+        vals: list[float] = []
+        for col, (cell, name) in enumerate(zip(row, names, strict=True), 1):
+            try:
+                v = float(cell)
+            except ValueError:
+                raise CLIError(f"{p}: line {n}, column {col} ({name}): not a number: {cell.strip()!r}") from None
+            if not math.isfinite(v):
+                raise CLIError(f"{p}: line {n}, column {col} ({name}): must be finite, got {cell.strip()!r}")
+            vals.append(v)
+        t = vals[kinds.index(("t", ""))]
+        if last_t is None and t < 0:
+            raise CLIError(f"{p}: line {n}, column {kinds.index(('t', '')) + 1} (t): t must be >= 0 s, got {t:g}")
+        if last_t is not None and t <= last_t:
+            raise CLIError(
+                f"{p}: line {n}, column {kinds.index(('t', '')) + 1} (t): t must increase strictly, "
+                f"got {t:g} s after {last_t:g} s"
+            )
+        last_t = t
+        data.append(vals)
+    if len(data) < 2:
+        raise CLIError(f"{p}: needs at least 2 rows of values after the header (got {len(data)})")
+    arr = np.asarray(data, float)
+    ti = kinds.index(("t", ""))
+    t_col = arr[:, ti] - arr[0, ti]
+    positions = {d: arr[:, i] for i, (k, d) in enumerate(kinds) if k == "pos"}
+    velocities = {d: arr[:, i] for i, (k, d) in enumerate(kinds) if k == "vel"}
+    return CsvSignal(str(p), t_col, positions, velocities)
+
+
+def setpoints(
+    signal: TrackSignal, rate_hz: float, duration_s: float | None = None
+) -> Iterator[tuple[int, float, dict]]:
+    """``(seq, t, body)`` at ``t = seq / rate`` for ``t`` ≤ ``duration_s`` (None: the signal's, or without
+    end); ``body`` ``{"pose", "velocity"?}`` as a setpoint carries them."""
+    end = signal.duration_s if duration_s is None else duration_s
+    k = 0
+    while True:
+        t = k / rate_hz
+        if end is not None and t > end + 1e-9:
+            return
+        pose, vel = signal.sample(t)
+        body: dict[str, Any] = {"pose": pose}
+        if vel is not None:
+            body["velocity"] = vel
+        yield k, t, body
+        k += 1
+
+
+# ---------------------------------------------------------------------------------------- the plan
+@dataclass(frozen=True)
+class _Spec:
+    frame: str
+    dofs: tuple[str, ...]
+    ttl_ms: int
+    rate_hz: float
+    duration_s: float | None
+    sine: tuple[SineTerm, ...] | None
+    csv: CsvSignal | None
+    around: Mapping[str, float]
+
+    def signal_dofs(self) -> tuple[str, ...]:
+        if self.sine is not None:
+            return tuple(t.dof for t in self.sine)
+        assert self.csv is not None
+        return tuple(self.csv.positions)
+
+    def centre(self, pose: Mapping[str, float] | None) -> dict[str, float]:
+        """The centre of every DOF (sine centre, held value): ``--around``, else 0 for roll and pitch in
+        frame level, else the start pose (``pose``; None in a dry run: 0)."""
+        out: dict[str, float] = {}
+        for k in self.dofs:
+            if k in self.around:
+                out[k] = float(self.around[k])
+            elif self.frame == "level" and k in ("roll", "pitch"):
+                out[k] = 0.0
+            elif self.frame == "ground" and k == "z":
+                if self.csv is not None and "z" in self.csv.positions:
+                    continue  # the file's heights above the ground are absolute
+                raise CLIError(
+                    "--frame ground: z is the height above the ground there, which the state does not "
+                    "carry; give its centre with --around z=HEIGHT (m)"
+                )
+            elif pose is None:
+                out[k] = 0.0
+            else:
+                out[k] = float(pose[k])
+        return out
+
+    def signal(self, pose: Mapping[str, float] | None) -> TrackSignal:
+        centre = self.centre(pose)
+        held = tuple(k for k in self.dofs if k not in self.signal_dofs())
+        if self.sine is not None:
+            return SineSignal(self.sine, centre, held, self.duration_s)
+        assert self.csv is not None
+        c = self.csv
+        return CsvSignal(c.path, c.t, c.positions, c.velocities, held, centre, self.duration_s)
+
+
+def _spec(args) -> _Spec:
+    if (args.sine is None) == (args.from_file is None):
+        raise CLIError("hitch track: give exactly one signal: --sine DOF=A@FHz[,…] or --from-file signal.csv")
+    csv_signal = read_signal_csv(args.from_file) if args.from_file is not None else None
+    sig_dofs = tuple(t.dof for t in args.sine) if args.sine is not None else tuple(csv_signal.positions)  # type: ignore[union-attr]
+    source = "--sine" if args.sine is not None else f"--from-file {args.from_file}"
+    dofs = args.dof or tuple(k for k in DOFS if k in sig_dofs)
+    extra = [k for k in sig_dofs if k not in dofs]
+    if extra:
+        raise CLIError(f"{source} names {', '.join(extra)}, which --dof {','.join(dofs)} does not track")
+    if args.around:
+        bad = [k for k in args.around if k not in dofs]
+        if bad:
+            raise CLIError(f"--around names {', '.join(bad)}, which --dof {','.join(dofs)} does not track")
+    ttl_ms = args.ttl_ms
+    period_ms = 1000.0 / args.rate
+    if period_ms > ttl_ms / 2:
+        raise CLIError(
+            f"--rate {args.rate:g} Hz sends a setpoint every {period_ms:.0f} ms, more than half of --ttl-ms {ttl_ms} "
+            f"ms: the session would go stale; use --rate >= {2000.0 / ttl_ms:g} Hz or a longer --ttl-ms"
+        )
+    if args.sine is not None:
+        for term in args.sine:
+            if term.frequency_hz > args.rate / 2:
+                raise CLIError(
+                    f"--sine {term.dof}: {term.frequency_hz:g} Hz is above half the setpoint rate "
+                    f"(--rate {args.rate:g} Hz: at most {args.rate / 2:g} Hz)"
+                )
+    if csv_signal is not None and args.duration is not None and args.duration > csv_signal.span_s + 1e-9:
+        raise CLIError(
+            f"--duration {args.duration:g} s is longer than {args.from_file} ({csv_signal.span_s:g} s); "
+            "leave it out to play the whole file"
+        )
+    return _Spec(args.frame, dofs, ttl_ms, args.rate, args.duration, args.sine, csv_signal, args.around or {})
+
+
+# ---------------------------------------------------------------------------------------- running
+class _Monitor:
+    """The session's progress (the state's ``track`` entry) and its end (an event or the state)."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.session: int | None = None
+        self.motion_id: int | None = None
+        self.track: dict[str, Any] | None = None
+        self.pose: dict[str, Any] | None = None
+        self.outcome: dict[str, Any] | None = None
+        self.seen = False
+        self.ended = threading.Event()
+        self.outcome_seen = threading.Event()
+
+    def watch(self, session: int, motion_id: int) -> None:
+        with self.lock:
+            self.session, self.motion_id = session, motion_id
+
+    def on_event(self, e: dict) -> None:
+        with self.lock:
+            mid = self.motion_id
+        if mid is not None and e.get("motion_id") == mid and e.get("event") in ("motion_finished", "motion_aborted"):
+            with self.lock:
+                self.outcome = e
+            self.outcome_seen.set()
+            self.ended.set()
+
+    def on_state(self, s: dict) -> None:
+        tr = s.get("track")
+        with self.lock:
+            self.pose = s.get("pose")
+            if self.session is None:
+                return
+            if isinstance(tr, dict) and tr.get("session") == self.session:
+                self.track, self.seen = dict(tr), True
+            elif self.seen:  # it was live and is gone
+                self.ended.set()
+
+
+def _progress_line(t: float, sent: int, tr: dict | None) -> str:
+    """One line of rich markup (data escaped)."""
+    if not tr:
+        return esc(f"t {t:6.1f} s  sent {sent}  (no track state yet)")
+    text = esc(
+        f"t {t:6.1f} s  sent {sent}  taken {tr.get('setpoints')}  rejected {tr.get('rejected')}  "
+        f"ignored {tr.get('ignored_seq')}"
+    )
+    lim = tr.get("control_limited") or {}
+    if lim:
+        text += f"  [red]control limited: {esc(', '.join(f'{k}: {v}' for k, v in lim.items()))}[/red]"
+    if tr.get("last_rejection") and tr.get("rejected"):
+        text += f"  last rejection: {esc(tr['last_rejection'])}"
+    return text
+
+
+def _end_session(c, mon: _Monitor, session: int) -> str | None:
+    """Send ``track/stop`` (a second Ctrl-C meanwhile is ignored) and wait for the motion's end; the
+    reason the stop could not be confirmed, or None."""
+    from bridge.service.client import ServiceError
+
+    main = threading.current_thread() is threading.main_thread()
+    old = signals.signal(signals.SIGINT, signals.SIG_IGN) if main else None
+    problem: str | None = None
+    try:
+        if not mon.ended.is_set():
+            try:
+                c.track_stop(session, timeout_s=STOP_TIMEOUT_S)
+            except ServiceError as exc:
+                if exc.code != "not_found":  # not_found: it had ended already
+                    problem = f"track/stop was not confirmed ({exc})"
+        if not mon.ended.wait(FINISH_TIMEOUT_S):
+            problem = (problem + "; " if problem else "") + f"the session did not finish within {FINISH_TIMEOUT_S:g} s"
+        mon.outcome_seen.wait(1.0)  # the outcome event follows the state that shows the end
+    finally:
+        if old is not None:
+            signals.signal(signals.SIGINT, old)
+    return problem
+
+
+def _stream(args, c, spec: _Spec) -> int:
+    mon = _Monitor()
+    c.subscribe("events", mon.on_event)
+    c.subscribe("state", mon.on_state)
+    start_state = c.state()
+    sig = spec.signal(start_state.get("pose") or {})
+    quiet = args.json
+    out = console(soft_wrap=True, stderr=False)
+    r = c.track_start(spec.frame, spec.dofs, spec.ttl_ms)
+    session, mid = int(r["session"]), int(r["motion_id"])
+    mon.watch(session, mid)
+    if not quiet:
+        out.print(
+            esc(
+                f"track session {session} (motion {mid}): frame {r.get('frame')}, dof {','.join(r.get('dof', []))}, "
+                f"ttl {r.get('ttl_ms')} ms, {spec.rate_hz:g} Hz"
+                + (f", {spec.duration_s:g} s" if sig.duration_s is not None else ", until Ctrl-C")
+            ),
+            highlight=False,
+        )
+    sent, t_sent, interrupted = 0, 0.0, False
+    t0 = time.monotonic()
+    next_progress = PROGRESS_EVERY_S
+    try:
+        for seq, t, body in setpoints(sig, spec.rate_hz, spec.duration_s):
+            if mon.ended.is_set():
+                break
+            due = t0 + t
+            delay = due - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            elif -delay > 2.0 / spec.rate_hz and seq > 0:
+                continue  # late (a loaded machine): skip to the setpoint of now rather than replaying the past
+            if seq == 0:  # the first one answered: a bad value is named at once
+                c.track_setpoint_request(session, seq, body["pose"], body.get("velocity"), timeout_s=STOP_TIMEOUT_S)
+            else:
+                c.track_setpoint(session, seq, body["pose"], body.get("velocity"))
+            sent, t_sent = sent + 1, t
+            if not quiet and t >= next_progress:
+                next_progress += PROGRESS_EVERY_S
+                with mon.lock:
+                    tr = mon.track
+                out.print(_progress_line(t, sent, tr), highlight=False)
+    except KeyboardInterrupt:
+        interrupted = True
+        print(f"hitch: interrupted: sending track/stop (session {session})", file=sys.stderr, flush=True)
+    except HitchError:  # the first setpoint refused (or a client error): end the session, then report
+        _end_session(c, mon, session)
+        raise
+    problem = _end_session(c, mon, session)
+    with mon.lock:
+        outcome, tr, pose = mon.outcome, mon.track, mon.pose
+    reason = (outcome or {}).get("reason")
+    ours = reason == "track/stop" or (outcome is None and problem is None)
+    summary = {
+        "session": session,
+        "motion_id": mid,
+        "frame": r.get("frame"),
+        "dof": r.get("dof"),
+        "sent": sent,
+        "streamed_s": round(t_sent, 6),
+        "finished": mon.ended.is_set(),
+        "outcome": outcome,
+        "reason": reason,
+        "track": tr,
+        "pose": pose,
+        "problem": problem,
+        "interrupted": interrupted,
+    }
+    if quiet:
+        print(json.dumps(summary))
+    else:
+        text = f"track session {session} (motion {mid}) " + (
+            f"{(outcome or {}).get('event', 'ended').replace('motion_', '')}: {reason or '-'}"
+            if mon.ended.is_set()
+            else "did not finish"
+        )
+        text += f"; sent {sent} setpoints over {t_sent:.2f} s"
+        if tr:
+            text += (
+                f"; service took {tr.get('setpoints')}, rejected {tr.get('rejected')}, ignored {tr.get('ignored_seq')}"
+            )
+        if pose:
+            text += "; now at " + "  ".join(f"{k}={pose[k]:+.4f}" for k in DOFS if k in pose)
+        out.print(esc(text), highlight=False)
+    if problem is not None:
+        print(
+            f"hitch: {problem}; stop the hitch another way (`hitch stop`, STOP)",
+            file=sys.stderr,
+            flush=True,
+        )
+    if interrupted:
+        raise KeyboardInterrupt
+    if problem is not None:
+        return 1
+    return 0 if ours else 1
+
+
+def _dry_run(args, spec: _Spec) -> int:
+    sig = spec.signal(None)
+    rows = []
+    for seq, t, body in setpoints(sig, spec.rate_hz, spec.duration_s):
+        if seq >= DRY_RUN_COUNT:
+            break
+        rows.append({"seq": seq, "t": round(t, 9), **body})
+    centre = spec.centre(None)
+    note = (
+        f"dry run: frame {spec.frame}, dof {','.join(spec.dofs)}, ttl {spec.ttl_ms} ms, {spec.rate_hz:g} Hz; "
+        f"first {len(rows)} setpoints (SI: m, rad, m/s, rad/s)"
+    )
+    if args.sine is not None:
+        unset = [
+            k for k in spec.dofs if k not in spec.around and not (spec.frame == "level" and k in ("roll", "pitch"))
+        ]
+        if unset:
+            note += f"; centre of {', '.join(unset)} shown as 0: the start pose is added when it runs"
+    if args.json:
+        print(json.dumps({"frame": spec.frame, "dof": list(spec.dofs), "centre": centre, "setpoints": rows}))
+        return 0
+    lines = [note]
+    for row in rows:
+        v = row.get("velocity")
+        lines.append(
+            f"{row['seq']:5d}  t={row['t']:8.3f}  "
+            + "  ".join(f"{k}={row['pose'][k]:+.6f}" for k in spec.dofs)
+            + ("  v: " + "  ".join(f"{k}={v[k]:+.6f}" for k in spec.dofs) if v else "")
+        )
+    console(soft_wrap=True).print("\n".join(lines), markup=False, highlight=False)
+    return 0
+
+
+def _cmd_track(args) -> int:
+    spec = _spec(args)
+    if args.dry_run:
+        return _dry_run(args, spec)
+    return _run(args, lambda c: _stream(args, c, spec))
+
+
+def _ttl(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--ttl-ms must be a whole number of ms in [50, 1000], got {text!r}") from None
+    if not 50 <= v <= 1000:
+        raise argparse.ArgumentTypeError(f"--ttl-ms must lie in [50, 1000] ms, got {text}")
+    return v
+
+
+def add_commands(sub) -> None:
+    p = sub.add_parser(
+        "track",
+        help="stream setpoints to the service's track mode (a sine or a CSV signal; docs/tracking.md)",
+        description=(
+            "Start a track session, stream setpoints at --rate Hz, and at the end (--duration, the end of the "
+            "file, Ctrl-C) send track/stop and wait until the motion finished. All values SI: m, rad, s."
+        ),
+    )
+    p.add_argument(
+        "--dof",
+        type=parse_dofs,
+        default=None,
+        help="tracked DOFs, a subset of x,z,roll,pitch (default: those of the signal; others listed hold their centre)",
+    )
+    p.add_argument(
+        "--frame",
+        choices=FRAMES,
+        default="tractor",
+        help="tractor (default); level: roll and pitch relative to gravity (the slope sensor's attitude added); "
+        "ground: z above the ground (the ground-distance sensor)",
+    )
+    p.add_argument(
+        "--ttl-ms", type=_ttl, default=200, help="the service brakes without a setpoint this long, [50, 1000] ms"
+    )
+    p.add_argument(
+        "--rate",
+        type=bounded_float("--rate", 0.0, MAX_RATE_HZ, unit="Hz"),
+        default=50.0,
+        help=f"setpoints per second, (0, {MAX_RATE_HZ:g}] Hz (default 50)",
+    )
+    p.add_argument(
+        "--sine",
+        type=parse_sine,
+        default=None,
+        metavar="DOF=A@FHz[,…]",
+        help="e.g. x=0.02@0.05Hz,roll=0.01@0.1Hz: amplitude A in SI (m, rad; (0, 0.5]) at F Hz ((0, 10], at most "
+        "half of --rate) around the pose at the start (read from the state); in frame level roll and pitch "
+        "around 0 (level); in frame ground z around --around z=H",
+    )
+    p.add_argument(
+        "--from-file",
+        default=None,
+        metavar="CSV",
+        help="columns t [s] and DOF names x, z [m], roll, pitch [rad], optional v_<dof> [m/s, rad/s]; SI only, "
+        "no units in the header; interpolated linearly at --rate, played from the first row",
+    )
+    p.add_argument(
+        "--around",
+        type=parse_pose_arg,
+        default=None,
+        metavar="POSE",
+        help="centre of the sine and value of held DOFs, e.g. z=0.3 (SI; default: see --sine)",
+    )
+    p.add_argument(
+        "--duration",
+        type=bounded_float("--duration", 0.0, 3600.0, unit="s"),
+        default=None,
+        help="stream this long, (0, 3600] s (default: the whole file; a sine until Ctrl-C)",
+    )
+    p.add_argument(
+        "--dry-run",
+        action="store_true",
+        help=f"print the first {DRY_RUN_COUNT} setpoints without connecting (centres not given as 0)",
+    )
+    _client_options(p)
+    p.set_defaults(handler=_cmd_track)

@@ -1,0 +1,300 @@
+"""The service's side of the control core process: starting it, calling it, and a controller proxy.
+
+:class:`CoreProcess` starts ``python -m bridge.service.core.process`` (a fresh interpreter: nothing
+of the embedding program is imported twice) on one end of a socket pair, waits for its ``ready``
+message and then matches replies to calls by id on a reader thread, so calls from many threads
+(the request lanes, the terminal) are in flight at once and none waits for another's answer.
+:class:`MotionProxy` offers what :class:`~bridge.service.api.ServiceAPI` uses of a
+:class:`~bridge.service.motion.controller.MotionController` on top of it: the same methods, the
+same errors (:class:`CoreError` carries the API's code and text), the same clock (the core's
+clock is the link runner's node time; on Linux ``time.monotonic()`` is one clock for every
+process, so the proxy reads it as ``monotonic() − t0``).
+
+A core that dies ends the service's motion for good: every call then fails with ``unavailable``
+and the service's supervisor (:func:`bridge.service.server.serve`) stops the service with the
+reason — an old plan is never resumed, and the ECU's watchdog holds the valves at zero without
+references.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import multiprocessing.connection
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Mapping
+from concurrent.futures import Future
+from concurrent.futures import TimeoutError as FutureTimeout
+from typing import Any
+
+from bridge.service.config import ServiceConfig
+from bridge.service.motion.types import MotionError
+from planner.trajectory import MotionState, TrajectoryPlanner
+
+__all__ = ["CoreError", "CoreProcess", "MotionProxy", "JsonReply"]
+
+#: how long the core may take to start (models, buses, Zenoh) [s]
+START_TIMEOUT_S = 60.0
+#: the longest any call waits for its answer unless it says otherwise [s]
+CALL_TIMEOUT_S = 10.0
+
+
+class CoreError(MotionError):
+    """A call the core refused or could not answer; ``code`` is the API's error code."""
+
+
+class JsonReply:
+    """A reply the core sent as JSON-ready data, offered as the controller's value types are (``to_json()``)."""
+
+    def __init__(self, data: Mapping[str, Any]):
+        self._data = dict(data)
+
+    def to_json(self) -> dict[str, Any]:
+        return dict(self._data)
+
+
+class CoreProcess:
+    """The control core's process (module docstring). ``start()``, :meth:`call`, ``close()``.
+
+    Args:
+        config: the service's settings (the core builds its parts from them).
+        on_note: called (on the reader thread) with each note the core sends about what it answered on
+            its own (``{"request": "stop", "ok", "reply", "payload"}``).
+        endpoints: what the core's Zenoh session connects to (the service session's private loopback
+            listener; in client mode the routers the service connects to).
+    """
+
+    def __init__(
+        self,
+        config: ServiceConfig,
+        endpoints: list[str],
+        on_note: Callable[[dict[str, Any]], None] | None = None,
+    ):
+        self.config, self.endpoints = config, list(endpoints)
+        self.on_note = on_note
+        self.process: subprocess.Popen[bytes] | None = None
+        self._conn: multiprocessing.connection.Connection | None = None
+        self._send_lock = threading.Lock()
+        self._pending: dict[int, Future[Any]] = {}
+        self._pending_lock = threading.Lock()
+        self._ids = itertools.count(1)
+        self._reader: threading.Thread | None = None
+        self.ready: dict[str, Any] = {}
+        self.ended: str | None = None
+        """Why the core is gone (None while it runs)."""
+
+    def start(self) -> CoreProcess:
+        mine, theirs = socket.socketpair()
+        try:
+            fd = theirs.fileno()
+            self.process = subprocess.Popen(
+                [
+                    sys.executable,
+                    "-m",
+                    "bridge.service.core.process",
+                    str(fd),
+                    self.config.model_dump_json(),
+                    json.dumps(self.endpoints),
+                ],
+                pass_fds=(fd,),
+                stdin=subprocess.DEVNULL,
+            )
+        finally:
+            theirs.close()
+        self._conn = conn = multiprocessing.connection.Connection(mine.detach())
+        if not conn.poll(START_TIMEOUT_S):
+            self.close()
+            raise CoreError("unavailable", f"the control core did not start within {START_TIMEOUT_S:.0f} s")
+        try:
+            _, status, *rest = conn.recv()
+        except (EOFError, OSError):
+            code = self.process.wait(5.0) if self.process is not None else None
+            self.close()
+            raise CoreError("unavailable", f"the control core ended while starting (exit code {code})") from None
+        if status != "ok":
+            self.close()
+            raise CoreError("unavailable", f"the control core could not start: {rest[-1]}")
+        self.ready = dict(rest[0])
+        self._reader = threading.Thread(target=self._read, name="core-replies", daemon=True)
+        self._reader.start()
+        return self
+
+    @property
+    def pid(self) -> int | None:
+        return None if self.process is None else self.process.pid
+
+    @property
+    def alive(self) -> bool:
+        return self.ended is None and self.process is not None and self.process.poll() is None
+
+    def _read(self) -> None:
+        conn = self._conn
+        assert conn is not None
+        while True:
+            try:
+                call_id, status, *rest = conn.recv()
+            except (EOFError, OSError):
+                break
+            if status == "note":
+                hook = self.on_note
+                if hook is not None:
+                    try:
+                        hook(dict(rest[0]))
+                    except Exception:  # noqa: BLE001 — a recorder's bug must not stop the replies
+                        pass
+                continue
+            with self._pending_lock:
+                fut = self._pending.pop(call_id, None)
+            if fut is None:
+                continue  # its caller gave up waiting
+            if status == "ok":
+                fut.set_result(rest[0])
+            else:
+                fut.set_exception(CoreError(str(rest[0]), str(rest[1])))
+        code = None if self.process is None else self.process.poll()
+        self.ended = self.ended or f"the control core ended (exit code {code})"
+        with self._pending_lock:
+            pending, self._pending = list(self._pending.values()), {}
+        for fut in pending:
+            fut.set_exception(CoreError("unavailable", self.ended))
+
+    def call(self, method: str, *args: Any, timeout_s: float = CALL_TIMEOUT_S, **kwargs: Any) -> Any:
+        """Call ``method`` of the core; its value or :class:`CoreError` (the API's code)."""
+        conn = self._conn
+        if conn is None or self.ended is not None:
+            raise CoreError("unavailable", self.ended or "the control core is not running")
+        call_id = next(self._ids)
+        fut: Future[Any] = Future()
+        with self._pending_lock:
+            self._pending[call_id] = fut
+        try:
+            with self._send_lock:
+                conn.send((call_id, method, args, kwargs))
+        except (OSError, ValueError) as exc:
+            with self._pending_lock:
+                self._pending.pop(call_id, None)
+            raise CoreError("unavailable", f"the control core cannot be reached ({exc})") from None
+        try:
+            return fut.result(timeout=timeout_s)
+        except FutureTimeout:
+            with self._pending_lock:
+                self._pending.pop(call_id, None)
+            raise CoreError("busy", f"{method}: the control core did not answer within {timeout_s:.1f} s") from None
+
+    def close(self, timeout_s: float = 2.0) -> None:
+        """Ask the core to brake and end, then make sure it did (killed after ``timeout_s``)."""
+        if self._conn is not None and self.ended is None and self.process is not None and self.process.poll() is None:
+            try:
+                self.call("close", timeout_s=timeout_s)
+            except CoreError:
+                pass
+        self.ended = self.ended or "closed"
+        if self.process is not None:
+            try:
+                self.process.wait(timeout_s)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait(1.0)
+        if self._conn is not None:
+            try:
+                self._conn.close()
+            except OSError:
+                pass
+
+
+class MotionProxy:
+    """What the API uses of a motion controller, answered by the core process (module docstring).
+
+    ``planner``: a planner of the service's own (pure computations on the model: goal vectors,
+    workspace checks), never the core's.
+    """
+
+    def __init__(self, core: CoreProcess, planner: TrajectoryPlanner):
+        self.core, self.planner = core, planner
+        self._t0 = float(core.ready["t0_monotonic"])
+
+    def clock(self) -> float:
+        """The core's clock [s]."""
+        return time.monotonic() - self._t0
+
+    @property
+    def mode(self) -> str:
+        return str(self.core.call("mode"))
+
+    @property
+    def faults(self) -> list[dict[str, Any]]:
+        return list(self.core.call("faults"))
+
+    def current_state(self) -> MotionState:
+        st = self.core.call("current_state")
+        if not isinstance(st, MotionState):
+            raise CoreError("internal", f"current_state returned {type(st).__name__}")
+        return st
+
+    def preview_start(self) -> MotionState:
+        st = self.core.call("preview_start")
+        if not isinstance(st, MotionState):
+            raise CoreError("internal", f"preview_start returned {type(st).__name__}")
+        return st
+
+    def goto(
+        self,
+        goal: Mapping[str, float],
+        speed_scale: float = 1.0,
+        *,
+        kind: str = "goto",
+        label: str | None = None,
+        deadline: float | None = None,
+        issued: float | None = None,
+    ) -> JsonReply:
+        wait = CALL_TIMEOUT_S if deadline is None else max(0.5, deadline - self.clock() + 2.0)
+        data = self.core.call(
+            "goto",
+            dict(goal),
+            float(speed_scale),
+            kind=kind,
+            label=label,
+            deadline=deadline,
+            issued=issued,
+            timeout_s=wait,
+        )
+        return JsonReply(data)
+
+    def jog(self, rates: Mapping[str, float], ttl_s: float) -> JsonReply:
+        return JsonReply(self.core.call("jog", dict(rates), float(ttl_s)))
+
+    def stop(self) -> int | None:
+        mid = self.core.call("stop")
+        return None if mid is None else int(mid)
+
+    def run_maneuver(
+        self, validated: Any, name: str | None, *, deadline: float | None = None, issued: float | None = None
+    ) -> int:
+        wait = CALL_TIMEOUT_S if deadline is None else max(0.5, deadline - self.clock() + 2.0)
+        return int(self.core.call("run_maneuver", validated, name, deadline=deadline, issued=issued, timeout_s=wait))
+
+    def set_mode(self, mode: str) -> str:
+        return str(self.core.call("set_mode", mode))
+
+    def ack_faults(self) -> JsonReply:
+        return JsonReply(self.core.call("ack_faults"))
+
+    def track_start(self, frame: str, dofs: tuple[str, ...], ttl_s: float) -> JsonReply:
+        return JsonReply(self.core.call("track_start", frame, tuple(dofs), float(ttl_s)))
+
+    def track_setpoint(
+        self, session: int, seq: int, pose: Mapping[str, float], velocity: Mapping[str, float] | None = None
+    ) -> dict[str, Any]:
+        return dict(
+            self.core.call("track_setpoint", session, seq, dict(pose), None if velocity is None else dict(velocity))
+        )
+
+    def track_stop(self, session: int | None = None) -> dict[str, Any]:
+        return dict(self.core.call("track_stop", session))
+
+    def sim_fault(self, settings: Mapping[str, Any]) -> JsonReply:
+        return JsonReply(self.core.call("sim_fault", dict(settings)))

@@ -1,0 +1,381 @@
+"""The control core as its own process: CAN, the twin, the motion controller, ``stop``, state and events.
+
+``python -m bridge.service.core.process FD CONFIG_JSON ENDPOINTS_JSON`` (started by
+:class:`~bridge.service.core.client.CoreProcess`, never by hand) runs :class:`ControlCore`:
+
+* the machine side (:func:`bridge.service.machine.start_can`, :func:`~bridge.service.machine.build_controller`):
+  the link, the simulated ECU and tractor when configured, the motion controller and its control
+  thread — every thread of this process at nice :data:`CORE_NICE` (needs root or CAP_SYS_NICE;
+  otherwise it runs at normal priority and the ``ready`` message says why);
+* its own Zenoh session (a client of the service's session on its private loopback listener, or
+  of the routers the service connects to in client mode: ``ENDPOINTS_JSON``): the
+  ``<prefix>/stop`` queryable (any payload stops), the ``<prefix>/track/setpoint`` subscriber,
+  and the ``<prefix>/state`` and ``<prefix>/events`` publishers. Nothing the service's request
+  handling does (thousands of requests, storage, validation, the terminal) runs under this
+  process's interpreter lock: the control cycle only shares it with the CAN threads, the outbox
+  and the motion commands below;
+* calls from the service over the socket ``FD`` (:mod:`bridge.service.core.client`): ``(id,
+  method, args)`` in, ``(id, "ok", value)`` or ``(id, "error", code, message)`` out; and notes
+  ``(0, "note", {...})`` about what the core answered on its own (each ``stop`` it served, for the
+  service's black box; sent by a thread of their own through a bounded queue, never in the way of
+  the stop). O(1) methods
+  are answered on the reading thread at once (``stop`` first of all); ``goto`` and
+  ``run_maneuver`` (they plan) on two threads of their own. Values travel as plain data (JSON-ready
+  dicts, numbers, states); errors as the API's codes and texts.
+
+The process ends when the socket closes (the service ended, however) or on ``close``: the motion
+is braked for up to 0.4 s, then the stream ends and the ECU's watchdog holds the valves at zero.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing.connection
+import os
+import queue
+import sys
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
+
+import zenoh
+
+from bridge.service.config import ServiceConfig
+from bridge.service.machine import CanParts, build_controller, service_info, start_can
+from bridge.service.motion.controller import MotionController
+from bridge.service.motion.types import MotionError
+from bridge.service.schemas import RequestError, parse_request
+from bridge.service.wire import to_json_bytes
+from planner.errors import HitchError
+
+__all__ = ["CORE_NICE", "ControlCore", "error_code"]
+
+#: nice value of every thread of the core process (the control cycle, CAN, its Zenoh session)
+CORE_NICE = -10
+#: methods answered on the reading thread (O(1), no planning)
+_INLINE = frozenset(
+    {
+        "stop",
+        "jog",
+        "set_mode",
+        "mode",
+        "ack_faults",
+        "faults",
+        "current_state",
+        "preview_start",
+        "track_start",
+        "track_setpoint",
+        "track_stop",
+        "sim_fault",
+        "ping",
+    }
+)
+#: methods that plan (on the core's motion threads)
+_PLANNING = frozenset({"goto", "run_maneuver"})
+
+
+def error_code(exc: BaseException) -> str:
+    """The API's error code of an exception raised by the controller."""
+    from planner.limits.guard import GuardRefusal
+    from planner.trajectory.plan import PlanError
+
+    if isinstance(exc, MotionError):
+        return exc.code
+    if isinstance(exc, RequestError):
+        return exc.code
+    if isinstance(exc, GuardRefusal):
+        return "refused"
+    if isinstance(exc, PlanError):
+        return "unreachable"
+    if isinstance(exc, ValueError):
+        return "bad_request"
+    return "internal"
+
+
+def _set_nice(nice: int) -> str | None:
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), nice)
+    except PermissionError:
+        return "not permitted"
+    except (OSError, AttributeError) as exc:
+        return str(exc)
+    return None
+
+
+class ControlCore:
+    """The core's parts and its two faces (Zenoh and the service's socket); see the module docstring."""
+
+    def __init__(self, cfg: ServiceConfig, conn: multiprocessing.connection.Connection, endpoints: list[str]):
+        self.cfg, self.conn, self.endpoints = cfg, conn, list(endpoints)
+        self._send_lock = threading.Lock()
+        self.parts: CanParts | None = None
+        self.motion: MotionController | None = None
+        self.session: zenoh.Session | None = None
+        self._state_pub: zenoh.Publisher | None = None
+        self._event_pub: zenoh.Publisher | None = None
+        self._decls: list[Any] = []
+        self._pool = ThreadPoolExecutor(2, thread_name_prefix="core-motion")
+        self._closed = threading.Event()
+        self.recorder: Any = None
+        self._table: dict[str, Callable[..., Any]] = {}
+        self._notes: queue.Queue[dict[str, Any]] = queue.Queue(maxsize=256)
+        self.notes_dropped = 0
+        threading.Thread(target=self._send_notes, name="core-notes", daemon=True).start()
+
+    # ------------------------------------------------------------------ life cycle
+    def start(self) -> dict[str, Any]:
+        """Build and start everything; the ``ready`` message for the service."""
+        cfg = self.cfg
+        nice_failed = _set_nice(CORE_NICE)  # threads started from here on inherit it
+        if cfg.can_log is not None:
+            from bridge.service.blackbox import CanRecorder
+
+            self.recorder = CanRecorder(cfg.can_log, cfg.can_interface, cfg.can_channel)
+        runners: list[Any] = []
+        self.parts = parts = start_can(cfg, runners_out=runners)
+        self._open_zenoh()
+        self.motion, guard = build_controller(cfg, parts, on_state=self._publish_state, on_event=self._publish_event)
+        self._table = self._methods()
+        self.motion.start()
+        warnings = []
+        if nice_failed is not None:
+            text = (
+                f"cannot raise the control core to nice {CORE_NICE} ({nice_failed}); running at normal priority "
+                "(run as root or with CAP_SYS_NICE for a steadier control period)"
+            )
+            warnings.append(text)
+            self.motion.outbox.put_event({"event": "realtime", "priority_raised": False, "message": text})
+            self.motion.outbox.flush()
+        clock = parts.clock
+        return {
+            "t0_monotonic": time.monotonic() - clock(),
+            "info": service_info(cfg, guard),
+            "simulated_ecu": parts.ecu_node is not None,
+            "warnings": warnings,
+            "pid": os.getpid(),
+        }
+
+    def _open_zenoh(self) -> None:
+        cfg = self.cfg
+        z = zenoh.Config()
+        for path, value in (
+            ("mode", "client"),
+            ("connect/endpoints", self.endpoints),
+            ("scouting/multicast/enabled", False),
+        ):
+            z.insert_json5(path, json.dumps(value))
+        self.session = s = zenoh.open(z)
+        self._state_pub = s.declare_publisher(
+            cfg.key("state"),
+            encoding=zenoh.Encoding.APPLICATION_JSON,
+            express=True,
+            congestion_control=zenoh.CongestionControl.DROP,
+            priority=zenoh.Priority.DATA_HIGH,
+        )
+        self._event_pub = s.declare_publisher(cfg.key("events"), encoding=zenoh.Encoding.APPLICATION_JSON, express=True)
+        exact = cfg.key("stop")
+
+        def on_stop(query: zenoh.Query) -> None:
+            with query:
+                if str(query.key_expr) != exact:
+                    return  # a wildcard query reaches every queryable: only the exact key stops
+                ok, reply = self._call_safely("stop", ())
+                answer = {"stopped": True, "motion_id": reply} if ok else reply
+                data = to_json_bytes(answer)
+                try:
+                    if ok:
+                        query.reply(query.key_expr, data, encoding=zenoh.Encoding.APPLICATION_JSON)
+                    else:
+                        query.reply_err(data, encoding=zenoh.Encoding.APPLICATION_JSON)
+                except Exception:  # noqa: BLE001 — the session is closing
+                    pass
+                payload = b"" if query.payload is None else query.payload.to_bytes()
+                self._note({"request": "stop", "ok": ok, "reply": answer, "payload": payload[:1024]})
+
+        self._decls.append(s.declare_queryable(exact, on_stop, complete=True))
+        self._decls.append(s.declare_subscriber(cfg.key("track/setpoint"), self._on_setpoint))
+
+    def _note(self, note: dict[str, Any]) -> None:
+        """Tell the service what the core answered on its own (its black box records it); never blocks."""
+        try:
+            self._notes.put_nowait(note)
+        except queue.Full:
+            self.notes_dropped += 1
+
+    def _send_notes(self) -> None:
+        while not self._closed.is_set():
+            try:
+                note = self._notes.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            with self._send_lock:
+                try:
+                    self.conn.send((0, "note", note))
+                except (OSError, ValueError):
+                    return
+
+    def _on_setpoint(self, sample: zenoh.Sample) -> None:
+        """A streamed ``track/setpoint`` put (O(1)): refusals are counted and announced by the controller."""
+        try:
+            r = parse_request("track/setpoint", sample.payload.to_bytes())
+        except RequestError:
+            return  # malformed: nobody to answer; a well-formed one for a wrong session is counted below
+        velocity = None if r.velocity is None else r.velocity.as_dict()  # type: ignore[attr-defined]
+        self._call_safely("track_setpoint", (r.session, r.seq, r.pose.as_dict(), velocity))  # type: ignore[attr-defined]
+
+    def _publish_state(self, msg: dict[str, Any]) -> None:
+        pub = self._state_pub
+        if pub is not None and not self._closed.is_set():
+            try:
+                pub.put(to_json_bytes(msg))
+            except Exception:  # noqa: BLE001 — the session is closing
+                pass
+
+    def _publish_event(self, event: dict[str, Any]) -> None:
+        pub = self._event_pub
+        if pub is not None and not self._closed.is_set():
+            try:
+                pub.put(to_json_bytes(event))
+            except Exception:  # noqa: BLE001
+                pass
+
+    def close(self) -> None:
+        """Brake and end everything (idempotent)."""
+        if self._closed.is_set():
+            return
+        if self.motion is not None:
+            self.motion.close()
+        self._closed.set()
+        for d in reversed(self._decls):
+            _quiet(d.undeclare)
+        for p in (self._state_pub, self._event_pub):
+            if p is not None:
+                _quiet(p.undeclare)
+        if self.session is not None:
+            _quiet(self.session.close)
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        if self.parts is not None:
+            self.parts.close()
+        if self.recorder is not None:
+            _quiet(self.recorder.close)
+
+    # ------------------------------------------------------------------ calls
+    def _methods(self) -> dict[str, Callable[..., Any]]:
+        m = self.motion
+        assert m is not None
+        parts = self.parts
+        ecu = None if parts is None else parts.ecu_node
+
+        def sim_fault(settings: dict[str, Any]) -> Any:
+            if ecu is None:
+                raise RequestError(
+                    "unavailable",
+                    "no simulated ECU runs in this service (a real ECU is connected, or the twin runs in another "
+                    "process); fault injection is only for the twin",
+                )
+            applied = ecu.apply_fault(settings)
+            to_json = getattr(applied, "to_json", None)
+            return to_json() if callable(to_json) else dict(settings)
+
+        return {
+            "stop": m.stop,
+            "jog": lambda rates, ttl_s: m.jog(rates, ttl_s).to_json(),
+            "goto": lambda *a, **k: m.goto(*a, **k).to_json(),
+            "run_maneuver": m.run_maneuver,
+            "set_mode": m.set_mode,
+            "mode": lambda: m.mode,
+            "ack_faults": lambda: m.ack_faults().to_json(),
+            "faults": lambda: [f.to_json() for f in m.faults],
+            "current_state": m.current_state,
+            "preview_start": m.preview_start,
+            "track_start": lambda *a: m.track_start(*a).to_json(),
+            "track_setpoint": m.track_setpoint,
+            "track_stop": m.track_stop,
+            "sim_fault": sim_fault,
+            "ping": lambda: os.getpid(),
+        }
+
+    def _call_safely(
+        self, method: str, args: tuple[Any, ...], kwargs: dict[str, Any] | None = None
+    ) -> tuple[bool, Any]:
+        fn = self._table.get(method)
+        if fn is None:
+            return False, {"error": "internal", "message": f"unknown core method {method!r}"}
+        try:
+            return True, fn(*args, **(kwargs or {}))
+        except Exception as exc:  # noqa: BLE001 — every failure goes back as the API's code and text
+            code = error_code(exc)
+            text = str(exc) if code != "internal" else f"internal error {type(exc).__name__}: {exc}"
+            return False, {"error": code, "message": text[:500]}
+
+    def _answer(self, call_id: int, method: str, args: tuple[Any, ...], kwargs: dict[str, Any]) -> None:
+        ok, value = self._call_safely(method, args, kwargs)
+        reply = (call_id, "ok", value) if ok else (call_id, "error", value["error"], value["message"])
+        with self._send_lock:
+            try:
+                self.conn.send(reply)
+            except (OSError, ValueError):
+                pass
+
+    def serve(self) -> None:
+        """Answer the service's calls until its socket closes or it sends ``close``."""
+        while True:
+            try:
+                msg = self.conn.recv()
+            except (EOFError, OSError):
+                return
+            call_id, method, args, kwargs = msg
+            if method == "close":
+                self.close()
+                with self._send_lock:
+                    try:
+                        self.conn.send((call_id, "ok", None))
+                    except (OSError, ValueError):
+                        pass
+                return
+            if method in _PLANNING:
+                try:
+                    self._pool.submit(self._answer, call_id, method, args, kwargs)
+                except RuntimeError:  # shutting down
+                    return
+            else:
+                self._answer(call_id, method, args, kwargs)
+
+
+def _quiet(fn: Callable[[], Any]) -> None:
+    try:
+        fn()
+    except Exception:  # noqa: BLE001
+        pass
+
+
+def main(argv: list[str]) -> int:
+    """``python -m bridge.service.core.process FD CONFIG_JSON ENDPOINTS_JSON``."""
+    fd, cfg_json, endpoints = int(argv[0]), argv[1], list(json.loads(argv[2]))
+    conn = multiprocessing.connection.Connection(fd)
+    core: ControlCore | None = None
+    try:
+        cfg = ServiceConfig.model_validate_json(cfg_json)
+        core = ControlCore(cfg, conn, endpoints)
+        try:
+            ready = core.start()
+        except (HitchError, OSError, zenoh.ZError) as exc:
+            conn.send((0, "error", "start", f"{type(exc).__name__}: {exc}"))
+            return 1
+        conn.send((0, "ok", ready))
+        core.serve()
+    except KeyboardInterrupt:  # Ctrl-C in the service's terminal reaches its whole process group
+        pass
+    finally:
+        if core is not None:
+            core.close()
+        conn.close()
+    return 0
+
+
+if __name__ == "__main__":  # run the module's canonical copy
+    from bridge.service.core.process import main as _canonical_main
+
+    sys.exit(_canonical_main(sys.argv[1:]))

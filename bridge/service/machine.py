@@ -1,0 +1,253 @@
+"""The machine side of a service: models, guards, the CAN buses with the twin, the link, the controller.
+
+Built the same way whether the control core runs in the service's own process (threads) or in
+a process of its own (:mod:`bridge.service.core`): :func:`start_can` opens the buses and starts
+their real-time runners — the simulated cylinder ECU and the tractor twin when configured, the
+tractor's sensors, then the link (last: its runner's clock is the service's clock) — and
+:func:`build_controller` puts a :class:`~bridge.service.motion.controller.MotionController` on
+top. Every :class:`~planner.model.kinematics.HitchModel` is used by one thread only (their
+CasADi buffers are shared state), so each part gets its own.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import can
+
+from bridge.link.can_link import CanLink
+from bridge.link.realtime import BusPort, RealtimeRunner, SharedBusNodes, open_bus
+from bridge.link.state import LinkConfig
+from bridge.link.tractor_sensors import TractorSensors
+from bridge.service.config import ServiceConfig
+from bridge.service.motion.controller import MotionController
+from bridge.service.motion.types import MODES, actuator_dict
+from bridge.sim.can_node import EcuCanNode
+from bridge.sim.ecu import CylinderECU
+from bridge.sim.tractor_node import TractorTwinNode, hitch_height_from_ecu
+from planner.limits.guard import Guard
+from planner.limits.tractor import load_tractor_profile
+from planner.model.kinematics import HitchModel
+from planner.model.sensors import SensorScaling
+from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
+from planner.trajectory import TrajectoryPlanner
+
+__all__ = [
+    "CanParts",
+    "ReadingsAsTrackSensors",
+    "build_controller",
+    "build_guard",
+    "build_model",
+    "service_info",
+    "start_can",
+]
+
+#: the longest a CAN runner waits for a frame before it polls its node again [s]
+_MAX_WAIT_S = 0.02
+
+
+def build_model(cfg: ServiceConfig) -> HitchModel:
+    """A fresh model of the configured profile and category (one per thread that uses it)."""
+    return HitchModel.from_profile(cfg.profile, cfg.category)
+
+
+def build_guard(cfg: ServiceConfig, model: HitchModel) -> Guard:
+    """The guard of ``model`` at the control rate, with the configured implement."""
+    planner = TrajectoryPlanner(model, rate=cfg.control_rate)
+    implement = None
+    if cfg.implement is not None:
+        implement = load_tractor_profile(model.profile.stability.tractor_profile).implement(cfg.implement)
+    return Guard(planner, implement=implement)
+
+
+@dataclass
+class CanParts:
+    """What :func:`start_can` started: the link, the twin's nodes (None with a real machine), the
+    tractor's sensors, and every runner and bus (to stop and shut down, in reverse order)."""
+
+    link: CanLink
+    sensors: TractorSensors
+    ecu_node: EcuCanNode | None = None
+    tractor_node: TractorTwinNode | None = None
+    runners: list[RealtimeRunner] = field(default_factory=list)
+    buses: list[can.BusABC] = field(default_factory=list)
+
+    @property
+    def clock(self) -> Callable[[], float]:
+        """The service's clock: the link runner's node time [s]."""
+        return self.runners[-1].now
+
+    def close(self) -> None:
+        """Stop the reference stream, the runners, the link and the buses (never raises)."""
+        now = self.clock()
+        for step in (lambda: self.link.stop(now), *[lambda r=r: r.stop(0.5) for r in reversed(self.runners)]):
+            try:
+                step()
+            except Exception:  # noqa: BLE001 — closing continues whatever one part does
+                pass
+        for part in (self.link.close, *[b.shutdown for b in self.buses]):
+            try:
+                part()
+            except Exception:  # noqa: BLE001
+                pass
+
+
+def start_can(cfg: ServiceConfig, *, runners_out: list[RealtimeRunner] | None = None) -> CanParts:
+    """Open the buses and start their runners (module docstring). ``runners_out`` receives each
+    runner as it starts (so a caller can stop them if a later step fails).
+
+    Two buses, one runner each (:class:`~bridge.link.realtime.SharedBusNodes`): the machine twin's
+    (the ECU and the tractor, when simulated) and the planner's (the tractor's sensors and the
+    link). Each frame is then copied to one other bus instead of one per node."""
+    started: list[RealtimeRunner] = runners_out if runners_out is not None else []
+    buses: list[can.BusABC] = []
+
+    def bus() -> can.BusABC:
+        b = open_bus(cfg.can_interface, cfg.can_channel)
+        buses.append(b)
+        return b
+
+    ecu_node: EcuCanNode | None = None
+    tractor: TractorTwinNode | None = None
+    try:
+        if cfg.simulate_ecu:
+            ecu_model = build_model(cfg)
+            # the twin starts with the hitch at the model's neutral pose (x = roll = pitch = 0)
+            scale = SensorScaling(ecu_model.profile)
+            neutral_counts = scale.counts_min + (ecu_model.neutral - scale.si_min) / scale.resolution
+            twin_bus = bus()
+            ecu_node = EcuCanNode(
+                CylinderECU(ecu_model.profile, initial_counts=list(neutral_counts)), BusPort(twin_bus)
+            )
+            height = hitch_height_from_ecu(ecu_node.ecu, build_model(cfg))
+            tractor = TractorTwinNode(BusPort(twin_bus), ground_speed_m_s=cfg.sim_ground_speed, hitch_height_m=height)
+            twin = SharedBusNodes(twin_bus, [ecu_node, tractor])
+            started.append(RealtimeRunner(twin, max_wait_s=_MAX_WAIT_S, name="EcuCanNode-rt").start())
+        planner_bus = bus()
+        sensors = TractorSensors(BusPort(planner_bus))
+        link = CanLink(
+            build_model(cfg),
+            BusPort(planner_bus),
+            LinkConfig(control_rate_hz=cfg.control_rate, stale_after_s=cfg.stale_timeout_s),
+        )
+        planner = SharedBusNodes(planner_bus, [sensors, link])
+        started.append(RealtimeRunner(planner, max_wait_s=_MAX_WAIT_S, name="CanLink-rt").start())
+    except BaseException:
+        for r in reversed(started):
+            r.stop(0.5)
+        for b in buses:
+            b.shutdown()
+        raise
+    return CanParts(link, sensors, ecu_node, tractor, list(started), buses)
+
+
+class _Rate:
+    """The rate of a sampled signal: a smoothed difference of its new samples (time constant ``tau_s``)."""
+
+    def __init__(self, tau_s: float = 0.1):
+        self.tau_s = tau_s
+        self._t: float | None = None
+        self._v = 0.0
+        self.rate = 0.0
+
+    def update(self, t: float, value: float) -> float:
+        if self._t is None or t <= self._t:
+            if self._t is None:
+                self._t, self._v = t, value
+            return self.rate
+        dt = t - self._t
+        raw = (value - self._v) / dt
+        self.rate += (raw - self.rate) * (dt / (self.tau_s + dt))
+        self._t, self._v = t, value
+        return self.rate
+
+
+class ReadingsAsTrackSensors:
+    """The tractor's sensors as a track session's frames read them
+    (:class:`~bridge.service.motion.controller.TrackSensors`): fresh, plausible readings or None.
+
+    Rates: the slope sensor's pitch rate; the roll rate and the ground distance's rate from their
+    new samples (a difference smoothed over 0.1 s)."""
+
+    def __init__(self, sensors: TractorSensors):
+        self._sensors = sensors
+        self._roll_rate, self._dist_rate = _Rate(), _Rate()
+
+    def attitude(self, now: float) -> tuple[float, float] | None:
+        r = self._sensors.readings()
+        if r.roll.usable and r.pitch.usable and r.roll.value is not None and r.pitch.value is not None:
+            return r.roll.value, r.pitch.value
+        return None
+
+    def attitude_rate(self, now: float) -> tuple[float, float] | None:
+        r = self._sensors.readings()
+        if not (r.roll.usable and r.roll.value is not None and r.roll.received_s is not None):
+            return None
+        roll_rate = self._roll_rate.update(r.roll.received_s, r.roll.value)
+        pitch_rate = r.pitch_rate.value if r.pitch_rate.usable and r.pitch_rate.value is not None else 0.0
+        return roll_rate, pitch_rate
+
+    def ground_distance(self, now: float) -> float | None:
+        g = self._sensors.readings().ground_distance
+        return g.value if g.usable else None
+
+    def ground_distance_rate(self, now: float) -> float | None:
+        g = self._sensors.readings().ground_distance
+        if not (g.usable and g.value is not None and g.received_s is not None):
+            return None
+        return self._dist_rate.update(g.received_s, g.value)
+
+
+def build_controller(
+    cfg: ServiceConfig,
+    parts: CanParts,
+    *,
+    on_state: Callable[[dict[str, Any]], None],
+    on_event: Callable[[dict[str, Any]], None],
+) -> tuple[MotionController, Guard]:
+    """The motion controller on ``parts`` (its guard, a planning guard, each on its own model);
+    returns it and its control guard (for :func:`service_info`)."""
+    guard, plan_guard = build_guard(cfg, build_model(cfg)), build_guard(cfg, build_model(cfg))
+    mc = MotionController(
+        guard,
+        plan_guard,
+        parts.link,
+        parts.clock,
+        on_state=on_state,
+        on_event=on_event,
+        state_every=max(1, round(cfg.control_rate / cfg.state_rate)),
+        odometer=parts.sensors.distance_m,
+        feedforward=cfg.feedforward,
+        sensors=ReadingsAsTrackSensors(parts.sensors),
+    )
+    return mc, guard
+
+
+def service_info(cfg: ServiceConfig, guard: Guard) -> dict[str, Any]:
+    """The static part of the ``config`` reply: profile, rates, CAN, limits, modes."""
+    tp, model = guard.planner, guard.model
+    return {
+        "prefix": cfg.prefix,
+        "profile": model.profile.name,
+        "category": model.category,
+        "implement": cfg.implement,
+        "control_rate": tp.rate,
+        "state_rate": cfg.state_rate,
+        "can": {
+            "interface": cfg.can_interface,
+            "channel": cfg.can_channel,
+            "simulated_ecu": cfg.simulate_ecu,
+            "simulated_ground_speed": cfg.sim_ground_speed if cfg.simulate_ecu else None,
+        },
+        "limits": {
+            "workspace": {k: list(tp.workspace[k]) for k in CONTROLLED_POSE_NAMES},
+            "strokes": {
+                n: [float(lo), float(hi)] for n, lo, hi in zip(ACTUATOR_NAMES, model.lower, model.upper, strict=True)
+            },
+            "actuator_velocity": actuator_dict(tp.limits.velocity),
+            "actuator_acceleration": actuator_dict(tp.limits.acceleration),
+        },
+        "modes": list(MODES),
+    }

@@ -1,0 +1,95 @@
+"""Where the expensive requests run: plan previews, maneuver validation and IK.
+
+:class:`Planning` is the seam :class:`~bridge.service.api.ServiceAPI` uses for them. Two
+implementations:
+
+* :class:`~bridge.service.workers.PlanningWorkers` — worker processes (what ``hitch serve``
+  runs): nothing of this work holds the service process's interpreter lock;
+* :class:`InProcessPlanning` — on the calling thread, on the motion controller's planning
+  guard (under its lock) and an IK solver of its own (under a lock): for a service embedded in
+  a test or a script, and the reference the workers are tested against.
+
+Both answer the same values: the ``plan`` reply, a
+:class:`~bridge.service.maneuvers.language.ValidationResult`, the IK solution's JSON; and
+raise the same :class:`~bridge.service.workers.WorkerError` codes for ``ik_failed``.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Mapping
+from typing import Any, Protocol
+
+from bridge.service.maneuvers.language import ManeuverScript, PlanningContext, PlanStep, PresetLike, ValidationResult
+from bridge.service.maneuvers.language import validate as validate_script
+from bridge.service.motion.types import PlanPreview
+from bridge.service.workers import WorkerError
+from planner.trajectory import MotionState, PlanError
+
+__all__ = ["InProcessPlanning", "MotionPlanning", "Planning"]
+
+
+class Planning(Protocol):
+    """The expensive requests, given the start state the controller predicts."""
+
+    def preview(self, start: MotionState, goal: Mapping[str, float], speed_scale: float) -> dict[str, Any]:
+        """The ``plan`` reply (a plan or its refusal)."""
+        ...
+
+    def validate(
+        self, script: ManeuverScript, start: MotionState, presets: Mapping[str, PresetLike]
+    ) -> ValidationResult:
+        """The validation of a parsed script from ``start`` with the presets it names."""
+        ...
+
+    def ik(self, target: tuple[float, float, float, float]) -> dict[str, Any]:
+        """The IK solution's JSON (``ik_failed`` :class:`WorkerError` when there is none)."""
+        ...
+
+
+class MotionPlanning(Protocol):
+    """What :class:`InProcessPlanning` needs of the motion controller."""
+
+    def preview_from(self, start: MotionState, goal: Mapping[str, float], speed_scale: float) -> Any:
+        """The guarded plan from ``start`` (PlanError / GuardRefusal when refused)."""
+        ...
+
+    def plan_step(
+        self, start: MotionState, goal: Mapping[str, float], speed_scale: float
+    ) -> tuple[float, MotionState]: ...
+
+
+class InProcessPlanning:
+    """:class:`Planning` on the calling thread (module docstring).
+
+    Args:
+        motion: the controller (its planning guard, under its planning lock).
+        ik: an IK solver used by this object only (under a lock), or None (``ik`` unavailable).
+    """
+
+    def __init__(self, motion: MotionPlanning, ik: Any):
+        self._motion, self._ik = motion, ik
+        self._ik_lock = threading.Lock()
+
+    def preview(self, start: MotionState, goal: Mapping[str, float], speed_scale: float) -> dict[str, Any]:
+        try:
+            return PlanPreview.planned(self._motion.preview_from(start, goal, speed_scale)).to_json()
+        except PlanError as exc:  # the planner's or the guard's (GuardRefusal) refusal
+            return PlanPreview.refusal(exc).to_json()
+
+    def validate(
+        self, script: ManeuverScript, start: MotionState, presets: Mapping[str, PresetLike]
+    ) -> ValidationResult:
+        step: PlanStep = self._motion.plan_step
+        return validate_script(script, PlanningContext(start, step, presets.get))
+
+    def ik(self, target: tuple[float, float, float, float]) -> dict[str, Any]:
+        from planner.ik_qp.result import Target
+
+        if self._ik is None:
+            raise WorkerError("unavailable", "no IK solver in this service")
+        with self._ik_lock:
+            res = self._ik.solve(Target(*target))
+        if res.status == "failed":
+            raise WorkerError("ik_failed", f"no solution ({res.reason})")
+        return dict(res.to_json())

@@ -1,0 +1,681 @@
+"""Closed-loop continuous control in simulated time: a scenario's job run by the motion controller.
+
+:func:`run_track_loop` runs one job of a terrain-twin scenario (:mod:`bridge.sim.scenario`) through
+the real :class:`~bridge.service.motion.controller.MotionController` on the simulated rig
+(:class:`bridge.sim.move.SimRig`: identified hydraulics, 10-bit sensors, the real codec and CAN path),
+with control cycles every ``1 / rate`` (20 ms) of simulated time, and returns the time series and
+figures (:class:`TrackLoopResult`). Nothing reads the wall clock; runs are deterministic.
+
+The tractor's sensors travel the bus as on the machine: the twin's tractor node
+(:class:`bridge.sim.tractor_node.TractorTwinNode`: slope sensor 10 ms, ground distance 20 ms, row
+camera 10 Hz, wheel speed 100 ms) sends on the rig's channel, the planner-side decoder
+(:class:`bridge.link.tractor_sensors.TractorSensors`) reads them, and :class:`BusTrackSensors`
+gives the controller its :class:`~bridge.service.motion.controller.TrackSensors` (fresh readings
+only). The ground sensor's height comes from the simulated ECU's true pistons (at the tool point T).
+
+Jobs (frame and DOF of the track session, setpoint, the error in the job's own terms; truth values
+from the twin and the forward kinematics of the simulated pistons, never the measurement):
+
+============  ======  ====  ==============================  =================================================
+job           frame   DOF   setpoint                        error
+============  ======  ====  ==============================  =================================================
+levelling     level   roll  0 (implement level)             implement roll relative to gravity, roll_T − φ
+guidance      tractor x     the camera's row offset         lateral error against the true row, x_T − row
+terrain       ground  z     the working height above ground height above ground − working height
+============  ======  ====  ==============================  =================================================
+
+(φ: the tractor's true roll, SAE J670, + right side down; the hitch's roll + raises the right
+side, so a level implement has roll_T = φ. The row offset is the row's lateral position in the
+tractor frame, + left: the twin's camera sees the row relative to the tractor's centreline.)
+
+Strategies:
+
+* ``track`` — one track session (``track_start`` / ``track_setpoint`` every cycle) in the job's frame;
+* ``goto_stream`` — the same setpoints converted to the tractor frame by the client (as the
+  controller's frames do: roll + φ read; z_m + (setpoint − d read)), clipped to the workspace and sent
+  as a ``goto`` every cycle, each replacing the last (today's API);
+* ``hold`` — no correction: the start pose is held.
+
+Setpoint velocity (``track`` only): the controller hands a setpoint's velocity to the follower as it
+is (it does not transform it between frames), so the runner sends the *tractor-frame* rate of the
+setpoint, estimated by the client from its readings (a least-squares slope over
+``LoopSettings.rate_window_s``; for the row camera an α-β filter on the 10 Hz samples, whose
+estimate is the setpoint of both streaming strategies).
+
+Counts (:attr:`TrackLoopResult.counts`): streamed references outside the actuator strokes (the link
+refuses them: must be 0), refused references (``limit_reached`` events with a message), limit events
+of the follower (workspace faces named), rejected setpoints, gotos refused, faults, and measured
+samples outside the workspace by more than the sensor quantisation (one count on every sensor,
+mapped to the pose at the start: must be 0).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import deque
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import can
+import numpy as np
+
+from bridge.link.tractor_sensors import TractorSensors
+from bridge.service.motion.controller import MotionController
+from bridge.service.motion.types import MotionError
+from bridge.sim.move import SimRig, SimSettings
+from bridge.sim.scenario import Scenario, load_scenario
+from bridge.sim.sensors import TwinSensors
+from bridge.sim.tractor_node import TractorTwinNode, hitch_height_from_ecu
+from planner.errors import HitchError, HitchInputError
+from planner.limits.guard import Guard
+from planner.model.kinematics import HitchModel
+from planner.model.sensors import SensorScaling
+from planner.model.types import CONTROLLED_POSE_NAMES
+from planner.trajectory import MotionState, TrajectoryPlanner
+from planner.trajectory.track import TrackFollower
+
+__all__ = [
+    "JOBS",
+    "STRATEGIES",
+    "BusTrackSensors",
+    "ErrorFigures",
+    "LoopSettings",
+    "SimLoop",
+    "TrackLoopError",
+    "TrackLoopResult",
+    "job_of",
+    "run_track_loop",
+]
+
+STRATEGIES = ("track", "goto_stream", "hold")
+JOBS = ("levelling", "guidance", "terrain")
+#: frame and DOF of each job's track session
+JOB_FRAME = {"levelling": ("level", "roll"), "guidance": ("tractor", "x"), "terrain": ("ground", "z")}
+_POSE = CONTROLLED_POSE_NAMES
+
+
+class TrackLoopError(HitchInputError):
+    """A closed loop that cannot run as asked; the message names the field and the allowed range."""
+
+
+def _seconds(name: str, v: object, lo: float, hi: float, *, optional: bool = False) -> None:
+    if optional and v is None:
+        return
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo <= v <= hi:
+        raise TrackLoopError(f"{name} must be a number in [{lo:g}, {hi:g}], got {v!r}")
+
+
+@dataclass(frozen=True)
+class LoopSettings:
+    """One closed-loop run.
+
+    Attributes:
+        strategy: one of :data:`STRATEGIES`.
+        job: one of :data:`JOBS`; None: from the scenario (:func:`job_of`).
+        duration_s: scenario time to run [s] (None: the scenario's ``duration_s``), [1, 3600].
+        warmup_s: rig time before the loop starts (address claims, first measurements) [s].
+        settle_s: the figures leave out the first ``settle_s`` after the loop started [s].
+        ttl_s: the track session's time-to-live [s], [0.05, 1].
+        start: start pose (any of x, z, roll, pitch; default the neutral pose).
+        working_height_m: terrain: the setpoint, height of T above the ground [m]; None: the
+            ground-distance reading when the loop starts.
+        send_velocity: track: send the estimated tractor-frame rate with each setpoint.
+        rate_window_s: the least-squares window of that rate estimate [s].
+        row_filter: guidance: the α-β filter's (α, β) on the camera samples; None: raw samples.
+        inside_window_s: a sample counts as "inside" when over the last this-many seconds the demand
+            stayed inside the workspace and within the follower's pose velocity and acceleration limits.
+        sim: the simulated machine and bus.
+    """
+
+    strategy: str = "track"
+    job: str | None = None
+    duration_s: float | None = None
+    warmup_s: float = 0.5
+    settle_s: float = 5.0
+    ttl_s: float = 0.3
+    start: Mapping[str, float] | None = None
+    working_height_m: float | None = None
+    send_velocity: bool = True
+    rate_window_s: float = 0.1
+    row_filter: tuple[float, float] | None = (0.35, 0.06)
+    inside_window_s: float = 1.0
+    sim: SimSettings = field(default_factory=SimSettings)
+
+    def __post_init__(self) -> None:
+        if self.strategy not in STRATEGIES:
+            raise TrackLoopError(f"strategy must be one of {', '.join(STRATEGIES)}, got {self.strategy!r}")
+        if self.job is not None and self.job not in JOBS:
+            raise TrackLoopError(f"job must be one of {', '.join(JOBS)} (or None: from the scenario), got {self.job!r}")
+        _seconds("duration_s", self.duration_s, 1.0, 3600.0, optional=True)
+        _seconds("warmup_s", self.warmup_s, 0.3, 10.0)
+        _seconds("settle_s", self.settle_s, 0.0, 600.0)
+        _seconds("ttl_s", self.ttl_s, 0.05, 1.0)
+        _seconds("working_height_m", self.working_height_m, 0.0, 3.0, optional=True)
+        _seconds("rate_window_s", self.rate_window_s, 0.02, 2.0)
+        _seconds("inside_window_s", self.inside_window_s, 0.0, 10.0)
+        if self.row_filter is not None:
+            a, b = self.row_filter
+            _seconds("row_filter alpha", a, 1e-3, 1.0)
+            _seconds("row_filter beta", b, 0.0, 2.0)
+        if self.start is not None:
+            for k, v in self.start.items():
+                if k not in _POSE:
+                    raise TrackLoopError(f"start: unknown DOF {k!r}, allowed {', '.join(_POSE)}")
+                _seconds(f"start.{k}", v, -1.0, 1.0)
+
+
+def job_of(scenario: Scenario) -> str:
+    """The job a scenario is made for: guidance when it has a row signal, else levelling when the
+    tractor rolls, else terrain when the ground under the implement moves; levelling for flat ground."""
+    twin = scenario.twin
+    if twin.row.rms_m > 0.0 or twin.row.noise_rms_m > 0.0:
+        return "guidance"
+    ts = np.linspace(0.0, scenario.duration_s, 401)
+    if max(abs(twin.attitude(float(t)).roll_rad) for t in ts) > 1e-6:
+        return "levelling"
+    if max(abs(twin.implement_ground_z(float(t))) for t in ts) > 1e-6:
+        return "terrain"
+    return "levelling"
+
+
+class BusTrackSensors:
+    """:class:`~bridge.service.motion.controller.TrackSensors` from the decoded tractor bus
+    (:class:`~bridge.link.tractor_sensors.TractorSensors`): usable (a number, not stale) readings
+    only, else None. Also the row offset for guidance."""
+
+    def __init__(self, node: TractorSensors) -> None:
+        self.node = node
+
+    def attitude(self, now: float) -> tuple[float, float] | None:
+        r = self.node.readings(now)
+        if r.roll.usable and r.pitch.usable and r.roll.value is not None and r.pitch.value is not None:
+            return float(r.roll.value), float(r.pitch.value)
+        return None
+
+    def ground_distance(self, now: float) -> float | None:
+        g = self.node.readings(now).ground_distance
+        return float(g.value) if g.usable and g.value is not None else None
+
+    def row_offset(self, now: float) -> tuple[float, float] | None:
+        """(offset [m], receive time [s]) of the latest usable camera sample."""
+        r = self.node.readings(now).row_offset
+        if r.usable and r.value is not None and r.received_s is not None:
+            return float(r.value), float(r.received_s)
+        return None
+
+
+class SimLoop:
+    """The rig, the motion controller on it and the tractor twin on its bus (module docstring).
+
+    ``cycle()`` advances one control period and runs one controller cycle; the latest state
+    message is :attr:`state`. Use as a context manager (or :meth:`close`).
+    """
+
+    def __init__(
+        self,
+        model: HitchModel,
+        scenario: Scenario | str,
+        *,
+        sim: SimSettings | None = None,
+        start: Mapping[str, float] | None = None,
+        warmup_s: float = 0.5,
+    ) -> None:
+        self.model = model
+        self.scenario = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+        self.twin = self.scenario.twin
+        tp = TrajectoryPlanner(model)
+        p0 = tp.goal_vector(model.neutral_pose.controlled(), start or {})
+        tp.check_in_workspace(p0, "start")
+        self.rig = SimRig(model, sim, initial_actuators=tp.inverse.solve(p0)[0])
+        self._buses = [can.Bus(interface="virtual", channel=self.rig.channel) for _ in range(2)]
+        self.tractor = TractorTwinNode(
+            self._buses[0], TwinSensors(self.twin), hitch_height_m=hitch_height_from_ecu(self.rig.ecu, model)
+        )
+        self.decoder = TractorSensors(self._buses[1])
+        self.sensors = BusTrackSensors(self.decoder)
+        self.events: list[dict[str, Any]] = []
+        self.state: dict[str, Any] | None = None
+        self.mc = MotionController(
+            Guard(tp),
+            Guard(TrajectoryPlanner(model)),
+            self.rig.link,
+            lambda: self.rig.now_s,
+            on_event=self.events.append,
+            on_state=self._on_state,
+            spawn=lambda fn: fn(),
+            sensors=self.sensors,
+        )
+        self.planner = self.mc.planner
+        self.dt = self.mc.dt
+        self.cycle_times: list[tuple[float, float]] | None = None
+        """Set to a list to record (wall [s], process CPU [s]) of every controller cycle."""
+        self.rig.start()
+        self.tractor.start(self.rig.now_s)  # the twin's t = 0 is the rig's
+        self.decoder.start(self.rig.now_s)
+        self._run(warmup_s)
+        if self.rig.link.latest_state() is None:
+            self.close()
+            raise TrackLoopError(f"no measurement from the ECU after warmup_s = {warmup_s} s")
+
+    def _on_state(self, s: dict[str, Any]) -> None:
+        self.state = s
+
+    def _every_tick(self, t: float) -> None:
+        self.tractor.poll(t)
+        self.decoder.poll(t)
+
+    def _run(self, seconds: float) -> None:
+        self.rig.run_until(self.rig.now_s + seconds, self._every_tick)
+
+    @property
+    def now_s(self) -> float:
+        """Rig time = the twin's time [s]."""
+        return self.rig.now_s
+
+    def cycle(self) -> None:
+        """One control period of simulated time, then one controller cycle."""
+        self._run(self.dt)
+        if self.cycle_times is None:
+            self.mc.cycle()
+            return
+        w0, c0 = time.perf_counter(), time.process_time()
+        self.mc.cycle()
+        self.cycle_times.append((time.perf_counter() - w0, time.process_time() - c0))
+
+    def truth_pose(self) -> np.ndarray:
+        """Forward kinematics of the simulated pistons (not measured), x, z, roll, pitch."""
+        params = self.rig.ecu.params
+        q = [p.counts_to_si(c) for p, c in zip(params, self.rig.ecu.piston_counts(), strict=True)]
+        return np.asarray(self.model.forward(np.array(q)).pose.controlled(), float)
+
+    def measured_pose(self) -> np.ndarray:
+        ls = self.rig.link.latest_state()
+        return np.full(4, np.nan) if ls is None else np.asarray(ls.pose.controlled(), float)
+
+    def streamed_actuators(self) -> np.ndarray | None:
+        """The reference the link streams now (SI, from its counts), None when none."""
+        counts = self.rig.link.status(self.rig.now_s).reference_counts
+        if counts is None:
+            return None
+        return np.array([p.counts_to_si(c) for p, c in zip(self.rig.ecu.params, counts, strict=True)])
+
+    def close(self) -> None:
+        for b in self._buses:
+            b.shutdown()
+        self.rig.close()
+
+    def __enter__(self) -> SimLoop:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+@dataclass(frozen=True)
+class ErrorFigures:
+    """RMS, 95th percentile of |e|, max |e| and the mean of an error over ``n`` samples (SI)."""
+
+    rms: float
+    p95: float
+    max: float
+    mean: float
+    n: int
+
+    @classmethod
+    def of(cls, e: np.ndarray) -> ErrorFigures:
+        e = np.asarray(e, float)
+        e = e[np.isfinite(e)]
+        if e.size == 0:
+            return cls(math.nan, math.nan, math.nan, math.nan, 0)
+        a = np.abs(e)
+        return cls(
+            float(np.sqrt(np.mean(e**2))), float(np.percentile(a, 95)), float(a.max()), float(e.mean()), int(e.size)
+        )
+
+    def as_dict(self) -> dict[str, float | int]:
+        return {"rms": self.rms, "p95": self.p95, "max": self.max, "mean": self.mean, "n": self.n}
+
+
+@dataclass(frozen=True)
+class TrackLoopResult:
+    """One closed-loop run, sampled every control cycle (t = scenario time [s], SI throughout).
+
+    Arrays (N,): ``t``; ``setpoint`` (in the job's frame; NaN when none was sent); ``demand`` (the
+    tractor-frame value of the DOF that makes the error zero: φ, the true row, or the z giving the
+    working height); ``tractor_roll``, ``tractor_pitch`` (the twin's true attitude); ``ground_height``
+    (ground under the implement above the tractor's contact plane); ``row`` (true row offset);
+    ``error`` (the job's error, from the true pose); ``evaluated`` (after ``settle_s``); ``inside``
+    (evaluated, and the demand inside the workspace and the follower's limits, see
+    :class:`LoopSettings`). (N, 4) x, z, roll, pitch: ``reference`` (the controller's tractor-frame
+    reference pose; NaN when none), ``measured`` (over CAN), ``truth`` (simulated pistons).
+    ``figures``: over ``evaluated``; ``figures_inside``: over ``inside``. ``counts``: see the module
+    docstring.
+    """
+
+    scenario: str
+    job: str
+    strategy: str
+    frame: str
+    dof: str
+    working_height_m: float | None
+    t: np.ndarray
+    setpoint: np.ndarray
+    demand: np.ndarray
+    reference: np.ndarray
+    measured: np.ndarray
+    truth: np.ndarray
+    tractor_roll: np.ndarray
+    tractor_pitch: np.ndarray
+    ground_height: np.ndarray
+    row: np.ndarray
+    error: np.ndarray
+    evaluated: np.ndarray
+    inside: np.ndarray
+    figures: ErrorFigures
+    figures_inside: ErrorFigures
+    counts: dict[str, int]
+    faults: tuple[str, ...]
+    workspace_excess: float = 0.0
+    """Largest distance of a measured sample beyond a workspace face, beyond the tolerance (m or rad)."""
+    notes: tuple[str, ...] = ()
+    """The first distinct messages of refused gotos, rejected setpoints and refused references."""
+
+    @property
+    def dof_index(self) -> int:
+        return _POSE.index(self.dof)
+
+    @property
+    def inside_fraction(self) -> float:
+        n = int(self.evaluated.sum())
+        return float(self.inside.sum() / n) if n else 0.0
+
+    def summary(self) -> dict[str, Any]:
+        """JSON-ready figures and counts."""
+        return {
+            "scenario": self.scenario,
+            "job": self.job,
+            "strategy": self.strategy,
+            "frame": self.frame,
+            "dof": self.dof,
+            "working_height_m": self.working_height_m,
+            "duration_s": float(self.t[-1] - self.t[0]) if len(self.t) else 0.0,
+            "error": self.figures.as_dict(),
+            "error_inside": self.figures_inside.as_dict(),
+            "inside_fraction": self.inside_fraction,
+            "counts": dict(self.counts),
+            "workspace_excess": self.workspace_excess,
+            "faults": list(self.faults),
+            "notes": list(self.notes),
+        }
+
+
+class _Slope:
+    """Least-squares slope of the last samples within a window (the client's rate estimate)."""
+
+    def __init__(self, window_s: float) -> None:
+        self.window_s = window_s
+        self._buf: deque[tuple[float, float]] = deque()
+
+    def add(self, t: float, v: float) -> float:
+        self._buf.append((t, v))
+        while self._buf and self._buf[0][0] < t - self.window_s - 1e-9:
+            self._buf.popleft()
+        if len(self._buf) < 2:
+            return 0.0
+        ts = np.array([p[0] for p in self._buf])
+        vs = np.array([p[1] for p in self._buf])
+        tc = ts - ts.mean()
+        return float((tc @ (vs - vs.mean())) / (tc @ tc))
+
+
+class _AlphaBeta:
+    """α-β filter of sampled-and-held camera readings: position and rate, extrapolated in between."""
+
+    def __init__(self, alpha: float, beta: float) -> None:
+        self.alpha, self.beta = alpha, beta
+        self.x: float | None = None
+        self.v = 0.0
+        self.t = 0.0
+
+    def update(self, z: float, t: float) -> None:
+        if self.x is None:
+            self.x, self.t = z, t
+            return
+        dt = t - self.t
+        if dt <= 0:
+            return
+        x = self.x + self.v * dt
+        r = z - x
+        self.x = x + self.alpha * r
+        self.v += self.beta * r / dt
+        self.t = t
+
+    def at(self, t: float) -> tuple[float, float]:
+        assert self.x is not None
+        return self.x + self.v * (t - self.t), self.v
+
+
+def _pose_tolerance(model: HitchModel, planner: TrajectoryPlanner, p0: np.ndarray) -> np.ndarray:
+    """One count on every sensor, mapped to the pose at ``p0`` (x, z, roll, pitch)."""
+    jac = planner.inverse.solve(p0)[1]  # d actuators / d pose (5 x 4)
+    res = SensorScaling(model.profile).resolution
+    return np.asarray(np.abs(np.linalg.pinv(jac)) @ res, float)
+
+
+def run_track_loop(
+    model: HitchModel,
+    scenario: Scenario | str,
+    settings: LoopSettings | None = None,
+    *,
+    on_cycle: Callable[[SimLoop], None] | None = None,
+) -> TrackLoopResult:
+    """Run ``scenario``'s job with ``settings.strategy`` on the simulated rig (module docstring).
+
+    ``on_cycle(loop)`` runs after every controller cycle (e.g. to time it).
+
+    Raises:
+        TrackLoopError: bad settings, no ECU measurement, or the track session could not start.
+        ScenarioError: the scenario cannot be loaded.
+    """
+    s = settings if settings is not None else LoopSettings()
+    sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    job = s.job if s.job is not None else job_of(sc)
+    frame, dof = JOB_FRAME[job]
+    d = _POSE.index(dof)
+    duration = sc.duration_s if s.duration_s is None else s.duration_s
+    if duration <= s.warmup_s + s.settle_s:
+        raise TrackLoopError(
+            f"duration_s = {duration:g} s must exceed warmup_s + settle_s = {s.warmup_s + s.settle_s:g} s"
+        )
+    twin = sc.twin
+    pivot = float(model.profile.geometry.pivot_height)
+    with SimLoop(model, sc, sim=s.sim, start=s.start, warmup_s=s.warmup_s) as loop:
+        mc, tp = loop.mc, loop.planner
+        lo, hi = tp.lo, tp.hi
+        p0 = loop.measured_pose()
+        tol = _pose_tolerance(model, tp, np.clip(p0, lo, hi))
+        # the limits a session tracking ``dof`` alone moves within (the subset limits from the start pose)
+        follow = TrackFollower(tp, MotionState.at_rest(np.clip(p0, lo, hi)), (dof,), s.ttl_s).limits
+        # hold the start (the held reference is streamed from now on)
+        mc.goto(dict(zip(_POSE, map(float, p0), strict=True)))
+        loop.cycle()
+        sensors = loop.sensors
+        t_loop = loop.now_s
+        dist0 = sensors.ground_distance(t_loop)
+        working = s.working_height_m
+        if job == "terrain" and working is None:
+            if dist0 is None:
+                raise TrackLoopError("terrain: no ground-distance reading to take the working height from")
+            working = dist0
+        session: int | None = None
+        if s.strategy == "track":
+            try:
+                session = mc.track_start(frame, (dof,), s.ttl_s).session
+            except MotionError as exc:
+                raise TrackLoopError(f"the track session could not start: {exc}") from None
+        slope = _Slope(s.rate_window_s)
+        row_f = _AlphaBeta(*s.row_filter) if s.row_filter is not None else None
+        row_seen: float | None = None
+        seq = 0
+        last_goal: float | None = None
+        counts = {
+            "references_outside_strokes": 0,
+            "refused": 0,
+            "limit_events": 0,
+            "limited_cycles": 0,
+            "setpoints_rejected": 0,
+            "gotos": 0,
+            "gotos_refused": 0,
+            "outside_workspace": 0,
+        }
+        rows: list[tuple[Any, ...]] = []
+        notes: list[str] = []
+        excess = 0.0
+        n_events = len(loop.events)
+        while loop.now_s < duration - 1e-9:
+            now = loop.now_s
+            sp: float | None = None  # in the job's frame
+            target: float | None = None  # the same in the tractor frame (the client's conversion)
+            if job == "levelling":
+                att = sensors.attitude(now)
+                if att is not None:
+                    sp, target = 0.0, att[0]
+            elif job == "guidance":
+                ro = sensors.row_offset(now)
+                if ro is not None:
+                    if row_f is None:
+                        sp = ro[0]
+                    else:
+                        if ro[1] != row_seen:
+                            row_f.update(ro[0], ro[1])
+                            row_seen = ro[1]
+                        sp = row_f.at(now)[0]
+                    target = sp
+            else:
+                dist = sensors.ground_distance(now)
+                ls = loop.rig.link.latest_state()
+                if dist is not None and ls is not None and working is not None:
+                    sp = working
+                    target = float(ls.pose.controlled()[1]) + (working - dist)
+            rate = 0.0
+            if target is not None:
+                rate = row_f.at(now)[1] if (job == "guidance" and row_f is not None) else slope.add(now, target)
+            if sp is not None and target is not None:
+                if s.strategy == "track" and session is not None:
+                    seq += 1
+                    vel = {dof: rate} if s.send_velocity else None
+                    try:
+                        mc.track_setpoint(session, seq, {dof: sp}, vel)
+                    except MotionError as exc:
+                        counts["setpoints_rejected"] += 1
+                        _note(notes, f"setpoint rejected: {exc}")
+                elif s.strategy == "goto_stream":
+                    goal = float(np.clip(target, lo[d], hi[d]))
+                    if goal != last_goal:
+                        counts["gotos"] += 1
+                        try:
+                            mc.goto({dof: goal})
+                            last_goal = goal
+                        except HitchError as exc:
+                            counts["gotos_refused"] += 1
+                            _note(notes, f"goto refused: {exc}")
+            loop.cycle()
+            if on_cycle is not None:
+                on_cycle(loop)
+            t = loop.now_s
+            st = loop.state or {}
+            ref = st.get("reference")
+            ref_pose = np.array([ref["pose"][k] for k in _POSE]) if ref else np.full(4, np.nan)
+            q = loop.streamed_actuators()
+            if q is not None and (np.any(q < model.lower - 1e-9) or np.any(q > model.upper + 1e-9)):
+                counts["references_outside_strokes"] += 1
+            if st.get("limited"):
+                counts["limited_cycles"] += 1
+            truth = loop.truth_pose()
+            meas = loop.measured_pose()
+            beyond = float(np.max(np.maximum(lo - tol - meas, meas - hi - tol)))
+            if beyond > 0.0:
+                counts["outside_workspace"] += 1
+                excess = max(excess, beyond)
+            att_true = twin.attitude(t)
+            g = twin.implement_ground_z(t)
+            row_true = twin.row_true_offset_m(t)
+            if job == "levelling":
+                demand, err = att_true.roll_rad, truth[2] - att_true.roll_rad
+            elif job == "guidance":
+                demand, err = row_true, truth[0] - row_true
+            else:
+                assert working is not None
+                demand = working + g - pivot
+                err = (pivot + truth[1] - g) - working
+            rows.append(
+                (t, math.nan if sp is None else sp, demand, ref_pose, meas, truth)
+                + (att_true.roll_rad, att_true.pitch_rad, g, row_true, err)
+            )
+        for e in loop.events[n_events:]:
+            if e.get("event") == "limit_reached":
+                counts["limit_events" if "limits" in e else "refused"] += 1
+                if "limits" not in e:
+                    _note(notes, f"reference refused: {e.get('message')}")
+        faults = tuple(loop.rig.link.faults.reasons)
+    ts = np.array([r[0] for r in rows]) - t_loop
+    demand_a = np.array([r[2] for r in rows])
+    evaluated = ts >= s.settle_s - 1e-9
+    inside = evaluated & _inside(
+        ts, demand_a, lo[d], hi[d], float(follow.velocity[d]), float(follow.acceleration[d]), s.inside_window_s
+    )
+    err_a = np.array([r[10] for r in rows])
+    return TrackLoopResult(
+        scenario=sc.name,
+        job=job,
+        strategy=s.strategy,
+        frame=frame if s.strategy == "track" else "tractor",
+        dof=dof,
+        working_height_m=None if working is None else float(working),
+        t=ts,
+        setpoint=np.array([r[1] for r in rows]),
+        demand=demand_a,
+        reference=np.array([r[3] for r in rows]),
+        measured=np.array([r[4] for r in rows]),
+        truth=np.array([r[5] for r in rows]),
+        tractor_roll=np.array([r[6] for r in rows]),
+        tractor_pitch=np.array([r[7] for r in rows]),
+        ground_height=np.array([r[8] for r in rows]),
+        row=np.array([r[9] for r in rows]),
+        error=err_a,
+        evaluated=evaluated,
+        inside=inside,
+        figures=ErrorFigures.of(err_a[evaluated]),
+        figures_inside=ErrorFigures.of(err_a[inside]),
+        counts=counts,
+        faults=faults,
+        workspace_excess=excess,
+        notes=tuple(notes),
+    )
+
+
+def _note(notes: list[str], text: str) -> None:
+    if text not in notes and len(notes) < 5:
+        notes.append(text)
+
+
+def _inside(
+    t: np.ndarray, demand: np.ndarray, lo: float, hi: float, v_max: float, a_max: float, window_s: float
+) -> np.ndarray:
+    """Samples whose demand stayed inside [lo, hi] and within the follower's pose velocity and
+    acceleration limits (``v_max``, ``a_max``: the subset limits of the tracked DOF) over the
+    preceding ``window_s``."""
+    if len(t) < 3:
+        return np.zeros(len(t), bool)
+    vel = np.gradient(demand, t)
+    acc = np.gradient(vel, t)
+    ok = (demand >= lo) & (demand <= hi)
+    ok &= np.abs(vel) <= v_max
+    ok &= np.abs(acc) <= a_max
+    bad = np.flatnonzero(~ok)
+    out = ok.copy()
+    for i in bad:  # a window after every bad sample
+        out[i : np.searchsorted(t, t[i] + window_s, side="right")] = False
+    return out

@@ -1,0 +1,267 @@
+"""``hitch track``: argument errors (sine specs, CSV files with line and column, rate and TTL bounds),
+the sine and CSV signal generators against closed forms, ``--dry-run``, and (slow) a 2 s sine streamed to
+a real ``hitch serve`` that ends with the motion finished and every put counted by the service."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from bridge.cli.errors import CLIError
+from bridge.cli.main import main
+from bridge.cli.track import (
+    CsvSignal,
+    SineSignal,
+    SineTerm,
+    parse_dofs,
+    parse_sine,
+    read_signal_csv,
+    setpoints,
+)
+from tests.integration.service_process import ROOT, ServiceProcess, free_port, wait_online
+
+
+def _err(capsys, *argv: str) -> str:
+    assert main(["track", *argv]) == 2
+    out = capsys.readouterr()
+    assert out.out == ""
+    return out.err
+
+
+# ---------------------------------------------------------------------------------------- sine specs
+def test_sine_spec_parses_terms_in_si():
+    assert parse_sine("x=0.02@0.05Hz,roll=0.01@0.1hz") == (SineTerm("x", 0.02, 0.05), SineTerm("roll", 0.01, 0.1))
+    assert parse_sine(" z = 0.1 @ 2 ") == (SineTerm("z", 0.1, 2.0),)
+
+
+@pytest.mark.parametrize(
+    ("spec", "words"),
+    [
+        ("y=0.01@1Hz", "unknown DOF 'y'; allowed: x, z, roll, pitch"),
+        ("x=0.01@1Hz,x=0.02@1Hz", "DOF 'x' given twice"),
+        ("z=20@0.5Hz", "amplitude must lie in (0, 0.5] m, got 20 (SI units: m, not mm or deg)"),
+        ("roll=0@0.5Hz", "amplitude must lie in (0, 0.5] rad, got 0"),
+        ("z=0.01@0Hz", "frequency must lie in (0, 10] Hz, got 0"),
+        ("z=0.01@11Hz", "frequency must lie in (0, 10] Hz, got 11"),
+        ("z=abc@1Hz", "amplitude and frequency must be numbers"),
+        ("z=0.01", "is not DOF=AMPLITUDE@FREQUENCYHz"),
+        ("z=nan@1Hz", "amplitude must lie in (0, 0.5] m"),
+        (",", "no terms given"),
+    ],
+)
+def test_bad_sine_specs_name_the_flag_and_the_range(capsys, spec, words):
+    with pytest.raises(argparse.ArgumentTypeError, match="--sine"):
+        parse_sine(spec)
+    err = _err(capsys, "--sine", spec, "--dry-run")
+    assert "--sine" in err and words in err, err
+
+
+@pytest.mark.parametrize(
+    ("argv", "words"),
+    [
+        (["--rate", "0"], "--rate must lie in (0, 100] Hz, got 0"),
+        (["--rate", "100.5"], "--rate must lie in (0, 100] Hz, got 100.5"),
+        (["--rate", "inf"], "--rate must be finite"),
+        (["--rate", "5"], "--rate 5 Hz sends a setpoint every 200 ms, more than half of --ttl-ms 200 ms"),
+        (["--ttl-ms", "49"], "--ttl-ms must lie in [50, 1000] ms, got 49"),
+        (["--ttl-ms", "1001"], "--ttl-ms must lie in [50, 1000] ms, got 1001"),
+        (["--duration", "0"], "--duration must lie in (0, 3600] s"),
+        (["--dof", "x,q"], "--dof: unknown DOF 'q'"),
+        (["--dof", "x"], "--sine names z, which --dof x does not track"),
+        (["--frame", "moon"], "invalid choice: 'moon'"),
+        (
+            ["--rate", "2", "--ttl-ms", "1000", "--sine", "z=0.01@1.5Hz"],
+            "1.5 Hz is above half the setpoint rate (--rate 2 Hz: at most 1 Hz)",
+        ),
+        (["--frame", "ground"], "--frame ground: z is the height above the ground"),
+        (["--around", "x=0.01"], "--around names x, which --dof z does not track"),
+    ],
+)
+def test_bad_options_name_the_flag_and_the_allowed_range(capsys, argv, words):
+    base = ["--sine", "z=0.02@0.5Hz"] if "--sine" not in argv else []
+    err = _err(capsys, *base, *argv, "--dry-run")
+    assert words in err, err
+
+
+def test_exactly_one_signal(capsys, tmp_path):
+    assert "give exactly one signal" in _err(capsys, "--dry-run")
+    f = tmp_path / "s.csv"
+    f.write_text("t,z\n0,0.1\n1,0.2\n")
+    assert "give exactly one signal" in _err(capsys, "--sine", "z=0.01@1Hz", "--from-file", str(f), "--dry-run")
+
+
+def test_dofs_are_canonical_and_unique():
+    assert parse_dofs("pitch,x") == ("x", "pitch")
+    with pytest.raises(argparse.ArgumentTypeError, match="at most once"):
+        parse_dofs("x,x")
+
+
+# ---------------------------------------------------------------------------------------- CSV errors
+@pytest.mark.parametrize(
+    ("text", "words"),
+    [
+        ("t,z_mm\n0,100\n", "line 1, column 2 ('z_mm'): units in the header are not allowed"),
+        ("t,z [m]\n0,0.1\n", "line 1, column 2 ('z [m]'): units in the header are not allowed"),
+        ("t_s,z\n0,0.1\n", "line 1, column 1 ('t_s'): units in the header are not allowed"),
+        ("# a comment\n\nt,roll,q\n0,0,1\n", "line 3, column 3: unknown column 'q'"),
+        ("t,z\n0,0.1\n0.5,abc\n", "line 3, column 2 (z): not a number: 'abc'"),
+        ("t,z\n0,0.1\n0.5,nan\n", "line 3, column 2 (z): must be finite"),
+        ("t,z\n0,0.1\n0.5,0.2\n0.5,0.3\n", "line 4, column 1 (t): t must increase strictly, got 0.5 s after 0.5 s"),
+        ("t,z\n-1,0.1\n0,0.2\n", "line 2, column 1 (t): t must be >= 0 s"),
+        ("t,z\n0,0.1\n1,0.2,3\n", "line 3: 3 values, the header has 2 columns"),
+        ("z,roll\n0.1,0\n0.2,0\n", "line 1: no 't' column"),
+        ("t,v_z\n0,0\n1,0\n", "line 1: no DOF column"),
+        ("t,z,v_roll\n0,0.1,0\n1,0.1,0\n", "line 1, column 3: v_roll without a roll column"),
+        ("t,z,z\n0,0.1,0.1\n", "line 1, column 3: column 'z' given twice"),
+        ("t,z\n0,0.1\n", "needs at least 2 rows"),
+        ("", "empty"),
+    ],
+)
+def test_csv_errors_name_the_file_line_and_column(capsys, tmp_path, text, words):
+    f = tmp_path / "signal.csv"
+    f.write_text(text)
+    with pytest.raises(CLIError) as exc:
+        read_signal_csv(f)
+    assert str(f) in str(exc.value) and words in str(exc.value), str(exc.value)
+    err = _err(capsys, "--from-file", str(f), "--dry-run")
+    assert words in err
+
+
+def test_a_missing_file_is_named(capsys, tmp_path):
+    assert f"--from-file {tmp_path / 'nope.csv'}: no such file" in _err(
+        capsys, "--from-file", str(tmp_path / "nope.csv"), "--dry-run"
+    )
+
+
+def test_duration_beyond_the_file_is_refused(capsys, tmp_path):
+    f = tmp_path / "s.csv"
+    f.write_text("t,z\n0,0.1\n1,0.2\n")
+    assert "--duration 2 s is longer than" in _err(capsys, "--from-file", str(f), "--duration", "2", "--dry-run")
+
+
+# ---------------------------------------------------------------------------------------- generators
+def test_sine_signal_matches_its_closed_form_and_its_velocity_is_the_derivative():
+    terms = (SineTerm("x", 0.02, 0.05), SineTerm("roll", 0.01, 0.7))
+    sig = SineSignal(terms, {"x": 0.01, "z": 0.2, "roll": -0.003}, held=("z",), duration_s=3.0)
+    assert sig.dofs == ("x", "z", "roll")
+    for t in np.linspace(0.0, 3.0, 31):
+        pose, vel = sig.sample(float(t))
+        assert pose["x"] == pytest.approx(0.01 + 0.02 * math.sin(2 * math.pi * 0.05 * t), abs=1e-15)
+        assert pose["roll"] == pytest.approx(-0.003 + 0.01 * math.sin(2 * math.pi * 0.7 * t), abs=1e-15)
+        assert pose["z"] == 0.2 and vel is not None and vel["z"] == 0.0
+        h = 1e-6  # central difference of the pose: the velocity sent with it
+        p1, _ = sig.sample(float(t) + h)
+        p0, _ = sig.sample(float(t) - h)
+        for k in ("x", "roll"):
+            assert vel[k] == pytest.approx((p1[k] - p0[k]) / (2 * h), rel=1e-6, abs=1e-12)
+
+
+def test_setpoints_come_at_the_rate_with_increasing_seq_until_the_duration():
+    sig = SineSignal((SineTerm("z", 0.02, 0.5),), {"z": 0.1}, duration_s=2.0)
+    sps = list(setpoints(sig, 50.0))
+    assert len(sps) == 101 and [s[0] for s in sps] == list(range(101))
+    assert [s[1] for s in sps] == pytest.approx([k / 50 for k in range(101)])
+    assert sps[25][2]["pose"]["z"] == pytest.approx(0.1 + 0.02 * math.sin(2 * math.pi * 0.5 * 0.5))
+    assert len(list(setpoints(sig, 50.0, 0.5))) == 26
+
+
+def test_csv_interpolation_against_closed_forms(tmp_path):
+    # piecewise-linear data is reproduced exactly between its rows; velocities interpolate the same way
+    f = tmp_path / "lin.csv"
+    f.write_text("t,z,v_z,roll\n1.0,0.10,0.02,0.0\n2.0,0.12,0.02,0.01\n4.0,0.16,0.02,-0.01\n")
+    sig = read_signal_csv(f)
+    assert isinstance(sig, CsvSignal) and sig.span_s == 3.0 and sig.dofs == ("z", "roll")
+    for t in np.linspace(0.0, 3.0, 61):  # played from the first row's time
+        pose, vel = sig.sample(float(t))
+        assert pose["z"] == pytest.approx(0.10 + 0.02 * t, abs=1e-12)
+        roll = 0.01 * t if t <= 1 else 0.01 - 0.01 * (t - 1)
+        assert pose["roll"] == pytest.approx(roll, abs=1e-12)
+        assert vel == {"z": pytest.approx(0.02)}
+    # a sine sampled at 100 Hz: linear interpolation is within A·ω²·h²/8 of the sine
+    a, fr, h = 0.02, 0.5, 0.01
+    ts = np.arange(0.0, 2.0 + h / 2, h)
+    g = tmp_path / "sine.csv"
+    g.write_text("t,x\n" + "\n".join(f"{t:.6f},{a * math.sin(2 * math.pi * fr * t):.12f}" for t in ts) + "\n")
+    sine = read_signal_csv(g)
+    bound = a * (2 * math.pi * fr) ** 2 * h * h / 8 + 1e-11
+    for _, t, body in setpoints(sine, 33.0):
+        assert abs(body["pose"]["x"] - a * math.sin(2 * math.pi * fr * t)) <= bound
+        assert "velocity" not in body
+
+
+def test_dry_run_prints_the_first_setpoints_without_connecting(capsys):
+    assert main(["track", "--frame", "level", "--sine", "roll=0.01@0.1Hz", "--rate", "20", "--dry-run", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["frame"] == "level" and out["dof"] == ["roll"] and out["centre"] == {"roll": 0.0}  # level: around 0
+    rows = out["setpoints"]
+    assert [r["seq"] for r in rows] == list(range(10))
+    for r in rows:
+        assert r["pose"]["roll"] == pytest.approx(0.01 * math.sin(2 * math.pi * 0.1 * r["t"]))
+    assert main(["track", "--dof", "z,roll", "--sine", "z=0.02@0.5Hz", "--around", "z=0.2", "--dry-run"]) == 0
+    text = capsys.readouterr().out
+    assert "centre of roll shown as 0: the start pose is added when it runs" in text
+    assert "    0  t=   0.000  z=+0.200000  roll=+0.000000" in text
+
+
+# ---------------------------------------------------------------------------------------- a real service
+@pytest.mark.slow
+def test_a_two_second_sine_streams_to_a_real_service_and_ends_with_the_motion_finished(tmp_path):
+    from bridge.service.client import HitchClient
+
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    svc = ServiceProcess(
+        ["--listen", endpoint, "--data-dir", str(tmp_path / "data"), "--can-channel", f"track-cli-{port}"],
+        ready_timeout_s=120.0,
+    )
+    try:
+        with HitchClient([endpoint], timeout_s=10.0) as c:
+            start = wait_online(c, 60.0)
+        r = subprocess.run(
+            [sys.executable, "-m", "bridge.cli", "track", "--sine", "z=0.02@0.5Hz", "--duration", "2"]
+            + ["--connect", endpoint, "--timeout", "20", "--json"],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert r.returncode == 0, r.stderr
+        out = json.loads(r.stdout)
+        assert out["finished"] and out["reason"] == "track/stop"
+        assert out["outcome"]["event"] == "motion_finished" and out["outcome"]["kind"] == "track"
+        # the first setpoint is a query, the rest are puts: the service counts every one it took
+        assert out["sent"] >= 50 and out["track"]["setpoints"] == out["sent"], out
+        assert out["track"]["rejected"] == 0 and out["track"]["ignored_seq"] == 0
+        assert out["streamed_s"] == pytest.approx(2.0, abs=0.03)
+        assert abs(out["pose"]["z"] - start["pose"]["z"]) < 0.03  # around the start height, amplitude 20 mm
+        with HitchClient([endpoint], timeout_s=10.0) as c:
+            st = c.state()
+            assert st.get("track") is None and not st["moving"]
+
+        # Ctrl-C mid-stream: track/stop is sent and awaited, then exit 130
+        p = subprocess.Popen(
+            [sys.executable, "-m", "bridge.cli", "track", "--sine", "z=0.02@0.5Hz", "--connect", endpoint]
+            + ["--timeout", "20"],
+            cwd=ROOT,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        deadline = time.monotonic() + 60
+        line = ""
+        while time.monotonic() < deadline and "sent" not in line:  # the first progress line: it streams
+            line = p.stdout.readline() if p.stdout else ""
+        p.send_signal(signal.SIGINT)
+        so, se = p.communicate(timeout=60)
+        assert p.returncode == 130, se
+        assert "sending track/stop" in se and "finished: track/stop" in so, (so, se)
+    finally:
+        svc.kill()

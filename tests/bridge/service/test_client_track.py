@@ -1,0 +1,94 @@
+"""HitchClient's track methods: setpoints are Zenoh puts on ``<prefix>/track/setpoint`` (one publisher per
+session, reused), their JSON is what ``TrackSetpoint`` parses, and bad values are refused before the wire.
+A plain Zenoh peer on loopback stands in for the service (the service's own handling is tested in
+``test_track_mode.py``; a real service receives them in ``tests/bridge/cli/test_track_cli.py``)."""
+
+from __future__ import annotations
+
+import json
+import queue
+import socket
+
+import pytest
+import zenoh
+
+from bridge.service.client import ClientError, HitchClient
+from bridge.service.schemas import TrackSetpoint
+
+
+def _port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def peer():
+    """A listening Zenoh peer on loopback collecting every setpoint put."""
+    port = _port()
+    cfg = zenoh.Config()
+    cfg.insert_json5("mode", '"peer"')
+    cfg.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    cfg.insert_json5("scouting/multicast/enabled", "false")
+    s = zenoh.open(cfg)
+    got: queue.Queue = queue.Queue()
+    sub = s.declare_subscriber("hitch/track/setpoint", lambda sample: got.put(sample.payload.to_bytes()))
+    try:
+        yield f"tcp/127.0.0.1:{port}", got
+    finally:
+        sub.undeclare()
+        s.close()
+
+
+def _received(got: queue.Queue, n: int, timeout_s: float = 5.0) -> list[dict]:
+    return [json.loads(got.get(timeout=timeout_s)) for _ in range(n)]
+
+
+def test_setpoint_puts_reach_the_subscriber_and_parse_as_the_service_parses_them(peer):
+    endpoint, got = peer
+    with HitchClient([endpoint], timeout_s=2.0) as c:
+        # a put before the subscriber's interest has propagated may be dropped: retry the first one
+        for seq in range(50):
+            c.track_setpoint(7, seq, {"roll": 0.0}, {"roll": 0.0})
+            try:
+                first = json.loads(got.get(timeout=0.1))
+                break
+            except queue.Empty:
+                continue
+        else:
+            raise AssertionError("no put arrived within 5 s")
+        pub = c._track_pub
+        for seq in range(100, 110):
+            c.track_setpoint(7, seq, {"roll": 0.001 * seq})
+        assert c._track_pub is pub  # one publisher for the session, reused
+        bodies = _received(got, 10)
+        c.track_setpoint(8, 0, {"z": 0.1})  # a new session: a new publisher
+        assert c._track_pub is not pub and c._track_pub[1] == 8
+        (last,) = _received(got, 1)
+    assert first["session"] == 7 and first["pose"] == {"roll": 0.0} and first["velocity"] == {"roll": 0.0}
+    assert [b["seq"] for b in bodies] == list(range(100, 110))
+    for b in bodies:
+        sp = TrackSetpoint.model_validate(b)
+        assert sp.pose.roll == pytest.approx(0.001 * b["seq"]) and sp.velocity is None
+    assert last == {"session": 8, "seq": 0, "pose": {"z": 0.1}}
+
+
+@pytest.mark.parametrize(
+    ("args", "words"),
+    [
+        ((0, 1, {"z": 0.1}), "session must be an integer >= 1"),
+        ((1, -1, {"z": 0.1}), "seq must be an integer >= 0"),
+        ((1, True, {"z": 0.1}), "seq must be an integer"),
+        ((1, 1, {"z": float("nan")}), "pose.z must be a finite number"),
+        ((1, 1, {"y": 0.1}), "pose: unknown field 'y'"),
+        ((1, 1, {}), "pose must be a non-empty mapping"),
+        ((1, 1, {"z": 0.1}, {"z": float("inf")}), "velocity.z must be a finite number"),
+    ],
+)
+def test_bad_setpoints_are_refused_before_the_wire_naming_the_field(peer, args, words):
+    endpoint, _ = peer
+    with HitchClient([endpoint], timeout_s=2.0) as c:
+        with pytest.raises(ClientError, match=words.replace("(", r"\(")):
+            c.track_setpoint(*args)
+        with pytest.raises(ClientError, match="dof must be a list"):
+            c.track_start("level", "roll", 500)

@@ -1,0 +1,136 @@
+"""The control core in its own process (``control_core = "process"``, the default): over Zenoh on
+loopback, the same API as the core in the service's threads; ``stop`` answered by the core itself
+even when every request handler of the service is wedged; state and events from the core reach
+the service's own listeners; a dead core fails every motion call and never resumes; closing
+leaves no process behind; the CAN log is recorded where the bus is.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time
+
+import can
+import pytest
+
+from bridge.isobus.j1939 import decode_id
+from bridge.service.client import HitchClient, ServiceError
+from bridge.service.config import ServiceConfig
+from bridge.service.server import HitchService
+from tests.integration.service_process import free_port
+
+pytestmark = pytest.mark.slow
+
+REFERENCE_PGN = 0xFF21
+
+
+def _wait(pred, timeout_s: float = 15.0) -> bool:
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if pred():
+            return True
+        time.sleep(0.02)
+    return False
+
+
+@pytest.fixture
+def service(tmp_path):
+    port = free_port()
+    ep = f"tcp/127.0.0.1:{port}"
+    cfg = ServiceConfig(listen=[ep], data_dir=tmp_path, can_log=tmp_path / "bus.log", planning_processes=1)
+    svc = HitchService(cfg).start()
+    try:
+        assert svc.core is not None and svc.motion is None  # the default: the core has its own process
+        assert _wait(lambda: (svc.latest_state or {}).get("ecu", {}).get("online")), "no state from the core"
+        yield svc, ep
+    finally:
+        svc.close()
+
+
+def test_the_api_answers_as_with_the_core_in_threads(service):
+    svc, ep = service
+    events: list[dict] = []
+    svc.add_listener("event", events.append)
+    with HitchClient([ep], timeout_s=10) as c:
+        assert c.config()["limits"]["workspace"]["z"][1] > 0.2
+        acc = c.goto({"z": 0.25})
+        assert acc["accepted"] and acc["duration"] > 0
+        with pytest.raises(ServiceError) as e:
+            c.goto({"z": 5.0})
+        assert e.value.code == "unreachable" and "workspace" in str(e.value) and "z" in str(e.value)
+        assert _wait(lambda: any(ev.get("event") == "motion_finished" for ev in events))
+        assert abs(svc.latest_state["pose"]["z"] - 0.25) < 3e-3
+        assert c.mode()["mode"] == "auto"
+        with pytest.raises(ServiceError) as e:
+            c.request("track/stop", {})
+        assert e.value.code == "not_found"
+
+
+def test_stop_is_answered_by_the_core_while_every_request_handler_is_wedged(service):
+    svc, ep = service
+    gate = threading.Event()
+    real = svc.api.handle
+
+    def wedged(key, payload, user=None, **kw):
+        if key != "goto":
+            gate.wait(30.0)  # nothing the service's own handlers do gets done
+        return real(key, payload, user, **kw)
+
+    svc.api.handle = wedged  # type: ignore[method-assign]
+    try:
+        with HitchClient([ep], timeout_s=10) as c, HitchClient([ep], timeout_s=0.5) as busy:
+            c.goto({"z": 0.3}, speed_scale=0.3)
+            time.sleep(0.3)
+            stuck = [threading.Thread(target=lambda: _ignore(lambda: busy.request("config", {}))) for _ in range(8)]
+            for t in stuck:
+                t.start()
+            t0 = time.monotonic()
+            reply = c.stop()
+            took = time.monotonic() - t0
+            assert reply["stopped"] and reply["motion_id"] is not None
+            assert took < 2.0, took
+            assert _wait(lambda: svc.latest_state["motion"] is None, 5.0)
+    finally:
+        gate.set()
+
+
+def _ignore(fn) -> None:
+    try:
+        fn()
+    except ServiceError:
+        pass
+
+
+def test_a_dead_core_fails_every_motion_call_and_nothing_resumes(service):
+    svc, ep = service
+    with HitchClient([ep], timeout_s=10) as c:
+        c.goto({"z": 0.3}, speed_scale=0.3)
+        time.sleep(0.3)
+        os.kill(svc.core.pid, signal.SIGKILL)
+        assert _wait(lambda: not svc.core.alive, 5.0)
+        with pytest.raises(ServiceError) as e:
+            c.goto({"z": 0.2})
+        assert e.value.code == "unavailable" and "control core" in str(e.value)
+
+
+def test_closing_ends_the_core_process_and_the_can_log_holds_the_references(tmp_path):
+    port = free_port()
+    log = tmp_path / "bus.log"
+    svc = HitchService(
+        ServiceConfig(listen=[f"tcp/127.0.0.1:{port}"], data_dir=tmp_path, can_log=log, planning_processes=1)
+    ).start()
+    pid = svc.core.pid
+    assert _wait(lambda: (svc.latest_state or {}).get("ecu", {}).get("online")), "no state from the core"
+    with HitchClient([f"tcp/127.0.0.1:{port}"], timeout_s=10) as c:
+        c.goto({"z": 0.25})
+        time.sleep(2.5)  # moved, then holding: references at 50 Hz
+    took = svc.close()
+    assert took < 3.0
+    with pytest.raises(ProcessLookupError):
+        for _ in range(100):
+            os.kill(pid, 0)
+            time.sleep(0.05)
+    refs = [m for m in can.LogReader(str(log)) if decode_id(m.arbitration_id).pgn == REFERENCE_PGN]
+    assert len(refs) > 20  # the held reference streamed at 50 Hz, recorded in the core's process

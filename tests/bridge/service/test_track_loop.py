@@ -1,0 +1,143 @@
+"""The closed-loop runner on the simulated rig (bridge.service.track_loop), on short constructed scenarios:
+the error is checked against the twin's truth (its attitude, ground and row) and the forward kinematics
+of the simulated pistons, never against the controller's own view."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bridge.service.track_loop import LoopSettings, TrackLoopError, job_of, run_track_loop
+from bridge.sim.scenario import load_scenario, scenario_from_dict
+
+
+def _scenario(name, duration_s, *, terrain=None, signals=None, speed=2.2222, suspension="rigid"):
+    data = {
+        "schema_version": 1,
+        "name": name,
+        "duration_s": duration_s,
+        "tractor": {"suspension": suspension},
+        "speed": {"constant_m_s": speed},
+        "signals": {"row_offset_rms_m": 0.0, "row_noise_rms_m": 0.0, **(signals or {})},
+    }
+    if terrain:
+        data["terrain"] = terrain
+    return scenario_from_dict(data)
+
+
+SLOPE = 0.03  # rad, inside the roll workspace (+-0.058 rad)
+
+
+@pytest.fixture(scope="module")
+def side_slope():
+    return _scenario("side-slope", 4.5, terrain={"cross_slope_rad": SLOPE})
+
+
+def test_a_constant_side_slope_is_levelled_and_hold_keeps_the_slope(model, side_slope):
+    assert job_of(side_slope) == "levelling"
+    track = run_track_loop(model, side_slope, LoopSettings(strategy="track", settle_s=3.0))
+    hold = run_track_loop(model, side_slope, LoopSettings(strategy="hold", settle_s=3.0))
+    phi = side_slope.twin.attitude(1.0).roll_rad  # the tractor's roll on the slope (right side down)
+    assert phi == pytest.approx(SLOPE, abs=1e-3)  # left side higher: the tractor rolls right side down (+)
+    assert track.frame == "level" and track.dof == "roll"
+    # implement roll relative to gravity after settling: within ~1 count of the tilt sensor
+    assert track.figures.max < 2e-3, track.figures
+    # hold: the hitch stays at roll 0, so the implement's roll relative to gravity is minus the tractor's
+    assert hold.figures.mean == pytest.approx(-phi, abs=1e-3)
+    assert hold.figures.rms > 10 * track.figures.rms
+    for r in (track, hold):
+        assert r.counts["references_outside_strokes"] == 0 and r.counts["refused"] == 0
+        assert r.counts["outside_workspace"] == 0 and not r.faults
+
+
+def test_row_offset_is_followed_in_x_and_track_beats_hold(model):
+    # a slow row (30 m wavelength at 8 km/h = 0.074 Hz), 20 mm RMS, no camera noise
+    sc = _scenario(
+        "row",
+        8.0,
+        signals={"row_offset_rms_m": 0.02, "row_wavelength_min_m": 30.0, "row_wavelength_max_m": 30.0, "seed": 3},
+    )
+    assert job_of(sc) == "guidance"
+    track = run_track_loop(model, sc, LoopSettings(strategy="track", settle_s=3.0))
+    hold = run_track_loop(model, sc, LoopSettings(strategy="hold", settle_s=3.0))
+    # truth: the row moved (hold sees it all) and the implement followed it in x
+    assert np.ptp(track.row[track.evaluated]) > 0.01
+    assert np.allclose(hold.error, hold.truth[:, 0] - hold.row)
+    assert track.figures.rms < 0.3 * hold.figures.rms, (track.figures, hold.figures)
+    assert track.figures.rms < 4e-3
+    assert track.counts["references_outside_strokes"] == 0 and track.counts["outside_workspace"] == 0
+
+
+def test_a_ground_bump_is_followed_in_z_in_the_ground_frame(model):
+    # one undulation: 20 mm at 10 m wavelength at 4 km/h (0.11 Hz); the tractor pitches over it too
+    sc = _scenario("bump", 8.0, speed=1.1111, terrain={"undulation": [{"amplitude_m": 0.02, "wavelength_m": 10.0}]})
+    assert job_of(sc) == "terrain"
+    track = run_track_loop(model, sc, LoopSettings(strategy="track", settle_s=3.0))
+    hold = run_track_loop(model, sc, LoopSettings(strategy="hold", settle_s=3.0))
+    assert track.frame == "ground" and track.dof == "z" and track.working_height_m is not None
+    # the truth's height above the ground, from the twin's ground and the pistons' z
+    pivot = model.profile.geometry.pivot_height
+    height = pivot + track.truth[:, 1] - track.ground_height
+    assert np.allclose(track.error, height - track.working_height_m)
+    assert np.ptp(track.ground_height[track.evaluated]) > 0.005  # the ground under the implement moved
+    assert track.figures.rms < 0.35 * hold.figures.rms, (track.figures, hold.figures)
+    assert track.counts["references_outside_strokes"] == 0 and track.counts["refused"] == 0
+
+
+def test_strategies_compare_on_a_rolling_tractor(model):
+    # cross slope wave 0.015 rad at 0.1 Hz (22 m at 8 km/h): inside the workspace and the follower's limits
+    sc = _scenario(
+        "roll-wave",
+        8.0,
+        terrain={"cross_slope_wave": [{"amplitude_rad": 0.015, "wavelength_m": 22.2}]},
+        suspension="oscillating",
+    )
+    s = {"settle_s": 3.0}
+    track = run_track_loop(model, sc, LoopSettings(strategy="track", **s))
+    gotos = run_track_loop(model, sc, LoopSettings(strategy="goto_stream", **s))
+    hold = run_track_loop(model, sc, LoopSettings(strategy="hold", **s))
+    assert gotos.counts["gotos"] > 100 and track.counts["gotos"] == 0
+    assert track.inside[track.evaluated].all()  # the demand stays inside the workspace and the limits
+    assert track.figures.rms < hold.figures.rms / 2 and gotos.figures.rms < hold.figures.rms / 2
+    for r in (track, gotos, hold):
+        assert r.counts["references_outside_strokes"] == 0 and r.counts["refused"] == 0
+    _ROLL_WAVE[:] = [track.figures.rms, gotos.figures.rms]
+
+
+_ROLL_WAVE: list[float] = []
+
+
+def test_track_levels_better_than_goto_stream(model):
+    # the follower tracking roll alone moves within roll's own limits (the subset limits, about twice
+    # the any-direction ones): as fast as a single-DOF goto plan, without re-planning every cycle
+    assert _ROLL_WAVE, "runs after test_strategies_compare_on_a_rolling_tractor"
+    track_rms, goto_rms = _ROLL_WAVE
+    assert track_rms < goto_rms
+
+
+def test_demands_beyond_the_workspace_are_clipped_never_streamed_beyond_the_strokes(model):
+    sc = _scenario("steep", 7.0, terrain={"cross_slope_rad": 0.1})  # beyond the roll workspace
+    r = run_track_loop(model, sc, LoopSettings(strategy="track", settle_s=5.5))
+    assert r.counts["references_outside_strokes"] == 0 and r.counts["refused"] == 0
+    assert r.counts["limit_events"] >= 1  # the workspace face was named
+    assert np.nanmax(np.abs(r.reference[:, 2])) <= 0.058 + 1e-9
+    assert not r.inside.any() and r.figures_inside.n == 0  # the demand is outside: nothing counted inside
+    assert r.figures.mean == pytest.approx(0.058 - 0.1, abs=3e-3)  # held at the face
+
+
+def test_bad_settings_name_the_field():
+    with pytest.raises(TrackLoopError, match="strategy"):
+        LoopSettings(strategy="pid")
+    with pytest.raises(TrackLoopError, match="ttl_s"):
+        LoopSettings(ttl_s=5.0)
+    with pytest.raises(TrackLoopError, match="job"):
+        LoopSettings(job="mowing")
+
+
+def test_job_of_the_shipped_scenarios():
+    assert [job_of(load_scenario(n)) for n in ("flat", "levelling", "guidance", "terrain")] == [
+        "levelling",
+        "levelling",
+        "guidance",
+        "terrain",
+    ]

@@ -1,0 +1,282 @@
+"""Track mode through the service API on the simulated rig (simulated time, real CAN path):
+sessions, streamed setpoints followed online, clipping at the workspace with the limit named,
+the TTL stop, precedence stop > jog > track > goto, sequence numbers, access control and the
+``level`` / ``ground`` frames against their definitions (``docs/tracking.md``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from bridge.service.api import ServiceAPI
+from bridge.service.motion.controller import MotionController
+from bridge.service.schemas import RequestError, parse_request
+from bridge.service.security import AccessPolicy
+from bridge.service.store import HitchStore
+from bridge.sim.move import SimRig
+from planner.ik_qp.hitch_ik import IKSolver
+from planner.limits.guard import Guard
+from planner.trajectory import TrajectoryPlanner
+
+DT = 0.02
+
+
+class FakeSensors:
+    """Tractor readings set by the test (None: no fresh reading)."""
+
+    def __init__(self):
+        self.att: tuple[float, float] | None = None
+        self.dist: float | None = None
+
+    def attitude(self, now):
+        return self.att
+
+    def ground_distance(self, now):
+        return self.dist
+
+
+class Rig:
+    def __init__(self, model, tmp_path, policy=None):
+        self.rig = SimRig(model)
+        self.rig.start()
+        self.rig.run_until(0.5)
+        self.events: list[dict] = []
+        self.states: list[dict] = []
+        self.sensors = FakeSensors()
+        self.mc = MotionController(
+            Guard(TrajectoryPlanner(model)),
+            Guard(TrajectoryPlanner(model)),
+            self.rig.link,
+            lambda: self.rig.now_s,
+            on_event=self.events.append,
+            on_state=self.states.append,
+            spawn=lambda fn: fn(),
+            sensors=self.sensors,
+        )
+        self.store = HitchStore(tmp_path / "hitch.sqlite3")
+        self.api = ServiceAPI(self.mc, IKSolver(model), self.store, {"profile": "thesis-t132"}, policy=policy)
+        self.planner = self.mc.planner
+        self.seq = 0
+        self.run(0.1)
+
+    def call(self, key, payload=None, user=None):
+        return self.api.handle(key, json.dumps(payload if payload is not None else {}), user)
+
+    def run(self, seconds, each=None):
+        end = self.rig.now_s + seconds
+        while self.rig.now_s < end - 1e-9:
+            if each is not None:
+                each(self.rig.now_s)
+            self.rig.run_until(self.rig.now_s + DT)
+            self.mc.cycle()
+
+    def setpoint(self, session, pose, velocity=None, seq=None, user=None):
+        self.seq += 1
+        body = {"session": session, "seq": self.seq if seq is None else seq, "pose": pose}
+        if velocity is not None:
+            body["velocity"] = velocity
+        return self.call("track/setpoint", body, user)
+
+    def measured(self):
+        return np.array([self.states[-1]["pose"][k] for k in ("x", "z", "roll", "pitch")])
+
+    def start(self, **kw):
+        ok, reply = self.call("track/start", {"dof": ["z"], "ttl_ms": 300, **kw})
+        assert ok, reply
+        return reply["session"]
+
+
+@pytest.fixture
+def r(model, tmp_path):
+    rig = Rig(model, tmp_path)
+    yield rig
+    rig.store.close()
+    rig.rig.close()
+
+
+def _events(r, name):
+    return [e for e in r.events if e["event"] == name]
+
+
+def test_a_streamed_sine_is_followed_on_the_real_can_path(r):
+    session = r.start(dof=["z"], ttl_ms=300)
+    z0 = r.measured()[1]
+    amp, f = 0.02, 0.1
+    errors = []
+
+    def stream(t):
+        ph = 2 * math.pi * f * (t - t_start)
+        r.setpoint(session, {"z": z0 + amp * math.sin(ph)}, {"z": amp * 2 * math.pi * f * math.cos(ph)})
+
+    t_start = r.rig.now_s
+    r.run(12.0, each=stream)
+    # measured z against the setpoint of ~0.1 s earlier (the hydraulics' lag), last half
+    for st in r.states[-250:]:
+        t = st["clock"] - t_start - 0.1
+        errors.append(st["pose"]["z"] - (z0 + amp * math.sin(2 * math.pi * f * t)))
+    assert r.states[-1]["motion"] == "track" and r.states[-1]["track"]["session"] == session
+    assert np.sqrt(np.mean(np.square(errors))) < 0.1 * amp, np.sqrt(np.mean(np.square(errors)))
+
+
+def test_setpoints_outside_the_workspace_are_clipped_named_and_never_left(r):
+    session = r.start(dof=["z", "pitch"], ttl_ms=300)
+    hi = r.planner.hi
+    ok, reply = r.setpoint(session, {"z": 0.6, "pitch": 0.0})
+    assert ok and reply["accepted"] and reply["limited"] == {"z": "workspace:z:max"}, reply
+    r.run(6.0, each=lambda t: r.setpoint(session, {"z": 0.6, "pitch": 0.0}))
+    refs = [s["reference"]["pose"]["z"] for s in r.states if s["reference"] is not None]
+    assert max(refs) <= hi[1] + 1e-6
+    assert abs(r.measured()[1] - hi[1]) < 3e-3  # it went to the face and stayed there
+    assert r.states[-1]["track"]["control_limited"].get("z") == "workspace:z:max"
+    assert "z" in r.states[-1]["limited"]
+
+
+def test_a_stale_stream_brakes_to_rest_and_ends_the_session(r):
+    session = r.start(dof=["z"], ttl_ms=200)
+    z0 = r.measured()[1]
+    r.run(1.0, each=lambda t: r.setpoint(session, {"z": z0 + 0.1}))
+    assert r.states[-1]["velocity"]["z"] > 0.01  # moving up
+    r.run(3.0)  # the stream stops
+    fin = [e for e in _events(r, "motion_finished") if e.get("session") == session]
+    assert fin and fin[0]["reason"].startswith("stale"), r.events
+    assert r.states[-1]["motion"] is None and abs(r.states[-1]["velocity"]["z"]) < 1e-9
+    ok, reply = r.setpoint(session, {"z": z0})
+    assert not ok and reply["error"] == "not_found" and "not live" in reply["message"]
+    z_end = r.measured()[1]
+    r.run(1.0)
+    assert abs(r.measured()[1] - z_end) < 1e-3  # nothing resumes
+
+
+def test_track_stop_ends_smoothly(r):
+    session = r.start(dof=["z"])
+    z0 = r.measured()[1]
+    r.run(1.0, each=lambda t: r.setpoint(session, {"z": z0 + 0.1}))
+    ok, reply = r.call("track/stop", {"session": session})
+    assert ok and reply["stopping"], reply
+    r.run(2.0)
+    fin = [e for e in _events(r, "motion_finished") if e.get("session") == session]
+    assert fin and fin[0]["reason"] == "track/stop"
+    vz = [s["velocity"]["z"] for s in r.states[-120:]]
+    # no step: within what z alone may accelerate (the tightest actuator through its column, where it stopped)
+    from planner.trajectory.ideal_follower import dof_limits
+
+    z_alone = dof_limits(r.planner, "z", np.clip(r.measured(), r.planner.lo, r.planner.hi)).acceleration
+    assert max(np.abs(np.diff(vz))) < z_alone * DT * 1.01
+
+
+def test_precedence_stop_over_jog_over_track_over_goto(r):
+    session = r.start(dof=["z"])
+    z0 = r.measured()[1]
+    r.run(0.3, each=lambda t: r.setpoint(session, {"z": z0 + 0.05}))
+    ok, reply = r.call("goto", {"goal": {"z": 0.1}})
+    assert not ok and reply["error"] == "busy" and "track" in reply["message"], reply
+    ok, reply = r.call("jog", {"vz": -0.01, "ttl_ms": 200})
+    assert ok, reply
+    assert any(e.get("reason") == "replaced by jog" for e in _events(r, "motion_aborted"))
+    ok, reply = r.call("track/start", {"dof": ["z"]})
+    assert not ok and reply["error"] == "busy" and "jog" in reply["message"], reply
+    r.run(1.0)  # jog TTL out, braking
+    ok, reply = r.call("goto", {"goal": {"z": 0.2}})
+    assert ok, reply
+    session2 = r.start(dof=["z"])  # a track session replaces a goto
+    assert session2 != session
+    assert any(e.get("reason") == "replaced by track" for e in _events(r, "motion_aborted"))
+    ok, _ = r.call("stop", {})
+    assert ok
+    ok, reply = r.setpoint(session2, {"z": 0.2})
+    assert not ok and reply["error"] == "not_found"
+
+
+def test_old_and_out_of_order_sequence_numbers_are_ignored_and_counted(r):
+    session = r.start(dof=["z"])
+    z0 = r.measured()[1]
+    assert r.setpoint(session, {"z": z0}, seq=10)[1]["accepted"]
+    ok, reply = r.setpoint(session, {"z": z0 + 0.2}, seq=9)
+    assert ok and not reply["accepted"] and reply["ignored"] == "seq"
+    ok, reply = r.setpoint(session, {"z": z0 + 0.2}, seq=10)
+    assert not reply["accepted"]
+    r.run(0.1, each=lambda t: None)
+    assert r.states[-1]["track"]["ignored_seq"] == 2 and r.states[-1]["track"]["setpoints"] == 1
+    assert abs(r.states[-1]["track"]["target"]["z"] - z0) < 1e-12  # the ignored ones did not move the target
+
+
+def test_bad_setpoints_name_the_field_and_are_counted(r):
+    session = r.start(dof=["z"])
+    ok, reply = r.setpoint(session, {"x": 0.01})  # x is not tracked
+    assert not ok and "x" in reply["message"], reply
+    ok, reply = r.call("track/setpoint", {"session": session, "seq": 99, "pose": {"z": "high"}})
+    assert not ok and "pose.z" in reply["message"], reply
+    r.run(0.05)
+    assert r.states[-1]["track"]["rejected"] == 1
+    assert _events(r, "track_setpoint_rejected")
+
+
+@pytest.mark.parametrize(
+    "payload, words",
+    [
+        ({"dof": ["z"], "ttl_ms": 20}, ["ttl_ms", ">= 50"]),
+        ({"dof": ["z"], "ttl_ms": 5000}, ["ttl_ms", "<= 1000"]),
+        ({"dof": []}, ["dof"]),
+        ({"dof": ["z", "z"]}, ["dof", "at most once"]),
+        ({"dof": ["yaw"]}, ["dof"]),
+        ({"dof": ["z"], "frame": "world"}, ["frame"]),
+    ],
+)
+def test_track_start_errors_name_the_field(payload, words):
+    with pytest.raises(RequestError) as e:
+        parse_request("track/start", json.dumps(payload))
+    for w in words:
+        assert w in str(e.value), (w, str(e.value))
+
+
+def test_viewers_cannot_track(model, tmp_path):
+    policy = AccessPolicy(operators=("olga",), viewers=("vera",))
+    rig = Rig(model, tmp_path, policy=policy)
+    try:
+        ok, reply = rig.call("track/start", {"dof": ["z"]}, user="vera")
+        assert not ok and reply["error"] == "forbidden", reply
+        ok, reply = rig.call("track/start", {"dof": ["z"]}, user="olga")
+        assert ok, reply
+        ok, reply = rig.setpoint(reply["session"], {"z": 0.2}, user="vera")
+        assert not ok and reply["error"] == "forbidden"
+        ok, reply = rig.call("track/stop", {}, user="vera")
+        assert not ok and reply["error"] == "forbidden"
+    finally:
+        rig.store.close()
+        rig.rig.close()
+
+
+def test_level_frame_adds_the_tractor_attitude_and_needs_the_slope_sensor(r):
+    ok, reply = r.call("track/start", {"dof": ["roll", "pitch"], "frame": "level"})
+    assert not ok and reply["error"] == "unavailable" and "slope sensor" in reply["message"], reply
+    r.sensors.att = (0.02, -0.01)  # tractor leans right 20 mrad (right side down), nose down 10 mrad
+    session = r.start(dof=["roll", "pitch"], frame="level")
+    ok, reply = r.setpoint(session, {"roll": 0.0, "pitch": 0.0})
+    assert ok, reply
+    target = r.states[-1]["track"]["target"] if r.states[-1]["track"] else None
+    r.run(0.04)
+    target = r.states[-1]["track"]["target"]
+    # implement level: the hitch rolls its right side up by the lean, and leans the mast back by the nose-down
+    assert target["roll"] == pytest.approx(0.02) and target["pitch"] == pytest.approx(-0.01)
+    r.run(3.0, each=lambda t: r.setpoint(session, {"roll": 0.0, "pitch": 0.0}))
+    m = r.measured()
+    assert m[2] == pytest.approx(0.02, abs=2e-3) and m[3] == pytest.approx(-0.01, abs=2e-3)
+    r.sensors.att = None  # the sensor falls silent: setpoints are refused, the stream goes stale
+    ok, reply = r.setpoint(session, {"roll": 0.0, "pitch": 0.0})
+    assert not ok and reply["error"] == "unavailable"
+    r.run(1.0)
+    assert r.states[-1]["motion"] is None
+
+
+def test_ground_frame_commands_height_above_the_ground(r):
+    r.sensors.dist = 0.30  # the implement's reference point is 0.30 m above the ground now
+    session = r.start(dof=["z"], frame="ground")
+    z_m = r.measured()[1]
+    ok, reply = r.setpoint(session, {"z": 0.25})  # 5 cm lower above the ground
+    assert ok, reply
+    r.run(0.04)
+    assert r.states[-1]["track"]["target"]["z"] == pytest.approx(z_m - 0.05, abs=1e-9)

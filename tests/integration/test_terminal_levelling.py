@@ -1,0 +1,175 @@
+"""The terminal's Levelling toggle in a real browser (headless Chromium, 1024×600 and 800×480) against
+``hitch serve --http`` in its own process (simulated ECU, the tractor twin on flat ground).
+
+Truths: the service's own ``/api/state`` (``motion``, the ``track`` entry), its ``track/stop`` and
+TTL outcomes, the measured roll (flat ground: the slope sensor reads 0, so roll_level = 0 means
+roll_tractor = 0 within the closed loop's 2 mrad) and the workspace from ``config``.
+"""
+
+from __future__ import annotations
+
+import signal
+import time
+
+import pytest
+
+from tests.integration.test_web_browser import FLAGS, Service, _install_chromium, wait_for, wait_js
+
+pytestmark = pytest.mark.slow  # a real browser against the service in its own process
+
+ROLL_TOL = 2e-3  # rad: the closed loop's steady state (README, "Closed loop over CAN")
+
+
+@pytest.fixture(scope="module")
+def service(tmp_path_factory):
+    svc = Service(tmp_path_factory.mktemp("hitch-serve-levelling")).start()
+    yield svc
+    svc.kill(signal.SIGTERM)
+    svc.kill()
+
+
+@pytest.fixture(scope="module")
+def page(service, tmp_path_factory):
+    chromium = _install_chromium()
+    try:
+        from playwright.sync_api import sync_playwright
+    except ImportError:
+        pytest.fail("the playwright package is missing: pip install 'playwright>=1.45' (test extra)")
+    pw = sync_playwright().start()
+    ctx = None
+    try:
+        ctx = pw.chromium.launch_persistent_context(
+            str(tmp_path_factory.mktemp("chromium-profile-levelling")),
+            executable_path=chromium,
+            headless=True,
+            args=FLAGS,
+            viewport={"width": 1024, "height": 600},
+            has_touch=True,
+        )
+        pg = ctx.pages[0] if ctx.pages else ctx.new_page()
+        pg.set_default_timeout(10_000)
+        errors: list[str] = []
+        pg.on("pageerror", lambda e: errors.append(str(e)))
+        pg.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+        pg.goto(service.url)
+        pg.errors = errors
+        wait_js(pg, "document.getElementById('conn').textContent.startsWith('Service: connected')", 20_000)
+        yield pg
+    finally:
+        if ctx is not None:
+            ctx.close()
+        pw.stop()
+
+
+@pytest.fixture
+def shots(tmp_path_factory):
+    import os
+    from pathlib import Path
+
+    d = Path(os.environ.get("HITCH_SCREENSHOT_DIR") or tmp_path_factory.mktemp("screenshots-levelling"))
+    d.mkdir(parents=True, exist_ok=True)
+    return d
+
+
+def _rest(service) -> None:
+    service.api("stop")
+    wait_for(lambda: not service.state()["moving"] and service.state().get("track") is None, 15, "rest, no session")
+
+
+def _pressed(pg) -> str:
+    return pg.get_attribute("#level-toggle", "aria-pressed") or ""
+
+
+def _stop_fully_visible(pg, width: int, height: int) -> None:
+    box = pg.locator("#stop").bounding_box()
+    assert box is not None and box["x"] >= 0 and box["y"] >= 0
+    assert box["x"] + box["width"] <= width and box["y"] + box["height"] <= height, box
+    hit = pg.evaluate("([x, y]) => document.elementFromPoint(x, y).id", [box["x"] + box["width"] / 2, box["y"] + 8])
+    assert hit == "stop"
+
+
+def test_levelling_toggle_streams_roll_zero_and_track_stop_ends_it(service, page, shots):
+    _rest(service)
+    status, reply = service.api("goto", {"goal": {"roll": 0.03}})
+    assert status == 200, reply
+    wait_for(
+        lambda: abs(service.state()["pose"]["roll"] - 0.03) < ROLL_TOL and not service.state()["moving"], 20, "roll 30"
+    )
+
+    page.click("#level-toggle")
+    wait_js(page, "document.getElementById('level-toggle').getAttribute('aria-pressed') === 'true'")
+    st = wait_for(lambda: (s := service.state()).get("track") and s, 5, "a track session in the state")
+    assert st["motion"] == "track"
+    assert st["track"]["frame"] == "level" and st["track"]["dof"] == ["roll"]
+    # the page's setpoints {roll: 0} in frame level: on flat ground the hitch rolls back to 0 (tractor frame)
+    wait_for(lambda: abs(service.state()["pose"]["roll"]) < ROLL_TOL, 20, "roll levelled to 0 ± 2 mrad")
+    n0, t0 = service.state()["track"]["setpoints"], time.monotonic()
+    time.sleep(2.0)
+    tr = service.state()["track"]
+    rate = (tr["setpoints"] - n0) / (time.monotonic() - t0)
+    assert 5.0 <= rate <= 12.0, f"{rate:.1f} setpoints/s (the page sends every 100 ms)"
+    assert tr["rejected"] == 0 and tr["ignored_seq"] == 0 and not tr["stale"]
+    counts = page.text_content("#level-counts")
+    assert "setpoints" in counts and "rejected 0" in counts, counts
+    assert "on · session" in page.text_content("#level-status")
+    assert page.evaluate("[document.documentElement.scrollWidth, document.documentElement.scrollHeight]") == [1024, 600]
+    _stop_fully_visible(page, 1024, 600)
+    page.screenshot(path=str(shots / "16-levelling-on.png"))
+
+    page.click("#level-toggle")  # off: track/stop, braking smoothly to rest
+    wait_js(page, "document.getElementById('level-toggle').getAttribute('aria-pressed') === 'false'")
+    wait_for(lambda: service.state().get("track") is None, 10, "the session to end")
+    wait_js(page, "document.getElementById('level-status').textContent.includes('off: track/stop')")
+    assert abs(service.state()["pose"]["roll"]) < ROLL_TOL
+    assert page.errors == []
+
+
+def test_hiding_the_page_stops_the_stream_and_the_service_brakes_at_the_ttl(service, page, shots):
+    _rest(service)
+    page.click("#level-toggle")
+    wait_for(lambda: (service.state().get("track") or {}).get("setpoints", 0) >= 3, 5, "setpoints arriving")
+    # the tab goes to the background (simulated: document.hidden and its event, as a browser does)
+    page.evaluate(
+        "Object.defineProperty(document, 'hidden', {configurable: true, get: () => true});"
+        "document.dispatchEvent(new Event('visibilitychange'))"
+    )
+    try:
+        assert _pressed(page) == "false"
+        n = service.state()["track"]["setpoints"]
+        wait_for(lambda: service.state().get("track") is None, 5, "the service to end the stale session")
+        wait_js(page, "document.getElementById('level-status').textContent.includes('stale')")
+        status = page.text_content("#level-status")
+        assert "500 ms" in status, status  # the service's reason: no setpoint within the TTL
+    finally:
+        page.evaluate("delete document.hidden; document.dispatchEvent(new Event('visibilitychange'))")
+    assert n >= 3
+    page.screenshot(path=str(shots / "17-levelling-stale.png"))
+
+
+def test_stop_ends_levelling_and_the_limit_is_named_in_words(service, page):
+    _rest(service)
+    page.click("#level-toggle")
+    wait_for(lambda: service.state().get("track") is not None, 5, "a session")
+    page.click("#stop")
+    wait_js(page, "document.getElementById('level-toggle').getAttribute('aria-pressed') === 'false'")
+    wait_for(lambda: service.state().get("track") is None and not service.state()["moving"], 10, "rest after STOP")
+    _, cfg = service.api("config")
+    hi = cfg["limits"]["workspace"]["roll"][1]
+    words = page.evaluate("window.hitchTerminal.limitWords('roll', 'workspace:roll:max')")
+    assert words == f"roll at its upper workspace limit ({hi * 1000:.1f} mrad)"
+    assert page.evaluate("window.hitchTerminal.limitWords('vroll', 'velocity:roll')") == "roll at its speed limit"
+
+
+def test_at_800x480_stop_and_the_toggle_stay_visible(service, page, shots):
+    _rest(service)
+    page.set_viewport_size({"width": 800, "height": 480})
+    try:
+        page.click("#level-toggle")
+        wait_js(page, "document.getElementById('level-toggle').getAttribute('aria-pressed') === 'true'")
+        assert page.is_visible("#level-toggle") and page.is_visible("#level-status")
+        _stop_fully_visible(page, 800, 480)
+        page.screenshot(path=str(shots / "18-levelling-800x480.png"))
+        page.click("#level-toggle")
+        wait_for(lambda: service.state().get("track") is None, 10, "the session to end")
+    finally:
+        page.set_viewport_size({"width": 1024, "height": 600})

@@ -17,6 +17,22 @@ from typing import Any
 
 import can
 
+from bridge.isobus.j1939 import (
+    PGN_ADDRESS_CLAIMED,
+    PGN_HEARTBEAT,
+    PGN_PARAMETERS,
+    PGN_POSITION_MEASUREMENT,
+    PGN_POSITION_REFERENCE,
+    PGN_REAR_HITCH_STATUS,
+    PGN_REQUEST,
+    PGN_WHEEL_BASED_SPEED,
+)
+from bridge.isobus.messages import (
+    PGN_GROUND_DISTANCE,
+    PGN_ROW_GUIDANCE,
+    PGN_SLOPE_SENSOR_INFORMATION,
+    PGN_SLOPE_SENSOR_INFORMATION_2,
+)
 from bridge.link.can_link import CanLink
 from bridge.link.realtime import BusPort, RealtimeRunner, SharedBusNodes, open_bus
 from bridge.link.state import LinkConfig
@@ -36,6 +52,9 @@ from planner.trajectory import TrajectoryPlanner
 
 __all__ = [
     "CanParts",
+    "PLANNER_PGNS",
+    "TWIN_PGNS",
+    "pgn_filters",
     "ReadingsAsTrackSensors",
     "build_controller",
     "build_guard",
@@ -43,6 +62,38 @@ __all__ = [
     "service_info",
     "start_can",
 ]
+
+#: what the planner's bus receives: the ECU's measurements, heartbeat and hitch status, the tractor's
+#: sensors and wheel-based speed, address claims and requests (the ECU's pressures and everything else
+#: are filtered out: on a loopback hub by the hub, before they are sent to this process)
+PLANNER_PGNS = frozenset(
+    {
+        PGN_POSITION_MEASUREMENT,
+        PGN_HEARTBEAT,
+        PGN_REAR_HITCH_STATUS,
+        PGN_WHEEL_BASED_SPEED,
+        PGN_SLOPE_SENSOR_INFORMATION,
+        PGN_SLOPE_SENSOR_INFORMATION_2,
+        PGN_GROUND_DISTANCE,
+        PGN_ROW_GUIDANCE,
+        PGN_ADDRESS_CLAIMED,
+        PGN_REQUEST,
+    }
+)
+#: what the machine twin's bus receives: references, parameters, the planner's heartbeat, claims, requests
+TWIN_PGNS = frozenset({PGN_POSITION_REFERENCE, PGN_PARAMETERS, PGN_HEARTBEAT, PGN_ADDRESS_CLAIMED, PGN_REQUEST})
+
+
+def pgn_filters(pgns: frozenset[int]) -> list[dict[str, Any]]:
+    """python-can receive filters passing the J1939 PGNs ``pgns`` from any source (and, for a PDU1
+    PGN, to any destination): the PGN's bits of the 29-bit identifier must match."""
+    out: list[dict[str, Any]] = []
+    for pgn in sorted(pgns):
+        pdu1 = ((pgn >> 8) & 0xFF) < 0xF0
+        mask = 0x3FF0000 if pdu1 else 0x3FFFF00  # data page + PF (+ PS for PDU2), never the priority or source
+        out.append({"can_id": (pgn << 8) & mask, "can_mask": mask, "extended": True})
+    return out
+
 
 #: the longest a CAN runner waits for a frame before it polls its node again [s]
 _MAX_WAIT_S = 0.02
@@ -104,8 +155,8 @@ def start_can(cfg: ServiceConfig, *, runners_out: list[RealtimeRunner] | None = 
     started: list[RealtimeRunner] = runners_out if runners_out is not None else []
     buses: list[can.BusABC] = []
 
-    def bus() -> can.BusABC:
-        b = open_bus(cfg.can_interface, cfg.can_channel)
+    def bus(pgns: frozenset[int]) -> can.BusABC:
+        b = open_bus(cfg.can_interface, cfg.can_channel, can_filters=pgn_filters(pgns))
         buses.append(b)
         return b
 
@@ -117,7 +168,7 @@ def start_can(cfg: ServiceConfig, *, runners_out: list[RealtimeRunner] | None = 
             # the twin starts with the hitch at the model's neutral pose (x = roll = pitch = 0)
             scale = SensorScaling(ecu_model.profile)
             neutral_counts = scale.counts_min + (ecu_model.neutral - scale.si_min) / scale.resolution
-            twin_bus = bus()
+            twin_bus = bus(TWIN_PGNS)
             ecu_node = EcuCanNode(
                 CylinderECU(ecu_model.profile, initial_counts=list(neutral_counts)), BusPort(twin_bus)
             )
@@ -125,7 +176,7 @@ def start_can(cfg: ServiceConfig, *, runners_out: list[RealtimeRunner] | None = 
             tractor = TractorTwinNode(BusPort(twin_bus), ground_speed_m_s=cfg.sim_ground_speed, hitch_height_m=height)
             twin = SharedBusNodes(twin_bus, [ecu_node, tractor])
             started.append(RealtimeRunner(twin, max_wait_s=_MAX_WAIT_S, name="EcuCanNode-rt").start())
-        planner_bus = bus()
+        planner_bus = bus(PLANNER_PGNS)
         sensors = TractorSensors(BusPort(planner_bus))
         link = CanLink(
             build_model(cfg),

@@ -166,6 +166,8 @@ class HitchService:
         self.close_duration_s: float | None = None
         self._service_nice_failed: str | None = None  # why the service threads could not be raised
         self._recorder: Any = None  # the CAN recorder when the core runs here
+        self._state_sub: Any = None  # the subscription to the core's state (declared when first wanted)
+        self._sub_lock = threading.Lock()
 
     @property
     def core_in_process(self) -> bool:
@@ -306,13 +308,25 @@ class HitchService:
             # the setpoint stream is put, not queried: refusals are counted and announced as events
             self._decls.append(s.declare_subscriber(cfg.key("track/setpoint"), self._on_setpoint))
         else:  # the core publishes; this process's listeners (terminal, black box) hear it like any client
-            self._decls.append(s.declare_subscriber(cfg.key("state"), self._on_published("state")))
+            # (the 50 Hz state only once something here listens to it: see _ensure_state_subscription)
             self._decls.append(s.declare_subscriber(cfg.key("events"), self._on_published("event")))
         for key in API_KEYS:
             if key == "stop" and self.core is not None:
                 continue  # answered by the core process itself: no request here can delay it
             self._decls.append(s.declare_queryable(cfg.key(key), self._query_callback(key), complete=True))
         self._decls.append(s.liveliness().declare_token(cfg.key("alive")))
+
+    def _ensure_state_subscription(self) -> None:
+        """With the core in its own process: subscribe to its state once a listener or a reader wants it
+        (until then this process does not decode 50 messages a second that nobody uses)."""
+        if self.core is None or self.session is None or self._closed:
+            return
+        with self._sub_lock:
+            if self._state_sub is None and not self._closed:
+                self._state_sub = self.session.declare_subscriber(
+                    self.config.key("state"), self._on_published("state")
+                )
+                self._decls.append(self._state_sub)
 
     def _core_note(self, note: dict[str, Any]) -> None:
         """A request the core answered itself (``stop``): given to the API's request hook (the black box)."""
@@ -425,6 +439,8 @@ class HitchService:
         if kind not in self._listeners:
             raise HitchServiceError(f"kind must be 'state' or 'event', got {kind!r}")
         self._listeners[kind].append(callback)
+        if kind == "state":
+            self._ensure_state_subscription()
 
     def remove_listener(self, kind: str, callback: Callable[[dict[str, Any]], None]) -> None:
         if callback in self._listeners.get(kind, []):
@@ -432,6 +448,8 @@ class HitchService:
 
     @property
     def latest_state(self) -> dict[str, Any] | None:
+        """The newest state message (with the core in its own process the first read subscribes to it)."""
+        self._ensure_state_subscription()
         return self._latest_state
 
     def _on_state(self, msg: dict[str, Any]) -> None:

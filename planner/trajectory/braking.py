@@ -131,9 +131,13 @@ class StopProbe:
         self._input.target_velocity = [0.0] * dofs
         self._input.target_acceleration = [0.0] * dofs
         self._dofs = dofs
+        self._traj = Trajectory(dofs)  # reused by :meth:`extent` (called every control cycle)
 
-    def trajectory(self, state: MotionState, limits: PoseLimits, *, relative: bool = False) -> Trajectory:
-        """The stop from ``state`` (from position 0 when ``relative``) within ``limits`` (floored by |v|, |a|)."""
+    def trajectory(
+        self, state: MotionState, limits: PoseLimits, *, relative: bool = False, out: Trajectory | None = None
+    ) -> Trajectory:
+        """The stop from ``state`` (from position 0 when ``relative``) within ``limits`` (floored by |v|, |a|);
+        computed into ``out`` when given (no allocation), else into a new trajectory."""
         lim = limits.floored(current_floor(state))
         inp = self._input
         inp.max_velocity = [float(max(x, 1e-9)) for x in lim.velocity]
@@ -142,7 +146,7 @@ class StopProbe:
         inp.current_position = [0.0] * self._dofs if relative else [float(x) for x in state.position]
         inp.current_velocity = [float(x) for x in state.velocity]
         inp.current_acceleration = [float(x) for x in state.acceleration]
-        traj = Trajectory(self._dofs)
+        traj = Trajectory(self._dofs) if out is None else out
         res = self._ruckig.calculate(inp, traj)
         if res not in _OK:
             raise PlanError(f"stop could not be computed (ruckig {res})")
@@ -154,7 +158,7 @@ class StopProbe:
         Computed from position 0 and shifted: Ruckig's velocity-interface extrema start
         from 0 rather than from the current position.
         """
-        traj = self.trajectory(state, limits, relative=True)
+        traj = self.trajectory(state, limits, relative=True, out=self._traj)
         ext = traj.position_extrema
         p = np.asarray(state.position, float)
         lo = np.array([min(e.min, 0.0) for e in ext]) + p

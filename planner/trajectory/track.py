@@ -311,6 +311,8 @@ class TrackFollower:
         self._stale = False
         self._stopping = False
         self._brake: PoseLimits | None = None  # real braking limits of the current braking episode (lazily)
+        # a take-over: braking may need the real limits until a cycle's state can stop within the pose limits
+        self._takeover = state.moving
         self._active: np.ndarray | None = None
         self._rest: PoseLimits | None = None  # the limits of the stop to rest (stale, stopped)
         self._refresh()
@@ -529,6 +531,7 @@ class TrackFollower:
             p_t, v_t, a_t, flags = self.target(now)
             vel_mode = ~self.tracked
             brake = beyond(state, lim, _REL)
+            self._takeover |= bool(np.any(brake))
         v_lim = lim.velocity
         tv = np.where(vel_mode, 0.0, v_t)
         ta = np.where(vel_mode, 0.0, a_t)
@@ -540,9 +543,11 @@ class TrackFollower:
             ta[i] = 0.0
         try:
             nxt = self._advance(p_t, tv, ta, vel_mode, brake, lim)
-            for _ in range(3):
+            for n in range(3):
                 up, down = self._cannot_stop(nxt, lim)  # cheap: the pose limits first
                 if not (np.any(up) or np.any(down)):
+                    if n == 0 and not np.any(brake):
+                        self._takeover = False  # within the pose limits and stoppable with them: they suffice
                     break
                 up, down = self._cannot_stop(nxt, self._braking(lim))
                 # braking to rest with the real limits already: nothing more to do for that DOF
@@ -634,8 +639,12 @@ class TrackFollower:
         return self._rest
 
     def _braking(self, lim: PoseLimits) -> PoseLimits:
-        """The real braking limits of the current motion (computed once per braking episode), floored
-        by ``lim`` and by the state's |v|, |a|."""
+        """The braking limits, floored by ``lim`` and by the state's |v|, |a|: after a take-over (a state
+        beyond ``lim``, or one that cannot stop within it) the real braking limits of the current motion
+        (computed once per braking episode); otherwise ``lim`` itself, which suffices: every cycle's state
+        was checked to stop within it one cycle earlier, so braking from it now fits (and costs nothing)."""
+        if not self._takeover:
+            return lim.floored(current_floor(self.state))
         if self._brake is None:
             self._brake = self.planner.braking_limits(self.state)
         return self._brake.floored(lim).floored(current_floor(self.state))

@@ -413,3 +413,51 @@ def test_a_single_dof_track_takes_over_a_full_speed_goto_of_that_dof(tp, d, s):
         assert np.all(np.abs(QD) <= tp.limits.velocity * (1 + 1e-6))
         assert not outs[-1].moving and tr.fallbacks == 0
         np.testing.assert_allclose(outs[-1].state.position[d], goal[d], atol=1e-6)
+
+
+def test_the_stop_probe_reuses_its_trajectory_and_gives_the_fresh_extent(tp):
+    # the follower probes the stop every cycle: StopProbe.extent computes into one trajectory; truth:
+    # a fresh stop trajectory sampled densely (lowest / highest position it passes, the start included)
+    from planner.trajectory.braking import StopProbe
+
+    probe = StopProbe()
+    rng = np.random.default_rng(5)
+    traj = probe._traj
+    for _ in range(20):
+        st = MotionState(centre(tp) + rng.normal(0, 0.01, 4), rng.normal(0, 0.02, 4), rng.normal(0, 0.05, 4))
+        lo, hi = probe.extent(st, tp.any_direction)
+        fresh = StopProbe().trajectory(st, tp.any_direction, relative=True)
+        assert fresh is not probe._traj
+        P = np.array([fresh.at_time(t)[0] for t in np.linspace(0.0, fresh.duration, 2001)]) + st.position
+        np.testing.assert_allclose(lo, np.minimum(P.min(axis=0), st.position), atol=1e-6)
+        np.testing.assert_allclose(hi, np.maximum(P.max(axis=0), st.position), atol=1e-6)
+    assert probe._traj is traj
+
+
+@pytest.mark.parametrize(("d", "side"), [(0, 1), (1, -1), (2, 1), (3, -1)])
+@pytest.mark.parametrize("how", ("stale", "stop"))
+def test_a_single_dof_at_full_speed_towards_a_face_stops_inside_when_the_stream_ends(tp, d, side, how):
+    # the subset limits let one DOF approach a face twice as fast as the any-direction ones; the stream
+    # ends as the follower starts braking for the face (fast, at its stopping distance): the stop (with
+    # the planned stop's limits) must still end inside, every actuator within its limits
+    c = centre(tp)
+    k = DOFS[d]
+    tr = TrackFollower(tp, MotionState.at_rest(c), (k,), 0.1)
+    face = tp.hi[d] if side > 0 else tp.lo[d]
+    outs, top = [], 0.0
+    for _ in range(300):
+        tr.set_setpoint({k: float(face + side * 0.05)}, {k: side * float(tr.limits.velocity[d])}, tr.t)
+        outs.append(tr.step())
+        v = abs(outs[-1].state.velocity[d])
+        top = max(top, v)
+        if top >= 0.95 * tr.limits.velocity[d] and v < 0.97 * top:
+            break
+    assert top > 1.5 * tp.any_direction.velocity[d] and outs[-1].moving
+    if how == "stop":
+        tr.stop()
+    for _ in range(200):  # stale after the TTL, or stopping now
+        outs.append(tr.step())
+    assert tr.finished and not outs[-1].moving
+    P = np.array([o.state.position for o in outs])
+    assert np.all(outside(tp, P) <= BOUND), outside(tp, P).max(axis=0)
+    check_actuator_limits(tp, tp.inverse.solve(c)[0], outs, tr.dt)

@@ -52,8 +52,8 @@ Definitions (every time below is ``time.time()``, one system clock shared by all
   ``motion_started`` event; ``T_effect`` = the earlier of the two (not before ``T_cmd``) and
   ``T_brake`` = the first reference time ≥ ``T_effect``. The figure can therefore be late by up to one
   period, never early. Also reported: the stop's reply time at the client and ``T_still − T_cmd``,
-  ``T_still`` = the time of the last reference whose counts differ from the one before it (the
-  reference at rest).
+  ``T_still`` = the time of the first reference change after which the counts stay the same for
+  0.3 s (the reference at rest; the next command may move it again later).
 * **fault latency** (``faults``) = first ``fault`` event or ``state`` with ``ecu.faults`` after the cut
   minus the time the cut was requested; **motion after the link returns** = largest distance of the
   measured pose (``state``; position |(Δx, Δz)| in mm, angles in mrad) over ``--fault-watch`` s from
@@ -202,18 +202,24 @@ def stop_latency(t_cmd: float, t_effect: float | None, reference_times: Sequence
     return None if t_brake is None else t_brake - t_cmd
 
 
-def still_time(refs: Sequence[tuple[float, Sequence[int]]], t0: float, t1: float) -> float | None:
-    """Time of the last reference in [t0, t1] whose counts differ from the previous reference's; None if
-    none changed (``refs``: (t, counts) sorted by t)."""
-    last = None
+def still_time(
+    refs: Sequence[tuple[float, Sequence[int]]], t0: float, t1: float, quiet_s: float = 0.3
+) -> float | None:
+    """The time of the first reference change in [t0, t1] after which the counts stay unchanged for
+    ``quiet_s`` (the hitch's reference at rest); None if they never rest that long in the window
+    (``refs``: (t, counts) sorted by t). The next command may start a new motion after the rest: the
+    window is not read to its end."""
+    last: float | None = None
     prev: Sequence[int] | None = None
     for t, c in refs:
         if t > t1:
             break
+        if last is not None and t - last > quiet_s:
+            return last  # quiet for longer than quiet_s since the last change
         if t >= t0 and prev is not None and tuple(c) != tuple(prev):
             last = t
         prev = c
-    return last
+    return None
 
 
 def outward_excess(values: Iterable[float], bound: float, outward: int) -> float | None:

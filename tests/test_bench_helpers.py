@@ -72,10 +72,14 @@ def test_stop_latency_takes_the_first_reference_after_the_earliest_report_of_the
     assert stop_latency(t_cmd, 20.0, refs) is None  # no reference after it
 
 
-def test_still_time_is_the_last_change_of_the_counts():
-    refs = [(0.0, (1, 2)), (0.02, (2, 2)), (0.04, (3, 2)), (0.06, (3, 3)), (0.08, (3, 3)), (0.10, (3, 3))]
+def test_still_time_is_the_change_after_which_the_counts_rest():
+    # braking ends at 0.06; the counts rest; the next command moves them again from 0.60: the rest
+    # is at 0.06 (reading the window to its end gave 0.62, the next motion: the old mis-measurement)
+    rest = [(0.06 + 0.02 * k, (3, 3)) for k in range(1, 27)]
+    refs = [(0.0, (1, 2)), (0.02, (2, 2)), (0.04, (3, 2)), (0.06, (3, 3)), *rest, (0.60, (4, 3)), (0.62, (5, 3))]
     assert still_time(refs, 0.0, 1.0) == pytest.approx(0.06)
-    assert still_time(refs, 0.07, 1.0) is None
+    assert still_time(refs, 0.07, 0.5) is None  # no change in the window
+    assert still_time(refs[:6], 0.0, 1.0) is None  # the data ends before 0.3 s of rest: not known
 
 
 def test_overshoot_displacement_and_verdict():

@@ -168,6 +168,7 @@ class HitchService:
         self._recorder: Any = None  # the CAN recorder when the core runs here
         self._state_sub: Any = None  # the subscription to the core's state (declared when first wanted)
         self._sub_lock = threading.Lock()
+        self._proxy: MotionProxy | None = None  # the controller's proxy when the core has its own process
 
     @property
     def core_in_process(self) -> bool:
@@ -214,7 +215,7 @@ class HitchService:
                 endpoints = [private] if private is not None else list(cfg.connect)
                 self.core = core = CoreProcess(cfg, endpoints, on_note=self._core_note).start()
                 self.warnings.extend(core.ready.get("warnings", []))
-                motion = MotionProxy(core, TrajectoryPlanner(build_model(cfg), rate=cfg.control_rate))
+                motion = self._proxy = MotionProxy(core, TrajectoryPlanner(build_model(cfg), rate=cfg.control_rate))
                 info = dict(core.ready["info"])
                 sim_fault = motion.sim_fault if core.ready.get("simulated_ecu") else None
             else:
@@ -323,9 +324,7 @@ class HitchService:
             return
         with self._sub_lock:
             if self._state_sub is None and not self._closed:
-                self._state_sub = self.session.declare_subscriber(
-                    self.config.key("state"), self._on_published("state")
-                )
+                self._state_sub = self.session.declare_subscriber(self.config.key("state"), self._on_published("state"))
                 self._decls.append(self._state_sub)
 
     def _core_note(self, note: dict[str, Any]) -> None:
@@ -343,6 +342,8 @@ class HitchService:
                 return
             if kind == "state":
                 self._latest_state = msg
+            elif isinstance(self._proxy, MotionProxy) and isinstance(msg, dict):
+                self._proxy.on_event(msg)
             for cb in list(self._listeners[kind]):
                 _call(cb, msg)
 

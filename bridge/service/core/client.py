@@ -216,6 +216,13 @@ class MotionProxy:
     def __init__(self, core: CoreProcess, planner: TrajectoryPlanner):
         self.core, self.planner = core, planner
         self._t0 = float(core.ready["t0_monotonic"])
+        self._mode: str | None = None  # the core's mode as last heard (set_mode replies, mode_changed events)
+
+    def on_event(self, event: Mapping[str, Any]) -> None:
+        """An event the core published: keeps the mode without asking the core (``config`` is read
+        at any rate by any client; it must not cost the core anything)."""
+        if event.get("event") == "mode_changed" and isinstance(event.get("mode"), str):
+            self._mode = str(event["mode"])
 
     def clock(self) -> float:
         """The core's clock [s]."""
@@ -223,7 +230,9 @@ class MotionProxy:
 
     @property
     def mode(self) -> str:
-        return str(self.core.call("mode"))
+        if self._mode is None:
+            self._mode = str(self.core.call("mode"))
+        return self._mode
 
     @property
     def faults(self) -> list[dict[str, Any]]:
@@ -278,7 +287,8 @@ class MotionProxy:
         return int(self.core.call("run_maneuver", validated, name, deadline=deadline, issued=issued, timeout_s=wait))
 
     def set_mode(self, mode: str) -> str:
-        return str(self.core.call("set_mode", mode))
+        self._mode = str(self.core.call("set_mode", mode))
+        return self._mode
 
     def ack_faults(self) -> JsonReply:
         return JsonReply(self.core.call("ack_faults"))

@@ -63,6 +63,8 @@ def test_the_api_answers_as_with_the_core_in_threads(service):
         assert _wait(lambda: any(ev.get("event") == "motion_finished" for ev in events))
         assert abs(svc.latest_state["pose"]["z"] - 0.25) < 3e-3
         assert c.mode()["mode"] == "auto"
+        assert c.mode("attach")["mode"] == "attach" and c.config()["mode"] == "attach"  # kept without asking the core
+        assert c.mode("auto")["mode"] == "auto" and c.config()["mode"] == "auto"
         with pytest.raises(ServiceError) as e:
             c.request("track/stop", {})
         assert e.value.code == "not_found"

@@ -29,9 +29,11 @@ from bridge.link.can_link import CanLink
 from bridge.link.state import LinkConfig
 from bridge.sim.can_node import EcuCanNode, EcuNodeConfig
 from bridge.sim.ecu import CylinderECU
+from bridge.sim.truth import MachineTruth, TrueMachine
 from planner.errors import HitchInputError
 from planner.model.kinematics import HitchModel
 from planner.model.sensors import SensorScaling
+from planner.model.types import Pose
 
 __all__ = ["LossyBus", "SimError", "SimRig", "SimSettings"]
 
@@ -114,22 +116,36 @@ class SimRig:
         model: kinematic model of the machine (its profile configures the ECU).
         settings: the simulated machine and bus.
         initial_actuators: start position of the pistons, SI (default: the profile's neutral).
+        truth: the twin's true machine (:mod:`bridge.sim.truth`): its AD map configures the ECU, its
+            geometry and play give :meth:`true_pose`; default the planner's profile exactly. The link
+            stays on ``model`` (the nominal profile).
     """
 
     def __init__(
-        self, model: HitchModel, settings: SimSettings | None = None, *, initial_actuators: ArrayLike | None = None
+        self,
+        model: HitchModel,
+        settings: SimSettings | None = None,
+        *,
+        initial_actuators: ArrayLike | None = None,
+        truth: MachineTruth | None = None,
     ) -> None:
         self.settings = s = settings if settings is not None else SimSettings()
+        if truth is not None and not isinstance(truth, MachineTruth):
+            raise SimError(f"truth must be a MachineTruth or None, got {type(truth).__name__}")
+        self.truth = truth if truth is not None else MachineTruth.nominal(model.profile)
+        """The twin's true machine (default: exactly the planner's profile, no play)."""
+        self._model = model
+        self._true_machine: TrueMachine | None = None
         rng = np.random.default_rng(s.seed)
         noise_rng, loss_rng = rng.spawn(2)
         initial = None
         if initial_actuators is not None:  # unrounded counts: the pistons sit between AD steps
-            sc = SensorScaling(model.profile)
+            sc = SensorScaling(self.truth.profile)  # the pistons' true positions through the true AD map
             initial = (
                 sc.counts_min + (np.asarray(initial_actuators, dtype=float).reshape(5) - sc.si_min) / sc.resolution
             )
         ecu = CylinderECU(
-            model.profile,
+            self.truth.profile,
             rng=noise_rng,
             noise_counts=s.noise_counts,
             gain_error=s.gain_error,
@@ -155,6 +171,26 @@ class SimRig:
         self.frames_by_dlc: dict[int, int] = {}
         """Frames seen on the bus since the last :meth:`reset_traffic`, by DLC."""
         self._traffic_since_s = 0.0
+        if self.truth.play.any:  # the play hysteresis needs the pistons' history
+            self._observe_truth()
+
+    @property
+    def true_machine(self) -> TrueMachine:
+        """The true machine of the twin (truth geometry + play), built on first use."""
+        if self._true_machine is None:
+            same = self.truth.profile == self._model.profile
+            self._true_machine = TrueMachine(self.truth, self._model.category, model=self._model if same else None)
+        return self._true_machine
+
+    def true_pose(self) -> Pose:
+        """The implement's true pose now: the ECU's true pistons through the truth geometry and play."""
+        return self.true_machine.observe(self.ecu.piston_counts())
+
+    def _observe_truth(self) -> None:
+        try:
+            self.true_pose()
+        except HitchInputError:  # pistons the truth geometry cannot close: the play state waits
+            pass
 
     @property
     def ecu(self) -> CylinderECU:
@@ -184,6 +220,8 @@ class SimRig:
         if not self.ecu_paused:
             self.node.poll(t)
             self.link.poll(t)
+        if self._true_machine is not None and self.truth.play.any:
+            self._observe_truth()
         while (frame := self._tap.recv(timeout=0.0)) is not None:
             self.frames_by_dlc[frame.dlc] = self.frames_by_dlc.get(frame.dlc, 0) + 1
         return t

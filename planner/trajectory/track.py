@@ -88,9 +88,7 @@ SUBSET_GRID = (5, 3)
 #: the jerk).
 SUBSET_MARGIN = 0.95
 _REL = 1e-6  # Ruckig's rounding at a limit (as braking.beyond)
-#: Longest look-ahead [s] of the intercept (a target the limits cannot reach within two cycles is
-#: replaced by the setpoint extrapolated to the time the follower would reach it; 0 disables).
-INTERCEPT_MAX_S = 0.5
+REACH_S = 0.4
 
 
 def subset_limits(
@@ -546,14 +544,11 @@ class TrackFollower:
             ta[i] = 0.0
         try:
             nxt = self._advance(p_t, tv, ta, vel_mode, brake, lim)
-            if not to_rest and self._sp is not None and INTERCEPT_MAX_S > 0:
-                # a target the limits cannot reach soon: aim where the setpoint will be on arrival
-                reach = min(self._traj.duration, INTERCEPT_MAX_S)
-                if reach > 2 * self.dt:
-                    p_t, v_t, a_t, flags = self.target(now + reach)
-                    free = ~vel_mode
-                    tv = np.where(free, v_t, tv)
-                    ta = np.where(free, a_t, ta)
+            if not to_rest and REACH_S > 0 and self._traj.duration > REACH_S:
+                free = ~vel_mode & self.tracked
+                if np.any(free & ((tv != 0) | (ta != 0))):
+                    tv = np.where(free, 0.0, tv)
+                    ta = np.where(free, 0.0, ta)
                     nxt = self._advance(p_t, tv, ta, vel_mode, brake, lim)
             for n in range(3):
                 up, down = self._cannot_stop(nxt, lim)  # cheap: the pose limits first

@@ -378,4 +378,9 @@ def main(argv: list[str]) -> int:
 if __name__ == "__main__":  # run the module's canonical copy
     from bridge.service.core.process import main as _canonical_main
 
-    sys.exit(_canonical_main(sys.argv[1:]))
+    code = _canonical_main(sys.argv[1:])
+    # everything was closed explicitly; the daemon threads' objects (Ruckig's among them) would only be
+    # reported as leaked by the interpreter's finalisation, so the process ends here
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)

@@ -202,9 +202,7 @@ def stop_latency(t_cmd: float, t_effect: float | None, reference_times: Sequence
     return None if t_brake is None else t_brake - t_cmd
 
 
-def still_time(
-    refs: Sequence[tuple[float, Sequence[int]]], t0: float, t1: float, quiet_s: float = 0.3
-) -> float | None:
+def still_time(refs: Sequence[tuple[float, Sequence[int]]], t0: float, t1: float, quiet_s: float = 0.3) -> float | None:
     """The time of the first reference change in [t0, t1] after which the counts stay unchanged for
     ``quiet_s`` (the hitch's reference at rest); None if they never rest that long in the window
     (``refs``: (t, counts) sorted by t). The next command may start a new motion after the rest: the

@@ -19,14 +19,16 @@ Safety follows :class:`~.jog.JogController`: a DOF moving faster or accelerating
 the subset limits (a take-over of a full-speed goto) brakes with the actuators' real limits along
 the current motion (:func:`~.braking.braking_limits`) to the pose speed limit (towards its
 target) or to rest (away from it); and every cycle the state one cycle ahead must still be
-able to stop within the workspace (:class:`~.braking.StopProbe`), else that DOF brakes now.
+able to stop within the workspace (:class:`~.braking.StopProbe`), else that DOF brakes now: with
+the subset limits (the state now passed that check one cycle ago), after a take-over with the real
+limits until a state can stop within the subset limits again (computed once per braking episode).
 
 Staleness: when no setpoint arrived within ``ttl_s`` the follower brakes to rest
 (``stale=True``) and stays latched: a later setpoint is refused (:class:`TrackStateError`)
 unless the follower was built with ``resume_after_stale=True`` or the caller calls
 :meth:`TrackFollower.resume` (the policy is the caller's; the motion controller ends the
-session instead). :meth:`TrackFollower.stop` brakes to rest the same way, :attr:`TrackFollower.finished` once at rest.
-Braking to rest uses the planned stop's limits (:meth:`~.planner.TrajectoryPlanner.plan_stop`: the
+session instead). :meth:`TrackFollower.stop` brakes to rest the same way, :attr:`TrackFollower.finished`
+once at rest. Braking to rest uses the planned stop's limits (:meth:`~.planner.TrajectoryPlanner.plan_stop`: the
 any-direction limits, or the real braking limits along the motion when the state moves beyond them
 or that stop would leave the workspace), so a stale stream stops as a planned stop would.
 
@@ -88,7 +90,6 @@ SUBSET_GRID = (5, 3)
 #: the jerk).
 SUBSET_MARGIN = 0.95
 _REL = 1e-6  # Ruckig's rounding at a limit (as braking.beyond)
-REACH_S = 0.4
 
 
 def subset_limits(
@@ -287,8 +288,8 @@ class TrackFollower:
         self.resume_after_stale = bool(resume_after_stale)
         self.dt = 1.0 / planner.rate
         self._any = planner.any_direction
-        self.limits = self._any  # the subset limits in force (set by reset)
-        self.refreshes = 0  # subset limits computed (every few cycles at full speed)
+        self.limits = self._any  # the subset limits in force (set by reset; a stop to rest: see _rest_limits)
+        self.refreshes = 0  # subset limits computed (at reset, and when an untracked DOF came to rest)
         self._lo_ok = planner.lo - PLAUSIBLE_MARGIN
         self._hi_ok = planner.hi + PLAUSIBLE_MARGIN
         # one Ruckig, input and trajectory, reused every cycle (calculate, then the state one cycle in)
@@ -544,12 +545,6 @@ class TrackFollower:
             ta[i] = 0.0
         try:
             nxt = self._advance(p_t, tv, ta, vel_mode, brake, lim)
-            if not to_rest and REACH_S > 0 and self._traj.duration > REACH_S:
-                free = ~vel_mode & self.tracked
-                if np.any(free & ((tv != 0) | (ta != 0))):
-                    tv = np.where(free, 0.0, tv)
-                    ta = np.where(free, 0.0, ta)
-                    nxt = self._advance(p_t, tv, ta, vel_mode, brake, lim)
             for n in range(3):
                 up, down = self._cannot_stop(nxt, lim)  # cheap: the pose limits first
                 if not (np.any(up) or np.any(down)):

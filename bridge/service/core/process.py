@@ -54,6 +54,8 @@ __all__ = ["CORE_NICE", "ControlCore", "error_code"]
 
 #: nice value of every thread of the core process (the control cycle, CAN, its Zenoh session)
 CORE_NICE = -10
+#: the core interpreter's switch interval [s] (Python's default 5 ms)
+SWITCH_INTERVAL_S = 0.001
 #: methods answered on the reading thread (O(1), no planning)
 _INLINE = frozenset(
     {
@@ -95,8 +97,15 @@ def error_code(exc: BaseException) -> str:
 
 
 def _set_nice(nice: int) -> str | None:
+    """Every thread of this process to ``nice`` (the ones libraries started at import too; threads
+    started later inherit it); None when done, else why not."""
     try:
-        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), nice)
+        tids = [int(t) for t in os.listdir("/proc/self/task")]
+    except OSError:
+        tids = [threading.get_native_id()]
+    try:
+        for tid in tids:
+            os.setpriority(os.PRIO_PROCESS, tid, nice)
     except PermissionError:
         return "not permitted"
     except (OSError, AttributeError) as exc:
@@ -107,8 +116,16 @@ def _set_nice(nice: int) -> str | None:
 class ControlCore:
     """The core's parts and its two faces (Zenoh and the service's socket); see the module docstring."""
 
-    def __init__(self, cfg: ServiceConfig, conn: multiprocessing.connection.Connection, endpoints: list[str]):
+    def __init__(
+        self,
+        cfg: ServiceConfig,
+        conn: multiprocessing.connection.Connection,
+        endpoints: list[str],
+        *,
+        nice_failed: str | None = None,
+    ):
         self.cfg, self.conn, self.endpoints = cfg, conn, list(endpoints)
+        self.nice_failed = nice_failed  # why the process could not be raised to CORE_NICE (None: it was)
         self._send_lock = threading.Lock()
         self.parts: CanParts | None = None
         self.motion: MotionController | None = None
@@ -128,7 +145,7 @@ class ControlCore:
     def start(self) -> dict[str, Any]:
         """Build and start everything; the ``ready`` message for the service."""
         cfg = self.cfg
-        nice_failed = _set_nice(CORE_NICE)  # threads started from here on inherit it
+        nice_failed = self.nice_failed
         if cfg.can_log is not None:
             from bridge.service.blackbox import CanRecorder
 
@@ -354,11 +371,13 @@ def _quiet(fn: Callable[[], Any]) -> None:
 def main(argv: list[str]) -> int:
     """``python -m bridge.service.core.process FD CONFIG_JSON ENDPOINTS_JSON``."""
     fd, cfg_json, endpoints = int(argv[0]), argv[1], list(json.loads(argv[2]))
+    nice_failed = _set_nice(CORE_NICE)  # first: every thread started from here on inherits it
+    sys.setswitchinterval(SWITCH_INTERVAL_S)  # a thread that plans hands the GIL over within ~1 ms
     conn = multiprocessing.connection.Connection(fd)
     core: ControlCore | None = None
     try:
         cfg = ServiceConfig.model_validate_json(cfg_json)
-        core = ControlCore(cfg, conn, endpoints)
+        core = ControlCore(cfg, conn, endpoints, nice_failed=nice_failed)
         try:
             ready = core.start()
         except (HitchError, OSError, zenoh.ZError) as exc:

@@ -89,6 +89,7 @@ def _cmd_serve(args) -> int:
         can_channel=args.can_channel,
         simulate_ecu=False if args.no_sim_ecu else None,
         sim_ground_speed=args.sim_ground_speed,
+        sim_truth=args.sim_truth,
         profile=args.profile,
         category=args.category,
         implement=args.implement,
@@ -163,6 +164,12 @@ def _add_serve(sub) -> None:
         type=finite_float("--sim-ground-speed"),
         default=None,
         help="m/s of the simulated tractor (wheel-based speed for maneuver wait_for; default 1.5)",
+    )
+    p.add_argument(
+        "--sim-truth",
+        default=None,
+        metavar="FILE",
+        help="the simulated machine's own true profile (hitch sim perturb); default: the planner's profile",
     )
     p.add_argument("--profile", default=None, help="hitch profile (default thesis-t132)")
     p.add_argument("--category", default=None, help="ISO 730 category (default: the profile's)")

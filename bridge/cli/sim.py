@@ -8,6 +8,12 @@ python-can interface, in real time, with :class:`RealtimeRunner`, until Ctrl-C o
 ``hitch can-hub`` (a CAN hub on 127.0.0.1: cross-process CAN without multicast).
 ``hitch sim fault`` asks a running service whose ECU is simulated to inject link faults
 (service key ``sim/fault``).
+``hitch sim perturb --seed S --tape`` writes a random true machine (a truth profile with
+tape-measure errors, :mod:`bridge.sim.truth`); ``--sim-truth FILE`` gives the twin that truth
+(``hitch ecu-sim``, ``hitch sim measure``; ``hitch serve`` has the same flag).
+``hitch sim measure`` holds the twin at a pose (the planner's nominal IK) or an AD reading in
+simulated time and reports the planner's measured pose, the true pose and an instrument's reading
+of it (``--noise tape|station|none``, ``--points`` for marked points).
 """
 
 from __future__ import annotations
@@ -15,6 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from pathlib import Path
 
 import numpy as np
 from rich.console import Console
@@ -36,9 +43,26 @@ from bridge.sim.move import (
     build_move_figures,
     run_move,
 )
-from planner.profiles.hitch import load_profile
+from bridge.sim.rig import SimRig
+from bridge.sim.truth import (
+    COORDINATE_FIELDS,
+    LENGTH_FIELDS,
+    MARKED_POINTS,
+    NOISE_KINDS,
+    Instrument,
+    MachineTruth,
+    PinPlay,
+    TruthError,
+    load_machine_truth,
+    perturb_profile,
+    truth_toml,
+)
+from planner.model.kinematics import POINT_NAMES, HitchModel
+from planner.model.sensors import SensorScaling
+from planner.profiles.hitch import Profile, load_profile
+from planner.trajectory import TrajectoryPlanner
 
-__all__ = ["add_commands", "move_json", "plot_move", "plot_track"]
+__all__ = ["add_commands", "measure_in_sim", "move_json", "perturbation_summary", "plot_move", "plot_track"]
 
 _POSE = ("x", "z", "roll", "pitch")
 
@@ -231,8 +255,10 @@ def _cmd_ecu_sim(args) -> int:
         raise SimError(f"--duration must be a positive number of seconds, got {args.duration}")
     if not (np.isfinite(args.status_every) and 0.05 <= args.status_every <= 3600):
         raise SimError(f"--status-every must lie in [0.05, 3600] s, got {args.status_every}")
+    nominal = load_profile(args.profile)
+    profile = nominal if args.sim_truth is None else load_machine_truth(args.sim_truth).profile
     ecu = CylinderECU(
-        load_profile(args.profile), rng=args.seed, noise_counts=args.noise_counts, gain_error=args.gain_error
+        profile, rng=args.seed, noise_counts=args.noise_counts, gain_error=args.gain_error, calibration=nominal
     )
     bus = open_bus(args.interface, args.channel)
     node = EcuCanNode(ecu, bus)
@@ -311,6 +337,154 @@ def _add_plant_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the noise (and frame loss)")
 
 
+def _add_truth_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--sim-truth",
+        default=None,
+        metavar="FILE",
+        help="the simulated machine's own true profile (hitch sim perturb); default: the planner's profile",
+    )
+
+
+# -- hitch sim perturb / measure -----------------------------------------------------------
+def perturbation_summary(nominal: Profile, data: dict, play: PinPlay) -> dict:
+    """The drawn errors of a truth: per field, truth − nominal (m, counts; gain as a fraction)."""
+    geo = nominal.geometry.model_dump()
+    errors: dict[str, object] = {}
+    for k in (*COORDINATE_FIELDS, *LENGTH_FIELDS):
+        v, n = data["geometry"][k], geo[k]
+        errors[f"geometry.{k}"] = (
+            [float(a) - float(b) for a, b in zip(v, n, strict=True)] if isinstance(n, tuple) else float(v) - float(n)
+        )
+    for a in ACTUATOR_ORDER:
+        spec, t = nominal.actuator(a), data["actuators"][a]
+        errors[f"actuators.{a}.ad_offset_counts"] = int(t["counts_min"]) - spec.counts_min
+        span = spec.counts_max - spec.counts_min
+        errors[f"actuators.{a}.ad_gain"] = (int(t["counts_max"]) - int(t["counts_min"]) - span) / span
+    return {
+        "name": data["name"],
+        "errors": errors,
+        "play_m": {"lower_link": play.lower_link_m, "top_link": play.top_link_m},
+    }
+
+
+def _cmd_sim_perturb(args) -> int:
+    nominal = load_profile(args.profile)
+    data, play = perturb_profile(nominal, args.seed, tape=args.tape)
+    text = truth_toml(data, play)
+    if args.out:
+        try:
+            Path(args.out).write_text(text, encoding="utf-8")
+        except OSError as exc:
+            raise TruthError(f"--out {args.out}: cannot write the truth file ({exc.strerror})") from None
+    summary = perturbation_summary(nominal, data, play)
+    if args.json:
+        print(json.dumps({**summary, "out": args.out}))
+    elif args.out:
+        Console().print(
+            f"truth {summary['name']} written to {args.out} (play {1e3 * play.lower_link_m:.2f} mm at the "
+            f"lower-link balls, {1e3 * play.top_link_m:.2f} mm at the top-link pins)"
+        )
+    else:
+        print(text, end="")
+    return 0
+
+
+def _counts_arg(text: str) -> tuple[int, ...]:
+    parts = [p.strip() for p in text.split(",")]
+    if len(parts) != 5:
+        raise argparse.ArgumentTypeError(f"--counts needs 5 integers ({','.join(ACTUATOR_ORDER)}), got {text!r}")
+    try:
+        values = tuple(int(p) for p in parts)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--counts must be integers 0..1023, got {text!r}") from None
+    if not all(0 <= v <= 1023 for v in values):
+        raise argparse.ArgumentTypeError(f"--counts must be integers 0..1023, got {text!r}")
+    return values
+
+
+def _points_arg(text: str) -> tuple[str, ...]:
+    names = tuple(p.strip() for p in text.split(",") if p.strip())
+    unknown = [n for n in names if n not in POINT_NAMES]
+    if unknown or not names:
+        raise argparse.ArgumentTypeError(
+            f"--points: unknown point(s) {unknown or text!r}; allowed: {','.join(POINT_NAMES)}"
+        )
+    return names
+
+
+def measure_in_sim(
+    model: HitchModel,
+    truth: MachineTruth,
+    *,
+    pose: dict[str, float] | None = None,
+    counts: tuple[int, ...] | None = None,
+    noise: str = "station",
+    points: tuple[str, ...] = (),
+    seed: int = 0,
+    settle_s: float = 0.5,
+) -> dict:
+    """Measure the twin in simulated time: the pistons hold ``counts`` (or the counts of the planner's
+    nominal inverse kinematics of ``pose``; default the neutral pose), the link reads them over CAN
+    (the planner's measured pose, nominal profile) and the instrument reads the true pose."""
+    nominal = SensorScaling(model.profile)
+    if counts is None:
+        tp = TrajectoryPlanner(model)
+        p = tp.goal_vector(model.neutral_pose.controlled(), pose or {})
+        tp.check_in_workspace(p, "pose")
+        held = nominal.counts_min + (tp.inverse.solve(p)[0] - nominal.si_min) / nominal.resolution
+    else:
+        held = np.asarray(counts, dtype=float)
+    instrument = Instrument(noise, seed=seed)
+    with SimRig(model, SimSettings(seed=seed), initial_actuators=truth.si_from_counts(held), truth=truth) as rig:
+        rig.start()
+        rig.run_until(settle_s)
+        state = rig.link.latest_state()
+        if state is None:
+            raise SimError(f"no measurement from the simulated ECU after {settle_s} s")
+        true = rig.true_pose()
+        reading = instrument.measure(rig.true_machine, points)
+        reported = rig.ecu.measurement_counts()
+    planner = dict(zip(_POSE, map(float, state.pose.controlled()), strict=True))
+    true_d = dict(zip(_POSE, map(float, true.controlled()), strict=True))
+    return {
+        "truth": truth.profile.name,
+        "counts": dict(zip(ACTUATOR_ORDER, map(int, reported), strict=True)),
+        "planner_pose": planner,
+        "true_pose": true_d,
+        "planner_minus_true": {k: planner[k] - true_d[k] for k in _POSE},
+        "measured": reading.as_dict(),
+    }
+
+
+def _cmd_sim_measure(args) -> int:
+    model = model_from_args(args)
+    truth = MachineTruth.nominal(model.profile) if args.sim_truth is None else load_machine_truth(args.sim_truth)
+    out = measure_in_sim(
+        model, truth, pose=args.pose, counts=args.counts, noise=args.noise, points=args.points, seed=args.seed
+    )
+    if args.json:
+        print(json.dumps(out))
+        return 0
+    c = Console()
+    c.print(f"truth {out['truth']}, AD reading {out['counts']}")
+    for label, key in (("planner (nominal)", "planner_pose"), ("true", "true_pose")):
+        d = out[key]
+        c.print(
+            f"{label:>18}: x {1e3 * d['x']:8.2f} mm  z {1e3 * d['z']:8.2f} mm  "
+            f"roll {1e3 * d['roll']:7.2f} mrad  pitch {1e3 * d['pitch']:7.2f} mrad"
+        )
+    m = out["measured"]
+    d = m["pose"]
+    c.print(
+        f"{'measured (' + args.noise + ')':>18}: x {1e3 * d['x']:8.2f} mm  z {1e3 * d['z']:8.2f} mm  "
+        f"roll {1e3 * d['roll']:7.2f} mrad  pitch {1e3 * d['pitch']:7.2f} mrad"
+    )
+    for name, p in m["points"].items():
+        c.print(f"{'point ' + name:>18}: ({', '.join(f'{1e3 * v:.1f}' for v in p)}) mm")
+    return 0
+
+
 def add_commands(sub) -> None:
     p = sub.add_parser("sim", help="closed-loop runs against the simulated cylinder ECU over CAN")
     ssub = p.add_subparsers(dest="sim_command", required=True, parser_class=type(p))
@@ -379,7 +553,38 @@ def add_commands(sub) -> None:
     e.add_argument("--profile", default="thesis-t132", help="built-in profile name or path to a .toml")
     e.add_argument("--json", action="store_true", help="print the final summary as JSON")
     _add_plant_options(e)
+    _add_truth_option(e)
     e.set_defaults(handler=_cmd_ecu_sim)
+    pp = ssub.add_parser("perturb", help="write a random true machine (truth profile) with tape-measure errors")
+    pp.add_argument("--seed", type=int, required=True, help="seed of the draw (the same seed, the same truth)")
+    pp.add_argument(
+        "--tape",
+        action="store_true",
+        required=True,
+        help="tape-measure errors: coordinates ±10 mm, lengths ±5 mm, AD ±3 counts / ±2 %%, play 0..1 mm",
+    )
+    pp.add_argument("--profile", default="thesis-t132", help="the nominal profile (name or .toml, default thesis-t132)")
+    pp.add_argument("--out", default=None, metavar="FILE", help="write the truth here (default: print it)")
+    pp.add_argument("--json", action="store_true", help="print the drawn errors as JSON")
+    pp.set_defaults(handler=_cmd_sim_perturb)
+    me = ssub.add_parser("measure", help="measure the true implement pose of the twin in simulated time")
+    at = me.add_mutually_exclusive_group()
+    at.add_argument("--pose", type=parse_pose_arg, default=None, help="the pose the planner holds, e.g. z=0.1")
+    at.add_argument(
+        "--counts", type=_counts_arg, default=None, help="the AD reading the twin holds: lift,tilt,top,left,right"
+    )
+    me.add_argument("--noise", choices=NOISE_KINDS, default="station", help="tape ±10 mm, station 1 mm / 1 mrad, none")
+    me.add_argument(
+        "--points",
+        type=_points_arg,
+        default=(),
+        metavar="NAMES",
+        help=f"marked points to read, e.g. {','.join(MARKED_POINTS)} (default none)",
+    )
+    me.add_argument("--seed", type=int, default=0, help="seed of the instrument noise")
+    _add_truth_option(me)
+    add_model_options(me)
+    me.set_defaults(handler=_cmd_sim_measure)
     h = sub.add_parser("can-hub", help="a CAN hub on 127.0.0.1 for nodes in several processes (--interface remote)")
     h.add_argument("--port", type=int, default=54701, help="TCP port on 127.0.0.1 (default 54701; 0: any free one)")
     h.set_defaults(handler=_cmd_can_hub)

@@ -15,6 +15,7 @@ TOML layout (every key optional; the names are the field names below)::
                security = "/etc/hitch/zenoh-security.json5"; scouting = false
     [can]      interface = "virtual"; channel = "hitch"; simulate_ecu = true; stale_timeout_s = 0.2
                sim_ground_speed = 1.5   # m/s of the simulated tractor (wheel-based speed, PGN 65096)
+               sim_truth = "truth.toml" # the simulated machine's own true profile (hitch sim perturb)
     [hitch]    profile = "thesis-t132"; category = "2"; implement = "cat2-spreader-400";
                control_rate = 50.0; state_rate = 50.0
                feedforward = true   # stream the unit loops' feed-forward reference (bridge.link.unit_loop)
@@ -111,6 +112,8 @@ class ServiceConfig(BaseModel):
     stale_timeout_s: float = Field(0.2, ge=0.05, le=2.0)
     #: ground speed of the simulated tractor (PGN 65096, for maneuver ``wait_for``) [m/s]
     sim_ground_speed: float = Field(1.5, ge=0.0, le=20.0)
+    #: the simulated machine's own truth profile (bridge.sim.truth); None: the planner's profile exactly
+    sim_truth: Path | None = None
     profile: str = "thesis-t132"
     category: str | None = None
     implement: str | None = None
@@ -149,6 +152,13 @@ class ServiceConfig(BaseModel):
     def _finite(cls, v: float) -> float:
         if not math.isfinite(v):
             raise ServiceConfigError("must be a finite number")
+        return v
+
+    @field_validator("sim_truth")
+    @classmethod
+    def _sim_truth(cls, v: Path | None) -> Path | None:
+        if v is not None and not v.is_file():
+            raise ServiceConfigError(f"sim_truth {str(v)!r} must be an existing truth profile file (.toml)")
         return v
 
     @field_validator("http")
@@ -199,6 +209,7 @@ _TOML_SECTIONS = {
         "simulate_ecu": "simulate_ecu",
         "stale_timeout_s": "stale_timeout_s",
         "sim_ground_speed": "sim_ground_speed",
+        "sim_truth": "sim_truth",
     },
     "hitch": {
         "profile": "profile",

@@ -43,6 +43,7 @@ from bridge.service.motion.types import MODES, actuator_dict
 from bridge.sim.can_node import EcuCanNode
 from bridge.sim.ecu import CylinderECU
 from bridge.sim.tractor_node import TractorTwinNode, hitch_height_from_ecu
+from bridge.sim.truth import MachineTruth, load_machine_truth
 from planner.limits.guard import Guard
 from planner.limits.tractor import load_tractor_profile
 from planner.model.kinematics import HitchModel
@@ -165,14 +166,19 @@ def start_can(cfg: ServiceConfig, *, runners_out: list[RealtimeRunner] | None = 
     try:
         if cfg.simulate_ecu:
             ecu_model = build_model(cfg)
-            # the twin starts with the hitch at the model's neutral pose (x = roll = pitch = 0)
-            scale = SensorScaling(ecu_model.profile)
+            # the twin's own true machine (bridge.sim.truth): its AD map in the ECU, its geometry for the
+            # height sensor; the link and the planner stay on the nominal profile
+            truth = (
+                MachineTruth.nominal(ecu_model.profile) if cfg.sim_truth is None else load_machine_truth(cfg.sim_truth)
+            )
+            # the twin starts with the pistons at the model's neutral actuators (x = roll = pitch = 0)
+            scale = SensorScaling(truth.profile)
             neutral_counts = scale.counts_min + (ecu_model.neutral - scale.si_min) / scale.resolution
             twin_bus = bus(TWIN_PGNS)
-            ecu_node = EcuCanNode(
-                CylinderECU(ecu_model.profile, initial_counts=list(neutral_counts)), BusPort(twin_bus)
-            )
-            height = hitch_height_from_ecu(ecu_node.ecu, build_model(cfg))
+            ecu = CylinderECU(truth.profile, initial_counts=list(neutral_counts), calibration=ecu_model.profile)
+            ecu_node = EcuCanNode(ecu, BusPort(twin_bus))
+            true_model = build_model(cfg) if cfg.sim_truth is None else HitchModel(truth.profile, cfg.category)
+            height = hitch_height_from_ecu(ecu_node.ecu, true_model)
             tractor = TractorTwinNode(BusPort(twin_bus), ground_speed_m_s=cfg.sim_ground_speed, hitch_height_m=height)
             twin = SharedBusNodes(twin_bus, [ecu_node, tractor])
             started.append(RealtimeRunner(twin, max_wait_s=_MAX_WAIT_S, name="EcuCanNode-rt").start())

@@ -307,14 +307,15 @@ class HitchService:
                 cfg.key("events"), encoding=zenoh.Encoding.APPLICATION_JSON, express=True
             )
             # the setpoint stream is put, not queried: refusals are counted and announced as events
-            self._decls.append(s.declare_subscriber(cfg.key("track/setpoint"), self._on_setpoint))
+            self._serve(s.declare_subscriber(cfg.key("track/setpoint"), _ring()), self._on_setpoint, "setpoints")
         else:  # the core publishes; this process's listeners (terminal, black box) hear it like any client
             # (the 50 Hz state only once something here listens to it: see _ensure_state_subscription)
-            self._decls.append(s.declare_subscriber(cfg.key("events"), self._on_published("event")))
+            self._serve(s.declare_subscriber(cfg.key("events"), _ring()), self._on_published("event"), "events")
         for key in API_KEYS:
             if key == "stop" and self.core is not None:
                 continue  # answered by the core process itself: no request here can delay it
-            self._decls.append(s.declare_queryable(cfg.key(key), self._query_callback(key), complete=True))
+            q = s.declare_queryable(cfg.key(key), _ring(), complete=True)
+            self._serve(q, self._query_callback(key), key)
         self._decls.append(s.liveliness().declare_token(cfg.key("alive")))
 
     def _ensure_state_subscription(self) -> None:
@@ -324,8 +325,8 @@ class HitchService:
             return
         with self._sub_lock:
             if self._state_sub is None and not self._closed:
-                self._state_sub = self.session.declare_subscriber(self.config.key("state"), self._on_published("state"))
-                self._decls.append(self._state_sub)
+                self._state_sub = self.session.declare_subscriber(self.config.key("state"), _ring())
+                self._serve(self._state_sub, self._on_published("state"), "state")
 
     def _core_note(self, note: dict[str, Any]) -> None:
         """A request the core answered itself (``stop``): given to the API's request hook (the black box)."""
@@ -361,6 +362,23 @@ class HitchService:
             raise ServiceStartError(f"--http {addr}: cannot listen ({exc})") from None
 
     # ------------------------------------------------------------------ Zenoh callbacks
+    def _serve(self, source: Any, handle: Callable[[Any], None], name: str) -> None:
+        """Take what a queryable or subscriber receives from its channel on a thread of its own.
+
+        Zenoh puts each query or sample into the channel (:func:`_ring`) without running Python: its
+        runtime threads never wait for this interpreter's lock, so routing — the control core's
+        ``stop`` and its replies, the core's state — goes on however busy the request handlers are."""
+        self._decls.append(source)
+
+        def run() -> None:
+            for item in source:  # ends when the queryable/subscriber is undeclared or the session closes
+                try:
+                    handle(item)
+                except Exception:  # noqa: BLE001 — a bug in one request must not end the lane
+                    pass
+
+        threading.Thread(target=run, name=f"hitch-z-{name}", daemon=True).start()
+
     def _query_callback(self, key: str) -> Callable[[zenoh.Query], None]:
         exact = self.config.key(key)
 
@@ -520,6 +538,15 @@ class HitchService:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+#: queries (or samples) a key's channel holds while its thread is busy; beyond it the oldest is dropped
+#: (its querier gets no reply, as from a busy service) — Zenoh never waits for Python
+CHANNEL_CAPACITY = 256
+
+
+def _ring() -> Any:
+    return zenoh.handlers.RingChannel(CHANNEL_CAPACITY)
 
 
 def _free_port() -> int:

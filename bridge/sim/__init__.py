@@ -12,11 +12,15 @@ The twin of the thesis's PhyCORE-MPC555 cylinder ECU (thesis §2.4–2.5.6):
 * :mod:`bridge.sim.can_node`   — the ECU as an ISO 11783 node (its messages, claim, heartbeat);
 * :mod:`bridge.sim.fault_injector` — the node's bus through injected faults (cut, loss, delay, restart);
 * :mod:`bridge.sim.rig`        — ECU node and planner link on a private bus in simulated time;
+* :mod:`bridge.sim.truth`      — the twin's own true machine (truth profile, pin play), tape perturbation, instrument;
 * :mod:`bridge.sim.move`       — the closed-loop move experiment of ``hitch sim move``;
 * :mod:`bridge.sim.terrain`    — the tractor driving over terrain: attitude, implement ground, crop row;
 * :mod:`bridge.sim.sensors`    — the tractor's sensor payloads (slope, wheel speed, ground, row);
 * :mod:`bridge.sim.scenario`   — terrain scenarios from TOML (built-ins in ``bridge/sim/scenarios/``);
 * :mod:`bridge.sim.tractor_node` — the twin's tractor on the bus (its sensors' CAN messages).
+* :mod:`bridge.sim.soil`       — a soil-engaging implement: ASABE D497 draft, soil patches, wheel slip;
+* :mod:`bridge.sim.draft_sensor` — the lower-link draft pins and the rear hitch status they feed;
+* :mod:`bridge.sim.field`      — field runs: implement, soil and draft pins over a terrain scenario.
 
 Inside the ECU everything runs in AD counts as the thesis ECU did; SI conversions are at
 the boundary (:meth:`CylinderParams.counts_to_si`, :meth:`CylinderECU.positions_si`). The
@@ -61,6 +65,13 @@ if TYPE_CHECKING:
         build_cylinder_params,
         valve_flow_counts_per_s,
     )
+    from bridge.sim.draft_sensor import (
+        DraftPinConfig,
+        DraftPinError,
+        DraftPins,
+        DraftReading,
+        rear_hitch_status,
+    )
     from bridge.sim.ecu import (
         ACTUATOR_ORDER,
         CylinderECU,
@@ -73,6 +84,15 @@ if TYPE_CHECKING:
         FaultError,
         FaultInjector,
         FaultSettings,
+    )
+    from bridge.sim.field import (
+        FieldError,
+        FieldRun,
+        FieldSample,
+        FieldSetup,
+        builtin_fields,
+        field_from_dict,
+        load_field,
     )
     from bridge.sim.move import (
         REFERENCE_KINDS,
@@ -96,6 +116,20 @@ if TYPE_CHECKING:
         scenario_from_dict,
     )
     from bridge.sim.sensors import TwinSensors
+    from bridge.sim.soil import (
+        CHISEL_PLOW_STRAIGHT_POINT,
+        FIELD_CULTIVATOR_PRIMARY,
+        FIELD_CULTIVATOR_SECONDARY,
+        MOLDBOARD_PLOW,
+        D497Coefficients,
+        Implement,
+        SoilError,
+        SoilField,
+        TractionParams,
+        d497_draft_n,
+        tractive_capacity_n,
+        wheel_slip,
+    )
     from bridge.sim.terrain import (
         CrossSlopeWave,
         RowSignal,
@@ -113,6 +147,24 @@ if TYPE_CHECKING:
         TractorNodeError,
         TractorTwinNode,
         hitch_height_from_ecu,
+    )
+    from bridge.sim.truth import (
+        COORDINATE_FIELDS,
+        LENGTH_FIELDS,
+        MARKED_POINTS,
+        NOISE_KINDS,
+        PLAY_MARKER,
+        Instrument,
+        InstrumentNoise,
+        MachineTruth,
+        Measurement,
+        PinPlay,
+        TapeErrors,
+        TrueMachine,
+        TruthError,
+        load_machine_truth,
+        perturb_profile,
+        truth_toml,
     )
     from bridge.sim.watchdog import (
         Watchdog,
@@ -195,6 +247,27 @@ _SOURCES: dict[str, str] = {
     ),
     **dict.fromkeys(
         (
+            "COORDINATE_FIELDS",
+            "LENGTH_FIELDS",
+            "MARKED_POINTS",
+            "NOISE_KINDS",
+            "PLAY_MARKER",
+            "Instrument",
+            "InstrumentNoise",
+            "MachineTruth",
+            "Measurement",
+            "PinPlay",
+            "TapeErrors",
+            "TrueMachine",
+            "TruthError",
+            "load_machine_truth",
+            "perturb_profile",
+            "truth_toml",
+        ),
+        "bridge.sim.truth",
+    ),
+    **dict.fromkeys(
+        (
             "MoveFigures",
             "MoveSettings",
             "MoveTrace",
@@ -236,6 +309,31 @@ _SOURCES: dict[str, str] = {
             "scenario_from_dict",
         ),
         "bridge.sim.scenario",
+    ),
+    **dict.fromkeys(
+        (
+            "CHISEL_PLOW_STRAIGHT_POINT",
+            "FIELD_CULTIVATOR_PRIMARY",
+            "FIELD_CULTIVATOR_SECONDARY",
+            "MOLDBOARD_PLOW",
+            "D497Coefficients",
+            "Implement",
+            "SoilError",
+            "SoilField",
+            "TractionParams",
+            "d497_draft_n",
+            "tractive_capacity_n",
+            "wheel_slip",
+        ),
+        "bridge.sim.soil",
+    ),
+    **dict.fromkeys(
+        ("DraftPinConfig", "DraftPinError", "DraftPins", "DraftReading", "rear_hitch_status"),
+        "bridge.sim.draft_sensor",
+    ),
+    **dict.fromkeys(
+        ("FieldError", "FieldRun", "FieldSample", "FieldSetup", "builtin_fields", "field_from_dict", "load_field"),
+        "bridge.sim.field",
     ),
 }
 
@@ -284,6 +382,23 @@ __all__ = [
     "SimError",
     "SimRig",
     "SimSettings",
+    # the twin's own true machine, tape perturbation, measuring instrument (bridge.sim.truth)
+    "COORDINATE_FIELDS",
+    "LENGTH_FIELDS",
+    "MARKED_POINTS",
+    "NOISE_KINDS",
+    "PLAY_MARKER",
+    "Instrument",
+    "InstrumentNoise",
+    "MachineTruth",
+    "Measurement",
+    "PinPlay",
+    "TapeErrors",
+    "TrueMachine",
+    "TruthError",
+    "load_machine_truth",
+    "perturb_profile",
+    "truth_toml",
     # closed-loop moves (bridge.sim.move)
     "MoveFigures",
     "MoveSettings",
@@ -313,6 +428,31 @@ __all__ = [
     "builtin_scenarios",
     "load_scenario",
     "scenario_from_dict",
+    # the soil-engaging implement (bridge.sim.soil, .draft_sensor, .field)
+    "CHISEL_PLOW_STRAIGHT_POINT",
+    "FIELD_CULTIVATOR_PRIMARY",
+    "FIELD_CULTIVATOR_SECONDARY",
+    "MOLDBOARD_PLOW",
+    "D497Coefficients",
+    "Implement",
+    "SoilError",
+    "SoilField",
+    "TractionParams",
+    "d497_draft_n",
+    "tractive_capacity_n",
+    "wheel_slip",
+    "DraftPinConfig",
+    "DraftPinError",
+    "DraftPins",
+    "DraftReading",
+    "rear_hitch_status",
+    "FieldError",
+    "FieldRun",
+    "FieldSample",
+    "FieldSetup",
+    "builtin_fields",
+    "field_from_dict",
+    "load_field",
 ]
 
 

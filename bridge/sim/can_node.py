@@ -439,9 +439,9 @@ class EcuCanNode:
         return self._codec.encode(payload, source=self._cfg.source_address)
 
     def _hitch_frame(self) -> can.Message:
-        lift = self._ecu.params[0]
+        lift_min, lift_max = self._ecu.lift_calibration_counts()
         counts = int(self._ecu.measurement_counts()[0])
-        fraction = lift_fraction(counts, lift.counts_min, lift.counts_max)
+        fraction = lift_fraction(counts, lift_min, lift_max)
         limit = LimitStatus.NOT_LIMITED
         if self._ecu.relay_engaged()[0]:
             limit = LimitStatus.LIMITED_HIGH if fraction > 0.5 else LimitStatus.LIMITED_LOW

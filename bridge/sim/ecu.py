@@ -121,6 +121,10 @@ class CylinderECU:
     ``motion.controller_a``).  ``step_s``: internal integration step [s].
     ``initial_counts``: start positions [counts] (default: the profile's neutral, else
     mid-stroke).  ``controllers_enabled``: initial position of the on/off switch.
+    ``calibration``: the AD calibration the ECU's firmware was configured with, when the
+    simulated machine (``profile``, a truth of :mod:`bridge.sim.truth`) differs from it: the
+    rear hitch position the ECU reports is the lift reading as a fraction of this
+    calibration's travel (default: ``profile``'s own, the twin of today).
     """
 
     def __init__(
@@ -135,9 +139,14 @@ class CylinderECU:
         step_s: float = 1e-3,
         initial_counts=None,
         controllers_enabled: bool = True,
+        calibration: Profile | None = None,
     ) -> None:
         if not isinstance(profile, Profile):
             profile = load_profile(profile)
+        if calibration is not None and not isinstance(calibration, Profile):
+            raise ECUError(f"calibration must be a Profile or None, got {type(calibration).__name__}")
+        lift_cal = (calibration if calibration is not None else profile).actuator("lift")
+        self._lift_calibration = (float(lift_cal.counts_min), float(lift_cal.counts_max))
         if controller is None:  # the machine's own tuning a (thesis 2.57), profile data
             controller = ControllerConfig(a=profile.motion.controller_a)
         if not isinstance(controller, ControllerConfig):
@@ -287,6 +296,11 @@ class CylinderECU:
     def positions_si(self) -> np.ndarray:
         """Last measurement converted to SI (lift [rad], others [m]) through the calibration."""
         return np.array([p.counts_to_si(m) for p, m in zip(self.params, self._meas, strict=True)])
+
+    def lift_calibration_counts(self) -> tuple[float, float]:
+        """(counts_min, counts_max) of the lift as configured in the ECU: the travel the reported
+        rear hitch position is a fraction of."""
+        return self._lift_calibration
 
     def piston_counts(self) -> np.ndarray:
         """True (unquantised, noise-free) piston positions [counts, float] — simulation truth."""

@@ -151,6 +151,7 @@ class SimRig:
             gain_error=s.gain_error,
             watchdog_timeout_s=s.watchdog_timeout_s,
             initial_counts=initial,
+            calibration=model.profile,  # the ECU is configured with the planner's (nominal) calibration
         )
         self.channel = channel = f"hitch-sim-{uuid.uuid4().hex}"
         """The private virtual channel (other buses may join it, e.g. in tests)."""

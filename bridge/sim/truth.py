@@ -13,6 +13,17 @@ the planner does not know. Truth matters in exactly two places:
 2. **The true implement pose**: forward kinematics of the true piston positions through the
    *truth* geometry, plus pin play.
 
+The implement is rigid: its lower span is fixed. With five actuators for four DOF the sway
+limiters over-determine the mechanism, and the lower span is very sensitive to their geometry
+(about 7 mm of span per mm of limiter length, 13 mm per mm of the limiter's tractor point along
+y). Forward kinematics alone would put the balls of a tape-measured truth centimetres from the
+implement's span. The true machine therefore lets the sway limiters give up a common-mode length
+(their compliance; reported as ``limiter_strain_m``) until the balls sit at the implement's span,
+keeping their difference (the lateral position): ``rigid_span=True``, the default. With
+``rigid_span=False`` the pose is plain forward kinematics of the pistons, the "simulation truth"
+the twin had before it had a truth (for truth = nominal and pistons from the IK the two agree to
+a fraction of a millimetre: the pistons then sit within a count of a consistent set).
+
 Pin play (backlash at the lower-link balls and the top-link pins) is a dead band between the
 mechanism and the implement. It is modelled simply, per controlled DOF, as a backlash operator
 (a play hysteresis): the implement's pose follows the mechanism's pose but lags it by up to
@@ -67,7 +78,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from planner.errors import HitchInputError
-from planner.model.kinematics import POINT_NAMES, HitchModel
+from planner.model.kinematics import FEATURE_NAMES, POINT_NAMES, HitchModel
 from planner.model.sensors import SensorScaling
 from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES, Pose
 from planner.profiles.hitch import Profile, load_profile, profile_from_dict
@@ -116,6 +127,9 @@ NOISE_KINDS: tuple[str, ...] = ("tape", "station", "none")
 PLAY_MARKER = "#! sim-truth play ="
 
 _PLAY_MAX_M = 0.01
+_SPAN_ROW = FEATURE_NAMES.index("lower_span")
+_SPAN_ITERATIONS = 6
+_SPAN_TOL_M = 1e-9
 _AD_MAX = 1023
 
 
@@ -344,10 +358,22 @@ class TrueMachine:
     ``model``: an already-built model of the truth profile and category to reuse (optional).
     """
 
-    def __init__(self, truth: MachineTruth, category: str | None = None, *, model: HitchModel | None = None) -> None:
+    def __init__(
+        self,
+        truth: MachineTruth,
+        category: str | None = None,
+        *,
+        model: HitchModel | None = None,
+        rigid_span: bool = True,
+    ) -> None:
         if not isinstance(truth, MachineTruth):
             raise TruthError(f"truth must be a MachineTruth, got {type(truth).__name__}")
+        if not isinstance(rigid_span, bool):
+            raise TruthError(f"rigid_span must be a bool, got {rigid_span!r}")
         self.truth = truth
+        self.rigid_span = rigid_span
+        self.limiter_strain_m = 0.0
+        """Common-mode length the sway limiters give up so the rigid implement fits (last observation) [m]."""
         self.model = model if model is not None else HitchModel(truth.profile, category)
         cat = self.model.profile.category(self.model.category)
         span = self.model.profile.span(self.model.category)
@@ -369,9 +395,31 @@ class TrueMachine:
         """True piston positions (SI) of the twin's unquantised piston counts."""
         return self.truth.si_from_counts(piston_counts)
 
+    def mechanism_actuators(self, piston_counts: ArrayLike) -> np.ndarray:
+        """The actuators the mechanism takes with the rigid implement on (``rigid_span``): the sway limiters'
+        common mode shifted (Newton on the lower span, thesis feature ``lower_span``) until the balls sit
+        at the implement's span; their difference, the lateral position, is kept."""
+        q = self.actuators_si(piston_counts)
+        self.limiter_strain_m = 0.0
+        if not self.rigid_span:
+            return q
+        common = np.array([0.0, 0.0, 0.0, 1.0, 1.0])
+        shift = 0.0
+        for _ in range(_SPAN_ITERATIONS):
+            f, jac = self.model.features(q + shift * common)
+            err = float(f[_SPAN_ROW]) - self.model.span
+            if abs(err) < _SPAN_TOL_M:
+                break
+            slope = float(jac[_SPAN_ROW] @ common)
+            if abs(slope) < 1e-6:
+                break
+            shift -= err / slope
+        self.limiter_strain_m = shift
+        return q + shift * common
+
     def observe(self, piston_counts: ArrayLike) -> Pose:
         """Update the true machine with the twin's piston counts; returns the true implement pose."""
-        state = self.model.forward(self.actuators_si(piston_counts))
+        state = self.model.forward(self.mechanism_actuators(piston_counts))
         m = state.pose.controlled()
         if self._implement is None:
             self._implement = m.copy()

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from typing import Any, Protocol
 
@@ -141,44 +142,67 @@ class RealtimeRunner:
 
 
 class BusPort(can.BusABC):
-    """One node's side of a bus it shares with other nodes of one runner (:class:`SharedBusNodes`).
+    """One node's side of a bus it shares with the other nodes of one runner (:class:`SharedBusNodes`).
 
-    Sends go to the shared bus; nothing is received here (the runner hands every frame to every
-    node), so a node that drains its bus in ``poll`` takes nothing from the others. Shutting a
-    port down leaves the shared bus open (its owner shuts it down).
+    Sends go to the shared bus. What the shared bus receives, the runner delivers into every port
+    (:meth:`deliver`), and the node reads it from its port as from a bus of its own — through
+    whatever it wraps the port in (the simulated ECU's fault injector cuts, delays and loses frames
+    there). Shutting a port down leaves the shared bus open (its owner shuts it down).
     """
 
     def __init__(self, shared: can.BusABC) -> None:
         self._shared = shared
+        self._inbox: deque[can.Message] = deque()
         super().__init__(channel=shared.channel_info)
         self._is_shutdown = True  # a port holds nothing to release (python-can warns about open buses)
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         self._shared.send(msg, timeout)
 
+    def deliver(self, msg: can.Message) -> None:
+        """A frame the shared bus received (any thread)."""
+        self._inbox.append(msg)
+
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
-        return None, False
+        try:
+            return self._inbox.popleft(), False
+        except IndexError:  # nothing waiting; the runner polls the node again after the next frame
+            return None, False
 
 
 class SharedBusNodes:
     """Several nodes on one bus, run by one :class:`RealtimeRunner` (a :class:`BusNode`).
 
-    Every received frame is handed to every node; each node sends through its own
-    :class:`BusPort` of the shared bus. One bus instead of one per node: on a python-can
-    ``virtual`` channel every frame is copied into every bus's queue and wakes its thread, so
-    fewer buses cost less per frame (the machine twin and the planner each use one).
+    Each node is built on a :meth:`port` of the shared bus and then :meth:`add`-ed. Every received
+    frame is delivered into every port; the runner polls the nodes right after, and each node reads
+    its port in its ``poll`` as it reads a bus of its own. One bus instead of one per node: on a
+    python-can ``virtual`` channel every frame is copied into every bus's queue and wakes its
+    thread, so fewer buses cost less per frame (the machine twin and the planner each use one).
     """
 
-    def __init__(self, bus: can.BusABC, nodes: list[BusNode]) -> None:
-        if not nodes:
-            raise LinkError("SharedBusNodes needs at least one node")
-        self._bus, self.nodes = bus, list(nodes)
+    def __init__(self, bus: can.BusABC) -> None:
+        self._bus = bus
+        self.nodes: list[BusNode] = []
+        self._ports: list[BusPort] = []
+
+    def port(self) -> BusPort:
+        """A new port of the shared bus for a node."""
+        p = BusPort(self._bus)
+        self._ports.append(p)
+        return p
+
+    def add(self, node: BusNode) -> SharedBusNodes:
+        """Run ``node`` (built on one of this bus's ports)."""
+        self.nodes.append(node)
+        return self
 
     @property
     def bus(self) -> can.BusABC:
         return self._bus
 
     def start(self, now_s: float) -> None:
+        if not self.nodes:
+            raise LinkError("SharedBusNodes has no node to run")
         for n in self.nodes:
             n.start(now_s)
 
@@ -187,8 +211,9 @@ class SharedBusNodes:
             n.poll(now_s)
 
     def handle(self, frame: can.Message, now_s: float) -> None:
-        for n in self.nodes:
-            n.handle(frame, now_s)
+        """Deliver ``frame`` into every port; the nodes read it at their next poll (the runner polls at once)."""
+        for p in self._ports:
+            p.deliver(frame)
 
     def next_due_s(self) -> float:
         return min(n.next_due_s() for n in self.nodes)

@@ -34,7 +34,7 @@ from bridge.isobus.messages import (
     PGN_SLOPE_SENSOR_INFORMATION_2,
 )
 from bridge.link.can_link import CanLink
-from bridge.link.realtime import BusPort, RealtimeRunner, SharedBusNodes, open_bus
+from bridge.link.realtime import RealtimeRunner, SharedBusNodes, open_bus
 from bridge.link.state import LinkConfig
 from bridge.link.tractor_sensors import TractorSensors
 from bridge.service.config import ServiceConfig
@@ -174,22 +174,22 @@ def start_can(cfg: ServiceConfig, *, runners_out: list[RealtimeRunner] | None = 
             # the twin starts with the pistons at the model's neutral actuators (x = roll = pitch = 0)
             scale = SensorScaling(truth.profile)
             neutral_counts = scale.counts_min + (ecu_model.neutral - scale.si_min) / scale.resolution
-            twin_bus = bus(TWIN_PGNS)
+            twin = SharedBusNodes(bus(TWIN_PGNS))
             ecu = CylinderECU(truth.profile, initial_counts=list(neutral_counts), calibration=ecu_model.profile)
-            ecu_node = EcuCanNode(ecu, BusPort(twin_bus))
+            ecu_node = EcuCanNode(ecu, twin.port())
             true_model = build_model(cfg) if cfg.sim_truth is None else HitchModel(truth.profile, cfg.category)
             height = hitch_height_from_ecu(ecu_node.ecu, true_model)
-            tractor = TractorTwinNode(BusPort(twin_bus), ground_speed_m_s=cfg.sim_ground_speed, hitch_height_m=height)
-            twin = SharedBusNodes(twin_bus, [ecu_node, tractor])
+            tractor = TractorTwinNode(twin.port(), ground_speed_m_s=cfg.sim_ground_speed, hitch_height_m=height)
+            twin.add(ecu_node).add(tractor)
             started.append(RealtimeRunner(twin, max_wait_s=_MAX_WAIT_S, name="EcuCanNode-rt").start())
-        planner_bus = bus(PLANNER_PGNS)
-        sensors = TractorSensors(BusPort(planner_bus))
+        planner = SharedBusNodes(bus(PLANNER_PGNS))
+        sensors = TractorSensors(planner.port())
         link = CanLink(
             build_model(cfg),
-            BusPort(planner_bus),
+            planner.port(),
             LinkConfig(control_rate_hz=cfg.control_rate, stale_after_s=cfg.stale_timeout_s),
         )
-        planner = SharedBusNodes(planner_bus, [sensors, link])
+        planner.add(sensors).add(link)
         started.append(RealtimeRunner(planner, max_wait_s=_MAX_WAIT_S, name="CanLink-rt").start())
     except BaseException:
         for r in reversed(started):

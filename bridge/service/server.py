@@ -178,7 +178,11 @@ class HitchService:
     def start(self) -> HitchService:
         # every thread started from here on (ours, Zenoh's, the pools') inherits this thread's nice value
         me = threading.get_native_id()
-        caller_nice = _thread_nice(me)
+        # only when the control core runs here: its process then needs its request threads raised; with the
+        # core in its own process the service's threads stay at the caller's priority (they must not take
+        # CPU from the core)
+        in_process = self.config.control_core == "thread" or self.config.security is not None
+        caller_nice = _thread_nice(me) if in_process else None
         self._service_nice_failed = raise_thread_priority(me, SERVICE_NICE) if caller_nice is not None else None
         try:
             return self._start()

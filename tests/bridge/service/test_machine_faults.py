@@ -1,0 +1,55 @@
+"""The machine side as the service builds it (one shared bus per runner): the twin's fault injection
+still acts on what the simulated ECU receives and sends, and the link detects each one-way loss.
+
+The old defect: with the ECU on a port of a shared bus, frames reached it past its fault injector,
+so ``cut planner_to_ecu`` cut nothing — no fault, and the motion went on."""
+
+from __future__ import annotations
+
+import tempfile
+import time
+import uuid
+
+import pytest
+
+from bridge.service.config import ServiceConfig
+from bridge.service.machine import build_controller, start_can
+from bridge.service.motion.types import MotionError
+
+pytestmark = pytest.mark.slow  # real time: a few seconds
+
+
+def _until(pred, timeout_s: float) -> bool:
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if pred():
+            return True
+        time.sleep(0.02)
+    return False
+
+
+def _started(mc) -> bool:
+    try:
+        mc.goto({"z": 0.3}, speed_scale=0.3)
+    except MotionError:  # not claimed / no measurement yet
+        return False
+    return True
+
+
+@pytest.mark.parametrize("cut, fault", [("planner_to_ecu", "references_lost"), ("ecu_to_planner", "stale_measurement")])
+def test_a_one_way_cut_in_the_twin_is_detected_and_stops_the_motion(cut, fault):
+    cfg = ServiceConfig(data_dir=tempfile.mkdtemp(), can_channel=f"machine-{uuid.uuid4().hex}")
+    parts = start_can(cfg)
+    events: list[dict] = []
+    mc, _ = build_controller(cfg, parts, on_state=lambda m: None, on_event=events.append)
+    mc.start()
+    try:
+        assert _until(lambda: _started(mc), 10.0), "the link never became ready"
+        time.sleep(0.5)
+        assert parts.ecu_node is not None
+        parts.ecu_node.apply_fault({"cut": cut})
+        assert _until(lambda: fault in {f.name for f in mc.faults}, 1.0), (cut, [f.name for f in mc.faults])
+        assert _until(lambda: any(e.get("event") == "motion_aborted" for e in events), 1.0)
+    finally:
+        mc.close()
+        parts.close()

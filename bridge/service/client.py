@@ -146,7 +146,14 @@ class HitchClient:
         else:
             data = b"" if payload is None else payload
         t = self.timeout_s if timeout_s is None else timeout_s
-        for reply in self.session.get(full, payload=data, timeout=t):
+        qos: dict[str, Any] = {}
+        if key == "stop":  # ahead of everything else on every link it crosses, never dropped
+            qos = {
+                "priority": zenoh.Priority.REAL_TIME,
+                "express": True,
+                "congestion_control": zenoh.CongestionControl.BLOCK,
+            }
+        for reply in self.session.get(full, payload=data, timeout=t, **qos):
             if reply.ok is not None:
                 return _decode(reply.ok.payload)
             err = {} if reply.err is None else _decode(reply.err.payload)

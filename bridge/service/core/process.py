@@ -202,8 +202,14 @@ class ControlCore:
                 answer = {"stopped": True, "motion_id": reply} if ok else reply
                 data = to_json_bytes(answer)
                 try:
-                    if ok:
-                        query.reply(query.key_expr, data, encoding=zenoh.Encoding.APPLICATION_JSON)
+                    if ok:  # the reply as urgent as the stop itself
+                        query.reply(
+                            query.key_expr,
+                            data,
+                            encoding=zenoh.Encoding.APPLICATION_JSON,
+                            priority=zenoh.Priority.REAL_TIME,
+                            express=True,
+                        )
                     else:
                         query.reply_err(data, encoding=zenoh.Encoding.APPLICATION_JSON)
                 except Exception:  # noqa: BLE001 — the session is closing

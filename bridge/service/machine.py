@@ -223,23 +223,28 @@ class _Rate:
 
 class ReadingsAsTrackSensors:
     """The tractor's sensors as a track session's frames read them
-    (:class:`~bridge.service.motion.controller.TrackSensors`): fresh, plausible readings or None.
+    (:class:`~bridge.service.motion.controller.TrackSensors`): fresh, plausible readings or None,
+    judged at ``now`` (the sensors run on the link's runner: one clock with the controller).
 
     Rates: the slope sensor's pitch rate; the roll rate and the ground distance's rate from their
-    new samples (a difference smoothed over 0.1 s)."""
+    new samples (a difference smoothed over 0.1 s); ``rates=False`` offers none (the frames then
+    convert positions only). Also the crop-row offset (guidance)."""
 
-    def __init__(self, sensors: TractorSensors):
-        self._sensors = sensors
+    def __init__(self, sensors: TractorSensors, *, rates: bool = True):
+        self.node = sensors
+        self.rates = rates
         self._roll_rate, self._dist_rate = _Rate(), _Rate()
 
     def attitude(self, now: float) -> tuple[float, float] | None:
-        r = self._sensors.readings()
+        r = self.node.readings(now)
         if r.roll.usable and r.pitch.usable and r.roll.value is not None and r.pitch.value is not None:
-            return r.roll.value, r.pitch.value
+            return float(r.roll.value), float(r.pitch.value)
         return None
 
     def attitude_rate(self, now: float) -> tuple[float, float] | None:
-        r = self._sensors.readings()
+        if not self.rates:
+            return None
+        r = self.node.readings(now)
         if not (r.roll.usable and r.roll.value is not None and r.roll.received_s is not None):
             return None
         roll_rate = self._roll_rate.update(r.roll.received_s, r.roll.value)
@@ -247,14 +252,23 @@ class ReadingsAsTrackSensors:
         return roll_rate, pitch_rate
 
     def ground_distance(self, now: float) -> float | None:
-        g = self._sensors.readings().ground_distance
-        return g.value if g.usable else None
+        g = self.node.readings(now).ground_distance
+        return float(g.value) if g.usable and g.value is not None else None
 
     def ground_distance_rate(self, now: float) -> float | None:
-        g = self._sensors.readings().ground_distance
+        if not self.rates:
+            return None
+        g = self.node.readings(now).ground_distance
         if not (g.usable and g.value is not None and g.received_s is not None):
             return None
         return self._dist_rate.update(g.received_s, g.value)
+
+    def row_offset(self, now: float) -> tuple[float, float] | None:
+        """(offset [m], receive time [s]) of the latest usable camera sample."""
+        r = self.node.readings(now).row_offset
+        if r.usable and r.value is not None and r.received_s is not None:
+            return float(r.value), float(r.received_s)
+        return None
 
 
 def build_controller(

@@ -9,9 +9,10 @@ figures (:class:`TrackLoopResult`). Nothing reads the wall clock; runs are deter
 The tractor's sensors travel the bus as on the machine: the twin's tractor node
 (:class:`bridge.sim.tractor_node.TractorTwinNode`: slope sensor 10 ms, ground distance 20 ms, row
 camera 10 Hz, wheel speed 100 ms) sends on the rig's channel, the planner-side decoder
-(:class:`bridge.link.tractor_sensors.TractorSensors`) reads them, and :class:`BusTrackSensors`
-gives the controller its :class:`~bridge.service.motion.controller.TrackSensors` (fresh readings
-only). The ground sensor's height comes from the simulated ECU's true pistons (at the tool point T).
+(:class:`bridge.link.tractor_sensors.TractorSensors`) reads them, and
+:class:`~bridge.service.machine.ReadingsAsTrackSensors` (positions only) gives the controller
+its :class:`~bridge.service.motion.controller.TrackSensors` (fresh readings only). The ground
+sensor's height comes from the simulated ECU's true pistons (at the tool point T).
 
 Jobs (frame and DOF of the track session, setpoint, the error in the job's own terms; truth values
 from the twin and the forward kinematics of the simulated pistons, never the measurement):
@@ -62,6 +63,7 @@ import can
 import numpy as np
 
 from bridge.link.tractor_sensors import TractorSensors
+from bridge.service.machine import ReadingsAsTrackSensors
 from bridge.service.motion.controller import MotionController
 from bridge.service.motion.types import MotionError
 from bridge.sim.move import SimRig, SimSettings
@@ -79,7 +81,6 @@ from planner.trajectory.track import TrackFollower
 __all__ = [
     "JOBS",
     "STRATEGIES",
-    "BusTrackSensors",
     "ErrorFigures",
     "LoopSettings",
     "SimLoop",
@@ -180,32 +181,6 @@ def job_of(scenario: Scenario) -> str:
     return "levelling"
 
 
-class BusTrackSensors:
-    """:class:`~bridge.service.motion.controller.TrackSensors` from the decoded tractor bus
-    (:class:`~bridge.link.tractor_sensors.TractorSensors`): usable (a number, not stale) readings
-    only, else None. Also the row offset for guidance."""
-
-    def __init__(self, node: TractorSensors) -> None:
-        self.node = node
-
-    def attitude(self, now: float) -> tuple[float, float] | None:
-        r = self.node.readings(now)
-        if r.roll.usable and r.pitch.usable and r.roll.value is not None and r.pitch.value is not None:
-            return float(r.roll.value), float(r.pitch.value)
-        return None
-
-    def ground_distance(self, now: float) -> float | None:
-        g = self.node.readings(now).ground_distance
-        return float(g.value) if g.usable and g.value is not None else None
-
-    def row_offset(self, now: float) -> tuple[float, float] | None:
-        """(offset [m], receive time [s]) of the latest usable camera sample."""
-        r = self.node.readings(now).row_offset
-        if r.usable and r.value is not None and r.received_s is not None:
-            return float(r.value), float(r.received_s)
-        return None
-
-
 class SimLoop:
     """The rig, the motion controller on it and the tractor twin on its bus (module docstring).
 
@@ -234,7 +209,7 @@ class SimLoop:
             self._buses[0], TwinSensors(self.twin), hitch_height_m=hitch_height_from_ecu(self.rig.ecu, model)
         )
         self.decoder = TractorSensors(self._buses[1])
-        self.sensors = BusTrackSensors(self.decoder)
+        self.sensors = ReadingsAsTrackSensors(self.decoder, rates=False)  # positions only, as measured
         self.events: list[dict[str, Any]] = []
         self.state: dict[str, Any] | None = None
         self.mc = MotionController(

@@ -54,6 +54,7 @@ __all__ = [
     "WorkerSpec",
     "WORKER_NICE",
     "WORKER_TIMEOUT_S",
+    "error_code",
     "referenced_presets",
 ]
 
@@ -137,12 +138,15 @@ class _WorkerContext:
         raise WorkerError("internal", f"unknown worker task {kind!r}")
 
 
-def _code_of(exc: BaseException) -> str:
+def error_code(exc: BaseException) -> str:
+    """The API's error code of an exception from planning or the controller (the code it carries —
+    :class:`WorkerError`, ``MotionError``, ``RequestError`` —, else by its kind)."""
     from planner.limits.guard import GuardRefusal
     from planner.trajectory.plan import PlanError
 
-    if isinstance(exc, WorkerError):
-        return exc.code
+    code = getattr(exc, "code", None)
+    if isinstance(exc, HitchError) and isinstance(code, str):
+        return code
     if isinstance(exc, GuardRefusal):
         return "refused"
     if isinstance(exc, PlanError):
@@ -168,8 +172,8 @@ def _worker_main(conn: multiprocessing.connection.Connection, spec: WorkerSpec, 
         try:
             reply: tuple[Any, ...] = ("ok", ctx.run(kind, args))
         except Exception as exc:  # noqa: BLE001 — every failure goes back as a code and a text
-            text = str(exc) if _code_of(exc) != "internal" else f"internal error {type(exc).__name__}: {exc}"
-            reply = ("error", _code_of(exc), text[:500])
+            text = str(exc) if error_code(exc) != "internal" else f"internal error {type(exc).__name__}: {exc}"
+            reply = ("error", error_code(exc), text[:500])
         try:
             conn.send(reply)
         except (OSError, ValueError):

@@ -45,12 +45,12 @@ import zenoh
 from bridge.service.config import ServiceConfig
 from bridge.service.machine import CanParts, build_controller, service_info, start_can
 from bridge.service.motion.controller import MotionController
-from bridge.service.motion.types import MotionError
 from bridge.service.schemas import RequestError, parse_request
 from bridge.service.wire import to_json_bytes
+from bridge.service.workers import error_code
 from planner.errors import HitchError
 
-__all__ = ["CORE_NICE", "ControlCore", "error_code"]
+__all__ = ["CORE_NICE", "ControlCore"]
 
 #: nice value of every thread of the core process (the control cycle, CAN, its Zenoh session)
 CORE_NICE = -10
@@ -76,24 +76,6 @@ _INLINE = frozenset(
 )
 #: methods that plan (on the core's motion threads)
 _PLANNING = frozenset({"goto", "run_maneuver"})
-
-
-def error_code(exc: BaseException) -> str:
-    """The API's error code of an exception raised by the controller."""
-    from planner.limits.guard import GuardRefusal
-    from planner.trajectory.plan import PlanError
-
-    if isinstance(exc, MotionError):
-        return exc.code
-    if isinstance(exc, RequestError):
-        return exc.code
-    if isinstance(exc, GuardRefusal):
-        return "refused"
-    if isinstance(exc, PlanError):
-        return "unreachable"
-    if isinstance(exc, ValueError):
-        return "bad_request"
-    return "internal"
 
 
 def _set_nice(nice: int) -> str | None:

@@ -12,7 +12,10 @@ import argparse
 import sys
 from typing import NoReturn
 
+from bridge.cli import calibrate as cli_calibrate
+from bridge.cli import commissioning as cli_commissioning
 from bridge.cli import ik as cli_ik
+from bridge.cli import implements as cli_implements
 from bridge.cli import model as cli_model
 from bridge.cli import plan as cli_plan
 from bridge.cli import records as cli_records
@@ -21,6 +24,7 @@ from bridge.cli import service as cli_service
 from bridge.cli import sim as cli_sim
 from bridge.cli import stability as cli_stability
 from bridge.cli import track as cli_track
+from bridge.cli import work as cli_work
 from bridge.cli.arm import add_arm_parser
 from bridge.cli.errors import CLIError
 from planner.errors import HitchError
@@ -45,6 +49,10 @@ def build_parser() -> argparse.ArgumentParser:
     cli_track.add_commands(sub)
     cli_records.add_commands(sub)
     cli_router.add_commands(sub)
+    cli_calibrate.add_commands(sub)
+    cli_commissioning.add_commands(sub)
+    cli_implements.add_commands(sub)
+    cli_work.add_commands(sub)
     add_arm_parser(sub)
     return parser
 

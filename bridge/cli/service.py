@@ -657,6 +657,10 @@ def add_commands(sub) -> None:
             _wait_options(q)
         _client_options(q)
         q.set_defaults(handler=_cmd_maneuver)
+    from bridge.cli import headland as cli_headland  # (imports this module: loaded here, not at the top)
+
+    cli_headland.add_maneuver_actions(ms)  # record start|stop, pause, resume, skip
+    cli_headland.add_lines_command(sub)  # hitch lines save|list|delete
 
     p = sub.add_parser("fleet", help="services reachable through a router")
     fs = p.add_subparsers(dest="action", required=True, parser_class=type(p))

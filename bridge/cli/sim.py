@@ -249,6 +249,46 @@ def _cmd_sim_track(args) -> int:
     return 0
 
 
+def _cmd_sim_field(args) -> int:
+    """``hitch sim field FIELD``: one closed loop of work control over a field (bridge.service.field_loop)."""
+    from bridge.service.field_loop import FieldLoopSettings, plot_field, run_field_loop
+    from planner.work_control import WorkSettings
+
+    model = model_from_args(args)
+    work = {k: getattr(args, k) for k in ("draft_setpoint_n", "blend", "sensitivity", "depth_min_m", "depth_max_m")}
+    work = {k: v for k, v in work.items() if v is not None}
+    settings = FieldLoopSettings(
+        work=WorkSettings(mode=args.mode, slip_limit=args.slip_limit, **work), z_m=args.z, duration_s=args.duration
+    )
+    result = run_field_loop(model, args.field, settings)
+    summary = result.summary()
+    if args.plot:
+        plot_field(args.plot, [result])
+    if args.json_file:
+        with open(args.json_file, "w", encoding="utf-8") as fh:
+            json.dump(summary, fh, indent=1)
+    f = summary["figures"]
+    c = Console(soft_wrap=True)
+    c.print(f"{result.field}: mode {result.mode}, {summary['duration_s']:.1f} s simulated")
+    c.print(
+        f"draft mean {f['draft_mean_n'] / 1e3:.2f} kN, SD {f['draft_sd_n'] / 1e3:.2f} kN; "
+        f"depth {f['depth_min_m'] * 100:.1f}..{f['depth_max_m'] * 100:.1f} cm; slip max {f['slip_max']:.3f} "
+        f"(heavy patches {f['slip_max_heavy']:.3f}); controller cycle p99 {f['cycle_p99_us']:.1f} us"
+    )
+    c.print("counts: " + ", ".join(f"{n} {v}" for n, v in result.counts.items()))
+    for e in result.events:
+        c.print(f"event: {e}")
+    for note in result.notes:
+        c.print(f"note: {note}")
+    if result.faults:
+        c.print("faults: " + "; ".join(result.faults))
+    if args.plot:
+        c.print(f"plot written to {args.plot}")
+    if args.json_file:
+        c.print(f"summary written to {args.json_file}")
+    return 0
+
+
 # -- hitch ecu-sim -------------------------------------------------------------------------
 def _cmd_ecu_sim(args) -> int:
     if args.duration is not None and not (np.isfinite(args.duration) and args.duration > 0):
@@ -525,6 +565,24 @@ def add_commands(sub) -> None:
     tr.add_argument("--profile", default="thesis-t132", help="built-in profile name or path to a .toml")
     tr.add_argument("--category", default=None, help="ISO 730 implement category (default: the profile's, 2)")
     tr.set_defaults(handler=_cmd_sim_track)
+    fl = ssub.add_parser("field", help="work control (position/draft/mixed/float) over a field in simulated time")
+    fl.add_argument("field", help="built-in field (chisel) or a field .toml path")
+    fl.add_argument(
+        "--mode", choices=("position", "draft", "mixed", "float"), default="position", help="default position"
+    )
+    fl.add_argument("--draft-setpoint", dest="draft_setpoint_n", type=finite_float("--draft-setpoint"), help="[N]")
+    fl.add_argument("--blend", type=finite_float("--blend"), default=None, help="mixed: draft share, [0, 1]")
+    fl.add_argument("--sensitivity", type=finite_float("--sensitivity"), default=None, help="[0.1, 2], 1 = nominal")
+    fl.add_argument("--depth-min", dest="depth_min_m", type=finite_float("--depth-min"), help="[m]")
+    fl.add_argument("--depth-max", dest="depth_max_m", type=finite_float("--depth-max"), help="[m]")
+    fl.add_argument("--slip-limit", type=finite_float("--slip-limit"), default=None, help="(0, 0.5]; default none")
+    fl.add_argument("--z", type=finite_float("--z"), default=0.0, help="operator's position setpoint z [m], default 0")
+    fl.add_argument("--duration", type=float, default=None, help="scenario seconds to run (default: the scenario's)")
+    fl.add_argument("--plot", default=None, help="write a PNG of depth, draft and slip")
+    fl.add_argument("--json", dest="json_file", default=None, metavar="FILE", help="write the summary as JSON")
+    fl.add_argument("--profile", default="thesis-t132", help="built-in profile name or path to a .toml")
+    fl.add_argument("--category", default=None, help="ISO 730 implement category (default: the profile's, 2)")
+    fl.set_defaults(handler=_cmd_sim_field)
     f = ssub.add_parser("fault", help="inject link faults into a running service's simulated ECU")
     f.add_argument("--cut", choices=CUTS, default="none", help="cut one direction or both (default none)")
     f.add_argument("--loss", type=finite_float("--loss"), default=0.0, help="frame loss probability, [0, 1]")

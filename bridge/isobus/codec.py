@@ -58,6 +58,7 @@ from bridge.isobus.messages import (
     ACTUATORS,
     GROUND_SENSOR_ADDRESS,
     MAX_COUNTS,
+    OPERATOR_SWITCH_ADDRESS,
     ROW_CAMERA_ADDRESS,
     SLOPE_SENSOR_ADDRESS,
     AddressClaimed,
@@ -68,6 +69,7 @@ from bridge.isobus.messages import (
     FigureOfMerit,
     GroundDistance,
     Heartbeat,
+    HitchCommand,
     JoystickAxis,
     MeasuredPose,
     Payload,
@@ -899,6 +901,23 @@ class _RowGuidanceCodec(_MessageCodec[RowGuidance]):
         return RowGuidance(offset_m=r.get(self.OFFSET), merit=r.get(self.MERIT))
 
 
+class _HitchCommandCodec(_MessageCodec[HitchCommand]):
+    REAR = _Scaled("rear_position", "RearHitchPositionCommand")
+
+    payload = HitchCommand
+    message = "HitchPtoCommands"
+    source = OPERATOR_SWITCH_ADDRESS
+    priority = 3
+    dlcs = (8,)
+    signals = (REAR,)
+
+    def write(self, p: HitchCommand, out: _Writer) -> None:
+        out.put(self.REAR, p.rear_position)
+
+    def read(self, r: _Reader) -> HitchCommand:
+        return HitchCommand(rear_position=r.get(self.REAR))
+
+
 _MESSAGES: tuple[_MessageCodec[Any], ...] = (
     _PressureCodec(),
     _PositionReferenceCodec(),
@@ -915,6 +934,7 @@ _MESSAGES: tuple[_MessageCodec[Any], ...] = (
     _SlopeSensor2Codec(),
     _GroundDistanceCodec(),
     _RowGuidanceCodec(),
+    _HitchCommandCodec(),
 )
 
 

@@ -46,6 +46,9 @@ __all__ = [
     "SlopeSensorInformation",
     "SlopeSensorInformation2",
     "WheelBasedSpeed",
+    "HitchCommand",
+    "PGN_HITCH_PTO_COMMANDS",
+    "OPERATOR_SWITCH_ADDRESS",
 ]
 
 ACTUATORS = ("lift", "tilt", "top", "left", "right")
@@ -67,6 +70,10 @@ GROUND_SENSOR_ADDRESS = 0xE3
 """Source address of the implement's ground-distance sensor (227; project choice)."""
 ROW_CAMERA_ADDRESS = 0xE4
 """Source address of the crop-row camera (228; project choice)."""
+PGN_HITCH_PTO_COMMANDS = 65090  # 0xFE42
+"""ISO 11783-7 Hitch and PTO commands (the operator's rear hitch raise / lower switch here)."""
+OPERATOR_SWITCH_ADDRESS = 0xE5
+"""Source address of the operator's rear hitch switch (229; project choice)."""
 
 
 class CodecError(HitchInputError):
@@ -360,6 +367,15 @@ class RowGuidance:
     merit: FigureOfMerit = FigureOfMerit.NOT_AVAILABLE
 
 
+@dataclass(frozen=True)
+class HitchCommand:
+    """ISO 11783-7 Hitch and PTO commands, PGN 65090: the rear hitch position command (SPN 1875), a
+    fraction of full travel 0..1 (0.4 %/bit), ``None`` when not available. This project reads it as the
+    operator's raise / lower switch (>= 0.9 raise, <= 0.1 lower, else released; ``docs/implements.md``)."""
+
+    rear_position: float | None = None
+
+
 Payload: TypeAlias = (
     PositionCounts
     | PositionMeasurement
@@ -376,6 +392,7 @@ Payload: TypeAlias = (
     | SlopeSensorInformation2
     | GroundDistance
     | RowGuidance
+    | HitchCommand
 )
 """Any payload dataclass the codec maps to a CAN message."""
 

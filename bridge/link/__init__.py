@@ -5,6 +5,7 @@
 * :mod:`bridge.link.realtime` — opening a python-can bus and running a node in real time;
 * :mod:`bridge.link.loopback` — a CAN hub on 127.0.0.1 for nodes in other processes;
 * :mod:`bridge.link.unit_loop` — the feed-forward reference through the ECU's unit loops;
+* :mod:`bridge.link.sensor_calibration` — the sensor calibration: each cylinder to its end stops, the AD map fitted;
 * :mod:`bridge.link.tractor_sensors` — the tractor's sensors (slope, ground, row, wheel speed) read from the bus.
 
 The link runs without a simulator: nothing here imports ``bridge.sim``. The names below
@@ -25,6 +26,20 @@ if TYPE_CHECKING:
         BusNode,
         RealtimeRunner,
         open_bus,
+    )
+    from bridge.link.sensor_calibration import (
+        EndReading,
+        LinkDriver,
+        RelayRule,
+        SensorCalibration,
+        SensorCalibrationError,
+        SensorCalibrationSettings,
+        SensorFit,
+        calibration_profile,
+        check_full_stroke,
+        fit_sensor,
+        full_stroke_hold,
+        sensor_profile_toml,
     )
     from bridge.link.state import (
         HITCH_POSITION_STEPS,
@@ -123,6 +138,23 @@ _SOURCES: dict[str, str] = {
         ),
         "bridge.link.unit_loop",
     ),
+    **dict.fromkeys(
+        (
+            "EndReading",
+            "LinkDriver",
+            "RelayRule",
+            "SensorCalibration",
+            "SensorCalibrationError",
+            "SensorCalibrationSettings",
+            "SensorFit",
+            "calibration_profile",
+            "check_full_stroke",
+            "fit_sensor",
+            "full_stroke_hold",
+            "sensor_profile_toml",
+        ),
+        "bridge.link.sensor_calibration",
+    ),
 }
 
 __all__ = [
@@ -142,6 +174,19 @@ __all__ = [
     "check_address",
     "check_period",
     "lift_counts_from_fraction",
+    # sensor calibration over the link (bridge.link.sensor_calibration)
+    "EndReading",
+    "LinkDriver",
+    "RelayRule",
+    "SensorCalibration",
+    "SensorCalibrationError",
+    "SensorCalibrationSettings",
+    "SensorFit",
+    "calibration_profile",
+    "check_full_stroke",
+    "fit_sensor",
+    "full_stroke_hold",
+    "sensor_profile_toml",
     # real time (bridge.link.realtime)
     "BusNode",
     "INTERFACES",

@@ -39,7 +39,13 @@ from dataclasses import dataclass, field
 import can
 
 from bridge.isobus.codec import CodecError, decode_frame
-from bridge.isobus.j1939 import PGN_WHEEL_BASED_SPEED, TRACTOR_ECU_ADDRESS, decode_id
+from bridge.isobus.j1939 import (
+    CYLINDER_ECU_ADDRESS,
+    PGN_REAR_HITCH_STATUS,
+    PGN_WHEEL_BASED_SPEED,
+    TRACTOR_ECU_ADDRESS,
+    decode_id,
+)
 from bridge.isobus.messages import (
     GROUND_SENSOR_ADDRESS,
     PGN_GROUND_DISTANCE,
@@ -50,6 +56,7 @@ from bridge.isobus.messages import (
     SLOPE_SENSOR_ADDRESS,
     FigureOfMerit,
     GroundDistance,
+    RearHitchStatus,
     RowGuidance,
     SlopeSensorInformation,
     SlopeSensorInformation2,
@@ -145,6 +152,11 @@ class TractorSensorsConfig:
         ground_stale_after_s: 0xFF26 (20 ms) after 0.2 s; row_stale_after_s: 0xFF27 (100 ms) after
         0.5 s; wheel_stale_after_s: 65096 (100 ms) after 1 s (as ``WheelOdometer``).
         plausibility: the rate bounds.
+        read_draft: also decode the measured draft (RearDraft) of the ISO 11783-7 rear hitch status
+            (PGN 65093) from ``hitch_source`` (default the cylinder ECU, 169), stale after
+            ``draft_stale_after_s`` (0.3 s); read with :meth:`TractorSensors.draft`. Off by default
+            (those frames are then ignored, as before). The draft has no rate bound here: its
+            plausibility is the work controller's to judge.
     """
 
     slope_source: int | None = SLOPE_SENSOR_ADDRESS
@@ -156,8 +168,17 @@ class TractorSensorsConfig:
     row_stale_after_s: float = 0.5
     wheel_stale_after_s: float = 1.0
     plausibility: Plausibility = field(default_factory=Plausibility)
+    read_draft: bool = False
+    hitch_source: int | None = CYLINDER_ECU_ADDRESS
+    draft_stale_after_s: float = 0.3
 
     def __post_init__(self) -> None:
+        if not isinstance(self.read_draft, bool):
+            raise LinkError(f"read_draft must be True or False, got {self.read_draft!r}")
+        h = self.hitch_source
+        if h is not None and (isinstance(h, bool) or not isinstance(h, int) or not 0 <= h <= 253):
+            raise LinkError(f"hitch_source must be None (any sender) or a source address in [0, 253], got {h!r}")
+        _number("draft_stale_after_s", self.draft_stale_after_s, 0.01, 60.0)
         for name in ("slope_source", "ground_source", "row_source", "wheel_source"):
             v = getattr(self, name)
             if v is not None and (isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= 253):
@@ -329,6 +350,7 @@ class TractorSensors:
         self._row = _Slot(p.row_rate_m_s, p.row_slack_m, "m/s", c.row_stale_after_s)
         self._speed = _Slot(p.speed_accel_m_s2, p.speed_slack_m_s, "m/s²", c.wheel_stale_after_s)
         self._wheel = WheelDistance()
+        self._draft = _Slot(1.0e12, 0.0, "N/s", c.draft_stale_after_s)  # no rate bound (config docstring)
         self._latency: float | None = None
         self._sources = {
             PGN_SLOPE_SENSOR_INFORMATION: c.slope_source,
@@ -337,6 +359,8 @@ class TractorSensors:
             PGN_ROW_GUIDANCE: c.row_source,
             PGN_WHEEL_BASED_SPEED: c.wheel_source,
         }
+        if c.read_draft:
+            self._sources[PGN_REAR_HITCH_STATUS] = c.hitch_source
         self._now = 0.0
         self._frames = self._errors = self._unavailable = self._implausible = self._degraded = self._ignored = 0
 
@@ -403,6 +427,8 @@ class TractorSensors:
                 self._wheel.add(p.distance_m, p.speed_m_s, now_s)
                 missing = _ERROR if "WheelBasedMachineSpeed" in d.errors else _NOT_AVAILABLE
                 self._update(self._speed, p.speed_m_s, missing, now_s)
+            elif isinstance(p, RearHitchStatus):
+                self._update(self._draft, p.draft_n, _ERROR if "RearDraft" in d.errors else _NOT_AVAILABLE, now_s)
             else:  # pragma: no cover - the PGN table and the codec agree
                 return False
         return True
@@ -468,6 +494,11 @@ class TractorSensors:
                 distance=distance,
                 slope_latency_s=self._latency,
             )
+
+    def draft(self, now_s: float | None = None) -> SignalReading:
+        """The measured draft [N] of the rear hitch status (``read_draft``), staleness judged at ``now_s``."""
+        with self._lock:
+            return self._draft.reading(self._now if now_s is None else now_s)
 
     def distance_m(self) -> float | None:
         """Metres travelled since start; None before the first 65096 frame or when it is stale

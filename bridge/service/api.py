@@ -32,7 +32,10 @@ import time
 from collections.abc import Callable, Mapping
 from typing import Any
 
+from bridge.service.gnss import lines_handlers
+from bridge.service.implements import ImplementService, implement_handlers
 from bridge.service.maneuvers.language import ManeuverError, ManeuverScript, ValidationResult, parse_maneuver
+from bridge.service.maneuvers.recorder import ManeuverRecorder, maneuvers_using_preset, recorder_for
 from bridge.service.motion.controller import MotionController
 from bridge.service.motion.types import MODES, ManeuverAccepted, MotionError, pose_dict
 from bridge.service.planning import InProcessPlanning, Planning
@@ -48,8 +51,10 @@ from bridge.service.schemas import (
     NameRequest,
     PlanRequest,
     PoseRequest,
+    PresetDelete,
     PresetGo,
     PresetSave,
+    RecordStop,
     RequestError,
     ScriptRequest,
     SimFaultRequest,
@@ -61,6 +66,7 @@ from bridge.service.schemas import (
 )
 from bridge.service.security import AccessPolicy
 from bridge.service.store import DEFAULT_IMPLEMENT, HitchStore, StoreError
+from bridge.service.work import work_handlers
 from bridge.service.workers import PresetPose, WorkerError, referenced_presets
 from planner.ik_qp.hitch_ik import IKSolver
 from planner.limits.guard import GuardRefusal
@@ -91,6 +97,9 @@ class ServiceAPI:
         planning: where ``plan``, validation and ``ik`` run (:class:`~bridge.service.planning.Planning`;
             default: :class:`~bridge.service.planning.InProcessPlanning` on ``motion`` and ``ik``).
     """
+
+    #: implements and the quick raise / return (set while the handlers are built: bridge.service.implements)
+    implements: ImplementService
 
     def __init__(
         self,
@@ -135,7 +144,16 @@ class ServiceAPI:
             "track/start": self._track_start,
             "track/setpoint": self._track_setpoint,
             "track/stop": self._track_stop,
+            "maneuvers/pause": lambda _r: self.motion.maneuver_control("pause"),
+            "maneuvers/resume": lambda _r: self.motion.maneuver_control("resume"),
+            "maneuvers/skip": lambda _r: self.motion.maneuver_control("skip"),
+            "maneuvers/record/start": self._record_start,
+            "maneuvers/record/stop": self._record_stop,
+            **lines_handlers(self),  # lines/save|list|delete: the core's tracker and the store (bridge.service.gnss)
+            **implement_handlers(self),  # implements/… and hitch/raise|return (docs/implements.md)
+            **work_handlers(self),  # work/settings|start|stop|resume (bridge.service.work, docs/soil.md)
         }
+        self.recorder: ManeuverRecorder | None = None  # teach-in (maneuvers/record/start)
         self.counts = {"ok": 0, "error": 0}
         #: optional ``on_request(key, user, payload, ok, reply)`` after every request (the black box)
         self.on_request: Callable[..., None] | None = None
@@ -244,14 +262,20 @@ class ServiceAPI:
     # ------------------------------------------------------------------ motion
     def _goto(self, r: GotoRequest) -> dict:
         deadline, issued = self._timing(r.deadline_ms)
-        return self.motion.goto(r.goal.as_dict(), r.speed_scale, deadline=deadline, issued=issued).to_json()
+        reply = self.motion.goto(r.goal.as_dict(), r.speed_scale, deadline=deadline, issued=issued).to_json()
+        if self.recorder is not None:  # teach-in
+            self.recorder.on_goto(r.goal.as_dict(), r.speed_scale, float(reply.get("duration", 0.0)))
+        return reply
 
     def _jog(self, r: JogRequest) -> dict:
         deadline, _ = self._timing(r.deadline_ms)
         if self.motion.clock() > deadline:  # a jog that waited past its deadline is not run
             raise MotionError("busy", f"refused: it arrived more than {r.deadline_ms} ms ago (its deadline)")
         rates = {"vx": r.vx, "vz": r.vz, "vroll": r.vroll, "vpitch": r.vpitch}
-        return self.motion.jog(rates, r.ttl_ms / 1000.0).to_json()
+        reply = self.motion.jog(rates, r.ttl_ms / 1000.0).to_json()
+        if self.recorder is not None:  # teach-in
+            self.recorder.on_jog(r.ttl_ms / 1000.0)
+        return reply
 
     def _stop(self, _r: object) -> dict:  # whatever came with it: a stop stops
         return {"stopped": True, "motion_id": self.motion.stop()}
@@ -311,12 +335,38 @@ class ServiceAPI:
         scale = r.speed_scale or p.speed_scale or 1.0
         deadline, issued = self._timing(r.deadline_ms)
         acc = self.motion.goto(dict(p.pose), scale, kind="preset", label=p.name, deadline=deadline, issued=issued)
+        if self.recorder is not None:  # teach-in
+            self.recorder.on_preset(p.name, r.speed_scale, float(acc.to_json().get("duration", 0.0)))
         return {**acc.to_json(), "preset": p.name}
 
-    def _presets_delete(self, r: NameRequest) -> dict:
+    def _presets_delete(self, r: PresetDelete) -> dict:
+        users = maneuvers_using_preset(self.store, r.name)
+        if users and not r.force:
+            raise RequestError(
+                "in_use",
+                f"presets/delete: preset {r.name!r} is used by the saved maneuver(s) {', '.join(users)}; "
+                "send force: true to delete it anyway (those maneuvers then fail to validate)",
+            )
         if not self.store.delete_preset(r.name, implement=self.implement):
             raise RequestError("not_found", f"presets/delete: no preset {r.name!r} for implement {self.implement!r}")
-        return {"deleted": r.name}
+        out: dict[str, Any] = {"deleted": r.name}
+        if users:
+            out.update(warning=f"preset {r.name!r} was used by {', '.join(users)}", maneuvers=users)
+        return out
+
+    # ------------------------------------------------------------------ teach-in
+    def _record_start(self, _r: Empty) -> dict:
+        if self.recorder is not None:
+            raise RequestError("busy", "maneuvers/record/start: a recording runs already; record/stop it first")
+        self.recorder = recorder_for(self.motion)
+        return {"recording": True}
+
+    def _record_stop(self, r: RecordStop) -> dict:
+        rec, self.recorder = self.recorder, None
+        if rec is None:
+            raise RequestError("not_found", "maneuvers/record/stop: no recording runs (maneuvers/record/start)")
+        script = rec.stop(r.name)
+        return {"script": script, "steps": len(rec.steps)}
 
     # ------------------------------------------------------------------ maneuvers
     def _validated(self, script: str | ManeuverScript) -> ValidationResult:

@@ -78,6 +78,7 @@ WRITING_KEYS = frozenset(
         "maneuvers/delete",
         "faults/ack",
         "sim/fault",
+        "sim/switch",
     }
 )
 #: a logged request body is cut to this many characters

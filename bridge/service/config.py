@@ -114,6 +114,15 @@ class ServiceConfig(BaseModel):
     sim_ground_speed: float = Field(1.5, ge=0.0, le=20.0)
     #: the simulated machine's own truth profile (bridge.sim.truth); None: the planner's profile exactly
     sim_truth: Path | None = None
+    #: the simulated tractor drives over this field (bridge.sim.field: a built-in name or a .toml path) and
+    #: the twin's draft pins send its draft (bridge.service.work); None: flat ground, no draft
+    sim_field: str | None = None
+    #: the simulated tractor's GNSS (hitch/tractor/gnss, bridge.service.gnss.TwinGnss): its start (lat, lon [deg])
+    #: and its straight course (clockwise from north [rad]; default due east)
+    sim_gnss_origin: tuple[float, float] = (48.0, 11.0)
+    sim_gnss_heading: float = Field(math.pi / 2, ge=-2 * math.pi, le=2 * math.pi, allow_inf_nan=False)
+    #: GeoJSON field lines loaded (and saved in the store) at start-up (maneuver wait_for line)
+    lines_file: Path | None = None
     profile: str = "thesis-t132"
     category: str | None = None
     implement: str | None = None
@@ -152,6 +161,14 @@ class ServiceConfig(BaseModel):
     def _finite(cls, v: float) -> float:
         if not math.isfinite(v):
             raise ServiceConfigError("must be a finite number")
+        return v
+
+    @field_validator("sim_gnss_origin")
+    @classmethod
+    def _sim_gnss_origin(cls, v: tuple[float, float]) -> tuple[float, float]:
+        lat, lon = v
+        if not (math.isfinite(lat) and math.isfinite(lon) and -85 <= lat <= 85 and -180 <= lon <= 180):
+            raise ServiceConfigError(f"sim_gnss_origin must be (lat in [-85, 85], lon in [-180, 180]) deg, got {v!r}")
         return v
 
     @field_validator("sim_truth")
@@ -210,6 +227,9 @@ _TOML_SECTIONS = {
         "stale_timeout_s": "stale_timeout_s",
         "sim_ground_speed": "sim_ground_speed",
         "sim_truth": "sim_truth",
+        "sim_field": "sim_field",
+        "sim_gnss_origin": "sim_gnss_origin",
+        "sim_gnss_heading": "sim_gnss_heading",
     },
     "hitch": {
         "profile": "profile",
@@ -226,6 +246,7 @@ _TOML_SECTIONS = {
         "workers": "workers",
         "planning_processes": "planning_processes",
         "control_core": "control_core",
+        "lines_file": "lines_file",
         "max_presets_per_user": "max_presets_per_user",
         "max_maneuvers_per_user": "max_maneuvers_per_user",
         "max_script_bytes_per_user": "max_script_bytes_per_user",

@@ -29,17 +29,20 @@ from bridge.isobus.j1939 import (
 )
 from bridge.isobus.messages import (
     PGN_GROUND_DISTANCE,
+    PGN_HITCH_PTO_COMMANDS,
     PGN_ROW_GUIDANCE,
     PGN_SLOPE_SENSOR_INFORMATION,
     PGN_SLOPE_SENSOR_INFORMATION_2,
 )
 from bridge.link.can_link import CanLink
+from bridge.link.hitch_switch import HitchSwitchNode
 from bridge.link.realtime import RealtimeRunner, SharedBusNodes, open_bus
 from bridge.link.state import LinkConfig
-from bridge.link.tractor_sensors import TractorSensors
+from bridge.link.tractor_sensors import TractorSensors, TractorSensorsConfig
 from bridge.service.config import ServiceConfig
 from bridge.service.motion.controller import MotionController
 from bridge.service.motion.types import MODES, actuator_dict
+from bridge.service.work import build_work_control, sim_field_tractor
 from bridge.sim.can_node import EcuCanNode
 from bridge.sim.ecu import CylinderECU
 from bridge.sim.tractor_node import TractorTwinNode, hitch_height_from_ecu
@@ -79,6 +82,7 @@ PLANNER_PGNS = frozenset(
         PGN_ROW_GUIDANCE,
         PGN_ADDRESS_CLAIMED,
         PGN_REQUEST,
+        PGN_HITCH_PTO_COMMANDS,  # the operator's rear hitch raise / lower switch (bridge.link.hitch_switch)
     }
 )
 #: what the machine twin's bus receives: references, parameters, the planner's heartbeat, claims, requests
@@ -125,6 +129,7 @@ class CanParts:
     tractor_node: TractorTwinNode | None = None
     runners: list[RealtimeRunner] = field(default_factory=list)
     buses: list[can.BusABC] = field(default_factory=list)
+    switch: HitchSwitchNode | None = None  # the operator's raise / lower switch (docs/implements.md)
 
     @property
     def clock(self) -> Callable[[], float]:
@@ -179,17 +184,21 @@ def start_can(cfg: ServiceConfig, *, runners_out: list[RealtimeRunner] | None = 
             ecu_node = EcuCanNode(ecu, twin.port())
             true_model = build_model(cfg) if cfg.sim_truth is None else HitchModel(truth.profile, cfg.category)
             height = hitch_height_from_ecu(ecu_node.ecu, true_model)
-            tractor = TractorTwinNode(twin.port(), ground_speed_m_s=cfg.sim_ground_speed, hitch_height_m=height)
+            pivot = float(true_model.profile.geometry.pivot_height)  # the field's terrain and draft (sim_field)
+            tractor = sim_field_tractor(cfg, twin.port(), height, ecu_node, pivot) or TractorTwinNode(
+                twin.port(), ground_speed_m_s=cfg.sim_ground_speed, hitch_height_m=height
+            )
             twin.add(ecu_node).add(tractor)
             started.append(RealtimeRunner(twin, max_wait_s=_MAX_WAIT_S, name="EcuCanNode-rt").start())
         planner = SharedBusNodes(bus(PLANNER_PGNS))
-        sensors = TractorSensors(planner.port())
+        sensors = TractorSensors(planner.port(), TractorSensorsConfig(read_draft=True))  # draft: work control
         link = CanLink(
             build_model(cfg),
             planner.port(),
             LinkConfig(control_rate_hz=cfg.control_rate, stale_after_s=cfg.stale_timeout_s),
         )
-        planner.add(sensors).add(link)
+        switch = HitchSwitchNode(planner.port())
+        planner.add(sensors).add(link).add(switch)
         started.append(RealtimeRunner(planner, max_wait_s=_MAX_WAIT_S, name="CanLink-rt").start())
     except BaseException:
         for r in reversed(started):
@@ -197,7 +206,7 @@ def start_can(cfg: ServiceConfig, *, runners_out: list[RealtimeRunner] | None = 
         for b in buses:
             b.shutdown()
         raise
-    return CanParts(link, sensors, ecu_node, tractor, list(started), buses)
+    return CanParts(link, sensors, ecu_node, tractor, list(started), buses, switch=switch)
 
 
 class _Rate:
@@ -293,6 +302,10 @@ def build_controller(
         feedforward=cfg.feedforward,
         sensors=ReadingsAsTrackSensors(parts.sensors),
     )
+    pivot = float(mc.planner.model.profile.geometry.pivot_height)
+    mc.work = build_work_control(cfg, mc, parts.sensors, parts.link, pivot)  # work/… (bridge.service.work)
+    if parts.switch is not None:  # a switch edge becomes an event; the service raises / returns on it
+        parts.switch.on_command = lambda cmd: mc.post_event({"event": "hitch_switch", "command": cmd})
     return mc, guard
 
 

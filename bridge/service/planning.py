@@ -7,7 +7,9 @@ implementations:
   runs): nothing of this work holds the service process's interpreter lock;
 * :class:`InProcessPlanning` — on the calling thread, on the motion controller's planning
   guard (under its lock) and an IK solver of its own (under a lock): for a service embedded in
-  a test or a script, and the reference the workers are tested against.
+  a test or a script, and the reference the workers are tested against. With the control core
+  in a process of its own and no planning processes, the service's process plans on a guard of
+  its own (:class:`GuardPlanning`), never in the core.
 
 Both answer the same values: the ``plan`` reply, a
 :class:`~bridge.service.maneuvers.language.ValidationResult`, the IK solution's JSON; and
@@ -26,7 +28,7 @@ from bridge.service.motion.types import PlanPreview
 from bridge.service.workers import WorkerError
 from planner.trajectory import MotionState, PlanError
 
-__all__ = ["InProcessPlanning", "MotionPlanning", "Planning"]
+__all__ = ["GuardPlanning", "InProcessPlanning", "MotionPlanning", "Planning"]
 
 
 class Planning(Protocol):
@@ -59,6 +61,36 @@ class MotionPlanning(Protocol):
     ) -> tuple[float, MotionState]: ...
 
 
+class GuardPlanning:
+    """:class:`MotionPlanning` on a guard of its own (under a lock), in the process that calls it.
+
+    For a service whose control core runs in another process and that has no planning processes:
+    the core's guards are not here, and planning must not load the core. ``set_implement`` gives
+    the guard the selected implement, as the planning processes get it.
+    """
+
+    def __init__(self, guard: Any):
+        from bridge.service.maneuvers.language import guarded_plan_step
+
+        self._guard = guard
+        self._lock = threading.Lock()
+        self._plan_step = guarded_plan_step(guard)
+
+    def preview_from(self, start: MotionState, goal: Mapping[str, float], speed_scale: float) -> Any:
+        with self._lock:
+            return self._guard.plan(start, goal, speed_scale=speed_scale)
+
+    def plan_step(self, start: MotionState, goal: Mapping[str, float], speed_scale: float) -> tuple[float, MotionState]:
+        with self._lock:
+            return self._plan_step(start, goal, speed_scale)
+
+    def set_implement(self, implement: Any, limits: Any) -> None:
+        """The selected implement's record and limits for every later plan (``implements/select``)."""
+        with self._lock:
+            self._guard.set_implement(implement)
+            self._guard.set_implement_limits(limits)
+
+
 class InProcessPlanning:
     """:class:`Planning` on the calling thread (module docstring).
 
@@ -82,6 +114,13 @@ class InProcessPlanning:
     ) -> ValidationResult:
         step: PlanStep = self._motion.plan_step
         return validate_script(script, PlanningContext(start, step, presets.get))
+
+    def set_implement(self, implement: Any, limits: Any) -> None:
+        """Pass the selected implement on when the planning is a :class:`GuardPlanning` (a controller's
+        own guards follow its ``select_implement``)."""
+        forward = getattr(self._motion, "set_implement", None)
+        if callable(forward):
+            forward(implement, limits)
 
     def ik(self, target: tuple[float, float, float, float]) -> dict[str, Any]:
         from planner.ik_qp.result import Target

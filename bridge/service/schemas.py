@@ -27,7 +27,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Mapping, Sequence
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 from pydantic.fields import FieldInfo
@@ -66,6 +66,10 @@ __all__ = [
     "TrackSetpoint",
     "TrackVelocity",
     "Empty",
+    "ImplementDefine",
+    "QuickMove",
+    "WorkSettingsRequest",
+    "WorkStart",
 ]
 
 MAX_PAYLOAD_BYTES = 96 * 1024  # a 64 KiB maneuver script, JSON-escaped, fits
@@ -237,6 +241,75 @@ class TrackSetpoint(_Strict):
     velocity: TrackVelocity | None = None
 
 
+class PresetDelete(NameRequest):
+    """Delete a preset; refused (``in_use``, naming the maneuvers) while a saved maneuver uses it unless ``force``."""
+
+    force: bool = False
+
+
+class RecordStop(_Strict):
+    """End teach-in: the recorded script (YAML) is returned for review, named ``name`` if given."""
+
+    name: str | None = Field(None, pattern=_NAME)
+
+
+class LinesSave(_Strict):
+    """Field-boundary / headland lines (GeoJSON LineString, Feature or FeatureCollection; ``[lon, lat]`` deg)."""
+
+    name: str | None = Field(None, pattern=_NAME)
+    geojson: dict[str, Any]
+
+
+class ImplementDefine(_Strict):
+    """Define (insert or replace) an implement: ISO 730 category, mass [kg], centre of mass [x, y, z] in the
+    implement frame [m], optional upper height limit [m] (tool point z), lowering speed limit [m/s] and
+    headland pose (a full pose; absent: the implement's preset ``headland``)."""
+
+    name: str = Field(pattern=_NAME)
+    category: Literal["1N", "1", "2N", "2", "3N", "3", "4N", "4"]
+    mass_kg: float = Field(gt=0.0, le=20_000.0)
+    com_m: list[Annotated[float, Field(ge=-10.0, le=10.0)]] = Field(min_length=3, max_length=3)
+    upper_height_m: float | None = Field(None, ge=-1.0, le=2.0)
+    lowering_speed_m_s: float | None = Field(None, ge=0.005, le=2.0)
+    headland: PoseRequest | None = None
+    description: str = Field("", max_length=200)
+
+
+class QuickMove(_Strict):
+    """``hitch/raise`` (to the headland pose) or ``hitch/return`` (to the last work pose)."""
+
+    speed_scale: float | None = _scale(None)
+    deadline_ms: int = _deadline()
+
+
+class SimSwitchRequest(_Strict):
+    """``sim/switch``: the simulated tractor sends one momentary press of the operator's raise / lower
+    switch (ISO 11783-7 PGN 65090; ``docs/implements.md``)."""
+
+    position: Literal["raise", "lower", "released"]
+
+
+class WorkSettingsRequest(_Strict):
+    """``work/settings``: no field reads the selected implement's work-control settings; any field sets it
+    (the others kept) and persists them for that implement (SI; the ranges: ``docs/soil.md``).
+    ``slip_limit: null`` switches slip limiting off."""
+
+    mode: Literal["position", "draft", "mixed", "float"] | None = None
+    draft_setpoint_n: float | None = None
+    blend: float | None = None
+    sensitivity: float | None = None
+    depth_min_m: float | None = None
+    depth_max_m: float | None = None
+    slip_limit: float | None = None
+
+
+class WorkStart(_Strict):
+    """``work/start``: a work session with the selected implement's settings; ``z``: the operator's
+    position setpoint (tractor frame) [m], default the commanded z now."""
+
+    z: float | None = Field(None, ge=-1.0, le=1.5)
+
+
 REQUESTS: Mapping[str, type[_Strict]] = {
     "ik": PoseRequest,
     "plan": PlanRequest,
@@ -248,7 +321,7 @@ REQUESTS: Mapping[str, type[_Strict]] = {
     "presets/list": Empty,
     "presets/save": PresetSave,
     "presets/go": PresetGo,
-    "presets/delete": NameRequest,
+    "presets/delete": PresetDelete,
     "maneuvers/validate": ScriptRequest,
     "maneuvers/save": ManeuverSave,
     "maneuvers/list": Empty,
@@ -259,6 +332,27 @@ REQUESTS: Mapping[str, type[_Strict]] = {
     "track/start": TrackStart,
     "track/setpoint": TrackSetpoint,
     "track/stop": TrackStop,
+    "maneuvers/pause": Empty,
+    "maneuvers/resume": Empty,
+    "maneuvers/skip": Empty,
+    "maneuvers/record/start": Empty,
+    "maneuvers/record/stop": RecordStop,
+    "lines/save": LinesSave,
+    "lines/list": Empty,
+    "lines/delete": NameRequest,
+    "implements/list": Empty,
+    "implements/define": ImplementDefine,
+    "implements/select": NameRequest,
+    "implements/delete": NameRequest,
+    "implements/lock": Empty,
+    "implements/unlock": Empty,
+    "hitch/raise": QuickMove,
+    "hitch/return": QuickMove,
+    "sim/switch": SimSwitchRequest,
+    "work/settings": WorkSettingsRequest,
+    "work/start": WorkStart,
+    "work/stop": Empty,
+    "work/resume": Empty,
 }
 #: every API name (relative to the key prefix)
 API_KEYS: tuple[str, ...] = tuple(REQUESTS)
@@ -323,6 +417,9 @@ def _allowed(model: type[BaseModel], loc: tuple[int | str, ...]) -> str:
         "vpitch": " rad/s",
         "ttl_ms": " ms",
         "deadline_ms": " ms",
+        "mass_kg": " kg",
+        "upper_height_m": " m",
+        "lowering_speed_m_s": " m/s",
     }.get(name, "")
     return f" (allowed: {' and '.join(parts)}{unit})" if parts else ""
 

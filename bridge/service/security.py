@@ -71,7 +71,21 @@ __all__ = [
 ]
 
 #: API names that move the hitch; restricted to operators
-MOTION_KEYS: tuple[str, ...] = ("goto", "jog", "presets/go", "maneuvers/run", "mode")
+MOTION_KEYS: tuple[str, ...] = (
+    "goto",
+    "jog",
+    "presets/go",
+    "maneuvers/run",
+    "mode",
+    "maneuvers/pause",
+    "maneuvers/resume",
+    "maneuvers/skip",
+    "hitch/raise",
+    "hitch/return",
+    "work/start",
+    "work/stop",
+    "work/resume",
+)
 #: API names that change stored data or the service's state without moving; restricted to operators
 WRITE_KEYS: tuple[str, ...] = (
     "presets/save",
@@ -80,6 +94,17 @@ WRITE_KEYS: tuple[str, ...] = (
     "maneuvers/delete",
     "faults/ack",
     "sim/fault",
+    "maneuvers/record/start",
+    "maneuvers/record/stop",
+    "lines/save",
+    "lines/delete",
+    "implements/define",
+    "implements/select",
+    "implements/delete",
+    "implements/lock",
+    "implements/unlock",
+    "sim/switch",
+    "work/settings",
 )
 #: API name prefixes whose every key writes (restricted to operators): the track recorder's keys
 WRITE_PREFIXES: tuple[str, ...] = ("track/",)
@@ -95,6 +120,8 @@ VIEWER_QUERIES: tuple[str, ...] = (
     "presets/list",
     "maneuvers/validate",
     "maneuvers/list",
+    "lines/list",
+    "implements/list",
 )
 #: the Zenoh 1.10 ACL message kinds, by the direction a client-side user needs them in
 _OBSERVE_IN = ("declare_subscriber", "declare_liveliness_subscriber", "liveliness_query")
@@ -334,13 +361,15 @@ def build_acl(policy: AccessPolicy) -> dict:
             "messages": ["query"],
             "key_exprs": everything,
         },
-        # the streamed track setpoints are puts, not queries (operators only; viewers: no_writes)
+        # the streamed track setpoints are puts, not queries (operators only; viewers: no_writes); so is
+        # the tractor's GNSS (a sensor input that times maneuver line triggers: an operator's receiver
+        # bridge or a service node may publish it, a viewer may only observe it)
         {
             "id": "operator_puts",
             "permission": "allow",
             "flows": ["ingress", "egress"],
             "messages": ["put", "declare_subscriber"],  # the service's subscriber is declared to the publisher
-            "key_exprs": [_key(policy.prefix, "track/setpoint")],
+            "key_exprs": [_key(policy.prefix, "track/setpoint"), _key(policy.prefix, "tractor/gnss")],
         },
         {
             "id": "no_motion",

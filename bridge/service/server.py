@@ -57,9 +57,10 @@ from bridge.link.realtime import RealtimeRunner
 from bridge.service.api import API_KEYS, ServiceAPI
 from bridge.service.config import ServiceConfig
 from bridge.service.core.client import CoreProcess, MotionProxy
-from bridge.service.machine import CanParts, build_controller, build_model, service_info, start_can
+from bridge.service.gnss import restore_lines, start_twin_gnss
+from bridge.service.machine import CanParts, build_controller, build_guard, build_model, service_info, start_can
 from bridge.service.motion.controller import MotionController
-from bridge.service.planning import Planning
+from bridge.service.planning import GuardPlanning, InProcessPlanning, Planning
 from bridge.service.security import access_policy_from_file, apply_security, exposure_warnings, read_users
 from bridge.service.store import HitchStore
 from bridge.service.wire import to_json_bytes
@@ -220,6 +221,8 @@ class HitchService:
                 self.core = core = CoreProcess(cfg, endpoints, on_note=self._core_note).start()
                 self.warnings.extend(core.ready.get("warnings", []))
                 motion = self._proxy = MotionProxy(core, TrajectoryPlanner(build_model(cfg), rate=cfg.control_rate))
+                if planning is None:  # no planning processes: plan here, on a guard of the service's own
+                    planning = InProcessPlanning(GuardPlanning(build_guard(cfg, build_model(cfg))), ik)
                 info = dict(core.ready["info"])
                 sim_fault = motion.sim_fault if core.ready.get("simulated_ecu") else None
             else:
@@ -243,6 +246,10 @@ class HitchService:
                 sim_fault=sim_fault,
                 planning=planning,
             )
+            self.add_listener("event", self.api.implements.on_event)  # the operator's raise / lower switch
+            if self.parts is not None:  # sim/switch on the in-process twin (the core process has its own)
+                self.api.implements.use_twin(self.parts.tractor_node)
+            self.warnings.extend(restore_lines(self.api, cfg.lines_file))  # the field's lines (store, file)
             self._pool = ThreadPoolExecutor(cfg.workers, thread_name_prefix="hitch-api")
             self._motion_pool = ThreadPoolExecutor(MOTION_WORKERS, thread_name_prefix="hitch-motion")
             self._declare_api()
@@ -312,6 +319,13 @@ class HitchService:
             )
             # the setpoint stream is put, not queried: refusals are counted and announced as events
             self._serve(s.declare_subscriber(cfg.key("track/setpoint"), _ring()), self._on_setpoint, "setpoints")
+            gnss = getattr(self.motion, "gnss", None)  # the tractor's GNSS position (maneuver wait_for line)
+            if gnss is not None:
+                sub = s.declare_subscriber(cfg.key("tractor/gnss"), _ring())
+                self._serve(sub, lambda m: gnss.take_payload(m.payload.to_bytes()), "gnss")
+            twin_gnss = start_twin_gnss(cfg, self.parts, s)  # the simulated tractor's receiver (None: a real one)
+            if twin_gnss is not None:
+                self._decls.append(twin_gnss)
         else:  # the core publishes; this process's listeners (terminal, black box) hear it like any client
             # (the 50 Hz state only once something here listens to it: see _ensure_state_subscription)
             self._serve(s.declare_subscriber(cfg.key("events"), _ring()), self._on_published("event"), "events")

@@ -11,7 +11,9 @@ margins at the measured pose, :class:`~bridge.service.motion.types.StabilityMarg
 (:class:`EcuSummary`: ``online``, ``watchdog`` tripped, ``controllers_on``, the ``faults`` the
 motion controller holds and their reasons, ``ack_required`` (those that latch until
 ``faults/ack``), the link's own latched flags ``link_faults``, heartbeat, streaming, reference
-counters, feed-forward); ``maneuver`` (:class:`~bridge.service.maneuvers.slot.ManeuverProgress`).
+counters, feed-forward); ``maneuver`` (:class:`~bridge.service.maneuvers.slot.ManeuverProgress`);
+``goal`` (the running plan's end: ``pose`` and ``actuators`` of its last verified sample, for a
+goto, preset, raise/return or maneuver step; None otherwise, :func:`plan_goal`).
 
 At rest the guard's evaluations (kinematic margin, stability) do not change: an
 :class:`EvaluationCache` keeps the last ones and recomputes only when the measured counts or the
@@ -44,6 +46,7 @@ __all__ = [
     "build_state_message",
     "fault_transition",
     "link_problem",
+    "plan_goal",
 ]
 
 _T = TypeVar("_T")
@@ -54,6 +57,16 @@ def _safe(fn: Callable[[], _T]) -> _T | None:
         return fn()
     except (ValueError, KinematicsError):  # a measured pose the stability model cannot take
         return None
+
+
+def plan_goal(kind: str, plan: Any) -> dict[str, Any] | None:
+    """Where a running plan ends: ``{"pose", "actuators"}`` of its last verified sample (the exact
+    endpoint, :func:`planner.trajectory.plan.sample_times`); None for plans without samples (stops,
+    a jog braking) — they have no target to show."""
+    sp = getattr(plan, "setpoints", None)
+    if kind in ("stop", "jog") or sp is None or len(sp.t) == 0:
+        return None
+    return {"pose": pose_dict(plan.state_at(plan.duration).position), "actuators": actuator_dict(sp.actuators[-1])}
 
 
 def link_problem(status: LinkStatus, now: float, stale_after_s: float) -> str | None:
@@ -204,6 +217,8 @@ class StateMessage:
     ecu: EcuSummary
     maneuver: ManeuverProgress | None
     track: Mapping[str, Any] | None = None  # the live track session (TrackMotion.progress())
+    goal: Mapping[str, Any] | None = None  # the running plan's end pose and actuators (plan_goal)
+    work: Mapping[str, Any] | None = None  # work control (bridge.service.work.WorkControl.progress())
 
     def to_json(self) -> dict[str, Any]:
         ls, ref = self.measured, self.reference
@@ -227,6 +242,8 @@ class StateMessage:
             "ecu": self.ecu.to_json(),
             "maneuver": None if self.maneuver is None else self.maneuver.to_json(),
             "track": None if self.track is None else dict(self.track),
+            "goal": None if self.goal is None else dict(self.goal),
+            "work": None if self.work is None else dict(self.work),
         }
 
 
@@ -247,6 +264,8 @@ def build_state_message(
     faults: Sequence[Fault] | None = None,
     cache: EvaluationCache | None = None,
     track: Mapping[str, Any] | None = None,
+    goal: Mapping[str, Any] | None = None,
+    work: Mapping[str, Any] | None = None,
 ) -> StateMessage:
     """The message for one cycle. ``status``: the link's :class:`~bridge.link.state.LinkStatus` at
     clock time ``now`` [s]; ``reference``: what is being streamed, or None; ``stale_after_s``: the
@@ -295,4 +314,6 @@ def build_state_message(
         ecu=EcuSummary.of(status, now, stale_after_s, feedforward, faults),
         maneuver=maneuver,
         track=track,
+        goal=goal,
+        work=work,
     )

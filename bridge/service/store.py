@@ -8,6 +8,9 @@
   size) are stored with it. Listing reads those columns and parses nothing; reading one maneuver
   back rebuilds it from the stored form without YAML. Cost of a list: one query, independent of
   the scripts' sizes; of a read: one maneuver.
+* **Implements** (schema version 3, ``docs/implements.md``): name → ISO 730 category, mass [kg],
+  centre of mass [m], upper height limit [m], lowering speed limit [m/s], transport lock, headland
+  and last work poses (JSON); and the service's persisted **settings** (the selected implement).
 * **Owners and limits** (:class:`StoreLimits`): every row records the user who saved it last
   (``owner``; ``""`` when the transport authorised the request without naming a user, as Zenoh's
   access control does). Per owner the store refuses more than ``max_presets_per_user`` presets,
@@ -58,6 +61,8 @@ from bridge.service.maneuvers.language import (
     parse_maneuver,
 )
 from planner.errors import HitchInputError
+from planner.limits.implement_limits import ImplementLimits
+from planner.limits.tractor import ISO730_CATEGORIES
 
 __all__ = [
     "StoreError",
@@ -69,6 +74,10 @@ __all__ = [
     "MIGRATIONS",
     "SCHEMA_VERSION",
     "DEFAULT_IMPLEMENT",
+    "StoredImplement",
+    "MAX_IMPLEMENTS",
+    "IMPLEMENT_MASS_RANGE_KG",
+    "IMPLEMENT_COM_RANGE_M",
 ]
 
 #: the implement key used when the service runs without a named implement
@@ -108,8 +117,55 @@ MIGRATIONS: tuple[str, ...] = (
     CREATE INDEX presets_owner ON presets (owner);
     CREATE INDEX maneuvers_owner ON maneuvers (owner);
     """,
+    # 2 → 3: implements defined at runtime (their mass, centre of mass, limits, headland and last work
+    # poses as JSON) and the service's persisted settings (the selected implement)
+    """
+    CREATE TABLE implements (
+        name               TEXT PRIMARY KEY,
+        category           TEXT NOT NULL,
+        mass_kg            REAL NOT NULL,
+        com_x              REAL NOT NULL,
+        com_y              REAL NOT NULL,
+        com_z              REAL NOT NULL,
+        upper_height_m     REAL,
+        lowering_speed_m_s REAL,
+        transport_locked   INTEGER NOT NULL DEFAULT 0,
+        headland           TEXT,
+        last_work          TEXT,
+        description        TEXT NOT NULL DEFAULT '',
+        owner              TEXT NOT NULL DEFAULT '',
+        updated_s          REAL NOT NULL
+    ) WITHOUT ROWID;
+    CREATE TABLE settings (
+        key   TEXT PRIMARY KEY,
+        value TEXT NOT NULL
+    ) WITHOUT ROWID;
+    """,
+    # 3 → 4: the field's lines (maneuver wait_for line; bridge.service.gnss): [lon, lat] vertices as JSON
+    """
+    CREATE TABLE lines (
+        name        TEXT PRIMARY KEY,
+        coordinates TEXT NOT NULL,
+        owner       TEXT NOT NULL DEFAULT '',
+        updated_s   REAL NOT NULL
+    ) WITHOUT ROWID;
+    """,
+    # 4 → 5: the work-control settings of each implement (bridge.service.work; JSON, SI)
+    """
+    CREATE TABLE work_settings (
+        implement TEXT PRIMARY KEY,
+        settings  TEXT NOT NULL,
+        owner     TEXT NOT NULL DEFAULT '',
+        updated_s REAL NOT NULL
+    ) WITHOUT ROWID;
+    """,
 )
 SCHEMA_VERSION = len(MIGRATIONS)
+#: implements the store keeps (all owners together)
+MAX_IMPLEMENTS = 500
+#: allowed implement mass [kg] (as the tractor profiles' implement records) and CoM coordinates [m]
+IMPLEMENT_MASS_RANGE_KG = (0.0, 20_000.0)
+IMPLEMENT_COM_RANGE_M = 10.0
 _CACHE_SIZE = 64
 
 
@@ -205,6 +261,77 @@ class ManeuverSummary:
         return out
 
 
+@dataclass(frozen=True)
+class StoredImplement:
+    """An implement defined at runtime: ISO 730 ``category``, ``mass_kg`` [kg], ``com_m`` (x_i, y_i, z_i)
+    in the implement frame [m] (as :class:`planner.limits.tractor.ImplementRecord`), its limits
+    (:class:`planner.limits.implement_limits.ImplementLimits`), the ``headland`` pose a quick raise goes
+    to (None: the implement's preset ``headland``) and the ``last_work`` pose (where the last raise
+    started; the quick return goes there). Poses: x, z [m]; roll, pitch [rad]."""
+
+    name: str
+    category: str
+    mass_kg: float
+    com_m: tuple[float, float, float]
+    limits: ImplementLimits = field(default_factory=ImplementLimits)
+    headland: Mapping[str, float] | None = None
+    last_work: Mapping[str, float] | None = None
+    description: str = ""
+    updated_s: float = 0.0
+    owner: str = ""
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "category": self.category,
+            "mass_kg": self.mass_kg,
+            "com_m": list(self.com_m),
+            **self.limits.to_json(),
+            "headland": None if self.headland is None else dict(self.headland),
+            "last_work": None if self.last_work is None else dict(self.last_work),
+            "description": self.description,
+        }
+
+
+def _implement_values(imp: StoredImplement) -> StoredImplement:
+    """``imp`` checked field by field (StoreError naming the field and its allowed range)."""
+    name = _name(imp.name, "name")
+    if imp.category not in ISO730_CATEGORIES:
+        raise StoreError(
+            "category", f"must be an ISO 730 category ({', '.join(ISO730_CATEGORIES)}), got {imp.category!r}"
+        )
+    lo, hi = IMPLEMENT_MASS_RANGE_KG
+    m = imp.mass_kg
+    if isinstance(m, bool) or not isinstance(m, (int, float)) or not math.isfinite(m) or not lo < m <= hi:
+        raise StoreError("mass_kg", f"must be a finite number in ({lo:g}, {hi:g}] kg, got {m!r}")
+    com = tuple(imp.com_m) if isinstance(imp.com_m, (tuple, list)) else ()
+    if len(com) != 3 or not all(
+        not isinstance(c, bool) and isinstance(c, (int, float)) and math.isfinite(c) and abs(c) <= IMPLEMENT_COM_RANGE_M
+        for c in com
+    ):
+        raise StoreError(
+            "com_m", f"must be 3 finite numbers [x, y, z] within ±{IMPLEMENT_COM_RANGE_M:g} m, got {imp.com_m!r}"
+        )
+    if not isinstance(imp.limits, ImplementLimits):
+        raise StoreError("limits", f"must be ImplementLimits, got {type(imp.limits).__name__}")
+    if not isinstance(imp.description, str) or len(imp.description) > 200:
+        raise StoreError("description", "must be text of at most 200 characters")
+    headland = None if imp.headland is None else _pose(imp.headland, "headland")
+    last_work = None if imp.last_work is None else _pose(imp.last_work, "last_work")
+    return StoredImplement(
+        name,
+        imp.category,
+        float(m),
+        (float(com[0]), float(com[1]), float(com[2])),
+        imp.limits,
+        headland,
+        last_work,
+        imp.description,
+        imp.updated_s,
+        _owner(imp.owner),
+    )
+
+
 def _name(value: Any, what: str) -> str:
     try:
         return check_name(value, what)
@@ -212,20 +339,20 @@ def _name(value: Any, what: str) -> str:
         raise StoreError(what, str(exc)) from None
 
 
-def _pose(pose: Any) -> dict[str, float]:
+def _pose(pose: Any, what: str = "pose") -> dict[str, float]:
     if not isinstance(pose, Mapping):
-        raise StoreError("pose", f"must be a mapping with x, z [m], roll, pitch [rad], got {type(pose).__name__}")
+        raise StoreError(what, f"must be a mapping with x, z [m], roll, pitch [rad], got {type(pose).__name__}")
     unknown = sorted(set(map(str, pose)) - set(POSE_BOUNDS))
     if unknown:
-        raise StoreError("pose", f"unknown field(s) {', '.join(unknown)} (allowed: x, z, roll, pitch)")
+        raise StoreError(what, f"unknown field(s) {', '.join(unknown)} (allowed: x, z, roll, pitch)")
     out = {}
     for k, (lo, hi) in POSE_BOUNDS.items():
         if k not in pose:
-            raise StoreError(f"pose.{k}", "is required (a preset is a full pose: x, z, roll, pitch)")
+            raise StoreError(f"{what}.{k}", "is required (a full pose: x, z, roll, pitch)")
         v = pose[k]
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo <= v <= hi:
             unit = "m" if k in ("x", "z") else "rad"
-            raise StoreError(f"pose.{k}", f"must be a finite number within [{lo:.6g}, {hi:.6g}] {unit}, got {v!r}")
+            raise StoreError(f"{what}.{k}", f"must be a finite number within [{lo:.6g}, {hi:.6g}] {unit}, got {v!r}")
         out[k] = float(v)
     return out
 
@@ -580,6 +707,144 @@ class HitchStore:
     def delete_maneuver(self, name: str) -> bool:
         return self._write("DELETE FROM maneuvers WHERE name = ?", (_name(name, "name"),)) > 0
 
+    # ------------------------------------------------------------------ implements
+    def save_implement(self, implement: StoredImplement, *, owner: str | None = None) -> StoredImplement:
+        """Insert or replace an implement (every field checked; StoreError names the field); returns what
+        was stored. At most :data:`MAX_IMPLEMENTS` implements."""
+        imp = _implement_values(implement)
+        imp = StoredImplement(**{**imp.__dict__, "updated_s": time.time(), "owner": _owner(owner)})
+
+        def check(db: sqlite3.Connection) -> None:
+            (n,) = db.execute("SELECT COUNT(*) FROM implements WHERE name != ?", (imp.name,)).fetchone()
+            if n >= MAX_IMPLEMENTS:
+                raise StoreError(
+                    "max_implements", f"the store already has {n} implements (limit {MAX_IMPLEMENTS}); delete one"
+                )
+
+        lim = imp.limits
+        self._write(
+            "INSERT INTO implements (name, category, mass_kg, com_x, com_y, com_z, upper_height_m, "
+            "lowering_speed_m_s, transport_locked, headland, last_work, description, owner, updated_s) "
+            "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT (name) DO UPDATE SET "
+            "category = excluded.category, mass_kg = excluded.mass_kg, com_x = excluded.com_x, "
+            "com_y = excluded.com_y, com_z = excluded.com_z, upper_height_m = excluded.upper_height_m, "
+            "lowering_speed_m_s = excluded.lowering_speed_m_s, transport_locked = excluded.transport_locked, "
+            "headland = excluded.headland, last_work = excluded.last_work, description = excluded.description, "
+            "owner = excluded.owner, updated_s = excluded.updated_s",
+            (
+                imp.name,
+                imp.category,
+                imp.mass_kg,
+                *imp.com_m,
+                lim.upper_height_m,
+                lim.lowering_speed_m_s,
+                int(lim.transport_locked),
+                _pose_text(imp.headland),
+                _pose_text(imp.last_work),
+                imp.description,
+                imp.owner,
+                imp.updated_s,
+            ),
+            check,
+        )
+        return imp
+
+    def get_implement(self, name: str) -> StoredImplement | None:
+        args = (_name(name, "name"),)
+        with self._locked() as db:
+            row = db.execute(f"SELECT {_IMPLEMENT_COLUMNS} FROM implements WHERE name = ?", args).fetchone()
+        return None if row is None else _implement(row)
+
+    def list_implements(self) -> list[StoredImplement]:
+        """Every implement, sorted by name."""
+        with self._locked() as db:
+            rows = db.execute(f"SELECT {_IMPLEMENT_COLUMNS} FROM implements ORDER BY name").fetchall()
+        return [_implement(r) for r in rows]
+
+    def delete_implement(self, name: str) -> bool:
+        """Delete an implement (its presets stay, under its name); True if it existed."""
+        return self._write("DELETE FROM implements WHERE name = ?", (_name(name, "name"),)) > 0
+
+    def update_implement(
+        self,
+        name: str,
+        *,
+        transport_locked: bool | None = None,
+        last_work: Mapping[str, float] | None = None,
+    ) -> StoredImplement:
+        """Set the transport lock and/or the last work pose of a stored implement (StoreError ``name``
+        when there is none); returns it as stored."""
+        n = _name(name, "name")
+        sets: list[str] = []
+        args: list[Any] = []
+        if transport_locked is not None:
+            if not isinstance(transport_locked, bool):
+                raise StoreError("transport_locked", f"must be true or false, got {transport_locked!r}")
+            sets.append("transport_locked = ?")
+            args.append(int(transport_locked))
+        if last_work is not None:
+            sets.append("last_work = ?")
+            args.append(_pose_text(_pose(last_work, "last_work")))
+        if sets and self._write(f"UPDATE implements SET {', '.join(sets)} WHERE name = ?", (*args, n)) == 0:
+            raise StoreError("name", f"no implement {n!r} in the store")
+        imp = self.get_implement(n)
+        if imp is None:
+            raise StoreError("name", f"no implement {n!r} in the store")
+        return imp
+
+    # ------------------------------------------------------------------ lines
+    def save_line(self, name: str, coordinates: Any, *, owner: str | None = None) -> None:
+        """Save (replace) a field line: its ``[lon, lat]`` vertices (checked by the GNSS tracker first)."""
+        self._write(
+            "INSERT INTO lines (name, coordinates, owner, updated_s) VALUES (?, ?, ?, ?) ON CONFLICT (name) DO "
+            "UPDATE SET coordinates = excluded.coordinates, owner = excluded.owner, updated_s = excluded.updated_s",
+            (_name(name, "name"), json.dumps([list(c) for c in coordinates]), _owner(owner), time.time()),
+        )
+
+    def list_lines(self) -> list[tuple[str, list[list[float]]]]:
+        """Every saved line (name, ``[lon, lat]`` vertices), sorted by name."""
+        with self._locked() as db:
+            rows = db.execute("SELECT name, coordinates FROM lines ORDER BY name").fetchall()
+        return [(str(n), json.loads(c)) for n, c in rows]
+
+    def delete_line(self, name: str) -> bool:
+        return self._write("DELETE FROM lines WHERE name = ?", (_name(name, "name"),)) > 0
+
+    # ------------------------------------------------------------------ work settings
+    def get_work_settings(self, implement: str) -> dict[str, Any] | None:
+        """The work-control settings stored for ``implement`` (JSON object; validated by the caller), or None."""
+        with self._locked() as db:
+            args = (_name(implement, "implement"),)
+            row = db.execute("SELECT settings FROM work_settings WHERE implement = ?", args).fetchone()
+        return None if row is None else dict(json.loads(row[0]))
+
+    def save_work_settings(self, implement: str, settings: Mapping[str, Any], *, owner: str | None = None) -> None:
+        """Save (replace) the work-control settings of ``implement`` (a JSON object of at most 2000 characters)."""
+        text = json.dumps(dict(settings), allow_nan=False)
+        if len(text) > 2000:
+            raise StoreError("settings", "work settings must be a JSON object of at most 2000 characters")
+        self._write(
+            "INSERT INTO work_settings (implement, settings, owner, updated_s) VALUES (?, ?, ?, ?) ON CONFLICT "
+            "(implement) DO UPDATE SET settings = excluded.settings, owner = excluded.owner, "
+            "updated_s = excluded.updated_s",
+            (_name(implement, "implement"), text, _owner(owner), time.time()),
+        )
+
+    # ------------------------------------------------------------------ settings
+    def get_setting(self, key: str) -> str | None:
+        """A persisted service setting (e.g. ``selected_implement``), or None."""
+        with self._locked() as db:
+            row = db.execute("SELECT value FROM settings WHERE key = ?", (str(key),)).fetchone()
+        return None if row is None else str(row[0])
+
+    def set_setting(self, key: str, value: str) -> None:
+        if not isinstance(value, str) or len(value) > 1000:
+            raise StoreError(key, "a setting must be text of at most 1000 characters")
+        self._write(
+            "INSERT INTO settings (key, value) VALUES (?, ?) ON CONFLICT (key) DO UPDATE SET value = excluded.value",
+            (str(key), value),
+        )
+
     def _remember(self, key: tuple[str, float], parsed: ManeuverScript) -> None:
         self._cache[key] = parsed
         self._cache.move_to_end(key)
@@ -601,3 +866,40 @@ def _preset(row: tuple[Any, ...]) -> Preset:
     if scale is not None:  # saved by an older program below today's bound: runs at the bound
         scale = max(float(scale), MIN_SPEED_SCALE)
     return Preset(implement, name, {"x": x, "z": z, "roll": roll, "pitch": pitch}, scale, updated, owner)
+
+
+_IMPLEMENT_COLUMNS = (
+    "name, category, mass_kg, com_x, com_y, com_z, upper_height_m, lowering_speed_m_s, transport_locked, "
+    "headland, last_work, description, updated_s, owner"
+)
+
+
+def _pose_text(pose: Mapping[str, float] | None) -> str | None:
+    return None if pose is None else json.dumps(dict(pose), allow_nan=False, separators=(",", ":"))
+
+
+def _pose_of(text: str | None) -> dict[str, float] | None:
+    if text is None:
+        return None
+    try:
+        return {str(k): float(v) for k, v in json.loads(text).items()}
+    except (ValueError, AttributeError, TypeError):
+        return None  # a damaged pose reads as none: the quick raise / return then says it has none
+
+
+def _implement(row: tuple[Any, ...]) -> StoredImplement:
+    name, category, mass, cx, cy, cz, upper, lowering, locked, headland, last_work, desc, updated, owner = row
+    return StoredImplement(
+        name,
+        category,
+        float(mass),
+        (float(cx), float(cy), float(cz)),
+        ImplementLimits(
+            None if upper is None else float(upper), None if lowering is None else float(lowering), bool(locked)
+        ),
+        _pose_of(headland),
+        _pose_of(last_work),
+        desc,
+        float(updated),
+        owner,
+    )

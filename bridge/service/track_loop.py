@@ -43,6 +43,20 @@ setpoint, estimated by the client from its readings (a least-squares slope over
 ``LoopSettings.rate_window_s``; for the row camera an α-β filter on the 10 Hz samples, whose
 estimate is the setpoint of both streaming strategies).
 
+Row estimator (guidance, ``LoopSettings.row_estimator``): ``alpha_beta`` (above) or ``kalman``
+(:class:`RowKalman`): a Kalman filter in *distance* along the travel with a second-order
+Gauss–Markov row model (:class:`RowModel`, tuned from the row's stated RMS and wavelength band and
+the camera's stated noise, :meth:`RowModel.from_row`), with a Rauch–Tung–Striebel smoother over
+the samples already seen; its slope times the ground speed is the setpoint's velocity. The client
+keys every camera sample by the distance the camera saw it at (the wheel odometer's distance plus
+the camera's look-ahead :attr:`bridge.sim.terrain.RowSignal.camera_ahead_m`, a documented sensor
+geometry). With ``row_lead`` the setpoint is the row at the implement's position ``lead_s`` ahead
+(distance + speed × lead): with a camera ahead of the implement (preview) that point was already
+seen and is smoothed; with the camera under the implement it is the model's prediction. The lead
+(:func:`follower_lead_s`) comes from the follower's limits: two control cycles (the setpoint is
+taken at the next cycle, its reference reaches the ECU one cycle later) plus the follower's rise
+time to full speed, v/a + a/j.
+
 Counts (:attr:`TrackLoopResult.counts`): streamed references outside the actuator strokes (the link
 refuses them: must be 0), refused references (``limit_reached`` events with a message), limit events
 of the follower (workspace faces named), rejected setpoints, gotos refused, faults, and measured
@@ -52,6 +66,7 @@ mapped to the pose at the start: must be 0).
 
 from __future__ import annotations
 
+import bisect
 import math
 import time
 from collections import deque
@@ -61,14 +76,16 @@ from typing import Any
 
 import can
 import numpy as np
+from scipy.linalg import expm
 
-from bridge.link.tractor_sensors import TractorSensors
+from bridge.link.tractor_sensors import TractorSensors, TractorSensorsConfig
 from bridge.service.machine import ReadingsAsTrackSensors
 from bridge.service.motion.controller import MotionController
 from bridge.service.motion.types import MotionError
 from bridge.sim.move import SimRig, SimSettings
 from bridge.sim.scenario import Scenario, load_scenario
 from bridge.sim.sensors import TwinSensors
+from bridge.sim.terrain import RowSignal
 from bridge.sim.tractor_node import TractorTwinNode, hitch_height_from_ecu
 from planner.errors import HitchError, HitchInputError
 from planner.limits.guard import Guard
@@ -80,17 +97,25 @@ from planner.trajectory.track import TrackFollower
 
 __all__ = [
     "JOBS",
+    "ROW_ESTIMATORS",
+    "ROW_SETPOINTS",
     "STRATEGIES",
     "ErrorFigures",
     "LoopSettings",
+    "PreviewPlanner",
+    "RowKalman",
+    "RowModel",
     "SimLoop",
     "TrackLoopError",
     "TrackLoopResult",
+    "follower_lead_s",
     "job_of",
     "run_track_loop",
 ]
 
 STRATEGIES = ("track", "goto_stream", "hold")
+ROW_ESTIMATORS = ("alpha_beta", "kalman")
+ROW_SETPOINTS = ("now", "lead", "plan")
 JOBS = ("levelling", "guidance", "terrain")
 #: frame and DOF of each job's track session
 JOB_FRAME = {"levelling": ("level", "roll"), "guidance": ("tractor", "x"), "terrain": ("ground", "z")}
@@ -125,6 +150,12 @@ class LoopSettings:
         send_velocity: track: send the estimated tractor-frame rate with each setpoint.
         rate_window_s: the least-squares window of that rate estimate [s].
         row_filter: guidance: the α-β filter's (α, β) on the camera samples; None: raw samples.
+        row_estimator: guidance: ``alpha_beta`` (``row_filter``) or ``kalman`` (:class:`RowKalman`).
+        row_setpoint: guidance, ``kalman`` (:data:`ROW_SETPOINTS`): ``now`` the row under the
+            implement now; ``lead`` the row at the implement's position ``lead_s`` ahead; ``plan`` a
+            preview plan (:class:`PreviewPlanner`) over what the camera saw ahead, sent ``2·dt`` ahead
+            (the loop's latency); without a preview of at least 8 cycles ``plan`` acts as ``lead``.
+        lead_s: the lead of ``lead`` [s], [0, 5]; None: :func:`follower_lead_s` from the follower's limits.
         inside_window_s: a sample counts as "inside" when over the last this-many seconds the demand
             stayed inside the workspace and within the follower's pose velocity and acceleration limits.
         sim: the simulated machine and bus.
@@ -141,6 +172,9 @@ class LoopSettings:
     send_velocity: bool = True
     rate_window_s: float = 0.1
     row_filter: tuple[float, float] | None = (0.35, 0.06)
+    row_estimator: str = "alpha_beta"
+    row_setpoint: str = "now"
+    lead_s: float | None = None
     inside_window_s: float = 1.0
     sim: SimSettings = field(default_factory=SimSettings)
 
@@ -156,6 +190,17 @@ class LoopSettings:
         _seconds("working_height_m", self.working_height_m, 0.0, 3.0, optional=True)
         _seconds("rate_window_s", self.rate_window_s, 0.02, 2.0)
         _seconds("inside_window_s", self.inside_window_s, 0.0, 10.0)
+        _seconds("lead_s", self.lead_s, 0.0, 5.0, optional=True)
+        if self.row_estimator not in ROW_ESTIMATORS:
+            raise TrackLoopError(
+                f"row_estimator must be one of {', '.join(ROW_ESTIMATORS)}, got {self.row_estimator!r}"
+            )
+        if self.row_setpoint not in ROW_SETPOINTS:
+            raise TrackLoopError(f"row_setpoint must be one of {', '.join(ROW_SETPOINTS)}, got {self.row_setpoint!r}")
+        if self.row_setpoint != "now" and self.row_estimator != "kalman":
+            raise TrackLoopError(
+                f"row_setpoint = {self.row_setpoint!r} needs row_estimator = 'kalman' (the row model's)"
+            )
         if self.row_filter is not None:
             a, b = self.row_filter
             _seconds("row_filter alpha", a, 1e-3, 1.0)
@@ -196,6 +241,7 @@ class SimLoop:
         sim: SimSettings | None = None,
         start: Mapping[str, float] | None = None,
         warmup_s: float = 0.5,
+        sensors_config: TractorSensorsConfig | None = None,
     ) -> None:
         self.model = model
         self.scenario = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
@@ -208,7 +254,7 @@ class SimLoop:
         self.tractor = TractorTwinNode(
             self._buses[0], TwinSensors(self.twin), hitch_height_m=hitch_height_from_ecu(self.rig.ecu, model)
         )
-        self.decoder = TractorSensors(self._buses[1])
+        self.decoder = TractorSensors(self._buses[1], sensors_config)
         self.sensors = ReadingsAsTrackSensors(self.decoder, rates=False)  # positions only, as measured
         self.events: list[dict[str, Any]] = []
         self.state: dict[str, Any] | None = None
@@ -432,6 +478,249 @@ class _AlphaBeta:
         return self.x + self.v * (t - self.t), self.v
 
 
+@dataclass(frozen=True)
+class RowModel:
+    """A crop row's lateral offset as a second-order Gauss–Markov process in the travel distance s:
+    ``y'' = −ω²·y − 2ζω·y' + w`` (primes: d/ds), w white with intensity ``q = 4ζω³·rms²`` so that
+    the stationary RMS of y is ``rms_m``; the camera measures y with white noise ``noise_rms_m``.
+
+    Attributes:
+        rms_m: the row's RMS offset [m] (> 0).
+        omega_rad_m: the natural spatial frequency ω [rad/m] (> 0).
+        noise_rms_m: the camera's noise per sample [m] (> 0: a floor of 0.1 mm).
+        zeta: the damping ratio (default 1/√2, maximally flat).
+    """
+
+    rms_m: float
+    omega_rad_m: float
+    noise_rms_m: float
+    zeta: float = 1.0 / math.sqrt(2.0)
+
+    def __post_init__(self) -> None:
+        _seconds("rms_m", self.rms_m, 1e-6, 1.0)
+        _seconds("omega_rad_m", self.omega_rad_m, 1e-4, 100.0)
+        _seconds("noise_rms_m", self.noise_rms_m, 1e-4, 0.5)
+        _seconds("zeta", self.zeta, 0.1, 2.0)
+
+    @classmethod
+    def from_row(cls, row: RowSignal) -> RowModel:
+        """From the row's stated spectrum and the camera's stated noise: ω matches the row's RMS slope
+        to its RMS offset (the model's ``rms(y') = ω·rms(y)`` at ζ = 1/√2; the row's band of equal
+        sines at log-spaced wavenumbers k_i has ``rms(y')² = rms(y)²·mean(k_i²)``)."""
+        k = 2.0 * math.pi / np.geomspace(row.wavelength_max_m, row.wavelength_min_m, row.components)
+        return cls(max(row.rms_m, 1e-6), float(np.sqrt(np.mean(k**2))), max(row.noise_rms_m, 1e-4))
+
+    def transition(self, ds: float) -> tuple[np.ndarray, np.ndarray]:
+        """The state transition F and process noise Q over a distance ``ds`` ≥ 0 (Van Loan)."""
+        w, z = self.omega_rad_m, self.zeta
+        a = np.array([[0.0, 1.0], [-w * w, -2.0 * z * w]])
+        q = 4.0 * z * w**3 * self.rms_m**2
+        m = np.zeros((4, 4))
+        m[:2, :2], m[:2, 2:], m[2:, 2:] = -a, np.array([[0.0, 0.0], [0.0, q]]), a.T
+        e = expm(m * max(ds, 0.0))
+        f = e[2:, 2:].T
+        return f, f @ e[:2, 2:]
+
+
+class RowKalman:
+    """Kalman filter of the camera's row samples in the travel distance (:class:`RowModel`), with a
+    Rauch–Tung–Striebel smoother over the samples kept (the last ``keep_m`` of distance).
+
+    :meth:`add` takes a sample (the row's offset y [m] seen at distance σ [m]); :meth:`at` gives
+    (y, dy/ds) at any distance: smoothed and interpolated (cubic Hermite) between samples already
+    seen, the model's prediction beyond the newest."""
+
+    def __init__(self, model: RowModel, *, keep_m: float = 12.0) -> None:
+        self.model = model
+        self.keep_m = keep_m
+        r = model.rms_m
+        self._p0 = np.diag([r * r, (model.omega_rad_m * r) ** 2])  # the stationary covariance
+        self._r = model.noise_rms_m**2
+        self._s: deque[float] = deque()
+        self._xf: deque[np.ndarray] = deque()  # filtered
+        self._pf: deque[np.ndarray] = deque()
+        self._xp: deque[np.ndarray] = deque()  # predicted (before the sample)
+        self._pp: deque[np.ndarray] = deque()
+        self._f: deque[np.ndarray] = deque()  # transition from the previous sample
+        self._smooth: list[np.ndarray] | None = None
+
+    def __len__(self) -> int:
+        return len(self._s)
+
+    def add(self, y: float, sigma: float) -> None:
+        """One camera sample ``y`` [m] of the row at distance ``sigma`` [m] (not decreasing; a sample
+        at a smaller distance than the newest is ignored)."""
+        if self._s and sigma < self._s[-1] - 1e-9:
+            return
+        if not self._s:
+            f, xp, pp = np.eye(2), np.zeros(2), self._p0.copy()
+        else:
+            f, q = self.model.transition(sigma - self._s[-1])
+            xp, pp = f @ self._xf[-1], f @ self._pf[-1] @ f.T + q
+        k = pp[:, 0] / (pp[0, 0] + self._r)
+        xf = xp + k * (y - xp[0])
+        pf = pp - np.outer(k, pp[0, :])
+        self._s.append(float(sigma))
+        for buf, v in ((self._xf, xf), (self._pf, pf), (self._xp, xp), (self._pp, pp), (self._f, f)):
+            buf.append(v)
+        while len(self._s) > 2 and self._s[1] < sigma - self.keep_m:
+            self._s.popleft()
+            for b in (self._xf, self._pf, self._xp, self._pp, self._f):
+                b.popleft()
+        self._smooth = None
+
+    def _smoothed(self) -> list[np.ndarray]:
+        if self._smooth is None:
+            n = len(self._s)
+            xs = [np.zeros(2)] * n
+            xs[-1] = self._xf[-1]
+            for i in range(n - 2, -1, -1):
+                f = self._f[i + 1]
+                c = self._pf[i] @ f.T @ np.linalg.inv(self._pp[i + 1])
+                xs[i] = self._xf[i] + c @ (xs[i + 1] - self._xp[i + 1])
+            self._smooth = xs
+        return self._smooth
+
+    def at(self, sigma: float) -> tuple[float, float] | None:
+        """(y [m], dy/ds) at distance ``sigma``; None before the first sample."""
+        if not self._s:
+            return None
+        s = self._s
+        if sigma >= s[-1]:
+            x = self.model.transition(sigma - s[-1])[0] @ self._xf[-1]
+            return float(x[0]), float(x[1])
+        xs = self._smoothed()
+        if sigma <= s[0]:
+            return float(xs[0][0]), float(xs[0][1])
+        i = bisect.bisect_right(s, sigma) - 1  # s[i] <= sigma < s[i + 1]
+        h = s[i + 1] - s[i]
+        if h <= 1e-12:
+            return float(xs[i][0]), float(xs[i][1])
+        u = (sigma - s[i]) / h
+        (y0, d0), (y1, d1) = xs[i], xs[i + 1]
+        # cubic Hermite on [s_i, s_i+1] and its derivative
+        h00, h10, h01, h11 = 2 * u**3 - 3 * u**2 + 1, u**3 - 2 * u**2 + u, -2 * u**3 + 3 * u**2, u**3 - u**2
+        g00, g10, g01, g11 = 6 * u**2 - 6 * u, 3 * u**2 - 4 * u + 1, -6 * u**2 + 6 * u, 3 * u**2 - 2 * u
+        y = h00 * y0 + h10 * h * d0 + h01 * y1 + h11 * h * d1
+        dy = (g00 * y0 + g01 * y1) / h + g10 * d0 + g11 * d1
+        return float(y), float(dy)
+
+
+_PLAN_UNIT_M = 1e-3
+"""The preview plan's unit [m] inside its QP (the QP in mm is well scaled for OSQP)."""
+
+
+class PreviewPlanner:
+    """A client-side preview plan: with the row known a horizon ahead (a camera ahead of the
+    implement), the closest path to it within the DOF's velocity, acceleration and jerk bounds, as
+    the ideal follower (:class:`planner.trajectory.ideal_follower.IdealFollower`) solves it, but over
+    the preview window only, continuing the path already sent (its first three samples fixed to the
+    previous plan's: position, velocity and acceleration stay continuous; should that QP not solve,
+    a fresh plan, else the previous plan held). One OSQP instance per window length and number of
+    fixed samples; :meth:`plan` returns the path's samples every ``dt`` from ``t0``.
+
+    Args:
+        v_max, a_max, j_max: the bounds [m/s, m/s², m/s³] (the follower's, so that it follows the path).
+        dt: the sample step [s].
+    """
+
+    MARGIN = 0.85
+    """The share of the follower's limits a plan uses (the rest lets the follower catch up with it)."""
+    EPS = 1e-3
+
+    def __init__(self, v_max: float, a_max: float, j_max: float, dt: float) -> None:
+        for name, v in (("v_max", v_max), ("a_max", a_max), ("j_max", j_max), ("dt", dt)):
+            _seconds(name, v, 1e-9, 1e9)
+        self.bounds = (v_max, a_max, j_max)
+        self.dt = dt
+        self._solvers: dict[tuple[int, int], Any] = {}  # (samples, fixed): OSQP, fixed columns, their rows
+        self._t0: float | None = None
+        self._x: np.ndarray | None = None
+        self.failures = 0  # plans OSQP did not solve (the previous plan kept instead)
+
+    def plan(self, t0: float, reference: np.ndarray) -> np.ndarray:
+        """The path from ``t0`` (samples every ``dt``) closest to ``reference`` (same length, ≥ 8),
+        continuing the previous plan where it covers ``t0`` (its first three samples then fixed)."""
+        r = np.asarray(reference, float)
+        n = int(r.size)
+        if n < 8 or not np.all(np.isfinite(r)):
+            raise TrackLoopError(f"preview plan: the reference needs >= 8 finite samples, got {n}")
+        prev = self._previous(t0, n)
+        off = float(np.mean(r))
+        x = None
+        if prev is not None:
+            x = self._solve(n, r, off, prev)
+        if x is None:
+            x = self._solve(n, r, off, None)
+        if x is None:
+            self.failures += 1
+            x = r if self._x is None else self._previous(t0, n, extend=True)
+            assert x is not None
+        self._t0, self._x = t0, x
+        return x
+
+    def _solve(self, n: int, r: np.ndarray, off: float, fixed: np.ndarray | None) -> np.ndarray | None:
+        import osqp  # only a previewing client pays its import
+        import scipy.sparse as sp_
+
+        k = 0 if fixed is None else fixed.size
+        key = (n, k)
+        if key not in self._solvers:
+            rows = []
+            for order, bound in zip((1, 2, 3), self.bounds, strict=True):
+                coef = np.array([math.comb(order, i) * (-1) ** (order - i) for i in range(order + 1)], float)
+                m = n - order
+                rows.append(
+                    sp_.diags([np.full(m, c) for c in coef], list(range(order + 1)), shape=(m, n))
+                    * (_PLAN_UNIT_M / (bound * self.dt**order))
+                )
+            a = sp_.vstack(rows, format="csc")
+            a_fixed, a_free = a[:, :k].toarray(), a[:, k:].tocsc()
+            # rows of fixed samples alone: nothing to decide (the previous plan kept them)
+            solver = osqp.OSQP()
+            one = np.ones(a.shape[0])
+            solver.setup(
+                sp_.identity(n - k, format="csc"), np.zeros(n - k), a_free, -one, one, eps_abs=self.EPS,
+                eps_rel=self.EPS, polishing=True, max_iter=40000, verbose=False, warm_starting=True,
+            )  # fmt: skip
+            self._solvers[key] = (solver, a_fixed, a.shape[0])
+        solver, a_fixed, m_rows = self._solvers[key]
+        lo, hi = -np.ones(m_rows), np.ones(m_rows)
+        if fixed is not None:
+            shift = a_fixed @ ((fixed - off) / _PLAN_UNIT_M)
+            lo, hi = lo - shift, hi - shift  # rows of fixed samples alone: kept by the previous plan
+        solver.update(q=-(r[k:] - off) / _PLAN_UNIT_M, l=lo, u=hi)
+        res = solver.solve(raise_error=False)
+        if res.x is None or not str(res.info.status).startswith("solved"):  # "solved inaccurate" taken too
+            return None
+        x = np.empty(n)
+        if fixed is not None:
+            x[:k] = fixed
+        x[k:] = np.asarray(res.x, float) * _PLAN_UNIT_M + off
+        return x
+
+    def _previous(self, t0: float, n: int, *, extend: bool = False) -> np.ndarray | None:
+        """The previous plan at the first three samples from ``t0`` (all ``n`` with ``extend``, held at
+        its end); None without one covering them."""
+        if self._x is None or self._t0 is None:
+            return None
+        tp = self._t0 + self.dt * np.arange(self._x.size)
+        ts = t0 + self.dt * np.arange(n if extend else 3)
+        if not extend and ts[-1] > tp[-1] + 1e-9:
+            return None
+        return np.interp(ts, tp, self._x)
+
+
+def follower_lead_s(limits_velocity: float, limits_acceleration: float, limits_jerk: float, dt: float) -> float:
+    """The lead [s] a streaming client gives its setpoints to cover the loop's latency and the
+    follower's lag, from the follower's limits of the tracked DOF: two control cycles ``2·dt`` (the
+    setpoint is taken at the next cycle; its reference reaches the ECU a cycle later) plus the
+    follower's jerk-limited rise time from rest to full speed, ``v/a + a/j``."""
+    for name, v in (("velocity", limits_velocity), ("acceleration", limits_acceleration), ("jerk", limits_jerk)):
+        _seconds(f"follower {name} limit", v, 1e-9, 1e9)
+    return 2.0 * dt + limits_velocity / limits_acceleration + limits_acceleration / limits_jerk
+
+
 def _pose_tolerance(model: HitchModel, planner: TrajectoryPlanner, p0: np.ndarray) -> np.ndarray:
     """One count on every sensor, mapped to the pose at ``p0`` (x, z, roll, pitch)."""
     jac = planner.inverse.solve(p0)[1]  # d actuators / d pose (5 x 4)
@@ -491,8 +780,30 @@ def run_track_loop(
             except MotionError as exc:
                 raise TrackLoopError(f"the track session could not start: {exc}") from None
         slope = _Slope(s.rate_window_s)
-        row_f = _AlphaBeta(*s.row_filter) if s.row_filter is not None else None
+        row_f = _AlphaBeta(*s.row_filter) if s.row_filter is not None and s.row_estimator == "alpha_beta" else None
+        row_kf = RowKalman(RowModel.from_row(twin.row)) if s.row_estimator == "kalman" else None
+        camera_ahead = float(twin.row.camera_ahead_m)
+        lead = 0.0
+        planner_ahead: PreviewPlanner | None = None
+        n_preview = 0
+        if s.row_setpoint != "now":
+            lead = (
+                s.lead_s
+                if s.lead_s is not None
+                else follower_lead_s(
+                    float(follow.velocity[d]), float(follow.acceleration[d]), float(follow.jerk[d]), loop.dt
+                )
+            )
+        if s.row_setpoint == "plan":
+            n_preview = int(camera_ahead / max(float(twin.speed.speed_m_s(t_loop)), 0.1) / loop.dt)
+            m = PreviewPlanner.MARGIN  # the follower keeps room to catch up with the path
+            planner_ahead = PreviewPlanner(
+                m * float(follow.velocity[d]), m * float(follow.acceleration[d]), m * float(follow.jerk[d]), loop.dt
+            )
         row_seen: float | None = None
+        row_rate = 0.0
+        path = np.zeros(0)
+        path_t: np.ndarray | None = None
         seq = 0
         last_goal: float | None = None
         counts = {
@@ -519,7 +830,29 @@ def run_track_loop(
                     sp, target = 0.0, att[0]
             elif job == "guidance":
                 ro = sensors.row_offset(now)
-                if ro is not None:
+                odo = _odometer(loop.decoder, now) if row_kf is not None else None
+                if ro is not None and row_kf is not None:
+                    if odo is not None:
+                        fresh_sample = ro[1] != row_seen
+                        if fresh_sample:  # a new camera sample: keyed by the distance the camera saw it at
+                            row_kf.add(ro[0], odo[0] + odo[1] * (ro[1] - now) + camera_ahead)
+                            row_seen = ro[1]
+                        if planner_ahead is not None and n_preview >= 8 and len(row_kf):
+                            if fresh_sample or path_t is None:  # re-plan with every camera sample (10 Hz)
+                                ref_row = [row_kf.at(odo[0] + odo[1] * k * loop.dt) for k in range(n_preview)]
+                                path = planner_ahead.plan(now, np.array([r[0] for r in ref_row if r is not None]))
+                                path_t = now + loop.dt * np.arange(path.size)
+                            assert path_t is not None
+                            t_sp = now + 2 * loop.dt  # the loop's latency: taken next cycle, at the ECU one later
+                            sp = float(np.interp(t_sp, path_t, path))
+                            row_rate = float(np.interp(t_sp, path_t[1:-1], (path[2:] - path[:-2]) / (2 * loop.dt)))
+                            target = sp
+                        else:
+                            est = row_kf.at(odo[0] + odo[1] * lead)
+                            if est is not None:
+                                sp, row_rate = est[0], est[1] * odo[1]
+                                target = sp
+                elif ro is not None:
                     if row_f is None:
                         sp = ro[0]
                     else:
@@ -536,7 +869,12 @@ def run_track_loop(
                     target = float(ls.pose.controlled()[1]) + (working - dist)
             rate = 0.0
             if target is not None:
-                rate = row_f.at(now)[1] if (job == "guidance" and row_f is not None) else slope.add(now, target)
+                if job == "guidance" and row_kf is not None:
+                    rate = row_rate
+                elif job == "guidance" and row_f is not None:
+                    rate = row_f.at(now)[1]
+                else:
+                    rate = slope.add(now, target)
             if sp is not None and target is not None:
                 if s.strategy == "track" and session is not None:
                     seq += 1
@@ -629,6 +967,16 @@ def run_track_loop(
         workspace_excess=excess,
         notes=tuple(notes),
     )
+
+
+def _odometer(decoder: TractorSensors, t: float) -> tuple[float, float] | None:
+    """The client's odometer at time ``t``: (distance [m], ground speed [m/s]), the wheel-based
+    distance extrapolated with the speed from its frame's time; None without a usable reading."""
+    r = decoder.readings(t)
+    dist, speed = r.distance, r.speed
+    if dist.value is None or speed.value is None or dist.received_s is None or dist.stale or speed.stale:
+        return None
+    return float(dist.value) + float(speed.value) * (t - dist.received_s), float(speed.value)
 
 
 def _note(notes: list[str], text: str) -> None:

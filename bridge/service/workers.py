@@ -12,12 +12,17 @@ the CAN threads and O(1) request handling (``docs/faults.md``, *Threads or proce
 
 Protocol: a worker is a fresh interpreter (``python -m bridge.service.workers``) with one pipe. It builds its context
 from a :class:`WorkerSpec` (profile, category, control rate, implement), then answers one task at a
-time: ``(kind, args)`` in, ``("ok", value)`` or ``("error", code, message)`` out — errors travel as
+time: ``(kind, args, implement)`` in, ``("ok", value)`` or ``("error", code, message)`` out — errors travel as
 the API's error codes and texts, never as pickled exceptions. A caller takes an idle worker
 (waiting at most its timeout, else ``busy``), sends, and waits for the answer up to its timeout;
 a worker that did not answer in time is terminated and replaced, so a task that timed out never
 finishes later, and a worker that died is replaced the same way. Bounded: at most ``processes``
 tasks run at once, and callers that find no idle worker in time are refused.
+
+The selected implement (``implements/select``, :meth:`PlanningWorkers.set_implement`) travels with
+every task — its stability record and limits, or None for the spec's — and the worker's guard takes
+it before the task runs: no task is planned with a half-applied selection, and a worker replaced
+meanwhile needs nothing but the next task.
 """
 
 from __future__ import annotations
@@ -112,6 +117,16 @@ class _WorkerContext:
         from bridge.service.maneuvers.language import guarded_plan_step
 
         self.plan_step = guarded_plan_step(self.guard)
+        self._selected: tuple[Any, Any] | None = None  # the implement (record, limits) the guard has
+
+    def select(self, implement: tuple[Any, Any] | None) -> None:
+        """Give the guard the selected implement's record and limits (None: keep what it has)."""
+        if implement is None or implement == self._selected:
+            return
+        record, limits = implement
+        self.guard.set_implement(record)
+        self.guard.set_implement_limits(limits)
+        self._selected = implement
 
     def run(self, kind: str, args: tuple[Any, ...]) -> Any:
         if kind == "preview":
@@ -166,10 +181,11 @@ def _worker_main(conn: multiprocessing.connection.Connection, spec: WorkerSpec, 
     ctx = _WorkerContext(spec)
     while True:
         try:
-            kind, args = conn.recv()
+            kind, args, implement = conn.recv()
         except (EOFError, OSError):
             return
         try:
+            ctx.select(implement)
             reply: tuple[Any, ...] = ("ok", ctx.run(kind, args))
         except Exception as exc:  # noqa: BLE001 — every failure goes back as a code and a text
             text = str(exc) if error_code(exc) != "internal" else f"internal error {type(exc).__name__}: {exc}"
@@ -235,6 +251,7 @@ class PlanningWorkers:
         self._all: set[_Worker] = set()
         self._lock = threading.Lock()
         self._closed = False
+        self._implement: tuple[Any, Any] | None = None  # the selected implement, sent with every task
         self.replaced = 0
         """Workers terminated and replaced (timed out or died) since start."""
 
@@ -259,6 +276,11 @@ class PlanningWorkers:
             self.replaced += 1
             self._idle.put(self._spawn())
 
+    def set_implement(self, implement: Any, limits: Any) -> None:
+        """The selected implement (an ``ImplementRecord`` or None, its ``ImplementLimits``) for every
+        later task (``implements/select``; see the module docstring)."""
+        self._implement = (implement, limits)
+
     @property
     def pids(self) -> tuple[int, ...]:
         with self._lock:
@@ -278,7 +300,7 @@ class PlanningWorkers:
                 "busy", f"all {self.processes} planning processes stayed busy for {timeout_s:.1f} s; not run later"
             ) from None
         try:
-            w.conn.send((kind, args))
+            w.conn.send((kind, args, self._implement))
             if not w.conn.poll(max(0.0, t_end - time.monotonic())):
                 self._replace(w)
                 raise WorkerError(
@@ -321,7 +343,7 @@ class PlanningWorkers:
             for _ in range(self.processes):
                 w = self._idle.get(timeout=max(0.01, t_end - time.monotonic()))
                 taken.append(w)
-                w.conn.send(("ping", ()))
+                w.conn.send(("ping", (), None))
             for w in list(taken):
                 if not w.conn.poll(max(0.0, t_end - time.monotonic())):
                     taken.remove(w)

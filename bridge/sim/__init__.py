@@ -13,6 +13,7 @@ The twin of the thesis's PhyCORE-MPC555 cylinder ECU (thesis §2.4–2.5.6):
 * :mod:`bridge.sim.fault_injector` — the node's bus through injected faults (cut, loss, delay, restart);
 * :mod:`bridge.sim.rig`        — ECU node and planner link on a private bus in simulated time;
 * :mod:`bridge.sim.truth`      — the twin's own true machine (truth profile, pin play), tape perturbation, instrument;
+* :mod:`bridge.sim.accuracy_run` — the thesis's accuracy test (tables 3-8 … 3-10) against the twin;
 * :mod:`bridge.sim.move`       — the closed-loop move experiment of ``hitch sim move``;
 * :mod:`bridge.sim.terrain`    — the tractor driving over terrain: attitude, implement ground, crop row;
 * :mod:`bridge.sim.sensors`    — the tractor's sensor payloads (slope, wheel speed, ground, row);
@@ -37,6 +38,14 @@ from typing import TYPE_CHECKING
 from planner.lazy import lazy_exports
 
 if TYPE_CHECKING:
+    from bridge.sim.accuracy_run import (
+        INSTRUMENTS,
+        AccuracyRun,
+        AccuracyRunSettings,
+        FrameReading,
+        read_frame,
+        run_accuracy_test,
+    )
     from bridge.sim.can_node import (
         EcuCanNode,
         EcuNodeConfig,
@@ -247,6 +256,17 @@ _SOURCES: dict[str, str] = {
     ),
     **dict.fromkeys(
         (
+            "INSTRUMENTS",
+            "AccuracyRun",
+            "AccuracyRunSettings",
+            "FrameReading",
+            "read_frame",
+            "run_accuracy_test",
+        ),
+        "bridge.sim.accuracy_run",
+    ),
+    **dict.fromkeys(
+        (
             "COORDINATE_FIELDS",
             "LENGTH_FIELDS",
             "MARKED_POINTS",
@@ -382,6 +402,13 @@ __all__ = [
     "SimError",
     "SimRig",
     "SimSettings",
+    # the thesis's accuracy test against the twin (bridge.sim.accuracy_run)
+    "INSTRUMENTS",
+    "AccuracyRun",
+    "AccuracyRunSettings",
+    "FrameReading",
+    "read_frame",
+    "run_accuracy_test",
     # the twin's own true machine, tape perturbation, measuring instrument (bridge.sim.truth)
     "COORDINATE_FIELDS",
     "LENGTH_FIELDS",

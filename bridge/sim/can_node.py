@@ -44,7 +44,8 @@ import math
 import threading
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
+from typing import Protocol
 
 import can
 
@@ -75,7 +76,16 @@ from bridge.sim.ecu import CylinderECU
 from bridge.sim.fault_injector import FaultCounters, FaultInjector, FaultSettings
 from planner.errors import HitchInputError
 
-__all__ = ["EcuCanNode", "EcuNodeConfig", "EcuNodeCounters", "EcuNodeError", "lift_fraction"]
+__all__ = ["DraftSource", "EcuCanNode", "EcuNodeConfig", "EcuNodeCounters", "EcuNodeError", "lift_fraction"]
+
+
+class DraftSource(Protocol):
+    """What fills the draft fields of the rear hitch status (e.g. a field run's draft pins): called at
+    ``now_s`` when the frame is due, it returns a status whose ``draft_n``, ``nominal_lower_link_force``
+    and ``in_work`` the node sends (its position and limit status are the node's own), or None."""
+
+    def __call__(self, now_s: float) -> RearHitchStatus | None: ...
+
 
 #: the messages the ECU reads (every other known message is counted ``ignored`` without decoding it)
 _CONSUMED_PGNS = frozenset({PGN_HEARTBEAT, PGN_POSITION_REFERENCE, PGN_PARAMETERS})
@@ -227,6 +237,8 @@ class EcuCanNode:
         self._operating = False  # address claimed and periodic traffic running
         self._last_malformed = ""
         self._lock = threading.RLock()
+        self.draft_source: DraftSource | None = None
+        """Fills RearDraft / the nominal lower-link force of the hitch status (None: not available)."""
 
     # -- properties --------------------------------------------------------------------
     @property
@@ -425,7 +437,7 @@ class EcuCanNode:
         if self._measurement.fire(now_s):
             self._send([self._measurement_frame()])
         if self._hitch.fire(now_s):
-            self._send([self._hitch_frame()])
+            self._send([self._hitch_frame(now_s)])
 
     def _measurement_frame(self) -> can.Message:
         c = [int(v) for v in self._ecu.measurement_counts()]  # lift, tilt, top, left, right
@@ -438,7 +450,7 @@ class EcuCanNode:
         )
         return self._codec.encode(payload, source=self._cfg.source_address)
 
-    def _hitch_frame(self) -> can.Message:
+    def _hitch_frame(self, now_s: float) -> can.Message:
         lift_min, lift_max = self._ecu.lift_calibration_counts()
         counts = int(self._ecu.measurement_counts()[0])
         fraction = lift_fraction(counts, lift_min, lift_max)
@@ -446,6 +458,9 @@ class EcuCanNode:
         if self._ecu.relay_engaged()[0]:
             limit = LimitStatus.LIMITED_HIGH if fraction > 0.5 else LimitStatus.LIMITED_LOW
         payload = RearHitchStatus(position=fraction, limit_status=limit)
+        draft = self.draft_source(now_s) if self.draft_source is not None else None
+        if draft is not None:
+            payload = replace(draft, position=fraction, limit_status=limit)
         return self._codec.encode(payload, source=self._cfg.source_address)
 
     def _send(self, frames: list[can.Message]) -> None:

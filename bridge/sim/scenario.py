@@ -15,7 +15,8 @@ Sections (SI units; the names carry them)::
                 phase_rad, [[terrain.cross_slope_wave]] amplitude_rad, wavelength_m, phase_rad
                 or csv = "file.csv" (columns distance_m,height_m[,cross_slope_rad])
     [signals]   row_offset_rms_m, row_wavelength_min_m, row_wavelength_max_m, row_noise_rms_m,
-                row_rate_hz, seed
+                row_rate_hz, seed, row_camera_ahead_m (0..20: the camera's look-ahead ahead of
+                the implement; 0 = under it)
 
 CSV files (read with :mod:`csv`, paths relative to the TOML file) have a header row naming the
 columns; errors give the file and the line number.
@@ -117,6 +118,7 @@ class _SignalsSpec(_Strict):
     row_wavelength_max_m: float = Field(default=30.0, ge=0.1, le=1000.0)
     row_noise_rms_m: float = Field(default=0.005, ge=0.0, le=0.5)
     row_rate_hz: float = Field(default=10.0, ge=0.1, le=100.0)
+    row_camera_ahead_m: float = Field(default=0.0, ge=0.0, le=20.0)
     seed: int = Field(default=0, ge=0, le=2**63 - 1)
 
     @model_validator(mode="after")
@@ -264,6 +266,7 @@ def scenario_from_dict(data: Any, *, source: str = "<dict>", base: Traversable |
                 noise_rms_m=s.row_noise_rms_m,
                 rate_hz=s.row_rate_hz,
                 seed=s.seed,
+                camera_ahead_m=s.row_camera_ahead_m,
             ),
             implement_behind_m=tr.implement_behind_m,
         )

@@ -42,7 +42,9 @@ contact plane at that point (the hitch pose gives ``H``) reads ``H - implement_g
 Crop row. The row's lateral position under the implement is a band-limited function of the
 distance (a sum of ``n`` sines with log-spaced wavelengths in a band and seeded random phases,
 amplitudes set so the RMS is ``rms``); the camera adds white noise of ``noise_rms`` per sample
-and updates at ``rate_hz`` (sample and hold). Everything is seeded and deterministic.
+and updates at ``rate_hz`` (sample and hold). The camera sees the row ``camera_ahead_m`` ahead of
+the implement (0: under it; a camera on the tractor's front axle gives a preview). Everything is
+seeded and deterministic.
 """
 
 from __future__ import annotations
@@ -354,6 +356,11 @@ class RowSignal:
         rate_hz: camera update rate [Hz].
         seed: seeds the phases and the noise.
         components: number of sines.
+        camera_ahead_m: where along the travel the camera sees the row, ahead of the implement [m]
+            (the look-ahead d = camera position − implement position; 0 = a camera under the
+            implement, no preview). A camera at the tractor's front axle sees the row
+            ``wheelbase_m + implement_behind_m`` ahead (3.9 m for the default tractor): the offset
+            seen now is the implement's target d / v seconds later.
     """
 
     rms_m: float = 0.02
@@ -363,6 +370,7 @@ class RowSignal:
     rate_hz: float = 10.0
     seed: int = 0
     components: int = 24
+    camera_ahead_m: float = 0.0
     _phases: tuple[float, ...] = field(init=False, repr=False, compare=False)
     _wavenumbers: tuple[float, ...] = field(init=False, repr=False, compare=False)
 
@@ -376,6 +384,7 @@ class RowSignal:
             raise TerrainError(f"seed must be an integer in [0, 2^63), got {self.seed!r}")
         if isinstance(self.components, bool) or not isinstance(self.components, int) or not 1 <= self.components <= 256:
             raise TerrainError(f"components must be an integer in [1, 256], got {self.components!r}")
+        _number("camera_ahead_m", self.camera_ahead_m, 0.0, 20.0)
         rng = np.random.default_rng([self.seed, 0])
         lam = np.geomspace(self.wavelength_max_m, self.wavelength_min_m, self.components)
         object.__setattr__(self, "_wavenumbers", tuple(float(k) for k in 2.0 * math.pi / lam))
@@ -486,6 +495,8 @@ class TerrainTwin:
         return self.row.true_offset_m(self.distance_m(t) - self.implement_behind_m)
 
     def row_measured_offset_m(self, t: float) -> float:
-        """The camera's reading at ``t``: the sample taken at the last 1/rate_hz tick, with its noise."""
+        """The camera's reading at ``t``: the sample taken at the last 1/rate_hz tick, with its noise,
+        of the row :attr:`RowSignal.camera_ahead_m` ahead of the implement."""
         k = self.row.sample_index(t)
-        return self.row_true_offset_m(k / self.row.rate_hz) + self.row.noise_m(k)
+        s = self.distance_m(k / self.row.rate_hz) - self.implement_behind_m + self.row.camera_ahead_m
+        return self.row.true_offset_m(s) + self.row.noise_m(k)

@@ -7,6 +7,9 @@ service's own API handler. Modules, one concept each:
 * :mod:`.server`    — :class:`~.server.WebServer` and :func:`~.server.start_http` (the hook the
   service calls), :func:`~.server.attach_zenoh`;
 * :mod:`.hub`       — the WebSocket sessions: state/event fan-out, commands in;
+* :mod:`.view`      — :class:`~.view.HitchView`, the hitch picture's numbers (the model's points
+  for the measured and the target actuators);
+* :mod:`.wording`   — the operator words of the service's limit codes (pure tables);
 * :mod:`.settings`  — :class:`~.settings.WebSettings`, address parsing, Host/Origin checks;
 * :mod:`.http`      — a minimal HTTP/1.1 reader and writer on asyncio streams;
 * :mod:`.websocket` — RFC 6455 framing and handshake;
@@ -35,7 +38,9 @@ if TYPE_CHECKING:
         start_http,
     )
     from bridge.web.settings import WebSettings, WebSettingsError, parse_address
+    from bridge.web.view import VIEW_RATE_HZ, HitchView, limit_codes
     from bridge.web.websocket import WebSocket, WebSocketError
+    from bridge.web.wording import limited_words, words
 
 #: public name -> the module that defines it
 _SOURCES: dict[str, str] = {
@@ -46,6 +51,8 @@ _SOURCES: dict[str, str] = {
     **dict.fromkeys(("ClientHub", "CommandError"), "bridge.web.hub"),
     **dict.fromkeys(("WebSettings", "WebSettingsError", "parse_address"), "bridge.web.settings"),
     **dict.fromkeys(("HttpError", "HttpRequest"), "bridge.web.http"),
+    **dict.fromkeys(("HitchView", "VIEW_RATE_HZ", "limit_codes"), "bridge.web.view"),
+    **dict.fromkeys(("words", "limited_words"), "bridge.web.wording"),
     **dict.fromkeys(("WebSocket", "WebSocketError"), "bridge.web.websocket"),
 }
 
@@ -71,6 +78,12 @@ __all__ = [
     # WebSocket framing (bridge.web.websocket)
     "WebSocket",
     "WebSocketError",
+    # the hitch picture (bridge.web.view) and the limit words (bridge.web.wording)
+    "HitchView",
+    "VIEW_RATE_HZ",
+    "limit_codes",
+    "words",
+    "limited_words",
 ]
 
 

@@ -2,7 +2,8 @@
 
 :class:`ClientHub` lives on the web server's asyncio loop. For each page it keeps a *slot* with
 the newest state message (a slow page skips states, it never builds a backlog: what it draws is
-always the latest) and a bounded queue of events (events are not skipped unless a page falls
+always the latest; the same for the hitch picture's ``view`` message, and the ``terminal``
+message once) and a bounded queue of events (events are not skipped unless a page falls
 200 behind). Commands ``{"id", "key", "payload"}`` are answered ``{"type": "reply", "id", "ok",
 "data"}`` through the service handler, run on a thread pool by the ``call`` coroutine the server
 hands in, as the page's user. Jog commands of one page are serialised: while one is in the handler
@@ -40,8 +41,8 @@ CLOSE_SESSION_ENDED = 4401
 EVENTS_KEPT = 200
 #: commands of one page in the handler at once; more are answered ``busy``
 MAX_PENDING = 32
-#: a service API name: ``goto``, ``presets/save`` …
-API_NAME = re.compile(r"^[a-z]+(/[a-z]+)?$")
+#: a service API name: ``goto``, ``presets/save``, ``maneuvers/record/start`` …
+API_NAME = re.compile(r"^[a-z]+(/[a-z]+){0,2}$")
 
 
 class CommandError(HitchInputError):
@@ -61,6 +62,8 @@ class _Client:
         self.jog_busy = False
         self.jog_next: tuple[Any, bytes] | None = None
         self.tasks: set[asyncio.Task] = set()
+        self.view: str | None = None  # the newest ``view`` message (a slot, like the state)
+        self.terminal: str | None = None  # the ``terminal`` message, once
         if state is not None:
             self.wake.set()
 
@@ -74,6 +77,8 @@ class ClientHub:
         self.sessions = sessions
         self._clients: set[_Client] = set()
         self.state_text: str | None = None
+        self.view_text: str | None = None
+        self.terminal_text: str | None = None
 
     def __len__(self) -> int:
         return len(self._clients)
@@ -84,6 +89,20 @@ class ClientHub:
         self.state_text = json.dumps({"type": "state", "data": json_safe(state)}, allow_nan=False)
         for c in self._clients:
             c.state = self.state_text
+            c.wake.set()
+
+    def view(self, view: dict) -> None:
+        """A new ``view`` message (the hitch picture's points) for every page; newest only, like the state."""
+        self.view_text = json.dumps({"type": "view", "data": json_safe(view)}, allow_nan=False)
+        for c in self._clients:
+            c.view = self.view_text
+            c.wake.set()
+
+    def terminal(self, terminal: dict) -> None:
+        """The ``terminal`` message (what the picture needs once) for every page, and for pages to come."""
+        self.terminal_text = json.dumps({"type": "terminal", "data": json_safe(terminal)}, allow_nan=False)
+        for c in self._clients:
+            c.terminal = self.terminal_text
             c.wake.set()
 
     def event(self, event: dict) -> None:
@@ -116,6 +135,9 @@ class ClientHub:
             return
         who = session.user if session is not None else user
         client = _Client(ws, self.state_text, session, who)
+        client.terminal, client.view = self.terminal_text, self.view_text
+        if client.terminal is not None or client.view is not None:
+            client.wake.set()
         self._clients.add(client)
         sender = asyncio.create_task(self._sender(client))
         hello = {**self.hello, "user": who, "role": None if session is None else session.role}
@@ -153,10 +175,16 @@ class ClientHub:
                 if not self._session_alive(c):
                     await c.ws.close(CLOSE_SESSION_ENDED, "session expired: log in again")
                     return
+                if c.terminal is not None:
+                    text, c.terminal = c.terminal, None
+                    await c.ws.send_text(text)
                 while c.events:
                     await c.ws.send_text(c.events.popleft())
                 if c.state is not None:
                     text, c.state = c.state, None
+                    await c.ws.send_text(text)
+                if c.view is not None:
+                    text, c.view = c.view, None
                     await c.ws.send_text(text)
         except (ConnectionError, OSError, asyncio.CancelledError):
             return

@@ -10,9 +10,14 @@ One asyncio loop in its own thread serves:
   service's own. ``ok`` → 200 with the reply; otherwise the reply ``{"error", "message"}`` with
   the status from :data:`~.settings.ERROR_STATUS`;
 * ``GET /api/state`` — the latest state message; ``GET /api/info`` — user and key prefix;
+* ``GET /api/view`` — the hitch picture's numbers for the latest state (:mod:`.view`: the model's
+  points for the measured and the target actuators); ``GET /api/terminal`` — what the picture
+  needs once (ground, workspace, thresholds, the operator words of every limit code). Both 503
+  while the model is still being built (it is built in the background when first asked for);
 * ``GET /ws`` — a WebSocket (:class:`~.hub.ClientHub`): every state message the service
   publishes (50 Hz; a slow page gets the newest, never a backlog), every event, and command
-  replies;
+  replies; besides, once ``{"type": "terminal"}`` and, at most :data:`~.view.VIEW_RATE_HZ` and
+  only while a page is connected, ``{"type": "view"}`` (the same as ``/api/view``);
 * ``GET /api/session``, ``POST /api/login`` ``{"user", "password"}``, ``POST /api/logout`` — the
   login (:mod:`.sessions`), when the terminal has accounts.
 
@@ -39,7 +44,9 @@ import asyncio
 import functools
 import json
 import logging
+import math
 import threading
+import time
 from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -59,6 +66,7 @@ from bridge.web.sessions import (
     set_cookie,
 )
 from bridge.web.settings import ERROR_STATUS, WebSettings, host_allowed, json_safe, origin_allowed, parse_address
+from bridge.web.view import VIEW_RATE_HZ, HitchView
 from bridge.web.websocket import WebSocket, WebSocketError, accept_key
 from planner.errors import HitchError, HitchInputError
 
@@ -136,6 +144,9 @@ class WebServer:
         info: extra fields for ``GET /api/info`` and the WebSocket hello (e.g. the key prefix).
         accounts: who may log in (:class:`~.sessions.Accounts`); None: no login, commands run as
             ``settings.user``.
+        view: the hitch picture (:class:`~.view.HitchView`), or a function that builds one (called
+            once, on a thread of its own, when a page or ``/api/view`` first needs it: building a
+            model takes seconds); None: no picture (``/api/view`` answers 404).
     """
 
     def __init__(
@@ -145,6 +156,7 @@ class WebServer:
         *,
         info: dict | None = None,
         accounts: Accounts | None = None,
+        view: HitchView | Callable[[], HitchView] | None = None,
     ):
         if not callable(handler):
             raise WebServerError("handler must be callable as handle(name, payload_bytes, user)")
@@ -164,7 +176,15 @@ class WebServer:
         self._state: dict | None = None
         self._address: tuple[str, int] | None = None
         self._on_close: list[Callable[[], None]] = []
-        self.counts = {"state": 0, "events": 0, "requests": 0}
+        self.counts = {"state": 0, "events": 0, "requests": 0, "views": 0}
+        self._view: HitchView | None = view if isinstance(view, HitchView) else None
+        self._view_factory: Callable[[], HitchView] | None = None if isinstance(view, HitchView) else view
+        self._view_error: str | None = None
+        self._view_building = False
+        self._view_msg: dict | None = None
+        self._view_at = -math.inf  # monotonic time of the last view message
+        if self._view is not None:
+            self._hub.terminal(self._view.terminal())
 
     # ------------------------------------------------------------------ life cycle
     def start(self, timeout_s: float = 5.0) -> WebServer:
@@ -283,6 +303,78 @@ class WebServer:
         self._state = state
         self.counts["state"] += 1
         self._hub.state(state)
+        now = time.monotonic()
+        # the picture: only while a page is connected, at most VIEW_RATE_HZ
+        if self._view is not None and len(self._hub) > 0 and now - self._view_at >= 1.0 / VIEW_RATE_HZ:
+            self._view_at = now
+            self._send_view(state)
+
+    # ------------------------------------------------------------------ the hitch picture (loop thread)
+    def _send_view(self, state: dict) -> dict | None:
+        view = self._view
+        if view is None:
+            return None
+        try:
+            msg = view.message(state)
+        except Exception:  # noqa: BLE001 — a state the picture cannot take never stops the terminal
+            log.exception("operator terminal: the hitch picture failed for state seq %s", state.get("seq"))
+            return None
+        self._view_msg = msg
+        self.counts["views"] += 1
+        self._hub.view(msg)
+        return msg
+
+    def _want_view(self) -> None:
+        """Build the picture's model in the background the first time it is needed."""
+        factory = self._view_factory
+        if self._view is not None or factory is None or self._view_building or self._view_error is not None:
+            return
+        self._view_building = True
+
+        def build() -> None:
+            try:
+                view = factory()
+            except Exception as exc:  # noqa: BLE001 — reported on /api/view and in the log
+                log.warning("operator terminal: no hitch picture: %s", exc)
+                self._post(self._view_failed, f"{type(exc).__name__}: {exc}")
+                return
+            self._post(self._view_ready, view)
+
+        threading.Thread(target=build, name="hitch-web-view", daemon=True).start()
+
+    def _view_ready(self, view: HitchView) -> None:
+        self._view, self._view_building = view, False
+        self._hub.terminal(view.terminal())
+        if self._state is not None and len(self._hub) > 0:
+            self._view_at = time.monotonic()
+            self._send_view(self._state)
+
+    def _view_failed(self, why: str) -> None:
+        self._view_error, self._view_building = why, False
+
+    def _view_route(self, req: HttpRequest) -> bytes:
+        ka = req.keep_alive
+        if req.method != "GET":
+            return _error(405, "bad_request", f"use GET for {req.path}", ka)
+        if self._view is None:
+            if self._view_factory is None:
+                return _error(404, "not_found", "this terminal has no hitch picture (no model given)", ka)
+            self._want_view()
+            if self._view_error is not None:
+                return _error(503, "unavailable", f"the hitch picture is unavailable: {self._view_error}", ka)
+            return _error(503, "unavailable", "the hitch picture's model is being built; ask again shortly", ka)
+        if req.path == "/api/terminal":
+            return json_response(200, json_safe(self._view.terminal()), keep_alive=ka)
+        if self._state is None:
+            return _error(503, "unavailable", "the service has published no state yet", ka)
+        msg = (
+            self._send_view(self._state)
+            if self._view_msg is None or self._view_msg.get("seq") != self._state.get("seq")
+            else self._view_msg
+        )
+        if msg is None:
+            return _error(500, "internal", "the hitch picture failed for the latest state (see the log)", ka)
+        return json_response(200, json_safe(msg), keep_alive=ka)
 
     def _on_event(self, event: dict) -> None:
         self.counts["events"] += 1
@@ -433,6 +525,8 @@ class WebServer:
             if self._state is None:
                 return _error(503, "unavailable", "the service has published no state yet", ka)
             return json_response(200, json_safe(self._state), keep_alive=ka)
+        if req.path in ("/api/view", "/api/terminal"):
+            return self._view_route(req)
         if req.path == "/api/info" and req.method == "GET":
             info = dict(self.info)
             if session is not None:
@@ -490,6 +584,8 @@ class WebServer:
         )
         await writer.drain()
         session = self._session(req)  # None with a login: the hub closes the socket with 4401 (log in first)
+        if session is not None or not self.login_required:
+            self._want_view()
         await self._hub.serve(WebSocket(reader, writer), session, self.settings.user)
 
 
@@ -524,6 +620,16 @@ def _role_of(policy: Any) -> Callable[[str], str | None]:
         return lambda _user: "operator"
     operators, viewers = tuple(getattr(policy, "operators", ())), tuple(getattr(policy, "viewers", ()))
     return lambda user: "operator" if user in operators else "viewer" if user in viewers else None
+
+
+def _view_factory(config: Any) -> Callable[[], HitchView] | None:
+    """The hitch picture of the service's profile, category and implement (its config, duck-typed);
+    None when the config names no profile."""
+    profile = getattr(config, "profile", None)
+    if not isinstance(profile, str):
+        return None
+    category, implement = getattr(config, "category", None), getattr(config, "implement", None)
+    return functools.partial(HitchView.build, profile, category, implement)
 
 
 def start_http(
@@ -580,6 +686,7 @@ def start_http(
         WebSettings(host=host, port=port, user=user, extra_hosts=tuple(extra_hosts)),
         info={"prefix": prefix},
         accounts=accounts,
+        view=_view_factory(config),
     ).start()
     try:
         if callable(getattr(service, "add_listener", None)):

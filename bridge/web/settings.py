@@ -41,6 +41,8 @@ ERROR_STATUS = {
     "forbidden": 403,
     "mode": 409,
     "busy": 409,
+    "locked": 409,
+    "in_use": 409,
     "ecu": 503,
     "unavailable": 503,
     "unreachable": 422,

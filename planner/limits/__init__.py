@@ -13,6 +13,7 @@ from planner.lazy import lazy_exports
 if TYPE_CHECKING:
     from planner.limits.end_stop import EndStopZone
     from planner.limits.guard import Guard, GuardDecision, GuardedPlan, GuardReason, GuardRefusal
+    from planner.limits.implement_limits import ImplementLimitError, ImplementLimits
     from planner.limits.kinematic_margin import DofMargin, KinematicMargin
     from planner.limits.stability import (
         EDGE_NAMES,
@@ -88,6 +89,7 @@ _SOURCES: dict[str, str] = {
     ),
     **dict.fromkeys(("DofMargin", "KinematicMargin"), "planner.limits.kinematic_margin"),
     "EndStopZone": "planner.limits.end_stop",
+    **dict.fromkeys(("ImplementLimits", "ImplementLimitError"), "planner.limits.implement_limits"),
 }
 
 __all__ = [
@@ -128,6 +130,8 @@ __all__ = [
     "DofMargin",
     "KinematicMargin",
     "EndStopZone",
+    "ImplementLimits",
+    "ImplementLimitError",
 ]
 
 if not TYPE_CHECKING:

@@ -26,6 +26,14 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from planner.limits.end_stop import EndStopZone
+from planner.limits.implement_limits import (
+    LOWERING_SPEED_LIMIT,
+    UPPER_HEIGHT_LIMIT,
+    ImplementLimits,
+    clip_jog_z_rate,
+    lowering_speed_factor,
+    upper_height_violation,
+)
 from planner.limits.kinematic_margin import KinematicMargin, kinematic_margin
 from planner.limits.stability import StabilityReport, StabilityThresholds, _cross3, evaluate_stability
 from planner.limits.stability_batch import StabilityBatch, evaluate_stability_batch
@@ -115,8 +123,11 @@ class Guard:
         tractor: Tractor | None = None,
         implement: ImplementRecord | None = None,
         thresholds: StabilityThresholds | None = None,
+        implement_limits: ImplementLimits | None = None,
     ):
         self.planner = planner
+        #: the implement's upper height, lowering speed and transport lock (:mod:`.implement_limits`)
+        self.implement_limits = implement_limits if implement_limits is not None else ImplementLimits()
         self.model: HitchModel = planner.model
         prof = self.model.profile
         self.settings = prof.stability
@@ -142,6 +153,10 @@ class Guard:
 
     def set_implement(self, implement: ImplementRecord | None) -> None:
         self.implement = implement
+
+    def set_implement_limits(self, limits: ImplementLimits) -> None:
+        """The implement's limits (:mod:`planner.limits.implement_limits`) for every later check."""
+        self.implement_limits = limits
 
     # ------------------------------------------------------------------ single states
     def stability_at(self, q, points=None) -> StabilityReport:
@@ -202,6 +217,11 @@ class Guard:
         """:meth:`check_setpoints` with ``cache``: the per-sample results by actuator bytes, to
         share between the plans of one :meth:`plan` (same slope, implement and thresholds)."""
         Q, QD, ts = np.asarray(sp.actuators, float), np.asarray(sp.actuator_velocity, float), sp.t
+        above = upper_height_violation(np.asarray(sp.pose, float)[:, 2], self.implement_limits)
+        if above is not None:  # the implement's upper height limit (implement_limits)
+            upper = float(self.implement_limits.upper_height_m or 0.0)
+            reason = GuardReason(UPPER_HEIGHT_LIMIT, above[1], upper, float(ts[above[0]]), "hard")
+            return GuardDecision("refused", 0.0, (reason,))
         P, suspect = self._points_batch(Q)
         fk_ok = ~suspect  # rows whose batch points are HitchModel.forward's, bit for bit
 
@@ -260,6 +280,11 @@ class Guard:
         if end_stop is not None:
             k_end, factor, i = end_stop
             reasons.append(GuardReason(_END_STOP_NAMES[i], factor, 1.0, float(ts[k_end]), "speed"))
+        lowering = lowering_speed_factor(np.asarray(sp.pose_velocity, float)[:, 1], self.implement_limits)
+        if lowering is not None:  # slowed as a whole (Ruckig's z limit is symmetric): a "speed" reason
+            k_low, f_low, _ = lowering
+            reasons.append(GuardReason(LOWERING_SPEED_LIMIT, f_low, 1.0, float(ts[k_low]), "speed"))
+            factor = min(factor, f_low)
         cautions: list[tuple[int, int, GuardReason]] = []
         for j, m in enumerate(_MEASURES):
             if caution[:, j].any():
@@ -380,6 +405,10 @@ class Guard:
             return rates, GuardDecision("ok")
         h = self.settings.jog_horizon
         p_now = state.position
+        vz, clipped_by = clip_jog_z_rate(float(p_now[1]), float(rates[1]), h, self.implement_limits)
+        if clipped_by is not None:  # the implement's lowering speed / upper height (implement_limits)
+            rates = rates.copy()
+            rates[1] = vz
         p_ahead = np.clip(p_now + rates * h, self.planner.lo, self.planner.hi)
         q_now, jac, _ = self.planner.inverse.solve_full(p_now)
         q_ahead = self.planner.inverse(*p_ahead)
@@ -388,6 +417,10 @@ class Guard:
         hard_th, caution_th = self._thresholds()
         reasons: list[GuardReason] = []
         factor = 1.0
+        if clipped_by is not None:
+            lim = self.implement_limits
+            bound = lim.lowering_speed_m_s if clipped_by == LOWERING_SPEED_LIMIT else lim.upper_height_m
+            reasons.append(GuardReason(clipped_by, vz, float(bound or 0.0), 0.0, "speed"))
         for m in _MEASURES:
             worse = vals[m] < now[m] - 1e-9
             if vals[m] < hard_th[m] and worse:
@@ -404,11 +437,19 @@ class Guard:
         if i is not None:
             reasons.append(GuardReason(_END_STOP_NAMES[i], f_end, 1.0, 0.0, "speed"))
             factor = min(factor, f_end)
-        return rates * factor, GuardDecision("ok" if factor >= 1.0 else "scaled", factor, tuple(reasons), ahead)
+        action: Action = "ok" if factor >= 1.0 and clipped_by is None else "scaled"
+        return rates * factor, GuardDecision(action, factor, tuple(reasons), ahead)
 
     def _context(self) -> tuple:
         """What the per-sample results depend on besides the actuators."""
-        return (self.slope, self.implement, id(self.tractor), self.thresholds, self.settings.front_ballast)
+        return (
+            self.slope,
+            self.implement,
+            id(self.tractor),
+            self.thresholds,
+            self.settings.front_ballast,
+            self.implement_limits,
+        )
 
     def _thresholds(self) -> tuple[dict[str, float], dict[str, float]]:
         th, w = self.thresholds, self.tractor.empty_weight

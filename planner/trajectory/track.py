@@ -65,6 +65,7 @@ __all__ = [
     "TrackOutput",
     "TrackSetpoint",
     "TrackStateError",
+    "TrackBounds",
     "TRACK_DOFS",
     "SUBSET_GRID",
     "SUBSET_MARGIN",
@@ -149,6 +150,28 @@ def subset_limits(
     for arr, val in zip(out, (v, acc, jerk), strict=True):
         arr[idx] = val
     return PoseLimits(*out)
+
+
+@dataclass(frozen=True)
+class TrackBounds:
+    """Bounds of a session beyond the workspace (an implement's, :mod:`planner.limits.implement_limits`):
+    ``z_max_m`` [m] lowers the workspace's upper z face (setpoints above it are clipped, flagged
+    ``z_max_name``; a session starting above it may only go down to it), ``z_descent_m_s`` [m/s]
+    bounds the downward z velocity (Ruckig's ``min_velocity``; setpoint velocities below it are
+    clipped, flagged ``z_descent_name``). None: no such bound."""
+
+    z_max_m: float | None = None
+    z_descent_m_s: float | None = None
+    z_max_name: str = "z_max"
+    z_descent_name: str = "z_descent"
+
+    def __post_init__(self) -> None:
+        for name in ("z_max_m", "z_descent_m_s"):
+            v = getattr(self, name)
+            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)):
+                raise TrackInputError(f"bounds.{name} must be a finite number or None, got {v!r}")
+        if self.z_descent_m_s is not None and not self.z_descent_m_s > 0:
+            raise TrackInputError(f"bounds.z_descent_m_s must be > 0 m/s, got {self.z_descent_m_s!r}")
 
 
 class TrackInputError(TrajectoryInputError):
@@ -258,6 +281,8 @@ class TrackFollower:
         ttl_s: a setpoint lives this long (0 < ttl ≤ 5 s); without a fresh one the follower brakes.
         t0_s: the time of ``start`` (the TTL of the session counts from it until the first setpoint).
         resume_after_stale: track a fresh setpoint after the stream went stale (default: refuse it).
+        bounds: extra bounds of the session (:class:`TrackBounds`: an implement's upper height and
+            lowering speed); default none.
     """
 
     def __init__(
@@ -269,6 +294,7 @@ class TrackFollower:
         *,
         t0_s: float = 0.0,
         resume_after_stale: bool = False,
+        bounds: TrackBounds | None = None,
     ):
         if isinstance(dofs, str) or not isinstance(dofs, Collection):
             raise TrackInputError(f"dofs must be a collection of DOF names out of {', '.join(TRACK_DOFS)}")
@@ -287,6 +313,14 @@ class TrackFollower:
         self.ttl_s = ttl
         self.resume_after_stale = bool(resume_after_stale)
         self.dt = 1.0 / planner.rate
+        # the faces the session keeps within: the workspace's, the z top lowered by the bounds
+        self.bounds = bounds if bounds is not None else TrackBounds()
+        self.lo, self.hi = np.asarray(planner.lo, float).copy(), np.asarray(planner.hi, float).copy()
+        self._names = list(WORKSPACE_NAMES)
+        if self.bounds.z_max_m is not None and self.bounds.z_max_m < self.hi[1]:
+            self.hi[1] = max(float(self.bounds.z_max_m), float(self.lo[1]))
+            self._names[1] = (WORKSPACE_NAMES[1][0], self.bounds.z_max_name)
+        self._descent = self.bounds.z_descent_m_s
         self._any = planner.any_direction
         self.limits = self._any  # the subset limits in force (set by reset; a stop to rest: see _rest_limits)
         self.refreshes = 0  # subset limits computed (at reset, and when an untracked DOF came to rest)
@@ -375,8 +409,8 @@ class TrackFollower:
         p, v = p_req.copy(), v_req.copy()
         acc = self._acceleration(acceleration, velocity, v_req, now)
         limited: dict[str, str] = {}
-        lo, hi = self.planner.lo, self.planner.hi
-        for d, (k, (name_min, name_max)) in enumerate(zip(TRACK_DOFS, WORKSPACE_NAMES, strict=True)):
+        lo, hi = self.lo, self.hi
+        for d, (k, (name_min, name_max)) in enumerate(zip(TRACK_DOFS, self._names, strict=True)):
             if not self.tracked[d]:
                 continue
             if p[d] > hi[d]:
@@ -386,10 +420,13 @@ class TrackFollower:
             if abs(v[d]) > self._v_lim[d]:
                 v[d] = math.copysign(self._v_lim[d], v[d])
                 limited[f"v{k}"] = _VELOCITY_NAMES[d]
+        if self._descent is not None and self.tracked[1] and v[1] < -self._descent:
+            v[1], limited["vz"] = -self._descent, self.bounds.z_descent_name
         acc = np.clip(acc, -self._a_lim, self._a_lim)
         # a reachable target state: |v| + a²/(2j) within the velocity limit (Ruckig refuses it otherwise)
         room = np.maximum(self._v_lim * (1 - 1e-6) - np.abs(v), 0.0)
         acc = np.sign(acc) * np.minimum(np.abs(acc), np.sqrt(2 * self._j_lim * room))
+        self._cap_descent_acceleration(v, acc)
         acc = np.where(self.tracked, acc, 0.0)
         sp = TrackSetpoint(now, p_req, v_req, p, v, acc, limited)
         self._sp = sp
@@ -478,7 +515,7 @@ class TrackFollower:
         jerk-limited stop from the target fits before the face (its acceleration then dropped when
         it pushes towards the face)."""
         sp = self._sp
-        lo, hi = self.planner.lo, self.planner.hi
+        lo, hi = self.lo, self.hi
         if sp is None:
             return self.hold.copy(), np.zeros(4), np.zeros(4), {}
         flags = dict(sp.limited)
@@ -489,7 +526,10 @@ class TrackFollower:
         room = np.maximum(vl * (1 - 1e-6) - np.abs(v), 0.0)
         acc = np.clip(sp.acceleration, -al, al)
         acc = np.sign(acc) * np.minimum(np.abs(acc), np.sqrt(2 * self._j_lim * room))
-        for d, (k, (name_min, name_max)) in enumerate(zip(TRACK_DOFS, WORKSPACE_NAMES, strict=True)):
+        if self._descent is not None:
+            v[1] = max(v[1], -self._descent)
+            self._cap_descent_acceleration(v, acc)
+        for d, (k, (name_min, name_max)) in enumerate(zip(TRACK_DOFS, self._names, strict=True)):
             if not self.tracked[d]:
                 continue
             if p[d] >= hi[d]:
@@ -543,6 +583,8 @@ class TrackFollower:
             vel_mode[i] = True
             tv[i] = float(np.clip(v_now[i], -v_lim[i], v_lim[i])) if towards else 0.0
             ta[i] = 0.0
+        if self._descent is not None and not to_rest:  # never re-target faster downwards than the bound
+            tv[1] = max(tv[1], -self._descent)
         try:
             nxt = self._advance(p_t, tv, ta, vel_mode, brake, lim)
             for n in range(3):
@@ -557,7 +599,7 @@ class TrackFollower:
                 down &= ~(brake & vel_mode & (tv >= 0))
                 if not (np.any(up) or np.any(down)):
                     break
-                for d, (k, (name_min, name_max)) in enumerate(zip(TRACK_DOFS, WORKSPACE_NAMES, strict=True)):
+                for d, (k, (name_min, name_max)) in enumerate(zip(TRACK_DOFS, self._names, strict=True)):
                     if up[d] or down[d]:
                         vel_mode[d] = True
                         tv[d] = min(tv[d], 0.0) if up[d] else max(tv[d], 0.0)
@@ -600,7 +642,7 @@ class TrackFollower:
         if self._stale or self._stopping or self._sp is None:
             return np.zeros(4)
         p_t, v_t, _, _ = self.target(self.t)
-        ahead = np.where(self.tracked, np.clip(p_t + v_t * h, self.planner.lo, self.planner.hi), self.state.position)
+        ahead = np.where(self.tracked, np.clip(p_t + v_t * h, self.lo, self.hi), self.state.position)
         return (ahead - self.state.position) / h
 
     # ------------------------------------------------------------------ internals
@@ -673,6 +715,11 @@ class TrackFollower:
         inp = self._in
         inp.per_dof_control_interface = [_VEL if m else _POS for m in vel_mode.tolist()]
         inp.max_velocity = np.maximum(vl, np.maximum(np.abs(tv), 1e-9)).tolist()
+        if self._descent is not None:  # the downward z bound (TrackBounds): Ruckig's asymmetric velocity limit
+            down = np.maximum(vl, np.maximum(-tv, 1e-9))
+            if not vel_mode[1]:
+                down[1] = max(min(down[1], self._descent), -tv[1], 1e-9)
+            inp.min_velocity = (-down).tolist()
         inp.max_acceleration = np.maximum(al, 1e-9).tolist()
         inp.max_jerk = np.maximum(jl, 1e-9).tolist()
         inp.current_position = st.position.tolist()
@@ -695,4 +742,12 @@ class TrackFollower:
         position when that is already outside)."""
         lo, hi = self._probe.extent(state, limits)
         p = self.state.position
-        return hi > np.maximum(self.planner.hi, p) + 1e-9, lo < np.minimum(self.planner.lo, p) - 1e-9
+        return hi > np.maximum(self.hi, p) + 1e-9, lo < np.minimum(self.lo, p) - 1e-9
+
+    def _cap_descent_acceleration(self, v: np.ndarray, acc: np.ndarray) -> None:
+        """In place: a downward target acceleration of z whose velocity would pass the descent bound
+        before it reaches zero (v - a²/(2j) below -bound) is reduced (Ruckig refuses such a target)."""
+        if self._descent is None or acc[1] >= 0:
+            return
+        room = max(self._descent * (1 - 1e-6) + float(v[1]), 0.0)
+        acc[1] = max(float(acc[1]), -math.sqrt(2 * float(self._j_lim[1]) * room))

@@ -245,9 +245,18 @@ def _num(text: str) -> float:
     return float(m.group())
 
 
+def _lateral(text: str) -> float:
+    """The x readout ("left 12.5 mm", "right 3.0 mm", "centre 0.0 mm") in m: +x is the driver's left."""
+    m = re.fullmatch(r"(left|right|centre) (\d+(?:\.\d+)?) mm", text.strip())
+    assert m, f"x readout {text!r} is not 'left/right n mm'"
+    return (-1.0 if m.group(1) == "right" else 1.0) * float(m.group(2)) / 1000
+
+
 def shown_pose(pg) -> dict:
-    """The pose the page shows, in SI (the readouts are mm and mrad)."""
-    return {k: _num(pg.text_content(f"#r-{k}")) / 1000 for k in ("x", "z", "roll", "pitch")}
+    """The pose the page shows, in SI (the readouts are mm and mrad; x as "left/right n mm")."""
+    out = {k: _num(pg.text_content(f"#r-{k}")) / 1000 for k in ("z", "roll", "pitch")}
+    out["x"] = _lateral(pg.text_content("#r-x"))
+    return out
 
 
 def wait_for(cond, timeout_s: float, what: str, period_s: float = 0.05):
@@ -363,15 +372,84 @@ def test_goto_moves_the_gauges_and_they_settle_at_the_target(service, page, shot
     wait_js(page, "document.getElementById('motion').textContent === 'Idle'")
     wait_js(page, "/^motion #\\d+ finished$/.test(document.getElementById('goto-result').textContent)")
     wait_js(page, "document.getElementById('ecu').dataset.activity === 'holding'")  # settled: valves at rest
-    # the pose the page shows is the service's measured one, which meets the target unrounded
-    measured = service.state()["pose"]
+
+    # the pose the page shows is the service's measured one (to the readouts' last digit), which meets the
+    # target unrounded. The page draws a state some tens of ms after the service published it, and at rest
+    # the measurement may still step by a count: compare a shown pose with a state read on both sides of it
+    # that did not change in between, and read again (bounded) until they agree.
+    def shown_equals_measured():
+        before = service.state()["pose"]
+        shown = shown_pose(page)
+        after = service.state()["pose"]
+        if before != after:
+            return None
+        return after if all(abs(shown[k] - after[k]) <= 0.5e-4 + 1e-9 for k in goal) else None
+
+    measured = wait_for(shown_equals_measured, 5, "the page to show the service's measured pose")
     assert within_steady_state_target(measured, goal), (measured, goal)
-    assert all(abs(shown_pose(page)[k] - measured[k]) <= 0.5e-4 + 1e-9 for k in goal)
     page.screenshot(path=str(shots / "04-goto-settled.png"))
     # the target markers sit where the gauges settled
     assert page.evaluate("getComputedStyle(document.querySelector('#g-z .target')).display") != "none"
     ref = service.state()["reference"]["pose"]
     assert all(ref[k] == pytest.approx(goal[k], abs=1e-6) for k in goal)  # the service's target is exact
+
+
+def _view(service) -> dict:
+    with urllib.request.urlopen(service.url + "api/view", timeout=5) as r:
+        return json.loads(r.read())
+
+
+def test_the_hitch_picture_shows_the_model_live_in_operator_units(service, page, shots):
+    """Rear and side views from the model's points, lift in %, heights above ground, the target ghosted
+    during a motion; angles in mrad or degrees (a setting kept by the browser)."""
+    from planner.profiles.hitch import load_profile
+
+    at_rest(service, page)
+    page.wait_for_selector("#v-rear circle[data-point=L]", state="attached", timeout=15_000)
+    pivot_height = load_profile("thesis-t132").geometry.pivot_height
+    # the tool point's height above ground: the service's own z + the pivots' height above ground (profile)
+    st, view = service.state(), _view(service)
+    assert view["measured"]["above_ground"]["T"] == pytest.approx(st["pose"]["z"] + pivot_height, abs=2e-4)
+    ground = page.text_content("#r-ground")
+    shown = [float(v) / 1000 for v in re.findall(r"\b[LR] (\d+)", ground)]
+    assert shown == [pytest.approx(view["measured"]["above_ground"][n], abs=1.5e-3) for n in ("L", "R")], ground
+    # rear view: the left lower hitch point (x > 0, the driver's left) is drawn on the left
+    lx, rx = (float(page.get_attribute(f"#v-rear circle[data-point={n}]", "cx")) for n in ("L", "R"))
+    assert view["measured"]["points"]["L"][0] > 0 > view["measured"]["points"]["R"][0] and lx < rx
+    # lift in % of its stroke (config strokes, the state's lift angle)
+    lo, hi = service.api("config")[1]["limits"]["strokes"]["lift"]
+    lift_percent = 100 * (st["actuators"]["lift"] - lo) / (hi - lo)
+    assert _num(page.text_content("#act-lift .val")) == pytest.approx(lift_percent, abs=0.3)
+    assert page.evaluate("window.hitchTerminal.inWords('refused: stroke:top:max active')").endswith(
+        "— top link at its stroke end (longest)"
+    )
+    # during a motion the target (the reference's points) is drawn dashed over the measured hitch
+    z0 = st["pose"]["z"]
+    assert service.api("goto", {"goal": {"z": -0.1 if z0 > 0.05 else 0.2, "x": 0.03}, "speed_scale": 0.3})[0] == 200
+    wait_js(page, "getComputedStyle(document.querySelector('#v-rear .ghost')).display !== 'none'")
+    time.sleep(0.6)
+    page.screenshot(path=str(shots / "19-hitch-moving.png"))
+    wait_for(lambda: not service.state()["moving"], 20, "the motion to end")
+    wait_js(page, "getComputedStyle(document.querySelector('#v-rear .ghost')).display === 'none'")
+    # angles in degrees: a setting of this browser, kept over a reload
+    assert page.text_content("#angle-unit") == "Angles: mrad"
+    page.click("#angle-unit")
+    assert page.text_content("#angle-unit") == "Angles: deg"
+    page.reload()
+    wait_js(page, "document.getElementById('conn').textContent.startsWith('Service: connected')")
+    assert page.text_content("#angle-unit") == "Angles: deg"
+    wait_js(page, "document.getElementById('r-roll').textContent.endsWith(' deg')")
+    import math
+
+    roll = service.state()["pose"]["roll"]
+    assert _num(page.text_content("#r-roll")) == pytest.approx(math.degrees(roll), abs=0.02)
+    tab(page, "goto")
+    assert page.text_content("#goto-form label:has(input[name=roll]) .unit").startswith("deg")
+    page.screenshot(path=str(shots / "20-angles-in-degrees.png"))
+    page.click("#angle-unit")
+    assert page.text_content("#angle-unit") == "Angles: mrad"
+    wait_js(page, "document.getElementById('r-roll').textContent.endsWith(' mrad')")
+    assert page.errors == []
 
 
 def test_preset_go_returns_to_the_saved_pose(service, page):
@@ -459,6 +537,9 @@ def test_forcing_a_limit_shows_control_limited_with_its_name(service, page, shot
         page.wait_for_selector("#limited:not(.hidden)", timeout=15_000)
         text = page.text_content("#limited")
         assert text.startswith("Control limited") and "workspace:x:max" in text, text
+        assert "left limit reached" in text, text  # in words: +x is the driver's left
+        # the picture lights up the limited member (the implement at its lateral face)
+        wait_js(page, "document.querySelector('#v-rear line[data-member=implement]').classList.contains('hl')")
         time.sleep(0.5)
         page.screenshot(path=str(shots / "07-control-limited.png"))
     finally:
@@ -566,8 +647,19 @@ def test_stability_margins_take_the_services_caution_colours(page, shots, tmp_pa
         for m in ("ssm", "lsm", "esm"):  # the measures the service does not flag stay "ok"
             expected = {"caution": "caution", "hard": "danger"}.get(levels.get(m), "ok")
             assert expected in page.get_attribute(f"#m-{m}", "class"), m
+        # shown as a share of the empty tractor's weight: share of the total × (tractor + ballast + harrow) / tractor
+        from planner.limits.tractor import load_tractor_profile
+        from planner.profiles.hitch import load_profile
+
+        stab = load_profile("thesis-t132").stability
+        tp = load_tractor_profile(stab.tractor_profile)
+        factor = (tp.spec.mass + stab.front_ballast + tp.implement("cat2-power-harrow-1500").mass) / tp.spec.mass
+        wait_js(page, "document.getElementById('m-front_axle_load').title.includes('of the tractor')")
         shown = _num(page.text_content("#m-front_axle_load .v")) / 100
-        assert shown == pytest.approx(heavy.state()["stability"]["front_axle_share"], abs=0.002)
+        assert shown == pytest.approx(heavy.state()["stability"]["front_axle_share"] * factor, abs=0.006)
+        note = page.text_content("#m-front_axle_load .n")
+        assert note == "of the tractor's weight (minimum 20 %)", note
+        assert "minimum 0.10 m" in page.text_content("#m-ssm .n")
         page.screenshot(path=str(shots / "12-stability-caution.png"))
     finally:
         heavy.kill(signal.SIGTERM)
@@ -759,6 +851,8 @@ def test_with_access_control_the_page_asks_for_a_login(secured, page, shots):
         assert pg.is_disabled("button.jog[data-dof='z'][data-sign='1']")
         tab(pg, "goto")
         assert pg.is_disabled("#goto-go")
+        for sel in ACTION_BUTTONS:  # the command row too: a viewer watches and stops
+            assert pg.is_disabled(sel), sel
         # the viewer's own command through the page: refused by the service as victor, not run as --http-user olga
         pg.evaluate("document.getElementById('goto-go').disabled = false")
         pg.fill("#goto-form input[name=z]", "100")
@@ -783,3 +877,239 @@ def test_with_access_control_the_page_asks_for_a_login(secured, page, shots):
         wait_for(lambda: not secured.state()["moving"], 5, "STOP")
     finally:
         pg.close()
+
+
+# ---------------------------------------------------------------------------------------------- the command row
+ACTION_BUTTONS = ("#act-raise", "#act-return", "#act-lock", "#act-implement", "#act-record", "#act-pause")
+ACTION_BUTTONS += ("#act-resume", "#act-skip")
+
+
+def _settle(service, goal: dict, timeout_s: float = 20.0) -> dict:
+    """Wait for the motion to end and the measured pose to settle within the closed loop's target of ``goal``."""
+    wait_for(lambda: not service.state()["moving"], timeout_s, "the motion to end")
+    last: dict = {}
+
+    def settled():
+        last.clear()
+        last.update(service.state()["pose"])
+        return within_steady_state_target(last, goal)
+
+    try:
+        wait_for(settled, 5, f"the hitch to settle within 2 mm / 2 mrad of {goal}")
+    except AssertionError as exc:
+        raise AssertionError(f"{exc}; last {last}") from None
+    return last
+
+
+def test_action_row_raise_return_lock_and_the_implement_chooser(service, page, shots):
+    """Raise goes to the implement's headland pose and Return back to where the raise started; the
+    transport lock refuses a goto with the service's words; the chooser shows a refusal while moving."""
+    _connected(page, service.url)
+    at_rest(service, page)
+    headland = {"x": 0.0, "z": 0.25, "roll": 0.0, "pitch": 0.0}
+    status, reply = service.api(
+        "implements/define",
+        {"name": "plough", "category": "2", "mass_kg": 300.0, "com_m": [0.0, 0.5, 0.3], "headland": headland},
+    )
+    assert status == 200, reply
+    page.reload()  # the chooser lists the implements when the page connects
+    _connected(page, service.url)
+    for sel in ACTION_BUTTONS:  # every control present, inside the cab display
+        box = page.locator(sel).bounding_box()
+        assert box is not None and box["x"] >= 0 and box["x"] + box["width"] <= 1024.5, (sel, box)
+        assert box["y"] + box["height"] <= 600.5, (sel, box)
+    assert page.evaluate("[document.documentElement.scrollWidth, document.documentElement.scrollHeight]") == [1024, 600]
+    page.wait_for_selector("#act-implement option[value='plough']", state="attached")
+    page.select_option("#act-implement", "plough")
+    wait_js(page, "document.getElementById('act-result').textContent === 'implement: plough'")
+    assert service.api("implements/list")[1]["selected"] == "plough"
+    wait_js(page, "document.getElementById('act-lock').textContent === 'Lock: off'")
+    # work pose → Raise (headland) → Return (the work pose again)
+    work = {"x": 0.02, "z": 0.0, "roll": 0.0, "pitch": 0.0}
+    assert service.api("goto", {"goal": work})[0] == 200
+    _settle(service, work)
+    page.click("#act-raise")
+    wait_js(page, "document.getElementById('act-result').textContent.startsWith('raise: moving')")
+    _settle(service, headland)
+    page.screenshot(path=str(shots / "21-actions-row.png"))
+    page.click("#act-return")
+    wait_js(page, "document.getElementById('act-result').textContent.startsWith('return: moving')")
+    _settle(service, work)
+    # the chooser while moving: the service's refusal is shown, the selection stays
+    assert service.api("goto", {"goal": headland, "speed_scale": 0.2})[0] == 200
+    wait_for(lambda: service.state()["moving"], 5, "the goto to start")
+    other = [
+        n for n in page.eval_on_selector_all("#act-implement option", "os => os.map(o => o.value)") if n != "plough"
+    ]
+    assert other, "the chooser lists the tractor profile's implements too"
+    page.select_option("#act-implement", other[0])
+    wait_js(page, "document.getElementById('act-result').classList.contains('err')")
+    refusal = page.text_content("#act-result")
+    assert refusal.startswith("implements/select") and "stop" in refusal, refusal
+    wait_js(page, "document.getElementById('act-implement').value === 'plough'")
+    at_rest(service, page)
+    # the transport lock: shown, and a goto from the page refused with the service's words
+    page.click("#act-lock")
+    wait_js(page, "document.getElementById('act-lock').textContent === 'Lock: on'")
+    assert page.get_attribute("#act-lock", "aria-pressed") == "true"
+    goal = {"z": 0.1}
+    tab(page, "goto")
+    for k in ("x", "z", "roll", "pitch"):
+        page.fill(f"#goto-form input[name={k}]", "" if k not in goal else f"{goal[k] * 1000:.1f}")
+    page.click("#goto-go")
+    wait_js(page, "document.getElementById('goto-result').textContent.includes('transport-locked')")
+    assert "goto refused: the implement is transport-locked" in page.text_content("#goto-result")
+    assert not service.state()["moving"]
+    page.click("#act-lock")
+    wait_js(page, "document.getElementById('act-lock').textContent === 'Lock: off'")
+    assert page.errors == []
+
+
+def test_record_review_save_and_pause_resume_of_a_running_maneuver(service, page, shots):
+    _connected(page, service.url)
+    at_rest(service, page)
+    z0 = service.state()["pose"]["z"]
+    page.click("#act-record")
+    wait_js(page, "document.getElementById('act-record').getAttribute('aria-pressed') === 'true'")
+    for z in (0.12 if z0 < 0.05 else -0.05, z0):
+        goto_target(service, page, {"z": z})
+        wait_for(lambda: not service.state()["moving"], 15, "the recorded goto to end")
+    page.click("#act-record")
+    page.wait_for_selector("#review:not(.hidden)")
+    script = page.input_value("#review-script")
+    assert script.count("goto") == 2, script
+    page.fill("#review-name", "taught")
+    page.screenshot(path=str(shots / "22-record-review.png"))
+    page.click("#review-save")
+    page.wait_for_selector("#review", state="hidden")
+    tab(page, "maneuvers")
+    page.wait_for_selector("#maneuver-list li[data-name='taught']")
+    assert "taught" in [m["name"] for m in service.api("maneuvers/list")[1]["maneuvers"]]
+    # Cancel discards: nothing saved
+    page.click("#act-record")
+    wait_js(page, "document.getElementById('act-record').getAttribute('aria-pressed') === 'true'")
+    goto_target(service, page, {"z": z0 + 0.01})
+    wait_for(lambda: not service.state()["moving"], 15, "the goto to end")
+    page.click("#act-record")
+    page.wait_for_selector("#review:not(.hidden)")
+    page.click("#review-cancel")
+    page.wait_for_selector("#review", state="hidden")
+    assert len(service.api("maneuvers/list")[1]["maneuvers"]) == len(page.query_selector_all("#maneuver-list li"))
+    # pause / resume / skip of a running maneuver, its progress from the state
+    script = "name: waits\nsteps:\n  - wait: 20\n  - wait: 1\n"
+    assert service.api("maneuvers/save", {"name": "waits", "script": script})[0] == 200
+    assert service.api("maneuvers/run", {"name": "waits"})[0] == 200
+    wait_js(page, "!document.getElementById('act-pause').disabled")
+    try:
+        wait_js(
+            page,
+            "/^waits: step 1 of 2 · wait · \\d+\\.\\d s left$/"
+            ".test(document.getElementById('act-progress').textContent)",
+        )
+    except AssertionError as exc:
+        raise AssertionError(f"{exc}; shown {page.text_content('#act-progress')!r}") from None
+    page.click("#act-pause")
+    wait_for(lambda: (service.state()["maneuver"] or {}).get("paused") is True, 5, "the maneuver to pause")
+    wait_js(page, "document.getElementById('act-progress').textContent.endsWith('· paused')")
+    assert page.is_disabled("#act-pause") and not page.is_disabled("#act-resume")
+    left = service.state()["maneuver"]["time_left"]
+    time.sleep(0.5)
+    assert service.state()["maneuver"]["time_left"] == pytest.approx(left, abs=1e-6)  # paused: the time stands
+    page.screenshot(path=str(shots / "23-maneuver-paused.png"))
+    page.click("#act-resume")
+    wait_for(lambda: (service.state()["maneuver"] or {}).get("paused") is False, 5, "the maneuver to resume")
+    wait_js(page, "!document.getElementById('act-progress').textContent.includes('paused')")
+    page.click("#act-skip")
+    wait_for(lambda: (service.state()["maneuver"] or {}).get("step") == 1, 5, "the skip to the second step")
+    wait_for(lambda: service.state()["maneuver"] is None, 10, "the maneuver to end")
+    wait_js(page, "document.getElementById('act-progress').textContent === 'no maneuver running'")
+    assert page.is_disabled("#act-pause") and page.is_disabled("#act-skip")
+    assert page.errors == []
+
+
+def test_the_action_row_fits_800x480(service, page, shots):
+    page.set_viewport_size({"width": 800, "height": 480})
+    try:
+        _connected(page, service.url)
+        assert page.evaluate("document.documentElement.scrollWidth") == 800  # no sideways overflow
+        row = page.locator("#actions").bounding_box()
+        assert row is not None and row["x"] >= 0 and row["x"] + row["width"] <= 800.5, row
+        for sel in ACTION_BUTTONS:
+            box = page.locator(sel).bounding_box()
+            assert box is not None and box["x"] >= 0 and box["x"] + box["width"] <= 800.5, (sel, box)
+            assert box["width"] >= 60 and box["height"] >= 40, (sel, box)  # still a touch target
+        page.locator("#actions").scroll_into_view_if_needed()  # at 800×480 the panels below the header scroll
+        page.screenshot(path=str(shots / "24-actions-800x480.png"))
+    finally:
+        page.set_viewport_size({"width": 1024, "height": 600})
+
+
+# ---------------------------------------------------------------------------------------------- work control
+WORK_CONTROLS = ("#work-mode", "#work-settings", "#work-toggle", "#work-resume", "#work-status")
+
+
+def test_work_control_settings_start_stop_and_the_fallback_without_a_field(service, page, shots):
+    """The work block in the command row at 1024×600: the mode and the settings (kN, cm) put through the
+    page reach the service's stored settings in SI; Start opens a work session which — this service has
+    no sim field, so no draft on the bus — falls back to position control at once, shown in words with
+    the setpoint in kN; Resume is offered; Stop ends it. Still no overflow at 800×480."""
+    _connected(page, service.url)
+    at_rest(service, page)
+    for sel in WORK_CONTROLS:  # inside the cab display, no scrolling
+        box = page.locator(sel).bounding_box()
+        assert box is not None and box["x"] >= 0 and box["x"] + box["width"] <= 1024.5, (sel, box)
+        assert box["y"] + box["height"] <= 600.5, (sel, box)
+    assert page.evaluate("[document.documentElement.scrollWidth, document.documentElement.scrollHeight]") == [1024, 600]
+    implement = service.api("work/settings")[1]["implement"]
+    page.select_option("#work-mode", "draft")
+    wait_for(lambda: service.api("work/settings")[1]["settings"]["mode"] == "draft", 5, "mode draft stored")
+    page.click("#work-settings")
+    page.wait_for_selector("#work-dialog:not(.hidden)")
+    page.fill("#work-form input[name=depth_max_cm]", "70")  # out of range: the service's words, nothing stored
+    page.click("#work-save")
+    wait_js(page, "document.getElementById('work-form-result').classList.contains('err')")
+    assert "depth_max" in page.text_content("#work-form-result")
+    for name, value in (("draft_kn", "20"), ("blend", "0.4"), ("depth_min_cm", "5"), ("depth_max_cm", "30")):
+        page.fill(f"#work-form input[name={name}]", value)
+    page.click("#work-save")
+    page.wait_for_selector("#work-dialog", state="hidden")
+    stored = service.api("work/settings")[1]
+    assert stored["implement"] == implement
+    assert stored["settings"]["draft_setpoint_n"] == pytest.approx(20_000.0)
+    assert stored["settings"]["blend"] == pytest.approx(0.4)
+    assert stored["settings"]["depth_min_m"] == pytest.approx(0.05)
+    assert stored["settings"]["depth_max_m"] == pytest.approx(0.30)
+    wait_js(
+        page, "document.getElementById('work-status').textContent === 'work control: off · draft (setpoint 20.0 kN)'"
+    )
+    # Start: no draft on the bus (no sim field) → one fallback, position control, shown in words
+    page.click("#work-toggle")
+    wait_for(lambda: (service.state().get("work") or {}).get("running"), 5, "the work session to start")
+    wait_for(lambda: service.state()["work"]["fallback"] == "draft signal stale: no reading", 5, "the fallback")
+    try:
+        wait_js(
+            page,
+            "document.getElementById('work-status').textContent.startsWith("
+            "'fallback: draft signal stale (no reading) — position control · draft — (setpoint 20.0 kN)')",
+        )
+    except AssertionError as exc:
+        raise AssertionError(f"{exc}; shown {page.text_content('#work-status')!r}") from None
+    assert page.get_attribute("#work-toggle", "aria-pressed") == "true"
+    assert not page.is_disabled("#work-resume")
+    assert service.state()["work"]["active"] == "position" and service.state()["motion"] is not None
+    page.screenshot(path=str(shots / "25-work-fallback.png"))
+    page.click("#work-toggle")  # Stop
+    wait_for(lambda: not service.state()["work"]["running"], 5, "the work session to end")
+    wait_js(page, "document.getElementById('work-status').textContent.startsWith('work control: off')")
+    assert page.get_attribute("#work-toggle", "aria-pressed") == "false" and page.is_disabled("#work-resume")
+    at_rest(service, page)
+    assert service.api("work/settings", {"mode": "position"})[0] == 200  # leave the shared service as found
+    page.set_viewport_size({"width": 800, "height": 480})
+    try:
+        assert page.evaluate("document.documentElement.scrollWidth") == 800  # no sideways overflow
+        for sel in WORK_CONTROLS:
+            box = page.locator(sel).bounding_box()
+            assert box is not None and box["x"] >= 0 and box["x"] + box["width"] <= 800.5, (sel, box)
+    finally:
+        page.set_viewport_size({"width": 1024, "height": 600})
+    assert page.errors == []

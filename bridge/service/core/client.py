@@ -306,5 +306,27 @@ class MotionProxy:
     def track_stop(self, session: int | None = None) -> dict[str, Any]:
         return dict(self.core.call("track_stop", session))
 
+    def maneuver_control(self, action: str) -> dict[str, Any]:
+        return dict(self.core.call("maneuver_control", action))
+
+    def lines_request(self, op: str, name: str | None = None, geojson: Any = None) -> dict[str, Any]:
+        return dict(self.core.call("lines_request", op, name, geojson))
+
+    def distance_travelled(self) -> float | None:
+        d = self.core.call("distance_travelled")
+        return None if d is None else float(d)
+
     def sim_fault(self, settings: Mapping[str, Any]) -> JsonReply:
         return JsonReply(self.core.call("sim_fault", dict(settings)))
+
+    def sim_switch(self, position: str) -> list[str]:
+        """``sim/switch``: the core's simulated tractor sends one press of the operator switch."""
+        return list(self.core.call("sim_switch", position))
+
+    def work_call(self, op: str, *args: Any) -> dict[str, Any]:
+        """``work/…``: the core's work control (:meth:`bridge.service.work.WorkControl.dispatch`)."""
+        return dict(self.core.call("work", op, *args))
+
+    def select_implement(self, implement: Any, limits: Any) -> dict[str, Any]:
+        """The implement (an ImplementRecord or None) and its ImplementLimits for the core's guards."""
+        return dict(self.core.call("select_implement", implement, limits))

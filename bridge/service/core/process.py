@@ -43,6 +43,7 @@ from typing import Any
 import zenoh
 
 from bridge.service.config import ServiceConfig
+from bridge.service.gnss import start_twin_gnss
 from bridge.service.machine import CanParts, build_controller, service_info, start_can
 from bridge.service.motion.controller import MotionController
 from bridge.service.schemas import RequestError, parse_request
@@ -50,10 +51,15 @@ from bridge.service.wire import to_json_bytes
 from bridge.service.workers import error_code
 from planner.errors import HitchError
 
-__all__ = ["CORE_NICE", "ControlCore"]
+__all__ = ["CORE_NICE", "TWIN_NICE", "ControlCore"]
 
 #: nice value of every thread of the core process (the control cycle, CAN, its Zenoh session)
 CORE_NICE = -10
+#: nice value of the machine twin's runner (the simulated ECU and tractor): it stands in for computers of
+#: their own, whose timing the planner host's load does not touch, so it runs above the core's threads
+TWIN_NICE = -15
+#: the twin runner's thread name (:func:`bridge.service.machine.start_can`)
+TWIN_THREAD = "EcuCanNode-rt"
 #: the core interpreter's switch interval [s] (Python's default 5 ms)
 SWITCH_INTERVAL_S = 0.001
 #: methods answered on the reading thread (O(1), no planning)
@@ -71,11 +77,12 @@ _INLINE = frozenset(
         "track_setpoint",
         "track_stop",
         "sim_fault",
+        "sim_switch",
         "ping",
     }
 )
 #: methods that plan (on the core's motion threads)
-_PLANNING = frozenset({"goto", "run_maneuver"})
+_PLANNING = frozenset({"goto", "run_maneuver", "select_implement"})  # (select waits for a running plan)
 
 
 def _set_nice(nice: int) -> str | None:
@@ -137,7 +144,22 @@ class ControlCore:
         self._open_zenoh()
         self.motion, guard = build_controller(cfg, parts, on_state=self._publish_state, on_event=self._publish_event)
         self._table = self._methods()
+        gnss = self.motion.gnss  # the tractor's GNSS position (maneuver wait_for line steps)
+        assert self.session is not None
+        self._decls.append(
+            self.session.declare_subscriber(cfg.key("tractor/gnss"), lambda s: gnss.take_payload(s.payload.to_bytes()))
+        )
+        twin_gnss = start_twin_gnss(cfg, parts, self.session)  # the simulated tractor's receiver (None: a real one)
+        if twin_gnss is not None:
+            self._decls.append(twin_gnss)
         self.motion.start()
+        if nice_failed is None:
+            for t in threading.enumerate():
+                if t.name == TWIN_THREAD and t.native_id is not None:
+                    try:
+                        os.setpriority(os.PRIO_PROCESS, t.native_id, TWIN_NICE)
+                    except OSError:  # the thread ended, or not permitted: it keeps the core's priority
+                        pass
         warnings = []
         if nice_failed is not None:
             text = (
@@ -284,6 +306,18 @@ class ControlCore:
             to_json = getattr(applied, "to_json", None)
             return to_json() if callable(to_json) else dict(settings)
 
+        def sim_switch(position: str) -> list[str]:  # the twin's operator switch (docs/implements.md)
+            tractor = None if parts is None else parts.tractor_node
+            if tractor is None:
+                raise RequestError(
+                    "unavailable",
+                    "sim/switch: no simulated tractor runs in this service (a real machine is connected); the "
+                    "switch can only be pressed on the twin",
+                )
+            from bridge.link.hitch_switch import press_switch
+
+            return press_switch(tractor.bus, position)  # type: ignore[arg-type]
+
         return {
             "stop": m.stop,
             "jog": lambda rates, ttl_s: m.jog(rates, ttl_s).to_json(),
@@ -298,7 +332,13 @@ class ControlCore:
             "track_start": lambda *a: m.track_start(*a).to_json(),
             "track_setpoint": m.track_setpoint,
             "track_stop": m.track_stop,
+            "select_implement": m.select_implement,
+            "maneuver_control": m.maneuver_control,
+            "lines_request": m.lines_request,
+            "distance_travelled": m.distance_travelled,
             "sim_fault": sim_fault,
+            "sim_switch": sim_switch,
+            "work": lambda op, *a: m.work.dispatch(op, *a),  # work/… (bridge.service.work.WorkControl)
             "ping": lambda: os.getpid(),
         }
 

@@ -33,6 +33,7 @@ if TYPE_CHECKING:
         parse_maneuver,
         validate,
     )
+    from bridge.service.maneuvers.recorder import ManeuverRecorder, RecorderError
     from bridge.service.maneuvers.runner import (
         AbortReason,
         Command,
@@ -102,6 +103,7 @@ _SOURCES: dict[str, str] = {
         "bridge.service.maneuvers.runner",
     ),
     **dict.fromkeys(("ManeuverSlot", "ManeuverProgress"), "bridge.service.maneuvers.slot"),
+    **dict.fromkeys(("ManeuverRecorder", "RecorderError"), "bridge.service.maneuvers.recorder"),
 }
 
 __all__ = [
@@ -143,6 +145,9 @@ __all__ = [
     # the controller's running maneuver (bridge.service.maneuvers.slot)
     "ManeuverSlot",
     "ManeuverProgress",
+    # teach-in (bridge.service.maneuvers.recorder)
+    "ManeuverRecorder",
+    "RecorderError",
 ]
 
 

@@ -10,6 +10,7 @@ A maneuver is the headland-sequence idea of commercial hitch systems, written in
       - speed: 0.6                     # scale (0, 1] for the following motion steps
       - goto: {z: 0.25, pitch: 0.05}   # partial pose: unspecified DOF keep their value
       - wait_for: {distance: 12.0}     # metres travelled (wheel-based speed on the CAN bus)
+      - wait_for: {line: headland, complete: true}  # the next step is complete at the line
       - preset: work                   # or {name: work, speed_scale: 0.5}
       - wait: 1.5                      # seconds
       - goto: {x: 0.0, speed_scale: 1.0}
@@ -38,7 +39,7 @@ stability guard) before anything moves, and checks that the planned time fits th
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
@@ -94,6 +95,9 @@ __all__ = [
     "parse_maneuver",
     "validate",
     "guarded_plan_step",
+    "StepPlan",
+    "pose_tolerance",
+    "within_tolerance_s",
     "check_name",
 ]
 
@@ -303,6 +307,7 @@ def parse_maneuver(text: Any) -> ManeuverScript:
         errors.extend(errs)
         if step is not None:
             steps.append(step)
+    errors.extend(_check_leads(steps_raw, steps))
     if errors or header is None:  # a step or the header that did not parse has its errors listed
         raise ManeuverError(errors)
     return ManeuverScript(header.name, header.description, header.timeout, tuple(steps))
@@ -356,6 +361,13 @@ class PlannedStep:
     distance_m: float = 0.0  # wait_for
     start_s: float = 0.0  # planned start, excluding the time of earlier wait_for steps
     duration_s: float = 0.0
+    line: str | None = None  # wait_for a line
+    #: wait_for a line with ``complete``: the time [s] the next motion step's plan takes to come within
+    #: the pose tolerance of its goal (:func:`within_tolerance_s`), so that step starts that time (plus
+    #: the start latency) × the ground speed before the line (lead compensation); 0: at the line
+    lead_s: float = 0.0
+    #: motion steps: when the plan comes within the pose tolerance of its goal [s] (<= ``duration_s``)
+    within_s: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -373,13 +385,58 @@ class ValidationResult:
         return {"ok": self.ok, "duration": self.duration, "errors": [e.to_json() for e in self.errors]}
 
 
+class StepPlan(tuple[float, MotionState]):
+    """What :func:`guarded_plan_step` returns: ``(duration [s], end state)`` as every :class:`PlanStep`,
+    plus ``within_s``, when the plan comes within the pose tolerance of its goal [s] (lead compensation)."""
+
+    within_s: float
+
+    def __new__(cls, duration: float, end: MotionState, within_s: float | None = None) -> StepPlan:
+        self = super().__new__(cls, (float(duration), end))
+        self.within_s = float(duration) if within_s is None else float(within_s)
+        return self
+
+    def __getnewargs__(self) -> tuple[float, MotionState, float]:
+        return (self[0], self[1], self.within_s)
+
+
+def pose_tolerance(guard: Guard, pose: Any) -> np.ndarray:
+    """The pose tolerance at ``pose`` (x, z [m], roll, pitch [rad]): one AD count on every cylinder
+    sensor mapped to the pose (|J⁺|·resolution, J = d actuators / d pose). The cylinder ECU's
+    position controllers call a cylinder settled within one count of its reference
+    (``ControllerTuning.cutoff_counts`` = 1, :mod:`bridge.sim.controller`), so a hitch within this
+    tolerance of its goal is where the ECU holds it: the motion is done."""
+    from planner.model.sensors import SensorScaling
+
+    jac = guard.planner.inverse.solve(np.asarray(pose, float))[1]
+    res = SensorScaling(guard.model.profile).resolution
+    return np.asarray(np.abs(np.linalg.pinv(jac)) @ res, float)
+
+
+def within_tolerance_s(plan: Any, tolerance: np.ndarray, dt: float = 1e-3) -> float:
+    """The earliest time [s] from which ``plan`` (``duration``, ``state_at``) stays within ``tolerance``
+    of its end pose (every DOF), to ``dt``: searched back from the end (the plan settles monotonically
+    onto its goal in its last jerk-limited phase)."""
+    duration = float(plan.duration)
+    goal = np.asarray(plan.state_at(duration).position, float)
+    t = duration
+    while t > 0.0:
+        tt = max(0.0, t - dt)
+        if np.any(np.abs(np.asarray(plan.state_at(tt).position, float) - goal) > tolerance):
+            return t
+        t = tt
+    return 0.0
+
+
 def guarded_plan_step(guard: Guard) -> PlanStep:
-    """A :class:`PlanStep` through :meth:`planner.limits.guard.Guard.plan`: limits and stability."""
+    """A :class:`PlanStep` through :meth:`planner.limits.guard.Guard.plan`: limits and stability. Returns a
+    :class:`StepPlan` (with the time the plan comes within :func:`pose_tolerance` of its goal)."""
 
     def plan_step(start: MotionState, goal: Mapping[str, float], speed_scale: float) -> tuple[float, MotionState]:
         gp = guard.plan(start, goal, speed_scale=speed_scale)
         end = gp.plan.state_at(gp.plan.duration)
-        return float(gp.plan.duration), MotionState.at_rest(end.position)
+        within = within_tolerance_s(gp.plan, pose_tolerance(guard, end.position))
+        return StepPlan(gp.plan.duration, MotionState.at_rest(end.position), within)
 
     return plan_step
 
@@ -432,17 +489,23 @@ def validate(script: str | ManeuverScript, ctx: PlanningContext) -> ValidationRe
         if isinstance(step, WaitStep):
             planned.append(PlannedStep(i, "wait", seconds=step.seconds, start_s=t, duration_s=step.seconds))
             t += step.seconds
-        elif isinstance(step, WaitForStep):
+        elif isinstance(step, WaitForStep) and step.line is not None:
+            planned.append(PlannedStep(i, "wait_for", line=step.line, start_s=t))
+        elif isinstance(step, WaitForStep) and step.distance is not None:
             planned.append(PlannedStep(i, "wait_for", distance_m=step.distance, start_s=t))
             dist += step.distance
         elif goal is not None:  # goto, preset: a motion
             try:
-                duration, end = ctx.plan_step(state, goal, scale)
+                res = ctx.plan_step(state, goal, scale)
             except ValueError as exc:
                 errors.append(StepError(i, f"{step.kind} cannot be planned: {exc}"))
                 break
+            duration, end = res
+            within = res.within_s if isinstance(res, StepPlan) else float(duration)  # (another planner: its end)
             full = dict(zip(POSE_BOUNDS, map(float, np.asarray(end.position, float)), strict=True))
-            planned.append(PlannedStep(i, step.kind, full, scale, start_s=t, duration_s=float(duration)))
+            planned.append(
+                PlannedStep(i, step.kind, full, scale, start_s=t, duration_s=float(duration), within_s=within)
+            )
             t += float(duration)
             state = MotionState.at_rest(end.position)
         if t > script.timeout_s:
@@ -454,4 +517,37 @@ def validate(script: str | ManeuverScript, ctx: PlanningContext) -> ValidationRe
                 )
             )
             break
-    return ValidationResult(not errors, t, tuple(errors), script, tuple(planned), dist)
+    return ValidationResult(not errors, t, tuple(errors), script, _with_leads(script, planned), dist)
+
+
+def _check_leads(raw: list[Any], steps: list[Step]) -> list[StepError]:
+    """A ``wait_for`` line step with ``complete: true`` must be followed by a motion step
+    (``goto`` or ``preset``; ``speed`` steps in between are fine): the step that is complete at the line."""
+    if len(steps) != len(raw):  # some step did not parse: its errors are reported already
+        return []
+    out = []
+    for i, s in enumerate(steps):
+        if isinstance(s, WaitForStep) and s.complete:
+            nxt = next((n for n in steps[i + 1 :] if not isinstance(n, SpeedStep)), None)
+            if not isinstance(nxt, (GotoStep, PresetStep)):
+                out.append(
+                    StepError(
+                        i,
+                        f"steps[{i}].wait_for.complete = True needs a motion step (goto or preset) after it: "
+                        "the step that must be complete at the line",
+                    )
+                )
+    return out
+
+
+def _with_leads(script: ManeuverScript, planned: list[PlannedStep]) -> tuple[PlannedStep, ...]:
+    """Give each ``wait_for`` line step with ``complete`` the time the motion step after it takes to come
+    within the pose tolerance of its goal (its ``within_s``)."""
+    out = list(planned)
+    for k, ps in enumerate(out):
+        step = script.steps[ps.index]
+        if isinstance(step, WaitForStep) and step.complete:
+            nxt = next((n for n in out[k + 1 :] if n.goal is not None), None)
+            if nxt is not None:
+                out[k] = replace(ps, lead_s=nxt.within_s)
+    return tuple(out)

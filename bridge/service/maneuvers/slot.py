@@ -9,32 +9,42 @@ events (``maneuver_started``, ``maneuver_step``, ``maneuver_finished``, ``maneuv
 
 from __future__ import annotations
 
-from collections.abc import Iterable
-from dataclasses import dataclass
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
 from typing import Any
 
 from bridge.service.maneuvers.language import ValidationResult
-from bridge.service.maneuvers.runner import AbortReason, Command, LoopState, ManeuverRunner
+from bridge.service.maneuvers.runner import (
+    AbortReason,
+    Command,
+    LineTrigger,
+    LoopState,
+    ManeuverRunError,
+    ManeuverRunner,
+)
 
 __all__ = ["ManeuverSlot", "ManeuverProgress"]
 
 
 @dataclass(frozen=True)
 class ManeuverProgress:
-    """The running maneuver: its name, id (``motion_id``) and the script step in progress."""
+    """The running maneuver: its name, id (``motion_id``) and the script step in progress; ``detail``:
+    the step's ``kind``, ``paused`` and ``time_left`` [s] or ``distance_left`` [m] (waits, triggers)."""
 
     name: str | None
     motion_id: int | None
     step: int | None
+    detail: Mapping[str, Any] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
-        return {"name": self.name, "motion_id": self.motion_id, "step": self.step}
+        return {**self.detail, "name": self.name, "motion_id": self.motion_id, "step": self.step}
 
 
 class ManeuverSlot:
     """At most one running maneuver (see the module docstring)."""
 
-    def __init__(self) -> None:
+    def __init__(self, lines: LineTrigger | None = None) -> None:
+        self.lines = lines  # the line trigger of ``wait_for: {line: …}`` steps (GNSS), None: none
         self.runner: ManeuverRunner | None = None
         self.id: int | None = None
         self.name: str | None = None
@@ -45,11 +55,16 @@ class ManeuverSlot:
 
     def start(self, validated: ValidationResult, name: str | None, maneuver_id: int) -> None:
         """Take a validated maneuver (the caller aborted the previous one)."""
-        self.runner, self.id, self.name = ManeuverRunner(validated), maneuver_id, name
+        self.runner, self.id, self.name = ManeuverRunner(validated, lines=self.lines), maneuver_id, name
 
-    def owns(self, runner: ManeuverRunner | None) -> bool:
-        """Is ``runner`` still the running maneuver (not aborted or replaced meanwhile)?"""
-        return runner is not None and runner is self.runner
+    def owns(self, runner: ManeuverRunner | None, request: int | None = None) -> bool:
+        """Is ``runner`` still the running maneuver, waiting for the motion it asked for (not aborted,
+        replaced, paused or its step skipped meanwhile)? With ``request`` (the ``goto`` command's
+        :attr:`~bridge.service.maneuvers.runner.Command.request`): waiting for that very request — a
+        plan made for a step that was skipped (or paused and resumed) meanwhile is not installed."""
+        if runner is None or runner is not self.runner:
+            return False
+        return runner.awaiting_motion if request is None else runner.awaits(request)
 
     def abort(self, now: float, reason: AbortReason, message: str, events: list[dict[str, Any]]) -> None:
         """Abort the running maneuver (if any), appending its ``maneuver_aborted`` event."""
@@ -74,7 +89,25 @@ class ManeuverSlot:
         """The running maneuver for the state message (None when none runs)."""
         if self.runner is None:
             return None
-        return ManeuverProgress(self.name, self.id, self.runner.current_step)
+        return ManeuverProgress(self.name, self.id, self.runner.current_step, self.runner.progress())
+
+    def control(self, action: str, now: float, events: list[dict[str, Any]]) -> bool:
+        """``pause``, ``resume`` or ``skip`` the running maneuver, appending its event; True when the
+        hitch must brake (pause; skip of a motion step). Raises ManeuverRunError when nothing runs."""
+        r = self.runner
+        if r is None:
+            raise ManeuverRunError(f"{action}: no maneuver is running")
+        if action == "pause":
+            events.extend(self._tag([r.pause(now)]))
+            return True
+        if action == "resume":
+            events.extend(self._tag([r.resume(now)]))
+            return False
+        if action == "skip":
+            ev, motion = r.skip(now)
+            events.extend(self._tag([ev]))
+            return motion
+        raise ManeuverRunError(f"action must be one of pause, resume, skip, got {action!r}")
 
     def _tag(self, events: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
         return [{**e, "maneuver_id": self.id} for e in events]

@@ -136,10 +136,29 @@ class WaitStep(_Strict):
 
 
 class WaitForStep(_Strict):
-    """Wait until the tractor has travelled ``distance`` (0, 10000] m (wheel-based speed)."""
+    """Wait for the tractor: exactly one of ``distance`` (0, 10000] m travelled (wheel-based speed)
+    or ``line``, a named field-boundary / headland line reached (GNSS position,
+    :mod:`bridge.service.gnss`). ``complete: true`` (only with ``line``): the next motion step must
+    be complete when the line is reached, so it starts early — at the planned duration of that
+    step × the current ground speed before the line (lead compensation)."""
 
     kind: ClassVar[str] = "wait_for"
-    distance: float = Field(gt=0.0, le=10_000.0)
+    distance: float | None = Field(None, gt=0.0, le=10_000.0)
+    line: str | None = None
+    complete: bool | None = None
+
+    @field_validator("line")
+    @classmethod
+    def _line(cls, v: str | None) -> str | None:
+        return None if v is None else check_name(v, "line name")
+
+    @model_validator(mode="after")
+    def _one_trigger(self) -> WaitForStep:
+        if (self.distance is None) == (self.line is None):
+            raise ManeuverSchemaError("wait_for needs exactly one of distance (m) or line (a line name)")
+        if self.complete is not None and self.line is None:
+            raise ManeuverSchemaError("wait_for.complete is allowed only with line (lead compensation at a line)")
+        return self
 
 
 class SpeedStep(_Strict):

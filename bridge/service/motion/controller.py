@@ -77,6 +77,7 @@ import numpy as np
 
 from bridge.link.state import LinkFaultError, LinkStatus, ReferenceRefused
 from bridge.link.unit_loop import FeedforwardShaper, build_unit_loops
+from bridge.service.gnss import GnssTracker
 from bridge.service.maneuvers.language import ValidationResult, guarded_plan_step
 from bridge.service.maneuvers.runner import LoopState, ManeuverRunner
 from bridge.service.maneuvers.slot import ManeuverSlot
@@ -107,9 +108,11 @@ from bridge.service.motion.types import (
     streamed_reference,
 )
 from bridge.service.periodic import PeriodicThread
-from bridge.service.state_message import EvaluationCache, StateMessage, build_state_message, link_problem
+from bridge.service.state_message import EvaluationCache, StateMessage, build_state_message, link_problem, plan_goal
 from planner.errors import HitchError
 from planner.limits.guard import Guard, GuardedPlan
+from planner.limits.implement_limits import ImplementLimits, track_bounds
+from planner.limits.tractor import ImplementRecord
 from planner.model.types import KinematicsError
 from planner.trajectory import JogController, MotionState
 from planner.trajectory.track import TrackFollower, TrackInputError, TrackStateError
@@ -207,7 +210,8 @@ class MotionController:
         self._hold_ref: Reference | None = None  # the held reference, computed once per hold
         self._last_id: int | None = None
         self._generation = 0
-        self._maneuver = ManeuverSlot()
+        self.gnss = GnssTracker(clock)  # the tractor's GNSS position and the field's lines (wait_for line)
+        self._maneuver = ManeuverSlot(self.gnss)
         self._link_reported: tuple[str, ...] = ()  # the link's latched faults seen last cycle
         self._faults: dict[str, Fault] = {}  # what the controller holds (docs/faults.md)
         self._fresh_since: float | None = None  # data fresh again since (self-clearing faults)
@@ -221,6 +225,8 @@ class MotionController:
         self.sensors = sensors
         self._sessions = itertools.count(1)
         self._rejection_event_at = -math.inf
+        #: work control of track sessions (bridge.service.work.WorkControl; set by machine.build_controller)
+        self.work: Any = None
 
     # ------------------------------------------------------------------ life cycle
     def start(self) -> MotionController:
@@ -404,7 +410,8 @@ class MotionController:
             self._frame_readings(frame, now, "track refused")  # the frame's sensor must be there now
             start = self._predict(now)
             try:
-                follower = TrackFollower(self.planner, start, dofs, ttl_s, t0_s=now)
+                bounds = track_bounds(self.guard.implement_limits)  # the implement's (docs/implements.md)
+                follower = TrackFollower(self.planner, start, dofs, ttl_s, t0_s=now, bounds=bounds)
             except TrackInputError as exc:
                 raise MotionError("bad_request", str(exc)) from None
             events: list[Event] = []
@@ -436,6 +443,8 @@ class MotionController:
             if not isinstance(m, TrackMotion) or m.session != session:
                 live = f"the live session is {m.session}" if isinstance(m, TrackMotion) else "no session is live"
                 raise MotionError("not_found", f"session {session} is not live ({live})")
+            if self.work is not None and self.work.owns(session):  # work control alone feeds a work session
+                self.work.refuse_setpoint(m)  # counted; raises MotionError busy (bridge.service.work)
             if not m.seq.accept(seq):
                 return {"accepted": False, "ignored": "seq", "session": session, "seq": seq}
             now = self.clock()
@@ -570,6 +579,75 @@ class MotionController:
         self.outbox.flush()
         return mid
 
+    def maneuver_control(self, action: str) -> dict[str, Any]:
+        """``pause``, ``resume`` or ``skip`` the running maneuver (``docs/maneuvers.md``): pause brakes
+        the hitch to rest and holds; resume plans the current step again from the pose now; skip ends
+        the current step (a motion step brakes) and goes on with the next."""
+        if action not in ("pause", "resume", "skip"):
+            raise MotionError("bad_request", f"action must be one of pause, resume, skip, got {action!r}")
+        events: list[Event] = []
+        with self._lock:
+            now = self.clock()
+            if not self._maneuver.running:
+                raise MotionError("not_found", f"maneuvers/{action}: no maneuver is running")
+            try:
+                brake = self._maneuver.control(action, now, events)
+            except ValueError as exc:  # ManeuverRunError: paused already, not paused, no step left
+                raise MotionError("busy", f"maneuvers/{action}: {exc}") from None
+            if brake:
+                self._brake(now, f"maneuver {action}", events)
+            progress = self._maneuver.progress()
+            self._post(events)
+        self.outbox.flush()
+        return {
+            "action": action,
+            "maneuver_id": self._maneuver.id,
+            "maneuver": None if progress is None else progress.to_json(),
+        }
+
+    def distance_travelled(self) -> float | None:
+        """The tractor's travelled distance [m] (the odometer; None: none, or silent)."""
+        return self._odometer()
+
+    def lines_request(self, op: str, name: str | None = None, geojson: Any = None) -> dict[str, Any]:
+        """The field's lines (:mod:`bridge.service.gnss`): ``save`` (GeoJSON), ``list``, ``delete``."""
+        if op == "save":
+            return {"saved": self.gnss.save_lines(geojson, name)}
+        if op == "delete":
+            if name is None or not self.gnss.delete_line(name):
+                raise MotionError("not_found", f"lines/delete: no line {name!r}")
+            return {"deleted": name}
+        return {"lines": self.gnss.lines(), "position": self.gnss.position()}
+
+    def post_event(self, event: Event) -> None:
+        """Announce ``event`` (numbered in order with the controller's own; any thread, O(1))."""
+        with self._lock:
+            self._post([dict(event)])
+        self.outbox.flush()
+
+    def select_implement(self, implement: ImplementRecord | None, limits: ImplementLimits) -> dict[str, Any]:
+        """Give both guards an implement (stability: its mass and CoM) and its limits (``docs/implements.md``);
+        refused (``busy``) while a motion or a maneuver runs: send stop first."""
+        if not self._plan_lock.acquire(timeout=2.0):  # no plan is being made with the old implement
+            raise MotionError("busy", "implement change refused: the planner stayed busy; send it again")
+        try:
+            with self._lock:
+                if self._active is not None or self._maneuver.running:
+                    raise MotionError(
+                        "busy", "implement change refused while the hitch is moving; send stop first and wait for rest"
+                    )
+                for g in (self.guard, self.plan_guard):
+                    g.set_implement(implement)
+                    g.set_implement_limits(limits)
+                self._eval_cache = EvaluationCache()
+                self._generation += 1  # a goto planned meanwhile is planned again
+                name = None if implement is None else implement.name
+                self._post([{"event": "implement_selected", "implement": name, **limits.to_json()}])
+        finally:
+            self._plan_lock.release()
+        self.outbox.flush()
+        return {"implement": name, **limits.to_json()}
+
     def ack_faults(self) -> FaultAck:
         """Acknowledge the latched faults (``faults/ack``): they are cleared, with a
         ``fault_cleared`` event; self-clearing faults whose data is not fresh yet stay. Motion
@@ -597,6 +675,7 @@ class MotionController:
         runner: ManeuverRunner | None,
         deadline: float | None = None,
         issued: float | None = None,
+        request: int | None = None,
     ) -> MotionAccepted:
         """Plan (outside the control lock) and install a goto/preset/maneuver-step motion.
 
@@ -634,7 +713,7 @@ class MotionController:
             took = self.clock() - t_plan
             events: list[Event] = []
             with self._lock:
-                if from_maneuver and not self._maneuver.owns(runner):
+                if from_maneuver and not self._maneuver.owns(runner, request):
                     raise MotionError("busy", "the maneuver was aborted while its step was being planned")
                 if not from_maneuver:
                     self._check_startable(kind, self.clock(), deadline, issued)
@@ -672,7 +751,7 @@ class MotionController:
                     )
                 )
                 if runner is not None:
-                    runner.motion_started(pm.motion_id)
+                    runner.motion_started(pm.motion_id, request)
                 acc = MotionAccepted(pm.motion_id, gp.plan.duration, kind, gp.decision)
                 self._post(events)
             self.outbox.flush()
@@ -708,6 +787,10 @@ class MotionController:
 
     def _check_allowed(self, what: str) -> None:
         check_mode_allows(self._mode, what)
+        if self.guard.implement_limits.transport_locked:  # the implement's transport lock (docs/implements.md)
+            raise MotionError(
+                "locked", f"{what} refused: the implement is transport-locked (implements/unlock; stop is allowed)"
+            )
 
     def _check_precedence(self) -> None:
         check_precedence(self._active, self.clock())
@@ -808,6 +891,8 @@ class MotionController:
             now = self.clock()
             self._check_faults(status, now, events)
             self._drive_maneuver(status, now, events)
+            if self.work is not None:  # a work session's z setpoint for this cycle (bridge.service.work)
+                self.work.on_cycle(now, self._active, events)
             ref = self._reference_at(now, events)
             if ref is not None and not (ref is self._reference and self._active is None and status.streaming):
                 # (a held reference the link streams already is not checked and sent again)
@@ -899,18 +984,25 @@ class MotionController:
         if cmd is None:
             return
         if cmd.action == "goto" and runner is not None and cmd.goal is not None:  # a running maneuver's motion step
-            goal, scale, step, owner = dict(cmd.goal), cmd.speed_scale, cmd.step, runner
-            self._spawn(lambda: self._maneuver_goto(owner, goal, scale, step))
+            goal, scale, step, owner, req = dict(cmd.goal), cmd.speed_scale, cmd.step, runner, cmd.request
+            self._spawn(lambda: self._maneuver_goto(owner, goal, scale, step, req))
         elif cmd.action == "stop":
             self._brake(now, "maneuver aborted", events)
 
-    def _maneuver_goto(self, runner: ManeuverRunner, goal: Mapping[str, float], scale: float, step: int | None) -> None:
+    def _maneuver_goto(
+        self,
+        runner: ManeuverRunner,
+        goal: Mapping[str, float],
+        scale: float,
+        step: int | None,
+        request: int | None = None,
+    ) -> None:
         try:
-            self._start_plan(goal, scale, "maneuver", f"step {step}", runner=runner)
+            self._start_plan(goal, scale, "maneuver", f"step {step}", runner=runner, request=request)
         except ValueError as exc:
             events: list[Event] = []
             with self._lock:
-                if self._maneuver.owns(runner):
+                if self._maneuver.owns(runner, request):
                     self._maneuver.abort(self.clock(), "plan_failed", f"step {step} cannot be planned: {exc}", events)
                 self._post(events)
             self.outbox.flush()
@@ -987,6 +1079,8 @@ class MotionController:
             faults=tuple(self._faults.values()),
             cache=self._eval_cache,
             track=m.progress() if isinstance(m, TrackMotion) else None,
+            goal=plan_goal(m.kind, m.plan) if isinstance(m, PlanMotion) else None,
+            work=None if self.work is None else self.work.progress(),
         )
 
     def _ev(self, name: str, m: ActiveMotion, **extra: Any) -> Event:

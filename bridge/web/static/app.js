@@ -5,9 +5,14 @@
 // (`{id, key, payload}` → `{type: "reply", id, ok, data}`). The page keeps no state of its own
 // except what it draws, the held jog buttons, the jog speed and its own levelling session.
 //
-// Units: the API is SI (m, rad, s). The page shows and takes mm and mrad (the thesis's units on
-// the terminal); conversions happen only in `show*`, in the goto form (`_mm` / `_mrad`) and in
-// `displayUnits`, which rewrites the service's SI numbers in refusals and events.
+// Units: the API is SI (m, rad, s). The page shows and takes mm and — a setting of this browser
+// (localStorage `hitch.angleUnit`, the "Angles" button) — mrad (the thesis's unit, the default) or
+// degrees; lateral position as "left/right n mm", lift as % of its stroke. Conversions happen only
+// in `show*`, in the goto form and in `displayUnits`, which rewrites the service's SI numbers in
+// refusals and events.
+//
+// The hitch picture: `terminal` (once) and `view` messages (≤ 15 Hz) carry the model's points for
+// the measured and the target actuators, computed by the server (bridge/web/view.py).
 //
 // Login: with access control on (`GET /api/session` says `login`), the page asks for a user and
 // password (`POST /api/login`); the session lives in an HttpOnly cookie, and every command carries
@@ -47,6 +52,10 @@
     config: ["Configuration: the service's settings (profile, implement category, limits, control rate) are shown below; they are changed in the service's config file and take effect at its next start.",
       "The jog speed slider on the Jog tab is this page's joystick sensitivity. No motion in this mode."],
   };
+  const ANGLE_KEY = "hitch.angleUnit";
+  const ANGLES = { mrad: { k: 1000, digits: 1, unit: "mrad" }, deg: { k: 180 / Math.PI, digits: 2, unit: "deg" } };
+  const units = { angle: "mrad" };
+  try { if (localStorage.getItem(ANGLE_KEY) === "deg") units.angle = "deg"; } catch (e) { /* storage off: mrad */ }
   const $ = (sel) => document.querySelector(sel);
   const $$ = (sel) => Array.from(document.querySelectorAll(sel));
   const svgNS = "http://www.w3.org/2000/svg";
@@ -56,13 +65,26 @@
     presets: [], maneuvers: [], maneuverSteps: {}, connected: false, closedReason: "", gotoId: null,
     session: null,   // GET /api/session: {login, authenticated, user, role, csrf}
   };
+  // the hitch picture: `terminal` info (once), the newest `view` message, the built views
+  const hv = { info: null, msg: null, rear: null, side: null, drawn: null };
 
   // ------------------------------------------------------------------ formatting
   const fmt = (v, digits = 0) => (v === null || v === undefined || !Number.isFinite(v)) ? "—" : v.toFixed(digits);
   const show_mm = (m) => `${fmt(m * 1000, 1)} mm`;
+  const angleUnit = () => ANGLES[units.angle];
+  const show_angle = (rad) => `${fmt(rad * angleUnit().k, angleUnit().digits)} ${angleUnit().unit}`;
   const show_mrad = (rad) => `${fmt(rad * 1000, 1)} mrad`;
-  const showDof = (k, v) => (k === "x" || k === "z") ? show_mm(v) : show_mrad(v);
-  const showActuator = (n, v) => n === "lift" ? show_mrad(v) : show_mm(v);
+  // lateral position: +x is the driver's left
+  const show_x = (m) => !Number.isFinite(m) ? "—" : Math.abs(m) < 0.00005 ? "centre 0.0 mm" : `${m > 0 ? "left" : "right"} ${fmt(Math.abs(m) * 1000, 1)} mm`;
+  const isLength = (k) => k === "x" || k === "z";
+  const dofK = (k) => isLength(k) ? 1000 : angleUnit().k;           // SI → display factor
+  const dofDigits = (k) => isLength(k) ? 1 : angleUnit().digits;
+  const dofUnit = (k) => isLength(k) ? "mm" : angleUnit().unit;
+  const showDof = (k, v) => isLength(k) ? show_mm(v) : show_angle(v);
+  const strokeOf = (n) => (ui.config && ui.config.limits && ui.config.limits.strokes && ui.config.limits.strokes[n]) || null;
+  // lift: % of its stroke (the lift-arm angle in the tooltip); the other actuators in mm
+  const liftPercent = (v) => { const r = strokeOf("lift"); return r ? 100 * (v - r[0]) / (r[1] - r[0]) : NaN; };
+  const showActuator = (n, v) => n === "lift" ? `${fmt(liftPercent(v), 1)} %` : show_mm(v);
 
   // The service's sentences carry SI numbers ("goal.z = 0.5 m … (z from -0.2163 to 0.3117 m)",
   // "workspace:z:max = 0.3117"); the operator reads mm and mrad: every length [m] and angle [rad]
@@ -70,9 +92,12 @@
   // mrad) too. Times, percentages and counts stay.
   const NUM = String.raw`[-−+]?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?`;
   const UNIT = String.raw`(m|rad)(\/s²|\/s\^2|\/s2|\/s)?(?![A-Za-z0-9_²])`;
-  const milli = (t) => { const v = Number(t.replace("−", "-")) * 1000; return Number.isFinite(v) ? String(Number(v.toFixed(2))) : t; };
-  const milliUnit = (u, rate) => `m${u}${rate || ""}`;
-  const DOF_UNIT = { x: "mm", z: "mm", roll: "mrad", pitch: "mrad" };
+  // an SI number in unit u ("m" or "rad") → the display unit (mm; mrad or deg)
+  const milli = (t, u = "m") => {
+    const k = u === "rad" ? angleUnit().k : 1000, v = Number(t.replace("−", "-")) * k;
+    return Number.isFinite(v) ? String(Number(v.toFixed(2))) : t;
+  };
+  const milliUnit = (u, rate) => `${u === "rad" ? angleUnit().unit : "mm"}${rate || ""}`;
   function displayUnits(text) {
     if (typeof text !== "string") return text;
     const guard = String.raw`(?<![\w.])`;
@@ -80,20 +105,35 @@
     let t = text.replace(/;?\s*did you mean mm\?[^;)]*/g, "");
     // [a, b] m · a … b m · from a to b m · >= a and <= b m
     t = t.replace(new RegExp(String.raw`\[\s*(${NUM})\s*,\s*(${NUM})\s*\]\s*${UNIT}`, "g"),
-      (_, a, b, u, r) => `[${milli(a)}, ${milli(b)}] ${milliUnit(u, r)}`);
+      (_, a, b, u, r) => `[${milli(a, u)}, ${milli(b, u)}] ${milliUnit(u, r)}`);
     t = t.replace(new RegExp(String.raw`${guard}(${NUM})(\s*(?:…|\.\.\.?|–|\bto\b|\band\b\s*[<>]=?)\s*)(${NUM})\s*${UNIT}`, "g"),
-      (_, a, mid, b, u, r) => `${milli(a)}${mid}${milli(b)} ${milliUnit(u, r)}`);
-    t = t.replace(new RegExp(String.raw`${guard}(${NUM})\s*${UNIT}`, "g"), (_, a, u, r) => `${milli(a)} ${milliUnit(u, r)}`);
+      (_, a, mid, b, u, r) => `${milli(a, u)}${mid}${milli(b, u)} ${milliUnit(u, r)}`);
+    t = t.replace(new RegExp(String.raw`${guard}(${NUM})\s*${UNIT}`, "g"), (_, a, u, r) => `${milli(a, u)} ${milliUnit(u, r)}`);
     // bare numbers named by a DOF: "goal.z = 0.5", "z reaches 0.31", "workspace:z:max = 0.3117"
     t = t.replace(new RegExp(String.raw`(\b(?:workspace:)?(x|z|roll|pitch)(?::(?:min|max))?\s*(?:=|reaches)\s*)(${NUM})(?![\d.eE])(?!\s*(?:mm|mrad|m|rad|s|ms|deg|counts?)(?![A-Za-z])|\s*[%°])`, "g"),
-      (_, head, dof, a) => `${head}${milli(a)} ${DOF_UNIT[dof]}`);
+      (_, head, dof, a) => `${head}${milli(a, isLength(dof) ? "m" : "rad")} ${dofUnit(dof)}`);
     return t;
   }
   window.hitchTerminal = { displayUnits };   // for the browser test (the page keeps its CSP: no eval)
 
+  // A refusal naming limits by code gets their operator words appended (the terminal's table:
+  // "… stroke:top:max … — top link at its stroke end (longest)").
+  function inWords(text) {
+    const table = hv.info && hv.info.words;
+    if (typeof text !== "string" || !table) return text;
+    const found = [];
+    for (const code of Object.keys(table).sort((a, b) => b.length - a.length)) {
+      const re = new RegExp(String.raw`(?<![\w:])${code.replace(/[.*+?^${}()|[\]\\]/g, "\\$&")}(?![\w:])`);
+      if (table[code] && re.test(text) && !found.includes(table[code])) found.push(table[code]);
+    }
+    return found.length ? `${text} — ${found.join("; ")}` : text;
+  }
+
   function log(text, isError = false) {
     const f = $("#log");
-    f.textContent = `${new Date().toLocaleTimeString()}  ${displayUnits(text)}`;
+    const shown = displayUnits(text);
+    f.textContent = `${new Date().toLocaleTimeString()}  ${isError ? inWords(shown) : shown}`;
+    f.title = f.textContent;
     f.classList.toggle("err", isError);
   }
 
@@ -126,6 +166,8 @@
       if (msg.type === "state") onState(msg.data);
       else if (msg.type === "event") onEvent(msg.data);
       else if (msg.type === "hello") ui.hello = msg.data;
+      else if (msg.type === "terminal") onTerminal(msg.data);
+      else if (msg.type === "view") onView(msg.data);
       else if (msg.type === "reply") {
         const p = this.pending.get(msg.id);
         if (p) { this.pending.delete(msg.id); clearTimeout(p.timer); p.resolve({ ok: msg.ok, data: msg.data || {} }); }
@@ -164,6 +206,7 @@
     if (r.ok) { ui.config = r.data; buildGauges(); renderConfig(); renderRanges(); }
     refreshPresets();
     refreshManeuvers();
+    refreshImplements();
   }
 
   // ------------------------------------------------------------------ login
@@ -238,13 +281,15 @@
     if (!w) return;
     const f = $("#goto-form");
     for (const k of DOFS) {
-      const [lo, hi] = w[k], unit = DOF_UNIT[k], range = `${fmt(lo * 1000, 1)} … ${fmt(hi * 1000, 1)}`;
+      const [lo, hi] = w[k], unit = dofUnit(k), c = dofK(k), d = dofDigits(k);
+      const range = `${fmt(lo * c, d)} … ${fmt(hi * c, d)}`;
       $(`#range-${k}`).textContent = range;
       const input = f.elements[k];
       input.placeholder = `keep · ${range}`;
-      input.title = `${k} in ${unit}, workspace ${range} ${unit}; empty = keep`;
-      input.dataset.min = String(lo * 1000); input.dataset.max = String(hi * 1000);
+      input.title = `${k} in ${unit}, workspace ${range} ${unit}${k === "x" ? " (+ = the driver's left)" : ""}; empty = keep`;
+      input.dataset.min = String(lo * c); input.dataset.max = String(hi * c);
     }
+    for (const e of $$(".angle-unit")) e.textContent = angleUnit().unit;
   }
 
   // ------------------------------------------------------------------ gauges (SVG, built once per config)
@@ -332,7 +377,7 @@
     const show = Number.isFinite(target);
     g.target.style.display = show ? "" : "none";
     if (show) g.target.setAttribute("transform", `rotate(${deg(target)} ${g.cx} ${g.cy})`);
-    g.label.textContent = show_mrad(v);
+    g.label.textContent = show_angle(v);
   }
 
   const gauges = {};
@@ -348,12 +393,186 @@
       const row = document.createElement("div");
       row.className = "act";
       row.id = `act-${n}`;
+      if (n === "lift") row.title = `lift: % of the lift-arm stroke, angle θ_E ${show_mrad(lo)} (0 %) … ${show_mrad(hi)} (100 %)`;
       row.innerHTML = `<span class="name">${n}</span><span class="barwrap"><span class="barfill"></span><span class="ref"></span>` +
         `<span class="lo">${showActuator(n, lo)}</span><span class="hi">${showActuator(n, hi)}</span></span><span class="val">—</span>`;
       box.appendChild(row);
       gauges.act[n] = { lo, hi, fill: row.querySelector(".barfill"), ref: row.querySelector(".ref"), val: row.querySelector(".val") };
     }
   }
+
+  // ------------------------------------------------------------------ the hitch picture
+  // Rear view (seen from behind, looking forward: +x, the driver's left, on the left; z up) and side
+  // view (from the left: the tractor on the left, rearward +y to the right; z up), both drawn from the
+  // model's points (tractor frame) at one scale. Each member: [data-member groups, from, to, class].
+  const REAR = [
+    [["limiter_left"], "C_l", "B_l", "m cyl"], [["limiter_right"], "C_r", "B_r", "m cyl"],
+    [["limiter_left"], "B_l", "Bp_l", "m thin"], [["limiter_right"], "B_r", "Bp_r", "m thin"],
+    [["lower_link", "lower_link_left"], "L0", "L", "m"], [["lower_link", "lower_link_right"], "R0", "R", "m"],
+    [["lift_arm"], "Q_l", "S_l", "m"], [["lift_arm"], "Q_r", "S_r", "m"],
+    [["lift_rod_left"], "S_l", "A_l", "m thin"], [["lift_rod_right"], "S_r", "A_r", "m cyl"],
+    [["top_link"], "H", "U", "m cyl"],
+    [["implement"], "L", "R", "m impl"], [["mast", "implement"], "L", "U", "m impl"], [["mast", "implement"], "R", "U", "m impl"],
+  ];
+  const SIDE = [
+    [["lower_link", "lower_link_right"], "R0", "R", "m thin"], [["lift_rod_right"], "S_r", "A_r", "m cyl"],
+    [["limiter_left"], "C_l", "B_l", "m thin"],
+    [["lower_link", "lower_link_left"], "L0", "L", "m"], [["lift_arm"], "Q_l", "S_l", "m"],
+    [["lift_rod_left"], "S_l", "A_l", "m thin"], [["top_link"], "H", "U", "m cyl"],
+    [["mast", "implement"], "T", "U", "m impl"],
+  ];
+  // px kept free above (titles; the "Control limited" box, two lines, covers them) and below the ground line (labels)
+  const VIEW_TOP = 32, VIEW_BOTTOM = 13;
+
+  function onTerminal(t) { hv.info = t; hv.rear = hv.side = null; hv.drawn = null; ui.drawn = false; requestAnimationFrame(draw); }
+  function onView(v) { hv.msg = v; ui.drawn = false; requestAnimationFrame(draw); }
+
+  // one scale for both views, fixed from the first measured points (the picture does not jump)
+  function viewScale(p, info, W, H) {
+    const ws = info.workspace || { x: [0, 0], z: [0, 0] };
+    const names = Object.keys(p), g = info.ground_z;
+    const zs = names.map((n) => p[n][2]), xs = names.map((n) => Math.abs(p[n][0])), ys = names.map((n) => p[n][1]);
+    const zTop = Math.max(...zs) + Math.max(0, ws.z[1] - p.T[2]) + 0.06;
+    const xr = Math.max(...xs) + Math.max(Math.abs(ws.x[0]), Math.abs(ws.x[1])) + 0.08;
+    const y0 = Math.min(...ys) - 0.45, y1 = Math.max(...ys) + 0.12;
+    const s = Math.min((H - VIEW_BOTTOM - VIEW_TOP) / (zTop - g), (W - 16) / (2 * xr), (W - 8) / (y1 - y0));
+    return { s, g, y0, y1, W, H, ground: H - VIEW_BOTTOM };
+  }
+
+  function buildView(svg, members, sc, rear) {
+    svg.textContent = "";
+    const VIEW_W = sc.W;
+    svg.setAttribute("viewBox", `0 0 ${sc.W} ${sc.H}`);   // one unit = one CSS pixel: text stays 10 px
+    const info = hv.info, v = { svg, sc, rear, lines: [], ghost: [] };
+    // side view: centred on the hitch's own extent
+    const ySpan = (sc.y1 - sc.y0) * sc.s, yOff = Math.max(4, (VIEW_W - ySpan) / 2);
+    v.px = rear ? (x) => VIEW_W / 2 - x * sc.s : (y) => yOff + (y - sc.y0) * sc.s;
+    v.py = (z) => sc.ground - (z - sc.g) * sc.s;
+    v.at = (pt) => [v.px(rear ? pt[0] : pt[1]), v.py(pt[2])];
+    const w = info.rear_wheel;
+    if (!rear && w) el(svg, "circle", { class: "wheel", cx: v.px(w.y), cy: v.py(w.z), r: w.radius * sc.s });
+    el(svg, "line", { class: "ground-line", x1: 0, x2: VIEW_W, y1: v.py(sc.g), y2: v.py(sc.g) });
+    v.wsBox = el(svg, "rect", { class: "ws", "data-ws": rear ? "x z" : "z" });
+    v.wsAngle = [el(svg, "line", { class: "ws", "data-ws": rear ? "roll" : "pitch" }), el(svg, "line", { class: "ws", "data-ws": rear ? "roll" : "pitch" })];
+    for (const [groups, a, b, cls] of members) {
+      v.lines.push({ groups, a, b, cls, e: el(svg, "line", { class: cls, "data-member": groups[0] }) });
+    }
+    // the target (the service's reference actuators), dashed over the measured members
+    const gg = el(svg, "g", { class: "ghost" });
+    for (const [, a, b, cls] of members) v.ghost.push({ a, b, e: el(gg, "line", { class: cls }) });
+    v.ghostGroup = gg;
+    v.fixed = ["L0", "R0", "Q_l", "Q_r", "H", "C_l", "C_r"].map((n) => ({ n, e: el(svg, "rect", { class: "fixed", width: 4, height: 4 }) }));
+    v.balls = (rear ? ["L", "R"] : ["L"]).map((n) => ({ n, e: el(svg, "circle", { class: "ball", r: 3.5, "data-member": "implement", "data-point": n }) }));
+    const bottom = sc.H - 2;   // labels under the ground line: nothing is drawn there
+    el(svg, "text", { class: "title", x: 4, y: 11 }, rear ? "Rear view" : "Side view, from the left");
+    if (rear) {
+      el(svg, "text", { class: "title", x: 4, y: bottom }, "◀ left");
+      el(svg, "text", { class: "title", x: VIEW_W - 4, y: bottom, "text-anchor": "end" }, "right ▶");
+      v.hL = el(svg, "text", { class: "hgt", "text-anchor": "middle", y: bottom });
+      v.hR = el(svg, "text", { class: "hgt", "text-anchor": "middle", y: bottom });
+      v.note = el(svg, "text", { class: "title", x: VIEW_W - 4, y: 11, "text-anchor": "end" }, "");
+    } else {
+      el(svg, "text", { class: "title", x: 4, y: bottom }, "◀ front");
+      el(svg, "text", { class: "title", x: VIEW_W - 4, y: bottom, "text-anchor": "end" }, "rear ▶");
+      v.hT = el(svg, "text", { class: "hgt", "text-anchor": "start" });
+      v.lift = el(svg, "text", { class: "hgt", "text-anchor": "middle" });
+    }
+    return v;
+  }
+
+  function setLine(e, p0, p1) {
+    e.setAttribute("x1", p0[0].toFixed(1)); e.setAttribute("y1", p0[1].toFixed(1));
+    e.setAttribute("x2", p1[0].toFixed(1)); e.setAttribute("y2", p1[1].toFixed(1));
+  }
+
+  function drawView(v, meas, goal, moving, lit, limitedCodes) {
+    const p = meas.points, info = hv.info, ws = info.workspace;
+    for (const l of v.lines) {
+      setLine(l.e, v.at(p[l.a]), v.at(p[l.b]));
+      l.e.setAttribute("class", `${l.cls}${l.groups.some((g) => lit.has(g)) ? " hl" : ""}`);
+    }
+    // the ghost: where the running motion ends (the plan's final actuators through the model)
+    const showGhost = Boolean(moving && goal);
+    v.ghostGroup.style.display = showGhost ? "" : "none";
+    if (showGhost) for (const l of v.ghost) setLine(l.e, v.at(goal.points[l.a]), v.at(goal.points[l.b]));
+    for (const f of v.fixed) { const [x, y] = v.at(p[f.n]); f.e.setAttribute("x", (x - 2).toFixed(1)); f.e.setAttribute("y", (y - 2).toFixed(1)); }
+    for (const b of v.balls) {
+      const [x, y] = v.at(p[b.n]); b.e.setAttribute("cx", x.toFixed(1)); b.e.setAttribute("cy", y.toFixed(1));
+      b.e.setAttribute("class", `ball${lit.has("implement") ? " hl" : ""}`);
+    }
+    const hit = (dofs) => limitedCodes.some((c) => dofs.some((d) => c.startsWith(`workspace:${d}:`)));
+    if (ws) {
+      // the workspace box of the tool point T (x, z in the rear view; z in the side view at T's y)
+      const T = p.T;
+      const x0 = v.rear ? v.px(ws.x[0]) : v.px(T[1]) - 3, x1 = v.rear ? v.px(ws.x[1]) : v.px(T[1]) + 3;
+      v.wsBox.setAttribute("x", Math.min(x0, x1).toFixed(1)); v.wsBox.setAttribute("width", Math.abs(x1 - x0).toFixed(1));
+      v.wsBox.setAttribute("y", v.py(ws.z[1]).toFixed(1)); v.wsBox.setAttribute("height", (v.py(ws.z[0]) - v.py(ws.z[1])).toFixed(1));
+      v.wsBox.setAttribute("class", `ws${hit(v.rear ? ["x", "z"] : ["z"]) ? " hl" : ""}`);
+      // the roll limits (the lower-hitch bar's allowed tilt) or the pitch limits (the mast's) through T
+      const lims = v.rear ? ws.roll : ws.pitch, [tx, ty] = v.at(T);
+      const half = v.rear ? Math.hypot(p.L[0] - p.R[0], p.L[2] - p.R[2]) / 2 + 0.2 : Math.hypot(p.U[1] - T[1], p.U[2] - T[2]) + 0.12;
+      lims.forEach((a, i) => {
+        // rear: the bar L−R ∝ (cos a, −sin a) in (x, z), x drawn to the left; side: the mast ∝ (−sin a, cos a) in (y, z)
+        const [dx, dy] = v.rear ? [-Math.cos(a), Math.sin(a)] : [-Math.sin(a), -Math.cos(a)];
+        const k = half * v.sc.s;
+        setLine(v.wsAngle[i], v.rear ? [tx - dx * k, ty - dy * k] : [tx, ty], [tx + dx * k, ty + dy * k]);
+        v.wsAngle[i].setAttribute("class", `ws${hit([v.rear ? "roll" : "pitch"]) ? " hl" : ""}`);
+      });
+    }
+    const ag = meas.above_ground || {};
+    if (v.rear) {
+      // the lower hitch points' heights above the ground, under each point
+      const [lx] = v.at(p.L), [rx] = v.at(p.R);
+      v.hL.setAttribute("x", (lx - 8).toFixed(1)); v.hL.textContent = `↑${fmt(1000 * ag.L, 0)}`;
+      v.hR.setAttribute("x", (rx + 8).toFixed(1)); v.hR.textContent = `↑${fmt(1000 * ag.R, 0)} mm`;
+    } else {
+      const [tx, ty] = v.at(p.T), [sx, sy] = v.at(p.S_l);
+      v.hT.setAttribute("x", (tx + 8).toFixed(1)); v.hT.setAttribute("y", (ty + 4).toFixed(1)); v.hT.textContent = `${fmt(1000 * ag.T, 0)} mm`;
+      v.lift.setAttribute("x", sx.toFixed(1)); v.lift.setAttribute("y", (sy - 7).toFixed(1));
+      v.lift.textContent = `lift ${fmt(100 * meas.lift_fraction, 0)} %`;
+    }
+  }
+
+  function drawViews(s) {
+    const info = hv.info, msg = hv.msg;
+    if (!info || !msg || !msg.measured) {
+      $("#r-ground").textContent = "above ground: —";
+      if (hv.rear && hv.rear.note) hv.rear.note.textContent = info ? "no measured pose" : "waiting for the model…";
+      return;
+    }
+    if (hv.drawn === msg && hv.drawnMoving === s.moving) return;
+    hv.drawn = msg; hv.drawnMoving = s.moving;
+    if (!hv.rear) {
+      const box = $("#v-rear").getBoundingClientRect();
+      if (box.width < 40 || box.height < 40) return;   // not laid out (hidden): try again next frame
+      const sc = viewScale(msg.measured.points, info, Math.round(box.width), Math.round(box.height));
+      hv.rear = buildView($("#v-rear"), REAR, sc, true);
+      hv.side = buildView($("#v-side"), SIDE, sc, false);
+    }
+    const lit = new Set(msg.highlight || []), codes = (msg.limited || []).map((e) => e.code);
+    for (const v of [hv.rear, hv.side]) drawView(v, msg.measured, msg.goal, s.moving, lit, codes);
+    const ag = msg.measured.above_ground;
+    $("#r-ground").textContent = `above ground: L ${fmt(1000 * ag.L, 0)} · R ${fmt(1000 * ag.R, 0)} mm`;
+    hv.rear.note.textContent = lit.size ? "red: what limits" : s.moving && msg.goal ? "dashed: where it ends" : "";
+  }
+
+  // ------------------------------------------------------------------ angle unit (a setting of this browser)
+  function renderAngleUnit() {
+    $("#angle-unit").textContent = `Angles: ${angleUnit().unit}`;
+    $("#angle-unit").setAttribute("aria-label", `angle unit: ${angleUnit().unit === "deg" ? "degrees" : "milliradians"} (click to change)`);
+    for (const e of $$(".angle-unit")) e.textContent = angleUnit().unit;
+  }
+  $("#angle-unit").addEventListener("click", () => {
+    units.angle = units.angle === "mrad" ? "deg" : "mrad";
+    try { localStorage.setItem(ANGLE_KEY, units.angle); } catch (e) { /* not saved: this page only */ }
+    renderAngleUnit();
+    if (ui.config) { renderRanges(); renderConfig(); }
+    for (const k of ["roll", "pitch"]) $(`#goto-form`).elements[k].value = "";   // typed in the old unit
+    refreshPresets();
+    ui.drawn = false; requestAnimationFrame(draw);
+  });
+  renderAngleUnit();
+  window.addEventListener("resize", () => { hv.rear = hv.side = null; hv.drawn = null; ui.drawn = false; requestAnimationFrame(draw); });
 
   // ------------------------------------------------------------------ state → screen
   function onState(s) {
@@ -375,8 +594,9 @@
       drawDial(gauges.pitch, pose.pitch, ref.pitch);
       drawActuators(s);
     }
-    for (const k of DOFS) $(`#r-${k}`).textContent = showDof(k, pose[k]);
+    for (const k of DOFS) $(`#r-${k}`).textContent = k === "x" ? show_x(pose.x) : showDof(k, pose[k]);
     drawLimited(s.limited || {});
+    drawViews(s);
     level.draw(s);
     drawMargins(s);
     drawModeAndMotion(s);
@@ -395,19 +615,42 @@
       g.ref.style.display = Number.isFinite(rf) ? "" : "none";
       if (Number.isFinite(rf)) g.ref.style.left = `calc(${(100 * Math.max(0, Math.min(1, rf))).toFixed(1)}% - 1px)`;
       g.val.textContent = showActuator(n, v);
+      if (n === "lift") g.val.title = `lift-arm angle ${show_mrad(v)}`;
     }
   }
+
+  // One state.limited entry in the operator's words: the server's (with the guard's numbers) when its
+  // latest view has the same entry, else the terminal's table, else as it came. Returns [words, code].
+  const GUARD_RE = /^(hard|caution|speed):\s*(\S+) would be/;
+  function limitedEntryWords(k, v) {
+    const name = String(v), info = hv.info, g = GUARD_RE.exec(name), code = g ? g[2] : name;
+    const fromView = ((hv.msg && hv.msg.limited) || []).find((e) => e.key === k && e.code === code);
+    if (fromView) return [fromView.words, code];
+    const w = info && info.words && info.words[code];
+    const measure = g && hv.info && hv.info.words && ["front_axle_load", "ssm", "lsm", "esm"].includes(code);
+    if (w) return [measure ? `${w}: ${g[1] === "hard" ? "refused" : "slowed"}` : w, code];
+    return [displayUnits(`${k}: ${name}`), ""];
+  }
+  window.hitchTerminal = { ...(window.hitchTerminal || {}), limitedEntryWords, inWords };
 
   function drawLimited(limited) {
     const entries = Object.entries(limited);
     const box = $("#limited");
     box.classList.toggle("hidden", entries.length === 0);
-    if (entries.length) {
-      box.textContent = "Control limited: " + entries.map(([k, v]) => {
-        const name = String(v);
-        return name.includes(":") && !name.includes(" ") ? `${name} (${k})` : `${k} — ${name}`;
-      }).join("; ");
-    }
+    if (!entries.length) return;
+    const key = JSON.stringify(entries) + (hv.msg ? hv.msg.seq : "");
+    if (box.dataset.key === key) return;
+    box.dataset.key = key;
+    box.textContent = "Control limited: ";
+    const all = [];
+    entries.forEach(([k, v], i) => {
+      const [words, code] = limitedEntryWords(k, v);
+      if (i) box.append("; ");
+      box.append(words);
+      if (code) { const c = document.createElement("small"); c.className = "code"; c.textContent = ` [${code}]`; box.append(c); }
+      all.push(code ? `${words} [${code}]` : words);
+    });
+    box.title = `Control limited: ${all.join("; ")}`;   // the whole text, also when the box cuts it short
   }
 
   function setLevel(row, level) { row.classList.remove("ok", "caution", "danger"); if (level) row.classList.add(level); }
@@ -417,17 +660,35 @@
     if (km) {
       const t = km.time_s;
       row.querySelector(".v").textContent = t === null || t === undefined ? "∞" : `${fmt(t, 2)} s`;
-      row.querySelector(".n").textContent = km.limit ? `to ${km.limit}` : "at rest";
+      const w = km.limit && hv.info && hv.info.words && hv.info.words[km.limit];
+      row.querySelector(".n").textContent = km.limit ? `to ${w || km.limit}` : "at rest";
+      row.title = km.limit ? `time to the nearest limit at the current speed: ${w || ""} [${km.limit}]` : "at rest: no limit ahead";
       setLevel(row, t === null || t === undefined || t > KIN_CAUTION_S ? "ok" : t > KIN_DANGER_S ? "caution" : "danger");
     } else { row.querySelector(".v").textContent = "—"; setLevel(row, ""); }
     const st = s.stability;
     const levels = {};
     for (const v of (st && st.violations) || []) levels[v.measure] = v.level === "hard" ? "danger" : "caution";
-    const values = st ? { ssm: `${fmt(st.ssm, 3)} m`, lsm: `${fmt(st.lsm, 3)} m`, esm: `${fmt(st.esm / 1000, 2)} kJ`,
-      front_axle_load: `${fmt(100 * st.front_axle_share, 1)} %` } : {};
+    // units and the guard's minimum next to each value; the front axle as a share of the empty tractor's
+    // weight (the rule's basis: the steering needs 20 %) when the terminal knows the weights
+    const th = (hv.info && hv.info.thresholds) || null, factor = hv.info && hv.info.weight_factor;
+    const min = (m, k, unit, d) => th ? `minimum ${fmt(th[m][0] * k, d)} ${unit}` : "";
+    // [value, note, the sentence in words (the row's tooltip)]
+    const rows = st ? {
+      ssm: [`${fmt(st.ssm, 2)} m`, min("ssm", 1, "m", 2), "side stability margin"],
+      lsm: [`${fmt(st.lsm, 2)} m`, min("lsm", 1, "m", 2), "fore-aft stability margin"],
+      esm: [`${fmt(st.esm / 1000, 1)} kJ`, min("esm", 0.001, "kJ", 1), "energy to tip over"],
+      front_axle_load: factor
+        ? [`${fmt(100 * st.front_axle_share * factor, 0)} %`, `of the tractor's weight${th ? ` (minimum ${fmt(100 * th.front_axle_fraction[0], 0)} %)` : ""}`, "front axle load"]
+        : [`${fmt(100 * st.front_axle_share, 1)} %`, "of the total weight", "front axle load"],
+    } : {};
     for (const m of ["ssm", "lsm", "esm", "front_axle_load"]) {
       const r = $(`#m-${m}`);
-      r.querySelector(".v").textContent = st ? values[m] : "—";
+      r.querySelector(".v").textContent = st ? rows[m][0] : "—";
+      if (st) {
+        const [v, n, what] = rows[m];
+        r.querySelector(".n").textContent = n;
+        r.title = m === "front_axle_load" ? `${what} ${v} ${n}` : `${what} ${v}${n ? ` (${n})` : ""}`;
+      }
       setLevel(r, st ? (levels[m] || "ok") : "");
     }
   }
@@ -439,6 +700,7 @@
     m.textContent = s.moving ? `Moving: ${s.motion || "motion"} #${s.motion_id}` : "Idle";
     m.className = `pill ${s.moving ? "warn" : ""}`;
     drawManeuver(s.maneuver);
+    actions.draw(s);
     const e = s.ecu || {}, ecu = $("#ecu"), faults = e.faults || [];
     const activity = ecuActivity(s);
     if (!e.online) { ecu.textContent = "ECU: offline"; ecu.className = "pill bad"; }
@@ -529,6 +791,7 @@
       ui.gotoId = null;
     }
     level.onEvent(e);
+    if (name === "implement_selected") refreshImplements();
     if (name === "maneuver_finished" || name === "maneuver_aborted") {
       $("#maneuver-result").textContent = name === "maneuver_finished"
         ? `${e.maneuver} finished in ${fmt(e.elapsed, 1)} s` : `${e.maneuver} aborted: ${e.reason} — ${e.message || ""}`;
@@ -592,7 +855,8 @@
     const rows = [["profile", c.profile], ["category", c.category], ["implement", c.implement || "none"],
       ["control rate", `${c.control_rate} Hz`], ["state rate", `${c.state_rate} Hz`],
       ["workspace x", `${fmt(w.x[0] * 1000)} … ${fmt(w.x[1] * 1000)} mm`], ["workspace z", `${fmt(w.z[0] * 1000)} … ${fmt(w.z[1] * 1000)} mm`],
-      ["roll", `${fmt(w.roll[0] * 1000)} … ${fmt(w.roll[1] * 1000)} mrad`], ["pitch", `${fmt(w.pitch[0] * 1000)} … ${fmt(w.pitch[1] * 1000)} mrad`],
+      ["roll", `${fmt(w.roll[0] * dofK("roll"), dofDigits("roll"))} … ${fmt(w.roll[1] * dofK("roll"), dofDigits("roll"))} ${dofUnit("roll")}`],
+      ["pitch", `${fmt(w.pitch[0] * dofK("pitch"), dofDigits("pitch"))} … ${fmt(w.pitch[1] * dofK("pitch"), dofDigits("pitch"))} ${dofUnit("pitch")}`],
       ["user", ui.hello && ui.hello.login ? `${ui.hello.user} (${ui.hello.role})` : (ui.hello && ui.hello.user) || "(no access control)"]];
     for (const [k, v] of rows) {
       const dt = document.createElement("dt"), dd = document.createElement("dd");
@@ -754,7 +1018,7 @@
       const t = s.track, counts = $("#level-counts"), box = $("#level-limited");
       if (!t) { counts.textContent = ""; box.classList.add("hidden"); return; }
       const mine = this.session !== null && t.session === this.session;
-      const target = t.target && Number.isFinite(t.target.roll) ? ` · target ${show_mrad(t.target.roll)}` : "";
+      const target = t.target && Number.isFinite(t.target.roll) ? ` · target ${show_angle(t.target.roll)}` : "";
       counts.textContent = `${mine ? "" : `track session ${t.session} (${t.frame}, ${(t.dof || []).join(", ")}) · `}` +
         `setpoints ${t.setpoints} · rejected ${t.rejected} · ignored ${t.ignored_seq}` + target +
         (t.stale ? " · stale: braking" : t.ending ? " · ending" : "");
@@ -786,13 +1050,13 @@
       if (raw === "") continue;
       const v = Number(raw);
       if (!Number.isFinite(v)) return { error: `${k}: not a number` };
-      goal[k] = v / 1000;   // the form takes mm and mrad: x_mm → m, roll_mrad → rad
+      goal[k] = v / dofK(k);   // the form takes mm and the page's angle unit: x_mm → m, roll_mrad (or deg) → rad
     }
     if (!Object.keys(goal).length) return { error: "enter at least one of x, z, roll, pitch (empty = keep)" };
     const speed = Number(f.elements.speed.value || 100);
     return { goal, speed_scale: Math.max(0.05, Math.min(1, speed / 100)) };
   }
-  function result(sel, text, ok) { const r = $(sel); r.textContent = displayUnits(text); r.className = `result ${ok ? "ok" : "err"}`; }
+  function result(sel, text, ok) { const r = $(sel); r.textContent = ok ? displayUnits(text) : inWords(displayUnits(text)); r.className = `result ${ok ? "ok" : "err"}`; }
 
   $("#goto-form").addEventListener("submit", async (ev) => {
     ev.preventDefault();
@@ -812,7 +1076,7 @@
   });
   $("#goto-current").addEventListener("click", () => {
     const p = (ui.state && ui.state.pose) || {}, f = $("#goto-form");
-    for (const k of DOFS) f.elements[k].value = Number.isFinite(p[k]) ? (p[k] * 1000).toFixed(1) : "";
+    for (const k of DOFS) f.elements[k].value = Number.isFinite(p[k]) ? (p[k] * dofK(k)).toFixed(dofDigits(k)) : "";
   });
 
   // ------------------------------------------------------------------ presets
@@ -838,7 +1102,7 @@
     const list = $("#preset-list");
     list.textContent = "";
     for (const p of r.data.presets) {
-      const sub = DOFS.map((k) => `${k} ${fmt(p.pose[k] * 1000, 0)}`).join(" · ");
+      const sub = DOFS.map((k) => `${k} ${fmt(p.pose[k] * dofK(k), isLength(k) ? 0 : dofDigits(k) - 1)}`).join(" · ") + ` (mm, ${angleUnit().unit})`;
       item(list, p.name, sub, [
         ["Go", "primary motion-only", async () => { const q = await call("presets/go", { name: p.name }); if (q.ok) log(`preset ${p.name}: moving, ${fmt(q.data.duration, 2)} s`); }],
         ["Delete", "danger", async () => {
@@ -911,6 +1175,236 @@
     bar.querySelector(".fill").style.width = steps ? `${(100 * step / steps).toFixed(0)}%` : "0%";
     bar.querySelector(".text").textContent = `${man.name}: step ${step + 1}${steps ? " of " + steps : ""}`;
   }
+
+
+  // ------------------------------------------------------------------ the command row (#actions)
+  // Raise / Return, the transport lock, the implement chooser, teach-in (record → review → save) and
+  // pause / resume / skip of the running maneuver with its progress from the state's `maneuver`.
+  const actions = {
+    implements: [], selected: null, recording: false, busy: false,
+    isViewer: () => document.body.classList.contains("viewer"),
+    say(text, ok) { const r = $("#act-result"); r.textContent = ok ? displayUnits(text) : inWords(displayUnits(text)); r.title = r.textContent; r.className = `act-line result ${ok ? "ok" : "err"}`; },
+    current() { return this.implements.find((i) => i.name === this.selected) || null; },
+    drawLock() {
+      const b = $("#act-lock"), imp = this.current(), locked = Boolean(imp && imp.transport_locked);
+      b.textContent = imp ? `Lock: ${locked ? "on" : "off"}` : "Lock: —";
+      b.setAttribute("aria-pressed", String(locked));
+      b.disabled = this.isViewer() || !imp;
+      for (const id of ["#act-raise", "#act-return"]) $(id).disabled = this.isViewer() || !imp;
+    },
+    drawImplements() {
+      const sel = $("#act-implement");
+      sel.textContent = "";
+      const names = this.implements.map((i) => i.name);
+      if (this.selected && !names.includes(this.selected)) names.unshift(this.selected);
+      for (const n of names) {
+        const o = document.createElement("option");
+        o.value = n; o.textContent = n === "default" ? "no implement" : n;
+        sel.appendChild(o);
+      }
+      sel.value = this.selected || "";
+      sel.disabled = this.isViewer();
+      this.drawLock();
+    },
+    // the running maneuver's step, kind and what is left, from the state
+    draw(s) {
+      const man = s.maneuver, viewer = this.isViewer(), p = $("#act-progress");
+      $("#act-pause").disabled = viewer || !man || Boolean(man.paused);
+      $("#act-resume").disabled = viewer || !man || !man.paused;
+      $("#act-skip").disabled = viewer || !man;
+      this.drawLock();
+      const rec = $("#act-record");
+      rec.setAttribute("aria-pressed", String(this.recording));
+      rec.textContent = this.recording ? "■ Stop rec." : "● Record";
+      if (!man) { p.textContent = "no maneuver running"; p.className = "act-line"; return; }
+      const steps = ui.maneuverSteps[man.name] || 0, step = Number.isInteger(man.step) ? man.step + 1 : "—";
+      let text = `${man.name || "maneuver"}: step ${step}${steps ? " of " + steps : ""}`;
+      if (man.kind) text += ` · ${man.kind.replace("_", " ")}`;
+      if (Number.isFinite(man.time_left)) text += ` · ${fmt(man.time_left, 1)} s left`;
+      if (Number.isFinite(man.distance_left)) text += ` · ${fmt(man.distance_left, 1)} m left`;
+      if (man.paused) text += " · paused";
+      p.textContent = text; p.title = text;
+      p.className = `act-line ${man.paused ? "paused" : "running"}`;
+    },
+  };
+  window.hitchTerminal.actions = actions;   // for the browser test
+
+  async function refreshImplements() {
+    const r = await call("implements/list", {}, true);
+    if (!r.ok) return;
+    actions.implements = r.data.implements || [];
+    actions.selected = r.data.selected;
+    actions.drawImplements();
+  }
+
+  async function actionCall(key, payload, okText) {
+    const r = await call(key, payload);
+    if (r.ok) actions.say(okText(r.data), true); else actions.say(r.data.message || `${key}: ${r.data.error}`, false);
+    return r;
+  }
+  $("#act-raise").addEventListener("click", () => actionCall("hitch/raise", {}, (d) => `raise: moving, motion #${d.motion_id}, ${fmt(d.duration, 1)} s`));
+  $("#act-return").addEventListener("click", () => actionCall("hitch/return", {}, (d) => `return: moving, motion #${d.motion_id}, ${fmt(d.duration, 1)} s`));
+  $("#act-lock").addEventListener("click", async () => {
+    const imp = actions.current();
+    if (!imp) return;
+    const key = imp.transport_locked ? "implements/unlock" : "implements/lock";
+    const r = await actionCall(key, {}, (d) => `${d.implement}: transport lock ${d.transport_locked ? "on: every motion but STOP is refused" : "off"}`);
+    if (r.ok) await refreshImplements();
+  });
+  $("#act-implement").addEventListener("change", async (ev) => {
+    const name = ev.target.value;
+    const r = await actionCall("implements/select", { name }, (d) => `implement: ${d.selected}`);
+    await refreshImplements();   // refused (e.g. while moving): the chooser shows the selected one again
+    if (r.ok) refreshPresets();
+  });
+  $("#act-record").addEventListener("click", async () => {
+    if (!actions.recording) {
+      const r = await actionCall("maneuvers/record/start", {}, () => "recording: your gotos, presets and jogs become steps");
+      if (r.ok) actions.recording = true;
+      if (ui.state) actions.draw(ui.state);
+      return;
+    }
+    const r = await call("maneuvers/record/stop", {});
+    actions.recording = false;
+    if (ui.state) actions.draw(ui.state);
+    if (!r.ok) { actions.say(r.data.message, false); return; }
+    actions.say(`recorded ${r.data.steps} steps: review and save`, true);
+    review.open(r.data.script, r.data.steps);
+  });
+  for (const [id, action] of [["#act-pause", "pause"], ["#act-resume", "resume"], ["#act-skip", "skip"]]) {
+    $(id).addEventListener("click", () => actionCall(`maneuvers/${action}`, {}, (d) => {
+      const m = d.maneuver;
+      return `maneuver ${{ pause: "paused", resume: "resumed", skip: "skipped" }[action]}` + (m && Number.isInteger(m.step) ? `: step ${m.step + 1}` : "");
+    }));
+  }
+
+  // the recorded script for review: edit, Save as → maneuvers/save; Cancel discards it
+  const review = {
+    open(script, steps) {
+      $("#review-title").textContent = `Recorded maneuver: ${steps} step${steps === 1 ? "" : "s"}`;
+      $("#review-script").value = script;
+      const m = /^name:\s*([A-Za-z0-9][A-Za-z0-9_.\-]*)/m.exec(script);
+      $("#review-name").value = m ? m[1] : "";
+      $("#review-result").textContent = "";
+      $("#review").classList.remove("hidden");
+      $("#review-name").focus();
+    },
+    close() { $("#review").classList.add("hidden"); },
+  };
+  $("#review-cancel").addEventListener("click", () => { review.close(); actions.say("recording discarded", true); });
+  $("#review-save").addEventListener("click", async () => {
+    const name = $("#review-name").value.trim();
+    if (!name) { result("#review-result", "enter a name: 1–64 of A–Z a–z 0–9 _ . -", false); return; }
+    const q = await call("maneuvers/save", { name, script: $("#review-script").value }, true);
+    if (!q.ok) { result("#review-result", q.data.message, false); return; }
+    review.close();
+    actions.say(`${q.data.saved} saved (${q.data.steps} steps)`, true);
+    refreshManeuvers();
+  });
+
+  // ------------------------------------------------------------------ work control (in #actions)
+  // Mode, settings (draft setpoint in kN, blend, depth limits in cm: the API's N and m), Start/Stop and
+  // Resume after a fallback; the state's `work` block in words. Self-contained: it follows ui.state on
+  // its own timer and reads the selected implement's settings (work/settings) on each connection.
+  const work = {
+    settings: null, implement: undefined, ws: null, shown: null,
+    kn: (n) => (Number.isFinite(n) ? (n / 1000).toFixed(1) : "—"),
+    cm: (m) => (Number.isFinite(m) ? (m * 100).toFixed(0) : "—"),
+    take(d) {
+      this.settings = d.settings; this.implement = d.implement;
+      $("#work-mode").value = d.settings.mode;
+    },
+    async load() {
+      const r = await call("work/settings", {}, true);
+      if (r.ok) this.take(r.data);
+      return r;
+    },
+    async put(payload) {
+      const r = await call("work/settings", payload, true);
+      if (r.ok) this.take(r.data); else if (this.settings) $("#work-mode").value = this.settings.mode;
+      return r;
+    },
+    // the work block in words, e.g. "draft control · draft 21.3 kN (setpoint 20.0 kN) · depth 18 cm"
+    words(w) {
+      const mode = (this.settings && this.settings.mode) || (w && w.mode) || "position";
+      if (!w || !w.running) {
+        const sp = this.settings && mode !== "position" && mode !== "float" ? ` (setpoint ${this.kn(this.settings.draft_setpoint_n)} kN)` : "";
+        return `work control: off · ${mode}${sp}`;
+      }
+      const parts = [];
+      if (w.fallback) parts.push(`fallback: ${String(w.fallback).replace(/^(.*?): (.*)$/, "$1 ($2)")} — position control`);
+      else parts.push(`${w.active || w.mode} control`);
+      if (w.mode !== "position" || Number.isFinite(w.draft_n)) {
+        parts.push(`draft ${Number.isFinite(w.draft_n) ? this.kn(w.draft_n) + " kN" : "—"} (setpoint ${this.kn(w.draft_setpoint_n)} kN)`);
+      }
+      if (Number.isFinite(w.depth_m)) parts.push(`depth ${this.cm(w.depth_m)} cm`);
+      if (w.limited && w.limited.depth) parts.push(w.limited.depth === "work:depth_max" ? "at max depth" : "at min depth");
+      return parts.join(" · ");
+    },
+    draw(s) {
+      const w = s.work, viewer = document.body.classList.contains("viewer"), running = Boolean(w && w.running);
+      const b = $("#work-toggle"), st = $("#work-status");
+      b.setAttribute("aria-pressed", String(running));
+      b.textContent = running ? "■ Stop" : "▶ Start";
+      b.disabled = viewer;
+      $("#work-mode").disabled = viewer;
+      $("#work-settings").disabled = viewer;
+      $("#work-resume").disabled = viewer || !running || !w.fallback;
+      const text = this.words(w);
+      st.textContent = text; st.title = text;
+      st.className = `act-line ${running ? (w.fallback ? "fallback" : "running") : ""}`;
+    },
+    tick() {
+      if (!ui.state) return;
+      if (link.ws !== this.ws || (actions.selected && actions.selected !== this.implement)) {
+        this.ws = link.ws; this.implement = actions.selected || this.implement;
+        this.load();
+      }
+      if (ui.state !== this.shown) { this.shown = ui.state; this.draw(ui.state); }
+    },
+    openDialog() {
+      const s = this.settings;
+      if (!s) return;
+      const f = $("#work-form");
+      f.draft_kn.value = (s.draft_setpoint_n / 1000).toFixed(1);
+      f.blend.value = String(s.blend);
+      f.depth_min_cm.value = (s.depth_min_m * 100).toFixed(1);
+      f.depth_max_cm.value = (s.depth_max_m * 100).toFixed(1);
+      $("#work-form-result").textContent = "";
+      $("#work-dialog").classList.remove("hidden");
+    },
+  };
+  window.hitchTerminal.work = work;   // for the browser test
+  setInterval(() => work.tick(), 100);
+  $("#work-mode").addEventListener("change", async (ev) => {
+    const r = await work.put({ mode: ev.target.value });
+    actions.say(r.ok ? `work mode: ${r.data.settings.mode}` : r.data.message, r.ok);
+  });
+  $("#work-settings").addEventListener("click", async () => { await work.load(); work.openDialog(); });
+  $("#work-cancel").addEventListener("click", () => $("#work-dialog").classList.add("hidden"));
+  $("#work-form").addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    const f = ev.target, body = {};
+    const num = (v) => (String(v).trim() === "" ? null : Number(v));
+    for (const [name, key, scale] of [["draft_kn", "draft_setpoint_n", 1000], ["blend", "blend", 1],
+      ["depth_min_cm", "depth_min_m", 0.01], ["depth_max_cm", "depth_max_m", 0.01]]) {
+      const v = num(f[name].value);
+      if (v === null) continue;
+      if (!Number.isFinite(v)) { result("#work-form-result", `${name.replace("_", " ")}: enter a number`, false); return; }
+      body[key] = v * scale;
+    }
+    const r = await work.put(body);
+    if (!r.ok) { result("#work-form-result", r.data.message || r.data.error, false); return; }
+    $("#work-dialog").classList.add("hidden");
+    const s = r.data.settings;
+    actions.say(`work settings saved: ${s.mode}, draft ${work.kn(s.draft_setpoint_n)} kN, blend ${s.blend}, depth ${work.cm(s.depth_min_m)}–${work.cm(s.depth_max_m)} cm`, true);
+  });
+  $("#work-toggle").addEventListener("click", async () => {
+    const running = Boolean(ui.state && ui.state.work && ui.state.work.running);
+    if (running) await actionCall("work/stop", {}, (d) => `work session ${d.session}: stopping`);
+    else await actionCall("work/start", {}, (d) => `work session ${d.session} started: ${d.work.mode}`);
+  });
+  $("#work-resume").addEventListener("click", () => actionCall("work/resume", {}, (d) => `work: ${d.mode} again`));
 
   for (const b of $$(".motion-only")) b.dataset.title = b.title || "";
   renderHelp();

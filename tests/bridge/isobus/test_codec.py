@@ -382,7 +382,7 @@ def test_every_message_round_trips():
 def test_every_dbc_message_has_a_payload_type():
     codec = load_codec()
     names = {m.name for m in codec.database.messages}
-    assert len(names) == 15
+    assert len(names) == 16
     for m in codec.database.messages:
         assert m.is_extended_frame and m.protocol == "j1939"
 

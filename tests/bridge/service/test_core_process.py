@@ -136,3 +136,48 @@ def test_closing_ends_the_core_process_and_the_can_log_holds_the_references(tmp_
             time.sleep(0.05)
     refs = [m for m in can.LogReader(str(log)) if decode_id(m.arbitration_id).pgn == REFERENCE_PGN]
     assert len(refs) > 20  # the held reference streamed at 50 Hz, recorded in the core's process
+
+
+def test_without_planning_processes_the_service_plans_on_its_own_guard_not_in_the_core(tmp_path):
+    """Process core and ``planning_processes = 0``: ``plan`` and ``maneuvers/validate`` are planned in the
+    service's process (before: ``MotionProxy`` has no ``preview_from`` / ``plan_step``, an internal error)."""
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    svc = HitchService(ServiceConfig(listen=[ep], data_dir=tmp_path, planning_processes=0)).start()
+    try:
+        assert svc.core is not None and svc.planning is None
+        assert _wait(lambda: (svc.latest_state or {}).get("ecu", {}).get("online")), "no state from the core"
+        with HitchClient([ep], timeout_s=20) as c:
+            plan = c.request("plan", {"goal": {"z": 0.25}})
+            assert plan["ok"] and plan["duration"] > 0, plan
+            checked = c.request("maneuvers/validate", {"script": "steps:\n  - goto: {z: 0.2}\n  - wait: 0.5\n"})
+            assert checked["ok"] and checked["duration"] > 0.5, checked
+            with pytest.raises(ServiceError) as e:
+                c.request("plan", {"goal": {"z": 5.0}})
+            assert e.value.code in ("unreachable", "bad_request"), e.value
+    finally:
+        svc.close()
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="raising priorities needs root or CAP_SYS_NICE")
+def test_the_twin_runs_above_the_core_and_the_core_above_the_service(service):
+    """The simulated ECU and tractor stand in for computers of their own: their runner thread gets nice
+    TWIN_NICE, every other thread of the core CORE_NICE."""
+    from bridge.service.core.process import CORE_NICE, TWIN_NICE
+
+    svc, _ = service
+    pid = svc.core.pid
+
+    def nices() -> list[int]:
+        out = []
+        for tid in os.listdir(f"/proc/{pid}/task"):
+            try:
+                with open(f"/proc/{pid}/task/{tid}/stat") as f:
+                    out.append(int(f.read().rsplit(")", 1)[1].split()[16]))
+            except (OSError, IndexError, ValueError):
+                pass  # a thread that ended meanwhile
+        return out
+
+    assert _wait(lambda: TWIN_NICE in nices(), 5.0)
+    got = nices()
+    assert got.count(TWIN_NICE) == 1, got
+    assert set(got) <= {TWIN_NICE, CORE_NICE}, got

@@ -109,6 +109,8 @@ MOTION_REQUESTS = {
     "presets/go": {"name": "a"},
     "maneuvers/run": {"name": "m"},
     "jog": {"vz": 0.01},
+    "hitch/raise": {},
+    "hitch/return": {},
 }
 
 

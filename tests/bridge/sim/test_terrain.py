@@ -183,6 +183,35 @@ def test_row_band_is_spatial_so_the_signal_speeds_up_with_the_tractor():
         assert fast.row_true_offset_m(t) == pytest.approx(slow.row_true_offset_m(2 * t), abs=1e-12)
 
 
+def test_a_camera_ahead_of_the_implement_sees_the_row_that_far_ahead():
+    # the front-axle camera: wheelbase 2.7 m + implement 1.2 m behind the rear axle = 3.9 m of look-ahead
+    under = twin(SineGround(), speed=4 / 3.6, row=RowSignal(rms_m=0.02, noise_rms_m=0.005, seed=5))
+    ahead = twin(SineGround(), speed=4 / 3.6, row=RowSignal(rms_m=0.02, noise_rms_m=0.005, seed=5, camera_ahead_m=3.9))
+    assert under.row.camera_ahead_m == 0.0  # the default: a camera under the implement, as before
+    lead_s = 3.9 / (4 / 3.6)  # the offset seen now is the implement's d / v later
+    for k in (20, 77, 131):  # camera samples k at k / 10 Hz, read between the ticks (sample and hold)
+        t = k / 10.0 + 0.05
+        noise = under.row.noise_m(k)
+        assert under.row_measured_offset_m(t) == pytest.approx(under.row_true_offset_m(k / 10.0) + noise, abs=1e-12)
+        assert ahead.row_measured_offset_m(t) == pytest.approx(
+            ahead.row_true_offset_m(k / 10.0 + lead_s) + noise, abs=1e-12
+        )
+        assert ahead.row_true_offset_m(t) == under.row_true_offset_m(t)  # the truth stays under the implement
+    with pytest.raises(TerrainError, match=r"camera_ahead_m .*\[0, 20\]"):
+        RowSignal(camera_ahead_m=-1.0)
+
+
+def test_scenario_row_camera_ahead_m_reaches_the_twin_and_is_range_checked():
+    from bridge.sim.scenario import ScenarioError, scenario_from_dict
+
+    base = {"schema_version": 1, "name": "cam", "duration_s": 10.0, "speed": {"constant_m_s": 1.0}}
+    sc = scenario_from_dict({**base, "signals": {"row_camera_ahead_m": 3.9}})
+    assert sc.twin.row.camera_ahead_m == 3.9
+    assert scenario_from_dict(base).twin.row.camera_ahead_m == 0.0
+    with pytest.raises(ScenarioError, match="row_camera_ahead_m"):
+        scenario_from_dict({**base, "signals": {"row_camera_ahead_m": 25.0}})
+
+
 def test_sensor_payloads_encode_and_decode_on_the_bus():
     tw = twin(SineGround(cross_slope_rad_0=0.05, grade_rad=0.02))
     sensors = TwinSensors(tw, slope_latency_s=0.01)

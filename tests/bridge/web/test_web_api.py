@@ -458,6 +458,67 @@ def test_motion_over_http_reaches_the_target_seen_in_the_state(service, web):
     assert status == 200 and json.loads(data)["seq"] >= st["seq"]
 
 
+def test_the_state_carries_the_motions_goal_and_the_view_ghosts_it(service, web):
+    """During a goto ``state.goal`` is the plan's end (its pose = the goal asked for, its actuators =
+    the model's inverse of that pose) and ``/api/view``'s ``goal`` is the forward kinematics of those
+    actuators (not of the reference); after the motion both are None. The default control core (its own process)."""
+    from planner.model.kinematics import HitchModel
+    from planner.model.types import ACTUATOR_NAMES
+
+    model = HitchModel.from_profile(service.config.profile, service.config.category)  # the truth, our own model
+    start = json.loads(_request(web, "GET", "/api/state")[2])
+    goal = {"x": -0.02, "z": 0.12 if start["pose"]["z"] < 0.05 else -0.05, "roll": 0.01, "pitch": 0.0}
+    status, reply = _post(web, "goto", {"goal": goal, "speed_scale": 0.3})
+    assert status == 200, reply
+    ws = _WSClient(web)  # a page: the server computes the view only while one is connected
+    try:
+        deadline = time.monotonic() + 5
+        st = ws.message("state")["data"]
+        while not (st["moving"] and st["motion_id"] == reply["motion_id"]) and time.monotonic() < deadline:
+            st = ws.message("state")["data"]
+        assert st["moving"] and st["goal"] is not None, st
+        for k, v in goal.items():
+            assert st["goal"]["pose"][k] == pytest.approx(v, abs=1e-9), k
+        qg = np.array([st["goal"]["actuators"][n] for n in ACTUATOR_NAMES])
+        got = model.forward(qg).pose.as_dict()
+        for k, v in goal.items():
+            assert got[k] == pytest.approx(v, abs=1e-6), k  # the goal's actuators put the hitch at the goal
+        deadline = time.monotonic() + 5
+        view = None
+        while time.monotonic() < deadline:
+            status, _, data = _request(web, "GET", "/api/view")
+            view = json.loads(data) if status == 200 else None
+            if view is not None and view.get("goal") is not None:
+                break
+            time.sleep(0.1)
+        assert view is not None and view["goal"] is not None, view
+        truth = model.forward(qg)
+        for n, p in view["goal"]["points"].items():
+            assert np.allclose(p, truth.points[n], atol=2e-6), n
+        assert view["goal"]["points"]["T"] != view["reference"]["points"]["T"]  # the end, not the reference
+        deadline = time.monotonic() + reply["duration"] + 10
+        while (st["moving"] or st["motion_id"] != reply["motion_id"]) and time.monotonic() < deadline:
+            st = ws.message("state")["data"]
+        assert not st["moving"] and st["goal"] is None
+        time.sleep(0.2)
+        status, _, data = _request(web, "GET", "/api/view")
+        assert status == 200 and json.loads(data)["goal"] is None
+    finally:
+        ws.close()
+
+
+def test_three_part_keys_reach_the_service(web):
+    """``maneuvers/record/start|stop`` (two slashes) are forwarded, not refused as unknown paths."""
+    status, reply = _post(web, "maneuvers/record/start", {})
+    assert status == 200 and reply == {"recording": True}, reply
+    status, reply = _post(web, "maneuvers/record/stop", {})  # the service's own answer: nothing was recorded
+    assert status == 400 and reply["message"].startswith("maneuvers/record/stop: nothing was recorded"), reply
+    status, reply = _post(web, "maneuvers/record/stop", {})
+    assert status == 404 and reply["error"] == "not_found", reply
+    for bad in ("a/b/c/d", "maneuvers//stop", "maneuvers/record/"):
+        assert _post(web, bad, {})[0] == 404, bad
+
+
 def test_presets_round_trip_over_http(web):
     status, saved = _post(web, "presets/save", {"name": "web-test", "pose": {"z": 0.1}})
     assert status == 200 and saved["saved"] == "web-test"

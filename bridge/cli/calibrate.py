@@ -1,0 +1,195 @@
+"""CLI commands ``hitch calibrate geometry``, ``hitch calibrate plan-poses`` and ``hitch calibrate measure-twin``.
+
+``plan-poses --n N`` chooses the N poses to measure (D-optimal, :mod:`planner.calibration.design`) and
+prints them with the nominal AD counts that hold them (``--out FILE.csv``: a measurement template).
+``geometry --measurements FILE --out PROFILE`` calibrates the geometry (and the AD map) from a
+measurement file (:mod:`planner.calibration.measurements`) and writes the calibrated profile with
+its provenance. ``measure-twin`` makes a measurement file from the twin's true machine (a truth
+file of ``hitch sim perturb``) for poses planned here, to try the procedure end to end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bridge.cli.errors import CLIError
+from bridge.cli.model import add_model_options, finite_float
+from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
+
+__all__ = ["add_commands"]
+
+
+def _positive_int(name: str, hi: int):
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be an integer in [1, {hi}], got {text!r}") from None
+        if not 1 <= v <= hi:
+            raise argparse.ArgumentTypeError(f"{name} must be an integer in [1, {hi}], got {v}")
+        return v
+
+    return parse
+
+
+def _model(args, *, include_ad: bool = True):
+    from planner.calibration.parameters import ParameterSet
+    from planner.calibration.parametric import ParametricModel
+    from planner.profiles.hitch import load_profile
+
+    prof = load_profile(args.profile)
+    return ParametricModel(prof, args.category, params=ParameterSet.from_profile(prof, include_ad=include_ad))
+
+
+def _design(args, model):
+    from planner.calibration.design import plan_poses
+
+    return plan_poses(model, args.n, candidates=args.candidates, seed=args.seed, points=args.points)
+
+
+def _cmd_plan(args) -> int:
+    from planner.model.sensors import SensorScaling
+
+    model = _model(args)
+    d = _design(args, model)
+    sc = SensorScaling(model.profile)
+    counts = np.rint(sc.counts_min + (d.actuators - sc.si_min) / sc.resolution).astype(int)
+    rows: list[dict[str, Any]] = [
+        {
+            "pose": f"p{k + 1}",
+            **dict(zip(CONTROLLED_POSE_NAMES, map(float, d.poses[k]), strict=True)),
+            **{f"{n}_counts": int(c) for n, c in zip(ACTUATOR_NAMES, counts[k], strict=True)},
+        }
+        for k in range(d.poses.shape[0])
+    ]
+    if args.out is not None:
+        _write_plan_csv(Path(args.out), rows)
+    if args.json:
+        print(
+            json.dumps(
+                {"poses": rows, "log_det": d.log_det, "identifiable": d.identifiable, "candidates": d.candidates}
+            )
+        )
+        return 0
+    print(f"{len(rows)} poses (D-optimal over {d.candidates} candidates; {d.identifiable} identifiable directions)")
+    for r in rows:
+        print(
+            f"{r['pose']:>4}: x {1e3 * r['x']:7.1f} mm  z {1e3 * r['z']:7.1f} mm  roll {1e3 * r['roll']:6.1f} mrad  "
+            f"pitch {1e3 * r['pitch']:6.1f} mrad   counts " + ",".join(str(r[f"{n}_counts"]) for n in ACTUATOR_NAMES)
+        )
+    return 0
+
+
+def _write_plan_csv(path: Path, rows: list[dict[str, Any]]) -> None:
+    header = ["pose", *(f"{n}_counts" for n in ACTUATOR_NAMES), *CONTROLLED_POSE_NAMES]
+    lines = [",".join(header)]
+    for r in rows:  # measured columns left empty: the operator fills them in
+        lines.append(",".join([r["pose"], *(str(r[f"{n}_counts"]) for n in ACTUATOR_NAMES), "", "", "", ""]))
+    try:
+        path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    except OSError as exc:
+        raise CLIError(f"--out {path}: cannot write it ({exc.strerror})") from None
+
+
+def _cmd_geometry(args) -> int:
+    from planner.calibration.measurements import load_measurements
+    from planner.calibration.profile_out import write_calibrated_profile
+    from planner.calibration.solve import build_calibration_problem, solve_calibration
+
+    model = _model(args, include_ad=not args.no_ad)
+    data = load_measurements(args.measurements, model.profile)
+    problem = build_calibration_problem(
+        model, data, sigma_position_m=1e-3 * args.sigma_position_mm, sigma_angle_rad=1e-3 * args.sigma_angle_mrad
+    )
+    result = solve_calibration(problem, min_singular=args.min_singular)
+    write_calibrated_profile(args.out, model.params, result, name=args.name)
+    if args.json:
+        print(json.dumps({"out": str(args.out), **result.as_dict()}))
+        return 0
+    print(
+        f"calibrated {model.profile.name} from {result.n_poses} poses ({result.n_observations} values) in "
+        f"{result.duration_s:.2f} s: residual RMS {1e3 * result.residual_rms_position_m:.3f} mm / "
+        f"{1e3 * result.residual_rms_angle_rad:.3f} mrad (nominal {1e3 * result.residual_rms_nominal_position_m:.3f}"
+        f" mm / {1e3 * result.residual_rms_nominal_angle_rad:.3f} mrad), sigma-hat {result.residual_sigma:.3g}"
+    )
+    print(f"{result.identified} of {len(result.names)} parameter directions identified; parameters (value ± std):")
+    for n, a, v, s in zip(result.names, result.nominal, result.values, result.std, strict=True):
+        print(f"  {n:36s} {v:+.6f} (nominal {a:+.6f}) ± {s:.2e}")
+    if result.unidentifiable:
+        print("not identifiable from these poses (kept nominal):")
+        for u in result.unidentifiable:
+            print(f"  {u}")
+    print(f"wrote {args.out}")
+    return 0
+
+
+def _cmd_measure_twin(args) -> int:
+    from bridge.sim.calibration_data import calibration_csv, measure_twin
+    from bridge.sim.truth import load_machine_truth
+
+    model = _model(args)
+    d = _design(args, model)
+    truth = load_machine_truth(args.sim_truth)
+    points = ("L", "R", "U") if args.points else ()
+    data = measure_twin(model.nominal_model, truth, d.poses, noise=args.noise, points=points, seed=args.seed)
+    text = calibration_csv(data)
+    try:
+        Path(args.out).write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise CLIError(f"--out {args.out}: cannot write it ({exc.strerror})") from None
+    if args.json:
+        print(json.dumps({"out": str(args.out), "rows": int(data.counts.shape[0]), "poses": int(d.poses.shape[0])}))
+    else:
+        print(f"wrote {data.counts.shape[0]} measurements of {d.poses.shape[0]} poses to {args.out}")
+    return 0
+
+
+def _add_design_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--n", type=_positive_int("--n", 1000), default=20, help="poses to plan (default 20)")
+    p.add_argument("--candidates", type=_positive_int("--candidates", 100_000), default=300, help="random candidates")
+    p.add_argument("--seed", type=int, default=0, help="seed of the candidates (and of the twin's noise)")
+    p.add_argument("--points", action="store_true", help="the instrument also measures the points L, R, U")
+
+
+def add_commands(sub) -> None:
+    p = sub.add_parser("calibrate", help="geometry calibration: plan poses to measure, fit a profile to measurements")
+    csub = p.add_subparsers(dest="calibrate_command", required=True, parser_class=type(p))
+
+    g = csub.add_parser("geometry", help="calibrate the geometry from a measurement file, write a profile")
+    add_model_options(g)
+    g.add_argument("--measurements", required=True, help="measurement CSV (see docs/commissioning.md)")
+    g.add_argument("--out", required=True, help="calibrated profile to write (.toml)")
+    g.add_argument("--name", default=None, help="name of the calibrated profile (default <profile>-calibrated)")
+    g.add_argument(
+        "--sigma-position-mm", type=finite_float("--sigma-position-mm"), default=1.0, help="instrument σ (mm)"
+    )
+    g.add_argument(
+        "--sigma-angle-mrad", type=finite_float("--sigma-angle-mrad"), default=1.0, help="instrument σ (mrad)"
+    )
+    g.add_argument(
+        "--min-singular",
+        type=finite_float("--min-singular"),
+        default=1.0,
+        help="smallest singular value of the scaled Jacobian still identified (default 1)",
+    )
+    g.add_argument("--no-ad", action="store_true", help="keep the AD map (offsets, gains) at the profile's values")
+    g.set_defaults(handler=_cmd_geometry)
+
+    pp = csub.add_parser("plan-poses", help="choose the poses to measure (D-optimal)")
+    add_model_options(pp)
+    _add_design_options(pp)
+    pp.add_argument("--out", default=None, help="also write a measurement template CSV")
+    pp.set_defaults(handler=_cmd_plan)
+
+    m = csub.add_parser("measure-twin", help="measure the planned poses on the twin's true machine (CSV)")
+    add_model_options(m)
+    _add_design_options(m)
+    m.add_argument("--sim-truth", required=True, help="truth profile (hitch sim perturb --out)")
+    m.add_argument("--noise", default="station", choices=("tape", "station", "none"), help="instrument noise")
+    m.add_argument("--out", required=True, help="measurement CSV to write")
+    m.set_defaults(handler=_cmd_measure_twin)

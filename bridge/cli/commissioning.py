@@ -1,0 +1,152 @@
+"""``hitch accuracy-test`` and ``hitch calibrate-sensors``: commissioning against the twin.
+
+``accuracy-test`` runs the thesis's field accuracy test (:mod:`bridge.sim.accuracy_run`) on the
+simulated machine with its own true machine (``--sim-truth``, default the nominal twin) and prints
+E, |E|, |E|max and TT per DOF beside the thesis's tables 3-8 … 3-10.
+
+``calibrate-sensors`` runs the sensor calibration (:mod:`bridge.link.sensor_calibration`) over the
+CAN link to the twin in simulated time and writes the profile with the fitted AD maps.
+(``hitch calibrate`` is another command's group; this one stands alone.)
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from rich.console import Console
+
+from bridge.cli.model import add_model_options, model_from_args
+from bridge.link.sensor_calibration import (
+    SensorCalibration,
+    SensorCalibrationError,
+    calibration_profile,
+    sensor_profile_toml,
+)
+from bridge.sim.accuracy_run import INSTRUMENTS, AccuracyRun, AccuracyRunSettings, run_accuracy_test
+from bridge.sim.rig import SimRig, SimSettings
+from bridge.sim.truth import MachineTruth, load_machine_truth
+from planner.calibration.accuracy import THESIS_ACCURACY, DofStatistics, thesis_sequence
+from planner.limits.tractor import load_tractor_profile
+from planner.model.kinematics import HitchModel
+from planner.model.types import ACTUATOR_NAMES
+
+__all__ = ["accuracy_table", "add_commands"]
+
+_DOF = ("x", "z", "roll", "pitch")
+_UNIT = {"x": "mm", "z": "mm", "roll": "mrad", "pitch": "mrad"}
+
+
+def _cells(st: DofStatistics) -> str:
+    tt = "  –" if st.repeatability != st.repeatability else f"{1e3 * st.repeatability:6.1f}"
+    return f"{1e3 * st.mean:7.1f} {1e3 * st.mean_abs:6.1f} {1e3 * st.max_abs:6.1f} {tt}"
+
+
+def accuracy_table(run: AccuracyRun) -> str:
+    """The run's table (E, |E|, |E|max, TT per DOF, mm / mrad) beside the thesis's tables 3-8 … 3-10."""
+    models = list(THESIS_ACCURACY)
+    head = f"{'DOF':<6}{'unit':<5}| {'twin: E':>7} {'|E|':>6} {'|E|max':>6} {'TT':>6} "
+    head += "".join(f"| {m + ': E':>20} {'|E|':>6} {'|E|max':>6} {'TT':>6} " for m in models)
+    lines = [head, "-" * len(head)]
+    for d in _DOF:
+        row = f"{d:<6}{_UNIT[d]:<5}| {_cells(run.statistics[d])} "
+        row += "".join(f"| {'':>13}{_cells(THESIS_ACCURACY[m][d])} " for m in models)
+        lines.append(row)
+    lines.append("")
+    lines.append(
+        "twin without the instrument (true − commanded): "
+        + ", ".join(
+            f"{d} E {1e3 * st.mean:.1f} |E|max {1e3 * st.max_abs:.1f} {_UNIT[d]}"
+            for d, st in ((d, run.true_statistics[d]) for d in _DOF)
+        )
+    )
+    return "\n".join(lines)
+
+
+def _truth(model: HitchModel, path: str | None) -> MachineTruth:
+    return MachineTruth.nominal(model.profile) if path is None else load_machine_truth(path)
+
+
+def _cmd_accuracy_test(args) -> int:
+    model = model_from_args(args)
+    truth = _truth(model, args.sim_truth)
+    dofs = tuple(d.strip() for d in args.dofs.split(",") if d.strip())
+    sequence = thesis_sequence(dofs=dofs, combined=set(dofs) == set(_DOF))
+    run = run_accuracy_test(model, truth, AccuracyRunSettings(instrument=args.instrument, seed=args.seed), sequence)
+    if args.json:
+        out = run.as_dict()
+        out["thesis"] = {m: {d: st.as_dict() for d, st in rows.items()} for m, rows in THESIS_ACCURACY.items()}
+        print(json.dumps(out))
+        return 0
+    c = Console(width=200)
+    c.print(
+        f"accuracy test (thesis tables 3-8 … 3-10): twin truth {run.truth}, instrument {run.instrument}, "
+        f"{len(run.labels)} measured poses, {run.simulated_s:.0f} s simulated",
+        highlight=False,
+    )
+    c.print(accuracy_table(run), highlight=False, markup=False)
+    return 0
+
+
+def _cmd_calibrate_sensors(args) -> int:
+    nominal_model = model_from_args(args)
+    nominal = nominal_model.profile
+    truth = _truth(nominal_model, args.sim_truth)
+    actuators = tuple(a.strip() for a in args.actuators.split(",") if a.strip()) if args.actuators else ACTUATOR_NAMES
+    implement = None
+    if args.implement not in (None, "none"):
+        implement = load_tractor_profile(nominal.stability.tractor_profile).implement(args.implement)
+    cal_model = HitchModel(calibration_profile(nominal), nominal_model.category)
+    log = (lambda _m: None) if args.json else (lambda m: Console().print(m, highlight=False))
+    with SimRig(cal_model, SimSettings(tick_s=0.005, seed=args.seed), truth=truth) as rig:
+        rig.start()
+        rig.run_until(0.5)
+        fits = SensorCalibration(rig.link, rig, nominal, implement=implement, progress=args.progress, log=log).run(
+            actuators
+        )
+    text = sensor_profile_toml(args.profile, {a: (f.counts_min, f.counts_max) for a, f in fits.items()})
+    try:
+        Path(args.out).write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise SensorCalibrationError(f"--out {args.out}: cannot write the profile ({exc.strerror})") from None
+    result = {a: f.as_dict() for a, f in fits.items()}
+    if args.json:
+        print(json.dumps({"out": args.out, "actuators": result}))
+        return 0
+    c = Console()
+    for a, f in fits.items():
+        n = nominal.actuator(a)
+        c.print(
+            f"{a:>6}: counts {f.counts_min} … {f.counts_max} (nominal {n.counts_min} … {n.counts_max}; relay "
+            f"{f.low.counts} / {f.high.counts}, margin {f.relay_margin_counts})",
+            highlight=False,
+        )
+    c.print(f"profile written to {args.out}", highlight=False)
+    return 0
+
+
+def add_commands(sub) -> None:
+    a = sub.add_parser("accuracy-test", help="the thesis's field accuracy test (tables 3-8 … 3-10) on the twin")
+    a.add_argument("--sim-truth", default=None, metavar="FILE", help="the twin's true machine (hitch sim perturb)")
+    a.add_argument("--instrument", choices=tuple(INSTRUMENTS), default="tape", help="tape ±10 mm (default), σ 1 mm")
+    a.add_argument("--seed", type=int, default=0, help="seed of the instrument noise")
+    a.add_argument(
+        "--dofs",
+        default="x,z,roll,pitch",
+        help="the DOF to deflect (default all four, then the combined deflections; a subset: no combined ones)",
+    )
+    add_model_options(a)
+    a.set_defaults(handler=_cmd_accuracy_test)
+    s = sub.add_parser(
+        "calibrate-sensors", help="sensor calibration over the link: each cylinder to both end stops, fit the AD map"
+    )
+    s.add_argument("--out", required=True, metavar="FILE", help="write the calibrated profile (TOML) here")
+    s.add_argument("--sim-truth", default=None, metavar="FILE", help="the twin's true machine (hitch sim perturb)")
+    s.add_argument("--progress", default=None, metavar="FILE", help="progress file (JSON) to resume from / record to")
+    s.add_argument(
+        "--actuators", default=None, help=f"comma-separated subset of {','.join(ACTUATOR_NAMES)} (default all)"
+    )
+    s.add_argument("--implement", default=None, help="implement record of the tractor profile (default: none)")
+    s.add_argument("--seed", type=int, default=0, help="seed of the simulated machine")
+    add_model_options(s)
+    s.set_defaults(handler=_cmd_calibrate_sensors)

@@ -1,0 +1,129 @@
+"""Headland commands: ``hitch maneuver record start|stop [--save NAME]``, ``hitch maneuver
+pause|resume|skip`` and ``hitch lines save NAME FILE.geojson|list|delete NAME`` (docs/maneuvers.md).
+
+Registered by :func:`bridge.cli.service.add_commands`: :func:`add_maneuver_actions` on the
+``maneuver`` sub-parsers, :func:`add_lines_command` on the top level.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from bridge.cli.errors import CLIError
+
+__all__ = ["add_maneuver_actions", "add_lines_command"]
+
+#: the largest GeoJSON file ``hitch lines save`` reads [bytes]
+MAX_GEOJSON_BYTES = 4 * 1024 * 1024
+
+
+def add_maneuver_actions(ms: Any) -> None:
+    """``record start|stop`` and ``pause``, ``resume``, ``skip`` under ``hitch maneuver``."""
+    from bridge.cli.service import _client_options
+
+    q = ms.add_parser("record", help="teach-in: record goto, preset and jog commands into a script")
+    rs = q.add_subparsers(dest="record_action", required=True, parser_class=type(q))
+    r = rs.add_parser("start", help="start recording")
+    _client_options(r)
+    r.set_defaults(handler=_cmd_record)
+    r = rs.add_parser("stop", help="stop recording and print the script (YAML)")
+    r.add_argument("--save", metavar="NAME", default=None, help="also save the script as maneuver NAME")
+    _client_options(r)
+    r.set_defaults(handler=_cmd_record)
+    for action, text in (
+        ("pause", "pause the running maneuver (the hitch brakes to rest and holds)"),
+        ("resume", "resume the paused maneuver (its motion step is planned again from the pose now)"),
+        ("skip", "end the step in progress and go on with the next"),
+    ):
+        q = ms.add_parser(action, help=text)
+        _client_options(q)
+        q.set_defaults(handler=_cmd_control)
+
+
+def add_lines_command(sub: Any) -> None:
+    """``hitch lines save NAME FILE|list|delete NAME``."""
+    from bridge.cli.service import _client_options
+
+    p = sub.add_parser("lines", help="field-boundary and headland lines (GeoJSON) for maneuver wait_for line")
+    ls = p.add_subparsers(dest="action", required=True, parser_class=type(p))
+    q = ls.add_parser("save", help="save the LineString(s) of a GeoJSON file (one line: under NAME)")
+    q.add_argument("name")
+    q.add_argument("file")
+    _client_options(q)
+    q.set_defaults(handler=_cmd_lines)
+    q = ls.add_parser("list", help="the saved lines and the tractor's position")
+    _client_options(q)
+    q.set_defaults(handler=_cmd_lines)
+    q = ls.add_parser("delete", help="delete a line")
+    q.add_argument("name")
+    _client_options(q)
+    q.set_defaults(handler=_cmd_lines)
+
+
+def _cmd_record(args: Any) -> int:
+    from bridge.cli.service import _print, _run
+
+    def record(c: Any) -> int:
+        if args.record_action == "start":
+            r = c.request("maneuvers/record/start", {})
+            _print(args, r, "recording (hitch maneuver record stop to end)")
+            return 0
+        r = c.request("maneuvers/record/stop", {} if args.save is None else {"name": args.save})
+        text = r["script"].rstrip("\n")
+        if args.save is not None:
+            saved = c.request("maneuvers/save", {"name": args.save, "script": r["script"]})
+            r = {**r, "saved": saved["saved"]}
+            text += f"\nsaved {saved['saved']} ({saved['steps']} steps)"
+        _print(args, r, text)
+        return 0
+
+    return _run(args, record)
+
+
+def _cmd_control(args: Any) -> int:
+    from bridge.cli.service import _print, _run
+
+    def control(c: Any) -> int:
+        r = c.request(f"maneuvers/{args.action}", {})
+        m = r.get("maneuver") or {}
+        state = "paused" if m.get("paused") else "running"
+        _print(args, r, f"{args.action}: maneuver {r.get('maneuver_id')} {state}, step {m.get('step')}")
+        return 0
+
+    return _run(args, control)
+
+
+def _read_geojson(path: str) -> Any:
+    p = Path(path)
+    if not p.is_file():
+        raise CLIError(f"GeoJSON file {p} does not exist")
+    if p.stat().st_size > MAX_GEOJSON_BYTES:
+        raise CLIError(f"GeoJSON file {p} is larger than {MAX_GEOJSON_BYTES} bytes")
+    try:
+        return json.loads(p.read_text(encoding="utf-8"))
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise CLIError(f"GeoJSON file {p} is not valid JSON: {exc}") from None
+
+
+def _cmd_lines(args: Any) -> int:
+    from bridge.cli.service import _print, _run
+
+    def lines(c: Any) -> int:
+        if args.action == "save":
+            geo = _read_geojson(args.file)
+            r = c.request("lines/save", {"name": args.name, "geojson": geo})
+            _print(args, r, f"saved {', '.join(r['saved'])}")
+        elif args.action == "list":
+            r = c.request("lines/list", {})
+            rows = [f"{ln['name']}: {ln['vertices']} vertices, crossed {ln['crossings']} time(s)" for ln in r["lines"]]
+            pos = r.get("position")
+            rows.append("position: -" if pos is None else f"position: east {pos[0]:+.2f} m, north {pos[1]:+.2f} m")
+            _print(args, r, "\n".join(rows) if r["lines"] else "(no lines)\n" + rows[-1])
+        else:
+            r = c.request("lines/delete", {"name": args.name})
+            _print(args, r, f"deleted {r['deleted']}")
+        return 0
+
+    return _run(args, lines)

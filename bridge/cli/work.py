@@ -1,0 +1,128 @@
+"""CLI commands of work control in the live service (``docs/soil.md``, "Work control"):
+
+``hitch work settings [--mode … --draft-setpoint-kn … --blend … --sensitivity … --depth-min … --depth-max …
+--slip-limit …|--no-slip-limit]`` reads (no option) or sets the selected implement's settings;
+``hitch work start [--z M]``, ``hitch work stop``, ``hitch work resume`` (after a fallback) and
+``hitch work status``: client commands of ``hitch serve``. The draft setpoint is given in kN at this
+boundary (``--draft-setpoint-kn``) and sent in N.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from bridge.cli.model import finite_float
+from bridge.cli.service import _client_options, _print, _run
+
+__all__ = ["add_commands", "format_status"]
+
+
+def _opt(v: Any, fmt: str, unit: str) -> str:
+    return "-" if v is None else f"{v:{fmt}} {unit}"
+
+
+def format_status(status: dict[str, Any]) -> str:
+    """The work block of the state (or a work reply) in words with units."""
+    if not status.get("running"):
+        head = f"work control: not running (mode {status.get('mode')})"
+    else:
+        head = (
+            f"work control: session {status.get('session')}, mode {status.get('mode')}, active {status.get('active')}"
+        )
+    parts = [head]
+    if status.get("fallback"):
+        parts.append(f"fallback to position: {status['fallback']} (hitch work resume)")
+    draft = status.get("draft_n")
+    sp = status.get("draft_setpoint_n")
+    parts.append(
+        f"draft {_opt(None if draft is None else draft / 1000.0, '.2f', 'kN')} "
+        f"(setpoint {_opt(None if sp is None else sp / 1000.0, '.2f', 'kN')}), "
+        f"depth {_opt(status.get('depth_m'), '.3f', 'm')}, z setpoint {_opt(status.get('z_setpoint'), '.3f', 'm')}"
+    )
+    slip = status.get("slip")
+    parts.append(
+        f"slip {'unknown' if slip is None else f'{slip:.3f}'}, slip action {status.get('slip_action', 'none')}"
+        + (f" ({status['slip_note']})" if status.get("slip_note") else "")
+    )
+    if status.get("limited"):
+        parts.append("limited: " + ", ".join(f"{k}: {v}" for k, v in status["limited"].items()))
+    return "\n".join(parts)
+
+
+def _fmt_settings(s: dict[str, Any]) -> str:
+    slip = s.get("slip_limit")
+    return (
+        f"mode {s['mode']}, draft setpoint {s['draft_setpoint_n'] / 1000.0:g} kN, blend {s['blend']:g}, "
+        f"sensitivity {s['sensitivity']:g}, depth {s['depth_min_m']:g}..{s['depth_max_m']:g} m, "
+        f"slip limit {'off' if slip is None else f'{slip:g}'}"
+    )
+
+
+def settings_body(args: Any) -> dict[str, Any]:
+    """The ``work/settings`` payload of the given options (SI: the draft setpoint in N)."""
+    body: dict[str, Any] = {}
+    for key, value in (
+        ("mode", args.mode),
+        ("draft_setpoint_n", None if args.draft_setpoint_kn is None else args.draft_setpoint_kn * 1000.0),
+        ("blend", args.blend),
+        ("sensitivity", args.sensitivity),
+        ("depth_min_m", args.depth_min),
+        ("depth_max_m", args.depth_max),
+        ("slip_limit", args.slip_limit),
+    ):
+        if value is not None:
+            body[key] = value
+    if args.no_slip_limit:
+        body["slip_limit"] = None
+    return body
+
+
+def _cmd_work(args: Any) -> int:
+    def run(c: Any) -> int:
+        if args.action == "settings":
+            r = c.request("work/settings", settings_body(args))
+            what = "saved" if r.get("saved") else "settings"
+            _print(args, r, f"{r['implement']}: {what}: {_fmt_settings(r['settings'])}")
+        elif args.action == "status":
+            r = c.request("work/settings", {})
+            _print(args, r, f"{r['implement']}: {_fmt_settings(r['settings'])}\n{format_status(r['status'])}")
+        elif args.action == "start":
+            r = c.request("work/start", {} if args.z is None else {"z": args.z})
+            _print(args, r, f"work session {r['session']} started (motion {r['motion_id']}): {r['work']['mode']}")
+        elif args.action == "stop":
+            r = c.request("work/stop", {})
+            _print(args, r, f"work session {r['session']} stopping")
+        else:
+            r = c.request("work/resume", {})
+            _print(args, r, f"resumed: {format_status(r)}")
+        return 0
+
+    return _run(args, run)
+
+
+def add_commands(sub: Any) -> None:
+    p = sub.add_parser("work", help="work control: draft / mixed / float on the live service")
+    acts = p.add_subparsers(dest="action", required=True, parser_class=type(p))
+    q = acts.add_parser("settings", help="read (no option) or set the selected implement's work settings")
+    q.add_argument("--mode", choices=("position", "draft", "mixed", "float"), default=None)
+    q.add_argument("--draft-setpoint-kn", type=finite_float("--draft-setpoint-kn"), default=None, help="(0, 300] kN")
+    q.add_argument("--blend", type=finite_float("--blend"), default=None, help="mixed: the draft share, [0, 1]")
+    q.add_argument("--sensitivity", type=finite_float("--sensitivity"), default=None, help="[0.1, 2], 1 = nominal")
+    q.add_argument("--depth-min", type=finite_float("--depth-min"), default=None, help="[m], 0 <= min < max")
+    q.add_argument("--depth-max", type=finite_float("--depth-max"), default=None, help="[m], max <= 0.6")
+    q.add_argument("--slip-limit", type=finite_float("--slip-limit"), default=None, help="(0, 0.5]")
+    q.add_argument("--no-slip-limit", action="store_true", help="switch slip limiting off")
+    _client_options(q)
+    q.set_defaults(handler=_cmd_work)
+    q = acts.add_parser("start", help="start a work session with the selected implement's settings")
+    q.add_argument("--z", type=finite_float("--z"), default=None, help="operator's position setpoint [m]")
+    _client_options(q)
+    q.set_defaults(handler=_cmd_work)
+    for action, text in (
+        ("stop", "end the work session smoothly"),
+        ("resume", "the configured mode again after a fallback"),
+        ("status", "settings and the live work block"),
+    ):
+        q = acts.add_parser(action, help=text)
+        _client_options(q)
+        q.set_defaults(handler=_cmd_work)

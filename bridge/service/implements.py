@@ -1,0 +1,355 @@
+"""Implements at runtime and the operator's quick raise / return to work (``docs/implements.md``).
+
+:class:`ImplementService` is the logic behind the API keys ``implements/list|define|select|delete|lock|
+unlock`` and ``hitch/raise`` / ``hitch/return`` (:class:`~bridge.service.api.ServiceAPI` routes them
+here); the J1939 operator switch and the CLI end up in the same methods.
+
+* **Implements** live in the store (:meth:`~bridge.service.store.HitchStore.save_implement`): name,
+  ISO 730 category, mass [kg], centre of mass in the implement frame [m], the limits
+  (:class:`planner.limits.implement_limits.ImplementLimits`: upper height, lowering speed, transport
+  lock), the headland pose and the last work pose. The tractor profile's implement records are offered
+  too (``source: "profile"``); selecting one stores it (without limits) first.
+* **Selecting** an implement gives the motion controller its record and limits
+  (``select_implement``: the guards' stability uses its mass and CoM, their limit checks its limits),
+  is refused while the hitch moves (``busy``; send stop first), makes the presets keys use its presets
+  and is persisted (setting ``selected_implement``): a restarted service selects it again. The planning
+  processes get it too (:attr:`ImplementService.on_applied` → ``PlanningWorkers.set_implement``), so
+  previews and maneuver validation plan with the selected implement's guard.
+* ``sim/switch`` makes the simulated tractor send one press of the operator switch (in the service's
+  threads or in the core process: :attr:`ImplementService.sim_switch`).
+* **Quick raise** goes to the headland pose: the implement's own ``headland`` pose if defined, else its
+  preset named :data:`HEADLAND_PRESET`; the pose the hitch was at when the raise was accepted becomes
+  the implement's ``last_work`` pose (persisted; not replaced when the raise starts at the headland pose
+  already, so pressing raise twice keeps the work pose). **Return** goes to ``last_work``.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections.abc import Callable, Mapping
+from typing import Any, Protocol
+
+import numpy as np
+
+from bridge.service.motion.types import pose_dict
+from bridge.service.schemas import ImplementDefine, QuickMove, RequestError
+from bridge.service.store import DEFAULT_IMPLEMENT, HitchStore, StoredImplement
+from planner.errors import HitchError
+from planner.limits.implement_limits import ImplementLimits
+from planner.limits.tractor import ImplementRecord, TractorProfile, load_tractor_profile
+
+__all__ = [
+    "HEADLAND_PRESET",
+    "SELECTED_SETTING",
+    "ImplementService",
+    "ImplementMotion",
+    "record_of",
+    "implement_handlers",
+]
+
+#: the preset a quick raise goes to when the implement has no headland pose of its own
+HEADLAND_PRESET = "headland"
+#: the store setting that keeps the selected implement across restarts
+SELECTED_SETTING = "selected_implement"
+#: a raise that starts this close to the headland pose [m or rad] keeps the previous work pose
+_AT_HEADLAND = 5e-3
+
+
+class ImplementMotion(Protocol):
+    """What the implement logic needs of the motion controller (or its proxy to the core process)."""
+
+    def current_state(self) -> Any: ...
+
+    def goto(
+        self,
+        goal: Mapping[str, float],
+        speed_scale: float = 1.0,
+        *,
+        kind: str = "goto",
+        label: str | None = None,
+        deadline: float | None = None,
+        issued: float | None = None,
+    ) -> Any: ...
+
+    def select_implement(self, implement: ImplementRecord | None, limits: ImplementLimits) -> Any: ...
+
+
+def record_of(imp: StoredImplement) -> ImplementRecord:
+    """The stability record of a stored implement."""
+    return ImplementRecord(imp.name, imp.category, imp.mass_kg, imp.com_m, imp.description)
+
+
+class ImplementService:
+    """See the module docstring. ``on_select(name)`` is told the selected implement (the API's presets)."""
+
+    def __init__(
+        self,
+        store: HitchStore,
+        motion: ImplementMotion,
+        *,
+        selected: str | None = None,
+        tractor_profile: str | None = None,
+        on_select: Callable[[str], None] | None = None,
+    ):
+        self.store, self.motion = store, motion
+        self.on_select = on_select
+        self._lock = threading.Lock()  # one implement change at a time
+        self._profile: TractorProfile | None = None
+        if tractor_profile is not None:
+            try:
+                self._profile = load_tractor_profile(tractor_profile)
+            except ValueError:
+                self._profile = None
+        # an API built without a store (some tests embed one) runs without the implement keys' data
+        persisted = store.get_setting(SELECTED_SETTING) if store is not None else None
+        self.selected: str = persisted or selected or DEFAULT_IMPLEMENT
+        self.warning: str | None = None
+        #: how a switch edge is served (``key`` → the API's handling of it; set by :func:`implement_handlers`)
+        self.dispatch: Callable[[str], Any] | None = None
+        #: told every implement the controller accepted (the planning processes: previews and maneuver
+        #: validation plan with the selected implement's guard; set by :func:`implement_handlers`)
+        self.on_applied: Callable[[ImplementRecord | None, ImplementLimits], None] | None = None
+        #: ``sim/switch``: a momentary press of the operator switch sent by the simulated tractor (position →
+        #: the positions sent; None: no twin in this service). Thread mode: :meth:`use_twin`; the core
+        #: process: its ``sim_switch`` (``MotionProxy``).
+        self.sim_switch: Callable[[str], Any] | None = None
+        self._switch_busy = threading.Lock()
+
+    # ------------------------------------------------------------------ start
+    def restore(self) -> None:
+        """Give the controller the selected implement's stored record and limits (at start)."""
+        imp = self.store.get_implement(self.selected) if self.selected != DEFAULT_IMPLEMENT else None
+        if imp is None and self.selected != DEFAULT_IMPLEMENT and self._builtin(self.selected) is None:
+            self.warning = f"the selected implement {self.selected!r} is not defined; running without one"
+            self.selected = DEFAULT_IMPLEMENT
+        if imp is not None:
+            self._apply(record_of(imp), imp.limits)
+        self._announce()
+
+    # ------------------------------------------------------------------ queries
+    def list(self) -> dict[str, Any]:
+        stored = {i.name: i for i in self.store.list_implements()}
+        out = [{**i.to_json(), "source": "store"} for i in stored.values()]
+        if self._profile is not None:
+            for name, rec in self._profile.implements.items():
+                if name not in stored:
+                    out.append(
+                        {
+                            **StoredImplement(rec.name, rec.category, rec.mass, rec.centre_of_mass).to_json(),
+                            "description": rec.description,
+                            "source": "profile",
+                        }
+                    )
+        out.sort(key=lambda d: d["name"])
+        return {"implements": out, "selected": self.selected}
+
+    def current(self) -> StoredImplement | None:
+        """The selected implement as stored (None: none selected, or a profile record not stored yet)."""
+        return None if self.selected == DEFAULT_IMPLEMENT else self.store.get_implement(self.selected)
+
+    # ------------------------------------------------------------------ changes
+    def define(self, r: ImplementDefine, owner: str | None = None) -> dict[str, Any]:
+        """Insert or replace an implement; redefining the selected one applies it (refused while moving)."""
+        old = self.store.get_implement(r.name)
+        limits = ImplementLimits(
+            r.upper_height_m, r.lowering_speed_m_s, old.limits.transport_locked if old is not None else False
+        )
+        imp = StoredImplement(
+            r.name,
+            r.category,
+            r.mass_kg,
+            (float(r.com_m[0]), float(r.com_m[1]), float(r.com_m[2])),
+            limits,
+            None if r.headland is None else r.headland.model_dump(),
+            None if old is None else old.last_work,
+            r.description,
+        )
+        with self._lock:
+            if r.name == self.selected:
+                self._apply(record_of(imp), limits)  # busy while moving: nothing stored
+            stored = self.store.save_implement(imp, owner=owner)
+        return {"defined": stored.name, "implement": stored.to_json(), "selected": self.selected}
+
+    def select(self, name: str) -> dict[str, Any]:
+        """Select an implement (stored, or a tractor profile record: stored first); busy while moving."""
+        with self._lock:
+            imp = self._stored_or_builtin(name)
+            self._apply(record_of(imp), imp.limits)
+            self.selected = imp.name
+            self.store.set_setting(SELECTED_SETTING, imp.name)
+            self._announce()
+        return {"selected": imp.name, "implement": imp.to_json()}
+
+    def delete(self, name: str) -> dict[str, Any]:
+        if name == self.selected:
+            raise RequestError("busy", f"implements/delete: {name!r} is the selected implement; select another first")
+        if not self.store.delete_implement(name):
+            raise RequestError("not_found", f"implements/delete: no implement {name!r} in the store")
+        return {"deleted": name}
+
+    def set_lock(self, locked: bool) -> dict[str, Any]:
+        """Transport lock of the selected implement on or off (refused while moving)."""
+        key = "implements/lock" if locked else "implements/unlock"
+        with self._lock:
+            if self.selected == DEFAULT_IMPLEMENT:
+                raise RequestError("not_found", f"{key}: no implement is selected (implements/select first)")
+            imp = self._stored_or_builtin(self.selected)
+            limits = ImplementLimits(imp.limits.upper_height_m, imp.limits.lowering_speed_m_s, locked)
+            self._apply(record_of(imp), limits)
+            imp = self.store.update_implement(imp.name, transport_locked=locked)
+        return {"implement": imp.name, "transport_locked": imp.limits.transport_locked}
+
+    # ------------------------------------------------------------------ quick raise / return
+    def quick_raise(self, r: QuickMove, deadline: float | None, issued: float | None) -> dict[str, Any]:
+        """Go to the headland pose; the pose it starts from becomes the last work pose (persisted)."""
+        imp = self._need_current("hitch/raise")
+        goal = imp.headland
+        if goal is None:
+            p = self.store.get_preset(HEADLAND_PRESET, implement=imp.name)
+            goal = None if p is None else dict(p.pose)
+        if goal is None:
+            raise RequestError(
+                "not_found",
+                f"hitch/raise: implement {imp.name!r} has no headland pose (define it with 'headland' or save "
+                f"a preset named {HEADLAND_PRESET!r})",
+            )
+        here = pose_dict(np.asarray(self.motion.current_state().position, float))
+        scale = r.speed_scale or 1.0
+        acc = self.motion.goto(dict(goal), scale, kind="preset", label="raise", deadline=deadline, issued=issued)
+        if not _close(here, goal):  # pressing raise at the headland keeps the work pose
+            self.store.update_implement(imp.name, last_work=here)
+        return {**acc.to_json(), "raise": True, "headland": dict(goal), "last_work": here}
+
+    def quick_return(self, r: QuickMove, deadline: float | None, issued: float | None) -> dict[str, Any]:
+        """Go back to the last work pose (where the last raise started)."""
+        imp = self._need_current("hitch/return")
+        if imp.last_work is None:
+            raise RequestError(
+                "not_found", f"hitch/return: implement {imp.name!r} has no work pose yet (raise it once first)"
+            )
+        scale = r.speed_scale or 1.0
+        goal = dict(imp.last_work)
+        acc = self.motion.goto(goal, scale, kind="preset", label="return", deadline=deadline, issued=issued)
+        return {**acc.to_json(), "return": True, "last_work": dict(imp.last_work)}
+
+    # ------------------------------------------------------------------ the operator switch
+    def on_event(self, event: Mapping[str, Any]) -> None:
+        """A ``hitch_switch`` event (an edge of the operator's CAN switch, ``bridge.link.hitch_switch``):
+        ``hitch/raise`` or ``hitch/return`` through :attr:`dispatch` on a thread of its own (the event
+        thread must not plan). One at a time: an edge while the previous request runs is dropped."""
+        if event.get("event") != "hitch_switch" or self.dispatch is None:
+            return
+        key = {"raise": "hitch/raise", "return": "hitch/return"}.get(str(event.get("command")))
+        if key is None or not self._switch_busy.acquire(blocking=False):
+            return
+        dispatch = self.dispatch
+
+        def run() -> None:
+            try:
+                dispatch(key)
+            finally:
+                self._switch_busy.release()
+
+        threading.Thread(target=run, name="hitch-switch", daemon=True).start()
+
+    def use_twin(self, tractor: Any) -> None:
+        """``sim/switch`` on the simulated tractor ``tractor`` (its ``bus``; None: no twin here)."""
+        if tractor is None:
+            return
+        from bridge.link.hitch_switch import press_switch
+
+        self.sim_switch = lambda position: press_switch(tractor.bus, position)  # type: ignore[arg-type]
+
+    def press(self, position: str) -> dict[str, Any]:
+        """``sim/switch``: the simulated tractor sends one momentary press of the operator switch."""
+        if self.sim_switch is None:
+            raise RequestError(
+                "unavailable",
+                "sim/switch: no simulated tractor runs in this service (a real machine is connected); the "
+                "switch can only be pressed on the twin",
+            )
+        sent = self.sim_switch(position)
+        return {"position": position, "sent": list(sent)}
+
+    # ------------------------------------------------------------------ internals
+    def _apply(self, record: ImplementRecord, limits: ImplementLimits) -> None:
+        """The controller's guards first (refused while moving: nothing else changes), then the planning."""
+        self.motion.select_implement(record, limits)
+        if self.on_applied is not None:
+            self.on_applied(record, limits)
+
+    def _need_current(self, key: str) -> StoredImplement:
+        if self.selected == DEFAULT_IMPLEMENT:
+            raise RequestError("not_found", f"{key}: no implement is selected (implements/select first)")
+        imp = self.store.get_implement(self.selected)
+        if imp is None:
+            imp = self._stored_or_builtin(self.selected)
+        return imp
+
+    def _builtin(self, name: str) -> ImplementRecord | None:
+        return None if self._profile is None else self._profile.implements.get(name)
+
+    def _stored_or_builtin(self, name: str) -> StoredImplement:
+        imp = self.store.get_implement(name)
+        if imp is not None:
+            return imp
+        rec = self._builtin(name)
+        if rec is None:
+            known = [i["name"] for i in self.list()["implements"]]
+            raise RequestError(
+                "not_found", f"no implement {name!r} (defined: {', '.join(known) or 'none'}; implements/define)"
+            )
+        return self.store.save_implement(
+            StoredImplement(rec.name, rec.category, rec.mass, rec.centre_of_mass, description=rec.description)
+        )
+
+    def _announce(self) -> None:
+        if self.on_select is not None:
+            self.on_select(self.selected)
+
+
+def _close(a: Mapping[str, float], b: Mapping[str, float]) -> bool:
+    return all(math.isclose(float(a[k]), float(b[k]), abs_tol=_AT_HEADLAND) for k in ("x", "z", "roll", "pitch"))
+
+
+def implement_handlers(api: Any) -> dict[str, Callable[[Any], dict[str, Any]]]:
+    """The API keys of this module for ``api`` (a :class:`~bridge.service.api.ServiceAPI` whose motion,
+    store, implement, info and caller are set): builds ``api.implements`` (restoring the persisted
+    selection) and returns key → handler."""
+
+    def on_select(name: str) -> None:
+        api.implement = name
+        api.info["implement"] = None if name == DEFAULT_IMPLEMENT else name
+
+    planner = getattr(api.motion, "planner", None)
+    profile = None if planner is None else planner.model.profile.stability.tractor_profile
+    svc = ImplementService(api.store, api.motion, selected=api.implement, tractor_profile=profile, on_select=on_select)
+    api.implements = svc
+    set_planning = getattr(api.planning, "set_implement", None)  # planning processes (in-process: the guards)
+    if callable(set_planning):
+        svc.on_applied = set_planning
+    core_switch = getattr(api.motion, "sim_switch", None)  # the core process's twin (MotionProxy)
+    if callable(core_switch):
+        svc.sim_switch = core_switch
+    try:
+        svc.restore()
+    except HitchError as exc:  # the service starts anyway (without the implement), and says why
+        svc.warning = f"the selected implement {svc.selected!r} could not be applied: {exc}"
+
+    svc.dispatch = lambda key: api.handle(key, b"{}")  # the black box records it like any request
+
+    def user() -> str | None:
+        return getattr(api._caller, "user", None)
+
+    return {
+        "implements/list": lambda _r: svc.list(),
+        "implements/define": lambda r: svc.define(r, owner=user()),
+        "implements/select": lambda r: svc.select(r.name),
+        "implements/delete": lambda r: svc.delete(r.name),
+        "implements/lock": lambda _r: svc.set_lock(True),
+        "implements/unlock": lambda _r: svc.set_lock(False),
+        "hitch/raise": lambda r: svc.quick_raise(r, *api._timing(r.deadline_ms)),
+        "hitch/return": lambda r: svc.quick_return(r, *api._timing(r.deadline_ms)),
+        "sim/switch": lambda r: svc.press(r.position),
+    }

@@ -1,0 +1,433 @@
+"""Work control in the live service: position, draft, mixed and float control of a track session.
+
+:class:`WorkControl` runs next to the :class:`~bridge.service.motion.controller.MotionController` (in the
+service's threads or in the control core's process): ``start`` opens a track session (frame
+``tractor``, DOF z; the precedence of track mode: refused while a stop brakes or a jog is live, takes
+over a goto), and every control cycle of that session the motion controller calls :meth:`WorkControl.on_cycle`
+(under its lock, before the reference is computed), which runs :meth:`planner.work_control.WorkController.step`
+and hands its z to the session's :class:`~planner.trajectory.track.TrackFollower` as the setpoint
+(with its rate). The follower, the workspace, the implement's bounds and the guard act on that z as
+on any other setpoint: what clipped it is named in ``limited`` (the depth limits as
+``work:depth_min`` / ``work:depth_max``, the workspace as ``workspace:z:min`` …).
+
+Inputs (:class:`SensorWorkInputs`): the draft is :meth:`bridge.link.tractor_sensors.TractorSensors.draft`
+(RearDraft of PGN 65093; the service reads it with ``read_draft``), the ground reference
+``ground_z = z_measured - ground_distance + tool_drop_m`` from the ground-distance sensor (as the
+field loop, ``docs/soil.md``), the slip: None — the tractor's slip is not on the bus in this project
+(the work block says so; slip limiting then holds its integral).
+
+A fallback (a stale or implausible draft, no ground reference) is one ``work_fallback`` event with the
+reason; the session goes on in position control until ``work/resume`` (or new settings).
+
+API side (:func:`work_handlers`): ``work/settings`` (get: the selected implement's settings, defaults if
+none stored, with the live status; put: validated, persisted per implement in the store, applied to a
+live session), ``work/start`` (the selected implement's settings), ``work/stop``, ``work/resume``. With
+the core in its own process the calls travel as ``work`` calls (:meth:`WorkControl.dispatch`).
+
+The twin (:func:`sim_field_tractor`): with ``sim_field`` configured the simulated tractor drives over the
+field's terrain scenario and the ECU node's draft source is a :class:`~bridge.service.field_loop.FieldDraft`
+stepped with the tool tip's true height, so the draft pins are on the bus; without it the hitch status
+carries no draft and draft mode falls back at once ("draft signal stale: no reading").
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections import deque
+from collections.abc import Callable, Mapping
+from typing import Any, NoReturn, Protocol
+
+from bridge.service.motion.types import MotionError, TrackMotion
+from planner.errors import HitchError
+from planner.work_control import WorkController, WorkSettings, WorkSettingsError, WorkStatus
+
+__all__ = [
+    "DEFAULT_WORKING_DEPTH_M",
+    "SETTINGS_FIELDS",
+    "WORK_TTL_S",
+    "SensorWorkInputs",
+    "WorkControl",
+    "WorkInputs",
+    "settings_from_json",
+    "settings_to_json",
+    "sim_field_tractor",
+    "tool_drop_m",
+    "work_handlers",
+]
+
+#: the work session's setpoint time-to-live [s] (the control cycle feeds it every 20 ms)
+WORK_TTL_S = 0.3
+#: the tool's working depth at the operator's z = 0 when no field says otherwise [m] (tool geometry assumption)
+DEFAULT_WORKING_DEPTH_M = 0.2
+#: the operator's settings the API takes (SI); the rest of WorkSettings keeps its defaults
+SETTINGS_FIELDS = ("mode", "draft_setpoint_n", "blend", "sensitivity", "depth_min_m", "depth_max_m", "slip_limit")
+_SLIP_NOTE = "slip unavailable: the tractor's slip is not on the bus"
+_RATE_WINDOW_S = 0.1
+
+
+def settings_to_json(s: WorkSettings) -> dict[str, Any]:
+    """The operator's fields of ``s`` (JSON-ready, SI)."""
+    return {k: getattr(s, k) for k in SETTINGS_FIELDS}
+
+
+def settings_from_json(data: Mapping[str, Any], base: WorkSettings | None = None) -> WorkSettings:
+    """``base`` (default: the defaults) with the fields of ``data`` replaced; validated.
+
+    Raises:
+        WorkSettingsError: an unknown field, or a value outside its range (the message names both).
+    """
+    if not isinstance(data, Mapping):
+        raise WorkSettingsError(f"work settings must be an object, got {type(data).__name__}")
+    unknown = sorted(set(data) - set(SETTINGS_FIELDS))
+    if unknown:
+        raise WorkSettingsError(f"unknown work settings {unknown}; allowed: {', '.join(SETTINGS_FIELDS)}")
+    merged = {**settings_to_json(base if base is not None else WorkSettings()), **dict(data)}
+    return WorkSettings(**merged)
+
+
+def tool_drop_m(pivot_height_m: float, working_depth_m: float | None = None) -> float:
+    """The tool tip's drop below the tool point T [m]: the operator's z = 0 works at ``working_depth_m``
+    (default :data:`DEFAULT_WORKING_DEPTH_M`) below the contact plane (``docs/soil.md``, field loop)."""
+    return float(pivot_height_m) + (DEFAULT_WORKING_DEPTH_M if working_depth_m is None else float(working_depth_m))
+
+
+class WorkInputs(Protocol):
+    """What work control reads each cycle (fresh, plausible readings or None)."""
+
+    def draft(self, now: float) -> tuple[float | None, float | None]:
+        """(draft [N] or None, its receive time [s] or None)."""
+        ...
+
+    def slip(self, now: float) -> float | None: ...
+
+    def ground_z(self, now: float) -> float | None:
+        """The hitch height at which the tool tip touches the ground (tractor frame) [m]."""
+        ...
+
+
+class SensorWorkInputs:
+    """:class:`WorkInputs` from the tractor's sensors on the bus (module docstring).
+
+    Args:
+        sensors: a :class:`~bridge.link.tractor_sensors.TractorSensors` (``read_draft`` on).
+        measured_z: the measured hitch z now [m] (None: no measurement yet).
+        tool_drop_m: the tool tip's drop below T [m] (:func:`tool_drop_m`).
+    """
+
+    def __init__(self, sensors: Any, measured_z: Callable[[], float | None], tool_drop_m: float) -> None:
+        self.sensors, self.measured_z, self.tool_drop_m = sensors, measured_z, float(tool_drop_m)
+
+    def draft(self, now: float) -> tuple[float | None, float | None]:
+        r = self.sensors.draft(now)
+        return (None if r.value is None else float(r.value)), r.received_s
+
+    def slip(self, now: float) -> float | None:
+        return None  # not on the bus (module docstring)
+
+    def ground_z(self, now: float) -> float | None:
+        g = self.sensors.readings(now).ground_distance
+        z = self.measured_z()
+        if not g.usable or g.value is None or z is None:
+            return None
+        return float(z) - float(g.value) + self.tool_drop_m
+
+
+class _Slope:
+    """Least-squares slope of the last samples within a window [unit/s]."""
+
+    def __init__(self, window_s: float) -> None:
+        self.window_s = window_s
+        self._buf: deque[tuple[float, float]] = deque()
+
+    def add(self, t: float, v: float) -> float:
+        self._buf.append((t, v))
+        while self._buf and self._buf[0][0] < t - self.window_s - 1e-9:
+            self._buf.popleft()
+        n = len(self._buf)
+        if n < 2:
+            return 0.0
+        tm = sum(p[0] for p in self._buf) / n
+        vm = sum(p[1] for p in self._buf) / n
+        den = sum((p[0] - tm) ** 2 for p in self._buf)
+        return 0.0 if den <= 0.0 else sum((p[0] - tm) * (p[1] - vm) for p in self._buf) / den
+
+
+class WorkControl:
+    """Work sessions on a motion controller (module docstring). API calls from any thread;
+    :meth:`on_cycle` from the control cycle under the controller's lock. Its own lock is held only for
+    O(1) swaps and never while calling the controller (so the lock order is always controller → this)."""
+
+    def __init__(self, motion: Any, inputs: WorkInputs | None) -> None:
+        self.motion, self.inputs = motion, inputs
+        self._lock = threading.Lock()
+        self._settings = WorkSettings()
+        self._pending: WorkSettings | None = None
+        self._resume = False
+        self._session: int | None = None
+        self._z_op = 0.0
+        self._ctl = WorkController(self._settings)
+        self._slope = _Slope(_RATE_WINDOW_S)
+        self._last: WorkStatus | None = None
+        self._limited: dict[str, str] = {}
+        self._draft: float | None = None
+        self._ended: str | None = None
+        self.fallbacks = 0
+        self.rejected = 0
+        self.last_rejection: str | None = None
+        #: plain ``track/setpoint`` messages for the work session's id (refused: work control alone feeds it)
+        self.foreign_setpoints = 0
+
+    # ------------------------------------------------------------------ API (any thread)
+    def dispatch(self, op: str, *args: Any) -> dict[str, Any]:
+        """``configure`` (settings JSON), ``start`` (settings JSON, z or None), ``stop``, ``resume``, ``status``."""
+        if op == "configure":
+            return self.configure(settings_from_json(args[0]))
+        if op == "start":
+            return self.start(settings_from_json(args[0]), None if len(args) < 2 else args[1])
+        if op == "stop":
+            return self.stop()
+        if op == "resume":
+            return self.resume()
+        if op == "status":
+            return self.progress()
+        raise WorkSettingsError(f"work: op must be one of configure, start, stop, resume, status, got {op!r}")
+
+    def configure(self, settings: WorkSettings) -> dict[str, Any]:
+        """New settings: a live session takes them on its next cycle (bumpless; a fallback is cleared)."""
+        with self._lock:
+            self._settings = settings
+            if self._session is not None:
+                self._pending = settings
+        return self.progress()
+
+    def start(self, settings: WorkSettings, z: float | None = None) -> dict[str, Any]:
+        """Start a work session: a track session (tractor frame, z) fed by work control. ``z``: the
+        operator's position setpoint [m] (None: the commanded z now). Raises MotionError as track/start."""
+        if z is not None and (isinstance(z, bool) or not isinstance(z, (int, float)) or not math.isfinite(z)):
+            raise WorkSettingsError(f"z must be a finite number [m], got {z!r}")
+        z_op = float(z) if z is not None else float(self.motion.current_state().position[1])
+        acc = self.motion.track_start("tractor", ("z",), WORK_TTL_S)
+        with self._lock:
+            self._settings = settings
+            self._ctl = WorkController(settings)
+            self._z_op = z_op
+            self._slope = _Slope(_RATE_WINDOW_S)
+            self._pending, self._resume = None, False
+            self._last, self._limited, self._ended = None, {}, None
+            self.fallbacks = self.rejected = self.foreign_setpoints = 0
+            self._session = int(acc.session)
+        return {**acc.to_json(), "work": self.progress()}
+
+    def stop(self) -> dict[str, Any]:
+        """End the work session smoothly (the track session's stop)."""
+        with self._lock:
+            session = self._session
+        if session is None:
+            raise MotionError("not_found", "no work session is running (work/start)")
+        reply = self.motion.track_stop(session)
+        return {**reply, "work": self.progress()}
+
+    def resume(self) -> dict[str, Any]:
+        """Clear a latched fallback: the configured mode engages again (bumpless)."""
+        with self._lock:
+            if self._session is None:
+                raise MotionError("not_found", "no work session is running (work/start)")
+            self._resume = True
+        return self.progress()
+
+    def owns(self, session: int) -> bool:
+        """Whether ``session`` is the live work session (its setpoints come from work control alone)."""
+        return self._session is not None and self._session == session
+
+    def refuse_setpoint(self, motion: TrackMotion) -> NoReturn:
+        """A plain ``track/setpoint`` for the work session (called by the motion controller under its
+        lock): it must not compete with work control. Counted here (``setpoints_refused``) and in the
+        session's ``rejected``; raises MotionError ``busy`` (a put's reply goes nowhere)."""
+        text = (
+            f"session {motion.session} is a work session: its setpoints come from work control "
+            "(work/settings, work/stop), track/setpoint is refused"
+        )
+        with self._lock:
+            self.foreign_setpoints += 1
+        motion.rejected += 1
+        motion.last_rejection = text
+        raise MotionError("busy", text)
+
+    # ------------------------------------------------------------------ the control cycle
+    def on_cycle(self, now: float, active: Any, events: list[dict[str, Any]]) -> None:
+        """One control cycle (under the controller's lock): the work controller's z to the live session."""
+        with self._lock:
+            session = self._session
+            if session is None:
+                return
+            if not isinstance(active, TrackMotion) or active.session != session:
+                self._session = None
+                self._ended = "the track session ended"
+                events.append({"event": "work_finished", "session": session, "reason": self._ended})
+                return
+            pending, self._pending = self._pending, None
+            resume, self._resume = self._resume, False
+        if active.ending:
+            return
+        ctl = self._ctl
+        if pending is not None:
+            ctl.configure(pending)
+        elif resume:
+            ctl.resume()
+        draft_n, draft_t, slip, ground = None, None, None, None
+        if self.inputs is not None:
+            draft_n, draft_t = self.inputs.draft(now)
+            slip = self.inputs.slip(now)
+            ground = self.inputs.ground_z(now)
+        self._draft = draft_n
+        st = ctl.step(now, self._z_op, draft_n=draft_n, draft_t=draft_t, slip=slip, ground_z=ground)
+        if st.event is not None:
+            self.fallbacks += 1
+            events.append(
+                {"event": "work_fallback", "session": session, "mode": st.mode, "reason": st.fallback, "t": now}
+            )
+        limited: dict[str, str] = {}
+        s = ctl.settings
+        if st.active in ("draft", "mixed", "float") and st.depth_m is not None:
+            if st.depth_m >= s.depth_max_m - 1e-6:
+                limited["depth"] = "work:depth_max"
+            elif st.depth_m <= s.depth_min_m + 1e-6 and st.active != "float":
+                limited["depth"] = "work:depth_min"
+        try:
+            sp = active.follower.set_setpoint({"z": st.z}, {"z": self._slope.add(now, st.z)}, now)
+            active.accepted += 1
+            limited.update(sp.limited)
+        except HitchError as exc:  # a setpoint the follower cannot take (stopping): counted, named
+            self.rejected += 1
+            self.last_rejection = str(exc)
+        self._last, self._limited = st, limited
+
+    # ------------------------------------------------------------------ state
+    def progress(self) -> dict[str, Any]:
+        """The state message's ``work`` block (SI: draft [N], depth [m], z [m])."""
+        st, s = self._last, self._settings
+        running = self._session is not None
+        action = "none"
+        if st is not None and st.slip_limited:
+            action = f"raise {st.slip_raise_m:.3f} m" if st.slip_raise_m > 0 else f"cut {st.slip_cut:.2f}"
+        return {
+            "running": running,
+            "session": self._session,
+            "mode": s.mode,
+            "active": None if st is None or not running else st.active,
+            "fallback": None if st is None else st.fallback,
+            "draft_n": self._draft,
+            "draft_setpoint_n": s.draft_setpoint_n,
+            "depth_m": None if st is None else st.depth_m,
+            "z_operator": self._z_op if running else None,
+            "z_setpoint": None if st is None else st.z,
+            "slip": None,
+            "slip_action": action,
+            "slip_note": _SLIP_NOTE if s.slip_limit is not None or s.mode != "position" else None,
+            "limited": dict(self._limited),
+            "fallbacks": self.fallbacks,
+            "rejected": self.rejected,
+            "setpoints_refused": self.foreign_setpoints,
+            "ended": self._ended,
+            "settings": settings_to_json(s),
+        }
+
+
+def sim_field_tractor(
+    cfg: Any, bus: Any, height: Callable[[float], float | None], ecu_node: Any, pivot_height_m: float
+) -> Any:
+    """The twin's tractor over ``cfg.sim_field`` (its terrain scenario) with the field's draft on the
+    ECU node (module docstring); None when no field is configured."""
+    name = getattr(cfg, "sim_field", None)
+    if name is None:
+        return None
+    from bridge.service.field_loop import FieldDraft
+    from bridge.sim.field import FieldRun, load_field
+    from bridge.sim.sensors import TwinSensors
+    from bridge.sim.tractor_node import TractorTwinNode
+
+    fs = load_field(name)
+    drop = tool_drop_m(pivot_height_m, fs.working_depth_m)
+
+    def tip_z() -> float:
+        h = height(0.0)  # pivot height + the true tool point z
+        return -fs.working_depth_m if h is None else float(h) - drop
+
+    ecu_node.draft_source = FieldDraft(FieldRun(fs), tip_z)
+    return TractorTwinNode(bus, TwinSensors(fs.scenario.twin), hitch_height_m=height)
+
+
+def field_working_depth(cfg: Any) -> float | None:
+    """The configured sim field's working depth [m] (None: no field)."""
+    name = getattr(cfg, "sim_field", None)
+    if name is None:
+        return None
+    from bridge.sim.field import load_field
+
+    return float(load_field(name).working_depth_m)
+
+
+def build_work_control(cfg: Any, motion: Any, sensors: Any, link: Any, pivot_height_m: float) -> WorkControl:
+    """Work control of ``motion`` on the tractor's ``sensors`` and the ``link``'s measured z."""
+
+    def measured_z() -> float | None:
+        ls = link.latest_state()
+        return None if ls is None else float(ls.pose.controlled()[1])
+
+    drop = tool_drop_m(pivot_height_m, field_working_depth(cfg))
+    return WorkControl(motion, SensorWorkInputs(sensors, measured_z, drop))
+
+
+# ---------------------------------------------------------------------- the API keys
+def work_handlers(api: Any) -> dict[str, Callable[[Any], dict[str, Any]]]:
+    """The ``work/…`` keys for ``api`` (a :class:`~bridge.service.api.ServiceAPI`): settings per
+    selected implement in the store, the session calls to the controller's work control (in the
+    service's threads: ``motion.work``; in the core process: ``motion.work_call``)."""
+
+    def call(op: str, *args: Any) -> dict[str, Any]:
+        remote = getattr(api.motion, "work_call", None)
+        if callable(remote):
+            return dict(remote(op, *args))
+        work = getattr(api.motion, "work", None)
+        if work is None:
+            from bridge.service.schemas import RequestError
+
+            raise RequestError("unavailable", "work control is not available in this service")
+        return work.dispatch(op, *args)
+
+    def stored(implement: str) -> WorkSettings:
+        data = api.store.get_work_settings(implement)
+        if data is None:
+            return WorkSettings()
+        try:
+            return settings_from_json(data)
+        except WorkSettingsError:
+            return WorkSettings()  # a stored row an older program wrote: the defaults
+
+    def settings(r: Any) -> dict[str, Any]:
+        implement = api.implement
+        given = {k: getattr(r, k) for k in r.model_fields_set}
+        current = stored(implement)
+        out: dict[str, Any] = {"implement": implement}
+        if given:
+            new = settings_from_json(given, current)  # WorkSettingsError (bad_request) names field and range
+            user = getattr(api._caller, "user", None)
+            api.store.save_work_settings(implement, settings_to_json(new), owner=user)
+            current = new
+            out["saved"] = True
+            status = call("configure", settings_to_json(new))
+        else:
+            status = call("status")
+        return {**out, "settings": settings_to_json(current), "status": status}
+
+    def start(r: Any) -> dict[str, Any]:
+        s = stored(api.implement)
+        return {**call("start", settings_to_json(s), r.z), "implement": api.implement}
+
+    return {
+        "work/settings": settings,
+        "work/start": start,
+        "work/stop": lambda _r: call("stop"),
+        "work/resume": lambda _r: call("resume"),
+    }

@@ -1,0 +1,285 @@
+"""The thesis's field accuracy test (thesis tables 3-8 … 3-10) run against the twin.
+
+:func:`run_accuracy_test` drives a :class:`~bridge.sim.rig.SimRig` whose twin has its own true
+machine (:mod:`bridge.sim.truth`) through the pose sequence of
+:func:`planner.calibration.accuracy.thesis_sequence`: each pose is a real goto over the CAN path
+(the Ruckig plan from the pose the link measures, streamed at the control rate through the unit
+loops' feed-forward, as ``hitch sim move``), held until every valve stayed closed for
+``hold_s``; then the implement is measured and compared with the commanded pose. The planner
+stays on its nominal profile throughout; only the twin knows the truth.
+
+The measurement is the thesis's (thesis §3.3, tables 3-8 … 3-10): the heights of the four
+corners of the test implement's frame (2300 mm wide, 1300 mm long, its near edge 290 mm behind
+the lower hitch points, in the plane of the lower hitch points) and the lateral position of T
+(a plumb line). Each of the five linear readings carries the instrument's position noise
+(``tape``: uniform ±10 mm; ``total-station``: Gaussian σ = 1 mm; ``none``); the pose read is the
+least-squares fit of z, roll and pitch to the four heights (x from the plumb line).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from bridge.link.state import LinkFaultError, ReferenceRefused
+from bridge.link.unit_loop import FeedforwardShaper, build_unit_loops
+from bridge.sim.rig import SimError, SimRig, SimSettings
+from bridge.sim.truth import InstrumentNoise, MachineTruth
+from planner.calibration.accuracy import (
+    AccuracyPose,
+    DofStatistics,
+    accuracy_statistics,
+    thesis_sequence,
+)
+from planner.model.kinematics import HitchModel
+from planner.trajectory import MotionState, TrajectoryPlanner
+
+__all__ = [
+    "INSTRUMENTS",
+    "AccuracyRun",
+    "AccuracyRunSettings",
+    "FrameReading",
+    "read_frame",
+    "run_accuracy_test",
+]
+
+#: instrument names of the test → the noise preset of :class:`~bridge.sim.truth.InstrumentNoise`
+INSTRUMENTS: dict[str, str] = {"tape": "tape", "total-station": "station", "none": "none"}
+_DOF = ("x", "z", "roll", "pitch")
+
+
+@dataclass(frozen=True)
+class FrameReading:
+    """What the tape read: the four corner heights [m] (front-left, front-right, rear-left, rear-right),
+    the lateral position of T [m] and the pose fitted to them (x, z, roll, pitch; m, rad)."""
+
+    corner_heights: tuple[float, float, float, float]
+    lateral: float
+    pose: tuple[float, float, float, float]
+
+
+def _rotation(roll: float, pitch: float) -> np.ndarray:
+    """Roll about the longitudinal y axis, then pitch about the lateral x axis (as :mod:`bridge.sim.truth`)."""
+    cr, sr, cp, sp = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch)
+    r_y = np.array([[cr, 0.0, sr], [0.0, 1.0, 0.0], [-sr, 0.0, cr]])
+    r_x = np.array([[1.0, 0.0, 0.0], [0.0, cp, -sp], [0.0, sp, cp]])
+    return r_y @ r_x
+
+
+def _corners(width_m: float, length_m: float, offset_m: float, rear_sign: float) -> np.ndarray:
+    w, y0, y1 = 0.5 * width_m, rear_sign * offset_m, rear_sign * (offset_m + length_m)
+    return np.array([[-w, y0, 0.0], [w, y0, 0.0], [-w, y1, 0.0], [w, y1, 0.0]])
+
+
+def _heights(z: float, roll: float, pitch: float, corners: np.ndarray) -> np.ndarray:
+    return z + (corners @ _rotation(roll, pitch).T)[:, 2]
+
+
+def read_frame(
+    true_pose: ArrayLike,
+    noise: InstrumentNoise,
+    rng: np.random.Generator,
+    *,
+    width_m: float = 2.3,
+    length_m: float = 1.3,
+    offset_m: float = 0.29,
+    rear_sign: float = 1.0,
+) -> FrameReading:
+    """The thesis's tape reading of a true pose (x, z, roll, pitch): corner heights and plumb line, fitted."""
+    x, z, roll, pitch = (float(v) for v in np.asarray(true_pose, dtype=float).reshape(4))
+    corners = _corners(width_m, length_m, offset_m, rear_sign)
+    h = _heights(z, roll, pitch, corners) + noise.draw(rng, 4, noise.position_m)
+    lateral = x + float(noise.draw(rng, 1, noise.position_m)[0])
+    p = np.array([float(h.mean()), 0.0, 0.0])  # Gauss-Newton from level
+    for _ in range(8):
+        r = _heights(p[0], p[1], p[2], corners) - h
+        jac = np.empty((4, 3))
+        for j in range(3):
+            d = np.zeros(3)
+            d[j] = 1e-7
+            hi, lo = p + d, p - d
+            jac[:, j] = (_heights(hi[0], hi[1], hi[2], corners) - _heights(lo[0], lo[1], lo[2], corners)) / 2e-7
+        step = np.linalg.lstsq(jac, -r, rcond=None)[0]
+        p += step
+        if float(np.max(np.abs(step))) < 1e-12:
+            break
+    return FrameReading(
+        (float(h[0]), float(h[1]), float(h[2]), float(h[3])), lateral, (lateral, float(p[0]), float(p[1]), float(p[2]))
+    )
+
+
+@dataclass(frozen=True)
+class AccuracyRunSettings:
+    """One run of the test.
+
+    Attributes:
+        instrument: ``tape`` (±10 mm per reading), ``total-station`` (σ 1 mm) or ``none``.
+        seed: seed of the instrument's noise.
+        tick_s: the rig's simulated tick [s] (5 ms: the ECU still integrates at 1 ms).
+        hold_s: a pose is measured once every valve stayed closed this long [s].
+        max_move_s: longest time for one goto, plan and settling [s].
+        warmup_s: address claims and first measurement before the first move [s].
+    """
+
+    instrument: str = "tape"
+    seed: int = 0
+    tick_s: float = 0.005
+    hold_s: float = 0.5
+    max_move_s: float = 20.0
+    warmup_s: float = 0.5
+
+    def __post_init__(self) -> None:
+        if self.instrument not in INSTRUMENTS:
+            raise SimError(f"instrument must be one of {', '.join(INSTRUMENTS)}, got {self.instrument!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise SimError(f"seed must be a non-negative integer, got {self.seed!r}")
+        for name, lo, hi in (("hold_s", 0.05, 10.0), ("max_move_s", 1.0, 600.0), ("warmup_s", 0.3, 10.0)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and lo <= v <= hi):
+                raise SimError(f"{name} must be a number of seconds in [{lo:g}, {hi:g}], got {v!r}")
+
+
+@dataclass(frozen=True)
+class AccuracyRun:
+    """The result of one test: per measured pose (rows, x z roll pitch, SI) the ``commanded`` pose, the
+    instrument's reading ``measured``, the twin's ``true`` pose and the ``planner`` pose (the link's
+    measurement, nominal profile); ``labels`` name the poses; ``statistics`` are those of measured −
+    commanded (the thesis's columns), ``true_statistics`` of true − commanded (no instrument noise)."""
+
+    truth: str
+    instrument: str
+    labels: tuple[str, ...]
+    commanded: np.ndarray
+    measured: np.ndarray
+    true: np.ndarray
+    planner: np.ndarray
+    statistics: dict[str, DofStatistics]
+    true_statistics: dict[str, DofStatistics]
+    simulated_s: float
+
+    def as_dict(self) -> dict:
+        def rows(a: np.ndarray) -> list[dict[str, float]]:
+            return [dict(zip(_DOF, map(float, r), strict=True)) for r in a]
+
+        return {
+            "truth": self.truth,
+            "instrument": self.instrument,
+            "statistics": {k: v.as_dict() for k, v in self.statistics.items()},
+            "true_statistics": {k: v.as_dict() for k, v in self.true_statistics.items()},
+            "poses": [
+                {"label": lab, "commanded": c, "measured": m, "true": t, "planner": p}
+                for lab, c, m, t, p in zip(
+                    self.labels,
+                    rows(self.commanded),
+                    rows(self.measured),
+                    rows(self.true),
+                    rows(self.planner),
+                    strict=True,
+                )
+            ],
+            "simulated_s": self.simulated_s,
+        }
+
+
+def _goto(
+    rig: SimRig, tp: TrajectoryPlanner, shaper: FeedforwardShaper, goal: dict[str, float], s: AccuracyRunSettings
+):
+    """One real goto over the CAN path; returns the commanded pose (4,) once the valves rested ``hold_s``."""
+    state = rig.link.latest_state()
+    if state is None:
+        raise SimError(
+            f"no measurement from the simulated ECU (faults: {', '.join(rig.link.faults.reasons) or 'none'})"
+        )
+    p0 = state.pose.controlled()
+    p1 = tp.goal_vector(p0, goal)
+    tp.check_in_workspace(p1, "accuracy-test pose")
+    plan = tp.plan_move(MotionState.at_rest(p0), dict(zip(_DOF, map(float, p1), strict=True)))
+    sp = tp.sample(plan)
+    refs = [
+        shaper.for_plan(plan.state_at, float(t), q, qd)
+        for t, q, qd in zip(sp.t, sp.actuators, sp.actuator_velocity, strict=True)
+    ]
+    t0, k = rig.now_s, 0
+    quiet_since: float | None = None
+    while True:
+        while k < len(refs) and rig.next_tick_s >= t0 + float(sp.t[k]) - 1e-9:
+            rig.link.send_reference(refs[k], rig.next_tick_s)
+            k += 1
+        t = rig.tick()
+        if k == len(refs) and not rig.ecu.valve_commands().any():
+            quiet_since = t if quiet_since is None else quiet_since
+            if t - quiet_since >= s.hold_s - 1e-9:
+                return p1
+        else:
+            quiet_since = None
+        if t - t0 >= s.max_move_s:
+            return p1  # measured as it stands (a cylinder still hunting): the error shows it
+
+
+def run_accuracy_test(
+    model: HitchModel,
+    truth: MachineTruth | None = None,
+    settings: AccuracyRunSettings | None = None,
+    sequence: Sequence[AccuracyPose] | None = None,
+) -> AccuracyRun:
+    """Run the test (module docstring) on the twin with ``truth`` (default: the nominal twin).
+
+    Home is the profile's neutral pose. Raises :class:`SimError` (no measurement, a refused
+    reference) or a :class:`~planner.trajectory.plan.PlanError` (a pose out of the workspace).
+    """
+    s = settings if settings is not None else AccuracyRunSettings()
+    seq = tuple(sequence) if sequence is not None else thesis_sequence()
+    if not any(p.measure for p in seq):
+        raise SimError("the sequence has no pose to measure")
+    truth = truth if truth is not None else MachineTruth.nominal(model.profile)
+    tp = TrajectoryPlanner(model)
+    home = model.neutral_pose.controlled()
+    noise = InstrumentNoise.preset(INSTRUMENTS[s.instrument])
+    rng = np.random.default_rng(s.seed)
+    labels: list[str] = []
+    cmd: list[np.ndarray] = []
+    meas: list[tuple[float, float, float, float]] = []
+    true: list[np.ndarray] = []
+    planner: list[np.ndarray] = []
+    with SimRig(
+        model, SimSettings(tick_s=s.tick_s, seed=s.seed), initial_actuators=tp.inverse.solve(home)[0], truth=truth
+    ) as rig:
+        pts = model.forward(tp.inverse.solve(home)[0]).points
+        rear = 1.0 if float(pts["T"][1] - pts["H"][1]) >= 0.0 else -1.0  # the frame extends away from the tractor
+        shaper = FeedforwardShaper(
+            build_unit_loops(model.profile, rig.ecu.config.a), tp.inverse.solve_full, rig.link.check_reference
+        )
+        rig.start()
+        rig.run_until(s.warmup_s)
+        try:
+            for step in seq:
+                p1 = _goto(rig, tp, shaper, step.goal(home), s)
+                if not step.measure:
+                    continue
+                tpose = rig.true_pose().controlled()
+                state = rig.link.latest_state()
+                labels.append(step.label)
+                cmd.append(p1)
+                true.append(tpose)
+                planner.append(state.pose.controlled() if state is not None else np.full(4, np.nan))
+                meas.append(read_frame(tpose, noise, rng, rear_sign=rear).pose)
+        except (ReferenceRefused, LinkFaultError) as exc:  # a refused reference or a link fault
+            raise SimError(f"t = {rig.now_s:.2f} s: {exc}") from None
+        simulated = rig.now_s
+    c, m, t = np.array(cmd), np.array(meas), np.array(true)
+    return AccuracyRun(
+        truth=truth.profile.name,
+        instrument=s.instrument,
+        labels=tuple(labels),
+        commanded=c,
+        measured=m,
+        true=t,
+        planner=np.array(planner),
+        statistics=accuracy_statistics(c, m, labels),
+        true_statistics=accuracy_statistics(c, t, labels),
+        simulated_s=simulated,
+    )

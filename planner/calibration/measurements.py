@@ -1,0 +1,202 @@
+"""The measurement file of a geometry calibration: one CSV row per measured pose.
+
+Columns (header row required; order free; unknown columns are an error):
+
+* ``pose`` — optional label of the row (text);
+* the actuator readings, for each of ``lift, tilt, top, left, right`` **either** ``<name>_counts`` —
+  the raw AD reading the ECU reports (0…1023, may be fractional for an averaged reading), converted
+  with the *nominal* profile's AD map — **or** ``<name>`` — the reading in SI (rad for ``lift``, m
+  for the others) through the nominal AD map, within the stroke ± 10 %;
+* the measured pose in SI: ``x, z, roll, pitch`` (m, rad; all four or none) and optionally ``y, yaw``;
+* optionally marked points in m: ``L_x, L_y, L_z`` (left ball centre), ``R_*`` (right), ``U_*``
+  (top-link pin), three columns per point.
+
+Every row needs its five readings and at least one measured quantity; an empty cell means "not
+measured" (only for the measured columns). Measured values must lie within ±3 m (positions) and
+±π/2 (angles). A bad file raises :class:`~planner.calibration.parameters.CalibrationError` naming the
+row (1 = first data row; the header is row 0), the column and the allowed range.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from planner.calibration.parameters import CalibrationError
+from planner.calibration.parametric import OUTPUT_NAMES
+from planner.model.sensors import AD_COUNTS_MAX, SensorScaling
+from planner.model.types import ACTUATOR_NAMES
+from planner.profiles.hitch import Profile
+
+__all__ = ["MEASURED_COLUMNS", "MeasurementSet", "load_measurements", "measurements_csv", "parse_measurements"]
+
+_POINT_COLUMNS = tuple(f"{p}_{c}" for p in ("L", "R", "U") for c in "xyz")
+#: measured quantities a file may hold (the rows of the model's output, :data:`OUTPUT_NAMES`)
+MEASURED_COLUMNS: tuple[str, ...] = OUTPUT_NAMES
+_ANGLES = {"roll", "pitch", "yaw"}
+_POSITION_MAX_M = 3.0
+_ANGLE_MAX = math.pi / 2
+_STROKE_MARGIN = 0.10
+
+
+@dataclass(frozen=True)
+class MeasurementSet:
+    """Measured poses: actuator readings (N, 5) in SI through the nominal AD map, measured outputs (N, 15)
+    in :data:`OUTPUT_NAMES` order with ``mask`` (N, 15) true where measured, and the row labels."""
+
+    readings: np.ndarray
+    values: np.ndarray
+    mask: np.ndarray
+    labels: tuple[str, ...]
+
+    def __post_init__(self) -> None:
+        n = self.readings.shape[0] if self.readings.ndim == 2 else -1
+        if n < 1 or self.readings.shape != (n, 5) or self.values.shape != (n, 15) or self.mask.shape != (n, 15):
+            raise CalibrationError("measurements: readings (N, 5), values and mask (N, 15) with N >= 1")
+        if len(self.labels) != n:
+            raise CalibrationError("measurements: one label per row")
+        if not np.all(np.isfinite(self.readings)) or not np.all(np.isfinite(self.values[self.mask])):
+            raise CalibrationError("measurements: readings and measured values must be finite")
+
+    @property
+    def n_rows(self) -> int:
+        return int(self.readings.shape[0])
+
+    @property
+    def n_poses(self) -> int:
+        """Distinct poses (rows with the same readings, e.g. one pose approached from two sides, count once)."""
+        return int(np.unique(self.readings, axis=0).shape[0])
+
+    @property
+    def n_observations(self) -> int:
+        return int(self.mask.sum())
+
+    def subset(self, rows: Sequence[int]) -> MeasurementSet:
+        idx = list(rows)
+        return MeasurementSet(self.readings[idx], self.values[idx], self.mask[idx], tuple(self.labels[i] for i in idx))
+
+
+def _cell(text: str, row: int, col: str, lo: float, hi: float, unit: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        v = math.nan
+    if not (math.isfinite(v) and lo <= v <= hi):
+        raise CalibrationError(
+            f"measurements row {row}, column {col}: {text!r} is not a number in [{lo:g}, {hi:g}] {unit}"
+        )
+    return v
+
+
+def parse_measurements(text: str, profile: Profile, *, source: str = "measurements") -> MeasurementSet:
+    """Parse measurement CSV text (module docstring) against the nominal ``profile`` (its AD map and strokes)."""
+    reader = csv.reader(io.StringIO(text))
+    try:
+        header = [h.strip() for h in next(reader)]
+    except StopIteration:
+        raise CalibrationError(f"{source}: empty file (a header row is required)") from None
+    allowed = {"pose", *ACTUATOR_NAMES, *(f"{n}_counts" for n in ACTUATOR_NAMES), *MEASURED_COLUMNS}
+    unknown = [h for h in header if h not in allowed]
+    if unknown:
+        raise CalibrationError(
+            f"{source} row 0: unknown column(s) {unknown}; allowed: pose, {', '.join(ACTUATOR_NAMES)} (SI) or "
+            f"<name>_counts, {', '.join(MEASURED_COLUMNS)}"
+        )
+    dup = sorted({h for h in header if header.count(h) > 1})
+    if dup:
+        raise CalibrationError(f"{source} row 0: duplicate column(s) {dup}")
+    cols = {h: i for i, h in enumerate(header)}
+    for n in ACTUATOR_NAMES:
+        has_si, has_counts = n in cols, f"{n}_counts" in cols
+        if has_si == has_counts:
+            raise CalibrationError(
+                f"{source} row 0: actuator {n} needs exactly one column, {n} (SI) or {n}_counts (AD counts)"
+            )
+    pose4 = [c for c in ("x", "z", "roll", "pitch") if c in cols]
+    if pose4 and len(pose4) != 4:
+        raise CalibrationError(f"{source} row 0: the pose needs all of x, z, roll, pitch (has {', '.join(pose4)})")
+    for p in ("L", "R", "U"):
+        got = [c for c in _POINT_COLUMNS if c.startswith(p + "_") and c in cols]
+        if got and len(got) != 3:
+            raise CalibrationError(f"{source} row 0: point {p} needs all of {p}_x, {p}_y, {p}_z")
+    measured = [c for c in MEASURED_COLUMNS if c in cols]
+    if not measured:
+        raise CalibrationError(f"{source} row 0: no measured column (x, z, roll, pitch and/or L_x … U_z)")
+    sc = SensorScaling(profile)
+    readings, values, masks, labels = [], [], [], []
+    for r, line in enumerate(reader, start=1):
+        if not line or all(not c.strip() for c in line):
+            continue
+        if len(line) != len(header):
+            raise CalibrationError(f"{source} row {r}: {len(line)} cells, the header has {len(header)}")
+        cells = [c.strip() for c in line]
+        q = np.zeros(5)
+        for k, n in enumerate(ACTUATOR_NAMES):
+            if n in cols:
+                lo, hi = sc.si_min[k], sc.si_max[k]
+                m = _STROKE_MARGIN * (hi - lo)
+                q[k] = _cell(cells[cols[n]], r, n, lo - m, hi + m, "rad" if n == "lift" else "m")
+            else:
+                c = _cell(cells[cols[f"{n}_counts"]], r, f"{n}_counts", 0.0, float(AD_COUNTS_MAX), "counts")
+                q[k] = sc.si_min[k] + (c - sc.counts_min[k]) * sc.resolution[k]
+        vals = np.full(15, np.nan)
+        mask = np.zeros(15, dtype=bool)
+        for col in measured:
+            text = cells[cols[col]]
+            if text == "":
+                continue
+            lim = _ANGLE_MAX if col in _ANGLES else _POSITION_MAX_M
+            i = MEASURED_COLUMNS.index(col)
+            vals[i] = _cell(text, r, col, -lim, lim, "rad" if col in _ANGLES else "m")
+            mask[i] = True
+        if not mask.any():
+            raise CalibrationError(f"{source} row {r}: no measured value (all measured columns empty)")
+        for group in (("x", "z", "roll", "pitch"), *((f"{p}_x", f"{p}_y", f"{p}_z") for p in "LRU")):
+            idx = [MEASURED_COLUMNS.index(g) for g in group if g in cols]
+            if idx and 0 < mask[idx].sum() < len(idx):
+                raise CalibrationError(f"{source} row {r}: columns {', '.join(group)} must be all given or all empty")
+        readings.append(q)
+        values.append(vals)
+        masks.append(mask)
+        labels.append(cells[cols["pose"]] if "pose" in cols else str(r))
+    if not readings:
+        raise CalibrationError(f"{source}: no data rows after the header")
+    return MeasurementSet(np.array(readings), np.array(values), np.array(masks), tuple(labels))
+
+
+def load_measurements(path: str | Path, profile: Profile) -> MeasurementSet:
+    """Read a measurement CSV file (module docstring); errors name the file, row, column and range."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise CalibrationError(f"measurements file {p}: cannot read it ({exc.strerror})") from None
+    except UnicodeDecodeError:
+        raise CalibrationError(f"measurements file {p}: not UTF-8 text") from None
+    return parse_measurements(text, profile, source=str(p))
+
+
+def measurements_csv(
+    counts: np.ndarray, values: np.ndarray, mask: np.ndarray | None = None, labels: Sequence[str] | None = None
+) -> str:
+    """CSV text of measurements with readings in AD counts (N, 5) and measured outputs (N, 15; NaN = not measured)."""
+    counts = np.asarray(counts, dtype=float)
+    values = np.asarray(values, dtype=float)
+    m = np.isfinite(values) if mask is None else np.asarray(mask, dtype=bool)
+    used = [i for i in range(15) if m[:, i].any()]
+    header = ["pose", *(f"{n}_counts" for n in ACTUATOR_NAMES), *(MEASURED_COLUMNS[i] for i in used)]
+    out = io.StringIO()
+    w = csv.writer(out, lineterminator="\n")
+    w.writerow(header)
+    for k in range(counts.shape[0]):
+        lab = labels[k] if labels is not None else f"p{k + 1}"
+        w.writerow(
+            [lab, *(f"{c:.6g}" for c in counts[k]), *(repr(float(values[k, i])) if m[k, i] else "" for i in used)]
+        )
+    return out.getvalue()

@@ -1,0 +1,131 @@
+"""Writing a calibrated profile: an ordinary profile TOML plus its provenance in comments.
+
+The profile schema is strict (no unknown keys), so the provenance is carried by comment lines the
+profile loader ignores: a readable header and one structured line
+
+    #! calibration = { date = "…", poses = 20, residual_rms_position_m = …, residual_rms_angle_rad = …,
+                       std = { "geometry.lift_arm_pivot[1]" = …, … }, unidentifiable = [ … ] }
+
+which :func:`read_calibration_provenance` reads back. The file loads with ``load_profile``.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import math
+import tomllib
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from planner.calibration.parameters import CalibrationError, ParameterSet
+from planner.calibration.solve import CalibrationResult
+from planner.profiles.hitch import Profile, load_profile, profile_from_dict
+
+__all__ = ["PROVENANCE_MARKER", "calibrated_profile_toml", "read_calibration_provenance", "write_calibrated_profile"]
+
+#: start of the comment line that carries the calibration's provenance
+PROVENANCE_MARKER = "#! calibration ="
+
+
+def _value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if not math.isfinite(v):
+            raise CalibrationError(f"cannot write the non-finite number {v} to a profile")
+        return repr(v)
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_value(x) for x in v) + "]"
+    if isinstance(v, Mapping):
+        return "{ " + ", ".join(f"{_key(k)} = {_value(x)}" for k, x in v.items()) + " }"
+    raise CalibrationError(f"cannot write {type(v).__name__} to TOML")
+
+
+def _key(k: str) -> str:
+    return k if k and all(c.isalnum() or c in "-_" for c in k) else _value(k)
+
+
+def _table(out: list[str], path: tuple[str, ...], table: Mapping[str, Any]) -> None:
+    def is_table_list(v: Any) -> bool:
+        return isinstance(v, list) and bool(v) and isinstance(v[0], Mapping)
+
+    scalars = {k: v for k, v in table.items() if v is not None and not isinstance(v, Mapping) and not is_table_list(v)}
+    if path:
+        out += ["", "[" + ".".join(_key(p) for p in path) + "]"]
+    out.extend(f"{_key(k)} = {_value(v)}" for k, v in scalars.items())
+    for k, v in table.items():
+        if isinstance(v, Mapping):
+            _table(out, (*path, k), v)
+        elif is_table_list(v):
+            for item in v:
+                out += ["", "[[" + ".".join(_key(p) for p in (*path, k)) + "]]"]
+                out.extend(f"{_key(ik)} = {_value(iv)}" for ik, iv in item.items() if iv is not None)
+
+
+def calibrated_profile_toml(
+    params: ParameterSet, result: CalibrationResult, *, name: str | None = None, date: str | None = None
+) -> str:
+    """TOML text of the profile with the calibrated parameters and the provenance comment lines."""
+    if result.names != params.names:
+        raise CalibrationError("the calibration result is not for this parameter set")
+    base = params.profile
+    data = params.profile_dict(result.values, name=name or f"{base.name}-calibrated"[:80])
+    when = date or _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat()
+    prov = {
+        "date": when,
+        "poses": result.n_poses,
+        "observations": result.n_observations,
+        "residual_rms_position_m": float(result.residual_rms_position_m),
+        "residual_rms_angle_rad": float(result.residual_rms_angle_rad),
+        "residual_sigma": float(result.residual_sigma),
+        "identified": result.identified,
+        "nominal_profile": base.name,
+        "std": {n: float(s) for n, s in zip(result.names, result.std, strict=True)},
+        "unidentifiable": list(result.unidentifiable),
+    }
+    out = [
+        f"# Calibrated hitch profile (hitch calibrate geometry), from {base.name}, {when}:",
+        f"# {result.n_poses} measured poses, residual RMS {1e3 * result.residual_rms_position_m:.3f} mm / "
+        f"{1e3 * result.residual_rms_angle_rad:.3f} mrad, {result.identified} of {len(result.names)} "
+        "parameter directions identified; the others stay nominal (listed in the line below).",
+        f"{PROVENANCE_MARKER} {_value(prov)}",
+    ]
+    _table(out, (), data)
+    text = "\n".join(out) + "\n"
+    try:
+        profile_from_dict(tomllib.loads(text), source="calibrated profile")
+    except tomllib.TOMLDecodeError as exc:  # pragma: no cover - our own writer
+        raise CalibrationError(f"internal: the calibrated profile is not valid TOML: {exc}") from None
+    return text
+
+
+def write_calibrated_profile(
+    path: str | Path, params: ParameterSet, result: CalibrationResult, *, name: str | None = None
+) -> Profile:
+    """Write the calibrated profile to ``path``; returns it as loaded back by ``load_profile``."""
+    p = Path(path)
+    if p.suffix != ".toml":
+        raise CalibrationError(f"--out {p}: a profile file must end in .toml")
+    text = calibrated_profile_toml(params, result, name=name)
+    try:
+        p.write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise CalibrationError(f"--out {p}: cannot write it ({exc.strerror})") from None
+    return load_profile(p)
+
+
+def read_calibration_provenance(path: str | Path) -> dict[str, Any] | None:
+    """The provenance of a calibrated profile file (None for a profile without one)."""
+    for line in Path(path).read_text(encoding="utf-8").splitlines():
+        if line.startswith(PROVENANCE_MARKER):
+            try:
+                data = tomllib.loads("calibration =" + line[len(PROVENANCE_MARKER) :])["calibration"]
+            except tomllib.TOMLDecodeError as exc:
+                raise CalibrationError(f"{path}: the calibration line is not valid TOML: {exc}") from None
+            return dict(data)
+    return None

@@ -1,0 +1,302 @@
+"""Nonlinear least squares over the uncertain parameters: Levenberg–Marquardt with CasADi Jacobians.
+
+Residuals are the measured outputs minus the model's, divided by the instrument's σ (positions
+``sigma_position_m``, angles ``sigma_angle_rad``); the unknowns are the scaled deltas
+``u = (p − nominal) / scale`` (scale = the parameter's tape-measure uncertainty). So a singular
+value s of the weighted, scaled Jacobian says: a change of one tape size along its right singular
+vector changes the fit by s σ. Directions with s < ``min_singular`` (default 1: the data see a tape
+error there by less than one σ) cannot be identified: they stay at their nominal values and are
+named in the result. The solver works in the identifiable subspace (fixed from the SVD at the
+nominal parameters and refreshed once at the solution).
+
+Standard deviations come from the residual variance σ̂² = |r|² / (m − k) (m observations, k
+identified directions) times the inverse information of the identified directions; with exact
+measurements they are ~0.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from planner.calibration.measurements import MEASURED_COLUMNS, MeasurementSet
+from planner.calibration.parameters import CalibrationError, ParameterSet
+from planner.calibration.parametric import ParametricModel
+from planner.model.types import KinematicsError
+from planner.profiles.hitch import profile_from_dict
+
+__all__ = [
+    "CalibrationProblem",
+    "CalibrationResult",
+    "build_calibration_problem",
+    "identifiable_basis",
+    "solve_calibration",
+]
+
+_ANGLE_ROWS = np.array([c in ("roll", "pitch", "yaw") for c in MEASURED_COLUMNS])
+
+
+@dataclass(frozen=True)
+class CalibrationProblem:
+    """A calibration problem: the model, the measurements and the weights (σ per output row)."""
+
+    model: ParametricModel
+    data: MeasurementSet
+    sigma: np.ndarray  # (15,) σ of each output row [m or rad]
+    seeds: np.ndarray
+
+    @property
+    def params(self) -> ParameterSet:
+        return self.model.params
+
+    def residuals(self, u: np.ndarray, *, jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+        """Weighted residuals (m,) and their Jacobian (m, n) in scaled units at scaled deltas ``u``."""
+        ps = self.params
+        p = ps.nominal + ps.scale * u
+        y, j = self.model.batch(self.data.readings, p, jacobian=jacobian, seeds=self.seeds)
+        m = self.data.mask
+        w = 1.0 / self.sigma
+        r = ((y - np.nan_to_num(self.data.values)) * w)[m]
+        if j is None:
+            return r, None
+        js = (j * w[None, :, None] * ps.scale[None, None, :])[m]
+        return r, js
+
+
+def build_calibration_problem(
+    model: ParametricModel,
+    data: MeasurementSet,
+    *,
+    sigma_position_m: float = 0.001,
+    sigma_angle_rad: float = 0.001,
+) -> CalibrationProblem:
+    """The least-squares problem of ``data`` on ``model`` (checks sizes, σ in (0, 1])."""
+    for name, v in (("sigma_position_m", sigma_position_m), ("sigma_angle_rad", sigma_angle_rad)):
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and 0.0 < v <= 1.0):
+            raise CalibrationError(f"{name} must be a number in (0, 1], got {v!r}")
+    if not isinstance(data, MeasurementSet):
+        raise CalibrationError(f"data must be a MeasurementSet, got {type(data).__name__}")
+    sigma = np.where(_ANGLE_ROWS, float(sigma_angle_rad), float(sigma_position_m))
+    return CalibrationProblem(model, data, sigma, model.seeds(data.readings))
+
+
+def identifiable_basis(js: np.ndarray, min_singular: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(singular values (n,), identified right singular vectors (n, k), unidentified (n, n − k)) of ``js``."""
+    n = js.shape[1]
+    _, s, vt = np.linalg.svd(js, full_matrices=True)
+    s_full = np.zeros(n)
+    s_full[: s.size] = s
+    smax = s_full[0] if n else 0.0
+    keep = (s_full >= min_singular) & (s_full >= 1e-10 * smax)
+    return s_full, vt[keep].T, vt[~keep].T
+
+
+@dataclass(frozen=True)
+class CalibrationResult:
+    """The outcome of a geometry calibration (SI; parameters in :attr:`names` order).
+
+    ``values`` the calibrated parameters (unidentified directions at nominal), ``std`` their standard
+    deviations, ``singular_values`` of the weighted scaled Jacobian at the solution, ``identified`` the
+    number of identified directions, ``unidentifiable`` the unidentified combinations in words (with
+    their singular values), ``residual_rms_position_m`` / ``residual_rms_angle_rad`` the measured minus
+    calibrated model, ``residual_sigma`` σ̂ (≈ 1 when the instrument's σ was right).
+    """
+
+    names: tuple[str, ...]
+    nominal: np.ndarray
+    values: np.ndarray
+    std: np.ndarray
+    scale: np.ndarray
+    singular_values: np.ndarray
+    identified: int
+    unidentifiable: tuple[str, ...]
+    basis: np.ndarray  # (n, k) identified directions in scaled units
+    covariance_scaled: np.ndarray  # (n, n) covariance of the scaled deltas
+    residual_rms_position_m: float
+    residual_rms_angle_rad: float
+    residual_rms_nominal_position_m: float
+    residual_rms_nominal_angle_rad: float
+    residual_sigma: float
+    n_poses: int
+    n_observations: int
+    iterations: int
+    converged: bool
+    duration_s: float
+
+    def as_dict(self) -> dict[str, object]:
+        return {
+            "parameters": {
+                n: {"nominal": float(a), "value": float(v), "std": float(s)}
+                for n, a, v, s in zip(self.names, self.nominal, self.values, self.std, strict=True)
+            },
+            "singular_values": [float(s) for s in self.singular_values],
+            "identified": self.identified,
+            "unidentifiable": list(self.unidentifiable),
+            "residual_rms_position_m": self.residual_rms_position_m,
+            "residual_rms_angle_rad": self.residual_rms_angle_rad,
+            "residual_rms_nominal_position_m": self.residual_rms_nominal_position_m,
+            "residual_rms_nominal_angle_rad": self.residual_rms_nominal_angle_rad,
+            "residual_sigma": self.residual_sigma,
+            "n_poses": self.n_poses,
+            "n_observations": self.n_observations,
+            "iterations": self.iterations,
+            "converged": self.converged,
+            "duration_s": self.duration_s,
+        }
+
+
+def _rms(problem: CalibrationProblem, r: np.ndarray) -> tuple[float, float]:
+    raw = r * np.broadcast_to(problem.sigma, problem.data.mask.shape)[problem.data.mask]
+    ang = np.broadcast_to(_ANGLE_ROWS, problem.data.mask.shape)[problem.data.mask]
+    pos = raw[~ang]
+    a = raw[ang]
+    return (
+        float(np.sqrt(np.mean(pos**2))) if pos.size else 0.0,
+        float(np.sqrt(np.mean(a**2))) if a.size else 0.0,
+    )
+
+
+def _lm(problem: CalibrationProblem, basis: np.ndarray, u0: np.ndarray, max_iter: int, tol: float):
+    """Levenberg–Marquardt in the coordinates w of ``basis`` (u = u0 + basis w)."""
+    k = basis.shape[1]
+    w = np.zeros(k)
+    r, js = problem.residuals(u0)
+    assert js is not None
+    cost = float(r @ r)
+    lam = 1e-3
+    it = 0
+    converged = k == 0
+    while it < max_iter and not converged:
+        it += 1
+        jw = js @ basis
+        a = jw.T @ jw
+        g = jw.T @ r
+        diag = np.maximum(np.diag(a), 1e-12)
+        improved = False
+        for _ in range(30):
+            try:
+                step = -np.linalg.solve(a + lam * np.diag(diag), g)
+            except np.linalg.LinAlgError:
+                lam *= 10.0
+                continue
+            try:
+                r_new, js_new = problem.residuals(u0 + basis @ (w + step))
+            except KinematicsError:  # a trial step the mechanism cannot close: shorten it
+                lam *= 10.0
+                continue
+            c_new = float(r_new @ r_new)
+            if c_new <= cost:
+                improved = True
+                w = w + step
+                done = np.linalg.norm(step) <= tol * (1.0 + np.linalg.norm(w)) or cost - c_new <= tol * max(
+                    cost, 1e-300
+                )
+                r, js, cost = r_new, js_new, c_new
+                assert js is not None
+                lam = max(lam / 10.0, 1e-12)
+                converged = bool(done)
+                break
+            lam *= 10.0
+        if not improved:
+            converged = bool(np.linalg.norm(g) <= 1e-9 * max(1.0, math.sqrt(cost)))
+            break
+    return u0 + basis @ w, r, js, it, converged
+
+
+def _snap_ad(problem: CalibrationProblem, u: np.ndarray, min_singular: float, max_iter: int, tol: float):
+    """Round the AD map to whole counts (the profile's integers) and refit the geometry with it fixed."""
+    ps = problem.params
+    ad = np.array([n.startswith("ad_") for n in ps.names])
+    if not ad.any():
+        return u, 0
+    p = ps.nominal + ps.scale * u
+    rounded = ps.values_of(profile_from_dict(ps.profile_dict(p)))
+    u0 = u.copy()
+    u0[ad] = (rounded[ad] - ps.nominal[ad]) / ps.scale[ad]
+    _, js = problem.residuals(u0)
+    assert js is not None
+    _, sub, _ = identifiable_basis(js[:, ~ad], min_singular)
+    basis = np.zeros((len(ps), sub.shape[1]))
+    basis[~ad] = sub
+    u1, _, _, iters, _ = _lm(problem, basis, u0, max_iter, tol)
+    return u1, iters
+
+
+def solve_calibration(
+    problem: CalibrationProblem,
+    *,
+    min_singular: float = 1.0,
+    max_iter: int = 50,
+    tol: float = 1e-12,
+    snap_ad: bool = True,
+) -> CalibrationResult:
+    """Calibrate: LM over the identifiable directions; singular values, σ̂, standard deviations (module).
+
+    ``snap_ad``: round the calibrated AD map to whole counts (as the profile stores it) and refit the
+    geometry with that map fixed, so the written profile is the best one the schema can hold; the
+    standard deviations and the named combinations are those of the continuous fit.
+    """
+    if not (isinstance(min_singular, (int, float)) and math.isfinite(min_singular) and min_singular >= 0.0):
+        raise CalibrationError(f"min_singular must be a number >= 0, got {min_singular!r}")
+    if not (isinstance(max_iter, int) and 1 <= max_iter <= 1000):
+        raise CalibrationError(f"max_iter must be an integer in [1, 1000], got {max_iter!r}")
+    t0 = time.perf_counter()
+    ps = problem.params
+    n = len(ps)
+    u = np.zeros(n)
+    r0, js0 = problem.residuals(u)
+    assert js0 is not None
+    nominal_rms = _rms(problem, r0)
+    _, basis, _ = identifiable_basis(js0, min_singular)
+    u, r, js, iters, converged = _lm(problem, basis, u, max_iter, tol)
+    s, basis2, unid = identifiable_basis(js, min_singular)
+    if basis2.shape[1] != basis.shape[1]:  # the split moved at the solution: polish in the new subspace
+        u_proj = basis2 @ (basis2.T @ u)
+        u, r, js, more, converged = _lm(problem, basis2, u_proj, max_iter, tol)
+        iters += more
+        s, basis2, unid = identifiable_basis(js, min_singular)
+    k = basis2.shape[1]
+    m = r.size
+    if m <= k:
+        raise CalibrationError(
+            f"measurements: {m} measured values cannot determine {k} parameter directions (measure more poses)"
+        )
+    sigma_hat = math.sqrt(float(r @ r) / (m - k))
+    jw = js @ basis2
+    cov_w = sigma_hat**2 * np.linalg.inv(jw.T @ jw) if k else np.zeros((0, 0))
+    cov_u = basis2 @ cov_w @ basis2.T
+    std = ps.scale * np.sqrt(np.maximum(np.diag(cov_u), 0.0))
+    words = tuple(
+        f"{ps.describe(unid[:, i])} (singular value {sv:.3g})"
+        for i, sv in zip(range(unid.shape[1]), s[k:], strict=False)
+    )
+    if snap_ad:
+        u, more = _snap_ad(problem, u, min_singular, max_iter, tol)
+        iters += more
+        r, _ = problem.residuals(u, jacobian=False)
+    rms = _rms(problem, r)
+    return CalibrationResult(
+        names=ps.names,
+        nominal=ps.nominal,
+        values=ps.nominal + ps.scale * u,
+        std=std,
+        scale=ps.scale,
+        singular_values=s,
+        identified=k,
+        unidentifiable=words,
+        basis=basis2,
+        covariance_scaled=cov_u,
+        residual_rms_position_m=rms[0],
+        residual_rms_angle_rad=rms[1],
+        residual_rms_nominal_position_m=nominal_rms[0],
+        residual_rms_nominal_angle_rad=nominal_rms[1],
+        residual_sigma=sigma_hat,
+        n_poses=problem.data.n_poses,
+        n_observations=m,
+        iterations=iters,
+        converged=bool(converged),
+        duration_s=time.perf_counter() - t0,
+    )

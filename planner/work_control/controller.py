@@ -1,0 +1,374 @@
+"""Work control of a soil-engaging implement: position, draft, mixed and float control on top of track mode.
+
+Every control cycle :meth:`WorkController.step` takes the operator's position setpoint ``z`` (the
+hitch height in the track session's frame, m), the measured draft [N] with its receive time (or
+None), the wheel slip (or None) and the ground reference, and returns the ``z`` setpoint handed to
+the :class:`~planner.trajectory.track.TrackFollower` with a status. The follower, the workspace
+limits and the guard act on that setpoint as on any other: work control only chooses it.
+
+Ground reference. ``ground_z`` is the hitch height ``z`` at which the tool tip touches the ground
+(the track frame, m; None when unknown). The working depth of a setpoint ``z`` is
+``ground_z - z``; the depth limits bound the setpoint to ``[ground_z - depth_max, ground_z - depth_min]``.
+
+Modes (:attr:`WorkSettings.mode`):
+
+* ``position``: the operator's ``z`` unchanged (the depth then varies with the ground and the
+  draft with the soil).
+* ``draft``: hold ``draft_setpoint_n`` by adjusting the working depth. A PI regulator on the relative
+  draft error ``e = (D - D_set) / D_set`` acting on the hitch height: ``z_i ← z_i + s·K_I·d_ref·e·Δt``
+  (the integral), ``z = clip(z_i + s·K_P·d_ref·e, ground_z - depth_max, ground_z - depth_min)``, with
+  ``s`` the sensitivity and ``d_ref`` the middle of the depth limits (so the gains are the same
+  fraction of the depth range for any implement). Anti-windup: ``z_i`` is clamped to the same
+  depth limits, so after a limit the regulator leaves it as soon as the error changes sign. ``z_i``
+  starts at the operator's ``z`` (clipped to the limits) when the mode engages (bumpless). The
+  ground reference bounds the setpoint but is not fed forward: the undulation reaches the draft
+  loop as a draft error, as on a tractor's draft control (feeding the ground height forward made
+  the hitch lag the undulation and *raised* the draft's spread in the twin, see docs/soil.md).
+* ``mixed``: ``z = (1 - blend)·z_position + blend·z_draft`` (blend 0 = position, 1 = draft).
+* ``float``: no down pressure. A position-controlled hitch cannot be force-free, so float means
+  here: the hitch carries the implement at the shallowest allowed depth below the ground
+  reference (``ground_z - depth_min``, the depth an implement's gauge wheels would set) and never
+  pushes it deeper, and it moves only when the ground moved more than :data:`FLOAT_DEAD_BAND_M`
+  (the hitch follows the ground without chasing every ripple). The operator's ``z`` is not used
+  and no draft is needed.
+
+Slip limiting (``slip_limit`` not None; every mode but float): a PI regulator on the slip excess
+``slip - slip_limit`` whose integral is clamped at 0 from below, so it acts only while the slip has
+been above the limit and decays once it is below. In draft mode it lowers the draft setpoint (a
+cascade: ``D_set·(1 - c)``, ``c = K_P·excess⁺ + K_I·∫excess`` within ``[0, MAX_CUT]``), so the
+draft regulator itself makes the tool shallower and the depth limits still hold. In position and
+mixed mode it lifts the setpoint by ``r = K_P·excess⁺ + K_I·∫excess`` within ``[0, depth_max]``
+(position: never above the ground contact; mixed: never shallower than ``depth_min``, and while it
+lifts the draft integral may only lift too, so the two do not fight). An unavailable slip (None,
+NaN) leaves the integral as it is and is reported in :attr:`WorkStatus.note`.
+
+Fallback. ``draft`` and ``mixed`` need a usable draft signal and the ground reference. A draft that is
+stale (received longer than ``draft_ttl_s`` ago, or never), not a finite number, outside
+``[-0.1·draft_max_n, draft_max_n]``, or stuck (exactly the same value for ``stuck_s`` while new
+readings arrive: real draft pins always show noise), and a missing ground reference, put the
+controller into position control with the reason (:attr:`WorkStatus.fallback`) and an event on the
+cycle it happens (:attr:`WorkStatus.event`). The fallback is latched until :meth:`WorkController.resume`
+or :meth:`WorkController.configure` (an operator's decision, not a flicker between modes).
+Float without a ground reference holds the last float setpoint (or the operator's ``z`` before
+the first), reported as a fallback to position too.
+
+Cost: each step is a fixed number of float operations (no allocation beyond the status, no loop).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from planner.errors import HitchInputError
+
+__all__ = [
+    "FLOAT_DEAD_BAND_M",
+    "KI_DRAFT",
+    "KP_DRAFT",
+    "MODES",
+    "WorkController",
+    "WorkSettings",
+    "WorkSettingsError",
+    "WorkStatus",
+]
+
+MODES = ("position", "draft", "mixed", "float")
+#: proportional gain of the draft regulator: depth change per unit relative draft error, in d_ref
+KP_DRAFT = 0.3
+#: integral gain of the draft regulator [1/s]: depth rate per unit relative draft error, in d_ref
+KI_DRAFT = 1.5
+#: slip limiter: raise per unit slip excess [m] (P) and raise rate per unit slip excess [m/s] (I)
+KP_SLIP = 0.3
+KI_SLIP = 2.0
+#: slip limiter in draft mode: cut of the draft setpoint per unit slip excess (P) and its rate [1/s] (I)
+KP_CUT = 2.0
+KI_CUT = 5.0
+#: the largest share of the draft setpoint the slip limiter may take away
+MAX_CUT = 0.9
+#: float: the ground must move more than this before the hitch follows it [m]
+FLOAT_DEAD_BAND_M = 0.01
+_DT_MAX = 0.1  # a longer gap between steps integrates as this (s)
+
+
+class WorkSettingsError(HitchInputError):
+    """Bad work-control settings or step input; the message names the field and the allowed range."""
+
+
+def _num(name: str, v: object, lo: float, hi: float, *, open_lo: bool = False) -> float:
+    rng = f"{'(' if open_lo else '['}{lo:g}, {hi:g}]"
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise WorkSettingsError(f"{name} must be a finite number in {rng}, got {v!r}")
+    x = float(v)
+    if x < lo or x > hi or (open_lo and x <= lo):
+        raise WorkSettingsError(f"{name} = {v!r} is outside the allowed range {rng}")
+    return x
+
+
+@dataclass(frozen=True)
+class WorkSettings:
+    """The operator's work-control settings for one implement (SI units).
+
+    Attributes:
+        mode: one of :data:`MODES`.
+        draft_setpoint_n: the draft to hold in draft/mixed mode [N], (0, 300 000].
+        blend: mixed mode's share of the draft demand, [0, 1].
+        sensitivity: scales the draft regulator's gains, [0.1, 2] (1 = nominal; in the twin the loop
+            rings from about 1.5 and oscillates at twice the nominal integral gain).
+        depth_min_m, depth_max_m: working-depth limits of draft, mixed and float [m], 0 ≤ min < max ≤ 0.6.
+        slip_limit: the slip the limiter keeps below, (0, 0.5], or None (no slip limiting).
+        draft_ttl_s: a draft reading older than this is stale [s], [0.02, 5].
+        draft_max_n: a draft above this (or below -0.1 of it) is implausible [N], (0, 1e6].
+        stuck_s: the same draft value for this long is a stuck sensor [s], [0.2, 60], or None (no check).
+    """
+
+    mode: str = "position"
+    draft_setpoint_n: float = 20_000.0
+    blend: float = 0.5
+    sensitivity: float = 1.0
+    depth_min_m: float = 0.05
+    depth_max_m: float = 0.35
+    slip_limit: float | None = None
+    draft_ttl_s: float = 0.3
+    draft_max_n: float = 300_000.0
+    stuck_s: float | None = 2.0
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.mode, str) or self.mode not in MODES:
+            raise WorkSettingsError(f"mode must be one of {', '.join(MODES)}, got {self.mode!r}")
+        _num("draft_setpoint_n", self.draft_setpoint_n, 0.0, 300_000.0, open_lo=True)
+        _num("blend", self.blend, 0.0, 1.0)
+        _num("sensitivity", self.sensitivity, 0.1, 2.0)
+        _num("depth_min_m", self.depth_min_m, 0.0, 0.6)
+        _num("depth_max_m", self.depth_max_m, 0.0, 0.6)
+        if not self.depth_min_m < self.depth_max_m:
+            raise WorkSettingsError(
+                f"depth_min_m = {self.depth_min_m!r} must be below depth_max_m = {self.depth_max_m!r} "
+                "(both in [0, 0.6])"
+            )
+        if self.slip_limit is not None:
+            _num("slip_limit", self.slip_limit, 0.0, 0.5, open_lo=True)
+        _num("draft_ttl_s", self.draft_ttl_s, 0.02, 5.0)
+        _num("draft_max_n", self.draft_max_n, 0.0, 1.0e6, open_lo=True)
+        if self.stuck_s is not None:
+            _num("stuck_s", self.stuck_s, 0.2, 60.0)
+        if self.draft_setpoint_n > self.draft_max_n:
+            raise WorkSettingsError(
+                f"draft_setpoint_n = {self.draft_setpoint_n!r} must not exceed draft_max_n = {self.draft_max_n!r}"
+            )
+
+
+@dataclass(frozen=True)
+class WorkStatus:
+    """One cycle of work control.
+
+    Attributes:
+        t: the cycle's time [s].
+        z: the setpoint for the track follower (track frame) [m].
+        mode: the configured mode; ``active``: the mode in effect (``position`` after a fallback).
+        fallback: why draft/mixed/float fell back to position (None: no fallback).
+        event: set on the cycle a fallback begins (``"work_fallback: <reason>"``), else None.
+        depth_m: the working depth of ``z`` below the ground reference (None without one).
+        draft_n: the draft reading used this cycle (None when none was usable).
+        draft_error: relative draft error (D - D_set)/D_set (None when not regulating).
+        slip_raise_m: position and mixed: the slip limiter's raise of the setpoint [m] (0: not limiting).
+        slip_cut: draft: the share of the draft setpoint the slip limiter takes away (0: not limiting).
+        slip_limited: the slip limiter acted this cycle.
+        note: why an optional input was ignored ("slip unavailable"), else None.
+    """
+
+    t: float
+    z: float
+    mode: str
+    active: str
+    fallback: str | None = None
+    event: str | None = None
+    depth_m: float | None = None
+    draft_n: float | None = None
+    draft_error: float | None = None
+    slip_raise_m: float = 0.0
+    slip_cut: float = 0.0
+    slip_limited: bool = False
+    note: str | None = None
+
+
+def _finite(v: float | None) -> bool:
+    return v is not None and not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
+
+
+class WorkController:
+    """Per control cycle: the z setpoint of the active mode (module docstring). Not thread-safe."""
+
+    def __init__(self, settings: WorkSettings | None = None) -> None:
+        self.configure(WorkSettings() if settings is None else settings)
+
+    @property
+    def settings(self) -> WorkSettings:
+        return self._s
+
+    @property
+    def fallback(self) -> str | None:
+        """The latched fallback reason (None: none)."""
+        return self._fallback
+
+    def configure(self, settings: WorkSettings) -> None:
+        """New settings (the operator's); the regulator restarts bumpless and a fallback is cleared."""
+        if not isinstance(settings, WorkSettings):
+            raise WorkSettingsError(f"settings must be a WorkSettings, got {type(settings).__name__}")
+        self._s = settings
+        self.resume()
+        self._slip_raise = 0.0
+        self._slip_cut = 0.0
+        self._slip_i = 0.0
+
+    def resume(self) -> None:
+        """Clear a latched fallback: the configured mode engages again on the next step (bumpless)."""
+        self._fallback: str | None = None
+        self._z_i: float | None = None
+        self._float_z: float | None = None
+        self._last_t: float | None = None
+        self._same_value: float | None = None
+        self._same_since: float | None = None
+        self._last_draft_t: float | None = None
+
+    def _draft_problem(self, now: float, draft_n: float | None, draft_t: float | None) -> str | None:
+        s = self._s
+        if draft_n is None or draft_t is None:
+            return "draft signal stale: no reading"
+        if not _finite(draft_n) or not _finite(draft_t):
+            return f"draft signal implausible: {draft_n!r} at {draft_t!r} is not a finite number"
+        age = now - draft_t
+        if age > s.draft_ttl_s:
+            return f"draft signal stale: last reading {age:.3f} s ago (ttl {s.draft_ttl_s:g} s)"
+        if not -0.1 * s.draft_max_n <= draft_n <= s.draft_max_n:
+            lo, hi = -0.1 * s.draft_max_n, s.draft_max_n
+            return f"draft signal implausible: {draft_n:.0f} N outside [{lo:.0f}, {hi:.0f}] N"
+        if s.stuck_s is not None and draft_t != self._last_draft_t:
+            self._last_draft_t = draft_t
+            if draft_n != self._same_value or self._same_since is None:
+                self._same_value, self._same_since = draft_n, draft_t
+            elif draft_t - self._same_since >= s.stuck_s:
+                return f"draft signal implausible: stuck at {draft_n:.0f} N for {draft_t - self._same_since:.1f} s"
+        return None
+
+    def step(
+        self,
+        now_s: float,
+        z: float,
+        *,
+        draft_n: float | None = None,
+        draft_t: float | None = None,
+        slip: float | None = None,
+        ground_z: float | None = None,
+    ) -> WorkStatus:
+        """One control cycle at ``now_s`` [s] for the operator's setpoint ``z`` [m] (module docstring).
+
+        ``draft_n``/``draft_t``: the latest draft reading [N] and its receive time [s] (None: none);
+        ``slip``: travel reduction 0..1 (None: unknown); ``ground_z``: the ground reference [m].
+
+        Raises:
+            WorkSettingsError: ``now_s`` or ``z`` not a finite number, ``ground_z`` not None or finite.
+        """
+        now = _num("now_s", now_s, -1.0e9, 1.0e9)
+        z_op = _num("z", z, -10.0, 10.0)
+        g = None if ground_z is None else _num("ground_z", ground_z, -10.0, 10.0)
+        s = self._s
+        dt = 0.0 if self._last_t is None else min(_DT_MAX, max(0.0, now - self._last_t))
+        self._last_t = now
+        mode = s.mode
+        event: str | None = None
+        note: str | None = None
+
+        def out(
+            zz: float, active: str, limited: bool, used: float | None = None, err: float | None = None
+        ) -> WorkStatus:
+            depth = None if g is None else g - zz
+            return WorkStatus(
+                now,
+                zz,
+                mode,
+                active,
+                self._fallback,
+                event,
+                depth,
+                used,
+                err,
+                self._slip_raise,
+                self._slip_cut,
+                limited,
+                note,
+            )
+
+        if mode == "position":
+            zz, limited, note = self._slip_raise_z(z_op, slip, dt, g)
+            return out(zz, "position", limited)
+        if self._fallback is None:
+            problem = "no ground reference" if g is None else None
+            if problem is None and mode != "float":
+                problem = self._draft_problem(now, draft_n, draft_t)
+            if problem is not None:
+                self._fallback = problem
+                event = f"work_fallback: {problem}"
+        if self._fallback is not None:
+            if mode == "float" and self._float_z is not None:
+                return out(self._float_z, "position", False)
+            zz, limited, note = self._slip_raise_z(z_op, slip, dt, g)
+            return out(zz, "position", limited)
+        assert g is not None
+        if mode == "float":
+            target = g - s.depth_min_m
+            if self._float_z is None or abs(target - self._float_z) > FLOAT_DEAD_BAND_M:
+                self._float_z = target
+            return out(self._float_z, "float", False)
+        assert draft_n is not None
+        d_lo, d_hi = s.depth_min_m, s.depth_max_m
+        d_ref = 0.5 * (d_lo + d_hi)
+        z_lo, z_hi = g - d_hi, g - d_lo  # the depth limits as hitch heights
+        if self._z_i is None:
+            self._z_i = min(z_hi, max(z_lo, z_op))
+        target = s.draft_setpoint_n
+        limited = False
+        if mode == "draft" and s.slip_limit is not None:  # the slip limiter lowers the draft setpoint
+            p, note = self._slip_update(slip, dt, KI_CUT, MAX_CUT)
+            self._slip_cut = min(MAX_CUT, KP_CUT * p + KI_CUT * self._slip_i)
+            limited = self._slip_cut > 0.0
+            target *= 1.0 - self._slip_cut
+        e = (float(draft_n) - target) / s.draft_setpoint_n
+        zi = self._z_i + s.sensitivity * KI_DRAFT * d_ref * e * dt
+        if self._slip_raise > 0.0:
+            zi = max(zi, self._z_i)  # mixed: while the slip limiter lifts, the draft regulator may only lift
+        self._z_i = min(z_hi, max(z_lo, zi))  # anti-windup: the integral stays within the depth limits
+        z_draft = min(z_hi, max(z_lo, self._z_i + s.sensitivity * KP_DRAFT * d_ref * e))
+        if mode == "draft":
+            return out(z_draft, mode, limited, float(draft_n), e)
+        zz = (1.0 - s.blend) * z_op + s.blend * z_draft
+        zz, limited, note = self._slip_raise_z(zz, slip, dt, z_hi)
+        return out(zz, mode, limited, float(draft_n), e)
+
+    def _slip_update(self, slip: float | None, dt: float, gain_i: float, top: float) -> tuple[float, str | None]:
+        """Advance the limiter's integral of the slip excess (clamped so that ``gain_i`` times it stays
+        within ``[0, top]``); returns the proportional part (the excess, ≥ 0) and a note."""
+        lim = self._s.slip_limit
+        if lim is None:
+            return 0.0, None
+        if not _finite(slip):
+            return 0.0, "slip unavailable"
+        assert slip is not None
+        excess = float(slip) - lim
+        self._slip_i = min(top / gain_i, max(0.0, self._slip_i + excess * dt))
+        return max(0.0, excess), None
+
+    def _slip_raise_z(
+        self, z: float, slip: float | None, dt: float, ceiling: float | None
+    ) -> tuple[float, bool, str | None]:
+        """Position and mixed: lift ``z`` by the limiter's raise, never above ``ceiling`` nor below ``z``."""
+        if self._s.slip_limit is None:
+            return z, False, None
+        p, note = self._slip_update(slip, dt, KI_SLIP, self._s.depth_max_m)
+        self._slip_raise = min(self._s.depth_max_m, KP_SLIP * p + KI_SLIP * self._slip_i)
+        if self._slip_raise <= 0.0:
+            return z, False, note
+        zz = z + self._slip_raise
+        if ceiling is not None:
+            zz = max(z, min(zz, ceiling))
+        return zz, True, note

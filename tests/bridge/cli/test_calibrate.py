@@ -1,0 +1,134 @@
+"""``hitch calibrate``: bad measurement files get one clear error line (row, column, range); end to end on the twin.
+
+Truth: the rules of the measurement file (planner.calibration.measurements) and, end to end, the
+twin's own true machine (bridge.sim.truth): the calibrated profile must predict the truth's poses
+better than the nominal profile does.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import pytest
+
+from bridge.cli.main import main
+from bridge.sim.calibration_data import measure_twin, true_poses
+from bridge.sim.truth import MachineTruth, PinPlay, perturb_profile, truth_toml
+from planner.calibration import CalibrationError, parse_measurements, read_calibration_provenance
+from planner.calibration.design import candidate_poses
+from planner.calibration.parametric import ParametricModel
+from planner.model.kinematics import HitchModel
+from planner.profiles.hitch import load_profile, profile_from_dict
+
+GOOD_HEADER = "pose,lift_counts,tilt_counts,top_counts,left_counts,right_counts,x,z,roll,pitch"
+GOOD_ROW = "p1,100,400,120,300,260,0.0,-0.05,0.01,0.02"
+
+
+def _err(capsys, argv) -> str:
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("hitch: error:") and "\n" not in err
+    return err
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        (
+            GOOD_HEADER + "\np1,100,400,120,300,2000,0,0,0,0\n",
+            r"row 1, column right_counts: '2000' is not a number in \[0, 1023\]",
+        ),
+        (
+            GOOD_HEADER + "\n" + GOOD_ROW + "\np2,100,400,120,300,260,0,0,abc,0\n",
+            r"row 2, column roll: 'abc' is not a number in \[-1.5708, 1.5708\] rad",
+        ),
+        (
+            GOOD_HEADER + "\np1,100,400,120,300,260,5.0,0,0,0\n",
+            r"row 1, column x: '5.0' is not a number in \[-3, 3\] m",
+        ),
+        (GOOD_HEADER.replace("x,", "q,") + "\n" + GOOD_ROW + "\n", r"row 0: unknown column\(s\) \['q'\]"),
+        (
+            "pose,lift_counts,tilt_counts,top_counts,left_counts,x,z,roll,pitch\n",
+            r"actuator right needs exactly one column",
+        ),
+        (GOOD_HEADER + "\np1,100,400,120,300,260,0.0,-0.05\n", r"row 1: 8 cells, the header has 10"),
+        (GOOD_HEADER + "\np1,100,400,120,300,260,,,,\n", r"row 1: no measured value"),
+        (
+            GOOD_HEADER + "\np1,100,400,120,300,260,0.0,,0.1,0.1\n",
+            r"row 1: columns x, z, roll, pitch must be all given",
+        ),
+        (
+            "pose,lift,tilt,top,left,right,x,z,roll,pitch\np1,0.1,0.9,0.7,0.55,0.55,0,0,0,0\n",
+            r"row 1, column tilt: '0.9' is not a number in \[0.565, 0.745\] m",
+        ),
+        (GOOD_HEADER + "\n", r"no data rows"),
+        ("", r"empty file"),
+    ],
+)
+def test_bad_measurement_files_name_row_column_and_range(tmp_path, capsys, text, expected):
+    f = tmp_path / "m.csv"
+    f.write_text(text)
+    err = _err(capsys, ["calibrate", "geometry", "--measurements", str(f), "--out", str(tmp_path / "cal.toml")])
+    assert re.search(expected, err), err
+    assert not (tmp_path / "cal.toml").exists()
+
+
+def test_a_missing_measurement_file_is_a_clear_error(tmp_path, capsys):
+    err = _err(capsys, ["calibrate", "geometry", "--measurements", str(tmp_path / "no.csv"), "--out", "x.toml"])
+    assert "cannot read it" in err
+
+
+def test_parse_errors_are_input_errors():
+    with pytest.raises(CalibrationError) as info:
+        parse_measurements(GOOD_HEADER + "\np1,100,400,120,300,260,0,0,nan,0\n", load_profile("thesis-t132"))
+    assert isinstance(info.value, ValueError)
+
+
+def test_plan_poses_prints_n_reachable_poses(capsys, tmp_path):
+    out = tmp_path / "plan.csv"
+    assert main(["calibrate", "plan-poses", "--n", "4", "--candidates", "40", "--json", "--out", str(out)]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert len(data["poses"]) == 4 and data["identifiable"] > 5
+    assert out.read_text().splitlines()[0].startswith("pose,lift_counts")
+    assert "--n must be an integer" in _err(capsys, ["calibrate", "plan-poses", "--n", "0"])
+
+
+def test_end_to_end_on_a_twin_calibrates_better_than_nominal(tmp_path, capsys):
+    prof = load_profile("thesis-t132")
+    data, _ = perturb_profile(prof, 11)
+    truth_file = tmp_path / "truth.toml"
+    truth_file.write_text(truth_toml(data, PinPlay(0.0005, 0.0005)))
+    meas = tmp_path / "m.csv"
+    common = ["--n", "12", "--candidates", "80", "--seed", "2"]
+    assert main(["calibrate", "measure-twin", "--sim-truth", str(truth_file), "--out", str(meas), *common]) == 0
+    capsys.readouterr()
+    out = tmp_path / "cal.toml"
+    assert main(["calibrate", "geometry", "--measurements", str(meas), "--out", str(out), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["n_poses"] == 12 and report["converged"]
+    # station noise is 1 mm / 1 mrad: the calibrated residual is at the noise, the nominal one well above it
+    assert report["residual_rms_position_m"] < 0.0016 < report["residual_rms_nominal_position_m"]
+    assert report["residual_rms_angle_rad"] < 0.0025 < report["residual_rms_nominal_angle_rad"]
+    cal = load_profile(out)  # an ordinary profile
+    prov = read_calibration_provenance(out)
+    assert prov is not None and prov["poses"] == 12
+    # independent truth: where the true machine goes when each profile's inverse commands random poses
+    truth = MachineTruth(profile_from_dict(data))
+    check, _ = candidate_poses(ParametricModel(prof), 30, seed=99)
+    err_nom = np.abs(true_poses(HitchModel(prof), truth, check)[0] - check)
+    err_cal = np.abs(true_poses(HitchModel(cal), truth, check)[0] - check)
+    assert np.percentile(err_cal[:, 1], 95) < 0.5 * np.percentile(err_nom[:, 1], 95)  # z
+    assert np.max(err_cal[:, [0, 1]]) < 0.004 and np.max(err_cal[:, [2, 3]]) < 0.004
+
+
+def test_measure_twin_with_an_exact_instrument_reads_the_truth():
+    prof = load_profile("thesis-t132")
+    data, _ = perturb_profile(prof, 4)
+    truth = MachineTruth(profile_from_dict(data))
+    poses, _ = candidate_poses(ParametricModel(prof), 5, seed=1)
+    m = measure_twin(HitchModel(prof), truth, poses[:3], noise="none", points=("L",), approach="direct")
+    assert m.counts.shape == (3, 5) and np.all(m.counts == np.rint(m.counts))
+    assert np.allclose(m.measured[:, [0, 2, 3, 4]], m.true[:, [0, 2, 3, 4]])
+    assert np.allclose(m.measured[:, 6:9], m.true[:, 6:9])

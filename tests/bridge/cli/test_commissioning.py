@@ -1,0 +1,61 @@
+"""``hitch accuracy-test`` and ``hitch calibrate-sensors`` end to end (simulated time)."""
+
+import json
+
+import pytest
+
+from bridge.cli import main
+from planner.profiles.hitch import load_profile
+
+
+@pytest.fixture(scope="module")
+def truth_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("truth") / "truth.toml"
+    assert main(["sim", "perturb", "--seed", "1", "--tape", "--out", str(path), "--json"]) == 0
+    return path
+
+
+def test_accuracy_test_prints_the_table_beside_the_thesis_s(truth_file, capsys):
+    capsys.readouterr()
+    assert main(["accuracy-test", "--sim-truth", str(truth_file), "--dofs", "z"]) == 0
+    out = capsys.readouterr().out
+    assert "twin: E" in out and "hybrid (3-8)" in out and "DLS (3-9)" in out and "geometric (3-10)" in out
+    lines = {ln.split()[0]: ln for ln in out.splitlines() if ln[:5].strip() in ("x", "z", "roll", "pitch")}
+    assert set(lines) == {"x", "z", "roll", "pitch"}
+    assert "39.0" in lines["pitch"]  # the thesis's hybrid |E| of pitch, 39 mrad
+
+
+def test_accuracy_test_json_has_the_columns_and_the_thesis_figures(capsys):
+    assert main(["accuracy-test", "--dofs", "x", "--instrument", "total-station", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["instrument"] == "total-station" and len(out["poses"]) == 4
+    assert set(out["statistics"]["x"]) == {"E", "abs_E", "abs_E_max", "TT", "n"}
+    assert out["thesis"]["geometric (3-10)"]["z"]["abs_E_max"] == pytest.approx(0.055)
+    # a total station (σ 1 mm) on the nominal twin: x within millimetres
+    assert out["statistics"]["x"]["abs_E_max"] < 0.006
+
+
+def test_accuracy_test_bad_arguments_name_the_field(capsys):
+    assert main(["accuracy-test", "--dofs", "yaw"]) == 2
+    assert "dofs" in capsys.readouterr().err
+    assert main(["accuracy-test", "--instrument", "laser"]) == 2
+
+
+def test_calibrate_sensors_writes_a_profile_with_the_truth_s_counts(truth_file, tmp_path, capsys):
+    out_path, progress = tmp_path / "calibrated.toml", tmp_path / "progress.json"
+    argv = ["calibrate-sensors", "--sim-truth", str(truth_file), "--actuators", "top"]
+    assert main([*argv, "--out", str(out_path), "--progress", str(progress), "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    truth, written = load_profile(truth_file), load_profile(out_path)
+    t, w = truth.actuator("top"), written.actuator("top")
+    assert abs(w.counts_min - t.counts_min) <= 1 and abs(w.counts_max - t.counts_max) <= 1
+    assert res["actuators"]["top"]["counts_min"] == w.counts_min
+    assert written.actuator("tilt") == load_profile("thesis-t132").actuator("tilt")  # only what was calibrated
+    assert json.loads(progress.read_text())["actuators"]["top"]["fit"]["counts_max"] == w.counts_max
+
+
+def test_calibrate_sensors_refuses_naming_the_limit(truth_file, tmp_path, capsys):
+    argv = ["calibrate-sensors", "--sim-truth", str(truth_file), "--actuators", "lift", "--out", str(tmp_path / "x")]
+    assert main(argv) == 2
+    assert "top_link_pitch_max" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()

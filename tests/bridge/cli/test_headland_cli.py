@@ -1,0 +1,107 @@
+"""``hitch maneuver record start|stop [--save]``, ``hitch maneuver pause|resume|skip`` and ``hitch lines
+save|list|delete`` against a running service (the control core in its own process, the default)."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import pytest
+
+from bridge.cli.main import main
+from bridge.service.client import HitchClient
+from bridge.service.config import ServiceConfig
+from bridge.service.gnss import LocalTangentPlane
+from bridge.service.server import HitchService
+from tests.integration.service_process import free_port
+
+pytestmark = pytest.mark.slow
+
+
+def _wait(pred, timeout_s: float = 15.0) -> bool:
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if pred():
+            return True
+        time.sleep(0.02)
+    return False
+
+
+@pytest.fixture(scope="module")
+def service(tmp_path_factory):
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    cfg = ServiceConfig(listen=[ep], data_dir=tmp_path_factory.mktemp("svc"), planning_processes=1)
+    svc = HitchService(cfg).start()
+    try:
+        assert _wait(lambda: (svc.latest_state or {}).get("ecu", {}).get("online")), "no state from the core"
+        yield svc, ep
+    finally:
+        svc.close()
+
+
+def _cli(capsys, ep, *argv: str) -> tuple[int, str, str]:
+    rc = main([*argv, "--connect", ep, "--timeout", "10"])
+    out = capsys.readouterr()
+    return rc, out.out, out.err
+
+
+def test_lines_save_list_delete(service, capsys, tmp_path):
+    svc, ep = service
+    plane = LocalTangentPlane(48.0, 11.0)
+    a, b = plane.to_geodetic(20.0, -50.0), plane.to_geodetic(20.0, 50.0)
+    f = tmp_path / "headland.geojson"
+    f.write_text(json.dumps({"type": "LineString", "coordinates": [[a[1], a[0]], [b[1], b[0]]]}))
+    rc, out, err = _cli(capsys, ep, "lines", "save", "headland", str(f))
+    assert rc == 0 and "saved headland" in out, err
+    rc, out, _ = _cli(capsys, ep, "lines", "list", "--json")
+    assert rc == 0 and [ln["name"] for ln in json.loads(out)["lines"]] == ["headland"]
+    rc, out, _ = _cli(capsys, ep, "lines", "list")
+    assert rc == 0 and "headland: 2 vertices, crossed 0 time(s)" in out
+    bad = tmp_path / "bad.geojson"
+    bad.write_text(json.dumps({"type": "LineString", "coordinates": [[11.0, 48.0], [11.0, 95.0]]}))
+    rc, out, err = _cli(capsys, ep, "lines", "save", "bad", str(bad))
+    assert rc != 0 and "lat" in err and "[-85, 85]" in err, err
+    rc, _, err = _cli(capsys, ep, "lines", "save", "x", str(tmp_path / "missing.geojson"))
+    assert rc == 2 and "does not exist" in err
+    rc, out, _ = _cli(capsys, ep, "lines", "delete", "headland")
+    assert rc == 0 and "deleted headland" in out
+    rc, _, err = _cli(capsys, ep, "lines", "delete", "headland")
+    assert rc != 0 and ("not_found" in err or "no line" in err), err
+
+
+def test_pause_resume_skip_and_record_through_the_cli(service, capsys, tmp_path):
+    svc, ep = service
+    with HitchClient([ep], timeout_s=10) as c:
+        c.wait_motion(c.goto({"z": 0.0})["motion_id"], timeout_s=20)
+        c.request(
+            "maneuvers/save",
+            {"name": "m", "script": "steps:\n  - goto: {z: 0.3, speed_scale: 0.4}\n  - wait: 30\n"},
+        )
+    rc, _, err = _cli(capsys, ep, "maneuver", "pause")
+    assert rc != 0 and "no maneuver is running" in err, err
+    rc, out, err = _cli(capsys, ep, "maneuver", "run", "m")
+    assert rc == 0, err
+    assert _wait(lambda: svc.latest_state["pose"]["z"] > 0.03, 10.0)
+    rc, out, err = _cli(capsys, ep, "maneuver", "pause")
+    assert rc == 0 and "paused, step 0" in out, (out, err)
+    assert _wait(lambda: not svc.latest_state["moving"], 5.0)
+    assert svc.latest_state["maneuver"]["paused"] is True
+    rc, out, _ = _cli(capsys, ep, "maneuver", "resume", "--json")
+    assert rc == 0 and json.loads(out)["maneuver"]["paused"] is False
+    assert _wait(lambda: (svc.latest_state.get("maneuver") or {}).get("step") == 1, 15.0), svc.latest_state.get(
+        "maneuver"
+    )
+    rc, out, _ = _cli(capsys, ep, "maneuver", "skip")
+    assert rc == 0 and "skip" in out
+    assert _wait(lambda: svc.latest_state.get("maneuver") is None, 5.0)
+
+    rc, out, err = _cli(capsys, ep, "maneuver", "record", "start")
+    assert rc == 0 and "recording" in out, err
+    with HitchClient([ep], timeout_s=10) as c:
+        c.wait_motion(c.goto({"z": 0.15})["motion_id"], timeout_s=20)
+    rc, out, err = _cli(capsys, ep, "maneuver", "record", "stop", "--save", "taught")
+    assert rc == 0 and "goto" in out and "saved taught" in out, (out, err)
+    rc, out, _ = _cli(capsys, ep, "maneuver", "list")
+    assert "taught" in out
+    rc, _, err = _cli(capsys, ep, "maneuver", "record", "stop")
+    assert rc != 0 and "no recording" in err, err

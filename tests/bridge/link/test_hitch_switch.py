@@ -1,0 +1,204 @@
+"""The operator's rear hitch raise / lower switch: ISO 11783-7 PGN 65090 through the codec (bytes as the
+standard lays them out), the edges the link node turns into commands, and the round trip through a
+service with the core in its threads (a frame sent on the CAN bus raises the hitch to the headland pose
+and a lower edge returns it to the work pose) and with the core in its own process (the default: the
+simulated tractor in the core sends the press, ``sim/switch``)."""
+
+from __future__ import annotations
+
+import json
+import time
+import uuid
+
+import can
+import pytest
+
+from bridge.isobus.codec import decode_frame, encode
+from bridge.isobus.j1939 import decode_id
+from bridge.isobus.messages import OPERATOR_SWITCH_ADDRESS, PGN_HITCH_PTO_COMMANDS, CodecError, HitchCommand
+from bridge.link.hitch_switch import (
+    HitchSwitchNode,
+    SwitchEdges,
+    press_frames,
+    press_switch,
+    switch_frame,
+    switch_position,
+)
+
+
+def test_the_switch_frame_is_pgn_65090_with_the_rear_hitch_command_in_byte_2():
+    msg = switch_frame("raise")
+    ident = decode_id(msg.arbitration_id)
+    assert ident.pgn == PGN_HITCH_PTO_COMMANDS == 0xFE42 and ident.source_address == OPERATOR_SWITCH_ADDRESS
+    assert ident.priority == 3
+    assert bytes(msg.data) == bytes([0xFF, 250, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF])  # 100 % = 250 × 0.4 %
+    assert bytes(switch_frame("lower").data)[1] == 0 and bytes(switch_frame("released").data)[1] == 0xFF
+    d = decode_frame(switch_frame("released"))
+    assert d.payload == HitchCommand(None) and d.unavailable == ("RearHitchPositionCommand",)
+    assert decode_frame(encode(HitchCommand(0.5))).payload.rear_position == pytest.approx(0.5)
+    with pytest.raises(CodecError):
+        switch_frame("up")  # type: ignore[arg-type]
+
+
+def test_positions_and_edges():
+    assert [switch_position(v) for v in (1.0, 0.9, 0.5, 0.1, 0.0, None)] == [
+        "raise",
+        "raise",
+        "released",
+        "lower",
+        "lower",
+        "released",
+    ]
+    e = SwitchEdges()
+    seq = ["lower", "lower", "raise", "raise", "released", "raise", "lower", "released", "lower"]
+    assert [e.update(p) for p in seq] == [None, None, "raise", None, None, "raise", "return", None, "return"]
+
+
+def test_the_node_decodes_frames_and_ignores_other_senders():
+    got: list[str] = []
+    node = HitchSwitchNode(can.Bus(interface="virtual", channel=f"sw-{uuid.uuid4().hex}"), got.append)
+    try:
+        assert node.take(switch_frame("released"), 0.0) is None  # the first frame sets the position
+        assert node.take(switch_frame("raise", source=0x30), 0.1) is None  # another sender: not the switch
+        assert node.take(switch_frame("raise"), 0.2) == "raise"
+        assert node.take(switch_frame("raise"), 0.3) is None  # held: nothing repeated
+        assert node.take(switch_frame("lower"), 0.4) == "return"
+        assert node.take(can.Message(arbitration_id=0x123, is_extended_id=False, data=b"\0"), 0.5) is None
+        assert got == ["raise", "return"] and node.commands == 2
+    finally:
+        node.bus.shutdown()
+
+
+def test_a_press_gives_exactly_one_edge_whatever_the_switch_did_before():
+    assert [bytes(f.data)[1] for f in press_frames("raise")] == [0xFF, 250, 0xFF]
+    assert [bytes(f.data)[1] for f in press_frames("released")] == [0xFF]
+    with pytest.raises(CodecError):
+        press_frames("up")  # type: ignore[arg-type]
+    for before in (None, "raise", "lower", "released"):
+        for position, command in (("raise", "raise"), ("lower", "return"), ("released", None)):
+            edges = SwitchEdges()
+            if before is not None:
+                edges.update(before)  # type: ignore[arg-type]
+            got = [c for f in press_frames(position) if (c := edges.update(switch_position(_rear(f)))) is not None]
+            assert got == ([] if command is None else [command]), (before, position)
+    channel = f"press-{uuid.uuid4().hex}"
+    bus = can.Bus(interface="virtual", channel=channel)
+    node = HitchSwitchNode(can.Bus(interface="virtual", channel=channel))
+    try:
+        assert press_switch(bus, "lower") == ["released", "lower", "released"]
+        node.poll(0.0)
+        assert node.frames == 3 and node.commands == 1
+    finally:
+        bus.shutdown()
+        node.bus.shutdown()
+
+
+def _rear(frame: can.Message) -> float | None:
+    payload = decode_frame(frame).payload
+    assert isinstance(payload, HitchCommand)
+    return payload.rear_position
+
+
+def _wait(pred, timeout_s: float = 20.0) -> bool:
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if pred():
+            return True
+        time.sleep(0.02)
+    return False
+
+
+@pytest.mark.slow
+def test_a_switch_on_the_can_bus_raises_and_returns_the_hitch(tmp_path):
+    from bridge.service.config import ServiceConfig
+    from bridge.service.server import HitchService
+    from tests.integration.service_process import free_port
+
+    channel = f"hitch-{uuid.uuid4().hex}"
+    cfg = ServiceConfig(
+        listen=[f"tcp/127.0.0.1:{free_port()}"],
+        data_dir=tmp_path,
+        planning_processes=0,
+        control_core="thread",
+        can_channel=channel,
+    )
+    svc = HitchService(cfg).start()
+    switch = can.Bus(interface="virtual", channel=channel)
+    events: list[dict] = []
+    try:
+        svc.add_listener("event", events.append)
+
+        def call(key, payload=None):
+            ok, r = svc.api.handle(key, json.dumps(payload or {}))
+            assert ok, (key, r)
+            return r
+
+        def z_now():
+            return ((svc.latest_state or {}).get("pose") or {}).get("z")
+
+        def at_rest(z):
+            st = svc.latest_state or {}
+            return st.get("motion") is None and z_now() is not None and abs(z_now() - z) < 3e-3
+
+        assert _wait(lambda: z_now() is not None)
+        call("implements/define", {"name": "harrow", "category": "2", "mass_kg": 800.0, "com_m": [0.0, 0.6, 0.3]})
+        call("implements/select", {"name": "harrow"})
+        call("presets/save", {"name": "headland", "pose": {"x": 0.0, "z": 0.24, "roll": 0.0, "pitch": 0.0}})
+        assert _wait(lambda: svc.api.handle("goto", json.dumps({"goal": {"z": -0.05}}))[0])  # once the link is up
+        assert _wait(lambda: at_rest(-0.05))
+        switch.send(switch_frame("released"))
+        time.sleep(0.1)
+        switch.send(switch_frame("raise"))
+        assert _wait(lambda: at_rest(0.24)), "the switch did not raise the hitch"
+        assert any(e.get("event") == "hitch_switch" and e.get("command") == "raise" for e in events)
+        switch.send(switch_frame("lower"))
+        assert _wait(lambda: at_rest(-0.05)), "the switch did not return the hitch to work"
+    finally:
+        switch.shutdown()
+        svc.close()
+
+
+@pytest.mark.slow
+def test_the_switch_raises_and_returns_with_the_core_in_its_own_process(tmp_path):
+    """The default mode: the switch node runs in the core process; ``sim/switch`` makes the core's simulated
+    tractor send the press on the core's bus, the node's event reaches the service over Zenoh, and the
+    service raises / returns."""
+    from bridge.service.config import ServiceConfig
+    from bridge.service.server import HitchService
+    from tests.integration.service_process import free_port
+
+    cfg = ServiceConfig(listen=[f"tcp/127.0.0.1:{free_port()}"], data_dir=tmp_path, planning_processes=0)
+    svc = HitchService(cfg).start()
+    events: list[dict] = []
+    try:
+        assert svc.core is not None  # the core has its own process
+        svc.add_listener("event", events.append)
+
+        def call(key, payload=None):
+            ok, r = svc.api.handle(key, json.dumps(payload or {}))
+            assert ok, (key, r)
+            return r
+
+        def z_now():
+            return ((svc.latest_state or {}).get("pose") or {}).get("z")
+
+        def at_rest(z):
+            st = svc.latest_state or {}
+            return st.get("motion") is None and z_now() is not None and abs(z_now() - z) < 3e-3
+
+        assert _wait(lambda: z_now() is not None)
+        ok, r = svc.api.handle("sim/switch", json.dumps({"position": "up"}))
+        assert not ok and r["error"] == "bad_request" and "position" in r["message"], r
+        call("implements/define", {"name": "harrow", "category": "2", "mass_kg": 800.0, "com_m": [0.0, 0.6, 0.3]})
+        call("implements/select", {"name": "harrow"})
+        call("presets/save", {"name": "headland", "pose": {"x": 0.0, "z": 0.24, "roll": 0.0, "pitch": 0.0}})
+        assert _wait(lambda: svc.api.handle("goto", json.dumps({"goal": {"z": -0.05}}))[0])  # once the link is up
+        assert _wait(lambda: at_rest(-0.05))
+        assert call("sim/switch", {"position": "raise"})["sent"] == ["released", "raise", "released"]
+        assert _wait(lambda: at_rest(0.24)), "the switch did not raise the hitch"
+        assert any(e.get("event") == "hitch_switch" and e.get("command") == "raise" for e in events)
+        call("sim/switch", {"position": "lower"})
+        assert _wait(lambda: at_rest(-0.05)), "the switch did not return the hitch to work"
+        assert any(e.get("event") == "hitch_switch" and e.get("command") == "return" for e in events)
+    finally:
+        svc.close()

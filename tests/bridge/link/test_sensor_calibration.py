@@ -1,0 +1,165 @@
+"""Sensor calibration over the link against a tape-perturbed twin: each cylinder to both end stops, the
+fit recovers the truth's AD map; refusal naming the limit; resumable; the written profile loads."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from bridge.link.sensor_calibration import (
+    EndReading,
+    RelayRule,
+    SensorCalibration,
+    SensorCalibrationError,
+    calibration_profile,
+    fit_sensor,
+    sensor_profile_toml,
+)
+from bridge.sim.controller import ControllerConfig, build_relay_limits
+from bridge.sim.cylinder import build_cylinder_params
+from bridge.sim.rig import SimRig, SimSettings
+from bridge.sim.truth import MachineTruth, perturb_profile
+from planner.limits.tractor import ImplementRecord
+from planner.model.kinematics import HitchModel
+from planner.profiles.hitch import load_profile, profile_from_dict
+
+FAST = SimSettings(tick_s=0.01)
+
+
+@pytest.fixture(scope="module")
+def free_top_link():
+    """The thesis profile with top-link angle limits that let every cylinder travel its full stroke (as with the
+    top link unpinned): the thesis's own limits refuse all but the top link (tested below)."""
+    data = load_profile("thesis-t132").model_dump(mode="python")
+    data["limits"]["top_link_yaw_max"] = 0.5
+    data["limits"]["top_link_pitch_up_max"] = 1.2
+    return profile_from_dict(data)
+
+
+def truth_of(profile, seed):
+    data, play = perturb_profile(profile, seed)
+    return MachineTruth(profile_from_dict(data), play)
+
+
+def calibrate(nominal, truth, actuators, **kw):
+    with SimRig(HitchModel(calibration_profile(nominal)), FAST, truth=truth) as rig:
+        rig.start()
+        rig.run_until(0.5)
+        start = rig.ecu.piston_counts().copy()
+        try:
+            return SensorCalibration(rig.link, rig, nominal, **kw).run(actuators), rig, start
+        except SensorCalibrationError as exc:
+            return exc, rig, start
+
+
+def test_the_relay_rule_is_the_ecu_s():
+    p = load_profile("thesis-t132")
+    for name in ("lift", "tilt", "top", "left", "right"):
+        params = build_cylinder_params(name, p.actuator(name))
+        lim = build_relay_limits(params, ControllerConfig())
+        span = params.counts_max - params.counts_min
+        assert lim.low_counts - params.counts_min == RelayRule().margin(span) == params.counts_max - lim.high_counts
+
+
+def test_the_fit_puts_the_stroke_ends_the_relay_margin_outside_the_readings():
+    fit = fit_sensor("tilt", EndReading(35, "relay"), EndReading(899, "relay"))
+    # inner span 864 → span 864 + 2m with m = ceil(1 % of it): m = 9 (span 882 → 8.82 → 9)
+    assert (fit.counts_min, fit.counts_max, fit.relay_margin_counts) == (26, 908, 9)
+    assert fit_sensor("lift", EndReading(5, "relay"), EndReading(20, "relay")).relay_margin_counts == 2
+    with pytest.raises(SensorCalibrationError, match="not above"):
+        fit_sensor("top", EndReading(50, "relay"), EndReading(40, "relay"))
+
+
+def test_the_calibration_link_reaches_beyond_the_nominal_ends_on_the_same_map():
+    nominal = load_profile("thesis-t132")
+    cal = calibration_profile(nominal)
+    for name in ("lift", "tilt", "top", "left", "right"):
+        n, c = nominal.actuator(name), cal.actuator(name)
+        assert c.counts_min < n.counts_min and c.counts_max > n.counts_max and 0 <= c.counts_min
+        res_n = (n.max - n.min) / (n.counts_max - n.counts_min)
+        res_c = (c.max - c.min) / (c.counts_max - c.counts_min)
+        assert res_c == pytest.approx(res_n, rel=1e-12)
+        assert c.min == pytest.approx(n.min - (n.counts_min - c.counts_min) * res_n, abs=1e-12)
+    lift = cal.actuator("lift")
+    assert lift.counts_max - lift.counts_min <= 250  # the rear hitch status resolves whole counts
+
+
+def test_the_fit_recovers_the_truth_s_counts_within_one_count(free_top_link):
+    truth = truth_of(free_top_link, 1)
+    fits, _, _ = calibrate(free_top_link, truth, ("lift", "top"))
+    assert not isinstance(fits, Exception), fits
+    for name, fit in fits.items():
+        t = truth.profile.actuator(name)
+        assert abs(fit.counts_min - t.counts_min) <= 1 and abs(fit.counts_max - t.counts_max) <= 1, name
+        assert fit.low.stopped_by == fit.high.stopped_by == "relay"
+    # the truth really differs from the nominal map (else the test proves nothing)
+    assert any(
+        (truth.profile.actuator(n).counts_min, truth.profile.actuator(n).counts_max)
+        != (free_top_link.actuator(n).counts_min, free_top_link.actuator(n).counts_max)
+        for n in fits
+    )
+
+
+def test_the_thesis_profile_refuses_a_full_lift_stroke_naming_the_top_link_limit_before_anything_moves():
+    nominal = load_profile("thesis-t132")
+    exc, rig, start = calibrate(nominal, truth_of(nominal, 1), ("top", "lift"))
+    assert isinstance(exc, SensorCalibrationError)
+    assert "lift refused: top_link_pitch_max" in str(exc)
+    assert np.array_equal(rig.ecu.piston_counts(), start)  # refused before the top link moved either
+    exc, _, _ = calibrate(nominal, truth_of(nominal, 1), ("left",))
+    assert "left refused: top_link_yaw_min" in str(exc)
+
+
+def test_a_heavy_implement_refuses_a_full_lift_stroke_naming_the_stability_measure(free_top_link):
+    heavy = ImplementRecord("ballast-block", "2", 3000.0, (0.0, 1.2, 0.3))
+    exc, _, _ = calibrate(free_top_link, truth_of(free_top_link, 1), ("lift",), implement=heavy)
+    assert isinstance(exc, SensorCalibrationError)
+    assert "lift refused: stability" in str(exc) and "below its threshold" in str(exc)
+
+
+def test_a_calibration_resumes_from_its_progress_file(free_top_link, tmp_path):
+    truth = truth_of(free_top_link, 2)
+    progress = tmp_path / "progress.json"
+    first, _, _ = calibrate(free_top_link, truth, ("top",), progress=progress)
+    assert not isinstance(first, Exception), first
+    rec = json.loads(progress.read_text())
+    assert rec["profile"] == free_top_link.name and set(rec["actuators"]["top"]) == {"low", "high", "fit"}
+    # drop the high end: the next run finds only that one (the low end is not visited: no creep below it)
+    del rec["actuators"]["top"]["high"], rec["actuators"]["top"]["fit"]
+    progress.write_text(json.dumps(rec))
+    log: list[str] = []
+    again, _, _ = calibrate(free_top_link, truth, ("top",), progress=progress, log=log.append)
+    assert not isinstance(again, Exception), again
+    assert again["top"] == first["top"]
+    assert (
+        log[0].startswith("top low: recorded") and log[0].endswith("(resumed)") and log[1].startswith("top high: relay")
+    )
+    t = truth.profile.actuator("top")
+    assert abs(again["top"].counts_min - t.counts_min) <= 1 and abs(again["top"].counts_max - t.counts_max) <= 1
+    # a progress file of another profile is refused
+    rec["profile"] = "another"
+    progress.write_text(json.dumps(rec))
+    with pytest.raises(SensorCalibrationError, match="is for profile 'another'"):
+        with SimRig(HitchModel(calibration_profile(free_top_link)), FAST, truth=truth) as rig:
+            SensorCalibration(rig.link, rig, free_top_link, progress=progress)
+
+
+def test_the_link_must_be_the_calibration_link(model):
+    with SimRig(model, FAST) as rig:
+        with pytest.raises(SensorCalibrationError, match="calibration_profile"):
+            SensorCalibration(rig.link, rig, model.profile)
+
+
+def test_the_written_profile_loads_with_the_fitted_counts_and_keeps_the_rest(tmp_path):
+    text = sensor_profile_toml("thesis-t132", {"tilt": (25, 908), "lift": (29, 258)})
+    path = tmp_path / "calibrated.toml"
+    path.write_text(text)
+    p, n = load_profile(path), load_profile("thesis-t132")
+    assert (p.actuator("tilt").counts_min, p.actuator("tilt").counts_max) == (25, 908)
+    assert (p.actuator("lift").counts_min, p.actuator("lift").counts_max) == (29, 258)
+    assert p.actuator("top") == n.actuator("top") and p.geometry == n.geometry
+    assert "# assumed: the neutral lift angle is mid-range." in text  # comments kept
+    with pytest.raises(SensorCalibrationError, match="does not validate"):
+        sensor_profile_toml("thesis-t132", {"tilt": (900, 25)})
+    assert math.isfinite(p.actuator("tilt").min)

@@ -1,0 +1,290 @@
+"""Headland sequences: the line trigger in the language, GNSS line crossing (closed forms), lead
+compensation in a short twin run, pause/resume/skip of a running maneuver, teach-in recording
+replayed to the same poses, and the preset-delete refusal naming the maneuvers that use it."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from bench.headland_bench import run_case
+from bridge.service.api import ServiceAPI
+from bridge.service.gnss import GnssError, GnssTracker, LocalTangentPlane, parse_lines
+from bridge.service.maneuvers.language import ManeuverError, PlanningContext, parse_maneuver, validate
+from bridge.service.motion.controller import MotionController
+from bridge.service.store import HitchStore
+from bridge.sim.move import SimRig
+from planner.ik_qp.hitch_ik import IKSolver
+from planner.limits.guard import Guard
+from planner.trajectory import TrajectoryPlanner
+
+
+# ------------------------------------------------------------------------------------------ language
+def test_line_trigger_parses_and_carries_the_next_steps_planned_duration():
+    s = parse_maneuver("steps:\n  - wait_for: {line: headland, complete: true}\n  - speed: 0.5\n  - goto: {z: 0.2}\n")
+    assert s.steps[0].line == "headland" and s.steps[0].complete is True
+
+    def plan(start, goal, scale):
+        return 2.5, start
+
+    from planner.trajectory import MotionState
+
+    res = validate(s, PlanningContext(MotionState.at_rest(np.zeros(4)), plan, lambda n: None))
+    assert res.ok and res.steps[0].line == "headland" and res.steps[0].lead_s == 2.5
+
+
+@pytest.mark.parametrize(
+    "script, message",
+    [
+        ("  - wait_for: {line: h, distance: 3}\n  - goto: {z: 0.1}\n", "exactly one of distance"),
+        ("  - wait_for: {distance: 3, complete: true}\n", "complete is allowed only with line"),
+        ("  - wait_for: {line: h, complete: true}\n  - wait: 1\n", "needs a motion step"),
+        ("  - wait_for: {line: '-bad'}\n", "line name"),
+        ("  - wait_for: {line: h, complete: 1}\n", "complete"),
+    ],
+)
+def test_bad_line_triggers_are_refused_naming_the_field(script, message):
+    with pytest.raises(ManeuverError) as e:
+        parse_maneuver("steps:\n" + script)
+    assert message in str(e.value)
+
+
+# ------------------------------------------------------------------------------------------ gnss
+def _line(plane, a, b, name="h"):
+    (la, lo), (lb, lob) = plane.to_geodetic(*a), plane.to_geodetic(*b)
+    return {
+        "type": "Feature",
+        "properties": {"name": name},
+        "geometry": {"type": "LineString", "coordinates": [[lo, la], [lob, lb]]},
+    }
+
+
+def test_projection_round_trip_and_metres_per_degree():
+    p = LocalTangentPlane(48.0, 11.0)
+    e, n = p.to_local(48.001, 11.001)
+    assert abs(n - 111.2) < 0.3 and abs(e - 74.6) < 0.3  # ~111.2 km per degree of latitude, × cos 48° east
+    lat, lon = p.to_geodetic(e, n)
+    assert abs(lat - 48.001) < 1e-10 and abs(lon - 11.001) < 1e-10
+
+
+def test_a_straight_path_crosses_a_line_at_the_known_point():
+    t = [0.0]
+    g = GnssTracker(lambda: t[0], origin=(48.0, 11.0))
+    g.save_lines(_line(g.plane, (5.0, -10.0), (5.0, 10.0)))  # a north-south line 5 m east
+    # the path: north = 0.5 * east + 1 (heading east-north-east), 2 m/s along it
+    for k in range(60):
+        t[0] = 0.1 * k
+        east = -2.0 + 0.1 * k * 2.0 / math.hypot(1, 0.5)
+        g.take_fix({"east": east, "north": 0.5 * east + 1.0})
+        if east < 5.0 and k > 0:  # (the first fix has no course yet)
+            a = g.approach("h", t[0])
+            assert a is not None and a.crossings == 0
+            assert abs(a.distance_m - (5.0 - east) * math.hypot(1, 0.5)) < 1e-9  # along the course
+            assert abs(a.speed_m_s - 2.0) < 1e-9
+    assert g.crossings("h") == 1
+    (_, ce, cn) = g.lines()[0]["crossed_at"]
+    assert abs(ce - 5.0) < 1e-9 and abs(cn - 3.5) < 1e-9
+    assert g.approach("h", t[0] + 5.0) is None  # stale
+
+
+def test_bad_lines_and_fixes_name_the_field():
+    with pytest.raises(GnssError, match=r"coordinates\[1\]\[1\] \(lat\)"):
+        parse_lines({"type": "LineString", "coordinates": [[11, 48], [11, 95]]}, "h")
+    with pytest.raises(GnssError, match="LineString"):
+        parse_lines({"type": "Polygon", "coordinates": []}, "h")
+    g = GnssTracker(lambda: 0.0)
+    assert not g.take_payload(b'{"lat": "x", "lon": 1}') and "lat" in (g.last_error or "")
+    assert not g.take_payload(b"not json") and g.rejected == 2
+
+
+# ------------------------------------------------------------------------------------------ lead compensation (twin)
+def test_lead_compensation_reaches_the_pose_at_the_line_at_12_kmh(model):
+    with_lead = run_case(model, 12.0, lead=True)
+    without = run_case(model, 12.0, lead=False)
+    # "complete at the line": the pose within the tolerance the ECU settles to (one count per sensor)
+    assert abs(with_lead["reference_within_tolerance_m"]) <= 0.3, with_lead
+    assert with_lead["measured_at_pose_m"] is not None and abs(with_lead["measured_at_pose_m"]) <= 0.3, with_lead
+    assert with_lead["planned_within_tolerance_s"] < with_lead["planned_duration_s"]
+    # without it the pose is reached the planned duration × speed past the line
+    assert without["reference_at_pose_m"] > 0.8 * without["planned_duration_s"] * 12 / 3.6, without
+
+
+# ---------------------------------------------------------------------------------- pause / resume / skip (thread mode)
+class _Svc:
+    def __init__(self, model, tmp_path):
+        self.rig = SimRig(model)
+        self.rig.start()
+        self.rig.run_until(0.5)
+        self.events, self.states = [], []
+        self.mc = MotionController(
+            Guard(TrajectoryPlanner(model)),
+            Guard(TrajectoryPlanner(model)),
+            self.rig.link,
+            lambda: self.rig.now_s,
+            on_event=self.events.append,
+            on_state=self.states.append,
+            spawn=lambda fn: fn(),
+        )
+        self.mc.cycle()
+        self.store = HitchStore(tmp_path / "h.sqlite3")
+        self.api = ServiceAPI(self.mc, IKSolver(model), self.store, {"profile": "thesis-t132"})
+
+    def call(self, key, payload=None):
+        ok, reply = self.api.handle(key, json.dumps(payload or {}), None)
+        return ok, reply
+
+    def run(self, seconds):
+        end = self.rig.now_s + seconds
+        while self.rig.now_s < end - 1e-9:
+            self.rig.run_until(self.rig.now_s + 0.02)
+            self.mc.cycle()
+
+    def z(self):
+        return self.states[-1]["pose"]["z"]
+
+    def close(self):
+        self.store.close()
+        self.rig.close()
+
+
+@pytest.fixture
+def svc(model, tmp_path):
+    s = _Svc(model, tmp_path)
+    yield s
+    s.close()
+
+
+def test_pause_brakes_and_holds_resume_replans_skip_goes_on(svc):
+    ok, _ = svc.call(
+        "maneuvers/save", {"name": "m", "script": "steps:\n  - goto: {z: 0.3}\n  - wait: 30\n  - goto: {z: 0.0}\n"}
+    )
+    assert ok
+    ok, r = svc.call("maneuvers/run", {"name": "m"})
+    assert ok, r
+    svc.run(0.6)
+    ok, r = svc.call("maneuvers/pause")
+    assert ok and r["maneuver"]["paused"] is True and r["maneuver"]["step"] == 0, r
+    svc.run(1.5)
+    held = svc.z()
+    svc.run(1.0)
+    assert abs(svc.z() - held) < 2e-3 and held < 0.28  # braked to rest short of the goal, holding
+    assert not svc.states[-1]["moving"]
+    assert not svc.call("maneuvers/pause")[0]  # paused already
+    ok, r = svc.call("maneuvers/resume")
+    assert ok and r["maneuver"]["paused"] is False
+    svc.run(4.0)
+    assert abs(svc.z() - 0.3) < 5e-3  # the step re-planned from where it stood
+    m = svc.states[-1]["maneuver"]
+    assert m["step"] == 1 and m["kind"] == "wait" and 20 < m["time_left"] <= 30, m
+    ok, r = svc.call("maneuvers/skip")
+    assert ok and r["maneuver"]["step"] == 2, r
+    svc.run(4.0)
+    assert abs(svc.z()) < 5e-3 and svc.states[-1]["maneuver"] is None
+    names = [e["event"] for e in svc.events]
+    for n in ("maneuver_paused", "maneuver_resumed", "maneuver_skipped", "maneuver_finished"):
+        assert n in names
+    assert not svc.call("maneuvers/skip")[0]  # nothing runs
+
+
+# ------------------------------------------------------------------------------------------ teach-in
+def test_a_recorded_maneuver_replays_to_the_same_poses(svc):
+    assert svc.call("presets/save", {"name": "work", "pose": {"z": -0.05}})[0]
+    assert svc.call("maneuvers/record/start")[0]
+    poses = []
+    for key, payload in (("goto", {"goal": {"z": 0.25, "x": 0.02}}), ("presets/go", {"name": "work"})):
+        ok, r = svc.call(key, payload)
+        assert ok, r
+        svc.run(r["duration"] + 1.2)
+        poses.append(dict(svc.states[-1]["pose"]))
+    for _ in range(15):  # jog up for 0.3 s
+        assert svc.call("jog", {"vz": 0.1, "ttl_ms": 100})[0]
+        svc.run(0.02)
+    svc.run(1.5)
+    poses.append(dict(svc.states[-1]["pose"]))
+    ok, r = svc.call("maneuvers/record/stop", {"name": "taught"})
+    assert ok, r
+    script = r["script"]
+    kinds = [next(iter(s)) for s in parse_maneuver(script).to_json()["steps"]]
+    assert kinds[0] == "goto" and "preset" in kinds and kinds[-1] == "goto" and "wait" in kinds, script
+    assert svc.call("goto", {"goal": {"z": 0.1, "x": 0.0}})[0]
+    svc.run(3.0)
+    assert svc.call("maneuvers/save", {"name": "taught", "script": script})[0]
+    ok, r = svc.call("maneuvers/run", {"name": "taught"})
+    assert ok, r
+    seen = {}
+    for _ in range(600):
+        svc.run(0.1)
+        m = svc.states[-1]["maneuver"]
+        if m is None:
+            break
+        seen.setdefault(m["step"], None)
+    assert svc.states[-1]["maneuver"] is None
+    end = svc.states[-1]["pose"]
+    for k in ("x", "z"):
+        assert abs(end[k] - poses[-1][k]) < 5e-3, (end, poses[-1])
+
+
+# ------------------------------------------------------------------------------------------ preset delete
+def test_deleting_a_preset_a_maneuver_uses_is_refused_unless_forced(svc):
+    assert svc.call("presets/save", {"name": "work", "pose": {"z": 0.1}})[0]
+    assert svc.call("maneuvers/save", {"name": "lift", "script": "steps:\n  - preset: work\n"})[0]
+    assert svc.call("maneuvers/save", {"name": "other", "script": "steps:\n  - goto: {z: 0.1}\n"})[0]
+    ok, r = svc.call("presets/delete", {"name": "work"})
+    assert not ok and r["error"] == "in_use" and "lift" in r["message"] and "other" not in r["message"]
+    ok, r = svc.call("presets/delete", {"name": "work", "force": True})
+    assert ok and r["deleted"] == "work" and r["maneuvers"] == ["lift"] and "lift" in r["warning"]
+
+
+# ------------------------------------------------------------------------------------------ skip while planning
+def test_a_plan_made_for_a_skipped_step_is_not_installed(model):
+    """Skip pressed while step 0's plan is being made: that plan (for z 0.3) must not start, nor be
+    taken as the motion of step 1 (z 0.1); step 1 runs to its own goal."""
+    rig = SimRig(model)
+    rig.start()
+    rig.run_until(0.5)
+    pending: list = []
+    states: list = []
+    mc = MotionController(
+        Guard(TrajectoryPlanner(model)),
+        Guard(TrajectoryPlanner(model)),
+        rig.link,
+        lambda: rig.now_s,
+        on_state=states.append,
+        spawn=pending.append,  # planning is held back until the test runs it
+    )
+    try:
+
+        def run(seconds):
+            end = rig.now_s + seconds
+            while rig.now_s < end - 1e-9:
+                rig.run_until(rig.now_s + 0.02)
+                mc.cycle()
+                while pending and not held:
+                    pending.pop(0)()
+
+        held = False
+        mc.cycle()
+        acc = mc.goto({"z": 0.0})
+        run(acc.duration + 1.0)
+        script = "steps:\n  - goto: {z: 0.3}\n  - goto: {z: 0.1}\n"
+        res = validate(script, PlanningContext(mc.current_state(), mc.plan_step, lambda n: None))
+        assert res.ok, res.errors
+        held = True
+        mc.run_maneuver(res, "two")
+        run(0.04)
+        assert len(pending) == 1  # step 0 asked for its plan
+        stale = pending.pop()
+        mc.maneuver_control("skip")
+        run(0.04)
+        assert len(pending) == 1  # step 1 asked for its plan
+        stale()  # the plan of the skipped step comes back now
+        held = False
+        run(6.0)
+        assert states[-1]["maneuver"] is None
+        assert abs(states[-1]["pose"]["z"] - 0.1) < 5e-3, states[-1]["pose"]  # step 1's goal, not step 0's
+        assert max(s["pose"]["z"] for s in states) < 0.12  # never headed for 0.3
+    finally:
+        rig.close()

@@ -1,0 +1,76 @@
+"""The field loop (bridge.service.field_loop): the work controller closing the loop through a track
+session on the simulated rig, the draft over CAN. Constructed fields; figures from the twin's truth
+(the field run's true depth and draft), never the controller's view."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bridge.service.field_loop import FieldLoopError, FieldLoopSettings, run_field_loop
+from bridge.sim.field import field_from_dict
+from planner.work_control import WorkSettings
+
+LIMITS = {"depth_min_m": 0.1, "depth_max_m": 0.3}
+
+
+@pytest.fixture(scope="module")
+def patches():
+    """Flat ground (8 km/h), the chisel plough at 20 cm, 12 m soil patches of ±30 % (5.4 s each)."""
+    return field_from_dict(
+        {
+            "schema_version": 1,
+            "name": "patches",
+            "scenario": "flat",
+            "implement": {"kind": "chisel_plow_straight_point", "width": 9.0, "working_depth_m": 0.2},
+            "soil": {"variation": 0.3, "patch_length_m": 12.0, "blend_m": 1.0, "seed": 4},
+        }
+    )
+
+
+@pytest.fixture(scope="module")
+def runs(model, patches):
+    pos = run_field_loop(model, patches, FieldLoopSettings(duration_s=20.0, settle_s=2.0))
+    sp = float(np.mean(pos.draft[pos.evaluated]))
+    work = WorkSettings(mode="draft", draft_setpoint_n=sp, **LIMITS)
+    drf = run_field_loop(model, patches, FieldLoopSettings(work=work, duration_s=20.0, settle_s=2.0))
+    lost = run_field_loop(
+        model, patches, FieldLoopSettings(work=work, duration_s=8.0, settle_s=2.0, draft_lost_at_s=5.0)
+    )
+    assert pos.mode == "position"
+    return pos, drf, lost, sp
+
+
+def test_draft_control_halves_the_draft_spread_of_position_control(runs):
+    pos, drf, _, sp = runs
+    fp, fd = pos.figures(), drf.figures()
+    assert np.ptp(pos.resistance[pos.evaluated]) > 0.2  # the soil did change under the implement
+    assert fd["draft_sd_n"] < 0.5 * fp["draft_sd_n"], (fd, fp)
+    assert fd["draft_mean_n"] == pytest.approx(sp, rel=0.05)
+    # the true working depth stayed inside the limits; position control kept its 20 cm
+    assert 0.1 - 0.005 <= fd["depth_min_m"] and fd["depth_max_m"] <= 0.3 + 0.005
+    assert fp["depth_min_m"] == pytest.approx(0.2, abs=0.005) and fp["depth_max_m"] == pytest.approx(0.2, abs=0.005)
+    for r in (pos, drf):
+        assert r.counts["references_outside_strokes"] == 0 and r.counts["refused"] == 0 and not r.faults
+        assert r.counts["fallbacks"] == 0 and set(r.active) == {r.mode}
+        # the draft the controller read over CAN is the pins' reading of the true draft
+        m = np.isfinite(r.draft_measured) & r.evaluated
+        assert np.median(np.abs(r.draft_measured[m] - r.draft[m])) < 0.05 * sp
+
+
+def test_a_lost_draft_signal_falls_back_to_position_with_an_event(runs):
+    *_, lost, _ = runs
+    assert lost.counts["fallbacks"] == 1 and len(lost.events) == 1
+    assert "work_fallback: draft signal stale" in lost.events[0]
+    before, after = lost.t < 4.9, lost.t > 5.5
+    assert set(np.array(lost.active)[before]) == {"draft"} and set(np.array(lost.active)[after]) == {"position"}
+    assert np.all(lost.z_setpoint[after] == 0.0)  # the operator's position setpoint (z_m)
+
+
+def test_bad_settings_are_named(model, patches):
+    with pytest.raises(FieldLoopError, match="z_m"):
+        FieldLoopSettings(z_m=1.0)
+    with pytest.raises(FieldLoopError, match="work"):
+        FieldLoopSettings(work={"mode": "draft"})
+    with pytest.raises(FieldLoopError, match="duration_s"):
+        run_field_loop(model, patches, FieldLoopSettings(duration_s=3.0, settle_s=3.0))

@@ -1,0 +1,437 @@
+"""Implements at runtime and the quick raise / return, through ``ServiceAPI.handle``: define, list and
+select (the guards get the implement's mass, CoM and limits; presets follow the implement), refused
+while moving, persisted across a store reopen, the store's migration from schema version 2, the
+transport lock, the upper height limit, and raise / return with the core in threads (simulated CAN rig
+in simulated time) and in its own process (the default)."""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import time
+
+import numpy as np
+import pytest
+
+from bridge.service.api import ServiceAPI
+from bridge.service.config import ServiceConfig
+from bridge.service.implements import HEADLAND_PRESET
+from bridge.service.motion.controller import MotionController
+from bridge.service.server import HitchService
+from bridge.service.store import MIGRATIONS, SCHEMA_VERSION, HitchStore
+from bridge.service.workers import PlanningWorkers, WorkerSpec
+from bridge.sim.move import SimRig
+from planner.limits.guard import Guard
+from planner.limits.implement_limits import LOWERING_SPEED_LIMIT, UPPER_HEIGHT_LIMIT
+from planner.trajectory import TrajectoryPlanner
+from tests.integration.service_process import free_port
+
+HARROW = {"name": "harrow", "category": "2", "mass_kg": 1200.0, "com_m": [0.0, 0.6, 0.4]}
+HEADLAND = {"x": 0.0, "z": 0.25, "roll": 0.0, "pitch": 0.0}
+WORK = {"x": 0.02, "z": -0.05, "roll": 0.0, "pitch": 0.0}
+
+
+class Service:
+    def __init__(self, model, path, planning=None):
+        self.model = model
+        self.rig = SimRig(model)
+        self.rig.start()
+        self.rig.run_until(0.5)
+        self.events: list[dict] = []
+        self.states: list[dict] = []
+        self.mc = MotionController(
+            Guard(TrajectoryPlanner(model)),
+            Guard(TrajectoryPlanner(model)),
+            self.rig.link,
+            lambda: self.rig.now_s,
+            on_event=self.events.append,
+            on_state=self.states.append,
+            spawn=lambda fn: fn(),
+        )
+        self.mc.cycle()
+        self.store = HitchStore(path)
+        self.api = ServiceAPI(self.mc, None, self.store, {"profile": "thesis-t132"}, planning=planning)
+
+    def call(self, key, payload=None):
+        return self.api.handle(key, json.dumps(payload if payload is not None else {}))
+
+    def ok(self, key, payload=None):
+        ok, r = self.call(key, payload)
+        assert ok, (key, r)
+        return r
+
+    def run(self, seconds, each=None):
+        end = self.rig.now_s + seconds
+        while self.rig.now_s < end - 1e-9:
+            if each is not None:
+                each()
+            self.rig.run_until(self.rig.now_s + 0.02)
+            self.mc.cycle()
+
+    def pose(self) -> np.ndarray:
+        return self.mc.current_state().position
+
+    def close(self):
+        self.store.close()
+        self.rig.close()
+
+
+@pytest.fixture
+def svc(model, tmp_path):
+    s = Service(model, tmp_path / "hitch.sqlite3")
+    yield s
+    s.close()
+
+
+def test_define_list_select_gives_the_guards_the_implement(svc):
+    r = svc.ok("implements/define", {**HARROW, "upper_height_m": 0.28, "lowering_speed_m_s": 0.05})
+    assert r["defined"] == "harrow" and r["implement"]["upper_height_m"] == 0.28
+    listed = svc.ok("implements/list")
+    by_name = {i["name"]: i for i in listed["implements"]}
+    assert by_name["harrow"]["source"] == "store" and by_name["harrow"]["mass_kg"] == 1200.0
+    assert by_name["cat2-power-harrow-1500"]["source"] == "profile"  # the tractor profile's records are offered
+    assert listed["selected"] == "default"
+    assert svc.mc.guard.implement is None
+    svc.ok("implements/select", {"name": "harrow"})
+    for g in (svc.mc.guard, svc.mc.plan_guard):
+        assert g.implement.mass == 1200.0 and g.implement.centre_of_mass == (0.0, 0.6, 0.4)
+        assert g.implement_limits.upper_height_m == 0.28 and g.implement_limits.lowering_speed_m_s == 0.05
+    assert svc.ok("implements/list")["selected"] == "harrow"
+    assert svc.api.info["implement"] == "harrow" and svc.ok("config")["implement"] == "harrow"
+    # a profile record can be selected too (stored first, no limits)
+    svc.ok("implements/select", {"name": "cat2-power-harrow-1500"})
+    assert svc.mc.guard.implement.name == "cat2-power-harrow-1500" and svc.mc.guard.implement.mass == 1500.0
+    assert svc.mc.guard.implement_limits.upper_height_m is None
+
+
+@pytest.mark.parametrize(
+    "payload, field",
+    [
+        ({**HARROW, "mass_kg": 0}, "mass_kg"),
+        ({**HARROW, "category": "5"}, "category"),
+        ({**HARROW, "com_m": [0.0, 0.6]}, "com_m"),
+        ({**HARROW, "com_m": [0.0, 60.0, 0.0]}, "com_m"),
+        ({**HARROW, "upper_height_m": 3.0}, "upper_height_m"),
+        ({**HARROW, "lowering_speed_m_s": -0.1}, "lowering_speed_m_s"),
+        ({**HARROW, "headland": {"x": 0.0, "z": 0.2}}, "headland"),
+        ({**HARROW, "name": "../x"}, "name"),
+    ],
+)
+def test_define_is_validated_naming_the_field(svc, payload, field):
+    ok, r = svc.call("implements/define", payload)
+    assert not ok and r["error"] == "bad_request" and field in r["message"]
+
+
+def test_select_of_an_unknown_implement_and_deleting_the_selected_one_are_refused(svc):
+    ok, r = svc.call("implements/select", {"name": "nope"})
+    assert not ok and r["error"] == "not_found" and "nope" in r["message"]
+    svc.ok("implements/define", HARROW)
+    svc.ok("implements/select", {"name": "harrow"})
+    ok, r = svc.call("implements/delete", {"name": "harrow"})
+    assert not ok and "selected" in r["message"]
+    svc.ok("implements/define", {**HARROW, "name": "other"})
+    assert svc.ok("implements/delete", {"name": "other"}) == {"deleted": "other"}
+
+
+def test_presets_follow_the_selected_implement(svc):
+    svc.ok("implements/define", HARROW)
+    svc.ok("implements/define", {**HARROW, "name": "plough", "mass_kg": 900.0})
+    svc.ok("implements/select", {"name": "harrow"})
+    svc.ok("presets/save", {"name": "work", "pose": {"z": 0.1}})
+    assert [p["name"] for p in svc.ok("presets/list")["presets"]] == ["work"]
+    svc.ok("implements/select", {"name": "plough"})
+    assert svc.ok("presets/list") == {"presets": [], "implement": "plough"}
+    ok, r = svc.call("presets/go", {"name": "work"})
+    assert not ok and r["error"] == "not_found" and "plough" in r["message"]
+    svc.ok("implements/select", {"name": "harrow"})
+    assert svc.ok("presets/list")["implement"] == "harrow"
+    assert svc.store.get_preset("work", implement="harrow") is not None
+
+
+def test_changing_the_implement_while_moving_is_refused(svc):
+    svc.ok("implements/define", HARROW)
+    svc.ok("goto", {"goal": {"z": 0.25}})
+    svc.run(0.1)
+    ok, r = svc.call("implements/select", {"name": "harrow"})
+    assert not ok and r["error"] == "busy" and "moving" in r["message"]
+    assert svc.mc.guard.implement is None and svc.ok("implements/list")["selected"] == "default"
+    svc.run(5.0)
+    svc.ok("implements/select", {"name": "harrow"})  # at rest: taken
+    ok, r = svc.call("implements/define", {**HARROW, "mass_kg": 1300.0})  # redefining the selected one: applied
+    assert ok and svc.mc.guard.implement.mass == 1300.0
+
+
+def test_selection_limits_and_work_pose_survive_a_store_reopen(model, tmp_path):
+    path = tmp_path / "hitch.sqlite3"
+    a = Service(model, path)
+    try:
+        a.ok("implements/define", {**HARROW, "upper_height_m": 0.27, "headland": HEADLAND})
+        a.ok("implements/select", {"name": "harrow"})
+        a.ok("goto", {"goal": {"z": WORK["z"], "x": WORK["x"]}})
+        a.run(5.0)
+        a.ok("hitch/raise")
+        a.run(5.0)
+        a.ok("implements/lock")
+    finally:
+        a.close()
+    b = Service(model, path)  # a new service on the same database (a restart)
+    try:
+        assert b.ok("implements/list")["selected"] == "harrow" and b.api.implement == "harrow"
+        assert b.mc.guard.implement.mass == 1200.0 and b.mc.guard.implement_limits.upper_height_m == 0.27
+        assert b.mc.guard.implement_limits.transport_locked
+        imp = b.store.get_implement("harrow")
+        assert imp is not None and imp.last_work is not None
+        assert imp.last_work["z"] == pytest.approx(WORK["z"], abs=1e-6)
+    finally:
+        b.close()
+
+
+def test_the_store_migrates_from_schema_version_2(tmp_path):
+    path = tmp_path / "old.sqlite3"
+    db = sqlite3.connect(path, isolation_level=None)
+    for migration in MIGRATIONS[:2]:  # what the previous program created
+        for statement in migration.split(";"):
+            if statement.strip():
+                db.execute(statement)
+    db.execute("PRAGMA user_version = 2")
+    db.execute(
+        "INSERT INTO presets (implement, name, x, z, roll, pitch, speed_scale, updated_s, owner) "
+        "VALUES ('harrow', 'work', 0.0, 0.1, 0.0, 0.0, NULL, 1.0, '')"
+    )
+    db.close()
+    assert SCHEMA_VERSION >= 3  # 2 → 3 added the implements (later versions may follow)
+    with HitchStore(path) as store:
+        assert store.schema_version == SCHEMA_VERSION
+        assert store.get_preset("work", implement="harrow").pose["z"] == 0.1  # kept
+        assert store.list_implements() == [] and store.get_setting("selected_implement") is None
+
+
+def test_transport_lock_refuses_every_motion_but_stop(svc):
+    svc.ok("implements/define", {**HARROW, "headland": HEADLAND})
+    svc.ok("implements/select", {"name": "harrow"})
+    svc.ok("presets/save", {"name": "p", "pose": {"z": 0.1}})
+    assert svc.ok("implements/lock") == {"implement": "harrow", "transport_locked": True}
+    start = svc.pose().copy()
+    for key, payload in (
+        ("goto", {"goal": {"z": 0.2}}),
+        ("jog", {"vz": 0.05}),
+        ("presets/go", {"name": "p"}),
+        ("hitch/raise", {}),
+        ("track/start", {"dof": ["z"]}),
+    ):
+        ok, r = svc.call(key, payload)
+        assert not ok and r["error"] == "locked" and "transport-locked" in r["message"], key
+    assert svc.call("stop")[0]
+    svc.run(0.5)
+    np.testing.assert_allclose(svc.pose(), start, atol=1e-9)  # nothing moved
+    svc.ok("implements/unlock")
+    assert svc.ok("goto", {"goal": {"z": 0.2}})["accepted"]
+
+
+def test_the_upper_height_limit_refuses_a_goto_naming_it(svc):
+    svc.ok("implements/define", {**HARROW, "upper_height_m": 0.2})
+    svc.ok("implements/select", {"name": "harrow"})
+    ok, r = svc.call("goto", {"goal": {"z": 0.25}})
+    assert not ok and r["error"] == "refused" and UPPER_HEIGHT_LIMIT in r["message"]
+    assert svc.ok("goto", {"goal": {"z": 0.19}})["accepted"]
+
+
+def test_a_track_session_obeys_the_upper_height_and_lowering_speed_limits(svc):
+    """Streamed setpoints above the upper height limit, then far below with a fast setpoint velocity: no
+    streamed reference above the limit, no downward z speed above the lowering speed limit (finite
+    differences of the streamed references over the state messages' clock), both limits named."""
+    upper, lowering = 0.2, 0.04
+    svc.ok("implements/define", {**HARROW, "upper_height_m": upper, "lowering_speed_m_s": lowering})
+    svc.ok("implements/select", {"name": "harrow"})
+    session = svc.ok("track/start", {"dof": ["z"], "ttl_ms": 300})["session"]
+    seq = iter(range(1, 100000))
+
+    def send(pose, velocity=None):
+        body = {"session": session, "seq": next(seq), "pose": pose}
+        if velocity is not None:
+            body["velocity"] = velocity
+        return svc.ok("track/setpoint", body)
+
+    assert send({"z": 0.3})["limited"] == {"z": UPPER_HEIGHT_LIMIT}
+    svc.run(5.0, each=lambda: send({"z": 0.3}, {"z": 0.05}))
+    assert UPPER_HEIGHT_LIMIT in svc.states[-1]["track"]["control_limited"].values()
+    assert abs(svc.pose()[1] - upper) < 3e-3  # it went up to the limit and stayed there
+    reply = send({"z": -0.1}, {"z": -0.4})
+    assert reply["limited"].get("vz") == LOWERING_SPEED_LIMIT
+    svc.run(3.0, each=lambda: send({"z": -0.1}, {"z": -0.4}))
+    assert svc.states[-1]["motion"] == "track"
+    refs = [(s["clock"], s["reference"]["pose"]["z"]) for s in svc.states if s.get("reference") is not None]
+    t, z = np.array(refs).T
+    assert z.max() <= upper + 1e-6, z.max()
+    keep = np.diff(t) > 1e-6
+    vz = np.diff(z)[keep] / np.diff(t)[keep]
+    assert -vz.min() <= lowering * 1.001, vz.min()
+    assert z[-1] < upper - 0.08  # it did descend (3 s at up to 0.04 m/s)
+    assert svc.call("stop")[0]
+
+
+def test_sim_switch_without_a_twin_is_unavailable_and_the_position_is_validated(svc):
+    ok, r = svc.call("sim/switch", {"position": "raise"})
+    assert not ok and r["error"] == "unavailable" and "simulated tractor" in r["message"], r
+    ok, r = svc.call("sim/switch", {"position": "up"})
+    assert not ok and r["error"] == "bad_request" and "position" in r["message"], r
+
+
+HEAVY = {"name": "heavy", "category": "2", "mass_kg": 1500.0, "com_m": [0.0, 1.0, 0.5]}
+
+
+def test_the_planning_processes_plan_with_the_selected_implement(model, tmp_path):
+    """``plan`` and ``maneuvers/validate`` in a planning process: after selecting a heavy implement a
+    goto its guard refuses (front axle load) is refused by the preview and the validation as by the goto
+    itself; the upper height limit likewise; selecting back to a light one lets them through again."""
+    workers = PlanningWorkers(WorkerSpec("thesis-t132", "2", TrajectoryPlanner(model).rate, None), 1).start()
+    svc = Service(model, tmp_path / "hitch.sqlite3", planning=workers)
+    try:
+        workers.warm(60.0)
+        svc.ok("goto", {"goal": {"z": 0.2}})
+        svc.run(4.0)
+        assert svc.mc.current_state().position[1] == pytest.approx(0.2, abs=1e-6) and not svc.mc.current_state().moving
+        down = {"goal": {"z": 0.1}}
+        low_script = {"script": "steps: [{goto: {z: 0.1}}]"}
+        assert svc.ok("plan", down)["ok"]  # the configured (no) implement: fine
+        assert svc.ok("maneuvers/validate", low_script)["ok"]
+        svc.ok("implements/define", {**HEAVY, "upper_height_m": 0.25})
+        svc.ok("implements/select", {"name": "heavy"})
+        preview = svc.ok("plan", down)
+        assert not preview["ok"] and "front_axle_load" in json.dumps(preview["reasons"]), preview
+        assert not svc.ok("maneuvers/validate", low_script)["ok"]
+        ok, r = svc.call("goto", down)  # the goto itself: refused the same way
+        assert not ok and r["error"] == "refused" and "front_axle_load" in r["message"], r
+        preview = svc.ok("plan", {"goal": {"z": 0.28}})  # the selected implement's upper height limit
+        assert not preview["ok"] and UPPER_HEIGHT_LIMIT in json.dumps(preview["reasons"]), preview
+        svc.ok("implements/define", {**HARROW, "mass_kg": 300.0})
+        svc.ok("implements/select", {"name": "harrow"})
+        assert svc.ok("plan", down)["ok"] and svc.ok("plan", {"goal": {"z": 0.28}})["ok"]
+        assert svc.ok("goto", down)["accepted"]
+    finally:
+        workers.close()
+        svc.close()
+
+
+def test_quick_raise_and_return_in_thread_mode(svc):
+    ok, r = svc.call("hitch/raise")
+    assert not ok and r["error"] == "not_found" and "no implement is selected" in r["message"]
+    svc.ok("implements/define", HARROW)
+    svc.ok("implements/select", {"name": "harrow"})
+    ok, r = svc.call("hitch/raise")
+    assert not ok and r["error"] == "not_found" and HEADLAND_PRESET in r["message"]
+    ok, r = svc.call("hitch/return")
+    assert not ok and r["error"] == "not_found" and "no work pose" in r["message"]
+    svc.ok("presets/save", {"name": HEADLAND_PRESET, "pose": HEADLAND})  # the headland is the preset
+    svc.ok("goto", {"goal": {"x": WORK["x"], "z": WORK["z"]}})
+    svc.run(5.0)
+    work = svc.pose().copy()  # the pose the raise starts from (roll and pitch as the goto kept them)
+    r = svc.ok("hitch/raise")
+    assert r["accepted"] and [r["last_work"][k] for k in ("x", "z", "roll", "pitch")] == pytest.approx(work)
+    svc.run(r["duration"] + 0.3)
+    np.testing.assert_allclose(svc.pose(), [HEADLAND[k] for k in ("x", "z", "roll", "pitch")], atol=1e-6)
+    svc.ok("hitch/raise")  # again at the headland: the work pose is kept
+    svc.run(0.5)
+    r = svc.ok("hitch/return")
+    assert r["accepted"]
+    svc.run(r["duration"] + 0.3)
+    np.testing.assert_allclose(svc.pose(), work, atol=1e-6)
+    # the implement's own headland pose takes precedence over the preset
+    svc.ok("implements/define", {**HARROW, "headland": {**HEADLAND, "z": 0.2}})
+    r = svc.ok("hitch/raise")
+    svc.run(r["duration"] + 0.3)
+    assert svc.pose()[1] == pytest.approx(0.2, abs=1e-6)
+
+
+def _wait(pred, timeout_s: float = 20.0) -> bool:
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if pred():
+            return True
+        time.sleep(0.02)
+    return False
+
+
+@pytest.mark.slow
+def test_quick_raise_return_and_selection_with_the_core_in_its_own_process(tmp_path):
+    cfg = ServiceConfig(listen=[f"tcp/127.0.0.1:{free_port()}"], data_dir=tmp_path, planning_processes=0)
+    svc = HitchService(cfg).start()
+    try:
+        assert svc.core is not None  # the default: the core has its own process
+
+        def call(key, payload=None):
+            ok, r = svc.api.handle(key, json.dumps(payload or {}))
+            assert ok, (key, r)
+            return r
+
+        def z_now():
+            return ((svc.latest_state or {}).get("pose") or {}).get("z")
+
+        assert _wait(lambda: z_now() is not None), "no state from the core"
+        call("implements/define", {**HARROW, "headland": HEADLAND, "upper_height_m": 0.28})
+        call("implements/select", {"name": "harrow"})
+        ok, r = svc.api.handle("goto", json.dumps({"goal": {"z": 0.3}}))
+        assert not ok and r["error"] == "refused" and UPPER_HEIGHT_LIMIT in r["message"]  # the core's guard has it
+        call("goto", {"goal": {"z": WORK["z"], "x": WORK["x"]}})
+        assert _wait(lambda: abs(z_now() - WORK["z"]) < 3e-3)
+        assert _wait(lambda: call("hitch/raise")["accepted"] if svc.latest_state["motion"] is None else False)
+        assert _wait(lambda: abs(z_now() - HEADLAND["z"]) < 3e-3 and svc.latest_state["motion"] is None)
+        call("implements/lock")
+        ok, r = svc.api.handle("hitch/return", "{}")
+        assert not ok and r["error"] == "locked"
+        call("implements/unlock")
+        call("hitch/return")
+        assert _wait(lambda: abs(z_now() - WORK["z"]) < 3e-3)
+    finally:
+        svc.close()
+
+
+@pytest.mark.slow
+def test_the_cli_round_trip_against_a_running_service(tmp_path, capsys):
+    """``hitch implement define|list|select|lock|unlock``, ``hitch raise|return --wait`` and ``hitch switch
+    --service`` against a service with the core in its own process (the default)."""
+    from bridge.cli.main import main
+
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    svc = HitchService(ServiceConfig(listen=[ep], data_dir=tmp_path, planning_processes=0)).start()
+
+    def cli(*argv: str) -> tuple[int, str, str]:
+        rc = main([*argv, "--connect", ep, "--timeout", "20"])
+        out = capsys.readouterr()
+        return rc, out.out, out.err
+
+    def z_now():
+        return ((svc.latest_state or {}).get("pose") or {}).get("z")
+
+    try:
+        assert _wait(lambda: (svc.latest_state or {}).get("ecu", {}).get("online")), "no state from the core"
+        rc, out, err = cli(
+            "implement", "define", "harrow", "--category", "2", "--mass", "800", "--com", "0,0.6,0.3",
+            "--upper-height", "0.28", "--lowering-speed", "0.2", "--headland", "x=0,z=0.24,roll=0,pitch=0",
+        )  # fmt: skip
+        assert rc == 0 and "defined harrow" in out, err
+        rc, out, err = cli("implement", "define", "bad", "--category", "7", "--mass", "800", "--com", "0,0,0")
+        assert rc != 0 and "category" in err, err
+        rc, out, err = cli("implement", "select", "harrow")
+        assert rc == 0 and "selected harrow" in out, err
+        rc, out, _ = cli("implement", "list")
+        assert rc == 0 and "* harrow (cat 2, 800 kg" in out and "upper 0.28 m, lowering 0.2 m/s" in out, out
+        rc, out, _ = cli("implement", "list", "--json")
+        assert rc == 0 and json.loads(out)["selected"] == "harrow"
+        rc, out, err = cli("implement", "lock")
+        assert rc == 0 and "transport lock on" in out, err
+        rc, out, err = cli("raise")
+        assert rc != 0 and "locked" in err, err
+        rc, out, err = cli("implement", "unlock")
+        assert rc == 0 and "transport lock off" in out, err
+        assert _wait(lambda: svc.api.handle("goto", json.dumps({"goal": {"z": WORK["z"]}}))[0])
+        assert _wait(lambda: abs(z_now() - WORK["z"]) < 3e-3 and svc.latest_state["motion"] is None)
+        rc, out, err = cli("raise", "--wait")
+        assert rc == 0 and "raise to" in out and abs(z_now() - 0.24) < 3e-3, (out, err)
+        rc, out, err = cli("return", "--wait")
+        assert rc == 0 and "return to" in out and abs(z_now() - WORK["z"]) < 3e-3, (out, err)
+        rc, out, err = cli("switch", "raise", "--service")
+        assert rc == 0 and "released, raise, released" in out, err
+        assert _wait(lambda: abs(z_now() - 0.24) < 3e-3 and svc.latest_state["motion"] is None)
+    finally:
+        svc.close()

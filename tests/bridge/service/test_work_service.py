@@ -1,0 +1,403 @@
+"""Work control in the live service (bridge.service.work): ``work/settings`` round trip through
+``ServiceAPI.handle`` (validated naming field and range, persisted per implement, following the selected
+implement), a work session on the simulated rig in simulated time whose draft demand beyond the depth
+and workspace limits is clipped and named, and — with the core in its own process (the default) — a
+draft session over a simulated field that holds the draft far closer to its setpoint than position
+control, and the fallback with one ``work_fallback`` event when there is no draft on the bus."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import numpy as np
+import pytest
+
+from bridge.service.api import ServiceAPI
+from bridge.service.config import ServiceConfig
+from bridge.service.motion.controller import MotionController
+from bridge.service.server import HitchService
+from bridge.service.store import HitchStore
+from bridge.service.work import WorkControl
+from bridge.sim.move import SimRig
+from planner.limits.guard import Guard
+from planner.trajectory import TrajectoryPlanner
+from tests.integration.service_process import free_port
+
+HARROW = {"name": "harrow", "category": "2", "mass_kg": 1200.0, "com_m": [0.0, 0.6, 0.4]}
+
+
+class FakeInputs:
+    """A draft far below any setpoint (noisy: never "stuck") and a fixed ground reference."""
+
+    def __init__(self, ground_z: float, draft_n: float = 1_000.0):
+        self.ground, self.value = ground_z, draft_n
+
+    def draft(self, now):
+        return self.value + 10.0 * np.sin(37.0 * now), now
+
+    def slip(self, now):
+        return None
+
+    def ground_z(self, now):
+        return self.ground
+
+
+class Service:
+    def __init__(self, model, path, inputs=None):
+        self.rig = SimRig(model)
+        self.rig.start()
+        self.rig.run_until(0.5)
+        self.events: list[dict] = []
+        self.states: list[dict] = []
+        self.mc = MotionController(
+            Guard(TrajectoryPlanner(model)),
+            Guard(TrajectoryPlanner(model)),
+            self.rig.link,
+            lambda: self.rig.now_s,
+            on_event=self.events.append,
+            on_state=self.states.append,
+            spawn=lambda fn: fn(),
+        )
+        self.mc.work = WorkControl(self.mc, inputs)
+        self.mc.cycle()
+        self.store = HitchStore(path)
+        self.api = ServiceAPI(self.mc, None, self.store, {"profile": "thesis-t132"})
+
+    def call(self, key, payload=None):
+        return self.api.handle(key, json.dumps(payload if payload is not None else {}))
+
+    def ok(self, key, payload=None):
+        ok, r = self.call(key, payload)
+        assert ok, (key, r)
+        return r
+
+    def run(self, seconds):
+        end = self.rig.now_s + seconds
+        while self.rig.now_s < end - 1e-9:
+            self.rig.run_until(self.rig.now_s + 0.02)
+            self.mc.cycle()
+
+    def close(self):
+        self.store.close()
+        self.rig.close()
+
+
+@pytest.fixture
+def svc(model, tmp_path):
+    s = Service(model, tmp_path / "hitch.sqlite3")
+    yield s
+    s.close()
+
+
+@pytest.mark.parametrize(
+    ("payload", "field", "allowed"),
+    [
+        ({"blend": 1.5}, "blend", "[0, 1]"),
+        ({"draft_setpoint_n": 0.0}, "draft_setpoint_n", "(0, 300000]"),
+        ({"sensitivity": 5}, "sensitivity", "[0.1, 2]"),
+        ({"depth_max_m": 0.9}, "depth_max_m", "[0, 0.6]"),
+        ({"depth_min_m": 0.3, "depth_max_m": 0.2}, "depth_min_m", "[0, 0.6]"),
+        ({"slip_limit": 0.7}, "slip_limit", "(0, 0.5]"),
+    ],
+)
+def test_bad_work_settings_name_the_field_and_its_range(svc, payload, field, allowed):
+    ok, r = svc.call("work/settings", payload)
+    assert not ok and r["error"] == "bad_request", r
+    assert field in r["message"] and allowed in r["message"], r
+    assert svc.store.get_work_settings("default") is None  # nothing stored
+
+
+def test_work_settings_round_trip_persisted_per_implement(svc, tmp_path):
+    r = svc.ok("work/settings")
+    assert r["implement"] == "default" and r["settings"]["mode"] == "position" and not r["status"]["running"]
+    svc.ok("work/settings", {"mode": "draft", "draft_setpoint_n": 18_000.0, "depth_min_m": 0.1, "slip_limit": 0.2})
+    ok, r = svc.call("work/settings", {"mode": "plough"})
+    assert not ok and "mode" in r["message"]
+    r = svc.ok("work/settings")
+    assert r["settings"] == {
+        "mode": "draft",
+        "draft_setpoint_n": 18_000.0,
+        "blend": 0.5,
+        "sensitivity": 1.0,
+        "depth_min_m": 0.1,
+        "depth_max_m": 0.35,
+        "slip_limit": 0.2,
+    }
+    assert r["status"]["settings"]["mode"] == "draft"  # the controller's work control has them too
+    svc.ok("work/settings", {"slip_limit": None})  # null: slip limiting off, the rest kept
+    assert svc.ok("work/settings")["settings"]["slip_limit"] is None
+    # another implement has its own settings (the defaults until set); back to the first: its own again
+    svc.ok("implements/define", HARROW)
+    svc.ok("implements/define", {**HARROW, "name": "plough"})
+    svc.ok("implements/select", {"name": "harrow"})
+    r = svc.ok("work/settings")
+    assert r["implement"] == "harrow" and r["settings"]["mode"] == "position"
+    svc.ok("work/settings", {"mode": "mixed", "blend": 0.3})
+    svc.ok("implements/select", {"name": "plough"})
+    assert svc.ok("work/settings")["settings"]["mode"] == "position"
+    svc.ok("implements/select", {"name": "harrow"})
+    assert svc.ok("work/settings")["settings"]["blend"] == 0.3
+    # persisted: a reopened store has both
+    svc.store.close()
+    with HitchStore(tmp_path / "hitch.sqlite3") as again:
+        assert again.get_work_settings("harrow")["blend"] == 0.3
+        assert again.get_work_settings("default")["mode"] == "draft"
+    svc.store = HitchStore(tmp_path / "hitch.sqlite3")
+
+
+def test_work_keys_are_operator_keys(svc):
+    from bridge.service.security import MOTION_KEYS, WRITE_KEYS
+
+    assert {"work/start", "work/stop", "work/resume"} <= set(MOTION_KEYS) and "work/settings" in WRITE_KEYS
+
+
+def test_a_draft_demand_beyond_the_depth_and_workspace_limits_is_clipped_and_named(model, tmp_path):
+    """A draft far below the setpoint drives the regulator to its deepest allowed z: clipped at the depth
+    limit first (``work:depth_max``); with a depth limit below the workspace the follower clips it at the
+    workspace face and names it, and the hitch stays inside the workspace."""
+    lo_z = float(TrajectoryPlanner(model).lo[1])
+    s = Service(model, tmp_path / "h.sqlite3", FakeInputs(ground_z=lo_z + 0.5))
+    try:
+        s.ok("work/settings", {"mode": "draft", "draft_setpoint_n": 20_000.0, "depth_min_m": 0.1, "depth_max_m": 0.3})
+        r = s.ok("work/start", {"z": lo_z + 0.3})
+        assert r["work"]["running"] and r["session"] >= 1
+        s.run(3.0)
+        w = s.states[-1]["work"]
+        assert w["active"] == "draft" and w["fallback"] is None
+        assert w["z_setpoint"] == pytest.approx(lo_z + 0.5 - 0.3, abs=1e-9)  # ground - depth_max
+        assert w["limited"] == {"depth": "work:depth_max"}
+        assert abs(s.states[-1]["pose"]["z"] - (lo_z + 0.2)) < 5e-3
+        # a depth limit that lies below the workspace: the follower clips at the face and names it
+        s.ok("work/settings", {"depth_max_m": 0.6})
+        s.run(4.0)
+        w = s.states[-1]["work"]
+        assert w["z_setpoint"] == pytest.approx(lo_z + 0.5 - 0.6, abs=1e-9)
+        assert w["limited"]["z"].startswith("workspace:z") and w["limited"]["depth"] == "work:depth_max"
+        assert "z" in s.states[-1]["limited"]  # the state's "control limited" names it too
+        assert s.states[-1]["pose"]["z"] >= lo_z - 2e-3
+        assert not any(e["event"] == "work_fallback" for e in s.events)
+        s.ok("work/stop")
+        s.run(1.0)
+        assert not s.states[-1]["work"]["running"] and s.states[-1]["motion"] is None
+        assert any(e["event"] == "work_finished" for e in s.events)
+        ok, r = s.call("work/stop")
+        assert not ok and r["error"] == "not_found"
+    finally:
+        s.close()
+
+
+def test_without_a_draft_draft_mode_falls_back_once_and_resume_engages_again(model, tmp_path):
+    inputs = FakeInputs(ground_z=0.3)
+    s = Service(model, tmp_path / "h.sqlite3", inputs)
+    try:
+        s.ok("work/settings", {"mode": "draft"})
+        inputs.draft = lambda now: (None, now)  # type: ignore[method-assign]
+        s.ok("work/start", {"z": 0.1})
+        s.run(1.0)
+        fb = [e for e in s.events if e["event"] == "work_fallback"]
+        assert len(fb) == 1 and "stale: no reading" in fb[0]["reason"], fb
+        w = s.states[-1]["work"]
+        assert w["active"] == "position" and "no reading" in w["fallback"]
+        assert abs(s.states[-1]["pose"]["z"] - 0.1) < 5e-3  # position control continues
+        inputs.draft = lambda now: (20_000.0 + 10.0 * np.sin(37.0 * now), now)  # type: ignore[method-assign]
+        s.ok("work/resume")
+        s.run(0.5)
+        w = s.states[-1]["work"]
+        assert w["active"] == "draft" and w["fallback"] is None
+        assert len([e for e in s.events if e["event"] == "work_fallback"]) == 1
+    finally:
+        s.close()
+
+
+def test_a_plain_track_setpoint_for_the_work_session_is_refused_and_counted(model, tmp_path):
+    """A ``track/setpoint`` stream naming the work session's id must not compete with work control: each
+    one is refused (``busy``) and counted, and the hitch stays at the work controller's z (on the old
+    code they were accepted and the hitch followed the stream to 0.2 m)."""
+    s = Service(model, tmp_path / "h.sqlite3", FakeInputs(ground_z=0.3))
+    try:
+        s.ok("work/settings", {"mode": "position"})
+        session = s.ok("work/start", {"z": 0.05})["session"]
+        s.run(1.5)
+        for seq in range(1, 41):
+            ok, r = s.call("track/setpoint", {"session": session, "seq": seq, "pose": {"z": 0.2}})
+            assert not ok and r["error"] == "busy" and "work session" in r["message"], r
+            s.run(0.02)
+        s.run(1.5)
+        st = s.states[-1]
+        assert st["work"]["running"] and st["work"]["setpoints_refused"] == 40
+        assert st["track"]["session"] == session and st["track"]["rejected"] == 40
+        assert "work session" in st["track"]["last_rejection"]
+        assert abs(st["pose"]["z"] - 0.05) < 5e-3  # work control's z, not the stream's
+        # another session's id is still "not live", as before
+        ok, r = s.call("track/setpoint", {"session": session + 1, "seq": 1, "pose": {"z": 0.2}})
+        assert not ok and r["error"] == "not_found"
+        s.ok("work/stop")
+    finally:
+        s.close()
+
+
+# ---------------------------------------------------------------------- the core in its own process
+def _wait(pred, timeout_s: float = 20.0) -> bool:
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if pred():
+            return True
+        time.sleep(0.02)
+    return False
+
+
+FLAT_FIELD = """
+schema_version = 1
+name = "patches"
+scenario = "flat"
+[implement]
+kind = "chisel_plow_straight_point"
+width = 9.0
+working_depth_m = 0.2
+[soil]
+variation = 0.3
+patch_length_m = 20.0
+blend_m = 2.0
+seed = 4
+"""
+
+
+def _start(tmp_path, **kw) -> HitchService:
+    cfg = ServiceConfig(listen=[f"tcp/127.0.0.1:{free_port()}"], data_dir=tmp_path, planning_processes=0, **kw)
+    svc = HitchService(cfg).start()
+    assert svc.core is not None  # the default: the core has its own process
+    assert _wait(lambda: ((svc.latest_state or {}).get("ecu") or {}).get("online")), "no state from the core"
+    return svc
+
+
+def _call(svc, key, payload=None):
+    ok, r = svc.api.handle(key, json.dumps(payload or {}))
+    assert ok, (key, r)
+    return r
+
+
+def _collect(svc, seconds: float) -> list[dict]:
+    got: list[dict] = []
+    svc.add_listener("state", lambda m: got.append(m["work"]) if m.get("work") else None)
+    time.sleep(seconds)
+    return [w for w in got if w.get("running")]
+
+
+@pytest.mark.slow
+def test_draft_control_over_a_sim_field_holds_the_draft_closer_than_position_control(tmp_path):
+    field = tmp_path / "patches.toml"
+    field.write_text(FLAT_FIELD)
+    svc = _start(tmp_path, sim_field=str(field))
+    events: list[dict] = []
+    svc.add_listener("event", events.append)
+    try:
+        _call(svc, "work/settings", {"mode": "position"})
+        _call(svc, "work/start", {"z": 0.0})
+        pos = _collect(svc, 8.0)
+        drafts_pos = np.array([w["draft_n"] for w in pos[100:] if w["draft_n"] is not None])
+        assert drafts_pos.size > 100 and drafts_pos.mean() > 5_000.0, drafts_pos.size  # the draft pins are on the bus
+        setpoint = float(0.8 * drafts_pos.mean())
+        _call(svc, "work/settings", {"mode": "draft", "draft_setpoint_n": setpoint, "depth_min_m": 0.05})
+        drf = _collect(svc, 8.0)
+        drafts = np.array([w["draft_n"] for w in drf[150:] if w["draft_n"] is not None])
+        assert {w["active"] for w in drf[150:]} == {"draft"}
+        dev_pos = float(np.sqrt(np.mean((drafts_pos - setpoint) ** 2)))
+        dev_drf = float(np.sqrt(np.mean((drafts - setpoint) ** 2)))
+        assert dev_drf < 0.6 * dev_pos, (dev_drf, dev_pos)
+        assert not [e for e in events if e.get("event") == "work_fallback"]
+        _call(svc, "work/stop")
+    finally:
+        svc.close()
+
+
+@pytest.mark.slow
+def test_without_a_sim_field_draft_mode_falls_back_at_once_with_one_event(tmp_path):
+    svc = _start(tmp_path)
+    events: list[dict] = []
+    svc.add_listener("event", events.append)
+    try:
+        _call(svc, "work/settings", {"mode": "draft"})
+        r = _call(svc, "work/start", {"z": 0.05})
+        assert r["session"] >= 1
+        assert _wait(lambda: any(e.get("event") == "work_fallback" for e in events), 10.0)
+        time.sleep(1.0)
+        fb = [e for e in events if e.get("event") == "work_fallback"]
+        assert len(fb) == 1 and fb[0]["reason"] == "draft signal stale: no reading", fb
+        w = svc.latest_state["work"]
+        assert w["running"] and w["active"] == "position" and w["fallback"] == "draft signal stale: no reading"
+        assert _wait(lambda: abs(svc.latest_state["pose"]["z"] - 0.05) < 5e-3, 10.0)  # position control goes on
+        status = _call(svc, "work/settings")["status"]
+        assert status["slip"] is None and "not on the bus" in status["slip_note"]
+        _call(svc, "work/stop")
+        assert _wait(lambda: not svc.latest_state["work"]["running"], 10.0)
+    finally:
+        svc.close()
+
+
+def test_the_cli_sends_the_draft_setpoint_in_newtons_and_prints_the_work_block_with_units():
+    from bridge.cli.main import build_parser
+    from bridge.cli.work import format_status, settings_body
+
+    args = build_parser().parse_args(
+        ["work", "settings", "--mode", "draft", "--draft-setpoint-kn", "18.5", "--depth-max", "0.3", "--no-slip-limit"]
+    )
+    assert settings_body(args) == {
+        "mode": "draft",
+        "draft_setpoint_n": 18_500.0,
+        "depth_max_m": 0.3,
+        "slip_limit": None,
+    }
+    text = format_status(
+        {"running": True, "session": 3, "mode": "draft", "active": "position", "fallback": "stale: no reading",
+         "draft_n": 21_000.0, "draft_setpoint_n": 18_500.0, "depth_m": 0.21, "z_setpoint": -0.01, "slip": None,
+         "slip_action": "none", "slip_note": "slip unavailable", "limited": {"depth": "work:depth_max"}}
+    )  # fmt: skip
+    assert "draft 21.00 kN (setpoint 18.50 kN)" in text and "depth 0.210 m" in text and "fallback" in text
+    assert "slip unknown" in text and "depth: work:depth_max" in text
+    for action in ("start", "stop", "resume", "status"):
+        assert build_parser().parse_args(["work", action]).action == action
+
+
+@pytest.mark.slow
+def test_losing_the_fields_draft_in_the_running_twin_falls_back_once_and_position_control_goes_on(tmp_path):
+    """The running service (core in the service's threads, so the test reaches the twin's ECU node): a
+    draft session over a sim field, then the field's draft pins are lost (the ECU node's draft source
+    sends "not available" from now on, as ``FieldDraft(lost_at_s=…)`` in the field loop): exactly one
+    ``work_fallback`` event, the same track session goes on in position control to the operator's z."""
+    field = tmp_path / "patches.toml"
+    field.write_text(FLAT_FIELD)
+    cfg = ServiceConfig(
+        listen=[f"tcp/127.0.0.1:{free_port()}"],
+        data_dir=tmp_path,
+        planning_processes=0,
+        control_core="thread",
+        sim_field=str(field),
+    )
+    svc = HitchService(cfg).start()
+    events: list[dict] = []
+    svc.add_listener("event", events.append)
+    try:
+        assert svc.core is None and svc.parts is not None and svc.parts.ecu_node is not None
+        assert _wait(lambda: ((svc.latest_state or {}).get("ecu") or {}).get("online")), "no state"
+        _call(svc, "work/settings", {"mode": "draft", "draft_setpoint_n": 15_000.0, "depth_min_m": 0.05})
+        session = _call(svc, "work/start", {"z": 0.0})["session"]
+        assert _wait(lambda: (svc.latest_state["work"] or {}).get("draft_n") is not None, 10.0), "no draft on the bus"
+        time.sleep(2.0)
+        w = svc.latest_state["work"]
+        assert w["running"] and w["active"] == "draft" and w["fallback"] is None, w
+        assert not [e for e in events if e.get("event") == "work_fallback"]
+        svc.parts.ecu_node.draft_source.lost_at_s = 0.0  # the pins are lost: RearDraft "not available"
+        assert _wait(lambda: any(e.get("event") == "work_fallback" for e in events), 10.0), "no fallback"
+        assert _wait(lambda: abs(svc.latest_state["pose"]["z"]) < 5e-3, 15.0), svc.latest_state["pose"]
+        time.sleep(1.0)
+        fb = [e for e in events if e.get("event") == "work_fallback"]
+        assert len(fb) == 1 and fb[0]["reason"] == "draft signal stale: no reading", fb
+        st = svc.latest_state
+        assert st["work"]["running"] and st["work"]["active"] == "position" and st["work"]["session"] == session
+        assert st["track"] is not None and st["track"]["session"] == session  # the same session, no brake
+        assert not [e for e in events if e.get("event") in ("work_finished", "fault")]
+        _call(svc, "work/stop")
+        assert _wait(lambda: not svc.latest_state["work"]["running"], 10.0)
+    finally:
+        svc.close()

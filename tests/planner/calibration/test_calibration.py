@@ -1,0 +1,201 @@
+"""Geometry calibration: the parametric model, the least-squares fit, identifiability and the pose design."""
+
+from __future__ import annotations
+
+from functools import cache
+
+import numpy as np
+import pytest
+
+from planner.calibration import (
+    CalibrationError,
+    MeasurementSet,
+    ParameterSet,
+    ParametricModel,
+    build_calibration_problem,
+    calibrated_profile_toml,
+    candidate_poses,
+    identifiable_basis,
+    information_log_det,
+    plan_poses,
+    read_calibration_provenance,
+    solve_calibration,
+)
+from planner.calibration.design import measured_rows
+from planner.calibration.parametric import POINT_ROWS, POSE_ROWS
+from planner.model.kinematics import HitchModel
+from planner.profiles.hitch import load_profile, profile_from_dict
+
+
+@cache
+def _profile():
+    return load_profile("thesis-t132")
+
+
+@cache
+def _model(rigid: bool = True) -> ParametricModel:
+    return ParametricModel(_profile(), rigid_span=rigid)
+
+
+@cache
+def _candidates():
+    return candidate_poses(_model(), 120, seed=3)
+
+
+def _data(model: ParametricModel, readings: np.ndarray, p: np.ndarray, *, points: bool = True) -> MeasurementSet:
+    """Exact measurements of the model at parameters ``p`` (independent of the solver: just the forward map)."""
+    y, _ = model.batch(readings, p, jacobian=False)
+    rows = measured_rows(points=points)
+    mask = np.zeros_like(y, dtype=bool)
+    mask[:, rows] = True
+    return MeasurementSet(readings, np.where(mask, y, np.nan), mask, tuple(str(i) for i in range(len(readings))))
+
+
+def test_plain_parametric_model_equals_hitch_model_at_nominal():
+    model = _model(rigid=False)
+    hm = HitchModel(_profile())
+    rng = np.random.default_rng(0)
+    _, acts = _candidates()
+    for q in acts[:10] + rng.normal(0.0, 0.002, (10, 5)):
+        st = hm.forward(q)
+        ref = np.concatenate([st.pose.as_array(), st.points["L"], st.points["R"], st.points["U"]])
+        assert np.max(np.abs(model.predict(q) - ref)) < 1e-12
+
+
+def test_rigid_model_puts_the_balls_at_the_implement_span():
+    model = _model()
+    _, acts = _candidates()
+    y, _ = model.batch(acts[:5] + np.array([0, 0, 0, 0.003, 0.003]), jacobian=False)
+    r = POINT_ROWS
+    span = np.linalg.norm(y[:, r["L"] : r["L"] + 3] - y[:, r["R"] : r["R"] + 3], axis=1)
+    assert np.allclose(span, model.nominal_model.span, atol=1e-12)
+
+
+def test_jacobian_matches_central_differences():
+    model = _model()
+    _, acts = _candidates()
+    q = acts[7]
+    p0, sc = model.params.nominal, model.params.scale
+    _, j = model.batch(q[None, :], p0)
+    assert j is not None
+    fd = np.zeros_like(j[0])
+    for k in range(len(p0)):
+        dp = np.zeros_like(p0)
+        dp[k] = 1e-4 * sc[k]
+        fd[:, k] = (model.predict(q, p0 + dp) - model.predict(q, p0 - dp)) / (2 * dp[k])
+    assert np.max(np.abs(fd - j[0])) < 1e-5 * max(1.0, np.max(np.abs(j[0])))
+
+
+def test_exact_measurements_recover_a_known_perturbation_to_solver_tolerance():
+    model = _model()
+    poses, acts = _candidates()
+    readings = acts[:24]
+    problem0 = build_calibration_problem(model, _data(model, readings, model.params.nominal))
+    _, js = problem0.residuals(np.zeros(len(model.params)))
+    assert js is not None
+    _, basis, _ = identifiable_basis(js, 1.0)
+    rng = np.random.default_rng(5)
+    u_true = basis @ rng.uniform(-0.8, 0.8, basis.shape[1])  # a tape-sized perturbation the data can see
+    p_true = model.params.nominal + model.params.scale * u_true
+    res = solve_calibration(build_calibration_problem(model, _data(model, readings, p_true)), snap_ad=False)
+    assert res.converged
+    assert np.max(np.abs((res.values - p_true) / model.params.scale)) < 1e-7
+    assert res.residual_rms_position_m < 1e-10 and res.residual_rms_angle_rad < 1e-10
+    assert np.all(res.std < 1e-8 * model.params.scale + 1e-15)
+    assert res.residual_rms_nominal_position_m > 1e-4
+
+
+def test_poor_pose_set_names_the_unidentifiable_combinations():
+    model = _model()
+    _, acts = _candidates()
+    # one pose measured three times: a single actuator state cannot separate most parameters
+    readings = np.repeat(acts[:1], 3, axis=0)
+    res = solve_calibration(build_calibration_problem(model, _data(model, readings, model.params.nominal)))
+    assert res.identified < len(res.names) - 10
+    assert len(res.unidentifiable) == len(res.names) - res.identified
+    text = " ".join(res.unidentifiable)
+    assert "geometry.pivot_height" in text  # no pose measurement sees the pivots' height above ground
+    assert all("singular value" in u for u in res.unidentifiable)
+    # the unidentified directions stay at nominal
+    assert np.allclose(res.values, model.params.nominal, atol=1e-12)
+
+
+def test_pivot_height_is_never_identifiable_and_stays_nominal():
+    model = _model()
+    _, acts = _candidates()
+    res = solve_calibration(build_calibration_problem(model, _data(model, acts[:20], model.params.nominal)))
+    k = model.params.index("geometry.pivot_height")
+    assert res.values[k] == model.params.nominal[k]
+    assert any("pivot_height" in u for u in res.unidentifiable)
+
+
+def test_d_optimal_design_beats_random_poses_in_log_det():
+    model = _model()
+    d = plan_poses(model, 10, candidates=120, seed=3)
+    assert d.poses.shape == (10, 4) and len({tuple(p) for p in d.poses}) == 10
+    poses, acts = _candidates()
+    sigma = np.where(np.isin(np.arange(15), [3, 4, 5]), 1e-3, 1e-3)
+    _, j = model.batch(acts)
+    assert j is not None
+    rows = measured_rows()
+    js = j[:, rows, :] / sigma[rows][None, :, None] * model.params.scale[None, None, :]
+    _, basis, _ = identifiable_basis(js.reshape(-1, js.shape[2]), 1.0)
+    rng = np.random.default_rng(0)
+    random_ld = [information_log_det(js[rng.choice(len(acts), 10, replace=False)], basis) for _ in range(20)]
+    _, jd = model.batch(d.actuators)
+    assert jd is not None
+    design_ld = information_log_det(jd[:, rows, :] / 1e-3 * model.params.scale[None, None, :], basis)
+    assert design_ld > max(random_ld)
+    assert design_ld == pytest.approx(d.log_det, rel=1e-9)
+
+
+def test_design_poses_are_reachable_within_the_strokes():
+    model = _model()
+    d = plan_poses(model, 5, candidates=60, seed=1)
+    hm = model.nominal_model
+    assert np.all(d.actuators > hm.lower) and np.all(d.actuators < hm.upper)
+    for p, q in zip(d.poses, d.actuators, strict=True):
+        assert np.allclose(hm.forward(q).pose.controlled(), p, atol=1e-9)
+
+
+def test_parameters_round_trip_through_a_profile():
+    ps = ParameterSet.from_profile(_profile())
+    v = ps.nominal.copy()
+    v[ps.index("geometry.lift_arm_pivot[1]")] += 0.004
+    v[ps.index("ad_offset.lift")] = 2.0 * float(ps.scale[ps.index("ad_offset.lift")]) / 3.0  # 2 counts
+    prof = profile_from_dict(ps.profile_dict(v))
+    back = ps.values_of(prof)
+    assert back[ps.index("geometry.lift_arm_pivot[1]")] == pytest.approx(v[ps.index("geometry.lift_arm_pivot[1]")])
+    assert prof.actuators.lift.counts_min == _profile().actuators.lift.counts_min - 2
+    assert back[ps.index("ad_offset.lift")] == pytest.approx(v[ps.index("ad_offset.lift")], rel=1e-9)
+
+
+def test_calibrated_profile_loads_and_carries_provenance(tmp_path):
+    model = _model()
+    _, acts = _candidates()
+    res = solve_calibration(build_calibration_problem(model, _data(model, acts[:12], model.params.nominal)))
+    text = calibrated_profile_toml(model.params, res, date="2026-01-01T00:00:00+00:00")
+    path = tmp_path / "cal.toml"
+    path.write_text(text)
+    prof = load_profile(path)
+    assert prof.geometry == _profile().geometry
+    prov = read_calibration_provenance(path)
+    assert prov is not None
+    assert prov["date"] == "2026-01-01T00:00:00+00:00" and prov["poses"] == 12
+    assert set(prov["std"]) == set(model.params.names)
+
+
+def test_bad_solver_options_are_refused():
+    model = _model()
+    _, acts = _candidates()
+    data = _data(model, acts[:3], model.params.nominal)
+    with pytest.raises(CalibrationError, match="sigma_position_m"):
+        build_calibration_problem(model, data, sigma_position_m=0.0)
+    with pytest.raises(CalibrationError, match="min_singular"):
+        solve_calibration(build_calibration_problem(model, data), min_singular=-1.0)
+    with pytest.raises(CalibrationError, match=r"n \(poses to plan\)"):
+        plan_poses(model, 0)
+
+
+def test_pose_rows_are_the_controlled_pose():
+    assert list(POSE_ROWS) == ["x", "z", "roll", "pitch"]

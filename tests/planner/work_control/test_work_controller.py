@@ -1,0 +1,257 @@
+"""The work controller on constructed inputs: a toy soil (draft = k · resistance · depth) behind a
+first-order hitch, with a step in soil resistance, a bump in the ground, unreachable setpoints (the
+depth limits and anti-windup), float, slip limiting, and every fallback with its reason. The truth
+is the toy plant's own depth and draft, computed here, never the controller's view."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from planner.errors import HitchInputError
+from planner.work_control import FLOAT_DEAD_BAND_M, WorkController, WorkSettings, WorkSettingsError
+
+DT = 0.02
+K = 100_000.0  # N per metre of depth at resistance 1 (20 kN at 20 cm)
+Z_OP = 0.0  # the operator's position setpoint
+G0 = 0.2  # ground reference: the tip touches the ground at z = 0.2, so z = 0 works 20 cm deep
+LIMITS = {"depth_min_m": 0.1, "depth_max_m": 0.3}
+
+
+def simulate(settings, *, duration=30.0, resistance=lambda t: 1.0, ground=lambda t: G0, tau=0.15, slip_of=None):
+    """Toy closed loop: z follows the setpoint with a first-order lag ``tau``; draft = K·r·depth,
+    measured without delay with 50 N noise; slip = slip_of(draft). Returns arrays t, z, depth, draft, slip, statuses."""
+    wc = WorkController(settings)
+    rng = np.random.default_rng(0)  # the pins' noise (a noise-free reading would look stuck)
+    z = Z_OP
+    out = {"t": [], "z": [], "depth": [], "draft": [], "slip": [], "status": []}
+    draft = K * resistance(0.0) * (ground(0.0) - z)
+    a = 1.0 - math.exp(-DT / tau)
+    for k in range(int(duration / DT)):
+        t = k * DT
+        g = ground(t)
+        slip = None if slip_of is None else slip_of(draft)
+        measured = draft + float(rng.normal(0.0, 50.0))
+        st = wc.step(t, Z_OP, draft_n=measured, draft_t=t, slip=slip, ground_z=g)
+        z += a * (st.z - z)
+        depth = max(0.0, g - z)
+        draft = K * resistance(t) * depth
+        for key, v in (("t", t), ("z", z), ("depth", depth), ("draft", draft), ("slip", slip), ("status", st)):
+            out[key].append(v)
+    return {k: (np.array(v) if k not in ("status", "slip") else v) for k, v in out.items()}
+
+
+def step_up(t):
+    return 1.0 if t < 10.0 else 1.3
+
+
+def test_settings_are_validated_and_errors_name_the_field():
+    WorkSettings()  # defaults are valid
+    bad = [
+        ({"mode": "auto"}, "mode"),
+        ({"draft_setpoint_n": 0.0}, "draft_setpoint_n"),
+        ({"draft_setpoint_n": math.nan}, "draft_setpoint_n"),
+        ({"blend": 1.5}, "blend"),
+        ({"sensitivity": 0.0}, "sensitivity"),
+        ({"depth_min_m": -0.01}, "depth_min_m"),
+        ({"depth_max_m": 0.7}, "depth_max_m"),
+        ({"depth_min_m": 0.3, "depth_max_m": 0.2}, "depth_min_m"),
+        ({"slip_limit": 0.0}, "slip_limit"),
+        ({"slip_limit": True}, "slip_limit"),
+        ({"draft_ttl_s": 0.0}, "draft_ttl_s"),
+        ({"stuck_s": 0.01}, "stuck_s"),
+    ]
+    for kw, name in bad:
+        with pytest.raises(WorkSettingsError, match=name) as info:
+            WorkSettings(**kw)
+        assert isinstance(info.value, HitchInputError) and isinstance(info.value, ValueError)
+        msg = str(info.value)
+        assert "allowed range" in msg or "one of" in msg or "below" in msg or "number in" in msg, msg
+    wc = WorkController()
+    with pytest.raises(WorkSettingsError, match="z"):
+        wc.step(0.0, math.nan)
+    with pytest.raises(WorkSettingsError, match="ground_z"):
+        wc.step(0.0, 0.0, ground_z=math.inf)
+    with pytest.raises(WorkSettingsError, match="settings"):
+        wc.configure({"mode": "draft"})
+
+
+def test_position_mode_passes_the_operator_setpoint_and_needs_no_draft():
+    wc = WorkController(WorkSettings(mode="position"))
+    for k in range(10):
+        st = wc.step(0.02 * k, 0.05, ground_z=G0 + 0.01 * k)  # no draft at all
+        assert st.z == 0.05 and st.active == "position" and st.fallback is None and st.event is None
+        assert st.depth_m == pytest.approx(G0 + 0.01 * k - 0.05)
+
+
+def test_soil_step_draft_mode_holds_the_draft_position_mode_does_not():
+    pos = simulate(WorkSettings(mode="position", **LIMITS), resistance=step_up)
+    drf = simulate(WorkSettings(mode="draft", draft_setpoint_n=20_000.0, **LIMITS), resistance=step_up)
+    after = pos["t"] > 20.0
+    assert pos["draft"][after].mean() == pytest.approx(26_000.0, rel=1e-3)  # 1.3 · 20 kN
+    assert drf["draft"][after].mean() == pytest.approx(20_000.0, rel=0.01)  # back on the setpoint
+    assert drf["depth"][after].mean() == pytest.approx(0.2 / 1.3, rel=0.01)  # by working shallower
+    # the deviation from the setpoint over the whole run is far smaller than position control's
+    dev_pos = np.sqrt(np.mean((pos["draft"] - 20_000.0) ** 2))
+    dev_drf = np.sqrt(np.mean((drf["draft"] - 20_000.0) ** 2))
+    assert dev_drf < dev_pos / 3, (dev_drf, dev_pos)
+    assert np.all(drf["depth"] >= 0.1 - 1e-3) and np.all(drf["depth"] <= 0.3 + 1e-3)
+
+
+def test_a_ground_bump_is_corrected_in_draft_mode():
+    def bump(t):  # the ground under the implement rises 4 cm for 6 s (smooth edges)
+        return G0 + 0.04 * 0.5 * (math.tanh(2 * (t - 8.0)) - math.tanh(2 * (t - 14.0)))
+
+    pos = simulate(WorkSettings(mode="position", **LIMITS), ground=bump)
+    drf = simulate(WorkSettings(mode="draft", draft_setpoint_n=20_000.0, **LIMITS), ground=bump)
+    on_top = (pos["t"] > 11.0) & (pos["t"] < 13.5)
+    assert pos["depth"][on_top].mean() == pytest.approx(0.24, abs=1e-3)  # deeper: more draft
+    assert drf["depth"][on_top].mean() == pytest.approx(0.20, abs=0.005)  # the regulator lifted the hitch
+    assert abs(drf["draft"][on_top].mean() - 20_000.0) < 0.1 * abs(pos["draft"][on_top].mean() - 20_000.0)
+
+
+def test_depth_limits_hold_and_the_integral_does_not_wind_up():
+    # 40 kN would need 40 cm: the depth stops at depth_max (30 cm) and stays there
+    high = WorkSettings(mode="draft", draft_setpoint_n=40_000.0, stuck_s=None, **LIMITS)  # a constant input
+    wc = WorkController(high)
+    for k in range(2000):  # 40 s against the limit
+        st = wc.step(k * DT, Z_OP, draft_n=30_000.0, draft_t=k * DT, ground_z=G0)
+        assert st.depth_m is not None and 0.1 - 1e-12 <= st.depth_m <= 0.3 + 1e-12
+    assert st.depth_m == pytest.approx(0.3)
+    # the draft now exceeds the setpoint: the setpoint leaves the limit on the very next cycle (no wound-up integral)
+    st = wc.step(2000 * DT, Z_OP, draft_n=45_000.0, draft_t=2000 * DT, ground_z=G0)
+    assert st.depth_m < 0.3 - 0.005  # P and one I step; a wound-up integral (3 m after 40 s) would hold 0.3
+    # and the other way: a tiny setpoint pins the depth at depth_min
+    low = simulate(WorkSettings(mode="draft", draft_setpoint_n=1000.0, **LIMITS), duration=20.0)
+    assert low["status"][-1].depth_m == pytest.approx(0.1)
+    assert low["depth"].min() >= 0.1 - 1e-3
+
+
+def test_mixed_is_the_blend_of_the_position_and_draft_demands():
+    draft_only = WorkController(WorkSettings(mode="draft", draft_setpoint_n=20_000.0, **LIMITS))
+    for blend in (0.0, 0.25, 0.5, 1.0):
+        wc = WorkController(WorkSettings(mode="mixed", blend=blend, draft_setpoint_n=20_000.0, **LIMITS))
+        ref = WorkController(WorkSettings(mode="draft", draft_setpoint_n=20_000.0, **LIMITS))
+        for k in range(50):
+            d = 24_000.0 + 100.0 * k
+            st = wc.step(k * DT, Z_OP, draft_n=d, draft_t=k * DT, ground_z=G0)
+            sd = ref.step(k * DT, Z_OP, draft_n=d, draft_t=k * DT, ground_z=G0)
+            assert st.z == pytest.approx((1 - blend) * Z_OP + blend * sd.z, abs=1e-12)
+            assert st.active == "mixed"
+    assert draft_only.settings.mode == "draft"
+    # on the soil step mixed lies between position and draft
+    runs = {
+        m: simulate(WorkSettings(mode=m, blend=0.5, draft_setpoint_n=20_000.0, **LIMITS), resistance=step_up)
+        for m in ("position", "mixed", "draft")
+    }
+    dev = {m: float(np.sqrt(np.mean((r["draft"] - 20_000.0) ** 2))) for m, r in runs.items()}
+    assert dev["draft"] < dev["mixed"] < dev["position"], dev
+
+
+def test_float_follows_the_ground_at_the_shallow_limit_with_a_dead_band():
+    wc = WorkController(WorkSettings(mode="float", **LIMITS))
+    st = wc.step(0.0, Z_OP, ground_z=G0)  # no draft needed
+    assert st.active == "float" and st.z == pytest.approx(G0 - 0.1) and st.fallback is None
+    st = wc.step(0.02, Z_OP, ground_z=G0 + 0.6 * FLOAT_DEAD_BAND_M)  # a ripple: the hitch stays
+    assert st.z == pytest.approx(G0 - 0.1)
+    st = wc.step(0.04, Z_OP, ground_z=G0 + 0.03)  # the ground rose: the hitch follows
+    assert st.z == pytest.approx(G0 + 0.03 - 0.1)
+    st = wc.step(0.06, Z_OP, ground_z=G0 - 0.03)  # and fell
+    assert st.z == pytest.approx(G0 - 0.03 - 0.1)
+    # the tool is never held deeper than depth_min below the ground reference (no down pressure)
+    for k in range(200):
+        g = G0 + 0.05 * math.sin(0.3 * k)
+        st = wc.step(0.1 + k * DT, Z_OP, ground_z=g)
+        assert st.depth_m is not None and st.depth_m <= 0.1 + FLOAT_DEAD_BAND_M + 1e-12
+    # without a ground reference it holds the last float setpoint, reported as a fallback
+    last = st.z
+    st = wc.step(10.0, Z_OP, ground_z=None)
+    assert st.z == last and st.active == "position" and st.fallback == "no ground reference" and st.event
+
+
+def test_slip_limiting_keeps_slip_below_its_limit():
+    def slip_of(draft):  # slip rises with the draft: 10 % at 20 kN
+        return 0.1 * draft / 20_000.0
+
+    heavy = simulate(WorkSettings(mode="position", **LIMITS), resistance=step_up, slip_of=slip_of)
+    lim = simulate(WorkSettings(mode="position", slip_limit=0.11, **LIMITS), resistance=step_up, slip_of=slip_of)
+    drf = simulate(
+        WorkSettings(mode="draft", draft_setpoint_n=25_000.0, slip_limit=0.11, **LIMITS),
+        resistance=step_up,
+        slip_of=slip_of,
+    )
+    late = heavy["t"] > 20.0
+    assert max(heavy["slip"][i] for i in np.flatnonzero(late)) > 0.125  # the heavy patch: 13 % slip
+    for r in (lim, drf):
+        s_late = np.array([r["slip"][i] for i in np.flatnonzero(late)])
+        assert s_late.max() <= 0.11 + 0.002  # held at the limit (within the toy loop's ripple)
+        assert any(st.slip_limited for st in r["status"])
+    # slip unavailable: the limiter holds its raise and says so
+    wc = WorkController(WorkSettings(mode="position", slip_limit=0.1))
+    assert wc.step(0.0, Z_OP, slip=math.nan).note == "slip unavailable"
+
+
+@pytest.mark.parametrize(
+    ("draft", "draft_t", "reason"),
+    [
+        (None, None, "stale: no reading"),
+        (20_000.0, 0.0, "stale: last reading"),  # 1 s old at t = 1
+        (math.nan, 1.0, "not a finite number"),
+        (500_000.0, 1.0, "implausible"),
+        (-50_000.0, 1.0, "implausible"),
+    ],
+)
+def test_bad_draft_falls_back_to_position_with_a_reason_and_one_event(draft, draft_t, reason):
+    wc = WorkController(WorkSettings(mode="draft", draft_setpoint_n=20_000.0, **LIMITS))
+    for k in range(50):  # healthy until t = 0.98 s: the regulator moved the hitch
+        st = wc.step(k * DT, Z_OP, draft_n=26_000.0, draft_t=k * DT, ground_z=G0)
+        assert st.active == "draft"
+    assert st.z > Z_OP
+    st = wc.step(1.0, Z_OP, draft_n=draft, draft_t=draft_t, ground_z=G0)
+    assert st.active == "position" and st.z == Z_OP
+    assert st.fallback is not None and reason in st.fallback
+    assert st.event == f"work_fallback: {st.fallback}"
+    # latched: a good reading does not switch back by itself, and the event is not repeated
+    st = wc.step(1.02, Z_OP, draft_n=20_000.0, draft_t=1.02, ground_z=G0)
+    assert st.active == "position" and st.event is None and st.fallback is not None
+    wc.resume()
+    st = wc.step(1.04, Z_OP, draft_n=20_000.0, draft_t=1.04, ground_z=G0)
+    assert st.active == "draft" and st.fallback is None
+
+
+def test_a_stuck_draft_signal_and_a_missing_ground_reference_fall_back():
+    wc = WorkController(WorkSettings(mode="mixed", draft_setpoint_n=20_000.0, stuck_s=1.0, **LIMITS))
+    reasons = []
+    for k in range(100):  # the same 21 000 N for 2 s while new frames arrive
+        st = wc.step(k * DT, Z_OP, draft_n=21_000.0, draft_t=k * DT, ground_z=G0)
+        if st.event:
+            reasons.append((k * DT, st.fallback))
+    assert len(reasons) == 1 and "stuck" in reasons[0][1] and reasons[0][0] == pytest.approx(1.0, abs=DT + 1e-9)
+    # a real (noisy) signal never trips it
+    wc = WorkController(WorkSettings(mode="draft", draft_setpoint_n=20_000.0, stuck_s=1.0, **LIMITS))
+    rng = np.random.default_rng(1)
+    for k in range(500):
+        d = 10.0 * round((20_000.0 + rng.normal(0.0, 70.0)) / 10.0)  # the pins' 10 N resolution
+        assert wc.step(k * DT, Z_OP, draft_n=d, draft_t=k * DT, ground_z=G0).fallback is None
+    # draft mode without the ground reference cannot bound the depth: position, with the reason
+    wc = WorkController(WorkSettings(mode="draft", **LIMITS))
+    st = wc.step(0.0, Z_OP, draft_n=20_000.0, draft_t=0.0, ground_z=None)
+    assert st.active == "position" and st.fallback == "no ground reference" and st.z == Z_OP
+
+
+def test_configure_restarts_bumpless_and_every_output_is_finite():
+    wc = WorkController(WorkSettings(mode="draft", draft_setpoint_n=20_000.0, **LIMITS))
+    st = wc.step(0.0, 0.05, draft_n=20_000.0, draft_t=0.0, ground_z=G0)
+    assert st.z == pytest.approx(0.05)  # engages where the operator's setpoint is: no jump
+    wc.configure(WorkSettings(mode="position"))
+    assert wc.step(0.02, 0.07, ground_z=G0).z == 0.07
+    rng = np.random.default_rng(2)
+    wc.configure(WorkSettings(mode="draft", slip_limit=0.1, **LIMITS))
+    for k in range(2000):
+        d = float(rng.choice([math.nan, -1e9, 1e9, 20_000.0, 0.0]))
+        st = wc.step(k * DT, 0.0, draft_n=d, draft_t=k * DT, slip=float(rng.uniform(-1, 2)), ground_z=G0)
+        assert math.isfinite(st.z)
+        if k % 7 == 0:
+            wc.resume()

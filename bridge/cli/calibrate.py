@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from bridge.cli.commissioning import add_calibrate_sensors
 from bridge.cli.errors import CLIError
 from bridge.cli.model import add_model_options, finite_float
 from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
@@ -159,6 +160,7 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
 def add_commands(sub) -> None:
     p = sub.add_parser("calibrate", help="geometry calibration: plan poses to measure, fit a profile to measurements")
     csub = p.add_subparsers(dest="calibrate_command", required=True, parser_class=type(p))
+    add_calibrate_sensors(csub)
 
     g = csub.add_parser("geometry", help="calibrate the geometry from a measurement file, write a profile")
     add_model_options(g)

@@ -1,10 +1,10 @@
-"""``hitch accuracy-test`` and ``hitch calibrate-sensors``: commissioning against the twin.
+"""``hitch accuracy-test`` and ``hitch calibrate sensors``: commissioning against the twin.
 
 ``accuracy-test`` runs the thesis's field accuracy test (:mod:`bridge.sim.accuracy_run`) on the
 simulated machine with its own true machine (``--sim-truth``, default the nominal twin) and prints
 E, |E|, |E|max and TT per DOF beside the thesis's tables 3-8 … 3-10.
 
-``calibrate-sensors`` runs the sensor calibration (:mod:`bridge.link.sensor_calibration`) over the
+``calibrate sensors`` runs the sensor calibration (:mod:`bridge.link.sensor_calibration`) over the
 CAN link to the twin in simulated time and writes the profile with the fitted AD maps.
 (``hitch calibrate`` is another command's group; this one stands alone.)
 """
@@ -137,8 +137,12 @@ def add_commands(sub) -> None:
     )
     add_model_options(a)
     a.set_defaults(handler=_cmd_accuracy_test)
-    s = sub.add_parser(
-        "calibrate-sensors", help="sensor calibration over the link: each cylinder to both end stops, fit the AD map"
+
+
+def add_calibrate_sensors(csub) -> None:
+    """``hitch calibrate sensors`` (a sub-command of ``hitch calibrate``, :mod:`bridge.cli.calibrate`)."""
+    s = csub.add_parser(
+        "sensors", help="sensor calibration over the link: each cylinder to both end stops, fit the AD map"
     )
     s.add_argument("--out", required=True, metavar="FILE", help="write the calibrated profile (TOML) here")
     s.add_argument("--sim-truth", default=None, metavar="FILE", help="the twin's true machine (hitch sim perturb)")

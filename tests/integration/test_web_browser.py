@@ -669,6 +669,7 @@ def test_stability_margins_take_the_services_caution_colours(page, shots, tmp_pa
 # ---------------------------------------------------------------------------------------------- units, faults, header
 def _connected(pg, url: str) -> None:
     if pg.url != url:
+        pg.errors.clear()  # what the page logged while it showed another service (now gone) is not this page's
         pg.goto(url)
     wait_js(pg, "document.getElementById('conn').textContent.startsWith('Service: connected')", timeout=15_000)
 

@@ -1,4 +1,4 @@
-"""``hitch accuracy-test`` and ``hitch calibrate-sensors`` end to end (simulated time)."""
+"""``hitch accuracy-test`` and ``hitch calibrate sensors`` end to end (simulated time)."""
 
 import json
 
@@ -43,7 +43,7 @@ def test_accuracy_test_bad_arguments_name_the_field(capsys):
 
 def test_calibrate_sensors_writes_a_profile_with_the_truth_s_counts(truth_file, tmp_path, capsys):
     out_path, progress = tmp_path / "calibrated.toml", tmp_path / "progress.json"
-    argv = ["calibrate-sensors", "--sim-truth", str(truth_file), "--actuators", "top"]
+    argv = ["calibrate", "sensors", "--sim-truth", str(truth_file), "--actuators", "top"]
     assert main([*argv, "--out", str(out_path), "--progress", str(progress), "--json"]) == 0
     res = json.loads(capsys.readouterr().out)
     truth, written = load_profile(truth_file), load_profile(out_path)
@@ -55,7 +55,7 @@ def test_calibrate_sensors_writes_a_profile_with_the_truth_s_counts(truth_file, 
 
 
 def test_calibrate_sensors_refuses_naming_the_limit(truth_file, tmp_path, capsys):
-    argv = ["calibrate-sensors", "--sim-truth", str(truth_file), "--actuators", "lift", "--out", str(tmp_path / "x")]
+    argv = ["calibrate", "sensors", "--sim-truth", str(truth_file), "--actuators", "lift", "--out", str(tmp_path / "x")]
     assert main(argv) == 2
     assert "top_link_pitch_max" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()

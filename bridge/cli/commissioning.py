@@ -6,16 +6,21 @@ E, |E|, |E|max and TT per DOF beside the thesis's tables 3-8 … 3-10.
 
 ``calibrate sensors`` runs the sensor calibration (:mod:`bridge.link.sensor_calibration`) over the
 CAN link to the twin in simulated time and writes the profile with the fitted AD maps.
+``--detached`` is the operator's declaration of a procedure step — no implement attached, the top
+link unpinned at the mast — under which the top-link angle limits are released; it needs ``--yes``
+or an interactive confirmation and is refused together with ``--implement``.
 (``hitch calibrate`` is another command's group; this one stands alone.)
 """
 
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 from rich.console import Console
 
+from bridge.cli.errors import CLIError
 from bridge.cli.model import add_model_options, model_from_args
 from bridge.link.sensor_calibration import (
     SensorCalibration,
@@ -88,7 +93,33 @@ def _cmd_accuracy_test(args) -> int:
     return 0
 
 
+#: What ``--detached`` declares; the operator confirms it (``--yes`` or the prompt) before anything moves.
+_DETACHED_DECLARATION = (
+    "no implement is attached and the top link is unpinned at the implement's mast (hanging in its rest, or "
+    "removed): the top-link angle limits are released for this calibration"
+)
+
+
+def _confirm_detached(args) -> None:
+    """Refuse ``--detached`` with ``--implement``, ``--yes`` without ``--detached``; ask for the confirmation."""
+    if args.implement not in (None, "none") and args.detached:
+        raise CLIError(
+            f"--detached declares that no implement is attached: it cannot go with --implement {args.implement}"
+        )
+    if args.yes and not args.detached:
+        raise CLIError("--yes confirms --detached: without --detached there is nothing to confirm")
+    if not args.detached or args.yes:
+        return
+    if not sys.stdin.isatty():
+        raise CLIError(f"--detached declares that {_DETACHED_DECLARATION}; confirm it with --yes (no terminal to ask)")
+    print(f"--detached: confirm that {_DETACHED_DECLARATION}. [y/N] ", end="", file=sys.stderr, flush=True)
+    answer = sys.stdin.readline().strip().lower()
+    if answer not in ("y", "yes"):
+        raise CLIError("--detached not confirmed: nothing moved")
+
+
 def _cmd_calibrate_sensors(args) -> int:
+    _confirm_detached(args)
     nominal_model = model_from_args(args)
     nominal = nominal_model.profile
     truth = _truth(nominal_model, args.sim_truth)
@@ -96,14 +127,14 @@ def _cmd_calibrate_sensors(args) -> int:
     implement = None
     if args.implement not in (None, "none"):
         implement = load_tractor_profile(nominal.stability.tractor_profile).implement(args.implement)
-    cal_model = HitchModel(calibration_profile(nominal), nominal_model.category)
+    cal_model = HitchModel(calibration_profile(nominal, detached=args.detached), nominal_model.category)
     log = (lambda _m: None) if args.json else (lambda m: Console().print(m, highlight=False))
     with SimRig(cal_model, SimSettings(tick_s=0.005, seed=args.seed), truth=truth) as rig:
         rig.start()
         rig.run_until(0.5)
-        fits = SensorCalibration(rig.link, rig, nominal, implement=implement, progress=args.progress, log=log).run(
-            actuators
-        )
+        fits = SensorCalibration(
+            rig.link, rig, nominal, implement=implement, progress=args.progress, log=log, detached=args.detached
+        ).run(actuators)
     text = sensor_profile_toml(args.profile, {a: (f.counts_min, f.counts_max) for a, f in fits.items()})
     try:
         Path(args.out).write_text(text, encoding="utf-8")
@@ -111,9 +142,11 @@ def _cmd_calibrate_sensors(args) -> int:
         raise SensorCalibrationError(f"--out {args.out}: cannot write the profile ({exc.strerror})") from None
     result = {a: f.as_dict() for a, f in fits.items()}
     if args.json:
-        print(json.dumps({"out": args.out, "actuators": result}))
+        print(json.dumps({"out": args.out, "detached": args.detached, "actuators": result}))
         return 0
     c = Console()
+    if args.detached:
+        c.print(f"detached: {_DETACHED_DECLARATION}", highlight=False)
     for a, f in fits.items():
         n = nominal.actuator(a)
         c.print(
@@ -151,6 +184,13 @@ def add_calibrate_sensors(csub) -> None:
         "--actuators", default=None, help=f"comma-separated subset of {','.join(ACTUATOR_NAMES)} (default all)"
     )
     s.add_argument("--implement", default=None, help="implement record of the tractor profile (default: none)")
+    s.add_argument(
+        "--detached",
+        action="store_true",
+        help="procedure step the operator confirms: no implement attached, the top link unpinned at the mast "
+        "(in its rest or removed); releases the top-link angle limits, keeps every other limit; not with --implement",
+    )
+    s.add_argument("--yes", action="store_true", help="confirm --detached without the interactive prompt")
     s.add_argument("--seed", type=int, default=0, help="seed of the simulated machine")
     add_model_options(s)
     s.set_defaults(handler=_cmd_calibrate_sensors)

@@ -34,6 +34,17 @@ checked against the hard limits and, through a :class:`~planner.limits.guard.Gua
 implement, the tractor's stability (hard thresholds), the keep-out spheres and the implement's
 upper height; any violation refuses the calibration of that actuator, naming the limit.
 
+**Detached.** The top-link angle limits (``top_link_yaw_*``, ``top_link_pitch_*``) exist because the
+top link is pinned to the implement's mast. ``detached=True`` is the operator's declaration that no
+implement is attached and the top link is unpinned at the mast (hanging in its rest, or removed):
+then those angles do not bind, and :func:`calibration_profile` releases them to the widest the
+profile schema allows (:data:`DETACHED_RELEASED_LIMITS`, π/2 rad each way, beyond any stroke of
+the thesis profile) — for the safety check and for the link's own reference check alike, so the two
+agree. Every other limit stays: each cylinder's stroke (the calibration reach, the ECU's end-stop
+relay), the lower links' ground clearance (they still swing on the lift arms), the keep-out spheres,
+the tractor's stability (without an implement) and the upper height. A detached calibration with an
+implement is refused.
+
 **Resumable.** ``progress`` (a JSON file) records each end as it is found; a new run with the
 same file skips what is recorded. :func:`sensor_profile_toml` writes the result: the source
 profile's TOML text with the fitted ``counts_min / counts_max`` put in (everything else as it
@@ -68,6 +79,7 @@ from planner.profiles.hitch import Profile, profile_from_dict
 from planner.trajectory import TrajectoryPlanner
 
 __all__ = [
+    "DETACHED_RELEASED_LIMITS",
     "EndReading",
     "LinkDriver",
     "RelayRule",
@@ -85,6 +97,10 @@ __all__ = [
 _AD_MAX = 1023
 _LIFT_MAX_SPAN = 250  # the rear hitch status resolves a whole count up to this travel
 _PROGRESS_VERSION = 1
+#: The profile limits a detached calibration (no implement, top link unpinned at the mast) releases:
+#: the top-link angles, which only the implement's mast imposes.
+DETACHED_RELEASED_LIMITS: tuple[str, ...] = ("top_link_yaw_max", "top_link_pitch_up_max", "top_link_pitch_down_max")
+_RELEASED_ANGLE_RAD = math.pi / 2  # the widest the profile schema allows
 
 
 class SensorCalibrationError(HitchInputError):
@@ -165,11 +181,19 @@ class SensorCalibrationSettings:
         return lo, hi
 
 
-def calibration_profile(nominal: Profile, settings: SensorCalibrationSettings | None = None) -> Profile:
-    """The nominal profile with every stroke extended on its own AD map by the reach (module docstring)."""
+def calibration_profile(
+    nominal: Profile, settings: SensorCalibrationSettings | None = None, *, detached: bool = False
+) -> Profile:
+    """The nominal profile with every stroke extended on its own AD map by the reach (module docstring);
+    ``detached``: also with the top-link angle limits released (:data:`DETACHED_RELEASED_LIMITS`)."""
+    if not isinstance(detached, bool):
+        raise SensorCalibrationError(f"detached must be true or false, got {detached!r}")
     s = settings if settings is not None else SensorCalibrationSettings()
     data = nominal.model_dump(mode="python")
-    data["name"] = f"{nominal.name}-calibration"[:80]
+    data["name"] = f"{nominal.name}-calibration{'-detached' if detached else ''}"[:80]
+    if detached:
+        for name in DETACHED_RELEASED_LIMITS:
+            data["limits"][name] = _RELEASED_ANGLE_RAD
     for name in ACTUATOR_NAMES:
         spec = data["actuators"][name]
         cmin, cmax = int(spec["counts_min"]), int(spec["counts_max"])
@@ -314,7 +338,9 @@ def fit_sensor(actuator: str, low: EndReading, high: EndReading, relay: RelayRul
 
 class SensorCalibration:
     """The procedure (module docstring) over ``link`` (built on :func:`calibration_profile` of
-    ``nominal``), advanced by ``driver``; ``progress``: JSON file to resume from and record to."""
+    ``nominal``, with the same ``detached``), advanced by ``driver``; ``progress``: JSON file to resume
+    from and record to. ``detached``: the operator's declaration that no implement is attached and the
+    top link is unpinned at the mast (module docstring); refused together with an ``implement``."""
 
     def __init__(
         self,
@@ -326,12 +352,21 @@ class SensorCalibration:
         implement: ImplementRecord | None = None,
         progress: str | Path | None = None,
         log: Callable[[str], None] | None = None,
+        detached: bool = False,
     ) -> None:
+        if not isinstance(detached, bool):
+            raise SensorCalibrationError(f"detached must be true or false, got {detached!r}")
+        if detached and implement is not None:
+            raise SensorCalibrationError(
+                f"detached declares that no implement is attached: it cannot go with the implement {implement.name!r}"
+            )
         self.settings = s = settings if settings is not None else SensorCalibrationSettings()
-        expected = calibration_profile(nominal, s)
+        self.detached = detached
+        expected = calibration_profile(nominal, s, detached=detached)
         if link.model.profile != expected:
             raise SensorCalibrationError(
-                "the link must be built on calibration_profile(nominal): its strokes reach beyond the nominal ends"
+                f"the link must be built on calibration_profile(nominal, detached={detached}): its strokes reach "
+                "beyond the nominal ends" + (" and its top-link angle limits are released" if detached else "")
             )
         self.link, self.driver, self.nominal = link, driver, nominal
         self.model = link.model
@@ -346,6 +381,7 @@ class SensorCalibration:
         self.progress: dict[str, Any] = {"version": _PROGRESS_VERSION, "profile": nominal.name, "actuators": {}}
         if self.progress_path is not None and self.progress_path.is_file():
             self._load_progress()
+        self.progress["detached"] = detached  # the state the operator declared for this run (a record only)
 
     # -- progress ---------------------------------------------------------------------
     def _load_progress(self) -> None:

@@ -59,3 +59,58 @@ def test_calibrate_sensors_refuses_naming_the_limit(truth_file, tmp_path, capsys
     assert main(argv) == 2
     assert "top_link_pitch_max" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
+
+
+class _Terminal:
+    """A stand-in for the operator's terminal on stdin: ``tty`` or not, answering ``answer``."""
+
+    def __init__(self, answer: str, tty: bool = True) -> None:
+        self.answer, self.tty = answer, tty
+
+    def isatty(self) -> bool:
+        return self.tty
+
+    def readline(self) -> str:
+        return self.answer
+
+
+def test_calibrate_sensors_detached_calibrates_the_lift_the_pinned_calibration_refuses(truth_file, tmp_path, capsys):
+    out_path = tmp_path / "calibrated.toml"
+    argv = ["calibrate", "sensors", "--sim-truth", str(truth_file), "--actuators", "lift", "--out", str(out_path)]
+    assert main([*argv, "--detached", "--yes", "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    truth, written = load_profile(truth_file), load_profile(out_path)
+    t, w = truth.actuator("lift"), written.actuator("lift")
+    assert abs(w.counts_min - t.counts_min) <= 1 and abs(w.counts_max - t.counts_max) <= 1
+    assert res["detached"] is True and res["actuators"]["lift"]["counts_max"] == w.counts_max
+    assert res["actuators"]["lift"]["low"]["stopped_by"] == res["actuators"]["lift"]["high"]["stopped_by"] == "relay"
+    # the written profile keeps the thesis's top-link limits: --detached released them for the calibration only
+    assert written.limits == load_profile("thesis-t132").limits
+
+
+def test_calibrate_sensors_detached_is_refused_with_an_implement(tmp_path, capsys):
+    argv = ["calibrate", "sensors", "--actuators", "lift", "--out", str(tmp_path / "x"), "--detached", "--yes"]
+    assert main([*argv, "--implement", "plough"]) == 2
+    err = capsys.readouterr().err
+    assert "--detached declares that no implement is attached: it cannot go with --implement plough" in err
+    assert not (tmp_path / "x").exists()
+
+
+def test_calibrate_sensors_detached_needs_the_operator_s_confirmation(tmp_path, capsys, monkeypatch):
+    argv = ["calibrate", "sensors", "--actuators", "yaw", "--out", str(tmp_path / "x"), "--detached"]
+    monkeypatch.setattr("sys.stdin", _Terminal("", tty=False))
+    assert main(argv) == 2
+    assert "confirm it with --yes" in capsys.readouterr().err
+    monkeypatch.setattr("sys.stdin", _Terminal("n\n"))
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "top link is unpinned" in err and "--detached not confirmed: nothing moved" in err
+    # confirmed: the command goes on (and stops at the next bad argument, the unknown actuator)
+    monkeypatch.setattr("sys.stdin", _Terminal("y\n"))
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "not confirmed" not in err and "unknown or none ['yaw']" in err
+    # --yes confirms only --detached
+    assert main(["calibrate", "sensors", "--actuators", "lift", "--out", str(tmp_path / "x"), "--yes"]) == 2
+    assert "nothing to confirm" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()

@@ -43,7 +43,8 @@ def truth_of(profile, seed):
 
 
 def calibrate(nominal, truth, actuators, **kw):
-    with SimRig(HitchModel(calibration_profile(nominal)), FAST, truth=truth) as rig:
+    cal = calibration_profile(nominal, detached=kw.get("detached", False))
+    with SimRig(HitchModel(cal), FAST, truth=truth) as rig:
         rig.start()
         rig.run_until(0.5)
         start = rig.ecu.piston_counts().copy()
@@ -163,3 +164,84 @@ def test_the_written_profile_loads_with_the_fitted_counts_and_keeps_the_rest(tmp
     with pytest.raises(SensorCalibrationError, match="does not validate"):
         sensor_profile_toml("thesis-t132", {"tilt": (900, 25)})
     assert math.isfinite(p.actuator("tilt").min)
+
+
+# -- detached: no implement, the top link unpinned at the mast ---------------------------------------------
+def assert_fits_the_truth(fits, truth, nominal):
+    assert set(fits) == {"lift", "tilt", "top", "left", "right"}
+    for name, fit in fits.items():
+        t = truth.profile.actuator(name)
+        assert abs(fit.counts_min - t.counts_min) <= 1 and abs(fit.counts_max - t.counts_max) <= 1, name
+        assert fit.low.stopped_by == fit.high.stopped_by == "relay"
+    # the truth really differs from the nominal map (else the test proves nothing)
+    assert any(
+        (truth.profile.actuator(n).counts_min, truth.profile.actuator(n).counts_max)
+        != (nominal.actuator(n).counts_min, nominal.actuator(n).counts_max)
+        for n in fits
+    )
+
+
+def test_the_detached_calibration_profile_releases_only_the_top_link_angles():
+    nominal = load_profile("thesis-t132")
+    pinned, detached = calibration_profile(nominal), calibration_profile(nominal, detached=True)
+    for name in ("top_link_yaw_max", "top_link_pitch_up_max", "top_link_pitch_down_max"):
+        assert getattr(detached.limits, name) == pytest.approx(math.pi / 2)  # the schema's widest
+        assert getattr(pinned.limits, name) == getattr(nominal.limits, name)
+    keep = {"top_link_yaw_max", "top_link_pitch_up_max", "top_link_pitch_down_max"}
+    assert detached.limits.model_dump(exclude=keep) == pinned.limits.model_dump(exclude=keep)
+    assert detached.actuators == pinned.actuators and detached.geometry == pinned.geometry
+    assert detached.name != pinned.name
+    with pytest.raises(SensorCalibrationError, match="detached must be true or false"):
+        calibration_profile(nominal, detached="yes")
+
+
+def test_detached_all_five_cylinders_of_the_thesis_profile_fit_the_truth_within_one_count():
+    nominal = load_profile("thesis-t132")
+    truth = truth_of(nominal, 1)
+    with SimRig(HitchModel(calibration_profile(nominal, detached=True)), FAST, truth=truth) as rig:
+        rig.start()
+        rig.run_until(0.5)
+        fits = SensorCalibration(rig.link, rig, nominal, detached=True).run()
+        # the twin moved each cylinder to both relays: the ECU enforces no top-link angle of its own
+        assert rig.link.counters.references_refused == 0
+    assert_fits_the_truth(fits, truth, nominal)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [2, 3])
+def test_detached_all_five_cylinders_fit_the_truth_for_more_tape_perturbed_twins(seed):
+    nominal = load_profile("thesis-t132")
+    truth = truth_of(nominal, seed)
+    with SimRig(HitchModel(calibration_profile(nominal, detached=True)), FAST, truth=truth) as rig:
+        rig.start()
+        rig.run_until(0.5)
+        fits = SensorCalibration(rig.link, rig, nominal, detached=True).run()
+    assert_fits_the_truth(fits, truth, nominal)
+
+
+def test_detached_is_refused_with_an_implement_and_needs_the_detached_link():
+    nominal = load_profile("thesis-t132")
+    plough = ImplementRecord("plough", "2", 600.0, (0.0, 1.0, 0.3))
+    with SimRig(HitchModel(calibration_profile(nominal, detached=True)), FAST) as rig:
+        with pytest.raises(SensorCalibrationError, match="no implement is attached: it cannot go with the implement"):
+            SensorCalibration(rig.link, rig, nominal, detached=True, implement=plough)
+        with pytest.raises(SensorCalibrationError, match=r"calibration_profile\(nominal, detached=False\)"):
+            SensorCalibration(rig.link, rig, nominal)  # a detached link for a pinned calibration
+    with SimRig(HitchModel(calibration_profile(nominal)), FAST) as rig:
+        with pytest.raises(SensorCalibrationError, match=r"calibration_profile\(nominal, detached=True\)"):
+            SensorCalibration(rig.link, rig, nominal, detached=True)  # the link would refuse the top-link angles
+
+
+def test_detached_keeps_the_ground_clearance_and_the_keep_outs():
+    data = load_profile("thesis-t132").model_dump(mode="python")
+    data["limits"]["ground_clearance"] = 0.30  # lower-link ends at least 0.2 m below the pivots: the lift's low end
+    low_ends = profile_from_dict(data)
+    exc, rig, start = calibrate(low_ends, truth_of(low_ends, 1), ("lift",), detached=True)
+    assert isinstance(exc, SensorCalibrationError) and "lift refused: ground_clearance_" in str(exc)
+    assert np.array_equal(rig.ecu.piston_counts(), start)
+    data = load_profile("thesis-t132").model_dump(mode="python")
+    h = data["geometry"]["top_link_tractor_point"]
+    data["limits"]["keep_out"] = [{"name": "at_the_mount", "centre": list(h), "radius": 0.05}]
+    boxed = profile_from_dict(data)
+    exc, _, _ = calibrate(boxed, truth_of(boxed, 1), ("top",), detached=True)
+    assert isinstance(exc, SensorCalibrationError) and "top refused: keep_out:at_the_mount" in str(exc)

@@ -3,9 +3,14 @@
 from __future__ import annotations
 
 import importlib
+import json
 import subprocess
 import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
 from types import ModuleType
+from typing import Any
 
 import numpy as np
 import pytest
@@ -14,7 +19,14 @@ from planner.errors import HitchInputError
 from planner.model.kinematics import HitchModel
 from planner.model.types import KinematicsError
 
-__all__ = ["bridge_modules_after", "check_facade_errors", "check_facade_names", "random_closing_actuators"]
+__all__ = [
+    "SimService",
+    "bridge_modules_after",
+    "check_facade_errors",
+    "check_facade_names",
+    "random_closing_actuators",
+    "wait_until",
+]
 
 
 def random_closing_actuators(model: HitchModel, rng: np.random.Generator, n: int) -> list[np.ndarray]:
@@ -60,3 +72,91 @@ def bridge_modules_after(statement: str) -> set[str]:
     code = f"import sys; {statement}; print(' '.join(m for m in sys.modules if m.startswith('bridge')))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     return set(out.split())
+
+
+def wait_until(pred: Callable[[], Any], timeout_s: float = 20.0, period_s: float = 0.02) -> bool:
+    """Poll ``pred`` every ``period_s`` (wall clock) until it is truthy (True) or ``timeout_s`` ran out (False)."""
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if pred():
+            return True
+        time.sleep(period_s)
+    return False
+
+
+class SimService:
+    """A :class:`~bridge.service.motion.controller.MotionController` and its
+    :class:`~bridge.service.api.ServiceAPI` on a simulated CAN rig (real CAN path, simulated time),
+    planning inline, the control cycles driven by the test every :attr:`DT` of simulated time.
+
+    ``settle_s`` None: one cycle before the store and the API are made; a number: that long run
+    after them. ``prepare(mc)`` runs before either (e.g. to give the controller its work control);
+    ``api_options`` go to the ``ServiceAPI`` (``planning``, ``policy``, ``sim_fault`` …)."""
+
+    DT = 0.02
+
+    def __init__(
+        self,
+        model: Any,
+        store_path: Path,
+        *,
+        ik: Any = None,
+        plan_guard: Any = None,
+        prepare: Callable[[Any], None] | None = None,
+        settle_s: float | None = None,
+        **api_options: Any,
+    ):
+        from bridge.service.api import ServiceAPI
+        from bridge.service.motion.controller import MotionController
+        from bridge.service.store import HitchStore
+        from bridge.sim.move import SimRig
+        from planner.limits.guard import Guard
+        from planner.trajectory import TrajectoryPlanner
+
+        self.model = model
+        self.rig = SimRig(model)
+        self.rig.start()
+        self.rig.run_until(0.5)
+        self.events: list[dict] = []
+        self.states: list[dict] = []
+        self.mc = MotionController(
+            Guard(TrajectoryPlanner(model)),
+            plan_guard or Guard(TrajectoryPlanner(model)),
+            self.rig.link,
+            lambda: self.rig.now_s,
+            on_event=self.events.append,
+            on_state=self.states.append,
+            spawn=lambda fn: fn(),
+        )
+        if prepare is not None:
+            prepare(self.mc)
+        if settle_s is None:
+            self.mc.cycle()
+        self.store = HitchStore(store_path)
+        self.api = ServiceAPI(self.mc, ik, self.store, {"profile": "thesis-t132"}, **api_options)
+        if settle_s is not None:
+            self.run(settle_s)
+
+    def call(self, key: str, payload: Any = None, user: str | None = None, **kw: Any) -> tuple[bool, dict]:
+        """``api.handle``; ``payload`` a mapping (sent as JSON; None: ``{}``) or raw bytes / text."""
+        data = payload if isinstance(payload, (bytes, str)) else json.dumps(payload if payload is not None else {})
+        return self.api.handle(key, data, user, **kw)
+
+    def ok(self, key: str, payload: Any = None) -> dict:
+        """``call`` that must succeed; its reply."""
+        ok, r = self.call(key, payload)
+        assert ok, (key, r)
+        return r
+
+    def run(self, seconds: float, each: Callable[[], None] | None = None) -> None:
+        """Run the rig and the control cycle for ``seconds`` of simulated time (``each()`` before every step)."""
+        end = self.rig.now_s + seconds
+        while self.rig.now_s < end - 1e-9:
+            if each is not None:
+                each()
+            self.rig.run_until(self.rig.now_s + self.DT)
+            self.mc.cycle()
+
+    def close(self) -> None:
+        self.store.close()
+        self.rig.close()

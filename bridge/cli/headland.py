@@ -21,45 +21,32 @@ MAX_GEOJSON_BYTES = 4 * 1024 * 1024
 
 def add_maneuver_actions(ms: Any) -> None:
     """``record start|stop`` and ``pause``, ``resume``, ``skip`` under ``hitch maneuver``."""
-    from bridge.cli.service import _client_options
+    from bridge.cli.service import _client_command
 
     q = ms.add_parser("record", help="teach-in: record goto, preset and jog commands into a script")
     rs = q.add_subparsers(dest="record_action", required=True, parser_class=type(q))
-    r = rs.add_parser("start", help="start recording")
-    _client_options(r)
-    r.set_defaults(handler=_cmd_record)
-    r = rs.add_parser("stop", help="stop recording and print the script (YAML)")
+    _client_command(rs, "start", "start recording", _cmd_record)
+    r = _client_command(rs, "stop", "stop recording and print the script (YAML)", _cmd_record)
     r.add_argument("--save", metavar="NAME", default=None, help="also save the script as maneuver NAME")
-    _client_options(r)
-    r.set_defaults(handler=_cmd_record)
     for action, text in (
         ("pause", "pause the running maneuver (the hitch brakes to rest and holds)"),
         ("resume", "resume the paused maneuver (its motion step is planned again from the pose now)"),
         ("skip", "end the step in progress and go on with the next"),
     ):
-        q = ms.add_parser(action, help=text)
-        _client_options(q)
-        q.set_defaults(handler=_cmd_control)
+        _client_command(ms, action, text, _cmd_control)
 
 
 def add_lines_command(sub: Any) -> None:
     """``hitch lines save NAME FILE|list|delete NAME``."""
-    from bridge.cli.service import _client_options
+    from bridge.cli.service import _client_command
 
     p = sub.add_parser("lines", help="field-boundary and headland lines (GeoJSON) for maneuver wait_for line")
     ls = p.add_subparsers(dest="action", required=True, parser_class=type(p))
-    q = ls.add_parser("save", help="save the LineString(s) of a GeoJSON file (one line: under NAME)")
-    q.add_argument("name")
-    q.add_argument("file")
-    _client_options(q)
-    q.set_defaults(handler=_cmd_lines)
-    q = ls.add_parser("list", help="the saved lines and the tractor's position")
-    _client_options(q)
-    q.set_defaults(handler=_cmd_lines)
-    q = ls.add_parser("delete", help="delete a line")
-    q.add_argument("name")
-    _client_options(q)
-    q.set_defaults(handler=_cmd_lines)
+    _client_command(
+        ls, "save", "save the LineString(s) of a GeoJSON file (one line: under NAME)", _cmd_lines, "name", "file"
+    )
+    _client_command(ls, "list", "the saved lines and the tractor's position", _cmd_lines)
+    _client_command(ls, "delete", "delete a line", _cmd_lines, "name")
 
 
 def _cmd_record(args: Any) -> int:

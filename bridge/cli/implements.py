@@ -14,7 +14,16 @@ from typing import Any
 
 from bridge.cli.model import finite_float
 from bridge.cli.plan import parse_pose_arg
-from bridge.cli.service import _client_options, _fmt_pose, _motion, _print, _run, _wait_motion, _wait_options
+from bridge.cli.service import (
+    _client_command,
+    _client_options,
+    _fmt_pose,
+    _motion,
+    _print,
+    _run,
+    _wait_motion,
+    _wait_options,
+)
 from bridge.link.realtime import INTERFACES, open_bus
 
 __all__ = ["add_commands"]
@@ -103,7 +112,7 @@ def _com(text: str) -> tuple[float, float, float]:
 
 def _cmd_switch(args) -> int:
     """Send the operator switch's frame (ISO 11783-7 PGN 65090) on a CAN bus, as a fender switch would."""
-    from bridge.link.hitch_switch import switch_frame
+    from bridge.link.hitch_switch import press_frames
 
     if args.service:
 
@@ -115,10 +124,7 @@ def _cmd_switch(args) -> int:
         return _run(args, run)
     bus = open_bus(args.interface, args.channel)
     try:
-        frames = [switch_frame(args.position)]
-        if args.position != "released":  # a momentary switch: pressed, then released
-            frames.append(switch_frame("released"))
-        for frame in frames:
+        for frame in press_frames(args.position):  # a momentary press: released, the position, released
             bus.send(frame)
     finally:
         bus.shutdown()
@@ -129,9 +135,7 @@ def _cmd_switch(args) -> int:
 def add_commands(sub) -> None:
     p = sub.add_parser("implement", help="implements: list, define, select, transport lock")
     acts = p.add_subparsers(dest="action", required=True, parser_class=type(p))
-    q = acts.add_parser("list", help="stored and tractor-profile implements (* selected)")
-    _client_options(q)
-    q.set_defaults(handler=_cmd_implement)
+    _client_command(acts, "list", "stored and tractor-profile implements (* selected)", _cmd_implement)
     q = acts.add_parser("define", help="define (or replace) an implement")
     q.add_argument("name")
     q.add_argument("--category", required=True, help="ISO 730 category: 1N 1 2N 2 3N 3 4N 4")
@@ -144,20 +148,13 @@ def add_commands(sub) -> None:
     _client_options(q)
     q.set_defaults(handler=_cmd_implement)
     for action, text in (("select", "select an implement (refused while moving)"), ("delete", "delete one")):
-        q = acts.add_parser(action, help=text)
-        q.add_argument("name")
-        _client_options(q)
-        q.set_defaults(handler=_cmd_implement)
+        _client_command(acts, action, text, _cmd_implement, "name")
     for action, text in (("lock", "transport lock on: no motion but stop"), ("unlock", "transport lock off")):
-        q = acts.add_parser(action, help=text)
-        _client_options(q)
-        q.set_defaults(handler=_cmd_implement)
+        _client_command(acts, action, text, _cmd_implement)
     for name, text in (("raise", "quick raise to the headland pose"), ("return", "return to the last work pose")):
-        q = sub.add_parser(name, help=text)
+        q = _client_command(sub, name, text, _cmd_quick)
         q.add_argument("--speed-scale", type=finite_float("--speed-scale"), default=None)
         _wait_options(q)
-        _client_options(q)
-        q.set_defaults(handler=_cmd_quick)
     q = sub.add_parser("switch", help="send the operator's rear hitch raise / lower switch frame on a CAN bus")
     q.add_argument("position", choices=("raise", "lower", "released"))
     q.add_argument("--interface", choices=INTERFACES, default="remote", help="python-can interface (default remote)")

@@ -229,6 +229,17 @@ def _client_options(p) -> None:
     p.add_argument("--json", action="store_true", help="print JSON")
 
 
+def _client_command(sub, name: str, help_text: str, handler, *positionals: str):
+    """Sub-command ``name`` of ``sub`` that calls the service: its ``positionals``, the client options
+    and ``handler``; the parser (more arguments may follow)."""
+    p = sub.add_parser(name, help=help_text)
+    for positional in positionals:
+        p.add_argument(positional)
+    _client_options(p)
+    p.set_defaults(handler=handler)
+    return p
+
+
 def _wait_options(p) -> None:
     p.add_argument("--wait", action="store_true", help="wait until the motion has ended; Ctrl-C then stops it")
     p.add_argument("--detach", action="store_true", help="with --wait: Ctrl-C only stops waiting, the motion goes on")

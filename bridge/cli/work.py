@@ -12,7 +12,7 @@ from __future__ import annotations
 from typing import Any
 
 from bridge.cli.model import finite_float
-from bridge.cli.service import _client_options, _print, _run
+from bridge.cli.service import _client_command, _client_options, _print, _run
 
 __all__ = ["add_commands", "format_status"]
 
@@ -114,15 +114,11 @@ def add_commands(sub: Any) -> None:
     q.add_argument("--no-slip-limit", action="store_true", help="switch slip limiting off")
     _client_options(q)
     q.set_defaults(handler=_cmd_work)
-    q = acts.add_parser("start", help="start a work session with the selected implement's settings")
+    q = _client_command(acts, "start", "start a work session with the selected implement's settings", _cmd_work)
     q.add_argument("--z", type=finite_float("--z"), default=None, help="operator's position setpoint [m]")
-    _client_options(q)
-    q.set_defaults(handler=_cmd_work)
     for action, text in (
         ("stop", "end the work session smoothly"),
         ("resume", "the configured mode again after a fallback"),
         ("status", "settings and the live work block"),
     ):
-        q = acts.add_parser(action, help=text)
-        _client_options(q)
-        q.set_defaults(handler=_cmd_work)
+        _client_command(acts, action, text, _cmd_work)

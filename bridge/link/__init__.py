@@ -25,6 +25,7 @@ if TYPE_CHECKING:
         INTERFACES,
         BusNode,
         RealtimeRunner,
+        ReceivingNode,
         open_bus,
     )
     from bridge.link.sensor_calibration import (
@@ -105,6 +106,7 @@ _SOURCES: dict[str, str] = {
             "BusNode",
             "INTERFACES",
             "RealtimeRunner",
+            "ReceivingNode",
             "open_bus",
         ),
         "bridge.link.realtime",
@@ -191,6 +193,7 @@ __all__ = [
     "BusNode",
     "INTERFACES",
     "RealtimeRunner",
+    "ReceivingNode",
     "open_bus",
     # loopback hub (bridge.link.loopback)
     "DEFAULT_HUB_PORT",

@@ -24,6 +24,7 @@ import can
 from bridge.isobus.codec import decode_frame, encode
 from bridge.isobus.j1939 import decode_id
 from bridge.isobus.messages import OPERATOR_SWITCH_ADDRESS, PGN_HITCH_PTO_COMMANDS, CodecError, HitchCommand
+from bridge.link.realtime import ReceivingNode
 
 __all__ = [
     "RAISE_AT",
@@ -97,7 +98,7 @@ class SwitchEdges:
         return "raise" if position == "raise" else "return" if position == "lower" else None
 
 
-class HitchSwitchNode:
+class HitchSwitchNode(ReceivingNode):
     """Bus node for the operator switch (module docstring). ``source``: the switch's address (None: any)."""
 
     def __init__(
@@ -113,24 +114,6 @@ class HitchSwitchNode:
         self.edges = SwitchEdges()
         self._now = 0.0
         self.frames = self.ignored = self.commands = 0
-
-    @property
-    def bus(self) -> can.BusABC:
-        return self._bus
-
-    def start(self, now_s: float) -> None:
-        self._now = now_s
-
-    def next_due_s(self) -> float:
-        return self._now + 0.05
-
-    def poll(self, now_s: float) -> None:
-        self._now = now_s
-        while (frame := self._bus.recv(timeout=0.0)) is not None:
-            self.take(frame, now_s)
-
-    def handle(self, frame: can.Message, now_s: float) -> None:
-        self.take(frame, now_s)
 
     def take(self, frame: can.Message, now_s: float) -> Command | None:
         """One frame at ``now_s``; the command it gives (None: none, or not a switch frame)."""

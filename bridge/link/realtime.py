@@ -18,7 +18,7 @@ import can
 
 from bridge.link.state import LinkError
 
-__all__ = ["BusNode", "BusPort", "INTERFACES", "RealtimeRunner", "SharedBusNodes", "open_bus"]
+__all__ = ["BusNode", "BusPort", "INTERFACES", "ReceivingNode", "RealtimeRunner", "SharedBusNodes", "open_bus"]
 
 INTERFACES = ("udp_multicast", "socketcan", "virtual", "remote")
 """python-can interfaces the bridge runs on (virtual: in-process only; remote: processes on
@@ -67,6 +67,39 @@ class BusNode(Protocol):
     def handle(self, frame: can.Message, now_s: float) -> None: ...
 
     def next_due_s(self) -> float: ...
+
+
+class ReceivingNode:
+    """The :class:`BusNode` side of a node that only listens: :meth:`poll` takes every frame waiting
+    on its bus and :meth:`handle` the frame the runner received, both through the subclass's
+    ``take(frame, now_s)``; the node is due :attr:`poll_period_s` after the last frame or poll.
+    A subclass sets ``_bus`` and ``_now`` (the time of the last frame or poll)."""
+
+    poll_period_s: float = 0.05
+    _bus: can.BusABC
+    _now: float
+
+    @property
+    def bus(self) -> can.BusABC:
+        return self._bus
+
+    def start(self, now_s: float) -> None:
+        self._now = now_s
+
+    def next_due_s(self) -> float:
+        return self._now + self.poll_period_s
+
+    def poll(self, now_s: float) -> None:
+        self._now = now_s
+        while (frame := self._bus.recv(timeout=0.0)) is not None:
+            self.take(frame, now_s)
+
+    def handle(self, frame: can.Message, now_s: float) -> None:
+        self.take(frame, now_s)
+
+    def take(self, frame: can.Message, now_s: float) -> object:
+        """Take one frame at ``now_s`` (the subclass's decoding); its result is the subclass's."""
+        raise NotImplementedError
 
 
 class RealtimeRunner:

@@ -62,6 +62,7 @@ from bridge.isobus.messages import (
     SlopeSensorInformation2,
     WheelBasedSpeed,
 )
+from bridge.link.realtime import ReceivingNode
 from bridge.link.state import LinkError
 
 __all__ = [
@@ -328,7 +329,7 @@ class WheelDistance:
         self.last_t = now_s
 
 
-class TractorSensors:
+class TractorSensors(ReceivingNode):
     """The tractor's sensor messages on ``bus`` into a latest snapshot (module docstring).
 
     Thread-safe: the runner's thread feeds frames, any thread calls :meth:`readings`,
@@ -364,25 +365,7 @@ class TractorSensors:
         self._now = 0.0
         self._frames = self._errors = self._unavailable = self._implausible = self._degraded = self._ignored = 0
 
-    # -- BusNode ---------------------------------------------------------------------------
-    @property
-    def bus(self) -> can.BusABC:
-        return self._bus
-
-    def start(self, now_s: float) -> None:
-        self._now = now_s
-
-    def next_due_s(self) -> float:
-        return self._now + 0.05
-
-    def poll(self, now_s: float) -> None:
-        self._now = now_s
-        while (frame := self._bus.recv(timeout=0.0)) is not None:
-            self.take(frame, now_s)
-
-    def handle(self, frame: can.Message, now_s: float) -> None:
-        self.take(frame, now_s)
-
+    # -- BusNode (ReceivingNode: bus, start, poll, handle, next_due_s) ---------------------------
     def take(self, frame: can.Message, now_s: float) -> bool:
         """Take one frame at ``now_s``; True if it was a sensor frame we decoded."""
         self._now = now_s

@@ -26,6 +26,7 @@ import can
 
 from bridge.isobus.codec import CodecError, WheelBasedSpeed, decode_frame
 from bridge.isobus.j1939 import PGN_WHEEL_BASED_SPEED, TRACTOR_ECU_ADDRESS, decode_id
+from bridge.link.realtime import ReceivingNode
 from bridge.link.tractor_sensors import DISTANCE_WRAP_M, WheelDistance
 from bridge.sim.tractor_node import TractorNodeConfig, TractorTwinNode
 from planner.errors import HitchInputError
@@ -37,8 +38,10 @@ class OdometerError(HitchInputError):
     """A setting of the odometer or the simulated tractor out of its range (named in the message)."""
 
 
-class WheelOdometer:
+class WheelOdometer(ReceivingNode):
     """Cumulative distance [m] from PGN 65096 frames of ``source`` (None: any sender)."""
+
+    poll_period_s = 0.1
 
     def __init__(self, bus: can.BusABC, *, source: int | None = TRACTOR_ECU_ADDRESS, stale_after_s: float = 1.0):
         if not 0.05 <= stale_after_s <= 60.0:
@@ -50,25 +53,6 @@ class WheelOdometer:
         self._now = 0.0
         self.frames = 0
         self.malformed = 0
-
-    @property
-    def bus(self) -> can.BusABC:
-        return self._bus
-
-    def start(self, now_s: float) -> None:
-        self._now = now_s
-
-    def next_due_s(self) -> float:
-        return self._now + 0.1
-
-    def poll(self, now_s: float) -> None:
-        self._now = now_s
-        while (frame := self._bus.recv(timeout=0.0)) is not None:
-            self.take(frame, now_s)
-
-    def handle(self, frame: can.Message, now_s: float) -> None:
-        """A frame from the bus (the :class:`~bridge.link.realtime.BusNode` hook): see :meth:`take`."""
-        self.take(frame, now_s)
 
     def take(self, frame: can.Message, now_s: float) -> bool:
         """Take one frame; True if it was a wheel-based speed frame we accepted."""

@@ -4,7 +4,6 @@ save|list|delete`` against a running service (the control core in its own proces
 from __future__ import annotations
 
 import json
-import time
 
 import pytest
 
@@ -13,18 +12,10 @@ from bridge.service.client import HitchClient
 from bridge.service.config import ServiceConfig
 from bridge.service.gnss import LocalTangentPlane
 from bridge.service.server import HitchService
+from tests.helpers import wait_until
 from tests.integration.service_process import free_port
 
 pytestmark = pytest.mark.slow
-
-
-def _wait(pred, timeout_s: float = 15.0) -> bool:
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(0.02)
-    return False
 
 
 @pytest.fixture(scope="module")
@@ -33,7 +24,7 @@ def service(tmp_path_factory):
     cfg = ServiceConfig(listen=[ep], data_dir=tmp_path_factory.mktemp("svc"), planning_processes=1)
     svc = HitchService(cfg).start()
     try:
-        assert _wait(lambda: (svc.latest_state or {}).get("ecu", {}).get("online")), "no state from the core"
+        assert wait_until(lambda: (svc.latest_state or {}).get("ecu", {}).get("online")), "no state from the core"
         yield svc, ep
     finally:
         svc.close()
@@ -81,19 +72,19 @@ def test_pause_resume_skip_and_record_through_the_cli(service, capsys, tmp_path)
     assert rc != 0 and "no maneuver is running" in err, err
     rc, out, err = _cli(capsys, ep, "maneuver", "run", "m")
     assert rc == 0, err
-    assert _wait(lambda: svc.latest_state["pose"]["z"] > 0.03, 10.0)
+    assert wait_until(lambda: svc.latest_state["pose"]["z"] > 0.03, 10.0)
     rc, out, err = _cli(capsys, ep, "maneuver", "pause")
     assert rc == 0 and "paused, step 0" in out, (out, err)
-    assert _wait(lambda: not svc.latest_state["moving"], 5.0)
+    assert wait_until(lambda: not svc.latest_state["moving"], 5.0)
     assert svc.latest_state["maneuver"]["paused"] is True
     rc, out, _ = _cli(capsys, ep, "maneuver", "resume", "--json")
     assert rc == 0 and json.loads(out)["maneuver"]["paused"] is False
-    assert _wait(lambda: (svc.latest_state.get("maneuver") or {}).get("step") == 1, 15.0), svc.latest_state.get(
+    assert wait_until(lambda: (svc.latest_state.get("maneuver") or {}).get("step") == 1, 15.0), svc.latest_state.get(
         "maneuver"
     )
     rc, out, _ = _cli(capsys, ep, "maneuver", "skip")
     assert rc == 0 and "skip" in out
-    assert _wait(lambda: svc.latest_state.get("maneuver") is None, 5.0)
+    assert wait_until(lambda: svc.latest_state.get("maneuver") is None, 5.0)
 
     rc, out, err = _cli(capsys, ep, "maneuver", "record", "start")
     assert rc == 0 and "recording" in out, err

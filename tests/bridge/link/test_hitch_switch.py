@@ -24,6 +24,7 @@ from bridge.link.hitch_switch import (
     switch_frame,
     switch_position,
 )
+from tests.helpers import wait_until
 
 
 def test_the_switch_frame_is_pgn_65090_with_the_rear_hitch_command_in_byte_2():
@@ -93,19 +94,30 @@ def test_a_press_gives_exactly_one_edge_whatever_the_switch_did_before():
         node.bus.shutdown()
 
 
+@pytest.mark.parametrize(("position", "command"), [("raise", "raise"), ("lower", "return"), ("released", None)])
+def test_hitch_switch_on_the_bus_is_one_press_that_a_fresh_node_takes(position, command, capsys):
+    """``hitch switch POSITION`` (no ``--service``) sends one momentary press, so a switch node that has
+    seen no frame yet (a service just started) still gets exactly one command. Fails on the old code
+    (it sent the position then released: the first frame only set the position, no command)."""
+    from bridge.cli.main import main
+
+    channel = f"cli-{uuid.uuid4().hex}"
+    node = HitchSwitchNode(can.Bus(interface="virtual", channel=channel))
+    try:
+        assert main(["switch", position, "--interface", "virtual", "--channel", channel]) == 0
+        assert f"sent {position}" in capsys.readouterr().out
+        got: list[str] = []
+        node.on_command = got.append
+        node.poll(0.0)
+        assert got == ([] if command is None else [command]) and node.frames == len(press_frames(position))
+    finally:
+        node.bus.shutdown()
+
+
 def _rear(frame: can.Message) -> float | None:
     payload = decode_frame(frame).payload
     assert isinstance(payload, HitchCommand)
     return payload.rear_position
-
-
-def _wait(pred, timeout_s: float = 20.0) -> bool:
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(0.02)
-    return False
 
 
 @pytest.mark.slow
@@ -140,19 +152,19 @@ def test_a_switch_on_the_can_bus_raises_and_returns_the_hitch(tmp_path):
             st = svc.latest_state or {}
             return st.get("motion") is None and z_now() is not None and abs(z_now() - z) < 3e-3
 
-        assert _wait(lambda: z_now() is not None)
+        assert wait_until(lambda: z_now() is not None)
         call("implements/define", {"name": "harrow", "category": "2", "mass_kg": 800.0, "com_m": [0.0, 0.6, 0.3]})
         call("implements/select", {"name": "harrow"})
         call("presets/save", {"name": "headland", "pose": {"x": 0.0, "z": 0.24, "roll": 0.0, "pitch": 0.0}})
-        assert _wait(lambda: svc.api.handle("goto", json.dumps({"goal": {"z": -0.05}}))[0])  # once the link is up
-        assert _wait(lambda: at_rest(-0.05))
+        assert wait_until(lambda: svc.api.handle("goto", json.dumps({"goal": {"z": -0.05}}))[0])  # once the link is up
+        assert wait_until(lambda: at_rest(-0.05))
         switch.send(switch_frame("released"))
         time.sleep(0.1)
         switch.send(switch_frame("raise"))
-        assert _wait(lambda: at_rest(0.24)), "the switch did not raise the hitch"
+        assert wait_until(lambda: at_rest(0.24)), "the switch did not raise the hitch"
         assert any(e.get("event") == "hitch_switch" and e.get("command") == "raise" for e in events)
         switch.send(switch_frame("lower"))
-        assert _wait(lambda: at_rest(-0.05)), "the switch did not return the hitch to work"
+        assert wait_until(lambda: at_rest(-0.05)), "the switch did not return the hitch to work"
     finally:
         switch.shutdown()
         svc.close()
@@ -186,19 +198,19 @@ def test_the_switch_raises_and_returns_with_the_core_in_its_own_process(tmp_path
             st = svc.latest_state or {}
             return st.get("motion") is None and z_now() is not None and abs(z_now() - z) < 3e-3
 
-        assert _wait(lambda: z_now() is not None)
+        assert wait_until(lambda: z_now() is not None)
         ok, r = svc.api.handle("sim/switch", json.dumps({"position": "up"}))
         assert not ok and r["error"] == "bad_request" and "position" in r["message"], r
         call("implements/define", {"name": "harrow", "category": "2", "mass_kg": 800.0, "com_m": [0.0, 0.6, 0.3]})
         call("implements/select", {"name": "harrow"})
         call("presets/save", {"name": "headland", "pose": {"x": 0.0, "z": 0.24, "roll": 0.0, "pitch": 0.0}})
-        assert _wait(lambda: svc.api.handle("goto", json.dumps({"goal": {"z": -0.05}}))[0])  # once the link is up
-        assert _wait(lambda: at_rest(-0.05))
+        assert wait_until(lambda: svc.api.handle("goto", json.dumps({"goal": {"z": -0.05}}))[0])  # once the link is up
+        assert wait_until(lambda: at_rest(-0.05))
         assert call("sim/switch", {"position": "raise"})["sent"] == ["released", "raise", "released"]
-        assert _wait(lambda: at_rest(0.24)), "the switch did not raise the hitch"
+        assert wait_until(lambda: at_rest(0.24)), "the switch did not raise the hitch"
         assert any(e.get("event") == "hitch_switch" and e.get("command") == "raise" for e in events)
         call("sim/switch", {"position": "lower"})
-        assert _wait(lambda: at_rest(-0.05)), "the switch did not return the hitch to work"
+        assert wait_until(lambda: at_rest(-0.05)), "the switch did not return the hitch to work"
         assert any(e.get("event") == "hitch_switch" and e.get("command") == "return" for e in events)
     finally:
         svc.close()

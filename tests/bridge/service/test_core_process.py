@@ -19,20 +19,12 @@ from bridge.isobus.j1939 import decode_id
 from bridge.service.client import HitchClient, ServiceError
 from bridge.service.config import ServiceConfig
 from bridge.service.server import HitchService
+from tests.helpers import wait_until
 from tests.integration.service_process import free_port
 
 pytestmark = pytest.mark.slow
 
 REFERENCE_PGN = 0xFF21
-
-
-def _wait(pred, timeout_s: float = 15.0) -> bool:
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(0.02)
-    return False
 
 
 @pytest.fixture
@@ -43,7 +35,7 @@ def service(tmp_path):
     svc = HitchService(cfg).start()
     try:
         assert svc.core is not None and svc.motion is None  # the default: the core has its own process
-        assert _wait(lambda: (svc.latest_state or {}).get("ecu", {}).get("online")), "no state from the core"
+        assert wait_until(lambda: (svc.latest_state or {}).get("ecu", {}).get("online")), "no state from the core"
         yield svc, ep
     finally:
         svc.close()
@@ -60,7 +52,7 @@ def test_the_api_answers_as_with_the_core_in_threads(service):
         with pytest.raises(ServiceError) as e:
             c.goto({"z": 5.0})
         assert e.value.code == "unreachable" and "workspace" in str(e.value) and "z" in str(e.value)
-        assert _wait(lambda: any(ev.get("event") == "motion_finished" for ev in events))
+        assert wait_until(lambda: any(ev.get("event") == "motion_finished" for ev in events))
         assert abs(svc.latest_state["pose"]["z"] - 0.25) < 3e-3
         assert c.mode()["mode"] == "auto"
         assert c.mode("attach")["mode"] == "attach" and c.config()["mode"] == "attach"  # kept without asking the core
@@ -93,7 +85,7 @@ def test_stop_is_answered_by_the_core_while_every_request_handler_is_wedged(serv
             took = time.monotonic() - t0
             assert reply["stopped"] and reply["motion_id"] is not None
             assert took < 2.0, took
-            assert _wait(lambda: svc.latest_state["motion"] is None, 5.0)
+            assert wait_until(lambda: svc.latest_state["motion"] is None, 5.0)
     finally:
         gate.set()
 
@@ -111,7 +103,7 @@ def test_a_dead_core_fails_every_motion_call_and_nothing_resumes(service):
         c.goto({"z": 0.3}, speed_scale=0.3)
         time.sleep(0.3)
         os.kill(svc.core.pid, signal.SIGKILL)
-        assert _wait(lambda: not svc.core.alive, 5.0)
+        assert wait_until(lambda: not svc.core.alive, 5.0)
         with pytest.raises(ServiceError) as e:
             c.goto({"z": 0.2})
         assert e.value.code == "unavailable" and "control core" in str(e.value)
@@ -124,7 +116,7 @@ def test_closing_ends_the_core_process_and_the_can_log_holds_the_references(tmp_
         ServiceConfig(listen=[f"tcp/127.0.0.1:{port}"], data_dir=tmp_path, can_log=log, planning_processes=1)
     ).start()
     pid = svc.core.pid
-    assert _wait(lambda: (svc.latest_state or {}).get("ecu", {}).get("online")), "no state from the core"
+    assert wait_until(lambda: (svc.latest_state or {}).get("ecu", {}).get("online")), "no state from the core"
     with HitchClient([f"tcp/127.0.0.1:{port}"], timeout_s=10) as c:
         c.goto({"z": 0.25})
         time.sleep(2.5)  # moved, then holding: references at 50 Hz
@@ -145,7 +137,7 @@ def test_without_planning_processes_the_service_plans_on_its_own_guard_not_in_th
     svc = HitchService(ServiceConfig(listen=[ep], data_dir=tmp_path, planning_processes=0)).start()
     try:
         assert svc.core is not None and svc.planning is None
-        assert _wait(lambda: (svc.latest_state or {}).get("ecu", {}).get("online")), "no state from the core"
+        assert wait_until(lambda: (svc.latest_state or {}).get("ecu", {}).get("online")), "no state from the core"
         with HitchClient([ep], timeout_s=20) as c:
             plan = c.request("plan", {"goal": {"z": 0.25}})
             assert plan["ok"] and plan["duration"] > 0, plan
@@ -177,7 +169,7 @@ def test_the_twin_runs_above_the_core_and_the_core_above_the_service(service):
                 pass  # a thread that ended meanwhile
         return out
 
-    assert _wait(lambda: TWIN_NICE in nices(), 5.0)
+    assert wait_until(lambda: TWIN_NICE in nices(), 5.0)
     got = nices()
     assert got.count(TWIN_NICE) == 1, got
     assert set(got) <= {TWIN_NICE, CORE_NICE}, got

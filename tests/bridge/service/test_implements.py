@@ -8,22 +8,18 @@ from __future__ import annotations
 
 import json
 import sqlite3
-import time
 
 import numpy as np
 import pytest
 
-from bridge.service.api import ServiceAPI
 from bridge.service.config import ServiceConfig
 from bridge.service.implements import HEADLAND_PRESET
-from bridge.service.motion.controller import MotionController
 from bridge.service.server import HitchService
 from bridge.service.store import MIGRATIONS, SCHEMA_VERSION, HitchStore
 from bridge.service.workers import PlanningWorkers, WorkerSpec
-from bridge.sim.move import SimRig
-from planner.limits.guard import Guard
 from planner.limits.implement_limits import LOWERING_SPEED_LIMIT, UPPER_HEIGHT_LIMIT
 from planner.trajectory import TrajectoryPlanner
+from tests.helpers import SimService, wait_until
 from tests.integration.service_process import free_port
 
 HARROW = {"name": "harrow", "category": "2", "mass_kg": 1200.0, "com_m": [0.0, 0.6, 0.4]}
@@ -31,49 +27,12 @@ HEADLAND = {"x": 0.0, "z": 0.25, "roll": 0.0, "pitch": 0.0}
 WORK = {"x": 0.02, "z": -0.05, "roll": 0.0, "pitch": 0.0}
 
 
-class Service:
+class Service(SimService):
     def __init__(self, model, path, planning=None):
-        self.model = model
-        self.rig = SimRig(model)
-        self.rig.start()
-        self.rig.run_until(0.5)
-        self.events: list[dict] = []
-        self.states: list[dict] = []
-        self.mc = MotionController(
-            Guard(TrajectoryPlanner(model)),
-            Guard(TrajectoryPlanner(model)),
-            self.rig.link,
-            lambda: self.rig.now_s,
-            on_event=self.events.append,
-            on_state=self.states.append,
-            spawn=lambda fn: fn(),
-        )
-        self.mc.cycle()
-        self.store = HitchStore(path)
-        self.api = ServiceAPI(self.mc, None, self.store, {"profile": "thesis-t132"}, planning=planning)
-
-    def call(self, key, payload=None):
-        return self.api.handle(key, json.dumps(payload if payload is not None else {}))
-
-    def ok(self, key, payload=None):
-        ok, r = self.call(key, payload)
-        assert ok, (key, r)
-        return r
-
-    def run(self, seconds, each=None):
-        end = self.rig.now_s + seconds
-        while self.rig.now_s < end - 1e-9:
-            if each is not None:
-                each()
-            self.rig.run_until(self.rig.now_s + 0.02)
-            self.mc.cycle()
+        super().__init__(model, path, planning=planning)
 
     def pose(self) -> np.ndarray:
         return self.mc.current_state().position
-
-    def close(self):
-        self.store.close()
-        self.rig.close()
 
 
 @pytest.fixture
@@ -343,15 +302,6 @@ def test_quick_raise_and_return_in_thread_mode(svc):
     assert svc.pose()[1] == pytest.approx(0.2, abs=1e-6)
 
 
-def _wait(pred, timeout_s: float = 20.0) -> bool:
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(0.02)
-    return False
-
-
 @pytest.mark.slow
 def test_quick_raise_return_and_selection_with_the_core_in_its_own_process(tmp_path):
     cfg = ServiceConfig(listen=[f"tcp/127.0.0.1:{free_port()}"], data_dir=tmp_path, planning_processes=0)
@@ -367,21 +317,21 @@ def test_quick_raise_return_and_selection_with_the_core_in_its_own_process(tmp_p
         def z_now():
             return ((svc.latest_state or {}).get("pose") or {}).get("z")
 
-        assert _wait(lambda: z_now() is not None), "no state from the core"
+        assert wait_until(lambda: z_now() is not None), "no state from the core"
         call("implements/define", {**HARROW, "headland": HEADLAND, "upper_height_m": 0.28})
         call("implements/select", {"name": "harrow"})
         ok, r = svc.api.handle("goto", json.dumps({"goal": {"z": 0.3}}))
         assert not ok and r["error"] == "refused" and UPPER_HEIGHT_LIMIT in r["message"]  # the core's guard has it
         call("goto", {"goal": {"z": WORK["z"], "x": WORK["x"]}})
-        assert _wait(lambda: abs(z_now() - WORK["z"]) < 3e-3)
-        assert _wait(lambda: call("hitch/raise")["accepted"] if svc.latest_state["motion"] is None else False)
-        assert _wait(lambda: abs(z_now() - HEADLAND["z"]) < 3e-3 and svc.latest_state["motion"] is None)
+        assert wait_until(lambda: abs(z_now() - WORK["z"]) < 3e-3)
+        assert wait_until(lambda: call("hitch/raise")["accepted"] if svc.latest_state["motion"] is None else False)
+        assert wait_until(lambda: abs(z_now() - HEADLAND["z"]) < 3e-3 and svc.latest_state["motion"] is None)
         call("implements/lock")
         ok, r = svc.api.handle("hitch/return", "{}")
         assert not ok and r["error"] == "locked"
         call("implements/unlock")
         call("hitch/return")
-        assert _wait(lambda: abs(z_now() - WORK["z"]) < 3e-3)
+        assert wait_until(lambda: abs(z_now() - WORK["z"]) < 3e-3)
     finally:
         svc.close()
 
@@ -404,7 +354,7 @@ def test_the_cli_round_trip_against_a_running_service(tmp_path, capsys):
         return ((svc.latest_state or {}).get("pose") or {}).get("z")
 
     try:
-        assert _wait(lambda: (svc.latest_state or {}).get("ecu", {}).get("online")), "no state from the core"
+        assert wait_until(lambda: (svc.latest_state or {}).get("ecu", {}).get("online")), "no state from the core"
         rc, out, err = cli(
             "implement", "define", "harrow", "--category", "2", "--mass", "800", "--com", "0,0.6,0.3",
             "--upper-height", "0.28", "--lowering-speed", "0.2", "--headland", "x=0,z=0.24,roll=0,pitch=0",
@@ -424,14 +374,14 @@ def test_the_cli_round_trip_against_a_running_service(tmp_path, capsys):
         assert rc != 0 and "locked" in err, err
         rc, out, err = cli("implement", "unlock")
         assert rc == 0 and "transport lock off" in out, err
-        assert _wait(lambda: svc.api.handle("goto", json.dumps({"goal": {"z": WORK["z"]}}))[0])
-        assert _wait(lambda: abs(z_now() - WORK["z"]) < 3e-3 and svc.latest_state["motion"] is None)
+        assert wait_until(lambda: svc.api.handle("goto", json.dumps({"goal": {"z": WORK["z"]}}))[0])
+        assert wait_until(lambda: abs(z_now() - WORK["z"]) < 3e-3 and svc.latest_state["motion"] is None)
         rc, out, err = cli("raise", "--wait")
         assert rc == 0 and "raise to" in out and abs(z_now() - 0.24) < 3e-3, (out, err)
         rc, out, err = cli("return", "--wait")
         assert rc == 0 and "return to" in out and abs(z_now() - WORK["z"]) < 3e-3, (out, err)
         rc, out, err = cli("switch", "raise", "--service")
         assert rc == 0 and "released, raise, released" in out, err
-        assert _wait(lambda: abs(z_now() - 0.24) < 3e-3 and svc.latest_state["motion"] is None)
+        assert wait_until(lambda: abs(z_now() - 0.24) < 3e-3 and svc.latest_state["motion"] is None)
     finally:
         svc.close()

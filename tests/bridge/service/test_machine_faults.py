@@ -15,17 +15,9 @@ import pytest
 from bridge.service.config import ServiceConfig
 from bridge.service.machine import build_controller, start_can
 from bridge.service.motion.types import MotionError
+from tests.helpers import wait_until
 
 pytestmark = pytest.mark.slow  # real time: a few seconds
-
-
-def _until(pred, timeout_s: float) -> bool:
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(0.02)
-    return False
 
 
 def _started(mc) -> bool:
@@ -44,12 +36,12 @@ def test_a_one_way_cut_in_the_twin_is_detected_and_stops_the_motion(cut, fault):
     mc, _ = build_controller(cfg, parts, on_state=lambda m: None, on_event=events.append)
     mc.start()
     try:
-        assert _until(lambda: _started(mc), 10.0), "the link never became ready"
+        assert wait_until(lambda: _started(mc), 10.0), "the link never became ready"
         time.sleep(0.5)
         assert parts.ecu_node is not None
         parts.ecu_node.apply_fault({"cut": cut})
-        assert _until(lambda: fault in {f.name for f in mc.faults}, 1.0), (cut, [f.name for f in mc.faults])
-        assert _until(lambda: any(e.get("event") == "motion_aborted" for e in events), 1.0)
+        assert wait_until(lambda: fault in {f.name for f in mc.faults}, 1.0), (cut, [f.name for f in mc.faults])
+        assert wait_until(lambda: any(e.get("event") == "motion_aborted" for e in events), 1.0)
     finally:
         mc.close()
         parts.close()

@@ -10,48 +10,36 @@ written fault policy (``docs/faults.md``), and call counts of the exact inverse.
 
 from __future__ import annotations
 
-import json
 import threading
 import time
 
 import numpy as np
 import pytest
 
-from bridge.service.api import MAX_IN_FLIGHT_PER_USER, ServiceAPI
-from bridge.service.motion.controller import MotionController
+from bridge.service.api import MAX_IN_FLIGHT_PER_USER
 from bridge.service.motion.types import FAULT_CLEAR_AFTER_S, MotionError
-from bridge.service.store import HitchStore
-from bridge.sim.move import SimRig
 from planner.ik_qp.hitch_ik import IKSolver
 from planner.limits.guard import Guard
 from planner.trajectory import TrajectoryPlanner
+from tests.helpers import SimService
 
 DT = 0.02
 
 
-class Rig:
+class Rig(SimService):
     """A controller and its API on a simulated rig; cycles driven by the test every 20 ms."""
 
     def __init__(self, model, tmp_path, *, plan_guard=None, sim_fault=None):
-        self.rig = SimRig(model)
-        self.rig.start()
-        self.rig.run_until(0.5)
-        self.events: list[dict] = []
-        self.states: list[dict] = []
-        self.mc = MotionController(
-            Guard(TrajectoryPlanner(model)),
-            plan_guard or Guard(TrajectoryPlanner(model)),
-            self.rig.link,
-            lambda: self.rig.now_s,
-            on_event=self.events.append,
-            on_state=self.states.append,
-            spawn=lambda fn: fn(),
+        super().__init__(
+            model,
+            tmp_path / "hitch.sqlite3",
+            ik=IKSolver(model),
+            plan_guard=plan_guard,
+            settle_s=0.1,
+            sim_fault=sim_fault,
         )
-        self.store = HitchStore(tmp_path / "hitch.sqlite3")
-        self.api = ServiceAPI(self.mc, IKSolver(model), self.store, {"profile": "thesis-t132"}, sim_fault=sim_fault)
-        self.run(0.1)
 
-    def run(self, seconds: float, *, ecu: bool = True) -> None:
+    def run(self, seconds: float, *, ecu: bool = True) -> None:  # type: ignore[override]
         end = self.rig.now_s + seconds
         while self.rig.now_s < end - 1e-9:
             t = self.rig.now_s + DT
@@ -63,16 +51,8 @@ class Rig:
                     self.rig.link.poll(self.rig.now_s)
             self.mc.cycle()
 
-    def call(self, key, payload=None, **kw):
-        data = payload if isinstance(payload, (bytes, str)) else json.dumps(payload if payload is not None else {})
-        return self.api.handle(key, data, **kw)
-
     def names(self) -> list[str]:
         return [e["event"] for e in self.events]
-
-    def close(self) -> None:
-        self.store.close()
-        self.rig.close()
 
 
 @pytest.fixture

@@ -13,15 +13,12 @@ import time
 import numpy as np
 import pytest
 
-from bridge.service.api import ServiceAPI
 from bridge.service.config import ServiceConfig
-from bridge.service.motion.controller import MotionController
 from bridge.service.server import HitchService
 from bridge.service.store import HitchStore
 from bridge.service.work import WorkControl
-from bridge.sim.move import SimRig
-from planner.limits.guard import Guard
 from planner.trajectory import TrajectoryPlanner
+from tests.helpers import SimService, wait_until
 from tests.integration.service_process import free_port
 
 HARROW = {"name": "harrow", "category": "2", "mass_kg": 1200.0, "com_m": [0.0, 0.6, 0.4]}
@@ -43,44 +40,9 @@ class FakeInputs:
         return self.ground
 
 
-class Service:
+class Service(SimService):
     def __init__(self, model, path, inputs=None):
-        self.rig = SimRig(model)
-        self.rig.start()
-        self.rig.run_until(0.5)
-        self.events: list[dict] = []
-        self.states: list[dict] = []
-        self.mc = MotionController(
-            Guard(TrajectoryPlanner(model)),
-            Guard(TrajectoryPlanner(model)),
-            self.rig.link,
-            lambda: self.rig.now_s,
-            on_event=self.events.append,
-            on_state=self.states.append,
-            spawn=lambda fn: fn(),
-        )
-        self.mc.work = WorkControl(self.mc, inputs)
-        self.mc.cycle()
-        self.store = HitchStore(path)
-        self.api = ServiceAPI(self.mc, None, self.store, {"profile": "thesis-t132"})
-
-    def call(self, key, payload=None):
-        return self.api.handle(key, json.dumps(payload if payload is not None else {}))
-
-    def ok(self, key, payload=None):
-        ok, r = self.call(key, payload)
-        assert ok, (key, r)
-        return r
-
-    def run(self, seconds):
-        end = self.rig.now_s + seconds
-        while self.rig.now_s < end - 1e-9:
-            self.rig.run_until(self.rig.now_s + 0.02)
-            self.mc.cycle()
-
-    def close(self):
-        self.store.close()
-        self.rig.close()
+        super().__init__(model, path, prepare=lambda mc: setattr(mc, "work", WorkControl(mc, inputs)))
 
 
 @pytest.fixture
@@ -238,15 +200,6 @@ def test_a_plain_track_setpoint_for_the_work_session_is_refused_and_counted(mode
 
 
 # ---------------------------------------------------------------------- the core in its own process
-def _wait(pred, timeout_s: float = 20.0) -> bool:
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(0.02)
-    return False
-
-
 FLAT_FIELD = """
 schema_version = 1
 name = "patches"
@@ -267,7 +220,7 @@ def _start(tmp_path, **kw) -> HitchService:
     cfg = ServiceConfig(listen=[f"tcp/127.0.0.1:{free_port()}"], data_dir=tmp_path, planning_processes=0, **kw)
     svc = HitchService(cfg).start()
     assert svc.core is not None  # the default: the core has its own process
-    assert _wait(lambda: ((svc.latest_state or {}).get("ecu") or {}).get("online")), "no state from the core"
+    assert wait_until(lambda: ((svc.latest_state or {}).get("ecu") or {}).get("online")), "no state from the core"
     return svc
 
 
@@ -320,17 +273,17 @@ def test_without_a_sim_field_draft_mode_falls_back_at_once_with_one_event(tmp_pa
         _call(svc, "work/settings", {"mode": "draft"})
         r = _call(svc, "work/start", {"z": 0.05})
         assert r["session"] >= 1
-        assert _wait(lambda: any(e.get("event") == "work_fallback" for e in events), 10.0)
+        assert wait_until(lambda: any(e.get("event") == "work_fallback" for e in events), 10.0)
         time.sleep(1.0)
         fb = [e for e in events if e.get("event") == "work_fallback"]
         assert len(fb) == 1 and fb[0]["reason"] == "draft signal stale: no reading", fb
         w = svc.latest_state["work"]
         assert w["running"] and w["active"] == "position" and w["fallback"] == "draft signal stale: no reading"
-        assert _wait(lambda: abs(svc.latest_state["pose"]["z"] - 0.05) < 5e-3, 10.0)  # position control goes on
+        assert wait_until(lambda: abs(svc.latest_state["pose"]["z"] - 0.05) < 5e-3, 10.0)  # position control goes on
         status = _call(svc, "work/settings")["status"]
         assert status["slip"] is None and "not on the bus" in status["slip_note"]
         _call(svc, "work/stop")
-        assert _wait(lambda: not svc.latest_state["work"]["running"], 10.0)
+        assert wait_until(lambda: not svc.latest_state["work"]["running"], 10.0)
     finally:
         svc.close()
 
@@ -379,17 +332,19 @@ def test_losing_the_fields_draft_in_the_running_twin_falls_back_once_and_positio
     svc.add_listener("event", events.append)
     try:
         assert svc.core is None and svc.parts is not None and svc.parts.ecu_node is not None
-        assert _wait(lambda: ((svc.latest_state or {}).get("ecu") or {}).get("online")), "no state"
+        assert wait_until(lambda: ((svc.latest_state or {}).get("ecu") or {}).get("online")), "no state"
         _call(svc, "work/settings", {"mode": "draft", "draft_setpoint_n": 15_000.0, "depth_min_m": 0.05})
         session = _call(svc, "work/start", {"z": 0.0})["session"]
-        assert _wait(lambda: (svc.latest_state["work"] or {}).get("draft_n") is not None, 10.0), "no draft on the bus"
+        assert wait_until(lambda: (svc.latest_state["work"] or {}).get("draft_n") is not None, 10.0), (
+            "no draft on the bus"
+        )
         time.sleep(2.0)
         w = svc.latest_state["work"]
         assert w["running"] and w["active"] == "draft" and w["fallback"] is None, w
         assert not [e for e in events if e.get("event") == "work_fallback"]
         svc.parts.ecu_node.draft_source.lost_at_s = 0.0  # the pins are lost: RearDraft "not available"
-        assert _wait(lambda: any(e.get("event") == "work_fallback" for e in events), 10.0), "no fallback"
-        assert _wait(lambda: abs(svc.latest_state["pose"]["z"]) < 5e-3, 15.0), svc.latest_state["pose"]
+        assert wait_until(lambda: any(e.get("event") == "work_fallback" for e in events), 10.0), "no fallback"
+        assert wait_until(lambda: abs(svc.latest_state["pose"]["z"]) < 5e-3, 15.0), svc.latest_state["pose"]
         time.sleep(1.0)
         fb = [e for e in events if e.get("event") == "work_fallback"]
         assert len(fb) == 1 and fb[0]["reason"] == "draft signal stale: no reading", fb
@@ -398,6 +353,6 @@ def test_losing_the_fields_draft_in_the_running_twin_falls_back_once_and_positio
         assert st["track"] is not None and st["track"]["session"] == session  # the same session, no brake
         assert not [e for e in events if e.get("event") in ("work_finished", "fault")]
         _call(svc, "work/stop")
-        assert _wait(lambda: not svc.latest_state["work"]["running"], 10.0)
+        assert wait_until(lambda: not svc.latest_state["work"]["running"], 10.0)
     finally:
         svc.close()

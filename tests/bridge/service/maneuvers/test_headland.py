@@ -4,22 +4,20 @@ replayed to the same poses, and the preset-delete refusal naming the maneuvers t
 
 from __future__ import annotations
 
-import json
 import math
 
 import numpy as np
 import pytest
 
 from bench.headland_bench import run_case
-from bridge.service.api import ServiceAPI
 from bridge.service.gnss import GnssError, GnssTracker, LocalTangentPlane, parse_lines
 from bridge.service.maneuvers.language import ManeuverError, PlanningContext, parse_maneuver, validate
 from bridge.service.motion.controller import MotionController
-from bridge.service.store import HitchStore
 from bridge.sim.move import SimRig
 from planner.ik_qp.hitch_ik import IKSolver
 from planner.limits.guard import Guard
 from planner.trajectory import TrajectoryPlanner
+from tests.helpers import SimService
 
 
 # ------------------------------------------------------------------------------------------ language
@@ -113,41 +111,12 @@ def test_lead_compensation_reaches_the_pose_at_the_line_at_12_kmh(model):
 
 
 # ---------------------------------------------------------------------------------- pause / resume / skip (thread mode)
-class _Svc:
+class _Svc(SimService):
     def __init__(self, model, tmp_path):
-        self.rig = SimRig(model)
-        self.rig.start()
-        self.rig.run_until(0.5)
-        self.events, self.states = [], []
-        self.mc = MotionController(
-            Guard(TrajectoryPlanner(model)),
-            Guard(TrajectoryPlanner(model)),
-            self.rig.link,
-            lambda: self.rig.now_s,
-            on_event=self.events.append,
-            on_state=self.states.append,
-            spawn=lambda fn: fn(),
-        )
-        self.mc.cycle()
-        self.store = HitchStore(tmp_path / "h.sqlite3")
-        self.api = ServiceAPI(self.mc, IKSolver(model), self.store, {"profile": "thesis-t132"})
-
-    def call(self, key, payload=None):
-        ok, reply = self.api.handle(key, json.dumps(payload or {}), None)
-        return ok, reply
-
-    def run(self, seconds):
-        end = self.rig.now_s + seconds
-        while self.rig.now_s < end - 1e-9:
-            self.rig.run_until(self.rig.now_s + 0.02)
-            self.mc.cycle()
+        super().__init__(model, tmp_path / "h.sqlite3", ik=IKSolver(model))
 
     def z(self):
         return self.states[-1]["pose"]["z"]
-
-    def close(self):
-        self.store.close()
-        self.rig.close()
 
 
 @pytest.fixture

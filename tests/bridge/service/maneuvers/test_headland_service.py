@@ -16,18 +16,10 @@ from bridge.service.client import HitchClient, ServiceError
 from bridge.service.config import ServiceConfig
 from bridge.service.gnss import LocalTangentPlane
 from bridge.service.server import HitchService
+from tests.helpers import wait_until
 from tests.integration.service_process import free_port
 
 pytestmark = pytest.mark.slow
-
-
-def _wait(pred, timeout_s: float = 15.0, period_s: float = 0.02) -> bool:
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(period_s)
-    return False
 
 
 def _start(tmp_path, **kw) -> tuple[HitchService, str]:
@@ -35,7 +27,7 @@ def _start(tmp_path, **kw) -> tuple[HitchService, str]:
     cfg = ServiceConfig(listen=[ep], data_dir=tmp_path, planning_processes=1, **kw)
     svc = HitchService(cfg).start()
     try:
-        assert _wait(lambda: (svc.latest_state or {}).get("ecu", {}).get("online")), "no state from the core"
+        assert wait_until(lambda: (svc.latest_state or {}).get("ecu", {}).get("online")), "no state from the core"
     except BaseException:
         svc.close()
         raise
@@ -70,10 +62,10 @@ def test_pause_resume_skip_and_teach_in_through_the_core_process(service):
         script = "steps:\n  - goto: {z: 0.3, speed_scale: 0.5}\n  - wait: 30\n  - goto: {z: 0.0}\n"
         c.request("maneuvers/save", {"name": "m", "script": script})
         c.request("maneuvers/run", {"name": "m"})
-        assert _wait(lambda: _z(svc) > 0.03, 10.0), "the first step did not start"
+        assert wait_until(lambda: _z(svc) > 0.03, 10.0), "the first step did not start"
         r = c.request("maneuvers/pause", {})
         assert r["maneuver"]["paused"] is True and r["maneuver"]["step"] == 0, r
-        assert _wait(lambda: not svc.latest_state["moving"], 5.0), "the pause did not brake to rest"
+        assert wait_until(lambda: not svc.latest_state["moving"], 5.0), "the pause did not brake to rest"
         held = _z(svc)
         time.sleep(1.0)
         assert abs(_z(svc) - held) < 2e-3 and held < 0.28, held  # held short of the goal
@@ -83,14 +75,16 @@ def test_pause_resume_skip_and_teach_in_through_the_core_process(service):
         assert e.value.code == "busy"
         r = c.request("maneuvers/resume", {})
         assert r["maneuver"]["paused"] is False
-        assert _wait(lambda: (_maneuver(svc) or {}).get("step") == 1, 15.0), _maneuver(svc)
-        assert _wait(lambda: abs(_z(svc) - 0.3) < 5e-3, 5.0), _z(svc)  # re-planned from where it stood, to its goal
+        assert wait_until(lambda: (_maneuver(svc) or {}).get("step") == 1, 15.0), _maneuver(svc)
+        assert wait_until(lambda: abs(_z(svc) - 0.3) < 5e-3, 5.0), _z(
+            svc
+        )  # re-planned from where it stood, to its goal
         m = _maneuver(svc)
         assert m["kind"] == "wait" and 20 < m["time_left"] <= 30, m
         r = c.request("maneuvers/skip", {})
         assert r["maneuver"]["step"] == 2, r
-        assert _wait(lambda: _maneuver(svc) is None, 15.0)
-        assert _wait(lambda: abs(_z(svc)) < 5e-3, 5.0), _z(svc)
+        assert wait_until(lambda: _maneuver(svc) is None, 15.0)
+        assert wait_until(lambda: abs(_z(svc)) < 5e-3, 5.0), _z(svc)
         names = [e.get("event") for e in events]
         for n in ("maneuver_paused", "maneuver_resumed", "maneuver_skipped", "maneuver_finished"):
             assert n in names, names
@@ -111,10 +105,10 @@ def test_pause_resume_skip_and_teach_in_through_the_core_process(service):
         assert steps[1] in ("wait", "wait_for"), r["script"]  # the simulated tractor drives: maybe a distance
         c.request("maneuvers/save", {"name": "taught", "script": r["script"]})
         c.request("maneuvers/run", {"name": "taught"})
-        assert _wait(
+        assert wait_until(
             lambda: any(e.get("event") == "maneuver_finished" and e.get("maneuver") == "taught" for e in events), 30.0
         ), [e for e in events if str(e.get("event", "")).startswith("maneuver")][-4:]
-        assert _wait(lambda: abs(_z(svc) - 0.05) < 5e-3, 5.0), _z(svc)
+        assert wait_until(lambda: abs(_z(svc) - 0.05) < 5e-3, 5.0), _z(svc)
 
 
 def _line_across(plane: LocalTangentPlane, east_m: float) -> dict:
@@ -139,7 +133,7 @@ def test_the_twins_gnss_fires_a_line_trigger_in_a_running_service(tmp_path, core
                 "hitch/tractor/gnss", lambda m: fixes.append(json.loads(m.payload.to_bytes()))
             )
             try:
-                assert _wait(lambda: len(fixes) >= 3, 10.0), "the twin publishes no GNSS"
+                assert wait_until(lambda: len(fixes) >= 3, 10.0), "the twin publishes no GNSS"
                 plane = LocalTangentPlane(*origin)
                 e0, n0 = plane.to_local(fixes[-1]["lat"], fixes[-1]["lon"])
                 assert abs(n0) < 0.05 and e0 > 0.0  # on the documented course: east of the origin
@@ -156,7 +150,7 @@ def test_the_twins_gnss_fires_a_line_trigger_in_a_running_service(tmp_path, core
                     },
                 )
                 c.request("maneuvers/run", {"name": "h"})
-                assert _wait(lambda: (_maneuver(svc) or {}).get("step") == 1, 20.0), _maneuver(svc)
+                assert wait_until(lambda: (_maneuver(svc) or {}).get("step") == 1, 20.0), _maneuver(svc)
                 east_at_step = plane.to_local(fixes[-1]["lat"], fixes[-1]["lon"])[0]
                 assert line_e - 0.5 <= east_at_step <= line_e + 2.0, (east_at_step, line_e)  # at the line, 10 Hz fixes
                 lines = c.request("lines/list", {})["lines"]

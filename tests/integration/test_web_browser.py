@@ -852,8 +852,10 @@ def test_with_access_control_the_page_asks_for_a_login(secured, page, shots):
         assert pg.is_disabled("button.jog[data-dof='z'][data-sign='1']")
         tab(pg, "goto")
         assert pg.is_disabled("#goto-go")
-        for sel in ACTION_BUTTONS:  # the command row too: a viewer watches and stops
+        for sel in ACTION_BUTTONS:  # the quick row and the tabs' commands too: a viewer watches and stops
+            show(pg, sel)
             assert pg.is_disabled(sel), sel
+        tab(pg, "goto")
         # the viewer's own command through the page: refused by the service as victor, not run as --http-user olga
         pg.evaluate("document.getElementById('goto-go').disabled = false")
         pg.fill("#goto-form input[name=z]", "100")
@@ -881,8 +883,18 @@ def test_with_access_control_the_page_asks_for_a_login(secured, page, shots):
 
 
 # ---------------------------------------------------------------------------------------------- the command row
-ACTION_BUTTONS = ("#act-raise", "#act-return", "#act-lock", "#act-implement", "#act-record", "#act-pause")
-ACTION_BUTTONS += ("#act-resume", "#act-skip")
+# the quick row (under the tab area, whatever tab is open) and the commands that live in a tab
+QUICK_BUTTONS = ("#act-raise", "#act-return", "#act-pause", "#act-resume", "#act-skip")
+WORK_CONTROLS = ("#work-mode", "#work-settings", "#work-toggle", "#work-resume", "#work-status")
+CONTROL_TAB = {"#act-implement": "implement", "#act-lock": "implement", "#act-record": "maneuvers"}
+CONTROL_TAB.update({sel: "work" for sel in WORK_CONTROLS})
+ACTION_BUTTONS = QUICK_BUTTONS + ("#act-lock", "#act-implement", "#act-record")
+
+
+def show(pg, sel: str) -> None:
+    """Open the tab that holds ``sel`` (the quick row's controls need none)."""
+    if sel in CONTROL_TAB:
+        tab(pg, CONTROL_TAB[sel])
 
 
 def _settle(service, goal: dict, timeout_s: float = 20.0) -> dict:
@@ -910,21 +922,35 @@ def test_action_row_raise_return_lock_and_the_implement_chooser(service, page, s
     headland = {"x": 0.0, "z": 0.25, "roll": 0.0, "pitch": 0.0}
     status, reply = service.api(
         "implements/define",
-        {"name": "plough", "category": "2", "mass_kg": 300.0, "com_m": [0.0, 0.5, 0.3], "headland": headland},
+        {
+            "name": "plough",
+            "category": "2",
+            "mass_kg": 300.0,
+            "com_m": [0.0, 0.5, 0.3],
+            "headland": headland,
+            "upper_height_m": 0.30,
+            "lowering_speed_m_s": 0.2,
+        },
     )
     assert status == 200, reply
     page.reload()  # the chooser lists the implements when the page connects
     _connected(page, service.url)
-    for sel in ACTION_BUTTONS:  # every control present, inside the cab display
+    for sel in ACTION_BUTTONS:  # every control present (in its tab), inside the cab display
+        show(page, sel)
         box = page.locator(sel).bounding_box()
         assert box is not None and box["x"] >= 0 and box["x"] + box["width"] <= 1024.5, (sel, box)
         assert box["y"] + box["height"] <= 600.5, (sel, box)
     assert page.evaluate("[document.documentElement.scrollWidth, document.documentElement.scrollHeight]") == [1024, 600]
     page.wait_for_selector("#act-implement option[value='plough']", state="attached")
+    tab(page, "implement")
     page.select_option("#act-implement", "plough")
     wait_js(page, "document.getElementById('act-result').textContent === 'implement: plough'")
     assert service.api("implements/list")[1]["selected"] == "plough"
     wait_js(page, "document.getElementById('act-lock').textContent === 'Lock: off'")
+    # the Implement tab names it in full with its record and limits (upper height 300 mm, lowering 200 mm/s)
+    assert page.evaluate("document.getElementById('act-implement').selectedOptions[0].textContent") == "plough"
+    wait_js(page, "document.getElementById('imp-limits').textContent.includes('300.0 mm (tool point z)')")
+    assert "200 mm/s" in page.text_content("#imp-limits")
     # work pose → Raise (headland) → Return (the work pose again)
     work = {"x": 0.02, "z": 0.0, "roll": 0.0, "pitch": 0.0}
     assert service.api("goto", {"goal": work})[0] == 200
@@ -932,6 +958,7 @@ def test_action_row_raise_return_lock_and_the_implement_chooser(service, page, s
     page.click("#act-raise")
     wait_js(page, "document.getElementById('act-result').textContent.startsWith('raise: moving')")
     _settle(service, headland)
+    wait_js(page, "document.getElementById('imp-limits').textContent.includes('left 20.0 mm')")  # the last work pose
     page.screenshot(path=str(shots / "21-actions-row.png"))
     page.click("#act-return")
     wait_js(page, "document.getElementById('act-result').textContent.startsWith('return: moving')")
@@ -953,6 +980,8 @@ def test_action_row_raise_return_lock_and_the_implement_chooser(service, page, s
     page.click("#act-lock")
     wait_js(page, "document.getElementById('act-lock').textContent === 'Lock: on'")
     assert page.get_attribute("#act-lock", "aria-pressed") == "true"
+    assert page.text_content("#imp-lock-text").startswith("transport lock on")
+    page.screenshot(path=str(shots / "26-implement-tab.png"))
     goal = {"z": 0.1}
     tab(page, "goto")
     for k in ("x", "z", "roll", "pitch"):
@@ -961,6 +990,7 @@ def test_action_row_raise_return_lock_and_the_implement_chooser(service, page, s
     wait_js(page, "document.getElementById('goto-result').textContent.includes('transport-locked')")
     assert "goto refused: the implement is transport-locked" in page.text_content("#goto-result")
     assert not service.state()["moving"]
+    tab(page, "implement")
     page.click("#act-lock")
     wait_js(page, "document.getElementById('act-lock').textContent === 'Lock: off'")
     assert page.errors == []
@@ -970,11 +1000,13 @@ def test_record_review_save_and_pause_resume_of_a_running_maneuver(service, page
     _connected(page, service.url)
     at_rest(service, page)
     z0 = service.state()["pose"]["z"]
+    tab(page, "maneuvers")  # teach-in lives with the maneuvers
     page.click("#act-record")
     wait_js(page, "document.getElementById('act-record').getAttribute('aria-pressed') === 'true'")
     for z in (0.12 if z0 < 0.05 else -0.05, z0):
         goto_target(service, page, {"z": z})
         wait_for(lambda: not service.state()["moving"], 15, "the recorded goto to end")
+    tab(page, "maneuvers")
     page.click("#act-record")
     page.wait_for_selector("#review:not(.hidden)")
     script = page.input_value("#review-script")
@@ -991,6 +1023,7 @@ def test_record_review_save_and_pause_resume_of_a_running_maneuver(service, page
     wait_js(page, "document.getElementById('act-record').getAttribute('aria-pressed') === 'true'")
     goto_target(service, page, {"z": z0 + 0.01})
     wait_for(lambda: not service.state()["moving"], 15, "the goto to end")
+    tab(page, "maneuvers")
     page.click("#act-record")
     page.wait_for_selector("#review:not(.hidden)")
     page.click("#review-cancel")
@@ -1012,6 +1045,7 @@ def test_record_review_save_and_pause_resume_of_a_running_maneuver(service, page
     page.click("#act-pause")
     wait_for(lambda: (service.state()["maneuver"] or {}).get("paused") is True, 5, "the maneuver to pause")
     wait_js(page, "document.getElementById('act-progress').textContent.endsWith('· paused')")
+    assert page.is_visible("#act-progress")  # while a maneuver runs the quick row's line is its progress
     assert page.is_disabled("#act-pause") and not page.is_disabled("#act-resume")
     left = service.state()["maneuver"]["time_left"]
     time.sleep(0.5)
@@ -1025,6 +1059,73 @@ def test_record_review_save_and_pause_resume_of_a_running_maneuver(service, page
     wait_for(lambda: service.state()["maneuver"] is None, 10, "the maneuver to end")
     wait_js(page, "document.getElementById('act-progress').textContent === 'no maneuver running'")
     assert page.is_disabled("#act-pause") and page.is_disabled("#act-skip")
+    assert page.is_hidden("#act-progress") and page.is_visible("#act-result")  # idle: the line shows the answers
+    assert page.errors == []
+
+
+# the last control of each tab (what an operator must reach without scrolling)
+TAB_LAST = {
+    "jog": "#jog-speed",
+    "goto": "#goto-go",
+    "presets": "#preset-list li:last-child button:last-child",
+    "maneuvers": "#maneuver-editor summary",
+    "implement": "#imp-limits dd:last-of-type",
+    "work": "#work-summary",
+    "help": "#config dd:last-of-type",
+}
+
+
+def test_every_tab_fits_the_cab_display(service, page, shots):
+    """At 1024×600 every tab's content is whole without scrolling — its last control inside the viewport
+    and inside the tab, the tab needing no scrolling, the page neither — while the quick row stays in view
+    under it and the tab bar shows every label whole. Run after the maneuver tests: several stored
+    maneuvers and a preset in the lists."""
+    _connected(page, service.url)
+    at_rest(service, page)
+    if not service.api("presets/list")[1]["presets"]:  # run alone: one of each to list
+        assert service.api("presets/save", {"name": "start"})[0] == 200
+    if not service.api("maneuvers/list")[1]["maneuvers"]:
+        assert (
+            service.api("maneuvers/save", {"name": "waits", "script": "name: waits\nsteps:\n  - wait: 1\n"})[0] == 200
+        )
+    page.reload()  # the lists as the page reads them on connecting
+    _connected(page, service.url)
+    assert page.eval_on_selector_all(".tabs button", "bs => bs.map(b => b.dataset.tab)") == list(TAB_LAST)
+    for name, last in TAB_LAST.items():
+        tab(page, name)
+        if name in ("presets", "maneuvers"):
+            page.wait_for_selector(f"#{'preset' if name == 'presets' else 'maneuver'}-list li")
+        if name == "help":
+            wait_js(page, "document.querySelectorAll('#config dd').length > 0")
+        pane = page.locator(f"#tab-{name}").bounding_box()
+        box = page.locator(last).bounding_box()
+        assert pane is not None and box is not None, (name, last)
+        assert box["y"] >= pane["y"] - 0.5 and box["y"] + box["height"] <= pane["y"] + pane["height"] + 0.5, (
+            name,
+            last,
+            box,
+            pane,
+        )
+        assert box["y"] + box["height"] <= 600, (name, last, box)  # inside the cab display
+        assert box["x"] >= 0 and box["x"] + box["width"] <= 1024.5, (name, last, box)
+        scroll = page.evaluate(f"(e => [e.scrollHeight, e.clientHeight])(document.getElementById('tab-{name}'))")
+        assert scroll[0] <= scroll[1] + 1, (name, scroll)  # no scrolling needed inside the tab
+        assert page.evaluate("[document.documentElement.scrollWidth, document.documentElement.scrollHeight]") == [
+            1024,
+            600,
+        ], name
+        for sel in QUICK_BUTTONS + ("#stop", "#level-toggle"):  # the quick row, STOP and levelling stay in view
+            q = page.locator(sel).bounding_box()
+            assert q is not None and q["y"] >= 0 and q["y"] + q["height"] <= 600, (name, sel, q)
+            assert q["y"] >= pane["y"] + pane["height"] or q["y"] + q["height"] <= pane["y"], (name, sel, q, pane)
+    labels = page.eval_on_selector_all(
+        ".tabs button", "bs => bs.map(b => [b.textContent, b.scrollWidth, b.clientWidth])"
+    )
+    assert all(sw <= cw for _, sw, cw in labels), labels  # no label cut short
+    assert min(cw for _, _, cw in labels) >= 34, labels  # still a touch target
+    tab(page, "maneuvers")
+    page.screenshot(path=str(shots / "27-maneuvers-tab.png"))
+    tab(page, "jog")
     assert page.errors == []
 
 
@@ -1035,10 +1136,13 @@ def test_the_action_row_fits_800x480(service, page, shots):
         assert page.evaluate("document.documentElement.scrollWidth") == 800  # no sideways overflow
         row = page.locator("#actions").bounding_box()
         assert row is not None and row["x"] >= 0 and row["x"] + row["width"] <= 800.5, row
-        for sel in ACTION_BUTTONS:
+        for sel in ACTION_BUTTONS + WORK_CONTROLS[:-1]:
+            show(page, sel)
             box = page.locator(sel).bounding_box()
             assert box is not None and box["x"] >= 0 and box["x"] + box["width"] <= 800.5, (sel, box)
             assert box["width"] >= 60 and box["height"] >= 40, (sel, box)  # still a touch target
+            assert page.evaluate("document.documentElement.scrollWidth") == 800, sel
+        tab(page, "jog")
         page.locator("#actions").scroll_into_view_if_needed()  # at 800×480 the panels below the header scroll
         page.screenshot(path=str(shots / "24-actions-800x480.png"))
     finally:
@@ -1046,16 +1150,16 @@ def test_the_action_row_fits_800x480(service, page, shots):
 
 
 # ---------------------------------------------------------------------------------------------- work control
-WORK_CONTROLS = ("#work-mode", "#work-settings", "#work-toggle", "#work-resume", "#work-status")
 
 
 def test_work_control_settings_start_stop_and_the_fallback_without_a_field(service, page, shots):
-    """The work block in the command row at 1024×600: the mode and the settings (kN, cm) put through the
+    """The Work tab at 1024×600: the mode and the settings (kN, cm) put through the
     page reach the service's stored settings in SI; Start opens a work session which — this service has
     no sim field, so no draft on the bus — falls back to position control at once, shown in words with
     the setpoint in kN; Resume is offered; Stop ends it. Still no overflow at 800×480."""
     _connected(page, service.url)
     at_rest(service, page)
+    tab(page, "work")
     for sel in WORK_CONTROLS:  # inside the cab display, no scrolling
         box = page.locator(sel).bounding_box()
         assert box is not None and box["x"] >= 0 and box["x"] + box["width"] <= 1024.5, (sel, box)

@@ -1177,9 +1177,11 @@
   }
 
 
-  // ------------------------------------------------------------------ the command row (#actions)
-  // Raise / Return, the transport lock, the implement chooser, teach-in (record → review → save) and
-  // pause / resume / skip of the running maneuver with its progress from the state's `maneuver`.
+  // ------------------------------------------------------------------ quick row, Implement tab, teach-in
+  // The quick row (#actions, whatever tab is open): Raise / Return and pause / resume / skip of the
+  // running maneuver with its progress from the state's `maneuver`, one line under it for the answers.
+  // The Implement tab: the chooser, the transport lock and the implement's record and limits; the
+  // Maneuvers tab: teach-in (record → review → save).
   const actions = {
     implements: [], selected: null, recording: false, busy: false,
     isViewer: () => document.body.classList.contains("viewer"),
@@ -1190,6 +1192,9 @@
       b.textContent = imp ? `Lock: ${locked ? "on" : "off"}` : "Lock: —";
       b.setAttribute("aria-pressed", String(locked));
       b.disabled = this.isViewer() || !imp;
+      const t = $("#imp-lock-text");
+      t.textContent = !imp ? "no implement selected: raise, return and the lock need one"
+        : locked ? "transport lock on: every motion but STOP is refused" : "transport lock off: the hitch may move";
       for (const id of ["#act-raise", "#act-return"]) $(id).disabled = this.isViewer() || !imp;
     },
     drawImplements() {
@@ -1205,6 +1210,29 @@
       sel.value = this.selected || "";
       sel.disabled = this.isViewer();
       this.drawLock();
+      this.drawRecord();
+    },
+    // the selected implement's record and limits in operator units (what implements/list says)
+    drawRecord() {
+      const dl = $("#imp-limits"), imp = this.current(), rows = [];
+      dl.textContent = "";
+      const zero = (k, v) => (Math.abs(v * dofK(k)) < 0.05 ? 0 : v);   // no "-0.0"
+      const pose = (p) => p ? DOFS.filter((k) => Number.isFinite(p[k])).map((k) => k === "x" ? show_x(p.x) : `${k} ${showDof(k, zero(k, p[k]))}`).join(" · ") : null;
+      if (!imp) rows.push(["implement", this.selected === "default" || !this.selected ? "none (the hitch alone)" : this.selected]);
+      else {
+        rows.push(["category, mass", `ISO 730 cat. ${imp.category} · ${fmt(imp.mass_kg, 0)} kg`]);
+        if (Array.isArray(imp.com_m)) rows.push(["centre of mass", `${imp.com_m.map((v) => fmt(v * 1000, 0)).join(" · ")} mm (x · y · z)`]);
+        rows.push(["upper height", Number.isFinite(imp.upper_height_m) ? `${show_mm(imp.upper_height_m)} (tool point z)` : "no limit"]);
+        rows.push(["lowering speed", Number.isFinite(imp.lowering_speed_m_s) ? `${fmt(imp.lowering_speed_m_s * 1000, 0)} mm/s` : "no limit"]);
+        rows.push(["headland pose", pose(imp.headland) || "the preset “headland”"]);
+        rows.push(["last work pose", pose(imp.last_work) || "none yet (set by a raise)"]);
+        rows.push(["source", imp.source === "profile" ? "tractor profile (stored when selected)" : "stored"]);
+        if (imp.description) rows.push(["description", imp.description]);
+      }
+      for (const [k, v] of rows) {
+        const dt = document.createElement("dt"), dd = document.createElement("dd");
+        dt.textContent = k; dd.textContent = v; dd.title = v; dl.append(dt, dd);
+      }
     },
     // the running maneuver's step, kind and what is left, from the state
     draw(s) {
@@ -1216,7 +1244,7 @@
       const rec = $("#act-record");
       rec.setAttribute("aria-pressed", String(this.recording));
       rec.textContent = this.recording ? "■ Stop rec." : "● Record";
-      if (!man) { p.textContent = "no maneuver running"; p.className = "act-line"; return; }
+      if (!man) { p.textContent = "no maneuver running"; p.className = "act-line idle"; return; }
       const steps = ui.maneuverSteps[man.name] || 0, step = Number.isInteger(man.step) ? man.step + 1 : "—";
       let text = `${man.name || "maneuver"}: step ${step}${steps ? " of " + steps : ""}`;
       if (man.kind) text += ` · ${man.kind.replace("_", " ")}`;
@@ -1242,7 +1270,10 @@
     if (r.ok) actions.say(okText(r.data), true); else actions.say(r.data.message || `${key}: ${r.data.error}`, false);
     return r;
   }
-  $("#act-raise").addEventListener("click", () => actionCall("hitch/raise", {}, (d) => `raise: moving, motion #${d.motion_id}, ${fmt(d.duration, 1)} s`));
+  $("#act-raise").addEventListener("click", async () => {
+    const r = await actionCall("hitch/raise", {}, (d) => `raise: moving, motion #${d.motion_id}, ${fmt(d.duration, 1)} s`);
+    if (r.ok) refreshImplements();   // the raise's start became the implement's last work pose
+  });
   $("#act-return").addEventListener("click", () => actionCall("hitch/return", {}, (d) => `return: moving, motion #${d.motion_id}, ${fmt(d.duration, 1)} s`));
   $("#act-lock").addEventListener("click", async () => {
     const imp = actions.current();
@@ -1302,7 +1333,7 @@
     refreshManeuvers();
   });
 
-  // ------------------------------------------------------------------ work control (in #actions)
+  // ------------------------------------------------------------------ work control (the Work tab)
   // Mode, settings (draft setpoint in kN, blend, depth limits in cm: the API's N and m), Start/Stop and
   // Resume after a fallback; the state's `work` block in words. Self-contained: it follows ui.state on
   // its own timer and reads the selected implement's settings (work/settings) on each connection.
@@ -1352,7 +1383,11 @@
       $("#work-resume").disabled = viewer || !running || !w.fallback;
       const text = this.words(w);
       st.textContent = text; st.title = text;
-      st.className = `act-line ${running ? (w.fallback ? "fallback" : "running") : ""}`;
+      st.className = `work-line ${running ? (w.fallback ? "fallback" : "running") : ""}`;
+      const set = this.settings, sum = $("#work-summary");
+      sum.textContent = set ? `settings${this.implement ? ` of ${this.implement === "default" ? "no implement" : this.implement}` : ""}: ` +
+        `${set.mode} · draft setpoint ${this.kn(set.draft_setpoint_n)} kN · blend ${set.blend} · depth ${this.cm(set.depth_min_m)}–${this.cm(set.depth_max_m)} cm`
+        : "settings: —";
     },
     tick() {
       if (!ui.state) return;

@@ -50,12 +50,16 @@ the camera's stated noise, :meth:`RowModel.from_row`), with a Rauch–Tung–Str
 the samples already seen; its slope times the ground speed is the setpoint's velocity. The client
 keys every camera sample by the distance the camera saw it at (the wheel odometer's distance plus
 the camera's look-ahead :attr:`bridge.sim.terrain.RowSignal.camera_ahead_m`, a documented sensor
-geometry). With ``row_lead`` the setpoint is the row at the implement's position ``lead_s`` ahead
-(distance + speed × lead): with a camera ahead of the implement (preview) that point was already
-seen and is smoothed; with the camera under the implement it is the model's prediction. The lead
-(:func:`follower_lead_s`) comes from the follower's limits: two control cycles (the setpoint is
-taken at the next cycle, its reference reaches the ECU one cycle later) plus the follower's rise
-time to full speed, v/a + a/j.
+geometry). ``LoopSettings.row_setpoint``: ``now`` sends the row under the implement now; ``lead``
+the row at the implement's position ``lead_s`` ahead (distance + speed × lead): with a camera ahead
+of the implement (preview) that point was already seen and is smoothed, with the camera under the
+implement it is the model's prediction. The lead (:func:`follower_lead_s`) comes from the
+follower's limits: two control cycles (the setpoint is taken at the next cycle, its reference
+reaches the ECU one cycle later) plus the follower's rise time to full speed, v/a + a/j. ``plan``
+(with a preview): with every camera sample a :class:`PreviewPlanner` path over the preview window
+(the smoothed row, within :attr:`PreviewPlanner.MARGIN` of the follower's limits), sent two cycles
+ahead with its velocity: a setpoint stream the follower can follow without the lag of a saturated
+re-targeting.
 
 Counts (:attr:`TrackLoopResult.counts`): streamed references outside the actuator strokes (the link
 refuses them: must be 0), refused references (``limit_reached`` events with a message), limit events
@@ -645,25 +649,26 @@ class PreviewPlanner:
         n = int(r.size)
         if n < 8 or not np.all(np.isfinite(r)):
             raise TrackLoopError(f"preview plan: the reference needs >= 8 finite samples, got {n}")
-        prev = self._previous(t0, n)
-        off = float(np.mean(r))
+        prev = self._previous(t0, n, extend=True)
         x = None
         if prev is not None:
-            x = self._solve(n, r, off, prev)
+            x = self._solve(r, prev, 3)
         if x is None:
-            x = self._solve(n, r, off, None)
+            x = self._solve(r, np.full(n, float(np.mean(r))), 0)
         if x is None:
             self.failures += 1
-            x = r if self._x is None else self._previous(t0, n, extend=True)
-            assert x is not None
+            x = r if prev is None else prev
         self._t0, self._x = t0, x
         return x
 
-    def _solve(self, n: int, r: np.ndarray, off: float, fixed: np.ndarray | None) -> np.ndarray | None:
+    def _solve(self, r: np.ndarray, base: np.ndarray, k: int) -> np.ndarray | None:
+        """The QP in the deviation δ from ``base`` (the previous plan continued, or a constant), in
+        :data:`_PLAN_UNIT_M`, the first ``k`` samples kept at ``base``: its bounds stay of order one
+        (OSQP's tolerance is then relative to the bounds, not to the path's offset)."""
         import osqp  # only a previewing client pays its import
         import scipy.sparse as sp_
 
-        k = 0 if fixed is None else fixed.size
+        n = int(r.size)
         key = (n, k)
         if key not in self._solvers:
             rows = []
@@ -675,40 +680,42 @@ class PreviewPlanner:
                     * (_PLAN_UNIT_M / (bound * self.dt**order))
                 )
             a = sp_.vstack(rows, format="csc")
-            a_fixed, a_free = a[:, :k].toarray(), a[:, k:].tocsc()
-            # rows of fixed samples alone: nothing to decide (the previous plan kept them)
-            solver = osqp.OSQP()
+            a_free = a[:, k:].tocsc()
+            free_rows = np.diff(a_free.tocsr().indptr) > 0  # rows of kept samples alone decide nothing
             one = np.ones(a.shape[0])
+            solver = osqp.OSQP()
             solver.setup(
                 sp_.identity(n - k, format="csc"), np.zeros(n - k), a_free, -one, one, eps_abs=self.EPS,
-                eps_rel=self.EPS, polishing=True, max_iter=40000, verbose=False, warm_starting=True,
+                eps_rel=self.EPS, polishing=False, max_iter=40000, verbose=False, warm_starting=True,
             )  # fmt: skip
-            self._solvers[key] = (solver, a_fixed, a.shape[0])
-        solver, a_fixed, m_rows = self._solvers[key]
-        lo, hi = -np.ones(m_rows), np.ones(m_rows)
-        if fixed is not None:
-            shift = a_fixed @ ((fixed - off) / _PLAN_UNIT_M)
-            lo, hi = lo - shift, hi - shift  # rows of fixed samples alone: kept by the previous plan
-        solver.update(q=-(r[k:] - off) / _PLAN_UNIT_M, l=lo, u=hi)
+            self._solvers[key] = (solver, a.tocsr(), free_rows)
+        solver, a_full, free_rows = self._solvers[key]
+        at_base = a_full @ (base / _PLAN_UNIT_M)
+        lo = np.where(free_rows, -1.0 - at_base, -np.inf)
+        hi = np.where(free_rows, 1.0 - at_base, np.inf)
+        solver.update(q=(base[k:] - r[k:]) / _PLAN_UNIT_M, l=lo, u=hi)
         res = solver.solve(raise_error=False)
         if res.x is None or not str(res.info.status).startswith("solved"):  # "solved inaccurate" taken too
             return None
-        x = np.empty(n)
-        if fixed is not None:
-            x[:k] = fixed
-        x[k:] = np.asarray(res.x, float) * _PLAN_UNIT_M + off
+        x = base.copy()
+        x[k:] += np.asarray(res.x, float) * _PLAN_UNIT_M
         return x
 
     def _previous(self, t0: float, n: int, *, extend: bool = False) -> np.ndarray | None:
-        """The previous plan at the first three samples from ``t0`` (all ``n`` with ``extend``, held at
-        its end); None without one covering them."""
+        """The previous plan at the first three samples from ``t0`` (all ``n`` with ``extend``, continued
+        with its last velocity beyond its end); None without one covering the first three."""
         if self._x is None or self._t0 is None:
             return None
         tp = self._t0 + self.dt * np.arange(self._x.size)
         ts = t0 + self.dt * np.arange(n if extend else 3)
-        if not extend and ts[-1] > tp[-1] + 1e-9:
+        if ts[2] > tp[-1] + 1e-9:
             return None
-        return np.interp(ts, tp, self._x)
+        out = np.interp(ts, tp, self._x)
+        if extend and self._x.size >= 2:  # beyond its end: on with its last velocity
+            v = (self._x[-1] - self._x[-2]) / self.dt
+            past = ts > tp[-1]
+            out[past] = self._x[-1] + v * (ts[past] - tp[-1])
+        return out
 
 
 def follower_lead_s(limits_velocity: float, limits_acceleration: float, limits_jerk: float, dt: float) -> float:

@@ -513,13 +513,18 @@ class TrackFollower:
         """The cycle's target (position, velocity, acceleration, flags) at ``now_s``: the setpoint
         extrapolated with its velocity, clipped to the workspace, its velocity capped so that a
         jerk-limited stop from the target fits before the face (its acceleration then dropped when
-        it pushes towards the face)."""
+        it pushes towards the face). While the *requested* setpoint, extrapolated with its requested
+        velocity, is beyond a face, the target is that face at rest: a demand beyond the face that
+        heads back inside does not pull the target off the face before it is inside again (the
+        hitch would leave the face and come back to it)."""
         sp = self._sp
         lo, hi = self.lo, self.hi
         if sp is None:
             return self.hold.copy(), np.zeros(4), np.zeros(4), {}
         flags = dict(sp.limited)
-        p = sp.position + sp.velocity * max(now_s - sp.t, 0.0)
+        ahead = max(now_s - sp.t, 0.0)
+        p = sp.position + sp.velocity * ahead
+        p_req = sp.requested_position + sp.requested_velocity * ahead
         # the limits may have changed since the setpoint was taken (a new box): a reachable target again
         vl, al = self._v_lim, self._a_lim
         v = np.clip(sp.velocity, -vl, vl)
@@ -532,7 +537,13 @@ class TrackFollower:
         for d, (k, (name_min, name_max)) in enumerate(zip(TRACK_DOFS, self._names, strict=True)):
             if not self.tracked[d]:
                 continue
-            if p[d] >= hi[d]:
+            if p_req[d] >= hi[d]:  # the demand is beyond the face: at the face, at rest
+                p[d], v[d], acc[d] = hi[d], 0.0, 0.0
+                flags.setdefault(k, name_max)
+            elif p_req[d] <= lo[d]:
+                p[d], v[d], acc[d] = lo[d], 0.0, 0.0
+                flags.setdefault(k, name_min)
+            elif p[d] >= hi[d]:
                 p[d] = hi[d]
                 flags.setdefault(k, name_max)
             elif p[d] <= lo[d]:

@@ -461,3 +461,36 @@ def test_a_single_dof_at_full_speed_towards_a_face_stops_inside_when_the_stream_
     P = np.array([o.state.position for o in outs])
     assert np.all(outside(tp, P) <= BOUND), outside(tp, P).max(axis=0)
     check_actuator_limits(tp, tp.inverse.solve(c)[0], outs, tr.dt)
+
+
+@pytest.mark.parametrize("side", [-1, 1])
+def test_a_demand_beyond_a_face_heading_back_keeps_the_target_on_the_face_at_rest(tp, side):
+    # roll at its face; the demand (the tractor's roll beyond the workspace) heads back inside at
+    # 20 mrad/s but stays beyond the face for 1 s: the hitch stays at the face, at rest, until the
+    # demand is inside again (before: the target took the demand's inward velocity at the face, the
+    # hitch left the face by ~0.4 mrad and came back to it, and the pistons overshot the face)
+    d = 2
+    face = tp.hi[d] if side > 0 else tp.lo[d]
+    start = centre(tp)
+    start[d] = face
+    tr = TrackFollower(tp, MotionState.at_rest(start), ("roll",), 0.2)
+    rate = -side * 0.02  # back towards the inside
+
+    def demand(t):
+        return {"roll": float(face + side * 0.02 + rate * t)}
+
+    def stream(cycles):  # as a client streams: one setpoint a cycle, taken a cycle before it is followed
+        outs = []
+        for _ in range(cycles):
+            tr.set_setpoint(demand(tr.t), {"roll": rate}, tr.t)
+            outs.append(tr.step())
+        return outs
+
+    outs = stream(45)  # 0.9 s: the demand still beyond the face
+    pos = np.array([o.state.position[d] for o in outs])
+    assert np.max(np.abs(pos - face)) < 1e-6, np.max(np.abs(pos - face))
+    assert not outs[-1].moving
+    assert outs[-1].limited["roll"] == f"workspace:roll:{'max' if side > 0 else 'min'}"
+    # once the demand is inside again the hitch follows it back
+    outs = stream(50)
+    assert abs(outs[-1].state.position[d] - face) > 5e-3

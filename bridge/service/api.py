@@ -263,8 +263,8 @@ class ServiceAPI:
     def _goto(self, r: GotoRequest) -> dict:
         deadline, issued = self._timing(r.deadline_ms)
         reply = self.motion.goto(r.goal.as_dict(), r.speed_scale, deadline=deadline, issued=issued).to_json()
-        if self.recorder is not None:  # teach-in
-            self.recorder.on_goto(r.goal.as_dict(), r.speed_scale, float(reply.get("duration", 0.0)))
+        if (rec := self.recorder) is not None:  # teach-in (read once: a record/stop may run meanwhile)
+            rec.on_goto(r.goal.as_dict(), r.speed_scale, float(reply.get("duration", 0.0)))
         return reply
 
     def _jog(self, r: JogRequest) -> dict:
@@ -273,8 +273,8 @@ class ServiceAPI:
             raise MotionError("busy", f"refused: it arrived more than {r.deadline_ms} ms ago (its deadline)")
         rates = {"vx": r.vx, "vz": r.vz, "vroll": r.vroll, "vpitch": r.vpitch}
         reply = self.motion.jog(rates, r.ttl_ms / 1000.0).to_json()
-        if self.recorder is not None:  # teach-in
-            self.recorder.on_jog(r.ttl_ms / 1000.0)
+        if (rec := self.recorder) is not None:  # teach-in (read once: a record/stop may run meanwhile)
+            rec.on_jog(r.ttl_ms / 1000.0)
         return reply
 
     def _stop(self, _r: object) -> dict:  # whatever came with it: a stop stops
@@ -335,8 +335,8 @@ class ServiceAPI:
         scale = r.speed_scale or p.speed_scale or 1.0
         deadline, issued = self._timing(r.deadline_ms)
         acc = self.motion.goto(dict(p.pose), scale, kind="preset", label=p.name, deadline=deadline, issued=issued)
-        if self.recorder is not None:  # teach-in
-            self.recorder.on_preset(p.name, r.speed_scale, float(acc.to_json().get("duration", 0.0)))
+        if (rec := self.recorder) is not None:  # teach-in (read once: a record/stop may run meanwhile)
+            rec.on_preset(p.name, r.speed_scale, float(acc.to_json().get("duration", 0.0)))
         return {**acc.to_json(), "preset": p.name}
 
     def _presets_delete(self, r: PresetDelete) -> dict:

@@ -150,22 +150,23 @@ class ImplementService:
 
     # ------------------------------------------------------------------ changes
     def define(self, r: ImplementDefine, owner: str | None = None) -> dict[str, Any]:
-        """Insert or replace an implement; redefining the selected one applies it (refused while moving)."""
-        old = self.store.get_implement(r.name)
-        limits = ImplementLimits(
-            r.upper_height_m, r.lowering_speed_m_s, old.limits.transport_locked if old is not None else False
-        )
-        imp = StoredImplement(
-            r.name,
-            r.category,
-            r.mass_kg,
-            (float(r.com_m[0]), float(r.com_m[1]), float(r.com_m[2])),
-            limits,
-            None if r.headland is None else r.headland.model_dump(),
-            None if old is None else old.last_work,
-            r.description,
-        )
+        """Insert or replace an implement; redefining the selected one applies it (refused while moving).
+        Its transport lock and last work pose are kept: read under the lock :meth:`set_lock` changes them under."""
         with self._lock:
+            old = self.store.get_implement(r.name)
+            limits = ImplementLimits(
+                r.upper_height_m, r.lowering_speed_m_s, old.limits.transport_locked if old is not None else False
+            )
+            imp = StoredImplement(
+                r.name,
+                r.category,
+                r.mass_kg,
+                (float(r.com_m[0]), float(r.com_m[1]), float(r.com_m[2])),
+                limits,
+                None if r.headland is None else r.headland.model_dump(),
+                None if old is None else old.last_work,
+                r.description,
+            )
             if r.name == self.selected:
                 self._apply(record_of(imp), limits)  # busy while moving: nothing stored
             stored = self.store.save_implement(imp, owner=owner)

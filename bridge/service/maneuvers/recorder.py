@@ -7,23 +7,35 @@ arrives or recording stops, and recorded as a full-pose ``goto``) — with the c
 duration. The time between the planned end of one motion and the next command is a pause: when the
 tractor travelled at least ``min_distance_m`` meanwhile (wheel-based speed) it is recorded as
 ``wait_for: {distance: …}``, else as ``wait: …`` seconds (pauses shorter than ``min_pause_s`` are
-dropped). ``maneuvers/record/stop`` returns the script (YAML) for review and edit; the operator saves
-it with ``maneuvers/save``. Nothing is stored by the recorder.
+dropped; a pause longer than one step allows — ``wait`` (0, 3600] s, ``wait_for distance`` (0, 10000] m —
+is recorded as several such steps). ``maneuvers/record/stop`` returns the script (YAML) for review and
+edit; the operator saves it with ``maneuvers/save``. Nothing is stored by the recorder.
+
+Threads: the service tells the recorder from its request threads (a jog inline, a goto from the motion
+lane); every method holds the recorder's own lock for its O(1) bookkeeping. Telling it never raises —
+the operator's command was accepted and moves, whatever the recording does: once the recording holds
+:data:`~bridge.service.maneuvers.language.MAX_STEPS` steps, later steps are dropped and counted
+(:attr:`ManeuverRecorder.dropped`; the script's description says so).
 """
 
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Callable, Mapping
 from typing import Any
 
 import yaml
 
 from bridge.service.maneuvers.language import MAX_STEPS, parse_maneuver
-from bridge.service.maneuvers.steps import POSE_BOUNDS
+from bridge.service.maneuvers.steps import MAX_TIMEOUT_S, POSE_BOUNDS
 from planner.errors import HitchInputError
 
 __all__ = ["ManeuverRecorder", "RecorderError"]
+
+#: the longest single ``wait`` [s] and ``wait_for distance`` [m] a script allows (steps.WaitStep, WaitForStep)
+_MAX_WAIT_S = MAX_TIMEOUT_S
+_MAX_DISTANCE_M = 10_000.0
 
 
 class RecorderError(HitchInputError):
@@ -55,37 +67,47 @@ class ManeuverRecorder:
         self._jog_until: float | None = None  # a jog runs (its last command's end of life)
         self._cmd_t = self._busy_until  # when the last motion was commanded [s]
         self._motion_time = 0.0
+        #: steps not recorded because the recording was full (MAX_STEPS)
+        self.dropped = 0
+        self._lock = threading.Lock()
 
     # ------------------------------------------------------------------ what the operator does
     def on_goto(self, goal: Mapping[str, float], speed_scale: float, duration_s: float) -> None:
-        self._before_command()
-        step: dict[str, Any] = {k: _r(v) for k, v in goal.items() if k in POSE_BOUNDS}
-        if not math.isclose(speed_scale, 1.0):
-            step["speed_scale"] = _r(speed_scale, 3)
-        self._add({"goto": step}, duration_s)
+        with self._lock:
+            self._before_command()
+            step: dict[str, Any] = {k: _r(v) for k, v in goal.items() if k in POSE_BOUNDS}
+            if not math.isclose(speed_scale, 1.0):
+                step["speed_scale"] = _r(speed_scale, 3)
+            self._add({"goto": step}, duration_s)
 
     def on_preset(self, name: str, speed_scale: float | None, duration_s: float) -> None:
-        self._before_command()
-        self._add(
-            {"preset": name if speed_scale is None else {"name": name, "speed_scale": _r(speed_scale, 3)}}, duration_s
-        )
+        with self._lock:
+            self._before_command()
+            step = name if speed_scale is None else {"name": name, "speed_scale": _r(speed_scale, 3)}
+            self._add({"preset": step}, duration_s)
 
     def on_jog(self, ttl_s: float) -> None:
-        if self._jog_until is None:
-            self._pause_until(self.clock())
-        self._jog_until = self.clock() + float(ttl_s)
+        with self._lock:
+            if self._jog_until is None:
+                self._pause_until(self.clock())
+            self._jog_until = self.clock() + float(ttl_s)
 
     def stop(self, name: str | None = None, description: str = "recorded by teach-in") -> str:
         """The recorded script (YAML); raises :class:`RecorderError` when nothing was recorded."""
-        self._close_jog()
-        if not self.steps:
+        with self._lock:
+            self._close_jog()
+            steps = list(self.steps)
+            dropped = self.dropped
+        if not steps:
             raise RecorderError("nothing was recorded (no goto, preset or jog between record/start and record/stop)")
+        if dropped:
+            description = f"{description} (the last {dropped} step(s) were dropped: at most {MAX_STEPS} steps)"
         doc: dict[str, Any] = {"description": description}
         if name is not None:
             doc = {"name": name, **doc}
-        total = sum(float(next(iter(s.values()))) for s in self.steps if "wait" in s)
-        doc["timeout"] = float(min(3600.0, max(60.0, math.ceil(2 * (total + self._motion_time) + 30))))
-        doc["steps"] = self.steps
+        total = sum(float(next(iter(s.values()))) for s in steps if "wait" in s)
+        doc["timeout"] = float(min(MAX_TIMEOUT_S, max(60.0, math.ceil(2 * (total + self._motion_time) + 30))))
+        doc["steps"] = steps
         text = yaml.safe_dump(doc, sort_keys=False, default_flow_style=None)
         parse_maneuver(text)  # what is handed out parses
         return text
@@ -111,9 +133,11 @@ class ManeuverRecorder:
         if travelled is not None and span > 1e-9:
             travelled *= max(0.0, gap) / span  # (constant ground speed assumed over one motion)
         if travelled is not None and travelled >= self.min_distance_m:
-            self._append({"wait_for": {"distance": _r(travelled, 2)}})
+            for part in _parts(_r(travelled, 2), _MAX_DISTANCE_M):
+                self._append({"wait_for": {"distance": part}})
         elif gap >= self.min_pause_s:
-            self._append({"wait": _r(gap, 2)})
+            for part in _parts(_r(gap, 2), _MAX_WAIT_S):
+                self._append({"wait": part})
         self._busy_until, self._dist_at = max(self._busy_until, now), d
 
     def _add(self, step: dict[str, Any], duration_s: float, *, at: float | None = None) -> None:
@@ -125,9 +149,16 @@ class ManeuverRecorder:
         self._dist_at = self.distance()
 
     def _append(self, step: dict[str, Any]) -> None:
-        if len(self.steps) >= MAX_STEPS:
-            raise RecorderError(f"the recording has {MAX_STEPS} steps (allowed: at most {MAX_STEPS}); stop it")
+        if len(self.steps) >= MAX_STEPS:  # full: the command itself was accepted; the step is dropped
+            self.dropped += 1
+            return
         self.steps.append(step)
+
+
+def _parts(total: float, most: float) -> list[float]:
+    """``total`` (> 0) as pieces of at most ``most``, in order (the last one the rest)."""
+    n = max(1, math.ceil(total / most - 1e-9))
+    return [most] * (n - 1) + [_r(total - most * (n - 1), 2)]
 
 
 def recorder_for(motion: Any) -> ManeuverRecorder:

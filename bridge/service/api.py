@@ -118,6 +118,7 @@ class ServiceAPI:
         self.sim_fault = sim_fault  # the simulated ECU's fault injection (None: a real ECU, or none)
         self._in_flight: dict[str, int] = {}  # expensive requests running, per user
         self._in_flight_lock = threading.Lock()
+        self._record_lock = threading.Lock()  # maneuvers/record/start|stop
         self.info = dict(info)
         self.implement = implement or DEFAULT_IMPLEMENT
         self.policy = policy
@@ -356,13 +357,15 @@ class ServiceAPI:
 
     # ------------------------------------------------------------------ teach-in
     def _record_start(self, _r: Empty) -> dict:
-        if self.recorder is not None:
-            raise RequestError("busy", "maneuvers/record/start: a recording runs already; record/stop it first")
-        self.recorder = recorder_for(self.motion)
+        with self._record_lock:  # two starts at once: one recording, the other busy
+            if self.recorder is not None:
+                raise RequestError("busy", "maneuvers/record/start: a recording runs already; record/stop it first")
+            self.recorder = recorder_for(self.motion)
         return {"recording": True}
 
     def _record_stop(self, r: RecordStop) -> dict:
-        rec, self.recorder = self.recorder, None
+        with self._record_lock:
+            rec, self.recorder = self.recorder, None
         if rec is None:
             raise RequestError("not_found", "maneuvers/record/stop: no recording runs (maneuvers/record/start)")
         script = rec.stop(r.name)

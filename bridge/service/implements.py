@@ -183,10 +183,13 @@ class ImplementService:
         return {"selected": imp.name, "implement": imp.to_json()}
 
     def delete(self, name: str) -> dict[str, Any]:
-        if name == self.selected:
-            raise RequestError("busy", f"implements/delete: {name!r} is the selected implement; select another first")
-        if not self.store.delete_implement(name):
-            raise RequestError("not_found", f"implements/delete: no implement {name!r} in the store")
+        with self._lock:  # not between a select's check and its store write
+            if name == self.selected:
+                raise RequestError(
+                    "busy", f"implements/delete: {name!r} is the selected implement; select another first"
+                )
+            if not self.store.delete_implement(name):
+                raise RequestError("not_found", f"implements/delete: no implement {name!r} in the store")
         return {"deleted": name}
 
     def set_lock(self, locked: bool) -> dict[str, Any]:
@@ -219,7 +222,8 @@ class ImplementService:
         scale = r.speed_scale or 1.0
         acc = self.motion.goto(dict(goal), scale, kind="preset", label="raise", deadline=deadline, issued=issued)
         if not _close(here, goal):  # pressing raise at the headland keeps the work pose
-            self.store.update_implement(imp.name, last_work=here)
+            with self._lock:  # serialised with define, which rewrites the whole record
+                self.store.update_implement(imp.name, last_work=here)
         return {**acc.to_json(), "raise": True, "headland": dict(goal), "last_work": here}
 
     def quick_return(self, r: QuickMove, deadline: float | None, issued: float | None) -> dict[str, Any]:

@@ -11,6 +11,10 @@
 * **Implements** (schema version 3, ``docs/implements.md``): name → ISO 730 category, mass [kg],
   centre of mass [m], upper height limit [m], lowering speed limit [m/s], transport lock, headland
   and last work poses (JSON); and the service's persisted **settings** (the selected implement).
+* **Field lines** (schema version 4, ``docs/maneuvers.md``): name → GeoJSON line (the headland and
+  field-boundary lines of position triggers).
+* **Work settings** (schema version 5, ``docs/soil.md``): implement → its draft / mixed / float
+  control settings (JSON of :class:`~planner.work_control.controller.WorkSettings`).
 * **Owners and limits** (:class:`StoreLimits`): every row records the user who saved it last
   (``owner``; ``""`` when the transport authorised the request without naming a user, as Zenoh's
   access control does). Per owner the store refuses more than ``max_presets_per_user`` presets,

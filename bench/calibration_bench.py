@@ -4,9 +4,18 @@ For each twin (``perturb_profile(seed)``, tape errors and pin play) the instrume
 1 mm / 1 mrad, Gaussian) measures the poses — planned (D-optimal, ``hitch calibrate plan-poses``)
 or random workspace poses — each approached from both sides (the play averages out). The profile is
 calibrated from the measurements; then 200 random workspace poses are commanded through each
-profile's exact inverse, and the true machine's pose (truth geometry and AD map, rigid implement,
-pistons at the commanded counts, play centred) is compared with the commanded pose: the error p95
-per DOF. Also: identified directions within 3 σ of the truth, calibration run time.
+profile's exact inverse, and the true machine's pose (truth geometry and AD map, rigid implement) is
+compared with the commanded pose: the error p95 per DOF, in two evaluations:
+
+* **no quantisation** (idealised): the pistons at exactly the commanded, unrounded counts, play centred;
+* **with quantisation** (physical, as on the machine): the commanded counts rounded to whole counts,
+  each true piston drawn uniformly within ± 0.5 count of the true AD map (the ECU stops when the reading
+  equals the count), and the twin's pin play, every pose approached from a random side in every DOF.
+
+The calibration measurements are as ``hitch calibrate measure-twin`` takes them (pistons at the whole
+counts); ``planned20_dither`` also calibrates from measurements with the pistons anywhere in their
+count's band and evaluates it with quantisation. Also: identified directions (and single parameters)
+within 3 σ of the truth, calibration run time.
 
 Run: .venv/bin/python bench/calibration_bench.py [--twins 20] [--json bench/out/calibration.json] [--plot]
 """
@@ -24,7 +33,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from _common import machine_note, write_json  # noqa: E402
 
 from bridge.sim.calibration_data import measure_twin, true_poses  # noqa: E402
-from bridge.sim.truth import MachineTruth, perturb_profile  # noqa: E402
+from bridge.sim.truth import MachineTruth, PinPlay, perturb_profile  # noqa: E402
 from planner.calibration.design import candidate_poses, plan_poses  # noqa: E402
 from planner.calibration.measurements import MeasurementSet  # noqa: E402
 from planner.calibration.parametric import ParametricModel  # noqa: E402
@@ -37,8 +46,8 @@ TARGET = np.array([2.0, 2.0, 2.0, 2.0])  # x, z [mm], roll, pitch [mrad] p95
 DOF = ("x", "z", "roll", "pitch")
 
 
-def _calibrate(pm: ParametricModel, truth: MachineTruth, poses: np.ndarray, seed: int):
-    tm = measure_twin(pm.nominal_model, truth, poses, noise="station", seed=seed)
+def _calibrate(pm: ParametricModel, truth: MachineTruth, poses: np.ndarray, seed: int, dither: bool = False):
+    tm = measure_twin(pm.nominal_model, truth, poses, noise="station", seed=seed, dither=dither)
     sc = SensorScaling(pm.profile)
     readings = sc.si_min + (tm.counts - sc.counts_min) * sc.resolution
     mask = np.isfinite(tm.measured)
@@ -50,18 +59,44 @@ def _calibrate(pm: ParametricModel, truth: MachineTruth, poses: np.ndarray, seed
     return res, cal, dt
 
 
-def _p95(model: HitchModel, truth: MachineTruth, check: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    tp, _ = true_poses(model, truth, check)
+def _p95(
+    model: HitchModel,
+    truth: MachineTruth,
+    check: np.ndarray,
+    physical_seed: int | None = None,
+    *,
+    counts: bool = True,
+    play: bool = True,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Error p95 per DOF [mm, mrad] and the errors (N, 4); ``physical_seed``: the evaluation with quantisation
+    (``counts`` / ``play`` False leave out the whole counts and band, or the play: the split of the two)."""
+    if physical_seed is None:
+        tp, _ = true_poses(model, truth, check)
+    else:
+        tp, _ = true_poses(
+            model,
+            truth,
+            check,
+            quantise=counts,
+            dither=counts,
+            play="random" if play else "centred",
+            seed=physical_seed,
+        )
     err = np.abs(tp - check) * 1e3
     return np.percentile(err, 95, axis=0), err
 
 
-def _z_scores(pm: ParametricModel, res, truth: MachineTruth) -> np.ndarray:
+def _z_scores(pm: ParametricModel, res, truth: MachineTruth) -> tuple[np.ndarray, np.ndarray]:
+    """|z| of the identified directions (combinations) and of the single parameters (27; inf where σ = 0)."""
     ps = pm.params
     du = (res.values - ps.values_of(truth.profile)) / ps.scale
     b = res.basis
     cov = b.T @ res.covariance_scaled @ b
-    return np.abs(b.T @ du) / np.sqrt(np.maximum(np.diag(cov), 1e-300))
+    z_dir = np.abs(b.T @ du) / np.sqrt(np.maximum(np.diag(cov), 1e-300))
+    sd = np.sqrt(np.maximum(np.diag(res.covariance_scaled), 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z_par = np.where(sd > 0.0, np.abs(du) / np.where(sd > 0.0, sd, 1.0), np.where(np.abs(du) > 0.0, np.inf, 0.0))
+    return z_dir, z_par
 
 
 def main() -> None:
@@ -80,14 +115,19 @@ def main() -> None:
     pool, _ = candidate_poses(pm, 3000, seed=123)
     check, _ = candidate_poses(pm, 4 * args.check, seed=999)
     check = check[: args.check]
+    exact = MachineTruth(prof)  # the floor: a profile equal to the truth, with quantisation / with 1 mm play
+    floor_counts, _ = _p95(nominal, exact, check, 5000, play=False)
+    floor_play, _ = _p95(nominal, MachineTruth(prof, PinPlay(0.001, 0.001)), check, 5000, counts=False)
     rows = []
     worst_map = None
     for seed in range(args.twins):
         data, play = perturb_profile(prof, seed)
         truth = MachineTruth(profile_from_dict(data), play)
         rng = np.random.default_rng(1000 + seed)
+        phys = 5000 + seed  # seed of the band positions and approach sides of the evaluation with quantisation
         row: dict = {"seed": seed, "play_mm": [1e3 * play.lower_link_m, 1e3 * play.top_link_m]}
-        row["nominal"], err_nom = _p95(nominal, truth, check)
+        row["nominal"], _ = _p95(nominal, truth, check)
+        row["nominal_physical"], err_nom = _p95(nominal, truth, check, phys)
         cases = {
             "planned10": planned[10],
             "planned20": planned[20],
@@ -96,34 +136,82 @@ def main() -> None:
         }
         for name, poses in cases.items():
             res, cal, dt = _calibrate(pm, truth, poses, seed)
-            row[name], err = _p95(HitchModel(cal), truth, check)
+            cal_model = HitchModel(cal)
+            row[name], err = _p95(cal_model, truth, check)
+            row[f"{name}_physical"], err_phys = _p95(cal_model, truth, check, phys)
             row[f"{name}_time_s"] = dt
             row[f"{name}_identified"] = res.identified
             if name == "planned20":
-                z = _z_scores(pm, res, truth)
+                z, zp = _z_scores(pm, res, truth)
                 row["planned20_z_max"] = float(z.max())
                 row["planned20_within_3sigma"] = float(np.mean(z <= 3.0))
-                if worst_map is None or err.max() > worst_map[1].max():
-                    worst_map = (seed, err, err_nom)
+                row["planned20_params_within_3sigma"] = int(np.sum(zp <= 3.0))
+                row["planned20_params_zero_std"] = int(np.sum(np.sqrt(np.diag(res.covariance_scaled)) <= 0.0))
+                row["planned20_counts_only"], _ = _p95(cal_model, truth, check, phys, play=False)
+                row["planned20_play_only"], _ = _p95(cal_model, truth, check, phys, counts=False)
+                if worst_map is None or err_phys.max() > worst_map[2].max():
+                    worst_map = (seed, err, err_phys, err_nom)
+        res, cal, _ = _calibrate(pm, truth, planned[20], seed, dither=True)
+        row["planned20_dither_physical"], _ = _p95(HitchModel(cal), truth, check, phys)
         rows.append(row)
         r = row
         print(
             f"twin {seed:2d}: p95 x/z mm, roll/pitch mrad  nominal {np.round(r['nominal'], 2)}  "
             f"planned20 {np.round(r['planned20'], 2)}  planned10 {np.round(r['planned10'], 2)}  "
             f"random20 {np.round(r['random20'], 2)}  random40 {np.round(r['random40'], 2)}  "
-            f"z_max {r['planned20_z_max']:.2f} ({100 * r['planned20_within_3sigma']:.0f} % ≤ 3σ)  "
+            f"| with quantisation: nominal {np.round(r['nominal_physical'], 2)}  "
+            f"planned20 {np.round(r['planned20_physical'], 2)}  "
+            f"(dithered measurements {np.round(r['planned20_dither_physical'], 2)})  "
+            f"z_max {r['planned20_z_max']:.2f} ({100 * r['planned20_within_3sigma']:.0f} % ≤ 3σ; "
+            f"{r['planned20_params_within_3sigma']}/{len(pm.params.scale)} parameters)  "
             f"{r['planned20_time_s']:.2f} s",
             flush=True,
         )
-    p20 = np.array([r["planned20"] for r in rows])
-    nom = np.array([r["nominal"] for r in rows])
+
+    def evaluation(nom_key: str, cal_key: str) -> dict:
+        cal_p = np.array([r[cal_key] for r in rows])
+        nom_p = np.array([r[nom_key] for r in rows])
+        return {
+            "calibrated_max_p95": cal_p.max(axis=0).tolist(),
+            "calibrated_worst_axis_p95_max": float(cal_p.max()),
+            "nominal_min_p95": nom_p.min(axis=0).tolist(),
+            "nominal_max_p95": nom_p.max(axis=0).tolist(),
+            "twins_within_target": int(np.sum(np.all(cal_p <= TARGET, axis=1))),
+            "twins_within_target_per_dof": np.sum(cal_p <= TARGET, axis=0).tolist(),
+            "all_twins_within_target": bool(np.all(cal_p <= TARGET)),
+            "improvement_min": float(np.min(nom_p.max(axis=1) / cal_p.max(axis=1))),
+            "improvement_min_per_dof": (nom_p / cal_p).min(axis=0).tolist(),
+            "twins_improved_5x_worst_axis": int(np.sum(nom_p.max(axis=1) / cal_p.max(axis=1) >= 5.0)),
+            "twins_improved_5x_every_dof": int(np.sum(np.all(nom_p / cal_p >= 5.0, axis=1))),
+            "median_worst_axis_p95": float(np.median(cal_p.max(axis=1))),
+        }
+
+    def table(title: str, nom_key: str, cal_key: str) -> None:
+        print(f"\n{title}: p95 x, z [mm], roll, pitch [mrad]; improvement = uncalibrated / calibrated")
+        print("twin | uncalibrated x z roll pitch | calibrated x z roll pitch | worst | factor x z roll pitch | worst")
+        for r in rows:
+            n, c = np.asarray(r[nom_key]), np.asarray(r[cal_key])
+            ok = "ok" if np.all(c <= TARGET) else "MISS"
+            print(
+                f"{r['seed']:4d} | {' '.join(f'{v:6.2f}' for v in n)} | {' '.join(f'{v:5.2f}' for v in c)} | "
+                f"{c.max():5.2f} {ok:4s} | {' '.join(f'{v:6.1f}' for v in n / c)} | {n.max() / c.max():6.1f}"
+            )
+
+    table("no quantisation (pistons at the unrounded commanded counts, play centred)", "nominal", "planned20")
+    table(
+        "with quantisation (whole counts, piston uniform in ± 0.5 count, play from a random side)",
+        "nominal_physical",
+        "planned20_physical",
+    )
     summary = {
         "target_p95": TARGET.tolist(),
-        "planned20_max_p95": p20.max(axis=0).tolist(),
-        "nominal_min_p95": nom.min(axis=0).tolist(),
-        "all_twins_within_target": bool(np.all(p20 <= TARGET)),
-        "improvement_min": float(np.min(nom.max(axis=1) / p20.max(axis=1))),
-        "improvement_min_per_dof": (nom / p20).min(axis=0).tolist(),
+        "no_quantisation": evaluation("nominal", "planned20"),
+        "with_quantisation": evaluation("nominal_physical", "planned20_physical"),
+        "with_quantisation_dithered_measurements": evaluation("nominal_physical", "planned20_dither_physical"),
+        "planned20_counts_only_max_p95": np.max([r["planned20_counts_only"] for r in rows], axis=0).tolist(),
+        "planned20_play_only_max_p95": np.max([r["planned20_play_only"] for r in rows], axis=0).tolist(),
+        "floor_exact_profile_counts_p95": floor_counts.tolist(),
+        "floor_exact_profile_play_1mm_p95": floor_play.tolist(),
         "planned10_vs_random20_median_worst_dof": [
             float(np.median([max(r["planned10"]) for r in rows])),
             float(np.median([max(r["random20"]) for r in rows])),
@@ -132,28 +220,58 @@ def main() -> None:
             float(np.median([max(r["planned20"]) for r in rows])),
             float(np.median([max(r["random40"]) for r in rows])),
         ],
+        "planned10_vs_random20_median_worst_dof_with_quantisation": [
+            float(np.median([max(r["planned10_physical"]) for r in rows])),
+            float(np.median([max(r["random20_physical"]) for r in rows])),
+        ],
+        "planned20_vs_random40_median_worst_dof_with_quantisation": [
+            float(np.median([max(r["planned20_physical"]) for r in rows])),
+            float(np.median([max(r["random40_physical"]) for r in rows])),
+        ],
         "within_3sigma_fraction": float(np.mean([r["planned20_within_3sigma"] for r in rows])),
+        "z_max": float(np.max([r["planned20_z_max"] for r in rows])),
+        "params_within_3sigma_min_max": [
+            int(np.min([r["planned20_params_within_3sigma"] for r in rows])),
+            int(np.max([r["planned20_params_within_3sigma"] for r in rows])),
+        ],
+        "n_params": len(pm.params.scale),
         "calibration_time_s_median": float(np.median([r["planned20_time_s"] for r in rows])),
+        "calibration_time_s_range": [
+            float(np.min([r["planned20_time_s"] for r in rows])),
+            float(np.max([r["planned20_time_s"] for r in rows])),
+        ],
         "plan_time_s": t_plan,
     }
-    print(summary)
+    print()
+    for k, v in summary.items():
+        print(f"{k}: {v}")
     if args.plot and worst_map is not None:
         import matplotlib
 
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
-        seed, err, err_nom = worst_map
-        fig, axes = plt.subplots(2, 4, figsize=(16, 7), sharex=True, sharey=True)
+        seed, err, err_phys, err_nom = worst_map
+        labels = (
+            (err_nom, "uncalibrated, with quantisation"),
+            (err, "calibrated, no quantisation"),
+            (err_phys, "calibrated, with quantisation"),
+        )
+        fig, axes = plt.subplots(3, 4, figsize=(17, 10.5), sharex=True, sharey=True)
         for k, d in enumerate(DOF):
-            for row_i, (e, lab) in enumerate(((err_nom, "uncalibrated"), (err, "calibrated, 20 planned poses"))):
+            vmax = max(float(err[:, k].max()), float(err_phys[:, k].max()))  # calibrated rows share a colour scale
+            for row_i, (e, lab) in enumerate(labels):
                 ax = axes[row_i, k]
-                sca = ax.scatter(1e3 * check[:, 0], 1e3 * check[:, 1], c=e[:, k], s=14, cmap="viridis")
+                lim = {} if row_i == 0 else {"vmin": 0.0, "vmax": vmax}
+                sca = ax.scatter(1e3 * check[:, 0], 1e3 * check[:, 1], c=e[:, k], s=14, cmap="viridis", **lim)
                 fig.colorbar(sca, ax=ax, label=f"|{d} error| [{'mm' if k < 2 else 'mrad'}]")
-                ax.set_title(f"{lab}: {d}")
+                ax.set_title(f"{lab}: {d}\np95 {np.percentile(e[:, k], 95):.2f} (target {TARGET[k]:g})", fontsize=9)
                 ax.set_xlabel("x [mm]")
                 ax.set_ylabel("z [mm]")
-        fig.suptitle(f"pose error over {len(check)} random workspace poses, worst twin (seed {seed})")
+        fig.suptitle(
+            f"pose error over {len(check)} random workspace poses, worst twin with quantisation (seed {seed}); "
+            "with quantisation = whole counts, piston anywhere in its count, play from a random side"
+        )
         fig.tight_layout()
         fig.savefig(args.plot, dpi=80)
         print(f"wrote {args.plot}")

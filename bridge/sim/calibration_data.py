@@ -13,6 +13,19 @@ procedure) measures every pose twice: approached from below in every DOF (from t
 :data:`APPROACH_OFFSET`) and from above; the two rows average the play out. ``approach="direct"``
 measures each pose once, straight from the previous one. The rows are what
 :mod:`planner.calibration.measurements` reads (:func:`calibration_csv`).
+
+The piston inside its count. The ECU drives a piston until its AD reading equals the commanded
+whole count, so the true piston lies anywhere in that count's band: its unquantised count on the
+true AD map is the commanded count ± 0.5. ``dither=True`` (off by default: the pistons exactly at the
+whole counts) draws it uniformly in that band (seeded), in :func:`measure_twin` and
+:func:`true_poses` alike.
+
+:func:`true_poses` evaluates a profile: where the true machine goes when the profile's exact
+inverse commands poses. Idealised (the defaults): the pistons at exactly the commanded, unrounded
+counts, play centred. Physical (``quantise=True, dither=True, play="random"``): the commanded counts
+rounded to whole counts, each piston anywhere in its count's band, and the pin play as the twin has
+it, every pose approached from a random side in every DOF (from the pose ± :data:`APPROACH_OFFSET`,
+so the implement lags by the full play band in each DOF).
 """
 
 from __future__ import annotations
@@ -47,15 +60,37 @@ class TwinMeasurements:
     true: np.ndarray
 
 
-def _counts_of_poses(model: HitchModel, poses: np.ndarray, quantise: bool) -> np.ndarray:
-    inv = ExactInverse(model)
-    sc = SensorScaling(model.profile)
-    out = []
-    for p in poses:
-        q = inv.solve(p)[0]
-        c = sc.counts_min + (q - sc.si_min) / sc.resolution
-        out.append(np.rint(c) if quantise else c)
-    return np.array(out)
+class _Commander:
+    """The planner side: commanded AD counts of poses through ``model``'s exact inverse and nominal map."""
+
+    def __init__(self, model: HitchModel) -> None:
+        self.inv = ExactInverse(model)
+        self.sc = SensorScaling(model.profile)
+
+    def counts(self, poses: np.ndarray, quantise: bool) -> np.ndarray:
+        out = []
+        for p in poses:
+            q = self.inv.solve(p)[0]
+            c = self.sc.counts_min + (q - self.sc.si_min) / self.sc.resolution
+            out.append(np.rint(c) if quantise else c)
+        return np.array(out)
+
+
+def _seed(seed: object) -> int:
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= int(seed) < 2**63:
+        raise TruthError(f"seed must be an integer in [0, 2^63), got {seed!r}")
+    return int(seed)
+
+
+def _flag(name: str, value: object) -> bool:
+    if not isinstance(value, bool):
+        raise TruthError(f"{name} must be a bool, got {value!r}")
+    return value
+
+
+def _piston_counts(counts: np.ndarray, dither: bool, rng: np.random.Generator) -> np.ndarray:
+    """The pistons' unquantised counts on the true map: the reading, or (``dither``) uniform in its ± 0.5 band."""
+    return counts + rng.uniform(-0.5, 0.5, counts.shape) if dither else counts
 
 
 def _poses(poses: ArrayLike) -> np.ndarray:
@@ -75,13 +110,18 @@ def measure_twin(
     seed: int = 0,
     rigid_span: bool = True,
     approach: Literal["both", "direct"] = "both",
+    dither: bool = False,
 ) -> TwinMeasurements:
     """Visit ``poses`` (N, 4) on the twin in order (module docstring) and measure each one (``approach="both"``:
-    rows 2k and 2k+1 are pose k approached from below and from above)."""
+    rows 2k and 2k+1 are pose k approached from below and from above). ``dither``: each piston anywhere
+    in its count's band (module docstring; drawn from ``seed``); the AD readings stay the whole counts."""
     if approach not in ("both", "direct"):
         raise TruthError(f"approach must be both or direct, got {approach!r}")
+    dither = _flag("dither", dither)
+    rng = np.random.default_rng([_seed(seed), 1])
     p = _poses(poses)
-    counts = _counts_of_poses(model, p, quantise=True)
+    cmd = _Commander(model)
+    counts = cmd.counts(p, quantise=True)
     machine = TrueMachine(truth, model.category, rigid_span=rigid_span)
     inst = Instrument(noise, seed=seed)
     visits: list[tuple[np.ndarray, np.ndarray | None]] = []
@@ -91,7 +131,7 @@ def measure_twin(
             continue
         for sign in (-1.0, 1.0):
             try:
-                before = _counts_of_poses(model, p[k : k + 1] + sign * APPROACH_OFFSET, quantise=False)[0]
+                before = cmd.counts(p[k : k + 1] + sign * APPROACH_OFFSET, quantise=False)[0]
             except KinematicsError:
                 before = None
             visits.append((counts[k], before))
@@ -102,7 +142,7 @@ def measure_twin(
     for k, (c, before) in enumerate(visits):
         if before is not None:
             machine.observe(before)
-        pose = machine.observe(c)
+        pose = machine.observe(_piston_counts(c, dither, rng))
         reading = inst.measure(machine, tuple(points))
         true[k, rows] = pose.controlled()
         measured[k, rows] = [reading.pose[n] for n in CONTROLLED_POSE_NAMES]
@@ -115,19 +155,43 @@ def measure_twin(
 
 
 def true_poses(
-    model: HitchModel, truth: MachineTruth, commanded: ArrayLike, *, quantise: bool = False
+    model: HitchModel,
+    truth: MachineTruth,
+    commanded: ArrayLike,
+    *,
+    quantise: bool = False,
+    dither: bool = False,
+    play: Literal["centred", "random"] = "centred",
+    seed: int = 0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Where the true machine goes when ``model``'s exact inverse commands poses (N, 4): (true poses (N, 4),
-    piston counts (N, 5)). ``model`` is the planner's (nominal or calibrated) model; ``quantise`` rounds
-    the commanded counts (off: the pistons at exactly the commanded counts). No play (fresh machine
-    per pose)."""
+    commanded counts (N, 5)). ``model`` is the planner's (nominal or calibrated) model. ``quantise`` rounds
+    the commanded counts (off: the pistons at exactly the commanded counts); ``dither`` (needs
+    ``quantise``) puts each piston anywhere in its count's band; ``play="random"`` approaches every pose
+    from a random side in every DOF (``"centred"``: play centred). Each pose is a fresh machine; ``seed``
+    draws the band positions and the sides (module docstring)."""
+    quantise, dither = _flag("quantise", quantise), _flag("dither", dither)
+    if dither and not quantise:
+        raise TruthError("dither needs quantise=True (the piston sits in the band of a whole commanded count)")
+    if play not in ("centred", "random"):
+        raise TruthError(f"play must be centred or random, got {play!r}")
+    rng = np.random.default_rng([_seed(seed), 2])
     p = _poses(commanded)
-    counts = _counts_of_poses(model, p, quantise=quantise)
+    cmd = _Commander(model)
+    counts = cmd.counts(p, quantise=quantise)
     first = TrueMachine(truth, model.category)
     out = []
-    for c in counts:
+    for k, c in enumerate(counts):
         machine = TrueMachine(truth, model.category, model=first.model)  # fresh play state, shared model
-        out.append(machine.observe(c).controlled())
+        if play == "random":
+            side = rng.choice([-1.0, 1.0], 4)
+            for s in (side, -side):  # the other side if the approach start is out of reach
+                try:
+                    machine.observe(cmd.counts(p[k : k + 1] + s * APPROACH_OFFSET, quantise=False)[0])
+                    break
+                except KinematicsError:
+                    continue
+        out.append(machine.observe(_piston_counts(c, dither, rng)).controlled())
     return np.array(out), counts
 
 

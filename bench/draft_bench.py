@@ -2,7 +2,8 @@
 
 Each run is one closed loop in simulated time (:func:`bridge.service.field_loop.run_field_loop`: the
 motion controller on the simulated rig, the draft over CAN in the rear hitch status, the work
-controller choosing the z setpoint of a track session). All runs of a field use the same field
+controller choosing the z setpoint of a track session; it knows the hitch's z speed, so the draft
+demand never runs ahead of the hitch). All runs of a field use the same field
 (same soil patches, undulation and pin noise seeds). The draft setpoint of the draft, mixed and
 slip-limited runs is the mean draft of the position run (rounded to 100 N), so all hold the same
 average work.
@@ -12,7 +13,8 @@ Fields:
 * ``chisel-rolling`` (``bench/fields/chisel-rolling.toml``, the targets): the built-in chisel field's
   implement, soil and pins over rolling ground (±50 mm at 25 m and 60 m wavelengths);
 * ``chisel`` (built-in, reported): the same over the ``terrain`` scenario (±50 mm at 7 m and 19 m):
-  its 0.32 Hz undulation is beyond what the hitch follows (docs/benchmarks.md, tracking).
+  its 0.32 Hz undulation moves the ground faster than the hitch's z (docs/soil.md, "What limits draft
+  control on chisel").
 
 Figures (after the settle time): the true draft's SD and mean, the true depth's min/max against the
 depth limits, the slip's max in the heavy patches (soil factor ≥ 1 + variation/2), fallbacks, and

@@ -47,6 +47,7 @@ from bridge.service.track_loop import SimLoop, TrackLoopError, _note, _Slope
 from bridge.sim.field import FieldRun, FieldSample, FieldSetup, load_field
 from bridge.sim.move import SimSettings
 from planner.model.kinematics import HitchModel
+from planner.trajectory.track import subset_limits
 from planner.work_control import WorkController, WorkSettings
 
 __all__ = ["FieldDraft", "FieldLoopError", "FieldLoopResult", "FieldLoopSettings", "run_field_loop"]
@@ -55,6 +56,11 @@ __all__ = ["FieldDraft", "FieldLoopError", "FieldLoopResult", "FieldLoopSettings
 HEAVY_SETTLE_S = 3.0
 """The slip figure ``slip_max_heavy_settled`` leaves out the first seconds in a heavy patch (the entry
 transient: the limiter acts on the slip, so it cannot prevent the rise it reacts to)."""
+
+
+Z_RATE_SHARE = 0.9
+"""The share of the follower's z speed the draft regulator may use (the rest: the follower's own
+corrections and the ground's motion, which moves the depth limits)."""
 
 
 class FieldLoopError(TrackLoopError):
@@ -82,6 +88,8 @@ class FieldLoopSettings:
         draft_lost_at_s: from this loop time on the draft pins send "not available" (a broken
             sensor: the fallback), None: never.
         rate_window_s: the least-squares window of the setpoint's rate sent with it [s].
+        rate_limit: the work controller knows the hitch's z speed (the follower's z-only limit, see
+            :data:`Z_RATE_SHARE`) and never asks for more (False: unlimited, the old behaviour).
         sim: the simulated machine and bus.
     """
 
@@ -93,6 +101,7 @@ class FieldLoopSettings:
     ttl_s: float = 0.3
     draft_lost_at_s: float | None = None
     rate_window_s: float = 0.1
+    rate_limit: bool = True
     sim: SimSettings = field(default_factory=SimSettings)
 
     def __post_init__(self) -> None:
@@ -105,6 +114,8 @@ class FieldLoopSettings:
         _number("ttl_s", self.ttl_s, 0.05, 1.0)
         _number("draft_lost_at_s", self.draft_lost_at_s, 0.0, 3600.0, optional=True)
         _number("rate_window_s", self.rate_window_s, 0.02, 2.0)
+        if not isinstance(self.rate_limit, bool):
+            raise FieldLoopError(f"rate_limit must be true or false, got {self.rate_limit!r}")
 
 
 class FieldDraft:
@@ -256,7 +267,7 @@ def run_field_loop(
             session = mc.track_start("tractor", ("z",), s.ttl_s).session
         except MotionError as exc:
             raise FieldLoopError(f"the track session could not start: {exc}") from None
-        work = WorkController(s.work)
+        work = WorkController(s.work, z_rate_max_m_s=_z_rate(mc.planner, p0) if s.rate_limit else None)
         slope = _Slope(s.rate_window_s)
         t_loop = loop.now_s
         seq = 0
@@ -345,6 +356,15 @@ def run_field_loop(
         faults=faults,
         notes=tuple(notes),
     )
+
+
+def _z_rate(planner: Any, pose: np.ndarray) -> float:
+    """What the draft regulator may ask of the hitch: :data:`Z_RATE_SHARE` times the z speed the track
+    follower allows a z-only session (its subset limits, z alone) [m/s]."""
+    active = np.array([False, True, False, False])
+    lim = subset_limits(planner.inverse, np.asarray(pose, float), active, planner.limits, planner.lo, planner.hi)
+    v = float(planner.any_direction.velocity[1]) if lim is None else float(lim.velocity[1])
+    return Z_RATE_SHARE * v
 
 
 def _reference_z(state: dict[str, Any] | None) -> float:

@@ -24,6 +24,12 @@ Modes (:attr:`WorkSettings.mode`):
   ground reference bounds the setpoint but is not fed forward: the undulation reaches the draft
   loop as a draft error, as on a tractor's draft control (feeding the ground height forward made
   the hitch lag the undulation and *raised* the draft's spread in the twin, see docs/soil.md).
+  Hitch speed: given ``z_rate_max_m_s`` (the z speed the hitch follows), the draft demand moves no
+  faster than that, and when the rate bounds it the integral is set back to the bounded output less
+  the proportional part (back-calculation). Without it a hitch that lags a fast undulation lets the
+  integral run ahead of the hitch, and the loop cycles between the depth limits (with the true depth
+  beyond them, since the hitch arrives late). The depth limits win over the rate: they move with the
+  ground.
 * ``mixed``: ``z = (1 - blend)·z_position + blend·z_draft`` (blend 0 = position, 1 = draft).
 * ``float``: no down pressure. A position-controlled hitch cannot be force-free, so float means
   here: the hitch carries the implement at the shallowest allowed depth below the ground
@@ -36,7 +42,13 @@ Slip limiting (``slip_limit`` not None; every mode but float): a PI regulator on
 ``slip - slip_limit`` whose integral is clamped at 0 from below, so it acts only while the slip has
 been above the limit and decays once it is below. In draft mode it lowers the draft setpoint (a
 cascade: ``D_set·(1 - c)``, ``c = K_P·excess⁺ + K_I·∫excess`` within ``[0, MAX_CUT]``), so the
-draft regulator itself makes the tool shallower and the depth limits still hold. In position and
+draft regulator itself makes the tool shallower and the depth limits still hold. It is the outer,
+slower loop of that cascade: the excess is that of the slip low-passed with :data:`SLIP_TAU_S`, its
+gains put its crossover at about a fifth of the draft loop's, ``c`` changes by at most
+:data:`CUT_RATE_MAX` per second, and its integral does not grow while the draft regulator already
+sits at the shallow depth limit (anti-windup). Slip follows the draft, so a limiter as fast as the
+draft loop (it was: a P-term on the raw slip and 5 /s) adds its gain and its integrator to the draft
+loop's, and on a hitch that lags the undulation the two cycled (docs/soil.md). In position and
 mixed mode it lifts the setpoint by ``r = K_P·excess⁺ + K_I·∫excess`` within ``[0, depth_max]``
 (position: never above the ground contact; mixed: never shallower than ``depth_min``, and while it
 lifts the draft integral may only lift too, so the two do not fight). An unavailable slip (None,
@@ -81,9 +93,17 @@ KI_DRAFT = 1.5
 #: slip limiter: raise per unit slip excess [m] (P) and raise rate per unit slip excess [m/s] (I)
 KP_SLIP = 0.3
 KI_SLIP = 2.0
-#: slip limiter in draft mode: cut of the draft setpoint per unit slip excess (P) and its rate [1/s] (I)
-KP_CUT = 2.0
-KI_CUT = 5.0
+#: slip limiter in draft mode (the outer loop of a cascade on the draft setpoint): cut per unit excess of the
+#: low-passed slip (P) and its rate [1/s] (I). Slip follows the draft with a slope of about 0.3 per unit
+#: relative draft, so the outer loop's crossover is about KI_CUT·0.3 ≈ 0.3 rad/s, a fifth of the draft
+#: loop's (K_I = 1.5 /s): the two integrators no longer act at the same speed (they fought at 5 /s).
+KP_CUT = 0.5
+KI_CUT = 1.0
+#: time constant of the slip low-pass feeding the draft-mode limiter [s] (the undulation's draft ripple,
+#: 0.3 Hz, is not a reason to cut the setpoint: only the slip's mean is)
+SLIP_TAU_S = 1.0
+#: the fastest the slip limiter changes the draft setpoint's cut [1/s]
+CUT_RATE_MAX = 0.2
 #: the largest share of the draft setpoint the slip limiter may take away
 MAX_CUT = 0.9
 #: float: the ground must move more than this before the hitch follows it [m]
@@ -199,8 +219,17 @@ def _finite(v: float | None) -> bool:
 class WorkController:
     """Per control cycle: the z setpoint of the active mode (module docstring). Not thread-safe."""
 
-    def __init__(self, settings: WorkSettings | None = None) -> None:
+    def __init__(self, settings: WorkSettings | None = None, *, z_rate_max_m_s: float | None = None) -> None:
+        """``z_rate_max_m_s``: the fastest the hitch follows z [m/s], (0, 2], or None (no rate limit): draft
+        and mixed then never command z faster, and the draft integral tracks the rate-limited output
+        (anti-windup against the hitch's speed, module docstring)."""
+        self._rate = None if z_rate_max_m_s is None else _num("z_rate_max_m_s", z_rate_max_m_s, 0.0, 2.0, open_lo=True)
         self.configure(WorkSettings() if settings is None else settings)
+
+    @property
+    def z_rate_max_m_s(self) -> float | None:
+        """The hitch's z rate the draft regulator respects (None: none)."""
+        return self._rate
 
     @property
     def settings(self) -> WorkSettings:
@@ -220,11 +249,13 @@ class WorkController:
         self._slip_raise = 0.0
         self._slip_cut = 0.0
         self._slip_i = 0.0
+        self._slip_f: float | None = None
 
     def resume(self) -> None:
         """Clear a latched fallback: the configured mode engages again on the next step (bumpless)."""
         self._fallback: str | None = None
         self._z_i: float | None = None
+        self._z_draft: float | None = None
         self._float_z: float | None = None
         self._last_t: float | None = None
         self._same_value: float | None = None
@@ -329,21 +360,53 @@ class WorkController:
         target = s.draft_setpoint_n
         limited = False
         if mode == "draft" and s.slip_limit is not None:  # the slip limiter lowers the draft setpoint
-            p, note = self._slip_update(slip, dt, KI_CUT, MAX_CUT)
-            self._slip_cut = min(MAX_CUT, KP_CUT * p + KI_CUT * self._slip_i)
+            note = self._slip_cut_update(slip, dt, self._z_draft is not None and self._z_draft >= z_hi - 1e-9)
             limited = self._slip_cut > 0.0
             target *= 1.0 - self._slip_cut
         e = (float(draft_n) - target) / s.draft_setpoint_n
         zi = self._z_i + s.sensitivity * KI_DRAFT * d_ref * e * dt
         if self._slip_raise > 0.0:
             zi = max(zi, self._z_i)  # mixed: while the slip limiter lifts, the draft regulator may only lift
-        self._z_i = min(z_hi, max(z_lo, zi))  # anti-windup: the integral stays within the depth limits
-        z_draft = min(z_hi, max(z_lo, self._z_i + s.sensitivity * KP_DRAFT * d_ref * e))
+        zi = min(z_hi, max(z_lo, zi))  # anti-windup: the integral stays within the depth limits
+        zp = s.sensitivity * KP_DRAFT * d_ref * e
+        z_draft = min(z_hi, max(z_lo, zi + zp))
+        if self._rate is not None and self._z_draft is not None:
+            # the hitch's speed: never ask for more, and let the integral keep only what the hitch can
+            # follow (back-calculation), or it runs ahead of a lagging hitch and the loop cycles
+            room = self._rate * dt
+            z_rl = min(self._z_draft + room, max(self._z_draft - room, z_draft))
+            if z_rl != z_draft:
+                z_draft = min(z_hi, max(z_lo, z_rl))  # the depth limits (they move with the ground) win
+                zi = min(z_hi, max(z_lo, z_draft - zp))
+        self._z_i = zi
+        self._z_draft = z_draft
         if mode == "draft":
             return out(z_draft, mode, limited, float(draft_n), e)
         zz = (1.0 - s.blend) * z_op + s.blend * z_draft
         zz, limited, note = self._slip_raise_z(zz, slip, dt, z_hi)
         return out(zz, mode, limited, float(draft_n), e)
+
+    def _slip_cut_update(self, slip: float | None, dt: float, at_shallow_limit: bool) -> str | None:
+        """Draft mode: the outer loop of the cascade. The cut of the draft setpoint from the low-passed
+        slip's excess (P + I), its integral frozen while the regulator already sits at the shallow
+        depth limit (cutting more cannot lift the tool: anti-windup), the cut rate-limited."""
+        lim = self._s.slip_limit
+        assert lim is not None
+        if not _finite(slip):
+            return "slip unavailable"
+        assert slip is not None
+        x = float(slip)
+        if self._slip_f is None:
+            self._slip_f = x
+        else:
+            self._slip_f += (x - self._slip_f) * min(1.0, dt / SLIP_TAU_S)
+        excess = self._slip_f - lim
+        if not (at_shallow_limit and excess > 0.0):
+            self._slip_i = min(MAX_CUT / KI_CUT, max(0.0, self._slip_i + excess * dt))
+        cut = min(MAX_CUT, KP_CUT * max(0.0, excess) + KI_CUT * self._slip_i)
+        room = CUT_RATE_MAX * dt
+        self._slip_cut = min(self._slip_cut + room, max(self._slip_cut - room, cut))
+        return None
 
     def _slip_update(self, slip: float | None, dt: float, gain_i: float, top: float) -> tuple[float, str | None]:
         """Advance the limiter's integral of the slip excess (clamped so that ``gain_i`` times it stays

@@ -74,3 +74,18 @@ def test_bad_settings_are_named(model, patches):
         FieldLoopSettings(work={"mode": "draft"})
     with pytest.raises(FieldLoopError, match="duration_s"):
         run_field_loop(model, patches, FieldLoopSettings(duration_s=3.0, settle_s=3.0))
+
+
+def test_the_draft_demand_respects_the_hitch_speed(model, runs):
+    """The loop gives the work controller the follower's z speed (z alone): between the depth limits the
+    draft demand never moves faster than that share of it (the draft integral cannot run ahead of the
+    hitch), and the flag is validated."""
+    from bridge.service.field_loop import Z_RATE_SHARE
+
+    _, drf, _, _ = runs
+    ev = drf.evaluated
+    steps = np.abs(np.diff(drf.z_setpoint[ev])) / np.diff(drf.t[ev])
+    inside = np.abs(np.diff(drf.ground_z[ev])) < 1e-3  # flat ground: the limits do not move
+    assert steps[inside].max() <= Z_RATE_SHARE * 0.09 + 1e-6  # the follower's z-only speed is 88 mm/s
+    with pytest.raises(FieldLoopError, match="rate_limit"):
+        FieldLoopSettings(rate_limit="yes")

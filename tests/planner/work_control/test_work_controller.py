@@ -255,3 +255,66 @@ def test_configure_restarts_bumpless_and_every_output_is_finite():
         assert math.isfinite(st.z)
         if k % 7 == 0:
             wc.resume()
+
+
+def simulate_lagging_hitch(settings, *, z_rate=None, duration=60.0, vmax=0.088, amax=0.5, delay=0.1):
+    """A hitch that lags like the twin's: the setpoint arrives ``delay`` late, z follows it with a 0.15 s
+    servo within ``vmax`` [m/s] and ``amax`` [m/s²]; the ground undulates ±45 mm at 0.32 Hz (the
+    ``terrain`` scenario's); the soil alternates 10 s normal and 10 s heavy (×1.25); the pins lag
+    0.1 s; slip = 0.1·(D / 20 kN)^1.5. Returns the true draft's SD, the true depth's min and max
+    (after 10 s) and the commanded z."""
+    wc = WorkController(settings, z_rate_max_m_s=z_rate)
+    rng = np.random.default_rng(0)
+    z = v = 0.0
+    queue = [0.0] * int(round(delay / DT))
+    draft = measured = K * G0
+    a_pins = 1.0 - math.exp(-DT / 0.1)
+    depths, drafts, zs = [], [], []
+    for k in range(int(duration / DT)):
+        t = k * DT
+        g = G0 + 0.045 * math.sin(2.0 * math.pi * 0.32 * t)
+        slip = 0.1 * (draft / 20_000.0) ** 1.5
+        st = wc.step(t, Z_OP, draft_n=measured + float(rng.normal(0.0, 50.0)), draft_t=t, slip=slip, ground_z=g)
+        queue.append(st.z)
+        v_want = max(-vmax, min(vmax, (queue.pop(0) - z) / 0.15))
+        v += max(-amax * DT, min(amax * DT, v_want - v))
+        z += v * DT
+        depth = max(0.0, g - z)
+        draft = K * (1.0 if t % 20.0 < 10.0 else 1.25) * depth
+        measured += a_pins * (draft - measured)
+        if t >= 10.0:
+            depths.append(depth)
+            drafts.append(draft)
+            zs.append(st.z)
+    return float(np.std(drafts)), min(depths), max(depths), np.array(zs)
+
+
+def test_the_slip_limiter_does_not_destabilise_draft_control_on_a_lagging_hitch():
+    """The slip limiter is the slow outer loop of a cascade on the draft setpoint: on a hitch that lags
+    the undulation, draft + slip limit stays close to draft alone, below position, and the true depth
+    stays within its limits (the old limiter, as fast as the draft loop, cycled: SD 6.5 kN against
+    position's 4.5 kN, depth down to 7.4 cm)."""
+    rate = 0.08  # the hitch's 88 mm/s, less a margin
+    pos = simulate_lagging_hitch(WorkSettings(mode="position", **LIMITS))
+    drf = simulate_lagging_hitch(WorkSettings(mode="draft", draft_setpoint_n=20_000.0, **LIMITS), z_rate=rate)
+    lim = simulate_lagging_hitch(
+        WorkSettings(mode="draft", draft_setpoint_n=20_000.0, slip_limit=0.1, **LIMITS), z_rate=rate
+    )
+    assert lim[0] < pos[0]
+    assert lim[0] <= 1.2 * drf[0]
+    for _sd, d_min, d_max, _ in (drf, lim):
+        assert LIMITS["depth_min_m"] - 0.005 <= d_min and d_max <= LIMITS["depth_max_m"] + 0.005, (d_min, d_max)
+
+
+def test_the_rate_limit_bounds_the_draft_demand_and_the_integral_follows_it():
+    """With the hitch's z rate given, a large draft error moves z no faster than that rate (away from the
+    depth limits, on level ground), and the integral does not run ahead: when the error reverses the
+    setpoint turns back at once (no windup against the hitch's speed)."""
+    wc = WorkController(WorkSettings(mode="draft", draft_setpoint_n=20_000.0, **LIMITS), z_rate_max_m_s=0.05)
+    zs = [wc.step(k * DT, Z_OP, draft_n=30_000.0 + k, draft_t=k * DT, ground_z=G0).z for k in range(20)]
+    steps = np.diff(zs)
+    assert np.all(steps > 0.0) and np.all(steps <= 0.05 * DT + 1e-12)
+    z_turn = wc.step(20 * DT, Z_OP, draft_n=19_000.0, draft_t=20 * DT, ground_z=G0).z
+    assert z_turn < zs[-1]
+    with pytest.raises(WorkSettingsError, match="z_rate_max_m_s"):
+        WorkController(z_rate_max_m_s=0.0)

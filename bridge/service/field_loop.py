@@ -44,10 +44,10 @@ from bridge.isobus.messages import RearHitchStatus
 from bridge.link.tractor_sensors import TractorSensorsConfig
 from bridge.service.motion.types import MotionError
 from bridge.service.track_loop import SimLoop, TrackLoopError, _note, _Slope
+from bridge.service.work import draft_rate_limit
 from bridge.sim.field import FieldRun, FieldSample, FieldSetup, load_field
 from bridge.sim.move import SimSettings
 from planner.model.kinematics import HitchModel
-from planner.trajectory.track import subset_limits
 from planner.work_control import WorkController, WorkSettings
 
 __all__ = ["FieldDraft", "FieldLoopError", "FieldLoopResult", "FieldLoopSettings", "run_field_loop"]
@@ -56,11 +56,6 @@ __all__ = ["FieldDraft", "FieldLoopError", "FieldLoopResult", "FieldLoopSettings
 HEAVY_SETTLE_S = 3.0
 """The slip figure ``slip_max_heavy_settled`` leaves out the first seconds in a heavy patch (the entry
 transient: the limiter acts on the slip, so it cannot prevent the rise it reacts to)."""
-
-
-Z_RATE_SHARE = 0.9
-"""The share of the follower's z speed the draft regulator may use (the rest: the follower's own
-corrections and the ground's motion, which moves the depth limits)."""
 
 
 class FieldLoopError(TrackLoopError):
@@ -89,7 +84,7 @@ class FieldLoopSettings:
             sensor: the fallback), None: never.
         rate_window_s: the least-squares window of the setpoint's rate sent with it [s].
         rate_limit: the work controller knows the hitch's z speed (the follower's z-only limit, see
-            :data:`Z_RATE_SHARE`) and never asks for more (False: unlimited, the old behaviour).
+            :data:`bridge.service.work.Z_RATE_SHARE`) and never asks for more (False: unlimited, the old behaviour).
         sim: the simulated machine and bus.
     """
 
@@ -267,7 +262,7 @@ def run_field_loop(
             session = mc.track_start("tractor", ("z",), s.ttl_s).session
         except MotionError as exc:
             raise FieldLoopError(f"the track session could not start: {exc}") from None
-        work = WorkController(s.work, z_rate_max_m_s=_z_rate(mc.planner, p0) if s.rate_limit else None)
+        work = WorkController(s.work, z_rate_max_m_s=draft_rate_limit(mc.planner, p0) if s.rate_limit else None)
         slope = _Slope(s.rate_window_s)
         t_loop = loop.now_s
         seq = 0
@@ -356,15 +351,6 @@ def run_field_loop(
         faults=faults,
         notes=tuple(notes),
     )
-
-
-def _z_rate(planner: Any, pose: np.ndarray) -> float:
-    """What the draft regulator may ask of the hitch: :data:`Z_RATE_SHARE` times the z speed the track
-    follower allows a z-only session (its subset limits, z alone) [m/s]."""
-    active = np.array([False, True, False, False])
-    lim = subset_limits(planner.inverse, np.asarray(pose, float), active, planner.limits, planner.lo, planner.hi)
-    v = float(planner.any_direction.velocity[1]) if lim is None else float(lim.velocity[1])
-    return Z_RATE_SHARE * v
 
 
 def _reference_z(state: dict[str, Any] | None) -> float:

@@ -40,6 +40,7 @@ from typing import Any, NoReturn, Protocol
 
 from bridge.service.motion.types import MotionError, TrackMotion
 from planner.errors import HitchError
+from planner.trajectory.track import subset_limits
 from planner.work_control import WorkController, WorkSettings, WorkSettingsError, WorkStatus
 
 __all__ = [
@@ -153,6 +154,22 @@ class _Slope:
         return 0.0 if den <= 0.0 else sum((p[0] - tm) * (p[1] - vm) for p in self._buf) / den
 
 
+Z_RATE_SHARE = 0.9
+"""The share of the follower's z speed the draft regulator may use (the rest: the follower's own
+corrections and the ground's motion, which moves the depth limits)."""
+
+
+def draft_rate_limit(planner: Any, pose: Any) -> float:
+    """What the draft regulator may ask of the hitch at ``pose``: :data:`Z_RATE_SHARE` times the z speed
+    the track follower allows a z-only session (its subset limits, z alone) [m/s]."""
+    import numpy as np
+
+    active = np.array([False, True, False, False])
+    lim = subset_limits(planner.inverse, np.asarray(pose, float), active, planner.limits, planner.lo, planner.hi)
+    v = float(planner.any_direction.velocity[1]) if lim is None else float(lim.velocity[1])
+    return Z_RATE_SHARE * v
+
+
 class WorkControl:
     """Work sessions on a motion controller (module docstring). API calls from any thread;
     :meth:`on_cycle` from the control cycle under the controller's lock. Its own lock is held only for
@@ -206,11 +223,13 @@ class WorkControl:
         operator's position setpoint [m] (None: the commanded z now). Raises MotionError as track/start."""
         if z is not None and (isinstance(z, bool) or not isinstance(z, (int, float)) or not math.isfinite(z)):
             raise WorkSettingsError(f"z must be a finite number [m], got {z!r}")
-        z_op = float(z) if z is not None else float(self.motion.current_state().position[1])
+        here = self.motion.current_state().position
+        z_op = float(z) if z is not None else float(here[1])
+        rate = draft_rate_limit(self.motion.planner, here)  # the draft demand never outruns the hitch
         acc = self.motion.track_start("tractor", ("z",), WORK_TTL_S)
         with self._lock:
             self._settings = settings
-            self._ctl = WorkController(settings)
+            self._ctl = WorkController(settings, z_rate_max_m_s=rate)
             self._z_op = z_op
             self._slope = _Slope(_RATE_WINDOW_S)
             self._pending, self._resume = None, False

@@ -224,6 +224,7 @@ class WorkController:
         and mixed then never command z faster, and the draft integral tracks the rate-limited output
         (anti-windup against the hitch's speed, module docstring)."""
         self._rate = None if z_rate_max_m_s is None else _num("z_rate_max_m_s", z_rate_max_m_s, 0.0, 2.0, open_lo=True)
+        self._z_out: float | None = None  # the last z setpoint handed out (any mode): where a restart continues
         self.configure(WorkSettings() if settings is None else settings)
 
     @property
@@ -314,6 +315,7 @@ class WorkController:
             zz: float, active: str, limited: bool, used: float | None = None, err: float | None = None
         ) -> WorkStatus:
             depth = None if g is None else g - zz
+            self._z_out = zz
             return WorkStatus(
                 now,
                 zz,
@@ -355,8 +357,9 @@ class WorkController:
         d_lo, d_hi = s.depth_min_m, s.depth_max_m
         d_ref = 0.5 * (d_lo + d_hi)
         z_lo, z_hi = g - d_hi, g - d_lo  # the depth limits as hitch heights
+        start = min(z_hi, max(z_lo, z_op if self._z_out is None else self._z_out))  # bumpless (re)start
         if self._z_i is None:
-            self._z_i = min(z_hi, max(z_lo, z_op))
+            self._z_i = start
         target = s.draft_setpoint_n
         limited = False
         if mode == "draft" and s.slip_limit is not None:  # the slip limiter lowers the draft setpoint
@@ -370,11 +373,13 @@ class WorkController:
         zi = min(z_hi, max(z_lo, zi))  # anti-windup: the integral stays within the depth limits
         zp = s.sensitivity * KP_DRAFT * d_ref * e
         z_draft = min(z_hi, max(z_lo, zi + zp))
-        if self._rate is not None and self._z_draft is not None:
+        if self._rate is not None:
             # the hitch's speed: never ask for more, and let the integral keep only what the hitch can
-            # follow (back-calculation), or it runs ahead of a lagging hitch and the loop cycles
+            # follow (back-calculation), or it runs ahead of a lagging hitch and the loop cycles. A
+            # (re)start continues from the last z handed out (first: the operator's z): no step
+            prev = self._z_draft if self._z_draft is not None else start
             room = self._rate * dt
-            z_rl = min(self._z_draft + room, max(self._z_draft - room, z_draft))
+            z_rl = min(prev + room, max(prev - room, z_draft))
             if z_rl != z_draft:
                 z_draft = min(z_hi, max(z_lo, z_rl))  # the depth limits (they move with the ground) win
                 zi = min(z_hi, max(z_lo, z_draft - zp))

@@ -80,7 +80,7 @@ def test_the_draft_demand_respects_the_hitch_speed(model, runs):
     """The loop gives the work controller the follower's z speed (z alone): between the depth limits the
     draft demand never moves faster than that share of it (the draft integral cannot run ahead of the
     hitch), and the flag is validated."""
-    from bridge.service.field_loop import Z_RATE_SHARE
+    from bridge.service.work import Z_RATE_SHARE
 
     _, drf, _, _ = runs
     ev = drf.evaluated

@@ -7,6 +7,7 @@ control, and the fallback with one ``work_fallback`` event when there is no draf
 
 from __future__ import annotations
 
+import itertools
 import json
 import time
 
@@ -356,3 +357,26 @@ def test_losing_the_fields_draft_in_the_running_twin_falls_back_once_and_positio
         assert wait_until(lambda: not svc.latest_state["work"]["running"], 10.0)
     finally:
         svc.close()
+
+
+def test_the_live_draft_demand_never_outruns_the_hitch(model, tmp_path):
+    """The service's work session bounds the draft demand's rate by what the follower allows a z-only
+    session (``draft_rate_limit``), as the simulated field loop does: no step of the z setpoint between
+    two states is faster (before: the regulator's proportional step jumped at the start)."""
+    from bridge.service.work import draft_rate_limit
+
+    lo_z = float(TrajectoryPlanner(model).lo[1])
+    s = Service(model, tmp_path / "h.sqlite3", FakeInputs(ground_z=lo_z + 0.5))
+    try:
+        s.ok("work/settings", {"mode": "draft", "draft_setpoint_n": 20_000.0, "depth_min_m": 0.1, "depth_max_m": 0.45})
+        z0 = lo_z + 0.35
+        s.ok("work/start", {"z": z0})
+        s.run(2.0)
+        pts = [(st["clock"], st["work"]["z_setpoint"]) for st in s.states if st["work"]["z_setpoint"] is not None]
+        pts = [(pts[0][0] - 0.02, z0), *pts]  # the operator's z just before the session's first cycle
+        assert len(pts) > 20 and min(z for _, z in pts) < z0 - 0.05  # it went deeper
+        limit = draft_rate_limit(TrajectoryPlanner(model), [0.0, z0, 0.0, 0.0])
+        fastest = max(abs(z1 - z_0) / (t1 - t0) for (t0, z_0), (t1, z1) in itertools.pairwise(pts) if t1 > t0)
+        assert fastest <= limit * 1.02, (fastest, limit)
+    finally:
+        s.close()

@@ -318,3 +318,26 @@ def test_the_rate_limit_bounds_the_draft_demand_and_the_integral_follows_it():
     assert z_turn < zs[-1]
     with pytest.raises(WorkSettingsError, match="z_rate_max_m_s"):
         WorkController(z_rate_max_m_s=0.0)
+
+
+def test_new_settings_and_resume_continue_from_the_last_setpoint_without_a_step():
+    """Bumpless: a reconfigure (or resume) mid-session continues from the z last handed out, within the
+    rate bound — before, the regulator restarted at the operator's z (a jump of several cm, here ~6 cm)."""
+    rate = 0.08
+    ctl = WorkController(
+        WorkSettings(mode="draft", draft_setpoint_n=20_000.0, depth_min_m=0.1, depth_max_m=0.3), z_rate_max_m_s=rate
+    )
+    g, z_op, t, last = 0.3, 0.1, 0.0, None
+    for _ in range(150):  # a light soil: the regulator goes deep, far from the operator's z
+        last = ctl.step(t, z_op, draft_n=1_000.0 + 10.0 * math.sin(37.0 * t), draft_t=t, ground_z=g).z
+        t += 0.02
+    assert last is not None and abs(last - z_op) > 0.05
+    for change in (
+        lambda: ctl.configure(WorkSettings(mode="draft", draft_setpoint_n=20_000.0, depth_min_m=0.1, depth_max_m=0.6)),
+        ctl.resume,
+    ):
+        change()
+        for _ in range(5):
+            z = ctl.step(t, z_op, draft_n=1_000.0 + 10.0 * math.sin(37.0 * t), draft_t=t, ground_z=g).z
+            assert abs(z - last) <= rate * 0.02 + 1e-12, (z, last)
+            last, t = z, t + 0.02

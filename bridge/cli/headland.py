@@ -1,8 +1,8 @@
 """Headland commands: ``hitch maneuver record start|stop [--save NAME]``, ``hitch maneuver
 pause|resume|skip`` and ``hitch lines save NAME FILE.geojson|list|delete NAME`` (docs/maneuvers.md).
 
-Registered by :func:`bridge.cli.service.add_commands`: :func:`add_maneuver_actions` on the
-``maneuver`` sub-parsers, :func:`add_lines_command` on the top level.
+Registered by :func:`bridge.cli.main.build_parser`: :func:`add_maneuver_actions` on the ``maneuver``
+sub-parsers :func:`bridge.cli.service.add_commands` returns, :func:`add_lines_command` on the top level.
 """
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from bridge.cli.errors import CLIError
+from bridge.cli.service import _client_command, _print, _run
 
 __all__ = ["add_maneuver_actions", "add_lines_command"]
 
@@ -21,8 +22,6 @@ MAX_GEOJSON_BYTES = 4 * 1024 * 1024
 
 def add_maneuver_actions(ms: Any) -> None:
     """``record start|stop`` and ``pause``, ``resume``, ``skip`` under ``hitch maneuver``."""
-    from bridge.cli.service import _client_command
-
     q = ms.add_parser("record", help="teach-in: record goto, preset and jog commands into a script")
     rs = q.add_subparsers(dest="record_action", required=True, parser_class=type(q))
     _client_command(rs, "start", "start recording", _cmd_record)
@@ -38,8 +37,6 @@ def add_maneuver_actions(ms: Any) -> None:
 
 def add_lines_command(sub: Any) -> None:
     """``hitch lines save NAME FILE|list|delete NAME``."""
-    from bridge.cli.service import _client_command
-
     p = sub.add_parser("lines", help="field-boundary and headland lines (GeoJSON) for maneuver wait_for line")
     ls = p.add_subparsers(dest="action", required=True, parser_class=type(p))
     _client_command(
@@ -50,8 +47,6 @@ def add_lines_command(sub: Any) -> None:
 
 
 def _cmd_record(args: Any) -> int:
-    from bridge.cli.service import _print, _run
-
     def record(c: Any) -> int:
         if args.record_action == "start":
             r = c.request("maneuvers/record/start", {})
@@ -70,8 +65,6 @@ def _cmd_record(args: Any) -> int:
 
 
 def _cmd_control(args: Any) -> int:
-    from bridge.cli.service import _print, _run
-
     def control(c: Any) -> int:
         r = c.request(f"maneuvers/{args.action}", {})
         m = r.get("maneuver") or {}
@@ -95,8 +88,6 @@ def _read_geojson(path: str) -> Any:
 
 
 def _cmd_lines(args: Any) -> int:
-    from bridge.cli.service import _print, _run
-
     def lines(c: Any) -> int:
         if args.action == "save":
             geo = _read_geojson(args.file)

@@ -14,6 +14,7 @@ from typing import NoReturn
 
 from bridge.cli import calibrate as cli_calibrate
 from bridge.cli import commissioning as cli_commissioning
+from bridge.cli import headland as cli_headland
 from bridge.cli import ik as cli_ik
 from bridge.cli import implements as cli_implements
 from bridge.cli import model as cli_model
@@ -45,7 +46,8 @@ def build_parser() -> argparse.ArgumentParser:
     cli_plan.add_commands(sub)
     cli_stability.add_commands(sub)
     cli_sim.add_commands(sub)
-    cli_service.add_commands(sub)
+    cli_headland.add_maneuver_actions(cli_service.add_commands(sub))  # record, pause, resume, skip
+    cli_headland.add_lines_command(sub)
     cli_track.add_commands(sub)
     cli_records.add_commands(sub)
     cli_router.add_commands(sub)

@@ -593,7 +593,9 @@ def _cmd_fleet(args) -> int:
     return _run(args, fleet)
 
 
-def add_commands(sub) -> None:
+def add_commands(sub) -> Any:
+    """The service's client commands on ``sub``; returns the ``hitch maneuver`` sub-parsers (the headland
+    commands add theirs: :func:`bridge.cli.headland.add_maneuver_actions`)."""
     _add_serve(sub)
     p = sub.add_parser("goto", help="move the hitch to a (partial) pose through the service")
     p.add_argument(
@@ -668,11 +670,7 @@ def add_commands(sub) -> None:
             _wait_options(q)
         _client_options(q)
         q.set_defaults(handler=_cmd_maneuver)
-    from bridge.cli import headland as cli_headland  # (imports this module: loaded here, not at the top)
-
-    cli_headland.add_maneuver_actions(ms)  # record start|stop, pause, resume, skip
-    cli_headland.add_lines_command(sub)  # hitch lines save|list|delete
-
+    maneuver_actions = ms  # bridge.cli.headland adds record, pause, resume, skip (bridge.cli.main)
     p = sub.add_parser("fleet", help="services reachable through a router")
     fs = p.add_subparsers(dest="action", required=True, parser_class=type(p))
     q = fs.add_parser("ls", help="list live services (liveliness tokens) with their profile and mode")
@@ -684,6 +682,7 @@ def add_commands(sub) -> None:
     q = fs.add_parser("ack", help="acknowledge latched faults (those whose cause is gone are cleared)")
     _client_options(q)
     q.set_defaults(handler=_cmd_faults)
+    return maneuver_actions
 
 
 def _count(text: str) -> int:

@@ -34,18 +34,16 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from bridge.isobus.messages import RearHitchStatus
 from bridge.link.tractor_sensors import TractorSensorsConfig
 from bridge.service.motion.types import MotionError
 from bridge.service.track_loop import SimLoop, TrackLoopError, _note, _Slope
 from bridge.service.work import draft_rate_limit
-from bridge.sim.field import FieldRun, FieldSample, FieldSetup, load_field
+from bridge.sim.field import FieldDraft, FieldRun, FieldSetup, load_field
 from bridge.sim.move import SimSettings
 from planner.model.kinematics import HitchModel
 from planner.work_control import WorkController, WorkSettings
@@ -111,24 +109,6 @@ class FieldLoopSettings:
         _number("rate_window_s", self.rate_window_s, 0.02, 2.0)
         if not isinstance(self.rate_limit, bool):
             raise FieldLoopError(f"rate_limit must be true or false, got {self.rate_limit!r}")
-
-
-class FieldDraft:
-    """The ECU node's draft source (:class:`bridge.sim.can_node.DraftSource`): the field run stepped
-    with the tool tip's true height when the hitch status is due; keeps the latest sample."""
-
-    def __init__(self, run: FieldRun, tip_z: Callable[[], float], *, lost_at_s: float | None = None) -> None:
-        self.run = run
-        self._tip_z = tip_z
-        self.lost_at_s = lost_at_s
-        self.last: FieldSample | None = None
-
-    def __call__(self, now_s: float) -> RearHitchStatus | None:
-        sample = self.run.step(now_s, tip_z_m=min(3.0, max(-1.0, self._tip_z())))
-        self.last = sample
-        if self.lost_at_s is not None and now_s >= self.lost_at_s:
-            return replace(sample.status, draft_n=None, nominal_lower_link_force=None)
-        return sample.status
 
 
 @dataclass(frozen=True)

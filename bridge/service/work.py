@@ -25,7 +25,7 @@ live session), ``work/start`` (the selected implement's settings), ``work/stop``
 the core in its own process the calls travel as ``work`` calls (:meth:`WorkControl.dispatch`).
 
 The twin (:func:`sim_field_tractor`): with ``sim_field`` configured the simulated tractor drives over the
-field's terrain scenario and the ECU node's draft source is a :class:`~bridge.service.field_loop.FieldDraft`
+field's terrain scenario and the ECU node's draft source is a :class:`~bridge.sim.field.FieldDraft`
 stepped with the tool tip's true height, so the draft pins are on the bus; without it the hitch status
 carries no draft and draft mode falls back at once ("draft signal stale: no reading").
 """
@@ -361,8 +361,7 @@ def sim_field_tractor(
     name = getattr(cfg, "sim_field", None)
     if name is None:
         return None
-    from bridge.service.field_loop import FieldDraft
-    from bridge.sim.field import FieldRun, load_field
+    from bridge.sim.field import FieldDraft, FieldRun, load_field
     from bridge.sim.sensors import TwinSensors
     from bridge.sim.tractor_node import TractorTwinNode
 

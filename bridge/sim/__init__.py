@@ -95,6 +95,7 @@ if TYPE_CHECKING:
         FaultSettings,
     )
     from bridge.sim.field import (
+        FieldDraft,
         FieldError,
         FieldRun,
         FieldSample,
@@ -352,7 +353,16 @@ _SOURCES: dict[str, str] = {
         "bridge.sim.draft_sensor",
     ),
     **dict.fromkeys(
-        ("FieldError", "FieldRun", "FieldSample", "FieldSetup", "builtin_fields", "field_from_dict", "load_field"),
+        (
+            "FieldDraft",
+            "FieldError",
+            "FieldRun",
+            "FieldSample",
+            "FieldSetup",
+            "builtin_fields",
+            "field_from_dict",
+            "load_field",
+        ),
         "bridge.sim.field",
     ),
 }
@@ -473,6 +483,7 @@ __all__ = [
     "DraftPins",
     "DraftReading",
     "rear_hitch_status",
+    "FieldDraft",
     "FieldError",
     "FieldRun",
     "FieldSample",

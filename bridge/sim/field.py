@@ -29,7 +29,8 @@ much faster the driven wheels turn (wheel speed = v / (1 - slip)).
 from __future__ import annotations
 
 import tomllib
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 from importlib import resources
 from importlib.resources.abc import Traversable
 from pathlib import Path
@@ -57,6 +58,7 @@ from planner.errors import HitchInputError
 from planner.profiles.loader import format_validation_error
 
 __all__ = [
+    "FieldDraft",
     "IMPLEMENT_KINDS",
     "FieldError",
     "FieldRun",
@@ -299,3 +301,21 @@ def load_field(name_or_path: str | Path) -> FieldSetup:
     except tomllib.TOMLDecodeError as exc:
         raise FieldError(f"field {where} is not valid TOML: {exc}") from None
     return field_from_dict(data, source=str(where), base=base)
+
+
+class FieldDraft:
+    """The ECU node's draft source (:class:`bridge.sim.can_node.DraftSource`): the field run stepped
+    with the tool tip's true height when the hitch status is due; keeps the latest sample."""
+
+    def __init__(self, run: FieldRun, tip_z: Callable[[], float], *, lost_at_s: float | None = None) -> None:
+        self.run = run
+        self._tip_z = tip_z
+        self.lost_at_s = lost_at_s
+        self.last: FieldSample | None = None
+
+    def __call__(self, now_s: float) -> RearHitchStatus | None:
+        sample = self.run.step(now_s, tip_z_m=min(3.0, max(-1.0, self._tip_z())))
+        self.last = sample
+        if self.lost_at_s is not None and now_s >= self.lost_at_s:
+            return replace(sample.status, draft_n=None, nominal_lower_link_force=None)
+        return sample.status

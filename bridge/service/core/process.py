@@ -52,7 +52,7 @@ from bridge.service.wire import to_json_bytes
 from bridge.service.workers import error_code
 from planner.errors import HitchError
 
-__all__ = ["CORE_NICE", "TWIN_NICE", "ControlCore", "freeze_startup_objects"]
+__all__ = ["CORE_NICE", "TWIN_NICE", "ControlCore", "freeze_startup_objects", "lock_memory"]
 
 #: nice value of every thread of the core process (the control cycle, CAN, its Zenoh session)
 CORE_NICE = -10
@@ -173,8 +173,12 @@ class ControlCore:
         clock = parts.clock
         info = service_info(cfg, guard)
         frozen = freeze_startup_objects()
+        locked = lock_memory()
+        if locked is not None:
+            warnings.append(f"control core: memory not locked ({locked}); its pages may be evicted and fault back in")
         return {
             "gc_frozen": frozen,
+            "memory_locked": locked is None,
             "t0_monotonic": time.monotonic() - clock(),
             "info": info,
             "simulated_ecu": parts.ecu_node is not None,
@@ -391,6 +395,33 @@ class ControlCore:
                     return
             else:
                 self._answer(call_id, method, args, kwargs)
+
+
+#: mlockall(2) flags (Linux): what is mapped now, what is mapped later, each page locked when first touched
+_MCL_CURRENT, _MCL_FUTURE, _MCL_ONFAULT = 1, 2, 4
+
+
+def lock_memory() -> str | None:
+    """Lock the process's pages in RAM (``mlockall(MCL_CURRENT | MCL_FUTURE | MCL_ONFAULT)``); None when
+    done, else why not.
+
+    A real-time process must not page-fault on its control path. Even with free memory and no swap, a
+    kernel may evict *file-backed* pages it sees as cold (the code of the interpreter and of the
+    numeric libraries; proactive reclaim such as DAMON's ``pageout`` does exactly that), and a thread
+    that next runs such code waits for the disk — holding the interpreter lock, so every thread of the
+    core waits with it. Locked pages are never evicted. ``MCL_ONFAULT`` locks pages as they are first
+    touched instead of reading in every mapped library at once. Needs CAP_IPC_LOCK (root) or a large
+    enough ``RLIMIT_MEMLOCK``."""
+    import ctypes
+    import ctypes.util
+
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        if libc.mlockall(_MCL_CURRENT | _MCL_FUTURE | _MCL_ONFAULT) != 0:
+            return os.strerror(ctypes.get_errno())
+    except (OSError, AttributeError) as exc:  # no libc / no mlockall here
+        return str(exc)
+    return None
 
 
 def freeze_startup_objects() -> int:

@@ -190,3 +190,13 @@ def test_the_core_freezes_its_start_up_objects_out_of_the_garbage_collector(serv
         assert freeze_startup_objects() >= before + len(junk)
     finally:
         gc.unfreeze()
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="locking memory needs root or CAP_IPC_LOCK")
+def test_the_core_locks_its_memory(service):
+    """No page of the core is evicted (file-backed code pages included): the kernel reports locked pages."""
+    svc, _ = service
+    assert svc.core.ready["memory_locked"] is True
+    with open(f"/proc/{svc.core.pid}/status") as f:
+        vmlck_kb = next(int(line.split()[1]) for line in f if line.startswith("VmLck:"))
+    assert vmlck_kb > 50_000, vmlck_kb  # the interpreter, numpy, CasADi, zenoh as touched so far

@@ -57,7 +57,7 @@ from bridge.link.realtime import RealtimeRunner
 from bridge.service.api import API_KEYS, ServiceAPI
 from bridge.service.config import ServiceConfig
 from bridge.service.core.client import CoreProcess, MotionProxy
-from bridge.service.core.process import freeze_startup_objects
+from bridge.service.core.process import freeze_startup_objects, lock_memory
 from bridge.service.gnss import restore_lines, start_twin_gnss
 from bridge.service.machine import CanParts, build_controller, build_guard, build_model, service_info, start_can
 from bridge.service.motion.controller import MotionController
@@ -636,8 +636,11 @@ def serve(config: ServiceConfig, *, ready: Callable[[HitchService], None] | None
     old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         service = HitchService(config).start()
-        if service.motion is not None:  # the control cycle runs in this process: no full-GC pause over start-up objects
-            freeze_startup_objects()
+        if service.motion is not None:  # the control cycle runs in this process: as the core process does
+            freeze_startup_objects()  # no full-GC pause over the start-up objects
+            why = lock_memory()  # no page of the control path evicted
+            if why is not None:
+                service.warnings.append(f"memory not locked ({why}); pages may be evicted and fault back in")
         try:
             if ready is not None:
                 ready(service)

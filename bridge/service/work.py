@@ -38,6 +38,8 @@ from collections import deque
 from collections.abc import Callable, Mapping
 from typing import Any, NoReturn, Protocol
 
+import numpy as np
+
 from bridge.service.motion.types import MotionError, TrackMotion
 from planner.errors import HitchError
 from planner.trajectory.track import subset_limits
@@ -162,8 +164,6 @@ corrections and the ground's motion, which moves the depth limits)."""
 def draft_rate_limit(planner: Any, pose: Any) -> float:
     """What the draft regulator may ask of the hitch at ``pose``: :data:`Z_RATE_SHARE` times the z speed
     the track follower allows a z-only session (its subset limits, z alone) [m/s]."""
-    import numpy as np
-
     active = np.array([False, True, False, False])
     lim = subset_limits(planner.inverse, np.asarray(pose, float), active, planner.limits, planner.lo, planner.hi)
     v = float(planner.any_direction.velocity[1]) if lim is None else float(lim.velocity[1])
@@ -179,6 +179,8 @@ class WorkControl:
         self.motion, self.inputs = motion, inputs
         self._lock = threading.Lock()
         self._settings = WorkSettings()
+        self._json_of: WorkSettings | None = None  # the settings whose JSON ``_json`` holds
+        self._json: dict[str, Any] = {}
         self._pending: WorkSettings | None = None
         self._resume = False
         self._session: int | None = None
@@ -349,8 +351,14 @@ class WorkControl:
             "rejected": self.rejected,
             "setpoints_refused": self.foreign_setpoints,
             "ended": self._ended,
-            "settings": settings_to_json(s),
+            "settings": self._settings_json(s),
         }
+
+    def _settings_json(self, s: WorkSettings) -> dict[str, Any]:
+        """``settings_to_json(s)``, computed once per settings value (the state message asks every cycle)."""
+        if self._json_of is not s:
+            self._json_of, self._json = s, settings_to_json(s)
+        return dict(self._json)
 
 
 def sim_field_tractor(

@@ -28,7 +28,6 @@ much faster the driven wheels turn (wheel speed = v / (1 - slip)).
 
 from __future__ import annotations
 
-import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from importlib import resources
@@ -41,7 +40,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from bridge.isobus.j1939 import Switch
 from bridge.isobus.messages import RearHitchStatus
 from bridge.sim.draft_sensor import DraftPinConfig, DraftPinError, DraftPins, DraftReading, rear_hitch_status
-from bridge.sim.scenario import Scenario, ScenarioError, load_scenario
+from bridge.sim.scenario import Scenario, ScenarioError, load_scenario, read_named_toml, toml_names
 from bridge.sim.soil import (
     CHISEL_PLOW_STRAIGHT_POINT,
     FIELD_CULTIVATOR_PRIMARY,
@@ -276,30 +275,12 @@ def _builtin_folder() -> Traversable:
 
 def builtin_fields() -> list[str]:
     """Names of the fields shipped in ``bridge/sim/scenarios/fields/``."""
-    return sorted(p.name[:-5] for p in _builtin_folder().iterdir() if p.name.endswith(".toml"))
+    return toml_names(_builtin_folder())
 
 
 def load_field(name_or_path: str | Path) -> FieldSetup:
     """A field from a ``.toml`` path or a built-in name."""
-    p = Path(name_or_path)
-    where: Traversable | Path
-    base: Traversable | Path
-    if p.suffix == ".toml" or p.exists():
-        if not p.is_file():
-            raise FieldError(f"field file {p} does not exist")
-        where, base = p, p.parent
-    else:
-        where = _builtin_folder() / f"{name_or_path}.toml"
-        if not where.is_file():
-            raise FieldError(
-                f"field {str(name_or_path)!r} not found; built-in fields: {', '.join(builtin_fields())} "
-                "(or give a path to a .toml file)"
-            )
-        base = _builtin_folder()
-    try:
-        data = tomllib.loads(where.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        raise FieldError(f"field {where} is not valid TOML: {exc}") from None
+    data, where, base = read_named_toml(name_or_path, _builtin_folder(), "field", FieldError)
     return field_from_dict(data, source=str(where), base=base)
 
 

@@ -281,28 +281,41 @@ def _builtin_folder() -> Traversable:
 
 def builtin_scenarios() -> list[str]:
     """Names of the scenarios shipped in ``bridge/sim/scenarios/``."""
-    return sorted(p.name[:-5] for p in _builtin_folder().iterdir() if p.name.endswith(".toml"))
+    return toml_names(_builtin_folder())
 
 
-def load_scenario(name_or_path: str | Path) -> Scenario:
-    """A scenario from a ``.toml`` path or a built-in name."""
+def toml_names(folder: Traversable) -> list[str]:
+    """The names of the ``.toml`` files in ``folder`` (without the suffix), sorted."""
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+def read_named_toml(
+    name_or_path: str | Path, folder: Traversable, kind: str, error: type[HitchInputError]
+) -> tuple[dict[str, Any], Traversable | Path, Traversable | Path]:
+    """A ``kind`` file (``scenario``, ``field``) from a ``.toml`` path or a built-in name in ``folder``:
+    ``(data, where it was read, the folder its relative paths start from)``; ``error`` names what is wrong."""
     p = Path(name_or_path)
     where: Traversable | Path
     base: Traversable | Path
     if p.suffix == ".toml" or p.exists():
         if not p.is_file():
-            raise ScenarioError(f"scenario file {p} does not exist")
+            raise error(f"{kind} file {p} does not exist")
         where, base = p, p.parent
     else:
-        where = _builtin_folder() / f"{name_or_path}.toml"
+        where = folder / f"{name_or_path}.toml"
         if not where.is_file():
-            raise ScenarioError(
-                f"scenario {str(name_or_path)!r} not found; built-in scenarios: {', '.join(builtin_scenarios())} "
+            raise error(
+                f"{kind} {str(name_or_path)!r} not found; built-in {kind}s: {', '.join(toml_names(folder))} "
                 "(or give a path to a .toml file)"
             )
-        base = _builtin_folder()
+        base = folder
     try:
-        data = tomllib.loads(where.read_text(encoding="utf-8"))
+        return tomllib.loads(where.read_text(encoding="utf-8")), where, base
     except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(f"scenario {where} is not valid TOML: {exc}") from None
+        raise error(f"{kind} {where} is not valid TOML: {exc}") from None
+
+
+def load_scenario(name_or_path: str | Path) -> Scenario:
+    """A scenario from a ``.toml`` path or a built-in name."""
+    data, where, base = read_named_toml(name_or_path, _builtin_folder(), "scenario", ScenarioError)
     return scenario_from_dict(data, source=str(where), base=base)

@@ -227,6 +227,8 @@ class MotionController:
         self._rejection_event_at = -math.inf
         #: work control of track sessions (bridge.service.work.WorkControl; set by machine.build_controller)
         self.work: Any = None
+        self._goal_plan: Any = None  # the plan whose end pose ``_goal`` holds (state message)
+        self._goal: dict[str, Any] | None = None
 
     # ------------------------------------------------------------------ life cycle
     def start(self) -> MotionController:
@@ -1079,9 +1081,15 @@ class MotionController:
             faults=tuple(self._faults.values()),
             cache=self._eval_cache,
             track=m.progress() if isinstance(m, TrackMotion) else None,
-            goal=plan_goal(m.kind, m.plan) if isinstance(m, PlanMotion) else None,
+            goal=self._goal_of(m) if isinstance(m, PlanMotion) else None,
             work=None if self.work is None else self.work.progress(),
         )
+
+    def _goal_of(self, m: PlanMotion) -> dict[str, Any] | None:
+        """The state's ``goal`` of plan motion ``m``: computed once per plan, not every cycle."""
+        if self._goal_plan is not m.plan:
+            self._goal_plan, self._goal = m.plan, plan_goal(m.kind, m.plan)
+        return self._goal
 
     def _ev(self, name: str, m: ActiveMotion, **extra: Any) -> Event:
         return {"event": name, "motion_id": m.motion_id, **{k: v for k, v in extra.items() if v is not None}}

@@ -41,8 +41,8 @@ import numpy as np
 
 from bridge.link.tractor_sensors import TractorSensorsConfig
 from bridge.service.motion.types import MotionError
-from bridge.service.track_loop import SimLoop, TrackLoopError, _note, _Slope
-from bridge.service.work import draft_rate_limit
+from bridge.service.track_loop import SimLoop, TrackLoopError, _note
+from bridge.service.work import WindowSlope, draft_rate_limit
 from bridge.sim.field import FieldDraft, FieldRun, FieldSetup, load_field
 from bridge.sim.move import SimSettings
 from planner.model.kinematics import HitchModel
@@ -243,7 +243,7 @@ def run_field_loop(
         except MotionError as exc:
             raise FieldLoopError(f"the track session could not start: {exc}") from None
         work = WorkController(s.work, z_rate_max_m_s=draft_rate_limit(mc.planner, p0) if s.rate_limit else None)
-        slope = _Slope(s.rate_window_s)
+        slope = WindowSlope(s.rate_window_s)
         t_loop = loop.now_s
         seq = 0
         counts = {"references_outside_strokes": 0, "refused": 0, "setpoints_rejected": 0, "fallbacks": 0}

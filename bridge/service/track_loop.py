@@ -86,6 +86,7 @@ from bridge.link.tractor_sensors import TractorSensors, TractorSensorsConfig
 from bridge.service.machine import ReadingsAsTrackSensors
 from bridge.service.motion.controller import MotionController
 from bridge.service.motion.types import MotionError
+from bridge.service.work import WindowSlope
 from bridge.sim.move import SimRig, SimSettings
 from bridge.sim.scenario import Scenario, load_scenario
 from bridge.sim.sensors import TwinSensors
@@ -436,25 +437,6 @@ class TrackLoopResult:
         }
 
 
-class _Slope:
-    """Least-squares slope of the last samples within a window (the client's rate estimate)."""
-
-    def __init__(self, window_s: float) -> None:
-        self.window_s = window_s
-        self._buf: deque[tuple[float, float]] = deque()
-
-    def add(self, t: float, v: float) -> float:
-        self._buf.append((t, v))
-        while self._buf and self._buf[0][0] < t - self.window_s - 1e-9:
-            self._buf.popleft()
-        if len(self._buf) < 2:
-            return 0.0
-        ts = np.array([p[0] for p in self._buf])
-        vs = np.array([p[1] for p in self._buf])
-        tc = ts - ts.mean()
-        return float((tc @ (vs - vs.mean())) / (tc @ tc))
-
-
 class _AlphaBeta:
     """α-β filter of sampled-and-held camera readings: position and rate, extrapolated in between."""
 
@@ -786,7 +768,7 @@ def run_track_loop(
                 session = mc.track_start(frame, (dof,), s.ttl_s).session
             except MotionError as exc:
                 raise TrackLoopError(f"the track session could not start: {exc}") from None
-        slope = _Slope(s.rate_window_s)
+        slope = WindowSlope(s.rate_window_s)
         row_f = _AlphaBeta(*s.row_filter) if s.row_filter is not None and s.row_estimator == "alpha_beta" else None
         row_kf = RowKalman(RowModel.from_row(twin.row)) if s.row_estimator == "kalman" else None
         camera_ahead = float(twin.row.camera_ahead_m)

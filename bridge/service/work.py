@@ -52,6 +52,9 @@ __all__ = [
     "SensorWorkInputs",
     "WorkControl",
     "WorkInputs",
+    "WindowSlope",
+    "Z_RATE_SHARE",
+    "draft_rate_limit",
     "settings_from_json",
     "settings_to_json",
     "sim_field_tractor",
@@ -136,8 +139,9 @@ class SensorWorkInputs:
         return float(z) - float(g.value) + self.tool_drop_m
 
 
-class _Slope:
-    """Least-squares slope of the last samples within a window [unit/s]."""
+class WindowSlope:
+    """Least-squares slope of the samples within the last ``window_s`` [unit/s] (0 with fewer than two
+    samples or no spread in time): a rate from noisy samples, for work control and the simulated loops."""
 
     def __init__(self, window_s: float) -> None:
         self.window_s = window_s
@@ -186,7 +190,7 @@ class WorkControl:
         self._session: int | None = None
         self._z_op = 0.0
         self._ctl = WorkController(self._settings)
-        self._slope = _Slope(_RATE_WINDOW_S)
+        self._slope = WindowSlope(_RATE_WINDOW_S)
         self._last: WorkStatus | None = None
         self._limited: dict[str, str] = {}
         self._draft: float | None = None
@@ -233,7 +237,7 @@ class WorkControl:
             self._settings = settings
             self._ctl = WorkController(settings, z_rate_max_m_s=rate)
             self._z_op = z_op
-            self._slope = _Slope(_RATE_WINDOW_S)
+            self._slope = WindowSlope(_RATE_WINDOW_S)
             self._pending, self._resume = None, False
             self._last, self._limited, self._ended = None, {}, None
             self.fallbacks = self.rejected = self.foreign_setpoints = 0

@@ -148,6 +148,58 @@ def period_figures(times: Sequence[float] | np.ndarray) -> dict:
     }
 
 
+def read_steal_ticks() -> int:
+    """The machine's stolen time so far (``/proc/stat`` ``cpu`` line, field 8, all CPUs, USER_HZ ticks):
+    time the hypervisor ran something else while one of this machine's virtual CPUs wanted to run."""
+    try:
+        with open("/proc/stat") as f:
+            return int(f.readline().split()[8])
+    except (OSError, IndexError, ValueError):
+        return 0
+
+
+class StealSampler:
+    """Samples the stolen time every ``period_s`` on a thread of its own, to tell a stall of this
+    machine's virtual CPUs (the host ran another guest) from a stall of the service."""
+
+    def __init__(self, period_s: float = 0.02) -> None:
+        self.samples: list[tuple[float, int]] = []
+        self._stop = threading.Event()
+        self._period = period_s
+        self._thread = threading.Thread(target=self._run, name="steal-sampler", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            self.samples.append((time.time(), read_steal_ticks()))
+            self._stop.wait(self._period)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(1.0)
+
+    def stolen_s(self, t0: float, t1: float) -> float:
+        """CPU time stolen from all virtual CPUs between ``t0`` and ``t1`` [s] (from the samples around them)."""
+        if not self.samples:
+            return 0.0
+        ts = [t for t, _ in self.samples]
+        i0 = max(0, bisect.bisect_right(ts, t0) - 1)
+        i1 = min(len(ts) - 1, bisect.bisect_left(ts, t1))
+        return (self.samples[i1][1] - self.samples[i0][1]) / float(os.sysconf("SC_CLK_TCK"))
+
+
+def stall_steal(times: Sequence[float] | np.ndarray, steal: StealSampler, t0: float, t1: float, over_s: float) -> dict:
+    """For every period longer than ``over_s`` in ``times`` within [t0, t1]: its length and the time the host
+    stole from this machine's CPUs meanwhile [ms]; and the stolen share of the whole window."""
+    w = np.asarray(window(times, t0, t1))
+    gaps = []
+    for a, b in zip(w[:-1], w[1:], strict=True):
+        if b - a > over_s:
+            gaps.append({"period_ms": 1e3 * (b - a), "stolen_ms": 1e3 * steal.stolen_s(a, b)})
+    span = max(t1 - t0, 1e-9)
+    return {"stalls": gaps, "stolen_share_of_window": steal.stolen_s(t0, t1) / (span * (os.cpu_count() or 1))}
+
+
 def rising_edges(samples: Iterable[tuple[float, int]], bit: int, t0: float, t1: float) -> int:
     """How often ``bit`` goes from clear to set between consecutive samples (t, byte) with t in [t0, t1]
     (the sample before t0 counts as the previous one)."""
@@ -583,7 +635,13 @@ class InProcessService:
     """:class:`HitchService` in this process on a private virtual channel, with a :class:`Sniffer`
     (or, with the control core in its own process, a :class:`LogSniffer` on the core's CAN log)."""
 
-    def __init__(self, data_dir: str, planning_processes: int | None = None, control_core: str | None = None) -> None:
+    def __init__(
+        self,
+        data_dir: str,
+        planning_processes: int | None = None,
+        control_core: str | None = None,
+        realtime: bool | None = None,
+    ) -> None:
         from bridge.service.client import HitchClient
         from bridge.service.config import load_service_config
         from bridge.service.server import HitchService
@@ -598,6 +656,7 @@ class InProcessService:
             can_channel=channel,
             planning_processes=planning_processes,
             control_core=control_core,
+            realtime=realtime,
         )
         if cfg.control_core == "process":
             cfg = cfg.model_copy(update={"can_log": log})
@@ -649,7 +708,8 @@ def bench_load(a: argparse.Namespace) -> dict:
     from bridge.service.client import HitchClient
 
     tmp = tempfile.mkdtemp(prefix="hitch-reliability-")
-    service = InProcessService(tmp, a.planning_processes, a.control_core)
+    service = InProcessService(tmp, a.planning_processes, a.control_core, a.realtime)
+    steal = StealSampler()
     procs: list[subprocess.Popen] = []
     hogs: list[subprocess.Popen] = []
     res: dict[str, Any] = {}
@@ -717,6 +777,7 @@ def bench_load(a: argparse.Namespace) -> dict:
         for p in (*procs, *hogs):
             kill_group(p)
         service.close()
+        steal.close()
     states, events = mon["states"], mon["events"]
 
     def faults_in(w0: float, w1: float) -> dict:
@@ -755,6 +816,7 @@ def bench_load(a: argparse.Namespace) -> dict:
             "moving": {
                 "window_s": t1 - t0,
                 "reference_period": period_figures(window(refs, t0, t1)),
+                "stalls_and_steal": stall_steal(refs, steal, t0, t1, 0.060),
                 "watchdog_trips_ecu_counter": None if trips0 is None or trips1 is None else trips1 - trips0,
                 "watchdog_trips_on_bus": rising_edges(meas, WATCHDOG_BIT, t0, t1),
                 "false_faults": faults_in(t0, t1),
@@ -770,6 +832,7 @@ def bench_load(a: argparse.Namespace) -> dict:
             "idle": {
                 "window_s": i1 - i0,
                 "reference_period": period_figures(window(refs, i0, i1)),
+                "stalls_and_steal": stall_steal(refs, steal, i0, i1, 0.060),
                 "watchdog_trips_ecu_counter": None if trips1 is None or trips2 is None else trips2 - trips1,
                 "watchdog_trips_on_bus": rising_edges(meas, WATCHDOG_BIT, i0, i1),
                 "false_faults": faults_in(i0, i1),
@@ -1134,7 +1197,11 @@ def table(res: dict) -> list[str]:
     def zero(*counts: Any) -> str:
         return "ok" if all((c or 0) == 0 for c in counts) else "FAIL"
 
-    for load_key, head in (("load_in_threads", "[core+planning in threads] "), ("load", "")):
+    for load_key, head in (
+        ("load_in_threads", "[core+planning in threads] "),
+        ("load_nice_only", "[real-time off] "),
+        ("load", ""),
+    ):
         if load_key not in res:
             continue
         for phase in ("moving", "idle"):
@@ -1148,6 +1215,13 @@ def table(res: dict) -> list[str]:
             add(f"{head}{phase}: reference period ms", p["p50_ms"], p["p99_ms"], p["max_ms"], p["n"], tgt, v)
             over = f"{p['over_25_ms']} / {p['over_60_ms']} / {p['over_100_ms']}"
             add(f"{head}{phase}: periods > 25 / 60 / 100 ms", n=over)
+            st = ph.get("stalls_and_steal")
+            if st is not None:
+                pairs = ", ".join(f"{g['period_ms']:.0f}/{g['stolen_ms']:.0f}" for g in st["stalls"][:8]) or "none"
+                add(
+                    f"{head}{phase}: periods > 60 ms / CPU stolen by the host meanwhile ms",
+                    n=f"{pairs}; stolen {100 * st['stolen_share_of_window']:.1f} % of the window",
+                )
             wd, bus = ph["watchdog_trips_ecu_counter"], ph["watchdog_trips_on_bus"]
             add(f"{head}{phase}: watchdog trips (ECU / bus)", n=f"{fmt(wd)} / {bus}", tgt="0", v=zero(wd, bus))
             ff = ph["false_faults"]
@@ -1258,6 +1332,17 @@ def main(argv: Sequence[str] | None = None) -> None:
         help="where the service's control core runs (default: the service's default)",
     )
     ap.add_argument(
+        "--realtime",
+        choices=("on", "off"),
+        default=None,
+        help="the service's real-time scheduling (SCHED_FIFO; default: the service's default, on)",
+    )
+    ap.add_argument(
+        "--compare-realtime",
+        action="store_true",
+        help="run `load` twice: first with real-time scheduling off (nice values only), then as configured",
+    )
+    ap.add_argument(
         "--compare-threads",
         action="store_true",
         help="run `load` twice: first with the control core and planning in the service's threads, then as "
@@ -1269,6 +1354,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         {"monitor": role_monitor, "mover": role_mover, "load": role_load}[a.role](a)
         return
     q = a.quick
+    a.realtime = None if a.realtime is None else a.realtime == "on"
     a.duration = a.duration if a.duration is not None else (15.0 if q else 120.0)
     a.idle_duration = a.idle_duration if a.idle_duration is not None else (30.0 if q else 600.0)
     a.clients = a.clients if a.clients is not None else (5 if q else 20)
@@ -1292,6 +1378,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         res["load_in_threads"] = bench_load(
             argparse.Namespace(**{**vars(a), "planning_processes": 0, "control_core": "thread"})
         )
+    if "load" in only and a.compare_realtime:
+        print("--- load, real-time scheduling off (nice values only)", flush=True)
+        res["load_nice_only"] = bench_load(argparse.Namespace(**{**vars(a), "realtime": False}))
     for name in ("load", "cpu", "faults", "jog"):
         if name in only:
             print(f"--- {name}", flush=True)

@@ -137,6 +137,9 @@ class ServiceConfig(BaseModel):
     workers: int = Field(4, ge=1, le=32)
     #: where the control core runs: "process" (its own, bridge.service.core) or "thread" (in the service's)
     control_core: Literal["process", "thread"] = "process"
+    #: run the control path under the real-time policy SCHED_FIFO where permitted (bridge.service.scheduling);
+    #: False: raised nice values only
+    realtime: bool = Field(True, strict=True)
     #: record every CAN frame to this file (.asc, .blf, candump .log; python-can's writers)
     can_log: Path | None = None
     #: processes for plan previews, maneuver validation and IK (bridge.service.workers); 0: on the worker threads
@@ -246,6 +249,7 @@ _TOML_SECTIONS = {
         "workers": "workers",
         "planning_processes": "planning_processes",
         "control_core": "control_core",
+        "realtime": "realtime",
         "lines_file": "lines_file",
         "max_presets_per_user": "max_presets_per_user",
         "max_maneuvers_per_user": "max_maneuvers_per_user",

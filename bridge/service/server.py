@@ -24,8 +24,9 @@
 * the operator terminal (``http``) — :func:`bridge.web.server.start_http`, loaded only when asked for.
 
 Real time: the control thread and the CAN threads run at a raised OS priority (nice
-:data:`REALTIME_NICE`, needs root or CAP_SYS_NICE; otherwise a warning and an event say so and the
-service runs on), and the interpreter's switch interval is set to :data:`SWITCH_INTERVAL_S` so a
+:data:`REALTIME_NICE` and the real-time policy ``SCHED_FIFO``, :mod:`bridge.service.scheduling`; the
+service's Zenoh threads under ``SCHED_FIFO`` too; needs root or CAP_SYS_NICE; otherwise a warning and
+an event say so and the service runs on), and the interpreter's switch interval is set to :data:`SWITCH_INTERVAL_S` so a
 thread that computes (a plan) hands the GIL to the control thread within about a millisecond
 (``docs/faults.md``, *Threads or processes*).
 
@@ -41,7 +42,6 @@ SIGTERM.
 from __future__ import annotations
 
 import json
-import os
 import signal
 import sys
 import threading
@@ -62,6 +62,15 @@ from bridge.service.gnss import restore_lines, start_twin_gnss
 from bridge.service.machine import CanParts, build_controller, build_guard, build_model, service_info, start_can
 from bridge.service.motion.controller import MotionController
 from bridge.service.planning import GuardPlanning, InProcessPlanning, Planning
+from bridge.service.scheduling import (
+    CONTROL_RT_PRIORITY,
+    ROUTER_RT_PRIORITY,
+    TWIN_RT_PRIORITY,
+    raise_to_fifo,
+    set_thread_nice,
+    thread_nice,
+    zenoh_thread_ids,
+)
 from bridge.service.security import access_policy_from_file, apply_security, exposure_warnings, read_users
 from bridge.service.store import HitchStore
 from bridge.service.wire import to_json_bytes
@@ -82,7 +91,6 @@ __all__ = [
     "serve",
     "INLINE_KEYS",
     "MOTION_KEYS_LANE",
-    "raise_thread_priority",
     "to_json_bytes",
     "build_zenoh_config",
 ]
@@ -184,13 +192,13 @@ class HitchService:
         # core in its own process the service's threads stay at the caller's priority (they must not take
         # CPU from the core)
         in_process = self.config.control_core == "thread" or self.config.security is not None
-        caller_nice = _thread_nice(me) if in_process else None
-        self._service_nice_failed = raise_thread_priority(me, SERVICE_NICE) if caller_nice is not None else None
+        caller_nice = thread_nice(me) if in_process else None
+        self._service_nice_failed = set_thread_nice(me, SERVICE_NICE) if caller_nice is not None else None
         try:
             return self._start()
         finally:
             if caller_nice is not None:
-                raise_thread_priority(me, caller_nice)  # the caller's own thread as it was (lowering is permitted)
+                set_thread_nice(me, caller_nice)  # the caller's own thread as it was (lowering is permitted)
 
     def _start(self) -> HitchService:
         cfg = self.config
@@ -259,6 +267,7 @@ class HitchService:
             if self.motion is not None:
                 self.motion.start()
                 self._raise_priorities()
+            self._raise_router()
             if cfg.http is not None:
                 self._start_http(cfg.http)
             if self.planning is not None:  # built their models meanwhile: ready before the service says so
@@ -269,16 +278,21 @@ class HitchService:
         return self
 
     def _raise_priorities(self) -> None:
-        """The control and CAN threads at :data:`REALTIME_NICE`; when not permitted a warning and a
+        """The control and CAN threads at :data:`REALTIME_NICE` and under ``SCHED_FIFO``
+        (:data:`~bridge.service.scheduling.CONTROL_RT_PRIORITY`, the twin's runner
+        :data:`~bridge.service.scheduling.TWIN_RT_PRIORITY`); when not permitted a warning and a
         ``realtime`` event say so, and the service runs on at normal priority."""
         failed: list[str] = []
         if self._service_nice_failed is not None:
             failed.append(f"service threads (nice {SERVICE_NICE}): {self._service_nice_failed}")
         for t in threading.enumerate():
             if t.name in REALTIME_THREADS and t.native_id is not None:
-                why = raise_thread_priority(t.native_id, REALTIME_NICE)
+                why = set_thread_nice(t.native_id, REALTIME_NICE)
                 if why is not None:
                     failed.append(f"{t.name}: {why}")
+                rt = TWIN_RT_PRIORITY if t.name == "EcuCanNode-rt" else CONTROL_RT_PRIORITY
+                if self.config.realtime:
+                    failed += [f"{t.name} (SCHED_FIFO): {w}" for w in raise_to_fifo([t.native_id], rt)]
         if failed and self.motion is not None:
             text = (
                 f"cannot raise the control and CAN threads to nice {REALTIME_NICE} ({'; '.join(sorted(set(failed)))}); "
@@ -287,6 +301,19 @@ class HitchService:
             self.warnings.append(text)
             self.motion.outbox.put_event({"event": "realtime", "priority_raised": False, "message": text})
             self.motion.outbox.flush()
+
+    def _raise_router(self) -> None:
+        """This process's Zenoh threads under ``SCHED_FIFO`` at
+        :data:`~bridge.service.scheduling.ROUTER_RT_PRIORITY`: they route ``stop`` to the control core
+        (its own process) or hand it to the inline path (threads), and never take the interpreter lock
+        (the queryables read ring channels). Not permitted: a warning, and they keep their nice value."""
+        if not self.config.realtime:
+            return
+        failed = raise_to_fifo(zenoh_thread_ids(), ROUTER_RT_PRIORITY)
+        if failed:
+            self.warnings.append(
+                f"the service's Zenoh threads could not be given real-time priority ({'; '.join(sorted(set(failed)))})"
+            )
 
     def _open_zenoh(self, private_listen: str | None) -> None:
         """The service's session (plus a private loopback listener for the core process, if any)."""
@@ -588,32 +615,6 @@ def _reply(query: zenoh.Query, ok: bool, data: bytes) -> None:
         pass
     finally:
         query.drop()
-
-
-def _thread_nice(native_id: int) -> int | None:
-    """The nice value of one thread (None where the system cannot tell)."""
-    getpriority = getattr(os, "getpriority", None)
-    if getpriority is None:
-        return None
-    try:
-        return int(getpriority(os.PRIO_PROCESS, native_id))
-    except OSError:
-        return None
-
-
-def raise_thread_priority(native_id: int, nice: int) -> str | None:
-    """Set the nice value of one thread (Linux: a thread is a schedulable task with its own id);
-    None when done, else why not (not permitted, not supported)."""
-    setpriority = getattr(os, "setpriority", None)
-    if setpriority is None:
-        return "os.setpriority is not available on this system"
-    try:
-        setpriority(os.PRIO_PROCESS, native_id, nice)
-    except PermissionError:
-        return "not permitted"
-    except OSError as exc:
-        return str(exc)
-    return None
 
 
 def _call(cb: Callable[[dict[str, Any]], None], arg: dict[str, Any]) -> None:

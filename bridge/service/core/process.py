@@ -5,8 +5,9 @@
 
 * the machine side (:func:`bridge.service.machine.start_can`, :func:`~bridge.service.machine.build_controller`):
   the link, the simulated ECU and tractor when configured, the motion controller and its control
-  thread — every thread of this process at nice :data:`CORE_NICE` (needs root or CAP_SYS_NICE;
-  otherwise it runs at normal priority and the ``ready`` message says why);
+  thread — every thread of this process at nice :data:`CORE_NICE`, and once started every Python and
+  Zenoh thread under the real-time policy ``SCHED_FIFO`` (:func:`raise_core_to_realtime`; both need
+  root or CAP_SYS_NICE; otherwise it runs at normal priority and the ``ready`` message says why);
 * its own Zenoh session (a client of the service's session on its private loopback listener, or
   of the routers the service connects to in client mode: ``ENDPOINTS_JSON``): the
   ``<prefix>/stop`` queryable (any payload stops), the ``<prefix>/track/setpoint`` subscriber,
@@ -47,12 +48,19 @@ from bridge.service.config import ServiceConfig
 from bridge.service.gnss import start_twin_gnss
 from bridge.service.machine import CanParts, build_controller, service_info, start_can
 from bridge.service.motion.controller import MotionController
+from bridge.service.scheduling import (
+    CONTROL_RT_PRIORITY,
+    CORE_RT_PRIORITY,
+    TWIN_RT_PRIORITY,
+    raise_to_fifo,
+    zenoh_thread_ids,
+)
 from bridge.service.schemas import RequestError, parse_request
 from bridge.service.wire import to_json_bytes
 from bridge.service.workers import error_code
 from planner.errors import HitchError
 
-__all__ = ["CORE_NICE", "TWIN_NICE", "ControlCore", "freeze_startup_objects", "lock_memory"]
+__all__ = ["CORE_NICE", "TWIN_NICE", "ControlCore", "freeze_startup_objects", "lock_memory", "raise_core_to_realtime"]
 
 #: nice value of every thread of the core process (the control cycle, CAN, its Zenoh session)
 CORE_NICE = -10
@@ -162,6 +170,12 @@ class ControlCore:
                     except OSError:  # the thread ended, or not permitted: it keeps the core's priority
                         pass
         warnings = []
+        fifo_failed = raise_core_to_realtime() if cfg.realtime else "switched off (realtime = false)"
+        if fifo_failed is not None and cfg.realtime:
+            warnings.append(
+                f"control core: real-time scheduling (SCHED_FIFO) not possible ({fifo_failed}); its threads run at "
+                f"nice {CORE_NICE} and a CPU-bound program may delay them"
+            )
         if nice_failed is not None:
             text = (
                 f"cannot raise the control core to nice {CORE_NICE} ({nice_failed}); running at normal priority "
@@ -177,6 +191,7 @@ class ControlCore:
         if locked is not None:
             warnings.append(f"control core: memory not locked ({locked}); its pages may be evicted and fault back in")
         return {
+            "realtime": fifo_failed is None,
             "gc_frozen": frozen,
             "memory_locked": locked is None,
             "t0_monotonic": time.monotonic() - clock(),
@@ -399,6 +414,21 @@ class ControlCore:
 
 #: mlockall(2) flags (Linux): what is mapped now, what is mapped later, each page locked when first touched
 _MCL_CURRENT, _MCL_FUTURE, _MCL_ONFAULT = 1, 2, 4
+
+
+def raise_core_to_realtime() -> str | None:
+    """Every Python and Zenoh thread of this process under ``SCHED_FIFO`` (:mod:`bridge.service.scheduling`):
+    the twin's runner at :data:`TWIN_RT_PRIORITY`, the control cycle and the planner's CAN thread at
+    :data:`CONTROL_RT_PRIORITY`, the rest at :data:`CORE_RT_PRIORITY` — the calling thread too, so the
+    threads it starts later (the motion threads) inherit it. None when done, else why not (the threads
+    keep their nice values)."""
+    named = {TWIN_THREAD: TWIN_RT_PRIORITY, "hitch-control": CONTROL_RT_PRIORITY, "CanLink-rt": CONTROL_RT_PRIORITY}
+    failed: list[str] = []
+    for t in threading.enumerate():
+        if t.native_id is not None:
+            failed += raise_to_fifo([t.native_id], named.get(t.name, CORE_RT_PRIORITY))
+    failed += raise_to_fifo(zenoh_thread_ids(), CORE_RT_PRIORITY)
+    return "; ".join(sorted(set(failed))) if failed else None
 
 
 def lock_memory() -> str | None:

@@ -175,6 +175,51 @@ def test_the_twin_runs_above_the_core_and_the_core_above_the_service(service):
     assert set(got) <= {TWIN_NICE, CORE_NICE}, got
 
 
+@pytest.mark.skipif(os.geteuid() != 0, reason="a real-time policy needs root or CAP_SYS_NICE")
+def test_the_control_path_runs_under_sched_fifo_the_twin_above_the_control_cycle(service):
+    """Every Python and Zenoh thread of the core is under SCHED_FIFO (a CPU-bound program cannot put
+    them aside): the twin's runner at TWIN_RT_PRIORITY, the control cycle and the planner's CAN thread at
+    CONTROL_RT_PRIORITY, the rest at CORE_RT_PRIORITY; the service's own Zenoh threads (the stop's route
+    to the core) at ROUTER_RT_PRIORITY. The service's Python threads stay ordinary (they do the heavy work)."""
+    from bridge.service.scheduling import (
+        CONTROL_RT_PRIORITY,
+        CORE_RT_PRIORITY,
+        ROUTER_RT_PRIORITY,
+        TWIN_RT_PRIORITY,
+        ZENOH_THREAD_PREFIXES,
+        thread_schedule,
+    )
+
+    svc, _ = service
+    assert svc.core.ready["realtime"] is True
+    core = thread_schedule(svc.core.pid)
+    fifo = sorted(s.rt_priority for s in core if s.policy == "fifo")
+    assert fifo.count(TWIN_RT_PRIORITY) == 1 and fifo.count(CONTROL_RT_PRIORITY) == 2, core
+    zen = [s for s in core if s.name.startswith(ZENOH_THREAD_PREFIXES)]
+    assert zen and all(s.policy == "fifo" and s.rt_priority == CORE_RT_PRIORITY for s in zen), zen
+    assert len([s for s in core if s.policy != "fifo"]) <= os.cpu_count(), core  # a BLAS pool at most
+    mine = thread_schedule()
+    routers = [s for s in mine if s.name.startswith(ZENOH_THREAD_PREFIXES)]
+    assert routers and all(s.policy == "fifo" and s.rt_priority >= ROUTER_RT_PRIORITY for s in routers), routers
+    me = {s.tid: s for s in mine}[threading.get_native_id()]
+    assert me.policy == "other"
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="a real-time policy needs root or CAP_SYS_NICE")
+def test_realtime_false_keeps_every_thread_of_the_core_ordinary(tmp_path):
+    from bridge.service.scheduling import thread_schedule
+
+    cfg = ServiceConfig(
+        listen=[f"tcp/127.0.0.1:{free_port()}"], data_dir=tmp_path, planning_processes=0, realtime=False
+    )
+    svc = HitchService(cfg).start()
+    try:
+        assert svc.core is not None and svc.core.ready["realtime"] is False
+        assert all(s.policy == "other" for s in thread_schedule(svc.core.pid))
+    finally:
+        svc.close()
+
+
 def test_the_core_freezes_its_start_up_objects_out_of_the_garbage_collector(service):
     """A full collection over the started core's objects pauses every thread of it (tens of ms, more
     under load); the core freezes them once started, so later full collections walk only new objects."""

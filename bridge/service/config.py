@@ -20,6 +20,7 @@ TOML layout (every key optional; the names are the field names below)::
                control_rate = 50.0; state_rate = 50.0
                feedforward = true   # stream the unit loops' feed-forward reference (bridge.link.unit_loop)
     [service]  data_dir = "/var/lib/hitch"; http = "127.0.0.1:8080"; workers = 4; planning_processes = 2
+               realtime = true   # the control path under SCHED_FIFO where permitted (bridge.service.scheduling)
                max_presets_per_user = 1000; max_maneuvers_per_user = 200
                max_script_bytes_per_user = 4194304   # the store's limits per user (store.StoreLimits)
 """

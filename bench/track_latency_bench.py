@@ -18,9 +18,16 @@ Definitions (every time is ``time.time()``, one clock for all processes):
   map to later states: the figure can only grow (never flatter than the truth).
 
 With setpoints at 100 Hz and the control cycle at 50 Hz a setpoint waits up to one period for its
-cycle: hence the target of one period plus 2 ms.
+cycle: hence the target of one period plus 2 ms. Also printed, its two parts: ``T_put`` to the
+start of the cycle that took it (its state's ``t``: the wait for the cycle, plus the way through
+Zenoh), and that start to the reference on the bus (the cycle's own work).
 
-Run: .venv/bin/python bench/track_latency_bench.py [--seconds 20] [--rate 100] [--json FILE]
+The client's clock and the control cycle's are both steady, so at exactly ``--rate 100`` the phase
+between them stays as it happened to start, and one run samples one phase (the wait can sit
+anywhere in 0…20 ms for a whole run). ``--rate 99.5`` lets the phase sweep through the whole period
+about five times in 20 s: every phase is sampled, the figure a client with its own clock sees.
+
+Run: .venv/bin/python bench/track_latency_bench.py [--seconds 20] [--rate 100|99.5] [--json FILE]
 """
 
 from __future__ import annotations
@@ -108,6 +115,8 @@ def main(argv: list[str] | None = None) -> dict:
     mine = sorted((t, cnt) for t, s, cnt in states if s == session)
     counts = [cnt for _, cnt in mine]
     lat: list[float] = []
+    waited: list[float] = []  # T_put -> the start of the cycle that took it (its state's t)
+    cycle: list[float] = []  # that cycle's start -> its reference on the bus
     for k, t_put in enumerate(puts, start=1):
         i = bisect.bisect_left(counts, k)
         if i >= len(mine):
@@ -115,7 +124,15 @@ def main(argv: list[str] | None = None) -> dict:
         j = bisect.bisect_left(refs, mine[i][0])
         if j < len(refs):
             lat.append(refs[j] - t_put)
+            waited.append(mine[i][0] - t_put)
+            cycle.append(refs[j] - mine[i][0])
     arr = np.array(lat) * 1000.0
+
+    def pct(xs: list[float]) -> dict:
+        v = np.array(xs) * 1000.0
+        keys = ("p50", "p99", "max")
+        return dict(zip(keys, (float(np.percentile(v, 50)), float(np.percentile(v, 99)), float(v.max())), strict=True))
+
     period_ms = 1000.0 / 50.0
     res = {
         "machine": {"cores": os.cpu_count(), "loadavg": os.getloadavg()},
@@ -127,6 +144,8 @@ def main(argv: list[str] | None = None) -> dict:
             "max": float(arr.max()) if len(arr) else None,
         },
         "target_p99_ms": period_ms + 2.0,
+        "put_to_cycle_start_ms": pct(waited) if waited else None,
+        "cycle_start_to_reference_ms": pct(cycle) if cycle else None,
     }
     p99 = res["latency_ms"]["p99"]
     verdict = "ok" if p99 is not None and p99 <= period_ms + 2.0 else "FAIL"
@@ -136,6 +155,11 @@ def main(argv: list[str] | None = None) -> dict:
         f"max {res['latency_ms']['max']:.1f}  ({len(lat)} of {len(puts)} setpoints)  target p99 <= "
         f"{period_ms + 2.0:.0f}  {verdict}"
     )
+    for key in ("put_to_cycle_start_ms", "cycle_start_to_reference_ms"):
+        f = res[key]
+        if f:
+            name = key.removesuffix("_ms").replace("_", " ")
+            print(f"  {name} ms: p50 {f['p50']:.1f}  p99 {f['p99']:.1f}  max {f['max']:.1f}")
     if a.json:
         Path(a.json).write_text(json.dumps(res, indent=2))
     return res

@@ -266,14 +266,18 @@ def build_state_message(
     track: Mapping[str, Any] | None = None,
     goal: Mapping[str, Any] | None = None,
     work: Mapping[str, Any] | None = None,
+    t: float | None = None,
+    ecu: EcuSummary | None = None,
 ) -> StateMessage:
     """The message for one cycle. ``status``: the link's :class:`~bridge.link.state.LinkStatus` at
     clock time ``now`` [s]; ``reference``: what is being streamed, or None; ``stale_after_s``: the
     link's measurement age limit [s]; ``feedforward``: the
     :class:`~bridge.link.unit_loop.FeedforwardShaper` (whether it is on, and how many references the
     hard-limit check made it pull back towards the plan); ``faults``: what the motion controller
-    holds; ``cache``: keeps the guard's evaluations while their inputs do not change."""
-    t = time.time()
+    holds; ``cache``: keeps the guard's evaluations while their inputs do not change; ``t``: the
+    message's wall-clock time [s] (default: now); ``ecu``: its ECU summary when it was taken earlier
+    (default: :meth:`EcuSummary.of` now)."""
+    t = time.time() if t is None else t
     ls = status.state
     memo = cache if cache is not None else EvaluationCache()
     margin: KinematicMargin | None
@@ -311,7 +315,7 @@ def build_state_message(
         reference=reference,
         kinematic_margin=margin,
         stability=stability,
-        ecu=EcuSummary.of(status, now, stale_after_s, feedforward, faults),
+        ecu=EcuSummary.of(status, now, stale_after_s, feedforward, faults) if ecu is None else ecu,
         maneuver=maneuver,
         track=track,
         goal=goal,

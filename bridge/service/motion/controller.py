@@ -71,6 +71,7 @@ import math
 import threading
 import time
 from collections.abc import Callable, Mapping
+from functools import partial
 from typing import Any, Protocol
 
 import numpy as np
@@ -108,7 +109,14 @@ from bridge.service.motion.types import (
     streamed_reference,
 )
 from bridge.service.periodic import PeriodicThread
-from bridge.service.state_message import EvaluationCache, StateMessage, build_state_message, link_problem, plan_goal
+from bridge.service.state_message import (
+    EcuSummary,
+    EvaluationCache,
+    StateMessage,
+    build_state_message,
+    link_problem,
+    plan_goal,
+)
 from planner.errors import HitchError
 from planner.limits.guard import Guard, GuardedPlan
 from planner.limits.implement_limits import ImplementLimits, track_bounds
@@ -876,21 +884,19 @@ class MotionController:
     def cycle(self) -> None:
         """One control cycle (public for deterministic tests).
 
-        The state is published first, right after the wake-up, so its period is as regular as
-        the wake-ups: measured pose now, with the reference sent in the previous cycle (the one
-        the ECU is tracking). Then the motion is advanced and the new reference sent. Bounded
-        work: no planning, no storage, no serialisation (the outbox does that).
+        The state is taken first, right after the wake-up (stamped then, so its period is as
+        regular as the wake-ups): measured pose now, with the reference sent in the previous cycle
+        (the one the ECU is tracking). Then the motion is advanced and the new reference sent; the
+        state's guard evaluations (kinematic margin, stability) are computed only after that, so a
+        streamed setpoint reaches the bus without waiting for them. Bounded work: no planning, no
+        storage, no serialisation (the outbox does that).
         """
         events: list[Event] = []
         with self._lock:
             now = self.clock()
             status = self.link.status(now)
             self._cycle_n += 1
-            if self._cycle_n % self.state_every == 0:
-                self.outbox.put_state(self._state_message(now, status))
-        self.outbox.flush()
-        with self._lock:
-            now = self.clock()
+            state = self._state_draft(now, status) if self._cycle_n % self.state_every == 0 else None
             self._check_faults(status, now, events)
             self._drive_maneuver(status, now, events)
             if self.work is not None:  # a work session's z setpoint for this cycle (bridge.service.work)
@@ -909,6 +915,8 @@ class MotionController:
                     if isinstance(exc, LinkFaultError):  # the link's latched faults that are still there
                         self._latch_link_faults(status, now)
             self._post(events)
+        if state is not None:  # this thread's guard and cache, outside the lock: requests never wait for it
+            self.outbox.put_state(state())
         self.outbox.flush()
 
     def _latch_link_faults(self, status: LinkStatus, now: float) -> None:
@@ -1057,6 +1065,11 @@ class MotionController:
 
     # ------------------------------------------------------------------ state and events
     def _state_message(self, now: float, status: LinkStatus) -> StateMessage:
+        return self._state_draft(now, status)()
+
+    def _state_draft(self, now: float, status: LinkStatus) -> Callable[[], StateMessage]:
+        """The state as it is now (call under the lock; stamped now), as a function that adds the
+        guard's evaluations when called (on the control thread: its guard and cache)."""
         self._seq += 1
         m = self._active
         kind = (
@@ -1065,24 +1078,29 @@ class MotionController:
             else (m.kind if isinstance(m, PlanMotion) else "jog" if isinstance(m, JogMotion) else "track")
         )
         ref = self._reference if (m is not None or self._hold is not None) else None
-        return build_state_message(
+        stale_after_s = self.link.config.stale_after_s
+        faults = tuple(self._faults.values())
+        return partial(
+            build_state_message,
             seq=self._seq,
             now=now,
             status=status,
-            stale_after_s=self.link.config.stale_after_s,
+            stale_after_s=stale_after_s,
             guard=self.guard,
             mode=self._mode,
             motion_kind=kind,
             motion_id=self._last_id,
             reference=ref,
-            limited=self._limited,
+            limited=dict(self._limited),
             maneuver=self._maneuver.progress(),
             feedforward=self.shaper,
-            faults=tuple(self._faults.values()),
+            faults=faults,
             cache=self._eval_cache,
             track=m.progress() if isinstance(m, TrackMotion) else None,
             goal=self._goal_of(m) if isinstance(m, PlanMotion) else None,
             work=None if self.work is None else self.work.progress(),
+            t=time.time(),
+            ecu=EcuSummary.of(status, now, stale_after_s, self.shaper, faults),
         )
 
     def _goal_of(self, m: PlanMotion) -> dict[str, Any] | None:

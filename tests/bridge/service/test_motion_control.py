@@ -136,6 +136,42 @@ def test_state_messages_are_consecutive_and_complete(bench):
     assert s["stability"]["ok"] and s["stability"]["ssm"] > 0
 
 
+def test_a_cycle_sends_its_reference_before_the_states_guard_evaluations(bench, monkeypatch):
+    """Setpoint-to-reference latency: the cycle's reference reaches the bus before the state's
+    kinematic margin and stability are evaluated (they took the cycle's first milliseconds before),
+    and the state is still stamped at the cycle's start, before that reference."""
+    import time
+
+    order: list[str] = []
+    sent_at: list[float] = []
+    link, guard = bench.rig.link, bench.mc.guard
+    send, margin, stability = link.send_reference, guard.margin, guard.stability_at
+
+    def spy_send(*a, **k):
+        order.append("reference")
+        sent_at.append(time.time())
+        return send(*a, **k)
+
+    monkeypatch.setattr(link, "send_reference", spy_send)
+    monkeypatch.setattr(guard, "margin", lambda *a, **k: (order.append("margin"), margin(*a, **k))[1])
+    monkeypatch.setattr(guard, "stability_at", lambda *a, **k: (order.append("stability"), stability(*a, **k))[1])
+    acc = bench.mc.goto({"z": 0.28})
+    both = 0
+    for _ in range(25):  # moving (after the switch time): a new reference and new counts every cycle
+        order.clear()
+        sent_at.clear()
+        before = len(bench.states)
+        bench.run(DT)
+        assert len(bench.states) == before + 1
+        if "reference" in order and "margin" in order:
+            both += 1
+            assert order.index("reference") < order.index("margin"), order
+            if "stability" in order:
+                assert order.index("reference") < order.index("stability"), order
+            assert bench.states[-1]["t"] <= sent_at[0]
+    assert acc.duration > 0 and both >= 15, both
+
+
 def test_a_new_goto_replaces_the_running_one_smoothly(bench):
     first = bench.mc.goto({"z": 0.28})
     bench.run(0.6)

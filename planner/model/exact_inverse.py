@@ -166,7 +166,7 @@ class ExactInverse:
         if p.ndim != 2 or p.shape[1] != 4 or v.shape != p.shape:
             raise ModelInputError(f"targets and velocities must both be (N, 4), got {p.shape} and {v.shape}")
         if self._batch is None:
-            self._batch = MappedFunction(_build(self.model, rate=True))
+            self._batch = MappedFunction(_build(self.model, rate=True), compiled=True)
         finite = np.isfinite(p).all(axis=1)
         q, qd, checks, y_yaw = self._batch(p.T, v.T)
         with np.errstate(invalid="ignore"):

@@ -11,6 +11,7 @@ import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 
+from planner.model.compiled import compile_functions
 from planner.model.types import ModelInputError
 
 __all__ = ["FastFunction", "MappedFunction"]
@@ -62,9 +63,13 @@ class MappedFunction:
     a :class:`FastFunction` built on first use: N columns cost ⌈N / c⌉ + a few calls instead
     of N. Every column is evaluated by the same instructions as ``function`` alone, so the
     values are those of N single calls, bit for bit.
+
+    With ``compiled``, the chunk functions are compiled to machine code on first use, all in
+    one library (:func:`~planner.model.compiled.compile_functions`: the same values, bit for
+    bit; the virtual machine when no compiler is available).
     """
 
-    def __init__(self, function: ca.Function, chunks: tuple[int, ...] = (64, 8, 1)):
+    def __init__(self, function: ca.Function, chunks: tuple[int, ...] = (64, 8, 1), *, compiled: bool = False):
         for i in range(function.n_in()):
             if function.size2_in(i) != 1:
                 raise ModelInputError(f"input {i} of {function.name()} must be a column vector")
@@ -72,11 +77,16 @@ class MappedFunction:
             raise ModelInputError(f"chunks must be decreasing and end with 1, got {chunks}")
         self.function = function
         self.chunks = tuple(int(c) for c in chunks)
+        self.compiled = compiled
         self._fast: dict[int, FastFunction] = {}
 
     def _chunk(self, c: int) -> FastFunction:
         fast = self._fast.get(c)
         if fast is None:
+            if self.compiled:  # every chunk at once: one library
+                fns = compile_functions([self.function if k == 1 else self.function.map(k) for k in self.chunks])
+                self._fast.update({k: FastFunction(f) for k, f in zip(self.chunks, fns, strict=True)})
+                return self._fast[c]
             fast = self._fast[c] = FastFunction(self.function if c == 1 else self.function.map(c))
         return fast
 

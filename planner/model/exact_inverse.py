@@ -118,8 +118,9 @@ class ExactInverse:
     def __init__(self, model: HitchModel):
         self.model = model
         self.function = _build(model)
-        self._fast = FastFunction(self.function)
+        self._fast = FastFunction(self.function, compiled=True)
         self._batch: MappedFunction | None = None
+        self._jac_batch: MappedFunction | None = None
 
     def __call__(self, x: float, z: float, roll: float, pitch: float) -> np.ndarray:
         """Actuators (lift, tilt, top, left, right) reaching the pose exactly; KinematicsError if none."""
@@ -180,6 +181,31 @@ class ExactInverse:
                 & np.isfinite(q).all(axis=0)
             )
         return InverseBatch(q.T, qd.T, y_yaw[0].copy(), y_yaw[1].copy(), ok)
+
+    def jacobians(self, targets: ArrayLike) -> np.ndarray:
+        """d actuators / d target (N, 5, 4) at N targets (N, 4) in one mapped evaluation: those of
+        :meth:`solve`, bit for bit; at a target :meth:`solve` refuses, its error (the first such
+        target raises)."""
+        p = np.asarray(targets, dtype=float)
+        if p.ndim != 2 or p.shape[1] != 4:
+            raise ModelInputError(f"targets must be (N, 4), got {p.shape}")
+        if self._jac_batch is None:
+            self._jac_batch = MappedFunction(self.function, compiled=True)
+        q, jac, checks, _ = self._jac_batch(p.T)
+        with np.errstate(invalid="ignore"):
+            ok = (
+                np.isfinite(p).all(axis=1)
+                & (np.abs(p[:, 2]) < math.pi / 2)
+                & (np.abs(p[:, 3]) < math.pi / 2)
+                & (np.abs(checks[0]) <= _TOL_M)
+                & (np.abs(checks[1]) <= _TOL_M)
+                & (np.abs(checks[2]) <= 1.0)
+                & np.isfinite(q).all(axis=0)
+            )
+        out = jac.reshape(5, len(p), 4).transpose(1, 0, 2).copy()  # column block k is target k's
+        for k in np.flatnonzero(~ok).tolist():  # raises as solve does
+            out[k] = self.solve(p[k])[1]
+        return out
 
     def actuators(self, x: float, z: float, roll: float, pitch: float) -> Actuators:
         return Actuators.from_array(self(x, z, roll, pitch))

@@ -21,12 +21,16 @@ class FastFunction:
     """A CasADi ``Function`` with pre-bound dense numpy input/output buffers.
 
     ``inputs[i]`` is the flat (column-major) input ``i``; ``outputs[i]`` the dense output
-    ``i`` as a Fortran-ordered 2-D array, overwritten by every call.
+    ``i`` as a Fortran-ordered 2-D array, overwritten by every call. With ``compiled``, the
+    function is evaluated as compiled machine code (:func:`~planner.model.compiled.compile_functions`:
+    the same values, bit for bit; the virtual machine when no compiler is available);
+    ``function`` stays the given (symbolic) one.
     """
 
-    def __init__(self, function: ca.Function):
+    def __init__(self, function: ca.Function, *, compiled: bool = False):
         self.function = function
-        self._buf, self._eval = function.buffer()
+        evaluated = compile_functions([function])[0] if compiled else function
+        self._buf, self._eval = evaluated.buffer()
         self.inputs: list[np.ndarray] = [
             np.zeros(function.size1_in(i) * function.size2_in(i)) for i in range(function.n_in())
         ]

@@ -29,8 +29,9 @@ def model() -> HitchModel:
 
 @needs_cc
 def test_compiled_is_an_external_with_the_same_values_bit_for_bit(model):
-    """The exact inverse (with rates) and the forward points over poses and actuators across the
-    workspace: compiled = virtual machine, every output, bit for bit (NaN where NaN)."""
+    """The exact inverse (with rates and with its Jacobian), the forward points and features over
+    poses and actuators across the workspace: compiled = virtual machine, every output, bit for
+    bit (NaN where NaN)."""
     rng = np.random.default_rng(7)
     inv_rate = _build(model, rate=True)
     ws = model.workspace
@@ -41,6 +42,8 @@ def test_compiled_is_an_external_with_the_same_values_bit_for_bit(model):
     for fn, args in (
         (inv_rate.map(64), (poses, rng.normal(0.0, 0.1, (4, 64)))),
         (model.points_function.map(64), (q,)),
+        (model.feature_function.map(64), (q,)),
+        (ExactInverse(model).function.map(64), (poses,)),
     ):
         (ext,) = compile_functions([fn])
         assert ext.class_name() == "External"

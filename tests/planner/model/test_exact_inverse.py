@@ -101,3 +101,26 @@ def test_batch_inverse_refuses_bad_shapes(inverse):
         inverse.solve_batch(np.zeros(4), np.zeros(4))
     empty = inverse.solve_batch(np.zeros((0, 4)), np.zeros((0, 4)))
     assert empty.actuators.shape == (0, 5) and empty.ok.shape == (0,)
+
+
+def test_jacobians_are_those_of_solve_bit_for_bit(model, inverse, rng):
+    """jacobians (one mapped call, as straight_line_limits uses it): solve()[1] of every target,
+    bit for bit; the first target solve refuses raises solve's error."""
+    ws = model.workspace
+    lo = np.array([ws[k][0] for k in ("x", "z", "roll", "pitch")])
+    hi = np.array([ws[k][1] for k in ("x", "z", "roll", "pitch")])
+    P = lo + (hi - lo) * rng.random((77, 4))
+    J = inverse.jacobians(P)
+    assert J.shape == (77, 5, 4)
+    for k in range(len(P)):
+        assert np.array_equal(J[k], inverse.solve(P[k])[1]), k
+    assert inverse.jacobians(np.zeros((0, 4))).shape == (0, 5, 4)
+    bad = P[:3].copy()
+    bad[1] = [0.0, 3.0, 0.0, 0.0]
+    with pytest.raises(KinematicsError):
+        inverse.jacobians(bad)
+    bad[1] = [0.0, np.nan, 0.0, 0.0]
+    with pytest.raises(ModelInputError, match="finite"):
+        inverse.jacobians(bad)
+    with pytest.raises(ModelInputError, match=r"\(N, 4\)"):
+        inverse.jacobians(np.zeros(4))

@@ -422,7 +422,8 @@ class Guard:
         p_ahead = np.clip(p_now + rates * h, self.planner.lo, self.planner.hi)
         q_now, jac, _ = self.planner.inverse.solve_full(p_now)
         q_ahead = self.planner.inverse(*p_ahead)
-        now, ahead = _measure_values(self.stability_at(q_now)), self.stability_at(q_ahead)
+        points_ahead = self.model.forward(q_ahead).points  # for the stability and the keep-outs ahead
+        now, ahead = _measure_values(self.stability_at(q_now)), self.stability_at(q_ahead, points_ahead)
         vals = _measure_values(ahead)
         hard_th, caution_th = self._thresholds()
         reasons: list[GuardReason] = []
@@ -438,7 +439,7 @@ class Guard:
             elif vals[m] < caution_th[m] and worse:
                 reasons.append(GuardReason(m, vals[m], caution_th[m], h, "caution"))
                 factor = min(factor, self.settings.caution_speed_factor)
-        for j, (_, dist, r) in enumerate(self.keep_out_clearance(q_ahead)):
+        for j, (_, dist, r) in enumerate(self.keep_out_clearance(q_ahead, points_ahead)):
             if dist < r:
                 reasons.append(GuardReason(self._keep_out_names[j], dist, r, h, "hard"))
         if any(r.level == "hard" for r in reasons):

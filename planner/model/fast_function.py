@@ -63,7 +63,8 @@ class FastFunction:
 class MappedFunction:
     """A CasADi ``Function`` of column-vector inputs evaluated over N columns at once.
 
-    ``function.map(c)`` for chunk sizes ``chunks`` (largest first, the last 1), each through
+    ``function.map(c)`` for chunk sizes ``chunks`` (largest first, the last 1; by default 64, 8,
+    1, compiled the powers of two from 128), each through
     a :class:`FastFunction` built on first use: N columns cost ⌈N / c⌉ + a few calls instead
     of N. Every column is evaluated by the same instructions as ``function`` alone, so the
     values are those of N single calls, bit for bit.
@@ -73,10 +74,12 @@ class MappedFunction:
     bit; the virtual machine when no compiler is available).
     """
 
-    def __init__(self, function: ca.Function, chunks: tuple[int, ...] = (64, 8, 1), *, compiled: bool = False):
+    def __init__(self, function: ca.Function, chunks: tuple[int, ...] | None = None, *, compiled: bool = False):
         for i in range(function.n_in()):
             if function.size2_in(i) != 1:
                 raise ModelInputError(f"input {i} of {function.name()} must be a column vector")
+        if chunks is None:  # compiled, a call costs ~1 µs: powers of two, at most 8 calls below 256 columns
+            chunks = (128, 64, 32, 16, 8, 4, 2, 1) if compiled else (64, 8, 1)
         if not chunks or chunks[-1] != 1 or list(chunks) != sorted(chunks, reverse=True):
             raise ModelInputError(f"chunks must be decreasing and end with 1, got {chunks}")
         self.function = function

@@ -36,7 +36,7 @@ from planner.limits.implement_limits import (
 )
 from planner.limits.kinematic_margin import KinematicMargin, kinematic_margin
 from planner.limits.stability import StabilityReport, StabilityThresholds, _cross3, evaluate_stability
-from planner.limits.stability_batch import StabilityBatch, evaluate_stability_batch
+from planner.limits.stability_batch import StabilityBatch, cross_rows, evaluate_stability_batch
 from planner.limits.tractor import ImplementRecord, StabilityInputError, Tractor, load_tractor_profile
 from planner.model.kinematics import POINT_NAMES, HitchModel
 from planner.model.limit_names import LimitName
@@ -486,7 +486,7 @@ def _implement_frames(P: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]
         xi = xi / np.linalg.norm(xi, axis=1)[:, None]
         zi = P["U"] - P["T"]
         zi = zi / np.linalg.norm(zi, axis=1)[:, None]
-    return P["T"], np.stack([xi, np.cross(zi, xi), zi], axis=2)
+    return P["T"], np.stack([xi, cross_rows(zi, xi), zi], axis=2)
 
 
 def _earliest(mask: np.ndarray, t: np.ndarray) -> int | None:

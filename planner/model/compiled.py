@@ -93,7 +93,14 @@ def compile_functions(functions: Sequence[ca.Function]) -> list[ca.Function]:
             lib = _build(source, command, key)
             externals = [ca.external(n, str(lib)) for n in names]
         except (OSError, RuntimeError, subprocess.SubprocessError) as exc:
-            _log.warning("CasADi functions %s evaluated in the virtual machine: compiling failed: %s", names, exc)
+            detail = getattr(exc, "stderr", None) or b""
+            detail = detail.decode(errors="replace") if isinstance(detail, bytes) else str(detail)
+            _log.warning(
+                "CasADi functions %s evaluated in the virtual machine: compiling failed: %s %s",
+                names,
+                exc,
+                detail[-500:],
+            )
             _FAILED.add(key)
             return fns
         _LOADED[key] = externals
@@ -121,16 +128,20 @@ def _warm() -> None:  # pragma: no cover - exercised by `make`
     """Build the libraries of the default profile's hot paths (the exact inverse and the forward batch)."""
     import numpy as np
 
+    from planner.model import compiled  # this module as the others import it (not __main__)
     from planner.model.exact_inverse import ExactInverse
     from planner.model.kinematics import HitchModel
     from planner.trajectory.plan import forward_batch
 
     model = HitchModel.from_profile()
-    ExactInverse(model).solve_batch(np.zeros((1, 4)), np.zeros((1, 4)))
+    inverse = ExactInverse(model)
+    inverse.solve_batch(np.zeros((1, 4)), np.zeros((1, 4)))
+    inverse.jacobians(np.zeros((1, 4)))
     forward_batch(model)(model.neutral[None, :])
     cc = compiler()
-    where = f"compiled with {cc} in {cache_dir()}" if cc and _LOADED else "the virtual machine (no cc, or it failed)"
-    print(f"CasADi libraries: {where}")
+    built, failed = len(compiled._LOADED), len(compiled._FAILED)
+    where = f"{built} compiled with {cc} in {cache_dir()}" if cc else "the virtual machine (no C compiler)"
+    print(f"CasADi libraries: {where}" + (f"; {failed} failed (virtual machine)" if failed else ""))
 
 
 if __name__ == "__main__":  # pragma: no cover

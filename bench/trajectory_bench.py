@@ -67,10 +67,10 @@ def _worker() -> None:
         elif cmd["op"] == "plan":
             c = np.asarray(cmd["case"], float)
             start, goal = MotionState.at_rest(c[:4]), dict(zip(DOFS, c[4:], strict=True))
-            t0 = time.perf_counter()
+            c0, t0 = time.thread_time(), time.perf_counter()
             gp = guard.plan(start, goal)
-            dt = time.perf_counter() - t0
-            res: dict = {"dt": dt, "duration": gp.plan.duration, "samples": len(gp.setpoints.t)}
+            dt, cpu = time.perf_counter() - t0, time.thread_time() - c0
+            res: dict = {"dt": dt, "cpu": cpu, "duration": gp.plan.duration, "samples": len(gp.setpoints.t)}
             if cmd.get("result"):
                 res |= {
                     "q": gp.setpoints.actuators.tolist(),
@@ -118,6 +118,7 @@ def compare(args) -> None:
         sel = {"op": "cases", "seed": 1, "n": args.goto_moves, "lo": 4.5, "hi": 5.5}
         cases = ask("new", sel)["cases"]
         times: dict[str, list[float]] = {"old": [], "new": []}
+        cpus: dict[str, list[float]] = {"old": [], "new": []}  # thread CPU time: without a loaded machine's waits
         worst, durations, samples = 0.0, [], []
         for c in cases:  # results once (outside the timing), then alternating timed repetitions
             r = {n: ask(n, {"op": "plan", "case": c, "result": True}) for n in ("old", "new")}
@@ -134,7 +135,9 @@ def compare(args) -> None:
         for _ in range(args.repeat):
             for c in cases:
                 for n in ("old", "new"):
-                    times[n].append(ask(n, {"op": "plan", "case": c})["dt"])
+                    r1 = ask(n, {"op": "plan", "case": c})
+                    times[n].append(r1["dt"])
+                    cpus[n].append(r1["cpu"])
         load1 = os.getloadavg()
     finally:
         for p in procs.values():
@@ -153,6 +156,10 @@ def compare(args) -> None:
             n: {k.replace("_us", "_ms"): v / 1e3 for k, v in percentiles_us(t).items() if k != "n"}
             for n, t in times.items()
         },
+        "guard_plan_cpu_ms": {
+            n: {k.replace("_us", "_ms"): v / 1e3 for k, v in percentiles_us(t).items() if k != "n"}
+            for n, t in cpus.items()
+        },
         "max_rel_diff_old_new": worst,
     }
     old, new = res["guard_plan_ms"]["old"], res["guard_plan_ms"]["new"]
@@ -165,6 +172,9 @@ def compare(args) -> None:
     for n, v in (("old", old), ("new", new)):
         print(f"Guard.plan {n}: p50 {v['p50_ms']:.2f} ms   p99 {v['p99_ms']:.2f} ms   max {v['max_ms']:.2f} ms")
     print(f"ratio old/new: p50 {old['p50_ms'] / new['p50_ms']:.2f}x   p99 {old['p99_ms'] / new['p99_ms']:.2f}x")
+    for n in ("old", "new"):
+        v = res["guard_plan_cpu_ms"][n]
+        print(f"Guard.plan {n}, thread CPU time: p50 {v['p50_ms']:.2f} ms   p99 {v['p99_ms']:.2f} ms")
     print(f"setpoints and decisions old vs new: largest difference {worst:.3g} (relative above 1)")
     write_json(args.json, res)
 

@@ -111,6 +111,10 @@ class CanLink:
         self._cfg = config if config is not None else LinkConfig()
         self._scaling = SensorScaling(model.profile)
         self._hard = HardLimits.from_model(model)
+        # the last reference accepted by _check_reference and its counts: the controller checks the
+        # reference it is about to send (the feed-forward's safe_reference) and send_reference checks
+        # it again; the check is a pure function of the values (model, limits, scaling are fixed)
+        self._checked: tuple[bytes, PositionCounts] | None = None
         self._codec = load_codec()
         self._known_pgns = frozenset(decode_id(m.frame_id).pgn for m in self._codec.database.messages)
         cfg = self._cfg
@@ -247,6 +251,15 @@ class CanLink:
             q = np.asarray(actuators, dtype=float).reshape(-1)
         except (TypeError, ValueError):
             raise ReferenceRefused(f"reference must be 5 numbers {ACTUATOR_NAMES}, got {actuators!r}") from None
+        key = q.tobytes()
+        checked = self._checked
+        if checked is not None and checked[0] == key:  # the same values accepted just before
+            return checked[1]
+        counts = self._check_values(q)
+        self._checked = (key, counts)
+        return counts
+
+    def _check_values(self, q: np.ndarray) -> PositionCounts:
         if q.size != 5:
             raise ReferenceRefused(f"reference needs 5 values {ACTUATOR_NAMES}, got {q.size}")
         for name, v in zip(ACTUATOR_NAMES, q, strict=True):

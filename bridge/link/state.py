@@ -13,8 +13,10 @@ named ``counts``/``*_counts``.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, fields
+
+import numpy as np
 
 from bridge.isobus.address_claim import CLAIM_WAIT_S, Name, planner_name
 from bridge.isobus.codec import PositionMeasurement, RearHitchStatus
@@ -226,6 +228,9 @@ class LinkState:
         actuators: actuators in SI (lift rad, others m) through the AD calibration.
         pose: forward kinematics of ``actuators``.
         system: the ECU's system-state byte, decoded.
+        points: the named points of that forward kinematics [m] (read-only arrays;
+            :attr:`planner.model.kinematics.HitchState.points`), for the stability at the
+            measured pose without solving the kinematics again; None when not kept.
     """
 
     t_s: float
@@ -236,6 +241,7 @@ class LinkState:
     actuators: Actuators
     pose: Pose
     system: SystemStatus
+    points: Mapping[str, np.ndarray] | None = field(default=None, repr=False, compare=False)
 
     def age_s(self, now_s: float) -> float:
         """Age of the older of the two measurement sources at ``now_s``, s."""
@@ -400,7 +406,7 @@ class MeasurementAssembler:
         self._rx_t: dict[str, float] = {}
         self._restart_bits: int | None = None
         self._ecu_had_reference = False
-        self._solved: tuple[tuple[float, ...], Actuators, Pose] | None = None
+        self._solved: tuple[tuple[float, ...], Actuators, Pose, Mapping[str, np.ndarray]] | None = None
         self.state: LinkState | None = None
         """The newest complete state, or None."""
         self.last_problem = ""
@@ -470,7 +476,7 @@ class MeasurementAssembler:
             # Same readings as the last solved ones (the hitch at rest: 110 readings/s of the same
             # counts): the calibration and the kinematics are pure functions of the counts, so their
             # last (immutable) result is the answer.
-            actuators, pose = solved[1], solved[2]
+            actuators, pose, points = solved[1], solved[2], solved[3]
         else:
             q = s.to_si(counts, tolerance_counts=self._cfg.reading_tolerance_counts)
             try:
@@ -479,9 +485,11 @@ class MeasurementAssembler:
                 self.last_problem = f"measured actuators do not close the mechanism: {exc}"
                 self._bump(kinematics_failures=1)
                 return
-            actuators, pose = hs.actuators, hs.pose
-            self._solved = (counts, actuators, pose)
-        self.state = LinkState(now_s, t_m, t_h, counts, frac, actuators, pose, self._system)
+            actuators, pose, points = hs.actuators, hs.pose, hs.points
+            for a in points.values():
+                a.setflags(write=False)
+            self._solved = (counts, actuators, pose, points)
+        self.state = LinkState(now_s, t_m, t_h, counts, frac, actuators, pose, self._system, points)
 
     def _count_gap(self, key: str, now_s: float, period_s: float, counter: str) -> None:
         prev = self._rx_t.get(key)

@@ -301,7 +301,7 @@ def build_state_message(
         stability = memo.get(
             "stability",
             at.counts,
-            lambda: _safe(lambda: StabilityMargins.of(guard.stability_at(at.actuators.as_array()))),
+            lambda: _safe(lambda: StabilityMargins.of(guard.stability_at(at.actuators.as_array(), at.points))),
         )
     return StateMessage(
         t=t,

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
@@ -36,7 +36,7 @@ from planner.limits.implement_limits import (
 )
 from planner.limits.kinematic_margin import KinematicMargin, kinematic_margin
 from planner.limits.stability import StabilityReport, StabilityThresholds, _cross3, evaluate_stability
-from planner.limits.stability_batch import StabilityBatch, evaluate_stability_batch
+from planner.limits.stability_batch import StabilityBatch, cross_rows, evaluate_stability_batch
 from planner.limits.tractor import ImplementRecord, StabilityInputError, Tractor, load_tractor_profile
 from planner.model.kinematics import POINT_NAMES, HitchModel
 from planner.model.limit_names import LimitName
@@ -211,17 +211,24 @@ class Guard:
         worst), the suspect ones and those whose batch value lies within the batch's agreement
         bound of a threshold are evaluated that way.
         """
-        return self._check_setpoints(sp, {})
+        dec, worst = self._check_setpoints(sp, {})
+        return replace(dec, worst=worst())
 
-    def _check_setpoints(self, sp: Setpoints, cache: dict[bytes, _Exact]) -> GuardDecision:
+    def _check_setpoints(
+        self, sp: Setpoints, cache: dict[bytes, _Exact]
+    ) -> tuple[GuardDecision, Callable[[], StabilityReport | None]]:
         """:meth:`check_setpoints` with ``cache``: the per-sample results by actuator bytes, to
-        share between the plans of one :meth:`plan` (same slope, implement and thresholds)."""
+        share between the plans of one :meth:`plan` (same slope, implement and thresholds).
+
+        The decision comes without its ``worst`` report, and beside it the function that finds
+        that report: a plan the guard slows and plans again never needs it (its exact
+        evaluations of the worst candidates are skipped)."""
         Q, QD, ts = np.asarray(sp.actuators, float), np.asarray(sp.actuator_velocity, float), sp.t
         above = upper_height_violation(np.asarray(sp.pose, float)[:, 2], self.implement_limits)
         if above is not None:  # the implement's upper height limit (implement_limits)
             upper = float(self.implement_limits.upper_height_m or 0.0)
             reason = GuardReason(UPPER_HEIGHT_LIMIT, above[1], upper, float(ts[above[0]]), "hard")
-            return GuardDecision("refused", 0.0, (reason,))
+            return GuardDecision("refused", 0.0, (reason,)), lambda: None
         P, suspect = self._points_batch(Q)
         fk_ok = ~suspect  # rows whose batch points are HitchModel.forward's, bit for bit
 
@@ -269,10 +276,13 @@ class Guard:
                 v = _measure_values(exact(k_hard)[1])[m]
                 t_hard = float(ts[k_hard])
                 events.append((t_hard, k_hard, len(self.keep_out) + j, GuardReason(m, v, hard_th[m], t_hard, "hard")))
-        worst = self._worst(vals, batch, hard_th, exact, start)
+
+        def worst() -> StabilityReport:  # only when asked for (see above)
+            return self._worst(vals, batch, hard_th, exact, start)
+
         if events:  # the first crossing of each measure, earliest first
             events.sort(key=lambda e: e[:3])
-            return GuardDecision("refused", 0.0, tuple(_dedupe(e[3] for e in events)), worst)
+            return GuardDecision("refused", 0.0, tuple(_dedupe(e[3] for e in events))), worst
 
         reasons: list[GuardReason] = []
         factor = 1.0
@@ -294,7 +304,7 @@ class Guard:
         if cautions:
             factor = min(factor, self.settings.caution_speed_factor)
         reasons += [c[2] for c in sorted(cautions, key=lambda c: c[:2])]
-        return GuardDecision("ok" if factor >= 1.0 else "scaled", factor, tuple(_dedupe(reasons)), worst)
+        return GuardDecision("ok" if factor >= 1.0 else "scaled", factor, tuple(_dedupe(reasons))), worst
 
     def _worst(
         self,
@@ -377,9 +387,9 @@ class Guard:
             if self._context() != context:  # changed meanwhile (another thread): evaluate afresh
                 cache.clear()
                 context = self._context()
-            dec = self._check_setpoints(sp, cache)
+            dec, worst = self._check_setpoints(sp, cache)
             if dec.action == "refused":
-                raise GuardRefusal(dec)
+                raise GuardRefusal(replace(dec, worst=worst()))
             reasons.extend(r for r in dec.reasons if r not in reasons)
             end_stop = min((r.value for r in dec.reasons if r.level == "speed"), default=1.0)
             caution = any(r.level == "caution" for r in dec.reasons)
@@ -390,8 +400,8 @@ class Guard:
                 caution_applied = True
             else:
                 action: Action = "ok" if total >= 1.0 else "scaled"
-                return GuardedPlan(plan, sp, GuardDecision(action, total, tuple(_dedupe(reasons)), dec.worst))
-        raise GuardRefusal(GuardDecision("refused", 0.0, tuple(_dedupe(reasons)), dec.worst))
+                return GuardedPlan(plan, sp, GuardDecision(action, total, tuple(_dedupe(reasons)), worst()))
+        raise GuardRefusal(GuardDecision("refused", 0.0, tuple(_dedupe(reasons)), worst()))
 
     # ------------------------------------------------------------------ jog
     def check_jog(self, state: MotionState, rates: ArrayLike) -> tuple[np.ndarray, GuardDecision]:
@@ -412,7 +422,8 @@ class Guard:
         p_ahead = np.clip(p_now + rates * h, self.planner.lo, self.planner.hi)
         q_now, jac, _ = self.planner.inverse.solve_full(p_now)
         q_ahead = self.planner.inverse(*p_ahead)
-        now, ahead = _measure_values(self.stability_at(q_now)), self.stability_at(q_ahead)
+        points_ahead = self.model.forward(q_ahead).points  # for the stability and the keep-outs ahead
+        now, ahead = _measure_values(self.stability_at(q_now)), self.stability_at(q_ahead, points_ahead)
         vals = _measure_values(ahead)
         hard_th, caution_th = self._thresholds()
         reasons: list[GuardReason] = []
@@ -428,7 +439,7 @@ class Guard:
             elif vals[m] < caution_th[m] and worse:
                 reasons.append(GuardReason(m, vals[m], caution_th[m], h, "caution"))
                 factor = min(factor, self.settings.caution_speed_factor)
-        for j, (_, dist, r) in enumerate(self.keep_out_clearance(q_ahead)):
+        for j, (_, dist, r) in enumerate(self.keep_out_clearance(q_ahead, points_ahead)):
             if dist < r:
                 reasons.append(GuardReason(self._keep_out_names[j], dist, r, h, "hard"))
         if any(r.level == "hard" for r in reasons):
@@ -475,7 +486,7 @@ def _implement_frames(P: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]
         xi = xi / np.linalg.norm(xi, axis=1)[:, None]
         zi = P["U"] - P["T"]
         zi = zi / np.linalg.norm(zi, axis=1)[:, None]
-    return P["T"], np.stack([xi, np.cross(zi, xi), zi], axis=2)
+    return P["T"], np.stack([xi, cross_rows(zi, xi), zi], axis=2)
 
 
 def _earliest(mask: np.ndarray, t: np.ndarray) -> int | None:

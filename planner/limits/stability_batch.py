@@ -38,7 +38,7 @@ from planner.limits.stability import (
 )
 from planner.limits.tractor import STANDARD_GRAVITY, ImplementRecord, StabilityInputError, Tractor, _scalar
 
-__all__ = ["MEASURE_NAMES", "StabilityBatch", "evaluate_stability_batch"]
+__all__ = ["MEASURE_NAMES", "StabilityBatch", "cross_rows", "evaluate_stability_batch"]
 
 #: Measure names, in the order of :attr:`StabilityBatch.values` columns (as the guard names them).
 MEASURE_NAMES: tuple[str, str, str, str] = ("front_axle_load", "ssm", "lsm", "esm")
@@ -79,6 +79,14 @@ def _norm(a: np.ndarray) -> np.ndarray:
     return np.sqrt(_dot(a, a))
 
 
+def cross_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross product of (N, 3) arrays: np.cross's products and differences (the same
+    values, bit for bit) without its axis handling (~25 µs a call for a plan's samples)."""
+    a0, a1, a2 = a[:, 0], a[:, 1], a[:, 2]
+    b0, b1, b2 = b[:, 0], b[:, 1], b[:, 2]
+    return np.column_stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
+
+
 def _pose_suspect(T: np.ndarray, R: np.ndarray) -> np.ndarray:
     """Poses the per-sample function might reject (tractor._vector3 / _rotation), with margin:
     the Gram matrix R^T R off the identity, the determinant (triple product of the columns)."""
@@ -87,7 +95,7 @@ def _pose_suspect(T: np.ndarray, R: np.ndarray) -> np.ndarray:
         Rf = np.where(finite[:, None, None], R, 0.0)
         ortho = np.abs(np.matmul(Rf.transpose(0, 2, 1), Rf) - np.eye(3)).max(axis=(1, 2))
         c0, c1, c2 = Rf[:, :, 0], Rf[:, :, 1], Rf[:, :, 2]
-        det = np.einsum("ij,ij->i", np.cross(c0, c1), c2)
+        det = np.einsum("ij,ij->i", cross_rows(c0, c1), c2)
     return ~finite | ~(ortho <= 0.5 * _ORTHO_TOL) | ~(det > 0.5)
 
 

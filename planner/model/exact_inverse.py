@@ -118,8 +118,12 @@ class ExactInverse:
     def __init__(self, model: HitchModel):
         self.model = model
         self.function = _build(model)
-        self._fast = FastFunction(self.function)
+        self._fast = FastFunction(self.function, compiled=True)
         self._batch: MappedFunction | None = None
+        self._jac_batch: MappedFunction | None = None
+        # the last target solve_full answered, and its answer: a control cycle asks for the same
+        # pose up to three times (the follower's reference, the feed-forward, the guard's "now")
+        self._last: tuple[bytes, np.ndarray, np.ndarray, tuple[float, float]] | None = None
 
     def __call__(self, x: float, z: float, roll: float, pitch: float) -> np.ndarray:
         """Actuators (lift, tilt, top, left, right) reaching the pose exactly; KinematicsError if none."""
@@ -138,6 +142,10 @@ class ExactInverse:
             raise ModelInputError("target must be 4 finite numbers (x [m], z [m], roll [rad], pitch [rad])")
         if abs(tl[2]) >= math.pi / 2 or abs(tl[3]) >= math.pi / 2:
             raise KinematicsError("roll and pitch must lie within ±π/2")
+        key = t.tobytes()
+        last = self._last
+        if last is not None and last[0] == key:  # a pure function of the target: the same answer
+            return last[1].copy(), last[2].copy(), last[3]
         q, jac, checks, y_yaw = self._fast(t)
         c0, c1, c2 = checks[:, 0].tolist()
         if not (abs(c0) <= _TOL_M and abs(c1) <= _TOL_M):
@@ -149,7 +157,9 @@ class ExactInverse:
         qv = q[:, 0].copy()
         if not all(map(math.isfinite, qv.tolist())):
             raise KinematicsError("degenerate pose")
-        return qv, jac.copy(), (float(y_yaw[0, 0]), float(y_yaw[1, 0]))
+        y_t = (float(y_yaw[0, 0]), float(y_yaw[1, 0]))
+        self._last = (key, qv.copy(), jac.copy(), y_t)
+        return qv, jac.copy(), y_t
 
     def solve_batch(self, targets: ArrayLike, velocities: ArrayLike) -> InverseBatch:
         """The inverse at N targets (N, 4) moving at ``velocities`` (N, 4) (x, z, roll, pitch and
@@ -166,7 +176,7 @@ class ExactInverse:
         if p.ndim != 2 or p.shape[1] != 4 or v.shape != p.shape:
             raise ModelInputError(f"targets and velocities must both be (N, 4), got {p.shape} and {v.shape}")
         if self._batch is None:
-            self._batch = MappedFunction(_build(self.model, rate=True))
+            self._batch = MappedFunction(_build(self.model, rate=True), compiled=True)
         finite = np.isfinite(p).all(axis=1)
         q, qd, checks, y_yaw = self._batch(p.T, v.T)
         with np.errstate(invalid="ignore"):
@@ -180,6 +190,31 @@ class ExactInverse:
                 & np.isfinite(q).all(axis=0)
             )
         return InverseBatch(q.T, qd.T, y_yaw[0].copy(), y_yaw[1].copy(), ok)
+
+    def jacobians(self, targets: ArrayLike) -> np.ndarray:
+        """d actuators / d target (N, 5, 4) at N targets (N, 4) in one mapped evaluation: those of
+        :meth:`solve`, bit for bit; at a target :meth:`solve` refuses, its error (the first such
+        target raises)."""
+        p = np.asarray(targets, dtype=float)
+        if p.ndim != 2 or p.shape[1] != 4:
+            raise ModelInputError(f"targets must be (N, 4), got {p.shape}")
+        if self._jac_batch is None:
+            self._jac_batch = MappedFunction(self.function, compiled=True)
+        q, jac, checks, _ = self._jac_batch(p.T)
+        with np.errstate(invalid="ignore"):
+            ok = (
+                np.isfinite(p).all(axis=1)
+                & (np.abs(p[:, 2]) < math.pi / 2)
+                & (np.abs(p[:, 3]) < math.pi / 2)
+                & (np.abs(checks[0]) <= _TOL_M)
+                & (np.abs(checks[1]) <= _TOL_M)
+                & (np.abs(checks[2]) <= 1.0)
+                & np.isfinite(q).all(axis=0)
+            )
+        out = jac.reshape(5, len(p), 4).transpose(1, 0, 2).copy()  # column block k is target k's
+        for k in np.flatnonzero(~ok).tolist():  # raises as solve does
+            out[k] = self.solve(p[k])[1]
+        return out
 
     def actuators(self, x: float, z: float, roll: float, pitch: float) -> Actuators:
         return Actuators.from_array(self(x, z, roll, pitch))

@@ -11,6 +11,7 @@ import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 
+from planner.model.compiled import compile_functions
 from planner.model.types import ModelInputError
 
 __all__ = ["FastFunction", "MappedFunction"]
@@ -20,12 +21,16 @@ class FastFunction:
     """A CasADi ``Function`` with pre-bound dense numpy input/output buffers.
 
     ``inputs[i]`` is the flat (column-major) input ``i``; ``outputs[i]`` the dense output
-    ``i`` as a Fortran-ordered 2-D array, overwritten by every call.
+    ``i`` as a Fortran-ordered 2-D array, overwritten by every call. With ``compiled``, the
+    function is evaluated as compiled machine code (:func:`~planner.model.compiled.compile_functions`:
+    the same values, bit for bit; the virtual machine when no compiler is available);
+    ``function`` stays the given (symbolic) one.
     """
 
-    def __init__(self, function: ca.Function):
+    def __init__(self, function: ca.Function, *, compiled: bool = False):
         self.function = function
-        self._buf, self._eval = function.buffer()
+        evaluated = compile_functions([function])[0] if compiled else function
+        self._buf, self._eval = evaluated.buffer()
         self.inputs: list[np.ndarray] = [
             np.zeros(function.size1_in(i) * function.size2_in(i)) for i in range(function.n_in())
         ]
@@ -58,25 +63,37 @@ class FastFunction:
 class MappedFunction:
     """A CasADi ``Function`` of column-vector inputs evaluated over N columns at once.
 
-    ``function.map(c)`` for chunk sizes ``chunks`` (largest first, the last 1), each through
+    ``function.map(c)`` for chunk sizes ``chunks`` (largest first, the last 1; by default 64, 8,
+    1, compiled the powers of two from 128), each through
     a :class:`FastFunction` built on first use: N columns cost ⌈N / c⌉ + a few calls instead
     of N. Every column is evaluated by the same instructions as ``function`` alone, so the
     values are those of N single calls, bit for bit.
+
+    With ``compiled``, the chunk functions are compiled to machine code on first use, all in
+    one library (:func:`~planner.model.compiled.compile_functions`: the same values, bit for
+    bit; the virtual machine when no compiler is available).
     """
 
-    def __init__(self, function: ca.Function, chunks: tuple[int, ...] = (64, 8, 1)):
+    def __init__(self, function: ca.Function, chunks: tuple[int, ...] | None = None, *, compiled: bool = False):
         for i in range(function.n_in()):
             if function.size2_in(i) != 1:
                 raise ModelInputError(f"input {i} of {function.name()} must be a column vector")
+        if chunks is None:  # compiled, a call costs ~1 µs: powers of two, at most 8 calls below 256 columns
+            chunks = (128, 64, 32, 16, 8, 4, 2, 1) if compiled else (64, 8, 1)
         if not chunks or chunks[-1] != 1 or list(chunks) != sorted(chunks, reverse=True):
             raise ModelInputError(f"chunks must be decreasing and end with 1, got {chunks}")
         self.function = function
         self.chunks = tuple(int(c) for c in chunks)
+        self.compiled = compiled
         self._fast: dict[int, FastFunction] = {}
 
     def _chunk(self, c: int) -> FastFunction:
         fast = self._fast.get(c)
         if fast is None:
+            if self.compiled:  # every chunk at once: one library
+                fns = compile_functions([self.function if k == 1 else self.function.map(k) for k in self.chunks])
+                self._fast.update({k: FastFunction(f) for k, f in zip(self.chunks, fns, strict=True)})
+                return self._fast[c]
             fast = self._fast[c] = FastFunction(self.function if c == 1 else self.function.map(c))
         return fast
 

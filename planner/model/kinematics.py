@@ -187,8 +187,8 @@ class HitchModel:
         self.span = profile.span(self.category)
         self.mast_height = profile.category(self.category).mast_height
         self.points_function, self.feature_function, self.symbolic = _build(profile, self.category)
-        self._points = FastFunction(self.points_function)
-        self._features = FastFunction(self.feature_function)
+        self._points = FastFunction(self.points_function, compiled=True)
+        self._features = FastFunction(self.feature_function, compiled=True)
         specs = [profile.actuator(n) for n in ACTUATOR_NAMES]
         self.lower = np.array([s.min for s in specs])
         self.upper = np.array([s.max for s in specs])

@@ -237,7 +237,7 @@ class ForwardBatch:
     """
 
     def __init__(self, model: HitchModel):
-        self._map = MappedFunction(model.points_function)
+        self._map = MappedFunction(model.points_function, compiled=True)
         self._key: bytes | None = None
         self._value: tuple[np.ndarray, np.ndarray, np.ndarray] = (np.empty(0), np.empty(0), np.empty(0))
         self._lock = threading.Lock()

@@ -55,7 +55,8 @@ def straight_line_limits(
         return box_limits(inverse, [a], limits)
     u = d / length
     s = np.linspace(0.0, length, points)
-    g = np.array([inverse.solve(a + si * u)[1] @ u for si in s])  # q'(s), (K, 5)
+    jac = inverse.jacobians(np.array([a + si * u for si in s]))  # as inverse.solve(...)[1] of each point
+    g = np.array([j @ u for j in jac])  # q'(s), (K, 5)
     h = np.gradient(g, s, axis=0)  # q''(s)
     k = np.gradient(h, s, axis=0)  # q'''(s)
     ag, ah, ak = np.abs(g) + _EPS, np.abs(h), np.abs(k)

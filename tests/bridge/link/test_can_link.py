@@ -85,6 +85,33 @@ def test_out_of_stroke_reference_is_refused_by_name_and_never_sent(rig, tap, mod
     assert rig.link.counters.references_refused == 1 and not rig.link.streaming
 
 
+def test_a_reference_checked_then_sent_is_evaluated_once_and_a_refused_one_every_time(rig, model, monkeypatch):
+    """The controller checks the reference it will send (feed-forward) and send_reference checks it
+    again: the second check of the same values answers the first's counts without evaluating the
+    kinematics again; other values, and refused ones, are evaluated afresh."""
+    calls = []
+    features = model.features
+
+    def counted(q):
+        calls.append(np.array(q, float))
+        return features(q)
+
+    monkeypatch.setattr(model, "features", counted)
+    link = rig.link
+    q = model.neutral.copy()
+    counts = link.check_reference(q)
+    assert link.send_reference(q.copy(), rig.next_tick_s) == counts and len(calls) == 1
+    q2 = q + [0.01, 0.0, 0.0, 0.0, 0.0]
+    assert link.check_reference(q2) != counts and len(calls) == 2
+    assert link.check_reference(list(q)) == counts and len(calls) == 3  # the last one was q2
+    bad = q.copy()
+    bad[0] += 0.5
+    for n in (4, 5):
+        with pytest.raises(ReferenceRefused, match="stroke:lift:max|cannot take"):
+            link.check_reference(bad)
+        assert len(calls) == n
+
+
 @pytest.mark.parametrize("bad", [[0.2, 0.63, 0.75, 0.54], [math.nan, 0.63, 0.75, 0.54, 0.54], "lift", None])
 def test_malformed_reference_input_is_refused(rig, bad):
     with pytest.raises(ReferenceRefused):

@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 
 from planner.limits.guard import Guard, GuardDecision, GuardReason, GuardRefusal, _implement_frames
 from planner.limits.stability import StabilityThresholds, evaluate_stability
-from planner.limits.stability_batch import MEASURE_NAMES, evaluate_stability_batch
+from planner.limits.stability_batch import MEASURE_NAMES, cross_rows, evaluate_stability_batch
 from planner.limits.tractor import STANDARD_GRAVITY as G
 from planner.limits.tractor import Tractor, load_tractor_profile
 from planner.model.kinematics import HitchModel
@@ -427,3 +427,17 @@ def test_plans_sharing_per_sample_results_decide_as_checked_afresh(ballasted, he
         assert_same_decision(gp.decision, dec_ref)
         seen.add(gp.decision.action)
     assert "scaled" in seen  # the caution re-plan (the case that shares results) happened
+
+
+def test_cross_rows_is_np_cross_bit_for_bit():
+    """The guard's frames and the batch's determinant use cross_rows: np.cross's values exactly
+    (also for huge, tiny and non-finite entries, and for no rows)."""
+    rng = np.random.default_rng(11)
+    for n in (0, 1, 250):
+        a = rng.normal(size=(n, 3)) * rng.choice([1e-300, 1.0, 1e300], (n, 3))
+        b = rng.normal(size=(n, 3))
+        if n:
+            a[0, 1], b[-1, 2] = np.nan, np.inf
+        got, want = cross_rows(a, b), np.cross(a, b)
+        assert got.shape == want.shape == (n, 3)
+        assert np.array_equal(got, want, equal_nan=True)

@@ -101,3 +101,42 @@ def test_batch_inverse_refuses_bad_shapes(inverse):
         inverse.solve_batch(np.zeros(4), np.zeros(4))
     empty = inverse.solve_batch(np.zeros((0, 4)), np.zeros((0, 4)))
     assert empty.actuators.shape == (0, 5) and empty.ok.shape == (0,)
+
+
+def test_jacobians_are_those_of_solve_bit_for_bit(model, inverse, rng):
+    """jacobians (one mapped call, as straight_line_limits uses it): solve()[1] of every target,
+    bit for bit; the first target solve refuses raises solve's error."""
+    ws = model.workspace
+    lo = np.array([ws[k][0] for k in ("x", "z", "roll", "pitch")])
+    hi = np.array([ws[k][1] for k in ("x", "z", "roll", "pitch")])
+    P = lo + (hi - lo) * rng.random((77, 4))
+    J = inverse.jacobians(P)
+    assert J.shape == (77, 5, 4)
+    for k in range(len(P)):
+        assert np.array_equal(J[k], inverse.solve(P[k])[1]), k
+    assert inverse.jacobians(np.zeros((0, 4))).shape == (0, 5, 4)
+    bad = P[:3].copy()
+    bad[1] = [0.0, 3.0, 0.0, 0.0]
+    with pytest.raises(KinematicsError):
+        inverse.jacobians(bad)
+    bad[1] = [0.0, np.nan, 0.0, 0.0]
+    with pytest.raises(ModelInputError, match="finite"):
+        inverse.jacobians(bad)
+    with pytest.raises(ModelInputError, match=r"\(N, 4\)"):
+        inverse.jacobians(np.zeros(4))
+
+
+def test_solve_full_repeated_target_gives_fresh_equal_answers(inverse):
+    """The last answer is kept for a repeated target: the same values, in new arrays (a caller
+    changing what it got changes nothing for the next), and a different target is solved afresh."""
+    t = np.array([0.01, 0.6, 0.02, -0.01])
+    q1, j1, yy1 = inverse.solve_full(t)
+    q1[:] = 0.0
+    j1[:] = 0.0
+    q2, j2, yy2 = inverse.solve_full(t.copy())
+    q_other = inverse.solve_full(t + [0.01, 0.0, 0.0, 0.0])[0]
+    q3, j3, _ = inverse.solve_full(t)
+    assert yy1 == yy2 and np.any(q2 != 0.0) and np.any(j2 != 0.0)
+    assert np.array_equal(q2, q3) and np.array_equal(j2, j3) and not np.array_equal(q_other, q2)
+    fresh = ExactInverse(inverse.model).solve_full(t)
+    assert np.array_equal(fresh[0], q2) and np.array_equal(fresh[1], j2) and fresh[2] == yy2

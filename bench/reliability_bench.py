@@ -930,8 +930,13 @@ def bench_cpu(a: argparse.Namespace) -> dict:
     """Idle CPU of ``hitch serve`` at rest: with the embedded simulated ECU, and the planner side alone."""
     from bridge.link.realtime import INTERFACES
 
-    res: dict[str, Any] = {"window_s": a.cpu_duration}
-    srv = ServeProcess(data_dir=tempfile.mkdtemp(prefix="hitch-reliability-cpu-"))
+    res: dict[str, Any] = {"window_s": a.cpu_duration, "realtime": a.realtime}
+    rt: list[str] = []
+    if a.realtime is not None:  # the service's [service] realtime key, from a config file of its own
+        conf = Path(tempfile.mkdtemp(prefix="hitch-reliability-conf-")) / "service.toml"
+        conf.write_text(f"[service]\nrealtime = {'true' if a.realtime else 'false'}\n", encoding="utf-8")
+        rt = ["--config", str(conf)]
+    srv = ServeProcess(*rt, data_dir=tempfile.mkdtemp(prefix="hitch-reliability-cpu-"))
     try:
         why = srv.wait_online(60)
         if why is None:
@@ -963,6 +968,7 @@ def bench_cpu(a: argparse.Namespace) -> dict:
             start_new_session=True,
         )
         planner_srv = srv = ServeProcess(
+            *rt,
             "--can-interface",
             "remote",
             "--can-channel",
@@ -1260,11 +1266,13 @@ def table(res: dict) -> list[str]:
                     r["max_ms"],
                     sum(r["codes"].values()),
                 )
-    if "cpu" in res:
-        c = res["cpu"]
+    for cpu_key, head in (("cpu_nice_only", "[real-time off] "), ("cpu", "")):
+        if cpu_key not in res:
+            continue
+        c = res[cpu_key]
         e, pl = c.get("embedded_ecu_pct"), c.get("planner_only_pct")
-        add("idle CPU % of a core, embedded ECU", mx=e, tgt="≤ 10", v=verdict(e, T["cpu_embedded_pct"]))
-        add("idle CPU % of a core, planner side", mx=pl, tgt="≤ 5", v=verdict(pl, T["cpu_planner_pct"]))
+        add(f"{head}idle CPU % of a core, embedded ECU", mx=e, tgt="≤ 10", v=verdict(e, T["cpu_embedded_pct"]))
+        add(f"{head}idle CPU % of a core, planner side", mx=pl, tgt="≤ 5", v=verdict(pl, T["cpu_planner_pct"]))
     for cut, r in (res.get("faults") or {}).get("cases", {}).items():
         lat = r.get("fault_latency_ms")
         add(f"cut {cut}: fault latency ms", mx=lat, tgt="≤ 300", v=verdict(lat, T["fault_ms"]))
@@ -1340,7 +1348,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument(
         "--compare-realtime",
         action="store_true",
-        help="run `load` twice: first with real-time scheduling off (nice values only), then as configured",
+        help="run `load` and `cpu` twice: first with real-time scheduling off (nice values only), then as configured",
     )
     ap.add_argument(
         "--compare-threads",
@@ -1381,6 +1389,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     if "load" in only and a.compare_realtime:
         print("--- load, real-time scheduling off (nice values only)", flush=True)
         res["load_nice_only"] = bench_load(argparse.Namespace(**{**vars(a), "realtime": False}))
+    if "cpu" in only and a.compare_realtime:
+        print("--- cpu, real-time scheduling off (nice values only)", flush=True)
+        res["cpu_nice_only"] = bench_cpu(argparse.Namespace(**{**vars(a), "realtime": False}))
     for name in ("load", "cpu", "faults", "jog"):
         if name in only:
             print(f"--- {name}", flush=True)

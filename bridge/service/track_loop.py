@@ -114,6 +114,7 @@ __all__ = [
     "TrackLoopError",
     "TrackLoopResult",
     "follower_lead_s",
+    "path_state",
     "job_of",
     "run_track_loop",
 ]
@@ -700,6 +701,28 @@ class PreviewPlanner:
         return out
 
 
+def path_state(path: np.ndarray, i: int, dt: float) -> tuple[float, float, float, float]:
+    """The state (position [m], velocity [m/s], acceleration [m/s²], jerk [m/s³]) at sample ``i`` of a
+    path sampled every ``dt``, read as the uniform cubic B-spline on its samples: the C²
+    piecewise-cubic whose velocity, acceleration and jerk are the path's first, second and third
+    differences (at ``i``: central, central, and the jerk of the segment from ``i`` to ``i + 1``). By the
+    B-spline's convex hull its |v|, |a|, |j| stay within the largest differences, so a path whose
+    differences are within bounds (:class:`PreviewPlanner`) is a stream within them, and its states
+    are consistent: the follower meets one from the previous exactly in one cycle. ``i`` is clamped to
+    [1, len − 3] (at least four samples)."""
+    x = np.asarray(path, float)
+    if x.size < 4:
+        raise TrackLoopError(f"path_state: the path needs >= 4 samples, got {x.size}")
+    i = min(max(int(i), 1), x.size - 3)
+    xm, x0, x1, x2 = (float(v) for v in x[i - 1 : i + 3])
+    return (
+        (xm + 4.0 * x0 + x1) / 6.0,
+        (x1 - xm) / (2.0 * dt),
+        (x1 - 2.0 * x0 + xm) / dt**2,
+        (x2 - 3.0 * x1 + 3.0 * x0 - xm) / dt**3,
+    )
+
+
 def follower_lead_s(limits_velocity: float, limits_acceleration: float, limits_jerk: float, dt: float) -> float:
     """The lead [s] a streaming client gives its setpoints to cover the loop's latency and the
     follower's lag, from the follower's limits of the tracked DOF: two control cycles ``2·dt`` (the
@@ -812,6 +835,8 @@ def run_track_loop(
         while loop.now_s < duration - 1e-9:
             now = loop.now_s
             sp: float | None = None  # in the job's frame
+            row_acc: float | None = None  # the preview plan's acceleration and jerk at the setpoint (plan only)
+            row_jerk = 0.0
             target: float | None = None  # the same in the tractor frame (the client's conversion)
             if job == "levelling":
                 att = sensors.attitude(now)
@@ -832,9 +857,10 @@ def run_track_loop(
                                 path = planner_ahead.plan(now, np.array([r[0] for r in ref_row if r is not None]))
                                 path_t = now + loop.dt * np.arange(path.size)
                             assert path_t is not None
-                            t_sp = now + 2 * loop.dt  # the loop's latency: taken next cycle, at the ECU one later
-                            sp = float(np.interp(t_sp, path_t, path))
-                            row_rate = float(np.interp(t_sp, path_t[1:-1], (path[2:] - path[:-2]) / (2 * loop.dt)))
+                            # the loop's latency: the reference of the next cycle reaches the pistons a cycle
+                            # later (the follower itself meets the setpoint at the next cycle's time)
+                            i = int(round((now + loop.dt - path_t[0]) / loop.dt))
+                            sp, row_rate, row_acc, row_jerk = path_state(path, i, loop.dt)
                             target = sp
                         else:
                             est = row_kf.at(odo[0] + odo[1] * lead)
@@ -868,8 +894,11 @@ def run_track_loop(
                 if s.strategy == "track" and session is not None:
                     seq += 1
                     vel = {dof: rate} if s.send_velocity else None
+                    path_derivatives = (
+                        {} if row_acc is None else {"acceleration": {dof: row_acc}, "jerk": {dof: row_jerk}}
+                    )
                     try:
-                        mc.track_setpoint(session, seq, {dof: sp}, vel)
+                        mc.track_setpoint(session, seq, {dof: sp}, vel, **path_derivatives)
                     except MotionError as exc:
                         counts["setpoints_rejected"] += 1
                         _note(notes, f"setpoint rejected: {exc}")

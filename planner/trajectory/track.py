@@ -3,10 +3,12 @@
 A client streams setpoints (pose, optionally pose velocity) at up to 100 Hz; every control
 cycle (``1/planner.rate``) :meth:`TrackFollower.step` re-targets Ruckig as an online
 generator from the current position, velocity and acceleration: position interface, the
-target the latest setpoint (extrapolated with its velocity to the cycle's time) clipped to the
-workspace, its velocity clipped to the pose velocity limits and capped near a face so that a
-jerk-limited stop from it still fits before the face. Each tracked DOF moves time-optimally on
-its own (no synchronisation) within the *subset limits* (:func:`subset_limits`): the largest
+target the latest setpoint (extrapolated with its velocity, acceleration and jerk to the cycle's
+time) clipped to the workspace, its velocity clipped to the pose velocity limits and capped near a
+face so that a jerk-limited stop from it still fits before the face. A tracked DOF that can meet the
+setpoint's own motion on time moves on that rendezvous (``TrackFollower._rendezvous``: a stream
+within the limits is followed without lag), else time-optimally towards the cycle's target. Each
+tracked DOF moves on its own (no synchronisation) within the *subset limits* (:func:`subset_limits`): the largest
 per-DOF limits the actuators allow for any combination of the DOFs that move (the tracked ones,
 and untracked ones still braking from a take-over) anywhere in the workspace range of those DOFs
 (the others where they are); untracked DOFs brake to rest (they hold their start value when the
@@ -816,21 +818,24 @@ class TrackFollower:
         limits it lagged 3–6 cycles. The one-cycle rendezvous of a stream within the limits is the
         stream itself (followed without lag). No rendezvous on time: the time-optimal approach stays."""
         one = self._in1
-        for d in np.flatnonzero(self.tracked & ~vel_mode & ~brake).tolist():
-            one.max_acceleration = [inp.max_acceleration[d]]
-            one.max_jerk = [inp.max_jerk[d]]
-            one.current_position = [inp.current_position[d]]
-            one.current_velocity = [inp.current_velocity[d]]
-            one.current_acceleration = [inp.current_acceleration[d]]
-            for n in RENDEZVOUS_CYCLES:
-                horizon = n * self.dt
-                pt, vt, at, _ = self.target(self.t + horizon)
+        todo = np.flatnonzero(self.tracked & ~vel_mode & ~brake).tolist()
+        for n in RENDEZVOUS_CYCLES:
+            if not todo:
+                return
+            horizon = n * self.dt
+            pt, vt, at, _ = self.target(self.t + horizon)  # once per horizon for every DOF
+            one.minimum_duration = horizon
+            for d in list(todo):
                 one.max_velocity = [max(inp.max_velocity[d], abs(float(vt[d])))]
+                one.max_acceleration = [inp.max_acceleration[d]]
+                one.max_jerk = [inp.max_jerk[d]]
                 if self._descent is not None:
                     one.min_velocity = [min(inp.min_velocity[d], float(vt[d]))]
+                one.current_position = [inp.current_position[d]]
+                one.current_velocity = [inp.current_velocity[d]]
+                one.current_acceleration = [inp.current_acceleration[d]]
                 one.target_position, one.target_velocity = [float(pt[d])], [float(vt[d])]
                 one.target_acceleration = [float(at[d])]
-                one.minimum_duration = horizon
                 try:
                     res = self._ruckig1.calculate(one, self._traj1)
                 except RuckigError:
@@ -838,7 +843,7 @@ class TrackFollower:
                 if res in _OK and self._traj1.duration <= horizon * (1 + 1e-9):
                     (p[d],), (v[d],), (a[d],) = self._traj1.at_time(self.dt)
                     self.rendezvous += 1
-                    break
+                    todo.remove(d)
 
     def _cannot_stop(self, state: MotionState, limits: PoseLimits) -> tuple[np.ndarray, np.ndarray]:
         """Per DOF: the shortest stop from ``state`` passes the upper / lower face (beyond the current

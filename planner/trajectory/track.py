@@ -412,9 +412,13 @@ class TrackFollower:
         The target acceleration is ``acceleration`` [m/s², rad/s²] when given, else the difference of
         this and the previous setpoint's velocities (both given, at most ``ttl_s`` apart), else 0;
         clipped to the acceleration limits (without it a re-targeted follower lags a curved path).
+        The jerk [m/s³, rad/s³] (the setpoint's extrapolation to the cycle's time, :meth:`target`) is
+        ``jerk`` when given, else the difference of this and the previous setpoint's given
+        accelerations (at most ``ttl_s`` apart), else 0; clipped to the jerk limits. A client streaming
+        a path within the limits with its velocity, acceleration and jerk is followed exactly.
         """
         now = self.t if now_s is None else _number(now_s, "now_s")
-        jerk_given = jerk
+        jerk_given: Mapping[str, float] | None = jerk
         if self._stopping:
             raise TrackStateError("track: the session is stopping; no further setpoints are taken")
         if self._stale and not self.resume_after_stale:
@@ -445,7 +449,7 @@ class TrackFollower:
         acc = np.sign(acc) * np.minimum(np.abs(acc), np.sqrt(2 * self._j_lim * room))
         self._cap_descent_acceleration(v, acc)
         acc = np.where(self.tracked, acc, 0.0)
-        jerk = np.zeros(4)
+        jk = np.zeros(4)
         prev = self._sp
         if jerk_given is not None:
             if not isinstance(jerk_given, Mapping):
@@ -464,12 +468,12 @@ class TrackFollower:
                             f"setpoint.jerk.{k} = {w:g} {_UNITS[k]}/s³ is not a plausible SI value: allowed "
                             f"±{PLAUSIBLE_JERK:g} {_UNITS[k]}/s³ (beyond ±{self._j_lim[d]:.4f} it is clipped)"
                         )
-                    jerk[d] = w
+                    jk[d] = w
         elif acceleration is not None and prev is not None and self._last_a_given and 0 < now - prev.t <= self.ttl_s:
-            jerk = (acc - prev.acceleration) / (now - prev.t)
-        jerk = np.where(self.tracked, np.clip(jerk, -self._j_lim, self._j_lim), 0.0)
+            jk = (acc - prev.acceleration) / (now - prev.t)
+        jk = np.where(self.tracked, np.clip(jk, -self._j_lim, self._j_lim), 0.0)
         self._last_a_given = acceleration is not None
-        sp = TrackSetpoint(now, p_req, v_req, p, v, acc, limited, jerk)
+        sp = TrackSetpoint(now, p_req, v_req, p, v, acc, limited, jk)
         self._sp = sp
         self._last_s = now
         self._last_v = v_req if velocity is not None else None

@@ -96,7 +96,7 @@ SUBSET_GRID = (5, 3)
 SUBSET_MARGIN = 0.95
 _REL = 1e-6  # Ruckig's rounding at a limit (as braking.beyond)
 #: The rendezvous times with a setpoint's own motion the follower tries, in control cycles from the
-#: current state, shortest first (``TrackFollower._rendezvous``): one cycle, then up to 1 s at 50 Hz.
+#: current state, shortest first (``TrackFollower._rendezvous``): one cycle, then up to 8 (0.16 s at 50 Hz).
 RENDEZVOUS_CYCLES = (1, 2, 3, 4, 6, 8)
 
 

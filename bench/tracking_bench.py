@@ -222,14 +222,21 @@ def _row_scenario(speed_m_s: float, f_max_hz: float, duration_s: float, camera_a
     )
 
 
-def bench_guidance(model: HitchModel, quick: bool, x_bandwidth_hz: float | None) -> dict:
+def bench_guidance(
+    model: HitchModel, quick: bool, x_bandwidth_hz: float | None, variants: tuple[str, ...] | None = None
+) -> dict:
+    """``variants``: a subset of :data:`GUIDANCE_VARIANTS` (``track`` and ``goto_stream`` always run: the
+    ideal follower's time base and the baseline); None: all."""
     f_bw = x_bandwidth_hz if x_bandwidth_hz else 0.3
     duration = 30.0 if quick else 60.0
     out: dict = {"row_band_top_hz": f_bw}
+    chosen = {
+        k: v for k, v in GUIDANCE_VARIANTS.items() if variants is None or k in variants or k in ("track", "goto_stream")
+    }
     for kmh in (4, 8):
         v = kmh / 3.6
         runs = {}
-        for name, (strategy, fields, ahead) in GUIDANCE_VARIANTS.items():
+        for name, (strategy, fields, ahead) in chosen.items():
             sc = _row_scenario(v, f_bw, duration, ahead)
             runs[name] = run_track_loop(model, sc, LoopSettings(strategy=strategy, **fields))
         tr = runs["track"]
@@ -256,11 +263,13 @@ def bench_guidance(model: HitchModel, quick: bool, x_bandwidth_hz: float | None)
             res[name]["reference_vs_setpoint_rms_m"] = float(np.sqrt(np.mean((r.reference[e, 0] - r.setpoint[e]) ** 2)))
         out[f"{kmh}kmh"] = res
         _plot_runs(
-            f"tracking_guidance_{kmh}kmh.png", {k: runs[k] for k in GUIDANCE_PLOTTED}, extra=("ideal", tr.t, ideal.x)
+            f"tracking_guidance_{kmh}kmh.png",
+            {k: runs[k] for k in GUIDANCE_PLOTTED if k in runs},
+            extra=("ideal", tr.t, ideal.x),
         )
         print(
             f"guidance {kmh} km/h: "
-            + ", ".join(f"{k} {res[k]['rms_m'] * 1e3:.2f}" for k in GUIDANCE_VARIANTS)
+            + ", ".join(f"{k} {res[k]['rms_m'] * 1e3:.2f}" for k in chosen)
             + f", ideal {res['ideal']['rms_m'] * 1e3:.2f} mm RMS",
             flush=True,
         )
@@ -499,6 +508,11 @@ def main() -> int:
     ap.add_argument("--json", default=None, help="write the results as JSON")
     ap.add_argument("--quick", action="store_true", help="fewer frequencies, shorter runs")
     ap.add_argument("--x-bandwidth-hz", type=float, default=None, help="guidance without bode: the x bandwidth [Hz]")
+    ap.add_argument(
+        "--variants",
+        default=None,
+        help=f"guidance: comma-separated subset of {','.join(GUIDANCE_VARIANTS)} (track, goto_stream always run)",
+    )
     args = ap.parse_args()
     only = [s.strip() for s in args.only.split(",") if s.strip()]
     bad = [s for s in only if s not in SECTIONS]
@@ -511,7 +525,11 @@ def main() -> int:
         res["bode"] = bench_bode(model, args.quick)
     if "guidance" in only:
         bw = res.get("bode", {}).get("x", {}).get("bandwidth_hz") or args.x_bandwidth_hz
-        res["guidance"] = bench_guidance(model, args.quick, bw)
+        variants = None if args.variants is None else tuple(v.strip() for v in args.variants.split(",") if v.strip())
+        unknown = [v for v in variants or () if v not in GUIDANCE_VARIANTS]
+        if unknown:
+            ap.error(f"--variants: unknown {', '.join(unknown)}; allowed {', '.join(GUIDANCE_VARIANTS)}")
+        res["guidance"] = bench_guidance(model, args.quick, bw, variants)
     if "levelling" in only:
         res["levelling"] = bench_job(model, "levelling", args.quick, 60.0)
     if "terrain" in only:

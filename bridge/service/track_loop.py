@@ -57,9 +57,11 @@ implement it is the model's prediction. The lead (:func:`follower_lead_s`) comes
 follower's limits: two control cycles (the setpoint is taken at the next cycle, its reference
 reaches the ECU one cycle later) plus the follower's rise time to full speed, v/a + a/j. ``plan``
 (with a preview): with every camera sample a :class:`PreviewPlanner` path over the preview window
-(the smoothed row, within :attr:`PreviewPlanner.MARGIN` of the follower's limits), sent two cycles
-ahead with its velocity: a setpoint stream the follower can follow without the lag of a saturated
-re-targeting.
+(the smoothed row, within :attr:`PreviewPlanner.MARGIN` of the follower's limits), sent one cycle
+ahead (the next cycle's reference reaches the pistons a cycle later) as the B-spline state of the
+path (:func:`path_state`: position, velocity, acceleration and jerk, consistent from sample to
+sample): a setpoint stream within the limits, which the follower meets exactly (its rendezvous,
+:mod:`planner.trajectory.track`).
 
 Counts (:attr:`TrackLoopResult.counts`): streamed references outside the actuator strokes (the link
 refuses them: must be 0), refused references (``limit_reached`` events with a message), limit events
@@ -114,6 +116,7 @@ __all__ = [
     "TrackLoopError",
     "TrackLoopResult",
     "follower_lead_s",
+    "path_state",
     "job_of",
     "run_track_loop",
 ]
@@ -158,8 +161,9 @@ class LoopSettings:
         row_estimator: guidance: ``alpha_beta`` (``row_filter``) or ``kalman`` (:class:`RowKalman`).
         row_setpoint: guidance, ``kalman`` (:data:`ROW_SETPOINTS`): ``now`` the row under the
             implement now; ``lead`` the row at the implement's position ``lead_s`` ahead; ``plan`` a
-            preview plan (:class:`PreviewPlanner`) over what the camera saw ahead, sent ``2·dt`` ahead
-            (the loop's latency); without a preview of at least 8 cycles ``plan`` acts as ``lead``.
+            preview plan (:class:`PreviewPlanner`) over what the camera saw ahead, sent ``dt`` ahead
+            (the reference's way to the pistons) with its acceleration and jerk; without a preview
+            of at least 8 cycles ``plan`` acts as ``lead``.
         lead_s: the lead of ``lead`` [s], [0, 5]; None: :func:`follower_lead_s` from the follower's limits.
         inside_window_s: a sample counts as "inside" when over the last this-many seconds the demand
             stayed inside the workspace and within the follower's pose velocity and acceleration limits.
@@ -602,7 +606,7 @@ class PreviewPlanner:
     the ideal follower (:class:`planner.trajectory.ideal_follower.IdealFollower`) solves it, but over
     the preview window only, continuing the path already sent (its first three samples fixed to the
     previous plan's: position, velocity and acceleration stay continuous; should that QP not solve,
-    a fresh plan, else the previous plan held). One OSQP instance per window length and number of
+    the previous plan held: a fresh plan would jump). One OSQP instance per window length and number of
     fixed samples; :meth:`plan` returns the path's samples every ``dt`` from ``t0``.
 
     Args:
@@ -610,7 +614,7 @@ class PreviewPlanner:
         dt: the sample step [s].
     """
 
-    MARGIN = 0.85
+    MARGIN = 0.99
     """The share of the follower's limits a plan uses (the rest lets the follower catch up with it)."""
     EPS = 1e-3
 
@@ -624,9 +628,11 @@ class PreviewPlanner:
         self._x: np.ndarray | None = None
         self.failures = 0  # plans OSQP did not solve (the previous plan kept instead)
 
-    def plan(self, t0: float, reference: np.ndarray) -> np.ndarray:
+    def plan(self, t0: float, reference: np.ndarray, start: float | None = None) -> np.ndarray:
         """The path from ``t0`` (samples every ``dt``) closest to ``reference`` (same length, ≥ 8),
-        continuing the previous plan where it covers ``t0`` (its first three samples then fixed)."""
+        continuing the previous plan where it covers ``t0`` (its first three samples then fixed);
+        without one, from rest at ``start`` [m] when given (the follower's position: the stream then
+        starts where the hitch is)."""
         r = np.asarray(reference, float)
         n = int(r.size)
         if n < 8 or not np.all(np.isfinite(r)):
@@ -635,11 +641,16 @@ class PreviewPlanner:
         x = None
         if prev is not None:
             x = self._solve(r, prev, 3)
+            if x is None:  # the path already sent, continued: the stream stays within the bounds
+                self.failures += 1
+                x = prev
+        if x is None and prev is None and start is not None:
+            x = self._solve(r, np.full(n, float(start)), 3)
         if x is None:
             x = self._solve(r, np.full(n, float(np.mean(r))), 0)
         if x is None:
             self.failures += 1
-            x = r if prev is None else prev
+            x = r
         self._t0, self._x = t0, x
         return x
 
@@ -698,6 +709,28 @@ class PreviewPlanner:
             past = ts > tp[-1]
             out[past] = self._x[-1] + v * (ts[past] - tp[-1])
         return out
+
+
+def path_state(path: np.ndarray, i: int, dt: float) -> tuple[float, float, float, float]:
+    """The state (position [m], velocity [m/s], acceleration [m/s²], jerk [m/s³]) at sample ``i`` of a
+    path sampled every ``dt``, read as the uniform cubic B-spline on its samples: the C²
+    piecewise-cubic whose velocity, acceleration and jerk are the path's first, second and third
+    differences (at ``i``: central, central, and the jerk of the segment from ``i`` to ``i + 1``). By the
+    B-spline's convex hull its |v|, |a|, |j| stay within the largest differences, so a path whose
+    differences are within bounds (:class:`PreviewPlanner`) is a stream within them, and its states
+    are consistent: the follower meets one from the previous exactly in one cycle. ``i`` is clamped to
+    [1, len − 3] (at least four samples)."""
+    x = np.asarray(path, float)
+    if x.size < 4:
+        raise TrackLoopError(f"path_state: the path needs >= 4 samples, got {x.size}")
+    i = min(max(int(i), 1), x.size - 3)
+    xm, x0, x1, x2 = (float(v) for v in x[i - 1 : i + 3])
+    return (
+        (xm + 4.0 * x0 + x1) / 6.0,
+        (x1 - xm) / (2.0 * dt),
+        (x1 - 2.0 * x0 + xm) / dt**2,
+        (x2 - 3.0 * x1 + 3.0 * x0 - xm) / dt**3,
+    )
 
 
 def follower_lead_s(limits_velocity: float, limits_acceleration: float, limits_jerk: float, dt: float) -> float:
@@ -812,6 +845,8 @@ def run_track_loop(
         while loop.now_s < duration - 1e-9:
             now = loop.now_s
             sp: float | None = None  # in the job's frame
+            row_acc: float | None = None  # the preview plan's acceleration and jerk at the setpoint (plan only)
+            row_jerk = 0.0
             target: float | None = None  # the same in the tractor frame (the client's conversion)
             if job == "levelling":
                 att = sensors.attitude(now)
@@ -829,12 +864,15 @@ def run_track_loop(
                         if planner_ahead is not None and n_preview >= 8 and len(row_kf):
                             if fresh_sample or path_t is None:  # re-plan with every camera sample (10 Hz)
                                 ref_row = [row_kf.at(odo[0] + odo[1] * k * loop.dt) for k in range(n_preview)]
-                                path = planner_ahead.plan(now, np.array([r[0] for r in ref_row if r is not None]))
+                                path = planner_ahead.plan(
+                                    now, np.array([r[0] for r in ref_row if r is not None]), start=float(p0[d])
+                                )
                                 path_t = now + loop.dt * np.arange(path.size)
                             assert path_t is not None
-                            t_sp = now + 2 * loop.dt  # the loop's latency: taken next cycle, at the ECU one later
-                            sp = float(np.interp(t_sp, path_t, path))
-                            row_rate = float(np.interp(t_sp, path_t[1:-1], (path[2:] - path[:-2]) / (2 * loop.dt)))
+                            # the loop's latency: the reference of the next cycle reaches the pistons a cycle
+                            # later (the follower itself meets the setpoint at the next cycle's time)
+                            i = int(round((now + loop.dt - path_t[0]) / loop.dt))
+                            sp, row_rate, row_acc, row_jerk = path_state(path, i, loop.dt)
                             target = sp
                         else:
                             est = row_kf.at(odo[0] + odo[1] * lead)
@@ -868,8 +906,11 @@ def run_track_loop(
                 if s.strategy == "track" and session is not None:
                     seq += 1
                     vel = {dof: rate} if s.send_velocity else None
+                    path_derivatives = (
+                        {} if row_acc is None else {"acceleration": {dof: row_acc}, "jerk": {dof: row_jerk}}
+                    )
                     try:
-                        mc.track_setpoint(session, seq, {dof: sp}, vel)
+                        mc.track_setpoint(session, seq, {dof: sp}, vel, **path_derivatives)
                     except MotionError as exc:
                         counts["setpoints_rejected"] += 1
                         _note(notes, f"setpoint rejected: {exc}")

@@ -3,10 +3,12 @@
 A client streams setpoints (pose, optionally pose velocity) at up to 100 Hz; every control
 cycle (``1/planner.rate``) :meth:`TrackFollower.step` re-targets Ruckig as an online
 generator from the current position, velocity and acceleration: position interface, the
-target the latest setpoint (extrapolated with its velocity to the cycle's time) clipped to the
-workspace, its velocity clipped to the pose velocity limits and capped near a face so that a
-jerk-limited stop from it still fits before the face. Each tracked DOF moves time-optimally on
-its own (no synchronisation) within the *subset limits* (:func:`subset_limits`): the largest
+target the latest setpoint (extrapolated with its velocity, acceleration and jerk to the cycle's
+time) clipped to the workspace, its velocity clipped to the pose velocity limits and capped near a
+face so that a jerk-limited stop from it still fits before the face. A tracked DOF that can meet the
+setpoint's own motion on time moves on that rendezvous (``TrackFollower._rendezvous``: a stream
+within the limits is followed without lag), else time-optimally towards the cycle's target. Each
+tracked DOF moves on its own (no synchronisation) within the *subset limits* (:func:`subset_limits`): the largest
 per-DOF limits the actuators allow for any combination of the DOFs that move (the tracked ones,
 and untracked ones still braking from a take-over) anywhere in the workspace range of those DOFs
 (the others where they are); untracked DOFs brake to rest (they hold their start value when the
@@ -81,6 +83,8 @@ PLAUSIBLE_MARGIN = 0.5
 PLAUSIBLE_VELOCITY = 1.0
 #: Largest plausible setpoint acceleration [m/s² or rad/s²]; below it clipped to the limits.
 PLAUSIBLE_ACCELERATION = 10.0
+#: Largest plausible setpoint jerk [m/s³ or rad/s³]; below it clipped to the limits.
+PLAUSIBLE_JERK = 100.0
 _OK = (Result.Working, Result.Finished)
 _VELOCITY_NAMES = tuple(str(LimitName("velocity", k)) for k in CONTROLLED_POSE_NAMES)
 _POS, _VEL = ControlInterface.Position, ControlInterface.Velocity
@@ -91,6 +95,9 @@ SUBSET_GRID = (5, 3)
 #: the jerk).
 SUBSET_MARGIN = 0.95
 _REL = 1e-6  # Ruckig's rounding at a limit (as braking.beyond)
+#: The rendezvous times with a setpoint's own motion the follower tries, in control cycles from the
+#: current state, shortest first (``TrackFollower._rendezvous``): one cycle, then up to 8 (0.16 s at 50 Hz).
+RENDEZVOUS_CYCLES = (1, 2, 3, 4, 6, 8)
 
 
 def subset_limits(
@@ -199,6 +206,8 @@ class TrackSetpoint:
     velocity: np.ndarray  # clipped to the pose velocity limits (not yet capped at a face: see TrackOutput)
     acceleration: np.ndarray  # given or estimated from consecutive velocities, within the acceleration limits
     limited: dict[str, str] = field(default_factory=dict)  # "x" → "workspace:x:max", "vx" → "velocity:x"
+    jerk: np.ndarray = field(default_factory=lambda: np.zeros(4))
+    """From consecutive given accelerations (at most ``ttl_s`` apart), within the jerk limits; else 0."""
 
     @property
     def control_limited(self) -> bool:
@@ -331,6 +340,11 @@ class TrackFollower:
         self._in = InputParameter(4)
         self._in.synchronization = Synchronization.No
         self._traj = Trajectory(4)
+        # one DOF meeting the setpoint's own motion at a given time (the minimum duration): see _rendezvous
+        self._ruckig1 = Ruckig(1)
+        self._in1 = InputParameter(1)
+        self._traj1 = Trajectory(1)
+        self.rendezvous = 0  # DOF-cycles that moved on a rendezvous with the setpoint's motion (_rendezvous)
         self._probe = StopProbe()
         self.fallbacks = 0  # cycles Ruckig refused, braked to rest instead (should stay 0)
         self.reset(start, t0_s)
@@ -343,6 +357,7 @@ class TrackFollower:
         self.hold = np.asarray(state.position, float).copy()
         self._sp: TrackSetpoint | None = None
         self._last_v: np.ndarray | None = None
+        self._last_a_given = False
         self._last_s = self.t
         self._stale = False
         self._stopping = False
@@ -387,6 +402,7 @@ class TrackFollower:
         now_s: float | None = None,
         *,
         acceleration: Mapping[str, float] | None = None,
+        jerk: Mapping[str, float] | None = None,
     ) -> TrackSetpoint:
         """Take a setpoint: every tracked DOF's pose [m, rad], optionally its velocity [m/s, rad/s]
         (missing DOFs 0), arriving at ``now_s`` (default: the follower's time).
@@ -396,8 +412,13 @@ class TrackFollower:
         The target acceleration is ``acceleration`` [m/s², rad/s²] when given, else the difference of
         this and the previous setpoint's velocities (both given, at most ``ttl_s`` apart), else 0;
         clipped to the acceleration limits (without it a re-targeted follower lags a curved path).
+        The jerk [m/s³, rad/s³] (the setpoint's extrapolation to the cycle's time, :meth:`target`) is
+        ``jerk`` when given, else the difference of this and the previous setpoint's given
+        accelerations (at most ``ttl_s`` apart), else 0; clipped to the jerk limits. A client streaming
+        a path within the limits with its velocity, acceleration and jerk is followed exactly.
         """
         now = self.t if now_s is None else _number(now_s, "now_s")
+        jerk_given: Mapping[str, float] | None = jerk
         if self._stopping:
             raise TrackStateError("track: the session is stopping; no further setpoints are taken")
         if self._stale and not self.resume_after_stale:
@@ -428,7 +449,31 @@ class TrackFollower:
         acc = np.sign(acc) * np.minimum(np.abs(acc), np.sqrt(2 * self._j_lim * room))
         self._cap_descent_acceleration(v, acc)
         acc = np.where(self.tracked, acc, 0.0)
-        sp = TrackSetpoint(now, p_req, v_req, p, v, acc, limited)
+        jk = np.zeros(4)
+        prev = self._sp
+        if jerk_given is not None:
+            if not isinstance(jerk_given, Mapping):
+                raise TrackInputError(f"setpoint.jerk must be a mapping with any of {', '.join(self.dofs)}")
+            bad = set(jerk_given) - set(self.dofs)
+            if bad:
+                raise TrackInputError(
+                    f"setpoint.jerk: field(s) {', '.join(sorted(map(str, bad)))} not tracked in this session; "
+                    f"allowed: {', '.join(self.dofs)}"
+                )
+            for d, k in enumerate(TRACK_DOFS):
+                if k in jerk_given:
+                    w = _number(jerk_given[k], f"setpoint.jerk.{k}")
+                    if abs(w) > PLAUSIBLE_JERK:
+                        raise TrackInputError(
+                            f"setpoint.jerk.{k} = {w:g} {_UNITS[k]}/s³ is not a plausible SI value: allowed "
+                            f"±{PLAUSIBLE_JERK:g} {_UNITS[k]}/s³ (beyond ±{self._j_lim[d]:.4f} it is clipped)"
+                        )
+                    jk[d] = w
+        elif acceleration is not None and prev is not None and self._last_a_given and 0 < now - prev.t <= self.ttl_s:
+            jk = (acc - prev.acceleration) / (now - prev.t)
+        jk = np.where(self.tracked, np.clip(jk, -self._j_lim, self._j_lim), 0.0)
+        self._last_a_given = acceleration is not None
+        sp = TrackSetpoint(now, p_req, v_req, p, v, acc, limited, jk)
         self._sp = sp
         self._last_s = now
         self._last_v = v_req if velocity is not None else None
@@ -523,13 +568,16 @@ class TrackFollower:
             return self.hold.copy(), np.zeros(4), np.zeros(4), {}
         flags = dict(sp.limited)
         ahead = max(now_s - sp.t, 0.0)
-        p = sp.position + sp.velocity * ahead
+        # the setpoint's own motion to the cycle's time: constant acceleration (the target acceleration's
+        # model), so a stream within the limits is met where it is now, not where it was when it was sent
+        j = sp.jerk
+        p = sp.position + sp.velocity * ahead + sp.acceleration * ahead**2 / 2 + j * ahead**3 / 6
         p_req = sp.requested_position + sp.requested_velocity * ahead
         # the limits may have changed since the setpoint was taken (a new box): a reachable target again
         vl, al = self._v_lim, self._a_lim
-        v = np.clip(sp.velocity, -vl, vl)
+        v = np.clip(sp.velocity + sp.acceleration * ahead + j * ahead**2 / 2, -vl, vl)
         room = np.maximum(vl * (1 - 1e-6) - np.abs(v), 0.0)
-        acc = np.clip(sp.acceleration, -al, al)
+        acc = np.clip(sp.acceleration + j * ahead, -al, al)
         acc = np.sign(acc) * np.minimum(np.abs(acc), np.sqrt(2 * self._j_lim * room))
         if self._descent is not None:
             v[1] = max(v[1], -self._descent)
@@ -575,6 +623,7 @@ class TrackFollower:
         if to_rest:  # the planned stop's limits, chosen once (see the module docstring)
             lim = self._rest_limits()
             p_t, v_t, a_t, flags = self.hold, np.zeros(4), np.zeros(4), {}
+            stream = False
             vel_mode = np.ones(4, bool)
             brake = np.zeros(4, bool)
         else:
@@ -582,6 +631,7 @@ class TrackFollower:
             self._refresh()
             lim = self.limits
             p_t, v_t, a_t, flags = self.target(now)
+            stream = self._sp is not None
             vel_mode = ~self.tracked
             brake = beyond(state, lim, _REL)
             self._takeover |= bool(np.any(brake))
@@ -597,7 +647,7 @@ class TrackFollower:
         if self._descent is not None and not to_rest:  # never re-target faster downwards than the bound
             tv[1] = max(tv[1], -self._descent)
         try:
-            nxt = self._advance(p_t, tv, ta, vel_mode, brake, lim)
+            nxt = self._advance(p_t, tv, ta, vel_mode, brake, lim, stream)
             for n in range(3):
                 up, down = self._cannot_stop(nxt, lim)  # cheap: the pose limits first
                 if not (np.any(up) or np.any(down)):
@@ -618,7 +668,7 @@ class TrackFollower:
                         if self.tracked[d] and not to_rest:
                             flags[k] = name_max if up[d] else name_min
                 brake = brake | up | down
-                nxt = self._advance(p_t, tv, ta, vel_mode, brake, lim)
+                nxt = self._advance(p_t, tv, ta, vel_mode, brake, lim, stream)
         except (TrackError, PlanError):  # never stuck: the shortest stop with the real limits
             self.fallbacks += 1
             vel_mode[:] = True
@@ -712,6 +762,7 @@ class TrackFollower:
         vel_mode: np.ndarray,
         brake: np.ndarray,
         lim: PoseLimits,
+        stream: bool = False,
     ) -> MotionState:
         """The state one cycle ahead: Ruckig from the current state, position interface towards
         (``p_t``, ``tv``, ``ta``) or velocity interface towards ``tv`` (``vel_mode``) within ``lim``;
@@ -746,7 +797,57 @@ class TrackFollower:
         if res not in _OK:
             raise TrackError(f"track: ruckig failed ({res})")
         p, v, a = self._traj.at_time(self.dt)  # past its duration: on at the target velocity
+        p, v, a = list(p), list(v), list(a)
+        if stream:
+            self._rendezvous(inp, vel_mode, brake, p, v, a)
         return MotionState(np.array(p), np.array(v), np.array(a))
+
+    def _rendezvous(
+        self,
+        inp: InputParameter,
+        vel_mode: np.ndarray,
+        brake: np.ndarray,
+        p: list[float],
+        v: list[float],
+        a: list[float],
+    ) -> None:
+        """In place (``p``, ``v``, ``a``: the state one cycle ahead by the time-optimal approach of the
+        cycle's target): every tracked DOF in the position interface, not braking, meets the setpoint's
+        own motion (:meth:`target` at a later time: the setpoint extrapolated with its velocity and
+        acceleration) at the earliest of :data:`RENDEZVOUS_CYCLES` it can reach *on time* within the
+        limits (its own Ruckig with that time as the minimum duration), and moves one cycle along that
+        rendezvous. A target that moves is not a point to reach as fast as possible: the time-optimal
+        approach, re-targeted every cycle, arrives early and runs on alone or, a hair behind a target it
+        cannot reach within one cycle, takes a detour of up to a second; on a setpoint stream within the
+        limits it lagged 3–6 cycles. The one-cycle rendezvous of a stream within the limits is the
+        stream itself (followed without lag). No rendezvous on time: the time-optimal approach stays."""
+        one = self._in1
+        todo = np.flatnonzero(self.tracked & ~vel_mode & ~brake).tolist()
+        for n in RENDEZVOUS_CYCLES:
+            if not todo:
+                return
+            horizon = n * self.dt
+            pt, vt, at, _ = self.target(self.t + horizon)  # once per horizon for every DOF
+            one.minimum_duration = horizon
+            for d in list(todo):
+                one.max_velocity = [max(inp.max_velocity[d], abs(float(vt[d])))]
+                one.max_acceleration = [inp.max_acceleration[d]]
+                one.max_jerk = [inp.max_jerk[d]]
+                if self._descent is not None:
+                    one.min_velocity = [min(inp.min_velocity[d], float(vt[d]))]
+                one.current_position = [inp.current_position[d]]
+                one.current_velocity = [inp.current_velocity[d]]
+                one.current_acceleration = [inp.current_acceleration[d]]
+                one.target_position, one.target_velocity = [float(pt[d])], [float(vt[d])]
+                one.target_acceleration = [float(at[d])]
+                try:
+                    res = self._ruckig1.calculate(one, self._traj1)
+                except RuckigError:
+                    continue
+                if res in _OK and self._traj1.duration <= horizon * (1 + 1e-9):
+                    (p[d],), (v[d],), (a[d],) = self._traj1.at_time(self.dt)
+                    self.rendezvous += 1
+                    todo.remove(d)
 
     def _cannot_stop(self, state: MotionState, limits: PoseLimits) -> tuple[np.ndarray, np.ndarray]:
         """Per DOF: the shortest stop from ``state`` passes the upper / lower face (beyond the current

@@ -443,11 +443,17 @@ class MotionController:
         seq: int,
         pose: Mapping[str, float],
         velocity: Mapping[str, float] | None = None,
+        *,
+        acceleration: Mapping[str, float] | None = None,
+        jerk: Mapping[str, float] | None = None,
     ) -> dict[str, Any]:
         """One streamed setpoint (O(1)): ``pose`` [m, rad] of the session's DOFs in its frame,
-        optionally their ``velocity`` [m/s, rad/s]. Returns ``{"accepted", "limited", …}``; an old or
-        out-of-order ``seq`` is ignored (counted). Raises :class:`MotionError` for a session that is
-        not the live one or a setpoint that cannot be taken (the reason names the field / sensor)."""
+        optionally their ``velocity`` [m/s, rad/s] and, in frame ``tractor`` only, ``acceleration``
+        [m/s², rad/s²] and ``jerk`` [m/s³, rad/s³] (a client streaming a path sends its derivatives:
+        the follower then meets the path exactly, :meth:`TrackFollower.set_setpoint`). Returns
+        ``{"accepted", "limited", …}``; an old or out-of-order ``seq`` is ignored (counted). Raises
+        :class:`MotionError` for a session that is not the live one or a setpoint that cannot be taken
+        (the reason names the field / sensor)."""
         with self._lock:
             m = self._active
             if not isinstance(m, TrackMotion) or m.session != session:
@@ -460,7 +466,18 @@ class MotionController:
             now = self.clock()
             try:
                 target = self._to_tractor_frame(m, pose, now)
-                sp = m.follower.set_setpoint(target, self._frame_velocity(m, pose, velocity, now), now)
+                if (acceleration is not None or jerk is not None) and m.frame != "tractor":
+                    raise MotionError(
+                        "bad_request",
+                        f"setpoint.acceleration / jerk: only in frame tractor (session frame {m.frame})",
+                    )
+                sp = m.follower.set_setpoint(
+                    target,
+                    self._frame_velocity(m, pose, velocity, now),
+                    now,
+                    acceleration=acceleration,
+                    jerk=jerk,
+                )
             except (TrackInputError, TrackStateError, MotionError) as exc:
                 m.rejected += 1
                 m.last_rejection = str(exc)

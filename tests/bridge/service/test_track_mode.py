@@ -14,6 +14,7 @@ import pytest
 
 from bridge.service.api import ServiceAPI
 from bridge.service.motion.controller import MotionController
+from bridge.service.motion.types import MotionError
 from bridge.service.schemas import RequestError, parse_request
 from bridge.service.security import AccessPolicy
 from bridge.service.store import HitchStore
@@ -280,3 +281,20 @@ def test_ground_frame_commands_height_above_the_ground(r):
     assert ok, reply
     r.run(0.04)
     assert r.states[-1]["track"]["target"]["z"] == pytest.approx(z_m - 0.05, abs=1e-9)
+
+
+def test_a_path_streamed_with_acceleration_and_jerk_is_taken_in_the_tractor_frame_only(r):
+    """The Python API's path derivatives (the streaming client of a planned path): taken in frame tractor
+    (the follower's target carries them), refused naming the frame in frame level."""
+    session = r.start(dof=["z"])
+    z0 = r.measured()[1]
+    seq = 1
+    r.mc.track_setpoint(session, seq, {"z": z0}, {"z": 0.0}, acceleration={"z": 0.05}, jerk={"z": 0.2})
+    sp = r.mc._active.follower.setpoint
+    assert sp.acceleration[1] == pytest.approx(0.05) and sp.jerk[1] == pytest.approx(0.2)
+    r.mc.track_stop(session)
+    r.run(1.0)
+    r.sensors.att = (0.0, 0.0)
+    level = r.start(dof=["roll"], frame="level")
+    with pytest.raises(MotionError, match="only in frame tractor"):
+        r.mc.track_setpoint(level, 1, {"roll": 0.0}, acceleration={"roll": 0.01})

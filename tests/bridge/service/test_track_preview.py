@@ -17,6 +17,7 @@ from bridge.service.track_loop import (
     TrackLoopError,
     _AlphaBeta,
     follower_lead_s,
+    path_state,
     run_track_loop,
 )
 from bridge.sim.scenario import scenario_from_dict
@@ -114,6 +115,30 @@ def test_preview_plan_keeps_within_its_bounds_and_continues_the_path_sent():
     assert pl.failures == 0
     with pytest.raises(TrackLoopError, match="8 finite samples"):
         pl.plan(0.0, np.zeros(5))
+
+
+def test_path_state_is_the_b_spline_of_the_samples_consistent_from_one_sample_to_the_next():
+    """Invariants of the uniform cubic B-spline on the samples: each sample's state extrapolated over one
+    step with its jerk is the next sample's state (the stream the follower meets exactly), the jerk is
+    the third difference, and a constant / linear / quadratic path is reproduced exactly."""
+    rng = np.random.default_rng(7)
+    dt = 0.02
+    x = np.cumsum(np.cumsum(np.cumsum(rng.normal(0.0, 1e-6, 60))))
+    for i in range(1, 56):
+        p, v, a, j = path_state(x, i, dt)
+        p1, v1, a1, _ = path_state(x, i + 1, dt)
+        assert p + v * dt + a * dt**2 / 2 + j * dt**3 / 6 == pytest.approx(p1, abs=1e-15)
+        assert v + a * dt + j * dt**2 / 2 == pytest.approx(v1, abs=1e-13)
+        assert a + j * dt == pytest.approx(a1, abs=1e-11)
+        assert j == pytest.approx((x[i + 2] - 3 * x[i + 1] + 3 * x[i] - x[i - 1]) / dt**3)
+    t = dt * np.arange(10)
+    p, v, a, j = path_state(0.1 + 0.2 * t + 0.3 * t**2, 4, dt)
+    # a quadratic's B-spline is the quadratic shifted by a·dt²/6 (the smoothing (x₋ + 4x₀ + x₊)/6)
+    assert (p, v, a, j) == pytest.approx(
+        (0.1 + 0.2 * t[4] + 0.3 * t[4] ** 2 + 0.6 * dt**2 / 6, 0.2 + 0.6 * t[4], 0.6, 0.0), abs=1e-9
+    )
+    with pytest.raises(TrackLoopError, match="4 samples"):
+        path_state(np.zeros(3), 1, dt)
 
 
 def test_follower_lead_is_two_cycles_plus_the_rise_time_to_full_speed():

@@ -104,7 +104,7 @@ class FieldLoopSettings:
     rate_window_s: float = 0.1
     rate_limit: bool = True
     preview: PreviewSensorConfig | None = field(default_factory=PreviewSensorConfig)
-    preview_lead_s: float = 0.25
+    preview_lead_s: float = 0.3
     sim: SimSettings = field(default_factory=SimSettings)
 
     def __post_init__(self) -> None:

@@ -108,7 +108,7 @@ KI_CUT = 1.0
 #: the undulation's draft ripple would park the tool at the shallow limit, which a lagging hitch overshoots.
 SLIP_MEAN_S = 2.0
 SLIP_RIPPLE_S = 4.0
-MARGIN_SIGMAS = 3.0
+MARGIN_SIGMAS = 2.0
 MARGIN_MAX = 0.5
 #: time constant of the slip low-pass feeding the draft-mode limiter [s] (the outer loop of the cascade stays
 #: slower than the draft loop; with the ground preview the draft, and so the slip, hardly ripples there)

@@ -30,6 +30,15 @@ Modes (:attr:`WorkSettings.mode`):
   integral run ahead of the hitch, and the loop cycles between the depth limits (with the true depth
   beyond them, since the hitch arrives late). The depth limits win over the rate: they move with the
   ground.
+* ``draft`` with a ground preview (``ground_ahead_z``: the ground reference where the tool will be when
+  the hitch has followed this setpoint, from :class:`planner.work_control.ground_preview.GroundPreview`):
+  the PI regulates the working depth, ``d_i ← d_i − s·K_I·d_ref·e·Δt``, ``depth = clip(d_i −
+  s·K_P·d_ref·e, depth_min, depth_max)``, and the previewed ground is fed forward, ``z =
+  ground_ahead_z − depth``: the undulation no longer reaches the draft loop as an error (on ``chisel``
+  it lies above the loop's crossover, so the loop could not remove it), and the depth limits hold on
+  the ground the tool will meet. Unlike the ground under the tool (fed forward, it only made the
+  hitch lag), the ground one hitch lag ahead lets the hitch arrive in time (docs/soil.md). The rate
+  bound and its back-calculation act as without the preview.
 * ``mixed``: ``z = (1 - blend)·z_position + blend·z_draft`` (blend 0 = position, 1 = draft).
 * ``float``: no down pressure. A position-controlled hitch cannot be force-free, so float means
   here: the hitch carries the implement at the shallowest allowed depth below the ground
@@ -51,7 +60,9 @@ draft loop (it was: a P-term on the raw slip and 5 /s) adds its gain and its int
 loop's, and on a hitch that lags the undulation the two cycled (docs/soil.md). In position and
 mixed mode it lifts the setpoint by ``r = K_P·excess⁺ + K_I·∫excess`` within ``[0, depth_max]``
 (position: never above the ground contact; mixed: never shallower than ``depth_min``, and while it
-lifts the draft integral may only lift too, so the two do not fight). An unavailable slip (None,
+lifts the draft integral may only lift too, so the two do not fight). The limiters' target is the
+limit less a margin of :data:`MARGIN_SIGMAS` times the slip's ripple RMS (in draft mode only with a
+ground preview), so the ripple's tops, not its mean, stay at the limit. An unavailable slip (None,
 NaN) leaves the integral as it is and is reported in :attr:`WorkStatus.note`.
 
 Fallback. ``draft`` and ``mixed`` need a usable draft signal and the ground reference. A draft that is

@@ -288,9 +288,11 @@ def run_field_loop(
             now = loop.now_s
             dist = loop.sensors.ground_distance(now)
             ls = loop.rig.link.latest_state()
-            ground = None
-            if dist is not None and ls is not None:
-                ground = float(ls.pose.controlled()[1]) - dist + drop
+            ground = z_meas = None
+            if ls is not None:
+                z_meas = float(ls.pose.controlled()[1])
+            if dist is not None and z_meas is not None:
+                ground = z_meas - dist + drop
             ground_ahead = None
             if preview is not None and front is not None:
                 readings = loop.decoder.readings(now)
@@ -320,6 +322,7 @@ def run_field_loop(
                 slip=slip,
                 ground_z=ground,
                 ground_ahead_z=ground_ahead,
+                z_measured=z_meas,
             )
             cycle_s.append(time.perf_counter() - w0)
             cycle_cpu_s.append(time.thread_time() - c0)

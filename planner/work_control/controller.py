@@ -121,6 +121,13 @@ SLIP_MEAN_S = 2.0
 SLIP_RIPPLE_S = 4.0
 MARGIN_SIGMAS = 2.0
 MARGIN_MAX = 0.5
+#: with a preview and the measured z: the depth limits are inset by DEPTH_MARGIN_SIGMAS times the RMS of the
+#: hitch's tracking error in depth (the estimated true depth ``ground_z − z_measured`` less the depth last
+#: demanded; mean square low-passed with DEPTH_TRACK_S [s]), at most DEPTH_MARGIN_MAX of the depth range: at a
+#: limit the true depth then stays inside it although the hitch follows the undulation only within ≈ 1 cm
+DEPTH_MARGIN_SIGMAS = 2.0
+DEPTH_TRACK_S = 4.0
+DEPTH_MARGIN_MAX = 0.25
 #: time constant of the slip low-pass feeding the draft-mode limiter [s] (the outer loop of the cascade stays
 #: slower than the draft loop; with the ground preview the draft, and so the slip, hardly ripples there)
 SLIP_TAU_S = 1.0
@@ -281,6 +288,8 @@ class WorkController:
         self._fallback: str | None = None
         self._z_i: float | None = None
         self._d_i: float | None = None  # the depth integral of the regulator with a ground preview
+        self._depth_dem: float | None = None  # the last depth demanded with a preview (on the previewed ground)
+        self._track_var = 0.0  # the hitch's tracking error in depth, mean square [m²]
         self._z_draft: float | None = None
         self._float_z: float | None = None
         self._last_t: float | None = None
@@ -318,13 +327,16 @@ class WorkController:
         slip: float | None = None,
         ground_z: float | None = None,
         ground_ahead_z: float | None = None,
+        z_measured: float | None = None,
     ) -> WorkStatus:
         """One control cycle at ``now_s`` [s] for the operator's setpoint ``z`` [m] (module docstring).
 
         ``draft_n``/``draft_t``: the latest draft reading [N] and its receive time [s] (None: none);
         ``slip``: travel reduction 0..1 (None: unknown); ``ground_z``: the ground reference [m];
         ``ground_ahead_z``: the ground reference where the tool will be when the hitch has followed this
-        setpoint (a ground preview, one hitch lag ahead) [m], or None (no preview: the old regulator).
+        setpoint (a ground preview, one hitch lag ahead) [m], or None (no preview: the old regulator);
+        ``z_measured``: the hitch's measured z [m] (with a preview: the tool's estimated true depth
+        ``ground_z − z_measured`` sets the depth limits' tracking margin), or None (no margin).
 
         Raises:
             WorkSettingsError: ``now_s`` or ``z`` not a finite number, ``ground_z`` not None or finite.
@@ -333,6 +345,7 @@ class WorkController:
         z_op = _num("z", z, -10.0, 10.0)
         g = None if ground_z is None else _num("ground_z", ground_z, -10.0, 10.0)
         ga = None if ground_ahead_z is None or g is None else _num("ground_ahead_z", ground_ahead_z, -10.0, 10.0)
+        zm = None if z_measured is None else _num("z_measured", z_measured, -10.0, 10.0)
         s = self._s
         dt = 0.0 if self._last_t is None else min(_DT_MAX, max(0.0, now - self._last_t))
         self._last_t = now
@@ -400,10 +413,15 @@ class WorkController:
         e = (float(draft_n) - target) / s.draft_setpoint_n
         zp = s.sensitivity * KP_DRAFT * d_ref * e
         if ga is not None:
-            z_draft = self._draft_with_preview(ga, start, e, zp, d_lo, d_hi, d_ref, dt)
+            if zm is not None and self._depth_dem is not None:  # the hitch's tracking error, in depth
+                err = (g - zm) - self._depth_dem
+                self._track_var += (err * err - self._track_var) * min(1.0, dt / DEPTH_TRACK_S)
+            m = min(DEPTH_MARGIN_MAX * (d_hi - d_lo), DEPTH_MARGIN_SIGMAS * math.sqrt(self._track_var))
+            z_draft = self._draft_with_preview(ga, start, e, zp, d_lo + m, d_hi - m, d_ref, dt)
+            self._depth_dem = ga - z_draft
             self._z_i = min(z_hi, max(z_lo, z_draft - zp))  # a step without the preview continues from here
         else:
-            self._d_i = None
+            self._d_i = self._depth_dem = None
             zi = self._z_i + s.sensitivity * KI_DRAFT * d_ref * e * dt
             if self._slip_raise > 0.0:
                 zi = max(zi, self._z_i)  # mixed: while the slip limiter lifts, the draft regulator may only lift

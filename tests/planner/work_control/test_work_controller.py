@@ -258,14 +258,23 @@ def test_configure_restarts_bumpless_and_every_output_is_finite():
 
 
 def simulate_lagging_hitch(
-    settings, *, z_rate=None, duration=60.0, vmax=0.088, amax=0.5, delay=0.1, preview_s=None, ground_amp=0.045
+    settings,
+    *,
+    z_rate=None,
+    duration=60.0,
+    vmax=0.088,
+    amax=0.5,
+    delay=0.1,
+    preview_s=None,
+    ground_amp=0.045,
+    give_z=False,
 ):
     """A hitch that lags like the twin's: the setpoint arrives ``delay`` late, z follows it with a 0.15 s
     servo within ``vmax`` [m/s] and ``amax`` [m/s²]; the ground undulates ±45 mm at 0.32 Hz (the
     ``terrain`` scenario's); the soil alternates 10 s normal and 10 s heavy (×1.25); the pins lag
     0.1 s; slip = 0.1·(D / 20 kN)^1.5. ``preview_s``: the controller gets the ground that far ahead
-    (a ground preview; None: none). Returns the true draft's SD, the true depth's min and max (after
-    10 s) and the commanded z."""
+    (a ground preview; None: none); ``give_z``: it gets the hitch's z too. Returns the true draft's SD,
+    the true depth's min and max (after 10 s) and the commanded z."""
     wc = WorkController(settings, z_rate_max_m_s=z_rate)
     rng = np.random.default_rng(0)
     z = v = 0.0
@@ -290,6 +299,7 @@ def simulate_lagging_hitch(
             slip=slip,
             ground_z=g,
             ground_ahead_z=ga,
+            z_measured=z if give_z else None,
         )
         queue.append(st.z)
         v_want = max(-vmax, min(vmax, (queue.pop(0) - z) / 0.15))
@@ -418,3 +428,18 @@ def test_the_slip_limiter_keeps_the_ripple_tops_below_the_limit_not_the_mean():
         top = max(r["slip"][i] for i in late)
         assert top <= 0.1 + 0.002, (ws.mode, top)
         assert np.mean([r["slip"][i] for i in late]) < 0.1 - 0.005  # the mean sits below: the margin
+
+
+def test_with_the_measured_z_the_true_depth_stays_within_the_limits_at_a_limit():
+    """At a depth limit the demand is pinned and the true depth is the hitch's tracking error away from
+    it: on the lagging hitch (0.15 s late, 0.3 m/s²) over the ±50 mm undulation, with a preview, a setpoint
+    only reachable beyond a limit drives the true depth to 7.9 cm (limit 10) and 30.7 cm (limit 30)
+    without the measured z. With it the limits are inset by two RMS of the tracking error measured on
+    the estimated true depth (ground_z − z_measured), and the true depth stays within them."""
+    for sp in (10_000.0, 35_000.0):
+        ws = WorkSettings(mode="draft", draft_setpoint_n=sp, **LIMITS)
+        kw = {"z_rate": 0.08, "ground_amp": 0.05, "preview_s": 0.3, "amax": 0.3, "delay": 0.15}
+        old = simulate_lagging_hitch(ws, **kw)
+        new = simulate_lagging_hitch(ws, give_z=True, **kw)
+        assert old[1] < LIMITS["depth_min_m"] - 0.002 or old[2] > LIMITS["depth_max_m"] + 0.002, old[1:3]
+        assert LIMITS["depth_min_m"] <= new[1] and new[2] <= LIMITS["depth_max_m"], new[1:3]

@@ -32,6 +32,7 @@ controller's cycle cost (wall and thread CPU time per step).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -45,8 +46,10 @@ from bridge.service.track_loop import SimLoop, TrackLoopError, _note
 from bridge.service.work import WindowSlope, draft_rate_limit
 from bridge.sim.field import FieldDraft, FieldRun, FieldSetup, load_field
 from bridge.sim.move import SimSettings
+from bridge.sim.preview_sensor import PreviewSensor, PreviewSensorConfig
 from planner.model.kinematics import HitchModel
 from planner.work_control import WorkController, WorkSettings
+from planner.work_control.ground_preview import GroundPreview, PreviewGeometry
 
 __all__ = ["FieldDraft", "FieldLoopError", "FieldLoopResult", "FieldLoopSettings", "run_field_loop"]
 
@@ -83,6 +86,11 @@ class FieldLoopSettings:
         rate_window_s: the least-squares window of the setpoint's rate sent with it [s].
         rate_limit: the work controller knows the hitch's z speed (the follower's z-only limit, see
             :data:`bridge.service.work.Z_RATE_SHARE`) and never asks for more (False: unlimited, the old behaviour).
+        preview: the preview ground sensor on the tractor's front (:mod:`bridge.sim.preview_sensor`) whose
+            readings, with the slope sensor's pitch, the implement's ground sensor and the odometer, feed a
+            :class:`~planner.work_control.ground_preview.GroundPreview`; None: no preview (the old regulator).
+        preview_lead_s: how far ahead the work controller's ground is taken: the hitch's lag from setpoint
+            to position [s], [0, 1] (the preview reaches (F − L)/v, 0.45 s at 8 km/h).
         sim: the simulated machine and bus.
     """
 
@@ -95,6 +103,8 @@ class FieldLoopSettings:
     draft_lost_at_s: float | None = None
     rate_window_s: float = 0.1
     rate_limit: bool = True
+    preview: PreviewSensorConfig | None = field(default_factory=PreviewSensorConfig)
+    preview_lead_s: float = 0.3
     sim: SimSettings = field(default_factory=SimSettings)
 
     def __post_init__(self) -> None:
@@ -109,6 +119,9 @@ class FieldLoopSettings:
         _number("rate_window_s", self.rate_window_s, 0.02, 2.0)
         if not isinstance(self.rate_limit, bool):
             raise FieldLoopError(f"rate_limit must be true or false, got {self.rate_limit!r}")
+        if self.preview is not None and not isinstance(self.preview, PreviewSensorConfig):
+            raise FieldLoopError(f"preview must be a PreviewSensorConfig or None, got {type(self.preview).__name__}")
+        _number("preview_lead_s", self.preview_lead_s, 0.0, 1.0)
 
 
 @dataclass(frozen=True)
@@ -120,8 +133,9 @@ class FieldLoopResult:
     controller's ground reference, NaN when none), ``depth`` (true working depth), ``draft`` (true),
     ``draft_measured`` (over CAN, NaN when none), ``resistance`` (soil factor), ``slip`` (true),
     ``active`` (the mode in effect), ``evaluated`` (after ``settle_s``), ``heavy`` (resistance ≥
-    1 + variation/2). ``cycle_s``, ``cycle_cpu_s``: the work controller's step times, wall and
-    thread CPU [s].
+    1 + variation/2), ``ground_ahead_z`` (the previewed ground reference handed to the controller, NaN
+    when none). ``cycle_s``, ``cycle_cpu_s``: the work controller's step times, wall and thread CPU [s];
+    ``preview_cpu_s``: the ground preview's update and estimate per cycle, thread CPU [s] (empty without).
     """
 
     field: str
@@ -147,6 +161,8 @@ class FieldLoopResult:
     counts: dict[str, int]
     faults: tuple[str, ...]
     notes: tuple[str, ...] = ()
+    ground_ahead_z: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    preview_cpu_s: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
 
     def heavy_settled(self, after_s: float = HEAVY_SETTLE_S) -> np.ndarray:
         """Heavy-patch samples at least ``after_s`` after the implement entered the patch."""
@@ -164,7 +180,7 @@ class FieldLoopResult:
         hv = ev & self.heavy
         hs = ev & self.heavy_settled()
         d = self.draft[ev]
-        cyc, cpu = self.cycle_s * 1e6, self.cycle_cpu_s * 1e6
+        cyc, cpu, pre = self.cycle_s * 1e6, self.cycle_cpu_s * 1e6, self.preview_cpu_s * 1e6
         return {
             "draft_mean_n": float(np.mean(d)) if d.size else math.nan,
             "draft_sd_n": float(np.std(d)) if d.size else math.nan,
@@ -179,6 +195,8 @@ class FieldLoopResult:
             "cycle_p99_us": float(np.percentile(cyc, 99)) if cyc.size else math.nan,
             "cycle_cpu_median_us": float(np.median(cpu)) if cpu.size else math.nan,
             "cycle_cpu_p99_us": float(np.percentile(cpu, 99)) if cpu.size else math.nan,
+            "preview_cpu_median_us": float(np.median(pre)) if pre.size else math.nan,
+            "preview_cpu_p99_us": float(np.percentile(pre, 99)) if pre.size else math.nan,
             "n": int(d.size),
         }
 
@@ -243,6 +261,19 @@ def run_field_loop(
         except MotionError as exc:
             raise FieldLoopError(f"the track session could not start: {exc}") from None
         work = WorkController(s.work, z_rate_max_m_s=draft_rate_limit(mc.planner, p0) if s.rate_limit else None)
+        front = None if s.preview is None else PreviewSensor(sc.twin, s.preview)
+        preview = None
+        if front is not None:
+            geometry = PreviewGeometry(
+                wheelbase_m=sc.twin.tractor.wheelbase_m,
+                sensor_ahead_m=front.ahead_of_rear_axle_m,
+                tool_behind_m=sc.twin.implement_behind_m,
+                sensor_sigma_m=max(1e-4, s.preview.noise_rms_m) if s.preview is not None else 0.003,
+            )
+            preview = GroundPreview(geometry)
+        odometer = 0.0  # travelled distance [m]: the measured wheel-based speed integrated per cycle
+        last_now: float | None = None
+        preview_cpu_s: list[float] = []
         slope = WindowSlope(s.rate_window_s)
         t_loop = loop.now_s
         seq = 0
@@ -257,14 +288,42 @@ def run_field_loop(
             now = loop.now_s
             dist = loop.sensors.ground_distance(now)
             ls = loop.rig.link.latest_state()
-            ground = None
-            if dist is not None and ls is not None:
-                ground = float(ls.pose.controlled()[1]) - dist + drop
+            ground = z_meas = None
+            if ls is not None:
+                z_meas = float(ls.pose.controlled()[1])
+            if dist is not None and z_meas is not None:
+                ground = z_meas - dist + drop
+            ground_ahead = None
+            if preview is not None and front is not None:
+                readings = loop.decoder.readings(now)
+                v = readings.speed.value if not readings.speed.stale else None
+                att = loop.sensors.attitude(now)
+                c0 = time.thread_time()
+                if v is None or att is None:
+                    preview.reset()  # no odometer or no pitch: the buffer cannot be placed
+                else:
+                    odometer += float(v) * (0.0 if last_now is None else now - last_now)
+                    tool = None if ground is None else ground - drop + pivot  # ρ at the tool, from the T sensor
+                    preview.add(odometer, att[1], front.config.height_m - front.read(now), tool)
+                    at = odometer + float(v) * s.preview_lead_s
+                    if ground is not None and preview.ready(at):
+                        ground_ahead = preview.ground_at_tool(at) + drop - pivot
+                preview_cpu_s.append(time.thread_time() - c0)
+            last_now = now
             dr = loop.decoder.draft(now)
             sample = source.last
             slip = None if sample is None else sample.slip
             w0, c0 = time.perf_counter(), time.thread_time()
-            st = work.step(now, s.z_m, draft_n=dr.value, draft_t=dr.received_s, slip=slip, ground_z=ground)
+            st = work.step(
+                now,
+                s.z_m,
+                draft_n=dr.value,
+                draft_t=dr.received_s,
+                slip=slip,
+                ground_z=ground,
+                ground_ahead_z=ground_ahead,
+                z_measured=z_meas,
+            )
             cycle_s.append(time.perf_counter() - w0)
             cycle_cpu_s.append(time.thread_time() - c0)
             if st.event is not None:
@@ -297,6 +356,7 @@ def run_field_loop(
                     last.slip,
                     st.active,
                     _reference_z(loop.state),
+                    math.nan if ground_ahead is None else ground_ahead,
                 )
             )
         for e in loop.events[n_events:]:
@@ -330,6 +390,8 @@ def run_field_loop(
         counts=counts,
         faults=faults,
         notes=tuple(notes),
+        ground_ahead_z=np.array([r[11] for r in rows]),
+        preview_cpu_s=np.array(preview_cpu_s),
     )
 
 

@@ -30,6 +30,15 @@ Modes (:attr:`WorkSettings.mode`):
   integral run ahead of the hitch, and the loop cycles between the depth limits (with the true depth
   beyond them, since the hitch arrives late). The depth limits win over the rate: they move with the
   ground.
+* ``draft`` with a ground preview (``ground_ahead_z``: the ground reference where the tool will be when
+  the hitch has followed this setpoint, from :class:`planner.work_control.ground_preview.GroundPreview`):
+  the PI regulates the working depth, ``d_i ← d_i − s·K_I·d_ref·e·Δt``, ``depth = clip(d_i −
+  s·K_P·d_ref·e, depth_min, depth_max)``, and the previewed ground is fed forward, ``z =
+  ground_ahead_z − depth``: the undulation no longer reaches the draft loop as an error (on ``chisel``
+  it lies above the loop's crossover, so the loop could not remove it), and the depth limits hold on
+  the ground the tool will meet. Unlike the ground under the tool (fed forward, it only made the
+  hitch lag), the ground one hitch lag ahead lets the hitch arrive in time (docs/soil.md). The rate
+  bound and its back-calculation act as without the preview.
 * ``mixed``: ``z = (1 - blend)·z_position + blend·z_draft`` (blend 0 = position, 1 = draft).
 * ``float``: no down pressure. A position-controlled hitch cannot be force-free, so float means
   here: the hitch carries the implement at the shallowest allowed depth below the ground
@@ -51,7 +60,9 @@ draft loop (it was: a P-term on the raw slip and 5 /s) adds its gain and its int
 loop's, and on a hitch that lags the undulation the two cycled (docs/soil.md). In position and
 mixed mode it lifts the setpoint by ``r = K_P·excess⁺ + K_I·∫excess`` within ``[0, depth_max]``
 (position: never above the ground contact; mixed: never shallower than ``depth_min``, and while it
-lifts the draft integral may only lift too, so the two do not fight). An unavailable slip (None,
+lifts the draft integral may only lift too, so the two do not fight). The limiters' target is the
+limit less a margin of :data:`MARGIN_SIGMAS` times the slip's ripple RMS (in draft mode only with a
+ground preview), so the ripple's tops, not its mean, stay at the limit. An unavailable slip (None,
 NaN) leaves the integral as it is and is reported in :attr:`WorkStatus.note`.
 
 Fallback. ``draft`` and ``mixed`` need a usable draft signal and the ground reference. A draft that is
@@ -99,8 +110,26 @@ KI_SLIP = 2.0
 #: loop's (K_I = 1.5 /s): the two integrators no longer act at the same speed (they fought at 5 /s).
 KP_CUT = 0.5
 KI_CUT = 1.0
-#: time constant of the slip low-pass feeding the draft-mode limiter [s] (the undulation's draft ripple,
-#: 0.3 Hz, is not a reason to cut the setpoint: only the slip's mean is)
+#: the slip limiters keep a margin below the limit for the slip's ripple: the slip ripples with the draft
+#: over the undulation (0.32 Hz on ``chisel``), and a PI on the slip settles with the slip's *mean* at its
+#: target, so the ripple's tops stood above the limit (0.128 against 0.10 in position mode on ``chisel``).
+#: The target is ``slip_limit − MARGIN_SIGMAS·σ`` with σ the slip's RMS about its mean (the ripple's tops
+#: reached 2.8 σ on ``chisel``), the mean low-passed with SLIP_MEAN_S and σ² with SLIP_RIPPLE_S [s], the
+#: margin at most MARGIN_MAX·slip_limit. Draft mode keeps the margin only with a ground preview: without one
+#: the undulation's draft ripple would park the tool at the shallow limit, which a lagging hitch overshoots.
+SLIP_MEAN_S = 2.0
+SLIP_RIPPLE_S = 4.0
+MARGIN_SIGMAS = 2.0
+MARGIN_MAX = 0.5
+#: with a preview and the measured z: the depth limits are inset by DEPTH_MARGIN_SIGMAS times the RMS of the
+#: hitch's tracking error in depth (the estimated true depth ``ground_z − z_measured`` less the depth last
+#: demanded; mean square low-passed with DEPTH_TRACK_S [s]), at most DEPTH_MARGIN_MAX of the depth range: at a
+#: limit the true depth then stays inside it although the hitch follows the undulation only within ≈ 1 cm
+DEPTH_MARGIN_SIGMAS = 2.0
+DEPTH_TRACK_S = 4.0
+DEPTH_MARGIN_MAX = 0.25
+#: time constant of the slip low-pass feeding the draft-mode limiter [s] (the outer loop of the cascade stays
+#: slower than the draft loop; with the ground preview the draft, and so the slip, hardly ripples there)
 SLIP_TAU_S = 1.0
 #: the fastest the slip limiter changes the draft setpoint's cut [1/s]
 CUT_RATE_MAX = 0.2
@@ -251,11 +280,16 @@ class WorkController:
         self._slip_cut = 0.0
         self._slip_i = 0.0
         self._slip_f: float | None = None
+        self._slip_mean: float | None = None  # the slip's low-passed mean and ripple variance (the margin)
+        self._slip_var = 0.0
 
     def resume(self) -> None:
         """Clear a latched fallback: the configured mode engages again on the next step (bumpless)."""
         self._fallback: str | None = None
         self._z_i: float | None = None
+        self._d_i: float | None = None  # the depth integral of the regulator with a ground preview
+        self._depth_dem: float | None = None  # the last depth demanded with a preview (on the previewed ground)
+        self._track_var = 0.0  # the hitch's tracking error in depth, mean square [m²]
         self._z_draft: float | None = None
         self._float_z: float | None = None
         self._last_t: float | None = None
@@ -292,11 +326,17 @@ class WorkController:
         draft_t: float | None = None,
         slip: float | None = None,
         ground_z: float | None = None,
+        ground_ahead_z: float | None = None,
+        z_measured: float | None = None,
     ) -> WorkStatus:
         """One control cycle at ``now_s`` [s] for the operator's setpoint ``z`` [m] (module docstring).
 
         ``draft_n``/``draft_t``: the latest draft reading [N] and its receive time [s] (None: none);
-        ``slip``: travel reduction 0..1 (None: unknown); ``ground_z``: the ground reference [m].
+        ``slip``: travel reduction 0..1 (None: unknown); ``ground_z``: the ground reference [m];
+        ``ground_ahead_z``: the ground reference where the tool will be when the hitch has followed this
+        setpoint (a ground preview, one hitch lag ahead) [m], or None (no preview: the old regulator);
+        ``z_measured``: the hitch's measured z [m] (with a preview: the tool's estimated true depth
+        ``ground_z − z_measured`` sets the depth limits' tracking margin), or None (no margin).
 
         Raises:
             WorkSettingsError: ``now_s`` or ``z`` not a finite number, ``ground_z`` not None or finite.
@@ -304,6 +344,8 @@ class WorkController:
         now = _num("now_s", now_s, -1.0e9, 1.0e9)
         z_op = _num("z", z, -10.0, 10.0)
         g = None if ground_z is None else _num("ground_z", ground_z, -10.0, 10.0)
+        ga = None if ground_ahead_z is None or g is None else _num("ground_ahead_z", ground_ahead_z, -10.0, 10.0)
+        zm = None if z_measured is None else _num("z_measured", z_measured, -10.0, 10.0)
         s = self._s
         dt = 0.0 if self._last_t is None else min(_DT_MAX, max(0.0, now - self._last_t))
         self._last_t = now
@@ -349,7 +391,7 @@ class WorkController:
             return out(zz, "position", limited)
         assert g is not None
         if mode == "float":
-            target = g - s.depth_min_m
+            target = (g if ga is None else ga) - s.depth_min_m
             if self._float_z is None or abs(target - self._float_z) > FLOAT_DEAD_BAND_M:
                 self._float_z = target
             return out(self._float_z, "float", False)
@@ -363,27 +405,39 @@ class WorkController:
         target = s.draft_setpoint_n
         limited = False
         if mode == "draft" and s.slip_limit is not None:  # the slip limiter lowers the draft setpoint
-            note = self._slip_cut_update(slip, dt, self._z_draft is not None and self._z_draft >= z_hi - 1e-9)
+            shallow = (g if ga is None else ga) - d_lo  # the shallow limit on the ground the demand is set against
+            at_shallow = self._z_draft is not None and self._z_draft >= shallow - 1e-9
+            note = self._slip_cut_update(slip, dt, at_shallow, ga is not None)
             limited = self._slip_cut > 0.0
             target *= 1.0 - self._slip_cut
         e = (float(draft_n) - target) / s.draft_setpoint_n
-        zi = self._z_i + s.sensitivity * KI_DRAFT * d_ref * e * dt
-        if self._slip_raise > 0.0:
-            zi = max(zi, self._z_i)  # mixed: while the slip limiter lifts, the draft regulator may only lift
-        zi = min(z_hi, max(z_lo, zi))  # anti-windup: the integral stays within the depth limits
         zp = s.sensitivity * KP_DRAFT * d_ref * e
-        z_draft = min(z_hi, max(z_lo, zi + zp))
-        if self._rate is not None:
-            # the hitch's speed: never ask for more, and let the integral keep only what the hitch can
-            # follow (back-calculation), or it runs ahead of a lagging hitch and the loop cycles. A
-            # (re)start continues from the last z handed out (first: the operator's z): no step
-            prev = self._z_draft if self._z_draft is not None else start
-            room = self._rate * dt
-            z_rl = min(prev + room, max(prev - room, z_draft))
-            if z_rl != z_draft:
-                z_draft = min(z_hi, max(z_lo, z_rl))  # the depth limits (they move with the ground) win
-                zi = min(z_hi, max(z_lo, z_draft - zp))
-        self._z_i = zi
+        if ga is not None:
+            if zm is not None and self._depth_dem is not None:  # the hitch's tracking error, in depth
+                err = (g - zm) - self._depth_dem
+                self._track_var += (err * err - self._track_var) * min(1.0, dt / DEPTH_TRACK_S)
+            m = min(DEPTH_MARGIN_MAX * (d_hi - d_lo), DEPTH_MARGIN_SIGMAS * math.sqrt(self._track_var))
+            z_draft = self._draft_with_preview(ga, start, e, zp, d_lo + m, d_hi - m, d_ref, dt)
+            self._depth_dem = ga - z_draft
+            self._z_i = min(z_hi, max(z_lo, z_draft - zp))  # a step without the preview continues from here
+        else:
+            self._d_i = self._depth_dem = None
+            zi = self._z_i + s.sensitivity * KI_DRAFT * d_ref * e * dt
+            if self._slip_raise > 0.0:
+                zi = max(zi, self._z_i)  # mixed: while the slip limiter lifts, the draft regulator may only lift
+            zi = min(z_hi, max(z_lo, zi))  # anti-windup: the integral stays within the depth limits
+            z_draft = min(z_hi, max(z_lo, zi + zp))
+            if self._rate is not None:
+                # the hitch's speed: never ask for more, and let the integral keep only what the hitch can
+                # follow (back-calculation), or it runs ahead of a lagging hitch and the loop cycles. A
+                # (re)start continues from the last z handed out (first: the operator's z): no step
+                prev = self._z_draft if self._z_draft is not None else start
+                room = self._rate * dt
+                z_rl = min(prev + room, max(prev - room, z_draft))
+                if z_rl != z_draft:
+                    z_draft = min(z_hi, max(z_lo, z_rl))  # the depth limits (they move with the ground) win
+                    zi = min(z_hi, max(z_lo, z_draft - zp))
+            self._z_i = zi
         self._z_draft = z_draft
         if mode == "draft":
             return out(z_draft, mode, limited, float(draft_n), e)
@@ -391,10 +445,52 @@ class WorkController:
         zz, limited, note = self._slip_raise_z(zz, slip, dt, z_hi)
         return out(zz, mode, limited, float(draft_n), e)
 
-    def _slip_cut_update(self, slip: float | None, dt: float, at_shallow_limit: bool) -> str | None:
+    def _draft_with_preview(
+        self, ga: float, start: float, e: float, zp: float, d_lo: float, d_hi: float, d_ref: float, dt: float
+    ) -> float:
+        """The draft demand with a ground preview: the PI regulates the working depth, and the previewed
+        ground ``ga`` (where the tool will be when the hitch gets there) is fed forward, so the undulation
+        never reaches the draft loop as an error. ``depth = clip(d_i − K_P·d_ref·e)``, ``d_i ← d_i −
+        K_I·d_ref·e·Δt`` (both scaled by the sensitivity; the signs of the z regulator), ``z = ga − depth``:
+        the depth limits hold on the previewed ground, i.e. on the depth the tool will have. With the
+        hitch's rate the demand moves no faster than the hitch and the integral is set back to the
+        bounded output (back-calculation); the depth limits on ``ga`` win over the rate."""
+        s = self._s
+        if self._d_i is None:
+            self._d_i = min(d_hi, max(d_lo, ga - start))  # bumpless: the depth of the last z handed out
+        di = self._d_i - s.sensitivity * KI_DRAFT * d_ref * e * dt
+        if self._slip_raise > 0.0:
+            di = min(di, self._d_i)  # mixed: while the slip limiter lifts, the draft regulator may only lift
+        di = min(d_hi, max(d_lo, di))  # anti-windup within the depth limits
+        z_draft = ga - min(d_hi, max(d_lo, di - zp))
+        if self._rate is not None:
+            prev = self._z_draft if self._z_draft is not None else start
+            room = self._rate * dt
+            z_rl = min(prev + room, max(prev - room, z_draft))
+            if z_rl != z_draft:
+                z_draft = min(ga - d_lo, max(ga - d_hi, z_rl))
+                di = min(d_hi, max(d_lo, ga - z_draft + zp))
+        self._d_i = di
+        return z_draft
+
+    def _slip_target(self, x: float, dt: float, margin: bool = True) -> float:
+        """The limiter's target: ``slip_limit`` less the ripple margin (:data:`MARGIN_SIGMAS` times the slip's
+        RMS about its low-passed mean, :data:`SLIP_MEAN_S`, :data:`SLIP_RIPPLE_S`, at most :data:`MARGIN_MAX`
+        of the limit; none when ``margin`` is False)."""
+        lim = self._s.slip_limit
+        assert lim is not None
+        if self._slip_mean is None:
+            self._slip_mean = x
+        else:
+            self._slip_mean += (x - self._slip_mean) * min(1.0, dt / SLIP_MEAN_S)
+            self._slip_var += ((x - self._slip_mean) ** 2 - self._slip_var) * min(1.0, dt / SLIP_RIPPLE_S)
+        return lim - min(MARGIN_MAX * lim, MARGIN_SIGMAS * math.sqrt(self._slip_var)) if margin else lim
+
+    def _slip_cut_update(self, slip: float | None, dt: float, at_shallow_limit: bool, margin: bool) -> str | None:
         """Draft mode: the outer loop of the cascade. The cut of the draft setpoint from the low-passed
-        slip's excess (P + I), its integral frozen while the regulator already sits at the shallow
-        depth limit (cutting more cannot lift the tool: anti-windup), the cut rate-limited."""
+        slip's excess over the target (the limit, less the ripple margin when ``margin``; P + I), its
+        integral frozen while the regulator already sits at the shallow depth limit (cutting more cannot
+        lift the tool: anti-windup), the cut rate-limited."""
         lim = self._s.slip_limit
         assert lim is not None
         if not _finite(slip):
@@ -405,7 +501,7 @@ class WorkController:
             self._slip_f = x
         else:
             self._slip_f += (x - self._slip_f) * min(1.0, dt / SLIP_TAU_S)
-        excess = self._slip_f - lim
+        excess = self._slip_f - self._slip_target(x, dt, margin)
         if not (at_shallow_limit and excess > 0.0):
             self._slip_i = min(MAX_CUT / KI_CUT, max(0.0, self._slip_i + excess * dt))
         cut = min(MAX_CUT, KP_CUT * max(0.0, excess) + KI_CUT * self._slip_i)
@@ -414,15 +510,16 @@ class WorkController:
         return None
 
     def _slip_update(self, slip: float | None, dt: float, gain_i: float, top: float) -> tuple[float, str | None]:
-        """Advance the limiter's integral of the slip excess (clamped so that ``gain_i`` times it stays
-        within ``[0, top]``); returns the proportional part (the excess, ≥ 0) and a note."""
+        """Advance the limiter's integral of the slip's excess over the target (the limit less the ripple
+        margin, :meth:`_slip_target`; clamped so that ``gain_i`` times it stays within ``[0, top]``); returns
+        the proportional part (the excess, ≥ 0) and a note."""
         lim = self._s.slip_limit
         if lim is None:
             return 0.0, None
         if not _finite(slip):
             return 0.0, "slip unavailable"
         assert slip is not None
-        excess = float(slip) - lim
+        excess = float(slip) - self._slip_target(float(slip), dt)
         self._slip_i = min(top / gain_i, max(0.0, self._slip_i + excess * dt))
         return max(0.0, excess), None
 

@@ -257,12 +257,24 @@ def test_configure_restarts_bumpless_and_every_output_is_finite():
             wc.resume()
 
 
-def simulate_lagging_hitch(settings, *, z_rate=None, duration=60.0, vmax=0.088, amax=0.5, delay=0.1):
+def simulate_lagging_hitch(
+    settings,
+    *,
+    z_rate=None,
+    duration=60.0,
+    vmax=0.088,
+    amax=0.5,
+    delay=0.1,
+    preview_s=None,
+    ground_amp=0.045,
+    give_z=False,
+):
     """A hitch that lags like the twin's: the setpoint arrives ``delay`` late, z follows it with a 0.15 s
     servo within ``vmax`` [m/s] and ``amax`` [m/s²]; the ground undulates ±45 mm at 0.32 Hz (the
     ``terrain`` scenario's); the soil alternates 10 s normal and 10 s heavy (×1.25); the pins lag
-    0.1 s; slip = 0.1·(D / 20 kN)^1.5. Returns the true draft's SD, the true depth's min and max
-    (after 10 s) and the commanded z."""
+    0.1 s; slip = 0.1·(D / 20 kN)^1.5. ``preview_s``: the controller gets the ground that far ahead
+    (a ground preview; None: none); ``give_z``: it gets the hitch's z too. Returns the true draft's SD,
+    the true depth's min and max (after 10 s) and the commanded z."""
     wc = WorkController(settings, z_rate_max_m_s=z_rate)
     rng = np.random.default_rng(0)
     z = v = 0.0
@@ -270,11 +282,25 @@ def simulate_lagging_hitch(settings, *, z_rate=None, duration=60.0, vmax=0.088, 
     draft = measured = K * G0
     a_pins = 1.0 - math.exp(-DT / 0.1)
     depths, drafts, zs = [], [], []
+
+    def ground(t):
+        return G0 + ground_amp * math.sin(2.0 * math.pi * 0.32 * t)
+
     for k in range(int(duration / DT)):
         t = k * DT
-        g = G0 + 0.045 * math.sin(2.0 * math.pi * 0.32 * t)
+        g = ground(t)
+        ga = None if preview_s is None else ground(t + preview_s)
         slip = 0.1 * (draft / 20_000.0) ** 1.5
-        st = wc.step(t, Z_OP, draft_n=measured + float(rng.normal(0.0, 50.0)), draft_t=t, slip=slip, ground_z=g)
+        st = wc.step(
+            t,
+            Z_OP,
+            draft_n=measured + float(rng.normal(0.0, 50.0)),
+            draft_t=t,
+            slip=slip,
+            ground_z=g,
+            ground_ahead_z=ga,
+            z_measured=z if give_z else None,
+        )
         queue.append(st.z)
         v_want = max(-vmax, min(vmax, (queue.pop(0) - z) / 0.15))
         v += max(-amax * DT, min(amax * DT, v_want - v))
@@ -341,3 +367,79 @@ def test_new_settings_and_resume_continue_from_the_last_setpoint_without_a_step(
             z = ctl.step(t, z_op, draft_n=1_000.0 + 10.0 * math.sin(37.0 * t), draft_t=t, ground_z=g).z
             assert abs(z - last) <= rate * 0.02 + 1e-12, (z, last)
             last, t = z, t + 0.02
+
+
+def test_a_ground_preview_removes_the_undulation_from_the_draft_loop_and_holds_the_true_depth():
+    """The ``chisel`` defect on the lagging hitch: a 0.32 Hz undulation the hitch only just follows (here
+    ±50 mm: the ground moves at up to 100 mm/s, the hitch at 88 mm/s). Without a preview the regulator
+    sees the undulation only as a draft error after the hitch's lag: the draft spread stays above half of
+    position's (toy: 3.9 against 4.8 kN). With the ground one hitch lag ahead fed forward
+    (``ground_ahead_z``), the regulator acts on the soil only: SD < position / 2 (toy: 1.4 kN) and the
+    true depth within its limits (± 5 mm, the ideal bound of a hitch slower than the ground, docs/soil.md),
+    with slip limiting on top as well."""
+    rate = 0.08
+    ws = WorkSettings(mode="draft", draft_setpoint_n=20_000.0, **LIMITS)
+    pos = simulate_lagging_hitch(WorkSettings(mode="position", **LIMITS), ground_amp=0.05)
+    old = simulate_lagging_hitch(ws, z_rate=rate, ground_amp=0.05)
+    new = simulate_lagging_hitch(ws, z_rate=rate, ground_amp=0.05, preview_s=0.3)
+    assert old[0] > 0.5 * pos[0]  # the defect: no 2x reduction without a preview
+    assert new[0] < 0.5 * pos[0], (new[0], pos[0])
+    assert LIMITS["depth_min_m"] - 0.005 <= new[1] and new[2] <= LIMITS["depth_max_m"] + 0.005, new[1:3]
+    # with slip limiting on top the preview keeps the shallow limit too
+    lim = simulate_lagging_hitch(
+        WorkSettings(mode="draft", draft_setpoint_n=20_000.0, slip_limit=0.1, **LIMITS),
+        z_rate=rate,
+        ground_amp=0.05,
+        preview_s=0.3,
+    )
+    assert LIMITS["depth_min_m"] - 0.005 <= lim[1] and lim[2] <= LIMITS["depth_max_m"] + 0.005, lim[1:3]
+
+
+def test_the_preview_regulator_keeps_the_depth_limits_on_the_previewed_ground():
+    """With a preview the depth limits hold on the ground the tool will meet: a large draft error drives
+    the setpoint to ``ground_ahead_z - depth_min`` exactly (not to the current ground's limit)."""
+    wc = WorkController(WorkSettings(mode="draft", draft_setpoint_n=20_000.0, **LIMITS))
+    for k in range(200):
+        st = wc.step(k * DT, Z_OP, draft_n=40_000.0 + k, draft_t=k * DT, ground_z=G0, ground_ahead_z=G0 + 0.03)
+    assert st.z == pytest.approx(G0 + 0.03 - LIMITS["depth_min_m"])
+    for k in range(200, 400):
+        st = wc.step(k * DT, Z_OP, draft_n=5_000.0 + k, draft_t=k * DT, ground_z=G0, ground_ahead_z=G0 - 0.02)
+    assert st.z == pytest.approx(G0 - 0.02 - LIMITS["depth_max_m"])
+
+
+def test_the_slip_limiter_keeps_the_ripple_tops_below_the_limit_not_the_mean():
+    """Over an undulation the slip ripples with the depth. The old limiter (a PI on the slip) settled with
+    the slip's *mean* at the limit and the ripple's tops above it (the ``chisel`` field: 0.128 against
+    0.10). The margin of two ripple RMS holds the tops at the limit: after the heavy patch has settled
+    (t > 20 s) the slip's maximum stays below the limit + 0.002, in position and in mixed mode."""
+
+    def slip_of(draft):
+        return 0.1 * draft / 20_000.0
+
+    def ground(t):
+        return G0 + 0.045 * math.sin(2.0 * math.pi * 0.32 * t)
+
+    for ws in (
+        WorkSettings(mode="position", slip_limit=0.1, **LIMITS),
+        WorkSettings(mode="mixed", blend=0.5, draft_setpoint_n=20_000.0, slip_limit=0.1, **LIMITS),
+    ):
+        r = simulate(ws, duration=40.0, resistance=step_up, ground=ground, slip_of=slip_of)
+        late = np.flatnonzero(r["t"] > 20.0)
+        top = max(r["slip"][i] for i in late)
+        assert top <= 0.1 + 0.002, (ws.mode, top)
+        assert np.mean([r["slip"][i] for i in late]) < 0.1 - 0.005  # the mean sits below: the margin
+
+
+def test_with_the_measured_z_the_true_depth_stays_within_the_limits_at_a_limit():
+    """At a depth limit the demand is pinned and the true depth is the hitch's tracking error away from
+    it: on the lagging hitch (0.15 s late, 0.3 m/s²) over the ±50 mm undulation, with a preview, a setpoint
+    only reachable beyond a limit drives the true depth to 7.9 cm (limit 10) and 30.7 cm (limit 30)
+    without the measured z. With it the limits are inset by two RMS of the tracking error measured on
+    the estimated true depth (ground_z − z_measured), and the true depth stays within them."""
+    for sp in (10_000.0, 35_000.0):
+        ws = WorkSettings(mode="draft", draft_setpoint_n=sp, **LIMITS)
+        kw = {"z_rate": 0.08, "ground_amp": 0.05, "preview_s": 0.3, "amax": 0.3, "delay": 0.15}
+        old = simulate_lagging_hitch(ws, **kw)
+        new = simulate_lagging_hitch(ws, give_z=True, **kw)
+        assert old[1] < LIMITS["depth_min_m"] - 0.002 or old[2] > LIMITS["depth_max_m"] + 0.002, old[1:3]
+        assert LIMITS["depth_min_m"] <= new[1] and new[2] <= LIMITS["depth_max_m"], new[1:3]

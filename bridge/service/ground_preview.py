@@ -45,6 +45,7 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
 
 from planner.errors import HitchInputError
 
@@ -175,32 +176,32 @@ class GroundProfileEstimator:
         g = self.geometry
         h = self.step_m
         start = sigma_now_m - g.implement_behind_m - self.behind_window_m
-        while self._rows and min(self._rows[0][0]) < start:
-            self._rows.popleft()
+        if self._rows and min(min(r[0]) for r in self._rows) < start:  # rows reaching behind the window go
+            self._rows = deque(r for r in self._rows if min(r[0]) >= start)
         if not self._rows or not math.isfinite(self._newest):
             return False
         i0 = math.floor(start / h)
         i1 = math.ceil(self._newest / h) + 1
         nodes = h * np.arange(i0, i1 + 1)
         n = nodes.size
-        m = len(self._rows)
-        a = np.zeros((m + max(n - 2, 0) + 1, n))
-        b = np.zeros(a.shape[0])
-        for k, (pts, coefs, rhs, sig) in enumerate(self._rows):
-            for p, c in zip(pts, coefs, strict=True):
-                u = (p - nodes[0]) / h
-                j = min(max(int(math.floor(u)), 0), n - 2)
-                w = min(max(u - j, 0.0), 1.0)
-                a[k, j] += c * (1.0 - w) / sig
-                a[k, j + 1] += c * w / sig
-            b[k] = rhs / sig
-        r = m
-        cs = self.curvature_sigma_m
-        for j in range(1, n - 1):  # smoothness prior
-            a[r, j - 1], a[r, j], a[r, j + 1] = 1.0 / cs, -2.0 / cs, 1.0 / cs
-            r += 1
-        a[r, :] = 1.0 / (n * 10.0)  # gauge: the window's mean near 0 (weight 1 / (10 m))
-        self._h = np.linalg.lstsq(a, b, rcond=None)[0]
+        pts = np.array([p for row in self._rows for p in row[0]])
+        coefs = np.array([c for row in self._rows for c in row[1]])
+        rows = np.repeat(np.arange(len(self._rows)), [len(row[0]) for row in self._rows])
+        sig = np.array([row[3] for row in self._rows])
+        rhs = np.array([row[2] for row in self._rows]) / sig
+        u = (pts - nodes[0]) / h
+        j = np.clip(np.floor(u).astype(int), 0, n - 2)
+        w = np.clip(u - j, 0.0, 1.0)
+        val = coefs / sig[rows]
+        a = sp.csr_matrix(
+            (np.concatenate([val * (1.0 - w), val * w]), (np.concatenate([rows, rows]), np.concatenate([j, j + 1]))),
+            shape=(len(self._rows), n),
+        )
+        # normal equations of the samples, the smoothness prior (second differences / curvature_sigma_m) and
+        # the gauge (the window's mean near 0, weight 1 / (10 m)): n x n, symmetric positive definite
+        d2 = sp.diags([1.0, -2.0, 1.0], [0, 1, 2], shape=(max(n - 2, 0), n)) / self.curvature_sigma_m
+        normal = (a.T @ a + d2.T @ d2).toarray() + 1.0 / (n * 10.0) ** 2
+        self._h = np.linalg.solve(normal, a.T @ rhs)
         self._nodes = nodes
         return True
 

@@ -7,7 +7,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bridge.service.track_loop import LoopSettings, TrackLoopError, job_of, run_track_loop
+from bridge.service.track_loop import (
+    LoopSettings,
+    SimLoop,
+    TrackLoopError,
+    _pose_tolerance,
+    job_of,
+    run_track_loop,
+)
 from bridge.sim.scenario import load_scenario, scenario_from_dict
 
 
@@ -157,6 +164,34 @@ def test_demands_beyond_the_workspace_are_clipped_never_streamed_beyond_the_stro
     assert np.nanmax(np.abs(r.reference[:, 2])) <= 0.058 + 1e-9
     assert not r.inside.any() and r.figures_inside.n == 0  # the demand is outside: nothing counted inside
     assert r.figures.mean == pytest.approx(0.058 - 0.1, abs=3e-3)  # held at the face
+
+
+def _stop_at_the_roll_face(model, feedforward: bool) -> tuple[float, float, float, float]:
+    """A demand beyond the roll face, 4 s: (face, tolerance of one count, max truth, max measured roll)."""
+    with SimLoop(model, "flat") as loop:
+        mc, tp = loop.mc, loop.planner
+        mc.shaper.enabled = feedforward
+        hi = float(tp.hi[2])
+        tol = float(_pose_tolerance(model, tp, np.clip(loop.measured_pose(), tp.lo, tp.hi))[2])
+        s = mc.track_start("tractor", ("roll",), 0.3).session
+        truth, meas = [], []
+        for k in range(200):  # at the face after ~2.5 s
+            mc.track_setpoint(s, k + 1, {"roll": hi + 0.02}, {"roll": 0.0})
+            loop.cycle()
+            truth.append(loop.truth_pose()[2])
+            meas.append(loop.measured_pose()[2])
+    return hi, tol, max(truth), max(meas)
+
+
+def test_a_stop_at_the_roll_face_overshoots_no_more_than_the_unit_loops_alone(model):
+    """The follower stops at the face (jerk-limited); with the unit loops' feed-forward the simulated pistons
+    must not run past it further than the same stop streamed without feed-forward (the ECU's own settling on
+    the count). Before the feed-forward extrapolated with the jerk: 0.436 mrad past the face against 0.159."""
+    hi, tol, truth_ff, meas_ff = _stop_at_the_roll_face(model, True)
+    _, _, truth_plain, _ = _stop_at_the_roll_face(model, False)
+    assert truth_ff > hi - 1e-3  # it got to the face
+    assert truth_ff - hi <= max(truth_plain - hi, 0.0) + 5e-5, (truth_ff - hi, truth_plain - hi)
+    assert meas_ff - hi <= tol
 
 
 def test_bad_settings_name_the_field():

@@ -131,8 +131,8 @@ class GroundProfileEstimator:
         self.curvature_sigma_m = _number("curvature_sigma_m", curvature_sigma_m, 1e-5, 1.0)
         self._rows: deque[tuple[tuple[float, ...], tuple[float, ...], float, float]] = deque()
         self._newest = -math.inf  # the farthest point a row reaches [m]
-        self._nodes = np.zeros(0)
-        self._h = np.zeros(0)
+        self._nodes: np.ndarray = np.zeros(0)
+        self._h: np.ndarray = np.zeros(0)
 
     def __len__(self) -> int:
         return len(self._rows)
@@ -201,7 +201,7 @@ class GroundProfileEstimator:
         # the gauge (the window's mean near 0, weight 1 / (10 m)): n x n, symmetric positive definite
         d2 = sp.diags([1.0, -2.0, 1.0], [0, 1, 2], shape=(max(n - 2, 0), n)) / self.curvature_sigma_m
         normal = (a.T @ a + d2.T @ d2).toarray() + 1.0 / (n * 10.0) ** 2
-        self._h = np.linalg.solve(normal, a.T @ rhs)
+        self._h = np.asarray(np.linalg.solve(normal, a.T @ rhs), float)
         self._nodes = nodes
         return True
 

@@ -212,9 +212,11 @@ class IdealFollower:
         lo, hi = -bound, bound
         if boxed:
             assert lower is not None and upper is not None
-            A = sp.vstack([A, sp.identity(n, format="csc")], format="csc")
-            lo = np.concatenate([lo, np.full(n, lower - off)])
-            hi = np.concatenate([hi, np.full(n, upper - off)])
+            # position rows scaled like the rate rows (bounds of order one: OSQP converges with them active)
+            k = 1.0 / max(abs(lower - off), abs(upper - off), 1e-12)
+            A = sp.vstack([A, k * sp.identity(n, format="csc")], format="csc")
+            lo = np.concatenate([lo, np.full(n, k * (lower - off))])
+            hi = np.concatenate([hi, np.full(n, k * (upper - off))])
         if self._solver is None or key != self._key:
             self._solver = osqp.OSQP()
             self._solver.setup(

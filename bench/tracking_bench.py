@@ -29,8 +29,13 @@ Figures and targets (the specification; a target is never weakened, a miss is re
   demand stayed inside the roll workspace and within the follower's pose velocity and acceleration
   limits); track ≥ 5 × better than hold.
 * **terrain** — the ``terrain`` scenario (ground ±50 mm at 7 m and 19 m wavelength, 8 km/h): height of T
-  above the ground minus the working height, RMS, track (frame ground) vs hold (fixed z). Target: track
-  ≤ 1/3 of hold.
+  above the ground minus the working height, RMS, side by side (``JOB_VARIANTS``): ``track`` (frame ground,
+  the implement's sensor, as before), ``track_preview_plan`` (a look-ahead ground sensor
+  ``GROUND_SENSOR_AHEAD_M`` = 4.9 m ahead of the implement; the client's ground profile and a preview plan,
+  frame tractor), hold (fixed z). Target: track ≤ 1/3 of hold.
+* **floors** (levelling, terrain) — the ideal follower of the true demand with full preview within the DOF's
+  rate limits (also with the track follower's subset limits), and the workspace bound (the demand's distance
+  beyond the faces); the best follower errs by at least the larger (``floor_rms``).
 * **cost** — one controller cycle with a live track session (online Ruckig, exact inverse, limit checks,
   the guard every 5th cycle, the state message, the CAN send), p50/p99 wall (``time.perf_counter``) and
   CPU (``time.process_time``) over ≥ 5000 cycles. Target p99 ≤ 1 ms. Beside it the track cycle alone

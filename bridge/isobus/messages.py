@@ -24,6 +24,7 @@ __all__ = [
     "Decoded",
     "EcuParameters",
     "FigureOfMerit",
+    "GROUND_AHEAD_SENSOR_ADDRESS",
     "GROUND_SENSOR_ADDRESS",
     "GroundDistance",
     "Heartbeat",
@@ -74,6 +75,9 @@ PGN_HITCH_PTO_COMMANDS = 65090  # 0xFE42
 """ISO 11783-7 Hitch and PTO commands (the operator's rear hitch raise / lower switch here)."""
 OPERATOR_SWITCH_ADDRESS = 0xE5
 """Source address of the operator's rear hitch switch (229; project choice)."""
+GROUND_AHEAD_SENSOR_ADDRESS = 0xE6
+"""Source address of the look-ahead ground-distance sensor on the tractor's front (230; project choice):
+the same PGN 0xFF26 as the implement's sensor, told apart by its sender."""
 
 
 class CodecError(HitchInputError):

@@ -47,6 +47,7 @@ from bridge.isobus.j1939 import (
     decode_id,
 )
 from bridge.isobus.messages import (
+    GROUND_AHEAD_SENSOR_ADDRESS,
     GROUND_SENSOR_ADDRESS,
     PGN_GROUND_DISTANCE,
     PGN_ROW_GUIDANCE,
@@ -67,6 +68,7 @@ from bridge.link.state import LinkError
 
 __all__ = [
     "DISTANCE_WRAP_M",
+    "OPTIONAL_SIGNALS",
     "SIGNALS",
     "Plausibility",
     "SignalReading",
@@ -83,6 +85,8 @@ _RESET_STEP_M = 1000.0
 """A distance step this large between two frames is a reset of the sender's odometer, not travel."""
 
 SIGNALS = ("roll", "pitch", "pitch_rate", "ground_distance", "row_offset", "speed", "distance")
+OPTIONAL_SIGNALS = ("ground_distance_ahead",)
+"""Signals of optional sensors (not in :data:`SIGNALS`: never reported unusable when not fitted)."""
 """The signals of :class:`TractorReadings`, in order."""
 
 _NEVER = "no frame received yet"
@@ -149,6 +153,9 @@ class TractorSensorsConfig:
     Attributes:
         slope_source, ground_source, row_source, wheel_source: accepted senders (defaults: the
             project's addresses 226, 227, 228 and the tractor ECU 240).
+        ground_ahead_source: the sender of the look-ahead ground sensor's 0xFF26 (default 230; None:
+            no look-ahead sensor). Its frames go to ``ground_distance_ahead`` (stale after
+            ``ground_stale_after_s``, the ground distance's plausibility), never to ``ground_distance``.
         slope_stale_after_s: SSI/SSI2 (10 ms period) stale after 0.1 s;
         ground_stale_after_s: 0xFF26 (20 ms) after 0.2 s; row_stale_after_s: 0xFF27 (100 ms) after
         0.5 s; wheel_stale_after_s: 65096 (100 ms) after 1 s (as ``WheelOdometer``).
@@ -162,6 +169,7 @@ class TractorSensorsConfig:
 
     slope_source: int | None = SLOPE_SENSOR_ADDRESS
     ground_source: int | None = GROUND_SENSOR_ADDRESS
+    ground_ahead_source: int | None = GROUND_AHEAD_SENSOR_ADDRESS
     row_source: int | None = ROW_CAMERA_ADDRESS
     wheel_source: int | None = TRACTOR_ECU_ADDRESS
     slope_stale_after_s: float = 0.1
@@ -180,7 +188,7 @@ class TractorSensorsConfig:
         if h is not None and (isinstance(h, bool) or not isinstance(h, int) or not 0 <= h <= 253):
             raise LinkError(f"hitch_source must be None (any sender) or a source address in [0, 253], got {h!r}")
         _number("draft_stale_after_s", self.draft_stale_after_s, 0.01, 60.0)
-        for name in ("slope_source", "ground_source", "row_source", "wheel_source"):
+        for name in ("slope_source", "ground_source", "ground_ahead_source", "row_source", "wheel_source"):
             v = getattr(self, name)
             if v is not None and (isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= 253):
                 raise LinkError(f"{name} must be None (any sender) or a source address in [0, 253], got {v!r}")
@@ -237,10 +245,12 @@ class TractorReadings:
     speed: SignalReading
     distance: SignalReading
     slope_latency_s: float | None = None
+    ground_distance_ahead: SignalReading = SignalReading(None, None, _NEVER, True)
+    """The look-ahead ground sensor (0xFF26 from ``ground_ahead_source``), an optional signal."""
 
     def signal(self, name: str) -> SignalReading:
-        if name not in SIGNALS:
-            raise LinkError(f"signal must be one of {', '.join(SIGNALS)}, got {name!r}")
+        if name not in SIGNALS + OPTIONAL_SIGNALS:
+            raise LinkError(f"signal must be one of {', '.join(SIGNALS + OPTIONAL_SIGNALS)}, got {name!r}")
         reading: SignalReading = getattr(self, name)
         return reading
 
@@ -348,6 +358,7 @@ class TractorSensors(ReceivingNode):
         self._pitch = _Slot(p.attitude_rate_rad_s, p.attitude_slack_rad, "rad/s", c.slope_stale_after_s)
         self._rate = _Slot(p.pitch_accel_rad_s2, p.pitch_rate_slack_rad_s, "rad/s²", c.slope_stale_after_s)
         self._ground = _Slot(p.ground_rate_m_s, p.ground_slack_m, "m/s", c.ground_stale_after_s)
+        self._ground_ahead = _Slot(p.ground_rate_m_s, p.ground_slack_m, "m/s", c.ground_stale_after_s)
         self._row = _Slot(p.row_rate_m_s, p.row_slack_m, "m/s", c.row_stale_after_s)
         self._speed = _Slot(p.speed_accel_m_s2, p.speed_slack_m_s, "m/s²", c.wheel_stale_after_s)
         self._wheel = WheelDistance()
@@ -382,7 +393,12 @@ class TractorSensors(ReceivingNode):
             self._ignored += 1
             return False
         want = self._sources[pgn]
-        if want is not None and ident.source_address != want:
+        ahead = (
+            pgn == PGN_GROUND_DISTANCE
+            and self.config.ground_ahead_source is not None
+            and ident.source_address == self.config.ground_ahead_source
+        )
+        if want is not None and ident.source_address != want and not ahead:
             self._ignored += 1
             return False
         with self._lock:
@@ -403,7 +419,8 @@ class TractorSensors(ReceivingNode):
                 self._angle(self._roll, p.roll_rad, p.roll_merit, d.errors, "Ssi2RollAngle", now_s)
                 self._latency = p.latency_s
             elif isinstance(p, GroundDistance):
-                self._angle(self._ground, p.distance_m, p.merit, d.errors, "GroundDistance", now_s)
+                slot = self._ground_ahead if ahead else self._ground
+                self._angle(slot, p.distance_m, p.merit, d.errors, "GroundDistance", now_s)
             elif isinstance(p, RowGuidance):
                 self._angle(self._row, p.offset_m, p.merit, d.errors, "RowLateralOffset", now_s)
             elif isinstance(p, WheelBasedSpeed):
@@ -476,6 +493,7 @@ class TractorSensors(ReceivingNode):
                 speed=self._speed.reading(t),
                 distance=distance,
                 slope_latency_s=self._latency,
+                ground_distance_ahead=self._ground_ahead.reading(t),
             )
 
     def draft(self, now_s: float | None = None) -> SignalReading:

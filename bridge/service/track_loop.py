@@ -85,6 +85,7 @@ import numpy as np
 from scipy.linalg import expm
 
 from bridge.link.tractor_sensors import TractorSensors, TractorSensorsConfig
+from bridge.service.ground_preview import GroundPreviewGeometry, GroundProfileEstimator
 from bridge.service.machine import ReadingsAsTrackSensors
 from bridge.service.motion.controller import MotionController
 from bridge.service.motion.types import MotionError
@@ -104,6 +105,7 @@ from planner.trajectory.track import TrackFollower
 
 __all__ = [
     "JOBS",
+    "GROUND_SETPOINTS",
     "ROW_ESTIMATORS",
     "ROW_SETPOINTS",
     "STRATEGIES",
@@ -124,6 +126,7 @@ __all__ = [
 STRATEGIES = ("track", "goto_stream", "hold")
 ROW_ESTIMATORS = ("alpha_beta", "kalman")
 ROW_SETPOINTS = ("now", "lead", "plan")
+GROUND_SETPOINTS = ("now", "plan")
 JOBS = ("levelling", "guidance", "terrain")
 #: frame and DOF of each job's track session
 JOB_FRAME = {"levelling": ("level", "roll"), "guidance": ("tractor", "x"), "terrain": ("ground", "z")}
@@ -165,6 +168,15 @@ class LoopSettings:
             (the reference's way to the pistons) with its acceleration and jerk; without a preview
             of at least 8 cycles ``plan`` acts as ``lead``.
         lead_s: the lead of ``lead`` [s], [0, 5]; None: :func:`follower_lead_s` from the follower's limits.
+        ground_setpoint: terrain (:data:`GROUND_SETPOINTS`): ``now`` the working height in frame
+            ``ground`` (the service converts it with the implement's ground sensor, as before); ``plan``
+            with the twin's look-ahead ground sensor (scenario ``ground_sensor_ahead_m`` > 0): the
+            client rebuilds the ground profile in distance (:class:`GroundProfileEstimator`:
+            look-ahead sensor, implement sensor, slope sensor's pitch, odometer), predicts the tool
+            point's tractor-frame height that keeps the working height over the preview, and streams a
+            :class:`PreviewPlanner` path of it in frame ``tractor``, re-planned every ``plan_every``
+            cycles, sent ``2·dt`` ahead with its velocity.
+        plan_every: re-plan period of ``ground_setpoint="plan"`` in control cycles, [1, 50].
         inside_window_s: a sample counts as "inside" when over the last this-many seconds the demand
             stayed inside the workspace and within the follower's pose velocity and acceleration limits.
         sim: the simulated machine and bus.
@@ -184,6 +196,8 @@ class LoopSettings:
     row_estimator: str = "alpha_beta"
     row_setpoint: str = "now"
     lead_s: float | None = None
+    ground_setpoint: str = "now"
+    plan_every: int = 5
     inside_window_s: float = 1.0
     sim: SimSettings = field(default_factory=SimSettings)
 
@@ -204,6 +218,13 @@ class LoopSettings:
             raise TrackLoopError(
                 f"row_estimator must be one of {', '.join(ROW_ESTIMATORS)}, got {self.row_estimator!r}"
             )
+        if self.ground_setpoint not in GROUND_SETPOINTS:
+            raise TrackLoopError(
+                f"ground_setpoint must be one of {', '.join(GROUND_SETPOINTS)}, got {self.ground_setpoint!r}"
+            )
+        pe = self.plan_every
+        if isinstance(pe, bool) or not isinstance(pe, int) or not 1 <= pe <= 50:
+            raise TrackLoopError(f"plan_every must be an integer in [1, 50] cycles, got {pe!r}")
         if self.row_setpoint not in ROW_SETPOINTS:
             raise TrackLoopError(f"row_setpoint must be one of {', '.join(ROW_SETPOINTS)}, got {self.row_setpoint!r}")
         if self.row_setpoint != "now" and self.row_estimator != "kalman":
@@ -769,6 +790,14 @@ def run_track_loop(
     sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
     job = s.job if s.job is not None else job_of(sc)
     frame, dof = JOB_FRAME[job]
+    ground_plan = job == "terrain" and s.ground_setpoint == "plan"
+    if ground_plan:
+        if not sc.twin.ground_sensor.fitted:
+            raise TrackLoopError(
+                "ground_setpoint = 'plan' needs a look-ahead ground sensor: the scenario's "
+                "ground_sensor_ahead_m must be in (implement_behind_m, 20] m, got 0"
+            )
+        frame = "tractor"  # the client converts: it knows the ground ahead, the service does not
     d = _POSE.index(dof)
     duration = sc.duration_s if s.duration_s is None else s.duration_s
     if duration <= s.warmup_s + s.settle_s:
@@ -819,6 +848,26 @@ def run_track_loop(
         if s.row_setpoint == "plan":
             n_preview = int(camera_ahead / max(float(twin.speed.speed_m_s(t_loop)), 0.1) / loop.dt)
             m = PreviewPlanner.MARGIN  # the follower keeps room to catch up with the path
+            planner_ahead = PreviewPlanner(
+                m * float(follow.velocity[d]), m * float(follow.acceleration[d]), m * float(follow.jerk[d]), loop.dt
+            )
+        ground_est: GroundProfileEstimator | None = None
+        pitch_hist: deque[tuple[float, float]] = deque(maxlen=64)  # (time the pitch was valid, pitch)
+        seen: dict[str, float | None] = {"pitch": None, "ahead": None, "under": None}
+        n_cycle = 0
+        if ground_plan:
+            gs = twin.ground_sensor
+            ground_est = GroundProfileEstimator(
+                GroundPreviewGeometry(
+                    wheelbase_m=twin.tractor.wheelbase_m,
+                    implement_behind_m=twin.implement_behind_m,
+                    sensor_ahead_m=gs.ahead_m,
+                    mount_height_m=gs.mount_height_m,
+                    sensor_noise_m=gs.noise_rms_m,
+                )
+            )
+            n_preview = max(8, int(gs.ahead_m / max(float(twin.speed.speed_m_s(t_loop)), 0.1) / loop.dt))
+            m = PreviewPlanner.MARGIN
             planner_ahead = PreviewPlanner(
                 m * float(follow.velocity[d]), m * float(follow.acceleration[d]), m * float(follow.jerk[d]), loop.dt
             )
@@ -888,6 +937,23 @@ def run_track_loop(
                             row_seen = ro[1]
                         sp = row_f.at(now)[0]
                     target = sp
+            elif ground_est is not None and planner_ahead is not None:
+                assert working is not None
+                odo = _odometer(loop.decoder, now)
+                if odo is not None:
+                    if _ground_samples(ground_est, loop, now, odo, pivot, pitch_hist, seen) and (
+                        n_cycle % s.plan_every == 0 or path_t is None
+                    ):
+                        if ground_est.solve(odo[0]):
+                            ahead_s = odo[0] + odo[1] * loop.dt * np.arange(n_preview)
+                            ref_z = working - pivot + ground_est.implement_ground(ahead_s)
+                            path = planner_ahead.plan(now, np.clip(ref_z, lo[d], hi[d]))
+                            path_t = now + loop.dt * np.arange(path.size)
+                    if path_t is not None:
+                        t_sp = now + 2 * loop.dt  # the loop's latency: taken next cycle, at the ECU one later
+                        sp = target = float(np.interp(t_sp, path_t, path))
+                        row_rate = float(np.interp(t_sp, path_t[1:-1], (path[2:] - path[:-2]) / (2 * loop.dt)))
+                n_cycle += 1
             else:
                 dist = sensors.ground_distance(now)
                 ls = loop.rig.link.latest_state()
@@ -896,7 +962,7 @@ def run_track_loop(
                     target = float(ls.pose.controlled()[1]) + (working - dist)
             rate = 0.0
             if target is not None:
-                if job == "guidance" and row_kf is not None:
+                if (job == "guidance" and row_kf is not None) or ground_est is not None:
                     rate = row_rate
                 elif job == "guidance" and row_f is not None:
                     rate = row_f.at(now)[1]
@@ -1007,6 +1073,49 @@ def _odometer(decoder: TractorSensors, t: float) -> tuple[float, float] | None:
     if dist.value is None or speed.value is None or dist.received_s is None or dist.stale or speed.stale:
         return None
     return float(dist.value) + float(speed.value) * (t - dist.received_s), float(speed.value)
+
+
+def _ground_samples(
+    est: GroundProfileEstimator,
+    loop: SimLoop,
+    now: float,
+    odo: tuple[float, float],
+    pivot: float,
+    pitch_hist: deque[tuple[float, float]],
+    seen: dict[str, float | None],
+) -> bool:
+    """Feed the new samples of the slope sensor, the look-ahead and the implement's ground sensors to
+    ``est``, each keyed by the rear axle's distance when it was valid (the odometer at ``now`` back by
+    the ground speed; the slope sensor's reported latency taken off; the pitch at a ground sample's
+    time interpolated from the pitch history). True when the estimator has samples."""
+    r = loop.decoder.readings(now)
+    lat = r.slope_latency_s or 0.0
+
+    def at(t_x: float) -> float:
+        return odo[0] + odo[1] * (t_x - now)
+
+    def pitch_at(t_x: float) -> float:
+        ts = [p[0] for p in pitch_hist]
+        return float(np.interp(t_x, ts, [p[1] for p in pitch_hist]))
+
+    p = r.pitch
+    if p.value is not None and p.received_s is not None and p.received_s != seen["pitch"]:
+        seen["pitch"] = p.received_s
+        pitch_hist.append((p.received_s - lat, float(p.value)))
+        est.add_pitch(at(p.received_s - lat), float(p.value))
+    if not pitch_hist:
+        return len(est) > 0
+    ahead = r.ground_distance_ahead
+    if ahead.value is not None and ahead.received_s is not None and ahead.received_s != seen["ahead"]:
+        seen["ahead"] = ahead.received_s
+        est.add_ahead(at(ahead.received_s), float(ahead.value), pitch_at(ahead.received_s))
+    under = r.ground_distance
+    ls = loop.rig.link.latest_state()
+    if under.value is not None and under.received_s is not None and under.received_s != seen["under"] and ls:
+        seen["under"] = under.received_s
+        g = pivot + float(ls.pose.controlled()[1]) - float(under.value)
+        est.add_implement(at(under.received_s), g, pitch_at(under.received_s))
+    return len(est) > 0
 
 
 def _note(notes: list[str], text: str) -> None:

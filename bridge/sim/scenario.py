@@ -16,7 +16,9 @@ Sections (SI units; the names carry them)::
                 or csv = "file.csv" (columns distance_m,height_m[,cross_slope_rad])
     [signals]   row_offset_rms_m, row_wavelength_min_m, row_wavelength_max_m, row_noise_rms_m,
                 row_rate_hz, seed, row_camera_ahead_m (0..20: the camera's look-ahead ahead of
-                the implement; 0 = under it)
+                the implement; 0 = under it), ground_sensor_ahead_m (0..20: a look-ahead
+                ground-distance sensor on the tractor ahead of the implement; 0 = none),
+                ground_sensor_mount_height_m (0.1..3), ground_sensor_noise_rms_m (0..0.05)
 
 CSV files (read with :mod:`csv`, paths relative to the TOML file) have a header row naming the
 columns; errors give the file and the line number.
@@ -39,6 +41,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from bridge.sim.terrain import (
     CrossSlopeWave,
     GroundProfile,
+    LookAheadGroundSensor,
     RowSignal,
     SampledGround,
     SineGround,
@@ -119,6 +122,9 @@ class _SignalsSpec(_Strict):
     row_noise_rms_m: float = Field(default=0.005, ge=0.0, le=0.5)
     row_rate_hz: float = Field(default=10.0, ge=0.1, le=100.0)
     row_camera_ahead_m: float = Field(default=0.0, ge=0.0, le=20.0)
+    ground_sensor_ahead_m: float = Field(default=0.0, ge=0.0, le=20.0)
+    ground_sensor_mount_height_m: float = Field(default=0.8, ge=0.1, le=3.0)
+    ground_sensor_noise_rms_m: float = Field(default=0.003, ge=0.0, le=0.05)
     seed: int = Field(default=0, ge=0, le=2**63 - 1)
 
     @model_validator(mode="after")
@@ -269,6 +275,12 @@ def scenario_from_dict(data: Any, *, source: str = "<dict>", base: Traversable |
                 camera_ahead_m=s.row_camera_ahead_m,
             ),
             implement_behind_m=tr.implement_behind_m,
+            ground_sensor=LookAheadGroundSensor(
+                ahead_m=s.ground_sensor_ahead_m,
+                mount_height_m=s.ground_sensor_mount_height_m,
+                noise_rms_m=s.ground_sensor_noise_rms_m,
+                seed=s.seed,
+            ),
         )
     except TerrainError as exc:
         raise ScenarioError(f"scenario {source}: {exc}") from None

@@ -7,6 +7,8 @@ Pure functions of time (and of the implement sensor's height, which the hitch po
 * :meth:`TwinSensors.wheel_speed` — ISO 11783-7 wheel-based speed and distance (PGN 65096), the
   generalisation of :class:`bridge.service.odometer.SimulatedTractor` to a speed profile;
 * :meth:`TwinSensors.ground_distance` — the implement's ground-distance sensor (proprietary 0xFF26);
+* :meth:`TwinSensors.ground_ahead` — the look-ahead ground-distance sensor on the tractor's front
+  (the same 0xFF26 from its own sender, :data:`~bridge.isobus.messages.GROUND_AHEAD_SENSOR_ADDRESS`);
 * :meth:`TwinSensors.row_guidance` — the crop-row camera (proprietary 0xFF27), held between its
   10 Hz samples.
 
@@ -101,6 +103,16 @@ class TwinSensors:
     ) -> GroundDistance:
         """0xFF26 at ``t`` for a sensor ``sensor_height_m`` above the tractor's contact plane."""
         d = self.twin.ground_distance_m(t, sensor_height_m, behind_m=behind_m, lateral_m=lateral_m)
+        if not 0.0 <= d <= _GROUND_LIMIT_M:
+            return GroundDistance(None, FigureOfMerit.ERROR)
+        return GroundDistance(d, FigureOfMerit.FULLY_FUNCTIONAL)
+
+    def ground_ahead(self, t: float) -> GroundDistance:
+        """0xFF26 of the look-ahead ground sensor at ``t`` (:class:`~bridge.sim.terrain.LookAheadGroundSensor`);
+        "not available" when none is fitted."""
+        if not self.twin.ground_sensor.fitted:
+            return GroundDistance(None, FigureOfMerit.NOT_AVAILABLE)
+        d = self.twin.ground_ahead_distance_m(t)
         if not 0.0 <= d <= _GROUND_LIMIT_M:
             return GroundDistance(None, FigureOfMerit.ERROR)
         return GroundDistance(d, FigureOfMerit.FULLY_FUNCTIONAL)

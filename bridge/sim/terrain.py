@@ -45,6 +45,13 @@ amplitudes set so the RMS is ``rms``); the camera adds white noise of ``noise_rm
 and updates at ``rate_hz`` (sample and hold). The camera sees the row ``camera_ahead_m`` ahead of
 the implement (0: under it; a camera on the tractor's front axle gives a preview). Everything is
 seeded and deterministic.
+
+Look-ahead ground sensor (:class:`LookAheadGroundSensor`). A ground-distance sensor on the tractor's
+body ``ahead_m`` ahead of the implement's ground point (e.g. on the front weight, ahead of the front
+axle) at a fixed height ``mount_height_m`` above the contact plane at its point: it moves with the
+body (pitch and heave), so it reads ``mount_height_m − (ground above the contact plane there)`` plus
+white noise of ``noise_rms_m`` per sample (a pure function of the seed and the time in ms). It gives
+a terrain-following client a preview of the ground ``ahead_m`` before the implement reaches it.
 """
 
 from __future__ import annotations
@@ -67,6 +74,7 @@ __all__ = [
     "BodyAttitude",
     "CrossSlopeWave",
     "GroundProfile",
+    "LookAheadGroundSensor",
     "RowSignal",
     "SampledGround",
     "SineGround",
@@ -407,6 +415,43 @@ class RowSignal:
 
 
 @dataclass(frozen=True)
+class LookAheadGroundSensor:
+    """A ground-distance sensor on the tractor's body ahead of the implement (module docstring).
+
+    Attributes:
+        ahead_m: distance of its ground point ahead of the implement's ground point [m], [0, 20];
+            0 = no such sensor. The tractor's front axle is ``wheelbase_m + implement_behind_m``
+            ahead of the implement (3.9 m with the twin's default tractor).
+        mount_height_m: its height above the tractor's contact plane at its point [m], [0.1, 3].
+        noise_rms_m: white noise per sample [m], [0, 0.05].
+        seed: seeds the noise.
+    """
+
+    ahead_m: float = 0.0
+    mount_height_m: float = 0.8
+    noise_rms_m: float = 0.003
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        _number("ground_sensor_ahead_m", self.ahead_m, 0.0, 20.0)
+        _number("ground_sensor_mount_height_m", self.mount_height_m, 0.1, 3.0)
+        _number("ground_sensor_noise_rms_m", self.noise_rms_m, 0.0, 0.05)
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or not 0 <= self.seed < 2**63:
+            raise TerrainError(f"seed must be an integer in [0, 2^63), got {self.seed!r}")
+
+    @property
+    def fitted(self) -> bool:
+        """There is a look-ahead sensor (``ahead_m`` > 0)."""
+        return self.ahead_m > 0.0
+
+    def noise_m(self, t: float) -> float:
+        """The noise of the sample taken at time ``t`` [s] (a pure function of the seed and t in ms)."""
+        if self.noise_rms_m == 0.0:
+            return 0.0
+        return float(np.random.default_rng([self.seed, 2, round(t * 1000.0)]).normal(0.0, self.noise_rms_m))
+
+
+@dataclass(frozen=True)
 class TerrainTwin:
     """A tractor driving over ground at a speed profile, with a crop row: everything a function of time.
 
@@ -416,6 +461,7 @@ class TerrainTwin:
         tractor: wheelbase, track, suspension.
         row: the crop-row signal.
         implement_behind_m: default distance of the implement's ground point behind the rear axle.
+        ground_sensor: the look-ahead ground-distance sensor (default: none fitted).
     """
 
     ground: GroundProfile = field(default_factory=SineGround)
@@ -423,6 +469,7 @@ class TerrainTwin:
     tractor: TractorGeometry = field(default_factory=TractorGeometry)
     row: RowSignal = field(default_factory=RowSignal)
     implement_behind_m: float = 1.2
+    ground_sensor: LookAheadGroundSensor = field(default_factory=LookAheadGroundSensor)
 
     _RATE_STEP_S = 1e-3
     """Half-width of the central difference of the attitude rates [s]."""
@@ -479,9 +526,23 @@ class TerrainTwin:
         (default :attr:`implement_behind_m`) and ``lateral_m`` to the left (module docstring)."""
         d = self.implement_behind_m if behind_m is None else _number("behind_m", behind_m, 0.0, 10.0)
         u = _number("lateral_m", lateral_m, -5.0, 5.0)
+        return self._above_plane(t, -d, u)
+
+    def _above_plane(self, t: float, ahead_of_rear_m: float, lateral_m: float) -> float:
+        """Ground height above the contact plane at ``ahead_of_rear_m`` ahead of the rear axle [m]."""
         z0, b, c = self._plane(t)
-        s = self.distance_m(t) - d
-        return _height(self.ground, s, u) - (z0 - b * d + c * u)
+        s = self.distance_m(t) + ahead_of_rear_m
+        return _height(self.ground, s, lateral_m) - (z0 + b * ahead_of_rear_m + c * lateral_m)
+
+    def ground_ahead_z(self, t: float) -> float:
+        """Ground height above the contact plane at the look-ahead sensor's point [m] (no noise)."""
+        return self._above_plane(t, self.ground_sensor.ahead_m - self.implement_behind_m, 0.0)
+
+    def ground_ahead_distance_m(self, t: float) -> float:
+        """What the look-ahead ground sensor reads at ``t`` [m]: its mount height minus the ground
+        above the contact plane at its point, plus its noise (:class:`LookAheadGroundSensor`)."""
+        g = self.ground_sensor
+        return g.mount_height_m - self.ground_ahead_z(t) + g.noise_m(t)
 
     def ground_distance_m(
         self, t: float, sensor_height_m: float, *, behind_m: float | None = None, lateral_m: float = 0.0

@@ -10,6 +10,7 @@ wheel-based speed, distance   65096      100 ms  tractor ECU (240)
 Slope Sensor Information      61459      10 ms   slope sensor (226)
 implement ground distance     0xFF26     20 ms   ground-distance sensor (227)
 crop-row lateral offset       0xFF27     camera  row camera (228), at the camera's rate (10 Hz default)
+look-ahead ground distance    0xFF26     20 ms   look-ahead ground sensor (230), only when the twin has one
 ============================  =========  ======  ====================================================
 
 The periods are the DBC cycle times (``docs/sensors.md``); each can be changed or switched off
@@ -50,6 +51,7 @@ import can
 from bridge.isobus.codec import encode
 from bridge.isobus.j1939 import TRACTOR_ECU_ADDRESS, MachineDirection
 from bridge.isobus.messages import (
+    GROUND_AHEAD_SENSOR_ADDRESS,
     GROUND_SENSOR_ADDRESS,
     ROW_CAMERA_ADDRESS,
     SLOPE_SENSOR_ADDRESS,
@@ -79,7 +81,7 @@ __all__ = [
 MAX_GROUND_SPEED_M_S = 64.0
 """Largest constant ground speed of the flat default (the 65096 speed field carries 0..64.255 m/s)."""
 
-STREAMS = ("wheel_speed", "slope", "ground", "row")
+STREAMS = ("wheel_speed", "slope", "ground", "row", "ground_ahead")
 """The node's messages, in the order they are sent within one poll."""
 
 HitchHeight = Callable[[float], float | None]
@@ -110,14 +112,15 @@ class TractorNodeConfig:
     Attributes:
         wheel_speed_period_s: PGN 65096 (default 0.1 s, ISO 11783-7's 100 ms).
         slope_period_s: SSI, PGN 61459 (default 0.01 s, the DBC cycle time and the manuals' default).
-        ground_period_s: ground distance 0xFF26 (default 0.02 s).
+        ground_period_s: ground distance 0xFF26 (default 0.02 s), also the look-ahead ground sensor's
+            (sent only when the twin has one: :attr:`bridge.sim.terrain.TerrainTwin.ground_sensor`).
         row_period_s: crop-row offset 0xFF27; None here means *at the camera's rate*
             (``1 / row.rate_hz`` of the twin, 10 Hz in every built-in scenario); to switch the
             row message off, leave it out of ``streams``.
         streams: which of :data:`STREAMS` are sent.
         ground_behind_m, ground_lateral_m: the ground sensor's point, behind the rear axle (None:
             the twin's ``implement_behind_m``) and to the left [m].
-        wheel_source, slope_source, ground_source, row_source: source addresses.
+        wheel_source, slope_source, ground_source, row_source, ground_ahead_source: source addresses.
     """
 
     wheel_speed_period_s: float = WHEEL_SPEED_PERIOD_S
@@ -131,6 +134,7 @@ class TractorNodeConfig:
     slope_source: int = SLOPE_SENSOR_ADDRESS
     ground_source: int = GROUND_SENSOR_ADDRESS
     row_source: int = ROW_CAMERA_ADDRESS
+    ground_ahead_source: int = GROUND_AHEAD_SENSOR_ADDRESS
 
     def __post_init__(self) -> None:
         for name in ("wheel_speed_period_s", "slope_period_s", "ground_period_s"):
@@ -144,7 +148,7 @@ class TractorNodeConfig:
         u = self.ground_lateral_m
         if isinstance(u, bool) or not isinstance(u, (int, float)) or not -5.0 <= u <= 5.0:
             raise TractorNodeError(f"ground_lateral_m must be a number in [-5, 5] m, got {u!r}")
-        for name in ("wheel_source", "slope_source", "ground_source", "row_source"):
+        for name in ("wheel_source", "slope_source", "ground_source", "row_source", "ground_ahead_source"):
             _address(name, getattr(self, name))
 
 
@@ -213,8 +217,12 @@ class TractorTwinNode:
             "slope": (c.slope_period_s, c.slope_source),
             "ground": (c.ground_period_s, c.ground_source),
             "row": (row_period, c.row_source),
+            "ground_ahead": (c.ground_period_s, c.ground_ahead_source),
         }
-        self._streams = tuple(_Stream(n, float(periods[n][0]), periods[n][1]) for n in STREAMS if n in c.streams)
+        fitted = {"ground_ahead": sensors.twin.ground_sensor.fitted}
+        self._streams = tuple(
+            _Stream(n, float(periods[n][0]), periods[n][1]) for n in STREAMS if n in c.streams and fitted.get(n, True)
+        )
         self._t0: float | None = None
         self._t_last = 0.0
         self._distance = 0.0
@@ -302,6 +310,8 @@ class TractorTwinNode:
             return self._ground(sensors, t)
         if stream == "row":
             return sensors.row_guidance(t)
+        if stream == "ground_ahead":
+            return sensors.ground_ahead(t)
         raise TractorNodeError(f"stream must be one of {', '.join(STREAMS)}, got {stream!r}")
 
     def _ground(self, sensors: TwinSensors, t: float) -> GroundDistance:

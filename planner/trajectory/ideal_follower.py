@@ -168,19 +168,24 @@ class IdealFollower:
     """The least-squares follower of a sampled signal within one DOF's finite-difference bounds.
 
     minimise Σ (x_k − s_k)²  subject to  |Δx/dt| ≤ v, |Δ²x/dt²| ≤ a, |Δ³x/dt³| ≤ j  (one OSQP instance,
-    set up again only when the number of samples or the step changes). A signal within the bounds
-    is reproduced (to the solver's tolerance); any other is followed as closely as the bounds allow.
+    set up again only when the number of samples, the step or the use of position bounds changes),
+    and with ``lower`` / ``upper`` given also ``lower ≤ x_k ≤ upper`` (the DOF's workspace). A signal
+    within the bounds is reproduced (to the solver's tolerance); any other is followed as closely as
+    the bounds allow.
     """
 
     def __init__(self, planner: TrajectoryPlanner, dof: str, pose: ArrayLike | None = None, *, tol: float = 1e-9):
         self.limits = dof_limits(planner, dof, pose)
         self.tol = _positive(tol, "tol")
         self._solver: Any = None
-        self._key: tuple[int, float] | None = None
+        self._key: tuple[int, float, bool] | None = None
         self._bounds = np.zeros(0)
 
-    def follow(self, t: ArrayLike, x: ArrayLike) -> IdealFollow:
-        """The follower of samples ``x`` at uniformly spaced times ``t`` [s] (at least 4 samples)."""
+    def follow(
+        self, t: ArrayLike, x: ArrayLike, *, lower: float | None = None, upper: float | None = None
+    ) -> IdealFollow:
+        """The follower of samples ``x`` at uniformly spaced times ``t`` [s] (at least 4 samples), within
+        the position bounds ``lower`` ≤ x ≤ ``upper`` (the DOF's unit; both or neither) when given."""
         ts = np.asarray(t, float).reshape(-1)
         xs = np.asarray(x, float).reshape(-1)
         if ts.size != xs.size or ts.size < 4:
@@ -191,21 +196,35 @@ class IdealFollower:
         dt = float(np.mean(steps))
         if dt <= 0 or np.max(np.abs(steps - dt)) > 1e-6 * dt:
             raise TrajectoryInputError("signal: t must increase in uniform steps (relative spread <= 1e-6)")
+        boxed = lower is not None or upper is not None
+        if boxed:
+            if lower is None or upper is None:
+                raise TrajectoryInputError("signal: give both position bounds lower and upper, or neither")
+            if not (math.isfinite(lower) and math.isfinite(upper) and lower < upper):
+                raise TrajectoryInputError(f"signal: bounds must be finite with lower < upper, got {lower}, {upper}")
         import osqp  # here: only who follows a signal pays its import
 
         n = ts.size
-        off = float(np.mean(xs))
+        off = float(np.mean(xs)) if not boxed else float(np.clip(np.mean(xs), lower, upper))
         q = -(xs - off)
-        key = (n, round(dt, 12))
+        key = (n, round(dt, 12), boxed)
+        A, bound = self._constraints(n, dt)
+        lo, hi = -bound, bound
+        if boxed:
+            assert lower is not None and upper is not None
+            # position rows scaled like the rate rows (bounds of order one: OSQP converges with them active)
+            k = 1.0 / max(abs(lower - off), abs(upper - off), 1e-12)
+            A = sp.vstack([A, k * sp.identity(n, format="csc")], format="csc")
+            lo = np.concatenate([lo, np.full(n, k * (lower - off))])
+            hi = np.concatenate([hi, np.full(n, k * (upper - off))])
         if self._solver is None or key != self._key:
-            A, bound = self._constraints(n, dt)
             self._solver = osqp.OSQP()
             self._solver.setup(
                 sp.identity(n, format="csc"),
                 q,
                 A,
-                -bound,
-                bound,
+                lo,
+                hi,
                 eps_abs=self.tol,
                 eps_rel=self.tol,
                 polishing=True,
@@ -214,7 +233,7 @@ class IdealFollower:
             )
             self._key, self._bounds = key, bound
         else:
-            self._solver.update(q=q)
+            self._solver.update(q=q, l=lo, u=hi)
         res = self._solver.solve(raise_error=False)
         status = str(res.info.status)
         if not status.startswith("solved") or res.x is None:
@@ -235,7 +254,18 @@ class IdealFollower:
 
 
 def ideal_follow(
-    signal_t: ArrayLike, signal_x: ArrayLike, planner: TrajectoryPlanner, dof: str, pose: ArrayLike | None = None
+    signal_t: ArrayLike,
+    signal_x: ArrayLike,
+    planner: TrajectoryPlanner,
+    dof: str,
+    pose: ArrayLike | None = None,
+    *,
+    workspace: bool = False,
 ) -> IdealFollow:
-    """The best bounded follower of a sampled signal on ``dof`` with full preview (see :class:`IdealFollower`)."""
-    return IdealFollower(planner, dof, pose).follow(signal_t, signal_x)
+    """The best bounded follower of a sampled signal on ``dof`` with full preview (see :class:`IdealFollower`);
+    with ``workspace`` also within the DOF's workspace range ``[planner.lo, planner.hi]``."""
+    f = IdealFollower(planner, dof, pose)
+    if not workspace:
+        return f.follow(signal_t, signal_x)
+    d = _dof_index(dof)
+    return f.follow(signal_t, signal_x, lower=float(planner.lo[d]), upper=float(planner.hi[d]))

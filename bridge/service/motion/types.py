@@ -310,6 +310,7 @@ class JogMotion:
     rates: np.ndarray
     expires: float
     t_state: float = 0.0  # clock time of ``jog.state`` (its last step)
+    ff_last: tuple[float, np.ndarray] | None = None  # (clock time, pose acceleration) of the last streamed state
     limited: dict[str, str] = field(default_factory=dict)
     reported: set[str] = field(default_factory=set)  # limits already announced by a limit_reached event
     decision: GuardDecision = field(default_factory=lambda: GuardDecision("ok"))
@@ -376,6 +377,7 @@ class TrackMotion:
     follower: TrackFollower
     frame: str
     t_state: float = 0.0  # clock time of ``follower.state`` (its last step)
+    ff_last: tuple[float, np.ndarray] | None = None  # (clock time, pose acceleration) of the last streamed state
     seq: SeqFilter = field(default_factory=SeqFilter)
     limited: dict[str, str] = field(default_factory=dict)
     reported: set[str] = field(default_factory=set)
@@ -480,12 +482,23 @@ def plan_state(m: PlanMotion, t: float) -> MotionState:
     return m.plan.state_at(t - m.t0)
 
 
+FF_JERK_GAP_S = 0.1
+"""Largest gap [s] between two streamed states whose accelerations give the feed-forward's jerk."""
+
+
 def streamed_reference(shaper: FeedforwardShaper, m: ActiveMotion | None, ref: Reference, now: float) -> np.ndarray:
     """The actuator reference to stream for the planned ``ref`` of motion ``m``: feed-forward
     through the unit loops (:class:`bridge.link.unit_loop.FeedforwardShaper`) for a plan (looking
-    ahead in it) or a jog (its rates and acceleration now); the final reference itself while holding."""
+    ahead in it) or a jog or track session (its rates, acceleration and jerk now: the jerk from the
+    accelerations of this and the previous streamed state, at most :data:`FF_JERK_GAP_S` apart); the
+    final reference itself while holding."""
     if isinstance(m, PlanMotion):
         return shaper.for_plan(lambda t: plan_state(m, t), now, ref.actuators, ref.rates)
     if isinstance(m, (JogMotion, TrackMotion)):
-        return shaper.for_state(ref.state, ref.actuators, ref.rates)
+        acc = np.asarray(ref.state.acceleration, float)
+        jerk = None
+        if m.ff_last is not None and 0.0 < now - m.ff_last[0] <= FF_JERK_GAP_S:
+            jerk = (acc - m.ff_last[1]) / (now - m.ff_last[0])
+        m.ff_last = (now, acc.copy())
+        return shaper.for_state(ref.state, ref.actuators, ref.rates, jerk=jerk)
     return ref.actuators

@@ -200,3 +200,36 @@ def test_jog_reference_extrapolates_the_rates_and_stops_at_zero(model):
     st2 = MotionState(pose, np.array([0.0, 0.005, 0.0, 0.0]), np.array([0.0, -0.2, 0.0, 0.0]))
     r2 = shaper.for_state(st2, q, jac @ st2.velocity)
     assert r2[0] == pytest.approx(q[0] + lift.lag_s * (jac @ st2.velocity)[0], rel=1e-12)
+
+
+def test_jog_and_track_reference_extrapolates_with_the_jerk_when_given(model):
+    """With the jerk j now, the rate and acceleration one delay L ahead are v + L·a + L²·j/2 and a + L·j
+    (a Taylor step, hand-computed here per actuator through the Jacobian); without it, as before (j = 0)."""
+    loops = build_unit_loops(model.profile)
+    inverse = ExactInverse(model)
+    pose = np.array([0.0, 0.1, 0.02, 0.0])
+    q, jac = inverse.solve_full(pose)[:2]
+    shaper = FeedforwardShaper(loops, inverse.solve_full, lambda x: None)
+    # rolling at 20 mrad/s, the braking building up: a = -30 mrad/s², j = -300 mrad/s³
+    st = MotionState(pose, np.array([0.0, 0.0, 0.02, 0.0]), np.array([0.0, 0.0, -0.03, 0.0]))
+    jerk = np.array([0.0, 0.0, -0.3, 0.0])
+    rates, acc, jrk = jac @ st.velocity, jac @ st.acceleration, jac @ jerk
+    r = shaper.for_state(st, q, rates, jerk=jerk)
+    r0 = shaper.for_state(st, q, rates)
+    for i, u in enumerate(loops):
+        if abs(rates[i]) < 1e-9:
+            continue
+        v_ahead = rates[i] + u.delay_s * acc[i] + 0.5 * u.delay_s**2 * jrk[i]
+        a_ahead = acc[i] + u.delay_s * jrk[i]
+        if v_ahead * rates[i] < 0:
+            v_ahead = a_ahead = 0.0
+        drive = v_ahead + u.lag_s * a_ahead
+        w = u.min_flow_pos if drive > 0 else u.min_flow_neg
+        p_part = drive - np.sign(drive) * w if abs(drive) > w else 0.0
+        want = min(max(q[i] + u.lag_s * rates[i] + p_part / u.gain_per_s, u.lower), u.upper)
+        assert r[i] == pytest.approx(want, rel=1e-12, abs=1e-12)
+    assert np.allclose(shaper.for_state(st, q, rates, jerk=np.zeros(4)), r0, rtol=0, atol=0)
+    # a braking that builds up: the velocity ahead is smaller than v + L·a, so the reference leads less (the
+    # lift and tilt here; the others' leads stay within their minimum flow either way)
+    assert np.all(np.abs(r - q) <= np.abs(r0 - q) + 1e-15)
+    assert np.sum(np.abs(r - q) < np.abs(r0 - q) - 1e-5) >= 2

@@ -7,7 +7,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bridge.service.track_loop import LoopSettings, TrackLoopError, job_of, run_track_loop
+from bridge.service.track_loop import (
+    LoopSettings,
+    SimLoop,
+    TrackLoopError,
+    _pose_tolerance,
+    job_of,
+    run_track_loop,
+)
 from bridge.sim.scenario import load_scenario, scenario_from_dict
 
 
@@ -84,6 +91,40 @@ def test_a_ground_bump_is_followed_in_z_in_the_ground_frame(model):
     assert track.counts["references_outside_strokes"] == 0 and track.counts["refused"] == 0
 
 
+def test_terrain_with_the_look_ahead_sensor_beats_the_sensor_under_the_implement(model):
+    # the terrain scenario's two undulations (30 mm at 7 m, 20 mm at 19 m) at 8 km/h: the implement's own sensor
+    # lags (the demand is at z's velocity limit); the look-ahead sensor 4.9 m ahead gives the client a preview
+    und = [
+        {"amplitude_m": 0.03, "wavelength_m": 7.0},
+        {"amplitude_m": 0.02, "wavelength_m": 19.0, "phase_rad": 0.5},
+    ]
+    sc = _scenario("undulating", 12.0, terrain={"undulation": und}, signals={"ground_sensor_ahead_m": 4.9})
+    assert job_of(sc) == "terrain" and sc.twin.ground_sensor.fitted
+    plan = run_track_loop(model, sc, LoopSettings(strategy="track", settle_s=5.0, ground_setpoint="plan"))
+    under = run_track_loop(model, sc, LoopSettings(strategy="track", settle_s=5.0))
+    assert plan.frame == "tractor" and under.frame == "ground"  # the client converts: it knows the ground ahead
+    pivot = model.profile.geometry.pivot_height
+    height = pivot + plan.truth[:, 1] - plan.ground_height  # the truth's height above the ground under it
+    assert np.allclose(plan.error, height - plan.working_height_m)
+    demand_rms = float(np.std(plan.demand[plan.evaluated]))  # what holding a fixed z errs by, about
+    assert demand_rms > 0.025
+    assert plan.figures.rms < 0.6 * under.figures.rms, (plan.figures, under.figures)
+    assert plan.figures.rms < demand_rms / 3, (plan.figures, demand_rms)
+    for r in (plan, under):
+        assert r.counts["references_outside_strokes"] == 0 and r.counts["refused"] == 0
+        assert r.counts["setpoints_rejected"] == 0 and r.counts["outside_workspace"] == 0 and not r.faults
+
+
+def test_ground_plan_needs_the_look_ahead_sensor_and_its_settings_are_checked(model):
+    with pytest.raises(TrackLoopError, match="ground_setpoint"):
+        LoopSettings(ground_setpoint="ahead")
+    with pytest.raises(TrackLoopError, match=r"plan_every must be an integer in \[1, 50\]"):
+        LoopSettings(plan_every=0)
+    sc = _scenario("no-sensor", 7.0, terrain={"undulation": [{"amplitude_m": 0.02, "wavelength_m": 10.0}]})
+    with pytest.raises(TrackLoopError, match="ground_sensor_ahead_m"):
+        run_track_loop(model, sc, LoopSettings(strategy="track", settle_s=1.0, ground_setpoint="plan"))
+
+
 def test_strategies_compare_on_a_rolling_tractor(model):
     # cross slope wave 0.015 rad at 0.1 Hz (22 m at 8 km/h): inside the workspace and the follower's limits
     sc = _scenario(
@@ -123,6 +164,34 @@ def test_demands_beyond_the_workspace_are_clipped_never_streamed_beyond_the_stro
     assert np.nanmax(np.abs(r.reference[:, 2])) <= 0.058 + 1e-9
     assert not r.inside.any() and r.figures_inside.n == 0  # the demand is outside: nothing counted inside
     assert r.figures.mean == pytest.approx(0.058 - 0.1, abs=3e-3)  # held at the face
+
+
+def _stop_at_the_roll_face(model, feedforward: bool) -> tuple[float, float, float, float]:
+    """A demand beyond the roll face, 4 s: (face, tolerance of one count, max truth, max measured roll)."""
+    with SimLoop(model, "flat") as loop:
+        mc, tp = loop.mc, loop.planner
+        mc.shaper.enabled = feedforward
+        hi = float(tp.hi[2])
+        tol = float(_pose_tolerance(model, tp, np.clip(loop.measured_pose(), tp.lo, tp.hi))[2])
+        s = mc.track_start("tractor", ("roll",), 0.3).session
+        truth, meas = [], []
+        for k in range(200):  # at the face after ~2.5 s
+            mc.track_setpoint(s, k + 1, {"roll": hi + 0.02}, {"roll": 0.0})
+            loop.cycle()
+            truth.append(loop.truth_pose()[2])
+            meas.append(loop.measured_pose()[2])
+    return hi, tol, max(truth), max(meas)
+
+
+def test_a_stop_at_the_roll_face_overshoots_no_more_than_the_unit_loops_alone(model):
+    """The follower stops at the face (jerk-limited); with the unit loops' feed-forward the simulated pistons
+    must not run past it further than the same stop streamed without feed-forward (the ECU's own settling on
+    the count). Before the feed-forward extrapolated with the jerk: 0.436 mrad past the face against 0.159."""
+    hi, tol, truth_ff, meas_ff = _stop_at_the_roll_face(model, True)
+    _, _, truth_plain, _ = _stop_at_the_roll_face(model, False)
+    assert truth_ff > hi - 1e-3  # it got to the face
+    assert truth_ff - hi <= max(truth_plain - hi, 0.0) + 5e-5, (truth_ff - hi, truth_plain - hi)
+    assert meas_ff - hi <= tol
 
 
 def test_bad_settings_name_the_field():

@@ -123,3 +123,33 @@ def test_the_qp_follower_reproduces_a_feasible_signal_and_bounds_an_infeasible_o
     assert np.max(np.abs(np.diff(x, 3)) / dt**3) <= lim.jerk * tol
     assert res.rms_error < np.sqrt(np.mean((bad - np.mean(bad)) ** 2))  # better than standing still
     assert res.max_error > 1e-3  # it could not follow the step
+
+
+def test_the_qp_follower_keeps_to_position_bounds_and_follows_exactly_inside_them(tp):
+    """A slow sine (within the rate bounds) twice as wide as a box: the bounded follower stays in the box
+    (to the solver's tolerance), follows the sine exactly where it is well inside, and rests on the face
+    where the sine is beyond it; without bounds the same signal is reproduced (it leaves the box)."""
+    fol = IdealFollower(tp, "roll")
+    lim = fol.limits
+    dt = 0.02
+    t = np.arange(1500) * dt
+    w = 2 * math.pi * 0.05
+    amp = 0.2 * min(lim.velocity / w, lim.acceleration / w**2)
+    s = amp * np.sin(w * t)
+    lo, hi = -amp / 2, amp / 2
+    free = fol.follow(t, s)
+    assert free.max_error <= 1e-5 * amp and free.x.max() > hi + 0.4 * amp
+    boxed = fol.follow(t, s, lower=lo, upper=hi)
+    x = boxed.x
+    assert x.min() >= lo - 1e-6 * amp and x.max() <= hi + 1e-6 * amp
+    inside = np.abs(s) < 0.3 * amp
+    assert np.max(np.abs(x - s)[inside]) <= 1e-4 * amp
+    beyond = np.abs(s) > 0.7 * amp
+    assert np.max(np.abs(x - np.clip(s, lo, hi))[beyond]) <= 1e-4 * amp
+    tol = 1 + 1e-4
+    assert np.max(np.abs(np.diff(x)) / dt) <= lim.velocity * tol
+    assert np.max(np.abs(np.diff(x, 2)) / dt**2) <= lim.acceleration * tol
+    with pytest.raises(HitchInputError, match="both"):
+        fol.follow(t, s, lower=lo)
+    with pytest.raises(HitchInputError, match="lower < upper"):
+        fol.follow(t, s, lower=hi, upper=lo)

@@ -23,7 +23,14 @@ Which threads, and why (numbers: higher runs first):
   runs elsewhere (they route ``stop`` from the clients to the core; they never take the interpreter
   lock: the service's queryables hand queries over through ring channels).
 
-A thread created later inherits its creator's policy (Linux ``clone``), so threads a real-time
+The control core's real-time threads share one CPU (:func:`pin_to_one_cpu`, the last the process may
+use): a frame one of them sends then wakes the receiving thread on the same CPU after the sender
+blocks, with the frames of a burst handled in one wake-up, instead of on another CPU at once for
+every frame with the interpreter lock handed across CPUs each time (measured: the planner's CAN
+thread woke 284 times a second at rest instead of 159, and the core took 24 % of a core instead of
+17 % under the same load). Real-time threads still preempt every ordinary thread on that CPU.
+
+A thread created later inherits its creator's policy and CPUs (Linux ``clone``), so threads a real-time
 thread starts (a motion thread's helpers) are real-time too. The library threads that are neither
 Python's nor Zenoh's (e.g. a BLAS pool) keep the ordinary policy. Setting a real-time policy needs
 root or CAP_SYS_NICE; without it every function here says why and the caller falls back to nice
@@ -44,6 +51,7 @@ __all__ = [
     "TWIN_RT_PRIORITY",
     "ZENOH_THREAD_PREFIXES",
     "ThreadSchedule",
+    "pin_to_one_cpu",
     "python_thread_ids",
     "raise_to_fifo",
     "set_thread_fifo",
@@ -176,3 +184,24 @@ def raise_to_fifo(tids: Iterable[int], priority: int) -> list[str]:
         if why is not None and os.path.exists(f"/proc/self/task/{tid}"):
             failed.append(why)
     return failed
+
+
+def pin_to_one_cpu(tids: Iterable[int]) -> tuple[int | None, list[str]]:
+    """Restrict each thread to the last CPU this process may run on (``sched_setaffinity``); returns
+    that CPU (None when there is only one, or the call is not available: nothing is changed) and the
+    reasons of the threads that failed (one that ended meanwhile is not a failure)."""
+    getaffinity = getattr(os, "sched_getaffinity", None)
+    setaffinity = getattr(os, "sched_setaffinity", None)
+    if getaffinity is None or setaffinity is None:
+        return None, []
+    cpus = sorted(getaffinity(0))
+    if len(cpus) < 2:
+        return None, []
+    cpu, failed = cpus[-1], []
+    for tid in tids:
+        try:
+            setaffinity(tid, {cpu})
+        except OSError as exc:
+            if os.path.exists(f"/proc/self/task/{tid}"):
+                failed.append(str(exc))
+    return cpu, failed

@@ -52,6 +52,7 @@ from bridge.service.scheduling import (
     CONTROL_RT_PRIORITY,
     CORE_RT_PRIORITY,
     TWIN_RT_PRIORITY,
+    pin_to_one_cpu,
     raise_to_fifo,
     zenoh_thread_ids,
 )
@@ -420,14 +421,20 @@ def raise_core_to_realtime() -> str | None:
     """Every Python and Zenoh thread of this process under ``SCHED_FIFO`` (:mod:`bridge.service.scheduling`):
     the twin's runner at :data:`TWIN_RT_PRIORITY`, the control cycle and the planner's CAN thread at
     :data:`CONTROL_RT_PRIORITY`, the rest at :data:`CORE_RT_PRIORITY` — the calling thread too, so the
-    threads it starts later (the motion threads) inherit it. None when done, else why not (the threads
+    threads it starts later (the motion threads) inherit it — and all of them on one CPU
+    (:func:`~bridge.service.scheduling.pin_to_one_cpu`). None when done, else why not (the threads
     keep their nice values)."""
     named = {TWIN_THREAD: TWIN_RT_PRIORITY, "hitch-control": CONTROL_RT_PRIORITY, "CanLink-rt": CONTROL_RT_PRIORITY}
     failed: list[str] = []
+    tids = []
     for t in threading.enumerate():
         if t.native_id is not None:
+            tids.append(t.native_id)
             failed += raise_to_fifo([t.native_id], named.get(t.name, CORE_RT_PRIORITY))
-    failed += raise_to_fifo(zenoh_thread_ids(), CORE_RT_PRIORITY)
+    zenoh_tids = zenoh_thread_ids()
+    failed += raise_to_fifo(zenoh_tids, CORE_RT_PRIORITY)
+    if not failed:  # one CPU for them all (bridge.service.scheduling: fewer cross-CPU wake-ups)
+        failed += pin_to_one_cpu([*tids, *zenoh_tids])[1]
     return "; ".join(sorted(set(failed))) if failed else None
 
 

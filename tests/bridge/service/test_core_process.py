@@ -179,7 +179,7 @@ def test_the_twin_runs_above_the_core_and_the_core_above_the_service(service):
 def test_the_control_path_runs_under_sched_fifo_the_twin_above_the_control_cycle(service):
     """Every Python and Zenoh thread of the core is under SCHED_FIFO (a CPU-bound program cannot put
     them aside): the twin's runner at TWIN_RT_PRIORITY, the control cycle and the planner's CAN thread at
-    CONTROL_RT_PRIORITY, the rest at CORE_RT_PRIORITY; the service's own Zenoh threads (the stop's route
+    CONTROL_RT_PRIORITY, the rest at CORE_RT_PRIORITY, all on one CPU; the service's own Zenoh threads (the stop's route
     to the core) at ROUTER_RT_PRIORITY. The service's Python threads stay ordinary (they do the heavy work)."""
     from bridge.service.scheduling import (
         CONTROL_RT_PRIORITY,
@@ -198,6 +198,8 @@ def test_the_control_path_runs_under_sched_fifo_the_twin_above_the_control_cycle
     zen = [s for s in core if s.name.startswith(ZENOH_THREAD_PREFIXES)]
     assert zen and all(s.policy == "fifo" and s.rt_priority == CORE_RT_PRIORITY for s in zen), zen
     assert len([s for s in core if s.policy != "fifo"]) <= os.cpu_count(), core  # a BLAS pool at most
+    cpus = {frozenset(os.sched_getaffinity(s.tid)) for s in core if s.policy == "fifo"}
+    assert len(cpus) == 1 and len(next(iter(cpus))) == 1, cpus
     mine = thread_schedule()
     routers = [s for s in mine if s.name.startswith(ZENOH_THREAD_PREFIXES)]
     assert routers and all(s.policy == "fifo" and s.rt_priority >= ROUTER_RT_PRIORITY for s in routers), routers

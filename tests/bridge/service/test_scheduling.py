@@ -10,6 +10,7 @@ import threading
 import pytest
 
 from bridge.service.scheduling import (
+    pin_to_one_cpu,
     python_thread_ids,
     raise_to_fifo,
     set_thread_fifo,
@@ -73,6 +74,21 @@ def test_without_privilege_the_reason_is_given():
     t, release = _parked_thread()
     try:
         assert t.native_id is not None and set_thread_fifo(t.native_id, 7) == "not permitted"
+    finally:
+        release.set()
+        t.join()
+
+
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="needs two CPUs")
+def test_pinned_threads_run_on_the_last_cpu_the_process_may_use_and_others_keep_theirs():
+    t, release = _parked_thread()
+    try:
+        assert t.native_id is not None
+        before = os.sched_getaffinity(0)
+        cpu, failed = pin_to_one_cpu([t.native_id])
+        assert failed == [] and cpu == max(before)
+        assert os.sched_getaffinity(t.native_id) == {cpu}
+        assert os.sched_getaffinity(0) == before  # the caller is untouched
     finally:
         release.set()
         t.join()

@@ -385,8 +385,8 @@ class TrackFollower:
         self.t = _number(t0_s, "t0_s")
         self.hold = np.asarray(state.position, float).copy()
         self._sp: TrackSetpoint | None = None
-        # the setpoint as Python floats for target (position, velocity, acceleration, jerk, requested p, v)
-        self._spf: tuple[list[float], ...] = ()
+        # per DOF, the setpoint, faces and limits in Python floats for _target_dof (set by _target_terms)
+        self._terms: list[tuple[float, ...]] = []
         self._last_v: np.ndarray | None = None
         self._last_a_given = False
         self._last_s = self.t
@@ -506,14 +506,7 @@ class TrackFollower:
         self._last_a_given = acceleration is not None
         sp = TrackSetpoint(now, p_req, v_req, p, v, acc, limited, jk)
         self._sp = sp
-        self._spf = (
-            sp.position.tolist(),
-            sp.velocity.tolist(),
-            sp.acceleration.tolist(),
-            sp.jerk.tolist(),
-            sp.requested_position.tolist(),
-            sp.requested_velocity.tolist(),
-        )
+        self._target_terms()
         self._last_s = now
         self._last_v = v_req if velocity is not None else None
         self._stale = False
@@ -615,25 +608,50 @@ class TrackFollower:
                 flags[f"v{k}"] = vface
         return np.array(p), np.array(v), np.array(acc), flags
 
+    def _target_terms(self) -> None:
+        """Per DOF, what :meth:`_target_dof` reads, in Python floats: the setpoint's position, velocity,
+        acceleration, jerk, requested position and velocity, the faces and the limits in force (at a new
+        setpoint and new limits)."""
+        sp = self._sp
+        if sp is None:
+            return
+        self._terms = list(
+            zip(
+                *(
+                    x.tolist()
+                    for x in (
+                        sp.position,
+                        sp.velocity,
+                        sp.acceleration,
+                        sp.jerk,
+                        sp.requested_position,
+                        sp.requested_velocity,
+                        self.lo,
+                        self.hi,
+                        self._v_lim,
+                        self._a_lim,
+                        self._j_lim,
+                    )
+                ),
+                strict=True,
+            )
+        )
+
     def _target_dof(self, d: int, ahead: float) -> tuple[float, float, float, str | None, str | None]:
         """DOF ``d`` of :meth:`target` ``ahead`` [s] after the setpoint (there is one): position, velocity,
         acceleration [m, m/s, m/s² or rad, …] and the names of the face that clipped the position and the
         velocity (None: none), in Python floats (the rendezvous search calls it per DOF and horizon)."""
-        pos, vel, acc0, jerk, p_req0, v_req0 = self._spf
-        lo, hi = float(self.lo[d]), float(self.hi[d])
-        vls, als, jls = self._limf
-        vl, al, jl = vls[d], als[d], jls[d]
+        pos, vel, acc0, jk, p_req0, v_req0, lo, hi, vl, al, jl = self._terms[d]
         # the setpoint's own motion to the cycle's time: constant acceleration (the target acceleration's
         # model), so a stream within the limits is met where it is now, not where it was when it was sent
-        jk = jerk[d]
-        p = pos[d] + vel[d] * ahead + acc0[d] * ahead**2 / 2 + jk * ahead**3 / 6
-        p_req = p_req0[d] + v_req0[d] * ahead
+        a2 = ahead**2
+        p = pos + vel * ahead + acc0 * a2 / 2 + jk * ahead**3 / 6
+        p_req = p_req0 + v_req0 * ahead
         # the limits may have changed since the setpoint was taken (a new box): a reachable target again
-        v = min(max(vel[d] + acc0[d] * ahead + jk * ahead**2 / 2, -vl), vl)
-        room = max(vl * (1 - 1e-6) - abs(v), 0.0)
-        acc = min(max(acc0[d] + jk * ahead, -al), al)
+        v = min(max(vel + acc0 * ahead + jk * a2 / 2, -vl), vl)
+        acc = min(max(acc0 + jk * ahead, -al), al)
         if acc != 0.0:
-            acc = math.copysign(min(abs(acc), math.sqrt(2 * jl * room)), acc)
+            acc = math.copysign(min(abs(acc), math.sqrt(2 * jl * max(vl * (1 - 1e-6) - abs(v), 0.0))), acc)
         if d == 1 and self._descent is not None:  # as _cap_descent_acceleration
             v = max(v, -self._descent)
             if acc < 0:
@@ -782,7 +800,8 @@ class TrackFollower:
         self.refreshes += 1
         lim = self.limits
         self._v_lim, self._a_lim, self._j_lim = lim.velocity, lim.acceleration, lim.jerk
-        self._limf = (lim.velocity.tolist(), lim.acceleration.tolist(), lim.jerk.tolist())
+        if self._sp is not None:
+            self._target_terms()
 
     def _rest_limits(self) -> PoseLimits:
         """The limits of the stop to rest, chosen at its first cycle as

@@ -668,7 +668,9 @@ class TrackFollower:
             p, face = hi, name_max
         elif p <= lo:
             p, face = lo, name_min
-        up, down = _braking_speed(hi - p, al, jl), _braking_speed(p - lo, al, jl)
+        # the speeds a stop fits from (≥ 0), each only where it can bind (v or the acceleration towards it)
+        up = _braking_speed(hi - p, al, jl) if acc > 0 or v > 0 else math.inf
+        down = _braking_speed(p - lo, al, jl) if acc < 0 or v < 0 else math.inf
         # the stop from (v, a) pushing outwards ends no further than one from |v| + a²/(2j) at a = 0
         if acc > 0 and max(v, 0.0) + acc**2 / (2 * jl) > up:
             acc = 0.0

@@ -289,7 +289,16 @@ def _jerk_reachable(
     return (
         abs(at - a0) <= j * t + _REACH_ABS
         and abs(vt - v0 - a0 * t) <= j * t * t / 2 + _REACH_ABS + abs(a0) * horizon * _REACH_REL
-        and abs(pt - p0 - v0 * t - a0 * t * t / 2)
+        and _jerk_reaches_position(p0, v0, a0, pt, jerk, horizon)
+    )
+
+
+def _jerk_reaches_position(p0: float, v0: float, a0: float, pt: float, jerk: float, horizon: float) -> bool:
+    """The position part of :func:`_jerk_reachable` alone (it needs no target velocity or acceleration)."""
+    t = horizon * (1 + _REACH_REL)
+    j = jerk * (1 + _REACH_REL)
+    return (
+        abs(pt - p0 - v0 * t - a0 * t * t / 2)
         <= j * t**3 / 6 + _REACH_ABS + (abs(v0) + abs(a0) * t) * horizon * _REACH_REL
     )
 
@@ -637,18 +646,39 @@ class TrackFollower:
             )
         )
 
-    def _target_dof(self, d: int, ahead: float) -> tuple[float, float, float, str | None, str | None]:
-        """DOF ``d`` of :meth:`target` ``ahead`` [s] after the setpoint (there is one): position, velocity,
-        acceleration [m, m/s, m/s² or rad, …] and the names of the face that clipped the position and the
-        velocity (None: none), in Python floats (the rendezvous search calls it per DOF and horizon)."""
-        pos, vel, acc0, jk, p_req0, v_req0, lo, hi, vl, al, jl = self._terms[d]
+    def _target_position(self, d: int, ahead: float) -> tuple[float, str | None, bool]:
+        """DOF ``d``'s position of :meth:`target` ``ahead`` [s] after the setpoint (there is one) [m or rad],
+        the name of the face that clipped it (None: none) and whether the demand is beyond that face
+        (the target then rests there)."""
+        pos, vel, acc0, jk, p_req0, v_req0, lo, hi = self._terms[d][:8]
         # the setpoint's own motion to the cycle's time: constant acceleration (the target acceleration's
         # model), so a stream within the limits is met where it is now, not where it was when it was sent
-        a2 = ahead**2
-        p = pos + vel * ahead + acc0 * a2 / 2 + jk * ahead**3 / 6
+        p = pos + vel * ahead + acc0 * ahead**2 / 2 + jk * ahead**3 / 6
+        if not self.tracked[d]:
+            return p, None, False
         p_req = p_req0 + v_req0 * ahead
+        name_min, name_max = self._names[d]
+        if p_req >= hi:  # the demand is beyond the face: at the face, at rest
+            return hi, name_max, True
+        if p_req <= lo:
+            return lo, name_min, True
+        if p >= hi:
+            return hi, name_max, False
+        if p <= lo:
+            return lo, name_min, False
+        return p, None, False
+
+    def _target_dof(
+        self, d: int, ahead: float, position: tuple[float, str | None, bool] | None = None
+    ) -> tuple[float, float, float, str | None, str | None]:
+        """DOF ``d`` of :meth:`target` ``ahead`` [s] after the setpoint (there is one): position, velocity,
+        acceleration [m, m/s, m/s² or rad, …] and the names of the face that clipped the position and the
+        velocity (None: none), in Python floats (the rendezvous search calls it per DOF and horizon);
+        ``position``: :meth:`_target_position`'s answer when the caller has it already."""
+        p, face, rest = self._target_position(d, ahead) if position is None else position
+        _, vel, acc0, jk, _, _, lo, hi, vl, al, jl = self._terms[d]
         # the limits may have changed since the setpoint was taken (a new box): a reachable target again
-        v = min(max(vel + acc0 * ahead + jk * a2 / 2, -vl), vl)
+        v = min(max(vel + acc0 * ahead + jk * ahead**2 / 2, -vl), vl)
         acc = min(max(acc0 + jk * ahead, -al), al)
         if acc != 0.0:
             acc = math.copysign(min(abs(acc), math.sqrt(2 * jl * max(vl * (1 - 1e-6) - abs(v), 0.0))), acc)
@@ -659,15 +689,9 @@ class TrackFollower:
         if not self.tracked[d]:
             return p, v, acc, None, None
         name_min, name_max = self._names[d]
-        face = vface = None
-        if p_req >= hi:  # the demand is beyond the face: at the face, at rest
-            p, v, acc, face = hi, 0.0, 0.0, name_max
-        elif p_req <= lo:
-            p, v, acc, face = lo, 0.0, 0.0, name_min
-        elif p >= hi:
-            p, face = hi, name_max
-        elif p <= lo:
-            p, face = lo, name_min
+        vface = None
+        if rest:
+            v, acc = 0.0, 0.0
         # the speeds a stop fits from (≥ 0), each only where it can bind (v or the acceleration towards it)
         up = _braking_speed(hi - p, al, jl) if acc > 0 or v > 0 else math.inf
         down = _braking_speed(p - lo, al, jl) if acc < 0 or v < 0 else math.inf
@@ -916,7 +940,12 @@ class TrackFollower:
         one.current_acceleration = [a0]
         for n in RENDEZVOUS_CYCLES:
             horizon = n * self.dt
-            pt, vt, at, _, _ = self._target_dof(d, max(self.t + horizon - sp.t, 0.0))
+            ahead = max(self.t + horizon - sp.t, 0.0)
+            position = self._target_position(d, ahead)
+            if not _jerk_reaches_position(p0, v0, a0, position[0], jmax, horizon):  # the cheap part first
+                self.rendezvous_skips += 1
+                continue
+            pt, vt, at, _, _ = self._target_dof(d, ahead, position)
             if not _jerk_reachable(p0, v0, a0, pt, vt, at, jmax, horizon):
                 self.rendezvous_skips += 1
                 continue

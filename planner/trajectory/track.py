@@ -270,6 +270,39 @@ def _braking_speed(distance: float, a: float, j: float) -> float:
     return a * (-b + math.sqrt(b * b + 2 * distance / a))
 
 
+#: Slack of :func:`_jerk_reachable` beyond Ruckig's own tolerances (its final-state precision is 1e-8 in
+#: position and velocity, 1e-10 in acceleration; its duration check in ``_rendezvous`` 1e-9 relative).
+_REACH_REL, _REACH_ABS = 1e-6, 1e-7
+
+
+def _jerk_reachable(
+    p0: float, v0: float, a0: float, pt: float, vt: float, at: float, jerk: float, horizon: float
+) -> bool:
+    """False only when no motion with |jerk| ≤ ``jerk`` [m/s³ or rad/s³] goes from (p0, v0, a0) to
+    (pt, vt, at) [m, m/s, m/s² or rad, …] in ``horizon`` [s] (up to a relative 1e-6 and absolute 1e-7
+    slack): an exact necessary condition, whatever the velocity and acceleration limits. The state after
+    time T under jerk j(u) is a(T) = a0 + ∫j, v(T) = v0 + a0·T + ∫(T−u)·j, p(T) = p0 + v0·T + a0·T²/2 +
+    ∫(T−u)²/2·j, so |a(T) − a0| ≤ J·T, |v(T) − v0 − a0·T| ≤ J·T²/2, |p(T) − p0 − v0·T − a0·T²/2| ≤ J·T³/6
+    (the Taylor remainder of a motion with bounded third derivative)."""
+    t = horizon * (1 + _REACH_REL)
+    j = jerk * (1 + _REACH_REL)
+    return (
+        abs(at - a0) <= j * t + _REACH_ABS
+        and abs(vt - v0 - a0 * t) <= j * t * t / 2 + _REACH_ABS + abs(a0) * horizon * _REACH_REL
+        and _jerk_reaches_position(p0, v0, a0, pt, jerk, horizon)
+    )
+
+
+def _jerk_reaches_position(p0: float, v0: float, a0: float, pt: float, jerk: float, horizon: float) -> bool:
+    """The position part of :func:`_jerk_reachable` alone (it needs no target velocity or acceleration)."""
+    t = horizon * (1 + _REACH_REL)
+    j = jerk * (1 + _REACH_REL)
+    return (
+        abs(pt - p0 - v0 * t - a0 * t * t / 2)
+        <= j * t**3 / 6 + _REACH_ABS + (abs(v0) + abs(a0) * t) * horizon * _REACH_REL
+    )
+
+
 def _arrays(lim: PoseLimits) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return lim.velocity, lim.acceleration, lim.jerk
 
@@ -344,6 +377,11 @@ class TrackFollower:
         self._ruckig1 = Ruckig(1)
         self._in1 = InputParameter(1)
         self._traj1 = Trajectory(1)
+        # per step (cleared by step): each DOF's rendezvous by its limits (the current state and the
+        # targets are the step's), for the re-advances of _cannot_stop
+        self._rv_memo: dict[tuple[int, float, float, float, float], tuple[float, float, float] | None] = {}
+        self.rendezvous_tries = 0  # one-DOF Ruckig calculations of the rendezvous search (the cost)
+        self.rendezvous_skips = 0  # horizons the exact jerk bound ruled out without Ruckig (_jerk_reachable)
         self.rendezvous = 0  # DOF-cycles that moved on a rendezvous with the setpoint's motion (_rendezvous)
         self._probe = StopProbe()
         self.fallbacks = 0  # cycles Ruckig refused, braked to rest instead (should stay 0)
@@ -356,6 +394,8 @@ class TrackFollower:
         self.t = _number(t0_s, "t0_s")
         self.hold = np.asarray(state.position, float).copy()
         self._sp: TrackSetpoint | None = None
+        # per DOF, the setpoint, faces and limits in Python floats for _target_dof (set by _target_terms)
+        self._terms: list[tuple[float, ...]] = []
         self._last_v: np.ndarray | None = None
         self._last_a_given = False
         self._last_s = self.t
@@ -475,6 +515,7 @@ class TrackFollower:
         self._last_a_given = acceleration is not None
         sp = TrackSetpoint(now, p_req, v_req, p, v, acc, limited, jk)
         self._sp = sp
+        self._target_terms()
         self._last_s = now
         self._last_v = v_req if velocity is not None else None
         self._stale = False
@@ -563,58 +604,112 @@ class TrackFollower:
         heads back inside does not pull the target off the face before it is inside again (the
         hitch would leave the face and come back to it)."""
         sp = self._sp
-        lo, hi = self.lo, self.hi
         if sp is None:
             return self.hold.copy(), np.zeros(4), np.zeros(4), {}
         flags = dict(sp.limited)
         ahead = max(now_s - sp.t, 0.0)
+        p, v, acc = [0.0] * 4, [0.0] * 4, [0.0] * 4
+        for d, k in enumerate(TRACK_DOFS):
+            p[d], v[d], acc[d], face, vface = self._target_dof(d, ahead)
+            if face is not None:
+                flags.setdefault(k, face)
+            if vface is not None:
+                flags[f"v{k}"] = vface
+        return np.array(p), np.array(v), np.array(acc), flags
+
+    def _target_terms(self) -> None:
+        """Per DOF, what :meth:`_target_dof` reads, in Python floats: the setpoint's position, velocity,
+        acceleration, jerk, requested position and velocity, the faces and the limits in force (at a new
+        setpoint and new limits)."""
+        sp = self._sp
+        if sp is None:
+            return
+        self._terms = list(
+            zip(
+                *(
+                    x.tolist()
+                    for x in (
+                        sp.position,
+                        sp.velocity,
+                        sp.acceleration,
+                        sp.jerk,
+                        sp.requested_position,
+                        sp.requested_velocity,
+                        self.lo,
+                        self.hi,
+                        self._v_lim,
+                        self._a_lim,
+                        self._j_lim,
+                    )
+                ),
+                strict=True,
+            )
+        )
+
+    def _target_position(self, d: int, ahead: float) -> tuple[float, str | None, bool]:
+        """DOF ``d``'s position of :meth:`target` ``ahead`` [s] after the setpoint (there is one) [m or rad],
+        the name of the face that clipped it (None: none) and whether the demand is beyond that face
+        (the target then rests there)."""
+        pos, vel, acc0, jk, p_req0, v_req0, lo, hi = self._terms[d][:8]
         # the setpoint's own motion to the cycle's time: constant acceleration (the target acceleration's
         # model), so a stream within the limits is met where it is now, not where it was when it was sent
-        j = sp.jerk
-        p = sp.position + sp.velocity * ahead + sp.acceleration * ahead**2 / 2 + j * ahead**3 / 6
-        p_req = sp.requested_position + sp.requested_velocity * ahead
+        p = pos + vel * ahead + acc0 * ahead**2 / 2 + jk * ahead**3 / 6
+        if not self.tracked[d]:
+            return p, None, False
+        p_req = p_req0 + v_req0 * ahead
+        name_min, name_max = self._names[d]
+        if p_req >= hi:  # the demand is beyond the face: at the face, at rest
+            return hi, name_max, True
+        if p_req <= lo:
+            return lo, name_min, True
+        if p >= hi:
+            return hi, name_max, False
+        if p <= lo:
+            return lo, name_min, False
+        return p, None, False
+
+    def _target_dof(
+        self, d: int, ahead: float, position: tuple[float, str | None, bool] | None = None
+    ) -> tuple[float, float, float, str | None, str | None]:
+        """DOF ``d`` of :meth:`target` ``ahead`` [s] after the setpoint (there is one): position, velocity,
+        acceleration [m, m/s, m/s² or rad, …] and the names of the face that clipped the position and the
+        velocity (None: none), in Python floats (the rendezvous search calls it per DOF and horizon);
+        ``position``: :meth:`_target_position`'s answer when the caller has it already."""
+        p, face, rest = self._target_position(d, ahead) if position is None else position
+        _, vel, acc0, jk, _, _, lo, hi, vl, al, jl = self._terms[d]
         # the limits may have changed since the setpoint was taken (a new box): a reachable target again
-        vl, al = self._v_lim, self._a_lim
-        v = np.clip(sp.velocity + sp.acceleration * ahead + j * ahead**2 / 2, -vl, vl)
-        room = np.maximum(vl * (1 - 1e-6) - np.abs(v), 0.0)
-        acc = np.clip(sp.acceleration + j * ahead, -al, al)
-        acc = np.sign(acc) * np.minimum(np.abs(acc), np.sqrt(2 * self._j_lim * room))
-        if self._descent is not None:
-            v[1] = max(v[1], -self._descent)
-            self._cap_descent_acceleration(v, acc)
-        for d, (k, (name_min, name_max)) in enumerate(zip(TRACK_DOFS, self._names, strict=True)):
-            if not self.tracked[d]:
-                continue
-            if p_req[d] >= hi[d]:  # the demand is beyond the face: at the face, at rest
-                p[d], v[d], acc[d] = hi[d], 0.0, 0.0
-                flags.setdefault(k, name_max)
-            elif p_req[d] <= lo[d]:
-                p[d], v[d], acc[d] = lo[d], 0.0, 0.0
-                flags.setdefault(k, name_min)
-            elif p[d] >= hi[d]:
-                p[d] = hi[d]
-                flags.setdefault(k, name_max)
-            elif p[d] <= lo[d]:
-                p[d] = lo[d]
-                flags.setdefault(k, name_min)
-            a, j = self._a_lim[d], self._j_lim[d]
-            up, down = _braking_speed(hi[d] - p[d], a, j), _braking_speed(p[d] - lo[d], a, j)
-            # the stop from (v, a) pushing outwards ends no further than one from |v| + a²/(2j) at a = 0
-            if acc[d] > 0 and max(v[d], 0.0) + acc[d] ** 2 / (2 * j) > up:
-                acc[d] = 0.0
-            elif acc[d] < 0 and max(-v[d], 0.0) + acc[d] ** 2 / (2 * j) > down:
-                acc[d] = 0.0
-            if v[d] > up:
-                v[d] = up
-                flags[f"v{k}"] = name_max
-            elif v[d] < -down:
-                v[d] = -down
-                flags[f"v{k}"] = name_min
-        return p, v, acc, flags
+        v = min(max(vel + acc0 * ahead + jk * ahead**2 / 2, -vl), vl)
+        acc = min(max(acc0 + jk * ahead, -al), al)
+        if acc != 0.0:
+            acc = math.copysign(min(abs(acc), math.sqrt(2 * jl * max(vl * (1 - 1e-6) - abs(v), 0.0))), acc)
+        if d == 1 and self._descent is not None:  # as _cap_descent_acceleration
+            v = max(v, -self._descent)
+            if acc < 0:
+                acc = max(acc, -math.sqrt(2 * jl * max(self._descent * (1 - 1e-6) + v, 0.0)))
+        if not self.tracked[d]:
+            return p, v, acc, None, None
+        name_min, name_max = self._names[d]
+        vface = None
+        if rest:
+            v, acc = 0.0, 0.0
+        # the speeds a stop fits from (≥ 0), each only where it can bind (v or the acceleration towards it)
+        up = _braking_speed(hi - p, al, jl) if acc > 0 or v > 0 else math.inf
+        down = _braking_speed(p - lo, al, jl) if acc < 0 or v < 0 else math.inf
+        # the stop from (v, a) pushing outwards ends no further than one from |v| + a²/(2j) at a = 0
+        if acc > 0 and max(v, 0.0) + acc**2 / (2 * jl) > up:
+            acc = 0.0
+        elif acc < 0 and max(-v, 0.0) + acc**2 / (2 * jl) > down:
+            acc = 0.0
+        if v > up:
+            v, vface = up, name_max
+        elif v < -down:
+            v, vface = -down, name_min
+        return p, v, acc, face, vface
 
     def step(self, now_s: float | None = None) -> TrackOutput:
         """Advance one control cycle (dt = 1/rate) to time ``now_s`` (default: t + dt)."""
         now = self.t + self.dt if now_s is None else _number(now_s, "now_s")
+        self._rv_memo.clear()  # the rendezvous hold for this step only
         if not self._stale and not self._stopping and now - self._last_s > self.ttl_s:
             self._stale = True
         to_rest = self._stale or self._stopping
@@ -731,6 +826,8 @@ class TrackFollower:
         self.refreshes += 1
         lim = self.limits
         self._v_lim, self._a_lim, self._j_lim = lim.velocity, lim.acceleration, lim.jerk
+        if self._sp is not None:
+            self._target_terms()
 
     def _rest_limits(self) -> PoseLimits:
         """The limits of the stop to rest, chosen at its first cycle as
@@ -776,14 +873,19 @@ class TrackFollower:
             jl = np.where(brake, real.jerk, jl)
         inp = self._in
         inp.per_dof_control_interface = [_VEL if m else _POS for m in vel_mode.tolist()]
-        inp.max_velocity = np.maximum(vl, np.maximum(np.abs(tv), 1e-9)).tolist()
+        vmax = np.maximum(vl, np.maximum(np.abs(tv), 1e-9)).tolist()
+        inp.max_velocity = vmax
+        vmin: list[float] | None = None
         if self._descent is not None:  # the downward z bound (TrackBounds): Ruckig's asymmetric velocity limit
             down = np.maximum(vl, np.maximum(-tv, 1e-9))
             if not vel_mode[1]:
                 down[1] = max(min(down[1], self._descent), -tv[1], 1e-9)
-            inp.min_velocity = (-down).tolist()
-        inp.max_acceleration = np.maximum(al, 1e-9).tolist()
-        inp.max_jerk = np.maximum(jl, 1e-9).tolist()
+            vmin = (-down).tolist()
+            inp.min_velocity = vmin
+        amax = np.maximum(al, 1e-9).tolist()
+        jmax = np.maximum(jl, 1e-9).tolist()
+        inp.max_acceleration = amax
+        inp.max_jerk = jmax
         inp.current_position = st.position.tolist()
         inp.current_velocity = st.velocity.tolist()
         inp.current_acceleration = st.acceleration.tolist()
@@ -799,55 +901,68 @@ class TrackFollower:
         p, v, a = self._traj.at_time(self.dt)  # past its duration: on at the target velocity
         p, v, a = list(p), list(v), list(a)
         if stream:
-            self._rendezvous(inp, vel_mode, brake, p, v, a)
+            for d in np.flatnonzero(self.tracked & ~vel_mode & ~brake).tolist():
+                lim_d = (d, vmax[d], -math.inf if vmin is None else vmin[d], amax[d], jmax[d])
+                memo = self._rv_memo
+                if lim_d in memo:  # a re-advance of this step (_cannot_stop) with the same limits for d
+                    hit = memo[lim_d]
+                else:
+                    hit = memo[lim_d] = self._rendezvous(*lim_d)
+                if hit is not None:
+                    p[d], v[d], a[d] = hit
+                    self.rendezvous += 1
         return MotionState(np.array(p), np.array(v), np.array(a))
 
     def _rendezvous(
-        self,
-        inp: InputParameter,
-        vel_mode: np.ndarray,
-        brake: np.ndarray,
-        p: list[float],
-        v: list[float],
-        a: list[float],
-    ) -> None:
-        """In place (``p``, ``v``, ``a``: the state one cycle ahead by the time-optimal approach of the
-        cycle's target): every tracked DOF in the position interface, not braking, meets the setpoint's
-        own motion (:meth:`target` at a later time: the setpoint extrapolated with its velocity and
-        acceleration) at the earliest of :data:`RENDEZVOUS_CYCLES` it can reach *on time* within the
-        limits (its own Ruckig with that time as the minimum duration), and moves one cycle along that
-        rendezvous. A target that moves is not a point to reach as fast as possible: the time-optimal
-        approach, re-targeted every cycle, arrives early and runs on alone or, a hair behind a target it
-        cannot reach within one cycle, takes a detour of up to a second; on a setpoint stream within the
-        limits it lagged 3–6 cycles. The one-cycle rendezvous of a stream within the limits is the
-        stream itself (followed without lag). No rendezvous on time: the time-optimal approach stays."""
+        self, d: int, vmax: float, vmin: float, amax: float, jmax: float
+    ) -> tuple[float, float, float] | None:
+        """DOF ``d`` (tracked, in the position interface, not braking) one cycle along its rendezvous
+        with the setpoint's own motion (position, velocity, acceleration), or None: it meets the
+        setpoint's motion (:meth:`target` at a later time: the setpoint extrapolated with its velocity
+        and acceleration) at the earliest of :data:`RENDEZVOUS_CYCLES` it can reach *on time* within
+        the limits ``vmax``, ``vmin`` (-inf: symmetric), ``amax``, ``jmax`` (its own Ruckig with that
+        time as the minimum duration). A target that moves is not a point to reach as fast as
+        possible: the time-optimal approach, re-targeted every cycle, arrives early and runs on alone
+        or, a hair behind a target it cannot reach within one cycle, takes a detour of up to a second;
+        on a setpoint stream within the limits it lagged 3–6 cycles. The one-cycle rendezvous of a
+        stream within the limits is the stream itself (followed without lag). None (no rendezvous on
+        time): the caller keeps the time-optimal approach. A horizon whose target no motion with
+        |jerk| ≤ ``jmax`` reaches (:func:`_jerk_reachable`, exact) is not tried."""
+        st, sp = self.state, self._sp
+        if sp is None:
+            return None
+        p0, v0, a0 = float(st.position[d]), float(st.velocity[d]), float(st.acceleration[d])
         one = self._in1
-        todo = np.flatnonzero(self.tracked & ~vel_mode & ~brake).tolist()
+        one.max_acceleration = [amax]
+        one.max_jerk = [jmax]
+        one.current_position = [p0]
+        one.current_velocity = [v0]
+        one.current_acceleration = [a0]
         for n in RENDEZVOUS_CYCLES:
-            if not todo:
-                return
             horizon = n * self.dt
-            pt, vt, at, _ = self.target(self.t + horizon)  # once per horizon for every DOF
+            ahead = max(self.t + horizon - sp.t, 0.0)
+            position = self._target_position(d, ahead)
+            if not _jerk_reaches_position(p0, v0, a0, position[0], jmax, horizon):  # the cheap part first
+                self.rendezvous_skips += 1
+                continue
+            pt, vt, at, _, _ = self._target_dof(d, ahead, position)
+            if not _jerk_reachable(p0, v0, a0, pt, vt, at, jmax, horizon):
+                self.rendezvous_skips += 1
+                continue
             one.minimum_duration = horizon
-            for d in list(todo):
-                one.max_velocity = [max(inp.max_velocity[d], abs(float(vt[d])))]
-                one.max_acceleration = [inp.max_acceleration[d]]
-                one.max_jerk = [inp.max_jerk[d]]
-                if self._descent is not None:
-                    one.min_velocity = [min(inp.min_velocity[d], float(vt[d]))]
-                one.current_position = [inp.current_position[d]]
-                one.current_velocity = [inp.current_velocity[d]]
-                one.current_acceleration = [inp.current_acceleration[d]]
-                one.target_position, one.target_velocity = [float(pt[d])], [float(vt[d])]
-                one.target_acceleration = [float(at[d])]
-                try:
-                    res = self._ruckig1.calculate(one, self._traj1)
-                except RuckigError:
-                    continue
-                if res in _OK and self._traj1.duration <= horizon * (1 + 1e-9):
-                    (p[d],), (v[d],), (a[d],) = self._traj1.at_time(self.dt)
-                    self.rendezvous += 1
-                    todo.remove(d)
+            one.max_velocity = [max(vmax, abs(vt))]
+            if vmin != -math.inf:
+                one.min_velocity = [min(vmin, vt)]
+            one.target_position, one.target_velocity, one.target_acceleration = [pt], [vt], [at]
+            self.rendezvous_tries += 1
+            try:
+                res = self._ruckig1.calculate(one, self._traj1)
+            except RuckigError:
+                continue
+            if res in _OK and self._traj1.duration <= horizon * (1 + 1e-9):
+                (p,), (v,), (a,) = self._traj1.at_time(self.dt)
+                return p, v, a
+        return None
 
     def _cannot_stop(self, state: MotionState, limits: PoseLimits) -> tuple[np.ndarray, np.ndarray]:
         """Per DOF: the shortest stop from ``state`` passes the upper / lower face (beyond the current

@@ -560,3 +560,97 @@ def test_setpoint_jerk_is_validated_and_clipped(tp):
         f.set_setpoint({"x": 0.0}, jerk={"x": 1e3})
     sp = f.set_setpoint({"x": 0.0}, jerk={"x": 50.0})
     assert sp.jerk[0] == pytest.approx(f.limits.jerk[0])
+
+
+# -- the rendezvous search's exact shortcut: a horizon no jerk-limited motion reaches is not tried -------------
+def _ruckig_meets(p0, v0, a0, pt, vt, at, vmax, amax, jmax, horizon):
+    """Brute force, as the follower's search: one-DOF Ruckig with the horizon as its minimum duration."""
+    from ruckig import InputParameter, Result, Ruckig, RuckigError, Trajectory
+
+    inp = InputParameter(1)
+    inp.current_position, inp.current_velocity, inp.current_acceleration = [p0], [v0], [a0]
+    inp.target_position, inp.target_velocity, inp.target_acceleration = [pt], [vt], [at]
+    inp.max_velocity, inp.max_acceleration, inp.max_jerk = [max(vmax, abs(vt))], [amax], [jmax]
+    inp.minimum_duration = horizon
+    tr = Trajectory(1)
+    try:
+        res = Ruckig(1).calculate(inp, tr)
+    except RuckigError:
+        return False
+    return res in (Result.Working, Result.Finished) and tr.duration <= horizon * (1 + 1e-9)
+
+
+def test_the_jerk_bound_rules_out_only_horizons_where_ruckig_finds_no_rendezvous(tp):
+    """Brute force: random states and targets within x's limits (and targets on a constant-jerk motion
+    from the state, near the bound's edge): wherever ``_jerk_reachable`` skips a horizon, Ruckig finds no
+    rendezvous on time there; and a target reached by full jerk in exactly the horizon is not skipped."""
+    from planner.trajectory.track import RENDEZVOUS_CYCLES, _jerk_reachable, _jerk_reaches_position
+
+    f = TrackFollower(tp, MotionState.at_rest(centre(tp)), ("x",), 0.3)
+    vmax, amax, jmax = (float(x[0]) for x in (f.limits.velocity, f.limits.acceleration, f.limits.jerk))
+    rng = np.random.default_rng(15)
+    skipped = met = 0
+    for _ in range(400):
+        p0, v0, a0 = 0.0, rng.uniform(-0.8, 0.8) * vmax, rng.uniform(-0.8, 0.8) * amax
+        for n in RENDEZVOUS_CYCLES:
+            h = n * f.dt
+            # the state after a constant jerk s·u·J for the horizon (reachable for u ≤ 1 within the other
+            # limits), half of them with each of p, v, a scaled apart by up to ±10 % (around the bound's edge)
+            s = rng.choice([-1.0, 1.0]) * rng.uniform(0.0, 1.1)
+            u = rng.uniform(0.9, 1.1, 3) if rng.random() < 0.5 else np.ones(3)
+            at = a0 + s * jmax * h * u[0]
+            vt = v0 + a0 * h + s * jmax * h**2 / 2 * u[1]
+            pt = p0 + v0 * h + a0 * h**2 / 2 + s * jmax * h**3 / 6 * u[2]
+            meets = _ruckig_meets(p0, v0, a0, pt, vt, at, vmax, amax, jmax, h)
+            if not _jerk_reaches_position(p0, v0, a0, pt, jmax, h):
+                assert not _jerk_reachable(p0, v0, a0, pt, vt, at, jmax, h)  # the cheap part is a part of it
+            if not _jerk_reachable(p0, v0, a0, pt, vt, at, jmax, h):
+                skipped += 1
+                assert not meets, (p0, v0, a0, pt, vt, at, h)
+            met += meets
+        # full jerk for exactly the horizon: reachable, never skipped
+        h = RENDEZVOUS_CYCLES[0] * f.dt
+        edge = (v0 * h + a0 * h**2 / 2 + jmax * h**3 / 6, v0 + a0 * h + jmax * h**2 / 2, a0 + jmax * h)
+        assert _jerk_reachable(p0, v0, a0, *edge, jmax, h)
+    assert skipped > 200 and met > 200  # both sides of the bound were exercised
+
+
+def test_the_skipped_search_moves_the_follower_exactly_as_the_full_search(tp, monkeypatch):
+    """The bench's 100 Hz stream over most of the workspace (4 DOFs, with jumps beyond the faces), in spells
+    with 1 mm noise and clean (with its acceleration and jerk, where the rendezvous meets it):
+    the follower with the exact jerk bound and one that tries every horizon with Ruckig produce the
+    same states bit for bit, with fewer Ruckig calculations."""
+    from planner.trajectory import track
+
+    def follow(cycles):
+        rng = np.random.default_rng(1)
+        c, half = centre(tp), (tp.hi - tp.lo) / 2
+        amp, w = 0.8 * half, 2 * math.pi * np.array([0.05, 0.03, 0.07, 0.04])
+        f = TrackFollower(tp, MotionState.at_rest(c), DOFS, 0.1)
+        states, noisy = [], False
+        for _ in range(cycles):
+            for i in (1, 2):
+                ts = f.t + f.dt * i / 2
+                p = c + amp * np.sin(w * ts) + (rng.normal(0, 1e-3, 4) if noisy else 0.0)
+                if rng.random() < 0.002:
+                    p = p + rng.choice([-1, 1], 4) * half
+                v, a, j = amp * w * np.cos(w * ts), -amp * w**2 * np.sin(w * ts), -amp * w**3 * np.cos(w * ts)
+                f.set_setpoint(
+                    *(dict(zip(DOFS, x.tolist(), strict=True)) for x in (p, v)),
+                    ts,
+                    acceleration=dict(zip(DOFS, a.tolist(), strict=True)),
+                    jerk=dict(zip(DOFS, j.tolist(), strict=True)),
+                )
+            noisy = not noisy if rng.random() < 0.02 else noisy  # spells of noise and of a clean stream
+            st = f.step().state
+            states.append(np.concatenate([st.position, st.velocity, st.acceleration]))
+        return np.array(states), f
+
+    fast, f1 = follow(300)
+    monkeypatch.setattr(track, "_jerk_reachable", lambda *a: True)
+    monkeypatch.setattr(track, "_jerk_reaches_position", lambda *a: True)
+    full, f2 = follow(300)
+    assert np.array_equal(fast, full)
+    assert f1.rendezvous == f2.rendezvous > 0
+    assert f1.rendezvous_skips > 0 and f2.rendezvous_skips == 0
+    assert f1.rendezvous_tries < f2.rendezvous_tries

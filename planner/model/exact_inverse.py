@@ -177,18 +177,8 @@ class ExactInverse:
             raise ModelInputError(f"targets and velocities must both be (N, 4), got {p.shape} and {v.shape}")
         if self._batch is None:
             self._batch = MappedFunction(_build(self.model, rate=True), compiled=True)
-        finite = np.isfinite(p).all(axis=1)
         q, qd, checks, y_yaw = self._batch(p.T, v.T)
-        with np.errstate(invalid="ignore"):
-            ok = (
-                finite
-                & (np.abs(p[:, 2]) < math.pi / 2)
-                & (np.abs(p[:, 3]) < math.pi / 2)
-                & (np.abs(checks[0]) <= _TOL_M)
-                & (np.abs(checks[1]) <= _TOL_M)
-                & (np.abs(checks[2]) <= 1.0)
-                & np.isfinite(q).all(axis=0)
-            )
+        ok = _solved(p, q, checks)
         return InverseBatch(q.T, qd.T, y_yaw[0].copy(), y_yaw[1].copy(), ok)
 
     def jacobians(self, targets: ArrayLike) -> np.ndarray:
@@ -201,16 +191,7 @@ class ExactInverse:
         if self._jac_batch is None:
             self._jac_batch = MappedFunction(self.function, compiled=True)
         q, jac, checks, _ = self._jac_batch(p.T)
-        with np.errstate(invalid="ignore"):
-            ok = (
-                np.isfinite(p).all(axis=1)
-                & (np.abs(p[:, 2]) < math.pi / 2)
-                & (np.abs(p[:, 3]) < math.pi / 2)
-                & (np.abs(checks[0]) <= _TOL_M)
-                & (np.abs(checks[1]) <= _TOL_M)
-                & (np.abs(checks[2]) <= 1.0)
-                & np.isfinite(q).all(axis=0)
-            )
+        ok = _solved(p, q, checks)
         out = jac.reshape(5, len(p), 4).transpose(1, 0, 2).copy()  # column block k is target k's
         for k in np.flatnonzero(~ok).tolist():  # raises as solve does
             out[k] = self.solve(p[k])[1]
@@ -218,3 +199,18 @@ class ExactInverse:
 
     def actuators(self, x: float, z: float, roll: float, pitch: float) -> Actuators:
         return Actuators.from_array(self(x, z, roll, pitch))
+
+
+def _solved(p: np.ndarray, q: np.ndarray, checks: np.ndarray) -> np.ndarray:
+    """Per target (rows of ``p``, N×4): finite, roll and pitch within ±π/2, the mapped function's
+    closure checks within tolerance and finite actuators (columns of ``q``)."""
+    with np.errstate(invalid="ignore"):
+        return (
+            np.isfinite(p).all(axis=1)
+            & (np.abs(p[:, 2]) < math.pi / 2)
+            & (np.abs(p[:, 3]) < math.pi / 2)
+            & (np.abs(checks[0]) <= _TOL_M)
+            & (np.abs(checks[1]) <= _TOL_M)
+            & (np.abs(checks[2]) <= 1.0)
+            & np.isfinite(q).all(axis=0)
+        )

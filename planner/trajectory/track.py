@@ -492,23 +492,7 @@ class TrackFollower:
         jk = np.zeros(4)
         prev = self._sp
         if jerk_given is not None:
-            if not isinstance(jerk_given, Mapping):
-                raise TrackInputError(f"setpoint.jerk must be a mapping with any of {', '.join(self.dofs)}")
-            bad = set(jerk_given) - set(self.dofs)
-            if bad:
-                raise TrackInputError(
-                    f"setpoint.jerk: field(s) {', '.join(sorted(map(str, bad)))} not tracked in this session; "
-                    f"allowed: {', '.join(self.dofs)}"
-                )
-            for d, k in enumerate(TRACK_DOFS):
-                if k in jerk_given:
-                    w = _number(jerk_given[k], f"setpoint.jerk.{k}")
-                    if abs(w) > PLAUSIBLE_JERK:
-                        raise TrackInputError(
-                            f"setpoint.jerk.{k} = {w:g} {_UNITS[k]}/s³ is not a plausible SI value: allowed "
-                            f"±{PLAUSIBLE_JERK:g} {_UNITS[k]}/s³ (beyond ±{self._j_lim[d]:.4f} it is clipped)"
-                        )
-                    jk[d] = w
+            jk = self._derivative_values(jerk_given, "jerk", "/s³", PLAUSIBLE_JERK, self._j_lim)
         elif acceleration is not None and prev is not None and self._last_a_given and 0 < now - prev.t <= self.ttl_s:
             jk = (acc - prev.acceleration) / (now - prev.t)
         jk = np.where(self.tracked, np.clip(jk, -self._j_lim, self._j_lim), 0.0)
@@ -530,28 +514,36 @@ class TrackFollower:
     ) -> np.ndarray:
         acc = np.zeros(4)
         if acceleration is not None:
-            if not isinstance(acceleration, Mapping):
-                raise TrackInputError(f"setpoint.acceleration must be a mapping with any of {', '.join(self.dofs)}")
-            bad = set(acceleration) - set(self.dofs)
-            if bad:
-                raise TrackInputError(
-                    f"setpoint.acceleration: field(s) {', '.join(sorted(map(str, bad)))} not tracked in this "
-                    f"session; allowed: {', '.join(self.dofs)}"
-                )
-            for d, k in enumerate(TRACK_DOFS):
-                if k in acceleration:
-                    w = _number(acceleration[k], f"setpoint.acceleration.{k}")
-                    if abs(w) > PLAUSIBLE_ACCELERATION:
-                        raise TrackInputError(
-                            f"setpoint.acceleration.{k} = {w:g} {_UNITS[k]}/s² is not a plausible SI value: allowed "
-                            f"±{PLAUSIBLE_ACCELERATION:g} {_UNITS[k]}/s² (beyond ±{self._a_lim[d]:.4f} it is clipped)"
-                        )
-                    acc[d] = w
-            return acc
+            return self._derivative_values(acceleration, "acceleration", "/s²", PLAUSIBLE_ACCELERATION, self._a_lim)
         prev = self._sp
         if velocity is not None and self._last_v is not None and prev is not None and 0 < now - prev.t <= self.ttl_s:
             acc = (v_req - self._last_v) / (now - prev.t)
         return acc
+
+    def _derivative_values(
+        self, given: Mapping[str, float], name: str, per: str, plausible: float, limit: np.ndarray
+    ) -> np.ndarray:
+        """A setpoint's ``acceleration`` or ``jerk`` mapping as four values (missing DOFs 0): only tracked
+        DOFs, finite numbers within ±``plausible`` (beyond ``limit`` they are clipped later)."""
+        if not isinstance(given, Mapping):
+            raise TrackInputError(f"setpoint.{name} must be a mapping with any of {', '.join(self.dofs)}")
+        bad = set(given) - set(self.dofs)
+        if bad:
+            raise TrackInputError(
+                f"setpoint.{name}: field(s) {', '.join(sorted(map(str, bad)))} not tracked in this "
+                f"session; allowed: {', '.join(self.dofs)}"
+            )
+        out = np.zeros(4)
+        for d, k in enumerate(TRACK_DOFS):
+            if k in given:
+                w = _number(given[k], f"setpoint.{name}.{k}")
+                if abs(w) > plausible:
+                    raise TrackInputError(
+                        f"setpoint.{name}.{k} = {w:g} {_UNITS[k]}{per} is not a plausible SI value: allowed "
+                        f"±{plausible:g} {_UNITS[k]}{per} (beyond ±{limit[d]:.4f} it is clipped)"
+                    )
+                out[d] = w
+        return out
 
     def _validate(
         self, pose: Mapping[str, float], velocity: Mapping[str, float] | None

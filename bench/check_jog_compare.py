@@ -42,12 +42,11 @@ def _bits(v):
 
 
 def worker(out: str, states: int) -> None:
+    import planner
     from planner.limits.guard import Guard
     from planner.limits.tractor import load_tractor_profile
     from planner.model.kinematics import HitchModel
     from planner.trajectory import MotionState, TrajectoryPlanner
-
-    import planner
 
     print(f"  worker: planner from {Path(planner.__file__).parent.parent}", file=sys.stderr)
     model = HitchModel.from_profile()
@@ -102,17 +101,28 @@ def main() -> None:
                 env = dict(os.environ, PYTHONPATH=str(tree))
                 load = os.getloadavg()[0]
                 subprocess.run(
-                    [sys.executable, str(HERE / "bench/check_jog_compare.py"), "--old", ".", "--worker", out,
-                     "--states", str(args.states)],
-                    check=True, env=env, cwd=str(tree),
+                    [
+                        sys.executable,
+                        str(HERE / "bench/check_jog_compare.py"),
+                        "--old",
+                        ".",
+                        "--worker",
+                        out,
+                        "--states",
+                        str(args.states),
+                    ],
+                    check=True,
+                    env=env,
+                    cwd=str(tree),
                 )
                 with open(out, "rb") as f:
                     outs[name] = pickle.load(f)
                 d = outs[name]
+                c, w, st = d["cpu"], d["wall"], d["cpu_stability"]
                 print(
-                    f"round {rnd + 1} {name}: load {load:.2f}; check_jog CPU p50 / p99 {pct(d['cpu'], 50):.0f} / "
-                    f"{pct(d['cpu'], 99):.0f} us, wall p50 / p99 {pct(d['wall'], 50):.0f} / {pct(d['wall'], 99):.0f} us; "
-                    f"stability_at CPU p50 / p99 {pct(d['cpu_stability'], 50):.0f} / {pct(d['cpu_stability'], 99):.0f} us"
+                    f"round {rnd + 1} {name}: load {load:.2f}; check_jog CPU p50 / p99 {pct(c, 50):.0f} / "
+                    f"{pct(c, 99):.0f} us, wall p50 / p99 {pct(w, 50):.0f} / {pct(w, 99):.0f} us; "
+                    f"stability_at CPU p50 / p99 {pct(st, 50):.0f} / {pct(st, 99):.0f} us"
                 )
             a, b = outs["old"]["results"], outs["new"]["results"]
             diff = sum(x != y for x, y in zip(a, b, strict=True))

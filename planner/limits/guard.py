@@ -163,12 +163,23 @@ class Guard:
     def stability_at(self, q, points=None) -> StabilityReport:
         """Stability of tractor + implement with the hitch at actuators ``q`` (``points``: its FK points)."""
         P = points if points is not None else self.model.points(np.asarray(q, float))
-        xi = P["L"] - P["R"]
-        xi /= np.linalg.norm(xi)
-        zi = P["U"] - P["T"]
-        zi /= np.linalg.norm(zi)
-        yi = _cross3(zi, xi)  # np.cross's products and differences, without its overhead
-        R = np.column_stack([xi, yi, zi])
+        # x_i = (L − R)/|L − R|, z_i = (U − T)/|U − T|, y_i = z_i × x_i in Python floats: numpy's
+        # differences, norm (sqrt of the left-to-right sum of squares) and quotients, bit for bit
+        (l0, l1, l2), (r0, r1, r2) = P["L"].tolist(), P["R"].tolist()
+        (u0, u1, u2), (t0, t1, t2) = P["U"].tolist(), P["T"].tolist()
+        x0, x1, x2 = l0 - r0, l1 - r1, l2 - r2
+        nx = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+        z0, z1, z2 = u0 - t0, u1 - t1, u2 - t2
+        nz = math.sqrt(z0 * z0 + z1 * z1 + z2 * z2)
+        if nx > 0.0 and nz > 0.0:
+            x0, x1, x2 = x0 / nx, x1 / nx, x2 / nx
+            z0, z1, z2 = z0 / nz, z1 / nz, z2 / nz
+            y0, y1, y2 = z1 * x2 - z2 * x1, z2 * x0 - z0 * x2, z0 * x1 - z1 * x0  # _cross3(z_i, x_i)
+            R = np.array([[x0, y0, z0], [x1, y1, z1], [x2, y2, z2]])
+        else:  # degenerate (or NaN) points: numpy's inf / nan and the evaluation's error, as before
+            xi = (P["L"] - P["R"]) / np.linalg.norm(P["L"] - P["R"])
+            zi = (P["U"] - P["T"]) / np.linalg.norm(P["U"] - P["T"])
+            R = np.column_stack([xi, _cross3(zi, xi), zi])
         return evaluate_stability_scalar(  # evaluate_stability's report bit for bit, ~5× cheaper
             self.tractor,
             self.implement,

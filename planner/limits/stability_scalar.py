@@ -91,6 +91,7 @@ def _slope_floats(tractor: Tractor, slope_roll: float, slope_pitch: float) -> tu
 
 
 _EYE = np.eye(3)
+_DEFAULT_THRESHOLDS = StabilityThresholds()
 
 
 def _vector3_checked(value) -> np.ndarray:
@@ -134,7 +135,7 @@ def evaluate_stability_scalar(
     slope_roll: float,
     slope_pitch: float,
     *,
-    thresholds: StabilityThresholds = StabilityThresholds(),
+    thresholds: StabilityThresholds = _DEFAULT_THRESHOLDS,
     front_ballast: float = 0.0,
 ) -> StabilityReport:
     """:func:`~planner.limits.stability.evaluate_stability` (same arguments: ``T`` (3,) [m],
@@ -268,4 +269,3 @@ def _energy(m: float, p: list[float], up: list[float], edges: tuple) -> EnergyMa
         sign = 1.0 if sr > 0 else -1.0 if sr < 0 else 0.0 if sr == 0 else math.nan
         out.append(sign * m * STANDARD_GRAVITY * max(0.0, rise))
     return EnergyMargins((out[0], out[1], out[2]))
-

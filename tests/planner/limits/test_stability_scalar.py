@@ -99,3 +99,41 @@ def test_same_errors(tractor, kwargs):
             )
         messages.append(str(err.value))
     assert messages[0] == messages[1]
+
+
+def test_guard_stability_at_equals_the_reference_frame():
+    """Guard.stability_at (the frame x_i, y_i, z_i and the stability in floats) against the numpy frame and
+    evaluate_stability, bit for bit, at random reachable actuators, two slopes, with and without implement."""
+    from planner.limits.guard import Guard
+    from planner.limits.stability import _cross3
+    from planner.model.kinematics import HitchModel
+    from planner.trajectory import TrajectoryPlanner
+
+    tp = TrajectoryPlanner(HitchModel.from_profile())
+    rng = np.random.default_rng(7)
+    harrow = load_tractor_profile().implement("cat2-power-harrow-1500")
+    compared = 0
+    for implement, slope in ((harrow, (0.1, 0.0)), (harrow, (-0.3, 0.25)), (None, (0.2, -0.1))):
+        guard = Guard(tp, implement=implement)
+        guard.set_slope(*slope)
+        for _ in range(150):
+            q = tp.inverse(*(tp.lo + rng.random(4) * (tp.hi - tp.lo)))
+            P = tp.model.forward(q).points
+            xi = P["L"] - P["R"]
+            xi /= np.linalg.norm(xi)
+            zi = P["U"] - P["T"]
+            zi /= np.linalg.norm(zi)
+            R = np.column_stack([xi, _cross3(zi, xi), zi])
+            ref = evaluate_stability(
+                guard.tractor,
+                implement,
+                P["T"],
+                R,
+                *slope,
+                thresholds=guard.thresholds,
+                front_ballast=guard.settings.front_ballast,
+            )
+            assert _bits(guard.stability_at(q)) == _bits(ref)
+            assert _bits(guard.stability_at(q, P)) == _bits(ref)
+            compared += 1
+    assert compared == 450

@@ -63,7 +63,11 @@ def worker(out: str, states: int) -> None:
         p = tp.lo + rng.random(4) * (tp.hi - tp.lo)
         rates = rng.normal(0, 0.08, 4) * (rng.random(4) < 0.8)
         state = MotionState.at_rest(p)
-        g.check_jog(state, rates)  # warm (the inverse's cache of the last pose is part of the product path)
+        try:
+            g.check_jog(state, rates)  # warm, as a controller's repeated checks are
+        except Exception:  # noqa: BLE001 - reported by the timed call below
+            pass
+        res: tuple
         c0, w0 = time.thread_time(), time.perf_counter()
         try:
             allowed, dec = g.check_jog(state, rates)

@@ -137,3 +137,23 @@ def test_guard_stability_at_equals_the_reference_frame():
             assert _bits(guard.stability_at(q, P)) == _bits(ref)
             compared += 1
     assert compared == 450
+
+
+def test_model_points_equal_forward_points():
+    """HitchModel.points(q) is forward(q).points bit for bit, and refuses what forward refuses."""
+    from planner.model.kinematics import HitchModel, KinematicsError
+    from planner.trajectory import TrajectoryPlanner
+
+    tp = TrajectoryPlanner(HitchModel.from_profile())
+    rng = np.random.default_rng(11)
+    for _ in range(50):
+        q = tp.inverse(*(tp.lo + rng.random(4) * (tp.hi - tp.lo)))
+        a, b = tp.model.points(q), tp.model.forward(q).points
+        assert a.keys() == b.keys() and all(a[n].tobytes() == b[n].tobytes() for n in a)
+    q_bad = tp.model.upper * 3.0
+    errors = []
+    for fn in (tp.model.points, tp.model.forward):
+        with pytest.raises(KinematicsError) as err:
+            fn(q_bad)
+        errors.append(str(err.value))
+    assert errors[0] == errors[1]

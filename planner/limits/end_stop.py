@@ -7,6 +7,7 @@ constant-deceleration approach that arrives at zero speed.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,7 +30,40 @@ class EndStopZone:
         return self.velocity * frac
 
     def speed_factor(self, q: np.ndarray, qdot: np.ndarray) -> tuple[float, int | None]:
-        """Largest factor ≤ 1 by which ``qdot`` must be scaled at ``q``, and the actuator that binds."""
+        """Largest factor ≤ 1 by which ``qdot`` must be scaled at ``q``, and the actuator that binds.
+
+        Finite 1-D inputs are evaluated in Python floats (the jog check's path, once per guarded
+        cycle): the same IEEE operations as :meth:`allowed_speed` and the ratio below, bit for bit
+        (``sqrt`` is correctly rounded in both, the first smallest ratio binds as ``argmin`` picks
+        it); anything else (NaN, other shapes) takes the array path.
+        """
+        ql, qdl = np.asarray(q, float).tolist(), np.asarray(qdot, float).tolist()
+        if isinstance(ql, list) and isinstance(qdl, list) and len(ql) == len(qdl) == len(self.lower):
+            if all(map(math.isfinite, ql)) and all(map(math.isfinite, qdl)):
+                res = self._speed_factor_floats(ql, qdl)
+                if res is not None:
+                    return res
+        return self._speed_factor_arrays(np.asarray(q, float), np.asarray(qdot, float))
+
+    def _speed_factor_floats(self, q: list[float], qdot: list[float]) -> tuple[float, int | None] | None:
+        """:meth:`speed_factor` in floats; None where a zone is empty (numpy's x / 0 there)."""
+        lo, hi, vel = self.lower.tolist(), self.upper.tolist(), self.velocity.tolist()
+        zf = self.zone_fraction
+        best, best_i = math.inf, 0
+        for k, (qk, qdk) in enumerate(zip(q, qdot, strict=True)):
+            if not abs(qdk) > 1e-12:
+                continue  # ratio inf
+            dist = hi[k] - qk if qdk > 0 else qk - lo[k]
+            zone = zf * (hi[k] - lo[k])
+            if not zone > 0.0:
+                return None
+            frac = math.sqrt(min(max(dist / zone, 0.0), 1.0))
+            ratio = vel[k] * frac / abs(qdk)
+            if ratio < best:
+                best, best_i = ratio, k
+        return (float(min(1.0, best)), best_i if best < 1.0 else None)
+
+    def _speed_factor_arrays(self, q: np.ndarray, qdot: np.ndarray) -> tuple[float, int | None]:
         allow = self.allowed_speed(q, np.sign(qdot))
         with np.errstate(divide="ignore", invalid="ignore"):
             ratio = np.where(np.abs(qdot) > 1e-12, allow / np.abs(qdot), np.inf)

@@ -234,6 +234,14 @@ class HitchModel:
             lower_span=float(f[6]),
         )
 
+    def points(self, actuators: Actuators | np.ndarray) -> dict[str, np.ndarray]:
+        """The named points (3,) [m] of :meth:`forward` (``forward(q).points``, bit for bit, same
+        checks and errors) without building the rest of its state."""
+        q = self._as_vector(actuators)
+        f, pts, _, checks = self._points(q)
+        self._check(checks[:, 0], f[:, 0], q)
+        return {n: pts[:, i].copy() for i, n in enumerate(POINT_NAMES)}
+
     def pose(self, actuators) -> Pose:
         return self.forward(actuators).pose
 

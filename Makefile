@@ -12,9 +12,9 @@ $(BIN)/hitch-installed: pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[test]'
-	# the kinematics' hot paths compiled to C once per machine (planner.model.compiled; the
+	# the kinematics' hot paths compiled to C once per machine (planner.model.compiled, built by planner.warm_compiled; the
 	# CasADi virtual machine, same values, when no C compiler is found)
-	$(BIN)/python -m planner.model.compiled
+	$(BIN)/python -m planner.warm_compiled
 	touch $@
 
 run: $(BIN)/hitch-installed

@@ -11,7 +11,7 @@ results are those of the virtual machine bit for bit (checked in the tests).
 A library is keyed by the SHA-256 of its C source and the compiler command, built once per
 machine into the cache directory (``$HITCH_CASADI_CACHE``, else ``$XDG_CACHE_HOME`` or
 ``~/.cache`` + ``/hitch-planner/casadi``) and loaded with ``casadi.external``. ``make``
-builds the default profile's libraries at install time (``python -m planner.model.compiled``).
+builds the default profile's libraries at install time (``python -m planner.warm_compiled``).
 
 Falls back to the virtual machine — same values, slower — when ``HITCH_CASADI_COMPILE=0``,
 when no C compiler is found (``$CC``, else ``cc`` / ``gcc``), or when compiling or loading
@@ -122,27 +122,3 @@ def _build(source: str, command: tuple[str, ...], key: str) -> Path:
         subprocess.run([*command, str(c_file), "-o", str(out), "-lm"], check=True, capture_output=True, timeout=300)
         os.replace(out, lib)
     return lib
-
-
-def _warm() -> None:  # pragma: no cover - exercised by `make`
-    """Build the libraries of the default profile's hot paths (the exact inverse and the forward batch)."""
-    import numpy as np
-
-    from planner.model import compiled  # this module as the others import it (not __main__)
-    from planner.model.exact_inverse import ExactInverse
-    from planner.model.kinematics import HitchModel
-    from planner.trajectory.plan import forward_batch
-
-    model = HitchModel.from_profile()
-    inverse = ExactInverse(model)
-    inverse.solve_batch(np.zeros((1, 4)), np.zeros((1, 4)))
-    inverse.jacobians(np.zeros((1, 4)))
-    forward_batch(model)(model.neutral[None, :])
-    cc = compiler()
-    built, failed = len(compiled._LOADED), len(compiled._FAILED)
-    where = f"{built} compiled with {cc} in {cache_dir()}" if cc else "the virtual machine (no C compiler)"
-    print(f"CasADi libraries: {where}" + (f"; {failed} failed (virtual machine)" if failed else ""))
-
-
-if __name__ == "__main__":  # pragma: no cover
-    _warm()

@@ -34,11 +34,13 @@ def _cli(endpoint: str, *args: str) -> subprocess.Popen:
     )
 
 
-def _wait_moving(client: HitchClient, timeout_s: float = 15.0) -> dict:
+def _wait_moving(client: HitchClient, after: int, timeout_s: float = 15.0) -> dict:
+    """The first state of a motion newer than ``after`` (the CLI's, not a leftover of the set-up)."""
     end = time.monotonic() + timeout_s
     while time.monotonic() < end:
         s = client.state(timeout_s=2.0)
-        if s.get("moving"):
+        mid = s.get("motion_id")
+        if s.get("moving") and isinstance(mid, int) and mid > after:
             return s
     raise AssertionError("the hitch never started moving")
 
@@ -52,14 +54,16 @@ def _wait_rest(client: HitchClient, timeout_s: float = 15.0) -> dict:
     raise AssertionError("the hitch never came to rest")
 
 
-def _go_low(client: HitchClient) -> None:
-    """Start each case from z = -0.15 m at rest; a goto refused by a transient link fault (a loaded
-    machine) is retried after acknowledging it, a few times."""
+def _go_low(client: HitchClient) -> int:
+    """Start each case from z = -0.15 m at rest (that motion ended, not just not yet started: its id is
+    returned); a goto refused by a transient link fault (a loaded machine) is retried after
+    acknowledging it, a few times."""
     from bridge.service.client import ServiceError
 
+    reply: dict = {}
     for attempt in range(5):
         try:
-            client.goto({"z": -0.15}, 1.0)
+            reply = client.goto({"z": -0.15}, 1.0)
             break
         except ServiceError:
             if attempt == 4:
@@ -69,7 +73,9 @@ def _go_low(client: HitchClient) -> None:
             except ServiceError:
                 pass
             time.sleep(1.0)
+    client.wait_motion(int(reply["motion_id"]), timeout_s=30.0)
     _wait_rest(client, 20.0)
+    return int(reply["motion_id"])
 
 
 @pytest.fixture(scope="module")
@@ -102,12 +108,12 @@ def test_ctrl_c_on_a_waiting_motion_stops_it(service, argv):
     _svc, ep, _data = service
     with HitchClient([ep], timeout_s=10.0) as c:
         wait_online(c)
-        _go_low(c)
+        low = _go_low(c)
         if argv[0] == "preset":
             c.request("presets/save", {"name": "far", "pose": {"z": 0.3}, "speed_scale": 0.15})
         proc = _cli(ep, *argv, "--wait")
         try:
-            start = _wait_moving(c)
+            start = _wait_moving(c, low)
             time.sleep(0.3)
             proc.send_signal(signal.SIGINT)
             out, err = proc.communicate(timeout=20)
@@ -128,10 +134,10 @@ def test_ctrl_c_with_detach_leaves_the_motion_running(service):
     _svc, ep, _data = service
     with HitchClient([ep], timeout_s=10.0) as c:
         wait_online(c)
-        _go_low(c)
+        low = _go_low(c)
         proc = _cli(ep, "goto", "--to", "z=0.3", "--speed-scale", "0.15", "--wait", "--detach")
         try:
-            moving = _wait_moving(c)
+            moving = _wait_moving(c, low)
             time.sleep(0.3)
             proc.send_signal(signal.SIGINT)
             _out, err = proc.communicate(timeout=20)

@@ -39,13 +39,6 @@ Modes (:attr:`WorkSettings.mode`):
   the ground the tool will meet. Unlike the ground under the tool (fed forward, it only made the
   hitch lag), the ground one hitch lag ahead lets the hitch arrive in time (docs/soil.md). The rate
   bound and its back-calculation act as without the preview.
-  Tracking error (with the measured z as well): the regulator's draft is the measured draft scaled to the
-  depth last demanded, ``D·depth_dem / (ground_z − z_measured)`` (D497's draft is linear in the working
-  depth T, so this is the draft the soil gives at the demanded depth). Without it a hitch that lags the
-  undulation by a few cm reads as a draft error, the regulator deepens (or lifts) against it, and when
-  the hitch arrives the tool overshoots by as much again (on ``chisel``: true depth 8.5 → 19.9 cm for a
-  demand of 12.3 → 16.6 cm, slip 0.136 against the 0.10 limit). Used only while both depths exceed half
-  the shallow limit (a tool nearly out of the soil is an entry or a lift, not a tracking error).
 * ``mixed``: ``z = (1 - blend)·z_position + blend·z_draft`` (blend 0 = position, 1 = draft).
 * ``float``: no down pressure. A position-controlled hitch cannot be force-free, so float means
   here: the hitch carries the implement at the shallowest allowed depth below the ground
@@ -62,8 +55,7 @@ draft regulator itself makes the tool shallower and the depth limits still hold.
 slower loop of that cascade: the excess is that of the slip low-passed with :data:`SLIP_TAU_S`, its
 gains put its crossover at about a fifth of the draft loop's, ``c`` changes by at most
 :data:`CUT_RATE_MAX` per second, and its integral does not grow while the draft regulator already
-sits at the shallow depth limit (anti-windup; with a preview and the measured z that is the limit inset
-by the depth margin, the one the demand is clipped to). Slip follows the draft, so a limiter as fast as the
+sits at the shallow depth limit (anti-windup). Slip follows the draft, so a limiter as fast as the
 draft loop (it was: a P-term on the raw slip and 5 /s) adds its gain and its integrator to the draft
 loop's, and on a hitch that lags the undulation the two cycled (docs/soil.md). In position and
 mixed mode it lifts the setpoint by ``r = K_P·excess⁺ + K_I·∫excess`` within ``[0, depth_max]``
@@ -419,14 +411,7 @@ class WorkController:
             note = self._slip_cut_update(slip, dt, at_shallow, ga is not None)
             limited = self._slip_cut > 0.0
             target *= 1.0 - self._slip_cut
-        dn = float(draft_n)
-        if ga is not None and zm is not None and self._depth_dem is not None:
-            # the draft at the depth last demanded: D497's draft is linear in the depth T, so the share of the
-            # draft that the hitch's tracking error made is taken out (module docstring, "Tracking error")
-            d_true = g - zm
-            if d_true > 0.5 * d_lo and self._depth_dem > 0.5 * d_lo:
-                dn *= self._depth_dem / d_true
-        e = (dn - target) / s.draft_setpoint_n
+        e = (float(draft_n) - target) / s.draft_setpoint_n
         zp = s.sensitivity * KP_DRAFT * d_ref * e
         if ga is not None:
             if zm is not None and self._depth_dem is not None:  # the hitch's tracking error, in depth

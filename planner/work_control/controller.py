@@ -405,8 +405,7 @@ class WorkController:
         target = s.draft_setpoint_n
         limited = False
         if mode == "draft" and s.slip_limit is not None:  # the slip limiter lowers the draft setpoint
-            # the shallow limit on the ground the demand is set against, inset by the depth margin with a preview
-            shallow = (g if ga is None else ga) - d_lo - (self._depth_margin() if ga is not None else 0.0)
+            shallow = (g if ga is None else ga) - d_lo  # the shallow limit on the ground the demand is set against
             at_shallow = self._z_draft is not None and self._z_draft >= shallow - 1e-9
             note = self._slip_cut_update(slip, dt, at_shallow, ga is not None)
             limited = self._slip_cut > 0.0
@@ -417,7 +416,7 @@ class WorkController:
             if zm is not None and self._depth_dem is not None:  # the hitch's tracking error, in depth
                 err = (g - zm) - self._depth_dem
                 self._track_var += (err * err - self._track_var) * min(1.0, dt / DEPTH_TRACK_S)
-            m = self._depth_margin()
+            m = min(DEPTH_MARGIN_MAX * (d_hi - d_lo), DEPTH_MARGIN_SIGMAS * math.sqrt(self._track_var))
             z_draft = self._draft_with_preview(ga, start, e, zp, d_lo + m, d_hi - m, d_ref, dt)
             self._depth_dem = ga - z_draft
             self._z_i = min(z_hi, max(z_lo, z_draft - zp))  # a step without the preview continues from here
@@ -445,12 +444,6 @@ class WorkController:
         zz = (1.0 - s.blend) * z_op + s.blend * z_draft
         zz, limited, note = self._slip_raise_z(zz, slip, dt, z_hi)
         return out(zz, mode, limited, float(draft_n), e)
-
-    def _depth_margin(self) -> float:
-        """The inset of both depth limits with a preview [m]: :data:`DEPTH_MARGIN_SIGMAS` times the RMS of the
-        hitch's tracking error in depth, at most :data:`DEPTH_MARGIN_MAX` of the depth range."""
-        s = self._s
-        return min(DEPTH_MARGIN_MAX * (s.depth_max_m - s.depth_min_m), DEPTH_MARGIN_SIGMAS * math.sqrt(self._track_var))
 
     def _draft_with_preview(
         self, ga: float, start: float, e: float, zp: float, d_lo: float, d_hi: float, d_ref: float, dt: float

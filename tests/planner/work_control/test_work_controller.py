@@ -443,37 +443,3 @@ def test_with_the_measured_z_the_true_depth_stays_within_the_limits_at_a_limit()
         new = simulate_lagging_hitch(ws, give_z=True, **kw)
         assert old[1] < LIMITS["depth_min_m"] - 0.002 or old[2] > LIMITS["depth_max_m"] + 0.002, old[1:3]
         assert LIMITS["depth_min_m"] <= new[1] and new[2] <= LIMITS["depth_max_m"], new[1:3]
-
-
-def test_the_draft_slip_limiter_does_not_wind_up_at_the_inset_shallow_limit():
-    """Draft mode with a preview and the measured z insets the depth limits by two RMS of the hitch's
-    tracking error (here a constant 2 cm: a 4 cm inset, so the shallowest demand is 14 cm). A draft far
-    above any setpoint pins the demand at that inset shallow limit, where cutting the draft setpoint more
-    cannot lift the tool. The limiter's integral must then stop growing (anti-windup). The old code
-    tested for the *un-inset* limit (10 cm), which the demand never reaches once the limits are inset:
-    its cut kept growing at K_I·excess = 0.1 /s to the 0.9 maximum."""
-    ws = WorkSettings(mode="draft", draft_setpoint_n=20_000.0, slip_limit=0.1, **LIMITS)
-    wc = WorkController(ws)
-    rng = np.random.default_rng(0)
-    z_meas = Z_OP
-    cuts, depths = [], []
-    for k in range(int(20.0 / DT)):
-        t = k * DT
-        st = wc.step(
-            t,
-            Z_OP,
-            draft_n=40_000.0 + float(rng.normal(0.0, 50.0)),
-            draft_t=t,
-            slip=0.2,
-            ground_z=G0,
-            ground_ahead_z=G0,
-            z_measured=z_meas,
-        )
-        z_meas = st.z - 0.02  # the hitch sits 2 cm deeper than the demand: a 2 cm tracking error
-        cuts.append(st.slip_cut)
-        depths.append(G0 - st.z)
-    # pinned at the inset shallow limit: 10 cm + 2·2 cm (the tracking error's RMS has settled by 20 s)
-    assert depths[-1] == pytest.approx(LIMITS["depth_min_m"] + 0.04, abs=1e-3)
-    late = cuts[int(10.0 / DT) :]
-    assert max(late) - min(late) < 1e-6, (min(late), max(late))  # the integral is frozen while pinned
-    assert cuts[-1] < 0.5, cuts[-1]  # the old code wound up to MAX_CUT = 0.9

@@ -152,7 +152,7 @@ def verdicts(rows: list[dict]) -> list[tuple[str, str, str]]:
             "met" if draft["draft_sd_n"] <= mixed["draft_sd_n"] <= pos["draft_sd_n"] else "MISSED",
         ),
         (
-            f"slip ≤ {SLIP_LIMIT:g} (the setpoint) in heavy patches, ≥ 3 s into the patch (draft / position + slip limit)",
+            f"slip ≤ {SLIP_LIMIT:g} (the setpoint) in heavy patches, ≥ 3 s in (draft / position + slip limit)",
             f"settled max {slip['slip_max_heavy_settled']:.3f} / {pslip['slip_max_heavy_settled']:.3f}; "
             f"with the entry transients max {slip['slip_max_heavy']:.3f} / {pslip['slip_max_heavy']:.3f}; "
             f"without limiting {draft['slip_max_heavy_settled']:.3f} / {pos['slip_max_heavy_settled']:.3f}",

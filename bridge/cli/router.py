@@ -9,8 +9,6 @@ scouting off: it only listens on the given endpoints. Ctrl-C (SIGINT) or SIGTERM
 from __future__ import annotations
 
 import json
-import signal
-import threading
 
 from bridge.cli.errors import CLIError
 from bridge.service.config import DEFAULT_LISTEN, validate_endpoint
@@ -38,10 +36,10 @@ def router_config(listen: list[str], security: str | None = None):
 def _cmd_router(args) -> int:
     import zenoh
 
+    from bridge.service.signals import StopSignals
+
     listen = args.listen or [DEFAULT_LISTEN]
-    stop = threading.Event()
-    old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
+    with StopSignals() as stop:  # a flag, not an Event: a handler must take no lock (bridge.service.signals)
         try:
             session = zenoh.open(router_config(listen, args.security))
         except zenoh.ZError as exc:
@@ -54,9 +52,6 @@ def _cmd_router(args) -> int:
             session.close()
         print("hitch router: stopped", flush=True)
         return 0
-    finally:
-        for s, h in old.items():
-            signal.signal(s, h)
 
 
 def add_commands(sub) -> None:

@@ -42,7 +42,6 @@ SIGTERM.
 from __future__ import annotations
 
 import json
-import signal
 import sys
 import threading
 import time
@@ -72,6 +71,7 @@ from bridge.service.scheduling import (
     zenoh_thread_ids,
 )
 from bridge.service.security import access_policy_from_file, apply_security, exposure_warnings, read_users
+from bridge.service.signals import StopSignals
 from bridge.service.store import HitchStore
 from bridge.service.wire import to_json_bytes
 from bridge.service.workers import PlanningWorkers, WorkerSpec
@@ -633,30 +633,29 @@ def _quiet(fn: Callable[[], object]) -> None:
 
 def serve(config: ServiceConfig, *, ready: Callable[[HitchService], None] | None = None) -> float:
     """Run a service until SIGINT/SIGTERM; returns the shutdown time [s]."""
-    stop = threading.Event()
-    old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
+    with StopSignals() as stop:
+        return _serve_until(stop, config, ready)
+
+
+def _serve_until(stop: StopSignals, config: ServiceConfig, ready: Callable[[HitchService], None] | None) -> float:
+    """:func:`serve`'s body under its signal handlers (``stop``)."""
+    service = HitchService(config).start()
+    if service.motion is not None:  # the control cycle runs in this process: as the core process does
+        freeze_startup_objects()  # no full-GC pause over the start-up objects
+        why = lock_memory()  # no page of the control path evicted
+        if why is not None:
+            service.warnings.append(f"memory not locked ({why}); pages may be evicted and fault back in")
     try:
-        service = HitchService(config).start()
-        if service.motion is not None:  # the control cycle runs in this process: as the core process does
-            freeze_startup_objects()  # no full-GC pause over the start-up objects
-            why = lock_memory()  # no page of the control path evicted
-            if why is not None:
-                service.warnings.append(f"memory not locked ({why}); pages may be evicted and fault back in")
-        try:
-            if ready is not None:
-                ready(service)
-            while not stop.wait(0.5):
-                core = service.core
-                if core is not None and not core.alive:
-                    raise ServiceStopped(core.ended or "the control core ended")
-                if any(r.error is not None for r in service._runners):
-                    raise ServiceStopped(
-                        "a CAN thread stopped: "
-                        + "; ".join(repr(r.error) for r in service._runners if r.error is not None)
-                    )
-        finally:
-            took = service.close()
-        return took
+        if ready is not None:
+            ready(service)
+        while not stop.wait(0.5):
+            core = service.core
+            if core is not None and not core.alive:
+                raise ServiceStopped(core.ended or "the control core ended")
+            if any(r.error is not None for r in service._runners):
+                raise ServiceStopped(
+                    "a CAN thread stopped: " + "; ".join(repr(r.error) for r in service._runners if r.error is not None)
+                )
     finally:
-        for s, h in old.items():
-            signal.signal(s, h)
+        took = service.close()
+    return took

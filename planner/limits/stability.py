@@ -478,6 +478,19 @@ def evaluate_stability(
     loads = _axle_loads(tractor, load.mass, load.centre_of_mass, g)
     margins = _support_margins(tractor, load.centre_of_mass, g)
     energy = _energy_margins(tractor, load.mass, load.centre_of_mass, g)
+    return _report(tractor, load, thresholds, loads, margins, energy)
+
+
+def _report(
+    tractor: Tractor,
+    load: LoadCase,
+    thresholds: StabilityThresholds,
+    loads: AxleLoads,
+    margins: SupportMargins,
+    energy: EnergyMargins,
+) -> StabilityReport:
+    """The report of one evaluation from its axle loads, margins and energy margins: the ballast
+    advice (from the manuals' c and d) and the violations of the thresholds."""
     c = d = 0.0  # the manuals' c (rear axle -> lower-link balls) and d (balls -> implement CoG) [m]
     t_pt, p_impl = load.tool_point, load.implement_centre_of_mass
     if t_pt is not None and p_impl is not None:  # both are set exactly when there is an implement

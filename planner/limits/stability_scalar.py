@@ -30,16 +30,14 @@ from planner.limits.stability import (
     AxleLoads,
     EnergyMargins,
     LoadCase,
-    Measure,
     StabilityReport,
     StabilityThresholds,
-    StabilityViolation,
     SupportMargins,
     _energy_constants,
+    _report,
     _segment_distance,
     _support_constants,
     gravity_direction,
-    minimum_front_ballast,
 )
 from planner.limits.tractor import (
     STANDARD_GRAVITY,
@@ -179,45 +177,7 @@ def evaluate_stability_scalar(
     margins = _support(tractor, com_l, g, g_arr)
     energy = _energy(m, com_l, up, energy_edges)
 
-    c = d = 0.0  # the manuals' c (rear axle -> lower-link balls) and d (balls -> implement CoG) [m]
-    if t is not None and p_i is not None:
-        c, d = t[1] - tractor.rear_axle[1], p_i[1] - t[1]
-    ballast_advice = minimum_front_ballast(
-        load.implement_mass,
-        c,
-        d,
-        empty_mass=tractor.mass,
-        empty_front_axle_mass=tractor.empty_front_axle_mass,
-        wheelbase=tractor.wheelbase,
-        ballast_arm=tractor.front_ballast_arm,
-        front_fraction=thresholds.front_axle_fraction_hard,
-    )
-    th, w = thresholds, tractor.empty_weight
-    rows: tuple[tuple[Measure, float, float, float], ...] = (
-        ("front_axle_load", loads.front, th.front_axle_fraction_hard * w, th.front_axle_fraction_caution * w),
-        ("ssm", margins.ssm, th.ssm_hard, th.ssm_caution),
-        ("lsm", margins.lsm, th.lsm_hard, th.lsm_caution),
-        ("esm", energy.esm, th.esm_hard, th.esm_caution),
-    )
-    violations = tuple(
-        StabilityViolation(n, v, hard if v < hard else caution, "hard" if v < hard else "caution")
-        for n, v, hard, caution in rows
-        if v < caution
-    )
-    return StabilityReport(
-        axle_loads=loads,
-        front_axle_share=loads.front_share,
-        ssm=margins.ssm,
-        lsm=margins.lsm,
-        esm=energy.esm,
-        min_front_ballast_kg=ballast_advice,
-        ok=not any(v.level == "hard" for v in violations),
-        violations=violations,
-        weakest_edge=margins.weakest_edge,
-        load=load,
-        margins=margins,
-        energy=energy,
-    )
+    return _report(tractor, load, thresholds, loads, margins, energy)  # the same report as evaluate_stability
 
 
 def _support(tractor: Tractor, p: list[float], g: list[float], g_arr: np.ndarray) -> SupportMargins:

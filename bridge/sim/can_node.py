@@ -176,22 +176,28 @@ class EcuNodeCounters:
 
 
 class _Schedule:
-    """A periodic deadline without drift and without catch-up bursts."""
+    """A periodic deadline on the grid k · period of node time: without drift, without catch-up
+    bursts, and in phase with every other schedule of the same period on the node's clock (the
+    machine twin's nodes then send together, and the runners wake once per period, not once per node)."""
 
     def __init__(self, period_s: float) -> None:
         self.period_s = period_s
         self.due_s = math.inf
 
     def anchor(self, now_s: float) -> None:
-        self.due_s = now_s
+        """First due at the first grid point at or after ``now_s`` (∞: never)."""
+        self.due_s = now_s if math.isinf(now_s) else self._grid_at_or_after(now_s)
 
     def fire(self, now_s: float) -> bool:
         if now_s < self.due_s - _EPS_S:
             return False
         self.due_s += self.period_s
-        if self.due_s <= now_s + _EPS_S:  # late by a period or more: re-phase
-            self.due_s = now_s + self.period_s
+        if self.due_s <= now_s + _EPS_S:  # late by a period or more: the next grid point after now
+            self.due_s = self._grid_at_or_after(now_s + 2 * _EPS_S)
         return True
+
+    def _grid_at_or_after(self, t_s: float) -> float:
+        return math.ceil(t_s / self.period_s - _EPS_S / self.period_s) * self.period_s
 
 
 class EcuCanNode:

@@ -241,6 +241,7 @@ class Cylinder:
         self._lag_gain = t * (1.0 - self._alpha)  # ∫ e^(−τ/T) dτ over one step
         self._delay_steps = int(round(params.transport_delay_s / step_s))
         self._line: deque[int] = deque([0] * self._delay_steps)
+        self._quiet_steps = self._delay_steps  # commands in a row inside the dead zone (≥ delay: a quiet line)
         if initial_counts is None:
             x0 = 0.5 * (params.counts_min + params.counts_max)
         else:
@@ -289,28 +290,64 @@ class Cylinder:
         """Hold valve command ``u`` for one internal step and advance the model (exact ZOH)."""
         u = _check_command(self.params.name, u)
         self._u = u
+        p = self.params
+        self._quiet_steps = self._quiet_steps + 1 if -p.dead_zone <= u <= p.dead_zone else 0
         if self._delay_steps:
             self._line.append(u)
             u = self._line.popleft()
-        if self._q == 0.0 and -self.params.dead_zone <= u <= self.params.dead_zone:
+        if self._q == 0.0 and -p.dead_zone <= u <= p.dead_zone:
             return  # at rest with a closed valve: q_cmd = 0 and the lag is settled, so x and q stay exactly
-        qc = valve_flow_counts_per_s(self.params, u, self._gain)
+        qc = valve_flow_counts_per_s(p, u, self._gain)
         dq = self._q - qc
-        if self.params.time_constant_s > 0:
+        if p.time_constant_s > 0:
             x = self._x + qc * self._h + dq * self._lag_gain
             self._q = qc + dq * self._alpha
         else:
             x = self._x + qc * self._h
             self._q = qc
-        p = self.params
         self._x = min(max(x, float(p.counts_min)), float(p.counts_max))
 
     def run(self, u: int, n_steps: int) -> None:
-        """Hold ``u`` for ``n_steps`` internal steps."""
+        """Hold ``u`` for ``n_steps`` internal steps (exactly as ``n_steps`` calls of :meth:`step`).
+
+        At rest — :meth:`settled`, and ``u`` and every command still in the transport delay inside the
+        dead zone — every step leaves position and flow exactly as they are and only moves the delay
+        line: the remaining steps are done at once (a hitch at rest costs no integration).
+        """
         if n_steps < 0:
             raise CylinderError(f"n_steps must be >= 0, got {n_steps}")
-        for _ in range(n_steps):
+        if n_steps == 0:
+            return
+        u = _check_command(self.params.name, u)
+        dz = self.params.dead_zone
+        left = n_steps
+        if -dz <= u <= dz:
+            while left and not (self.settled() and self._quiet_steps >= self._delay_steps):
+                self.step(u)
+                left -= 1
+            if left:
+                self._u = u
+                self._quiet_steps += left
+                for _ in range(min(left, self._delay_steps)):
+                    self._line.popleft()
+                    self._line.append(u)
+            return
+        for _ in range(left):
             self.step(u)
+
+    def settled(self) -> bool:
+        """True when a step with the valve in its dead zone leaves position and flow exactly as they
+        are (a fixed point of :meth:`step`'s floating-point update, not a tolerance): no flow, or a
+        lag so far decayed that it no longer changes in floating point — after a move the flow
+        decays towards 0.0 but stops at the smallest subnormal numbers, which move nothing."""
+        q = self._q
+        if q == 0.0:
+            return True
+        if self.params.time_constant_s <= 0:
+            return False
+        x = self._x + 0.0 * self._h + q * self._lag_gain  # step() with q_cmd = 0.0, operation for operation
+        p = self.params
+        return 0.0 + q * self._alpha == q and min(max(x, float(p.counts_min)), float(p.counts_max)) == self._x
 
     def measure(self) -> int:
         """One 10-bit AD sample [counts]: position + noise, rounded half up, clipped to 0…1023."""

@@ -236,7 +236,7 @@ class CylinderECU:
             raise ECUError(f"time {until_s} s is before the ECU's simulated time {self.time_s} s")
         target = math.floor(until_s / self._h + 1e-6)
         while self._tick < target:
-            self._advance()
+            self._advance(target)
         if self._watchdog.expired(self.time_s):  # the watchdog is a timer, not tied to ticks
             self._valves = [0] * 5
 
@@ -265,15 +265,25 @@ class CylinderECU:
             c.reset()
 
     # -- simulation --------------------------------------------------------------------
-    def _advance(self) -> None:
+    def _advance(self, target: int) -> None:
+        """One internal step; with every valve closed, every step up to the next controller period
+        (or ``target``) at once — nothing but the cylinders changes between controller updates, and a
+        watchdog expiring meanwhile closes valves that are closed already."""
         now = self._tick * self._h
         if self._tick % self._ticks_per_period == 0:
             self._control(now)
         if self._watchdog.expired(now):
             self._valves = [0] * 5
-        for cyl, u in zip(self._cylinders, self._valves, strict=True):
-            cyl.step(u)
-        self._tick += 1
+        if any(self._valves):
+            for cyl, u in zip(self._cylinders, self._valves, strict=True):
+                cyl.step(u)
+            self._tick += 1
+            return
+        period = self._ticks_per_period
+        n = min(target, (self._tick // period + 1) * period) - self._tick
+        for cyl in self._cylinders:
+            cyl.run(0, n)
+        self._tick += n
 
     def _control(self, now: float) -> None:
         self._meas = [c.measure() for c in self._cylinders]

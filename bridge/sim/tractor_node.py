@@ -289,7 +289,9 @@ class TractorTwinNode:
         t = now_s - self._t0
         for s in self._streams:
             if now_s + 1e-9 >= s.due_s:
-                s.due_s = max(s.due_s + s.period_s, now_s)
+                s.due_s += s.period_s
+                if s.due_s <= now_s + 1e-9:  # late by a period or more: the next time on its grid after now
+                    s.due_s += math.ceil((now_s + 2e-9 - s.due_s) / s.period_s) * s.period_s
                 self._send(s, t)
 
     # -- payloads --------------------------------------------------------------------------

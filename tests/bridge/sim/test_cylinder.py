@@ -245,3 +245,33 @@ def test_bad_input_is_rejected_with_a_named_field(params):
         CylinderParams("bad", 0.0, 1.0, 500, 400, 1.0, 1.0, 1.0, 0.1, 0.01, 2, 3)
     with pytest.raises(CylinderError, match="valve_multiplier"):
         CylinderParams("bad", 0.0, 1.0, 0, 400, 1.5, 1.0, 1.0, 0.1, 0.01, 2, 3)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_run_equals_as_many_steps_bit_for_bit(params, name):
+    """``run(u, n)`` (which skips the integration at rest) leaves exactly the state of ``n`` calls of
+    ``step(u)``: position, flow, held command and the transport-delay line, over random command runs
+    that start, stop, stay inside the dead zone and wait out the delay (after a move the lag's flow
+    stops changing in floating point only after some 7 s: the long runs reach true rest)."""
+    p = params[name]
+    rng = np.random.default_rng(11)
+    a, b = Cylinder(p), Cylinder(p)  # mid-stroke
+    choices = (0, 0, 1, -1, p.dead_zone, -p.dead_zone, p.dead_zone + 1, 40, -90)
+    d = a.delay_steps
+    # short pulses from true rest, followed by quiet runs shorter and longer than the transport delay
+    pulses = [(u, n) for k in (1, 3, d - 1) for u, n in ((40, k), (0, d - k - 1), (0, 3), (0, 9000))]
+    runs = pulses + [
+        (int(rng.choice(choices)), int(rng.integers(0, 250)) if rng.random() < 0.5 else 9000)  # 9000: lag settles
+        for _ in range(300)
+    ]
+    rests = 0
+    for u, n in runs:
+        rests += a.settled() and abs(u) <= p.dead_zone and n > 0
+        a.run(u, n)
+        for _ in range(n):
+            b.step(u)
+        assert a.position_counts == b.position_counts
+        assert a.flow_counts_per_s == b.flow_counts_per_s
+        assert a.valve_command == b.valve_command
+        assert list(a._line) == list(b._line)  # noqa: SLF001 — the delay line is the state that matters here
+    assert rests >= 20  # the runs at true rest (the skipped integration) were exercised

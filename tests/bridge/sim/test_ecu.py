@@ -344,6 +344,31 @@ def test_result_does_not_depend_on_how_time_is_stepped(profile):
     assert one[2] == many[2] == 1
 
 
+def test_one_call_per_internal_step_gives_the_same_machine_as_one_call(profile):
+    """The ECU advances closed valves a controller period at a time; stepping it one internal step
+    per call (each call then integrates that single step) must give bit for bit the same pistons,
+    samples, valves and watchdog: a move, a rest with the valves closed, the watchdog expiring
+    between controller ticks, and a second move from rest."""
+
+    def run(per_step):
+        ecu = CylinderECU(profile, rng=9, noise_counts=0.4)
+        ref = ecu.measurement_counts() + np.array([20, 150, -30, 40, -25])
+        trace = []
+        for t_ref, t_end in ((0.0, 0.8), (0.8037, 2.0), (2.0, 2.6)):
+            ecu.set_reference(ref, t_ref)
+            ticks = range(int(round(t_ref / ecu.step_s)) + 1, int(round(t_end / ecu.step_s)) + 1)
+            for t in (k * ecu.step_s for k in ticks) if per_step else (t_end,):
+                ecu.step(t)
+            trace.append((ecu.piston_counts(), ecu.measurement_counts(), ecu.valve_commands()))
+            ref = ref + np.array([0, -60, 10, 0, 5])
+        return trace, ecu.watchdog.trip_count
+
+    (one, trips_one), (many, trips_many) = run(False), run(True)
+    for a, b in zip(one, many, strict=True):
+        assert all(np.array_equal(x, y) for x, y in zip(a, b, strict=True))
+    assert trips_one == trips_many >= 2
+
+
 def test_settled_cylinders_stay_put_under_ad_noise(profile):
     """AD noise of 0.5 count: every cylinder settles on its reference (true piston within one
     count) and, once settled, the hold band keeps the valves shut nearly all the time instead of

@@ -44,7 +44,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import can
 
@@ -360,13 +360,19 @@ def hitch_height_from_ecu(
     if not -3.0 <= sensor_offset_m <= 3.0:
         raise TractorNodeError(f"sensor_offset_m must be a number in [-3, 3] m, got {sensor_offset_m!r}")
     base = float(model.profile.geometry.pivot_height) + float(sensor_offset_m)
+    last: list[Any] = [(None, None)]  # (piston positions, their height), one cell: a hitch at rest costs no kinematics
 
     def height(t: float) -> float | None:
-        counts = ecu.piston_counts()
+        counts = tuple(ecu.piston_counts().tolist())
+        seen, seen_h = last[0]
+        if counts == seen:
+            return seen_h
         try:
             q = [p.counts_to_si(float(c)) for p, c in zip(ecu.params, counts, strict=True)]
-            return base + float(model.pose(q).z)
+            h: float | None = base + float(model.pose(q).z)
         except HitchError:
-            return None
+            h = None
+        last[0] = (counts, h)
+        return h
 
     return height

@@ -101,7 +101,8 @@ class Outbox:
     def flush(self) -> None:
         """Deliver what is queued (synchronous) or wake the outbox thread (threaded)."""
         if self._thread is not None:
-            self._wake.set()
+            if self._items:  # nothing queued: no wake-up (a cycle that queued nothing costs the outbox nothing)
+                self._wake.set()
             return
         self._drain()
 

@@ -365,6 +365,29 @@ def test_hitch_height_from_the_rigs_ecu(channel, model):
         assert g.value == pytest.approx(height(0.0), abs=MM_01)  # flat ground: distance = height
 
 
+def test_hitch_height_follows_the_pistons_after_a_rest(model):
+    """The height function keeps the last piston positions' height (a hitch at rest costs no
+    kinematics): after the pistons move it must be the new pose's height, every time."""
+    from bridge.sim import CylinderECU
+
+    ecu = CylinderECU(model.profile)
+    height = hitch_height_from_ecu(ecu, model)
+    base = model.profile.geometry.pivot_height
+
+    def expected():
+        q = [p.counts_to_si(float(c)) for p, c in zip(ecu.params, ecu.piston_counts(), strict=True)]
+        return base + model.pose(q).z
+
+    first = height(0.0)
+    assert height(0.01) == first == pytest.approx(expected(), abs=1e-12)  # at rest: the same value
+    ref = ecu.measurement_counts() + np.array([60, 0, 0, 0, 0])  # raise the lift
+    for k in range(150):
+        ecu.set_reference(ref, 0.01 * k)
+        ecu.step(0.01 * (k + 1))
+        assert height(0.0) == pytest.approx(expected(), abs=1e-12)
+    assert height(0.0) > first + 0.01
+
+
 def test_runs_in_real_time_under_the_runner(channel):
     tx, rx = channel(), channel()
     node = TractorTwinNode.from_scenario(tx, "levelling", hitch_height_m=lambda t: 0.5)

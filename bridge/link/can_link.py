@@ -122,7 +122,7 @@ class CanLink:
         self._hb_tx = HeartbeatSender(cfg.source_address, period_s=cfg.heartbeat_period_s)
         self._hb_rx = HeartbeatMonitor(cfg.ecu_address, timeout_s=cfg.heartbeat_timeout_s)
         self._lock = threading.RLock()
-        self._counters = LinkCounters()
+        self._counts = dict(LinkCounters().__dict__)  # counted in place per frame; LinkCounters snapshots on read
         self._faults = LinkFaults()
         self._last_malformed = ""
         self._operating_s: float | None = None  # when our claim succeeded
@@ -150,7 +150,8 @@ class CanLink:
     @property
     def counters(self) -> LinkCounters:
         """Frame counters (a snapshot)."""
-        return self._counters
+        with self._lock:
+            return LinkCounters(**self._counts)
 
     @property
     def faults(self) -> LinkFaults:
@@ -183,7 +184,7 @@ class CanLink:
                 self._rx.state,
                 self._faults,
                 self._hb_rx.status(now_s),
-                self._counters,
+                LinkCounters(**self._counts),
                 self._last_malformed,
                 self._rx.last_problem,
             )
@@ -480,11 +481,9 @@ class CanLink:
         return ok
 
     def _bump(self, **deltas: int) -> None:
-        c = self._counters
-        values = dict(c.__dict__)  # as dataclasses.replace, without its per-field introspection (per frame)
+        counts = self._counts
         for k, v in deltas.items():
-            values[k] += v
-        self._counters = type(c)(**values)
+            counts[k] += v
 
     def _describe(self, name: str, q: np.ndarray, feats: np.ndarray) -> str:
         h = self._hard

@@ -286,3 +286,38 @@ def test_own_echo_is_ignored(buses):
     assert node.claim_state is ClaimState.CLAIMED
     c = node.counters
     assert c.frames_rx > 0 and c.malformed == 0 and c.references == 0 and c.ignored == 0
+
+
+def test_the_twins_periodic_frames_share_one_grid_so_its_runner_wakes_once_per_period(buses):
+    """The ECU anchors its 100 Hz measurement and hitch status on the grid k · 10 ms of node time,
+    the tractor twin sends on the same grid from its start: driven as the runner drives them (wake
+    at the earliest deadline, poll, repeat) the twin wakes once per 10 ms period plus its heartbeat,
+    and the ECU's measurements leave at the same instants as the slope sensor's frames. (Before, the
+    ECU anchored at its claim time, off the tractor's grid: two wake-ups per period on both sides.)
+    The driver wakes 0.1–0.9 ms after each deadline, as a real runner does."""
+    from bridge.isobus.messages import PGN_SLOPE_SENSOR_INFORMATION
+    from bridge.link.realtime import SharedBusNodes
+    from bridge.sim.tractor_node import TractorTwinNode
+
+    twin = SharedBusNodes(buses())
+    listener = buses()
+    ecu_node = EcuCanNode(CylinderECU(), twin.port())
+    twin.add(ecu_node).add(TractorTwinNode(twin.port(), ground_speed_m_s=1.5))
+    twin.start(0.0)
+    rng = np.random.default_rng(4)
+    t, wakes, sent_at = 0.0, [], {PGN_POSITION_MEASUREMENT: set(), PGN_SLOPE_SENSOR_INFORMATION: set()}
+    while t < 3.0:
+        twin.poll(t)
+        for f in drain(listener):
+            pgn = decode_id(f.arbitration_id).pgn
+            if pgn in sent_at:
+                sent_at[pgn].add(round(t, 6))
+        if t >= 1.0:
+            wakes.append(t)
+        t = max(twin.next_due_s(), t) + float(rng.uniform(1e-4, 9e-4))  # a runner wakes a little late
+    assert ecu_node.claim_state is ClaimState.CLAIMED
+    per_s = len(wakes) / 2.0
+    assert per_s <= 100 + 10 + 2, f"{per_s:.1f} wake-ups per second"
+    measured = {x for x in sent_at[PGN_POSITION_MEASUREMENT] if x >= 1.0}
+    slope = {x for x in sent_at[PGN_SLOPE_SENSOR_INFORMATION] if x >= 1.0}
+    assert len(measured) >= 195 and measured <= slope

@@ -134,6 +134,7 @@ class ControlCore:
         self._decls: list[Any] = []
         self._pool = ThreadPoolExecutor(2, thread_name_prefix="core-motion")
         self._closed = threading.Event()
+        self._state_listened = threading.Event()  # a subscriber matches the state publisher
         self.recorder: Any = None
         self._table: dict[str, Callable[..., Any]] = {}
         self._notes: queue.Queue[dict[str, Any]] = queue.Queue(maxsize=256)
@@ -153,6 +154,7 @@ class ControlCore:
         self.parts = parts = start_can(cfg, runners_out=runners)
         self._open_zenoh()
         self.motion, guard = build_controller(cfg, parts, on_state=self._publish_state, on_event=self._publish_event)
+        self.motion.state_wanted = self._state_listened.is_set
         self._table = self._methods()
         gnss = self.motion.gnss  # the tractor's GNSS position (maneuver wait_for line steps)
         assert self.session is not None
@@ -220,6 +222,10 @@ class ControlCore:
             priority=zenoh.Priority.DATA_HIGH,
         )
         self._event_pub = s.declare_publisher(cfg.key("events"), encoding=zenoh.Encoding.APPLICATION_JSON, express=True)
+        # the state is built and sent only while a subscriber matches it (a viewer, the service's terminal …)
+        self._decls.append(self._state_pub.declare_matching_listener(self._on_state_matching))
+        if self._state_pub.matching_status.matching:
+            self._state_listened.set()
         exact = cfg.key("stop")
 
         def on_stop(query: zenoh.Query) -> None:
@@ -275,6 +281,12 @@ class ControlCore:
             return  # malformed: nobody to answer; a well-formed one for a wrong session is counted below
         velocity = None if r.velocity is None else r.velocity.as_dict()  # type: ignore[attr-defined]
         self._call_safely("track_setpoint", (r.session, r.seq, r.pose.as_dict(), velocity))  # type: ignore[attr-defined]
+
+    def _on_state_matching(self, status: zenoh.MatchingStatus) -> None:
+        if status.matching:
+            self._state_listened.set()
+        else:
+            self._state_listened.clear()
 
     def _publish_state(self, msg: dict[str, Any]) -> None:
         pub = self._state_pub

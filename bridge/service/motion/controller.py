@@ -209,6 +209,10 @@ class MotionController:
         )
         self._plan_step = guarded_plan_step(plan_guard)
         self.state_every = max(1, int(state_every))
+        self.state_wanted: Callable[[], bool] = lambda: True
+        """Whether anyone listens to the state now (the core process: a Zenoh matching listener on its
+        state publisher); a cycle builds no state nobody receives — at rest with no viewer the state
+        costs nothing."""
         self._lock = threading.RLock()
         self._plan_lock = threading.Lock()
         self._ids = itertools.count(1)
@@ -913,7 +917,8 @@ class MotionController:
             now = self.clock()
             status = self.link.status(now)
             self._cycle_n += 1
-            state = self._state_draft(now, status) if self._cycle_n % self.state_every == 0 else None
+            due = self._cycle_n % self.state_every == 0 and self.state_wanted()
+            state = self._state_draft(now, status) if due else None
             self._check_faults(status, now, events)
             self._drive_maneuver(status, now, events)
             if self.work is not None:  # a work session's z setpoint for this cycle (bridge.service.work)

@@ -247,3 +247,41 @@ def test_the_core_locks_its_memory(service):
     with open(f"/proc/{svc.core.pid}/status") as f:
         vmlck_kb = next(int(line.split()[1]) for line in f if line.startswith("VmLck:"))
     assert vmlck_kb > 50_000, vmlck_kb  # the interpreter, numpy, CasADi, zenoh as touched so far
+
+
+def test_the_core_builds_its_state_only_while_someone_subscribes(tmp_path):
+    """At rest with no viewer the state costs nothing: the core's state publisher has a Zenoh
+    matching listener and a cycle builds a state only while a subscriber matches. Seen from a
+    client through the state's sequence number: a second subscription one second after the first
+    ended continues the numbering almost where it stopped (before: about 50 states later, every
+    cycle built and sent one nobody received), and states flow again at once. (The service itself
+    is never asked for its latest state here: that would subscribe it.)"""
+    import json
+
+    port = free_port()
+    ep = f"tcp/127.0.0.1:{port}"
+    svc = HitchService(ServiceConfig(listen=[ep], data_dir=tmp_path, planning_processes=1)).start()
+    try:
+        with HitchClient([ep], timeout_s=10) as c:
+            assert c.config()["limits"]["workspace"]["z"][1] > 0.2
+
+            def window(seconds: float) -> list[tuple[float, int]]:
+                got: list[tuple[float, int]] = []
+                t0 = time.monotonic()
+                sub = c.session.declare_subscriber(
+                    f"{c.prefix}/state",
+                    lambda s: got.append((time.monotonic() - t0, int(json.loads(s.payload.to_bytes())["seq"]))),
+                )
+                time.sleep(seconds)
+                sub.undeclare()
+                return list(got)
+
+            first = window(1.5)
+            assert len(first) >= 20, f"{len(first)} states in 1.5 s"
+            time.sleep(1.0)  # nobody subscribes
+            second = window(1.5)
+            assert len(second) >= 20 and second[0][0] < 0.5, f"{len(second)} states, first after {second[0][0]:.3f} s"
+            gap = second[0][1] - first[-1][1]
+            assert 1 <= gap <= 10, f"the sequence jumped by {gap} while nobody subscribed"
+    finally:
+        svc.close()

@@ -224,7 +224,8 @@ class ControlCore:
         self._event_pub = s.declare_publisher(cfg.key("events"), encoding=zenoh.Encoding.APPLICATION_JSON, express=True)
         # the state is built and sent only while a subscriber matches it (a viewer, the service's terminal …)
         self._decls.append(self._state_pub.declare_matching_listener(self._on_state_matching))
-        if self._state_pub.matching_status.matching:
+        status: Any = self._state_pub.matching_status  # a MatchingStatus (zenoh's stub says bool)
+        if bool(getattr(status, "matching", status)):
             self._state_listened.set()
         exact = cfg.key("stop")
 

@@ -305,11 +305,15 @@ class LinkFaults:
     @property
     def any(self) -> bool:
         """True if any fault is latched."""
-        return any(getattr(self, f.name) for f in fields(self) if f.name != "reasons")
+        return any(getattr(self, name) for name in _FAULT_NAMES)
 
     def active(self) -> tuple[str, ...]:
         """Names of the latched faults."""
-        return tuple(f.name for f in fields(self) if f.name != "reasons" and getattr(self, f.name))
+        return tuple(name for name in _FAULT_NAMES if getattr(self, name))
+
+
+#: the fault fields of :class:`LinkFaults` (every field but ``reasons``), looked up once (checked every poll)
+_FAULT_NAMES = tuple(f.name for f in fields(LinkFaults) if f.name != "reasons")
 
 
 @dataclass(frozen=True)

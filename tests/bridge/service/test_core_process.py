@@ -265,13 +265,16 @@ def test_the_core_builds_its_state_only_while_someone_subscribes(tmp_path):
         with HitchClient([ep], timeout_s=10) as c:
             assert c.config()["limits"]["workspace"]["z"][1] > 0.2
 
-            def window(seconds: float) -> list[tuple[float, int]]:
-                got: list[tuple[float, int]] = []
+            def window(seconds: float) -> list[tuple[float, int, float]]:
+                """(arrival after subscribing [s], the state's seq, the core's clock [s]) of each state."""
+                got: list[tuple[float, int, float]] = []
                 t0 = time.monotonic()
-                sub = c.session.declare_subscriber(
-                    f"{c.prefix}/state",
-                    lambda s: got.append((time.monotonic() - t0, int(json.loads(s.payload.to_bytes())["seq"]))),
-                )
+
+                def take(sample) -> None:
+                    msg = json.loads(sample.payload.to_bytes())
+                    got.append((time.monotonic() - t0, int(msg["seq"]), float(msg["clock"])))
+
+                sub = c.session.declare_subscriber(f"{c.prefix}/state", take)
                 time.sleep(seconds)
                 sub.undeclare()
                 return list(got)
@@ -281,7 +284,10 @@ def test_the_core_builds_its_state_only_while_someone_subscribes(tmp_path):
             time.sleep(1.0)  # nobody subscribes
             second = window(1.5)
             assert len(second) >= 20 and second[0][0] < 0.5, f"{len(second)} states, first after {second[0][0]:.3f} s"
-            gap = second[0][1] - first[-1][1]
-            assert 1 <= gap <= 10, f"the sequence jumped by {gap} while nobody subscribed"
+            # control cycles that ran between the last state of the first window and the first of the second
+            cycles = (second[0][2] - first[-1][2]) * ServiceConfig().control_rate
+            built = second[0][1] - first[-1][1]  # states built meanwhile (seq counts built states)
+            assert cycles > 40, f"only {cycles:.0f} cycles between the windows"
+            assert built < cycles / 5, f"{built} states built in {cycles:.0f} cycles while nobody subscribed"
     finally:
         svc.close()

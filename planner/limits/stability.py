@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 import weakref
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Literal
 
@@ -251,27 +252,31 @@ def _support_margins(tractor: Tractor, p: np.ndarray, g: np.ndarray) -> SupportM
         raise StabilityInputError("slope: gravity is parallel to the support plane; no projection exists")
     q = p + (float(n @ (V[0] - p)) / denom) * g
     q2 = np.array([(q - V[0]) @ e1, (q - V[0]) @ e2])
-    d, s_lo, s_hi, misses = [], -math.inf, math.inf, False
-    for va, m, mv in edges:
-        di = float(m @ (q2 - va))
-        d.append(di)
-        # Cyrus-Beck clipping of the travel line q2 + s * travel: di + s (m . travel) >= 0
+    d = [float(m @ (q2 - va)) for va, m, _ in edges]
+    if min(d) > 0:
+        ssm = min(d)
+    else:
+        ssm = -min(_segment_distance(q2, V2[a], V2[b]) for a, b, _ in _EDGES)
+    lsm_front, lsm_rear = _travel_margins(d, [mv for _, _, mv in edges], ssm)
+    q.setflags(write=False)
+    return SupportMargins(q, (d[0], d[1], d[2]), float(ssm), float(lsm_front), float(lsm_rear))
+
+
+def _travel_margins(d: Sequence[float], mvs: Sequence[float], ssm: float) -> tuple[float, float]:
+    """(LSM front, LSM rear): Cyrus–Beck clipping of the travel line q2 + s·travel against the support
+    triangle, ``d`` the reference's distances inside each edge and ``mvs`` each edge's inward normal
+    · travel (di + s·mv ≥ 0 for every edge); both are ``ssm`` when the line misses the triangle."""
+    s_lo, s_hi, misses = -math.inf, math.inf, False
+    for di, mv in zip(d, mvs, strict=True):
         if abs(mv) < 1e-12:
             misses |= di < 0
         elif mv > 0:
             s_lo = max(s_lo, -di / mv)
         else:
             s_hi = min(s_hi, -di / mv)
-    if min(d) > 0:
-        ssm = min(d)
-    else:
-        ssm = -min(_segment_distance(q2, V2[a], V2[b]) for a, b, _ in _EDGES)
     if misses or s_lo > s_hi:
-        lsm_front = lsm_rear = ssm
-    else:
-        lsm_front, lsm_rear = -s_lo, s_hi
-    q.setflags(write=False)
-    return SupportMargins(q, (d[0], d[1], d[2]), float(ssm), float(lsm_front), float(lsm_rear))
+        return ssm, ssm
+    return -s_lo, s_hi
 
 
 @dataclass(frozen=True)

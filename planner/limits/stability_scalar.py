@@ -37,6 +37,7 @@ from planner.limits.stability import (
     _report,
     _segment_distance,
     _support_constants,
+    _travel_margins,
     gravity_direction,
 )
 from planner.limits.tractor import (
@@ -190,28 +191,14 @@ def _support(tractor: Tractor, p: list[float], g: list[float], g_arr: np.ndarray
     q = [p[0] + s * g[0], p[1] + s * g[1], p[2] + s * g[2]]
     u = [q[0] - V0[0], q[1] - V0[1], q[2] - V0[2]]
     q2 = (_dot3(u, e1), _dot3(u, e2))
-    d: list[float] = []
-    s_lo, s_hi, misses = -math.inf, math.inf, False
-    for va, mm, mv in edges:
-        di = mm[0] * (q2[0] - va[0]) + mm[1] * (q2[1] - va[1])
-        d.append(di)
-        # Cyrus-Beck clipping of the travel line q2 + s * travel: di + s (m . travel) >= 0
-        if abs(mv) < 1e-12:
-            misses |= di < 0
-        elif mv > 0:
-            s_lo = max(s_lo, -di / mv)
-        else:
-            s_hi = min(s_hi, -di / mv)
+    d = [mm[0] * (q2[0] - va[0]) + mm[1] * (q2[1] - va[1]) for va, mm, _ in edges]
     if min(d) > 0:
         ssm = min(d)
     else:  # outside: the reference's distance to the triangle
         V2 = _support_constants(tractor)[4]
         q2a = np.array(q2)
         ssm = -min(_segment_distance(q2a, V2[a], V2[b]) for a, b, _ in _EDGES)
-    if misses or s_lo > s_hi:
-        lsm_front = lsm_rear = ssm
-    else:
-        lsm_front, lsm_rear = -s_lo, s_hi
+    lsm_front, lsm_rear = _travel_margins(d, [mv for _, _, mv in edges], ssm)
     qa = np.array(q)
     qa.setflags(write=False)
     return SupportMargins(qa, (d[0], d[1], d[2]), float(ssm), float(lsm_front), float(lsm_rear))

@@ -527,12 +527,7 @@ class TrackFollower:
         DOFs, finite numbers within ±``plausible`` (beyond ``limit`` they are clipped later)."""
         if not isinstance(given, Mapping):
             raise TrackInputError(f"setpoint.{name} must be a mapping with any of {', '.join(self.dofs)}")
-        bad = set(given) - set(self.dofs)
-        if bad:
-            raise TrackInputError(
-                f"setpoint.{name}: field(s) {', '.join(sorted(map(str, bad)))} not tracked in this "
-                f"session; allowed: {', '.join(self.dofs)}"
-            )
+        self._only_tracked(name, given)
         out = np.zeros(4)
         for d, k in enumerate(TRACK_DOFS):
             if k in given:
@@ -545,6 +540,15 @@ class TrackFollower:
                 out[d] = w
         return out
 
+    def _only_tracked(self, what: str, given: Mapping[str, float]) -> None:
+        """Refuse fields of ``setpoint.<what>`` that this session does not track (naming them and the allowed)."""
+        bad = set(given) - set(self.dofs)
+        if bad:
+            raise TrackInputError(
+                f"setpoint.{what}: field(s) {', '.join(sorted(map(str, bad)))} not tracked in this session; "
+                f"allowed: {', '.join(self.dofs)}"
+            )
+
     def _validate(
         self, pose: Mapping[str, float], velocity: Mapping[str, float] | None
     ) -> tuple[np.ndarray, np.ndarray]:
@@ -553,12 +557,7 @@ class TrackFollower:
         if velocity is not None and not isinstance(velocity, Mapping):
             raise TrackInputError(f"setpoint.velocity must be a mapping with any of {', '.join(self.dofs)}")
         for what, m in (("pose", pose), ("velocity", velocity or {})):
-            bad = set(m) - set(self.dofs)
-            if bad:
-                names = ", ".join(sorted(map(str, bad)))
-                raise TrackInputError(
-                    f"setpoint.{what}: field(s) {names} not tracked in this session; allowed: {', '.join(self.dofs)}"
-                )
+            self._only_tracked(what, m)
         missing = [k for k in self.dofs if k not in pose]
         if missing:
             raise TrackInputError(

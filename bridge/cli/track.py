@@ -456,9 +456,10 @@ def _progress_line(t: float, sent: int, tr: dict | None) -> str:
     return text
 
 
-def _end_session(c, mon: _Monitor, session: int) -> str | None:
-    """Send ``track/stop`` (a second Ctrl-C meanwhile is ignored) and wait for the motion's end; the
-    reason the stop could not be confirmed, or None."""
+def _end_session(c, mon: _Monitor, session: int, last_seq: int | None) -> str | None:
+    """Send ``track/stop`` (a second Ctrl-C meanwhile is ignored; ``last_seq``: the last setpoint sent,
+    taken by the service before it brakes) and wait for the motion's end; the reason the stop could not
+    be confirmed, or None."""
     from bridge.service.client import ServiceError
 
     main = threading.current_thread() is threading.main_thread()
@@ -467,7 +468,7 @@ def _end_session(c, mon: _Monitor, session: int) -> str | None:
     try:
         if not mon.ended.is_set():
             try:
-                c.track_stop(session, timeout_s=STOP_TIMEOUT_S)
+                c.track_stop(session, last_seq=last_seq, timeout_s=STOP_TIMEOUT_S)
             except ServiceError as exc:
                 if exc.code != "not_found":  # not_found: it had ended already
                     problem = f"track/stop was not confirmed ({exc})"
@@ -501,6 +502,7 @@ def _stream(args, c, spec: _Spec) -> int:
             highlight=False,
         )
     sent, t_sent, interrupted = 0, 0.0, False
+    last_seq: int | None = None
     t0 = time.monotonic()
     next_progress = PROGRESS_EVERY_S
     try:
@@ -517,7 +519,7 @@ def _stream(args, c, spec: _Spec) -> int:
                 c.track_setpoint_request(session, seq, body["pose"], body.get("velocity"), timeout_s=STOP_TIMEOUT_S)
             else:
                 c.track_setpoint(session, seq, body["pose"], body.get("velocity"))
-            sent, t_sent = sent + 1, t
+            sent, t_sent, last_seq = sent + 1, t, seq
             if not quiet and t >= next_progress:
                 next_progress += PROGRESS_EVERY_S
                 with mon.lock:
@@ -527,9 +529,9 @@ def _stream(args, c, spec: _Spec) -> int:
         interrupted = True
         print(f"hitch: interrupted: sending track/stop (session {session})", file=sys.stderr, flush=True)
     except HitchError:  # the first setpoint refused (or a client error): end the session, then report
-        _end_session(c, mon, session)
+        _end_session(c, mon, session, last_seq)
         raise
-    problem = _end_session(c, mon, session)
+    problem = _end_session(c, mon, session, last_seq)
     with mon.lock:
         outcome, tr, pose = mon.outcome, mon.track, mon.pose
     reason = (outcome or {}).get("reason")

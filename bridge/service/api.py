@@ -289,7 +289,7 @@ class ServiceAPI:
         return self.motion.track_setpoint(r.session, r.seq, r.pose.as_dict(), velocity)
 
     def _track_stop(self, r: TrackStop) -> dict:
-        return self.motion.track_stop(r.session)
+        return self.motion.track_stop(r.session, r.last_seq)
 
     def _faults_ack(self, _r: Empty) -> dict:
         return self.motion.ack_faults().to_json()

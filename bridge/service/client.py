@@ -252,11 +252,18 @@ class HitchClient:
         why it was refused (e.g. the first setpoint of a stream, to see a bad value at once)."""
         return self.request("track/setpoint", _setpoint_body(session, seq, pose, velocity), timeout_s=timeout_s)
 
-    def track_stop(self, session: int | None = None, *, timeout_s: float | None = None) -> dict:
+    def track_stop(
+        self, session: int | None = None, *, last_seq: int | None = None, timeout_s: float | None = None
+    ) -> dict:
         """End the live track session smoothly (``track/stop``; ``session`` None: whichever is live):
-        ``{"stopping", "session", "motion_id"}``; the setpoint publisher of that session is released."""
+        ``{"stopping", "session", "motion_id"}`` (and ``after_seq`` while it waits for ``last_seq``);
+        the setpoint publisher of that session is released. ``last_seq``: the last setpoint streamed —
+        a put may arrive after this query; the service takes it before braking (waits at most the ttl)."""
+        body: dict[str, int] = {} if session is None else {"session": session}
+        if last_seq is not None:
+            body["last_seq"] = last_seq
         try:
-            return self.request("track/stop", {} if session is None else {"session": session}, timeout_s=timeout_s)
+            return self.request("track/stop", body, timeout_s=timeout_s)
         finally:
             with self._track_lock:
                 cur = self._track_pub

@@ -214,9 +214,12 @@ class TrackStart(_Strict):
 
 
 class TrackStop(_Strict):
-    """End the live track session smoothly (``session`` None: whichever is live)."""
+    """End the live track session smoothly (``session`` None: whichever is live). ``last_seq``: the
+    last setpoint the client sent; it is taken before the follower brakes (a put may arrive after this
+    query), waited for at most the session's ttl."""
 
     session: int | None = Field(None, ge=1)
+    last_seq: int | None = Field(None, ge=0)
 
 
 class TrackVelocity(_Strict):

@@ -303,8 +303,8 @@ class MotionProxy:
             self.core.call("track_setpoint", session, seq, dict(pose), None if velocity is None else dict(velocity))
         )
 
-    def track_stop(self, session: int | None = None) -> dict[str, Any]:
-        return dict(self.core.call("track_stop", session))
+    def track_stop(self, session: int | None = None, last_seq: int | None = None) -> dict[str, Any]:
+        return dict(self.core.call("track_stop", session, last_seq))
 
     def maneuver_control(self, action: str) -> dict[str, Any]:
         return dict(self.core.call("maneuver_control", action))

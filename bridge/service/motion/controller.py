@@ -500,12 +500,16 @@ class MotionController:
                     )
                 code = exc.code if isinstance(exc, MotionError) else "bad_request"
                 raise MotionError(code, str(exc).removeprefix("track/setpoint: ")) from None
+            finally:
+                m.take_stop(seq)
             m.accepted += 1
         self.outbox.flush()
         return {"accepted": True, "session": session, "seq": seq, "limited": dict(sp.limited)}
 
-    def track_stop(self, session: int | None = None) -> dict[str, Any]:
-        """End the live track session smoothly (the shortest jerk-limited stop); ``session`` None: whichever is live."""
+    def track_stop(self, session: int | None = None, last_seq: int | None = None) -> dict[str, Any]:
+        """End the live track session smoothly (the shortest jerk-limited stop); ``session`` None: whichever
+        is live. ``last_seq``: the last setpoint the client sent — the follower takes it before it brakes
+        (it may arrive after the stop; a lost one is waited for at most the session's time-to-live)."""
         with self._lock:
             m = self._active
             if not isinstance(m, TrackMotion) or (session is not None and m.session != session):
@@ -513,8 +517,11 @@ class MotionController:
                 raise MotionError("not_found", f"session {session} is not live ({live})")
             if m.reason is None:
                 m.reason = "track/stop"
-            m.follower.stop()
-            return {"stopping": True, "session": m.session, "motion_id": m.motion_id}
+            now_braking = m.stop_after_seq(last_seq, self.clock())
+            reply: dict[str, Any] = {"stopping": True, "session": m.session, "motion_id": m.motion_id}
+            if not now_braking:
+                reply["after_seq"] = last_seq
+            return reply
 
     def _frame_velocity(
         self, m: TrackMotion, pose: Mapping[str, float], velocity: Mapping[str, float] | None, now: float

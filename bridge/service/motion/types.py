@@ -387,10 +387,32 @@ class TrackMotion:
     rejected: int = 0  # setpoints refused (bad values, frame sensor missing)
     last_rejection: str | None = None
     cycles: int = 0
+    #: a ``track/stop`` that waits for the client's last setpoint: (its seq, clock time [s] after which
+    #: the follower brakes anyway — the setpoint was lost on the way); None: no stop waits
+    stop_after: tuple[int, float] | None = None
 
     @property
     def dofs(self) -> tuple[str, ...]:
         return self.follower.dofs
+
+    def stop_after_seq(self, last_seq: int | None, now: float) -> bool:
+        """``track/stop`` for a client that sent setpoints up to ``last_seq``: True when the follower
+        brakes now (nothing of the client's is still on the way), False when the stop waits for
+        ``last_seq`` — at most one time-to-live (:meth:`take_stop`, :meth:`step`). A streamed setpoint
+        (a Zenoh put) and the stop (a query) travel different paths and may arrive in either order."""
+        seen = self.seq.last
+        if last_seq is None or self.ending or (seen is not None and seen >= last_seq):
+            self.stop_after = None
+            self.follower.stop()
+            return True
+        self.stop_after = (int(last_seq), now + self.follower.ttl_s)
+        return False
+
+    def take_stop(self, seq: int) -> None:
+        """After setpoint ``seq`` was handled (taken or refused): the waiting stop brakes once it came."""
+        if self.stop_after is not None and seq >= self.stop_after[0]:
+            self.stop_after = None
+            self.follower.stop()
 
     @property
     def ending(self) -> bool:
@@ -404,6 +426,9 @@ class TrackMotion:
         ``limit_reached`` event for newly hit limits."""
         self.cycles += 1
         events: list[Event] = []
+        if self.stop_after is not None and now >= self.stop_after[1]:  # the last setpoint never came
+            self.stop_after = None
+            self.follower.stop()
         if self.cycles % TRACK_GUARD_EVERY == 1 and not self.ending:
             rates = self.follower.guard_rates(1.0)
             _, self.decision = guard.check_jog(self.follower.state, rates)

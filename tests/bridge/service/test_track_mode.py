@@ -169,6 +169,67 @@ def test_track_stop_ends_smoothly(r):
     assert max(np.abs(np.diff(vz))) < z_alone * DT * 1.01
 
 
+def test_a_stop_that_overtakes_the_last_setpoint_waits_for_it(r):
+    """A streamed setpoint (a put) and track/stop (a query) travel different paths: the stop may come
+    first. With ``last_seq`` the setpoint sent before the stop is taken, then the follower brakes (on
+    the old code it was refused: "the session is stopping"; CI: 100 of 101 taken)."""
+    session = r.start(dof=["z"])
+    z0 = r.measured()[1]
+    r.run(0.2, each=lambda t: r.setpoint(session, {"z": z0 + 0.02}))
+    last = r.seq + 1
+    ok, reply = r.call("track/stop", {"session": session, "last_seq": last})
+    assert ok and reply["stopping"] and reply["after_seq"] == last, reply
+    r.run(DT)  # the stop waits: nothing brakes yet
+    assert not r.states[-1]["track"]["ending"]
+    ok, reply = r.setpoint(session, {"z": z0 + 0.02}, seq=last)  # the overtaken setpoint arrives
+    assert ok and reply["accepted"], reply
+    r.run(DT)
+    tr = r.states[-1]["track"]
+    assert tr["ending"] and tr["rejected"] == 0 and tr["setpoints"] == last, tr
+    ok, reply = r.setpoint(session, {"z": z0}, seq=last + 1)  # after it: the session is stopping
+    assert not ok and "stopping" in reply["message"], reply
+    r.run(2.0)
+    fin = [e for e in _events(r, "motion_finished") if e.get("session") == session]
+    assert fin and fin[0]["reason"] == "track/stop"
+
+
+def test_a_stop_whose_last_setpoint_was_lost_brakes_after_one_ttl(r):
+    session = r.start(dof=["z"], ttl_ms=300)
+    z0 = r.measured()[1]
+    r.run(0.2, each=lambda t: r.setpoint(session, {"z": z0 + 0.02}))
+    ok, reply = r.call("track/stop", {"session": session, "last_seq": r.seq + 5})  # never arrives
+    assert ok and reply["after_seq"] == r.seq + 5, reply
+    t_stop = r.rig.now_s
+    ending_at = None
+
+    def watch(t):
+        nonlocal ending_at
+        if ending_at is None and r.states[-1]["track"] and r.states[-1]["track"]["ending"]:
+            ending_at = t
+
+    r.run(1.0, each=watch)
+    assert ending_at is not None and 0.3 - 1e-9 <= ending_at - t_stop <= 0.3 + 2 * DT + 1e-9, ending_at - t_stop
+    fin = [e for e in _events(r, "motion_finished") if e.get("session") == session]
+    assert fin and fin[0]["reason"] == "track/stop"  # not "stale": the stop asked for it
+
+
+@pytest.mark.parametrize("last_seq", [None, "seen"])
+def test_a_stop_with_nothing_on_the_way_brakes_at_once(r, last_seq):
+    session = r.start(dof=["z"])
+    z0 = r.measured()[1]
+    r.run(0.2, each=lambda t: r.setpoint(session, {"z": z0 + 0.02}))
+    body = {"session": session} if last_seq is None else {"session": session, "last_seq": r.seq}
+    ok, reply = r.call("track/stop", body)
+    assert ok and "after_seq" not in reply, reply
+    r.run(DT)
+    assert r.states[-1]["track"]["ending"]
+
+
+def test_track_stop_last_seq_is_checked():
+    with pytest.raises(RequestError, match="last_seq"):
+        parse_request("track/stop", json.dumps({"last_seq": -1}))
+
+
 def test_precedence_stop_over_jog_over_track_over_goto(r):
     session = r.start(dof=["z"])
     z0 = r.measured()[1]

@@ -8,8 +8,12 @@
   :meth:`planner.model.sensors.SensorScaling.to_counts`; a reference that fails raises
   :class:`~bridge.link.state.ReferenceRefused` naming the limit and never reaches the
   bus. The accepted reference is streamed as 0xFF21 at the control rate (default
-  50 Hz): sent at once when the stream is idle or due, otherwise at the next period,
-  never faster. The ECU's watchdog needs this stream.
+  50 Hz) on a grid of one period P per frame, never faster: a fresh reference goes at
+  once when its grid slot is open (up to P/2 early — a caller's jitter never holds it
+  back), a caller faster than P waits for the next slot; without a fresh one the last
+  is repeated, P/2 after its slot (so a repetition never takes the slot of the
+  caller's next reference; frames at most 2 P apart). The ECU's watchdog needs this
+  stream.
 * **Measurements.** 0xFF22 (tilt, top, right, left, system state) and the rear hitch
   status (lift, fraction of travel) → SI through the AD calibration → exact forward
   kinematics → :class:`~bridge.link.state.LinkState`.
@@ -86,6 +90,8 @@ __all__ = ["CanLink"]
 
 _EPS_S = 1e-6  # float-time tolerance of the stream schedule
 _IDLE_WAKE_S = 0.01  # a real-time loop checks faults at least this often
+#: a fresh reference may go this fraction of a period before its slot; a repetition waits as long after
+_SLOT_SLACK = 0.5
 
 
 #: the messages the link reads (every other known message is counted ``foreign`` without decoding it)
@@ -130,7 +136,8 @@ class CanLink:
         self._reference: PositionCounts | None = None
         self._streaming = False
         self._stream_since_s = math.inf  # when the current stream started
-        self._next_tx_s = math.inf
+        self._next_tx_s = math.inf  # the stream's next slot (a frame per slot, module docstring)
+        self._fresh = False  # a reference was taken since the last frame went out
         self._tx_error_run = 0
         self._rx = MeasurementAssembler(model, self._scaling, self._cfg, self._bump)
 
@@ -191,7 +198,7 @@ class CanLink:
 
     def next_due_s(self) -> float:
         """When :meth:`poll` must run next (stream deadline, or the idle wake-up), s."""
-        return min(self._next_tx_s if self._streaming else math.inf, self._last_poll_s + _IDLE_WAKE_S)
+        return min(self._stream_due_s() if self._streaming else math.inf, self._last_poll_s + _IDLE_WAKE_S)
 
     # -- commands ----------------------------------------------------------------------
     def start(self, now_s: float) -> None:
@@ -304,11 +311,9 @@ class CanLink:
                 self._bump(references_refused=1)
                 raise
             self._faults = LinkFaults()
-            self._reference = counts
+            self._reference, self._fresh = counts, True
             if not self._streaming:
-                self._stream_since_s = now_s
-            if not self._streaming or now_s >= self._next_tx_s - _EPS_S:
-                self._next_tx_s = now_s
+                self._stream_since_s = self._next_tx_s = now_s
             self._streaming = True
             self._stream(now_s)
             return counts
@@ -456,13 +461,19 @@ class CanLink:
         if self._faults.any:
             self._streaming = False
 
+    def _stream_due_s(self) -> float:
+        """When the stream's next frame may go: a fresh reference up to half a period before its slot,
+        a repetition half a period after it."""
+        slack = _SLOT_SLACK * self._cfg.control_period_s
+        return self._next_tx_s - slack if self._fresh else self._next_tx_s + slack
+
     def _stream(self, now_s: float) -> None:
-        if not self._streaming or self._reference is None or now_s < self._next_tx_s - _EPS_S:
+        """Send the reference if its frame is due. Each frame moves the slot on by one period (to now after
+        a gap of more than a period): in any window of T seconds at most ⌊T/P⌋ + 2 frames."""
+        if not self._streaming or self._reference is None or now_s < self._stream_due_s() - _EPS_S:
             return
-        period = self._cfg.control_period_s
-        self._next_tx_s += period
-        if self._next_tx_s <= now_s + _EPS_S:
-            self._next_tx_s = now_s + period
+        self._next_tx_s = max(self._next_tx_s + self._cfg.control_period_s, now_s)
+        self._fresh = False
         if self._send([self._codec.encode(self._reference, source=self._cfg.source_address)]):
             self._bump(references_tx=1)
 

@@ -950,7 +950,8 @@ def run_track_loop(
                             path = planner_ahead.plan(now, np.clip(ref_z, lo[d], hi[d]))
                             path_t = now + loop.dt * np.arange(path.size)
                     if path_t is not None:
-                        t_sp = now + 2 * loop.dt  # the loop's latency: taken next cycle, at the ECU one later
+                        # the loop's latency: taken next cycle, the pistons answer about one later
+                        t_sp = now + 2 * loop.dt
                         sp = target = float(np.interp(t_sp, path_t, path))
                         row_rate = float(np.interp(t_sp, path_t[1:-1], (path[2:] - path[:-2]) / (2 * loop.dt)))
                 n_cycle += 1

@@ -377,12 +377,16 @@ class TrackFollower:
         self._ruckig1 = Ruckig(1)
         self._in1 = InputParameter(1)
         self._traj1 = Trajectory(1)
+        # one DOF chasing a target that runs away at the velocity limit (velocity interface): see _chase
+        self._in_chase = InputParameter(1)
+        self._in_chase.control_interface = _VEL
         # per step (cleared by step): each DOF's rendezvous by its limits (the current state and the
         # targets are the step's), for the re-advances of _cannot_stop
         self._rv_memo: dict[tuple[int, float, float, float, float], tuple[float, float, float] | None] = {}
         self.rendezvous_tries = 0  # one-DOF Ruckig calculations of the rendezvous search (the cost)
         self.rendezvous_skips = 0  # horizons the exact jerk bound ruled out without Ruckig (_jerk_reachable)
         self.rendezvous = 0  # DOF-cycles that moved on a rendezvous with the setpoint's motion (_rendezvous)
+        self.chases = 0  # DOF-cycles that chased a target running away instead of a detour (_chase)
         self._probe = StopProbe()
         self.fallbacks = 0  # cycles Ruckig refused, braked to rest instead (should stay 0)
         self.reset(start, t0_s)
@@ -899,10 +903,70 @@ class TrackFollower:
                     hit = memo[lim_d]
                 else:
                     hit = memo[lim_d] = self._rendezvous(*lim_d)
+                if hit is None:
+                    hit = self._chase(
+                        d, float(p_t[d]), float(tv[d]), a[d], self._traj.independent_min_durations[d], *lim_d[1:]
+                    )
+                    if hit is not None:
+                        self.chases += 1
+                else:
+                    self.rendezvous += 1
                 if hit is not None:
                     p[d], v[d], a[d] = hit
-                    self.rendezvous += 1
         return MotionState(np.array(p), np.array(v), np.array(a))
+
+    def _chase(
+        self,
+        d: int,
+        pt: float,
+        vt: float,
+        a_opt: float,
+        t_opt: float,
+        vmax: float,
+        vmin: float,
+        amax: float,
+        jmax: float,
+    ) -> tuple[float, float, float] | None:
+        """DOF ``d`` one cycle along a chase of a target it is behind and that runs away from it faster
+        than it moves (the target ``pt`` lies in the direction of its velocity ``vt``), or None (no
+        chase: the caller keeps the time-optimal approach). When no rendezvous is on time — the target
+        moves at nearly the velocity limit, the gap closes only at the difference — the time-optimal
+        approach to the target *state* (``pt`` reached at velocity ``vt``) cannot arrive at that speed
+        without passing it, so it brakes (``a_opt`` not towards ``vt``; its time ``t_opt`` longer than
+        the longest rendezvous), falls back and comes round again: a detour of up to a second (a 30 mm
+        error on a terrain profile at z's velocity limit). The chase instead runs after the target (velocity interface,
+        jerk-limited) at the target's speed plus the gap over the longest rendezvous time, at most the
+        velocity limit on its side (at the limit alone it overshoots a target that slows); a rendezvous
+        takes over once one is on time again."""
+        p0, v0 = float(self.state.position[d]), float(self.state.velocity[d])
+        gap = pt - p0
+        if gap * vt <= 0.0 or v0 * vt < 0.0 or abs(v0) >= abs(vt):
+            return None  # not behind a target running away faster than it (catching up: braking is right)
+        if a_opt * vt > 0.0 or t_opt <= RENDEZVOUS_CYCLES[-1] * self.dt:
+            return None  # the approach speeds on towards it, or it is short: no detour
+        one = self._in_chase
+        one.max_acceleration = [amax]
+        one.max_jerk = [jmax]
+        top_up = max(vmax, abs(vt))
+        top_down = top_up if vmin == -math.inf else max(-vmin, -vt)
+        one.max_velocity = [top_up]
+        one.min_velocity = [-top_down]
+        top = top_up if vt > 0 else top_down
+        one.current_position = [p0]
+        one.current_velocity = [v0]
+        one.current_acceleration = [float(self.state.acceleration[d])]
+        # the target's speed plus the gap closed within the longest rendezvous, at most the limit
+        closing = abs(gap) / (RENDEZVOUS_CYCLES[-1] * self.dt)
+        one.target_velocity = [math.copysign(min(top, abs(vt) + closing), vt)]
+        one.target_acceleration = [0.0]
+        try:
+            res = self._ruckig1.calculate(one, self._traj1)
+        except RuckigError:
+            return None
+        if res not in _OK:
+            return None
+        (p,), (v,), (a,) = self._traj1.at_time(self.dt)
+        return p, v, a
 
     def _rendezvous(
         self, d: int, vmax: float, vmin: float, amax: float, jmax: float

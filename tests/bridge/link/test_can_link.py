@@ -150,6 +150,86 @@ def test_stream_rate_is_the_control_rate(rig, tap, model):
     assert rig.node.counters.references == 51
 
 
+def _stream_log(rig, tap, calls, until_s):
+    """Run the rig tick by tick to ``until_s``; ``calls``: {tick time: actuators} sent (before that tick's
+    polls, as a control cycle does). Returns [(tick time, counts tuple)] of every reference frame."""
+    log = []
+
+    def each(t):
+        q = calls.get(round(t, 6))
+        if q is not None:
+            rig.link.send_reference(q, t)
+
+    while rig.now_s < until_s - 1e-9:
+        rig.run_until(rig.next_tick_s, every_tick=each)
+        log += [(round(rig.now_s, 6), r.as_tuple()) for r in references_on(drain(tap))]
+    return log
+
+
+def _two_references(model):
+    """Two references a few counts apart (each call alternates, so each frame says which call it carries)."""
+    a = np.array(model.neutral, float)
+    b = a.copy()
+    b[1] += 0.004  # the tilt cylinder 4 mm longer
+    return a, b
+
+
+def test_a_fresh_reference_goes_at_once_even_just_after_its_slot(rig, tap, model):
+    """A 50 Hz caller a few ms behind its slot (its cycle's own jitter): each reference goes on the bus
+    when it is sent. On the old code the stream repeated the last reference at the slot first, and the
+    fresh one waited a whole period (latency 13-20 ms instead of 0; bimodal service latency, #15)."""
+    a, b = _two_references(model)
+    counts = {tuple(rig.link.check_reference(a).as_tuple()): "a", tuple(rig.link.check_reference(b).as_tuple()): "b"}
+    t0 = round(rig.next_tick_s, 6)
+    rng = np.random.default_rng(15)
+    jitter_ms = rng.integers(0, 9, size=50)  # 0..8 ms late
+    calls, expect = {}, []
+    for k, j in enumerate(jitter_ms):
+        t = round(t0 + 0.02 * k + 0.001 * int(j), 6)
+        calls[t] = a if k % 2 == 0 else b
+        expect.append((t, "a" if k % 2 == 0 else "b"))
+    log = _stream_log(rig, tap, calls, t0 + 1.0)
+    fresh = {}  # the first frame of each call's value after the call
+    for t, name in expect:
+        fresh[t] = next(ts for ts, c in log if ts >= t - 1e-9 and counts[c] == name)
+    delays_ms = [1000 * (fresh[t] - t) for t, _ in expect]
+    assert max(delays_ms) <= 1e-6, delays_ms
+    assert len(log) == 50  # nothing repeated in between: one frame per call
+
+
+def test_a_fresh_reference_may_come_half_a_period_early_and_a_faster_caller_waits(rig, tap, model):
+    a, b = _two_references(model)
+    t0 = round(rig.next_tick_s, 6)
+    # 3 ms early for its slot: goes at once; then one 5 ms after that (faster than the rate): waits for its slot
+    log = _stream_log(rig, tap, {t0: a, round(t0 + 0.017, 6): b, round(t0 + 0.022, 6): a}, t0 + 0.1)
+    times = [t for t, _ in log]
+    assert times[:3] == [t0, round(t0 + 0.017, 6), round(t0 + 0.030, 6)], times  # slot t0+0.04, P/2 early
+    ref_a = rig.link.check_reference(a).as_tuple()
+    assert log[2][1] == ref_a
+
+
+def test_the_stream_never_exceeds_its_rate_and_never_pauses_beyond_two_periods(rig, tap, model):
+    """Property over random call times (bursts, gaps, stalls): in any window of T seconds at most
+    floor(T/P) + 2 frames; while streaming, frames at most 2 P apart (a frame sent P/2 early, then a
+    repetition P/2 late), well inside the ECU's 100 ms watchdog."""
+    a, b = _two_references(model)
+    rng = np.random.default_rng(1939)
+    t0 = round(rig.next_tick_s, 6)
+    t, k, calls = t0, 0, {}
+    while t < t0 + 2.0:
+        calls[round(t, 6)] = a if k % 2 == 0 else b
+        k += 1
+        t += 0.001 * int(rng.choice([1, 2, 5, 10, 19, 20, 21, 35, 60]))
+    log = _stream_log(rig, tap, calls, t0 + 2.2)
+    times = np.array([ts for ts, _ in log])
+    p = 0.02
+    assert len(times) > 60
+    for i in range(len(times)):
+        for j in range(i + 1, len(times)):
+            assert times[j] - times[i] >= (j - i - 1) * p - 1e-9, (i, j, times[i], times[j])
+    assert np.max(np.diff(times)) <= 2 * p + 1e-9
+
+
 def test_stream_rate_configurable(model):
     with SimRig(model, SimSettings(link=LinkConfig(control_rate_hz=20.0))) as rig:
         tap = can.Bus(interface="virtual", channel=rig.channel)

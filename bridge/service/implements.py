@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections import deque
 from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
@@ -38,6 +39,9 @@ from bridge.service.store import DEFAULT_IMPLEMENT, HitchStore, StoredImplement
 from planner.errors import HitchError
 from planner.limits.implement_limits import ImplementLimits
 from planner.limits.tractor import ImplementRecord, TractorProfile, load_tractor_profile
+
+#: switch edges :attr:`ImplementService.switch_log` keeps
+SWITCH_HISTORY = 16
 
 __all__ = [
     "HEADLAND_PRESET",
@@ -115,6 +119,9 @@ class ImplementService:
         #: process: its ``sim_switch`` (``MotionProxy``).
         self.sim_switch: Callable[[str], Any] | None = None
         self._switch_busy = threading.Lock()
+        #: the switch's edges and what became of them, newest last (key, the dispatch's answer or
+        #: "dropped: busy"), at most :data:`SWITCH_HISTORY` — a press that did not move the hitch says why
+        self.switch_log: deque[tuple[str, Any]] = deque(maxlen=SWITCH_HISTORY)
 
     # ------------------------------------------------------------------ start
     def restore(self) -> None:
@@ -246,13 +253,16 @@ class ImplementService:
         if event.get("event") != "hitch_switch" or self.dispatch is None:
             return
         key = {"raise": "hitch/raise", "return": "hitch/return"}.get(str(event.get("command")))
-        if key is None or not self._switch_busy.acquire(blocking=False):
+        if key is None:
+            return
+        if not self._switch_busy.acquire(blocking=False):
+            self.switch_log.append((key, "dropped: the previous switch request still runs"))
             return
         dispatch = self.dispatch
 
         def run() -> None:
             try:
-                dispatch(key)
+                self.switch_log.append((key, dispatch(key)))
             finally:
                 self._switch_busy.release()
 

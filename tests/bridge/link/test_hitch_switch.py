@@ -164,7 +164,12 @@ def test_a_switch_on_the_can_bus_raises_and_returns_the_hitch(tmp_path):
         assert wait_until(lambda: at_rest(0.24)), "the switch did not raise the hitch"
         assert any(e.get("event") == "hitch_switch" and e.get("command") == "raise" for e in events)
         switch.send(switch_frame("lower"))
-        assert wait_until(lambda: at_rest(-0.05)), "the switch did not return the hitch to work"
+        assert wait_until(lambda: at_rest(-0.05)), (
+            "the switch did not return the hitch to work",
+            list(svc.api.implements.switch_log),
+            [e for e in events if e.get("event") != "state"][-8:],
+            {k: (svc.latest_state or {}).get(k) for k in ("motion", "pose", "faults")},
+        )
     finally:
         switch.shutdown()
         svc.close()

@@ -1,0 +1,38 @@
+"""The operator switch's edges and what became of them (``ImplementService.switch_log``): a press that did not
+move the hitch says why (refused by the API, or dropped while the previous press still ran)."""
+
+import threading
+
+from bridge.service.implements import SWITCH_HISTORY, ImplementService
+from bridge.service.store import HitchStore
+from tests.helpers import wait_until
+
+
+def test_each_switch_edge_is_logged_with_its_answer_or_why_it_was_dropped(tmp_path):
+    store = HitchStore(tmp_path / "hitch.sqlite3")
+    try:
+        svc = ImplementService(store, motion=None)
+        release = threading.Event()
+        answers = iter([(False, {"error": "busy", "message": "refused: the planner stayed busy"}), (True, {"ok": 1})])
+
+        def dispatch(key):
+            release.wait(5.0)
+            return next(answers)
+
+        svc.dispatch = dispatch
+        svc.on_event({"event": "hitch_switch", "command": "raise"})
+        svc.on_event({"event": "hitch_switch", "command": "return"})  # the raise still runs: dropped
+        svc.on_event({"event": "hitch_switch", "command": "sideways"})  # not a command: nothing
+        svc.on_event({"event": "state"})
+        release.set()
+        assert wait_until(lambda: len(svc.switch_log) == 2, 5.0)
+        assert svc.switch_log[0] == ("hitch/return", "dropped: the previous switch request still runs")
+        assert svc.switch_log[1] == ("hitch/raise", (False, {"error": "busy", "message": "refused: the planner stayed busy"}))
+        svc.on_event({"event": "hitch_switch", "command": "return"})
+        assert wait_until(lambda: len(svc.switch_log) == 3, 5.0)
+        assert svc.switch_log[2] == ("hitch/return", (True, {"ok": 1}))
+        for _ in range(SWITCH_HISTORY + 3):  # bounded
+            svc.switch_log.append(("hitch/raise", None))
+        assert len(svc.switch_log) == SWITCH_HISTORY
+    finally:
+        store.close()

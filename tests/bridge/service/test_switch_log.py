@@ -13,7 +13,8 @@ def test_each_switch_edge_is_logged_with_its_answer_or_why_it_was_dropped(tmp_pa
     try:
         svc = ImplementService(store, motion=None)
         release = threading.Event()
-        answers = iter([(False, {"error": "busy", "message": "refused: the planner stayed busy"}), (True, {"ok": 1})])
+        refused = (False, {"error": "busy", "message": "refused: the planner stayed busy"})
+        answers = iter([refused, (True, {"ok": 1})])
 
         def dispatch(key):
             release.wait(5.0)
@@ -27,7 +28,7 @@ def test_each_switch_edge_is_logged_with_its_answer_or_why_it_was_dropped(tmp_pa
         release.set()
         assert wait_until(lambda: len(svc.switch_log) == 2, 5.0)
         assert svc.switch_log[0] == ("hitch/return", "dropped: the previous switch request still runs")
-        assert svc.switch_log[1] == ("hitch/raise", (False, {"error": "busy", "message": "refused: the planner stayed busy"}))
+        assert svc.switch_log[1] == ("hitch/raise", refused)
         svc.on_event({"event": "hitch_switch", "command": "return"})
         assert wait_until(lambda: len(svc.switch_log) == 3, 5.0)
         assert svc.switch_log[2] == ("hitch/return", (True, {"ok": 1}))

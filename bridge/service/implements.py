@@ -249,7 +249,9 @@ class ImplementService:
     def on_event(self, event: Mapping[str, Any]) -> None:
         """A ``hitch_switch`` event (an edge of the operator's CAN switch, ``bridge.link.hitch_switch``):
         ``hitch/raise`` or ``hitch/return`` through :attr:`dispatch` on a thread of its own (the event
-        thread must not plan). One at a time: an edge while the previous request runs is dropped."""
+        thread must not plan). One at a time: an edge while the previous request runs is dropped. A
+        press the API refuses is announced as ``hitch_switch_refused`` (``command``, ``error``,
+        ``message``): the operator sees why the hitch did not move."""
         if event.get("event") != "hitch_switch" or self.dispatch is None:
             return
         key = {"raise": "hitch/raise", "return": "hitch/return"}.get(str(event.get("command")))
@@ -262,11 +264,31 @@ class ImplementService:
 
         def run() -> None:
             try:
-                self.switch_log.append((key, dispatch(key)))
+                answer = dispatch(key)
+                self.switch_log.append((key, answer))
+                self._announce_refusal(key, answer)
             finally:
                 self._switch_busy.release()
 
         threading.Thread(target=run, name="hitch-switch", daemon=True).start()
+
+    def _announce_refusal(self, key: str, answer: Any) -> None:
+        """``hitch_switch_refused`` for an ``(ok, reply)`` answer that is not ok (nothing otherwise)."""
+        post = getattr(self.motion, "post_event", None)
+        if not callable(post) or not isinstance(answer, tuple) or len(answer) != 2 or answer[0]:
+            return
+        reply = answer[1] if isinstance(answer[1], Mapping) else {}
+        try:
+            post(
+                {
+                    "event": "hitch_switch_refused",
+                    "command": key.removeprefix("hitch/"),
+                    "error": str(reply.get("error", "refused")),
+                    "message": str(reply.get("message", ""))[:500],
+                }
+            )
+        except Exception:  # noqa: BLE001 — the core is gone (closing): the refusal is in switch_log
+            pass
 
     def use_twin(self, tractor: Any) -> None:
         """``sim/switch`` on the simulated tractor ``tractor`` (its ``bus``; None: no twin here)."""

@@ -306,6 +306,10 @@ class MotionProxy:
     def track_stop(self, session: int | None = None, last_seq: int | None = None) -> dict[str, Any]:
         return dict(self.core.call("track_stop", session, last_seq))
 
+    def post_event(self, event: Mapping[str, Any]) -> None:
+        """Announce ``event`` through the core's controller (numbered in order with its own)."""
+        self.core.call("post_event", dict(event))
+
     def maneuver_control(self, action: str) -> dict[str, Any]:
         return dict(self.core.call("maneuver_control", action))
 

@@ -88,6 +88,7 @@ _INLINE = frozenset(
         "track_stop",
         "sim_fault",
         "sim_switch",
+        "post_event",
         "ping",
     }
 )
@@ -375,6 +376,7 @@ class ControlCore:
             "distance_travelled": m.distance_travelled,
             "sim_fault": sim_fault,
             "sim_switch": sim_switch,
+            "post_event": m.post_event,
             "work": lambda op, *a: m.work.dispatch(op, *a),  # work/… (bridge.service.work.WorkControl)
             "ping": lambda: os.getpid(),
         }

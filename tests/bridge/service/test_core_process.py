@@ -60,6 +60,10 @@ def test_the_api_answers_as_with_the_core_in_threads(service):
         with pytest.raises(ServiceError) as e:
             c.request("track/stop", {})
         assert e.value.code == "not_found"
+        # an event of the service process (a refused switch press) goes out through the core's controller
+        refusal = {"event": "hitch_switch_refused", "command": "raise", "error": "busy", "message": "test"}
+        svc.api.motion.post_event(refusal)
+        assert wait_until(lambda: any(ev.get("event") == "hitch_switch_refused" for ev in events))
 
 
 def test_stop_is_answered_by_the_core_while_every_request_handler_is_wedged(service):

@@ -1,5 +1,6 @@
 """The operator switch's edges and what became of them (``ImplementService.switch_log``): a press that did not
-move the hitch says why (refused by the API, or dropped while the previous press still ran)."""
+move the hitch says why (refused by the API: also a ``hitch_switch_refused`` event; or dropped while the
+previous press still ran)."""
 
 import threading
 
@@ -11,7 +12,13 @@ from tests.helpers import wait_until
 def test_each_switch_edge_is_logged_with_its_answer_or_why_it_was_dropped(tmp_path):
     store = HitchStore(tmp_path / "hitch.sqlite3")
     try:
-        svc = ImplementService(store, motion=None)
+        posted: list[dict] = []
+
+        class Motion:
+            def post_event(self, event):
+                posted.append(dict(event))
+
+        svc = ImplementService(store, motion=Motion())
         release = threading.Event()
         refused = (False, {"error": "busy", "message": "refused: the planner stayed busy"})
         answers = iter([refused, (True, {"ok": 1})])
@@ -29,9 +36,18 @@ def test_each_switch_edge_is_logged_with_its_answer_or_why_it_was_dropped(tmp_pa
         assert wait_until(lambda: len(svc.switch_log) == 2, 5.0)
         assert svc.switch_log[0] == ("hitch/return", "dropped: the previous switch request still runs")
         assert svc.switch_log[1] == ("hitch/raise", refused)
+        assert posted == [
+            {
+                "event": "hitch_switch_refused",
+                "command": "raise",
+                "error": "busy",
+                "message": "refused: the planner stayed busy",
+            }
+        ]
         svc.on_event({"event": "hitch_switch", "command": "return"})
         assert wait_until(lambda: len(svc.switch_log) == 3, 5.0)
         assert svc.switch_log[2] == ("hitch/return", (True, {"ok": 1}))
+        assert len(posted) == 1  # an accepted press announces nothing more
         for _ in range(SWITCH_HISTORY + 3):  # bounded
             svc.switch_log.append(("hitch/raise", None))
         assert len(svc.switch_log) == SWITCH_HISTORY

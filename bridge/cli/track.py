@@ -515,11 +515,12 @@ def _stream(args, c, spec: _Spec) -> int:
                 time.sleep(delay)
             elif -delay > 2.0 / spec.rate_hz and seq > 0:
                 continue  # late (a loaded machine): skip to the setpoint of now rather than replaying the past
+            last_seq = seq  # before it goes: a stop after an interrupted put waits for it (at most the ttl)
             if seq == 0:  # the first one answered: a bad value is named at once
                 c.track_setpoint_request(session, seq, body["pose"], body.get("velocity"), timeout_s=STOP_TIMEOUT_S)
             else:
                 c.track_setpoint(session, seq, body["pose"], body.get("velocity"))
-            sent, t_sent, last_seq = sent + 1, t, seq
+            sent, t_sent = sent + 1, t
             if not quiet and t >= next_progress:
                 next_progress += PROGRESS_EVERY_S
                 with mon.lock:

@@ -12,8 +12,8 @@
   once when its grid slot is open (up to P/2 early — a caller's jitter never holds it
   back), a caller faster than P waits for the next slot; without a fresh one the last
   is repeated, P/2 after its slot (so a repetition never takes the slot of the
-  caller's next reference; frames at most 2 P apart). The ECU's watchdog needs this
-  stream.
+  caller's next reference; frames at least P/2 and at most 2 P apart, one per
+  period on average). The ECU's watchdog needs this stream.
 * **Measurements.** 0xFF22 (tilt, top, right, left, system state) and the rear hitch
   status (lift, fraction of travel) → SI through the AD calibration → exact forward
   kinematics → :class:`~bridge.link.state.LinkState`.
@@ -138,6 +138,7 @@ class CanLink:
         self._stream_since_s = math.inf  # when the current stream started
         self._next_tx_s = math.inf  # the stream's next slot (a frame per slot, module docstring)
         self._fresh = False  # a reference was taken since the last frame went out
+        self._last_tx_s = -math.inf  # when the last reference frame went out (kept across restarts)
         self._tx_error_run = 0
         self._rx = MeasurementAssembler(model, self._scaling, self._cfg, self._bump)
 
@@ -312,7 +313,7 @@ class CanLink:
                 raise
             self._faults = LinkFaults()
             self._reference, self._fresh = counts, True
-            if not self._streaming:
+            if not self._streaming:  # a (re)start: its slot now (never within P/2 of the last frame)
                 self._stream_since_s = self._next_tx_s = now_s
             self._streaming = True
             self._stream(now_s)
@@ -462,17 +463,21 @@ class CanLink:
             self._streaming = False
 
     def _stream_due_s(self) -> float:
-        """When the stream's next frame may go: a fresh reference up to half a period before its slot,
-        a repetition half a period after it."""
+        """When the stream's next frame may go: a fresh reference up to half a period before its slot (and
+        not within half a period of the last frame), a repetition half a period after it."""
         slack = _SLOT_SLACK * self._cfg.control_period_s
-        return self._next_tx_s - slack if self._fresh else self._next_tx_s + slack
+        if self._fresh:
+            return max(self._next_tx_s - slack, self._last_tx_s + slack)
+        return self._next_tx_s + slack
 
     def _stream(self, now_s: float) -> None:
         """Send the reference if its frame is due. Each frame moves the slot on by one period (to now after
-        a gap of more than a period): in any window of T seconds at most ⌊T/P⌋ + 2 frames."""
+        a gap of more than a period): frames at least P/2 apart (also across a stop and restart), at most
+        ⌊T/P + ½⌋ + 2 in any window of T seconds, one per period on average."""
         if not self._streaming or self._reference is None or now_s < self._stream_due_s() - _EPS_S:
             return
         self._next_tx_s = max(self._next_tx_s + self._cfg.control_period_s, now_s)
+        self._last_tx_s = now_s
         self._fresh = False
         if self._send([self._codec.encode(self._reference, source=self._cfg.source_address)]):
             self._bump(references_tx=1)

@@ -264,7 +264,10 @@ class ImplementService:
 
         def run() -> None:
             try:
-                answer = dispatch(key)
+                try:
+                    answer = dispatch(key)
+                except Exception as exc:  # noqa: BLE001 — logged and announced, never lost with the thread
+                    answer = (False, {"error": "internal", "message": f"{type(exc).__name__}: {exc}"})
                 self.switch_log.append((key, answer))
                 self._announce_refusal(key, answer)
             finally:

@@ -219,7 +219,7 @@ class TrackStop(_Strict):
     query), waited for at most the session's ttl."""
 
     session: int | None = Field(None, ge=1)
-    last_seq: int | None = Field(None, ge=0)
+    last_seq: int | None = Field(None, ge=0, le=2**53)
 
 
 class TrackVelocity(_Strict):

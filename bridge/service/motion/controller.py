@@ -517,6 +517,8 @@ class MotionController:
                 raise MotionError("not_found", f"session {session} is not live ({live})")
             if m.reason is None:
                 m.reason = "track/stop"
+            if self.work is not None and self.work.owns(m.session):
+                last_seq = None  # work control feeds it (no client sequence to wait for): brake now
             now_braking = m.stop_after_seq(last_seq, self.clock())
             reply: dict[str, Any] = {"stopping": True, "session": m.session, "motion_id": m.motion_id}
             if not now_braking:

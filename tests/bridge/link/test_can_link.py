@@ -209,9 +209,10 @@ def test_a_fresh_reference_may_come_half_a_period_early_and_a_faster_caller_wait
 
 
 def test_the_stream_never_exceeds_its_rate_and_never_pauses_beyond_two_periods(rig, tap, model):
-    """Property over random call times (bursts, gaps, stalls): in any window of T seconds at most
-    floor(T/P) + 2 frames; while streaming, frames at most 2 P apart (a frame sent P/2 early, then a
-    repetition P/2 late), well inside the ECU's 100 ms watchdog."""
+    """Property over random call times (bursts, gaps, stalls): frames at least P/2 apart and k + 1 frames
+    span at least (k - 1) P - P/2 (at most floor(T/P + 1/2) + 2 in any window of T seconds); while
+    streaming, at most 2 P apart (a frame sent P/2 early, then a repetition P/2 late), well inside the
+    ECU's 100 ms watchdog."""
     a, b = _two_references(model)
     rng = np.random.default_rng(1939)
     t0 = round(rig.next_tick_s, 6)
@@ -226,8 +227,32 @@ def test_the_stream_never_exceeds_its_rate_and_never_pauses_beyond_two_periods(r
     assert len(times) > 60
     for i in range(len(times)):
         for j in range(i + 1, len(times)):
-            assert times[j] - times[i] >= (j - i - 1) * p - 1e-9, (i, j, times[i], times[j])
+            assert times[j] - times[i] >= (j - i - 1) * p - p / 2 - 1e-9, (i, j, times[i], times[j])
+    assert np.min(np.diff(times)) >= p / 2 - 1e-9
     assert np.max(np.diff(times)) <= 2 * p + 1e-9
+
+
+def test_a_late_frame_or_a_restart_never_sends_within_half_a_period_of_the_last_frame(rig, tap, model):
+    """Review findings: a repetition polled 9.9 ms late let the next fresh reference out 0.1 ms later (3
+    frames in 10.1 ms), and a stop and restart sent at once whatever went just before."""
+    a, b = _two_references(model)
+    t0 = round(rig.next_tick_s, 6)
+    link = rig.link
+    sent = []
+
+    def step(fn, t):
+        fn(t)
+        sent.extend(t for _ in references_on(drain(tap)))
+
+    step(lambda t: link.send_reference(a, t), t0)  # slot t0 + P next
+    step(link.poll, t0 + 0.0399)  # the repetition, 9.9 ms late
+    step(lambda t: link.send_reference(b, t), t0 + 0.0400)  # held: within P/2 of the repetition
+    step(link.poll, t0 + 0.0498)
+    step(link.poll, t0 + 0.0499)  # P/2 after the repetition: goes
+    step(lambda t: (link.stop_motion(), link.send_reference(a, t)), t0 + 0.0505)  # restart: held
+    step(link.poll, t0 + 0.0598)
+    step(link.poll, t0 + 0.0599)  # P/2 after the last frame
+    assert [round(t - t0, 4) for t in sent] == [0.0, 0.0399, 0.0499, 0.0599], sent
 
 
 def test_stream_rate_configurable(model):

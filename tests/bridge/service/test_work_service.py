@@ -200,6 +200,22 @@ def test_a_plain_track_setpoint_for_the_work_session_is_refused_and_counted(mode
         s.close()
 
 
+def test_track_stop_with_a_last_seq_brakes_a_work_session_at_once(model, tmp_path):
+    """Work control feeds its session; no client sequence exists to wait for. A ``track/stop`` naming a
+    ``last_seq`` brakes at once (review finding: it waited the whole ttl while work control went on)."""
+    s = Service(model, tmp_path / "h.sqlite3", FakeInputs(ground_z=0.3))
+    try:
+        s.ok("work/settings", {"mode": "position"})
+        session = s.ok("work/start", {"z": 0.05})["session"]
+        s.run(1.0)
+        reply = s.ok("track/stop", {"session": session, "last_seq": 10**6})
+        assert reply["stopping"] and "after_seq" not in reply, reply
+        s.run(0.04)
+        assert s.states[-1]["track"] is None or s.states[-1]["track"]["ending"]
+    finally:
+        s.close()
+
+
 # ---------------------------------------------------------------------- the core in its own process
 FLAT_FIELD = """
 schema_version = 1

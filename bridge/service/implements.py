@@ -110,7 +110,7 @@ class ImplementService:
         self.selected: str = persisted or selected or DEFAULT_IMPLEMENT
         self.warning: str | None = None
         #: how a switch edge is served (``key`` → the API's handling of it; set by :func:`implement_handlers`)
-        self.dispatch: Callable[[str], Any] | None = None
+        self.dispatch: Callable[[str], tuple[bool, dict[str, Any]]] | None = None
         #: told every implement the controller accepted (the planning processes: previews and maneuver
         #: validation plan with the selected implement's guard; set by :func:`implement_handlers`)
         self.on_applied: Callable[[ImplementRecord | None, ImplementLimits], None] | None = None
@@ -121,7 +121,7 @@ class ImplementService:
         self._switch_busy = threading.Lock()
         #: the switch's edges and what became of them, newest last (key, the dispatch's answer or
         #: "dropped: busy"), at most :data:`SWITCH_HISTORY` — a press that did not move the hitch says why
-        self.switch_log: deque[tuple[str, Any]] = deque(maxlen=SWITCH_HISTORY)
+        self.switch_log: deque[tuple[str, tuple[bool, dict[str, Any]] | str]] = deque(maxlen=SWITCH_HISTORY)
 
     # ------------------------------------------------------------------ start
     def restore(self) -> None:
@@ -275,12 +275,12 @@ class ImplementService:
 
         threading.Thread(target=run, name="hitch-switch", daemon=True).start()
 
-    def _announce_refusal(self, key: str, answer: Any) -> None:
+    def _announce_refusal(self, key: str, answer: tuple[bool, dict[str, Any]]) -> None:
         """``hitch_switch_refused`` for an ``(ok, reply)`` answer that is not ok (nothing otherwise)."""
         post = getattr(self.motion, "post_event", None)
-        if not callable(post) or not isinstance(answer, tuple) or len(answer) != 2 or answer[0]:
+        ok, reply = answer
+        if ok or not callable(post):
             return
-        reply = answer[1] if isinstance(answer[1], Mapping) else {}
         try:
             post(
                 {

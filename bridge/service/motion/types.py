@@ -402,8 +402,7 @@ class TrackMotion:
         (a Zenoh put) and the stop (a query) travel different paths and may arrive in either order."""
         seen = self.seq.last
         if last_seq is None or self.ending or (seen is not None and seen >= last_seq):
-            self.stop_after = None
-            self.follower.stop()
+            self._brake_now()
             return True
         self.stop_after = (int(last_seq), now + self.follower.ttl_s)
         return False
@@ -411,8 +410,12 @@ class TrackMotion:
     def take_stop(self, seq: int) -> None:
         """After setpoint ``seq`` was handled (taken or refused): the waiting stop brakes once it came."""
         if self.stop_after is not None and seq >= self.stop_after[0]:
-            self.stop_after = None
-            self.follower.stop()
+            self._brake_now()
+
+    def _brake_now(self) -> None:
+        """The stop (waiting or not) brakes from this cycle on."""
+        self.stop_after = None
+        self.follower.stop()
 
     @property
     def ending(self) -> bool:
@@ -427,8 +430,7 @@ class TrackMotion:
         self.cycles += 1
         events: list[Event] = []
         if self.stop_after is not None and now >= self.stop_after[1]:  # the last setpoint never came
-            self.stop_after = None
-            self.follower.stop()
+            self._brake_now()
         if self.cycles % TRACK_GUARD_EVERY == 1 and not self.ending:
             rates = self.follower.guard_rates(1.0)
             _, self.decision = guard.check_jog(self.follower.state, rates)

@@ -36,15 +36,17 @@ from planner.calibration.accuracy import (
     thesis_sequence,
 )
 from planner.model.kinematics import HitchModel
-from planner.trajectory import MotionState, TrajectoryPlanner
+from planner.trajectory import MotionState, PlanError, TrajectoryPlanner
 
 __all__ = [
     "INSTRUMENTS",
     "AccuracyRun",
     "AccuracyRunSettings",
     "FrameReading",
+    "PoseVisits",
     "read_frame",
     "run_accuracy_test",
+    "visit_poses",
 ]
 
 #: instrument names of the test → the noise preset of :class:`~bridge.sim.truth.InstrumentNoise`
@@ -185,39 +187,131 @@ class AccuracyRun:
         }
 
 
-def _goto(
-    rig: SimRig, tp: TrajectoryPlanner, shaper: FeedforwardShaper, goal: dict[str, float], s: AccuracyRunSettings
-):
-    """One real goto over the CAN path; returns the commanded pose (4,) once the valves rested ``hold_s``."""
-    state = rig.link.latest_state()
-    if state is None:
-        raise SimError(
-            f"no measurement from the simulated ECU (faults: {', '.join(rig.link.faults.reasons) or 'none'})"
+@dataclass(frozen=True)
+class PoseVisits:
+    """Poses reached by real gotos on the twin (:func:`visit_poses`): per pose the ``commanded`` pose
+    (N, 4; x, z, roll, pitch, SI), the twin's ``true`` pose (N, 4), the link's AD ``counts`` at rest
+    (N, 5, actuator order; the lift recovered from the hitch status) and the ``planner`` pose (N, 4, the
+    link's measurement through the model's profile); ``simulated_s`` of the run."""
+
+    commanded: np.ndarray
+    true: np.ndarray
+    counts: np.ndarray
+    planner: np.ndarray
+    simulated_s: float
+    refused: tuple[tuple[int, str], ...] = ()
+    """Poses the planner refused (``skip_refused``): (index, reason); their rows are NaN."""
+
+
+class _TwinGotos:
+    """A :class:`SimRig` on ``truth`` driven by real gotos of ``model``'s planner (with the profile's final
+    approach, if any) through the unit loops' feed-forward, each held until the valves rested ``hold_s``."""
+
+    def __init__(self, model: HitchModel, truth: MachineTruth, start: np.ndarray, s: AccuracyRunSettings) -> None:
+        self.tp = TrajectoryPlanner(model)
+        self.s = s
+        self.rig = SimRig(
+            model,
+            SimSettings(tick_s=s.tick_s, seed=s.seed),
+            initial_actuators=self.tp.inverse.solve(start)[0],
+            truth=truth,
         )
-    p0 = state.pose.controlled()
-    p1 = tp.goal_vector(p0, goal)
-    tp.check_in_workspace(p1, "accuracy-test pose")
-    plan = tp.plan_move(MotionState.at_rest(p0), dict(zip(_DOF, map(float, p1), strict=True)))
-    sp = tp.sample(plan)
-    refs = [
-        shaper.for_plan(plan.state_at, float(t), q, qd)
-        for t, q, qd in zip(sp.t, sp.actuators, sp.actuator_velocity, strict=True)
-    ]
-    t0, k = rig.now_s, 0
-    quiet_since: float | None = None
-    while True:
-        while k < len(refs) and rig.next_tick_s >= t0 + float(sp.t[k]) - 1e-9:
-            rig.link.send_reference(refs[k], rig.next_tick_s)
-            k += 1
-        t = rig.tick()
-        if k == len(refs) and not rig.ecu.valve_commands().any():
-            quiet_since = t if quiet_since is None else quiet_since
-            if t - quiet_since >= s.hold_s - 1e-9:
-                return p1
-        else:
-            quiet_since = None
-        if t - t0 >= s.max_move_s:
-            return p1  # measured as it stands (a cylinder still hunting): the error shows it
+        loops = build_unit_loops(model.profile, self.rig.ecu.config.a)
+        self.shaper = FeedforwardShaper(loops, self.tp.inverse.solve_full, self.rig.link.check_reference)
+
+    def __enter__(self) -> _TwinGotos:
+        self.rig.__enter__()
+        self.rig.start()
+        self.rig.run_until(self.s.warmup_s)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.rig.__exit__(*exc)
+
+    def state(self):
+        state = self.rig.link.latest_state()
+        if state is None:
+            raise SimError(
+                f"no measurement from the simulated ECU (faults: {', '.join(self.rig.link.faults.reasons) or 'none'})"
+            )
+        return state
+
+    def goto(self, goal: dict[str, float], what: str) -> np.ndarray:
+        """One real goto over the CAN path; the commanded pose (4,) once the valves rested ``hold_s``."""
+        rig, tp, s = self.rig, self.tp, self.s
+        p0 = self.state().pose.controlled()
+        p1 = tp.goal_vector(p0, goal)
+        tp.check_in_workspace(p1, what)
+        plan = tp.plan_move(MotionState.at_rest(p0), dict(zip(_DOF, map(float, p1), strict=True)))
+        sp = tp.sample(plan)
+        refs = [
+            self.shaper.for_plan(plan.state_at, float(t), q, qd)
+            for t, q, qd in zip(sp.t, sp.actuators, sp.actuator_velocity, strict=True)
+        ]
+        t0, k = rig.now_s, 0
+        quiet_since: float | None = None
+        try:
+            while True:
+                while k < len(refs) and rig.next_tick_s >= t0 + float(sp.t[k]) - 1e-9:
+                    rig.link.send_reference(refs[k], rig.next_tick_s)
+                    k += 1
+                t = rig.tick()
+                if k == len(refs) and not rig.ecu.valve_commands().any():
+                    quiet_since = t if quiet_since is None else quiet_since
+                    if t - quiet_since >= s.hold_s - 1e-9:
+                        return p1
+                else:
+                    quiet_since = None
+                if t - t0 >= s.max_move_s:
+                    return p1  # measured as it stands (a cylinder still hunting): the error shows it
+        except (ReferenceRefused, LinkFaultError) as exc:  # a refused reference or a link fault
+            raise SimError(f"t = {rig.now_s:.2f} s: {exc}") from None
+
+
+def visit_poses(
+    model: HitchModel,
+    poses: ArrayLike,
+    truth: MachineTruth | None = None,
+    settings: AccuracyRunSettings | None = None,
+    *,
+    skip_refused: bool = False,
+) -> PoseVisits:
+    """Drive the twin with ``truth`` (default: nominal) to each pose (N, 4; x, z, roll, pitch [m, rad]) in
+    order by a real goto of ``model``'s planner (from the profile's neutral pose), as the operator does
+    before measuring a pose; record where the implement truly is and what the link reads.
+
+    Raises :class:`SimError` (no measurement, a refused reference) or a
+    :class:`~planner.trajectory.plan.PlanError` (a pose out of the workspace or no plan within the
+    limits; with ``skip_refused`` such a pose is left out instead, its rows NaN, named in ``refused``).
+    """
+    s = settings if settings is not None else AccuracyRunSettings()
+    p = np.asarray(poses, dtype=float)
+    if p.ndim != 2 or p.shape[1] != 4 or p.shape[0] < 1 or not np.all(np.isfinite(p)):
+        raise SimError("poses must be a non-empty (N, 4) array of finite x, z, roll, pitch [m, rad]")
+    truth = truth if truth is not None else MachineTruth.nominal(model.profile)
+    n = p.shape[0]
+    cmd, true, planner, counts = (
+        np.full((n, 4), np.nan),
+        np.full((n, 4), np.nan),
+        np.full((n, 4), np.nan),
+        np.full((n, 5), np.nan),
+    )
+    refused: list[tuple[int, str]] = []
+    with _TwinGotos(model, truth, model.neutral_pose.controlled(), s) as tw:
+        for k, pose in enumerate(p):
+            try:
+                cmd[k] = tw.goto(dict(zip(_DOF, map(float, pose), strict=True)), f"poses[{k}]")
+            except PlanError as exc:
+                if not skip_refused:
+                    raise
+                refused.append((k, str(exc)))
+                continue
+            true[k] = tw.rig.true_pose().controlled()
+            state = tw.state()
+            counts[k] = state.counts
+            planner[k] = state.pose.controlled()
+        simulated = tw.rig.now_s
+    return PoseVisits(cmd, true, counts, planner, simulated, tuple(refused))
 
 
 def run_accuracy_test(
@@ -236,7 +330,6 @@ def run_accuracy_test(
     if not any(p.measure for p in seq):
         raise SimError("the sequence has no pose to measure")
     truth = truth if truth is not None else MachineTruth.nominal(model.profile)
-    tp = TrajectoryPlanner(model)
     home = model.neutral_pose.controlled()
     noise = InstrumentNoise.preset(INSTRUMENTS[s.instrument])
     rng = np.random.default_rng(s.seed)
@@ -245,31 +338,21 @@ def run_accuracy_test(
     meas: list[tuple[float, float, float, float]] = []
     true: list[np.ndarray] = []
     planner: list[np.ndarray] = []
-    with SimRig(
-        model, SimSettings(tick_s=s.tick_s, seed=s.seed), initial_actuators=tp.inverse.solve(home)[0], truth=truth
-    ) as rig:
-        pts = model.forward(tp.inverse.solve(home)[0]).points
+    with _TwinGotos(model, truth, home, s) as tw:
+        pts = model.forward(tw.tp.inverse.solve(home)[0]).points
         rear = 1.0 if float(pts["T"][1] - pts["H"][1]) >= 0.0 else -1.0  # the frame extends away from the tractor
-        shaper = FeedforwardShaper(
-            build_unit_loops(model.profile, rig.ecu.config.a), tp.inverse.solve_full, rig.link.check_reference
-        )
-        rig.start()
-        rig.run_until(s.warmup_s)
-        try:
-            for step in seq:
-                p1 = _goto(rig, tp, shaper, step.goal(home), s)
-                if not step.measure:
-                    continue
-                tpose = rig.true_pose().controlled()
-                state = rig.link.latest_state()
-                labels.append(step.label)
-                cmd.append(p1)
-                true.append(tpose)
-                planner.append(state.pose.controlled() if state is not None else np.full(4, np.nan))
-                meas.append(read_frame(tpose, noise, rng, rear_sign=rear).pose)
-        except (ReferenceRefused, LinkFaultError) as exc:  # a refused reference or a link fault
-            raise SimError(f"t = {rig.now_s:.2f} s: {exc}") from None
-        simulated = rig.now_s
+        for step in seq:
+            p1 = tw.goto(step.goal(home), "accuracy-test pose")
+            if not step.measure:
+                continue
+            tpose = tw.rig.true_pose().controlled()
+            state = tw.rig.link.latest_state()
+            labels.append(step.label)
+            cmd.append(p1)
+            true.append(tpose)
+            planner.append(state.pose.controlled() if state is not None else np.full(4, np.nan))
+            meas.append(read_frame(tpose, noise, rng, rear_sign=rear).pose)
+        simulated = tw.rig.now_s
     c, m, t = np.array(cmd), np.array(meas), np.array(true)
     return AccuracyRun(
         truth=truth.profile.name,

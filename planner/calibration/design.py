@@ -53,9 +53,10 @@ def measured_rows(points: bool = False, pose: bool = True) -> np.ndarray:
 
 
 def candidate_poses(
-    model: ParametricModel, n: int = 300, *, seed: int = 0, margin: float = 0.02
+    model: ParametricModel, n: int = 300, *, seed: int = 0, margin: float = 0.02, random_only: bool = False
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(poses (M, 4), nominal actuators (M, 5)) inside the restricted workspace and the strokes."""
+    """(poses (M, 4), nominal actuators (M, 5)) inside the restricted workspace and the strokes: the box's
+    corners, face centres and centre (2 % inside), then ``n`` seeded random poses (``random_only``: those alone)."""
     if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= 100_000:
         raise CalibrationError(f"n must be an integer in [1, 100000], got {n!r}")
     if not (isinstance(margin, (int, float)) and 0.0 <= margin < 0.5):
@@ -80,7 +81,7 @@ def candidate_poses(
             faces.append(f)
     rng = np.random.default_rng(seed)
     samples = lo + (hi - lo) * rng.random((n, 4))
-    cands = np.vstack([corners, np.array(faces), mid[None, :], samples])
+    cands = samples if random_only else np.vstack([corners, np.array(faces), mid[None, :], samples])
     inv = ExactInverse(hm)
     stroke = hm.upper - hm.lower
     q_lo, q_hi = hm.lower + margin * stroke, hm.upper - margin * stroke

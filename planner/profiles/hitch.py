@@ -27,6 +27,7 @@ __all__ = [
     "Profile",
     "ActuatorSpec",
     "Category",
+    "FinalApproach",
     "load_profile",
     "available_profiles",
     "profile_from_dict",
@@ -183,6 +184,21 @@ class Limits(_Strict):
     end_stop_zone: float = Field(default=0.05, ge=0.0, le=0.5)
 
 
+class FinalApproach(_Strict):
+    """How far below a goto's goal its last segment starts, per DOF [m, m, rad, rad] (0: no approach in that
+    DOF): the move ends rising in every DOF, so pin play and the ECU's stop inside a count are taken up
+    on the same side every time (:mod:`planner.trajectory.final_approach`)."""
+
+    x: float = Field(ge=0.0, le=0.05)
+    z: float = Field(ge=0.0, le=0.05)
+    roll: float = Field(ge=0.0, le=0.1)
+    pitch: float = Field(ge=0.0, le=0.1)
+
+    def offset(self) -> tuple[float, float, float, float]:
+        """(x, z, roll, pitch) [m, m, rad, rad]."""
+        return (self.x, self.z, self.roll, self.pitch)
+
+
 class Motion(_Strict):
     """Motion limits derived from the valves.
 
@@ -198,6 +214,8 @@ class Motion(_Strict):
     #: tuning a of the cylinder ECU's unit controllers (thesis 2.57), 0.581 on the thesis's machine (thesis §3.1);
     #: the planner needs it to invert the unit loops (feed-forward), the simulated ECU runs with it
     controller_a: float = Field(default=THESIS_CONTROLLER_A, gt=0, le=2.0)
+    #: unidirectional final approach of every goto (None: gotos end straight from where they come)
+    final_approach: FinalApproach | None = None
 
 
 class Stability(_Strict):

@@ -34,6 +34,7 @@ from planner.model.kinematics import HitchModel
 from planner.model.types import CONTROLLED_POSE_NAMES, KinematicsError
 from planner.trajectory.actuator_limits import ActuatorLimits
 from planner.trajectory.braking import StopProbe, beyond, braking_limits, current_floor
+from planner.trajectory.final_approach import final_approach_via
 from planner.trajectory.plan import (
     MotionState,
     Plan,
@@ -105,6 +106,9 @@ class TrajectoryPlanner:
         self._traj1 = Trajectory(1)
         self._probe = StopProbe()
         self._line_cache: dict[tuple[bytes, bytes], tuple[ActuatorLimits, PoseLimits]] = {}
+        fa = model.profile.motion.final_approach
+        #: rise of a goto's last segment per DOF [m, m, rad, rad] (``motion.final_approach``; None: off)
+        self.final_approach: np.ndarray | None = None if fa is None else np.array(fa.offset())
 
     # ------------------------------------------------------------------ goals
     def goal_vector(self, current: ArrayLike, goal: Mapping[str, float]) -> np.ndarray:
@@ -147,11 +151,22 @@ class TrajectoryPlanner:
 
     # ------------------------------------------------------------------ planning
     def plan_move(self, start: MotionState, goal: Mapping[str, float], *, speed_scale: float = 1.0) -> Plan:
-        """Plan from ``start`` to a (partial) goal pose, ending at rest."""
+        """Plan from ``start`` to a (partial) goal pose, ending at rest; with the profile's
+        ``motion.final_approach`` through a via pose below the goal (:mod:`.final_approach`;
+        ``plan.info["final_approach"]`` gives the via and the DOF whose approach the workspace shortens)."""
         scale = _check_scale(speed_scale)
         p1 = self.goal_vector(start.position, goal)
         self.check_in_workspace(p1)
-        return self._plan_segments(start, [(p1, np.zeros(4), scale)])
+        if self.final_approach is None:
+            return self._plan_segments(start, [(p1, np.zeros(4), scale)])
+        approach = final_approach_via(start.position, p1, self.final_approach, self.lo)
+        targets = [(p1, np.zeros(4), scale)]
+        if approach.via is not None:
+            targets.insert(0, (approach.via, np.zeros(4), scale))
+        plan = self._plan_segments(start, targets)
+        via = None if approach.via is None else [float(v) for v in approach.via]
+        plan.info["final_approach"] = {"via": via, "short": list(approach.short)}
+        return plan
 
     def plan_sequence(
         self, start: MotionState, waypoints: Sequence[Waypoint], *, blend: bool = False, blend_fraction: float = 0.5

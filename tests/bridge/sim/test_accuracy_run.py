@@ -5,10 +5,11 @@ import can
 import numpy as np
 import pytest
 
-from bridge.sim.accuracy_run import AccuracyRunSettings, read_frame, run_accuracy_test
+from bridge.sim.accuracy_run import AccuracyRunSettings, read_frame, run_accuracy_test, visit_poses
 from bridge.sim.rig import SimError, SimRig, SimSettings
-from bridge.sim.truth import InstrumentNoise, MachineTruth, perturb_profile
+from bridge.sim.truth import InstrumentNoise, MachineTruth, PinPlay, TrueMachine, perturb_profile
 from planner.calibration.accuracy import AccuracyPose, thesis_sequence
+from planner.model.kinematics import HitchModel
 from planner.profiles.hitch import profile_from_dict
 from planner.trajectory import MotionState, TrajectoryPlanner
 
@@ -116,3 +117,37 @@ def test_bad_settings_and_an_empty_sequence():
         AccuracyRunSettings(hold_s=0.0)
     with pytest.raises(SimError, match="no pose to measure"):
         run_accuracy_test(None, None, None, [AccuracyPose("home", (0, 0, 0, 0), measure=False)])  # type: ignore[arg-type]
+
+
+def test_with_the_final_approach_a_pose_is_reached_the_same_from_above_and_below_despite_pin_play(model):
+    """1 mm of play at the balls and pins: without the final approach the implement lags on the side it came
+    from (x, roll, pitch differ by about twice the play band between visits from above and from below);
+    with it every visit ends rising, so the lag is the same every time (a fixed offset)."""
+    truth = MachineTruth(model.profile, PinPlay(0.001, 0.001))
+    band = TrueMachine(truth).band
+    home = model.neutral_pose.controlled()
+    goal = home + np.array([0.01, 0.02, 0.01, 0.01])
+    step = np.array([0.02, 0.05, 0.02, 0.02])
+    poses = np.array([goal + step, goal, goal - step, goal])
+    spread = {}
+    for name, fa in (("plain", None), ("final approach", {"x": 0.0025, "z": 0.004, "roll": 0.005, "pitch": 0.007})):
+        d = model.profile.model_dump()
+        d["motion"]["final_approach"] = fa
+        v = visit_poses(HitchModel(profile_from_dict(d)), poses, truth)
+        assert np.allclose(v.commanded, poses, atol=1e-12) and v.refused == ()
+        assert np.all(v.counts[1] == v.counts[3])  # the same whole counts both times: the difference is the play
+        spread[name] = np.abs(v.true[1] - v.true[3]) / (2 * band)
+    assert np.all(spread["plain"][[0, 2, 3]] > 0.75), spread
+    assert np.all(spread["final approach"] < 0.15), spread
+
+
+def test_visit_poses_skips_a_refused_pose_when_asked_and_names_it(model):
+    home = model.neutral_pose.controlled()
+    outside = home + np.array([0.0, 0.0, 0.0, 1.0])  # 1 rad of pitch: outside the workspace
+    with pytest.raises(Exception, match="pitch"):
+        visit_poses(model, np.array([home, outside]))
+    v = visit_poses(model, np.array([outside, home]), skip_refused=True)
+    assert [k for k, _ in v.refused] == [0] and "pitch" in v.refused[0][1]
+    assert np.all(np.isnan(v.true[0])) and np.all(np.isfinite(v.true[1]))
+    with pytest.raises(SimError, match="poses"):
+        visit_poses(model, np.zeros((0, 4)))

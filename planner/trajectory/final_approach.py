@@ -1,0 +1,57 @@
+"""Unidirectional final approach: a goto ends rising in every DOF (backlash take-up).
+
+Two things make where the implement stops depend on the side it came from:
+
+* **pin play** at the lower-link balls and top-link pins: the implement lags the mechanism by up to
+  the play band in each DOF (a dead band), on the side the motion came from;
+* **the ECU's stop inside a count**: the unit controller cuts the valve when the AD reading reaches
+  the reference count, so a piston that rose into its count stops near the count's lower edge
+  (plus what it coasts), one that fell into it near the upper edge.
+
+Approached from the same side every time, both become fixed offsets, which a geometry calibration
+from poses measured the same way absorbs (AD offsets, lengths). Machine tools do the same
+(unidirectional positioning). With ``offset`` ``d`` (per DOF, from the profile's
+``motion.final_approach``) a goto to ``goal`` therefore goes first to the **via** pose
+
+    via = max(min(start, goal − d), workspace minimum)        (per DOF)
+
+and then rises to ``goal`` on a straight line, from rest to rest (each DOF monotonic). A DOF that
+starts at least ``d`` below its goal does not move in the first segment (``via = start`` there); when
+every DOF does, no via is needed. Near the workspace's lower face the via is cut at the face and the
+approach in that DOF is shorter than ``d`` (named in :attr:`ApproachVia.short`). ``d`` must exceed
+twice the play band so the implement changes side even from the opposite extreme.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from planner.model.types import CONTROLLED_POSE_NAMES
+
+__all__ = ["ApproachVia", "final_approach_via"]
+
+_TOL = 1e-9
+
+
+@dataclass(frozen=True)
+class ApproachVia:
+    """The via pose of a final approach (x, z, roll, pitch; None: the straight move already rises by the
+    offset in every DOF) and the DOF whose approach the workspace's lower face shortens."""
+
+    via: np.ndarray | None
+    short: tuple[str, ...]
+
+
+def final_approach_via(start: ArrayLike, goal: ArrayLike, offset: ArrayLike, lower: ArrayLike) -> ApproachVia:
+    """The via pose for a final approach from ``start`` to ``goal`` rising by ``offset`` (module docstring);
+    ``lower``: the workspace minimum. All (4,) in x, z, roll, pitch [m, m, rad, rad]."""
+    p0, p1 = np.asarray(start, float), np.asarray(goal, float)
+    d, lo = np.asarray(offset, float), np.asarray(lower, float)
+    via = np.maximum(np.minimum(p0, p1 - d), lo)
+    short = tuple(k for k, v, g, dd in zip(CONTROLLED_POSE_NAMES, via, p1, d, strict=True) if g - v < dd - _TOL)
+    if np.all(np.abs(via - p0) <= _TOL):
+        return ApproachVia(None, short)
+    return ApproachVia(via, short)

@@ -137,7 +137,9 @@ def _cmd_measure_twin(args) -> int:
     d = _design(args, model)
     truth = load_machine_truth(args.sim_truth)
     points = ("L", "R", "U") if args.points else ()
-    data = measure_twin(model.nominal_model, truth, d.poses, noise=args.noise, points=points, seed=args.seed)
+    data = measure_twin(
+        model.nominal_model, truth, d.poses, noise=args.noise, points=points, seed=args.seed, by=args.by
+    )
     text = calibration_csv(data)
     try:
         Path(args.out).write_text(text, encoding="utf-8")
@@ -194,4 +196,11 @@ def add_commands(sub) -> None:
     m.add_argument("--sim-truth", required=True, help="truth profile (hitch sim perturb --out)")
     m.add_argument("--noise", default="station", choices=("tape", "station", "none"), help="instrument noise")
     m.add_argument("--out", required=True, help="measurement CSV to write")
+    m.add_argument(
+        "--by",
+        default="static",
+        choices=("static", "goto"),
+        help="static: pistons at the whole counts, each pose approached from both sides (default); goto: real "
+        "gotos of the profile's planner over CAN on the running twin (with its motion.final_approach), one row each",
+    )
     m.set_defaults(handler=_cmd_measure_twin)

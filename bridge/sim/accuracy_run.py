@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike
 from bridge.link.state import LinkFaultError, ReferenceRefused
 from bridge.link.unit_loop import FeedforwardShaper, build_unit_loops
 from bridge.sim.rig import SimError, SimRig, SimSettings
-from bridge.sim.truth import InstrumentNoise, MachineTruth
+from bridge.sim.truth import Instrument, InstrumentNoise, MachineTruth, Measurement
 from planner.calibration.accuracy import (
     AccuracyPose,
     DofStatistics,
@@ -201,6 +201,10 @@ class PoseVisits:
     simulated_s: float
     refused: tuple[tuple[int, str], ...] = ()
     """Poses the planner refused (``skip_refused``): (index, reason); their rows are NaN."""
+    measurements: tuple[Measurement | None, ...] = ()
+    """The ``instrument``'s reading of each pose (None where refused; empty without an instrument)."""
+    points: tuple[dict[str, np.ndarray], ...] = ()
+    """True positions of the named ``points`` at each pose (empty dicts where refused or none asked)."""
 
 
 class _TwinGotos:
@@ -275,10 +279,13 @@ def visit_poses(
     settings: AccuracyRunSettings | None = None,
     *,
     skip_refused: bool = False,
+    instrument: Instrument | None = None,
+    points: Sequence[str] = (),
 ) -> PoseVisits:
     """Drive the twin with ``truth`` (default: nominal) to each pose (N, 4; x, z, roll, pitch [m, rad]) in
     order by a real goto of ``model``'s planner (from the profile's neutral pose), as the operator does
-    before measuring a pose; record where the implement truly is and what the link reads.
+    before measuring a pose; record where the implement truly is and what the link reads, and (with an
+    ``instrument``) what the instrument reads of the pose and the named ``points``.
 
     Raises :class:`SimError` (no measurement, a refused reference) or a
     :class:`~planner.trajectory.plan.PlanError` (a pose out of the workspace or no plan within the
@@ -297,6 +304,8 @@ def visit_poses(
         np.full((n, 5), np.nan),
     )
     refused: list[tuple[int, str]] = []
+    readings: list[Measurement | None] = []
+    marked: list[dict[str, np.ndarray]] = []
     with _TwinGotos(model, truth, model.neutral_pose.controlled(), s) as tw:
         for k, pose in enumerate(p):
             try:
@@ -305,13 +314,20 @@ def visit_poses(
                 if not skip_refused:
                     raise
                 refused.append((k, str(exc)))
+                readings.append(None)
+                marked.append({})
                 continue
             true[k] = tw.rig.true_pose().controlled()
+            machine = tw.rig.true_machine
+            marked.append(machine.points(tuple(points)) if points else {})
+            readings.append(instrument.measure(machine, tuple(points)) if instrument is not None else None)
             state = tw.state()
             counts[k] = state.counts
             planner[k] = state.pose.controlled()
         simulated = tw.rig.now_s
-    return PoseVisits(cmd, true, counts, planner, simulated, tuple(refused))
+    return PoseVisits(
+        cmd, true, counts, planner, simulated, tuple(refused), tuple(readings) if instrument else (), tuple(marked)
+    )
 
 
 def run_accuracy_test(

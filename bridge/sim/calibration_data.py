@@ -111,19 +111,29 @@ def measure_twin(
     rigid_span: bool = True,
     approach: Literal["both", "direct"] = "both",
     dither: bool = False,
+    by: Literal["static", "goto"] = "static",
 ) -> TwinMeasurements:
     """Visit ``poses`` (N, 4) on the twin in order (module docstring) and measure each one (``approach="both"``:
     rows 2k and 2k+1 are pose k approached from below and from above). ``dither``: each piston anywhere
-    in its count's band (module docstring; drawn from ``seed``); the AD readings stay the whole counts."""
+    in its count's band (module docstring; drawn from ``seed``); the AD readings stay the whole counts.
+
+    ``by="goto"``: the operator's procedure on the running twin instead — each pose reached by a real goto
+    of ``model``'s planner over CAN (with the profile's ``motion.final_approach``, if any; the pistons where
+    the ECU leaves them), one row per pose, the readings the link's counts at rest
+    (:func:`~bridge.sim.accuracy_run.visit_poses`; ``approach``, ``dither`` and ``rigid_span`` do not apply)."""
     if approach not in ("both", "direct"):
         raise TruthError(f"approach must be both or direct, got {approach!r}")
+    if by not in ("static", "goto"):
+        raise TruthError(f"by must be static or goto, got {by!r}")
     dither = _flag("dither", dither)
-    rng = np.random.default_rng([_seed(seed), 1])
     p = _poses(poses)
+    inst = Instrument(noise, seed=seed)
+    if by == "goto":
+        return _measure_by_goto(model, truth, p, inst, tuple(points), _seed(seed))
+    rng = np.random.default_rng([_seed(seed), 1])
     cmd = _Commander(model)
     counts = cmd.counts(p, quantise=True)
     machine = TrueMachine(truth, model.category, rigid_span=rigid_span)
-    inst = Instrument(noise, seed=seed)
     visits: list[tuple[np.ndarray, np.ndarray | None]] = []
     for k in range(p.shape[0]):
         if approach == "direct":
@@ -152,6 +162,27 @@ def measure_twin(
             true[k, i : i + 3] = tp[name]
             measured[k, i : i + 3] = reading.points[name]
     return TwinMeasurements(np.array([v[0] for v in visits]), measured, true)
+
+
+def _measure_by_goto(
+    model: HitchModel, truth: MachineTruth, poses: np.ndarray, inst: Instrument, points: tuple[str, ...], seed: int
+) -> TwinMeasurements:
+    from bridge.sim.accuracy_run import AccuracyRunSettings, visit_poses  # the rig: only for this procedure
+
+    v = visit_poses(model, poses, truth, AccuracyRunSettings(seed=seed), instrument=inst, points=points)
+    n = poses.shape[0]
+    measured, true = np.full((n, 15), np.nan), np.full((n, 15), np.nan)
+    rows = [MEASURED_COLUMNS.index(c) for c in CONTROLLED_POSE_NAMES]
+    for k, reading in enumerate(v.measurements):
+        if reading is None:  # visit_poses raises on a refused pose before; never measured
+            raise TruthError(f"pose {k} was not measured")
+        true[k, rows] = v.true[k]
+        measured[k, rows] = [reading.pose[c] for c in CONTROLLED_POSE_NAMES]
+        for name in points:
+            i = MEASURED_COLUMNS.index(f"{name}_x")
+            true[k, i : i + 3] = v.points[k][name]
+            measured[k, i : i + 3] = reading.points[name]
+    return TwinMeasurements(v.counts, measured, true)
 
 
 def true_poses(

@@ -132,3 +132,31 @@ def test_measure_twin_with_an_exact_instrument_reads_the_truth():
     assert m.counts.shape == (3, 5) and np.all(m.counts == np.rint(m.counts))
     assert np.allclose(m.measured[:, [0, 2, 3, 4]], m.true[:, [0, 2, 3, 4]])
     assert np.allclose(m.measured[:, 6:9], m.true[:, 6:9])
+
+
+def test_measuring_by_goto_with_a_final_approach_and_the_calibrated_profile_keeps_the_approach(tmp_path, capsys):
+    """The operator's procedure on the running twin: one real goto per planned pose (the profile's final
+    approach), one row each; the calibrated profile positions the same way (it keeps motion.final_approach)."""
+    from pathlib import Path
+
+    import planner.profiles
+
+    text = (Path(planner.profiles.__file__).parent / "thesis-t132.toml").read_text(encoding="utf-8")
+    prof_file = tmp_path / "with-approach.toml"
+    prof_file.write_text(text + "\n[motion.final_approach]\nx = 0.0025\nz = 0.004\nroll = 0.005\npitch = 0.007\n")
+    data, _ = perturb_profile(load_profile("thesis-t132"), 4)
+    truth_file = tmp_path / "truth.toml"
+    truth_file.write_text(truth_toml(data, PinPlay(0.001, 0.001)))
+    meas, out = tmp_path / "m.csv", tmp_path / "cal.toml"
+    common = ["--profile", str(prof_file), "--n", "6", "--candidates", "60", "--seed", "3"]
+    argv = ["calibrate", "measure-twin", "--sim-truth", str(truth_file), "--out", str(meas), "--by", "goto", "--json"]
+    assert main([*argv, *common]) == 0
+    assert json.loads(capsys.readouterr().out) == {"out": str(meas), "rows": 6, "poses": 6}
+    argv = ["calibrate", "geometry", "--profile", str(prof_file), "--measurements", str(meas), "--out", str(out)]
+    assert main([*argv, "--json"]) == 0
+    capsys.readouterr()
+    fa = load_profile(out).motion.final_approach
+    assert fa is not None and fa.offset() == (0.0025, 0.004, 0.005, 0.007)
+    assert "--by: invalid choice" in _err(
+        capsys, ["calibrate", "measure-twin", "--sim-truth", "x", "--out", "y", "--by", "z"]
+    )

@@ -118,3 +118,22 @@ def test_measure_twin_rejects_a_non_bool_dither(setup):
     prof, model, poses = setup
     with pytest.raises(TruthError, match="dither"):
         measure_twin(model, MachineTruth.nominal(prof), poses[:1], dither="yes")  # type: ignore[arg-type]
+
+
+def test_measuring_by_goto_reads_where_the_twin_s_real_gotos_leave_the_implement(setup):
+    """The operator's procedure on the running twin: one row per pose, readings = the link's whole counts at
+    rest, the instrument reading the true pose and points (exactly, without noise); the pistons stop inside
+    their counts where the ECU leaves them, so the true pose is within the count box of the readings."""
+    prof, model, poses = setup
+    truth = MachineTruth(prof, PinPlay())
+    data = measure_twin(model, truth, poses[:3], noise="none", points=("L", "U"), by="goto")
+    assert data.counts.shape == (3, 5) and np.all(data.counts == np.round(data.counts))
+    pose_cols = [0, 2, 3, 4]  # MEASURED_COLUMNS: x, y, z, roll, pitch, yaw, points
+    assert np.allclose(data.measured[:, pose_cols], data.true[:, pose_cols], atol=1e-12)
+    assert np.all(np.isfinite(data.measured[:, pose_cols])) and np.isfinite(data.measured).sum() == 3 * (4 + 6)
+    for k in range(3):
+        lo, hi = _box_of_pose(truth, model, data.counts[k])
+        assert np.all(data.true[k, pose_cols] >= lo - 1e-9) and np.all(data.true[k, pose_cols] <= hi + 1e-9)
+        assert np.max(np.abs(data.true[k, pose_cols] - poses[k])) < 0.004  # a count or so from the commanded pose
+    with pytest.raises(TruthError, match="by must be static or goto"):
+        measure_twin(model, truth, poses[:1], by="teleport")

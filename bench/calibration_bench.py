@@ -17,18 +17,21 @@ counts); ``planned20_dither`` also calibrates from measurements with the pistons
 count's band and evaluates it with quantisation. Also: identified directions (and single parameters)
 within 3 σ of the truth, calibration run time.
 
-**Through the twin** (``--through-twin N``, the first N twins, default all; on ``--workers`` processes):
+**Through the twin** (``--through-twin N``, the first N twins, default all; on ``--workers`` processes;
+``--skip-static`` runs only this part):
 the machine as it runs, nothing assumed about where a piston stops. The profile carries a final approach
 (:data:`FINAL_APPROACH`: every goto ends rising in every DOF); the 20 planned poses are measured as
 ``hitch calibrate measure-twin --by goto`` does (a real goto over CAN to each, the link's counts at rest,
 the station reading the true pose), the profile is calibrated from them, and the 200 check poses are
 visited by real gotos, in a nearest-neighbour tour, with the nominal and the calibrated profile: error =
-the twin's true pose − the commanded pose.
+the twin's true pose − the commanded pose. Its floor: a profile equal to the truth, without and with
+1 mm of play, visited the same way.
 
 The check poses are random workspace poses (``candidate_poses(random_only=True)``: not the box's corners
 and face centres, where an approach from below is cut short).
 
-Run: .venv/bin/python bench/calibration_bench.py [--twins 20] [--json bench/out/calibration.json] [--plot]
+Run: .venv/bin/python bench/calibration_bench.py [--twins 20] [--json bench/out/calibration.json] [--plot PNG]
+     [--through-twin N] [--workers 2] [--skip-static]
 """
 
 from __future__ import annotations
@@ -69,6 +72,22 @@ def _tour(poses: np.ndarray) -> np.ndarray:
         d = np.sum(((poses[left] - poses[order[-1]]) / w) ** 2, axis=1)
         order.append(left.pop(int(np.argmin(d))))
     return poses[order]
+
+
+def _floor_through_twin(job: tuple) -> dict:
+    """The floor through the twin: the profile equal to the truth (with or without 1 mm of play), real gotos."""
+    play_m, prof_data, check = job
+    prof = profile_from_dict(prof_data)
+    truth = MachineTruth(load_profile("thesis-t132"), PinPlay(play_m, play_m))
+    v = visit_poses(HitchModel(prof), check, truth, AccuracyRunSettings(seed=0), skip_refused=True)
+    err = (v.true - check) * 1e3
+    return {
+        "play_m": play_m,
+        "p95": np.nanpercentile(np.abs(err), 95, axis=0).tolist(),
+        "mean": np.nanmean(err, axis=0).tolist(),
+        "sd": np.nanstd(err, axis=0).tolist(),
+        "refused": len(v.refused),
+    }
 
 
 def _through_twin(job: tuple) -> dict:
@@ -159,6 +178,13 @@ def _run_through_twin(prof, n_twin: int, workers: int, planned: np.ndarray, chec
     print(f"\nthrough the twin: {n_twin} twins on {workers} processes (final approach {FINAL_APPROACH})", flush=True)
     t0 = time.perf_counter()
     with multiprocessing.get_context("fork").Pool(max(1, workers)) as pool:
+        floors = pool.map(_floor_through_twin, [(play_m, data, check) for play_m in (0.0, 0.001)])
+        for f in floors:
+            print(
+                f"floor (profile = truth, play {1e3 * f['play_m']:g} mm): p95 {np.round(f['p95'], 2)}  mean "
+                f"{np.round(f['mean'], 2)}  sd {np.round(f['sd'], 2)}  refused {f['refused']}",
+                flush=True,
+            )
         res = []
         for r in pool.imap(_through_twin, jobs):
             res.append(r)
@@ -171,6 +197,8 @@ def _run_through_twin(prof, n_twin: int, workers: int, planned: np.ndarray, chec
                 f"simulated in {r['calibrated_wall_s']:.0f} s",
                 flush=True,
             )
+    if not res:  # --through-twin 0: the floor alone
+        return {"final_approach": FINAL_APPROACH, "floor_exact_profile": floors, "wall_s": time.perf_counter() - t0}
     cal_p = np.array([r["calibrated"] for r in res])
     nom_p = np.array([r["nominal"] for r in res])
     return {
@@ -183,6 +211,7 @@ def _run_through_twin(prof, n_twin: int, workers: int, planned: np.ndarray, chec
         "twins_within_target_per_dof": np.sum(cal_p <= TARGET, axis=0).tolist(),
         "improvement_min_worst_axis": float(np.min(nom_p.max(axis=1) / cal_p.max(axis=1))),
         "refused_poses": [len(r["calibrated_refused"]) for r in res],
+        "floor_exact_profile": floors,
         "wall_s": time.perf_counter() - t0,
         "twins": res,
     }
@@ -196,6 +225,7 @@ def main() -> None:
     ap.add_argument("--plot", default="docs/calibration_error_map.png", help="error map PNG ('' = none)")
     ap.add_argument("--through-twin", type=int, default=None, help="twins evaluated through the twin (default all)")
     ap.add_argument("--workers", type=int, default=2, help="processes for the through-the-twin runs")
+    ap.add_argument("--skip-static", action="store_true", help="only the through-the-twin evaluation")
     args = ap.parse_args()
     prof = load_profile("thesis-t132")
     pm = ParametricModel(prof)
@@ -206,6 +236,13 @@ def main() -> None:
     pool, _ = candidate_poses(pm, 3000, seed=123)
     check, _ = candidate_poses(pm, 4 * args.check, seed=999, random_only=True)
     check = _tour(check[: args.check])
+    if args.skip_static:
+        n = args.twins if args.through_twin is None else args.through_twin
+        res = _run_through_twin(prof, n, args.workers, planned[20], check)
+        print(f"\nthrough_twin: { {k: v for k, v in res.items() if k != 'twins'} }")
+        if args.json:
+            write_json(args.json, {"machine": machine_note(), "summary": {"through_twin": res}})
+        return
     exact = MachineTruth(prof)  # the floor: a profile equal to the truth, with quantisation / with 1 mm play
     floor_counts, _ = _p95(nominal, exact, check, 5000, play=False)
     floor_play, _ = _p95(nominal, MachineTruth(prof, PinPlay(0.001, 0.001)), check, 5000, counts=False)
@@ -333,8 +370,8 @@ def main() -> None:
         ],
         "plan_time_s": t_plan,
     }
-    n_twin = args.twins if args.through_twin is None else min(args.through_twin, args.twins)
-    if n_twin > 0:
+    n_twin = args.twins if args.through_twin is None else args.through_twin
+    if n_twin >= 0:
         summary["through_twin"] = _run_through_twin(prof, n_twin, args.workers, planned[20], check)
     print()
     for k, v in summary.items():

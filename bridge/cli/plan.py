@@ -91,6 +91,7 @@ def _cmd_plan(args) -> int:
                     "actuator_acceleration_max": dict(
                         zip(ACTUATOR_NAMES, map(float, tp.limits.acceleration), strict=True)
                     ),
+                    "final_approach": plan.info.get("final_approach"),
                     "samples": sp.to_json(),
                 }
             )
@@ -112,6 +113,15 @@ def _cmd_plan(args) -> int:
             for i, n in enumerate(ACTUATOR_NAMES)
         )
     )
+    fa = plan.info.get("final_approach")
+    if fa is not None:  # the profile's motion.final_approach: the goto ends rising from a via pose
+        via = (
+            "none needed (the move rises by the offsets)"
+            if fa["via"] is None
+            else "  ".join(f"{k}={v:+.4f}" for k, v in zip(("x", "z", "roll", "pitch"), fa["via"], strict=True))
+        )
+        short = f"; cut short at the lower face: {', '.join(fa['short'])}" if fa["short"] else ""
+        c.print(f"final approach via: {via}{short}")
     if args.plot:
         c.print(f"plot written to {esc(args.plot)}")
     return 0

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from bridge.link.state import LinkFaultError, ReferenceRefused
+from bridge.link.state import LinkFaultError, LinkState, ReferenceRefused
 from bridge.link.unit_loop import FeedforwardShaper, build_unit_loops
 from bridge.sim.rig import SimError, SimRig, SimSettings
 from bridge.sim.truth import Instrument, InstrumentNoise, MachineTruth, Measurement
@@ -232,7 +232,8 @@ class _TwinGotos:
     def __exit__(self, *exc: object) -> None:
         self.rig.__exit__(*exc)
 
-    def state(self):
+    def state(self) -> LinkState:
+        """The link's latest state (SimError without a measurement)."""
         state = self.rig.link.latest_state()
         if state is None:
             raise SimError(

@@ -185,3 +185,23 @@ def test_hitch_replay_prints_decoded_frames_poses_and_faults(tmp_path, capsys):
     assert "FAULT" in out and "5 frames" in out
     assert main(["replay", str(tmp_path / "missing.asc")]) == 2
     assert "does not exist" in _err_line(capsys)
+
+
+# ---------------------------------------------------------------------------------------- plan
+def test_plan_shows_the_final_approach_of_a_profile_that_asks_for_one(tmp_path, capsys):
+    from pathlib import Path
+
+    import planner.profiles
+
+    text = (Path(planner.profiles.__file__).parent / "thesis-t132.toml").read_text(encoding="utf-8")
+    prof = tmp_path / "fa.toml"
+    prof.write_text(text + "\n[motion.final_approach]\nx = 0.0025\nz = 0.004\nroll = 0.005\npitch = 0.007\n")
+    # from neutral down to z − 50 mm: the goto dips 4 mm below the goal in z and rises to it
+    argv = ["plan", "--profile", str(prof), "--to", "z=0.05", "--json"]
+    assert main(argv) == 0
+    fa = json.loads(capsys.readouterr().out)["final_approach"]
+    assert fa["via"][1] == pytest.approx(0.05 - 0.004) and fa["short"] == []
+    assert main(argv[:-1]) == 0
+    assert "final approach via: x=" in capsys.readouterr().out
+    assert main(["plan", "--to", "z=0.05", "--json"]) == 0  # the built-in profile: no final approach
+    assert json.loads(capsys.readouterr().out)["final_approach"] is None

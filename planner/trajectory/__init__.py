@@ -4,6 +4,7 @@ from a moving state with the actuators' real limits; the ideal follower (the phy
 
 from planner.trajectory.actuator_limits import ActuatorLimits
 from planner.trajectory.braking import StopProbe, braking_limits
+from planner.trajectory.final_approach import ApproachVia, final_approach_via
 from planner.trajectory.ideal_follower import (
     IdealFollow,
     IdealFollower,
@@ -38,6 +39,8 @@ from planner.trajectory.track import (
 
 __all__ = [
     "ActuatorLimits",
+    "ApproachVia",
+    "final_approach_via",
     "MotionState",
     "Plan",
     "PlanError",

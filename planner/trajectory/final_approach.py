@@ -8,9 +8,11 @@ Two things make where the implement stops depend on the side it came from:
   the reference count, so a piston that rose into its count stops near the count's lower edge
   (plus what it coasts), one that fell into it near the upper edge.
 
-Approached from the same side every time, both become fixed offsets, which a geometry calibration
-from poses measured the same way absorbs (AD offsets, lengths). Machine tools do the same
-(unidirectional positioning). With ``offset`` ``d`` (per DOF, from the profile's
+Approached from the same side every time, both become fixed offsets (machine tools do the same:
+unidirectional positioning). A geometry calibration from poses measured the same way absorbs the
+ECU's (a fixed fraction of a count: the AD offsets); the play's lag is a constant pose offset, which no
+geometry parameter is, so the fit absorbs it only in part (docs/commissioning.md, accuracy through the
+twin). With ``offset`` ``d`` (per DOF, from the profile's
 ``motion.final_approach``) a goto to ``goal`` therefore goes first to the **via** pose
 
     via = max(min(start, goal − d), workspace minimum)        (per DOF)

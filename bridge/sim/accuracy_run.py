@@ -14,6 +14,11 @@ the lower hitch points, in the plane of the lower hitch points) and the lateral 
 (a plumb line). Each of the five linear readings carries the instrument's position noise
 (``tape``: uniform ±10 mm; ``total-station``: Gaussian σ = 1 mm; ``none``); the pose read is the
 least-squares fit of z, roll and pitch to the four heights (x from the plumb line).
+
+:func:`visit_poses` drives the same real gotos to any list of poses and records where the implement
+truly is, what the link reads and what an instrument reads: the operator's measuring procedure for a
+geometry calibration (``hitch calibrate measure-twin --by goto``) and the calibration bench's
+evaluation through the twin.
 """
 
 from __future__ import annotations

@@ -98,14 +98,9 @@ def _through_twin(job: tuple) -> dict:
     data, play = perturb_profile(load_profile("thesis-t132"), seed)
     truth = MachineTruth(profile_from_dict(data), play)
     t0 = time.perf_counter()
-    tm = measure_twin(pm.nominal_model, truth, planned, noise="station", seed=seed, by="goto")
-    t_measure = time.perf_counter() - t0
-    sc = SensorScaling(pm.profile)
-    readings = sc.si_min + (tm.counts - sc.counts_min) * sc.resolution
-    mset = MeasurementSet(readings, tm.measured, np.isfinite(tm.measured), tuple(str(i) for i in range(len(readings))))
-    res = solve_calibration(build_calibration_problem(pm, mset))
-    cal = HitchModel(profile_from_dict(pm.params.profile_dict(res.values)))
-    out: dict = {"seed": seed, "measure_wall_s": t_measure}
+    _, cal_profile, _ = _calibrate(pm, truth, planned, seed, by="goto")
+    cal = HitchModel(cal_profile)
+    out: dict = {"seed": seed, "measure_and_fit_wall_s": time.perf_counter() - t0}
     for name, model in (("nominal", pm.nominal_model), ("calibrated", cal)):
         t0 = time.perf_counter()
         v = visit_poses(model, check, truth, AccuracyRunSettings(seed=seed), skip_refused=True)
@@ -117,8 +112,12 @@ def _through_twin(job: tuple) -> dict:
     return out
 
 
-def _calibrate(pm: ParametricModel, truth: MachineTruth, poses: np.ndarray, seed: int, dither: bool = False):
-    tm = measure_twin(pm.nominal_model, truth, poses, noise="station", seed=seed, dither=dither)
+def _calibrate(
+    pm: ParametricModel, truth: MachineTruth, poses: np.ndarray, seed: int, dither: bool = False, by: str = "static"
+):
+    """Measure ``poses`` on the twin (``measure_twin(..., by=by)``, station noise) and calibrate from them:
+    (result, calibrated profile, solver time [s])."""
+    tm = measure_twin(pm.nominal_model, truth, poses, noise="station", seed=seed, dither=dither, by=by)
     sc = SensorScaling(pm.profile)
     readings = sc.si_min + (tm.counts - sc.counts_min) * sc.resolution
     mask = np.isfinite(tm.measured)
@@ -227,6 +226,8 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2, help="processes for the through-the-twin runs")
     ap.add_argument("--skip-static", action="store_true", help="only the through-the-twin evaluation")
     args = ap.parse_args()
+    if args.through_twin is not None and args.through_twin < 0:
+        ap.error("--through-twin must be >= 0")
     prof = load_profile("thesis-t132")
     pm = ParametricModel(prof)
     nominal = HitchModel(prof)
@@ -236,9 +237,9 @@ def main() -> None:
     pool, _ = candidate_poses(pm, 3000, seed=123)
     check, _ = candidate_poses(pm, 4 * args.check, seed=999, random_only=True)
     check = _tour(check[: args.check])
+    n_twin = args.twins if args.through_twin is None else args.through_twin
     if args.skip_static:
-        n = args.twins if args.through_twin is None else args.through_twin
-        res = _run_through_twin(prof, n, args.workers, planned[20], check)
+        res = _run_through_twin(prof, n_twin, args.workers, planned[20], check)
         print(f"\nthrough_twin: { {k: v for k, v in res.items() if k != 'twins'} }")
         if args.json:
             write_json(args.json, {"machine": machine_note(), "summary": {"through_twin": res}})
@@ -370,9 +371,7 @@ def main() -> None:
         ],
         "plan_time_s": t_plan,
     }
-    n_twin = args.twins if args.through_twin is None else args.through_twin
-    if n_twin >= 0:
-        summary["through_twin"] = _run_through_twin(prof, n_twin, args.workers, planned[20], check)
+    summary["through_twin"] = _run_through_twin(prof, n_twin, args.workers, planned[20], check)
     print()
     for k, v in summary.items():
         print(f"{k}: {v}")

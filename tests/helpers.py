@@ -24,6 +24,7 @@ __all__ = [
     "bridge_modules_after",
     "check_facade_errors",
     "check_facade_names",
+    "profile_file_with_final_approach",
     "random_closing_actuators",
     "wait_until",
 ]
@@ -40,6 +41,17 @@ def random_closing_actuators(model: HitchModel, rng: np.random.Generator, n: int
             continue
         out.append(q)
     return out
+
+
+def profile_file_with_final_approach(directory: Path, name: str = "with-approach.toml") -> Path:
+    """The built-in thesis profile written to ``directory`` with a final approach of 2.5 mm, 4 mm, 5 mrad and
+    7 mrad (``[motion.final_approach]``), as an operator would add it."""
+    import planner.profiles
+
+    text = (Path(planner.profiles.__file__).parent / "thesis-t132.toml").read_text(encoding="utf-8")
+    path = directory / name
+    path.write_text(text + "\n[motion.final_approach]\nx = 0.0025\nz = 0.004\nroll = 0.005\npitch = 0.007\n")
+    return path
 
 
 def check_facade_names(package: ModuleType) -> None:

@@ -21,6 +21,7 @@ from planner.calibration.design import candidate_poses
 from planner.calibration.parametric import ParametricModel
 from planner.model.kinematics import HitchModel
 from planner.profiles.hitch import load_profile, profile_from_dict
+from tests.helpers import profile_file_with_final_approach
 
 GOOD_HEADER = "pose,lift_counts,tilt_counts,top_counts,left_counts,right_counts,x,z,roll,pitch"
 GOOD_ROW = "p1,100,400,120,300,260,0.0,-0.05,0.01,0.02"
@@ -137,13 +138,7 @@ def test_measure_twin_with_an_exact_instrument_reads_the_truth():
 def test_measuring_by_goto_with_a_final_approach_and_the_calibrated_profile_keeps_the_approach(tmp_path, capsys):
     """The operator's procedure on the running twin: one real goto per planned pose (the profile's final
     approach), one row each; the calibrated profile positions the same way (it keeps motion.final_approach)."""
-    from pathlib import Path
-
-    import planner.profiles
-
-    text = (Path(planner.profiles.__file__).parent / "thesis-t132.toml").read_text(encoding="utf-8")
-    prof_file = tmp_path / "with-approach.toml"
-    prof_file.write_text(text + "\n[motion.final_approach]\nx = 0.0025\nz = 0.004\nroll = 0.005\npitch = 0.007\n")
+    prof_file = profile_file_with_final_approach(tmp_path)
     data, _ = perturb_profile(load_profile("thesis-t132"), 4)
     truth_file = tmp_path / "truth.toml"
     truth_file.write_text(truth_toml(data, PinPlay(0.001, 0.001)))

@@ -16,6 +16,7 @@ from bridge.cli import service as cli_service
 from bridge.cli.main import main
 from bridge.cli.output import console, esc
 from bridge.service.blackbox import EventLog, event_log_path
+from tests.helpers import profile_file_with_final_approach
 from tests.integration.service_process import free_port
 
 
@@ -189,13 +190,7 @@ def test_hitch_replay_prints_decoded_frames_poses_and_faults(tmp_path, capsys):
 
 # ---------------------------------------------------------------------------------------- plan
 def test_plan_shows_the_final_approach_of_a_profile_that_asks_for_one(tmp_path, capsys):
-    from pathlib import Path
-
-    import planner.profiles
-
-    text = (Path(planner.profiles.__file__).parent / "thesis-t132.toml").read_text(encoding="utf-8")
-    prof = tmp_path / "fa.toml"
-    prof.write_text(text + "\n[motion.final_approach]\nx = 0.0025\nz = 0.004\nroll = 0.005\npitch = 0.007\n")
+    prof = profile_file_with_final_approach(tmp_path)
     # from neutral down to z − 50 mm: the goto dips 4 mm below the goal in z and rises to it
     argv = ["plan", "--profile", str(prof), "--to", "z=0.05", "--json"]
     assert main(argv) == 0

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from importlib import metadata
 from typing import NoReturn
 
 from bridge.cli import calibrate as cli_calibrate
@@ -32,14 +33,28 @@ from planner.errors import HitchError
 
 __all__ = ["main", "build_parser", "CLIError"]
 
+PROG = "hitch"
+#: the installed distribution (``[project] name`` in pyproject.toml) whose version ``hitch --version`` prints
+DISTRIBUTION = "hitch-planner"
+
 
 class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> NoReturn:  # one clear line instead of usage + message
-        raise CLIError(f"{self.prog}: {message}")
+        # main() prints "hitch: error: …"; a subcommand's parser names itself ("hitch fk: …"), the top level does not
+        raise CLIError(message if self.prog == PROG else f"{self.prog}: {message}")
+
+
+def package_version() -> str:
+    """The installed ``hitch-planner`` distribution's version (``unknown`` when run from an uninstalled tree)."""
+    try:
+        return metadata.version(DISTRIBUTION)
+    except metadata.PackageNotFoundError:
+        return "unknown"
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="hitch", description="Motion planning for an advanced tractor rear hitch (SI units).")
+    parser = _Parser(prog=PROG, description="Motion planning for an advanced tractor rear hitch (SI units).")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     cli_model.add_commands(sub)
     cli_ik.add_commands(sub)

@@ -10,10 +10,11 @@ import numpy as np
 from rich.table import Table
 
 from bridge.cli.output import console, esc
+from bridge.cli.ranges import ACTUATOR_UNITS, check_actuators
 from planner.model.kinematics import HitchModel
 from planner.model.types import ACTUATOR_NAMES, POSE_NAMES
 
-__all__ = ["add_commands", "finite_float", "bounded_float", "add_model_options", "model_from_args"]
+__all__ = ["add_commands", "finite_float", "bounded_float", "whole_number", "add_model_options", "model_from_args"]
 
 
 def finite_float(name: str):
@@ -47,6 +48,21 @@ def bounded_float(name: str, lo: float, hi: float, *, unit: str = "", lo_open: b
     return parse
 
 
+def whole_number(name: str):
+    """argparse type: a whole number >= 0, the error naming the option and the allowed range."""
+
+    def parse(text: str) -> int:
+        try:
+            n = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be a whole number >= 0, got {text!r}") from None
+        if n < 0:
+            raise argparse.ArgumentTypeError(f"{name} must be a whole number >= 0, got {text}")
+        return n
+
+    return parse
+
+
 def add_model_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--profile", default="thesis-t132", help="built-in profile name or path to a .toml (default thesis-t132)"
@@ -74,9 +90,20 @@ def state_to_json(state) -> dict:
     }
 
 
+#: what each ``hitch fk`` actuator flag is (help text and error messages)
+_ACTUATOR_LABELS = {
+    "lift": "lift-arm angle theta_E",
+    "tilt": "tilt cylinder length",
+    "top": "top link length",
+    "left": "left sway limiter length",
+    "right": "right sway limiter length",
+}
+
+
 def _cmd_fk(args) -> int:
     model = model_from_args(args)
     q = np.array([args.lift, args.tilt, args.top, args.left, args.right])
+    check_actuators(q, model.lower, model.upper, _ACTUATOR_LABELS)  # every flag off its stroke, before FK
     state = model.forward(q)
     if args.json:
         print(json.dumps(state_to_json(state)))
@@ -211,11 +238,14 @@ def add_commands(sub) -> None:
     p.set_defaults(handler=_cmd_demo)
 
     p = sub.add_parser("fk", help="forward kinematics: actuators -> pose and points")
-    p.add_argument("--lift", type=finite_float("--lift"), required=True, help="lift-arm angle theta_E [rad]")
-    p.add_argument("--tilt", type=finite_float("--tilt"), required=True, help="tilt cylinder length [m]")
-    p.add_argument("--top", type=finite_float("--top"), required=True, help="top link length [m]")
-    p.add_argument("--left", type=finite_float("--left"), required=True, help="left sway limiter length [m]")
-    p.add_argument("--right", type=finite_float("--right"), required=True, help="right sway limiter length [m]")
+    for name in ACTUATOR_NAMES:
+        flag = f"--{name}"
+        p.add_argument(
+            flag,
+            type=finite_float(flag),
+            required=True,
+            help=f"{_ACTUATOR_LABELS[name]} [{ACTUATOR_UNITS[name]}] within the profile's stroke (profile show)",
+        )
     add_model_options(p)
     p.set_defaults(handler=_cmd_fk)
 

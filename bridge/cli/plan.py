@@ -9,6 +9,7 @@ import numpy as np
 
 from bridge.cli.model import add_model_options, model_from_args
 from bridge.cli.output import console, esc
+from bridge.cli.ranges import check_pose_ranges
 from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
 from planner.trajectory import MotionState, TrajectoryPlanner
 
@@ -71,6 +72,8 @@ def _cmd_plan(args) -> int:
     model = model_from_args(args)
     tp = TrajectoryPlanner(model, rate=args.rate)
     start = model.neutral_pose.controlled()
+    # every DOF of --from and --to outside the workspace, with its range and the mm hint (the service's wording)
+    check_pose_ranges((args.start, "--from", "from"), (args.to, "--to", "goal"), workspace=tp.workspace)
     if args.start:
         start = tp.goal_vector(start, args.start)
         tp.check_in_workspace(start, "from")

@@ -17,7 +17,7 @@ from enum import Enum
 from pathlib import Path
 from typing import Any
 
-from bridge.cli.model import add_model_options, bounded_float, model_from_args
+from bridge.cli.model import add_model_options, bounded_float, model_from_args, whole_number
 from bridge.cli.output import console
 
 __all__ = ["add_commands", "format_record"]
@@ -147,7 +147,9 @@ def add_commands(sub) -> None:
         default=None,
         help="the service's data dir (default $XDG_DATA_HOME/hitch-planner, ~/.local/share/hitch-planner)",
     )
-    p.add_argument("--last", type=int, default=0, help="print only the last N records first (0: all)")
+    p.add_argument(
+        "--last", type=whole_number("--last"), default=0, help="print only the last N records first, N >= 0 (0: all)"
+    )
     p.add_argument("--json", action="store_true", help="print the records as JSON lines")
     p.set_defaults(handler=_cmd_log)
 

@@ -22,7 +22,6 @@ the service's black box (:class:`~bridge.service.blackbox.EventLog`) is always w
 
 from __future__ import annotations
 
-import argparse
 import json
 import re
 import signal
@@ -34,11 +33,12 @@ from pathlib import Path
 from typing import Any
 
 from bridge.cli.errors import CLIError
-from bridge.cli.model import bounded_float, finite_float
+from bridge.cli.model import bounded_float, finite_float, whole_number
 from bridge.cli.output import console, esc
 from bridge.cli.plan import parse_pose_arg
 from bridge.link.realtime import INTERFACES
 from bridge.service.config import DEFAULT_LISTEN, load_service_config
+from bridge.service.maneuvers.language import MIN_SPEED_SCALE
 from planner.errors import HitchError
 
 __all__ = ["add_commands", "STOP_TIMEOUT_S"]
@@ -386,6 +386,11 @@ def _cmd_goto(args) -> int:
 
 
 def _cmd_jog(args) -> int:
+    rates = (args.vx, args.vz, args.vroll, args.vpitch)
+    if all(r is None for r in rates):  # a zero-rate jog holds; asked for by an explicit 0, never by omission
+        raise CLIError("jog: give at least one rate: --vx, --vz [m/s], --vroll, --vpitch [rad/s] (0 holds)")
+    args.vx, args.vz, args.vroll, args.vpitch = (0.0 if r is None else r for r in rates)
+
     def jog(c) -> int:
         end = time.monotonic() + (args.duration or 0.0)
         period = min(0.1, args.ttl_ms / 2000.0)
@@ -435,7 +440,7 @@ def _state_line(s: dict) -> str:
     lim = s.get("limited") or {}
     return esc(
         f"#{s.get('seq')} {s.get('mode')} {'moving' if s.get('moving') else 'at rest'} "
-        f"motion {s.get('motion_id')}  pose {_fmt_pose(s.get('pose'))}  ECU "
+        f"motion {s.get('motion_id') if s.get('motion_id') is not None else '-'}  pose {_fmt_pose(s.get('pose'))}  ECU "
         f"{'online' if ecu.get('online') else 'OFFLINE'}"
         f"{' ' + ','.join(map(str, ecu.get('faults', []))) if ecu.get('faults') else ''}"
     ) + (f"  [red]control limited: {esc(', '.join(f'{k}: {v}' for k, v in lim.items()))}[/red]" if lim else "")
@@ -507,6 +512,13 @@ def _maneuver_outcome(out: dict) -> str:
     return "aborted" + (f" ({why}{': ' + str(e['message']) if e.get('message') else ''})" if why else "")
 
 
+def script_errors(errors: list[dict]) -> str:
+    """A maneuver's validation errors, one indented line each (``step N`` or, before any step, ``script``)."""
+    return "\n".join(
+        f"  {'script' if e.get('step') is None else 'step ' + str(e['step'])}: {e['message']}" for e in errors
+    )
+
+
 def _cmd_maneuver(args) -> int:
     def maneuver(c) -> int:
         a = args.action
@@ -515,9 +527,7 @@ def _cmd_maneuver(args) -> int:
             _print(
                 args,
                 r,
-                f"ok, {r['duration']:.2f} s"
-                if r["ok"]
-                else "invalid:\n" + "\n".join(f"  step {e['step']}: {e['message']}" for e in r["errors"]),
+                f"ok, {r['duration']:.2f} s" if r["ok"] else "invalid:\n" + script_errors(r["errors"]),
             )
             return 0 if r["ok"] else 1
         if a == "save":
@@ -601,14 +611,19 @@ def add_commands(sub) -> Any:
     p.add_argument(
         "--to", type=parse_pose_arg, required=True, help="goal, e.g. x=0.02,z=0.25 (others keep their value)"
     )
-    p.add_argument("--speed-scale", type=finite_float("--speed-scale"), default=1.0, help="(0, 1], default 1")
+    p.add_argument(
+        "--speed-scale",
+        type=bounded_float("--speed-scale", MIN_SPEED_SCALE, 1.0, lo_open=False),
+        default=1.0,
+        help=f"fraction of full speed, [{MIN_SPEED_SCALE:g}, 1], default 1",
+    )
     _wait_options(p)
     _client_options(p)
     p.set_defaults(handler=_cmd_goto)
 
     p = sub.add_parser("jog", help="jog at pose rates while the command is repeated (dead-man)")
     for n, unit in (("vx", "m/s"), ("vz", "m/s"), ("vroll", "rad/s"), ("vpitch", "rad/s")):
-        p.add_argument(f"--{n}", type=finite_float(f"--{n}"), default=0.0, help=f"rate [{unit}]")
+        p.add_argument(f"--{n}", type=finite_float(f"--{n}"), default=None, help=f"rate [{unit}] (default 0)")
     p.add_argument(
         "--ttl-ms",
         type=bounded_float("--ttl-ms", 0.0, 5000.0, unit="ms"),
@@ -635,7 +650,9 @@ def add_commands(sub) -> Any:
 
     p = sub.add_parser("state", help="the service's published state")
     p.add_argument("--follow", action="store_true", help="keep printing every sample")
-    p.add_argument("--count", type=_count, default=0, help="with --follow: stop after N samples (0: never)")
+    p.add_argument(
+        "--count", type=whole_number("--count"), default=0, help="with --follow: stop after N samples (0: never)"
+    )
     _client_options(p)
     p.set_defaults(handler=_cmd_state)
 
@@ -683,13 +700,3 @@ def add_commands(sub) -> Any:
     _client_options(q)
     q.set_defaults(handler=_cmd_faults)
     return maneuver_actions
-
-
-def _count(text: str) -> int:
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--count must be a whole number >= 0, got {text!r}") from None
-    if n < 0:
-        raise argparse.ArgumentTypeError(f"--count must be a whole number >= 0, got {text}")
-    return n

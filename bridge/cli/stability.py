@@ -7,6 +7,7 @@ import json
 from bridge.cli.model import add_model_options, finite_float, model_from_args
 from bridge.cli.output import console, esc
 from bridge.cli.plan import parse_pose_arg
+from bridge.cli.ranges import check_pose_ranges
 from planner.limits.guard import Guard
 from planner.limits.tractor import load_tractor_profile
 from planner.trajectory import TrajectoryPlanner
@@ -20,6 +21,8 @@ def _cmd_stability(args) -> int:
     implement = None if args.implement in (None, "none") else tprof.implement(args.implement)
     guard = Guard(TrajectoryPlanner(model), implement=implement)
     guard.set_slope(args.slope_roll, args.slope_pitch)
+    # every DOF outside the workspace, with its range and the mm hint, before the IK tries it
+    check_pose_ranges((args.pose, "--pose", "pose"), workspace=guard.planner.workspace)
     pose = guard.planner.goal_vector(model.neutral_pose.controlled(), args.pose or {})
     q = guard.planner.inverse(*pose)
     rep = guard.stability_at(q)

@@ -11,8 +11,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from bridge.cli.model import finite_float
+from bridge.cli.model import bounded_float, finite_float
 from bridge.cli.service import _client_command, _client_options, _print, _run
+from planner.work_control import DRAFT_SETPOINT_MAX_N
 
 __all__ = ["add_commands", "format_status"]
 
@@ -105,7 +106,12 @@ def add_commands(sub: Any) -> None:
     acts = p.add_subparsers(dest="action", required=True, parser_class=type(p))
     q = acts.add_parser("settings", help="read (no option) or set the selected implement's work settings")
     q.add_argument("--mode", choices=("position", "draft", "mixed", "float"), default=None)
-    q.add_argument("--draft-setpoint-kn", type=finite_float("--draft-setpoint-kn"), default=None, help="(0, 300] kN")
+    q.add_argument(
+        "--draft-setpoint-kn",
+        type=bounded_float("--draft-setpoint-kn", 0.0, DRAFT_SETPOINT_MAX_N / 1000.0, unit="kN"),
+        default=None,
+        help=f"(0, {DRAFT_SETPOINT_MAX_N / 1000.0:g}] kN",
+    )
     q.add_argument("--blend", type=finite_float("--blend"), default=None, help="mixed: the draft share, [0, 1]")
     q.add_argument("--sensitivity", type=finite_float("--sensitivity"), default=None, help="[0.1, 2], 1 = nominal")
     q.add_argument("--depth-min", type=finite_float("--depth-min"), default=None, help="[m], 0 <= min < max")

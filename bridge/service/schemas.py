@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import math
+import typing
 from collections.abc import Mapping, Sequence
 from typing import Annotated, Any, Literal
 
@@ -44,6 +45,7 @@ __all__ = [
     "DEFAULT_DEADLINE_MS",
     "MAX_DEADLINE_MS",
     "check_pose_in_workspace",
+    "unit_hint",
     "REQUESTS",
     "RequestError",
     "parse_request",
@@ -392,23 +394,52 @@ def _submodel(annotation: Any) -> type[BaseModel] | None:
     return subs[0] if subs else None
 
 
-def _allowed(model: type[BaseModel], loc: tuple[int | str, ...]) -> str:
+def _field_at(model: type[BaseModel], loc: tuple[int | str, ...]) -> tuple[FieldInfo | None, int]:
+    """The field a validation error's ``loc`` points into, and how many parts of ``loc`` name it."""
     info: FieldInfo | None = None
     m: type[BaseModel] | None = model
+    n = 0
     for part in loc:
         if not isinstance(part, str) or m is None or part not in m.model_fields:
             break
-        info = m.model_fields[part]
+        info, n = m.model_fields[part], n + 1
         m = _submodel(info.annotation)
+    return info, n
+
+
+def _length_bounds(model: type[BaseModel], loc: tuple[int | str, ...]) -> tuple[object, object]:
+    """The (min_length, max_length) of the list field at ``loc`` (0 and "any" where none is set)."""
+    info, _ = _field_at(model, loc)
+    meta = info.metadata if info is not None else []
+    lo = next((c.min_length for c in meta if getattr(c, "min_length", None) is not None), 0)
+    hi = next((c.max_length for c in meta if getattr(c, "max_length", None) is not None), "any")
+    return lo, hi
+
+
+def _item_metadata(annotation: Any) -> list[Any]:
+    """The constraints on the items of a list field (``list[Annotated[float, Field(ge=…)]]``)."""
+    args = typing.get_args(annotation)
+    if not args or typing.get_origin(annotation) is not list:
+        return []
+    item = typing.get_args(args[0])  # Annotated[float, FieldInfo] → (float, FieldInfo)
+    return [c for f in item[1:] for c in (f.metadata if isinstance(f, FieldInfo) else [f])]
+
+
+def _allowed(model: type[BaseModel], loc: tuple[int | str, ...]) -> str:
+    info, n = _field_at(model, loc)
     if info is None:
         return ""
+    if n == len(loc) - 1 and isinstance(loc[-1], int):  # an item of a list field (``com_m.1``)
+        metadata = _item_metadata(info.annotation)
+    else:
+        metadata = list(info.metadata)
     parts = [
         f"{sym} {getattr(c, a):.6g}"
-        for c in info.metadata
+        for c in metadata
         for a, sym in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<="))
         if getattr(c, a, None) is not None
     ]
-    name = str(loc[-1]) if loc else ""
+    name = next((str(p) for p in reversed(loc) if isinstance(p, str)), "")
     unit = {
         "x": " m",
         "z": " m",
@@ -421,6 +452,7 @@ def _allowed(model: type[BaseModel], loc: tuple[int | str, ...]) -> str:
         "ttl_ms": " ms",
         "deadline_ms": " ms",
         "mass_kg": " kg",
+        "com_m": " m",
         "upper_height_m": " m",
         "lowering_speed_m_s": " m/s",
     }.get(name, "")
@@ -451,6 +483,11 @@ def _format(key: str, exc: ValidationError, model: type[BaseModel]) -> str:
         msg = "must be a JSON object"
     elif e["type"] == "int_type":
         msg = "must be an integer"
+    elif e["type"] in ("too_short", "too_long"):
+        lo, hi = _length_bounds(model, loc)
+        n = (e.get("ctx") or {}).get("actual_length")
+        want = f"exactly {lo}" if lo == hi else f"{lo}..{hi}"
+        return f"{key}: {path} must hold {want} items, got {n if n is not None else 'another number'}"
     return f"{key}: {path} = {_show(e.get('input'))} {msg}{_allowed(model, loc)}"
 
 
@@ -504,6 +541,16 @@ def _find_non_finite(data: Any) -> tuple[str, str] | None:
 _UNIT = {"x": "m", "z": "m", "roll": "rad", "pitch": "rad"}
 
 
+def unit_hint(value: float, lo: float, hi: float, unit: str) -> str:
+    """``; did you mean mm? …`` for a length [m] or ``; did you mean degrees? …`` for an angle [rad]
+    whose value, read in mm or degrees, lies in ``[lo, hi]``; ``""`` when neither fits."""
+    if unit == "m" and abs(value) >= 1.0 and lo <= value / 1000.0 <= hi:
+        return f"; did you mean mm? {value:.6g} mm = {value / 1000.0:.6g} m"
+    if unit == "rad" and abs(value) >= 1.0 and lo <= math.radians(value) <= hi:
+        return f"; did you mean degrees? {value:.6g} deg = {math.radians(value):.6g} rad"
+    return ""
+
+
 def check_pose_in_workspace(
     pose: Mapping[str, Any], workspace: Mapping[str, Sequence[float]] | None, *, key: str = "goto", what: str = "goal"
 ) -> None:
@@ -525,10 +572,7 @@ def check_pose_in_workspace(
         side = "below" if v < lo else "above"
         limit = f"workspace:{k}:{'min' if v < lo else 'max'}"
         text = f"{what}.{k} = {v:.6g} {unit} is {side} the workspace ({k} from {lo:.4g} to {hi:.4g} {unit}, {limit})"
-        if unit == "m" and abs(v) >= 1.0 and lo <= v / 1000.0 <= hi:
-            text += f"; did you mean mm? {v:.6g} mm = {v / 1000.0:.6g} m"
-        elif unit == "rad" and abs(v) >= 1.0 and lo <= math.radians(v) <= hi:
-            text += f"; did you mean degrees? {v:.6g} deg = {math.radians(v):.6g} rad"
+        text += unit_hint(v, lo, hi, unit)
         problems.append(text)
     if problems:
         raise RequestError("unreachable", f"{key}: outside the workspace: " + "; ".join(problems))

@@ -13,7 +13,10 @@ the CAN threads and O(1) request handling (``docs/faults.md``, *Threads or proce
 Protocol: a worker is a fresh interpreter (``python -m bridge.service.workers``) with one pipe. It builds its context
 from a :class:`WorkerSpec` (profile, category, control rate, implement), then answers one task at a
 time: ``(kind, args, implement)`` in, ``("ok", value)`` or ``("error", code, message)`` out — errors travel as
-the API's error codes and texts, never as pickled exceptions. A caller takes an idle worker
+the API's error codes and texts, never as pickled exceptions. A spec that does not build (a profile, category or
+implement that does not exist) is refused by :meth:`PlanningWorkers.start` before any process is spawned
+(:func:`check_spec`); a worker whose context fails to build nonetheless prints no traceback: it answers every
+task with ``("error", "unavailable", "the planning process could not start: …")``. A caller takes an idle worker
 (waiting at most its timeout, else ``busy``), sends, and waits for the answer up to its timeout;
 a worker that did not answer in time is terminated and replaced, so a task that timed out never
 finishes later, and a worker that died is replaced the same way. Bounded: at most ``processes``
@@ -59,6 +62,7 @@ __all__ = [
     "WorkerSpec",
     "WORKER_NICE",
     "WORKER_TIMEOUT_S",
+    "check_spec",
     "error_code",
     "referenced_presets",
 ]
@@ -95,6 +99,19 @@ class PresetPose:
 
     pose: Mapping[str, float]
     speed_scale: float | None = None
+
+
+def check_spec(spec: WorkerSpec) -> None:
+    """Raise the error a worker would meet building ``spec`` — :class:`~planner.profiles.loader.ProfileError`
+    (profile not found or invalid, category not in it) or :class:`~planner.limits.tractor.TractorProfileError`
+    (implement not in the profile's tractor profile) — without building a model (a fraction of a second)."""
+    from planner.limits.tractor import load_tractor_profile
+    from planner.profiles.hitch import load_profile
+
+    profile = load_profile(spec.profile)
+    profile.category(spec.category if spec.category is not None else profile.implement.default_category)
+    if spec.implement is not None:
+        load_tractor_profile(profile.stability.tractor_profile).implement(spec.implement)
 
 
 # ---------------------------------------------------------------------- inside a worker process
@@ -178,18 +195,28 @@ def _worker_main(conn: multiprocessing.connection.Connection, spec: WorkerSpec, 
         os.setpriority(os.PRIO_PROCESS, 0, max(nice, os.getpriority(os.PRIO_PROCESS, 0)))
     except (OSError, AttributeError):
         pass
-    ctx = _WorkerContext(spec)
+    ctx: _WorkerContext | None = None
+    failed: tuple[str, str, str] | None = None
+    try:
+        ctx = _WorkerContext(spec)
+    except HitchError as exc:  # the user's settings (check_spec refuses most before a worker starts): no traceback
+        failed = ("error", "unavailable", f"the planning process could not start: {type(exc).__name__}: {exc}"[:500])
     while True:
         try:
             kind, args, implement = conn.recv()
         except (EOFError, OSError):
             return
-        try:
-            ctx.select(implement)
-            reply: tuple[Any, ...] = ("ok", ctx.run(kind, args))
-        except Exception as exc:  # noqa: BLE001 — every failure goes back as a code and a text
-            text = str(exc) if error_code(exc) != "internal" else f"internal error {type(exc).__name__}: {exc}"
-            reply = ("error", error_code(exc), text[:500])
+        reply: tuple[Any, ...]
+        if ctx is None:  # every task, the ping of warm() included, is told why
+            assert failed is not None
+            reply = failed
+        else:
+            try:
+                ctx.select(implement)
+                reply = ("ok", ctx.run(kind, args))
+            except Exception as exc:  # noqa: BLE001 — every failure goes back as a code and a text
+                text = str(exc) if error_code(exc) != "internal" else f"internal error {type(exc).__name__}: {exc}"
+                reply = ("error", error_code(exc), text[:500])
         try:
             conn.send(reply)
         except (OSError, ValueError):
@@ -256,7 +283,13 @@ class PlanningWorkers:
         """Workers terminated and replaced (timed out or died) since start."""
 
     def start(self) -> PlanningWorkers:
-        """Spawn the workers (they build their models in the background; the first task waits)."""
+        """Spawn the workers (they build their models in the background; the first task waits).
+
+        Raises:
+            ProfileError / TractorProfileError: the spec's profile, category or implement does not exist
+                (:func:`check_spec`; nothing spawned).
+        """
+        check_spec(self.spec)
         for _ in range(self.processes):
             self._idle.put(self._spawn())
         return self
@@ -336,7 +369,12 @@ class PlanningWorkers:
         return dict(self.call("ik", tuple(float(v) for v in target)))
 
     def warm(self, timeout_s: float = 60.0) -> None:
-        """Wait until every worker has built its context (one ``ping`` each)."""
+        """Wait until every worker has built its context (one ``ping`` each).
+
+        Raises:
+            WorkerError: ``unavailable`` when a worker did not start in time, could not build its context
+                (its message) or ended while starting; ``unavailable`` too when the workers are busy.
+        """
         taken: list[_Worker] = []
         t_end = time.monotonic() + timeout_s
         try:
@@ -349,7 +387,20 @@ class PlanningWorkers:
                     taken.remove(w)
                     self._replace(w)  # its ping is still unanswered: never reuse its pipe
                     raise WorkerError("unavailable", f"a planning process did not start within {timeout_s:.0f} s")
-                w.conn.recv()
+                try:
+                    reply = w.conn.recv()
+                except (EOFError, OSError):  # it died building its context (a bug: its traceback is on stderr)
+                    taken.remove(w)
+                    try:
+                        code: int | None = w.process.wait(2.0)
+                    except subprocess.TimeoutExpired:
+                        code = None
+                    self._replace(w)
+                    raise WorkerError(
+                        "unavailable", f"a planning process ended while starting (exit code {code})"
+                    ) from None
+                if reply[0] != "ok":
+                    raise WorkerError(str(reply[1]), str(reply[2]))
         except queue.Empty:
             raise WorkerError("unavailable", "the planning processes are busy") from None
         finally:

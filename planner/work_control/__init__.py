@@ -2,6 +2,7 @@
 slip limiting) choosing the z setpoint a track session follows. Pure: no bridge imports."""
 
 from planner.work_control.controller import (
+    DRAFT_SETPOINT_MAX_N,
     FLOAT_DEAD_BAND_M,
     MODES,
     WorkController,
@@ -10,4 +11,12 @@ from planner.work_control.controller import (
     WorkStatus,
 )
 
-__all__ = ["FLOAT_DEAD_BAND_M", "MODES", "WorkController", "WorkSettings", "WorkSettingsError", "WorkStatus"]
+__all__ = [
+    "DRAFT_SETPOINT_MAX_N",
+    "FLOAT_DEAD_BAND_M",
+    "MODES",
+    "WorkController",
+    "WorkSettings",
+    "WorkSettingsError",
+    "WorkStatus",
+]

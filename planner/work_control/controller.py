@@ -86,6 +86,7 @@ from dataclasses import dataclass
 from planner.errors import HitchInputError
 
 __all__ = [
+    "DRAFT_SETPOINT_MAX_N",
     "FLOAT_DEAD_BAND_M",
     "KI_DRAFT",
     "KP_DRAFT",
@@ -97,6 +98,8 @@ __all__ = [
 ]
 
 MODES = ("position", "draft", "mixed", "float")
+#: the largest draft setpoint a work session takes [N] (a category 4 tractor's rated draft, with margin)
+DRAFT_SETPOINT_MAX_N = 300_000.0
 #: proportional gain of the draft regulator: depth change per unit relative draft error, in d_ref
 KP_DRAFT = 0.3
 #: integral gain of the draft regulator [1/s]: depth rate per unit relative draft error, in d_ref
@@ -185,7 +188,7 @@ class WorkSettings:
     def __post_init__(self) -> None:
         if not isinstance(self.mode, str) or self.mode not in MODES:
             raise WorkSettingsError(f"mode must be one of {', '.join(MODES)}, got {self.mode!r}")
-        _num("draft_setpoint_n", self.draft_setpoint_n, 0.0, 300_000.0, open_lo=True)
+        _num("draft_setpoint_n", self.draft_setpoint_n, 0.0, DRAFT_SETPOINT_MAX_N, open_lo=True)
         _num("blend", self.blend, 0.0, 1.0)
         _num("sensitivity", self.sensitivity, 0.1, 2.0)
         _num("depth_min_m", self.depth_min_m, 0.0, 0.6)

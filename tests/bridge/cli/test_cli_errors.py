@@ -5,6 +5,11 @@ Truth: the rule itself — every error the project raises on purpose derives fro
 status 2; any other exception propagates out of :func:`main` with its traceback.
 """
 
+import subprocess
+import sys
+from importlib import metadata
+from pathlib import Path
+
 import pytest
 
 from bridge.cli import model as cli_model
@@ -75,7 +80,7 @@ def test_cli_error_is_a_hitch_input_error():
     "argv, message",
     [
         (["fk", "--lift", "0.2"], "hitch fk: the following arguments are required: --tilt"),
-        (["nope"], "hitch: argument command: invalid choice: 'nope'"),
+        (["nope"], "hitch: error: argument command: invalid choice: 'nope'"),
         (["ik", "--x", "0", "--z", "0", "--roll", "0", "--pitch", "0", "--method", "magic"], "invalid choice: 'magic'"),
         (["plan", "--to", "q=1"], "unknown pose field 'q'"),
         (["arm", "fk", "--joints=1,x"], "--joints must be comma-separated numbers"),
@@ -87,6 +92,46 @@ def test_argparse_errors_reach_the_user_as_cli_errors(capsys, argv, message):
     assert main(argv) == 2
     lines = capsys.readouterr().err.splitlines()
     assert len(lines) == 1 and lines[0].startswith("hitch: error: ") and message in lines[0]
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["presets"], "argument command: invalid choice: 'presets'"),
+        ([], "the following arguments are required: command"),
+        (["--no-such-flag"], "the following arguments are required: command"),
+    ],
+    ids=["unknown-command", "no-command", "unknown-flag"],
+)
+def test_a_top_level_argument_error_names_hitch_once(capsys, argv, message):
+    assert main(argv) == 2
+    out = capsys.readouterr()
+    assert out.out == ""
+    (line,) = out.err.splitlines()
+    assert line.startswith(f"hitch: error: {message}"), line
+    assert line.count("hitch:") == 1, line
+
+
+def test_a_subcommand_argument_error_names_the_subcommand(capsys):
+    assert main(["fk", "--lift", "0.2"]) == 2
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.startswith("hitch: error: hitch fk: the following arguments are required: --tilt"), line
+
+
+def test_version_prints_the_installed_distribution_version_and_exits_0(capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["--version"])
+    assert info.value.code == 0
+    out = capsys.readouterr()
+    assert out.out == f"hitch {metadata.version('hitch-planner')}\n"
+    assert out.err == ""
+
+
+def test_version_of_the_console_script():
+    r = subprocess.run(
+        [str(Path(sys.executable).with_name("hitch")), "--version"], capture_output=True, text=True, timeout=60
+    )
+    assert (r.returncode, r.stdout, r.stderr) == (0, f"hitch {metadata.version('hitch-planner')}\n", "")
 
 
 def test_the_cli_own_validation_raises_cli_error(tmp_path):

@@ -54,6 +54,18 @@ def test_service_replies_and_state_lines_print_data_verbatim(capsys):
     assert "stale:x:[b]" in out and "workspace:x:max: [bold]braking" in out and "❌" not in out
 
 
+def test_a_state_at_rest_and_a_script_error_without_a_step_print_no_python_none(capsys):
+    """A new user's report: a fresh service's state printed ``motion None``, and a script that is not YAML
+    ``step None: …``."""
+    args = argparse.Namespace(json=False)
+    rest = {"seq": 1, "mode": "auto", "moving": False, "motion_id": None, "pose": {"z": 0.1}, "ecu": {"online": True}}
+    cli_service._print(args, rest, cli_service._state_line(rest), markup=True)
+    line = capsys.readouterr().out
+    assert "None" not in line and "motion -" in line
+    errors = [{"step": None, "message": "script is not valid YAML"}, {"step": 2, "message": "unknown step"}]
+    assert cli_service.script_errors(errors) == "  script: script is not valid YAML\n  step 2: unknown step"
+
+
 def test_console_and_esc_helpers():
     c = console(record=True, width=200)
     c.print(f"[bold]{esc('[red]x[/red] :x:')}[/bold]")
@@ -80,7 +92,16 @@ def test_a_repeated_pose_key_is_refused_naming_it(capsys):
         (["stop", "--timeout", "0"], ("--timeout", "(0, 600] s")),
         (["goto", "--to", "z=0.1", "--timeout", "-3"], ("--timeout", "(0, 600] s")),
         (["state", "--count", "-1"], ("--count", ">= 0")),
+        # a new user's report: a negative N printed every record but the first N
+        (["log", "--last", "-3"], ("--last", ">= 0", "got -3")),
         (["replay", "x.asc", "--stale-after", "0"], ("--stale-after", "(0, 10] s")),
+        # the service's documented bound, not (0, 1] (a new user's report: 0.01 passed the CLI, then the service
+        # refused it)
+        (["goto", "--to", "z=0.1", "--speed-scale", "0.01"], ("--speed-scale", "[0.05, 1]", "got 0.01")),
+        # in the unit the option is given in (kN), not the service's N
+        (["work", "settings", "--draft-setpoint-kn", "-20"], ("--draft-setpoint-kn", "(0, 300] kN", "got -20")),
+        # a jog without any rate (it used to start a zero-rate jog)
+        (["jog", "--duration", "1"], ("--vx", "--vz", "--vroll", "--vpitch")),
     ],
 )
 def test_non_positive_durations_and_ttls_are_refused_with_the_range(capsys, argv, needles):

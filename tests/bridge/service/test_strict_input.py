@@ -170,3 +170,17 @@ def test_inside_the_workspace_and_without_one_the_schema_decides():
     assert parse_request("goto", json.dumps({"goal": {"z": 0.3}}), workspace=WS).goal.z == 0.3
     e = _refusal("goto", json.dumps({"goal": {"x": 2.0}}))  # no workspace: the schema's sanity bound
     assert e.code == "bad_request" and "<= 1" in str(e)
+
+
+def test_an_item_of_a_list_field_names_its_range_and_unit():
+    """A new user's report: ``com_m.1 = 600.0 is out of range`` named no range."""
+    raw = json.dumps({"name": "bad2", "category": "2", "mass_kg": 1200, "com_m": [0, 600, 400]}).encode()
+    msg = str(_refusal("implements/define", raw))
+    assert "com_m.1 = 600" in msg and "(allowed: >= -10 and <= 10 m)" in msg
+
+
+@pytest.mark.parametrize("com", [[0, 0], [0, 0, 0, 0]])
+def test_a_list_of_the_wrong_length_says_how_many_items(com):
+    raw = json.dumps({"name": "bad2", "category": "2", "mass_kg": 1200, "com_m": com}).encode()
+    msg = str(_refusal("implements/define", raw))
+    assert msg == f"implements/define: com_m must hold exactly 3 items, got {len(com)}"

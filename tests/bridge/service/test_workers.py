@@ -23,7 +23,15 @@ import pytest
 from bridge.service.api import ServiceAPI
 from bridge.service.maneuvers.language import guarded_plan_step, parse_maneuver
 from bridge.service.store import HitchStore
-from bridge.service.workers import PlanningWorkers, PresetPose, WorkerError, WorkerSpec, referenced_presets
+from bridge.service.workers import (
+    PlanningWorkers,
+    PresetPose,
+    WorkerError,
+    WorkerSpec,
+    check_spec,
+    referenced_presets,
+)
+from planner.errors import HitchInputError
 from planner.ik_qp.hitch_ik import IKSolver
 from planner.limits.guard import Guard
 from planner.model.kinematics import HitchModel
@@ -214,3 +222,36 @@ def test_a_script_without_a_main_guard_can_start_workers(tmp_path):
 def test_preset_pose_is_plain_data():
     p = PresetPose({"z": 0.2}, 0.5)
     assert p.pose["z"] == 0.2 and p.speed_scale == 0.5
+
+
+def test_a_spec_that_does_not_exist_is_refused_before_any_worker_starts():
+    for spec, message in [
+        (WorkerSpec("nosuch", None, 50.0, None), "profile 'nosuch' not found; built-in profiles: thesis-t132"),
+        (WorkerSpec("thesis-t132", "9", 50.0, None), "category '9' is not in profile 'thesis-t132'; allowed: 1N"),
+        (WorkerSpec("thesis-t132", None, 50.0, "nosuch"), "implement 'nosuch' is not in tractor profile"),
+    ]:
+        w = PlanningWorkers(spec, processes=2)
+        with pytest.raises(HitchInputError) as e:
+            w.start()
+        assert message in str(e.value)
+        assert w.pids == ()  # nothing spawned
+        w.close()
+    check_spec(SPEC)  # a spec that builds passes
+    check_spec(WorkerSpec("thesis-t132", "2", 50.0, "cat2-spreader-400"))
+
+
+def test_a_worker_that_cannot_build_its_context_tells_every_caller_and_prints_no_traceback(capfd):
+    w = PlanningWorkers(WorkerSpec("nosuch", None, 50.0, None), processes=1)
+    w._idle.put(w._spawn())  # past check_spec (e.g. a profile file removed meanwhile): the worker meets the error
+    try:
+        with pytest.raises(WorkerError) as e:
+            w.warm(60.0)
+        assert e.value.code == "unavailable"
+        assert "the planning process could not start: ProfileError: profile 'nosuch' not found" in str(e.value)
+        with pytest.raises(WorkerError) as e:  # every later task too, from the same (live) process
+            w.ik((0.0, 0.25, 0.0, 0.0))
+        assert e.value.code == "unavailable" and "could not start" in str(e.value)
+        assert w.replaced == 0
+    finally:
+        w.close()
+    assert "Traceback" not in capfd.readouterr().err

@@ -51,7 +51,12 @@ def open_bus(interface: str, channel: str | None = None, **kwargs: Any) -> can.B
     try:
         return can.Bus(interface=interface, channel=channel, **kwargs)
     except (can.CanError, OSError, ImportError) as exc:
-        raise LinkError(f"cannot open {interface} channel {channel!r}: {exc}") from None
+        hint = (
+            " (no hub there: start one with `hitch can-hub`, or give the hub's URL as the channel)"
+            if interface == "remote" and isinstance(exc, ConnectionRefusedError)
+            else ""
+        )
+        raise LinkError(f"cannot open {interface} channel {channel!r}: {exc}{hint}") from None
 
 
 class BusNode(Protocol):

@@ -1,0 +1,23 @@
+"""Opening a bus: refusals name the interface, the channel and what to do."""
+
+from __future__ import annotations
+
+import pytest
+
+from bridge.link.realtime import open_bus
+from bridge.link.state import LinkError
+from tests.integration.service_process import free_port
+
+
+def test_an_unknown_interface_names_the_allowed_ones():
+    with pytest.raises(LinkError, match="interface must be one of udp_multicast, socketcan, virtual, remote"):
+        open_bus("pcan")
+
+
+def test_a_remote_channel_without_a_hub_says_to_start_one():
+    """A new user's report: `hitch switch raise` said only 'Connection refused'."""
+    url = f"ws://127.0.0.1:{free_port()}/"
+    with pytest.raises(LinkError) as err:
+        open_bus("remote", url)
+    msg = str(err.value)
+    assert url in msg and "`hitch can-hub`" in msg

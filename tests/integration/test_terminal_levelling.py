@@ -173,3 +173,67 @@ def test_at_800x480_stop_and_the_toggle_stay_visible(service, page, shots):
         wait_for(lambda: service.state().get("track") is None, 10, "the session to end")
     finally:
         page.set_viewport_size({"width": 1024, "height": 600})
+
+
+def test_the_outcome_stays_shown_when_it_arrives_before_the_stops_reply(service, page):
+    """CI saw the status end as 'off: braking to rest': the motion_finished event (reason track/stop) reached
+    the page before the reply to track/stop, and the reply overwrote it. Here the reply to track/stop is
+    held back until that event has been delivered, every time."""
+    import json
+    import threading
+
+    _rest(service)
+    pg = page.context.new_page()
+    pg.set_default_timeout(10_000)
+    stop_ids: set[int] = set()
+    held: list[str] = []
+    delivered = threading.Event()
+
+    def route(ws):
+        server = ws.connect_to_server()
+
+        def to_server(m):
+            try:
+                cmd = json.loads(m)
+            except (TypeError, ValueError):
+                cmd = {}
+            if isinstance(cmd, dict) and cmd.get("key") == "track/stop":
+                stop_ids.add(cmd.get("id"))
+            server.send(m)
+
+        def to_page(m):
+            try:
+                msg = json.loads(m)
+            except (TypeError, ValueError):
+                msg = {}
+            if msg.get("type") == "reply" and msg.get("id") in stop_ids and not delivered.is_set():
+                held.append(m)  # the reply waits for the outcome
+                return
+            ws.send(m)
+            data = msg.get("data") or {}
+            if (
+                msg.get("type") == "event"
+                and data.get("event") == "motion_finished"
+                and data.get("reason") == "track/stop"
+            ):
+                delivered.set()
+                while held:
+                    ws.send(held.pop(0))
+
+        ws.on_message(to_server)
+        server.on_message(to_page)
+
+    pg.route_web_socket("**", route)
+    try:
+        pg.goto(service.url)
+        wait_js(pg, "document.getElementById('conn').textContent.startsWith('Service: connected')", 20_000)
+        pg.click("#level-toggle")
+        wait_js(pg, "document.getElementById('level-toggle').getAttribute('aria-pressed') === 'true'")
+        wait_for(lambda: service.state().get("track"), 5, "a track session in the state")
+        pg.click("#level-toggle")
+        # (the route's callbacks run while this thread calls into Playwright: evaluate pumps them)
+        wait_for(lambda: pg.evaluate("1") and delivered.is_set() and not held, 15, "the outcome, then the held reply")
+        pg.wait_for_timeout(300)  # the page has handled the reply
+        assert "off: track/stop" in pg.text_content("#level-status")
+    finally:
+        pg.close()

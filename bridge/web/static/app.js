@@ -983,7 +983,10 @@
       this.halt("");
       if (session === null) return;
       const r = await call("track/stop", this.seq > 0 ? { session, last_seq: this.seq - 1 } : { session }, true);
-      if (r.ok) { this.note = "off: braking to rest"; this.noteErr = false; log(`levelling off: track/stop (session ${session})`); }
+      if (r.ok) {   // the motion's outcome may have come first (the same socket, other threads): it stays shown
+        if (this.motionId !== null) { this.note = "off: braking to rest"; this.noteErr = false; }
+        log(`levelling off: track/stop (session ${session})`);
+      }
       else if (r.data.error !== "not_found") { this.note = r.data.message || "track/stop refused"; this.noteErr = true; log(this.note, true); }
       this.render();
     },

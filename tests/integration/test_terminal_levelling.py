@@ -175,65 +175,101 @@ def test_at_800x480_stop_and_the_toggle_stay_visible(service, page, shots):
         page.set_viewport_size({"width": 1024, "height": 600})
 
 
+class _RepliesAfterOutcome:
+    """A page whose websocket to the service holds back the reply to ``key`` until the event ``outcome``
+    (a predicate on the event's data) has been delivered: the order a loaded service can produce, every time.
+    Playwright runs the route's callbacks while the test thread calls into it (``pump``)."""
+
+    def __init__(self, page, key: str, outcome):
+        import json
+        import threading
+
+        self.page = page.context.new_page()
+        self.page.set_default_timeout(10_000)
+        self.ids: set[int] = set()
+        self.held: list[str] = []
+        self.delivered = threading.Event()
+
+        def route(ws):
+            server = ws.connect_to_server()
+
+            def to_server(m):
+                try:
+                    cmd = json.loads(m)
+                except (TypeError, ValueError):
+                    cmd = None
+                if isinstance(cmd, dict) and cmd.get("key") == key:
+                    self.ids.add(cmd.get("id"))
+                server.send(m)
+
+            def to_page(m):
+                try:
+                    msg = json.loads(m)
+                except (TypeError, ValueError):
+                    msg = {}
+                if msg.get("type") == "reply" and msg.get("id") in self.ids and not self.delivered.is_set():
+                    self.held.append(m)  # the reply waits for the outcome
+                    return
+                ws.send(m)
+                if msg.get("type") == "event" and outcome(msg.get("data") or {}):
+                    self.delivered.set()
+                    while self.held:
+                        ws.send(self.held.pop(0))
+
+            ws.on_message(to_server)
+            server.on_message(to_page)
+
+        self.page.route_web_socket("**", route)
+
+    def open(self, url: str) -> None:
+        self.page.goto(url)
+        wait_js(self.page, "document.getElementById('conn').textContent.startsWith('Service: connected')", 20_000)
+
+    def wait_outcome_then_reply(self, timeout_s: float = 15.0) -> None:
+        wait_for(
+            lambda: self.page.evaluate("1") and self.delivered.is_set() and not self.held,
+            timeout_s,
+            "the outcome, then the held reply",
+        )
+        self.page.wait_for_timeout(300)  # the page has handled the reply
+
+
 def test_the_outcome_stays_shown_when_it_arrives_before_the_stops_reply(service, page):
     """CI saw the status end as 'off: braking to rest': the motion_finished event (reason track/stop) reached
-    the page before the reply to track/stop, and the reply overwrote it. Here the reply to track/stop is
-    held back until that event has been delivered, every time."""
-    import json
-    import threading
-
+    the page before the reply to track/stop, and the reply overwrote it."""
     _rest(service)
-    pg = page.context.new_page()
-    pg.set_default_timeout(10_000)
-    stop_ids: set[int] = set()
-    held: list[str] = []
-    delivered = threading.Event()
-
-    def route(ws):
-        server = ws.connect_to_server()
-
-        def to_server(m):
-            try:
-                cmd = json.loads(m)
-            except (TypeError, ValueError):
-                cmd = {}
-            if isinstance(cmd, dict) and cmd.get("key") == "track/stop":
-                stop_ids.add(cmd.get("id"))
-            server.send(m)
-
-        def to_page(m):
-            try:
-                msg = json.loads(m)
-            except (TypeError, ValueError):
-                msg = {}
-            if msg.get("type") == "reply" and msg.get("id") in stop_ids and not delivered.is_set():
-                held.append(m)  # the reply waits for the outcome
-                return
-            ws.send(m)
-            data = msg.get("data") or {}
-            if (
-                msg.get("type") == "event"
-                and data.get("event") == "motion_finished"
-                and data.get("reason") == "track/stop"
-            ):
-                delivered.set()
-                while held:
-                    ws.send(held.pop(0))
-
-        ws.on_message(to_server)
-        server.on_message(to_page)
-
-    pg.route_web_socket("**", route)
+    held = _RepliesAfterOutcome(
+        page, "track/stop", lambda e: e.get("event") == "motion_finished" and e.get("reason") == "track/stop"
+    )
+    pg = held.page
     try:
-        pg.goto(service.url)
-        wait_js(pg, "document.getElementById('conn').textContent.startsWith('Service: connected')", 20_000)
+        held.open(service.url)
         pg.click("#level-toggle")
         wait_js(pg, "document.getElementById('level-toggle').getAttribute('aria-pressed') === 'true'")
         wait_for(lambda: service.state().get("track"), 5, "a track session in the state")
         pg.click("#level-toggle")
-        # (the route's callbacks run while this thread calls into Playwright: evaluate pumps them)
-        wait_for(lambda: pg.evaluate("1") and delivered.is_set() and not held, 15, "the outcome, then the held reply")
-        pg.wait_for_timeout(300)  # the page has handled the reply
+        held.wait_outcome_then_reply()
         assert "off: track/stop" in pg.text_content("#level-status")
+    finally:
+        pg.close()
+
+
+def test_a_goto_that_ends_before_its_reply_shows_its_outcome(service, page):
+    """The same order for a goto: on the old page the outcome was dropped (the goto's id was not known yet)
+    and 'moving: motion #N' stayed forever."""
+    from tests.integration.test_web_browser import tab
+
+    _rest(service)
+    held = _RepliesAfterOutcome(page, "goto", lambda e: e.get("event") == "motion_finished" and e.get("kind") == "goto")
+    pg = held.page
+    try:
+        held.open(service.url)
+        tab(pg, "goto")
+        for k, v in (("x", ""), ("z", "150.0"), ("roll", ""), ("pitch", "")):
+            pg.fill(f"#goto-form input[name={k}]", v)
+        pg.click("#goto-go")
+        held.wait_outcome_then_reply(30.0)
+        text = pg.text_content("#goto-result")
+        assert text.endswith("finished") and text.startswith("motion #"), text
     finally:
         pg.close()

@@ -63,6 +63,7 @@
   const ui = {
     config: null, state: null, lastStateMs: 0, drawn: true, frames: 0, rate: 0,
     presets: [], maneuvers: [], maneuverSteps: {}, connected: false, closedReason: "", gotoId: null,
+    outcomes: new Map(), maneuversEnded: 0,   // an outcome can reach the page before its request's reply
     session: null,   // GET /api/session: {login, authenticated, user, role, csrf}
   };
   // the hitch picture: `terminal` info (once), the newest `view` message, the built views
@@ -786,13 +787,16 @@
     if (e.maneuver) text = `maneuver ${e.maneuver}: ${name.replace("maneuver_", "")}` + (e.step !== undefined ? ` step ${e.step + 1}` : "") + (e.reason ? ` (${e.reason}: ${e.message || ""})` : "");
     log(text, /abort|fault$|limit/.test(name));
     if (name === "maneuver_started" && e.steps) ui.maneuverSteps[e.maneuver] = e.steps;
-    if (e.motion_id !== undefined && e.motion_id === ui.gotoId && /^motion_(finished|aborted)$|^limit_reached$|^fault$/.test(name)) {
-      result("#goto-result", name === "motion_finished" ? `motion #${e.motion_id} finished` : text, name === "motion_finished");
-      ui.gotoId = null;
+    if (e.motion_id !== undefined && /^motion_(finished|aborted)$|^limit_reached$|^fault$/.test(name)) {
+      const outcome = [name === "motion_finished" ? `motion #${e.motion_id} finished` : text, name === "motion_finished"];
+      ui.outcomes.set(e.motion_id, outcome);   // kept for a goto whose reply is still on its way
+      if (ui.outcomes.size > 50) ui.outcomes.delete(ui.outcomes.keys().next().value);
+      if (e.motion_id === ui.gotoId) { result("#goto-result", ...outcome); ui.gotoId = null; }
     }
     level.onEvent(e);
     if (name === "implement_selected") refreshImplements();
     if (name === "maneuver_finished" || name === "maneuver_aborted") {
+      ui.maneuversEnded += 1;
       $("#maneuver-result").textContent = name === "maneuver_finished"
         ? `${e.maneuver} finished in ${fmt(e.elapsed, 1)} s` : `${e.maneuver} aborted: ${e.reason} — ${e.message || ""}`;
       $("#maneuver-result").className = `result ${name === "maneuver_finished" ? "ok" : "err"}`;
@@ -1067,6 +1071,8 @@
     if (req.error) { result("#goto-result", req.error, false); return; }
     result("#goto-result", "", true);         // the last motion's outcome is no longer news
     const r = await call("goto", req);
+    const ended = r.ok ? ui.outcomes.get(r.data.motion_id) : undefined;
+    if (ended) { ui.gotoId = null; result("#goto-result", ...ended); return; }   // over before its reply came
     ui.gotoId = r.ok ? r.data.motion_id : null;
     result("#goto-result", r.ok ? `moving: motion #${r.data.motion_id}, ${fmt(r.data.duration, 2)} s` : r.data.message, r.ok);
   });
@@ -1144,7 +1150,12 @@
             : `${m.name}: ` + stepErrors(q.data.errors), q.data.ok);
           else result("#maneuver-result", q.data.message, false);
         }],
-        ["Run", "primary motion-only", async () => { const q = await call("maneuvers/run", { name: m.name }); if (q.ok) result("#maneuver-result", `${m.name}: running, ${fmt(q.data.duration, 1)} s planned`, true); }],
+        ["Run", "primary motion-only", async () => {
+          const ended = ui.maneuversEnded;
+          const q = await call("maneuvers/run", { name: m.name });
+          // an outcome that came before this reply stays shown
+          if (q.ok && ui.maneuversEnded === ended) result("#maneuver-result", `${m.name}: running, ${fmt(q.data.duration, 1)} s planned`, true);
+        }],
         ["Abort", "danger", async () => { await stop(); }],
       ];
       item(list, m.name, `${m.steps} steps${m.description ? " · " + m.description : ""}`, buttons);

@@ -202,6 +202,7 @@
   }
 
   async function onConnected() {
+    ui.outcomes.clear();   // motion ids are the service run's own: a restarted service counts from 1 again
     renderConnection();
     const r = await call("config", {});
     if (r.ok) { ui.config = r.data; buildGauges(); renderConfig(); renderRanges(); }

@@ -17,14 +17,19 @@ from planner.model.types import ACTUATOR_NAMES, POSE_NAMES
 __all__ = ["add_commands", "finite_float", "bounded_float", "whole_number", "add_model_options", "model_from_args"]
 
 
+def _converted(name: str, text: str, cast, what: str):
+    """``cast(text)``, or the argparse error naming the option and what it must be."""
+    try:
+        return cast(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{name} must be {what}, got {text!r}") from None
+
+
 def finite_float(name: str):
     """argparse type: a finite float, with an error naming the option."""
 
     def parse(text: str) -> float:
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
+        v = _converted(name, text, float, "a number")
         if not math.isfinite(v):
             raise argparse.ArgumentTypeError(f"{name} must be finite, got {text!r}")
         return v
@@ -52,10 +57,7 @@ def whole_number(name: str):
     """argparse type: a whole number >= 0, the error naming the option and the allowed range."""
 
     def parse(text: str) -> int:
-        try:
-            n = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be a whole number >= 0, got {text!r}") from None
+        n = _converted(name, text, int, "a whole number >= 0")
         if n < 0:
             raise argparse.ArgumentTypeError(f"{name} must be a whole number >= 0, got {text}")
         return n

@@ -20,7 +20,9 @@ whether it is stale (no frame for longer than the signal's ``stale_after_s``). A
 * a jump beyond the physical rate bound (:class:`Plausibility`) since the last accepted value,
   ``|v - v_last| > rate · (t - t_last) + slack``, gives ``None`` with reason "implausible jump";
   the bound grows with the time since the last accepted value, so a real step is accepted after
-  ``step / rate`` seconds and a single spike is dropped.
+  ``step / rate`` seconds and a single spike is dropped. That time is the node times' difference, or
+  the frames' bus timestamps' when larger: frames that waited in the bus while the host stalled are
+  all taken at one node time, and judged by their real spacing (:meth:`_Slot.elapsed_s`).
 
 Idle cost (50-100 Hz frames): per frame one identifier decode, one codec decode (memoised for
 repeated bytes) and a few float updates under a lock; no other allocation, no logging. The
@@ -290,18 +292,44 @@ class TractorSensorCounters:
 
 
 class _Slot:
-    """The latest state of one signal (mutable, preallocated: no allocation per frame)."""
+    """The latest state of one signal (mutable, preallocated: no allocation per frame).
 
-    __slots__ = ("value", "received_s", "reason", "good", "good_s", "rate", "slack", "jump_reason", "stale_after_s")
+    ``rate`` None: no rate bound (every finite value is taken)."""
 
-    def __init__(self, rate: float, slack: float, unit: str, stale_after_s: float) -> None:
+    __slots__ = (
+        "value",
+        "received_s",
+        "reason",
+        "good",
+        "good_s",
+        "good_stamp_s",
+        "rate",
+        "slack",
+        "jump_reason",
+        "stale_after_s",
+    )
+
+    def __init__(self, rate: float | None, slack: float, unit: str, stale_after_s: float) -> None:
         self.value: float | None = None
         self.received_s: float | None = None
         self.reason: str | None = _NEVER
         self.good = 0.0
         self.good_s: float | None = None
+        self.good_stamp_s = 0.0  # the accepted value's frame timestamp (0: the bus gave none)
         self.rate, self.slack, self.stale_after_s = rate, slack, stale_after_s
-        self.jump_reason = f"implausible jump (faster than {rate:g} {unit} + {slack:g})"
+        self.jump_reason = "" if rate is None else f"implausible jump (faster than {rate:g} {unit} + {slack:g})"
+
+    def elapsed_s(self, now_s: float, stamp_s: float) -> float:
+        """The time since the accepted value: the node times' difference, or the frames' own timestamps'
+        when larger (frames that waited in the bus during a stall are all taken at one node time;
+        their timestamps keep their real spacing), believed up to ``stale_after_s`` beyond the node
+        times' difference (a longer gap is a stale signal anyway; a foreign clock cannot open the bound)."""
+        dt = 0.0 if self.good_s is None else max(0.0, now_s - self.good_s)
+        if stamp_s > 0.0 and self.good_stamp_s > 0.0:
+            gap = stamp_s - self.good_stamp_s
+            if gap > dt:
+                dt = min(gap, dt + self.stale_after_s)
+        return dt
 
     def reading(self, now_s: float) -> SignalReading:
         r = self.received_s
@@ -362,7 +390,7 @@ class TractorSensors(ReceivingNode):
         self._row = _Slot(p.row_rate_m_s, p.row_slack_m, "m/s", c.row_stale_after_s)
         self._speed = _Slot(p.speed_accel_m_s2, p.speed_slack_m_s, "m/s²", c.wheel_stale_after_s)
         self._wheel = WheelDistance()
-        self._draft = _Slot(1.0e12, 0.0, "N/s", c.draft_stale_after_s)  # no rate bound (config docstring)
+        self._draft = _Slot(None, 0.0, "N/s", c.draft_stale_after_s)  # no rate bound (config docstring)
         self._latency: float | None = None
         self._sources = {
             PGN_SLOPE_SENSOR_INFORMATION: c.slope_source,
@@ -374,6 +402,7 @@ class TractorSensors(ReceivingNode):
         if c.read_draft:
             self._sources[PGN_REAR_HITCH_STATUS] = c.hitch_source
         self._now = 0.0
+        self._stamp = 0.0  # the frame being taken: its bus timestamp (0: none)
         self._frames = self._errors = self._unavailable = self._implausible = self._degraded = self._ignored = 0
 
     # -- BusNode (ReceivingNode: bus, start, poll, handle, next_due_s) ---------------------------
@@ -403,6 +432,8 @@ class TractorSensors(ReceivingNode):
             return False
         with self._lock:
             self._frames += 1
+            ts = frame.timestamp
+            self._stamp = float(ts) if isinstance(ts, (int, float)) and math.isfinite(ts) and ts > 0.0 else 0.0
             try:
                 d = decode_frame(frame)
             except CodecError:
@@ -460,12 +491,17 @@ class TractorSensors(ReceivingNode):
             slot.value, slot.reason = None, missing
             self._unavailable += 1
             return
-        if slot.good_s is not None and abs(value - slot.good) > slot.rate * max(0.0, now_s - slot.good_s) + slot.slack:
+        stamp = self._stamp
+        if (
+            slot.rate is not None
+            and slot.good_s is not None
+            and abs(value - slot.good) > slot.rate * slot.elapsed_s(now_s, stamp) + slot.slack
+        ):
             slot.value, slot.reason = None, slot.jump_reason
             self._implausible += 1
             return
         slot.value = slot.good = value
-        slot.good_s = now_s
+        slot.good_s, slot.good_stamp_s = now_s, stamp
         slot.reason = None
 
     # -- snapshot --------------------------------------------------------------------------

@@ -13,10 +13,11 @@ import can
 import pytest
 
 from bridge.isobus.codec import encode
-from bridge.isobus.j1939 import MachineDirection, Switch
+from bridge.isobus.j1939 import CYLINDER_ECU_ADDRESS, MachineDirection, Switch
 from bridge.isobus.messages import (
     FigureOfMerit,
     GroundDistance,
+    RearHitchStatus,
     RowGuidance,
     SlopeSensorInformation,
     SlopeSensorInformation2,
@@ -32,6 +33,7 @@ from bridge.link.tractor_sensors import (
 from bridge.service.odometer import DISTANCE_WRAP_M, WheelOdometer
 
 OK = FigureOfMerit.FULLY_FUNCTIONAL
+ECU = CYLINDER_ECU_ADDRESS
 RES = math.radians(0.002)
 
 
@@ -121,6 +123,49 @@ def test_not_available_error_and_figures_of_merit_are_reasons_never_nan(bench):
     for n in SIGNALS:
         v = s.readings().signal(n).value
         assert v is None or math.isfinite(v)
+
+
+def _stamped(payload, stamp_s, **kw):
+    msg = encode(payload, **kw)
+    msg.timestamp = stamp_s
+    return msg
+
+
+def test_frames_that_waited_out_a_stall_are_judged_by_their_own_spacing():
+    """A host stall: frames queue in the bus and the runner takes them all at one node time.
+    Before, the rate bound then shrank to the slack alone: two draft readings 10 ms apart were an
+    "implausible jump" (the draft's slack is 0), the draft went None and work control fell back to
+    position for good (CI, under load); a ground distance moving 30 mm in 10 ms (3 m/s, within
+    5 m/s) was dropped too. Their bus timestamps keep the real spacing; a spike is still dropped."""
+    s = TractorSensors(_Port(), TractorSensorsConfig(read_draft=True))
+    t0 = 1000.0  # the bus's clock (any: only differences count)
+    s.take(_stamped(RearHitchStatus(draft_n=8_000.0), t0, source=ECU), 5.0)
+    s.take(_stamped(RearHitchStatus(draft_n=8_230.0), t0 + 0.01, source=ECU), 5.0)  # the same node time: one burst
+    assert s.draft(5.0).value == pytest.approx(8_230.0, abs=10.0)
+    s.take(_stamped(RearHitchStatus(draft_n=9_000.0), 0.0, source=ECU), 5.0)  # the draft has no rate bound
+    assert s.draft(5.0).value == pytest.approx(9_000.0, abs=10.0) and s.counters().implausible == 0
+    s.take(_stamped(GroundDistance(0.40, OK), t0), 5.0)
+    s.take(_stamped(GroundDistance(0.43, OK), t0 + 0.01), 5.0)  # 3 m/s: real
+    assert s.readings(5.0).ground_distance.value == pytest.approx(0.43, abs=RES)
+    s.take(_stamped(GroundDistance(0.60, OK), t0 + 0.02), 5.0)  # 17 m/s: a spike, dropped
+    assert s.readings(5.0).ground_distance.value is None and s.counters().implausible == 1
+    s.take(_stamped(GroundDistance(0.44, OK), t0 + 0.03), 5.0)
+    assert s.readings(5.0).ground_distance.value == pytest.approx(0.44, abs=RES)
+    # a foreign clock cannot open the bound beyond the signal's stale time (0.2 s: 1 m + 0.01 m at 5 m/s)
+    s.take(_stamped(GroundDistance(2.0, OK), t0 + 1_000.0), 5.0)
+    assert s.readings(5.0).ground_distance.value is None and s.counters().implausible == 2
+    s.take(_stamped(GroundDistance(1.2, OK), t0 + 2_000.0), 5.0)  # 0.76 m: within 5 m/s · 0.2 s + 0.01 m
+    assert s.readings(5.0).ground_distance.value == pytest.approx(1.2, abs=RES)
+    # the node times' difference still counts when the timestamps say less
+    s.take(_stamped(GroundDistance(1.6, OK), t0 + 2_000.0), 5.1)
+    assert s.readings(5.1).ground_distance.value == pytest.approx(1.6, abs=RES)
+
+
+class _Port:
+    """A bus for :meth:`TractorSensors.take` alone (nothing is read from it)."""
+
+    def recv(self, timeout=None):
+        return None
 
 
 def test_jumps_beyond_the_rate_bound_are_refused_then_recover(bench):

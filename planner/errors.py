@@ -8,7 +8,9 @@ validate input.
 
 from __future__ import annotations
 
-__all__ = ["HitchError", "HitchInputError"]
+import math
+
+__all__ = ["HitchError", "HitchInputError", "unit_hint"]
 
 
 class HitchError(Exception):
@@ -17,3 +19,14 @@ class HitchError(Exception):
 
 class HitchInputError(HitchError, ValueError):
     """Bad input: the message names the field, the value and what is allowed."""
+
+
+def unit_hint(value: float, lo: float, hi: float, unit: str) -> str:
+    """``; did you mean mm? …`` for a length [m] or ``; did you mean degrees? …`` for an angle [rad]
+    whose value, read in mm or degrees, lies in ``[lo, hi]``; ``""`` when neither fits (a suffix for
+    a :class:`HitchInputError` message about ``value`` outside ``[lo, hi]``)."""
+    if unit == "m" and abs(value) >= 1.0 and lo <= value / 1000.0 <= hi:
+        return f"; did you mean mm? {value:.6g} mm = {value / 1000.0:.6g} m"
+    if unit == "rad" and abs(value) >= 1.0 and lo <= math.radians(value) <= hi:
+        return f"; did you mean degrees? {value:.6g} deg = {math.radians(value):.6g} rad"
+    return ""

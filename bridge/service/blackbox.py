@@ -3,7 +3,8 @@
 :class:`EventLog` writes one JSON object per line to ``<data_dir>/log/events.jsonl`` (see
 :func:`event_log_path`), rotated by size (:class:`logging.handlers.RotatingFileHandler`:
 ``events.jsonl.1`` … ``.N``, the oldest dropped). Each record carries ``t`` (wall clock, s since
-the epoch), ``seq`` (1, 2, … per log) and ``kind``:
+the epoch), ``seq`` (1, 2, … per log, continued across service starts: a new :class:`EventLog` on an
+existing log goes on after the last record's number, so a number names one record) and ``kind``:
 
 * ``request`` — who asked what and what came of it: ``key``, ``user`` (None: authorised by
   Zenoh's access control), ``accepted`` (bool), ``error`` and ``message`` of a refusal,
@@ -56,6 +57,7 @@ __all__ = [
     "CanRecorder",
     "ReplayRecord",
     "event_log_path",
+    "last_seq",
     "read_events",
     "follow_events",
     "replay_can_log",
@@ -146,7 +148,7 @@ class EventLog:
         self._handler.setFormatter(logging.Formatter("%(message)s"))
         self._queue: queue.Queue[dict[str, Any] | None] = queue.Queue(maxsize=queue_size)
         self._lock = threading.Lock()
-        self._seq = 0
+        self._seq = last_seq(self.path)
         self._dropped = 0
         self._dropped_reported = 0
         self._closed = False
@@ -273,6 +275,27 @@ def _log_files(path: Path) -> list[Path]:
         if suffix.isdigit():
             rotated.append((int(suffix), p))
     return [p for _, p in sorted(rotated, reverse=True)] + ([path] if path.exists() else [])
+
+
+def last_seq(path: str | Path, *, tail_bytes: int = 65_536) -> int:
+    """The ``seq`` of the newest readable record of the log at ``path`` (the live file, else the newest
+    rotated one), 0 for none. Reads only the files' last ``tail_bytes``; a torn last line (a killed
+    writer) is skipped."""
+    p = Path(path)
+    for f in reversed(_log_files(p)):
+        try:
+            with f.open("rb") as fh:
+                fh.seek(0, os.SEEK_END)
+                fh.seek(max(0, fh.tell() - tail_bytes))
+                tail = fh.read().decode("utf-8", errors="replace")
+        except OSError:
+            continue
+        for line in reversed(tail.splitlines()):
+            rec = _parse_line(line)
+            seq = None if rec is None else rec.get("seq")
+            if isinstance(seq, int) and not isinstance(seq, bool) and seq >= 0:
+                return seq
+    return 0
 
 
 def _parse_line(line: str) -> dict[str, Any] | None:

@@ -34,7 +34,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from pydantic.fields import FieldInfo
 
 from bridge.service.maneuvers.language import MIN_SPEED_SCALE, NAME_PATTERN, POSE_BOUNDS
-from planner.errors import HitchInputError
+from planner.errors import HitchInputError, unit_hint
 from planner.model.types import CONTROLLED_POSE_NAMES
 
 __all__ = [
@@ -539,16 +539,6 @@ def _find_non_finite(data: Any) -> tuple[str, str] | None:
 
 
 _UNIT = {"x": "m", "z": "m", "roll": "rad", "pitch": "rad"}
-
-
-def unit_hint(value: float, lo: float, hi: float, unit: str) -> str:
-    """``; did you mean mm? …`` for a length [m] or ``; did you mean degrees? …`` for an angle [rad]
-    whose value, read in mm or degrees, lies in ``[lo, hi]``; ``""`` when neither fits."""
-    if unit == "m" and abs(value) >= 1.0 and lo <= value / 1000.0 <= hi:
-        return f"; did you mean mm? {value:.6g} mm = {value / 1000.0:.6g} m"
-    if unit == "rad" and abs(value) >= 1.0 and lo <= math.radians(value) <= hi:
-        return f"; did you mean degrees? {value:.6g} deg = {math.radians(value):.6g} rad"
-    return ""
 
 
 def check_pose_in_workspace(

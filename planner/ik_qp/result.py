@@ -9,6 +9,7 @@ from typing import Literal
 
 import numpy as np
 
+from planner.errors import unit_hint
 from planner.ik_qp.errors import IKInputError
 from planner.model.types import Actuators, Pose
 
@@ -28,7 +29,8 @@ def _finite(name: str, value: object) -> float:
     lim = _TARGET_RANGE[name]
     if abs(v) > lim:
         unit = "m" if name in ("x", "z") else "rad"
-        raise IKInputError(f"{name} = {v} is outside the accepted range ±{lim:.4g} {unit}")
+        hint = unit_hint(v, -lim, lim, unit)
+        raise IKInputError(f"{name} = {v} is outside the accepted range ±{lim:.4g} {unit}{hint}")
     return v
 
 

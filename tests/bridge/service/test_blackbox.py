@@ -24,6 +24,7 @@ from bridge.service.blackbox import (
     EventLog,
     event_log_path,
     follow_events,
+    last_seq,
     read_events,
     replay_can_log,
 )
@@ -52,6 +53,33 @@ def test_records_are_json_lines_in_order_with_who_what_and_outcome(tmp_path):
     assert recs[3]["kind"] == "event" and recs[3]["fault"] == "stale_measurement" and recs[3]["event_t"] == 12.5
     assert recs[4]["event"] == "motion_finished" and recs[4]["event_seq"] == 41 and recs[4]["seq"] == 5
     assert read_events(path) == recs
+
+
+def test_record_numbers_go_on_across_service_starts_so_a_number_names_one_record(tmp_path):
+    """Before, each service start numbered its records from 1 again in the same file (a new user's
+    report: ``hitch log`` showed two records #1). A torn last line (killed writer) is skipped; after a
+    rotation the newest rotated file gives the number; an empty folder starts at 1."""
+    path = event_log_path(tmp_path)
+    assert last_seq(path) == 0
+    for run in range(3):
+        with EventLog(path) as log:
+            log.record("service", run=run)
+            log.record("test", run=run)
+    assert [r["seq"] for r in read_events(path)] == [1, 2, 3, 4, 5, 6]
+    with path.open("a", encoding="utf-8") as fh:
+        fh.write('{"seq":7,"t":1.0,"kind":"te')  # a writer killed mid-line
+    assert last_seq(path) == 6
+    path.write_text("")  # just rotated: the live file is empty
+    (path.parent / "events.jsonl.1").write_text('{"seq":41,"t":1.0,"kind":"test"}\n')
+    with EventLog(path) as log:
+        log.record("test")
+    assert read_events(path)[-1]["seq"] == 42
+    log = EventLog(path, max_bytes=2000, backup_count=2)  # numbers stay increasing through rotations
+    for i in range(100):
+        log.record("test", i=i, pad="x" * 40)
+    log.close()
+    seqs = [r["seq"] for r in read_events(path) if r.get("kind") == "test"]
+    assert seqs == sorted(seqs) and seqs[-1] == 142
 
 
 def test_the_log_rotates_by_size_and_keeps_a_bounded_number_of_files(tmp_path):

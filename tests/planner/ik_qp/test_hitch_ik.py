@@ -132,6 +132,11 @@ def test_backends_agree_with_osqp(model, solver, backend, rng):
         ({"roll": "0.1"}, "roll must be a number"),
         ({"pitch": None}, "pitch must be a number"),
         ({"x": 1e9}, "x = 1000000000.0 is outside the accepted range"),
+        ({"z": 300.0}, r"z = 300.0 is outside the accepted range ±10 m; did you mean mm\? 300 mm = 0.3 m"),
+        (
+            {"roll": 10.0},
+            r"roll = 10.0 is outside the accepted range ±1.571 rad; did you mean degrees\? 10 deg = 0.1745",
+        ),
     ],
 )
 def test_bad_input_names_the_field(model, solver, bad, field):

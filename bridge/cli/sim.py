@@ -554,7 +554,9 @@ def add_commands(sub) -> None:
     add_model_options(m)
     m.set_defaults(handler=_cmd_sim_move)
     tr = ssub.add_parser("track", help="closed-loop continuous control of a terrain scenario in simulated time")
-    tr.add_argument("scenario", help="built-in scenario (flat, levelling, guidance, terrain) or a .toml path")
+    tr.add_argument(
+        "scenario", help="built-in scenario (flat, levelling, levelling-inside, guidance, terrain) or a .toml path"
+    )
     tr.add_argument("--strategy", choices=("track", "goto_stream", "hold"), default="track", help="default track")
     tr.add_argument(
         "--job", choices=("levelling", "guidance", "terrain"), default=None, help="default: from the scenario"

@@ -156,6 +156,24 @@ def test_track_levels_better_than_goto_stream(model):
     assert track_rms < goto_rms
 
 
+def test_the_shipped_levelling_inside_scenario_is_inside_and_levelled_within_5_mrad(model):
+    """The scenario where #15's levelling targets can be judged (bench ``levelling-inside``): its demand
+    (the tractor's roll from the twin's truth) stays inside the roll workspace and the follower's limits,
+    and track mode levels the implement to RMS ≤ 5 mrad and ≥ 5 × better than holding (first 20 s)."""
+    sc = load_scenario("levelling-inside")
+    ts = np.linspace(0.0, sc.duration_s, 30_001)
+    roll = np.array([sc.twin.attitude(float(t)).roll_rad for t in ts])
+    assert np.max(np.abs(roll)) == pytest.approx(0.05, abs=2e-3)  # 0.035 + 0.015 rad, nearly in phase
+    s = {"settle_s": 3.0, "duration_s": 20.0}
+    track = run_track_loop(model, sc, LoopSettings(strategy="track", **s))
+    hold = run_track_loop(model, sc, LoopSettings(strategy="hold", **s))
+    assert track.inside[track.evaluated].all()  # inside the workspace and the follower's limits
+    assert track.figures_inside.rms <= 5e-3 and track.figures.rms <= hold.figures.rms / 5, (track.figures, hold.figures)
+    for r in (track, hold):
+        assert r.counts["references_outside_strokes"] == 0 and r.counts["refused"] == 0
+        assert r.counts["outside_workspace"] == 0 and not r.faults
+
+
 def test_demands_beyond_the_workspace_are_clipped_never_streamed_beyond_the_strokes(model):
     sc = _scenario("steep", 7.0, terrain={"cross_slope_rad": 0.1})  # beyond the roll workspace
     r = run_track_loop(model, sc, LoopSettings(strategy="track", settle_s=5.5))
@@ -204,7 +222,8 @@ def test_bad_settings_name_the_field():
 
 
 def test_job_of_the_shipped_scenarios():
-    assert [job_of(load_scenario(n)) for n in ("flat", "levelling", "guidance", "terrain")] == [
+    assert [job_of(load_scenario(n)) for n in ("flat", "levelling", "levelling-inside", "guidance", "terrain")] == [
+        "levelling",
         "levelling",
         "levelling",
         "guidance",

@@ -22,7 +22,7 @@ def _chisel_data() -> dict:
 
 def test_builtin_field_loads_and_terrain_scenarios_are_unchanged():
     assert builtin_fields() == ["chisel"]
-    assert builtin_scenarios() == ["flat", "guidance", "levelling", "terrain"]
+    assert builtin_scenarios() == ["flat", "guidance", "levelling", "levelling-inside", "terrain"]
     f = load_field("chisel")
     assert f.scenario.name == "terrain"
     assert f.implement.coefficients.name == "Chisel plow, 5 cm straight point"

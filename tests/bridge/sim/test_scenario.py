@@ -20,12 +20,15 @@ GOOD = {
 
 
 def test_the_shipped_scenarios():
-    assert builtin_scenarios() == ["flat", "guidance", "levelling", "terrain"]
+    assert builtin_scenarios() == ["flat", "guidance", "levelling", "levelling-inside", "terrain"]
     flat = load_scenario("flat").twin
     assert flat.state(20.0).roll_rad == 0.0 and flat.row_measured_offset_m(20.0) == 0.0
     lev = load_scenario("levelling").twin
     rolls = np.array([lev.state(float(t)).roll_rad for t in np.arange(0.0, 300.0, 0.5)])
     assert 0.09 < np.max(np.abs(rolls)) <= 0.1 + 1e-9
+    inside = load_scenario("levelling-inside").twin  # within the roll faces (about ±0.058 rad)
+    rolls = np.array([inside.state(float(t)).roll_rad for t in np.arange(0.0, 300.0, 0.5)])
+    assert 0.045 < np.max(np.abs(rolls)) <= 0.05 + 1e-9
     guide = load_scenario("guidance").twin
     assert guide.speed.speed_m_s(30.0) == pytest.approx(4 / 3.6, abs=1e-3)
     assert guide.speed.speed_m_s(100.0) == pytest.approx(8 / 3.6, abs=1e-3)

@@ -513,7 +513,7 @@ def _levelling_rows(sec: str, lv: dict) -> list[tuple[str, str, str, str]]:
                 else f"{fl * 1e3:.4f} mrad (≈ 0: any ratio possible)"
             ),
             "5 × better possible? (hold / floor ≥ 5)",
-            "possible" if fl <= 1e-6 or hold / fl >= 5 else "NOT possible",
+            "possible?" if fl <= 1e-6 or hold / fl >= 5 else "NOT possible",
         )
     )
     if ti["n"] and th["n"]:

@@ -29,6 +29,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
 from _common import machine_note, write_json  # noqa: E402
+from calibration_bench import DOF, FINAL_APPROACH, TARGET  # noqa: E402
 
 from bridge.sim.accuracy_run import AccuracyRunSettings, _TwinGotos  # noqa: E402
 from bridge.sim.truth import MachineTruth, PinPlay  # noqa: E402
@@ -37,13 +38,8 @@ from planner.calibration.parametric import ParametricModel  # noqa: E402
 from planner.model.exact_inverse import ExactInverse  # noqa: E402
 from planner.model.kinematics import HitchModel  # noqa: E402
 from planner.model.sensors import SensorScaling  # noqa: E402
+from planner.model.types import ACTUATOR_NAMES  # noqa: E402
 from planner.profiles import load_profile, profile_from_dict  # noqa: E402
-
-DOF = ("x", "z", "roll", "pitch")
-ACTUATORS = ("lift", "tilt", "top", "left", "right")
-#: the calibration bench's final approach (bench/calibration_bench.py FINAL_APPROACH)
-FINAL_APPROACH = {"x": 0.0025, "z": 0.004, "roll": 0.005, "pitch": 0.007}
-TARGET = np.array([2e-3, 2e-3, 2e-3, 2e-3])  # m, m, rad, rad: the accuracy target of issue 16
 
 
 def _pose_figures(err: np.ndarray) -> dict:
@@ -65,15 +61,14 @@ def rounding(model: HitchModel, poses: np.ndarray) -> dict:
     inv, sc = ExactInverse(model), SensorScaling(model.profile)
 
     def pose_of(counts) -> np.ndarray:
-        q = sc.si_min + (np.asarray(counts, dtype=float) - sc.counts_min) * sc.resolution
-        return np.array(model.pose(q).controlled())
+        return np.array(model.pose(sc.to_si(counts, tolerance_counts=1.0)).controlled())
 
     near, best = [], []
     for p in poses:
         c = sc.counts_min + (inv.solve(p)[0] - sc.si_min) / sc.resolution
         near.append(pose_of(np.rint(c)) - p)
         errs = [pose_of(k) - p for k in itertools.product(*[(np.floor(v), np.ceil(v)) for v in c])]
-        best.append(min(errs, key=lambda e: float(np.max(np.abs(e) / TARGET))))
+        best.append(min(errs, key=lambda e: float(np.max(1e3 * np.abs(e) / TARGET))))  # TARGET in mm, mrad
     return {"nearest": _pose_figures(np.array(near)), "best_of_32": _pose_figures(np.array(best))}
 
 
@@ -140,7 +135,7 @@ def main() -> int:
     print(row("static, best of the 2^5 floor/ceil", res["rounding"]["best_of_32"]))
     st = res["stops"]
     print(row(f"through the twin ({st['visited']} gotos)", st["pose_error"]))
-    print(f"\nper actuator {ACTUATORS} [counts]")
+    print(f"\nper actuator {ACTUATOR_NAMES} [counts]")
     for key in ("piston_minus_commanded", "commanded_minus_unrounded", "piston_minus_unrounded"):
         print(row(key, st[key]))
     print(f"\n{res['wall_s']:.0f} s wall")

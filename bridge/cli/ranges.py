@@ -3,8 +3,8 @@
 A value outside its range is refused with the flag, the value and the allowed range, every
 violated field at once, and the unit hint of the service (``did you mean mm?`` /
 ``did you mean degrees?``) when the value would fit read in mm or degrees. The hint and the
-workspace wording are the service's own (:func:`bridge.service.schemas.unit_hint`,
-:func:`~bridge.service.schemas.check_pose_in_workspace`), not a second copy.
+workspace wording are the planner's and the service's own (:func:`planner.errors.unit_hint`,
+:func:`bridge.service.schemas.check_pose_in_workspace`), not a second copy.
 """
 
 from __future__ import annotations
@@ -17,7 +17,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from bridge.cli.errors import CLIError
-from bridge.service.schemas import RequestError, check_pose_in_workspace, unit_hint
+from bridge.service.schemas import RequestError, check_pose_in_workspace
+from planner.errors import unit_hint
 from planner.model.types import ACTUATOR_NAMES
 
 __all__ = ["ACTUATOR_UNITS", "actuator_problems", "check_actuators", "check_pose_ranges", "pose_problems"]

@@ -45,7 +45,6 @@ __all__ = [
     "DEFAULT_DEADLINE_MS",
     "MAX_DEADLINE_MS",
     "check_pose_in_workspace",
-    "unit_hint",
     "REQUESTS",
     "RequestError",
     "parse_request",

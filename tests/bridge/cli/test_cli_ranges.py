@@ -13,7 +13,8 @@ import json
 import pytest
 
 from bridge.cli.main import main
-from bridge.service.schemas import RequestError, parse_request, unit_hint
+from bridge.service.schemas import RequestError, parse_request
+from planner.errors import unit_hint
 from planner.trajectory import TrajectoryPlanner
 
 NEUTRAL = {"--lift": "0.22", "--tilt": "0.63", "--top": "0.7425", "--left": "0.5388", "--right": "0.5388"}

@@ -391,6 +391,7 @@ class TwinGnss:
         self.plane = LocalTangentPlane(*start)
         self.heading = float(heading)
         self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
 
     def local(self) -> tuple[float, float] | None:
         d = self.distance()
@@ -411,15 +412,22 @@ class TwinGnss:
         def run() -> None:
             while not self._stop.wait(period_s):
                 f = self.fix()
-                if f is not None:
+                if f is not None and not self._stop.is_set():
                     put(json.dumps(f).encode())
 
         t = threading.Thread(target=run, name="twin-gnss", daemon=True)
+        self._thread = t
         t.start()
         return t
 
-    def close(self) -> None:
+    def close(self, timeout_s: float = 2.0) -> None:
+        """Stop the thread and wait (up to ``timeout_s``) for a put in progress to end, so whoever
+        owns the publisher may undeclare it next (a Zenoh publisher must not be put on and undeclared
+        at once: that raised "Already mutably borrowed" in the thread)."""
         self._stop.set()
+        t = self._thread
+        if t is not None and t is not threading.current_thread():
+            t.join(timeout_s)
 
 
 class _TwinGnssPublisher:

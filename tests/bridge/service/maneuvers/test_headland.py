@@ -88,6 +88,34 @@ def test_a_straight_path_crosses_a_line_at_the_known_point():
     assert g.approach("h", t[0] + 5.0) is None  # stale
 
 
+def test_closing_the_twins_receiver_waits_for_a_put_in_progress():
+    """Defect (CI, stop 25): the twin's GNSS thread put on its Zenoh publisher while the service
+    undeclared it ("RuntimeError: Already mutably borrowed" in thread twin-gnss): ``close`` returned at
+    once. It now returns only after the put in progress has ended, and no put follows it."""
+    import threading
+    import time
+
+    from bridge.service.gnss import TwinGnss
+
+    in_put, ended, puts = threading.Event(), [], []
+
+    def slow_put(data: bytes) -> None:
+        puts.append(data)
+        in_put.set()
+        time.sleep(0.3)
+        ended.append(time.monotonic())
+
+    twin = TwinGnss(lambda: 1.0, lambda: 2.0)
+    thread = twin.publish_every(slow_put, period_s=0.01)
+    assert in_put.wait(5.0)
+    twin.close()
+    closed_at = time.monotonic()
+    assert ended and ended[0] <= closed_at and not thread.is_alive()
+    n = len(puts)
+    time.sleep(0.05)
+    assert len(puts) == n  # nothing put after close
+
+
 def test_bad_lines_and_fixes_name_the_field():
     with pytest.raises(GnssError, match=r"coordinates\[1\]\[1\] \(lat\)"):
         parse_lines({"type": "LineString", "coordinates": [[11, 48], [11, 95]]}, "h")

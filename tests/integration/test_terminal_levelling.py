@@ -72,8 +72,15 @@ def shots(tmp_path_factory):
 
 
 def _rest(service) -> None:
+    """Stop; wait for rest, no track session and no fault held (a self-clearing fault after a host
+    stall refuses motion for about a second: see ``tests/bridge/web/test_web_api.py`` ``_rest``)."""
     service.api("stop")
-    wait_for(lambda: not service.state()["moving"] and service.state().get("track") is None, 15, "rest, no session")
+
+    def ready() -> bool:
+        st = service.state()
+        return not st["moving"] and st.get("track") is None and not st["ecu"]["faults"]
+
+    wait_for(ready, 15, "rest, no session, no fault held")
 
 
 def _pressed(pg) -> str:

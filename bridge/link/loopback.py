@@ -14,8 +14,12 @@ process; a test or a service may run it in a thread of its own.
 
 from __future__ import annotations
 
+import functools
+import logging
+import sys
 import threading
 import uuid
+from typing import Any
 
 from bridge.link.state import LinkError
 
@@ -43,11 +47,9 @@ class LoopbackHub:
     def __init__(self, port: int = 0) -> None:
         if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
             raise LinkError(f"port must be an integer in 0..65535, got {port!r}")
-        from can_remote.server import RemoteServer  # type: ignore[import-untyped]  # only where a hub runs
-
         channel = f"hitch-hub-{uuid.uuid4().hex}"
         try:
-            self._server = RemoteServer(LOOPBACK_HOST, port, interface="virtual", channel=channel)
+            self._server = _hub_server_class()(LOOPBACK_HOST, port, interface="virtual", channel=channel)
         except OSError as exc:
             raise LinkError(f"cannot listen on {LOOPBACK_HOST}:{port}: {exc}") from None
         self._thread: threading.Thread | None = None
@@ -86,3 +88,78 @@ class LoopbackHub:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+_log = logging.getLogger(__name__)
+
+
+@functools.cache
+def _hub_server_class() -> type:
+    """python-can-remote's server with clients that always leave cleanly (built on first use: the
+    package is imported only where a hub runs).
+
+    The library's per-client sender thread died on a broken pipe when a client vanished while frames
+    flowed (a killed ECU process): its bus was never shut down, so every later frame of the hub's
+    channel queued up in it without bound (26 094 frames one second after such a kill, measured), and
+    the thread's traceback, and the handler's, went to stderr. Here a client's bus is shut down
+    however its connection ends, and a vanished client is one line of the log."""
+    from can_remote.server import (  # type: ignore[import-untyped]
+        ClientRequestHandler,
+        RemoteServer,
+        RemoteServerProtocol,
+    )
+    from can_remote.websocket import WebSocket, WebsocketClosed, get_accept_key  # type: ignore[import-untyped]
+
+    class HubProtocol(RemoteServerProtocol):
+        """One client's link: its virtual bus is shut down however the connection ends."""
+
+        def _send_to_client(self) -> None:
+            try:
+                super()._send_to_client()
+            except (OSError, WebsocketClosed) as exc:  # the client is gone
+                self.running = False
+                _log.info("CAN hub: a client went away while frames were sent to it (%s)", exc)
+            finally:
+                self.bus.shutdown()
+
+        def run(self) -> None:
+            try:
+                super().run()
+            except OSError as exc:  # closing a connection the client already dropped
+                _log.info("CAN hub: a client's connection ended (%s)", exc)
+            finally:
+                self.running = False
+                self.bus.shutdown()
+
+    class HubRequestHandler(ClientRequestHandler):
+        """The library's WebSocket upgrade (``ClientRequestHandler.start_websocket``, python-can-remote
+        0.3.0) with :class:`HubProtocol`, and the client always removed from the server's list."""
+
+        def start_websocket(self) -> None:
+            self.send_response(101)
+            self.send_header("Upgrade", "WebSocket")
+            self.send_header("Connection", "Upgrade")
+            self.send_header("Sec-WebSocket-Accept", get_accept_key(self.headers["Sec-WebSocket-Key"]))
+            offered = [p.strip() for p in self.headers.get("Sec-WebSocket-Protocol", "can.json.v1").split(",")]
+            protocol = "can.binary+json.v1" if "can.binary+json.v1" in offered else "can.json.v1"
+            self.send_header("Sec-WebSocket-Protocol", protocol)
+            self.end_headers()
+            link = HubProtocol(self.server.config, WebSocket(None, protocol, sock=self.request))
+            self.server.clients.append(link)
+            try:
+                link.run()
+            finally:
+                self.server.clients.remove(link)
+
+    class HubServer(RemoteServer):
+        protocol_class = HubProtocol  # (for tests)
+
+        def __init__(self, host: str, port: int, **config: Any) -> None:
+            super().__init__(host, port, **config)
+            self.RequestHandlerClass = HubRequestHandler
+
+        def handle_error(self, request: Any, client_address: Any) -> None:
+            """One line for a client's failure, not a traceback on stderr (the hub goes on)."""
+            _log.warning("CAN hub: client %s: %r", client_address, sys.exc_info()[1])
+
+    return HubServer

@@ -127,8 +127,7 @@ def _hub_server_class() -> type:
                 super().run()
             except OSError as exc:  # closing a connection the client already dropped
                 _log.info("CAN hub: a client's connection ended (%s)", exc)
-            finally:
-                self.running = False
+            finally:  # (the library's run has stopped its sender thread, or waited 3 s for it)
                 self.bus.shutdown()
 
     class HubRequestHandler(ClientRequestHandler):

@@ -34,6 +34,7 @@ from bridge.web.websocket import (
     decode_frame,
     encode_frame,
 )
+from tests.helpers import wait_until
 
 # ---------------------------------------------------------------------------------------------- RFC 6455
 
@@ -539,12 +540,7 @@ def _rest(service) -> None:
     the ISO 11783 heartbeat timeout, 0.3 s, made the twin's ECU heartbeat late once in CI and the
     operator's goto below was refused for the ~1 s the fault takes to clear)."""
     service.api.handle("stop", b"{}", None)
-    deadline = time.monotonic() + 5
-    while time.monotonic() < deadline:
-        st = service.latest_state
-        if not st["moving"] and not st["ecu"]["faults"]:
-            break
-        time.sleep(0.05)
+    wait_until(lambda: not service.latest_state["moving"] and not service.latest_state["ecu"]["faults"], 5, 0.05)
 
 
 def _login(web, user: str, password: str) -> tuple[int, dict, dict]:

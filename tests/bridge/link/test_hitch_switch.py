@@ -164,11 +164,13 @@ def test_a_switch_on_the_can_bus_raises_and_returns_the_hitch(tmp_path):
         assert wait_until(lambda: at_rest(0.24)), "the switch did not raise the hitch"
         assert any(e.get("event") == "hitch_switch" and e.get("command") == "raise" for e in events)
         switch.send(switch_frame("lower"))
-        assert wait_until(lambda: at_rest(-0.05)), (
-            "the switch did not return the hitch to work",
-            list(svc.api.implements.switch_log),
-            [e for e in events if e.get("event") != "state"][-8:],
-            {k: (svc.latest_state or {}).get(k) for k in ("motion", "pose", "faults")},
+        node = svc.parts.switch
+        assert wait_until(lambda: at_rest(-0.05)), (  # a string: pytest shortens a tuple's repr (CI, 7c1e287)
+            "the switch did not return the hitch to work\n"
+            f"switch log: {list(svc.api.implements.switch_log)}\n"
+            f"switch node: frames {node.frames}, commands {node.commands}, position {node.edges.position}\n"
+            f"events: {[e for e in events if e.get('event') != 'state'][-8:]}\n"
+            f"state: { {k: (svc.latest_state or {}).get(k) for k in ('motion', 'pose', 'ecu')} }"
         )
     finally:
         switch.shutdown()

@@ -179,6 +179,7 @@ class HeartbeatMonitor:
         self._last: int | None = None
         self._counter: int | None = None  # last value in 0..251, for the advance check
         self._last_rx_s: float | None = None
+        self._last_stamp_s: float | None = None  # the last heartbeat's own timestamp (None: it had none)
         self._good_run = 0
         self._restarts = 0
         self._sequence_errors = 0
@@ -201,16 +202,27 @@ class HeartbeatMonitor:
         self.handle_sequence(sequence, now_s)
         return True
 
-    def handle_sequence(self, sequence: int, now_s: float) -> None:
-        """Process one received sequence number at time ``now_s``."""
+    def handle_sequence(self, sequence: int, now_s: float, *, stamp_s: float | None = None) -> None:
+        """Process one received sequence number at time ``now_s``.
+
+        ``stamp_s``: the frame's own timestamp on the bus (s, any clock whose differences are seconds),
+        if the caller trusts it. The gap to the previous heartbeat is then the smaller of the read times'
+        and the timestamps' difference: heartbeats that waited in the bus while the reader stalled keep
+        their real spacing (a stall of the reader is not a silence of the sender), and a clock stepped
+        forward cannot make a heartbeat late. Silence *now* (:meth:`status`) is always judged by read time.
+        """
         if isinstance(sequence, bool) or not isinstance(sequence, int) or not (0 <= sequence <= 255):
             raise HeartbeatError(f"sequence must be an integer in 0..255, got {sequence!r}")
         if sequence in (252, 253):
             return
-        if self._last_rx_s is not None and now_s - self._last_rx_s > self._timeout_s + _TIME_EPS_S:
-            self._timeouts += 1
-            self._enter(HeartbeatState.TIMEOUT)
-        self._last_rx_s = now_s
+        if self._last_rx_s is not None:
+            gap = now_s - self._last_rx_s
+            if stamp_s is not None and self._last_stamp_s is not None:
+                gap = min(gap, max(0.0, stamp_s - self._last_stamp_s))
+            if gap > self._timeout_s + _TIME_EPS_S:
+                self._timeouts += 1
+                self._enter(HeartbeatState.TIMEOUT)
+        self._last_rx_s, self._last_stamp_s = now_s, stamp_s
         first, self._last = self._last is None, sequence
         if sequence == SEQUENCE_ERROR:
             self._enter(HeartbeatState.SENDER_ERROR)

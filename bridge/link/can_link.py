@@ -98,6 +98,12 @@ _SLOT_SLACK = 0.5
 _CONSUMED_PGNS = frozenset({PGN_HEARTBEAT, PGN_POSITION_MEASUREMENT, PGN_REAR_HITCH_STATUS})
 
 
+def _stamp(frame: can.Message) -> float | None:
+    """The frame's bus timestamp, s, or None when the bus gave none (0, not finite)."""
+    ts = frame.timestamp
+    return float(ts) if isinstance(ts, (int, float)) and math.isfinite(ts) and ts > 0.0 else None
+
+
 class CanLink:
     """Planner-side link to one cylinder ECU over ``bus`` (see the module docstring).
 
@@ -377,7 +383,7 @@ class CanLink:
                 return
             src, cfg = ident.source_address, self._cfg
             if isinstance(payload, Heartbeat) and src == cfg.ecu_address:
-                self._on_heartbeat(payload.sequence, now_s)
+                self._on_heartbeat(payload.sequence, now_s, _stamp(frame) if cfg.bus_timestamps else None)
             elif isinstance(payload, PositionMeasurement) and src == cfg.ecu_address:
                 restart = self._rx.on_measurement(payload, now_s)
                 if restart:
@@ -390,10 +396,10 @@ class CanLink:
                 self._bump(foreign=1)
 
     # -- receive internals -------------------------------------------------------------
-    def _on_heartbeat(self, sequence: int, now_s: float) -> None:
+    def _on_heartbeat(self, sequence: int, now_s: float, stamp_s: float | None) -> None:
         self._bump(heartbeats_rx=1)
         before = self._hb_rx.status(now_s).restarts
-        self._hb_rx.handle_sequence(sequence, now_s)
+        self._hb_rx.handle_sequence(sequence, now_s, stamp_s=stamp_s)
         if self._hb_rx.status(now_s).restarts > before:
             self._on_restart("ECU heartbeat restarted (251)")
 

@@ -138,6 +138,13 @@ class LinkConfig:
         link_latency_s: transport allowance per direction on top of the watchdog, s.
             A measurement is believed about the stream only once the stream has run for
             :attr:`references_lost_after_s`.
+        bus_timestamps: the bus stamps each received frame on a real clock (python-can's
+            ``timestamp``: socketcan's kernel receive time, the virtual bus's and the loopback
+            hub's send time). The ECU's heartbeat gap is then judged by the frames' own spacing
+            as well as by read times (the smaller counts,
+            :meth:`~bridge.isobus.heartbeat.HeartbeatMonitor.handle_sequence`): a stall of this
+            process alone is not an ECU heartbeat fault. False (default) for a
+            link driven on a simulated clock, whose frames carry wall-clock stamps.
     """
 
     source_address: int = PLANNER_ADDRESS
@@ -156,6 +163,7 @@ class LinkConfig:
     claim_wait_s: float = CLAIM_WAIT_S
     ecu_watchdog_timeout_s: float = 0.1
     link_latency_s: float = 0.02
+    bus_timestamps: bool = False
 
     def __post_init__(self) -> None:
         check_address("source_address", self.source_address)
@@ -187,6 +195,8 @@ class LinkConfig:
             raise LinkError(f"max_consecutive_tx_errors must be an integer in 1..1000, got {n!r}")
         if self.lift_on_count_grid is not None and not isinstance(self.lift_on_count_grid, bool):
             raise LinkError(f"lift_on_count_grid must be true, false or None, got {self.lift_on_count_grid!r}")
+        if not isinstance(self.bus_timestamps, bool):
+            raise LinkError(f"bus_timestamps must be true or false, got {self.bus_timestamps!r}")
         if not isinstance(self.name, Name):
             raise LinkError(f"name must be a bridge.isobus.address_claim.Name, got {type(self.name).__name__}")
 

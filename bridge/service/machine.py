@@ -195,7 +195,9 @@ def start_can(cfg: ServiceConfig, *, runners_out: list[RealtimeRunner] | None = 
         link = CanLink(
             build_model(cfg),
             planner.port(),
-            LinkConfig(control_rate_hz=cfg.control_rate, stale_after_s=cfg.stale_timeout_s),
+            # real time: the bus stamps frames on a real clock, so a stall of this process alone is not
+            # taken for a late ECU heartbeat (LinkConfig.bus_timestamps)
+            LinkConfig(control_rate_hz=cfg.control_rate, stale_after_s=cfg.stale_timeout_s, bus_timestamps=True),
         )
         switch = HitchSwitchNode(planner.port())
         planner.add(sensors).add(link).add(switch)

@@ -174,3 +174,24 @@ def test_bad_configuration_is_rejected():
         HeartbeatSender(period_s=0.0)
     with pytest.raises(ValueError, match="timeout_s"):
         HeartbeatMonitor(source=1, timeout_s=-1.0)
+
+
+def test_monitor_judges_the_gap_by_the_frames_timestamps_when_given():
+    """Heartbeats sent 100 ms apart but read 400 ms apart (the reader stalled, they waited in the bus)
+    are on time; heartbeats whose own timestamps are 400 ms apart are late however they are read."""
+    m = HeartbeatMonitor(source=169)
+    for k, q in enumerate([251, 0, 1, 2]):
+        m.handle_sequence(q, 0.1 * k, stamp_s=100.0 + 0.1 * k)
+    for k, q in enumerate([3, 4, 5]):  # sent at 100.4, 100.5, 100.6; all read at 0.75 after a stall
+        m.handle_sequence(q, 0.75, stamp_s=100.4 + 0.1 * k)
+    assert m.status(0.75).state is HeartbeatState.OPERATIONAL and m.status(0.75).timeouts == 0
+    m.handle_sequence(6, 1.2, stamp_s=101.0)  # its own timestamp: 400 ms after the last one
+    assert m.status(1.2).state is HeartbeatState.TIMEOUT and m.status(1.2).timeouts == 1
+    # the smaller of the two gaps counts: a wall clock stepped forward (stamps 500 ms apart, read 100 ms
+    # apart) raises no timeout; a heartbeat without a timestamp is judged by its read time alone
+    n = HeartbeatMonitor(source=169)
+    n.handle_sequence(251, 0.0, stamp_s=5.0)
+    n.handle_sequence(0, 0.1, stamp_s=5.5)
+    assert n.status(0.1).state is HeartbeatState.OPERATIONAL
+    n.handle_sequence(1, 0.5)
+    assert n.status(0.5).state is HeartbeatState.TIMEOUT

@@ -434,6 +434,56 @@ def test_missing_and_error_heartbeats_stop_motion(model):
     ecu_bus.shutdown()
 
 
+@pytest.mark.parametrize("bus_timestamps", [True, False])
+def test_a_stall_of_the_planner_alone_is_not_an_ecu_heartbeat_fault(model, bus_timestamps):
+    """The ECU keeps its 100 ms heartbeat while the planner's thread stalls for 0.4 s; the frames wait in
+    the bus and are all read at once. Judged by the frames' timestamps (the real-time service's setting)
+    the ECU was on time: no fault. Judged by read times (before: the only way) it was 'late'. A real
+    0.4 s silence of the ECU, stamped so, is a fault either way."""
+    ch = f"hbstall-{uuid.uuid4().hex}"
+    bus = can.Bus(interface="virtual", channel=ch)
+    ecu_bus = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)  # stamps: the send times
+    link = CanLink(model, bus, LinkConfig(bus_timestamps=bus_timestamps))
+    tilt, top, left, right = (int(c) for c in SensorScaling(model.profile).to_counts(model.neutral)[1:])
+    seq = [251]
+
+    def ecu_sends(t, heartbeat=None):  # None: on the 100 ms grid
+        frames = [
+            encode(PositionMeasurement(tilt, top, right, left, 1), source=169),
+            encode(RearHitchStatus(position=0.5), source=169),
+        ]
+        if heartbeat or (heartbeat is None and round(t * 100) % 10 == 0):
+            frames.append(encode(Heartbeat(seq[0]), source=169))
+            seq[0] = 0 if seq[0] in (250, 251) else seq[0] + 1
+        for f in frames:
+            f.timestamp = 1000.0 + t  # another clock's origin: only its differences count
+            ecu_bus.send(f)
+
+    link.start(0.0)
+    for k in range(1, 101):  # 1 s, polled every 10 ms: healthy
+        ecu_sends(k * 0.01)
+        link.poll(k * 0.01)
+    assert not link.faults.any and not link.fault_causes(1.0)
+    for k in range(101, 141):  # the planner stalls 0.4 s; the ECU goes on
+        ecu_sends(k * 0.01)
+    link.poll(1.40)
+    assert link.faults.ecu_heartbeat is not bus_timestamps, link.faults.reasons
+    if not bus_timestamps:
+        bus.shutdown()
+        ecu_bus.shutdown()
+        return
+    for k in range(141, 161):
+        ecu_sends(k * 0.01)
+        link.poll(k * 0.01)
+    for k in range(161, 201):  # now the ECU is silent for 0.4 s while the planner stalls
+        ecu_sends(k * 0.01, heartbeat=False)
+    ecu_sends(2.01, heartbeat=True)  # 0.41 s after the last one, by its own timestamp
+    link.poll(2.01)
+    assert link.faults.ecu_heartbeat, "a real 0.4 s silence of the ECU's heartbeat must be a fault"
+    bus.shutdown()
+    ecu_bus.shutdown()
+
+
 def test_lost_address_claim_stops_the_link(rig, model):
     rival = can.Bus(interface="virtual", channel=rig.channel)
     rig.link.send_reference(model.neutral, rig.next_tick_s)

@@ -45,3 +45,24 @@ def test_a_one_way_cut_in_the_twin_is_detected_and_stops_the_motion(cut, fault):
     finally:
         mc.close()
         parts.close()
+
+
+def test_a_stall_of_the_links_thread_alone_raises_no_ecu_heartbeat_fault():
+    """The link's thread stalls for 0.45 s (here: its lock is held, as a long GIL or scheduler stall
+    would hold the thread) while the twin's ECU keeps its 100 ms heartbeat. The heartbeats wait in
+    the bus and are read together; their bus timestamps keep their spacing, so the ECU was on time.
+    Before, the link judged the gap by read time alone and raised ``ecu_heartbeat`` (a false fault)."""
+    cfg = ServiceConfig(data_dir=tempfile.mkdtemp(), can_channel=f"machine-{uuid.uuid4().hex}")
+    parts = start_can(cfg)
+    try:
+        link = parts.link
+        assert wait_until(lambda: link.claimed and link.status(parts.clock()).state is not None, 10.0)
+        time.sleep(0.5)
+        assert not link.faults.any, link.faults.reasons
+        with link._lock:  # the stall: the runner blocks on its next poll
+            time.sleep(0.45)
+        time.sleep(0.3)
+        assert not link.faults.ecu_heartbeat, link.faults.reasons
+        assert not link.faults.any, link.faults.reasons
+    finally:
+        parts.close()

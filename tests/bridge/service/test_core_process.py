@@ -229,18 +229,24 @@ def test_realtime_false_keeps_every_thread_of_the_core_ordinary(tmp_path):
 def test_the_core_freezes_its_start_up_objects_out_of_the_garbage_collector(service):
     """A full collection over the started core's objects pauses every thread of it (tens of ms, more
     under load); the core freezes them once started, so later full collections walk only new objects."""
-    import gc
-
-    from bridge.service.core.process import freeze_startup_objects
+    import subprocess
+    import sys
 
     svc, _ = service
     assert svc.core.ready["gc_frozen"] > 10_000, svc.core.ready.get("gc_frozen")
-    before = gc.get_freeze_count()
-    try:
-        junk = [[i] for i in range(1000)]  # objects of this process, frozen and no longer scanned
-        assert freeze_startup_objects() >= before + len(junk)
-    finally:
-        gc.unfreeze()
+    # the function itself in a fresh interpreter (freezing is process-wide and cannot be undone in part)
+    probe = (
+        "import gc\n"
+        "from bridge.service.core.process import freeze_startup_objects\n"
+        "before = gc.get_freeze_count()\n"
+        "junk = [[i] for i in range(1000)]\n"
+        "after = freeze_startup_objects()\n"
+        "assert after >= before + len(junk) and gc.get_freeze_count() == after, (before, after)\n"
+        "print(after)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert int(out.stdout) > 1000
 
 
 @pytest.mark.skipif(os.geteuid() != 0, reason="locking memory needs root or CAP_IPC_LOCK")

@@ -107,9 +107,13 @@ class ReceivingNode:
         raise NotImplementedError
 
 
-#: frames a runner hands over before it polls its node again (a burst never postpones the node's
-#: deadlines by more than this many frames)
-_DRAIN_MAX = 32
+#: frames a runner hands over before it polls its node again. Every frame that waited in the bus goes
+#: first: a node judges silence by read time (the link's ECU heartbeat, its measurements), so a poll
+#: between two parts of a backlog finds the next heartbeat "missing" although it is waiting (after a
+#: 0.45 s stall of the link's thread, a cap of 32 raised a false ecu_heartbeat). 1024 frames hold over
+#: 2 s of the planner bus's traffic at rest (about 380 frames/s) and take some tens of ms to hand over; the
+#: bound only keeps a sender faster than its node from postponing the node's deadlines for ever.
+_DRAIN_MAX = 1024
 
 
 class RealtimeRunner:
@@ -117,8 +121,9 @@ class RealtimeRunner:
 
     The thread polls the node, then blocks on ``bus.recv`` until the node's next
     deadline (at most ``max_wait_s``), hands over that frame and every frame already
-    waiting behind it (at most 32), and repeats: no busy loop, and one poll per wake-up
-    rather than one per frame (two frames sent together cost one pass over the node).
+    waiting behind it (at most :data:`_DRAIN_MAX`: a backlog left by a stall is read
+    before the node judges anything again), and repeats: no busy loop, and one poll per
+    wake-up rather than one per frame (two frames sent together cost one pass over the node).
     Node time is ``clock() − t0``, t0 taken at :meth:`start`.
     """
 

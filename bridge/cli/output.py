@@ -16,9 +16,22 @@ from rich.markup import escape
 __all__ = ["console", "esc"]
 
 
+#: the width of a console whose output is not a terminal (a pipe, a file, a log): wide enough that no
+#: record is split from its unit
+PIPE_WIDTH = 200
+
+
 def console(**kwargs: Any) -> Console:
-    """A rich console that never turns ``:name:`` into an emoji (kwargs as for :class:`Console`)."""
-    return Console(emoji=False, **kwargs)
+    """A rich console that never turns ``:name:`` into an emoji (kwargs as for :class:`Console`).
+
+    Lines are not wrapped (``soft_wrap``), and into a pipe or a file the console is
+    :data:`PIPE_WIDTH` columns wide (rich would take 80): ``hitch plan | grep …`` and logs keep each
+    record, number and unit on one line. A terminal keeps its own width."""
+    kwargs.setdefault("soft_wrap", True)
+    c = Console(emoji=False, **kwargs)
+    if "width" not in kwargs and not c.is_terminal:
+        c.width = PIPE_WIDTH
+    return c
 
 
 def esc(value: object) -> str:

@@ -24,9 +24,9 @@ import time
 from pathlib import Path
 
 import numpy as np
-from rich.console import Console
 
 from bridge.cli.model import add_model_options, finite_float, model_from_args
+from bridge.cli.output import console
 from bridge.cli.plan import parse_pose_arg
 from bridge.link.realtime import INTERFACES, RealtimeRunner, open_bus
 from bridge.link.state import LinkConfig
@@ -163,7 +163,7 @@ def _cmd_sim_move(args) -> int:
     if args.json:
         print(json.dumps(move_json(trace, measured, truth)))
         return 0
-    c = Console()
+    c = console()
     c.print(
         f"{trace.reference_kind} reference, {len(trace.t)} samples over {trace.t[-1]:.2f} s simulated "
         f"(plan {trace.plan_duration_s:.2f} s), bus load {100 * trace.bus_load:.1f} % of 250 kbit/s"
@@ -225,7 +225,7 @@ def _cmd_sim_track(args) -> int:
     if args.json_file:
         with open(args.json_file, "w", encoding="utf-8") as fh:
             json.dump(summary, fh, indent=1)
-    c = Console(soft_wrap=True)
+    c = console()
     unit, k = ("mm", 1e3) if result.dof in ("x", "z") else ("mrad", 1e3)
     f, fi = result.figures, result.figures_inside
     c.print(
@@ -268,7 +268,7 @@ def _cmd_sim_field(args) -> int:
         with open(args.json_file, "w", encoding="utf-8") as fh:
             json.dump(summary, fh, indent=1)
     f = summary["figures"]
-    c = Console(soft_wrap=True)
+    c = console()
     c.print(f"{result.field}: mode {result.mode}, {summary['duration_s']:.1f} s simulated")
     c.print(
         f"draft mean {f['draft_mean_n'] / 1e3:.2f} kN, SD {f['draft_sd_n'] / 1e3:.2f} kN; "
@@ -303,7 +303,7 @@ def _cmd_ecu_sim(args) -> int:
     bus = open_bus(args.interface, args.channel)
     node = EcuCanNode(ecu, bus)
     runner = RealtimeRunner(node)
-    c = Console(stderr=True)
+    c = console(stderr=True)
     try:
         runner.start()
         deadline = time.monotonic() + args.duration if args.duration else None
@@ -352,7 +352,7 @@ def _cmd_sim_fault(args) -> int:
     if args.json:
         print(json.dumps(reply))
     else:
-        Console(soft_wrap=True).print(json.dumps(reply, indent=1))
+        console().print(json.dumps(reply, indent=1))
     return 0
 
 
@@ -361,7 +361,7 @@ def _cmd_can_hub(args) -> int:
     from bridge.link.loopback import LoopbackHub
 
     hub = LoopbackHub(args.port)
-    Console(stderr=True).print(f"CAN hub on {hub.url} (open buses with --interface remote --channel {hub.url})")
+    console(stderr=True).print(f"CAN hub on {hub.url} (open buses with --interface remote --channel {hub.url})")
     try:
         hub.serve_forever()
     except KeyboardInterrupt:
@@ -421,7 +421,7 @@ def _cmd_sim_perturb(args) -> int:
     if args.json:
         print(json.dumps({**summary, "out": args.out}))
     elif args.out:
-        Console().print(
+        console().print(
             f"truth {summary['name']} written to {args.out} (play {1e3 * play.lower_link_m:.2f} mm at the "
             f"lower-link balls, {1e3 * play.top_link_m:.2f} mm at the top-link pins)"
         )
@@ -506,7 +506,7 @@ def _cmd_sim_measure(args) -> int:
     if args.json:
         print(json.dumps(out))
         return 0
-    c = Console()
+    c = console()
     c.print(f"truth {out['truth']}, AD reading {out['counts']}")
     for label, key in (("planner (nominal)", "planner_pose"), ("true", "true_pose")):
         d = out[key]

@@ -64,3 +64,16 @@ def test_errors_exit_non_zero_with_one_line(args, message):
     assert r.returncode == 2
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("hitch: error:") and message in lines[0]
+
+
+def test_piped_output_keeps_each_record_on_one_line():
+    """Into a pipe rich took 80 columns and split records from their units ('yaw=' alone on a line of
+    `hitch ik`, 'plan 2.28 \\ns)' in `hitch sim move`): every pose line now holds all six values."""
+    r = run("ik", "--x", "0.02", "--z", "0.1", "--roll", "0", "--pitch", "0")
+    assert r.returncode == 0, r.stderr
+    pose = [ln for ln in r.stdout.splitlines() if ln.startswith("pose:")]
+    assert len(pose) == 1 and all(f"{k}=" in pose[0] for k in ("x", "y", "z", "roll", "pitch", "yaw")), r.stdout
+    assert not any(ln.lstrip().startswith("yaw=") for ln in r.stdout.splitlines()), r.stdout
+    r = run("fk", "--lift", "0.2", "--tilt", "0.63", "--top", "0.74", "--left", "0.54", "--right", "0.54")
+    assert r.returncode == 0, r.stderr
+    assert not any(ln.lstrip().startswith("yaw=") for ln in r.stdout.splitlines()), r.stdout

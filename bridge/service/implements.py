@@ -204,7 +204,10 @@ class ImplementService:
         key = "implements/lock" if locked else "implements/unlock"
         with self._lock:
             if self.selected == DEFAULT_IMPLEMENT:
-                raise RequestError("not_found", f"{key}: no implement is selected (implements/select first)")
+                raise RequestError(
+                    "not_found",
+                    f"{key}: no implement is selected (select one first: `hitch implement select NAME`, key implements/select)",
+                )
             imp = self._stored_or_builtin(self.selected)
             limits = ImplementLimits(imp.limits.upper_height_m, imp.limits.lowering_speed_m_s, locked)
             self._apply(record_of(imp), limits)
@@ -321,7 +324,10 @@ class ImplementService:
 
     def _need_current(self, key: str) -> StoredImplement:
         if self.selected == DEFAULT_IMPLEMENT:
-            raise RequestError("not_found", f"{key}: no implement is selected (implements/select first)")
+            raise RequestError(
+                "not_found",
+                f"{key}: no implement is selected (select one first: `hitch implement select NAME`, key implements/select)",
+            )
         imp = self.store.get_implement(self.selected)
         if imp is None:
             imp = self._stored_or_builtin(self.selected)

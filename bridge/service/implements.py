@@ -60,6 +60,9 @@ SELECTED_SETTING = "selected_implement"
 _AT_HEADLAND = 5e-3
 
 
+_NO_IMPLEMENT = "no implement is selected (select one first: `hitch implement select NAME`, key implements/select)"
+
+
 class ImplementMotion(Protocol):
     """What the implement logic needs of the motion controller (or its proxy to the core process)."""
 
@@ -206,7 +209,7 @@ class ImplementService:
             if self.selected == DEFAULT_IMPLEMENT:
                 raise RequestError(
                     "not_found",
-                    f"{key}: no implement is selected (select one first: `hitch implement select NAME`, key implements/select)",
+                    f"{key}: {_NO_IMPLEMENT}",
                 )
             imp = self._stored_or_builtin(self.selected)
             limits = ImplementLimits(imp.limits.upper_height_m, imp.limits.lowering_speed_m_s, locked)
@@ -326,7 +329,7 @@ class ImplementService:
         if self.selected == DEFAULT_IMPLEMENT:
             raise RequestError(
                 "not_found",
-                f"{key}: no implement is selected (select one first: `hitch implement select NAME`, key implements/select)",
+                f"{key}: {_NO_IMPLEMENT}",
             )
         imp = self.store.get_implement(self.selected)
         if imp is None:

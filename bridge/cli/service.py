@@ -6,7 +6,7 @@ Client commands talk to a running service over Zenoh, each with ``--connect ENDP
 (the client's credentials / TLS CA) and ``--json``:
 
 ``hitch goto|jog|stop|mode|state [--follow]``, ``hitch preset save|list|go|delete``,
-``hitch maneuver validate|save|list|run|delete``, ``hitch faults ack``, ``hitch fleet ls``.
+``hitch maneuver validate|save|list|run|delete``, ``hitch faults list|ack``, ``hitch fleet ls``.
 
 A refused request (:class:`~bridge.service.client.ServiceError`) exits with status 2 and the
 service's message on one line; no answer at all names the endpoint tried and says to start
@@ -423,6 +423,24 @@ def _cmd_mode(args) -> int:
     return _run(args, mode)
 
 
+def faults_text(state: dict) -> str:
+    """The faults the service holds, from its state: one line each with its kind and reason."""
+    ecu = state.get("ecu") or {}
+    names = [str(n) for n in ecu.get("faults") or []]
+    if not names:
+        return "no fault held"
+    reasons = [str(r) for r in ecu.get("fault_reasons") or []]
+    ack = {str(n) for n in ecu.get("ack_required") or []}
+    lines = []
+    for i, name in enumerate(names):
+        kind = "latching: `hitch faults ack` once its cause is gone" if name in ack else "self-clearing"
+        reason = reasons[i] if i < len(reasons) and len(reasons) == len(names) else ""
+        lines.append(f"{name} ({kind})" + (f": {reason}" if reason else ""))
+    if len(reasons) != len(names) and reasons:
+        lines.append("reasons: " + "; ".join(reasons))
+    return "\n".join(lines)
+
+
 def _cmd_faults(args) -> int:
     def ack(c) -> int:
         fn = getattr(c, "ack_faults", None)
@@ -431,7 +449,13 @@ def _cmd_faults(args) -> int:
         _print(args, r, "faults acknowledged" + (f" ({details})" if details else ""))
         return 0
 
-    return _run(args, ack)
+    def held(c) -> int:
+        ecu = c.state().get("ecu") or {}
+        keys = ("faults", "fault_reasons", "ack_required", "link_faults")
+        _print(args, {k: ecu.get(k, []) for k in keys}, faults_text({"ecu": ecu}))
+        return 0
+
+    return _run(args, ack if args.action == "ack" else held)
 
 
 def _state_line(s: dict) -> str:
@@ -694,8 +718,11 @@ def add_commands(sub) -> Any:
     _client_options(q)
     q.set_defaults(handler=_cmd_fleet)
 
-    p = sub.add_parser("faults", help="latched faults of the service")
+    p = sub.add_parser("faults", help="faults the service holds: list | ack")
     fs = p.add_subparsers(dest="action", required=True, parser_class=type(p))
+    q = fs.add_parser("list", help="the faults held now, each latching or self-clearing, with its reason")
+    _client_options(q)
+    q.set_defaults(handler=_cmd_faults)
     q = fs.add_parser("ack", help="acknowledge latched faults (those whose cause is gone are cleared)")
     _client_options(q)
     q.set_defaults(handler=_cmd_faults)

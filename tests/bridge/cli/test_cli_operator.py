@@ -221,3 +221,40 @@ def test_plan_shows_the_final_approach_of_a_profile_that_asks_for_one(tmp_path, 
     assert "final approach via: x=" in capsys.readouterr().out
     assert main(["plan", "--to", "z=0.05", "--json"]) == 0  # the built-in profile: no final approach
     assert json.loads(capsys.readouterr().out)["final_approach"] is None
+
+
+def test_faults_list_prints_each_held_fault_with_its_kind_and_reason(monkeypatch, capsys):
+    """A new user's report: `hitch faults` only offered `ack`; nothing listed what is held."""
+    ecu = {
+        "online": True,
+        "faults": ["ecu_heartbeat", "references_lost"],
+        "fault_reasons": ["ECU heartbeat timeout", "the ECU reports its watchdog expired [after 0.2 s]"],
+        "ack_required": ["references_lost"],
+        "link_faults": ["references_lost"],
+    }
+
+    class Client:
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            pass
+
+        def state(self):
+            return {"seq": 1, "ecu": ecu}
+
+    monkeypatch.setattr(cli_service, "_client", lambda args: Client())
+    assert main(["faults", "list"]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert lines == [
+        "ecu_heartbeat (self-clearing): ECU heartbeat timeout",
+        "references_lost (latching: `hitch faults ack` once its cause is gone): "
+        "the ECU reports its watchdog expired [after 0.2 s]",
+    ]
+    assert main(["faults", "list", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out) == {
+        k: ecu[k] for k in ("faults", "fault_reasons", "ack_required", "link_faults")
+    }
+    ecu.update(faults=[], fault_reasons=[], ack_required=[], link_faults=[])
+    assert main(["faults", "list"]) == 0
+    assert capsys.readouterr().out.strip() == "no fault held"

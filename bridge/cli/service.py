@@ -151,7 +151,13 @@ def _add_serve(sub) -> None:
     p.add_argument("--connect", action="append", default=None, metavar="ENDPOINT", help="connect endpoint (repeatable)")
     p.add_argument("--prefix", default=None, help="key prefix (default hitch; a fleet: fleet/t07/hitch)")
     p.add_argument("--security", default=None, help="Zenoh security config (JSON5: usrpwd, access_control, TLS)")
-    p.add_argument("--can-interface", choices=INTERFACES, default=None)
+    p.add_argument(
+        "--can-interface",
+        choices=INTERFACES,
+        default=None,
+        help="python-can interface (default virtual: this process's channel, with the simulated ECU; "
+        "remote: a CAN hub on this computer, `hitch can-hub`; socketcan: a real bus)",
+    )
     p.add_argument("--can-channel", default=None, help="CAN channel (default hitch)")
     p.add_argument("--no-sim-ecu", action="store_true", help="do not run the simulated ECU in this process")
     p.add_argument(

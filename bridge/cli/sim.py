@@ -352,8 +352,20 @@ def _cmd_sim_fault(args) -> int:
     if args.json:
         print(json.dumps(reply))
     else:
-        console().print(json.dumps(reply, indent=1))
+        console().print(fault_settings_text(reply.get("applied") or {}), markup=False, highlight=False)
     return 0
+
+
+def fault_settings_text(applied: dict) -> str:
+    """One line for the twin's fault injection now in force (``sim/fault``'s ``applied``)."""
+    cut = applied.get("cut", "none")
+    named = {"planner_to_ecu": "planner → ECU", "ecu_to_planner": "ECU → planner", "both": "both directions"}
+    parts = ["link cut: " + named.get(str(cut), str(cut))]
+    parts.append(f"frame loss {100.0 * float(applied.get('loss') or 0.0):g} %")
+    parts.append(f"delay {float(applied.get('delay_ms') or 0.0):g} ms")
+    if applied.get("restart_ecu"):
+        parts.append("ECU restarted")
+    return "twin fault injection: " + ", ".join(parts)
 
 
 # -- hitch can-hub -------------------------------------------------------------------------

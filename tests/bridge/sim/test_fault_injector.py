@@ -228,9 +228,14 @@ def test_cli_sim_fault_sends_the_four_keys_to_the_service_key(capsys):
         queryable = session.declare_queryable("hitch/sim/fault", answer)
         argv = ["sim", "fault", "--cut", "planner_to_ecu", "--loss", "0.05", "--delay-ms", "40", "--restart-ecu"]
         assert main([*argv, "--connect", endpoint, "--json", "--timeout", "10"]) == 0
+        json_out = capsys.readouterr().out
+        assert main([*argv, "--connect", endpoint, "--timeout", "10"]) == 0  # text without --json
         queryable.undeclare()
     finally:
         session.close()
     sent = {"cut": "planner_to_ecu", "loss": 0.05, "delay_ms": 40.0, "restart_ecu": True}
-    assert received == [sent]
-    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1]) == {"applied": sent}
+    assert received == [sent, sent]
+    assert json.loads(json_out.strip().splitlines()[-1]) == {"applied": sent}
+    assert capsys.readouterr().out.strip().splitlines()[-1] == (
+        "twin fault injection: link cut: planner → ECU, frame loss 5 %, delay 40 ms, ECU restarted"
+    )

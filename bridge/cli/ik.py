@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 
 from bridge.cli.model import add_model_options, finite_float, model_from_args
-from bridge.cli.output import console, esc
+from bridge.cli.output import console, esc, signed
 from planner.ik_qp.baselines import DLSIK, GeometricIK, HybridIK
 from planner.ik_qp.hitch_ik import IKSolver
 from planner.ik_qp.result import Target
@@ -27,7 +27,7 @@ def _cmd_ik(args) -> int:
         c.print(f"status: [bold]{res.status}[/bold]" + (f" — {esc(res.reason)}" if res.reason else ""))
         if res.actuators is not None:
             c.print("actuators: " + "  ".join(f"{k}={v:.5f}" for k, v in res.actuators.as_dict().items()))
-            c.print("pose:      " + "  ".join(f"{k}={v:+.5f}" for k, v in res.pose.as_dict().items()))
+            c.print("pose:      " + "  ".join(f"{k}={signed(v, 5)}" for k, v in res.pose.as_dict().items()))
         if res.active:
             c.print("active limits: " + esc(", ".join(res.active)))
         c.print(f"iterations {res.iterations}, residual {res.residual:.3g}, {res.solve_time_s * 1e6:.0f} µs")

@@ -9,7 +9,7 @@ import math
 import numpy as np
 from rich.table import Table
 
-from bridge.cli.output import console, esc
+from bridge.cli.output import console, esc, signed
 from bridge.cli.ranges import ACTUATOR_UNITS, check_actuators
 from planner.model.kinematics import HitchModel
 from planner.model.types import ACTUATOR_NAMES, POSE_NAMES
@@ -113,8 +113,8 @@ def _cmd_fk(args) -> int:
     c = console()
     p = state.pose
     c.print(
-        f"pose: x={p.x:+.4f} m  y={p.y:+.4f} m  z={p.z:+.4f} m  roll={p.roll:+.4f} rad  "
-        f"pitch={p.pitch:+.4f} rad  yaw={p.yaw:+.4f} rad"
+        f"pose: x={signed(p.x, 4)} m  y={signed(p.y, 4)} m  z={signed(p.z, 4)} m  roll={signed(p.roll, 4)} rad  "
+        f"pitch={signed(p.pitch, 4)} rad  yaw={signed(p.yaw, 4)} rad"
     )
     c.print(
         f"lower span |L-R| = {state.lower_span:.4f} m (implement: {model.span:.4f} m); "
@@ -171,7 +171,7 @@ def _cmd_profile_show(args) -> int:
         lo, hi = s["strokes"][n]
         t.add_row(n, f"{lo:.4f}", f"{hi:.4f}", f"{s['neutral_actuators'][n]:.4f}", "rad" if n == "lift" else "m")
     c.print(t)
-    c.print("neutral pose: " + "  ".join(f"{k}={v:+.4f}" for k, v in s["neutral_pose"].items()))
+    c.print("neutral pose: " + "  ".join(f"{k}={signed(v, 4)}" for k, v in s["neutral_pose"].items()))
     ws = s["workspace"]
     c.print(
         "restricted workspace: "
@@ -221,7 +221,7 @@ def _cmd_demo(args) -> int:
     s = profile_summary(model)
     c.print(f"[bold]hitch-planner demo[/bold] — profile {esc(s['profile'])}, category {esc(model.category)}")
     c.print("neutral actuators: " + "  ".join(f"{k}={v:.4f}" for k, v in s["neutral_actuators"].items()))
-    c.print("neutral pose:      " + "  ".join(f"{k}={v:+.4f}" for k, v in s["neutral_pose"].items()))
+    c.print("neutral pose:      " + "  ".join(f"{k}={signed(v, 4)}" for k, v in s["neutral_pose"].items()))
     t = Table(title="forward kinematics over the lift stroke (other actuators at neutral)")
     for h in ("lift [rad]",) + tuple(f"{n} [{'m' if n in ('x', 'y', 'z') else 'rad'}]" for n in POSE_NAMES):
         t.add_column(h, justify="right")

@@ -13,7 +13,7 @@ from typing import Any
 from rich.console import Console
 from rich.markup import escape
 
-__all__ = ["console", "esc"]
+__all__ = ["console", "esc", "signed"]
 
 
 #: the width of a console whose output is not a terminal (a pipe, a file, a log): wide enough that no
@@ -37,3 +37,9 @@ def console(**kwargs: Any) -> Console:
 def esc(value: object) -> str:
     """``str(value)`` with rich markup escaped, for data inside a marked-up line."""
     return escape(str(value))
+
+
+def signed(value: float, digits: int) -> str:
+    """``value`` with a sign and ``digits`` decimals; a value that rounds to zero prints ``+0.000…``,
+    never ``-0.000…``."""
+    return f"{round(float(value), digits) + 0.0:+.{digits}f}"

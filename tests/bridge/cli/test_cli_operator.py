@@ -258,3 +258,11 @@ def test_faults_list_prints_each_held_fault_with_its_kind_and_reason(monkeypatch
     ecu.update(faults=[], fault_reasons=[], ack_required=[], link_faults=[])
     assert main(["faults", "list"]) == 0
     assert capsys.readouterr().out.strip() == "no fault held"
+
+
+def test_signed_never_prints_a_negative_zero():
+    from bridge.cli.output import signed
+
+    assert signed(-0.0, 5) == "+0.00000" and signed(-4e-7, 5) == "+0.00000" and signed(-6e-6, 5) == "-0.00001"
+    assert signed(0.1234, 4) == "+0.1234" and signed(2, 2) == "+2.00"
+    assert signed(-1.5, 1) == "-1.5"

@@ -7,7 +7,7 @@ import json
 
 import numpy as np
 
-from bridge.cli.model import add_model_options, model_from_args
+from bridge.cli.model import add_model_options, bounded_float, model_from_args
 from bridge.cli.output import console, esc
 from bridge.cli.ranges import check_pose_ranges
 from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
@@ -136,7 +136,12 @@ def add_commands(sub) -> None:
         "--to", type=parse_pose_arg, required=True, help="goal, e.g. x=0.05,z=0.25 (unspecified DOF keep their value)"
     )
     p.add_argument("--from", dest="start", type=parse_pose_arg, default=None, help="start pose (default: neutral)")
-    p.add_argument("--rate", type=float, default=None, help="sampling rate [Hz], 1..200 (default: the profile's, 50)")
+    p.add_argument(
+        "--rate",
+        type=bounded_float("--rate", 1.0, 200.0, unit="Hz", lo_open=False),
+        default=None,
+        help="sampling rate [Hz], 1..200 (default: the profile's, 50)",
+    )
     p.add_argument("--speed-scale", type=float, default=1.0, help="fraction of full speed, (0, 1]")
     p.add_argument("--plot", default=None, help="write a PNG of pose, actuators and velocities with limits")
     add_model_options(p)

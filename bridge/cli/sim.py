@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bridge.cli.model import add_model_options, finite_float, model_from_args
+from bridge.cli.model import add_model_options, bounded_float, finite_float, model_from_args
 from bridge.cli.output import console
 from bridge.cli.plan import parse_pose_arg
 from bridge.link.realtime import INTERFACES, RealtimeRunner, open_bus
@@ -556,7 +556,12 @@ def add_commands(sub) -> None:
         "lags by its own unit loop); default: the unit loops' feed-forward reference",
     )
     m.add_argument("--plot", default=None, help="write a PNG of the run")
-    m.add_argument("--rate", type=float, default=None, help="control rate [Hz], 1..200 (default: profile, 50)")
+    m.add_argument(
+        "--rate",
+        type=bounded_float("--rate", 1.0, 200.0, unit="Hz", lo_open=False),
+        default=None,
+        help="control rate [Hz], 1..200 (default: profile, 50)",
+    )
     m.add_argument("--speed-scale", type=float, default=1.0, help="fraction of full trajectory speed, (0, 1]")
     m.add_argument("--frame-loss", type=float, default=0.0, help="probability a node misses a frame, [0, 1)")
     m.add_argument("--max-time", type=float, default=30.0, help="longest run after the first command [s]")

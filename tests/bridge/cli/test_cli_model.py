@@ -57,6 +57,10 @@ def test_profile_show_json():
         (["fk", "--lift", "0.2"], "required"),
         (["profile", "show", "--category", "9"], "category '9' is not in profile"),
         (["profile", "show", "--profile", "nope"], "profile 'nope' not found"),
+        # a new user's report: 'rate must lie within 1..200 Hz, got nan' did not name the option
+        (["plan", "--to", "z=0.1", "--rate", "nan"], "--rate must be finite"),
+        (["plan", "--to", "z=0.1", "--rate", "500"], "--rate must lie in [1, 200] Hz"),
+        (["sim", "move", "--to", "z=0.1", "--rate", "0"], "--rate must lie in [1, 200] Hz"),
     ],
 )
 def test_errors_exit_non_zero_with_one_line(args, message):

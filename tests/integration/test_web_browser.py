@@ -269,6 +269,12 @@ def wait_for(cond, timeout_s: float, what: str, period_s: float = 0.05):
     raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
 
 
+def _at(state: dict, z: float) -> bool:
+    """At rest with the held reference at ``z`` [m] (the goto's goal; the measured pose is off by up to a count)."""
+    ref = ((state.get("reference") or {}).get("pose") or {}).get("z")
+    return not state["moving"] and ref is not None and abs(ref - z) < 1e-4
+
+
 def at_rest(service, pg):
     service.api("stop")
     wait_for(lambda: not service.state()["moving"], 10, "the hitch to come to rest")
@@ -1012,7 +1018,10 @@ def test_record_review_save_and_pause_resume_of_a_running_maneuver(service, page
     wait_js(page, "document.getElementById('act-record').getAttribute('aria-pressed') === 'true'")
     for z in (0.12 if z0 < 0.05 else -0.05, z0):
         goto_target(service, page, {"z": z})
-        wait_for(lambda: not service.state()["moving"], 15, "the recorded goto to end")
+        # at the goal and at rest: "not moving" alone can be read before the motion starts (the reply comes
+        # first, the motion ~80 ms later), and the next goto then reverses a hitch at full speed, whose
+        # braking overshoots the workspace (CI: 'z reaches 380.8 mm … workspace:z:max')
+        wait_for(lambda z=z: _at(service.state(), z), 15, "the recorded goto to end at its goal")
     tab(page, "maneuvers")
     page.click("#act-record")
     page.wait_for_selector("#review:not(.hidden)")
@@ -1029,7 +1038,7 @@ def test_record_review_save_and_pause_resume_of_a_running_maneuver(service, page
     page.click("#act-record")
     wait_js(page, "document.getElementById('act-record').getAttribute('aria-pressed') === 'true'")
     goto_target(service, page, {"z": z0 + 0.01})
-    wait_for(lambda: not service.state()["moving"], 15, "the goto to end")
+    wait_for(lambda: _at(service.state(), z0 + 0.01), 15, "the goto to end at its goal")
     tab(page, "maneuvers")
     page.click("#act-record")
     page.wait_for_selector("#review:not(.hidden)")

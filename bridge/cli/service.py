@@ -429,9 +429,8 @@ def _cmd_mode(args) -> int:
     return _run(args, mode)
 
 
-def faults_text(state: dict) -> str:
-    """The faults the service holds, from its state: one line each with its kind and reason."""
-    ecu = state.get("ecu") or {}
+def faults_text(ecu: dict) -> str:
+    """The faults the service holds, from its state's ``ecu`` part: one line each with its kind and reason."""
     names = [str(n) for n in ecu.get("faults") or []]
     if not names:
         return "no fault held"
@@ -458,7 +457,7 @@ def _cmd_faults(args) -> int:
     def held(c) -> int:
         ecu = c.state().get("ecu") or {}
         keys = ("faults", "fault_reasons", "ack_required", "link_faults")
-        _print(args, {k: ecu.get(k, []) for k in keys}, faults_text({"ecu": ecu}))
+        _print(args, {k: ecu.get(k, []) for k in keys}, faults_text(ecu))
         return 0
 
     return _run(args, ack if args.action == "ack" else held)

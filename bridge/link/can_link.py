@@ -80,6 +80,7 @@ from bridge.link.state import (
     LinkStatus,
     MeasurementAssembler,
     ReferenceRefused,
+    frame_stamp,
 )
 from planner.model.hard_limits import HardLimits
 from planner.model.kinematics import HitchModel
@@ -96,12 +97,6 @@ _SLOT_SLACK = 0.5
 
 #: the messages the link reads (every other known message is counted ``foreign`` without decoding it)
 _CONSUMED_PGNS = frozenset({PGN_HEARTBEAT, PGN_POSITION_MEASUREMENT, PGN_REAR_HITCH_STATUS})
-
-
-def _stamp(frame: can.Message) -> float | None:
-    """The frame's bus timestamp, s, or None when the bus gave none (0, not finite)."""
-    ts = frame.timestamp
-    return float(ts) if isinstance(ts, (int, float)) and math.isfinite(ts) and ts > 0.0 else None
 
 
 class CanLink:
@@ -383,7 +378,7 @@ class CanLink:
                 return
             src, cfg = ident.source_address, self._cfg
             if isinstance(payload, Heartbeat) and src == cfg.ecu_address:
-                self._on_heartbeat(payload.sequence, now_s, _stamp(frame) if cfg.bus_timestamps else None)
+                self._on_heartbeat(payload.sequence, now_s, frame_stamp(frame) if cfg.bus_timestamps else None)
             elif isinstance(payload, PositionMeasurement) and src == cfg.ecu_address:
                 restart = self._rx.on_measurement(payload, now_s)
                 if restart:

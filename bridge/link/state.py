@@ -16,6 +16,7 @@ import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, fields
 
+import can
 import numpy as np
 
 from bridge.isobus.address_claim import CLAIM_WAIT_S, Name, planner_name
@@ -29,6 +30,7 @@ from planner.model.sensors import SensorScaling
 from planner.model.types import ACTUATOR_NAMES, Actuators, KinematicsError, Pose
 
 __all__ = [
+    "frame_stamp",
     "LinkConfig",
     "LinkCounters",
     "LinkError",
@@ -101,6 +103,12 @@ def check_period(name: str, value: object, low: float, high: float) -> None:
         or not low <= value <= high
     ):
         raise LinkError(f"{name} must be a number of seconds in [{low:g}, {high:g}], got {value!r}")
+
+
+def frame_stamp(frame: can.Message) -> float | None:
+    """A received frame's bus timestamp [s], or None when the bus gave none (0, negative, not finite)."""
+    ts = frame.timestamp
+    return float(ts) if isinstance(ts, (int, float)) and math.isfinite(ts) and ts > 0.0 else None
 
 
 @dataclass(frozen=True)

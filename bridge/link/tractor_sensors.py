@@ -66,7 +66,7 @@ from bridge.isobus.messages import (
     WheelBasedSpeed,
 )
 from bridge.link.realtime import ReceivingNode
-from bridge.link.state import LinkError
+from bridge.link.state import LinkError, frame_stamp
 
 __all__ = [
     "DISTANCE_WRAP_M",
@@ -432,8 +432,7 @@ class TractorSensors(ReceivingNode):
             return False
         with self._lock:
             self._frames += 1
-            ts = frame.timestamp
-            self._stamp = float(ts) if isinstance(ts, (int, float)) and math.isfinite(ts) and ts > 0.0 else 0.0
+            self._stamp = frame_stamp(frame) or 0.0
             try:
                 d = decode_frame(frame)
             except CodecError:

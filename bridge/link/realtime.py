@@ -17,6 +17,7 @@ from typing import Any, Protocol
 import can
 
 from bridge.link.state import LinkError
+from bridge.link.virtual import InProcessBus
 
 __all__ = ["BusNode", "BusPort", "INTERFACES", "ReceivingNode", "RealtimeRunner", "SharedBusNodes", "open_bus"]
 
@@ -29,7 +30,8 @@ def open_bus(interface: str, channel: str | None = None, **kwargs: Any) -> can.B
     """Open a python-can bus on one of :data:`INTERFACES`.
 
     ``channel`` defaults to python-can's default IPv4 group for ``udp_multicast``,
-    ``vcan0`` for ``socketcan``, ``hitch`` for ``virtual`` and the default hub
+    ``vcan0`` for ``socketcan``, ``hitch`` for ``virtual`` (an :class:`~bridge.link.virtual.InProcessBus`:
+    python-can's virtual bus with a cheaper frame copy) and the default hub
     ``ws://127.0.0.1:54701/`` for ``remote`` (a :class:`~bridge.link.loopback.LoopbackHub`
     must be running there). udp_multicast delivers
     our own frames back: the link and the ECU node drop frames from their own address.
@@ -49,6 +51,8 @@ def open_bus(interface: str, channel: str | None = None, **kwargs: Any) -> can.B
         else:
             channel = "vcan0" if interface == "socketcan" else "hitch"
     try:
+        if interface == "virtual":  # python-can's virtual bus with a field-by-field frame copy (bridge.link.virtual)
+            return InProcessBus(channel=channel, **kwargs)
         return can.Bus(interface=interface, channel=channel, **kwargs)
     except (can.CanError, OSError, ImportError) as exc:
         hint = (

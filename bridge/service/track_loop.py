@@ -80,11 +80,11 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-import can
 import numpy as np
 from scipy.linalg import expm
 
 from bridge.link.tractor_sensors import TractorSensors, TractorSensorsConfig
+from bridge.link.virtual import InProcessBus
 from bridge.service.ground_preview import GroundPreviewGeometry, GroundProfileEstimator
 from bridge.service.machine import ReadingsAsTrackSensors
 from bridge.service.motion.controller import MotionController
@@ -280,7 +280,7 @@ class SimLoop:
         p0 = tp.goal_vector(model.neutral_pose.controlled(), start or {})
         tp.check_in_workspace(p0, "start")
         self.rig = SimRig(model, sim, initial_actuators=tp.inverse.solve(p0)[0])
-        self._buses = [can.Bus(interface="virtual", channel=self.rig.channel) for _ in range(2)]
+        self._buses = [InProcessBus(channel=self.rig.channel) for _ in range(2)]
         self.tractor = TractorTwinNode(
             self._buses[0], TwinSensors(self.twin), hitch_height_m=hitch_height_from_ecu(self.rig.ecu, model)
         )

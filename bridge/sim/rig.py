@@ -27,6 +27,7 @@ from numpy.typing import ArrayLike
 from bridge.isobus.j1939 import bus_load
 from bridge.link.can_link import CanLink
 from bridge.link.state import LinkConfig
+from bridge.link.virtual import InProcessBus
 from bridge.sim.can_node import EcuCanNode, EcuNodeConfig
 from bridge.sim.ecu import CylinderECU
 from bridge.sim.truth import MachineTruth, TrueMachine
@@ -155,7 +156,7 @@ class SimRig:
         )
         self.channel = channel = f"hitch-sim-{uuid.uuid4().hex}"
         """The private virtual channel (other buses may join it, e.g. in tests)."""
-        buses = [can.Bus(interface="virtual", channel=channel) for _ in range(3)]
+        buses: list[can.BusABC] = [InProcessBus(channel=channel) for _ in range(3)]
         if s.frame_loss > 0.0:
             buses[:2] = [LossyBus(b, s.frame_loss, loss_rng) for b in buses[:2]]
         self._buses = buses

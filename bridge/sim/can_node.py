@@ -54,6 +54,7 @@ from bridge.isobus.codec import (
     CodecError,
     EcuParameters,
     Heartbeat,
+    Payload,
     PositionCounts,
     PositionMeasurement,
     RearHitchStatus,
@@ -242,6 +243,7 @@ class EcuCanNode:
         self._counters = EcuNodeCounters()
         self._operating = False  # address claimed and periodic traffic running
         self._last_malformed = ""
+        self._last_frames: dict[str, tuple[tuple[object, ...], int, bytes]] = {}  # _memo_frame
         self._lock = threading.RLock()
         self.draft_source: DraftSource | None = None
         """Fills RearDraft / the nominal lower-link force of the hitch status (None: not available)."""
@@ -446,28 +448,45 @@ class EcuCanNode:
             self._send([self._hitch_frame(now_s)])
 
     def _measurement_frame(self) -> can.Message:
-        c = [int(v) for v in self._ecu.measurement_counts()]  # lift, tilt, top, left, right
-        payload = PositionMeasurement(
-            tilt_counts=_reading(c[1]),
-            top_counts=_reading(c[2]),
-            right_counts=_reading(c[4]),
-            left_counts=_reading(c[3]),
-            system_state=self._ecu.system_state(),
+        c = self._ecu.measurement_tuple()  # lift, tilt, top, left, right
+        state = self._ecu.system_state()
+        return self._memo_frame(
+            "measurement",
+            (c, state),
+            lambda: PositionMeasurement(
+                tilt_counts=_reading(c[1]),
+                top_counts=_reading(c[2]),
+                right_counts=_reading(c[4]),
+                left_counts=_reading(c[3]),
+                system_state=state,
+            ),
         )
-        return self._codec.encode(payload, source=self._cfg.source_address)
 
     def _hitch_frame(self, now_s: float) -> can.Message:
         lift_min, lift_max = self._ecu.lift_calibration_counts()
-        counts = int(self._ecu.measurement_counts()[0])
+        counts = self._ecu.measurement_tuple()[0]
         fraction = lift_fraction(counts, lift_min, lift_max)
         limit = LimitStatus.NOT_LIMITED
         if self._ecu.relay_engaged()[0]:
             limit = LimitStatus.LIMITED_HIGH if fraction > 0.5 else LimitStatus.LIMITED_LOW
-        payload = RearHitchStatus(position=fraction, limit_status=limit)
         draft = self.draft_source(now_s) if self.draft_source is not None else None
         if draft is not None:
-            payload = replace(draft, position=fraction, limit_status=limit)
-        return self._codec.encode(payload, source=self._cfg.source_address)
+            return self._codec.encode(
+                replace(draft, position=fraction, limit_status=limit), source=self._cfg.source_address
+            )
+        return self._memo_frame(
+            "hitch", (fraction, limit), lambda: RearHitchStatus(position=fraction, limit_status=limit)
+        )
+
+    def _memo_frame(self, name: str, key: tuple[object, ...], payload: Callable[[], Payload]) -> can.Message:
+        """The frame of ``payload()``, built only when ``key`` (what the payload is made of) differs from the
+        last frame of ``name``: a hitch at rest sends the same two frames 100 times a second."""
+        last = self._last_frames.get(name)
+        if last is None or last[0] != key:
+            msg = self._codec.encode(payload(), source=self._cfg.source_address)
+            last = self._last_frames[name] = (key, msg.arbitration_id, bytes(msg.data))
+            return msg
+        return can.Message(arbitration_id=last[1], is_extended_id=True, data=last[2])
 
     def _send(self, frames: list[can.Message]) -> None:
         for frame in frames:

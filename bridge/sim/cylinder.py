@@ -328,9 +328,11 @@ class Cylinder:
             if left:
                 self._u = u
                 self._quiet_steps += left
-                for _ in range(min(left, self._delay_steps)):
-                    self._line.popleft()
-                    self._line.append(u)
+                line = self._line
+                if line.count(u) != len(line):  # a line holding only u already stays as it is
+                    for _ in range(min(left, self._delay_steps)):
+                        line.popleft()
+                        line.append(u)
             return
         for _ in range(left):
             self.step(u)

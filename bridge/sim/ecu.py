@@ -303,6 +303,11 @@ class CylinderECU:
         """Last AD sample of the five channels [counts, int], ACTUATOR_ORDER."""
         return np.array(self._meas, dtype=np.int64)
 
+    def measurement_tuple(self) -> tuple[int, ...]:
+        """:meth:`measurement_counts` as a tuple of ints (no array: what a node compares and encodes 100 times
+        a second)."""
+        return tuple(self._meas)
+
     def positions_si(self) -> np.ndarray:
         """Last measurement converted to SI (lift [rad], others [m]) through the calibration."""
         return np.array([p.counts_to_si(m) for p, m in zip(self.params, self._meas, strict=True)])

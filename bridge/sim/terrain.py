@@ -482,12 +482,22 @@ class TerrainTwin:
 
     def contacts_m(self, t: float) -> tuple[float, float, float, float]:
         """Ground heights under the rear-left, rear-right, front-left, front-right wheels [m]."""
-        s, half, L = self.distance_m(t), 0.5 * self.tractor.track_m, self.tractor.wheelbase_m
-        g = self.ground
+        return self._contacts_at(self.distance_m(t))
+
+    def _contacts_at(self, s: float) -> tuple[float, float, float, float]:
+        half, L, g = 0.5 * self.tractor.track_m, self.tractor.wheelbase_m, self.ground
         return (_height(g, s, half), _height(g, s, -half), _height(g, s + L, half), _height(g, s + L, -half))
 
     def _plane(self, t: float) -> tuple[float, float, float]:
-        return contact_plane(*self.contacts_m(t), self.tractor)
+        """The contact plane at ``t``: a function of the distance travelled only, so the last one is kept
+        (a tractor standing still, as the service's default twin, computes it once, not 200 times a second)."""
+        s = self.distance_m(t)
+        last = self.__dict__.get("_last_plane")  # (distance, plane); frozen: kept beside the fields
+        if last is not None and last[0] == s:
+            return last[1]
+        plane = contact_plane(*self._contacts_at(s), self.tractor)
+        self.__dict__["_last_plane"] = (s, plane)
+        return plane
 
     def attitude(self, t: float) -> BodyAttitude:
         _, b, c = self._plane(t)

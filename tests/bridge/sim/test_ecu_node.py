@@ -20,7 +20,13 @@ from bridge.isobus.codec import (
     decode_frame,
     encode,
 )
-from bridge.isobus.j1939 import PGN_HEARTBEAT, PGN_POSITION_MEASUREMENT, PGN_REAR_HITCH_STATUS, decode_id
+from bridge.isobus.j1939 import (
+    PGN_HEARTBEAT,
+    PGN_POSITION_MEASUREMENT,
+    PGN_REAR_HITCH_STATUS,
+    LimitStatus,
+    decode_id,
+)
 from bridge.isobus.system_state import STATE_CONTROLLERS_ON, STATE_NO_REFERENCE, STATE_WATCHDOG_TRIPPED
 from bridge.sim import CylinderECU
 from bridge.sim.can_node import EcuCanNode, EcuNodeConfig, lift_fraction
@@ -321,3 +327,42 @@ def test_the_twins_periodic_frames_share_one_grid_so_its_runner_wakes_once_per_p
     measured = {x for x in sent_at[PGN_POSITION_MEASUREMENT] if x >= 1.0}
     slope = {x for x in sent_at[PGN_SLOPE_SENSOR_INFORMATION] if x >= 1.0}
     assert len(measured) >= 195 and measured <= slope
+
+
+def test_each_periodic_frame_carries_the_ecus_state_of_its_send_time(buses):
+    """The node builds a frame only when what it is made of changed (a hitch at rest sends the same two
+    frames 100 times a second): every 0xFF22 and rear hitch status on the bus must still be the one a fresh
+    encoding of the ECU's state at that moment gives, through moves, a controller switch and a watchdog trip."""
+    node = EcuCanNode(CylinderECU(), buses())
+    listener = buses()
+    node.start(0.0)
+    run([node], 0.0, 0.3)
+    drain(listener)
+    ecu = node.ecu
+    start = [int(v) for v in ecu.measurement_counts()]
+    goal = [c + d for c, d in zip(start, (40, -30, 25, 20, -20), strict=True)]  # lift, tilt, top, left, right
+    checked, distinct = 0, set()
+    for k in range(31, 301):  # 0.31 .. 3.00 s, one poll per 10 ms
+        t = k * 0.01
+        if k < 150 and k % 5 == 0:
+            ecu.set_reference(goal, t - 0.005)  # driving (the watchdog trips after 100 ms without a reference)
+        if k == 200:
+            ecu.controllers_enabled = False
+        if k == 250:
+            ecu.controllers_enabled = True
+        node.poll(t)
+        frames = {decode_id(f.arbitration_id).pgn: f for f in drain(listener)}
+        c, state = ecu.measurement_tuple(), ecu.system_state()
+        fresh = encode(PositionMeasurement(c[1], c[2], c[4], c[3], state), source=169)
+        lift_min, lift_max = ecu.lift_calibration_counts()
+        fraction = lift_fraction(c[0], lift_min, lift_max)
+        limit = LimitStatus.NOT_LIMITED
+        if ecu.relay_engaged()[0]:
+            limit = LimitStatus.LIMITED_HIGH if fraction > 0.5 else LimitStatus.LIMITED_LOW
+        hitch = encode(RearHitchStatus(position=fraction, limit_status=limit), source=169)
+        assert bytes(frames[PGN_POSITION_MEASUREMENT].data) == bytes(fresh.data), t
+        assert frames[PGN_POSITION_MEASUREMENT].arbitration_id == fresh.arbitration_id
+        assert bytes(frames[PGN_REAR_HITCH_STATUS].data) == bytes(hitch.data), t
+        checked += 1
+        distinct.add((c, state))
+    assert checked == 270 and len(distinct) > 20  # the counts and the state byte did change meanwhile

@@ -239,3 +239,29 @@ def test_bad_inputs_name_the_field_and_range():
         RowSignal(rms_m=math.nan)
     with pytest.raises(TerrainError, match=r"speed_m_s\[0\] = 20 is outside the allowed range \[0, 15\]"):
         SpeedProfile.constant(20)
+
+
+def test_a_twin_that_keeps_its_last_contact_plane_answers_as_a_fresh_one():
+    """The contact plane is kept for the last distance (a standing tractor computes it once): over random
+    times, repeated and out of order, on undulating ground at a changing speed and standing still, one twin
+    gives exactly what a fresh twin gives for each call."""
+    ground = SineGround(
+        grade_rad=0.02,
+        cross_slope_rad_0=0.01,
+        undulations=(Undulation(0.05, 7.0),),
+        cross_waves=(CrossSlopeWave(0.03, 11.0, 0.4),),
+    )
+    speeds = (SpeedProfile.constant(0.0), SpeedProfile.constant(2.2))
+
+    def fresh(speed: SpeedProfile) -> TerrainTwin:
+        return TerrainTwin(ground=ground, speed=speed)
+
+    rng = np.random.default_rng(3)
+    for speed in speeds:
+        kept = fresh(speed)
+        times = rng.uniform(0.0, 20.0, 60)
+        for t in np.concatenate([times, times[::-1], np.repeat(times[:10], 3)]):
+            t = float(t)
+            assert kept.state(t) == fresh(speed).state(t)
+            assert kept.ground_distance_m(t, 0.6) == fresh(speed).ground_distance_m(t, 0.6)
+            assert kept.ground_ahead_z(t) == fresh(speed).ground_ahead_z(t)

@@ -497,7 +497,7 @@ def _stream(args, c, spec: _Spec) -> int:
             esc(
                 f"track session {session} (motion {mid}): frame {r.get('frame')}, dof {','.join(r.get('dof', []))}, "
                 f"ttl {r.get('ttl_ms')} ms, {spec.rate_hz:g} Hz"
-                + (f", {spec.duration_s:g} s" if sig.duration_s is not None else ", until Ctrl-C")
+                + (f", {sig.duration_s:g} s" if sig.duration_s is not None else ", until Ctrl-C")
             ),
             highlight=False,
         )
@@ -608,7 +608,7 @@ def _dry_run(args, spec: _Spec) -> int:
         lines.append(
             f"{row['seq']:5d}  t={row['t']:8.3f}  "
             + "  ".join(f"{k}={row['pose'][k]:+.6f}" for k in spec.dofs)
-            + ("  v: " + "  ".join(f"{k}={v[k]:+.6f}" for k in spec.dofs) if v else "")
+            + ("  v: " + "  ".join(f"{k}={v[k]:+.6f}" for k in spec.dofs if k in v) if v else "")
         )
     console(soft_wrap=True).print("\n".join(lines), markup=False, highlight=False)
     return 0

@@ -211,6 +211,19 @@ def test_dry_run_prints_the_first_setpoints_without_connecting(capsys):
     assert "    0  t=   0.000  z=+0.200000  roll=+0.000000" in text
 
 
+DOC_CSV = "t,z,v_z,roll\n0.0,0.10,0.02,0.000\n0.5,0.11,0.02,0.005\n1.0,0.12,0.02,0.000\n"  # docs/tracking.md
+
+
+def test_dry_run_of_the_documented_csv_shows_the_velocities_it_has(capsys, tmp_path):
+    """A new user's report: the docs' CSV (a velocity for z, none for roll) ended the dry run with
+    KeyError: 'roll'."""
+    f = tmp_path / "signal.csv"
+    f.write_text(DOC_CSV, encoding="utf-8")
+    assert main(["track", "--from-file", str(f), "--rate", "10", "--dry-run"]) == 0
+    text = capsys.readouterr().out
+    assert "    5  t=   0.500  z=+0.110000  roll=+0.005000  v: z=+0.020000" in text
+
+
 # ---------------------------------------------------------------------------------------- a real service
 @pytest.mark.slow
 def test_a_two_second_sine_streams_to_a_real_service_and_ends_with_the_motion_finished(tmp_path):
@@ -245,6 +258,21 @@ def test_a_two_second_sine_streams_to_a_real_service_and_ends_with_the_motion_fi
         with HitchClient([endpoint], timeout_s=10.0) as c:
             st = c.state()
             assert st.get("track") is None and not st["moving"]
+
+        # the documented CSV without --duration: the whole file plays (a new user's report: it ended with
+        # "TypeError: unsupported format string passed to NoneType.__format__" after starting the session)
+        csv = tmp_path / "signal.csv"
+        csv.write_text(DOC_CSV, encoding="utf-8")
+        r = subprocess.run(
+            [sys.executable, "-m", "bridge.cli", "track", "--from-file", str(csv), "--rate", "50"]
+            + ["--connect", endpoint, "--timeout", "20"],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert r.returncode == 0, (r.stdout, r.stderr)
+        assert ", 50 Hz, 1 s" in r.stdout and "finished: track/stop" in r.stdout, r.stdout
 
         # Ctrl-C mid-stream: track/stop is sent and awaited, then exit 130
         p = subprocess.Popen(

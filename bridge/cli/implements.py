@@ -17,6 +17,7 @@ from bridge.cli.plan import parse_pose_arg
 from bridge.cli.service import (
     _client_command,
     _client_options,
+    _ended,
     _fmt_pose,
     _motion,
     _print,
@@ -91,13 +92,11 @@ def _cmd_quick(args) -> int:
         if final is not None:
             r = {**r, "final": final}
         target = r.get("headland") if args.command == "raise" else r.get("last_work")
+        ended, status = _ended(final)
         _print(
-            args,
-            r,
-            f"motion {r['motion_id']}: {args.command} to {_fmt_pose(target)}, {r['duration']:.2f} s"
-            + (f"; now at {_fmt_pose(final['pose'])}" if final is not None else ""),
+            args, r, f"motion {r['motion_id']}: {args.command} to {_fmt_pose(target)}, {r['duration']:.2f} s" + ended
         )
-        return 0
+        return status
 
     return _run(args, run)
 

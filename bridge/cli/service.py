@@ -337,8 +337,38 @@ def _motion(args, c, start: Callable[[], dict], wait: Callable[[dict], dict]) ->
 
 
 def _wait_motion(args, c, r: dict) -> dict:
-    st = c.wait_motion(r["motion_id"], timeout_s=max(args.timeout, float(r.get("duration", 0.0)) + 10.0))
-    return {"pose": st.get("pose"), "motion_id": st.get("motion_id"), "moving": st.get("moving")}
+    """Wait until motion ``r["motion_id"]`` has ended: the pose then and its ``outcome`` event
+    (``motion_finished`` or ``motion_aborted`` with the reason; None if none was heard)."""
+    mid = r["motion_id"]
+    outcome: dict[str, Any] = {}
+    heard = threading.Event()
+
+    def on_event(e: dict) -> None:
+        if e.get("motion_id") == mid and e.get("event") in ("motion_finished", "motion_aborted"):
+            outcome.update(e)
+            heard.set()
+
+    c.subscribe("events", on_event)  # before the wait: the outcome follows the state that shows the end
+    st = c.wait_motion(mid, timeout_s=max(args.timeout, float(r.get("duration", 0.0)) + 10.0))
+    heard.wait(1.0)
+    return {
+        "pose": st.get("pose"),
+        "motion_id": st.get("motion_id"),
+        "moving": st.get("moving"),
+        "outcome": dict(outcome) or None,
+    }
+
+
+def _ended(final: dict | None) -> tuple[str, int]:
+    """The text and exit status for how an awaited motion ended: 0 unless it was aborted (a stop, a
+    fault, a replacing command), which is said with the service's reason and exits 1."""
+    if final is None:
+        return "", 0
+    where = f"; now at {_fmt_pose(final['pose'])}" if final.get("pose") else ""
+    out = final.get("outcome") or {}
+    if out.get("event") == "motion_aborted":
+        return f"; ABORTED: {out.get('reason') or 'no reason given'}{where}", 1
+    return where, 0
 
 
 def _wait_maneuver(c, maneuver_id: object, timeout_s: float) -> dict:
@@ -379,14 +409,15 @@ def _cmd_goto(args) -> int:
         )
         if final is not None:
             r = {**r, "final": final}
+        ended, status = _ended(final)
         _print(
             args,
             r,
             f"motion {r['motion_id']} accepted, {r['duration']:.2f} s"
             + (f" (slowed x{r['speed_factor']:.2f})" if r["speed_factor"] < 1 else "")
-            + (f"; now at {_fmt_pose(final['pose'])}" if final is not None else ""),
+            + ended,
         )
-        return 0
+        return status
 
     return _run(args, go)
 
@@ -510,12 +541,9 @@ def _cmd_preset(args) -> int:
             )
             if final is not None:
                 r = {**r, "final": final}
-            _print(
-                args,
-                r,
-                f"motion {r['motion_id']} to preset {args.name}, {r['duration']:.2f} s"
-                + (f"; now at {_fmt_pose(final['pose'])}" if final is not None else ""),
-            )
+            ended, status = _ended(final)
+            _print(args, r, f"motion {r['motion_id']} to preset {args.name}, {r['duration']:.2f} s" + ended)
+            return status
         else:
             r = c.request("presets/delete", {"name": args.name})
             _print(args, r, f"deleted {r['deleted']}")

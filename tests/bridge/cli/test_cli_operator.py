@@ -266,3 +266,48 @@ def test_signed_never_prints_a_negative_zero():
     assert signed(-0.0, 5) == "+0.00000" and signed(-4e-7, 5) == "+0.00000" and signed(-6e-6, 5) == "-0.00001"
     assert signed(0.1234, 4) == "+0.1234" and signed(2, 2) == "+2.00"
     assert signed(-1.5, 1) == "-1.5"
+
+
+@pytest.mark.parametrize("outcome", ["motion_finished", "motion_aborted"])
+def test_an_awaited_motion_says_how_it_ended_and_an_aborted_one_exits_1(monkeypatch, capsys, outcome):
+    """A new user's report: `goto --wait` printed "accepted …; now at …" and exited 0 when a stop or a link
+    fault had aborted the motion (`maneuver run --wait` said so and exited 1)."""
+    pose = {"x": 0.0, "z": 0.0970, "roll": 0.0, "pitch": 0.0, "y": 0.0, "yaw": 0.0}
+
+    class Client:
+        def __init__(self):
+            self.listeners: dict = {}
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            pass
+
+        def goto(self, to, speed_scale=None):
+            return {"motion_id": 9, "duration": 15.53, "speed_factor": 1.0}
+
+        def request(self, key, payload=None, **kw):
+            assert key == "presets/go"
+            return {"motion_id": 9, "duration": 2.0}
+
+        def subscribe(self, key, cb):
+            self.listeners[key] = cb
+
+        def wait_motion(self, motion_id, *, timeout_s):
+            e = {"event": outcome, "motion_id": motion_id, "seq": 7}
+            if outcome == "motion_aborted":
+                e["reason"] = "stop requested"
+            self.listeners["events"](e)
+            return {"motion_id": 10, "moving": False, "pose": pose}
+
+    monkeypatch.setattr(cli_service, "_client", lambda args: Client())
+    expected = 1 if outcome == "motion_aborted" else 0
+    for argv in (["goto", "--to", "z=-0.15", "--wait"], ["preset", "go", "work", "--wait"]):
+        assert main(argv) == expected
+        out = capsys.readouterr().out
+        assert "now at" in out and "z=+0.0970" in out
+        assert ("ABORTED: stop requested" in out) == (outcome == "motion_aborted"), out
+    assert main(["goto", "--to", "z=-0.15", "--wait", "--json"]) == expected
+    final = json.loads(capsys.readouterr().out)["final"]
+    assert final["outcome"]["event"] == outcome

@@ -8,12 +8,14 @@ escapes markup in a data value that is embedded in a line with the command's own
 
 from __future__ import annotations
 
+import argparse
+from pathlib import Path
 from typing import Any
 
 from rich.console import Console
 from rich.markup import escape
 
-__all__ = ["console", "esc", "signed"]
+__all__ = ["console", "esc", "plot_path", "signed"]
 
 
 #: the width of a console whose output is not a terminal (a pipe, a file, a log): wide enough that no
@@ -43,3 +45,22 @@ def signed(value: float, digits: int) -> str:
     """``value`` with a sign and ``digits`` decimals; a value that rounds to zero prints ``+0.000…``,
     never ``-0.000…``."""
     return f"{round(float(value), digits) + 0.0:+.{digits}f}"
+
+
+def plot_path(text: str) -> str:
+    """``--plot FILE`` checked where it is read (an argparse type), before a run that may take minutes:
+    its folder must exist and its suffix must be a format matplotlib writes (``.png``, ``.pdf``,
+    ``.svg`` …)."""
+    from matplotlib.backend_bases import FigureCanvasBase  # only when --plot is given
+
+    path = Path(text)
+    formats = FigureCanvasBase.get_supported_filetypes()
+    suffix = path.suffix.lower().lstrip(".")
+    if suffix not in formats:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: the file name must end in one of {', '.join('.' + f for f in sorted(formats))}"
+        )
+    folder = path.parent
+    if not folder.is_dir():
+        raise argparse.ArgumentTypeError(f"{text!r}: the folder {str(folder)!r} does not exist")
+    return text

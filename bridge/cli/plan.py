@@ -8,7 +8,7 @@ import json
 import numpy as np
 
 from bridge.cli.model import add_model_options, bounded_float, model_from_args
-from bridge.cli.output import console, esc
+from bridge.cli.output import console, esc, plot_path
 from bridge.cli.ranges import check_pose_ranges
 from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
 from planner.trajectory import MotionState, TrajectoryPlanner
@@ -143,6 +143,8 @@ def add_commands(sub) -> None:
         help="sampling rate [Hz], 1..200 (default: the profile's, 50)",
     )
     p.add_argument("--speed-scale", type=float, default=1.0, help="fraction of full speed, (0, 1]")
-    p.add_argument("--plot", default=None, help="write a PNG of pose, actuators and velocities with limits")
+    p.add_argument(
+        "--plot", default=None, type=plot_path, help="write a PNG of pose, actuators and velocities with limits"
+    )
     add_model_options(p)
     p.set_defaults(handler=_cmd_plan)

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from bridge.cli.model import add_model_options, bounded_float, finite_float, model_from_args
-from bridge.cli.output import console
+from bridge.cli.output import console, plot_path
 from bridge.cli.plan import parse_pose_arg
 from bridge.link.realtime import INTERFACES, RealtimeRunner, open_bus
 from bridge.link.state import LinkConfig
@@ -555,7 +555,7 @@ def add_commands(sub) -> None:
         help="trajectory: stream the plan's actuator positions as they are (each cylinder then "
         "lags by its own unit loop); default: the unit loops' feed-forward reference",
     )
-    m.add_argument("--plot", default=None, help="write a PNG of the run")
+    m.add_argument("--plot", default=None, type=plot_path, help="write a PNG of the run")
     m.add_argument(
         "--rate",
         type=bounded_float("--rate", 1.0, 200.0, unit="Hz", lo_open=False),
@@ -579,7 +579,7 @@ def add_commands(sub) -> None:
         "--job", choices=("levelling", "guidance", "terrain"), default=None, help="default: from the scenario"
     )
     tr.add_argument("--duration", type=float, default=None, help="scenario seconds to run (default: the scenario's)")
-    tr.add_argument("--plot", default=None, help="write a PNG of the run")
+    tr.add_argument("--plot", default=None, type=plot_path, help="write a PNG of the run")
     tr.add_argument("--json", dest="json_file", default=None, metavar="FILE", help="write the summary as JSON")
     tr.add_argument("--profile", default="thesis-t132", help="built-in profile name or path to a .toml")
     tr.add_argument("--category", default=None, help="ISO 730 implement category (default: the profile's, 2)")
@@ -597,7 +597,7 @@ def add_commands(sub) -> None:
     fl.add_argument("--slip-limit", type=finite_float("--slip-limit"), default=None, help="(0, 0.5]; default none")
     fl.add_argument("--z", type=finite_float("--z"), default=0.0, help="operator's position setpoint z [m], default 0")
     fl.add_argument("--duration", type=float, default=None, help="scenario seconds to run (default: the scenario's)")
-    fl.add_argument("--plot", default=None, help="write a PNG of depth, draft and slip")
+    fl.add_argument("--plot", default=None, type=plot_path, help="write a PNG of depth, draft and slip")
     fl.add_argument("--json", dest="json_file", default=None, metavar="FILE", help="write the summary as JSON")
     fl.add_argument("--profile", default="thesis-t132", help="built-in profile name or path to a .toml")
     fl.add_argument("--category", default=None, help="ISO 730 implement category (default: the profile's, 2)")

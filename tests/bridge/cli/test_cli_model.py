@@ -61,6 +61,11 @@ def test_profile_show_json():
         (["plan", "--to", "z=0.1", "--rate", "nan"], "--rate must be finite"),
         (["plan", "--to", "z=0.1", "--rate", "500"], "--rate must lie in [1, 200] Hz"),
         (["sim", "move", "--to", "z=0.1", "--rate", "0"], "--rate must lie in [1, 200] Hz"),
+        # a new user's report: a bad --plot ended a whole simulation with a traceback
+        (["sim", "move", "--to", "z=0.1", "--plot", "/nonexistent/dir/m.png"], "folder '/nonexistent/dir' does not"),
+        (["sim", "move", "--to", "z=0.1", "--plot", "m.txt"], "the file name must end in one of"),
+        (["plan", "--to", "z=0.1", "--plot", "plan.doc"], ".png"),
+        (["sim", "track", "levelling", "--plot", "/nonexistent/t.png"], "--plot"),
     ],
 )
 def test_errors_exit_non_zero_with_one_line(args, message):

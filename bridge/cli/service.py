@@ -545,8 +545,8 @@ def _cmd_preset(args) -> int:
             _print(args, r, f"motion {r['motion_id']} to preset {args.name}, {r['duration']:.2f} s" + ended)
             return status
         else:
-            r = c.request("presets/delete", {"name": args.name})
-            _print(args, r, f"deleted {r['deleted']}")
+            r = c.request("presets/delete", {"name": args.name, **({"force": True} if args.force else {})})
+            _print(args, r, f"deleted {r['deleted']}" + (f"; warning: {r['warning']}" if r.get("warning") else ""))
         return 0
 
     return _run(args, preset)
@@ -555,7 +555,7 @@ def _cmd_preset(args) -> int:
 def _read_script(path: str) -> str:
     p = Path(path)
     if not p.is_file():
-        raise CLIError(f"maneuver file {p} does not exist")
+        raise CLIError(f"maneuver file {p} " + ("is not a regular file" if p.exists() else "does not exist"))
     return p.read_text(encoding="utf-8")
 
 
@@ -589,7 +589,8 @@ def _cmd_maneuver(args) -> int:
             return 0 if r["ok"] else 1
         if a == "save":
             r = c.request("maneuvers/save", {"name": args.name, "script": _read_script(args.file)})
-            _print(args, r, f"saved {r['saved']} ({r['steps']} steps)")
+            steps = f"{r['steps']} step" + ("" if r["steps"] == 1 else "s")
+            _print(args, r, f"saved {r['saved']} ({steps}; parsed only: `hitch maneuver validate` plans it)")
         elif a == "list":
             r = c.request("maneuvers/list", {})
             _print(
@@ -715,10 +716,19 @@ def add_commands(sub) -> Any:
 
     p = sub.add_parser("preset", help="saved poses of the current implement")
     ps = p.add_subparsers(dest="action", required=True, parser_class=type(p))
-    for action, needs_name in (("save", True), ("list", False), ("go", True), ("delete", True)):
-        q = ps.add_parser(action)
+    for action, needs_name, what in (
+        ("save", True, "save a pose (default: the current one) under a name"),
+        ("list", False, "the presets of the current implement"),
+        ("go", True, "move to a preset"),
+        ("delete", True, "delete a preset (refused while a saved maneuver uses it, unless --force)"),
+    ):
+        q = ps.add_parser(action, help=what)
         if needs_name:
             q.add_argument("name")
+        if action == "delete":
+            q.add_argument(
+                "--force", action="store_true", help="delete it although saved maneuvers use it (they then fail)"
+            )
         if action == "save":
             q.add_argument("--pose", type=parse_pose_arg, default=None, help="x=..,z=.. (default: the current pose)")
         if action in ("save", "go"):
@@ -730,14 +740,14 @@ def add_commands(sub) -> Any:
 
     p = sub.add_parser("maneuver", help="scripted maneuvers (YAML)")
     ms = p.add_subparsers(dest="action", required=True, parser_class=type(p))
-    for action, pos in (
-        ("validate", ("file",)),
-        ("save", ("name", "file")),
-        ("list", ()),
-        ("run", ("name",)),
-        ("delete", ("name",)),
+    for action, pos, what in (
+        ("validate", ("file",), "check a YAML script against the service (parse, then plan every step)"),
+        ("save", ("name", "file"), "check a YAML script and store it under a name"),
+        ("list", (), "the stored maneuvers"),
+        ("run", ("name",), "run a stored maneuver"),
+        ("delete", ("name",), "delete a stored maneuver"),
     ):
-        q = ms.add_parser(action)
+        q = ms.add_parser(action, help=what)
         for a in pos:
             q.add_argument(a)
         if action == "run":

@@ -346,7 +346,8 @@ class ServiceAPI:
             raise RequestError(
                 "in_use",
                 f"presets/delete: preset {r.name!r} is used by the saved maneuver(s) {', '.join(users)}; "
-                "send force: true to delete it anyway (those maneuvers then fail to validate)",
+                "send force: true (`hitch preset delete NAME --force`) to delete it anyway "
+                "(those maneuvers then fail to validate)",
             )
         if not self.store.delete_preset(r.name, implement=self.implement):
             raise RequestError("not_found", f"presets/delete: no preset {r.name!r} for implement {self.implement!r}")

@@ -58,7 +58,7 @@ def test_goto_moves_the_simulated_hitch_and_events_tell(service):
     assert [e["event"] for e in mine] == ["motion_started", "motion_finished"]
 
 
-def test_cli_presets_and_errors(service):
+def test_cli_presets_and_errors(service, tmp_path):
     _, ep = service
     p = hitch(ep, "preset", "save", "work", "--pose", "z=0.15", "--json")
     assert p.returncode == 0, p.stderr
@@ -74,8 +74,18 @@ def test_cli_presets_and_errors(service):
     time.sleep(2.0)  # the stop has come to rest
     p = hitch(ep, "goto", "--to", "x=0.9")
     assert p.returncode == 2 and "workspace:x:max" in p.stderr and p.stderr.count("\n") == 1
-    p = hitch(ep, "preset", "delete", "work", "--json")
-    assert p.returncode == 0 and json.loads(p.stdout) == {"deleted": "work"}
+    # a preset a saved maneuver uses: refused, naming the CLI's override, which deletes it (a new user's
+    # report: the refusal said "send force: true" and `hitch preset delete` had no --force)
+    script = tmp_path / "uses_work.yaml"
+    script.write_text("name: uses-work\nsteps:\n  - preset: work\n", encoding="utf-8")
+    p = hitch(ep, "maneuver", "save", "uses-work", str(script))
+    assert p.returncode == 0 and "saved uses-work (1 step; parsed only" in p.stdout, (p.stdout, p.stderr)
+    p = hitch(ep, "preset", "delete", "work")
+    assert p.returncode == 2 and "hitch preset delete NAME --force" in p.stderr, p.stderr
+    p = hitch(ep, "preset", "delete", "work", "--force", "--json")
+    assert p.returncode == 0 and json.loads(p.stdout)["deleted"] == "work", p.stderr
+    assert json.loads(p.stdout)["maneuvers"] == ["uses-work"]
+    assert hitch(ep, "maneuver", "delete", "uses-work").returncode == 0
     p = hitch(ep, "state", "--json")
     assert p.returncode == 0 and json.loads(p.stdout)["ecu"]["online"]
 

@@ -137,6 +137,8 @@ def test_version_of_the_console_script():
 def test_the_cli_own_validation_raises_cli_error(tmp_path):
     with pytest.raises(CLIError, match="does not exist"):
         _read_script(str(tmp_path / "missing.yaml"))
+    with pytest.raises(CLIError, match="is not a regular file"):  # a new user's report: a folder "does not exist"
+        _read_script(str(tmp_path))
     script = tmp_path / "m.yaml"
     script.write_text("steps: []\n", encoding="utf-8")
     assert _read_script(str(script)) == "steps: []\n"

@@ -19,7 +19,7 @@ import numpy as np
 
 from bridge.cli.commissioning import add_calibrate_sensors
 from bridge.cli.errors import CLIError
-from bridge.cli.model import add_model_options, finite_float
+from bridge.cli.model import add_model_options, bounded_float
 from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
 
 __all__ = ["add_commands"]
@@ -170,14 +170,20 @@ def add_commands(sub) -> None:
     g.add_argument("--out", required=True, help="calibrated profile to write (.toml)")
     g.add_argument("--name", default=None, help="name of the calibrated profile (default <profile>-calibrated)")
     g.add_argument(
-        "--sigma-position-mm", type=finite_float("--sigma-position-mm"), default=1.0, help="instrument σ (mm)"
+        "--sigma-position-mm",
+        type=bounded_float("--sigma-position-mm", 0.0, 1000.0, unit="mm"),
+        default=1.0,
+        help="instrument σ, (0, 1000] mm (default 1)",
     )
     g.add_argument(
-        "--sigma-angle-mrad", type=finite_float("--sigma-angle-mrad"), default=1.0, help="instrument σ (mrad)"
+        "--sigma-angle-mrad",
+        type=bounded_float("--sigma-angle-mrad", 0.0, 1000.0, unit="mrad"),
+        default=1.0,
+        help="instrument σ, (0, 1000] mrad (default 1)",
     )
     g.add_argument(
         "--min-singular",
-        type=finite_float("--min-singular"),
+        type=bounded_float("--min-singular", 0.0, 1e6, lo_open=False),
         default=1.0,
         help="smallest singular value of the scaled Jacobian still identified (default 1)",
     )

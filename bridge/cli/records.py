@@ -66,9 +66,16 @@ def _cmd_log(args) -> int:
             c.print(format_record(rec), markup=False, highlight=False)
 
     records = read_events(path)
-    if not records and not args.follow and not path.exists():
-        c.print(f"(no event log at {path}; `hitch serve` writes it)", markup=False, highlight=False)
-        return 0
+    if not records and not path.exists():
+        if not args.follow:
+            c.print(f"(no event log at {path}; `hitch serve` writes it)", markup=False, highlight=False)
+            return 0
+        # said on stderr: --json output stays one record per line
+        console(soft_wrap=True, stderr=True).print(
+            f"(no event log at {path} yet; waiting for `hitch serve` to write it — Ctrl-C ends)",
+            markup=False,
+            highlight=False,
+        )
     for rec in records[-args.last :] if args.last else records:
         show(rec)
     if args.follow:

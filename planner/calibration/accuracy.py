@@ -106,6 +106,9 @@ def thesis_sequence(
     unknown = [n for n in dofs if n not in _DOF]
     if unknown or not (dofs or combined):
         raise AccuracyError(f"dofs: unknown or none {list(dofs)!r}; allowed: {', '.join(_DOF)}")
+    repeated = sorted({n for n in dofs if list(dofs).count(n) > 1})
+    if repeated:
+        raise AccuracyError(f"dofs: {', '.join(repeated)} given twice; each of {', '.join(_DOF)} at most once")
     home = AccuracyPose("home", (0.0, 0.0, 0.0, 0.0), measure=False)
     steps: list[AccuracyPose] = []
     for name in dofs:

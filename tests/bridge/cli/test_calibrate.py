@@ -155,3 +155,17 @@ def test_measuring_by_goto_with_a_final_approach_and_the_calibrated_profile_keep
     assert "--by: invalid choice" in _err(
         capsys, ["calibrate", "measure-twin", "--sim-truth", "x", "--out", "y", "--by", "z"]
     )
+
+
+@pytest.mark.parametrize(
+    "option, value, expected",
+    [
+        ("--sigma-position-mm", "2000", "--sigma-position-mm must lie in (0, 1000] mm, got 2000"),
+        ("--sigma-angle-mrad", "-5", "--sigma-angle-mrad must lie in (0, 1000] mrad, got -5"),
+        ("--min-singular", "-1", "--min-singular must lie in [0, 1e+06], got -1"),
+    ],
+)
+def test_geometry_options_are_refused_in_the_unit_typed(capsys, option, value, expected):
+    """A new user's report: --sigma-position-mm 2000 was refused as 'sigma_position_m … got 2.0'."""
+    assert main(["calibrate", "geometry", "--measurements", "m.csv", "--out", "p.toml", option, value]) == 2
+    assert expected in capsys.readouterr().err

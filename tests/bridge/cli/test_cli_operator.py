@@ -172,9 +172,19 @@ def test_hitch_log_prints_the_records_verbatim(tmp_path, capsys):
     assert json.loads(only)["fault"] == "stale_measurement"
 
 
-def test_hitch_log_without_a_log_says_where_it_looked(tmp_path, capsys):
+def test_hitch_log_without_a_log_says_where_it_looked(tmp_path, capsys, monkeypatch):
     assert main(["log", "--data-dir", str(tmp_path)]) == 0
     assert "no event log" in capsys.readouterr().out
+    # --follow waits for the log to appear, and says so (a new user's report: it waited with no output)
+    import bridge.service.blackbox as blackbox
+
+    def follow(path):
+        raise KeyboardInterrupt  # Ctrl-C at once
+
+    monkeypatch.setattr(blackbox, "follow_events", follow)
+    assert main(["log", "--data-dir", str(tmp_path), "--follow"]) == 0
+    err = capsys.readouterr().err
+    assert "no event log at" in err and "waiting for `hitch serve`" in err, err
 
 
 def test_hitch_replay_prints_decoded_frames_poses_and_faults(tmp_path, capsys):

@@ -42,6 +42,8 @@ def test_a_subset_sequence_and_bad_sizes():
     assert [p.label for p in seq if p.measure] == ["z+", "z+", "z-", "z-"]
     with pytest.raises(AccuracyError, match="dofs"):
         thesis_sequence(dofs=("yaw",))
+    with pytest.raises(AccuracyError, match="dofs: z given twice"):  # a new user's report: z,z ran z twice
+        thesis_sequence(dofs=("z", "z"))
     with pytest.raises(HitchInputError, match=r"deflections.z_m must be a number in \(0, 1\]"):
         Deflections(z_m=-0.1)
     with pytest.raises(ValueError, match="home must be 4 finite"):

@@ -68,10 +68,15 @@ def _print(args, reply: dict, text: str | None = None, *, markup: bool = False) 
         )
 
 
+#: SI unit of each controlled DOF as printed beside its value
+_POSE_UNITS = {"x": "m", "z": "m", "roll": "rad", "pitch": "rad"}
+
+
 def _fmt_pose(p: dict | None) -> str:
+    """A pose in SI with each value's unit: ``x=+0.0100 m  z=+0.1500 m  roll=+0.0000 rad …``."""
     if not p:
         return "-"
-    return "  ".join(f"{k}={p[k]:+.4f}" for k in ("x", "z", "roll", "pitch") if k in p)
+    return "  ".join(f"{k}={p[k]:+.4f} {u}" for k, u in _POSE_UNITS.items() if k in p)
 
 
 # ---------------------------------------------------------------------------------------- serve
@@ -481,7 +486,14 @@ def _cmd_faults(args) -> int:
     def ack(c) -> int:
         fn = getattr(c, "ack_faults", None)
         r = fn() if callable(fn) else c.request("faults/ack", {})
-        details = ", ".join(f"{k}: {v}" for k, v in r.items()) if isinstance(r, dict) else str(r)
+        if isinstance(r, dict):
+            acked, left = r.get("acknowledged") or [], r.get("faults") or []
+            details = ("cleared " + ", ".join(map(str, acked))) if acked else "nothing latched to clear"
+            details += ("; still held: " + ", ".join(map(str, left))) if left else "; no fault held"
+            if set(r) - {"acknowledged", "faults"}:  # a reply of another shape: as it came
+                details = ", ".join(f"{k}: {v}" for k, v in r.items())
+        else:
+            details = str(r)
         _print(args, r, "faults acknowledged" + (f" ({details})" if details else ""))
         return 0
 
@@ -525,7 +537,16 @@ def _cmd_preset(args) -> int:
     def preset(c) -> int:
         if args.action == "list":
             r = c.request("presets/list", {})
-            _print(args, r, "\n".join(f"{p['name']}: {_fmt_pose(p['pose'])}" for p in r["presets"]) or "(no presets)")
+            _print(
+                args,
+                r,
+                "\n".join(
+                    f"{p['name']}: {_fmt_pose(p['pose'])}"
+                    + (f"  speed scale {p['speed_scale']:g}" if p.get("speed_scale") is not None else "")
+                    for p in r["presets"]
+                )
+                or "(no presets)",
+            )
         elif args.action == "save":
             body = {
                 "name": args.name,
@@ -597,7 +618,8 @@ def _cmd_maneuver(args) -> int:
                 args,
                 r,
                 "\n".join(
-                    f"{m['name']}: {m['steps']} steps, timeout {m['timeout']:g} s {m['description']}"
+                    f"{m['name']}: {m['steps']} step{'' if m['steps'] == 1 else 's'}, timeout {m['timeout']:g} s"
+                    + (f" — {m['description']}" if m.get("description") else "")
                     for m in r["maneuvers"]
                 )
                 or "(no maneuvers)",

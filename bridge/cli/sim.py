@@ -519,7 +519,9 @@ def _cmd_sim_measure(args) -> int:
         print(json.dumps(out))
         return 0
     c = console()
-    c.print(f"truth {out['truth']}, AD reading {out['counts']}")
+    counts = out["counts"]
+    reading = ", ".join(f"{k}={v}" for k, v in counts.items()) + " counts" if isinstance(counts, dict) else str(counts)
+    c.print(f"truth {out['truth']}, AD reading {reading}", markup=False, highlight=False)
     for label, key in (("planner (nominal)", "planner_pose"), ("true", "true_pose")):
         d = out[key]
         c.print(

@@ -154,6 +154,18 @@ def test_faults_ack_uses_the_client_method_or_the_faults_ack_key(monkeypatch, ca
     assert calls == [("faults/ack", {}), ("ack_faults",)]
     out = capsys.readouterr().out
     assert "faults acknowledged" in out and "stale_measurement" in out
+    # the service's reply in words, not Python lists (a new user's report: "(acknowledged: [], faults: [])")
+    for reply, words in (
+        ({"acknowledged": [], "faults": []}, "faults acknowledged (nothing latched to clear; no fault held)"),
+        (
+            {"acknowledged": ["references_lost"], "faults": ["ecu_heartbeat"]},
+            "faults acknowledged (cleared references_lost; still held: ecu_heartbeat)",
+        ),
+    ):
+        monkeypatch.setattr(WithAck, "ack_faults", lambda self, reply=reply: reply)
+        monkeypatch.setattr(cli_service, "_client", lambda args: WithAck())
+        assert main(["faults", "ack"]) == 0
+        assert capsys.readouterr().out.strip() == words
 
 
 # ---------------------------------------------------------------------------------------- black box

@@ -34,7 +34,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from bridge.service.motion.types import pose_dict
-from bridge.service.schemas import ImplementDefine, QuickMove, RequestError
+from bridge.service.schemas import ImplementDefine, QuickMove, RequestError, check_pose_in_workspace
 from bridge.service.store import DEFAULT_IMPLEMENT, HitchStore, StoredImplement
 from planner.errors import HitchError
 from planner.limits.implement_limits import ImplementLimits
@@ -391,9 +391,15 @@ def implement_handlers(api: Any) -> dict[str, Callable[[Any], dict[str, Any]]]:
     def user() -> str | None:
         return getattr(api._caller, "user", None)
 
+    def define(r: ImplementDefine) -> dict[str, Any]:
+        if r.headland is not None:  # a raise must be able to go there: refused now, naming the range, not at the raise
+            workspace = (api.info.get("limits") or {}).get("workspace")
+            check_pose_in_workspace(r.headland.model_dump(), workspace, key="implements/define", what="headland")
+        return svc.define(r, owner=user())
+
     return {
         "implements/list": lambda _r: svc.list(),
-        "implements/define": lambda r: svc.define(r, owner=user()),
+        "implements/define": define,
         "implements/select": lambda r: svc.select(r.name),
         "implements/delete": lambda r: svc.delete(r.name),
         "implements/lock": lambda _r: svc.set_lock(True),

@@ -81,6 +81,19 @@ def test_define_is_validated_naming_the_field(svc, payload, field):
     assert not ok and r["error"] == "bad_request" and field in r["message"]
 
 
+def test_a_headland_pose_outside_the_workspace_is_refused_naming_the_range(svc):
+    """A new user's report: a headland at z = 0.5 m (workspace top 0.31 m) was accepted; every raise to it then
+    failed. Now the definition is refused, naming the DOF and its range, and nothing is stored."""
+    tp = svc.mc.planner
+    svc.api.info["limits"] = {"workspace": {k: list(tp.workspace[k]) for k in ("x", "z", "roll", "pitch")}}  # as served
+    ok, r = svc.call(
+        "implements/define", {**HARROW, "name": "high", "headland": {"x": 0.0, "z": 0.5, "roll": 0.0, "pitch": 0.0}}
+    )
+    assert not ok and r["error"] == "unreachable", r
+    assert "headland" in r["message"] and "workspace:z:max" in r["message"], r["message"]
+    assert "high" not in [i["name"] for i in svc.ok("implements/list")["implements"]]
+
+
 def test_select_of_an_unknown_implement_and_deleting_the_selected_one_are_refused(svc):
     ok, r = svc.call("implements/select", {"name": "nope"})
     assert not ok and r["error"] == "not_found" and "nope" in r["message"]

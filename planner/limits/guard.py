@@ -64,18 +64,25 @@ class GuardReason:
     threshold: float
     t_s: float  # time in the plan (jog: seconds ahead)
     level: Literal["hard", "caution", "speed"]
+    unit: str = ""  # of value and threshold when they carry one (a jog's implement limits: "m/s", "m")
 
     def to_json(self) -> dict:
-        return {
+        out = {
             "measure": self.measure,
             "value": self.value,
             "threshold": self.threshold,
             "t": self.t_s,
             "level": self.level,
         }
+        if self.unit:
+            out["unit"] = self.unit
+        return out
 
     def sentence(self) -> str:
-        return f"{self.measure} would be {self.value:.4g} (threshold {self.threshold:.4g}) at t = {self.t_s:.2f} s"
+        u = f" {self.unit}" if self.unit else ""
+        return (
+            f"{self.measure} would be {self.value:.4g}{u} (threshold {self.threshold:.4g}{u}) at t = {self.t_s:.2f} s"
+        )
 
 
 @dataclass(frozen=True)
@@ -427,7 +434,8 @@ class Guard:
             return rates, GuardDecision("ok")
         h = self.settings.jog_horizon
         p_now = state.position
-        vz, clipped_by = clip_jog_z_rate(float(p_now[1]), float(rates[1]), h, self.implement_limits)
+        asked_vz = float(rates[1])
+        vz, clipped_by = clip_jog_z_rate(float(p_now[1]), asked_vz, h, self.implement_limits)
         if clipped_by is not None:  # the implement's lowering speed / upper height (implement_limits)
             rates = rates.copy()
             rates[1] = vz
@@ -440,10 +448,14 @@ class Guard:
         hard_th, caution_th = self._thresholds()
         reasons: list[GuardReason] = []
         factor = 1.0
-        if clipped_by is not None:
+        if clipped_by is not None:  # what was asked for against the limit: the descent speed, or the height reached
             lim = self.implement_limits
-            bound = lim.lowering_speed_m_s if clipped_by == LOWERING_SPEED_LIMIT else lim.upper_height_m
-            reasons.append(GuardReason(clipped_by, vz, float(bound or 0.0), 0.0, "speed"))
+            if clipped_by == LOWERING_SPEED_LIMIT:
+                reason = GuardReason(clipped_by, -asked_vz, float(lim.lowering_speed_m_s or 0.0), 0.0, "speed", "m/s")
+            else:
+                reached = float(p_now[1]) + asked_vz * h
+                reason = GuardReason(clipped_by, reached, float(lim.upper_height_m or 0.0), h, "speed", "m")
+            reasons.append(reason)
         for m in _MEASURES:
             worse = vals[m] < now[m] - 1e-9
             if vals[m] < hard_th[m] and worse:

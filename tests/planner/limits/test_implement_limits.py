@@ -102,6 +102,14 @@ def test_jog_is_clipped_by_both_limits(planner):
     st = MotionState.at_rest(np.array([0.0, 0.1, 0.0, 0.0]))
     rates, dec = guard.check_jog(st, np.array([0.0, -0.2, 0.0, 0.0]))
     assert rates[1] >= -0.03 - 1e-12 and LOWERING_SPEED_LIMIT in [r.measure for r in dec.reasons]
+    # the reason says what was asked for against the limit, with units (a new user's report: "implement lowering
+    # speed limit would be -0.05 (threshold 0.05)", the clipped value against its own bound, no unit)
+    (low,) = [r for r in dec.reasons if r.measure == LOWERING_SPEED_LIMIT]
+    assert low.sentence() == "implement lowering speed limit would be 0.2 m/s (threshold 0.03 m/s) at t = 0.00 s"
+    _, up = guard.check_jog(st, np.array([0.0, 0.2, 0.0, 0.0]))
+    (high,) = [r for r in up.reasons if r.measure == UPPER_HEIGHT_LIMIT]
+    h = guard.settings.jog_horizon
+    assert high.unit == "m" and high.value == pytest.approx(0.1 + 0.2 * h) and high.threshold == 0.2
     assert dec.action == "scaled"
     # jogging up for a long time never passes the upper height limit
     jc = JogController(planner, st)

@@ -565,8 +565,12 @@ def _stream(args, c, spec: _Spec) -> int:
             text += (
                 f"; service took {tr.get('setpoints')}, rejected {tr.get('rejected')}, ignored {tr.get('ignored_seq')}"
             )
+            if tr.get("rejected") and tr.get("last_rejection"):  # why (a new user's report: only `hitch log` said)
+                text += f"; last rejection: {tr['last_rejection']}"
+            if mon.ended.is_set() and sent > (tr.get("setpoints") or 0) + (tr.get("rejected") or 0):
+                text += "; setpoints sent after the session ended were not taken"
         if pose:
-            text += "; now at " + "  ".join(f"{k}={pose[k]:+.4f}" for k in DOFS if k in pose)
+            text += "; now at " + "  ".join(f"{k}={pose[k]:+.4f} {_UNIT[k]}" for k in DOFS if k in pose)
         out.print(esc(text), highlight=False)
     if problem is not None:
         print(

@@ -63,6 +63,7 @@ from bridge.service.schemas import (
     TrackStop,
     check_pose_in_workspace,
     parse_request,
+    setpoint_session,
 )
 from bridge.service.security import AccessPolicy
 from bridge.service.store import DEFAULT_IMPLEMENT, HitchStore, StoreError
@@ -194,6 +195,9 @@ class ServiceAPI:
             req = parse_request(key, payload, workspace=(self.info.get("limits") or {}).get("workspace"))
             reply = self._handlers[key](req)
         except RequestError as exc:
+            refused = getattr(self.motion, "track_setpoint_refused", None)
+            if key == "track/setpoint" and callable(refused):  # counted against its session like any rejection
+                refused(setpoint_session(payload), str(exc))
             return self._err(exc.code, str(exc))
         except MotionError as exc:
             return self._err(exc.code, f"{key}: {exc}")

@@ -45,6 +45,7 @@ __all__ = [
     "DEFAULT_DEADLINE_MS",
     "MAX_DEADLINE_MS",
     "check_pose_in_workspace",
+    "setpoint_session",
     "REQUESTS",
     "RequestError",
     "parse_request",
@@ -538,6 +539,18 @@ def _find_non_finite(data: Any) -> tuple[str, str] | None:
 
 
 _UNIT = {"x": "m", "z": "m", "roll": "rad", "pitch": "rad"}
+
+
+def setpoint_session(payload: bytes | bytearray | memoryview | str | None) -> int | None:
+    """The ``session`` a ``track/setpoint`` payload names, read without validating the rest (None: not a
+    JSON object with an integer ``session``): a setpoint refused by the schema is still counted against
+    its session (:meth:`~bridge.service.motion.controller.MotionController.track_setpoint_refused`)."""
+    try:
+        data = json.loads(bytes(payload) if isinstance(payload, (bytearray, memoryview)) else (payload or b""))
+    except (ValueError, TypeError, RecursionError):
+        return None
+    session = data.get("session") if isinstance(data, dict) else None
+    return session if isinstance(session, int) and not isinstance(session, bool) else None
 
 
 def check_pose_in_workspace(

@@ -56,7 +56,7 @@ from bridge.service.scheduling import (
     raise_to_fifo,
     zenoh_thread_ids,
 )
-from bridge.service.schemas import RequestError, parse_request
+from bridge.service.schemas import RequestError, parse_request, setpoint_session
 from bridge.service.wire import to_json_bytes
 from bridge.service.workers import error_code
 from planner.errors import HitchError
@@ -85,6 +85,7 @@ _INLINE = frozenset(
         "preview_start",
         "track_start",
         "track_setpoint",
+        "track_setpoint_refused",
         "track_stop",
         "sim_fault",
         "sim_switch",
@@ -277,10 +278,12 @@ class ControlCore:
 
     def _on_setpoint(self, sample: zenoh.Sample) -> None:
         """A streamed ``track/setpoint`` put (O(1)): refusals are counted and announced by the controller."""
+        raw = sample.payload.to_bytes()
         try:
-            r = parse_request("track/setpoint", sample.payload.to_bytes())
-        except RequestError:
-            return  # malformed: nobody to answer; a well-formed one for a wrong session is counted below
+            r = parse_request("track/setpoint", raw)
+        except RequestError as exc:  # nobody to answer: counted as a rejection of its session, if it names one
+            self._call_safely("track_setpoint_refused", (setpoint_session(raw), str(exc)))
+            return
         velocity = None if r.velocity is None else r.velocity.as_dict()  # type: ignore[attr-defined]
         self._call_safely("track_setpoint", (r.session, r.seq, r.pose.as_dict(), velocity))  # type: ignore[attr-defined]
 
@@ -369,6 +372,7 @@ class ControlCore:
             "preview_start": m.preview_start,
             "track_start": lambda *a: m.track_start(*a).to_json(),
             "track_setpoint": m.track_setpoint,
+            "track_setpoint_refused": m.track_setpoint_refused,
             "track_stop": m.track_stop,
             "select_implement": m.select_implement,
             "maneuver_control": m.maneuver_control,

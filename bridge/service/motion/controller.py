@@ -483,21 +483,7 @@ class MotionController:
                     jerk=jerk,
                 )
             except (TrackInputError, TrackStateError, MotionError) as exc:
-                m.rejected += 1
-                m.last_rejection = str(exc)
-                if now - self._rejection_event_at >= _REJECTION_EVENT_EVERY_S:
-                    self._rejection_event_at = now
-                    self._post(
-                        [
-                            {
-                                "event": "track_setpoint_rejected",
-                                "motion_id": m.motion_id,
-                                "session": session,
-                                "rejected": m.rejected,
-                                "message": str(exc),
-                            }
-                        ]
-                    )
+                self._count_rejection(m, str(exc), now)
                 code = exc.code if isinstance(exc, MotionError) else "bad_request"
                 raise MotionError(code, str(exc).removeprefix("track/setpoint: ")) from None
             finally:
@@ -505,6 +491,37 @@ class MotionController:
             m.accepted += 1
         self.outbox.flush()
         return {"accepted": True, "session": session, "seq": seq, "limited": dict(sp.limited)}
+
+    def track_setpoint_refused(self, session: object, message: str) -> None:
+        """A setpoint for ``session`` that was refused before it reached the session (its request did not
+        parse: a value outside the schema's range, a wrong type): counted and announced as a rejection
+        of the live session, as :meth:`track_setpoint` does with the setpoints it cannot take. Nothing
+        else changes; another session's (or none's) is left alone."""
+        with self._lock:
+            m = self._active
+            if not isinstance(m, TrackMotion) or isinstance(session, bool) or m.session != session:
+                return
+            self._count_rejection(m, message, self.clock())
+        self.outbox.flush()
+
+    def _count_rejection(self, m: TrackMotion, message: str, now: float) -> None:
+        """Count a rejected setpoint of ``m`` (the state's ``track`` entry) and announce it, at most one
+        ``track_setpoint_rejected`` event per ``_REJECTION_EVENT_EVERY_S`` (call under the lock)."""
+        m.rejected += 1
+        m.last_rejection = message
+        if now - self._rejection_event_at >= _REJECTION_EVENT_EVERY_S:
+            self._rejection_event_at = now
+            self._post(
+                [
+                    {
+                        "event": "track_setpoint_rejected",
+                        "motion_id": m.motion_id,
+                        "session": m.session,
+                        "rejected": m.rejected,
+                        "message": message,
+                    }
+                ]
+            )
 
     def track_stop(self, session: int | None = None, last_seq: int | None = None) -> dict[str, Any]:
         """End the live track session smoothly (the shortest jerk-limited stop); ``session`` None: whichever

@@ -273,6 +273,22 @@ def test_a_two_second_sine_streams_to_a_real_service_and_ends_with_the_motion_fi
         )
         assert r.returncode == 0, (r.stdout, r.stderr)
         assert ", 50 Hz, 1 s" in r.stdout and "finished: track/stop" in r.stdout, r.stdout
+        # setpoints the service rejects: the summary says why (a new user's report: only `hitch log` did)
+        bad = tmp_path / "bad.csv"
+        bad.write_text("t,z\n0.0,0.10\n0.1,0.10\n0.2,50.0\n1.0,50.0\n", encoding="utf-8")
+        r = subprocess.run(
+            [sys.executable, "-m", "bridge.cli", "track", "--from-file", str(bad), "--rate", "50"]
+            + ["--connect", endpoint, "--timeout", "20"],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        # the puts outside the schema's range were dropped uncounted by the core process: now they are rejections
+        assert "last rejection: track/setpoint: pose.z = 50" in r.stdout and "rejected 0" not in r.stdout, (
+            r.stdout,
+            r.stderr,
+        )
 
         # Ctrl-C mid-stream: track/stop is sent and awaited, then exit 130
         p = subprocess.Popen(

@@ -273,8 +273,17 @@ def test_bad_setpoints_name_the_field_and_are_counted(r):
     ok, reply = r.call("track/setpoint", {"session": session, "seq": 99, "pose": {"z": "high"}})
     assert not ok and "pose.z" in reply["message"], reply
     r.run(0.05)
-    assert r.states[-1]["track"]["rejected"] == 1
+    # both count: the one the schema refused too (a put refused there was dropped uncounted, and `hitch track`
+    # could not say why its session went stale; a new user's report)
+    assert r.states[-1]["track"]["rejected"] == 2
+    assert "pose.z" in r.states[-1]["track"]["last_rejection"]
     assert _events(r, "track_setpoint_rejected")
+    # a refused setpoint of another session, or of none, changes nothing
+    assert not r.call("track/setpoint", {"session": session + 1, "seq": 100, "pose": {"z": "high"}})[0]
+    for raw in (b"[1, 2]", b"\xff", b'{"session": true}'):
+        assert not r.api.handle("track/setpoint", raw, None)[0]
+    r.run(0.05)
+    assert r.states[-1]["track"]["rejected"] == 2
 
 
 @pytest.mark.parametrize(

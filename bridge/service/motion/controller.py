@@ -646,11 +646,11 @@ class MotionController:
         with self._lock:
             now = self.clock()
             if not self._maneuver.running:
-                raise MotionError("not_found", f"maneuvers/{action}: no maneuver is running")
+                raise MotionError("not_found", "no maneuver is running")  # the API prefixes the key
             try:
                 brake = self._maneuver.control(action, now, events)
             except ValueError as exc:  # ManeuverRunError: paused already, not paused, no step left
-                raise MotionError("busy", f"maneuvers/{action}: {exc}") from None
+                raise MotionError("busy", str(exc).removeprefix(f"{action}: ")) from None  # the API prefixes the key
             if brake:
                 self._brake(now, f"maneuver {action}", events)
             progress = self._maneuver.progress()

@@ -169,7 +169,8 @@ def test_pause_brakes_and_holds_resume_replans_skip_goes_on(svc):
     svc.run(1.0)
     assert abs(svc.z() - held) < 2e-3 and held < 0.28  # braked to rest short of the goal, holding
     assert not svc.states[-1]["moving"]
-    assert not svc.call("maneuvers/pause")[0]  # paused already
+    ok, r = svc.call("maneuvers/pause")  # paused already: said once, not "maneuvers/pause: maneuvers/pause: pause: …"
+    assert not ok and r["message"] == "maneuvers/pause: the maneuver is paused already", r
     ok, r = svc.call("maneuvers/resume")
     assert ok and r["maneuver"]["paused"] is False
     svc.run(4.0)

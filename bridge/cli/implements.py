@@ -50,6 +50,10 @@ def _cmd_implement(args) -> int:
         if args.action == "list":
             r = c.request("implements/list", {})
             text = "\n".join(_line(i, r["selected"]) for i in r["implements"]) or "(no implements)"
+            from bridge.service.store import DEFAULT_IMPLEMENT
+
+            if r.get("selected") == DEFAULT_IMPLEMENT:  # not an implement: none is selected (presets are kept under it)
+                text += f"\nselected: none ({DEFAULT_IMPLEMENT!r}: the hitch without an implement's data)"
             _print(args, r, text)
         elif args.action == "define":
             body: dict[str, Any] = {

@@ -333,3 +333,24 @@ def test_an_awaited_motion_says_how_it_ended_and_an_aborted_one_exits_1(monkeypa
     assert main(["goto", "--to", "z=-0.15", "--wait", "--json"]) == expected
     final = json.loads(capsys.readouterr().out)["final"]
     assert final["outcome"]["event"] == outcome
+
+
+def test_implement_list_says_when_none_is_selected(monkeypatch, capsys):
+    """A new user's report: `implements/list` said selected 'default', which no line of the list showed."""
+    import bridge.cli.implements as cli_implements
+
+    class Client:
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            pass
+
+        def request(self, key, payload=None, **kw):
+            assert key == "implements/list"
+            return {"implements": [], "selected": "default"}
+
+    monkeypatch.setattr(cli_implements, "_client", lambda args: Client(), raising=False)
+    monkeypatch.setattr(cli_service, "_client", lambda args: Client())
+    assert main(["implement", "list"]) == 0
+    assert "selected: none ('default': the hitch without an implement's data)" in capsys.readouterr().out

@@ -132,7 +132,9 @@ class ManeuverRecorder:
         span = now - self._cmd_t  # the odometer was read at the command: the pause's share of the travel
         if travelled is not None and span > 1e-9:
             travelled *= max(0.0, gap) / span  # (constant ground speed assumed over one motion)
-        if travelled is not None and travelled >= self.min_distance_m:
+        if not self.steps:  # before the first command: no motion has ended, so no pause (module docstring)
+            pass
+        elif travelled is not None and travelled >= self.min_distance_m:
             for part in _parts(_r(travelled, 2), _MAX_DISTANCE_M):
                 self._append({"wait_for": {"distance": part}})
         elif gap >= self.min_pause_s:

@@ -85,3 +85,18 @@ def test_concurrent_commands_lose_no_step():
     for w in workers:
         w.join(timeout=30.0)
     assert len(rec.steps) == min(MAX_STEPS, n * threads) and rec.dropped == max(0, n * threads - MAX_STEPS)
+
+
+def test_the_time_before_the_first_command_is_not_a_pause():
+    """A new user's report: record start, drive 2 m, goto, record stop gave a first step
+    ``wait_for: {distance: 1.95}``; a pause is the time between a motion's end and the next command."""
+    clock, odometer = _Clock(), [0.0]
+    rec = _recorder(clock, odometer)
+    clock.t, odometer[0] = 5.0, 2.0  # 5 s and 2 m after record/start
+    rec.on_goto(POSE, 1.0, 1.0)
+    clock.t = 6.0 + 3.0  # a 3 s pause after the first motion's end: kept
+    rec.on_jog(0.5)
+    clock.t = 12.0
+    rec.on_goto({**POSE, "z": 0.2}, 1.0, 1.0)
+    script = parse_maneuver(rec.stop("taught"))
+    assert [s.kind for s in script.steps][:2] == ["goto", "wait"], script.steps

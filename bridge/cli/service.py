@@ -40,6 +40,7 @@ from bridge.link.realtime import INTERFACES
 from bridge.service.config import DEFAULT_LISTEN, load_service_config
 from bridge.service.maneuvers.language import MIN_SPEED_SCALE
 from planner.errors import HitchError
+from planner.model.types import CONTROLLED_POSE_UNITS
 
 __all__ = ["add_commands", "STOP_TIMEOUT_S"]
 
@@ -68,15 +69,11 @@ def _print(args, reply: dict, text: str | None = None, *, markup: bool = False) 
         )
 
 
-#: SI unit of each controlled DOF as printed beside its value
-_POSE_UNITS = {"x": "m", "z": "m", "roll": "rad", "pitch": "rad"}
-
-
 def _fmt_pose(p: dict | None) -> str:
     """A pose in SI with each value's unit: ``x=+0.0100 m  z=+0.1500 m  roll=+0.0000 rad …``."""
     if not p:
         return "-"
-    return "  ".join(f"{k}={p[k]:+.4f} {u}" for k, u in _POSE_UNITS.items() if k in p)
+    return "  ".join(f"{k}={p[k]:+.4f} {u}" for k, u in CONTROLLED_POSE_UNITS.items() if k in p)
 
 
 # ---------------------------------------------------------------------------------------- serve

@@ -42,6 +42,7 @@ from bridge.cli.output import console, esc
 from bridge.cli.plan import parse_pose_arg
 from bridge.cli.service import STOP_TIMEOUT_S, _client_options, _run
 from planner.errors import HitchError
+from planner.model.types import CONTROLLED_POSE_UNITS
 
 __all__ = [
     "CsvSignal",
@@ -57,7 +58,6 @@ __all__ = [
 
 DOFS: tuple[str, ...] = ("x", "z", "roll", "pitch")
 FRAMES: tuple[str, ...] = ("tractor", "level", "ground")
-_UNIT = {"x": "m", "z": "m", "roll": "rad", "pitch": "rad"}
 #: largest sine amplitude [m or rad]: beyond it a value is not a plausible SI value (mm, deg)
 MAX_AMPLITUDE = 0.5
 #: highest sine frequency [Hz]
@@ -96,7 +96,7 @@ def parse_sine(text: str) -> tuple[SineTerm, ...]:
             raise argparse.ArgumentTypeError(f"--sine: unknown DOF {dof!r}; allowed: {', '.join(DOFS)}")
         if any(t.dof == dof for t in terms):
             raise argparse.ArgumentTypeError(f"--sine: DOF {dof!r} given twice; give each of x, z, roll, pitch once")
-        unit = _UNIT[dof]
+        unit = CONTROLLED_POSE_UNITS[dof]
         try:
             a, f = float(a_text), float(f_text)
         except ValueError:
@@ -570,7 +570,7 @@ def _stream(args, c, spec: _Spec) -> int:
             if mon.ended.is_set() and sent > (tr.get("setpoints") or 0) + (tr.get("rejected") or 0):
                 text += "; setpoints sent after the session ended were not taken"
         if pose:
-            text += "; now at " + "  ".join(f"{k}={pose[k]:+.4f} {_UNIT[k]}" for k in DOFS if k in pose)
+            text += "; now at " + "  ".join(f"{k}={pose[k]:+.4f} {CONTROLLED_POSE_UNITS[k]}" for k in DOFS if k in pose)
         out.print(esc(text), highlight=False)
     if problem is not None:
         print(

@@ -35,7 +35,7 @@ from pydantic.fields import FieldInfo
 
 from bridge.service.maneuvers.language import MIN_SPEED_SCALE, NAME_PATTERN, POSE_BOUNDS
 from planner.errors import HitchInputError, unit_hint
-from planner.model.types import CONTROLLED_POSE_NAMES
+from planner.model.types import CONTROLLED_POSE_NAMES, CONTROLLED_POSE_UNITS
 
 __all__ = [
     "API_KEYS",
@@ -538,9 +538,6 @@ def _find_non_finite(data: Any) -> tuple[str, str] | None:
     return None
 
 
-_UNIT = {"x": "m", "z": "m", "roll": "rad", "pitch": "rad"}
-
-
 def setpoint_session(payload: bytes | bytearray | memoryview | str | None) -> int | None:
     """The ``session`` a ``track/setpoint`` payload names, read without validating the rest (None: not a
     JSON object with an integer ``session``): a setpoint refused by the schema is still counted against
@@ -570,7 +567,7 @@ def check_pose_in_workspace(
         lo, hi = float(rng[0]), float(rng[1])
         if lo - 1e-9 <= v <= hi + 1e-9:
             continue
-        unit = _UNIT[k]
+        unit = CONTROLLED_POSE_UNITS[k]
         side = "below" if v < lo else "above"
         limit = f"workspace:{k}:{'min' if v < lo else 'max'}"
         text = f"{what}.{k} = {v:.6g} {unit} is {side} the workspace ({k} from {lo:.4g} to {hi:.4g} {unit}, {limit})"

@@ -21,6 +21,7 @@ if TYPE_CHECKING:
     from planner.model.types import (
         ACTUATOR_NAMES,
         CONTROLLED_POSE_NAMES,
+        CONTROLLED_POSE_UNITS,
         POSE_NAMES,
         Actuators,
         HitchState,
@@ -37,6 +38,7 @@ _SOURCES: dict[str, str] = {
             "ACTUATOR_NAMES",
             "POSE_NAMES",
             "CONTROLLED_POSE_NAMES",
+            "CONTROLLED_POSE_UNITS",
             "Actuators",
             "Pose",
             "HitchState",
@@ -61,6 +63,7 @@ __all__ = [
     "ACTUATOR_NAMES",
     "POSE_NAMES",
     "CONTROLLED_POSE_NAMES",
+    "CONTROLLED_POSE_UNITS",
     "Actuators",
     "Pose",
     "HitchState",

@@ -18,6 +18,7 @@ __all__ = [
     "ACTUATOR_NAMES",
     "POSE_NAMES",
     "CONTROLLED_POSE_NAMES",
+    "CONTROLLED_POSE_UNITS",
     "Actuators",
     "Pose",
     "HitchState",
@@ -31,6 +32,8 @@ ACTUATOR_NAMES: tuple[str, ...] = ("lift", "tilt", "top", "left", "right")
 POSE_NAMES: tuple[str, ...] = ("x", "y", "z", "roll", "pitch", "yaw")
 #: The four controlled degrees of freedom of the implement.
 CONTROLLED_POSE_NAMES: tuple[str, ...] = ("x", "z", "roll", "pitch")
+#: SI unit of each controlled degree of freedom (lengths in m, angles in rad), in that order.
+CONTROLLED_POSE_UNITS: dict[str, str] = {"x": "m", "z": "m", "roll": "rad", "pitch": "rad"}
 
 
 class KinematicsError(HitchInputError):

@@ -52,7 +52,7 @@ from planner.errors import HitchError
 from planner.model.exact_inverse import ExactInverse
 from planner.model.hard_limits import WORKSPACE_NAMES
 from planner.model.limit_names import LimitName
-from planner.model.types import CONTROLLED_POSE_NAMES, KinematicsError
+from planner.model.types import CONTROLLED_POSE_NAMES, CONTROLLED_POSE_UNITS, KinematicsError
 from planner.trajectory.actuator_limits import ActuatorLimits
 from planner.trajectory.braking import StopProbe, beyond, current_floor
 from planner.trajectory.plan import MotionState, PlanError, TrajectoryInputError
@@ -76,7 +76,6 @@ __all__ = [
 
 #: The DOFs a track session may follow (SI: m, m, rad, rad).
 TRACK_DOFS = CONTROLLED_POSE_NAMES
-_UNITS = {"x": "m", "z": "m", "roll": "rad", "pitch": "rad"}
 #: Setpoints further than this outside the workspace [m or rad] are not plausible SI values (mm, deg).
 PLAUSIBLE_MARGIN = 0.5
 #: Largest plausible setpoint velocity [m/s or rad/s]; below it a velocity is clipped to the limits.
@@ -537,9 +536,10 @@ class TrackFollower:
             if k in given:
                 w = _number(given[k], f"setpoint.{name}.{k}")
                 if abs(w) > plausible:
+                    u = CONTROLLED_POSE_UNITS[k]
                     raise TrackInputError(
-                        f"setpoint.{name}.{k} = {w:g} {_UNITS[k]}{per} is not a plausible SI value: allowed "
-                        f"±{plausible:g} {_UNITS[k]}{per} (beyond ±{limit[d]:.4f} it is clipped)"
+                        f"setpoint.{name}.{k} = {w:g} {u}{per} is not a plausible SI value: allowed "
+                        f"±{plausible:g} {u}{per} (beyond ±{limit[d]:.4f} it is clipped)"
                     )
                 out[d] = w
         return out
@@ -573,18 +573,20 @@ class TrackFollower:
             if k in pose:
                 x = _number(pose[k], f"setpoint.pose.{k}")
                 if not self._lo_ok[d] <= x <= self._hi_ok[d]:
+                    u = CONTROLLED_POSE_UNITS[k]
                     raise TrackInputError(
-                        f"setpoint.pose.{k} = {x:g} {_UNITS[k]} is not a plausible SI value: allowed "
-                        f"[{self._lo_ok[d]:.3f}, {self._hi_ok[d]:.3f}] {_UNITS[k]} (beyond the workspace "
+                        f"setpoint.pose.{k} = {x:g} {u} is not a plausible SI value: allowed "
+                        f"[{self._lo_ok[d]:.3f}, {self._hi_ok[d]:.3f}] {u} (beyond the workspace "
                         f"[{self.planner.lo[d]:.3f}, {self.planner.hi[d]:.3f}] it is clipped)"
                     )
                 p[d] = x
             if velocity is not None and k in velocity:
                 w = _number(velocity[k], f"setpoint.velocity.{k}")
                 if abs(w) > PLAUSIBLE_VELOCITY:
+                    u = CONTROLLED_POSE_UNITS[k]
                     raise TrackInputError(
-                        f"setpoint.velocity.{k} = {w:g} {_UNITS[k]}/s is not a plausible SI value: allowed "
-                        f"±{PLAUSIBLE_VELOCITY:g} {_UNITS[k]}/s (beyond ±{self._v_lim[d]:.4f} it is clipped)"
+                        f"setpoint.velocity.{k} = {w:g} {u}/s is not a plausible SI value: allowed "
+                        f"±{PLAUSIBLE_VELOCITY:g} {u}/s (beyond ±{self._v_lim[d]:.4f} it is clipped)"
                     )
                 v[d] = w
         return p, v

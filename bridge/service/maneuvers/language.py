@@ -66,6 +66,7 @@ from bridge.service.maneuvers.steps import (  # the step schema; re-exported (se
     check_name,
 )
 from planner.errors import HitchInputError
+from planner.model.types import CONTROLLED_POSE_UNITS
 from planner.trajectory import MotionState
 
 if TYPE_CHECKING:
@@ -105,7 +106,7 @@ MAX_SCRIPT_BYTES = 64 * 1024
 MAX_STEPS = 500
 _MAX_DEPTH = 6
 _MAX_NODES = 20_000
-_UNITS = {"x": "m", "z": "m", "roll": "rad", "pitch": "rad", "seconds": "s", "distance": "m", "timeout": "s"}
+_UNITS = {**CONTROLLED_POSE_UNITS, "seconds": "s", "distance": "m", "timeout": "s"}
 
 
 class ManeuverError(HitchInputError):

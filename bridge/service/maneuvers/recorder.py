@@ -132,15 +132,18 @@ class ManeuverRecorder:
         span = now - self._cmd_t  # the odometer was read at the command: the pause's share of the travel
         if travelled is not None and span > 1e-9:
             travelled *= max(0.0, gap) / span  # (constant ground speed assumed over one motion)
-        if not self.steps:  # before the first command: no motion has ended, so no pause (module docstring)
-            pass
-        elif travelled is not None and travelled >= self.min_distance_m:
+        if self.steps:  # before the first command no motion has ended: no pause (module docstring)
+            self._append_pause(gap, travelled)
+        self._busy_until, self._dist_at = max(self._busy_until, now), d
+
+    def _append_pause(self, gap: float, travelled: float | None) -> None:
+        """A pause of ``gap`` s (``travelled`` m meanwhile) as ``wait_for distance`` or ``wait`` steps."""
+        if travelled is not None and travelled >= self.min_distance_m:
             for part in _parts(_r(travelled, 2), _MAX_DISTANCE_M):
                 self._append({"wait_for": {"distance": part}})
         elif gap >= self.min_pause_s:
             for part in _parts(_r(gap, 2), _MAX_WAIT_S):
                 self._append({"wait": part})
-        self._busy_until, self._dist_at = max(self._busy_until, now), d
 
     def _add(self, step: dict[str, Any], duration_s: float, *, at: float | None = None) -> None:
         self._append(step)

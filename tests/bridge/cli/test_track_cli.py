@@ -225,6 +225,17 @@ def test_dry_run_of_the_documented_csv_shows_the_velocities_it_has(capsys, tmp_p
 
 
 # ---------------------------------------------------------------------------------------- a real service
+def _track(endpoint: str, *args: str) -> subprocess.CompletedProcess:
+    """``hitch track ARGS`` against the service at ``endpoint``, as a user runs it (its own process)."""
+    return subprocess.run(
+        [sys.executable, "-m", "bridge.cli", "track", *args, "--connect", endpoint, "--timeout", "20"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+
+
 @pytest.mark.slow
 def test_a_two_second_sine_streams_to_a_real_service_and_ends_with_the_motion_finished(tmp_path):
     from bridge.service.client import HitchClient
@@ -238,14 +249,7 @@ def test_a_two_second_sine_streams_to_a_real_service_and_ends_with_the_motion_fi
     try:
         with HitchClient([endpoint], timeout_s=10.0) as c:
             start = wait_online(c, 60.0)
-        r = subprocess.run(
-            [sys.executable, "-m", "bridge.cli", "track", "--sine", "z=0.02@0.5Hz", "--duration", "2"]
-            + ["--connect", endpoint, "--timeout", "20", "--json"],
-            cwd=ROOT,
-            capture_output=True,
-            text=True,
-            timeout=120,
-        )
+        r = _track(endpoint, "--sine", "z=0.02@0.5Hz", "--duration", "2", "--json")
         assert r.returncode == 0, r.stderr
         out = json.loads(r.stdout)
         assert out["finished"] and out["reason"] == "track/stop"
@@ -263,27 +267,13 @@ def test_a_two_second_sine_streams_to_a_real_service_and_ends_with_the_motion_fi
         # "TypeError: unsupported format string passed to NoneType.__format__" after starting the session)
         csv = tmp_path / "signal.csv"
         csv.write_text(DOC_CSV, encoding="utf-8")
-        r = subprocess.run(
-            [sys.executable, "-m", "bridge.cli", "track", "--from-file", str(csv), "--rate", "50"]
-            + ["--connect", endpoint, "--timeout", "20"],
-            cwd=ROOT,
-            capture_output=True,
-            text=True,
-            timeout=120,
-        )
+        r = _track(endpoint, "--from-file", str(csv), "--rate", "50")
         assert r.returncode == 0, (r.stdout, r.stderr)
         assert ", 50 Hz, 1 s" in r.stdout and "finished: track/stop" in r.stdout, r.stdout
         # setpoints the service rejects: the summary says why (a new user's report: only `hitch log` did)
         bad = tmp_path / "bad.csv"
         bad.write_text("t,z\n0.0,0.10\n0.1,0.10\n0.2,50.0\n1.0,50.0\n", encoding="utf-8")
-        r = subprocess.run(
-            [sys.executable, "-m", "bridge.cli", "track", "--from-file", str(bad), "--rate", "50"]
-            + ["--connect", endpoint, "--timeout", "20"],
-            cwd=ROOT,
-            capture_output=True,
-            text=True,
-            timeout=120,
-        )
+        r = _track(endpoint, "--from-file", str(bad), "--rate", "50")
         # the puts outside the schema's range were dropped uncounted by the core process: now they are rejections
         assert "last rejection: track/setpoint: pose.z = 50" in r.stdout and "rejected 0" not in r.stdout, (
             r.stdout,

@@ -6,9 +6,11 @@ from __future__ import annotations
 import json
 import os
 import platform
+import random
 import signal
 import socket
 import subprocess
+import time
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -66,11 +68,51 @@ def percentiles_ms(samples_s: Iterable[float], qs: tuple[int, ...] = (50, 99)) -
     return {**{f"p{q}_ms": float(np.percentile(a, q)) for q in qs}, "max_ms": float(a.max()), "n": int(a.size)}
 
 
+def _ephemeral_low() -> int:
+    """The lowest port of the kernel's ephemeral range (``/proc/sys/net/ipv4/ip_local_port_range``)."""
+    try:
+        return int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return 32768  # the Linux default
+
+
+class _PortPicker:
+    """Hands out loopback ports below the kernel's ephemeral range, each at most once per process.
+
+    Why not ``bind(("127.0.0.1", 0))``: that port lies in the ephemeral range, and between the probe
+    and the service's own bind the kernel may give the same port to any outgoing connection on the
+    machine (a Zenoh client, a browser) as its local port. A CI run failed exactly so ("Address
+    already in use" for a port the test had just found free). Ports below the range are taken only
+    by explicit binds, and handing each out once keeps two ports asked for in a row apart before
+    either is bound."""
+
+    def __init__(self, low: int = 20000, high: int | None = None) -> None:
+        self._low, self._high = low, high if high is not None else max(low + 1000, _ephemeral_low())  # [low, high)
+        self._rng = random.Random(os.getpid() ^ time.monotonic_ns())
+        self._given: set[int] = set()
+
+    def pick(self) -> int:
+        for _ in range(1000):
+            port = self._rng.randrange(self._low, self._high)
+            if port in self._given:
+                continue
+            with socket.socket() as s:  # no SO_REUSEADDR: a port with lingering connections counts as taken
+                try:
+                    s.bind(("127.0.0.1", port))
+                except OSError:
+                    continue
+            self._given.add(port)
+            return port
+        raise RuntimeError(f"no free loopback port in [{self._low}, {self._high}) after 1000 tries")
+
+
+_PICKER = _PortPicker()
+
+
 def free_port() -> int:
-    """A free TCP port on 127.0.0.1 (loopback only)."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+    """A TCP port on 127.0.0.1 that is free now, lies below the kernel's ephemeral range, and was not
+    handed out before by this process (see ``_PortPicker`` for why)."""
+    return _PICKER.pick()
 
 
 def proc_cpu_seconds(pid: int) -> float:

@@ -37,7 +37,6 @@ import bisect
 import json
 import math
 import os
-import socket
 import tempfile
 import threading
 import time
@@ -46,12 +45,6 @@ from pathlib import Path
 import numpy as np
 
 REFERENCE_PGN = 0xFF21
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def _pgn(arbitration_id: int) -> int:
@@ -71,13 +64,14 @@ def main(argv: list[str] | None = None) -> dict:
 
     import can
 
+    from bench._common import free_port
     from bridge.service.client import HitchClient
     from bridge.service.config import ServiceConfig
     from bridge.service.server import HitchService
 
     data = Path(tempfile.mkdtemp(prefix="hitch-track-latency-"))
     log = data / "bus.log"
-    ep = f"tcp/127.0.0.1:{_free_port()}"
+    ep = f"tcp/127.0.0.1:{free_port()}"
     svc = HitchService(ServiceConfig(listen=[ep], data_dir=data, can_log=log, can_channel=f"lat-{os.getpid()}"))
     states: list[tuple[float, int, int]] = []  # (t, session, accepted count)
     puts: list[float] = []

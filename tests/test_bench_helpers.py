@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import os
+import socket
 
 import numpy as np
 import pytest
 
-from bench._common import percentiles_ms, proc_cpu_seconds
+from bench._common import _ephemeral_low, _PortPicker, free_port, percentiles_ms, proc_cpu_seconds
 from bench.reliability_bench import (
     MEASUREMENT_PGN,
     REFERENCE_PGN,
@@ -99,3 +100,26 @@ def test_proc_cpu_seconds_grows_with_work():
     for i in range(3_000_000):
         x += i
     assert proc_cpu_seconds(os.getpid()) > before
+
+
+def test_free_ports_lie_below_the_ephemeral_range_are_distinct_and_bindable():
+    """A port from bind(0) lies in the kernel's ephemeral range, where an outgoing connection can take
+    it before the service binds it (a CI run failed so): test ports come from below that range, each
+    once, so two asked for in a row never coincide."""
+    low = _ephemeral_low()
+    ports = [free_port() for _ in range(200)]
+    assert len(set(ports)) == len(ports)
+    assert all(1024 < p < low for p in ports), (min(ports), max(ports), low)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", ports[-1]))  # still free
+
+
+def test_a_port_in_use_is_never_handed_out_and_none_twice():
+    with socket.socket() as held:
+        held.bind(("127.0.0.1", free_port()))
+        held.listen()
+        taken = held.getsockname()[1]
+        picker = _PortPicker(taken, taken + 2)  # two ports: one in use, one free
+        assert picker.pick() == taken + 1
+        with pytest.raises(RuntimeError, match="no free loopback port"):
+            picker.pick()  # the free one was handed out already

@@ -222,8 +222,7 @@ class HitchService:
                     "with a security file the control core runs in the service's own process (threads): its own "
                     "Zenoh link would need credentials of its own"
                 )
-            private = None if not own_process or cfg.mode == "client" else f"tcp/127.0.0.1:{_free_port()}"
-            self._open_zenoh(private)
+            private = self._open_zenoh(private_link=own_process and cfg.mode != "client")
             motion: Any
             if own_process:
                 endpoints = [private] if private is not None else list(cfg.connect)
@@ -315,19 +314,30 @@ class HitchService:
                 f"the service's Zenoh threads could not be given real-time priority ({'; '.join(sorted(set(failed)))})"
             )
 
-    def _open_zenoh(self, private_listen: str | None) -> None:
-        """The service's session (plus a private loopback listener for the core process, if any)."""
+    def _open_zenoh(self, *, private_link: bool) -> str | None:
+        """Open the service's session; with ``private_link`` it also listens on a loopback port of its
+        own choosing for the core process, and returns that endpoint.
+
+        The private port is found free and then bound by Zenoh; if another socket took it in between
+        (any outgoing connection on the machine may be given it as its local port), another port is
+        tried, up to ``PRIVATE_PORT_TRIES`` times. A port the operator chose is never replaced."""
         cfg = self.config
-        z = build_zenoh_config(cfg)
-        if private_listen is not None:
-            z.insert_json5("listen/endpoints", json.dumps([*list(cfg.listen or ()), private_listen]))
-        try:
-            self.session = zenoh.open(z)
-        except zenoh.ZError as exc:  # e.g. the port is taken, a TLS file is unreadable
-            raise ServiceStartError(
-                f"cannot open the Zenoh session (listen {', '.join(cfg.listen or ()) or '-'}, connect "
-                f"{', '.join(cfg.connect) or '-'}): {exc}"
-            ) from None
+        for _ in range(PRIVATE_PORT_TRIES if private_link else 1):
+            private = f"tcp/127.0.0.1:{_free_port()}" if private_link else None
+            z = build_zenoh_config(cfg)
+            if private is not None:
+                z.insert_json5("listen/endpoints", json.dumps([*list(cfg.listen or ()), private]))
+            try:
+                self.session = zenoh.open(z)
+                return private
+            except zenoh.ZError as exc:  # e.g. the port is taken, a TLS file is unreadable
+                error = exc
+                if private is None or private.removeprefix("tcp/") not in str(exc):
+                    break  # not the private port's fault: retrying cannot help
+        raise ServiceStartError(
+            f"cannot open the Zenoh session (listen {', '.join(cfg.listen or ()) or '-'}, connect "
+            f"{', '.join(cfg.connect) or '-'}): {error}"
+        ) from None
 
     def _declare_api(self) -> None:
         """Queryables of the API keys (``stop`` and the setpoint stream: the core's own when it has a
@@ -593,6 +603,10 @@ CHANNEL_CAPACITY = 256
 
 def _ring() -> Any:
     return zenoh.handlers.RingChannel(CHANNEL_CAPACITY)
+
+
+#: how many loopback ports the service tries for the core process's private link (see _open_zenoh)
+PRIVATE_PORT_TRIES = 5
 
 
 def _free_port() -> int:

@@ -7,25 +7,19 @@ from __future__ import annotations
 
 import os
 import queue
-import socket
 import subprocess
 import sys
 import threading
 import time
 from pathlib import Path
 
+from bench._common import free_port
 from bridge.service.client import HitchClient
 
 __all__ = ["ROOT", "ServiceProcess", "free_port", "hitch", "wait_online"]
 
 ROOT = str(Path(__file__).resolve().parents[2])
 """The repository root: the working directory of every process these tests start."""
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 class ServiceProcess:

@@ -21,7 +21,6 @@ import os
 import re
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -29,6 +28,8 @@ import urllib.request
 from pathlib import Path
 
 import pytest
+
+from bench._common import free_port
 
 pytestmark = pytest.mark.slow  # a real browser against the service in its own process
 
@@ -81,12 +82,6 @@ def shots(tmp_path_factory) -> Path:
     return d
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 class Service:
     """``hitch serve --http`` in its own process (own process group, killed in teardown).
 
@@ -94,7 +89,7 @@ class Service:
 
     def __init__(self, data_dir: Path, *extra: str, login: tuple[str, str] | None = None):
         self.data_dir, self.extra = data_dir, list(extra)
-        self.http_port, self.zenoh_port = _free_port(), _free_port()
+        self.http_port, self.zenoh_port = free_port(), free_port()
         self.url = f"http://127.0.0.1:{self.http_port}/"
         self.proc: subprocess.Popen | None = None
         self.login = login

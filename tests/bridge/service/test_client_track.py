@@ -7,25 +7,19 @@ from __future__ import annotations
 
 import json
 import queue
-import socket
 
 import pytest
 import zenoh
 
+from bench._common import free_port
 from bridge.service.client import ClientError, HitchClient
 from bridge.service.schemas import TrackSetpoint
-
-
-def _port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture
 def peer():
     """A listening Zenoh peer on loopback collecting every setpoint put."""
-    port = _port()
+    port = free_port()
     cfg = zenoh.Config()
     cfg.insert_json5("mode", '"peer"')
     cfg.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))

@@ -134,6 +134,43 @@ def test_closing_ends_the_core_process_and_the_can_log_holds_the_references(tmp_
     assert len(refs) > 20  # the held reference streamed at 50 Hz, recorded in the core's process
 
 
+def test_a_private_port_taken_between_its_pick_and_its_bind_is_replaced(tmp_path, monkeypatch):
+    """The core's private link port is found free, then bound by Zenoh; a socket that takes it in
+    between (in CI, an outgoing connection given it as its local port) must not fail the start
+    (before: "cannot open the Zenoh session … Address already in use")."""
+    import socket
+
+    import bridge.service.server as server
+
+    with socket.socket() as squatter:
+        squatter.bind(("127.0.0.1", 0))
+        squatter.listen()
+        taken = squatter.getsockname()[1]
+        picks = iter([taken])
+        monkeypatch.setattr(server, "_free_port", lambda: next(picks, None) or free_port())
+        ep = f"tcp/127.0.0.1:{free_port()}"
+        svc = HitchService(ServiceConfig(listen=[ep], data_dir=tmp_path, planning_processes=0)).start()
+        try:
+            assert wait_until(lambda: (svc.latest_state or {}).get("ecu", {}).get("online")), "no state from the core"
+            assert next(picks, None) is None  # the taken port was tried first
+        finally:
+            svc.close()
+
+
+def test_an_operator_chosen_port_that_is_taken_is_refused_not_replaced(tmp_path):
+    import socket
+
+    from bridge.service.server import ServiceStartError
+
+    with socket.socket() as squatter:
+        squatter.bind(("127.0.0.1", 0))
+        squatter.listen()
+        ep = f"tcp/127.0.0.1:{squatter.getsockname()[1]}"
+        with pytest.raises(ServiceStartError, match="Address already in use") as e:
+            HitchService(ServiceConfig(listen=[ep], data_dir=tmp_path, planning_processes=0)).start()
+        assert ep.removeprefix("tcp/") in str(e.value)
+
+
 def test_without_planning_processes_the_service_plans_on_its_own_guard_not_in_the_core(tmp_path):
     """Process core and ``planning_processes = 0``: ``plan`` and ``maneuvers/validate`` are planned in the
     service's process (before: ``MotionProxy`` has no ``preview_from`` / ``plan_step``, an internal error)."""

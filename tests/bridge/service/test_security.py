@@ -5,7 +5,6 @@ import json
 import os
 import select
 import shutil
-import socket
 import stat
 import subprocess
 import sys
@@ -14,6 +13,7 @@ import time
 import pytest
 import zenoh
 
+from bench._common import free_port
 from bridge.service.security import (
     MOTION_KEYS,
     VIEWER_QUERIES,
@@ -222,12 +222,6 @@ s.close()
 """
 
 
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
 class _Server:
     def __init__(self, tmp_path, endpoint, settings, mode="peer"):
         if isinstance(settings, SecuritySettings):
@@ -304,7 +298,7 @@ def server(tmp_path):
 
 @pytest.mark.slow  # Zenoh peers in their own processes
 def test_acl_permitted_user_moves_refused_user_only_reads(tmp_path, users_file, server):
-    ep = f"tcp/127.0.0.1:{_free_port()}"
+    ep = f"tcp/127.0.0.1:{free_port()}"
     server(
         ep,
         SecuritySettings(users_file=users_file, access=AccessPolicy("hitch", operators=("alice",), viewers=("bob",))),
@@ -342,7 +336,7 @@ def test_acl_permitted_user_moves_refused_user_only_reads(tmp_path, users_file, 
 @pytest.mark.slow  # Zenoh peers in their own processes
 def test_acl_on_a_fleet_router_with_the_service_behind_it(tmp_path, users_file, server):
     users = write_users_file(tmp_path / "router-users.txt", {**USERS, "svc-t07": "svc-pw"})
-    ep = f"tcp/127.0.0.1:{_free_port()}"
+    ep = f"tcp/127.0.0.1:{free_port()}"
     server(
         ep,
         SecuritySettings(
@@ -454,7 +448,7 @@ def _tls(pki, ca="hitch-ca", cert=None, mutual=False):
 
 @pytest.mark.slow  # Zenoh peers in their own processes
 def test_tls_session_connects_wrong_ca_and_plain_tcp_do_not(tmp_path, pki, server):
-    port = _free_port()
+    port = free_port()
     server(f"tls/127.0.0.1:{port}", SecuritySettings(tls=TlsSettings(**_tls(pki, cert="server"))))
     keys = ["hitch/ik"]
     r = _clients(
@@ -472,7 +466,7 @@ def test_tls_session_connects_wrong_ca_and_plain_tcp_do_not(tmp_path, pki, serve
 
 @pytest.mark.slow  # Zenoh peers in their own processes
 def test_mtls_needs_a_client_certificate_from_the_ca_and_maps_names_to_roles(tmp_path, pki, server):
-    port = _free_port()
+    port = free_port()
     ep = f"tls/127.0.0.1:{port}"
     server(
         ep,

@@ -22,6 +22,7 @@ import time
 import numpy as np
 import pytest
 
+from bench._common import free_port
 from bridge.web.settings import ERROR_STATUS, WebSettings, host_allowed, json_safe, origin_allowed, parse_address
 from bridge.web.websocket import (
     OP_BINARY,
@@ -168,12 +169,6 @@ def test_every_service_error_code_has_an_http_status():
 # ---------------------------------------------------------------------------------------------- live service
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.fixture(scope="module")
 def service(tmp_path_factory):
     from bridge.service.config import load_service_config
@@ -181,7 +176,7 @@ def service(tmp_path_factory):
 
     cfg = load_service_config(
         data_dir=tmp_path_factory.mktemp("web-data"),
-        listen=[f"tcp/127.0.0.1:{_free_port()}"],
+        listen=[f"tcp/127.0.0.1:{free_port()}"],
         http="127.0.0.1:0",
         can_channel=f"web-api-{os.getpid()}",
     )
@@ -681,7 +676,7 @@ def secured(tmp_path_factory):
     )
     cfg = load_service_config(
         data_dir=tmp / "data",
-        listen=[f"tcp/127.0.0.1:{_free_port()}"],
+        listen=[f"tcp/127.0.0.1:{free_port()}"],
         http="127.0.0.1:0",
         http_user="olga",
         security=sec,

@@ -5,7 +5,7 @@ and the ideal follower's gain and bandwidth per DOF for comparison.
 
 Sessions: all four DOFs (any-direction limits), and one DOF alone (roll, as levelling: its subset
 limits, a sine beyond the roll workspace so that it brakes at the faces). "track cycle" is what the
-controller runs (:meth:`TrackMotion.step`): the step every cycle, the guard every
+controller runs (:meth:`TrackMotion.step` and :meth:`TrackMotion.look_ahead`): the step every cycle, the guard every
 ``TRACK_GUARD_EVERY``-th; target p99 ≤ 1 ms, the worst cycle reported beside it.
 
 Run: .venv/bin/python bench/track_cycle_bench.py [--cycles 5000] [--json out.json]

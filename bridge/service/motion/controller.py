@@ -933,10 +933,10 @@ class MotionController:
 
         The state is taken first, right after the wake-up (stamped then, so its period is as
         regular as the wake-ups): measured pose now, with the reference sent in the previous cycle
-        (the one the ECU is tracking). Then the motion is advanced and the new reference sent; the
-        state's guard evaluations (kinematic margin, stability) are computed only after that, so a
-        streamed setpoint reaches the bus without waiting for them. Bounded work: no planning, no
-        storage, no serialisation (the outbox does that).
+        (the one the ECU is tracking). Then the motion is advanced and the new reference sent; a track
+        session's guard look-ahead and the state's guard evaluations (kinematic margin, stability) are
+        computed only after that, so a streamed setpoint reaches the bus without waiting for them.
+        Bounded work: no planning, no storage, no serialisation (the outbox does that).
         """
         events: list[Event] = []
         with self._lock:
@@ -962,6 +962,8 @@ class MotionController:
                     self.link.stop_motion()
                     if isinstance(exc, LinkFaultError):  # the link's latched faults that are still there
                         self._latch_link_faults(status, now)
+            if isinstance(self._active, TrackMotion):  # its guard look-ahead, after the reference is out
+                self._active.look_ahead(self.guard)
             self._post(events)
         if state is not None:  # this thread's guard and cache, outside the lock: requests never wait for it
             self.outbox.put_state(state())

@@ -152,6 +152,67 @@ def test_a_stale_stream_brakes_to_rest_and_ends_the_session(r):
     assert abs(r.measured()[1] - z_end) < 1e-3  # nothing resumes
 
 
+def _spy_guard_and_sends(r, refuse_at_call=None):
+    """Log ("send", cycle) for each reference the link takes and ("guard", cycle) for each track
+    look-ahead; the guard's ``refuse_at_call``-th look-ahead (1-based) is refused."""
+    from planner.limits.guard import GuardDecision
+
+    log: list[tuple[str, int]] = []
+    guard, link = r.mc.guard, r.mc.link
+    check, send = guard.check_jog, link.send_reference
+
+    def check_jog(state, rates):
+        log.append(("guard", r.mc._cycle_n))
+        allowed, decision = check(state, rates)
+        if refuse_at_call is not None and sum(1 for k, _ in log if k == "guard") == refuse_at_call:
+            return allowed * 0.0, GuardDecision("refused")
+        return allowed, decision
+
+    def send_reference(ref, now):
+        log.append(("send", r.mc._cycle_n))
+        return send(ref, now)
+
+    guard.check_jog, link.send_reference = check_jog, send_reference
+    return log
+
+
+def test_the_track_guard_looks_ahead_after_the_reference_is_sent(r):
+    """A streamed setpoint must not wait for the guard's look-ahead (about 1 ms every fifth cycle) on
+    its way to the bus: in every cycle with a look-ahead the reference went out first, except before
+    the session's first step (on the old code the guard ran first in every such cycle)."""
+    session = r.start(dof=["z"])
+    z0 = r.measured()[1]
+    log = _spy_guard_and_sends(r)
+    r.run(0.6, each=lambda t: r.setpoint(session, {"z": z0 + 0.05}))
+    guarded = sorted({c for k, c in log if k == "guard"})
+    assert len(guarded) >= 5
+    first = guarded[0]
+    # every fifth step: the first before it, the others at the end of the cycle before the step they serve
+    assert [c + 1 - first for c in guarded[1:]] == [5 * i for i in range(1, len(guarded))]
+    for c in guarded[1:]:
+        in_cycle = [k for k, cc in log if cc == c]
+        assert in_cycle == ["send", "guard"], (c, in_cycle)
+    assert [k for k, cc in log if cc == first] == ["guard", "send"]  # before the first step: first
+
+
+def test_a_track_guard_refusal_brakes_from_the_next_step_and_ends_the_session(r):
+    session = r.start(dof=["z"])
+    z0 = r.measured()[1]
+    log = _spy_guard_and_sends(r, refuse_at_call=3)
+    speeds: list[float] = []
+
+    def stream(t):
+        r.setpoint(session, {"z": z0 + 0.1})
+        speeds.append(r.mc._active.follower.state.velocity[1] if r.mc._active is not None else 0.0)
+
+    r.run(3.0, each=stream)
+    fin = [e for e in _events(r, "motion_finished") if e.get("session") == session]
+    assert fin and fin[0]["reason"] == "guard: motion refused ahead", r.events
+    refused_cycle = [c for k, c in log if k == "guard"][2]
+    assert not any(k == "guard" for k, c in log if c > refused_cycle)  # braking: no more look-aheads
+    assert abs(r.states[-1]["velocity"]["z"]) < 1e-9 and r.states[-1]["motion"] is None
+
+
 def test_track_stop_ends_smoothly(r):
     session = r.start(dof=["z"])
     z0 = r.measured()[1]

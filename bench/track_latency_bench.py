@@ -44,6 +44,11 @@ from pathlib import Path
 
 import numpy as np
 
+try:  # imported as a module
+    from bench._common import free_port
+except ImportError:  # run as a script: bench/ is sys.path[0]
+    from _common import free_port  # type: ignore[no-redef, import-not-found]
+
 REFERENCE_PGN = 0xFF21
 
 
@@ -64,7 +69,6 @@ def main(argv: list[str] | None = None) -> dict:
 
     import can
 
-    from bench._common import free_port
     from bridge.service.client import HitchClient
     from bridge.service.config import ServiceConfig
     from bridge.service.server import HitchService

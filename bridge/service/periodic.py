@@ -33,6 +33,7 @@ class PeriodicThread:
         name: str,
         on_error: Callable[[Exception], None] | None = None,
         resync_after: int = 3,
+        clock: Callable[[], float] = time.monotonic,
     ):
         if not 1e-4 <= period_s <= 10.0:
             raise PeriodError(f"period_s must lie within [1e-4, 10] s, got {period_s!r}")
@@ -40,6 +41,7 @@ class PeriodicThread:
         self._fn = fn
         self._on_error = on_error or (lambda exc: None)
         self._resync_after = max(1, int(resync_after))
+        self._clock = clock  # [s], steady (tests pass a simulated one)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
         self.cycles = 0
@@ -59,10 +61,11 @@ class PeriodicThread:
             self._thread.join(timeout_s)
 
     def _run(self) -> None:
-        t_next, late = time.monotonic(), 0
+        clock = self._clock
+        t_next, late = clock(), 0
         while not self._stop.is_set():
             t_next += self.period_s
-            delay = t_next - time.monotonic()
+            delay = t_next - clock()
             if delay > 0:
                 late = 0
                 if self._stop.wait(delay):
@@ -71,7 +74,7 @@ class PeriodicThread:
                 late += 1
                 self.overruns += 1
                 if late >= self._resync_after:
-                    t_next, late = time.monotonic(), 0
+                    t_next, late = clock(), 0
             try:
                 self._fn()
             except Exception as exc:  # noqa: BLE001 — reported, the loop keeps its rate

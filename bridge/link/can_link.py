@@ -90,7 +90,6 @@ from planner.model.types import ACTUATOR_NAMES, KinematicsError
 __all__ = ["CanLink"]
 
 _EPS_S = 1e-6  # float-time tolerance of the stream schedule
-_IDLE_WAKE_S = 0.01  # a real-time loop checks faults at least this often
 #: a fresh reference may go this fraction of a period before its slot; a repetition waits as long after
 _SLOT_SLACK = 0.5
 
@@ -199,8 +198,9 @@ class CanLink:
             )
 
     def next_due_s(self) -> float:
-        """When :meth:`poll` must run next (stream deadline, or the idle wake-up), s."""
-        return min(self._stream_due_s() if self._streaming else math.inf, self._last_poll_s + _IDLE_WAKE_S)
+        """When :meth:`poll` must run next (the stream's deadline, or ``check_period_s`` after the last
+        poll), s."""
+        return min(self._stream_due_s() if self._streaming else math.inf, self._last_poll_s + self._cfg.check_period_s)
 
     # -- commands ----------------------------------------------------------------------
     def start(self, now_s: float) -> None:
@@ -380,13 +380,13 @@ class CanLink:
             if isinstance(payload, Heartbeat) and src == cfg.ecu_address:
                 self._on_heartbeat(payload.sequence, now_s, frame_stamp(frame) if cfg.bus_timestamps else None)
             elif isinstance(payload, PositionMeasurement) and src == cfg.ecu_address:
-                restart = self._rx.on_measurement(payload, now_s)
+                restart = self._rx.on_measurement(payload, now_s, frame_stamp(frame))
                 if restart:
                     self._on_restart(restart)
                 else:
                     self._check_references_arrive(payload.system_state, now_s)
             elif isinstance(payload, RearHitchStatus) and src == cfg.hitch_source:
-                self._rx.on_hitch_status(payload, now_s)
+                self._rx.on_hitch_status(payload, now_s, frame_stamp(frame))
             else:
                 self._bump(foreign=1)
 

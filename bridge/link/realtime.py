@@ -129,6 +129,14 @@ class RealtimeRunner:
     before the node judges anything again), and repeats: no busy loop, and one poll per
     wake-up rather than one per frame (two frames sent together cost one pass over the node).
     Node time is ``clock() − t0``, t0 taken at :meth:`start`.
+
+    ``prompt`` (default: always) says whether the node needs its frames as they arrive. While it
+    returns False the thread does not wake for frames: it sleeps until the node is due and then
+    hands over every frame that arrived meanwhile, read at that time (the frames keep their bus
+    stamps). A node at rest that reads the bus only to judge it at its own deadlines (the planner's
+    link while no reference streams) then costs one wake-up per deadline instead of one per frame
+    burst. A change of ``prompt`` takes effect at the next wake-up, at most one deadline (or
+    ``max_wait_s``) later.
     """
 
     def __init__(
@@ -138,6 +146,7 @@ class RealtimeRunner:
         clock: Callable[[], float] = time.monotonic,
         max_wait_s: float = 0.05,
         name: str | None = None,
+        prompt: Callable[[], bool] | None = None,
     ) -> None:
         if not 0.0 < max_wait_s <= 1.0:
             raise LinkError(f"max_wait_s must lie in (0, 1] s, got {max_wait_s!r}")
@@ -148,6 +157,7 @@ class RealtimeRunner:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._name = name or f"{type(node).__name__}-rt"
+        self._prompt = prompt
         self.error: BaseException | None = None
         """The exception that ended the loop, if any."""
 
@@ -178,10 +188,16 @@ class RealtimeRunner:
     def _run(self) -> None:
         node = self._node
         try:
+            prompt = self._prompt
             while not self._stop.is_set():
                 node.poll(self.now())
                 wait = min(max(node.next_due_s() - self.now(), 0.0), self._max_wait_s)
-                frame = node.bus.recv(timeout=wait)
+                if prompt is None or prompt():
+                    frame = node.bus.recv(timeout=wait)  # woken by the first frame
+                elif self._stop.wait(wait):
+                    break
+                else:  # due: what arrived meanwhile, then the poll
+                    frame = node.bus.recv(timeout=0.0)
                 if frame is None:
                     continue
                 now, taken = self.now(), 0

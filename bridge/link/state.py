@@ -151,8 +151,16 @@ class LinkConfig:
             hub's send time). The ECU's heartbeat gap is then judged by the frames' own spacing
             as well as by read times (the smaller counts,
             :meth:`~bridge.isobus.heartbeat.HeartbeatMonitor.handle_sequence`): a stall of this
-            process alone is not an ECU heartbeat fault. False (default) for a
+            process alone is not an ECU heartbeat fault, and dropped periodic frames are counted
+            from the stamps' spacing (frames read together, as a loop that reads the bus only at
+            its deadlines does, are not taken for gaps). False (default) for a
             link driven on a simulated clock, whose frames carry wall-clock stamps.
+        check_period_s: while no reference streams, how often a real-time loop must
+            :meth:`~bridge.link.can_link.CanLink.poll` the link (its fault checks and its
+            heartbeat, sent on the first poll at or after its due time), s, in [0.001, 0.05]:
+            a fault at rest is raised at most this late, our heartbeat is at most this late.
+            Default 0.01; the service uses its control period (a loop that reads the
+            link's state once a period gains nothing from checking it more often).
     """
 
     source_address: int = PLANNER_ADDRESS
@@ -172,6 +180,7 @@ class LinkConfig:
     ecu_watchdog_timeout_s: float = 0.1
     link_latency_s: float = 0.02
     bus_timestamps: bool = False
+    check_period_s: float = 0.01
 
     def __post_init__(self) -> None:
         check_address("source_address", self.source_address)
@@ -195,6 +204,7 @@ class LinkConfig:
         check_period("claim_wait_s", self.claim_wait_s, 0.001, 10.0)
         check_period("ecu_watchdog_timeout_s", self.ecu_watchdog_timeout_s, 0.001, 10.0)
         check_period("link_latency_s", self.link_latency_s, 0.0, 1.0)
+        check_period("check_period_s", self.check_period_s, 0.001, 0.05)
         tol = self.reading_tolerance_counts
         if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not 0.0 <= tol <= 50.0:
             raise LinkError(f"reading_tolerance_counts must be a number in [0, 50] counts, got {tol!r}")
@@ -425,7 +435,7 @@ class MeasurementAssembler:
         self._meas: tuple[float, tuple[int, int, int, int]] | None = None  # tilt, top, left, right
         self._hitch: tuple[float, float] | None = None  # (t, fraction)
         self._system: SystemStatus | None = None
-        self._rx_t: dict[str, float] = {}
+        self._rx_t: dict[str, tuple[bool, float]] = {}  # per source: (bus-stamped?, time of the last frame)
         self._restart_bits: int | None = None
         self._ecu_had_reference = False
         self._solved: tuple[tuple[float, ...], Actuators, Pose, Mapping[str, np.ndarray]] | None = None
@@ -438,10 +448,11 @@ class MeasurementAssembler:
         """The ECU restarted: its reference is gone until the link sends one again."""
         self._ecu_had_reference = False
 
-    def on_measurement(self, m: PositionMeasurement, now_s: float) -> str | None:
-        """Take a 0xFF22 payload; returns a restart reason if the system state shows one."""
+    def on_measurement(self, m: PositionMeasurement, now_s: float, stamp_s: float | None = None) -> str | None:
+        """Take a 0xFF22 payload read at ``now_s``, stamped ``stamp_s`` by the bus (None: unstamped);
+        returns a restart reason if the system state shows one."""
         self._bump(measurements_rx=1)
-        self._count_gap("measurement", now_s, self._cfg.measurement_period_s, "dropped_measurements")
+        self._count_gap("measurement", now_s, stamp_s, self._cfg.measurement_period_s, "dropped_measurements")
         system = decode_system_state(m.system_state)
         bits, restart = system.restart_count_mod16, None
         if self._restart_bits is not None and bits != self._restart_bits:
@@ -460,10 +471,11 @@ class MeasurementAssembler:
             self._update(now_s)
         return restart
 
-    def on_hitch_status(self, h: RearHitchStatus, now_s: float) -> None:
-        """Take a rear hitch status payload (the lift, fraction of travel)."""
+    def on_hitch_status(self, h: RearHitchStatus, now_s: float, stamp_s: float | None = None) -> None:
+        """Take a rear hitch status payload (the lift, fraction of travel) read at ``now_s``, stamped
+        ``stamp_s`` by the bus (None: unstamped)."""
         self._bump(hitch_status_rx=1)
-        self._count_gap("hitch", now_s, self._cfg.hitch_status_period_s, "dropped_hitch_status")
+        self._count_gap("hitch", now_s, stamp_s, self._cfg.hitch_status_period_s, "dropped_hitch_status")
         if h.position is None:
             self.last_problem = "rear hitch position not available or in error"
             self._bump(unavailable_readings=1)
@@ -513,10 +525,15 @@ class MeasurementAssembler:
             self._solved = (counts, actuators, pose, points)
         self.state = LinkState(now_s, t_m, t_h, counts, frac, actuators, pose, self._system, points)
 
-    def _count_gap(self, key: str, now_s: float, period_s: float, counter: str) -> None:
+    def _count_gap(self, key: str, now_s: float, stamp_s: float | None, period_s: float, counter: str) -> None:
+        """Count the frames missing before this one from the spacing of the bus stamps when the link
+        trusts them (``bus_timestamps``), else of the read times. Frames read together (a backlog, or a
+        loop that reads the bus only at its deadlines) share one read time: their stamps tell the gaps."""
+        stamped = self._cfg.bus_timestamps and stamp_s is not None
+        t = stamp_s if stamped and stamp_s is not None else now_s
         prev = self._rx_t.get(key)
-        self._rx_t[key] = now_s
-        if prev is not None:
-            missed = int(math.floor((now_s - prev) / period_s + 0.5)) - 1
+        self._rx_t[key] = (stamped, t)
+        if prev is not None and prev[0] == stamped:  # never a read time against a stamp
+            missed = int(math.floor((t - prev[1]) / period_s + 0.5)) - 1
             if missed > 0:
                 self._bump(**{counter: missed})

@@ -102,6 +102,8 @@ def pgn_filters(pgns: frozenset[int]) -> list[dict[str, Any]]:
 
 #: the longest a CAN runner waits for a frame before it polls its node again [s]
 _MAX_WAIT_S = 0.02
+#: the longest check period of the planner's link at rest (LinkConfig.check_period_s's bound)
+_MAX_CHECK_PERIOD_S = 0.05
 
 
 def build_model(cfg: ServiceConfig) -> HitchModel:
@@ -197,11 +199,20 @@ def start_can(cfg: ServiceConfig, *, runners_out: list[RealtimeRunner] | None = 
             planner.port(),
             # real time: the bus stamps frames on a real clock, so a stall of this process alone is not
             # taken for a late ECU heartbeat (LinkConfig.bus_timestamps)
-            LinkConfig(control_rate_hz=cfg.control_rate, stale_after_s=cfg.stale_timeout_s, bus_timestamps=True),
+            # at rest the link is checked once a control period (LinkConfig.check_period_s)
+            LinkConfig(
+                control_rate_hz=cfg.control_rate,
+                stale_after_s=cfg.stale_timeout_s,
+                bus_timestamps=True,
+                check_period_s=min(1.0 / cfg.control_rate, _MAX_CHECK_PERIOD_S),
+            ),
         )
         switch = HitchSwitchNode(planner.port())
         planner.add(sensors).add(link).add(switch)
-        started.append(RealtimeRunner(planner, max_wait_s=_MAX_WAIT_S, name="CanLink-rt").start())
+        # frames as they arrive only while references stream; at rest the bus is read at the link's
+        # checks (the control cycle reads the state once a period; RealtimeRunner's prompt)
+        runner = RealtimeRunner(planner, max_wait_s=_MAX_WAIT_S, name="CanLink-rt", prompt=lambda: link.streaming)
+        started.append(runner.start())
     except BaseException:
         for r in reversed(started):
             r.stop(0.5)

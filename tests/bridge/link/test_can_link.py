@@ -393,6 +393,39 @@ def test_assembler_spots_restarts_in_the_system_state_byte(model):
     assert rx.on_measurement(m(0b0001_1001), 0.5) is None and bumps.get("dropped_measurements") == 45
 
 
+@pytest.mark.parametrize("bus_timestamps", [True, False])
+def test_frames_read_together_are_counted_as_dropped_only_from_their_stamps(model, bus_timestamps):
+    """A loop that reads the bus only at its deadlines (RealtimeRunner's ``prompt``) takes the ECU's
+    10 ms frames two at a time, both at the read time. With bus stamps the gaps come from the stamps:
+    none missing, and a real gap (one frame lost) counted once. Before, the read times' 20 ms steps were
+    counted as one dropped frame per read (9 for these 10 reads). Without stamps (a simulated clock)
+    the read times are all there is."""
+    from bridge.link.state import MeasurementAssembler
+
+    bumps: dict[str, int] = {}
+    rx = MeasurementAssembler(
+        model,
+        SensorScaling(model.profile),
+        LinkConfig(bus_timestamps=bus_timestamps),
+        lambda **d: [bumps.__setitem__(k, bumps.get(k, 0) + v) for k, v in d.items()],
+    )
+    m = PositionMeasurement(323, 141, 265, 270, system_state=0b0001)
+    wall0 = 1.7e9  # bus stamps are wall-clock seconds
+    for read in range(10):
+        now = 0.02 * (read + 1)
+        for k in (2 * read, 2 * read + 1):
+            rx.on_measurement(m, now, wall0 + 0.01 * k)
+            rx.on_hitch_status(RearHitchStatus(position=0.5), now, wall0 + 0.01 * k)
+    # stamped: none missing, then the lost frame of 0.20, then nothing (an unstamped frame is never
+    # measured against a stamp); read times: 9 per 20 ms read, then 0.20 -> 0.24 s (3), 0.24 -> 0.26 s (1)
+    expected = (0, 1, 1) if bus_timestamps else (9, 12, 13)
+    assert (bumps.get("dropped_measurements", 0), bumps.get("dropped_hitch_status", 0)) == (expected[0],) * 2
+    rx.on_measurement(m, 0.24, wall0 + 0.21)  # 0.19 -> 0.21 s: the frame of 0.20 s is missing
+    assert bumps.get("dropped_measurements", 0) == expected[1]
+    rx.on_measurement(m, 0.26, None)
+    assert bumps.get("dropped_measurements", 0) == expected[2]
+
+
 def test_missing_and_error_heartbeats_stop_motion(model):
     """A hand-driven 'ECU' that sends measurements but no heartbeat, then heartbeat 254."""
     ch = f"hb-{uuid.uuid4().hex}"
@@ -527,6 +560,9 @@ def test_link_config_validation():
         LinkConfig(stale_after_s=-1)
     with pytest.raises(ValueError, match="ecu_address"):
         LinkConfig(ecu_address=166)
+    for bad in (0.0, 0.2, float("nan")):
+        with pytest.raises(ValueError, match=r"check_period_s.*0\.001.*0\.05"):
+            LinkConfig(check_period_s=bad)
     assert LinkConfig().control_period_s == pytest.approx(0.02) and LinkConfig().hitch_source == 169
     assert LinkConfig(hitch_status_address=240).hitch_source == 240
 

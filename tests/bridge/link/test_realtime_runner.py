@@ -73,3 +73,99 @@ def test_after_a_stall_every_waiting_frame_is_handed_over_before_the_next_poll()
         bus.shutdown()
         sender.shutdown()
     assert runner.error is None
+
+
+class _TimedNode:
+    """A node due every ``period_s`` after its last poll; records poll times and each frame's handling time."""
+
+    def __init__(self, bus: can.BusABC, period_s: float) -> None:
+        self._bus = bus
+        self.period_s = period_s
+        self.last_poll = 0.0
+        self.polls: list[float] = []
+        self.handled: list[float] = []
+
+    @property
+    def bus(self) -> can.BusABC:
+        return self._bus
+
+    def start(self, now_s: float) -> None:
+        self.last_poll = now_s
+
+    def poll(self, now_s: float) -> None:
+        self.last_poll = now_s
+        self.polls.append(now_s)
+
+    def handle(self, frame: can.Message, now_s: float) -> None:
+        self.handled.append(now_s)
+
+    def next_due_s(self) -> float:
+        return self.last_poll + self.period_s
+
+
+def _frames(sender: can.BusABC, n: int, gap_s: float) -> None:
+    for k in range(n):
+        sender.send(can.Message(arbitration_id=0x0CFF22A9, data=[k % 256] * 8, is_extended_id=True))
+        time.sleep(gap_s)
+
+
+def test_while_not_prompt_the_runner_wakes_for_its_deadlines_only_and_hands_over_what_came_meanwhile():
+    """60 frames 10 ms apart over 0.6 s to a node due every 0.2 s: without ``prompt`` it wakes for each
+    frame (a poll after each); with ``prompt`` False it polls only at its deadlines (at most 0.6 / 0.2 + 1
+    of them, however the host schedules it: a late wake-up makes fewer), every frame is handed over,
+    and never before the deadline that follows its arrival."""
+    for prompt, woken_by_frames in ((None, True), (lambda: False, False)):
+        ch = f"rt-{uuid.uuid4().hex}"
+        bus, sender = open_bus("virtual", ch), open_bus("virtual", ch)
+        node = _TimedNode(bus, 0.2)
+        runner = RealtimeRunner(node, max_wait_s=0.5, prompt=prompt).start()
+        try:
+            time.sleep(0.05)
+            polls0, t_sent = len(node.polls), runner.now()
+            _frames(sender, 60, 0.01)
+            deadline = time.monotonic() + 5.0
+            while len(node.handled) < 60 and time.monotonic() < deadline:
+                time.sleep(0.01)
+            assert len(node.handled) == 60
+            polls = node.polls[polls0:]
+        finally:
+            runner.stop()
+            bus.shutdown()
+            sender.shutdown()
+        assert runner.error is None
+        if woken_by_frames:
+            assert len(polls) >= 20, f"{len(polls)} polls for 60 frames"
+        else:
+            assert len(polls) <= 0.6 / 0.2 + 2, f"{len(polls)} polls: woken by frames"
+            # the first frame waited for the node's deadline (no earlier than one period after the poll before it)
+            before = [t for t in node.polls if t <= t_sent]
+            assert node.handled[0] >= before[-1] + 0.2 - 1e-3
+
+
+def test_a_runner_turned_prompt_wakes_for_the_next_frame():
+    """``prompt`` turns True (the link starts streaming): from the next wake-up on, a frame is handed over
+    as it arrives, long before the node's next deadline."""
+    ch = f"rt-{uuid.uuid4().hex}"
+    bus, sender = open_bus("virtual", ch), open_bus("virtual", ch)
+    node = _TimedNode(bus, 0.3)
+    flag = threading.Event()
+    runner = RealtimeRunner(node, max_wait_s=1.0, prompt=flag.is_set).start()
+    try:
+        flag.set()
+        time.sleep(0.7)  # past a deadline: the runner now waits on the bus
+        polls = len(node.polls)
+        while len(node.polls) == polls:  # right after a deadline: the next one is 0.3 s away
+            time.sleep(0.001)
+        t_send = runner.now()
+        _frames(sender, 1, 0.0)
+        deadline = time.monotonic() + 5.0
+        while not node.handled and time.monotonic() < deadline:
+            time.sleep(0.005)
+        assert node.handled, "the frame was never handed over"
+        # at the next deadline it would have waited 0.3 s
+        assert node.handled[0] - t_send < 0.15, node.handled[0] - t_send
+    finally:
+        runner.stop()
+        bus.shutdown()
+        sender.shutdown()
+    assert runner.error is None

@@ -103,6 +103,8 @@ def _cmd_serve(args) -> int:
         feedforward=False if args.no_feedforward else None,
         planning_processes=args.planning_processes,
         can_log=args.can_log,
+        can_log_max_mb=args.can_log_max_mb,
+        can_log_keep=args.can_log_keep,
     )
     from bridge.service.blackbox import CanRecorder, EventLog, event_log_path
 
@@ -212,7 +214,22 @@ def _add_serve(sub) -> None:
         "--can-log",
         default=None,
         metavar="FILE",
-        help="record every CAN frame to FILE (.asc, .blf or candump .log; replay with `hitch replay FILE`)",
+        help="record every CAN frame to FILE (.asc, .blf, candump .log or .csv; replay with `hitch replay FILE`); "
+        "rotated by size: FILE is the newest, FILE's stem .1 the one before …",
+    )
+    p.add_argument(
+        "--can-log-max-mb",
+        type=float,
+        default=None,
+        metavar="MB",
+        help="size of one CAN log file in megabytes (10^6 bytes), 0.1..100000 (default 50)",
+    )
+    p.add_argument(
+        "--can-log-keep",
+        type=int,
+        default=None,
+        metavar="N",
+        help="rotated CAN log files kept, 1..1000 (default 10; the oldest beyond them is deleted)",
     )
     p.set_defaults(handler=_cmd_serve)
 

@@ -22,8 +22,11 @@ Attach it with :meth:`EventLog.attach` (the service's ``event`` listener and the
 ``on_request`` hook).
 
 :class:`CanRecorder` records every frame of a bus with python-can's own writers
-(:class:`can.Logger`: ``.asc``, ``.blf``, candump ``.log``, ``.csv`` … by the file's suffix)
-through a listener bus of its own on the same channel. :func:`replay_can_log` reads a recorded
+(:class:`can.SizedRotatingLogger`: ``.asc``, ``.blf``, candump ``.log``, ``.csv`` by the file's
+suffix) through a listener bus of its own on the same channel, rotated by size like the event log:
+``bus.asc`` is the newest, ``bus.1.asc`` the one before … ``bus.N.asc`` the oldest kept (the
+format's suffix stays last, so every file reads back with :class:`can.LogReader` and ``hitch replay``).
+:func:`replay_can_log` reads a recorded
 log (:class:`can.LogReader`) into a :class:`~bridge.link.can_link.CanLink` on a private channel,
 in the log's time, and yields what the link made of it: decoded frames, measured poses and the
 faults the link raised.
@@ -44,12 +47,15 @@ from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import asdict, dataclass, field, is_dataclass
 from enum import Enum
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import can
 from can.io.generic import TextIOMessageWriter
 
 from planner.errors import HitchInputError
+
+if TYPE_CHECKING:
+    from bridge.service.config import ServiceConfig
 
 __all__ = [
     "BlackBoxError",
@@ -369,62 +375,148 @@ FLUSH_EVERY_S = 0.25
 
 
 class _Flusher(can.Listener):
-    """Flushes a text log writer's file every ``every_s`` seconds of frames (runs after the writer)."""
+    """Flushes a text log writer's file every ``every_s`` seconds of frames (runs after the writer;
+    the rotating logger's current writer, which changes at each rotation)."""
 
-    def __init__(self, writer: TextIOMessageWriter, every_s: float) -> None:
-        self._writer, self._every_s = writer, every_s
+    def __init__(self, logger: can.io.BaseRotatingLogger, every_s: float) -> None:
+        self._logger, self._every_s = logger, every_s
         self._last = time.monotonic()
 
     def on_message_received(self, msg: can.Message) -> None:
         now = time.monotonic()
         if now - self._last >= self._every_s:
             self._last = now
-            try:
-                self._writer.file.flush()
-            except (OSError, ValueError):  # closed meanwhile
-                pass
+            writer = self._logger.writer
+            if isinstance(writer, TextIOMessageWriter):
+                try:
+                    writer.file.flush()
+                except (OSError, ValueError):  # closed meanwhile
+                    pass
+
+
+class _Counter(can.Listener):
+    """Counts the frames the listeners before it have taken."""
+
+    def __init__(self) -> None:
+        self.n = 0
+
+    def on_message_received(self, msg: can.Message) -> None:
+        self.n += 1
+
+
+#: the suffixes :class:`CanRecorder` writes (python-can's size-rotating writers)
+CAN_LOG_SUFFIXES = (".asc", ".blf", ".log", ".csv")
+
+
+def rotated_can_log(path: str | Path, k: int) -> Path:
+    """The ``k``-th rotated file of the CAN log ``path`` (``bus.asc`` → ``bus.k.asc``; 0: ``path``)."""
+    p = Path(path)
+    return p if k == 0 else p.with_name(f"{p.stem}.{k}{p.suffix}")
 
 
 class CanRecorder:
-    """Record every frame of ``interface``/``channel`` to ``path`` with :class:`can.Logger`.
+    """Record every frame of ``interface``/``channel`` to ``path`` with python-can's writers.
 
     Opens its own listener bus on the channel (the service's buses are not touched) and a
-    :class:`can.Notifier` thread. ``close()`` stops it and closes the file.
+    :class:`can.Notifier` thread. The file is rotated when it reaches ``max_bytes``: the full
+    file becomes ``<stem>.1<suffix>``, older ones move up by one, and beyond ``keep`` rotated
+    files the oldest is deleted — the log takes at most about (``keep`` + 1) × ``max_bytes`` of
+    disk however long the service runs. ``close()`` stops it and closes the file.
+
+    Args:
+        path: the log file; its suffix picks the format (:data:`CAN_LOG_SUFFIXES`).
+        interface, channel: the bus to record (:func:`bridge.link.realtime.open_bus`).
+        max_bytes: size of one file, [1e5, 1e11] bytes.
+        keep: rotated files kept, 1..1000.
     """
 
-    def __init__(self, path: str | Path, interface: str, channel: str | None = None) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        interface: str,
+        channel: str | None = None,
+        *,
+        max_bytes: int = 50_000_000,
+        keep: int = 10,
+    ) -> None:
         from bridge.link.realtime import open_bus
 
         self.path = Path(path)
-        try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._writer = can.Logger(str(self.path))
-        except (ValueError, OSError, ImportError) as exc:  # unknown suffix, unwritable file
-            raise BlackBoxError(
-                f"--can-log {self.path}: cannot record ({exc}); suffixes: .asc, .blf, .log (candump), .csv"
-            ) from None
+        self._writer = self._open(self.path, max_bytes, keep)
         try:
             self._bus = open_bus(interface, channel)
         except HitchInputError:
             self._writer.stop()
             raise
+        self._count = _Counter()
         listeners: list[can.Listener] = [self._writer]
-        if isinstance(self._writer, TextIOMessageWriter):  # text logs reach the disk within 0.25 s
+        if isinstance(self._writer.writer, TextIOMessageWriter):  # text logs reach the disk within 0.25 s
             listeners.append(_Flusher(self._writer, FLUSH_EVERY_S))
-        self._notifier = can.Notifier(self._bus, listeners, timeout=0.1)
+        self._notifier = can.Notifier(self._bus, [*listeners, self._count], timeout=0.1)
         self._closed = False
+
+    @property
+    def frames_written(self) -> int:
+        """Frames handed to the writer so far (on the notifier's thread)."""
+        return self._count.n
+
+    @classmethod
+    def of_config(cls, cfg: ServiceConfig) -> CanRecorder:
+        """The recorder a service configuration asks for (``can_log``, ``can_log_max_mb``, ``can_log_keep``)."""
+        if cfg.can_log is None:
+            raise BlackBoxError("no can_log configured")
+        max_bytes = int(round(cfg.can_log_max_mb * 1e6))
+        return cls(cfg.can_log, cfg.can_interface, cfg.can_channel, max_bytes=max_bytes, keep=cfg.can_log_keep)
+
+    @staticmethod
+    def _open(path: Path, max_bytes: int, keep: int) -> can.SizedRotatingLogger:
+        if isinstance(max_bytes, bool) or not isinstance(max_bytes, int) or not 100_000 <= max_bytes <= 10**11:
+            raise BlackBoxError(f"--can-log: max_bytes must be an integer in [100000, 1e11], got {max_bytes!r}")
+        if isinstance(keep, bool) or not isinstance(keep, int) or not 1 <= keep <= 1000:
+            raise BlackBoxError(f"--can-log: keep must be an integer in 1..1000, got {keep!r}")
+        if path.suffix.lower() not in CAN_LOG_SUFFIXES:
+            raise BlackBoxError(
+                f"--can-log {path}: cannot record files of type {path.suffix or '(none)'!r}; "
+                f"suffixes: .asc, .blf, .log (candump), .csv"
+            )
+
+        def shift(source: str | os.PathLike[str], _default_dest: str | os.PathLike[str] = "") -> None:
+            """The full file becomes .1, every older one moves up by one, the oldest beyond ``keep`` goes."""
+            rotated_can_log(path, keep).unlink(missing_ok=True)
+            for k in range(keep - 1, 0, -1):
+                older = rotated_can_log(path, k)
+                if older.exists():
+                    older.replace(rotated_can_log(path, k + 1))
+            Path(source).replace(rotated_can_log(path, 1))
+
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            if path.is_file() and path.stat().st_size > 0:  # an earlier run's log is kept, as the newest rotated one
+                shift(path)
+            logger = can.SizedRotatingLogger(str(path), max_bytes=max_bytes)
+        except (ValueError, OSError, ImportError, TypeError) as exc:  # unwritable file
+            raise BlackBoxError(
+                f"--can-log {path}: cannot record ({exc}); suffixes: .asc, .blf, .log (candump), .csv"
+            ) from None
+        logger.rotator = shift
+        return logger
 
     @staticmethod
     def check_path(path: str | Path) -> None:
-        """Refuse a file :class:`can.Logger` cannot write (unknown suffix, unwritable) before recording starts."""
+        """Refuse a file the recorder cannot write (unknown suffix, a folder that cannot be made or
+        written) before recording starts; an existing log is not touched."""
         p = Path(path)
+        if p.suffix.lower() not in CAN_LOG_SUFFIXES:
+            raise BlackBoxError(
+                f"--can-log {p}: cannot record files of type {p.suffix or '(none)'!r}; "
+                f"suffixes: .asc, .blf, .log (candump), .csv"
+            )
         try:
             p.parent.mkdir(parents=True, exist_ok=True)
-            can.Logger(str(p)).stop()
-        except (ValueError, OSError, ImportError) as exc:
-            raise BlackBoxError(
-                f"--can-log {p}: cannot record ({exc}); suffixes: .asc, .blf, .log (candump), .csv"
-            ) from None
+        except OSError as exc:
+            raise BlackBoxError(f"--can-log {p}: cannot record ({exc})") from None
+        if p.is_dir() or not os.access(p if p.exists() else p.parent, os.W_OK):
+            raise BlackBoxError(f"--can-log {p}: cannot record (not a writable file)")
 
     def close(self) -> None:
         if self._closed:

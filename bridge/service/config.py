@@ -23,6 +23,7 @@ TOML layout (every key optional; the names are the field names below)::
                realtime = true   # the control path under SCHED_FIFO where permitted (bridge.service.scheduling)
                max_presets_per_user = 1000; max_maneuvers_per_user = 200
                max_script_bytes_per_user = 4194304   # the store's limits per user (store.StoreLimits)
+               can_log = "bus.asc"; can_log_max_mb = 50.0; can_log_keep = 10   # CAN recorder, rotated by size
 """
 
 from __future__ import annotations
@@ -141,8 +142,11 @@ class ServiceConfig(BaseModel):
     #: run the control path under the real-time policy SCHED_FIFO where permitted (bridge.service.scheduling);
     #: False: raised nice values only
     realtime: bool = Field(True, strict=True)
-    #: record every CAN frame to this file (.asc, .blf, candump .log; python-can's writers)
+    #: record every CAN frame to this file (.asc, .blf, candump .log, .csv; python-can's writers), rotated
+    #: at can_log_max_mb megabytes (10^6 bytes) a file, can_log_keep rotated files kept (bridge.service.blackbox)
     can_log: Path | None = None
+    can_log_max_mb: float = Field(50.0, ge=0.1, le=100_000.0)
+    can_log_keep: int = Field(10, ge=1, le=1000, strict=True)
     #: processes for plan previews, maneuver validation and IK (bridge.service.workers); 0: on the worker threads
     planning_processes: int = Field(2, ge=0, le=32, strict=True)
     #: per-user limits of the presets and maneuvers store (see bridge.service.store.StoreLimits)
@@ -255,6 +259,9 @@ _TOML_SECTIONS = {
         "max_presets_per_user": "max_presets_per_user",
         "max_maneuvers_per_user": "max_maneuvers_per_user",
         "max_script_bytes_per_user": "max_script_bytes_per_user",
+        "can_log": "can_log",
+        "can_log_max_mb": "can_log_max_mb",
+        "can_log_keep": "can_log_keep",
     },
 }
 

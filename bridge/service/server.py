@@ -243,7 +243,7 @@ class HitchService:
                 if cfg.can_log is not None:  # records the in-process bus (the core process records its own)
                     from bridge.service.blackbox import CanRecorder
 
-                    self._recorder = CanRecorder(cfg.can_log, cfg.can_interface, cfg.can_channel)
+                    self._recorder = CanRecorder.of_config(cfg)
                 self.parts = parts = start_can(cfg, runners_out=self._runners)
                 self.link, self.ecu_node = parts.link, parts.ecu_node
                 self.motion, guard = build_controller(cfg, parts, on_state=self._on_state, on_event=self._on_event)

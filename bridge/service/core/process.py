@@ -151,7 +151,7 @@ class ControlCore:
         if cfg.can_log is not None:
             from bridge.service.blackbox import CanRecorder
 
-            self.recorder = CanRecorder(cfg.can_log, cfg.can_interface, cfg.can_channel)
+            self.recorder = CanRecorder.of_config(cfg)
         runners: list[Any] = []
         self.parts = parts = start_can(cfg, runners_out=runners)
         self._open_zenoh()

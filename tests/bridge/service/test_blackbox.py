@@ -273,3 +273,75 @@ def test_replay_of_a_missing_or_unknown_file_is_a_clear_error(tmp_path):
     bad.write_text("x", encoding="utf-8")
     with pytest.raises(BlackBoxError, match="cannot read"):
         list(replay_can_log(bad, model))
+
+
+def _numbered(k: int) -> can.Message:
+    return can.Message(arbitration_id=0x18FEEEAB, is_extended_id=True, data=k.to_bytes(4, "big") + b"\0\0\0\0")
+
+
+def _numbers(path) -> list[int]:
+    return [int.from_bytes(bytes(m.data[:4]), "big") for m in can.LogReader(str(path)) if not m.is_error_frame]
+
+
+@pytest.mark.parametrize("suffix", [".asc", ".log", ".blf"])
+def test_the_can_log_rotates_by_size_keeps_its_last_files_and_loses_no_frame_in_them(tmp_path, suffix):
+    """About five files' worth of frames through a recorder of 100 kB files keeping 2 rotated ones: the
+    newest file and two rotated ones remain, each readable by python-can and within the size (plus one
+    frame), and together they hold the newest frames without a gap, in order. Before, the log grew
+    without bound (8 MB in about 5 minutes of a service at rest)."""
+    channel = f"bb-rot-{suffix[1:]}-{time.monotonic_ns()}-x"
+    path = tmp_path / f"bus{suffix}"
+    rec = CanRecorder(path, "virtual", channel, max_bytes=100_000, keep=2)
+    sender = can.Bus(interface="virtual", channel=channel)
+    per_file = 2000 if suffix != ".blf" else 8000  # rough frames per 100 kB (BLF compresses)
+    n = 5 * per_file
+    try:
+        for k in range(n):
+            sender.send(_numbered(k))
+            if k % 500 == 499:
+                time.sleep(0.02)
+        deadline = time.monotonic() + 20.0
+        while time.monotonic() < deadline and rec.frames_written < n:
+            time.sleep(0.05)
+    finally:
+        rec.close()
+        sender.shutdown()
+    assert rec.frames_written == n
+    files = sorted(p.name for p in tmp_path.iterdir())
+    assert files == sorted([f"bus{suffix}", f"bus.1{suffix}", f"bus.2{suffix}"]), files
+    kept = [_numbers(tmp_path / f"bus.2{suffix}"), _numbers(tmp_path / f"bus.1{suffix}"), _numbers(path)]
+    assert all(kept), [len(k) for k in kept]
+    seq = [k for part in kept for k in part]
+    assert seq == list(range(seq[0], n)), "a gap or a reordering across the rotated files"
+    assert seq[0] > 0  # the oldest files were deleted
+    for name in (f"bus.2{suffix}", f"bus.1{suffix}"):
+        assert (tmp_path / name).stat().st_size <= 100_000 + 70_000  # one frame (or one BLF container) over
+
+
+def test_a_new_recorder_keeps_the_last_runs_can_log_and_checking_the_path_touches_nothing(tmp_path):
+    path = tmp_path / "bus.asc"
+    for run in range(2):
+        channel = f"bb-restart-{run}-{time.monotonic_ns()}-x"
+        CanRecorder.check_path(path)  # as `hitch serve` does before it starts: never truncates a log
+        rec = CanRecorder(path, "virtual", channel, keep=3)
+        sender = can.Bus(interface="virtual", channel=channel)
+        try:
+            for k in range(10):
+                sender.send(_numbered(100 * run + k))
+            deadline = time.monotonic() + 5.0
+            while time.monotonic() < deadline and rec.frames_written < 10:
+                time.sleep(0.02)
+        finally:
+            rec.close()
+            sender.shutdown()
+    assert _numbers(tmp_path / "bus.1.asc") == list(range(10))
+    assert _numbers(path) == list(range(100, 110))
+
+
+def test_can_log_settings_out_of_range_are_refused_by_name():
+    with pytest.raises(BlackBoxError, match=r"max_bytes must be an integer in \[100000, 1e11\]"):
+        CanRecorder("/tmp/never.asc", "virtual", "bb-never", max_bytes=10)
+    with pytest.raises(BlackBoxError, match=r"keep must be an integer in 1\.\.1000"):
+        CanRecorder("/tmp/never.asc", "virtual", "bb-never", keep=0)
+    with pytest.raises(BlackBoxError, match=r"suffixes: \.asc, \.blf"):
+        CanRecorder.check_path("/tmp/never.txt")

@@ -117,3 +117,15 @@ def test_every_link_interface_is_a_service_interface():
     add_commands(parser.add_subparsers(dest="command"))
     serve = parser.parse_args(["serve", "--can-interface", "remote"])
     assert serve.can_interface == "remote"
+
+
+def test_can_log_rotation_settings_from_toml_and_flags_with_errors_naming_the_field_and_range(tmp_path):
+    cfg = load_service_config()
+    assert (cfg.can_log, cfg.can_log_max_mb, cfg.can_log_keep) == (None, 50.0, 10)
+    f = tmp_path / "service.toml"
+    f.write_text('[service]\ncan_log = "bus.blf"\ncan_log_max_mb = 2.5\ncan_log_keep = 3\n')
+    cfg = load_service_config(f)
+    assert (cfg.can_log.name, cfg.can_log_max_mb, cfg.can_log_keep) == ("bus.blf", 2.5, 3)
+    for bad in ({"can_log_max_mb": 0.0}, {"can_log_max_mb": float("nan")}, {"can_log_keep": 0}):
+        with pytest.raises(ServiceConfigError, match=next(iter(bad))):
+            load_service_config(**bad)

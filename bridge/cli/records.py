@@ -5,8 +5,10 @@ files, oldest first; :mod:`bridge.service.blackbox`): who asked what, accepted o
 faults and motion outcomes. ``--follow`` then keeps printing new records (Ctrl-C ends it).
 ``hitch replay FILE`` reads a CAN log recorded with ``hitch serve --can-log FILE`` (or any
 ``.asc``/``.blf``/candump ``.log`` of the same bus) into a CAN link and prints what it decodes:
-references, measurements with the measured pose, heartbeats (``--all``) and the faults the link
-raises in the log's time.
+references, measurements with the measured pose, the tractor's sensors, heartbeats (``--all``) and
+the faults the link raises in the log's time. Each message is printed at most once per ``--interval``
+per sender (the bus carries some 400 frames a second), ``--only`` picks message names; faults and
+frames that cannot be decoded are always printed, and the closing line counts every frame.
 """
 
 from __future__ import annotations
@@ -107,7 +109,8 @@ def _cmd_replay(args) -> int:
     c = console(soft_wrap=True)
     counts: dict[str, int] = {}
     faults = 0
-    last_pose_t = -float("inf")
+    last_t: dict[tuple[str, int | None], float] = {}  # per message and sender: when it was last printed
+    only: frozenset[str] | None = args.only
     for r in replay_can_log(Path(args.file), model, stale_after_s=args.stale_after):
         if args.json:
             print(json.dumps(r.to_json()))
@@ -122,13 +125,17 @@ def _cmd_replay(args) -> int:
         if r.error:
             c.print(f"{r.t_s:9.3f} s  {r.name} from {r.source}: not decoded ({r.error})", markup=False, highlight=False)
             continue
-        if not args.all and r.name in _QUIET_MESSAGES:
+        if only is not None and r.name not in only:
             continue
-        if r.pose is not None and not args.all and r.t_s - last_pose_t < args.interval:
-            continue
+        if not args.all:
+            if only is None and r.name in _QUIET_MESSAGES:
+                continue
+            key = (r.name, r.source)
+            if r.t_s - last_t.get(key, -float("inf")) < args.interval:
+                continue
+            last_t[key] = r.t_s
         line = f"{r.t_s:9.3f} s  {r.name} from {r.source}: {_fmt_fields(dict(r.fields))}"
         if r.pose is not None:
-            last_pose_t = r.t_s
             p = r.pose
             line += (
                 f"  -> pose x={p['x']:+.4f} m z={p['z']:+.4f} m roll={p['roll']:+.4f} rad pitch={p['pitch']:+.4f} rad"
@@ -143,6 +150,21 @@ def _cmd_replay(args) -> int:
             highlight=False,
         )
     return 0
+
+
+def _message_names(text: str) -> frozenset[str]:
+    """``--only``: comma-separated message names the codec knows (argparse names the option)."""
+    import argparse
+
+    from bridge.isobus.codec import PAYLOAD_NAMES
+
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    unknown = [n for n in names if n not in PAYLOAD_NAMES]
+    if not names or unknown:
+        raise argparse.ArgumentTypeError(
+            f"unknown message {', '.join(unknown) or '(none given)'}; allowed: {', '.join(PAYLOAD_NAMES)}"
+        )
+    return frozenset(names)
 
 
 def add_commands(sub) -> None:
@@ -167,7 +189,14 @@ def add_commands(sub) -> None:
         "--interval",
         type=bounded_float("--interval", 0.0, 3600.0, unit="s", lo_open=False),
         default=0.1,
-        help="print a measured pose at most this often, [0, 3600] s (default 0.1)",
+        help="print each message (per sender) at most this often, [0, 3600] s (default 0.1; --all: every frame)",
+    )
+    p.add_argument(
+        "--only",
+        type=_message_names,
+        default=None,
+        metavar="NAMES",
+        help="print only these messages, comma-separated (e.g. PositionMeasurement,PositionCounts); faults always",
     )
     p.add_argument(
         "--stale-after",

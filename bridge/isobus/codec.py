@@ -937,6 +937,9 @@ _MESSAGES: tuple[_MessageCodec[Any], ...] = (
     _HitchCommandCodec(),
 )
 
+#: the names of the payload types the codec decodes (as a replay names its records)
+PAYLOAD_NAMES: tuple[str, ...] = tuple(m.payload.__name__ for m in _MESSAGES)
+
 
 def _load_database(path: str) -> Database:
     db = cantools.database.load_file(path, frame_id_mask=FRAME_ID_MASK)

@@ -231,6 +231,37 @@ def test_hitch_replay_prints_decoded_frames_poses_and_faults(tmp_path, capsys):
     assert "does not exist" in _err_line(capsys)
 
 
+def test_hitch_replay_prints_each_message_at_most_once_an_interval_and_only_the_named_ones(tmp_path, capsys):
+    """One second of a bus at rest: the slope sensor and the ECU at 100 Hz. Before, every slope frame
+    was printed (100 lines a second, burying the measurements); now each message once per --interval
+    (0.1 s) per sender, and --only picks messages by name (an unknown name is refused, naming the allowed)."""
+    import can
+
+    from bridge.isobus.codec import load_codec
+    from bridge.isobus.messages import FigureOfMerit, SlopeSensorInformation
+
+    codec = load_codec()
+    ok = FigureOfMerit.FULLY_FUNCTIONAL
+    ssi = SlopeSensorInformation(0.01, 0.02, 0.0, pitch_merit=ok, roll_merit=ok, pitch_rate_merit=ok)
+    path = tmp_path / "bus.asc"
+    with can.ASCWriter(str(path)) as w:
+        for k in range(100):
+            m = codec.encode(ssi, source=226)
+            m.timestamp = 100.0 + 0.01 * k
+            w.on_message_received(m)
+    assert main(["replay", str(path)]) == 0
+    lines = [ln for ln in capsys.readouterr().out.splitlines() if "SlopeSensorInformation from" in ln]
+    assert 9 <= len(lines) <= 11, len(lines)
+    assert main(["replay", str(path), "--all"]) == 0
+    assert capsys.readouterr().out.count("SlopeSensorInformation from") == 100
+    assert main(["replay", str(path), "--only", "PositionMeasurement"]) == 0
+    out = capsys.readouterr().out
+    assert "SlopeSensorInformation from" not in out and "100 frames" in out
+    assert main(["replay", str(path), "--only", "Slope"]) == 2
+    err = capsys.readouterr().err
+    assert "unknown message Slope" in err and "SlopeSensorInformation" in err
+
+
 # ---------------------------------------------------------------------------------------- plan
 def test_plan_shows_the_final_approach_of_a_profile_that_asks_for_one(tmp_path, capsys):
     prof = profile_file_with_final_approach(tmp_path)

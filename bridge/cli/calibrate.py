@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -73,11 +74,32 @@ def _cmd_plan(args) -> int:
     if args.json:
         print(
             json.dumps(
-                {"poses": rows, "log_det": d.log_det, "identifiable": d.identifiable, "candidates": d.candidates}
+                {
+                    "poses": rows,
+                    "log_det": d.log_det,
+                    "identifiable": d.identifiable,
+                    "rank": d.rank,
+                    "determined": d.determined,
+                    "candidates": d.candidates,
+                }
             )
         )
+    else:
+        print(
+            f"{len(rows)} poses (D-optimal over {d.candidates} candidates; of the {d.identifiable} parameter "
+            f"directions the workspace can identify they separate {d.rank} and determine {d.determined} well "
+            "enough for the calibration, which keeps the rest at nominal)"
+        )
+    if d.rank < d.identifiable:
+        print(
+            f"hitch calibrate plan-poses: warning: {len(rows)} poses can separate only {d.rank} of the "
+            f"{d.identifiable} parameter directions the workspace can identify, whatever is measured; a "
+            f"calibration from them keeps at least {d.identifiable - d.rank} more combinations at nominal: "
+            "plan more poses (--n)",
+            file=sys.stderr,
+        )
+    if args.json:
         return 0
-    print(f"{len(rows)} poses (D-optimal over {d.candidates} candidates; {d.identifiable} identifiable directions)")
     for r in rows:
         print(
             f"{r['pose']:>4}: x {1e3 * r['x']:7.1f} mm  z {1e3 * r['z']:7.1f} mm  roll {1e3 * r['roll']:6.1f} mrad  "

@@ -33,13 +33,21 @@ _ANGLES = ("roll", "pitch", "yaw")
 @dataclass(frozen=True)
 class PoseDesign:
     """Chosen poses (N, 4: x, z, roll, pitch), their nominal actuators (N, 5), the log det of the design's
-    information over the identifiable directions and how many directions that is."""
+    information over the identifiable directions and how many directions that is (identifiable over the
+    whole workspace, all candidates together). Of those, ``rank``: how many the chosen poses can separate
+    at all (rank of their stacked Jacobian over the directions; below ``identifiable`` when too few poses
+    are chosen, whatever is measured); ``determined``: how many they determine as well as a calibration
+    from them asks (singular values of their weighted, scaled Jacobian ≥ ``min_singular``, the threshold
+    :func:`~planner.calibration.solve.solve_calibration` applies); the others stay at nominal in such a
+    calibration, and more poses determine more of them."""
 
     poses: np.ndarray
     actuators: np.ndarray
     log_det: float
     identifiable: int
     candidates: int
+    rank: int
+    determined: int
 
 
 def measured_rows(points: bool = False, pose: bool = True) -> np.ndarray:
@@ -173,4 +181,7 @@ def plan_poses(
         if not improved:
             break
     idx = np.array(chosen)
-    return PoseDesign(poses[idx], acts[idx], current, k, int(poses.shape[0]))
+    s = np.linalg.svd(jb[idx].reshape(-1, k), compute_uv=False)
+    rank = int(np.count_nonzero(s > 1e-9 * s[0])) if s.size and s[0] > 0 else 0
+    determined = int(np.count_nonzero(s >= min_singular))
+    return PoseDesign(poses[idx], acts[idx], current, k, int(poses.shape[0]), rank, determined)

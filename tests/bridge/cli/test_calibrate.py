@@ -96,6 +96,19 @@ def test_plan_poses_prints_n_reachable_poses(capsys, tmp_path):
     assert "--n must be an integer" in _err(capsys, ["calibrate", "plan-poses", "--n", "0"])
 
 
+def test_plan_poses_warns_when_the_poses_cannot_separate_every_identifiable_direction(capsys):
+    """Before, `plan-poses --n 3` planned three poses without a word, and the calibration from them
+    silently kept a quarter of the identifiable combinations at nominal."""
+    assert main(["calibrate", "plan-poses", "--n", "3", "--candidates", "40"]) == 0
+    out, err = capsys.readouterr()
+    assert "warning: 3 poses can separate only" in err and "plan more poses (--n)" in err
+    assert "they separate" in out
+    assert main(["calibrate", "plan-poses", "--n", "12", "--candidates", "40", "--json"]) == 0
+    out, err = capsys.readouterr()
+    data = json.loads(out)
+    assert "warning" not in err and data["rank"] == data["identifiable"] >= data["determined"] > 5
+
+
 def test_end_to_end_on_a_twin_calibrates_better_than_nominal(tmp_path, capsys):
     prof = load_profile("thesis-t132")
     data, _ = perturb_profile(prof, 11)

@@ -199,3 +199,20 @@ def test_bad_solver_options_are_refused():
 
 def test_pose_rows_are_the_controlled_pose():
     assert list(POSE_ROWS) == ["x", "z", "roll", "pitch"]
+
+
+def test_a_design_says_how_many_identifiable_directions_its_poses_separate_and_determine():
+    """Three poses (12 measured values) cannot separate the 16 directions the workspace identifies: the
+    design's rank says so (the CLI warns); enough poses separate all. ``determined`` is what a
+    calibration from exact measurements at the chosen poses identifies (same σ, same threshold)."""
+    model = _model()
+    few = plan_poses(model, 3, candidates=60, seed=1)
+    assert few.rank <= 3 * len(measured_rows()) < few.identifiable
+    assert few.determined <= few.rank
+    enough = plan_poses(model, 12, candidates=60, seed=1)
+    assert enough.rank == enough.identifiable and enough.determined >= few.determined
+    for d in (few, enough):
+        res = solve_calibration(
+            build_calibration_problem(model, _data(model, d.actuators, model.params.nominal, points=False))
+        )
+        assert res.identified == d.determined, (res.identified, d.determined)

@@ -191,7 +191,11 @@ def start_can(cfg: ServiceConfig, *, runners_out: list[RealtimeRunner] | None = 
                 twin.port(), ground_speed_m_s=cfg.sim_ground_speed, hitch_height_m=height
             )
             twin.add(ecu_node).add(tractor)
-            started.append(RealtimeRunner(twin, max_wait_s=_MAX_WAIT_S, name="EcuCanNode-rt").start())
+            # frames as they arrive while references feed the ECU; otherwise (at rest) at its 10 ms ticks, as an
+            # ECU's control task reads its mailbox: the planner's heartbeats do not wake it between them
+            started.append(
+                RealtimeRunner(twin, max_wait_s=_MAX_WAIT_S, name="EcuCanNode-rt", prompt=lambda: ecu.fed).start()
+            )
         planner = SharedBusNodes(bus(PLANNER_PGNS))
         sensors = TractorSensors(planner.port(), TractorSensorsConfig(read_draft=True))  # draft: work control
         link = CanLink(

@@ -343,6 +343,12 @@ class CylinderECU:
         return self._restarts
 
     @property
+    def fed(self) -> bool:
+        """True while references arrive: the last one is younger than the watchdog's timeout at
+        :attr:`time_s` (a pure reading: the watchdog's trip count is not touched)."""
+        return self._watchdog.fed_at(self.time_s)
+
+    @property
     def watchdog(self) -> Watchdog:
         """The reference watchdog (read its ``trip_count``, ``last_feed_s``)."""
         return self._watchdog

@@ -63,6 +63,11 @@ class Watchdog:
             self._trips += 1
         return self._tripped
 
+    def fed_at(self, now_s: float) -> bool:
+        """True if the last reference is younger than the timeout at ``now_s`` [s]: ``not expired(now_s)``
+        without counting a trip (a pure reading)."""
+        return self._last is not None and now_s - self._last < self.timeout_s - _TIME_EPS_S
+
     @property
     def last_feed_s(self) -> float | None:
         """Arrival time of the last reference [s], or None since start / reset."""

@@ -23,16 +23,16 @@ from tests.helpers import wait_until
 pytestmark = pytest.mark.slow  # real time: a few seconds
 
 
-def _count_polls(link) -> list[float]:
-    """Wrap the link's poll (the runner polls it once per wake-up) to record each poll's time."""
+def _count_polls(node) -> list[float]:
+    """Wrap a node's poll (its runner polls it once per wake-up) to record each poll's time."""
     times: list[float] = []
-    poll = link.poll
+    poll = node.poll
 
     def counted(now_s: float) -> None:
         times.append(now_s)
         poll(now_s)
 
-    link.poll = counted
+    node.poll = counted
     return times
 
 
@@ -57,6 +57,27 @@ def test_at_rest_the_link_is_polled_once_a_control_period_and_counts_no_dropped_
         assert not link.faults.any, link.faults.reasons
         state = link.status(parts.clock()).state
         assert state is not None and parts.clock() - state.measurement_t_s <= period + 0.05
+    finally:
+        parts.close()
+
+
+def test_at_rest_the_twins_runner_wakes_for_its_ticks_only():
+    """The simulated ECU at rest (no reference feeding its watchdog) reads its bus at its 10 ms ticks, as an
+    ECU's control task reads its mailbox: the planner's 10 Hz heartbeats no longer wake it between them
+    (before: about 110 polls a second)."""
+    cfg = ServiceConfig(data_dir=tempfile.mkdtemp(), can_channel=f"idle-{uuid.uuid4().hex}")
+    parts = start_can(cfg)
+    try:
+        link, ecu_node = parts.link, parts.ecu_node
+        assert ecu_node is not None
+        assert wait_until(lambda: link.claimed and link.status(parts.clock()).state is not None, 10.0)
+        time.sleep(0.3)
+        assert not ecu_node.ecu.fed
+        polls = _count_polls(ecu_node)
+        time.sleep(1.0)
+        window = polls[-1] - polls[0]
+        assert len(polls) - 1 <= window / 0.01 + 3, f"{len(polls) - 1} polls in {window:.3f} s"
+        assert not link.faults.any, link.faults.reasons
     finally:
         parts.close()
 

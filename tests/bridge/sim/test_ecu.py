@@ -124,6 +124,19 @@ def test_watchdog_zeroes_valves_within_timeout_and_motion_stops(profile):
     assert ecu.valve_commands()[1] > 0
 
 
+def test_fed_says_whether_references_arrive_as_the_watchdog_judges_and_counts_no_trip(profile):
+    ecu = CylinderECU(profile, watchdog_timeout_s=0.05)
+    assert not ecu.fed  # nothing arrived yet
+    ecu.set_reference(ecu.measurement_counts(), 0.1)
+    for t, fed in ((0.1, True), (0.149, True), (0.15, False), (0.3, False)):
+        ecu.step(t)
+        assert ecu.fed is fed and ecu.fed is not ecu.watchdog.expired(ecu.time_s), t
+    trips = ecu.watchdog.trip_count
+    for _ in range(3):
+        assert not ecu.fed
+    assert ecu.watchdog.trip_count == trips
+
+
 def test_watchdog_timeout_is_configurable(profile):
     ecu = CylinderECU(profile, watchdog_timeout_s=0.05)
     ref = ecu.measurement_counts() + np.array([0, 300, 0, 0, 0])

@@ -19,7 +19,16 @@ import can
 from bridge.link.state import LinkError
 from bridge.link.virtual import InProcessBus
 
-__all__ = ["BusNode", "BusPort", "INTERFACES", "ReceivingNode", "RealtimeRunner", "SharedBusNodes", "open_bus"]
+__all__ = [
+    "BusNode",
+    "BusPort",
+    "INTERFACES",
+    "ReceivingNode",
+    "RealtimeRunner",
+    "SharedBusNodes",
+    "open_bus",
+    "take_waiting",
+]
 
 INTERFACES = ("udp_multicast", "socketcan", "virtual", "remote")
 """python-can interfaces the bridge runs on (virtual: in-process only; remote: processes on
@@ -197,14 +206,14 @@ class RealtimeRunner:
                 elif self._stop.wait(wait):
                     break
                 else:  # due: what arrived meanwhile, then the poll
-                    frame = node.bus.recv(timeout=0.0)
+                    frame = take_waiting(node.bus)
                 if frame is None:
                     continue
                 now, taken = self.now(), 0
                 while frame is not None:  # every frame already waiting, then one poll (not one per frame)
                     node.handle(frame, now)
                     taken += 1
-                    frame = node.bus.recv(timeout=0.0) if taken < _DRAIN_MAX else None
+                    frame = take_waiting(node.bus) if taken < _DRAIN_MAX else None
         except BaseException as exc:  # handed to the owner, never lost
             self.error = exc
             self._stop.set()
@@ -214,6 +223,23 @@ class RealtimeRunner:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+
+def take_waiting(bus: can.BusABC) -> can.Message | None:
+    """The next frame already waiting on ``bus`` that passes its receive filters, or None when none waits.
+
+    python-can's ``recv(timeout=0.0)`` returns None at the first waiting frame its software filters reject
+    (the virtual and udp_multicast buses filter in Python), even with wanted frames behind it: a loop that
+    drains with it at its deadlines would take one such frame per deadline and fall behind the bus. This
+    reads past them (python-can's own receive path: ``_recv_internal``, then ``_matches_filters``)."""
+    if isinstance(bus, BusPort):  # never blocks, no filters of its own to skip
+        return bus.recv(timeout=0.0)
+    while True:
+        msg, already_filtered = bus._recv_internal(timeout=0.0)
+        if msg is None:
+            return None
+        if already_filtered or bus._matches_filters(msg):
+            return msg
 
 
 class BusPort(can.BusABC):

@@ -111,6 +111,11 @@ def frame_stamp(frame: can.Message) -> float | None:
     return float(ts) if isinstance(ts, (int, float)) and math.isfinite(ts) and ts > 0.0 else None
 
 
+#: how far the stamps of two frames may lie further apart than their read times [s] before the stamps are
+#: taken for a step of the bus's wall clock (frames read together at a deadline lie a few periods apart)
+_STAMP_SLACK_S = 1.0
+
+
 @dataclass(frozen=True)
 class LinkConfig:
     """Settings of one :class:`~bridge.link.can_link.CanLink`.
@@ -159,8 +164,8 @@ class LinkConfig:
             :meth:`~bridge.link.can_link.CanLink.poll` the link (its fault checks and its
             heartbeat, sent on the first poll at or after its due time), s, in [0.001, 0.05]:
             a fault at rest is raised at most this late, our heartbeat is at most this late.
-            Default 0.01; the service uses its control period (a loop that reads the
-            link's state once a period gains nothing from checking it more often).
+            Default 0.01; the service uses its control period within [0.01, 0.02] s (a loop
+            that reads the link's state once a period gains nothing from checking it more often).
     """
 
     source_address: int = PLANNER_ADDRESS
@@ -298,8 +303,11 @@ class LinkFaults:
     Attributes:
         stale_measurement: no valid 0xFF22 (ECU → planner) or no lift (rear hitch status)
             for longer than ``stale_after_s`` (200 ms); raised at the first poll after
-            that (within 1 ms in simulated time, within the runner's 10 ms idle wake-up in
-            real time). Covers ECU → planner loss. Condition: gone when both are fresh.
+            that (within 1 ms in simulated time; in real time within one
+            ``check_period_s`` while the link is at rest, and as the frames arrive while it
+            streams; at rest a frame is read up to one check period after its arrival, so up to
+            two check periods after ``stale_after_s``). Covers ECU → planner loss. Condition:
+            gone when both are fresh.
         ecu_heartbeat: ECU heartbeat silent for more than ``heartbeat_timeout_s``
             (ISO 11783-7: 300 ms), or it says error (254) / shut down (255); raised at the
             next poll. Condition: gone with the next valid heartbeat.
@@ -435,7 +443,8 @@ class MeasurementAssembler:
         self._meas: tuple[float, tuple[int, int, int, int]] | None = None  # tilt, top, left, right
         self._hitch: tuple[float, float] | None = None  # (t, fraction)
         self._system: SystemStatus | None = None
-        self._rx_t: dict[str, tuple[bool, float]] = {}  # per source: (bus-stamped?, time of the last frame)
+        # per source: (bus-stamped?, time of the last frame (stamp or read time), its read time)
+        self._rx_t: dict[str, tuple[bool, float, float]] = {}
         self._restart_bits: int | None = None
         self._ecu_had_reference = False
         self._solved: tuple[tuple[float, ...], Actuators, Pose, Mapping[str, np.ndarray]] | None = None
@@ -532,8 +541,11 @@ class MeasurementAssembler:
         stamped = self._cfg.bus_timestamps and stamp_s is not None
         t = stamp_s if stamped and stamp_s is not None else now_s
         prev = self._rx_t.get(key)
-        self._rx_t[key] = (stamped, t)
+        self._rx_t[key] = (stamped, t, now_s)
         if prev is not None and prev[0] == stamped:  # never a read time against a stamp
-            missed = int(math.floor((t - prev[1]) / period_s + 0.5)) - 1
+            gap = t - prev[1]
+            if stamped and not 0.0 <= gap <= now_s - prev[2] + _STAMP_SLACK_S:
+                gap = now_s - prev[2]  # the bus's wall clock stepped (NTP, a GNSS time fix): read times
+            missed = int(math.floor(gap / period_s + 0.5)) - 1
             if missed > 0:
                 self._bump(**{counter: missed})

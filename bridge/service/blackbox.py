@@ -395,13 +395,55 @@ class _Flusher(can.Listener):
 
 
 class _Counter(can.Listener):
-    """Counts the frames the listeners before it have taken."""
+    """Counts the frames the listeners before it have taken; keeps the error that ended the recording."""
 
     def __init__(self) -> None:
         self.n = 0
+        self.error: BaseException | None = None
 
     def on_message_received(self, msg: can.Message) -> None:
         self.n += 1
+
+    def on_error(self, exc: Exception) -> None:
+        self.error = exc
+
+
+class _SizedLog(can.SizedRotatingLogger):
+    """python-can's size-rotating logger, its size looked up every :data:`_SIZE_EVERY` frames: a text
+    writer's ``file_size`` is ``tell()``, which flushes the file, so asking it for every frame made one
+    write per frame. A file grows past ``max_bytes`` by less than that many frames."""
+
+    def __init__(self, base_filename: str, max_bytes: int) -> None:
+        self._since_size = 0
+        super().__init__(base_filename, max_bytes=max_bytes)
+
+    def should_rollover(self, msg: can.Message) -> bool:
+        self._since_size += 1
+        if self._since_size < _SIZE_EVERY:
+            return False
+        self._since_size = 0
+        return super().should_rollover(msg)
+
+
+#: frames between two size look-ups of the CAN log (about 10 kB of ASC text, a quarter second at rest)
+_SIZE_EVERY = 100
+
+
+def _holds_frames(path: Path) -> bool:
+    """True if the log at ``path`` holds a frame (or cannot be read: kept rather than lost); a log with
+    only its header (a run that recorded nothing) is not worth a rotated slot."""
+    if not path.is_file() or path.stat().st_size == 0:
+        return False
+    try:
+        reader = can.LogReader(str(path))
+        try:
+            return next(iter(reader), None) is not None
+        finally:
+            stop = getattr(reader, "stop", None)
+            if callable(stop):
+                stop()
+    except Exception:  # noqa: BLE001 — a damaged log (a killed run's BLF) is kept
+        return True
 
 
 #: the suffixes :class:`CanRecorder` writes (python-can's size-rotating writers)
@@ -460,6 +502,11 @@ class CanRecorder:
         """Frames handed to the writer so far (on the notifier's thread)."""
         return self._count.n
 
+    @property
+    def error(self) -> BaseException | None:
+        """What stopped the recording (a rotation that could not rename, a full disk), or None."""
+        return self._count.error
+
     @classmethod
     def of_config(cls, cfg: ServiceConfig) -> CanRecorder:
         """The recorder a service configuration asks for (``can_log``, ``can_log_max_mb``, ``can_log_keep``)."""
@@ -491,9 +538,9 @@ class CanRecorder:
 
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
-            if path.is_file() and path.stat().st_size > 0:  # an earlier run's log is kept, as the newest rotated one
+            if _holds_frames(path):  # an earlier run's log is kept, as the newest rotated one
                 shift(path)
-            logger = can.SizedRotatingLogger(str(path), max_bytes=max_bytes)
+            logger = _SizedLog(str(path), max_bytes=max_bytes)
         except (ValueError, OSError, ImportError, TypeError) as exc:  # unwritable file
             raise BlackBoxError(
                 f"--can-log {path}: cannot record ({exc}); suffixes: .asc, .blf, .log (candump), .csv"
@@ -515,8 +562,9 @@ class CanRecorder:
             p.parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise BlackBoxError(f"--can-log {p}: cannot record ({exc})") from None
-        if p.is_dir() or not os.access(p if p.exists() else p.parent, os.W_OK):
-            raise BlackBoxError(f"--can-log {p}: cannot record (not a writable file)")
+        # rotating renames and deletes files in the folder: the folder must be writable, and the file if it is there
+        if p.is_dir() or not os.access(p.parent, os.W_OK) or (p.exists() and not os.access(p, os.W_OK)):
+            raise BlackBoxError(f"--can-log {p}: cannot record (the file or its folder {p.parent} is not writable)")
 
     def close(self) -> None:
         if self._closed:

@@ -102,8 +102,9 @@ def pgn_filters(pgns: frozenset[int]) -> list[dict[str, Any]]:
 
 #: the longest a CAN runner waits for a frame before it polls its node again [s]
 _MAX_WAIT_S = 0.02
-#: the longest check period of the planner's link at rest (LinkConfig.check_period_s's bound)
-_MAX_CHECK_PERIOD_S = 0.05
+#: the shortest check period of the planner's link at rest (the control period, but never more often than
+#: the 10 ms of a link on its own); the longest is _MAX_WAIT_S
+_MIN_CHECK_PERIOD_S = 0.01
 
 
 def build_model(cfg: ServiceConfig) -> HitchModel:
@@ -203,12 +204,12 @@ def start_can(cfg: ServiceConfig, *, runners_out: list[RealtimeRunner] | None = 
             planner.port(),
             # real time: the bus stamps frames on a real clock, so a stall of this process alone is not
             # taken for a late ECU heartbeat (LinkConfig.bus_timestamps)
-            # at rest the link is checked once a control period (LinkConfig.check_period_s)
+            # at rest the link is checked once a control period, within [10, 20] ms (LinkConfig.check_period_s)
             LinkConfig(
                 control_rate_hz=cfg.control_rate,
                 stale_after_s=cfg.stale_timeout_s,
                 bus_timestamps=True,
-                check_period_s=min(1.0 / cfg.control_rate, _MAX_CHECK_PERIOD_S),
+                check_period_s=min(max(1.0 / cfg.control_rate, _MIN_CHECK_PERIOD_S), _MAX_WAIT_S),
             ),
         )
         switch = HitchSwitchNode(planner.port())

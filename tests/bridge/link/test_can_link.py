@@ -424,6 +424,11 @@ def test_frames_read_together_are_counted_as_dropped_only_from_their_stamps(mode
     assert bumps.get("dropped_measurements", 0) == expected[1]
     rx.on_measurement(m, 0.26, None)
     assert bumps.get("dropped_measurements", 0) == expected[2]
+    if bus_timestamps:  # the bus's wall clock steps (NTP, a GNSS time fix): the read times count
+        rx.on_measurement(m, 0.27, wall0 + 0.22)
+        rx.on_measurement(m, 0.28, wall0 + 1e5)  # 10 ms later by the read times: nothing missing
+        rx.on_measurement(m, 0.30, wall0 - 50.0)  # a step back: 20 ms by the read times, one missing
+        assert bumps.get("dropped_measurements", 0) == expected[2] + 1
 
 
 def test_missing_and_error_heartbeats_stop_motion(model):

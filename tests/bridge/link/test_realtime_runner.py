@@ -128,6 +128,7 @@ def test_while_not_prompt_the_runner_wakes_for_its_deadlines_only_and_hands_over
                 time.sleep(0.01)
             assert len(node.handled) == 60
             polls = node.polls[polls0:]
+            took = runner.now() - t_sent  # 0.6 s and more on a loaded machine
         finally:
             runner.stop()
             bus.shutdown()
@@ -136,7 +137,7 @@ def test_while_not_prompt_the_runner_wakes_for_its_deadlines_only_and_hands_over
         if woken_by_frames:
             assert len(polls) >= 20, f"{len(polls)} polls for 60 frames"
         else:
-            assert len(polls) <= 0.6 / 0.2 + 2, f"{len(polls)} polls: woken by frames"
+            assert len(polls) <= took / 0.2 + 2, f"{len(polls)} polls in {took:.2f} s: woken by frames"
             # the first frame waited for the node's deadline (no earlier than one period after the poll before it)
             before = [t for t in node.polls if t <= t_sent]
             assert node.handled[0] >= before[-1] + 0.2 - 1e-3
@@ -154,7 +155,10 @@ def test_a_runner_turned_prompt_wakes_for_the_next_frame():
         flag.set()
         time.sleep(0.7)  # past a deadline: the runner now waits on the bus
         polls = len(node.polls)
-        while len(node.polls) == polls:  # right after a deadline: the next one is 0.3 s away
+        deadline = time.monotonic() + 5.0
+        while (
+            len(node.polls) == polls and time.monotonic() < deadline
+        ):  # right after a deadline: the next is 0.3 s away
             time.sleep(0.001)
         t_send = runner.now()
         _frames(sender, 1, 0.0)
@@ -164,6 +168,35 @@ def test_a_runner_turned_prompt_wakes_for_the_next_frame():
         assert node.handled, "the frame was never handed over"
         # at the next deadline it would have waited 0.3 s
         assert node.handled[0] - t_send < 0.15, node.handled[0] - t_send
+    finally:
+        runner.stop()
+        bus.shutdown()
+        sender.shutdown()
+    assert runner.error is None
+
+
+def test_a_runner_at_its_deadline_takes_every_wanted_frame_past_filtered_out_ones():
+    """Ten frames the bus's receive filter rejects, each ahead of a wanted one, all waiting at one deadline.
+    python-can's recv(timeout=0) gives up at the first rejected frame, so draining with it took one wanted
+    frame per deadline (here 1 of 10 after the first deadline) and fell behind a bus with foreign traffic."""
+    ch = f"rt-{uuid.uuid4().hex}"
+    wanted_id, foreign_id = 0x0CFF22A9, 0x18FEF1AB
+    bus = open_bus("virtual", ch, can_filters=[{"can_id": wanted_id, "can_mask": 0x1FFFFFFF, "extended": True}])
+    sender = open_bus("virtual", ch)
+    node = _TimedNode(bus, 0.3)
+    runner = RealtimeRunner(node, max_wait_s=1.0, prompt=lambda: False).start()
+    try:
+        polls = len(node.polls)
+        deadline = time.monotonic() + 5.0
+        while len(node.polls) == polls and time.monotonic() < deadline:  # right after a deadline
+            time.sleep(0.001)
+        for k in range(10):
+            sender.send(can.Message(arbitration_id=foreign_id, data=[k] * 8, is_extended_id=True))
+            sender.send(can.Message(arbitration_id=wanted_id, data=[k] * 8, is_extended_id=True))
+        polls = len(node.polls)
+        while len(node.polls) < polls + 1 and time.monotonic() < deadline:  # the next deadline
+            time.sleep(0.005)
+        assert len(node.handled) == 10, f"{len(node.handled)} of 10 wanted frames at the next deadline"
     finally:
         runner.stop()
         bus.shutdown()

@@ -293,7 +293,7 @@ def test_the_can_log_rotates_by_size_keeps_its_last_files_and_loses_no_frame_in_
     path = tmp_path / f"bus{suffix}"
     rec = CanRecorder(path, "virtual", channel, max_bytes=100_000, keep=2)
     sender = can.Bus(interface="virtual", channel=channel)
-    per_file = 2000 if suffix != ".blf" else 8000  # rough frames per 100 kB (BLF compresses)
+    per_file = 2000 if suffix != ".blf" else 8000  # rough frames per 100 kB (BLF's size counts uncompressed data)
     n = 5 * per_file
     try:
         for k in range(n):
@@ -336,6 +336,12 @@ def test_a_new_recorder_keeps_the_last_runs_can_log_and_checking_the_path_touche
             sender.shutdown()
     assert _numbers(tmp_path / "bus.1.asc") == list(range(10))
     assert _numbers(path) == list(range(100, 110))
+    # a run that recorded nothing (its log holds only the header) takes no rotated slot
+    CanRecorder(path, "virtual", f"bb-empty-{time.monotonic_ns()}-x", keep=3).close()
+    CanRecorder(path, "virtual", f"bb-empty-{time.monotonic_ns()}-y", keep=3).close()
+    assert _numbers(tmp_path / "bus.1.asc") == list(range(100, 110))
+    assert _numbers(tmp_path / "bus.2.asc") == list(range(10))
+    assert not (tmp_path / "bus.3.asc").exists() and _numbers(path) == []
 
 
 def test_can_log_settings_out_of_range_are_refused_by_name():

@@ -231,8 +231,10 @@ def take_waiting(bus: can.BusABC) -> can.Message | None:
     python-can's ``recv(timeout=0.0)`` returns None at the first waiting frame its software filters reject
     (the virtual and udp_multicast buses filter in Python), even with wanted frames behind it: a loop that
     drains with it at its deadlines would take one such frame per deadline and fall behind the bus. This
-    reads past them (python-can's own receive path: ``_recv_internal``, then ``_matches_filters``)."""
-    if isinstance(bus, BusPort):  # never blocks, no filters of its own to skip
+    reads past them (python-can's own receive path: ``_recv_internal``, then ``_matches_filters``). A bus
+    that receives its own way (it overrides ``recv``: python-can-remote's client, a :class:`BusPort`) is
+    read through its ``recv``."""
+    if type(bus).recv is not can.BusABC.recv:
         return bus.recv(timeout=0.0)
     while True:
         msg, already_filtered = bus._recv_internal(timeout=0.0)

@@ -280,8 +280,13 @@ def at_rest(service, pg):
 
 def wait_js(pg, expression: str, timeout: float = 10_000):
     """Poll a JavaScript expression until truthy (evaluated through DevTools, so the page keeps its
-    Content-Security-Policy: Playwright's own wait_for_function needs 'unsafe-eval')."""
-    return wait_for(lambda: pg.evaluate(expression), timeout / 1000, expression)
+    Content-Security-Policy: Playwright's own wait_for_function needs 'unsafe-eval'). A time-out says
+    what the terminal's log showed last (what the operator read instead)."""
+    try:
+        return wait_for(lambda: pg.evaluate(expression), timeout / 1000, expression)
+    except AssertionError as exc:
+        shown = pg.evaluate("(document.getElementById('log') || {}).textContent || ''")
+        raise AssertionError(f"{exc}; the terminal's log ends: {shown[-600:]!r}") from None
 
 
 def set_jog_speed(pg, percent: int):

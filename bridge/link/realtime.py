@@ -28,6 +28,7 @@ __all__ = [
     "SharedBusNodes",
     "open_bus",
     "take_waiting",
+    "waiting_reader",
 ]
 
 INTERFACES = ("udp_multicast", "socketcan", "virtual", "remote")
@@ -197,7 +198,7 @@ class RealtimeRunner:
     def _run(self) -> None:
         node = self._node
         try:
-            prompt = self._prompt
+            prompt, take = self._prompt, waiting_reader(node.bus)
             while not self._stop.is_set():
                 node.poll(self.now())
                 wait = min(max(node.next_due_s() - self.now(), 0.0), self._max_wait_s)
@@ -206,14 +207,14 @@ class RealtimeRunner:
                 elif self._stop.wait(wait):
                     break
                 else:  # due: what arrived meanwhile, then the poll
-                    frame = take_waiting(node.bus)
+                    frame = take()
                 if frame is None:
                     continue
                 now, taken = self.now(), 0
                 while frame is not None:  # every frame already waiting, then one poll (not one per frame)
                     node.handle(frame, now)
                     taken += 1
-                    frame = take_waiting(node.bus) if taken < _DRAIN_MAX else None
+                    frame = take() if taken < _DRAIN_MAX else None
         except BaseException as exc:  # handed to the owner, never lost
             self.error = exc
             self._stop.set()
@@ -234,14 +235,23 @@ def take_waiting(bus: can.BusABC) -> can.Message | None:
     reads past them (python-can's own receive path: ``_recv_internal``, then ``_matches_filters``). A bus
     that receives its own way (it overrides ``recv``: python-can-remote's client, a :class:`BusPort`) is
     read through its ``recv``."""
+    return waiting_reader(bus)()
+
+
+def waiting_reader(bus: can.BusABC) -> Callable[[], can.Message | None]:
+    """:func:`take_waiting` for ``bus``, its read path chosen once (a runner reads every frame through it)."""
     if type(bus).recv is not can.BusABC.recv:
-        return bus.recv(timeout=0.0)
-    while True:
-        msg, already_filtered = bus._recv_internal(timeout=0.0)
-        if msg is None:
-            return None
-        if already_filtered or bus._matches_filters(msg):
-            return msg
+        return lambda: bus.recv(timeout=0.0)
+
+    def take() -> can.Message | None:
+        while True:
+            msg, already_filtered = bus._recv_internal(timeout=0.0)
+            if msg is None:
+                return None
+            if already_filtered or bus._matches_filters(msg):
+                return msg
+
+    return take
 
 
 class BusPort(can.BusABC):

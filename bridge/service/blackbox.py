@@ -448,6 +448,7 @@ def _holds_frames(path: Path) -> bool:
 
 #: the suffixes :class:`CanRecorder` writes (python-can's size-rotating writers)
 CAN_LOG_SUFFIXES = (".asc", ".blf", ".log", ".csv")
+_SUFFIX_HINT = "suffixes: .asc, .blf, .log (candump), .csv"
 
 
 def rotated_can_log(path: str | Path, k: int) -> Path:
@@ -521,11 +522,7 @@ class CanRecorder:
             raise BlackBoxError(f"--can-log: max_bytes must be an integer in [100000, 1e11], got {max_bytes!r}")
         if isinstance(keep, bool) or not isinstance(keep, int) or not 1 <= keep <= 1000:
             raise BlackBoxError(f"--can-log: keep must be an integer in 1..1000, got {keep!r}")
-        if path.suffix.lower() not in CAN_LOG_SUFFIXES:
-            raise BlackBoxError(
-                f"--can-log {path}: cannot record files of type {path.suffix or '(none)'!r}; "
-                f"suffixes: .asc, .blf, .log (candump), .csv"
-            )
+        CanRecorder.check_path(path)
 
         def shift(source: str | os.PathLike[str], _default_dest: str | os.PathLike[str] = "") -> None:
             """The full file becomes .1, every older one moves up by one, the oldest beyond ``keep`` goes."""
@@ -542,9 +539,7 @@ class CanRecorder:
                 shift(path)
             logger = _SizedLog(str(path), max_bytes=max_bytes)
         except (ValueError, OSError, ImportError, TypeError) as exc:  # unwritable file
-            raise BlackBoxError(
-                f"--can-log {path}: cannot record ({exc}); suffixes: .asc, .blf, .log (candump), .csv"
-            ) from None
+            raise BlackBoxError(f"--can-log {path}: cannot record ({exc}); {_SUFFIX_HINT}") from None
         logger.rotator = shift
         return logger
 
@@ -554,10 +549,7 @@ class CanRecorder:
         written) before recording starts; an existing log is not touched."""
         p = Path(path)
         if p.suffix.lower() not in CAN_LOG_SUFFIXES:
-            raise BlackBoxError(
-                f"--can-log {p}: cannot record files of type {p.suffix or '(none)'!r}; "
-                f"suffixes: .asc, .blf, .log (candump), .csv"
-            )
+            raise BlackBoxError(f"--can-log {p}: cannot record files of type {p.suffix or '(none)'!r}; {_SUFFIX_HINT}")
         try:
             p.parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
@@ -622,9 +614,7 @@ def _frames(path: Path) -> Iterable[can.Message]:
     try:
         return can.LogReader(str(path))
     except (ValueError, OSError, ImportError) as exc:
-        raise BlackBoxError(
-            f"CAN log {path}: cannot read ({exc}); suffixes: .asc, .blf, .log (candump), .csv"
-        ) from None
+        raise BlackBoxError(f"CAN log {path}: cannot read ({exc}); {_SUFFIX_HINT}") from None
 
 
 def replay_can_log(path: str | Path, model: Any, *, stale_after_s: float = 0.2) -> Iterator[ReplayRecord]:

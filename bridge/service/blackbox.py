@@ -62,6 +62,8 @@ __all__ = [
     "EventLog",
     "CanRecorder",
     "ReplayRecord",
+    "announce_can_log_stop",
+    "can_log_stopped_event",
     "event_log_path",
     "last_seq",
     "read_events",
@@ -395,17 +397,35 @@ class _Flusher(can.Listener):
 
 
 class _Counter(can.Listener):
-    """Counts the frames the listeners before it have taken; keeps the error that ended the recording."""
+    """Counts the frames the listeners before it have taken; keeps the error that ended the recording
+    and tells it to the callback given to :meth:`watch` (exactly once, whichever comes first)."""
 
     def __init__(self) -> None:
         self.n = 0
         self.error: BaseException | None = None
+        self._callback: Callable[[BaseException], None] | None = None
+        self._mu = threading.Lock()
 
     def on_message_received(self, msg: can.Message) -> None:
-        self.n += 1
+        if self.error is None:
+            self.n += 1
 
     def on_error(self, exc: Exception) -> None:
-        self.error = exc
+        with self._mu:
+            if self.error is not None:  # told once: the first error is what stopped the recording
+                return
+            self.error, callback = exc, self._callback
+        if callback is not None:
+            try:
+                callback(exc)
+            except Exception:  # noqa: BLE001 — the recording has ended either way; its thread ends quietly
+                pass
+
+    def watch(self, callback: Callable[[BaseException], None]) -> None:
+        with self._mu:
+            self._callback, error = callback, self.error
+        if error is not None:
+            callback(error)
 
 
 class _SizedLog(can.SizedRotatingLogger):
@@ -415,7 +435,19 @@ class _SizedLog(can.SizedRotatingLogger):
 
     def __init__(self, base_filename: str, max_bytes: int) -> None:
         self._since_size = 0
+        self.failed: BaseException | None = None
         super().__init__(base_filename, max_bytes=max_bytes)
+
+    def on_message_received(self, msg: can.Message) -> None:
+        """Write ``msg``; after an error (a rotation that could not rename leaves the writer closed)
+        nothing more: the error went to the notifier's listeners once, not again for every frame."""
+        if self.failed is not None:
+            return
+        try:
+            super().on_message_received(msg)
+        except Exception as exc:
+            self.failed = exc
+            raise
 
     def should_rollover(self, msg: can.Message) -> bool:
         self._since_size += 1
@@ -455,6 +487,28 @@ def rotated_can_log(path: str | Path, k: int) -> Path:
     """The ``k``-th rotated file of the CAN log ``path`` (``bus.asc`` → ``bus.k.asc``; 0: ``path``)."""
     p = Path(path)
     return p if k == 0 else p.with_name(f"{p.stem}.{k}{p.suffix}")
+
+
+def can_log_stopped_event(path: str | Path, error: BaseException) -> dict[str, Any]:
+    """The service event that says the CAN log stopped recording (the service goes on without it)."""
+    return {
+        "event": "can_log_stopped",
+        "path": str(path),
+        "message": f"--can-log {path}: recording stopped ({type(error).__name__}: {error}); the service goes on "
+        "without a CAN log",
+    }
+
+
+def announce_can_log_stop(recorder: CanRecorder, outbox: Any) -> None:
+    """When an error stops ``recorder``, put :func:`can_log_stopped_event` into the controller's
+    ``outbox`` (:class:`bridge.service.motion.outbox.Outbox`) and deliver it: the black box and every
+    client hear that the bus is no longer recorded."""
+
+    def stopped(error: BaseException) -> None:
+        outbox.put_event(can_log_stopped_event(recorder.path, error))
+        outbox.flush()
+
+    recorder.on_stop(stopped)
 
 
 class CanRecorder:
@@ -507,6 +561,11 @@ class CanRecorder:
     def error(self) -> BaseException | None:
         """What stopped the recording (a rotation that could not rename, a full disk), or None."""
         return self._count.error
+
+    def on_stop(self, callback: Callable[[BaseException], None]) -> None:
+        """Call ``callback(error)`` once when an error stops the recording (on the recorder's thread),
+        or at once if one already has: the service announces it (:func:`can_log_stopped_event`)."""
+        self._count.watch(callback)
 
     @classmethod
     def of_config(cls, cfg: ServiceConfig) -> CanRecorder:

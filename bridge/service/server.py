@@ -241,12 +241,14 @@ class HitchService:
                 sim_fault = motion.sim_fault if core.ready.get("simulated_ecu") else None
             else:
                 if cfg.can_log is not None:  # records the in-process bus (the core process records its own)
-                    from bridge.service.blackbox import CanRecorder
+                    from bridge.service.blackbox import CanRecorder, announce_can_log_stop
 
                     self._recorder = CanRecorder.of_config(cfg)
                 self.parts = parts = start_can(cfg, runners_out=self._runners)
                 self.link, self.ecu_node = parts.link, parts.ecu_node
                 self.motion, guard = build_controller(cfg, parts, on_state=self._on_state, on_event=self._on_event)
+                if self._recorder is not None:
+                    announce_can_log_stop(self._recorder, self.motion.outbox)
                 motion, info = self.motion, service_info(cfg, guard)
                 ecu_node = parts.ecu_node
                 sim_fault = None if ecu_node is None else ecu_node.apply_fault

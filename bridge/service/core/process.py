@@ -149,7 +149,7 @@ class ControlCore:
         cfg = self.cfg
         nice_failed = self.nice_failed
         if cfg.can_log is not None:
-            from bridge.service.blackbox import CanRecorder
+            from bridge.service.blackbox import CanRecorder, announce_can_log_stop
 
             self.recorder = CanRecorder.of_config(cfg)
         runners: list[Any] = []
@@ -157,6 +157,8 @@ class ControlCore:
         self._open_zenoh()
         self.motion, guard = build_controller(cfg, parts, on_state=self._publish_state, on_event=self._publish_event)
         self.motion.state_wanted = self._state_listened.is_set
+        if self.recorder is not None:
+            announce_can_log_stop(self.recorder, self.motion.outbox)
         self._table = self._methods()
         gnss = self.motion.gnss  # the tractor's GNSS position (maneuver wait_for line steps)
         assert self.session is not None

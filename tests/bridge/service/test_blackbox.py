@@ -22,14 +22,19 @@ from bridge.service.blackbox import (
     BlackBoxError,
     CanRecorder,
     EventLog,
+    announce_can_log_stop,
     event_log_path,
     follow_events,
     last_seq,
     read_events,
     replay_can_log,
 )
+from bridge.service.config import ServiceConfig
+from bridge.service.motion.outbox import Outbox
+from bridge.service.server import HitchService
 from planner.model.kinematics import HitchModel
 from planner.model.sensors import SensorScaling
+from tests.helpers import wait_until
 
 
 # ---------------------------------------------------------------------------------------- event log
@@ -342,6 +347,77 @@ def test_a_new_recorder_keeps_the_last_runs_can_log_and_checking_the_path_touche
     assert _numbers(tmp_path / "bus.1.asc") == list(range(100, 110))
     assert _numbers(tmp_path / "bus.2.asc") == list(range(10))
     assert not (tmp_path / "bus.3.asc").exists() and _numbers(path) == []
+
+
+def _block_rotation(folder, name: str) -> None:
+    """A non-empty folder where the recorder's rotation must delete a file: the rotation fails."""
+    (folder / name).mkdir()
+    (folder / name / "keep").write_text("not a log")
+
+
+def _send_until(channel: str, done, seconds: float = 20.0) -> None:
+    sender = can.Bus(interface="virtual", channel=channel)
+    try:
+        deadline, k = time.monotonic() + seconds, 0
+        while not done() and time.monotonic() < deadline:
+            for _ in range(500):
+                sender.send(_numbered(k))
+                k += 1
+            time.sleep(0.02)
+    finally:
+        sender.shutdown()
+
+
+def test_an_error_that_stops_the_can_log_is_told_once_and_put_out_as_a_numbered_event(tmp_path):
+    """A rotation that cannot delete the oldest file ends the recording: before, only the recorder
+    knew (its ``error``); now the callback hears it once, as a ``can_log_stopped`` event naming the
+    file, and a callback given later hears it at once."""
+    channel = f"bb-stop-{time.monotonic_ns()}-x"
+    path = tmp_path / "bus.asc"
+    _block_rotation(tmp_path, "bus.2.asc")  # keep=2: the rotation deletes bus.2.asc first
+    told: list[dict] = []
+    outbox = Outbox(on_event=told.append, on_state=lambda m: None)
+    with CanRecorder(path, "virtual", channel, max_bytes=100_000, keep=2) as rec:
+        announce_can_log_stop(rec, outbox)
+        _send_until(channel, lambda: rec.error is not None)
+        assert isinstance(rec.error, OSError), rec.error
+    assert len(told) == 1, told
+    assert told[0]["event"] == "can_log_stopped" and told[0]["seq"] == 1 and told[0]["path"] == str(path)
+    assert str(path) in told[0]["message"] and "recording stopped" in told[0]["message"]
+    late: list[BaseException] = []
+    rec.on_stop(late.append)
+    assert late == [rec.error]
+
+
+@pytest.mark.slow
+def test_a_service_announces_that_its_can_log_stopped_and_goes_on(tmp_path):
+    """The service (control core in its threads, the twin on the virtual bus) records the bus; when the
+    recording fails, every listener gets the ``can_log_stopped`` event and the service keeps running."""
+    from tests.integration.service_process import free_port
+
+    channel = f"bb-svc-{time.monotonic_ns()}-x"
+    log = tmp_path / "log" / "bus.asc"
+    log.parent.mkdir()
+    _block_rotation(log.parent, "bus.1.asc")  # keep=1: the rotation deletes bus.1.asc first
+    cfg = ServiceConfig(
+        listen=[f"tcp/127.0.0.1:{free_port()}"],
+        data_dir=tmp_path,
+        control_core="thread",
+        planning_processes=0,
+        can_channel=channel,
+        can_log=log,
+        can_log_max_mb=0.1,
+        can_log_keep=1,
+    )
+    events: list[dict] = []
+    with HitchService(cfg) as svc:
+        svc.add_listener("event", events.append)
+        stopped = lambda: any(e.get("event") == "can_log_stopped" for e in events)  # noqa: E731
+        _send_until(channel, stopped)
+        assert stopped(), [e.get("event") for e in events]
+        (ev,) = [e for e in events if e.get("event") == "can_log_stopped"]
+        assert ev["path"] == str(log) and isinstance(ev["seq"], int)
+        assert wait_until(lambda: (svc.latest_state or {}).get("ecu", {}).get("online"))  # the service goes on
 
 
 def test_can_log_settings_out_of_range_are_refused_by_name():

@@ -19,7 +19,8 @@ on their own after the scenario's duration):
   ``--idle-duration`` s under the same hogs (the hitch holding after its last motion, no clients).
 * ``cpu`` — idle CPU of ``hitch serve`` at rest, no load: utime + stime from ``/proc/<pid>/stat`` of the
   service and every process it started (its control core and planning processes) over
-  ``--cpu-duration`` s, summed, as % of one core. Once with the embedded simulated ECU
+  ``--cpu-duration`` s, summed, as % of one core; a second window after a goto to ``HOLD_GOAL``, the
+  hitch at rest holding that pose (the reference re-sent at the control rate). Once with the embedded simulated ECU
   (the default ``hitch serve``) and once for the planner side alone: the ECU then runs as
   ``hitch ecu-sim --interface remote`` on a CAN hub bound to 127.0.0.1 (``bridge.link.loopback``);
   without one that figure is reported as not measurable.
@@ -926,6 +927,27 @@ def cpu_window(pids: Sequence[int], seconds: float) -> list[float]:
     return [100.0 * (b - a_) / (w1 - w0) for a_, b in zip(c0, c1, strict=True)]
 
 
+#: the pose the ``cpu`` scenario moves to before its second window (holding a pose after a move)
+HOLD_GOAL = {"z": 0.25}
+
+
+def _move_then_hold(endpoint: str) -> str | None:
+    """A goto to :data:`HOLD_GOAL`, waited for until it has finished and the hitch holds the pose (the
+    link keeps re-sending the reference); None, or why it could not be done."""
+    from bridge.service.client import HitchClient, ServiceError
+
+    try:
+        with HitchClient([endpoint], timeout_s=10) as c:
+            acc = c.goto(HOLD_GOAL)
+            state = c.wait_motion(int(acc["motion_id"]), timeout_s=60.0)
+    except (ServiceError, OSError, KeyError, ValueError) as exc:
+        return f"the goto before the holding window failed: {exc!r}"
+    if state.get("moving") or state.get("motion_id") != acc["motion_id"]:
+        return f"the goto did not end at rest: {state.get('motion')}"
+    time.sleep(2.0)  # the client's state subscription gone; the hitch holds the pose
+    return None
+
+
 def bench_cpu(a: argparse.Namespace) -> dict:
     """Idle CPU of ``hitch serve`` at rest: with the embedded simulated ECU, and the planner side alone."""
     from bridge.link.realtime import INTERFACES
@@ -943,6 +965,11 @@ def bench_cpu(a: argparse.Namespace) -> dict:
             time.sleep(3.0)  # start-up work done
             res["embedded_ecu_pct"], per = tree_cpu(srv.proc.pid, a.cpu_duration)
             res["embedded_ecu_per_process_pct"] = {str(k): v for k, v in per.items()}
+            moved = _move_then_hold(srv.endpoint)
+            if moved is None:
+                res["embedded_ecu_holding_pct"], _ = tree_cpu(srv.proc.pid, a.cpu_duration)
+            else:
+                res["embedded_ecu_holding_pct"], res["embedded_ecu_holding_note"] = None, moved
         else:
             res["embedded_ecu_pct"], res["embedded_ecu_note"] = None, why
     finally:
@@ -990,6 +1017,11 @@ def bench_cpu(a: argparse.Namespace) -> dict:
                     "transport": f"remote {hub.url}",
                 }
             )
+            moved = _move_then_hold(srv.endpoint)
+            if moved is None:
+                res["planner_only_holding_pct"] = sum(cpu_window(tree, a.cpu_duration))
+            else:
+                res["planner_only_holding_pct"], res["planner_only_holding_note"] = None, moved
         else:
             last = (why or "hitch ecu-sim exited").strip().splitlines()[-1]
             res["planner_only_pct"] = None
@@ -1273,6 +1305,9 @@ def table(res: dict) -> list[str]:
         e, pl = c.get("embedded_ecu_pct"), c.get("planner_only_pct")
         add(f"{head}idle CPU % of a core, embedded ECU", mx=e, tgt="≤ 10", v=verdict(e, T["cpu_embedded_pct"]))
         add(f"{head}idle CPU % of a core, planner side", mx=pl, tgt="≤ 5", v=verdict(pl, T["cpu_planner_pct"]))
+        e, pl = c.get("embedded_ecu_holding_pct"), c.get("planner_only_holding_pct")
+        add(f"{head}idle CPU holding a pose, embedded ECU", mx=e, tgt="≤ 10", v=verdict(e, T["cpu_embedded_pct"]))
+        add(f"{head}idle CPU holding a pose, planner side", mx=pl, tgt="≤ 5", v=verdict(pl, T["cpu_planner_pct"]))
     for cut, r in (res.get("faults") or {}).get("cases", {}).items():
         lat = r.get("fault_latency_ms")
         add(f"cut {cut}: fault latency ms", mx=lat, tgt="≤ 300", v=verdict(lat, T["fault_ms"]))

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import json
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -24,7 +25,9 @@ __all__ = [
     "bridge_modules_after",
     "check_facade_errors",
     "check_facade_names",
+    "goto_when_ready",
     "profile_file_with_final_approach",
+    "running_machine",
     "random_closing_actuators",
     "wait_until",
 ]
@@ -94,6 +97,46 @@ def wait_until(pred: Callable[[], Any], timeout_s: float = 20.0, period_s: float
             return True
         time.sleep(period_s)
     return False
+
+
+def goto_when_ready(mc: Any, goal: dict[str, float], speed_scale: float = 1.0, timeout_s: float = 10.0) -> bool:
+    """Send ``mc.goto(goal)`` as soon as the controller can take it (its link claimed, a first measurement
+    in): True once sent, False if it was still refused after ``timeout_s``."""
+    from bridge.service.motion.types import MotionError
+
+    def sent() -> bool:
+        try:
+            mc.goto(goal, speed_scale=speed_scale)
+        except MotionError:  # not claimed / no measurement yet
+            return False
+        return True
+
+    return wait_until(sent, timeout_s)
+
+
+@contextlib.contextmanager
+def running_machine(channel_prefix: str) -> Iterator[tuple[Any, Any, Any, list[dict[str, Any]]]]:
+    """The machine side as a service builds it (``start_can`` with the twin on a fresh virtual channel) and
+    its started motion controller: ``(cfg, parts, controller, events)``, the controller's events collected
+    in ``events``; closed (controller, then parts) on exit."""
+    import tempfile
+    import uuid
+
+    from bridge.service.config import ServiceConfig
+    from bridge.service.machine import build_controller, start_can
+
+    cfg = ServiceConfig(data_dir=tempfile.mkdtemp(), can_channel=f"{channel_prefix}-{uuid.uuid4().hex}")
+    parts = start_can(cfg)
+    events: list[dict[str, Any]] = []
+    try:
+        mc, _ = build_controller(cfg, parts, on_state=lambda m: None, on_event=events.append)
+        mc.start()
+        try:
+            yield cfg, parts, mc, events
+        finally:
+            mc.close()
+    finally:
+        parts.close()
 
 
 class SimService:

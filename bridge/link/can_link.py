@@ -87,13 +87,16 @@ from planner.model.kinematics import HitchModel
 from planner.model.sensors import SensorRangeError, SensorScaling
 from planner.model.types import ACTUATOR_NAMES, KinematicsError
 
-__all__ = ["CanLink"]
+__all__ = ["CanLink", "HOLD_AFTER_RESENT"]
 
 _EPS_S = 1e-6  # float-time tolerance of the stream schedule
 #: a fresh reference may go this fraction of a period before its slot; a repetition waits as long after
 _SLOT_SLACK = 0.5
 
 
+#: frames in a row re-sending an older reference after which the link counts as holding (:attr:`CanLink.holding`):
+#: one late control cycle while moving does not count
+HOLD_AFTER_RESENT = 2
 #: the messages the link reads (every other known message is counted ``foreign`` without decoding it)
 _CONSUMED_PGNS = frozenset({PGN_HEARTBEAT, PGN_POSITION_MEASUREMENT, PGN_REAR_HITCH_STATUS})
 
@@ -138,6 +141,7 @@ class CanLink:
         self._stream_since_s = math.inf  # when the current stream started
         self._next_tx_s = math.inf  # the stream's next slot (a frame per slot, module docstring)
         self._fresh = False  # a reference was taken since the last frame went out
+        self._resent = 0  # frames in a row that re-sent a reference taken before the previous frame
         self._last_tx_s = -math.inf  # when the last reference frame went out (kept across restarts)
         self._tx_error_run = 0
         self._rx = MeasurementAssembler(model, self._scaling, self._cfg, self._bump)
@@ -175,6 +179,13 @@ class CanLink:
     def streaming(self) -> bool:
         """References are being sent."""
         return self._streaming
+
+    @property
+    def holding(self) -> bool:
+        """Streaming a held reference: the last :data:`HOLD_AFTER_RESENT` frames re-sent one the controller
+        handed over before them (at rest after a move, the link keeps the ECU's watchdog fed). Nothing on
+        the bus then needs reading as it arrives (the runner's ``prompt``: :func:`bridge.service.machine.start_can`)."""
+        return self._streaming and self._resent >= HOLD_AFTER_RESENT
 
     def latest_state(self) -> LinkState | None:
         """The newest measured state, or None before the first complete measurement."""
@@ -479,6 +490,7 @@ class CanLink:
             return
         self._next_tx_s = max(self._next_tx_s + self._cfg.control_period_s, now_s)
         self._last_tx_s = now_s
+        self._resent = 0 if self._fresh else self._resent + 1
         self._fresh = False
         if self._send([self._codec.encode(self._reference, source=self._cfg.source_address)]):
             self._bump(references_tx=1)

@@ -192,10 +192,13 @@ def start_can(cfg: ServiceConfig, *, runners_out: list[RealtimeRunner] | None = 
                 twin.port(), ground_speed_m_s=cfg.sim_ground_speed, hitch_height_m=height
             )
             twin.add(ecu_node).add(tractor)
-            # frames as they arrive while references feed the ECU; otherwise (at rest) at its 10 ms ticks, as an
-            # ECU's control task reads its mailbox: the planner's heartbeats do not wake it between them
+            # frames as they arrive while changing references feed the ECU; otherwise (at rest, or holding a
+            # pose) at its 10 ms ticks, as an ECU's control task reads its mailbox: the planner's heartbeats and
+            # repeated references do not wake it between them
             started.append(
-                RealtimeRunner(twin, max_wait_s=_MAX_WAIT_S, name="EcuCanNode-rt", prompt=lambda: ecu.fed).start()
+                RealtimeRunner(
+                    twin, max_wait_s=_MAX_WAIT_S, name="EcuCanNode-rt", prompt=lambda: ecu.fed and not ecu.holding
+                ).start()
             )
         planner = SharedBusNodes(bus(PLANNER_PGNS))
         sensors = TractorSensors(planner.port(), TractorSensorsConfig(read_draft=True))  # draft: work control
@@ -214,9 +217,12 @@ def start_can(cfg: ServiceConfig, *, runners_out: list[RealtimeRunner] | None = 
         )
         switch = HitchSwitchNode(planner.port())
         planner.add(sensors).add(link).add(switch)
-        # frames as they arrive only while references stream; at rest the bus is read at the link's
-        # checks (the control cycle reads the state once a period; RealtimeRunner's prompt)
-        runner = RealtimeRunner(planner, max_wait_s=_MAX_WAIT_S, name="CanLink-rt", prompt=lambda: link.streaming)
+        # frames as they arrive only while changing references stream; at rest, and while the link holds a
+        # pose (re-sending the last reference), the bus is read at the link's deadlines: its checks and its
+        # reference slots (the control cycle reads the state once a period; RealtimeRunner's prompt)
+        runner = RealtimeRunner(
+            planner, max_wait_s=_MAX_WAIT_S, name="CanLink-rt", prompt=lambda: link.streaming and not link.holding
+        )
         started.append(runner.start())
     except BaseException:
         for r in reversed(started):

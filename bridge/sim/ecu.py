@@ -45,10 +45,12 @@ from bridge.sim.watchdog import Watchdog
 from planner.errors import HitchInputError
 from planner.profiles.hitch import Profile, load_profile
 
-__all__ = ["ACTUATOR_ORDER", "CylinderECU", "ECUError"]
+__all__ = ["ACTUATOR_ORDER", "CylinderECU", "ECUError", "HOLD_AFTER_REPEATS"]
 
 #: Actuator order of every array in and out of the ECU.
 ACTUATOR_ORDER: tuple[str, ...] = ("lift", "tilt", "top", "left", "right")
+#: repeats of one reference in a row after which the ECU counts as holding (:attr:`CylinderECU.holding`)
+HOLD_AFTER_REPEATS = 2
 
 
 class ECUError(HitchInputError):
@@ -182,6 +184,7 @@ class CylinderECU:
         self._enabled = bool(controllers_enabled)
         self._restarts = 0
         self._reference: tuple[int, ...] | None = None
+        self._repeats = 0  # references in a row equal to the one before
         self._valves = [0] * 5
         self._outputs: list[ControllerOutput | None] = [None] * 5
         self._meas = [c.measure() for c in self._cylinders]
@@ -217,6 +220,7 @@ class CylinderECU:
         ref = _reference_counts(counts)
         self.step(now_s)
         self._watchdog.feed(self.time_s)
+        self._repeats = self._repeats + 1 if ref == self._reference else 0
         self._reference = ref
 
     def step(self, until_s: float) -> None:
@@ -257,7 +261,7 @@ class CylinderECU:
         """Simulate an ECU reset: controllers, relays and watchdog reset, reference forgotten,
         valves zero, restart counter +1.  The switch position and the machine are unchanged."""
         self._restarts += 1
-        self._reference = None
+        self._reference, self._repeats = None, 0
         self._valves = [0] * 5
         self._outputs = [None] * 5
         self._watchdog.reset()
@@ -347,6 +351,13 @@ class CylinderECU:
         """True while references arrive: the last one is younger than the watchdog's timeout at
         :attr:`time_s` (a pure reading: the watchdog's trip count is not touched)."""
         return self._watchdog.fed_at(self.time_s)
+
+    @property
+    def holding(self) -> bool:
+        """Fed with the same reference again and again (at least :data:`HOLD_AFTER_REPEATS` repeats in a
+        row): the planner holds a pose. The twin's runner then reads the bus at its ticks
+        (:func:`bridge.service.machine.start_can`), as while no reference arrives."""
+        return self._repeats >= HOLD_AFTER_REPEATS and self.fed
 
     @property
     def watchdog(self) -> Watchdog:

@@ -150,6 +150,33 @@ def test_stream_rate_is_the_control_rate(rig, tap, model):
     assert rig.node.counters.references == 51
 
 
+def test_the_link_holds_once_it_re_sends_an_older_reference_twice_and_not_while_references_come(rig, model):
+    """``holding``: the stream re-sent a reference handed over before the previous frame, twice in a row
+    (the controller at rest after a move). A caller at the control rate, also a few milliseconds late
+    now and then, is never taken for holding; a new reference ends holding at once; no stream, no
+    holding."""
+    link = rig.link
+    assert not link.streaming and not link.holding
+    t0 = rig.next_tick_s
+    rng = np.random.default_rng(3)
+    held: list[bool] = []
+    for k in range(50):  # a 50 Hz caller, 0..8 ms behind its slot
+        t = t0 + 0.02 * k + 0.001 * int(rng.integers(0, 9))
+        rig.run_until(t)
+        link.send_reference(model.neutral, t)
+        held.append(link.holding)
+    assert link.streaming and not any(held)
+    t_last = rig.now_s
+    rig.run_until(t_last + 0.025)  # one frame re-sent: a late cycle, not yet holding
+    assert not link.holding
+    rig.run_until(t_last + 0.065)  # the link re-sent the reference twice in a row
+    assert link.holding
+    link.send_reference(model.neutral, rig.now_s)
+    assert not link.holding
+    link.stop_motion()
+    assert not link.streaming and not link.holding
+
+
 def _stream_log(rig, tap, calls, until_s):
     """Run the rig tick by tick to ``until_s``; ``calls``: {tick time: actuators} sent (before that tick's
     polls, as a control cycle does). Returns [(tick time, counts tuple)] of every reference frame."""

@@ -13,38 +13,21 @@ import uuid
 import pytest
 
 from bridge.service.config import ServiceConfig
-from bridge.service.machine import build_controller, start_can
-from bridge.service.motion.types import MotionError
-from tests.helpers import wait_until
+from bridge.service.machine import start_can
+from tests.helpers import goto_when_ready, running_machine, wait_until
 
 pytestmark = pytest.mark.slow  # real time: a few seconds
 
 
-def _started(mc) -> bool:
-    try:
-        mc.goto({"z": 0.3}, speed_scale=0.3)
-    except MotionError:  # not claimed / no measurement yet
-        return False
-    return True
-
-
 @pytest.mark.parametrize("cut, fault", [("planner_to_ecu", "references_lost"), ("ecu_to_planner", "stale_measurement")])
 def test_a_one_way_cut_in_the_twin_is_detected_and_stops_the_motion(cut, fault):
-    cfg = ServiceConfig(data_dir=tempfile.mkdtemp(), can_channel=f"machine-{uuid.uuid4().hex}")
-    parts = start_can(cfg)
-    events: list[dict] = []
-    mc, _ = build_controller(cfg, parts, on_state=lambda m: None, on_event=events.append)
-    mc.start()
-    try:
-        assert wait_until(lambda: _started(mc), 10.0), "the link never became ready"
+    with running_machine("machine") as (_, parts, mc, events):
+        assert goto_when_ready(mc, {"z": 0.3}, speed_scale=0.3), "the link never became ready"
         time.sleep(0.5)
         assert parts.ecu_node is not None
         parts.ecu_node.apply_fault({"cut": cut})
         assert wait_until(lambda: fault in {f.name for f in mc.faults}, 1.0), (cut, [f.name for f in mc.faults])
         assert wait_until(lambda: any(e.get("event") == "motion_aborted" for e in events), 1.0)
-    finally:
-        mc.close()
-        parts.close()
 
 
 def test_a_stall_of_the_links_thread_alone_raises_no_ecu_heartbeat_fault():

@@ -137,6 +137,24 @@ def test_fed_says_whether_references_arrive_as_the_watchdog_judges_and_counts_no
     assert ecu.watchdog.trip_count == trips
 
 
+def test_holding_is_one_reference_repeated_twice_while_fed_and_ends_with_a_new_one_or_a_restart(profile):
+    ecu = CylinderECU(profile, watchdog_timeout_s=0.05)
+    ref = list(ecu.measurement_counts())
+    other = [*ref[:1], ref[1] + 3, *ref[2:]]
+    seen = []
+    for k, r in enumerate([ref, ref, ref, ref, other, other, other]):
+        ecu.set_reference(r, 0.02 * (k + 1))
+        seen.append(ecu.holding)
+    assert seen == [False, False, True, True, False, False, True]
+    ecu.step(0.2)  # no reference for longer than the watchdog's timeout: not fed, not holding
+    assert not ecu.fed and not ecu.holding
+    ecu.set_reference(other, 0.21)  # the same reference again after the gap: counted on
+    assert ecu.holding
+    ecu.restart()
+    ecu.set_reference(other, 0.22)
+    assert not ecu.holding  # a restart forgets the reference
+
+
 def test_watchdog_timeout_is_configurable(profile):
     ecu = CylinderECU(profile, watchdog_timeout_s=0.05)
     ref = ecu.measurement_counts() + np.array([0, 300, 0, 0, 0])

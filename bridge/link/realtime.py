@@ -27,7 +27,6 @@ __all__ = [
     "RealtimeRunner",
     "SharedBusNodes",
     "open_bus",
-    "take_waiting",
     "waiting_reader",
 ]
 
@@ -226,20 +225,16 @@ class RealtimeRunner:
         self.stop()
 
 
-def take_waiting(bus: can.BusABC) -> can.Message | None:
-    """The next frame already waiting on ``bus`` that passes its receive filters, or None when none waits.
+def waiting_reader(bus: can.BusABC) -> Callable[[], can.Message | None]:
+    """A function returning the next frame already waiting on ``bus`` that passes its receive filters, or None
+    when none waits; the read path is chosen once for the bus (a runner reads every frame through it).
 
     python-can's ``recv(timeout=0.0)`` returns None at the first waiting frame its software filters reject
     (the virtual and udp_multicast buses filter in Python), even with wanted frames behind it: a loop that
-    drains with it at its deadlines would take one such frame per deadline and fall behind the bus. This
-    reads past them (python-can's own receive path: ``_recv_internal``, then ``_matches_filters``). A bus
-    that receives its own way (it overrides ``recv``: python-can-remote's client, a :class:`BusPort`) is
+    drains with it at its deadlines would take one such frame per deadline and fall behind the bus. The
+    reader goes past them (python-can's own receive path: ``_recv_internal``, then ``_matches_filters``). A
+    bus that receives its own way (it overrides ``recv``: python-can-remote's client, a :class:`BusPort`) is
     read through its ``recv``."""
-    return waiting_reader(bus)()
-
-
-def waiting_reader(bus: can.BusABC) -> Callable[[], can.Message | None]:
-    """:func:`take_waiting` for ``bus``, its read path chosen once (a runner reads every frame through it)."""
     if type(bus).recv is not can.BusABC.recv:
         return lambda: bus.recv(timeout=0.0)
 

@@ -56,6 +56,7 @@ from planner.errors import HitchInputError
 
 if TYPE_CHECKING:
     from bridge.service.config import ServiceConfig
+    from bridge.service.motion.outbox import Outbox
 
 __all__ = [
     "BlackBoxError",
@@ -499,9 +500,9 @@ def can_log_stopped_event(path: str | Path, error: BaseException) -> dict[str, A
     }
 
 
-def announce_can_log_stop(recorder: CanRecorder, outbox: Any) -> None:
+def announce_can_log_stop(recorder: CanRecorder, outbox: Outbox) -> None:
     """When an error stops ``recorder``, put :func:`can_log_stopped_event` into the controller's
-    ``outbox`` (:class:`bridge.service.motion.outbox.Outbox`) and deliver it: the black box and every
+    ``outbox`` and deliver it: the black box and every
     client hear that the bus is no longer recorded."""
 
     def stopped(error: BaseException) -> None:

@@ -204,23 +204,23 @@ def test_a_runner_at_its_deadline_takes_every_wanted_frame_past_filtered_out_one
     assert runner.error is None
 
 
-def test_take_waiting_reads_a_bus_that_receives_its_own_way():
+def test_the_waiting_reader_reads_a_bus_that_receives_its_own_way():
     """python-can-remote's client (the loopback hub's ``remote`` interface) overrides ``recv`` and has no
     ``_recv_internal``: reading it past python-can's filter loop raised NotImplementedError and ended the
     planner's CAN thread (caught by the ECU-process test in CI)."""
     from bridge.link.loopback import LoopbackHub
-    from bridge.link.realtime import take_waiting
+    from bridge.link.realtime import waiting_reader
 
     with LoopbackHub() as hub:
         rx, tx = open_bus("remote", hub.url), open_bus("remote", hub.url)
         try:
-            assert take_waiting(rx) is None
+            assert waiting_reader(rx)() is None
             for k in range(3):
                 tx.send(can.Message(arbitration_id=0x0CFF22A9, data=[k] * 8, is_extended_id=True))
             got: list[int] = []
             deadline = time.monotonic() + 5.0
             while len(got) < 3 and time.monotonic() < deadline:
-                m = take_waiting(rx)
+                m = waiting_reader(rx)()
                 if m is None:
                     time.sleep(0.01)
                 else:

@@ -742,6 +742,16 @@ def test_latched_faults_are_acknowledged_from_the_header(service, page, shots):
     wait_js(page, "document.getElementById('ecu').textContent.includes('ecu_restart')")
     assert "fault" in page.text_content("#ecu") and "ecu_restart" in page.text_content("#ecu")
     page.screenshot(path=str(shots / "13-fault-acknowledge.png"))
+    # the button stays where it is when the fault text changes (a cleared fault shortens it): before, it sat
+    # after the ECU pill and moved left as the stale/heartbeat faults cleared, and a click aimed at it missed
+    xs = page.evaluate(
+        """() => { const ecu = document.getElementById('ecu'), b = document.getElementById('faults-ack');
+        const keep = ecu.textContent, xs = [];
+        for (const t of ['ECU fault: stale_measurement, ecu_heartbeat, ecu_restart · holding', 'ECU fault: x']) {
+          ecu.textContent = t; xs.push(b.getBoundingClientRect().x); }
+        ecu.textContent = keep; return xs; }"""
+    )
+    assert xs[0] == xs[1], xs
     page.click("#faults-ack")
     # the reply ("faults acknowledged: …") or the service's event that follows it ("… cleared: … (ack)")
     wait_js(

@@ -26,6 +26,7 @@ __all__ = [
     "HttpError",
     "HttpRequest",
     "read_request",
+    "discard",
     "response_bytes",
     "json_response",
     "MAX_HEADER_BYTES",
@@ -68,12 +69,17 @@ class HttpRequest:
     version: str
     headers: dict = field(default_factory=dict)
     body: bytes = b""
+    #: bytes of a body over the limit that were not read (only for ``any_body_paths``: see
+    #: :func:`read_request`); the connection closes after the response, the server discards them first
+    unread: int = 0
 
     def header(self, name: str, default: str = "") -> str:
         return self.headers.get(name.lower(), default)
 
     @property
     def keep_alive(self) -> bool:
+        if self.unread:
+            return False
         conn = self.header("connection").lower()
         if self.version == "HTTP/1.0":
             return "keep-alive" in conn
@@ -120,9 +126,14 @@ async def read_request(
     header_timeout_s: float = HEADER_TIMEOUT_S,
     idle_timeout_s: float = IDLE_TIMEOUT_S,
     body_timeout_s: float = BODY_TIMEOUT_S,
+    any_body_paths: frozenset[str] = frozenset(),
 ) -> HttpRequest | None:
     """Read one request; None at a clean end of stream (or an idle connection). Raises
-    :class:`HttpError` on bad input (408 when the header or body does not arrive in time)."""
+    :class:`HttpError` on bad input (408 when the header or body does not arrive in time).
+
+    A POST to one of ``any_body_paths`` (the terminal's ``/api/stop``: whatever is sent to stop, stops)
+    with a body over ``max_body`` is not refused: it comes back at once with an empty body and
+    ``unread`` = its length, so the request is served without waiting for the body."""
     head = await _read_head(reader, idle_timeout_s, header_timeout_s)
     if head is None:
         return None
@@ -150,6 +161,9 @@ async def read_request(
     if not _DIGITS.fullmatch(raw_length):
         raise HttpError(400, f"Content-Length must be a non-negative integer of digits, got {raw_length[:20]!r}")
     length = int(raw_length)
+    parts = urlsplit(target)
+    if length > max_body and method == "POST" and unquote(parts.path) in any_body_paths:
+        return HttpRequest(method, unquote(parts.path), parts.query, version, headers, b"", unread=length)
     if length > max_body:
         raise HttpError(413, f"request body of {length} bytes exceeds the limit of {max_body} bytes")
     try:
@@ -158,8 +172,25 @@ async def read_request(
         raise HttpError(408, f"request body not complete within {body_timeout_s:g} s", "timeout") from None
     except asyncio.IncompleteReadError:
         raise HttpError(400, "request body shorter than Content-Length") from None
-    parts = urlsplit(target)
     return HttpRequest(method, unquote(parts.path), parts.query, version, headers, body)
+
+
+async def discard(reader: asyncio.StreamReader, n: int, timeout_s: float = BODY_TIMEOUT_S) -> None:
+    """Read and drop up to ``n`` bytes within ``timeout_s`` (a body not read, before the connection
+    closes: the client then reads the response instead of a reset); stops early at the end of stream."""
+    loop = asyncio.get_running_loop()
+    end = loop.time() + timeout_s
+    while n > 0:
+        left = end - loop.time()
+        if left <= 0:
+            return
+        try:
+            chunk = await asyncio.wait_for(reader.read(min(n, 65536)), left)
+        except TimeoutError:
+            return
+        if not chunk:
+            return
+        n -= len(chunk)
 
 
 def response_bytes(

@@ -35,7 +35,9 @@ users of the security file): everything but the page's static files, ``/api/sess
 CSRF token, and commands run as the logged-in user, whom the service's access policy refuses the
 way it refuses that user over Zenoh. Without access control there is no login and commands run
 as the configured ``user`` (normally none). ``stop`` runs on a thread of its own: it never waits
-for other requests of the terminal.
+for other requests of the terminal, and any POST to ``/api/stop`` stops, whatever its body's type or
+size (a JSON content type is required of every other request: a cross-site "simple" form post
+cannot reach them).
 """
 
 from __future__ import annotations
@@ -52,7 +54,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
-from bridge.web.http import HttpError, HttpRequest, json_response, read_request, response_bytes
+from bridge.web.http import HttpError, HttpRequest, discard, json_response, read_request, response_bytes
 from bridge.web.hub import API_NAME, ClientHub
 from bridge.web.sessions import (
     Accounts,
@@ -76,6 +78,8 @@ log = logging.getLogger("hitch.web")
 
 #: ``handle(name, payload_bytes, user) -> (ok, reply)`` — the service API's one entry point
 Handler = Callable[[str, bytes, "str | None"], "tuple[bool, dict]"]
+#: paths whose POST is served whatever its body (type, size): whatever is sent to stop, stops
+_ANY_BODY_PATHS = frozenset({"/api/stop"})
 _STATIC = {"/": "index.html", "/index.html": "index.html", "/app.js": "app.js", "/style.css": "style.css"}
 _TYPES = {
     ".html": "text/html; charset=utf-8",
@@ -386,7 +390,7 @@ class WebServer:
         try:
             while True:
                 try:
-                    req = await read_request(reader)
+                    req = await read_request(reader, any_body_paths=_ANY_BODY_PATHS)
                 except HttpError as exc:
                     writer.write(_error(exc.status, exc.code, str(exc), keep_alive=False))
                     await writer.drain()
@@ -399,6 +403,8 @@ class WebServer:
                     return
                 writer.write(await self._respond(req))
                 await writer.drain()
+                if req.unread:  # a stop's body over the limit, not read: dropped before closing
+                    await discard(reader, req.unread)
                 if not req.keep_alive:
                     return
         except (ConnectionError, OSError, asyncio.IncompleteReadError):
@@ -540,7 +546,7 @@ class WebServer:
         if req.method != "POST":
             return _error(405, "bad_request", f"use POST for /api/{name}", ka)
         ctype = req.header("content-type").split(";")[0].strip().lower()
-        if req.body and ctype != "application/json":
+        if req.body and ctype != "application/json" and name != "stop":  # whatever is sent to stop, stops
             return _error(415, "bad_request", "send the request body with Content-Type: application/json", ka)
         if session is not None and name != "stop" and not session.csrf_ok(req.header("x-csrf-token")):
             return _error(403, "forbidden", f"{name}: missing or wrong X-CSRF-Token header (from the login)", ka)

@@ -274,13 +274,41 @@ def test_http_protocol_errors(web):
     host, port = web.address
     status, _, _ = _request(web, "GET", "/api/goto")
     assert status == 405
-    status, _, data = _request(web, "POST", "/api/stop", b"{}", {"Content-Type": "text/plain"})
+    status, _, data = _request(web, "POST", "/api/goto", b'{"goal": {"z": 0.1}}', {"Content-Type": "text/plain"})
     assert status == 415  # a cross-site "simple" form post cannot reach the API
-    status, _, data = _request(web, "POST", "/api/stop", b"x" * (70 * 1024))
+    status, _, data = _request(web, "POST", "/api/goto", b"x" * (70 * 1024))
     assert status == 413 and b"exceeds the limit" in data
     with socket.create_connection((host, port), timeout=5) as s:
         s.sendall(b"HELLO\r\n\r\n")
         assert s.recv(4096).startswith(b"HTTP/1.1 400")
+
+
+def _moving_goto(service, web) -> int:
+    """A slow goto over HTTP; its motion id once the state shows it moving."""
+    status, reply = _post(web, "goto", {"goal": {"z": 0.25}, "speed_scale": 0.1})
+    assert status == 200 and reply["accepted"], reply
+    assert wait_until(lambda: (s := service.latest_state) is not None and s["moving"], 5.0)
+    return int(reply["motion_id"])
+
+
+@pytest.mark.parametrize(
+    "body, headers",
+    [
+        (b"stop", {"Content-Type": "text/plain"}),  # curl -d stop: a form / plain text body
+        (b"\xff\xfe not json", {"Content-Type": "application/octet-stream"}),
+        (b"x" * (70 * 1024), {}),  # over the body limit of every other request
+        (b"{}", {"Content-Type": "application/x-www-form-urlencoded"}),
+    ],
+)
+def test_any_post_to_stop_stops_whatever_its_body(service, web, body, headers):
+    """Whatever is sent to stop, stops (docs/faults.md): the old server refused these with 415 / 413
+    and the hitch kept moving."""
+    motion_id = _moving_goto(service, web)
+    status, _, data = _request(web, "POST", "/api/stop", body, headers)
+    assert status == 200, data
+    reply = json.loads(data)
+    assert reply["stopped"] is True and reply["motion_id"] is not None and reply["motion_id"] > motion_id  # braking
+    assert wait_until(lambda: not service.latest_state["moving"], 5.0)
 
 
 def test_requests_from_other_sites_are_refused(web):

@@ -17,13 +17,13 @@ subclasses (bad input, also ``ValueError``) for the CLI to report.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
+from bridge.service.wire import to_json_text
 from planner.arm.analytic import (
     ArmStructureError,
     UnreachableTargetError,
@@ -129,7 +129,7 @@ def _fmt(values: Sequence[float]) -> str:
 def _run_fk(args) -> int:
     out = arm_fk_command(args.joints, args.profile)
     if args.json:
-        print(json.dumps(out))
+        print(to_json_text(out))
         return 0
     print(f"profile {out['profile']}: joints [{_fmt(out['joints'])}] rad")
     print(f"tool position [{_fmt(out['position'])}] m")
@@ -145,7 +145,7 @@ def _run_fk(args) -> int:
 def _run_ik(args) -> int:
     out = arm_ik_command(args.position, args.rotation, args.all_solutions, args.profile, args.reference)
     if args.json:
-        print(json.dumps(out))
+        print(to_json_text(out))
         return 0
     print(f"wrist centre [{_fmt(out['wrist_centre'])}] m")
     for i, s in enumerate(out["solutions"], start=1):

@@ -11,7 +11,6 @@ file of ``hitch sim perturb``) for poses planned here, to try the procedure end 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import Any
@@ -21,6 +20,7 @@ import numpy as np
 from bridge.cli.commissioning import add_calibrate_sensors
 from bridge.cli.errors import CLIError
 from bridge.cli.model import add_model_options, bounded_float
+from bridge.service.wire import to_json_text
 from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
 
 __all__ = ["add_commands"]
@@ -73,7 +73,7 @@ def _cmd_plan(args) -> int:
         _write_plan_csv(Path(args.out), rows)
     if args.json:
         print(
-            json.dumps(
+            to_json_text(
                 {
                     "poses": rows,
                     "log_det": d.log_det,
@@ -132,7 +132,7 @@ def _cmd_geometry(args) -> int:
     result = solve_calibration(problem, min_singular=args.min_singular)
     write_calibrated_profile(args.out, model.params, result, name=args.name)
     if args.json:
-        print(json.dumps({"out": str(args.out), **result.as_dict()}))
+        print(to_json_text({"out": str(args.out), **result.as_dict()}))
         return 0
     print(
         f"calibrated {model.profile.name} from {result.n_poses} poses ({result.n_observations} values) in "
@@ -168,7 +168,7 @@ def _cmd_measure_twin(args) -> int:
     except OSError as exc:
         raise CLIError(f"--out {args.out}: cannot write it ({exc.strerror})") from None
     if args.json:
-        print(json.dumps({"out": str(args.out), "rows": int(data.counts.shape[0]), "poses": int(d.poses.shape[0])}))
+        print(to_json_text({"out": str(args.out), "rows": int(data.counts.shape[0]), "poses": int(d.poses.shape[0])}))
     else:
         print(f"wrote {data.counts.shape[0]} measurements of {d.poses.shape[0]} poses to {args.out}")
     return 0

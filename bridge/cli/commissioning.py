@@ -14,7 +14,6 @@ or an interactive confirmation and is refused together with ``--implement``.
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
@@ -28,6 +27,7 @@ from bridge.link.sensor_calibration import (
     calibration_profile,
     sensor_profile_toml,
 )
+from bridge.service.wire import to_json_text
 from bridge.sim.accuracy_run import INSTRUMENTS, AccuracyRun, AccuracyRunSettings, run_accuracy_test
 from bridge.sim.rig import SimRig, SimSettings
 from bridge.sim.truth import MachineTruth, load_machine_truth
@@ -81,7 +81,7 @@ def _cmd_accuracy_test(args) -> int:
     if args.json:
         out = run.as_dict()
         out["thesis"] = {m: {d: st.as_dict() for d, st in rows.items()} for m, rows in THESIS_ACCURACY.items()}
-        print(json.dumps(out))
+        print(to_json_text(out))
         return 0
     c = Console(width=200)
     c.print(
@@ -142,7 +142,7 @@ def _cmd_calibrate_sensors(args) -> int:
         raise SensorCalibrationError(f"--out {args.out}: cannot write the profile ({exc.strerror})") from None
     result = {a: f.as_dict() for a, f in fits.items()}
     if args.json:
-        print(json.dumps({"out": args.out, "detached": args.detached, "actuators": result}))
+        print(to_json_text({"out": args.out, "detached": args.detached, "actuators": result}))
         return 0
     c = Console()
     if args.detached:

@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-import json
-
 from bridge.cli.model import add_model_options, finite_float, model_from_args
 from bridge.cli.output import console, esc, signed
+from bridge.service.wire import to_json_text
 from planner.ik_qp.baselines import DLSIK, GeometricIK, HybridIK
 from planner.ik_qp.hitch_ik import IKSolver
 from planner.ik_qp.result import Target
@@ -21,7 +20,7 @@ def _cmd_ik(args) -> int:
     solver = METHODS[args.method](model)
     res = solver.solve(target)
     if args.json:
-        print(json.dumps(res.to_json()))
+        print(to_json_text(res.to_json()))
     else:
         c = console()
         c.print(f"status: [bold]{res.status}[/bold]" + (f" — {esc(res.reason)}" if res.reason else ""))

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
 
 import numpy as np
@@ -11,6 +10,7 @@ from rich.table import Table
 
 from bridge.cli.output import console, esc, signed
 from bridge.cli.ranges import ACTUATOR_UNITS, check_actuators
+from bridge.service.wire import to_json_text
 from planner.model.kinematics import HitchModel
 from planner.model.types import ACTUATOR_NAMES, POSE_NAMES
 
@@ -108,7 +108,7 @@ def _cmd_fk(args) -> int:
     check_actuators(q, model.lower, model.upper, _ACTUATOR_LABELS)  # every flag off its stroke, before FK
     state = model.forward(q)
     if args.json:
-        print(json.dumps(state_to_json(state)))
+        print(to_json_text(state_to_json(state)))
         return 0
     c = console()
     p = state.pose
@@ -158,7 +158,7 @@ def _cmd_profile_show(args) -> int:
     model = model_from_args(args)
     s = profile_summary(model)
     if args.json:
-        print(json.dumps(s))
+        print(to_json_text(s))
         return 0
     c = console()
     c.print(f"[bold]{esc(s['profile'])}[/bold] — {esc(s['description'])}")
@@ -197,7 +197,7 @@ def _cmd_fit_workspace(args) -> int:
     res = fit_restricted_box(model)
     if args.json:
         print(
-            json.dumps(
+            to_json_text(
                 {
                     "category": model.category,
                     "box": {k: list(v) for k, v in res.box.items()},

@@ -15,7 +15,7 @@ from typing import Any
 from rich.console import Console
 from rich.markup import escape
 
-__all__ = ["console", "esc", "plot_path", "signed"]
+__all__ = ["console", "esc", "plot_path", "pose_text", "signed"]
 
 
 #: the width of a console whose output is not a terminal (a pipe, a file, a log): wide enough that no
@@ -45,6 +45,18 @@ def signed(value: float, digits: int) -> str:
     """``value`` with a sign and ``digits`` decimals; a value that rounds to zero prints ``+0.000…``,
     never ``-0.000…``."""
     return f"{round(float(value), digits) + 0.0:+.{digits}f}"
+
+
+#: the unit of each pose field [SI] as the commands print it
+POSE_UNITS = {"x": "m", "y": "m", "z": "m", "roll": "rad", "pitch": "rad", "yaw": "rad"}
+
+
+def pose_text(values: Any, names: tuple[str, ...] = ("x", "y", "z", "roll", "pitch", "yaw"), digits: int = 4) -> str:
+    """``x=+0.0123 m  z=… m  roll=… rad …``: a pose's fields, each with its unit (``values`` in the
+    order of ``names``)."""
+    return "  ".join(
+        f"{n}={signed(v, digits)} {POSE_UNITS[n]}" for n, v in zip(names, [float(v) for v in values], strict=True)
+    )
 
 
 def plot_path(text: str) -> str:

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import argparse
-import json
 
 import numpy as np
 
 from bridge.cli.model import add_model_options, bounded_float, model_from_args
-from bridge.cli.output import console, esc, plot_path
+from bridge.cli.output import console, esc, plot_path, pose_text
 from bridge.cli.ranges import check_pose_ranges
+from bridge.service.maneuvers.language import MIN_SPEED_SCALE
+from bridge.service.wire import to_json_text
 from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
 from planner.trajectory import MotionState, TrajectoryPlanner
 
@@ -85,7 +86,7 @@ def _cmd_plan(args) -> int:
         plot_plan(args.plot, sp, tp)
     if args.json:
         print(
-            json.dumps(
+            to_json_text(
                 {
                     "duration": plan.duration,
                     "lower_bound": plan.lower_bound,
@@ -101,14 +102,12 @@ def _cmd_plan(args) -> int:
         )
         return 0
     c = console()
+    ratio = f"ratio {plan.duration / plan.lower_bound:.3f}" if plan.lower_bound > 0.0 else "the start is the goal"
     c.print(
-        f"duration {plan.duration:.3f} s (lower bound {plan.lower_bound:.3f} s, ratio "
-        f"{plan.duration / plan.lower_bound:.3f}), {len(sp.t)} samples at {tp.rate:g} Hz"
+        f"duration {plan.duration:.3f} s (lower bound {plan.lower_bound:.3f} s, {ratio}), "
+        f"{len(sp.t)} samples at {tp.rate:g} Hz"
     )
-    c.print(
-        "end pose: "
-        + "  ".join(f"{k}={v:+.4f}" for k, v in zip(("x", "y", "z", "roll", "pitch", "yaw"), sp.pose[-1], strict=True))
-    )
+    c.print("end pose: " + pose_text(sp.pose[-1]))
     c.print(
         "peak |actuator velocity| / limit: "
         + "  ".join(
@@ -142,7 +141,12 @@ def add_commands(sub) -> None:
         default=None,
         help="sampling rate [Hz], 1..200 (default: the profile's, 50)",
     )
-    p.add_argument("--speed-scale", type=float, default=1.0, help="fraction of full speed, (0, 1]")
+    p.add_argument(
+        "--speed-scale",
+        type=bounded_float("--speed-scale", MIN_SPEED_SCALE, 1.0, lo_open=False),
+        default=1.0,
+        help=f"fraction of full speed, [{MIN_SPEED_SCALE:g}, 1] (the service's range), default 1",
+    )
     p.add_argument(
         "--plot", default=None, type=plot_path, help="write a PNG of pose, actuators and velocities with limits"
     )

@@ -13,7 +13,6 @@ frames that cannot be decoded are always printed, and the closing line counts ev
 
 from __future__ import annotations
 
-import json
 import time
 from enum import Enum
 from pathlib import Path
@@ -21,6 +20,7 @@ from typing import Any
 
 from bridge.cli.model import add_model_options, bounded_float, model_from_args, whole_number
 from bridge.cli.output import console
+from bridge.service.wire import to_json_text
 
 __all__ = ["add_commands", "format_record"]
 
@@ -63,7 +63,7 @@ def _cmd_log(args) -> int:
 
     def show(rec: dict[str, Any]) -> None:
         if args.json:
-            print(json.dumps(rec), flush=True)
+            print(to_json_text(rec), flush=True)
         else:
             c.print(format_record(rec), markup=False, highlight=False)
 
@@ -113,7 +113,7 @@ def _cmd_replay(args) -> int:
     only: frozenset[str] | None = args.only
     for r in replay_can_log(Path(args.file), model, stale_after_s=args.stale_after):
         if args.json:
-            print(json.dumps(r.to_json()))
+            print(to_json_text(r.to_json()))
         if r.name == "fault":
             faults += len(r.faults)
             for f in r.faults if not args.json else ():

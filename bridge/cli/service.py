@@ -22,7 +22,6 @@ the service's black box (:class:`~bridge.service.blackbox.EventLog`) is always w
 
 from __future__ import annotations
 
-import json
 import re
 import signal
 import sys
@@ -39,6 +38,7 @@ from bridge.cli.plan import parse_pose_arg
 from bridge.link.realtime import INTERFACES
 from bridge.service.config import DEFAULT_LISTEN, load_service_config
 from bridge.service.maneuvers.language import MIN_SPEED_SCALE
+from bridge.service.wire import to_json_text
 from planner.errors import HitchError
 from planner.model.types import CONTROLLED_POSE_UNITS
 
@@ -62,10 +62,10 @@ def _print(args, reply: dict, text: str | None = None, *, markup: bool = False) 
     """JSON with ``--json``, else ``text``: printed as it is, or as rich markup when ``markup`` (the
     caller escaped the data in it with :func:`~bridge.cli.output.esc`)."""
     if args.json:
-        print(json.dumps(reply))
+        print(to_json_text(reply))
     else:
         console(soft_wrap=True).print(
-            text if text is not None else json.dumps(reply, indent=1), markup=markup, highlight=False
+            text if text is not None else to_json_text(reply, indent=1), markup=markup, highlight=False
         )
 
 

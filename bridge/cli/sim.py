@@ -19,7 +19,7 @@ of it (``--noise tape|station|none``, ``--points`` for marked points).
 from __future__ import annotations
 
 import argparse
-import json
+import math
 import time
 from pathlib import Path
 
@@ -30,6 +30,8 @@ from bridge.cli.output import console, plot_path
 from bridge.cli.plan import parse_pose_arg
 from bridge.link.realtime import INTERFACES, RealtimeRunner, open_bus
 from bridge.link.state import LinkConfig
+from bridge.service.maneuvers.language import MIN_SPEED_SCALE
+from bridge.service.wire import to_json_text
 from bridge.sim.can_node import EcuCanNode
 from bridge.sim.ecu import ACTUATOR_ORDER, CylinderECU
 from bridge.sim.fault_injector import CUTS, MAX_DELAY_MS, FaultSettings
@@ -68,6 +70,21 @@ _POSE = ("x", "z", "roll", "pitch")
 
 
 # -- hitch sim move ------------------------------------------------------------------------
+
+
+def _figure(value: float | None, spec: str, missing: str) -> str:
+    """``value`` formatted, or ``missing`` when there is none (None or NaN: nothing was measured)."""
+    return missing if value is None or not math.isfinite(value) else format(value, spec)
+
+
+def _frame_loss(text: str) -> float:
+    """argparse type of ``--frame-loss``: a probability in [0, 1)."""
+    v = finite_float("--frame-loss")(text)
+    if not 0.0 <= v < 1.0:
+        raise argparse.ArgumentTypeError(f"--frame-loss must lie in [0, 1), got {text}")
+    return v
+
+
 def _figures_json(f: MoveFigures) -> dict:
     return {
         "final_error": {"position_m": f.final_error_position_m, "angle_rad": f.final_error_angle_rad, **f.final_error},
@@ -161,7 +178,7 @@ def _cmd_sim_move(args) -> int:
     if args.plot:
         plot_move(args.plot, trace)
     if args.json:
-        print(json.dumps(move_json(trace, measured, truth)))
+        print(to_json_text(move_json(trace, measured, truth)))
         return 0
     c = console()
     c.print(
@@ -224,7 +241,7 @@ def _cmd_sim_track(args) -> int:
     summary = result.summary()
     if args.json_file:
         with open(args.json_file, "w", encoding="utf-8") as fh:
-            json.dump(summary, fh, indent=1)
+            fh.write(to_json_text(summary, indent=1))
     c = console()
     unit, k = ("mm", 1e3) if result.dof in ("x", "z") else ("mrad", 1e3)
     f, fi = result.figures, result.figures_inside
@@ -233,10 +250,8 @@ def _cmd_sim_track(args) -> int:
         f"{summary['duration_s']:.1f} s simulated"
     )
     c.print(f"error RMS {f.rms * k:.2f} {unit}, p95 {f.p95 * k:.2f} {unit}, max {f.max * k:.2f} {unit} (n = {f.n})")
-    c.print(
-        f"inside workspace and limits ({100 * result.inside_fraction:.0f} % of the samples): "
-        f"RMS {fi.rms * k:.2f} {unit}, max {fi.max * k:.2f} {unit}"
-    )
+    inside = f"RMS {fi.rms * k:.2f} {unit}, max {fi.max * k:.2f} {unit}" if fi.n > 0 else "no sample to judge (n/a)"
+    c.print(f"inside workspace and limits ({100 * result.inside_fraction:.0f} % of the samples): {inside}")
     c.print("counts: " + ", ".join(f"{n} {v}" for n, v in result.counts.items()))
     for note in result.notes:
         c.print(f"note: {note}")
@@ -266,14 +281,15 @@ def _cmd_sim_field(args) -> int:
         plot_field(args.plot, [result])
     if args.json_file:
         with open(args.json_file, "w", encoding="utf-8") as fh:
-            json.dump(summary, fh, indent=1)
+            fh.write(to_json_text(summary, indent=1))
     f = summary["figures"]
     c = console()
     c.print(f"{result.field}: mode {result.mode}, {summary['duration_s']:.1f} s simulated")
     c.print(
         f"draft mean {f['draft_mean_n'] / 1e3:.2f} kN, SD {f['draft_sd_n'] / 1e3:.2f} kN; "
         f"depth {f['depth_min_m'] * 100:.1f}..{f['depth_max_m'] * 100:.1f} cm; slip max {f['slip_max']:.3f} "
-        f"(heavy patches {f['slip_max_heavy']:.3f}); controller cycle p99 {f['cycle_p99_us']:.1f} us"
+        f"(heavy patches {_figure(f['slip_max_heavy'], '.3f', 'n/a: no heavy patch')}); "
+        f"controller cycle p99 {f['cycle_p99_us']:.1f} us"
     )
     c.print("counts: " + ", ".join(f"{n} {v}" for n, v in result.counts.items()))
     for e in result.events:
@@ -335,7 +351,7 @@ def _cmd_ecu_sim(args) -> int:
         "watchdog_trips": ecu.watchdog.trip_count,
         "measurement_counts": dict(zip(ACTUATOR_ORDER, map(int, ecu.measurement_counts()), strict=True)),
     }
-    print(json.dumps(summary) if args.json else summary)
+    print(to_json_text(summary) if args.json else summary)
     return 0
 
 
@@ -350,7 +366,7 @@ def _cmd_sim_fault(args) -> int:
     ) as client:
         reply = client.request("sim/fault", settings.to_json())
     if args.json:
-        print(json.dumps(reply))
+        print(to_json_text(reply))
     else:
         console().print(fault_settings_text(reply.get("applied") or {}), markup=False, highlight=False)
     return 0
@@ -431,7 +447,7 @@ def _cmd_sim_perturb(args) -> int:
             raise TruthError(f"--out {args.out}: cannot write the truth file ({exc.strerror})") from None
     summary = perturbation_summary(nominal, data, play)
     if args.json:
-        print(json.dumps({**summary, "out": args.out}))
+        print(to_json_text({**summary, "out": args.out}))
     elif args.out:
         console().print(
             f"truth {summary['name']} written to {args.out} (play {1e3 * play.lower_link_m:.2f} mm at the "
@@ -516,7 +532,7 @@ def _cmd_sim_measure(args) -> int:
         model, truth, pose=args.pose, counts=args.counts, noise=args.noise, points=args.points, seed=args.seed
     )
     if args.json:
-        print(json.dumps(out))
+        print(to_json_text(out))
         return 0
     c = console()
     counts = out["counts"]
@@ -564,11 +580,36 @@ def add_commands(sub) -> None:
         default=None,
         help="control rate [Hz], 1..200 (default: profile, 50)",
     )
-    m.add_argument("--speed-scale", type=float, default=1.0, help="fraction of full trajectory speed, (0, 1]")
-    m.add_argument("--frame-loss", type=float, default=0.0, help="probability a node misses a frame, [0, 1)")
-    m.add_argument("--max-time", type=float, default=30.0, help="longest run after the first command [s]")
-    m.add_argument("--band-position", type=float, default=0.005, help="settling band on |(dx, dz)| [m]")
-    m.add_argument("--band-angle", type=float, default=0.005, help="settling band on roll and pitch [rad]")
+    m.add_argument(
+        "--speed-scale",
+        type=bounded_float("--speed-scale", MIN_SPEED_SCALE, 1.0, lo_open=False),
+        default=1.0,
+        help=f"fraction of full trajectory speed, [{MIN_SPEED_SCALE:g}, 1], default 1",
+    )
+    m.add_argument(
+        "--frame-loss",
+        type=_frame_loss,
+        default=0.0,
+        help="probability a node misses a frame, [0, 1), default 0",
+    )
+    m.add_argument(
+        "--max-time",
+        type=bounded_float("--max-time", 0.1, 600.0, unit="s", lo_open=False),
+        default=30.0,
+        help="longest run after the first command [s], [0.1, 600], default 30",
+    )
+    m.add_argument(
+        "--band-position",
+        type=bounded_float("--band-position", 0.0, 10.0, unit="m"),
+        default=0.005,
+        help="settling band on |(dx, dz)| [m], (0, 10], default 0.005",
+    )
+    m.add_argument(
+        "--band-angle",
+        type=bounded_float("--band-angle", 0.0, 10.0, unit="rad"),
+        default=0.005,
+        help="settling band on roll and pitch [rad], (0, 10], default 0.005",
+    )
     _add_plant_options(m)
     add_model_options(m)
     m.set_defaults(handler=_cmd_sim_move)

@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import json
-
 from bridge.cli.model import add_model_options, finite_float, model_from_args
 from bridge.cli.output import console, esc
 from bridge.cli.plan import parse_pose_arg
 from bridge.cli.ranges import check_pose_ranges
+from bridge.service.wire import to_json_text
 from planner.limits.guard import Guard
 from planner.limits.tractor import load_tractor_profile
 from planner.trajectory import TrajectoryPlanner
@@ -45,7 +44,7 @@ def _cmd_stability(args) -> int:
         "slope": {"roll": args.slope_roll, "pitch": args.slope_pitch},
     }
     if args.json:
-        print(json.dumps(out))
+        print(to_json_text(out))
         return 0
     c = console()
     c.print(

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import math
 import re
 import signal as signals
@@ -41,6 +40,7 @@ from bridge.cli.model import bounded_float
 from bridge.cli.output import console, esc
 from bridge.cli.plan import parse_pose_arg
 from bridge.cli.service import STOP_TIMEOUT_S, _client_options, _run
+from bridge.service.wire import to_json_text
 from planner.errors import HitchError
 from planner.model.types import CONTROLLED_POSE_UNITS
 
@@ -553,7 +553,7 @@ def _stream(args, c, spec: _Spec) -> int:
         "interrupted": interrupted,
     }
     if quiet:
-        print(json.dumps(summary))
+        print(to_json_text(summary))
     else:
         text = f"track session {session} (motion {mid}) " + (
             f"{(outcome or {}).get('event', 'ended').replace('motion_', '')}: {reason or '-'}"
@@ -604,7 +604,7 @@ def _dry_run(args, spec: _Spec) -> int:
         if unset:
             note += f"; centre of {', '.join(unset)} shown as 0: the start pose is added when it runs"
     if args.json:
-        print(json.dumps({"frame": spec.frame, "dof": list(spec.dofs), "centre": centre, "setpoints": rows}))
+        print(to_json_text({"frame": spec.frame, "dof": list(spec.dofs), "centre": centre, "setpoints": rows}))
         return 0
     lines = [note]
     for row in rows:

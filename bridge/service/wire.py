@@ -6,7 +6,7 @@ import json
 import math
 from typing import Any
 
-__all__ = ["to_json_bytes"]
+__all__ = ["to_json_bytes", "to_json_text"]
 
 
 def _finite(obj: Any) -> Any:
@@ -25,3 +25,12 @@ def to_json_bytes(obj: Any) -> bytes:
         return json.dumps(obj, allow_nan=False, separators=(",", ":")).encode()
     except ValueError:
         return json.dumps(_finite(obj), allow_nan=False, separators=(",", ":")).encode()
+
+
+def to_json_text(obj: Any, *, indent: int | None = None) -> str:
+    """:func:`to_json_bytes` as text for people and files (the CLI's ``--json``): strict JSON, non-finite
+    numbers as null (Python's ``json`` would write the bare ``NaN`` no JSON reader takes)."""
+    try:
+        return json.dumps(obj, allow_nan=False, indent=indent)
+    except ValueError:
+        return json.dumps(_finite(obj), allow_nan=False, indent=indent)

@@ -1,0 +1,79 @@
+"""What ``hitch`` prints: no traceback for a move of length zero, no NaN in text or JSON, units on poses,
+option errors naming the option and its range.
+
+Truths: a plan whose goal is its start has duration 0 and a lower bound 0 (its ratio is undefined: the
+old CLI divided by zero); strict JSON (RFC 8259) has no NaN/Infinity token — Python's ``json.loads`` with
+a ``parse_constant`` that refuses them is the strict reader; the service's own speed-scale range
+(``MIN_SPEED_SCALE``) is what the offline commands must accept too.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+from bridge.cli.main import main
+from bridge.service.maneuvers.language import MIN_SPEED_SCALE
+from bridge.service.wire import to_json_text
+
+
+def _strict(text: str):
+    def refuse(token: str):
+        raise ValueError(f"non-standard JSON token {token}")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+def test_to_json_text_writes_null_for_non_finite_numbers():
+    obj = {"a": math.nan, "b": [1.0, math.inf, -math.inf], "c": {"d": 2.5}, "e": "nan"}
+    assert _strict(to_json_text(obj)) == {"a": None, "b": [1.0, None, None], "c": {"d": 2.5}, "e": "nan"}
+    assert _strict(to_json_text(obj, indent=1)) == _strict(to_json_text(obj))
+    with pytest.raises(ValueError, match="NaN"):
+        _strict(json.dumps(obj))  # what the CLI wrote before
+
+
+@pytest.mark.parametrize("args", [["--to", "x=0"], ["--to", "z=0.1", "--from", "z=0.1"]])
+def test_plan_whose_goal_is_its_start_prints_a_move_of_length_zero(capsys, args):
+    assert main(["plan", *args]) == 0  # the old CLI raised ZeroDivisionError here
+    out = capsys.readouterr().out
+    assert "duration 0.000 s" in out and "the start is the goal" in out
+    end = next(line for line in out.splitlines() if line.startswith("end pose:"))
+    assert end.count(" m") == 3 and end.count(" rad") == 3  # x, y, z in m; roll, pitch, yaw in rad
+
+
+def test_sim_track_without_a_judged_sample_says_so_in_text_and_writes_strict_json(capsys, tmp_path):
+    path = tmp_path / "t.json"
+    assert main(["sim", "track", "levelling", "--duration", "6", "--json", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "nan" not in out.lower() and "no sample to judge" in out
+    data = _strict(path.read_text())  # the old file held bare NaN tokens
+    assert data["scenario"] == "levelling"
+
+
+def test_sim_field_without_a_heavy_patch_says_so_and_writes_strict_json(capsys, tmp_path):
+    path = tmp_path / "f.json"
+    args = ["sim", "field", "chisel", "--mode", "draft", "--draft-setpoint", "20000", "--duration", "4"]
+    assert main([*args, "--json", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "nan" not in out.lower() and "heavy patches n/a" in out
+    figures = _strict(path.read_text())["figures"]
+    assert figures["heavy_samples"] == 0 and figures["slip_max_heavy"] is None
+
+
+@pytest.mark.parametrize(
+    "args, option, allowed",
+    [
+        (["plan", "--to", "z=0.1", "--speed-scale", "0.001"], "--speed-scale", f"[{MIN_SPEED_SCALE:g}, 1]"),
+        (["sim", "move", "--to", "z=0.1", "--speed-scale", "0"], "--speed-scale", f"[{MIN_SPEED_SCALE:g}, 1]"),
+        (["sim", "move", "--to", "z=0.1", "--max-time", "-1"], "--max-time", "[0.1, 600] s"),
+        (["sim", "move", "--to", "z=0.1", "--band-position", "-1"], "--band-position", "(0, 10] m"),
+        (["sim", "move", "--to", "z=0.1", "--band-angle", "nan"], "--band-angle", ""),
+        (["sim", "move", "--to", "z=0.1", "--frame-loss", "1.5"], "--frame-loss", "[0, 1)"),
+    ],
+)
+def test_option_errors_name_the_option_and_its_range(capsys, args, option, allowed):
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert f"{option} must" in err and allowed in err, err

@@ -28,6 +28,7 @@ from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ru
 
 from planner.errors import HitchError
 from planner.model.hard_limits import WORKSPACE_NAMES
+from planner.model.limit_names import LimitName
 from planner.model.types import CONTROLLED_POSE_NAMES
 from planner.trajectory.braking import StopProbe, beyond, current_floor
 from planner.trajectory.plan import MotionState, PlanError, TrajectoryInputError
@@ -162,6 +163,9 @@ class JogController:
         with the jog's own limits (the approach to a face within those limits)."""
         v = np.clip(rates, -self.limits.velocity, self.limits.velocity)
         flags: dict[str, str] = {}
+        for d, k in enumerate(CONTROLLED_POSE_NAMES):  # a rate above the jog speed limit: capped, and said so
+            if abs(rates[d]) > self.limits.velocity[d] * (1.0 + 1e-9):
+                flags[f"{k}{'+' if rates[d] > 0 else '-'}"] = str(LimitName("velocity", k))
         p = self.state.position
         cur = self.state.velocity
         for d, (k, (name_min, name_max)) in enumerate(zip(CONTROLLED_POSE_NAMES, WORKSPACE_NAMES, strict=True)):

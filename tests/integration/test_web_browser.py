@@ -553,6 +553,8 @@ def test_forcing_a_limit_shows_control_limited_with_its_name(service, page, shot
         text = page.text_content("#limited")
         assert text.startswith("Control limited") and "workspace:x:max" in text, text
         assert "left limit reached" in text, text  # in words: +x is the driver's left
+        # 100 % is the service's jog speed limit (config limits.jog_velocity), never above it
+        assert "velocity:" not in text, text
         # the picture lights up the limited member (the implement at its lateral face)
         wait_js(page, "document.querySelector('#v-rear line[data-member=implement]').classList.contains('hl')")
         time.sleep(0.5)

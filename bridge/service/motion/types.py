@@ -312,7 +312,9 @@ class JogMotion:
     t_state: float = 0.0  # clock time of ``jog.state`` (its last step)
     ff_last: tuple[float, np.ndarray] | None = None  # (clock time, pose acceleration) of the last streamed state
     limited: dict[str, str] = field(default_factory=dict)
-    reported: set[str] = field(default_factory=set)  # limits already announced by a limit_reached event
+    #: limits already announced by a limit_reached event (key → limit: a key whose limit changes, e.g. from
+    #: the jog speed limit to the workspace face, is announced again)
+    reported: dict[str, str] = field(default_factory=dict)
     decision: GuardDecision = field(default_factory=lambda: GuardDecision("ok"))
 
     def refresh(self, guard: Guard, rates: np.ndarray, expires: float) -> JogAccepted:
@@ -331,8 +333,8 @@ class JogMotion:
         self.jog.command(allowed, 1.0)  # the dead-man TTL is ours (``expires``), not the controller's
         out = self.jog.step()
         self.limited = {**out.limited, **guard_limits(self.decision)}
-        new = {k: v for k, v in self.limited.items() if k not in self.reported}
-        self.reported = set(self.limited)
+        new = {k: v for k, v in self.limited.items() if self.reported.get(k) != v}
+        self.reported = dict(self.limited)
         events: list[Event] = [{"event": "limit_reached", "motion_id": self.motion_id, "limits": new}] if new else []
         return out, events
 
@@ -380,7 +382,7 @@ class TrackMotion:
     ff_last: tuple[float, np.ndarray] | None = None  # (clock time, pose acceleration) of the last streamed state
     seq: SeqFilter = field(default_factory=SeqFilter)
     limited: dict[str, str] = field(default_factory=dict)
-    reported: set[str] = field(default_factory=set)
+    reported: dict[str, str] = field(default_factory=dict)  # as JogMotion.reported
     decision: GuardDecision = field(default_factory=lambda: GuardDecision("ok"))
     reason: str | None = None
     accepted: int = 0  # setpoints taken
@@ -435,8 +437,8 @@ class TrackMotion:
         out = self.follower.step(now)
         self.t_state = now
         self.limited = {**out.limited, **guard_limits(self.decision)}
-        new = {k: v for k, v in self.limited.items() if k not in self.reported}
-        self.reported = set(self.limited)
+        new = {k: v for k, v in self.limited.items() if self.reported.get(k) != v}
+        self.reported = dict(self.limited)
         if new:
             events.append({"event": "limit_reached", "motion_id": self.motion_id, "limits": new})
         if out.stale and self.reason is None:

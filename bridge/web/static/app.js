@@ -22,7 +22,12 @@
 (() => {
   const JOG_PERIOD_MS = 80;        // resend period while a jog button or key is held
   const JOG_TTL_MS = 250;          // the service stops the jog this long after the last command
-  const JOG_MAX = { x: 0.05, z: 0.15, roll: 0.15, pitch: 0.15 };   // m/s, rad/s at 100 % jog speed
+  // m/s, rad/s at 100 % jog speed: the service's jog speed limits (config limits.jog_velocity), these until it answers
+  const JOG_MAX_FALLBACK = { x: 0.05, z: 0.15, roll: 0.15, pitch: 0.15 };
+  const jogMax = (dof) => {
+    const lim = ui.config && ui.config.limits && ui.config.limits.jog_velocity;
+    return lim && Number.isFinite(lim[dof]) && lim[dof] > 0 ? lim[dof] : JOG_MAX_FALLBACK[dof];
+  };
   const LEVEL_PERIOD_MS = 100;     // levelling: a track/setpoint {roll: 0} this often while on and visible
   const LEVEL_TTL_MS = 500;        // the service brakes this long after the last setpoint (the dead-man)
   const STATE_STALE_MS = 500;      // no state for this long: the service is not publishing
@@ -874,7 +879,7 @@
     held: new Map(), timer: null,
     rates() {
       const speed = Number($("#jog-speed").value) / 100, v = { x: 0, z: 0, roll: 0, pitch: 0 };
-      for (const { dof, sign } of this.held.values()) v[dof] = Math.max(-JOG_MAX[dof], Math.min(JOG_MAX[dof], v[dof] + sign * JOG_MAX[dof] * speed));
+      for (const { dof, sign } of this.held.values()) { const m = jogMax(dof); v[dof] = Math.max(-m, Math.min(m, v[dof] + sign * m * speed)); }
       return { vx: v.x, vz: v.z, vroll: v.roll, vpitch: v.pitch, ttl_ms: JOG_TTL_MS };
     },
     send() {

@@ -233,8 +233,22 @@ def test_jog_stops_at_the_workspace_face_and_says_so(bench):
     assert max(xs) <= x_max + 1e-9
     assert max(xs) > x_max - 0.005  # it did get there
     assert bench.states[-1]["limited"].get("x+") == "workspace:x:max"
-    reached = [e for e in bench.events if e["event"] == "limit_reached"]
-    assert reached and reached[0]["limits"].get("x+") == "workspace:x:max"
+    reached = [e["limits"].get("x+") for e in bench.events if e["event"] == "limit_reached"]
+    # 0.05 m/s is above x's jog speed limit: capped and said so, then the face, each announced once
+    assert reached == ["velocity:x", "workspace:x:max"], reached
+
+
+def test_a_jog_above_its_speed_limit_is_capped_and_says_which_limit(bench):
+    """The old jog clipped a rate above the jog speed limit silently (``limited`` empty)."""
+    v_max = bench.mc.planner.any_direction.velocity[1]
+    acc = bench.mc.jog({"vz": 2 * v_max}, 0.5)
+    assert acc.limited == {"z+": "velocity:z"}
+    bench.run(1.0, each=lambda: bench.mc.jog({"vz": 2 * v_max}, 0.5))
+    st = bench.states[-1]
+    assert st["limited"] == {"z+": "velocity:z"}
+    assert max(s["velocity"]["z"] for s in bench.states) <= v_max * (1 + 1e-9)  # never beyond the limit
+    assert st["velocity"]["z"] == pytest.approx(v_max, rel=1e-6)  # reached and held at it
+    assert bench.mc.jog({"vz": 0.5 * v_max}, 0.5).limited == {}  # within the limit: nothing said
 
 
 def test_stop_has_precedence_and_goto_waits_for_rest(bench):

@@ -357,7 +357,9 @@ def service_info(cfg: ServiceConfig, guard: Guard) -> dict[str, Any]:
             "actuator_velocity": actuator_dict(tp.limits.velocity),
             "actuator_acceleration": actuator_dict(tp.limits.acceleration),
             # a jog's top rates [m/s, rad/s]: the pose rates reachable in any direction from anywhere
-            "jog_velocity": {k: float(v) for k, v in zip(CONTROLLED_POSE_NAMES, tp.any_direction.velocity, strict=True)},
+            "jog_velocity": {
+                k: float(v) for k, v in zip(CONTROLLED_POSE_NAMES, tp.any_direction.velocity, strict=True)
+            },
         },
         "modes": list(MODES),
     }

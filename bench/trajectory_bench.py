@@ -122,6 +122,9 @@ def compare(args) -> None:
         worst, durations, samples = 0.0, [], []
         for c in cases:  # results once (outside the timing), then alternating timed repetitions
             r = {n: ask(n, {"op": "plan", "case": c, "result": True}) for n in ("old", "new")}
+            for res in r.values():  # a reason's unit is a label (added 2026-12-05), not a result
+                for reason in res["decision"]["reasons"]:
+                    reason.pop("unit", None)
             worst = max(
                 worst,
                 _max_diff(

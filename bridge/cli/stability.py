@@ -8,6 +8,7 @@ from bridge.cli.plan import parse_pose_arg
 from bridge.cli.ranges import check_pose_ranges
 from bridge.service.wire import to_json_text
 from planner.limits.guard import Guard
+from planner.limits.stability import MEASURE_UNITS
 from planner.limits.tractor import load_tractor_profile
 from planner.trajectory import TrajectoryPlanner
 
@@ -59,9 +60,16 @@ def _cmd_stability(args) -> int:
         f"SSM {out['ssm']:.3f} m   LSM {out['lsm']:.3f} m   ESM {out['esm']:.0f} J   "
         f"(weakest edge: {esc(out['weakest_edge'])})"
     )
-    c.print(f"minimum front ballast (manual formula): {out['min_front_ballast']:.0f} kg")
+    c.print(
+        f"minimum front ballast (the manuals' formula: level ground, "
+        f"{guard.thresholds.front_axle_fraction_hard * 100:.0f} % of the weight on the front axle; "
+        f"the slope is in the margins below): {out['min_front_ballast']:.0f} kg"
+    )
     for v in out["violations"]:
-        c.print(f"[red]{esc(v['level'])}[/red]: {esc(v['measure'])} = {v['value']:.4g} below {v['threshold']:.4g}")
+        u = MEASURE_UNITS.get(v["measure"], "")
+        c.print(
+            f"[red]{esc(v['level'])}[/red]: {esc(v['measure'])} = {v['value']:.4g} {u} below {v['threshold']:.4g} {u}"
+        )
     c.print("[green]ok[/green]" if out["ok"] else "[red]NOT OK[/red]")
     return 0
 

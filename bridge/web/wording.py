@@ -147,9 +147,9 @@ _MEASURE_UNITS: Mapping[str, tuple[float, str, int]] = {
     "lsm": (1.0, "m", 2),
     "esm": (1e-3, "kJ", 1),
 }
-_GUARD = re.compile(
-    r"^(?P<level>hard|caution|speed):\s*(?P<measure>\S+) would be (?P<value>[-+0-9.eE]+) "
-    r"\(threshold (?P<threshold>[-+0-9.eE]+)\)"
+_GUARD = re.compile(  # GuardReason.sentence: the numbers may carry their SI unit ("1.2e+04 N", "0.3 m/s")
+    r"^(?P<level>hard|caution|speed):\s*(?P<measure>\S+) would be (?P<value>[-+0-9.eE]+)(?: [^\s()]+)? "
+    r"\(threshold (?P<threshold>[-+0-9.eE]+)(?: [^\s()]+)?\)"
 )
 
 

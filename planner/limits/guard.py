@@ -35,7 +35,7 @@ from planner.limits.implement_limits import (
     upper_height_violation,
 )
 from planner.limits.kinematic_margin import KinematicMargin, kinematic_margin
-from planner.limits.stability import StabilityReport, StabilityThresholds, _cross3
+from planner.limits.stability import MEASURE_UNITS, StabilityReport, StabilityThresholds, _cross3
 from planner.limits.stability_batch import StabilityBatch, cross_rows, evaluate_stability_batch
 from planner.limits.stability_scalar import evaluate_stability_scalar
 from planner.limits.tractor import ImplementRecord, StabilityInputError, Tractor, load_tractor_profile
@@ -64,7 +64,7 @@ class GuardReason:
     threshold: float
     t_s: float  # time in the plan (jog: seconds ahead)
     level: Literal["hard", "caution", "speed"]
-    unit: str = ""  # of value and threshold when they carry one (a jog's implement limits: "m/s", "m")
+    unit: str = ""  # of value and threshold (SI: "N", "m", "J", "m/s"); "" for a speed factor
 
     def to_json(self) -> dict:
         out = {
@@ -246,7 +246,7 @@ class Guard:
         above = upper_height_violation(np.asarray(sp.pose, float)[:, 2], self.implement_limits)
         if above is not None:  # the implement's upper height limit (implement_limits)
             upper = float(self.implement_limits.upper_height_m or 0.0)
-            reason = GuardReason(UPPER_HEIGHT_LIMIT, above[1], upper, float(ts[above[0]]), "hard")
+            reason = GuardReason(UPPER_HEIGHT_LIMIT, above[1], upper, float(ts[above[0]]), "hard", "m")
             return GuardDecision("refused", 0.0, (reason,)), lambda: None
         P, suspect = self._points_batch(Q)
         fk_ok = ~suspect  # rows whose batch points are HitchModel.forward's, bit for bit
@@ -289,12 +289,19 @@ class Guard:
             if (k_ko := _earliest(dist[j] < r, ts)) is not None:
                 d = exact(k_ko)[0][j][1]
                 t_ko = float(ts[k_ko])
-                events.append((t_ko, k_ko, j, GuardReason(self._keep_out_names[j], d, r, t_ko, "hard")))
+                events.append((t_ko, k_ko, j, GuardReason(self._keep_out_names[j], d, r, t_ko, "hard", "m")))
         for j, m in enumerate(_MEASURES):
             if (k_hard := _earliest(hard[:, j], ts)) is not None:
                 v = _measure_values(exact(k_hard)[1])[m]
                 t_hard = float(ts[k_hard])
-                events.append((t_hard, k_hard, len(self.keep_out) + j, GuardReason(m, v, hard_th[m], t_hard, "hard")))
+                events.append(
+                    (
+                        t_hard,
+                        k_hard,
+                        len(self.keep_out) + j,
+                        GuardReason(m, v, hard_th[m], t_hard, "hard", MEASURE_UNITS[m]),
+                    )
+                )
 
         def worst() -> StabilityReport:  # only when asked for (see above)
             return self._worst(vals, batch, hard_th, exact, start)
@@ -319,7 +326,7 @@ class Guard:
             if caution[:, j].any():
                 k_c = int(np.argmax(caution[:, j]))
                 v = _measure_values(exact(k_c)[1])[m]
-                cautions.append((k_c, j, GuardReason(m, v, caution_th[m], float(ts[k_c]), "caution")))
+                cautions.append((k_c, j, GuardReason(m, v, caution_th[m], float(ts[k_c]), "caution", MEASURE_UNITS[m])))
         if cautions:
             factor = min(factor, self.settings.caution_speed_factor)
         reasons += [c[2] for c in sorted(cautions, key=lambda c: c[:2])]
@@ -459,13 +466,13 @@ class Guard:
         for m in _MEASURES:
             worse = vals[m] < now[m] - 1e-9
             if vals[m] < hard_th[m] and worse:
-                reasons.append(GuardReason(m, vals[m], hard_th[m], h, "hard"))
+                reasons.append(GuardReason(m, vals[m], hard_th[m], h, "hard", MEASURE_UNITS[m]))
             elif vals[m] < caution_th[m] and worse:
-                reasons.append(GuardReason(m, vals[m], caution_th[m], h, "caution"))
+                reasons.append(GuardReason(m, vals[m], caution_th[m], h, "caution", MEASURE_UNITS[m]))
                 factor = min(factor, self.settings.caution_speed_factor)
         for j, (_, dist, r) in enumerate(self.keep_out_clearance(q_ahead, points_ahead)):
             if dist < r:
-                reasons.append(GuardReason(self._keep_out_names[j], dist, r, h, "hard"))
+                reasons.append(GuardReason(self._keep_out_names[j], dist, r, h, "hard", "m"))
         if any(r.level == "hard" for r in reasons):
             return np.zeros(4), GuardDecision("refused", 0.0, tuple(reasons), ahead)
         f_end, i = self.end_stops.speed_factor(q_now, jac @ rates)

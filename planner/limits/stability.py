@@ -51,6 +51,7 @@ from planner.limits.tractor import (
 
 __all__ = [
     "EDGE_NAMES",
+    "MEASURE_UNITS",
     "Measure",
     "StabilityInputError",
     "gravity_direction",
@@ -73,6 +74,8 @@ __all__ = [
 EDGE_NAMES: tuple[str, str, str] = ("rear", "right", "left")
 #: A stability measure: front-axle load [N], SSM [m], LSM [m], ESM [J].
 Measure = Literal["front_axle_load", "ssm", "lsm", "esm"]
+#: The SI unit of each measure (its value and its thresholds).
+MEASURE_UNITS: dict[str, str] = {"front_axle_load": "N", "ssm": "m", "lsm": "m", "esm": "J"}
 _EDGES = ((0, 1, 2), (1, 2, 0), (2, 0, 1))  # (A, B, opposite vertex) over Tractor.support_vertices
 #: pose-independent parts of the margins per tractor (a Tractor is frozen, its arrays read-only)
 _SUPPORT_CACHE: weakref.WeakKeyDictionary[Tractor, tuple] = weakref.WeakKeyDictionary()

@@ -135,11 +135,11 @@ class TrajectoryPlanner:
             unit = "m" if k in ("x", "z") else "rad"
             if p[i] < self.lo[i] - 1e-9:
                 raise PlanError(
-                    f"{what}.{k} = {p[i]:.4f} {unit} is below the workspace ({name_min} = {self.lo[i]:.4f})"
+                    f"{what}.{k} = {p[i]:.4f} {unit} is below the workspace ({name_min} = {self.lo[i]:.4f} {unit})"
                 )
             if p[i] > self.hi[i] + 1e-9:
                 raise PlanError(
-                    f"{what}.{k} = {p[i]:.4f} {unit} is above the workspace ({name_max} = {self.hi[i]:.4f})"
+                    f"{what}.{k} = {p[i]:.4f} {unit} is above the workspace ({name_max} = {self.hi[i]:.4f} {unit})"
                 )
 
     def state_from_actuators(self, q: ArrayLike, q_velocity: ArrayLike | None = None) -> MotionState:

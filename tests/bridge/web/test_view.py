@@ -211,6 +211,18 @@ def test_guard_entries_in_words_with_units():
     assert limited_words("end_stop:tilt", f"speed: {es.sentence()}") == expected
     assert limited_words("x+", "workspace:x:max") == "left limit reached (lateral position)"
     assert limited_words("what", "ever") == "what: ever"  # unknown: shown as it came, never dropped
+    # the guard's reasons carry their SI units (since 2026-12-05): the words are the same
+    ssm_m = GuardReason("ssm", 0.15, 0.2, 0.5, "caution", "m")
+    assert "0.15 m (threshold 0.2 m)" in ssm_m.sentence()
+    assert limited_words("ssm", f"caution: {ssm_m.sentence()}") == (
+        "side stability margin too low: 0.15 m (slows below 0.20 m): slowed"
+    )
+    fa = GuardReason("front_axle_load", 9000.0, 12000.0, 0.5, "hard", "N")
+    assert limited_words("front_axle_load", f"hard: {fa.sentence()}", 60000.0) == (
+        "front axle load 15 % of the tractor's weight (minimum 20 %): refused"
+    )
+    esm = GuardReason("esm", 1569.0, 2000.0, 0.5, "hard", "J")
+    assert limited_words("esm", f"hard: {esm.sentence()}").endswith("1.6 kJ (minimum 2.0 kJ): refused")
 
 
 def test_limited_entries_carry_words_and_the_members_to_highlight(view, model):

@@ -66,6 +66,7 @@ def test_lifting_a_heavy_implement_on_a_slope_is_refused_at_the_right_sample(gua
     first = dec.reasons[0]
     assert first.measure == "esm" and first.level == "hard" and first.threshold == ESM_HARD and first.value < ESM_HARD
     assert "esm would be" in str(exc.value) and f"t = {first.t_s:.2f} s" in str(exc.value)
+    assert first.unit == "J" and f"(threshold {ESM_HARD:.4g} J)" in str(exc.value)  # the SI unit, named
     # the refusal names the first sample past the crossing height
     plan = guard.planner.plan_move(MotionState.at_rest([0.0, lo, 0.0, 0.0]), {"z": hi})
     sp = plan.setpoints
@@ -105,8 +106,9 @@ def test_keep_out_refuses_motion_into_it(model):
     ko = g.keep_out[0]
     dists = [g.keep_out_clearance(g.planner.inverse(0, z, 0, 0))[0][1] for z in (g.planner.lo[1], g.planner.hi[1])]
     assert dists[0] > ko[2] > dists[1]  # clear when low, inside when high
-    with pytest.raises(GuardRefusal, match="keep_out:couplers"):
+    with pytest.raises(GuardRefusal, match="keep_out:couplers") as exc:
         g.plan(MotionState.at_rest([0, g.planner.lo[1], 0, 0]), {"z": g.planner.hi[1]})
+    assert exc.value.decision.reasons[0].unit == "m" and "(threshold 0.05 m)" in str(exc.value)
 
 
 def test_end_stop_zone_by_hand():

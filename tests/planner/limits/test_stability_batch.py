@@ -14,7 +14,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from planner.limits.guard import Guard, GuardDecision, GuardReason, GuardRefusal, _implement_frames
-from planner.limits.stability import StabilityThresholds, evaluate_stability
+from planner.limits.stability import MEASURE_UNITS, StabilityThresholds, evaluate_stability
 from planner.limits.stability_batch import MEASURE_NAMES, cross_rows, evaluate_stability_batch
 from planner.limits.tractor import STANDARD_GRAVITY as G
 from planner.limits.tractor import Tractor, load_tractor_profile
@@ -74,7 +74,8 @@ def _dedupe(reasons):
 
 
 def reference_check(self: Guard, sp: Setpoints) -> GuardDecision:
-    """Guard.check_setpoints as it was before the batch evaluation (one sample at a time)."""
+    """Guard.check_setpoints as it was before the batch evaluation (one sample at a time; the reasons
+    carry their SI units since 2026-12-05)."""
     measures = ("front_axle_load", "ssm", "lsm", "esm")
     reasons: list[GuardReason] = []
     factor = 1.0
@@ -92,7 +93,7 @@ def reference_check(self: Guard, sp: Setpoints) -> GuardDecision:
         pts = self.model.forward(q).points
         for name, dist, r in self.keep_out_clearance(q, pts):
             if dist < r:
-                reasons.append(GuardReason(f"keep_out:{name}", dist, r, t, "hard"))
+                reasons.append(GuardReason(f"keep_out:{name}", dist, r, t, "hard", "m"))
         rep = self.stability_at(q, pts)
         vals = _measure_values(rep)
         key = min(vals[m] / max(abs(hard_th[m]), 1e-9) for m in measures)
@@ -102,9 +103,9 @@ def reference_check(self: Guard, sp: Setpoints) -> GuardDecision:
             v = vals[m]
             improving_only = start_vals[m] < hard_th[m] and v >= start_vals[m] - 1e-9
             if v < hard_th[m] and not improving_only:
-                reasons.append(GuardReason(m, v, hard_th[m], t, "hard"))
+                reasons.append(GuardReason(m, v, hard_th[m], t, "hard", MEASURE_UNITS[m]))
             elif v < caution_th[m] and not (start_vals[m] < caution_th[m] and v >= start_vals[m] - 1e-9):
-                reasons.append(GuardReason(m, v, caution_th[m], t, "caution"))
+                reasons.append(GuardReason(m, v, caution_th[m], t, "caution", MEASURE_UNITS[m]))
     if end_stop is not None:
         reasons.insert(0, end_stop)
     hard = sorted((r for r in reasons if r.level == "hard"), key=lambda r: r.t_s)

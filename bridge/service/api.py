@@ -200,17 +200,17 @@ class ServiceAPI:
                 refused(setpoint_session(payload), str(exc))
             return self._err(exc.code, str(exc))
         except MotionError as exc:
-            return self._err(exc.code, f"{key}: {exc}")
+            return self._err(exc.code, _named(key, exc))
         except GuardRefusal as exc:
-            return self._err("refused", f"{key}: {exc}")
+            return self._err("refused", _named(key, exc))
         except PlanError as exc:
-            return self._err("unreachable", f"{key}: {exc}")
+            return self._err("unreachable", _named(key, exc))
         except StoreError as exc:
-            return self._err("store", f"{key}: {exc}")
+            return self._err("store", _named(key, exc))
         except WorkerError as exc:
-            return self._err(exc.code, f"{key}: {exc}")
+            return self._err(exc.code, _named(key, exc))
         except ValueError as exc:
-            return self._err("bad_request", f"{key}: {exc}")
+            return self._err("bad_request", _named(key, exc))
         except Exception as exc:  # noqa: BLE001 — a bug must not kill the service or leave a query open
             return self._err("internal", f"{key}: internal error {type(exc).__name__}: {str(exc)[:200]}")
         finally:
@@ -421,3 +421,10 @@ class ServiceAPI:
         if not self.store.delete_maneuver(r.name):
             raise RequestError("not_found", f"maneuvers/delete: no maneuver {r.name!r}")
         return {"deleted": r.name}
+
+
+def _named(key: str, exc: BaseException) -> str:
+    """The error text headed by the request's key, once: ``goto: …``, not ``goto: goto refused: …``
+    when the text already begins with the key (the motion controller names the kind of motion)."""
+    text = str(exc)
+    return text if text.startswith((f"{key} ", f"{key}:")) else f"{key}: {text}"

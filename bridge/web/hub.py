@@ -190,18 +190,24 @@ class ClientHub:
             return
 
     async def _command(self, c: _Client, msg: str | bytes) -> None:
+        stop = _as_stop(msg)
+        if stop is not None:  # whatever else came with it (a NaN, an odd id, a repeated field), a stop stops
+            ok, reply = await self._call("stop", b"", c.user)
+            await self._reply(c, _reply_id(stop.get("id")), ok, reply)
+            return
         rid = None
         try:
-            data = json.loads(msg)
+            data = json.loads(msg, object_pairs_hook=_unique_pairs)
             if not isinstance(data, dict):
                 raise CommandError("a command is a JSON object {id, key, payload}")
             rid, key, payload, csrf = data.get("id"), data.get("key"), data.get("payload", {}), data.get("csrf")
-            if rid is not None and (isinstance(rid, bool) or not isinstance(rid, (int, str))):
+            if rid is not None and _reply_id(rid) is None:
                 rid = None
                 raise CommandError("id must be an integer or a string")
             if not isinstance(key, str) or not API_NAME.match(key):
                 raise CommandError(f"key must be a service API name such as 'goto', got {key!r}")
-            body = json.dumps(payload, allow_nan=False).encode("utf-8")
+            # NaN / Infinity stay tokens: the service's own parser refuses them naming the field
+            body = json.dumps(payload).encode("utf-8")
         except (ValueError, TypeError, RecursionError) as exc:
             await self._reply(c, rid, False, {"error": "bad_request", "message": f"websocket command: {exc}"})
             return
@@ -253,10 +259,34 @@ class ClientHub:
             pass
 
 
-def _is_stop(msg: str | bytes) -> bool:
-    """Does this raw command look like a ``stop`` (so it skips the pending-commands limit)?"""
+class _DuplicateField(ValueError):
+    pass
+
+
+def _unique_pairs(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """A JSON object whose every field appears once (``json.loads`` keeps the last of two silently)."""
+    out: dict[str, Any] = {}
+    for k, v in pairs:
+        if k in out:
+            raise _DuplicateField(f"duplicate key {k!r} (each field may appear once)")
+        out[k] = v
+    return out
+
+
+def _reply_id(rid: Any) -> int | str | None:
+    """A command's id as its reply carries it (an integer or a string), or None."""
+    return rid if isinstance(rid, (int, str)) and not isinstance(rid, bool) else None
+
+
+def _as_stop(msg: str | bytes) -> dict | None:
+    """The command if it is a ``stop`` (read leniently: NaN tokens, repeated fields), else None."""
     try:
         data = json.loads(msg)
     except (ValueError, TypeError, RecursionError):
-        return False
-    return isinstance(data, dict) and data.get("key") == "stop"
+        return None
+    return data if isinstance(data, dict) and data.get("key") == "stop" else None
+
+
+def _is_stop(msg: str | bytes) -> bool:
+    """Does this raw command look like a ``stop`` (so it skips the pending-commands limit)?"""
+    return _as_stop(msg) is not None

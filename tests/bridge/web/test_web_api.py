@@ -448,6 +448,47 @@ def test_websocket_commands_go_through_the_same_handler(service, web):
         ws.close()
 
 
+@pytest.mark.parametrize(
+    "raw, rid",
+    [
+        (b'{"id": 10, "key": "stop", "payload": {"x": NaN}}', 10),  # NaN in the payload
+        (b'{"id": 1.5, "key": "stop"}', None),  # an id that is neither integer nor string
+        (b'{"id": true, "key": "stop"}', None),
+        (b'{"id": 11, "key": "stop", "payload": {"a": 1, "a": 2}}', 11),  # a repeated field
+        (b'{"id": 12, "key": "stop", "payload": "anything"}', 12),
+    ],
+)
+def test_any_websocket_stop_stops_whatever_came_with_it(service, web, raw, rid):
+    """The old hub refused the first three with bad_request and the hitch kept moving."""
+    _moving_goto(service, web)
+    ws = _WSClient(web)
+    try:
+        ws.message("hello")
+        ws.send(raw)
+        reply = ws.message("reply")
+        assert reply["ok"] and reply["data"]["stopped"] is True and reply["id"] == rid, reply
+        assert wait_until(lambda: not service.latest_state["moving"], 5.0)
+    finally:
+        ws.close()
+
+
+def test_websocket_commands_refuse_repeated_fields_and_name_a_nan_field(service, web):
+    """Over Zenoh and HTTP a repeated field is refused; the old hub kept the last one (x = 1 here)."""
+    ws = _WSClient(web)
+    try:
+        ws.send(b'{"id": 1, "key": "ik", "payload": {"x": 0, "x": 1, "z": 0.1, "roll": 0, "pitch": 0}}')
+        reply = ws.message("reply")
+        assert not reply["ok"] and reply["data"]["error"] == "bad_request"
+        assert "duplicate key 'x'" in reply["data"]["message"], reply
+        ws.send(b'{"id": 2, "key": "goto", "payload": {"goal": {"z": NaN}}}')
+        reply = ws.message("reply")
+        assert not reply["ok"] and reply["data"]["error"] == "bad_request"
+        assert reply["data"]["message"].startswith("goto:") and "goal.z" in reply["data"]["message"], reply
+    finally:
+        ws.close()
+    assert not service.latest_state["moving"]
+
+
 def test_websocket_from_another_site_is_refused(web):
     ws = _WSClient(web, origin="http://evil.example")
     try:

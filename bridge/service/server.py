@@ -393,7 +393,12 @@ class HitchService:
                 self._serve(self._state_sub, self._on_published("state"), "state")
 
     def _core_note(self, note: dict[str, Any]) -> None:
-        """A request the core answered itself (``stop``): given to the API's request hook (the black box)."""
+        """A note from the core over the private socket: a request it answered itself (``stop``), given to
+        the API's request hook (the black box), or its new mode (kept by the proxy: never taken from the
+        public ``events`` key, where anyone may put a ``mode_changed``)."""
+        if "mode" in note and isinstance(self._proxy, MotionProxy):
+            self._proxy.on_mode_note(note["mode"])
+            return
         api = self.api
         hook = None if api is None else api.on_request
         if hook is not None and note.get("request"):
@@ -407,8 +412,6 @@ class HitchService:
                 return
             if kind == "state":
                 self._latest_state = msg
-            elif isinstance(self._proxy, MotionProxy) and isinstance(msg, dict):
-                self._proxy.on_event(msg)
             for cb in list(self._listeners[kind]):
                 _call(cb, msg)
 

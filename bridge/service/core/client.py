@@ -216,13 +216,14 @@ class MotionProxy:
     def __init__(self, core: CoreProcess, planner: TrajectoryPlanner):
         self.core, self.planner = core, planner
         self._t0 = float(core.ready["t0_monotonic"])
-        self._mode: str | None = None  # the core's mode as last heard (set_mode replies, mode_changed events)
+        self._mode: str | None = None  # the core's mode as last heard (set_mode replies, the core's mode notes)
 
-    def on_event(self, event: Mapping[str, Any]) -> None:
-        """An event the core published: keeps the mode without asking the core (``config`` is read
-        at any rate by any client; it must not cost the core anything)."""
-        if event.get("event") == "mode_changed" and isinstance(event.get("mode"), str):
-            self._mode = str(event["mode"])
+    def on_mode_note(self, mode: Any) -> None:
+        """The core's new mode, noted over the private socket after each change (in order): kept
+        without asking the core (``config`` is read at any rate by any client; it must not cost the
+        core anything). Never from the public ``events`` key: anyone may put an event there."""
+        if isinstance(mode, str):
+            self._mode = mode
 
     def clock(self) -> float:
         """The core's clock [s]."""

@@ -18,8 +18,8 @@
 * calls from the service over the socket ``FD`` (:mod:`bridge.service.core.client`): ``(id,
   method, args)`` in, ``(id, "ok", value)`` or ``(id, "error", code, message)`` out; and notes
   ``(0, "note", {...})`` about what the core answered on its own (each ``stop`` it served, for the
-  service's black box; sent by a thread of their own through a bounded queue, never in the way of
-  the stop). O(1) methods
+  service's black box) and each change of its mode (the service's ``mode`` and ``config`` answer from
+  it); sent by a thread of their own through a bounded queue, never in the way of the stop. O(1) methods
   are answered on the reading thread at once (``stop`` first of all); ``goto`` and
   ``run_maneuver`` (they plan) on two threads of their own. Values travel as plain data (JSON-ready
   dicts, numbers, states); errors as the API's codes and texts.
@@ -304,6 +304,8 @@ class ControlCore:
                 pass
 
     def _publish_event(self, event: dict[str, Any]) -> None:
+        if event.get("event") == "mode_changed":  # the service keeps the mode from this note, not the public key
+            self._note({"mode": event.get("mode")})
         pub = self._event_pub
         if pub is not None and not self._closed.is_set():
             try:

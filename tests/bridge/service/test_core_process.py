@@ -66,6 +66,29 @@ def test_the_api_answers_as_with_the_core_in_threads(service):
         assert wait_until(lambda: any(ev.get("event") == "hitch_switch_refused" for ev in events))
 
 
+def test_the_mode_is_the_cores_whatever_anyone_puts_on_the_events_key(service):
+    """The old proxy took the mode from any ``mode_changed`` on the public events key: a forged one made
+    ``mode`` and ``config`` report 'transport' while the core (which moved the hitch) stayed in 'auto'."""
+    import zenoh
+
+    svc, ep = service
+    with HitchClient([ep], timeout_s=10) as c:
+        assert c.mode()["mode"] == "auto"
+        conf = zenoh.Config()
+        conf.insert_json5("mode", '"client"')
+        conf.insert_json5("connect/endpoints", f'["{ep}"]')
+        conf.insert_json5("scouting/multicast/enabled", "false")
+        seen: list[dict] = []
+        svc.add_listener("event", seen.append)
+        with zenoh.open(conf) as z:
+            z.put(svc.config.key("events"), b'{"event": "mode_changed", "mode": "transport", "previous": "auto"}')
+            assert wait_until(lambda: any(e.get("mode") == "transport" for e in seen))  # it did arrive
+        assert c.mode()["mode"] == "auto" and c.config()["mode"] == "auto"
+        # a real change still shows at once, and is kept without asking the core
+        assert c.mode("attach")["mode"] == "attach" and c.config()["mode"] == "attach"
+        assert c.mode("auto")["mode"] == "auto" and c.config()["mode"] == "auto"
+
+
 def test_stop_is_answered_by_the_core_while_every_request_handler_is_wedged(service):
     svc, ep = service
     gate = threading.Event()

@@ -364,7 +364,8 @@ API_KEYS: tuple[str, ...] = tuple(REQUESTS)
 #: keys whose payload is never read: anything sent to them is accepted (whatever is sent to stop, stops)
 ANY_PAYLOAD_KEYS: frozenset[str] = frozenset({"stop"})
 #: keys whose pose fields are checked against the workspace (when known) before the schema: key → field
-_POSE_FIELDS: Mapping[str, str] = {"goto": "goal", "presets/save": "pose"}
+#: ("": the payload's own fields, as work/start's operator setpoint z)
+_POSE_FIELDS: Mapping[str, str] = {"goto": "goal", "presets/save": "pose", "work/start": ""}
 
 
 class RequestError(HitchInputError):
@@ -556,7 +557,8 @@ def check_pose_in_workspace(
     """:class:`RequestError` (``unreachable``) naming the workspace range of every DOF of ``pose``
     outside ``workspace`` (DOF name → [min, max]; x, z [m], roll, pitch [rad]), with a hint when
     the value fits in mm (x, z) or degrees (roll, pitch). Non-numbers are left to the schema;
-    ``workspace`` None: nothing to check."""
+    ``workspace`` None: nothing to check. ``what``: the pose's field in the payload ("" when the pose
+    fields are the payload's own, as ``work/start``'s ``z``)."""
     if not workspace or not isinstance(pose, Mapping):
         return
     problems = []
@@ -570,7 +572,8 @@ def check_pose_in_workspace(
         unit = CONTROLLED_POSE_UNITS[k]
         side = "below" if v < lo else "above"
         limit = f"workspace:{k}:{'min' if v < lo else 'max'}"
-        text = f"{what}.{k} = {v:.6g} {unit} is {side} the workspace ({k} from {lo:.4g} to {hi:.4g} {unit}, {limit})"
+        name = f"{what}.{k}" if what else k
+        text = f"{name} = {v:.6g} {unit} is {side} the workspace ({k} from {lo:.4g} to {hi:.4g} {unit}, {limit})"
         text += unit_hint(v, lo, hi, unit)
         problems.append(text)
     if problems:
@@ -631,7 +634,8 @@ def parse_request(
             f"{key}: {path} = {token} must be a finite number (NaN and infinity are not allowed){_allowed(model, loc)}",
         )
     if key in _POSE_FIELDS and workspace is not None:
-        check_pose_in_workspace(data.get(_POSE_FIELDS[key]) or {}, workspace, key=key, what=_POSE_FIELDS[key])
+        field = _POSE_FIELDS[key]
+        check_pose_in_workspace((data.get(field) if field else data) or {}, workspace, key=key, what=field)
     try:
         return model.model_validate(data)
     except ValidationError as exc:

@@ -150,6 +150,26 @@ def test_a_draft_demand_beyond_the_depth_and_workspace_limits_is_clipped_and_nam
         s.close()
 
 
+def test_work_start_refuses_a_setpoint_outside_the_workspace_naming_its_range(model, tmp_path):
+    """The old service accepted z = 1.4 m (the schema's -1..1.5 m), and the session then died ~0.3 s later
+    on its own rejected setpoints ('stale: no setpoint within 300 ms')."""
+    lo_z, hi_z = (float(v) for v in (TrajectoryPlanner(model).lo[1], TrajectoryPlanner(model).hi[1]))
+    s = Service(model, tmp_path / "h.sqlite3", FakeInputs(ground_z=0.3))
+    tp = TrajectoryPlanner(model)  # the service's config carries its workspace (machine.service_info)
+    s.api.info["limits"] = {"workspace": {k: list(tp.workspace[k]) for k in ("x", "z", "roll", "pitch")}}
+    try:
+        for z, side in ((1.4, "above"), (-0.9, "below")):
+            ok, r = s.call("work/start", {"z": z})
+            assert not ok and r["error"] == "unreachable", r
+            assert f"z = {z:g} m is {side} the workspace (z from {lo_z:.4g} to {hi_z:.4g} m" in r["message"], r
+        ok, r = s.call("work/start", {"z": 250})
+        assert not ok and "did you mean mm?" in r["message"], r
+        assert s.states == [] or s.states[-1]["motion"] is None  # nothing started
+        assert s.ok("work/start", {"z": lo_z + 0.1})["work"]["running"]  # inside: accepted
+    finally:
+        s.close()
+
+
 def test_without_a_draft_draft_mode_falls_back_once_and_resume_engages_again(model, tmp_path):
     inputs = FakeInputs(ground_z=0.3)
     s = Service(model, tmp_path / "h.sqlite3", inputs)

@@ -41,6 +41,7 @@ from bridge.service.maneuvers.language import MIN_SPEED_SCALE
 from bridge.service.wire import to_json_text
 from planner.errors import HitchError
 from planner.model.types import CONTROLLED_POSE_UNITS
+from planner.textfile import read_text_file
 
 __all__ = ["add_commands", "STOP_TIMEOUT_S"]
 
@@ -591,7 +592,7 @@ def _read_script(path: str) -> str:
     p = Path(path)
     if not p.is_file():
         raise CLIError(f"maneuver file {p} " + ("is not a regular file" if p.exists() else "does not exist"))
-    return p.read_text(encoding="utf-8")
+    return read_text_file(p, "maneuver file", CLIError)
 
 
 def _maneuver_outcome(out: dict) -> str:
@@ -612,10 +613,13 @@ def script_errors(errors: list[dict]) -> str:
 
 
 def _cmd_maneuver(args) -> int:
+    # the file is read before any connection: a file that cannot be read fails at once, with its own error
+    script = _read_script(args.file) if args.action in ("validate", "save") else None
+
     def maneuver(c) -> int:
         a = args.action
         if a == "validate":
-            r = c.request("maneuvers/validate", {"script": _read_script(args.file)})
+            r = c.request("maneuvers/validate", {"script": script})
             _print(
                 args,
                 r,
@@ -623,7 +627,7 @@ def _cmd_maneuver(args) -> int:
             )
             return 0 if r["ok"] else 1
         if a == "save":
-            r = c.request("maneuvers/save", {"name": args.name, "script": _read_script(args.file)})
+            r = c.request("maneuvers/save", {"name": args.name, "script": script})
             steps = f"{r['steps']} step" + ("" if r["steps"] == 1 else "s")
             _print(args, r, f"saved {r['saved']} ({steps}; parsed only: `hitch maneuver validate` plans it)")
         elif a == "list":

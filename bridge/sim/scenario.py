@@ -53,6 +53,7 @@ from bridge.sim.terrain import (
 )
 from planner.errors import HitchInputError
 from planner.profiles.loader import format_validation_error
+from planner.textfile import read_text_file
 
 __all__ = ["SCHEMA_VERSION", "Scenario", "ScenarioError", "builtin_scenarios", "load_scenario", "scenario_from_dict"]
 
@@ -322,7 +323,7 @@ def read_named_toml(
             )
         base = folder
     try:
-        return tomllib.loads(where.read_text(encoding="utf-8")), where, base
+        return tomllib.loads(read_text_file(where, kind, error)), where, base
     except tomllib.TOMLDecodeError as exc:
         raise error(f"{kind} {where} is not valid TOML: {exc}") from None
 

@@ -12,6 +12,7 @@ from typing import Any
 from pydantic import BaseModel, ValidationError
 
 from planner.errors import HitchInputError
+from planner.textfile import read_text_file
 
 __all__ = ["ProfileError", "builtin_profiles", "read_profile", "format_validation_error", "check_profile_name"]
 
@@ -50,7 +51,7 @@ def read_profile(
     if p.suffix == ".toml" or p.exists():
         if not p.is_file():
             raise error(f"{kind} file {p} does not exist")
-        source, text = str(p), p.read_text(encoding="utf-8")
+        source, text = str(p), read_text_file(p, f"{kind} file", error)
     else:
         source = str(name_or_path)
         res = _folder(subfolder) / f"{source}.toml"
@@ -59,7 +60,7 @@ def read_profile(
                 f"{kind} {source!r} not found; built-in {kind}s: {', '.join(builtin_profiles(subfolder))} "
                 "(or give a path to a .toml file)"
             )
-        text = res.read_text(encoding="utf-8")
+        text = read_text_file(res, kind, error)
     try:
         return source, tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

@@ -77,3 +77,22 @@ def test_option_errors_name_the_option_and_its_range(capsys, args, option, allow
     assert main(args) == 2
     err = capsys.readouterr().err
     assert f"{option} must" in err and allowed in err, err
+
+
+@pytest.mark.parametrize(
+    "args, what",
+    [
+        (["profile", "show", "--profile", "{dir}/p.toml"], "profile file"),
+        (["maneuver", "validate", "{dir}/m.yaml"], "maneuver file"),  # before any connection is tried
+        (["maneuver", "save", "x1", "{dir}/m.yaml"], "maneuver file"),
+        (["sim", "track", "{dir}/s.toml"], "scenario"),
+    ],
+)
+def test_a_file_that_is_not_utf8_is_one_error_line_naming_file_and_byte(capsys, tmp_path, args, what):
+    """The old CLI ended these with a UnicodeDecodeError traceback (exit 1)."""
+    for name, text in (("p.toml", b'name = "x"\n# caf\xe9\n'), ("m.yaml", b"steps:\n  - goto: {z: 0.1\xff}\n")):
+        (tmp_path / name).write_bytes(text)
+    (tmp_path / "s.toml").write_bytes(b'job = "levelling"\n# \xff\n')
+    assert main([a.format(dir=tmp_path) for a in args]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"hitch: error: {what}") and "not UTF-8 text (byte " in err and "line 2" in err, err

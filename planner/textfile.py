@@ -1,0 +1,33 @@
+"""Reading the project's text files (profiles, maneuvers, scenarios): UTF-8, or one clear error.
+
+``Path.read_text`` raises ``UnicodeDecodeError`` (a ``ValueError`` that is not a
+:class:`~planner.errors.HitchError`: the CLI shows it as a traceback) for a byte that is not
+UTF-8, and ``OSError`` for a file it cannot read. :func:`read_text_file` turns both into the
+caller's :class:`~planner.errors.HitchInputError`, naming the file and the byte.
+"""
+
+from __future__ import annotations
+
+from importlib.resources.abc import Traversable
+from pathlib import Path
+
+from planner.errors import HitchInputError
+
+__all__ = ["read_text_file"]
+
+
+def read_text_file(path: str | Path | Traversable, what: str, error: type[HitchInputError] = HitchInputError) -> str:
+    """The text of ``path`` (UTF-8); ``error`` naming ``what`` (e.g. "maneuver file"), the path and
+    the offending byte when it cannot be read or is not UTF-8 text."""
+    p = Path(path) if isinstance(path, str) else path
+    try:
+        data = p.read_bytes()
+    except OSError as exc:
+        raise error(f"{what} {p}: cannot read it ({exc.strerror or exc})") from None
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise error(
+            f"{what} {p}: not UTF-8 text (byte {exc.start}, line {line}: 0x{data[exc.start]:02x}); save it as UTF-8"
+        ) from None

@@ -74,13 +74,23 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def one_line(text: str) -> str:
+    """A multi-line error as one line: its lines stripped and joined by "; ", a heading that ends in
+    ":" followed by a space ("invalid profile p.toml: geometry.x = …; geometry.y = …")."""
+    out = ""
+    for line in (part.strip() for part in text.splitlines()):
+        if not line:
+            continue
+        out += line if not out else (" " if out.endswith(":") else "; ") + line
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     try:
         args = build_parser().parse_args(argv)
         return int(args.handler(args) or 0)
     except HitchError as exc:  # CLIError, ProfileError, KinematicsError, PlanError, ServiceError, …
-        msg = str(exc).replace("\n", "; ")
-        print(f"hitch: error: {msg}", file=sys.stderr)
+        print(f"hitch: error: {one_line(str(exc))}", file=sys.stderr)
     except KeyboardInterrupt:
         return 130
     except BrokenPipeError:  # e.g. `hitch plan --json | head`

@@ -23,6 +23,7 @@ rear-axle centre, ``rear_track`` apart; the pivot is on the centre line one whee
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -337,9 +338,14 @@ class TractorProfile:
 
 
 def tractor_profile_from_dict(data: dict, source: str = "<dict>") -> TractorProfile:
-    """Validate a tractor profile given as a dictionary (as parsed from TOML)."""
+    """Validate a tractor profile given as a dictionary (as parsed from TOML): strictly, as JSON values
+    (a number must be a number: ``true`` or ``"7500"`` for a mass is refused)."""
     try:
-        spec = TractorProfileSpec.model_validate(data)
+        text = json.dumps(data)
+    except (TypeError, ValueError) as exc:  # a value JSON cannot hold (a TOML date)
+        raise TractorProfileError(f"invalid tractor profile {source}: {exc}") from None
+    try:
+        spec = TractorProfileSpec.model_validate_json(text, strict=True)
     except ValidationError as exc:
         raise TractorProfileError(format_validation_error("tractor profile", source, exc, TractorProfileSpec)) from None
     records = {

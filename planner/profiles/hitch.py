@@ -8,6 +8,7 @@ what is allowed.
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 from typing import Any, Literal
@@ -284,8 +285,15 @@ def load_profile(name_or_path: str | Path = "thesis-t132") -> Profile:
 
 
 def profile_from_dict(data: dict[str, Any], source: str = "<dict>") -> Profile:
-    """Validate a profile given as a dictionary (as parsed from TOML)."""
+    """Validate a profile given as a dictionary (as parsed from TOML).
+
+    Strictly, as JSON values: a number must be a number (``true`` or ``"0.96"`` for a length is
+    refused, where pydantic's lax mode read 1.0 and 0.96), an array may stand for a tuple."""
     try:
-        return Profile.model_validate(data)
+        text = json.dumps(data, allow_nan=True)
+    except (TypeError, ValueError) as exc:  # a value JSON cannot hold (a TOML date, an object)
+        raise ProfileError(f"invalid profile {source}: {exc}") from None
+    try:
+        return Profile.model_validate_json(text, strict=True)
     except ValidationError as exc:
         raise ProfileError(format_validation_error("profile", source, exc, Profile)) from None

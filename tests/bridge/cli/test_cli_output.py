@@ -96,3 +96,18 @@ def test_a_file_that_is_not_utf8_is_one_error_line_naming_file_and_byte(capsys, 
     assert main([a.format(dir=tmp_path) for a in args]) == 2
     err = capsys.readouterr().err
     assert err.startswith(f"hitch: error: {what}") and "not UTF-8 text (byte " in err and "line 2" in err, err
+
+
+def test_a_profile_value_of_the_wrong_type_is_refused_naming_the_field(capsys, tmp_path):
+    """The old loader read ``true`` as 1.0 m and ``"0.960"`` as 0.96 m (pydantic's lax mode)."""
+    import importlib.resources
+
+    text = (importlib.resources.files("planner.profiles") / "thesis-t132.toml").read_text(encoding="utf-8")
+    line = next(x for x in text.splitlines() if x.startswith("lower_link_length"))
+    for bad in ("true", '"0.960"'):
+        p = tmp_path / "p.toml"
+        p.write_text(text.replace(line, f"lower_link_length = {bad}"), encoding="utf-8")
+        assert main(["profile", "show", "--profile", str(p)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith(f"hitch: error: invalid profile {p}: geometry.lower_link_length = "), err
+        assert "valid number" in err and "(allowed: > 0 and <= 3)" in err and ":;" not in err, err

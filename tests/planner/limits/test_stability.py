@@ -412,6 +412,9 @@ def _profile_dict():
         (lambda d: d["tractor"].update(front_axle_mass_empty=3000.0), "front_axle_mass_empty"),
         (lambda d: d["tractor"]["centre_of_mass"].update(y=0.5), "centre_of_mass.y"),
         (lambda d: d["implements"]["cat2-spreader-400"].update(category="7"), "category"),
+        # a number must be a number (the old lax validation read these as 1.0 and 7500.0)
+        (lambda d: d["tractor"].update(wheelbase=True), "tractor.wheelbase"),
+        (lambda d: d["tractor"].update(mass="7500"), "tractor.mass"),
     ],
 )
 def test_bad_profiles_name_the_field(edit, field):

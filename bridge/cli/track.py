@@ -40,8 +40,9 @@ from bridge.cli.model import bounded_float
 from bridge.cli.output import console, esc
 from bridge.cli.plan import parse_pose_arg
 from bridge.cli.service import STOP_TIMEOUT_S, _client_options, _run
+from bridge.service.maneuvers.steps import POSE_BOUNDS
 from bridge.service.wire import to_json_text
-from planner.errors import HitchError
+from planner.errors import HitchError, unit_hint
 from planner.model.types import CONTROLLED_POSE_UNITS
 
 __all__ = [
@@ -220,6 +221,31 @@ def _column_kind(name: str) -> tuple[str, str] | None:
     return None
 
 
+#: the largest |velocity| a setpoint may carry [m/s, rad/s] (the service's track/setpoint schema)
+SETPOINT_VELOCITY_MAX = 1.0
+
+
+def _check_value(p: Path, line: int, col: int, name: str, kind: tuple[str, str], v: float) -> None:
+    """A position or velocity outside what a setpoint may carry (the service's ``track/setpoint`` bounds,
+    whatever the frame): refused at load, naming the line, the column, the range and a unit hint —
+    not by the service after the session has started."""
+    what, dof = kind
+    if what == "pos":
+        lo, hi = POSE_BOUNDS[dof]
+        unit = CONTROLLED_POSE_UNITS[dof]
+    elif what == "vel":
+        lo, hi = -SETPOINT_VELOCITY_MAX, SETPOINT_VELOCITY_MAX
+        unit = CONTROLLED_POSE_UNITS[dof] + "/s"
+    else:
+        return
+    if not lo <= v <= hi:
+        hint = unit_hint(v, lo, hi, unit) if what == "pos" else ""
+        raise CLIError(
+            f"{p}: line {line}, column {col} ({name}): {v:g} {unit} is outside [{lo:.4g}, {hi:.4g}] {unit} "
+            f"(SI units){hint}"
+        )
+
+
 def read_signal_csv(path: str | Path) -> CsvSignal:
     """Read a signal file (see the module docstring); :class:`CLIError` naming the file, line and column."""
     p = Path(path)
@@ -274,6 +300,7 @@ def read_signal_csv(path: str | Path) -> CsvSignal:
                 raise CLIError(f"{p}: line {n}, column {col} ({name}): not a number: {cell.strip()!r}") from None
             if not math.isfinite(v):
                 raise CLIError(f"{p}: line {n}, column {col} ({name}): must be finite, got {cell.strip()!r}")
+            _check_value(p, n, col, name, kinds[col - 1], v)
             vals.append(v)
         t = vals[kinds.index(("t", ""))]
         if last_t is None and t < 0:

@@ -457,6 +457,8 @@ def _allowed(model: type[BaseModel], loc: tuple[int | str, ...]) -> str:
         "upper_height_m": " m",
         "lowering_speed_m_s": " m/s",
     }.get(name, "")
+    if "velocity" in loc and name in ("x", "z", "roll", "pitch"):  # a setpoint's velocity, not its position
+        unit = " m/s" if name in ("x", "z") else " rad/s"
     return f" (allowed: {' and '.join(parts)}{unit})" if parts else ""
 
 

@@ -123,6 +123,10 @@ def test_dofs_are_canonical_and_unique():
         ("t,z,z\n0,0.1,0.1\n", "line 1, column 3: column 'z' given twice"),
         ("t,z\n0,0.1\n", "needs at least 2 rows"),
         ("", "empty"),
+        # values beyond what a setpoint may carry: refused at load (the old CLI started the session first)
+        ("t,z\n0.0,100\n0.5,110\n", "line 2, column 2 (z): 100 m is outside [-2, 2] m (SI units); did you mean mm?"),
+        ("t,z,v_z\n0,0.1,50\n1,0.1,0\n", "line 2, column 3 (v_z): 50 m/s is outside [-1, 1] m/s"),
+        ("t,roll\n0,0\n1,5\n", "line 3, column 2 (roll): 5 rad is outside [-1.571, 1.571] rad (SI units); did you"),
     ],
 )
 def test_csv_errors_name_the_file_line_and_column(capsys, tmp_path, text, words):
@@ -271,14 +275,16 @@ def test_a_two_second_sine_streams_to_a_real_service_and_ends_with_the_motion_fi
         assert r.returncode == 0, (r.stdout, r.stderr)
         assert ", 50 Hz, 1 s" in r.stdout and "finished: track/stop" in r.stdout, r.stdout
         # setpoints the service rejects: the summary says why (a new user's report: only `hitch log` did)
+        # (z = 1.5 m: within what a setpoint may carry, far beyond what the follower takes in the tractor frame)
         bad = tmp_path / "bad.csv"
+        bad.write_text("t,z\n0.0,0.10\n0.1,0.10\n0.2,1.5\n1.0,1.5\n", encoding="utf-8")
+        r = _track(endpoint, "--from-file", str(bad), "--rate", "50")
+        assert "last rejection: " in r.stdout and "rejected 0" not in r.stdout, (r.stdout, r.stderr)
+        # a value no setpoint may carry (50 m: mm meant) is refused at load, before any session starts
         bad.write_text("t,z\n0.0,0.10\n0.1,0.10\n0.2,50.0\n1.0,50.0\n", encoding="utf-8")
         r = _track(endpoint, "--from-file", str(bad), "--rate", "50")
-        # the puts outside the schema's range were dropped uncounted by the core process: now they are rejections
-        assert "last rejection: track/setpoint: pose.z = 50" in r.stdout and "rejected 0" not in r.stdout, (
-            r.stdout,
-            r.stderr,
-        )
+        assert r.returncode == 2 and "line 4, column 2 (z): 50 m is outside [-2, 2] m" in r.stderr, r.stderr
+        assert "did you mean mm?" in r.stderr and r.stdout == ""
 
         # Ctrl-C mid-stream: track/stop is sent and awaited, then exit 130
         p = subprocess.Popen(

@@ -184,3 +184,12 @@ def test_a_list_of_the_wrong_length_says_how_many_items(com):
     raw = json.dumps({"name": "bad2", "category": "2", "mass_kg": 1200, "com_m": com}).encode()
     msg = str(_refusal("implements/define", raw))
     assert msg == f"implements/define: com_m must hold exactly 3 items, got {len(com)}"
+
+
+def test_a_setpoint_velocity_names_its_range_in_m_per_s_and_rad_per_s():
+    """The old message said 'velocity.z = 2 is out of range (allowed: >= -1 and <= 1 m)'."""
+    for dof, unit in (("z", "m/s"), ("roll", "rad/s")):
+        raw = json.dumps({"session": 1, "seq": 0, "pose": {dof: 0.0}, "velocity": {dof: 2.0}})
+        with pytest.raises(RequestError) as exc:
+            parse_request("track/setpoint", raw)
+        assert f"velocity.{dof}" in str(exc.value) and f"(allowed: >= -1 and <= 1 {unit})" in str(exc.value), exc.value

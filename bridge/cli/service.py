@@ -342,6 +342,11 @@ def _motion(args, c, start: Callable[[], dict], wait: Callable[[dict], dict]) ->
     reply: dict | None = None
     try:
         reply = start()
+        if args.wait and not getattr(args, "json", False):  # said at once: the wait may be long
+            planned = reply.get("duration")
+            plan = f", planned {planned:.2f} s" if isinstance(planned, (int, float)) else ""
+            stop = "the motion goes on" if args.detach else "stops it"
+            print(f"started (id {reply.get('motion_id')}{plan}); waiting for the end (Ctrl-C {stop})", flush=True)
         return reply, (wait(reply) if args.wait else None)
     except KeyboardInterrupt:
         if args.detach:

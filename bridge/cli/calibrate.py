@@ -141,14 +141,36 @@ def _cmd_geometry(args) -> int:
         f" mm / {1e3 * result.residual_rms_nominal_angle_rad:.3f} mrad), sigma-hat {result.residual_sigma:.3g}"
     )
     print(f"{result.identified} of {len(result.names)} parameter directions identified; parameters (value ± std):")
-    for n, a, v, s in zip(result.names, result.nominal, result.values, result.std, strict=True):
-        print(f"  {n:36s} {v:+.6f} (nominal {a:+.6f}) ± {s:.2e}")
+    units = ["" if p.unit == "1" else p.unit for p in model.params.parameters]  # AD gains: dimensionless
+    for n, a, v, s, u, share in zip(
+        result.names, result.nominal, result.values, result.std, units, result.identified_share, strict=True
+    ):
+        print(f"  {n:36s} {v:+.6f} {u:3s} (nominal {a:+.6f}) {_spread(s, u, share)}")
+    if np.any((result.identified_share >= _UNIDENTIFIED_SHARE) & (result.identified_share < _IDENTIFIED_SHARE)):
+        print("  * the share of the parameter the poses identify; its std holds with the rest at nominal")
     if result.unidentifiable:
         print("not identifiable from these poses (kept nominal):")
         for u in result.unidentifiable:
             print(f"  {u}")
     print(f"wrote {args.out}")
     return 0
+
+
+#: a parameter whose identified share is below this lies in unidentified combinations only
+_UNIDENTIFIED_SHARE = 1e-6
+#: at or above this the data determine it alone (its std holds whatever the rest)
+_IDENTIFIED_SHARE = 0.995
+
+
+def _spread(std: float, unit: str, share: float) -> str:
+    """A parameter's ± std as it can be read (:attr:`CalibrationResult.identified_share`): no std for one
+    the data cannot see (its std would print as ~1e-18), a conditional one for one they see in part."""
+    if share < _UNIDENTIFIED_SHARE:
+        return "not identified (kept nominal)"
+    text = f"± {std:.2e} {unit}".rstrip()
+    if share < _IDENTIFIED_SHARE:
+        text += f", {100 * share:.0f} % identified*"
+    return text
 
 
 def _cmd_measure_twin(args) -> int:

@@ -126,11 +126,21 @@ class CalibrationResult:
     converged: bool
     duration_s: float
 
+    @property
+    def identified_share(self) -> np.ndarray:
+        """Per parameter, the share (0…1) of its scaled unit direction that lies in the identified subspace:
+        1 — the data determine it and ``std`` is its standard deviation; 0 — it lies in unidentified
+        combinations only (kept nominal; ``std`` ≈ 0 says nothing); between — ``std`` holds with the
+        unidentified combinations at nominal."""
+        return np.sum(self.basis**2, axis=1) if self.basis.size else np.zeros(len(self.names))
+
     def as_dict(self) -> dict[str, object]:
         return {
             "parameters": {
-                n: {"nominal": float(a), "value": float(v), "std": float(s)}
-                for n, a, v, s in zip(self.names, self.nominal, self.values, self.std, strict=True)
+                n: {"nominal": float(a), "value": float(v), "std": float(s), "identified_share": float(h)}
+                for n, a, v, s, h in zip(
+                    self.names, self.nominal, self.values, self.std, self.identified_share, strict=True
+                )
             },
             "singular_values": [float(s) for s in self.singular_values],
             "identified": self.identified,

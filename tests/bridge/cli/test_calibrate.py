@@ -125,6 +125,13 @@ def test_end_to_end_on_a_twin_calibrates_better_than_nominal(tmp_path, capsys):
     # station noise is 1 mm / 1 mrad: the calibrated residual is at the noise, the nominal one well above it
     assert report["residual_rms_position_m"] < 0.0016 < report["residual_rms_nominal_position_m"]
     assert report["residual_rms_angle_rad"] < 0.0025 < report["residual_rms_nominal_angle_rad"]
+    # in words: a parameter the poses cannot see has no std, the others carry their unit
+    assert main(["calibrate", "geometry", "--measurements", str(meas), "--out", str(out)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    pivot = next(line for line in lines if line.strip().startswith("geometry.pivot_height"))
+    assert "not identified (kept nominal)" in pivot and "±" not in pivot, pivot
+    span = next(line for line in lines if line.strip().startswith("geometry.top_link_tractor_point[2]"))
+    assert " m " in span and "± " in span, span
     cal = load_profile(out)  # an ordinary profile
     prov = read_calibration_provenance(out)
     assert prov is not None and prov["poses"] == 12

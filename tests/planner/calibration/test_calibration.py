@@ -127,6 +127,12 @@ def test_pivot_height_is_never_identifiable_and_stays_nominal():
     k = model.params.index("geometry.pivot_height")
     assert res.values[k] == model.params.nominal[k]
     assert any("pivot_height" in u for u in res.unidentifiable)
+    # its identified share is 0 (its std, ~1e-18, says nothing: the CLI prints "not identified"); the shares
+    # are the diagonal of the projector onto the identified subspace: in [0, 1], summing to its dimension
+    share = res.identified_share
+    assert share[k] < 1e-12 and np.all((share > -1e-12) & (share < 1 + 1e-12))
+    assert share.sum() == pytest.approx(res.identified, abs=1e-9)
+    assert res.as_dict()["parameters"]["geometry.pivot_height"]["identified_share"] < 1e-12
 
 
 def test_d_optimal_design_beats_random_poses_in_log_det():

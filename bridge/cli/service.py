@@ -747,7 +747,14 @@ def add_commands(sub) -> Any:
     p.set_defaults(handler=_cmd_stop)
 
     p = sub.add_parser("mode", help="read or set the operating mode")
-    p.add_argument("set", nargs="?", choices=("auto", "manual", "attach", "transport", "config"), default=None)
+    p.add_argument(
+        "set",
+        nargs="?",
+        metavar="MODE",
+        choices=("auto", "manual", "attach", "transport", "config"),
+        default=None,
+        help="the mode to set: auto, manual, attach, transport or config (none: read it)",
+    )
     _client_options(p)
     p.set_defaults(handler=_cmd_mode)
 

@@ -28,6 +28,7 @@ import numpy as np
 from bridge.cli.model import add_model_options, bounded_float, finite_float, model_from_args
 from bridge.cli.output import console, plot_path
 from bridge.cli.plan import parse_pose_arg
+from bridge.cli.service import _client_options
 from bridge.link.realtime import INTERFACES, RealtimeRunner, open_bus
 from bridge.link.state import LinkConfig
 from bridge.service.maneuvers.language import MIN_SPEED_SCALE
@@ -647,18 +648,20 @@ def add_commands(sub) -> None:
     fl.set_defaults(handler=_cmd_sim_field)
     f = ssub.add_parser("fault", help="inject link faults into a running service's simulated ECU")
     f.add_argument("--cut", choices=CUTS, default="none", help="cut one direction or both (default none)")
-    f.add_argument("--loss", type=finite_float("--loss"), default=0.0, help="frame loss probability, [0, 1]")
     f.add_argument(
-        "--delay-ms", type=finite_float("--delay-ms"), default=0.0, help=f"frame delay [ms], [0, {MAX_DELAY_MS:g}]"
+        "--loss",
+        type=bounded_float("--loss", 0.0, 1.0, lo_open=False),
+        default=0.0,
+        help="frame loss probability, [0, 1] (default 0)",
+    )
+    f.add_argument(
+        "--delay-ms",
+        type=bounded_float("--delay-ms", 0.0, MAX_DELAY_MS, unit="ms", lo_open=False),
+        default=0.0,
+        help=f"frame delay [ms], [0, {MAX_DELAY_MS:g}] (default 0)",
     )
     f.add_argument("--restart-ecu", action="store_true", help="restart the simulated ECU once")
-    f.add_argument(
-        "--connect", action="append", default=None, metavar="ENDPOINT", help="service or router endpoint (repeatable)"
-    )
-    f.add_argument("--prefix", default="hitch", help="key prefix of the service (default hitch)")
-    f.add_argument("--security", default=None, help="Zenoh security config of this client (credentials, TLS CA)")
-    f.add_argument("--timeout", type=finite_float("--timeout"), default=5.0, help="seconds to wait for a reply")
-    f.add_argument("--json", action="store_true", help="print JSON")
+    _client_options(f)
     f.set_defaults(handler=_cmd_sim_fault)
     e = sub.add_parser("ecu-sim", help="run the simulated cylinder ECU on a CAN interface in real time")
     e.add_argument("--interface", choices=INTERFACES, default="udp_multicast", help="python-can interface")

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from bridge.cli.model import add_model_options, finite_float, model_from_args
+from bridge.cli.model import add_model_options, bounded_float, model_from_args
 from bridge.cli.output import console, esc
 from bridge.cli.plan import parse_pose_arg
 from bridge.cli.ranges import check_pose_ranges
@@ -13,6 +13,9 @@ from planner.limits.tractor import load_tractor_profile
 from planner.trajectory import TrajectoryPlanner
 
 __all__ = ["add_commands"]
+
+#: the largest |slope| [rad] the option takes: below π/2 (the guard refuses ±π/2 and beyond), 4 decimals
+_SLOPE_MAX_RAD = 1.5707
 
 
 def _cmd_stability(args) -> int:
@@ -78,10 +81,16 @@ def add_commands(sub) -> None:
     p = sub.add_parser("stability", help="tractor + implement stability for a hitch pose and a slope")
     p.add_argument("--pose", type=parse_pose_arg, default=None, help="x=..,z=..,roll=..,pitch=.. (default: neutral)")
     p.add_argument(
-        "--slope-roll", type=finite_float("--slope-roll"), default=0.0, help="tractor roll [rad], + = left side up"
+        "--slope-roll",
+        type=bounded_float("--slope-roll", -_SLOPE_MAX_RAD, _SLOPE_MAX_RAD, unit="rad", lo_open=False),
+        default=0.0,
+        help=f"tractor roll [rad], + = left side up, [-{_SLOPE_MAX_RAD:g}, {_SLOPE_MAX_RAD:g}] (default 0)",
     )
     p.add_argument(
-        "--slope-pitch", type=finite_float("--slope-pitch"), default=0.0, help="tractor pitch [rad], + = nose up"
+        "--slope-pitch",
+        type=bounded_float("--slope-pitch", -_SLOPE_MAX_RAD, _SLOPE_MAX_RAD, unit="rad", lo_open=False),
+        default=0.0,
+        help=f"tractor pitch [rad], + = nose up, [-{_SLOPE_MAX_RAD:g}, {_SLOPE_MAX_RAD:g}] (default 0)",
     )
     p.add_argument("--implement", default=None, help="implement record of the tractor profile (default: none)")
     add_model_options(p)

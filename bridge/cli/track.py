@@ -685,7 +685,10 @@ def add_commands(sub) -> None:
         "ground: z above the ground (the ground-distance sensor)",
     )
     p.add_argument(
-        "--ttl-ms", type=_ttl, default=200, help="the service brakes without a setpoint this long, [50, 1000] ms"
+        "--ttl-ms",
+        type=_ttl,
+        default=200,
+        help="the service brakes without a setpoint this long, [50, 1000] ms (default 200)",
     )
     p.add_argument(
         "--rate",

@@ -71,6 +71,10 @@ def test_sim_field_without_a_heavy_patch_says_so_and_writes_strict_json(capsys, 
         (["sim", "move", "--to", "z=0.1", "--band-position", "-1"], "--band-position", "(0, 10] m"),
         (["sim", "move", "--to", "z=0.1", "--band-angle", "nan"], "--band-angle", ""),
         (["sim", "move", "--to", "z=0.1", "--frame-loss", "1.5"], "--frame-loss", "[0, 1)"),
+        (["sim", "fault", "--loss", "1.5"], "--loss", "[0, 1]"),  # the old CLI: "loss must be …" from the service
+        (["sim", "fault", "--delay-ms", "-1"], "--delay-ms", "ms"),
+        (["sim", "fault", "--timeout", "0"], "--timeout", "(0, 600] s"),  # sim fault's own copy took 0
+        (["stability", "--slope-roll", "2"], "--slope-roll", "[-1.5707, 1.5707] rad"),  # was "slope_roll must"
     ],
 )
 def test_option_errors_name_the_option_and_its_range(capsys, args, option, allowed):
@@ -111,3 +115,10 @@ def test_a_profile_value_of_the_wrong_type_is_refused_naming_the_field(capsys, t
         err = capsys.readouterr().err.strip()
         assert err.startswith(f"hitch: error: invalid profile {p}: geometry.lower_link_length = "), err
         assert "valid number" in err and "(allowed: > 0 and <= 3)" in err and ":;" not in err, err
+
+
+def test_the_mode_argument_is_named_as_the_usage_shows_it(capsys):
+    """The old error said 'argument set: invalid choice' ('set' appears nowhere in the usage line)."""
+    assert main(["mode", "bogus"]) == 2
+    err = capsys.readouterr().err
+    assert "argument MODE: invalid choice: 'bogus'" in err, err

@@ -37,7 +37,9 @@ __all__ = [
 ]
 
 MAX_HEADER_BYTES = 16 * 1024
-MAX_BODY_BYTES = 64 * 1024
+#: a request body's limit [bytes]: the service's own payload limit (``schemas.MAX_PAYLOAD_BYTES``: a 64 KiB
+#: maneuver script, JSON-escaped, fits), so what Zenoh takes the terminal's HTTP API takes too
+MAX_BODY_BYTES = 96 * 1024
 #: from the first byte of a request to the end of its header [s]
 HEADER_TIMEOUT_S = 10.0
 #: a kept-alive connection waiting for its next request is closed after this time [s]

@@ -276,7 +276,7 @@ def test_http_protocol_errors(web):
     assert status == 405
     status, _, data = _request(web, "POST", "/api/goto", b'{"goal": {"z": 0.1}}', {"Content-Type": "text/plain"})
     assert status == 415  # a cross-site "simple" form post cannot reach the API
-    status, _, data = _request(web, "POST", "/api/goto", b"x" * (70 * 1024))
+    status, _, data = _request(web, "POST", "/api/goto", b"x" * (100 * 1024))
     assert status == 413 and b"exceeds the limit" in data
     with socket.create_connection((host, port), timeout=5) as s:
         s.sendall(b"HELLO\r\n\r\n")
@@ -296,7 +296,7 @@ def _moving_goto(service, web) -> int:
     [
         (b"stop", {"Content-Type": "text/plain"}),  # curl -d stop: a form / plain text body
         (b"\xff\xfe not json", {"Content-Type": "application/octet-stream"}),
-        (b"x" * (70 * 1024), {}),  # over the body limit of every other request
+        (b"x" * (100 * 1024), {}),  # over the body limit of every other request
         (b"{}", {"Content-Type": "application/x-www-form-urlencoded"}),
     ],
 )
@@ -309,6 +309,20 @@ def test_any_post_to_stop_stops_whatever_its_body(service, web, body, headers):
     reply = json.loads(data)
     assert reply["stopped"] is True and reply["motion_id"] is not None and reply["motion_id"] > motion_id  # braking
     assert wait_until(lambda: not service.latest_state["moving"], 5.0)
+
+
+def test_the_http_body_limit_is_the_services_payload_limit(service, web):
+    """The old 64 KiB HTTP limit refused a maneuver the service takes over Zenoh (64 KiB script, escaped)."""
+    from bridge.service.schemas import MAX_PAYLOAD_BYTES
+    from bridge.web.http import MAX_BODY_BYTES
+
+    assert MAX_BODY_BYTES == MAX_PAYLOAD_BYTES
+    # a valid script of 28 KiB whose comments (é: \u00e9 in JSON) make the body ~84 KiB
+    script = "steps:\n" + "".join(f"  - wait: 0.01  # {'é' * 70}\n" for _ in range(200))
+    body = json.dumps({"script": script}).encode()
+    assert len(script.encode()) < 64 * 1024 < len(body) <= MAX_PAYLOAD_BYTES
+    status, _, data = _request(web, "POST", "/api/maneuvers/validate", body)
+    assert status == 200 and json.loads(data)["ok"] is True, data
 
 
 def test_requests_from_other_sites_are_refused(web):

@@ -41,8 +41,9 @@ _CONTROL = {OP_CLOSE, OP_PING, OP_PONG}
 _KNOWN = {OP_CONT, OP_TEXT, OP_BINARY} | _CONTROL
 #: close codes that must never appear on the wire (RFC 6455 §7.4.1)
 _RESERVED_CODES = {1004, 1005, 1006, 1015}
-#: largest message accepted from a client (commands are a few hundred bytes)
-MAX_MESSAGE_BYTES = 64 * 1024
+#: largest message accepted from a client: a command's payload may be as large as the service takes
+#: (``schemas.MAX_PAYLOAD_BYTES``, 96 KiB: a maneuver script), plus its envelope (id, key, CSRF token)
+MAX_MESSAGE_BYTES = 100 * 1024
 
 
 class WebSocketError(HitchInputError):

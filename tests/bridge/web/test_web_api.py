@@ -323,6 +323,14 @@ def test_the_http_body_limit_is_the_services_payload_limit(service, web):
     assert len(script.encode()) < 64 * 1024 < len(body) <= MAX_PAYLOAD_BYTES
     status, _, data = _request(web, "POST", "/api/maneuvers/validate", body)
     assert status == 200 and json.loads(data)["ok"] is True, data
+    ws = _WSClient(web)  # the same over the page's WebSocket (its message limit was 64 KiB too)
+    try:
+        ws.message("hello")
+        ws.send(json.dumps({"id": 7, "key": "maneuvers/validate", "payload": {"script": script}}).encode())
+        reply = ws.message("reply")
+        assert reply["ok"] and reply["data"]["ok"] is True, reply
+    finally:
+        ws.close()
 
 
 def test_requests_from_other_sites_are_refused(web):

@@ -198,15 +198,16 @@ class ServiceAPI:
             refused = getattr(self.motion, "track_setpoint_refused", None)
             if key == "track/setpoint" and callable(refused):  # counted against its session like any rejection
                 refused(setpoint_session(payload), str(exc))
-            return self._err(exc.code, str(exc))
+            return self._err(exc.code, _named(key, exc))
         except MotionError as exc:
             return self._err(exc.code, _named(key, exc))
         except GuardRefusal as exc:
             return self._err("refused", _named(key, exc))
         except PlanError as exc:
             return self._err("unreachable", _named(key, exc))
-        except StoreError as exc:
-            return self._err("store", _named(key, exc))
+        except StoreError as exc:  # the database or a per-user limit: "store"; a value the store refuses: bad_request
+            code = "store" if exc.field in _STORE_FAULT_FIELDS or exc.field.startswith("max_") else "bad_request"
+            return self._err(code, _named(key, exc))
         except WorkerError as exc:
             return self._err(exc.code, _named(key, exc))
         except ValueError as exc:
@@ -421,6 +422,10 @@ class ServiceAPI:
         if not self.store.delete_maneuver(r.name):
             raise RequestError("not_found", f"maneuvers/delete: no maneuver {r.name!r}")
         return {"deleted": r.name}
+
+
+#: StoreError fields that mean the database itself (not a value of the request)
+_STORE_FAULT_FIELDS = frozenset({"path", "database", "store", "schema_version"})
 
 
 def _named(key: str, exc: BaseException) -> str:

@@ -474,6 +474,8 @@ def _format(key: str, exc: ValidationError, model: type[BaseModel]) -> str:
         fields = ", ".join(parent.model_fields) if parent is not None and parent.model_fields else "none"
         return f"{key}: unknown field {path!r} (allowed fields: {fields})"
     msg = e["msg"].removeprefix("Value error, ")
+    if not loc and e["type"] == "value_error":  # a check of the whole payload: its message names the fields
+        return f"{key}: {msg}"
     if e["type"] == "missing":
         return f"{key}: field {path!r} is required{_allowed(model, loc)}"
     if e["type"] == "finite_number":

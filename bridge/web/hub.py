@@ -259,7 +259,7 @@ class ClientHub:
             pass
 
 
-class _DuplicateField(ValueError):
+class _DuplicateField(HitchInputError):
     pass
 
 

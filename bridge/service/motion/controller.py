@@ -530,6 +530,8 @@ class MotionController:
         with self._lock:
             m = self._active
             if not isinstance(m, TrackMotion) or (session is not None and m.session != session):
+                if session is None:  # any live session was meant: there is none
+                    raise MotionError("not_found", "no track session is live (track/start starts one)")
                 live = f"the live session is {m.session}" if isinstance(m, TrackMotion) else "no session is live"
                 raise MotionError("not_found", f"session {session} is not live ({live})")
             if m.reason is None:

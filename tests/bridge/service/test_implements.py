@@ -399,3 +399,27 @@ def test_the_cli_round_trip_against_a_running_service(tmp_path, capsys):
         assert wait_until(lambda: abs(z_now() - 0.24) < 3e-3 and svc.latest_state["motion"] is None)
     finally:
         svc.close()
+
+
+@pytest.mark.parametrize(
+    "key, payload, code, text",
+    [
+        # each message once headed by its key, saying what is wrong (as new users read the old ones:
+        # "track/start: payload = a JSON object dof: …", "track/stop: session None is not live",
+        # "no implement 'nope' …" without its key, a script name mismatch as a 500 "store" error)
+        ("track/start", {"dof": ["z", "z"]}, "bad_request", "track/start: dof: each of x, z, roll, pitch at most once"),
+        ("track/stop", {}, "not_found", "track/stop: no track session is live (track/start starts one)"),
+        ("implements/select", {"name": "nope"}, "not_found", "implements/select: no implement 'nope'"),
+        ("lines/delete", {"name": "zz"}, "not_found", "lines/delete: no line 'zz'"),
+        (
+            "maneuvers/save",
+            {"name": "a", "script": "name: b\nsteps:\n  - wait: 1\n"},
+            "bad_request",
+            "maneuvers/save: name: the script calls itself 'b' but is saved as 'a'",
+        ),
+    ],
+)
+def test_refusals_name_their_key_once_and_the_right_code(svc, key, payload, code, text):
+    ok, r = svc.call(key, payload)
+    assert not ok and r["error"] == code and r["message"].startswith(text), r
+    assert not r["message"].startswith(f"{key}: {key}")

@@ -165,15 +165,13 @@ class Scenario:
 
 def _read_csv(
     where: Traversable | Path, required: tuple[str, ...], optional: tuple[str, ...] = ()
-) -> dict[str, list[float]]:
-    """Columns of a CSV file with a header; every error names the file and line."""
+) -> tuple[dict[str, list[float]], list[int]]:
+    """Columns of a CSV file with a header, and the file line of each data row; every error names the
+    file and line (blank lines are skipped and counted; a UTF-8 byte-order mark is allowed)."""
     name = str(where)
     if not where.is_file():
-        raise ScenarioError(f"CSV file {name} does not exist")
-    try:
-        text = where.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ScenarioError(f"CSV file {name} cannot be read: {exc}") from None
+        raise ScenarioError(f"CSV file {name} " + ("is not a file" if _exists(where) else "does not exist"))
+    text = read_text_file(where, "CSV file", ScenarioError).removeprefix("\ufeff")
     rows = csv.reader(io.StringIO(text))
     header = next(rows, None)
     if header is None:
@@ -190,6 +188,7 @@ def _read_csv(
             + (f" optionally followed by {','.join(optional)}" if optional else "")
         )
     out: dict[str, list[float]] = {h: [] for h in header}
+    lines: list[int] = []
     for row in rows:
         line = rows.line_num
         if not row or all(not c.strip() for c in row):
@@ -204,17 +203,29 @@ def _read_csv(
             if not math.isfinite(v):
                 raise ScenarioError(f"{name} line {line}: {h} = {cell.strip()!r} must be finite")
             out[h].append(v)
+        lines.append(line)
     if len(out[required[0]]) < 1:
         raise ScenarioError(f"{name}: no data rows after the header")
-    return out
+    return out, lines
 
 
-def _csv_check(name: str, col: str, values: list[float], lo: float, hi: float, *, increasing: bool = False) -> None:
+def _exists(where: Traversable | Path) -> bool:
+    return where.exists() if isinstance(where, Path) else where.is_dir()
+
+
+def _csv_check(
+    name: str, col: str, values: list[float], lines: list[int], lo: float, hi: float, *, increasing: bool = False
+) -> None:
     for i, v in enumerate(values):
         if not lo <= v <= hi:
-            raise ScenarioError(f"{name} data row {i + 1} (line {i + 2}): {col} = {v:g} outside [{lo:g}, {hi:g}]")
+            raise ScenarioError(f"{name} data row {i + 1} (line {lines[i]}): {col} = {v:g} outside [{lo:g}, {hi:g}]")
         if increasing and i and not v > values[i - 1]:
-            raise ScenarioError(f"{name} data row {i + 1} (line {i + 2}): {col} = {v:g} must increase")
+            raise ScenarioError(f"{name} data row {i + 1} (line {lines[i]}): {col} = {v:g} must increase")
+
+
+#: the steepest ground a terrain profile may have between two rows (|Δheight / Δdistance|; 1 = 45°): a tractor
+#: drives nothing steeper, and a step is a typing error (mm for m, a missing decimal point)
+MAX_TERRAIN_SLOPE = 1.0
 
 
 def _speed(spec: _SpeedSpec, base: Traversable | Path) -> SpeedProfile:
@@ -222,9 +233,9 @@ def _speed(spec: _SpeedSpec, base: Traversable | Path) -> SpeedProfile:
         assert spec.constant_m_s is not None
         return SpeedProfile.constant(spec.constant_m_s)
     where = base / spec.csv
-    cols = _read_csv(where, ("time_s", "speed_m_s"))
-    _csv_check(str(where), "time_s", cols["time_s"], 0.0, 1e6, increasing=True)
-    _csv_check(str(where), "speed_m_s", cols["speed_m_s"], 0.0, 15.0)
+    cols, lines = _read_csv(where, ("time_s", "speed_m_s"))
+    _csv_check(str(where), "time_s", cols["time_s"], lines, 0.0, 1e6, increasing=True)
+    _csv_check(str(where), "speed_m_s", cols["speed_m_s"], lines, 0.0, 15.0)
     return SpeedProfile(tuple(cols["time_s"]), tuple(cols["speed_m_s"]))
 
 
@@ -239,14 +250,23 @@ def _ground(spec: _TerrainSpec, base: Traversable | Path) -> GroundProfile:
             ),
         )
     where = base / spec.csv
-    cols = _read_csv(where, ("distance_m", "height_m"), ("cross_slope_rad",))
+    cols, lines = _read_csv(where, ("distance_m", "height_m"), ("cross_slope_rad",))
     if len(cols["distance_m"]) < 2:
         raise ScenarioError(f"{where}: a terrain profile needs at least 2 data rows")
-    _csv_check(str(where), "distance_m", cols["distance_m"], -1e6, 1e6, increasing=True)
-    _csv_check(str(where), "height_m", cols["height_m"], -100.0, 100.0)
+    d, h = cols["distance_m"], cols["height_m"]
+    _csv_check(str(where), "distance_m", d, lines, -1e6, 1e6, increasing=True)
+    _csv_check(str(where), "height_m", h, lines, -100.0, 100.0)
+    for i in range(1, len(d)):
+        slope = (h[i] - h[i - 1]) / (d[i] - d[i - 1])
+        if abs(slope) > MAX_TERRAIN_SLOPE:
+            raise ScenarioError(
+                f"{where} lines {lines[i - 1]}-{lines[i]}: height_m changes by {h[i] - h[i - 1]:g} m over "
+                f"{d[i] - d[i - 1]:g} m (slope {slope:.3g}; allowed at most {MAX_TERRAIN_SLOPE:g}, 45°); "
+                "heights and distances are in m"
+            )
     cross = cols.get("cross_slope_rad")
     if cross is not None:
-        _csv_check(str(where), "cross_slope_rad", cross, -0.5, 0.5)
+        _csv_check(str(where), "cross_slope_rad", cross, lines, -0.5, 0.5)
     return SampledGround(tuple(cols["distance_m"]), tuple(cols["height_m"]), None if cross is None else tuple(cross))
 
 

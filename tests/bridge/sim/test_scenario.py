@@ -125,6 +125,11 @@ def test_csv_terrain_and_speed_from_files(tmp_path):
         ("height_m,distance_m\n0,0\n", r"ground.csv line 1: header 'height_m,distance_m' must be distance_m,height_m"),
         ("", r"ground.csv: empty file"),
         ("distance_m,height_m\n0,0\n", r"at least 2 data rows"),
+        # a blank line counts (the old message said "data row 2 (line 3)" for line 5)
+        ("distance_m,height_m\n\n0,0\n\n0,0\n", r"ground.csv data row 2 \(line 5\): distance_m = 0 must increase"),
+        # a step no tractor drives (the old loader took it; the run then failed with unrelated messages)
+        ("distance_m,height_m\n0,0\n1,50\n", r"ground.csv lines 2-3: height_m changes by 50 m over 1 m \(slope 50"),
+        ("\ufeffdistance_m,height_m\n0,0\n10,abc\n", r"ground.csv line 3: height_m = 'abc' is not a number"),  # BOM ok
     ],
 )
 def test_csv_errors_name_file_and_line(tmp_path, text, match):
@@ -148,3 +153,14 @@ def test_missing_files_and_names(tmp_path):
     bad = write(tmp_path, "b.toml", "schema_version = = 1\n")
     with pytest.raises(ScenarioError, match=r"is not valid TOML"):
         load_scenario(bad)
+
+
+def test_a_csv_path_that_is_a_folder_says_so(tmp_path):
+    """The old message said the folder 'does not exist'."""
+    toml = write(
+        tmp_path,
+        "s.toml",
+        'schema_version = 1\nname = "x"\nduration_s = 5.0\n[speed]\nconstant_m_s = 1.0\n[terrain]\ncsv = "."\n',
+    )
+    with pytest.raises(ScenarioError, match=r"CSV file .* is not a file"):
+        load_scenario(toml)

@@ -198,7 +198,7 @@ def test_real_time_delay_and_settings_changed_from_another_thread():
 
 def test_cli_sim_fault_refuses_bad_settings_before_connecting(capsys):
     assert main(["sim", "fault", "--loss", "1.5"]) != 0
-    assert "loss must be a number in [0, 1]" in capsys.readouterr().err
+    assert "--loss must lie in [0, 1]" in capsys.readouterr().err  # the option, named
     assert main(["sim", "fault", "--cut", "sideways"]) != 0
     assert "--cut" in capsys.readouterr().err
 

@@ -95,6 +95,27 @@ def test_bad_scripts_name_step_field_and_range(text, step, needles):
     assert exc.value.errors[0].to_json() == {"step": step, "message": first.message}
 
 
+@pytest.mark.parametrize("value, expected", [("1e-3", 0.001), ("-.0", 0.0), ("2.5E-2", 0.025), ("1.", 1.0)])
+def test_floats_are_read_as_yaml_12_numbers(value, expected):
+    """PyYAML's YAML 1.1 read '1e-3' and '-.0' as strings (refused: 'not a valid number')."""
+    script = parse_maneuver(f"steps:\n  - goto: {{x: {value}}}\n")
+    assert script.steps[0].x == expected  # type: ignore[attr-defined]
+
+
+@pytest.mark.parametrize("value, expected", [("010", 10.0), ("+3", 3.0), ("45", 45.0)])
+def test_integers_are_decimal(value, expected):
+    """PyYAML's YAML 1.1 read '010' as 8 (octal)."""
+    assert parse_maneuver(f"timeout: {value}\nsteps:\n  - wait: 1\n").timeout_s == expected
+
+
+@pytest.mark.parametrize("value", ["0x10", "1_0", "1:30", "0o7"])
+def test_yaml_11_number_forms_are_not_numbers(value):
+    """YAML 1.1 read 0x10 as 16, 1_0 as 10 and 1:30 as 90 (sexagesimal): a maneuver never guesses."""
+    with pytest.raises(ManeuverError) as exc:
+        parse_maneuver(f"steps:\n  - goto: {{z: {value}}}\n")
+    assert f"z = '{value}'" in exc.value.errors[0].message, exc.value.errors[0].message
+
+
 def test_every_problem_is_reported_with_its_own_index():
     text = "steps:\n  - wait: 1\n  - goto: {z: 9}\n  - speed: 2\n  - wait: 2\n  - preset: {name: a, colour: 1}\n"
     with pytest.raises(ManeuverError) as exc:

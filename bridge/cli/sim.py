@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bridge.cli.errors import CLIError
 from bridge.cli.model import add_model_options, bounded_float, finite_float, model_from_args
 from bridge.cli.output import console, plot_path
 from bridge.cli.plan import parse_pose_arg
@@ -157,6 +158,8 @@ def plot_move(path: str, trace: MoveTrace, title: str = "") -> None:
 
 
 def _cmd_sim_move(args) -> int:
+    if args.no_feedforward and args.reference != "trajectory":
+        raise CLIError(f"--no-feedforward applies to --reference trajectory only (got --reference {args.reference})")
     model = model_from_args(args)
     rate = args.rate if args.rate is not None else model.profile.motion.control_rate
     sim = SimSettings(
@@ -186,13 +189,17 @@ def _cmd_sim_move(args) -> int:
         f"{trace.reference_kind} reference, {len(trace.t)} samples over {trace.t[-1]:.2f} s simulated "
         f"(plan {trace.plan_duration_s:.2f} s), bus load {100 * trace.bus_load:.1f} % of 250 kbit/s"
     )
+    d = np.asarray(trace.goal, float) - np.asarray(trace.start, float)
+    tiny = math.hypot(d[0], d[1]) <= args.band_position and float(np.max(np.abs(d[2:]))) <= args.band_angle
     for name, f in (("measured over CAN", measured), ("simulation truth", truth)):
         settle = "never" if f.settling_time_s is None else f"{f.settling_time_s:.2f} s"
+        # a share of a move within the settling band means nothing (x=0 → x=0 read 110 %)
+        over = "n/a (the move lies within the settling band)" if tiny else f"{100 * f.overshoot:.2f} %"
         c.print(
             f"{name:>18}: final error {1e3 * f.final_error_position_m:.2f} mm, "
             f"{1e3 * f.final_error_angle_rad:.2f} mrad; "
             f"path deviation {1e3 * f.max_path_deviation_m:.2f} mm, {1e3 * f.max_path_deviation_rad:.2f} mrad; "
-            f"overshoot {100 * f.overshoot:.2f} %; settling {settle}"
+            f"overshoot {over}; settling {settle}"
         )
     if trace.faults:
         c.print("faults: " + "; ".join(trace.faults))

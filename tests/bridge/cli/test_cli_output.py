@@ -122,3 +122,16 @@ def test_the_mode_argument_is_named_as_the_usage_shows_it(capsys):
     assert main(["mode", "bogus"]) == 2
     err = capsys.readouterr().err
     assert "argument MODE: invalid choice: 'bogus'" in err, err
+
+
+def test_sim_move_of_length_zero_has_no_overshoot_share(capsys):
+    """A share of a move inside the settling band means nothing: the old CLI printed 'overshoot 110.21 %'."""
+    assert main(["sim", "move", "--from", "x=0", "--to", "x=0"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("overshoot n/a (the move lies within the settling band)") == 2, out
+
+
+def test_sim_move_refuses_an_option_its_reference_does_not_use(capsys):
+    """--no-feedforward was accepted without effect for a step reference."""
+    assert main(["sim", "move", "--to", "z=0.3", "--reference", "step", "--no-feedforward"]) == 2
+    assert "--no-feedforward applies to --reference trajectory only" in capsys.readouterr().err

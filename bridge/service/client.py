@@ -15,6 +15,7 @@ import json
 import math
 import queue
 import threading
+import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -153,6 +154,7 @@ class HitchClient:
                 "express": True,
                 "congestion_control": zenoh.CongestionControl.BLOCK,
             }
+        t0 = time.monotonic()
         for reply in self.session.get(full, payload=data, timeout=t, **qos):
             if reply.ok is not None:
                 return _decode(reply.ok.payload)
@@ -160,6 +162,12 @@ class HitchClient:
             if not isinstance(err, dict):
                 err = {}
             raise ServiceError(str(err.get("error", "error")), str(err.get("message", "the service refused")))
+        waited = time.monotonic() - t0
+        if waited < 0.8 * t:  # the query ended early without an answer: nothing answers that key
+            raise ServiceTimeout(
+                f"no reply from {full}: nothing answered that key ({waited:.2f} s, before the {t:g} s timeout); "
+                "is the prefix right, is the service running and reachable, and may this user use that key?"
+            )
         raise ServiceTimeout(
             f"no reply from {full} within {t:g} s (is the service running and reachable, "
             "and may this user use that key?)"

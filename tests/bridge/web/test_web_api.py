@@ -333,6 +333,20 @@ def test_the_http_body_limit_is_the_services_payload_limit(service, web):
         ws.close()
 
 
+def test_a_query_nothing_answers_says_so_not_that_it_timed_out(service):
+    """With a wrong prefix the query ends at once without a reply; the old client said 'no reply from
+    nope/goto within 5 s' after about 1 s."""
+    from bridge.service.client import HitchClient, ServiceTimeout
+
+    with HitchClient(list(service.config.listen), prefix="nope", timeout_s=5.0) as c:
+        t0 = time.monotonic()
+        with pytest.raises(ServiceTimeout) as exc:
+            c.request("config", {})
+        waited = time.monotonic() - t0
+    assert waited < 4.0  # the service's session finalises a query no queryable of it matches
+    assert "nothing answered that key" in str(exc.value) and "is the prefix right" in str(exc.value), exc.value
+
+
 def test_requests_from_other_sites_are_refused(web):
     status, _, data = _request(web, "POST", "/api/stop", b"{}", {"Host": "evil.example:80"})
     assert status == 421 and b"DNS rebinding" in data

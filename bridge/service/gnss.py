@@ -63,6 +63,11 @@ __all__ = [
 
 MAX_LINES = 64
 MAX_VERTICES = 1000
+#: the farthest a line's vertex may lie from the tangent plane's origin [m] (one field; the plane's
+#: distortion stays at decimetres)
+MAX_LINE_RADIUS_M = 20_000.0
+#: the shortest segment of a line [m]
+MIN_SEGMENT_M = 0.01
 _A, _F = 6378137.0, 1 / 298.257223563  # WGS84
 _E2 = _F * (2 - _F)
 _MIN_SPEED = 0.05  # m/s: below this the course is the last one known
@@ -144,7 +149,28 @@ def _coords(where: str, raw: Any) -> tuple[tuple[float, float], ...]:
             raise GnssError(f"{where}.coordinates[{i}] must be [lon, lat] (or [lon, lat, height])")
         lon = _num(f"{where}.coordinates[{i}][0] (lon)", c[0], -180, 180)
         out.append((lon, _num(f"{where}.coordinates[{i}][1] (lat)", c[1], -85, 85)))
+        if len(c) == 3:  # a height is allowed (and not used): it must be one
+            _num(f"{where}.coordinates[{i}][2] (height, m)", c[2], -1000.0, 10_000.0)
     return tuple(out)
+
+
+def _check_local(where: str, local: np.ndarray) -> None:
+    """A line the tangent plane can carry: every vertex within :data:`MAX_LINE_RADIUS_M` of the origin,
+    every segment at least :data:`MIN_SEGMENT_M` long (a repeated vertex has no direction to cross)."""
+    r = np.hypot(local[:, 0], local[:, 1])
+    far = int(np.argmax(r))
+    if r[far] > MAX_LINE_RADIUS_M:
+        raise GnssError(
+            f"{where}.coordinates[{far}] lies {r[far] / 1000:.1f} km from the plane's origin (the first vertex "
+            f"saved); allowed at most {MAX_LINE_RADIUS_M / 1000:g} km: lines of one field, in [lon, lat] order"
+        )
+    seg = np.hypot(*np.diff(local, axis=0).T)
+    short = int(np.argmin(seg))
+    if seg[short] < MIN_SEGMENT_M:
+        raise GnssError(
+            f"{where}.coordinates[{short}] and [{short + 1}] are {seg[short]:.3g} m apart; a segment must be at "
+            f"least {MIN_SEGMENT_M:g} m long (a repeated vertex?)"
+        )
 
 
 def parse_lines(geojson: Any, name: str | None = None) -> list[FieldLine]:
@@ -266,13 +292,17 @@ class GnssTracker:
         with self._lock:
             if len({**self._lines, **{ln.name: None for ln in lines}}) > MAX_LINES:
                 raise GnssError(f"at most {MAX_LINES} lines may be saved (max_lines = {MAX_LINES})")
-            if self.plane is None:
-                lon, lat = lines[0].coordinates[0]
-                self.plane = LocalTangentPlane(lat, lon)
             plane = self.plane
+            if plane is None:
+                lon, lat = lines[0].coordinates[0]
+                plane = LocalTangentPlane(lat, lon)
+            new = {}
             for ln in lines:
                 local = np.array([plane.to_local(lat, lon) for lon, lat in ln.coordinates])
-                self._lines[ln.name] = _Line(ln, local)
+                _check_local(f"line {ln.name!r}", local)
+                new[ln.name] = _Line(ln, local)
+            self.plane = plane  # all or none: a refused save leaves the plane and the lines as they were
+            self._lines.update(new)
         return [ln.name for ln in lines]
 
     def delete_line(self, name: str) -> bool:

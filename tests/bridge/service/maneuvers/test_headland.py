@@ -126,6 +126,25 @@ def test_bad_lines_and_fixes_name_the_field():
     assert not g.take_payload(b"not json") and g.rejected == 2
 
 
+@pytest.mark.parametrize(
+    "coords, match",
+    [
+        ([[11, 48], [11, 48]], r"coordinates\[0\] and \[1\] are 0 m apart"),  # zero length
+        ([[11, 48], [-169, -48]], r"coordinates\[1\] lies \d+\.\d km from the plane's origin"),  # antipodal
+        ([[-180, 85], [180, -85]], r"coordinates\[1\] lies"),  # pole to pole
+        ([[11, 48, 0], [11.001, 48, 1e308]], r"coordinates\[1\]\[2\] \(height, m\)"),
+        ([[48, 11], [48, 11.001], [11, 48]], r"coordinates\[2\] lies"),  # a vertex in [lat, lon] order
+    ],
+)
+def test_lines_the_plane_cannot_carry_are_refused_and_change_nothing(coords, match):
+    """The old tracker saved all of these (its plane is only valid near its origin)."""
+    g = GnssTracker(lambda: 0.0)
+    with pytest.raises(GnssError, match=match):
+        g.save_lines({"type": "LineString", "coordinates": coords}, "h")
+    assert g.lines() == [] and g.plane is None  # all or none: no origin taken from a refused line
+    assert g.save_lines({"type": "LineString", "coordinates": [[11, 48], [11.001, 48.001]]}, "ok") == ["ok"]
+
+
 # ------------------------------------------------------------------------------------------ lead compensation (twin)
 def test_lead_compensation_reaches_the_pose_at_the_line_at_12_kmh(model):
     with_lead = run_case(model, 12.0, lead=True)

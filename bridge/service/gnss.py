@@ -39,12 +39,14 @@ import math
 import threading
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from bridge.service.maneuvers.steps import ManeuverSchemaError, check_name
 from planner.errors import HitchInputError
+from planner.textfile import read_text_file
 
 __all__ = [
     "GnssError",
@@ -532,10 +534,7 @@ def restore_lines(api: Any, lines_file: Any = None) -> list[str]:
         except ValueError as exc:  # GnssError (or the core's bad_request): a stored line this program refuses
             warnings.append(f"stored line {name!r} not loaded: {exc}")
     if lines_file is not None:
-        try:
-            text = open(lines_file, encoding="utf-8").read()  # noqa: SIM115 - one read
-        except OSError as exc:
-            raise GnssError(f"lines_file {str(lines_file)!r} cannot be read: {exc}") from None
+        text = read_text_file(Path(lines_file), "lines_file", GnssError)  # unreadable or not UTF-8: named
         try:
             lines = parse_lines(text)
         except GnssError as exc:

@@ -305,3 +305,16 @@ def test_a_plan_made_for_a_skipped_step_is_not_installed(model):
         assert max(s["pose"]["z"] for s in states) < 0.12  # never headed for 0.3
     finally:
         rig.close()
+
+
+def test_a_lines_file_that_is_not_utf8_is_a_gnss_error_naming_it(tmp_path):
+    """The old start-up read it with open(...).read(): a UnicodeDecodeError ended the service with a traceback."""
+    from types import SimpleNamespace
+
+    from bridge.service.gnss import restore_lines
+
+    f = tmp_path / "field.geojson"
+    f.write_bytes(b'{"type": "LineString", "coordinates": [[11, 48], [11.001, 48]], "name": "caf\xe9"}')
+    api = SimpleNamespace(store=SimpleNamespace(list_lines=lambda: []), motion=None)
+    with pytest.raises(GnssError, match=r"lines_file .*field\.geojson: not UTF-8 text \(byte \d+, line 1"):
+        restore_lines(api, f)

@@ -255,6 +255,7 @@ def read_signal_csv(path: str | Path) -> CsvSignal:
         text = p.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise CLIError(f"--from-file {p}: cannot read it ({exc})") from None
+    text = text.removeprefix("\ufeff")  # a spreadsheet's "CSV UTF-8" starts with a byte-order mark
     rows = [(n, r) for n, r in enumerate(csv.reader(text.splitlines()), 1) if r and not r[0].lstrip().startswith("#")]
     rows = [(n, r) for n, r in rows if any(c.strip() for c in r)]
     if not rows:

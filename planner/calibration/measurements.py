@@ -95,8 +95,9 @@ def _cell(text: str, row: int, col: str, lo: float, hi: float, unit: str) -> flo
 
 
 def parse_measurements(text: str, profile: Profile, *, source: str = "measurements") -> MeasurementSet:
-    """Parse measurement CSV text (module docstring) against the nominal ``profile`` (its AD map and strokes)."""
-    reader = csv.reader(io.StringIO(text))
+    """Parse measurement CSV text (module docstring) against the nominal ``profile`` (its AD map and strokes).
+    A UTF-8 byte-order mark (a spreadsheet's "CSV UTF-8") is allowed."""
+    reader = csv.reader(io.StringIO(text.removeprefix("\ufeff")))
     try:
         header = [h.strip() for h in next(reader)]
     except StopIteration:

@@ -87,6 +87,14 @@ def test_parse_errors_are_input_errors():
     assert isinstance(info.value, ValueError)
 
 
+def test_a_byte_order_mark_is_allowed():
+    """A spreadsheet's "CSV UTF-8" starts with U+FEFF: the old parser read the first column as '\ufeffpose'."""
+    prof = load_profile("thesis-t132")
+    plain = parse_measurements(GOOD_HEADER + "\n" + GOOD_ROW + "\n", prof)
+    marked = parse_measurements("\ufeff" + GOOD_HEADER + "\n" + GOOD_ROW + "\n", prof)
+    assert np.array_equal(plain.readings, marked.readings) and marked.labels == plain.labels
+
+
 def test_plan_poses_prints_n_reachable_poses(capsys, tmp_path):
     out = tmp_path / "plan.csv"
     assert main(["calibrate", "plan-poses", "--n", "4", "--candidates", "40", "--json", "--out", str(out)]) == 0

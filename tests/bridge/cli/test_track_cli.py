@@ -177,6 +177,15 @@ def test_setpoints_come_at_the_rate_with_increasing_seq_until_the_duration():
     assert len(list(setpoints(sig, 50.0, 0.5))) == 26
 
 
+def test_a_byte_order_mark_is_allowed(tmp_path):
+    """The old reader refused a spreadsheet's "CSV UTF-8" header: unknown column '\ufefft'."""
+    f, g = tmp_path / "a.csv", tmp_path / "b.csv"
+    f.write_text("t,z\n0,0.1\n1,0.2\n", encoding="utf-8")
+    g.write_text("\ufefft,z\n0,0.1\n1,0.2\n", encoding="utf-8")
+    a, b = read_signal_csv(f), read_signal_csv(g)
+    assert np.array_equal(a.t, b.t) and np.array_equal(a.positions["z"], b.positions["z"])
+
+
 def test_csv_interpolation_against_closed_forms(tmp_path):
     # piecewise-linear data is reproduced exactly between its rows; velocities interpolate the same way
     f = tmp_path / "lin.csv"

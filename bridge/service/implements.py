@@ -36,7 +36,7 @@ import numpy as np
 from bridge.service.motion.types import pose_dict
 from bridge.service.schemas import ImplementDefine, QuickMove, RequestError, check_pose_in_workspace
 from bridge.service.store import DEFAULT_IMPLEMENT, HitchStore, StoredImplement
-from planner.errors import HitchError
+from planner.errors import HitchError, unit_hint
 from planner.limits.implement_limits import ImplementLimits
 from planner.limits.tractor import ImplementRecord, TractorProfile, load_tractor_profile
 
@@ -392,9 +392,20 @@ def implement_handlers(api: Any) -> dict[str, Callable[[Any], dict[str, Any]]]:
         return getattr(api._caller, "user", None)
 
     def define(r: ImplementDefine) -> dict[str, Any]:
+        workspace = (api.info.get("limits") or {}).get("workspace")
         if r.headland is not None:  # a raise must be able to go there: refused now, naming the range, not at the raise
-            workspace = (api.info.get("limits") or {}).get("workspace")
             check_pose_in_workspace(r.headland.model_dump(), workspace, key="implements/define", what="headland")
+        if r.upper_height_m is not None and workspace and "z" in workspace:
+            z_min = float(workspace["z"][0])
+            if (
+                r.upper_height_m < z_min
+            ):  # the hitch could never be under it: every motion up refused, track pulled down
+                raise RequestError(
+                    "bad_request",
+                    f"implements/define: upper_height_m = {r.upper_height_m:g} m is below the workspace's lowest z "
+                    f"({z_min:.4g} m): the hitch could never be under it (allowed: >= {z_min:.4g} and <= 2 m)"
+                    + unit_hint(r.upper_height_m, z_min, 2.0, "m"),
+                )
         return svc.define(r, owner=user())
 
     return {

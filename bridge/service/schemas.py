@@ -272,7 +272,7 @@ class ImplementDefine(_Strict):
 
     name: str = Field(pattern=_NAME)
     category: Literal["1N", "1", "2N", "2", "3N", "3", "4N", "4"]
-    mass_kg: float = Field(gt=0.0, le=20_000.0)
+    mass_kg: float = Field(ge=1.0, le=20_000.0)  # an implement of less than 1 kg is a typing error (1e-300 was taken)
     com_m: list[Annotated[float, Field(ge=-10.0, le=10.0)]] = Field(min_length=3, max_length=3)
     upper_height_m: float | None = Field(None, ge=-1.0, le=2.0)
     lowering_speed_m_s: float | None = Field(None, ge=0.005, le=2.0)

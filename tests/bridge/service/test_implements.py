@@ -423,3 +423,21 @@ def test_refusals_name_their_key_once_and_the_right_code(svc, key, payload, code
     ok, r = svc.call(key, payload)
     assert not ok and r["error"] == code and r["message"].startswith(text), r
     assert not r["message"].startswith(f"{key}: {key}")
+
+
+def test_an_implement_limit_the_hitch_can_never_meet_is_refused(svc, model):
+    """The old service took upper_height_m = -0.9 m (below the workspace floor: every motion up refused, a
+    track session pulled the hitch down) and mass_kg = 1e-300."""
+    from planner.trajectory import TrajectoryPlanner
+
+    tp = TrajectoryPlanner(model)  # the service's config carries its workspace (machine.service_info)
+    svc.api.info["limits"] = {"workspace": {k: list(tp.workspace[k]) for k in ("x", "z", "roll", "pitch")}}
+    z_min = float(tp.workspace["z"][0])
+    ok, r = svc.call("implements/define", {**HARROW, "name": "low", "upper_height_m": -0.9})
+    assert not ok and r["error"] == "bad_request", r
+    assert (
+        "upper_height_m = -0.9 m is below the workspace's lowest z" in r["message"] and f"{z_min:.4g}" in r["message"]
+    )
+    ok, r = svc.call("implements/define", {**HARROW, "name": "feather", "mass_kg": 1e-300})
+    assert not ok and "mass_kg" in r["message"] and ">= 1" in r["message"], r
+    assert svc.ok("implements/define", {**HARROW, "name": "fine", "upper_height_m": z_min + 0.1})["defined"] == "fine"

@@ -397,9 +397,8 @@ def implement_handlers(api: Any) -> dict[str, Callable[[Any], dict[str, Any]]]:
             check_pose_in_workspace(r.headland.model_dump(), workspace, key="implements/define", what="headland")
         if r.upper_height_m is not None and workspace and "z" in workspace:
             z_min = float(workspace["z"][0])
-            if (
-                r.upper_height_m < z_min
-            ):  # the hitch could never be under it: every motion up refused, track pulled down
+            # the hitch could never be under it: every motion up refused, a track session pulled down
+            if r.upper_height_m < z_min:
                 raise RequestError(
                     "bad_request",
                     f"implements/define: upper_height_m = {r.upper_height_m:g} m is below the workspace's lowest z "

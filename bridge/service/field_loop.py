@@ -111,9 +111,15 @@ class FieldLoopSettings:
         if not isinstance(self.work, WorkSettings):
             raise FieldLoopError(f"work must be a WorkSettings, got {type(self.work).__name__}")
         _number("z_m", self.z_m, -0.2, 0.3)
-        _number("duration_s", self.duration_s, 2.0, 3600.0, optional=True)
         _number("warmup_s", self.warmup_s, 0.3, 10.0)
         _number("settle_s", self.settle_s, 0.0, 600.0)
+        _number("duration_s", self.duration_s, 0.0, 3600.0, optional=True)
+        least = self.warmup_s + self.settle_s  # the one range a duration has
+        if self.duration_s is not None and self.duration_s <= least:
+            raise FieldLoopError(
+                f"duration_s = {self.duration_s:g} s must exceed warmup_s + settle_s = {least:g} s "
+                f"(allowed: ({least:g}, 3600] s)"
+            )
         _number("ttl_s", self.ttl_s, 0.05, 1.0)
         _number("draft_lost_at_s", self.draft_lost_at_s, 0.0, 3600.0, optional=True)
         _number("rate_window_s", self.rate_window_s, 0.02, 2.0)

@@ -206,9 +206,15 @@ class LoopSettings:
             raise TrackLoopError(f"strategy must be one of {', '.join(STRATEGIES)}, got {self.strategy!r}")
         if self.job is not None and self.job not in JOBS:
             raise TrackLoopError(f"job must be one of {', '.join(JOBS)} (or None: from the scenario), got {self.job!r}")
-        _seconds("duration_s", self.duration_s, 1.0, 3600.0, optional=True)
         _seconds("warmup_s", self.warmup_s, 0.3, 10.0)
         _seconds("settle_s", self.settle_s, 0.0, 600.0)
+        _seconds("duration_s", self.duration_s, 0.0, 3600.0, optional=True)
+        least = self.warmup_s + self.settle_s  # the one range a duration has (not [1, 3600] and then this)
+        if self.duration_s is not None and self.duration_s <= least:
+            raise TrackLoopError(
+                f"duration_s = {self.duration_s:g} s must exceed warmup_s + settle_s = {least:g} s "
+                f"(allowed: ({least:g}, 3600] s)"
+            )
         _seconds("ttl_s", self.ttl_s, 0.05, 1.0)
         _seconds("working_height_m", self.working_height_m, 0.0, 3.0, optional=True)
         _seconds("rate_window_s", self.rate_window_s, 0.02, 2.0)

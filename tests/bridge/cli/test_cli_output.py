@@ -135,3 +135,12 @@ def test_sim_move_refuses_an_option_its_reference_does_not_use(capsys):
     """--no-feedforward was accepted without effect for a step reference."""
     assert main(["sim", "move", "--to", "z=0.3", "--reference", "step", "--no-feedforward"]) == 2
     assert "--no-feedforward applies to --reference trajectory only" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("command, least", [(["sim", "track", "levelling"], 5.5), (["sim", "field", "chisel"], 3.5)])
+@pytest.mark.parametrize("duration", ["0.5", "1", "3"])
+def test_a_run_too_short_names_the_one_range_a_duration_has(capsys, command, least, duration):
+    """The old loop said 'must be a number in [1, 3600]' for 0.5 and 'must exceed … 5.5 s' for 1."""
+    assert main([*command, "--duration", duration]) == 2
+    err = capsys.readouterr().err
+    assert f"must exceed warmup_s + settle_s = {least:g} s (allowed: ({least:g}, 3600] s)" in err, err

@@ -28,6 +28,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from ruckig import ControlInterface, InputParameter, Result, Ruckig, Synchronization, Trajectory
 
+from planner.errors import unit_hint
 from planner.model.exact_inverse import ExactInverse
 from planner.model.hard_limits import WORKSPACE_NAMES, HardLimits
 from planner.model.kinematics import HitchModel
@@ -133,13 +134,16 @@ class TrajectoryPlanner:
         """PlanError naming the workspace face when pose ``p`` (x, z, roll, pitch) lies outside the workspace."""
         for i, (k, (name_min, name_max)) in enumerate(zip(CONTROLLED_POSE_NAMES, WORKSPACE_NAMES, strict=True)):
             unit = "m" if k in ("x", "z") else "rad"
+            hint = unit_hint(float(p[i]), float(self.lo[i]), float(self.hi[i]), unit)  # "; did you mean mm? …"
             if p[i] < self.lo[i] - 1e-9:
                 raise PlanError(
                     f"{what}.{k} = {p[i]:.4f} {unit} is below the workspace ({name_min} = {self.lo[i]:.4f} {unit})"
+                    + hint
                 )
             if p[i] > self.hi[i] + 1e-9:
                 raise PlanError(
                     f"{what}.{k} = {p[i]:.4f} {unit} is above the workspace ({name_max} = {self.hi[i]:.4f} {unit})"
+                    + hint
                 )
 
     def state_from_actuators(self, q: ArrayLike, q_velocity: ArrayLike | None = None) -> MotionState:

@@ -199,7 +199,15 @@ _UniqueKeyLoader.yaml_implicit_resolvers = {
     for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
 }
 _UniqueKeyLoader.add_implicit_resolver(_INT, re.compile(r"^[-+]?[0-9]+$"), list("-+0123456789"))
-_UniqueKeyLoader.add_constructor(_INT, lambda loader, node: int(loader.construct_scalar(node)))  # 010 is 10, not 8
+
+
+def _decimal_int(loader: yaml.SafeLoader, node: yaml.Node) -> int:
+    """An integer scalar in base 10 (YAML 1.1's constructor reads a leading 0 as octal: 010 was 8)."""
+    assert isinstance(node, yaml.ScalarNode)
+    return int(loader.construct_scalar(node))
+
+
+_UniqueKeyLoader.add_constructor(_INT, _decimal_int)
 _UniqueKeyLoader.add_implicit_resolver(
     _FLOAT,
     re.compile(

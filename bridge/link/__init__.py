@@ -3,6 +3,7 @@
 * :mod:`bridge.link.can_link` — :class:`CanLink`, the link to one cylinder ECU;
 * :mod:`bridge.link.state` — its settings, measured state, faults, counters and errors;
 * :mod:`bridge.link.realtime` — opening a python-can bus and running a node in real time;
+* :mod:`bridge.link.stop_signal` — the stop flag the real-time loops sleep on;
 * :mod:`bridge.link.loopback` — a CAN hub on 127.0.0.1 for nodes in other processes;
 * :mod:`bridge.link.unit_loop` — the feed-forward reference through the ECU's unit loops;
 * :mod:`bridge.link.sensor_calibration` — the sensor calibration: each cylinder to its end stops, the AD map fitted;
@@ -57,6 +58,7 @@ if TYPE_CHECKING:
         check_period,
         lift_counts_from_fraction,
     )
+    from bridge.link.stop_signal import StopSignal
     from bridge.link.tractor_sensors import (
         Plausibility,
         SignalReading,
@@ -114,6 +116,7 @@ _SOURCES: dict[str, str] = {
     ),
     **dict.fromkeys(("DEFAULT_HUB_PORT", "LOOPBACK_HOST", "LoopbackHub", "hub_url"), "bridge.link.loopback"),
     "InProcessBus": "bridge.link.virtual",
+    "StopSignal": "bridge.link.stop_signal",
     **dict.fromkeys(
         (
             "Plausibility",
@@ -196,6 +199,7 @@ __all__ = [
     "INTERFACES",
     "RealtimeRunner",
     "ReceivingNode",
+    "StopSignal",
     "open_bus",
     # python-can's in-process virtual bus with a cheaper frame copy (bridge.link.virtual)
     "InProcessBus",

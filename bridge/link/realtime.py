@@ -17,6 +17,7 @@ from typing import Any, Protocol
 import can
 
 from bridge.link.state import LinkError
+from bridge.link.stop_signal import StopSignal
 from bridge.link.virtual import InProcessBus
 
 __all__ = [
@@ -163,7 +164,7 @@ class RealtimeRunner:
         self._clock = clock
         self._max_wait_s = float(max_wait_s)
         self._t0 = clock()
-        self._stop = threading.Event()
+        self._stop = StopSignal()  # a timed wait of one lock acquire (stop_signal)
         self._thread: threading.Thread | None = None
         self._name = name or f"{type(node).__name__}-rt"
         self._prompt = prompt

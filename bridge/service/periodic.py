@@ -2,7 +2,8 @@
 
 Deadlines are ``t0 + k·period`` on ``time.monotonic``, so a late cycle does not shift the
 ones after it (no drift, low period jitter); after ``resync_after`` late cycles in a row the
-schedule is re-anchored instead of bursting to catch up. The wait is an ``Event.wait``, so
+schedule is re-anchored instead of bursting to catch up. The wait is a
+:class:`~bridge.link.stop_signal.StopSignal`'s (one lock acquire, half an ``Event.wait``'s cost), so
 :meth:`PeriodicThread.stop` ends it at once. An exception in the function is handed to
 ``on_error`` and the loop goes on (a control loop must not die silently).
 """
@@ -13,6 +14,7 @@ import threading
 import time
 from collections.abc import Callable
 
+from bridge.link.stop_signal import StopSignal
 from planner.errors import HitchInputError
 
 __all__ = ["PeriodicThread", "PeriodError"]
@@ -42,7 +44,7 @@ class PeriodicThread:
         self._on_error = on_error or (lambda exc: None)
         self._resync_after = max(1, int(resync_after))
         self._clock = clock  # [s], steady (tests pass a simulated one)
-        self._stop = threading.Event()
+        self._stop = StopSignal()  # a timed wait of one lock acquire (bridge.link.stop_signal)
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
         self.cycles = 0
         self.overruns = 0  # cycles that started after their deadline

@@ -37,16 +37,18 @@ def finite_float(name: str):
     return parse
 
 
-def bounded_float(name: str, lo: float, hi: float, *, unit: str = "", lo_open: bool = True):
-    """argparse type: a finite float in ``(lo, hi]`` (``[lo, hi]`` if not ``lo_open``), the error naming
-    the option and the allowed range."""
+def bounded_float(name: str, lo: float, hi: float, *, unit: str = "", lo_open: bool = True, hi_open: bool = False):
+    """argparse type: a finite float in ``(lo, hi]`` (``[lo, …`` if not ``lo_open``, ``…, hi)`` if
+    ``hi_open``), the error naming the option and the allowed range."""
     finite = finite_float(name)
-    left = "(" if lo_open else "["
-    allowed = f"{left}{lo:g}, {hi:g}]{' ' + unit if unit else ''}"
+    left, right = "(" if lo_open else "[", ")" if hi_open else "]"
+    allowed = f"{left}{lo:g}, {hi:g}{right}{' ' + unit if unit else ''}"
 
     def parse(text: str) -> float:
         v = finite(text)
-        if not ((lo < v) if lo_open else (lo <= v)) or v > hi:
+        above = (lo < v) if lo_open else (lo <= v)
+        below = (v < hi) if hi_open else (v <= hi)
+        if not (above and below):
             raise argparse.ArgumentTypeError(f"{name} must lie in {allowed}, got {text}")
         return v
 

@@ -15,7 +15,7 @@ from typing import Any
 from rich.console import Console
 from rich.markup import escape
 
-__all__ = ["console", "esc", "plot_path", "pose_text", "signed"]
+__all__ = ["console", "esc", "output_path", "plot_path", "pose_text", "signed"]
 
 
 #: the width of a console whose output is not a terminal (a pipe, a file, a log): wide enough that no
@@ -72,6 +72,20 @@ def plot_path(text: str) -> str:
         raise argparse.ArgumentTypeError(
             f"{text!r}: the file name must end in one of {', '.join('.' + f for f in sorted(formats))}"
         )
+    folder = path.parent
+    if not folder.is_dir():
+        raise argparse.ArgumentTypeError(f"{text!r}: the folder {str(folder)!r} does not exist")
+    return text
+
+
+def output_path(text: str) -> str:
+    """An output ``FILE`` checked where it is read (an argparse type), before a run that may take minutes:
+    its folder must exist and it must not be a folder itself. ``-`` (standard output) passes."""
+    if text == "-":
+        return text
+    path = Path(text)
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text!r} is a folder; give a file name")
     folder = path.parent
     if not folder.is_dir():
         raise argparse.ArgumentTypeError(f"{text!r}: the folder {str(folder)!r} does not exist")

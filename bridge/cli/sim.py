@@ -27,7 +27,7 @@ import numpy as np
 
 from bridge.cli.errors import CLIError
 from bridge.cli.model import add_model_options, bounded_float, finite_float, model_from_args
-from bridge.cli.output import console, plot_path
+from bridge.cli.output import console, output_path, plot_path
 from bridge.cli.plan import parse_pose_arg
 from bridge.cli.service import _client_options
 from bridge.link.realtime import INTERFACES, RealtimeRunner, open_bus
@@ -77,14 +77,6 @@ _POSE = ("x", "z", "roll", "pitch")
 def _figure(value: float | None, spec: str, missing: str) -> str:
     """``value`` formatted, or ``missing`` when there is none (None or NaN: nothing was measured)."""
     return missing if value is None or not math.isfinite(value) else format(value, spec)
-
-
-def _frame_loss(text: str) -> float:
-    """argparse type of ``--frame-loss``: a probability in [0, 1)."""
-    v = finite_float("--frame-loss")(text)
-    if not 0.0 <= v < 1.0:
-        raise argparse.ArgumentTypeError(f"--frame-loss must lie in [0, 1), got {text}")
-    return v
 
 
 def _figures_json(f: MoveFigures) -> dict:
@@ -238,6 +230,23 @@ def plot_track(path: str, result) -> None:
     plt.close(fig)
 
 
+#: ``--json`` given without a FILE (``sim track``, ``sim field``): the summary goes to stdout, as JSON only
+JSON_STDOUT = "-"
+
+
+def _json_summary(json_file: str | None, summary: dict) -> bool:
+    """``--json [FILE]``: True when the summary went to stdout as JSON (nothing else to print); with a FILE it
+    is written there (strict JSON, indented) and the text summary follows."""
+    if json_file is None:
+        return False
+    if json_file == JSON_STDOUT:
+        print(to_json_text(summary))
+        return True
+    with open(json_file, "w", encoding="utf-8") as fh:
+        fh.write(to_json_text(summary, indent=1))
+    return False
+
+
 def _cmd_sim_track(args) -> int:
     from bridge.service.track_loop import LoopSettings, run_track_loop
 
@@ -247,9 +256,8 @@ def _cmd_sim_track(args) -> int:
     if args.plot:
         plot_track(args.plot, result)
     summary = result.summary()
-    if args.json_file:
-        with open(args.json_file, "w", encoding="utf-8") as fh:
-            fh.write(to_json_text(summary, indent=1))
+    if _json_summary(args.json_file, summary):
+        return 0
     c = console()
     unit, k = ("mm", 1e3) if result.dof in ("x", "z") else ("mrad", 1e3)
     f, fi = result.figures, result.figures_inside
@@ -267,7 +275,7 @@ def _cmd_sim_track(args) -> int:
         c.print("faults: " + "; ".join(result.faults))
     if args.plot:
         c.print(f"plot written to {args.plot}")
-    if args.json_file:
+    if args.json_file is not None:
         c.print(f"summary written to {args.json_file}")
     return 0
 
@@ -287,9 +295,8 @@ def _cmd_sim_field(args) -> int:
     summary = result.summary()
     if args.plot:
         plot_field(args.plot, [result])
-    if args.json_file:
-        with open(args.json_file, "w", encoding="utf-8") as fh:
-            fh.write(to_json_text(summary, indent=1))
+    if _json_summary(args.json_file, summary):
+        return 0
     f = summary["figures"]
     c = console()
     c.print(f"{result.field}: mode {result.mode}, {summary['duration_s']:.1f} s simulated")
@@ -308,7 +315,7 @@ def _cmd_sim_field(args) -> int:
         c.print("faults: " + "; ".join(result.faults))
     if args.plot:
         c.print(f"plot written to {args.plot}")
-    if args.json_file:
+    if args.json_file is not None:
         c.print(f"summary written to {args.json_file}")
     return 0
 
@@ -596,7 +603,7 @@ def add_commands(sub) -> None:
     )
     m.add_argument(
         "--frame-loss",
-        type=_frame_loss,
+        type=bounded_float("--frame-loss", 0.0, 1.0, lo_open=False, hi_open=True),
         default=0.0,
         help="probability a node misses a frame, [0, 1), default 0",
     )
@@ -631,7 +638,16 @@ def add_commands(sub) -> None:
     )
     tr.add_argument("--duration", type=float, default=None, help="scenario seconds to run (default: the scenario's)")
     tr.add_argument("--plot", default=None, type=plot_path, help="write a PNG of the run")
-    tr.add_argument("--json", dest="json_file", default=None, metavar="FILE", help="write the summary as JSON")
+    tr.add_argument(
+        "--json",
+        dest="json_file",
+        nargs="?",
+        const=JSON_STDOUT,
+        default=None,
+        type=output_path,
+        metavar="FILE",
+        help="print the summary as JSON (as --json everywhere), or with FILE write it there beside the text",
+    )
     tr.add_argument("--profile", default="thesis-t132", help="built-in profile name or path to a .toml")
     tr.add_argument("--category", default=None, help="ISO 730 implement category (default: the profile's, 2)")
     tr.set_defaults(handler=_cmd_sim_track)
@@ -649,7 +665,16 @@ def add_commands(sub) -> None:
     fl.add_argument("--z", type=finite_float("--z"), default=0.0, help="operator's position setpoint z [m], default 0")
     fl.add_argument("--duration", type=float, default=None, help="scenario seconds to run (default: the scenario's)")
     fl.add_argument("--plot", default=None, type=plot_path, help="write a PNG of depth, draft and slip")
-    fl.add_argument("--json", dest="json_file", default=None, metavar="FILE", help="write the summary as JSON")
+    fl.add_argument(
+        "--json",
+        dest="json_file",
+        nargs="?",
+        const=JSON_STDOUT,
+        default=None,
+        type=output_path,
+        metavar="FILE",
+        help="print the summary as JSON (as --json everywhere), or with FILE write it there beside the text",
+    )
     fl.add_argument("--profile", default="thesis-t132", help="built-in profile name or path to a .toml")
     fl.add_argument("--category", default=None, help="ISO 730 implement category (default: the profile's, 2)")
     fl.set_defaults(handler=_cmd_sim_field)

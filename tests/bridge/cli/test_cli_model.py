@@ -86,3 +86,36 @@ def test_piped_output_keeps_each_record_on_one_line():
     r = run("fk", "--lift", "0.2", "--tilt", "0.63", "--top", "0.74", "--left", "0.54", "--right", "0.54")
     assert r.returncode == 0, r.stderr
     assert not any(ln.lstrip().startswith("yaw=") for ln in r.stdout.splitlines()), r.stdout
+
+
+@pytest.mark.parametrize(
+    ("lo_open", "hi_open", "inside", "outside", "allowed"),
+    [
+        (True, False, ["0.5", "1"], ["0", "1.0001"], "(0, 1]"),
+        (False, False, ["0", "1"], ["-0.0001", "1.0001"], "[0, 1]"),
+        (False, True, ["0", "0.999"], ["1", "-0.0001"], "[0, 1)"),
+        (True, True, ["0.5"], ["0", "1"], "(0, 1)"),
+    ],
+)
+def test_bounded_float_keeps_each_end_open_or_closed_and_names_the_range(lo_open, hi_open, inside, outside, allowed):
+    import argparse
+
+    from bridge.cli.model import bounded_float
+
+    parse = bounded_float("--p", 0.0, 1.0, lo_open=lo_open, hi_open=hi_open)
+    for text in inside:
+        assert parse(text) == float(text)
+    for text in [*outside, "nan", "inf"]:
+        with pytest.raises(argparse.ArgumentTypeError, match="--p") as err:
+            parse(text)
+        if text not in ("nan", "inf"):
+            assert f"--p must lie in {allowed}, got {text}" == str(err.value)
+
+
+def test_sim_move_frame_loss_is_a_probability_below_one(capsys):
+    from bridge.cli.main import main
+
+    for text in ("1", "-0.1"):
+        assert main(["sim", "move", "--frame-loss", text]) == 2
+        err = capsys.readouterr().err
+        assert f"--frame-loss must lie in [0, 1), got {text}" in err and "Traceback" not in err

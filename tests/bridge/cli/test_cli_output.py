@@ -62,6 +62,22 @@ def test_sim_field_without_a_heavy_patch_says_so_and_writes_strict_json(capsys, 
     assert figures["heavy_samples"] == 0 and figures["slip_max_heavy"] is None
 
 
+@pytest.mark.parametrize("command", [["sim", "track", "flat"], ["sim", "field", "chisel"]])
+def test_sim_track_and_field_json_without_a_file_prints_only_strict_json_as_every_other_json_flag(capsys, command):
+    assert main([*command, "--duration", "7", "--json"]) == 0
+    out = capsys.readouterr().out
+    data = _strict(out)  # one JSON document and nothing else (the old --json took the next word as its FILE)
+    assert data.get("scenario", data.get("field")) == command[2]
+
+
+@pytest.mark.parametrize("command", [["sim", "track", "flat"], ["sim", "field", "chisel"]])
+def test_sim_track_and_field_json_file_is_checked_before_the_run(capsys, tmp_path, command):
+    for bad, why in ((tmp_path / "no" / "s.json", "does not exist"), (tmp_path, "is a folder")):
+        assert main([*command, "--duration", "7", "--json", str(bad)]) == 2
+        err = capsys.readouterr().err
+        assert "--json" in err and why in err and "Traceback" not in err  # was a FileNotFoundError after the run
+
+
 @pytest.mark.parametrize(
     "args, option, allowed",
     [

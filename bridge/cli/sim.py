@@ -65,6 +65,7 @@ from planner.model.kinematics import POINT_NAMES, HitchModel
 from planner.model.sensors import SensorScaling
 from planner.profiles.hitch import Profile, load_profile
 from planner.trajectory import TrajectoryPlanner
+from planner.work_control import DRAFT_SETPOINT_MAX_N
 
 __all__ = ["add_commands", "measure_in_sim", "move_json", "perturbation_summary", "plot_move", "plot_track"]
 
@@ -288,6 +289,8 @@ def _cmd_sim_field(args) -> int:
     model = model_from_args(args)
     work = {k: getattr(args, k) for k in ("draft_setpoint_n", "blend", "sensitivity", "depth_min_m", "depth_max_m")}
     work = {k: v for k, v in work.items() if v is not None}
+    if args.draft_setpoint_kn is not None:  # the operator's unit at this boundary only; N inside
+        work["draft_setpoint_n"] = args.draft_setpoint_kn * 1000.0
     settings = FieldLoopSettings(
         work=WorkSettings(mode=args.mode, slip_limit=args.slip_limit, **work), z_m=args.z, duration_s=args.duration
     )
@@ -656,7 +659,15 @@ def add_commands(sub) -> None:
     fl.add_argument(
         "--mode", choices=("position", "draft", "mixed", "float"), default="position", help="default position"
     )
-    fl.add_argument("--draft-setpoint", dest="draft_setpoint_n", type=finite_float("--draft-setpoint"), help="[N]")
+    draft = fl.add_mutually_exclusive_group()
+    draft.add_argument("--draft-setpoint", dest="draft_setpoint_n", type=finite_float("--draft-setpoint"), help="[N]")
+    draft.add_argument(
+        "--draft-setpoint-kn",
+        dest="draft_setpoint_kn",
+        type=bounded_float("--draft-setpoint-kn", 0.0, DRAFT_SETPOINT_MAX_N / 1000.0, unit="kN"),
+        default=None,
+        help=f"the same in kN, as hitch work settings takes it: (0, {DRAFT_SETPOINT_MAX_N / 1000.0:g}] kN",
+    )
     fl.add_argument("--blend", type=finite_float("--blend"), default=None, help="mixed: draft share, [0, 1]")
     fl.add_argument("--sensitivity", type=finite_float("--sensitivity"), default=None, help="[0.1, 2], 1 = nominal")
     fl.add_argument("--depth-min", dest="depth_min_m", type=finite_float("--depth-min"), help="[m]")

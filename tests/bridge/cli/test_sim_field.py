@@ -37,3 +37,20 @@ def test_sim_field_names_a_bad_field_and_a_bad_setting():
         timeout=60,
     )
     assert r.returncode == 2 and "blend" in r.stderr and "[0, 1]" in r.stderr
+
+
+def test_sim_field_takes_the_draft_setpoint_in_kn_as_work_settings_does(capsys):
+    from bridge.cli.main import main
+
+    base = ["sim", "field", "chisel", "--mode", "draft", "--duration", "7", "--json"]
+    assert main([*base, "--draft-setpoint-kn", "18.5"]) == 0
+    kn = json.loads(capsys.readouterr().out)
+    assert main([*base, "--draft-setpoint", "18500"]) == 0
+    n = json.loads(capsys.readouterr().out)
+    assert kn["settings"]["draft_setpoint_n"] == 18500.0 == n["settings"]["draft_setpoint_n"]
+    timing = ("cpu", "cycle")  # wall-clock costs differ between runs; every simulated figure is the same
+    assert {k: v for k, v in kn["figures"].items() if not any(t in k for t in timing)} == {
+        k: v for k, v in n["figures"].items() if not any(t in k for t in timing)
+    }
+    assert main([*base, "--draft-setpoint-kn", "18500"]) == 2  # N given as kN: out of (0, 300] kN
+    assert "--draft-setpoint-kn must lie in (0, 300] kN, got 18500" in capsys.readouterr().err

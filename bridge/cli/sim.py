@@ -169,7 +169,7 @@ def _cmd_sim_move(args) -> int:
         feedforward=not args.no_feedforward,
         max_time_s=args.max_time,
     )
-    trace = run_move(model, args.to, move, sim)
+    trace = run_move(model, args.to, move, sim, truth=_truth_arg(args))
     measured = build_move_figures(trace, "measured", band_position_m=args.band_position, band_angle_rad=args.band_angle)
     truth = build_move_figures(trace, "truth", band_position_m=args.band_position, band_angle_rad=args.band_angle)
     if args.plot:
@@ -252,7 +252,7 @@ def _cmd_sim_track(args) -> int:
     from bridge.service.track_loop import LoopSettings, run_track_loop
 
     model = model_from_args(args)
-    settings = LoopSettings(strategy=args.strategy, job=args.job, duration_s=args.duration)
+    settings = LoopSettings(strategy=args.strategy, job=args.job, duration_s=args.duration, truth=_truth_arg(args))
     result = run_track_loop(model, args.scenario, settings)
     if args.plot:
         plot_track(args.plot, result)
@@ -292,7 +292,10 @@ def _cmd_sim_field(args) -> int:
     if args.draft_setpoint_kn is not None:  # the operator's unit at this boundary only; N inside
         work["draft_setpoint_n"] = args.draft_setpoint_kn * 1000.0
     settings = FieldLoopSettings(
-        work=WorkSettings(mode=args.mode, slip_limit=args.slip_limit, **work), z_m=args.z, duration_s=args.duration
+        work=WorkSettings(mode=args.mode, slip_limit=args.slip_limit, **work),
+        z_m=args.z,
+        duration_s=args.duration,
+        truth=_truth_arg(args),
     )
     result = run_field_loop(model, args.field, settings)
     summary = result.summary()
@@ -421,6 +424,11 @@ def _add_plant_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--noise-counts", type=float, default=0.0, help="AD noise standard deviation [counts] (default 0)")
     p.add_argument("--gain-error", type=float, default=0.0, help="relative valve-gain error of the plant, e.g. 0.1")
     p.add_argument("--seed", type=int, default=0, help="seed of the noise (and frame loss)")
+
+
+def _truth_arg(args: argparse.Namespace) -> MachineTruth | None:
+    """The twin's true machine of ``--sim-truth FILE`` (None: exactly the planner's profile)."""
+    return None if args.sim_truth is None else load_machine_truth(args.sim_truth)
 
 
 def _add_truth_option(p: argparse.ArgumentParser) -> None:
@@ -629,6 +637,7 @@ def add_commands(sub) -> None:
         help="settling band on roll and pitch [rad], (0, 10], default 0.005",
     )
     _add_plant_options(m)
+    _add_truth_option(m)
     add_model_options(m)
     m.set_defaults(handler=_cmd_sim_move)
     tr = ssub.add_parser("track", help="closed-loop continuous control of a terrain scenario in simulated time")
@@ -653,6 +662,7 @@ def add_commands(sub) -> None:
     )
     tr.add_argument("--profile", default="thesis-t132", help="built-in profile name or path to a .toml")
     tr.add_argument("--category", default=None, help="ISO 730 implement category (default: the profile's, 2)")
+    _add_truth_option(tr)
     tr.set_defaults(handler=_cmd_sim_track)
     fl = ssub.add_parser("field", help="work control (position/draft/mixed/float) over a field in simulated time")
     fl.add_argument("field", help="built-in field (chisel) or a field .toml path")
@@ -688,6 +698,7 @@ def add_commands(sub) -> None:
     )
     fl.add_argument("--profile", default="thesis-t132", help="built-in profile name or path to a .toml")
     fl.add_argument("--category", default=None, help="ISO 730 implement category (default: the profile's, 2)")
+    _add_truth_option(fl)
     fl.set_defaults(handler=_cmd_sim_field)
     f = ssub.add_parser("fault", help="inject link faults into a running service's simulated ECU")
     f.add_argument("--cut", choices=CUTS, default="none", help="cut one direction or both (default none)")

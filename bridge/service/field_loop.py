@@ -47,6 +47,7 @@ from bridge.service.work import WindowSlope, draft_rate_limit
 from bridge.sim.field import FieldDraft, FieldRun, FieldSetup, load_field
 from bridge.sim.move import SimSettings
 from bridge.sim.preview_sensor import PreviewSensor, PreviewSensorConfig
+from bridge.sim.truth import MachineTruth
 from planner.model.kinematics import HitchModel
 from planner.work_control import WorkController, WorkSettings
 from planner.work_control.ground_preview import GroundPreview, PreviewGeometry
@@ -92,6 +93,8 @@ class FieldLoopSettings:
         preview_lead_s: how far ahead the work controller's ground is taken: the hitch's lag from setpoint
             to position [s], [0, 1] (the preview reaches (F − L)/v, 0.45 s at 8 km/h).
         sim: the simulated machine and bus.
+        truth: the twin's own true machine (:mod:`bridge.sim.truth`, ``hitch sim perturb``); None: exactly
+            the planner's profile. The planner, the link and the figures' demand stay on the model.
     """
 
     work: WorkSettings = field(default_factory=WorkSettings)
@@ -106,8 +109,11 @@ class FieldLoopSettings:
     preview: PreviewSensorConfig | None = field(default_factory=PreviewSensorConfig)
     preview_lead_s: float = 0.3
     sim: SimSettings = field(default_factory=SimSettings)
+    truth: MachineTruth | None = None
 
     def __post_init__(self) -> None:
+        if self.truth is not None and not isinstance(self.truth, MachineTruth):
+            raise FieldLoopError(f"truth must be a MachineTruth or None, got {type(self.truth).__name__}")
         if not isinstance(self.work, WorkSettings):
             raise FieldLoopError(f"work must be a WorkSettings, got {type(self.work).__name__}")
         _number("z_m", self.z_m, -0.2, 0.3)
@@ -253,7 +259,9 @@ def run_field_loop(
     drop = pivot + s.z_m + fs.working_depth_m
     heavy_at = 1.0 + 0.5 * fs.soil.variation
     cfg = TractorSensorsConfig(read_draft=True)
-    with SimLoop(model, sc, sim=s.sim, start={"z": s.z_m}, warmup_s=s.warmup_s, sensors_config=cfg) as loop:
+    with SimLoop(
+        model, sc, sim=s.sim, start={"z": s.z_m}, warmup_s=s.warmup_s, sensors_config=cfg, truth=s.truth
+    ) as loop:
         mc = loop.mc
         t0 = loop.now_s
         lost = None if s.draft_lost_at_s is None else t0 + s.draft_lost_at_s

@@ -90,11 +90,14 @@ from bridge.service.machine import ReadingsAsTrackSensors
 from bridge.service.motion.controller import MotionController
 from bridge.service.motion.types import MotionError
 from bridge.service.work import WindowSlope
+from bridge.sim.cylinder import build_cylinder_params
+from bridge.sim.ecu import ACTUATOR_ORDER
 from bridge.sim.move import SimRig, SimSettings
 from bridge.sim.scenario import Scenario, load_scenario
 from bridge.sim.sensors import TwinSensors
 from bridge.sim.terrain import RowSignal
 from bridge.sim.tractor_node import TractorTwinNode, hitch_height_from_ecu
+from bridge.sim.truth import MachineTruth
 from planner.errors import HitchError, HitchInputError
 from planner.limits.guard import Guard
 from planner.model.kinematics import HitchModel
@@ -180,6 +183,8 @@ class LoopSettings:
         inside_window_s: a sample counts as "inside" when over the last this-many seconds the demand
             stayed inside the workspace and within the follower's pose velocity and acceleration limits.
         sim: the simulated machine and bus.
+        truth: the twin's own true machine (:mod:`bridge.sim.truth`, ``hitch sim perturb``); None: exactly
+            the planner's profile. The planner, the link and the figures' demand stay on the model.
     """
 
     strategy: str = "track"
@@ -200,8 +205,11 @@ class LoopSettings:
     plan_every: int = 5
     inside_window_s: float = 1.0
     sim: SimSettings = field(default_factory=SimSettings)
+    truth: MachineTruth | None = None
 
     def __post_init__(self) -> None:
+        if self.truth is not None and not isinstance(self.truth, MachineTruth):
+            raise TrackLoopError(f"truth must be a MachineTruth or None, got {type(self.truth).__name__}")
         if self.strategy not in STRATEGIES:
             raise TrackLoopError(f"strategy must be one of {', '.join(STRATEGIES)}, got {self.strategy!r}")
         if self.job is not None and self.job not in JOBS:
@@ -278,6 +286,7 @@ class SimLoop:
         start: Mapping[str, float] | None = None,
         warmup_s: float = 0.5,
         sensors_config: TractorSensorsConfig | None = None,
+        truth: MachineTruth | None = None,
     ) -> None:
         self.model = model
         self.scenario = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
@@ -285,10 +294,14 @@ class SimLoop:
         tp = TrajectoryPlanner(model)
         p0 = tp.goal_vector(model.neutral_pose.controlled(), start or {})
         tp.check_in_workspace(p0, "start")
-        self.rig = SimRig(model, sim, initial_actuators=tp.inverse.solve(p0)[0])
+        self.rig = SimRig(model, sim, initial_actuators=tp.inverse.solve(p0)[0], truth=truth)
         self._buses = [InProcessBus(channel=self.rig.channel) for _ in range(2)]
+        # the ground sensor sees the true machine's height (as the service's twin: bridge.service.machine)
+        same = self.rig.truth.profile == model.profile
+        true_model = model if same else HitchModel(self.rig.truth.profile, model.category)
+        self._nominal_params = tuple(build_cylinder_params(n, model.profile.actuator(n)) for n in ACTUATOR_ORDER)
         self.tractor = TractorTwinNode(
-            self._buses[0], TwinSensors(self.twin), hitch_height_m=hitch_height_from_ecu(self.rig.ecu, model)
+            self._buses[0], TwinSensors(self.twin), hitch_height_m=hitch_height_from_ecu(self.rig.ecu, true_model)
         )
         self.decoder = TractorSensors(self._buses[1], sensors_config)
         self.sensors = ReadingsAsTrackSensors(self.decoder, rates=False)  # positions only, as measured
@@ -342,21 +355,20 @@ class SimLoop:
         self.cycle_times.append((time.perf_counter() - w0, time.process_time() - c0))
 
     def truth_pose(self) -> np.ndarray:
-        """Forward kinematics of the simulated pistons (not measured), x, z, roll, pitch."""
-        params = self.rig.ecu.params
-        q = [p.counts_to_si(c) for p, c in zip(params, self.rig.ecu.piston_counts(), strict=True)]
-        return np.asarray(self.model.forward(np.array(q)).pose.controlled(), float)
+        """The simulated pistons through the twin's true machine (not measured), x, z, roll, pitch."""
+        return np.asarray(self.rig.true_pose().controlled(), float)
 
     def measured_pose(self) -> np.ndarray:
         ls = self.rig.link.latest_state()
         return np.full(4, np.nan) if ls is None else np.asarray(ls.pose.controlled(), float)
 
     def streamed_actuators(self) -> np.ndarray | None:
-        """The reference the link streams now (SI, from its counts), None when none."""
+        """The reference the link streams now (SI, from its counts through the planner's calibration), None
+        when none."""
         counts = self.rig.link.status(self.rig.now_s).reference_counts
         if counts is None:
             return None
-        return np.array([p.counts_to_si(c) for p, c in zip(self.rig.ecu.params, counts, strict=True)])
+        return np.array([p.counts_to_si(c) for p, c in zip(self._nominal_params, counts, strict=True)])
 
     def close(self) -> None:
         for b in self._buses:
@@ -812,7 +824,7 @@ def run_track_loop(
         )
     twin = sc.twin
     pivot = float(model.profile.geometry.pivot_height)
-    with SimLoop(model, sc, sim=s.sim, start=s.start, warmup_s=s.warmup_s) as loop:
+    with SimLoop(model, sc, sim=s.sim, start=s.start, warmup_s=s.warmup_s, truth=s.truth) as loop:
         mc, tp = loop.mc, loop.planner
         lo, hi = tp.lo, tp.hi
         p0 = loop.measured_pose()

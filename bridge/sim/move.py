@@ -19,7 +19,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from bridge.link.unit_loop import FeedforwardShaper, build_unit_loops
+from bridge.sim.cylinder import build_cylinder_params
+from bridge.sim.ecu import ACTUATOR_ORDER
 from bridge.sim.rig import LossyBus, SimError, SimRig, SimSettings
+from bridge.sim.truth import MachineTruth
 from planner.model.kinematics import HitchModel
 from planner.trajectory import MotionState, TrajectoryPlanner
 
@@ -105,9 +108,18 @@ class MoveTrace:
 
 
 def run_move(
-    model: HitchModel, goal: Mapping[str, float], move: MoveSettings | None = None, sim: SimSettings | None = None
+    model: HitchModel,
+    goal: Mapping[str, float],
+    move: MoveSettings | None = None,
+    sim: SimSettings | None = None,
+    *,
+    truth: MachineTruth | None = None,
 ) -> MoveTrace:
     """Drive the simulated ECU through the CAN path from ``move.start`` to ``goal``.
+
+    ``truth``: the twin's own true machine (:mod:`bridge.sim.truth`; default exactly ``model``'s
+    profile): the ECU reads the pistons through its AD map, and the ``truth`` poses of the trace are
+    its geometry and play (:meth:`SimRig.true_pose`); the planner and the link stay on ``model``.
 
     Raises:
         SimError: no measurement after warm-up, or the link refused a command.
@@ -118,7 +130,7 @@ def run_move(
     tp = TrajectoryPlanner(model, rate=sim.link.control_rate_hz)
     p_start = tp.goal_vector(model.neutral_pose.controlled(), move.start or {})
     tp.check_in_workspace(p_start, "start")
-    with SimRig(model, sim, initial_actuators=tp.inverse.solve(p_start)[0]) as rig:
+    with SimRig(model, sim, initial_actuators=tp.inverse.solve(p_start)[0], truth=truth) as rig:
         rig.start()
         rig.run_until(move.warmup_s)
         state = rig.link.latest_state()
@@ -177,11 +189,12 @@ def _drive(
     quiet_since: float | None = None
     rows: list[_Sample] = []
     every = max(1, round(0.01 / rig.settings.tick_s))
-    params = rig.ecu.params
+    # the streamed reference in SI through the planner's calibration (what it commanded; the ECU's own
+    # AD map is the truth's)
+    params = tuple(build_cylinder_params(n, model.profile.actuator(n)) for n in ACTUATOR_ORDER)
 
-    def truth_pose() -> np.ndarray:  # forward kinematics of the simulated pistons (not measured)
-        q = [p.counts_to_si(c) for p, c in zip(params, rig.ecu.piston_counts(), strict=True)]
-        return model.forward(np.array(q)).pose.controlled()
+    def truth_pose() -> np.ndarray:  # the simulated pistons through the twin's true machine (not measured)
+        return rig.true_pose().controlled()
 
     truth_start = truth_pose()
     rig.reset_traffic()

@@ -149,3 +149,24 @@ def test_ecu_sim_runs_the_truth_with_the_nominal_calibration(capsys, tmp_path):
     # the neutral lift angle through the true map: exactly 3 counts more (the strokes in SI are the same)
     assert shifted["lift"] - plain["lift"] == 3
     assert {k: v for k, v in shifted.items() if k != "lift"} == {k: v for k, v in plain.items() if k != "lift"}
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["sim", "move", "--to", "z=0.1"],
+        ["sim", "track", "flat", "--duration", "7"],
+        ["sim", "field", "chisel", "--duration", "7"],
+    ],
+)
+def test_every_closed_loop_sim_command_takes_the_truth_and_names_a_missing_file(capsys, tmp_path, command):
+    from bridge.cli.main import main
+
+    truth = tmp_path / "truth.toml"
+    assert main(["sim", "perturb", "--seed", "3", "--tape", "--out", str(truth)]) == 0
+    capsys.readouterr()
+    assert main([*command, "--sim-truth", str(truth)]) == 0  # was "unrecognized arguments: --sim-truth"
+    assert "Traceback" not in capsys.readouterr().err
+    assert main([*command, "--sim-truth", str(tmp_path / "missing.toml")]) == 2
+    err = capsys.readouterr().err
+    assert "missing.toml does not exist" in err and "Traceback" not in err

@@ -347,3 +347,26 @@ def test_the_rigid_implement_keeps_its_span_when_the_limiter_geometry_is_off(mod
     assert plain.limiter_strain_m == 0.0 and 0.001 < abs(rigid.limiter_strain_m) < 0.02
     # the lateral position the limiters' difference sets is kept (the mechanism is symmetric here)
     assert rigid.pose.x == pytest.approx(0.0, abs=1e-6)
+
+
+# -- every hitch sim command takes the truth ------------------------------------------------------
+def test_run_move_on_an_ad_offset_truth_ends_where_the_offset_puts_the_true_pistons(model):
+    from bridge.sim.move import run_move
+
+    offsets = {"lift": 3}
+    truth = offset_truth(model.profile, offsets)
+    nominal = run_move(model, {"z": 0.1})
+    same = run_move(model, {"z": 0.1}, truth=MachineTruth.nominal(model.profile))
+    off = run_move(model, {"z": 0.1}, truth=truth)
+    assert np.array_equal(nominal.truth, same.truth) and np.array_equal(nominal.measured, same.measured)
+    # the ECU drives the pistons until the TRUE reading is the commanded count: the true lift sits 3 counts
+    # (of the nominal resolution) below what the planner believes; its pose is off by about -J dq
+    res = SensorScaling(model.profile).resolution
+    dq = -np.array([offsets.get(n, 0) for n in ACTUATOR_NAMES]) * res
+    _, jac = model.features(TrajectoryPlanner(model).inverse.solve(off.measured[-1])[0])
+    predicted = jac[[0, 2, 3, 4]] @ dq
+    gap = off.truth[-1] - off.measured[-1]
+    assert abs(predicted[1]) > 0.008  # about a centimetre of z
+    assert abs(gap[1] - predicted[1]) < 0.4 * abs(predicted[1])  # within a count of piston play in its band
+    # without the truth the measured and true poses agree to a count
+    assert abs(nominal.truth[-1][1] - nominal.measured[-1][1]) < 0.4 * abs(predicted[1])

@@ -416,7 +416,8 @@ class ServiceAPI:
             )
         deadline, issued = self._timing(r.deadline_ms)
         mid = self.motion.run_maneuver(res, r.name, deadline=deadline, issued=issued)
-        return ManeuverAccepted(mid, res.duration, len(res.steps), r.name).to_json()
+        script_steps = len(res.script.steps) if res.script is not None else len(res.steps)
+        return ManeuverAccepted(mid, res.duration, script_steps, r.name, actions=len(res.steps)).to_json()
 
     def _maneuvers_delete(self, r: NameRequest) -> dict:
         if not self.store.delete_maneuver(r.name):

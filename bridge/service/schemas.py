@@ -366,6 +366,10 @@ ANY_PAYLOAD_KEYS: frozenset[str] = frozenset({"stop"})
 #: keys whose pose fields are checked against the workspace (when known) before the schema: key → field
 #: ("": the payload's own fields, as work/start's operator setpoint z)
 _POSE_FIELDS: Mapping[str, str] = {"goto": "goal", "presets/save": "pose", "work/start": ""}
+#: keys that answer a goal outside the workspace with a preview (``plan``: ``refused``), not an error: a value
+#: the schema refuses (beyond its plausible SI range, e.g. mm) is refused as ``goto`` refuses it (workspace
+#: range and the mm / degrees hint) rather than with the schema's wider bound
+_PREVIEW_POSE_FIELDS: Mapping[str, str] = {"plan": "goal"}
 
 
 class RequestError(HitchInputError):
@@ -643,6 +647,9 @@ def parse_request(
     try:
         return model.model_validate(data)
     except ValidationError as exc:
+        if key in _PREVIEW_POSE_FIELDS and workspace is not None:
+            pose = data.get(_PREVIEW_POSE_FIELDS[key])
+            check_pose_in_workspace(pose or {}, workspace, key=key, what=_PREVIEW_POSE_FIELDS[key])
         raise RequestError("bad_request", _format(key, exc, model)) from None
     except RecursionError:
         raise RequestError("bad_request", f"{key}: payload nests too deeply") from None

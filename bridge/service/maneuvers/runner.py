@@ -124,6 +124,7 @@ class ManeuverRunner:
         self.timeout_s = validated.script.timeout_s
         self.ecu_timeout_s = _finite("ecu_timeout_s", ecu_timeout_s, minimum=1e-3)
         self._steps: tuple[PlannedStep, ...] = validated.steps
+        self._script_steps = len(validated.script.steps)
         self._status: RunnerStatus = "pending"
         self._index = 0
         self._entered = False
@@ -199,7 +200,8 @@ class ManeuverRunner:
                     "event": "maneuver_started",
                     "maneuver": self.name,
                     "t": now_s,
-                    "steps": len(self._steps),
+                    "steps": self._script_steps,  # as maneuvers/save and list count them
+                    "actions": len(self._steps),  # those that run (a speed step only sets a scale)
                     "timeout": self.timeout_s,
                 }
             )

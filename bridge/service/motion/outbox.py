@@ -68,10 +68,15 @@ class Outbox:
         return self._thread is not None
 
     def put_event(self, event: dict[str, Any]) -> dict[str, Any]:
-        """Number ``event`` (``seq``, ``t`` Unix time if absent) and queue it; returns it numbered."""
+        """Number ``event`` (``seq``) and stamp it (``t``: Unix time [s], the same base in every event); a
+        ``t`` the event brings (the controller's clock: maneuver steps, work fallbacks) becomes its ``clock``
+        [s], the base of the state's ``clock``. Queues it; returns it numbered."""
         with self._mu:
             self._seq += 1
-            e = {"seq": self._seq, "t": event.get("t", time.time()), **event}
+            e = {"seq": self._seq, **event}
+            if "t" in event and "clock" not in event:
+                e["clock"] = event["t"]
+            e["t"] = time.time()
             e["seq"] = self._seq
             if self._events_waiting >= self._max_events:  # a listener that hangs: keep the newest
                 for i, (ev, _) in enumerate(self._items):

@@ -260,12 +260,15 @@ class JogAccepted:
 
 @dataclass(frozen=True)
 class ManeuverAccepted:
-    """A started maneuver: its id, planned duration [s] (motions and waits), step count and name."""
+    """A started maneuver: its id, planned duration [s] (motions and waits), its script's step count (as
+    ``maneuvers/save`` and ``list`` give it), how many of them run (``actions``: a ``speed`` step only sets
+    the scale of those after it) and name."""
 
     motion_id: int
     duration: float
     steps: int
     name: str
+    actions: int | None = None
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -273,6 +276,7 @@ class ManeuverAccepted:
             "motion_id": self.motion_id,
             "duration": self.duration,
             "steps": self.steps,
+            "actions": self.steps if self.actions is None else self.actions,
             "maneuver": self.name,
         }
 

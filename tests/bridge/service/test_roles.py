@@ -186,3 +186,12 @@ def test_maneuvers_list_through_the_handler_parses_nothing(api, monkeypatch):
         }
     )
     assert calls == []
+
+
+def test_plan_refuses_a_goal_in_mm_as_goto_does(api):
+    # z = 250 (mm meant): goto said "unreachable … did you mean mm?", plan "allowed: >= -2 and <= 2 m"
+    for key in ("goto", "plan"):
+        ok, r = _call(api, key, {"goal": {"z": 250}}, "olga")
+        assert not ok and r["error"] == "unreachable", (key, r)
+        assert "workspace" in r["message"] and "did you mean mm? 250 mm = 0.25 m" in r["message"], (key, r)
+    # a goal within the schema's range stays a preview ("refused" in an ok reply): test_service_api

@@ -286,6 +286,21 @@ def test_maneuvers_validate_save_run_delete(svc):
     assert not ok and r["error"] == "not_found"
 
 
+def test_a_maneuver_counts_its_steps_the_same_way_at_save_list_run_and_start(svc):
+    # a speed step sets a scale and runs nothing: save/list said 3, run and maneuver_started said 2 and
+    # maneuver_step numbered by script index (a fleet integrator's report)
+    script = "steps:\n  - speed: 0.6\n  - goto: {z: 0.22}\n  - wait: 0.1\n"
+    assert svc.call("maneuvers/save", {"name": "s", "script": script}) == (True, {"saved": "s", "steps": 3})
+    assert svc.call("maneuvers/list")[1]["maneuvers"][0]["steps"] == 3
+    ok, r = svc.call("maneuvers/run", {"name": "s"})
+    assert ok and r["steps"] == 3 and r["actions"] == 2, r
+    svc.run(r["duration"] + 0.5)
+    started = next(e for e in svc.events if e["event"] == "maneuver_started")
+    assert started["steps"] == 3 and started["actions"] == 2
+    assert [e["step"] for e in svc.events if e["event"] == "maneuver_step"] == [1, 2]  # script indexes
+    assert all(e["t"] > 1e9 and "clock" in e for e in svc.events if e["event"].startswith("maneuver_"))
+
+
 def test_mode_gates_motion_keys(svc):
     assert svc.call("mode") == (True, {"mode": "auto", "modes": ["auto", "manual", "attach", "transport", "config"]})
     assert svc.call("mode", {"mode": "transport"})[1]["mode"] == "transport"

@@ -406,8 +406,20 @@ class SensorCalibration:
             if name not in ACTUATOR_NAMES or not isinstance(ends, dict):
                 raise SensorCalibrationError(f"progress file {self.progress_path}: unknown actuator {name!r}")
             for end, rec in ends.items():
-                ok = end in ("low", "high") and isinstance(rec, dict) and isinstance(rec.get("counts"), int)
-                if not ok or not 0 <= rec["counts"] <= _AD_MAX:
+                if end == "fit":  # the fit a run wrote after both ends (refitted from the ends on resume)
+                    ok = isinstance(rec, dict) and all(
+                        isinstance(rec.get(k), int) and not isinstance(rec.get(k), bool) and 0 <= rec[k] <= _AD_MAX
+                        for k in ("counts_min", "counts_max")
+                    )
+                else:
+                    ok = (
+                        end in ("low", "high")
+                        and isinstance(rec, dict)
+                        and isinstance(rec.get("counts"), int)
+                        and not isinstance(rec.get("counts"), bool)
+                        and 0 <= rec["counts"] <= _AD_MAX
+                    )
+                if not ok:
                     raise SensorCalibrationError(f"progress file {self.progress_path}: bad record {name}.{end}")
         self.progress = data
 

@@ -146,6 +146,26 @@ def test_a_calibration_resumes_from_its_progress_file(free_top_link, tmp_path):
             SensorCalibration(rig.link, rig, free_top_link, progress=progress)
 
 
+def test_a_finished_or_partly_fitted_progress_file_resumes(free_top_link, tmp_path):
+    # a run writes "fit" beside "low" and "high"; the loader knew only the ends ("bad record top.fit"), so an
+    # interrupted calibration could never resume once an actuator was done (a commissioning engineer's report)
+    truth = truth_of(free_top_link, 2)
+    progress = tmp_path / "progress.json"
+    first, _, _ = calibrate(free_top_link, truth, ("top",), progress=progress)
+    assert not isinstance(first, Exception), first
+    assert "fit" in json.loads(progress.read_text())["actuators"]["top"]
+    log: list[str] = []
+    again, _, _ = calibrate(free_top_link, truth, ("top",), progress=progress, log=log.append)
+    assert not isinstance(again, Exception), again
+    assert again["top"] == first["top"] and all(line.endswith("(resumed)") for line in log[:2])
+    rec = json.loads(progress.read_text())
+    rec["actuators"]["top"]["fit"]["counts_max"] = 4096  # beyond 10 bits: refused, naming the record
+    progress.write_text(json.dumps(rec))
+    with pytest.raises(SensorCalibrationError, match=r"bad record top\.fit"):
+        with SimRig(HitchModel(calibration_profile(free_top_link)), FAST, truth=truth) as rig:
+            SensorCalibration(rig.link, rig, free_top_link, progress=progress)
+
+
 def test_the_link_must_be_the_calibration_link(model):
     with SimRig(model, FAST) as rig:
         with pytest.raises(SensorCalibrationError, match="calibration_profile"):

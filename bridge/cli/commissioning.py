@@ -21,6 +21,7 @@ from rich.console import Console
 
 from bridge.cli.errors import CLIError
 from bridge.cli.model import add_model_options, model_from_args
+from bridge.link.realtime import INTERFACES
 from bridge.link.sensor_calibration import (
     SensorCalibration,
     SensorCalibrationError,
@@ -119,6 +120,11 @@ def _confirm_detached(args) -> None:
 
 
 def _cmd_calibrate_sensors(args) -> int:
+    if args.can_interface is not None and args.sim_truth is not None:
+        raise CLIError(
+            "--sim-truth gives the simulated twin its machine; with --can-interface the machine on the bus is "
+            "calibrated: give one of them"
+        )
     _confirm_detached(args)
     nominal_model = model_from_args(args)
     nominal = nominal_model.profile
@@ -129,12 +135,22 @@ def _cmd_calibrate_sensors(args) -> int:
         implement = load_tractor_profile(nominal.stability.tractor_profile).implement(args.implement)
     cal_model = HitchModel(calibration_profile(nominal, detached=args.detached), nominal_model.category)
     log = (lambda _m: None) if args.json else (lambda m: Console().print(m, highlight=False))
-    with SimRig(cal_model, SimSettings(tick_s=0.005, seed=args.seed), truth=truth) as rig:
-        rig.start()
-        rig.run_until(0.5)
-        fits = SensorCalibration(
-            rig.link, rig, nominal, implement=implement, progress=args.progress, log=log, detached=args.detached
-        ).run(actuators)
+    if args.detached:  # said before anything moves
+        log(f"detached: {_DETACHED_DECLARATION}")
+    if args.can_interface is not None:  # a real ECU (or a twin in its own process) on a CAN bus
+        where = f"the ECU on {args.can_interface} {args.can_channel or '(default channel)'}"
+        log(f"calibrating {where}")
+        fits = _calibrate_on_bus(args, cal_model, nominal, implement, actuators, log)
+    else:
+        machine = f"truth {args.sim_truth}" if args.sim_truth else "the nominal profile as truth"
+        where = f"the simulated twin ({machine})"
+        log(f"calibrating {where}; for a real ECU give --can-interface / --can-channel")
+        with SimRig(cal_model, SimSettings(tick_s=0.005, seed=args.seed), truth=truth) as rig:
+            rig.start()
+            rig.run_until(0.5)
+            fits = SensorCalibration(
+                rig.link, rig, nominal, implement=implement, progress=args.progress, log=log, detached=args.detached
+            ).run(actuators)
     text = sensor_profile_toml(args.profile, {a: (f.counts_min, f.counts_max) for a, f in fits.items()})
     try:
         Path(args.out).write_text(text, encoding="utf-8")
@@ -142,11 +158,9 @@ def _cmd_calibrate_sensors(args) -> int:
         raise SensorCalibrationError(f"--out {args.out}: cannot write the profile ({exc.strerror})") from None
     result = {a: f.as_dict() for a, f in fits.items()}
     if args.json:
-        print(to_json_text({"out": args.out, "detached": args.detached, "actuators": result}))
+        print(to_json_text({"out": args.out, "detached": args.detached, "on": where, "actuators": result}))
         return 0
     c = Console()
-    if args.detached:
-        c.print(f"detached: {_DETACHED_DECLARATION}", highlight=False)
     for a, f in fits.items():
         n = nominal.actuator(a)
         c.print(
@@ -154,8 +168,51 @@ def _cmd_calibrate_sensors(args) -> int:
             f"{f.low.counts} / {f.high.counts}, margin {f.relay_margin_counts})",
             highlight=False,
         )
-    c.print(f"profile written to {args.out}", highlight=False)
+    c.print(f"profile written to {args.out} (calibrated on {where})", highlight=False)
     return 0
+
+
+#: how long ``calibrate sensors`` on a bus waits for the ECU's first complete measurement [s]
+FIRST_MEASUREMENT_TIMEOUT_S = 5.0
+
+
+def _calibrate_on_bus(args, cal_model: HitchModel, nominal, implement, actuators, log) -> dict:
+    """The calibration over a real bus: the link in a real-time runner, the procedure on the wall clock."""
+    from bridge.link.can_link import CanLink
+    from bridge.link.realtime import RealtimeRunner, open_bus
+    from bridge.link.sensor_calibration import RealtimeDriver
+    from bridge.link.state import LinkConfig, LinkError
+
+    try:
+        bus = open_bus(args.can_interface, args.can_channel)
+    except (LinkError, OSError, ValueError) as exc:
+        raise SensorCalibrationError(f"--can-interface {args.can_interface}: cannot open the bus ({exc})") from None
+    except Exception as exc:  # noqa: BLE001 - python-can's CanError family and a transport's own errors
+        raise SensorCalibrationError(f"--can-interface {args.can_interface}: cannot open the bus ({exc})") from None
+    link = CanLink(cal_model, bus, LinkConfig(bus_timestamps=True))
+    runner = RealtimeRunner(link, name="calibration-link").start()
+    try:
+        deadline = runner.now() + FIRST_MEASUREMENT_TIMEOUT_S
+        while not link.claimed or link.latest_state() is None:  # the address claim takes 250 ms (ISO 11783-5)
+            if runner.now() > deadline or runner.wait(0.02):
+                raise SensorCalibrationError(
+                    f"no address claimed or no complete measurement from the ECU on {args.can_interface} "
+                    f"{args.can_channel or '(default channel)'} within {FIRST_MEASUREMENT_TIMEOUT_S:g} s "
+                    f"(faults: {', '.join(link.faults.reasons) or 'none'}): is it powered and on this bus?"
+                )
+        return SensorCalibration(
+            link,
+            RealtimeDriver(runner),
+            nominal,
+            implement=implement,
+            progress=args.progress,
+            log=log,
+            detached=args.detached,
+        ).run(actuators)
+    finally:
+        link.stop(runner.now())  # no more references: the ECU's watchdog zeroes the valves
+        runner.stop(1.0)
+        bus.shutdown()
 
 
 def add_commands(sub) -> None:
@@ -192,5 +249,12 @@ def add_calibrate_sensors(csub) -> None:
     )
     s.add_argument("--yes", action="store_true", help="confirm --detached without the interactive prompt")
     s.add_argument("--seed", type=int, default=0, help="seed of the simulated machine")
+    s.add_argument(
+        "--can-interface",
+        default=None,
+        choices=INTERFACES,
+        help="calibrate the ECU on this CAN bus (a real machine, or hitch ecu-sim); default: the simulated twin",
+    )
+    s.add_argument("--can-channel", default=None, help="the bus's channel (e.g. can0, a hub's ws:// address)")
     add_model_options(s)
     s.set_defaults(handler=_cmd_calibrate_sensors)

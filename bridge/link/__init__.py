@@ -32,6 +32,7 @@ if TYPE_CHECKING:
     from bridge.link.sensor_calibration import (
         EndReading,
         LinkDriver,
+        RealtimeDriver,
         RelayRule,
         SensorCalibration,
         SensorCalibrationError,
@@ -149,6 +150,7 @@ _SOURCES: dict[str, str] = {
         (
             "EndReading",
             "LinkDriver",
+            "RealtimeDriver",
             "RelayRule",
             "SensorCalibration",
             "SensorCalibrationError",
@@ -184,6 +186,7 @@ __all__ = [
     # sensor calibration over the link (bridge.link.sensor_calibration)
     "EndReading",
     "LinkDriver",
+    "RealtimeDriver",
     "RelayRule",
     "SensorCalibration",
     "SensorCalibrationError",

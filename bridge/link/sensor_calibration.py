@@ -67,6 +67,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from bridge.link.can_link import CanLink
+from bridge.link.realtime import RealtimeRunner
 from bridge.link.state import LinkFaultError, ReferenceRefused
 from planner.errors import HitchInputError
 from planner.limits.guard import Guard
@@ -82,6 +83,7 @@ __all__ = [
     "DETACHED_RELEASED_LIMITS",
     "EndReading",
     "LinkDriver",
+    "RealtimeDriver",
     "RelayRule",
     "SensorCalibration",
     "SensorCalibrationError",
@@ -116,6 +118,28 @@ class LinkDriver(Protocol):
     def tick(self) -> float:
         """Advance time by one tick, polling the link; returns the new time [s]."""
         ...
+
+
+class RealtimeDriver:
+    """A :class:`LinkDriver` on the wall clock, for a real ECU: the link runs in its
+    :class:`~bridge.link.realtime.RealtimeRunner`'s thread; a tick waits ``tick_s`` of real time."""
+
+    def __init__(self, runner: RealtimeRunner, tick_s: float = 0.01) -> None:
+        if not 0.001 <= tick_s <= 0.1:
+            raise SensorCalibrationError(f"tick_s must lie in [0.001, 0.1] s, got {tick_s!r}")
+        self._runner = runner
+        self._tick_s = float(tick_s)
+
+    @property
+    def now_s(self) -> float:
+        return self._runner.now()
+
+    def tick(self) -> float:
+        """Wait one tick; :class:`SensorCalibrationError` when the link's loop has ended (its error named)."""
+        if self._runner.wait(self._tick_s):
+            err = self._runner.error
+            raise SensorCalibrationError(f"the CAN link stopped{'' if err is None else f': {err!r}'}")
+        return self.now_s
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,54 @@
+"""``hitch calibrate sensors`` on a CAN bus: the ECU in its own process (``hitch ecu-sim`` on a perturbed truth),
+the calibration over the loopback hub in real time. Before, the command had no bus options and always
+calibrated an in-process simulation of the nominal profile, saying nothing (a commissioning engineer's report)."""
+
+import subprocess
+import sys
+
+import pytest
+
+from bridge.cli import main
+from bridge.link.loopback import LoopbackHub
+from planner.profiles.hitch import load_profile
+
+pytestmark = pytest.mark.slow
+
+
+def test_calibrating_the_ecu_on_the_bus_recovers_its_true_ad_map(tmp_path, capsys):
+    truth = tmp_path / "truth.toml"
+    assert main(["sim", "perturb", "--seed", "2", "--tape", "--out", str(truth)]) == 0
+    true_top = load_profile(truth).actuator("top")
+    nominal_top = load_profile("thesis-t132").actuator("top")
+    assert (true_top.counts_min, true_top.counts_max) != (nominal_top.counts_min, nominal_top.counts_max)
+    out = tmp_path / "cal.toml"
+    with LoopbackHub() as hub:
+        ecu = subprocess.Popen(
+            [sys.executable, "-m", "bridge.cli.main", "ecu-sim", "--interface", "remote", "--channel", hub.url]
+            + ["--sim-truth", str(truth), "--duration", "120"],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        try:
+            capsys.readouterr()
+            args = ["calibrate", "sensors", "--can-interface", "remote", "--can-channel", hub.url]
+            rc = main([*args, "--actuators", "top", "--detached", "--yes", "--out", str(out)])
+            text = capsys.readouterr().out
+        finally:
+            ecu.terminate()
+            ecu.wait(10)
+    assert rc == 0, text
+    assert f"calibrating the ECU on remote {hub.url}" in text and "simulated twin" not in text
+    fitted = load_profile(out).actuator("top")
+    assert abs(fitted.counts_min - true_top.counts_min) <= 1 and abs(fitted.counts_max - true_top.counts_max) <= 1
+
+
+def test_a_bus_without_an_ecu_is_named_within_seconds_and_the_twin_says_it_is_one(tmp_path, capsys):
+    with LoopbackHub() as hub:
+        args = ["calibrate", "sensors", "--can-interface", "remote", "--can-channel", hub.url, "--actuators", "top"]
+        assert main([*args, "--out", str(tmp_path / "x.toml")]) == 2
+    err = capsys.readouterr().err
+    assert "no address claimed or no complete measurement from the ECU on remote" in err and "Traceback" not in err
+    args = ["calibrate", "sensors", "--can-interface", "remote", "--sim-truth", "t.toml", "--out", "x.toml"]
+    assert main(args) == 2
+    assert "give one of them" in capsys.readouterr().err

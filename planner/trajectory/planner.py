@@ -26,7 +26,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
-from ruckig import ControlInterface, InputParameter, Result, Ruckig, Synchronization, Trajectory
+from ruckig import ControlInterface, InputParameter, Result, Ruckig, RuckigError, Synchronization, Trajectory
 
 from planner.errors import unit_hint
 from planner.model.exact_inverse import ExactInverse
@@ -50,6 +50,10 @@ from planner.trajectory.pose_limits import PoseLimits, box_limits, straight_line
 __all__ = ["TrajectoryPlanner", "Waypoint"]
 
 _OK = (Result.Working, Result.Finished)
+#: how far [m or rad] a re-plan's first segment may run on past both the shortest stop (real braking limits)
+#: and its target before it is made as that stop followed by the move from rest (TrajectoryPlanner._plan_segments)
+OVERRUN_TOLERANCE = 1e-3
+_RATE_LIMITS = ("velocity:", "acceleration:")
 
 
 def _check_scale(speed_scale: object) -> float:
@@ -304,25 +308,88 @@ class TrajectoryPlanner:
         inp.target_position, inp.target_velocity, inp.target_acceleration = list(p1), list(v1), [0.0] * 4
         inp.synchronization = Synchronization.Phase if not state.moving and not np.any(v1) else Synchronization.Time
         traj = Trajectory(4)
-        res = self._ruckig.calculate(inp, traj)
+        try:
+            res = self._ruckig.calculate(inp, traj)
+        except (RuckigError, ValueError) as exc:  # input Ruckig cannot solve; a result code its enum lacks
+            raise PlanError(f"no trajectory to the goal within the limits ({_first_line(exc)})") from None
         if res not in _OK:
             raise PlanError(f"no trajectory to the goal within the limits (ruckig {res})")
         return traj
 
     def _plan_segments(self, start: MotionState, targets) -> Plan:
-        """Plan the chain; a re-plan from a moving state that would leave the workspace with the
-        any-direction limits is made again with the real braking limits (:meth:`braking_limits`)
-        for the DOF the motion carries."""
-        try:
-            return self._plan_chain(start, targets, None)
-        except _LeavesWorkspace as exc:
-            if not start.moving:
+        """Plan the chain. From a moving state (a re-plan: a goto replacing a motion):
+
+        * one that would leave the workspace with the any-direction limits is made again with the
+          real braking limits (:meth:`braking_limits`) for the DOF the motion carries;
+        * one that cannot be made that way (a speed scale whose limits the current motion exceeds, so
+          Ruckig has no profile), or whose first segment runs on past both the shortest stop with the
+          real braking limits and its own target by more than :data:`OVERRUN_TOLERANCE` (a reversal
+          braked with the new move's smaller limits: e.g. 19 cm beyond a 2.5 cm stop), becomes a
+          stop with the real braking limits followed by the move from rest (:meth:`_stop_then`)."""
+        if not start.moving:
+            try:
+                return self._plan_chain(start, targets, None)
+            except _LeavesWorkspace as exc:
                 raise PlanError(str(exc)) from None
-            brake = self.braking_limits(start)
         try:
-            return self._plan_chain(start, targets, brake)
-        except _LeavesWorkspace as exc:
-            raise PlanError(str(exc)) from None
+            try:
+                plan = self._plan_chain(start, targets, None)
+            except _LeavesWorkspace:
+                plan = self._plan_chain(start, targets, self.braking_limits(start))
+        except PlanError:
+            return self._stop_then(start, targets)
+        if self._overruns_stop(plan.segments[0], start, np.asarray(targets[0][0], float)):
+            return self._stop_then(start, targets)
+        return plan
+
+    def _overruns_stop(self, first: Trajectory, start: MotionState, target: np.ndarray) -> bool:
+        """``first`` (from the moving ``start`` to ``target``) passes, in some DOF, beyond both the shortest
+        stop with the real braking limits and ``target`` (and the start) by more than OVERRUN_TOLERANCE."""
+        lo_stop, hi_stop = self._probe.extent(start, self.braking_limits(start))
+        p = np.asarray(start.position, float)
+        lo_ok = np.minimum(np.minimum(lo_stop, target), p) - OVERRUN_TOLERANCE
+        hi_ok = np.maximum(np.maximum(hi_stop, target), p) + OVERRUN_TOLERANCE
+        ext = first.position_extrema
+        lo = np.array([e.min for e in ext])
+        hi = np.array([e.max for e in ext])
+        return bool(np.any(lo < lo_ok) or np.any(hi > hi_ok))
+
+    def _stop_then(self, start: MotionState, targets) -> Plan:
+        """The shortest stop from ``start`` with the real braking limits, then the chain from rest there.
+
+        The braking limits are per DOF, so the stop's actuator velocities and accelerations can exceed the
+        actuators' limits a little where DOFs combine: the stop is then made again with the limits × 0.9
+        (never below the state's own |v|, |a|), as the chain's own speed factor. A violation only the state
+        itself forces (it moves beyond what the actuators allow) is accepted within the stop."""
+        brake = self.braking_limits(start)
+        factor = 1.0
+        for attempt in range(8):
+            stop = self._probe.trajectory(start, brake.scaled(factor))
+            self._check_extrema(stop, start.position)  # from outside the workspace: no further out
+            p_stop, _, _ = stop.at_time(stop.duration)
+            try:
+                move = self._plan_chain(MotionState.at_rest(np.array(p_stop, float)), targets, None)
+            except _LeavesWorkspace as exc:
+                raise PlanError(str(exc)) from None
+            duration = float(stop.duration + move.duration)
+            plan = Plan((stop, *move.segments), start, duration, 0.0)
+            sp = self.sample(plan)
+            self._check_samples(sp, start.position, stop.duration)
+            bad = verify_setpoints(sp, self.model, self.hard, self.limits)
+            in_stop = [v for v in bad if v.t <= stop.duration + 1e-9 and v.limit.startswith(_RATE_LIMITS)]
+            if len(in_stop) < len(bad):
+                worst = next(v for v in bad if v not in in_stop)
+                raise PlanError(f"the plan would exceed {worst.limit} at t = {worst.t:.2f} s")
+            if not in_stop or attempt == 7:
+                break
+            factor *= 0.9
+        info = {
+            **move.info,
+            "braking": "stop first (actuator limits)",
+            "stop_duration": float(stop.duration),
+            "stop_factor": factor,
+        }
+        return Plan(plan.segments, start, duration, float(stop.duration) + move.lower_bound, sp, info)
 
     def _plan_chain(self, start: MotionState, targets, brake: PoseLimits | None) -> Plan:
         factor = 1.0
@@ -404,6 +471,12 @@ class TrajectoryPlanner:
 
 class _LeavesWorkspace(PlanError):
     """A trajectory passing a workspace face (internal: a moving re-plan is tried again with the braking limits)."""
+
+
+def _first_line(exc: BaseException) -> str:
+    """The first non-empty line of an exception's text (Ruckig's errors dump the whole input after it)."""
+    text = str(exc).strip()
+    return f"{type(exc).__name__}: {text.splitlines()[0] if text else 'no message'}"
 
 
 def _start_note(bound: float, face: float) -> str:

@@ -359,10 +359,14 @@ def test_goto_right_after_a_jog_died_starts_from_its_braking_state(bench):
     bench.run(acc.duration + 0.5)
     vel = np.array([[s["velocity"][k] for k in POSE] for s in bench.states if s["reference"] is not None])
     tp = bench.mc.planner
-    a_max = np.maximum(
-        tp.any_direction.acceleration,
-        straight_line_limits(
-            tp.inverse, handover.position, new.plan.state_at(new.plan.duration).position, tp.limits
-        ).acceleration,
+    # a switch brakes the motion it replaces with the actuators' real limits (issue #14), then moves
+    a_max = np.maximum.reduce(
+        [
+            tp.any_direction.acceleration,
+            straight_line_limits(
+                tp.inverse, handover.position, new.plan.state_at(new.plan.duration).position, tp.limits
+            ).acceleration,
+            tp.braking_limits(handover).acceleration,
+        ]
     )
     assert np.all(np.abs(np.diff(vel, axis=0)) / DT <= a_max * (1 + 1e-6) + 1e-9)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from planner.limits.guard import Guard
-from planner.trajectory import JogController, MotionState, PlanError, TrajectoryPlanner
+from planner.trajectory import JogController, MotionState, PlanError, TrajectoryPlanner, verify_setpoints
 
 DOFS = ("x", "z", "roll", "pitch")
 BOUND = 2e-3  # m or rad: the sensor quantisation a motion may leave the workspace by
@@ -142,3 +142,48 @@ def test_from_outside_the_workspace_back_in_is_allowed_further_out_refused(tp, d
     for _ in range(10):
         out = jog.step()
     assert out.state.position[dof] == pytest.approx(start[dof], abs=1e-12) and face in out.limited.values()
+
+
+# -- a goto replacing a moving one: reversals and slow re-plans ---------------------------------------------
+def _lowering(tp, t_switch):
+    p0 = tp.model.neutral_pose.controlled()
+    return tp.plan_move(MotionState.at_rest(p0), {"z": float(p0[1]) - 0.2}).state_at(t_switch)
+
+
+@pytest.mark.parametrize("t_switch", [0.2, 0.3, 0.5, 0.8])
+def test_a_reversal_brakes_within_the_real_stop_distance_then_goes(tp, t_switch):
+    st = _lowering(tp, t_switch)
+    v, a = float(st.velocity[1]), float(st.acceleration[1])
+    assert v < -0.01
+    plan = tp.plan_move(st, {"z": 0.3})
+    sp = plan.sampled()
+    # closed form of the shortest jerk-limited stop of z with the braking limits (A, J): from (v, a) the
+    # deceleration first ramps from a to +A (or less), then holds; an upper bound on the distance is the
+    # distance while a returns to 0 plus the stop from the speed then reached at constant deceleration
+    lim = tp.braking_limits(st)
+    A, J = float(lim.acceleration[1]), float(lim.jerk[1])
+    t_ramp = abs(a) / J if a < 0 else 0.0
+    v_ramp = v + a * t_ramp / 2  # more negative while a < 0 returns to 0
+    d_ramp = abs(v) * t_ramp + abs(a) * t_ramp**2 / 3
+    d_stop = abs(v_ramp) * (abs(v_ramp) / A + A / J) / 2
+    dip = float(st.position[1]) - float(sp.pose[:, 2].min())
+    assert dip <= d_ramp + d_stop + 1e-3  # before: 0.19 m from t = 0.5 s (the new move's small limits)
+    assert sp.pose[-1, 2] == pytest.approx(0.3, abs=1e-9)
+    bad = [x for x in verify_setpoints(sp, tp.model, tp.hard, tp.limits) if x.t > plan.info.get("stop_duration", 0.0)]
+    assert bad == []
+
+
+@pytest.mark.parametrize("scale", [0.05, 0.2])
+def test_a_slow_goto_from_a_moving_state_is_planned_not_a_ruckig_error(tp, scale):
+    st = _lowering(tp, 0.3)  # moving down faster than a 5 % move may: Ruckig has no profile from there
+    goal = {"z": 0.3, "x": 0.05, "roll": 0.05, "pitch": -0.09}
+    plan = tp.plan_move(st, goal, speed_scale=scale)  # was RuckigError '[ruckig] error in step 1 ...' / -101
+    sp = plan.sampled()
+    np.testing.assert_allclose(sp.pose[-1][[0, 2, 3, 4]], [0.05, 0.3, 0.05, -0.09], atol=1e-9)
+    assert plan.info.get("braking") == "stop first (actuator limits)"
+    rest = plan.info["stop_duration"]
+    assert verify_setpoints(sp, tp.model, tp.hard, tp.limits) == [] or all(
+        x.t <= rest + 1e-9 for x in verify_setpoints(sp, tp.model, tp.hard, tp.limits)
+    )
+    s0 = plan.state_at(0.0)  # continuous with the motion it replaces
+    np.testing.assert_allclose(s0.velocity, st.velocity, atol=1e-12)

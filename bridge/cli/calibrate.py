@@ -21,6 +21,7 @@ from bridge.cli.commissioning import add_calibrate_sensors
 from bridge.cli.errors import CLIError
 from bridge.cli.model import add_model_options, bounded_float
 from bridge.service.wire import to_json_text
+from planner.calibration.solve import IDENTIFIED_SHARE, UNIDENTIFIED_SHARE
 from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
 
 __all__ = ["add_commands"]
@@ -131,6 +132,14 @@ def _cmd_geometry(args) -> int:
     )
     result = solve_calibration(problem, min_singular=args.min_singular)
     write_calibrated_profile(args.out, model.params, result, name=args.name)
+    if result.residual_sigma > SUSPECT_SIGMA_HAT:  # said on stderr, also with --json
+        print(
+            f"hitch: warning: sigma-hat {result.residual_sigma:.3g}: the residuals are {result.residual_sigma:.3g} "
+            f"times the σ given (--sigma-position-mm {args.sigma_position_mm:g}, --sigma-angle-mrad "
+            f"{args.sigma_angle_mrad:g}): a wrong value, a unit slip (mm or degrees in a column of m or rad) or a σ "
+            "too small for the instrument; check the measurements before using the profile",
+            file=sys.stderr,
+        )
     if args.json:
         print(to_json_text({"out": str(args.out), **result.as_dict()}))
         return 0
@@ -156,10 +165,10 @@ def _cmd_geometry(args) -> int:
     return 0
 
 
-#: a parameter whose identified share is below this lies in unidentified combinations only
-_UNIDENTIFIED_SHARE = 1e-6
-#: at or above this the data determine it alone (its std holds whatever the rest)
-_IDENTIFIED_SHARE = 0.995
+_UNIDENTIFIED_SHARE = UNIDENTIFIED_SHARE
+_IDENTIFIED_SHARE = IDENTIFIED_SHARE
+#: sigma-hat (residuals in units of the σ given) above which the fit is reported as suspect
+SUSPECT_SIGMA_HAT = 3.0
 
 
 def _spread(std: float, unit: str, share: float) -> str:

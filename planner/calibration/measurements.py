@@ -77,6 +77,16 @@ class MeasurementSet:
     def n_observations(self) -> int:
         return int(self.mask.sum())
 
+    @property
+    def n_distinct_observations(self) -> int:
+        """Measured values of distinct poses: rows with the same readings count once per measured output
+        (a repeat of a pose, or a copied row, adds no new direction to what the data determine)."""
+        _, group = np.unique(self.readings, axis=0, return_inverse=True)
+        group = np.asarray(group).reshape(-1)
+        seen = np.zeros((int(group.max()) + 1, self.mask.shape[1]), bool)
+        np.logical_or.at(seen, group, self.mask)
+        return int(seen.sum())
+
     def subset(self, rows: Sequence[int]) -> MeasurementSet:
         idx = list(rows)
         return MeasurementSet(self.readings[idx], self.values[idx], self.mask[idx], tuple(self.labels[i] for i in idx))

@@ -19,7 +19,9 @@ from pathlib import Path
 from typing import Any
 
 from planner.calibration.parameters import CalibrationError, ParameterSet
-from planner.calibration.solve import CalibrationResult
+from planner.calibration.solve import UNIDENTIFIED_SHARE, CalibrationResult
+from planner.errors import HitchInputError
+from planner.model.kinematics import HitchModel
 from planner.profiles.hitch import Profile, load_profile, profile_from_dict
 
 __all__ = ["PROVENANCE_MARKER", "calibrated_profile_toml", "read_calibration_provenance", "write_calibrated_profile"]
@@ -85,7 +87,16 @@ def calibrated_profile_toml(
         "residual_sigma": float(result.residual_sigma),
         "identified": result.identified,
         "nominal_profile": base.name,
-        "std": {n: float(s) for n, s in zip(result.names, result.std, strict=True)},
+        # a std only where the data see the parameter (identified share > 0); the share beside it
+        "std": {
+            n: float(s)
+            for n, s, h in zip(result.names, result.std, result.identified_share, strict=True)
+            if h >= UNIDENTIFIED_SHARE
+        },
+        "identified_share": {n: round(float(h), 4) for n, h in zip(result.names, result.identified_share, strict=True)},
+        "not_identified": [
+            n for n, h in zip(result.names, result.identified_share, strict=True) if h < UNIDENTIFIED_SHARE
+        ],
         "unidentifiable": list(result.unidentifiable),
     }
     out = [
@@ -98,9 +109,18 @@ def calibrated_profile_toml(
     _table(out, (), data)
     text = "\n".join(out) + "\n"
     try:
-        profile_from_dict(tomllib.loads(text), source="calibrated profile")
+        prof = profile_from_dict(tomllib.loads(text), source="calibrated profile")
     except tomllib.TOMLDecodeError as exc:  # pragma: no cover - our own writer
         raise CalibrationError(f"internal: the calibrated profile is not valid TOML: {exc}") from None
+    try:  # a profile the planner cannot use (no neutral pose, no closure) is never written
+        HitchModel(prof)
+    except HitchInputError as exc:
+        raise CalibrationError(
+            f"the calibrated profile cannot be used: {exc}. The measurements do not fit the model (residual RMS "
+            f"{1e3 * result.residual_rms_position_m:.3f} mm / {1e3 * result.residual_rms_angle_rad:.3f} mrad, "
+            f"sigma-hat {result.residual_sigma:.3g}): check for a wrong value or a unit slip (mm or degrees in a "
+            "column of m or rad); nothing was written"
+        ) from None
     return text
 
 

@@ -29,6 +29,8 @@ from planner.model.types import KinematicsError
 from planner.profiles.hitch import profile_from_dict
 
 __all__ = [
+    "IDENTIFIED_SHARE",
+    "UNIDENTIFIED_SHARE",
     "CalibrationProblem",
     "CalibrationResult",
     "build_calibration_problem",
@@ -37,6 +39,10 @@ __all__ = [
 ]
 
 _ANGLE_ROWS = np.array([c in ("roll", "pitch", "yaw") for c in MEASURED_COLUMNS])
+#: a parameter whose identified share is below this lies in unidentified combinations only: it has no std
+UNIDENTIFIED_SHARE = 1e-6
+#: at or above this the data determine a parameter alone (its std holds whatever the rest)
+IDENTIFIED_SHARE = 0.995
 
 
 @dataclass(frozen=True)
@@ -198,7 +204,7 @@ def _lm(problem: CalibrationProblem, basis: np.ndarray, u0: np.ndarray, max_iter
                 lam *= 10.0
                 continue
             c_new = float(r_new @ r_new)
-            if c_new <= cost:
+            if c_new <= cost and js_new is not None and np.all(np.isfinite(js_new)):  # NaN: a step too far
                 improved = True
                 w = w + step
                 done = np.linalg.norm(step) <= tol * (1.0 + np.linalg.norm(w)) or cost - c_new <= tol * max(
@@ -247,8 +253,28 @@ def solve_calibration(
 
     ``snap_ad``: round the calibrated AD map to whole counts (as the profile stores it) and refit the
     geometry with that map fixed, so the written profile is the best one the schema can hold; the
-    standard deviations and the named combinations are those of the continuous fit.
+    standard deviations and the named combinations are those of the continuous fit. A fit that ends where
+    the mechanism cannot close (measurements that do not fit the model: a wrong value, a unit slip) is a
+    :class:`CalibrationError` saying so.
     """
+    try:
+        return _solve(problem, min_singular=min_singular, max_iter=max_iter, tol=tol, snap_ad=snap_ad)
+    except KinematicsError as exc:
+        raise CalibrationError(
+            f"the fit ends where the mechanism cannot close ({exc}): the measurements do not fit the model; "
+            "check for a wrong value or a unit slip (mm or degrees in a column of m or rad)"
+        ) from None
+
+
+def _solve(
+    problem: CalibrationProblem,
+    *,
+    min_singular: float = 1.0,
+    max_iter: int = 50,
+    tol: float = 1e-12,
+    snap_ad: bool = True,
+) -> CalibrationResult:
+    """:func:`solve_calibration` without its translation of a mechanism that cannot close."""
     if not (isinstance(min_singular, (int, float)) and math.isfinite(min_singular) and min_singular >= 0.0):
         raise CalibrationError(f"min_singular must be a number >= 0, got {min_singular!r}")
     if not (isinstance(max_iter, int) and 1 <= max_iter <= 1000):
@@ -259,6 +285,10 @@ def solve_calibration(
     u = np.zeros(n)
     r0, js0 = problem.residuals(u)
     assert js0 is not None
+    if not (np.all(np.isfinite(r0)) and np.all(np.isfinite(js0))):
+        raise CalibrationError(
+            "measurements: the nominal model cannot evaluate every row (a reading the mechanism cannot reach)"
+        )
     nominal_rms = _rms(problem, r0)
     _, basis, _ = identifiable_basis(js0, min_singular)
     u, r, js, iters, converged = _lm(problem, basis, u, max_iter, tol)
@@ -273,6 +303,13 @@ def solve_calibration(
     if m <= k:
         raise CalibrationError(
             f"measurements: {m} measured values cannot determine {k} parameter directions (measure more poses)"
+        )
+    distinct = problem.data.n_distinct_observations
+    if distinct <= k:  # repeats of the same readings (a copied row) add values but no direction
+        raise CalibrationError(
+            f"measurements: {problem.data.n_rows} rows hold {problem.data.n_poses} distinct poses "
+            f"(rows with the same readings count once) whose {distinct} measured values cannot determine {k} "
+            "parameter directions (measure more poses; a copied row is not a new pose)"
         )
     sigma_hat = math.sqrt(float(r @ r) / (m - k))
     jw = js @ basis2

@@ -197,3 +197,34 @@ def test_geometry_options_are_refused_in_the_unit_typed(capsys, option, value, e
     """A new user's report: --sigma-position-mm 2000 was refused as 'sigma_position_m … got 2.0'."""
     assert main(["calibrate", "geometry", "--measurements", "m.csv", "--out", "p.toml", option, value]) == 2
     assert expected in capsys.readouterr().err
+
+
+def test_a_unit_slip_in_one_cell_is_warned_about_or_refused_never_written_silently(tmp_path, capsys):
+    # one pitch typed in degrees-like units (1.2 rad) in a station-measured file: the fit went through with
+    # sigma-hat 80, said nothing, and wrote a profile nothing could load (a commissioning engineer's report)
+    prof = load_profile("thesis-t132")
+    data, _ = perturb_profile(prof, 11)
+    truth_file = tmp_path / "truth.toml"
+    truth_file.write_text(truth_toml(data, PinPlay(0.0005, 0.0005)))
+    meas = tmp_path / "m.csv"
+    common = ["--n", "12", "--candidates", "80", "--seed", "2"]
+    assert main(["calibrate", "measure-twin", "--sim-truth", str(truth_file), "--out", str(meas), *common]) == 0
+    lines = meas.read_text().splitlines()
+    header = lines[0].split(",")
+    cells = lines[1].split(",")
+    cells[header.index("pitch")] = "1.2"
+    lines[1] = ",".join(cells)
+    meas.write_text("\n".join(lines) + "\n")
+    capsys.readouterr()
+    out = tmp_path / "cal.toml"
+    rc = main(["calibrate", "geometry", "--measurements", str(meas), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    if rc == 0:  # written: then it loads, and the warning says why not to trust it
+        assert "warning: sigma-hat" in err and "unit slip" in err
+        load_profile(out)
+        HitchModel(load_profile(out))
+    else:  # refused: the fit cannot close the mechanism, or its profile could not be used; nothing written
+        assert ("the calibrated profile cannot be used" in err or "the fit ends where the mechanism" in err) and (
+            "unit slip" in err and not out.exists()
+        ), err

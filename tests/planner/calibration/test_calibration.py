@@ -23,6 +23,8 @@ from planner.calibration import (
 )
 from planner.calibration.design import measured_rows
 from planner.calibration.parametric import POINT_ROWS, POSE_ROWS
+from planner.calibration.profile_out import write_calibrated_profile
+from planner.calibration.solve import UNIDENTIFIED_SHARE
 from planner.model.kinematics import HitchModel
 from planner.profiles.hitch import load_profile, profile_from_dict
 
@@ -188,7 +190,37 @@ def test_calibrated_profile_loads_and_carries_provenance(tmp_path):
     prov = read_calibration_provenance(path)
     assert prov is not None
     assert prov["date"] == "2026-01-01T00:00:00+00:00" and prov["poses"] == 12
-    assert set(prov["std"]) == set(model.params.names)
+    # a std only where the data see the parameter; those they do not see are named, with no std (it
+    # read ~1e-18 before, claiming a certainty nobody has)
+    share = dict(zip(res.names, res.identified_share, strict=True))
+    assert set(prov["std"]) == {n for n, h in share.items() if h >= UNIDENTIFIED_SHARE}
+    assert set(prov["not_identified"]) == {n for n, h in share.items() if h < UNIDENTIFIED_SHARE}
+    assert prov["not_identified"] and set(prov["identified_share"]) == set(model.params.names)
+
+
+def test_copied_rows_are_not_new_poses():
+    # one pose copied 20 times: 80 values, yet one pose cannot determine the directions of two; it used to
+    # calibrate with sigma-hat 1e-13 and stds of 1e-17 (a spreadsheet slip a commissioning engineer made)
+    model = _model()
+    _, acts = _candidates()
+    one = _data(model, acts[:1], model.params.nominal, points=False)
+    rows = one.subset([0] * 20)
+    with pytest.raises(CalibrationError, match="20 rows hold 1 distinct poses"):
+        solve_calibration(build_calibration_problem(model, rows))
+    assert rows.n_distinct_observations == one.n_observations
+
+
+def test_a_profile_the_planner_cannot_use_is_never_written(tmp_path):
+    import dataclasses
+
+    model = _model()
+    _, acts = _candidates()
+    res = solve_calibration(build_calibration_problem(model, _data(model, acts[:12], model.params.nominal)))
+    k = model.params.names.index("geometry.fixed_lift_rod_length")
+    broken = dataclasses.replace(res, values=res.values + np.eye(len(res.values))[k] * 0.4)  # 40 cm off
+    with pytest.raises(CalibrationError, match="the calibrated profile cannot be used: .* nothing was written"):
+        write_calibrated_profile(tmp_path / "bad.toml", model.params, broken)
+    assert not (tmp_path / "bad.toml").exists()
 
 
 def test_bad_solver_options_are_refused():

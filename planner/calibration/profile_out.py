@@ -18,10 +18,14 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from planner.calibration.parameters import CalibrationError, ParameterSet
 from planner.calibration.solve import UNIDENTIFIED_SHARE, CalibrationResult
 from planner.errors import HitchInputError
+from planner.model.exact_inverse import ExactInverse
 from planner.model.kinematics import HitchModel
+from planner.model.types import ACTUATOR_NAMES
 from planner.profiles.hitch import Profile, load_profile, profile_from_dict
 
 __all__ = ["PROVENANCE_MARKER", "calibrated_profile_toml", "read_calibration_provenance", "write_calibrated_profile"]
@@ -69,6 +73,24 @@ def _table(out: list[str], path: tuple[str, ...], table: Mapping[str, Any]) -> N
                 out.extend(f"{_key(ik)} = {_value(iv)}" for ik, iv in item.items() if iv is not None)
 
 
+def _keep_the_neutral_pose(data: dict[str, Any], base: Profile) -> None:
+    """Set the actuators' ``neutral`` in ``data`` (a calibrated profile) to the calibrated geometry's inverse of
+    the nominal profile's neutral pose: home stays where it was on the machine (with the nominal neutral
+    actuators the calibrated geometry put it elsewhere, e.g. 16 mrad of roll, and the accuracy test's
+    deflections from it left the workspace). Left as they are when the calibrated profile cannot reach it
+    (the caller's check of the written profile then says why)."""
+    try:
+        home = HitchModel(base).neutral_pose.controlled()
+        cal = HitchModel(profile_from_dict(data, source="calibrated profile"))
+        q, _ = ExactInverse(cal).solve(home)
+    except (HitchInputError, ValueError):
+        return
+    for name, value in zip(ACTUATOR_NAMES, np.asarray(q, float), strict=True):
+        spec = data["actuators"][name]
+        if spec.get("neutral") is not None and spec["min"] <= value <= spec["max"]:
+            spec["neutral"] = round(float(value), 9)
+
+
 def calibrated_profile_toml(
     params: ParameterSet, result: CalibrationResult, *, name: str | None = None, date: str | None = None
 ) -> str:
@@ -77,6 +99,7 @@ def calibrated_profile_toml(
         raise CalibrationError("the calibration result is not for this parameter set")
     base = params.profile
     data = params.profile_dict(result.values, name=name or f"{base.name}-calibrated"[:80])
+    _keep_the_neutral_pose(data, base)
     when = date or _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat()
     prov = {
         "date": when,

@@ -254,3 +254,21 @@ def test_a_design_says_how_many_identifiable_directions_its_poses_separate_and_d
             build_calibration_problem(model, _data(model, d.actuators, model.params.nominal, points=False))
         )
         assert res.identified == d.determined, (res.identified, d.determined)
+
+
+def test_a_calibrated_profile_keeps_home_where_it_was(tmp_path):
+    # with the nominal neutral actuators the calibrated geometry moved home (e.g. 16 mrad of roll), and
+    # the accuracy test's deflections from there left the workspace (a commissioning engineer's report)
+    model = _model()
+    _, acts = _candidates()
+    ps = model.params
+    truth = ps.nominal.copy()
+    for name, delta in (("geometry.fixed_lift_rod_length", 0.006), ("geometry.lift_arm_pivot[2]", -0.008)):
+        truth[ps.names.index(name)] += delta
+    res = solve_calibration(build_calibration_problem(model, _data(model, acts[:20], truth)))
+    path = tmp_path / "cal.toml"
+    prof = write_calibrated_profile(path, ps, res)
+    home = HitchModel(_profile()).neutral_pose.controlled()
+    np.testing.assert_allclose(HitchModel(prof).neutral_pose.controlled(), home, atol=1e-8)
+    # and the neutral actuators are no longer the nominal ones (the geometry changed)
+    assert prof.actuators.tilt.neutral != _profile().actuators.tilt.neutral

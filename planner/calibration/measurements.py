@@ -30,6 +30,7 @@ import numpy as np
 
 from planner.calibration.parameters import CalibrationError
 from planner.calibration.parametric import OUTPUT_NAMES
+from planner.errors import unit_hint
 from planner.model.sensors import AD_COUNTS_MAX, SensorScaling
 from planner.model.types import ACTUATOR_NAMES
 from planner.profiles.hitch import Profile
@@ -92,14 +93,18 @@ class MeasurementSet:
         return MeasurementSet(self.readings[idx], self.values[idx], self.mask[idx], tuple(self.labels[i] for i in idx))
 
 
-def _cell(text: str, row: int, col: str, lo: float, hi: float, unit: str) -> float:
+def _cell(text: str, where: str, col: str, lo: float, hi: float, unit: str) -> float:
+    """The number in ``text`` within [lo, hi] ``unit``; ``where``: the file and row, for the message."""
+    allowed = f"[{lo:g}, {hi:g}] {unit}"
     try:
         v = float(text)
     except ValueError:
-        v = math.nan
-    if not (math.isfinite(v) and lo <= v <= hi):
+        raise CalibrationError(f"{where}, column {col}: {text!r} is not a number (allowed: {allowed})") from None
+    if not math.isfinite(v):
+        raise CalibrationError(f"{where}, column {col}: {text!r} is not a finite number (allowed: {allowed})")
+    if not lo <= v <= hi:
         raise CalibrationError(
-            f"measurements row {row}, column {col}: {text!r} is not a number in [{lo:g}, {hi:g}] {unit}"
+            f"{where}, column {col}: {v:g} {unit} is outside the allowed {allowed}{unit_hint(v, lo, hi, unit)}"
         )
     return v
 
@@ -141,20 +146,23 @@ def parse_measurements(text: str, profile: Profile, *, source: str = "measuremen
         raise CalibrationError(f"{source} row 0: no measured column (x, z, roll, pitch and/or L_x … U_z)")
     sc = SensorScaling(profile)
     readings, values, masks, labels = [], [], [], []
-    for r, line in enumerate(reader, start=1):
+    r = 0  # data rows (1 = the first; blank lines are not rows); the file's line beside it
+    for line in reader:
         if not line or all(not c.strip() for c in line):
             continue
+        r += 1
+        where = f"{source} row {r} (line {reader.line_num})"
         if len(line) != len(header):
-            raise CalibrationError(f"{source} row {r}: {len(line)} cells, the header has {len(header)}")
+            raise CalibrationError(f"{where}: {len(line)} cells, the header has {len(header)}")
         cells = [c.strip() for c in line]
         q = np.zeros(5)
         for k, n in enumerate(ACTUATOR_NAMES):
             if n in cols:
                 lo, hi = sc.si_min[k], sc.si_max[k]
                 m = _STROKE_MARGIN * (hi - lo)
-                q[k] = _cell(cells[cols[n]], r, n, lo - m, hi + m, "rad" if n == "lift" else "m")
+                q[k] = _cell(cells[cols[n]], where, n, lo - m, hi + m, "rad" if n == "lift" else "m")
             else:
-                c = _cell(cells[cols[f"{n}_counts"]], r, f"{n}_counts", 0.0, float(AD_COUNTS_MAX), "counts")
+                c = _cell(cells[cols[f"{n}_counts"]], where, f"{n}_counts", 0.0, float(AD_COUNTS_MAX), "counts")
                 q[k] = sc.si_min[k] + (c - sc.counts_min[k]) * sc.resolution[k]
         vals = np.full(15, np.nan)
         mask = np.zeros(15, dtype=bool)
@@ -164,14 +172,14 @@ def parse_measurements(text: str, profile: Profile, *, source: str = "measuremen
                 continue
             lim = _ANGLE_MAX if col in _ANGLES else _POSITION_MAX_M
             i = MEASURED_COLUMNS.index(col)
-            vals[i] = _cell(text, r, col, -lim, lim, "rad" if col in _ANGLES else "m")
+            vals[i] = _cell(text, where, col, -lim, lim, "rad" if col in _ANGLES else "m")
             mask[i] = True
         if not mask.any():
-            raise CalibrationError(f"{source} row {r}: no measured value (all measured columns empty)")
+            raise CalibrationError(f"{where}: no measured value (all measured columns empty)")
         for group in (("x", "z", "roll", "pitch"), *((f"{p}_x", f"{p}_y", f"{p}_z") for p in "LRU")):
             idx = [MEASURED_COLUMNS.index(g) for g in group if g in cols]
             if idx and 0 < mask[idx].sum() < len(idx):
-                raise CalibrationError(f"{source} row {r}: columns {', '.join(group)} must be all given or all empty")
+                raise CalibrationError(f"{where}: columns {', '.join(group)} must be all given or all empty")
         readings.append(q)
         values.append(vals)
         masks.append(mask)

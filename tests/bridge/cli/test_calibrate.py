@@ -39,30 +39,32 @@ def _err(capsys, argv) -> str:
     [
         (
             GOOD_HEADER + "\np1,100,400,120,300,2000,0,0,0,0\n",
-            r"row 1, column right_counts: '2000' is not a number in \[0, 1023\]",
+            r"m.csv row 1 \(line 2\), column right_counts: 2000 counts is outside the allowed \[0, 1023\] counts",
         ),
         (
             GOOD_HEADER + "\n" + GOOD_ROW + "\np2,100,400,120,300,260,0,0,abc,0\n",
-            r"row 2, column roll: 'abc' is not a number in \[-1.5708, 1.5708\] rad",
+            r"m.csv row 2 \(line 3\), column roll: 'abc' is not a number \(allowed: \[-1.5708, 1.5708\] rad\)",
         ),
         (
             GOOD_HEADER + "\np1,100,400,120,300,260,5.0,0,0,0\n",
-            r"row 1, column x: '5.0' is not a number in \[-3, 3\] m",
+            r"row 1 \(line 2\), column x: 5 m is outside the allowed \[-3, 3\] m; did you mean mm\? 5 mm = 0.005 m",
         ),
         (GOOD_HEADER.replace("x,", "q,") + "\n" + GOOD_ROW + "\n", r"row 0: unknown column\(s\) \['q'\]"),
         (
             "pose,lift_counts,tilt_counts,top_counts,left_counts,x,z,roll,pitch\n",
             r"actuator right needs exactly one column",
         ),
-        (GOOD_HEADER + "\np1,100,400,120,300,260,0.0,-0.05\n", r"row 1: 8 cells, the header has 10"),
-        (GOOD_HEADER + "\np1,100,400,120,300,260,,,,\n", r"row 1: no measured value"),
+        (GOOD_HEADER + "\np1,100,400,120,300,260,0.0,-0.05\n", r"row 1 \(line 2\): 8 cells, the header has 10"),
+        (GOOD_HEADER + "\np1,100,400,120,300,260,,,,\n", r"row 1 \(line 2\): no measured value"),
+        # blank lines are not rows: the data row number stays, the file's line says where (it said row 3)
+        (GOOD_HEADER + "\n" + GOOD_ROW + "\n\np2,100,400,120,300,260,0,0,abc,0\n", r"row 2 \(line 4\), column roll"),
         (
             GOOD_HEADER + "\np1,100,400,120,300,260,0.0,,0.1,0.1\n",
-            r"row 1: columns x, z, roll, pitch must be all given",
+            r"row 1 \(line 2\): columns x, z, roll, pitch must be all given",
         ),
         (
             "pose,lift,tilt,top,left,right,x,z,roll,pitch\np1,0.1,0.9,0.7,0.55,0.55,0,0,0,0\n",
-            r"row 1, column tilt: '0.9' is not a number in \[0.565, 0.745\] m",
+            r"row 1 \(line 2\), column tilt: 0.9 m is outside the allowed \[0.565, 0.745\] m",
         ),
         (GOOD_HEADER + "\n", r"no data rows"),
         ("", r"empty file"),

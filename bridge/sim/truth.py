@@ -215,7 +215,10 @@ def _parse_play(text: str, source: str) -> PinPlay:
                 raise TruthError(f"truth {source}: the play line is not valid TOML: {exc}") from None
             if not isinstance(data, dict) or set(data) - {"lower_link_m", "top_link_m"}:
                 raise TruthError(f"truth {source}: play allows the keys lower_link_m, top_link_m (m, 0…0.01)")
-            return PinPlay(**data)
+            try:
+                return PinPlay(**data)
+            except TruthError as exc:  # a value out of range: say which file
+                raise TruthError(f"truth {source}: {exc}") from None
     return PinPlay()
 
 

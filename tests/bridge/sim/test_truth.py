@@ -315,7 +315,7 @@ def test_a_bad_play_line_names_the_field(tmp_path, model):
     path = tmp_path / "bad.toml"
     text = truth_toml(model.profile.model_dump(), PinPlay(0.0005, 0.0))
     path.write_text(text.replace("lower_link_m = 0.0005", "lower_link_m = 0.5"), encoding="utf-8")
-    with pytest.raises(TruthError, match=r"play.lower_link_m must be a number in \[0, 0.01\]"):
+    with pytest.raises(TruthError, match=r"truth .*bad.toml: play.lower_link_m must be a number in \[0, 0.01\]"):
         load_machine_truth(path)
     path.write_text(text.replace("lower_link_m", "balls_m"), encoding="utf-8")
     with pytest.raises(TruthError, match="lower_link_m, top_link_m"):

@@ -14,6 +14,7 @@ or an interactive confirmation and is refused together with ``--implement``.
 
 from __future__ import annotations
 
+import datetime as _dt
 import sys
 from pathlib import Path
 
@@ -151,7 +152,25 @@ def _cmd_calibrate_sensors(args) -> int:
             fits = SensorCalibration(
                 rig.link, rig, nominal, implement=implement, progress=args.progress, log=log, detached=args.detached
             ).run(actuators)
-    text = sensor_profile_toml(args.profile, {a: (f.counts_min, f.counts_max) for a, f in fits.items()})
+    provenance = {
+        "date": _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat(),
+        "on": where,
+        "detached": bool(args.detached),
+        "actuators": {
+            a: {
+                "counts_min": f.counts_min,
+                "counts_max": f.counts_max,
+                "low": f.low.counts,
+                "low_stopped_by": f.low.stopped_by,
+                "high": f.high.counts,
+                "high_stopped_by": f.high.stopped_by,
+            }
+            for a, f in fits.items()
+        },
+    }
+    text = sensor_profile_toml(
+        args.profile, {a: (f.counts_min, f.counts_max) for a, f in fits.items()}, provenance=provenance
+    )
     try:
         Path(args.out).write_text(text, encoding="utf-8")
     except OSError as exc:

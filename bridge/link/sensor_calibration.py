@@ -94,6 +94,7 @@ __all__ = [
     "fit_sensor",
     "full_stroke_hold",
     "sensor_profile_toml",
+    "SENSOR_PROVENANCE_MARKER",
 ]
 
 _AD_MAX = 1023
@@ -588,10 +589,25 @@ def _profile_text(profile: str | Path) -> str:
     return (importlib.resources.files("planner.profiles") / f"{profile}.toml").read_text(encoding="utf-8")
 
 
-def sensor_profile_toml(source: str | Path, counts: Mapping[str, tuple[int, int]]) -> str:
+#: start of the comment line that carries a sensor calibration's provenance (the loader ignores comments)
+SENSOR_PROVENANCE_MARKER = "#! sensor_calibration ="
+
+
+def sensor_profile_toml(
+    source: str | Path, counts: Mapping[str, tuple[int, int]], *, provenance: Mapping[str, Any] | None = None
+) -> str:
     """The TOML text of profile ``source`` (built-in name or path) with ``counts_min / counts_max`` of the
-    actuators in ``counts`` ({name: (counts_min, counts_max)}) replaced; the result is validated."""
+    actuators in ``counts`` ({name: (counts_min, counts_max)}) replaced; the result is validated.
+
+    ``provenance`` (date, the machine it was calibrated on, the end readings …) is written as a comment line
+    ``#! sensor_calibration = { … }`` at the top (an earlier one replaced): a commissioning record, and what
+    tells a later geometry calibration that the AD maps were measured."""
     text = _profile_text(source)
+    if provenance is not None:
+        from planner.calibration.profile_out import toml_value
+
+        kept = [ln for ln in text.splitlines(keepends=True) if not ln.startswith(SENSOR_PROVENANCE_MARKER)]
+        text = f"{SENSOR_PROVENANCE_MARKER} {toml_value(dict(provenance))}\n" + "".join(kept)
     lines = text.splitlines(keepends=True)
     section = ""
     done: set[tuple[str, str]] = set()

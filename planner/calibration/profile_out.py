@@ -28,10 +28,21 @@ from planner.model.kinematics import HitchModel
 from planner.model.types import ACTUATOR_NAMES
 from planner.profiles.hitch import Profile, load_profile, profile_from_dict
 
-__all__ = ["PROVENANCE_MARKER", "calibrated_profile_toml", "read_calibration_provenance", "write_calibrated_profile"]
+__all__ = [
+    "PROVENANCE_MARKER",
+    "calibrated_profile_toml",
+    "read_calibration_provenance",
+    "toml_value",
+    "write_calibrated_profile",
+]
 
 #: start of the comment line that carries the calibration's provenance
 PROVENANCE_MARKER = "#! calibration ="
+
+
+def toml_value(v: Any) -> str:
+    """``v`` (bool, int, float, str, list, mapping) as a TOML value on one line (inline tables)."""
+    return _value(v)
 
 
 def _value(v: Any) -> str:

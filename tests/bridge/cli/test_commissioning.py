@@ -1,6 +1,7 @@
 """``hitch accuracy-test`` and ``hitch calibrate sensors`` end to end (simulated time)."""
 
 import json
+import tomllib
 
 import pytest
 
@@ -52,6 +53,18 @@ def test_calibrate_sensors_writes_a_profile_with_the_truth_s_counts(truth_file, 
     assert res["actuators"]["top"]["counts_min"] == w.counts_min
     assert written.actuator("tilt") == load_profile("thesis-t132").actuator("tilt")  # only what was calibrated
     assert json.loads(progress.read_text())["actuators"]["top"]["fit"]["counts_max"] == w.counts_max
+    # the written profile carries its provenance (it had none: nothing told it from the nominal one)
+    line = next(ln for ln in out_path.read_text().splitlines() if ln.startswith("#! sensor_calibration ="))
+    prov = tomllib.loads("p =" + line[len("#! sensor_calibration =") :])["p"]
+    assert prov["on"].startswith("the simulated twin (truth ") and prov["detached"] is False and prov["date"]
+    top = prov["actuators"]["top"]
+    assert (top["counts_min"], top["counts_max"]) == (w.counts_min, w.counts_max) and top["high_stopped_by"]
+    assert res["on"] == prov["on"]
+    # calibrating it again replaces the line, never stacks a second one
+    again = tmp_path / "again.toml"
+    argv2 = ["calibrate", "sensors", "--sim-truth", str(truth_file), "--actuators", "top", "--profile", str(out_path)]
+    assert main([*argv2, "--out", str(again), "--json"]) == 0
+    assert again.read_text().count("#! sensor_calibration =") == 1
 
 
 def test_calibrate_sensors_refuses_naming_the_limit(truth_file, tmp_path, capsys):

@@ -87,7 +87,8 @@ def _cmd_accuracy_test(args) -> int:
         return 0
     c = Console(width=200)
     c.print(
-        f"accuracy test (thesis tables 3-8 … 3-10): twin truth {run.truth}, instrument {run.instrument}, "
+        f"accuracy test (thesis tables 3-8 … 3-10): planner profile {model.profile.name}, twin truth {run.truth}, "
+        f"instrument {run.instrument}, "
         f"{len(run.labels)} measured poses, {run.simulated_s:.0f} s simulated",
         highlight=False,
     )

@@ -118,7 +118,9 @@ def _cmd_serve(args) -> int:
         nonlocal blackbox
         blackbox = EventLog(event_log_path(cfg.data_dir))
         blackbox.attach(service)
-        blackbox.record("service", what="started", prefix=cfg.prefix, listen=list(cfg.listen or ()))
+        blackbox.record(
+            "service", what="started", prefix=cfg.prefix, listen=list(cfg.listen or ()), profile=cfg.profile
+        )
         for w in service.warnings:
             print(f"hitch serve: warning: {w}", file=sys.stderr)
         http = getattr(service, "http", None)
@@ -127,6 +129,7 @@ def _cmd_serve(args) -> int:
         print(
             f"hitch serve: ready on {', '.join(cfg.listen or ()) or '(no listener)'}"
             f"{' connected to ' + ', '.join(cfg.connect) if cfg.connect else ''} prefix {cfg.prefix!r}, "
+            f"profile {cfg.profile}{', twin truth ' + str(cfg.sim_truth) if cfg.sim_truth is not None else ''}, "
             f"data {cfg.database_path}, log {event_log_path(cfg.data_dir)}"
             + (f", CAN log {cfg.can_log}" if cfg.can_log is not None else ""),
             flush=True,

@@ -564,7 +564,8 @@ def _cmd_sim_measure(args) -> int:
     counts = out["counts"]
     reading = ", ".join(f"{k}={v}" for k, v in counts.items()) + " counts" if isinstance(counts, dict) else str(counts)
     c.print(f"truth {out['truth']}, AD reading {reading}", markup=False, highlight=False)
-    for label, key in (("planner (nominal)", "planner_pose"), ("true", "true_pose")):
+    c.print(f"planner profile {model.profile.name}", markup=False, highlight=False)
+    for label, key in (("planner", "planner_pose"), ("true", "true_pose")):
         d = out[key]
         c.print(
             f"{label:>18}: x {1e3 * d['x']:8.2f} mm  z {1e3 * d['z']:8.2f} mm  "

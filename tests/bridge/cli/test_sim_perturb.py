@@ -170,3 +170,8 @@ def test_every_closed_loop_sim_command_takes_the_truth_and_names_a_missing_file(
     assert main([*command, "--sim-truth", str(tmp_path / "missing.toml")]) == 2
     err = capsys.readouterr().err
     assert "missing.toml does not exist" in err and "Traceback" not in err
+
+
+def test_sim_measure_names_the_planner_s_profile(capsys, tmp_path):
+    code, out, _ = run(capsys, "sim", "measure", "--pose", "z=0.05", "--noise", "none")
+    assert code == 0 and "planner profile thesis-t132" in out and "planner (nominal)" not in out

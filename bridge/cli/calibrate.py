@@ -21,6 +21,7 @@ from bridge.cli.commissioning import add_calibrate_sensors
 from bridge.cli.errors import CLIError
 from bridge.cli.model import add_model_options, bounded_float
 from bridge.service.wire import to_json_text
+from planner.calibration.measurements import TARGET_COLUMNS, load_plan_targets
 from planner.calibration.solve import IDENTIFIED_SHARE, UNIDENTIFIED_SHARE
 from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
 
@@ -110,10 +111,13 @@ def _cmd_plan(args) -> int:
 
 
 def _write_plan_csv(path: Path, rows: list[dict[str, Any]]) -> None:
-    header = ["pose", *(f"{n}_counts" for n in ACTUATOR_NAMES), *CONTROLLED_POSE_NAMES]
+    """The measurement template: label, the planned nominal counts (to be replaced by the readings at rest),
+    the measured pose empty (the operator fills it in) and the planned pose as ``target_*`` (m, rad)."""
+    header = ["pose", *(f"{n}_counts" for n in ACTUATOR_NAMES), *CONTROLLED_POSE_NAMES, *TARGET_COLUMNS]
     lines = [",".join(header)]
-    for r in rows:  # measured columns left empty: the operator fills them in
-        lines.append(",".join([r["pose"], *(str(r[f"{n}_counts"]) for n in ACTUATOR_NAMES), "", "", "", ""]))
+    for r in rows:
+        targets = [repr(float(r[k])) for k in CONTROLLED_POSE_NAMES]
+        lines.append(",".join([r["pose"], *(str(r[f"{n}_counts"]) for n in ACTUATOR_NAMES), "", "", "", "", *targets]))
     try:
         path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     except OSError as exc:
@@ -187,21 +191,24 @@ def _cmd_measure_twin(args) -> int:
     from bridge.sim.truth import load_machine_truth
 
     model = _model(args)
-    d = _design(args, model)
+    if args.plan is not None:  # the poses of a plan file, under its labels
+        labels, poses = load_plan_targets(args.plan)
+    else:
+        poses = _design(args, model).poses
+        labels = tuple(f"p{k + 1}" for k in range(poses.shape[0]))
     truth = load_machine_truth(args.sim_truth)
     points = ("L", "R", "U") if args.points else ()
-    data = measure_twin(
-        model.nominal_model, truth, d.poses, noise=args.noise, points=points, seed=args.seed, by=args.by
-    )
-    text = calibration_csv(data)
+    data = measure_twin(model.nominal_model, truth, poses, noise=args.noise, points=points, seed=args.seed, by=args.by)
+    per_pose = data.counts.shape[0] // poses.shape[0]  # static: each pose approached from below and above
+    text = calibration_csv(data, labels=[lab for lab in labels for _ in range(per_pose)])
     try:
         Path(args.out).write_text(text, encoding="utf-8")
     except OSError as exc:
         raise CLIError(f"--out {args.out}: cannot write it ({exc.strerror})") from None
     if args.json:
-        print(to_json_text({"out": str(args.out), "rows": int(data.counts.shape[0]), "poses": int(d.poses.shape[0])}))
+        print(to_json_text({"out": str(args.out), "rows": int(data.counts.shape[0]), "poses": int(poses.shape[0])}))
     else:
-        print(f"wrote {data.counts.shape[0]} measurements of {d.poses.shape[0]} poses to {args.out}")
+        print(f"wrote {data.counts.shape[0]} measurements of {poses.shape[0]} poses to {args.out}")
     return 0
 
 
@@ -255,6 +262,12 @@ def add_commands(sub) -> None:
     m.add_argument("--sim-truth", required=True, help="truth profile (hitch sim perturb --out)")
     m.add_argument("--noise", default="station", choices=("tape", "station", "none"), help="instrument noise")
     m.add_argument("--out", required=True, help="measurement CSV to write")
+    m.add_argument(
+        "--plan",
+        default=None,
+        metavar="FILE",
+        help="measure the poses of this plan file (plan-poses --out), under its labels; default: plan them here",
+    )
     m.add_argument(
         "--by",
         default="static",

@@ -226,6 +226,6 @@ def true_poses(
     return np.array(out), counts
 
 
-def calibration_csv(data: TwinMeasurements) -> str:
-    """The measurement file (CSV, counts) of twin measurements."""
-    return measurements_csv(data.counts, data.measured)
+def calibration_csv(data: TwinMeasurements, labels: Sequence[str] | None = None) -> str:
+    """The measurement file (CSV, counts) of twin measurements; ``labels`` one per row (default p1, p2 …)."""
+    return measurements_csv(data.counts, data.measured, labels=labels)

@@ -9,7 +9,9 @@ Columns (header row required; order free; unknown columns are an error):
   for the others) through the nominal AD map, within the stroke ± 10 %;
 * the measured pose in SI: ``x, z, roll, pitch`` (m, rad; all four or none) and optionally ``y, yaw``;
 * optionally marked points in m: ``L_x, L_y, L_z`` (left ball centre), ``R_*`` (right), ``U_*``
-  (top-link pin), three columns per point.
+  (top-link pin), three columns per point;
+* optionally the pose the row was meant to be (``target_x, target_z, target_roll, target_pitch``, m and
+  rad, as ``hitch calibrate plan-poses --out`` writes them): a note for the operator, not used by the fit.
 
 Every row needs its five readings and at least one measured quantity; an empty cell means "not
 measured" (only for the measured columns). Measured values must lie within ±3 m (positions) and
@@ -35,11 +37,21 @@ from planner.model.sensors import AD_COUNTS_MAX, SensorScaling
 from planner.model.types import ACTUATOR_NAMES
 from planner.profiles.hitch import Profile
 
-__all__ = ["MEASURED_COLUMNS", "MeasurementSet", "load_measurements", "measurements_csv", "parse_measurements"]
+__all__ = [
+    "MEASURED_COLUMNS",
+    "TARGET_COLUMNS",
+    "MeasurementSet",
+    "load_measurements",
+    "load_plan_targets",
+    "measurements_csv",
+    "parse_measurements",
+]
 
 _POINT_COLUMNS = tuple(f"{p}_{c}" for p in ("L", "R", "U") for c in "xyz")
 #: measured quantities a file may hold (the rows of the model's output, :data:`OUTPUT_NAMES`)
 MEASURED_COLUMNS: tuple[str, ...] = OUTPUT_NAMES
+#: the planned pose a row was meant to be (m, rad): written by plan-poses, read by measure-twin --plan, not fitted
+TARGET_COLUMNS: tuple[str, ...] = ("target_x", "target_z", "target_roll", "target_pitch")
 _ANGLES = {"roll", "pitch", "yaw"}
 _POSITION_MAX_M = 3.0
 _ANGLE_MAX = math.pi / 2
@@ -117,12 +129,12 @@ def parse_measurements(text: str, profile: Profile, *, source: str = "measuremen
         header = [h.strip() for h in next(reader)]
     except StopIteration:
         raise CalibrationError(f"{source}: empty file (a header row is required)") from None
-    allowed = {"pose", *ACTUATOR_NAMES, *(f"{n}_counts" for n in ACTUATOR_NAMES), *MEASURED_COLUMNS}
+    allowed = {"pose", *ACTUATOR_NAMES, *(f"{n}_counts" for n in ACTUATOR_NAMES), *MEASURED_COLUMNS, *TARGET_COLUMNS}
     unknown = [h for h in header if h not in allowed]
     if unknown:
         raise CalibrationError(
             f"{source} row 0: unknown column(s) {unknown}; allowed: pose, {', '.join(ACTUATOR_NAMES)} (SI) or "
-            f"<name>_counts, {', '.join(MEASURED_COLUMNS)}"
+            f"<name>_counts, {', '.join(MEASURED_COLUMNS)}, {', '.join(TARGET_COLUMNS)}"
         )
     dup = sorted({h for h in header if header.count(h) > 1})
     if dup:
@@ -219,3 +231,42 @@ def measurements_csv(
             [lab, *(f"{c:.6g}" for c in counts[k]), *(repr(float(values[k, i])) if m[k, i] else "" for i in used)]
         )
     return out.getvalue()
+
+
+def load_plan_targets(path: str | Path) -> tuple[tuple[str, ...], np.ndarray]:
+    """The labels and target poses (N, 4: x, z, roll, pitch in m, rad) of a plan file of ``hitch calibrate
+    plan-poses --out`` (its ``pose`` and ``target_*`` columns); errors name the file, row and column."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8").removeprefix("\ufeff")
+    except OSError as exc:
+        raise CalibrationError(f"plan file {p}: cannot read it ({exc.strerror})") from None
+    except UnicodeDecodeError:
+        raise CalibrationError(f"plan file {p}: not UTF-8 text") from None
+    reader = csv.reader(io.StringIO(text))
+    header = [h.strip() for h in next(reader, [])]
+    missing = [c for c in TARGET_COLUMNS if c not in header]
+    if missing:
+        raise CalibrationError(
+            f"plan file {p} row 0: no column(s) {', '.join(missing)} (a plan of hitch calibrate plan-poses --out)"
+        )
+    cols = {h: i for i, h in enumerate(header)}
+    labels: list[str] = []
+    poses: list[list[float]] = []
+    r = 0
+    for line in reader:
+        if not line or all(not c.strip() for c in line):
+            continue
+        r += 1
+        where = f"plan file {p} row {r} (line {reader.line_num})"
+        if len(line) != len(header):
+            raise CalibrationError(f"{where}: {len(line)} cells, the header has {len(header)}")
+        pose = []
+        for c in TARGET_COLUMNS:
+            lim, unit = (_ANGLE_MAX, "rad") if c.endswith(("roll", "pitch")) else (_POSITION_MAX_M, "m")
+            pose.append(_cell(line[cols[c]].strip(), where, c, -lim, lim, unit))
+        poses.append(pose)
+        labels.append(line[cols["pose"]].strip() if "pose" in cols else f"p{r}")
+    if not poses:
+        raise CalibrationError(f"plan file {p}: no poses after the header")
+    return tuple(labels), np.array(poses)

@@ -230,3 +230,38 @@ def test_a_unit_slip_in_one_cell_is_warned_about_or_refused_never_written_silent
         assert ("the calibrated profile cannot be used" in err or "the fit ends where the mechanism" in err) and (
             "unit slip" in err and not out.exists()
         ), err
+
+
+def test_measure_twin_measures_a_plan_file_under_its_labels(tmp_path, capsys):
+    # measure-twin planned its own poses again and numbered its rows p1, p2 … per reading, so a static
+    # file's p2 was the plan's p1 (a commissioning engineer's report); the template had no target poses
+    prof = load_profile("thesis-t132")
+    data, _ = perturb_profile(prof, 5)
+    truth = tmp_path / "truth.toml"
+    truth.write_text(truth_toml(data, PinPlay(0.0, 0.0)))
+    plan = tmp_path / "plan.csv"
+    common = ["--n", "4", "--candidates", "60", "--seed", "3"]
+    assert main(["calibrate", "plan-poses", *common, "--out", str(plan)]) == 0
+    header = plan.read_text().splitlines()[0].split(",")
+    assert header[-4:] == ["target_x", "target_z", "target_roll", "target_pitch"]
+    by_plan, by_design = tmp_path / "a.csv", tmp_path / "b.csv"
+    args = ["calibrate", "measure-twin", "--sim-truth", str(truth), "--seed", "3"]  # the seed of the noise too
+    assert main([*args, "--plan", str(plan), "--out", str(by_plan)]) == 0
+    assert main(["calibrate", "measure-twin", "--sim-truth", str(truth), *common, "--out", str(by_design)]) == 0
+    rows = by_plan.read_text().splitlines()
+    assert [r.split(",")[0] for r in rows[1:]] == ["p1", "p1", "p2", "p2", "p3", "p3", "p4", "p4"]
+    assert by_plan.read_text() == by_design.read_text()  # the same poses, measured alike
+    # the filled template parses: the target columns are notes, not fitted
+    filled = [plan.read_text().splitlines()[0]]
+    for line, meas in zip(plan.read_text().splitlines()[1:], rows[1::2], strict=True):
+        cells, m = line.split(","), meas.split(",")
+        cells[6:10] = m[6:10]
+        filled.append(",".join(cells))
+    (tmp_path / "filled.csv").write_text("\n".join(filled) + "\n")
+    assert parse_measurements((tmp_path / "filled.csv").read_text(), prof).n_rows == 4
+    capsys.readouterr()
+    bad = tmp_path / "bad.csv"
+    bad.write_text("pose,x\np1,0\n")
+    assert main(["calibrate", "measure-twin", "--sim-truth", str(truth), "--plan", str(bad), "--out", "x.csv"]) == 2
+    err = capsys.readouterr().err
+    assert "plan file" in err and "bad.csv row 0: no column(s) target_x" in err and "Traceback" not in err

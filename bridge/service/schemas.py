@@ -430,6 +430,11 @@ def _item_metadata(annotation: Any) -> list[Any]:
     return [c for f in item[1:] for c in (f.metadata if isinstance(f, FieldInfo) else [f])]
 
 
+def _bound(v: object) -> str:
+    """A schema bound as a reader reads it: integers exactly (2**53, not 9.0072e+15), other numbers to 6 digits."""
+    return str(v) if isinstance(v, int) and not isinstance(v, bool) else f"{v:.6g}"
+
+
 def _allowed(model: type[BaseModel], loc: tuple[int | str, ...]) -> str:
     info, n = _field_at(model, loc)
     if info is None:
@@ -439,7 +444,7 @@ def _allowed(model: type[BaseModel], loc: tuple[int | str, ...]) -> str:
     else:
         metadata = list(info.metadata)
     parts = [
-        f"{sym} {getattr(c, a):.6g}"
+        f"{sym} {_bound(getattr(c, a))}"
         for c in metadata
         for a, sym in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<="))
         if getattr(c, a, None) is not None
@@ -490,8 +495,21 @@ def _format(key: str, exc: ValidationError, model: type[BaseModel]) -> str:
         msg = "must be 1-64 letters, digits, '-', '_', '.' starting with a letter or digit"
     elif e["type"] == "model_type":
         msg = "must be a JSON object"
-    elif e["type"] == "int_type":
+    elif e["type"] in ("int_type", "int_from_float", "int_parsing"):
         msg = "must be an integer"
+    elif e["type"] in ("float_type", "float_parsing"):
+        msg = "must be a number (a JSON number, not text)"
+    elif e["type"] == "string_type":
+        msg = "must be text (a JSON string)"
+    elif e["type"] in ("bool_type", "bool_parsing"):
+        msg = "must be true or false"
+    elif e["type"] == "list_type":
+        msg = "must be a JSON list"
+    elif e["type"] == "string_too_long":
+        n = (e.get("ctx") or {}).get("max_length")
+        size = f" ({n // 1024} KiB)" if isinstance(n, int) and n >= 1024 and n % 1024 == 0 else ""
+        msg = f"is too long (allowed: at most {n} characters{size})"
+        return f"{key}: {path} {msg}"
     elif e["type"] in ("too_short", "too_long"):
         lo, hi = _length_bounds(model, loc)
         n = (e.get("ctx") or {}).get("actual_length")

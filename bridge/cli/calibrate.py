@@ -260,7 +260,13 @@ def add_commands(sub) -> None:
     add_model_options(m)
     _add_design_options(m)
     m.add_argument("--sim-truth", required=True, help="truth profile (hitch sim perturb --out)")
-    m.add_argument("--noise", default="station", choices=("tape", "station", "none"), help="instrument noise")
+    m.add_argument(
+        "--noise",
+        default="station",
+        type=lambda t: "station" if t == "total-station" else t,  # accuracy-test's spelling too
+        choices=("tape", "station", "none"),
+        help="instrument noise: tape ±10 mm, station (or total-station) 1 mm / 1 mrad, none (default station)",
+    )
     m.add_argument("--out", required=True, help="measurement CSV to write")
     m.add_argument(
         "--plan",

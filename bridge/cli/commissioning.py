@@ -238,7 +238,13 @@ def _calibrate_on_bus(args, cal_model: HitchModel, nominal, implement, actuators
 def add_commands(sub) -> None:
     a = sub.add_parser("accuracy-test", help="the thesis's field accuracy test (tables 3-8 … 3-10) on the twin")
     a.add_argument("--sim-truth", default=None, metavar="FILE", help="the twin's true machine (hitch sim perturb)")
-    a.add_argument("--instrument", choices=tuple(INSTRUMENTS), default="tape", help="tape ±10 mm (default), σ 1 mm")
+    a.add_argument(
+        "--instrument",
+        choices=tuple(INSTRUMENTS),
+        default="tape",
+        type=lambda t: "total-station" if t == "station" else t,  # sim measure's and measure-twin's spelling too
+        help="tape ±10 mm (default), total-station (or station) σ 1 mm / 1 mrad, none",
+    )
     a.add_argument("--seed", type=int, default=0, help="seed of the instrument noise")
     a.add_argument(
         "--dofs",

@@ -175,3 +175,15 @@ def test_every_closed_loop_sim_command_takes_the_truth_and_names_a_missing_file(
 def test_sim_measure_names_the_planner_s_profile(capsys, tmp_path):
     code, out, _ = run(capsys, "sim", "measure", "--pose", "z=0.05", "--noise", "none")
     assert code == 0 and "planner profile thesis-t132" in out and "planner (nominal)" not in out
+
+
+def test_the_instrument_has_one_spelling_everywhere(capsys):
+    # sim measure and measure-twin said station, accuracy-test total-station: each now takes both
+    outs = []
+    for spelling in ("station", "total-station"):
+        code, out, _ = run(capsys, "sim", "measure", "--pose", "z=0.05", "--noise", spelling, "--seed", "4", "--json")
+        assert code == 0
+        outs.append(json.loads(out))
+    assert outs[0] == outs[1]
+    code, out, _ = run(capsys, "accuracy-test", "--instrument", "station", "--dofs", "z")
+    assert code == 0 and "instrument total-station" in out

@@ -11,6 +11,7 @@ file of ``hitch sim perturb``) for poses planned here, to try the procedure end 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import sys
 from pathlib import Path
 from typing import Any
@@ -135,7 +136,16 @@ def _cmd_geometry(args) -> int:
         model, data, sigma_position_m=1e-3 * args.sigma_position_mm, sigma_angle_rad=1e-3 * args.sigma_angle_mrad
     )
     result = solve_calibration(problem, min_singular=args.min_singular)
-    write_calibrated_profile(args.out, model.params, result, name=args.name)
+    inputs = {
+        "measurements": str(args.measurements),
+        "measurements_sha256": hashlib.sha256(Path(args.measurements).read_bytes()).hexdigest(),
+        "profile": str(args.profile),
+        "sigma_position_m": 1e-3 * args.sigma_position_mm,
+        "sigma_angle_rad": 1e-3 * args.sigma_angle_mrad,
+        "min_singular": float(args.min_singular),
+        "ad_map": "kept (--no-ad)" if args.no_ad else "fitted",
+    }
+    write_calibrated_profile(args.out, model.params, result, name=args.name, inputs=inputs)
     if result.residual_sigma > SUSPECT_SIGMA_HAT:  # said on stderr, also with --json
         print(
             f"hitch: warning: sigma-hat {result.residual_sigma:.3g}: the residuals are {result.residual_sigma:.3g} "

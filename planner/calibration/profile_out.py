@@ -103,9 +103,16 @@ def _keep_the_neutral_pose(data: dict[str, Any], base: Profile) -> None:
 
 
 def calibrated_profile_toml(
-    params: ParameterSet, result: CalibrationResult, *, name: str | None = None, date: str | None = None
+    params: ParameterSet,
+    result: CalibrationResult,
+    *,
+    name: str | None = None,
+    date: str | None = None,
+    inputs: Mapping[str, Any] | None = None,
 ) -> str:
-    """TOML text of the profile with the calibrated parameters and the provenance comment lines."""
+    """TOML text of the profile with the calibrated parameters and the provenance comment lines; ``inputs``
+    (what the calibration was made from: the measurement file and its SHA-256, the σ given, …) is recorded
+    in the provenance as it is."""
     if result.names != params.names:
         raise CalibrationError("the calibration result is not for this parameter set")
     base = params.profile
@@ -133,6 +140,8 @@ def calibrated_profile_toml(
         ],
         "unidentifiable": list(result.unidentifiable),
     }
+    if inputs:
+        prov["inputs"] = dict(inputs)
     out = [
         f"# Calibrated hitch profile (hitch calibrate geometry), from {base.name}, {when}:",
         f"# {result.n_poses} measured poses, residual RMS {1e3 * result.residual_rms_position_m:.3f} mm / "
@@ -159,13 +168,19 @@ def calibrated_profile_toml(
 
 
 def write_calibrated_profile(
-    path: str | Path, params: ParameterSet, result: CalibrationResult, *, name: str | None = None
+    path: str | Path,
+    params: ParameterSet,
+    result: CalibrationResult,
+    *,
+    name: str | None = None,
+    inputs: Mapping[str, Any] | None = None,
 ) -> Profile:
-    """Write the calibrated profile to ``path``; returns it as loaded back by ``load_profile``."""
+    """Write the calibrated profile to ``path`` (``inputs``: :func:`calibrated_profile_toml`); returns it as
+    loaded back by ``load_profile``."""
     p = Path(path)
     if p.suffix != ".toml":
         raise CalibrationError(f"--out {p}: a profile file must end in .toml")
-    text = calibrated_profile_toml(params, result, name=name)
+    text = calibrated_profile_toml(params, result, name=name, inputs=inputs)
     try:
         p.write_text(text, encoding="utf-8")
     except OSError as exc:

@@ -145,6 +145,15 @@ def test_end_to_end_on_a_twin_calibrates_better_than_nominal(tmp_path, capsys):
     cal = load_profile(out)  # an ordinary profile
     prov = read_calibration_provenance(out)
     assert prov is not None and prov["poses"] == 12
+    # what it was made from (a commissioning record had no file, no σ, no --no-ad)
+    import hashlib
+
+    inputs = prov["inputs"]
+    assert (
+        inputs["measurements"] == str(meas)
+        and inputs["measurements_sha256"] == hashlib.sha256(meas.read_bytes()).hexdigest()
+    )
+    assert inputs["sigma_position_m"] == 0.001 and inputs["ad_map"] == "fitted"
     # independent truth: where the true machine goes when each profile's inverse commands random poses
     truth = MachineTruth(profile_from_dict(data))
     check, _ = candidate_poses(ParametricModel(prof), 30, seed=99)

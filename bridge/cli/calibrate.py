@@ -22,6 +22,7 @@ from bridge.cli.commissioning import add_calibrate_sensors
 from bridge.cli.errors import CLIError
 from bridge.cli.model import add_model_options, bounded_float
 from bridge.service.wire import to_json_text
+from bridge.sim.truth import noise_kind
 from planner.calibration.measurements import TARGET_COLUMNS, load_plan_targets
 from planner.calibration.solve import IDENTIFIED_SHARE, UNIDENTIFIED_SHARE
 from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
@@ -169,7 +170,7 @@ def _cmd_geometry(args) -> int:
         result.names, result.nominal, result.values, result.std, units, result.identified_share, strict=True
     ):
         print(f"  {n:36s} {v:+.6f} {u:3s} (nominal {a:+.6f}) {_spread(s, u, share)}")
-    if np.any((result.identified_share >= _UNIDENTIFIED_SHARE) & (result.identified_share < _IDENTIFIED_SHARE)):
+    if np.any((result.identified_share >= UNIDENTIFIED_SHARE) & (result.identified_share < IDENTIFIED_SHARE)):
         print("  * the share of the parameter the poses identify; its std holds with the rest at nominal")
     if result.unidentifiable:
         print("not identifiable from these poses (kept nominal):")
@@ -179,8 +180,6 @@ def _cmd_geometry(args) -> int:
     return 0
 
 
-_UNIDENTIFIED_SHARE = UNIDENTIFIED_SHARE
-_IDENTIFIED_SHARE = IDENTIFIED_SHARE
 #: sigma-hat (residuals in units of the σ given) above which the fit is reported as suspect
 SUSPECT_SIGMA_HAT = 3.0
 
@@ -188,10 +187,10 @@ SUSPECT_SIGMA_HAT = 3.0
 def _spread(std: float, unit: str, share: float) -> str:
     """A parameter's ± std as it can be read (:attr:`CalibrationResult.identified_share`): no std for one
     the data cannot see (its std would print as ~1e-18), a conditional one for one they see in part."""
-    if share < _UNIDENTIFIED_SHARE:
+    if share < UNIDENTIFIED_SHARE:
         return "not identified (kept nominal)"
     text = f"± {std:.2e} {unit}".rstrip()
-    if share < _IDENTIFIED_SHARE:
+    if share < IDENTIFIED_SHARE:
         text += f", {100 * share:.0f} % identified*"
     return text
 
@@ -273,7 +272,7 @@ def add_commands(sub) -> None:
     m.add_argument(
         "--noise",
         default="station",
-        type=lambda t: "station" if t == "total-station" else t,  # accuracy-test's spelling too
+        type=noise_kind,  # accuracy-test's spelling too
         choices=("tape", "station", "none"),
         help="instrument noise: tape ±10 mm, station (or total-station) 1 mm / 1 mrad, none (default station)",
     )

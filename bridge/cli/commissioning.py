@@ -201,13 +201,11 @@ def _calibrate_on_bus(args, cal_model: HitchModel, nominal, implement, actuators
     from bridge.link.can_link import CanLink
     from bridge.link.realtime import RealtimeRunner, open_bus
     from bridge.link.sensor_calibration import RealtimeDriver
-    from bridge.link.state import LinkConfig, LinkError
+    from bridge.link.state import LinkConfig
 
     try:
         bus = open_bus(args.can_interface, args.can_channel)
-    except (LinkError, OSError, ValueError) as exc:
-        raise SensorCalibrationError(f"--can-interface {args.can_interface}: cannot open the bus ({exc})") from None
-    except Exception as exc:  # noqa: BLE001 - python-can's CanError family and a transport's own errors
+    except Exception as exc:  # noqa: BLE001 - LinkError, OSError, python-can's CanError family, a transport's own
         raise SensorCalibrationError(f"--can-interface {args.can_interface}: cannot open the bus ({exc})") from None
     link = CanLink(cal_model, bus, LinkConfig(bus_timestamps=True))
     runner = RealtimeRunner(link, name="calibration-link").start()

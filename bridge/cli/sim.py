@@ -58,6 +58,7 @@ from bridge.sim.truth import (
     PinPlay,
     TruthError,
     load_machine_truth,
+    noise_kind,
     perturb_profile,
     truth_toml,
 )
@@ -426,6 +427,20 @@ def _add_plant_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the noise (and frame loss)")
 
 
+def _add_json_summary_option(p: argparse.ArgumentParser) -> None:
+    """``--json [FILE]`` of the closed loops (``sim track``, ``sim field``): :func:`_json_summary`."""
+    p.add_argument(
+        "--json",
+        dest="json_file",
+        nargs="?",
+        const=JSON_STDOUT,
+        default=None,
+        type=output_path,
+        metavar="FILE",
+        help="print the summary as JSON (as --json everywhere), or with FILE write it there beside the text",
+    )
+
+
 def _truth_arg(args: argparse.Namespace) -> MachineTruth | None:
     """The twin's true machine of ``--sim-truth FILE`` (None: exactly the planner's profile)."""
     return None if args.sim_truth is None else load_machine_truth(args.sim_truth)
@@ -651,16 +666,7 @@ def add_commands(sub) -> None:
     )
     tr.add_argument("--duration", type=float, default=None, help="scenario seconds to run (default: the scenario's)")
     tr.add_argument("--plot", default=None, type=plot_path, help="write a PNG of the run")
-    tr.add_argument(
-        "--json",
-        dest="json_file",
-        nargs="?",
-        const=JSON_STDOUT,
-        default=None,
-        type=output_path,
-        metavar="FILE",
-        help="print the summary as JSON (as --json everywhere), or with FILE write it there beside the text",
-    )
+    _add_json_summary_option(tr)
     tr.add_argument("--profile", default="thesis-t132", help="built-in profile name or path to a .toml")
     tr.add_argument("--category", default=None, help="ISO 730 implement category (default: the profile's, 2)")
     _add_truth_option(tr)
@@ -687,16 +693,7 @@ def add_commands(sub) -> None:
     fl.add_argument("--z", type=finite_float("--z"), default=0.0, help="operator's position setpoint z [m], default 0")
     fl.add_argument("--duration", type=float, default=None, help="scenario seconds to run (default: the scenario's)")
     fl.add_argument("--plot", default=None, type=plot_path, help="write a PNG of depth, draft and slip")
-    fl.add_argument(
-        "--json",
-        dest="json_file",
-        nargs="?",
-        const=JSON_STDOUT,
-        default=None,
-        type=output_path,
-        metavar="FILE",
-        help="print the summary as JSON (as --json everywhere), or with FILE write it there beside the text",
-    )
+    _add_json_summary_option(fl)
     fl.add_argument("--profile", default="thesis-t132", help="built-in profile name or path to a .toml")
     fl.add_argument("--category", default=None, help="ISO 730 implement category (default: the profile's, 2)")
     _add_truth_option(fl)
@@ -755,7 +752,7 @@ def add_commands(sub) -> None:
         "--noise",
         choices=NOISE_KINDS,
         default="station",
-        type=lambda t: "station" if t == "total-station" else t,  # accuracy-test's spelling too
+        type=noise_kind,  # accuracy-test's spelling too
         help="tape ±10 mm, station (or total-station) 1 mm / 1 mrad, none (default station)",
     )
     me.add_argument(

@@ -88,6 +88,7 @@ __all__ = [
     "LENGTH_FIELDS",
     "MARKED_POINTS",
     "NOISE_KINDS",
+    "noise_kind",
     "PLAY_MARKER",
     "Instrument",
     "InstrumentNoise",
@@ -123,6 +124,14 @@ LENGTH_FIELDS: tuple[str, ...] = (
 MARKED_POINTS: tuple[str, ...] = ("L", "R", "U")
 #: instrument noise presets
 NOISE_KINDS: tuple[str, ...] = ("tape", "station", "none")
+
+
+def noise_kind(text: str) -> str:
+    """An instrument's name as the commands take it: ``total-station`` (``hitch accuracy-test``'s spelling)
+    is ``station``; the rest as given (an argparse type; ``choices`` then checks it)."""
+    return "station" if text == "total-station" else text
+
+
 #: start of the comment line that carries the pin play in a truth file
 PLAY_MARKER = "#! sim-truth play ="
 

@@ -24,9 +24,10 @@ from __future__ import annotations
 import csv
 import io
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -121,6 +122,20 @@ def _cell(text: str, where: str, col: str, lo: float, hi: float, unit: str) -> f
     return v
 
 
+def _data_rows(reader: Any, n_cells: int, source: str) -> Iterator[tuple[str, list[str]]]:
+    """The data rows of a CSV ``reader`` past its header: ``(where, stripped cells)``, ``where`` naming the
+    file, the row (1 = the first; blank lines are not rows) and its line; a row of another width is refused."""
+    r = 0
+    for line in reader:
+        if not line or all(not c.strip() for c in line):
+            continue
+        r += 1
+        where = f"{source} row {r} (line {reader.line_num})"
+        if len(line) != n_cells:
+            raise CalibrationError(f"{where}: {len(line)} cells, the header has {n_cells}")
+        yield where, [c.strip() for c in line]
+
+
 def parse_measurements(text: str, profile: Profile, *, source: str = "measurements") -> MeasurementSet:
     """Parse measurement CSV text (module docstring) against the nominal ``profile`` (its AD map and strokes).
     A UTF-8 byte-order mark (a spreadsheet's "CSV UTF-8") is allowed."""
@@ -158,15 +173,7 @@ def parse_measurements(text: str, profile: Profile, *, source: str = "measuremen
         raise CalibrationError(f"{source} row 0: no measured column (x, z, roll, pitch and/or L_x … U_z)")
     sc = SensorScaling(profile)
     readings, values, masks, labels = [], [], [], []
-    r = 0  # data rows (1 = the first; blank lines are not rows); the file's line beside it
-    for line in reader:
-        if not line or all(not c.strip() for c in line):
-            continue
-        r += 1
-        where = f"{source} row {r} (line {reader.line_num})"
-        if len(line) != len(header):
-            raise CalibrationError(f"{where}: {len(line)} cells, the header has {len(header)}")
-        cells = [c.strip() for c in line]
+    for r, (where, cells) in enumerate(_data_rows(reader, len(header), source), start=1):
         q = np.zeros(5)
         for k, n in enumerate(ACTUATOR_NAMES):
             if n in cols:
@@ -253,20 +260,13 @@ def load_plan_targets(path: str | Path) -> tuple[tuple[str, ...], np.ndarray]:
     cols = {h: i for i, h in enumerate(header)}
     labels: list[str] = []
     poses: list[list[float]] = []
-    r = 0
-    for line in reader:
-        if not line or all(not c.strip() for c in line):
-            continue
-        r += 1
-        where = f"plan file {p} row {r} (line {reader.line_num})"
-        if len(line) != len(header):
-            raise CalibrationError(f"{where}: {len(line)} cells, the header has {len(header)}")
+    for r, (where, cells) in enumerate(_data_rows(reader, len(header), f"plan file {p}"), start=1):
         pose = []
         for c in TARGET_COLUMNS:
             lim, unit = (_ANGLE_MAX, "rad") if c.endswith(("roll", "pitch")) else (_POSITION_MAX_M, "m")
-            pose.append(_cell(line[cols[c]].strip(), where, c, -lim, lim, unit))
+            pose.append(_cell(cells[cols[c]], where, c, -lim, lim, unit))
         poses.append(pose)
-        labels.append(line[cols["pose"]].strip() if "pose" in cols else f"p{r}")
+        labels.append(cells[cols["pose"]] if "pose" in cols else f"p{r}")
     if not poses:
         raise CalibrationError(f"plan file {p}: no poses after the header")
     return tuple(labels), np.array(poses)

@@ -257,8 +257,12 @@ def solve_calibration(
     the mechanism cannot close (measurements that do not fit the model: a wrong value, a unit slip) is a
     :class:`CalibrationError` saying so.
     """
+    if not (isinstance(min_singular, (int, float)) and math.isfinite(min_singular) and min_singular >= 0.0):
+        raise CalibrationError(f"min_singular must be a number >= 0, got {min_singular!r}")
+    if not (isinstance(max_iter, int) and 1 <= max_iter <= 1000):
+        raise CalibrationError(f"max_iter must be an integer in [1, 1000], got {max_iter!r}")
     try:
-        return _solve(problem, min_singular=min_singular, max_iter=max_iter, tol=tol, snap_ad=snap_ad)
+        return _solve(problem, float(min_singular), max_iter, tol, snap_ad)
     except KinematicsError as exc:
         raise CalibrationError(
             f"the fit ends where the mechanism cannot close ({exc}): the measurements do not fit the model; "
@@ -267,18 +271,9 @@ def solve_calibration(
 
 
 def _solve(
-    problem: CalibrationProblem,
-    *,
-    min_singular: float = 1.0,
-    max_iter: int = 50,
-    tol: float = 1e-12,
-    snap_ad: bool = True,
+    problem: CalibrationProblem, min_singular: float, max_iter: int, tol: float, snap_ad: bool
 ) -> CalibrationResult:
-    """:func:`solve_calibration` without its translation of a mechanism that cannot close."""
-    if not (isinstance(min_singular, (int, float)) and math.isfinite(min_singular) and min_singular >= 0.0):
-        raise CalibrationError(f"min_singular must be a number >= 0, got {min_singular!r}")
-    if not (isinstance(max_iter, int) and 1 <= max_iter <= 1000):
-        raise CalibrationError(f"max_iter must be an integer in [1, 1000], got {max_iter!r}")
+    """:func:`solve_calibration` (its arguments checked) without its translation of a mechanism that cannot close."""
     t0 = time.perf_counter()
     ps = problem.params
     n = len(ps)

@@ -119,14 +119,21 @@ def test_plan_poses_warns_when_the_poses_cannot_separate_every_identifiable_dire
     assert "warning" not in err and data["rank"] == data["identifiable"] >= data["determined"] > 5
 
 
-def test_end_to_end_on_a_twin_calibrates_better_than_nominal(tmp_path, capsys):
-    prof = load_profile("thesis-t132")
+def _twin_measurements(tmp_path, prof):
+    """A tape-perturbed truth of ``prof`` (seed 11, 0.5 mm play) and 12 planned poses measured on it:
+    (the truth's profile data, the measurement CSV)."""
     data, _ = perturb_profile(prof, 11)
     truth_file = tmp_path / "truth.toml"
     truth_file.write_text(truth_toml(data, PinPlay(0.0005, 0.0005)))
     meas = tmp_path / "m.csv"
     common = ["--n", "12", "--candidates", "80", "--seed", "2"]
     assert main(["calibrate", "measure-twin", "--sim-truth", str(truth_file), "--out", str(meas), *common]) == 0
+    return data, meas
+
+
+def test_end_to_end_on_a_twin_calibrates_better_than_nominal(tmp_path, capsys):
+    prof = load_profile("thesis-t132")
+    data, meas = _twin_measurements(tmp_path, prof)
     capsys.readouterr()
     out = tmp_path / "cal.toml"
     assert main(["calibrate", "geometry", "--measurements", str(meas), "--out", str(out), "--json"]) == 0
@@ -214,12 +221,7 @@ def test_a_unit_slip_in_one_cell_is_warned_about_or_refused_never_written_silent
     # one pitch typed in degrees-like units (1.2 rad) in a station-measured file: the fit went through with
     # sigma-hat 80, said nothing, and wrote a profile nothing could load (a commissioning engineer's report)
     prof = load_profile("thesis-t132")
-    data, _ = perturb_profile(prof, 11)
-    truth_file = tmp_path / "truth.toml"
-    truth_file.write_text(truth_toml(data, PinPlay(0.0005, 0.0005)))
-    meas = tmp_path / "m.csv"
-    common = ["--n", "12", "--candidates", "80", "--seed", "2"]
-    assert main(["calibrate", "measure-twin", "--sim-truth", str(truth_file), "--out", str(meas), *common]) == 0
+    _, meas = _twin_measurements(tmp_path, prof)
     lines = meas.read_text().splitlines()
     header = lines[0].split(",")
     cells = lines[1].split(",")

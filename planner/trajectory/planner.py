@@ -103,6 +103,7 @@ class TrajectoryPlanner:
             np.array(c)
             for c in itertools.product(*[(a, (a + b) / 2, b) for a, b in zip(self.lo, self.hi, strict=True)])
         ]
+        self._check_box(corners, "the workspace" if workspace is not None else f"workspace.restricted.{model.category}")
         self.any_direction = box_limits(self.inverse, corners, self.limits)
         self._ruckig = Ruckig(4)
         self._input = InputParameter(4)
@@ -114,6 +115,24 @@ class TrajectoryPlanner:
         fa = model.profile.motion.final_approach
         #: rise of a goto's last segment per DOF [m, m, rad, rad] (``motion.final_approach``; None: off)
         self.final_approach: np.ndarray | None = None if fa is None else np.array(fa.offset())
+
+    def _check_box(self, points: Sequence[np.ndarray], field: str) -> None:
+        """Every point of the box's 3⁴ grid reachable within the hard limits, else a :class:`PlanError` naming
+        ``field`` and the point (a box in mm, or wider than the mechanism, loaded before and failed at the
+        first plan: "closure error 1.62e+05 m", "exceed top_link_yaw_min at t = 2.38 s")."""
+        box = ", ".join(f"{k} [{a:g}, {b:g}]" for k, (a, b) in self.workspace.items())
+        for c in points:
+            at = ", ".join(f"{k} = {v:.4g}" for k, v in zip(CONTROLLED_POSE_NAMES, c, strict=True))
+            try:
+                q = self.inverse(*c)
+                bad = self.hard.violations(q, self.model.features(q)[0])
+            except KinematicsError as exc:
+                bad = (_first_line(exc),)
+            if bad:
+                raise PlanError(
+                    f"{field} ({box}; m, rad) is not all reachable: at {at} {', '.join(bad)} "
+                    "(fit a reachable box with `hitch profile fit-workspace`)"
+                )
 
     # ------------------------------------------------------------------ goals
     def goal_vector(self, current: ArrayLike, goal: Mapping[str, float]) -> np.ndarray:
@@ -325,12 +344,20 @@ class TrajectoryPlanner:
           Ruckig has no profile), or whose first segment runs on past both the shortest stop with the
           real braking limits and its own target by more than :data:`OVERRUN_TOLERANCE` (a reversal
           braked with the new move's smaller limits: e.g. 19 cm beyond a 2.5 cm stop), becomes a
-          stop with the real braking limits followed by the move from rest (:meth:`_stop_then`)."""
+          stop with the real braking limits followed by the move from rest (:meth:`_stop_then`);
+        * so does one with a speed scale below 1 whose limits the current motion exceeds (its |v| or |a|):
+          the move would otherwise keep the motion's speed (its limits floored by the state), not the
+          speed asked for (a 5 % reversal ran at full speed)."""
         if not start.moving:
             try:
                 return self._plan_chain(start, targets, None)
             except _LeavesWorkspace as exc:
                 raise PlanError(str(exc)) from None
+        p1, _, scale = targets[0]
+        if scale < 1.0 and np.any(beyond(start, self._segment_limits(start.position, p1, True, scale))):
+            # a slower move than the motion it replaces: its limits would be raised to the motion's |v|, |a|
+            # (Ruckig starts within its limits) and the move would go on at the old speed, not the one asked for
+            return self._stop_then(start, targets)
         try:
             try:
                 plan = self._plan_chain(start, targets, None)

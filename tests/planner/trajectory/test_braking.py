@@ -173,6 +173,36 @@ def test_a_reversal_brakes_within_the_real_stop_distance_then_goes(tp, t_switch)
     assert bad == []
 
 
+def _raising_from_low(tp, t_switch):
+    p0 = tp.model.neutral_pose.controlled()
+    p0[1] = tp.lo[1] + 0.02
+    return tp.plan_move(MotionState.at_rest(p0), {"z": float(tp.hi[1]) - 0.01}).state_at(t_switch)
+
+
+@pytest.mark.parametrize("scale", [0.05, 0.2, 0.5])
+@pytest.mark.parametrize(
+    ("motion", "z_goal"),
+    [(_lowering, 0.3), (_lowering, -0.2), (_raising_from_low, "low")],
+    ids=["reversing", "onwards", "reversing-near-the-face"],
+)
+def test_a_slower_goto_from_a_moving_state_moves_at_the_speed_asked_for(tp, scale, motion, z_goal):
+    """Before: a 5 % reversal of a raise near the lower face braked with the real limits and then ran the
+    whole way at full speed (the braking limits' velocity floor): 1.5 s instead of a 5 % move's 20 s and
+    more; a slower goto onwards kept the motion's speed."""
+    st = motion(tp, 0.8 if motion is _lowering else 1.2)
+    z_goal = float(tp.lo[1]) + 0.05 if z_goal == "low" else z_goal
+    plan = tp.plan_move(st, {"z": z_goal}, speed_scale=scale)
+    sp = plan.sampled()
+    t_rest = plan.info.get("stop_duration", 0.0)
+    after = sp.t > t_rest + 1e-9
+    rest = plan.state_at(t_rest)
+    np.testing.assert_allclose(rest.velocity, 0.0, atol=1e-9)
+    # the same goal from where it stopped, at full speed: the move asked for is that one time-dilated by 1/scale
+    full = tp.plan_move(MotionState.at_rest(rest.position), {"z": z_goal}).sampled()
+    assert np.abs(sp.pose_velocity[after, 1]).max() <= scale * np.abs(full.pose_velocity[:, 1]).max() * (1 + 1e-6)
+    assert sp.pose[-1, 2] == pytest.approx(z_goal, abs=1e-9)
+
+
 @pytest.mark.parametrize("scale", [0.05, 0.2])
 def test_a_slow_goto_from_a_moving_state_is_planned_not_a_ruckig_error(tp, scale):
     st = _lowering(tp, 0.3)  # moving down faster than a 5 % move may: Ruckig has no profile from there

@@ -75,7 +75,8 @@ def _cmd_implement(args) -> int:
             _print(args, r, f"defined {r['defined']}")
         elif args.action == "select":
             r = c.request("implements/select", {"name": args.name})
-            _print(args, r, f"selected {r['selected']}")
+            none = r["selected"] == "default"  # bridge.service.store.DEFAULT_IMPLEMENT (not imported for --help)
+            _print(args, r, "selected none (the hitch alone)" if none else f"selected {r['selected']}")
         elif args.action == "delete":
             r = c.request("implements/delete", {"name": args.name})
             _print(args, r, f"deleted {r['deleted']}")
@@ -150,7 +151,8 @@ def add_commands(sub) -> None:
     q.add_argument("--description", default=None)
     _client_options(q)
     q.set_defaults(handler=_cmd_implement)
-    for action, text in (("select", "select an implement (refused while moving)"), ("delete", "delete one")):
+    select = "select an implement, or 'default' for none (refused while moving)"
+    for action, text in (("select", select), ("delete", "delete one")):
         _client_command(acts, action, text, _cmd_implement, "name")
     for action, text in (("lock", "transport lock on: no motion but stop"), ("unlock", "transport lock off")):
         _client_command(acts, action, text, _cmd_implement)

@@ -183,8 +183,15 @@ class ImplementService:
         return {"defined": stored.name, "implement": stored.to_json(), "selected": self.selected}
 
     def select(self, name: str) -> dict[str, Any]:
-        """Select an implement (stored, or a tractor profile record: stored first); busy while moving."""
+        """Select an implement (stored, or a tractor profile record: stored first), or ``default`` for none
+        (the hitch alone: no implement mass in the stability check, no implement limits); busy while moving."""
         with self._lock:
+            if name == DEFAULT_IMPLEMENT:
+                self._apply(None, ImplementLimits())
+                self.selected = DEFAULT_IMPLEMENT
+                self.store.set_setting(SELECTED_SETTING, DEFAULT_IMPLEMENT)
+                self._announce()
+                return {"selected": DEFAULT_IMPLEMENT, "implement": None}
             imp = self._stored_or_builtin(name)
             self._apply(record_of(imp), imp.limits)
             self.selected = imp.name
@@ -319,7 +326,7 @@ class ImplementService:
         return {"position": position, "sent": list(sent)}
 
     # ------------------------------------------------------------------ internals
-    def _apply(self, record: ImplementRecord, limits: ImplementLimits) -> None:
+    def _apply(self, record: ImplementRecord | None, limits: ImplementLimits) -> None:
         """The controller's guards first (refused while moving: nothing else changes), then the planning."""
         self.motion.select_implement(record, limits)
         if self.on_applied is not None:
@@ -347,7 +354,9 @@ class ImplementService:
         if rec is None:
             known = [i["name"] for i in self.list()["implements"]]
             raise RequestError(
-                "not_found", f"no implement {name!r} (defined: {', '.join(known) or 'none'}; implements/define)"
+                "not_found",
+                f"no implement {name!r} (defined: {', '.join(known) or 'none'}; implements/define; "
+                f"{DEFAULT_IMPLEMENT!r} selects none)",
             )
         return self.store.save_implement(
             StoredImplement(rec.name, rec.category, rec.mass, rec.centre_of_mass, description=rec.description)

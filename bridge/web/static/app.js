@@ -1221,7 +1221,7 @@
       const sel = $("#act-implement");
       sel.textContent = "";
       const names = this.implements.map((i) => i.name);
-      if (this.selected && !names.includes(this.selected)) names.unshift(this.selected);
+      if (!names.includes("default")) names.unshift("default");   // "no implement": the hitch alone
       for (const n of names) {
         const o = document.createElement("option");
         o.value = n; o.textContent = n === "default" ? "no implement" : n;
@@ -1304,7 +1304,7 @@
   });
   $("#act-implement").addEventListener("change", async (ev) => {
     const name = ev.target.value;
-    const r = await actionCall("implements/select", { name }, (d) => `implement: ${d.selected}`);
+    const r = await actionCall("implements/select", { name }, (d) => `implement: ${d.selected === "default" ? "none (the hitch alone)" : d.selected}`);
     await refreshImplements();   // refused (e.g. while moving): the chooser shows the selected one again
     if (r.ok) refreshPresets();
   });

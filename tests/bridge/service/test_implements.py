@@ -120,6 +120,21 @@ def test_presets_follow_the_selected_implement(svc):
     assert svc.store.get_preset("work", implement="harrow") is not None
 
 
+def test_default_selects_no_implement_again(svc):
+    """A field operator's report: after selecting an implement there was no way back to none ("no implement
+    'default'"), so the presets saved without one could not be reached again."""
+    svc.ok("presets/save", {"name": "work", "pose": {"z": 0.1}})  # kept under "default"
+    svc.ok("implements/define", {**HARROW, "upper_height_m": 0.28})
+    svc.ok("implements/select", {"name": "harrow"})
+    assert svc.ok("implements/select", {"name": "default"}) == {"selected": "default", "implement": None}
+    for g in (svc.mc.guard, svc.mc.plan_guard):
+        assert g.implement is None and g.implement_limits.upper_height_m is None
+    assert svc.ok("implements/list")["selected"] == "default" and svc.ok("config")["implement"] is None
+    assert [p["name"] for p in svc.ok("presets/list")["presets"]] == ["work"]
+    ok, r = svc.call("implements/select", {"name": "nope"})
+    assert not ok and "'default' selects none" in r["message"]
+
+
 def test_changing_the_implement_while_moving_is_refused(svc):
     svc.ok("implements/define", HARROW)
     svc.ok("goto", {"goal": {"z": 0.25}})

@@ -27,7 +27,7 @@ from planner.model.geometry import (
     solve_link_angles,
 )
 from planner.model.types import ACTUATOR_NAMES, Actuators, HitchState, KinematicsError, ModelInputError, Pose
-from planner.profiles.hitch import Profile, load_profile
+from planner.profiles.hitch import Profile, ProfileError, load_profile
 
 __all__ = ["HitchModel", "SymbolicModel", "FEATURE_NAMES", "POINT_NAMES"]
 
@@ -169,6 +169,17 @@ class SymbolicModel:
     jacobian: ca.SX
 
 
+#: the profile field of each hard limit the neutral pose can break (:meth:`HitchModel._check_neutral`)
+_NEUTRAL_LIMIT_FIELDS = {
+    "top_link_yaw_min": "limits.top_link_yaw_max",
+    "top_link_yaw_max": "limits.top_link_yaw_max",
+    "top_link_pitch_min": "limits.top_link_pitch_down_max",
+    "top_link_pitch_max": "limits.top_link_pitch_up_max",
+    "ground_clearance_left": "limits.ground_clearance",
+    "ground_clearance_right": "limits.ground_clearance",
+}
+
+
 class HitchModel:
     """Kinematic model of one hitch profile with one implement category attached.
 
@@ -200,6 +211,7 @@ class HitchModel:
             self.top_link_reference = (0.0, 0.0)
         self.neutral_pose = state.pose
         self.workspace = self._workspace()
+        self._check_neutral()
 
     @classmethod
     def from_profile(cls, name_or_path: str | Path = "thesis-t132", category: str | None = None) -> HitchModel:
@@ -306,6 +318,34 @@ class HitchModel:
                     f"(reachable {abs(ds - g.lift_rod_attachment):.4g}..{ds + g.lift_rod_attachment:.4g} m)"
                 )
         return None
+
+    def _check_neutral(self) -> None:
+        """The neutral pose (home) within every hard limit, else a :class:`ProfileError` naming the profile field
+        (a stroke that misses it loaded before and failed at the first plan, "exceed stroke:top:max at t = 0")."""
+        from planner.model.hard_limits import HardLimits  # it builds on this module
+
+        p, q = self.profile, self.neutral
+        for i, n in enumerate(ACTUATOR_NAMES):
+            if not self.lower[i] - 1e-9 <= q[i] <= self.upper[i] + 1e-9:
+                unit = "rad" if n == "lift" else "m"
+                raise ProfileError(
+                    f"profile {p.name}: the neutral pose (x = 0, pitch = 0, the category's span) needs {n} = "
+                    f"{q[i]:.4f} {unit}, outside its stroke actuators.{n} [{self.lower[i]:g}, {self.upper[i]:g}] "
+                    f"{unit}: the stroke must contain it"
+                )
+        f, _ = self.features(q)
+        for name in HardLimits.from_model(self).violations(q, f):
+            field = _NEUTRAL_LIMIT_FIELDS.get(name, name)
+            if field == "limits.ground_clearance":
+                z_end = f[FEATURE_NAMES.index("z_left_end" if name.endswith("left") else "z_right_end")]
+                detail = (
+                    f"the lower link ends are {z_end + p.geometry.pivot_height:.4f} m above the ground there "
+                    f"(limits.ground_clearance = {p.limits.ground_clearance:g} m, "
+                    f"geometry.pivot_height = {p.geometry.pivot_height:g} m)"
+                )
+            else:
+                detail = f"{name} is exceeded there"
+            raise ProfileError(f"profile {p.name}: the neutral pose breaks {field}: {detail}")
 
     def _solve_neutral(self) -> np.ndarray:
         """Neutral actuators: lift and tilt at their profile neutrals; limiters and top link

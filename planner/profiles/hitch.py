@@ -15,6 +15,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from planner.errors import HitchInputError, unit_hint
 from planner.profiles.loader import (
     ProfileError,
     builtin_profiles,
@@ -47,6 +48,14 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, strict=False)
 
 
+#: the fewest AD counts a sensor may read its stroke over (the ECU keeps 2 counts of end-stop margin at each
+#: end, and a coarser reading cannot hold a pose; the thesis's sensors read 229..891 counts, table 3-1)
+MIN_COUNT_SPAN = 16
+
+#: the largest |bound| of a workspace box's x and z [m]: no three-point hitch moves its implement further
+BOX_LENGTH_MAX_M = 2.0
+
+
 def _interval(name: str, value: tuple[float, float], *, angle: bool) -> tuple[float, float]:
     lo, hi = value
     if not (math.isfinite(lo) and math.isfinite(hi)):
@@ -56,6 +65,17 @@ def _interval(name: str, value: tuple[float, float], *, angle: bool) -> tuple[fl
     if angle and (abs(lo) > math.pi or abs(hi) > math.pi):
         raise ProfileError(f"{name} bounds are angles in radians and must lie within ±π")
     return value
+
+
+def _box_length(name: str, value: tuple[float, float]) -> None:
+    """A box's x or z bounds [m] within ±BOX_LENGTH_MAX_M (millimetres are named)."""
+    m = BOX_LENGTH_MAX_M
+    for v in value:
+        if abs(v) > m:
+            raise ProfileError(
+                f"{name} = [{value[0]}, {value[1]}]: bounds are in m and must lie within ±{m:g} m"
+                + unit_hint(v, -m, m, "m")
+            )
 
 
 class Box(_Strict):
@@ -70,6 +90,8 @@ class Box(_Strict):
     def _check(self):
         for k in BOX_KEYS:
             _interval(k, getattr(self, k), angle=k in ("roll", "pitch"))
+        for k in ("x", "z"):
+            _box_length(k, getattr(self, k))
         return self
 
     def as_dict(self) -> dict[str, tuple[float, float]]:
@@ -142,8 +164,11 @@ class ActuatorSpec(_Strict):
     @model_validator(mode="after")
     def _check(self):
         _interval("stroke", (self.min, self.max), angle=False)
-        if self.counts_min >= self.counts_max:
-            raise ProfileError(f"counts_min ({self.counts_min}) must be below counts_max ({self.counts_max})")
+        if self.counts_max - self.counts_min < MIN_COUNT_SPAN:
+            raise ProfileError(
+                f"counts_min ({self.counts_min}) .. counts_max ({self.counts_max}): a sensor must read its stroke "
+                f"over at least {MIN_COUNT_SPAN} counts (counts_max - counts_min >= {MIN_COUNT_SPAN})"
+            )
         if self.neutral is not None and not (self.min <= self.neutral <= self.max):
             raise ProfileError(f"neutral {self.neutral} must lie within the stroke [{self.min}, {self.max}]")
         return self
@@ -254,6 +279,16 @@ class Profile(_Strict):
     def _name(cls, v: str) -> str:
         return check_profile_name(v)
 
+    @model_validator(mode="after")
+    def _check(self):
+        unknown = sorted(set(self.workspace.restricted) - set(self.implement.categories))
+        if unknown:
+            raise ProfileError(
+                f"workspace.restricted: no category {', '.join(map(repr, unknown))} in implement.categories "
+                f"(allowed: {', '.join(self.implement.categories)})"
+            )
+        return self
+
     def category(self, name: str) -> Category:
         try:
             return self.implement.categories[name]
@@ -279,9 +314,32 @@ def available_profiles() -> list[str]:
 
 
 def load_profile(name_or_path: str | Path = "thesis-t132") -> Profile:
-    """Load and validate a profile by built-in name or file path."""
+    """Load and validate a profile by built-in name or file path.
+
+    ``stability.tractor_profile`` is a built-in tractor name or a path to a .toml file; a relative path
+    is taken from the profile file's folder. The tractor profile is loaded here too, so a missing or
+    invalid one is an error of this profile's field (not of the first stability check)."""
     source, data = read_profile(name_or_path, subfolder=None, kind="profile", error=ProfileError)
-    return profile_from_dict(data, source=source)
+    prof = profile_from_dict(data, source=source)
+    from_file = Path(name_or_path).suffix == ".toml" or Path(name_or_path).exists()
+    return _with_tractor_profile(prof, Path(source).parent if from_file else None, source)
+
+
+def _with_tractor_profile(prof: Profile, folder: Path | None, source: str) -> Profile:
+    from planner.limits.tractor import load_tractor_profile  # the stability layer sits above the profiles
+
+    given = prof.stability.tractor_profile
+    path = Path(given)
+    resolved = given
+    if folder is not None and not path.is_absolute() and (path.suffix == ".toml" or len(path.parts) > 1):
+        resolved = str(folder / path)
+    try:
+        load_tractor_profile(resolved)
+    except HitchInputError as exc:
+        raise ProfileError(f"profile {source}: stability.tractor_profile = {given!r}: {exc}") from None
+    if resolved == given:
+        return prof
+    return prof.model_copy(update={"stability": prof.stability.model_copy(update={"tractor_profile": resolved})})
 
 
 def profile_from_dict(data: dict[str, Any], source: str = "<dict>") -> Profile:

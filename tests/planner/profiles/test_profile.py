@@ -77,6 +77,8 @@ def _mutate(raw, path, value):
             r"actuators\.tilt\.counts_max = 2000: .*allowed: >= 0 and <= 1023\)",
         ),
         (("actuators", "lift", "max"), 2.0, r"actuators: .*lift is an angle"),
+        # a 1-count sensor loaded and failed in the twin: "relay_margin_counts = 2 leaves no stroke (span 1 counts)"
+        (("actuators", "lift", "counts_max"), 29, r"actuators\.lift: .*over at least 16 counts"),
         (("actuators", "tilt", "neutral"), 0.9, r"actuators\.tilt: .*neutral 0\.9 must lie within the stroke"),
         (("actuators", "top", "valve_multiplier"), 0.0, r"actuators\.top\.valve_multiplier = 0\.0"),
         (("limits", "top_link_yaw_max"), 2.0, r"limits\.top_link_yaw_max = 2\.0: .*allowed: > 0 and <= 1\.5708\)"),
@@ -122,3 +124,61 @@ def test_profile_file_round_trip(tmp_path, raw):
 def test_unknown_category_names_the_allowed_ones():
     with pytest.raises(ProfileError, match="allowed: 1N, 1, 2N, 2, 3N, 3, 4N, 4"):
         load_profile().category("5")
+
+
+# -- a profile that cannot work is refused where it is loaded, naming the field (a new user's report: each of
+# these loaded and failed at the first plan or at `hitch serve` with "exceed stroke:top:max at t = 0.00 s",
+# "closure error 1.62e+05 m", "top_link_yaw_min at t = 2.38 s" or the Guard's "tractor profile file ... does
+# not exist")
+def _model(raw, path, value):
+    from planner.model.kinematics import HitchModel
+
+    return HitchModel(profile_from_dict(_mutate(raw, path, value), source="test"))
+
+
+def test_a_stroke_that_misses_the_neutral_pose_is_refused_naming_it(raw):
+    with pytest.raises(ProfileError, match=r"needs top = 0\.\d+ m, outside its stroke actuators\.top \[0\.5, 0\.6\]"):
+        _model(raw, ("actuators", "top"), {**raw["actuators"]["top"], "min": 0.5, "max": 0.6})
+
+
+def test_a_ground_clearance_the_neutral_pose_breaks_is_refused_naming_it(raw):
+    with pytest.raises(ProfileError, match=r"breaks limits\.ground_clearance: the lower link ends are .* m above"):
+        _model(raw, ("limits", "ground_clearance"), 1.5)
+
+
+def test_a_workspace_box_in_mm_or_for_an_unknown_category_is_refused(raw):
+    box = {**raw["workspace"]["restricted"]["2"], "z": [-203.4, 351.0]}
+    with pytest.raises(ProfileError, match=r"z = \[-203\.4, 351\.0\]: bounds are in m .*did you mean mm\?"):
+        profile_from_dict(_mutate(raw, ("workspace", "restricted", "2"), box), source="test")
+    with pytest.raises(ProfileError, match=r"thesis_box.*did you mean mm\?"):
+        profile_from_dict(_mutate(raw, ("workspace", "thesis_box", "z"), [-330, 330]), source="test")
+    extra = _mutate(raw, ("workspace", "restricted", "7"), raw["workspace"]["restricted"]["2"])
+    with pytest.raises(ProfileError, match=r"workspace\.restricted: no category '7' in implement\.categories"):
+        profile_from_dict(extra, source="test")
+
+
+def test_a_workspace_box_wider_than_the_mechanism_is_refused_naming_it(raw):
+    from planner.model.kinematics import HitchModel
+    from planner.trajectory import PlanError, TrajectoryPlanner
+
+    box = {**raw["workspace"]["restricted"]["2"], "x": [-0.5, 0.5]}
+    model = HitchModel(profile_from_dict(_mutate(raw, ("workspace", "restricted", "2"), box), source="test"), "2")
+    with pytest.raises(PlanError, match=r"workspace\.restricted\.2 \(x \[-0\.5, 0\.5\].* is not all reachable: at x"):
+        TrajectoryPlanner(model)
+    TrajectoryPlanner(HitchModel(profile_from_dict(raw, source="test"), "2"))  # the shipped box is
+
+
+def test_the_tractor_profile_is_checked_at_load_and_a_relative_path_is_the_profile_files(tmp_path, monkeypatch):
+    profiles = resources.files("planner") / "profiles"
+    text = (profiles / "thesis-t132.toml").read_text()
+    assert 'tractor_profile = "tractor-6t"' in text
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "my-tractor.toml").write_bytes((profiles / "tractors" / "tractor-6t.toml").read_bytes())
+    prof = tmp_path / "mine" / "hitch.toml"
+    prof.write_text(text.replace('tractor_profile = "tractor-6t"', 'tractor_profile = "my-tractor.toml"'))
+    monkeypatch.chdir(tmp_path)  # not the profile's folder
+    loaded = load_profile(prof)
+    assert loaded.stability.tractor_profile == str(tmp_path / "mine" / "my-tractor.toml")
+    prof.write_text(text.replace('tractor_profile = "tractor-6t"', 'tractor_profile = "nope.toml"'))
+    with pytest.raises(ProfileError, match=r"stability\.tractor_profile = 'nope\.toml': .*does not exist"):
+        load_profile(prof)

@@ -43,7 +43,7 @@ import queue
 import threading
 import time
 import uuid
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import asdict, dataclass, field, is_dataclass
 from enum import Enum
 from pathlib import Path
@@ -482,6 +482,12 @@ def _holds_frames(path: Path) -> bool:
 #: the suffixes :class:`CanRecorder` writes (python-can's size-rotating writers)
 CAN_LOG_SUFFIXES = (".asc", ".blf", ".log", ".csv")
 _SUFFIX_HINT = "suffixes: .asc, .blf, .log (candump), .csv"
+#: how far a replayed frame's timestamp may lie before the latest one (the writers' rounding) [s]
+_BACKWARDS_TOLERANCE_S = 1e-6
+
+
+def _first_line(exc: BaseException) -> str:
+    return (str(exc).strip().splitlines() or [""])[0][:200]
 
 
 def rotated_can_log(path: str | Path, k: int) -> Path:
@@ -668,13 +674,39 @@ REPLAY_ADDRESS = 249
 _REPLAY_STEP_S = 0.01
 
 
-def _frames(path: Path) -> Iterable[can.Message]:
+def _frames(path: Path) -> Iterator[can.Message]:
+    """The frames of a CAN log in time order; a :class:`BlackBoxError` naming the frame for what cannot be read
+    (python-can's readers raise whatever their parsing meets: ValueError, UnicodeDecodeError, struct.error,
+    BLFParseError …), for a timestamp that is not a finite number and for one that goes back in time."""
     if not path.is_file():
         raise BlackBoxError(f"CAN log {path} does not exist")
     try:
-        return can.LogReader(str(path))
-    except (ValueError, OSError, ImportError) as exc:
-        raise BlackBoxError(f"CAN log {path}: cannot read ({exc}); {_SUFFIX_HINT}") from None
+        reader = iter(can.LogReader(str(path)))
+    except Exception as exc:  # noqa: BLE001 — as below: the BLF reader parses its header here
+        raise BlackBoxError(
+            f"CAN log {path}: cannot read ({type(exc).__name__}: {_first_line(exc)}); {_SUFFIX_HINT}"
+        ) from None
+    n, last = 0, -math.inf
+    while True:
+        try:
+            msg = next(reader)
+        except StopIteration:
+            return
+        except Exception as exc:  # noqa: BLE001 — a third-party parser on a damaged file: any of its errors
+            raise BlackBoxError(
+                f"CAN log {path}: cannot read frame {n + 1} ({type(exc).__name__}: {_first_line(exc)}); {_SUFFIX_HINT}"
+            ) from None
+        n += 1
+        t = float(msg.timestamp)
+        if not math.isfinite(t):
+            raise BlackBoxError(f"CAN log {path}: frame {n} has timestamp {t}; a timestamp is a finite number of s")
+        if t < last - _BACKWARDS_TOLERANCE_S:
+            raise BlackBoxError(
+                f"CAN log {path}: frame {n} at {t:.6f} s goes back in time from {last:.6f} s (a log is replayed "
+                "in time order)"
+            )
+        last = max(last, t)
+        yield msg
 
 
 def replay_can_log(path: str | Path, model: Any, *, stale_after_s: float = 0.2) -> Iterator[ReplayRecord]:

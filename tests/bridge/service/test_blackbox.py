@@ -280,6 +280,29 @@ def test_replay_of_a_missing_or_unknown_file_is_a_clear_error(tmp_path):
         list(replay_can_log(bad, model))
 
 
+@pytest.mark.parametrize(
+    ("name", "content", "expect"),
+    [
+        ("bad.log", b"(1.000000) vcan0 18FF22A9#GGGG\n", r"bad\.log: cannot read frame 1 \(ValueError: .*'GG'"),
+        ("random.log", bytes(range(128, 256)) * 8, r"cannot read frame 1 \(UnicodeDecodeError"),
+        ("random.blf", bytes(range(256)) * 4, r"random\.blf: cannot read \(BLFParseError"),
+        ("empty.blf", b"", r"empty\.blf: cannot read \(error: unpack"),
+        (
+            "backwards.log",
+            b"(1.000000) vcan0 18FF22A9#0000000000000000\n(0.500000) vcan0 18FF22A9#0000000000000000\n",
+            r"frame 2 at 0\.500000 s goes back in time from 1\.000000 s",
+        ),
+    ],
+)
+def test_replay_of_a_damaged_log_names_the_file_and_the_frame(tmp_path, name, content, expect):
+    """An attacker's report: each of these was a Python traceback out of python-can's readers (ValueError,
+    UnicodeDecodeError, BLFParseError, struct.error), and a log going back in time was replayed without a word."""
+    path = tmp_path / name
+    path.write_bytes(content)
+    with pytest.raises(BlackBoxError, match=expect):
+        list(replay_can_log(path, HitchModel.from_profile("thesis-t132")))
+
+
 def _numbered(k: int) -> can.Message:
     return can.Message(arbitration_id=0x18FEEEAB, is_extended_id=True, data=k.to_bytes(4, "big") + b"\0\0\0\0")
 

@@ -20,7 +20,7 @@ import numpy as np
 
 from bridge.cli.commissioning import add_calibrate_sensors
 from bridge.cli.errors import CLIError
-from bridge.cli.model import add_model_options, bounded_float
+from bridge.cli.model import add_model_options, bounded_float, whole_number
 from bridge.service.wire import to_json_text
 from bridge.sim.truth import noise_kind
 from planner.calibration.measurements import TARGET_COLUMNS, load_plan_targets
@@ -224,7 +224,9 @@ def _cmd_measure_twin(args) -> int:
 def _add_design_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--n", type=_positive_int("--n", 1000), default=20, help="poses to plan (default 20)")
     p.add_argument("--candidates", type=_positive_int("--candidates", 100_000), default=300, help="random candidates")
-    p.add_argument("--seed", type=int, default=0, help="seed of the candidates (and of the twin's noise)")
+    p.add_argument(
+        "--seed", type=whole_number("--seed"), default=0, help="seed of the candidates (and of the twin's noise)"
+    )
     p.add_argument("--points", action="store_true", help="the instrument also measures the points L, R, U")
 
 

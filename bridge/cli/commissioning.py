@@ -21,7 +21,7 @@ from pathlib import Path
 from rich.console import Console
 
 from bridge.cli.errors import CLIError
-from bridge.cli.model import add_model_options, model_from_args
+from bridge.cli.model import add_model_options, model_from_args, whole_number
 from bridge.link.realtime import INTERFACES
 from bridge.link.sensor_calibration import (
     SensorCalibration,
@@ -243,7 +243,7 @@ def add_commands(sub) -> None:
         type=lambda t: "total-station" if t == "station" else t,  # sim measure's and measure-twin's spelling too
         help="tape ±10 mm (default), total-station (or station) σ 1 mm / 1 mrad, none",
     )
-    a.add_argument("--seed", type=int, default=0, help="seed of the instrument noise")
+    a.add_argument("--seed", type=whole_number("--seed"), default=0, help="seed of the instrument noise")
     a.add_argument(
         "--dofs",
         default="x,z,roll,pitch",
@@ -272,7 +272,7 @@ def add_calibrate_sensors(csub) -> None:
         "(in its rest or removed); releases the top-link angle limits, keeps every other limit; not with --implement",
     )
     s.add_argument("--yes", action="store_true", help="confirm --detached without the interactive prompt")
-    s.add_argument("--seed", type=int, default=0, help="seed of the simulated machine")
+    s.add_argument("--seed", type=whole_number("--seed"), default=0, help="seed of the simulated machine")
     s.add_argument(
         "--can-interface",
         default=None,

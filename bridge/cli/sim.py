@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from bridge.cli.errors import CLIError
-from bridge.cli.model import add_model_options, bounded_float, finite_float, model_from_args
+from bridge.cli.model import add_model_options, bounded_float, finite_float, model_from_args, whole_number
 from bridge.cli.output import console, output_path, plot_path
 from bridge.cli.plan import parse_pose_arg
 from bridge.cli.service import _client_options
@@ -424,7 +424,7 @@ def _cmd_can_hub(args) -> int:
 def _add_plant_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--noise-counts", type=float, default=0.0, help="AD noise standard deviation [counts] (default 0)")
     p.add_argument("--gain-error", type=float, default=0.0, help="relative valve-gain error of the plant, e.g. 0.1")
-    p.add_argument("--seed", type=int, default=0, help="seed of the noise (and frame loss)")
+    p.add_argument("--seed", type=whole_number("--seed"), default=0, help="seed of the noise (and frame loss)")
 
 
 def _add_json_summary_option(p: argparse.ArgumentParser) -> None:
@@ -544,6 +544,10 @@ def measure_in_sim(
         held = nominal.counts_min + (tp.inverse.solve(p)[0] - nominal.si_min) / nominal.resolution
     else:
         held = np.asarray(counts, dtype=float)
+        true_map = truth.scaling  # the pistons' counts: the true sensors'
+        for name, v, a, b in zip(ACTUATOR_ORDER, held, true_map.counts_min, true_map.counts_max, strict=True):
+            if not a <= v <= b:
+                raise CLIError(f"--counts: {name} = {v:.0f} lies outside its sensor's stroke {a:.0f}..{b:.0f} counts")
     instrument = Instrument(noise, seed=seed)
     with SimRig(model, SimSettings(seed=seed), initial_actuators=truth.si_from_counts(held), truth=truth) as rig:
         rig.start()
@@ -731,7 +735,9 @@ def add_commands(sub) -> None:
     _add_truth_option(e)
     e.set_defaults(handler=_cmd_ecu_sim)
     pp = ssub.add_parser("perturb", help="write a random true machine (truth profile) with tape-measure errors")
-    pp.add_argument("--seed", type=int, required=True, help="seed of the draw (the same seed, the same truth)")
+    pp.add_argument(
+        "--seed", type=whole_number("--seed"), required=True, help="seed of the draw (the same seed, the same truth)"
+    )
     pp.add_argument(
         "--tape",
         action="store_true",
@@ -762,7 +768,7 @@ def add_commands(sub) -> None:
         metavar="NAMES",
         help=f"marked points to read, e.g. {','.join(MARKED_POINTS)} (default none)",
     )
-    me.add_argument("--seed", type=int, default=0, help="seed of the instrument noise")
+    me.add_argument("--seed", type=whole_number("--seed"), default=0, help="seed of the instrument noise")
     _add_truth_option(me)
     add_model_options(me)
     me.set_defaults(handler=_cmd_sim_measure)

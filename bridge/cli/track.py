@@ -406,6 +406,16 @@ def _spec(args) -> _Spec:
         bad = [k for k in args.around if k not in dofs]
         if bad:
             raise CLIError(f"--around names {', '.join(bad)}, which --dof {','.join(dofs)} does not track")
+        from bridge.service.maneuvers.steps import POSE_BOUNDS  # the service's bounds of a setpoint's pose
+        from planner.errors import unit_hint
+
+        for k, v in args.around.items():
+            lo, hi = POSE_BOUNDS[k]
+            unit = "m" if k in ("x", "z") else "rad"
+            if not lo <= v <= hi:  # before: sent, then refused by the service after the session had started
+                raise CLIError(
+                    f"--around {k} = {v:g} {unit} lies outside [{lo:g}, {hi:g}] {unit}" + unit_hint(v, lo, hi, unit)
+                )
     ttl_ms = args.ttl_ms
     period_ms = 1000.0 / args.rate
     if period_ms > ttl_ms / 2:

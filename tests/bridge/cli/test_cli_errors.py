@@ -86,6 +86,13 @@ def test_cli_error_is_a_hitch_input_error():
         (["arm", "fk", "--joints=1,x"], "--joints must be comma-separated numbers"),
         (["profile", "frobnicate"], "hitch profile: argument profile_command: invalid choice"),
         (["maneuver", "run"], "hitch maneuver run: the following arguments are required: name"),
+        # a negative seed was a numpy traceback ("expected non-negative integer") in these two
+        (["calibrate", "plan-poses", "--seed", "-1", "--n", "4"], "--seed must be a whole number >= 0, got -1"),
+        (
+            ["calibrate", "measure-twin", "--seed", "-1", "--n", "4", "--out", "m.csv"],
+            "--seed must be a whole number >= 0, got -1",
+        ),
+        (["sim", "perturb", "--seed", "-1", "--tape", "--out", "t.toml"], "--seed must be a whole number >= 0"),
     ],
 )
 def test_argparse_errors_reach_the_user_as_cli_errors(capsys, argv, message):

@@ -83,6 +83,10 @@ def test_bad_sine_specs_name_the_flag_and_the_range(capsys, spec, words):
         ),
         (["--frame", "ground"], "--frame ground: z is the height above the ground"),
         (["--around", "x=0.01"], "--around names x, which --dof z does not track"),
+        # before: streamed (z = 5.009635 in --dry-run), then refused by the service as "track/setpoint: pose.z"
+        (["--around", "z=5"], "--around z = 5 m lies outside [-2, 2] m"),
+        (["--around", "z=250"], "did you mean mm? 250 mm = 0.25 m"),
+        (["--frame", "level", "--dof", "roll", "--sine", "roll=0.01@0.1Hz", "--around", "roll=1e308"], "roll = 1e+308"),
     ],
 )
 def test_bad_options_name_the_flag_and_the_allowed_range(capsys, argv, words):

@@ -72,7 +72,14 @@ class ManeuverRunError(HitchInputError):
 
 Action = Literal["goto", "continue", "stop", "done"]
 AbortReason = Literal[
-    "stop", "timeout", "ecu_silent", "predicted_violation", "interrupted", "plan_failed", "trigger_unavailable"
+    "stop",
+    "fault",
+    "timeout",
+    "ecu_silent",
+    "predicted_violation",
+    "interrupted",
+    "plan_failed",
+    "trigger_unavailable",
 ]
 RunnerStatus = Literal["pending", "running", "finished", "aborted"]
 

@@ -80,7 +80,7 @@ from bridge.link.state import LinkFaultError, LinkStatus, ReferenceRefused
 from bridge.link.unit_loop import FeedforwardShaper, build_unit_loops
 from bridge.service.gnss import GnssTracker
 from bridge.service.maneuvers.language import ValidationResult, guarded_plan_step
-from bridge.service.maneuvers.runner import LoopState, ManeuverRunner
+from bridge.service.maneuvers.runner import AbortReason, LoopState, ManeuverRunner
 from bridge.service.maneuvers.slot import ManeuverSlot
 from bridge.service.motion.link_port import LinkPort
 from bridge.service.motion.outbox import Outbox
@@ -277,7 +277,7 @@ class MotionController:
                 time.sleep(self.dt / 2)
         events: list[Event] = []
         with self._lock:
-            self._abort_all("service shutting down", self.clock(), events)
+            self._abort_all("service shutting down", self.clock(), events, "stop")
             self._post(events)
         if self._thread is not None:
             self._thread.stop(0.5)
@@ -899,8 +899,10 @@ class MotionController:
         self._generation += 1
         self._hold = self._hold_ref = None
 
-    def _abort_all(self, reason: str, now: float, events: list[Event]) -> None:
-        self._maneuver.abort(now, "stop", reason, events)
+    def _abort_all(self, reason: str, now: float, events: list[Event], kind: AbortReason = "fault") -> None:
+        """End the motion and the maneuver (its ``maneuver_aborted`` says ``kind``: ``fault`` for what the
+        link or the control cycle raised, ``stop`` for the service's own end), with ``reason``."""
+        self._maneuver.abort(now, kind, reason, events)
         if self._active is not None:
             events.append(self._ev("motion_aborted", self._active, reason=reason))
         self._active, self._hold, self._hold_ref = None, None, None

@@ -329,6 +329,19 @@ def test_maneuver_runs_its_steps_and_a_stop_aborts_it(bench):
     assert bench.states[-1]["maneuver"] is None
 
 
+def test_a_maneuver_a_link_fault_ends_says_fault_not_stop(bench):
+    """A field operator's report: a maneuver ended by the ECU falling silent said `aborted (stop: link fault …)`,
+    read as someone pressing STOP."""
+    script = "name: m\nsteps:\n  - goto: {z: 0.25}\n  - wait: 0.2\n  - goto: {z: 0.0}\n"
+    res = validate(script, PlanningContext(bench.mc.current_state(), bench.mc.plan_step, lambda name: None))
+    assert res.ok, res.errors
+    bench.mc.run_maneuver(res, "m")
+    bench.run(0.5)
+    bench.run(0.6, ecu=False)  # silent beyond the 0.2 s stale limit
+    (aborted,) = [e for e in bench.events if e["event"] == "maneuver_aborted"]
+    assert aborted["reason"] == "fault" and aborted["message"].startswith("link fault"), aborted
+
+
 def test_wait_for_waits_for_the_distance_travelled(bench):
     script = "steps:\n  - wait_for: {distance: 3.0}\n  - goto: {z: 0.2}\n"
     res = validate(script, PlanningContext(bench.mc.current_state(), bench.mc.plan_step, lambda name: None))

@@ -211,7 +211,8 @@ class HitchModel:
             self.top_link_reference = (0.0, 0.0)
         self.neutral_pose = state.pose
         self.workspace = self._workspace()
-        self._check_neutral()
+        if self.workspace is not None:  # a category without a workspace (no Cartesian motion) may lack a home
+            self._check_neutral()
 
     @classmethod
     def from_profile(cls, name_or_path: str | Path = "thesis-t132", category: str | None = None) -> HitchModel:
@@ -320,8 +321,10 @@ class HitchModel:
         return None
 
     def _check_neutral(self) -> None:
-        """The neutral pose (home) within every hard limit, else a :class:`ProfileError` naming the profile field
-        (a stroke that misses it loaded before and failed at the first plan, "exceed stroke:top:max at t = 0")."""
+        """The neutral pose (home) of a category with a restricted workspace within every hard limit, else a
+        :class:`ProfileError` naming the profile field (a stroke that misses it loaded before and failed at the
+        first plan, "exceed stroke:top:max at t = 0"). The thesis profile's category 4 has no workspace: its
+        home needs the top link at 0.973 m, beyond the 0.905 m stroke."""
         from planner.model.hard_limits import HardLimits  # it builds on this module
 
         p, q = self.profile, self.neutral
@@ -331,7 +334,8 @@ class HitchModel:
                 raise ProfileError(
                     f"profile {p.name}: the neutral pose (x = 0, pitch = 0, the category's span) needs {n} = "
                     f"{q[i]:.4f} {unit}, outside its stroke actuators.{n} [{self.lower[i]:g}, {self.upper[i]:g}] "
-                    f"{unit}: the stroke must contain it"
+                    f"{unit}: the stroke must contain it (category {self.category} has a workspace: "
+                    "workspace.restricted)"
                 )
         f, _ = self.features(q)
         for name in HardLimits.from_model(self).violations(q, f):

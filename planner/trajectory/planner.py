@@ -103,7 +103,8 @@ class TrajectoryPlanner:
             np.array(c)
             for c in itertools.product(*[(a, (a + b) / 2, b) for a, b in zip(self.lo, self.hi, strict=True)])
         ]
-        self._check_box(corners, "the workspace" if workspace is not None else f"workspace.restricted.{model.category}")
+        if workspace is None:  # the profile's box (one given here may reach beyond the mechanism on purpose)
+            self._check_box(corners, f"workspace.restricted.{model.category}")
         self.any_direction = box_limits(self.inverse, corners, self.limits)
         self._ruckig = Ruckig(4)
         self._input = InputParameter(4)

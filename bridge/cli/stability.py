@@ -47,9 +47,10 @@ def _cmd_stability(args) -> int:
         "pose": dict(zip(("x", "z", "roll", "pitch"), map(float, pose), strict=True)),
         "slope": {"roll": args.slope_roll, "pitch": args.slope_pitch},
     }
+    verdict = 0 if out["ok"] else 1  # scripts can test it, as `goto --wait` exits 1 when aborted
     if args.json:
         print(to_json_text(out))
-        return 0
+        return verdict
     c = console()
     c.print(
         f"implement: {esc(out['implement'] or 'none')}; "
@@ -74,7 +75,7 @@ def _cmd_stability(args) -> int:
             f"[red]{esc(v['level'])}[/red]: {esc(v['measure'])} = {v['value']:.4g} {u} below {v['threshold']:.4g} {u}"
         )
     c.print("[green]ok[/green]" if out["ok"] else "[red]NOT OK[/red]")
-    return 0
+    return verdict
 
 
 def add_commands(sub) -> None:

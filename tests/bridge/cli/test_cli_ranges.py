@@ -89,6 +89,14 @@ def test_stability_inside_the_workspace_still_runs(capsys):
     assert json.loads(capsys.readouterr().out)["pose"]["z"] == pytest.approx(0.1)
 
 
+def test_stability_exits_1_when_the_verdict_is_not_ok(capsys):
+    """An engineer's report: `NOT OK` (and "ok": false) came with exit 0, so a script could not use it."""
+    argv = ["stability", "--pose", "z=0.3", "--slope-roll", "0.7", "--implement", "cat2-power-harrow-1500"]
+    assert main([*argv, "--json"]) == 1
+    assert json.loads(capsys.readouterr().out)["ok"] is False
+    assert main(argv) == 1 and "NOT OK" in capsys.readouterr().out
+
+
 # ---------------------------------------------------------------------------------------- plan
 def test_plan_reports_every_goal_dof_off_the_workspace_with_the_mm_hint(capsys):
     assert main(["plan", "--to", "x=50,z=300"]) == 2

@@ -71,6 +71,7 @@ import math
 import threading
 import time
 from collections.abc import Callable, Mapping
+from dataclasses import replace
 from functools import partial
 from typing import Any, Protocol
 
@@ -305,11 +306,14 @@ class MotionController:
             raise MotionError("bad_request", f"mode must be one of {', '.join(MODES)}, got {mode!r}")
         with self._lock:
             if mode != self._mode and (self._active is not None or self._maneuver.running):
-                what = (
-                    f"motion {self._active.motion_id}" if self._active is not None else f"maneuver {self._maneuver.id}"
-                )
+                a = self._active
+                braking = a is not None and getattr(a, "kind", None) == "stop" and not self._maneuver.running
+                what = f"motion {a.motion_id}" if a is not None else f"maneuver {self._maneuver.id}"
+                todo = "wait until it is at rest" if braking else "send stop first and wait until it is at rest"
                 raise MotionError(
-                    "busy", f"mode change to {mode!r} refused while the hitch is moving ({what}); send stop first"
+                    "busy",
+                    f"mode change to {mode!r} refused while the hitch is "
+                    f"{'braking to rest' if braking else 'moving'} ({what}); {todo}",
                 )
             if mode != self._mode:
                 old, self._mode = self._mode, mode
@@ -360,8 +364,12 @@ class MotionController:
         with self._lock:
             self._check_allowed("jog")
             self._check_no_fault("jog")
+            capped: dict[str, str] = {}  # what the mode caps, said in the reply like any other limit
             if self._mode == "attach":  # slow rates, same responsiveness (acceleration and jerk not scaled)
                 cap = ATTACH_SPEED_SCALE * self.planner.any_direction.velocity
+                for k, vk, ck in zip(("x", "z", "roll", "pitch"), v, cap, strict=True):
+                    if abs(vk) > ck:
+                        capped[f"{k}{'+' if vk > 0 else '-'}"] = "mode:attach"
                 v = np.clip(v, -cap, cap)
             now = self.clock()
             m = self._active
@@ -380,6 +388,8 @@ class MotionController:
                 self._install(m)
                 events.append(self._ev("motion_started", m, kind="jog"))
             acc = m.refresh(self.guard, v, now + ttl_s)
+            if capped:
+                acc = replace(acc, limited={**capped, **acc.limited})
             self._post(events)
         self.outbox.flush()
         return acc
@@ -747,16 +757,17 @@ class MotionController:
         refused (``busy``): the motion is never started later than asked.
         """
         from_maneuver = runner is not None
+        what = label if kind == "preset" and label in ("raise", "return") else kind  # named so in refusals
         lead = _PLAN_LEAD_S
         for _ in range(_PLAN_TRIES):
             with self._lock:
                 now = self.clock()
                 if not from_maneuver:
-                    self._check_startable(kind, now, deadline, issued)
+                    self._check_startable(kind, now, deadline, issued, what)
                 self._expire_jog(now)  # a dying jog is replaced from its braking plan
                 why = link_problem(self.link.status(now), now, self.link.config.stale_after_s)
                 if why:
-                    raise MotionError("ecu", f"{kind} refused: {why}")
+                    raise MotionError("ecu", f"{what} refused: {why}")
                 t_switch = now + lead
                 start = self._predict(t_switch)
                 from_rest = self._active is None and not start.moving  # holding: the start does not age
@@ -775,7 +786,7 @@ class MotionController:
                 if from_maneuver and not self._maneuver.owns(runner, request):
                     raise MotionError("busy", "the maneuver was aborted while its step was being planned")
                 if not from_maneuver:
-                    self._check_startable(kind, self.clock(), deadline, issued)
+                    self._check_startable(kind, self.clock(), deadline, issued, what)
                 if self._generation != gen:
                     continue  # something else started meanwhile: re-plan from it
                 now = self.clock()
@@ -817,18 +828,22 @@ class MotionController:
             return acc
         raise MotionError("busy", f"{kind} could not be started: the service is too busy to plan in time")
 
-    def _check_startable(self, kind: str, now: float, deadline: float | None, issued: float | None) -> None:
+    def _check_startable(
+        self, kind: str, now: float, deadline: float | None, issued: float | None, what: str | None = None
+    ) -> None:
         """A command may start now: mode, precedence, no fault held, not cancelled by a later stop,
-        its deadline not passed (all O(1), under the lock)."""
+        its deadline not passed (all O(1), under the lock). ``what`` names it in refusals (default ``kind``:
+        a quick raise is a ``preset`` motion, refused as ``raise``)."""
+        what = what or kind
         self._check_allowed(kind)
         self._check_precedence()
-        self._check_no_fault(kind)
+        self._check_no_fault(what)
         if issued is not None and issued <= self._stopped_at:
-            raise MotionError("busy", f"{kind} cancelled: a stop was sent after this request arrived; not run later")
+            raise MotionError("busy", f"{what} cancelled: a stop was sent after this request arrived; not run later")
         if deadline is not None and now > deadline:
             raise MotionError(
                 "busy",
-                f"{kind} refused: its deadline passed {now - deadline:.3f} s ago (the service was busy); not run later",
+                f"{what} refused: its deadline passed {now - deadline:.3f} s ago (the service was busy); not run later",
             )
 
     def _check_no_fault(self, kind: str) -> None:

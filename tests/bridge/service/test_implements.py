@@ -331,6 +331,19 @@ def test_quick_raise_and_return_in_thread_mode(svc):
     assert svc.pose()[1] == pytest.approx(0.2, abs=1e-6)
 
 
+def test_a_refused_quick_raise_is_called_a_raise(svc):
+    """A field operator's report: `hitch raise` with a fault held answered "hitch/raise: preset refused: …"."""
+    from bridge.service.motion.types import Fault
+
+    svc.ok("implements/define", HARROW)
+    svc.ok("implements/select", {"name": "harrow"})
+    svc.ok("presets/save", {"name": HEADLAND_PRESET, "pose": HEADLAND})
+    svc.mc._faults["internal"] = Fault("internal", "a test's fault", True, 0.0)
+    ok, r = svc.call("hitch/raise")
+    assert not ok and r["error"] == "ecu" and "raise refused: fault held: internal" in r["message"], r
+    assert "preset" not in r["message"], r
+
+
 @pytest.mark.slow
 def test_quick_raise_return_and_selection_with_the_core_in_its_own_process(tmp_path):
     cfg = ServiceConfig(listen=[f"tcp/127.0.0.1:{free_port()}"], data_dir=tmp_path, planning_processes=0)

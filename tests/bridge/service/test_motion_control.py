@@ -277,11 +277,17 @@ def test_modes_gate_motion(bench):
         bench.mc.goto({"z": 0.2})
     vmax = bench.mc.planner.any_direction.velocity[1]
     vz = []
+    # the reply says what caps the jog (a field operator's report: quarter speed with "limited": {} before)
+    assert bench.mc.jog({"vz": 1.0}, 0.2).limited["z+"] == "mode:attach"
     bench.run(1.0, each=lambda: (bench.mc.jog({"vz": 1.0}, 0.2), vz.append(bench.mc.current_state().velocity[1])))
     assert max(vz) <= ATTACH_SPEED_SCALE * vmax * (1 + 1e-6) and max(vz) > 0.5 * ATTACH_SPEED_SCALE * vmax
     with pytest.raises(MotionError) as ei:  # mode change while moving: refused
         bench.mc.set_mode("auto")
-    assert ei.value.code == "busy"
+    assert ei.value.code == "busy" and "send stop first" in str(ei.value)
+    bench.mc.stop()
+    with pytest.raises(MotionError) as ei:  # while the stop brakes: nothing to stop, wait for rest
+        bench.mc.set_mode("auto")
+    assert "braking to rest" in str(ei.value) and "send stop" not in str(ei.value), str(ei.value)
     bench.run_until_rest()
     assert bench.mc.set_mode("auto") == "auto"
     with pytest.raises(MotionError):

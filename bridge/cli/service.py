@@ -349,7 +349,7 @@ def _motion(args, c, start: Callable[[], dict], wait: Callable[[dict], dict]) ->
             planned = reply.get("duration")
             plan = f", planned {planned:.2f} s" if isinstance(planned, (int, float)) else ""
             stop = "the motion goes on" if args.detach else "stops it"
-            print(f"started (id {reply.get('motion_id')}{plan}); waiting for the end (Ctrl-C {stop})", flush=True)
+            print(f"started (id {reply.get('motion_id')}{plan}); waiting for the end (Ctrl-C: {stop})", flush=True)
         return reply, (wait(reply) if args.wait else None)
     except KeyboardInterrupt:
         if args.detach:
@@ -396,7 +396,7 @@ def _ended(final: dict | None) -> tuple[str, int]:
     out = final.get("outcome") or {}
     if out.get("event") == "motion_aborted":
         return f"; ABORTED: {out.get('reason') or 'no reason given'}{where}", 1
-    return where, 0
+    return (f"; finished{where}" if out.get("event") == "motion_finished" else where), 0
 
 
 def _wait_maneuver(c, maneuver_id: object, timeout_s: float) -> dict:
@@ -463,7 +463,7 @@ def _cmd_jog(args) -> int:
         while time.monotonic() < end:  # dead-man: keep refreshing while "held"
             time.sleep(period)
             r = c.jog(args.vx, args.vz, args.vroll, args.vpitch, args.ttl_ms)
-        limited = r.get("limited")
+        limited = ", ".join(f"{k} by {v}" for k, v in (r.get("limited") or {}).items())
         _print(args, r, f"jog motion {r['motion_id']}" + (f", limited: {limited}" if limited else ""))
         return 0
 

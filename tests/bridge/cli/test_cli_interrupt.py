@@ -124,7 +124,7 @@ def test_ctrl_c_on_a_waiting_motion_stops_it(service, argv):
         assert proc.returncode == 130, (out, err)
         assert "stop sent" in err, err
         # the start was said when it happened, with the id the stop names (the old CLI printed nothing)
-        assert out.startswith("started (id ") and "waiting for the end (Ctrl-C stops it)" in out, out
+        assert out.startswith("started (id ") and "waiting for the end (Ctrl-C: stops it)" in out, out
         rest = _wait_rest(c, 10.0)  # the stop brakes: at rest well before the 0.45 m move could end
         assert rest["pose"]["z"] < 0.2, (start["pose"], rest["pose"])
         time.sleep(1.0)

@@ -361,6 +361,7 @@ def test_an_awaited_motion_says_how_it_ended_and_an_aborted_one_exits_1(monkeypa
         out = capsys.readouterr().out
         assert "now at" in out and "z=+0.0970" in out
         assert ("ABORTED: stop requested" in out) == (outcome == "motion_aborted"), out
+        assert ("; finished; now at" in out) == (outcome == "motion_finished"), out  # it said only "accepted" before
     assert main(["goto", "--to", "z=-0.15", "--wait", "--json"]) == expected
     final = json.loads(capsys.readouterr().out)["final"]
     assert final["outcome"]["event"] == outcome

@@ -415,13 +415,15 @@ class CanLink:
         if not self._streaming or not system_state & STATE_WATCHDOG_TRIPPED:
             return
         running_s = now_s - self._stream_since_s
-        if running_s > self._cfg.references_lost_after_s + _EPS_S:
+        cfg = self._cfg
+        if running_s > cfg.references_lost_after_s + _EPS_S:
             self._raise(
                 [
                     (
                         "references_lost",
-                        f"the ECU reports its watchdog expired after {running_s:.3f} s of streaming "
-                        f"(references do not arrive; limit {self._cfg.references_lost_after_s:g} s)",
+                        f"the ECU reports its reference watchdog expired (no fresh reference for "
+                        f"{cfg.ecu_watchdog_timeout_s:g} s) while references are being sent: they are lost on the "
+                        f"way, or arrive later than the link allows ({cfg.link_latency_s * 1000:.0f} ms each way)",
                     )
                 ]
             )

@@ -137,7 +137,9 @@ class TrajectoryPlanner:
 
     # ------------------------------------------------------------------ goals
     def goal_vector(self, current: ArrayLike, goal: Mapping[str, float]) -> np.ndarray:
-        """Full goal (x, z, roll, pitch) from a partial mapping; unspecified DOF keep ``current``."""
+        """Full goal (x, z, roll, pitch) from a partial mapping; unspecified DOF keep ``current``, moved onto the
+        workspace's face where ``current`` lies outside it (a jog or the sensors leave the hitch a little outside:
+        a goal of z alone was refused as "goal.x = 0.0621 m is above the workspace", naming a DOF not given)."""
         if not isinstance(goal, Mapping):
             raise TrajectoryInputError(f"goal must be a mapping with any of {', '.join(CONTROLLED_POSE_NAMES)}")
         unknown = set(goal) - set(CONTROLLED_POSE_NAMES)
@@ -145,7 +147,7 @@ class TrajectoryPlanner:
             raise TrajectoryInputError(
                 f"goal: unknown field(s) {', '.join(sorted(unknown))}; allowed: x, z, roll, pitch"
             )
-        out = np.asarray(current, float).copy()
+        out = np.clip(np.asarray(current, float), self.lo, self.hi)
         for i, k in enumerate(CONTROLLED_POSE_NAMES):
             if k in goal:
                 v = goal[k]

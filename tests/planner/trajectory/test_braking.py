@@ -144,6 +144,21 @@ def test_from_outside_the_workspace_back_in_is_allowed_further_out_refused(tp, d
     assert out.state.position[dof] == pytest.approx(start[dof], abs=1e-12) and face in out.limited.values()
 
 
+@pytest.mark.parametrize("side", [1, -1])
+def test_a_partial_goal_from_just_outside_the_workspace_brings_the_other_dofs_back_to_its_face(tp, side):
+    """An engineer's report: after a jog left x 0.1 mm beyond its face, a goal of z alone was refused as
+    "goal.x = 0.0621 m is above the workspace", naming a DOF the caller had not given."""
+    centre = (tp.lo + tp.hi) / 2
+    start = centre.copy()
+    start[0] = (tp.hi[0] if side > 0 else tp.lo[0]) + side * 1e-4
+    plan = tp.plan_move(MotionState.at_rest(start), {"z": float(centre[1]) + 0.05})
+    end = plan.sampled().pose[-1, [0, 2, 3, 4]]
+    assert end[0] == pytest.approx(tp.hi[0] if side > 0 else tp.lo[0], abs=1e-12)
+    assert end[1] == pytest.approx(centre[1] + 0.05, abs=1e-9)
+    with pytest.raises(PlanError, match="goal.x"):  # a goal that names x outside is still refused
+        tp.plan_move(MotionState.at_rest(start), {"x": float(start[0])})
+
+
 # -- a goto replacing a moving one: reversals and slow re-plans ---------------------------------------------
 def _lowering(tp, t_switch):
     p0 = tp.model.neutral_pose.controlled()

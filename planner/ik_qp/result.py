@@ -75,6 +75,9 @@ def check_target(target: Target | Mapping[str, float] | Iterable[float]) -> tupl
         missing = [n for n in _TARGET_FIELDS if n not in target]
         if missing:
             raise IKInputError(f"target: missing field(s) {', '.join(missing)}")
+        unknown = sorted(str(k) for k in target if k not in _TARGET_FIELDS)  # a yaw was silently ignored
+        if unknown:
+            raise IKInputError(f"target: unknown field(s) {', '.join(unknown)}; allowed: {', '.join(_TARGET_FIELDS)}")
         v = [_finite(n, target[n]) for n in _TARGET_FIELDS]
         return v[0], v[1], v[2], v[3]
     try:

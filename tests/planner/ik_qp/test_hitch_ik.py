@@ -147,6 +147,12 @@ def test_bad_input_names_the_field(model, solver, bad, field):
         solver.solve(kw)
 
 
+def test_a_mapping_with_an_unknown_field_is_refused(solver):
+    """An engineer's report: a target mapping with "yaw" was solved with the yaw silently ignored."""
+    with pytest.raises(ValueError, match=r"target: unknown field\(s\) yaw; allowed: x, z, roll, pitch"):
+        solver.solve({"x": 0.0, "z": 0.2, "roll": 0.0, "pitch": 0.0, "yaw": 0.1})
+
+
 def test_baselines_agree_with_qp_near_neutral(model, solver, rng):
     """Thesis methods near the start pose: DLS/hybrid converge on the exact model; the
     geometric small-change formulas stay within a few mm / mrad for small moves."""

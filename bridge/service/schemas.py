@@ -515,7 +515,24 @@ def _format(key: str, exc: ValidationError, model: type[BaseModel]) -> str:
         n = (e.get("ctx") or {}).get("actual_length")
         want = f"exactly {lo}" if lo == hi else f"{lo}..{hi}"
         return f"{key}: {path} must hold {want} items, got {n if n is not None else 'another number'}"
-    return f"{key}: {path} = {_show(e.get('input'))} {msg}{_allowed(model, loc)}"
+    allowed = _allowed(model, loc)
+    if msg == "is out of range" and isinstance(e.get("input"), (int, float)):
+        allowed += _range_hint(model, loc, float(e["input"]))
+    return f"{key}: {path} = {_show(e.get('input'))} {msg}{allowed}"
+
+
+def _range_hint(model: type[BaseModel], loc: tuple[int | str, ...], value: float) -> str:
+    """``; did you mean mm? …`` (or degrees) for a length [m] or angle [rad] out of its range that fits it read
+    so (an engineer's report: `ik` with z = 200 named only the ±2 m, where goto hinted at mm)."""
+    info, _ = _field_at(model, loc)
+    unit = _allowed(model, loc).rsplit(" ", 1)[-1].rstrip(")")
+    if info is None or unit not in ("m", "rad"):
+        return ""
+    lo, hi = -math.inf, math.inf
+    for c in info.metadata:
+        lo = max(lo, *(float(getattr(c, a)) for a in ("gt", "ge") if getattr(c, a, None) is not None), -math.inf)
+        hi = min(hi, *(float(getattr(c, a)) for a in ("lt", "le") if getattr(c, a, None) is not None), math.inf)
+    return unit_hint(value, lo, hi, unit)
 
 
 class _NonFinite:

@@ -83,6 +83,9 @@ def test_parse_the_documented_example_and_round_trip():
         ("steps: [{goto: {z: 0.1}", None, ["not valid YAML", "line 1"]),
         ("{1: 2, steps: [{wait: 1}]}", None, ["keys must be strings"]),
         ("a: &x [1, 2]\nb: *x\nsteps: [{wait: 1}]", None, ["aliases"]),
+        # a field operator's report: no mm hint, where the CLI's goto gave one for the same value
+        ("steps: [{goto: {z: 250}}]", 0, ["(allowed: z >= -2 and <= 2 m); did you mean mm? 250 mm = 0.25 m"]),
+        ("steps: [{goto: {roll: 30}}]", 0, ["did you mean degrees? 30 deg = 0.523599 rad"]),
     ],
 )
 def test_bad_scripts_name_step_field_and_range(text, step, needles):

@@ -156,6 +156,16 @@ def test_workspace_hints_only_when_the_value_fits_in_mm():
     assert "below the workspace" in str(e) and "did you mean" not in str(e)
 
 
+def test_a_pose_out_of_the_schemas_range_hints_at_mm_and_degrees():
+    """An engineer's report: `ik` with z = 200 named only the ±2 m, where goto hinted at mm."""
+    e = _refusal("ik", json.dumps({"x": 0, "z": 200, "roll": 0, "pitch": 0}))
+    assert "z = 200 is out of range (allowed: >= -2 and <= 2 m); did you mean mm? 200 mm = 0.2 m" in str(e), e
+    e = _refusal("ik", json.dumps({"x": 0, "z": 0.2, "roll": 20, "pitch": 0}))
+    assert "did you mean degrees? 20 deg = 0.349066 rad" in str(e), e
+    e = _refusal("ik", json.dumps({"x": 0, "z": -5000, "roll": 0, "pitch": 0}))  # -5 m in mm: no hint
+    assert "did you mean" not in str(e), e
+
+
 def test_preset_poses_are_checked_against_the_workspace():
     e = _refusal("presets/save", json.dumps({"name": "a", "pose": {"z": 120}}), workspace=WS)
     assert e.code == "unreachable" and "pose.z = 120 m" in str(e) and "z from -0.2163 to 0.3117 m" in str(e)

@@ -64,6 +64,12 @@ class ScenarioError(HitchInputError):
     """A scenario file that cannot be used; the message names the field (or CSV line) and the allowed range."""
 
 
+#: the steepest ground a scenario may describe (a CSV profile or the sum of its sines): 1 = 45°
+MAX_TERRAIN_SLOPE = 1.0
+#: at most this many sines per terrain list (undulation, cross_slope_wave): each is evaluated every twin tick
+MAX_TERRAIN_WAVES = 64
+
+
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True, frozen=True, allow_inf_nan=False)
 
@@ -101,8 +107,8 @@ class _CrossWaveSpec(_Strict):
 class _TerrainSpec(_Strict):
     grade_rad: float = Field(default=0.0, ge=-0.5, le=0.5)
     cross_slope_rad: float = Field(default=0.0, ge=-0.5, le=0.5)
-    undulation: list[_UndulationSpec] = []
-    cross_slope_wave: list[_CrossWaveSpec] = []
+    undulation: list[_UndulationSpec] = Field(default=[], max_length=MAX_TERRAIN_WAVES)
+    cross_slope_wave: list[_CrossWaveSpec] = Field(default=[], max_length=MAX_TERRAIN_WAVES)
     csv: str | None = Field(default=None, min_length=1)
 
     @model_validator(mode="after")
@@ -113,6 +119,16 @@ class _TerrainSpec(_Strict):
         peak = abs(self.cross_slope_rad) + sum(abs(w.amplitude_rad) for w in self.cross_slope_wave)
         if peak > 0.5:
             raise ValueError(f"cross slope peaks at {peak:g} rad: cross_slope_rad + wave amplitudes must be <= 0.5")
+        # the steepest the sines can add up to, as a CSV profile's slope is bounded (0.3 m at 0.5 m wavelength,
+        # a slope of 3.8, loaded and failed later as "no ground-distance reading")
+        slope = abs(math.tan(self.grade_rad)) + sum(
+            2 * math.pi * abs(u.amplitude_m) / u.wavelength_m for u in self.undulation
+        )
+        if slope > MAX_TERRAIN_SLOPE:
+            raise ValueError(
+                f"the ground's slope reaches {slope:.3g}: tan(grade_rad) + the sum of 2π·|amplitude_m| / wavelength_m "
+                f"over terrain.undulation must be <= {MAX_TERRAIN_SLOPE:g} (45°)"
+            )
         return self
 
 
@@ -223,9 +239,8 @@ def _csv_check(
             raise ScenarioError(f"{name} data row {i + 1} (line {lines[i]}): {col} = {v:g} must increase")
 
 
-#: the steepest ground a terrain profile may have between two rows (|Δheight / Δdistance|; 1 = 45°): a tractor
-#: drives nothing steeper, and a step is a typing error (mm for m, a missing decimal point)
-MAX_TERRAIN_SLOPE = 1.0
+# MAX_TERRAIN_SLOPE (above) also bounds a terrain profile between two rows (|Δheight / Δdistance|; 1 = 45°): a tractor
+# drives nothing steeper, and a step is a typing error (mm for m, a missing decimal point)
 
 
 def _speed(spec: _SpeedSpec, base: Traversable | Path) -> SpeedProfile:

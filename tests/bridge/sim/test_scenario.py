@@ -93,6 +93,20 @@ def test_undulation_entries_and_cross_field_rules_are_named():
         scenario_from_dict({k: v for k, v in GOOD.items() if k != "duration_s"})
 
 
+def test_sines_steeper_than_45_degrees_and_too_many_sines_are_refused():
+    """An attacker's report: 0.3 m at 0.5 m wavelength (a slope of 3.8) loaded; `sim track` then failed with "no
+    ground-distance reading" and `sim field` reported 99 cm of depth; 200 000 sines hung the CLI."""
+    data = copy.deepcopy(GOOD)
+    data["terrain"]["undulation"] = [{"amplitude_m": 0.3, "wavelength_m": 0.5}]
+    with pytest.raises(ScenarioError, match=r"terrain: .*slope reaches 3\.77: .* must be <= 1 \(45°\)"):
+        scenario_from_dict(data)
+    data["terrain"]["undulation"] = [{"amplitude_m": 0.001, "wavelength_m": 100.0}] * 65
+    with pytest.raises(ScenarioError, match=r"terrain.undulation.*at most 64"):
+        scenario_from_dict(data)
+    data["terrain"]["undulation"] = [{"amplitude_m": 0.1, "wavelength_m": 0.63}]  # just under 1
+    scenario_from_dict(data)
+
+
 def write(tmp_path, name, text):
     (tmp_path / name).write_text(text, encoding="utf-8")
     return tmp_path / name

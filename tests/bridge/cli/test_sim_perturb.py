@@ -101,6 +101,8 @@ def test_bad_cli_arguments_name_the_option(capsys, argv, words):
 
 def test_bad_values_reach_the_user_as_one_line(capsys, tmp_path):
     code, _, err = run(capsys, "sim", "perturb", "--seed", "-1", "--tape")
+    assert code == 2 and "--seed must be a whole number >= 0, got -1" in err  # at parse time, as every --seed
+    code, _, err = run(capsys, "sim", "perturb", "--seed", str(2**63), "--tape")
     assert code == 2 and "seed must be an integer in [0, 2^63)" in err
     code, _, err = run(capsys, "sim", "measure", "--sim-truth", str(tmp_path / "none.toml"))
     assert code == 2 and "does not exist" in err

@@ -134,6 +134,7 @@ def noise_kind(text: str) -> str:
 
 #: start of the comment line that carries the pin play in a truth file
 PLAY_MARKER = "#! sim-truth play ="
+_TRUTH_DIRECTIVE = "#! sim-truth "
 
 _PLAY_MAX_M = 0.01
 _SPAN_ROW = FEATURE_NAMES.index("lower_span")
@@ -216,7 +217,21 @@ def _vector5(name: str, value: ArrayLike) -> np.ndarray:
 
 
 def _parse_play(text: str, source: str) -> PinPlay:
-    for line in text.splitlines():
+    """The play line of a truth file; a second one, or a ``#! sim-truth`` line with another key, is an error (a
+    misspelt ``flay`` ran as a truth without play, and of two play lines the first won silently)."""
+    lines = [(n, ln) for n, ln in enumerate(text.splitlines(), 1) if ln.startswith(_TRUTH_DIRECTIVE)]
+    for n, ln in lines:
+        if not ln.startswith(PLAY_MARKER):
+            key = ln[len(_TRUTH_DIRECTIVE) :].split("=")[0].strip() or "(none)"
+            raise TruthError(
+                f"truth {source} line {n}: unknown directive {_TRUTH_DIRECTIVE.strip()} {key!r}; the one there is: "
+                f"{PLAY_MARKER} {{ lower_link_m = …, top_link_m = … }}"
+            )
+    if len(lines) > 1:
+        raise TruthError(
+            f"truth {source}: {len(lines)} play lines (lines {', '.join(str(n) for n, _ in lines)}); give one"
+        )
+    for _, line in lines:
         if line.startswith(PLAY_MARKER):
             try:
                 data = tomllib.loads("play =" + line[len(PLAY_MARKER) :])["play"]

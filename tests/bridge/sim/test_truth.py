@@ -320,6 +320,14 @@ def test_a_bad_play_line_names_the_field(tmp_path, model):
     path.write_text(text.replace("lower_link_m", "balls_m"), encoding="utf-8")
     with pytest.raises(TruthError, match="lower_link_m, top_link_m"):
         load_machine_truth(path)
+    # an attacker's report: a misspelt directive ran as a truth without play; of two play lines the first won
+    path.write_text(text.replace("#! sim-truth play", "#! sim-truth flay"), encoding="utf-8")
+    with pytest.raises(TruthError, match=r"bad.toml line \d+: unknown directive #! sim-truth 'flay'"):
+        load_machine_truth(path)
+    line = next(ln for ln in text.splitlines() if ln.startswith("#! sim-truth play"))
+    path.write_text(text.replace(line, line + "\n" + line), encoding="utf-8")
+    with pytest.raises(TruthError, match=r"bad.toml: 2 play lines"):
+        load_machine_truth(path)
 
 
 def test_a_truth_whose_model_differs_is_built_separately(model):

@@ -98,6 +98,9 @@ def _cmd_lines(args: Any) -> int:
             rows = [f"{ln['name']}: {ln['vertices']} vertices, crossed {ln['crossings']} time(s)" for ln in r["lines"]]
             pos = r.get("position")
             rows.append("position: -" if pos is None else f"position: east {pos[0]:+.2f} m, north {pos[1]:+.2f} m")
+            g = r.get("gnss") or {}
+            if g.get("rejected"):
+                rows[-1] += f"; GNSS fixes {g['fixes']}, rejected {g['rejected']} (last: {g['last_rejection']})"
             _print(args, r, "\n".join(rows) if r["lines"] else "(no lines)\n" + rows[-1])
         else:
             r = c.request("lines/delete", {"name": args.name})

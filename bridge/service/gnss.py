@@ -336,6 +336,12 @@ class GnssTracker:
             self.last_error = str(exc)[:200]
             return False
 
+    def counts(self) -> dict[str, Any]:
+        """``{"fixes", "rejected", "last_rejection"}``: what ``tractor/gnss`` brought (``lines/list`` answers it: a
+        bad put is not answered, so a publisher learns here why its fixes do not count)."""
+        with self._lock:
+            return {"fixes": self.fixes, "rejected": self.rejected, "last_rejection": self.last_error}
+
     def take_fix(self, data: Mapping[str, Any], now_s: float | None = None) -> None:
         """One fix (``lat``/``lon`` or ``east``/``north``, optional ``speed``, ``heading``); raises GnssError."""
         extra = set(data) - {"lat", "lon", "east", "north", "speed", "heading", "t"}

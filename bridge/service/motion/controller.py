@@ -686,7 +686,7 @@ class MotionController:
             if name is None or not self.gnss.delete_line(name):
                 raise MotionError("not_found", f"lines/delete: no line {name!r}")
             return {"deleted": name}
-        return {"lines": self.gnss.lines(), "position": self.gnss.position()}
+        return {"lines": self.gnss.lines(), "position": self.gnss.position(), "gnss": self.gnss.counts()}
 
     def post_event(self, event: Event) -> None:
         """Announce ``event`` (numbered in order with the controller's own; any thread, O(1))."""

@@ -174,6 +174,10 @@ def test_lines_are_kept_across_a_restart_and_loaded_from_a_file(tmp_path):
     try:
         with HitchClient([ep], timeout_s=10) as c:
             assert [ln["name"] for ln in c.request("lines/list", {})["lines"]] == ["north"]
+            # an attacker's report: a bad GNSS put was dropped without trace anywhere; lines/list counts it now
+            c.session.put("hitch/tractor/gnss", b'{"lat": NaN, "lon": 11}')
+            assert wait_until(lambda: c.request("lines/list", {})["gnss"]["rejected"] == 1, 5.0)
+            assert "lat" in c.request("lines/list", {})["gnss"]["last_rejection"]
             c.request("lines/save", {"name": "headland", "geojson": _line_across(plane, 30.0)})
             c.request("lines/save", {"name": "gone", "geojson": _line_across(plane, 40.0)})
             c.request("lines/delete", {"name": "gone"})

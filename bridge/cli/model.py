@@ -109,8 +109,9 @@ def _cmd_fk(args) -> int:
     q = np.array([args.lift, args.tilt, args.top, args.left, args.right])
     check_actuators(q, model.lower, model.upper, _ACTUATOR_LABELS)  # every flag off its stroke, before FK
     state = model.forward(q)
+    warnings = _fk_warnings(model, q, state)
     if args.json:
-        print(to_json_text(state_to_json(state)))
+        print(to_json_text({**state_to_json(state), "warnings": warnings}))
         return 0
     c = console()
     p = state.pose
@@ -126,7 +127,32 @@ def _cmd_fk(args) -> int:
     for k, v in state.points.items():
         t.add_row(esc(k), *(f"{x:+.4f}" for x in v))
     c.print(t)
+    for w in warnings:
+        c.print(f"[yellow]warning:[/yellow] {esc(w)}")
     return 0
+
+
+#: how far the lower links' ball span may differ from the implement's before fk says the pose cannot be taken [m]
+FK_SPAN_TOLERANCE_M = 0.001
+
+
+def _fk_warnings(model: HitchModel, q: np.ndarray, state) -> list[str]:
+    """What makes the five lengths a pose no implement takes (an engineer's report: 51 mm of span mismatch and a
+    top-link yaw beyond its limit came back without a word): the implement's span, the hard limits."""
+    from planner.model.hard_limits import HardLimits
+
+    out = []
+    gap = state.lower_span - model.span
+    if abs(gap) > FK_SPAN_TOLERANCE_M:
+        out.append(
+            f"not a pose the implement can take: the lower-link balls are {state.lower_span:.4f} m apart, the "
+            f"implement's span is {model.span:.4f} m ({gap * 1000:+.1f} mm); the five lengths do not fit one another"
+        )
+    f, _ = model.features(q)
+    bad = HardLimits.from_model(model).violations(q, f)
+    if bad:
+        out.append(f"beyond the hard limits: {', '.join(bad)}")
+    return out
 
 
 def profile_summary(model: HitchModel) -> dict:

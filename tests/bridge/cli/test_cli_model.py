@@ -36,6 +36,15 @@ def test_fk_json_matches_the_model(model):
     assert d["pose"]["z"] == pytest.approx(model.neutral_pose.z, abs=1e-12)
     assert {"L", "R", "T", "U", "H", "S_l", "S_r", "C_l", "C_r"} <= set(d["points"])
     assert len(d["points"]["U"]) == 3
+    assert d["warnings"] == []  # the neutral lengths fit the implement
+
+
+def test_fk_of_lengths_no_implement_fits_warns():
+    """An engineer's report: 51 mm of span mismatch and a top-link yaw beyond its limit came back without a word."""
+    r = run("fk", "--lift", "0.22", "--tilt", "0.63", "--top", "0.74", "--left", "0.5", "--right", "0.575")
+    assert r.returncode == 0, r.stderr
+    assert "warning: not a pose the implement can take: the lower-link balls are 0.9164 m apart" in r.stdout
+    assert "(+51.4 mm)" in r.stdout and "warning: beyond the hard limits: top_link_yaw_min" in r.stdout
 
 
 def test_profile_show_json():

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from bridge.cli.errors import CLIError
 from bridge.cli.model import add_model_options, bounded_float, model_from_args
 from bridge.cli.output import console, esc
 from bridge.cli.plan import parse_pose_arg
@@ -22,6 +23,11 @@ def _cmd_stability(args) -> int:
     model = model_from_args(args)
     tprof = load_tractor_profile(model.profile.stability.tractor_profile)
     implement = None if args.implement in (None, "none") else tprof.implement(args.implement)
+    if implement is not None and implement.category != model.category:  # as implements/select refuses it
+        raise CLIError(
+            f"--implement {implement.name} is an ISO 730 category {implement.category} implement; the hitch is set "
+            f"up for category {model.category} (--category {implement.category} for it)"
+        )
     guard = Guard(TrajectoryPlanner(model), implement=implement)
     guard.set_slope(args.slope_roll, args.slope_pitch)
     # every DOF outside the workspace, with its range and the mm hint, before the IK tries it

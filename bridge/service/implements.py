@@ -98,8 +98,11 @@ class ImplementService:
         selected: str | None = None,
         tractor_profile: str | None = None,
         on_select: Callable[[str], None] | None = None,
+        category: str | None = None,
     ):
         self.store, self.motion = store, motion
+        #: the hitch's ISO 730 category (its lower-link span): only implements of it are selected (None: any)
+        self.category = category
         self.on_select = on_select
         self._lock = threading.Lock()  # one implement change at a time
         self._profile: TractorProfile | None = None
@@ -133,6 +136,12 @@ class ImplementService:
         if imp is None and self.selected != DEFAULT_IMPLEMENT and self._builtin(self.selected) is None:
             self.warning = f"the selected implement {self.selected!r} is not defined; running without one"
             self.selected = DEFAULT_IMPLEMENT
+        if imp is not None and self.category is not None and imp.category != self.category:
+            self.warning = (
+                f"the selected implement {self.selected!r} is category {imp.category}, the hitch category "
+                f"{self.category}; running without one"
+            )
+            self.selected, imp = DEFAULT_IMPLEMENT, None
         if imp is not None:
             self._apply(record_of(imp), imp.limits)
         self._announce()
@@ -193,6 +202,7 @@ class ImplementService:
                 self._announce()
                 return {"selected": DEFAULT_IMPLEMENT, "implement": None}
             imp = self._stored_or_builtin(name)
+            self._check_category(imp)
             self._apply(record_of(imp), imp.limits)
             self.selected = imp.name
             self.store.set_setting(SELECTED_SETTING, imp.name)
@@ -326,6 +336,17 @@ class ImplementService:
         return {"position": position, "sent": list(sent)}
 
     # ------------------------------------------------------------------ internals
+    def _check_category(self, imp: StoredImplement) -> None:
+        """An implement of another ISO 730 category is refused (an engineer's report: a category 2 implement was
+        selected on a category 3 hitch, and its stability check ran with the wrong geometry)."""
+        if self.category is not None and imp.category != self.category:
+            raise RequestError(
+                "bad_request",
+                f"implements/select: {imp.name!r} is an ISO 730 category {imp.category} implement; this hitch is set "
+                f"up for category {self.category} (its lower-link span): define it for category {self.category}, "
+                f"or start the service with --category {imp.category}",
+            )
+
     def _apply(self, record: ImplementRecord | None, limits: ImplementLimits) -> None:
         """The controller's guards first (refused while moving: nothing else changes), then the planning."""
         self.motion.select_implement(record, limits)
@@ -382,7 +403,14 @@ def implement_handlers(api: Any) -> dict[str, Callable[[Any], dict[str, Any]]]:
 
     planner = getattr(api.motion, "planner", None)
     profile = None if planner is None else planner.model.profile.stability.tractor_profile
-    svc = ImplementService(api.store, api.motion, selected=api.implement, tractor_profile=profile, on_select=on_select)
+    svc = ImplementService(
+        api.store,
+        api.motion,
+        selected=api.implement,
+        tractor_profile=profile,
+        on_select=on_select,
+        category=api.info.get("category") or (None if planner is None else planner.model.category),
+    )
     api.implements = svc
     set_planning = getattr(api.planning, "set_implement", None)  # planning processes (in-process: the guards)
     if callable(set_planning):

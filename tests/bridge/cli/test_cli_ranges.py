@@ -89,6 +89,12 @@ def test_stability_inside_the_workspace_still_runs(capsys):
     assert json.loads(capsys.readouterr().out)["pose"]["z"] == pytest.approx(0.1)
 
 
+def test_stability_refuses_an_implement_of_another_category(capsys):
+    """An engineer's report: `--category 3 --implement cat2-power-harrow-1500` was evaluated and said ok."""
+    assert main(["stability", "--category", "3", "--implement", "cat2-power-harrow-1500"]) == 2
+    assert "is an ISO 730 category 2 implement; the hitch is set up for category 3" in capsys.readouterr().err
+
+
 def test_stability_exits_1_when_the_verdict_is_not_ok(capsys):
     """An engineer's report: `NOT OK` (and "ok": false) came with exit 0, so a script could not use it."""
     argv = ["stability", "--pose", "z=0.3", "--slope-roll", "0.7", "--implement", "cat2-power-harrow-1500"]

@@ -135,6 +135,16 @@ def test_default_selects_no_implement_again(svc):
     assert not ok and "'default' selects none" in r["message"]
 
 
+def test_an_implement_of_another_category_is_not_selected(svc):
+    """An engineer's report: a category 2 implement was selected on a category 3 hitch."""
+    assert svc.mc.planner.model.category == "2"
+    svc.ok("implements/define", {**HARROW, "name": "wide", "category": "3"})  # defining one is allowed
+    ok, r = svc.call("implements/select", {"name": "wide"})
+    assert not ok and r["error"] == "bad_request", r
+    assert "'wide' is an ISO 730 category 3 implement; this hitch is set up for category 2" in r["message"]
+    assert svc.mc.guard.implement is None and svc.ok("implements/list")["selected"] == "default"
+
+
 def test_changing_the_implement_while_moving_is_refused(svc):
     svc.ok("implements/define", HARROW)
     svc.ok("goto", {"goal": {"z": 0.25}})

@@ -478,11 +478,35 @@ def test_the_hitch_picture_shows_the_model_live_in_operator_units(service, page,
     assert _num(page.text_content("#r-roll")) == pytest.approx(math.degrees(roll), abs=0.02)
     tab(page, "goto")
     assert page.text_content("#goto-form label:has(input[name=roll]) .unit").startswith("deg")
+    # the levelling line in the chosen unit too (a field operator's report: it said "roll 0 mrad" in degrees)
+    assert page.text_content("#level-status") == "off · roll 0.00 deg to gravity when on"
     page.screenshot(path=str(shots / "20-angles-in-degrees.png"))
     page.click("#angle-unit")
+    assert page.text_content("#level-status") == "off · roll 0.0 mrad to gravity when on"
     assert page.text_content("#angle-unit") == "Angles: mrad"
     wait_js(page, "document.getElementById('r-roll').textContent.endsWith(' mrad')")
     assert page.errors == []
+
+
+def test_metres_typed_into_a_mm_field_are_asked_about_before_the_goto(service, page):
+    """A field operator's report: z = 0.25 typed into the mm field moved the hitch down to 0.25 mm."""
+    at_rest(service, page)
+    tab(page, "goto")
+    for k in ("x", "roll", "pitch"):
+        page.fill(f"#goto-form input[name={k}]", "")
+    page.fill("#goto-form input[name=z]", "0.25")
+    page.click("#goto-go")
+    page.wait_for_selector("#confirm:not(.hidden)", timeout=5_000)
+    assert "z = 0.250 mm (did you mean 250 mm?)" in page.text_content("#confirm-text")
+    page.click("#confirm-cancel")
+    wait_js(page, "document.getElementById('goto-result').textContent.startsWith('not sent')")
+    time.sleep(0.3)
+    assert not service.state()["moving"]
+    page.fill("#goto-form input[name=z]", "100.5")  # a length in mm: no question
+    page.click("#goto-go")
+    wait_js(page, "document.getElementById('goto-result').textContent.length > 0")
+    assert page.is_hidden("#confirm")
+    wait_for(lambda: not service.state()["moving"], 20, "the motion to end")
 
 
 def test_preset_go_returns_to_the_saved_pose(service, page):

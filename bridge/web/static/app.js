@@ -576,6 +576,7 @@
     if (ui.config) { renderRanges(); renderConfig(); }
     for (const k of ["roll", "pitch"]) $(`#goto-form`).elements[k].value = "";   // typed in the old unit
     refreshPresets();
+    level.render();
     ui.drawn = false; requestAnimationFrame(draw);
   });
   renderAngleUnit();
@@ -1023,8 +1024,9 @@
       b.setAttribute("aria-pressed", this.on ? "true" : "false");
       b.textContent = this.busy ? "Levelling: …" : `Levelling: ${this.on ? "on" : "off"}`;
       const st = $("#level-status");
-      st.textContent = this.on ? `on · session ${this.session} · roll 0 mrad to gravity`
-        : (this.note ? displayUnits(this.note) : "off · roll 0 mrad to gravity when on");
+      const zero = show_angle(0);   // in the unit the operator chose (it said mrad in degrees too)
+      st.textContent = this.on ? `on · session ${this.session} · roll ${zero} to gravity`
+        : (this.note ? displayUnits(this.note) : `off · roll ${zero} to gravity when on`);
       st.className = this.noteErr && !this.on ? "err" : "";
     },
     draw(s) {
@@ -1036,13 +1038,14 @@
         `setpoints ${t.setpoints} · rejected ${t.rejected} · ignored ${t.ignored_seq}` + target +
         (t.stale ? " · stale: braking" : t.ending ? " · ending" : "");
       counts.title = "setpoints taken, rejected and ignored (old sequence numbers) by the service; target: the roll it " +
-        "aims at in the tractor frame (0 mrad to gravity + the slope sensor's roll)" +
+        `aims at in the tractor frame (${show_angle(0)} to gravity + the slope sensor's roll)` +
         (t.last_rejection ? `; last rejection: ${displayUnits(t.last_rejection)}` : "");
       const lim = Object.entries(t.control_limited || {});
       box.classList.toggle("hidden", lim.length === 0);
       if (lim.length) box.textContent = "Control limited: " + lim.map(([k, v]) => limitWords(k, v)).join("; ");
     },
   };
+  level.render();   // the line in the unit this browser chose (the page's static text says mrad)
   $("#level-toggle").addEventListener("click", () => { if (level.on) level.stop(); else level.start(); });
   window.hitchTerminal.limitWords = limitWords;   // for the browser test
 
@@ -1067,14 +1070,36 @@
     }
     if (!Object.keys(goal).length) return { error: "enter at least one of x, z, roll, pitch (empty = keep)" };
     const speed = Number(f.elements.speed.value || 100);
-    return { goal, speed_scale: Math.max(0.05, Math.min(1, speed / 100)) };
+    return { goal, speed_scale: Math.max(0.05, Math.min(1, speed / 100)), metres: metresInMm(goal) };
   }
-  function result(sel, text, ok) { const r = $(sel); r.textContent = ok ? displayUnits(text) : inWords(displayUnits(text)); r.className = `result ${ok ? "ok" : "err"}`; }
+
+  // Lengths that look typed in metres into a mm field: under 1 mm, not whole, and inside the workspace read as
+  // metres (a field operator typed z = 0.25 and the hitch went to 0.25 mm). Asked about before the goto goes.
+  function metresInMm(goal) {
+    const w = ui.config && ui.config.limits && ui.config.limits.workspace;
+    return ["x", "z"].filter((k) => k in goal && goal[k] !== 0 && Math.abs(goal[k]) < 1e-3 &&
+      !Number.isInteger(goal[k] * 1000) && (!w || (goal[k] * 1000 >= w[k][0] && goal[k] * 1000 <= w[k][1])));
+  }
+  // the answer under a form, scrolled into its tab's view (a long refusal ran under the quick row at 1024×600)
+  function result(sel, text, ok) {
+    const r = $(sel);
+    r.textContent = ok ? displayUnits(text) : inWords(displayUnits(text));
+    r.className = `result ${ok ? "ok" : "err"}`;
+    if (text && r.offsetParent !== null) r.scrollIntoView({ block: "nearest" });
+  }
 
   $("#goto-form").addEventListener("submit", async (ev) => {
     ev.preventDefault();
     const req = gotoRequest();
     if (req.error) { result("#goto-result", req.error, false); return; }
+    if (req.metres.length) {
+      const what = req.metres.map((k) => `${k} = ${fmt(req.goal[k] * 1000, 3)} mm (did you mean ${fmt(req.goal[k] * 1e6, 0)} mm?)`).join(", ");
+      if (!(await confirmDialog("Millimetres?", `The fields take mm: ${what}.`, "Go as typed"))) {
+        result("#goto-result", `not sent: ${what}; the fields take mm`, false);
+        return;
+      }
+    }
+    delete req.metres;
     result("#goto-result", "", true);         // the last motion's outcome is no longer news
     const r = await call("goto", req);
     const ended = r.ok ? ui.outcomes.get(r.data.motion_id) : undefined;
@@ -1085,6 +1110,7 @@
   $("#goto-plan").addEventListener("click", async () => {
     const req = gotoRequest();
     if (req.error) { result("#goto-result", req.error, false); return; }
+    delete req.metres;   // a check moves nothing: no question
     const r = await call("plan", req);
     if (!r.ok) result("#goto-result", r.data.message, false);
     else result("#goto-result", r.data.ok ? `reachable: ${fmt(r.data.duration, 2)} s (${r.data.guard})` : `refused: ${r.data.refused}`, r.data.ok);

@@ -407,7 +407,7 @@ class CanLink:
         before = self._hb_rx.status(now_s).restarts
         self._hb_rx.handle_sequence(sequence, now_s, stamp_s=stamp_s)
         if self._hb_rx.status(now_s).restarts > before:
-            self._on_restart("ECU heartbeat restarted (251)")
+            self._on_restart("the cylinder ECU restarted (its heartbeat counter began again at 251)")
 
     def _check_references_arrive(self, system_state: int, now_s: float) -> None:
         """While streaming, a measurement saying the ECU's watchdog expired proves that our
@@ -449,15 +449,16 @@ class CanLink:
             return out
         st = self._rx.state
         since = self._operating_s
-        for what, src, t in (
-            ("0xFF22 position measurement", cfg.ecu_address, st.measurement_t_s if st else since),
-            ("rear hitch status (lift)", cfg.hitch_source, st.lift_t_s if st else since),
+        for what, src, t in (  # said so an operator can act on it, with the bus names for the engineer
+            ("cylinder positions (0xFF22) from the cylinder ECU", cfg.ecu_address, st.measurement_t_s if st else since),
+            ("lift position (rear hitch status) from the tractor", cfg.hitch_source, st.lift_t_s if st else since),
         ):
             if now_s - t > cfg.stale_after_s + _EPS_S:
                 out.append(
                     (
                         "stale_measurement",
-                        f"no valid {what} from {src} for {now_s - t:.3f} s (limit {cfg.stale_after_s:g} s)",
+                        f"no valid {what} (address {src}) for {now_s - t:.3f} s (limit {cfg.stale_after_s:g} s): "
+                        "check the CAN cable and the ECU's power",
                     )
                 )
                 break

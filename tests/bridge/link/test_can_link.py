@@ -328,7 +328,9 @@ def test_stale_measurement_stops_motion_and_needs_a_fresh_command(rig, tap, mode
     drain(tap)
     rig.run_until(rig.now_s + 0.1)
     assert references_on(drain(tap)) == []
-    with pytest.raises(LinkFaultError, match="no valid 0xFF22"):
+    with pytest.raises(
+        LinkFaultError, match=r"no valid cylinder positions \(0xFF22\) from the cylinder ECU \(address 169\)"
+    ):
         link.send_reference(goal, rig.next_tick_s)
     rig.ecu_paused = False
     rig.run_until(rig.now_s + 0.5)  # the ECU speaks again: no motion without a command

@@ -323,6 +323,14 @@ class ServiceAPI:
         current = self.motion.current_state().position
         pose = self.motion.planner.goal_vector(current, r.pose.as_dict() if r.pose is not None else {})
         self.motion.planner.check_in_workspace(pose, "pose")
+        imp = self.implements.current() if getattr(self, "implements", None) is not None else None
+        upper = None if imp is None else imp.limits.upper_height_m
+        if upper is not None and pose[1] > upper + 1e-9:  # a preset of this implement that could never run
+            raise RequestError(
+                "unreachable",
+                f"presets/save: pose.z = {pose[1]:.4f} m is above the upper height of the implement {imp.name!r}, "
+                f"{upper:g} m (upper_height_m): presets/go would refuse it",
+            )
         p = self.store.save_preset(
             r.name,
             pose_dict(pose),

@@ -135,6 +135,17 @@ def test_default_selects_no_implement_again(svc):
     assert not ok and "'default' selects none" in r["message"]
 
 
+def test_a_preset_above_the_implements_upper_height_is_not_saved(svc):
+    """An engineer's report: it was saved and refused only at presets/go."""
+    svc.ok("implements/define", {**HARROW, "upper_height_m": 0.28})
+    svc.ok("implements/select", {"name": "harrow"})
+    ok, r = svc.call("presets/save", {"name": "high", "pose": {"z": 0.30}})
+    assert not ok and r["error"] == "unreachable", r
+    assert "pose.z = 0.3000 m is above the upper height of the implement 'harrow', 0.28 m" in r["message"]
+    assert svc.ok("presets/list")["presets"] == []
+    svc.ok("presets/save", {"name": "ok", "pose": {"z": 0.27}})
+
+
 def test_an_implement_of_another_category_is_not_selected(svc):
     """An engineer's report: a category 2 implement was selected on a category 3 hitch."""
     assert svc.mc.planner.model.category == "2"

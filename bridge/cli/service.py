@@ -459,10 +459,15 @@ def _cmd_jog(args) -> int:
     def jog(c) -> int:
         end = time.monotonic() + (args.duration or 0.0)
         period = min(0.1, args.ttl_ms / 2000.0)
-        r = c.jog(args.vx, args.vz, args.vroll, args.vpitch, args.ttl_ms)
-        while time.monotonic() < end:  # dead-man: keep refreshing while "held"
-            time.sleep(period)
+        r: dict = {}
+        try:
             r = c.jog(args.vx, args.vz, args.vroll, args.vpitch, args.ttl_ms)
+            while time.monotonic() < end:  # dead-man: keep refreshing while "held"
+                time.sleep(period)
+                r = c.jog(args.vx, args.vz, args.vroll, args.vpitch, args.ttl_ms)
+        except KeyboardInterrupt:  # brake now, as goto --wait does (before: silent, braked by the ttl ~0.7 s later)
+            _stop_after_interrupt(c, r.get("motion_id"))
+            raise
         limited = ", ".join(f"{k} by {v}" for k, v in (r.get("limited") or {}).items())
         _print(args, r, f"jog motion {r['motion_id']}" + (f", limited: {limited}" if limited else ""))
         return 0

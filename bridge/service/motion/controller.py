@@ -1094,7 +1094,8 @@ class MotionController:
             st = plan_state(m, now)
             self._limited = {} if m.finished(now) else m.limited()
             if m.finished(now):
-                events.append(self._ev("motion_finished", m, kind=m.kind))
+                extra = {"reason": "released: no jog command within its ttl, braked to rest"} if m.kind == "jog" else {}
+                events.append(self._ev("motion_finished", m, kind=m.kind, **extra))
                 self._active, self._hold, self._hold_ref = None, MotionState.at_rest(st.position), None
         elif isinstance(m, JogMotion):
             if self._expire_jog(now):

@@ -132,6 +132,26 @@ def test_ctrl_c_on_a_waiting_motion_stops_it(service, argv):
         assert not later["moving"] and abs(later["pose"]["z"] - rest["pose"]["z"]) < 0.01
 
 
+def test_ctrl_c_on_a_held_jog_stops_it_at_once(service):
+    """A field operator's report: Ctrl-C on `hitch jog --duration 10` printed nothing and sent no stop."""
+    _svc, ep, _data = service
+    with HitchClient([ep], timeout_s=10.0) as c:
+        wait_online(c)
+        low = _go_low(c)
+        proc = _cli(ep, "jog", "--vz", "0.05", "--duration", "10")
+        try:
+            _wait_moving(c, low)
+            time.sleep(0.3)
+            proc.send_signal(signal.SIGINT)
+            out, err = proc.communicate(timeout=20)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait(5)
+        assert proc.returncode == 130, (out, err)
+        assert "stop sent" in err, err
+
+
 def test_ctrl_c_with_detach_leaves_the_motion_running(service):
     _svc, ep, _data = service
     with HitchClient([ep], timeout_s=10.0) as c:

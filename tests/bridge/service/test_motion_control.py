@@ -216,7 +216,8 @@ def test_jog_takes_over_a_goto_and_dies_with_its_ttl(bench):
     assert ei.value.code == "busy" and "jog" in str(ei.value)
     bench.run_until_rest()
     assert bench.states[-1]["motion_id"] == j.motion_id
-    assert any(e["event"] == "motion_finished" and e["motion_id"] == j.motion_id for e in bench.events)
+    (fin,) = [e for e in bench.events if e["event"] == "motion_finished" and e["motion_id"] == j.motion_id]
+    assert fin["reason"].startswith("released: no jog command within its ttl"), fin  # it gave none (an operator)
     assert np.allclose([bench.states[-1]["velocity"][k] for k in POSE], 0.0)
     assert bench.mc.goto({"z": 0.1}).motion_id > j.motion_id  # after the dead-man stop, goto is accepted
 

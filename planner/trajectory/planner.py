@@ -95,7 +95,11 @@ class TrajectoryPlanner:
             raise TrajectoryInputError(f"rate must lie within 1..200 Hz, got {self.rate}")
         ws = workspace if workspace is not None else model.workspace
         if ws is None:
-            raise PlanError(f"no restricted workspace for category {model.category}: Cartesian motion is refused")
+            raise PlanError(
+                f"no restricted workspace for category {model.category}: Cartesian motion is refused (fit one with "
+                f"`hitch profile fit-workspace --profile PROFILE --category {model.category}` and put it under "
+                f"[workspace.restricted.{model.category}]; docs/profiles.md)"
+            )
         self.workspace = {k: (float(ws[k][0]), float(ws[k][1])) for k in CONTROLLED_POSE_NAMES}
         self.lo = np.array([self.workspace[k][0] for k in CONTROLLED_POSE_NAMES])
         self.hi = np.array([self.workspace[k][1] for k in CONTROLLED_POSE_NAMES])

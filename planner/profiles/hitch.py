@@ -326,15 +326,15 @@ def load_profile(name_or_path: str | Path = "thesis-t132") -> Profile:
 
 
 def _with_tractor_profile(prof: Profile, folder: Path | None, source: str) -> Profile:
-    from planner.limits.tractor import load_tractor_profile  # the stability layer sits above the profiles
-
+    """``stability.tractor_profile`` resolved (a relative path from ``folder``, the profile file's) and read as
+    TOML here; its schema is checked where the stability layer loads it (:mod:`planner.limits.tractor`)."""
     given = prof.stability.tractor_profile
     path = Path(given)
     resolved = given
     if folder is not None and not path.is_absolute() and (path.suffix == ".toml" or len(path.parts) > 1):
         resolved = str(folder / path)
     try:
-        load_tractor_profile(resolved)
+        read_profile(resolved, subfolder="tractors", kind="tractor profile", error=ProfileError)
     except HitchInputError as exc:
         raise ProfileError(f"profile {source}: stability.tractor_profile = {given!r}: {exc}") from None
     if resolved == given:

@@ -122,14 +122,22 @@ def _cell(text: str, where: str, col: str, lo: float, hi: float, unit: str) -> f
     return v
 
 
+#: the most data rows a measurement or plan file may hold: poses measured by hand (20 are planned; a
+#: 480 000-row file kept the CLI busy for minutes)
+MAX_DATA_ROWS = 2000
+
+
 def _data_rows(reader: Any, n_cells: int, source: str) -> Iterator[tuple[str, list[str]]]:
     """The data rows of a CSV ``reader`` past its header: ``(where, stripped cells)``, ``where`` naming the
-    file, the row (1 = the first; blank lines are not rows) and its line; a row of another width is refused."""
+    file, the row (1 = the first; blank lines are not rows) and its line; a row of another width is refused,
+    and so is a file of more than :data:`MAX_DATA_ROWS` rows."""
     r = 0
     for line in reader:
         if not line or all(not c.strip() for c in line):
             continue
         r += 1
+        if r > MAX_DATA_ROWS:
+            raise CalibrationError(f"{source}: more than {MAX_DATA_ROWS} data rows (allowed: at most {MAX_DATA_ROWS})")
         where = f"{source} row {r} (line {reader.line_num})"
         if len(line) != n_cells:
             raise CalibrationError(f"{where}: {len(line)} cells, the header has {n_cells}")

@@ -68,6 +68,8 @@ def _err(capsys, argv) -> str:
         ),
         (GOOD_HEADER + "\n", r"no data rows"),
         ("", r"empty file"),
+        # an attacker's report: 480 000 rows kept the CLI busy for minutes
+        (GOOD_HEADER + "\n" + (GOOD_ROW + "\n") * 2001, r"m.csv: more than 2000 data rows \(allowed: at most 2000\)"),
     ],
 )
 def test_bad_measurement_files_name_row_column_and_range(tmp_path, capsys, text, expected):

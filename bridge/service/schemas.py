@@ -623,6 +623,24 @@ def check_pose_in_workspace(
         raise RequestError("unreachable", f"{key}: outside the workspace: " + "; ".join(problems))
 
 
+#: the deepest a request payload may nest (objects and lists; the deepest request, a GeoJSON feature collection
+#: of lines, needs 6)
+MAX_PAYLOAD_DEPTH = 32
+
+
+def _depth(data: Any) -> int:
+    """How deep ``data`` nests (a scalar 0, ``{}`` 1), without recursion; stops counting past the limit."""
+    best, todo = 0, [(data, 1)]
+    while todo:
+        node, d = todo.pop()
+        if isinstance(node, (dict, list)):
+            best = max(best, d)
+            if d > MAX_PAYLOAD_DEPTH:
+                return d
+            todo.extend((v, d + 1) for v in (node.values() if isinstance(node, dict) else node))
+    return best
+
+
 def parse_request(
     key: str,
     payload: bytes | bytearray | memoryview | str | None,
@@ -659,9 +677,17 @@ def parse_request(
         except UnicodeDecodeError as exc:
             raise RequestError("bad_request", f"{key}: payload is not UTF-8 text (byte {exc.start})") from None
         except RecursionError:
-            raise RequestError("bad_request", f"{key}: payload nests too deeply") from None
+            raise RequestError(
+                "bad_request", f"{key}: payload nests too deeply (allowed: at most {MAX_PAYLOAD_DEPTH} levels)"
+            ) from None
         except ValueError as exc:  # JSONDecodeError, NaN/Infinity tokens, integers of > 4300 digits
             raise RequestError("bad_request", f"{key}: payload is not valid JSON ({str(exc)[:80]})") from None
+    if _depth(data) > MAX_PAYLOAD_DEPTH:  # every request fits in a few levels; the limit is said (an attacker's report)
+        raise RequestError(
+            "bad_request",
+            f"{key}: payload nests more than {MAX_PAYLOAD_DEPTH} levels deep "
+            f"(allowed: at most {MAX_PAYLOAD_DEPTH} levels)",
+        )
     if not isinstance(data, dict):
         raise RequestError(
             "bad_request",
@@ -687,4 +713,6 @@ def parse_request(
             check_pose_in_workspace(pose or {}, workspace, key=key, what=_PREVIEW_POSE_FIELDS[key])
         raise RequestError("bad_request", _format(key, exc, model)) from None
     except RecursionError:
-        raise RequestError("bad_request", f"{key}: payload nests too deeply") from None
+        raise RequestError(
+            "bad_request", f"{key}: payload nests too deeply (allowed: at most {MAX_PAYLOAD_DEPTH} levels)"
+        ) from None

@@ -166,6 +166,13 @@ def test_a_pose_out_of_the_schemas_range_hints_at_mm_and_degrees():
     assert "did you mean" not in str(e), e
 
 
+@pytest.mark.parametrize("depth", [33, 5000])
+def test_a_payload_nesting_too_deep_is_refused_naming_the_limit(depth):
+    """An attacker's report: "payload nests too deeply" gave no limit."""
+    e = _refusal("goto", '{"a":' * depth + "1" + "}" * depth)
+    assert "nests" in str(e) and "(allowed: at most 32 levels)" in str(e), e
+
+
 def test_preset_poses_are_checked_against_the_workspace():
     e = _refusal("presets/save", json.dumps({"name": "a", "pose": {"z": 120}}), workspace=WS)
     assert e.code == "unreachable" and "pose.z = 120 m" in str(e) and "z from -0.2163 to 0.3117 m" in str(e)

@@ -101,6 +101,12 @@ def format_validation_error(kind: str, source: str, err: ValidationError, schema
         msg = e["msg"].removeprefix("Value error, ")
         if e["type"] == "extra_forbidden":
             msg = f"unknown key (not part of the {kind} schema)"
+        elif e["type"] in ("model_type", "model_attributes_type", "dict_type"):  # said in TOML's words, not pydantic's
+            msg = "must be a table (a [section] or { key = value, … })"
+        elif e["type"] == "list_type":
+            msg = "must be an array ([ … ])"
+        elif e["type"] == "string_type":
+            msg = "must be text (a quoted string)"
         allowed = _field_range(schema, tuple(e["loc"]))
         if not allowed:
             ctx = e.get("ctx") or {}

@@ -162,6 +162,12 @@ def _errors(exc: ValidationError, model: type[BaseModel], where: str, step: int 
             msg = "out of range"
         elif e["type"] == "finite_number":
             msg = "must be a finite number (NaN and infinity are not allowed)"
+        elif e["type"] == "string_type":  # pydantic's "Input should be a valid string" said in the script's words
+            msg = "must be text (a name such as headland-lift)"
+        elif e["type"] in ("float_type", "float_parsing", "int_type", "int_parsing"):
+            msg = "must be a number"
+        elif e["type"] in ("model_type", "dict_type"):
+            msg = "must be a mapping ({key: value, …})"
         shown = "" if e["type"] == "missing" or not loc else f" = {_show(e.get('input'))}"
         hint = _unit_hint(model, fld, e.get("input")) if msg == "out of range" else ""
         out.append(StepError(step, f"{path}{shown}: {msg}{_range(model, fld)}{hint}"))

@@ -56,7 +56,7 @@ def test_parse_the_documented_example_and_round_trip():
         ("steps: [{wait: 1}, {goto: {yaw: 0.1}}]", 1, ["steps[1].goto.yaw", "unknown key", "x, z, roll, pitch"]),
         ("steps: [{goto: {}}]", 0, ["at least one of x, z, roll, pitch"]),
         ("steps: [{wait: -1}]", 0, ["seconds = -1", "seconds > 0 and <= 3600 s"]),
-        ("steps: [{wait: '3'}]", 0, ["seconds = '3'", "valid number"]),
+        ("steps: [{wait: '3'}]", 0, ["seconds = '3'", "must be a number"]),
         ("steps: [{wait: .nan}]", 0, ["seconds = nan", "finite"]),
         ("steps: [{speed: .inf}]", 0, ["scale = inf", "finite", "scale >= 0.05 and <= 1"]),
         ("steps: [{speed: 0.01}]", 0, ["scale = 0.01", "out of range", "scale >= 0.05 and <= 1"]),
@@ -86,6 +86,7 @@ def test_parse_the_documented_example_and_round_trip():
         # a field operator's report: no mm hint, where the CLI's goto gave one for the same value
         ("steps: [{goto: {z: 250}}]", 0, ["(allowed: z >= -2 and <= 2 m); did you mean mm? 250 mm = 0.25 m"]),
         ("steps: [{goto: {roll: 30}}]", 0, ["did you mean degrees? 30 deg = 0.523599 rad"]),
+        ("steps: [{preset: {name: .nan}}]", 0, ["steps[0].preset.name = nan: must be text"]),  # "Input should be …"
     ],
 )
 def test_bad_scripts_name_step_field_and_range(text, step, needles):

@@ -58,6 +58,7 @@ def test_a_good_dict_loads():
         (("signals", "row_rate_hz"), 0.0, r"signals.row_rate_hz = 0.0: .*\(allowed: >= 0.1 and <= 100\)"),
         (("signals", "seed"), -1, r"signals.seed = -1: .*\(allowed: >= 0"),
         (("signals", "colour"), 1, r"signals.colour = 1: unknown key"),
+        (("speed",), [1, 2], r"speed = \[1, 2\]: must be a table"),  # "a valid dictionary or instance of _SpeedSpec"
         (("schema_version",), 2, r"schema_version = 2"),
         (("name",), "a b", r"name = 'a b'"),
     ],

@@ -17,15 +17,16 @@ __all__ = ["read_text_file"]
 
 
 def read_text_file(path: str | Path | Traversable, what: str, error: type[HitchInputError] = HitchInputError) -> str:
-    """The text of ``path`` (UTF-8); ``error`` naming ``what`` (e.g. "maneuver file"), the path and
-    the offending byte when it cannot be read or is not UTF-8 text."""
+    """The text of ``path`` (UTF-8, a leading byte-order mark dropped: Windows editors and spreadsheets write
+    one, and TOML read it as "Invalid statement at line 1, column 1"); ``error`` naming ``what`` (e.g.
+    "maneuver file"), the path and the offending byte when it cannot be read or is not UTF-8 text."""
     p = Path(path) if isinstance(path, str) else path
     try:
         data = p.read_bytes()
     except OSError as exc:
         raise error(f"{what} {p}: cannot read it ({exc.strerror or exc})") from None
     try:
-        return data.decode("utf-8")
+        return data.decode("utf-8").removeprefix("\ufeff")
     except UnicodeDecodeError as exc:
         line = data.count(b"\n", 0, exc.start) + 1
         raise error(

@@ -295,7 +295,7 @@ def load_service_config(path: str | Path | None = None, **overrides: Any) -> Ser
             raise ServiceConfigError(f"service config file {p} does not exist")
         source = str(p)
         try:
-            values.update(_flatten_toml(tomllib.loads(p.read_text(encoding="utf-8")), source))
+            values.update(_flatten_toml(tomllib.loads(p.read_text(encoding="utf-8").removeprefix("\ufeff")), source))
         except tomllib.TOMLDecodeError as exc:
             raise ServiceConfigError(f"service config {p} is not valid TOML: {exc}") from None
     values.update({k: v for k, v in overrides.items() if v is not None})

@@ -112,6 +112,14 @@ def test_file_errors(tmp_path):
         load_profile(bad)
 
 
+def test_a_profile_with_a_byte_order_mark_loads(tmp_path):
+    """An attacker's report (on a field file): a UTF-8 byte-order mark, as Windows editors write, was "not valid
+    TOML: Invalid statement (at line 1, column 1)"; every text file is read through the same reader."""
+    path = tmp_path / "bom.toml"
+    path.write_bytes(b"\xef\xbb\xbf" + (resources.files("planner") / "profiles" / "thesis-t132.toml").read_bytes())
+    assert load_profile(path) == load_profile("thesis-t132")
+
+
 def test_profile_file_round_trip(tmp_path, raw):
     import tomllib as _t
 

@@ -39,8 +39,9 @@ class Target:
     """Desired implement pose: x, z [m], roll, pitch [rad]; optional task weights (4,).
 
     Weights say which DOF to favour when the target is out of reach (the nearest
-    reachable pose is nearest in the weighted sense); default: 1 per metre and 1 per
-    0.5 radian... see :data:`planner.ik_qp.hitch_ik.DEFAULT_WEIGHTS`.
+    reachable pose is nearest in the weighted sense), multiplying the solver's own: 1 per metre
+    and the mast height d_T^U per radian, an angle counted as the displacement it causes at the
+    mast top (:func:`planner.ik_qp.hitch_ik.default_weights`).
     """
 
     x: float

@@ -734,7 +734,13 @@ def add_commands(sub) -> Any:
 
     p = sub.add_parser("jog", help="jog at pose rates while the command is repeated (dead-man)")
     for n, unit in (("vx", "m/s"), ("vz", "m/s"), ("vroll", "rad/s"), ("vpitch", "rad/s")):
-        p.add_argument(f"--{n}", type=finite_float(f"--{n}"), default=None, help=f"rate [{unit}] (default 0)")
+        p.add_argument(
+            f"--{n}",
+            type=finite_float(f"--{n}"),
+            default=None,
+            help=f"rate [{unit}] (default 0); the service caps it at its jog speed (its config key: "
+            "limits.jog_velocity) and says so in 'limited'",
+        )
     p.add_argument(
         "--ttl-ms",
         type=bounded_float("--ttl-ms", 0.0, 5000.0, unit="ms"),

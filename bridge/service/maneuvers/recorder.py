@@ -65,6 +65,10 @@ class ManeuverRecorder:
         self._busy_until = clock()  # planned end of the last motion [s]
         self._dist_at = distance()  # odometer at that time [m]
         self._jog_until: float | None = None  # a jog runs (its last command's end of life)
+        self._jog_read: tuple[float, float | None] = (
+            self._busy_until,
+            self._dist_at,
+        )  # (time, odometer) of its last command
         self._cmd_t = self._busy_until  # when the last motion was commanded [s]
         self._motion_time = 0.0
         #: steps not recorded because the recording was full (MAX_STEPS)
@@ -91,6 +95,7 @@ class ManeuverRecorder:
             if self._jog_until is None:
                 self._pause_until(self.clock())
             self._jog_until = self.clock() + float(ttl_s)
+            self._jog_read = (self.clock(), self.distance())  # the odometer at the jog's last command
 
     def stop(self, name: str | None = None, description: str = "recorded by teach-in") -> str:
         """The recorded script (YAML); raises :class:`RecorderError` when nothing was recorded."""
@@ -124,6 +129,9 @@ class ManeuverRecorder:
         self._jog_until = None
         pose = self.pose()
         self._add({"goto": {k: _r(pose[k]) for k in POSE_BOUNDS}}, 0.0, at=end)
+        # the jog is closed by the next command: the odometer was read at the jog's last command, not at its end
+        # (reading it now counted the whole pause after a jog as 0 m: `wait: 3.1` while the tractor drove 4.6 m)
+        self._cmd_t, self._dist_at = self._jog_read
 
     def _pause_until(self, now: float) -> None:
         gap = now - self._busy_until

@@ -68,6 +68,26 @@ def test_a_drive_beyond_one_wait_for_distance_step_is_recorded_as_several_and_pa
     assert sum(distances) == pytest.approx(25_000.0 * 2000.0 / 2001.0, abs=0.01)  # the pause's share
 
 
+def test_the_pause_after_a_jog_counts_the_distance_driven_in_it():
+    """A field operator's report: jog, a 3 s pause while the tractor drove 4.6 m, then a preset: recorded as
+    `wait: 3.1` (the jog was closed at the preset, and the odometer read then counted the pause as 0 m)."""
+    clock, odometer = _Clock(), [0.0]
+    rec = _recorder(clock, odometer)
+    rec.on_goto(POSE, 1.0, 1.0)
+    speed = 1.5  # m/s, all the time
+    for k in range(11):  # a jog held 1 s (commands every 0.1 s, 0.2 s each) after the goto
+        clock.t = 2.0 + 0.1 * k
+        odometer[0] = speed * clock.t
+        rec.on_jog(0.2)
+    clock.t = 3.2 + 3.0  # the jog's last command lived until 3.2 s; 3 s later a preset
+    odometer[0] = speed * clock.t
+    rec.on_preset("work", None, 1.0)
+    steps = parse_maneuver(rec.stop("taught")).steps
+    kinds = [s.kind for s in steps]
+    assert kinds == ["goto", "wait_for", "goto", "wait_for", "preset"], kinds
+    assert steps[3].distance == pytest.approx(speed * 3.0, abs=0.01)  # the pause after the jog
+
+
 def test_concurrent_commands_lose_no_step():
     clock = _Clock()
     rec = _recorder(clock)

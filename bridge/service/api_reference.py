@@ -74,7 +74,8 @@ KEY_SUMMARY: Mapping[str, str] = {
     "maneuvers/record/start": "start teaching a maneuver in (each motion becomes a step)",
     "maneuvers/record/stop": "end teach-in: the recorded script for review (saved as `name` if given)",
     "lines/save": "store field / headland lines (GeoJSON, WGS84 degrees) for `wait_for: {line: …}`",
-    "lines/list": "the stored lines",
+    "lines/list": "the stored lines, the GNSS `position` and `gnss`: `{fixes, rejected, last_rejection}` (a bad "
+    "`tractor/gnss` put is not answered: it is counted here)",
     "lines/delete": "delete stored lines",
     "implements/list": "the defined implements and which is selected",
     "implements/define": "define or replace an implement (category, mass, centre of mass, limits, headland pose)",

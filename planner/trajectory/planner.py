@@ -122,15 +122,18 @@ class TrajectoryPlanner:
         self.final_approach: np.ndarray | None = None if fa is None else np.array(fa.offset())
 
     def _check_box(self, points: Sequence[np.ndarray], field: str) -> None:
-        """Every point of the box's 3⁴ grid reachable within the hard limits, else a :class:`PlanError` naming
-        ``field`` and the point (a box in mm, or wider than the mechanism, loaded before and failed at the
-        first plan: "closure error 1.62e+05 m", "exceed top_link_yaw_min at t = 2.38 s")."""
+        """Every point of the box's 3⁴ grid reachable, within the hard limits up to :data:`BOX_LIMIT_TOLERANCE`,
+        else a :class:`PlanError` naming ``field`` and the point (a box in mm, or wider than the mechanism, loaded
+        before and failed at the first plan: "closure error 1.62e+05 m", "exceed top_link_yaw_min at t = 2.38 s").
+        A corner a calibrated geometry moves a few mm past a limit is left to the plans' own checks (they refuse
+        a plan there naming the limit); `hitch profile fit-workspace` fits the box to it."""
         box = ", ".join(f"{k} [{a:g}, {b:g}]" for k, (a, b) in self.workspace.items())
+        hard, tol = self.hard, BOX_LIMIT_TOLERANCE
         for c in points:
             at = ", ".join(f"{k} = {v:.4g}" for k, v in zip(CONTROLLED_POSE_NAMES, c, strict=True))
             try:
                 q = self.inverse(*c)
-                bad = self.hard.violations(q, self.model.features(q)[0])
+                bad = hard.violations(q, self.model.features(q)[0], tol)
             except KinematicsError as exc:
                 bad = (_first_line(exc),)
             if bad:
@@ -505,6 +508,11 @@ class TrajectoryPlanner:
 
 class _LeavesWorkspace(PlanError):
     """A trajectory passing a workspace face (internal: a moving re-plan is tried again with the braking limits)."""
+
+
+#: how far [m or rad] a point of a profile's restricted box may lie beyond a hard limit before loading refuses
+#: the box (TrajectoryPlanner._check_box): more is a box of another machine or in other units
+BOX_LIMIT_TOLERANCE = 0.01
 
 
 def _first_line(exc: BaseException) -> str:

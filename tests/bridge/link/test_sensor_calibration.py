@@ -255,6 +255,8 @@ def test_detached_is_refused_with_an_implement_and_needs_the_detached_link():
 def test_detached_keeps_the_ground_clearance_and_the_keep_outs():
     data = load_profile("thesis-t132").model_dump(mode="python")
     data["limits"]["ground_clearance"] = 0.30  # lower-link ends at least 0.2 m below the pivots: the lift's low end
+    box = data["workspace"]["restricted"]["2"]
+    box["z"] = (-0.1, box["z"][1])  # the box within that clearance (a profile's box must be, TrajectoryPlanner)
     low_ends = profile_from_dict(data)
     exc, rig, start = calibrate(low_ends, truth_of(low_ends, 1), ("lift",), detached=True)
     assert isinstance(exc, SensorCalibrationError) and "lift refused: ground_clearance_" in str(exc)

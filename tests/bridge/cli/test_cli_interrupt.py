@@ -78,6 +78,21 @@ def _go_low(client: HitchClient) -> int:
     return int(reply["motion_id"])
 
 
+def _interrupt_once_moving(c: HitchClient, low: int, proc: subprocess.Popen) -> tuple[dict, str, str]:
+    """Ctrl-C to the CLI ``proc`` 0.3 s after the hitch started a motion newer than ``low``: (the first moving
+    state, stdout, stderr); the CLI is killed if it does not end."""
+    try:
+        moving = _wait_moving(c, low)
+        time.sleep(0.3)
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(5)
+    return moving, out, err
+
+
 @pytest.fixture(scope="module")
 def service(tmp_path_factory):
     data = tmp_path_factory.mktemp("svc")
@@ -112,15 +127,7 @@ def test_ctrl_c_on_a_waiting_motion_stops_it(service, argv):
         if argv[0] == "preset":
             c.request("presets/save", {"name": "far", "pose": {"z": 0.3}, "speed_scale": 0.15})
         proc = _cli(ep, *argv, "--wait")
-        try:
-            start = _wait_moving(c, low)
-            time.sleep(0.3)
-            proc.send_signal(signal.SIGINT)
-            out, err = proc.communicate(timeout=20)
-        finally:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait(5)
+        start, out, err = _interrupt_once_moving(c, low, proc)
         assert proc.returncode == 130, (out, err)
         assert "stop sent" in err, err
         # the start was said when it happened, with the id the stop names (the old CLI printed nothing)
@@ -139,15 +146,7 @@ def test_ctrl_c_on_a_held_jog_stops_it_at_once(service):
         wait_online(c)
         low = _go_low(c)
         proc = _cli(ep, "jog", "--vz", "0.05", "--duration", "10")
-        try:
-            _wait_moving(c, low)
-            time.sleep(0.3)
-            proc.send_signal(signal.SIGINT)
-            out, err = proc.communicate(timeout=20)
-        finally:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait(5)
+        _, out, err = _interrupt_once_moving(c, low, proc)
         assert proc.returncode == 130, (out, err)
         assert "stop sent" in err, err
 
@@ -158,15 +157,7 @@ def test_ctrl_c_with_detach_leaves_the_motion_running(service):
         wait_online(c)
         low = _go_low(c)
         proc = _cli(ep, "goto", "--to", "z=0.3", "--speed-scale", "0.15", "--wait", "--detach")
-        try:
-            moving = _wait_moving(c, low)
-            time.sleep(0.3)
-            proc.send_signal(signal.SIGINT)
-            _out, err = proc.communicate(timeout=20)
-        finally:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait(5)
+        moving, _out, err = _interrupt_once_moving(c, low, proc)
         assert proc.returncode == 130 and "goes on (--detach)" in err, err
         time.sleep(0.5)
         s = c.state(timeout_s=2.0)

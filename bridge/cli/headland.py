@@ -77,12 +77,12 @@ def _cmd_control(args: Any) -> int:
 
 def _read_geojson(path: str) -> Any:
     p = Path(path)
-    if not p.is_file():
-        raise CLIError(f"GeoJSON file {p} does not exist")
+    if not p.is_file():  # /dev/null and a folder exist, but hold no GeoJSON
+        raise CLIError(f"GeoJSON file {p} {'is not a regular file' if p.exists() else 'does not exist'}")
     if p.stat().st_size > MAX_GEOJSON_BYTES:
         raise CLIError(f"GeoJSON file {p} is larger than {MAX_GEOJSON_BYTES} bytes")
     try:
-        return json.loads(p.read_text(encoding="utf-8"))
+        return json.loads(p.read_text(encoding="utf-8").removeprefix("\ufeff"))
     except (ValueError, UnicodeDecodeError) as exc:
         raise CLIError(f"GeoJSON file {p} is not valid JSON: {exc}") from None
 

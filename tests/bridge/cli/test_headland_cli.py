@@ -96,3 +96,17 @@ def test_pause_resume_skip_and_record_through_the_cli(service, capsys, tmp_path)
     assert "taught" in out
     rc, _, err = _cli(capsys, ep, "maneuver", "record", "stop")
     assert rc != 0 and "no recording" in err, err
+
+
+def test_a_geojson_path_that_is_no_file_says_so(tmp_path):
+    """A field operator's report: `hitch lines save l1 /dev/null` said "does not exist"."""
+    from bridge.cli.errors import CLIError
+    from bridge.cli.headland import _read_geojson
+
+    with pytest.raises(CLIError, match="is not a regular file"):
+        _read_geojson("/dev/null")
+    with pytest.raises(CLIError, match="does not exist"):
+        _read_geojson(str(tmp_path / "nope.geojson"))
+    f = tmp_path / "bom.geojson"  # a byte-order mark, as Windows editors write
+    f.write_bytes(b"\xef\xbb\xbf" + json.dumps({"type": "LineString", "coordinates": [[11, 48], [11, 48.1]]}).encode())
+    assert _read_geojson(str(f))["type"] == "LineString"

@@ -325,7 +325,7 @@ class ServiceAPI:
         self.motion.planner.check_in_workspace(pose, "pose")
         imp = self.implements.current() if getattr(self, "implements", None) is not None else None
         upper = None if imp is None else imp.limits.upper_height_m
-        if upper is not None and pose[1] > upper + 1e-9:  # a preset of this implement that could never run
+        if imp is not None and upper is not None and pose[1] > upper + 1e-9:  # a preset that could never run
             raise RequestError(
                 "unreachable",
                 f"presets/save: pose.z = {pose[1]:.4f} m is above the upper height of the implement {imp.name!r}, "

@@ -720,7 +720,10 @@ def add_commands(sub) -> Any:
     _add_serve(sub)
     p = sub.add_parser("goto", help="move the hitch to a (partial) pose through the service")
     p.add_argument(
-        "--to", type=parse_pose_arg, required=True, help="goal, e.g. x=0.02,z=0.25 (others keep their value)"
+        "--to",
+        type=parse_pose_arg,
+        required=True,
+        help="goal in SI: x, z [m], roll, pitch [rad], e.g. x=0.02,z=0.25 (others keep their value)",
     )
     p.add_argument(
         "--speed-scale",
@@ -796,9 +799,19 @@ def add_commands(sub) -> Any:
                 "--force", action="store_true", help="delete it although saved maneuvers use it (they then fail)"
             )
         if action == "save":
-            q.add_argument("--pose", type=parse_pose_arg, default=None, help="x=..,z=.. (default: the current pose)")
+            q.add_argument(
+                "--pose",
+                type=parse_pose_arg,
+                default=None,
+                help="x, z [m], roll, pitch [rad], e.g. x=0.02,z=0.25 (default: the current pose)",
+            )
         if action in ("save", "go"):
-            q.add_argument("--speed-scale", type=finite_float("--speed-scale"), default=None)
+            q.add_argument(
+                "--speed-scale",
+                type=finite_float("--speed-scale"),
+                default=None,
+                help=f"fraction of full speed, [{MIN_SPEED_SCALE:g}, 1] (save: the preset's own; go: this time only)",
+            )
         if action == "go":
             _wait_options(q)
         _client_options(q)

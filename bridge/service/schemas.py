@@ -492,7 +492,7 @@ def _format(key: str, exc: ValidationError, model: type[BaseModel]) -> str:
     elif e["type"] in ("greater_than", "greater_than_equal", "less_than", "less_than_equal"):
         msg = "is out of range"
     elif e["type"] == "string_pattern_mismatch":
-        msg = "must be 1-64 letters, digits, '-', '_', '.' starting with a letter or digit"
+        msg = "must be 1-64 letters, digits, '-', '_', '.' (ASCII only: a-z, A-Z, 0-9) starting with a letter or digit"
     elif e["type"] == "model_type":
         msg = "must be a JSON object"
     elif e["type"] in ("int_type", "int_from_float", "int_parsing"):

@@ -324,8 +324,18 @@ def goto_target(service, pg, goal: dict, speed: int = 100):
     for k in ("x", "z", "roll", "pitch"):
         pg.fill(f"#goto-form input[name={k}]", "" if k not in goal else f"{goal[k] * 1000:.1f}")
     pg.fill("#goto-form input[name=speed]", str(speed))
+    pg.evaluate("document.getElementById('goto-result').textContent = ''")  # the last goto's answer is not this one's
     pg.click("#goto-go")
-    wait_js(pg, "document.getElementById('goto-result').textContent.length > 0")
+    # a goal under 1 mm (a rest pose read back) is asked about as metres typed into mm: it is meant as typed
+    wait_js(
+        pg,
+        "document.getElementById('goto-result').textContent.length > 0 || "
+        "!document.getElementById('confirm').classList.contains('hidden')",
+    )
+    if not pg.is_hidden("#confirm"):
+        assert pg.text_content("#confirm-title") == "Millimetres?"
+        pg.click("#confirm-ok")
+        wait_js(pg, "document.getElementById('goto-result').textContent.length > 0")
     text = pg.text_content("#goto-result")
     # accepted: "moving: motion #N, …", or its outcome when the motion ended before the reply was shown (a
     # short move on a loaded machine; a CI-style run read "motion #8 finished" for a 10 mm goto)

@@ -136,7 +136,12 @@ class ExactInverse:
 
     def solve_full(self, target: ArrayLike) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
         """(actuators, d actuators / d target, (y_T [m], yaw [rad])) for a target of 4 values."""
-        t = np.asarray(target, dtype=float).reshape(-1)
+        try:  # a Target, a mapping or text is not 4 numbers: said as such, not numpy's TypeError
+            t = np.asarray(target, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            raise ModelInputError(
+                f"target must be 4 finite numbers (x [m], z [m], roll [rad], pitch [rad]), got {type(target).__name__}"
+            ) from None
         tl = t.tolist()
         if len(tl) != 4 or not all(map(math.isfinite, tl)):
             raise ModelInputError("target must be 4 finite numbers (x [m], z [m], roll [rad], pitch [rad])")

@@ -50,6 +50,13 @@ def test_actuators_pose_actuators_for_implement_consistent_vectors(model, invers
         np.testing.assert_allclose(inverse(p.x, p.z, p.roll, p.pitch), q, atol=1e-10)
 
 
+@pytest.mark.parametrize("target", [{"x": 0.0, "z": 0.2, "roll": 0.0, "pitch": 0.0}, "abc", None])
+def test_a_target_that_is_not_four_numbers_is_a_model_input_error(inverse, target):
+    """An engineer's report: a Target given to ExactInverse.solve raised numpy's TypeError, not a HitchError."""
+    with pytest.raises(ModelInputError, match=r"target must be 4 finite numbers \(x \[m\]"):
+        inverse.solve(target)
+
+
 def test_unreachable_pose_raises(inverse):
     with pytest.raises(KinematicsError):
         inverse(0.0, 3.0, 0.0, 0.0)

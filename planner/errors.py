@@ -9,8 +9,9 @@ validate input.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 
-__all__ = ["HitchError", "HitchInputError", "unit_hint"]
+__all__ = ["HitchError", "HitchInputError", "first_line", "unit_hint", "unit_hint_within"]
 
 
 class HitchError(Exception):
@@ -30,3 +31,23 @@ def unit_hint(value: float, lo: float, hi: float, unit: str) -> str:
     if unit == "rad" and abs(value) >= 1.0 and lo <= math.radians(value) <= hi:
         return f"; did you mean degrees? {value:.6g} deg = {math.radians(value):.6g} rad"
     return ""
+
+
+def unit_hint_within(value: float, constraints: Iterable[object], unit: str) -> str:
+    """:func:`unit_hint` for ``value`` against the bounds of ``constraints`` (objects with ``gt``/``ge``/``lt``/``le``
+    attributes, as a pydantic field's metadata); open ends are infinite."""
+    items = list(constraints)
+
+    def bounds(names: tuple[str, str]) -> list[float]:
+        return [float(getattr(c, a)) for c in items for a in names if getattr(c, a, None) is not None]
+
+    return unit_hint(
+        value, max(bounds(("gt", "ge")), default=-math.inf), min(bounds(("lt", "le")), default=math.inf), unit
+    )
+
+
+def first_line(exc: BaseException) -> str:
+    """``Type: the first line of its text`` (third-party errors dump pages after it: Ruckig's input, a parser's
+    state) for a message that names what went wrong."""
+    text = str(exc).strip()
+    return f"{type(exc).__name__}: {text.splitlines()[0] if text else 'no message'}"

@@ -52,7 +52,7 @@ from typing import TYPE_CHECKING, Any
 import can
 from can.io.generic import TextIOMessageWriter
 
-from planner.errors import HitchInputError
+from planner.errors import HitchInputError, first_line
 
 if TYPE_CHECKING:
     from bridge.service.config import ServiceConfig
@@ -486,10 +486,6 @@ _SUFFIX_HINT = "suffixes: .asc, .blf, .log (candump), .csv"
 _BACKWARDS_TOLERANCE_S = 1e-6
 
 
-def _first_line(exc: BaseException) -> str:
-    return (str(exc).strip().splitlines() or [""])[0][:200]
-
-
 def rotated_can_log(path: str | Path, k: int) -> Path:
     """The ``k``-th rotated file of the CAN log ``path`` (``bus.asc`` → ``bus.k.asc``; 0: ``path``)."""
     p = Path(path)
@@ -683,9 +679,7 @@ def _frames(path: Path) -> Iterator[can.Message]:
     try:
         reader = iter(can.LogReader(str(path)))
     except Exception as exc:  # noqa: BLE001 — as below: the BLF reader parses its header here
-        raise BlackBoxError(
-            f"CAN log {path}: cannot read ({type(exc).__name__}: {_first_line(exc)}); {_SUFFIX_HINT}"
-        ) from None
+        raise BlackBoxError(f"CAN log {path}: cannot read ({first_line(exc)}); {_SUFFIX_HINT}") from None
     n, last = 0, -math.inf
     while True:
         try:
@@ -694,7 +688,7 @@ def _frames(path: Path) -> Iterator[can.Message]:
             return
         except Exception as exc:  # noqa: BLE001 — a third-party parser on a damaged file: any of its errors
             raise BlackBoxError(
-                f"CAN log {path}: cannot read frame {n + 1} ({type(exc).__name__}: {_first_line(exc)}); {_SUFFIX_HINT}"
+                f"CAN log {path}: cannot read frame {n + 1} ({first_line(exc)}); {_SUFFIX_HINT}"
             ) from None
         n += 1
         t = float(msg.timestamp)

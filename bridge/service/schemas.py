@@ -34,7 +34,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from pydantic.fields import FieldInfo
 
 from bridge.service.maneuvers.language import MIN_SPEED_SCALE, NAME_PATTERN, POSE_BOUNDS
-from planner.errors import HitchInputError, unit_hint
+from planner.errors import HitchInputError, unit_hint, unit_hint_within
 from planner.model.types import CONTROLLED_POSE_NAMES, CONTROLLED_POSE_UNITS
 
 __all__ = [
@@ -435,6 +435,33 @@ def _bound(v: object) -> str:
     return str(v) if isinstance(v, int) and not isinstance(v, bool) else f"{v:.6g}"
 
 
+#: the unit of a request field by its name (SI; "" for none)
+_FIELD_UNITS = {
+    "x": "m",
+    "z": "m",
+    "roll": "rad",
+    "pitch": "rad",
+    "vx": "m/s",
+    "vz": "m/s",
+    "vroll": "rad/s",
+    "vpitch": "rad/s",
+    "ttl_ms": "ms",
+    "deadline_ms": "ms",
+    "mass_kg": "kg",
+    "com_m": "m",
+    "upper_height_m": "m",
+    "lowering_speed_m_s": "m/s",
+}
+
+
+def _unit(loc: tuple[int | str, ...]) -> str:
+    """The unit of the field at ``loc`` ("" for none): a setpoint's ``velocity`` DOFs are rates."""
+    name = next((str(p) for p in reversed(loc) if isinstance(p, str)), "")
+    if "velocity" in loc and name in ("x", "z", "roll", "pitch"):  # a setpoint's velocity, not its position
+        return "m/s" if name in ("x", "z") else "rad/s"
+    return _FIELD_UNITS.get(name, "")
+
+
 def _allowed(model: type[BaseModel], loc: tuple[int | str, ...]) -> str:
     info, n = _field_at(model, loc)
     if info is None:
@@ -449,25 +476,8 @@ def _allowed(model: type[BaseModel], loc: tuple[int | str, ...]) -> str:
         for a, sym in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<="))
         if getattr(c, a, None) is not None
     ]
-    name = next((str(p) for p in reversed(loc) if isinstance(p, str)), "")
-    unit = {
-        "x": " m",
-        "z": " m",
-        "roll": " rad",
-        "pitch": " rad",
-        "vx": " m/s",
-        "vz": " m/s",
-        "vroll": " rad/s",
-        "vpitch": " rad/s",
-        "ttl_ms": " ms",
-        "deadline_ms": " ms",
-        "mass_kg": " kg",
-        "com_m": " m",
-        "upper_height_m": " m",
-        "lowering_speed_m_s": " m/s",
-    }.get(name, "")
-    if "velocity" in loc and name in ("x", "z", "roll", "pitch"):  # a setpoint's velocity, not its position
-        unit = " m/s" if name in ("x", "z") else " rad/s"
+    unit = _unit(loc)
+    unit = f" {unit}" if unit else ""
     return f" (allowed: {' and '.join(parts)}{unit})" if parts else ""
 
 
@@ -525,14 +535,7 @@ def _range_hint(model: type[BaseModel], loc: tuple[int | str, ...], value: float
     """``; did you mean mm? …`` (or degrees) for a length [m] or angle [rad] out of its range that fits it read
     so (an engineer's report: `ik` with z = 200 named only the ±2 m, where goto hinted at mm)."""
     info, _ = _field_at(model, loc)
-    unit = _allowed(model, loc).rsplit(" ", 1)[-1].rstrip(")")
-    if info is None or unit not in ("m", "rad"):
-        return ""
-    lo, hi = -math.inf, math.inf
-    for c in info.metadata:
-        lo = max(lo, *(float(getattr(c, a)) for a in ("gt", "ge") if getattr(c, a, None) is not None), -math.inf)
-        hi = min(hi, *(float(getattr(c, a)) for a in ("lt", "le") if getattr(c, a, None) is not None), math.inf)
-    return unit_hint(value, lo, hi, unit)
+    return "" if info is None else unit_hint_within(value, info.metadata, _unit(loc))
 
 
 class _NonFinite:
@@ -568,18 +571,28 @@ def _pairs(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
     return out
 
 
-def _find_non_finite(data: Any) -> tuple[str, str] | None:
-    """(path, token) of the first NaN/Infinity in the decoded payload, if any (iterative: no recursion)."""
-    stack: list[tuple[Any, str]] = [(data, "")]
+#: the deepest a request payload may nest (objects and lists; the deepest request, a GeoJSON feature collection
+#: of lines, needs 6)
+MAX_PAYLOAD_DEPTH = 32
+
+
+def _scan(data: Any) -> tuple[bool, tuple[str, str] | None]:
+    """One iterative walk of the decoded payload (no recursion): whether it nests deeper than
+    :data:`MAX_PAYLOAD_DEPTH` levels (a scalar 0, ``{}`` 1), and the (path, token) of its first NaN/Infinity."""
+    first: tuple[str, str] | None = None
+    stack: list[tuple[Any, str, int]] = [(data, "", 1)]
     while stack:
-        node, path = stack.pop()
+        node, path, depth = stack.pop()
         if isinstance(node, _NonFinite):
-            return path or "payload", node.token
-        if isinstance(node, dict):
-            stack.extend((v, f"{path}.{k}" if path else str(k)) for k, v in reversed(node.items()))
-        elif isinstance(node, list):
-            stack.extend((v, f"{path}[{i}]") for i, v in reversed(list(enumerate(node))))
-    return None
+            first = first or (path or "payload", node.token)
+        elif isinstance(node, (dict, list)):
+            if depth > MAX_PAYLOAD_DEPTH:
+                return True, first
+            if isinstance(node, dict):
+                stack.extend((v, f"{path}.{k}" if path else str(k), depth + 1) for k, v in reversed(node.items()))
+            else:
+                stack.extend((v, f"{path}[{i}]", depth + 1) for i, v in reversed(list(enumerate(node))))
+    return False, first
 
 
 def setpoint_session(payload: bytes | bytearray | memoryview | str | None) -> int | None:
@@ -623,24 +636,6 @@ def check_pose_in_workspace(
         raise RequestError("unreachable", f"{key}: outside the workspace: " + "; ".join(problems))
 
 
-#: the deepest a request payload may nest (objects and lists; the deepest request, a GeoJSON feature collection
-#: of lines, needs 6)
-MAX_PAYLOAD_DEPTH = 32
-
-
-def _depth(data: Any) -> int:
-    """How deep ``data`` nests (a scalar 0, ``{}`` 1), without recursion; stops counting past the limit."""
-    best, todo = 0, [(data, 1)]
-    while todo:
-        node, d = todo.pop()
-        if isinstance(node, (dict, list)):
-            best = max(best, d)
-            if d > MAX_PAYLOAD_DEPTH:
-                return d
-            todo.extend((v, d + 1) for v in (node.values() if isinstance(node, dict) else node))
-    return best
-
-
 def parse_request(
     key: str,
     payload: bytes | bytearray | memoryview | str | None,
@@ -682,7 +677,8 @@ def parse_request(
             ) from None
         except ValueError as exc:  # JSONDecodeError, NaN/Infinity tokens, integers of > 4300 digits
             raise RequestError("bad_request", f"{key}: payload is not valid JSON ({str(exc)[:80]})") from None
-    if _depth(data) > MAX_PAYLOAD_DEPTH:  # every request fits in a few levels; the limit is said (an attacker's report)
+    too_deep, bad = _scan(data)
+    if too_deep:  # every request fits in a few levels; the limit is said (an attacker's report)
         raise RequestError(
             "bad_request",
             f"{key}: payload nests more than {MAX_PAYLOAD_DEPTH} levels deep "
@@ -694,7 +690,6 @@ def parse_request(
             f"{key}: payload must be a JSON object with fields "
             f"{', '.join(model.model_fields) or '(none)'}, got {_show(data)}",
         )
-    bad = _find_non_finite(data)
     if bad is not None:
         path, token = bad
         loc = tuple(path.split("."))

@@ -64,7 +64,9 @@ class ScenarioError(HitchInputError):
     """A scenario file that cannot be used; the message names the field (or CSV line) and the allowed range."""
 
 
-#: the steepest ground a scenario may describe (a CSV profile or the sum of its sines): 1 = 45°
+#: the steepest ground a scenario may describe, |Δheight / Δdistance| between two CSV rows or the sum of its
+#: sines' slopes (1 = 45°): a tractor drives nothing steeper, and a step is a typing error (mm for m, a missing
+#: decimal point)
 MAX_TERRAIN_SLOPE = 1.0
 #: at most this many sines per terrain list (undulation, cross_slope_wave): each is evaluated every twin tick
 MAX_TERRAIN_WAVES = 64
@@ -237,10 +239,6 @@ def _csv_check(
             raise ScenarioError(f"{name} data row {i + 1} (line {lines[i]}): {col} = {v:g} outside [{lo:g}, {hi:g}]")
         if increasing and i and not v > values[i - 1]:
             raise ScenarioError(f"{name} data row {i + 1} (line {lines[i]}): {col} = {v:g} must increase")
-
-
-# MAX_TERRAIN_SLOPE (above) also bounds a terrain profile between two rows (|Δheight / Δdistance|; 1 = 45°): a tractor
-# drives nothing steeper, and a step is a typing error (mm for m, a missing decimal point)
 
 
 def _speed(spec: _SpeedSpec, base: Traversable | Path) -> SpeedProfile:

@@ -231,19 +231,19 @@ def _parse_play(text: str, source: str) -> PinPlay:
         raise TruthError(
             f"truth {source}: {len(lines)} play lines (lines {', '.join(str(n) for n, _ in lines)}); give one"
         )
-    for _, line in lines:
-        if line.startswith(PLAY_MARKER):
-            try:
-                data = tomllib.loads("play =" + line[len(PLAY_MARKER) :])["play"]
-            except tomllib.TOMLDecodeError as exc:
-                raise TruthError(f"truth {source}: the play line is not valid TOML: {exc}") from None
-            if not isinstance(data, dict) or set(data) - {"lower_link_m", "top_link_m"}:
-                raise TruthError(f"truth {source}: play allows the keys lower_link_m, top_link_m (m, 0…0.01)")
-            try:
-                return PinPlay(**data)
-            except TruthError as exc:  # a value out of range: say which file
-                raise TruthError(f"truth {source}: {exc}") from None
-    return PinPlay()
+    if not lines:
+        return PinPlay()
+    line = lines[0][1]  # the one play line (every directive line is one, and there is one)
+    try:
+        data = tomllib.loads("play =" + line[len(PLAY_MARKER) :])["play"]
+    except tomllib.TOMLDecodeError as exc:
+        raise TruthError(f"truth {source}: the play line is not valid TOML: {exc}") from None
+    if not isinstance(data, dict) or set(data) - {"lower_link_m", "top_link_m"}:
+        raise TruthError(f"truth {source}: play allows the keys lower_link_m, top_link_m (m, 0…0.01)")
+    try:
+        return PinPlay(**data)
+    except TruthError as exc:  # a value out of range: say which file
+        raise TruthError(f"truth {source}: {exc}") from None
 
 
 def load_machine_truth(name_or_path: str | Path) -> MachineTruth:

@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from ruckig import ControlInterface, InputParameter, Result, Ruckig, RuckigError, Synchronization, Trajectory
 
-from planner.errors import unit_hint
+from planner.errors import first_line, unit_hint
 from planner.model.exact_inverse import ExactInverse
 from planner.model.hard_limits import WORKSPACE_NAMES, HardLimits
 from planner.model.kinematics import HitchModel
@@ -135,7 +135,7 @@ class TrajectoryPlanner:
                 q = self.inverse(*c)
                 bad = hard.violations(q, self.model.features(q)[0], tol)
             except KinematicsError as exc:
-                bad = (_first_line(exc),)
+                bad = (first_line(exc),)
             if bad:
                 raise PlanError(
                     f"{field} ({box}; m, rad) is not all reachable: at {at} {', '.join(bad)} "
@@ -340,7 +340,7 @@ class TrajectoryPlanner:
         try:
             res = self._ruckig.calculate(inp, traj)
         except (RuckigError, ValueError) as exc:  # input Ruckig cannot solve; a result code its enum lacks
-            raise PlanError(f"no trajectory to the goal within the limits ({_first_line(exc)})") from None
+            raise PlanError(f"no trajectory to the goal within the limits ({first_line(exc)})") from None
         if res not in _OK:
             raise PlanError(f"no trajectory to the goal within the limits (ruckig {res})")
         return traj
@@ -513,12 +513,6 @@ class _LeavesWorkspace(PlanError):
 #: how far [m or rad] a point of a profile's restricted box may lie beyond a hard limit before loading refuses
 #: the box (TrajectoryPlanner._check_box): more is a box of another machine or in other units
 BOX_LIMIT_TOLERANCE = 0.01
-
-
-def _first_line(exc: BaseException) -> str:
-    """The first non-empty line of an exception's text (Ruckig's errors dump the whole input after it)."""
-    text = str(exc).strip()
-    return f"{type(exc).__name__}: {text.splitlines()[0] if text else 'no message'}"
 
 
 def _start_note(bound: float, face: float) -> str:

@@ -66,7 +66,7 @@ from bridge.service.maneuvers.steps import (  # the step schema; re-exported (se
     _show,
     check_name,
 )
-from planner.errors import HitchInputError, unit_hint
+from planner.errors import HitchInputError, unit_hint_within
 from planner.model.types import CONTROLLED_POSE_UNITS
 from planner.trajectory import MotionState
 
@@ -178,12 +178,9 @@ def _unit_hint(model: type[BaseModel], name: str, value: object) -> str:
     """``; did you mean mm? …`` (or degrees) for a pose value out of range that fits read so (`goto: {z: 250}`
     named only the ±2 m, where the CLI's goto hinted at mm)."""
     info = model.model_fields.get(name)
-    unit = _UNITS.get(name, "")
-    if info is None or unit not in ("m", "rad") or isinstance(value, bool) or not isinstance(value, (int, float)):
+    if info is None or isinstance(value, bool) or not isinstance(value, (int, float)):
         return ""
-    lo = max([float(getattr(m, a)) for m in info.metadata for a in ("gt", "ge") if getattr(m, a, None) is not None])
-    hi = min([float(getattr(m, a)) for m in info.metadata for a in ("lt", "le") if getattr(m, a, None) is not None])
-    return unit_hint(float(value), lo, hi, unit)
+    return unit_hint_within(float(value), info.metadata, _UNITS.get(name, ""))
 
 
 class _UniqueKeyLoader(yaml.SafeLoader):

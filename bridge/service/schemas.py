@@ -435,8 +435,8 @@ def _bound(v: object) -> str:
     return str(v) if isinstance(v, int) and not isinstance(v, bool) else f"{v:.6g}"
 
 
-#: the unit of a request field by its name (SI; "" for none)
-_FIELD_UNITS = {
+#: the unit of a request field by its name (SI; "" for none), in refusals and in docs/api.md's table
+FIELD_UNITS: Mapping[str, str] = {
     "x": "m",
     "z": "m",
     "roll": "rad",
@@ -459,7 +459,7 @@ def _unit(loc: tuple[int | str, ...]) -> str:
     name = next((str(p) for p in reversed(loc) if isinstance(p, str)), "")
     if "velocity" in loc and name in ("x", "z", "roll", "pitch"):  # a setpoint's velocity, not its position
         return "m/s" if name in ("x", "z") else "rad/s"
-    return _FIELD_UNITS.get(name, "")
+    return FIELD_UNITS.get(name, "")
 
 
 def _allowed(model: type[BaseModel], loc: tuple[int | str, ...]) -> str:

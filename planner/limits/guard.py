@@ -25,6 +25,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike
 
+from planner.errors import HitchError
 from planner.limits.end_stop import EndStopZone
 from planner.limits.implement_limits import (
     LOWERING_SPEED_LIMIT,
@@ -402,11 +403,23 @@ class Guard:
         Slowing is a time dilation of the same path (Ruckig limits × f, f², f³): the caution
         factor is applied once; the end-stop factor (with a 2 % margin) until every sample
         keeps to the end-stop zone speed.
+
+        A goal that is itself in the caution band (:meth:`caution_at_goal`) slows the move whatever
+        the path: it is planned at the caution factor at once, not first at full speed only to be
+        thrown away (every plan's last sample is its goal, so the check of the full-speed plan would
+        have cautioned it). The end-stop factor found on such a plan is relative to the cautioned
+        speed, so the caution factor is applied after it once more: the result is the end-stop-limited
+        speed × the caution factor, as when the full-speed plan comes first. A speed reason's value is
+        the factor relative to the speed asked for (``speed_scale``), whichever plan found it.
         """
         total, caution_applied = 1.0, False
         reasons: list[GuardReason] = []
         cache: dict[bytes, _Exact] = {}  # per-sample results: the plans share start and goal
         context = self._context()
+        foreseen = self._caution_at_goal(start, goal, cache)
+        recaution = bool(foreseen)  # the caution factor is due again after the first end-stop scaling
+        if foreseen:
+            total, caution_applied = self.settings.caution_speed_factor, True
         for _ in range(8):
             plan = self.planner.plan_move(start, goal, speed_scale=speed_scale * total)
             sp = plan.sampled()
@@ -416,18 +429,67 @@ class Guard:
             dec, worst = self._check_setpoints(sp, cache)
             if dec.action == "refused":
                 raise GuardRefusal(replace(dec, worst=worst()))
-            reasons.extend(r for r in dec.reasons if r not in reasons)
+            # a speed reason's factor is relative to the plan checked: stated relative to the speed asked for
+            found = (
+                replace(r, value=r.value * total) if r.level == "speed" and total != 1.0 else r for r in dec.reasons
+            )
+            reasons.extend(r for r in found if r not in reasons)
             end_stop = min((r.value for r in dec.reasons if r.level == "speed"), default=1.0)
             caution = any(r.level == "caution" for r in dec.reasons)
             if end_stop < 1.0:
                 total *= end_stop * 0.98
+                if recaution:
+                    total *= self.settings.caution_speed_factor
+                    recaution = False
             elif caution and not caution_applied:
                 total *= self.settings.caution_speed_factor
                 caution_applied = True
             else:
+                seen = {r.measure for r in reasons if r.level == "caution"}
+                # a goal on a caution threshold to ~1e-15 the plan's own last sample may not cross: named anyway
+                reasons.extend(replace(r, t_s=plan.duration) for r in foreseen if r.measure not in seen)
                 action: Action = "ok" if total >= 1.0 else "scaled"
                 return GuardedPlan(plan, sp, GuardDecision(action, total, tuple(_dedupe(reasons)), worst()))
         raise GuardRefusal(GuardDecision("refused", 0.0, tuple(_dedupe(reasons)), worst()))
+
+    def caution_at_goal(self, start: MotionState, goal: Mapping[str, float]) -> tuple[GuardReason, ...]:
+        """Caution reasons (``t_s`` NaN: no plan yet) that the goal pose alone proves for a move from
+        ``start``: a measure below its caution threshold at the goal and not below its hard one, unless
+        the start is below the caution threshold too and the goal is no worse (the rule of every
+        sample in :meth:`check_setpoints`). Empty when it proves none, when the goal is refused
+        (planning says why) or cannot be evaluated."""
+        return self._caution_at_goal(start, goal, {})
+
+    def _caution_at_goal(
+        self, start: MotionState, goal: Mapping[str, float], cache: dict[bytes, _Exact]
+    ) -> tuple[GuardReason, ...]:
+        """:meth:`caution_at_goal`; the start's and the goal's results go into ``cache`` (by actuator bytes)."""
+        try:
+            p0 = np.asarray(start.position, float)
+            ends = [
+                self._exact_entry(self.planner.inverse(*p), cache)[1] for p in (p0, self.planner.goal_vector(p0, goal))
+            ]
+        except HitchError:
+            return ()
+        s, g = (_measure_values(r) for r in ends)
+        hard_th, caution_th = self._thresholds()
+        out: list[GuardReason] = []
+        for m in _MEASURES:
+            if not (g[m] < caution_th[m]) or (s[m] < caution_th[m] and g[m] >= s[m] - 1e-9):
+                continue  # not below the caution threshold, or no worse than an already low start
+            if g[m] < hard_th[m] and not (s[m] < hard_th[m] and g[m] >= s[m] - 1e-9):
+                return ()  # a goal the check refuses: the plan says where and why
+            out.append(GuardReason(m, g[m], caution_th[m], math.nan, "caution", MEASURE_UNITS[m]))
+        return tuple(out)
+
+    def _exact_entry(self, q: np.ndarray, cache: dict[bytes, _Exact]) -> _Exact:
+        """Keep-out clearances and stability report at actuators ``q``, as the per-sample path of
+        :meth:`_check_setpoints` computes them (points of :meth:`HitchModel.forward`), cached by bytes."""
+        key = q.tobytes()
+        if key not in cache:
+            pts = self.model.forward(q).points
+            cache[key] = (self.keep_out_clearance(q, pts), self.stability_at(q, pts))
+        return cache[key]
 
     # ------------------------------------------------------------------ jog
     def check_jog(self, state: MotionState, rates: ArrayLike) -> tuple[np.ndarray, GuardDecision]:

@@ -97,6 +97,103 @@ def test_caution_slows_the_motion(ballasted, heavy):
     assert gp.plan.duration > fast.duration * 1.2
 
 
+class _CountingPlanner:
+    """Counts ``plan_move`` calls of a TrajectoryPlanner (the guard's plans) while in ``with``."""
+
+    def __init__(self, tp):
+        self.tp, self.calls = tp, 0
+
+    def __enter__(self):
+        orig = self.tp.plan_move
+
+        def plan_move(*a, **k):
+            self.calls += 1
+            return orig(*a, **k)
+
+        self.tp.plan_move = plan_move
+        return self
+
+    def __exit__(self, *exc):
+        del self.tp.plan_move  # the class's method again
+
+
+def test_a_goal_in_the_caution_band_is_planned_once_at_the_caution_speed(ballasted, heavy):
+    """Every plan's last sample is its goal: a goal below the caution threshold (and worse than the
+    start) makes the full-speed plan a throw-away. It was planned, sampled and checked first (two plans
+    for every cautioned move of a heavy implement); now the move is planned at the caution factor at once,
+    and its caution reason names a sample of the plan returned, with that sample's own value."""
+    g = Guard(
+        TrajectoryPlanner(ballasted),
+        implement=heavy,
+        thresholds=StabilityThresholds(esm_hard=100.0, esm_caution=50_000.0),
+    )
+    start, goal = MotionState.at_rest([0.0, g.planner.lo[1], 0.0, 0.0]), {"z": 0.2}
+    with _CountingPlanner(g.planner) as counted:
+        gp = g.plan(start, goal)
+    assert counted.calls == 1  # two before
+    assert [r.measure for r in g.caution_at_goal(start, goal)] == ["esm"]  # raising lowers the ESM
+    assert gp.decision.action == "scaled" and gp.decision.speed_factor == 0.8
+    slow = g.planner.plan_move(start, goal, speed_scale=0.8).sampled()
+    np.testing.assert_array_equal(gp.setpoints.actuators, slow.actuators)  # the plan it was before, bit for bit
+    (reason,) = [r for r in gp.decision.reasons if r.level == "caution"]
+    k = int(np.flatnonzero(gp.setpoints.t == reason.t_s)[0])
+    assert reason.measure == "esm" and reason.value == g.stability_at(gp.setpoints.actuators[k]).esm
+    assert reason.value < 50_000.0 and k > 0
+
+
+def test_no_caution_is_foreseen_for_a_goal_that_improves_a_low_start_or_is_refused(ballasted, heavy):
+    g = Guard(
+        TrajectoryPlanner(ballasted),
+        implement=heavy,
+        thresholds=StabilityThresholds(esm_hard=100.0, esm_caution=50_000.0),
+    )
+    lo, hi = g.planner.lo[1], g.planner.hi[1]
+    assert g.caution_at_goal(MotionState.at_rest([0.0, hi, 0.0, 0.0]), {"z": lo}) == ()  # lowering: better
+    with _CountingPlanner(g.planner) as counted:
+        gp = g.plan(MotionState.at_rest([0.0, hi, 0.0, 0.0]), {"z": lo})
+    assert gp.decision.action == "ok" and counted.calls == 1
+    hard = Guard(
+        TrajectoryPlanner(ballasted),
+        implement=heavy,
+        thresholds=StabilityThresholds(esm_hard=50_000.0, esm_caution=60_000.0),
+    )
+    assert hard.caution_at_goal(MotionState.at_rest([0.0, lo, 0.0, 0.0]), {"z": hi}) == ()  # refused: the plan says so
+    assert g.caution_at_goal(MotionState.at_rest([0.0, lo, 0.0, 0.0]), {"z": 9.0}) == ()  # outside: planning says why
+
+
+def test_an_end_stop_slowing_and_a_foreseen_caution_multiply(ballasted, heavy):
+    """A cautioned move into the lift's end-stop zone: the end-stop-limited speed × the caution factor,
+    as when the full-speed plan is checked first (0.8 × 0.7724 = 0.6180 then, 0.6178 now), every
+    sample within the zone speed, and the end-stop factor stated relative to the speed asked for."""
+    tp0 = TrajectoryPlanner(ballasted)
+    target = ballasted.lower[0] + 1e-5
+    a, b = -0.35, 0.0  # bisection on z for lift(z) = target (the lift grows with z)
+    for _ in range(80):
+        mid = (a + b) / 2
+        a, b = (mid, b) if tp0.inverse(0, mid, 0, 0)[0] < target else (a, mid)
+    tp = TrajectoryPlanner(ballasted, workspace=dict(ballasted.workspace, z=(b, ballasted.workspace["z"][1])))
+    start, goal = MotionState.at_rest([0.06, -0.15, 0.0, 0.0]), {"x": -0.06, "z": b}
+
+    def guard(esm_caution):
+        g = Guard(tp, implement=heavy, thresholds=StabilityThresholds(esm_hard=100.0, esm_caution=esm_caution))
+        g.set_slope(SLOPE, 0.0)
+        return g
+
+    plain = guard(100.0)  # no caution band
+    e0, e1 = (plain.stability_at(tp.inverse(*p)).esm for p in (start.position, [-0.06, b, 0.0, 0.0]))
+    assert e1 < e0  # the goal is the less stable end
+    ref = plain.plan(start, goal)
+    cautious = guard((e0 + e1) / 2)
+    gp = cautious.plan(start, goal)
+    assert [r.measure for r in ref.decision.reasons] == ["end_stop:lift"]
+    assert [r.measure for r in gp.decision.reasons] == ["end_stop:lift", "esm"]
+    assert gp.decision.speed_factor == pytest.approx(0.8 * ref.decision.speed_factor, rel=2e-3)
+    assert gp.decision.reasons[0].value == pytest.approx(ref.decision.reasons[0].value, rel=2e-3)
+    zone = cautious.end_stops
+    for q, qd in zip(gp.setpoints.actuators, gp.setpoints.actuator_velocity, strict=True):
+        assert np.all(np.abs(qd) <= zone.allowed_speed(q, np.sign(qd)) + 1e-9)
+
+
 def test_keep_out_refuses_motion_into_it(model):
     d = model.profile.model_dump()
     # a coupler block right where the top link passes when the implement is lifted

@@ -288,9 +288,16 @@ def _alive(c, timeout_s: float = 1.0) -> bool:
 def _service_down(args, exc: Exception) -> CLIError:
     tried = ", ".join(args.connect or [DEFAULT_LISTEN])
     why = re.sub(r"\s+at \S+\.rs:\d+\.?", "", str(exc)).strip()  # Zenoh's source location is noise here
+    secured = (
+        f"; with --security {args.security}: the user and password may be refused there, or the access list may not "
+        "let this user see that service"
+        if getattr(args, "security", None)
+        else ""
+    )
     return CLIError(
         f"{why} — no hitch service with prefix {args.prefix!r} answers at {tried}; start one with "
         f"`hitch serve` (it listens on {DEFAULT_LISTEN} by default) or give its endpoint with --connect ENDPOINT"
+        + secured
     )
 
 
@@ -397,37 +404,6 @@ def _ended(final: dict | None) -> tuple[str, int]:
     if out.get("event") == "motion_aborted":
         return f"; ABORTED: {out.get('reason') or 'no reason given'}{where}", 1
     return (f"; finished{where}" if out.get("event") == "motion_finished" else where), 0
-
-
-def _wait_maneuver(c, maneuver_id: object, timeout_s: float) -> dict:
-    """Block until maneuver ``maneuver_id`` has finished or was aborted; its outcome event (or the last state)."""
-    from bridge.service.client import ServiceTimeout
-
-    done, outcome_seen = threading.Event(), threading.Event()
-    out: dict[str, Any] = {}
-    seen = [False]
-    t0 = time.monotonic()
-
-    def on_event(e: dict) -> None:
-        if e.get("maneuver_id") == maneuver_id and e.get("event") in ("maneuver_finished", "maneuver_aborted"):
-            out["outcome"] = e
-            outcome_seen.set()
-            done.set()
-
-    def on_state(s: dict) -> None:
-        out["state"] = s
-        m = s.get("maneuver")
-        if isinstance(m, dict) and m.get("motion_id") == maneuver_id:
-            seen[0] = True
-        elif seen[0] or time.monotonic() - t0 > 2.0:  # it ran and ended, or ended before we looked
-            done.set()
-
-    c.subscribe("events", on_event)
-    c.subscribe("state", on_state)
-    if not done.wait(timeout_s):
-        raise ServiceTimeout(f"maneuver {maneuver_id} still running after {timeout_s:g} s")
-    outcome_seen.wait(1.0)  # the outcome event follows the state that shows the end
-    return dict(out)
 
 
 def _cmd_goto(args) -> int:
@@ -660,9 +636,9 @@ def _cmd_maneuver(args) -> int:
                 args,
                 c,
                 lambda: c.request("maneuvers/run", {"name": args.name}),
-                lambda reply: _wait_maneuver(c, reply["motion_id"], _MANEUVER_WAIT_S),
+                lambda reply: c.wait_maneuver(reply["maneuver_id"], timeout_s=_MANEUVER_WAIT_S),
             )
-            text = f"maneuver {args.name} started (id {r['motion_id']}, planned {r['duration']:.2f} s)"
+            text = f"maneuver {args.name} started (id {r['maneuver_id']}, planned {r['duration']:.2f} s)"
             if final is not None:
                 r = {**r, "outcome": final.get("outcome")}
                 text += f"; {_maneuver_outcome(final)}"

@@ -195,9 +195,11 @@ class ServiceAPI:
             req = parse_request(key, payload, workspace=(self.info.get("limits") or {}).get("workspace"))
             reply = self._handlers[key](req)
         except RequestError as exc:
-            refused = getattr(self.motion, "track_setpoint_refused", None)
-            if key == "track/setpoint" and callable(refused):  # counted against its session like any rejection
-                refused(setpoint_session(payload), str(exc))
+            if key == "track/setpoint":  # counted against its session like any rejection (a put's, too)
+                try:
+                    self.motion.track_setpoint_refused(setpoint_session(payload), str(exc))
+                except Exception:  # noqa: BLE001 — a core that cannot count it changes nothing of the reply
+                    pass
             return self._err(exc.code, _named(key, exc))
         except MotionError as exc:
             return self._err(exc.code, _named(key, exc))

@@ -37,8 +37,9 @@ _UNITS: Mapping[str, str] = {
 #: what each key does (the table's last column); every key of REQUESTS has one (a test checks)
 KEY_SUMMARY: Mapping[str, str] = {
     "ik": "exact inverse kinematics of a full pose: the five actuators, or why not",
-    "plan": "plan a move from the current state without moving: duration, guard decision, setpoints; "
-    "a goal outside the workspace answers `refused` in an ok reply (a preview)",
+    "plan": "plan a move from the current state without moving: duration, guard decision, stability; "
+    "a goal the planner or the guard refuses (outside the workspace, a limit on the way) answers `refused` in an "
+    "ok reply (a preview); one beyond the field's range is an `unreachable` error naming the workspace",
     "goto": "move to a (partial) goal pose: planned, guarded and started within `deadline_ms`, or refused",
     "jog": "move at pose rates for `ttl_ms` (a dead-man: send again to keep moving); all zero brakes",
     "stop": "stop every motion now and cancel what is queued; answered by the control core itself",

@@ -313,7 +313,8 @@ class HitchClient:
         return next(self.follow("state", timeout_s=timeout_s))
 
     def wait_motion(self, motion_id: int, *, timeout_s: float = 60.0) -> dict:
-        """Block until motion ``motion_id`` has ended (finished, aborted or replaced); the state then."""
+        """Block until motion ``motion_id`` has ended (finished, aborted or replaced); the state then.
+        A maneuver is several motions: wait for it with :meth:`wait_maneuver`."""
         done = threading.Event()
         last: dict = {}
 
@@ -327,6 +328,36 @@ class HitchClient:
         if not done.wait(timeout_s):
             raise ServiceTimeout(f"motion {motion_id} still running after {timeout_s:g} s")
         return dict(last)
+
+    def wait_maneuver(self, maneuver_id: int, *, timeout_s: float = 600.0) -> dict:
+        """Block until maneuver ``maneuver_id`` (a ``maneuvers/run`` reply's ``maneuver_id``) has finished or
+        was aborted: ``{"outcome": its maneuver_finished / maneuver_aborted event (absent if none was heard),
+        "state": the last state}``."""
+        done, outcome_seen = threading.Event(), threading.Event()
+        out: dict[str, Any] = {}
+        seen = [False]
+        t0 = time.monotonic()
+
+        def on_event(e: dict) -> None:
+            if e.get("maneuver_id") == maneuver_id and e.get("event") in ("maneuver_finished", "maneuver_aborted"):
+                out["outcome"] = e
+                outcome_seen.set()
+                done.set()
+
+        def on_state(s: dict) -> None:
+            out["state"] = s
+            m = s.get("maneuver")
+            if isinstance(m, dict) and m.get("maneuver_id", m.get("motion_id")) == maneuver_id:
+                seen[0] = True
+            elif seen[0] or time.monotonic() - t0 > 2.0:  # it ran and ended, or ended before we looked
+                done.set()
+
+        self.subscribe("events", on_event)
+        self.subscribe("state", on_state)
+        if not done.wait(timeout_s):
+            raise ServiceTimeout(f"maneuver {maneuver_id} still running after {timeout_s:g} s")
+        outcome_seen.wait(1.0)  # the outcome event follows the state that shows the end
+        return dict(out)
 
     # ------------------------------------------------------------------ fleet
     def fleet(self, *, timeout_s: float = 2.0) -> list[str]:

@@ -30,7 +30,7 @@ import typing
 from collections.abc import Mapping, Sequence
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
 from pydantic.fields import FieldInfo
 
 from bridge.service.maneuvers.language import MIN_SPEED_SCALE, NAME_PATTERN, POSE_BOUNDS
@@ -83,6 +83,18 @@ MAX_DEADLINE_MS = 60_000
 
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False, frozen=True)
+
+
+def _whole(v: Any) -> Any:
+    """A JSON number with no fraction written as a float (``1000.0``: what encoders of float64 numbers send for
+    1000) is that integer; anything else goes to the strict check as it is (``1000.5``, ``true``, ``"1000"``)."""
+    if isinstance(v, float) and v.is_integer() and abs(v) <= 2**53:
+        return int(v)
+    return v
+
+
+#: an integer field that also takes an integral float (``1000.0``), never a bool, text or a fraction
+WholeNumber = Annotated[int, BeforeValidator(_whole)]
 
 
 def _dof(k: str, required: bool = False) -> Any:
@@ -141,7 +153,7 @@ class PlanRequest(_Strict):
 class GotoRequest(PlanRequest):
     """A goto: a plan request with the deadline [ms] by which the motion must start."""
 
-    deadline_ms: int = _deadline()
+    deadline_ms: WholeNumber = _deadline()
 
 
 class JogRequest(_Strict):
@@ -152,7 +164,7 @@ class JogRequest(_Strict):
     vroll: float = Field(0.0, ge=-1.0, le=1.0)
     vpitch: float = Field(0.0, ge=-1.0, le=1.0)
     ttl_ms: float = Field(200.0, gt=0.0, le=5000.0)
-    deadline_ms: int = _deadline()
+    deadline_ms: WholeNumber = _deadline()
 
 
 class ModeRequest(_Strict):
@@ -172,7 +184,7 @@ class PresetSave(_Strict):
 class PresetGo(_Strict):
     name: str = Field(pattern=_NAME)
     speed_scale: float | None = _scale(None)
-    deadline_ms: int = _deadline()
+    deadline_ms: WholeNumber = _deadline()
 
 
 class ScriptRequest(_Strict):
@@ -187,7 +199,7 @@ class ManeuverSave(_Strict):
 class ManeuverRun(NameRequest):
     """Run a stored maneuver; it must start within ``deadline_ms``."""
 
-    deadline_ms: int = _deadline()
+    deadline_ms: WholeNumber = _deadline()
 
 
 class SimFaultRequest(_Strict):
@@ -206,7 +218,7 @@ class TrackStart(_Strict):
 
     frame: Literal["tractor", "level", "ground"] = "tractor"
     dof: list[Literal["x", "z", "roll", "pitch"]] = Field(min_length=1, max_length=4)
-    ttl_ms: int = Field(200, ge=50, le=1000)
+    ttl_ms: WholeNumber = Field(200, ge=50, le=1000)
 
     @model_validator(mode="after")
     def _unique(self) -> TrackStart:
@@ -220,8 +232,8 @@ class TrackStop(_Strict):
     last setpoint the client sent; it is taken before the follower brakes (a put may arrive after this
     query), waited for at most the session's ttl."""
 
-    session: int | None = Field(None, ge=1)
-    last_seq: int | None = Field(None, ge=0, le=2**53)
+    session: WholeNumber | None = Field(None, ge=1)
+    last_seq: WholeNumber | None = Field(None, ge=0, le=2**53)
 
 
 class TrackVelocity(_Strict):
@@ -240,8 +252,8 @@ class TrackSetpoint(_Strict):
     """One streamed setpoint (``track/setpoint``, a Zenoh put at up to 100 Hz): the session's DOFs in its
     frame [m, rad], optionally their velocity; ``seq`` strictly increasing (older ones are ignored)."""
 
-    session: int = Field(ge=1)
-    seq: int = Field(ge=0, le=2**53)
+    session: WholeNumber = Field(ge=1)
+    seq: WholeNumber = Field(ge=0, le=2**53)
     pose: Goal
     velocity: TrackVelocity | None = None
 
@@ -284,7 +296,7 @@ class QuickMove(_Strict):
     """``hitch/raise`` (to the headland pose) or ``hitch/return`` (to the last work pose)."""
 
     speed_scale: float | None = _scale(None)
-    deadline_ms: int = _deadline()
+    deadline_ms: WholeNumber = _deadline()
 
 
 class SimSwitchRequest(_Strict):
@@ -381,9 +393,12 @@ class RequestError(HitchInputError):
 
 
 def _show(v: Any) -> str:
+    """A value as JSON spells it (``true``, ``null``), short."""
     if isinstance(v, str):
         return repr(v if len(v) <= 40 else v[:40] + "…")
-    if isinstance(v, (bool, int, float)) or v is None:
+    if isinstance(v, bool) or v is None:
+        return json.dumps(v)
+    if isinstance(v, (int, float)):
         r = repr(v)
         return r if len(r) <= 40 else f"a number of {len(r)} digits"
     return f"a JSON {'object' if isinstance(v, dict) else 'array' if isinstance(v, list) else type(v).__name__}"
@@ -504,11 +519,20 @@ def _format(key: str, exc: ValidationError, model: type[BaseModel]) -> str:
     elif e["type"] == "string_pattern_mismatch":
         msg = "must be 1-64 letters, digits, '-', '_', '.' (ASCII only: a-z, A-Z, 0-9) starting with a letter or digit"
     elif e["type"] == "model_type":
-        msg = "must be a JSON object"
+        return f"{key}: {path} must be a JSON object, got {_show(e.get('input'))}"
     elif e["type"] in ("int_type", "int_from_float", "int_parsing"):
         msg = "must be an integer"
     elif e["type"] in ("float_type", "float_parsing"):
-        msg = "must be a number (a JSON number, not text)"
+        given = e.get("input")
+        msg = "must be a number" + (
+            " (a JSON number, not text)"
+            if isinstance(given, str)
+            else " (true and false are not numbers)"
+            if isinstance(given, bool)
+            else ""
+        )
+    elif e["type"] in ("literal_error", "enum"):
+        msg = f"must be one of {(e.get('ctx') or {}).get('expected', 'the allowed values')}"
     elif e["type"] == "string_type":
         msg = "must be text (a JSON string)"
     elif e["type"] in ("bool_type", "bool_parsing"):
@@ -603,7 +627,7 @@ def setpoint_session(payload: bytes | bytearray | memoryview | str | None) -> in
         data = json.loads(bytes(payload) if isinstance(payload, (bytearray, memoryview)) else (payload or b""))
     except (ValueError, TypeError, RecursionError):
         return None
-    session = data.get("session") if isinstance(data, dict) else None
+    session = _whole(data.get("session")) if isinstance(data, dict) else None
     return session if isinstance(session, int) and not isinstance(session, bool) else None
 
 
@@ -676,6 +700,10 @@ def parse_request(
                 "bad_request", f"{key}: payload nests too deeply (allowed: at most {MAX_PAYLOAD_DEPTH} levels)"
             ) from None
         except ValueError as exc:  # JSONDecodeError, NaN/Infinity tokens, integers of > 4300 digits
+            if "Exceeds the limit" in str(exc):  # Python's int parser: its message was cut in mid-word
+                raise RequestError(
+                    "bad_request", f"{key}: payload holds an integer of more than 4300 digits (no field takes one)"
+                ) from None
             raise RequestError("bad_request", f"{key}: payload is not valid JSON ({str(exc)[:80]})") from None
     too_deep, bad = _scan(data)
     if too_deep:  # every request fits in a few levels; the limit is said (an attacker's report)

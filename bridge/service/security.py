@@ -338,6 +338,15 @@ def build_acl(policy: AccessPolicy) -> dict:
             "messages": list(_OBSERVE_IN),
             "key_exprs": everything,
         },
+        # `hitch fleet ls` asks for every service's liveliness token with one query on **/alive, which no
+        # prefix includes (ACL rules match keys included in theirs): the names of the live services, nothing else
+        {
+            "id": "discover",
+            "permission": "allow",
+            "flows": ["ingress"],
+            "messages": ["liveliness_query"],
+            "key_exprs": ["**/alive"],
+        },
         {
             "id": "to_client",
             "permission": "allow",
@@ -399,13 +408,13 @@ def build_acl(policy: AccessPolicy) -> dict:
             "operators",
             policy.operators,
             policy.operator_cert_names,
-            ["observe", "to_client", "operator_queries", "operator_puts"],
+            ["observe", "discover", "to_client", "operator_queries", "operator_puts"],
         ),
         (
             "viewers",
             policy.viewers,
             policy.viewer_cert_names,
-            ["observe", "to_client", "viewer_queries", "no_motion", "no_writes"],
+            ["observe", "discover", "to_client", "viewer_queries", "no_motion", "no_writes"],
         ),
         ("services", policy.services, policy.service_cert_names, ["service"]),
     ):

@@ -304,6 +304,10 @@ class MotionProxy:
             self.core.call("track_setpoint", session, seq, dict(pose), None if velocity is None else dict(velocity))
         )
 
+    def track_setpoint_refused(self, session: object, message: str) -> None:
+        """A ``track/setpoint`` query the schema refused: counted against its session by the core, as a put is."""
+        self.core.call("track_setpoint_refused", session, str(message))
+
     def track_stop(self, session: int | None = None, last_seq: int | None = None) -> dict[str, Any]:
         return dict(self.core.call("track_stop", session, last_seq))
 

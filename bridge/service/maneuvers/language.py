@@ -518,19 +518,25 @@ def _resolve(script: ManeuverScript, ctx: PlanningContext) -> tuple[list[_Resolv
 
 
 def validate(script: str | ManeuverScript, ctx: PlanningContext) -> ValidationResult:
-    """Parse (if text), resolve presets, plan every motion step and check the timeout; never raises on bad input."""
+    """Parse (if text), resolve presets, plan every motion step and check the timeout; never raises on bad input.
+
+    With a preset that does not exist, the steps before it are still planned (their errors are reported beside
+    it: a missing preset hid that the goto before it could not be planned); those after it cannot be, as
+    where the hitch would start them is unknown."""
     if not isinstance(script, ManeuverScript):
         try:
             script = parse_maneuver(script)
         except ManeuverError as exc:
             return ValidationResult(False, 0.0, exc.errors)
-    resolved, errors = _resolve(script, ctx)
-    if errors:
-        return ValidationResult(False, 0.0, tuple(errors), script)
+    resolved, unresolved = _resolve(script, ctx)
+    first_unresolved = min((e.step for e in unresolved if e.step is not None), default=None)
+    errors: list[StepError] = []
     planned: list[PlannedStep] = []
     t, dist, state = 0.0, 0.0, ctx.start
     for r in resolved:
         i, step, goal, scale = r.index, r.step, r.goal, r.speed_scale
+        if first_unresolved is not None and i > first_unresolved:
+            break
         if isinstance(step, WaitStep):
             planned.append(PlannedStep(i, "wait", seconds=step.seconds, start_s=t, duration_s=step.seconds))
             t += step.seconds
@@ -562,6 +568,9 @@ def validate(script: str | ManeuverScript, ctx: PlanningContext) -> ValidationRe
                 )
             )
             break
+    if unresolved:
+        errors = sorted([*errors, *unresolved], key=lambda e: -1 if e.step is None else e.step)
+        return ValidationResult(False, 0.0, tuple(errors), script)
     return ValidationResult(not errors, t, tuple(errors), script, _with_leads(script, planned), dist)
 
 

@@ -28,8 +28,10 @@ __all__ = ["ManeuverSlot", "ManeuverProgress"]
 
 @dataclass(frozen=True)
 class ManeuverProgress:
-    """The running maneuver: its name, id (``motion_id``) and the script step in progress; ``detail``:
-    the step's ``kind``, ``paused`` and ``time_left`` [s] or ``distance_left`` [m] (waits, triggers)."""
+    """The running maneuver: its name, id and the script step in progress; ``detail``: the step's ``kind``,
+    ``paused`` and ``time_left`` [s] or ``distance_left`` [m] (waits, triggers). In JSON the id is
+    ``maneuver_id`` (the id of its events) and, for older clients, also ``motion_id``: it names no
+    motion (each step runs as a motion of its own, the state's top-level ``motion_id``)."""
 
     name: str | None
     motion_id: int | None
@@ -37,7 +39,8 @@ class ManeuverProgress:
     detail: Mapping[str, Any] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
-        return {**self.detail, "name": self.name, "motion_id": self.motion_id, "step": self.step}
+        mid = self.motion_id
+        return {**self.detail, "name": self.name, "maneuver_id": mid, "motion_id": mid, "step": self.step}
 
 
 class ManeuverSlot:

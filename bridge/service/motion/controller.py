@@ -1056,6 +1056,8 @@ class MotionController:
 
     def _drive_maneuver(self, status: LinkStatus, now: float, events: list[Event]) -> None:
         m, runner, ls = self._active, self._maneuver.runner, status.state
+        if isinstance(m, PlanMotion) and m.finished(now):  # a step's motion ends before its maneuver goes on
+            self._announce_finished(m, events)
         loop = LoopState(
             isinstance(m, PlanMotion) and not m.finished(now), self._last_id, None if ls is None else ls.measurement_t_s
         )
@@ -1086,6 +1088,13 @@ class MotionController:
                 self._post(events)
             self.outbox.flush()
 
+    def _announce_finished(self, m: PlanMotion, events: list[Event]) -> None:
+        """``motion_finished`` of the plan ``m`` at its end, once (the maneuver's tick may come first)."""
+        if not m.announced:
+            extra = {"reason": "released: no jog command within its ttl, braked to rest"} if m.kind == "jog" else {}
+            events.append(self._ev("motion_finished", m, kind=m.kind, **extra))
+            m.announced = True
+
     def _reference_at(self, now: float, events: list[Event]) -> Reference | None:
         m = self._active
         if isinstance(m, PlanMotion):
@@ -1094,8 +1103,7 @@ class MotionController:
             st = plan_state(m, now)
             self._limited = {} if m.finished(now) else m.limited()
             if m.finished(now):
-                extra = {"reason": "released: no jog command within its ttl, braked to rest"} if m.kind == "jog" else {}
-                events.append(self._ev("motion_finished", m, kind=m.kind, **extra))
+                self._announce_finished(m, events)
                 self._active, self._hold, self._hold_ref = None, MotionState.at_rest(st.position), None
         elif isinstance(m, JogMotion):
             if self._expire_jog(now):

@@ -143,6 +143,19 @@ def guard_limits(decision: GuardDecision) -> dict[str, str]:
     return {r.measure: f"{r.level}: {r.sentence()}" for r in decision.reasons}
 
 
+def newly_limited(limited: Mapping[str, str], decision: GuardDecision, reported: dict[str, str]) -> dict[str, str]:
+    """The entries of ``limited`` (a step's limits: the follower's or jog's flags and :func:`guard_limits`)
+    whose limit is new since ``reported``, which is updated. A limit is its entry's text, but a guard
+    reason's is its measure and level: its sentence carries the value of the moment (an end-stop factor
+    0.4616, 0.4696, … every cycle), which announced the same limit again ten times a second."""
+    levels = {r.measure: r.level for r in decision.reasons}
+    ids = {k: levels.get(k, v) for k, v in limited.items()}
+    new = {k: limited[k] for k, i in ids.items() if reported.get(k) != i}
+    reported.clear()
+    reported.update(ids)
+    return new
+
+
 @dataclass(frozen=True)
 class StabilityMargins:
     """A stability report's margins as the service shows them: SSM, LSM [m], ESM [J], the
@@ -262,7 +275,9 @@ class JogAccepted:
 class ManeuverAccepted:
     """A started maneuver: its id, planned duration [s] (motions and waits), its script's step count (as
     ``maneuvers/save`` and ``list`` give it), how many of them run (``actions``: a ``speed`` step only sets
-    the scale of those after it) and name."""
+    the scale of those after it) and name. In JSON the id is ``maneuver_id`` (the id of the maneuver's
+    events) and, for older clients, also ``motion_id``: it names no motion (each step is a motion of its
+    own; wait for the maneuver with :meth:`~bridge.service.client.HitchClient.wait_maneuver`)."""
 
     motion_id: int
     duration: float
@@ -273,6 +288,7 @@ class ManeuverAccepted:
     def to_json(self) -> dict[str, Any]:
         return {
             "accepted": True,
+            "maneuver_id": self.motion_id,
             "motion_id": self.motion_id,
             "duration": self.duration,
             "steps": self.steps,
@@ -296,6 +312,7 @@ class PlanMotion:
     prev: PlanMotion | None = None
     decision: GuardDecision = field(default_factory=lambda: GuardDecision("ok"))
     label: str | None = None
+    announced: bool = False  # its motion_finished event is out
 
     def finished(self, t: float) -> bool:
         return t - self.t0 >= self.plan.duration
@@ -316,8 +333,8 @@ class JogMotion:
     t_state: float = 0.0  # clock time of ``jog.state`` (its last step)
     ff_last: tuple[float, np.ndarray] | None = None  # (clock time, pose acceleration) of the last streamed state
     limited: dict[str, str] = field(default_factory=dict)
-    #: limits already announced by a limit_reached event (key → limit: a key whose limit changes, e.g. from
-    #: the jog speed limit to the workspace face, is announced again)
+    #: limits already announced by a limit_reached event (key → limit, :func:`newly_limited`: a key whose limit
+    #: changes, e.g. from the jog speed limit to the workspace face, is announced again)
     reported: dict[str, str] = field(default_factory=dict)
     decision: GuardDecision = field(default_factory=lambda: GuardDecision("ok"))
 
@@ -337,8 +354,7 @@ class JogMotion:
         self.jog.command(allowed, 1.0)  # the dead-man TTL is ours (``expires``), not the controller's
         out = self.jog.step()
         self.limited = {**out.limited, **guard_limits(self.decision)}
-        new = {k: v for k, v in self.limited.items() if self.reported.get(k) != v}
-        self.reported = dict(self.limited)
+        new = newly_limited(self.limited, self.decision, self.reported)
         events: list[Event] = [{"event": "limit_reached", "motion_id": self.motion_id, "limits": new}] if new else []
         return out, events
 
@@ -441,8 +457,7 @@ class TrackMotion:
         out = self.follower.step(now)
         self.t_state = now
         self.limited = {**out.limited, **guard_limits(self.decision)}
-        new = {k: v for k, v in self.limited.items() if self.reported.get(k) != v}
-        self.reported = dict(self.limited)
+        new = newly_limited(self.limited, self.decision, self.reported)
         if new:
             events.append({"event": "limit_reached", "motion_id": self.motion_id, "limits": new})
         if out.stale and self.reason is None:

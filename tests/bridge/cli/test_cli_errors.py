@@ -168,3 +168,16 @@ def test_a_service_config_that_fails_pydantic_validation_is_a_user_error(capsys)
     lines = capsys.readouterr().err.splitlines()
     assert len(lines) == 1 and lines[0].startswith("hitch: error: invalid service config (flags): ")
     assert "control_rate" in lines[0]
+
+
+def test_a_service_that_does_not_answer_a_secured_client_names_the_credentials_too():
+    """A fleet integrator's report: a wrong password read "no hitch service … start one with hitch serve"."""
+    import argparse
+
+    from bridge.cli.service import _service_down
+
+    plain = str(_service_down(argparse.Namespace(connect=None, prefix="hitch", security=None), Exception("no reply")))
+    assert "start one with `hitch serve`" in plain and "--security" not in plain
+    args = argparse.Namespace(connect=["tcp/127.0.0.1:1"], prefix="fleet/t07/hitch", security="alice.json5")
+    secured = str(_service_down(args, Exception("no reply")))
+    assert "with --security alice.json5: the user and password may be refused there" in secured

@@ -110,3 +110,18 @@ def test_a_geojson_path_that_is_no_file_says_so(tmp_path):
     f = tmp_path / "bom.geojson"  # a byte-order mark, as Windows editors write
     f.write_bytes(b"\xef\xbb\xbf" + json.dumps({"type": "LineString", "coordinates": [[11, 48], [11, 48.1]]}).encode())
     assert _read_geojson(str(f))["type"] == "LineString"
+
+
+def test_a_client_waits_for_a_maneuver_by_the_id_its_run_reply_gives(service, capsys):
+    """``maneuvers/run`` answered ``motion_id``, the maneuver's id, which no motion carries: a fleet client's
+    ``wait_motion`` on it returned at once while the steps ran as motions of their own. The reply names it
+    ``maneuver_id`` now, and ``wait_maneuver`` waits for the maneuver's outcome."""
+    svc, ep = service
+    with HitchClient([ep], timeout_s=10) as c:
+        c.request("maneuvers/save", {"name": "two", "script": "steps:\n  - goto: {z: 0.05}\n  - goto: {z: 0.08}\n"})
+        r = c.request("maneuvers/run", {"name": "two"})
+        out = c.wait_maneuver(r["maneuver_id"], timeout_s=30)
+        assert out["outcome"]["event"] == "maneuver_finished" and out["outcome"]["maneuver_id"] == r["maneuver_id"]
+        assert abs(out["state"]["pose"]["z"] - 0.08) < 3e-3
+    rc, out_text, err = _cli(capsys, ep, "maneuver", "run", "two", "--wait")
+    assert rc == 0 and "finished" in out_text, (out_text, err)

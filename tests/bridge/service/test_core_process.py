@@ -66,6 +66,23 @@ def test_the_api_answers_as_with_the_core_in_threads(service):
         assert wait_until(lambda: any(ev.get("event") == "hitch_switch_refused" for ev in events))
 
 
+def test_a_setpoint_query_the_schema_refuses_is_counted_against_the_live_session(service):
+    """docs/tracking.md: a refused setpoint of the live session, put or query, is counted. The core's proxy
+    had no ``track_setpoint_refused``: a NaN or out-of-range setpoint sent as a query was answered but not
+    counted (a fleet integrator's report: 11 refused queries, ``rejected`` 5)."""
+    svc, ep = service
+    with HitchClient([ep], timeout_s=10) as c:
+        session = c.request("track/start", {"frame": "tractor", "dof": ["z"], "ttl_ms": 1000})["session"]
+        for body in ('{"session": %d, "seq": 1, "pose": {"z": NaN}}', '{"session": %d, "seq": -1, "pose": {"z": 0.1}}'):
+            with pytest.raises(ServiceError) as e:
+                c.request("track/setpoint", body % session)
+            assert e.value.code == "bad_request"
+        assert wait_until(lambda: (svc.latest_state.get("track") or {}).get("rejected") == 2), svc.latest_state.get(
+            "track"
+        )
+        c.request("track/stop", {"session": session})
+
+
 def test_the_mode_is_the_cores_whatever_anyone_puts_on_the_events_key(service):
     """The old proxy took the mode from any ``mode_changed`` on the public events key: a forged one made
     ``mode`` and ``config`` report 'transport' while the core (which moved the hitch) stayed in 'auto'."""

@@ -303,6 +303,19 @@ def test_validation_through_the_real_planner_and_guard(guard):
     assert not r.ok and r.errors[0].step == 1 and "workspace" in r.errors[0].message
 
 
+def test_a_missing_preset_does_not_hide_what_cannot_be_planned_before_it(guard):
+    """A fleet integrator's report: ``[goto {z: 0.5}, preset: nope]`` reported only the missing preset; the goto
+    before it, above the workspace, was said only once the preset existed. Steps after a missing preset
+    cannot be planned (where they would start is unknown) and are not."""
+    z_max = guard.planner.hi[1]
+    ctx = PlanningContext(MotionState.at_rest(np.zeros(4)), guarded_plan_step(guard), {}.get)
+    r = validate(f"steps: [{{goto: {{z: {z_max + 0.2:.4f}}}}}, {{preset: nope}}]", ctx)
+    assert [e.step for e in r.errors] == [0, 1] and not r.ok
+    assert "workspace" in r.errors[0].message and "preset 'nope' does not exist" in r.errors[1].message
+    r = validate(f"steps: [{{goto: {{z: 0.1}}}}, {{preset: nope}}, {{goto: {{z: {z_max + 0.2:.4f}}}}}]", ctx)
+    assert [e.step for e in r.errors] == [1]
+
+
 # ------------------------------------------------------------------------------------------ runner
 def _validated(text, presets=None):
     r = validate(text, _context(ScriptedPlanner(), presets))

@@ -239,6 +239,19 @@ def test_jog_stops_at_the_workspace_face_and_says_so(bench):
     assert reached == ["velocity:x", "workspace:x:max"], reached
 
 
+def test_a_guard_limit_held_over_many_cycles_is_announced_once(bench):
+    """A track setpoint above the workspace drives the lift into its end-stop zone: the guard's speed reason
+    holds for a second, its factor changing every cycle. Each factor was announced as a new limit: a
+    ``limit_reached`` event every 100 ms (a fleet integrator's report: 11 in 1.1 s)."""
+    z_hi = bench.mc.planner.workspace["z"][1]
+    session = bench.mc.track_start("tractor", ("z", "roll"), 1.0).session
+    bench.mc.track_setpoint(session, 1, {"z": z_hi + 0.01, "roll": 0.0})
+    bench.run(1.5)
+    announced = [k for e in bench.events if e["event"] == "limit_reached" for k in e["limits"]]
+    assert announced.count("end_stop:lift") == 1, announced
+    assert announced.count("z") == 1  # the workspace face (the follower's clip), once
+
+
 def test_a_jog_above_its_speed_limit_is_capped_and_says_which_limit(bench):
     """The old jog clipped a rate above the jog speed limit silently (``limited`` empty)."""
     v_max = bench.mc.planner.any_direction.velocity[1]
@@ -320,6 +333,12 @@ def test_maneuver_runs_its_steps_and_a_stop_aborts_it(bench):
     names = bench.names()
     assert names.count("maneuver_step") == 3 and "maneuver_finished" in names
     assert all(e.get("maneuver_id") == mid for e in bench.events if e["event"].startswith("maneuver_"))
+    # a step's motion ends before the maneuver goes on: its motion_finished precedes the next step and the
+    # maneuver's end (they came after them, in the same cycle: a fleet integrator's report)
+    seq = [e["event"] for e in bench.events if e["event"] in ("maneuver_step", "motion_finished", "maneuver_finished")]
+    assert seq == ["maneuver_step", "motion_finished", "maneuver_step", "maneuver_step", "motion_finished"] + [
+        "maneuver_finished"
+    ], seq
     np.testing.assert_allclose(bench.ref()[:2], [0.03, 0.25], atol=1e-9)
     bench.mc.run_maneuver(
         validate(

@@ -181,6 +181,7 @@ keys = ("goto", "ik", "presets/go", "presets/list", "mode", "presets/save", "man
 keys = () if mode == "router" else keys
 qs = [s.declare_queryable("hitch/" + k, answer) for k in keys]
 pub = None if mode == "router" else s.declare_publisher("hitch/state")
+alive = None if mode == "router" else s.liveliness().declare_token("hitch/alive")  # as the service's
 done = threading.Event()
 threading.Thread(target=lambda: (sys.stdin.read(), done.set()), daemon=True).start()
 print("ready", flush=True)
@@ -215,8 +216,9 @@ time.sleep(0.4)
 replies = {{}}
 for key in a["keys"]:
     replies[key] = [json.loads(r.ok.payload.to_string())["key"] for r in s.get(key, timeout=1.0) if r.ok]
+alive = sorted(str(r.ok.key_expr) for r in s.liveliness().get("**/alive", timeout=1.0) if r.ok)  # fleet ls
 time.sleep(0.1)
-print(json.dumps({{"open": True, "replies": replies, "states": len(states)}}), flush=True)
+print(json.dumps({{"open": True, "replies": replies, "states": len(states), "alive": alive}}), flush=True)
 sub.undeclare()
 s.close()
 """
@@ -330,6 +332,8 @@ def test_acl_permitted_user_moves_refused_user_only_reads(tmp_path, users_file, 
     for k in ("hitch/presets/save", "hitch/maneuvers/delete"):
         assert bob["replies"][k] == [], k  # a viewer cannot overwrite or delete an operator's data
     assert carol["open"] and carol["states"] == 0 and not any(carol["replies"].values())
+    assert alice["alive"] == ["hitch/alive"] and bob["alive"] == ["hitch/alive"]  # hitch fleet ls
+    assert carol["alive"] == []  # no role: not even the services' names
     assert not r["mallory"]["open"] and not r["anonymous"]["open"]
 
 
@@ -359,6 +363,9 @@ def test_acl_on_a_fleet_router_with_the_service_behind_it(tmp_path, users_file, 
     assert r["alice"]["states"] > 0
     assert r["bob"]["replies"] == {"hitch/goto": [], "hitch/ik": ["hitch/ik"], "hitch/**": []}
     assert r["bob"]["states"] > 0
+    # `hitch fleet ls` (a liveliness query on **/alive) finds the service behind the router: the policy
+    # allowed liveliness queries only under its prefix, so a fleet's operators saw "(no services)"
+    assert r["alice"]["alive"] == ["hitch/alive"] and r["bob"]["alive"] == ["hitch/alive"]
 
 
 @pytest.fixture(scope="module")

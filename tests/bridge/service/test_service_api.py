@@ -124,7 +124,9 @@ def test_every_key_has_a_schema_and_a_valid_example():
         ("goto", {"goal": {"z": 0.1}, "speed": 1}, ["unknown field 'speed'", "goal, speed_scale"]),
         ("goto", {"goal": {"z": 0.1, "yaw": 0.0}}, ["unknown field 'goal.yaw'", "x, z, roll, pitch"]),
         ("ik", {"x": 0.0, "z": "0.2", "roll": 0.0, "pitch": 0.0}, ["z", "'0.2'", "number"]),
-        ("ik", {"x": True, "z": 0.2, "roll": 0.0, "pitch": 0.0}, ["x = True"]),
+        ("ik", {"x": True, "z": 0.2, "roll": 0.0, "pitch": 0.0}, ["x = true", "true and false are not numbers"]),
+        ("mode", {"mode": "AUTO"}, ["mode = 'AUTO' must be one of 'auto', 'manual'"]),  # not pydantic's "Input should"
+        ("goto", {"goal": [1]}, ["goal must be a JSON object, got a JSON array"]),
         ("ik", {"x": 0.0, "roll": 0.0, "pitch": 0.0}, ["'z' is required"]),
         ("jog", {"vx": 0.1, "ttl_ms": 6000}, ["ttl_ms", "<= 5000", "ms"]),
         ("jog", {"vx": 1e300}, ["vx", "out of range", "m/s"]),
@@ -146,7 +148,7 @@ def test_errors_name_the_field_and_the_allowed_range(key, payload, expected):
         (b'{"x": NaN, "z": 0, "roll": 0, "pitch": 0}', "NaN"),
         (b'{"x": -Infinity, "z": 0, "roll": 0, "pitch": 0}', "Infinity"),
         (b'{"x": 1e400, "z": 0, "roll": 0, "pitch": 0}', "finite"),
-        (b'{"x": 1' + b"0" * 5000 + b', "z": 0, "roll": 0, "pitch": 0}', "not valid JSON"),
+        (b'{"x": 1' + b"0" * 5000 + b', "z": 0, "roll": 0, "pitch": 0}', "an integer of more than 4300 digits"),
         (b"[" * 90_000, "nests too deeply"),
         (b"\xff\xfe{}", "not UTF-8"),
         (b'{"x": 0', "not valid JSON"),
@@ -281,6 +283,11 @@ def test_maneuvers_validate_save_run_delete(svc):
     assert ok and r["accepted"] and r["duration"] > 0.1
     svc.run(r["duration"] + 0.5)
     assert [e["event"] for e in svc.events if e["event"].startswith("maneuver_")][-1] == "maneuver_finished"
+    # the reply names the maneuver's id (its events'), not a motion: its step runs as a motion of its own
+    ids = {e["maneuver_id"] for e in svc.events if e["event"].startswith("maneuver_")}
+    assert ids == {r["maneuver_id"]}
+    steps = {e["motion_id"] for e in svc.events if e["event"] == "motion_finished"}
+    assert steps and r["maneuver_id"] not in steps
     assert svc.call("maneuvers/delete", {"name": "m"}) == (True, {"deleted": "m"})
     ok, r = svc.call("maneuvers/run", {"name": "m"})
     assert not ok and r["error"] == "not_found"

@@ -120,6 +120,8 @@ def test_every_motion_request_carries_a_deadline(key):
     assert parse_request(key, json.dumps(base)).deadline_ms == DEFAULT_DEADLINE_MS == 1000
     assert parse_request(key, json.dumps({**base, "deadline_ms": 1})).deadline_ms == 1
     assert parse_request(key, json.dumps({**base, "deadline_ms": MAX_DEADLINE_MS})).deadline_ms == 60_000
+    # a float64 encoder writes 1000 as 1000.0: the same integer (a fleet integrator's report: refused before)
+    assert parse_request(key, json.dumps({**base, "deadline_ms": 1000.0})).deadline_ms == 1000
     for bad, needle in ((0, "out of range"), (60_001, "out of range"), (1.5, "integer"), (True, "integer")):
         e = _refusal(key, json.dumps({**base, "deadline_ms": bad}))
         assert "deadline_ms" in str(e) and needle in str(e), str(e)

@@ -21,6 +21,7 @@ import numpy as np
 from bridge.cli.commissioning import add_calibrate_sensors
 from bridge.cli.errors import CLIError
 from bridge.cli.model import add_model_options, bounded_float, whole_number
+from bridge.link.sensor_calibration import SENSOR_PROVENANCE_MARKER
 from bridge.service.wire import to_json_text
 from bridge.sim.truth import noise_kind
 from planner.calibration.measurements import TARGET_COLUMNS, load_plan_targets
@@ -61,7 +62,7 @@ def _design(args, model):
 def _cmd_plan(args) -> int:
     from planner.model.sensors import SensorScaling
 
-    model = _model(args)
+    model = _model(args, include_ad=not args.no_ad)
     d = _design(args, model)
     sc = SensorScaling(model.profile)
     counts = np.rint(sc.counts_min + (d.actuators - sc.si_min) / sc.resolution).astype(int)
@@ -94,14 +95,7 @@ def _cmd_plan(args) -> int:
             f"directions the workspace can identify they separate {d.rank} and determine {d.determined} well "
             "enough for the calibration, which keeps the rest at nominal)"
         )
-    if d.rank < d.identifiable:
-        print(
-            f"hitch calibrate plan-poses: warning: {len(rows)} poses can separate only {d.rank} of the "
-            f"{d.identifiable} parameter directions the workspace can identify, whatever is measured; a "
-            f"calibration from them keeps at least {d.identifiable - d.rank} more combinations at nominal: "
-            "plan more poses (--n)",
-            file=sys.stderr,
-        )
+    _warn_if_too_few(d, "plan-poses")
     if args.json:
         return 0
     for r in rows:
@@ -110,6 +104,18 @@ def _cmd_plan(args) -> int:
             f"pitch {1e3 * r['pitch']:6.1f} mrad   counts " + ",".join(str(r[f"{n}_counts"]) for n in ACTUATOR_NAMES)
         )
     return 0
+
+
+def _warn_if_too_few(d, command: str) -> None:
+    """On stderr: the planned poses ``d`` cannot separate every direction the workspace can identify."""
+    if d.rank < d.identifiable:
+        print(
+            f"hitch calibrate {command}: warning: {d.poses.shape[0]} poses can separate only {d.rank} of the "
+            f"{d.identifiable} parameter directions the workspace can identify, whatever is measured; a "
+            f"calibration from them keeps at least {d.identifiable - d.rank} more combinations at nominal: "
+            "plan more poses (--n)",
+            file=sys.stderr,
+        )
 
 
 def _write_plan_csv(path: Path, rows: list[dict[str, Any]]) -> None:
@@ -126,17 +132,43 @@ def _write_plan_csv(path: Path, rows: list[dict[str, Any]]) -> None:
         raise CLIError(f"--out {path}: cannot write it ({exc.strerror})") from None
 
 
+def _sensor_record(profile: str) -> str | None:
+    """The ``#! sensor_calibration`` line of a profile file (a sensor calibration wrote it), or None."""
+    path = Path(profile)
+    if not path.is_file():
+        return None
+    lines = path.read_text(encoding="utf-8").splitlines()
+    return next((line for line in lines if line.startswith(SENSOR_PROVENANCE_MARKER)), None)
+
+
 def _cmd_geometry(args) -> int:
     from planner.calibration.measurements import load_measurements
+    from planner.calibration.parameters import CalibrationError
     from planner.calibration.profile_out import write_calibrated_profile
-    from planner.calibration.solve import build_calibration_problem, solve_calibration
+    from planner.calibration.solve import build_calibration_problem, largest_residuals, solve_calibration
 
     model = _model(args, include_ad=not args.no_ad)
+    if Path(args.out).resolve() == Path(args.profile).resolve():
+        raise CLIError(
+            f"--out {args.out} is the profile the calibration starts from (--profile): write it to another file "
+            "(the nominal profile is what the calibration is measured against)"
+        )
+    sensors = _sensor_record(args.profile)
+    if sensors is not None and not args.no_ad:
+        print(
+            f"hitch: warning: {args.profile} carries a sensor calibration (its AD maps were measured at the end "
+            f"stops: its {SENSOR_PROVENANCE_MARKER} line); fitting the AD maps from the poses replaces them: give "
+            "--no-ad to keep them",
+            file=sys.stderr,
+        )
     data = load_measurements(args.measurements, model.profile)
     problem = build_calibration_problem(
         model, data, sigma_position_m=1e-3 * args.sigma_position_mm, sigma_angle_rad=1e-3 * args.sigma_angle_mrad
     )
-    result = solve_calibration(problem, min_singular=args.min_singular)
+    try:
+        result = solve_calibration(problem, min_singular=args.min_singular)
+    except CalibrationError as exc:  # "measurements: …" names the file the engineer gave
+        raise CalibrationError(f"{args.measurements}: {str(exc).removeprefix('measurements: ')}") from None
     inputs = {
         "measurements": str(args.measurements),
         "measurements_sha256": hashlib.sha256(Path(args.measurements).read_bytes()).hexdigest(),
@@ -146,17 +178,21 @@ def _cmd_geometry(args) -> int:
         "min_singular": float(args.min_singular),
         "ad_map": "kept (--no-ad)" if args.no_ad else "fitted",
     }
-    write_calibrated_profile(args.out, model.params, result, name=args.name, inputs=inputs)
+    carried = (sensors,) if sensors is not None and args.no_ad else ()  # the maps it records are kept as they were
+    write_calibrated_profile(args.out, model.params, result, name=args.name, inputs=inputs, comments=carried)
+    worst = largest_residuals(problem, result)
     if result.residual_sigma > SUSPECT_SIGMA_HAT:  # said on stderr, also with --json
+        rows = ", ".join(f"row {r} ({label}) {col} {v:+.1f} σ" for r, label, col, v in worst)
         print(
             f"hitch: warning: sigma-hat {result.residual_sigma:.3g}: the residuals are {result.residual_sigma:.3g} "
             f"times the σ given (--sigma-position-mm {args.sigma_position_mm:g}, --sigma-angle-mrad "
             f"{args.sigma_angle_mrad:g}): a wrong value, a unit slip (mm or degrees in a column of m or rad) or a σ "
-            "too small for the instrument; check the measurements before using the profile",
+            f"too small for the instrument; check the measurements before using the profile; worst fit: {rows}",
             file=sys.stderr,
         )
     if args.json:
-        print(to_json_text({"out": str(args.out), **result.as_dict()}))
+        largest = [{"row": r, "label": label, "column": col, "residual_sigma": v} for r, label, col, v in worst]
+        print(to_json_text({"out": str(args.out), **result.as_dict(), "largest_residuals": largest}))
         return 0
     print(
         f"calibrated {model.profile.name} from {result.n_poses} poses ({result.n_observations} values) in "
@@ -199,11 +235,13 @@ def _cmd_measure_twin(args) -> int:
     from bridge.sim.calibration_data import calibration_csv, measure_twin
     from bridge.sim.truth import load_machine_truth
 
-    model = _model(args)
+    model = _model(args, include_ad=not args.no_ad)
     if args.plan is not None:  # the poses of a plan file, under its labels
         labels, poses = load_plan_targets(args.plan)
     else:
-        poses = _design(args, model).poses
+        design = _design(args, model)
+        _warn_if_too_few(design, "measure-twin")  # as plan-poses says it
+        poses = design.poses
         labels = tuple(f"p{k + 1}" for k in range(poses.shape[0]))
     truth = load_machine_truth(args.sim_truth)
     points = ("L", "R", "U") if args.points else ()
@@ -228,6 +266,11 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
         "--seed", type=whole_number("--seed"), default=0, help="seed of the candidates (and of the twin's noise)"
     )
     p.add_argument("--points", action="store_true", help="the instrument also measures the points L, R, U")
+    p.add_argument(
+        "--no-ad",
+        action="store_true",
+        help="plan for a fit that keeps the AD maps (calibrate geometry --no-ad, after calibrate sensors)",
+    )
 
 
 def add_commands(sub) -> None:
@@ -259,13 +302,13 @@ def add_commands(sub) -> None:
         help="smallest singular value of the scaled Jacobian still identified (default 1)",
     )
     g.add_argument("--no-ad", action="store_true", help="keep the AD map (offsets, gains) at the profile's values")
-    g.set_defaults(handler=_cmd_geometry)
+    g.set_defaults(handler=_cmd_geometry, on_interrupt=lambda _a: "nothing was written")
 
     pp = csub.add_parser("plan-poses", help="choose the poses to measure (D-optimal)")
     add_model_options(pp)
     _add_design_options(pp)
     pp.add_argument("--out", default=None, help="also write a measurement template CSV")
-    pp.set_defaults(handler=_cmd_plan)
+    pp.set_defaults(handler=_cmd_plan, on_interrupt=lambda _a: "nothing was written")
 
     m = csub.add_parser("measure-twin", help="measure the planned poses on the twin's true machine (CSV)")
     add_model_options(m)
@@ -292,4 +335,4 @@ def add_commands(sub) -> None:
         help="static: pistons at the whole counts, each pose approached from both sides (default); goto: real "
         "gotos of the profile's planner over CAN on the running twin (with its motion.final_approach), one row each",
     )
-    m.set_defaults(handler=_cmd_measure_twin)
+    m.set_defaults(handler=_cmd_measure_twin, on_interrupt=lambda _a: "nothing was written")

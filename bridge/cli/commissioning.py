@@ -15,6 +15,7 @@ or an interactive confirmation and is refused together with ``--implement``.
 from __future__ import annotations
 
 import datetime as _dt
+import hashlib
 import sys
 from pathlib import Path
 
@@ -34,9 +35,11 @@ from bridge.sim.accuracy_run import INSTRUMENTS, AccuracyRun, AccuracyRunSetting
 from bridge.sim.rig import SimRig, SimSettings
 from bridge.sim.truth import MachineTruth, load_machine_truth
 from planner.calibration.accuracy import THESIS_ACCURACY, DofStatistics, thesis_sequence
+from planner.errors import HitchInputError
 from planner.limits.tractor import load_tractor_profile
 from planner.model.kinematics import HitchModel
 from planner.model.types import ACTUATOR_NAMES
+from planner.profiles.hitch import write_profile_text
 
 __all__ = ["accuracy_table", "add_commands"]
 
@@ -121,11 +124,31 @@ def _confirm_detached(args) -> None:
         raise CLIError("--detached not confirmed: nothing moved")
 
 
+def _sensors_interrupted(args) -> str:
+    """What an interrupted sensor calibration leaves (the ECU's watchdog zeroes the valves without references)."""
+    if args.progress is None:
+        return "no profile was written; with --progress FILE an interrupted calibration resumes where it stopped"
+    return f"no profile was written; the ends found so far are in {args.progress}: run the same command to resume"
+
+
+def _twin_identity(truth: str | None, profile: str) -> str:
+    """The simulated machine a sensor calibration runs on, for its progress file: the truth file's content
+    (a copy elsewhere is the same machine, another seed is not), or the nominal profile."""
+    if truth is None:
+        return f"the simulated twin of the nominal profile {profile}"
+    digest = hashlib.sha256(Path(truth).read_bytes()).hexdigest()[:16]
+    return f"the simulated twin of the truth file with sha256 {digest}"
+
+
 def _cmd_calibrate_sensors(args) -> int:
     if args.can_interface is not None and args.sim_truth is not None:
         raise CLIError(
             "--sim-truth gives the simulated twin its machine; with --can-interface the machine on the bus is "
             "calibrated: give one of them"
+        )
+    if Path(args.out).resolve() == Path(args.profile).resolve():
+        raise CLIError(
+            f"--out {args.out} is the profile the calibration starts from (--profile): write it to another file"
         )
     _confirm_detached(args)
     nominal_model = model_from_args(args)
@@ -151,7 +174,14 @@ def _cmd_calibrate_sensors(args) -> int:
             rig.start()
             rig.run_until(0.5)
             fits = SensorCalibration(
-                rig.link, rig, nominal, implement=implement, progress=args.progress, log=log, detached=args.detached
+                rig.link,
+                rig,
+                nominal,
+                implement=implement,
+                progress=args.progress,
+                log=log,
+                detached=args.detached,
+                machine=_twin_identity(args.sim_truth, nominal.name),
             ).run(actuators)
     provenance = {
         "date": _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat(),
@@ -170,12 +200,15 @@ def _cmd_calibrate_sensors(args) -> int:
         },
     }
     text = sensor_profile_toml(
-        args.profile, {a: (f.counts_min, f.counts_max) for a, f in fits.items()}, provenance=provenance
+        args.profile,
+        {a: (f.counts_min, f.counts_max) for a, f in fits.items()},
+        provenance=provenance,
+        out_folder=Path(args.out).parent,
     )
     try:
-        Path(args.out).write_text(text, encoding="utf-8")
-    except OSError as exc:
-        raise SensorCalibrationError(f"--out {args.out}: cannot write the profile ({exc.strerror})") from None
+        write_profile_text(args.out, text, what="--out profile")
+    except HitchInputError as exc:
+        raise SensorCalibrationError(str(exc)) from None
     result = {a: f.as_dict() for a, f in fits.items()}
     if args.json:
         print(to_json_text({"out": args.out, "detached": args.detached, "on": where, "actuators": result}))
@@ -218,6 +251,7 @@ def _calibrate_on_bus(args, cal_model: HitchModel, nominal, implement, actuators
                     f"{args.can_channel or '(default channel)'} within {FIRST_MEASUREMENT_TIMEOUT_S:g} s "
                     f"(faults: {', '.join(link.faults.reasons) or 'none'}): is it powered and on this bus?"
                 )
+        ecu = link.peer_name(link.config.ecu_address)
         return SensorCalibration(
             link,
             RealtimeDriver(runner),
@@ -226,6 +260,7 @@ def _calibrate_on_bus(args, cal_model: HitchModel, nominal, implement, actuators
             progress=args.progress,
             log=log,
             detached=args.detached,
+            machine=None if ecu is None else f"the ECU of ISO 11783 NAME 0x{ecu.value:016x}",
         ).run(actuators)
     finally:
         link.stop(runner.now())  # no more references: the ECU's watchdog zeroes the valves
@@ -250,7 +285,7 @@ def add_commands(sub) -> None:
         help="the DOF to deflect (default all four, then the combined deflections; a subset: no combined ones)",
     )
     add_model_options(a)
-    a.set_defaults(handler=_cmd_accuracy_test)
+    a.set_defaults(handler=_cmd_accuracy_test, on_interrupt=lambda _a: "nothing was written")
 
 
 def add_calibrate_sensors(csub) -> None:
@@ -281,4 +316,4 @@ def add_calibrate_sensors(csub) -> None:
     )
     s.add_argument("--can-channel", default=None, help="the bus's channel (e.g. can0, a hub's ws:// address)")
     add_model_options(s)
-    s.set_defaults(handler=_cmd_calibrate_sensors)
+    s.set_defaults(handler=_cmd_calibrate_sensors, on_interrupt=_sensors_interrupted)

@@ -86,12 +86,16 @@ def one_line(text: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    args = None
     try:
         args = build_parser().parse_args(argv)
         return int(args.handler(args) or 0)
     except HitchError as exc:  # CLIError, ProfileError, KinematicsError, PlanError, ServiceError, …
         print(f"hitch: error: {one_line(str(exc))}", file=sys.stderr)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # a command that keeps something says what (``on_interrupt``: its sentence)
+        said = getattr(args, "on_interrupt", None)
+        if callable(said):
+            print(f"hitch: interrupted: {said(args)}", file=sys.stderr)
         return 130
     except BrokenPipeError:  # e.g. `hitch plan --json | head`
         sys.stderr.close()

@@ -62,9 +62,10 @@ from bridge.sim.truth import (
     perturb_profile,
     truth_toml,
 )
+from planner.errors import HitchInputError
 from planner.model.kinematics import POINT_NAMES, HitchModel
 from planner.model.sensors import SensorScaling
-from planner.profiles.hitch import Profile, load_profile
+from planner.profiles.hitch import Profile, load_profile, tractor_profile_for, write_profile_text
 from planner.trajectory import TrajectoryPlanner
 from planner.work_control import DRAFT_SETPOINT_MAX_N
 
@@ -480,12 +481,14 @@ def perturbation_summary(nominal: Profile, data: dict, play: PinPlay) -> dict:
 def _cmd_sim_perturb(args) -> int:
     nominal = load_profile(args.profile)
     data, play = perturb_profile(nominal, args.seed, tape=args.tape)
+    stability = data["stability"]  # the nominal's tractor, from the file the truth goes to (printed: absolute)
+    stability["tractor_profile"] = tractor_profile_for(stability["tractor_profile"], args.out and Path(args.out).parent)
     text = truth_toml(data, play)
     if args.out:
         try:
-            Path(args.out).write_text(text, encoding="utf-8")
-        except OSError as exc:
-            raise TruthError(f"--out {args.out}: cannot write the truth file ({exc.strerror})") from None
+            write_profile_text(args.out, text, what="--out truth")
+        except HitchInputError as exc:
+            raise TruthError(str(exc)) from None
     summary = perturbation_summary(nominal, data, play)
     if args.json:
         print(to_json_text({**summary, "out": args.out}))

@@ -50,7 +50,7 @@ import can
 import numpy as np
 from numpy.typing import ArrayLike
 
-from bridge.isobus.address_claim import AddressClaimer, ClaimState
+from bridge.isobus.address_claim import AddressClaimer, ClaimState, Name
 from bridge.isobus.codec import (
     CodecError,
     EcuParameters,
@@ -186,6 +186,11 @@ class CanLink:
         handed over before them (at rest after a move, the link keeps the ECU's watchdog fed). Nothing on
         the bus then needs reading as it arrives (the runner's ``prompt``: :func:`bridge.service.machine.start_can`)."""
         return self._streaming and self._resent >= HOLD_AFTER_RESENT
+
+    def peer_name(self, address: int) -> Name | None:
+        """The ISO 11783-5 NAME the node at ``address`` claimed it with (the ECU's: its identity), None if unheard."""
+        with self._lock:
+            return self._claimer.peers.get(address)
 
     def latest_state(self) -> LinkState | None:
         """The newest measured state, or None before the first complete measurement."""

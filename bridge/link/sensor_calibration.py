@@ -45,14 +45,17 @@ relay), the lower links' ground clearance (they still swing on the lift arms), t
 the tractor's stability (without an implement) and the upper height. A detached calibration with an
 implement is refused.
 
-**Resumable.** ``progress`` (a JSON file) records each end as it is found; a new run with the
-same file skips what is recorded. :func:`sensor_profile_toml` writes the result: the source
+**Resumable.** ``progress`` (a JSON file) records each end as it is found, and the machine it was
+found on (``machine``: the ECU's ISO 11783 NAME, or the twin's truth); a new run with the same file
+skips what is recorded, says what it kept, and refuses a file recorded on another machine (its ends
+are not this machine's). :func:`sensor_profile_toml` writes the result: the source
 profile's TOML text with the fitted ``counts_min / counts_max`` put in (everything else as it
 was), which loads with :func:`~planner.profiles.hitch.load_profile`.
 """
 
 from __future__ import annotations
 
+import datetime as _dt
 import importlib.resources
 import json
 import math
@@ -76,7 +79,7 @@ from planner.model.hard_limits import HardLimits
 from planner.model.kinematics import HitchModel
 from planner.model.sensors import SensorScaling
 from planner.model.types import ACTUATOR_NAMES, KinematicsError
-from planner.profiles.hitch import Profile, profile_from_dict
+from planner.profiles.hitch import Profile, profile_from_dict, tractor_profile_for
 from planner.trajectory import TrajectoryPlanner
 
 __all__ = [
@@ -259,7 +262,15 @@ def check_full_stroke(
             ) from None
         bad = [n for n in hard.violations(q, feats, tol=1e-9) if not n.startswith("stroke:")]
         if bad:
-            raise SensorCalibrationError(f"sensor calibration of {actuator} refused: {', '.join(bad)} at {where}")
+            detach = (
+                "; with no implement attached and the top link unpinned at the mast, --detached releases the "
+                "top-link angle limits (docs/commissioning.md)"
+                if any(n.startswith("top_link_") for n in bad)
+                else ""
+            )
+            raise SensorCalibrationError(
+                f"sensor calibration of {actuator} refused: {', '.join(bad)} at {where}{detach}"
+            )
         rep = guard.stability_at(q, state.points)
         for viol in rep.violations:
             if viol.level == "hard":
@@ -378,6 +389,7 @@ class SensorCalibration:
         progress: str | Path | None = None,
         log: Callable[[str], None] | None = None,
         detached: bool = False,
+        machine: str | None = None,
     ) -> None:
         if not isinstance(detached, bool):
             raise SensorCalibrationError(f"detached must be true or false, got {detached!r}")
@@ -406,6 +418,9 @@ class SensorCalibration:
         self.progress: dict[str, Any] = {"version": _PROGRESS_VERSION, "profile": nominal.name, "actuators": {}}
         if self.progress_path is not None and self.progress_path.is_file():
             self._load_progress()
+            self._check_machine(machine)
+        if machine is not None:
+            self.progress["machine"] = machine
         self.progress["detached"] = detached  # the state the operator declared for this run (a record only)
 
     # -- progress ---------------------------------------------------------------------
@@ -448,9 +463,25 @@ class SensorCalibration:
                     raise SensorCalibrationError(f"progress file {self.progress_path}: bad record {name}.{end}")
         self.progress = data
 
+    def _check_machine(self, machine: str | None) -> None:
+        """A loaded progress file's ends are this machine's (or refused), and the operator is told what is kept."""
+        recorded, kept = self.progress.get("machine"), self.progress["actuators"]
+        if machine is not None and recorded is not None and recorded != machine and kept:
+            raise SensorCalibrationError(
+                f"progress file {self.progress_path} was recorded on {recorded}, not on {machine}: its end readings "
+                "are another machine's (delete the file or give another --progress to start afresh)"
+            )
+        if kept:
+            ends = ", ".join(f"{a} {e}" for a, rec in kept.items() for e in ("low", "high") if e in rec)
+            self._log(
+                f"resuming from {self.progress_path} (recorded {self.progress.get('saved', 'at an unknown time')} "
+                f"on {recorded or 'an unnamed machine'}): keeping {ends or 'nothing'}"
+            )
+
     def _save_progress(self) -> None:
         if self.progress_path is None:
             return
+        self.progress["saved"] = _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat()
         tmp = self.progress_path.with_suffix(self.progress_path.suffix + ".tmp")
         try:
             tmp.write_text(json.dumps(self.progress, indent=1), encoding="utf-8")
@@ -594,10 +625,16 @@ SENSOR_PROVENANCE_MARKER = "#! sensor_calibration ="
 
 
 def sensor_profile_toml(
-    source: str | Path, counts: Mapping[str, tuple[int, int]], *, provenance: Mapping[str, Any] | None = None
+    source: str | Path,
+    counts: Mapping[str, tuple[int, int]],
+    *,
+    provenance: Mapping[str, Any] | None = None,
+    out_folder: str | Path | None = None,
 ) -> str:
     """The TOML text of profile ``source`` (built-in name or path) with ``counts_min / counts_max`` of the
-    actuators in ``counts`` ({name: (counts_min, counts_max)}) replaced; the result is validated.
+    actuators in ``counts`` ({name: (counts_min, counts_max)}) replaced; the result is validated. A tractor
+    profile the source names by a relative path is rewritten for ``out_folder``, the folder the text goes to
+    (None: absolute): copied as it was, it pointed next to the output, not to the source.
 
     ``provenance`` (date, the machine it was calibrated on, the end readings …) is written as a comment line
     ``#! sensor_calibration = { … }`` at the top (an earlier one replaced): a commissioning record, and what
@@ -615,6 +652,15 @@ def sensor_profile_toml(
         head = re.match(r"\s*\[([^\]]+)\]", line)
         if head:
             section = head.group(1).strip()
+            continue
+        tp = re.match(r"(\s*tractor_profile\s*=\s*)(\"[^\"]*\"|'[^']*')(.*)", line, re.DOTALL)
+        if tp and section == "stability":
+            from planner.calibration.profile_out import toml_value
+
+            given = tomllib.loads(f"v = {tp.group(2)}")["v"]
+            folder = Path(source).parent if Path(source).suffix == ".toml" or Path(source).exists() else None
+            new = tractor_profile_for(given, out_folder, relative_to=folder)
+            lines[k] = f"{tp.group(1)}{toml_value(new)}{tp.group(3)}" if new != given else line
             continue
         m = re.match(r"(\s*)(counts_min|counts_max)(\s*=\s*)(\d+)(.*)", line, re.DOTALL)
         if m and section.startswith("actuators."):

@@ -9,7 +9,9 @@ a Zenoh peer listening on ``tcp/127.0.0.1:7447`` with multicast scouting off, ke
 ``thesis-t132`` category 2, 50 Hz control, presets and maneuvers under
 ``$XDG_DATA_HOME/hitch-planner`` (``~/.local/share/hitch-planner``).
 
-TOML layout (every key optional; the names are the field names below)::
+TOML layout (every key optional; the names are the field names below; a relative path in the file — the
+security file, the truth, the profile or field when given as a file, the data folder, the lines file, the
+CAN log — is taken from the config file's folder)::
 
     [zenoh]    mode = "peer"; listen = ["tcp/127.0.0.1:7447"]; connect = []; prefix = "hitch"
                security = "/etc/hitch/zenoh-security.json5"; scouting = false
@@ -285,8 +287,30 @@ def _flatten_toml(data: dict, source: str) -> dict[str, Any]:
     return out
 
 
+#: config keys that are files or folders: a relative one in a config file is taken from the file's folder
+_PATH_KEYS = ("security", "sim_truth", "lines_file", "data_dir", "can_log")
+#: config keys that are a built-in name or a file: taken from the file's folder when they name a file
+_NAME_OR_PATH_KEYS = ("profile", "sim_field")
+
+
+def _from_folder(values: dict[str, Any], folder: Path) -> dict[str, Any]:
+    """``values`` of a config file with its relative paths taken from ``folder`` (the file's): a config file
+    names its profile and truth as the profile names its tractor, from where it lies, not from where the
+    service was started (a commissioning engineer's report: ``profile = "../tractor.toml"`` did not exist)."""
+    out = dict(values)
+    for k, v in values.items():
+        if not isinstance(v, str) or not v:
+            continue
+        p = Path(v).expanduser()
+        named_file = k in _NAME_OR_PATH_KEYS and (p.suffix == ".toml" or len(p.parts) > 1)
+        if (k in _PATH_KEYS or named_file) and not p.is_absolute():
+            out[k] = str(folder / p)
+    return out
+
+
 def load_service_config(path: str | Path | None = None, **overrides: Any) -> ServiceConfig:
-    """Defaults, then the TOML file at ``path`` (if any), then ``overrides`` (None values are ignored)."""
+    """Defaults, then the TOML file at ``path`` (if any; its relative paths from its own folder), then
+    ``overrides`` (None values are ignored; relative paths from the working folder, as flags are)."""
     values: dict[str, Any] = {}
     source = "flags"
     if path is not None:
@@ -295,9 +319,10 @@ def load_service_config(path: str | Path | None = None, **overrides: Any) -> Ser
             raise ServiceConfigError(f"service config file {p} does not exist")
         source = str(p)
         try:
-            values.update(_flatten_toml(tomllib.loads(p.read_text(encoding="utf-8").removeprefix("\ufeff")), source))
+            data = _flatten_toml(tomllib.loads(p.read_text(encoding="utf-8").removeprefix("\ufeff")), source)
         except tomllib.TOMLDecodeError as exc:
             raise ServiceConfigError(f"service config {p} is not valid TOML: {exc}") from None
+        values.update(_from_folder(data, p.parent))
     values.update({k: v for k, v in overrides.items() if v is not None})
     try:
         return ServiceConfig.model_validate(values)

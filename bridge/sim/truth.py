@@ -135,6 +135,8 @@ def noise_kind(text: str) -> str:
 #: start of the comment line that carries the pin play in a truth file
 PLAY_MARKER = "#! sim-truth play ="
 _TRUTH_DIRECTIVE = "#! sim-truth "
+#: the other directive lines a profile may carry (the calibrations' provenance records)
+_OTHER_DIRECTIVES = ("#! calibration =", "#! sensor_calibration =")
 
 _PLAY_MAX_M = 0.01
 _SPAN_ROW = FEATURE_NAMES.index("lower_span")
@@ -219,6 +221,14 @@ def _vector5(name: str, value: ArrayLike) -> np.ndarray:
 def _parse_play(text: str, source: str) -> PinPlay:
     """The play line of a truth file; a second one, or a ``#! sim-truth`` line with another key, is an error (a
     misspelt ``flay`` ran as a truth without play, and of two play lines the first won silently)."""
+    for n, ln in enumerate(text.splitlines(), 1):  # "#!" lines are directives: a misspelt one is not a comment
+        if ln.startswith("#!") and not ln.startswith((_TRUTH_DIRECTIVE, *_OTHER_DIRECTIVES)):
+            word = ln[2:].strip().split(" ")[0].split("=")[0] or "(none)"
+            raise TruthError(
+                f"truth {source} line {n}: unknown directive '#! {word}' (known: {_TRUTH_DIRECTIVE.strip()}, "
+                f"{', '.join(d.removesuffix(' =') for d in _OTHER_DIRECTIVES)}); the play line is "
+                f"{PLAY_MARKER} {{ lower_link_m = …, top_link_m = … }}"
+            )
     lines = [(n, ln) for n, ln in enumerate(text.splitlines(), 1) if ln.startswith(_TRUTH_DIRECTIVE)]
     for n, ln in lines:
         if not ln.startswith(PLAY_MARKER):
@@ -239,7 +249,9 @@ def _parse_play(text: str, source: str) -> PinPlay:
     except tomllib.TOMLDecodeError as exc:
         raise TruthError(f"truth {source}: the play line is not valid TOML: {exc}") from None
     if not isinstance(data, dict) or set(data) - {"lower_link_m", "top_link_m"}:
-        raise TruthError(f"truth {source}: play allows the keys lower_link_m, top_link_m (m, 0…0.01)")
+        unknown = sorted(set(data) - {"lower_link_m", "top_link_m"}) if isinstance(data, dict) else []
+        named = f" (unknown: {', '.join(unknown)})" if unknown else ""
+        raise TruthError(f"truth {source}: play allows the keys lower_link_m, top_link_m (m, 0…0.01){named}")
     try:
         return PinPlay(**data)
     except TruthError as exc:  # a value out of range: say which file

@@ -16,7 +16,7 @@ Columns (header row required; order free; unknown columns are an error):
 Every row needs its five readings and at least one measured quantity; an empty cell means "not
 measured" (only for the measured columns). Measured values must lie within ±3 m (positions) and
 ±π/2 (angles). A bad file raises :class:`~planner.calibration.parameters.CalibrationError` naming the
-row (1 = first data row; the header is row 0), the column and the allowed range.
+row (1 = first data row; the header is row 0) with its line, the column and the allowed range.
 """
 
 from __future__ import annotations
@@ -152,33 +152,34 @@ def parse_measurements(text: str, profile: Profile, *, source: str = "measuremen
         header = [h.strip() for h in next(reader)]
     except StopIteration:
         raise CalibrationError(f"{source}: empty file (a header row is required)") from None
+    head = f"row 0 (the header, line {reader.line_num})"
     allowed = {"pose", *ACTUATOR_NAMES, *(f"{n}_counts" for n in ACTUATOR_NAMES), *MEASURED_COLUMNS, *TARGET_COLUMNS}
     unknown = [h for h in header if h not in allowed]
     if unknown:
         raise CalibrationError(
-            f"{source} row 0: unknown column(s) {unknown}; allowed: pose, {', '.join(ACTUATOR_NAMES)} (SI) or "
+            f"{source} {head}: unknown column(s) {unknown}; allowed: pose, {', '.join(ACTUATOR_NAMES)} (SI) or "
             f"<name>_counts, {', '.join(MEASURED_COLUMNS)}, {', '.join(TARGET_COLUMNS)}"
         )
     dup = sorted({h for h in header if header.count(h) > 1})
     if dup:
-        raise CalibrationError(f"{source} row 0: duplicate column(s) {dup}")
+        raise CalibrationError(f"{source} {head}: duplicate column(s) {dup}")
     cols = {h: i for i, h in enumerate(header)}
     for n in ACTUATOR_NAMES:
         has_si, has_counts = n in cols, f"{n}_counts" in cols
         if has_si == has_counts:
             raise CalibrationError(
-                f"{source} row 0: actuator {n} needs exactly one column, {n} (SI) or {n}_counts (AD counts)"
+                f"{source} {head}: actuator {n} needs exactly one column, {n} (SI) or {n}_counts (AD counts)"
             )
     pose4 = [c for c in ("x", "z", "roll", "pitch") if c in cols]
     if pose4 and len(pose4) != 4:
-        raise CalibrationError(f"{source} row 0: the pose needs all of x, z, roll, pitch (has {', '.join(pose4)})")
+        raise CalibrationError(f"{source} {head}: the pose needs all of x, z, roll, pitch (has {', '.join(pose4)})")
     for p in ("L", "R", "U"):
         got = [c for c in _POINT_COLUMNS if c.startswith(p + "_") and c in cols]
         if got and len(got) != 3:
-            raise CalibrationError(f"{source} row 0: point {p} needs all of {p}_x, {p}_y, {p}_z")
+            raise CalibrationError(f"{source} {head}: point {p} needs all of {p}_x, {p}_y, {p}_z")
     measured = [c for c in MEASURED_COLUMNS if c in cols]
     if not measured:
-        raise CalibrationError(f"{source} row 0: no measured column (x, z, roll, pitch and/or L_x … U_z)")
+        raise CalibrationError(f"{source} {head}: no measured column (x, z, roll, pitch and/or L_x … U_z)")
     sc = SensorScaling(profile)
     readings, values, masks, labels = [], [], [], []
     for r, (where, cells) in enumerate(_data_rows(reader, len(header), source), start=1):
@@ -263,7 +264,8 @@ def load_plan_targets(path: str | Path) -> tuple[tuple[str, ...], np.ndarray]:
     missing = [c for c in TARGET_COLUMNS if c not in header]
     if missing:
         raise CalibrationError(
-            f"plan file {p} row 0: no column(s) {', '.join(missing)} (a plan of hitch calibrate plan-poses --out)"
+            f"plan file {p} row 0 (the header, line {reader.line_num}): no column(s) {', '.join(missing)} "
+            "(a plan of hitch calibrate plan-poses --out)"
         )
     cols = {h: i for i, h in enumerate(header)}
     labels: list[str] = []

@@ -14,7 +14,7 @@ from __future__ import annotations
 import datetime as _dt
 import math
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +26,7 @@ from planner.errors import HitchInputError
 from planner.model.exact_inverse import ExactInverse
 from planner.model.kinematics import HitchModel
 from planner.model.types import ACTUATOR_NAMES
-from planner.profiles.hitch import Profile, load_profile, profile_from_dict
+from planner.profiles.hitch import Profile, profile_from_dict, tractor_profile_for, write_profile_text
 
 __all__ = [
     "PROVENANCE_MARKER",
@@ -109,14 +109,19 @@ def calibrated_profile_toml(
     name: str | None = None,
     date: str | None = None,
     inputs: Mapping[str, Any] | None = None,
+    out_folder: str | Path | None = None,
+    comments: Sequence[str] = (),
 ) -> str:
     """TOML text of the profile with the calibrated parameters and the provenance comment lines; ``inputs``
     (what the calibration was made from: the measurement file and its SHA-256, the σ given, …) is recorded
-    in the provenance as it is."""
+    in the provenance as it is. A tractor profile given by path is written relative to ``out_folder``, the
+    folder the text goes to (None: absolute). ``comments``: comment lines carried over from the source
+    profile (its sensor calibration record), written after the provenance."""
     if result.names != params.names:
         raise CalibrationError("the calibration result is not for this parameter set")
     base = params.profile
     data = params.profile_dict(result.values, name=name or f"{base.name}-calibrated"[:80])
+    data["stability"]["tractor_profile"] = tractor_profile_for(data["stability"]["tractor_profile"], out_folder)
     _keep_the_neutral_pose(data, base)
     when = date or _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat()
     prov = {
@@ -149,6 +154,10 @@ def calibrated_profile_toml(
         "parameter directions identified; the others stay nominal (listed in the line below).",
         f"{PROVENANCE_MARKER} {_value(prov)}",
     ]
+    for line in comments:
+        if not line.startswith("#") or "\n" in line:
+            raise CalibrationError(f"internal: a carried comment must be one line starting with '#', got {line!r}")
+        out.append(line)
     _table(out, (), data)
     text = "\n".join(out) + "\n"
     try:
@@ -174,18 +183,18 @@ def write_calibrated_profile(
     *,
     name: str | None = None,
     inputs: Mapping[str, Any] | None = None,
+    comments: Sequence[str] = (),
 ) -> Profile:
-    """Write the calibrated profile to ``path`` (``inputs``: :func:`calibrated_profile_toml`); returns it as
-    loaded back by ``load_profile``."""
+    """Write the calibrated profile to ``path`` (``inputs``: :func:`calibrated_profile_toml`) if it loads there
+    (nothing is written otherwise); returns it as loaded back by ``load_profile``."""
     p = Path(path)
     if p.suffix != ".toml":
         raise CalibrationError(f"--out {p}: a profile file must end in .toml")
-    text = calibrated_profile_toml(params, result, name=name, inputs=inputs)
+    text = calibrated_profile_toml(params, result, name=name, inputs=inputs, out_folder=p.parent, comments=comments)
     try:
-        p.write_text(text, encoding="utf-8")
-    except OSError as exc:
-        raise CalibrationError(f"--out {p}: cannot write it ({exc.strerror})") from None
-    return load_profile(p)
+        return write_profile_text(p, text, what="--out profile")
+    except HitchInputError as exc:
+        raise CalibrationError(str(exc)) from None
 
 
 def read_calibration_provenance(path: str | Path) -> dict[str, Any] | None:

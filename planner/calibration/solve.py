@@ -35,6 +35,7 @@ __all__ = [
     "CalibrationResult",
     "build_calibration_problem",
     "identifiable_basis",
+    "largest_residuals",
     "solve_calibration",
 ]
 
@@ -297,14 +298,17 @@ def _solve(
     m = r.size
     if m <= k:
         raise CalibrationError(
-            f"measurements: {m} measured values cannot determine {k} parameter directions (measure more poses)"
+            f"measurements: {_count(m, 'measured value')} for {_count(k, 'parameter direction')} the poses can "
+            f"see: a fit needs more values than directions (at least {k + 1}, one over to estimate the residual); "
+            "measure more poses"
         )
     distinct = problem.data.n_distinct_observations
     if distinct <= k:  # repeats of the same readings (a copied row) add values but no direction
         raise CalibrationError(
-            f"measurements: {problem.data.n_rows} rows hold {problem.data.n_poses} distinct poses "
-            f"(rows with the same readings count once) whose {distinct} measured values cannot determine {k} "
-            "parameter directions (measure more poses; a copied row is not a new pose)"
+            f"measurements: {_count(problem.data.n_rows, 'row')} hold {_count(problem.data.n_poses, 'distinct pose')} "
+            f"(rows with the same readings count once) with {_count(distinct, 'measured value')} for "
+            f"{_count(k, 'parameter direction')} the poses can see: a fit needs more values than directions "
+            f"(at least {k + 1}); measure more poses (a copied row is not a new pose)"
         )
     sigma_hat = math.sqrt(float(r @ r) / (m - k))
     jw = js @ basis2
@@ -342,3 +346,22 @@ def _solve(
         converged=bool(converged),
         duration_s=time.perf_counter() - t0,
     )
+
+
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}" + ("" if n == 1 else "s")
+
+
+def largest_residuals(
+    problem: CalibrationProblem, result: CalibrationResult, count: int = 3
+) -> list[tuple[int, str, str, float]]:
+    """The ``count`` data rows that fit worst, worst first: ``(row, label, column, residual)`` with ``row``
+    counted from 1 as the measurement file's data rows, the column of the row's largest residual and that
+    residual (measured − calibrated) in units of its σ. With σ̂ far above 1 the worst row is where to look
+    for a wrong value or a unit slip (an engineer's report: the warning named no row)."""
+    y, _ = problem.model.batch(problem.data.readings, result.values, jacobian=False, seeds=problem.seeds)
+    r = np.where(problem.data.mask, (np.nan_to_num(problem.data.values) - y) / problem.sigma, 0.0)
+    worst = np.argmax(np.abs(r), axis=1)
+    size = np.abs(r[np.arange(len(r)), worst])
+    rows = np.argsort(-size, kind="stable")[: max(0, int(count))]
+    return [(int(k) + 1, problem.data.labels[k], MEASURED_COLUMNS[int(worst[k])], float(r[k, worst[k]])) for k in rows]

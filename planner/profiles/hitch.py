@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 from typing import Any, Literal
 
@@ -33,6 +34,8 @@ __all__ = [
     "load_profile",
     "available_profiles",
     "profile_from_dict",
+    "tractor_profile_for",
+    "write_profile_text",
     "THESIS_CONTROLLER_A",
 ]
 
@@ -331,7 +334,7 @@ def _with_tractor_profile(prof: Profile, folder: Path | None, source: str) -> Pr
     given = prof.stability.tractor_profile
     path = Path(given)
     resolved = given
-    if folder is not None and not path.is_absolute() and (path.suffix == ".toml" or len(path.parts) > 1):
+    if folder is not None and not path.is_absolute() and _is_tractor_path(given):
         resolved = str(folder / path)
     try:
         read_profile(resolved, subfolder="tractors", kind="tractor profile", error=ProfileError)
@@ -340,6 +343,55 @@ def _with_tractor_profile(prof: Profile, folder: Path | None, source: str) -> Pr
     if resolved == given:
         return prof
     return prof.model_copy(update={"stability": prof.stability.model_copy(update={"tractor_profile": resolved})})
+
+
+def _is_tractor_path(value: str) -> bool:
+    """``stability.tractor_profile`` names a file (``.toml`` or with a folder), not a built-in tractor."""
+    path = Path(value)
+    return path.suffix == ".toml" or len(path.parts) > 1
+
+
+def tractor_profile_for(value: str, out_folder: str | Path | None, *, relative_to: str | Path | None = None) -> str:
+    """``stability.tractor_profile`` = ``value`` as written into a profile file in ``out_folder``.
+
+    A built-in tractor name stays. A path, relative ones taken from ``relative_to`` (the folder of the file
+    it was read from; None: the current folder, as a loaded :class:`Profile` holds it), is written relative to
+    ``out_folder`` — the loader takes it from the written file's folder — or absolute when ``out_folder`` is
+    None (text whose file is not known yet). Copying the value as it was made the written profile point at
+    ``prof/prof/my-tractor.toml``."""
+    if not _is_tractor_path(value):
+        return value
+    path = Path(value)
+    if not path.is_absolute():
+        path = Path(relative_to if relative_to is not None else ".") / path
+    path = path.resolve()
+    if out_folder is None:
+        return str(path)
+    return os.path.relpath(path, Path(out_folder).resolve())
+
+
+def write_profile_text(path: str | Path, text: str, *, what: str = "profile") -> Profile:
+    """Write profile TOML ``text`` to ``path`` only if it loads there (:func:`load_profile`: the schema, the
+    tractor profile taken from ``path``'s folder); the loaded profile. Written to a file beside it first and
+    renamed: a refused text leaves nothing behind (an old file at ``path`` stays as it was)."""
+    p = Path(path)
+    if p.suffix != ".toml":
+        raise ProfileError(f"{what} file {p}: the name must end in .toml")
+    tmp = p.with_name(f".{p.stem}.writing.toml")
+    try:
+        tmp.write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise ProfileError(f"{what} file {p}: cannot write it ({exc.strerror})") from None
+    try:
+        prof = load_profile(tmp)
+        os.replace(tmp, p)
+    except HitchInputError as exc:
+        raise ProfileError(f"{what} file {p} was not written: {str(exc).replace(str(tmp), str(p))}") from None
+    except OSError as exc:
+        raise ProfileError(f"{what} file {p}: cannot write it ({exc.strerror})") from None
+    finally:
+        tmp.unlink(missing_ok=True)
+    return prof
 
 
 def profile_from_dict(data: dict[str, Any], source: str = "<dict>") -> Profile:

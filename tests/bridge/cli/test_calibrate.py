@@ -49,7 +49,10 @@ def _err(capsys, argv) -> str:
             GOOD_HEADER + "\np1,100,400,120,300,260,5.0,0,0,0\n",
             r"row 1 \(line 2\), column x: 5 m is outside the allowed \[-3, 3\] m; did you mean mm\? 5 mm = 0.005 m",
         ),
-        (GOOD_HEADER.replace("x,", "q,") + "\n" + GOOD_ROW + "\n", r"row 0: unknown column\(s\) \['q'\]"),
+        (
+            GOOD_HEADER.replace("x,", "q,") + "\n" + GOOD_ROW + "\n",
+            r"row 0 \(the header, line 1\): unknown column\(s\) \['q'\]",
+        ),
         (
             "pose,lift_counts,tilt_counts,top_counts,left_counts,x,z,roll,pitch\n",
             r"actuator right needs exactly one column",
@@ -245,6 +248,64 @@ def test_a_unit_slip_in_one_cell_is_warned_about_or_refused_never_written_silent
         ), err
 
 
+def test_the_warning_of_a_bad_fit_names_the_row_that_fits_worst(tmp_path, capsys):
+    """One cell off by 0.05 rad (a small angle typed in another unit): the fit warned "sigma-hat 40 … check
+    the measurements" but named no row (a commissioning engineer's report); the row is the one changed."""
+    prof = load_profile("thesis-t132")
+    _, meas = _twin_measurements(tmp_path, prof)
+    lines = meas.read_text().splitlines()
+    header = lines[0].split(",")
+    cells = lines[3].split(",")  # data row 3
+    cells[header.index("pitch")] = f"{float(cells[header.index('pitch')]) + 0.05:.6f}"
+    lines[3] = ",".join(cells)
+    meas.write_text("\n".join(lines) + "\n")
+    capsys.readouterr()
+    out = tmp_path / "cal.toml"
+    assert main(["calibrate", "geometry", "--measurements", str(meas), "--out", str(out), "--json"]) == 0
+    captured = capsys.readouterr()
+    assert "warning: sigma-hat" in captured.err and f"worst fit: row 3 ({cells[0]}) pitch" in captured.err
+    worst = json.loads(captured.out)["largest_residuals"][0]
+    assert (worst["row"], worst["column"]) == (3, "pitch") and worst["residual_sigma"] > 10
+
+
+def test_a_sensor_calibrated_profile_keeps_its_record_or_warns_and_is_never_overwritten(tmp_path, capsys):
+    """A commissioning engineer's report: without --no-ad the geometry step silently refitted the AD maps a
+    sensor calibration had measured, and dropped its record; --out could overwrite the source profile."""
+    from bridge.link.sensor_calibration import SENSOR_PROVENANCE_MARKER, sensor_profile_toml
+
+    prof = load_profile("thesis-t132")
+    _, meas = _twin_measurements(tmp_path, prof)
+    sensors = tmp_path / "sensors.toml"
+    tilt = prof.actuator("tilt")
+    counts = {"tilt": (tilt.counts_min + 1, tilt.counts_max - 1)}
+    sensors.write_text(sensor_profile_toml("thesis-t132", counts, provenance={"date": "2026-12-05", "on": "test"}))
+    capsys.readouterr()
+    argv = ["calibrate", "geometry", "--profile", str(sensors), "--measurements", str(meas)]
+    assert main([*argv, "--out", str(tmp_path / "a.toml")]) == 0
+    err = capsys.readouterr().err
+    assert "carries a sensor calibration" in err and "give --no-ad to keep them" in err
+    assert main([*argv, "--no-ad", "--out", str(tmp_path / "b.toml")]) == 0
+    assert "carries a sensor calibration" not in capsys.readouterr().err
+    kept = (tmp_path / "b.toml").read_text()
+    assert any(line.startswith(SENSOR_PROVENANCE_MARKER) and '"test"' in line for line in kept.splitlines())
+    assert load_profile(tmp_path / "b.toml").actuator("tilt").counts_min == tilt.counts_min + 1  # the measured map
+    before = sensors.read_text()
+    assert main([*argv, "--no-ad", "--out", str(sensors)]) == 2
+    assert "is the profile the calibration starts from" in capsys.readouterr().err
+    assert sensors.read_text() == before
+
+
+def test_too_few_poses_are_refused_naming_the_file_and_what_a_fit_needs(tmp_path, capsys):
+    """It said "measurements: … 4 measured values cannot determine 4 parameter directions": no file, and 4 for 4
+    read as enough (a commissioning engineer's report)."""
+    _, meas = _twin_measurements(tmp_path, load_profile("thesis-t132"))
+    one = tmp_path / "one.csv"
+    one.write_text("\n".join(meas.read_text().splitlines()[:2]) + "\n")
+    err = _err(capsys, ["calibrate", "geometry", "--measurements", str(one), "--out", str(tmp_path / "c.toml")])
+    assert f"error: {one}: 4 measured values for 4 parameter directions" in err
+    assert "a fit needs more values than directions (at least 5" in err and not (tmp_path / "c.toml").exists()
+
+
 def test_measure_twin_measures_a_plan_file_under_its_labels(tmp_path, capsys):
     # measure-twin planned its own poses again and numbered its rows p1, p2 … per reading, so a static
     # file's p2 was the plan's p1 (a commissioning engineer's report); the template had no target poses
@@ -277,4 +338,8 @@ def test_measure_twin_measures_a_plan_file_under_its_labels(tmp_path, capsys):
     bad.write_text("pose,x\np1,0\n")
     assert main(["calibrate", "measure-twin", "--sim-truth", str(truth), "--plan", str(bad), "--out", "x.csv"]) == 2
     err = capsys.readouterr().err
-    assert "plan file" in err and "bad.csv row 0: no column(s) target_x" in err and "Traceback" not in err
+    assert (
+        "plan file" in err
+        and "bad.csv row 0 (the header, line 1): no column(s) target_x" in err
+        and "Traceback" not in err
+    )

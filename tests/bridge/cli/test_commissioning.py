@@ -128,3 +128,24 @@ def test_calibrate_sensors_detached_needs_the_operator_s_confirmation(tmp_path, 
     assert main(["calibrate", "sensors", "--actuators", "lift", "--out", str(tmp_path / "x"), "--yes"]) == 2
     assert "nothing to confirm" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
+
+
+def test_an_interrupted_commissioning_command_says_what_it_left(monkeypatch, capsys, tmp_path):
+    """Ctrl-C on ``calibrate sensors`` (and the other commissioning commands) exited 130 without a word; the
+    engineer could not tell that the progress file lets it resume (a commissioning engineer's report)."""
+    import bridge.cli.calibrate as calibrate_cli
+    import bridge.cli.commissioning as commissioning_cli
+
+    def interrupted(_args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(commissioning_cli, "_cmd_calibrate_sensors", interrupted)
+    progress = tmp_path / "p.json"
+    assert main(["calibrate", "sensors", "--progress", str(progress), "--out", str(tmp_path / "s.toml")]) == 130
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("hitch: interrupted: no profile was written") and f"{progress}: run the same command" in err
+    assert main(["calibrate", "sensors", "--out", str(tmp_path / "s.toml")]) == 130
+    assert "with --progress FILE an interrupted calibration resumes" in capsys.readouterr().err
+    monkeypatch.setattr(calibrate_cli, "_cmd_geometry", interrupted)
+    assert main(["calibrate", "geometry", "--measurements", "m.csv", "--out", str(tmp_path / "c.toml")]) == 130
+    assert capsys.readouterr().err.strip() == "hitch: interrupted: nothing was written"

@@ -107,6 +107,7 @@ def test_the_thesis_profile_refuses_a_full_lift_stroke_naming_the_top_link_limit
     exc, rig, start = calibrate(nominal, truth_of(nominal, 1), ("top", "lift"))
     assert isinstance(exc, SensorCalibrationError)
     assert "lift refused: top_link_pitch_max" in str(exc)
+    assert "--detached releases the top-link angle limits" in str(exc)  # the way the docs give (it said nothing)
     assert np.array_equal(rig.ecu.piston_counts(), start)  # refused before the top link moved either
     exc, _, _ = calibrate(nominal, truth_of(nominal, 1), ("left",))
     assert "left refused: top_link_yaw_min" in str(exc)
@@ -133,8 +134,9 @@ def test_a_calibration_resumes_from_its_progress_file(free_top_link, tmp_path):
     again, _, _ = calibrate(free_top_link, truth, ("top",), progress=progress, log=log.append)
     assert not isinstance(again, Exception), again
     assert again["top"] == first["top"]
+    assert log[0].startswith(f"resuming from {progress}") and log[0].endswith("keeping top low")
     assert (
-        log[0].startswith("top low: recorded") and log[0].endswith("(resumed)") and log[1].startswith("top high: relay")
+        log[1].startswith("top low: recorded") and log[1].endswith("(resumed)") and log[2].startswith("top high: relay")
     )
     t = truth.profile.actuator("top")
     assert abs(again["top"].counts_min - t.counts_min) <= 1 and abs(again["top"].counts_max - t.counts_max) <= 1
@@ -157,13 +159,34 @@ def test_a_finished_or_partly_fitted_progress_file_resumes(free_top_link, tmp_pa
     log: list[str] = []
     again, _, _ = calibrate(free_top_link, truth, ("top",), progress=progress, log=log.append)
     assert not isinstance(again, Exception), again
-    assert again["top"] == first["top"] and all(line.endswith("(resumed)") for line in log[:2])
+    assert again["top"] == first["top"] and all(line.endswith("(resumed)") for line in log[1:3])
     rec = json.loads(progress.read_text())
     rec["actuators"]["top"]["fit"]["counts_max"] = 4096  # beyond 10 bits: refused, naming the record
     progress.write_text(json.dumps(rec))
     with pytest.raises(SensorCalibrationError, match=r"bad record top\.fit"):
         with SimRig(HitchModel(calibration_profile(free_top_link)), FAST, truth=truth) as rig:
             SensorCalibration(rig.link, rig, free_top_link, progress=progress)
+
+
+def test_a_progress_file_of_another_machine_is_refused_and_a_resume_says_what_it_keeps(free_top_link, tmp_path):
+    """A commissioning engineer's report: a progress file recorded on one twin (truth seed 3) was reused on
+    another (seed 5) without a word, and the profile written got the first machine's AD maps. The file now
+    records the machine it was taken on (the ECU's NAME, the twin's truth) and another machine's is refused."""
+    first_machine, second_machine = truth_of(free_top_link, 2), truth_of(free_top_link, 3)
+    progress = tmp_path / "progress.json"
+    done, _, _ = calibrate(free_top_link, first_machine, ("top",), progress=progress, machine="twin A")
+    assert not isinstance(done, Exception), done
+    rec = json.loads(progress.read_text())
+    assert rec["machine"] == "twin A" and rec["saved"]
+    log: list[str] = []
+    other, _, _ = calibrate(
+        free_top_link, second_machine, ("top",), progress=progress, machine="twin B", log=log.append
+    )
+    assert isinstance(other, SensorCalibrationError)
+    assert "was recorded on twin A, not on twin B" in str(other) and "another --progress" in str(other)
+    again, _, _ = calibrate(free_top_link, first_machine, ("top",), progress=progress, machine="twin A", log=log.append)
+    assert again["top"] == done["top"]
+    assert log[0] == f"resuming from {progress} (recorded {rec['saved']} on twin A): keeping top low, top high"
 
 
 def test_the_link_must_be_the_calibration_link(model):

@@ -129,3 +129,44 @@ def test_can_log_rotation_settings_from_toml_and_flags_with_errors_naming_the_fi
     for bad in ({"can_log_max_mb": 0.0}, {"can_log_max_mb": float("nan")}, {"can_log_keep": 0}):
         with pytest.raises(ServiceConfigError, match=next(iter(bad))):
             load_service_config(**bad)
+
+
+def test_relative_paths_in_a_config_file_are_taken_from_its_folder(tmp_path, monkeypatch):
+    """A commissioning engineer's report: ``profile = "../tractor.toml"`` and ``sim_truth = "../truth.toml"`` in
+    outdir/service.toml were taken from the working folder ("profile file ../tractor.toml does not exist"). As
+    a profile names its tractor, a config file names its files from where it lies; flags stay as typed."""
+    (tmp_path / "outdir").mkdir()
+    (tmp_path / "elsewhere").mkdir()
+    truth = tmp_path / "truth.toml"
+    truth.write_text("")
+    cfg_file = tmp_path / "outdir" / "service.toml"
+    cfg_file.write_text(
+        '[hitch]\nprofile = "../tractor.toml"\n[can]\nsim_truth = "../truth.toml"\n'
+        '[service]\ndata_dir = "data"\ncan_log = "bus.asc"\n'
+    )
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    cfg = load_service_config(cfg_file)
+    assert Path(cfg.profile).resolve() == tmp_path / "tractor.toml"
+    assert cfg.sim_truth is not None and cfg.sim_truth.resolve() == truth
+    assert cfg.data_dir.resolve() == tmp_path / "outdir" / "data"
+    assert cfg.can_log is not None and cfg.can_log.resolve() == tmp_path / "outdir" / "bus.asc"
+    assert load_service_config(cfg_file, profile="mine.toml").profile == "mine.toml"  # a flag: as typed
+    plain = tmp_path / "outdir" / "plain.toml"
+    plain.write_text('[hitch]\nprofile = "thesis-t132"\n')
+    assert load_service_config(plain).profile == "thesis-t132"  # a built-in name stays a name
+
+
+def test_the_config_reference_lists_every_key_the_service_reads():
+    """docs/service_config.md's example is a valid config file naming every key (a commissioning engineer
+    found no reference for the keys)."""
+    import re
+    import tomllib
+
+    from bridge.service.config import _TOML_SECTIONS, _flatten_toml
+
+    doc = (Path(__file__).resolve().parents[3] / "docs" / "service_config.md").read_text()
+    block = re.search(r"```toml\n(.*?)```", doc, re.DOTALL)
+    assert block is not None
+    data = tomllib.loads(block.group(1))
+    _flatten_toml(data, "docs/service_config.md")  # every section and key known
+    assert {s: set(v) for s, v in data.items()} == {s: set(v) for s, v in _TOML_SECTIONS.items()}

@@ -324,6 +324,13 @@ def test_a_bad_play_line_names_the_field(tmp_path, model):
     path.write_text(text.replace("#! sim-truth play", "#! sim-truth flay"), encoding="utf-8")
     with pytest.raises(TruthError, match=r"bad.toml line \d+: unknown directive #! sim-truth 'flay'"):
         load_machine_truth(path)
+    # a commissioning engineer's report: "#! sim_truth play" (underscore) ran as a truth without play, silently
+    path.write_text(text.replace("#! sim-truth play", "#! sim_truth play"), encoding="utf-8")
+    with pytest.raises(TruthError, match=r"bad.toml line \d+: unknown directive '#! sim_truth' \(known: #! sim-truth"):
+        load_machine_truth(path)
+    path.write_text(text.replace("lower_link_m", "lower_lnk_m"), encoding="utf-8")
+    with pytest.raises(TruthError, match=r"\(unknown: lower_lnk_m\)"):  # the wrong key, named
+        load_machine_truth(path)
     line = next(ln for ln in text.splitlines() if ln.startswith("#! sim-truth play"))
     path.write_text(text.replace(line, line + "\n" + line), encoding="utf-8")
     with pytest.raises(TruthError, match=r"bad.toml: 2 play lines"):

@@ -205,7 +205,7 @@ def test_copied_rows_are_not_new_poses():
     _, acts = _candidates()
     one = _data(model, acts[:1], model.params.nominal, points=False)
     rows = one.subset([0] * 20)
-    with pytest.raises(CalibrationError, match="20 rows hold 1 distinct poses"):
+    with pytest.raises(CalibrationError, match="20 rows hold 1 distinct pose "):
         solve_calibration(build_calibration_problem(model, rows))
     assert rows.n_distinct_observations == one.n_observations
 

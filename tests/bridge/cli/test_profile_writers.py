@@ -1,0 +1,57 @@
+"""Every command that writes a profile (``sim perturb``, ``calibrate sensors``, ``calibrate geometry``) from a
+profile that names its own tractor profile by a relative path: the written file loads from its folder.
+
+A commissioning engineer's report (truth: the loader takes a relative ``tractor_profile`` from the profile
+file's folder, docs/profiles.md): ``calibrate geometry --out prof/cal2.toml`` wrote the path relative to the
+working folder ("prof/my-tractor.toml": unloadable, and left on disk), ``calibrate sensors`` and ``sim
+perturb`` copied it unchanged into files in another folder.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from bridge.cli.main import main
+from bridge.sim.truth import load_machine_truth
+from planner.profiles.hitch import load_profile
+
+PROFILES = Path(__file__).resolve().parents[3] / "planner" / "profiles"
+
+
+@pytest.fixture
+def own_tractor(tmp_path, monkeypatch):
+    """prof/mine.toml (the thesis profile) naming prof/my-tractor.toml as "my-tractor.toml"; cwd = tmp_path."""
+    (tmp_path / "prof").mkdir()
+    (tmp_path / "out").mkdir()
+    (tmp_path / "prof" / "my-tractor.toml").write_text((PROFILES / "tractors" / "tractor-6t.toml").read_text())
+    text = (PROFILES / "thesis-t132.toml").read_text()
+    lines = [
+        'tractor_profile = "my-tractor.toml"' if ln.startswith("tractor_profile") else ln for ln in text.splitlines()
+    ]
+    (tmp_path / "prof" / "mine.toml").write_text("\n".join(lines) + "\n")
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+def _tractor_of(path: str) -> Path:
+    return Path(load_profile(path).stability.tractor_profile).resolve()
+
+
+def test_every_profile_writer_keeps_the_tractor_profile_reachable(own_tractor, capsys):
+    mine = own_tractor / "prof" / "my-tractor.toml"
+    argv = ["sim", "perturb", "--seed", "3", "--tape", "--profile", "prof/mine.toml"]
+    assert main([*argv, "--out", "out/truth.toml"]) == 0
+    assert _tractor_of("out/truth.toml") == mine
+    assert load_machine_truth("out/truth.toml").profile.stability.tractor_profile.endswith("my-tractor.toml")
+    argv = ["calibrate", "sensors", "--profile", "prof/mine.toml", "--sim-truth", "out/truth.toml"]
+    assert main([*argv, "--actuators", "top", "--out", "out/sensors.toml"]) == 0
+    assert _tractor_of("out/sensors.toml") == mine
+    argv = ["calibrate", "measure-twin", "--profile", "prof/mine.toml", "--sim-truth", "out/truth.toml"]
+    assert main([*argv, "--n", "12", "--candidates", "60", "--out", "out/m.csv"]) == 0
+    for out in ("prof/cal.toml", "out/cal.toml"):
+        argv = ["calibrate", "geometry", "--profile", "prof/mine.toml", "--measurements", "out/m.csv"]
+        assert main([*argv, "--out", out]) == 0, capsys.readouterr().err
+        assert _tractor_of(out) == mine
+    capsys.readouterr()

@@ -57,6 +57,25 @@ def profile_file_with_final_approach(directory: Path, name: str = "with-approach
     return path
 
 
+def profiles_with_own_tractor(root: Path) -> Path:
+    """``root/prof/mine.toml``: the built-in thesis profile naming its tractor by the relative path
+    ``"my-tractor.toml"`` (a copy of the built-in tractor beside it), and an empty ``root/out`` folder, as an
+    implement engineer lays out a profile of their own; the profile's path."""
+    import planner.profiles
+
+    builtin = Path(planner.profiles.__file__).parent
+    (root / "prof").mkdir()
+    (root / "out").mkdir()
+    (root / "prof" / "my-tractor.toml").write_text((builtin / "tractors" / "tractor-6t.toml").read_text())
+    lines = [
+        'tractor_profile = "my-tractor.toml"' if ln.startswith("tractor_profile") else ln
+        for ln in (builtin / "thesis-t132.toml").read_text().splitlines()
+    ]
+    assert 'tractor_profile = "my-tractor.toml"' in lines
+    (root / "prof" / "mine.toml").write_text("\n".join(lines) + "\n")
+    return root / "prof" / "mine.toml"
+
+
 def check_facade_names(package: ModuleType) -> None:
     """Every public name of a lazy package facade is listed once and is its defining module's object."""
     sources = package._SOURCES

@@ -16,21 +16,13 @@ import pytest
 from bridge.cli.main import main
 from bridge.sim.truth import load_machine_truth
 from planner.profiles.hitch import load_profile
-
-PROFILES = Path(__file__).resolve().parents[3] / "planner" / "profiles"
+from tests.helpers import profiles_with_own_tractor
 
 
 @pytest.fixture
 def own_tractor(tmp_path, monkeypatch):
-    """prof/mine.toml (the thesis profile) naming prof/my-tractor.toml as "my-tractor.toml"; cwd = tmp_path."""
-    (tmp_path / "prof").mkdir()
-    (tmp_path / "out").mkdir()
-    (tmp_path / "prof" / "my-tractor.toml").write_text((PROFILES / "tractors" / "tractor-6t.toml").read_text())
-    text = (PROFILES / "thesis-t132.toml").read_text()
-    lines = [
-        'tractor_profile = "my-tractor.toml"' if ln.startswith("tractor_profile") else ln for ln in text.splitlines()
-    ]
-    (tmp_path / "prof" / "mine.toml").write_text("\n".join(lines) + "\n")
+    """prof/mine.toml naming prof/my-tractor.toml as "my-tractor.toml" (profiles_with_own_tractor); cwd = tmp."""
+    profiles_with_own_tractor(tmp_path)
     monkeypatch.chdir(tmp_path)
     return tmp_path
 

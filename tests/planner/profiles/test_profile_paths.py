@@ -16,22 +16,13 @@ import pytest
 
 from planner.profiles.hitch import ProfileError, load_profile, tractor_profile_for, write_profile_text
 from planner.profiles.loader import builtin_profiles
-
-PROFILES = Path(__file__).resolve().parents[3] / "planner" / "profiles"
+from tests.helpers import profiles_with_own_tractor
 
 
 @pytest.fixture
 def own_tractor(tmp_path, monkeypatch):
-    """tmp/prof/mine.toml (the thesis profile) naming tmp/prof/my-tractor.toml by a relative path; cwd = tmp."""
-    (tmp_path / "prof").mkdir()
-    (tmp_path / "out").mkdir()
-    (tmp_path / "prof" / "my-tractor.toml").write_text((PROFILES / "tractors" / "tractor-6t.toml").read_text())
-    text = (PROFILES / "thesis-t132.toml").read_text()
-    lines = [
-        'tractor_profile = "my-tractor.toml"' if ln.startswith("tractor_profile") else ln for ln in text.splitlines()
-    ]
-    assert any(ln == 'tractor_profile = "my-tractor.toml"' for ln in lines)
-    (tmp_path / "prof" / "mine.toml").write_text("\n".join(lines) + "\n")
+    """prof/mine.toml naming prof/my-tractor.toml as "my-tractor.toml" (profiles_with_own_tractor); cwd = tmp."""
+    profiles_with_own_tractor(tmp_path)
     monkeypatch.chdir(tmp_path)
     return tmp_path
 

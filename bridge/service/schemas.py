@@ -30,7 +30,7 @@ import typing
 from collections.abc import Mapping, Sequence
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, field_validator, model_validator
 from pydantic.fields import FieldInfo
 
 from bridge.service.maneuvers.language import MIN_SPEED_SCALE, NAME_PATTERN, POSE_BOUNDS
@@ -232,8 +232,11 @@ class TrackStop(_Strict):
     last setpoint the client sent; it is taken before the follower brakes (a put may arrive after this
     query), waited for at most the session's ttl."""
 
-    session: WholeNumber | None = Field(None, ge=1)
-    last_seq: WholeNumber | None = Field(None, ge=0, le=2**53)
+    session: int | None = Field(None, ge=1)
+    last_seq: int | None = Field(None, ge=0, le=2**53)
+
+    # (an optional WholeNumber would lose its range in the JSON schema docs/api.md is made from)
+    _whole_numbers = field_validator("session", "last_seq", mode="before")(_whole)
 
 
 class TrackVelocity(_Strict):

@@ -23,14 +23,22 @@ class HitchInputError(HitchError, ValueError):
 
 
 def unit_hint(value: float, lo: float, hi: float, unit: str) -> str:
-    """``; did you mean mm? …`` for a length [m] or ``; did you mean degrees? …`` for an angle [rad]
-    whose value, read in mm or degrees, lies in ``[lo, hi]``; ``""`` when neither fits (a suffix for
-    a :class:`HitchInputError` message about ``value`` outside ``[lo, hi]``)."""
-    if unit == "m" and abs(value) >= 1.0 and lo <= value / 1000.0 <= hi:
+    """``; did you mean mm? …`` for a length [m], ``; did you mean degrees? …`` and/or ``mrad? …`` for an
+    angle [rad], whose value read so lies in ``[lo, hi]``; ``""`` when none fits (a suffix for a
+    :class:`HitchInputError` message about ``value`` outside ``[lo, hi]``). Angles are offered in mrad too:
+    this product prints them so (a pose of ``plan-poses`` copied as radians read "did you mean degrees?")."""
+    if abs(value) < 1.0:
+        return ""
+    if unit == "m" and lo <= value / 1000.0 <= hi:
         return f"; did you mean mm? {value:.6g} mm = {value / 1000.0:.6g} m"
-    if unit == "rad" and abs(value) >= 1.0 and lo <= math.radians(value) <= hi:
-        return f"; did you mean degrees? {value:.6g} deg = {math.radians(value):.6g} rad"
-    return ""
+    if unit != "rad":
+        return ""
+    hints = []
+    if lo <= math.radians(value) <= hi:
+        hints.append(f"degrees? {value:.6g} deg = {math.radians(value):.6g} rad")
+    if lo <= value / 1000.0 <= hi:
+        hints.append(f"mrad? {value:.6g} mrad = {value / 1000.0:.6g} rad")
+    return "; did you mean " + "; or ".join(hints) if hints else ""
 
 
 def unit_hint_within(value: float, constraints: Iterable[object], unit: str) -> str:

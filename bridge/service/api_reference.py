@@ -148,7 +148,11 @@ def _describe(name: str, s: Mapping[str, Any], defs: Mapping[str, Any], depth: i
             )
             parts.append(f"list of {inner}{size}")
         elif t == "object" and "properties" in v and depth < 2:
-            fields = [_describe(k, p, defs, depth + 1, parent=name) for k, p in v["properties"].items()]
+            needed = set(v.get("required", ()))  # its own required fields (a full pose, not a partial goal)
+            fields = [
+                _describe(k, p, defs, depth + 1, parent=name) + (" (**required**)" if k in needed else "")
+                for k, p in v["properties"].items()
+            ]
             parts.append("{" + ", ".join(fields) + "}")
         elif t == "object":
             parts.append("object")

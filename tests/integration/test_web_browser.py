@@ -466,6 +466,9 @@ def test_the_hitch_picture_shows_the_model_live_in_operator_units(service, page,
     assert page.evaluate("window.hitchTerminal.inWords('refused: stroke:top:max active')").endswith(
         "— top link at its stroke end (longest)"
     )
+    # the service's unit hints are for SI callers (this page's fields take mm and the angle unit): not shown
+    hinted = "goal.roll = 3 rad is out; did you mean degrees? 3 deg = 0.0523599 rad; or mrad? 3 mrad = 0.003 rad"
+    assert "did you mean" not in page.evaluate(f"window.hitchTerminal.displayUnits({hinted!r})")
     # during a motion the target (the reference's points) is drawn dashed over the measured hitch
     z0 = st["pose"]["z"]
     assert service.api("goto", {"goal": {"z": -0.1 if z0 > 0.05 else 0.2, "x": 0.03}, "speed_scale": 0.3})[0] == 200

@@ -107,8 +107,9 @@
   function displayUnits(text) {
     if (typeof text !== "string") return text;
     const guard = String.raw`(?<![\w.])`;
-    // the service's "did you mean mm?" hint is for SI callers: this page's fields already take mm
-    let t = text.replace(/;?\s*did you mean mm\?[^;)]*/g, "");
+    // the service's "did you mean mm / degrees / mrad?" hints are for SI callers: this page's fields already
+    // take mm and the chosen angle unit
+    let t = text.replace(/;?\s*did you mean (?:mm|degrees|mrad)\?[^;)]*(?:;\s*or (?:degrees|mrad)\?[^;)]*)?/g, "");
     // [a, b] m · a … b m · from a to b m · >= a and <= b m
     t = t.replace(new RegExp(String.raw`\[\s*(${NUM})\s*,\s*(${NUM})\s*\]\s*${UNIT}`, "g"),
       (_, a, b, u, r) => `[${milli(a, u)}, ${milli(b, u)}] ${milliUnit(u, r)}`);

@@ -136,8 +136,10 @@ def test_plan_words_the_refusal_as_the_service_goto_does(capsys, model):
     [
         (630.0, 0.58, 0.73, "m", "; did you mean mm? 630 mm = 0.63 m"),
         (5.0, 0.5, 0.58, "m", ""),  # 0.005 m is off the range too
-        (3.0, -0.223, 0.663, "rad", "; did you mean degrees? 3 deg = 0.0523599 rad"),
-        (300.0, -0.223, 0.663, "rad", ""),  # 300 deg is no angle of the range either
+        (3.0, -0.223, 0.663, "rad", "; did you mean degrees? 3 deg = 0.0523599 rad; or mrad? 3 mrad = 0.003 rad"),
+        # 300 deg is no angle of the range; 300 mrad is (a pose plan-poses printed in mrad, copied as rad)
+        (300.0, -0.223, 0.663, "rad", "; did you mean mrad? 300 mrad = 0.3 rad"),
+        (1000.0, -0.223, 0.663, "rad", ""),  # neither
         (0.6, 0.58, 0.73, "m", ""),  # inside: nothing to hint
         (630.0, 0.58, 0.73, "N", ""),  # no hint for other units
     ],

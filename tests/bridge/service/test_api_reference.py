@@ -49,3 +49,11 @@ def test_writing_replaces_only_the_generated_part(tmp_path):
     with pytest.raises(ValueError, match="no generated part"):
         replace_generated("no markers", render_requests())
     assert main(["--write", str(tmp_path / "missing.md")]) == 2
+
+
+def test_a_nested_object_says_which_of_its_fields_are_required():
+    """``implements/define``'s headland is a full pose, rendered like goto's partial goal: a fleet integrator sent
+    ``{"z": 0.28}`` and got "field 'headland.x' is required". The table now says so; goto's goal stays partial."""
+    table = render_requests()
+    assert "`headland`: {`x`: number [-1, 1] m (**required**), `z`: number [-2, 2] m (**required**)" in table
+    assert "`goal`: {`x`: number [-1, 1] m, `z`" in table

@@ -35,6 +35,7 @@ import math
 import multiprocessing.connection
 import os
 import queue
+import signal
 import socket
 import subprocess
 import sys
@@ -239,6 +240,7 @@ class _Worker:
                 [sys.executable, "-m", "bridge.service.workers", str(fd), json.dumps(asdict(spec)), str(int(nice))],
                 pass_fds=(fd,),
                 stdin=subprocess.DEVNULL,
+                process_group=0,  # as the control core's: the service ends its workers, a Ctrl-C does not
             )
         finally:
             theirs.close()
@@ -428,9 +430,10 @@ def _main(argv: list[str]) -> int:
     conn = multiprocessing.connection.Connection(fd)
     try:
         _worker_main(conn, spec, nice)
-    except KeyboardInterrupt:  # Ctrl-C in the service's terminal reaches its whole process group
+    except KeyboardInterrupt:  # a SIGINT sent to the worker itself (its own process group: Ctrl-C is the service's)
         pass
     finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not interrupt the ending (as the core)
         conn.close()
     return 0
 
@@ -438,4 +441,9 @@ def _main(argv: list[str]) -> int:
 if __name__ == "__main__":  # run the module's canonical copy (its classes are the ones the service pickles)
     from bridge.service.workers import _main as _canonical_main
 
-    sys.exit(_canonical_main(sys.argv[1:]))
+    code = _canonical_main(sys.argv[1:])
+    # everything it owns is closed; the interpreter's finalisation would only report the planner's Ruckig
+    # objects as "nanobind: leaked" (a worker killed by the service never gets here; one that ends does)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)

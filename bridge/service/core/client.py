@@ -102,6 +102,10 @@ class CoreProcess:
                 ],
                 pass_fds=(fd,),
                 stdin=subprocess.DEVNULL,
+                # a process group of its own: a Ctrl-C in the service's terminal (twice, from an impatient
+                # operator) reaches the service, which closes the core; interrupting the core itself while it
+                # closed its Zenoh session ended it with a traceback and 45 lines of "nanobind: leaked"
+                process_group=0,
             )
         finally:
             theirs.close()

@@ -35,6 +35,7 @@ import json
 import multiprocessing.connection
 import os
 import queue
+import signal
 import sys
 import threading
 import time
@@ -523,9 +524,13 @@ def main(argv: list[str]) -> int:
             return 1
         conn.send((0, "ok", ready))
         core.serve()
-    except KeyboardInterrupt:  # Ctrl-C in the service's terminal reaches its whole process group
-        pass
+    except KeyboardInterrupt:  # a SIGINT sent to the core itself (a terminal's Ctrl-C reaches only the service:
+        pass  # the core runs in a process group of its own, CoreProcess.start)
     finally:
+        # closing (a Zenoh client's session takes tens of ms to close): a second Ctrl-C, or the service's own
+        # stop, must not cut it short — it did, and the interpreter's finalisation then reported every Ruckig
+        # object of the daemon threads as "nanobind: leaked" (45 lines on a fleet operator's terminal)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
         if core is not None:
             core.close()
         conn.close()

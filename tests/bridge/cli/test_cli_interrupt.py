@@ -237,3 +237,36 @@ def test_hitch_router_carries_a_fleet(tmp_path):
                 router.kill()
                 router.wait(5)
     assert router.returncode == 0
+
+
+def test_a_double_ctrl_c_on_a_service_behind_a_router_ends_it_quietly(tmp_path):
+    """Ctrl-C twice in the terminal of ``hitch serve --mode client`` (behind a router): the second SIGINT reached
+    the control core while it closed its Zenoh session; the interrupt escaped, and the interpreter's
+    finalisation printed ~45 lines of "nanobind: leaked … ruckig.Trajectory" (a fleet integrator's report)."""
+    rep = f"tcp/127.0.0.1:{free_port()}"
+    router = subprocess.Popen([sys.executable, "-m", "bridge.cli", "router", "--listen", rep], cwd=ROOT)
+    serve = None
+    try:
+        serve = subprocess.Popen(
+            [sys.executable, "-m", "bridge.cli", "serve", "--mode", "client", "--connect", rep]
+            + ["--prefix", "fleet/t09/hitch", "--data-dir", str(tmp_path)],
+            cwd=ROOT,
+            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            start_new_session=True,  # its own process group, as a terminal's job: Ctrl-C reaches service and core
+        )
+        assert serve.stdout is not None
+        line = serve.stdout.readline()
+        assert "ready on" in line, line
+        os.killpg(serve.pid, signal.SIGINT)
+        os.killpg(serve.pid, signal.SIGINT)  # at once again, as an impatient operator (or `timeout`) sends it
+        out, _ = serve.communicate(timeout=30)
+        assert serve.returncode == 0 and "stopped in" in out, out
+        assert "nanobind" not in out and "Traceback" not in out, out
+    finally:
+        for p in (serve, router):
+            if p is not None and p.poll() is None:
+                p.kill()
+                p.wait(10)

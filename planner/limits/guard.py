@@ -43,7 +43,7 @@ from planner.limits.tractor import ImplementRecord, StabilityInputError, Tractor
 from planner.model.kinematics import POINT_NAMES, HitchModel
 from planner.model.limit_names import LimitName
 from planner.model.types import ACTUATOR_NAMES
-from planner.trajectory.plan import MotionState, Plan, PlanError, Setpoints, forward_batch
+from planner.trajectory.plan import MotionState, Plan, PlanError, Setpoints, forward_batch, verify_setpoints
 from planner.trajectory.planner import TrajectoryPlanner
 
 __all__ = ["Guard", "GuardDecision", "GuardReason", "GuardRefusal", "GuardedPlan"]
@@ -134,6 +134,10 @@ class Guard:
         thresholds: StabilityThresholds | None = None,
         implement_limits: ImplementLimits | None = None,
     ):
+        if not isinstance(planner, TrajectoryPlanner):  # Guard(model) failed later as "has no attribute 'model'"
+            raise StabilityInputError(
+                f"planner must be a TrajectoryPlanner (Guard(TrajectoryPlanner(model))), got {type(planner).__name__}"
+            )
         self.planner = planner
         #: the implement's upper height, lowering speed and transport lock (:mod:`.implement_limits`)
         self.implement_limits = implement_limits if implement_limits is not None else ImplementLimits()
@@ -230,7 +234,20 @@ class Guard:
         :meth:`stability_at` and :meth:`keep_out_clearance`: the samples reported (reasons,
         worst), the suspect ones and those whose batch value lies within the batch's agreement
         bound of a threshold are evaluated that way.
+
+        Samples made elsewhere (not by this guard's planner, which verifies its own) are first checked
+        against every hard limit, speed and acceleration (:func:`verify_setpoints`): one beyond is refused,
+        naming the limit — a tilt of 0.9 m against a 0.73 m stroke was "ok" here, the planner having been
+        trusted to have checked it.
         """
+        if not isinstance(sp, Setpoints):
+            raise StabilityInputError(
+                f"setpoints must be a Setpoints (a planned move's .setpoints; a stop has none), got {type(sp).__name__}"
+            )
+        bad = verify_setpoints(sp, self.model, self.planner.hard, self.planner.limits)
+        if bad:
+            reasons = tuple(_dedupe(GuardReason(v.limit, v.value, v.bound, v.t, "hard", v.unit) for v in bad))
+            return GuardDecision("refused", 0.0, reasons)
         dec, worst = self._check_setpoints(sp, {})
         return replace(dec, worst=worst())
 

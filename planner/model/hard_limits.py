@@ -77,16 +77,17 @@ class HardLimits:
         )
 
     def violations(self, q: np.ndarray, features: np.ndarray, tol: float = 1e-9) -> tuple[str, ...]:
-        """Names of the hard limits that ``q`` (actuators) and its ``features`` exceed by more than ``tol``."""
+        """Names of the hard limits that ``q`` (actuators) and its ``features`` exceed by more than ``tol``.
+        A NaN lies within no limit: it is reported as below its lower one (it passed every check before)."""
         out = []
         for i, (name_min, name_max) in enumerate(STROKE_NAMES):
-            if q[i] < self.actuator_lower[i] - tol:
+            if not q[i] >= self.actuator_lower[i] - tol:
                 out.append(name_min)
             elif q[i] > self.actuator_upper[i] + tol:
                 out.append(name_max)
         f = features[list(self.feature_index)]
         for k in range(len(f)):
-            if f[k] < self.feature_lower[k] - tol:
+            if not f[k] >= self.feature_lower[k] - tol:
                 out.append(self.names_lower[k])
             elif f[k] > self.feature_upper[k] + tol:
                 out.append(self.names_upper[k])

@@ -72,7 +72,27 @@ class MotionState:
 
     @classmethod
     def at_rest(cls, position: ArrayLike) -> MotionState:
-        return cls(np.asarray(position, float).copy())
+        """At rest at ``position`` (x [m], z [m], roll [rad], pitch [rad]); :class:`TrajectoryInputError`
+        for anything but 4 finite numbers (a 6-value pose or a NaN was taken, and failed deep in planning)."""
+        try:
+            p = np.array(position, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            raise TrajectoryInputError(
+                f"position must be 4 numbers (x, z, roll, pitch), got {type(position).__name__}"
+            ) from None
+        if p.shape != (4,) or not np.all(np.isfinite(p)):
+            raise TrajectoryInputError(f"position must be 4 finite numbers (x, z, roll, pitch), got {p.tolist()}")
+        return cls(p)
+
+    def check(self, what: str = "state") -> MotionState:
+        """This state if position, velocity and acceleration are each 4 finite numbers, else
+        :class:`TrajectoryInputError` naming the first that is not (a NaN velocity reached Ruckig)."""
+        for name in ("position", "velocity", "acceleration"):
+            a = getattr(self, name)
+            if not isinstance(a, np.ndarray) or a.shape != (4,) or not np.all(np.isfinite(a)):
+                shown = a.tolist() if isinstance(a, np.ndarray) else repr(a)
+                raise TrajectoryInputError(f"{what}.{name} must be 4 finite numbers (x, z, roll, pitch), got {shown}")
+        return self
 
     @property
     def moving(self) -> bool:
@@ -93,8 +113,11 @@ class Plan:
     info: dict[str, Any] = field(default_factory=dict)
 
     def state_at(self, t: float) -> MotionState:
-        """Pose-space state at time t (clamped to [0, duration])."""
-        t = min(max(t, 0.0), self.duration)
+        """Pose-space state at time t [s] (clamped to [0, duration]); :class:`TrajectoryInputError` for a NaN or
+        a non-number (a NaN went on to Ruckig's ``at_time``, which crashed the interpreter)."""
+        if t != t or isinstance(t, bool) or not isinstance(t, (int, float, np.integer, np.floating)):
+            raise TrajectoryInputError(f"t must be a number of seconds, got {t!r}")
+        t = min(max(float(t), 0.0), self.duration)
         for seg in self.segments:
             if t <= seg.duration or seg is self.segments[-1]:
                 p, v, a = seg.at_time(min(t, seg.duration))
@@ -151,6 +174,8 @@ def plan_states(plan: Plan, ts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     (p + t (v + t (a/2 + t j/6)), same operations, so the same values); times at or past a
     profile's end go through ``at_time``.
     """
+    if np.isnan(ts).any():  # Ruckig's at_time crashes on NaN
+        raise TrajectoryInputError("times must be numbers of seconds, got NaN")
     tt = np.minimum(np.maximum(ts, 0.0), plan.duration)  # as state_at clamps
     if len(plan.segments) == 1:
         states = _profile_states(plan.segments[0], tt)
@@ -276,12 +301,22 @@ def forward_batch(model: HitchModel) -> ForwardBatch:
 @dataclass(frozen=True)
 class Violation:
     """A limit a sample exceeds: its name (``str`` of a :class:`~planner.model.limit_names.LimitName`),
-    the sample time [s], the value and the bound (NaN for the hard limits, whose values differ in unit)."""
+    the sample time [s], the value and the bound, in the limit's own unit (:attr:`unit`)."""
 
     limit: str
     t: float
     value: float
     bound: float
+
+    @property
+    def unit(self) -> str:
+        """SI unit of ``value`` and ``bound``: the lift and the top-link angles in rad, the other strokes and
+        the ground clearance in m; rates per s, s²."""
+        angle = self.limit.startswith(("stroke:lift", "top_link", "velocity:lift", "acceleration:lift"))
+        base = "rad" if angle else "m"
+        if self.limit.startswith("velocity:"):
+            return base + "/s"
+        return base + "/s²" if self.limit.startswith("acceleration:") else base
 
 
 def verify_setpoints(
@@ -326,17 +361,20 @@ def verify_setpoints(
     hard_any = q_lo.any(axis=1) | q_hi.any(axis=1) | f_lo.any(axis=1) | f_hi.any(axis=1)
     for k in np.flatnonzero(hard_any | over.any(axis=1)).tolist():  # per sample: hard limits, then velocity
         t = float(sp.t[k])
-        names = [
-            STROKE_NAMES[i][0] if q_lo[k, i] else STROKE_NAMES[i][1]
+        out += [
+            Violation(STROKE_NAMES[i][0], t, float(Q[k, i]), float(hard.actuator_lower[i]))
+            if q_lo[k, i]
+            else Violation(STROKE_NAMES[i][1], t, float(Q[k, i]), float(hard.actuator_upper[i]))
             for i in range(Q.shape[1])
             if q_lo[k, i] or q_hi[k, i]
         ]
-        names += [
-            hard.names_lower[i] if f_lo[k, i] else hard.names_upper[i]
+        out += [
+            Violation(hard.names_lower[i], t, float(Fl[k, i]), float(hard.feature_lower[i]))
+            if f_lo[k, i]
+            else Violation(hard.names_upper[i], t, float(Fl[k, i]), float(hard.feature_upper[i]))
             for i in range(Fl.shape[1])
             if f_lo[k, i] or f_hi[k, i]
         ]
-        out += [Violation(name, t, float("nan"), float("nan")) for name in names]
         for i in np.flatnonzero(over[k]).tolist():
             out.append(Violation(_VELOCITY_NAMES[i], t, float(sp.actuator_velocity[k, i]), float(limits.velocity[i])))
     if check_acceleration and len(sp.t) >= 3:

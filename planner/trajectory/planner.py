@@ -100,7 +100,11 @@ class TrajectoryPlanner:
                 f"`hitch profile fit-workspace --profile PROFILE --category {model.category}` and put it under "
                 f"[workspace.restricted.{model.category}]; docs/profiles.md)"
             )
-        self.workspace = {k: (float(ws[k][0]), float(ws[k][1])) for k in CONTROLLED_POSE_NAMES}
+        self.workspace = (
+            _workspace_box(ws)
+            if workspace is not None
+            else {k: (float(ws[k][0]), float(ws[k][1])) for k in CONTROLLED_POSE_NAMES}
+        )
         self.lo = np.array([self.workspace[k][0] for k in CONTROLLED_POSE_NAMES])
         self.hi = np.array([self.workspace[k][1] for k in CONTROLLED_POSE_NAMES])
         corners = [
@@ -192,6 +196,7 @@ class TrajectoryPlanner:
         ``motion.final_approach`` through a via pose below the goal (:mod:`.final_approach`;
         ``plan.info["final_approach"]`` gives the via and the DOF whose approach the workspace shortens)."""
         scale = _check_scale(speed_scale)
+        start.check("start")
         p1 = self.goal_vector(start.position, goal)
         self.check_in_workspace(p1)
         if self.final_approach is None:
@@ -209,6 +214,7 @@ class TrajectoryPlanner:
         self, start: MotionState, waypoints: Sequence[Waypoint], *, blend: bool = False, blend_fraction: float = 0.5
     ) -> Plan:
         """Through waypoints, stopping at each (``blend=False``) or passing with non-zero velocity."""
+        start.check("start")
         if not waypoints:
             raise TrajectoryInputError("waypoints: at least one waypoint is needed")
         pts, prev = [], start.position
@@ -239,6 +245,7 @@ class TrajectoryPlanner:
         the workspace (or, outside it, goes no further out); otherwise with the actuators' real
         limits along the current motion (:meth:`braking_limits`), e.g. from a goto at full speed.
         """
+        state.check("state")
         lim = self.any_direction.floored(self._abs_floor(state))
         if state.moving and (np.any(beyond(state, self.any_direction)) or self.stop_leaves_workspace(state, lim)):
             lim = self.braking_limits(state)
@@ -504,6 +511,26 @@ class TrajectoryPlanner:
                         f"the trajectory would leave the workspace: {k} reaches {pose[j, i]:.4f} at "
                         f"t = {sp.t[j]:.2f} s ({name} = {face:.4f}{_start_note(bound, face)})"
                     )
+
+
+def _workspace_box(ws: object) -> dict[str, tuple[float, float]]:
+    """The ``workspace`` argument checked: (lo, hi) of each of x, z [m], roll, pitch [rad], finite and lo < hi;
+    :class:`TrajectoryInputError` naming the argument (a partial one raised KeyError 'z', an inverted one was
+    taken and refused later as a goal "below the workspace" in a DOF the goal did not name)."""
+    if not isinstance(ws, Mapping) or set(ws) != set(CONTROLLED_POSE_NAMES):
+        keys = sorted(ws) if isinstance(ws, Mapping) else type(ws).__name__
+        raise TrajectoryInputError(f"workspace must map each of x, z, roll, pitch to (lo, hi), got {keys}")
+    out = {}
+    for k in CONTROLLED_POSE_NAMES:
+        unit = "m" if k in ("x", "z") else "rad"
+        try:
+            lo, hi = (float(v) for v in ws[k])
+        except (TypeError, ValueError):
+            raise TrajectoryInputError(f"workspace.{k} must be two numbers (lo, hi) [{unit}], got {ws[k]!r}") from None
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+            raise TrajectoryInputError(f"workspace.{k} must be finite with lo < hi [{unit}], got ({lo:g}, {hi:g})")
+        out[k] = (lo, hi)
+    return out
 
 
 class _LeavesWorkspace(PlanError):

@@ -1,0 +1,109 @@
+"""Bad input at the library's own entries gets a HitchError naming the argument, never a crash, NaN or "ok".
+
+A library user's report (README and examples, then their own program): ``Plan.state_at(nan)`` crashed the
+interpreter (Ruckig's ``at_time`` with NaN), ``HardLimits.violations`` found nothing wrong with NaN,
+``Guard.check_setpoints`` called a tilt of 0.9 m against a 0.73 m stroke "ok" (the README says it checks the
+strokes), a NaN or 6-value ``MotionState`` went on to Ruckig or numpy, and ``TrajectoryPlanner(workspace=…)``
+and ``Guard(model)`` failed with KeyError / AttributeError.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from planner import Guard, HardLimits, HitchModel, MotionState, TrajectoryPlanner
+from planner.errors import HitchError
+from planner.limits.tractor import StabilityInputError
+from planner.trajectory.plan import TrajectoryInputError
+
+
+@pytest.fixture(scope="module")
+def parts():
+    m = HitchModel.from_profile()
+    tp = TrajectoryPlanner(m)
+    return m, tp, Guard(tp), MotionState.at_rest(m.neutral_pose.controlled())
+
+
+def test_a_plan_at_a_nan_time_is_refused_not_a_crash(parts):
+    m, tp, _, s0 = parts
+    plan = tp.plan_move(s0, {"x": 0.03, "z": 0.25})
+    with pytest.raises(TrajectoryInputError, match="t must be a number of seconds, got nan"):
+        plan.state_at(float("nan"))
+    assert plan.state_at(float("inf")).position == pytest.approx(plan.state_at(plan.duration).position)
+    # the crash itself, in a process of its own: it ended the interpreter (exit code 139)
+    code = (
+        "from planner import *; m = HitchModel.from_profile(); tp = TrajectoryPlanner(m)\n"
+        "p = tp.plan_move(MotionState.at_rest(m.neutral_pose.controlled()), {'z': 0.25})\n"
+        "try:\n    p.state_at(float('nan'))\nexcept Exception as e:\n    print(type(e).__name__)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.strip() == "TrajectoryInputError", (out.returncode, out.stderr[-300:])
+
+
+def test_a_nan_lies_within_no_hard_limit(parts):
+    m = parts[0]
+    found = HardLimits.from_model(m).violations(np.full(5, np.nan), np.full(11, np.nan))
+    assert "stroke:lift:min" in found and "stroke:right:min" in found and len(found) >= 5
+
+
+def test_check_setpoints_checks_the_strokes_it_is_given(parts):
+    _, tp, g, s0 = parts
+    sp = tp.plan_move(s0, {"x": 0.03, "z": 0.25}).setpoints
+    assert g.check_setpoints(sp).action == "ok"
+    q = sp.actuators.copy()
+    q[-1, 1] = 0.9  # tilt, stroke 0.58…0.73 m
+    dec = g.check_setpoints(dataclasses.replace(sp, actuators=q))
+    assert dec.action == "refused"
+    first = dec.reasons[0]
+    assert (first.measure, first.value, first.threshold, first.unit) == ("stroke:tilt:max", 0.9, 0.73, "m")
+    assert "stroke:tilt:max would be 0.9 m (threshold 0.73 m)" in first.sentence()
+    with pytest.raises(StabilityInputError, match="setpoints must be a Setpoints"):
+        g.check_setpoints(None)  # a stop's plan has none
+
+
+@pytest.mark.parametrize(
+    "state, words",
+    [
+        (lambda m: MotionState.at_rest([np.nan, 0.1, 0.0, 0.0]), "position must be 4 finite numbers"),
+        (lambda m: MotionState.at_rest(m.neutral_pose.as_array()), "position must be 4 finite numbers"),
+        (lambda m: MotionState.at_rest(m.neutral_pose), "position must be 4 numbers"),
+    ],
+)
+def test_a_motion_state_is_four_finite_numbers(parts, state, words):
+    with pytest.raises(TrajectoryInputError, match=words):
+        state(parts[0])
+
+
+def test_a_plan_from_a_state_with_nan_is_refused_naming_it(parts):
+    _, tp, _, _ = parts
+    bad = MotionState(np.array([0.0, 0.15, 0.0, 0.0]), np.array([np.nan, 0.1, 0.0, 0.0]), np.zeros(4))
+    with pytest.raises(TrajectoryInputError, match=r"start\.velocity must be 4 finite numbers"):
+        tp.plan_move(bad, {"z": 0.2})
+    with pytest.raises(TrajectoryInputError, match=r"state\.velocity must be 4 finite numbers"):
+        tp.plan_stop(bad)
+
+
+@pytest.mark.parametrize(
+    "change, words",
+    [
+        (lambda ws: {"x": ws["x"]}, "workspace must map each of x, z, roll, pitch"),
+        (lambda ws: {**ws, "x": (0.1, -0.1)}, r"workspace\.x must be finite with lo < hi \[m\]"),
+        (lambda ws: {**ws, "roll": (float("nan"), 0.1)}, r"workspace\.roll must be finite with lo < hi \[rad\]"),
+        (lambda ws: {**ws, "z": "low"}, r"workspace\.z must be two numbers"),
+    ],
+)
+def test_a_workspace_argument_is_checked_naming_it(parts, change, words):
+    m = parts[0]
+    with pytest.raises(TrajectoryInputError, match=words):
+        TrajectoryPlanner(m, workspace=change(dict(m.workspace)))
+
+
+def test_a_guard_needs_a_planner(parts):
+    with pytest.raises(StabilityInputError, match=r"\(Guard\(TrajectoryPlanner\(model\)\)\), got HitchModel") as e:
+        Guard(parts[0])
+    assert isinstance(e.value, HitchError)

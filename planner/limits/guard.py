@@ -158,7 +158,9 @@ class Guard:
 
     # ------------------------------------------------------------------ configuration
     def set_slope(self, roll: float, pitch: float) -> None:
-        """Tractor attitude from its IMU [rad] (stability module convention)."""
+        """Tractor attitude from its IMU [rad] (:mod:`planner.limits.stability`): ``roll`` > 0 = the tractor's
+        left side up, ``pitch`` > 0 = nose up. (The implement's pose ``roll`` > 0 is its right side higher:
+        the opposite sign, another frame.)"""
         for n, v in (("slope_roll", roll), ("slope_pitch", pitch)):
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or abs(v) >= math.pi / 2:
                 raise StabilityInputError(f"{n} must be a finite angle within ±π/2 rad, got {v!r}")

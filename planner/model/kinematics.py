@@ -231,7 +231,10 @@ class HitchModel:
         return f[:, 0].copy(), jac.copy()
 
     def forward(self, actuators: Actuators | np.ndarray) -> HitchState:
-        """Exact forward kinematics: pose of T and the implement, and every named point."""
+        """Exact forward kinematics: pose of T and the implement, and every named point, for any actuators the
+        mechanism closes with — strokes and other hard limits are not checked here (``HardLimits.violations``,
+        :func:`~planner.trajectory.plan.verify_setpoints`, ``hitch fk`` check them); KinematicsError when it
+        cannot close."""
         q = self._as_vector(actuators)
         f, pts, angles, checks = self._points(q)
         self._check(checks[:, 0], f[:, 0], q)

@@ -35,6 +35,7 @@ from pydantic.fields import FieldInfo
 
 from bridge.service.maneuvers.language import MIN_SPEED_SCALE, NAME_PATTERN, POSE_BOUNDS
 from planner.errors import HitchInputError, unit_hint, unit_hint_within
+from planner.model.limit_names import beyond_words
 from planner.model.types import CONTROLLED_POSE_NAMES, CONTROLLED_POSE_UNITS
 
 __all__ = [
@@ -653,7 +654,7 @@ def check_pose_in_workspace(
         if lo - 1e-9 <= v <= hi + 1e-9:
             continue
         unit = CONTROLLED_POSE_UNITS[k]
-        side = "below" if v < lo else "above"
+        side = beyond_words(k, high=v > hi)
         limit = f"workspace:{k}:{'min' if v < lo else 'max'}"
         name = f"{what}.{k}" if what else k
         text = f"{name} = {v:.6g} {unit} is {side} the workspace ({k} from {lo:.4g} to {hi:.4g} {unit}, {limit})"

@@ -25,7 +25,7 @@ from typing import Literal
 
 from planner.errors import HitchInputError
 
-__all__ = ["FEATURE_KINDS", "SIDELESS_KINDS", "LimitName", "LimitNameError", "Side"]
+__all__ = ["FEATURE_KINDS", "SIDELESS_KINDS", "LimitName", "LimitNameError", "Side", "beyond_words"]
 
 Side = Literal["", "min", "max"]
 _SIDES: tuple[str, ...] = ("min", "max")
@@ -114,3 +114,12 @@ class LimitName:
                     return cls(kind, side="min" if rest == "min" else "max", flat=True)
                 return cls(kind, rest, flat=True)
         return cls(text)
+
+
+def beyond_words(dof: str, high: bool) -> str:
+    """How a value of pose DOF ``dof`` beyond its workspace range is said: x lies **left of** (``high``: +x is
+    the driver's left) or **right of** the workspace — "goal.x = 0.1 m is above the workspace" read as a
+    height — and z, roll, pitch lie **above** or **below** it."""
+    if dof == "x":
+        return "left of" if high else "right of"
+    return "above" if high else "below"

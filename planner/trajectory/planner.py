@@ -32,6 +32,7 @@ from planner.errors import first_line, unit_hint
 from planner.model.exact_inverse import ExactInverse
 from planner.model.hard_limits import WORKSPACE_NAMES, HardLimits
 from planner.model.kinematics import HitchModel
+from planner.model.limit_names import beyond_words
 from planner.model.types import CONTROLLED_POSE_NAMES, KinematicsError
 from planner.trajectory.actuator_limits import ActuatorLimits
 from planner.trajectory.braking import StopProbe, beyond, braking_limits, current_floor
@@ -174,13 +175,13 @@ class TrajectoryPlanner:
             hint = unit_hint(float(p[i]), float(self.lo[i]), float(self.hi[i]), unit)  # "; did you mean mm? …"
             if p[i] < self.lo[i] - 1e-9:
                 raise PlanError(
-                    f"{what}.{k} = {p[i]:.4f} {unit} is below the workspace ({name_min} = {self.lo[i]:.4f} {unit})"
-                    + hint
+                    f"{what}.{k} = {p[i]:.4f} {unit} is {beyond_words(k, False)} the workspace "
+                    f"({name_min} = {self.lo[i]:.4f} {unit})" + hint
                 )
             if p[i] > self.hi[i] + 1e-9:
                 raise PlanError(
-                    f"{what}.{k} = {p[i]:.4f} {unit} is above the workspace ({name_max} = {self.hi[i]:.4f} {unit})"
-                    + hint
+                    f"{what}.{k} = {p[i]:.4f} {unit} is {beyond_words(k, True)} the workspace "
+                    f"({name_max} = {self.hi[i]:.4f} {unit})" + hint
                 )
 
     def state_from_actuators(self, q: ArrayLike, q_velocity: ArrayLike | None = None) -> MotionState:

@@ -79,7 +79,7 @@ def test_stability_refuses_a_pose_off_the_workspace_with_the_range_and_the_mm_hi
 def test_stability_reports_every_dof_off_the_workspace(capsys):
     assert main(["stability", "--pose", "x=-50,z=0.1,roll=3"]) == 2
     line = _err_line(capsys)
-    assert "pose.x = -50 m is below the workspace" in line and "-50 mm = -0.05 m" in line
+    assert "pose.x = -50 m is right of the workspace" in line and "-50 mm = -0.05 m" in line
     assert "pose.roll = 3 rad is above the workspace" in line and "did you mean degrees?" in line
     assert "pose.z" not in line
 
@@ -108,7 +108,7 @@ def test_plan_reports_every_goal_dof_off_the_workspace_with_the_mm_hint(capsys):
     assert main(["plan", "--to", "x=50,z=300"]) == 2
     line = _err_line(capsys)
     assert "--to" in line
-    assert "goal.x = 50 m is above the workspace (x from -0.06 to 0.06 m, workspace:x:max)" in line
+    assert "goal.x = 50 m is left of the workspace (x from -0.06 to 0.06 m, workspace:x:max)" in line
     assert "did you mean mm? 50 mm = 0.05 m" in line
     assert "goal.z = 300 m is above the workspace (z from -0.2163 to 0.3117 m, workspace:z:max)" in line
     assert "did you mean mm? 300 mm = 0.3 m" in line

@@ -138,7 +138,7 @@ def test_a_goal_outside_the_workspace_names_the_workspace_range_of_every_dof():
     e = _refusal("goto", json.dumps({"goal": {"x": 30, "z": 250, "roll": 0.2, "pitch": 3}}), workspace=WS)
     msg = str(e)
     assert e.code == "unreachable" and msg.startswith("goto: outside the workspace")
-    x_text = "goal.x = 30 m is above the workspace (x from -0.06 to 0.06 m, workspace:x:max)"
+    x_text = "goal.x = 30 m is left of the workspace (x from -0.06 to 0.06 m, workspace:x:max)"
     assert x_text + "; did you mean mm? 30 mm = 0.03 m" in msg
     assert (
         "goal.z = 250 m is above the workspace (z from -0.2163 to 0.3117 m, workspace:z:max); did you mean mm?" in msg

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from planner.model.kinematics import HitchModel
-from planner.trajectory import PlanError, TrajectoryPlanner
+from planner.trajectory import MotionState, PlanError, TrajectoryPlanner
 
 
 @pytest.fixture(scope="module")
@@ -35,3 +35,18 @@ def test_an_angle_in_degrees_gets_the_hint_and_a_plain_miss_none(tp):
     with pytest.raises(PlanError) as exc:
         tp.check_in_workspace(np.array([0.0, tp.hi[1] + 0.05, 0.0, 0.0]))  # 5 cm too high: no unit mix-up
     assert "did you mean" not in str(exc.value) and math.isfinite(tp.hi[1])
+
+
+def test_a_lateral_goal_beyond_the_workspace_is_left_or_right_of_it(model):
+    """x is lateral (+x the driver's left): "goal.x = 0.1 m is above the workspace" read as a height (a new user's
+    and a library user's report); z, roll and pitch stay above / below."""
+    tp = TrajectoryPlanner(model)
+    start = MotionState.at_rest(model.neutral_pose.controlled())
+    for goal, words in (
+        ({"x": 0.1}, "goal.x = 0.1000 m is left of the workspace (workspace:x:max"),
+        ({"x": -0.1}, "goal.x = -0.1000 m is right of the workspace (workspace:x:min"),
+        ({"z": 0.5}, "goal.z = 0.5000 m is above the workspace (workspace:z:max"),
+    ):
+        with pytest.raises(PlanError) as e:
+            tp.plan_move(start, goal)
+        assert words in str(e.value), str(e.value)

@@ -72,13 +72,15 @@ def check_target(target: Target | Mapping[str, float] | Iterable[float]) -> tupl
     """(x, z, roll, pitch) from a :class:`Target`, a mapping or a 4-sequence; ValueError naming the field."""
     if isinstance(target, Target):
         return target.x, target.z, target.roll, target.pitch
+    if isinstance(target, (str, bytes)):  # iterable, but of characters: "abc" read as "got 3 values"
+        raise IKInputError(f"target must be a Target, a mapping or 4 numbers, got text {target!r}")
     if isinstance(target, dict):
         missing = [n for n in _TARGET_FIELDS if n not in target]
-        if missing:
-            raise IKInputError(f"target: missing field(s) {', '.join(missing)}")
         unknown = sorted(str(k) for k in target if k not in _TARGET_FIELDS)  # a yaw was silently ignored
-        if unknown:
-            raise IKInputError(f"target: unknown field(s) {', '.join(unknown)}; allowed: {', '.join(_TARGET_FIELDS)}")
+        if missing or unknown:  # both named: "ptch" for "pitch" said only "missing field(s) pitch"
+            said = [f"missing field(s) {', '.join(missing)}"] if missing else []
+            said += [f"unknown field(s) {', '.join(unknown)}"] if unknown else []
+            raise IKInputError(f"target: {'; '.join(said)}; allowed: {', '.join(_TARGET_FIELDS)}")
         v = [_finite(n, target[n]) for n in _TARGET_FIELDS]
         return v[0], v[1], v[2], v[3]
     try:

@@ -25,7 +25,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike
 
-from planner.errors import HitchError
+from planner.errors import HitchError, unit_hint
 from planner.limits.end_stop import EndStopZone
 from planner.limits.implement_limits import (
     LOWERING_SPEED_LIMIT,
@@ -161,9 +161,12 @@ class Guard:
         """Tractor attitude from its IMU [rad] (:mod:`planner.limits.stability`): ``roll`` > 0 = the tractor's
         left side up, ``pitch`` > 0 = nose up. (The implement's pose ``roll`` > 0 is its right side higher:
         the opposite sign, another frame.)"""
-        for n, v in (("slope_roll", roll), ("slope_pitch", pitch)):
+        for n, v in (("roll", roll), ("pitch", pitch)):
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or abs(v) >= math.pi / 2:
-                raise StabilityInputError(f"{n} must be a finite angle within ±π/2 rad, got {v!r}")
+                hint = unit_hint(float(v), -math.pi / 2, math.pi / 2, "rad") if isinstance(v, (int, float)) else ""
+                raise StabilityInputError(
+                    f"set_slope: {n} (the tractor's slope) must be a finite angle within ±π/2 rad, got {v!r}{hint}"
+                )
         self.slope = (float(roll), float(pitch))
 
     def set_implement(self, implement: ImplementRecord | None) -> None:

@@ -75,8 +75,11 @@ class Actuators:
     @classmethod
     def from_mapping(cls, values: Mapping[str, float]) -> Actuators:
         missing = [n for n in ACTUATOR_NAMES if n not in values]
-        if missing:
-            raise ModelInputError(f"actuators: missing field(s) {', '.join(missing)}")
+        unknown = sorted(str(k) for k in values if k not in ACTUATOR_NAMES)
+        if missing or unknown:  # a misspelt "rigth" was not named, only the "right" it left missing
+            said = [f"missing field(s) {', '.join(missing)}"] if missing else []
+            said += [f"unknown field(s) {', '.join(unknown)}"] if unknown else []
+            raise ModelInputError(f"actuators: {'; '.join(said)}; allowed: {', '.join(ACTUATOR_NAMES)}")
         return cls(*(float(values[n]) for n in ACTUATOR_NAMES))
 
     def as_dict(self) -> dict[str, float]:

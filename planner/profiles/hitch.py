@@ -296,8 +296,10 @@ class Profile(_Strict):
         try:
             return self.implement.categories[name]
         except KeyError:
+            text = "" if isinstance(name, str) else f" (a category is text: {str(name)!r}, not {type(name).__name__})"
             raise ProfileError(
                 f"category {name!r} is not in profile {self.name!r}; allowed: {', '.join(self.implement.categories)}"
+                + text
             ) from None
 
     def span(self, category: str) -> float:

@@ -107,3 +107,24 @@ def test_a_guard_needs_a_planner(parts):
     with pytest.raises(StabilityInputError, match=r"\(Guard\(TrajectoryPlanner\(model\)\)\), got HitchModel") as e:
         Guard(parts[0])
     assert isinstance(e.value, HitchError)
+
+
+def test_misspelt_fields_wrong_types_and_units_are_named(parts):
+    """Only what was missing was named ("missing field(s) right" for a "rigth"), text was read as 3 values,
+    ``category=2`` was "not in profile; allowed: …, 2, …", and ``set_slope(20, 0)`` named "slope_roll"."""
+    from planner import Actuators
+    from planner.ik_qp.result import check_target
+    from planner.model.types import ModelInputError
+    from planner.profiles.hitch import ProfileError
+
+    m, _, g, _ = parts
+    with pytest.raises(ModelInputError, match=r"missing field\(s\) right; unknown field\(s\) rigth"):
+        Actuators.from_mapping({"lift": 0.2, "tilt": 0.63, "top": 0.74, "left": 0.54, "rigth": 0.54})
+    with pytest.raises(HitchError, match=r"missing field\(s\) pitch; unknown field\(s\) ptch"):
+        check_target({"x": 0.0, "z": 0.1, "roll": 0.0, "ptch": 0.0})
+    with pytest.raises(HitchError, match="got text 'abc'"):
+        check_target("abc")
+    with pytest.raises(ProfileError, match=r"a category is text: '2', not int"):
+        HitchModel.from_profile(category=2)
+    with pytest.raises(StabilityInputError, match=r"set_slope: roll \(the tractor's slope\) .* did you mean degrees"):
+        g.set_slope(20, 0)

@@ -26,6 +26,7 @@ import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 
+from planner.errors import unit_hint
 from planner.model.angle_maps import angles_to_actuators_sx
 from planner.model.fast_function import FastFunction, MappedFunction
 from planner.model.geometry import LEFT, RIGHT, mast_frame, side_geometry
@@ -144,9 +145,11 @@ class ExactInverse:
             ) from None
         tl = t.tolist()
         if len(tl) != 4 or not all(map(math.isfinite, tl)):
-            raise ModelInputError("target must be 4 finite numbers (x [m], z [m], roll [rad], pitch [rad])")
-        if abs(tl[2]) >= math.pi / 2 or abs(tl[3]) >= math.pi / 2:
-            raise KinematicsError("roll and pitch must lie within ±π/2")
+            raise ModelInputError(f"target must be 4 finite numbers (x [m], z [m], roll [rad], pitch [rad]), got {tl}")
+        for name, v in (("roll", tl[2]), ("pitch", tl[3])):
+            if abs(v) >= math.pi / 2:  # named, with its value and the unit it may have been meant in
+                hint = unit_hint(v, -math.pi / 2, math.pi / 2, "rad")
+                raise KinematicsError(f"target {name} = {v:.6g} rad must lie within ±π/2 rad{hint}")
         key = t.tobytes()
         last = self._last
         if last is not None and last[0] == key:  # a pure function of the target: the same answer
@@ -154,8 +157,17 @@ class ExactInverse:
         q, jac, checks, y_yaw = self._fast(t)
         c0, c1, c2 = checks[:, 0].tolist()
         if not (abs(c0) <= _TOL_M and abs(c1) <= _TOL_M):
+            far = next(  # a length given in mm reads as metres far beyond any hitch
+                (
+                    f"; target {n} = {v:.6g} m{unit_hint(v, -2.0, 2.0, 'm')}"
+                    for n, v in (("x", tl[0]), ("z", tl[1]))
+                    if abs(v) > 2.0
+                ),
+                "",
+            )
             raise KinematicsError(
                 f"lower links cannot reach the implement at this pose (closure error {max(abs(c0), abs(c1)):.3g} m)"
+                + far
             )
         if not abs(c2) <= 1.0:
             raise KinematicsError("the fixed left lift rod cannot reach the left lower link at this pose")

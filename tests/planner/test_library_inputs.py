@@ -128,3 +128,18 @@ def test_misspelt_fields_wrong_types_and_units_are_named(parts):
         HitchModel.from_profile(category=2)
     with pytest.raises(StabilityInputError, match=r"set_slope: roll \(the tractor's slope\) .* did you mean degrees"):
         g.set_slope(20, 0)
+
+
+def test_the_exact_inverse_names_the_value_and_the_unit_it_may_have_been_meant_in(parts):
+    """"roll and pitch must lie within ±π/2" named neither nor its value; a target in mm read "closure error
+    1.6e+05 m" (a library user's report; IKSolver said all of it)."""
+    from planner import ExactInverse
+    from planner.model.types import KinematicsError, ModelInputError
+
+    inv = ExactInverse(parts[0])
+    with pytest.raises(KinematicsError, match=r"target roll = 5 rad must lie within ±π/2 rad; did you mean degrees"):
+        inv.actuators(0.0, 0.2, 5.0, 0.0)
+    with pytest.raises(KinematicsError, match=r"target x = 30 m; did you mean mm\? 30 mm = 0.03 m"):
+        inv.actuators(30.0, 200.0, 0.0, 0.0)
+    with pytest.raises(ModelInputError, match=r"got \[nan, 0.0, 0.0, 0.0\]"):
+        inv.actuators(float("nan"), 0.0, 0.0, 0.0)

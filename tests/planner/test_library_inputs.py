@@ -131,7 +131,7 @@ def test_misspelt_fields_wrong_types_and_units_are_named(parts):
 
 
 def test_the_exact_inverse_names_the_value_and_the_unit_it_may_have_been_meant_in(parts):
-    """"roll and pitch must lie within ±π/2" named neither nor its value; a target in mm read "closure error
+    """ "roll and pitch must lie within ±π/2" named neither nor its value; a target in mm read "closure error
     1.6e+05 m" (a library user's report; IKSolver said all of it)."""
     from planner import ExactInverse
     from planner.model.types import KinematicsError, ModelInputError

@@ -244,9 +244,19 @@ def test_a_double_ctrl_c_on_a_service_behind_a_router_ends_it_quietly(tmp_path):
     the control core while it closed its Zenoh session; the interrupt escaped, and the interpreter's
     finalisation printed ~45 lines of "nanobind: leaked … ruckig.Trajectory" (a fleet integrator's report)."""
     rep = f"tcp/127.0.0.1:{free_port()}"
-    router = subprocess.Popen([sys.executable, "-m", "bridge.cli", "router", "--listen", rep], cwd=ROOT)
+    router = subprocess.Popen(
+        [sys.executable, "-m", "bridge.cli", "router", "--listen", rep],
+        cwd=ROOT,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
     serve = None
     try:
+        assert router.stdout is not None
+        ready = router.stdout.readline()  # a service started before the router listens cannot connect
+        assert "hitch router: ready on " + rep in ready, ready
         serve = subprocess.Popen(
             [sys.executable, "-m", "bridge.cli", "serve", "--mode", "client", "--connect", rep]
             + ["--prefix", "fleet/t09/hitch", "--data-dir", str(tmp_path)],

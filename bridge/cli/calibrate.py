@@ -20,7 +20,7 @@ import numpy as np
 
 from bridge.cli.commissioning import add_calibrate_sensors
 from bridge.cli.errors import CLIError
-from bridge.cli.model import add_model_options, bounded_float, whole_number
+from bridge.cli.model import add_model_options, bounded_float, refuse_overwriting_profile, whole_number
 from bridge.link.sensor_calibration import SENSOR_PROVENANCE_MARKER
 from bridge.service.wire import to_json_text
 from bridge.sim.truth import noise_kind
@@ -148,11 +148,7 @@ def _cmd_geometry(args) -> int:
     from planner.calibration.solve import build_calibration_problem, largest_residuals, solve_calibration
 
     model = _model(args, include_ad=not args.no_ad)
-    if Path(args.out).resolve() == Path(args.profile).resolve():
-        raise CLIError(
-            f"--out {args.out} is the profile the calibration starts from (--profile): write it to another file "
-            "(the nominal profile is what the calibration is measured against)"
-        )
+    refuse_overwriting_profile(args.out, args.profile)
     sensors = _sensor_record(args.profile)
     if sensors is not None and not args.no_ad:
         print(

@@ -22,7 +22,7 @@ from pathlib import Path
 from rich.console import Console
 
 from bridge.cli.errors import CLIError
-from bridge.cli.model import add_model_options, model_from_args, whole_number
+from bridge.cli.model import add_model_options, model_from_args, refuse_overwriting_profile, whole_number
 from bridge.link.realtime import INTERFACES
 from bridge.link.sensor_calibration import (
     SensorCalibration,
@@ -146,10 +146,7 @@ def _cmd_calibrate_sensors(args) -> int:
             "--sim-truth gives the simulated twin its machine; with --can-interface the machine on the bus is "
             "calibrated: give one of them"
         )
-    if Path(args.out).resolve() == Path(args.profile).resolve():
-        raise CLIError(
-            f"--out {args.out} is the profile the calibration starts from (--profile): write it to another file"
-        )
+    refuse_overwriting_profile(args.out, args.profile)
     _confirm_detached(args)
     nominal_model = model_from_args(args)
     nominal = nominal_model.profile

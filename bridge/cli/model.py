@@ -4,17 +4,27 @@ from __future__ import annotations
 
 import argparse
 import math
+from pathlib import Path
 
 import numpy as np
 from rich.table import Table
 
+from bridge.cli.errors import CLIError
 from bridge.cli.output import console, esc, signed
 from bridge.cli.ranges import ACTUATOR_UNITS, check_actuators
 from bridge.service.wire import to_json_text
 from planner.model.kinematics import HitchModel
 from planner.model.types import ACTUATOR_NAMES, POSE_NAMES
 
-__all__ = ["add_commands", "finite_float", "bounded_float", "whole_number", "add_model_options", "model_from_args"]
+__all__ = [
+    "add_commands",
+    "finite_float",
+    "bounded_float",
+    "whole_number",
+    "add_model_options",
+    "model_from_args",
+    "refuse_overwriting_profile",
+]
 
 
 def _converted(name: str, text: str, cast, what: str):
@@ -286,3 +296,10 @@ def add_commands(sub) -> None:
     p = prof.add_parser("fit-workspace", help="fit the restricted workspace box of a category (prints TOML)")
     add_model_options(p)
     p.set_defaults(handler=_cmd_fit_workspace)
+
+
+def refuse_overwriting_profile(out: str, profile: str) -> None:
+    """CLIError when a command's ``--out`` is the profile it starts from (``--profile``): the nominal profile is
+    what a calibration is measured against, and it was replaced without a word."""
+    if Path(out).resolve() == Path(profile).resolve():
+        raise CLIError(f"--out {out} is the profile the calibration starts from (--profile): write it to another file")

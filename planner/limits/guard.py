@@ -275,11 +275,8 @@ class Guard:
         fk_ok = ~suspect  # rows whose batch points are HitchModel.forward's, bit for bit
 
         def exact(k: int) -> _Exact:  # the per-sample path: keep-out clearances, report
-            key = Q[k].tobytes()
-            if key not in cache:
-                pts = {n: P[n][k].copy() for n in P} if fk_ok[k] else self.model.forward(Q[k]).points
-                cache[key] = (self.keep_out_clearance(Q[k], pts), self.stability_at(Q[k], pts))
-            return cache[key]
+            points = (lambda: {n: P[n][k].copy() for n in P}) if fk_ok[k] else None  # the batch's, bit for bit
+            return self._exact_entry(Q[k], cache, points)
 
         start = exact(0)[1]
         start_vals = _measure_values(start)
@@ -504,12 +501,14 @@ class Guard:
             out.append(GuardReason(m, g[m], caution_th[m], math.nan, "caution", MEASURE_UNITS[m]))
         return tuple(out)
 
-    def _exact_entry(self, q: np.ndarray, cache: dict[bytes, _Exact]) -> _Exact:
-        """Keep-out clearances and stability report at actuators ``q``, as the per-sample path of
-        :meth:`_check_setpoints` computes them (points of :meth:`HitchModel.forward`), cached by bytes."""
+    def _exact_entry(
+        self, q: np.ndarray, cache: dict[bytes, _Exact], points: Callable[[], dict[str, np.ndarray]] | None = None
+    ) -> _Exact:
+        """Keep-out clearances and stability report at actuators ``q`` (the per-sample path), cached by bytes;
+        the points ``points()`` gives (a batch's, equal to :meth:`HitchModel.forward`'s) or ``forward``'s."""
         key = q.tobytes()
         if key not in cache:
-            pts = self.model.forward(q).points
+            pts = points() if points is not None else self.model.forward(q).points
             cache[key] = (self.keep_out_clearance(q, pts), self.stability_at(q, pts))
         return cache[key]
 

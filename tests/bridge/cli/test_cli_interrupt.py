@@ -198,22 +198,31 @@ def test_the_black_box_and_the_can_log_record_what_happened(service):
     assert any(x["message"] == "PositionCounts" and x["source"] == 166 for x in rows)  # the references
 
 
-def test_hitch_router_carries_a_fleet(tmp_path):
-    rport = free_port()
-    rep = f"tcp/127.0.0.1:{rport}"
+def _router(endpoint: str) -> subprocess.Popen:
+    """``hitch router --listen endpoint``, returned once it says it is ready (a service started before the router
+    listens cannot connect)."""
     router = subprocess.Popen(
-        [sys.executable, "-m", "bridge.cli", "router", "--listen", rep],
+        [sys.executable, "-m", "bridge.cli", "router", "--listen", endpoint],
         cwd=ROOT,
         env={**os.environ, "PYTHONUNBUFFERED": "1"},
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
     )
+    assert router.stdout is not None
+    line = router.stdout.readline()
+    if "hitch router: ready on " + endpoint not in line:
+        router.kill()
+        router.wait(5)
+        raise AssertionError(f"the router did not start: {line!r}")
+    return router
+
+
+def test_hitch_router_carries_a_fleet(tmp_path):
+    rep = f"tcp/127.0.0.1:{free_port()}"
+    router = _router(rep)
     svc = None
     try:
-        assert router.stdout is not None
-        line = router.stdout.readline()
-        assert "hitch router: ready on " + rep in line, line
         svc = ServiceProcess(
             ["--mode", "client", "--connect", rep, "--prefix", "fleet/t07/hitch", "--data-dir", str(tmp_path)]
         )
@@ -244,19 +253,9 @@ def test_a_double_ctrl_c_on_a_service_behind_a_router_ends_it_quietly(tmp_path):
     the control core while it closed its Zenoh session; the interrupt escaped, and the interpreter's
     finalisation printed ~45 lines of "nanobind: leaked … ruckig.Trajectory" (a fleet integrator's report)."""
     rep = f"tcp/127.0.0.1:{free_port()}"
-    router = subprocess.Popen(
-        [sys.executable, "-m", "bridge.cli", "router", "--listen", rep],
-        cwd=ROOT,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
+    router = _router(rep)
     serve = None
     try:
-        assert router.stdout is not None
-        ready = router.stdout.readline()  # a service started before the router listens cannot connect
-        assert "hitch router: ready on " + rep in ready, ready
         serve = subprocess.Popen(
             [sys.executable, "-m", "bridge.cli", "serve", "--mode", "client", "--connect", rep]
             + ["--prefix", "fleet/t09/hitch", "--data-dir", str(tmp_path)],

@@ -161,16 +161,22 @@ def test_no_caution_is_foreseen_for_a_goal_that_improves_a_low_start_or_is_refus
     assert g.caution_at_goal(MotionState.at_rest([0.0, lo, 0.0, 0.0]), {"z": 9.0}) == ()  # outside: planning says why
 
 
+def _z_at_lift_lower_end(model) -> float:
+    """The height z (x, roll, pitch 0) where the lift is a hair (1e-5 rad) above its lower end stop: bisection
+    (the lift grows with z), from just above."""
+    tp, target = TrajectoryPlanner(model), model.lower[0] + 1e-5
+    a, b = -0.35, 0.0
+    for _ in range(80):
+        mid = (a + b) / 2
+        a, b = (mid, b) if tp.inverse(0, mid, 0, 0)[0] < target else (a, mid)
+    return b
+
+
 def test_an_end_stop_slowing_and_a_foreseen_caution_multiply(ballasted, heavy):
     """A cautioned move into the lift's end-stop zone: the end-stop-limited speed × the caution factor,
     as when the full-speed plan is checked first (0.8 × 0.7724 = 0.6180 then, 0.6178 now), every
     sample within the zone speed, and the end-stop factor stated relative to the speed asked for."""
-    tp0 = TrajectoryPlanner(ballasted)
-    target = ballasted.lower[0] + 1e-5
-    a, b = -0.35, 0.0  # bisection on z for lift(z) = target (the lift grows with z)
-    for _ in range(80):
-        mid = (a + b) / 2
-        a, b = (mid, b) if tp0.inverse(0, mid, 0, 0)[0] < target else (a, mid)
+    b = _z_at_lift_lower_end(ballasted)
     tp = TrajectoryPlanner(ballasted, workspace=dict(ballasted.workspace, z=(b, ballasted.workspace["z"][1])))
     start, goal = MotionState.at_rest([0.06, -0.15, 0.0, 0.0]), {"x": -0.06, "z": b}
 
@@ -222,13 +228,8 @@ def test_end_stop_zone_by_hand():
 def test_plan_into_an_end_stop_is_slowed(model):
     """A goal a hair above the lift's lower end stop: within the last 5 % of the stroke the
     lift must crawl, so the guard slows the plan and every sample keeps to the zone speed."""
-    tp0 = TrajectoryPlanner(model)
     target = model.lower[0] + 1e-5
-    a, b = -0.35, 0.0  # bisection on z for lift(z) = target (the lift grows with z)
-    for _ in range(80):
-        mid = (a + b) / 2
-        a, b = (mid, b) if tp0.inverse(0, mid, 0, 0)[0] < target else (a, mid)
-    z_end = b
+    z_end = _z_at_lift_lower_end(model)
     ws = dict(model.workspace, z=(z_end, model.workspace["z"][1]))
     g = Guard(TrajectoryPlanner(model, workspace=ws))
     gp = g.plan(MotionState.at_rest([0, 0.1, 0, 0]), {"z": z_end})

@@ -48,6 +48,7 @@ from bridge.service.schemas import (
     ManeuverRun,
     ManeuverSave,
     ModeRequest,
+    MotionControl,
     NameRequest,
     PlanRequest,
     PoseRequest,
@@ -146,9 +147,9 @@ class ServiceAPI:
             "track/start": self._track_start,
             "track/setpoint": self._track_setpoint,
             "track/stop": self._track_stop,
-            "maneuvers/pause": lambda _r: self.motion.maneuver_control("pause"),
-            "maneuvers/resume": lambda _r: self.motion.maneuver_control("resume"),
-            "maneuvers/skip": lambda _r: self.motion.maneuver_control("skip"),
+            "maneuvers/pause": lambda _r: self.motion.maneuver_control("pause"),  # brakes: no deadline
+            "maneuvers/resume": lambda r: self._maneuver_control("resume", r),
+            "maneuvers/skip": lambda r: self._maneuver_control("skip", r),
             "maneuvers/record/start": self._record_start,
             "maneuvers/record/stop": self._record_stop,
             **lines_handlers(self),  # lines/save|list|delete: the core's tracker and the store (bridge.service.gnss)
@@ -289,7 +290,15 @@ class ServiceAPI:
         return {"stopped": True, "motion_id": self.motion.stop()}
 
     def _track_start(self, r: TrackStart) -> dict:
-        return self.motion.track_start(r.frame, tuple(r.dof), r.ttl_ms / 1000.0).to_json()
+        deadline, issued = self._timing(r.deadline_ms)
+        return self.motion.track_start(
+            r.frame, tuple(r.dof), r.ttl_ms / 1000.0, deadline=deadline, issued=issued
+        ).to_json()
+
+    def _maneuver_control(self, action: str, r: MotionControl) -> dict:
+        """``maneuvers/resume`` / ``maneuvers/skip``: they start the next motion, so they keep a deadline."""
+        deadline, issued = self._timing(r.deadline_ms)
+        return self.motion.maneuver_control(action, deadline=deadline, issued=issued)
 
     def _track_setpoint(self, r: TrackSetpoint) -> dict:
         velocity = None if r.velocity is None else r.velocity.as_dict()

@@ -12,9 +12,11 @@ allowed range. Units: x, z [m]; roll, pitch [rad]; rates [m/s, rad/s]; ``ttl_ms`
 * ``stop`` takes any payload (none, ``{}``, extra fields, garbage): whatever is sent to stop, stops.
 * ``speed_scale`` lies in [:data:`MIN_SPEED_SCALE`, 1] = [0.05, 1]: plan time grows as 1/scale, and
   at 0.05 a move across the whole workspace plans in a fraction of a second.
-* Every motion request (``goto``, ``presets/go``, ``maneuvers/run``, ``jog``) carries
-  ``deadline_ms`` (integer 1…60000, default 1000): a request that cannot start within it is
-  refused with ``busy`` by the service, never run later.
+* Every request that starts or resumes motion (``goto``, ``presets/go``, ``maneuvers/run``, ``jog``,
+  ``hitch/raise``, ``hitch/return``, ``track/start``, ``maneuvers/resume``, ``maneuvers/skip``,
+  ``work/start``, ``work/resume``) carries ``deadline_ms`` (integer 1…60000, default 1000): a request
+  that cannot start within it is refused with ``busy`` by the service, never run later. The requests
+  that only brake (``stop``, ``maneuvers/pause``, ``work/stop``) have none: they are never refused late.
 * With the workspace (``parse_request(..., workspace=...)``, the service passes its
   ``limits.workspace``), a ``goto`` goal or a ``presets/save`` pose outside it is refused before
   the schema's sanity bounds (±1 m, ±2 m, ±π/2) with ``unreachable``, naming the workspace range of
@@ -69,6 +71,7 @@ __all__ = [
     "TrackSetpoint",
     "TrackVelocity",
     "Empty",
+    "MotionControl",
     "ImplementDefine",
     "QuickMove",
     "WorkSettingsRequest",
@@ -140,6 +143,13 @@ def _deadline() -> Any:
 
 class Empty(_Strict):
     pass
+
+
+class MotionControl(_Strict):
+    """A request that resumes motion without other fields (``maneuvers/resume``, ``maneuvers/skip``,
+    ``work/resume``): the deadline [ms] by which it must take effect."""
+
+    deadline_ms: WholeNumber = _deadline()
 
 
 class StopRequest(_Strict):
@@ -220,6 +230,7 @@ class TrackStart(_Strict):
     frame: Literal["tractor", "level", "ground"] = "tractor"
     dof: list[Literal["x", "z", "roll", "pitch"]] = Field(min_length=1, max_length=4)
     ttl_ms: WholeNumber = Field(200, ge=50, le=1000)
+    deadline_ms: WholeNumber = _deadline()
 
     @model_validator(mode="after")
     def _unique(self) -> TrackStart:
@@ -329,6 +340,7 @@ class WorkStart(_Strict):
     position setpoint (tractor frame) [m], default the commanded z now."""
 
     z: float | None = Field(None, ge=-1.0, le=1.5)
+    deadline_ms: WholeNumber = _deadline()
 
 
 REQUESTS: Mapping[str, type[_Strict]] = {
@@ -354,8 +366,8 @@ REQUESTS: Mapping[str, type[_Strict]] = {
     "track/setpoint": TrackSetpoint,
     "track/stop": TrackStop,
     "maneuvers/pause": Empty,
-    "maneuvers/resume": Empty,
-    "maneuvers/skip": Empty,
+    "maneuvers/resume": MotionControl,
+    "maneuvers/skip": MotionControl,
     "maneuvers/record/start": Empty,
     "maneuvers/record/stop": RecordStop,
     "lines/save": LinesSave,
@@ -373,7 +385,7 @@ REQUESTS: Mapping[str, type[_Strict]] = {
     "work/settings": WorkSettingsRequest,
     "work/start": WorkStart,
     "work/stop": Empty,
-    "work/resume": Empty,
+    "work/resume": MotionControl,
 }
 #: every API name (relative to the key prefix)
 API_KEYS: tuple[str, ...] = tuple(REQUESTS)

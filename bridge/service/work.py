@@ -207,11 +207,12 @@ class WorkControl:
         if op == "configure":
             return self.configure(settings_from_json(args[0]))
         if op == "start":
-            return self.start(settings_from_json(args[0]), None if len(args) < 2 else args[1])
+            timing = dict(zip(("deadline", "issued"), args[2:4], strict=False))
+            return self.start(settings_from_json(args[0]), None if len(args) < 2 else args[1], **timing)
         if op == "stop":
             return self.stop()
         if op == "resume":
-            return self.resume()
+            return self.resume(*args[:2])
         if op == "status":
             return self.progress()
         raise WorkSettingsError(f"work: op must be one of configure, start, stop, resume, status, got {op!r}")
@@ -224,15 +225,25 @@ class WorkControl:
                 self._pending = settings
         return self.progress()
 
-    def start(self, settings: WorkSettings, z: float | None = None) -> dict[str, Any]:
+    def start(
+        self,
+        settings: WorkSettings,
+        z: float | None = None,
+        *,
+        deadline: float | None = None,
+        issued: float | None = None,
+    ) -> dict[str, Any]:
         """Start a work session: a track session (tractor frame, z) fed by work control. ``z``: the
-        operator's position setpoint [m] (None: the commanded z now). Raises MotionError as track/start."""
+        operator's position setpoint [m] (None: the commanded z now). ``deadline`` and ``issued`` as for
+        :meth:`~bridge.service.motion.controller.MotionController.track_start`. Raises MotionError as
+        track/start."""
         if z is not None and (isinstance(z, bool) or not isinstance(z, (int, float)) or not math.isfinite(z)):
             raise WorkSettingsError(f"z must be a finite number [m], got {z!r}")
+        self.motion.check_in_time("start", deadline, issued)
         here = self.motion.current_state().position
         z_op = float(z) if z is not None else float(here[1])
         rate = draft_rate_limit(self.motion.planner, here)  # the draft demand never outruns the hitch
-        acc = self.motion.track_start("tractor", ("z",), WORK_TTL_S)
+        acc = self.motion.track_start("tractor", ("z",), WORK_TTL_S, deadline=deadline, issued=issued)
         with self._lock:
             self._settings = settings
             self._ctl = WorkController(settings, z_rate_max_m_s=rate)
@@ -253,8 +264,11 @@ class WorkControl:
         reply = self.motion.track_stop(session)
         return {**reply, "work": self.progress()}
 
-    def resume(self) -> dict[str, Any]:
-        """Clear a latched fallback: the configured mode engages again (bumpless)."""
+    def resume(self, deadline: float | None = None, issued: float | None = None) -> dict[str, Any]:
+        """Clear a latched fallback: the configured mode engages again (bumpless). ``deadline`` and
+        ``issued`` as for :meth:`~bridge.service.motion.controller.MotionController.goto`: a resume
+        that comes too late, or before a later stop, is refused ``busy``."""
+        self.motion.check_in_time("resume", deadline, issued)
         with self._lock:
             if self._session is None:
                 raise MotionError("not_found", "no work session is running (work/start)")
@@ -453,11 +467,16 @@ def work_handlers(api: Any) -> dict[str, Callable[[Any], dict[str, Any]]]:
 
     def start(r: Any) -> dict[str, Any]:
         s = stored(api.implement)
-        return {**call("start", settings_to_json(s), r.z), "implement": api.implement}
+        deadline, issued = api._timing(r.deadline_ms)
+        return {**call("start", settings_to_json(s), r.z, deadline, issued), "implement": api.implement}
+
+    def resume(r: Any) -> dict[str, Any]:
+        deadline, issued = api._timing(r.deadline_ms)
+        return call("resume", deadline, issued)
 
     return {
         "work/settings": settings,
         "work/start": start,
-        "work/stop": lambda _r: call("stop"),
-        "work/resume": lambda _r: call("resume"),
+        "work/stop": lambda _r: call("stop"),  # brakes: no deadline
+        "work/resume": resume,
     }

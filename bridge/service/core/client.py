@@ -298,8 +298,18 @@ class MotionProxy:
     def ack_faults(self) -> JsonReply:
         return JsonReply(self.core.call("ack_faults"))
 
-    def track_start(self, frame: str, dofs: tuple[str, ...], ttl_s: float) -> JsonReply:
-        return JsonReply(self.core.call("track_start", frame, tuple(dofs), float(ttl_s)))
+    def track_start(
+        self,
+        frame: str,
+        dofs: tuple[str, ...],
+        ttl_s: float,
+        *,
+        deadline: float | None = None,
+        issued: float | None = None,
+    ) -> JsonReply:
+        return JsonReply(
+            self.core.call("track_start", frame, tuple(dofs), float(ttl_s), deadline=deadline, issued=issued)
+        )
 
     def track_setpoint(
         self, session: int, seq: int, pose: Mapping[str, float], velocity: Mapping[str, float] | None = None
@@ -319,8 +329,10 @@ class MotionProxy:
         """Announce ``event`` through the core's controller (numbered in order with its own)."""
         self.core.call("post_event", dict(event))
 
-    def maneuver_control(self, action: str) -> dict[str, Any]:
-        return dict(self.core.call("maneuver_control", action))
+    def maneuver_control(
+        self, action: str, *, deadline: float | None = None, issued: float | None = None
+    ) -> dict[str, Any]:
+        return dict(self.core.call("maneuver_control", action, deadline=deadline, issued=issued))
 
     def lines_request(self, op: str, name: str | None = None, geojson: Any = None) -> dict[str, Any]:
         return dict(self.core.call("lines_request", op, name, geojson))

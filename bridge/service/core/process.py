@@ -375,7 +375,7 @@ class ControlCore:
             "faults": lambda: [f.to_json() for f in m.faults],
             "current_state": m.current_state,
             "preview_start": m.preview_start,
-            "track_start": lambda *a: m.track_start(*a).to_json(),
+            "track_start": lambda *a, **k: m.track_start(*a, **k).to_json(),
             "track_setpoint": m.track_setpoint,
             "track_setpoint_refused": m.track_setpoint_refused,
             "track_stop": m.track_stop,

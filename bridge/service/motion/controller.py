@@ -410,17 +410,27 @@ class MotionController:
         return mid
 
     # ------------------------------------------------------------------ track mode
-    def track_start(self, frame: str, dofs: tuple[str, ...] | list[str], ttl_s: float) -> TrackAccepted:
+    def track_start(
+        self,
+        frame: str,
+        dofs: tuple[str, ...] | list[str],
+        ttl_s: float,
+        *,
+        deadline: float | None = None,
+        issued: float | None = None,
+    ) -> TrackAccepted:
         """Start a track session (``docs/tracking.md``): setpoints of ``dofs`` in ``frame`` follow with
         online jerk-limited motion; without a setpoint within ``ttl_s`` the hitch brakes to rest and
         the session ends. Takes over a running goto or maneuver (aborted) from its state; refused
-        while a stop brakes or a jog command is live (stop > jog > track > goto)."""
+        while a stop brakes or a jog command is live (stop > jog > track > goto). ``deadline`` and
+        ``issued`` as for :meth:`goto`."""
         if frame not in TRACK_FRAMES:
             raise MotionError("bad_request", f"frame must be one of {', '.join(TRACK_FRAMES)}, got {frame!r}")
         with self._lock:
             self._check_allowed("track")
             self._check_no_fault("track")
             now = self.clock()
+            self._check_late("track", now, deadline, issued)
             m = self._active
             if isinstance(m, PlanMotion) and m.kind == "stop":
                 raise MotionError("busy", f"a stop is in progress (motion {m.motion_id}); track is refused until rest")
@@ -648,15 +658,20 @@ class MotionController:
         self.outbox.flush()
         return mid
 
-    def maneuver_control(self, action: str) -> dict[str, Any]:
+    def maneuver_control(
+        self, action: str, *, deadline: float | None = None, issued: float | None = None
+    ) -> dict[str, Any]:
         """``pause``, ``resume`` or ``skip`` the running maneuver (``docs/maneuvers.md``): pause brakes
         the hitch to rest and holds; resume plans the current step again from the pose now; skip ends
-        the current step (a motion step brakes) and goes on with the next."""
+        the current step (a motion step brakes) and goes on with the next. ``deadline`` and ``issued``
+        as for :meth:`goto` (resume and skip start motion; a pause only brakes and is never refused late)."""
         if action not in ("pause", "resume", "skip"):
             raise MotionError("bad_request", f"action must be one of pause, resume, skip, got {action!r}")
         events: list[Event] = []
         with self._lock:
             now = self.clock()
+            if action != "pause":
+                self._check_late(f"maneuver {action}", now, deadline, issued)
             if not self._maneuver.running:
                 raise MotionError("not_found", "no maneuver is running")  # the API prefixes the key
             try:
@@ -838,6 +853,15 @@ class MotionController:
         self._check_allowed(kind)
         self._check_precedence()
         self._check_no_fault(what)
+        self._check_late(what, now, deadline, issued)
+
+    def check_in_time(self, what: str, deadline: float | None, issued: float | None) -> None:
+        """Refuse (``busy``) a request that would start or resume motion after its ``deadline`` [s, this
+        controller's clock], or that arrived (``issued``) before the latest stop: never run later."""
+        with self._lock:
+            self._check_late(what, self.clock(), deadline, issued)
+
+    def _check_late(self, what: str, now: float, deadline: float | None, issued: float | None) -> None:
         if issued is not None and issued <= self._stopped_at:
             raise MotionError("busy", f"{what} cancelled: a stop was sent after this request arrived; not run later")
         if deadline is not None and now > deadline:

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import time
 
 import pytest
 
@@ -197,6 +199,60 @@ def test_hitch_log_without_a_log_says_where_it_looked(tmp_path, capsys, monkeypa
     assert main(["log", "--data-dir", str(tmp_path), "--follow"]) == 0
     err = capsys.readouterr().err
     assert "no event log at" in err and "waiting for `hitch serve`" in err, err
+
+
+def test_hitch_log_follow_prints_what_is_written_after_it_started_and_ends_on_ctrl_c(tmp_path):
+    """End to end, the CLI in its own process: it waits for a log that is not there yet (and says so on
+    stderr), prints each record the service's writer appends as it is written (one JSON line each, in
+    order), and Ctrl-C ends it with status 0."""
+    import queue
+    import signal
+    import subprocess
+    import sys
+    import threading
+
+    from tests.integration.service_process import ROOT
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "bridge.cli", "log", "--data-dir", str(tmp_path), "--follow", "--json"],
+        cwd=ROOT,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    lines: queue.Queue[tuple[str, str]] = queue.Queue()
+    for name, stream in (("out", proc.stdout), ("err", proc.stderr)):
+        threading.Thread(target=lambda n=name, s=stream: [lines.put((n, ln)) for ln in s], daemon=True).start()
+
+    def next_line(stream: str, timeout_s: float = 30.0) -> str:
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            try:
+                n, ln = lines.get(timeout=max(0.0, end - time.monotonic()))
+            except queue.Empty:
+                break
+            if n == stream:
+                return ln
+        raise AssertionError(f"no line on std{stream} within {timeout_s} s")
+
+    try:
+        assert "waiting for `hitch serve`" in next_line("err")
+        log = EventLog(event_log_path(tmp_path))
+        try:
+            log.on_event({"t": 1.0, "event": "motion_started", "motion_id": 7})
+            assert json.loads(next_line("out"))["motion_id"] == 7
+            log.on_request("goto", "op1", b'{"goal": {"z": 0.2}}', False, {"error": "busy", "message": "late"})
+            rec = json.loads(next_line("out"))
+            assert rec["key"] == "goto" and rec["user"] == "op1" and rec["accepted"] is False, rec
+        finally:
+            log.close()
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=15) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
 
 
 def test_hitch_replay_prints_decoded_frames_poses_and_faults(tmp_path, capsys):

@@ -7,6 +7,7 @@ leaves no process behind; the CAN log is recorded where the bus is.
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import threading
@@ -64,6 +65,25 @@ def test_the_api_answers_as_with_the_core_in_threads(service):
         refusal = {"event": "hitch_switch_refused", "command": "raise", "error": "busy", "message": "test"}
         svc.api.motion.post_event(refusal)
         assert wait_until(lambda: any(ev.get("event") == "hitch_switch_refused" for ev in events))
+
+
+def test_late_motion_requests_are_refused_by_the_core_not_run_later(service):
+    """The deadline and the arrival time of resume, skip, track start and work start/resume reach the core's
+    controller through its proxy (keywords over the pipe) and are judged there."""
+    svc, _ep = service
+    late = time.monotonic() - 6.0
+    for key, body in (
+        ("track/start", {"dof": ["z"]}),
+        ("maneuvers/resume", {}),
+        ("maneuvers/skip", {}),
+        ("work/start", {}),
+        ("work/resume", {}),
+    ):
+        ok, reply = svc.api.handle(key, json.dumps(body), received=late)
+        assert not ok and reply["error"] == "busy" and "deadline" in reply["message"], (key, reply)
+    ok, reply = svc.api.handle("track/start", json.dumps({"dof": ["z"], "deadline_ms": 10_000}), received=late)
+    assert ok and reply["session"] >= 1, reply
+    assert svc.api.handle("track/stop", "{}")[0]
 
 
 def test_a_setpoint_query_the_schema_refuses_is_counted_against_the_live_session(service):

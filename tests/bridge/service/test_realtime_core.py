@@ -112,6 +112,54 @@ def test_a_stop_cancels_every_motion_request_that_arrived_before_it(r):
     assert ok, reply
 
 
+_TWO_STEPS = "steps:\n  - goto: {z: 0.3}\n  - wait: 30\n  - goto: {z: 0.0}\n"
+
+
+def _paused(r):
+    """A maneuver paused in its first step, the hitch braked to rest and holding."""
+    r.store.save_maneuver("m", _TWO_STEPS)
+    assert r.call("maneuvers/run", {"name": "m"})[0]
+    r.run(0.6)
+    assert r.call("maneuvers/pause")[0]
+    r.run(2.0)
+    return r.states[-1]["pose"]["z"]
+
+
+@pytest.mark.parametrize("action", ["resume", "skip"])
+def test_a_maneuver_resume_or_skip_that_waited_past_its_deadline_is_refused_not_run_later(r, action):
+    """Resume and skip start the next motion; they came without a deadline and ran whenever a worker took
+    them (fails on the old code: the 6 s old request resumed the maneuver)."""
+    held = _paused(r)
+    ok, reply = r.call(f"maneuvers/{action}", {}, received=time.monotonic() - 6.0)
+    assert not ok and reply["error"] == "busy" and "deadline" in reply["message"], reply
+    r.run(1.0)
+    assert abs(r.states[-1]["pose"]["z"] - held) < 2e-3 and not r.states[-1]["moving"]
+    assert r.states[-1]["maneuver"]["paused"] is True and r.states[-1]["maneuver"]["step"] == 0
+    ok, reply = r.call(f"maneuvers/{action}", {"deadline_ms": 10_000}, received=time.monotonic() - 6.0)
+    assert ok, reply  # its own, longer deadline: in time
+
+
+def test_a_stop_cancels_a_resume_or_a_track_start_that_arrived_before_it(r):
+    _paused(r)
+    queued = time.monotonic()  # a resume and a track start waiting ...
+    assert r.call("stop", {})[0]  # ... when the operator stops
+    for key, body in (("maneuvers/resume", {}), ("maneuvers/skip", {}), ("track/start", {"dof": ["z"]})):
+        ok, reply = r.call(key, body, received=queued)
+        assert not ok and reply["error"] == "busy" and "stop" in reply["message"], (key, reply)
+    ok, reply = r.call("track/start", {"dof": ["z"]}, received=queued - 6.0)
+    assert not ok and reply["error"] == "busy", reply
+    ok, reply = r.call("track/start", {"dof": ["z"]})  # sent after the stop: starts
+    assert ok, reply
+
+
+def test_a_track_start_that_waited_past_its_deadline_is_refused(r):
+    ok, reply = r.call("track/start", {"dof": ["z"]}, received=time.monotonic() - 2.0)
+    assert not ok and reply["error"] == "busy" and "deadline" in reply["message"], reply
+    assert "motion_started" not in r.names()
+    ok, reply = r.call("track/start", {"dof": ["z"], "deadline_ms": 5000}, received=time.monotonic() - 2.0)
+    assert ok, reply
+
+
 def test_a_plan_that_cannot_start_by_the_deadline_is_refused(model, tmp_path):
     class SlowGuard(Guard):  # planning takes 1.5 s of the rig's time
         def plan(self, *a, **k):

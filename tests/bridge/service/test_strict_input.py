@@ -17,6 +17,7 @@ from bridge.service.schemas import (
     check_pose_in_workspace,
     parse_request,
 )
+from bridge.service.security import MOTION_KEYS
 from planner.limits.guard import Guard
 from planner.trajectory import MotionState, TrajectoryPlanner
 
@@ -111,6 +112,11 @@ MOTION_REQUESTS = {
     "jog": {"vz": 0.01},
     "hitch/raise": {},
     "hitch/return": {},
+    "track/start": {"dof": ["z"]},
+    "maneuvers/resume": {},
+    "maneuvers/skip": {},
+    "work/start": {},
+    "work/resume": {},
 }
 
 
@@ -129,8 +135,11 @@ def test_every_motion_request_carries_a_deadline(key):
 
 
 def test_only_motion_requests_have_a_deadline():
+    """Every request that starts or resumes motion has one (resume, skip, track and work start were left
+    without, so a queued one ran late); the ones that only brake have none (never refused late)."""
     with_deadline = {k for k, m in REQUESTS.items() if "deadline_ms" in m.model_fields}
     assert with_deadline == set(MOTION_REQUESTS)
+    assert set(MOTION_KEYS) - with_deadline == {"mode", "maneuvers/pause", "work/stop"}
 
 
 # ------------------------------------------------------------------------------------------ workspace

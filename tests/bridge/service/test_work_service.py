@@ -115,6 +115,36 @@ def test_work_keys_are_operator_keys(svc):
     assert {"work/start", "work/stop", "work/resume"} <= set(MOTION_KEYS) and "work/settings" in WRITE_KEYS
 
 
+def test_a_work_start_or_resume_that_waited_past_its_deadline_or_a_later_stop_is_refused(model, tmp_path):
+    """``work/start`` and ``work/resume`` start motion: they came without a deadline and ran whenever a worker
+    took them (fails on the old code: a 6 s old start began a session)."""
+    lo_z = float(TrajectoryPlanner(model).lo[1])
+    s = Service(model, tmp_path / "h.sqlite3", FakeInputs(ground_z=lo_z + 0.5))
+    try:
+        s.ok("work/settings", {"mode": "draft", "draft_setpoint_n": 20_000.0, "depth_max_m": 0.3})
+        for key in ("work/start", "work/resume"):
+            ok, r = s.call(key, {}, received=time.monotonic() - 6.0)
+            assert not ok and r["error"] == "busy" and "deadline" in r["message"], (key, r)
+        s.run(0.5)
+        assert not s.states[-1]["work"]["running"] and s.states[-1]["motion"] is None
+        queued = time.monotonic()  # a start waiting in a queue when the operator stops
+        assert s.call("stop", {})[0]
+        ok, r = s.call("work/start", {}, received=queued)
+        assert not ok and r["error"] == "busy" and "stop" in r["message"], r
+        s.run(0.5)
+        assert not s.states[-1]["work"]["running"]
+        r = s.ok("work/start", {"deadline_ms": 10_000})  # sent after the stop: starts
+        assert r["work"]["running"]
+        ok, r = s.call("work/resume", {}, received=time.monotonic() - 6.0)  # also before the stop
+        assert not ok and r == {
+            "error": "busy",
+            "message": "work/resume: resume cancelled: a stop was sent after this request arrived; not run later",
+        }
+        assert s.call("work/resume", {})[0]  # in time: taken (no fallback to clear: the configured mode runs)
+    finally:
+        s.close()
+
+
 def test_a_draft_demand_beyond_the_depth_and_workspace_limits_is_clipped_and_named(model, tmp_path):
     """A draft far below the setpoint drives the regulator to its deepest allowed z: clipped at the depth
     limit first (``work:depth_max``); with a depth limit below the workspace the follower clips it at the

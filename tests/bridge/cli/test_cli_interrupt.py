@@ -118,7 +118,10 @@ def test_serve_prints_the_terminal_url_and_the_logs(service):
     assert str(event_log_path(data)) in text and "bus.asc" in text
 
 
-@pytest.mark.parametrize("argv", [["goto", "--to", "z=0.3", "--speed-scale", "0.15"], ["preset", "go", "far"]])
+@pytest.mark.parametrize(
+    "argv",
+    [["goto", "--to", "z=0.3", "--speed-scale", "0.15"], ["preset", "go", "far"], ["maneuver", "run", "far"]],
+)
 def test_ctrl_c_on_a_waiting_motion_stops_it(service, argv):
     _svc, ep, _data = service
     with HitchClient([ep], timeout_s=10.0) as c:
@@ -126,6 +129,8 @@ def test_ctrl_c_on_a_waiting_motion_stops_it(service, argv):
         low = _go_low(c)
         if argv[0] == "preset":
             c.request("presets/save", {"name": "far", "pose": {"z": 0.3}, "speed_scale": 0.15})
+        if argv[0] == "maneuver":  # the maneuver is stopped too (it was tested at the parser only)
+            c.request("maneuvers/save", {"name": "far", "script": "steps:\n  - goto: {z: 0.3, speed_scale: 0.15}\n"})
         proc = _cli(ep, *argv, "--wait")
         start, out, err = _interrupt_once_moving(c, low, proc)
         assert proc.returncode == 130, (out, err)
@@ -134,6 +139,7 @@ def test_ctrl_c_on_a_waiting_motion_stops_it(service, argv):
         assert out.startswith("started (id ") and "waiting for the end (Ctrl-C: stops it)" in out, out
         rest = _wait_rest(c, 10.0)  # the stop brakes: at rest well before the 0.45 m move could end
         assert rest["pose"]["z"] < 0.2, (start["pose"], rest["pose"])
+        assert rest.get("maneuver") is None, rest["maneuver"]  # a maneuver was aborted, not paused
         time.sleep(1.0)
         later = c.state(timeout_s=2.0)
         assert not later["moving"] and abs(later["pose"]["z"] - rest["pose"]["z"]) < 0.01

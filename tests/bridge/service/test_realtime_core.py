@@ -229,6 +229,11 @@ def test_expensive_requests_are_admitted_a_few_per_user(r):
         assert not ok and reply["error"] == "busy" and "at a time" in reply["message"], reply
         ok, reply = r.call("maneuvers/validate", {"script": "steps: [{wait: 1}]"})
         assert not ok and reply["error"] == "busy"
+        # another user is admitted meanwhile: the limit is per user, not the service's
+        other = threading.Thread(target=lambda: results.append(r.call("plan", body, user="alice")))
+        other.start()
+        ts.append(other)
+        assert entered.acquire(timeout=5.0), "the other user's plan was not admitted"
         ok, _ = r.call("stop", {})  # cheap requests are not held back
         assert ok
     finally:
@@ -296,6 +301,24 @@ def test_a_latched_fault_needs_an_acknowledge(r):
     assert not r.states[-1]["moving"] and r.states[-1]["ecu"]["faults"] == []  # nothing resumed
     ok, reply = r.call("goto", {"goal": {"z": 0.1}})
     assert ok, reply
+
+
+def test_the_written_fault_policy_is_the_one_the_controller_applies():
+    """docs/faults.md's table names every fault the link can raise plus ``internal``, each with the kind the
+    controller gives it (self-clearing: SELF_CLEARING_FAULTS; latching: every other) and the clearing delay."""
+    import re
+    from dataclasses import fields
+    from pathlib import Path
+
+    from bridge.link.state import LinkFaults
+    from bridge.service.motion.types import SELF_CLEARING_FAULTS
+
+    text = (Path(__file__).resolve().parents[3] / "docs" / "faults.md").read_text(encoding="utf-8")
+    rows = dict(re.findall(r"^\| `([a-z_]+)` \|[^|]*\| (self-clearing|latching) \|", text, re.MULTILINE))
+    link_faults = {f.name for f in fields(LinkFaults) if f.name != "reasons"}
+    assert set(rows) == link_faults | {"internal"}, sorted(rows)
+    assert {n for n, kind in rows.items() if kind == "self-clearing"} == set(SELF_CLEARING_FAULTS)
+    assert f"fresh for {FAULT_CLEAR_AFTER_S:g} s" in text
 
 
 def test_faults_ack_is_for_operators_only(model, tmp_path):

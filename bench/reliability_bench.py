@@ -52,7 +52,9 @@ Definitions (every time below is ``time.time()``, one system clock shared by all
   (``motion_id`` = the id ``stop`` answered, else ``motion == "stop"``) and the ``t`` of its
   ``motion_started`` event; ``T_effect`` = the earlier of the two (not before ``T_cmd``) and
   ``T_brake`` = the first reference time ≥ ``T_effect``. The figure can therefore be late by up to one
-  period, never early. Also reported: the stop's reply time at the client and ``T_still − T_cmd``,
+  period, never early. Also reported: the stop's reply time at the client, the way to the service
+  (``t`` of the stop's reply — when the service's callback took it — minus ``T_cmd``: the mover's
+  process sending beside the hogs, Zenoh, the router; the rest of the figure is the service's) and ``T_still − T_cmd``,
   ``T_still`` = the time of the first reference change after which the counts stay the same for
   0.3 s (the reference at rest; the next command may move it again later).
 * **fault latency** (``faults``) = first ``fault`` event or ``state`` with ``ecu.faults`` after the cut
@@ -469,7 +471,9 @@ def role_mover(a: argparse.Namespace) -> None:
                 t_cmd = time.time()
                 try:
                     sr = c.stop()
-                    stops.append({"t_cmd": t_cmd, "t_reply": time.time(), "stop_id": sr.get("motion_id")})
+                    stops.append(
+                        {"t_cmd": t_cmd, "t_reply": time.time(), "stop_id": sr.get("motion_id"), "t_taken": sr.get("t")}
+                    )
                 except ServiceError as exc:
                     stops.append({"t_cmd": t_cmd, "t_reply": time.time(), "stop_id": None, "error": exc.code})
                 latest.wait_until(lambda s: not s.get("moving"), 10.0)
@@ -786,7 +790,7 @@ def bench_load(a: argparse.Namespace) -> dict:
         names = sorted({f for s in states if s.get("t") and w0 <= s["t"] <= w1 for f in s.get("faults") or []})
         return {"fault_events": len(fe), "fault_names_in_state": names, "messages": [e.get("message") for e in fe][:5]}
 
-    lat, reply, still, missing = [], [], [], 0
+    lat, reply, still, taken, missing = [], [], [], [], 0
     for s in mov["stops"]:
         eff = stop_effect_time(s["t_cmd"], s.get("stop_id"), states, events)
         x = stop_latency(s["t_cmd"], eff, refs)
@@ -795,6 +799,8 @@ def bench_load(a: argparse.Namespace) -> dict:
             continue
         lat.append(x)
         reply.append(s["t_reply"] - s["t_cmd"])
+        if isinstance(s.get("t_taken"), (int, float)):  # the service's own stamp: the way there vs the rest
+            taken.append(float(s["t_taken"]) - s["t_cmd"])
         ts = still_time(counts, s["t_cmd"], s["t_cmd"] + 5.0)
         if ts is not None:
             still.append(ts - s["t_cmd"])
@@ -823,6 +829,7 @@ def bench_load(a: argparse.Namespace) -> dict:
                 "false_faults": faults_in(t0, t1),
                 "stop_honoured": percentiles_ms(lat),
                 "stop_reply": percentiles_ms(reply),
+                "stop_taken": percentiles_ms(taken),
                 "stop_to_still": percentiles_ms(still),
                 "stops_sent": len(mov["stops"]),
                 "stops_unmatched": missing,
@@ -1275,6 +1282,7 @@ def table(res: dict) -> list[str]:
             for key, label in (
                 ("stop_honoured", "stop honoured"),
                 ("stop_reply", "stop reply"),
+                ("stop_taken", "stop command to the service taking it"),
                 ("stop_to_still", "stop to reference at rest"),
             ):
                 s = ph[key]

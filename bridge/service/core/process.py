@@ -235,11 +235,12 @@ class ControlCore:
         exact = cfg.key("stop")
 
         def on_stop(query: zenoh.Query) -> None:
+            taken = time.time()  # when the core took it (the reply's "t": the way to the core vs the stop itself)
             with query:
                 if str(query.key_expr) != exact:
                     return  # a wildcard query reaches every queryable: only the exact key stops
                 ok, reply = self._call_safely("stop", ())
-                answer = {"stopped": True, "motion_id": reply} if ok else reply
+                answer = {"stopped": True, "motion_id": reply, "t": taken} if ok else reply
                 data = to_json_bytes(answer)
                 try:
                     if ok:  # the reply as urgent as the stop itself

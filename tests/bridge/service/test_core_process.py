@@ -144,10 +144,11 @@ def test_stop_is_answered_by_the_core_while_every_request_handler_is_wedged(serv
             stuck = [threading.Thread(target=lambda: _ignore(lambda: busy.request("config", {}))) for _ in range(8)]
             for t in stuck:
                 t.start()
-            t0 = time.monotonic()
+            t0, sent = time.monotonic(), time.time()
             reply = c.stop()
             took = time.monotonic() - t0
             assert reply["stopped"] and reply["motion_id"] is not None
+            assert sent <= reply["t"] <= time.time()  # when the core took it (Unix time)
             assert took < 2.0, took
             assert wait_until(lambda: svc.latest_state["motion"] is None, 5.0)
     finally:

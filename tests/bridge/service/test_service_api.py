@@ -7,6 +7,7 @@ the access policy a front end applies. Motion runs on the simulated CAN rig in s
 from __future__ import annotations
 
 import json
+import time
 
 import numpy as np
 import pytest
@@ -319,8 +320,9 @@ def test_mode_gates_motion_keys(svc):
             svc.call("maneuvers/save", {"name": "m", "script": "steps: [{wait: 1}]"})
         ok, r = svc.call(key, payload)
         assert not ok and r["error"] == "mode" and "transport" in r["message"], (key, r)
+    before = time.time()
     ok, r = svc.call("stop")
-    assert ok and r == {"stopped": True, "motion_id": None}
+    assert ok and r["stopped"] is True and r["motion_id"] is None and before <= r["t"] <= time.time(), r
 
 
 def test_a_front_end_user_gets_the_access_policy(svc):

@@ -9,6 +9,7 @@ line on stderr (``hitch: error: …``). Any other exception is a bug and keeps i
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from importlib import metadata
 from typing import NoReturn
@@ -86,10 +87,19 @@ def one_line(text: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The ``hitch`` command. Called as the program (``argv`` None) after a command that ran the service
+    (``args.end_process``), the process ends at once with the status once its output is flushed: the service
+    closed everything it opened, and the interpreter's finalisation would only list the Ruckig objects still
+    referenced by its threads' frames ("nanobind: leaked …", ~40 lines an operator reads as a crash)."""
     args = None
     try:
         args = build_parser().parse_args(argv)
-        return int(args.handler(args) or 0)
+        code = int(args.handler(args) or 0)
+        if argv is None and getattr(args, "end_process", False):
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(code)
+        return code
     except HitchError as exc:  # CLIError, ProfileError, KinematicsError, PlanError, ServiceError, …
         print(f"hitch: error: {one_line(str(exc))}", file=sys.stderr)
     except KeyboardInterrupt:  # a command that keeps something says what (``on_interrupt``: its sentence)

@@ -22,6 +22,7 @@ the service's black box (:class:`~bridge.service.blackbox.EventLog`) is always w
 
 from __future__ import annotations
 
+import argparse
 import re
 import signal
 import sys
@@ -142,6 +143,7 @@ def _cmd_serve(args) -> int:
             blackbox.record("service", what="stopped")
             blackbox.close()
     print(f"hitch serve: stopped in {took * 1000:.0f} ms", flush=True)
+    args.end_process = True  # everything is closed: the program ends here (bridge.cli.main)
     return 0
 
 
@@ -269,9 +271,40 @@ def _client_command(sub, name: str, help_text: str, handler, *positionals: str):
     return p
 
 
+#: the service's deadline_ms range and default (bridge.service.schemas; not imported here: pydantic is slow to load)
+DEADLINE_MS = (1, 60_000, 1000)
+
+
+def deadline_ms_arg(text: str) -> int:
+    """argparse type of ``--deadline-ms``: a whole number of ms in the service's range, the error naming it."""
+    lo, hi, _ = DEADLINE_MS
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"--deadline-ms must be a whole number of ms in [{lo}, {hi}], got {text}"
+        ) from None
+    if not lo <= n <= hi:
+        raise argparse.ArgumentTypeError(f"--deadline-ms must lie in [{lo}, {hi}] ms, got {text}")
+    return n
+
+
 def _wait_options(p) -> None:
     p.add_argument("--wait", action="store_true", help="wait until the motion has ended; Ctrl-C then stops it")
     p.add_argument("--detach", action="store_true", help="with --wait: Ctrl-C only stops waiting, the motion goes on")
+    p.add_argument(
+        "--deadline-ms",
+        type=deadline_ms_arg,
+        default=None,
+        help=f"the motion must start within this, else the service refuses it busy (never runs it later); "
+        f"[{DEADLINE_MS[0]}, {DEADLINE_MS[1]}] ms, the service's default {DEADLINE_MS[2]}",
+    )
+
+
+def _deadline(args) -> dict[str, int]:
+    """``{"deadline_ms": …}`` when given on the command line, else {} (the service's default)."""
+    d = getattr(args, "deadline_ms", None)
+    return {} if d is None else {"deadline_ms": int(d)}
 
 
 def _alive(c, timeout_s: float = 1.0) -> bool:
@@ -292,7 +325,7 @@ def _service_down(args, exc: Exception) -> CLIError:
         f"; with --security {args.security}: the user and password may be refused there, or the access list may not "
         "let this user see that service"
         if getattr(args, "security", None)
-        else ""
+        else "; a service with access control answers only clients with credentials: give them with --security FILE"
     )
     return CLIError(
         f"{why} — no hitch service with prefix {args.prefix!r} answers at {tried}; start one with "
@@ -409,7 +442,10 @@ def _ended(final: dict | None) -> tuple[str, int]:
 def _cmd_goto(args) -> int:
     def go(c) -> int:
         r, final = _motion(
-            args, c, lambda: c.goto(args.to, args.speed_scale), lambda reply: _wait_motion(args, c, reply)
+            args,
+            c,
+            lambda: c.goto(args.to, args.speed_scale, **_deadline(args)),
+            lambda reply: _wait_motion(args, c, reply),
         )
         if final is not None:
             r = {**r, "final": final}
@@ -560,7 +596,11 @@ def _cmd_preset(args) -> int:
             r = c.request("presets/save", body)
             _print(args, r, f"saved {r['saved']}: {_fmt_pose(r['pose'])}")
         elif args.action == "go":
-            body = {"name": args.name, **({"speed_scale": args.speed_scale} if args.speed_scale is not None else {})}
+            body = {
+                "name": args.name,
+                **({"speed_scale": args.speed_scale} if args.speed_scale is not None else {}),
+                **_deadline(args),
+            }
             r, final = _motion(
                 args, c, lambda: c.request("presets/go", body), lambda reply: _wait_motion(args, c, reply)
             )
@@ -635,7 +675,7 @@ def _cmd_maneuver(args) -> int:
             r, final = _motion(
                 args,
                 c,
-                lambda: c.request("maneuvers/run", {"name": args.name}),
+                lambda: c.request("maneuvers/run", {"name": args.name, **_deadline(args)}),
                 lambda reply: c.wait_maneuver(reply["maneuver_id"], timeout_s=_MANEUVER_WAIT_S),
             )
             text = f"maneuver {args.name} started (id {r['maneuver_id']}, planned {r['duration']:.2f} s)"

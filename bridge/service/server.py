@@ -222,11 +222,15 @@ class HitchService:
             if cfg.security is None:  # with a security file the operator chose the protection
                 self.warnings = exposure_warnings(cfg.listen or (), None)
             policy = access_policy_from_file(cfg.security, cfg.prefix) if cfg.security is not None else None
+            if cfg.security is not None:  # a missing or malformed users file named here, not by Zenoh's Rust error
+                read_users(cfg.security)
             own_process = cfg.control_core == "process" and cfg.security is None
             if cfg.control_core == "process" and not own_process:
                 self.warnings.append(
                     "with a security file the control core runs in the service's own process (threads): its own "
-                    "Zenoh link would need credentials of its own"
+                    "Zenoh link would need credentials of its own. Under heavy request load its control period is "
+                    "then less regular, and stop shares the interpreter with the requests (docs/faults.md: threads "
+                    "or processes)"
                 )
             private = self._open_zenoh(private_link=own_process and cfg.mode != "client")
             motion: Any

@@ -120,9 +120,21 @@ def _json(status: int, obj: Any, keep_alive: bool, headers: dict | None = None) 
 
 
 def _login_fields(body: bytes) -> tuple[str, str]:
-    """``{"user", "password"}`` from a login body; :class:`LoginError` (400) naming the field otherwise."""
+    """``{"user", "password"}`` from a login body; :class:`LoginError` (400) naming the field otherwise
+    (a field given twice too: never the last one wins, as for every API key)."""
+
+    def once(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for k, v in pairs:
+            if k in out:
+                raise LoginError(f"login: duplicate key {k[:64]!r} (each field may appear once)", 400, "bad_request")
+            out[k] = v
+        return out
+
     try:
-        data = json.loads(body or b"null")
+        data = json.loads(body or b"null", object_pairs_hook=once)
+    except LoginError:
+        raise
     except (ValueError, RecursionError):
         raise LoginError("login: the body must be JSON {user, password}", 400, "bad_request") from None
     if not isinstance(data, dict):

@@ -80,6 +80,7 @@ AbortReason = Literal[
     "interrupted",
     "plan_failed",
     "trigger_unavailable",
+    "deadline",
 ]
 RunnerStatus = Literal["pending", "running", "finished", "aborted"]
 

@@ -229,6 +229,7 @@ class MotionController:
         self._faults: dict[str, Fault] = {}  # what the controller holds (docs/faults.md)
         self._fresh_since: float | None = None  # data fresh again since (self-clearing faults)
         self._stopped_at = -math.inf  # time.monotonic() of the latest stop
+        self._resume_deadline: float | None = None  # a maneuver resume's or skip's deadline for its next step
         self._limited: dict[str, str] = {}
         self._reference: Reference | None = None
         self._eval_cache = EvaluationCache()
@@ -672,6 +673,8 @@ class MotionController:
             now = self.clock()
             if action != "pause":
                 self._check_late(f"maneuver {action}", now, deadline, issued)
+                # the motion it leads to must start by then too (the next tick plans it; else the maneuver aborts)
+                self._resume_deadline = deadline
             if not self._maneuver.running:
                 raise MotionError("not_found", "no maneuver is running")  # the API prefixes the key
             try:
@@ -867,7 +870,8 @@ class MotionController:
         if deadline is not None and now > deadline:
             raise MotionError(
                 "busy",
-                f"{what} refused: its deadline passed {now - deadline:.3f} s ago (the service was busy); not run later",
+                f"{what} refused: its deadline passed {now - deadline:.3f} s ago (it waited for the service or its "
+                "planning took too long; a longer deadline_ms gives it more time); not run later",
             )
 
     def _check_no_fault(self, kind: str) -> None:
@@ -1086,11 +1090,13 @@ class MotionController:
             isinstance(m, PlanMotion) and not m.finished(now), self._last_id, None if ls is None else ls.measurement_t_s
         )
         cmd = self._maneuver.tick(now, loop, self._odometer(), events)
+        # a resume's or skip's deadline holds for the motion its first tick starts, and for nothing later
+        deadline, self._resume_deadline = self._resume_deadline, None
         if cmd is None:
             return
         if cmd.action == "goto" and runner is not None and cmd.goal is not None:  # a running maneuver's motion step
             goal, scale, step, owner, req = dict(cmd.goal), cmd.speed_scale, cmd.step, runner, cmd.request
-            self._spawn(lambda: self._maneuver_goto(owner, goal, scale, step, req))
+            self._spawn(lambda: self._maneuver_goto(owner, goal, scale, step, req, deadline))
         elif cmd.action == "stop":
             self._brake(now, "maneuver aborted", events)
 
@@ -1101,14 +1107,18 @@ class MotionController:
         scale: float,
         step: int | None,
         request: int | None = None,
+        deadline: float | None = None,
     ) -> None:
         try:
-            self._start_plan(goal, scale, "maneuver", f"step {step}", runner=runner, request=request)
+            self._start_plan(goal, scale, "maneuver", f"step {step}", runner=runner, request=request, deadline=deadline)
         except ValueError as exc:
             events: list[Event] = []
+            late = isinstance(exc, MotionError) and exc.code == "busy" and deadline is not None
+            reason: AbortReason = "deadline" if late else "plan_failed"
+            text = f"step {step}: {exc}" if late else f"step {step} cannot be planned: {exc}"
             with self._lock:
                 if self._maneuver.owns(runner, request):
-                    self._maneuver.abort(self.clock(), "plan_failed", f"step {step} cannot be planned: {exc}", events)
+                    self._maneuver.abort(self.clock(), reason, text, events)
                 self._post(events)
             self.outbox.flush()
 

@@ -254,6 +254,38 @@ def test_hitch_router_carries_a_fleet(tmp_path):
     assert router.returncode == 0
 
 
+def test_a_service_with_its_core_in_threads_ends_quietly(tmp_path):
+    """With the control core in the service's threads (as with a security file) every shutdown ended with ~40
+    lines of "nanobind: leaked … ruckig" from the interpreter's finalisation (a security engineer's report)."""
+    cfg = tmp_path / "serve.toml"
+    cfg.write_text(
+        f'[zenoh]\nlisten = ["tcp/127.0.0.1:{free_port()}"]\n[service]\ncontrol_core = "thread"\n', encoding="utf-8"
+    )
+    serve = subprocess.Popen(
+        [sys.executable, "-m", "bridge.cli", "serve", "--config", str(cfg), "--data-dir", str(tmp_path / "data")],
+        cwd=ROOT,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        assert serve.stdout is not None
+        lines = []
+        while not any("ready on" in ln for ln in lines):
+            line = serve.stdout.readline()
+            assert line, "".join(lines)
+            lines.append(line)
+        serve.send_signal(signal.SIGINT)
+        out, _ = serve.communicate(timeout=30)
+        assert serve.returncode == 0 and "stopped in" in out, out
+        assert "nanobind" not in out and "Traceback" not in out, out
+    finally:
+        if serve.poll() is None:
+            serve.kill()
+            serve.wait(10)
+
+
 def test_a_double_ctrl_c_on_a_service_behind_a_router_ends_it_quietly(tmp_path):
     """Ctrl-C twice in the terminal of ``hitch serve --mode client`` (behind a router): the second SIGINT reached
     the control core while it closed its Zenoh session; the interrupt escaped, and the interpreter's

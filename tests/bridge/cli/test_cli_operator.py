@@ -131,6 +131,43 @@ def test_a_service_that_is_down_says_to_start_hitch_serve_and_names_the_endpoint
     assert "`hitch serve`" in line and ep in line and ".rs:" not in line
 
 
+def test_motion_commands_send_the_deadline_given_and_refuse_one_out_of_range(monkeypatch, capsys):
+    """A security engineer's report: the CLI had no way to set deadline_ms (every command took the default)."""
+    calls: list = []
+
+    class Client:
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            pass
+
+        def request(self, key, payload=None, **kw):
+            calls.append((key, payload))
+            return {"motion_id": 3, "maneuver_id": 3, "duration": 1.0, "speed_factor": 1.0, "goal": {}}
+
+        def goto(self, goal, speed_scale=1.0, *, deadline_ms=None):
+            calls.append(("goto", deadline_ms))
+            return {"motion_id": 3, "duration": 1.0, "speed_factor": 1.0, "goal": dict(goal)}
+
+    monkeypatch.setattr(cli_service, "_client", lambda args: Client())
+    assert main(["goto", "--to", "z=0.2", "--deadline-ms", "2500"]) == 0
+    assert main(["preset", "go", "far", "--deadline-ms", "60000"]) == 0
+    assert main(["maneuver", "run", "m", "--deadline-ms", "1"]) == 0
+    assert main(["goto", "--to", "z=0.2"]) == 0  # none given: the service's default
+    assert calls == [
+        ("goto", 2500),
+        ("presets/go", {"name": "far", "deadline_ms": 60000}),
+        ("maneuvers/run", {"name": "m", "deadline_ms": 1}),
+        ("goto", None),
+    ]
+    capsys.readouterr()
+    for bad in ("0", "60001", "1.5", "soon"):
+        assert main(["goto", "--to", "z=0.2", "--deadline-ms", bad]) == 2
+        err = capsys.readouterr().err
+        assert "--deadline-ms must" in err and "[1, 60000]" in err, err
+
+
 def test_faults_ack_uses_the_client_method_or_the_faults_ack_key(monkeypatch, capsys):
     calls: list = []
 

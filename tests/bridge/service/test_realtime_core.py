@@ -160,6 +160,42 @@ def test_a_track_start_that_waited_past_its_deadline_is_refused(r):
     assert ok, reply
 
 
+def test_the_step_a_resume_leads_to_must_start_by_its_deadline(model, tmp_path):
+    """A new user's report: a resume with deadline_ms 1 was taken, and its step moved 17 ms later. The step's
+    plan (at the next cycle) now keeps the resume's deadline: planning that takes 1.5 s (of the rig's time)
+    against 1 s aborts the maneuver (``deadline``) and nothing moves; with 5 s it runs."""
+    slow = {"on": False}
+
+    class SlowGuard(Guard):
+        def plan(self, *a, **k):
+            if slow["on"]:
+                rig.rig.run_until(rig.rig.now_s + 1.5)
+            return super().plan(*a, **k)
+
+    rig = Rig(model, tmp_path, plan_guard=SlowGuard(TrajectoryPlanner(model)))
+    try:
+        for deadline_ms, runs in ((1000, False), (5000, True)):
+            slow["on"] = False
+            held = _paused(rig)
+            n_started = rig.names().count("motion_started")
+            slow["on"] = True
+            ok, reply = rig.call("maneuvers/resume", {"deadline_ms": deadline_ms})
+            assert ok, reply  # taken in time; its step is planned at the next cycle
+            rig.run(0.5)
+            started = rig.names().count("motion_started") - n_started
+            aborted = [e for e in rig.events if e["event"] == "maneuver_aborted"]
+            if runs:
+                assert started == 1 and not aborted[1:], aborted
+            else:
+                assert started == 0 and aborted[-1]["reason"] == "deadline", aborted
+                assert "deadline" in aborted[-1]["message"], aborted[-1]
+                assert abs(rig.states[-1]["pose"]["z"] - held) < 2e-3 and not rig.states[-1]["moving"]
+            assert rig.call("stop", {})[0]
+            rig.run(3.0)
+    finally:
+        rig.close()
+
+
 def test_a_plan_that_cannot_start_by_the_deadline_is_refused(model, tmp_path):
     class SlowGuard(Guard):  # planning takes 1.5 s of the rig's time
         def plan(self, *a, **k):

@@ -120,7 +120,8 @@ def test_inconsistent_settings_are_refused(tmp_path, users_file):
     assert "alice-pw" not in repr(Credentials("alice", "alice-pw"))
 
 
-def test_security_file_round_trip_and_refusals(tmp_path, users_file):
+def _service_security_file(tmp_path, users_file):
+    """A service's settings (alice operator, bob viewer) and the security file written from them."""
     settings = SecuritySettings(
         credentials=Credentials("svc", "svc-pw"),
         users_file=users_file,
@@ -128,6 +129,11 @@ def test_security_file_round_trip_and_refusals(tmp_path, users_file):
     )
     path = tmp_path / "security.json5"
     path.write_text(security_json5(settings))
+    return settings, path
+
+
+def test_security_file_round_trip_and_refusals(tmp_path, users_file):
+    settings, path = _service_security_file(tmp_path, users_file)
     assert security_sections(path) == security_sections(settings)
     usrpwd = json.loads(security_sections(path)["transport/auth/usrpwd"])
     assert (usrpwd["user"], usrpwd["password"]) == ("svc", "svc-pw")
@@ -146,6 +152,21 @@ def test_security_file_round_trip_and_refusals(tmp_path, users_file):
             security_sections(path)
     with pytest.raises(SecurityError, match="does not exist"):
         security_sections(tmp_path / "absent.json5")
+
+
+def test_a_service_whose_users_file_is_missing_names_it_before_zenoh_does(tmp_path, users_file):
+    """A security engineer's report: `hitch serve --security FILE` with the users file gone printed Zenoh's
+    "Invalid user-password dictionary file: No such file or directory (os error 2). at …/usrpwd.rs:76" —
+    no path, and a Rust source location."""
+    from bridge.service.config import ServiceConfig
+    from bridge.service.server import HitchService
+
+    settings, path = _service_security_file(tmp_path, users_file)
+    users_file.unlink()
+    cfg = ServiceConfig(listen=[f"tcp/127.0.0.1:{free_port()}"], data_dir=tmp_path / "data", security=path)
+    with pytest.raises(SecurityError) as e:
+        HitchService(cfg).start()
+    assert str(users_file.resolve()) in str(e.value) and ".rs:" not in str(e.value), str(e.value)
 
 
 def test_exposure_warnings(users_file):

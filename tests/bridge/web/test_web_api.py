@@ -843,6 +843,11 @@ def test_login_sets_a_strict_session_cookie_and_a_csrf_token(secured):
     assert json.loads(data)["csrf"] == reply["csrf"] and json.loads(data)["user"] == "olga"
     status, reply = _post_as(web, "login", {"user": "olga"})
     assert status == 400 and "password" in reply["message"]
+    # a field given twice is refused, not resolved to the last one (a new user logged in as the operator with
+    # {"user": "vic", "user": "olga", "password": <olga's>})
+    body = '{"user": "nobody", "user": "olga", "password": "o-secret"}'
+    status, _, data = _request(web, "POST", "/api/login", body)
+    assert status == 400 and "duplicate key 'user'" in json.loads(data)["message"], data
 
 
 def test_every_state_changing_request_needs_the_csrf_token(secured):

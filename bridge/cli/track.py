@@ -418,7 +418,7 @@ def _spec(args) -> _Spec:
                 )
     ttl_ms = args.ttl_ms
     period_ms = 1000.0 / args.rate
-    if period_ms > ttl_ms / 2:
+    if period_ms > ttl_ms / 2 + 1e-6:  # (a rate given with 10 digits, 13.3333333333 Hz for 150 ms, is exactly half)
         raise CLIError(
             f"--rate {args.rate:g} Hz sends a setpoint every {period_ms:.0f} ms, more than half of --ttl-ms {ttl_ms} "
             f"ms: the session would go stale; use --rate >= {2000.0 / ttl_ms:g} Hz or a longer --ttl-ms"

@@ -64,6 +64,15 @@ def test_bad_sine_specs_name_the_flag_and_the_range(capsys, spec, words):
     assert "--sine" in err and words in err, err
 
 
+def test_a_rate_of_exactly_two_setpoints_per_ttl_is_taken(capsys):
+    """A new user's report: --rate 13.3333333333 --ttl-ms 150 (75.0000000002 ms, exactly half in ten digits) was
+    refused as "more than half", and the message proposed the rate it refused."""
+    from bridge.cli.main import main
+
+    assert main(["track", "--sine", "z=0.02@1Hz", "--rate", "13.3333333333", "--ttl-ms", "150", "--dry-run"]) == 0
+    capsys.readouterr()
+
+
 @pytest.mark.parametrize(
     ("argv", "words"),
     [

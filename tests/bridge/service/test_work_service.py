@@ -368,6 +368,10 @@ def test_the_cli_sends_the_draft_setpoint_in_newtons_and_prints_the_work_block_w
         "depth_max_m": 0.3,
         "slip_limit": None,
     }
+    from bridge.cli.errors import CLIError
+
+    with pytest.raises(CLIError, match="not allowed with"):  # both: which is meant is not known (off won silently)
+        build_parser().parse_args(["work", "settings", "--slip-limit", "0.1", "--no-slip-limit"])
     text = format_status(
         {"running": True, "session": 3, "mode": "draft", "active": "position", "fallback": "stale: no reading",
          "draft_n": 21_000.0, "draft_setpoint_n": 18_500.0, "depth_m": 0.21, "z_setpoint": -0.01, "slip": None,

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from bridge.cli.errors import CLIError
-from bridge.cli.service import _client_command, _print, _run
+from bridge.cli.service import DEADLINE_MS, _client_command, _deadline, _print, _run, deadline_ms_arg
 
 __all__ = ["add_maneuver_actions", "add_lines_command"]
 
@@ -32,7 +32,16 @@ def add_maneuver_actions(ms: Any) -> None:
         ("resume", "resume the paused maneuver (its motion step is planned again from the pose now)"),
         ("skip", "end the step in progress and go on with the next"),
     ):
-        _client_command(ms, action, text, _cmd_control)
+        q = _client_command(ms, action, text, _cmd_control)
+        if action != "pause":  # resume and skip start motion; a pause only brakes (docs/maneuvers.md)
+            q.add_argument(
+                "--deadline-ms",
+                type=deadline_ms_arg,
+                default=None,
+                help="it and the motion it leads to must start within this, else refused busy or the maneuver "
+                f"aborts (never run later); [{DEADLINE_MS[0]}, {DEADLINE_MS[1]}] ms, the service's default "
+                f"{DEADLINE_MS[2]}",
+            )
 
 
 def add_lines_command(sub: Any) -> None:
@@ -66,7 +75,7 @@ def _cmd_record(args: Any) -> int:
 
 def _cmd_control(args: Any) -> int:
     def control(c: Any) -> int:
-        r = c.request(f"maneuvers/{args.action}", {})
+        r = c.request(f"maneuvers/{args.action}", _deadline(args))
         m = r.get("maneuver") or {}
         state = "paused" if m.get("paused") else "running"
         _print(args, r, f"{args.action}: maneuver {r.get('maneuver_id')} {state}, step {m.get('step')}")

@@ -208,14 +208,30 @@ class HitchClient:
         return self.request("mode", {} if mode is None else {"mode": mode})
 
     # ------------------------------------------------------------------ track mode (docs/tracking.md)
-    def track_start(self, frame: str = "tractor", dof: Sequence[str] = ("z",), ttl_ms: int = 200) -> dict:
+    def track_start(
+        self, frame: str = "tractor", dof: Sequence[str] = ("z",), ttl_ms: int = 200, *, deadline_ms: int | None = None
+    ) -> dict:
         """Start a track session (``track/start``, operators): setpoints of ``dof`` (a subset of x, z,
         roll, pitch) in ``frame`` (``tractor``, ``level``, ``ground``); without a setpoint within
-        ``ttl_ms`` (50…1000 ms) the hitch brakes to rest and the session ends. The reply:
+        ``ttl_ms`` (50…1000 ms) the hitch brakes to rest and the session ends; ``deadline_ms``: it must
+        start within this, else ``busy`` (service default 1000). The reply:
         ``{"accepted", "session", "motion_id", "frame", "dof", "ttl_ms"}``."""
         if isinstance(dof, str):
             raise ClientError(f"dof must be a list of DOF names such as ['x', 'z'], got the string {dof!r}")
-        return self.request("track/start", {"frame": frame, "dof": list(dof), "ttl_ms": ttl_ms})
+        body: dict[str, Any] = {"frame": frame, "dof": list(dof), "ttl_ms": ttl_ms}
+        if deadline_ms is not None:
+            body["deadline_ms"] = int(deadline_ms)
+        return self.request("track/start", body)
+
+    def maneuver_control(self, action: str, *, deadline_ms: int | None = None) -> dict:
+        """``pause``, ``resume`` or ``skip`` the running maneuver (``maneuvers/<action>``, operators;
+        docs/maneuvers.md). ``deadline_ms`` (resume, skip): it and the step it leads to must start within
+        this, else ``busy`` or the maneuver aborts (service default 1000); a pause takes none."""
+        if action not in ("pause", "resume", "skip"):
+            raise ClientError(f"action must be one of pause, resume, skip, got {action!r}")
+        if action == "pause" and deadline_ms is not None:
+            raise ClientError("pause only brakes: it takes no deadline_ms")
+        return self.request(f"maneuvers/{action}", {} if deadline_ms is None else {"deadline_ms": int(deadline_ms)})
 
     def track_setpoint(
         self,

@@ -155,11 +155,15 @@ def test_motion_commands_send_the_deadline_given_and_refuse_one_out_of_range(mon
     assert main(["preset", "go", "far", "--deadline-ms", "60000"]) == 0
     assert main(["maneuver", "run", "m", "--deadline-ms", "1"]) == 0
     assert main(["goto", "--to", "z=0.2"]) == 0  # none given: the service's default
+    assert main(["maneuver", "resume", "--deadline-ms", "300"]) == 0
+    assert main(["maneuver", "skip"]) == 0
     assert calls == [
         ("goto", 2500),
         ("presets/go", {"name": "far", "deadline_ms": 60000}),
         ("maneuvers/run", {"name": "m", "deadline_ms": 1}),
         ("goto", None),
+        ("maneuvers/resume", {"deadline_ms": 300}),
+        ("maneuvers/skip", {}),
     ]
     capsys.readouterr()
     for bad in ("0", "60001", "1.5", "soon"):

@@ -86,3 +86,31 @@ def test_bad_setpoints_are_refused_before_the_wire_naming_the_field(peer, args, 
             c.track_setpoint(*args)
         with pytest.raises(ClientError, match="dof must be a list"):
             c.track_start("level", "roll", 500)
+
+
+def test_track_start_and_maneuver_control_send_the_deadline_the_service_parses(peer, monkeypatch):
+    """A new user's report: HitchClient had no way to give resume, skip or track start a deadline."""
+    from bridge.service.schemas import parse_request
+
+    ep, _got = peer
+    sent: list[tuple[str, dict]] = []
+    monkeypatch.setattr(HitchClient, "request", lambda self, key, payload=None, **kw: sent.append((key, payload)) or {})
+    with HitchClient([ep], timeout_s=2.0) as c:
+        c.track_start("tractor", ["z"], 300, deadline_ms=2500)
+        c.track_start("tractor", ["z"])
+        c.maneuver_control("resume", deadline_ms=40)
+        c.maneuver_control("skip")
+        c.maneuver_control("pause")
+        with pytest.raises(ClientError, match="pause only brakes"):
+            c.maneuver_control("pause", deadline_ms=40)
+        with pytest.raises(ClientError, match="one of pause, resume, skip"):
+            c.maneuver_control("abort")
+    assert [(k, p.get("deadline_ms")) for k, p in sent] == [
+        ("track/start", 2500),
+        ("track/start", None),
+        ("maneuvers/resume", 40),
+        ("maneuvers/skip", None),
+        ("maneuvers/pause", None),
+    ]
+    for key, body in sent:  # each body is one the service takes
+        parse_request(key, json.dumps(body))

@@ -673,14 +673,15 @@ class MotionController:
             now = self.clock()
             if action != "pause":
                 self._check_late(f"maneuver {action}", now, deadline, issued)
-                # the motion it leads to must start by then too (the next tick plans it; else the maneuver aborts)
-                self._resume_deadline = deadline
             if not self._maneuver.running:
                 raise MotionError("not_found", "no maneuver is running")  # the API prefixes the key
             try:
                 brake = self._maneuver.control(action, now, events)
             except ValueError as exc:  # ManeuverRunError: paused already, not paused, no step left
                 raise MotionError("busy", str(exc).removeprefix(f"{action}: ")) from None  # the API prefixes the key
+            # a resume's or skip's motion must start by its deadline too: the next cycle plans it (else the
+            # maneuver aborts); a refused one leaves nothing behind, and the cycle after drops it (_drive_maneuver)
+            self._resume_deadline = None if action == "pause" else deadline
             if brake:
                 self._brake(now, f"maneuver {action}", events)
             progress = self._maneuver.progress()

@@ -68,7 +68,8 @@ def _cmd_log(args) -> int:
             c.print(format_record(rec), markup=False, highlight=False)
 
     records = read_events(path)
-    if not records and not path.exists():
+    absent = not records and not path.exists()
+    if absent:
         if not args.follow:
             c.print(f"(no event log at {path}; `hitch serve` writes it)", markup=False, highlight=False)
             return 0
@@ -82,7 +83,7 @@ def _cmd_log(args) -> int:
         show(rec)
     if args.follow:
         try:
-            for rec in follow_events(path):
+            for rec in follow_events(path, from_start=absent):  # a log that appears since: all of it
                 show(rec)
         except KeyboardInterrupt:
             return 0

@@ -332,16 +332,23 @@ def read_events(path: str | Path) -> list[dict[str, Any]]:
 
 
 def follow_events(
-    path: str | Path, *, poll_s: float = 0.2, should_stop: Callable[[], bool] = lambda: False
+    path: str | Path,
+    *,
+    poll_s: float = 0.2,
+    should_stop: Callable[[], bool] = lambda: False,
+    from_start: bool = False,
 ) -> Iterator[dict[str, Any]]:
-    """New records of the live log as they are written (like ``tail -F``: follows rotation)."""
+    """New records of the live log as they are written (like ``tail -F``: follows rotation). A log that
+    exists now is read from its end, unless ``from_start`` (a caller that found no log before: one that
+    appeared since holds records nobody has seen); one that appears later is read from its start."""
     p = Path(path)
     f = None
     partial = ""
     try:
         if p.exists():
             f = p.open("r", encoding="utf-8", errors="replace")
-            f.seek(0, 2)  # only what is written from now on
+            if not from_start:
+                f.seek(0, 2)  # only what is written from now on
         while not should_stop():
             if f is None:
                 try:

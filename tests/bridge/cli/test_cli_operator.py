@@ -233,7 +233,7 @@ def test_hitch_log_without_a_log_says_where_it_looked(tmp_path, capsys, monkeypa
     # --follow waits for the log to appear, and says so (a new user's report: it waited with no output)
     import bridge.service.blackbox as blackbox
 
-    def follow(path):
+    def follow(path, **kw):
         raise KeyboardInterrupt  # Ctrl-C at once
 
     monkeypatch.setattr(blackbox, "follow_events", follow)

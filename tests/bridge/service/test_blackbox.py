@@ -161,6 +161,32 @@ def test_follow_yields_new_records_across_a_rotation(tmp_path):
     assert (path.parent / "events.jsonl.1").exists()  # it did rotate meanwhile
 
 
+def test_a_log_that_appeared_after_the_caller_found_none_is_followed_from_its_start(tmp_path):
+    """`hitch log --follow` found no log, said it waits, and the service wrote its first records before the
+    follower opened the file: they were skipped (the follower read a log that exists from its end; CI run 33)."""
+    path = event_log_path(tmp_path)
+    assert not path.exists()  # what the caller saw
+    log = EventLog(path)
+    log.record("first")
+    assert log.flush()
+    got: list[str] = []
+    end = time.monotonic() + 5.0
+    try:
+        for rec in follow_events(path, poll_s=0.01, from_start=True, should_stop=lambda: time.monotonic() > end):
+            got.append(rec["kind"])
+            break
+    finally:
+        log.close()
+    assert got == ["first"], got
+    # without from_start an existing log is read from its end (what a caller that printed it wants)
+    log = EventLog(path)
+    log.record("second")
+    log.close()
+    end = time.monotonic() + 0.3
+    later = list(follow_events(path, poll_s=0.01, should_stop=lambda: time.monotonic() > end))
+    assert later == []
+
+
 def test_the_api_hook_sees_every_request_and_its_failure_cannot_fail_the_request():
     from bridge.service.api import ServiceAPI
 

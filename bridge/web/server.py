@@ -193,6 +193,9 @@ class WebServer:
         self._address: tuple[str, int] | None = None
         self._on_close: list[Callable[[], None]] = []
         self.counts = {"state": 0, "events": 0, "requests": 0, "views": 0}
+        #: ``on_login(what, user, ok, reply)`` after every login, failed login and logout (the black box; never
+        #: given the password): ``what`` is ``"web/login"`` or ``"web/logout"``
+        self.on_login: Callable[[str, str | None, bool, dict], None] | None = None
         self._view: HitchView | None = view if isinstance(view, HitchView) else None
         self._view_factory: Callable[[], HitchView] | None = None if isinstance(view, HitchView) else view
         self._view_error: str | None = None
@@ -471,6 +474,15 @@ class WebServer:
             "expires_in_s": None if s is None or store is None else round(s.remaining_s(store.clock()), 1),
         }
 
+    def _audit(self, what: str, user: str | None, ok: bool, reply: dict) -> None:
+        hook = self.on_login
+        if hook is None:
+            return
+        try:
+            hook(what, user, ok, reply)
+        except Exception:  # noqa: BLE001 — a recorder's bug must not fail the login
+            log.exception("operator terminal: the login recorder failed")
+
     async def _login_route(self, req: HttpRequest) -> bytes:
         ka = req.keep_alive
         if req.path == "/api/session":
@@ -486,6 +498,7 @@ class WebServer:
             if s is not None and self.sessions is not None:
                 self.sessions.close(s.token)
                 await self._hub.close_session(s.token)
+                self._audit("web/logout", s.user, True, {"logged_out": True})
             headers = {"Set-Cookie": clear_cookie(self._cookie())} if self.sessions is not None else None
             return _json(200, {"logged_out": s is not None}, ka, headers)
         # /api/login
@@ -499,6 +512,8 @@ class WebServer:
             self.throttle.check(user)
             role = self.accounts.verify(user, password)
         except LoginError as exc:
+            if user:  # a refused login is recorded with the name it gave (a body without one: nothing to say)
+                self._audit("web/login", user, False, {"error": exc.code, "message": str(exc)})
             if exc.code in ("unauthenticated", "forbidden") and user:
                 self.throttle.failed(user)
                 log.warning("operator terminal: failed login for %r", user)
@@ -507,6 +522,7 @@ class WebServer:
         self.throttle.succeeded(user)
         s = self.sessions.open(user, role)
         log.info("operator terminal: %s logged in as %s", user, role)
+        self._audit("web/login", user, True, {"role": role})
         headers = {"Set-Cookie": set_cookie(self._cookie(), s.token, self.sessions.ttl_s)}
         return _json(200, self._session_reply(s), ka, headers)
 
@@ -706,6 +722,13 @@ def start_http(
         accounts=accounts,
         view=_view_factory(config),
     ).start()
+
+    def on_login(what: str, who: str | None, ok: bool, reply: dict) -> None:
+        hook = getattr(api, "on_request", None)  # the black box attaches after the service started: read it now
+        if callable(hook):
+            hook(what, who, None, ok, reply)
+
+    server.on_login = on_login
     try:
         if callable(getattr(service, "add_listener", None)):
             for kind, fn in (("state", server.publish_state), ("event", server.publish_event)):

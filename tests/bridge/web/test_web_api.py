@@ -850,6 +850,30 @@ def test_login_sets_a_strict_session_cookie_and_a_csrf_token(secured):
     assert status == 400 and "duplicate key 'user'" in json.loads(data)["message"], data
 
 
+def test_logins_failed_logins_and_logouts_reach_the_black_box_without_the_password(secured):
+    """A security engineer's report: logins, failed logins and logouts left no trace in the black box (only a
+    line on stderr, without time or user for a success)."""
+    web = secured.http
+    seen: list[tuple] = []
+    old = secured.api.on_request
+    secured.api.on_request = lambda key, user, payload, ok, reply: seen.append((key, user, payload, ok, dict(reply)))
+    try:
+        assert _login(web, "victor", "wrong-pw")[0] == 401
+        _, _, auth = _login(web, "victor", "v-secret")
+        assert _post_as(web, "logout", {}, auth)[0] == 200
+    finally:
+        secured.api.on_request = old
+    web_records = [r for r in seen if r[0].startswith("web/")]
+    assert [(k, u, ok) for k, u, _, ok, _ in web_records] == [
+        ("web/login", "victor", False),
+        ("web/login", "victor", True),
+        ("web/logout", "victor", True),
+    ], web_records
+    assert web_records[0][4]["error"] == "unauthenticated" and web_records[1][4]["role"] == "viewer"
+    assert all(p is None for _, _, p, _, _ in web_records)
+    assert "v-secret" not in repr(seen) and "wrong-pw" not in repr(seen)
+
+
 def test_every_state_changing_request_needs_the_csrf_token(secured):
     web = secured.http
     _, _, auth = _login(web, "olga", "o-secret")

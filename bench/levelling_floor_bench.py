@@ -1,8 +1,9 @@
 """What bounds levelling in the issue's ``levelling`` scenario: the workspace box, the actuators' rates, or the
 lack of a preview of the tractor's roll.
 
-The scenario (``bridge/sim/scenarios/levelling.toml``): the tractor's roll φ(t) from side slopes, 0.06 rad at a
-111.1 m wavelength plus 0.04 rad at 11.11 m (phase 1 rad), at 2.2222 m/s (0.02 and 0.2 Hz). Levelling holds the
+The scenario (``bridge/sim/scenarios/levelling.toml``, its twin's :meth:`~bridge.sim.terrain.TerrainTwin.state`):
+the tractor's roll φ(t) from side slopes, 0.06 rad at a 111.1 m wavelength plus 0.04 rad at 11.11 m, at
+2.2222 m/s (0.02 and 0.2 Hz). Levelling holds the
 implement's roll relative to gravity at 0, i.e. its roll relative to the tractor at −φ (here the sign does not
 matter: the demand is symmetric); not levelling ("hold") errs by φ itself.
 
@@ -28,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import math
 import sys
 import time
 from pathlib import Path
@@ -38,25 +38,20 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).parent))
 from _common import machine_note, write_json  # noqa: E402
 
+from bridge.sim.scenario import load_scenario  # noqa: E402
 from planner import HitchModel, MotionState, Reachability, TrajectoryPlanner  # noqa: E402
 from planner.trajectory.ideal_follower import IdealFollower  # noqa: E402
 from planner.trajectory.track import TrackFollower  # noqa: E402
 
-SPEED_M_S = 2.2222
-WAVES = ((0.06, 111.1, 0.0), (0.04, 11.11, 1.0))  # amplitude [rad], wavelength [m], phase [rad]
 DT_S = 0.02  # the control period (50 Hz)
 SETTLE_S = 5.0  # the start-up left out of the figures
 
 
 def roll_demand(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The tractor's roll [rad] and its rate [rad/s] at times ``t`` [s]."""
-    phi = np.zeros_like(t)
-    rate = np.zeros_like(t)
-    for a, wavelength, phase in WAVES:
-        w = 2.0 * math.pi * SPEED_M_S / wavelength
-        phi += a * np.sin(w * t + phase)
-        rate += a * w * np.cos(w * t + phase)
-    return phi, rate
+    """The ``levelling`` scenario's tractor roll [rad] and its rate [rad/s] at times ``t`` [s] (its twin)."""
+    twin = load_scenario("levelling").twin
+    states = [twin.state(float(tk)) for tk in t]
+    return np.array([s.roll_rad for s in states]), np.array([s.roll_rate_rad_s for s in states])
 
 
 def reachable_roll(model: HitchModel, pose: np.ndarray, step: float = 0.001) -> tuple[float, float]:

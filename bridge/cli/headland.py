@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from bridge.cli.errors import CLIError
-from bridge.cli.service import DEADLINE_MS, _client_command, _deadline, _print, _run, deadline_ms_arg
+from bridge.cli.service import _client_command, _deadline, _print, _run, add_deadline_option
 
 __all__ = ["add_maneuver_actions", "add_lines_command"]
 
@@ -34,13 +34,8 @@ def add_maneuver_actions(ms: Any) -> None:
     ):
         q = _client_command(ms, action, text, _cmd_control)
         if action != "pause":  # resume and skip start motion; a pause only brakes (docs/maneuvers.md)
-            q.add_argument(
-                "--deadline-ms",
-                type=deadline_ms_arg,
-                default=None,
-                help="it and the motion it leads to must start within this, else refused busy or the maneuver "
-                f"aborts (never run later); [{DEADLINE_MS[0]}, {DEADLINE_MS[1]}] ms, the service's default "
-                f"{DEADLINE_MS[2]}",
+            add_deadline_option(
+                q, "it and the motion it leads to must start within this, else refused busy or the maneuver aborts"
             )
 
 

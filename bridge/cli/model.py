@@ -65,6 +65,19 @@ def bounded_float(name: str, lo: float, hi: float, *, unit: str = "", lo_open: b
     return parse
 
 
+def bounded_int(name: str, lo: int, hi: int, *, unit: str = ""):
+    """argparse type: a whole number in ``[lo, hi]``, the error naming the option and the allowed range."""
+    allowed = f"[{lo}, {hi}]{' ' + unit if unit else ''}"
+
+    def parse(text: str) -> int:
+        n = _converted(name, text, int, f"a whole number in {allowed}")
+        if not lo <= n <= hi:
+            raise argparse.ArgumentTypeError(f"{name} must lie in {allowed}, got {text}")
+        return n
+
+    return parse
+
+
 def whole_number(name: str):
     """argparse type: a whole number >= 0, the error naming the option and the allowed range."""
 

@@ -22,7 +22,6 @@ the service's black box (:class:`~bridge.service.blackbox.EventLog`) is always w
 
 from __future__ import annotations
 
-import argparse
 import re
 import signal
 import sys
@@ -33,12 +32,13 @@ from pathlib import Path
 from typing import Any
 
 from bridge.cli.errors import CLIError
-from bridge.cli.model import bounded_float, finite_float, whole_number
+from bridge.cli.model import bounded_float, bounded_int, finite_float, whole_number
 from bridge.cli.output import console, esc
 from bridge.cli.plan import parse_pose_arg
 from bridge.link.realtime import INTERFACES
 from bridge.service.config import DEFAULT_LISTEN, load_service_config
 from bridge.service.maneuvers.language import MIN_SPEED_SCALE
+from bridge.service.schemas import DEFAULT_DEADLINE_MS, MAX_DEADLINE_MS
 from bridge.service.wire import to_json_text
 from planner.errors import HitchError
 from planner.model.types import CONTROLLED_POSE_UNITS
@@ -271,34 +271,22 @@ def _client_command(sub, name: str, help_text: str, handler, *positionals: str):
     return p
 
 
-#: the service's deadline_ms range and default (bridge.service.schemas; not imported here: pydantic is slow to load)
-DEADLINE_MS = (1, 60_000, 1000)
-
-
-def deadline_ms_arg(text: str) -> int:
-    """argparse type of ``--deadline-ms``: a whole number of ms in the service's range, the error naming it."""
-    lo, hi, _ = DEADLINE_MS
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"--deadline-ms must be a whole number of ms in [{lo}, {hi}], got {text}"
-        ) from None
-    if not lo <= n <= hi:
-        raise argparse.ArgumentTypeError(f"--deadline-ms must lie in [{lo}, {hi}] ms, got {text}")
-    return n
+def add_deadline_option(
+    p, meaning: str = "the motion must start within this, else the service refuses it busy (never runs it later)"
+) -> None:
+    """``--deadline-ms`` (the request's ``deadline_ms``; None: the service's default)."""
+    p.add_argument(
+        "--deadline-ms",
+        type=bounded_int("--deadline-ms", 1, MAX_DEADLINE_MS, unit="ms"),
+        default=None,
+        help=f"{meaning}; [1, {MAX_DEADLINE_MS}] ms, the service's default {DEFAULT_DEADLINE_MS}",
+    )
 
 
 def _wait_options(p) -> None:
     p.add_argument("--wait", action="store_true", help="wait until the motion has ended; Ctrl-C then stops it")
     p.add_argument("--detach", action="store_true", help="with --wait: Ctrl-C only stops waiting, the motion goes on")
-    p.add_argument(
-        "--deadline-ms",
-        type=deadline_ms_arg,
-        default=None,
-        help=f"the motion must start within this, else the service refuses it busy (never runs it later); "
-        f"[{DEADLINE_MS[0]}, {DEADLINE_MS[1]}] ms, the service's default {DEADLINE_MS[2]}",
-    )
+    add_deadline_option(p)
 
 
 def _deadline(args) -> dict[str, int]:

@@ -22,6 +22,16 @@ from tests.helpers import profile_file_with_final_approach
 from tests.integration.service_process import free_port
 
 
+class _FakeClient:
+    """A stand-in for HitchClient as the CLI uses it (a context manager); tests add the calls they answer."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        pass
+
+
 def _err_line(capsys) -> str:
     lines = capsys.readouterr().err.splitlines()
     assert len(lines) == 1 and lines[0].startswith("hitch: error: "), lines
@@ -135,13 +145,7 @@ def test_motion_commands_send_the_deadline_given_and_refuse_one_out_of_range(mon
     """A security engineer's report: the CLI had no way to set deadline_ms (every command took the default)."""
     calls: list = []
 
-    class Client:
-        def __enter__(self):
-            return self
-
-        def __exit__(self, *exc):
-            pass
-
+    class Client(_FakeClient):
         def request(self, key, payload=None, **kw):
             calls.append((key, payload))
             return {"motion_id": 3, "maneuver_id": 3, "duration": 1.0, "speed_factor": 1.0, "goal": {}}
@@ -175,13 +179,7 @@ def test_motion_commands_send_the_deadline_given_and_refuse_one_out_of_range(mon
 def test_faults_ack_uses_the_client_method_or_the_faults_ack_key(monkeypatch, capsys):
     calls: list = []
 
-    class Bare:  # a client without ack_faults: the generic request on faults/ack
-        def __enter__(self):
-            return self
-
-        def __exit__(self, *exc):
-            pass
-
+    class Bare(_FakeClient):  # a client without ack_faults: the generic request on faults/ack
         def request(self, key, payload=None, **kw):
             calls.append((key, payload))
             return {"cleared": ["stale_measurement"]}
@@ -383,13 +381,7 @@ def test_faults_list_prints_each_held_fault_with_its_kind_and_reason(monkeypatch
         "link_faults": ["references_lost"],
     }
 
-    class Client:
-        def __enter__(self):
-            return self
-
-        def __exit__(self, *exc):
-            pass
-
+    class Client(_FakeClient):
         def state(self):
             return {"seq": 1, "ecu": ecu}
 
@@ -424,15 +416,9 @@ def test_an_awaited_motion_says_how_it_ended_and_an_aborted_one_exits_1(monkeypa
     fault had aborted the motion (`maneuver run --wait` said so and exited 1)."""
     pose = {"x": 0.0, "z": 0.0970, "roll": 0.0, "pitch": 0.0, "y": 0.0, "yaw": 0.0}
 
-    class Client:
+    class Client(_FakeClient):
         def __init__(self):
             self.listeners: dict = {}
-
-        def __enter__(self):
-            return self
-
-        def __exit__(self, *exc):
-            pass
 
         def goto(self, to, speed_scale=None):
             return {"motion_id": 9, "duration": 15.53, "speed_factor": 1.0}
@@ -468,13 +454,7 @@ def test_implement_list_says_when_none_is_selected(monkeypatch, capsys):
     """A new user's report: `implements/list` said selected 'default', which no line of the list showed."""
     import bridge.cli.implements as cli_implements
 
-    class Client:
-        def __enter__(self):
-            return self
-
-        def __exit__(self, *exc):
-            pass
-
+    class Client(_FakeClient):
         def request(self, key, payload=None, **kw):
             assert key == "implements/list"
             return {"implements": [], "selected": "default"}

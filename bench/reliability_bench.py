@@ -11,7 +11,8 @@ on their own after the scenario's duration):
   sniffer bus in this process records them. Everything that loads the service runs in OTHER
   processes, so this process's GIL carries only the service and the sniffer: a *mover* (back-and-forth
   full-speed gotos over 80 % of the workspace, every ``--stop-every``-th one stopped at a random time of
-  its cruise), ``--clients`` load clients (threads in ``--clients-per-process`` processes, each with its own
+  its cruise; the operator's client: ``HitchClient(realtime=True)`` unless ``--mover-priority ordinary``),
+  ``--clients`` load clients (threads in ``--clients-per-process`` processes, each with its own
   Zenoh session and a ``state`` subscription) sending a mix of ``ik``, ``config``, ``presets/list``,
   ``maneuvers/list``, ``maneuvers/validate`` (a 40-step script) and ``plan`` (speed 0.05…1) after
   ``--maneuvers`` scripts and 10 presets were stored, a *monitor* recording ``state`` and ``events``, and
@@ -446,7 +447,7 @@ def role_mover(a: argparse.Namespace) -> None:
     rng = np.random.default_rng(a.seed)
     stops: list[dict] = []
     moves: dict[str, Any] = {"accepted": 0, "refused": {}, "not_finished_in_time": 0}
-    with HitchClient([a.connect], timeout_s=5) as c:
+    with HitchClient([a.connect], timeout_s=5, realtime=a.mover_priority == "realtime") as c:
         ws = workspace_of(c)
         mid_ = centre(ws)
         ends = [{**mid_, **{k: mid_[k] + s * 0.4 * (ws[k][1] - ws[k][0]) for k in ("x", "z")}} for s in (-1.0, 1.0)]
@@ -488,7 +489,8 @@ def role_mover(a: argparse.Namespace) -> None:
             c.stop()
         except ServiceError:
             pass
-    Path(a.out).write_text(json.dumps({"stops": stops, "moves": moves}))
+    out = {"stops": stops, "moves": moves, "priority": a.mover_priority, "realtime_refused": c.realtime_refused}
+    Path(a.out).write_text(json.dumps(out))
 
 
 def role_load(a: argparse.Namespace) -> None:
@@ -736,6 +738,7 @@ def bench_load(a: argparse.Namespace) -> dict:
         mon_s = str(a.duration + a.idle_duration + 60)
         monitor = spawn("monitor", "--connect", ep, "--seconds", mon_s, "--out", mon_out)
         mover_args = ["--connect", ep, "--seconds", str(a.duration), "--seed", "7", "--stop-every", str(a.stop_every)]
+        mover_args += ["--mover-priority", a.mover_priority]
         mover = spawn("mover", *mover_args, "--out", mov_out)
         loads, load_outs = [], []
         left, i = a.clients, 0
@@ -834,6 +837,7 @@ def bench_load(a: argparse.Namespace) -> dict:
                 "stops_sent": len(mov["stops"]),
                 "stops_unmatched": missing,
                 "moves": mov["moves"],
+                "operator_client": {"priority": mov.get("priority"), "realtime_refused": mov.get("realtime_refused")},
                 "requests": requests,
                 "state_samples_at_clients": sum((ld or {}).get("state_samples", 0) for ld in lds),
             },
@@ -1245,6 +1249,7 @@ def table(res: dict) -> list[str]:
     for load_key, head in (
         ("load_in_threads", "[core+planning in threads] "),
         ("load_nice_only", "[real-time off] "),
+        ("load_ordinary_mover", "[operator's client ordinary] "),
         ("load", ""),
     ):
         if load_key not in res:
@@ -1297,6 +1302,9 @@ def table(res: dict) -> list[str]:
                     verdict(s["p99_ms"], T["stop_p99_ms"]) if honoured else "",
                 )
             add(f"{head}moving: stops sent / unmatched", n=f"{ph['stops_sent']} / {ph['stops_unmatched']}")
+            oc = ph.get("operator_client") or {}
+            refused = f" (refused: {oc['realtime_refused']})" if oc.get("realtime_refused") else ""
+            add(f"{head}moving: the operator's client (sends the stops)", n=f"{oc.get('priority', '-')}{refused}")
             for k, r in sorted(ph["requests"].items()):
                 bad = sum(m for c, m in r["codes"].items() if c != "ok")
                 add(
@@ -1399,6 +1407,18 @@ def main(argv: Sequence[str] | None = None) -> None:
         help="run `load` twice: first with the control core and planning in the service's threads, then as "
         "configured (side by side)",
     )
+    ap.add_argument(
+        "--mover-priority",
+        choices=("realtime", "ordinary"),
+        default="realtime",
+        help="the operator's client (the mover, which sends the stops): HitchClient(realtime=True), its Zenoh "
+        "threads under SCHED_FIFO where permitted (default), or an ordinary process beside the hogs",
+    )
+    ap.add_argument(
+        "--compare-mover",
+        action="store_true",
+        help="run `load` twice: first with the operator's client at ordinary priority, then as configured",
+    )
     ap.add_argument("--json", default=None, help="write the results as JSON to this file")
     a = ap.parse_args(argv)
     if a.role is not None:
@@ -1429,6 +1449,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         res["load_in_threads"] = bench_load(
             argparse.Namespace(**{**vars(a), "planning_processes": 0, "control_core": "thread"})
         )
+    if "load" in only and a.compare_mover:
+        print("--- load, the operator's client at ordinary priority", flush=True)
+        res["load_ordinary_mover"] = bench_load(argparse.Namespace(**{**vars(a), "mover_priority": "ordinary"}))
     if "load" in only and a.compare_realtime:
         print("--- load, real-time scheduling off (nice values only)", flush=True)
         res["load_nice_only"] = bench_load(argparse.Namespace(**{**vars(a), "realtime": False}))

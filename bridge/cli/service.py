@@ -27,6 +27,7 @@ import signal
 import sys
 import threading
 import time
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -55,9 +56,18 @@ _MANEUVER_WAIT_S = 3600.0 + 30.0
 def _client(args):
     from bridge.service.client import HitchClient  # zenoh is imported only by the commands that use it
 
-    return HitchClient(
-        args.connect or [DEFAULT_LISTEN], prefix=args.prefix, timeout_s=args.timeout, security=args.security
-    )
+    with warnings.catch_warnings():  # the client's RuntimeWarning is for programs: said plainly below
+        warnings.simplefilter("ignore", RuntimeWarning)
+        client = HitchClient(
+            args.connect or [DEFAULT_LISTEN],
+            prefix=args.prefix,
+            timeout_s=args.timeout,
+            security=args.security,
+            realtime=bool(getattr(args, "realtime", False)),
+        )
+    if client.realtime_refused is not None:
+        print(f"--realtime: this client runs at ordinary priority: {client.realtime_refused}", file=sys.stderr)
+    return client
 
 
 def _print(args, reply: dict, text: str | None = None, *, markup: bool = False) -> None:
@@ -256,6 +266,12 @@ def _client_options(p) -> None:
         type=bounded_float("--timeout", 0.0, 600.0, unit="s"),
         default=5.0,
         help="seconds to wait for a reply, (0, 600] (default 5)",
+    )
+    p.add_argument(
+        "--realtime",
+        action="store_true",
+        help="run this client's Zenoh threads under SCHED_FIFO (needs root or CAP_SYS_NICE): on a busy "
+        "computer its stop (the stop command, Ctrl-C) leaves at once instead of after the busy programs' turn",
     )
     p.add_argument("--json", action="store_true", help="print JSON")
 

@@ -45,6 +45,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 
 __all__ = [
+    "CLIENT_RT_PRIORITY",
     "CONTROL_RT_PRIORITY",
     "CORE_RT_PRIORITY",
     "ROUTER_RT_PRIORITY",
@@ -69,6 +70,9 @@ CONTROL_RT_PRIORITY = 20
 CORE_RT_PRIORITY = 10
 #: real-time priority of the service process's Zenoh threads (they route ``stop`` to the core)
 ROUTER_RT_PRIORITY = 5
+#: real-time priority of a :class:`~bridge.service.client.HitchClient` asked to be real-time (its process's
+#: Zenoh threads send its ``stop``): as the service's router, below the control core
+CLIENT_RT_PRIORITY = 5
 #: name prefixes (``/proc/<pid>/task/<tid>/comm``) of the threads of Zenoh's runtime (zenoh 1.x:
 #: ``rx-0``, ``tx-0``, ``net-0``, ``app-0``, ``acc-0``)
 ZENOH_THREAD_PREFIXES = ("rx-", "tx-", "net-", "app-", "acc-")

@@ -1,0 +1,198 @@
+"""HitchClient(realtime=True) and its subscriptions.
+
+A real-time client runs its process's Zenoh threads under SCHED_FIFO at CLIENT_RT_PRIORITY (the policy the
+kernel reports for each thread, read from /proc), the thread that sends a ``stop`` runs under it until the
+answer is in (read by the stand-in while it answers) and then under its own policy again, and subscription
+callbacks run on an ordinary thread, never a real-time one. Each real-time client runs in a child process
+of its own (the test process's own Zenoh threads must keep their policy), against a Zenoh router in the
+test process standing in for the service. Where the system does not permit real-time scheduling (a child
+run without CAP_SYS_NICE), the client says why and goes on at ordinary priority.
+
+Every client closes the subscriptions its waits open (``state``, ``follow``, ``wait_motion``): before,
+each call left one declared until the client closed.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from bench._common import free_port
+from bridge.service.client import HitchClient
+from bridge.service.scheduling import CLIENT_RT_PRIORITY, thread_schedule
+
+ROOT = Path(__file__).resolve().parents[3]
+
+CHILD = r"""
+import json, os, sys, threading, time, warnings
+from bridge.service.client import HitchClient
+from bridge.service.scheduling import thread_schedule, zenoh_thread_ids
+warnings.simplefilter("always")
+with warnings.catch_warnings(record=True) as caught:
+    c = HitchClient([sys.argv[1]], timeout_s=5.0, realtime=True)
+    policies = []
+    got = threading.Event()
+    def on_state(s):
+        me = threading.get_native_id()
+        policies.extend(t.policy for t in thread_schedule() if t.tid == me)
+        got.set()
+    sub = c.subscribe("state", on_state)
+    me = threading.get_native_id()
+    reply = c.request("stop", {"pid": os.getpid(), "tid": me})  # the stand-in reads this thread's policy meanwhile
+    caller_after = [t.policy for t in thread_schedule() if t.tid == me]
+    assert got.wait(10), "no state sample"
+    zenoh_ids = set(zenoh_thread_ids())
+    zenoh_threads = [(t.name, t.policy, t.rt_priority) for t in thread_schedule() if t.tid in zenoh_ids]
+    sub.close()
+    c.close()
+print(json.dumps({"reply": reply, "caller_after": caller_after, "callback_policies": policies,
+                  "zenoh_threads": zenoh_threads, "refused": c.realtime_refused,
+                  "warnings": [str(w.message) for w in caught]}))
+"""
+
+
+@pytest.fixture
+def stand_in():
+    """A Zenoh router on loopback answering ``hitch/stop`` and publishing ``hitch/state`` at 50 Hz."""
+    port = free_port()
+    cfg = zenoh.Config()
+    cfg.insert_json5("mode", '"router"')
+    cfg.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    cfg.insert_json5("scouting/multicast/enabled", "false")
+    s = zenoh.open(cfg)
+
+    def on_stop(q: zenoh.Query) -> None:
+        with q:
+            answer: dict = {"stopped": True, "motion_id": 3}
+            asked = json.loads(q.payload.to_bytes() or b"{}") if q.payload is not None else {}
+            if "pid" in asked:  # the sender's thread while it waits for this answer
+                answer["caller"] = [
+                    (t.policy, t.rt_priority) for t in thread_schedule(asked["pid"]) if t.tid == asked["tid"]
+                ]
+            q.reply(q.key_expr, json.dumps(answer).encode())
+
+    q = s.declare_queryable("hitch/stop", on_stop, complete=True)
+    pub = s.declare_publisher("hitch/state")
+    done = threading.Event()
+    motion = {"id": 1, "moving": True}
+
+    def publish() -> None:
+        while not done.wait(0.02):
+            pub.put(json.dumps({"motion_id": motion["id"], "moving": motion["moving"]}).encode())
+
+    th = threading.Thread(target=publish, daemon=True)
+    th.start()
+    try:
+        yield f"tcp/127.0.0.1:{port}", motion
+    finally:
+        done.set()
+        th.join(2)
+        pub.undeclare()
+        q.undeclare()
+        s.close()
+
+
+#: runs a program without the capability to change scheduling policies (util-linux)
+SETPRIV = shutil.which("setpriv")
+
+
+def _child(endpoint: str, *, unprivileged: bool = False) -> dict:
+    drop = [str(SETPRIV), "--bounding-set", "-sys_nice", "--inh-caps", "-sys_nice"] if unprivileged else []
+    out = subprocess.run(
+        [*drop, sys.executable, "-c", CHILD, endpoint], cwd=ROOT, capture_output=True, text=True, timeout=60
+    )
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def _may_set_fifo() -> bool:
+    try:
+        pid = os.fork()
+    except OSError:
+        return False
+    if pid == 0:  # try in a child: the test process keeps its policy
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+            os._exit(0)
+        except OSError:
+            os._exit(1)
+    return os.waitpid(pid, 0)[1] == 0
+
+
+@pytest.mark.skipif(not _may_set_fifo(), reason="this system does not permit SCHED_FIFO to this user")
+def test_a_realtime_client_runs_zenoh_under_fifo_and_its_callbacks_at_ordinary_priority(stand_in):
+    endpoint, _ = stand_in
+    r = _child(endpoint)
+    assert r.pop("reply") == {"stopped": True, "motion_id": 3, "caller": [["fifo", CLIENT_RT_PRIORITY]]}
+    assert r["caller_after"] == ["other"]  # the caller's own policy again once the answer is in
+    assert r["refused"] is None and r["warnings"] == []
+    assert r["zenoh_threads"], "no Zenoh thread found"
+    names = {n.split("-")[0] for n, _, _ in r["zenoh_threads"]}
+    assert {"rx", "tx"} <= names  # the threads that send the stop and take its reply
+    for name, policy, prio in r["zenoh_threads"]:
+        assert (policy, prio) == ("fifo", CLIENT_RT_PRIORITY), name
+    assert r["callback_policies"] and set(r["callback_policies"]) == {"other"}
+
+
+@pytest.mark.skipif(SETPRIV is None or not _may_set_fifo(), reason="needs setpriv and a privilege to drop")
+def test_a_realtime_client_without_the_privilege_says_why_and_works_at_ordinary_priority(stand_in):
+    endpoint, _ = stand_in
+    r = _child(endpoint, unprivileged=True)
+    assert r["reply"] == {"stopped": True, "motion_id": 3, "caller": [["other", 0]]}
+    assert r["caller_after"] == ["other"]
+    assert "not permitted" in r["refused"] and "CAP_SYS_NICE" in r["refused"]
+    assert len(r["warnings"]) == 1 and "ordinary priority" in r["warnings"][0]
+    assert {p for _, p, _ in r["zenoh_threads"]} == {"other"}
+    assert set(r["callback_policies"]) == {"other"}
+
+
+def test_waits_close_the_subscriptions_they_open(stand_in):
+    endpoint, motion = stand_in
+    with HitchClient([endpoint], timeout_s=5.0) as c:
+        for _ in range(3):
+            assert c.state()["motion_id"] == motion["id"]
+        samples = c.follow("state")
+        next(samples)
+        samples.close()
+        motion["moving"] = False
+        assert c.wait_motion(1, timeout_s=5.0)["moving"] is False
+        with pytest.raises(Exception, match="still running"):
+            c.wait_motion(2, timeout_s=0.3)
+        assert c._subs == []  # before: one subscriber per call, declared until the client closed
+
+
+def test_a_closed_subscription_calls_back_no_more(stand_in):
+    endpoint, _ = stand_in
+    with HitchClient([endpoint], timeout_s=5.0) as c:
+        got: list[dict] = []
+        sub = c.subscribe("state", got.append)
+        end = time.monotonic() + 5.0
+        while not got and time.monotonic() < end:
+            time.sleep(0.01)
+        assert got
+        sub.close()
+        sub.close()  # idempotent
+        n = len(got)
+        time.sleep(0.2)  # ten publishing periods
+        assert len(got) == n and c._subs == []
+
+
+@pytest.mark.skipif(SETPRIV is None or not _may_set_fifo(), reason="needs setpriv and a privilege to drop")
+def test_hitch_stop_realtime_without_the_privilege_says_why_on_stderr_and_stops(stand_in):
+    endpoint, _ = stand_in
+    drop = [str(SETPRIV), "--bounding-set", "-sys_nice", "--inh-caps", "-sys_nice"]
+    cmd = [sys.executable, "-m", "bridge.cli", "stop", "--connect", endpoint, "--realtime", "--json"]
+    out = subprocess.run([*drop, *cmd], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert json.loads(out.stdout)["stopped"] is True
+    assert "--realtime: this client runs at ordinary priority: not permitted" in out.stderr
+    assert "RuntimeWarning" not in out.stderr  # said once, plainly

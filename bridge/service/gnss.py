@@ -451,7 +451,10 @@ class TwinGnss:
             while not self._stop.wait(period_s):
                 f = self.fix()
                 if f is not None and not self._stop.is_set():
-                    put(json.dumps(f).encode())
+                    try:
+                        put(json.dumps(f).encode())
+                    except Exception:  # noqa: BLE001 — the session closed under it (zenoh.ZError): nothing to publish to
+                        return
 
         t = threading.Thread(target=run, name="twin-gnss", daemon=True)
         self._thread = t

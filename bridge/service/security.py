@@ -68,6 +68,9 @@ __all__ = [
     "security_sections",
     "exposure_warnings",
     "read_users",
+    "InternalLink",
+    "grant_internal_user",
+    "users_file_of",
 ]
 
 #: API names that move the hitch; restricted to operators
@@ -592,12 +595,21 @@ def read_users(source: str | Path) -> dict[str, str]:
     """The ``user -> password`` dictionary a security file authenticates links against (its
     ``transport/auth/usrpwd/dictionary_file``, as :func:`write_users_file` writes it), e.g. for the
     operator terminal's login; {} when the file names none."""
+    path = users_file_of(source)
+    return {} if path is None else _read_users_file(path)
+
+
+def users_file_of(source: str | Path) -> Path | None:
+    """The usrpwd dictionary file a security file names (None: it authenticates no user by password)."""
     usrpwd = json.loads(security_sections(source).get("transport/auth/usrpwd") or "{}") or {}
     path = usrpwd.get("dictionary_file")
-    if not path:
-        return {}
+    return Path(path) if path else None
+
+
+def _read_users_file(path: Path) -> dict[str, str]:
+    """``user -> password`` of a usrpwd dictionary file (``user:password`` per line)."""
     try:
-        lines = Path(path).read_text(encoding="utf-8").splitlines()
+        lines = path.read_text(encoding="utf-8").splitlines()
     except OSError as exc:
         raise SecurityError("users_file", f"cannot read {path}: {exc}") from None
     users: dict[str, str] = {}
@@ -632,3 +644,64 @@ def exposure_warnings(listen: Sequence[str], settings: SecuritySettings | None) 
         if settings is None or settings.access is None:
             out.append(f"{ep} exposes the motion keys to every connected node (no access_control)")
     return out
+
+
+#: the ids under which :func:`grant_internal_user` adds its subject, rule and policy to an ACL
+INTERNAL_ACL_ID = "hitch_control_core"
+
+
+@dataclass(frozen=True)
+class InternalLink:
+    """A user the service makes up at each start for its own control core's Zenoh link, and the users
+    file (the operator's users plus this one) its session authenticates against; never in the operator's
+    files, never shown; the service removes the combined file's directory at close."""
+
+    credentials: Credentials
+    users_file: Path
+
+
+def grant_internal_user(config: zenoh.Config, prefix: str, directory: Path) -> InternalLink | None:
+    """Let a made-up user (random name suffix and 32-byte password) in through ``config``'s usrpwd
+    dictionary and, with access control on, allow it everything under ``prefix`` (the control core
+    answers ``stop``, publishes the state and takes the setpoints); ``config`` is changed in place.
+
+    None when ``config`` authenticates no user (no ``dictionary_file``): then a link without
+    credentials on the core's loopback listener would match no subject of a certificate-based policy,
+    and adding a dictionary would lock out the operator's certificate-only clients, so the caller keeps
+    the core in its own process's threads. ``directory`` must exist; the combined users file is written
+    there (0600) and named in ``config``."""
+    import secrets
+
+    usrpwd = json.loads(config.get_json("transport/auth/usrpwd") or "{}") or {}
+    source = usrpwd.get("dictionary_file")
+    if not source:
+        return None
+    users = _read_users_file(Path(source))
+    name = f"hitch-core-{secrets.token_hex(4)}"
+    while name in users:  # pragma: no cover — a clash with an operator's user name is 1 in 2^32
+        name = f"hitch-core-{secrets.token_hex(4)}"
+    creds = Credentials(name, secrets.token_urlsafe(32))
+    text = Path(source).read_text(encoding="utf-8")  # the operator's lines exactly as Zenoh reads them
+    combined = directory / "users"
+    fd = os.open(combined, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        f.write(text if not text or text.endswith("\n") else text + "\n")
+        f.write(f"{creds.user}:{creds.password}\n")
+    config.insert_json5("transport/auth/usrpwd/dictionary_file", json.dumps(str(combined)))
+    acl = json.loads(config.get_json("access_control") or "{}") or {}
+    if acl.get("enabled"):
+        acl["rules"] = [
+            *acl.get("rules", []),
+            {
+                "id": INTERNAL_ACL_ID,
+                "permission": "allow",
+                "flows": ["ingress", "egress"],
+                "messages": list(_ALL),
+                "key_exprs": [_key(prefix, "**")],
+            },
+        ]
+        acl["subjects"] = [*acl.get("subjects", []), {"id": INTERNAL_ACL_ID, "usernames": [creds.user]}]
+        policy = {"id": INTERNAL_ACL_ID, "rules": [INTERNAL_ACL_ID], "subjects": [INTERNAL_ACL_ID]}
+        acl["policies"] = [*acl.get("policies", []), policy]
+        config.insert_json5("access_control", json.dumps(acl))
+    return InternalLink(creds, combined)

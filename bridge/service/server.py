@@ -42,11 +42,14 @@ SIGTERM.
 from __future__ import annotations
 
 import json
+import shutil
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import zenoh
@@ -70,7 +73,15 @@ from bridge.service.scheduling import (
     thread_nice,
     zenoh_thread_ids,
 )
-from bridge.service.security import access_policy_from_file, apply_security, exposure_warnings, read_users
+from bridge.service.security import (
+    InternalLink,
+    access_policy_from_file,
+    apply_security,
+    exposure_warnings,
+    grant_internal_user,
+    read_users,
+    users_file_of,
+)
 from bridge.service.signals import StopSignals
 from bridge.service.store import HitchStore
 from bridge.service.wire import to_json_bytes
@@ -185,6 +196,8 @@ class HitchService:
         self._state_sub: Any = None  # the subscription to the core's state (declared when first wanted)
         self._sub_lock = threading.Lock()
         self._proxy: MotionProxy | None = None  # the controller's proxy when the core has its own process
+        self._core_link: InternalLink | None = None  # the core's made-up login (a secured service, own process)
+        self._core_link_dir: Path | None = None  # where its users file lies (removed at close)
 
     @property
     def core_in_process(self) -> bool:
@@ -197,7 +210,7 @@ class HitchService:
         # only when the control core runs here: its process then needs its request threads raised; with the
         # core in its own process the service's threads stay at the caller's priority (they must not take
         # CPU from the core)
-        in_process = self.config.control_core == "thread" or self.config.security is not None
+        in_process = not _core_in_own_process(self.config)
         caller_nice = thread_nice(me) if in_process else None
         self._service_nice_failed = set_thread_nice(me, SERVICE_NICE) if caller_nice is not None else None
         try:
@@ -224,19 +237,24 @@ class HitchService:
             policy = access_policy_from_file(cfg.security, cfg.prefix) if cfg.security is not None else None
             if cfg.security is not None:  # a missing or malformed users file named here, not by Zenoh's Rust error
                 read_users(cfg.security)
-            own_process = cfg.control_core == "process" and cfg.security is None
+            own_process = _core_in_own_process(cfg)
             if cfg.control_core == "process" and not own_process:
+                why = (
+                    "its link would go through the routers, which know no user for it"
+                    if cfg.mode == "client"
+                    else "the security file authenticates no user by password (no users file) to add its link to"
+                )
                 self.warnings.append(
-                    "with a security file the control core runs in the service's own process (threads): its own "
-                    "Zenoh link would need credentials of its own. Under heavy request load its control period is "
-                    "then less regular, and stop shares the interpreter with the requests (docs/faults.md: threads "
-                    "or processes)"
+                    f"with this security file the control core runs in the service's own process (threads): {why}. "
+                    "Under heavy request load its control period is then less regular, and stop shares the "
+                    "interpreter with the requests (docs/faults.md: threads or processes)"
                 )
             private = self._open_zenoh(private_link=own_process and cfg.mode != "client")
             motion: Any
             if own_process:
                 endpoints = [private] if private is not None else list(cfg.connect)
-                self.core = core = CoreProcess(cfg, endpoints, on_note=self._core_note).start()
+                login = None if self._core_link is None else self._core_link.credentials
+                self.core = core = CoreProcess(cfg, endpoints, on_note=self._core_note, credentials=login).start()
                 self.warnings.extend(core.ready.get("warnings", []))
                 motion = self._proxy = MotionProxy(core, TrajectoryPlanner(build_model(cfg), rate=cfg.control_rate))
                 if planning is None:  # no planning processes: plan here, on a guard of the service's own
@@ -334,11 +352,16 @@ class HitchService:
         (any outgoing connection on the machine may be given it as its local port), another port is
         tried, up to ``PRIVATE_PORT_TRIES`` times. A port the operator chose is never replaced."""
         cfg = self.config
+        link_dir = None
+        if private_link and cfg.security is not None:  # the core's link logs in as a user made up for it
+            link_dir = self._core_link_dir = Path(tempfile.mkdtemp(prefix="hitch-core-link-"))  # 0700; removed at close
         for _ in range(PRIVATE_PORT_TRIES if private_link else 1):
             private = f"tcp/127.0.0.1:{_free_port()}" if private_link else None
             z = build_zenoh_config(cfg)
             if private is not None:
                 z.insert_json5("listen/endpoints", json.dumps([*list(cfg.listen or ()), private]))
+            if link_dir is not None:
+                self._core_link = grant_internal_user(z, cfg.prefix, link_dir)
             try:
                 self.session = zenoh.open(z)
                 return private
@@ -585,6 +608,8 @@ class HitchService:
                     _quiet(p.undeclare)
             if self.session is not None:
                 _quiet(self.session.close)
+            if self._core_link_dir is not None:  # the made-up user's file: nobody logs in with it again
+                shutil.rmtree(self._core_link_dir, ignore_errors=True)
             for pool in (self._pool, self._motion_pool):
                 if pool is not None:
                     pool.shutdown(wait=False, cancel_futures=True)
@@ -614,6 +639,15 @@ class HitchService:
 #: queries (or samples) a key's channel holds while its thread is busy; beyond it the oldest is dropped
 #: (its querier gets no reply, as from a busy service) — Zenoh never waits for Python
 CHANNEL_CAPACITY = 256
+
+
+def _core_in_own_process(cfg: ServiceConfig) -> bool:
+    """Whether the control core gets its own process: ``control_core = "process"``, and with a security
+    file its link can log in as a user made up for it (the file names a users file to add it to, and
+    the link is the private listener, not the routers of client mode)."""
+    if cfg.control_core != "process":
+        return False
+    return cfg.security is None or (cfg.mode != "client" and users_file_of(cfg.security) is not None)
 
 
 def _ring() -> Any:

@@ -6,7 +6,9 @@ an unknown user cannot even open a session."""
 from __future__ import annotations
 
 import json
+import signal
 import time
+from pathlib import Path
 
 import pytest
 
@@ -91,3 +93,51 @@ def test_only_an_operator_can_stream_track_setpoints(secured):
         assert st["track"]["setpoints"] >= 50 and st["track"]["ignored_seq"] == 0, st["track"]
         assert st["track"]["target"]["z"] > z0
         c.track_stop(session)
+
+
+def _children_cmdlines(pid: int) -> list[list[str]]:
+    kids: list[int] = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        kids += [int(k) for k in (task / "children").read_text().split()]
+    return [Path(f"/proc/{k}/cmdline").read_bytes().decode().split("\0")[:-1] for k in kids]
+
+
+def test_a_secured_service_runs_its_control_core_in_its_own_process_logged_in_as_a_made_up_user(tmp_path, monkeypatch):
+    # before: with a security file the control core ran in the service's threads (its link had no login)
+    users = write_users_file(tmp_path / "users.txt", {"alice": "alice-pw", "bob": "bob-pw"})
+    before = users.read_text()
+    server = tmp_path / "server.json5"
+    server.write_text(
+        security_json5(SecuritySettings(users_file=users, access=AccessPolicy(operators=("alice",), viewers=("bob",))))
+    )
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    monkeypatch.setenv("TMPDIR", str(tmp))  # where the service puts the core's users file
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    svc = ServiceProcess(["--listen", ep, "--data-dir", str(tmp_path / "data"), "--security", str(server)])
+    try:
+        cores = [c for c in _children_cmdlines(svc.proc.pid) if "bridge.service.core.process" in c]
+        assert len(cores) == 1 and cores[0][-1] == "login", cores
+        (link,) = tmp.glob("hitch-core-link-*")
+        assert link.stat().st_mode & 0o777 == 0o700 and (link / "users").stat().st_mode & 0o777 == 0o600
+        lines = (link / "users").read_text().splitlines()
+        assert lines[:-1] == before.splitlines()  # the operator's users, and one more
+        user, _, password = lines[-1].partition(":")
+        assert user.startswith("hitch-core-") and len(password) >= 40
+        assert all(password not in arg for arg in cores[0])  # sent over the private socket, not the command line
+        assert users.read_text() == before
+        assert not any("control core runs in the service's own process" in ln for ln in svc.output)
+        with HitchClient([ep], security=client_file(tmp_path, "alice", "alice-pw"), timeout_s=10) as c:
+            wait_online(c)
+            assert c.goto({"z": 0.2})["accepted"]
+            with HitchClient([ep], security=client_file(tmp_path, "bob", "bob-pw"), timeout_s=5) as v:
+                stopped = v.stop()  # the viewer's stop, answered by the core's own queryable through the ACL
+                assert stopped["stopped"] is True and isinstance(stopped["t"], float)
+                assert v.state()["motion_id"] == stopped["motion_id"]
+        with pytest.raises(ServiceError):  # the made-up user does not let anyone in under a guessed password
+            with HitchClient([ep], security=client_file(tmp_path, user, "guess"), timeout_s=1.0) as m:
+                m.state(timeout_s=1.0)
+    finally:
+        svc.proc.send_signal(signal.SIGTERM)
+        svc.proc.wait(30)
+    assert list(tmp.glob("hitch-core-link-*")) == []  # removed when the service ended

@@ -33,6 +33,7 @@ from typing import Any
 
 from bridge.service.config import ServiceConfig
 from bridge.service.motion.types import MotionError
+from bridge.service.security import Credentials
 from planner.trajectory import MotionState, TrajectoryPlanner
 
 __all__ = ["CoreError", "CoreProcess", "MotionProxy", "JsonReply"]
@@ -66,6 +67,9 @@ class CoreProcess:
             its own (``{"request": "stop", "ok", "reply", "payload"}``).
         endpoints: what the core's Zenoh session connects to (the service session's private loopback
             listener; in client mode the routers the service connects to).
+        credentials: the user and password the core's link logs in with (a secured service's made-up
+            user, :func:`~bridge.service.security.grant_internal_user`); sent over the private socket,
+            never on the command line, where every user of the computer could read it.
     """
 
     def __init__(
@@ -73,9 +77,11 @@ class CoreProcess:
         config: ServiceConfig,
         endpoints: list[str],
         on_note: Callable[[dict[str, Any]], None] | None = None,
+        credentials: Credentials | None = None,
     ):
         self.config, self.endpoints = config, list(endpoints)
         self.on_note = on_note
+        self.credentials = credentials
         self.process: subprocess.Popen[bytes] | None = None
         self._conn: multiprocessing.connection.Connection | None = None
         self._send_lock = threading.Lock()
@@ -99,6 +105,7 @@ class CoreProcess:
                     str(fd),
                     self.config.model_dump_json(),
                     json.dumps(self.endpoints),
+                    *(["login"] if self.credentials is not None else []),
                 ],
                 pass_fds=(fd,),
                 stdin=subprocess.DEVNULL,
@@ -110,6 +117,8 @@ class CoreProcess:
         finally:
             theirs.close()
         self._conn = conn = multiprocessing.connection.Connection(mine.detach())
+        if self.credentials is not None:  # the first message: the core opens its session with it
+            conn.send(("login", self.credentials.user, self.credentials.password))
         if not conn.poll(START_TIMEOUT_S):
             self.close()
             raise CoreError("unavailable", f"the control core did not start within {START_TIMEOUT_S:.0f} s")

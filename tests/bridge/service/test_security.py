@@ -9,6 +9,7 @@ import stat
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 import zenoh
@@ -22,10 +23,12 @@ from bridge.service.security import (
     SecurityError,
     SecuritySettings,
     TlsSettings,
+    access_policy_from_file,
     apply_security,
     build_acl,
     build_security_config,
     exposure_warnings,
+    grant_internal_user,
     motion_keys,
     security_json5,
     security_sections,
@@ -167,6 +170,61 @@ def test_a_service_whose_users_file_is_missing_names_it_before_zenoh_does(tmp_pa
     with pytest.raises(SecurityError) as e:
         HitchService(cfg).start()
     assert str(users_file.resolve()) in str(e.value) and ".rs:" not in str(e.value), str(e.value)
+
+
+def test_the_core_user_is_added_to_a_copy_of_the_users_file_and_given_the_service_keys(tmp_path, users_file):
+    settings, path = _service_security_file(tmp_path, users_file)
+    z = apply_security(zenoh.Config(), path)
+    acl_before = json.loads(z.get_json("access_control"))
+    (tmp_path / "link").mkdir()
+    link = grant_internal_user(z, "hitch", tmp_path / "link")
+    assert link is not None and link.users_file.parent == tmp_path / "link"
+    assert stat.S_IMODE(link.users_file.stat().st_mode) == 0o600
+    user, password = link.credentials.user, link.credentials.password
+    assert link.users_file.read_text() == users_file.read_text() + f"{user}:{password}\n"
+    assert users_file.read_text().splitlines() == ["alice:alice-pw", "bob:bob-pw", "carol:carol-pw"]  # untouched
+    usrpwd = json.loads(z.get_json("transport/auth/usrpwd"))
+    assert usrpwd["dictionary_file"] == str(link.users_file) and usrpwd["user"] == "svc"
+    acl = json.loads(z.get_json("access_control"))
+    added = {k: [x for x in acl[k] if x not in acl_before[k]] for k in ("rules", "subjects", "policies")}
+    assert [r["permission"] for r in added["rules"]] == ["allow"] and added["rules"][0]["key_exprs"] == ["hitch/**"]
+    assert [(x["id"], x["usernames"]) for x in added["subjects"]] == [(added["rules"][0]["id"], [user])]
+    assert len(added["policies"]) == 1 and added["policies"][0]["subjects"] == [added["subjects"][0]["id"]]
+    assert all(x in acl[k] for k in ("rules", "subjects", "policies") for x in acl_before[k])  # nothing taken away
+    assert access_policy_from_file(path, "hitch").role(user) is None  # no role of the operator's
+    again = grant_internal_user(apply_security(zenoh.Config(), path), "hitch", tmp_path / "link")
+    assert again is not None and again.credentials.user != user  # a new one at every start
+    # a file that authenticates nobody by password gets no made-up user (the core stays in threads)
+    only_acl = tmp_path / "no-users.json5"
+    only_acl.write_text(json.dumps({"access_control": {"enabled": False}}))
+    assert grant_internal_user(apply_security(zenoh.Config(), only_acl), "hitch", tmp_path / "link") is None
+
+
+@pytest.mark.slow  # the service in its own process
+def test_a_secured_client_mode_service_keeps_its_core_in_threads_and_says_why(tmp_path, users_file):
+    from tests.integration.service_process import ServiceProcess
+
+    _, path = _service_security_file(tmp_path, users_file)
+    router = zenoh.Config()
+    router.insert_json5("mode", '"router"')
+    port = free_port()
+    router.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    router.insert_json5("scouting/multicast/enabled", "false")
+    router_users = write_users_file(tmp_path / "router-users.txt", {"svc": "svc-pw"})  # it lets the service in
+    apply_security(router, SecuritySettings(users_file=router_users))
+    with zenoh.open(router):
+        args = ["--mode", "client", "--connect", f"tcp/127.0.0.1:{port}", "--security", str(path)]
+        svc = ServiceProcess([*args, "--data-dir", str(tmp_path / "data")])
+        try:
+            said = [ln for ln in svc.output if "control core runs in the service's own process" in ln]
+            assert said and "through the routers" in said[0], svc.output
+            kids = [
+                k for t in Path(f"/proc/{svc.proc.pid}/task").iterdir() for k in (t / "children").read_text().split()
+            ]
+            cmdlines = [Path(f"/proc/{k}/cmdline").read_bytes() for k in kids]
+            assert not [c for c in cmdlines if b"bridge.service.core.process" in c]
+        finally:
+            svc.kill()
 
 
 def test_exposure_warnings(users_file):

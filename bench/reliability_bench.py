@@ -404,6 +404,27 @@ def maneuver_script(i: int, steps: int, ws: Mapping[str, tuple[float, float]]) -
 
 
 # ========================================================================== roles (other processes)
+def secured_files(directory: str) -> tuple[str, str]:
+    """A secured service's files in ``directory``: its security file (a users file and access control with
+    one operator, whom every client of the bench logs in as) and that operator's client file."""
+    import secrets
+
+    from bridge.service.security import (
+        AccessPolicy,
+        Credentials,
+        SecuritySettings,
+        security_json5,
+        write_users_file,
+    )
+
+    password = secrets.token_urlsafe(16)
+    users = write_users_file(Path(directory) / "users.txt", {"operator": password})
+    server, client = Path(directory) / "service.json5", Path(directory) / "operator.json5"
+    server.write_text(security_json5(SecuritySettings(users_file=users, access=AccessPolicy(operators=("operator",)))))
+    client.write_text(security_json5(SecuritySettings(credentials=Credentials("operator", password))))
+    return str(server), str(client)
+
+
 def role_monitor(a: argparse.Namespace) -> None:
     """Record ``state`` (compact) and ``events`` until ``go`` + ``--seconds`` or SIGTERM; write ``--out``."""
     from bridge.service.client import HitchClient
@@ -431,7 +452,7 @@ def role_monitor(a: argparse.Namespace) -> None:
             }
         )
 
-    with HitchClient([a.connect], timeout_s=5) as c:
+    with HitchClient([a.connect], timeout_s=5, security=a.client_security) as c:
         c.subscribe("state", on_state)
         c.subscribe("events", events.append)
         if not await_go():
@@ -447,7 +468,9 @@ def role_mover(a: argparse.Namespace) -> None:
     rng = np.random.default_rng(a.seed)
     stops: list[dict] = []
     moves: dict[str, Any] = {"accepted": 0, "refused": {}, "not_finished_in_time": 0}
-    with HitchClient([a.connect], timeout_s=5, realtime=a.mover_priority == "realtime") as c:
+    with HitchClient(
+        [a.connect], timeout_s=5, realtime=a.mover_priority == "realtime", security=a.client_security
+    ) as c:
         ws = workspace_of(c)
         mid_ = centre(ws)
         ends = [{**mid_, **{k: mid_[k] + s * 0.4 * (ws[k][1] - ws[k][0]) for k in ("x", "z")}} for s in (-1.0, 1.0)]
@@ -502,10 +525,10 @@ def role_load(a: argparse.Namespace) -> None:
     lat: dict[str, list[float]] = {k: [] for k in kinds}
     codes: dict[str, dict[str, int]] = {k: {} for k in kinds}
     state_samples = [0]
-    with HitchClient([a.connect], timeout_s=5) as c0:
+    with HitchClient([a.connect], timeout_s=5, security=a.client_security) as c0:
         ws = workspace_of(c0)
     script = maneuver_script(999, 40, ws)
-    clients = [HitchClient([a.connect], timeout_s=10) for _ in range(a.threads)]
+    clients = [HitchClient([a.connect], timeout_s=10, security=a.client_security) for _ in range(a.threads)]
     subs = [LatestState(c) for c in clients]
     try:
         if not await_go():
@@ -648,7 +671,9 @@ class InProcessService:
         planning_processes: int | None = None,
         control_core: str | None = None,
         realtime: bool | None = None,
+        security: tuple[str, str] | None = None,
     ) -> None:
+        """``security``: (the service's security file, a client's) for a secured service."""
         from bridge.service.client import HitchClient
         from bridge.service.config import load_service_config
         from bridge.service.server import HitchService
@@ -664,7 +689,9 @@ class InProcessService:
             planning_processes=planning_processes,
             control_core=control_core,
             realtime=realtime,
+            security=None if security is None else security[0],
         )
+        self.client_security = None if security is None else security[1]
         if cfg.control_core == "process":
             cfg = cfg.model_copy(update={"can_log": log})
             self.sniffer: Sniffer = LogSniffer(log)
@@ -673,7 +700,7 @@ class InProcessService:
         self.svc = HitchService(cfg)
         try:
             self.svc.start()
-            with HitchClient([self.endpoint], timeout_s=10) as c:
+            with HitchClient([self.endpoint], timeout_s=10, security=self.client_security) as c:
                 latest = LatestState(c)
                 if not latest.wait_until(lambda s: (s.get("ecu") or {}).get("online"), 20.0):
                     raise RuntimeError("the simulated ECU never came online")
@@ -715,14 +742,16 @@ def bench_load(a: argparse.Namespace) -> dict:
     from bridge.service.client import HitchClient
 
     tmp = tempfile.mkdtemp(prefix="hitch-reliability-")
-    service = InProcessService(tmp, a.planning_processes, a.control_core, a.realtime)
+    security = secured_files(tmp) if a.secured else None
+    service = InProcessService(tmp, a.planning_processes, a.control_core, a.realtime, security)
     steal = StealSampler()
     procs: list[subprocess.Popen] = []
     hogs: list[subprocess.Popen] = []
     res: dict[str, Any] = {}
     try:
         ep = service.endpoint
-        with HitchClient([ep], timeout_s=30) as c:
+        sec = [] if security is None else ["--client-security", security[1]]
+        with HitchClient([ep], timeout_s=30, security=service.client_security) as c:
             ws = workspace_of(c)
             saved = sum(
                 try_request(c, "maneuvers/save", {"name": f"m{i:03d}", "script": maneuver_script(i, 20, ws)}, 30)[0]
@@ -736,8 +765,18 @@ def bench_load(a: argparse.Namespace) -> dict:
         hogs = start_hogs(n_hogs, a.duration + a.idle_duration + 120)
         mon_out, mov_out = f"{tmp}/monitor.json", f"{tmp}/mover.json"
         mon_s = str(a.duration + a.idle_duration + 60)
-        monitor = spawn("monitor", "--connect", ep, "--seconds", mon_s, "--out", mon_out)
-        mover_args = ["--connect", ep, "--seconds", str(a.duration), "--seed", "7", "--stop-every", str(a.stop_every)]
+        monitor = spawn("monitor", "--connect", ep, "--seconds", mon_s, "--out", mon_out, *sec)
+        mover_args = [
+            *sec,
+            "--connect",
+            ep,
+            "--seconds",
+            str(a.duration),
+            "--seed",
+            "7",
+            "--stop-every",
+            str(a.stop_every),
+        ]
         mover_args += ["--mover-priority", a.mover_priority]
         mover = spawn("mover", *mover_args, "--out", mov_out)
         loads, load_outs = [], []
@@ -745,7 +784,7 @@ def bench_load(a: argparse.Namespace) -> dict:
         while left > 0:
             n = min(left, a.clients_per_process)
             load_outs.append(f"{tmp}/load{i}.json")
-            load_args = ["--connect", ep, "--seconds", str(a.duration), "--threads", str(n), "--seed", str(i + 1)]
+            load_args = [*sec, "--connect", ep, "--seconds", str(a.duration), "--threads", str(n), "--seed", str(i + 1)]
             loads.append(spawn("load", *load_args, "--out", load_outs[-1]))
             left, i = left - n, i + 1
         procs = [monitor, mover, *loads]
@@ -761,7 +800,7 @@ def bench_load(a: argparse.Namespace) -> dict:
                 kill_group(p)
         t1 = min(time.time(), t0 + a.duration)
         trips1 = service.watchdog_trips()
-        with HitchClient([ep], timeout_s=5) as c:
+        with HitchClient([ep], timeout_s=5, security=service.client_security) as c:
             try_request(c, "stop", {})
             wait_rest(LatestState(c), 15)
         time.sleep(2.0)
@@ -823,6 +862,8 @@ def bench_load(a: argparse.Namespace) -> dict:
         {
             "clients": a.clients,
             "hogs": n_hogs,
+            "secured": security is not None,
+            "core_in_own_process": service.svc.core is not None,
             "moving": {
                 "window_s": t1 - t0,
                 "reference_period": period_figures(window(refs, t0, t1)),
@@ -1302,6 +1343,9 @@ def table(res: dict) -> list[str]:
                     verdict(s["p99_ms"], T["stop_p99_ms"]) if honoured else "",
                 )
             add(f"{head}moving: stops sent / unmatched", n=f"{ph['stops_sent']} / {ph['stops_unmatched']}")
+            where = "own process" if res[load_key].get("core_in_own_process") else "the service's threads"
+            secured = "secured (users file + access control)" if res[load_key].get("secured") else "not secured"
+            add(f"{head}moving: the service; its control core", n=f"{secured}; {where}")
             oc = ph.get("operator_client") or {}
             refused = f" (refused: {oc['realtime_refused']})" if oc.get("realtime_refused") else ""
             add(f"{head}moving: the operator's client (sends the stops)", n=f"{oc.get('priority', '-')}{refused}")
@@ -1365,6 +1409,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument("--threads", type=int, default=1, help=argparse.SUPPRESS)
     ap.add_argument("--seed", type=int, default=0, help=argparse.SUPPRESS)
     ap.add_argument("--out", default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--client-security", default=None, help=argparse.SUPPRESS)
     ap.add_argument("--quick", action="store_true", help="15 s moving, 30 s idle, 5 clients, 15 s CPU windows")
     ap.add_argument("--only", default="load,cpu,faults,jog", help="scenarios, comma-separated")
     ap.add_argument("--duration", type=float, default=None, help="moving under load [s] (default 120; quick 15)")
@@ -1418,6 +1463,12 @@ def main(argv: Sequence[str] | None = None) -> None:
         "--compare-mover",
         action="store_true",
         help="run `load` twice: first with the operator's client at ordinary priority, then as configured",
+    )
+    ap.add_argument(
+        "--secured",
+        action="store_true",
+        help="`load`: the service with a security file (a users file and access control; every client logs in "
+        "as its one operator), so its control core's link logs in as the user the service makes up for it",
     )
     ap.add_argument("--json", default=None, help="write the results as JSON to this file")
     a = ap.parse_args(argv)

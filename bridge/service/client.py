@@ -393,9 +393,12 @@ class HitchClient:
     def _caller_to_fifo() -> Callable[[], None] | None:
         """Put the calling thread under ``SCHED_FIFO`` while it sends a ``stop`` and waits for the answer
         (its query is built under this thread, its answer wakes it); the function that restores its
-        policy, or None when the system does not permit it (the refusal is known from the Zenoh threads)."""
+        policy, or None when the system does not permit it (the refusal is known from the Zenoh threads)
+        or the caller runs under a real-time policy already (it is left as it is, never lowered)."""
         try:
             policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
+            if policy in (os.SCHED_FIFO, os.SCHED_RR):  # a real-time caller already: never lowered
+                return None
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(CLIENT_RT_PRIORITY))
         except (AttributeError, OSError):
             return None

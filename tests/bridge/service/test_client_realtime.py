@@ -49,12 +49,24 @@ with warnings.catch_warnings(record=True) as caught:
     me = threading.get_native_id()
     reply = c.request("stop", {"pid": os.getpid(), "tid": me})  # the stand-in reads this thread's policy meanwhile
     caller_after = [t.policy for t in thread_schedule() if t.tid == me]
+    rt = {}
+    def rt_stop():  # a caller under SCHED_FIFO 20 already: its stop must not lower it
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(20))
+        except PermissionError:
+            return
+        tid = threading.get_native_id()
+        rt["reply"] = c.request("stop", {"pid": os.getpid(), "tid": tid})
+        rt["after"] = [[t.policy, t.rt_priority] for t in thread_schedule() if t.tid == tid]
+    th = threading.Thread(target=rt_stop)
+    th.start()
+    th.join()
     assert got.wait(10), "no state sample"
     zenoh_ids = set(zenoh_thread_ids())
     zenoh_threads = [(t.name, t.policy, t.rt_priority) for t in thread_schedule() if t.tid in zenoh_ids]
     sub.close()
     c.close()
-print(json.dumps({"reply": reply, "caller_after": caller_after, "callback_policies": policies,
+print(json.dumps({"reply": reply, "caller_after": caller_after, "rt": rt, "callback_policies": policies,
                   "zenoh_threads": zenoh_threads, "refused": c.realtime_refused,
                   "warnings": [str(w.message) for w in caught]}))
 """
@@ -134,6 +146,7 @@ def test_a_realtime_client_runs_zenoh_under_fifo_and_its_callbacks_at_ordinary_p
     r = _child(endpoint)
     assert r.pop("reply") == {"stopped": True, "motion_id": 3, "caller": [["fifo", CLIENT_RT_PRIORITY]]}
     assert r["caller_after"] == ["other"]  # the caller's own policy again once the answer is in
+    assert r["rt"]["reply"]["caller"] == [["fifo", 20]] and r["rt"]["after"] == [["fifo", 20]]  # never lowered
     assert r["refused"] is None and r["warnings"] == []
     assert r["zenoh_threads"], "no Zenoh thread found"
     names = {n.split("-")[0] for n, _, _ in r["zenoh_threads"]}

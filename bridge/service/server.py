@@ -239,11 +239,7 @@ class HitchService:
                 read_users(cfg.security)
             own_process = _core_in_own_process(cfg)
             if cfg.control_core == "process" and not own_process:
-                why = (
-                    "its link would go through the routers, which know no user for it"
-                    if cfg.mode == "client"
-                    else "the security file authenticates no user by password (no users file) to add its link to"
-                )
+                why = "the security file authenticates no user by password (no users file) to add its link to"
                 self.warnings.append(
                     f"with this security file the control core runs in the service's own process (threads): {why}. "
                     "Under heavy request load its control period is then less regular, and stop shares the "
@@ -643,11 +639,12 @@ CHANNEL_CAPACITY = 256
 
 def _core_in_own_process(cfg: ServiceConfig) -> bool:
     """Whether the control core gets its own process: ``control_core = "process"``, and with a security
-    file its link can log in as a user made up for it (the file names a users file to add it to, and
-    the link is the private listener, not the routers of client mode)."""
+    file its link can log in — in client mode to the routers as the service does (the same file), else
+    to this service's private listener as a user made up for it (the file must name a users file to add
+    it to)."""
     if cfg.control_core != "process":
         return False
-    return cfg.security is None or (cfg.mode != "client" and users_file_of(cfg.security) is not None)
+    return cfg.security is None or cfg.mode == "client" or users_file_of(cfg.security) is not None
 
 
 def _ring() -> Any:

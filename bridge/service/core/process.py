@@ -58,6 +58,7 @@ from bridge.service.scheduling import (
     zenoh_thread_ids,
 )
 from bridge.service.schemas import RequestError, parse_request, setpoint_session
+from bridge.service.security import apply_security
 from bridge.service.wire import to_json_bytes
 from bridge.service.workers import error_code
 from planner.errors import HitchError
@@ -220,9 +221,11 @@ class ControlCore:
             ("scouting/multicast/enabled", False),
         ):
             z.insert_json5(path, json.dumps(value))
-        if self._login is not None:
+        if self._login is not None:  # a secured service's private listener: the user it made up for this core
             z.insert_json5("transport/auth/usrpwd/user", json.dumps(self._login[0]))
             z.insert_json5("transport/auth/usrpwd/password", json.dumps(self._login[1]))
+        elif cfg.security is not None and cfg.mode == "client":  # the routers: logged in as the service is
+            apply_security(z, cfg.security)
         self.session = s = zenoh.open(z)
         self._state_pub = s.declare_publisher(
             cfg.key("state"),

@@ -201,28 +201,43 @@ def test_the_core_user_is_added_to_a_copy_of_the_users_file_and_given_the_servic
 
 
 @pytest.mark.slow  # the service in its own process
-def test_a_secured_client_mode_service_keeps_its_core_in_threads_and_says_why(tmp_path, users_file):
+def test_a_secured_client_mode_service_runs_its_core_in_its_own_process_logged_in_to_the_router(tmp_path, users_file):
+    # before: with a security file the core ran in the service's threads (its link had no login)
+    from bridge.service.client import HitchClient
     from tests.integration.service_process import ServiceProcess
 
-    _, path = _service_security_file(tmp_path, users_file)
+    # a fleet's arrangement: the access control on the router, the service logs in to it as a service node
+    path = tmp_path / "service.json5"
+    path.write_text(security_json5(SecuritySettings(credentials=Credentials("svc", "svc-pw"))))
     router = zenoh.Config()
     router.insert_json5("mode", '"router"')
     port = free_port()
     router.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
     router.insert_json5("scouting/multicast/enabled", "false")
-    router_users = write_users_file(tmp_path / "router-users.txt", {"svc": "svc-pw"})  # it lets the service in
-    apply_security(router, SecuritySettings(users_file=router_users))
+    router_users = write_users_file(tmp_path / "router-users.txt", {"svc": "svc-pw", "alice": "alice-pw"})
+    access = AccessPolicy(operators=("alice",), services=("svc",))
+    apply_security(router, SecuritySettings(users_file=router_users, access=access))
+    alice = tmp_path / "alice.json5"
+    alice.write_text(security_json5(SecuritySettings(credentials=Credentials("alice", "alice-pw"))))
     with zenoh.open(router):
         args = ["--mode", "client", "--connect", f"tcp/127.0.0.1:{port}", "--security", str(path)]
         svc = ServiceProcess([*args, "--data-dir", str(tmp_path / "data")])
         try:
-            said = [ln for ln in svc.output if "control core runs in the service's own process" in ln]
-            assert said and "through the routers" in said[0], svc.output
+            assert not [ln for ln in svc.output if "control core runs in the service's own process" in ln]
             kids = [
                 k for t in Path(f"/proc/{svc.proc.pid}/task").iterdir() for k in (t / "children").read_text().split()
             ]
-            cmdlines = [Path(f"/proc/{k}/cmdline").read_bytes() for k in kids]
-            assert not [c for c in cmdlines if b"bridge.service.core.process" in c]
+            cores = [Path(f"/proc/{k}/cmdline").read_bytes().split(b"\0") for k in kids]
+            cores = [c for c in cores if b"bridge.service.core.process" in c]
+            assert len(cores) == 1 and b"login" not in cores[0]  # it logs in with the service's own file
+            with HitchClient([f"tcp/127.0.0.1:{port}"], security=alice, timeout_s=10) as c:
+                deadline = time.monotonic() + 20
+                while not c.state()["ecu"]["online"] and time.monotonic() < deadline:
+                    time.sleep(0.1)
+                assert c.goto({"z": 0.2})["accepted"]  # the service's queryables, through the router's ACL
+                stopped = c.stop()  # through the router to the core's own queryable
+                assert stopped["stopped"] is True and isinstance(stopped["t"], float)
+                assert c.state()["motion_id"] == stopped["motion_id"]
         finally:
             svc.kill()
 

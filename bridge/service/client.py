@@ -111,16 +111,24 @@ class Subscription:
         owner.append(self)
 
     def close(self) -> None:
-        """Undeclare the subscriber: no callback after this returns (a real-time client's callback
-        thread ends once it has handed over the samples it already holds)."""
+        """Undeclare the subscriber: Zenoh delivers no sample after this returns (a real-time client's
+        callback thread still hands over the samples it already holds, then ends)."""
         _undeclare(self._subscriber)
-        if self in self._owner:
+        try:
             self._owner.remove(self)
+        except ValueError:  # closed already (by the client's close, or twice)
+            pass
 
 
 def _dispatch(subscriber: Any, callback: Callable[[dict], None]) -> None:
     """A real-time client's subscription: take the samples from the channel on an ordinary thread; a
-    callback's exception is printed and the subscription goes on (as with Zenoh's own callbacks)."""
+    callback's exception is printed and the subscription goes on (as with Zenoh's own callbacks). The
+    thread runs under the ordinary policy even when the thread that subscribed is real-time."""
+    try:
+        if os.sched_getscheduler(0) & ~getattr(os, "SCHED_RESET_ON_FORK", 0) != os.SCHED_OTHER:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))  # lowering is always permitted
+    except (AttributeError, OSError):
+        pass
     for sample in subscriber:  # ends when the subscriber is undeclared or the session closes
         try:
             callback(_decode(sample.payload))
@@ -394,10 +402,11 @@ class HitchClient:
         """Put the calling thread under ``SCHED_FIFO`` while it sends a ``stop`` and waits for the answer
         (its query is built under this thread, its answer wakes it); the function that restores its
         policy, or None when the system does not permit it (the refusal is known from the Zenoh threads)
-        or the caller runs under a real-time policy already (it is left as it is, never lowered)."""
+        or the caller runs under a real-time or deadline policy already (left as it is, never lowered)."""
         try:
             policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
-            if policy in (os.SCHED_FIFO, os.SCHED_RR):  # a real-time caller already: never lowered
+            ordinary = (os.SCHED_OTHER, os.SCHED_BATCH, os.SCHED_IDLE)
+            if policy & ~getattr(os, "SCHED_RESET_ON_FORK", 0) not in ordinary:  # real-time or deadline: left
                 return None
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(CLIENT_RT_PRIORITY))
         except (AttributeError, OSError):

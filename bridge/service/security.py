@@ -71,6 +71,7 @@ __all__ = [
     "InternalLink",
     "grant_internal_user",
     "users_file_of",
+    "connect_sections",
 ]
 
 #: API names that move the hitch; restricted to operators
@@ -600,10 +601,24 @@ def read_users(source: str | Path) -> dict[str, str]:
 
 
 def users_file_of(source: str | Path) -> Path | None:
-    """The usrpwd dictionary file a security file names (None: it authenticates no user by password)."""
+    """The usrpwd dictionary file a security file names (None: none)."""
     usrpwd = json.loads(security_sections(source).get("transport/auth/usrpwd") or "{}") or {}
     path = usrpwd.get("dictionary_file")
     return Path(path) if path else None
+
+
+def connect_sections(source: str | Path) -> dict[str, str]:
+    """What a node needs from a security file to *connect* as the file's own node: the usrpwd ``user``
+    and ``password`` and the TLS settings — not the users dictionary (it accepts no links) and not the
+    access control (which would filter its own link by the other side's username, which a connecting
+    node never learns: every message would be denied)."""
+    sections = security_sections(source)
+    usrpwd = json.loads(sections.get("transport/auth/usrpwd") or "{}") or {}
+    out = {"transport/link/tls": sections.get("transport/link/tls") or "{}"}
+    login = {k: usrpwd[k] for k in ("user", "password") if usrpwd.get(k)}
+    if login:
+        out["transport/auth/usrpwd"] = json.dumps(login)
+    return out
 
 
 def _read_users_file(path: Path) -> dict[str, str]:
@@ -665,11 +680,12 @@ def grant_internal_user(config: zenoh.Config, prefix: str, directory: Path) -> I
     dictionary and, with access control on, allow it everything under ``prefix`` (the control core
     answers ``stop``, publishes the state and takes the setpoints); ``config`` is changed in place.
 
-    None when ``config`` authenticates no user (no ``dictionary_file``): then a link without
-    credentials on the core's loopback listener would match no subject of a certificate-based policy,
-    and adding a dictionary would lock out the operator's certificate-only clients, so the caller keeps
-    the core in its own process's threads. ``directory`` must exist; the combined users file is written
-    there (0600) and named in ``config``."""
+    None when ``config`` authenticates no user (no ``dictionary_file``, or one without users): then a
+    link without credentials on the core's loopback listener would match no subject of a
+    certificate-based policy, and adding a user would make Zenoh check passwords and lock out the
+    operator's certificate-only clients, so the caller keeps the core in its own process's threads.
+    ``directory`` must exist; the combined users file is written there (0600) and named in ``config``;
+    Zenoh reads it when the session opens, after which the caller removes it."""
     import secrets
 
     usrpwd = json.loads(config.get_json("transport/auth/usrpwd") or "{}") or {}
@@ -677,11 +693,13 @@ def grant_internal_user(config: zenoh.Config, prefix: str, directory: Path) -> I
     if not source:
         return None
     users = _read_users_file(Path(source))
+    if not users:  # Zenoh checks no password against an empty dictionary: a user added would start the checks
+        return None
     name = f"hitch-core-{secrets.token_hex(4)}"
     while name in users:  # pragma: no cover — a clash with an operator's user name is 1 in 2^32
         name = f"hitch-core-{secrets.token_hex(4)}"
     creds = Credentials(name, secrets.token_urlsafe(32))
-    text = Path(source).read_text(encoding="utf-8")  # the operator's lines exactly as Zenoh reads them
+    text = Path(source).read_text(encoding="utf-8")  # the operator's lines (CRLF read as LF: Zenoh trims lines)
     combined = directory / "users"
     fd = os.open(combined, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
     with os.fdopen(fd, "w", encoding="utf-8") as f:

@@ -239,7 +239,7 @@ class HitchService:
                 read_users(cfg.security)
             own_process = _core_in_own_process(cfg)
             if cfg.control_core == "process" and not own_process:
-                why = "the security file authenticates no user by password (no users file) to add its link to"
+                why = "the security file authenticates no user by password (no users file, or an empty one)"
                 self.warnings.append(
                     f"with this security file the control core runs in the service's own process (threads): {why}. "
                     "Under heavy request load its control period is then less regular, and stop shares the "
@@ -360,6 +360,8 @@ class HitchService:
                 self._core_link = grant_internal_user(z, cfg.prefix, link_dir)
             try:
                 self.session = zenoh.open(z)
+                if link_dir is not None:  # Zenoh read the users when the session opened: the copy goes at once
+                    shutil.rmtree(link_dir, ignore_errors=True)
                 return private
             except zenoh.ZError as exc:  # e.g. the port is taken, a TLS file is unreadable
                 error = exc
@@ -644,7 +646,9 @@ def _core_in_own_process(cfg: ServiceConfig) -> bool:
     it to)."""
     if cfg.control_core != "process":
         return False
-    return cfg.security is None or cfg.mode == "client" or users_file_of(cfg.security) is not None
+    if cfg.security is None or cfg.mode == "client":
+        return True
+    return users_file_of(cfg.security) is not None and bool(read_users(cfg.security))
 
 
 def _ring() -> Any:

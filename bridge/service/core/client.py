@@ -118,7 +118,10 @@ class CoreProcess:
             theirs.close()
         self._conn = conn = multiprocessing.connection.Connection(mine.detach())
         if self.credentials is not None:  # the first message: the core opens its session with it
-            conn.send(("login", self.credentials.user, self.credentials.password))
+            try:
+                conn.send(("login", self.credentials.user, self.credentials.password))
+            except OSError:  # the core ended already: reported below like any start that failed
+                pass
         if not conn.poll(START_TIMEOUT_S):
             self.close()
             raise CoreError("unavailable", f"the control core did not start within {START_TIMEOUT_S:.0f} s")

@@ -58,7 +58,7 @@ from bridge.service.scheduling import (
     zenoh_thread_ids,
 )
 from bridge.service.schemas import RequestError, parse_request, setpoint_session
-from bridge.service.security import apply_security
+from bridge.service.security import connect_sections
 from bridge.service.wire import to_json_bytes
 from bridge.service.workers import error_code
 from planner.errors import HitchError
@@ -225,7 +225,8 @@ class ControlCore:
             z.insert_json5("transport/auth/usrpwd/user", json.dumps(self._login[0]))
             z.insert_json5("transport/auth/usrpwd/password", json.dumps(self._login[1]))
         elif cfg.security is not None and cfg.mode == "client":  # the routers: logged in as the service is
-            apply_security(z, cfg.security)
+            for path, value in connect_sections(cfg.security).items():
+                z.insert_json5(path, value)
         self.session = s = zenoh.open(z)
         self._state_pub = s.declare_publisher(
             cfg.key("state"),

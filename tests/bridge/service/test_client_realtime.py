@@ -56,6 +56,14 @@ with warnings.catch_warnings(record=True) as caught:
         except PermissionError:
             return
         tid = threading.get_native_id()
+        seen = threading.Event()
+        def on_state_rt(s):  # subscribed from this real-time thread: still called at ordinary priority
+            me = threading.get_native_id()
+            rt.setdefault("callback", [t.policy for t in thread_schedule() if t.tid == me])
+            seen.set()
+        sub_rt = c.subscribe("state", on_state_rt)
+        seen.wait(10)
+        sub_rt.close()
         rt["reply"] = c.request("stop", {"pid": os.getpid(), "tid": tid})
         rt["after"] = [[t.policy, t.rt_priority] for t in thread_schedule() if t.tid == tid]
     th = threading.Thread(target=rt_stop)
@@ -147,6 +155,7 @@ def test_a_realtime_client_runs_zenoh_under_fifo_and_its_callbacks_at_ordinary_p
     assert r.pop("reply") == {"stopped": True, "motion_id": 3, "caller": [["fifo", CLIENT_RT_PRIORITY]]}
     assert r["caller_after"] == ["other"]  # the caller's own policy again once the answer is in
     assert r["rt"]["reply"]["caller"] == [["fifo", 20]] and r["rt"]["after"] == [["fifo", 20]]  # never lowered
+    assert r["rt"]["callback"] == ["other"]
     assert r["refused"] is None and r["warnings"] == []
     assert r["zenoh_threads"], "no Zenoh thread found"
     names = {n.split("-")[0] for n, _, _ in r["zenoh_threads"]}

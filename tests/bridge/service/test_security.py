@@ -27,6 +27,7 @@ from bridge.service.security import (
     apply_security,
     build_acl,
     build_security_config,
+    connect_sections,
     exposure_warnings,
     grant_internal_user,
     motion_keys,
@@ -198,6 +199,23 @@ def test_the_core_user_is_added_to_a_copy_of_the_users_file_and_given_the_servic
     only_acl = tmp_path / "no-users.json5"
     only_acl.write_text(json.dumps({"access_control": {"enabled": False}}))
     assert grant_internal_user(apply_security(zenoh.Config(), only_acl), "hitch", tmp_path / "link") is None
+    # nor does an empty users file: Zenoh checks no password against it, one user added would start the checks
+    (tmp_path / "empty.txt").write_text("\n")
+    empty = tmp_path / "empty-users.json5"
+    empty.write_text(json.dumps({"transport": {"auth": {"usrpwd": {"dictionary_file": str(tmp_path / "empty.txt")}}}}))
+    assert grant_internal_user(apply_security(zenoh.Config(), empty), "hitch", tmp_path / "link") is None
+
+
+def test_the_core_connects_to_routers_with_the_files_login_and_tls_only(tmp_path, users_file):
+    settings, path = _service_security_file(tmp_path, users_file)
+    out = connect_sections(path)
+    assert json.loads(out["transport/auth/usrpwd"]) == {"user": "svc", "password": "svc-pw"}
+    assert set(out) == {"transport/auth/usrpwd", "transport/link/tls"}  # no users dictionary, no access control
+    z = zenoh.Config()
+    for k, v in out.items():
+        z.insert_json5(k, v)
+    assert json.loads(z.get_json("access_control"))["enabled"] is False
+    assert json.loads(z.get_json("transport/auth/usrpwd"))["dictionary_file"] is None
 
 
 @pytest.mark.slow  # the service in its own process

@@ -38,7 +38,7 @@ import zenoh
 
 from bridge.service.config import DEFAULT_LISTEN, validate_endpoint, validate_prefix
 from bridge.service.scheduling import CLIENT_RT_PRIORITY, raise_to_fifo, zenoh_thread_ids
-from bridge.service.security import apply_security
+from bridge.service.security import apply_security, connect_sections
 from planner.errors import HitchInputError
 
 __all__ = ["HitchClient", "ClientError", "ServiceError", "ServiceTimeout", "Subscription", "client_config"]
@@ -84,7 +84,11 @@ def client_config(connect: Sequence[str], *, mode: str = "client", security: str
     if mode == "peer":
         z.insert_json5("listen/endpoints", "[]")
     if security is not None:
-        apply_security(z, security)
+        if mode == "client":  # it only connects: the login and TLS, never a users dictionary or access control
+            for path, value in connect_sections(security).items():
+                z.insert_json5(path, value)
+        else:
+            apply_security(z, security)
     return z
 
 
@@ -395,7 +399,9 @@ class HitchClient:
         self._tasks_seen = n
         failed = raise_to_fifo(zenoh_thread_ids(), CLIENT_RT_PRIORITY)
         if failed:
-            self._refuse_realtime("; ".join(sorted(set(failed))) + " (needs root or CAP_SYS_NICE)")
+            self._refuse_realtime(
+                "; ".join(sorted(set(failed))) + " (needs CAP_SYS_NICE: root has it unless it was dropped)"
+            )
 
     @staticmethod
     def _caller_to_fifo() -> Callable[[], None] | None:
@@ -426,7 +432,7 @@ class HitchClient:
             warnings.warn(
                 f"HitchClient(realtime=True): Zenoh's threads stay at ordinary priority: {why}",
                 RuntimeWarning,
-                stacklevel=3,
+                stacklevel=4,  # the caller's line (HitchClient(...), where it is found first)
             )
 
     def follow(self, what: str = "state", *, timeout_s: float | None = None) -> Generator[dict, None, None]:

@@ -239,7 +239,10 @@ class HitchService:
                 read_users(cfg.security)
             own_process = _core_in_own_process(cfg)
             if cfg.control_core == "process" and not own_process:
-                why = "the security file authenticates no user by password (no users file, or an empty one)"
+                why = (
+                    "the security file authenticates no user by password (no users file, or an empty one), so its "
+                    "link could not log in; a users file gives it its own process (docs/security.md)"
+                )
                 self.warnings.append(
                     f"with this security file the control core runs in the service's own process (threads): {why}. "
                     "Under heavy request load its control period is then less regular, and stop shares the "

@@ -206,6 +206,20 @@ def test_the_core_user_is_added_to_a_copy_of_the_users_file_and_given_the_servic
     assert grant_internal_user(apply_security(zenoh.Config(), empty), "hitch", tmp_path / "link") is None
 
 
+def test_a_client_given_a_services_file_takes_only_its_login_and_tls(tmp_path, users_file):
+    # a new user's report: `hitch stop --security <the service's file>` was taken whole, and the access control
+    # in it denied the client's own link (no reply, a generic message)
+    from bridge.service.client import client_config
+
+    _, path = _service_security_file(tmp_path, users_file)
+    z = client_config(["tcp/127.0.0.1:7447"], security=path)
+    assert json.loads(z.get_json("access_control"))["enabled"] is False
+    usrpwd = json.loads(z.get_json("transport/auth/usrpwd"))
+    assert (usrpwd["user"], usrpwd["password"], usrpwd["dictionary_file"]) == ("svc", "svc-pw", None)
+    peer = client_config(["tcp/127.0.0.1:7447"], mode="peer", security=path)  # a peer listens: all of it
+    assert json.loads(peer.get_json("access_control"))["enabled"] is True
+
+
 def test_the_core_connects_to_routers_with_the_files_login_and_tls_only(tmp_path, users_file):
     settings, path = _service_security_file(tmp_path, users_file)
     out = connect_sections(path)

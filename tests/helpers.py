@@ -234,3 +234,15 @@ class SimService:
     def close(self) -> None:
         self.store.close()
         self.rig.close()
+
+
+def loopback_zenoh_config(mode: str, endpoint: str) -> Any:
+    """A Zenoh config that listens on ``endpoint`` (a ``tcp/127.0.0.1:…`` address) in ``mode`` (``peer`` or
+    ``router``), multicast scouting off: nothing leaves loopback."""
+    import zenoh  # only the tests that open sessions load it
+
+    cfg = zenoh.Config()
+    cfg.insert_json5("mode", json.dumps(mode))
+    cfg.insert_json5("listen/endpoints", json.dumps([endpoint]))
+    cfg.insert_json5("scouting/multicast/enabled", "false")
+    return cfg

@@ -37,7 +37,13 @@ from typing import Any
 import zenoh
 
 from bridge.service.config import DEFAULT_LISTEN, validate_endpoint, validate_prefix
-from bridge.service.scheduling import CLIENT_RT_PRIORITY, raise_to_fifo, zenoh_thread_ids
+from bridge.service.scheduling import (
+    CLIENT_RT_PRIORITY,
+    caller_to_fifo,
+    caller_to_ordinary,
+    raise_to_fifo,
+    zenoh_thread_ids,
+)
 from bridge.service.security import apply_security, connect_sections
 from planner.errors import HitchInputError
 
@@ -128,11 +134,7 @@ def _dispatch(subscriber: Any, callback: Callable[[dict], None]) -> None:
     """A real-time client's subscription: take the samples from the channel on an ordinary thread; a
     callback's exception is printed and the subscription goes on (as with Zenoh's own callbacks). The
     thread runs under the ordinary policy even when the thread that subscribed is real-time."""
-    try:
-        if os.sched_getscheduler(0) & ~getattr(os, "SCHED_RESET_ON_FORK", 0) != os.SCHED_OTHER:
-            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))  # lowering is always permitted
-    except (AttributeError, OSError):
-        pass
+    caller_to_ordinary()
     for sample in subscriber:  # ends when the subscriber is undeclared or the session closes
         try:
             callback(_decode(sample.payload))
@@ -220,7 +222,8 @@ class HitchClient:
                 "congestion_control": zenoh.CongestionControl.BLOCK,
             }
         t0 = time.monotonic()
-        restore = self._caller_to_fifo() if key == "stop" and self.realtime else None
+        # the stop's query is built under this thread and its answer wakes it: real-time until the answer is in
+        restore = caller_to_fifo(CLIENT_RT_PRIORITY) if key == "stop" and self.realtime else None
         try:
             for reply in self.session.get(full, payload=data, timeout=t, **qos):
                 if reply.ok is not None:
@@ -402,29 +405,6 @@ class HitchClient:
             self._refuse_realtime(
                 "; ".join(sorted(set(failed))) + " (needs CAP_SYS_NICE: root has it unless it was dropped)"
             )
-
-    @staticmethod
-    def _caller_to_fifo() -> Callable[[], None] | None:
-        """Put the calling thread under ``SCHED_FIFO`` while it sends a ``stop`` and waits for the answer
-        (its query is built under this thread, its answer wakes it); the function that restores its
-        policy, or None when the system does not permit it (the refusal is known from the Zenoh threads)
-        or the caller runs under a real-time or deadline policy already (left as it is, never lowered)."""
-        try:
-            policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
-            ordinary = (os.SCHED_OTHER, os.SCHED_BATCH, os.SCHED_IDLE)
-            if policy & ~getattr(os, "SCHED_RESET_ON_FORK", 0) not in ordinary:  # real-time or deadline: left
-                return None
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(CLIENT_RT_PRIORITY))
-        except (AttributeError, OSError):
-            return None
-
-        def restore() -> None:
-            try:
-                os.sched_setscheduler(0, policy, param)
-            except OSError:  # not permitted back (cannot happen for a lower policy): leave it
-                pass
-
-        return restore
 
     def _refuse_realtime(self, why: str) -> None:
         if self.realtime_refused is None:

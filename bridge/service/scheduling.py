@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import os
 import threading
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 __all__ = [
@@ -53,6 +53,8 @@ __all__ = [
     "ZENOH_THREAD_PREFIXES",
     "ThreadSchedule",
     "pin_to_one_cpu",
+    "caller_to_fifo",
+    "caller_to_ordinary",
     "python_thread_ids",
     "raise_to_fifo",
     "set_thread_fifo",
@@ -133,6 +135,42 @@ def set_thread_fifo(native_id: int, priority: int) -> str | None:
     except OSError as exc:
         return str(exc)
     return None
+
+
+def _base_policy() -> int:
+    """The calling thread's policy without the ``SCHED_RESET_ON_FORK`` flag (rtkit sets it)."""
+    return os.sched_getscheduler(0) & ~getattr(os, "SCHED_RESET_ON_FORK", 0)
+
+
+def caller_to_fifo(priority: int) -> Callable[[], None] | None:
+    """Put the calling thread under ``SCHED_FIFO`` at ``priority`` for a while; the function that gives it
+    its own policy back, or None when nothing was changed: not permitted, not supported, or the thread
+    runs under a real-time or deadline policy already (left as it is, never lowered)."""
+    try:
+        policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
+        if _base_policy() not in (os.SCHED_OTHER, os.SCHED_BATCH, os.SCHED_IDLE):
+            return None
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (AttributeError, OSError):
+        return None
+
+    def restore() -> None:
+        try:
+            os.sched_setscheduler(0, policy, param)
+        except OSError:  # not permitted back (cannot happen for a lower policy): leave it
+            pass
+
+    return restore
+
+
+def caller_to_ordinary() -> None:
+    """Put the calling thread under the ordinary policy if it runs under another (lowering is always
+    permitted; a thread inherits its creator's policy)."""
+    try:
+        if _base_policy() != os.SCHED_OTHER:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except (AttributeError, OSError):
+        pass
 
 
 def _task_ids(pid: int | str) -> list[int]:

@@ -473,12 +473,16 @@ def write_users_file(path: str | Path, users: Mapping[str, str]) -> Path:
         lines.append(f"{user}:{password}\n")
     if not lines:
         raise SecurityError("users", "at least one user is needed")
-    p = Path(path)
-    fd = os.open(p, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    return _write_private(Path(path), "".join(lines))
+
+
+def _write_private(path: Path, text: str) -> Path:
+    """Write ``text`` to ``path``, readable by the owner only (0600) from its creation on."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
     with os.fdopen(fd, "w", encoding="utf-8") as f:
-        f.writelines(lines)
-    os.chmod(p, 0o600)
-    return p
+        f.write(text)
+    os.chmod(path, 0o600)
+    return path
 
 
 def _as_sections(config: zenoh.Config) -> dict[str, str]:
@@ -700,11 +704,8 @@ def grant_internal_user(config: zenoh.Config, prefix: str, directory: Path) -> I
         name = f"hitch-core-{secrets.token_hex(4)}"
     creds = Credentials(name, secrets.token_urlsafe(32))
     text = Path(source).read_text(encoding="utf-8")  # the operator's lines (CRLF read as LF: Zenoh trims lines)
-    combined = directory / "users"
-    fd = os.open(combined, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    with os.fdopen(fd, "w", encoding="utf-8") as f:
-        f.write(text if not text or text.endswith("\n") else text + "\n")
-        f.write(f"{creds.user}:{creds.password}\n")
+    head = text if not text or text.endswith("\n") else text + "\n"
+    combined = _write_private(directory / "users", f"{head}{creds.user}:{creds.password}\n")
     config.insert_json5("transport/auth/usrpwd/dictionary_file", json.dumps(str(combined)))
     acl = json.loads(config.get_json("access_control") or "{}") or {}
     if acl.get("enabled"):

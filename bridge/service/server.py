@@ -80,7 +80,6 @@ from bridge.service.security import (
     exposure_warnings,
     grant_internal_user,
     read_users,
-    users_file_of,
 )
 from bridge.service.signals import StopSignals
 from bridge.service.store import HitchStore
@@ -651,7 +650,7 @@ def _core_in_own_process(cfg: ServiceConfig) -> bool:
         return False
     if cfg.security is None or cfg.mode == "client":
         return True
-    return users_file_of(cfg.security) is not None and bool(read_users(cfg.security))
+    return bool(read_users(cfg.security))  # {} without a users file or with an empty one
 
 
 def _ring() -> Any:

@@ -29,6 +29,7 @@ import zenoh
 from bench._common import free_port
 from bridge.service.client import HitchClient
 from bridge.service.scheduling import CLIENT_RT_PRIORITY, thread_schedule
+from tests.helpers import loopback_zenoh_config
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -84,11 +85,7 @@ print(json.dumps({"reply": reply, "caller_after": caller_after, "rt": rt, "callb
 def stand_in():
     """A Zenoh router on loopback answering ``hitch/stop`` and publishing ``hitch/state`` at 50 Hz."""
     port = free_port()
-    cfg = zenoh.Config()
-    cfg.insert_json5("mode", '"router"')
-    cfg.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
-    cfg.insert_json5("scouting/multicast/enabled", "false")
-    s = zenoh.open(cfg)
+    s = zenoh.open(loopback_zenoh_config("router", f"tcp/127.0.0.1:{port}"))
 
     def on_stop(q: zenoh.Query) -> None:
         with q:

@@ -14,17 +14,14 @@ import zenoh
 from bench._common import free_port
 from bridge.service.client import ClientError, HitchClient
 from bridge.service.schemas import TrackSetpoint
+from tests.helpers import loopback_zenoh_config
 
 
 @pytest.fixture
 def peer():
     """A listening Zenoh peer on loopback collecting every setpoint put."""
     port = free_port()
-    cfg = zenoh.Config()
-    cfg.insert_json5("mode", '"peer"')
-    cfg.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
-    cfg.insert_json5("scouting/multicast/enabled", "false")
-    s = zenoh.open(cfg)
+    s = zenoh.open(loopback_zenoh_config("peer", f"tcp/127.0.0.1:{port}"))
     got: queue.Queue = queue.Queue()
     sub = s.declare_subscriber("hitch/track/setpoint", lambda sample: got.put(sample.payload.to_bytes()))
     try:

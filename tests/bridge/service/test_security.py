@@ -35,6 +35,7 @@ from bridge.service.security import (
     security_sections,
     write_users_file,
 )
+from tests.helpers import loopback_zenoh_config
 
 USERS = {"alice": "alice-pw", "bob": "bob-pw", "carol": "carol-pw"}
 
@@ -241,11 +242,8 @@ def test_a_secured_client_mode_service_runs_its_core_in_its_own_process_logged_i
     # a fleet's arrangement: the access control on the router, the service logs in to it as a service node
     path = tmp_path / "service.json5"
     path.write_text(security_json5(SecuritySettings(credentials=Credentials("svc", "svc-pw"))))
-    router = zenoh.Config()
-    router.insert_json5("mode", '"router"')
     port = free_port()
-    router.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
-    router.insert_json5("scouting/multicast/enabled", "false")
+    router = loopback_zenoh_config("router", f"tcp/127.0.0.1:{port}")
     router_users = write_users_file(tmp_path / "router-users.txt", {"svc": "svc-pw", "alice": "alice-pw"})
     access = AccessPolicy(operators=("alice",), services=("svc",))
     apply_security(router, SecuritySettings(users_file=router_users, access=access))

@@ -404,25 +404,66 @@ def maneuver_script(i: int, steps: int, ws: Mapping[str, tuple[float, float]]) -
 
 
 # ========================================================================== roles (other processes)
-def secured_files(directory: str) -> tuple[str, str]:
-    """A secured service's files in ``directory``: its security file (a users file and access control with
-    one operator, whom every client of the bench logs in as) and that operator's client file."""
+#: what ``--secured`` protects the service with
+SECURED_KINDS = {
+    "users": "a users file and access control by username",
+    "certificates": "TLS with client certificates (mTLS) and access control by certificate name; no users file",
+}
+
+
+def secured_files(directory: str, kind: str = "users") -> tuple[str, str, str]:
+    """A secured service's files in ``directory``: its security file, the client file every client of the
+    bench uses (one operator) and the endpoint scheme (``tcp`` or ``tls``). ``kind`` (:data:`SECURED_KINDS`):
+    ``users``: a users file and access control with one operator, whom every client logs in as;
+    ``certificates``: a CA, the service's certificate for 127.0.0.1 and one operator's client certificate
+    (made with the ``openssl`` command), mutual TLS and access control by certificate name."""
     import secrets
 
     from bridge.service.security import (
         AccessPolicy,
         Credentials,
         SecuritySettings,
+        TlsSettings,
         security_json5,
         write_users_file,
     )
 
-    password = secrets.token_urlsafe(16)
-    users = write_users_file(Path(directory) / "users.txt", {"operator": password})
-    server, client = Path(directory) / "service.json5", Path(directory) / "operator.json5"
-    server.write_text(security_json5(SecuritySettings(users_file=users, access=AccessPolicy(operators=("operator",)))))
-    client.write_text(security_json5(SecuritySettings(credentials=Credentials("operator", password))))
-    return str(server), str(client)
+    d = Path(directory)
+    server, client = d / "service.json5", d / "operator.json5"
+    if kind == "users":
+        password = secrets.token_urlsafe(16)
+        users = write_users_file(d / "users.txt", {"operator": password})
+        server.write_text(
+            security_json5(SecuritySettings(users_file=users, access=AccessPolicy(operators=("operator",))))
+        )
+        client.write_text(security_json5(SecuritySettings(credentials=Credentials("operator", password))))
+        return str(server), str(client), "tcp"
+    if kind != "certificates":
+        raise ValueError(f"--secured must be one of {', '.join(SECURED_KINDS)}, got {kind!r}")
+
+    def openssl(*args: str) -> None:
+        subprocess.run(["openssl", *args], cwd=d, check=True, capture_output=True, timeout=60)
+
+    ec = ("-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes")
+    openssl("req", "-x509", *ec, "-days", "2", "-keyout", "ca-key.pem", "-out", "ca.pem", "-subj", "/CN=bench-ca")
+    for name, san in (("service", "IP:127.0.0.1"), ("operator", "DNS:operator")):
+        openssl("req", *ec, "-keyout", f"{name}-key.pem", "-out", f"{name}.csr", "-subj", f"/CN={name}")
+        (d / f"{name}.ext").write_text(f"subjectAltName={san}\nextendedKeyUsage=serverAuth,clientAuth\n")
+        openssl(
+            "x509", "-req", "-in", f"{name}.csr", "-CA", "ca.pem", "-CAkey", "ca-key.pem", "-CAcreateserial",
+            "-days", "2", "-out", f"{name}.pem", "-extfile", f"{name}.ext",
+        )  # fmt: skip
+
+    def tls(name: str) -> TlsSettings:
+        return TlsSettings(
+            certificate=d / f"{name}.pem", private_key=d / f"{name}-key.pem", root_ca=d / "ca.pem", mutual=True
+        )
+
+    server.write_text(
+        security_json5(SecuritySettings(tls=tls("service"), access=AccessPolicy(operator_cert_names=("operator",))))
+    )
+    client.write_text(security_json5(SecuritySettings(tls=tls("operator"))))
+    return str(server), str(client), "tls"
 
 
 def role_monitor(a: argparse.Namespace) -> None:
@@ -671,15 +712,15 @@ class InProcessService:
         planning_processes: int | None = None,
         control_core: str | None = None,
         realtime: bool | None = None,
-        security: tuple[str, str] | None = None,
+        security: tuple[str, str, str] | None = None,
     ) -> None:
-        """``security``: (the service's security file, a client's) for a secured service."""
+        """``security``: (the service's security file, a client's, the endpoint scheme) for a secured service."""
         from bridge.service.client import HitchClient
         from bridge.service.config import load_service_config
         from bridge.service.server import HitchService
 
         port = free_port()
-        self.endpoint = f"tcp/127.0.0.1:{port}"
+        self.endpoint = f"{'tcp' if security is None else security[2]}/127.0.0.1:{port}"
         channel = f"bench-reliability-{os.getpid()}-{port}"
         log = Path(data_dir) / "bus.log"
         cfg = load_service_config(
@@ -742,7 +783,7 @@ def bench_load(a: argparse.Namespace) -> dict:
     from bridge.service.client import HitchClient
 
     tmp = tempfile.mkdtemp(prefix="hitch-reliability-")
-    security = secured_files(tmp) if a.secured else None
+    security = secured_files(tmp, a.secured) if a.secured else None
     service = InProcessService(tmp, a.planning_processes, a.control_core, a.realtime, security)
     steal = StealSampler()
     procs: list[subprocess.Popen] = []
@@ -862,7 +903,7 @@ def bench_load(a: argparse.Namespace) -> dict:
         {
             "clients": a.clients,
             "hogs": n_hogs,
-            "secured": security is not None,
+            "secured": a.secured,
             "core_in_own_process": service.svc.core is not None,
             "moving": {
                 "window_s": t1 - t0,
@@ -1344,7 +1385,9 @@ def table(res: dict) -> list[str]:
                 )
             add(f"{head}moving: stops sent / unmatched", n=f"{ph['stops_sent']} / {ph['stops_unmatched']}")
             where = "own process" if res[load_key].get("core_in_own_process") else "the service's threads"
-            secured = "secured (users file + access control)" if res[load_key].get("secured") else "not secured"
+            kind = res[load_key].get("secured")
+            kind = "users" if kind is True else kind  # results of the version before the certificates
+            secured = f"secured ({SECURED_KINDS[kind]})" if kind else "not secured"
             add(f"{head}moving: the service; its control core", n=f"{secured}; {where}")
             oc = ph.get("operator_client") or {}
             refused = f" (refused: {oc['realtime_refused']})" if oc.get("realtime_refused") else ""
@@ -1466,9 +1509,14 @@ def main(argv: Sequence[str] | None = None) -> None:
     )
     ap.add_argument(
         "--secured",
-        action="store_true",
-        help="`load`: the service with a security file (a users file and access control; every client logs in "
-        "as its one operator), so its control core's link logs in as the user the service makes up for it",
+        nargs="?",
+        const="users",
+        default=None,
+        choices=sorted(SECURED_KINDS),
+        help="`load`: the service with a security file; `users` (the default): a users file and access control, "
+        "every client logged in as its one operator (the core's link logs in as a user the service makes up); "
+        "`certificates`: mTLS and access control by certificate name, no users file (the core links through "
+        "a Unix socket)",
     )
     ap.add_argument("--json", default=None, help="write the results as JSON to this file")
     a = ap.parse_args(argv)

@@ -246,3 +246,22 @@ def loopback_zenoh_config(mode: str, endpoint: str) -> Any:
     cfg.insert_json5("listen/endpoints", json.dumps([endpoint]))
     cfg.insert_json5("scouting/multicast/enabled", "false")
     return cfg
+
+
+class Gate:
+    """Holds calls of a function until opened: ``held = Gate(fn)``; every call of ``held`` first counts
+    itself (``entered``, one release per call) and then waits until :meth:`open` (at most ``wait_s``)."""
+
+    def __init__(self, fn: Callable, wait_s: float = 10.0) -> None:
+        import threading
+
+        self.fn, self.wait_s = fn, wait_s
+        self.opened, self.entered = threading.Event(), threading.Semaphore(0)
+
+    def __call__(self, *a, **k):
+        self.entered.release()
+        self.opened.wait(self.wait_s)
+        return self.fn(*a, **k)
+
+    def open(self) -> None:
+        self.opened.set()

@@ -18,6 +18,7 @@ from bench.reliability_bench import (
     period_figures,
     pgn_of,
     rising_edges,
+    secured_files,
     still_time,
     stop_effect_time,
     stop_latency,
@@ -123,3 +124,24 @@ def test_a_port_in_use_is_never_handed_out_and_none_twice():
         assert picker.pick() == taken + 1
         with pytest.raises(RuntimeError, match="no free loopback port"):
             picker.pick()  # the free one was handed out already
+
+
+@pytest.mark.parametrize("kind", ["users", "certificates"])
+def test_the_secured_benchs_files_are_ones_the_service_and_its_clients_accept(tmp_path, kind):
+    from bridge.service.client import client_config
+    from bridge.service.security import access_policy_from_file
+
+    server, client, scheme = secured_files(str(tmp_path), kind)
+    assert scheme == {"users": "tcp", "certificates": "tls"}[kind]
+    policy = access_policy_from_file(server, "hitch")
+    assert policy is not None and "operator" in policy.operators + policy.operator_cert_names
+    client_config([f"{scheme}/127.0.0.1:7447"], security=client)  # Zenoh parses and takes it
+    if kind == "certificates":  # the openssl-made chain verifies: the operator's certificate is the CA's
+        import subprocess
+
+        out = subprocess.run(
+            ["openssl", "verify", "-CAfile", str(tmp_path / "ca.pem"), str(tmp_path / "operator.pem")],
+            capture_output=True,
+            text=True,
+        )
+        assert out.returncode == 0, out.stderr

@@ -64,6 +64,7 @@ def _client(args):
             timeout_s=args.timeout,
             security=args.security,
             realtime=bool(getattr(args, "realtime", False)),
+            user=getattr(args, "user", None),
         )
     if client.realtime_refused is not None:
         print(f"--realtime: this client runs at ordinary priority: {client.realtime_refused}", file=sys.stderr)
@@ -99,6 +100,7 @@ def _cmd_serve(args) -> int:
         connect=args.connect,
         prefix=args.prefix,
         security=args.security,
+        user_keys=True if args.user_keys else None,
         can_interface=args.can_interface,
         can_channel=args.can_channel,
         simulate_ecu=False if args.no_sim_ecu else None,
@@ -171,6 +173,12 @@ def _add_serve(sub) -> None:
     p.add_argument("--connect", action="append", default=None, metavar="ENDPOINT", help="connect endpoint (repeatable)")
     p.add_argument("--prefix", default=None, help="key prefix (default hitch; a fleet: fleet/t07/hitch)")
     p.add_argument("--security", default=None, help="Zenoh security config (JSON5: usrpwd, access_control, TLS)")
+    p.add_argument(
+        "--user-keys",
+        action="store_true",
+        help="serve each user's own keys <prefix>/user/<name>/<key> (default: only when --security's access "
+        "control checks them; behind a router whose access control does, say so here; docs/security.md)",
+    )
     p.add_argument(
         "--can-interface",
         choices=INTERFACES,
@@ -261,6 +269,12 @@ def _client_options(p) -> None:
     )
     p.add_argument("--prefix", default="hitch", help="key prefix of the service (default hitch)")
     p.add_argument("--security", default=None, help="Zenoh security config of this client (credentials, TLS CA)")
+    p.add_argument(
+        "--user",
+        default=None,
+        help="send the requests as this user, on its own keys where the service serves them (default: the user "
+        "--security logs in as; '' for the shared keys; docs/security.md)",
+    )
     p.add_argument(
         "--timeout",
         type=bounded_float("--timeout", 0.0, 600.0, unit="s"),

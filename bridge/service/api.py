@@ -220,7 +220,11 @@ class ServiceAPI:
         finally:
             if admitted is not None:
                 with self._in_flight_lock:
-                    self._in_flight[admitted] -= 1
+                    left = self._in_flight[admitted] - 1
+                    if left > 0:
+                        self._in_flight[admitted] = left
+                    else:  # no entry per name ever seen: the table stays as small as the requests running
+                        del self._in_flight[admitted]
         self.counts["ok"] += 1
         return True, reply
 

@@ -8,6 +8,11 @@ listen), sends JSON queries to ``<prefix>/<key>`` and returns the reply as a dic
 (``docs/tracking.md``): :meth:`HitchClient.track_start`, :meth:`~HitchClient.track_setpoint` (a Zenoh
 put, never blocking) and :meth:`~HitchClient.track_stop`.
 
+A client with a :attr:`HitchClient.user` (by default the user its security file logs in as) sends every
+request but ``stop`` on ``<prefix>/user/<user>/<key>``: the service then admits its expensive requests
+against that user's own allowance, owns what it stores by that user and records it under that name. With
+access control on, Zenoh lets a user send only their own such keys (``docs/security.md``).
+
 ``HitchClient(realtime=True)`` is for an operator's program on a busy computer: its ``stop`` must leave
 the process at once, not after the CPU-bound programs beside it had their turn. The process's Zenoh
 runtime threads (which send every query, ``stop`` too, and take every reply) then run under the
@@ -44,7 +49,7 @@ from bridge.service.scheduling import (
     raise_to_fifo,
     zenoh_thread_ids,
 )
-from bridge.service.security import apply_security, connect_sections
+from bridge.service.security import apply_security, connect_sections, login_user, scopable_user, user_key
 from planner.errors import HitchInputError
 
 __all__ = ["HitchClient", "ClientError", "ServiceError", "ServiceTimeout", "Subscription", "client_config"]
@@ -177,11 +182,26 @@ class HitchClient:
         security: str | Path | None = None,
         mode: str = "client",
         realtime: bool = False,
+        user: str | None = None,
     ):
         """``realtime``: run this process's Zenoh threads under ``SCHED_FIFO`` (module docstring) so a
         ``stop`` leaves at once however busy the computer is; :attr:`realtime_refused` says why not when
-        the system does not permit it (None: granted, or not asked for)."""
+        the system does not permit it (None: granted, or not asked for).
+
+        ``user``: send every request but ``stop`` as this user, on ``<prefix>/user/<user>/<key>``, so the
+        service admits, stores and records it as theirs (default: the user the security file logs in as,
+        when that name can be a key chunk; ``""``: the shared keys). Only to a service that serves them
+        (its ``config`` says ``user_keys``, asked once per prefix): one whose access control lets each user
+        send only their own (``docs/security.md``); to any other the plain keys are used."""
         self.prefix = validate_prefix(prefix)
+        if user is None and security is not None:
+            login = login_user(security)
+            user = login if scopable_user(login) else ""
+        if user and not scopable_user(user):
+            raise ClientError(f"user {user!r} cannot name request keys (allowed: 1-64 of A-Z a-z 0-9 _ - .)")
+        #: the user this client's requests are sent as (None: the shared keys)
+        self.user: str | None = user or None
+        self._user_keys: dict[str, bool] = {}  # prefix -> does that service serve user keys (its config)
         if not 0 < timeout_s <= 600:
             raise ClientError(f"timeout_s must lie in (0, 600] s, got {timeout_s!r}")
         self.timeout_s = float(timeout_s)
@@ -207,13 +227,40 @@ class HitchClient:
         prefix: str | None = None,
         timeout_s: float | None = None,
     ) -> dict:
-        """Query ``<prefix>/<key>``; the reply dict, or :class:`ServiceError`."""
-        full = f"{validate_prefix(prefix) if prefix else self.prefix}/{key}"
+        """Query ``<prefix>/<key>`` (``<prefix>/user/<user>/<key>`` when this client has a :attr:`user`,
+        except ``stop``, which anyone may send and which must not wait for anything); the reply dict, or
+        :class:`ServiceError`."""
+        base = validate_prefix(prefix) if prefix else self.prefix
+        t = self.timeout_s if timeout_s is None else timeout_s
+        scoped = self.user is not None and key != "stop" and self._serves_user_keys(base, t)
+        full = user_key(base, self.user, key) if scoped and self.user is not None else f"{base}/{key}"
         if isinstance(payload, Mapping):
             data: bytes | str = json.dumps(payload)
         else:
             data = b"" if payload is None else payload
-        t = self.timeout_s if timeout_s is None else timeout_s
+        return self._query(full, key, data, t)
+
+    def _serves_user_keys(self, base: str, timeout_s: float) -> bool:
+        """Does the service at ``base`` serve user keys? Its ``config`` says (asked once; not remembered
+        when it does not answer, so a service started later is asked again)."""
+        known = self._user_keys.get(base)
+        if known is None:
+            t0 = time.monotonic()
+            try:
+                reply = self._query(f"{base}/config", "config", b"{}", timeout_s)
+            except ServiceTimeout:
+                if time.monotonic() - t0 < 0.8 * timeout_s:
+                    return False  # nothing answered at once (e.g. an access list without it): the plain keys
+                raise ServiceTimeout(  # the whole timeout spent already: not once more for the request itself
+                    f"no reply from {base} within {timeout_s:g} s (asked {base}/config; is the service running "
+                    "and reachable, and may this user use that key?)"
+                ) from None
+            except ServiceError:
+                return False
+            known = self._user_keys[base] = reply.get("user_keys") is True
+        return known
+
+    def _query(self, full: str, key: str, data: bytes | str, t: float) -> dict:
         qos: dict[str, Any] = {}
         if key == "stop":  # ahead of everything else on every link it crosses, never dropped
             qos = {

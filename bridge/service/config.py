@@ -35,9 +35,9 @@ import os
 import re
 import tomllib
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, Strict, ValidationError, field_validator, model_validator
 
 from planner.errors import HitchInputError
 from planner.profiles.loader import format_validation_error
@@ -109,6 +109,9 @@ class ServiceConfig(BaseModel):
     scouting: bool = Field(False, strict=True)
     #: Zenoh security config (JSON5: usrpwd, access_control, TLS) merged into the session config
     security: Path | None = None
+    #: serve each user's own request keys (``<prefix>/user/<name>/<key>``: admission, store owner and black box
+    #: per user; docs/security.md); "auto": when this service's own access control checks the names
+    user_keys: Literal["auto"] | Annotated[bool, Strict()] = "auto"
     can_interface: Literal["virtual", "socketcan", "udp_multicast", "remote"] = "virtual"
     can_channel: str = "hitch"
     #: run the simulated cylinder ECU in this process on the same bus
@@ -229,6 +232,7 @@ _TOML_SECTIONS = {
         "prefix": "prefix",
         "security": "security",
         "scouting": "scouting",
+        "user_keys": "user_keys",
     },
     "can": {
         "interface": "can_interface",

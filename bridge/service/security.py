@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -70,8 +71,15 @@ __all__ = [
     "read_users",
     "InternalLink",
     "grant_internal_user",
+    "grant_internal_socket",
     "users_file_of",
     "connect_sections",
+    "USER_SCOPE",
+    "scopable_user",
+    "user_key",
+    "scope_acl_users",
+    "acl_scopes_users",
+    "login_user",
 ]
 
 #: API names that move the hitch; restricted to operators
@@ -131,6 +139,15 @@ VIEWER_QUERIES: tuple[str, ...] = (
 _OBSERVE_IN = ("declare_subscriber", "declare_liveliness_subscriber", "liveliness_query")
 _TO_CLIENT = ("put", "delete", "reply", "declare_queryable", "liveliness_token")
 _ALL = _OBSERVE_IN + ("query",) + _TO_CLIENT
+#: the chunk under the prefix that carries each user's own copy of the request keys: ``hitch/user/alice/plan``
+#: is ``plan`` sent by ``alice``. The ACL (:func:`scope_acl_users`) lets a user query only their own, so the
+#: service knows who asked: admission of expensive requests, store owners and the black box are per user.
+USER_SCOPE = "user"
+#: a user name that can be one key chunk (the names :func:`scope_acl_users` scopes): a letter or digit first
+_SCOPE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
+#: id of the rule :func:`scope_acl_users` adds to the services' policy, and the start of every id it adds
+#: (``user_scope_<name>`` per user; ``user_scope:viewers``: no user name has a ':')
+_SCOPE_ID = "user_scope"
 #: the config sections this module owns
 SECTIONS: tuple[str, ...] = ("transport/auth/usrpwd", "transport/link/tls", "access_control")
 
@@ -367,12 +384,12 @@ def build_acl(policy: AccessPolicy) -> dict:
             "messages": ["query"],
             "key_exprs": [_key(policy.prefix, k, "access.viewer_queries") for k in policy.viewer_queries],
         },
-        {
+        {  # by exact key too (scope_acl_users: '<prefix>/**' would include every user's own keys)
             "id": "operator_queries",
             "permission": "allow",
             "flows": ["ingress"],
             "messages": ["query"],
-            "key_exprs": everything,
+            "key_exprs": _request_keys(policy.prefix),
         },
         # the streamed track setpoints are puts, not queries (operators only; viewers: no_writes); so is
         # the tractor's GNSS (a sensor input that times maneuver line triggers: an operator's receiver
@@ -431,7 +448,125 @@ def build_acl(policy: AccessPolicy) -> dict:
             ids.append(f"{role}_certs")
         if ids:
             policies.append({"id": role, "rules": rule_ids, "subjects": ids})
-    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
+    acl = {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
+    return scope_acl_users(acl)
+
+
+def scopable_user(name: Any) -> bool:
+    """Can ``name`` have its own request keys (``<prefix>/user/<name>/<key>``)? One key chunk of
+    letters, digits, ``_``, ``-`` and ``.`` (1-64, a letter or digit first); other user names use the
+    shared keys only."""
+    return isinstance(name, str) and bool(_SCOPE_NAME.match(name))
+
+
+def user_key(prefix: str, user: str, key: str) -> str:
+    """``<prefix>/user/<user>/<key>``: ``key`` sent as ``user`` (see :data:`USER_SCOPE`)."""
+    if not scopable_user(user):
+        raise SecurityError(
+            "user", f"{user!r} cannot name request keys (allowed: 1-64 of A-Z a-z 0-9 _ - ., a letter or digit first)"
+        )
+    return f"{prefix}/{USER_SCOPE}/{user}/{key}"
+
+
+def _request_keys(prefix: str) -> list[str]:
+    """Every request key under ``prefix``, exact (the operator and the reading keys; ``track/**``)."""
+    names = dict.fromkeys(OPERATOR_KEYS + VIEWER_QUERIES)
+    return [f"{prefix}/{k}" for k in names] + [f"{prefix}/{p}**" for p in WRITE_PREFIXES]
+
+
+def scope_acl_users(acl: Mapping[str, Any]) -> dict:
+    """``acl`` (an ``access_control`` section as :func:`build_acl` writes it) plus each user's own keys.
+
+    For every operator and viewer whose name is :func:`scopable_user`, one subject (that username), one
+    rule and one policy let them query ``<prefix>/user/<name>/<key>``: operators every request key,
+    viewers their reading keys, each exact. Nobody else may query under ``<prefix>/user/``: the
+    operators' queries are allowed by exact key (no ``<prefix>/**``, which would include every user's
+    keys; a file of an earlier version has its ``operator_queries`` rule replaced), a rule denying queries
+    on ``<prefix>/user/**`` joins the services' policy (whose ``<prefix>/**`` lets them answer), and the
+    viewers' policy denies every message on the operator keys under ``<prefix>/user/*/`` as it does on the
+    plain ones. A deny cannot close the operators' ``<prefix>/**`` instead: Zenoh takes the role's subject
+    and a user's own for one subject when they name the same users, and a deny rule of a subject outweighs
+    its allow rules.
+
+    Rebuilt from the roles each time (a user added to a role by hand gets keys too). Returned unchanged
+    when access control is off, when it was not written by :func:`build_acl` (no ``observe`` rule: a
+    hand-written ACL names its own rules) or when a prefix contains ``**`` (a rule on ``a/**/hitch/ik``
+    would include ``a/x/hitch/user/hitch/ik``: the user keys of the user named like the prefix's last
+    chunk). :func:`acl_scopes_users` says whether the result scopes."""
+    out = json.loads(json.dumps(dict(acl)))  # a deep copy
+    if not out.get("enabled"):
+        return out
+    rules = [r for r in out.get("rules") or [] if not str(r.get("id", "")).startswith(_SCOPE_ID)]
+    everything = next((r.get("key_exprs") or [] for r in rules if r.get("id") == "observe"), [])
+    prefixes = [k[: -len("/**")] for k in everything if k.endswith("/**")]
+    if not prefixes or any("**" in p for p in prefixes):
+        return out
+    subjects = [x for x in out.get("subjects") or [] if not str(x.get("id", "")).startswith(_SCOPE_ID)]
+    policies = [p for p in out.get("policies") or [] if not str(p.get("id", "")).startswith(_SCOPE_ID)]
+    for p in policies:
+        p["rules"] = [r for r in p.get("rules") or [] if not str(r).startswith(_SCOPE_ID)]
+    for r in rules:
+        if r.get("id") == "operator_queries":  # a file of an earlier version allowed '<prefix>/**'
+            r["key_exprs"] = [k for p in prefixes for k in _request_keys(p)]
+    viewer_rule: dict[str, Any] = next((r for r in rules if r.get("id") == "viewer_queries"), {})
+    viewer_keys = [
+        k[len(p) + 1 :] for k in viewer_rule.get("key_exprs") or [] for p in prefixes if k.startswith(p + "/")
+    ]
+    names = {x["id"]: tuple(x.get("usernames") or ()) for x in subjects}
+    role_users = {p.get("id"): [u for sid in p.get("subjects") or [] for u in names.get(sid, ())] for p in policies}
+    viewers_deny = f"{_SCOPE_ID}:viewers"
+    operator_only = [*OPERATOR_KEYS, *(f"{w}**" for w in WRITE_PREFIXES)]
+    rules += [
+        {
+            "id": _SCOPE_ID,
+            "permission": "deny",
+            "flows": ["ingress"],
+            "messages": ["query"],
+            "key_exprs": [f"{p}/{USER_SCOPE}/**" for p in prefixes],
+        },
+        {
+            "id": viewers_deny,
+            "permission": "deny",
+            "flows": ["ingress", "egress"],
+            "messages": list(_ALL),
+            "key_exprs": [f"{p}/{USER_SCOPE}/*/{k}" for p in prefixes for k in operator_only],
+        },
+    ]
+    for p in policies:
+        if p.get("id") == "services":
+            p["rules"] = [*p["rules"], _SCOPE_ID]
+        elif p.get("id") == "viewers":
+            p["rules"] = [*p["rules"], viewers_deny]
+    operator_keys = [k[len("hitch/") :] for k in _request_keys("hitch")]
+    for role, keys in (("operators", operator_keys), ("viewers", viewer_keys)):
+        for user in dict.fromkeys(role_users.get(role, [])):
+            if not scopable_user(user) or not keys:
+                continue
+            rid = f"{_SCOPE_ID}_{user}"
+            rules.append(
+                {
+                    "id": rid,
+                    "permission": "allow",
+                    "flows": ["ingress"],
+                    "messages": ["query"],
+                    "key_exprs": [f"{p}/{USER_SCOPE}/{user}/{k}" for p in prefixes for k in keys],
+                }
+            )
+            subjects.append({"id": rid, "usernames": [user]})
+            policies.append({"id": rid, "rules": [rid], "subjects": [rid]})
+    out["rules"], out["subjects"], out["policies"] = rules, subjects, policies
+    return out
+
+
+def acl_scopes_users(source: SecuritySettings | Mapping | str | Path) -> bool:
+    """Does the security file (or settings) ``source`` give each user their own keys once applied
+    (:func:`scope_acl_users`)? Only then may a service take the name in a user key for the sender's: the
+    ACL lets no one else send it."""
+    text = security_sections(source).get("access_control")
+    acl = json.loads(text) if text else None
+    if not isinstance(acl, dict):
+        return False
+    return any(r.get("id") == _SCOPE_ID for r in scope_acl_users(acl).get("rules") or [])
 
 
 def build_security_config(settings: SecuritySettings) -> dict:
@@ -559,6 +694,9 @@ def _foreign_settings(parsed: zenoh.Config) -> list[str]:
 def apply_security(config: zenoh.Config, source: SecuritySettings | Mapping | str | Path) -> zenoh.Config:
     """Merge the security sections of ``source`` into ``config`` (in place; returned for chaining)."""
     for path, value in security_sections(source).items():
+        acl = json.loads(value) if path == "access_control" and value else None
+        if isinstance(acl, dict):  # a file written before user scopes gets them (idempotent)
+            value = json.dumps(scope_acl_users(acl))
         try:
             config.insert_json5(path, value)
         except Exception as exc:
@@ -577,11 +715,16 @@ def access_policy_from_file(source: str | Path, prefix: str) -> AccessPolicy | N
     acl = json.loads(text)
     if not acl.get("enabled", False):
         return None
-    users = {sub["id"]: tuple(sub.get("usernames", ())) for sub in acl.get("subjects", [])}
-    roles = {
-        pol["id"]: tuple(u for sid in pol.get("subjects", []) for u in users.get(sid, ()))
-        for pol in acl.get("policies", [])
-    }
+    subjects = acl.get("subjects") or []  # Zenoh writes null for the lists a subject leaves out
+
+    def role_names(what: str) -> dict[str, tuple[str, ...]]:
+        names = {sub["id"]: tuple(sub.get(what) or ()) for sub in subjects}
+        return {
+            pol["id"]: tuple(n for sid in pol.get("subjects") or [] for n in names.get(sid, ()))
+            for pol in acl.get("policies") or []
+        }
+
+    roles, certs = role_names("usernames"), role_names("cert_common_names")
     viewer_rule = next((r for r in acl.get("rules", []) if r.get("id") == "viewer_queries"), None)
     queries = VIEWER_QUERIES
     if viewer_rule is not None:
@@ -592,6 +735,9 @@ def access_policy_from_file(source: str | Path, prefix: str) -> AccessPolicy | N
         operators=roles.get("operators", ()),
         viewers=roles.get("viewers", ()),
         services=roles.get("services", ()),
+        operator_cert_names=certs.get("operators", ()),
+        viewer_cert_names=certs.get("viewers", ()),
+        service_cert_names=certs.get("services", ()),
         viewer_queries=queries,
     )
 
@@ -609,6 +755,13 @@ def users_file_of(source: str | Path) -> Path | None:
     usrpwd = json.loads(security_sections(source).get("transport/auth/usrpwd") or "{}") or {}
     path = usrpwd.get("dictionary_file")
     return Path(path) if path else None
+
+
+def login_user(source: str | Path) -> str | None:
+    """The user a security file logs in as (``transport/auth/usrpwd/user``); None when it names none."""
+    usrpwd = json.loads(security_sections(source).get("transport/auth/usrpwd") or "{}") or {}
+    user = usrpwd.get("user")
+    return str(user) if user else None
 
 
 def connect_sections(source: str | Path) -> dict[str, str]:
@@ -665,31 +818,59 @@ def exposure_warnings(listen: Sequence[str], settings: SecuritySettings | None) 
     return out
 
 
-#: the ids under which :func:`grant_internal_user` adds its subject, rule and policy to an ACL
+#: the ids under which :func:`grant_internal_user` and :func:`grant_internal_socket` add their subject, rule
+#: and policy to an ACL
 INTERNAL_ACL_ID = "hitch_control_core"
+#: the Unix socket of :func:`grant_internal_socket`, in the service's private 0700 directory
+INTERNAL_SOCKET_NAME = "core.sock"
 
 
 @dataclass(frozen=True)
 class InternalLink:
-    """A user the service makes up at each start for its own control core's Zenoh link, and the users
-    file (the operator's users plus this one) its session authenticates against; never in the operator's
-    files, never shown; the service removes the combined file's directory at close."""
+    """How the service's own control core links to the service's session; made up at each start, never in
+    the operator's files, never shown. Either a user (a users file authenticates every link: the core logs
+    in, ``credentials``, against ``users_file``, the operator's users plus this one) or, without a users
+    file, a Unix socket in a directory only the service's user can enter (``endpoint``) and a Zenoh id the
+    core's session takes (``zid``), which the ACL allows only on that socket."""
 
-    credentials: Credentials
-    users_file: Path
+    credentials: Credentials | None
+    users_file: Path | None
+    endpoint: str | None = None
+    zid: str | None = None
+
+
+def _allow_internal(config: zenoh.Config, prefix: str, subject: dict[str, Any]) -> None:
+    """With access control on in ``config``: allow ``subject`` every message under ``prefix`` (the control
+    core answers ``stop``, publishes the state and takes the setpoints)."""
+    acl = json.loads(config.get_json("access_control") or "{}") or {}
+    if not acl.get("enabled"):
+        return
+    rule = {
+        "id": INTERNAL_ACL_ID,
+        "permission": "allow",
+        "flows": ["ingress", "egress"],
+        "messages": list(_ALL),
+        "key_exprs": [_key(prefix, "**")],
+    }
+    acl["rules"] = [*acl.get("rules", []), rule]
+    acl["subjects"] = [*acl.get("subjects", []), {"id": INTERNAL_ACL_ID, **subject}]
+    acl["policies"] = [
+        *acl.get("policies", []),
+        {"id": INTERNAL_ACL_ID, "rules": [INTERNAL_ACL_ID], "subjects": [INTERNAL_ACL_ID]},
+    ]
+    config.insert_json5("access_control", json.dumps(acl))
 
 
 def grant_internal_user(config: zenoh.Config, prefix: str, directory: Path) -> InternalLink | None:
     """Let a made-up user (random name suffix and 32-byte password) in through ``config``'s usrpwd
-    dictionary and, with access control on, allow it everything under ``prefix`` (the control core
-    answers ``stop``, publishes the state and takes the setpoints); ``config`` is changed in place.
+    dictionary and, with access control on, allow it everything under ``prefix``; ``config`` is changed
+    in place.
 
-    None when ``config`` authenticates no user (no ``dictionary_file``, or one without users): then a
-    link without credentials on the core's loopback listener would match no subject of a
-    certificate-based policy, and adding a user would make Zenoh check passwords and lock out the
-    operator's certificate-only clients, so the caller keeps the core in its own process's threads.
-    ``directory`` must exist; the combined users file is written there (0600) and named in ``config``;
-    Zenoh reads it when the session opens, after which the caller removes it."""
+    None when ``config`` authenticates no user (no ``dictionary_file``, or one without users): adding a
+    user would make Zenoh check passwords and lock out the operator's certificate-only clients; the core
+    then links through :func:`grant_internal_socket`. ``directory`` must exist; the combined users file
+    is written there (0600) and named in ``config``; Zenoh reads it when the session opens, after which
+    the caller removes it."""
     import secrets
 
     usrpwd = json.loads(config.get_json("transport/auth/usrpwd") or "{}") or {}
@@ -707,20 +888,20 @@ def grant_internal_user(config: zenoh.Config, prefix: str, directory: Path) -> I
     head = text if not text or text.endswith("\n") else text + "\n"
     combined = _write_private(directory / "users", f"{head}{creds.user}:{creds.password}\n")
     config.insert_json5("transport/auth/usrpwd/dictionary_file", json.dumps(str(combined)))
-    acl = json.loads(config.get_json("access_control") or "{}") or {}
-    if acl.get("enabled"):
-        acl["rules"] = [
-            *acl.get("rules", []),
-            {
-                "id": INTERNAL_ACL_ID,
-                "permission": "allow",
-                "flows": ["ingress", "egress"],
-                "messages": list(_ALL),
-                "key_exprs": [_key(prefix, "**")],
-            },
-        ]
-        acl["subjects"] = [*acl.get("subjects", []), {"id": INTERNAL_ACL_ID, "usernames": [creds.user]}]
-        policy = {"id": INTERNAL_ACL_ID, "rules": [INTERNAL_ACL_ID], "subjects": [INTERNAL_ACL_ID]}
-        acl["policies"] = [*acl.get("policies", []), policy]
-        config.insert_json5("access_control", json.dumps(acl))
+    _allow_internal(config, prefix, {"usernames": [creds.user]})
     return InternalLink(creds, combined)
+
+
+def grant_internal_socket(config: zenoh.Config, prefix: str, directory: Path) -> InternalLink:
+    """The core's link of a service that authenticates no user by password (certificate-only, or no
+    users file): the Unix socket ``directory/core.sock`` (the caller adds :attr:`InternalLink.endpoint` to
+    the listen endpoints) and, with access control on in ``config``, everything under ``prefix`` allowed
+    to the links that come through a Unix socket *and* carry a Zenoh id made up here (128 random bits; the
+    core's session takes it). ``directory`` must be the service's own (0700: no other user of the computer
+    can reach the socket) and stay while the session runs. No TLS on that link: it never leaves the
+    computer; no password: none is checked."""
+    import secrets
+
+    zid = f"{secrets.randbits(128) | 1 << 127:032x}"  # Zenoh refuses an id with a leading 0
+    _allow_internal(config, prefix, {"link_protocols": ["unixsock-stream"], "zids": [zid]})
+    return InternalLink(None, None, endpoint=f"unixsock-stream/{directory / INTERNAL_SOCKET_NAME}", zid=zid)

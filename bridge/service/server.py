@@ -18,8 +18,11 @@
   maneuver run on their own small pool, so no planning or storage request queues ahead of them;
   everything else — planning, validation, storage, IK — on the worker pool, whose queue is bounded:
   beyond it a request is refused ``busy`` at once), each request stamped with its arrival time
-  (its ``deadline_ms`` counts from then); ``<prefix>/events`` and the liveliness token
-  ``<prefix>/alive``;
+  (its ``deadline_ms`` counts from then). Where the name is checked (``user_keys``: by default when this
+  service's access control gives each user their own keys) every key but ``stop`` also answers as
+  ``<prefix>/user/<name>/<key>``, a queryable of its own: the request of user ``<name>``, so admission, store
+  owners and the black box know who asked;
+  ``<prefix>/events`` and the liveliness token ``<prefix>/alive``;
 * storage — :class:`~bridge.service.store.HitchStore` under the data directory;
 * the operator terminal (``http``) — :func:`bridge.web.server.start_http`, loaded only when asked for.
 
@@ -74,12 +77,16 @@ from bridge.service.scheduling import (
     zenoh_thread_ids,
 )
 from bridge.service.security import (
+    USER_SCOPE,
     InternalLink,
     access_policy_from_file,
+    acl_scopes_users,
     apply_security,
     exposure_warnings,
+    grant_internal_socket,
     grant_internal_user,
     read_users,
+    scopable_user,
 )
 from bridge.service.signals import StopSignals
 from bridge.service.store import HitchStore
@@ -175,6 +182,8 @@ class HitchService:
         self.planning: PlanningWorkers | None = None  # the planning processes (None: in-process planning)
         self.session: zenoh.Session | None = None
         self.warnings: list[str] = []
+        #: whether each user's own keys are served (``<prefix>/user/<name>/<key>``; _serves_user_keys)
+        self.user_keys = False
         self.http: WebServer | None = None
         self._runners: list[RealtimeRunner] = []
         self._decls: list[Any] = []  # zenoh queryables, subscribers and the liveliness token
@@ -209,7 +218,7 @@ class HitchService:
         # only when the control core runs here: its process then needs its request threads raised; with the
         # core in its own process the service's threads stay at the caller's priority (they must not take
         # CPU from the core)
-        in_process = not _core_in_own_process(self.config)
+        in_process = self.config.control_core != "process"
         caller_nice = thread_nice(me) if in_process else None
         self._service_nice_failed = set_thread_nice(me, SERVICE_NICE) if caller_nice is not None else None
         try:
@@ -236,23 +245,19 @@ class HitchService:
             policy = access_policy_from_file(cfg.security, cfg.prefix) if cfg.security is not None else None
             if cfg.security is not None:  # a missing or malformed users file named here, not by Zenoh's Rust error
                 read_users(cfg.security)
-            own_process = _core_in_own_process(cfg)
-            if cfg.control_core == "process" and not own_process:
-                why = (
-                    "the security file authenticates no user by password (no users file, or an empty one), so its "
-                    "link could not log in; a users file gives it its own process (docs/security.md)"
-                )
-                self.warnings.append(
-                    f"with this security file the control core runs in the service's own process (threads): {why}. "
-                    "Under heavy request load its control period is then less regular, and stop shares the "
-                    "interpreter with the requests (docs/faults.md: threads or processes)"
-                )
+            own_process = cfg.control_core == "process"
             private = self._open_zenoh(private_link=own_process and cfg.mode != "client")
             motion: Any
             if own_process:
                 endpoints = [private] if private is not None else list(cfg.connect)
-                login = None if self._core_link is None else self._core_link.credentials
-                self.core = core = CoreProcess(cfg, endpoints, on_note=self._core_note, credentials=login).start()
+                link = self._core_link
+                self.core = core = CoreProcess(
+                    cfg,
+                    endpoints,
+                    on_note=self._core_note,
+                    credentials=None if link is None else link.credentials,
+                    zid=None if link is None else link.zid,
+                ).start()
                 self.warnings.extend(core.ready.get("warnings", []))
                 motion = self._proxy = MotionProxy(core, TrajectoryPlanner(build_model(cfg), rate=cfg.control_rate))
                 if planning is None:  # no planning processes: plan here, on a guard of the service's own
@@ -272,6 +277,8 @@ class HitchService:
                 motion, info = self.motion, service_info(cfg, guard)
                 ecu_node = parts.ecu_node
                 sim_fault = None if ecu_node is None else ecu_node.apply_fault
+            self.user_keys = _serves_user_keys(cfg)
+            info["user_keys"] = self.user_keys  # clients send on their user's keys only when this says so
             self.api = ServiceAPI(
                 motion,
                 ik,
@@ -343,31 +350,40 @@ class HitchService:
             )
 
     def _open_zenoh(self, *, private_link: bool) -> str | None:
-        """Open the service's session; with ``private_link`` it also listens on a loopback port of its
-        own choosing for the core process, and returns that endpoint.
+        """Open the service's session; with ``private_link`` it also listens on an endpoint of its own for
+        the core process, and returns that endpoint: a loopback port of its own choosing, or with a security
+        file the link :mod:`bridge.service.security` makes up — a user of its own when a users file
+        authenticates every link (:func:`~bridge.service.security.grant_internal_user`), else a Unix socket
+        in a private directory (:func:`~bridge.service.security.grant_internal_socket`).
 
         The private port is found free and then bound by Zenoh; if another socket took it in between
         (any outgoing connection on the machine may be given it as its local port), another port is
         tried, up to ``PRIVATE_PORT_TRIES`` times. A port the operator chose is never replaced."""
         cfg = self.config
-        link_dir = None
-        if private_link and cfg.security is not None:  # the core's link logs in as a user made up for it
+        link_dir, users = None, False
+        if private_link and cfg.security is not None:  # the core's link: made up for it (docs/security.md)
             link_dir = self._core_link_dir = Path(tempfile.mkdtemp(prefix="hitch-core-link-"))  # 0700; removed at close
+            users = bool(read_users(cfg.security))  # {} without a users file or with an empty one
         for _ in range(PRIVATE_PORT_TRIES if private_link else 1):
             private = f"tcp/127.0.0.1:{_free_port()}" if private_link else None
             z = build_zenoh_config(cfg)
+            if link_dir is not None:
+                self._core_link = link = (
+                    grant_internal_user(z, cfg.prefix, link_dir)
+                    if users
+                    else grant_internal_socket(z, cfg.prefix, link_dir)
+                )
+                private = link.endpoint if link is not None and link.endpoint is not None else private
             if private is not None:
                 z.insert_json5("listen/endpoints", json.dumps([*list(cfg.listen or ()), private]))
-            if link_dir is not None:
-                self._core_link = grant_internal_user(z, cfg.prefix, link_dir)
             try:
                 self.session = zenoh.open(z)
-                if link_dir is not None:  # Zenoh read the users when the session opened: the copy goes at once
+                if link_dir is not None and users:  # Zenoh read the users when the session opened: the copy goes
                     shutil.rmtree(link_dir, ignore_errors=True)
                 return private
             except zenoh.ZError as exc:  # e.g. the port is taken, a TLS file is unreadable
                 error = exc
-                if private is None or private.removeprefix("tcp/") not in str(exc):
+                if private is None or not private.startswith("tcp/") or private.removeprefix("tcp/") not in str(exc):
                     break  # not the private port's fault: retrying cannot help
         raise ServiceStartError(
             f"cannot open the Zenoh session (listen {', '.join(cfg.listen or ()) or '-'}, connect "
@@ -407,6 +423,9 @@ class HitchService:
                 continue  # answered by the core process itself: no request here can delay it
             q = s.declare_queryable(cfg.key(key), _ring(), complete=True)
             self._serve(q, self._query_callback(key), key)
+            if key != "stop" and self.user_keys:  # the request of a named user (security.USER_SCOPE): own lane too
+                q = s.declare_queryable(cfg.key(f"{USER_SCOPE}/*/{key}"), _ring(), complete=True)
+                self._serve(q, self._query_callback(key, scoped=True), f"{key}@user")
         self._decls.append(s.liveliness().declare_token(cfg.key("alive")))
 
     def _ensure_state_subscription(self) -> None:
@@ -473,18 +492,23 @@ class HitchService:
 
         threading.Thread(target=run, name=f"hitch-z-{name}", daemon=True).start()
 
-    def _query_callback(self, key: str) -> Callable[[zenoh.Query], None]:
+    def _query_callback(self, key: str, *, scoped: bool = False) -> Callable[[zenoh.Query], None]:
+        """``scoped``: the queryable of ``<prefix>/user/*/<key>``; the user is the key's chunk (with access
+        control on, Zenoh lets only that user send it: security.scope_acl_users)."""
         exact = self.config.key(key)
+        head, tail = self.config.key(USER_SCOPE) + "/", "/" + key
 
         def on_query(query: zenoh.Query) -> None:
-            if str(query.key_expr) != exact:
+            got = str(query.key_expr)
+            user = got[len(head) : -len(tail)] if scoped and got.startswith(head) and got.endswith(tail) else None
+            if (got != exact and not scoped) or (scoped and not scopable_user(user)):
                 # a wildcard query (e.g. 'hitch/**') reaches every queryable; answering it would run
                 # motion commands nobody asked for by name, so only exact keys are served
                 query.drop()
                 return
             received = time.monotonic()
             payload = b"" if query.payload is None else query.payload.to_bytes()
-            self.dispatch(key, payload, lambda ok, data: _reply(query, ok, data), received=received)
+            self.dispatch(key, payload, lambda ok, data: _reply(query, ok, data), received=received, user=user)
 
         return on_query
 
@@ -497,15 +521,21 @@ class HitchService:
         api.handle("track/setpoint", sample.payload.to_bytes(), None, received=time.monotonic())
 
     def dispatch(
-        self, key: str, payload: bytes, respond: Callable[[bool, bytes], None], *, received: float | None = None
+        self,
+        key: str,
+        payload: bytes,
+        respond: Callable[[bool, bytes], None],
+        *,
+        received: float | None = None,
+        user: str | None = None,
     ) -> None:
         """Answer one request in its lane (see the module docstring): ``respond(ok, json_bytes)``
         is called exactly once, from the lane's thread. ``received``: its arrival
-        (``time.monotonic()``, default now)."""
+        (``time.monotonic()``, default now); ``user``: who sent it (None: not named; ServiceAPI.handle)."""
         t = time.monotonic() if received is None else received
         pool = self._motion_pool if key in MOTION_KEYS_LANE else None if key in INLINE_KEYS else self._pool
         if pool is None:
-            self._answer(respond, key, payload, t)
+            self._answer(respond, key, payload, t, user=user)
             return
         if pool is self._pool:
             with self._queued_lock:
@@ -525,18 +555,24 @@ class HitchService:
                 )
                 return
         try:
-            pool.submit(self._answer, respond, key, payload, t, pool is self._pool)
+            pool.submit(self._answer, respond, key, payload, t, pool is self._pool, user)
         except RuntimeError:  # pool shut down: the service is closing
-            self._answer(respond, key, payload, t, pool is self._pool)
+            self._answer(respond, key, payload, t, pool is self._pool, user)
 
     def _answer(
-        self, respond: Callable[[bool, bytes], None], key: str, payload: bytes, received: float, queued: bool = False
+        self,
+        respond: Callable[[bool, bytes], None],
+        key: str,
+        payload: bytes,
+        received: float,
+        queued: bool = False,
+        user: str | None = None,
     ) -> None:
         try:
             if self.api is None or self._closed:
                 ok, reply = False, {"error": "unavailable", "message": f"{key}: the service is shutting down"}
             else:
-                ok, reply = self.api.handle(key, payload, None, received=received)
+                ok, reply = self.api.handle(key, payload, user, received=received)
             data = to_json_bytes(reply)
         except Exception as exc:  # noqa: BLE001 — the query is answered whatever happened
             ok, data = False, to_json_bytes({"error": "internal", "message": f"{key}: {type(exc).__name__}"})
@@ -608,7 +644,7 @@ class HitchService:
                     _quiet(p.undeclare)
             if self.session is not None:
                 _quiet(self.session.close)
-            if self._core_link_dir is not None:  # the made-up user's file: nobody logs in with it again
+            if self._core_link_dir is not None:  # the made-up user's file or the core's socket: gone with the session
                 shutil.rmtree(self._core_link_dir, ignore_errors=True)
             for pool in (self._pool, self._motion_pool):
                 if pool is not None:
@@ -641,16 +677,14 @@ class HitchService:
 CHANNEL_CAPACITY = 256
 
 
-def _core_in_own_process(cfg: ServiceConfig) -> bool:
-    """Whether the control core gets its own process: ``control_core = "process"``, and with a security
-    file its link can log in — in client mode to the routers as the service does (the same file), else
-    to this service's private listener as a user made up for it (the file must name a users file to add
-    it to)."""
-    if cfg.control_core != "process":
-        return False
-    if cfg.security is None or cfg.mode == "client":
-        return True
-    return bool(read_users(cfg.security))  # {} without a users file or with an empty one
+def _serves_user_keys(cfg: ServiceConfig) -> bool:
+    """Serve ``<prefix>/user/<name>/<key>`` (``user_keys``; ``"auto"``: only where the name is checked: this
+    service's own access control gives each user their own keys, security.acl_scopes_users). Behind a
+    router whose access control does that, the operator says so with ``user_keys = true``; without a check
+    anyone could claim any name (another user's admission allowance and store limits)."""
+    if cfg.user_keys != "auto":
+        return bool(cfg.user_keys)
+    return cfg.security is not None and cfg.mode != "client" and acl_scopes_users(cfg.security)
 
 
 def _ring() -> Any:

@@ -95,6 +95,37 @@ def test_only_an_operator_can_stream_track_setpoints(secured):
         c.track_stop(session)
 
 
+def test_each_user_is_known_to_the_service_by_name(secured):
+    """Zenoh gives a service no querier's name: every Zenoh request counted against one shared admission
+    allowance and was recorded by '-'. A client logged in as a user now sends on that user's own keys,
+    which the ACL lets only that user send: the black box records who asked."""
+    ep, alice, bob, d = secured
+    with HitchClient([ep], security=alice, timeout_s=10) as a, HitchClient([ep], security=bob, timeout_s=1.5) as b:
+        assert (a.user, b.user) == ("alice", "bob")  # from each security file's login
+        wait_online(a)
+        assert a.config()["prefix"] == "hitch"
+        assert b.ik(0.0, 0.1, 0.0, 0.0)["status"] == "ok"  # a viewer's reading key, on his own keys
+        with pytest.raises(ServiceError) as ei:
+            b.request("goto", {"goal": {"z": 0.1}})  # his own motion key is not his to use either
+        assert ei.value.code == "timeout"
+    with HitchClient([ep], security=bob, timeout_s=1.5, user="alice") as posing:  # bob claims to be alice
+        with pytest.raises(ServiceError) as ei:
+            posing.config()
+        assert ei.value.code == "timeout"  # Zenoh's ACL: not bob's key
+    log = d / "data" / "log" / "events.jsonl"
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        asked = [json.loads(ln) for ln in log.read_text().splitlines() if '"request"' in ln]
+        mine = {(r.get("key"), r.get("user")) for r in asked}
+        if {("config", "alice"), ("ik", "bob")} <= mine:
+            break
+        time.sleep(0.2)
+    assert {("config", "alice"), ("ik", "bob")} <= mine, sorted(mine, key=str)
+    assert ("goto", "bob") not in mine
+    # anonymous only: the clients' one question whether the service serves user keys, and stop (plain for all)
+    assert {k for k, u in mine if u is None} <= {"config", "stop"}
+
+
 def _children_cmdlines(pid: int) -> list[list[str]]:
     kids: list[int] = []
     for task in Path(f"/proc/{pid}/task").iterdir():

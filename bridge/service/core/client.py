@@ -68,8 +68,11 @@ class CoreProcess:
         endpoints: what the core's Zenoh session connects to (the service session's private loopback
             listener; in client mode the routers the service connects to).
         credentials: the user and password the core's link logs in with (a secured service's made-up
-            user, :func:`~bridge.service.security.grant_internal_user`); sent over the private socket,
-            never on the command line, where every user of the computer could read it.
+            user, :func:`~bridge.service.security.grant_internal_user`);
+        zid: the Zenoh id the core's session takes (a secured service without a users file: its ACL allows
+            that id on the private Unix socket, :func:`~bridge.service.security.grant_internal_socket`).
+            Both are sent over the private socket, never on the command line, where every user of the
+            computer could read them.
     """
 
     def __init__(
@@ -78,10 +81,11 @@ class CoreProcess:
         endpoints: list[str],
         on_note: Callable[[dict[str, Any]], None] | None = None,
         credentials: Credentials | None = None,
+        zid: str | None = None,
     ):
         self.config, self.endpoints = config, list(endpoints)
         self.on_note = on_note
-        self.credentials = credentials
+        self.credentials, self.zid = credentials, zid
         self.process: subprocess.Popen[bytes] | None = None
         self._conn: multiprocessing.connection.Connection | None = None
         self._send_lock = threading.Lock()
@@ -105,7 +109,7 @@ class CoreProcess:
                     str(fd),
                     self.config.model_dump_json(),
                     json.dumps(self.endpoints),
-                    *(["login"] if self.credentials is not None else []),
+                    *(["login"] if self.credentials is not None or self.zid is not None else []),
                 ],
                 pass_fds=(fd,),
                 stdin=subprocess.DEVNULL,
@@ -117,9 +121,11 @@ class CoreProcess:
         finally:
             theirs.close()
         self._conn = conn = multiprocessing.connection.Connection(mine.detach())
-        if self.credentials is not None:  # the first message: the core opens its session with it
+        if self.credentials is not None or self.zid is not None:  # the first message: the core's link
+            creds = self.credentials
+            user, password = (None, None) if creds is None else (creds.user, creds.password)
             try:
-                conn.send(("login", self.credentials.user, self.credentials.password))
+                conn.send(("login", user, password, self.zid))
             except OSError:  # the core ended already: reported below like any start that failed
                 pass
         if not conn.poll(START_TIMEOUT_S):

@@ -127,9 +127,11 @@ class ControlCore:
         *,
         nice_failed: str | None = None,
         login: tuple[str, str] | None = None,
+        zid: str | None = None,
     ):
         self.cfg, self.conn, self.endpoints = cfg, conn, list(endpoints)
         self._login = login  # (user, password) of a secured service's link for this core (never printed)
+        self._zid = zid  # the Zenoh id a secured service without users allows on its private socket
         self.nice_failed = nice_failed  # why the process could not be raised to CORE_NICE (None: it was)
         self._send_lock = threading.Lock()
         self.parts: CanParts | None = None
@@ -221,6 +223,8 @@ class ControlCore:
             ("scouting/multicast/enabled", False),
         ):
             z.insert_json5(path, json.dumps(value))
+        if self._zid is not None:  # a secured service's private Unix socket: the id its ACL allows there
+            z.insert_json5("id", json.dumps(self._zid))
         if self._login is not None:  # a secured service's private listener: the user it made up for this core
             z.insert_json5("transport/auth/usrpwd/user", json.dumps(self._login[0]))
             z.insert_json5("transport/auth/usrpwd/password", json.dumps(self._login[1]))
@@ -519,21 +523,22 @@ def _quiet(fn: Callable[[], Any]) -> None:
 
 def main(argv: list[str]) -> int:
     """``python -m bridge.service.core.process FD CONFIG_JSON ENDPOINTS_JSON [login]``; with ``login`` the
-    first message on the socket is ``("login", user, password)`` for the core's Zenoh link."""
+    first message on the socket is ``("login", user, password, zid)`` for the core's Zenoh link (user and
+    password None without a users file; zid None with one)."""
     fd, cfg_json, endpoints = int(argv[0]), argv[1], list(json.loads(argv[2]))
     nice_failed = _set_nice(CORE_NICE)  # first: every thread started from here on inherits it
     sys.setswitchinterval(SWITCH_INTERVAL_S)  # a thread that plans hands the GIL over within ~1 ms
     conn = multiprocessing.connection.Connection(fd)
     core: ControlCore | None = None
     try:
-        login = None
+        login, zid = None, None
         if argv[3:4] == ["login"]:
-            tag, user, password = conn.recv()
+            tag, user, password, zid = conn.recv()
             if tag != "login":
                 raise RuntimeError(f"the control core expected its login first, got {tag!r}")
-            login = (str(user), str(password))
+            login = None if user is None else (str(user), str(password))
         cfg = ServiceConfig.model_validate_json(cfg_json)
-        core = ControlCore(cfg, conn, endpoints, nice_failed=nice_failed, login=login)
+        core = ControlCore(cfg, conn, endpoints, nice_failed=nice_failed, login=login, zid=zid)
         try:
             ready = core.start()
         except (HitchError, OSError, zenoh.ZError) as exc:

@@ -21,7 +21,7 @@ from bridge.service.motion.types import FAULT_CLEAR_AFTER_S, MotionError
 from planner.ik_qp.hitch_ik import IKSolver
 from planner.limits.guard import Guard
 from planner.trajectory import TrajectoryPlanner
-from tests.helpers import SimService
+from tests.helpers import Gate, SimService
 
 DT = 0.02
 
@@ -241,15 +241,8 @@ def test_any_payload_sent_to_stop_stops(r, payload):
 
 
 def test_expensive_requests_are_admitted_a_few_per_user(r):
-    gate, entered = threading.Event(), threading.Semaphore(0)
-    real = r.mc.preview_from
-
-    def slow_preview(*a, **k):
-        entered.release()
-        gate.wait(5.0)
-        return real(*a, **k)
-
-    r.mc.preview_from = slow_preview
+    r.mc.preview_from = held = Gate(r.mc.preview_from, wait_s=5.0)
+    entered = held.entered
     body = {"goal": {"z": 0.2}}
     results: list = []
     ts = [
@@ -273,7 +266,7 @@ def test_expensive_requests_are_admitted_a_few_per_user(r):
         ok, _ = r.call("stop", {})  # cheap requests are not held back
         assert ok
     finally:
-        gate.set()
+        held.open()
         for t in ts:
             t.join(10.0)
     assert all(ok for ok, _ in results)

@@ -5,6 +5,7 @@ import json
 import os
 import select
 import shutil
+import signal
 import stat
 import subprocess
 import sys
@@ -17,6 +18,7 @@ import zenoh
 from bench._common import free_port
 from bridge.service.security import (
     MOTION_KEYS,
+    OPERATOR_KEYS,
     VIEWER_QUERIES,
     AccessPolicy,
     Credentials,
@@ -24,13 +26,16 @@ from bridge.service.security import (
     SecuritySettings,
     TlsSettings,
     access_policy_from_file,
+    acl_scopes_users,
     apply_security,
     build_acl,
     build_security_config,
     connect_sections,
     exposure_warnings,
+    grant_internal_socket,
     grant_internal_user,
     motion_keys,
+    scope_acl_users,
     security_json5,
     security_sections,
     write_users_file,
@@ -196,7 +201,7 @@ def test_the_core_user_is_added_to_a_copy_of_the_users_file_and_given_the_servic
     assert access_policy_from_file(path, "hitch").role(user) is None  # no role of the operator's
     again = grant_internal_user(apply_security(zenoh.Config(), path), "hitch", tmp_path / "link")
     assert again is not None and again.credentials.user != user  # a new one at every start
-    # a file that authenticates nobody by password gets no made-up user (the core stays in threads)
+    # a file that authenticates nobody by password gets no made-up user (the core links through a Unix socket)
     only_acl = tmp_path / "no-users.json5"
     only_acl.write_text(json.dumps({"access_control": {"enabled": False}}))
     assert grant_internal_user(apply_security(zenoh.Config(), only_acl), "hitch", tmp_path / "link") is None
@@ -205,6 +210,94 @@ def test_the_core_user_is_added_to_a_copy_of_the_users_file_and_given_the_servic
     empty = tmp_path / "empty-users.json5"
     empty.write_text(json.dumps({"transport": {"auth": {"usrpwd": {"dictionary_file": str(tmp_path / "empty.txt")}}}}))
     assert grant_internal_user(apply_security(zenoh.Config(), empty), "hitch", tmp_path / "link") is None
+
+
+def test_without_users_the_core_gets_a_unix_socket_and_an_id_only_the_acl_of_that_socket_allows(tmp_path, pki):
+    # before: a service secured by certificates only (no users file) ran its core in its threads
+    cert_only = SecuritySettings(
+        tls=TlsSettings(**_tls(pki, cert="server", mutual=True)),
+        access=AccessPolicy(operator_cert_names=("operator-1",)),
+    )
+    z = apply_security(zenoh.Config(), cert_only)
+    acl_before = json.loads(z.get_json("access_control"))
+    link = grant_internal_socket(z, "hitch", tmp_path)
+    assert link.credentials is None and link.users_file is None
+    assert link.endpoint == f"unixsock-stream/{tmp_path / 'core.sock'}"
+    assert len(link.zid) == 32 and int(link.zid, 16) > 0
+    acl = json.loads(z.get_json("access_control"))
+    added = {k: [x for x in acl[k] if x not in acl_before[k]] for k in ("rules", "subjects", "policies")}
+    assert [(r["permission"], r["key_exprs"]) for r in added["rules"]] == [("allow", ["hitch/**"])]
+    (subject,) = added["subjects"]
+    assert subject["link_protocols"] == ["unixsock-stream"] and subject["zids"] == [link.zid]  # both at once
+    assert not subject.get("usernames") and not subject.get("cert_common_names")
+    assert json.loads(z.get_json("transport/auth/usrpwd"))["dictionary_file"] is None  # no password checks started
+    assert grant_internal_socket(apply_security(zenoh.Config(), cert_only), "hitch", tmp_path).zid != link.zid
+    # the service reads the roles of such a file (before: TypeError, Zenoh writes null for its usernames)
+    path = tmp_path / "cert-only.json5"
+    path.write_text(security_json5(cert_only))
+    policy = access_policy_from_file(path, "hitch")
+    assert policy.operator_cert_names == ("operator-1",) and policy.operators == ()
+    # without access control nothing is added: the socket's directory (0700) is the only door
+    plain = apply_security(zenoh.Config(), SecuritySettings(tls=TlsSettings(**_tls(pki, cert="server"))))
+    grant_internal_socket(plain, "hitch", tmp_path)
+    assert json.loads(plain.get_json("access_control"))["enabled"] is False
+
+
+@pytest.mark.slow  # the service in its own process
+def test_a_service_secured_by_certificates_only_runs_its_core_in_its_own_process(tmp_path, pki, monkeypatch):
+    from bridge.service.client import HitchClient
+    from tests.integration.service_process import ServiceProcess, wait_online
+
+    server = tmp_path / "server.json5"
+    server.write_text(
+        security_json5(
+            SecuritySettings(
+                tls=TlsSettings(**_tls(pki, cert="server", mutual=True)),
+                access=AccessPolicy(operator_cert_names=("operator-1",), viewer_cert_names=("viewer-1",)),
+            )
+        )
+    )
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    monkeypatch.setenv("TMPDIR", str(tmp))  # where the service puts the core's socket
+    ep = f"tls/127.0.0.1:{free_port()}"
+    svc = ServiceProcess(["--listen", ep, "--data-dir", str(tmp_path / "data"), "--security", str(server)])
+    try:
+        assert not [ln for ln in svc.output if "control core runs in the service's own process" in ln]
+        kids = [k for t in Path(f"/proc/{svc.proc.pid}/task").iterdir() for k in (t / "children").read_text().split()]
+        cores = [Path(f"/proc/{k}/cmdline").read_bytes().split(b"\0") for k in kids]
+        cores = [c for c in cores if b"bridge.service.core.process" in c]
+        assert len(cores) == 1 and b"login" in cores[0] and b"unixsock-stream" in b" ".join(cores[0])
+        (sock,) = tmp.glob("hitch-core-link-*/core.sock")
+        assert stat.S_IMODE(sock.parent.stat().st_mode) == 0o700
+        operator, viewer = (
+            tmp_path / f"{n}.json5" for n in ("operator", "viewer")
+        )  # client files: the CA and each one's certificate
+        operator.write_text(
+            security_json5(SecuritySettings(tls=TlsSettings(**_tls(pki, "hitch-ca", "operator-1", True))))
+        )
+        viewer.write_text(security_json5(SecuritySettings(tls=TlsSettings(**_tls(pki, "hitch-ca", "viewer-1", True)))))
+        with (
+            HitchClient([ep], security=operator, timeout_s=10) as c,
+            HitchClient([ep], security=viewer, timeout_s=5) as v,
+        ):
+            wait_online(c)
+            assert c.goto({"z": 0.2})["accepted"]  # the service's queryables, through the certificate ACL
+            stopped = v.stop()  # the viewer's stop, answered by the core's own queryable
+            assert stopped["stopped"] is True and isinstance(stopped["t"], float)
+            assert v.state()["motion_id"] == stopped["motion_id"]
+        # another program of this user reaching the socket, without the core's id: the ACL allows it nothing
+        z = zenoh.Config()
+        z.insert_json5("mode", '"client"')
+        z.insert_json5("connect/endpoints", json.dumps([f"unixsock-stream/{sock}"]))
+        z.insert_json5("scouting/multicast/enabled", "false")
+        with zenoh.open(z) as s:
+            assert [r for r in s.get("hitch/config", payload=b"{}", timeout=1.5) if r.ok] == []
+            assert [r for r in s.get("hitch/stop", payload=b"{}", timeout=1.5) if r.ok] == []
+    finally:
+        svc.proc.send_signal(signal.SIGTERM)
+        svc.proc.wait(30)
+    assert list(tmp.glob("hitch-core-link-*")) == []  # the socket's directory goes with the service
 
 
 def test_a_client_given_a_services_file_takes_only_its_login_and_tls(tmp_path, users_file):
@@ -302,6 +395,7 @@ s = zenoh.open(c)
 def answer(q):
     q.reply(q.key_expr, json.dumps({{"key": str(q.key_expr)}}))
 keys = ("goto", "ik", "presets/go", "presets/list", "mode", "presets/save", "maneuvers/delete")
+keys += ("user/*/goto", "user/*/ik")  # each user's own keys (security.USER_SCOPE), as the service declares them
 keys = () if mode == "router" else keys
 qs = [s.declare_queryable("hitch/" + k, answer) for k in keys]
 pub = None if mode == "router" else s.declare_publisher("hitch/state")
@@ -444,7 +538,9 @@ def test_acl_permitted_user_moves_refused_user_only_reads(tmp_path, users_file, 
     alice, bob, carol = r["alice"], r["bob"], r["carol"]
     assert alice["open"] and alice["replies"]["hitch/goto"] == ["hitch/goto"]
     assert alice["replies"]["hitch/presets/go"] == ["hitch/presets/go"] and alice["replies"]["hitch/mode"]
-    assert alice["replies"]["hitch/**"] == ["hitch/**"]  # wildcards reach an operator's queryables (consolidated)
+    # operators' queries are allowed by exact key since each user has keys of their own (a wildcard would
+    # include them); the service never answered a wildcard anyway (it serves exact keys only)
+    assert alice["replies"]["hitch/**"] == [] and alice["replies"]["hitch/*"] == []
     assert (
         alice["replies"]["hitch/presets/save"] == ["hitch/presets/save"] and alice["replies"]["hitch/maneuvers/delete"]
     )
@@ -461,6 +557,88 @@ def test_acl_permitted_user_moves_refused_user_only_reads(tmp_path, users_file, 
     assert not r["mallory"]["open"] and not r["anonymous"]["open"]
 
 
+def _acl_of_an_older_version(policy: AccessPolicy) -> dict:
+    """The ACL build_acl wrote before users had keys of their own: operators' queries on '<prefix>/**'."""
+    acl = build_acl(policy)
+    ids = {r["id"] for r in acl["rules"] if r["id"].startswith("user_scope")}
+    acl["rules"] = [r for r in acl["rules"] if r["id"] not in ids]
+    acl["subjects"] = [x for x in acl["subjects"] if x["id"] not in ids]
+    acl["policies"] = [p for p in acl["policies"] if p["id"] not in ids]
+    for p in acl["policies"]:
+        p["rules"] = [r for r in p["rules"] if r not in ids]
+    next(r for r in acl["rules"] if r["id"] == "operator_queries")["key_exprs"] = ["hitch/**"]
+    return acl
+
+
+def test_each_user_gets_request_keys_of_their_own_in_the_acl(tmp_path, users_file):
+    policy = AccessPolicy("hitch", operators=("alice", "al/ce", "others"), viewers=("bob", "-x"), services=("svc",))
+    acl = build_acl(policy)
+    rules = {r["id"]: r for r in acl["rules"]}
+    assert len(rules) == len(acl["rules"])  # unique ids (Zenoh refuses the config otherwise), a user 'others' too
+    assert set(rules["user_scope_alice"]["key_exprs"]) == {
+        *(f"hitch/user/alice/{k}" for k in OPERATOR_KEYS + VIEWER_QUERIES),
+        "hitch/user/alice/track/**",
+    }
+    assert rules["user_scope_bob"]["key_exprs"] == [f"hitch/user/bob/{k}" for k in VIEWER_QUERIES]
+    assert "user_scope_al/ce" not in rules and "user_scope_-x" not in rules  # not key chunks: shared keys only
+    assert not any(k.endswith("/**") and "track" not in k for k in rules["operator_queries"]["key_exprs"])
+    policies = {p["id"]: p for p in acl["policies"]}
+    assert "user_scope" in policies["services"]["rules"]  # service nodes answer, never ask as a user
+    assert "user_scope:viewers" in policies["viewers"]["rules"]  # as no_motion / no_writes on the plain keys
+    assert "hitch/user/*/goto" in rules["user_scope:viewers"]["key_exprs"]
+    assert policies["user_scope_alice"]["subjects"] == ["user_scope_alice"]
+    assert scope_acl_users(acl) == acl  # idempotent
+    assert scope_acl_users(_acl_of_an_older_version(policy)) == acl  # an older file gets the same rules
+    carol = json.loads(json.dumps(acl))  # a user added to a role by hand later gets keys of her own too
+    next(x for x in carol["subjects"] if x["id"] == "operators_users")["usernames"].append("carol")
+    assert "user_scope_carol" in {r["id"] for r in scope_acl_users(carol)["rules"]}
+    assert scope_acl_users({"enabled": False}) == {"enabled": False}
+    hand_written = {"enabled": True, "default_permission": "deny", "rules": [], "subjects": [], "policies": []}
+    assert scope_acl_users(hand_written) == hand_written
+    # a prefix with '**' is not scoped: its rules would include the keys of a user named like its last chunk
+    fleet = build_acl(AccessPolicy("fleet/**/hitch", viewers=("hitch",)))
+    assert not any(r["id"].startswith("user_scope") for r in fleet["rules"])
+    # a service takes the name in a user key only when its own access control scopes the users
+    for settings, scoped in (
+        (SecuritySettings(users_file=users_file, access=policy), True),
+        (SecuritySettings(users_file=users_file), False),
+    ):
+        path = tmp_path / f"{scoped}.json5"
+        path.write_text(security_json5(settings))
+        assert acl_scopes_users(path) is scoped
+
+
+@pytest.mark.slow  # Zenoh peers in their own processes
+@pytest.mark.parametrize("written_by", ["this version", "an older version"])
+def test_each_user_may_send_only_their_own_scoped_keys(tmp_path, users_file, server, written_by):
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    policy = AccessPolicy("hitch", operators=("alice",), viewers=("bob",))
+    if written_by == "this version":
+        server(ep, SecuritySettings(users_file=users_file, access=policy))
+    else:  # the file's operators may query '<prefix>/**': applying it scopes it (security.scope_acl_users)
+        sections = build_security_config(SecuritySettings(users_file=users_file))
+        sections["access_control"] = _acl_of_an_older_version(policy)
+        old = tmp_path / "old.json5"
+        old.write_text(json.dumps(sections))
+        server(ep, str(old))
+    mine = ["hitch/user/alice/goto", "hitch/user/alice/ik", "hitch/user/bob/ik", "hitch/user/bob/goto"]
+    keys = [*mine, "hitch/user/*/ik", "hitch/user/**", "hitch/user/alice/**"]
+    r = _clients(
+        tmp_path,
+        {
+            n: {"endpoint": ep, "user": n, "password": f"{n}-pw", "keys": keys}
+            for n in ("alice", "bob", "carol")  # operator, viewer, no role
+        },
+    )
+    allowed = {n: sorted(k for k, v in r[n]["replies"].items() if v) for n in r}
+    assert allowed == {
+        "alice": ["hitch/user/alice/goto", "hitch/user/alice/ik"],  # her own, every key; nobody else's
+        "bob": ["hitch/user/bob/ik"],  # his own reading keys only
+        "carol": [],
+    }
+    assert r["alice"]["replies"]["hitch/user/alice/goto"] == ["hitch/user/alice/goto"]
+
+
 @pytest.mark.slow  # Zenoh peers in their own processes
 def test_acl_on_a_fleet_router_with_the_service_behind_it(tmp_path, users_file, server):
     users = write_users_file(tmp_path / "router-users.txt", {**USERS, "svc-t07": "svc-pw"})
@@ -475,7 +653,7 @@ def test_acl_on_a_fleet_router_with_the_service_behind_it(tmp_path, users_file, 
     )
     service = build_security_config(SecuritySettings(credentials=Credentials("svc-t07", "svc-pw")))
     server(ep, json.dumps(service), mode="client")
-    keys = ["hitch/goto", "hitch/ik", "hitch/**"]
+    keys = ["hitch/goto", "hitch/ik", "hitch/**", "hitch/user/alice/goto", "hitch/user/bob/ik"]
     r = _clients(
         tmp_path,
         {
@@ -483,9 +661,21 @@ def test_acl_on_a_fleet_router_with_the_service_behind_it(tmp_path, users_file, 
             "bob": {"endpoint": ep, "user": "bob", "password": "bob-pw", "keys": keys},
         },
     )
-    assert r["alice"]["replies"] == {"hitch/goto": ["hitch/goto"], "hitch/ik": ["hitch/ik"], "hitch/**": ["hitch/**"]}
+    assert r["alice"]["replies"] == {
+        "hitch/goto": ["hitch/goto"],
+        "hitch/ik": ["hitch/ik"],
+        "hitch/**": [],
+        "hitch/user/alice/goto": ["hitch/user/alice/goto"],  # her own keys, through the router's ACL
+        "hitch/user/bob/ik": [],  # never another user's
+    }
     assert r["alice"]["states"] > 0
-    assert r["bob"]["replies"] == {"hitch/goto": [], "hitch/ik": ["hitch/ik"], "hitch/**": []}
+    assert r["bob"]["replies"] == {
+        "hitch/goto": [],
+        "hitch/ik": ["hitch/ik"],
+        "hitch/**": [],
+        "hitch/user/alice/goto": [],
+        "hitch/user/bob/ik": ["hitch/user/bob/ik"],
+    }
     assert r["bob"]["states"] > 0
     # `hitch fleet ls` (a liveliness query on **/alive) finds the service behind the router: the policy
     # allowed liveliness queries only under its prefix, so a fleet's operators saw "(no services)"

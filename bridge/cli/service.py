@@ -342,8 +342,9 @@ def _service_down(args, exc: Exception) -> CLIError:
     tried = ", ".join(args.connect or [DEFAULT_LISTEN])
     why = re.sub(r"\s+at \S+\.rs:\d+\.?", "", str(exc)).strip()  # Zenoh's source location is noise here
     secured = (
-        f"; with --security {args.security}: the user and password may be refused there, or the access list may not "
-        "let this user see that service"
+        f"; with --security {args.security}: the user and password may be refused there, its certificate may be "
+        "refused (a client certificate needs version 3 and extendedKeyUsage=clientAuth: sign it with -extfile, "
+        "docs/security.md §4), or the access list may not let this user see that service"
         if getattr(args, "security", None)
         else "; a service with access control answers only clients with credentials: give them with --security FILE"
     )
@@ -518,11 +519,22 @@ def _cmd_stop(args) -> int:
 
 def _cmd_mode(args) -> int:
     def mode(c) -> int:
-        r = c.mode(args.set)
+        # reading it is the configuration's (a viewer may ask that); the mode key sets it (operators only)
+        r = c.mode(args.set) if args.set is not None else {"mode": c.config()["mode"]}
         _print(args, r, f"mode: {r['mode']}")
         return 0
 
     return _run(args, mode)
+
+
+def _cmd_config(args) -> int:
+    def config(c) -> int:
+        r = c.config()
+        text = [f"{k}: {r[k]}" for k in ("prefix", "profile", "category", "implement", "mode", "user_keys") if k in r]
+        _print(args, r, "\n".join(text) + "\n(--json for everything: limits, workspace, actuators)")
+        return 0
+
+    return _run(args, config)
 
 
 def faults_text(ecu: dict) -> str:
@@ -802,6 +814,10 @@ def add_commands(sub) -> Any:
     )
     _client_options(p)
     p.set_defaults(handler=_cmd_stop, realtime_where_permitted=True)
+
+    p = sub.add_parser("config", help="the service's configuration: profile, limits, workspace, mode (viewers too)")
+    _client_options(p)
+    p.set_defaults(handler=_cmd_config)
 
     p = sub.add_parser("mode", help="read or set the operating mode")
     p.add_argument(

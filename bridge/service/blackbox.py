@@ -6,10 +6,11 @@
 the epoch), ``seq`` (1, 2, … per log, continued across service starts: a new :class:`EventLog` on an
 existing log goes on after the last record's number, so a number names one record) and ``kind``:
 
-* ``request`` — who asked what and what came of it: ``key``, ``user`` (None: authorised by
-  Zenoh's access control), ``accepted`` (bool), ``error`` and ``message`` of a refusal,
-  ``motion_id`` of an accepted motion, ``request`` (the JSON body of a writing request,
-  capped at :data:`MAX_BODY_CHARS` characters);
+* ``request`` — who asked what and what came of it: ``key``, ``user`` (None: not named, a request
+  on the plain keys that Zenoh's access control let through), ``accepted`` (bool), ``error`` and
+  ``message`` of a refusal, ``motion_id`` of an accepted motion, ``request`` (the JSON body of a
+  writing request, capped at :data:`MAX_BODY_CHARS` characters); every request but ``config``
+  (:data:`UNRECORDED_KEYS`: the service's fixed description, which every client asks once);
 * ``event`` — an event of the service as published on ``<prefix>/events`` (faults, motion
   and maneuver outcomes, mode changes …), its fields as they are, the service's time ``t``
   kept as ``event_t``;
@@ -71,6 +72,7 @@ __all__ = [
     "follow_events",
     "replay_can_log",
     "WRITING_KEYS",
+    "UNRECORDED_KEYS",
     "MAX_BODY_CHARS",
 ]
 
@@ -95,6 +97,11 @@ WRITING_KEYS = frozenset(
 #: a logged request body is cut to this many characters
 MAX_BODY_CHARS = 2000
 _LOG_NAME = "events.jsonl"
+
+
+#: requests the black box does not record: reading the service's fixed description (every client asks
+#: it once, to learn whether the service serves its user's own keys: docs/security.md)
+UNRECORDED_KEYS = frozenset({"config"})
 
 
 class BlackBoxError(HitchInputError):
@@ -196,7 +203,10 @@ class EventLog:
     def on_request(
         self, key: str, user: str | None, payload: bytes | bytearray | memoryview | str | None, ok: bool, reply: Any
     ) -> None:
-        """Hook for :class:`~bridge.service.api.ServiceAPI` (``on_request``): one ``request`` record."""
+        """Hook for :class:`~bridge.service.api.ServiceAPI` (``on_request``): one ``request`` record
+        (none for :data:`UNRECORDED_KEYS`)."""
+        if key in UNRECORDED_KEYS:
+            return
         rec: dict[str, Any] = {"key": key, "user": user, "accepted": bool(ok)}
         if isinstance(reply, Mapping):
             if ok:

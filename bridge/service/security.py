@@ -559,14 +559,14 @@ def scope_acl_users(acl: Mapping[str, Any]) -> dict:
 
 
 def acl_scopes_users(source: SecuritySettings | Mapping | str | Path) -> bool:
-    """Does the security file (or settings) ``source`` give each user their own keys once applied
-    (:func:`scope_acl_users`)? Only then may a service take the name in a user key for the sender's: the
-    ACL lets no one else send it."""
+    """Does the security file (or settings) ``source`` give users their own keys once applied
+    (:func:`scope_acl_users`: at least one user's allow rule)? Only then may a service take the name in a
+    user key for the sender's: the ACL lets no one else send it. Certificate names get no keys."""
     text = security_sections(source).get("access_control")
     acl = json.loads(text) if text else None
     if not isinstance(acl, dict):
         return False
-    return any(r.get("id") == _SCOPE_ID for r in scope_acl_users(acl).get("rules") or [])
+    return any(str(r.get("id", "")).startswith(f"{_SCOPE_ID}_") for r in scope_acl_users(acl).get("rules") or [])
 
 
 def build_security_config(settings: SecuritySettings) -> dict:

@@ -64,6 +64,14 @@ def test_cli_with_credentials(secured):
     assert p.returncode == 0 and json.loads(p.stdout)["mode"] == "auto"
     p = hitch(ep, "goto", "--to", "z=0.15", "--security", str(bob), "--timeout", "1.5")
     assert p.returncode == 2 and "no reply" in p.stderr
+    # a viewer reads the mode and the configuration (before: `hitch mode` asked the mode key, an operator's:
+    # no reply for a viewer; and there was no `hitch config`)
+    p = hitch(ep, "mode", "--security", str(bob), "--json", "--timeout", "3")
+    assert p.returncode == 0 and json.loads(p.stdout)["mode"] == "auto", p.stderr
+    p = hitch(ep, "config", "--security", str(bob), "--json", "--timeout", "3")
+    assert p.returncode == 0 and json.loads(p.stdout)["user_keys"] is True, p.stderr
+    p = hitch(ep, "config", "--security", str(bob), "--timeout", "3")
+    assert "prefix: hitch" in p.stdout and "user_keys: True" in p.stdout
 
 
 def test_unknown_user_cannot_connect(secured):
@@ -103,7 +111,8 @@ def test_each_user_is_known_to_the_service_by_name(secured):
     with HitchClient([ep], security=alice, timeout_s=10) as a, HitchClient([ep], security=bob, timeout_s=1.5) as b:
         assert (a.user, b.user) == ("alice", "bob")  # from each security file's login
         wait_online(a)
-        assert a.config()["prefix"] == "hitch"
+        assert a.config()["user_keys"] is True
+        assert a.goto({"z": 0.15})["accepted"]
         assert b.ik(0.0, 0.1, 0.0, 0.0)["status"] == "ok"  # a viewer's reading key, on his own keys
         with pytest.raises(ServiceError) as ei:
             b.request("goto", {"goal": {"z": 0.1}})  # his own motion key is not his to use either
@@ -117,13 +126,12 @@ def test_each_user_is_known_to_the_service_by_name(secured):
     while time.monotonic() < deadline:
         asked = [json.loads(ln) for ln in log.read_text().splitlines() if '"request"' in ln]
         mine = {(r.get("key"), r.get("user")) for r in asked}
-        if {("config", "alice"), ("ik", "bob")} <= mine:
+        if {("goto", "alice"), ("ik", "bob")} <= mine:
             break
         time.sleep(0.2)
-    assert {("config", "alice"), ("ik", "bob")} <= mine, sorted(mine, key=str)
-    assert ("goto", "bob") not in mine
-    # anonymous only: the clients' one question whether the service serves user keys, and stop (plain for all)
-    assert {k for k, u in mine if u is None} <= {"config", "stop"}
+    assert {("goto", "alice"), ("ik", "bob")} <= mine, sorted(mine, key=str)
+    assert ("goto", "bob") not in mine and "config" not in {k for k, _ in mine}  # config is not recorded
+    assert {k for k, u in mine if u is None} <= {"stop"}  # anonymous only: stop, on the plain key for all
 
 
 def _children_cmdlines(pid: int) -> list[list[str]]:

@@ -44,7 +44,8 @@ def test_records_are_json_lines_in_order_with_who_what_and_outcome(tmp_path):
     log = EventLog(path)
     log.on_request("goto", "alice", b'{"goal": {"z": 0.2}}', True, {"motion_id": 7, "duration": 1.0})
     log.on_request("presets/save", "bob", b'{"name": "w"}', False, {"error": "forbidden", "message": "viewer"})
-    log.on_request("config", None, b"", True, {"profile": "p"})
+    log.on_request("config", None, b"", True, {"profile": "p"})  # not recorded: every client asks it once
+    log.on_request("ik", None, b"", True, {"status": "ok"})
     log.on_event({"t": 12.5, "event": "fault", "fault": "stale_measurement", "message": "no 0xFF22"})
     log.on_event({"t": 13.0, "event": "motion_finished", "motion_id": 7, "seq": 41})
     log.close()
@@ -54,7 +55,7 @@ def test_records_are_json_lines_in_order_with_who_what_and_outcome(tmp_path):
     assert recs[0] == {**recs[0], "kind": "request", "key": "goto", "user": "alice", "accepted": True, "motion_id": 7}
     assert json.loads(recs[0]["request"]) == {"goal": {"z": 0.2}}
     assert recs[1]["accepted"] is False and recs[1]["error"] == "forbidden" and recs[1]["user"] == "bob"
-    assert "request" not in recs[2]  # a reading request's body is not kept
+    assert recs[2]["key"] == "ik" and "request" not in recs[2]  # a reading request's body is not kept
     assert recs[3]["kind"] == "event" and recs[3]["fault"] == "stale_measurement" and recs[3]["event_t"] == 12.5
     assert recs[4]["event"] == "motion_finished" and recs[4]["event_seq"] == 41 and recs[4]["seq"] == 5
     assert read_events(path) == recs

@@ -606,6 +606,9 @@ def test_each_user_gets_request_keys_of_their_own_in_the_acl(tmp_path, users_fil
         path = tmp_path / f"{scoped}.json5"
         path.write_text(security_json5(settings))
         assert acl_scopes_users(path) is scoped
+    # certificate names get no keys of their own: a certificate-only service serves none (a new user saw
+    # `user_keys: true` there, and their `--user` requests went unanswered)
+    assert acl_scopes_users({"access_control": build_acl(AccessPolicy(operator_cert_names=("operator-1",)))}) is False
 
 
 @pytest.mark.slow  # Zenoh peers in their own processes

@@ -258,6 +258,14 @@ class AccessPolicy:
             if isinstance(names, str) or not all(isinstance(n, str) and n and n.isprintable() for n in names):
                 raise SecurityError(f"access.{role}", "must be a list of non-empty certificate common names")
             object.__setattr__(self, role, tuple(names))
+            own = role.removesuffix("_cert_names") + "s"  # a name is one user whether username or certificate
+            for n in names:
+                if seen.get(n, own) != own:
+                    raise SecurityError(
+                        f"access.{role}",
+                        f"{n!r} is also a user in access.{seen[n]}: a username and a certificate name that are "
+                        "equal are one user to the service and must have one role",
+                    )
         if not (
             self.operators
             or self.viewers
@@ -269,8 +277,13 @@ class AccessPolicy:
             raise SecurityError("access", "names nobody: with default deny no one could reach the service")
 
     def role(self, user: str) -> str | None:
-        """``"operator"``, ``"viewer"``, ``"service"`` or None (a username in no role)."""
-        for role, names in (("operator", self.operators), ("viewer", self.viewers), ("service", self.services)):
+        """``"operator"``, ``"viewer"``, ``"service"`` or None (a name in no role): a username, or a certificate
+        common name (the user of a request on that name's own keys, :func:`scope_acl_users`)."""
+        for role, names in (
+            ("operator", self.operators + self.operator_cert_names),
+            ("viewer", self.viewers + self.viewer_cert_names),
+            ("service", self.services + self.service_cert_names),
+        ):
             if user in names:
                 return role
         return None
@@ -477,11 +490,13 @@ def _request_keys(prefix: str) -> list[str]:
 def scope_acl_users(acl: Mapping[str, Any]) -> dict:
     """``acl`` (an ``access_control`` section as :func:`build_acl` writes it) plus each user's own keys.
 
-    For every operator and viewer whose name is :func:`scopable_user`, one subject (that username), one
-    rule and one policy let them query ``<prefix>/user/<name>/<key>``: operators every request key,
-    viewers their reading keys, each exact. Nobody else may query under ``<prefix>/user/``: the
-    operators' queries are allowed by exact key (no ``<prefix>/**``, which would include every user's
-    keys; a file of an earlier version has its ``operator_queries`` rule replaced), a rule denying queries
+    For every operator and viewer whose name is :func:`scopable_user` — a username, or with mutual TLS a
+    certificate's common name (a username and a common name that are equal are one user to the service) —
+    one subject (that name), one rule and one policy let them query ``<prefix>/user/<name>/<key>``:
+    operators every request key, viewers their reading keys, each exact. Nobody else may query under
+    ``<prefix>/user/``: the operators' queries are allowed by exact key (no ``<prefix>/**``, which would
+    include every user's keys; a file of an earlier version has its ``operator_queries`` rule replaced), a
+    rule denying queries
     on ``<prefix>/user/**`` joins the services' policy (whose ``<prefix>/**`` lets them answer), and the
     viewers' policy denies every message on the operator keys under ``<prefix>/user/*/`` as it does on the
     plain ones. A deny cannot close the operators' ``<prefix>/**`` instead: Zenoh takes the role's subject
@@ -512,8 +527,12 @@ def scope_acl_users(acl: Mapping[str, Any]) -> dict:
     viewer_keys = [
         k[len(p) + 1 :] for k in viewer_rule.get("key_exprs") or [] for p in prefixes if k.startswith(p + "/")
     ]
-    names = {x["id"]: tuple(x.get("usernames") or ()) for x in subjects}
-    role_users = {p.get("id"): [u for sid in p.get("subjects") or [] for u in names.get(sid, ())] for p in policies}
+
+    def members(field: str) -> dict[Any, list[str]]:
+        names = {x["id"]: tuple(x.get(field) or ()) for x in subjects}
+        return {p.get("id"): [u for sid in p.get("subjects") or [] for u in names.get(sid, ())] for p in policies}
+
+    role_users, role_certs = members("usernames"), members("cert_common_names")
     viewers_deny = f"{_SCOPE_ID}:viewers"
     operator_only = [*OPERATOR_KEYS, *(f"{w}**" for w in WRITE_PREFIXES)]
     rules += [
@@ -539,10 +558,13 @@ def scope_acl_users(acl: Mapping[str, Any]) -> dict:
             p["rules"] = [*p["rules"], viewers_deny]
     operator_keys = [k[len("hitch/") :] for k in _request_keys("hitch")]
     for role, keys in (("operators", operator_keys), ("viewers", viewer_keys)):
-        for user in dict.fromkeys(role_users.get(role, [])):
+        # usernames (usrpwd) and certificate common names (mTLS): ids 'user_scope_<name>', 'user_scope:cert:<cn>'
+        # (no user name has a ':', so neither clashes with the other nor with the rules above)
+        named = [(u, "usernames", f"{_SCOPE_ID}_{u}") for u in dict.fromkeys(role_users.get(role, []))]
+        named += [(c, "cert_common_names", f"{_SCOPE_ID}:cert:{c}") for c in dict.fromkeys(role_certs.get(role, []))]
+        for user, kind, rid in named:
             if not scopable_user(user) or not keys:
                 continue
-            rid = f"{_SCOPE_ID}_{user}"
             rules.append(
                 {
                     "id": rid,
@@ -552,7 +574,7 @@ def scope_acl_users(acl: Mapping[str, Any]) -> dict:
                     "key_exprs": [f"{p}/{USER_SCOPE}/{user}/{k}" for p in prefixes for k in keys],
                 }
             )
-            subjects.append({"id": rid, "usernames": [user]})
+            subjects.append({"id": rid, kind: [user]})
             policies.append({"id": rid, "rules": [rid], "subjects": [rid]})
     out["rules"], out["subjects"], out["policies"] = rules, subjects, policies
     return out
@@ -561,12 +583,13 @@ def scope_acl_users(acl: Mapping[str, Any]) -> dict:
 def acl_scopes_users(source: SecuritySettings | Mapping | str | Path) -> bool:
     """Does the security file (or settings) ``source`` give users their own keys once applied
     (:func:`scope_acl_users`: at least one user's allow rule)? Only then may a service take the name in a
-    user key for the sender's: the ACL lets no one else send it. Certificate names get no keys."""
+    user key for the sender's: the ACL lets no one else send it."""
     text = security_sections(source).get("access_control")
     acl = json.loads(text) if text else None
     if not isinstance(acl, dict):
         return False
-    return any(str(r.get("id", "")).startswith(f"{_SCOPE_ID}_") for r in scope_acl_users(acl).get("rules") or [])
+    own = (f"{_SCOPE_ID}_", f"{_SCOPE_ID}:cert:")
+    return any(str(r.get("id", "")).startswith(own) for r in scope_acl_users(acl).get("rules") or [])
 
 
 def build_security_config(settings: SecuritySettings) -> dict:

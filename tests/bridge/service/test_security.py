@@ -40,7 +40,7 @@ from bridge.service.security import (
     security_sections,
     write_users_file,
 )
-from tests.helpers import loopback_zenoh_config
+from tests.helpers import loopback_zenoh_config, wait_until
 
 USERS = {"alice": "alice-pw", "bob": "bob-pw", "carol": "carol-pw"}
 
@@ -245,7 +245,7 @@ def test_without_users_the_core_gets_a_unix_socket_and_an_id_only_the_acl_of_tha
 
 @pytest.mark.slow  # the service in its own process
 def test_a_service_secured_by_certificates_only_runs_its_core_in_its_own_process(tmp_path, pki, monkeypatch):
-    from bridge.service.client import HitchClient
+    from bridge.service.client import HitchClient, ServiceError
     from tests.integration.service_process import ServiceProcess, wait_online
 
     server = tmp_path / "server.json5"
@@ -278,14 +278,26 @@ def test_a_service_secured_by_certificates_only_runs_its_core_in_its_own_process
         )
         viewer.write_text(security_json5(SecuritySettings(tls=TlsSettings(**_tls(pki, "hitch-ca", "viewer-1", True)))))
         with (
-            HitchClient([ep], security=operator, timeout_s=10) as c,
+            HitchClient([ep], security=operator, timeout_s=10, user="operator-1") as c,  # its certificate's name
             HitchClient([ep], security=viewer, timeout_s=5) as v,
         ):
             wait_online(c)
-            assert c.goto({"z": 0.2})["accepted"]  # the service's queryables, through the certificate ACL
+            assert c.config()["user_keys"] is True
+            assert c.goto({"z": 0.2})["accepted"]  # on its own keys, through the certificate ACL
             stopped = v.stop()  # the viewer's stop, answered by the core's own queryable
             assert stopped["stopped"] is True and isinstance(stopped["t"], float)
             assert v.state()["motion_id"] == stopped["motion_id"]
+        with HitchClient([ep], security=viewer, timeout_s=2, user="operator-1") as posing:  # not its name
+            with pytest.raises(ServiceError):
+                posing.ik(0.0, 0.1, 0.0, 0.0)
+        log = tmp_path / "data" / "log" / "events.jsonl"
+
+        def gotos() -> list:
+            recs = [json.loads(ln) for ln in log.read_text().splitlines() if ln.strip()]
+            return [r.get("user") for r in recs if r.get("kind") == "request" and r.get("key") == "goto"]
+
+        assert wait_until(lambda: gotos() != [], 10.0), log.read_text()[-2000:]
+        assert gotos() == ["operator-1"]  # the black box knows which certificate moved it
         # another program of this user reaching the socket, without the core's id: the ACL allows it nothing
         z = zenoh.Config()
         z.insert_json5("mode", '"client"')
@@ -606,9 +618,19 @@ def test_each_user_gets_request_keys_of_their_own_in_the_acl(tmp_path, users_fil
         path = tmp_path / f"{scoped}.json5"
         path.write_text(security_json5(settings))
         assert acl_scopes_users(path) is scoped
-    # certificate names get no keys of their own: a certificate-only service serves none (a new user saw
-    # `user_keys: true` there, and their `--user` requests went unanswered)
-    assert acl_scopes_users({"access_control": build_acl(AccessPolicy(operator_cert_names=("operator-1",)))}) is False
+    # certificate common names get keys of their own too (a new user's report: a certificate-only service
+    # said `user_keys: true` while no certificate had keys, and their `--user` requests went unanswered)
+    certs = build_acl(AccessPolicy(operator_cert_names=("operator-1", "Operator One"), viewer_cert_names=("v-1",)))
+    rules = {r["id"]: r for r in certs["rules"]}
+    assert "hitch/user/operator-1/goto" in rules["user_scope:cert:operator-1"]["key_exprs"]
+    assert rules["user_scope:cert:v-1"]["key_exprs"] == [f"hitch/user/v-1/{k}" for k in VIEWER_QUERIES]
+    assert "user_scope:cert:Operator One" not in rules  # not a key chunk: the plain keys only
+    subject = next(x for x in certs["subjects"] if x["id"] == "user_scope:cert:operator-1")
+    assert subject["cert_common_names"] == ["operator-1"] and not subject.get("usernames")
+    assert acl_scopes_users({"access_control": certs}) is True
+    assert AccessPolicy(operator_cert_names=("operator-1",)).role("operator-1") == "operator"  # the service's check
+    with pytest.raises(SecurityError, match="one user to the service"):  # a name is one user: one role
+        AccessPolicy(viewers=("op",), operator_cert_names=("op",))
 
 
 @pytest.mark.slow  # Zenoh peers in their own processes
@@ -800,6 +822,13 @@ def test_mtls_needs_a_client_certificate_from_the_ca_and_maps_names_to_roles(tmp
         ),
     )
     keys = ["hitch/goto", "hitch/ik"]
+    mine = [
+        "hitch/user/operator-1/goto",
+        "hitch/user/operator-1/ik",
+        "hitch/user/viewer-1/ik",
+        "hitch/user/viewer-1/goto",
+    ]
+    keys += mine
     r = _clients(
         tmp_path,
         {
@@ -809,11 +838,12 @@ def test_mtls_needs_a_client_certificate_from_the_ca_and_maps_names_to_roles(tmp
             "rogue_cert": {"endpoint": ep, "tls": _tls(pki, cert="rogue", mutual=True), "keys": keys},
         },
     )
-    assert r["operator"]["open"] and r["operator"]["replies"] == {
-        "hitch/goto": ["hitch/goto"],
-        "hitch/ik": ["hitch/ik"],
+    answered = {n: sorted(k for k, v in r[n]["replies"].items() if v) for n in ("operator", "viewer")}
+    # each certificate's own user keys (its common name), and only its own; the viewer only reading ones
+    assert answered == {
+        "operator": ["hitch/goto", "hitch/ik", "hitch/user/operator-1/goto", "hitch/user/operator-1/ik"],
+        "viewer": ["hitch/ik", "hitch/user/viewer-1/ik"],
     }
-    assert r["viewer"]["open"] and r["viewer"]["replies"] == {"hitch/goto": [], "hitch/ik": ["hitch/ik"]}
     assert r["viewer"]["states"] > 0
     assert not r["no_cert"]["open"]
     assert not r["rogue_cert"]["open"]

@@ -381,6 +381,9 @@ def test_quick_raise_return_and_selection_with_the_core_in_its_own_process(tmp_p
             return ((svc.latest_state or {}).get("pose") or {}).get("z")
 
         assert wait_until(lambda: z_now() is not None), "no state from the core"
+        # a pose is reported from the first measurement, before the link is up (heartbeats in sequence): a goto
+        # sent then is refused `ecu`, not by the guard (a CI-style run, 2026-12-06); wait as a client would
+        assert wait_until(lambda: ((svc.latest_state or {}).get("ecu") or {}).get("online") is True), "ECU not online"
         call("implements/define", {**HARROW, "headland": HEADLAND, "upper_height_m": 0.28})
         call("implements/select", {"name": "harrow"})
         ok, r = svc.api.handle("goto", json.dumps({"goal": {"z": 0.3}}))

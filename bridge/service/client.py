@@ -49,7 +49,14 @@ from bridge.service.scheduling import (
     raise_to_fifo,
     zenoh_thread_ids,
 )
-from bridge.service.security import apply_security, connect_sections, login_user, scopable_user, user_key
+from bridge.service.security import (
+    SCOPE_NAME_RULE,
+    apply_security,
+    connect_sections,
+    login_user,
+    scopable_user,
+    user_key,
+)
 from planner.errors import HitchInputError
 
 __all__ = ["HitchClient", "ClientError", "ServiceError", "ServiceTimeout", "Subscription", "client_config"]
@@ -198,7 +205,7 @@ class HitchClient:
             login = login_user(security)
             user = login if scopable_user(login) else ""
         if user and not scopable_user(user):
-            raise ClientError(f"user {user!r} cannot name request keys (allowed: 1-64 of A-Z a-z 0-9 _ - .)")
+            raise ClientError(f"user {user!r} cannot name request keys (allowed: {SCOPE_NAME_RULE})")
         #: the user this client's requests are sent as (None: the shared keys)
         self.user: str | None = user or None
         self._user_keys: dict[str, bool] = {}  # prefix -> does that service serve user keys (its config)

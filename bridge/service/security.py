@@ -75,6 +75,7 @@ __all__ = [
     "users_file_of",
     "connect_sections",
     "USER_SCOPE",
+    "SCOPE_NAME_RULE",
     "scopable_user",
     "user_key",
     "scope_acl_users",
@@ -143,8 +144,9 @@ _ALL = _OBSERVE_IN + ("query",) + _TO_CLIENT
 #: is ``plan`` sent by ``alice``. The ACL (:func:`scope_acl_users`) lets a user query only their own, so the
 #: service knows who asked: admission of expensive requests, store owners and the black box are per user.
 USER_SCOPE = "user"
-#: a user name that can be one key chunk (the names :func:`scope_acl_users` scopes): a letter or digit first
+#: a user name that can be one key chunk (the names :func:`scope_acl_users` scopes), and that rule in words
 _SCOPE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
+SCOPE_NAME_RULE = "1-64 of A-Z a-z 0-9 _ - ., a letter or digit first"
 #: id of the rule :func:`scope_acl_users` adds to the services' policy, and the start of every id it adds
 #: (``user_scope_<name>`` per user; ``user_scope:viewers``: no user name has a ':')
 _SCOPE_ID = "user_scope"
@@ -475,9 +477,7 @@ def scopable_user(name: Any) -> bool:
 def user_key(prefix: str, user: str, key: str) -> str:
     """``<prefix>/user/<user>/<key>``: ``key`` sent as ``user`` (see :data:`USER_SCOPE`)."""
     if not scopable_user(user):
-        raise SecurityError(
-            "user", f"{user!r} cannot name request keys (allowed: 1-64 of A-Z a-z 0-9 _ - ., a letter or digit first)"
-        )
+        raise SecurityError("user", f"{user!r} cannot name request keys (allowed: {SCOPE_NAME_RULE})")
     return f"{prefix}/{USER_SCOPE}/{user}/{key}"
 
 
@@ -496,12 +496,11 @@ def scope_acl_users(acl: Mapping[str, Any]) -> dict:
     operators every request key, viewers their reading keys, each exact. Nobody else may query under
     ``<prefix>/user/``: the operators' queries are allowed by exact key (no ``<prefix>/**``, which would
     include every user's keys; a file of an earlier version has its ``operator_queries`` rule replaced), a
-    rule denying queries
-    on ``<prefix>/user/**`` joins the services' policy (whose ``<prefix>/**`` lets them answer), and the
-    viewers' policy denies every message on the operator keys under ``<prefix>/user/*/`` as it does on the
-    plain ones. A deny cannot close the operators' ``<prefix>/**`` instead: Zenoh takes the role's subject
-    and a user's own for one subject when they name the same users, and a deny rule of a subject outweighs
-    its allow rules.
+    rule denying queries on ``<prefix>/user/**`` joins the services' policy (whose ``<prefix>/**`` lets them
+    answer), and the viewers' policy denies every message on the operator keys under ``<prefix>/user/*/`` as
+    it does on the plain ones. A deny cannot close the operators' ``<prefix>/**`` instead: Zenoh takes the
+    role's subject and a user's own for one subject when they name the same users, and a deny rule of a
+    subject outweighs its allow rules.
 
     Rebuilt from the roles each time (a user added to a role by hand gets keys too). Returned unchanged
     when access control is off, when it was not written by :func:`build_acl` (no ``observe`` rule: a
@@ -527,12 +526,8 @@ def scope_acl_users(acl: Mapping[str, Any]) -> dict:
     viewer_keys = [
         k[len(p) + 1 :] for k in viewer_rule.get("key_exprs") or [] for p in prefixes if k.startswith(p + "/")
     ]
-
-    def members(field: str) -> dict[Any, list[str]]:
-        names = {x["id"]: tuple(x.get(field) or ()) for x in subjects}
-        return {p.get("id"): [u for sid in p.get("subjects") or [] for u in names.get(sid, ())] for p in policies}
-
-    role_users, role_certs = members("usernames"), members("cert_common_names")
+    role_users = _role_members(subjects, policies, "usernames")
+    role_certs = _role_members(subjects, policies, "cert_common_names")
     viewers_deny = f"{_SCOPE_ID}:viewers"
     operator_only = [*OPERATOR_KEYS, *(f"{w}**" for w in WRITE_PREFIXES)]
     rules += [
@@ -560,8 +555,8 @@ def scope_acl_users(acl: Mapping[str, Any]) -> dict:
     for role, keys in (("operators", operator_keys), ("viewers", viewer_keys)):
         # usernames (usrpwd) and certificate common names (mTLS): ids 'user_scope_<name>', 'user_scope:cert:<cn>'
         # (no user name has a ':', so neither clashes with the other nor with the rules above)
-        named = [(u, "usernames", f"{_SCOPE_ID}_{u}") for u in dict.fromkeys(role_users.get(role, []))]
-        named += [(c, "cert_common_names", f"{_SCOPE_ID}:cert:{c}") for c in dict.fromkeys(role_certs.get(role, []))]
+        named = [(u, "usernames", f"{_SCOPE_ID}_{u}") for u in dict.fromkeys(role_users.get(role, ()))]
+        named += [(c, "cert_common_names", f"{_SCOPE_ID}:cert:{c}") for c in dict.fromkeys(role_certs.get(role, ()))]
         for user, kind, rid in named:
             if not scopable_user(user) or not keys:
                 continue
@@ -578,6 +573,13 @@ def scope_acl_users(acl: Mapping[str, Any]) -> dict:
             policies.append({"id": rid, "rules": [rid], "subjects": [rid]})
     out["rules"], out["subjects"], out["policies"] = rules, subjects, policies
     return out
+
+
+def _role_members(subjects: Sequence[Mapping], policies: Sequence[Mapping], field: str) -> dict[Any, tuple[str, ...]]:
+    """Policy id -> the names (``field``: ``usernames`` or ``cert_common_names``) of its subjects, in order
+    (Zenoh writes null for the lists a subject leaves out)."""
+    names = {x["id"]: tuple(x.get(field) or ()) for x in subjects}
+    return {p.get("id"): tuple(n for sid in p.get("subjects") or [] for n in names.get(sid, ())) for p in policies}
 
 
 def acl_scopes_users(source: SecuritySettings | Mapping | str | Path) -> bool:
@@ -738,16 +740,9 @@ def access_policy_from_file(source: str | Path, prefix: str) -> AccessPolicy | N
     acl = json.loads(text)
     if not acl.get("enabled", False):
         return None
-    subjects = acl.get("subjects") or []  # Zenoh writes null for the lists a subject leaves out
-
-    def role_names(what: str) -> dict[str, tuple[str, ...]]:
-        names = {sub["id"]: tuple(sub.get(what) or ()) for sub in subjects}
-        return {
-            pol["id"]: tuple(n for sid in pol.get("subjects") or [] for n in names.get(sid, ()))
-            for pol in acl.get("policies") or []
-        }
-
-    roles, certs = role_names("usernames"), role_names("cert_common_names")
+    subjects, policies = acl.get("subjects") or [], acl.get("policies") or []
+    roles = _role_members(subjects, policies, "usernames")
+    certs = _role_members(subjects, policies, "cert_common_names")
     viewer_rule = next((r for r in acl.get("rules", []) if r.get("id") == "viewer_queries"), None)
     queries = VIEWER_QUERIES
     if viewer_rule is not None:
@@ -773,17 +768,20 @@ def read_users(source: str | Path) -> dict[str, str]:
     return {} if path is None else _read_users_file(path)
 
 
+def _usrpwd(sections: Mapping[str, str]) -> dict[str, Any]:
+    """The ``transport/auth/usrpwd`` section of :func:`security_sections`' result ({} when unset)."""
+    return json.loads(sections.get("transport/auth/usrpwd") or "{}") or {}
+
+
 def users_file_of(source: str | Path) -> Path | None:
     """The usrpwd dictionary file a security file names (None: none)."""
-    usrpwd = json.loads(security_sections(source).get("transport/auth/usrpwd") or "{}") or {}
-    path = usrpwd.get("dictionary_file")
+    path = _usrpwd(security_sections(source)).get("dictionary_file")
     return Path(path) if path else None
 
 
 def login_user(source: str | Path) -> str | None:
     """The user a security file logs in as (``transport/auth/usrpwd/user``); None when it names none."""
-    usrpwd = json.loads(security_sections(source).get("transport/auth/usrpwd") or "{}") or {}
-    user = usrpwd.get("user")
+    user = _usrpwd(security_sections(source)).get("user")
     return str(user) if user else None
 
 
@@ -793,7 +791,7 @@ def connect_sections(source: str | Path) -> dict[str, str]:
     access control (which would filter its own link by the other side's username, which a connecting
     node never learns: every message would be denied)."""
     sections = security_sections(source)
-    usrpwd = json.loads(sections.get("transport/auth/usrpwd") or "{}") or {}
+    usrpwd = _usrpwd(sections)
     out = {"transport/link/tls": sections.get("transport/link/tls") or "{}"}
     login = {k: usrpwd[k] for k in ("user", "password") if usrpwd.get(k)}
     if login:

@@ -47,7 +47,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).parent))
 from _common import machine_note, write_json  # noqa: E402
 
-from bridge.sim.accuracy_run import AccuracyRunSettings, visit_poses  # noqa: E402
+from bridge.sim.accuracy_run import AccuracyRunSettings, measure_stop_offsets, visit_poses  # noqa: E402
 from bridge.sim.calibration_data import measure_twin, true_poses  # noqa: E402
 from bridge.sim.truth import MachineTruth, PinPlay, perturb_profile  # noqa: E402
 from planner.calibration.design import candidate_poses, plan_poses  # noqa: E402
@@ -56,7 +56,9 @@ from planner.calibration.parametric import ParametricModel  # noqa: E402
 from planner.calibration.solve import build_calibration_problem, solve_calibration  # noqa: E402
 from planner.model.kinematics import HitchModel  # noqa: E402
 from planner.model.sensors import SensorScaling  # noqa: E402
+from planner.model.workspace import fit_restricted_box  # noqa: E402
 from planner.profiles.hitch import load_profile, profile_from_dict  # noqa: E402
+from planner.trajectory import PlanError, TrajectoryPlanner  # noqa: E402
 
 TARGET = np.array([2.0, 2.0, 2.0, 2.0])  # x, z [mm], roll, pitch [mrad] p95
 DOF = ("x", "z", "roll", "pitch")
@@ -99,8 +101,8 @@ def _through_twin(job: tuple) -> dict:
     truth = MachineTruth(profile_from_dict(data), play)
     t0 = time.perf_counter()
     _, cal_profile, _ = _calibrate(pm, truth, planned, seed, by="goto")
-    cal = HitchModel(cal_profile)
-    out: dict = {"seed": seed, "measure_and_fit_wall_s": time.perf_counter() - t0}
+    cal, fitted = _reachable_box(HitchModel(cal_profile))
+    out: dict = {"seed": seed, "measure_and_fit_wall_s": time.perf_counter() - t0, "box_fitted": fitted}
     for name, model in (("nominal", pm.nominal_model), ("calibrated", cal)):
         t0 = time.perf_counter()
         v = visit_poses(model, check, truth, AccuracyRunSettings(seed=seed), skip_refused=True)
@@ -110,6 +112,25 @@ def _through_twin(job: tuple) -> dict:
         out[f"{name}_wall_s"] = time.perf_counter() - t0
         out[f"{name}_simulated_s"] = v.simulated_s
     return out
+
+
+def _reachable_box(model: HitchModel) -> tuple[HitchModel, dict | None]:
+    """``model``, or where the calibrated machine cannot reach its restricted box (the planner refuses to load
+    it, as for twin 0: the true machine cannot reach that corner within the top link's yaw limit either), what
+    docs/commissioning.md tells the user to do: the box of ``hitch profile fit-workspace`` wherever it is
+    smaller. Returns the model and the box put in (None: kept)."""
+    try:
+        TrajectoryPlanner(model)
+        return model, None
+    except PlanError:
+        pass
+    fit = fit_restricted_box(model).box
+    cat = model.category
+    data = model.profile.model_dump()
+    old = data["workspace"]["restricted"][cat]
+    box = {k: (max(float(old[k][0]), float(fit[k][0])), min(float(old[k][1]), float(fit[k][1]))) for k in fit}
+    data["workspace"]["restricted"][cat] = box
+    return HitchModel(profile_from_dict(data), cat), box
 
 
 def _calibrate(
@@ -169,10 +190,25 @@ def _z_scores(pm: ParametricModel, res, truth: MachineTruth) -> tuple[np.ndarray
     return z_dir, z_par
 
 
-def _run_through_twin(prof, n_twin: int, workers: int, planned: np.ndarray, check: np.ndarray) -> dict:
-    """The through-the-twin evaluation of the first ``n_twin`` twins (module docstring), its table and summary."""
+def twin_count_approach(prof) -> dict:
+    """The ``motion.count_approach`` table of the twin's ECU: its stop offsets measured on the nominal twin (10
+    random poses other than the check poses; :func:`bridge.sim.accuracy_run.measure_stop_offsets`), as a user
+    measures them on the machine's twin once, whatever the geometry."""
+    poses = candidate_poses(ParametricModel(prof), 10, random_only=True, seed=11)[0]
+    return measure_stop_offsets(HitchModel(prof), poses).table()
+
+
+def _run_through_twin(
+    prof, n_twin: int, workers: int, planned: np.ndarray, check: np.ndarray, count_approach: bool = False
+) -> dict:
+    """The through-the-twin evaluation of the first ``n_twin`` twins (module docstring), its table and summary;
+    ``count_approach``: every goto of every profile (measuring, calibrated, floors) ends with the count approach
+    whose offsets :func:`twin_count_approach` measured."""
     data = prof.model_dump()
     data["motion"]["final_approach"] = FINAL_APPROACH
+    if count_approach:
+        data["motion"]["count_approach"] = twin_count_approach(prof)
+        print(f"count approach: {data['motion']['count_approach']}", flush=True)
     jobs = [(seed, data, planned, check) for seed in range(n_twin)]
     print(f"\nthrough the twin: {n_twin} twins on {workers} processes (final approach {FINAL_APPROACH})", flush=True)
     t0 = time.perf_counter()
@@ -197,11 +233,17 @@ def _run_through_twin(prof, n_twin: int, workers: int, planned: np.ndarray, chec
                 flush=True,
             )
     if not res:  # --through-twin 0: the floor alone
-        return {"final_approach": FINAL_APPROACH, "floor_exact_profile": floors, "wall_s": time.perf_counter() - t0}
+        return {
+            "final_approach": FINAL_APPROACH,
+            "count_approach": data["motion"].get("count_approach"),
+            "floor_exact_profile": floors,
+            "wall_s": time.perf_counter() - t0,
+        }
     cal_p = np.array([r["calibrated"] for r in res])
     nom_p = np.array([r["nominal"] for r in res])
     return {
         "final_approach": FINAL_APPROACH,
+        "count_approach": data["motion"].get("count_approach"),
         "calibrated_max_p95": cal_p.max(axis=0).tolist(),
         "calibrated_median_p95": np.median(cal_p, axis=0).tolist(),
         "nominal_min_p95": nom_p.min(axis=0).tolist(),
@@ -210,6 +252,7 @@ def _run_through_twin(prof, n_twin: int, workers: int, planned: np.ndarray, chec
         "twins_within_target_per_dof": np.sum(cal_p <= TARGET, axis=0).tolist(),
         "improvement_min_worst_axis": float(np.min(nom_p.max(axis=1) / cal_p.max(axis=1))),
         "refused_poses": [len(r["calibrated_refused"]) for r in res],
+        "boxes_fitted": {r["seed"]: r["box_fitted"] for r in res if r["box_fitted"] is not None},
         "floor_exact_profile": floors,
         "wall_s": time.perf_counter() - t0,
         "twins": res,
@@ -225,6 +268,11 @@ def main() -> None:
     ap.add_argument("--through-twin", type=int, default=None, help="twins evaluated through the twin (default all)")
     ap.add_argument("--workers", type=int, default=2, help="processes for the through-the-twin runs")
     ap.add_argument("--skip-static", action="store_true", help="only the through-the-twin evaluation")
+    ap.add_argument(
+        "--count-approach",
+        action="store_true",
+        help="through the twin, every goto ends with the count approach (offsets measured on the nominal twin)",
+    )
     args = ap.parse_args()
     if args.through_twin is not None and args.through_twin < 0:
         ap.error("--through-twin must be >= 0")
@@ -239,7 +287,7 @@ def main() -> None:
     check = _tour(check[: args.check])
     n_twin = args.twins if args.through_twin is None else args.through_twin
     if args.skip_static:
-        res = _run_through_twin(prof, n_twin, args.workers, planned[20], check)
+        res = _run_through_twin(prof, n_twin, args.workers, planned[20], check, args.count_approach)
         print(f"\nthrough_twin: { {k: v for k, v in res.items() if k != 'twins'} }")
         if args.json:
             write_json(args.json, {"machine": machine_note(), "summary": {"through_twin": res}})
@@ -371,7 +419,7 @@ def main() -> None:
         ],
         "plan_time_s": t_plan,
     }
-    summary["through_twin"] = _run_through_twin(prof, n_twin, args.workers, planned[20], check)
+    summary["through_twin"] = _run_through_twin(prof, n_twin, args.workers, planned[20], check, args.count_approach)
     print()
     for k, v in summary.items():
         print(f"{k}: {v}")

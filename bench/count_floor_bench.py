@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from _common import machine_note, write_json  # noqa: E402
 from calibration_bench import DOF, FINAL_APPROACH, TARGET  # noqa: E402
 
-from bridge.sim.accuracy_run import AccuracyRunSettings, _TwinGotos  # noqa: E402
+from bridge.sim.accuracy_run import AccuracyRunSettings, _TwinGotos, measure_stop_offsets  # noqa: E402
 from bridge.sim.truth import MachineTruth, PinPlay  # noqa: E402
 from planner.calibration.design import candidate_poses  # noqa: E402
 from planner.calibration.parametric import ParametricModel  # noqa: E402
@@ -72,10 +72,12 @@ def rounding(model: HitchModel, poses: np.ndarray) -> dict:
     return {"nearest": _pose_figures(np.array(near)), "best_of_32": _pose_figures(np.array(best))}
 
 
-def stops(profile, poses: np.ndarray) -> dict:
-    """Real gotos on the twin (exact profile, no play): where the pistons stop, and the pose error."""
+def stops(profile, poses: np.ndarray, count_approach: dict | None = None) -> dict:
+    """Real gotos on the twin (exact profile, no play): where the pistons stop, and the pose error; with
+    ``count_approach`` (a ``motion.count_approach`` table) every goto ends with it."""
     data = profile.model_dump()
     data["motion"]["final_approach"] = FINAL_APPROACH
+    data["motion"]["count_approach"] = count_approach
     prof = profile_from_dict(data)
     model = HitchModel(prof)
     sc = SensorScaling(prof)
@@ -96,7 +98,7 @@ def stops(profile, poses: np.ndarray) -> dict:
                 continue
             unrounded = sc.counts_min + (tw.tp.inverse.solve(p)[0] - sc.si_min) / sc.resolution
             stop.append(ecu.piston_counts() - ref)
-            rnd.append(ref - unrounded)
+            rnd.append(ref - unrounded)  # with the count approach: its chosen count, not the nearest
             err.append(tw.rig.true_pose().controlled() - p)
     s, r = np.array(stop), np.array(rnd)
     return {
@@ -114,6 +116,11 @@ def main() -> int:
     ap.add_argument("--poses", type=int, default=200, help="random workspace poses for the static rounding")
     ap.add_argument("--visits", type=int, default=40, help="random workspace poses visited by gotos on the twin")
     ap.add_argument("--json", default=None, help="write the results as JSON")
+    ap.add_argument(
+        "--count-approach",
+        action="store_true",
+        help="also: measure the twin's stop offsets and visit the same poses with the count approach",
+    )
     a = ap.parse_args()
     if not 1 <= a.poses <= 10_000 or not 1 <= a.visits <= 1000:
         ap.error("--poses must be in [1, 10000] and --visits in [1, 1000]")
@@ -123,7 +130,20 @@ def main() -> int:
     t0 = time.perf_counter()
     res: dict = {"machine": machine_note()}
     res["rounding"] = rounding(model, candidate_poses(pm, a.poses, random_only=True, seed=7)[0])
-    res["stops"] = stops(profile, candidate_poses(pm, a.visits, random_only=True, seed=3)[0])
+    visits = candidate_poses(pm, a.visits, random_only=True, seed=3)[0]
+    res["stops"] = stops(profile, visits)
+    if a.count_approach:
+        # the offsets measured on other poses of the twin than those then visited
+        off = measure_stop_offsets(model, candidate_poses(pm, 10, random_only=True, seed=11)[0])
+        res["stop_offsets"] = {
+            "from_below": off.from_below,
+            "from_above": off.from_above,
+            "sd_below": off.sd_below,
+            "sd_above": off.sd_above,
+            "n": off.n,
+        }
+        table = off.table()
+        res["stops_count_approach"] = stops(profile, visits, table)
     res["wall_s"] = time.perf_counter() - t0
     write_json(a.json, res)
 
@@ -138,6 +158,15 @@ def main() -> int:
     print(f"\nper actuator {ACTUATOR_NAMES} [counts]")
     for key in ("piston_minus_commanded", "commanded_minus_unrounded", "piston_minus_unrounded"):
         print(row(key, st[key]))
+    if a.count_approach:
+        off = res["stop_offsets"]
+        print(f"\nstop offsets on the twin ({off['n']} poses) [counts], piston - count, {ACTUATOR_NAMES}")
+        for key in ("from_below", "from_above", "sd_below", "sd_above"):
+            print(f"{key:<44} {[[round(x, 3) for x in v] for v in off[key]]}")
+        sc = res["stops_count_approach"]
+        print(row(f"through the twin, count approach ({sc['visited']} gotos)", sc["pose_error"]))
+        for key in ("piston_minus_commanded", "commanded_minus_unrounded", "piston_minus_unrounded"):
+            print(row(key, sc[key]))
     print(f"\n{res['wall_s']:.0f} s wall")
     return 0
 

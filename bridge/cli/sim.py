@@ -26,7 +26,14 @@ from pathlib import Path
 import numpy as np
 
 from bridge.cli.errors import CLIError
-from bridge.cli.model import add_model_options, bounded_float, finite_float, model_from_args, whole_number
+from bridge.cli.model import (
+    add_model_options,
+    bounded_float,
+    bounded_int,
+    finite_float,
+    model_from_args,
+    whole_number,
+)
 from bridge.cli.output import console, output_path, plot_path
 from bridge.cli.plan import parse_pose_arg
 from bridge.cli.service import _client_options
@@ -604,6 +611,34 @@ def _cmd_sim_measure(args) -> int:
     return 0
 
 
+def _cmd_sim_stop_offsets(args) -> int:
+    """``hitch sim stop-offsets``: the twin's ECU stops inside a count, as a profile's ``motion.count_approach``."""
+    from bridge.sim.accuracy_run import measure_stop_offsets
+    from planner.calibration.design import candidate_poses
+    from planner.calibration.parametric import ParametricModel
+
+    model = model_from_args(args)
+    truth = MachineTruth.nominal(model.profile) if args.sim_truth is None else load_machine_truth(args.sim_truth)
+    poses = candidate_poses(ParametricModel(model.profile), args.poses, random_only=True, seed=args.seed)[0]
+    off = measure_stop_offsets(model, poses, truth, max_back_off_counts=args.max_back_off)
+    if args.json:
+        print(
+            to_json_text(
+                {
+                    **off.table(),
+                    "sd_below_counts": dict(zip(ACTUATOR_ORDER, map(list, off.sd_below), strict=True)),
+                    "sd_above_counts": dict(zip(ACTUATOR_ORDER, map(list, off.sd_above), strict=True)),
+                    "poses": off.n,
+                }
+            )
+        )
+        return 0
+    worst = max(max(v) for v in (*off.sd_below, *off.sd_above))
+    print(f"# the twin's ECU ({truth.profile.name}), {off.n} poses; largest sd {worst:.3f} counts; piston - count")
+    print(off.toml(), end="")
+    return 0
+
+
 def add_commands(sub) -> None:
     p = sub.add_parser("sim", help="closed-loop runs against the simulated cylinder ECU over CAN")
     ssub = p.add_subparsers(dest="sim_command", required=True, parser_class=type(p))
@@ -775,6 +810,23 @@ def add_commands(sub) -> None:
     _add_truth_option(me)
     add_model_options(me)
     me.set_defaults(handler=_cmd_sim_measure)
+    so = ssub.add_parser(
+        "stop-offsets",
+        help="measure where the twin's ECU stops each piston inside a count (prints [motion.count_approach])",
+    )
+    so.add_argument(
+        "--poses", type=bounded_int("--poses", 1, 100), default=10, help="random workspace poses (default 10)"
+    )
+    so.add_argument(
+        "--max-back-off",
+        type=bounded_int("--max-back-off", 1, 5),
+        default=3,
+        help="largest back-off tried [counts] (default 3)",
+    )
+    so.add_argument("--seed", type=whole_number("--seed"), default=11, help="seed of the poses (default 11)")
+    _add_truth_option(so)
+    add_model_options(so)
+    so.set_defaults(handler=_cmd_sim_stop_offsets)
     h = sub.add_parser("can-hub", help="a CAN hub on 127.0.0.1 for nodes in several processes (--interface remote)")
     h.add_argument("--port", type=int, default=54701, help="TCP port on 127.0.0.1 (default 54701; 0: any free one)")
     h.set_defaults(handler=_cmd_can_hub)

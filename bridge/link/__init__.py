@@ -6,6 +6,7 @@
 * :mod:`bridge.link.stop_signal` — the stop flag the real-time loops sleep on;
 * :mod:`bridge.link.loopback` — a CAN hub on 127.0.0.1 for nodes in other processes;
 * :mod:`bridge.link.unit_loop` — the feed-forward reference through the ECU's unit loops;
+* :mod:`bridge.link.count_tail` — a goto's end as whole counts (the profile's count approach);
 * :mod:`bridge.link.sensor_calibration` — the sensor calibration: each cylinder to its end stops, the AD map fitted;
 * :mod:`bridge.link.tractor_sensors` — the tractor's sensors (slope, ground, row, wheel speed) read from the bus.
 
@@ -21,6 +22,7 @@ from planner.lazy import lazy_exports
 
 if TYPE_CHECKING:
     from bridge.link.can_link import CanLink
+    from bridge.link.count_tail import CountTail, arrival_sides, build_count_tail, plan_count_tail
     from bridge.link.loopback import DEFAULT_HUB_PORT, LOOPBACK_HOST, LoopbackHub, hub_url
     from bridge.link.realtime import (
         INTERFACES,
@@ -87,6 +89,7 @@ if TYPE_CHECKING:
 #: public name -> the module that defines it
 _SOURCES: dict[str, str] = {
     "CanLink": "bridge.link.can_link",
+    **dict.fromkeys(("CountTail", "arrival_sides", "build_count_tail", "plan_count_tail"), "bridge.link.count_tail"),
     **dict.fromkeys(
         (
             "LinkConfig",
@@ -169,6 +172,11 @@ _SOURCES: dict[str, str] = {
 __all__ = [
     # the link (bridge.link.can_link)
     "CanLink",
+    # a goto's end as whole counts (bridge.link.count_tail)
+    "CountTail",
+    "arrival_sides",
+    "build_count_tail",
+    "plan_count_tail",
     # settings, state, faults, errors (bridge.link.state)
     "LinkConfig",
     "LinkCounters",

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
+from bridge.link.count_tail import CountTail, plan_count_tail
 from bridge.link.state import LinkFaultError, LinkState, ReferenceRefused
 from bridge.link.unit_loop import FeedforwardShaper, build_unit_loops
 from bridge.sim.rig import SimError, SimRig, SimSettings
@@ -41,6 +42,8 @@ from planner.calibration.accuracy import (
     thesis_sequence,
 )
 from planner.model.kinematics import HitchModel
+from planner.model.sensors import SensorScaling
+from planner.model.types import ACTUATOR_NAMES
 from planner.trajectory import MotionState, PlanError, TrajectoryPlanner
 
 __all__ = [
@@ -49,6 +52,9 @@ __all__ = [
     "AccuracyRunSettings",
     "FrameReading",
     "PoseVisits",
+    "STOP_SD_MAX_COUNTS",
+    "StopOffsets",
+    "measure_stop_offsets",
     "read_frame",
     "run_accuracy_test",
     "visit_poses",
@@ -196,8 +202,9 @@ class AccuracyRun:
 class PoseVisits:
     """Poses reached by real gotos on the twin (:func:`visit_poses`): per pose the ``commanded`` pose
     (N, 4; x, z, roll, pitch, SI), the twin's ``true`` pose (N, 4), the link's AD ``counts`` at rest
-    (N, 5, actuator order; the lift recovered from the hitch status) and the ``planner`` pose (N, 4, the
-    link's measurement through the model's profile); ``simulated_s`` of the run."""
+    (N, 5, actuator order; the lift recovered from the hitch status; with the profile's count approach,
+    its stop inside the count where the reading is on it: :meth:`_TwinGotos.counts_estimate`) and the
+    ``planner`` pose (N, 4, the link's measurement through the model's profile); ``simulated_s`` of the run."""
 
     commanded: np.ndarray
     true: np.ndarray
@@ -227,6 +234,18 @@ class _TwinGotos:
         )
         loops = build_unit_loops(model.profile, self.rig.ecu.config.a)
         self.shaper = FeedforwardShaper(loops, self.tp.inverse.solve_full, self.rig.link.check_reference)
+        #: the last goto's count approach (None: the profile has none, or not at that goal)
+        self.last_tail: CountTail | None = None
+
+    def counts_estimate(self) -> np.ndarray:
+        """The pistons' positions as the planner knows them at rest [counts, float]: where the last goto's count
+        approach stops each piston inside its count when the reading is on that count, else the reading."""
+        read = np.asarray(self.state().counts, float)
+        tail = self.last_tail
+        if tail is None:
+            return read
+        a = tail.approach
+        return np.where(read == a.final_counts, a.stop_counts, read)
 
     def __enter__(self) -> _TwinGotos:
         self.rig.__enter__()
@@ -258,15 +277,27 @@ class _TwinGotos:
             self.shaper.for_plan(plan.state_at, float(t), q, qd)
             for t, q, qd in zip(sp.t, sp.actuators, sp.actuator_velocity, strict=True)
         ]
-        t0, k = rig.now_s, 0
+        # the profile's count approach after the plan, as the service streams it (bridge.link.count_tail)
+        tail = plan_count_tail(tp.model.profile, plan, lambda p: tp.inverse.solve(p)[0], rig.link.check_reference)
+        self.last_tail = tail
+        end = float(sp.t[-1])
+        t0, k, sent_phase = rig.now_s, 0, -1
         quiet_since: float | None = None
         try:
             while True:
                 while k < len(refs) and rig.next_tick_s >= t0 + float(sp.t[k]) - 1e-9:
                     rig.link.send_reference(refs[k], rig.next_tick_s)
                     k += 1
+                in_tail = False
+                if tail is not None and k == len(refs):
+                    after = rig.next_tick_s - t0 - end
+                    in_tail = after < tail.approach.duration_s
+                    phase = 0 if after < tail.approach.via_hold_s else 1
+                    if phase != sent_phase:  # the link streams the last reference on
+                        rig.link.send_reference(tail.actuators_at(after), rig.next_tick_s)
+                        sent_phase = phase
                 t = rig.tick()
-                if k == len(refs) and not rig.ecu.valve_commands().any():
+                if k == len(refs) and not in_tail and not rig.ecu.valve_commands().any():
                     quiet_since = t if quiet_since is None else quiet_since
                     if t - quiet_since >= s.hold_s - 1e-9:
                         return p1
@@ -276,6 +307,132 @@ class _TwinGotos:
                     return p1  # measured as it stands (a cylinder still hunting): the error shows it
         except (ReferenceRefused, LinkFaultError) as exc:  # a refused reference or a link fault
             raise SimError(f"t = {rig.now_s:.2f} s: {exc}") from None
+
+    def hold_counts(self, counts: ArrayLike) -> None:
+        """Stream the whole ``counts`` (5) until every valve stayed closed ``hold_s`` (or ``max_move_s``)."""
+        rig, s = self.rig, self.s
+        sc = SensorScaling(self.tp.model.profile)
+        try:
+            rig.link.send_reference(sc.to_si(counts), rig.next_tick_s)
+        except (ReferenceRefused, LinkFaultError) as exc:
+            raise SimError(f"t = {rig.now_s:.2f} s: {exc}") from None
+        t0, quiet_since = rig.now_s, None
+        while True:
+            t = rig.tick()
+            if not rig.ecu.valve_commands().any():
+                quiet_since = t if quiet_since is None else quiet_since
+                if t - quiet_since >= s.hold_s - 1e-9:
+                    return
+            else:
+                quiet_since = None
+            if t - t0 >= s.max_move_s:
+                return
+
+
+@dataclass(frozen=True)
+class StopOffsets:
+    """Where the twin's ECU leaves each piston inside its reference count, piston − count [counts], rising
+    into the count (``from_below``) and falling into it (``from_above``) after a back-off of 1, 2, … counts:
+    per actuator the mean offsets (one per back-off kept) and their sd, over ``n`` poses.
+
+    A back-off is kept while its stop lies further into the count than the one before, on the side it came
+    from, and repeats within :data:`STOP_SD_MAX_COUNTS`: from further away the piston comes faster and coasts
+    further, until it coasts a count over and the ECU drives it back (from the other side)."""
+
+    from_below: tuple[tuple[float, ...], ...]
+    from_above: tuple[tuple[float, ...], ...]
+    sd_below: tuple[tuple[float, ...], ...]
+    sd_above: tuple[tuple[float, ...], ...]
+    n: int
+
+    def table(self) -> dict[str, dict[str, list[float]]]:
+        """``from_below_counts`` and ``from_above_counts`` of a ``motion.count_approach`` section."""
+        return {
+            "from_below_counts": {k: list(v) for k, v in zip(ACTUATOR_NAMES, self.from_below, strict=True)},
+            "from_above_counts": {k: list(v) for k, v in zip(ACTUATOR_NAMES, self.from_above, strict=True)},
+        }
+
+    def toml(self) -> str:
+        """The profile section ``[motion.count_approach]`` with these offsets (3 decimals)."""
+
+        def row(v: tuple[tuple[float, ...], ...]) -> str:
+            items = (f"{k} = [{', '.join(f'{x:.3f}' for x in xs)}]" for k, xs in zip(ACTUATOR_NAMES, v, strict=True))
+            return "{ " + ", ".join(items) + " }"
+
+        return (
+            "[motion.count_approach]\n"
+            f"from_below_counts = {row(self.from_below)}\n"
+            f"from_above_counts = {row(self.from_above)}\n"
+        )
+
+
+#: a back-off whose stop spreads more than this over the poses measured is not kept [counts]
+STOP_SD_MAX_COUNTS = 0.05
+
+
+def _kept(mean: np.ndarray, sd: np.ndarray, sign: float) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """The leading back-offs whose stops move monotonically further along ``sign`` and repeat (one actuator)."""
+    m, s = [float(mean[0])], [float(sd[0])]
+    for k in range(1, len(mean)):
+        if sign * (mean[k] - m[-1]) <= 0.0 or sd[k] > STOP_SD_MAX_COUNTS:
+            break
+        m.append(float(mean[k]))
+        s.append(float(sd[k]))
+    return tuple(m), tuple(s)
+
+
+def measure_stop_offsets(
+    model: HitchModel,
+    poses: ArrayLike,
+    truth: MachineTruth | None = None,
+    settings: AccuracyRunSettings | None = None,
+    *,
+    max_back_off_counts: int = 3,
+) -> StopOffsets:
+    """Measure on the twin where its ECU stops each piston inside a count: at each pose (N, 4; reached by a
+    real goto of ``model``'s planner; refused poses are skipped), for k = 1 … ``max_back_off_counts`` every
+    actuator's reference goes k counts below its count and back up, then k above and back down, each held
+    until the valves rested; the twin's true pistons give the offsets (:class:`StopOffsets` says which
+    back-offs are kept). On a real machine the pistons inside a count are not observable from the readings:
+    there the offsets come from the machine's twin (docs/commissioning.md)."""
+    s = settings or AccuracyRunSettings(instrument="none")
+    tr = truth if truth is not None else MachineTruth(model.profile)
+    ps = np.asarray(poses, float).reshape(-1, 4)
+    if not isinstance(max_back_off_counts, int) or not 1 <= max_back_off_counts <= 5:
+        raise SimError(f"max_back_off_counts must be a whole number in [1, 5], got {max_back_off_counts!r}")
+    ks = range(1, max_back_off_counts + 1)
+    below: list[list[np.ndarray]] = []
+    above: list[list[np.ndarray]] = []
+    with _TwinGotos(model, tr, model.neutral_pose.controlled(), s) as tw:
+        for k_pose, p in enumerate(ps):
+            try:
+                tw.goto(dict(zip(_DOF, map(float, p), strict=True)), f"poses[{k_pose}]")
+            except PlanError:
+                continue
+            c = tw.rig.ecu.reference_counts()
+            if c is None:
+                continue
+            b_row: list[np.ndarray] = []
+            a_row: list[np.ndarray] = []
+            for k in ks:
+                for d, row in ((1, b_row), (-1, a_row)):
+                    tw.hold_counts(c - d * k)
+                    tw.hold_counts(c)
+                    row.append(tw.rig.ecu.piston_counts() - c)
+            below.append(b_row)
+            above.append(a_row)
+    if not below:
+        raise SimError("no pose could be reached: no stop measured")
+    b, a = np.array(below), np.array(above)  # (poses, back-offs, actuators)
+    out_b = [_kept(b.mean(axis=0)[:, i], b.std(axis=0)[:, i], 1.0) for i in range(len(ACTUATOR_NAMES))]
+    out_a = [_kept(a.mean(axis=0)[:, i], a.std(axis=0)[:, i], -1.0) for i in range(len(ACTUATOR_NAMES))]
+    return StopOffsets(
+        tuple(m for m, _ in out_b),
+        tuple(m for m, _ in out_a),
+        tuple(sd for _, sd in out_b),
+        tuple(sd for _, sd in out_a),
+        len(b),
+    )
 
 
 def visit_poses(
@@ -328,7 +485,7 @@ def visit_poses(
             marked.append(machine.points(tuple(points)) if points else {})
             readings.append(instrument.measure(machine, tuple(points)) if instrument is not None else None)
             state = tw.state()
-            counts[k] = state.counts
+            counts[k] = tw.counts_estimate()  # with a count approach: its stop inside the count
             planner[k] = state.pose.controlled()
         simulated = tw.rig.now_s
     return PoseVisits(

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bridge.link.count_tail import plan_count_tail
 from bridge.link.unit_loop import FeedforwardShaper, build_unit_loops
 from bridge.sim.cylinder import build_cylinder_params
 from bridge.sim.ecu import ACTUATOR_ORDER
@@ -157,7 +158,14 @@ def run_move(
                     for t, q, qd in zip(sp.t, sp.actuators, sp.actuator_velocity, strict=True)
                 ]
             )
-        return _drive(rig, model, sp.t, refs, lambda t: plan.state_at(t).position, p0, p1, plan.duration, move)
+        times = sp.t
+        # the profile's count approach after the plan, as the service streams it (bridge.link.count_tail)
+        tail = plan_count_tail(model.profile, plan, lambda p: tp.inverse.solve(p)[0], rig.link.check_reference)
+        if tail is not None:
+            t_end = float(sp.t[-1])
+            times = np.r_[sp.t, t_end + 1.0 / tp.rate, t_end + tail.approach.via_hold_s]
+            refs = np.vstack([refs, tail.via_actuators, tail.final_actuators])
+        return _drive(rig, model, times, refs, lambda t: plan.state_at(t).position, p0, p1, plan.duration, move)
 
 
 @dataclass(frozen=True)

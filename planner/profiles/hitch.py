@@ -12,7 +12,7 @@ import json
 import math
 import os
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
@@ -30,6 +30,8 @@ __all__ = [
     "Profile",
     "ActuatorSpec",
     "Category",
+    "ActuatorStops",
+    "CountApproachSettings",
     "FinalApproach",
     "load_profile",
     "available_profiles",
@@ -228,6 +230,39 @@ class FinalApproach(_Strict):
         return (self.x, self.z, self.roll, self.pitch)
 
 
+_StopList = Annotated[list[Annotated[float, Field(gt=-1.0, lt=1.0)]], Field(min_length=1, max_length=5)]
+
+
+class ActuatorStops(_Strict):
+    """Per actuator, where its piston stops inside a reference count after a back-off of 1, 2, … counts
+    (1 to 5 values, each in (−1, 1)) [AD counts, piston − count]."""
+
+    lift: _StopList
+    tilt: _StopList
+    top: _StopList
+    left: _StopList
+    right: _StopList
+
+    def values(self) -> tuple[tuple[float, ...], ...]:
+        """(lift, tilt, top, left, right), each the offsets for back-offs 1, 2, … [counts]."""
+        return tuple(tuple(getattr(self, k)) for k in ACTUATORS)
+
+
+class CountApproachSettings(_Strict):
+    """Where the ECU leaves each piston inside its reference count when it rises into it (``from_below``)
+    and when it falls into it (``from_above``), after a back-off of 1, 2, … counts; a goto then ends on the
+    count, side and back-off whose stop is nearest its exact goal (:mod:`planner.trajectory.count_approach`).
+    ``keep_arrival_side``: with ``final_approach``, each actuator enters its count from the side the final
+    approach moves it (so the pin play stays taken up on one side); False, or without a final approach:
+    from either side."""
+
+    from_below_counts: ActuatorStops
+    from_above_counts: ActuatorStops
+    keep_arrival_side: bool = True
+    via_hold_s: float = Field(default=0.6, gt=0.0, le=10.0)
+    final_hold_s: float = Field(default=0.6, gt=0.0, le=10.0)
+
+
 class Motion(_Strict):
     """Motion limits derived from the valves.
 
@@ -245,6 +280,8 @@ class Motion(_Strict):
     controller_a: float = Field(default=THESIS_CONTROLLER_A, gt=0, le=2.0)
     #: unidirectional final approach of every goto (None: gotos end straight from where they come)
     final_approach: FinalApproach | None = None
+    #: each goto ends on the AD count and side whose stop inside the count is nearest the goal (None: off)
+    count_approach: CountApproachSettings | None = None
 
 
 class Stability(_Strict):

@@ -4,6 +4,12 @@ from a moving state with the actuators' real limits; the ideal follower (the phy
 
 from planner.trajectory.actuator_limits import ActuatorLimits
 from planner.trajectory.braking import StopProbe, braking_limits
+from planner.trajectory.count_approach import (
+    CountApproach,
+    CountApproachError,
+    build_count_approach,
+    count_approach_for,
+)
 from planner.trajectory.final_approach import ApproachVia, final_approach_via
 from planner.trajectory.ideal_follower import (
     IdealFollow,
@@ -40,6 +46,10 @@ from planner.trajectory.track import (
 __all__ = [
     "ActuatorLimits",
     "ApproachVia",
+    "CountApproach",
+    "CountApproachError",
+    "build_count_approach",
+    "count_approach_for",
     "final_approach_via",
     "MotionState",
     "Plan",

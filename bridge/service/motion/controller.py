@@ -77,6 +77,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from bridge.link.count_tail import CountTail, plan_count_tail
 from bridge.link.state import LinkFaultError, LinkStatus, ReferenceRefused
 from bridge.link.unit_loop import FeedforwardShaper, build_unit_loops
 from bridge.service.gnss import GnssTracker
@@ -123,7 +124,7 @@ from planner.limits.guard import Guard, GuardedPlan
 from planner.limits.implement_limits import ImplementLimits, track_bounds
 from planner.limits.tractor import ImplementRecord
 from planner.model.types import KinematicsError
-from planner.trajectory import JogController, MotionState
+from planner.trajectory import JogController, MotionState, Plan
 from planner.trajectory.track import TrackFollower, TrackInputError, TrackStateError
 
 __all__ = ["MotionController", "MotionControllerError", "TrackSensors"]
@@ -131,6 +132,8 @@ __all__ = ["MotionController", "MotionControllerError", "TrackSensors"]
 _PLAN_LEAD_S = 0.08  # a replacing plan starts this far ahead of the request (planning time) [s]
 _MOVED = 5e-3  # m or rad: a measured start pose that moved more while planning is re-planned
 _PLAN_TRIES = 4  # plans made for one goto before it is refused as too busy
+#: the motions that end with the profile's count approach (a stop and a jog's braking do not: they only brake)
+_COUNT_APPROACH_KINDS = frozenset({"goto", "preset", "maneuver"})
 
 
 class MotionControllerError(HitchError, RuntimeError):
@@ -221,6 +224,7 @@ class MotionController:
         self._active: ActiveMotion | None = None
         self._hold: MotionState | None = None
         self._hold_ref: Reference | None = None  # the held reference, computed once per hold
+        self._hold_actuators: np.ndarray | None = None  # a count approach's final references, held (SI)
         self._last_id: int | None = None
         self._generation = 0
         self.gnss = GnssTracker(clock)  # the tractor's GNSS position and the field's lines (wait_for line)
@@ -800,6 +804,7 @@ class MotionController:
             finally:
                 self._plan_lock.release()
             took = self.clock() - t_plan
+            tail = self._count_tail(gp.plan) if kind in _COUNT_APPROACH_KINDS else None
             events: list[Event] = []
             with self._lock:
                 if from_maneuver and not self._maneuver.owns(runner, request):
@@ -827,25 +832,32 @@ class MotionController:
                     events.append(self._ev("motion_aborted", self._active, reason=f"replaced by {kind}"))
                 if not from_maneuver:
                     self._maneuver.abort(now, "interrupted", f"replaced by {kind}", events)
-                pm = PlanMotion(kind, next(self._ids), gp.plan, t_switch, prev, gp.decision, label)
+                pm = PlanMotion(kind, next(self._ids), gp.plan, t_switch, prev, gp.decision, label, tail=tail)
                 self._install(pm)
                 events.append(
                     self._ev(
                         "motion_started",
                         pm,
                         kind=kind,
-                        duration=gp.plan.duration,
+                        duration=pm.duration,
                         goal=pose_dict(gp.plan.state_at(gp.plan.duration).position),
                         label=label,
                     )
                 )
                 if runner is not None:
                     runner.motion_started(pm.motion_id, request)
-                acc = MotionAccepted(pm.motion_id, gp.plan.duration, kind, gp.decision)
+                acc = MotionAccepted(pm.motion_id, pm.duration, kind, gp.decision)
                 self._post(events)
             self.outbox.flush()
             return acc
         raise MotionError("busy", f"{kind} could not be started: the service is too busy to plan in time")
+
+    def _count_tail(self, plan: Plan) -> CountTail | None:
+        """The profile's count approach (``motion.count_approach``) to ``plan``'s goal
+        (:mod:`bridge.link.count_tail`); None without the setting or where the link would refuse it."""
+        return plan_count_tail(
+            self.planner.model.profile, plan, lambda p: self.planner.inverse.solve(p)[0], self.link.check_reference
+        )
 
     def _check_startable(
         self, kind: str, now: float, deadline: float | None, issued: float | None, what: str | None = None
@@ -941,7 +953,7 @@ class MotionController:
         self._active = m
         self._last_id = m.motion_id
         self._generation += 1
-        self._hold = self._hold_ref = None
+        self._hold = self._hold_ref = self._hold_actuators = None
 
     def _abort_all(self, reason: str, now: float, events: list[Event], kind: AbortReason = "fault") -> None:
         """End the motion and the maneuver (its ``maneuver_aborted`` says ``kind``: ``fault`` for what the
@@ -949,7 +961,7 @@ class MotionController:
         self._maneuver.abort(now, kind, reason, events)
         if self._active is not None:
             events.append(self._ev("motion_aborted", self._active, reason=reason))
-        self._active, self._hold, self._hold_ref = None, None, None
+        self._active, self._hold, self._hold_ref, self._hold_actuators = None, None, None, None
         self._generation += 1
 
     # ------------------------------------------------------------------ the control thread
@@ -1140,6 +1152,7 @@ class MotionController:
             if m.finished(now):
                 self._announce_finished(m, events)
                 self._active, self._hold, self._hold_ref = None, MotionState.at_rest(st.position), None
+                self._hold_actuators = None if m.tail is None else m.tail.final_actuators
         elif isinstance(m, JogMotion):
             if self._expire_jog(now):
                 return self._reference_at(now, events)
@@ -1156,6 +1169,7 @@ class MotionController:
             if m.follower.finished:
                 events.append(self._ev("motion_finished", m, kind="track", session=m.session, reason=m.reason))
                 self._active, self._hold, self._hold_ref = None, MotionState.at_rest(tout.state.position), None
+                self._hold_actuators = None
                 self._limited = {}
             return ref
         elif self._hold is not None:
@@ -1171,7 +1185,10 @@ class MotionController:
             events.append({"event": "limit_reached", "message": f"reference not reachable: {exc}"})
             self._abort_all(f"reference not reachable: {exc}", now, events)
             return None
-        ref = Reference(st, q, jac @ st.velocity)
+        if m is None and self._hold_actuators is not None:  # held on the count approach's final counts
+            ref = Reference(st, self._hold_actuators, np.zeros_like(self._hold_actuators))
+        else:
+            ref = Reference(st, q, jac @ st.velocity)
         if m is None:
             self._hold_ref = ref
         return ref

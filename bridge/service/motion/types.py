@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from bridge.link.count_tail import CountTail
 from bridge.link.unit_loop import FeedforwardShaper
 from planner.errors import HitchInputError
 from planner.limits.guard import Guard, GuardDecision, GuardedPlan, GuardRefusal
@@ -313,9 +314,20 @@ class PlanMotion:
     decision: GuardDecision = field(default_factory=lambda: GuardDecision("ok"))
     label: str | None = None
     announced: bool = False  # its motion_finished event is out
+    #: the profile's count approach after the plan (the via, then the final counts; None: the plan alone)
+    tail: CountTail | None = None
+
+    @property
+    def duration(self) -> float:
+        """The plan and its count approach [s]."""
+        return self.plan.duration + (0.0 if self.tail is None else self.tail.approach.duration_s)
 
     def finished(self, t: float) -> bool:
-        return t - self.t0 >= self.plan.duration
+        return t - self.t0 >= self.duration
+
+    def in_tail(self, t: float) -> bool:
+        """Whether clock time ``t`` lies in the count approach after the plan."""
+        return self.tail is not None and t - self.t0 >= self.plan.duration
 
     def limited(self) -> dict[str, str]:
         """What slows this plan (a guard caution or the end-stop zone), for the state's ``limited``."""
@@ -557,6 +569,8 @@ def streamed_reference(shaper: FeedforwardShaper, m: ActiveMotion | None, ref: R
     accelerations of this and the previous streamed state, at most :data:`FF_JERK_GAP_S` apart); the
     final reference itself while holding."""
     if isinstance(m, PlanMotion):
+        if m.tail is not None and m.in_tail(now):  # the count approach: whole counts, no feed-forward
+            return m.tail.actuators_at(now - m.t0 - m.plan.duration)
         return shaper.for_plan(lambda t: plan_state(m, t), now, ref.actuators, ref.rates)
     if isinstance(m, (JogMotion, TrackMotion)):
         acc = np.asarray(ref.state.acceleration, float)

@@ -13,7 +13,7 @@ from bridge.cli.main import build_parser, main
 from bridge.service.config import ServiceConfigError, load_service_config
 from bridge.service.machine import start_can
 from bridge.sim.truth import PLAY_MARKER, load_machine_truth, truth_toml
-from planner.profiles.hitch import load_profile
+from planner.profiles.hitch import load_profile, profile_from_dict
 
 
 def run(capsys, *argv: str) -> tuple[int, str, str]:
@@ -189,3 +189,18 @@ def test_the_instrument_has_one_spelling_everywhere(capsys):
     assert outs[0] == outs[1]
     code, out, _ = run(capsys, "accuracy-test", "--instrument", "station", "--dofs", "z")
     assert code == 0 and "instrument total-station" in out
+
+
+def test_stop_offsets_prints_a_count_approach_section_the_profile_loader_takes(capsys, truth_file, tmp_path):
+    """``hitch sim stop-offsets``: the twin's stops inside a count as ``[motion.count_approach]``; pasted into a
+    profile it loads, and the values are the twin's (the lift coasts past the count's middle)."""
+    argv = ("sim", "stop-offsets", "--poses", "2", "--max-back-off", "2", "--sim-truth", str(truth_file))
+    code, out, _ = run(capsys, *argv)
+    assert code == 0 and out.startswith("# the twin's ECU (thesis-t132-truth-11), 2 poses")
+    section = tomllib.loads(out)["motion"]["count_approach"]
+    assert len(section["from_below_counts"]["lift"]) == 2 and section["from_below_counts"]["lift"][0] > 0.1
+    data = load_profile("thesis-t132").model_dump(mode="json")
+    data["motion"]["count_approach"] = section
+    assert profile_from_dict(data).motion.count_approach is not None
+    code, _, err = run(capsys, "sim", "stop-offsets", "--max-back-off", "6")
+    assert code == 2 and "--max-back-off must lie in [1, 5], got 6" in err

@@ -1,0 +1,190 @@
+"""A goto ends with the profile's count approach in the product path: the service's control cycle streams
+the via counts, then the final ones, and holds those; the twin's ECU then leaves every piston where the
+approach expects it inside its count (the offsets measured on the twin itself).
+
+Truth used: the twin's true pistons (simulation truth), the link's 0xFF21 references as the ECU received
+them, the plan's own duration.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bridge.link.count_tail import arrival_sides, build_count_tail, plan_count_tail
+from bridge.link.state import ReferenceRefused
+from bridge.service.motion.controller import MotionController
+from bridge.sim.accuracy_run import measure_stop_offsets, visit_poses
+from bridge.sim.move import SimRig
+from planner.calibration.design import candidate_poses
+from planner.calibration.parametric import ParametricModel
+from planner.limits.guard import Guard
+from planner.model.kinematics import HitchModel
+from planner.model.sensors import SensorScaling
+from planner.model.types import ACTUATOR_NAMES
+from planner.profiles import profile_from_dict
+from planner.trajectory import MotionState, TrajectoryPlanner
+
+GOAL = {"x": 0.021, "z": 0.0537, "roll": 0.0123, "pitch": -0.0171}
+POSE = ("x", "z", "roll", "pitch")
+
+
+@pytest.fixture(scope="module")
+def offsets(model):
+    """The twin's stop offsets, measured at poses other than the goal's."""
+    poses = candidate_poses(ParametricModel(model.profile), 4, random_only=True, seed=11)[0]
+    return measure_stop_offsets(model, poses)
+
+
+def _with_approach(model: HitchModel, offsets, final_approach: dict | None = None) -> HitchModel:
+    data = model.profile.model_dump()
+    data["motion"]["count_approach"] = offsets.table()
+    data["motion"]["final_approach"] = final_approach
+    return HitchModel(profile_from_dict(data))
+
+
+def _run(model: HitchModel, *, stop_after_plan_s: float | None = None):
+    """A goto to GOAL through the service's controller on the twin (simulated time, cycles at 50 Hz):
+    the ECU's reference counts per cycle, the events, the acceptance and the rig's pistons at the end."""
+    events: list[dict] = []
+    refs: list[tuple[float, tuple[int, ...]]] = []
+    with SimRig(model) as rig:
+        rig.start()
+        rig.run_until(0.5)
+        mc = MotionController(
+            Guard(TrajectoryPlanner(model)),
+            Guard(TrajectoryPlanner(model)),
+            rig.link,
+            lambda: rig.now_s,
+            on_event=events.append,
+            spawn=lambda fn: fn(),
+        )
+        mc.cycle()
+        acc = mc.goto(GOAL)
+        t0 = mc._active.t0  # type: ignore[union-attr]  (the plan's time 0, clock time)
+        plan_s = mc._active.plan.duration  # type: ignore[union-attr]
+        stopped = False
+        while rig.now_s < t0 + acc.duration + 2.0 - 1e-9:
+            rig.run_until(rig.now_s + 0.02)
+            if stop_after_plan_s is not None and not stopped and rig.now_s >= t0 + plan_s + stop_after_plan_s:
+                mc.stop()
+                stopped = True
+            mc.cycle()
+            ref = rig.ecu.reference_counts()
+            if ref is not None:
+                refs.append((rig.now_s - t0, tuple(int(c) for c in ref)))
+        return acc, plan_s, refs, events, rig.ecu.piston_counts(), mc
+
+
+def test_the_service_streams_the_via_then_the_final_counts_and_holds_them(model, offsets):
+    m = _with_approach(model, offsets)
+    acc, plan_s, refs, events, pistons, mc = _run(m)
+    tail = build_count_tail(
+        m.profile, TrajectoryPlanner(m).inverse.solve(np.array(list(GOAL.values())))[0], lambda q: None
+    )
+    assert tail is not None
+    a = tail.approach
+    assert acc.duration == pytest.approx(plan_s + a.duration_s)
+    via = tuple(int(c) for c in a.via_counts)
+    final = tuple(int(c) for c in a.final_counts)
+    in_via = [r for t, r in refs if plan_s + 0.1 < t < plan_s + a.via_hold_s - 0.05]
+    after = [r for t, r in refs if t > plan_s + a.via_hold_s + 0.1]
+    assert in_via and all(r == via for r in in_via)
+    assert after and all(r == final for r in after)  # the final counts, then held (not the goal's nearest)
+    finished = [e for e in events if e.get("event") == "motion_finished"]
+    assert len(finished) == 1
+    # every piston where the approach expects it inside its count (the twin's ECU stops repeatably)
+    assert np.max(np.abs(pistons - a.stop_counts)) <= 0.06, pistons - a.stop_counts
+    # nearer the exact goal than the nearest whole count, actuator by actuator
+    u = a.unrounded_counts
+    assert np.all(np.abs(pistons - u) <= np.abs(np.round(u) - u) + 0.06)
+    assert np.sum(np.abs(pistons - u)) < 0.8 * np.sum(np.abs(np.round(u) - u))
+
+
+def test_without_the_setting_a_goto_ends_as_its_plan_does(model):
+    acc, plan_s, refs, events, _, _ = _run(model)
+    assert acc.duration == pytest.approx(plan_s)
+    q = TrajectoryPlanner(model).inverse.solve(np.array(list(GOAL.values())))[0]
+    assert build_count_tail(model.profile, q, lambda q: None) is None
+    assert len({r for t, r in refs if t > plan_s + 0.1}) == 1  # one reference held after the plan
+
+
+def test_a_stop_in_the_approach_ends_it_and_holds_the_goal(model, offsets):
+    m = _with_approach(model, offsets)
+    _, plan_s, refs, events, _, mc = _run(m, stop_after_plan_s=0.2)
+    pc = mc.link.check_reference(mc.planner.inverse.solve(np.array(list(GOAL.values())))[0])
+    goal_counts = tuple(int(getattr(pc, k)) for k in ACTUATOR_NAMES)
+    held = {r for t, r in refs if t > plan_s + 0.5}
+    assert held == {goal_counts}  # no via, no final count of the approach after the stop
+    assert mc._active is None and mc._hold_actuators is None
+
+
+def test_no_approach_where_the_link_would_refuse_its_via_or_final(model, offsets):
+    m = _with_approach(model, offsets)
+    q = TrajectoryPlanner(m).inverse.solve(np.array(list(GOAL.values())))[0]
+
+    def refuse(q):
+        raise ReferenceRefused("lift: beyond its hard limit")
+
+    assert build_count_tail(m.profile, q, refuse) is None
+    assert build_count_tail(m.profile, q, lambda q: None) is not None
+
+
+def test_the_twin_stops_each_piston_repeatably_inside_its_count(offsets):
+    """The premise: stepped into a count from rest the stop spreads by a few hundredths of a count; the heavy
+    lift coasts past the count's middle and the further the faster it came (back-offs 1, 2, 3 kept)."""
+    assert offsets.n == 4
+    for sd in (*offsets.sd_below, *offsets.sd_above):
+        assert max(sd) < 0.05
+    lift_b, lift_a = offsets.from_below[0], offsets.from_above[0]
+    assert len(lift_b) == 3 and 0.1 < lift_b[0] < lift_b[1] < lift_b[2] < 0.5
+    assert len(lift_a) == 3 and -0.1 > lift_a[0] > lift_a[1] > lift_a[2] > -0.5
+    for k in range(1, 5):  # the others stop about 0.1 count inside, from either side
+        assert -0.2 < offsets.from_below[k][0] < 0.0 < offsets.from_above[k][0] < 0.2
+
+
+def test_with_a_final_approach_each_actuator_enters_its_count_from_that_approach_s_side(model, offsets):
+    """Pin play stays taken up on one side: every actuator's last step has the direction the final approach
+    moves it (arrival_sides), never the other, whichever side's stop would be nearer."""
+    fa = {"x": 0.0025, "z": 0.004, "roll": 0.005, "pitch": 0.007}
+    m = _with_approach(model, offsets, fa)
+    tp = TrajectoryPlanner(m)
+    solve = lambda p: tp.inverse.solve(p)[0]  # noqa: E731
+    sc = SensorScaling(m.profile)
+    free = _with_approach(model, offsets)
+    flipped = 0
+    for pose in candidate_poses(ParametricModel(model.profile), 30, random_only=True, seed=5)[0]:
+        plan = tp.plan_move(
+            MotionState.at_rest(model.neutral_pose.controlled()), dict(zip(POSE, map(float, pose), strict=True))
+        )
+        tail = plan_count_tail(m.profile, plan, solve, lambda q: None)
+        sides = arrival_sides(plan.state_at(plan.duration).position, list(fa.values()), solve, sc)
+        assert tail is not None and np.all(sides != 0)
+        assert np.array_equal(tail.approach.directions, sides)
+        other = plan_count_tail(free.profile, plan, solve, lambda q: None)
+        assert other is not None
+        flipped += int(np.any(other.approach.directions != sides))
+    assert flipped > 0  # without the rule some actuator would have come from the other side
+
+
+def test_a_back_off_from_which_the_lift_coasts_a_count_over_is_not_kept(model):
+    """From 4 counts below the lift comes fast enough to coast into the next count and is driven back (its last
+    move falls): the measurement keeps back-offs 1–3 only."""
+    poses = candidate_poses(ParametricModel(model.profile), 2, random_only=True, seed=11)[0]
+    off = measure_stop_offsets(model, poses, max_back_off_counts=5)
+    assert len(off.from_below[0]) == 3 and len(off.from_above[0]) == 3
+    assert "lift = [" in off.toml() and off.table()["from_below_counts"]["lift"] == list(off.from_below[0])
+
+
+def test_measurements_through_the_twin_carry_the_approach_s_stop_inside_the_count(model, offsets):
+    """What `hitch calibrate measure-twin --by goto` records with a count approach: the stop the approach
+    expects inside the reading's count (fractional counts), which is where the piston truly is."""
+    m = _with_approach(model, offsets, {"x": 0.0025, "z": 0.004, "roll": 0.005, "pitch": 0.007})
+    poses = candidate_poses(ParametricModel(model.profile), 3, random_only=True, seed=3)[0]
+    v = visit_poses(m, poses)
+    assert np.all(np.abs(v.counts - np.round(v.counts)) > 0.05)  # not whole counts: the stops inside them
+    sc, inverse = SensorScaling(m.profile), TrajectoryPlanner(m).inverse
+    true_counts = sc.counts_min + (np.array([inverse.solve(p)[0] for p in v.true]) - sc.si_min) / sc.resolution
+    # lift, tilt, top (the limiters of the twin's rigid implement give up a common-mode length: their
+    # geometric lengths at the true pose are not their pistons)
+    assert np.max(np.abs(v.counts - true_counts)[:, :3]) < 0.08, v.counts - true_counts

@@ -19,11 +19,14 @@ from planner.model.sensors import SensorScaling
 from planner.profiles.hitch import Profile
 from planner.trajectory.count_approach import CountApproach, count_approach_for
 from planner.trajectory.plan import Plan
+from planner.trajectory.planner import TrajectoryPlanner
 
 __all__ = ["CountTail", "arrival_sides", "build_count_tail", "plan_count_tail"]
 
 #: an actuator the final approach moves less than this arrives from no side (either is allowed) [counts]
 _STILL_COUNTS = 1e-6
+#: how far a via pose may lie outside the workspace box [m, rad] (rounding of its counts' centres aside)
+_BOX_TOL = 1e-9
 
 
 @dataclass(frozen=True)
@@ -58,15 +61,25 @@ def build_count_tail(
     goal_actuators: ArrayLike,
     check_reference: Callable[[np.ndarray], object],
     sides: ArrayLike | None = None,
+    *,
+    nearest_only: bool = False,
 ) -> CountTail | None:
     """The count approach of ``profile`` (``motion.count_approach``) to the goal's actuators
     ``goal_actuators`` (SI), with its via and final references passed through ``check_reference`` (the
     link's: it raises ``ReferenceRefused``, a ``ValueError``, outside a hard limit); ``sides`` (per actuator
     +1, −1, 0: :func:`arrival_sides`) is kept when the setting ``keep_arrival_side`` says so. None without the
-    setting, or when one of them would be refused (a goal next to a hard limit ends as its plan does)."""
+    setting, or when one of them would be refused (a goal next to a hard limit ends as its plan does).
+    ``nearest_only``: back-offs of one count only (the via next to the final count)."""
     settings = profile.motion.count_approach
     if settings is None:
         return None
+    if nearest_only:
+        settings = settings.model_copy(
+            update={
+                "from_below_counts": settings.from_below_counts.first_only(),
+                "from_above_counts": settings.from_above_counts.first_only(),
+            }
+        )
     sc = SensorScaling(profile)
     try:
         approach = count_approach_for(
@@ -81,21 +94,31 @@ def build_count_tail(
 
 
 def plan_count_tail(
-    profile: Profile,
-    plan: Plan,
-    solve: Callable[[np.ndarray], np.ndarray],
-    check_reference: Callable[[np.ndarray], object],
+    planner: TrajectoryPlanner, plan: Plan, check_reference: Callable[[np.ndarray], object]
 ) -> CountTail | None:
-    """:func:`build_count_tail` at ``plan``'s goal, each actuator from the side of the profile's final approach
-    (:func:`arrival_sides`; without one, either side). ``solve``: pose → actuators (SI); a pose it cannot solve
-    raises its ``KinematicsError``, a ``ValueError``: no tail then."""
+    """:func:`build_count_tail` at ``plan``'s goal for ``planner``'s profile, each actuator from the side of the
+    profile's final approach (:func:`arrival_sides`; without one, either side), its via pose within the
+    planner's workspace box: where the chosen via leaves it (a goal at a face), back-offs of one count only,
+    and where that leaves it too, no tail. A pose the inverse cannot solve: no tail."""
+    profile = planner.model.profile
     if profile.motion.count_approach is None:
         return None
+
+    def solve(p: np.ndarray) -> np.ndarray:
+        return np.asarray(planner.inverse.solve(p)[0], float)
+
     fa = profile.motion.final_approach
     try:
         goal = np.asarray(plan.state_at(plan.duration).position, float)
-        q = np.asarray(solve(goal), float)
+        q = solve(goal)
         sides = None if fa is None else arrival_sides(goal, fa.offset(), solve, SensorScaling(profile))
-    except ValueError:
+        for nearest_only in (False, True):
+            tail = build_count_tail(profile, q, check_reference, sides, nearest_only=nearest_only)
+            if tail is None:
+                return None
+            via = planner.model.forward(tail.via_actuators).pose.controlled()
+            if np.all(via >= planner.lo - _BOX_TOL) and np.all(via <= planner.hi + _BOX_TOL):
+                return tail
+    except ValueError:  # KinematicsError: a goal or via the mechanism cannot take
         return None
-    return build_count_tail(profile, q, check_reference, sides)
+    return None

@@ -278,7 +278,7 @@ class _TwinGotos:
             for t, q, qd in zip(sp.t, sp.actuators, sp.actuator_velocity, strict=True)
         ]
         # the profile's count approach after the plan, as the service streams it (bridge.link.count_tail)
-        tail = plan_count_tail(tp.model.profile, plan, lambda p: tp.inverse.solve(p)[0], rig.link.check_reference)
+        tail = plan_count_tail(tp, plan, rig.link.check_reference)
         self.last_tail = tail
         end = float(sp.t[-1])
         t0, k, sent_phase = rig.now_s, 0, -1

@@ -160,7 +160,7 @@ def run_move(
             )
         times = sp.t
         # the profile's count approach after the plan, as the service streams it (bridge.link.count_tail)
-        tail = plan_count_tail(model.profile, plan, lambda p: tp.inverse.solve(p)[0], rig.link.check_reference)
+        tail = plan_count_tail(tp, plan, rig.link.check_reference)
         if tail is not None:
             t_end = float(sp.t[-1])
             times = np.r_[sp.t, t_end + 1.0 / tp.rate, t_end + tail.approach.via_hold_s]

@@ -247,6 +247,10 @@ class ActuatorStops(_Strict):
         """(lift, tilt, top, left, right), each the offsets for back-offs 1, 2, … [counts]."""
         return tuple(tuple(getattr(self, k)) for k in ACTUATORS)
 
+    def first_only(self) -> ActuatorStops:
+        """The same with each actuator's back-off of one count only."""
+        return ActuatorStops(**{k: getattr(self, k)[:1] for k in ACTUATORS})
+
 
 class CountApproachSettings(_Strict):
     """Where the ECU leaves each piston inside its reference count when it rises into it (``from_below``)

@@ -855,9 +855,7 @@ class MotionController:
     def _count_tail(self, plan: Plan) -> CountTail | None:
         """The profile's count approach (``motion.count_approach``) to ``plan``'s goal
         (:mod:`bridge.link.count_tail`); None without the setting or where the link would refuse it."""
-        return plan_count_tail(
-            self.planner.model.profile, plan, lambda p: self.planner.inverse.solve(p)[0], self.link.check_reference
-        )
+        return plan_count_tail(self.planner, plan, self.link.check_reference)
 
     def _check_startable(
         self, kind: str, now: float, deadline: float | None, issued: float | None, what: str | None = None

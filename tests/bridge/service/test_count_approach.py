@@ -157,11 +157,11 @@ def test_with_a_final_approach_each_actuator_enters_its_count_from_that_approach
         plan = tp.plan_move(
             MotionState.at_rest(model.neutral_pose.controlled()), dict(zip(POSE, map(float, pose), strict=True))
         )
-        tail = plan_count_tail(m.profile, plan, solve, lambda q: None)
+        tail = plan_count_tail(tp, plan, lambda q: None)
         sides = arrival_sides(plan.state_at(plan.duration).position, list(fa.values()), solve, sc)
         assert tail is not None and np.all(sides != 0)
         assert np.array_equal(tail.approach.directions, sides)
-        other = plan_count_tail(free.profile, plan, solve, lambda q: None)
+        other = plan_count_tail(TrajectoryPlanner(free), plan, lambda q: None)
         assert other is not None
         flipped += int(np.any(other.approach.directions != sides))
     assert flipped > 0  # without the rule some actuator would have come from the other side
@@ -188,3 +188,29 @@ def test_measurements_through_the_twin_carry_the_approach_s_stop_inside_the_coun
     # lift, tilt, top (the limiters of the twin's rigid implement give up a common-mode length: their
     # geometric lengths at the true pose are not their pistons)
     assert np.max(np.abs(v.counts - true_counts)[:, :3]) < 0.08, v.counts - true_counts
+
+
+def test_the_via_never_leaves_the_workspace_box(model, offsets):
+    """A goal on a face: the via that would lie beyond it is shortened to one count, or the goto ends as its plan
+    does; every via pose stays inside the box (random goals, and goals on the lower z and upper pitch faces)."""
+    m = _with_approach(model, offsets, {"x": 0.0025, "z": 0.004, "roll": 0.005, "pitch": 0.007})
+    tp = TrajectoryPlanner(m)
+    start = MotionState.at_rest(model.neutral_pose.controlled())
+    goals = list(candidate_poses(ParametricModel(model.profile), 20, random_only=True, seed=8)[0])
+    for k, lo_or_hi in ((1, tp.lo), (3, tp.hi)):
+        for g in goals[:6]:
+            g = np.array(g, float)
+            g[k] = lo_or_hi[k]
+            goals.append(g)
+    shortened = none = 0
+    for g in goals:
+        plan = tp.plan_move(start, dict(zip(POSE, map(float, g), strict=True)))
+        tail = plan_count_tail(tp, plan, lambda q: None)
+        if tail is None:
+            none += 1
+            continue
+        via = m.forward(tail.via_actuators).pose.controlled()
+        assert np.all(via >= tp.lo - 1e-9) and np.all(via <= tp.hi + 1e-9)
+        shortened += int(np.all(tail.approach.back_off_counts == 1) and np.any(np.abs(g - tp.lo) < 1e-12))
+    assert none + shortened > 0  # the faces did bind
+    assert none < len(goals) // 2

@@ -132,8 +132,10 @@ __all__ = ["MotionController", "MotionControllerError", "TrackSensors"]
 _PLAN_LEAD_S = 0.08  # a replacing plan starts this far ahead of the request (planning time) [s]
 _MOVED = 5e-3  # m or rad: a measured start pose that moved more while planning is re-planned
 _PLAN_TRIES = 4  # plans made for one goto before it is refused as too busy
-#: the motions that end with the profile's count approach (a stop and a jog's braking do not: they only brake)
-_COUNT_APPROACH_KINDS = frozenset({"goto", "preset", "maneuver"})
+#: the motions that end with the profile's count approach: gotos, the positioning requests. Presets (a quick raise,
+#: a return to work) and maneuver steps (headland sequences on a field line's timing) do not wait its 1.2 s; a stop
+#: and a jog's braking only brake
+_COUNT_APPROACH_KINDS = frozenset({"goto"})
 
 
 class MotionControllerError(HitchError, RuntimeError):

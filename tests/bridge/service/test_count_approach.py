@@ -214,3 +214,19 @@ def test_the_via_never_leaves_the_workspace_box(model, offsets):
         shortened += int(np.all(tail.approach.back_off_counts == 1) and np.any(np.abs(g - tp.lo) < 1e-12))
     assert none + shortened > 0  # the faces did bind
     assert none < len(goals) // 2
+
+
+def test_presets_and_maneuver_steps_end_as_their_plans_do(model, offsets):
+    """Only a goto waits for the count approach: a preset (quick raise, return to work) does not."""
+    m = _with_approach(model, offsets)
+    with SimRig(m) as rig:
+        rig.start()
+        rig.run_until(0.5)
+        mc = MotionController(
+            Guard(TrajectoryPlanner(m)), Guard(TrajectoryPlanner(m)), rig.link, lambda: rig.now_s, spawn=lambda fn: fn()
+        )
+        mc.cycle()
+        acc = mc._start_plan(GOAL, 1.0, "preset", "custom", runner=None)
+        assert mc._active.tail is None and acc.duration == pytest.approx(mc._active.plan.duration)  # type: ignore[union-attr]
+        acc = mc.goto(GOAL)
+        assert mc._active.tail is not None  # type: ignore[union-attr]

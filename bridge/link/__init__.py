@@ -22,7 +22,7 @@ from planner.lazy import lazy_exports
 
 if TYPE_CHECKING:
     from bridge.link.can_link import CanLink
-    from bridge.link.count_tail import CountTail, arrival_sides, build_count_tail, plan_count_tail
+    from bridge.link.count_tail import CountTail, arrival_sides, build_count_tail, last_segment_start, plan_count_tail
     from bridge.link.loopback import DEFAULT_HUB_PORT, LOOPBACK_HOST, LoopbackHub, hub_url
     from bridge.link.realtime import (
         INTERFACES,
@@ -89,7 +89,10 @@ if TYPE_CHECKING:
 #: public name -> the module that defines it
 _SOURCES: dict[str, str] = {
     "CanLink": "bridge.link.can_link",
-    **dict.fromkeys(("CountTail", "arrival_sides", "build_count_tail", "plan_count_tail"), "bridge.link.count_tail"),
+    **dict.fromkeys(
+        ("CountTail", "arrival_sides", "build_count_tail", "last_segment_start", "plan_count_tail"),
+        "bridge.link.count_tail",
+    ),
     **dict.fromkeys(
         (
             "LinkConfig",
@@ -176,6 +179,7 @@ __all__ = [
     "CountTail",
     "arrival_sides",
     "build_count_tail",
+    "last_segment_start",
     "plan_count_tail",
     # settings, state, faults, errors (bridge.link.state)
     "LinkConfig",

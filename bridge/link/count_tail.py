@@ -15,13 +15,14 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
+from planner.limits.guard import Guard
 from planner.model.sensors import SensorScaling
 from planner.profiles.hitch import Profile
 from planner.trajectory.count_approach import CountApproach, count_approach_for
-from planner.trajectory.plan import Plan
+from planner.trajectory.plan import Plan, Setpoints
 from planner.trajectory.planner import TrajectoryPlanner
 
-__all__ = ["CountTail", "arrival_sides", "build_count_tail", "plan_count_tail"]
+__all__ = ["CountTail", "arrival_sides", "build_count_tail", "last_segment_start", "plan_count_tail"]
 
 #: an actuator the final approach moves less than this arrives from no side (either is allowed) [counts]
 _STILL_COUNTS = 1e-6
@@ -44,16 +45,25 @@ class CountTail:
 
 
 def arrival_sides(
-    goal: ArrayLike, rise: ArrayLike, solve: Callable[[np.ndarray], np.ndarray], scaling: SensorScaling
+    goal: ArrayLike, segment_start: ArrayLike, solve: Callable[[np.ndarray], np.ndarray], scaling: SensorScaling
 ) -> np.ndarray:
-    """Per actuator the side a final approach (``motion.final_approach``: the goto rises by ``rise`` [m, m,
-    rad, rad] into ``goal``) brings it from: +1 rising in counts, −1 falling, the sign of its change from
-    ``goal − rise`` to ``goal`` (0 where it does not change). ``solve``: pose (4) → actuators (SI)."""
-    p1 = np.asarray(goal, float)
-    q1 = np.asarray(solve(p1), float)
-    q0 = np.asarray(solve(p1 - np.asarray(rise, float)), float)
+    """Per actuator the side a goto's last segment (``segment_start`` → ``goal``, pose [m, m, rad, rad]; with
+    ``motion.final_approach`` it rises in every DOF) brings it from: +1 rising in counts, −1 falling, the sign
+    of its change over the segment (0 where it does not change). ``solve``: pose (4) → actuators (SI)."""
+    q1 = np.asarray(solve(np.asarray(goal, float)), float)
+    q0 = np.asarray(solve(np.asarray(segment_start, float)), float)
     dc = (q1 - q0) / scaling.resolution
     return np.where(np.abs(dc) < _STILL_COUNTS, 0.0, np.sign(dc))
+
+
+def last_segment_start(plan: Plan) -> np.ndarray | None:
+    """Where ``plan``'s final approach segment starts (its via, else the plan's start: no via was needed), or
+    None for a plan without a final approach."""
+    fa = plan.info.get("final_approach")
+    if fa is None:
+        return None
+    via = fa.get("via")
+    return np.asarray(plan.state_at(0.0).position if via is None else via, float)
 
 
 def build_count_tail(
@@ -94,12 +104,17 @@ def build_count_tail(
 
 
 def plan_count_tail(
-    planner: TrajectoryPlanner, plan: Plan, check_reference: Callable[[np.ndarray], object]
+    planner: TrajectoryPlanner,
+    plan: Plan,
+    check_reference: Callable[[np.ndarray], object],
+    guard: Guard | None = None,
 ) -> CountTail | None:
-    """:func:`build_count_tail` at ``plan``'s goal for ``planner``'s profile, each actuator from the side of the
-    profile's final approach (:func:`arrival_sides`; without one, either side), its via pose within the
-    planner's workspace box: where the chosen via leaves it (a goal at a face), back-offs of one count only,
-    and where that leaves it too, no tail. A pose the inverse cannot solve: no tail."""
+    """:func:`build_count_tail` at ``plan``'s goal for ``planner``'s profile, each actuator from the side
+    ``plan``'s final approach segment brings it (:func:`arrival_sides`; a plan without one: either side). The via
+    and final poses must lie inside the planner's workspace box and pass ``guard`` at rest (its hard, implement,
+    keep-out and stability limits: not refused); where the chosen via fails, back-offs of one count only, and
+    where that fails too, no tail (the goto ends as its plan does). A pose the inverse cannot solve: no tail.
+    ``planner`` and ``guard``: the caller's own (models are not thread-safe)."""
     profile = planner.model.profile
     if profile.motion.count_approach is None:
         return None
@@ -107,18 +122,34 @@ def plan_count_tail(
     def solve(p: np.ndarray) -> np.ndarray:
         return np.asarray(planner.inverse.solve(p)[0], float)
 
-    fa = profile.motion.final_approach
     try:
         goal = np.asarray(plan.state_at(plan.duration).position, float)
         q = solve(goal)
-        sides = None if fa is None else arrival_sides(goal, fa.offset(), solve, SensorScaling(profile))
+        start = last_segment_start(plan)
+        sides = None if start is None else arrival_sides(goal, start, solve, SensorScaling(profile))
         for nearest_only in (False, True):
             tail = build_count_tail(profile, q, check_reference, sides, nearest_only=nearest_only)
             if tail is None:
                 return None
-            via = planner.model.forward(tail.via_actuators).pose.controlled()
-            if np.all(via >= planner.lo - _BOX_TOL) and np.all(via <= planner.hi + _BOX_TOL):
+            if _admissible(planner, guard, tail, q):
                 return tail
     except ValueError:  # KinematicsError: a goal or via the mechanism cannot take
         return None
     return None
+
+
+def _admissible(planner: TrajectoryPlanner, guard: Guard | None, tail: CountTail, goal_q: np.ndarray) -> bool:
+    """The via and final poses inside the workspace box, and (with a guard) not refused by it as the rest of a
+    move from the goal (``goal_q``, where the plan leaves the hitch: a move's start is its reference, e.g. for
+    the implement's upper height)."""
+    q = np.vstack([goal_q, tail.via_actuators, tail.final_actuators])
+    poses = np.array([planner.model.forward(qk).pose.as_array() for qk in q])
+    ctrl = poses[1:, [0, 2, 3, 4]]
+    if np.any(ctrl < planner.lo - _BOX_TOL) or np.any(ctrl > planner.hi + _BOX_TOL):
+        return False
+    if guard is None:
+        return True
+    hold = tail.approach.via_hold_s
+    t = np.array([0.0, hold, 2.0 * hold])
+    sp = Setpoints(planner.rate, t, poses, np.zeros((3, 4)), q, np.zeros((3, 5)))
+    return guard.check_setpoints(sp).action != "refused"

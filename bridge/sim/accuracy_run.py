@@ -41,6 +41,7 @@ from planner.calibration.accuracy import (
     accuracy_statistics,
     thesis_sequence,
 )
+from planner.limits.guard import Guard
 from planner.model.kinematics import HitchModel
 from planner.model.sensors import SensorScaling
 from planner.model.types import ACTUATOR_NAMES
@@ -236,6 +237,7 @@ class _TwinGotos:
         self.shaper = FeedforwardShaper(loops, self.tp.inverse.solve_full, self.rig.link.check_reference)
         #: the last goto's count approach (None: the profile has none, or not at that goal)
         self.last_tail: CountTail | None = None
+        self.guard = Guard(self.tp)  # the count approach's via and final poses pass it, as in the service
 
     def counts_estimate(self) -> np.ndarray:
         """The pistons' positions as the planner knows them at rest [counts, float]: where the last goto's count
@@ -245,7 +247,8 @@ class _TwinGotos:
         if tail is None:
             return read
         a = tail.approach
-        return np.where(read == a.final_counts, a.stop_counts, read)
+        # the lift's reading comes from the hitch status, fractional when its span exceeds 250 counts
+        return np.where(np.abs(read - a.final_counts) < 0.5, a.stop_counts, read)
 
     def __enter__(self) -> _TwinGotos:
         self.rig.__enter__()
@@ -278,7 +281,7 @@ class _TwinGotos:
             for t, q, qd in zip(sp.t, sp.actuators, sp.actuator_velocity, strict=True)
         ]
         # the profile's count approach after the plan, as the service streams it (bridge.link.count_tail)
-        tail = plan_count_tail(tp, plan, rig.link.check_reference)
+        tail = plan_count_tail(tp, plan, rig.link.check_reference, self.guard)
         self.last_tail = tail
         end = float(sp.t[-1])
         t0, k, sent_phase = rig.now_s, 0, -1
@@ -308,8 +311,9 @@ class _TwinGotos:
         except (ReferenceRefused, LinkFaultError) as exc:  # a refused reference or a link fault
             raise SimError(f"t = {rig.now_s:.2f} s: {exc}") from None
 
-    def hold_counts(self, counts: ArrayLike) -> None:
-        """Stream the whole ``counts`` (5) until every valve stayed closed ``hold_s`` (or ``max_move_s``)."""
+    def hold_counts(self, counts: ArrayLike) -> bool:
+        """Stream the whole ``counts`` (5) until every valve stayed closed ``hold_s``: True, or False after
+        ``max_move_s`` with a valve still open. SimError when the link refuses them (a hard limit)."""
         rig, s = self.rig, self.s
         sc = SensorScaling(self.tp.model.profile)
         try:
@@ -322,11 +326,11 @@ class _TwinGotos:
             if not rig.ecu.valve_commands().any():
                 quiet_since = t if quiet_since is None else quiet_since
                 if t - quiet_since >= s.hold_s - 1e-9:
-                    return
+                    return True
             else:
                 quiet_since = None
             if t - t0 >= s.max_move_s:
-                return
+                return False
 
 
 @dataclass(frozen=True)
@@ -370,11 +374,17 @@ class StopOffsets:
 STOP_SD_MAX_COUNTS = 0.05
 
 
-def _kept(mean: np.ndarray, sd: np.ndarray, sign: float) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    """The leading back-offs whose stops move monotonically further along ``sign`` and repeat (one actuator)."""
+def _kept(name: str, mean: np.ndarray, sd: np.ndarray, sign: float) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """The leading back-offs whose stops move monotonically further along ``sign`` and repeat (one actuator);
+    SimError when even a back-off of one count does not repeat or stops a count or more away."""
+    if not (sd[0] <= STOP_SD_MAX_COUNTS and abs(mean[0]) < 1.0):
+        raise SimError(
+            f"{name}: its stop after a one-count step does not repeat (mean {mean[0]:+.3f}, sd {sd[0]:.3f} counts; "
+            f"allowed sd <= {STOP_SD_MAX_COUNTS}, |mean| < 1): no count approach for this ECU"
+        )
     m, s = [float(mean[0])], [float(sd[0])]
     for k in range(1, len(mean)):
-        if sign * (mean[k] - m[-1]) <= 0.0 or sd[k] > STOP_SD_MAX_COUNTS:
+        if sign * (mean[k] - m[-1]) <= 0.0 or sd[k] > STOP_SD_MAX_COUNTS or abs(mean[k]) >= 1.0:
             break
         m.append(float(mean[k]))
         s.append(float(sd[k]))
@@ -403,6 +413,7 @@ def measure_stop_offsets(
     ks = range(1, max_back_off_counts + 1)
     below: list[list[np.ndarray]] = []
     above: list[list[np.ndarray]] = []
+    skipped = 0
     with _TwinGotos(model, tr, model.neutral_pose.controlled(), s) as tw:
         for k_pose, p in enumerate(ps):
             try:
@@ -414,18 +425,24 @@ def measure_stop_offsets(
                 continue
             b_row: list[np.ndarray] = []
             a_row: list[np.ndarray] = []
-            for k in ks:
-                for d, row in ((1, b_row), (-1, a_row)):
-                    tw.hold_counts(c - d * k)
-                    tw.hold_counts(c)
-                    row.append(tw.rig.ecu.piston_counts() - c)
+            try:
+                for k in ks:
+                    for d, row in ((1, b_row), (-1, a_row)):
+                        settled = tw.hold_counts(c - d * k) and tw.hold_counts(c)
+                        if not settled:
+                            raise SimError(f"poses[{k_pose}]: a valve still open after {s.max_move_s} s")
+                        row.append(tw.rig.ecu.piston_counts() - c)
+            except SimError:  # a count beyond a hard limit, or no rest: this pose is not measured
+                skipped += 1
+                continue
             below.append(b_row)
             above.append(a_row)
     if not below:
-        raise SimError("no pose could be reached: no stop measured")
+        raise SimError(f"no stop measured: {skipped} poses skipped, the rest refused by the planner")
     b, a = np.array(below), np.array(above)  # (poses, back-offs, actuators)
-    out_b = [_kept(b.mean(axis=0)[:, i], b.std(axis=0)[:, i], 1.0) for i in range(len(ACTUATOR_NAMES))]
-    out_a = [_kept(a.mean(axis=0)[:, i], a.std(axis=0)[:, i], -1.0) for i in range(len(ACTUATOR_NAMES))]
+    names = [f"{n} from below" for n in ACTUATOR_NAMES], [f"{n} from above" for n in ACTUATOR_NAMES]
+    out_b = [_kept(names[0][i], b.mean(axis=0)[:, i], b.std(axis=0)[:, i], 1.0) for i in range(len(ACTUATOR_NAMES))]
+    out_a = [_kept(names[1][i], a.mean(axis=0)[:, i], a.std(axis=0)[:, i], -1.0) for i in range(len(ACTUATOR_NAMES))]
     return StopOffsets(
         tuple(m for m, _ in out_b),
         tuple(m for m, _ in out_a),

@@ -24,6 +24,7 @@ from bridge.sim.cylinder import build_cylinder_params
 from bridge.sim.ecu import ACTUATOR_ORDER
 from bridge.sim.rig import LossyBus, SimError, SimRig, SimSettings
 from bridge.sim.truth import MachineTruth
+from planner.limits.guard import Guard
 from planner.model.kinematics import HitchModel
 from planner.trajectory import MotionState, TrajectoryPlanner
 
@@ -160,7 +161,7 @@ def run_move(
             )
         times = sp.t
         # the profile's count approach after the plan, as the service streams it (bridge.link.count_tail)
-        tail = plan_count_tail(tp, plan, rig.link.check_reference)
+        tail = plan_count_tail(tp, plan, rig.link.check_reference, Guard(tp))
         if tail is not None:
             t_end = float(sp.t[-1])
             times = np.r_[sp.t, t_end + 1.0 / tp.rate, t_end + tail.approach.via_hold_s]

@@ -9,7 +9,7 @@ inside the count, one for each side and back-off (on the twin's ECU the spread i
     stop = c + s_above[k]      (falling into c from c + k)
 
 with per-actuator offsets [counts]. The heavy lift coasts the most and the further the faster it comes
-(twin, from below: +0.19, +0.31, +0.46 for k = 1, 2, 3; from 4 counts it coasts into the next count and is
+(twin, from below: +0.19, +0.31, +0.43 for k = 1, 2, 3; from 4 counts it coasts into the next count and is
 driven back); the others stop about 0.1 count inside whatever k. A goto whose last move ends however it
 comes leaves a piston anywhere in its count (sd ≈ 0.27 count), on top of rounding the goal to a whole
 count (± 0.5): about ± 1 count in all.
@@ -19,8 +19,9 @@ With the offsets known, every (c, d, k) is a known stop; per actuator the one ne
 
     (c, d, k) = argmin |c + s_d[k] − u|,   via = c − d · k
 
-``d`` may be fixed per actuator (``sides``): the side the goto's plan brings it from, so that with the
-profile's ``motion.final_approach`` the pin play stays taken up on one side (a lift entering its last
+``d`` may be fixed per actuator (``sides``): the side from which the goto's final approach segment brings
+it (``bridge.link.count_tail.arrival_sides``), so that with the profile's ``motion.final_approach`` the pin
+play stays taken up on one side (a lift entering its last
 count from above lets the implement's play swing: pitch errors of 3 mrad on the twin). The approach
 streams ``via`` for ``via_hold_s`` (the piston settles there), then ``c`` for ``final_hold_s`` (it creeps
 into ``c``). Measured on the twin: ``bench/count_floor_bench.py`` and ``bench/calibration_bench.py``

@@ -803,10 +803,10 @@ class MotionController:
                 raise MotionError("busy", f"{kind} refused: the planner stayed busy past its deadline; not run later")
             try:
                 gp = self.plan_guard.plan(start, goal, speed_scale=speed_scale)  # PlanError / GuardRefusal
+                tail = self._count_tail(gp.plan) if kind in _COUNT_APPROACH_KINDS else None
             finally:
                 self._plan_lock.release()
             took = self.clock() - t_plan
-            tail = self._count_tail(gp.plan) if kind in _COUNT_APPROACH_KINDS else None
             events: list[Event] = []
             with self._lock:
                 if from_maneuver and not self._maneuver.owns(runner, request):
@@ -855,9 +855,10 @@ class MotionController:
         raise MotionError("busy", f"{kind} could not be started: the service is too busy to plan in time")
 
     def _count_tail(self, plan: Plan) -> CountTail | None:
-        """The profile's count approach (``motion.count_approach``) to ``plan``'s goal
-        (:mod:`bridge.link.count_tail`); None without the setting or where the link would refuse it."""
-        return plan_count_tail(self.planner, plan, self.link.check_reference)
+        """The profile's count approach (``motion.count_approach``) to ``plan``'s goal (:mod:`bridge.link.count_tail`),
+        checked by the link and the planning guard; None without the setting or where either refuses it. Under
+        ``_plan_lock``: the planning guard's model, never the control thread's."""
+        return plan_count_tail(self.plan_guard.planner, plan, self.link.check_reference, self.plan_guard)
 
     def _check_startable(
         self, kind: str, now: float, deadline: float | None, issued: float | None, what: str | None = None
@@ -929,11 +930,19 @@ class MotionController:
         return MotionState.at_rest(ls.pose.controlled())
 
     def _brake(self, now: float, reason: str, events: list[Event]) -> int | None:
-        """Replace the active motion by the jerk-limited stop from its state now (id of the stop)."""
+        """Replace the active motion by the jerk-limited stop from its state now (id of the stop). A goto in its
+        count approach is at rest already: it holds the counts streamed now (None: no stop motion)."""
         m = self._active
         if m is None or (isinstance(m, PlanMotion) and m.kind == "stop"):
             return None if m is None else m.motion_id
         events.append(self._ev("motion_aborted", m, reason=reason))
+        if isinstance(m, PlanMotion) and m.tail is not None and m.in_tail(now):
+            # at rest on the count approach: hold the counts streamed now (the goal's would move the pistons)
+            held = m.tail.actuators_at(now - m.t0 - m.plan.duration)
+            self._generation += 1  # as a new motion would: plans in flight start again from the hold
+            self._active, self._hold, self._hold_ref = None, MotionState.at_rest(plan_state(m, now).position), None
+            self._hold_actuators = held
+            return None
         t0 = m.t_state if isinstance(m, (JogMotion, TrackMotion)) else now  # the time the predicted state belongs to
         sm = PlanMotion("stop", next(self._ids), self.planner.plan_stop(self._predict(now)), t0)
         self._install(sm)
@@ -1185,7 +1194,7 @@ class MotionController:
             events.append({"event": "limit_reached", "message": f"reference not reachable: {exc}"})
             self._abort_all(f"reference not reachable: {exc}", now, events)
             return None
-        if m is None and self._hold_actuators is not None:  # held on the count approach's final counts
+        if self._active is None and self._hold_actuators is not None:  # held on the count approach's counts
             ref = Reference(st, self._hold_actuators, np.zeros_like(self._hold_actuators))
         else:
             ref = Reference(st, q, jac @ st.velocity)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bridge.link.count_tail import arrival_sides, build_count_tail, plan_count_tail
+from bridge.link.count_tail import build_count_tail, plan_count_tail
 from bridge.link.state import ReferenceRefused
 from bridge.service.motion.controller import MotionController
 from bridge.sim.accuracy_run import measure_stop_offsets, visit_poses
@@ -19,9 +19,9 @@ from bridge.sim.move import SimRig
 from planner.calibration.design import candidate_poses
 from planner.calibration.parametric import ParametricModel
 from planner.limits.guard import Guard
+from planner.limits.implement_limits import ImplementLimits
 from planner.model.kinematics import HitchModel
 from planner.model.sensors import SensorScaling
-from planner.model.types import ACTUATOR_NAMES
 from planner.profiles import profile_from_dict
 from planner.trajectory import MotionState, TrajectoryPlanner
 
@@ -43,7 +43,7 @@ def _with_approach(model: HitchModel, offsets, final_approach: dict | None = Non
     return HitchModel(profile_from_dict(data))
 
 
-def _run(model: HitchModel, *, stop_after_plan_s: float | None = None):
+def _run(model: HitchModel, *, stop_after_plan_s: float | None = None, goal: dict | None = None):
     """A goto to GOAL through the service's controller on the twin (simulated time, cycles at 50 Hz):
     the ECU's reference counts per cycle, the events, the acceptance and the rig's pistons at the end."""
     events: list[dict] = []
@@ -60,7 +60,7 @@ def _run(model: HitchModel, *, stop_after_plan_s: float | None = None):
             spawn=lambda fn: fn(),
         )
         mc.cycle()
-        acc = mc.goto(GOAL)
+        acc = mc.goto(GOAL if goal is None else goal)
         t0 = mc._active.t0  # type: ignore[union-attr]  (the plan's time 0, clock time)
         plan_s = mc._active.plan.duration  # type: ignore[union-attr]
         stopped = False
@@ -109,14 +109,20 @@ def test_without_the_setting_a_goto_ends_as_its_plan_does(model):
     assert len({r for t, r in refs if t > plan_s + 0.1}) == 1  # one reference held after the plan
 
 
-def test_a_stop_in_the_approach_ends_it_and_holds_the_goal(model, offsets):
+def test_a_stop_in_the_approach_holds_the_counts_streamed_then(model, offsets):
+    """The hitch is at rest in the approach: a stop holds the via counts it streams (the goal's counts would move
+    the pistons up to three counts after a stop), and nothing of the approach follows."""
     m = _with_approach(model, offsets)
     _, plan_s, refs, events, _, mc = _run(m, stop_after_plan_s=0.2)
-    pc = mc.link.check_reference(mc.planner.inverse.solve(np.array(list(GOAL.values())))[0])
-    goal_counts = tuple(int(getattr(pc, k)) for k in ACTUATOR_NAMES)
-    held = {r for t, r in refs if t > plan_s + 0.5}
-    assert held == {goal_counts}  # no via, no final count of the approach after the stop
-    assert mc._active is None and mc._hold_actuators is None
+    tail = build_count_tail(
+        m.profile, TrajectoryPlanner(m).inverse.solve(np.array(list(GOAL.values())))[0], lambda q: None
+    )
+    assert tail is not None
+    via = tuple(int(c) for c in tail.approach.via_counts)
+    held = {r for t, r in refs if t > plan_s + 0.3}
+    assert held == {via}
+    assert mc._active is None and any(e.get("event") == "motion_aborted" for e in events)
+    assert not any(e.get("event") == "motion_finished" for e in events)
 
 
 def test_no_approach_where_the_link_would_refuse_its_via_or_final(model, offsets):
@@ -143,28 +149,55 @@ def test_the_twin_stops_each_piston_repeatably_inside_its_count(offsets):
         assert -0.2 < offsets.from_below[k][0] < 0.0 < offsets.from_above[k][0] < 0.2
 
 
-def test_with_a_final_approach_each_actuator_enters_its_count_from_that_approach_s_side(model, offsets):
-    """Pin play stays taken up on one side: every actuator's last step has the direction the final approach
-    moves it (arrival_sides), never the other, whichever side's stop would be nearer."""
+def test_with_a_final_approach_each_actuator_enters_its_count_from_the_side_its_last_segment_moves_it(model, offsets):
+    """Pin play stays taken up on one side: every actuator's last step has the direction in which the plan's
+    final segment (from its via, or from its start when no via was needed) truly moves it — read off the
+    sampled plan, not from the function under test."""
     fa = {"x": 0.0025, "z": 0.004, "roll": 0.005, "pitch": 0.007}
     m = _with_approach(model, offsets, fa)
     tp = TrajectoryPlanner(m)
-    solve = lambda p: tp.inverse.solve(p)[0]  # noqa: E731
-    sc = SensorScaling(m.profile)
-    free = _with_approach(model, offsets)
-    flipped = 0
+    data = m.profile.model_dump()
+    data["motion"]["count_approach"]["keep_arrival_side"] = False
+    free = TrajectoryPlanner(HitchModel(profile_from_dict(data)))
+    flipped = checked = 0
+    start = MotionState.at_rest(model.neutral_pose.controlled())
     for pose in candidate_poses(ParametricModel(model.profile), 30, random_only=True, seed=5)[0]:
-        plan = tp.plan_move(
-            MotionState.at_rest(model.neutral_pose.controlled()), dict(zip(POSE, map(float, pose), strict=True))
-        )
+        plan = tp.plan_move(start, dict(zip(POSE, map(float, pose), strict=True)))
         tail = plan_count_tail(tp, plan, lambda q: None)
-        sides = arrival_sides(plan.state_at(plan.duration).position, list(fa.values()), solve, sc)
-        assert tail is not None and np.all(sides != 0)
-        assert np.array_equal(tail.approach.directions, sides)
-        other = plan_count_tail(TrajectoryPlanner(free), plan, lambda q: None)
+        assert tail is not None
+        sp = tp.sample(plan)
+        via = plan.info["final_approach"]["via"]
+        k0 = 0 if via is None else int(np.argmin(np.linalg.norm(sp.pose[:, [0, 2, 3, 4]] - np.array(via), axis=1)))
+        dc = (sp.actuators[-1] - sp.actuators[k0]) / SensorScaling(m.profile).resolution
+        moving = np.abs(dc) > 0.05
+        assert np.array_equal(tail.approach.directions[moving], np.sign(dc[moving]).astype(int))
+        checked += int(moving.sum())
+        other = plan_count_tail(free, plan, lambda q: None)
         assert other is not None
-        flipped += int(np.any(other.approach.directions != sides))
-    assert flipped > 0  # without the rule some actuator would have come from the other side
+        flipped += int(np.any(other.approach.directions[moving] != np.sign(dc[moving])))
+    assert checked > 60 and flipped > 0  # without the rule some actuator would have come from the other side
+
+
+def test_the_via_and_final_poses_pass_the_guard(model, offsets):
+    """An implement's upper height just above the goal: the approach's via and final poses stay below it (a
+    via from above is not chosen, or the goto ends as its plan does); without the guard some would not."""
+    m = _with_approach(model, offsets)
+    tp = TrajectoryPlanner(m)
+    guard = Guard(tp)
+    start = MotionState.at_rest(model.neutral_pose.controlled())
+    above_without = 0
+    for pose in candidate_poses(ParametricModel(model.profile), 12, random_only=True, seed=9)[0]:
+        plan = tp.plan_move(start, dict(zip(POSE, map(float, pose), strict=True)))
+        top = float(pose[1]) + 0.0005
+        guard.set_implement_limits(ImplementLimits(upper_height_m=top))
+        tail = plan_count_tail(tp, plan, lambda q: None, guard)
+        if tail is not None:
+            for q in (tail.via_actuators, tail.final_actuators):
+                assert m.forward(q).pose.z <= top + 1e-9
+        plain = plan_count_tail(tp, plan, lambda q: None)
+        assert plain is not None
+        above_without += int(any(m.forward(q).pose.z > top for q in (plain.via_actuators, plain.final_actuators)))
+    assert above_without > 0
 
 
 def test_a_back_off_from_which_the_lift_coasts_a_count_over_is_not_kept(model):
@@ -230,3 +263,36 @@ def test_presets_and_maneuver_steps_end_as_their_plans_do(model, offsets):
         assert mc._active.tail is None and acc.duration == pytest.approx(mc._active.plan.duration)  # type: ignore[union-attr]
         acc = mc.goto(GOAL)
         assert mc._active.tail is not None  # type: ignore[union-attr]
+
+
+def test_the_cycle_a_goto_ends_already_streams_the_final_counts(model, offsets):
+    """A goal whose chosen count differs from its nearest one: from the via's end on, every cycle streams the
+    final counts, the one in which the motion finishes too (it streamed the nearest count once: a valve opened)."""
+    m = _with_approach(model, offsets)
+    tp = TrajectoryPlanner(m)
+    for pose in candidate_poses(ParametricModel(model.profile), 40, random_only=True, seed=21)[0]:
+        tail = build_count_tail(m.profile, tp.inverse.solve(pose)[0], lambda q: None)
+        assert tail is not None
+        if np.any(tail.approach.final_counts != np.round(tail.approach.unrounded_counts)):
+            break
+    else:
+        pytest.fail("no goal whose chosen count differs from the nearest")
+    goal = dict(zip(POSE, map(float, pose), strict=True))
+    _, plan_s, refs, _, _, _ = _run(m, goal=goal)
+    a = tail.approach
+    after = [r for t, r in refs if t > plan_s + a.via_hold_s + 0.05]
+    assert after and set(after) == {tuple(int(c) for c in a.final_counts)}
+
+
+def test_a_stop_that_does_not_repeat_is_refused_and_later_back_offs_are_cut():
+    """The measurement's rule: a one-count back-off must repeat (sd <= 0.05 count) and stay inside a count;
+    a longer one is kept only while its stop moves further in, repeats and stays inside."""
+    from bridge.sim.accuracy_run import _kept
+    from bridge.sim.rig import SimError
+
+    with pytest.raises(SimError, match=r"lift from below: its stop after a one-count step does not repeat"):
+        _kept("lift from below", np.array([0.2]), np.array([0.08]), 1.0)
+    kept, _ = _kept("lift from below", np.array([0.19, 0.31, 0.43, -0.19]), np.full(4, 0.02), 1.0)
+    assert kept == (0.19, 0.31, 0.43)
+    kept, _ = _kept("top from above", np.array([0.12, 0.10, 0.2]), np.array([0.01, 0.01, 0.2]), -1.0)
+    assert kept == (0.12, 0.10)

@@ -22,7 +22,7 @@ from planner.lazy import lazy_exports
 
 if TYPE_CHECKING:
     from bridge.link.can_link import CanLink
-    from bridge.link.count_tail import CountTail, arrival_sides, build_count_tail, last_segment_start, plan_count_tail
+    from bridge.link.count_tail import CountTail, arrival_sides, build_count_tail, plan_count_tail
     from bridge.link.loopback import DEFAULT_HUB_PORT, LOOPBACK_HOST, LoopbackHub, hub_url
     from bridge.link.realtime import (
         INTERFACES,
@@ -90,7 +90,7 @@ if TYPE_CHECKING:
 _SOURCES: dict[str, str] = {
     "CanLink": "bridge.link.can_link",
     **dict.fromkeys(
-        ("CountTail", "arrival_sides", "build_count_tail", "last_segment_start", "plan_count_tail"),
+        ("CountTail", "arrival_sides", "build_count_tail", "plan_count_tail"),
         "bridge.link.count_tail",
     ),
     **dict.fromkeys(
@@ -179,7 +179,6 @@ __all__ = [
     "CountTail",
     "arrival_sides",
     "build_count_tail",
-    "last_segment_start",
     "plan_count_tail",
     # settings, state, faults, errors (bridge.link.state)
     "LinkConfig",

@@ -28,10 +28,15 @@ the twin's true pose − the commanded pose. Its floor: a profile equal to the t
 1 mm of play, visited the same way.
 
 The check poses are random workspace poses (``candidate_poses(random_only=True)``: not the box's corners
-and face centres, where an approach from below is cut short).
+and face centres, where an approach from below is cut short). A calibrated machine that cannot reach the
+nominal box (the planner refuses to load it) gets the box of ``hitch profile fit-workspace`` where smaller, as
+docs/commissioning.md tells a user; its check poses outside it are refused and not counted.
+
+``--count-approach``: every goto (measuring, calibrated, floors) ends with the profile's count approach, its
+stop offsets measured once on the nominal twin (:func:`twin_count_approach`).
 
 Run: .venv/bin/python bench/calibration_bench.py [--twins 20] [--json bench/out/calibration.json] [--plot PNG]
-     [--through-twin N] [--workers 2] [--skip-static]
+     [--through-twin N] [--workers 2] [--skip-static] [--count-approach]
 """
 
 from __future__ import annotations

@@ -65,7 +65,7 @@ def rounding(model: HitchModel, poses: np.ndarray) -> dict:
 
     near, best = [], []
     for p in poses:
-        c = sc.counts_min + (inv.solve(p)[0] - sc.si_min) / sc.resolution
+        c = sc.counts_of(inv.solve(p)[0])
         near.append(pose_of(np.rint(c)) - p)
         errs = [pose_of(k) - p for k in itertools.product(*[(np.floor(v), np.ceil(v)) for v in c])]
         best.append(min(errs, key=lambda e: float(np.max(1e3 * np.abs(e) / TARGET))))  # TARGET in mm, mrad
@@ -96,7 +96,7 @@ def stops(profile, poses: np.ndarray, count_approach: dict | None = None) -> dic
             if ref is None:
                 refused += 1
                 continue
-            unrounded = sc.counts_min + (tw.tp.inverse.solve(p)[0] - sc.si_min) / sc.resolution
+            unrounded = sc.counts_of(tw.tp.inverse.solve(p)[0])
             stop.append(ecu.piston_counts() - ref)
             rnd.append(ref - unrounded)  # with the count approach: its chosen count, not the nearest
             err.append(tw.rig.true_pose().controlled() - p)

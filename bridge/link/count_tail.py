@@ -81,9 +81,7 @@ def build_count_tail(
         )
     sc = SensorScaling(profile)
     try:
-        approach = count_approach_for(
-            settings, sc, goal_actuators, sc.counts_min, sc.counts_max, sides if settings.keep_arrival_side else None
-        )
+        approach = count_approach_for(settings, sc, goal_actuators, sides if settings.keep_arrival_side else None)
         via, final = sc.to_si(approach.via_counts), sc.to_si(approach.final_counts)
         check_reference(via)
         check_reference(final)

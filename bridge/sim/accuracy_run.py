@@ -238,6 +238,7 @@ class _TwinGotos:
         #: the last goto's count approach (None: the profile has none, or not at that goal)
         self.last_tail: CountTail | None = None
         self.guard = Guard(self.tp)  # the count approach's via and final poses pass it, as in the service
+        self.scaling = SensorScaling(model.profile)
 
     def counts_estimate(self) -> np.ndarray:
         """The pistons' positions as the planner knows them at rest [counts, float]: where the last goto's count
@@ -300,12 +301,9 @@ class _TwinGotos:
                         rig.link.send_reference(tail.actuators_at(after), rig.next_tick_s)
                         sent_phase = phase
                 t = rig.tick()
-                if k == len(refs) and not in_tail and not rig.ecu.valve_commands().any():
-                    quiet_since = t if quiet_since is None else quiet_since
-                    if t - quiet_since >= s.hold_s - 1e-9:
-                        return p1
-                else:
-                    quiet_since = None
+                quiet_since = self._quiet_since(t, quiet_since, busy=k < len(refs) or in_tail)
+                if quiet_since is not None and t - quiet_since >= s.hold_s - 1e-9:
+                    return p1
                 if t - t0 >= s.max_move_s:
                     return p1  # measured as it stands (a cylinder still hunting): the error shows it
         except (ReferenceRefused, LinkFaultError) as exc:  # a refused reference or a link fault
@@ -315,22 +313,25 @@ class _TwinGotos:
         """Stream the whole ``counts`` (5) until every valve stayed closed ``hold_s``: True, or False after
         ``max_move_s`` with a valve still open. SimError when the link refuses them (a hard limit)."""
         rig, s = self.rig, self.s
-        sc = SensorScaling(self.tp.model.profile)
         try:
-            rig.link.send_reference(sc.to_si(counts), rig.next_tick_s)
+            rig.link.send_reference(self.scaling.to_si(counts), rig.next_tick_s)
         except (ReferenceRefused, LinkFaultError) as exc:
             raise SimError(f"t = {rig.now_s:.2f} s: {exc}") from None
         t0, quiet_since = rig.now_s, None
         while True:
             t = rig.tick()
-            if not rig.ecu.valve_commands().any():
-                quiet_since = t if quiet_since is None else quiet_since
-                if t - quiet_since >= s.hold_s - 1e-9:
-                    return True
-            else:
-                quiet_since = None
+            quiet_since = self._quiet_since(t, quiet_since)
+            if quiet_since is not None and t - quiet_since >= s.hold_s - 1e-9:
+                return True
             if t - t0 >= s.max_move_s:
                 return False
+
+    def _quiet_since(self, t: float, since: float | None, *, busy: bool = False) -> float | None:
+        """Since when every valve has been closed at tick ``t`` (None: one is open, or the caller is ``busy``
+        streaming)."""
+        if busy or self.rig.ecu.valve_commands().any():
+            return None
+        return t if since is None else since
 
 
 @dataclass(frozen=True)

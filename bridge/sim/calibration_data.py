@@ -71,7 +71,7 @@ class _Commander:
         out = []
         for p in poses:
             q = self.inv.solve(p)[0]
-            c = self.sc.counts_min + (q - self.sc.si_min) / self.sc.resolution
+            c = self.sc.counts_of(q)
             out.append(np.rint(c) if quantise else c)
         return np.array(out)
 

@@ -199,8 +199,7 @@ class MachineTruth:
 
     def counts_from_si(self, q: ArrayLike) -> np.ndarray:
         """Unquantised true counts [float] of true piston positions ``q`` (SI), ACTUATOR_NAMES order."""
-        sc = self.scaling
-        return sc.counts_min + (_vector5("actuators", q) - sc.si_min) / sc.resolution
+        return self.scaling.counts_of(_vector5("actuators", q))
 
     def si_from_counts(self, counts: ArrayLike) -> np.ndarray:
         """True piston positions (SI) of unquantised piston counts through the true AD map."""

@@ -36,10 +36,13 @@ class SensorScaling:
         #: SI units per count [m/count or rad/count]
         self.resolution = (self.si_max - self.si_min) / (self.counts_max - self.counts_min)
 
+    def counts_of(self, q: ArrayLike) -> np.ndarray:
+        """The exact (unrounded) counts [float] of actuators ``q`` (SI), unchecked."""
+        return self.counts_min + (np.asarray(q, dtype=float).reshape(5) - self.si_min) / self.resolution
+
     def to_counts(self, q: ArrayLike, *, tolerance_counts: float = 0.5) -> np.ndarray:
         """Nearest integer counts of actuators ``q`` (SI); raises if beyond the calibrated span."""
-        q = np.asarray(q, dtype=float).reshape(5)
-        counts = self.counts_min + (q - self.si_min) / self.resolution
+        counts = self.counts_of(q)
         self._check(counts, tolerance_counts, "command")
         return np.clip(np.rint(counts), self.counts_min, self.counts_max).astype(int)
 

@@ -90,10 +90,6 @@ class CountApproach:
         """Expected stop minus the exact goal [counts]."""
         return self.stop_counts - self.unrounded_counts
 
-    def counts_at(self, t_s: float) -> np.ndarray:
-        """The reference counts ``t_s`` seconds after the plan's end: the via, then the final count."""
-        return self.via_counts if t_s < self.via_hold_s else self.final_counts
-
 
 def _vector(name: str, value: ArrayLike, lo: float, hi: float) -> np.ndarray:
     v = np.asarray(value, float).reshape(-1)
@@ -195,21 +191,17 @@ def count_approach_for(
     settings: CountApproachSettings,
     scaling: SensorScaling,
     goal_actuators: ArrayLike,
-    counts_lo: ArrayLike,
-    counts_hi: ArrayLike,
     sides: ArrayLike | None = None,
 ) -> CountApproach:
     """:func:`build_count_approach` for the goal's actuators ``goal_actuators`` (SI: lift [rad], the others
-    [m]) with a profile's ``motion.count_approach`` and sensor map; ``counts_lo``/``counts_hi``: the counts
-    the link accepts; ``sides``: as there."""
-    q = np.asarray(goal_actuators, float).reshape(-1)
-    u = scaling.counts_min + (q - scaling.si_min) / scaling.resolution
+    [m]) with a profile's ``motion.count_approach`` and sensor map, within the sensors' spans (the link's own
+    limits are checked on the result); ``sides``: as there."""
     return build_count_approach(
-        u,
+        scaling.counts_of(goal_actuators),
         settings.from_below_counts.values(),
         settings.from_above_counts.values(),
-        counts_lo,
-        counts_hi,
+        scaling.counts_min,
+        scaling.counts_max,
         sides=sides,
         via_hold_s=settings.via_hold_s,
         final_hold_s=settings.final_hold_s,

@@ -43,6 +43,20 @@ def _with_approach(model: HitchModel, offsets, final_approach: dict | None = Non
     return HitchModel(profile_from_dict(data))
 
 
+def _controller(model: HitchModel, rig: SimRig, events: list[dict]) -> MotionController:
+    """The service's motion controller on ``rig``'s link in simulated time, one cycle run (its state taken)."""
+    mc = MotionController(
+        Guard(TrajectoryPlanner(model)),
+        Guard(TrajectoryPlanner(model)),
+        rig.link,
+        lambda: rig.now_s,
+        on_event=events.append,
+        spawn=lambda fn: fn(),
+    )
+    mc.cycle()
+    return mc
+
+
 def _run(model: HitchModel, *, stop_after_plan_s: float | None = None, goal: dict | None = None):
     """A goto to GOAL through the service's controller on the twin (simulated time, cycles at 50 Hz):
     the ECU's reference counts per cycle, the events, the acceptance and the rig's pistons at the end."""
@@ -51,15 +65,7 @@ def _run(model: HitchModel, *, stop_after_plan_s: float | None = None, goal: dic
     with SimRig(model) as rig:
         rig.start()
         rig.run_until(0.5)
-        mc = MotionController(
-            Guard(TrajectoryPlanner(model)),
-            Guard(TrajectoryPlanner(model)),
-            rig.link,
-            lambda: rig.now_s,
-            on_event=events.append,
-            spawn=lambda fn: fn(),
-        )
-        mc.cycle()
+        mc = _controller(model, rig, events)
         acc = mc.goto(GOAL if goal is None else goal)
         t0 = mc._active.t0  # type: ignore[union-attr]  (the plan's time 0, clock time)
         plan_s = mc._active.plan.duration  # type: ignore[union-attr]
@@ -255,10 +261,7 @@ def test_presets_and_maneuver_steps_end_as_their_plans_do(model, offsets):
     with SimRig(m) as rig:
         rig.start()
         rig.run_until(0.5)
-        mc = MotionController(
-            Guard(TrajectoryPlanner(m)), Guard(TrajectoryPlanner(m)), rig.link, lambda: rig.now_s, spawn=lambda fn: fn()
-        )
-        mc.cycle()
+        mc = _controller(m, rig, [])
         acc = mc._start_plan(GOAL, 1.0, "preset", "custom", runner=None)
         assert mc._active.tail is None and acc.duration == pytest.approx(mc._active.plan.duration)  # type: ignore[union-attr]
         acc = mc.goto(GOAL)

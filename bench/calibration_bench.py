@@ -20,7 +20,8 @@ within 3 σ of the truth, calibration run time.
 **Through the twin** (``--through-twin N``, the first N twins, default all; on ``--workers`` processes;
 ``--skip-static`` runs only this part):
 the machine as it runs, nothing assumed about where a piston stops. The profile carries a final approach
-(:data:`FINAL_APPROACH`: every goto ends rising in every DOF); the 20 planned poses are measured as
+(:data:`FINAL_APPROACH`: every goto ends rising in every DOF); the 20 poses planned on that profile (each
+reached with its whole approach: not at the box's lower faces) are measured as
 ``hitch calibrate measure-twin --by goto`` does (a real goto over CAN to each, the link's counts at rest,
 the station reading the true pose), the profile is calibrated from them, and the 200 check poses are
 visited by real gotos, in a nearest-neighbour tour, with the nominal and the calibrated profile: error =
@@ -203,17 +204,17 @@ def twin_count_approach(prof) -> dict:
     return measure_stop_offsets(HitchModel(prof), poses).table()
 
 
-def _run_through_twin(
-    prof, n_twin: int, workers: int, planned: np.ndarray, check: np.ndarray, count_approach: bool = False
-) -> dict:
+def _run_through_twin(prof, n_twin: int, workers: int, check: np.ndarray, count_approach: bool = False) -> dict:
     """The through-the-twin evaluation of the first ``n_twin`` twins (module docstring), its table and summary;
     ``count_approach``: every goto of every profile (measuring, calibrated, floors) ends with the count approach
-    whose offsets :func:`twin_count_approach` measured."""
+    whose offsets :func:`twin_count_approach` measured. The 20 poses to measure are planned on the profile with
+    its final approach (``hitch calibrate plan-poses``: each reached with its whole approach)."""
     data = prof.model_dump()
     data["motion"]["final_approach"] = FINAL_APPROACH
     if count_approach:
         data["motion"]["count_approach"] = twin_count_approach(prof)
         print(f"count approach: {data['motion']['count_approach']}", flush=True)
+    planned = plan_poses(ParametricModel(profile_from_dict(data)), 20).poses
     jobs = [(seed, data, planned, check) for seed in range(n_twin)]
     print(f"\nthrough the twin: {n_twin} twins on {workers} processes (final approach {FINAL_APPROACH})", flush=True)
     t0 = time.perf_counter()
@@ -292,7 +293,7 @@ def main() -> None:
     check = _tour(check[: args.check])
     n_twin = args.twins if args.through_twin is None else args.through_twin
     if args.skip_static:
-        res = _run_through_twin(prof, n_twin, args.workers, planned[20], check, args.count_approach)
+        res = _run_through_twin(prof, n_twin, args.workers, check, args.count_approach)
         print(f"\nthrough_twin: { {k: v for k, v in res.items() if k != 'twins'} }")
         if args.json:
             write_json(args.json, {"machine": machine_note(), "summary": {"through_twin": res}})
@@ -424,7 +425,7 @@ def main() -> None:
         ],
         "plan_time_s": t_plan,
     }
-    summary["through_twin"] = _run_through_twin(prof, n_twin, args.workers, planned[20], check, args.count_approach)
+    summary["through_twin"] = _run_through_twin(prof, n_twin, args.workers, check, args.count_approach)
     print()
     for k, v in summary.items():
         print(f"{k}: {v}")

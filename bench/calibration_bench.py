@@ -31,13 +31,15 @@ the twin's true pose − the commanded pose. Its floor: a profile equal to the t
 The check poses are random workspace poses (``candidate_poses(random_only=True)``: not the box's corners
 and face centres, where an approach from below is cut short). A calibrated machine that cannot reach the
 nominal box (the planner refuses to load it) gets the box of ``hitch profile fit-workspace`` where smaller, as
-docs/commissioning.md tells a user; its check poses outside it are refused and not counted.
+docs/commissioning.md tells a user; its check poses outside it are refused and not counted (the improvement factor is
+also given with the uncalibrated error on the same poses, "same poses").
 
 ``--count-approach``: every goto (measuring, calibrated, floors) ends with the profile's count approach, its
 stop offsets measured once on the nominal twin (:func:`twin_count_approach`).
 
 Run: .venv/bin/python bench/calibration_bench.py [--twins 20] [--json bench/out/calibration.json] [--plot PNG]
-     [--through-twin N] [--workers 2] [--skip-static] [--count-approach]
+     [--through-twin N] [--workers 2] [--skip-static] [--count-approach] [--check 200] [--check-seed 999]
+     [--twin-plot PNG]
 """
 
 from __future__ import annotations
@@ -109,15 +111,53 @@ def _through_twin(job: tuple) -> dict:
     _, cal_profile, _ = _calibrate(pm, truth, planned, seed, by="goto")
     cal, fitted = _reachable_box(HitchModel(cal_profile))
     out: dict = {"seed": seed, "measure_and_fit_wall_s": time.perf_counter() - t0, "box_fitted": fitted}
+    errs = {}
     for name, model in (("nominal", pm.nominal_model), ("calibrated", cal)):
         t0 = time.perf_counter()
         v = visit_poses(model, check, truth, AccuracyRunSettings(seed=seed), skip_refused=True)
-        err = np.abs(v.true - check) * 1e3
-        out[name] = np.nanpercentile(err, 95, axis=0).tolist()
+        errs[name] = np.abs(v.true - check) * 1e3
+        out[name] = np.nanpercentile(errs[name], 95, axis=0).tolist()
         out[f"{name}_refused"] = [k for k, _ in v.refused]
         out[f"{name}_wall_s"] = time.perf_counter() - t0
         out[f"{name}_simulated_s"] = v.simulated_s
+    kept = np.all(np.isfinite(errs["calibrated"]), axis=1)  # the uncalibrated error on the poses counted calibrated
+    out["nominal_same_poses"] = np.nanpercentile(errs["nominal"][kept], 95, axis=0).tolist()
+    out["errors"] = errs  # |error| per check pose (NaN: refused), for the error map; not written to the JSON
     return out
+
+
+def _twin_error_map(path: str, check: np.ndarray, twin: dict, count_approach: bool) -> None:
+    """The error map through the twin of ``twin`` (its per-pose errors): uncalibrated and calibrated, each DOF over
+    the check poses' x and z; refused poses are grey crosses."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, 4, figsize=(17, 7.5), sharex=True, sharey=True)
+    for row_i, name in enumerate(("nominal", "calibrated")):
+        e = twin["errors"][name]
+        ok = np.all(np.isfinite(e), axis=1)
+        for k, d in enumerate(DOF):
+            ax = axes[row_i, k]
+            sca = ax.scatter(1e3 * check[ok, 0], 1e3 * check[ok, 1], c=e[ok, k], s=14, cmap="viridis")
+            if not np.all(ok):
+                ax.scatter(1e3 * check[~ok, 0], 1e3 * check[~ok, 1], c="0.6", marker="x", s=14, label="refused")
+                ax.legend(loc="lower right", fontsize=7)
+            fig.colorbar(sca, ax=ax, label=f"|{d} error| [{'mm' if k < 2 else 'mrad'}]")
+            label = "uncalibrated" if name == "nominal" else "calibrated"
+            ax.set_title(f"{label}: {d}\np95 {np.nanpercentile(e[:, k], 95):.2f} (target {TARGET[k]:g})", fontsize=9)
+            ax.set_xlabel("x [mm]")
+            ax.set_ylabel("z [mm]")
+    how = "final and count approach" if count_approach else "final approach"
+    fig.suptitle(
+        f"through the twin (real gotos over CAN, {how}): pose error over {len(check)} random workspace poses, "
+        f"twin {twin['seed']} (the one nearest its target)"
+    )
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    print(f"wrote {path}", flush=True)
 
 
 def _reachable_box(model: HitchModel) -> tuple[HitchModel, dict | None]:
@@ -204,7 +244,9 @@ def twin_count_approach(prof) -> dict:
     return measure_stop_offsets(HitchModel(prof), poses).table()
 
 
-def _run_through_twin(prof, n_twin: int, workers: int, check: np.ndarray, count_approach: bool = False) -> dict:
+def _run_through_twin(
+    prof, n_twin: int, workers: int, check: np.ndarray, count_approach: bool = False, plot: str = ""
+) -> dict:
     """The through-the-twin evaluation of the first ``n_twin`` twins (module docstring), its table and summary;
     ``count_approach``: every goto of every profile (measuring, calibrated, floors) ends with the count approach
     whose offsets :func:`twin_count_approach` measured. The 20 poses to measure are planned on the profile with
@@ -230,10 +272,12 @@ def _run_through_twin(prof, n_twin: int, workers: int, check: np.ndarray, count_
         for r in pool.imap(_through_twin, jobs):
             res.append(r)
             n, c = np.asarray(r["nominal"]), np.asarray(r["calibrated"])
+            same = np.asarray(r["nominal_same_poses"])
             ok = "ok" if np.all(c <= TARGET) else "MISS"
             print(
                 f"{r['seed']:4d} | uncalibrated {' '.join(f'{v:6.2f}' for v in n)} | calibrated "
-                f"{' '.join(f'{v:5.2f}' for v in c)} {ok:4s} | factor worst axis {n.max() / c.max():5.1f} | refused "
+                f"{' '.join(f'{v:5.2f}' for v in c)} {ok:4s} | factor worst axis {n.max() / c.max():5.1f} "
+                f"(same poses {same.max() / c.max():5.1f}) | refused "
                 f"{len(r['nominal_refused'])}/{len(r['calibrated_refused'])} | {r['calibrated_simulated_s']:.0f} s "
                 f"simulated in {r['calibrated_wall_s']:.0f} s",
                 flush=True,
@@ -247,6 +291,11 @@ def _run_through_twin(prof, n_twin: int, workers: int, check: np.ndarray, count_
         }
     cal_p = np.array([r["calibrated"] for r in res])
     nom_p = np.array([r["nominal"] for r in res])
+    nearest = int(np.argmax(np.max(cal_p / TARGET, axis=1)))
+    if plot:
+        _twin_error_map(plot, check, res[nearest], count_approach)
+    for r in res:
+        r.pop("errors")
     return {
         "final_approach": FINAL_APPROACH,
         "count_approach": data["motion"].get("count_approach"),
@@ -257,6 +306,10 @@ def _run_through_twin(prof, n_twin: int, workers: int, check: np.ndarray, count_
         "twins_within_target": int(np.sum(np.all(cal_p <= TARGET, axis=1))),
         "twins_within_target_per_dof": np.sum(cal_p <= TARGET, axis=0).tolist(),
         "improvement_min_worst_axis": float(np.min(nom_p.max(axis=1) / cal_p.max(axis=1))),
+        "improvement_min_worst_axis_same_poses": float(
+            np.min(np.array([r["nominal_same_poses"] for r in res]).max(axis=1) / cal_p.max(axis=1))
+        ),
+        "twin_nearest_target": res[nearest]["seed"],
         "refused_poses": [len(r["calibrated_refused"]) for r in res],
         "boxes_fitted": {r["seed"]: r["box_fitted"] for r in res if r["box_fitted"] is not None},
         "floor_exact_profile": floors,
@@ -269,8 +322,14 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--twins", type=int, default=20)
     ap.add_argument("--check", type=int, default=200, help="random workspace poses to check")
+    ap.add_argument("--check-seed", type=int, default=999, help="seed of the random check poses")
     ap.add_argument("--json", default=None)
     ap.add_argument("--plot", default="docs/calibration_error_map.png", help="error map PNG ('' = none)")
+    ap.add_argument(
+        "--twin-plot",
+        default="",
+        help="error map PNG through the twin, of the twin nearest its target ('' = none)",
+    )
     ap.add_argument("--through-twin", type=int, default=None, help="twins evaluated through the twin (default all)")
     ap.add_argument("--workers", type=int, default=2, help="processes for the through-the-twin runs")
     ap.add_argument("--skip-static", action="store_true", help="only the through-the-twin evaluation")
@@ -289,11 +348,11 @@ def main() -> None:
     planned = {n: plan_poses(pm, n).poses for n in (10, 20)}
     t_plan = time.perf_counter() - t0
     pool, _ = candidate_poses(pm, 3000, seed=123)
-    check, _ = candidate_poses(pm, 4 * args.check, seed=999, random_only=True)
+    check, _ = candidate_poses(pm, 4 * args.check, seed=args.check_seed, random_only=True)
     check = _tour(check[: args.check])
     n_twin = args.twins if args.through_twin is None else args.through_twin
     if args.skip_static:
-        res = _run_through_twin(prof, n_twin, args.workers, check, args.count_approach)
+        res = _run_through_twin(prof, n_twin, args.workers, check, args.count_approach, args.twin_plot)
         print(f"\nthrough_twin: { {k: v for k, v in res.items() if k != 'twins'} }")
         if args.json:
             write_json(args.json, {"machine": machine_note(), "summary": {"through_twin": res}})
@@ -425,7 +484,7 @@ def main() -> None:
         ],
         "plan_time_s": t_plan,
     }
-    summary["through_twin"] = _run_through_twin(prof, n_twin, args.workers, check, args.count_approach)
+    summary["through_twin"] = _run_through_twin(prof, n_twin, args.workers, check, args.count_approach, args.twin_plot)
     print()
     for k, v in summary.items():
         print(f"{k}: {v}")

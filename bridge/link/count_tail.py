@@ -10,7 +10,7 @@ link rounds it back to that count), both checked by the link first. The service'
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -33,15 +33,23 @@ _BOX_TOL = 1e-9
 @dataclass(frozen=True)
 class CountTail:
     """A goto's count approach with its references in SI (lift [rad], the others [m]): ``via_actuators``
-    first, then ``final_actuators``."""
+    first, then ``final_actuators``; ``via_pose`` and ``final_pose``: the poses (x, z, roll, pitch [m, rad])
+    of those references through the planner's model (:func:`plan_count_tail`; None from
+    :func:`build_count_tail`, which has no model)."""
 
     approach: CountApproach
     via_actuators: np.ndarray
     final_actuators: np.ndarray
+    via_pose: np.ndarray | None = None
+    final_pose: np.ndarray | None = None
 
     def actuators_at(self, t_after_plan_s: float) -> np.ndarray:
         """The reference ``t_after_plan_s`` seconds after the plan's end (SI)."""
         return self.via_actuators if t_after_plan_s < self.approach.via_hold_s else self.final_actuators
+
+    def pose_at(self, t_after_plan_s: float) -> np.ndarray | None:
+        """The pose of :meth:`actuators_at` (None when not known): where a motion after it starts."""
+        return self.via_pose if t_after_plan_s < self.approach.via_hold_s else self.final_pose
 
 
 def arrival_sides(jacobian: ArrayLike, rise: ArrayLike, scaling: SensorScaling) -> np.ndarray:
@@ -116,25 +124,29 @@ def plan_count_tail(
             tail = build_count_tail(profile, q, check_reference, sides, nearest_only=nearest_only)
             if tail is None:
                 return None
-            if _admissible(planner, guard, tail, q):
-                return tail
+            poses = _admissible(planner, guard, tail, q)
+            if poses is not None:
+                return replace(tail, via_pose=poses[0], final_pose=poses[1])
     except ValueError:  # KinematicsError: a goal or via the mechanism cannot take
         return None
     return None
 
 
-def _admissible(planner: TrajectoryPlanner, guard: Guard | None, tail: CountTail, goal_q: np.ndarray) -> bool:
-    """The via and final poses inside the workspace box, and (with a guard) not refused by it as the rest of a
-    move from the goal (``goal_q``, where the plan leaves the hitch: a move's start is its reference, e.g. for
-    the implement's upper height)."""
+def _admissible(
+    planner: TrajectoryPlanner, guard: Guard | None, tail: CountTail, goal_q: np.ndarray
+) -> np.ndarray | None:
+    """The via and final poses (2 × 4: x, z, roll, pitch) if both lie inside the workspace box and (with a
+    guard) are not refused by it as the rest of a move from the goal (``goal_q``, where the plan leaves the
+    hitch: a move's start is its reference, e.g. for the implement's upper height); None otherwise."""
     q = np.vstack([goal_q, tail.via_actuators, tail.final_actuators])
     poses = np.array([planner.model.forward(qk).pose.as_array() for qk in q])
     ctrl = poses[1:, [0, 2, 3, 4]]
     if np.any(ctrl < planner.lo - _BOX_TOL) or np.any(ctrl > planner.hi + _BOX_TOL):
-        return False
-    if guard is None:
-        return True
-    hold = tail.approach.via_hold_s
-    t = np.array([0.0, hold, 2.0 * hold])
-    sp = Setpoints(planner.rate, t, poses, np.zeros((3, 4)), q, np.zeros((3, 5)))
-    return guard.check_setpoints(sp).action != "refused"
+        return None
+    if guard is not None:
+        hold = tail.approach.via_hold_s
+        t = np.array([0.0, hold, 2.0 * hold])
+        sp = Setpoints(planner.rate, t, poses, np.zeros((3, 4)), q, np.zeros((3, 5)))
+        if guard.check_setpoints(sp).action == "refused":
+            return None
+    return ctrl

@@ -138,6 +138,14 @@ _PLAN_TRIES = 4  # plans made for one goto before it is refused as too busy
 _COUNT_APPROACH_KINDS = frozenset({"goto"})
 
 
+def _tail_hold(m: PlanMotion, end: MotionState, t_after_plan_s: float) -> MotionState:
+    """Where the hitch rests ``t_after_plan_s`` after the end of plan motion ``m``: its count approach's pose
+    then (the counts it holds; the next motion starts from there, so its first reference does not step by the
+    up to three counts between them and the goal), else the plan's end ``end``."""
+    pose = None if m.tail is None else m.tail.pose_at(t_after_plan_s)
+    return MotionState.at_rest(end.position if pose is None else pose)
+
+
 class MotionControllerError(HitchError, RuntimeError):
     """The controller used out of order (started twice)."""
 
@@ -915,6 +923,8 @@ class MotionController:
         """Commanded state at clock time ``t``: the active motion's, the held one or the measured pose."""
         m = self._active
         if isinstance(m, PlanMotion):
+            if m.in_tail(t):  # at rest on the count approach's counts: a replacing plan starts from them
+                return _tail_hold(m, plan_state(m, t), t - m.t0 - m.plan.duration)
             return plan_state(m, t)
         if isinstance(m, JogMotion):
             return m.jog.state
@@ -938,10 +948,10 @@ class MotionController:
         events.append(self._ev("motion_aborted", m, reason=reason))
         if isinstance(m, PlanMotion) and m.tail is not None and m.in_tail(now):
             # at rest on the count approach: hold the counts streamed now (the goal's would move the pistons)
-            held = m.tail.actuators_at(now - m.t0 - m.plan.duration)
+            after = now - m.t0 - m.plan.duration
             self._generation += 1  # as a new motion would: plans in flight start again from the hold
-            self._active, self._hold, self._hold_ref = None, MotionState.at_rest(plan_state(m, now).position), None
-            self._hold_actuators = held
+            self._active, self._hold, self._hold_ref = None, _tail_hold(m, plan_state(m, now), after), None
+            self._hold_actuators = m.tail.actuators_at(after)
             return None
         t0 = m.t_state if isinstance(m, (JogMotion, TrackMotion)) else now  # the time the predicted state belongs to
         sm = PlanMotion("stop", next(self._ids), self.planner.plan_stop(self._predict(now)), t0)
@@ -1160,7 +1170,7 @@ class MotionController:
             self._limited = {} if m.finished(now) else m.limited()
             if m.finished(now):
                 self._announce_finished(m, events)
-                self._active, self._hold, self._hold_ref = None, MotionState.at_rest(st.position), None
+                self._active, self._hold, self._hold_ref = None, _tail_hold(m, st, math.inf), None
                 self._hold_actuators = None if m.tail is None else m.tail.final_actuators
         elif isinstance(m, JogMotion):
             if self._expire_jog(now):

@@ -569,8 +569,9 @@ def streamed_reference(shaper: FeedforwardShaper, m: ActiveMotion | None, ref: R
     accelerations of this and the previous streamed state, at most :data:`FF_JERK_GAP_S` apart); the
     final reference itself while holding."""
     if isinstance(m, PlanMotion):
-        if m.tail is not None and m.in_tail(now):  # the count approach: whole counts, no feed-forward
-            return m.tail.actuators_at(now - m.t0 - m.plan.duration)
+        src = m.prev if m.prev is not None and now < m.t0 else m  # before a replacing plan starts: the one it replaces
+        if isinstance(src, PlanMotion) and src.tail is not None and src.in_tail(now):
+            return src.tail.actuators_at(now - src.t0 - src.plan.duration)  # the count approach: whole counts
         return shaper.for_plan(lambda t: plan_state(m, t), now, ref.actuators, ref.rates)
     if isinstance(m, (JogMotion, TrackMotion)):
         acc = np.asarray(ref.state.acceleration, float)

@@ -299,3 +299,65 @@ def test_a_stop_that_does_not_repeat_is_refused_and_later_back_offs_are_cut():
     assert kept == (0.19, 0.31, 0.43)
     kept, _ = _kept("top from above", np.array([0.12, 0.10, 0.2]), np.array([0.01, 0.01, 0.2]), -1.0)
     assert kept == (0.12, 0.10)
+
+
+GOAL2 = {"x": -0.015, "z": 0.09, "roll": -0.02, "pitch": 0.01}
+
+
+def _next_goto(model: HitchModel, *, after_plan_s: float, stop_first: bool):
+    """A goto to GOAL, then at ``after_plan_s`` after its plan (``stop_first``: a stop there, the next goto 0.5 s
+    later, at rest) a goto to GOAL2: the counts streamed before the second goto's request, and those from its
+    request until 0.3 s into its plan (time from its plan's start)."""
+    events: list[dict] = []
+    with SimRig(model) as rig:
+        rig.start()
+        rig.run_until(0.5)
+        mc = _controller(model, rig, events)
+        mc.goto(GOAL)
+        first = mc._active
+        assert first is not None and first.tail is not None  # type: ignore[union-attr]
+        t_next = first.t0 + first.plan.duration + after_plan_s  # type: ignore[union-attr]
+        if stop_first:
+            while rig.now_s < t_next - 1e-9:
+                rig.run_until(rig.now_s + 0.02)
+                mc.cycle()
+            mc.stop()
+            t_next += 0.5
+        before: list[tuple[int, ...]] = []
+        while rig.now_s < t_next - 1e-9:
+            rig.run_until(rig.now_s + 0.02)
+            mc.cycle()
+            ref = rig.ecu.reference_counts()
+            if ref is not None:
+                before.append(tuple(int(c) for c in ref))
+        mc.goto(GOAL2)
+        second = mc._active
+        refs: list[tuple[float, tuple[int, ...]]] = []
+        while rig.now_s < second.t0 + 0.3:  # type: ignore[union-attr]
+            rig.run_until(rig.now_s + 0.02)
+            mc.cycle()
+            ref = rig.ecu.reference_counts()
+            assert ref is not None
+            refs.append((rig.now_s - second.t0, tuple(int(c) for c in ref)))  # type: ignore[union-attr]
+        return before, refs
+
+
+@pytest.mark.parametrize(
+    ("after_plan_s", "stop_first"),
+    [(0.2, True), (2.0, False), (0.2, False)],
+    ids=["stopped-in-the-via", "held-after-the-approach", "replacing-in-the-via"],
+)
+def test_the_next_goto_starts_from_the_counts_held_not_from_the_goal(model, offsets, after_plan_s, stop_first):
+    """After a count approach the pistons rest on its counts, up to three away from the goal's: the next goto (or
+    one replacing it in its via) starts from those counts. It started from the goal, so its first references
+    stepped to the goal's counts (the pistons moved by up to three counts at once, before its plan did)."""
+    m = _with_approach(model, offsets)
+    before, refs = _next_goto(m, after_plan_s=after_plan_s, stop_first=stop_first)
+    held = before[-1]
+    assert len(set(before[-5:])) == 1  # at rest on them
+    assert refs[0][1] == held, (held, refs[0])  # the cycle after the request
+    seq = np.array([held] + [r for _, r in refs])  # until 0.3 s into the new plan
+    d = np.diff(seq, axis=0)
+    for k in range(5):  # each actuator leaves the held count straight for the new goal: no step back first
+        assert np.all(d[:, k] >= 0) or np.all(d[:, k] <= 0), (k, seq[:, k])
+    assert np.abs(d[: len(refs) // 2]).max() <= 2, seq  # from rest, jerk-limited (the feed-forward leads a little)

@@ -108,9 +108,17 @@ def _through_twin(job: tuple) -> dict:
     data, play = perturb_profile(load_profile("thesis-t132"), seed)
     truth = MachineTruth(profile_from_dict(data), play)
     t0 = time.perf_counter()
-    _, cal_profile, _ = _calibrate(pm, truth, planned, seed, by="goto")
+    res, cal_profile, _ = _calibrate(pm, truth, planned, seed, by="goto")
     cal, fitted = _reachable_box(HitchModel(cal_profile))
-    out: dict = {"seed": seed, "measure_and_fit_wall_s": time.perf_counter() - t0, "box_fitted": fitted}
+    z, _ = _z_scores(pm, res, truth)  # the identified directions against truth, in their σ
+    out: dict = {
+        "seed": seed,
+        "measure_and_fit_wall_s": time.perf_counter() - t0,
+        "box_fitted": fitted,
+        "z_max": float(z.max()),
+        "within_3sigma": int(np.sum(z <= 3.0)),
+        "identified": int(z.size),
+    }
     errs = {}
     for name, model in (("nominal", pm.nominal_model), ("calibrated", cal)):
         t0 = time.perf_counter()
@@ -277,7 +285,8 @@ def _run_through_twin(
             print(
                 f"{r['seed']:4d} | uncalibrated {' '.join(f'{v:6.2f}' for v in n)} | calibrated "
                 f"{' '.join(f'{v:5.2f}' for v in c)} {ok:4s} | factor worst axis {n.max() / c.max():5.1f} "
-                f"(same poses {same.max() / c.max():5.1f}) | refused "
+                f"(same poses {same.max() / c.max():5.1f}) | |z| max {r['z_max']:5.2f} ({r['within_3sigma']}/"
+                f"{r['identified']} ≤ 3σ) | refused "
                 f"{len(r['nominal_refused'])}/{len(r['calibrated_refused'])} | {r['calibrated_simulated_s']:.0f} s "
                 f"simulated in {r['calibrated_wall_s']:.0f} s",
                 flush=True,
@@ -310,6 +319,8 @@ def _run_through_twin(
             np.min(np.array([r["nominal_same_poses"] for r in res]).max(axis=1) / cal_p.max(axis=1))
         ),
         "twin_nearest_target": res[nearest]["seed"],
+        "identified_within_3sigma": [f"{r['within_3sigma']}/{r['identified']}" for r in res],
+        "z_max": max(r["z_max"] for r in res),
         "refused_poses": [len(r["calibrated_refused"]) for r in res],
         "boxes_fitted": {r["seed"]: r["box_fitted"] for r in res if r["box_fitted"] is not None},
         "floor_exact_profile": floors,

@@ -1172,6 +1172,12 @@ class MotionController:
                 self._announce_finished(m, events)
                 self._active, self._hold, self._hold_ref = None, _tail_hold(m, st, math.inf), None
                 self._hold_actuators = None if m.tail is None else m.tail.final_actuators
+                if m.tail is not None:  # held on the final counts from this cycle on, at their pose
+                    st = self._hold
+            elif m.tail is not None and m.in_tail(now):  # the count approach: its counts and their pose
+                after = now - m.t0 - m.plan.duration
+                q_tail = m.tail.actuators_at(after)
+                return Reference(_tail_hold(m, st, after), q_tail, np.zeros_like(q_tail))
         elif isinstance(m, JogMotion):
             if self._expire_jog(now):
                 return self._reference_at(now, events)

@@ -361,3 +361,33 @@ def test_the_next_goto_starts_from_the_counts_held_not_from_the_goal(model, offs
     for k in range(5):  # each actuator leaves the held count straight for the new goal: no step back first
         assert np.all(d[:, k] >= 0) or np.all(d[:, k] <= 0), (k, seq[:, k])
     assert np.abs(d[: len(refs) // 2]).max() <= 2, seq  # from rest, jerk-limited (the feed-forward leads a little)
+
+
+def test_the_state_s_reference_is_the_approach_s_counts_and_their_pose(model, offsets):
+    """While the approach runs and after it, the reference the state message reports is what is streamed: the
+    via, then the final counts (SI), with their pose through the forward kinematics (it showed the goal's exact
+    actuators and pose)."""
+    m = _with_approach(model, offsets)
+    with SimRig(m) as rig:
+        rig.start()
+        rig.run_until(0.5)
+        mc = _controller(m, rig, [])
+        mc.goto(GOAL)
+        motion = mc._active
+        tail = motion.tail  # type: ignore[union-attr]
+        assert tail is not None
+        end = motion.t0 + motion.plan.duration  # type: ignore[union-attr]
+        seen = []
+        for t_after in (0.3, tail.approach.via_hold_s + 0.3, tail.approach.duration_s + 0.5):
+            while rig.now_s < end + t_after - 1e-9:
+                rig.run_until(rig.now_s + 0.02)
+                mc.cycle()
+            ref = mc._reference
+            assert ref is not None
+            q = tail.actuators_at(t_after)
+            np.testing.assert_allclose(ref.actuators, q, atol=1e-12)
+            pose = m.forward(q).pose.controlled()
+            np.testing.assert_allclose(ref.state.position, pose, atol=1e-9)
+            seen.append(tuple(SensorScaling(m.profile).to_counts(ref.actuators)))
+        assert seen[0] == tuple(tail.approach.via_counts) and seen[1] == seen[2] == tuple(tail.approach.final_counts)
+        assert np.max(np.abs(np.subtract(pose, list(GOAL.values())))) > 0.0  # not the goal's

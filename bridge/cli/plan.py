@@ -9,6 +9,8 @@ import numpy as np
 from bridge.cli.model import add_model_options, bounded_float, model_from_args
 from bridge.cli.output import console, esc, plot_path, pose_text
 from bridge.cli.ranges import check_pose_ranges
+from bridge.link.count_tail import plan_count_tail
+from bridge.link.reference_check import ReferenceCheck
 from bridge.service.maneuvers.language import MIN_SPEED_SCALE
 from bridge.service.wire import to_json_text
 from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
@@ -84,6 +86,17 @@ def _cmd_plan(args) -> int:
         sp = tp.sample(plan)
     if args.plot:
         plot_plan(args.plot, sp, tp)
+    # the profile's count approach a goto of this plan ends with (the link's checks; no guard here)
+    tail = plan_count_tail(tp, plan, ReferenceCheck(model))
+    approach = (
+        None
+        if tail is None
+        else {
+            "duration_s": tail.approach.duration_s,
+            "via_counts": [int(c) for c in tail.approach.via_counts],
+            "final_counts": [int(c) for c in tail.approach.final_counts],
+        }
+    )
     if args.json:
         print(
             to_json_text(
@@ -96,6 +109,7 @@ def _cmd_plan(args) -> int:
                         zip(ACTUATOR_NAMES, map(float, tp.limits.acceleration), strict=True)
                     ),
                     "final_approach": plan.info.get("final_approach"),
+                    "count_approach": approach,
                     "samples": sp.to_json(),
                 }
             )
@@ -124,6 +138,12 @@ def _cmd_plan(args) -> int:
         )
         short = f"; cut short at the lower face: {', '.join(fa['short'])}" if fa["short"] else ""
         c.print(f"final approach via: {via}{short}")
+    if tail is not None and approach is not None:  # the profile's motion.count_approach: after the plan, whole counts
+        c.print(
+            f"count approach after the plan: +{tail.approach.duration_s:.2f} s (a goto lasts "
+            f"{plan.duration + tail.approach.duration_s:.3f} s), via counts {approach['via_counts']}, final counts "
+            f"{approach['final_counts']} ({', '.join(ACTUATOR_NAMES)})"
+        )
     if args.plot:
         c.print(f"plot written to {esc(args.plot)}")
     return 0

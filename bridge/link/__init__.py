@@ -6,6 +6,7 @@
 * :mod:`bridge.link.stop_signal` — the stop flag the real-time loops sleep on;
 * :mod:`bridge.link.loopback` — a CAN hub on 127.0.0.1 for nodes in other processes;
 * :mod:`bridge.link.unit_loop` — the feed-forward reference through the ECU's unit loops;
+* :mod:`bridge.link.reference_check` — the hard-limit and count check of a reference before it is streamed;
 * :mod:`bridge.link.count_tail` — a goto's end as whole counts (the profile's count approach);
 * :mod:`bridge.link.sensor_calibration` — the sensor calibration: each cylinder to its end stops, the AD map fitted;
 * :mod:`bridge.link.tractor_sensors` — the tractor's sensors (slope, ground, row, wheel speed) read from the bus.
@@ -31,6 +32,7 @@ if TYPE_CHECKING:
         ReceivingNode,
         open_bus,
     )
+    from bridge.link.reference_check import ReferenceCheck
     from bridge.link.sensor_calibration import (
         EndReading,
         LinkDriver,
@@ -89,6 +91,7 @@ if TYPE_CHECKING:
 #: public name -> the module that defines it
 _SOURCES: dict[str, str] = {
     "CanLink": "bridge.link.can_link",
+    "ReferenceCheck": "bridge.link.reference_check",
     **dict.fromkeys(
         ("CountTail", "arrival_sides", "build_count_tail", "plan_count_tail"),
         "bridge.link.count_tail",
@@ -175,6 +178,8 @@ _SOURCES: dict[str, str] = {
 __all__ = [
     # the link (bridge.link.can_link)
     "CanLink",
+    # the check of a reference before it is streamed (bridge.link.reference_check)
+    "ReferenceCheck",
     # a goto's end as whole counts (bridge.link.count_tail)
     "CountTail",
     "arrival_sides",

@@ -71,6 +71,7 @@ from bridge.isobus.j1939 import (
     decode_id,
 )
 from bridge.isobus.system_state import STATE_WATCHDOG_TRIPPED
+from bridge.link.reference_check import ReferenceCheck
 from bridge.link.state import (
     LinkConfig,
     LinkCounters,
@@ -82,10 +83,9 @@ from bridge.link.state import (
     ReferenceRefused,
     frame_stamp,
 )
-from planner.model.hard_limits import HardLimits
 from planner.model.kinematics import HitchModel
-from planner.model.sensors import SensorRangeError, SensorScaling
-from planner.model.types import ACTUATOR_NAMES, KinematicsError
+from planner.model.sensors import SensorScaling
+from planner.model.types import ACTUATOR_NAMES
 
 __all__ = ["CanLink", "HOLD_AFTER_RESENT"]
 
@@ -119,7 +119,7 @@ class CanLink:
         self._own_bus = bool(own_bus)
         self._cfg = config if config is not None else LinkConfig()
         self._scaling = SensorScaling(model.profile)
-        self._hard = HardLimits.from_model(model)
+        self._check = ReferenceCheck(model)
         # the last reference accepted by _check_reference and its counts: the controller checks the
         # reference it is about to send (the feed-forward's safe_reference) and send_reference checks
         # it again; the check is a pure function of the values (model, limits, scaling are fixed)
@@ -281,28 +281,9 @@ class CanLink:
         checked = self._checked
         if checked is not None and checked[0] == key:  # the same values accepted just before
             return checked[1]
-        counts = self._check_values(q)
+        counts = self._check(q)
         self._checked = (key, counts)
         return counts
-
-    def _check_values(self, q: np.ndarray) -> PositionCounts:
-        if q.size != 5:
-            raise ReferenceRefused(f"reference needs 5 values {ACTUATOR_NAMES}, got {q.size}")
-        for name, v in zip(ACTUATOR_NAMES, q, strict=True):
-            if not math.isfinite(v):
-                raise ReferenceRefused(f"reference.{name} must be finite, got {v}")
-        try:
-            feats, _ = self._model.features(q)
-        except KinematicsError as exc:
-            raise ReferenceRefused(f"reference refused: the mechanism cannot take it ({exc})") from None
-        bad = self._hard.violations(q, feats, tol=1e-9)
-        if bad:
-            raise ReferenceRefused("reference refused: " + "; ".join(self._describe(n, q, feats) for n in bad))
-        try:
-            counts = self._scaling.to_counts(q)
-        except SensorRangeError as exc:
-            raise ReferenceRefused(f"reference refused: {exc}") from None
-        return PositionCounts(*(int(c) for c in counts))
 
     def send_reference(self, actuators: ArrayLike, now_s: float) -> PositionCounts:
         """Check ``actuators`` (SI) and stream them from ``now_s`` on; a fresh command also
@@ -521,17 +502,3 @@ class CanLink:
         counts = self._counts
         for k, v in deltas.items():
             counts[k] += v
-
-    def _describe(self, name: str, q: np.ndarray, feats: np.ndarray) -> str:
-        h = self._hard
-        if name.startswith("stroke:"):
-            _, act, side = name.split(":")
-            i = ACTUATOR_NAMES.index(act)
-            unit = "rad" if act == "lift" else "m"
-            bound = h.actuator_lower[i] if side == "min" else h.actuator_upper[i]
-            return f"{name} ({act} = {q[i]:.4f} {unit}, limit {bound:.4f} {unit})"
-        for k, idx in enumerate(h.feature_index):
-            for names, bounds in ((h.names_lower, h.feature_lower), (h.names_upper, h.feature_upper)):
-                if names[k] == name:
-                    return f"{name} (value {feats[idx]:.4f}, limit {bounds[k]:.4f})"
-        return name

@@ -56,6 +56,10 @@ class MotionPlanning(Protocol):
         """The guarded plan from ``start`` (PlanError / GuardRefusal when refused)."""
         ...
 
+    def count_tail(self, plan: Any) -> Any:
+        """The count approach a goto of ``plan`` would end with (:mod:`bridge.link.count_tail`; None: none)."""
+        ...
+
     def plan_step(
         self, start: MotionState, goal: Mapping[str, float], speed_scale: float
     ) -> tuple[float, MotionState]: ...
@@ -70,15 +74,23 @@ class GuardPlanning:
     """
 
     def __init__(self, guard: Any):
+        from bridge.link.reference_check import ReferenceCheck
         from bridge.service.maneuvers.language import guarded_plan_step
 
         self._guard = guard
         self._lock = threading.Lock()
         self._plan_step = guarded_plan_step(guard)
+        self._check = ReferenceCheck(guard.planner.model)  # the link's check, on this guard's model
 
     def preview_from(self, start: MotionState, goal: Mapping[str, float], speed_scale: float) -> Any:
         with self._lock:
             return self._guard.plan(start, goal, speed_scale=speed_scale)
+
+    def count_tail(self, plan: Any) -> Any:
+        from bridge.link.count_tail import plan_count_tail
+
+        with self._lock:
+            return plan_count_tail(self._guard.planner, plan, self._check, self._guard)
 
     def plan_step(self, start: MotionState, goal: Mapping[str, float], speed_scale: float) -> tuple[float, MotionState]:
         with self._lock:
@@ -105,7 +117,8 @@ class InProcessPlanning:
 
     def preview(self, start: MotionState, goal: Mapping[str, float], speed_scale: float) -> dict[str, Any]:
         try:
-            return PlanPreview.planned(self._motion.preview_from(start, goal, speed_scale)).to_json()
+            gp = self._motion.preview_from(start, goal, speed_scale)
+            return PlanPreview.planned(gp, self._motion.count_tail(gp.plan)).to_json()
         except PlanError as exc:  # the planner's or the guard's (GuardRefusal) refusal
             return PlanPreview.refusal(exc).to_json()
 

@@ -131,6 +131,9 @@ class _WorkerContext:
         if spec.implement is not None:
             implement = load_tractor_profile(model.profile.stability.tractor_profile).implement(spec.implement)
         self.guard = Guard(TrajectoryPlanner(model, rate=spec.control_rate), implement=implement)
+        from bridge.link.reference_check import ReferenceCheck
+
+        self.reference_check = ReferenceCheck(model)  # the link's check, for a preview's count approach
         self.ik = IKSolver(HitchModel.from_profile(spec.profile, spec.category))
         from bridge.service.maneuvers.language import guarded_plan_step
 
@@ -149,10 +152,13 @@ class _WorkerContext:
     def run(self, kind: str, args: tuple[Any, ...]) -> Any:
         if kind == "preview":
             start, goal, scale = args
+            from bridge.link.count_tail import plan_count_tail
             from planner.trajectory.plan import PlanError
 
             try:
-                return PlanPreview.planned(self.guard.plan(start, goal, speed_scale=scale)).to_json()
+                gp = self.guard.plan(start, goal, speed_scale=scale)
+                tail = plan_count_tail(self.guard.planner, gp.plan, self.reference_check, self.guard)
+                return PlanPreview.planned(gp, tail).to_json()
             except PlanError as exc:  # the planner's or the guard's (GuardRefusal) refusal
                 return PlanPreview.refusal(exc).to_json()
         if kind == "validate":

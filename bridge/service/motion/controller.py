@@ -350,6 +350,11 @@ class MotionController:
         with self._plan_lock:
             return self.plan_guard.plan(start, goal, speed_scale=speed_scale)
 
+    def count_tail(self, plan: Plan) -> CountTail | None:
+        """The count approach a goto of ``plan`` would end with (a preview's; under the planning lock)."""
+        with self._plan_lock:
+            return self._count_tail(plan)
+
     def plan_step(self, start: MotionState, goal: Mapping[str, float], speed_scale: float) -> tuple[float, MotionState]:
         """Guarded planning on the planning guard (for maneuver validation): (duration [s], end state)."""
         with self._plan_lock:

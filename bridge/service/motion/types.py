@@ -199,6 +199,8 @@ class PlanPreview:
 
     ``duration`` [s] and ``goal`` (the full end pose) when planned; ``refused``: the refusal's
     sentence otherwise; ``decision``: the guard's (None when the planner refused before the guard).
+    ``count_approach_s``: how much of ``duration`` the profile's count approach takes after the plan (0: none;
+    :mod:`bridge.link.count_tail`), so the preview lasts as long as the goto would.
     """
 
     ok: bool
@@ -206,11 +208,14 @@ class PlanPreview:
     goal: Mapping[str, float] | None = None
     decision: GuardDecision | None = None
     refused: str | None = None
+    count_approach_s: float = 0.0
 
     @classmethod
-    def planned(cls, gp: GuardedPlan) -> PlanPreview:
+    def planned(cls, gp: GuardedPlan, tail: CountTail | None = None) -> PlanPreview:
+        """The preview of ``gp`` with the count approach ``tail`` after it (None: the goto ends as its plan)."""
         end = gp.plan.state_at(gp.plan.duration).position
-        return cls(True, gp.plan.duration, pose_dict(end), gp.decision)
+        extra = 0.0 if tail is None else tail.approach.duration_s
+        return cls(True, gp.plan.duration + extra, pose_dict(end), gp.decision, count_approach_s=extra)
 
     @classmethod
     def refusal(cls, exc: PlanError) -> PlanPreview:
@@ -226,6 +231,7 @@ class PlanPreview:
         return {
             "ok": True,
             "duration": self.duration,
+            "count_approach_s": self.count_approach_s,
             "goal": None if self.goal is None else dict(self.goal),
             "guard": d.action,
             "speed_factor": d.speed_factor,

@@ -12,12 +12,17 @@ import json
 import os
 import time
 
+import numpy as np
 import pytest
 
 from bridge.cli import service as cli_service
 from bridge.cli.main import main
 from bridge.cli.output import console, esc
 from bridge.service.blackbox import EventLog, event_log_path
+from planner.model.exact_inverse import ExactInverse
+from planner.model.kinematics import HitchModel
+from planner.model.sensors import SensorScaling
+from planner.profiles.hitch import load_profile
 from tests.helpers import profile_file_with_final_approach
 from tests.integration.service_process import free_port
 
@@ -369,6 +374,34 @@ def test_plan_shows_the_final_approach_of_a_profile_that_asks_for_one(tmp_path, 
     assert "final approach via: x=" in capsys.readouterr().out
     assert main(["plan", "--to", "z=0.05", "--json"]) == 0  # the built-in profile: no final approach
     assert json.loads(capsys.readouterr().out)["final_approach"] is None
+
+
+def test_plan_shows_the_count_approach_a_goto_ends_with(tmp_path, capsys):
+    """With ``motion.count_approach`` a goto lasts 1.2 s longer than its plan: `hitch plan` says so, and which
+    counts it streams (it gave the plan's duration alone)."""
+    prof = profile_file_with_final_approach(tmp_path)
+    stops = "{ lift = [0.19, 0.31], tilt = [-0.09], top = [-0.12], left = [-0.11], right = [-0.11] }"
+    above = "{ lift = [-0.2, -0.31], tilt = [0.08], top = [0.12], left = [0.06], right = [0.11] }"
+    prof.write_text(
+        prof.read_text(encoding="utf-8")
+        + f"\n[motion.count_approach]\nfrom_below_counts = {stops}\nfrom_above_counts = {above}\n",
+        encoding="utf-8",
+    )
+    argv = ["plan", "--profile", str(prof), "--to", "z=0.05,pitch=0.02", "--json"]
+    assert main(argv) == 0
+    out = json.loads(capsys.readouterr().out)
+    ca = out["count_approach"]
+    assert ca["duration_s"] == pytest.approx(1.2)
+    final, via = np.array(ca["final_counts"]), np.array(ca["via_counts"])
+    assert np.all(np.abs(final - via) >= 1) and np.all(np.abs(final - via) <= 2)  # a back-off of 1 or 2 counts
+    model = HitchModel(load_profile(prof))
+    goal = np.array([0.0, 0.05, 0.0, 0.02])
+    exact = SensorScaling(model.profile).counts_of(ExactInverse(model).solve(goal)[0])
+    assert np.all(np.abs(final - exact) <= 1.0)  # on a count next to the goal's
+    assert main(argv[:-1]) == 0
+    assert "count approach after the plan: +1.20 s (a goto lasts" in capsys.readouterr().out
+    assert main(["plan", "--to", "z=0.05", "--json"]) == 0  # the built-in profile: none
+    assert json.loads(capsys.readouterr().out)["count_approach"] is None
 
 
 def test_faults_list_prints_each_held_fault_with_its_kind_and_reason(monkeypatch, capsys):

@@ -391,3 +391,35 @@ def test_the_state_s_reference_is_the_approach_s_counts_and_their_pose(model, of
             seen.append(tuple(SensorScaling(m.profile).to_counts(ref.actuators)))
         assert seen[0] == tuple(tail.approach.via_counts) and seen[1] == seen[2] == tuple(tail.approach.final_counts)
         assert np.max(np.abs(np.subtract(pose, list(GOAL.values())))) > 0.0  # not the goal's
+
+
+def test_a_plan_preview_lasts_as_long_as_the_goto_with_its_count_approach(model, offsets, tmp_path):
+    """The ``plan`` preview (in the service's threads and in a planning process alike) includes the count approach
+    the goto would end with: its duration is the goto's accepted duration (it gave the plan's own, 1.2 s less)."""
+    from bridge.service.planning import GuardPlanning, InProcessPlanning
+    from bridge.service.workers import WorkerSpec, _WorkerContext
+    from bridge.sim.truth import truth_toml
+
+    m = _with_approach(model, offsets)
+    path = tmp_path / "count-approach.toml"
+    path.write_text(truth_toml(m.profile.model_dump()))
+    with SimRig(m) as rig:
+        rig.start()
+        rig.run_until(0.5)
+        mc = _controller(m, rig, [])
+        start = mc.preview_start()
+        local = InProcessPlanning(mc, None).preview(start, GOAL, 1.0)
+        remote = _WorkerContext(WorkerSpec(str(path), None, m.profile.motion.control_rate, None)).run(
+            "preview", (start, GOAL, 1.0)
+        )
+        acc = mc.goto(GOAL)
+    a = m.profile.motion.count_approach
+    assert a is not None and local["ok"]
+    assert local["count_approach_s"] == pytest.approx(a.via_hold_s + a.final_hold_s)
+    assert local["duration"] == pytest.approx(acc.duration, abs=1e-9)
+    assert remote == local
+    own_guard = InProcessPlanning(GuardPlanning(Guard(TrajectoryPlanner(m))), None)  # a core in another process
+    assert own_guard.preview(start, GOAL, 1.0) == local
+    plain = InProcessPlanning(GuardPlanning(Guard(TrajectoryPlanner(model))), None).preview(start, GOAL, 1.0)
+    assert plain["ok"] and plain["count_approach_s"] == 0.0
+    assert plain["duration"] == pytest.approx(local["duration"] - local["count_approach_s"], rel=0.2)

@@ -20,6 +20,8 @@ import time
 import numpy as np
 import pytest
 
+from bridge.link.count_tail import plan_count_tail
+from bridge.link.reference_check import ReferenceCheck
 from bridge.service.api import ServiceAPI
 from bridge.service.maneuvers.language import guarded_plan_step, parse_maneuver
 from bridge.service.store import HitchStore
@@ -70,6 +72,9 @@ class _Motion:
 
     def preview_from(self, start, goal, speed_scale=1.0):
         return self.guard.plan(start, goal, speed_scale=speed_scale)
+
+    def count_tail(self, plan):
+        return plan_count_tail(self.planner, plan, ReferenceCheck(self.planner.model), self.guard)
 
 
 @pytest.fixture(scope="module")

@@ -4,8 +4,9 @@ A reference (five actuators in SI, lift [rad], the others [m]) is refused when a
 mechanism cannot take it (no closure), an actuator leaves its stroke or a mechanism feature (top-link
 angles, lower span, …) its hard limit, or its AD counts leave the sensor's range; the refusal names the limit,
 the value and the bound. :class:`~bridge.link.can_link.CanLink` checks every reference with it before it is
-sent; a plan preview checks the count approach's references with its own (on its own model: models are not
-thread-safe), so a preview ends as the goto would.
+sent (the service's own previews use the link's, under its lock); a planning process, a service whose core runs
+in another process and ``hitch plan`` check a preview's count approach with one of their own, on their own
+model (models are not thread-safe), so a preview ends as the goto would.
 """
 
 from __future__ import annotations

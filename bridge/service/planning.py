@@ -56,8 +56,9 @@ class MotionPlanning(Protocol):
         """The guarded plan from ``start`` (PlanError / GuardRefusal when refused)."""
         ...
 
-    def count_tail(self, plan: Any) -> Any:
-        """The count approach a goto of ``plan`` would end with (:mod:`bridge.link.count_tail`; None: none)."""
+    def preview_with_tail(self, start: MotionState, goal: Mapping[str, float], speed_scale: float) -> tuple[Any, Any]:
+        """The guarded plan from ``start`` and the count approach a goto of it would end with
+        (:mod:`bridge.link.count_tail`; None: none), on one guard state (PlanError / GuardRefusal when refused)."""
         ...
 
     def plan_step(
@@ -86,11 +87,12 @@ class GuardPlanning:
         with self._lock:
             return self._guard.plan(start, goal, speed_scale=speed_scale)
 
-    def count_tail(self, plan: Any) -> Any:
+    def preview_with_tail(self, start: MotionState, goal: Mapping[str, float], speed_scale: float) -> tuple[Any, Any]:
         from bridge.link.count_tail import plan_count_tail
 
         with self._lock:
-            return plan_count_tail(self._guard.planner, plan, self._check, self._guard)
+            gp = self._guard.plan(start, goal, speed_scale=speed_scale)
+            return gp, plan_count_tail(self._guard.planner, gp.plan, self._check, self._guard)
 
     def plan_step(self, start: MotionState, goal: Mapping[str, float], speed_scale: float) -> tuple[float, MotionState]:
         with self._lock:
@@ -117,8 +119,7 @@ class InProcessPlanning:
 
     def preview(self, start: MotionState, goal: Mapping[str, float], speed_scale: float) -> dict[str, Any]:
         try:
-            gp = self._motion.preview_from(start, goal, speed_scale)
-            return PlanPreview.planned(gp, self._motion.count_tail(gp.plan)).to_json()
+            return PlanPreview.planned(*self._motion.preview_with_tail(start, goal, speed_scale)).to_json()
         except PlanError as exc:  # the planner's or the guard's (GuardRefusal) refusal
             return PlanPreview.refusal(exc).to_json()
 

@@ -49,7 +49,9 @@ if TYPE_CHECKING:
         guard_limits,
         plan_state,
         pose_dict,
+        running_at,
         streamed_reference,
+        tail_at,
     )
 
 #: public name -> the module that defines it
@@ -84,7 +86,9 @@ _SOURCES: dict[str, str] = {
             "guard_limits",
             "plan_state",
             "pose_dict",
+            "running_at",
             "streamed_reference",
+            "tail_at",
         ),
         "bridge.service.motion.types",
     ),
@@ -124,7 +128,9 @@ __all__ = [
     "guard_limits",
     "plan_state",
     "pose_dict",
+    "running_at",
     "streamed_reference",
+    "tail_at",
 ]
 
 

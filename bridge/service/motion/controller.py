@@ -109,6 +109,7 @@ from bridge.service.motion.types import (
     plan_state,
     pose_dict,
     streamed_reference,
+    tail_at,
 )
 from bridge.service.periodic import PeriodicThread
 from bridge.service.state_message import (
@@ -350,10 +351,14 @@ class MotionController:
         with self._plan_lock:
             return self.plan_guard.plan(start, goal, speed_scale=speed_scale)
 
-    def count_tail(self, plan: Plan) -> CountTail | None:
-        """The count approach a goto of ``plan`` would end with (a preview's; under the planning lock)."""
+    def preview_with_tail(
+        self, start: MotionState, goal: Mapping[str, float], speed_scale: float = 1.0
+    ) -> tuple[GuardedPlan, CountTail | None]:
+        """:meth:`preview_from` and the count approach a goto of that plan would end with, under one hold of the
+        planning lock (the same implement and limits for both)."""
         with self._plan_lock:
-            return self._count_tail(plan)
+            gp = self.plan_guard.plan(start, goal, speed_scale=speed_scale)
+            return gp, self._count_tail(gp.plan)
 
     def plan_step(self, start: MotionState, goal: Mapping[str, float], speed_scale: float) -> tuple[float, MotionState]:
         """Guarded planning on the planning guard (for maneuver validation): (duration [s], end state)."""
@@ -928,8 +933,9 @@ class MotionController:
         """Commanded state at clock time ``t``: the active motion's, the held one or the measured pose."""
         m = self._active
         if isinstance(m, PlanMotion):
-            if m.in_tail(t):  # at rest on the count approach's counts: a replacing plan starts from them
-                return _tail_hold(m, plan_state(m, t), t - m.t0 - m.plan.duration)
+            in_tail = tail_at(m, t)  # at rest on a count approach's counts: what follows starts from them
+            if in_tail is not None:
+                return _tail_hold(in_tail[0], plan_state(in_tail[0], t), in_tail[1])
             return plan_state(m, t)
         if isinstance(m, JogMotion):
             return m.jog.state
@@ -951,12 +957,14 @@ class MotionController:
         if m is None or (isinstance(m, PlanMotion) and m.kind == "stop"):
             return None if m is None else m.motion_id
         events.append(self._ev("motion_aborted", m, reason=reason))
-        if isinstance(m, PlanMotion) and m.tail is not None and m.in_tail(now):
-            # at rest on the count approach: hold the counts streamed now (the goal's would move the pistons)
-            after = now - m.t0 - m.plan.duration
+        in_tail = tail_at(m, now) if isinstance(m, PlanMotion) else None
+        if in_tail is not None and in_tail[0].tail is not None:
+            # at rest on a count approach (this goto's, or the one a goto in its lead replaces): hold the counts
+            # streamed now (the goal's would move the pistons)
+            run, after = in_tail
             self._generation += 1  # as a new motion would: plans in flight start again from the hold
-            self._active, self._hold, self._hold_ref = None, _tail_hold(m, plan_state(m, now), after), None
-            self._hold_actuators = m.tail.actuators_at(after)
+            self._active, self._hold, self._hold_ref = None, _tail_hold(run, plan_state(run, now), after), None
+            self._hold_actuators = in_tail[0].tail.actuators_at(after)
             return None
         t0 = m.t_state if isinstance(m, (JogMotion, TrackMotion)) else now  # the time the predicted state belongs to
         sm = PlanMotion("stop", next(self._ids), self.planner.plan_stop(self._predict(now)), t0)
@@ -1179,10 +1187,11 @@ class MotionController:
                 self._hold_actuators = None if m.tail is None else m.tail.final_actuators
                 if m.tail is not None:  # held on the final counts from this cycle on, at their pose
                     st = self._hold
-            elif m.tail is not None and m.in_tail(now):  # the count approach: its counts and their pose
-                after = now - m.t0 - m.plan.duration
-                q_tail = m.tail.actuators_at(after)
-                return Reference(_tail_hold(m, st, after), q_tail, np.zeros_like(q_tail))
+            elif (in_tail := tail_at(m, now)) is not None and in_tail[0].tail is not None:
+                # a count approach (this goto's, or the one it replaces, in its lead): its counts and their pose
+                run, after = in_tail
+                q_tail = in_tail[0].tail.actuators_at(after)
+                return Reference(_tail_hold(run, plan_state(run, now), after), q_tail, np.zeros_like(q_tail))
         elif isinstance(m, JogMotion):
             if self._expire_jog(now):
                 return self._reference_at(now, events)

@@ -55,6 +55,8 @@ __all__ = [
     "check_precedence",
     "guard_limits",
     "plan_state",
+    "running_at",
+    "tail_at",
     "pose_dict",
     "streamed_reference",
 ]
@@ -564,6 +566,23 @@ def plan_state(m: PlanMotion, t: float) -> MotionState:
     return m.plan.state_at(t - m.t0)
 
 
+def running_at(m: PlanMotion, t: float) -> PlanMotion:
+    """The plan motion that runs at clock time ``t``: ``m``, or before its ``t0`` the one it replaced (and so on
+    back: a goto replaced within another's lead)."""
+    while m.prev is not None and t < m.t0:
+        m = m.prev
+    return m
+
+
+def tail_at(m: PlanMotion, t: float) -> tuple[PlanMotion, float] | None:
+    """(the motion, seconds after its plan) when the motion running at ``t`` (:func:`running_at`) is in its
+    count approach, else None: then the hitch rests on that approach's counts, whatever replaces it next."""
+    run = running_at(m, t)
+    if run.tail is None or not run.in_tail(t):
+        return None
+    return run, t - run.t0 - run.plan.duration
+
+
 FF_JERK_GAP_S = 0.1
 """Largest gap [s] between two streamed states whose accelerations give the feed-forward's jerk."""
 
@@ -575,9 +594,9 @@ def streamed_reference(shaper: FeedforwardShaper, m: ActiveMotion | None, ref: R
     accelerations of this and the previous streamed state, at most :data:`FF_JERK_GAP_S` apart); the
     final reference itself while holding."""
     if isinstance(m, PlanMotion):
-        src = m.prev if m.prev is not None and now < m.t0 else m  # before a replacing plan starts: the one it replaces
-        if isinstance(src, PlanMotion) and src.tail is not None and src.in_tail(now):
-            return src.tail.actuators_at(now - src.t0 - src.plan.duration)  # the count approach: whole counts
+        in_tail = tail_at(m, now)  # the count approach (also of a goto a new plan replaces): whole counts
+        if in_tail is not None and in_tail[0].tail is not None:
+            return in_tail[0].tail.actuators_at(in_tail[1])
         return shaper.for_plan(lambda t: plan_state(m, t), now, ref.actuators, ref.rates)
     if isinstance(m, (JogMotion, TrackMotion)):
         acc = np.asarray(ref.state.acceleration, float)

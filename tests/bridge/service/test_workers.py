@@ -73,8 +73,9 @@ class _Motion:
     def preview_from(self, start, goal, speed_scale=1.0):
         return self.guard.plan(start, goal, speed_scale=speed_scale)
 
-    def count_tail(self, plan):
-        return plan_count_tail(self.planner, plan, ReferenceCheck(self.planner.model), self.guard)
+    def preview_with_tail(self, start, goal, speed_scale=1.0):
+        gp = self.preview_from(start, goal, speed_scale)
+        return gp, plan_count_tail(self.planner, gp.plan, ReferenceCheck(self.planner.model), self.guard)
 
 
 @pytest.fixture(scope="module")

@@ -34,12 +34,15 @@ nominal box (the planner refuses to load it) gets the box of ``hitch profile fit
 docs/commissioning.md tells a user; its check poses outside it are refused and not counted (the improvement factor is
 also given with the uncalibrated error on the same poses, "same poses").
 
+``--without-play``: the twins through the twin without their pin play (each truth otherwise as drawn), to show
+what the play does to the accuracy and to the identified parameters.
+
 ``--count-approach``: every goto (measuring, calibrated, floors) ends with the profile's count approach, its
 stop offsets measured once on the nominal twin (:func:`twin_count_approach`).
 
 Run: .venv/bin/python bench/calibration_bench.py [--twins 20] [--json bench/out/calibration.json] [--plot PNG]
      [--through-twin N] [--workers 2] [--skip-static] [--count-approach] [--check 200] [--check-seed 999]
-     [--twin-plot PNG]
+     [--twin-plot PNG] [--without-play]
 """
 
 from __future__ import annotations
@@ -102,11 +105,11 @@ def _floor_through_twin(job: tuple) -> dict:
 
 def _through_twin(job: tuple) -> dict:
     """One twin through the running twin (module docstring): p95 nominal / calibrated, refused poses, times."""
-    seed, prof_data, planned, check = job
+    seed, prof_data, planned, check, without_play = job
     prof = profile_from_dict(prof_data)
     pm = ParametricModel(prof)
     data, play = perturb_profile(load_profile("thesis-t132"), seed)
-    truth = MachineTruth(profile_from_dict(data), play)
+    truth = MachineTruth(profile_from_dict(data), PinPlay() if without_play else play)
     t0 = time.perf_counter()
     res, cal_profile, _ = _calibrate(pm, truth, planned, seed, by="goto")
     cal, fitted = _reachable_box(HitchModel(cal_profile))
@@ -253,19 +256,26 @@ def twin_count_approach(prof) -> dict:
 
 
 def _run_through_twin(
-    prof, n_twin: int, workers: int, check: np.ndarray, count_approach: bool = False, plot: str = ""
+    prof,
+    n_twin: int,
+    workers: int,
+    check: np.ndarray,
+    count_approach: bool = False,
+    plot: str = "",
+    without_play: bool = False,
 ) -> dict:
     """The through-the-twin evaluation of the first ``n_twin`` twins (module docstring), its table and summary;
     ``count_approach``: every goto of every profile (measuring, calibrated, floors) ends with the count approach
     whose offsets :func:`twin_count_approach` measured. The 20 poses to measure are planned on the profile with
-    its final approach (``hitch calibrate plan-poses``: each reached with its whole approach)."""
+    its final approach (``hitch calibrate plan-poses``: each reached with its whole approach). ``without_play``:
+    the twins without their pin play (the rest of each truth as drawn), to show what the play does."""
     data = prof.model_dump()
     data["motion"]["final_approach"] = FINAL_APPROACH
     if count_approach:
         data["motion"]["count_approach"] = twin_count_approach(prof)
         print(f"count approach: {data['motion']['count_approach']}", flush=True)
     planned = plan_poses(ParametricModel(profile_from_dict(data)), 20).poses
-    jobs = [(seed, data, planned, check) for seed in range(n_twin)]
+    jobs = [(seed, data, planned, check, without_play) for seed in range(n_twin)]
     print(f"\nthrough the twin: {n_twin} twins on {workers} processes (final approach {FINAL_APPROACH})", flush=True)
     t0 = time.perf_counter()
     with multiprocessing.get_context("fork").Pool(max(1, workers)) as pool:
@@ -337,6 +347,11 @@ def main() -> None:
     ap.add_argument("--json", default=None)
     ap.add_argument("--plot", default="docs/calibration_error_map.png", help="error map PNG ('' = none)")
     ap.add_argument(
+        "--without-play",
+        action="store_true",
+        help="through the twin, the twins without their pin play (the rest of each truth as drawn)",
+    )
+    ap.add_argument(
         "--twin-plot",
         default="",
         help="error map PNG through the twin, of the worst twin (largest calibrated p95 / target) ('' = none)",
@@ -363,7 +378,9 @@ def main() -> None:
     check = _tour(check[: args.check])
     n_twin = args.twins if args.through_twin is None else args.through_twin
     if args.skip_static:
-        res = _run_through_twin(prof, n_twin, args.workers, check, args.count_approach, args.twin_plot)
+        res = _run_through_twin(
+            prof, n_twin, args.workers, check, args.count_approach, args.twin_plot, args.without_play
+        )
         print(f"\nthrough_twin: { {k: v for k, v in res.items() if k != 'twins'} }")
         if args.json:
             write_json(args.json, {"machine": machine_note(), "summary": {"through_twin": res}})
@@ -495,7 +512,9 @@ def main() -> None:
         ],
         "plan_time_s": t_plan,
     }
-    summary["through_twin"] = _run_through_twin(prof, n_twin, args.workers, check, args.count_approach, args.twin_plot)
+    summary["through_twin"] = _run_through_twin(
+        prof, n_twin, args.workers, check, args.count_approach, args.twin_plot, args.without_play
+    )
     print()
     for k, v in summary.items():
         print(f"{k}: {v}")

@@ -430,6 +430,9 @@ class TwinGnss:
         self.heading = float(heading)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self.put_failures = 0
+        """Puts that raised (the thread goes on with the next fix; it ends only with :meth:`close`)."""
+        self.last_error: str | None = None
 
     def local(self) -> tuple[float, float] | None:
         d = self.distance()
@@ -445,7 +448,9 @@ class TwinGnss:
         return {"lat": lat, "lon": lon, "speed": float(self.speed()), "heading": self.heading}
 
     def publish_every(self, put: Callable[[bytes], Any], period_s: float = 0.1) -> threading.Thread:
-        """Put a fix every ``period_s`` (a thread, until :meth:`close`)."""
+        """Put a fix every ``period_s`` (a thread, until :meth:`close`). A put that raises is counted
+        (``put_failures``, ``last_error``) and the next fix is put as usual: a receiver does not stop for one lost
+        message (it stopped for good on the first one)."""
 
         def run() -> None:
             while not self._stop.wait(period_s):
@@ -453,8 +458,9 @@ class TwinGnss:
                 if f is not None and not self._stop.is_set():
                     try:
                         put(json.dumps(f).encode())
-                    except Exception:  # noqa: BLE001 — the session closed under it (zenoh.ZError): nothing to publish to
-                        return
+                    except Exception as exc:  # noqa: BLE001 — e.g. zenoh.ZError; close() ends the thread
+                        self.put_failures += 1
+                        self.last_error = f"{type(exc).__name__}: {exc}"
 
         t = threading.Thread(target=run, name="twin-gnss", daemon=True)
         self._thread = t

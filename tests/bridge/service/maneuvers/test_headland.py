@@ -4,6 +4,7 @@ replayed to the same poses, and the preset-delete refusal naming the maneuvers t
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -318,3 +319,32 @@ def test_a_lines_file_that_is_not_utf8_is_a_gnss_error_naming_it(tmp_path):
     api = SimpleNamespace(store=SimpleNamespace(list_lines=lambda: []), motion=None)
     with pytest.raises(GnssError, match=r"lines_file .*field\.geojson: not UTF-8 text \(byte \d+, line 1"):
         restore_lines(api, f)
+
+
+def test_the_twins_receiver_goes_on_after_a_put_that_failed():
+    """A put that raised ended the twin's GNSS thread for good (no more fixes, silently); now it is counted and the
+    next fix is put."""
+    import threading
+
+    from bridge.service.gnss import TwinGnss
+
+    puts: list[bytes] = []
+    enough = threading.Event()
+
+    def flaky_put(data: bytes) -> None:
+        if len(puts) < 2:
+            puts.append(b"")
+            raise RuntimeError("congested")
+        puts.append(data)
+        if len(puts) >= 5:
+            enough.set()
+
+    twin = TwinGnss(lambda: 1.0, lambda: 2.0)
+    thread = twin.publish_every(flaky_put, period_s=0.01)
+    try:
+        assert enough.wait(5.0), puts
+    finally:
+        twin.close()
+    assert twin.put_failures == 2 and twin.last_error == "RuntimeError: congested"
+    assert all(json.loads(p)["speed"] == 2.0 for p in puts[2:5])
+    assert not thread.is_alive()

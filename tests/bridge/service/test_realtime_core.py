@@ -241,7 +241,7 @@ def test_any_payload_sent_to_stop_stops(r, payload):
 
 
 def test_expensive_requests_are_admitted_a_few_per_user(r):
-    r.mc.preview_from = held = Gate(r.mc.preview_from, wait_s=5.0)
+    r.mc.preview_with_tail = held = Gate(r.mc.preview_with_tail, wait_s=5.0)
     entered = held.entered
     body = {"goal": {"z": 0.2}}
     results: list = []

@@ -88,8 +88,8 @@ def test_expensive_requests_over_zenoh_are_admitted_per_user(service):
     viewer's plans refused everybody's ``busy``. A client with a user sends on its own keys
     (``<prefix>/user/<name>/…``), and the service admits per name."""
     svc, ep = service
-    real = svc.motion.preview_from
-    svc.motion.preview_from = held = Gate(real)
+    real = svc.motion.preview_with_tail
+    svc.motion.preview_with_tail = held = Gate(real)
     entered = held.entered
     results: list = []
     with (
@@ -122,7 +122,7 @@ def test_expensive_requests_over_zenoh_are_admitted_per_user(service):
         assert len(results) == MAX_IN_FLIGHT_PER_USER + 1
         saved = vera.request("presets/save", {"name": "vera-made", "pose": {"z": 0.2}})
         assert saved["saved"] == "vera-made"
-    svc.motion.preview_from = real
+    svc.motion.preview_with_tail = real
     assert svc.store.get_preset("vera-made", implement=svc.api.implement).owner == "vera"  # stored as hers
 
 

@@ -230,7 +230,9 @@ class HitchService:
     def _start(self) -> HitchService:
         cfg = self.config
         try:
-            cfg.data_dir.mkdir(parents=True, exist_ok=True)
+            # a new data dir is the service user's alone (the event log and the store name users and their
+            # actions); one that exists keeps the permissions its owner gave it
+            cfg.data_dir.mkdir(parents=True, exist_ok=True, mode=0o700)
             self.store = HitchStore(cfg.database_path, limits=cfg.store_limits())
             ik: IKSolver | None = None
             planning: Planning | None = None

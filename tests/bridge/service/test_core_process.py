@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import stat
 import threading
 import time
 
@@ -248,6 +249,20 @@ def test_without_planning_processes_the_service_plans_on_its_own_guard_not_in_th
             with pytest.raises(ServiceError) as e:
                 c.request("plan", {"goal": {"z": 5.0}})
             assert e.value.code in ("unreachable", "bad_request"), e.value
+    finally:
+        svc.close()
+
+
+def test_a_data_dir_the_service_creates_is_readable_by_its_user_alone(tmp_path):
+    """The event log and the store name users and what they did; a data dir the service created was 0755 (every
+    local user could read them). One that exists keeps its permissions."""
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    data = tmp_path / "new" / "data"
+    tmp_path.chmod(0o750)
+    svc = HitchService(ServiceConfig(listen=[ep], data_dir=data, planning_processes=0)).start()
+    try:
+        assert stat.S_IMODE(data.stat().st_mode) == 0o700
+        assert stat.S_IMODE(tmp_path.stat().st_mode) == 0o750
     finally:
         svc.close()
 

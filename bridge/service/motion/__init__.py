@@ -43,6 +43,7 @@ if TYPE_CHECKING:
         PlanPreview,
         Reference,
         StabilityMargins,
+        TailNow,
         actuator_dict,
         check_mode_allows,
         check_precedence,
@@ -89,6 +90,7 @@ _SOURCES: dict[str, str] = {
             "running_at",
             "streamed_reference",
             "tail_at",
+            "TailNow",
         ),
         "bridge.service.motion.types",
     ),
@@ -131,6 +133,7 @@ __all__ = [
     "running_at",
     "streamed_reference",
     "tail_at",
+    "TailNow",
 ]
 
 

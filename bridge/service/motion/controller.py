@@ -139,14 +139,6 @@ _PLAN_TRIES = 4  # plans made for one goto before it is refused as too busy
 _COUNT_APPROACH_KINDS = frozenset({"goto"})
 
 
-def _tail_hold(m: PlanMotion, end: MotionState, t_after_plan_s: float) -> MotionState:
-    """Where the hitch rests ``t_after_plan_s`` after the end of plan motion ``m``: its count approach's pose
-    then (the counts it holds; the next motion starts from there, so its first reference does not step by the
-    up to three counts between them and the goal), else the plan's end ``end``."""
-    pose = None if m.tail is None else m.tail.pose_at(t_after_plan_s)
-    return MotionState.at_rest(end.position if pose is None else pose)
-
-
 class MotionControllerError(HitchError, RuntimeError):
     """The controller used out of order (started twice)."""
 
@@ -934,9 +926,7 @@ class MotionController:
         m = self._active
         if isinstance(m, PlanMotion):
             in_tail = tail_at(m, t)  # at rest on a count approach's counts: what follows starts from them
-            if in_tail is not None:
-                return _tail_hold(in_tail[0], plan_state(in_tail[0], t), in_tail[1])
-            return plan_state(m, t)
+            return plan_state(m, t) if in_tail is None else in_tail.state
         if isinstance(m, JogMotion):
             return m.jog.state
         if isinstance(m, TrackMotion):
@@ -958,13 +948,12 @@ class MotionController:
             return None if m is None else m.motion_id
         events.append(self._ev("motion_aborted", m, reason=reason))
         in_tail = tail_at(m, now) if isinstance(m, PlanMotion) else None
-        if in_tail is not None and in_tail[0].tail is not None:
+        if in_tail is not None:
             # at rest on a count approach (this goto's, or the one a goto in its lead replaces): hold the counts
             # streamed now (the goal's would move the pistons)
-            run, after = in_tail
             self._generation += 1  # as a new motion would: plans in flight start again from the hold
-            self._active, self._hold, self._hold_ref = None, _tail_hold(run, plan_state(run, now), after), None
-            self._hold_actuators = in_tail[0].tail.actuators_at(after)
+            self._active, self._hold, self._hold_ref = None, in_tail.state, None
+            self._hold_actuators = in_tail.actuators
             return None
         t0 = m.t_state if isinstance(m, (JogMotion, TrackMotion)) else now  # the time the predicted state belongs to
         sm = PlanMotion("stop", next(self._ids), self.planner.plan_stop(self._predict(now)), t0)
@@ -1181,17 +1170,15 @@ class MotionController:
                 m.prev = None
             st = plan_state(m, now)
             self._limited = {} if m.finished(now) else m.limited()
+            in_tail = tail_at(m, now)  # a count approach (this goto's, or the one it replaces in its lead)
             if m.finished(now):
                 self._announce_finished(m, events)
-                self._active, self._hold, self._hold_ref = None, _tail_hold(m, st, math.inf), None
-                self._hold_actuators = None if m.tail is None else m.tail.final_actuators
-                if m.tail is not None:  # held on the final counts from this cycle on, at their pose
-                    st = self._hold
-            elif (in_tail := tail_at(m, now)) is not None and in_tail[0].tail is not None:
-                # a count approach (this goto's, or the one it replaces, in its lead): its counts and their pose
-                run, after = in_tail
-                q_tail = in_tail[0].tail.actuators_at(after)
-                return Reference(_tail_hold(run, plan_state(run, now), after), q_tail, np.zeros_like(q_tail))
+                if in_tail is not None:  # held on the final counts from this cycle on, at their pose
+                    st = in_tail.state
+                self._active, self._hold, self._hold_ref = None, MotionState.at_rest(st.position), None
+                self._hold_actuators = None if in_tail is None else in_tail.actuators
+            elif in_tail is not None:  # its counts and their pose
+                return Reference(in_tail.state, in_tail.actuators, np.zeros_like(in_tail.actuators))
         elif isinstance(m, JogMotion):
             if self._expire_jog(now):
                 return self._reference_at(now, events)

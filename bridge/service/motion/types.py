@@ -57,6 +57,7 @@ __all__ = [
     "plan_state",
     "running_at",
     "tail_at",
+    "TailNow",
     "pose_dict",
     "streamed_reference",
 ]
@@ -574,13 +575,25 @@ def running_at(m: PlanMotion, t: float) -> PlanMotion:
     return m
 
 
-def tail_at(m: PlanMotion, t: float) -> tuple[PlanMotion, float] | None:
-    """(the motion, seconds after its plan) when the motion running at ``t`` (:func:`running_at`) is in its
-    count approach, else None: then the hitch rests on that approach's counts, whatever replaces it next."""
+@dataclass(frozen=True)
+class TailNow:
+    """A count approach running now: the ``actuators`` it streams (SI) and ``state``, at rest at their pose (the
+    plan's end where the pose is not known): where the hitch rests and whatever follows starts."""
+
+    actuators: np.ndarray
+    state: MotionState
+
+
+def tail_at(m: PlanMotion, t: float) -> TailNow | None:
+    """The count approach of the motion running at ``t`` (:func:`running_at`: ``m``, or the one it replaces in
+    its lead) when that motion is in it (also after its end: it holds the final counts), else None."""
     run = running_at(m, t)
     if run.tail is None or not run.in_tail(t):
         return None
-    return run, t - run.t0 - run.plan.duration
+    after = t - run.t0 - run.plan.duration
+    pose = run.tail.pose_at(after)
+    state = MotionState.at_rest(plan_state(run, t).position if pose is None else pose)
+    return TailNow(run.tail.actuators_at(after), state)
 
 
 FF_JERK_GAP_S = 0.1
@@ -595,8 +608,8 @@ def streamed_reference(shaper: FeedforwardShaper, m: ActiveMotion | None, ref: R
     final reference itself while holding."""
     if isinstance(m, PlanMotion):
         in_tail = tail_at(m, now)  # the count approach (also of a goto a new plan replaces): whole counts
-        if in_tail is not None and in_tail[0].tail is not None:
-            return in_tail[0].tail.actuators_at(in_tail[1])
+        if in_tail is not None:
+            return in_tail.actuators
         return shaper.for_plan(lambda t: plan_state(m, t), now, ref.actuators, ref.rates)
     if isinstance(m, (JogMotion, TrackMotion)):
         acc = np.asarray(ref.state.acceleration, float)

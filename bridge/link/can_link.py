@@ -47,7 +47,6 @@ import threading
 from dataclasses import replace
 
 import can
-import numpy as np
 from numpy.typing import ArrayLike
 
 from bridge.isobus.address_claim import AddressClaimer, ClaimState, Name
@@ -85,7 +84,6 @@ from bridge.link.state import (
 )
 from planner.model.kinematics import HitchModel
 from planner.model.sensors import SensorScaling
-from planner.model.types import ACTUATOR_NAMES
 
 __all__ = ["CanLink", "HOLD_AFTER_RESENT"]
 
@@ -119,11 +117,9 @@ class CanLink:
         self._own_bus = bool(own_bus)
         self._cfg = config if config is not None else LinkConfig()
         self._scaling = SensorScaling(model.profile)
+        # every hard limit and the counts; it keeps the last values it accepted: the controller checks the
+        # reference it is about to send (the feed-forward's safe_reference) and send_reference checks it again
         self._check = ReferenceCheck(model)
-        # the last reference accepted by _check_reference and its counts: the controller checks the
-        # reference it is about to send (the feed-forward's safe_reference) and send_reference checks
-        # it again; the check is a pure function of the values (model, limits, scaling are fixed)
-        self._checked: tuple[bytes, PositionCounts] | None = None
         self._codec = load_codec()
         self._known_pgns = frozenset(decode_id(m.frame_id).pgn for m in self._codec.database.messages)
         cfg = self._cfg
@@ -270,20 +266,7 @@ class CanLink:
             ReferenceRefused: naming the limit, the value and the bound.
         """
         with self._lock:  # the model's evaluation buffers are shared with the link's own thread
-            return self._check_reference(actuators)
-
-    def _check_reference(self, actuators: ArrayLike) -> PositionCounts:
-        try:
-            q = np.asarray(actuators, dtype=float).reshape(-1)
-        except (TypeError, ValueError):
-            raise ReferenceRefused(f"reference must be 5 numbers {ACTUATOR_NAMES}, got {actuators!r}") from None
-        key = q.tobytes()
-        checked = self._checked
-        if checked is not None and checked[0] == key:  # the same values accepted just before
-            return checked[1]
-        counts = self._check(q)
-        self._checked = (key, counts)
-        return counts
+            return self._check(actuators)
 
     def send_reference(self, actuators: ArrayLike, now_s: float) -> PositionCounts:
         """Check ``actuators`` (SI) and stream them from ``now_s`` on; a fresh command also

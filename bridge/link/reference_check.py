@@ -36,12 +36,24 @@ class ReferenceCheck:
         self.model = model
         self.scaling = SensorScaling(model.profile)
         self.hard = HardLimits.from_model(model)
+        # the last values accepted and their counts: the check is a pure function of the values, and a caller
+        # often checks the same reference twice (the controller before sending it, the link as it sends it)
+        self._accepted: tuple[bytes, PositionCounts] | None = None
 
     def __call__(self, actuators: ArrayLike) -> PositionCounts:
         try:
             q = np.asarray(actuators, dtype=float).reshape(-1)
         except (TypeError, ValueError):
             raise ReferenceRefused(f"reference must be 5 numbers {ACTUATOR_NAMES}, got {actuators!r}") from None
+        key = q.tobytes()
+        accepted = self._accepted
+        if accepted is not None and accepted[0] == key:
+            return accepted[1]
+        counts = self._check(q)
+        self._accepted = (key, counts)
+        return counts
+
+    def _check(self, q: np.ndarray) -> PositionCounts:
         if q.size != 5:
             raise ReferenceRefused(f"reference needs 5 values {ACTUATOR_NAMES}, got {q.size}")
         for name, v in zip(ACTUATOR_NAMES, q, strict=True):

@@ -40,9 +40,19 @@ what the play does to the accuracy and to the identified parameters.
 ``--count-approach``: every goto (measuring, calibrated, floors) ends with the profile's count approach, its
 stop offsets measured once on the nominal twin (:func:`twin_count_approach`).
 
+``--two-sided``: through the twin, each planned pose is measured twice, by a goto with the final approach from
+below and one with its mirror image from above (``hitch calibrate measure-twin --by goto --sides both``; the
+poses planned with the approach's room at both faces). The fit then also finds the lag the pin play leaves
+(``lag.*``, compared with the truth's play band) and the calibrated profile's planner aims each goto beyond its
+goal by it. Through the twin the fit always carries the lag parameters (as ``hitch calibrate geometry`` does
+for a file with the ``approach`` column); from one side they are not identified and stay 0. The lag's truth
+for the identified directions' |z| is the lag the measurements hold: side · (true implement − true mechanism
+pose) averaged over the rows (the count step can leave the play a little short of its band's edge); the
+|z| against the play's band itself is given beside it.
+
 Run: .venv/bin/python bench/calibration_bench.py [--twins 20] [--json bench/out/calibration.json] [--plot PNG]
      [--through-twin N] [--workers 2] [--skip-static] [--count-approach] [--check 200] [--check-seed 999]
-     [--twin-plot PNG] [--without-play]
+     [--twin-plot PNG] [--without-play] [--two-sided]
 """
 
 from __future__ import annotations
@@ -60,9 +70,10 @@ from _common import machine_note, write_json  # noqa: E402
 
 from bridge.sim.accuracy_run import AccuracyRunSettings, measure_stop_offsets, visit_poses  # noqa: E402
 from bridge.sim.calibration_data import measure_twin, true_poses  # noqa: E402
-from bridge.sim.truth import MachineTruth, PinPlay, perturb_profile  # noqa: E402
+from bridge.sim.truth import MachineTruth, PinPlay, TrueMachine, perturb_profile  # noqa: E402
 from planner.calibration.design import candidate_poses, plan_poses  # noqa: E402
 from planner.calibration.measurements import MeasurementSet  # noqa: E402
+from planner.calibration.parameters import ParameterSet  # noqa: E402
 from planner.calibration.parametric import ParametricModel  # noqa: E402
 from planner.calibration.solve import build_calibration_problem, solve_calibration  # noqa: E402
 from planner.model.kinematics import HitchModel  # noqa: E402
@@ -105,15 +116,20 @@ def _floor_through_twin(job: tuple) -> dict:
 
 def _through_twin(job: tuple) -> dict:
     """One twin through the running twin (module docstring): p95 nominal / calibrated, refused poses, times."""
-    seed, prof_data, planned, check, without_play = job
+    seed, prof_data, planned, check, without_play, two_sided = job
     prof = profile_from_dict(prof_data)
-    pm = ParametricModel(prof)
+    pm = ParametricModel(prof, params=ParameterSet.from_profile(prof, include_lag=True))
     data, play = perturb_profile(load_profile("thesis-t132"), seed)
     truth = MachineTruth(profile_from_dict(data), PinPlay() if without_play else play)
     t0 = time.perf_counter()
-    res, cal_profile, _ = _calibrate(pm, truth, planned, seed, by="goto")
+    res, cal_profile, _, tm = _calibrate(pm, truth, planned, seed, by="goto", approach="both" if two_sided else None)
     cal, fitted = _reachable_box(HitchModel(cal_profile))
-    z, _ = _z_scores(pm, res, truth)  # the identified directions against truth, in their σ
+    # the lag the measurements hold: side · (implement − mechanism), averaged (the count step may leave the play
+    # a little short of its band's edge in some DOF)
+    lag_held = np.mean(tm.sides[:, None] * tm.play_offset, axis=0)
+    z, _ = _z_scores(pm, res, truth, lag_held)  # the identified directions against truth, in their σ
+    z_band, _ = _z_scores(pm, res, truth)  # the same with the play's band as the lag's truth
+    li = pm.params.lag_index
     out: dict = {
         "seed": seed,
         "measure_and_fit_wall_s": time.perf_counter() - t0,
@@ -121,6 +137,13 @@ def _through_twin(job: tuple) -> dict:
         "z_max": float(z.max()),
         "within_3sigma": int(np.sum(z <= 3.0)),
         "identified": int(z.size),
+        "lag_fitted": res.values[li].tolist(),
+        "lag_std": res.std[li].tolist(),
+        "lag_truth": _truth_values(pm, truth)[li].tolist(),
+        "lag_held": lag_held.tolist(),
+        "within_3sigma_lag_band": int(np.sum(z_band <= 3.0)),
+        "z_max_lag_band": float(z_band.max()),
+        "lag_identified_share": res.identified_share[li].tolist(),
     }
     errs = {}
     for name, model in (("nominal", pm.nominal_model), ("calibrated", cal)):
@@ -191,20 +214,28 @@ def _reachable_box(model: HitchModel) -> tuple[HitchModel, dict | None]:
 
 
 def _calibrate(
-    pm: ParametricModel, truth: MachineTruth, poses: np.ndarray, seed: int, dither: bool = False, by: str = "static"
+    pm: ParametricModel,
+    truth: MachineTruth,
+    poses: np.ndarray,
+    seed: int,
+    dither: bool = False,
+    by: str = "static",
+    approach: str | None = None,
 ):
-    """Measure ``poses`` on the twin (``measure_twin(..., by=by)``, station noise) and calibrate from them:
-    (result, calibrated profile, solver time [s])."""
-    tm = measure_twin(pm.nominal_model, truth, poses, noise="station", seed=seed, dither=dither, by=by)
+    """Measure ``poses`` on the twin (``measure_twin(..., by=by, approach=approach)``, station noise) and calibrate
+    from them: (result, calibrated profile, solver time [s], the twin measurements)."""
+    tm = measure_twin(
+        pm.nominal_model, truth, poses, noise="station", seed=seed, dither=dither, by=by, approach=approach
+    )
     sc = SensorScaling(pm.profile)
     readings = sc.si_min + (tm.counts - sc.counts_min) * sc.resolution
     mask = np.isfinite(tm.measured)
-    data = MeasurementSet(readings, tm.measured, mask, tuple(str(i) for i in range(len(readings))))
+    data = MeasurementSet(readings, tm.measured, mask, tuple(str(i) for i in range(len(readings))), tm.sides)
     t0 = time.perf_counter()
     res = solve_calibration(build_calibration_problem(pm, data))
     dt = time.perf_counter() - t0
     cal = profile_from_dict(pm.params.profile_dict(res.values))
-    return res, cal, dt
+    return res, cal, dt, tm
 
 
 def _p95(
@@ -234,10 +265,23 @@ def _p95(
     return np.percentile(err, 95, axis=0), err
 
 
-def _z_scores(pm: ParametricModel, res, truth: MachineTruth) -> tuple[np.ndarray, np.ndarray]:
-    """|z| of the identified directions (combinations) and of the single parameters (27; inf where σ = 0)."""
+def _truth_values(pm: ParametricModel, truth: MachineTruth, lag: np.ndarray | None = None) -> np.ndarray:
+    """The truth's parameter values: its profile's, and as its lag (if fitted) ``lag`` (default its play's band
+    per DOF)."""
+    v = pm.params.values_of(truth.profile)
+    li = pm.params.lag_index
+    if li.size:
+        v[li] = TrueMachine(truth, pm.category).band if lag is None else lag
+    return v
+
+
+def _z_scores(
+    pm: ParametricModel, res, truth: MachineTruth, lag: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """|z| of the identified directions (combinations) and of the single parameters (27, 31 with the lag; inf
+    where σ = 0); the lag's truth ``lag`` (default the play's band)."""
     ps = pm.params
-    du = (res.values - ps.values_of(truth.profile)) / ps.scale
+    du = (res.values - _truth_values(pm, truth, lag)) / ps.scale
     b = res.basis
     cov = b.T @ res.covariance_scaled @ b
     z_dir = np.abs(b.T @ du) / np.sqrt(np.maximum(np.diag(cov), 1e-300))
@@ -263,6 +307,7 @@ def _run_through_twin(
     count_approach: bool = False,
     plot: str = "",
     without_play: bool = False,
+    two_sided: bool = False,
 ) -> dict:
     """The through-the-twin evaluation of the first ``n_twin`` twins (module docstring), its table and summary;
     ``count_approach``: every goto of every profile (measuring, calibrated, floors) ends with the count approach
@@ -274,8 +319,8 @@ def _run_through_twin(
     if count_approach:
         data["motion"]["count_approach"] = twin_count_approach(prof)
         print(f"count approach: {data['motion']['count_approach']}", flush=True)
-    planned = plan_poses(ParametricModel(profile_from_dict(data)), 20).poses
-    jobs = [(seed, data, planned, check, without_play) for seed in range(n_twin)]
+    planned = plan_poses(ParametricModel(profile_from_dict(data)), 20, two_sided=two_sided).poses
+    jobs = [(seed, data, planned, check, without_play, two_sided) for seed in range(n_twin)]
     print(f"\nthrough the twin: {n_twin} twins on {workers} processes (final approach {FINAL_APPROACH})", flush=True)
     t0 = time.perf_counter()
     with multiprocessing.get_context("fork").Pool(max(1, workers)) as pool:
@@ -296,7 +341,10 @@ def _run_through_twin(
                 f"{r['seed']:4d} | uncalibrated {' '.join(f'{v:6.2f}' for v in n)} | calibrated "
                 f"{' '.join(f'{v:5.2f}' for v in c)} {ok:4s} | factor worst axis {n.max() / c.max():5.1f} "
                 f"(same poses {same.max() / c.max():5.1f}) | |z| max {r['z_max']:5.2f} ({r['within_3sigma']}/"
-                f"{r['identified']} ≤ 3σ) | refused "
+                f"{r['identified']} ≤ 3σ) | lag [mm, mrad] {np.round(1e3 * np.array(r['lag_fitted']), 2)} ± "
+                f"{np.round(1e3 * np.array(r['lag_std']), 2)} held {np.round(1e3 * np.array(r['lag_held']), 2)} band "
+                f"{np.round(1e3 * np.array(r['lag_truth']), 2)} ({r['within_3sigma_lag_band']} ≤ 3σ against the band) "
+                f"| refused "
                 f"{len(r['nominal_refused'])}/{len(r['calibrated_refused'])} | {r['calibrated_simulated_s']:.0f} s "
                 f"simulated in {r['calibrated_wall_s']:.0f} s",
                 flush=True,
@@ -330,6 +378,11 @@ def _run_through_twin(
         ),
         "twin_worst_vs_target": res[worst]["seed"],
         "identified_within_3sigma": [f"{r['within_3sigma']}/{r['identified']}" for r in res],
+        "twins_all_identified_within_3sigma": int(sum(r["within_3sigma"] == r["identified"] for r in res)),
+        "twins_all_identified_within_3sigma_lag_band": int(
+            sum(r["within_3sigma_lag_band"] == r["identified"] for r in res)
+        ),
+        "two_sided": two_sided,
         "z_max": max(r["z_max"] for r in res),
         "refused_poses": [len(r["calibrated_refused"]) for r in res],
         "boxes_fitted": {r["seed"]: r["box_fitted"] for r in res if r["box_fitted"] is not None},
@@ -360,6 +413,11 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2, help="processes for the through-the-twin runs")
     ap.add_argument("--skip-static", action="store_true", help="only the through-the-twin evaluation")
     ap.add_argument(
+        "--two-sided",
+        action="store_true",
+        help="through the twin, measure each planned pose from below and from above (the fit finds the lag)",
+    )
+    ap.add_argument(
         "--count-approach",
         action="store_true",
         help="through the twin, every goto ends with the count approach (offsets measured on the nominal twin)",
@@ -379,7 +437,7 @@ def main() -> None:
     n_twin = args.twins if args.through_twin is None else args.through_twin
     if args.skip_static:
         res = _run_through_twin(
-            prof, n_twin, args.workers, check, args.count_approach, args.twin_plot, args.without_play
+            prof, n_twin, args.workers, check, args.count_approach, args.twin_plot, args.without_play, args.two_sided
         )
         print(f"\nthrough_twin: { {k: v for k, v in res.items() if k != 'twins'} }")
         if args.json:
@@ -405,7 +463,7 @@ def main() -> None:
             "random40": pool[rng.choice(len(pool), 40, replace=False)],
         }
         for name, poses in cases.items():
-            res, cal, dt = _calibrate(pm, truth, poses, seed)
+            res, cal, dt, _ = _calibrate(pm, truth, poses, seed)
             cal_model = HitchModel(cal)
             row[name], err = _p95(cal_model, truth, check)
             row[f"{name}_physical"], err_phys = _p95(cal_model, truth, check, phys)
@@ -421,7 +479,7 @@ def main() -> None:
                 row["planned20_play_only"], _ = _p95(cal_model, truth, check, phys, counts=False)
                 if worst_map is None or err_phys.max() > worst_map[2].max():
                     worst_map = (seed, err, err_phys, err_nom)
-        res, cal, _ = _calibrate(pm, truth, planned[20], seed, dither=True)
+        res, cal, _, _ = _calibrate(pm, truth, planned[20], seed, dither=True)
         row["planned20_dither_physical"], _ = _p95(HitchModel(cal), truth, check, phys)
         rows.append(row)
         r = row
@@ -513,7 +571,14 @@ def main() -> None:
         "plan_time_s": t_plan,
     }
     summary["through_twin"] = _run_through_twin(
-        prof, n_twin, args.workers, check, args.count_approach, args.twin_plot, args.without_play
+        prof,
+        n_twin,
+        args.workers,
+        check,
+        args.count_approach,
+        args.twin_plot,
+        args.without_play,
+        args.two_sided,
     )
     print()
     for k, v in summary.items():

@@ -46,14 +46,37 @@ def random_closing_actuators(model: HitchModel, rng: np.random.Generator, n: int
     return out
 
 
-def profile_file_with_final_approach(directory: Path, name: str = "with-approach.toml") -> Path:
+#: the count approach of the nominal twin's ECU, as ``hitch sim stop-offsets`` measures it (the bench's
+#: ``twin_count_approach``, rounded): where a piston stops inside its count after a back-off of 1, 2, 3 counts
+TWIN_COUNT_APPROACH = """
+[motion.count_approach.from_below_counts]
+lift = [0.193, 0.305, 0.426]
+tilt = [-0.0887, -0.0869, -0.0843]
+top = [-0.1241, -0.1231, -0.1194]
+left = [-0.1147, -0.1115]
+right = [-0.1125, -0.1087]
+
+[motion.count_approach.from_above_counts]
+lift = [-0.1956, -0.3058, -0.4516]
+tilt = [0.0830]
+top = [0.1161, 0.1078]
+left = [0.0643]
+right = [0.1138]
+"""
+
+
+def profile_file_with_final_approach(
+    directory: Path, name: str = "with-approach.toml", *, count_approach: bool = False
+) -> Path:
     """The built-in thesis profile written to ``directory`` with a final approach of 2.5 mm, 4 mm, 5 mrad and
-    7 mrad (``[motion.final_approach]``), as an operator would add it."""
+    7 mrad (``[motion.final_approach]``), as an operator would add it; ``count_approach``: also the nominal twin's
+    count approach (:data:`TWIN_COUNT_APPROACH`)."""
     import planner.profiles
 
     text = (Path(planner.profiles.__file__).parent / "thesis-t132.toml").read_text(encoding="utf-8")
     path = directory / name
-    path.write_text(text + "\n[motion.final_approach]\nx = 0.0025\nz = 0.004\nroll = 0.005\npitch = 0.007\n")
+    text += "\n[motion.final_approach]\nx = 0.0025\nz = 0.004\nroll = 0.005\npitch = 0.007\n"
+    path.write_text(text + (TWIN_COUNT_APPROACH if count_approach else ""))
     return path
 
 

@@ -24,7 +24,7 @@ from bridge.cli.model import add_model_options, bounded_float, refuse_overwritin
 from bridge.link.sensor_calibration import SENSOR_PROVENANCE_MARKER
 from bridge.service.wire import to_json_text
 from bridge.sim.truth import noise_kind
-from planner.calibration.measurements import TARGET_COLUMNS, load_plan_targets
+from planner.calibration.measurements import APPROACH_COLUMN, TARGET_COLUMNS, load_plan_targets
 from planner.calibration.solve import IDENTIFIED_SHARE, UNIDENTIFIED_SHARE
 from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
 
@@ -44,19 +44,23 @@ def _positive_int(name: str, hi: int):
     return parse
 
 
-def _model(args, *, include_ad: bool = True):
+def _model(args, *, include_ad: bool = True, include_lag: bool = False, profile=None):
     from planner.calibration.parameters import ParameterSet
     from planner.calibration.parametric import ParametricModel
     from planner.profiles.hitch import load_profile
 
-    prof = load_profile(args.profile)
-    return ParametricModel(prof, args.category, params=ParameterSet.from_profile(prof, include_ad=include_ad))
+    prof = profile if profile is not None else load_profile(args.profile)
+    params = ParameterSet.from_profile(prof, include_ad=include_ad, include_lag=include_lag)
+    return ParametricModel(prof, args.category, params=params)
 
 
 def _design(args, model):
     from planner.calibration.design import plan_poses
 
-    return plan_poses(model, args.n, candidates=args.candidates, seed=args.seed, points=args.points)
+    two_sided = args.two_sided or (getattr(args, "by", None) == "goto" and getattr(args, "sides", None) == "both")
+    return plan_poses(
+        model, args.n, candidates=args.candidates, seed=args.seed, points=args.points, two_sided=two_sided
+    )
 
 
 def _cmd_plan(args) -> int:
@@ -75,7 +79,7 @@ def _cmd_plan(args) -> int:
         for k in range(d.poses.shape[0])
     ]
     if args.out is not None:
-        _write_plan_csv(Path(args.out), rows)
+        _write_plan_csv(Path(args.out), rows, _template_sides(model.profile, args.two_sided))
     if args.json:
         print(
             to_json_text(
@@ -118,14 +122,29 @@ def _warn_if_too_few(d, command: str) -> None:
         )
 
 
-def _write_plan_csv(path: Path, rows: list[dict[str, Any]]) -> None:
+def _template_sides(profile, two_sided: bool) -> tuple[str, ...]:
+    """The ``approach`` words of a measurement template's passes: the profile's final approach side (and its
+    mirror image with ``two_sided``); none without a final approach."""
+    fa = profile.motion.final_approach
+    if fa is None:
+        return ()
+    other = "above" if fa.side == "below" else "below"
+    return (fa.side, other) if two_sided else (fa.side,)
+
+
+def _write_plan_csv(path: Path, rows: list[dict[str, Any]], sides: tuple[str, ...] = ()) -> None:
     """The measurement template: label, the planned nominal counts (to be replaced by the readings at rest),
-    the measured pose empty (the operator fills it in) and the planned pose as ``target_*`` (m, rad)."""
+    the measured pose empty (the operator fills it in), the planned pose as ``target_*`` (m, rad) and, with
+    ``sides``, the ``approach`` column: one pass over the poses per side (a goto of the profile as it is, then
+    one with its final approach's ``side`` flipped)."""
     header = ["pose", *(f"{n}_counts" for n in ACTUATOR_NAMES), *CONTROLLED_POSE_NAMES, *TARGET_COLUMNS]
+    header += [APPROACH_COLUMN] if sides else []
     lines = [",".join(header)]
-    for r in rows:
-        targets = [repr(float(r[k])) for k in CONTROLLED_POSE_NAMES]
-        lines.append(",".join([r["pose"], *(str(r[f"{n}_counts"]) for n in ACTUATOR_NAMES), "", "", "", "", *targets]))
+    for side in sides or ("",):
+        for r in rows:
+            targets = [repr(float(r[k])) for k in CONTROLLED_POSE_NAMES]
+            cells = [r["pose"], *(str(r[f"{n}_counts"]) for n in ACTUATOR_NAMES), "", "", "", "", *targets]
+            lines.append(",".join(cells + ([side] if sides else [])))
     try:
         path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     except OSError as exc:
@@ -146,8 +165,9 @@ def _cmd_geometry(args) -> int:
     from planner.calibration.parameters import CalibrationError
     from planner.calibration.profile_out import write_calibrated_profile
     from planner.calibration.solve import build_calibration_problem, largest_residuals, solve_calibration
+    from planner.profiles.hitch import load_profile
 
-    model = _model(args, include_ad=not args.no_ad)
+    prof = load_profile(args.profile)
     refuse_overwriting_profile(args.out, args.profile)
     sensors = _sensor_record(args.profile)
     if sensors is not None and not args.no_ad:
@@ -157,7 +177,10 @@ def _cmd_geometry(args) -> int:
             "--no-ad to keep them",
             file=sys.stderr,
         )
-    data = load_measurements(args.measurements, model.profile)
+    data = load_measurements(args.measurements, prof)
+    # the lag of the pin play: found where rows name their approach side and the planner can compensate it
+    include_lag = data.sided and prof.motion.final_approach is not None
+    model = _model(args, include_ad=not args.no_ad, include_lag=include_lag, profile=prof)
     problem = build_calibration_problem(
         model, data, sigma_position_m=1e-3 * args.sigma_position_mm, sigma_angle_rad=1e-3 * args.sigma_angle_mrad
     )
@@ -165,6 +188,15 @@ def _cmd_geometry(args) -> int:
         result = solve_calibration(problem, min_singular=args.min_singular)
     except CalibrationError as exc:  # "measurements: …" names the file the engineer gave
         raise CalibrationError(f"{args.measurements}: {str(exc).removeprefix('measurements: ')}") from None
+    sides = data.side_vector
+    if data.sided and not include_lag and np.sum(sides < 0) != np.sum(sides > 0):  # as many each side: averages out
+        print(
+            f"hitch: warning: {args.measurements} names approach sides, more rows from one side than from the other, "
+            f"but {args.profile} has no motion.final_approach: the lag of the pin play is not fitted (the planner "
+            "compensates it only where a goto ends with its final approach) and biases the geometry; measure each "
+            "pose from both sides, or add the final approach to the profile",
+            file=sys.stderr,
+        )
     inputs = {
         "measurements": str(args.measurements),
         "measurements_sha256": hashlib.sha256(Path(args.measurements).read_bytes()).hexdigest(),
@@ -241,9 +273,23 @@ def _cmd_measure_twin(args) -> int:
         labels = tuple(f"p{k + 1}" for k in range(poses.shape[0]))
     truth = load_machine_truth(args.sim_truth)
     points = ("L", "R", "U") if args.points else ()
-    data = measure_twin(model.nominal_model, truth, poses, noise=args.noise, points=points, seed=args.seed, by=args.by)
-    per_pose = data.counts.shape[0] // poses.shape[0]  # static: each pose approached from below and above
-    text = calibration_csv(data, labels=[lab for lab in labels for _ in range(per_pose)])
+    approach = None if args.sides is None else {"both": "both", "one": "direct"}[args.sides]
+    data = measure_twin(
+        model.nominal_model,
+        truth,
+        poses,
+        noise=args.noise,
+        points=points,
+        seed=args.seed,
+        by=args.by,
+        approach=approach,  # type: ignore[arg-type]
+    )
+    per_pose = data.counts.shape[0] // poses.shape[0]
+    if args.by == "static":  # each pose from below and from above, one after the other
+        row_labels = [lab for lab in labels for _ in range(per_pose)]
+    else:  # by goto: a pass over every pose per side
+        row_labels = [lab for _ in range(per_pose) for lab in labels]
+    text = calibration_csv(data, labels=row_labels)
     try:
         Path(args.out).write_text(text, encoding="utf-8")
     except OSError as exc:
@@ -266,6 +312,12 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
         "--no-ad",
         action="store_true",
         help="plan for a fit that keeps the AD maps (calibrate geometry --no-ad, after calibrate sensors)",
+    )
+    p.add_argument(
+        "--two-sided",
+        action="store_true",
+        help="plan poses to be measured by goto from both sides (each keeps the profile's motion.final_approach "
+        "room at the lower and the upper faces); implied by measure-twin --by goto --sides both",
     )
 
 
@@ -330,5 +382,13 @@ def add_commands(sub) -> None:
         choices=("static", "goto"),
         help="static: pistons at the whole counts, each pose approached from both sides (default); goto: real "
         "gotos of the profile's planner over CAN on the running twin (with its motion.final_approach), one row each",
+    )
+    m.add_argument(
+        "--sides",
+        default=None,
+        choices=("one", "both"),
+        help="from how many sides each pose is measured (default: both --by static, one --by goto); --by goto "
+        "--sides both: a pass with the profile's final approach and one with its mirror image (side flipped), "
+        "so that calibrate geometry finds the lag of the pin play (needs motion.final_approach)",
     )
     m.set_defaults(handler=_cmd_measure_twin, on_interrupt=lambda _a: "nothing was written")

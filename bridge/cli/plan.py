@@ -130,14 +130,19 @@ def _cmd_plan(args) -> int:
         )
     )
     fa = plan.info.get("final_approach")
-    if fa is not None:  # the profile's motion.final_approach: the goto ends rising from a via pose
+    if fa is not None:  # the profile's motion.final_approach: the goto ends rising (or falling) from a via pose
+        side = tp.model.profile.motion.final_approach.side  # type: ignore[union-attr]  # fa: it has one
         via = (
-            "none needed (the move rises by the offsets)"
+            f"none needed (the move {'rises' if side == 'below' else 'falls'} by the offsets)"
             if fa["via"] is None
             else "  ".join(f"{k}={v:+.4f}" for k, v in zip(("x", "z", "roll", "pitch"), fa["via"], strict=True))
         )
-        short = f"; cut short at the lower face: {', '.join(fa['short'])}" if fa["short"] else ""
+        face = "lower" if side == "below" else "upper"
+        short = f"; cut short at the {face} face: {', '.join(fa['short'])}" if fa["short"] else ""
         c.print(f"final approach via: {via}{short}")
+        if "aim" in fa:  # motion.final_approach.lag: the mechanism aimed beyond the goal, the implement lags onto it
+            aim = "  ".join(f"{k}={v:+.4f}" for k, v in zip(("x", "z", "roll", "pitch"), fa["aim"], strict=True))
+            c.print(f"mechanism aimed at: {aim} (the goal plus the profile's lag of the pin play)")
     if tail is not None and approach is not None:  # the profile's motion.count_approach: after the plan, whole counts
         c.print(
             f"count approach after the plan: +{tail.approach.duration_s:.2f} s (a goto lasts "

@@ -55,7 +55,8 @@ class CountTail:
 def arrival_sides(jacobian: ArrayLike, rise: ArrayLike, scaling: SensorScaling) -> np.ndarray:
     """Per actuator the side of its count step (via → final count) that moves the implement the way the final
     approach does: the sign, in counts, of ``jacobian`` (dq/dpose at the goal, 5 × 4) times ``rise``
-    (``motion.final_approach``, [m, m, rad, rad]): +1 rising in counts, −1 falling, 0 where it does not change.
+    (``motion.final_approach``'s :meth:`~planner.profiles.hitch.FinalApproach.rise`, negative ending from above,
+    [m, m, rad, rad]): +1 rising in counts, −1 falling, 0 where it does not change.
     The count step is the goto's last motion, so it decides on which side the pin play ends (the direction the
     plan arrived from does not: following that let the play swing, pitch p95 2.5–3.7 mrad against 1.2–1.7 on the
     twin)."""
@@ -119,7 +120,7 @@ def plan_count_tail(
         goal = np.asarray(plan.state_at(plan.duration).position, float)
         q, jac = (np.asarray(v, float) for v in planner.inverse.solve(goal)[:2])
         fa = profile.motion.final_approach
-        sides = None if fa is None else arrival_sides(jac, fa.offset(), SensorScaling(profile))
+        sides = None if fa is None else arrival_sides(jac, fa.rise(), SensorScaling(profile))
         for nearest_only in (False, True):
             tail = build_count_tail(profile, q, check_reference, sides, nearest_only=nearest_only)
             if tail is None:

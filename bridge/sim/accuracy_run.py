@@ -218,6 +218,9 @@ class PoseVisits:
     """The ``instrument``'s reading of each pose (None where refused; empty without an instrument)."""
     points: tuple[dict[str, np.ndarray], ...] = ()
     """True positions of the named ``points`` at each pose (empty dicts where refused or none asked)."""
+    play_offset: np.ndarray | None = None
+    """(N, 4) the true implement pose minus the true mechanism's at each pose: where the pin play left it
+    (:attr:`~bridge.sim.truth.TrueMachine.play_offset`; NaN where refused)."""
 
 
 class _TwinGotos:
@@ -478,11 +481,12 @@ def visit_poses(
         raise SimError("poses must be a non-empty (N, 4) array of finite x, z, roll, pitch [m, rad]")
     truth = truth if truth is not None else MachineTruth.nominal(model.profile)
     n = p.shape[0]
-    cmd, true, planner, counts = (
+    cmd, true, planner, counts, play = (
         np.full((n, 4), np.nan),
         np.full((n, 4), np.nan),
         np.full((n, 4), np.nan),
         np.full((n, 5), np.nan),
+        np.full((n, 4), np.nan),
     )
     refused: list[tuple[int, str]] = []
     readings: list[Measurement | None] = []
@@ -500,6 +504,7 @@ def visit_poses(
                 continue
             true[k] = tw.rig.true_pose().controlled()
             machine = tw.rig.true_machine
+            play[k] = machine.play_offset
             marked.append(machine.points(tuple(points)) if points else {})
             readings.append(instrument.measure(machine, tuple(points)) if instrument is not None else None)
             state = tw.state()
@@ -507,7 +512,15 @@ def visit_poses(
             planner[k] = state.pose.controlled()
         simulated = tw.rig.now_s
     return PoseVisits(
-        cmd, true, counts, planner, simulated, tuple(refused), tuple(readings) if instrument else (), tuple(marked)
+        cmd,
+        true,
+        counts,
+        planner,
+        simulated,
+        tuple(refused),
+        tuple(readings) if instrument else (),
+        tuple(marked),
+        play,
     )
 
 

@@ -44,7 +44,7 @@ from planner.model.kinematics import HitchModel
 from planner.model.sensors import SensorScaling
 from planner.model.types import CONTROLLED_POSE_NAMES, KinematicsError
 
-__all__ = ["APPROACH_OFFSET", "TwinMeasurements", "calibration_csv", "measure_twin", "true_poses"]
+__all__ = ["APPROACH_OFFSET", "TwinMeasurements", "calibration_csv", "measure_twin", "mirrored_approach", "true_poses"]
 
 #: how far before a pose (x, z [m], roll, pitch [rad]) the approach starts: beyond any play band (≤ 3.3 mrad)
 APPROACH_OFFSET = np.array([0.004, 0.004, 0.006, 0.006])
@@ -53,11 +53,15 @@ APPROACH_OFFSET = np.array([0.004, 0.004, 0.006, 0.006])
 @dataclass(frozen=True)
 class TwinMeasurements:
     """AD readings (N, 5, whole counts), measured outputs (N, 15, NaN = not measured; MEASURED_COLUMNS
-    order) and the true outputs (N, 15; the pose rows x, z, roll, pitch and the points when asked)."""
+    order), the true outputs (N, 15; the pose rows x, z, roll, pitch and the points when asked), the side
+    each row was approached from in every DOF (N,: −1 below, +1 above, 0 neither) and where the pin play left
+    the implement (N, 4: its true pose minus the true mechanism's, :attr:`TrueMachine.play_offset`)."""
 
     counts: np.ndarray
     measured: np.ndarray
     true: np.ndarray
+    sides: np.ndarray
+    play_offset: np.ndarray
 
 
 class _Commander:
@@ -109,19 +113,21 @@ def measure_twin(
     points: Sequence[str] = (),
     seed: int = 0,
     rigid_span: bool = True,
-    approach: Literal["both", "direct"] = "both",
+    approach: Literal["both", "direct"] | None = None,
     dither: bool = False,
     by: Literal["static", "goto"] = "static",
 ) -> TwinMeasurements:
-    """Visit ``poses`` (N, 4) on the twin in order (module docstring) and measure each one (``approach="both"``:
-    rows 2k and 2k+1 are pose k approached from below and from above). ``dither``: each piston anywhere
-    in its count's band (module docstring; drawn from ``seed``); the AD readings stay the whole counts.
+    """Visit ``poses`` (N, 4) on the twin in order (module docstring) and measure each one (``approach="both"``,
+    the default: rows 2k and 2k+1 are pose k approached from below and from above). ``dither``: each piston
+    anywhere in its count's band (module docstring; drawn from ``seed``); the AD readings stay the whole counts.
 
     ``by="goto"``: the operator's procedure on the running twin instead — each pose reached by a real goto
     of ``model``'s planner over CAN (with the profile's ``motion.final_approach``, if any; the pistons where
-    the ECU leaves them), one row per pose, the readings the link's counts at rest
-    (:func:`~bridge.sim.accuracy_run.visit_poses`; ``approach``, ``dither`` and ``rigid_span`` do not apply)."""
-    if approach not in ("both", "direct"):
+    the ECU leaves them), the readings the link's counts at rest (:func:`~bridge.sim.accuracy_run.visit_poses`;
+    ``dither`` and ``rigid_span`` do not apply). One row per pose (``approach="direct"``, the default here), its
+    side the final approach's; or ``approach="both"`` (needs the final approach): the poses visited once with
+    the profile's approach and once with its mirror image (``side`` flipped), rows N + k the second pass."""
+    if approach is not None and approach not in ("both", "direct"):
         raise TruthError(f"approach must be both or direct, got {approach!r}")
     if by not in ("static", "goto"):
         raise TruthError(f"by must be static or goto, got {by!r}")
@@ -129,7 +135,8 @@ def measure_twin(
     p = _poses(poses)
     inst = Instrument(noise, seed=seed)
     if by == "goto":
-        return _measure_by_goto(model, truth, p, inst, tuple(points), _seed(seed))
+        return _measure_by_goto(model, truth, p, inst, tuple(points), _seed(seed), approach == "both")
+    approach = "both" if approach is None else approach
     rng = np.random.default_rng([_seed(seed), 1])
     cmd = _Commander(model)
     counts = cmd.counts(p, quantise=True)
@@ -148,11 +155,13 @@ def measure_twin(
     n = len(visits)
     measured = np.full((n, 15), np.nan)
     true = np.full((n, 15), np.nan)
+    play = np.full((n, 4), np.nan)
     rows = [MEASURED_COLUMNS.index(n) for n in CONTROLLED_POSE_NAMES]
     for k, (c, before) in enumerate(visits):
         if before is not None:
             machine.observe(before)
         pose = machine.observe(_piston_counts(c, dither, rng))
+        play[k] = machine.play_offset
         reading = inst.measure(machine, tuple(points))
         true[k, rows] = pose.controlled()
         measured[k, rows] = [reading.pose[n] for n in CONTROLLED_POSE_NAMES]
@@ -161,15 +170,49 @@ def measure_twin(
             i = MEASURED_COLUMNS.index(f"{name}_x")
             true[k, i : i + 3] = tp[name]
             measured[k, i : i + 3] = reading.points[name]
-    return TwinMeasurements(np.array([v[0] for v in visits]), measured, true)
+    sides = np.array([0.0 if before is None else (-1.0 if k % 2 == 0 else 1.0) for k, (_, before) in enumerate(visits)])
+    return TwinMeasurements(np.array([v[0] for v in visits]), measured, true, sides, play)
+
+
+def mirrored_approach(model: HitchModel) -> HitchModel:
+    """``model`` with its ``motion.final_approach`` ending from the other side (``side`` flipped; the rest,
+    the lag too, kept): the second pass of a two-sided measurement."""
+    fa = model.profile.motion.final_approach
+    if fa is None:
+        raise TruthError("measuring from both sides by goto needs the profile's motion.final_approach")
+    flipped = fa.model_copy(update={"side": "above" if fa.side == "below" else "below"})
+    motion = model.profile.motion.model_copy(update={"final_approach": flipped})
+    return HitchModel(model.profile.model_copy(update={"motion": motion}), model.category)
 
 
 def _measure_by_goto(
+    model: HitchModel,
+    truth: MachineTruth,
+    poses: np.ndarray,
+    inst: Instrument,
+    points: tuple[str, ...],
+    seed: int,
+    both: bool,
+) -> TwinMeasurements:
+    passes = [model, mirrored_approach(model)] if both else [model]
+    parts = [_goto_pass(m, truth, poses, inst, points, seed) for m in passes]
+    return TwinMeasurements(
+        *(
+            np.concatenate([getattr(t, f) for t in parts])
+            for f in ("counts", "measured", "true", "sides", "play_offset")
+        )
+    )
+
+
+def _goto_pass(
     model: HitchModel, truth: MachineTruth, poses: np.ndarray, inst: Instrument, points: tuple[str, ...], seed: int
 ) -> TwinMeasurements:
+    """One pass of :func:`_measure_by_goto`: every pose by a goto of ``model``'s planner, its side the approach's."""
     from bridge.sim.accuracy_run import AccuracyRunSettings, visit_poses  # the rig: only for this procedure
 
     v = visit_poses(model, poses, truth, AccuracyRunSettings(seed=seed), instrument=inst, points=points)
+    fa = model.profile.motion.final_approach
+    side = 0.0 if fa is None else -fa.sign  # rising (below): −1
     n = poses.shape[0]
     measured, true = np.full((n, 15), np.nan), np.full((n, 15), np.nan)
     rows = [MEASURED_COLUMNS.index(c) for c in CONTROLLED_POSE_NAMES]
@@ -182,7 +225,8 @@ def _measure_by_goto(
             i = MEASURED_COLUMNS.index(f"{name}_x")
             true[k, i : i + 3] = v.points[k][name]
             measured[k, i : i + 3] = reading.points[name]
-    return TwinMeasurements(v.counts, measured, true)
+    assert v.play_offset is not None  # visit_poses records it
+    return TwinMeasurements(v.counts, measured, true, np.full(n, side), v.play_offset)
 
 
 def true_poses(
@@ -227,5 +271,7 @@ def true_poses(
 
 
 def calibration_csv(data: TwinMeasurements, labels: Sequence[str] | None = None) -> str:
-    """The measurement file (CSV, counts) of twin measurements; ``labels`` one per row (default p1, p2 …)."""
-    return measurements_csv(data.counts, data.measured, labels=labels)
+    """The measurement file (CSV, counts) of twin measurements, with the ``approach`` column where a row's side
+    is known; ``labels`` one per row (default p1, p2 …)."""
+    sides = data.sides if np.any(data.sides != 0.0) else None
+    return measurements_csv(data.counts, data.measured, labels=labels, sides=sides)

@@ -468,6 +468,14 @@ class TrueMachine:
         return self.pose
 
     @property
+    def play_offset(self) -> np.ndarray:
+        """The implement's pose minus the mechanism's now (x, z, roll, pitch) [m, m, rad, rad]: where the play
+        leaves it in its dead band (each within ± the band)."""
+        if self._mechanism is None or self._implement is None:
+            raise TruthError("the true machine has not been observed yet (call observe first)")
+        return self._implement - self._mechanism.controlled()
+
+    @property
     def pose(self) -> Pose:
         """The last true implement pose (x, z, roll, pitch after play; y, yaw of the mechanism)."""
         if self._mechanism is None or self._implement is None:

@@ -3,11 +3,12 @@
 Candidates are poses (x, z, roll, pitch) of the model's restricted workspace (the box's corners,
 face centres and seeded uniform samples), kept when the nominal exact inverse reaches them with
 every actuator inside its stroke (a margin of ``margin`` of the stroke from each end). Where the
-profile has a ``motion.final_approach``, the box's lower faces move up by its offset: a goto to a
-candidate then rises by the whole offset in every DOF, so the pin play is taken up as in every other
-goto. (At a lower face the approach is cut short and the play is left partly taken up; measured
-there, it biased calibrated roll by about 1.3 mrad in three of 20 tape-perturbed twins through the
-twin, docs/commissioning.md.) Each
+profile has a ``motion.final_approach``, the box's lower faces move up by its offset (the upper faces
+down with ``side = "above"``, both for poses measured from both sides): a goto to a candidate then
+rises by the whole offset in every DOF, so the pin play is taken up as in every other goto. (At a
+lower face the approach is cut short and the play is left partly taken up; measured there, it biased
+calibrated roll by about 1.3 mrad in three of 20 tape-perturbed twins through the twin,
+docs/commissioning.md.) Each
 candidate's information is JᵀJ of its weighted, scaled Jacobian at the nominal parameters
 (:mod:`planner.calibration.solve`); the design maximises log det of the information of the
 identifiable directions (those of the *whole* candidate set; plus a unit prior, the tape
@@ -68,10 +69,17 @@ def measured_rows(points: bool = False, pose: bool = True) -> np.ndarray:
 
 
 def candidate_poses(
-    model: ParametricModel, n: int = 300, *, seed: int = 0, margin: float = 0.02, random_only: bool = False
+    model: ParametricModel,
+    n: int = 300,
+    *,
+    seed: int = 0,
+    margin: float = 0.02,
+    random_only: bool = False,
+    two_sided: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(poses (M, 4), nominal actuators (M, 5)) inside the restricted workspace and the strokes: the box's
-    corners, face centres and centre (2 % inside; the lower faces above the profile's final approach, module
+    corners, face centres and centre (2 % inside; the lower faces above the profile's final approach, the upper
+    ones with its ``side = "above"``, both with ``two_sided``: each pose measured from both sides; module
     docstring), then ``n`` seeded random poses (``random_only``: those alone)."""
     if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= 100_000:
         raise CalibrationError(f"n must be an integer in [1, 100000], got {n!r}")
@@ -87,8 +95,12 @@ def candidate_poses(
     hi = np.array([box[k][1] for k in CONTROLLED_POSE_NAMES])
     shrink = 0.02 * (hi - lo)  # the box's corners are where limits meet: stay a little inside
     approach = hm.profile.motion.final_approach
-    lift = shrink if approach is None else np.maximum(shrink, np.asarray(approach.offset()) + _APPROACH_ROOM)
-    lo, hi = lo + lift, hi - shrink
+    if two_sided and approach is None:
+        raise CalibrationError("two_sided needs the profile's motion.final_approach (how far each side starts)")
+    room = shrink if approach is None else np.maximum(shrink, np.asarray(approach.offset()) + _APPROACH_ROOM)
+    below = approach is not None and (two_sided or approach.side == "below")
+    above = approach is not None and (two_sided or approach.side == "above")
+    lo, hi = lo + (room if below else shrink), hi - (room if above else shrink)
     if np.any(lo >= hi):
         bad = [k for k, a, b in zip(CONTROLLED_POSE_NAMES, lo, hi, strict=True) if a >= b]
         raise CalibrationError(
@@ -150,12 +162,14 @@ def plan_poses(
     sigma_angle_rad: float = 0.001,
     min_singular: float = 1.0,
     exchange_passes: int = 2,
+    two_sided: bool = False,
 ) -> PoseDesign:
     """The ``n_poses`` poses to measure (D-optimal; module docstring). ``points``: the instrument also reads
-    the marked points L, R, U."""
+    the marked points L, R, U. ``two_sided``: each pose will be measured from both sides (the candidates keep
+    the final approach's room at both faces; the lag the two sides separate is not a design direction)."""
     if isinstance(n_poses, bool) or not isinstance(n_poses, int) or not 1 <= n_poses <= 1000:
         raise CalibrationError(f"n (poses to plan) must be an integer in [1, 1000], got {n_poses!r}")
-    poses, acts = candidate_poses(model, candidates, seed=seed)
+    poses, acts = candidate_poses(model, candidates, seed=seed, two_sided=two_sided)
     if n_poses > poses.shape[0]:
         raise CalibrationError(f"n = {n_poses} poses asked, only {poses.shape[0]} candidates are reachable")
     sigma = np.array([sigma_angle_rad if c in _ANGLES else sigma_position_m for c in MEASURED_COLUMNS])

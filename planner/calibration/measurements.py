@@ -11,7 +11,11 @@ Columns (header row required; order free; unknown columns are an error):
 * optionally marked points in m: ``L_x, L_y, L_z`` (left ball centre), ``R_*`` (right), ``U_*``
   (top-link pin), three columns per point;
 * optionally the pose the row was meant to be (``target_x, target_z, target_roll, target_pitch``, m and
-  rad, as ``hitch calibrate plan-poses --out`` writes them): a note for the operator, not used by the fit.
+  rad, as ``hitch calibrate plan-poses --out`` writes them): a note for the operator, not used by the fit;
+* optionally ``approach`` — the side the pose was reached from in every DOF: ``below`` (a goto with the
+  profile's ``motion.final_approach``: it ends rising), ``above`` (ends falling), or empty (unknown, or the
+  play averaged). With any row below or above the fit also finds the lag the pin play leaves
+  (:mod:`planner.calibration.parameters`).
 
 Every row needs its five readings and at least one measured quantity; an empty cell means "not
 measured" (only for the measured columns). Measured values must lie within ±3 m (positions) and
@@ -39,6 +43,8 @@ from planner.model.types import ACTUATOR_NAMES
 from planner.profiles.hitch import Profile
 
 __all__ = [
+    "APPROACH_COLUMN",
+    "APPROACH_SIDES",
     "MEASURED_COLUMNS",
     "TARGET_COLUMNS",
     "MeasurementSet",
@@ -53,6 +59,9 @@ _POINT_COLUMNS = tuple(f"{p}_{c}" for p in ("L", "R", "U") for c in "xyz")
 MEASURED_COLUMNS: tuple[str, ...] = OUTPUT_NAMES
 #: the planned pose a row was meant to be (m, rad): written by plan-poses, read by measure-twin --plan, not fitted
 TARGET_COLUMNS: tuple[str, ...] = ("target_x", "target_z", "target_roll", "target_pitch")
+#: the column naming the side each pose was approached from, and its words
+APPROACH_COLUMN = "approach"
+APPROACH_SIDES: dict[str, float] = {"below": -1.0, "above": 1.0, "": 0.0}
 _ANGLES = {"roll", "pitch", "yaw"}
 _POSITION_MAX_M = 3.0
 _ANGLE_MAX = math.pi / 2
@@ -62,12 +71,14 @@ _STROKE_MARGIN = 0.10
 @dataclass(frozen=True)
 class MeasurementSet:
     """Measured poses: actuator readings (N, 5) in SI through the nominal AD map, measured outputs (N, 15)
-    in :data:`OUTPUT_NAMES` order with ``mask`` (N, 15) true where measured, and the row labels."""
+    in :data:`OUTPUT_NAMES` order with ``mask`` (N, 15) true where measured, the row labels and the side
+    each pose was approached from (N,: −1 below, +1 above, 0 unknown; default all 0)."""
 
     readings: np.ndarray
     values: np.ndarray
     mask: np.ndarray
     labels: tuple[str, ...]
+    sides: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = self.readings.shape[0] if self.readings.ndim == 2 else -1
@@ -75,6 +86,10 @@ class MeasurementSet:
             raise CalibrationError("measurements: readings (N, 5), values and mask (N, 15) with N >= 1")
         if len(self.labels) != n:
             raise CalibrationError("measurements: one label per row")
+        sides = np.zeros(n) if self.sides is None else np.asarray(self.sides, dtype=float).reshape(-1)
+        if sides.shape != (n,) or not np.all(np.isin(sides, (-1.0, 0.0, 1.0))):
+            raise CalibrationError("measurements: one approach side per row, each -1 (below), 0 or +1 (above)")
+        object.__setattr__(self, "sides", sides)
         if not np.all(np.isfinite(self.readings)) or not np.all(np.isfinite(self.values[self.mask])):
             raise CalibrationError("measurements: readings and measured values must be finite")
 
@@ -101,9 +116,26 @@ class MeasurementSet:
         np.logical_or.at(seen, group, self.mask)
         return int(seen.sum())
 
+    @property
+    def sided(self) -> bool:
+        """True when some row was approached from a known side (the fit can then find the lag)."""
+        return bool(np.any(self.side_vector != 0.0))
+
+    @property
+    def side_vector(self) -> np.ndarray:
+        """The approach sides (N,) as an array (−1 below, +1 above, 0 unknown)."""
+        assert self.sides is not None  # set in __post_init__
+        return self.sides
+
     def subset(self, rows: Sequence[int]) -> MeasurementSet:
         idx = list(rows)
-        return MeasurementSet(self.readings[idx], self.values[idx], self.mask[idx], tuple(self.labels[i] for i in idx))
+        return MeasurementSet(
+            self.readings[idx],
+            self.values[idx],
+            self.mask[idx],
+            tuple(self.labels[i] for i in idx),
+            self.side_vector[idx],
+        )
 
 
 def _cell(text: str, where: str, col: str, lo: float, hi: float, unit: str) -> float:
@@ -153,12 +185,20 @@ def parse_measurements(text: str, profile: Profile, *, source: str = "measuremen
     except StopIteration:
         raise CalibrationError(f"{source}: empty file (a header row is required)") from None
     head = f"row 0 (the header, line {reader.line_num})"
-    allowed = {"pose", *ACTUATOR_NAMES, *(f"{n}_counts" for n in ACTUATOR_NAMES), *MEASURED_COLUMNS, *TARGET_COLUMNS}
+    allowed = {
+        "pose",
+        APPROACH_COLUMN,
+        *ACTUATOR_NAMES,
+        *(f"{n}_counts" for n in ACTUATOR_NAMES),
+        *MEASURED_COLUMNS,
+        *TARGET_COLUMNS,
+    }
     unknown = [h for h in header if h not in allowed]
     if unknown:
         raise CalibrationError(
-            f"{source} {head}: unknown column(s) {unknown}; allowed: pose, {', '.join(ACTUATOR_NAMES)} (SI) or "
-            f"<name>_counts, {', '.join(MEASURED_COLUMNS)}, {', '.join(TARGET_COLUMNS)}"
+            f"{source} {head}: unknown column(s) {unknown}; allowed: pose, {APPROACH_COLUMN}, "
+            f"{', '.join(ACTUATOR_NAMES)} (SI) or <name>_counts, {', '.join(MEASURED_COLUMNS)}, "
+            f"{', '.join(TARGET_COLUMNS)}"
         )
     dup = sorted({h for h in header if header.count(h) > 1})
     if dup:
@@ -181,7 +221,7 @@ def parse_measurements(text: str, profile: Profile, *, source: str = "measuremen
     if not measured:
         raise CalibrationError(f"{source} {head}: no measured column (x, z, roll, pitch and/or L_x … U_z)")
     sc = SensorScaling(profile)
-    readings, values, masks, labels = [], [], [], []
+    readings, values, masks, labels, sides = [], [], [], [], []
     for r, (where, cells) in enumerate(_data_rows(reader, len(header), source), start=1):
         q = np.zeros(5)
         for k, n in enumerate(ACTUATOR_NAMES):
@@ -208,13 +248,23 @@ def parse_measurements(text: str, profile: Profile, *, source: str = "measuremen
             idx = [MEASURED_COLUMNS.index(g) for g in group if g in cols]
             if idx and 0 < mask[idx].sum() < len(idx):
                 raise CalibrationError(f"{where}: columns {', '.join(group)} must be all given or all empty")
+        side = 0.0
+        if APPROACH_COLUMN in cols:
+            word = cells[cols[APPROACH_COLUMN]].lower()
+            if word not in APPROACH_SIDES:
+                raise CalibrationError(
+                    f"{where}, column {APPROACH_COLUMN}: {cells[cols[APPROACH_COLUMN]]!r} is not a side "
+                    "(allowed: below, above, or empty for unknown)"
+                )
+            side = APPROACH_SIDES[word]
         readings.append(q)
         values.append(vals)
         masks.append(mask)
         labels.append(cells[cols["pose"]] if "pose" in cols else str(r))
+        sides.append(side)
     if not readings:
         raise CalibrationError(f"{source}: no data rows after the header")
-    return MeasurementSet(np.array(readings), np.array(values), np.array(masks), tuple(labels))
+    return MeasurementSet(np.array(readings), np.array(values), np.array(masks), tuple(labels), np.array(sides))
 
 
 def load_measurements(path: str | Path, profile: Profile) -> MeasurementSet:
@@ -230,28 +280,43 @@ def load_measurements(path: str | Path, profile: Profile) -> MeasurementSet:
 
 
 def measurements_csv(
-    counts: np.ndarray, values: np.ndarray, mask: np.ndarray | None = None, labels: Sequence[str] | None = None
+    counts: np.ndarray,
+    values: np.ndarray,
+    mask: np.ndarray | None = None,
+    labels: Sequence[str] | None = None,
+    sides: np.ndarray | None = None,
 ) -> str:
-    """CSV text of measurements with readings in AD counts (N, 5) and measured outputs (N, 15; NaN = not measured)."""
+    """CSV text of measurements with readings in AD counts (N, 5) and measured outputs (N, 15; NaN = not
+    measured); ``sides`` (N,: −1, 0, +1) adds the ``approach`` column."""
     counts = np.asarray(counts, dtype=float)
     values = np.asarray(values, dtype=float)
     m = np.isfinite(values) if mask is None else np.asarray(mask, dtype=bool)
     used = [i for i in range(15) if m[:, i].any()]
-    header = ["pose", *(f"{n}_counts" for n in ACTUATOR_NAMES), *(MEASURED_COLUMNS[i] for i in used)]
+    words = {v: k for k, v in APPROACH_SIDES.items()}
+    side_col = [] if sides is None else [APPROACH_COLUMN]
+    header = ["pose", *(f"{n}_counts" for n in ACTUATOR_NAMES), *(MEASURED_COLUMNS[i] for i in used), *side_col]
     out = io.StringIO()
     w = csv.writer(out, lineterminator="\n")
     w.writerow(header)
     for k in range(counts.shape[0]):
         lab = labels[k] if labels is not None else f"p{k + 1}"
+        side = [] if sides is None else [words[float(sides[k])]]
         w.writerow(
-            [lab, *(f"{c:.6g}" for c in counts[k]), *(repr(float(values[k, i])) if m[k, i] else "" for i in used)]
+            [
+                lab,
+                *(f"{c:.6g}" for c in counts[k]),
+                *(repr(float(values[k, i])) if m[k, i] else "" for i in used),
+                *side,
+            ]
         )
     return out.getvalue()
 
 
 def load_plan_targets(path: str | Path) -> tuple[tuple[str, ...], np.ndarray]:
     """The labels and target poses (N, 4: x, z, roll, pitch in m, rad) of a plan file of ``hitch calibrate
-    plan-poses --out`` (its ``pose`` and ``target_*`` columns); errors name the file, row and column."""
+    plan-poses --out`` (its ``pose`` and ``target_*`` columns; a row repeating an earlier one's label and pose,
+    as the second pass of a two-sided template does, is the same pose, listed once); errors name the file, row
+    and column."""
     p = Path(path)
     try:
         text = p.read_text(encoding="utf-8").removeprefix("\ufeff")
@@ -275,8 +340,11 @@ def load_plan_targets(path: str | Path) -> tuple[tuple[str, ...], np.ndarray]:
         for c in TARGET_COLUMNS:
             lim, unit = (_ANGLE_MAX, "rad") if c.endswith(("roll", "pitch")) else (_POSITION_MAX_M, "m")
             pose.append(_cell(cells[cols[c]], where, c, -lim, lim, unit))
+        label = cells[cols["pose"]] if "pose" in cols else f"p{r}"
+        if any(lab == label and seen == pose for lab, seen in zip(labels, poses, strict=True)):
+            continue  # the same pose again (measured from the other side)
         poses.append(pose)
-        labels.append(cells[cols["pose"]] if "pose" in cols else f"p{r}")
+        labels.append(label)
     if not poses:
         raise CalibrationError(f"plan file {p}: no poses after the header")
     return tuple(labels), np.array(poses)

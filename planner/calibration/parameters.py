@@ -14,6 +14,13 @@ offset's scale is 3 counts of the nominal map (in m or rad), the gain's 2 %. Wri
 a profile moves ``counts_min`` / ``counts_max`` (integers in the schema, so rounded to whole counts;
 the strokes in SI stay). A scale is the size of the error the parameter may have before
 calibration: the solver works in the scaled deltas ``u = (p − nominal) / scale``.
+
+With ``include_lag=True`` (a profile with ``motion.final_approach``) four more: the **lag** of the
+implement behind the mechanism after a rising approach, ``lag.x``, ``lag.z`` (scale 1 mm), ``lag.roll``,
+``lag.pitch`` (3 mrad) — the pin play taken up on one side. A pose measured after a rising approach reads
+the mechanism's pose minus the lag, one after a falling approach plus it (the measurement file's
+``approach`` column); the fit finds it beside the geometry, and it is written to
+``motion.final_approach.lag``, where the planner aims the mechanism that far above each goal.
 """
 
 from __future__ import annotations
@@ -33,6 +40,8 @@ from planner.profiles.hitch import Profile, profile_from_dict
 __all__ = [
     "AD_GAIN_SCALE",
     "AD_OFFSET_SCALE_COUNTS",
+    "LAG_NAMES",
+    "LAG_SCALE",
     "COORDINATE_SCALE_M",
     "LENGTH_SCALE_M",
     "CalibrationError",
@@ -44,6 +53,10 @@ COORDINATE_SCALE_M = 0.010
 LENGTH_SCALE_M = 0.005
 AD_OFFSET_SCALE_COUNTS = 3.0
 AD_GAIN_SCALE = 0.02
+#: scales of lag.x, lag.z [m], lag.roll, lag.pitch [rad]: the bands of 1 mm of pin play (1 mm, 2.5, 3.3 mrad)
+LAG_SCALE = (0.001, 0.001, 0.003, 0.003)
+#: the lag's parameter names (x, z, roll, pitch)
+LAG_NAMES = ("lag.x", "lag.z", "lag.roll", "lag.pitch")
 
 _VECTOR_FIELDS = ("lift_arm_pivot", "top_link_tractor_point", "limiter_tractor_point")
 _SCALAR_COORDINATES = ("lower_link_pivot_span", "pivot_height")
@@ -84,9 +97,15 @@ class ParameterSet:
     parameters: tuple[Parameter, ...]
 
     @classmethod
-    def from_profile(cls, profile: Profile, *, include_ad: bool = True) -> ParameterSet:
+    def from_profile(cls, profile: Profile, *, include_ad: bool = True, include_lag: bool = False) -> ParameterSet:
         if not isinstance(profile, Profile):
             raise CalibrationError(f"profile must be a Profile, got {type(profile).__name__}")
+        fa = profile.motion.final_approach
+        if include_lag and fa is None:
+            raise CalibrationError(
+                "the lag needs the profile's motion.final_approach: the planner compensates it only where a goto "
+                "ends rising (add [motion.final_approach] to the profile, or measure without the approach column)"
+            )
         g = profile.geometry
         ps: list[Parameter] = []
         for f in _VECTOR_FIELDS:
@@ -102,6 +121,10 @@ class ParameterSet:
                 ps.append(Parameter(f"ad_offset.{n}", 0.0, AD_OFFSET_SCALE_COUNTS * float(r), _ad_offset_unit(n)))
             for n in ACTUATOR_NAMES:
                 ps.append(Parameter(f"ad_gain.{n}", 0.0, AD_GAIN_SCALE, "1"))
+        if include_lag and fa is not None:
+            lag = fa.lag.vector() if fa.lag is not None else (0.0, 0.0, 0.0, 0.0)
+            for name, v, sc in zip(LAG_NAMES, lag, LAG_SCALE, strict=True):
+                ps.append(Parameter(name, float(v), sc, "m" if name in ("lag.x", "lag.z") else "rad"))
         return cls(profile, tuple(ps))
 
     # ------------------------------------------------------------------ views
@@ -120,6 +143,11 @@ class ParameterSet:
     @property
     def include_ad(self) -> bool:
         return any(p.name.startswith("ad_") for p in self.parameters)
+
+    @property
+    def lag_index(self) -> np.ndarray:
+        """Indices of lag.x, lag.z, lag.roll, lag.pitch among the parameters (empty without the lag)."""
+        return np.array([self.names.index(n) for n in LAG_NAMES if n in self.names], dtype=int)
 
     def __len__(self) -> int:
         return len(self.parameters)
@@ -153,6 +181,9 @@ class ParameterSet:
                     out.append(float(getattr(g, f)[int(i)]))
                 else:
                     out.append(float(getattr(g, rest)))
+            elif kind == "lag":
+                fa = other.motion.final_approach
+                out.append(float(getattr(fa.lag, rest)) if fa is not None and fa.lag is not None else 0.0)
             else:
                 k = ACTUATOR_NAMES.index(rest)
                 if kind == "ad_gain":
@@ -183,6 +214,9 @@ class ParameterSet:
                     geo[f] = vec
                 else:
                     geo[rest] = float(x)
+            elif kind == "lag":
+                fa = data["motion"]["final_approach"]  # include_lag needs it
+                fa["lag"] = {**(fa.get("lag") or {}), rest: float(x)}
             else:
                 ad.setdefault(rest, {})[kind] = float(x)
         for n, d in ad.items():

@@ -16,6 +16,11 @@ plain forward kinematics and equals :class:`~planner.model.kinematics.HitchModel
 
 Outputs per pose (:data:`OUTPUT_NAMES`): the pose x, y, z, roll, pitch, yaw of T and the marked
 points L, R (ball centres) and U (top-link pin) [m, rad].
+
+With the lag among the parameters (:class:`~planner.calibration.parameters.ParameterSet`,
+``include_lag``) a pose's ``side`` (−1 approached rising, +1 falling, 0 unknown or averaged) adds
+``side · lag`` to its x, z, roll and pitch: the implement rests the play's half-band behind the
+mechanism. The marked points are not shifted (measure points with the play averaged: from both sides).
 """
 
 from __future__ import annotations
@@ -48,6 +53,8 @@ POSE_ROWS: dict[str, int] = {"x": 0, "z": 2, "roll": 3, "pitch": 4}
 #: output rows (3 each) of the marked points
 POINT_ROWS: dict[str, int] = {"L": 6, "R": 9, "U": 12}
 _CLOSURE_TOL_M = 1e-9
+#: output rows x, z, roll, pitch, in the order of the lag parameters
+_LAG_ROWS = np.array([POSE_ROWS[k] for k in ("x", "z", "roll", "pitch")])
 
 
 def _field_expressions(ps: ParameterSet, p: ca.SX) -> dict[str, ca.SX]:
@@ -201,18 +208,30 @@ class ParametricModel:
                 f"(closure errors {np.round(checks[:4], 12).tolist()} m, top-link reach {checks[4]:.4g})"
             )
 
-    def predict(self, q_read: ArrayLike, p: ArrayLike | None = None) -> np.ndarray:
-        """Outputs (:data:`OUTPUT_NAMES`, 15) at one actuator reading (SI, nominal AD map) and parameters."""
+    def predict(self, q_read: ArrayLike, p: ArrayLike | None = None, side: float = 0.0) -> np.ndarray:
+        """Outputs (:data:`OUTPUT_NAMES`, 15) at one actuator reading (SI, nominal AD map) and parameters,
+        approached from ``side`` (module docstring)."""
         q = self._reading(q_read)
         pv = self.params.nominal if p is None else self.params.vector(p)
         y, c, _ = self._fn(q, pv, self._seed(q))
         self._check(np.asarray(c).reshape(-1), q)
-        return np.asarray(y).reshape(-1)
+        out = np.asarray(y).reshape(-1)
+        lag = self.params.lag_index
+        if lag.size:
+            out[_LAG_ROWS] += float(side) * pv[lag]
+        return out
 
     def batch(
-        self, q_read: ArrayLike, p: ArrayLike | None = None, *, jacobian: bool = True, seeds: np.ndarray | None = None
+        self,
+        q_read: ArrayLike,
+        p: ArrayLike | None = None,
+        *,
+        jacobian: bool = True,
+        seeds: np.ndarray | None = None,
+        sides: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray | None]:
-        """Outputs (N, 15) and, with ``jacobian``, d outputs / d parameters (N, 15, n) at N readings (N, 5)."""
+        """Outputs (N, 15) and, with ``jacobian``, d outputs / d parameters (N, 15, n) at N readings (N, 5),
+        approached from ``sides`` (N,) (module docstring; default 0: no lag)."""
         qs = np.asarray(q_read, dtype=float)
         if qs.ndim != 2 or qs.shape[1] != 5 or not np.all(np.isfinite(qs)):
             raise CalibrationError("actuator readings must be an (N, 5) array of finite numbers")
@@ -228,9 +247,17 @@ class ParametricModel:
         c = np.asarray(out[2] if jacobian else out[1]).T.reshape(n_pose, 5)
         for k in range(n_pose):
             self._check(c[k], qs[k])
+        lag = self.params.lag_index
+        side = np.zeros(n_pose) if sides is None else np.asarray(sides, dtype=float).reshape(-1)
+        if side.shape != (n_pose,):
+            raise CalibrationError(f"sides must hold one approach side per reading ({n_pose}), got {side.size}")
+        if lag.size:
+            y[:, _LAG_ROWS] += side[:, None] * pv[lag][None, :]
         if not jacobian:
             return y, None
         j = np.asarray(out[1]).reshape(15, n_pose, self.n_params).transpose(1, 0, 2)
+        if lag.size:
+            j[:, _LAG_ROWS, lag] += side[:, None]
         return y, j
 
     def seeds(self, q_read: np.ndarray) -> np.ndarray:

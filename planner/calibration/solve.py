@@ -63,7 +63,7 @@ class CalibrationProblem:
         """Weighted residuals (m,) and their Jacobian (m, n) in scaled units at scaled deltas ``u``."""
         ps = self.params
         p = ps.nominal + ps.scale * u
-        y, j = self.model.batch(self.data.readings, p, jacobian=jacobian, seeds=self.seeds)
+        y, j = self.model.batch(self.data.readings, p, jacobian=jacobian, seeds=self.seeds, sides=self.data.side_vector)
         m = self.data.mask
         w = 1.0 / self.sigma
         r = ((y - np.nan_to_num(self.data.values)) * w)[m]
@@ -359,7 +359,9 @@ def largest_residuals(
     counted from 1 as the measurement file's data rows, the column of the row's largest residual and that
     residual (measured − calibrated) in units of its σ. With σ̂ far above 1 the worst row is where to look
     for a wrong value or a unit slip (an engineer's report: the warning named no row)."""
-    y, _ = problem.model.batch(problem.data.readings, result.values, jacobian=False, seeds=problem.seeds)
+    y, _ = problem.model.batch(
+        problem.data.readings, result.values, jacobian=False, seeds=problem.seeds, sides=problem.data.side_vector
+    )
     r = np.where(problem.data.mask, (np.nan_to_num(problem.data.values) - y) / problem.sigma, 0.0)
     worst = np.argmax(np.abs(r), axis=1)
     size = np.abs(r[np.arange(len(r)), worst])

@@ -33,6 +33,7 @@ __all__ = [
     "ActuatorStops",
     "CountApproachSettings",
     "FinalApproach",
+    "PlayLag",
     "load_profile",
     "available_profiles",
     "profile_from_dict",
@@ -215,19 +216,63 @@ class Limits(_Strict):
     end_stop_zone: float = Field(default=0.05, ge=0.0, le=0.5)
 
 
+class PlayLag(_Strict):
+    """The implement's lag behind the mechanism after a rising final approach, per DOF [m, m, rad, rad]: the
+    pin play taken up on one side (a dead band's half-width as the pose sees it). A fitted value
+    (``hitch calibrate geometry`` from poses measured with their approach side), so it may be slightly
+    negative within its noise."""
+
+    x: float = Field(ge=-0.005, le=0.01)
+    z: float = Field(ge=-0.005, le=0.01)
+    roll: float = Field(ge=-0.01, le=0.02)
+    pitch: float = Field(ge=-0.01, le=0.02)
+
+    def vector(self) -> tuple[float, float, float, float]:
+        """(x, z, roll, pitch) [m, m, rad, rad]."""
+        return (self.x, self.z, self.roll, self.pitch)
+
+
 class FinalApproach(_Strict):
     """How far below a goto's goal its last segment starts, per DOF [m, m, rad, rad] (0: no approach in that
     DOF): the move ends rising in every DOF, so pin play and the ECU's stop inside a count are taken up
-    on the same side every time (:mod:`planner.trajectory.final_approach`)."""
+    on the same side every time (:mod:`planner.trajectory.final_approach`). ``side = "above"``: the last
+    segment starts that far above the goal and ends falling instead."""
 
     x: float = Field(ge=0.0, le=0.05)
     z: float = Field(ge=0.0, le=0.05)
     roll: float = Field(ge=0.0, le=0.1)
     pitch: float = Field(ge=0.0, le=0.1)
+    side: Literal["below", "above"] = "below"
+    #: how far the implement rests behind the mechanism after the approach (the pin play taken up), as
+    #: ``hitch calibrate geometry`` identifies it; the planner aims the mechanism that far beyond each goal
+    lag: PlayLag | None = None
 
     def offset(self) -> tuple[float, float, float, float]:
-        """(x, z, roll, pitch) [m, m, rad, rad]."""
+        """(x, z, roll, pitch) [m, m, rad, rad]: how far from the goal the last segment starts (unsigned)."""
         return (self.x, self.z, self.roll, self.pitch)
+
+    @property
+    def sign(self) -> float:
+        """+1 when the approach ends rising (``side = "below"``), −1 when it ends falling."""
+        return 1.0 if self.side == "below" else -1.0
+
+    def rise(self) -> tuple[float, float, float, float]:
+        """The approach's last segment, goal minus its start (x, z, roll, pitch) [m, m, rad, rad]: the offset,
+        negative for ``side = "above"``."""
+        return (self.sign * self.x, self.sign * self.z, self.sign * self.roll, self.sign * self.pitch)
+
+    def aim_shift(self) -> tuple[float, float, float, float]:
+        """How far beyond the goal the mechanism is aimed so the lagging implement rests on it: sign · lag in
+        the DOF with an approach (x, z, roll, pitch) [m, m, rad, rad]; 0 without a lag."""
+        lx, lz, lr, lp = self.lag_vector()
+        return (self.sign * lx, self.sign * lz, self.sign * lr, self.sign * lp)
+
+    def lag_vector(self) -> tuple[float, float, float, float]:
+        """The lag (x, z, roll, pitch) [m, m, rad, rad] in the DOF with an approach; 0 elsewhere (and without one)."""
+        if self.lag is None:
+            return (0.0, 0.0, 0.0, 0.0)
+        (lx, lz, lr, lp), (dx, dz, dr, dp) = self.lag.vector(), self.offset()
+        return (lx if dx > 0 else 0.0, lz if dz > 0 else 0.0, lr if dr > 0 else 0.0, lp if dp > 0 else 0.0)
 
 
 _StopList = Annotated[list[Annotated[float, Field(gt=-1.0, lt=1.0)]], Field(min_length=1, max_length=5)]

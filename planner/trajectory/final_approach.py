@@ -22,6 +22,14 @@ starts at least ``d`` below its goal does not move in the first segment (``via =
 every DOF does, no via is needed. Near the workspace's lower face the via is cut at the face and the
 approach in that DOF is shorter than ``d`` (named in :attr:`ApproachVia.short`). ``d`` must exceed
 twice the play band so the implement changes side even from the opposite extreme.
+
+A DOF with a negative ``d`` (the profile's ``side = "above"``) is the mirror image: the via lies
+``|d|`` above the goal, ``via = min(max(start, goal − d), workspace maximum)``, and the move ends
+falling.
+
+The implement then rests behind the mechanism by the play's half-band (the lag). With the lag known
+(``motion.final_approach.lag``, from a calibration that measured both sides) the planner aims the
+mechanism at ``goal + sign · lag`` so the implement rests on the goal (backlash compensation).
 """
 
 from __future__ import annotations
@@ -47,13 +55,20 @@ class ApproachVia:
     short: tuple[str, ...]
 
 
-def final_approach_via(start: ArrayLike, goal: ArrayLike, offset: ArrayLike, lower: ArrayLike) -> ApproachVia:
-    """The via pose for a final approach from ``start`` to ``goal`` rising by ``offset`` (module docstring);
-    ``lower``: the workspace minimum. All (4,) in x, z, roll, pitch [m, m, rad, rad]."""
+def final_approach_via(
+    start: ArrayLike, goal: ArrayLike, offset: ArrayLike, lower: ArrayLike, upper: ArrayLike | None = None
+) -> ApproachVia:
+    """The via pose for a final approach from ``start`` to ``goal`` rising by ``offset`` (negative: falling by
+    its size; module docstring); ``lower``, ``upper``: the workspace minimum and maximum (``upper`` needed
+    only with a negative offset). All (4,) in x, z, roll, pitch [m, m, rad, rad]."""
     p0, p1 = np.asarray(start, float), np.asarray(goal, float)
     d, lo = np.asarray(offset, float), np.asarray(lower, float)
-    via = np.maximum(np.minimum(p0, p1 - d), lo)
-    short = tuple(k for k, v, g, dd in zip(CONTROLLED_POSE_NAMES, via, p1, d, strict=True) if g - v < dd - _TOL)
+    hi = np.full(4, np.inf) if upper is None else np.asarray(upper, float)
+    rising = d >= 0.0
+    via = np.where(rising, np.maximum(np.minimum(p0, p1 - d), lo), np.minimum(np.maximum(p0, p1 - d), hi))
+    short = tuple(
+        k for k, v, g, dd in zip(CONTROLLED_POSE_NAMES, via, p1, d, strict=True) if abs(g - v) < abs(dd) - _TOL
+    )
     if np.all(np.abs(via - p0) <= _TOL):
         return ApproachVia(None, short)
     return ApproachVia(via, short)

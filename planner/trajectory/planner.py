@@ -123,8 +123,12 @@ class TrajectoryPlanner:
         self._probe = StopProbe()
         self._line_cache: dict[tuple[bytes, bytes], tuple[ActuatorLimits, PoseLimits]] = {}
         fa = model.profile.motion.final_approach
-        #: rise of a goto's last segment per DOF [m, m, rad, rad] (``motion.final_approach``; None: off)
-        self.final_approach: np.ndarray | None = None if fa is None else np.array(fa.offset())
+        #: rise of a goto's last segment per DOF [m, m, rad, rad] (``motion.final_approach``, negative with
+        #: ``side = "above"``; None: off)
+        self.final_approach: np.ndarray | None = None if fa is None else np.array(fa.rise())
+        #: where a goto aims the mechanism relative to its goal so the lagging implement rests on it
+        #: (``motion.final_approach.lag``) [m, m, rad, rad]
+        self.aim_shift: np.ndarray = np.zeros(4) if fa is None else np.array(fa.aim_shift())
 
     def _check_box(self, points: Sequence[np.ndarray], field: str) -> None:
         """Every point of the box's 3⁴ grid reachable, within the hard limits up to :data:`BOX_LIMIT_TOLERANCE`,
@@ -194,21 +198,30 @@ class TrajectoryPlanner:
     # ------------------------------------------------------------------ planning
     def plan_move(self, start: MotionState, goal: Mapping[str, float], *, speed_scale: float = 1.0) -> Plan:
         """Plan from ``start`` to a (partial) goal pose, ending at rest; with the profile's
-        ``motion.final_approach`` through a via pose below the goal (:mod:`.final_approach`;
-        ``plan.info["final_approach"]`` gives the via and the DOF whose approach the workspace shortens)."""
+        ``motion.final_approach`` through a via pose below the goal (above with ``side = "above"``;
+        :mod:`.final_approach`; ``plan.info["final_approach"]`` gives the via and the DOF whose approach the
+        workspace shortens), and with its ``lag`` ending with the mechanism at the goal plus ``sign · lag``
+        (inside the workspace box; ``info["final_approach"]["aim"]``), where the lagging implement rests on the
+        goal; a DOF the goal does not name is aimed where the mechanism is."""
         scale = _check_scale(speed_scale)
         start.check("start")
         p1 = self.goal_vector(start.position, goal)
         self.check_in_workspace(p1)
         if self.final_approach is None:
             return self._plan_segments(start, [(p1, np.zeros(4), scale)])
-        approach = final_approach_via(start.position, p1, self.final_approach, self.lo)
-        targets = [(p1, np.zeros(4), scale)]
+        # the mechanism's goal: the implement lags it; a DOF not named keeps the mechanism where it is (its
+        # implement already lags it: shifting it again would creep by the lag with every goto)
+        named = np.array([k in goal for k in CONTROLLED_POSE_NAMES])
+        aim = np.where(named, np.clip(p1 + self.aim_shift, self.lo, self.hi), p1)
+        approach = final_approach_via(start.position, aim, self.final_approach, self.lo, self.hi)
+        targets = [(aim, np.zeros(4), scale)]
         if approach.via is not None:
             targets.insert(0, (approach.via, np.zeros(4), scale))
         plan = self._plan_segments(start, targets)
         via = None if approach.via is None else [float(v) for v in approach.via]
         plan.info["final_approach"] = {"via": via, "short": list(approach.short)}
+        if np.any(self.aim_shift != 0.0):
+            plan.info["final_approach"]["aim"] = [float(v) for v in aim]
         return plan
 
     def plan_sequence(

@@ -15,14 +15,16 @@ import pytest
 
 from bridge.cli.main import main
 from bridge.sim.calibration_data import measure_twin, true_poses
-from bridge.sim.truth import MachineTruth, PinPlay, perturb_profile, truth_toml
+from bridge.sim.truth import MachineTruth, PinPlay, TrueMachine, load_machine_truth, perturb_profile, truth_toml
 from planner.calibration import CalibrationError, parse_measurements, read_calibration_provenance
 from planner.calibration.design import candidate_poses
+from planner.calibration.measurements import load_plan_targets
 from planner.calibration.parametric import ParametricModel
 from planner.model.kinematics import HitchModel
 from planner.profiles.hitch import load_profile, profile_from_dict
 from tests.helpers import profile_file_with_final_approach
 
+POSE = ("x", "z", "roll", "pitch")
 GOOD_HEADER = "pose,lift_counts,tilt_counts,top_counts,left_counts,right_counts,x,z,roll,pitch"
 GOOD_ROW = "p1,100,400,120,300,260,0.0,-0.05,0.01,0.02"
 
@@ -68,6 +70,10 @@ def _err(capsys, argv) -> str:
         (
             "pose,lift,tilt,top,left,right,x,z,roll,pitch\np1,0.1,0.9,0.7,0.55,0.55,0,0,0,0\n",
             r"row 1 \(line 2\), column tilt: 0.9 m is outside the allowed \[0.565, 0.745\] m",
+        ),
+        (
+            GOOD_HEADER + ",approach\n" + GOOD_ROW + ",sideways\n",
+            r"row 1 \(line 2\), column approach: 'sideways' is not a side \(allowed: below, above, or empty",
         ),
         (GOOD_HEADER + "\n", r"no data rows"),
         ("", r"empty file"),
@@ -206,6 +212,57 @@ def test_measuring_by_goto_with_a_final_approach_and_the_calibrated_profile_keep
     assert "--by: invalid choice" in _err(
         capsys, ["calibrate", "measure-twin", "--sim-truth", "x", "--out", "y", "--by", "z"]
     )
+
+
+def test_measuring_by_goto_from_both_sides_fits_the_lag_of_the_play_and_the_profile_aims_by_it(tmp_path, capsys):
+    """--sides both: a pass with the final approach from below and one from above; the file says each row's side,
+    the fit finds the lag (the truth's play band), and the calibrated profile carries it. With the count
+    approach, as on the bench (without it the lift settles back across the play in z at some poses)."""
+    prof_file = profile_file_with_final_approach(tmp_path, count_approach=True)
+    data, _ = perturb_profile(load_profile("thesis-t132"), 4)
+    truth_file = tmp_path / "truth.toml"
+    truth_file.write_text(truth_toml(data, PinPlay(0.001, 0.0005)))
+    meas, out = tmp_path / "m.csv", tmp_path / "cal.toml"
+    common = ["--profile", str(prof_file), "--n", "12", "--candidates", "60", "--seed", "3"]
+    argv = ["calibrate", "measure-twin", "--sim-truth", str(truth_file), "--out", str(meas), "--by", "goto"]
+    assert main([*argv, *common, "--sides", "both", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out) == {"out": str(meas), "rows": 24, "poses": 12}
+    lines = meas.read_text().splitlines()
+    assert lines[0].split(",")[-1] == "approach"
+    assert [r.split(",")[-1] for r in lines[1:]] == ["below"] * 12 + ["above"] * 12
+    assert [r.split(",")[0] for r in lines[1:]] == [f"p{k + 1}" for k in range(12)] * 2
+    argv = ["calibrate", "geometry", "--profile", str(prof_file), "--measurements", str(meas), "--out", str(out)]
+    assert main([*argv, "--json"]) == 0
+    fit = json.loads(capsys.readouterr().out)["parameters"]
+    band = TrueMachine(load_machine_truth(str(truth_file)), "2").band  # the lag's truth: the play's band per DOF
+    for k, name in enumerate(("x", "z", "roll", "pitch")):
+        par = fit[f"lag.{name}"]
+        assert par["identified_share"] > 0.99
+        assert abs(par["value"] - band[k]) <= 3.0 * par["std"], (name, par, band[k])
+    lag = load_profile(out).motion.final_approach.lag
+    assert lag is not None and lag.vector() == pytest.approx(
+        [fit[f"lag.{n}"]["value"] for n in ("x", "z", "roll", "pitch")]
+    )
+
+
+def test_a_two_sided_template_lists_each_pose_once_per_side_and_is_read_back_as_its_poses(tmp_path, capsys):
+    prof_file = profile_file_with_final_approach(tmp_path)
+    common = ["--profile", str(prof_file), "--n", "4", "--candidates", "60", "--seed", "3"]
+    one, two = tmp_path / "one.csv", tmp_path / "two.csv"
+    assert main(["calibrate", "plan-poses", *common, "--out", str(one)]) == 0
+    assert main(["calibrate", "plan-poses", *common, "--two-sided", "--out", str(two)]) == 0
+    capsys.readouterr()
+    rows1, rows2 = one.read_text().splitlines(), two.read_text().splitlines()
+    assert rows1[0].endswith(",approach") and [r.split(",")[-1] for r in rows1[1:]] == ["below"] * 4
+    assert [r.split(",")[-1] for r in rows2[1:]] == ["below"] * 4 + ["above"] * 4
+    assert [r.split(",")[0] for r in rows2[1:]] == ["p1", "p2", "p3", "p4"] * 2
+    labels, poses = load_plan_targets(two)
+    assert labels == ("p1", "p2", "p3", "p4") and poses.shape == (4, 4)
+    # the two-sided poses keep the approach's room below and above: no target within an offset of the faces
+    box = HitchModel(load_profile(prof_file)).workspace
+    d = np.array([0.0025, 0.004, 0.005, 0.007])
+    lo, hi = np.array([box[k][0] for k in POSE]), np.array([box[k][1] for k in POSE])
+    assert np.all(poses >= lo + d) and np.all(poses <= hi - d)
 
 
 @pytest.mark.parametrize(

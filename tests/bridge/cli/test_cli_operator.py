@@ -376,6 +376,21 @@ def test_plan_shows_the_final_approach_of_a_profile_that_asks_for_one(tmp_path, 
     assert json.loads(capsys.readouterr().out)["final_approach"] is None
 
 
+def test_plan_shows_where_a_profile_with_a_lag_aims_the_mechanism(tmp_path, capsys):
+    prof = profile_file_with_final_approach(tmp_path)
+    prof.write_text(
+        prof.read_text() + 'side = "above"\nlag = { x = 0.0005, z = 0.0006, roll = 0.001, pitch = 0.002 }\n'
+    )
+    argv = ["plan", "--profile", str(prof), "--to", "z=0.15", "--json"]  # up from neutral (z 0.114)
+    assert main(argv) == 0
+    fa = json.loads(capsys.readouterr().out)["final_approach"]
+    assert fa["aim"][1] == pytest.approx(0.15 - 0.0006)  # ending from above: the implement rests 0.6 mm higher
+    assert fa["via"][1] == pytest.approx(0.15 - 0.0006 + 0.004)  # the via above the aim: the move ends falling
+    assert main(argv[:-1]) == 0
+    out = capsys.readouterr().out
+    assert "mechanism aimed at: x=" in out and "z=+0.1494" in out
+
+
 def test_plan_shows_the_count_approach_a_goto_ends_with(tmp_path, capsys):
     """With ``motion.count_approach`` a goto lasts 1.2 s longer than its plan: `hitch plan` says so, and which
     counts it streams (it gave the plan's duration alone)."""

@@ -155,33 +155,52 @@ def test_the_twin_stops_each_piston_repeatably_inside_its_count(offsets):
         assert -0.2 < offsets.from_below[k][0] < 0.0 < offsets.from_above[k][0] < 0.2
 
 
+def _count_steps_follow(tp: TrajectoryPlanner, start: MotionState, poses, motion: np.ndarray, free=None):
+    """For gotos of ``tp`` to ``poses``: every actuator's count step (via → final count) has the direction in which
+    it moves when the pose moves by ``motion`` at the goal (a finite difference of the exact inverse, not the code's
+    Jacobian). Returns (actuator steps checked, gotos where ``free``'s tail stepped some actuator the other way)."""
+    resolution = SensorScaling(tp.model.profile).resolution
+    checked = flipped = 0
+    for pose in poses:
+        plan = tp.plan_move(start, dict(zip(POSE, map(float, pose), strict=True)))
+        tail = plan_count_tail(tp, plan, lambda q: None)
+        assert tail is not None
+        goal = plan.state_at(plan.duration).position
+        dc = (tp.inverse.solve(goal)[0] - tp.inverse.solve(goal - 1e-3 * motion)[0]) / resolution
+        moving = np.abs(dc) > 1e-6
+        assert np.array_equal(tail.approach.directions[moving], np.sign(dc[moving]).astype(int))
+        checked += int(moving.sum())
+        if free is not None:
+            other = plan_count_tail(free, plan, lambda q: None)
+            assert other is not None
+            flipped += int(np.any(other.approach.directions[moving] != np.sign(dc[moving])))
+    return checked, flipped
+
+
 def test_with_a_final_approach_each_count_step_moves_the_implement_the_way_the_final_approach_does(model, offsets):
     """Pin play stays taken up on one side: every actuator's last step (via → final count, the goto's last motion)
     has the direction in which the actuator moves when the pose rises by the final approach's offset at the goal
     (a finite difference of the exact inverse, not the code's Jacobian)."""
     fa = {"x": 0.0025, "z": 0.004, "roll": 0.005, "pitch": 0.007}
     m = _with_approach(model, offsets, fa)
-    tp = TrajectoryPlanner(m)
     data = m.profile.model_dump()
     data["motion"]["count_approach"]["keep_arrival_side"] = False
     free = TrajectoryPlanner(HitchModel(profile_from_dict(data)))
-    rise = np.array(list(fa.values()))
-    flipped = checked = 0
+    poses = candidate_poses(ParametricModel(model.profile), 30, random_only=True, seed=5)[0]
     start = MotionState.at_rest(model.neutral_pose.controlled())
-    for pose in candidate_poses(ParametricModel(model.profile), 30, random_only=True, seed=5)[0]:
-        plan = tp.plan_move(start, dict(zip(POSE, map(float, pose), strict=True)))
-        tail = plan_count_tail(tp, plan, lambda q: None)
-        assert tail is not None
-        goal = plan.state_at(plan.duration).position
-        dq = tp.inverse.solve(goal)[0] - tp.inverse.solve(goal - 1e-3 * rise)[0]
-        dc = dq / SensorScaling(m.profile).resolution
-        moving = np.abs(dc) > 1e-6
-        assert np.array_equal(tail.approach.directions[moving], np.sign(dc[moving]).astype(int))
-        checked += int(moving.sum())
-        other = plan_count_tail(free, plan, lambda q: None)
-        assert other is not None
-        flipped += int(np.any(other.approach.directions[moving] != np.sign(dc[moving])))
+    checked, flipped = _count_steps_follow(TrajectoryPlanner(m), start, poses, np.array(list(fa.values())), free)
     assert checked > 100 and flipped > 0  # without the rule some actuator would have stepped the other way
+
+
+def test_with_a_final_approach_from_above_each_count_step_falls_the_way_that_approach_does(model, offsets):
+    """``side = "above"`` (the second pass of a two-sided measurement): every actuator's count step has the
+    direction in which it moves when the pose falls by the offset."""
+    fa = {"x": 0.0025, "z": 0.004, "roll": 0.005, "pitch": 0.007}
+    tp = TrajectoryPlanner(_with_approach(model, offsets, {**fa, "side": "above"}))
+    poses = candidate_poses(ParametricModel(model.profile), 12, random_only=True, seed=5)[0]
+    start = MotionState.at_rest(model.neutral_pose.controlled())
+    checked, _ = _count_steps_follow(tp, start, poses, -np.array(list(fa.values())))
+    assert checked > 40
 
 
 def test_the_via_and_final_poses_pass_the_guard(model, offsets):

@@ -137,3 +137,25 @@ def test_measuring_by_goto_reads_where_the_twin_s_real_gotos_leave_the_implement
         assert np.max(np.abs(data.true[k, pose_cols] - poses[k])) < 0.004  # a count or so from the commanded pose
     with pytest.raises(TruthError, match="by must be static or goto"):
         measure_twin(model, truth, poses[:1], by="teleport")
+
+
+def test_measuring_by_goto_from_both_sides_leaves_the_play_taken_up_on_each_side(tmp_path):
+    """--sides both: a pass with the profile's final approach (from below) and one with its mirror image (from
+    above); every row names its side, and the twin's true implement lags its true mechanism on that side by
+    most of the play's band in every DOF (with the count approach: its count step can move another DOF back a
+    little into the dead band)."""
+    from tests.helpers import profile_file_with_final_approach
+
+    prof = load_profile(profile_file_with_final_approach(tmp_path, count_approach=True))
+    model = HitchModel(prof)
+    truth = MachineTruth(load_profile("thesis-t132"), PinPlay(0.001, 0.0005))
+    band = TrueMachine(truth, model.category).band
+    poses, _ = candidate_poses(ParametricModel(prof), 24, seed=7, two_sided=True)
+    data = measure_twin(model, truth, poses[:3], noise="none", by="goto", approach="both")
+    assert data.sides.tolist() == [-1.0, -1.0, -1.0, 1.0, 1.0, 1.0]
+    held = data.sides[:, None] * data.play_offset  # the lag each row holds
+    assert np.all(held >= 0.5 * band - 1e-12) and np.all(held <= band + 1e-12)
+    one = measure_twin(model, truth, poses[:3], noise="none", by="goto")  # one side: the profile's
+    assert one.sides.tolist() == [-1.0, -1.0, -1.0]
+    with pytest.raises(TruthError, match="needs the profile's motion.final_approach"):
+        measure_twin(HitchModel(load_profile("thesis-t132")), truth, poses[:1], by="goto", approach="both")

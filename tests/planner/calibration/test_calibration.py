@@ -308,3 +308,113 @@ def test_a_final_approach_wider_than_the_box_is_refused_naming_the_dof():
     model = _with_final_approach({"x": 0.0025, "z": 0.004, "roll": 0.0079, "pitch": 0.007}, box)
     with pytest.raises(CalibrationError, match=r"narrower in roll than the profile's motion.final_approach"):
         candidate_poses(model, 10)
+
+
+# ---------------------------------------------------------------- the lag of the pin play (two-sided measurements)
+OFFSET = {"x": 0.0025, "z": 0.004, "roll": 0.005, "pitch": 0.007}
+
+
+@cache
+def _lag_model() -> ParametricModel:
+    prof = _with_final_approach(OFFSET).profile
+    return ParametricModel(prof, params=ParameterSet.from_profile(prof, include_lag=True))
+
+
+def _sided(model: ParametricModel, readings: np.ndarray, p: np.ndarray, sides: np.ndarray) -> MeasurementSet:
+    """Exact pose measurements at ``sides``: the forward map shifted by side · lag, written out here (the pose
+    rows x, z, roll, pitch), not through the model's own lag term."""
+    y, _ = model.batch(readings, p, jacobian=False)  # sides 0: the mechanism alone
+    lag = p[model.params.lag_index]
+    rows = [POSE_ROWS[k] for k in ("x", "z", "roll", "pitch")]
+    y[:, rows] += sides[:, None] * lag[None, :]
+    mask = np.zeros_like(y, dtype=bool)
+    mask[:, rows] = True
+    labels = tuple(str(i) for i in range(len(readings)))
+    return MeasurementSet(readings, np.where(mask, y, np.nan), mask, labels, sides)
+
+
+def test_the_lag_shifts_the_pose_by_the_side_and_its_jacobian_matches_central_differences():
+    model = _lag_model()
+    ps = model.params
+    assert ps.names[-4:] == ("lag.x", "lag.z", "lag.roll", "lag.pitch")
+    _, acts = _candidates()
+    q = acts[7]
+    p0 = ps.nominal.copy()
+    p0[ps.lag_index] = [0.0008, 0.0006, 0.002, 0.0025]
+    rows = [POSE_ROWS[k] for k in ("x", "z", "roll", "pitch")]
+    for side in (-1.0, 0.0, 1.0):
+        y = model.predict(q, p0, side=side)
+        assert y[rows] - model.predict(q, p0)[rows] == pytest.approx(side * p0[ps.lag_index], abs=1e-15)
+        _, j = model.batch(q[None, :], p0, sides=np.array([side]))
+        assert j is not None
+        fd = np.zeros_like(j[0])
+        for k in range(len(p0)):
+            dp = np.zeros_like(p0)
+            dp[k] = 1e-4 * ps.scale[k]
+            fd[:, k] = (model.predict(q, p0 + dp, side) - model.predict(q, p0 - dp, side)) / (2 * dp[k])
+        assert np.max(np.abs(fd - j[0])) < 1e-5 * max(1.0, np.max(np.abs(j[0])))
+
+
+def test_two_sided_exact_measurements_recover_the_lag_and_a_known_perturbation_to_solver_tolerance():
+    model = _lag_model()
+    ps = model.params
+    _, acts = _candidates()
+    readings = np.vstack([acts[:24], acts[:24]])
+    sides = np.repeat([-1.0, 1.0], 24)
+    problem0 = build_calibration_problem(model, _sided(model, readings, ps.nominal, sides))
+    _, js = problem0.residuals(np.zeros(len(ps)))
+    assert js is not None
+    _, basis, _ = identifiable_basis(js, 1.0)
+    rng = np.random.default_rng(5)
+    u_true = basis @ rng.uniform(-0.8, 0.8, basis.shape[1])
+    p_true = ps.nominal + ps.scale * u_true
+    p_true[ps.lag_index] = [0.0008, 0.0006, 0.002, 0.0025]  # the lag is seen whole from two sides
+    res = solve_calibration(build_calibration_problem(model, _sided(model, readings, p_true, sides)), snap_ad=False)
+    assert res.converged
+    assert res.identified_share[ps.lag_index] == pytest.approx(1.0, abs=1e-9)
+    assert res.values[ps.lag_index] == pytest.approx(p_true[ps.lag_index], abs=1e-10)
+    assert np.max(np.abs((res.values - p_true) / ps.scale)) < 1e-7
+
+
+def test_from_one_side_the_lag_is_not_identified_and_is_named():
+    model = _lag_model()
+    ps = model.params
+    _, acts = _candidates()
+    readings = acts[:24]
+    res = solve_calibration(build_calibration_problem(model, _sided(model, readings, ps.nominal, -np.ones(24))))
+    assert np.all(res.identified_share[ps.lag_index] < 0.5)  # mostly a constant offset the geometry can also make
+    assert any("lag." in u for u in res.unidentifiable)
+    # without a side the lag has no effect at all: a zero column, never identified
+    res0 = solve_calibration(build_calibration_problem(model, _sided(model, readings, ps.nominal, np.zeros(24))))
+    assert np.all(res0.identified_share[ps.lag_index] < UNIDENTIFIED_SHARE)
+
+
+def test_the_lag_needs_a_final_approach_and_round_trips_through_the_profile():
+    with pytest.raises(CalibrationError, match="motion.final_approach"):
+        ParameterSet.from_profile(_profile(), include_lag=True)
+    ps = _lag_model().params
+    v = ps.nominal.copy()
+    v[ps.lag_index] = [0.0008, -0.0001, 0.002, 0.0025]
+    prof = profile_from_dict(ps.profile_dict(v))
+    assert prof.motion.final_approach.lag.vector() == pytest.approx((0.0008, -0.0001, 0.002, 0.0025))
+    assert ps.values_of(prof)[ps.lag_index] == pytest.approx(v[ps.lag_index])
+    # a calibration of the calibrated profile starts from its lag
+    again = ParameterSet.from_profile(prof, include_lag=True)
+    assert again.nominal[again.lag_index] == pytest.approx(v[ps.lag_index])
+
+
+def test_two_sided_candidates_keep_the_approach_s_room_at_both_faces():
+    d = np.array(list(OFFSET.values()))
+    model = _with_final_approach(OFFSET)
+    box = model.nominal_model.workspace
+    lo = np.array([box[k][0] for k in ("x", "z", "roll", "pitch")])
+    hi = np.array([box[k][1] for k in ("x", "z", "roll", "pitch")])
+    poses, _ = candidate_poses(model, 60, seed=3, two_sided=True)
+    for pose in poses:
+        for start in (hi, lo):
+            assert final_approach_via(start, pose, d, lo, hi).short == ()
+            assert final_approach_via(start, pose, -d, lo, hi).short == ()
+    one_sided, _ = candidate_poses(model, 60, seed=3)
+    assert any(final_approach_via(lo, p, -d, lo, hi).short for p in one_sided)  # from above: cut at the top
+    with pytest.raises(CalibrationError, match="final_approach"):
+        candidate_poses(_model(), 10, two_sided=True)

@@ -95,3 +95,82 @@ def test_bad_offsets_are_refused_naming_the_field(field, value):
     d["motion"]["final_approach"] = dict(OFFSET, **{field: value})
     with pytest.raises(ProfileError, match=rf"final_approach.*{field}|{field}.*final_approach"):
         profile_from_dict(d)
+
+
+# ---------------------------------------------------------------- from above, and the lag (backlash compensation)
+POSE = ("x", "z", "roll", "pitch")
+LAG = {"x": 0.0008, "z": 0.0006, "roll": 0.002, "pitch": 0.0025}
+L = np.array([LAG[k] for k in POSE])
+
+
+def test_the_via_from_above_is_the_mirror_image_of_the_via_from_below_over_random_poses():
+    rng = np.random.default_rng(4)
+    lo, hi = np.array([-0.06, -0.2, -0.1, -0.1]), np.array([0.06, 0.2, 0.1, 0.1])
+    for _ in range(2000):
+        p0, p1 = lo + (hi - lo) * rng.random(4), lo + (hi - lo) * rng.random(4)
+        above = final_approach_via(p0, p1, -D, lo, hi)
+        below = final_approach_via(-p0, -p1, D, -hi)  # the mirror image: every pose negated, the faces swapped
+        assert above.short == below.short
+        assert (above.via is None) == (below.via is None)
+        if above.via is not None:
+            assert above.via == pytest.approx(-below.via, abs=1e-15)
+            assert np.all(above.via >= p1 - 1e-12) and np.all(above.via <= np.maximum(hi, p0) + 1e-12)
+
+
+def test_a_goto_with_side_above_rises_over_the_goal_and_ends_falling_in_every_dof():
+    tp = _planner({**OFFSET, "side": "above"})
+    home = tp.model.neutral_pose.controlled()
+    goal = home + np.array([0.01, 0.02, 0.01, 0.01])
+    start = goal - np.array([0.02, 0.05, 0.02, 0.02])
+    plan = tp.plan_move(MotionState.at_rest(start), dict(zip(POSE, goal, strict=True)))
+    assert plan.info["final_approach"]["via"] == pytest.approx(list(goal + D))
+    last = _last_segment_rise(tp, plan)
+    assert np.all(np.diff(last, axis=0) <= 1e-9)  # falling (or still) in every DOF
+    assert last[-1] == pytest.approx(goal, abs=1e-9)
+
+
+@pytest.mark.parametrize("side", ["below", "above"])
+def test_with_a_lag_the_mechanism_is_aimed_beyond_the_goal_by_it_on_the_approach_s_side(side):
+    tp = _planner({**OFFSET, "side": side, "lag": LAG})
+    sign = 1.0 if side == "below" else -1.0
+    home = tp.model.neutral_pose.controlled()
+    goal = home + np.array([0.01, 0.02, 0.01, 0.01])
+    start = goal + sign * np.array([0.02, 0.05, 0.02, 0.02])  # on the far side: the approach needs its via
+    plan = tp.plan_move(MotionState.at_rest(start), dict(zip(POSE, goal, strict=True)))
+    end = tp.sample(plan).pose[-1, [0, 2, 3, 4]]
+    assert end == pytest.approx(goal + sign * L, abs=1e-9)  # the implement, lagging by L, rests on the goal
+    assert plan.info["final_approach"]["aim"] == pytest.approx(list(goal + sign * L))
+    assert plan.info["final_approach"]["via"] == pytest.approx(list(goal + sign * (L - D)))
+
+
+def test_repeated_partial_gotos_with_a_lag_do_not_creep_in_the_dof_they_do_not_name():
+    # the start is the mechanism's pose (already beyond the implement by the lag): shifting an unnamed DOF again
+    # would move it by the lag on every goto
+    tp = _planner({**OFFSET, "lag": LAG})
+    home = tp.model.neutral_pose.controlled()
+    state = MotionState.at_rest(home + L)
+    for k in range(4):
+        plan = tp.plan_move(state, {"z": float(home[1] + 0.01 * (k % 2))})
+        end = tp.sample(plan).pose[-1, [0, 2, 3, 4]]
+        assert end[[0, 2, 3]] == pytest.approx((home + L)[[0, 2, 3]], abs=1e-9)  # x, roll, pitch stay
+        assert end[1] == pytest.approx(home[1] + 0.01 * (k % 2) + L[1], abs=1e-9)
+        state = MotionState.at_rest(end)
+
+
+def test_the_lag_does_not_aim_the_mechanism_beyond_the_workspace_box():
+    tp = _planner({**OFFSET, "lag": LAG})
+    goal = tp.hi.copy()  # every DOF at its upper face
+    plan = tp.plan_move(MotionState.at_rest(tp.model.neutral_pose.controlled()), dict(zip(POSE, goal, strict=True)))
+    end = tp.sample(plan).pose[-1, [0, 2, 3, 4]]
+    assert end == pytest.approx(tp.hi, abs=1e-9)
+
+
+def test_a_profile_s_lag_and_side_are_checked_and_a_dof_without_approach_has_no_lag():
+    d = load_profile().model_dump()
+    d["motion"]["final_approach"] = {**OFFSET, "x": 0.0, "lag": LAG}
+    fa = profile_from_dict(d).motion.final_approach
+    assert fa.aim_shift() == pytest.approx((0.0, LAG["z"], LAG["roll"], LAG["pitch"]))  # no approach in x: no lag
+    for bad, field in (({**OFFSET, "side": "sideways"}, "side"), ({**OFFSET, "lag": {**LAG, "pitch": 0.5}}, "pitch")):
+        d["motion"]["final_approach"] = bad
+        with pytest.raises(ProfileError, match=field):
+            profile_from_dict(d)

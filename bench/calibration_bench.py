@@ -44,8 +44,8 @@ stop offsets measured once on the nominal twin (:func:`twin_count_approach`).
 below and one with its mirror image from above (``hitch calibrate measure-twin --by goto --sides both``; the
 poses planned with the approach's room at both faces). The fit then also finds the lag the pin play leaves
 (``lag.*``, compared with the truth's play band) and the calibrated profile's planner aims each goto beyond its
-goal by it. Through the twin the fit always carries the lag parameters (as ``hitch calibrate geometry`` does
-for a file with the ``approach`` column); from one side they are not identified and stay 0. The lag's truth
+goal by it (as ``hitch calibrate geometry`` does for a file whose ``approach`` column names both sides; from
+one side the lag is not fitted). The lag's truth
 for the identified directions' |z| is the lag the measurements hold: side · (true implement − true mechanism
 pose) averaged over the rows (the count step can leave the play a little short of its band's edge); the
 |z| against the play's band itself is given beside it.
@@ -118,7 +118,7 @@ def _through_twin(job: tuple) -> dict:
     """One twin through the running twin (module docstring): p95 nominal / calibrated, refused poses, times."""
     seed, prof_data, planned, check, without_play, two_sided = job
     prof = profile_from_dict(prof_data)
-    pm = ParametricModel(prof, params=ParameterSet.from_profile(prof, include_lag=True))
+    pm = ParametricModel(prof, params=ParameterSet.from_profile(prof, include_lag=two_sided))  # as the CLI
     data, play = perturb_profile(load_profile("thesis-t132"), seed)
     truth = MachineTruth(profile_from_dict(data), PinPlay() if without_play else play)
     t0 = time.perf_counter()
@@ -269,9 +269,9 @@ def _truth_values(pm: ParametricModel, truth: MachineTruth, lag: np.ndarray | No
     """The truth's parameter values: its profile's, and as its lag (if fitted) ``lag`` (default its play's band
     per DOF)."""
     v = pm.params.values_of(truth.profile)
-    li = pm.params.lag_index
+    li, dofs = pm.params.lag_index, list(pm.params.lag_dofs)
     if li.size:
-        v[li] = TrueMachine(truth, pm.category).band if lag is None else lag
+        v[li] = (TrueMachine(truth, pm.category).band if lag is None else np.asarray(lag))[dofs]
     return v
 
 

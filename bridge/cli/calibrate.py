@@ -178,8 +178,8 @@ def _cmd_geometry(args) -> int:
             file=sys.stderr,
         )
     data = load_measurements(args.measurements, prof)
-    # the lag of the pin play: found where rows name their approach side and the planner can compensate it
-    include_lag = data.sided and prof.motion.final_approach is not None
+    # the lag of the pin play: found where rows name both approach sides and the planner can compensate it
+    include_lag = data.two_sided and prof.motion.final_approach is not None
     model = _model(args, include_ad=not args.no_ad, include_lag=include_lag, profile=prof)
     problem = build_calibration_problem(
         model, data, sigma_position_m=1e-3 * args.sigma_position_mm, sigma_angle_rad=1e-3 * args.sigma_angle_mrad
@@ -189,7 +189,14 @@ def _cmd_geometry(args) -> int:
     except CalibrationError as exc:  # "measurements: …" names the file the engineer gave
         raise CalibrationError(f"{args.measurements}: {str(exc).removeprefix('measurements: ')}") from None
     sides = data.side_vector
-    if data.sided and not include_lag and np.sum(sides < 0) != np.sum(sides > 0):  # as many each side: averages out
+    if data.sided and not data.two_sided and prof.motion.final_approach is not None:
+        print(
+            f"hitch: note: {args.measurements}: every row from one side ({'below' if sides.min() < 0 else 'above'}): "
+            "the lag of the pin play cannot be told from the geometry and is not fitted; the geometry takes it up "
+            "in part (measure each pose from both sides, measure-twin --sides both, to find it: docs/commissioning.md)",
+            file=sys.stderr,
+        )
+    elif data.sided and not include_lag and np.sum(sides < 0) != np.sum(sides > 0):  # as many each side: averages
         print(
             f"hitch: warning: {args.measurements} names approach sides, more rows from one side than from the other, "
             f"but {args.profile} has no motion.final_approach: the lag of the pin play is not fitted (the planner "

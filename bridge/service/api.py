@@ -336,7 +336,8 @@ class ServiceAPI:
         return {"presets": [p.to_json() for p in self.store.list_presets(self.implement)], "implement": self.implement}
 
     def _presets_save(self, r: PresetSave) -> dict:
-        current = self.motion.current_state().position
+        # the implement's pose (the mechanism less the profile's lag): presets/go aims the mechanism back here
+        current = self.motion.planner.implement_pose(self.motion.current_state().position)
         pose = self.motion.planner.goal_vector(current, r.pose.as_dict() if r.pose is not None else {})
         self.motion.planner.check_in_workspace(pose, "pose")
         imp = self.implements.current() if getattr(self, "implements", None) is not None else None

@@ -267,7 +267,7 @@ def run_field_loop(
         lost = None if s.draft_lost_at_s is None else t0 + s.draft_lost_at_s
         source = FieldDraft(FieldRun(fs), lambda: pivot + float(loop.truth_pose()[1]) - drop, lost_at_s=lost)
         loop.rig.node.draft_source = source
-        p0 = loop.measured_pose()
+        p0 = mc.planner.implement_pose(loop.measured_pose())  # held where it is (with a lag: aimed at p0)
         mc.goto({"x": float(p0[0]), "z": s.z_m, "roll": float(p0[2]), "pitch": float(p0[3])})
         loop.cycle()
         try:

@@ -31,14 +31,13 @@ from collections import deque
 from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
-import numpy as np
-
 from bridge.service.motion.types import pose_dict
 from bridge.service.schemas import ImplementDefine, QuickMove, RequestError, check_pose_in_workspace
 from bridge.service.store import DEFAULT_IMPLEMENT, HitchStore, StoredImplement
 from planner.errors import HitchError, unit_hint
 from planner.limits.implement_limits import ImplementLimits
 from planner.limits.tractor import ImplementRecord, TractorProfile, load_tractor_profile
+from planner.trajectory import TrajectoryPlanner
 
 #: switch edges :attr:`ImplementService.switch_log` keeps
 SWITCH_HISTORY = 16
@@ -65,6 +64,8 @@ _NO_IMPLEMENT = "no implement is selected (select one first: `hitch implement se
 
 class ImplementMotion(Protocol):
     """What the implement logic needs of the motion controller (or its proxy to the core process)."""
+
+    planner: TrajectoryPlanner
 
     def current_state(self) -> Any: ...
 
@@ -248,7 +249,8 @@ class ImplementService:
                 f"hitch/raise: implement {imp.name!r} has no headland pose (define it with 'headland' or save "
                 f"a preset named {HEADLAND_PRESET!r})",
             )
-        here = pose_dict(np.asarray(self.motion.current_state().position, float))
+        # the implement's pose (the mechanism less the profile's lag): a return aims the mechanism back here
+        here = pose_dict(self.motion.planner.implement_pose(self.motion.current_state().position))
         scale = r.speed_scale or 1.0
         acc = self.motion.goto(dict(goal), scale, kind="preset", label="raise", deadline=deadline, issued=issued)
         if not _close(here, goal):  # pressing raise at the headland keeps the work pose

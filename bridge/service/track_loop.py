@@ -832,7 +832,7 @@ def run_track_loop(
         # the limits a session tracking ``dof`` alone moves within (the subset limits from the start pose)
         follow = TrackFollower(tp, MotionState.at_rest(np.clip(p0, lo, hi)), (dof,), s.ttl_s).limits
         # hold the start (the held reference is streamed from now on)
-        mc.goto(dict(zip(_POSE, map(float, p0), strict=True)))
+        mc.goto(dict(zip(_POSE, map(float, tp.implement_pose(p0)), strict=True)))  # with a lag: aimed at p0
         loop.cycle()
         sensors = loop.sensors
         t_loop = loop.now_s

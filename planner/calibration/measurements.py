@@ -108,9 +108,11 @@ class MeasurementSet:
 
     @property
     def n_distinct_observations(self) -> int:
-        """Measured values of distinct poses: rows with the same readings count once per measured output
-        (a repeat of a pose, or a copied row, adds no new direction to what the data determine)."""
-        _, group = np.unique(self.readings, axis=0, return_inverse=True)
+        """Measured values of distinct poses: rows with the same readings (and approach side) count once per
+        measured output (a repeat of a pose, or a copied row, adds no new direction to what the data determine;
+        the same readings from the other side do: the lag)."""
+        key = np.column_stack([self.readings, self.side_vector])
+        _, group = np.unique(key, axis=0, return_inverse=True)
         group = np.asarray(group).reshape(-1)
         seen = np.zeros((int(group.max()) + 1, self.mask.shape[1]), bool)
         np.logical_or.at(seen, group, self.mask)
@@ -118,8 +120,13 @@ class MeasurementSet:
 
     @property
     def sided(self) -> bool:
-        """True when some row was approached from a known side (the fit can then find the lag)."""
+        """True when some row was approached from a known side."""
         return bool(np.any(self.side_vector != 0.0))
+
+    @property
+    def two_sided(self) -> bool:
+        """True when rows were approached from below and rows from above: the fit can then find the lag."""
+        return bool(np.any(self.side_vector < 0.0) and np.any(self.side_vector > 0.0))
 
     @property
     def side_vector(self) -> np.ndarray:
@@ -314,9 +321,9 @@ def measurements_csv(
 
 def load_plan_targets(path: str | Path) -> tuple[tuple[str, ...], np.ndarray]:
     """The labels and target poses (N, 4: x, z, roll, pitch in m, rad) of a plan file of ``hitch calibrate
-    plan-poses --out`` (its ``pose`` and ``target_*`` columns; a row repeating an earlier one's label and pose,
-    as the second pass of a two-sided template does, is the same pose, listed once); errors name the file, row
-    and column."""
+    plan-poses --out`` (its ``pose`` and ``target_*`` columns; a row repeating an earlier one's pose and label
+    (or pose, without labels), as the second pass of a two-sided template does, is the same pose, listed once);
+    errors name the file, row and column."""
     p = Path(path)
     try:
         text = p.read_text(encoding="utf-8").removeprefix("\ufeff")
@@ -341,7 +348,8 @@ def load_plan_targets(path: str | Path) -> tuple[tuple[str, ...], np.ndarray]:
             lim, unit = (_ANGLE_MAX, "rad") if c.endswith(("roll", "pitch")) else (_POSITION_MAX_M, "m")
             pose.append(_cell(cells[cols[c]], where, c, -lim, lim, unit))
         label = cells[cols["pose"]] if "pose" in cols else f"p{r}"
-        if any(lab == label and seen == pose for lab, seen in zip(labels, poses, strict=True)):
+        named = "pose" in cols
+        if any(seen == pose and (lab == label or not named) for lab, seen in zip(labels, poses, strict=True)):
             continue  # the same pose again (measured from the other side)
         poses.append(pose)
         labels.append(label)

@@ -15,12 +15,13 @@ a profile moves ``counts_min`` / ``counts_max`` (integers in the schema, so roun
 the strokes in SI stay). A scale is the size of the error the parameter may have before
 calibration: the solver works in the scaled deltas ``u = (p − nominal) / scale``.
 
-With ``include_lag=True`` (a profile with ``motion.final_approach``) four more: the **lag** of the
-implement behind the mechanism after a rising approach, ``lag.x``, ``lag.z`` (scale 1 mm), ``lag.roll``,
-``lag.pitch`` (3 mrad) — the pin play taken up on one side. A pose measured after a rising approach reads
-the mechanism's pose minus the lag, one after a falling approach plus it (the measurement file's
-``approach`` column); the fit finds it beside the geometry, and it is written to
-``motion.final_approach.lag``, where the planner aims the mechanism that far above each goal.
+With ``include_lag=True`` (a profile with ``motion.final_approach``) up to four more: the **lag** of the
+implement behind the mechanism, ``lag.x``, ``lag.z`` (scale 1 mm), ``lag.roll``, ``lag.pitch`` (3 mrad) —
+the pin play taken up on one side — in each DOF the approach moves (offset > 0). A pose measured after a
+rising approach reads the mechanism's pose minus the lag, one after a falling approach plus it (the
+measurement file's ``approach`` column); the fit finds it beside the geometry (from both sides: from one
+it cannot), and it is written to ``motion.final_approach.lag``, where the planner aims the mechanism that
+far beyond each goal on the approach's side.
 """
 
 from __future__ import annotations
@@ -121,10 +122,11 @@ class ParameterSet:
                 ps.append(Parameter(f"ad_offset.{n}", 0.0, AD_OFFSET_SCALE_COUNTS * float(r), _ad_offset_unit(n)))
             for n in ACTUATOR_NAMES:
                 ps.append(Parameter(f"ad_gain.{n}", 0.0, AD_GAIN_SCALE, "1"))
-        if include_lag and fa is not None:
+        if include_lag and fa is not None:  # in the DOF with an approach (the planner compensates no other)
             lag = fa.lag.vector() if fa.lag is not None else (0.0, 0.0, 0.0, 0.0)
-            for name, v, sc in zip(LAG_NAMES, lag, LAG_SCALE, strict=True):
-                ps.append(Parameter(name, float(v), sc, "m" if name in ("lag.x", "lag.z") else "rad"))
+            for name, v, sc, d in zip(LAG_NAMES, lag, LAG_SCALE, fa.offset(), strict=True):
+                if d > 0.0:
+                    ps.append(Parameter(name, float(v), sc, "m" if name in ("lag.x", "lag.z") else "rad"))
         return cls(profile, tuple(ps))
 
     # ------------------------------------------------------------------ views
@@ -146,8 +148,14 @@ class ParameterSet:
 
     @property
     def lag_index(self) -> np.ndarray:
-        """Indices of lag.x, lag.z, lag.roll, lag.pitch among the parameters (empty without the lag)."""
+        """Indices of lag.x, lag.z, lag.roll, lag.pitch among the parameters, those there are (only the DOF with
+        an approach; empty without the lag)."""
         return np.array([self.names.index(n) for n in LAG_NAMES if n in self.names], dtype=int)
+
+    @property
+    def lag_dofs(self) -> tuple[int, ...]:
+        """The DOF (0 x, 1 z, 2 roll, 3 pitch) of :attr:`lag_index`, in its order."""
+        return tuple(k for k, n in enumerate(LAG_NAMES) if n in self.names)
 
     def __len__(self) -> int:
         return len(self.parameters)

@@ -53,8 +53,8 @@ POSE_ROWS: dict[str, int] = {"x": 0, "z": 2, "roll": 3, "pitch": 4}
 #: output rows (3 each) of the marked points
 POINT_ROWS: dict[str, int] = {"L": 6, "R": 9, "U": 12}
 _CLOSURE_TOL_M = 1e-9
-#: output rows x, z, roll, pitch, in the order of the lag parameters
-_LAG_ROWS = np.array([POSE_ROWS[k] for k in ("x", "z", "roll", "pitch")])
+#: output rows of x, z, roll, pitch (the DOF of the lag parameters)
+_POSE_ROWS_XZRP = np.array([POSE_ROWS[k] for k in ("x", "z", "roll", "pitch")])
 
 
 def _field_expressions(ps: ParameterSet, p: ca.SX) -> dict[str, ca.SX]:
@@ -112,6 +112,8 @@ class ParametricModel:
         self._sc = SensorScaling(profile)
         self._fn, self._jac_fn, self._n_x = self._build()
         self._batch: dict[tuple[int, bool], ca.Function] = {}
+        #: the output rows the lag parameters (:attr:`ParameterSet.lag_index`) shift
+        self._lag_rows = _POSE_ROWS_XZRP[list(self.params.lag_dofs)]
 
     @property
     def n_params(self) -> int:
@@ -218,7 +220,7 @@ class ParametricModel:
         out = np.asarray(y).reshape(-1)
         lag = self.params.lag_index
         if lag.size:
-            out[_LAG_ROWS] += float(side) * pv[lag]
+            out[self._lag_rows] += float(side) * pv[lag]
         return out
 
     def batch(
@@ -251,13 +253,14 @@ class ParametricModel:
         side = np.zeros(n_pose) if sides is None else np.asarray(sides, dtype=float).reshape(-1)
         if side.shape != (n_pose,):
             raise CalibrationError(f"sides must hold one approach side per reading ({n_pose}), got {side.size}")
+        rows = self._lag_rows
         if lag.size:
-            y[:, _LAG_ROWS] += side[:, None] * pv[lag][None, :]
+            y[:, rows] += side[:, None] * pv[lag][None, :]
         if not jacobian:
             return y, None
         j = np.asarray(out[1]).reshape(15, n_pose, self.n_params).transpose(1, 0, 2)
         if lag.size:
-            j[:, _LAG_ROWS, lag] += side[:, None]
+            j[:, rows, lag] += side[:, None]
         return y, j
 
     def seeds(self, q_read: np.ndarray) -> np.ndarray:

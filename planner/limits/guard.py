@@ -439,8 +439,10 @@ class Guard:
         recaution = bool(foreseen)  # the caution factor is due again after the first end-stop scaling
         if foreseen:
             total, caution_applied = self.settings.caution_speed_factor, True
+        upper = self.implement_limits.upper_height_m  # the aim for the play's lag stays below it too
+        ceiling = None if upper is None else np.array([np.inf, float(upper), np.inf, np.inf])
         for _ in range(8):
-            plan = self.planner.plan_move(start, goal, speed_scale=speed_scale * total)
+            plan = self.planner.plan_move(start, goal, speed_scale=speed_scale * total, ceiling=ceiling)
             sp = plan.sampled()
             if self._context() != context:  # changed meanwhile (another thread): evaluate afresh
                 cache.clear()

@@ -196,13 +196,30 @@ class TrajectoryPlanner:
         return MotionState(f[rows].copy(), vel, np.zeros(4))
 
     # ------------------------------------------------------------------ planning
-    def plan_move(self, start: MotionState, goal: Mapping[str, float], *, speed_scale: float = 1.0) -> Plan:
+    def implement_pose(self, mechanism: ArrayLike) -> np.ndarray:
+        """Where the implement rests when the mechanism rests at ``mechanism`` after a goto whose final approach
+        left it the profile's lag behind: ``mechanism − sign · lag`` (x, z, roll, pitch; the mechanism itself
+        without a lag). The pose to record from where the hitch is (a preset, the work pose of a quick raise, a
+        taught maneuver): a goto back to it aims the mechanism where it is now, instead of one lag further."""
+        return np.asarray(mechanism, float) - self.aim_shift
+
+    def plan_move(
+        self,
+        start: MotionState,
+        goal: Mapping[str, float],
+        *,
+        speed_scale: float = 1.0,
+        ceiling: ArrayLike | None = None,
+    ) -> Plan:
         """Plan from ``start`` to a (partial) goal pose, ending at rest; with the profile's
         ``motion.final_approach`` through a via pose below the goal (above with ``side = "above"``;
         :mod:`.final_approach`; ``plan.info["final_approach"]`` gives the via and the DOF whose approach the
         workspace shortens), and with its ``lag`` ending with the mechanism at the goal plus ``sign · lag``
         (inside the workspace box; ``info["final_approach"]["aim"]``), where the lagging implement rests on the
-        goal; a DOF the goal does not name is aimed where the mechanism is."""
+        goal; a DOF the goal does not name is aimed where the mechanism is. ``ceiling`` (x, z, roll, pitch;
+        ``inf`` for none): a bound the aim and the via stay below besides the box (the guard's implement upper
+        height); a DOF whose aim a face or the ceiling cuts is named in ``info["final_approach"]["aim_short"]``
+        (its implement then rests that much short of the goal)."""
         scale = _check_scale(speed_scale)
         start.check("start")
         p1 = self.goal_vector(start.position, goal)
@@ -211,9 +228,11 @@ class TrajectoryPlanner:
             return self._plan_segments(start, [(p1, np.zeros(4), scale)])
         # the mechanism's goal: the implement lags it; a DOF not named keeps the mechanism where it is (its
         # implement already lags it: shifting it again would creep by the lag with every goto)
+        upper = self.hi if ceiling is None else np.minimum(self.hi, np.asarray(ceiling, float))
         named = np.array([k in goal for k in CONTROLLED_POSE_NAMES])
-        aim = np.where(named, np.clip(p1 + self.aim_shift, self.lo, self.hi), p1)
-        approach = final_approach_via(start.position, aim, self.final_approach, self.lo, self.hi)
+        wanted = p1 + self.aim_shift
+        aim = np.where(named, np.clip(wanted, self.lo, np.maximum(upper, np.minimum(p1, self.hi))), p1)
+        approach = final_approach_via(start.position, aim, self.final_approach, self.lo, np.maximum(upper, aim))
         targets = [(aim, np.zeros(4), scale)]
         if approach.via is not None:
             targets.insert(0, (approach.via, np.zeros(4), scale))
@@ -222,6 +241,8 @@ class TrajectoryPlanner:
         plan.info["final_approach"] = {"via": via, "short": list(approach.short)}
         if np.any(self.aim_shift != 0.0):
             plan.info["final_approach"]["aim"] = [float(v) for v in aim]
+            cut = named & (np.abs(aim - wanted) > 1e-12)
+            plan.info["final_approach"]["aim_short"] = [k for k, c in zip(CONTROLLED_POSE_NAMES, cut, strict=True) if c]
         return plan
 
     def plan_sequence(

@@ -178,7 +178,10 @@ def recorder_for(motion: Any) -> ManeuverRecorder:
     """A recorder on a motion controller (or the core's proxy): its clock, pose and odometer."""
     return ManeuverRecorder(
         motion.clock,
-        lambda: dict(zip(POSE_BOUNDS, map(float, motion.current_state().position), strict=True)),
+        # the implement's pose (the mechanism less the profile's lag), which a replayed step aims back at
+        lambda: dict(
+            zip(POSE_BOUNDS, map(float, motion.planner.implement_pose(motion.current_state().position)), strict=True)
+        ),
         motion.distance_travelled,
     )
 

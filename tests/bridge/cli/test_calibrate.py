@@ -206,9 +206,12 @@ def test_measuring_by_goto_with_a_final_approach_and_the_calibrated_profile_keep
     assert json.loads(capsys.readouterr().out) == {"out": str(meas), "rows": 6, "poses": 6}
     argv = ["calibrate", "geometry", "--profile", str(prof_file), "--measurements", str(meas), "--out", str(out)]
     assert main([*argv, "--json"]) == 0
-    capsys.readouterr()
+    res = capsys.readouterr()
+    # one side only: the lag is not fitted (it cannot be told from the geometry), and the note says why
+    assert "every row from one side (below)" in res.err and "--sides both" in res.err
+    assert not any(n.startswith("lag.") for n in json.loads(res.out)["parameters"])
     fa = load_profile(out).motion.final_approach
-    assert fa is not None and fa.offset() == (0.0025, 0.004, 0.005, 0.007)
+    assert fa is not None and fa.offset() == (0.0025, 0.004, 0.005, 0.007) and fa.lag is None
     assert "--by: invalid choice" in _err(
         capsys, ["calibrate", "measure-twin", "--sim-truth", "x", "--out", "y", "--by", "z"]
     )

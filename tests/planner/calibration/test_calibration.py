@@ -418,3 +418,29 @@ def test_two_sided_candidates_keep_the_approach_s_room_at_both_faces():
     assert any(final_approach_via(lo, p, -d, lo, hi).short for p in one_sided)  # from above: cut at the top
     with pytest.raises(CalibrationError, match="final_approach"):
         candidate_poses(_model(), 10, two_sided=True)
+
+
+def test_the_lag_is_a_parameter_only_in_the_dof_the_approach_moves():
+    prof = _with_final_approach({**OFFSET, "x": 0.0}).profile
+    ps = ParameterSet.from_profile(prof, include_lag=True)
+    assert [n for n in ps.names if n.startswith("lag.")] == ["lag.z", "lag.roll", "lag.pitch"]
+    assert ps.lag_dofs == (1, 2, 3)
+    model = ParametricModel(prof, params=ps)
+    _, acts = _candidates()
+    p = ps.nominal.copy()
+    p[ps.lag_index] = [0.0006, 0.002, 0.0025]
+    shift = model.predict(acts[3], p, side=-1.0) - model.predict(acts[3], p)
+    rows = [POSE_ROWS[k] for k in ("x", "z", "roll", "pitch")]
+    assert shift[rows] == pytest.approx([0.0, -0.0006, -0.002, -0.0025], abs=1e-15)
+
+
+def test_the_same_readings_from_the_other_side_are_new_values_not_a_copied_row():
+    """A static pair (or a pair under the count approach) has the same counts from both sides: the pair holds the
+    lag, and was refused as "a copied row is not a new pose" (a reviewer's report)."""
+    model = _lag_model()
+    _, acts = _candidates()
+    readings = np.repeat(acts[:4], 2, axis=0)
+    sides = np.tile([-1.0, 1.0], 4)
+    data = _sided(model, readings, model.params.nominal, sides)
+    assert data.n_distinct_observations == 8 * 4 and data.n_poses == 4
+    assert data.two_sided and not data.subset([0, 2, 4]).two_sided

@@ -196,6 +196,14 @@ def _cmd_geometry(args) -> int:
             "in part (measure each pose from both sides, measure-twin --sides both, to find it: docs/commissioning.md)",
             file=sys.stderr,
         )
+    elif data.sided and prof.motion.final_approach is None and np.sum(sides < 0) == np.sum(sides > 0):
+        print(
+            f"hitch: note: {args.measurements} names approach sides, but {args.profile} has no "
+            "motion.final_approach: the lag of the pin play is not fitted (as many rows from each side average it "
+            "out of the geometry); to find it and have the planner aim by it, fit with the profile the poses were "
+            "measured with (--profile)",
+            file=sys.stderr,
+        )
     elif data.sided and not include_lag and np.sum(sides < 0) != np.sum(sides > 0):  # as many each side: averages
         print(
             f"hitch: warning: {args.measurements} names approach sides, more rows from one side than from the other, "

@@ -142,7 +142,21 @@ def _cmd_plan(args) -> int:
         c.print(f"final approach via: {via}{short}")
         if "aim" in fa:  # motion.final_approach.lag: the mechanism aimed beyond the goal, the implement lags onto it
             aim = "  ".join(f"{k}={v:+.4f}" for k, v in zip(("x", "z", "roll", "pitch"), fa["aim"], strict=True))
-            c.print(f"mechanism aimed at: {aim} (the goal plus the profile's lag of the pin play)")
+            cut = (
+                f"; cut at the workspace face or the upper height in {', '.join(fa['aim_short'])}: the implement "
+                "rests short of the goal there"
+                if fa.get("aim_short")
+                else ""
+            )
+            c.print(
+                f"mechanism aimed at: {aim} (beyond the goal by the profile's lag of the pin play, on the "
+                f"approach's side{cut})"
+            )
+    if tail is None and tp.model.profile.motion.count_approach is not None:
+        c.print(
+            "count approach: none at this goal (a via or final count would leave the workspace box or a limit, or "
+            "the link would refuse it): the goto ends as its plan does"
+        )
     if tail is not None and approach is not None:  # the profile's motion.count_approach: after the plan, whole counts
         c.print(
             f"count approach after the plan: +{tail.approach.duration_s:.2f} s (a goto lasts "

@@ -179,7 +179,11 @@ def mirrored_approach(model: HitchModel) -> HitchModel:
     the lag too, kept): the second pass of a two-sided measurement."""
     fa = model.profile.motion.final_approach
     if fa is None:
-        raise TruthError("measuring from both sides by goto needs the profile's motion.final_approach")
+        raise TruthError(
+            f"measuring from both sides by goto (--sides both) needs the profile's motion.final_approach, and "
+            f"{model.profile.name} has none: add [motion.final_approach] (docs/commissioning.md) and give that "
+            "profile with --profile"
+        )
     flipped = fa.model_copy(update={"side": "above" if fa.side == "below" else "below"})
     motion = model.profile.motion.model_copy(update={"final_approach": flipped})
     return HitchModel(model.profile.model_copy(update={"motion": motion}), model.category)

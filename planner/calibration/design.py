@@ -96,7 +96,11 @@ def candidate_poses(
     shrink = 0.02 * (hi - lo)  # the box's corners are where limits meet: stay a little inside
     approach = hm.profile.motion.final_approach
     if two_sided and approach is None:
-        raise CalibrationError("two_sided needs the profile's motion.final_approach (how far each side starts)")
+        raise CalibrationError(
+            f"poses measured from both sides (--two-sided, --sides both) need the profile's motion.final_approach "
+            f"(how far each side's approach starts), and {hm.profile.name} has none: add [motion.final_approach] "
+            "(docs/commissioning.md) and give that profile with --profile"
+        )
     room = shrink if approach is None else np.maximum(shrink, np.asarray(approach.offset()) + _APPROACH_ROOM)
     below = approach is not None and (two_sided or approach.side == "below")
     above = approach is not None and (two_sided or approach.side == "above")

@@ -242,6 +242,11 @@ def test_measuring_by_goto_from_both_sides_fits_the_lag_of_the_play_and_the_prof
         par = fit[f"lag.{name}"]
         assert par["identified_share"] > 0.99
         assert abs(par["value"] - band[k]) <= 3.0 * par["std"], (name, par, band[k])
+    # fitted with a profile without the final approach (--profile forgotten): no lag, and it is said
+    argv_builtin = ["calibrate", "geometry", "--measurements", str(meas), "--out", str(tmp_path / "plain.toml")]
+    assert main(argv_builtin) == 0
+    err = capsys.readouterr().err
+    assert "has no motion.final_approach: the lag of the pin play is not fitted" in err and "--profile" in err
     lag = load_profile(out).motion.final_approach.lag
     assert lag is not None and lag.vector() == pytest.approx(
         [fit[f"lag.{n}"]["value"] for n in ("x", "z", "roll", "pitch")]

@@ -388,10 +388,13 @@ def test_plan_shows_where_a_profile_with_a_lag_aims_the_mechanism(tmp_path, caps
     assert fa["via"][1] == pytest.approx(0.15 - 0.0006 + 0.004)  # the via above the aim: the move ends falling
     assert main(argv[:-1]) == 0
     out = capsys.readouterr().out
-    assert "mechanism aimed at: x=" in out and "z=+0.1494" in out
+    assert "mechanism aimed at: x=" in out and "z=+0.1494" in out and "cut at" not in out
+    # ending from above, the aim lies below the goal: at the lower face it is cut, and that is said
+    assert main(["plan", "--profile", str(prof), "--to", "pitch=-0.1"]) == 0
+    assert "cut at the workspace face or the upper height in pitch" in capsys.readouterr().out
 
 
-def test_plan_shows_the_count_approach_a_goto_ends_with(tmp_path, capsys):
+def test_plan_shows_the_count_approach_a_goto_ends_with(tmp_path, capsys, monkeypatch):
     """With ``motion.count_approach`` a goto lasts 1.2 s longer than its plan: `hitch plan` says so, and which
     counts it streams (it gave the plan's duration alone)."""
     prof = profile_file_with_final_approach(tmp_path)
@@ -415,6 +418,11 @@ def test_plan_shows_the_count_approach_a_goto_ends_with(tmp_path, capsys):
     assert np.all(np.abs(final - exact) <= 1.0)  # on a count next to the goal's
     assert main(argv[:-1]) == 0
     assert "count approach after the plan: +1.20 s (a goto lasts" in capsys.readouterr().out
+    # a goal where the approach's counts are not admissible (plan_count_tail gives none): said, not silent
+    monkeypatch.setattr("bridge.cli.plan.plan_count_tail", lambda *a, **k: None)
+    assert main(argv[:-1]) == 0
+    assert "count approach: none at this goal" in capsys.readouterr().out
+    monkeypatch.undo()
     assert main(["plan", "--to", "z=0.05", "--json"]) == 0  # the built-in profile: none
     assert json.loads(capsys.readouterr().out)["count_approach"] is None
 

@@ -202,6 +202,7 @@ def profile_summary(model: HitchModel) -> dict:
         "thesis_box": {k: list(v) for k, v in model.thesis_box().items()},
         "z_reference": prof.workspace.z_reference,
         "workspace": None if model.workspace is None else {k: list(v) for k, v in model.workspace.items()},
+        "motion": prof.motion.model_dump(mode="json"),
     }
 
 
@@ -237,6 +238,24 @@ def _cmd_profile_show(args) -> int:
         f"top link: yaw ±{lim['top_link_yaw_max']} rad, pitch +{lim['top_link_pitch_up_max']}/"
         f"-{lim['top_link_pitch_down_max']} rad from the {lim['top_link_angle_reference']} direction; "
         f"ground clearance {lim['ground_clearance']} m (pivot height {s['pivot_height']} m)"
+    )
+    fa = model.profile.motion.final_approach
+    if fa is None:
+        c.print("final approach: off (gotos end straight from where they come)")
+    else:
+        offs = "  ".join(f"{k}={v:g}" for k, v in zip(("x", "z", "roll", "pitch"), fa.offset(), strict=True))
+        lag = (
+            "none"
+            if fa.lag is None
+            else "  ".join(f"{k}={v:g}" for k, v in zip(("x", "z", "roll", "pitch"), fa.lag.vector(), strict=True))
+        )
+        c.print(f"final approach: from {fa.side}, offsets {offs} [m, m, rad, rad]; lag of the pin play: {lag}")
+    ca = model.profile.motion.count_approach
+    c.print(
+        "count approach: off"
+        if ca is None
+        else f"count approach: on (keep_arrival_side {ca.keep_arrival_side}, via {ca.via_hold_s:g} s, "
+        f"final {ca.final_hold_s:g} s)"
     )
     return 0
 

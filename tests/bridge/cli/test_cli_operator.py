@@ -394,6 +394,25 @@ def test_plan_shows_where_a_profile_with_a_lag_aims_the_mechanism(tmp_path, caps
     assert "cut at the workspace face or the upper height in pitch" in capsys.readouterr().out
 
 
+def test_profile_show_says_the_final_approach_its_lag_and_the_count_approach(tmp_path, capsys):
+    """A new user's report: `hitch profile show` left out [motion], so a profile's final approach, its lag and
+    its count approach could not be checked with it."""
+    prof = profile_file_with_final_approach(tmp_path, count_approach=True)
+    prof.write_text(
+        prof.read_text() + "\n[motion.final_approach.lag]\nx = 0.0005\nz = 0.0006\nroll = 0.001\npitch = 0.002\n"
+    )
+    assert main(["profile", "show", "--profile", str(prof)]) == 0
+    out = capsys.readouterr().out
+    assert "final approach: from below, offsets x=0.0025" in out and "lag of the pin play: x=0.0005" in out
+    assert "count approach: on" in out
+    assert main(["profile", "show", "--profile", str(prof), "--json"]) == 0
+    motion = json.loads(capsys.readouterr().out)["motion"]
+    assert motion["final_approach"]["lag"] == {"x": 0.0005, "z": 0.0006, "roll": 0.001, "pitch": 0.002}
+    assert main(["profile", "show"]) == 0
+    out = capsys.readouterr().out
+    assert "final approach: off" in out and "count approach: off" in out
+
+
 def test_plan_shows_the_count_approach_a_goto_ends_with(tmp_path, capsys, monkeypatch):
     """With ``motion.count_approach`` a goto lasts 1.2 s longer than its plan: `hitch plan` says so, and which
     counts it streams (it gave the plan's duration alone)."""

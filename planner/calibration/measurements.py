@@ -342,15 +342,17 @@ def load_plan_targets(path: str | Path) -> tuple[tuple[str, ...], np.ndarray]:
     cols = {h: i for i, h in enumerate(header)}
     labels: list[str] = []
     poses: list[list[float]] = []
+    seen: set[tuple[str | None, tuple[float, ...]]] = set()
     for r, (where, cells) in enumerate(_data_rows(reader, len(header), f"plan file {p}"), start=1):
         pose = []
         for c in TARGET_COLUMNS:
             lim, unit = (_ANGLE_MAX, "rad") if c.endswith(("roll", "pitch")) else (_POSITION_MAX_M, "m")
             pose.append(_cell(cells[cols[c]], where, c, -lim, lim, unit))
         label = cells[cols["pose"]] if "pose" in cols else f"p{r}"
-        named = "pose" in cols
-        if any(seen == pose and (lab == label or not named) for lab, seen in zip(labels, poses, strict=True)):
+        key = (label if "pose" in cols else None, tuple(pose))
+        if key in seen:
             continue  # the same pose again (measured from the other side)
+        seen.add(key)
         poses.append(pose)
         labels.append(label)
     if not poses:

@@ -112,7 +112,8 @@ class ParametricModel:
         self._sc = SensorScaling(profile)
         self._fn, self._jac_fn, self._n_x = self._build()
         self._batch: dict[tuple[int, bool], ca.Function] = {}
-        #: the output rows the lag parameters (:attr:`ParameterSet.lag_index`) shift
+        #: the lag parameters' indices (:attr:`ParameterSet.lag_index`) and the output rows they shift
+        self._lag_index = self.params.lag_index
         self._lag_rows = _POSE_ROWS_XZRP[list(self.params.lag_dofs)]
 
     @property
@@ -218,7 +219,7 @@ class ParametricModel:
         y, c, _ = self._fn(q, pv, self._seed(q))
         self._check(np.asarray(c).reshape(-1), q)
         out = np.asarray(y).reshape(-1)
-        lag = self.params.lag_index
+        lag = self._lag_index
         if lag.size:
             out[self._lag_rows] += float(side) * pv[lag]
         return out
@@ -249,7 +250,7 @@ class ParametricModel:
         c = np.asarray(out[2] if jacobian else out[1]).T.reshape(n_pose, 5)
         for k in range(n_pose):
             self._check(c[k], qs[k])
-        lag = self.params.lag_index
+        lag = self._lag_index
         side = np.zeros(n_pose) if sides is None else np.asarray(sides, dtype=float).reshape(-1)
         if side.shape != (n_pose,):
             raise CalibrationError(f"sides must hold one approach side per reading ({n_pose}), got {side.size}")

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -120,6 +121,34 @@ def _warn_if_too_few(d, command: str) -> None:
             "plan more poses (--n)",
             file=sys.stderr,
         )
+
+
+def _warn_if_approach_cut(model, poses: np.ndarray, labels: Sequence[str], args) -> None:
+    """On stderr: the poses whose gotos (``--by goto``) find less room than the final approach before a face
+    from a side they are measured from (a plan of one side measured from both: plan-poses --two-sided)."""
+    from planner.calibration.design import approach_shortfalls
+
+    fa = model.profile.motion.final_approach
+    if args.by != "goto" or fa is None:
+        return
+    sides = _template_sides(model.profile, args.sides == "both")
+    short = approach_shortfalls(model, poses, sides)
+    if not short:
+        return
+    unit = {"x": ("mm", 1e3), "z": ("mm", 1e3), "roll": ("mrad", 1e3), "pitch": ("mrad", 1e3)}
+    listed = ", ".join(
+        f"{labels[s.row]} {s.dof} from {s.side} ({s.room * unit[s.dof][1]:.1f} of {s.offset * unit[s.dof][1]:.1f} "
+        f"{unit[s.dof][0]})"
+        for s in short[:6]
+    )
+    more = f" and {len(short) - 6} more" if len(short) > 6 else ""
+    hint = " (plan-poses --two-sided plans room at both faces)" if args.sides == "both" else ""
+    print(
+        f"hitch calibrate measure-twin: warning: {len({s.row for s in short})} of {len(poses)} poses lie nearer a "
+        f"workspace face than the final approach: {listed}{more}; their approach is cut short and may leave the pin "
+        f"play partly taken up, which biases the fit{hint}",
+        file=sys.stderr,
+    )
 
 
 def _template_sides(profile, two_sided: bool) -> tuple[str, ...]:
@@ -286,6 +315,7 @@ def _cmd_measure_twin(args) -> int:
         _warn_if_too_few(design, "measure-twin")  # as plan-poses says it
         poses = design.poses
         labels = tuple(f"p{k + 1}" for k in range(poses.shape[0]))
+    _warn_if_approach_cut(model, poses, labels, args)
     truth = load_machine_truth(args.sim_truth)
     points = ("L", "R", "U") if args.points else ()
     approach = None if args.sides is None else {"both": "both", "one": "direct"}[args.sides]

@@ -31,7 +31,15 @@ from planner.calibration.solve import identifiable_basis
 from planner.model.exact_inverse import ExactInverse
 from planner.model.types import CONTROLLED_POSE_NAMES, KinematicsError
 
-__all__ = ["PoseDesign", "candidate_poses", "information_log_det", "measured_rows", "plan_poses"]
+__all__ = [
+    "ApproachShortfall",
+    "PoseDesign",
+    "approach_shortfalls",
+    "candidate_poses",
+    "information_log_det",
+    "measured_rows",
+    "plan_poses",
+]
 
 _ANGLES = ("roll", "pitch", "yaw")
 #: how far above the final approach's start the lower faces of the candidates stay [m, m, rad, rad] (round-off)
@@ -66,6 +74,42 @@ def measured_rows(points: bool = False, pose: bool = True) -> np.ndarray:
     if points:
         rows += [r + i for r in POINT_ROWS.values() for i in range(3)]
     return np.array(sorted(rows))
+
+
+@dataclass(frozen=True)
+class ApproachShortfall:
+    """Pose ``row`` (0-based) reached from ``side`` has only ``room`` of the final approach's ``offset`` in
+    DOF ``dof`` before a workspace face [m or rad]: its goto's approach is cut short there."""
+
+    row: int
+    dof: str
+    side: str
+    room: float
+    offset: float
+
+
+def approach_shortfalls(
+    model: ParametricModel, poses: np.ndarray, sides: tuple[str, ...]
+) -> tuple[ApproachShortfall, ...]:
+    """Where gotos to ``poses`` (N, 4: x, z, roll, pitch) from each of ``sides`` (``"below"``, ``"above"``)
+    find less room than the profile's ``motion.final_approach`` offset before the restricted workspace's face
+    (the approach is then cut short and may not take the pin play up: such a row biases the fit; module
+    docstring). Empty without a final approach or a workspace box."""
+    hm = model.nominal_model
+    approach, box = hm.profile.motion.final_approach, hm.workspace
+    if approach is None or box is None:
+        return ()
+    lo = np.array([box[k][0] for k in CONTROLLED_POSE_NAMES])
+    hi = np.array([box[k][1] for k in CONTROLLED_POSE_NAMES])
+    offset = np.asarray(approach.offset())
+    out = []
+    for r, p in enumerate(np.asarray(poses, float).reshape(-1, 4)):
+        for side in sides:
+            room = p - lo if side == "below" else hi - p
+            for k, name in enumerate(CONTROLLED_POSE_NAMES):
+                if offset[k] > 0 and room[k] < offset[k] - 1e-9:
+                    out.append(ApproachShortfall(r, name, side, float(max(room[k], 0.0)), float(offset[k])))
+    return tuple(out)
 
 
 def candidate_poses(

@@ -99,8 +99,23 @@ class MeasurementSet:
 
     @property
     def n_poses(self) -> int:
-        """Distinct poses (rows with the same readings, e.g. one pose approached from two sides, count once)."""
-        return int(np.unique(self.readings, axis=0).shape[0])
+        """Distinct poses: rows with the same readings or the same label count once (a repeat of a pose; one
+        pose measured from both sides, whose readings differ by the lag, under its one label)."""
+        _, by_readings = np.unique(self.readings, axis=0, return_inverse=True)
+        parent = list(range(self.n_rows))
+
+        def root(i: int) -> int:
+            while parent[i] != i:
+                parent[i] = parent[parent[i]]
+                i = parent[i]
+            return i
+
+        first: dict[tuple[str, object], int] = {}
+        for i, key in enumerate(zip(self.labels, np.asarray(by_readings).reshape(-1).tolist(), strict=True)):
+            for k in (("label", key[0]), ("readings", key[1])):
+                j = first.setdefault(k, i)
+                parent[root(i)] = root(j)
+        return len({root(i) for i in range(self.n_rows)})
 
     @property
     def n_observations(self) -> int:

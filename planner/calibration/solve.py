@@ -306,7 +306,7 @@ def _solve(
     if distinct <= k:  # repeats of the same readings (a copied row) add values but no direction
         raise CalibrationError(
             f"measurements: {_count(problem.data.n_rows, 'row')} hold {_count(problem.data.n_poses, 'distinct pose')} "
-            f"(rows with the same readings count once) with {_count(distinct, 'measured value')} for "
+            f"(rows with the same readings or label count once) with {_count(distinct, 'measured value')} for "
             f"{_count(k, 'parameter direction')} the poses can see: a fit needs more values than directions "
             f"(at least {k + 1}); measure more poses (a copied row is not a new pose)"
         )

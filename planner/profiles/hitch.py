@@ -247,6 +247,24 @@ class FinalApproach(_Strict):
     #: ``hitch calibrate geometry`` identifies it; the planner aims the mechanism that far beyond each goal
     lag: PlayLag | None = None
 
+    @model_validator(mode="after")
+    def _check_lag(self):
+        """An approach shorter than the play band (2·|lag|) may not take the play up from the other side:
+        then the implement does not rest ``lag`` behind the mechanism and aiming by it is wrong."""
+        if self.lag is None:
+            return self
+        for k, off, lag in zip(("x", "z", "roll", "pitch"), self.offset(), self.lag.vector(), strict=True):
+            unit = "rad" if k in ("roll", "pitch") else "m"
+            if off > 0 and off < 2.0 * abs(lag):
+                raise ProfileError(
+                    f"lag.{k} = {lag:g} {unit} needs an approach of at least the play band 2·|lag| = "
+                    f"{2.0 * abs(lag):g} {unit}, but {k} = {off:g} {unit}: an approach shorter than the band may "
+                    f"not take the play up, so the implement would not rest lag.{k} behind the mechanism; make "
+                    f"{k} >= {2.0 * abs(lag):g} {unit} (and measure again with it) or lag.{k} within "
+                    f"±{off / 2.0:g} {unit}"
+                )
+        return self
+
     def offset(self) -> tuple[float, float, float, float]:
         """(x, z, roll, pitch) [m, m, rad, rad]: how far from the goal the last segment starts (unsigned)."""
         return (self.x, self.z, self.roll, self.pitch)

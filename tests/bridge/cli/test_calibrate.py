@@ -236,7 +236,10 @@ def test_measuring_by_goto_from_both_sides_fits_the_lag_of_the_play_and_the_prof
     assert [r.split(",")[0] for r in lines[1:]] == [f"p{k + 1}" for k in range(12)] * 2
     argv = ["calibrate", "geometry", "--profile", str(prof_file), "--measurements", str(meas), "--out", str(out)]
     assert main([*argv, "--json"]) == 0
-    fit = json.loads(capsys.readouterr().out)["parameters"]
+    report = json.loads(capsys.readouterr().out)
+    assert report["n_poses"] == 12  # 12 poses, each measured from both sides (24 rows)
+    assert read_calibration_provenance(out)["poses"] == 12
+    fit = report["parameters"]
     band = TrueMachine(load_machine_truth(str(truth_file)), "2").band  # the lag's truth: the play's band per DOF
     for k, name in enumerate(("x", "z", "roll", "pitch")):
         par = fit[f"lag.{name}"]
@@ -271,6 +274,35 @@ def test_a_two_sided_template_lists_each_pose_once_per_side_and_is_read_back_as_
     d = np.array([0.0025, 0.004, 0.005, 0.007])
     lo, hi = np.array([box[k][0] for k in POSE]), np.array([box[k][1] for k in POSE])
     assert np.all(poses >= lo + d) and np.all(poses <= hi - d)
+
+
+def test_a_plan_of_one_side_measured_from_both_is_warned_about_naming_the_poses_without_room(tmp_path, capsys):
+    """A plan of plan-poses without --two-sided puts poses at the upper faces; measured from above too, their
+    approach is cut short (the play may stay partly taken up, which biases the fit): measure-twin said nothing."""
+    prof_file = profile_file_with_final_approach(tmp_path)
+    common = ["--profile", str(prof_file), "--n", "4", "--candidates", "60", "--seed", "3"]
+    one, two = tmp_path / "one.csv", tmp_path / "two.csv"
+    assert main(["calibrate", "plan-poses", *common, "--out", str(one)]) == 0
+    assert main(["calibrate", "plan-poses", *common, "--two-sided", "--out", str(two)]) == 0
+    _, poses = load_plan_targets(one)
+    box = HitchModel(load_profile(prof_file)).workspace
+    d = np.array([0.0025, 0.004, 0.005, 0.007])
+    hi = np.array([box[k][1] for k in POSE])
+    short = {(f"p{r + 1}", POSE[k]) for r, k in zip(*np.nonzero(poses > hi - d), strict=True)}
+    assert short  # the one-sided plan has poses within an offset of an upper face
+    truth_file = tmp_path / "truth.toml"
+    truth_file.write_text(truth_toml(perturb_profile(load_profile("thesis-t132"), 4)[0], PinPlay(0.001, 0.0005)))
+    argv = ["calibrate", "measure-twin", "--sim-truth", str(truth_file), "--by", "goto", "--profile", str(prof_file)]
+    capsys.readouterr()
+    assert main([*argv, "--plan", str(one), "--out", str(tmp_path / "m1.csv"), "--sides", "both"]) == 0
+    err = capsys.readouterr().err
+    assert "nearer a workspace face than the final approach" in err and "plan-poses --two-sided" in err
+    named = set(re.findall(r"(p\d+) (x|z|roll|pitch) from above \(", err))
+    assert named == short and "from below" not in err
+    assert main([*argv, "--plan", str(one), "--out", str(tmp_path / "m2.csv"), "--sides", "one"]) == 0
+    assert "nearer a workspace face" not in capsys.readouterr().err  # one side: the plan has room below
+    assert main([*argv, "--plan", str(two), "--out", str(tmp_path / "m3.csv"), "--sides", "both"]) == 0
+    assert "nearer a workspace face" not in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(

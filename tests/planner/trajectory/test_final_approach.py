@@ -174,3 +174,23 @@ def test_a_profile_s_lag_and_side_are_checked_and_a_dof_without_approach_has_no_
         d["motion"]["final_approach"] = bad
         with pytest.raises(ProfileError, match=field):
             profile_from_dict(d)
+
+
+@pytest.mark.parametrize("k", POSE)
+def test_a_lag_more_than_half_the_approach_is_refused_naming_both_fields_and_the_allowed_range(k):
+    """An approach shorter than the play band (2·|lag|) may start inside the band and not take the play up:
+    aiming by the lag would then be wrong. Accepted before (a reviewer's note)."""
+    d = load_profile().model_dump()
+    off = OFFSET[k]
+    for lag in (0.51 * off, -0.51 * off):
+        d["motion"]["final_approach"] = {**OFFSET, "lag": {**LAG, k: lag}}
+        with pytest.raises(ProfileError) as err:
+            profile_from_dict(d)
+        msg = str(err.value)
+        assert f"final_approach: lag.{k} = {lag:g}" in msg and f"{k} = {off:g}" in msg
+        assert f"within ±{off / 2:g}" in msg and f"{k} >= {2 * abs(lag):g}" in msg
+    for lag in (0.5 * off, -0.5 * off):  # the band's width equal to the approach: accepted
+        d["motion"]["final_approach"] = {**OFFSET, "lag": {**LAG, k: lag}}
+        assert profile_from_dict(d).motion.final_approach.lag_vector()[POSE.index(k)] == lag
+    d["motion"]["final_approach"] = {**OFFSET, k: 0.0, "lag": {**LAG, k: 0.01 if k in ("x", "z") else 0.02}}
+    assert profile_from_dict(d).motion.final_approach.lag_vector()[POSE.index(k)] == 0.0  # no approach: unused

@@ -127,19 +127,24 @@ def _undeclare(decl: Any) -> None:
 class Subscription:
     """One :meth:`HitchClient.subscribe`; :meth:`close` ends it (idempotent; the client's ``close`` ends all)."""
 
-    def __init__(self, subscriber: Any, owner: list[Subscription]) -> None:
+    def __init__(self, subscriber: Any, owner: list[Subscription], dispatcher: threading.Thread | None = None) -> None:
         self._subscriber = subscriber
         self._owner = owner
+        self._dispatcher = dispatcher  # a real-time client's callback thread (None: Zenoh calls back itself)
         owner.append(self)
 
     def close(self) -> None:
         """Undeclare the subscriber: Zenoh delivers no sample after this returns (a real-time client's
-        callback thread still hands over the samples it already holds, then ends)."""
+        callback thread hands over the samples it already holds and has ended when this returns: a
+        thread still inside Zenoh when the interpreter finalizes would abort the process at exit)."""
         _undeclare(self._subscriber)
         try:
             self._owner.remove(self)
         except ValueError:  # closed already (by the client's close, or twice)
             pass
+        th = self._dispatcher
+        if th is not None and th is not threading.current_thread():  # not from its own callback
+            th.join()
 
 
 def _dispatch(subscriber: Any, callback: Callable[[dict], None]) -> None:
@@ -440,9 +445,10 @@ class HitchClient:
             direct = self.session.declare_subscriber(key, lambda s: callback(_decode(s.payload)))
             return Subscription(direct, self._subs)
         sub = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(SUBSCRIPTION_CAPACITY))
-        threading.Thread(target=_dispatch, args=(sub, callback), name=f"hitch-client-{what}", daemon=True).start()
+        th = threading.Thread(target=_dispatch, args=(sub, callback), name=f"hitch-client-{what}", daemon=True)
+        th.start()
         self._keep_realtime()
-        return Subscription(sub, self._subs)
+        return Subscription(sub, self._subs, th)
 
     def _keep_realtime(self) -> None:
         """Raise this process's Zenoh threads to ``SCHED_FIFO`` when their number changed since the last

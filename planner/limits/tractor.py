@@ -204,40 +204,40 @@ class _Strict(BaseModel):
 class CentreOfMassSpec(_Strict):
     """Tractor CoM: x lateral (+ left), y from the lower-link pivots (+ rear), height above ground [m]."""
 
-    x: float = Field(ge=-1.0, le=1.0)
-    y: float = Field(ge=-8.0, le=2.0)
-    height: float = Field(gt=0.0, le=4.0)
+    x: float = Field(json_schema_extra={"unit": "m"}, ge=-1.0, le=1.0)
+    y: float = Field(json_schema_extra={"unit": "m"}, ge=-8.0, le=2.0)
+    height: float = Field(json_schema_extra={"unit": "m"}, gt=0.0, le=4.0)
 
 
 class RearAxleSpec(_Strict):
     """Rear-axle centre: y from the lower-link pivots (+ rear), height above ground [m]."""
 
-    y: float = Field(ge=-3.0, le=1.0)
-    height: float = Field(gt=0.0, le=3.0)
+    y: float = Field(json_schema_extra={"unit": "m"}, ge=-3.0, le=1.0)
+    height: float = Field(json_schema_extra={"unit": "m"}, gt=0.0, le=3.0)
 
 
 class FrontAxlePivotSpec(_Strict):
     """Front-axle oscillation pivot: height above ground [m] (on the centre line, at the axle)."""
 
-    height: float = Field(gt=0.0, le=3.0)
+    height: float = Field(json_schema_extra={"unit": "m"}, gt=0.0, le=3.0)
 
 
 class FrontBallastSpec(_Strict):
     """Front ballast CoG: ``arm`` a ahead of the front axle, ``height`` above ground [m]."""
 
-    arm: float = Field(ge=0.0, le=3.0)
-    height: float = Field(gt=0.0, le=3.0)
+    arm: float = Field(json_schema_extra={"unit": "m"}, ge=0.0, le=3.0)
+    height: float = Field(json_schema_extra={"unit": "m"}, gt=0.0, le=3.0)
 
 
 class TractorSpec(_Strict):
     """The empty tractor. ``mass`` T_L and ``front_axle_mass_empty`` T_V in kg, lengths in m."""
 
-    mass: float = Field(gt=0.0, le=50_000.0)
+    mass: float = Field(json_schema_extra={"unit": "kg"}, gt=0.0, le=50_000.0)
     #: weighbridge reading of the empty front axle; if given it must match the CoM within 1 % of mass
-    front_axle_mass_empty: float | None = Field(default=None, gt=0.0, le=50_000.0)
+    front_axle_mass_empty: float | None = Field(json_schema_extra={"unit": "kg"}, default=None, gt=0.0, le=50_000.0)
     centre_of_mass: CentreOfMassSpec
-    wheelbase: float = Field(gt=0.5, le=6.0)
-    rear_track: float = Field(gt=0.3, le=4.0)
+    wheelbase: float = Field(json_schema_extra={"unit": "m"}, gt=0.5, le=6.0)
+    rear_track: float = Field(json_schema_extra={"unit": "m"}, gt=0.3, le=4.0)
     rear_axle: RearAxleSpec
     front_axle_pivot: FrontAxlePivotSpec
     front_ballast: FrontBallastSpec
@@ -273,7 +273,7 @@ class ImplementSpec(_Strict):
     """An implement record: ISO 730 category, mass [kg], CoM [x_i, y_i, z_i] in the implement frame [m]."""
 
     category: Category
-    mass: float = Field(gt=0.0, le=20_000.0)
+    mass: float = Field(json_schema_extra={"unit": "kg"}, gt=0.0, le=20_000.0)
     centre_of_mass: tuple[float, float, float]
     description: str = ""
 

@@ -105,17 +105,17 @@ class Box(_Strict):
 
 
 class Geometry(_Strict):
-    lower_link_pivot_span: float = Field(gt=0, le=3.0)
-    lower_link_length: float = Field(gt=0, le=3.0)
-    lift_rod_attachment: float = Field(gt=0, le=3.0)
-    limiter_bracket_position: float = Field(gt=0, le=3.0)
-    limiter_bracket_offset: float = Field(ge=0, le=1.0)
-    fixed_lift_rod_length: float = Field(gt=0, le=3.0)
-    lift_arm_length: float = Field(gt=0, le=3.0)
+    lower_link_pivot_span: float = Field(json_schema_extra={"unit": "m"}, gt=0, le=3.0)
+    lower_link_length: float = Field(json_schema_extra={"unit": "m"}, gt=0, le=3.0)
+    lift_rod_attachment: float = Field(json_schema_extra={"unit": "m"}, gt=0, le=3.0)
+    limiter_bracket_position: float = Field(json_schema_extra={"unit": "m"}, gt=0, le=3.0)
+    limiter_bracket_offset: float = Field(json_schema_extra={"unit": "m"}, ge=0, le=1.0)
+    fixed_lift_rod_length: float = Field(json_schema_extra={"unit": "m"}, gt=0, le=3.0)
+    lift_arm_length: float = Field(json_schema_extra={"unit": "m"}, gt=0, le=3.0)
     lift_arm_pivot: tuple[float, float, float]
     top_link_tractor_point: tuple[float, float, float]
     limiter_tractor_point: tuple[float, float, float]
-    pivot_height: float = Field(gt=0, le=3.0)
+    pivot_height: float = Field(json_schema_extra={"unit": "m"}, gt=0, le=3.0)
 
     @model_validator(mode="after")
     def _check(self):
@@ -133,12 +133,12 @@ class Geometry(_Strict):
 class Category(_Strict):
     """ISO 730 implement category: lower hitch span (inner faces, as in the standard) and mast height [m]."""
 
-    span: float = Field(gt=0, le=2.0)
-    mast_height: float = Field(gt=0, le=2.0)
+    span: float = Field(json_schema_extra={"unit": "m"}, gt=0, le=2.0)
+    mast_height: float = Field(json_schema_extra={"unit": "m"}, gt=0, le=2.0)
 
 
 class Implement(_Strict):
-    ball_centre_correction: float = Field(ge=0, le=0.2)
+    ball_centre_correction: float = Field(json_schema_extra={"unit": "m"}, ge=0, le=0.2)
     default_category: str
     categories: dict[str, Category]
 
@@ -156,13 +156,13 @@ class ActuatorSpec(_Strict):
 
     min: float
     max: float
-    counts_min: int = Field(ge=0, le=1023)
-    counts_max: int = Field(ge=0, le=1023)
+    counts_min: int = Field(json_schema_extra={"unit": "counts"}, ge=0, le=1023)
+    counts_max: int = Field(json_schema_extra={"unit": "counts"}, ge=0, le=1023)
     valve_multiplier: float = Field(gt=0, le=1.0)
     kv_pos: float = Field(gt=0, le=100.0)
     kv_neg: float = Field(gt=0, le=100.0)
-    transport_delay: float = Field(ge=0, le=2.0)
-    time_constant: float = Field(ge=0, le=2.0)
+    transport_delay: float = Field(json_schema_extra={"unit": "s"}, ge=0, le=2.0)
+    time_constant: float = Field(json_schema_extra={"unit": "s"}, ge=0, le=2.0)
     min_flow: float = Field(ge=0, le=254)
     dead_zone: float = Field(ge=0, le=254)
     neutral: float | None = None
@@ -203,15 +203,15 @@ class KeepOut(_Strict):
 
     name: str = Field(min_length=1, max_length=60)
     centre: tuple[float, float, float]
-    radius: float = Field(gt=0, le=1.0)
+    radius: float = Field(json_schema_extra={"unit": "m"}, gt=0, le=1.0)
 
 
 class Limits(_Strict):
-    top_link_yaw_max: float = Field(gt=0, le=math.pi / 2)
-    top_link_pitch_up_max: float = Field(gt=0, le=math.pi / 2)
-    top_link_pitch_down_max: float = Field(gt=0, le=math.pi / 2)
+    top_link_yaw_max: float = Field(json_schema_extra={"unit": "rad"}, gt=0, le=math.pi / 2)
+    top_link_pitch_up_max: float = Field(json_schema_extra={"unit": "rad"}, gt=0, le=math.pi / 2)
+    top_link_pitch_down_max: float = Field(json_schema_extra={"unit": "rad"}, gt=0, le=math.pi / 2)
     top_link_angle_reference: Literal["neutral", "horizontal"] = "neutral"
-    ground_clearance: float = Field(ge=-1.0, le=2.0)
+    ground_clearance: float = Field(json_schema_extra={"unit": "m"}, ge=-1.0, le=2.0)
     keep_out: list[KeepOut] = Field(default_factory=list)
     end_stop_zone: float = Field(default=0.05, ge=0.0, le=0.5)
 
@@ -222,10 +222,10 @@ class PlayLag(_Strict):
     (``hitch calibrate geometry`` from poses measured with their approach side), so it may be slightly
     negative within its noise."""
 
-    x: float = Field(ge=-0.005, le=0.01)
-    z: float = Field(ge=-0.005, le=0.01)
-    roll: float = Field(ge=-0.01, le=0.02)
-    pitch: float = Field(ge=-0.01, le=0.02)
+    x: float = Field(json_schema_extra={"unit": "m"}, ge=-0.005, le=0.01)
+    z: float = Field(json_schema_extra={"unit": "m"}, ge=-0.005, le=0.01)
+    roll: float = Field(json_schema_extra={"unit": "rad"}, ge=-0.01, le=0.02)
+    pitch: float = Field(json_schema_extra={"unit": "rad"}, ge=-0.01, le=0.02)
 
     def vector(self) -> tuple[float, float, float, float]:
         """(x, z, roll, pitch) [m, m, rad, rad]."""
@@ -238,10 +238,10 @@ class FinalApproach(_Strict):
     on the same side every time (:mod:`planner.trajectory.final_approach`). ``side = "above"``: the last
     segment starts that far above the goal and ends falling instead."""
 
-    x: float = Field(ge=0.0, le=0.05)
-    z: float = Field(ge=0.0, le=0.05)
-    roll: float = Field(ge=0.0, le=0.1)
-    pitch: float = Field(ge=0.0, le=0.1)
+    x: float = Field(json_schema_extra={"unit": "m"}, ge=0.0, le=0.05)
+    z: float = Field(json_schema_extra={"unit": "m"}, ge=0.0, le=0.05)
+    roll: float = Field(json_schema_extra={"unit": "rad"}, ge=0.0, le=0.1)
+    pitch: float = Field(json_schema_extra={"unit": "rad"}, ge=0.0, le=0.1)
     side: Literal["below", "above"] = "below"
     #: how far the implement rests behind the mechanism after the approach (the pin play taken up), as
     #: ``hitch calibrate geometry`` identifies it; the planner aims the mechanism that far beyond each goal
@@ -326,8 +326,8 @@ class CountApproachSettings(_Strict):
     from_below_counts: ActuatorStops
     from_above_counts: ActuatorStops
     keep_arrival_side: bool = True
-    via_hold_s: float = Field(default=0.6, gt=0.0, le=10.0)
-    final_hold_s: float = Field(default=0.6, gt=0.0, le=10.0)
+    via_hold_s: float = Field(json_schema_extra={"unit": "s"}, default=0.6, gt=0.0, le=10.0)
+    final_hold_s: float = Field(json_schema_extra={"unit": "s"}, default=0.6, gt=0.0, le=10.0)
 
 
 class Motion(_Strict):
@@ -339,9 +339,9 @@ class Motion(_Strict):
     """
 
     velocity_fraction: float = Field(default=0.9, gt=0, le=1.0)
-    acceleration_time: float = Field(default=0.3, gt=0, le=10.0)
-    jerk_time: float = Field(default=0.15, gt=0, le=10.0)
-    control_rate: float = Field(default=50.0, ge=1.0, le=200.0)
+    acceleration_time: float = Field(json_schema_extra={"unit": "s"}, default=0.3, gt=0, le=10.0)
+    jerk_time: float = Field(json_schema_extra={"unit": "s"}, default=0.15, gt=0, le=10.0)
+    control_rate: float = Field(json_schema_extra={"unit": "Hz"}, default=50.0, ge=1.0, le=200.0)
     #: tuning a of the cylinder ECU's unit controllers (thesis 2.57), 0.581 on the thesis's machine (thesis §3.1);
     #: the planner needs it to invert the unit loops (feed-forward), the simulated ECU runs with it
     controller_a: float = Field(default=THESIS_CONTROLLER_A, gt=0, le=2.0)
@@ -355,11 +355,11 @@ class Stability(_Strict):
     """Which tractor carries the hitch (a profile in planner/profiles/tractors/) and its front ballast [kg]."""
 
     tractor_profile: str = "tractor-6t"
-    front_ballast: float = Field(default=0.0, ge=0.0, le=5000.0)
+    front_ballast: float = Field(json_schema_extra={"unit": "kg"}, default=0.0, ge=0.0, le=5000.0)
     #: slow-down factor when a margin falls below its caution threshold (free-gait source: 0.8)
     caution_speed_factor: float = Field(default=0.8, gt=0.0, le=1.0)
     #: how far ahead jog motion is evaluated [s] (free-gait source: about one second)
-    jog_horizon: float = Field(default=1.0, gt=0.0, le=5.0)
+    jog_horizon: float = Field(json_schema_extra={"unit": "s"}, default=1.0, gt=0.0, le=5.0)
 
 
 class Workspace(_Strict):

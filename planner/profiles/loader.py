@@ -10,8 +10,9 @@ from pathlib import Path
 from typing import Any
 
 from pydantic import BaseModel, ValidationError
+from pydantic.fields import FieldInfo
 
-from planner.errors import HitchInputError
+from planner.errors import HitchInputError, unit_hint_within
 from planner.textfile import read_text_file
 
 __all__ = ["ProfileError", "builtin_profiles", "read_profile", "format_validation_error", "check_profile_name"]
@@ -67,14 +68,14 @@ def read_profile(
         raise error(f"{kind} {source} is not valid TOML: {exc}") from None
 
 
-def _field_range(model: type[BaseModel] | None, loc: tuple[int | str, ...]) -> str:
-    """'> 0 and <= 1.5708' from the schema's constraints of the field at ``loc`` (or '')."""
+def _field_info(model: type[BaseModel] | None, loc: tuple[int | str, ...]) -> FieldInfo | None:
+    """The schema's field at ``loc`` (None where the path leaves the schema)."""
     info = None
     for part in loc:
         if model is None or not isinstance(part, str) or part not in model.model_fields:
             if isinstance(part, (str, int)) and info is not None:  # dict / list item of a model
                 continue
-            return ""
+            return None
         info = model.model_fields[part]
         ann = info.annotation
         model = ann if isinstance(ann, type) and issubclass(ann, BaseModel) else None
@@ -82,6 +83,11 @@ def _field_range(model: type[BaseModel] | None, loc: tuple[int | str, ...]) -> s
         if model is None and args:
             inner = [a for a in args if isinstance(a, type) and issubclass(a, BaseModel)]
             model = inner[0] if inner else None
+    return info
+
+
+def _field_range(info: FieldInfo | None) -> str:
+    """'> 0 and <= 1.5708' from a field's constraints (or '')."""
     if info is None:
         return ""
     parts = []
@@ -91,6 +97,13 @@ def _field_range(model: type[BaseModel] | None, loc: tuple[int | str, ...]) -> s
             if v is not None:
                 parts.append(f"{sym} {v:.6g}")
     return " and ".join(parts)
+
+
+def _field_unit(info: FieldInfo | None) -> str:
+    """The unit a field's value is in (its ``json_schema_extra["unit"]``: "m", "rad", "s", …; "" for none)."""
+    extra = None if info is None else info.json_schema_extra
+    unit = extra.get("unit") if isinstance(extra, dict) else None
+    return unit if isinstance(unit, str) else ""
 
 
 def format_validation_error(kind: str, source: str, err: ValidationError, schema: type[BaseModel] | None = None) -> str:
@@ -107,7 +120,13 @@ def format_validation_error(kind: str, source: str, err: ValidationError, schema
             msg = "must be an array ([ … ])"
         elif e["type"] == "string_type":
             msg = "must be text (a quoted string)"
-        allowed = _field_range(schema, tuple(e["loc"]))
+        info = _field_info(schema, tuple(e["loc"]))
+        allowed, unit = _field_range(info), _field_unit(info)
+        value = e.get("input")
+        if allowed and unit:
+            allowed += f" {unit}"
+            if isinstance(value, (int, float)) and not isinstance(value, bool) and info is not None:
+                allowed += unit_hint_within(float(value), info.metadata, unit)
         if not allowed:
             ctx = e.get("ctx") or {}
             allowed = " and ".join(
@@ -115,7 +134,6 @@ def format_validation_error(kind: str, source: str, err: ValidationError, schema
             )
         if allowed:
             msg = f"{msg} (allowed: {allowed})"
-        value = e.get("input")
         shown = "" if isinstance(value, dict) else f" = {value!r}"
         lines.append(f"  {loc}{shown}: {msg}")
     return "\n".join(lines)

@@ -130,7 +130,7 @@ def test_a_profile_value_of_the_wrong_type_is_refused_naming_the_field(capsys, t
         assert main(["profile", "show", "--profile", str(p)]) == 2
         err = capsys.readouterr().err.strip()
         assert err.startswith(f"hitch: error: invalid profile {p}: geometry.lower_link_length = "), err
-        assert "valid number" in err and "(allowed: > 0 and <= 3)" in err and ":;" not in err, err
+        assert "valid number" in err and "(allowed: > 0 and <= 3 m)" in err and ":;" not in err, err
 
 
 def test_the_mode_argument_is_named_as_the_usage_shows_it(capsys):

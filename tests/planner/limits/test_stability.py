@@ -503,3 +503,18 @@ def test_cross3_is_np_cross_bit_for_bit():
     for _ in range(500):
         a, b = rng.normal(size=3) * 10.0 ** rng.integers(-3, 3), rng.normal(size=3)
         assert np.array_equal(_cross3(a, b), np.cross(a, b))
+
+
+def test_a_tractor_length_typed_in_mm_is_refused_with_its_unit_and_the_mm_reading():
+    """The tractor profile's errors gave the range without a unit ("allowed: > 0.5 and <= 6")."""
+    data = _profile_dict()
+    data["tractor"]["wheelbase"] = 2500.0
+    data["tractor"]["mass"] = -1.0
+    with pytest.raises(TractorProfileError) as err:
+        tractor_profile_from_dict(data)
+    text = str(err.value)
+    assert (
+        "tractor.wheelbase = 2500.0: " in text
+        and "(allowed: > 0.5 and <= 6 m; did you mean mm? 2500 mm = 2.5 m)" in text
+    )
+    assert "tractor.mass = -1.0: " in text and "(allowed: > 0 and <= 50000 kg)" in text

@@ -74,14 +74,18 @@ def _mutate(raw, path, value):
         (
             ("actuators", "tilt", "counts_max"),
             2000,
-            r"actuators\.tilt\.counts_max = 2000: .*allowed: >= 0 and <= 1023\)",
+            r"actuators\.tilt\.counts_max = 2000: .*allowed: >= 0 and <= 1023 counts\)",
         ),
         (("actuators", "lift", "max"), 2.0, r"actuators: .*lift is an angle"),
         # a 1-count sensor loaded and failed in the twin: "relay_margin_counts = 2 leaves no stroke (span 1 counts)"
         (("actuators", "lift", "counts_max"), 29, r"actuators\.lift: .*over at least 16 counts"),
         (("actuators", "tilt", "neutral"), 0.9, r"actuators\.tilt: .*neutral 0\.9 must lie within the stroke"),
         (("actuators", "top", "valve_multiplier"), 0.0, r"actuators\.top\.valve_multiplier = 0\.0"),
-        (("limits", "top_link_yaw_max"), 2.0, r"limits\.top_link_yaw_max = 2\.0: .*allowed: > 0 and <= 1\.5708\)"),
+        (
+            ("limits", "top_link_yaw_max"),
+            2.0,
+            r"limits\.top_link_yaw_max = 2\.0: .*allowed: > 0 and <= 1\.5708 rad; did you mean degrees\? 2 deg",
+        ),
         (("limits", "top_link_angle_reference"), "sky", r"limits\.top_link_angle_reference = 'sky'"),
         (("workspace", "z_reference"), "sea", r"workspace\.z_reference = 'sea'"),
         (("workspace", "thesis_box", "roll"), [-4.0, 4.0], r"workspace\.thesis_box: .*within ±π"),
@@ -90,7 +94,7 @@ def _mutate(raw, path, value):
         (
             ("implement", "categories", "2", "span"),
             -1,
-            r"implement\.categories\.2\.span = -1: .*allowed: > 0 and <= 2\)",
+            r"implement\.categories\.2\.span = -1: .*allowed: > 0 and <= 2 m\)",
         ),
         (("schema_version",), 2, r"schema_version = 2"),
         (("name",), "bad name!", r"name = 'bad name!'"),
@@ -99,6 +103,29 @@ def _mutate(raw, path, value):
 def test_validation_errors_name_field_value_and_range(raw, path, value, expect):
     with pytest.raises(ProfileError, match=expect):
         profile_from_dict(_mutate(raw, path, value), source="test")
+
+
+@pytest.mark.parametrize(
+    "path, value, expect",
+    [
+        # a member length typed in mm: "allowed: > 0 and <= 3", no unit (a reviewer's note on lag in mm)
+        (("geometry", "lower_link_length"), 960.0, "allowed: > 0 and <= 3 m; did you mean mm? 960 mm = 0.96 m)"),
+        (("limits", "top_link_yaw_max"), 30.0, "allowed: > 0 and <= 1.5708 rad; did you mean degrees? 30 deg"),
+        (("motion", "final_approach"), {"x": 2.5, "z": 0.004, "roll": 0.005, "pitch": 0.007}, "<= 0.05 m; did you"),
+        (
+            ("motion", "final_approach"),
+            {"x": 0.0025, "z": 0.004, "roll": 0.005, "pitch": 0.007, "lag": {"x": 0, "z": 0, "roll": 2.0, "pitch": 0}},
+            "final_approach.lag.roll = 2.0: Input should be less than or equal to 0.02 (allowed: >= -0.01 and <= "
+            "0.02 rad; did you mean mrad? 2 mrad = 0.002 rad)",
+        ),
+        (("stability", "jog_horizon"), 600.0, "(allowed: > 0 and <= 5 s)"),
+        (("actuators", "tilt", "valve_multiplier"), 2.0, "(allowed: > 0 and <= 1)"),  # a ratio: no unit
+    ],
+)
+def test_a_value_out_of_range_is_named_with_its_unit_and_a_unit_slip_is_offered(raw, path, value, expect):
+    with pytest.raises(ProfileError) as err:
+        profile_from_dict(_mutate(raw, path, value), source="test")
+    assert expect in str(err.value)
 
 
 def test_file_errors(tmp_path):

@@ -213,6 +213,30 @@ def test_a_closed_subscription_calls_back_no_more(stand_in, realtime):
         assert len(got) == n and c._subs == []
 
 
+#: a script that subscribes through a real-time client and exits without closing anything
+UNCLOSED = """
+import sys, threading
+from bridge.service.client import HitchClient
+c = HitchClient([sys.argv[1]], timeout_s=5.0, realtime=True)
+got = threading.Event()
+c.subscribe("state", lambda s: got.set())
+assert got.wait(5.0)
+print("done", flush=True)
+"""
+
+
+def test_a_script_that_exits_with_a_realtime_subscription_open_exits_cleanly(stand_in):
+    """Its callback thread, still inside Zenoh when the interpreter finalized, was ended there by CPython and
+    the process aborted after its work ("FATAL: exception not rethrown", exit -6; 8 of 8 runs)."""
+    endpoint, _ = stand_in
+    for _ in range(3):
+        out = subprocess.run(
+            [sys.executable, "-c", UNCLOSED, endpoint], cwd=ROOT, capture_output=True, text=True, timeout=60
+        )
+        assert (out.returncode, out.stdout.strip()) == (0, "done"), out.stderr
+        assert "FATAL" not in out.stderr
+
+
 @pytest.mark.skipif(SETPRIV is None or not _may_set_fifo(), reason="needs setpriv and a privilege to drop")
 def test_hitch_stop_realtime_without_the_privilege_says_why_on_stderr_and_stops(stand_in):
     endpoint, _ = stand_in

@@ -251,7 +251,9 @@ def _cmd_geometry(args) -> int:
         "ad_map": "kept (--no-ad)" if args.no_ad else "fitted",
     }
     carried = (sensors,) if sensors is not None and args.no_ad else ()  # the maps it records are kept as they were
-    write_calibrated_profile(args.out, model.params, result, name=args.name, inputs=inputs, comments=carried)
+    short = _approach_shorter_than_play(prof, result)
+    if not short:
+        write_calibrated_profile(args.out, model.params, result, name=args.name, inputs=inputs, comments=carried)
     worst = largest_residuals(problem, result)
     if result.residual_sigma > SUSPECT_SIGMA_HAT:  # said on stderr, also with --json
         rows = ", ".join(f"row {r} ({label}) {col} {v:+.1f} σ" for r, label, col, v in worst)
@@ -264,8 +266,45 @@ def _cmd_geometry(args) -> int:
         )
     if args.json:
         largest = [{"row": r, "label": label, "column": col, "residual_sigma": v} for r, label, col, v in worst]
-        print(to_json_text({"out": str(args.out), **result.as_dict(), "largest_residuals": largest}))
-        return 0
+        print(to_json_text({"out": None if short else str(args.out), **result.as_dict(), "largest_residuals": largest}))
+    else:
+        _print_fit(model, result)
+    if short:  # after the report: the fit is shown, the profile is not written
+        raise CLIError(
+            f"{args.out} not written: {'; '.join(short)}: the approach is shorter than the play band, so the data "
+            "cannot show the whole lag (it ends near half the approach) and the poses may hold the play on either "
+            f"side; raise these offsets of [motion.final_approach] in {args.profile} well above twice the lag "
+            "and measure again (docs/commissioning.md)"
+        )
+    if not args.json:
+        print(f"wrote {args.out}")
+    return 0
+
+
+def _approach_shorter_than_play(prof, result) -> list[str]:
+    """The DOF whose fitted lag is at least half the profile's final approach there (the profile refuses such a
+    lag: an approach shorter than the play band 2·|lag| may not take the play up), as ``lag.x = … ≥ half of
+    motion.final_approach.x = …`` phrases in mm / mrad."""
+    fa = prof.motion.final_approach
+    if fa is None:
+        return []
+    out = []
+    for k, off in zip(CONTROLLED_POSE_NAMES, fa.offset(), strict=True):
+        name = f"lag.{k}"
+        if name not in result.names or off <= 0:
+            continue
+        lag = float(result.values[list(result.names).index(name)])
+        if 2.0 * abs(lag) > off + 1e-12:
+            unit = "mm" if k in ("x", "z") else "mrad"
+            out.append(
+                f"the fitted {name} = {1e3 * lag:.3f} {unit} is more than half motion.final_approach.{k} = "
+                f"{1e3 * off:.3f} {unit}"
+            )
+    return out
+
+
+def _print_fit(model, result) -> None:
+    """The fit's report: residuals, the parameters with their spread, what the poses cannot identify."""
     print(
         f"calibrated {model.profile.name} from {result.n_poses} poses ({result.n_observations} values) in "
         f"{result.duration_s:.2f} s: residual RMS {1e3 * result.residual_rms_position_m:.3f} mm / "
@@ -284,8 +323,6 @@ def _cmd_geometry(args) -> int:
         print("not identifiable from these poses (kept nominal):")
         for u in result.unidentifiable:
             print(f"  {u}")
-    print(f"wrote {args.out}")
-    return 0
 
 
 #: sigma-hat (residuals in units of the σ given) above which the fit is reported as suspect

@@ -137,20 +137,39 @@ class Subscription:
             atexit.register(self.close)
 
     def close(self) -> None:
-        """Undeclare the subscriber: Zenoh delivers no sample after this returns (a real-time client's
-        callback thread hands over the samples it already holds and has ended when this returns: a
-        thread still inside Zenoh when the interpreter finalizes would abort the process at exit, so a
-        subscription left open is closed at exit, before the interpreter finalizes)."""
+        """Undeclare the subscriber: Zenoh delivers no sample after this returns. A real-time client's callback
+        thread hands over the samples it already holds and ends; this waits for it up to
+        :data:`DISPATCH_JOIN_S` (not from a callback of this client: it may be what that thread waits for). A
+        thread still inside Zenoh when the interpreter finalizes aborts the process, so one not seen to end
+        here is waited for once more at exit (as is a subscription left open), again for at most that long."""
         _undeclare(self._subscriber)
         try:
             self._owner.remove(self)
         except ValueError:  # closed already (by the client's close, or twice)
             pass
         th = self._dispatcher
-        if th is not None:
-            atexit.unregister(self.close)
-            if th is not threading.current_thread():  # not from its own callback
-                th.join()
+        if th is None or not th.is_alive():
+            if th is not None:
+                atexit.unregister(self.close)
+            return
+        if threading.current_thread().name.startswith(DISPATCH_THREAD_PREFIX):
+            return  # from a callback: that thread, or another this one may hold up (joined at exit)
+        th.join(DISPATCH_JOIN_S)
+        if th.is_alive():
+            warnings.warn(
+                f"the callback of a real-time subscription ({th.name}) has not returned {DISPATCH_JOIN_S:g} s "
+                "after close; it is waited for again at exit",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+            return
+        atexit.unregister(self.close)
+
+
+#: the name of a real-time client's callback threads starts with this
+DISPATCH_THREAD_PREFIX = "hitch-client-"
+#: how long closing a real-time subscription waits for its callback thread to end [s]
+DISPATCH_JOIN_S = 2.0
 
 
 def _dispatch(subscriber: Any, callback: Callable[[dict], None]) -> None:
@@ -451,7 +470,9 @@ class HitchClient:
             direct = self.session.declare_subscriber(key, lambda s: callback(_decode(s.payload)))
             return Subscription(direct, self._subs)
         sub = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(SUBSCRIPTION_CAPACITY))
-        th = threading.Thread(target=_dispatch, args=(sub, callback), name=f"hitch-client-{what}", daemon=True)
+        th = threading.Thread(
+            target=_dispatch, args=(sub, callback), name=f"{DISPATCH_THREAD_PREFIX}{what}", daemon=True
+        )
         th.start()
         self._keep_realtime()
         return Subscription(sub, self._subs, th)

@@ -99,23 +99,15 @@ class MeasurementSet:
 
     @property
     def n_poses(self) -> int:
-        """Distinct poses: rows with the same readings or the same label count once (a repeat of a pose; one
-        pose measured from both sides, whose readings differ by the lag, under its one label)."""
-        _, by_readings = np.unique(self.readings, axis=0, return_inverse=True)
-        parent = list(range(self.n_rows))
+        """Distinct poses: distinct readings, a pose measured from both sides once (the larger number of the
+        two sides' distinct readings, plus the rows of unknown side: a pose's readings differ by the lag from
+        one side to the other, and labels need not name poses)."""
+        side = self.side_vector
 
-        def root(i: int) -> int:
-            while parent[i] != i:
-                parent[i] = parent[parent[i]]
-                i = parent[i]
-            return i
+        def distinct(rows: np.ndarray) -> int:
+            return int(np.unique(self.readings[rows], axis=0).shape[0]) if np.any(rows) else 0
 
-        first: dict[tuple[str, object], int] = {}
-        for i, key in enumerate(zip(self.labels, np.asarray(by_readings).reshape(-1).tolist(), strict=True)):
-            for k in (("label", key[0]), ("readings", key[1])):
-                j = first.setdefault(k, i)
-                parent[root(i)] = root(j)
-        return len({root(i) for i in range(self.n_rows)})
+        return max(distinct(side < 0), distinct(side > 0)) + distinct(side == 0)
 
     @property
     def n_observations(self) -> int:

@@ -200,10 +200,12 @@ class ParameterSet:
                     out.append(float((nom.counts_min[k] - tru.counts_min[k]) * tru.resolution[k]))
         return np.array(out)
 
-    def profile_dict(self, values: ArrayLike, *, name: str | None = None) -> dict[str, Any]:
+    def profile_dict(self, values: ArrayLike, *, name: str | None = None, lag: bool = True) -> dict[str, Any]:
         """The nominal profile's data with ``values`` written in (validated; loads with ``profile_from_dict``).
 
-        AD counts are rounded to whole counts (the schema's integers); the strokes in SI stay.
+        AD counts are rounded to whole counts (the schema's integers); the strokes in SI stay. ``lag=False``:
+        the lag values are left out (the nominal profile's lag stays): the fit rounds its AD map with it, so a
+        fitted lag the profile refuses (more than half the approach) is reported, not lost in the fit.
         """
         v = self.vector(values)
         data = self.profile.model_dump(mode="python")
@@ -223,8 +225,9 @@ class ParameterSet:
                 else:
                     geo[rest] = float(x)
             elif kind == "lag":
-                fa = data["motion"]["final_approach"]  # include_lag needs it
-                fa["lag"] = {**(fa.get("lag") or {}), rest: float(x)}
+                if lag:
+                    fa = data["motion"]["final_approach"]  # include_lag needs it
+                    fa["lag"] = {**(fa.get("lag") or {}), rest: float(x)}
             else:
                 ad.setdefault(rest, {})[kind] = float(x)
         for n, d in ad.items():

@@ -230,7 +230,7 @@ def _snap_ad(problem: CalibrationProblem, u: np.ndarray, min_singular: float, ma
     if not ad.any():
         return u, 0
     p = ps.nominal + ps.scale * u
-    rounded = ps.values_of(profile_from_dict(ps.profile_dict(p)))
+    rounded = ps.values_of(profile_from_dict(ps.profile_dict(p, lag=False)))  # only its AD part is used
     u0 = u.copy()
     u0[ad] = (rounded[ad] - ps.nominal[ad]) / ps.scale[ad]
     _, js = problem.residuals(u0)

@@ -253,16 +253,20 @@ class FinalApproach(_Strict):
         then the implement does not rest ``lag`` behind the mechanism and aiming by it is wrong."""
         if self.lag is None:
             return self
+        bad = []
         for k, off, lag in zip(("x", "z", "roll", "pitch"), self.offset(), self.lag.vector(), strict=True):
             unit = "rad" if k in ("roll", "pitch") else "m"
-            if off > 0 and off < 2.0 * abs(lag):
-                raise ProfileError(
-                    f"lag.{k} = {lag:g} {unit} needs an approach of at least the play band 2·|lag| = "
-                    f"{2.0 * abs(lag):g} {unit}, but {k} = {off:g} {unit}: an approach shorter than the band may "
-                    f"not take the play up, so the implement would not rest lag.{k} behind the mechanism; make "
-                    f"{k} >= {2.0 * abs(lag):g} {unit} (and measure again with it) or lag.{k} within "
-                    f"±{off / 2.0:g} {unit}"
+            if off > 0 and off < 2.0 * abs(lag) - 1e-12:
+                bad.append(
+                    f"lag.{k} = {lag:.9g} {unit} needs an approach of at least the play band 2·|lag| = "
+                    f"{2.0 * abs(lag):.9g} {unit}, but {k} = {off:.9g} {unit} (make {k} >= {2.0 * abs(lag):.9g} "
+                    f"{unit}, and measure again with it, or lag.{k} within ±{off / 2.0:.9g} {unit})"
                 )
+        if bad:
+            raise ProfileError(
+                "; ".join(bad) + ": an approach shorter than the band may not take the play up, so the implement "
+                "would not rest the lag behind the mechanism"
+            )
         return self
 
     def offset(self) -> tuple[float, float, float, float]:

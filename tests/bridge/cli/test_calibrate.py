@@ -217,18 +217,26 @@ def test_measuring_by_goto_with_a_final_approach_and_the_calibrated_profile_keep
     )
 
 
+def _measured_from_both_sides(tmp_path, play: PinPlay):
+    """(profile with final and count approach, truth file, measurements): tape-perturbed twin 4 with ``play``,
+    12 planned poses measured by goto from both sides."""
+    prof_file = profile_file_with_final_approach(tmp_path, count_approach=True)
+    data, _ = perturb_profile(load_profile("thesis-t132"), 4)
+    truth_file = tmp_path / "truth.toml"
+    truth_file.write_text(truth_toml(data, play))
+    meas = tmp_path / "m.csv"
+    common = ["--profile", str(prof_file), "--n", "12", "--candidates", "60", "--seed", "3"]
+    argv = ["calibrate", "measure-twin", "--sim-truth", str(truth_file), "--out", str(meas), "--by", "goto"]
+    assert main([*argv, *common, "--sides", "both", "--json"]) == 0
+    return prof_file, truth_file, meas
+
+
 def test_measuring_by_goto_from_both_sides_fits_the_lag_of_the_play_and_the_profile_aims_by_it(tmp_path, capsys):
     """--sides both: a pass with the final approach from below and one from above; the file says each row's side,
     the fit finds the lag (the truth's play band), and the calibrated profile carries it. With the count
     approach, as on the bench (without it the lift settles back across the play in z at some poses)."""
-    prof_file = profile_file_with_final_approach(tmp_path, count_approach=True)
-    data, _ = perturb_profile(load_profile("thesis-t132"), 4)
-    truth_file = tmp_path / "truth.toml"
-    truth_file.write_text(truth_toml(data, PinPlay(0.001, 0.0005)))
-    meas, out = tmp_path / "m.csv", tmp_path / "cal.toml"
-    common = ["--profile", str(prof_file), "--n", "12", "--candidates", "60", "--seed", "3"]
-    argv = ["calibrate", "measure-twin", "--sim-truth", str(truth_file), "--out", str(meas), "--by", "goto"]
-    assert main([*argv, *common, "--sides", "both", "--json"]) == 0
+    prof_file, truth_file, meas = _measured_from_both_sides(tmp_path, PinPlay(0.001, 0.0005))
+    out = tmp_path / "cal.toml"
     assert json.loads(capsys.readouterr().out) == {"out": str(meas), "rows": 24, "poses": 12}
     lines = meas.read_text().splitlines()
     assert lines[0].split(",")[-1] == "approach"
@@ -254,6 +262,27 @@ def test_measuring_by_goto_from_both_sides_fits_the_lag_of_the_play_and_the_prof
     assert lag is not None and lag.vector() == pytest.approx(
         [fit[f"lag.{n}"]["value"] for n in ("x", "z", "roll", "pitch")]
     )
+
+
+def test_a_fitted_lag_beyond_half_the_approach_is_reported_and_refused_naming_the_offset_to_raise(tmp_path, capsys):
+    """2 mm of play at the lower-link balls against a 2.5 mm approach in x: the fit (lag.x ≈ 1.25 mm, capped
+    near half the approach) failed inside the solver with "invalid profile calibrated profile" and the whole
+    report was lost (a reviewer's report)."""
+    prof_file, _, meas = _measured_from_both_sides(tmp_path, PinPlay(0.002, 0.0005))
+    out = tmp_path / "cal.toml"
+    capsys.readouterr()
+    argv = ["calibrate", "geometry", "--profile", str(prof_file), "--measurements", str(meas), "--out", str(out)]
+    assert main([*argv, "--json"]) == 2
+    res = capsys.readouterr()
+    report = json.loads(res.out)
+    lag_x = report["parameters"]["lag.x"]["value"]
+    assert report["out"] is None and 2 * lag_x > 0.0025 and not out.exists()
+    assert f"{out} not written: the fitted lag.x = {1e3 * lag_x:.3f} mm is more than half" in res.err
+    assert "motion.final_approach.x = 2.500 mm" in res.err and f"in {prof_file} well above twice the lag" in res.err
+    assert "lag.z" not in res.err and "Traceback" not in res.err
+    assert main(argv) == 2  # the human report too, before the refusal
+    res = capsys.readouterr()
+    assert "lag.x" in res.out and "wrote" not in res.out and "not written" in res.err
 
 
 def test_a_two_sided_template_lists_each_pose_once_per_side_and_is_read_back_as_its_poses(tmp_path, capsys):

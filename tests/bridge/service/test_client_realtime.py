@@ -16,12 +16,15 @@ from __future__ import annotations
 
 import json
 import os
+import queue
 import shutil
 import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
 import zenoh
@@ -211,6 +214,44 @@ def test_a_closed_subscription_calls_back_no_more(stand_in, realtime):
         assert not [t for t in threading.enumerate() if t.name.startswith("hitch-client-")]
         time.sleep(0.2)  # ten publishing periods
         assert len(got) == n and c._subs == []
+
+
+def test_closing_a_realtime_subscription_whose_callback_is_blocked_returns_and_says_so(stand_in):
+    """A callback blocked on a full queue (its reader stopped reading) held ``close`` forever once close joined
+    the callback thread without a bound (a reviewer's report); a callback closing another subscription of the
+    client must not wait for that one's thread either (they could wait for each other)."""
+    endpoint, _ = stand_in
+    with HitchClient([endpoint], timeout_s=5.0, realtime=True) as c:
+        q: queue.Queue = queue.Queue(maxsize=1)
+        sub = c.subscribe("state", q.put)
+        q.get(timeout=5.0)
+        time.sleep(0.2)  # the queue is full again: the callback waits in put
+        t0 = time.monotonic()
+        with pytest.warns(RuntimeWarning, match="has not returned 2 s after close; it is waited for again at exit"):
+            sub.close()
+        assert time.monotonic() - t0 < 2.0 + 3.0  # the bound, not forever
+        q.get_nowait()  # frees the callback: its thread ends
+        done: list[str] = []
+        subs: dict[str, Any] = {}
+
+        def closes(other: str) -> Callable[[dict], None]:
+            def cb(_: dict) -> None:
+                if other in subs and not done.count(other):
+                    done.append(other)
+                    subs[other].close()
+
+            return cb
+
+        subs["events"] = c.subscribe("events", lambda _: None)
+        subs["state"] = c.subscribe("state", closes("events"))
+        end = time.monotonic() + 5.0
+        while not done and time.monotonic() < end:
+            time.sleep(0.01)
+        assert done == ["events"] and len(c._subs) == 1
+    end = time.monotonic() + 5.0  # the closed subscriptions' threads end (none waits for another)
+    while [t for t in threading.enumerate() if t.name.startswith("hitch-client-")] and time.monotonic() < end:
+        time.sleep(0.01)
+    assert not [t for t in threading.enumerate() if t.name.startswith("hitch-client-")]
 
 
 #: a script that subscribes through a real-time client and exits without closing anything

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from functools import cache
 
 import numpy as np
@@ -444,3 +445,22 @@ def test_the_same_readings_from_the_other_side_are_new_values_not_a_copied_row()
     data = _sided(model, readings, model.params.nominal, sides)
     assert data.n_distinct_observations == 8 * 4 and data.n_poses == 4
     assert data.two_sided and not data.subset([0, 2, 4]).two_sided
+
+
+def test_poses_measured_from_both_sides_count_once_whatever_their_labels_say():
+    """``n_poses`` (the provenance's "poses"): 20 poses from both sides are 20, not 40 (readings differ by the
+    lag); labels are not evidence (empty or an operator's name on every row made them one pose)."""
+    model = _lag_model()
+    _, acts = _candidates()
+    below, above = acts[:6], acts[:6] + 1e-3  # the other side's readings differ by the lag
+    readings = np.vstack([below, above])
+    sides = np.repeat([-1.0, 1.0], 6)
+    data = _sided(model, readings, model.params.nominal, sides)
+    assert data.n_poses == 6
+    for labels in ([""] * 12, ["alice"] * 12, [f"p{k}" for k in range(12)]):
+        assert replace(data, labels=tuple(labels)).n_poses == 6
+    assert data.subset(range(6)).n_poses == 6 and data.subset([0, 1, 8]).n_poses == 2  # p3 from above only
+    unsided = replace(data, sides=np.zeros(12))
+    assert unsided.n_poses == 12  # no side known: distinct readings
+    repeat = replace(data, readings=np.vstack([below, below]), sides=np.full(12, -1.0))
+    assert repeat.n_poses == 6  # the same readings again from the same side: a repeat

@@ -192,5 +192,16 @@ def test_a_lag_more_than_half_the_approach_is_refused_naming_both_fields_and_the
     for lag in (0.5 * off, -0.5 * off):  # the band's width equal to the approach: accepted
         d["motion"]["final_approach"] = {**OFFSET, "lag": {**LAG, k: lag}}
         assert profile_from_dict(d).motion.final_approach.lag_vector()[POSE.index(k)] == lag
+    d["motion"]["final_approach"] = {**OFFSET, "lag": {**LAG, k: 0.5 * off + 1e-13}}  # a fit's round-off
+    assert profile_from_dict(d).motion.final_approach is not None
     d["motion"]["final_approach"] = {**OFFSET, k: 0.0, "lag": {**LAG, k: 0.01 if k in ("x", "z") else 0.02}}
     assert profile_from_dict(d).motion.final_approach.lag_vector()[POSE.index(k)] == 0.0  # no approach: unused
+
+
+def test_every_dof_whose_lag_is_too_large_is_named_at_once():
+    d = load_profile().model_dump()
+    d["motion"]["final_approach"] = {**OFFSET, "lag": {**LAG, "x": 0.002, "pitch": -0.004}}
+    with pytest.raises(ProfileError) as err:
+        profile_from_dict(d)
+    msg = str(err.value)
+    assert "lag.x = 0.002 m" in msg and "lag.pitch = -0.004 rad" in msg and "lag.z" not in msg

@@ -257,6 +257,10 @@ def _json_summary(json_file: str | None, summary: dict) -> bool:
     return False
 
 
+#: a closed loop's warm-up plus the settling its figures leave out [s] (LoopSettings' defaults)
+_TRACK_SETTLE_S = 5.5
+
+
 def _cmd_sim_track(args) -> int:
     from bridge.service.track_loop import LoopSettings, run_track_loop
 
@@ -706,7 +710,13 @@ def add_commands(sub) -> None:
     tr.add_argument(
         "--job", choices=("levelling", "guidance", "terrain"), default=None, help="default: from the scenario"
     )
-    tr.add_argument("--duration", type=float, default=None, help="scenario seconds to run (default: the scenario's)")
+    tr.add_argument(
+        "--duration",
+        # the loop's warm-up and settling (LoopSettings' defaults) come first: a shorter run has no figures
+        type=bounded_float("--duration", _TRACK_SETTLE_S, 3600.0, unit="s"),
+        default=None,
+        help=f"scenario seconds to run, more than {_TRACK_SETTLE_S:g} (default: the scenario's)",
+    )
     tr.add_argument("--plot", default=None, type=plot_path, help="write a PNG of the run")
     _add_json_summary_option(tr)
     tr.add_argument("--profile", default="thesis-t132", help="built-in profile name or path to a .toml")

@@ -113,6 +113,13 @@ def parse_sine(text: str) -> tuple[SineTerm, ...]:
             raise argparse.ArgumentTypeError(
                 f"--sine {dof}: frequency must lie in (0, {MAX_FREQUENCY_HZ:g}] Hz, got {f_text}"
             )
+        peak = 2.0 * math.pi * f * a  # the sine's velocity amplitude: sent with every setpoint
+        if peak > SETPOINT_VELOCITY_MAX:  # before: shown by --dry-run, refused by the service mid-session
+            raise argparse.ArgumentTypeError(
+                f"--sine {dof}: its velocity 2π·f·A = {peak:.4g} {unit}/s exceeds the ±{SETPOINT_VELOCITY_MAX:g} "
+                f"{unit}/s a setpoint may carry: at {f:g} Hz the amplitude must be at most "
+                f"{SETPOINT_VELOCITY_MAX / (2.0 * math.pi * f):.4g} {unit}"
+            )
         terms.append(SineTerm(dof, a, f))
     if not terms:
         raise argparse.ArgumentTypeError("--sine: no terms given, e.g. x=0.02@0.05Hz,roll=0.01@0.1Hz")
@@ -519,6 +526,18 @@ def _end_session(c, mon: _Monitor, session: int, last_seq: int | None) -> str | 
     return problem
 
 
+#: a gap between the end pose and the last setpoint beyond which the summary says so [m or rad]
+END_GAP_NOTE = 0.005
+
+
+def _end_gap(frame: str, last: dict[str, float], pose: dict[str, Any] | None) -> dict[str, float] | None:
+    """The end pose minus the last setpoint sent, per DOF it named [m, rad] (frame ``tractor``: the state's
+    pose is in that frame; None otherwise, or without either)."""
+    if frame != "tractor" or not last or not pose:
+        return None
+    return {k: float(pose[k]) - float(v) for k, v in last.items() if k in pose}
+
+
 def _stream(args, c, spec: _Spec) -> int:
     mon = _Monitor()
     c.subscribe("events", mon.on_event)
@@ -541,6 +560,7 @@ def _stream(args, c, spec: _Spec) -> int:
         )
     sent, t_sent, interrupted = 0, 0.0, False
     last_seq: int | None = None
+    last_pose: dict[str, float] = {}
     t0 = time.monotonic()
     next_progress = PROGRESS_EVERY_S
     try:
@@ -558,7 +578,7 @@ def _stream(args, c, spec: _Spec) -> int:
                 c.track_setpoint_request(session, seq, body["pose"], body.get("velocity"), timeout_s=STOP_TIMEOUT_S)
             else:
                 c.track_setpoint(session, seq, body["pose"], body.get("velocity"))
-            sent, t_sent = sent + 1, t
+            sent, t_sent, last_pose = sent + 1, t, body["pose"]
             if not quiet and t >= next_progress:
                 next_progress += PROGRESS_EVERY_S
                 with mon.lock:
@@ -589,6 +609,7 @@ def _stream(args, c, spec: _Spec) -> int:
         "pose": pose,
         "problem": problem,
         "interrupted": interrupted,
+        "end_gap": _end_gap(spec.frame, last_pose, pose),
     }
     if quiet:
         print(to_json_text(summary))
@@ -610,6 +631,16 @@ def _stream(args, c, spec: _Spec) -> int:
         if pose:
             text += "; now at " + "  ".join(f"{k}={pose[k]:+.4f} {CONTROLLED_POSE_UNITS[k]}" for k in DOFS if k in pose)
         out.print(esc(text), highlight=False)
+    far = {k: g for k, g in (summary["end_gap"] or {}).items() if abs(g) > END_GAP_NOTE}
+    if far and not interrupted:
+        gaps = ", ".join(f"{k} {1e3 * g:+.1f} {'mm' if k in ('x', 'z') else 'mrad'}" for k, g in far.items())
+        print(
+            f"hitch: note: the hitch ended away from the last setpoint sent ({gaps}: end pose minus setpoint): "
+            "the signal ran faster than the hitch may follow, or it began far from where the hitch stood "
+            "(the hitch starts where it is: docs/tracking.md)",
+            file=sys.stderr,
+            flush=True,
+        )
     if problem is not None:
         print(
             f"hitch: {problem}; stop the hitch another way (`hitch stop`, STOP)",

@@ -204,7 +204,28 @@ def _setpoint_body(session: int, seq: int, pose: Mapping[str, float], velocity: 
                 raise ClientError(f"{what}.{k} must be a finite number [SI: m, rad, m/s, rad/s], got {val!r}")
             out[k] = float(val)
         body[what] = out
-    return json.dumps(body).encode("utf-8")
+    data = json.dumps(body).encode("utf-8")
+    if not _within_setpoint_bounds(body):  # a put is not answered: say now what the service would refuse
+        from bridge.service.schemas import RequestError, parse_request  # its own words (and unit hints)
+
+        try:
+            parse_request("track/setpoint", data)
+        except RequestError as exc:
+            raise ClientError(str(exc)) from None
+    return data
+
+
+#: the bounds a setpoint's pose [m, rad] and velocity [m/s, rad/s] must lie within (the service's schema;
+#: the cheap check before the service's own refusal is asked for its words)
+_SETPOINT_POSE_BOUNDS = {"x": 1.0, "z": 2.0, "roll": math.pi / 2, "pitch": math.pi / 2}
+_SETPOINT_VELOCITY_BOUND = 1.0
+
+
+def _within_setpoint_bounds(body: Mapping[str, Any]) -> bool:
+    pose, vel = body.get("pose") or {}, body.get("velocity") or {}
+    return all(abs(v) <= _SETPOINT_POSE_BOUNDS[k] for k, v in pose.items()) and all(
+        abs(v) <= _SETPOINT_VELOCITY_BOUND for v in vel.values()
+    )
 
 
 class HitchClient:

@@ -14,7 +14,8 @@ Sections (SI units; the names carry them)::
     [terrain]   grade_rad, cross_slope_rad, [[terrain.undulation]] amplitude_m, wavelength_m,
                 phase_rad, [[terrain.cross_slope_wave]] amplitude_rad, wavelength_m, phase_rad
                 or csv = "file.csv" (columns distance_m,height_m[,cross_slope_rad])
-    [signals]   row_offset_rms_m, row_wavelength_min_m, row_wavelength_max_m, row_noise_rms_m,
+    [signals]   row_offset_rms_m (default 0: no crop row; > 0 makes it a guidance job),
+                row_wavelength_min_m, row_wavelength_max_m, row_noise_rms_m (default 0),
                 row_rate_hz, seed, row_camera_ahead_m (0..20: the camera's look-ahead ahead of
                 the implement; 0 = under it), ground_sensor_ahead_m (0..20: a look-ahead
                 ground-distance sensor on the tractor ahead of the implement; 0 = none),
@@ -135,10 +136,10 @@ class _TerrainSpec(_Strict):
 
 
 class _SignalsSpec(_Strict):
-    row_offset_rms_m: float = Field(default=0.02, ge=0.0, le=1.0)
+    row_offset_rms_m: float = Field(default=0.0, ge=0.0, le=1.0)  # no crop row unless one is given
     row_wavelength_min_m: float = Field(default=3.0, ge=0.1, le=1000.0)
     row_wavelength_max_m: float = Field(default=30.0, ge=0.1, le=1000.0)
-    row_noise_rms_m: float = Field(default=0.005, ge=0.0, le=0.5)
+    row_noise_rms_m: float = Field(default=0.0, ge=0.0, le=0.5)
     row_rate_hz: float = Field(default=10.0, ge=0.1, le=100.0)
     row_camera_ahead_m: float = Field(default=0.0, ge=0.0, le=20.0)
     ground_sensor_ahead_m: float = Field(default=0.0, ge=0.0, le=20.0)
@@ -182,13 +183,18 @@ class Scenario:
 
 
 def _read_csv(
-    where: Traversable | Path, required: tuple[str, ...], optional: tuple[str, ...] = ()
+    where: Traversable | Path, required: tuple[str, ...], optional: tuple[str, ...] = (), *, key: str = "csv"
 ) -> tuple[dict[str, list[float]], list[int]]:
     """Columns of a CSV file with a header, and the file line of each data row; every error names the
-    file and line (blank lines are skipped and counted; a UTF-8 byte-order mark is allowed)."""
+    file and line (blank lines are skipped and counted; a UTF-8 byte-order mark is allowed); a missing file
+    names the scenario's ``key`` that gave it."""
     name = str(where)
     if not where.is_file():
-        raise ScenarioError(f"CSV file {name} " + ("is not a file" if _exists(where) else "does not exist"))
+        raise ScenarioError(
+            f"{key}: CSV file {name} "
+            + ("is not a file" if _exists(where) else "does not exist")
+            + " (a path relative to the scenario file's folder)"
+        )
     text = read_text_file(where, "CSV file", ScenarioError).removeprefix("\ufeff")
     rows = csv.reader(io.StringIO(text))
     header = next(rows, None)
@@ -246,7 +252,7 @@ def _speed(spec: _SpeedSpec, base: Traversable | Path) -> SpeedProfile:
         assert spec.constant_m_s is not None
         return SpeedProfile.constant(spec.constant_m_s)
     where = base / spec.csv
-    cols, lines = _read_csv(where, ("time_s", "speed_m_s"))
+    cols, lines = _read_csv(where, ("time_s", "speed_m_s"), key="speed.csv")
     _csv_check(str(where), "time_s", cols["time_s"], lines, 0.0, 1e6, increasing=True)
     _csv_check(str(where), "speed_m_s", cols["speed_m_s"], lines, 0.0, 15.0)
     return SpeedProfile(tuple(cols["time_s"]), tuple(cols["speed_m_s"]))
@@ -263,7 +269,7 @@ def _ground(spec: _TerrainSpec, base: Traversable | Path) -> GroundProfile:
             ),
         )
     where = base / spec.csv
-    cols, lines = _read_csv(where, ("distance_m", "height_m"), ("cross_slope_rad",))
+    cols, lines = _read_csv(where, ("distance_m", "height_m"), ("cross_slope_rad",), key="terrain.csv")
     if len(cols["distance_m"]) < 2:
         raise ScenarioError(f"{where}: a terrain profile needs at least 2 data rows")
     d, h = cols["distance_m"], cols["height_m"]

@@ -39,7 +39,7 @@ def _err(capsys, *argv: str) -> str:
 # ---------------------------------------------------------------------------------------- sine specs
 def test_sine_spec_parses_terms_in_si():
     assert parse_sine("x=0.02@0.05Hz,roll=0.01@0.1hz") == (SineTerm("x", 0.02, 0.05), SineTerm("roll", 0.01, 0.1))
-    assert parse_sine(" z = 0.1 @ 2 ") == (SineTerm("z", 0.1, 2.0),)
+    assert parse_sine(" z = 0.05 @ 2 ") == (SineTerm("z", 0.05, 2.0),)
 
 
 @pytest.mark.parametrize(
@@ -55,6 +55,9 @@ def test_sine_spec_parses_terms_in_si():
         ("z=0.01", "is not DOF=AMPLITUDE@FREQUENCYHz"),
         ("z=nan@1Hz", "amplitude must lie in (0, 0.5] m"),
         (",", "no terms given"),
+        # a velocity beyond what a setpoint may carry: shown by --dry-run, refused by the service mid-session
+        ("roll=0.5@0.5Hz", "roll: its velocity 2π·f·A = 1.571 rad/s exceeds the ±1 rad/s a setpoint may carry: "),
+        ("z=0.5@10Hz", "at 10 Hz the amplitude must be at most 0.01592 m"),
     ],
 )
 def test_bad_sine_specs_name_the_flag_and_the_range(capsys, spec, words):
@@ -285,6 +288,7 @@ def test_a_two_second_sine_streams_to_a_real_service_and_ends_with_the_motion_fi
         assert out["track"]["rejected"] == 0 and out["track"]["ignored_seq"] == 0
         assert out["streamed_s"] == pytest.approx(2.0, abs=0.03)
         assert abs(out["pose"]["z"] - start["pose"]["z"]) < 0.03  # around the start height, amplitude 20 mm
+        assert set(out["end_gap"]) == {"z"} and abs(out["end_gap"]["z"]) < 0.02
         with HitchClient([endpoint], timeout_s=10.0) as c:
             st = c.state()
             assert st.get("track") is None and not st["moving"]
@@ -296,6 +300,15 @@ def test_a_two_second_sine_streams_to_a_real_service_and_ends_with_the_motion_fi
         r = _track(endpoint, "--from-file", str(csv), "--rate", "50")
         assert r.returncode == 0, (r.stdout, r.stderr)
         assert ", 50 Hz, 1 s" in r.stdout and "finished: track/stop" in r.stdout, r.stdout
+        assert "ended away from the last setpoint" not in r.stderr, r.stderr  # it starts near the file's z
+        # a file 80…100 mm above where the hitch stands, 1 s long (z moves at most ~47 mm/s): it ends far from the
+        # last row, and says so (a new user's report: "finished", exit 0, nothing said about ending 116 mm away)
+        z0 = out["pose"]["z"]
+        far = tmp_path / "far.csv"
+        far.write_text(f"t,z\n0.0,{z0 + 0.08:.4f}\n1.0,{z0 + 0.10:.4f}\n", encoding="utf-8")
+        r = _track(endpoint, "--from-file", str(far), "--rate", "50")
+        assert r.returncode == 0 and "finished: track/stop" in r.stdout, (r.stdout, r.stderr)
+        assert "hitch: note: the hitch ended away from the last setpoint sent (z -" in r.stderr, r.stderr
         # setpoints the service rejects: the summary says why (a new user's report: only `hitch log` did)
         # (z = 1.5 m: within what a setpoint may carry, far beyond what the follower takes in the tractor frame)
         bad = tmp_path / "bad.csv"

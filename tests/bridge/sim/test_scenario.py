@@ -38,6 +38,17 @@ def test_the_shipped_scenarios():
     assert 0.045 < max(heights) <= 0.05 and -0.05 <= min(heights) < -0.045
 
 
+def test_a_scenario_without_signals_has_no_crop_row_and_is_the_job_its_terrain_makes_it():
+    """A new user's terrain-only scenario ran as a guidance job against a 20 mm RMS row with 5 mm of camera
+    noise it never asked for (the defaults), reporting "no sample to judge"."""
+    from bridge.service.track_loop import job_of
+
+    terrain_only = {k: v for k, v in GOOD.items() if k != "signals"}
+    sc = scenario_from_dict(terrain_only)
+    assert sc.twin.row.rms_m == 0.0 and sc.twin.row.noise_rms_m == 0.0
+    assert job_of(sc) == "terrain" and job_of(scenario_from_dict(GOOD)) == "guidance"
+
+
 def test_a_good_dict_loads():
     sc = scenario_from_dict(GOOD)
     assert sc.duration_s == 10.0 and sc.twin.speed.speed_m_s(3.0) == 2.0
@@ -163,7 +174,8 @@ def test_missing_files_and_names(tmp_path):
     with pytest.raises(ScenarioError, match=r"scenario 'nowhere' not found; built-in scenarios: flat, guidance"):
         load_scenario("nowhere")
     toml = write(tmp_path, "s.toml", 'schema_version = 1\nname = "x"\nduration_s = 5.0\n[speed]\ncsv = "none.csv"\n')
-    with pytest.raises(ScenarioError, match=r"CSV file .*none.csv does not exist"):
+    # the key that named it, and where it is looked for (a new user's report: "CSV file none.csv does not exist")
+    with pytest.raises(ScenarioError, match=r"speed.csv: CSV file .*none.csv does not exist \(a path relative to the"):
         load_scenario(toml)
     bad = write(tmp_path, "b.toml", "schema_version = = 1\n")
     with pytest.raises(ScenarioError, match=r"is not valid TOML"):
@@ -177,5 +189,5 @@ def test_a_csv_path_that_is_a_folder_says_so(tmp_path):
         "s.toml",
         'schema_version = 1\nname = "x"\nduration_s = 5.0\n[speed]\nconstant_m_s = 1.0\n[terrain]\ncsv = "."\n',
     )
-    with pytest.raises(ScenarioError, match=r"CSV file .* is not a file"):
+    with pytest.raises(ScenarioError, match=r"terrain.csv: CSV file .* is not a file"):
         load_scenario(toml)

@@ -56,13 +56,21 @@ def test_setpoint_puts_reach_the_subscriber_and_parse_as_the_service_parses_them
         bodies = _received(got, 10)
         c.track_setpoint(8, 0, {"z": 0.1})  # a new session: a new publisher
         assert c._track_pub is not pub and c._track_pub[1] == 8
-        (last,) = _received(got, 1)
+        # a new publisher's first puts may go before its routing is known (Zenoh's interest): as the first above
+        for seq in range(1, 50):
+            try:
+                last = json.loads(got.get(timeout=0.1))
+                break
+            except queue.Empty:
+                c.track_setpoint(8, seq, {"z": 0.1})
+        else:
+            raise AssertionError("no put of the new session arrived within 5 s")
     assert first["session"] == 7 and first["pose"] == {"roll": 0.0} and first["velocity"] == {"roll": 0.0}
     assert [b["seq"] for b in bodies] == list(range(100, 110))
     for b in bodies:
         sp = TrackSetpoint.model_validate(b)
         assert sp.pose.roll == pytest.approx(0.001 * b["seq"]) and sp.velocity is None
-    assert last == {"session": 8, "seq": 0, "pose": {"z": 0.1}}
+    assert last["session"] == 8 and last["pose"] == {"z": 0.1}
 
 
 @pytest.mark.parametrize(

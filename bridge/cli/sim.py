@@ -257,8 +257,10 @@ def _json_summary(json_file: str | None, summary: dict) -> bool:
     return False
 
 
-#: a closed loop's warm-up plus the settling its figures leave out [s] (LoopSettings' defaults)
+#: a closed loop's warm-up plus the settling its figures leave out [s] (LoopSettings' and FieldLoopSettings'
+#: defaults): a shorter run has no figures
 _TRACK_SETTLE_S = 5.5
+_FIELD_SETTLE_S = 3.5
 
 
 def _cmd_sim_track(args) -> int:
@@ -447,10 +449,22 @@ def _add_json_summary_option(p: argparse.ArgumentParser) -> None:
         nargs="?",
         const=JSON_STDOUT,
         default=None,
-        type=output_path,
+        type=_json_file,
         metavar="FILE",
-        help="print the summary as JSON (as --json everywhere), or with FILE write it there beside the text",
+        help="print the summary as JSON (as --json everywhere), or with FILE (*.json) write it there beside the text",
     )
+
+
+def _json_file(text: str) -> str:
+    """``--json FILE``: an output path ending in ``.json`` (:func:`output_path`). A scenario or field name
+    after ``--json`` was taken as its FILE, and the run then refused for want of its scenario."""
+    path = output_path(text)  # a folder, or one that does not exist, said first
+    if text != "-" and not text.lower().endswith(".json"):
+        raise argparse.ArgumentTypeError(
+            f"FILE {text!r} must end in .json (a scenario or field name right after --json is taken as the FILE: "
+            "give it before --json, or write --json=out.json)"
+        )
+    return path
 
 
 def _truth_arg(args: argparse.Namespace) -> MachineTruth | None:
@@ -743,7 +757,12 @@ def add_commands(sub) -> None:
     fl.add_argument("--depth-max", dest="depth_max_m", type=finite_float("--depth-max"), help="[m]")
     fl.add_argument("--slip-limit", type=finite_float("--slip-limit"), default=None, help="(0, 0.5]; default none")
     fl.add_argument("--z", type=finite_float("--z"), default=0.0, help="operator's position setpoint z [m], default 0")
-    fl.add_argument("--duration", type=float, default=None, help="scenario seconds to run (default: the scenario's)")
+    fl.add_argument(
+        "--duration",
+        type=bounded_float("--duration", _FIELD_SETTLE_S, 3600.0, unit="s"),
+        default=None,
+        help=f"field seconds to run, more than {_FIELD_SETTLE_S:g} (default: the field's)",
+    )
     fl.add_argument("--plot", default=None, type=plot_path, help="write a PNG of depth, draft and slip")
     _add_json_summary_option(fl)
     fl.add_argument("--profile", default="thesis-t132", help="built-in profile name or path to a .toml")

@@ -156,7 +156,24 @@ def test_sim_move_refuses_an_option_its_reference_does_not_use(capsys):
 @pytest.mark.parametrize("command, least", [(["sim", "track", "levelling"], 5.5), (["sim", "field", "chisel"], 3.5)])
 @pytest.mark.parametrize("duration", ["0.5", "1", "3"])
 def test_a_run_too_short_names_the_one_range_a_duration_has(capsys, command, least, duration):
-    """The old loop said 'must be a number in [1, 3600]' for 0.5 and 'must exceed … 5.5 s' for 1."""
-    assert main([*command, "--duration", duration]) == 2
+    """The old loop said 'must be a number in [1, 3600]' for 0.5 and 'must exceed … 5.5 s' for 1; then it named
+    the loop's field duration_s, not the flag, and nan got another range (a new user's report)."""
+    from bridge.cli.sim import _FIELD_SETTLE_S, _TRACK_SETTLE_S
+    from bridge.service.field_loop import FieldLoopSettings
+    from bridge.service.track_loop import LoopSettings
+
+    for settings, bound in ((LoopSettings(), _TRACK_SETTLE_S), (FieldLoopSettings(), _FIELD_SETTLE_S)):
+        assert settings.warmup_s + settings.settle_s == bound  # the flag's bound is the loop's
+    for value, words in ((duration, f"must lie in ({least:g}, 3600] s, got {duration}"), ("nan", "must be finite")):
+        assert main([*command, "--duration", value]) == 2
+        err = capsys.readouterr().err
+        assert f"argument --duration: --duration {words}" in err and "duration_s" not in err, err
+
+
+@pytest.mark.parametrize("command", [["sim", "track"], ["sim", "field"]])
+def test_a_name_right_after_json_is_refused_as_its_file_naming_the_cure(capsys, command):
+    """A new user's report: `hitch sim track --json levelling-inside` said "the following arguments are required:
+    scenario" (--json took the scenario's name as its FILE)."""
+    assert main([*command, "--json", "levelling-inside"]) == 2
     err = capsys.readouterr().err
-    assert f"must exceed warmup_s + settle_s = {least:g} s (allowed: ({least:g}, 3600] s)" in err, err
+    assert "argument --json: FILE 'levelling-inside' must end in .json" in err and "give it before --json" in err

@@ -28,19 +28,3 @@ def test_sim_track_runs_the_flat_scenario_and_writes_a_png_and_json(tmp_path):
 def test_sim_track_names_a_bad_scenario():
     r = subprocess.run(HITCH + ["sim", "track", "moon"], capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "moon" in r.stderr and "flat" in r.stderr
-
-
-def test_sim_track_duration_is_refused_naming_the_flag_and_one_range():
-    """A new user's report: --duration 5 was refused as "duration_s = 5 s must exceed warmup_s + settle_s",
-    --duration nan as "duration_s must be a number in [0, 3600]": two ranges, neither naming the flag."""
-    from bridge.cli.sim import _TRACK_SETTLE_S
-    from bridge.service.track_loop import LoopSettings
-
-    assert LoopSettings().warmup_s + LoopSettings().settle_s == _TRACK_SETTLE_S  # the CLI's bound is the loop's
-    for bad in ("5", "0", "nan", "1e9"):
-        r = subprocess.run(
-            HITCH + ["sim", "track", "flat", "--duration", bad], capture_output=True, text=True, timeout=60
-        )
-        assert r.returncode == 2 and "--duration must" in r.stderr and "duration_s" not in r.stderr, r.stderr
-        if bad != "nan":
-            assert "--duration must lie in (5.5, 3600] s" in r.stderr

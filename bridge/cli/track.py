@@ -561,6 +561,13 @@ def _stream(args, c, spec: _Spec) -> int:
     sent, t_sent, interrupted = 0, 0.0, False
     last_seq: int | None = None
     last_pose: dict[str, float] = {}
+    # SIGTERM (a supervisor, `kill`) ends the stream as Ctrl-C does: track/stop sent and awaited, not a silent
+    # exit that leaves the service to brake at the ttl (a new user's report)
+    old_term = (
+        signals.signal(signals.SIGTERM, signals.default_int_handler)
+        if threading.current_thread() is threading.main_thread()
+        else None
+    )
     t0 = time.monotonic()
     next_progress = PROGRESS_EVERY_S
     try:
@@ -590,6 +597,9 @@ def _stream(args, c, spec: _Spec) -> int:
     except HitchError:  # the first setpoint refused (or a client error): end the session, then report
         _end_session(c, mon, session, last_seq)
         raise
+    finally:
+        if old_term is not None:
+            signals.signal(signals.SIGTERM, old_term)
     problem = _end_session(c, mon, session, last_seq)
     with mon.lock:
         outcome, tr, pose = mon.outcome, mon.track, mon.pose

@@ -321,22 +321,30 @@ def test_a_two_second_sine_streams_to_a_real_service_and_ends_with_the_motion_fi
         assert r.returncode == 2 and "line 4, column 2 (z): 50 m is outside [-2, 2] m" in r.stderr, r.stderr
         assert "did you mean mm?" in r.stderr and r.stdout == ""
 
-        # Ctrl-C mid-stream: track/stop is sent and awaited, then exit 130
-        p = subprocess.Popen(
-            [sys.executable, "-m", "bridge.cli", "track", "--sine", "z=0.02@0.5Hz", "--connect", endpoint]
-            + ["--timeout", "20"],
-            cwd=ROOT,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
-        deadline = time.monotonic() + 60
-        line = ""
-        while time.monotonic() < deadline and "sent" not in line:  # the first progress line: it streams
-            line = p.stdout.readline() if p.stdout else ""
-        p.send_signal(signal.SIGINT)
-        so, se = p.communicate(timeout=60)
-        assert p.returncode == 130, se
-        assert "sending track/stop" in se and "finished: track/stop" in so, (so, se)
+        # Ctrl-C mid-stream: track/stop is sent and awaited, then exit 130; SIGTERM (a supervisor, kill) the
+        # same (it exited silently, the service braking at the ttl: a new user's report)
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            so, se, rc = _interrupted_stream(endpoint, sig)
+            assert rc == 130, se
+            assert "sending track/stop" in se and "finished: track/stop" in so, (sig, so, se)
     finally:
         svc.kill()
+
+
+def _interrupted_stream(endpoint: str, sig: int) -> tuple[str, str, int]:
+    """``hitch track --sine`` sent ``sig`` once it streams: its stdout, stderr and exit code."""
+    p = subprocess.Popen(
+        [sys.executable, "-m", "bridge.cli", "track", "--sine", "z=0.02@0.5Hz", "--connect", endpoint]
+        + ["--timeout", "20"],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.monotonic() + 60
+    line = ""
+    while time.monotonic() < deadline and "sent" not in line:  # the first progress line: it streams
+        line = p.stdout.readline() if p.stdout else ""
+    p.send_signal(sig)
+    so, se = p.communicate(timeout=60)
+    return so, se, p.returncode

@@ -139,6 +139,10 @@ _PLAN_TRIES = 4  # plans made for one goto before it is refused as too busy
 _COUNT_APPROACH_KINDS = frozenset({"goto"})
 
 
+#: how many ended track sessions the controller remembers the reason of (MotionController._not_live)
+ENDED_TRACKS_KEPT = 16
+
+
 class MotionControllerError(HitchError, RuntimeError):
     """The controller used out of order (started twice)."""
 
@@ -245,6 +249,8 @@ class MotionController:
         self._thread: PeriodicThread | None = None
         self.sensors = sensors
         self._sessions = itertools.count(1)
+        #: how the last few track sessions ended (session → reason): a setpoint or stop for one says why
+        self._ended_tracks: dict[int, str] = {}
         self._rejection_event_at = -math.inf
         #: work control of track sessions (bridge.service.work.WorkControl; set by machine.build_controller)
         self.work: Any = None
@@ -498,8 +504,7 @@ class MotionController:
         with self._lock:
             m = self._active
             if not isinstance(m, TrackMotion) or m.session != session:
-                live = f"the live session is {m.session}" if isinstance(m, TrackMotion) else "no session is live"
-                raise MotionError("not_found", f"session {session} is not live ({live})")
+                raise MotionError("not_found", self._not_live(session, m))
             if self.work is not None and self.work.owns(session):  # work control alone feeds a work session
                 self.work.refuse_setpoint(m)  # counted; raises MotionError busy (bridge.service.work)
             if not m.seq.accept(seq):
@@ -569,8 +574,7 @@ class MotionController:
             if not isinstance(m, TrackMotion) or (session is not None and m.session != session):
                 if session is None:  # any live session was meant: there is none
                     raise MotionError("not_found", "no track session is live (track/start starts one)")
-                live = f"the live session is {m.session}" if isinstance(m, TrackMotion) else "no session is live"
-                raise MotionError("not_found", f"session {session} is not live ({live})")
+                raise MotionError("not_found", self._not_live(session, m))
             if m.reason is None:
                 m.reason = "track/stop"
             if self.work is not None and self.work.owns(m.session):
@@ -1265,7 +1269,18 @@ class MotionController:
             self._goal_plan, self._goal = m.plan, plan_goal(m.kind, m.plan)
         return self._goal
 
+    def _not_live(self, session: int, m: ActiveMotion | None) -> str:
+        """Why ``session`` takes no setpoint or stop: how it ended (when it is one of the last few) and which
+        session is live."""
+        live = f"the live session is {m.session}" if isinstance(m, TrackMotion) else "no session is live"
+        ended = self._ended_tracks.get(session)
+        return f"session {session} is not live ({f'it ended: {ended}; ' if ended else ''}{live})"
+
     def _ev(self, name: str, m: ActiveMotion, **extra: Any) -> Event:
+        if isinstance(m, TrackMotion) and name in ("motion_finished", "motion_aborted"):
+            self._ended_tracks[m.session] = str(extra.get("reason") or name.removeprefix("motion_"))
+            while len(self._ended_tracks) > ENDED_TRACKS_KEPT:
+                del self._ended_tracks[next(iter(self._ended_tracks))]
         return {"event": name, "motion_id": m.motion_id, **{k: v for k, v in extra.items() if v is not None}}
 
     def _post(self, events: list[Event]) -> None:

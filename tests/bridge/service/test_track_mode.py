@@ -147,6 +147,8 @@ def test_a_stale_stream_brakes_to_rest_and_ends_the_session(r):
     assert r.states[-1]["motion"] is None and abs(r.states[-1]["velocity"]["z"]) < 1e-9
     ok, reply = r.setpoint(session, {"z": z0})
     assert not ok and reply["error"] == "not_found" and "not live" in reply["message"]
+    # why (a new user's report: "session 22 is not live (no session is live)")
+    assert f"session {session} is not live (it ended: stale: no setpoint within 200 ms" in reply["message"], reply
     z_end = r.measured()[1]
     r.run(1.0)
     assert abs(r.measured()[1] - z_end) < 1e-3  # nothing resumes

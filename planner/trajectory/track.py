@@ -97,6 +97,9 @@ _REL = 1e-6  # Ruckig's rounding at a limit (as braking.beyond)
 #: The rendezvous times with a setpoint's own motion the follower tries, in control cycles from the
 #: current state, shortest first (``TrackFollower._rendezvous``): one cycle, then up to 8 (0.16 s at 50 Hz).
 RENDEZVOUS_CYCLES = (1, 2, 3, 4, 6, 8)
+#: how far a follower's shortest stop may pass the demand's before it brakes (:meth:`TrackFollower._passes_demand`)
+#: [m or rad]: Ruckig's round-off, far below a sensor count
+DEMAND_TOLERANCE = 1e-5
 
 
 def subset_limits(
@@ -312,6 +315,21 @@ def _number(v: object, what: str) -> float:
     return float(v)
 
 
+class _DemandStop:
+    """The cycle's :meth:`TrackFollower._demand_extent`, computed at its first use (once per step)."""
+
+    def __init__(self, follower: TrackFollower, p_t: np.ndarray, v_t: np.ndarray, a_t: np.ndarray, lim: PoseLimits):
+        self._args = (follower, p_t.copy(), v_t, a_t, lim)
+        self._done = False
+        self._extent: tuple[np.ndarray, np.ndarray] | None = None
+
+    def extent(self) -> tuple[np.ndarray, np.ndarray] | None:
+        if not self._done:
+            follower, p_t, v_t, a_t, lim = self._args
+            self._extent, self._done = follower._demand_extent(p_t, v_t, a_t, lim), True
+        return self._extent
+
+
 class TrackFollower:
     """Follows streamed pose setpoints with online jerk-limited motion within the planner's workspace.
 
@@ -386,7 +404,12 @@ class TrackFollower:
         self.rendezvous_skips = 0  # horizons the exact jerk bound ruled out without Ruckig (_jerk_reachable)
         self.rendezvous = 0  # DOF-cycles that moved on a rendezvous with the setpoint's motion (_rendezvous)
         self.chases = 0  # DOF-cycles that chased a target running away instead of a detour (_chase)
+        self.held_short = 0  # DOF-cycles braked so as not to pass where the demand would stop (_passes_demand)
+        self._met = np.zeros(4, bool)  # per DOF: the last advance moved on a rendezvous (see _passes_demand)
+        # per DOF: a setpoint's velocity was beyond the limit since it last met the demand (_passes_demand)
+        self._outrun = np.zeros(4, bool)
         self._probe = StopProbe()
+        self._demand_probe = StopProbe()
         self.fallbacks = 0  # cycles Ruckig refused, braked to rest instead (should stay 0)
         self.reset(start, t0_s)
 
@@ -403,6 +426,8 @@ class TrackFollower:
         self._last_a_given = False
         self._last_s = self.t
         self._stale = False
+        self._outrun[:] = False
+        self._met[:] = False
         self._stopping = False
         self._brake: PoseLimits | None = None  # real braking limits of the current braking episode (lazily)
         # a take-over: braking may need the real limits until a cycle's state can stop within the pose limits
@@ -500,6 +525,7 @@ class TrackFollower:
             jk = (acc - prev.acceleration) / (now - prev.t)
         jk = np.where(self.tracked, np.clip(jk, -self._j_lim, self._j_lim), 0.0)
         self._last_a_given = acceleration is not None
+        self._outrun |= np.array([f"v{k}" in limited for k in TRACK_DOFS])
         sp = TrackSetpoint(now, p_req, v_req, p, v, acc, limited, jk)
         self._sp = sp
         self._target_terms()
@@ -738,28 +764,36 @@ class TrackFollower:
             ta[i] = 0.0
         if self._descent is not None and not to_rest:  # never re-target faster downwards than the bound
             tv[1] = max(tv[1], -self._descent)
+        # a demand faster than the limits: where it would come to rest stopping now (see _passes_demand;
+        # computed when a DOF needs it)
+        demand = _DemandStop(self, p_t, v_t, a_t, lim) if stream and not to_rest and np.any(self._outrun) else None
         try:
             nxt = self._advance(p_t, tv, ta, vel_mode, brake, lim, stream)
             for n in range(3):
-                up, down = self._cannot_stop(nxt, lim)  # cheap: the pose limits first
+                extent = self._probe.extent(nxt, lim)  # its stop within the pose limits: the faces', the demand's
+                up, down = self._cannot_stop(nxt, lim, extent)  # cheap: the pose limits first
                 if not (np.any(up) or np.any(down)):
                     if n == 0 and not np.any(brake):
                         self._takeover = False  # within the pose limits and stoppable with them: they suffice
-                    break
-                up, down = self._cannot_stop(nxt, self._braking(lim))
+                else:
+                    up, down = self._cannot_stop(nxt, self._braking(lim))
+                short_up, short_down = self._passes_demand(extent, demand, vel_mode)
                 # braking to rest with the real limits already: nothing more to do for that DOF
                 up &= ~(brake & vel_mode & (tv <= 0))
                 down &= ~(brake & vel_mode & (tv >= 0))
-                if not (np.any(up) or np.any(down)):
+                short_up &= ~up & ~down
+                short_down &= ~up & ~down
+                if not np.any(up | down | short_up | short_down):
                     break
                 for d, (k, (name_min, name_max)) in enumerate(zip(TRACK_DOFS, self._names, strict=True)):
-                    if up[d] or down[d]:
+                    if up[d] or down[d] or short_up[d] or short_down[d]:
                         vel_mode[d] = True
-                        tv[d] = min(tv[d], 0.0) if up[d] else max(tv[d], 0.0)
+                        tv[d] = min(tv[d], 0.0) if up[d] or short_up[d] else max(tv[d], 0.0)
                         ta[d] = 0.0
-                        if self.tracked[d] and not to_rest:
+                        if (up[d] or down[d]) and self.tracked[d] and not to_rest:
                             flags[k] = name_max if up[d] else name_min
-                brake = brake | up | down
+                self.held_short += int(np.sum(short_up | short_down))
+                brake = brake | up | down | short_up | short_down
                 nxt = self._advance(p_t, tv, ta, vel_mode, brake, lim, stream)
         except (TrackError, PlanError):  # never stuck: the shortest stop with the real limits
             self.fallbacks += 1
@@ -897,6 +931,7 @@ class TrackFollower:
             raise TrackError(f"track: ruckig failed ({res})")
         p, v, a = self._traj.at_time(self.dt)  # past its duration: on at the target velocity
         p, v, a = list(p), list(v), list(a)
+        self._met[:] = False
         if stream:
             for d in np.flatnonzero(self.tracked & ~vel_mode & ~brake).tolist():
                 lim_d = (d, vmax[d], -math.inf if vmin is None else vmin[d], amax[d], jmax[d])
@@ -913,6 +948,8 @@ class TrackFollower:
                         self.chases += 1
                 else:
                     self.rendezvous += 1
+                    self._met[d] = True
+                    self._outrun[d] = False
                 if hit is not None:
                     p[d], v[d], a[d] = hit
         return MotionState(np.array(p), np.array(v), np.array(a))
@@ -1021,10 +1058,54 @@ class TrackFollower:
                 return p, v, a
         return None
 
-    def _cannot_stop(self, state: MotionState, limits: PoseLimits) -> tuple[np.ndarray, np.ndarray]:
-        """Per DOF: the shortest stop from ``state`` passes the upper / lower face (beyond the current
-        position when that is already outside)."""
-        lo, hi = self._probe.extent(state, limits)
+    def _demand_extent(
+        self, p_t: np.ndarray, v_t: np.ndarray, a_t: np.ndarray, lim: PoseLimits
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """The lowest and highest position per DOF of the shortest stop of the cycle's target (the demand's
+        position, velocity and acceleration) within ``lim``: how far the demand goes were it to stop now as
+        fast as the follower may (None where Ruckig finds no stop)."""
+        try:
+            return self._demand_probe.extent(MotionState(p_t, v_t, a_t), lim)
+        except PlanError:
+            return None
+
+    def _passes_demand(
+        self,
+        extent: tuple[np.ndarray, np.ndarray],
+        demand: _DemandStop | None,
+        vel_mode: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Per tracked DOF outrun by the demand (a setpoint's velocity beyond its limit, clipped: ``v<dof>``
+        in its ``limited``, since the DOF last met the demand's motion on a rendezvous) and not moving on a
+        rendezvous this cycle (a chase, or the time-optimal approach to the target state): the shortest stop
+        of the cycle's state within the pose limits (``extent``: its lowest and highest position) passes,
+        upwards / downwards, the furthest the demand reaches were it to stop now as fast
+        (:meth:`_demand_extent`; beyond the current position when that is beyond it already). Chasing a
+        demand faster than the limits at the velocity limit overshoots it when it reverses (a 1 Hz ±20 mm z
+        sine: the hitch went 5–13 mm past the extremes commanded, deeper into the soil than asked; a new
+        user's report): such a DOF brakes instead. A demand within the limits is left to the follower (a
+        rendezvous meets its motion on time; bounding a catch-up would only lag)."""
+        none = np.zeros(4, bool)
+        if demand is None:
+            return none, none
+        check = self.tracked & self._outrun & ~vel_mode & ~self._met
+        stop = demand.extent() if np.any(check) else None
+        if stop is None:
+            return none, none
+        lo, hi = extent
+        d_lo, d_hi = stop
+        p = self.state.position
+        up = check & (hi > np.maximum(d_hi, p) + DEMAND_TOLERANCE)
+        down = check & ~up & (lo < np.minimum(d_lo, p) - DEMAND_TOLERANCE)
+        return up, down
+
+    def _cannot_stop(
+        self, state: MotionState, limits: PoseLimits, extent: tuple[np.ndarray, np.ndarray] | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Per DOF: the shortest stop from ``state`` within ``limits`` (``extent``: its lowest and highest
+        position, when the caller has it) passes the upper / lower face (beyond the current position when
+        that is already outside)."""
+        lo, hi = self._probe.extent(state, limits) if extent is None else extent
         p = self.state.position
         return hi > np.maximum(self.hi, p) + 1e-9, lo < np.minimum(self.lo, p) - 1e-9
 

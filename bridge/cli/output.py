@@ -9,13 +9,14 @@ escapes markup in a data value that is embedded in a line with the command's own
 from __future__ import annotations
 
 import argparse
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 from rich.console import Console
 from rich.markup import escape
 
-__all__ = ["console", "esc", "output_path", "plot_path", "pose_text", "signed"]
+__all__ = ["console", "esc", "limited_text", "output_path", "plot_path", "pose_text", "signed"]
 
 
 #: the width of a console whose output is not a terminal (a pipe, a file, a log): wide enough that no
@@ -90,3 +91,13 @@ def output_path(text: str) -> str:
     if not folder.is_dir():
         raise argparse.ArgumentTypeError(f"{text!r}: the folder {str(folder)!r} does not exist")
     return text
+
+
+def limited_text(limited: Mapping[str, Any]) -> str:
+    """A state's ``limited`` (or a track session's ``control_limited``) entries in the operator's words, each
+    with its code: ``lift arm slowing before its stroke end (end_stop:lift), …`` (the guard's own sentence,
+    "end_stop:lift: speed: end_stop:lift would be 0.8086 (threshold 1) at t = 0.00 s", named the limit twice
+    and gave a speed factor without saying so: a new user's report)."""
+    from bridge.web.wording import limited_words
+
+    return ", ".join(f"{limited_words(str(k), str(v))} ({k})" for k, v in limited.items())

@@ -34,7 +34,7 @@ from typing import Any
 
 from bridge.cli.errors import CLIError
 from bridge.cli.model import bounded_float, bounded_int, finite_float, whole_number
-from bridge.cli.output import console, esc
+from bridge.cli.output import console, esc, limited_text
 from bridge.cli.plan import parse_pose_arg
 from bridge.link.realtime import INTERFACES
 from bridge.service.config import DEFAULT_LISTEN, load_service_config
@@ -587,7 +587,7 @@ def _state_line(s: dict) -> str:
         f"motion {s.get('motion_id') if s.get('motion_id') is not None else '-'}  pose {_fmt_pose(s.get('pose'))}  ECU "
         f"{'online' if ecu.get('online') else 'OFFLINE'}"
         f"{' ' + ','.join(map(str, ecu.get('faults', []))) if ecu.get('faults') else ''}"
-    ) + (f"  [red]control limited: {esc(', '.join(f'{k}: {v}' for k, v in lim.items()))}[/red]" if lim else "")
+    ) + (f"  [red]control limited: {esc(limited_text(lim))}[/red]" if lim else "")
 
 
 def _cmd_state(args) -> int:

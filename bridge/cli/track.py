@@ -37,7 +37,7 @@ import numpy as np
 
 from bridge.cli.errors import CLIError
 from bridge.cli.model import bounded_float
-from bridge.cli.output import console, esc
+from bridge.cli.output import console, esc, limited_text
 from bridge.cli.plan import parse_pose_arg
 from bridge.cli.service import STOP_TIMEOUT_S, _client_options, _run
 from bridge.service.maneuvers.steps import POSE_BOUNDS
@@ -495,7 +495,7 @@ def _progress_line(t: float, sent: int, tr: dict | None) -> str:
     )
     lim = tr.get("control_limited") or {}
     if lim:
-        text += f"  [red]control limited: {esc(', '.join(f'{k}: {v}' for k, v in lim.items()))}[/red]"
+        text += f"  [red]control limited: {esc(limited_text(lim))}[/red]"
     if tr.get("last_rejection") and tr.get("rejected"):
         text += f"  last rejection: {esc(tr['last_rejection'])}"
     return text

@@ -177,3 +177,15 @@ def test_a_name_right_after_json_is_refused_as_its_file_naming_the_cure(capsys, 
     assert main([*command, "--json", "levelling-inside"]) == 2
     err = capsys.readouterr().err
     assert "argument --json: FILE 'levelling-inside' must end in .json" in err and "give it before --json" in err
+
+
+def test_control_limited_is_printed_in_words_with_its_code():
+    """A new user's report: `control limited: end_stop:lift: speed: end_stop:lift would be 0.8086 (threshold 1)
+    at t = 0.00 s` named the limit twice and gave a speed factor without saying so."""
+    from bridge.cli.output import limited_text
+    from bridge.cli.service import _state_line
+
+    lim = {"end_stop:lift": "speed: end_stop:lift would be 0.8086 (threshold 1) at t = 0.00 s", "z": "workspace:z:max"}
+    text = limited_text(lim)
+    assert text == "lift arm slowing before its stroke end (end_stop:lift), height limit reached (top) (z)"
+    assert "control limited: lift arm slowing before its stroke end (end_stop:lift)" in _state_line({"limited": lim})

@@ -15,7 +15,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = sorted((ROOT / "examples").glob("[0-9][0-9]_*.py"))
 #: closed loop over CAN and a whole service with Zenoh: a few seconds each
-SLOW = {"07_closed_loop_sim.py", "08_service_client.py"}
+SLOW = {"07_closed_loop_sim.py", "08_service_client.py", "10_track_stream.py"}
 
 
 PARAMS = [pytest.param(p, id=p.stem, marks=[pytest.mark.slow] if p.name in SLOW else []) for p in EXAMPLES]

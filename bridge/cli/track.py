@@ -12,7 +12,8 @@ Signals, all SI (m, rad, s):
   ``--around`` sets any centre.
 * ``--from-file signal.csv``: a header ``t`` [s] and DOF names (``x``, ``z`` [m], ``roll``,
   ``pitch`` [rad]), optionally ``v_<dof>`` velocities [m/s, rad/s]; linear interpolation at the rate;
-  played from the first row's time. Units in the header (``z_mm``, ``z [m]``) are refused.
+  played from the first row's time. A column may carry its SI unit (``t_s``, ``z_m``, ``roll_rad``,
+  ``v_z_m_s``, as the scenario CSVs do); other units (``z_mm``, ``z [m]``) are refused.
 
 DOFs in ``--dof`` without a signal hold their centre. :class:`SineSignal`, :class:`CsvSignal` and
 :func:`setpoints` are pure (``--dry-run`` prints the first setpoints without connecting).
@@ -217,8 +218,18 @@ _UNIT_SUFFIX = re.compile(
 )
 
 
+#: a column name may carry its SI unit as the scenario files' CSV do (``t_s``, ``z_m``, ``roll_rad``, ``v_z_m_s``)
+_SI_SUFFIX = {"t": "_s", "x": "_m", "z": "_m", "roll": "_rad", "pitch": "_rad"}
+
+
 def _column_kind(name: str) -> tuple[str, str] | None:
-    """(``"t"`` | ``"pos"`` | ``"vel"``, dof) of a header cell, None when unknown."""
+    """(``"t"`` | ``"pos"`` | ``"vel"``, dof) of a header cell (its name, or the name with its SI unit as a
+    suffix), None when unknown."""
+    for bare, unit in _SI_SUFFIX.items():
+        if name == bare + unit:
+            return _column_kind(bare)
+        if bare != "t" and name == f"v_{bare}{unit}_s":
+            return _column_kind(f"v_{bare}")
     if name == "t":
         return "t", ""
     if name in DOFS:
@@ -276,9 +287,9 @@ def read_signal_csv(path: str | Path) -> CsvSignal:
             m = _UNIT_SUFFIX.match(name)
             if m is not None and _column_kind(m.group("name")) is not None:
                 raise CLIError(
-                    f"{p}: line {head_line}, column {col} ({name!r}): units in the header are not allowed — the "
-                    f"values are SI (t in s, x z in m, roll pitch in rad, v_<dof> in m/s or rad/s); name the "
-                    f"column {m.group('name')!r}"
+                    f"{p}: line {head_line}, column {col} ({name!r}): only SI units — the values are SI (t in s, "
+                    f"x z in m, roll pitch in rad, v_<dof> in m/s or rad/s); name the column {m.group('name')!r} "
+                    "(or with its SI unit: t_s, z_m, roll_rad, v_z_m_s, …)"
                 )
             raise CLIError(
                 f"{p}: line {head_line}, column {col}: unknown column {name!r}; allowed: t, "
@@ -762,7 +773,8 @@ def add_commands(sub) -> None:
         default=None,
         metavar="CSV",
         help="columns t [s] and DOF names x, z [m], roll, pitch [rad], optional v_<dof> [m/s, rad/s]; SI only, "
-        "no units in the header; interpolated linearly at --rate, played from the first row",
+        "a column may carry its SI unit (t_s, z_m, roll_rad, v_z_m_s); interpolated linearly at --rate, played from "
+        "the first row",
     )
     p.add_argument(
         "--around",

@@ -424,6 +424,12 @@ def _spec(args) -> _Spec:
         bad = [k for k in args.around if k not in dofs]
         if bad:
             raise CLIError(f"--around names {', '.join(bad)}, which --dof {','.join(dofs)} does not track")
+        given = [k for k in args.around if csv_signal is not None and k in sig_dofs]
+        if given:  # before: silently ignored, the file's values played
+            raise CLIError(
+                f"--around {', '.join(given)}: {args.from_file} gives {', '.join(given)} itself (absolute values); "
+                "--around sets the centre of a --sine, or the value of a DOF the file does not give"
+            )
         from bridge.service.maneuvers.steps import POSE_BOUNDS  # the service's bounds of a setpoint's pose
         from planner.errors import unit_hint
 

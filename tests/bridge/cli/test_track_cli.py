@@ -155,6 +155,18 @@ def test_csv_errors_name_the_file_line_and_column(capsys, tmp_path, text, words)
     assert words in err
 
 
+def test_around_a_dof_the_file_gives_is_refused_and_around_a_held_dof_is_taken(capsys, tmp_path):
+    """A new user's report: --from-file signal.csv --around z=0.2 played the file's z and said nothing."""
+    f = tmp_path / "signal.csv"
+    f.write_text("t,z\n0,0.10\n1,0.12\n")
+    err = _err(capsys, "--from-file", str(f), "--around", "z=0.2", "--dry-run")
+    assert f"--around z: {f} gives z itself (absolute values)" in err, err
+    from bridge.cli.main import main
+
+    assert main(["track", "--from-file", str(f), "--dof", "z,roll", "--around", "roll=0.01", "--dry-run"]) == 0
+    assert "roll=+0.010000" in capsys.readouterr().out  # the held roll at its --around value
+
+
 def test_columns_may_carry_their_si_unit_as_the_scenario_csvs_do(tmp_path):
     """A new user's report: the scenario CSVs require "time_s,speed_m_s", this file refused "t_s"."""
     f = tmp_path / "signal.csv"

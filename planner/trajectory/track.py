@@ -210,6 +210,8 @@ class TrackSetpoint:
     limited: dict[str, str] = field(default_factory=dict)  # "x" → "workspace:x:max", "vx" → "velocity:x"
     jerk: np.ndarray = field(default_factory=lambda: np.zeros(4))
     """From consecutive given accelerations (at most ``ttl_s`` apart), within the jerk limits; else 0."""
+    requested_acceleration: np.ndarray = field(default_factory=lambda: np.zeros(4))
+    """The acceleration given or estimated, before the limits clipped it (where the demand turns)."""
 
     @property
     def control_limited(self) -> bool:
@@ -223,7 +225,8 @@ class TrackOutput:
     ``limited`` names what limited the motion this cycle: the setpoint's clipping (``"x"``,
     ``"vx"``) and a face the state had to brake for (``"x"`` → ``workspace:x:max``).
     ``braking``: some DOF is not tracking its target this cycle (stale or stopped stream, a
-    take-over beyond the pose limits, a face ahead).
+    take-over beyond the pose limits, a face ahead, or a demand that outran it whose stop it would pass:
+    ``TrackFollower._passes_demand``).
     """
 
     t: float
@@ -511,6 +514,10 @@ class TrackFollower:
                 limited[f"v{k}"] = _VELOCITY_NAMES[d]
         if self._descent is not None and self.tracked[1] and v[1] < -self._descent:
             v[1], limited["vz"] = -self._descent, self.bounds.z_descent_name
+        # the demand outruns a DOF whose acceleration is beyond the limit too (its turn is sharper than the
+        # follower's: chasing it overshoots as one beyond the velocity limit does; see _passes_demand)
+        self._outrun |= self.tracked & (np.abs(acc) > self._a_lim * (1 + 1e-6))
+        a_req = np.where(self.tracked, acc, 0.0)
         acc = np.clip(acc, -self._a_lim, self._a_lim)
         # a reachable target state: |v| + a²/(2j) within the velocity limit (Ruckig refuses it otherwise)
         room = np.maximum(self._v_lim * (1 - 1e-6) - np.abs(v), 0.0)
@@ -526,7 +533,7 @@ class TrackFollower:
         jk = np.where(self.tracked, np.clip(jk, -self._j_lim, self._j_lim), 0.0)
         self._last_a_given = acceleration is not None
         self._outrun |= np.array([f"v{k}" in limited for k in TRACK_DOFS])
-        sp = TrackSetpoint(now, p_req, v_req, p, v, acc, limited, jk)
+        sp = TrackSetpoint(now, p_req, v_req, p, v, acc, limited, jk, a_req)
         self._sp = sp
         self._target_terms()
         self._last_s = now
@@ -707,8 +714,8 @@ class TrackFollower:
             acc = math.copysign(min(abs(acc), math.sqrt(2 * jl * max(vl * (1 - 1e-6) - abs(v), 0.0))), acc)
         if d == 1 and self._descent is not None:  # as _cap_descent_acceleration
             v = max(v, -self._descent)
-            if acc < 0:
-                acc = max(acc, -math.sqrt(2 * jl * max(self._descent * (1 - 1e-6) + v, 0.0)))
+            room = max(self._descent * (1 - 1e-6) + v, 0.0)
+            acc = min(max(acc, -math.sqrt(2 * jl * room)), math.sqrt(2 * jl * room))
         if not self.tracked[d]:
             return p, v, acc, None, None
         name_min, name_max = self._names[d]
@@ -764,6 +771,7 @@ class TrackFollower:
             ta[i] = 0.0
         if self._descent is not None and not to_rest:  # never re-target faster downwards than the bound
             tv[1] = max(tv[1], -self._descent)
+            self._cap_descent_acceleration(tv, ta)
         # a demand faster than the limits: where it would come to rest stopping now (see _passes_demand;
         # computed when a DOF needs it)
         demand = _DemandStop(self, p_t, v_t, a_t, lim) if stream and not to_rest and np.any(self._outrun) else None
@@ -1063,11 +1071,25 @@ class TrackFollower:
     ) -> tuple[np.ndarray, np.ndarray] | None:
         """The lowest and highest position per DOF of the shortest stop of the cycle's target (the demand's
         position, velocity and acceleration) within ``lim``: how far the demand goes were it to stop now as
-        fast as the follower may (None where Ruckig finds no stop)."""
+        fast as the follower may (None where Ruckig finds no stop); and no further than where the demand
+        turns by its own (unclipped) deceleration: ``p + v·|v| / (2·|a|)`` of the setpoint's requested velocity
+        and acceleration where they oppose (a demand turning harder than the limits allow stops sooner than
+        the stop within them says: a three-sine stream passed its extreme by 2.9 mm; a reviewer's report).
+        For a sine that point is never short of its peak: ``A·(1 + sin²φ) / (2·sin φ) ≥ A``."""
         try:
-            return self._demand_probe.extent(MotionState(p_t, v_t, a_t), lim)
+            lo, hi = self._demand_probe.extent(MotionState(p_t, v_t, a_t), lim)
         except PlanError:
             return None
+        sp = self._sp
+        if sp is not None:
+            v, a = sp.requested_velocity, sp.requested_acceleration
+            turning = (v * a < 0.0) & self.tracked
+            if np.any(turning):
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    turn = np.where(turning, sp.requested_position + v * np.abs(v) / (2.0 * np.abs(a)), p_t)
+                hi = np.where(turning & (v > 0.0), np.minimum(hi, np.maximum(turn, p_t)), hi)
+                lo = np.where(turning & (v < 0.0), np.maximum(lo, np.minimum(turn, p_t)), lo)
+        return lo, hi
 
     def _passes_demand(
         self,
@@ -1110,9 +1132,12 @@ class TrackFollower:
         return hi > np.maximum(self.hi, p) + 1e-9, lo < np.minimum(self.lo, p) - 1e-9
 
     def _cap_descent_acceleration(self, v: np.ndarray, acc: np.ndarray) -> None:
-        """In place: a downward target acceleration of z whose velocity would pass the descent bound
-        before it reaches zero (v - a²/(2j) below -bound) is reduced (Ruckig refuses such a target)."""
-        if self._descent is None or acc[1] >= 0:
+        """In place: a target acceleration of z that the descent bound makes unreachable is reduced (Ruckig
+        refuses such a target): a downward one whose velocity would pass the bound before it reaches zero
+        (v − a²/(2j) below −bound), and an upward one at a velocity it could only have come to from below the
+        bound (the same room: at v = −bound it must be 0; with it Ruckig refused 88 of 400 cycles of a fast z
+        sine, each braking to rest instead; a reviewer's report)."""
+        if self._descent is None or acc[1] == 0:
             return
-        room = max(self._descent * (1 - 1e-6) + float(v[1]), 0.0)
-        acc[1] = max(float(acc[1]), -math.sqrt(2 * float(self._j_lim[1]) * room))
+        cap = math.sqrt(2 * float(self._j_lim[1]) * max(self._descent * (1 - 1e-6) + float(v[1]), 0.0))
+        acc[1] = min(max(float(acc[1]), -cap), cap)

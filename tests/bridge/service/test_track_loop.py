@@ -108,7 +108,9 @@ def test_terrain_with_the_look_ahead_sensor_beats_the_sensor_under_the_implement
     assert np.allclose(plan.error, height - plan.working_height_m)
     demand_rms = float(np.std(plan.demand[plan.evaluated]))  # what holding a fixed z errs by, about
     assert demand_rms > 0.025
-    assert plan.figures.rms < 0.6 * under.figures.rms, (plan.figures, under.figures)
+    # the preview plan 8.26 mm RMS; the sensor under the implement 14.70 mm before, 12.33 mm since the follower
+    # stops short of where the demand turns (1e211fc and after): the preview's lead is 0.67, no longer < 0.6
+    assert plan.figures.rms < 0.7 * under.figures.rms, (plan.figures, under.figures)
     assert plan.figures.rms < demand_rms / 3, (plan.figures, demand_rms)
     for r in (plan, under):
         assert r.counts["references_outside_strokes"] == 0 and r.counts["refused"] == 0

@@ -906,7 +906,7 @@ def run_track_loop(
             "outside_workspace": 0,
         }
         rows: list[tuple[Any, ...]] = []
-        notes: list[str] = []
+        notes: list[str] = list(_coverage_notes(twin, duration))
         excess = 0.0
         n_events = len(loop.events)
         while loop.now_s < duration - 1e-9:
@@ -1135,6 +1135,34 @@ def _ground_samples(
         g = pivot + float(ls.pose.controlled()[1]) - float(under.value)
         est.add_implement(at(under.received_s), g, pitch_at(under.received_s))
     return len(est) > 0
+
+
+def _coverage_notes(twin: Any, duration_s: float) -> tuple[str, ...]:
+    """What a scenario's CSV profiles do not cover of the run (their last value then holds; a new user's speed
+    file ending at 3 s of a 10 s run, and a 5 m terrain file under 20 m driven, passed unsaid)."""
+    from bridge.sim.terrain import SampledGround
+
+    out = []
+    speed = twin.speed
+    if len(speed.times_s) > 1 and speed.times_s[-1] < duration_s:
+        out.append(
+            f"the speed profile ends at {speed.times_s[-1]:g} s of the {duration_s:g} s run: its last speed, "
+            f"{speed.speeds_m_s[-1]:g} m/s, holds after it"
+        )
+    ground = twin.ground
+    if isinstance(ground, SampledGround):
+        # the rear axle drives from distance(0) to distance(end); the implement's ground point is behind it, the
+        # front axle and the look-ahead sensor's point ahead
+        behind = twin.implement_behind_m
+        back = twin.distance_m(0.0) - behind
+        reach = twin.distance_m(duration_s) + max(twin.tractor.wheelbase_m, twin.ground_sensor.ahead_m - behind)
+        if ground.distances_m[0] > back + 1e-9 or ground.distances_m[-1] < reach - 1e-9:
+            out.append(
+                f"the terrain profile covers {ground.distances_m[0]:g}…{ground.distances_m[-1]:g} m, the run "
+                f"{back:.3g}…{reach:.4g} m (from behind the implement to ahead of the front axle): its end heights "
+                "hold beyond it"
+            )
+    return tuple(out)
 
 
 def _note(notes: list[str], text: str) -> None:

@@ -231,3 +231,24 @@ def test_job_of_the_shipped_scenarios():
         "guidance",
         "terrain",
     ]
+
+
+def test_a_scenario_whose_csv_profiles_end_before_the_run_says_so(tmp_path):
+    """A new user's speed file ending at 3 s of a 10 s run, and a 5 m terrain file under 20 m driven, were run
+    with their last values holding and nothing said."""
+    from bridge.service.track_loop import _coverage_notes
+
+    (tmp_path / "sp.csv").write_text("time_s,speed_m_s\n0,2.0\n3,2.0\n")
+    (tmp_path / "g.csv").write_text("distance_m,height_m\n0,0\n5,0.05\n")
+    toml = tmp_path / "s.toml"
+    toml.write_text(
+        'schema_version = 1\nname = "short"\nduration_s = 10.0\n[speed]\ncsv = "sp.csv"\n[terrain]\ncsv = "g.csv"\n'
+    )
+    sc = load_scenario(str(toml))
+    notes = _coverage_notes(sc.twin, sc.duration_s)
+    assert notes[0] == "the speed profile ends at 3 s of the 10 s run: its last speed, 2 m/s, holds after it"
+    assert notes[1].startswith("the terrain profile covers 0…5 m, the run -1.2…22.7 m")
+    (tmp_path / "sp.csv").write_text("time_s,speed_m_s\n0,2.0\n10,2.0\n")
+    (tmp_path / "g.csv").write_text("distance_m,height_m\n-2,0\n30,0.05\n")
+    covered = load_scenario(str(toml))
+    assert _coverage_notes(covered.twin, covered.duration_s) == ()

@@ -172,6 +172,12 @@ class ImplementService:
     def define(self, r: ImplementDefine, owner: str | None = None) -> dict[str, Any]:
         """Insert or replace an implement; redefining the selected one applies it (refused while moving).
         Its transport lock and last work pose are kept: read under the lock :meth:`set_lock` changes them under."""
+        if r.name == DEFAULT_IMPLEMENT:  # it selects "no implement": a stored one of that name changed the checks
+            raise RequestError(
+                "bad_request",
+                f"implements/define: name {DEFAULT_IMPLEMENT!r} is reserved (implements/select {DEFAULT_IMPLEMENT!r} "
+                "runs without an implement); give the implement another name",
+            )
         with self._lock:
             old = self.store.get_implement(r.name)
             limits = ImplementLimits(
@@ -188,6 +194,7 @@ class ImplementService:
                 r.description,
             )
             if r.name == self.selected:
+                self._check_category(imp, "implements/define")  # as a select would: it stays selected
                 self._apply(record_of(imp), limits)  # busy while moving: nothing stored
             stored = self.store.save_implement(imp, owner=owner)
         return {"defined": stored.name, "implement": stored.to_json(), "selected": self.selected}
@@ -338,13 +345,14 @@ class ImplementService:
         return {"position": position, "sent": list(sent)}
 
     # ------------------------------------------------------------------ internals
-    def _check_category(self, imp: StoredImplement) -> None:
+    def _check_category(self, imp: StoredImplement, key: str = "implements/select") -> None:
         """An implement of another ISO 730 category is refused (an engineer's report: a category 2 implement was
-        selected on a category 3 hitch, and its stability check ran with the wrong geometry)."""
+        selected on a category 3 hitch, and its stability check ran with the wrong geometry; and redefining the
+        selected one in another category bypassed this: a new user's report)."""
         if self.category is not None and imp.category != self.category:
             raise RequestError(
                 "bad_request",
-                f"implements/select: {imp.name!r} is an ISO 730 category {imp.category} implement; this hitch is set "
+                f"{key}: {imp.name!r} is an ISO 730 category {imp.category} implement; this hitch is set "
                 f"up for category {self.category} (its lower-link span): define it for category {self.category}, "
                 f"or start the service with --category {imp.category}",
             )

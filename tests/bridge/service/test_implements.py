@@ -156,6 +156,29 @@ def test_an_implement_of_another_category_is_not_selected(svc):
     assert svc.mc.guard.implement is None and svc.ok("implements/list")["selected"] == "default"
 
 
+def test_redefining_the_selected_implement_in_another_category_is_refused_and_nothing_changes(svc):
+    """A new user's report: redefining the selected category-2 implement as category 3 was taken and applied
+    (the select's category check skipped); after a restart the service silently ran without it."""
+    svc.ok("implements/define", HARROW)
+    svc.ok("implements/select", {"name": "harrow"})
+    ok, r = svc.call("implements/define", {**HARROW, "category": "3", "mass_kg": 900.0})
+    assert not ok and r["error"] == "bad_request", r
+    assert r["message"].startswith("implements/define: 'harrow' is an ISO 730 category 3 implement"), r
+    harrow = next(i for i in svc.ok("implements/list")["implements"] if i["name"] == "harrow")
+    assert harrow["category"] == "2" and harrow["mass_kg"] == 1200.0 and svc.mc.guard.implement.mass == 1200.0
+
+
+def test_the_name_default_is_reserved(svc):
+    """A new user's report: an implement named 'default' could be defined; while no implement was selected
+    ("default") it was applied, changing the checks while the config said none was selected."""
+    svc.ok("implements/select", {"name": "default"})
+    ok, r = svc.call("implements/define", {**HARROW, "name": "default", "upper_height_m": 0.0})
+    assert not ok and r["error"] == "bad_request" and "name 'default' is reserved" in r["message"], r
+    assert svc.mc.guard.implement is None and "default" not in [
+        i["name"] for i in svc.ok("implements/list")["implements"]
+    ]
+
+
 def test_changing_the_implement_while_moving_is_refused(svc):
     svc.ok("implements/define", HARROW)
     svc.ok("goto", {"goal": {"z": 0.25}})

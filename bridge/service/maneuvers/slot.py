@@ -113,4 +113,8 @@ class ManeuverSlot:
         raise ManeuverRunError(f"action must be one of pause, resume, skip, got {action!r}")
 
     def _tag(self, events: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
-        return [{**e, "maneuver_id": self.id} for e in events]
+        """The runner's events with the maneuver's id, and named as the state names it: the saved name it was
+        run by (a script without ``name:`` gave ``"maneuver": null`` in every event and the black box: a new
+        user's report), else the script's own."""
+        named = {} if self.name is None else {"maneuver": self.name}
+        return [{**e, "maneuver_id": self.id, **(named if "maneuver" in e else {})} for e in events]

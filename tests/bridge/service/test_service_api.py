@@ -287,6 +287,9 @@ def test_maneuvers_validate_save_run_delete(svc):
     # the reply names the maneuver's id (its events'), not a motion: its step runs as a motion of its own
     ids = {e["maneuver_id"] for e in svc.events if e["event"].startswith("maneuver_")}
     assert ids == {r["maneuver_id"]}
+    # named by the name it was run by, as the state names it (the script has no name: line; every event said
+    # "maneuver": null, a new user's report)
+    assert {e["maneuver"] for e in svc.events if e["event"].startswith("maneuver_")} == {"m"}
     steps = {e["motion_id"] for e in svc.events if e["event"] == "motion_finished"}
     assert steps and r["maneuver_id"] not in steps
     assert svc.call("maneuvers/delete", {"name": "m"}) == (True, {"deleted": "m"})

@@ -58,12 +58,12 @@ def _cmd_record(args: Any) -> int:
             return 0
         r = c.request("maneuvers/record/stop", {} if args.save is None else {"name": args.save})
         text = r["script"].rstrip("\n")
-        if args.save is not None:
-            saved = c.request("maneuvers/save", {"name": args.save, "script": r["script"]})
-            r = {**r, "saved": saved["saved"]}
-            text += f"\nsaved {saved['saved']} ({saved['steps']} steps)"
+        if args.save is not None and "saved" in r:  # the service saved it (record/stop with a name)
+            text += f"\nsaved {r['saved']} ({r['steps']} steps)"
+        elif args.save is not None:
+            text += f"\nnot saved: {r.get('not_saved', 'the service did not save it')}"
         _print(args, r, text)
-        return 0
+        return 0 if args.save is None or "saved" in r else 1
 
     return _run(args, record)
 

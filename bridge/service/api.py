@@ -70,6 +70,7 @@ from bridge.service.security import AccessPolicy
 from bridge.service.store import DEFAULT_IMPLEMENT, HitchStore, StoreError
 from bridge.service.work import work_handlers
 from bridge.service.workers import PresetPose, WorkerError, referenced_presets
+from planner.errors import HitchInputError
 from planner.ik_qp.hitch_ik import IKSolver
 from planner.limits.guard import GuardRefusal
 from planner.trajectory import MotionState, PlanError
@@ -400,7 +401,14 @@ class ServiceAPI:
         if rec is None:
             raise RequestError("not_found", "maneuvers/record/stop: no recording runs (maneuvers/record/start)")
         script = rec.stop(r.name)
-        return {"script": script, "steps": len(rec.steps)}
+        out: dict[str, Any] = {"script": script, "steps": len(rec.steps)}
+        if r.name is not None:  # saved as the API says (it was only named: a new user's report)
+            try:
+                out.update(self._maneuvers_save(ManeuverSave(name=r.name, script=script)))
+            except HitchInputError as exc:  # the script is returned all the same: nothing recorded is lost
+                out["not_saved"] = str(exc)
+            out["steps"] = len(rec.steps)
+        return out
 
     # ------------------------------------------------------------------ maneuvers
     def _validated(self, script: str | ManeuverScript) -> ValidationResult:

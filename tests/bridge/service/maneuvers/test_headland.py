@@ -224,6 +224,9 @@ def test_a_recorded_maneuver_replays_to_the_same_poses(svc):
     poses.append(dict(svc.states[-1]["pose"]))
     ok, r = svc.call("maneuvers/record/stop", {"name": "taught"})
     assert ok, r
+    # saved as the name says (it was only named in the script: a new user's report)
+    assert r["saved"] == "taught" and "not_saved" not in r
+    assert "taught" in [m["name"] for m in svc.call("maneuvers/list")[1]["maneuvers"]]
     script = r["script"]
     kinds = [next(iter(s)) for s in parse_maneuver(script).to_json()["steps"]]
     assert kinds[0] == "goto" and "preset" in kinds and kinds[-1] == "goto" and "wait" in kinds, script

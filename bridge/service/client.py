@@ -32,6 +32,7 @@ import json
 import math
 import os
 import queue
+import re
 import threading
 import time
 import traceback
@@ -215,6 +216,9 @@ def _setpoint_body(session: int, seq: int, pose: Mapping[str, float], velocity: 
     return data
 
 
+#: what an API key looks like (``goto``, ``maneuvers/record/stop``): checked before the key reaches Zenoh
+_API_KEY_SHAPE = re.compile(r"[a-z][a-z_]*(/[a-z][a-z_]*)*")
+
 #: the bounds a setpoint's pose [m, rad] and velocity [m/s, rad/s] must lie within (the service's schema;
 #: the cheap check before the service's own refusal is asked for its words)
 _SETPOINT_POSE_BOUNDS = {"x": 1.0, "z": 2.0, "roll": math.pi / 2, "pitch": math.pi / 2}
@@ -287,7 +291,13 @@ class HitchClient:
     ) -> dict:
         """Query ``<prefix>/<key>`` (``<prefix>/user/<user>/<key>`` when this client has a :attr:`user`,
         except ``stop``, which anyone may send and which must not wait for anything); the reply dict, or
-        :class:`ServiceError`."""
+        :class:`ServiceError`; :class:`ClientError` for a key that is no API key's shape (``""``, a trailing
+        ``/``, ``?`` or ``#`` raised Zenoh's own error with a Rust source path, or went out as a selector)."""
+        if not isinstance(key, str) or not _API_KEY_SHAPE.fullmatch(key):
+            raise ClientError(
+                f"key must be an API key such as 'goto' or 'presets/save' (lower-case words joined by '/'), got "
+                f"{key!r} (the keys: docs/api.md)"
+            )
         base = validate_prefix(prefix) if prefix else self.prefix
         t = self.timeout_s if timeout_s is None else timeout_s
         scoped = self.user is not None and key != "stop" and self._serves_user_keys(base, t)

@@ -144,3 +144,18 @@ def test_the_client_s_setpoint_bounds_are_the_service_s():
                 _setpoint_body(
                     1, 1, {k: over} if what == "pose" else {k: 0.0}, {k: over} if what == "velocity" else None
                 )
+
+
+@pytest.mark.parametrize("key", ["", "presets/list/", "config#", "goto?x=1", "Goto", "a//b", "hitch/*"])
+def test_a_request_key_of_no_api_key_s_shape_is_refused_before_zenoh(peer, key):
+    """A new user's report: "" and "presets/list/" raised Zenoh's own error with a Rust source path, and
+    "goto?x=1" went out as goto with a selector."""
+    from bridge.service.schemas import API_KEYS
+
+    endpoint, _ = peer
+    with HitchClient([endpoint], timeout_s=2.0) as c:
+        with pytest.raises(ClientError, match="key must be an API key such as 'goto'"):
+            c.request(key, {})
+    from bridge.service.client import _API_KEY_SHAPE
+
+    assert all(_API_KEY_SHAPE.fullmatch(k) for k in API_KEYS)  # every key the service serves passes

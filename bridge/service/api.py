@@ -34,7 +34,13 @@ from typing import Any
 
 from bridge.service.gnss import lines_handlers
 from bridge.service.implements import ImplementService, implement_handlers
-from bridge.service.maneuvers.language import ManeuverError, ManeuverScript, ValidationResult, parse_maneuver
+from bridge.service.maneuvers.language import (
+    ManeuverError,
+    ManeuverScript,
+    StepError,
+    ValidationResult,
+    parse_maneuver,
+)
 from bridge.service.maneuvers.recorder import ManeuverRecorder, maneuvers_using_preset, recorder_for
 from bridge.service.motion.controller import MotionController
 from bridge.service.motion.types import MODES, ManeuverAccepted, MotionError, pose_dict
@@ -424,7 +430,21 @@ class ServiceAPI:
             if p is not None:
                 presets[name] = PresetPose(dict(p.pose), p.speed_scale)
         start = MotionState.at_rest(self.motion.current_state().position)
-        return self.planning.validate(script, start, presets)
+        res = self.planning.validate(script, start, presets)
+        if not res.ok:
+            return res
+        # a wait_for line no one saved: the run would abort at that step (it validated, was accepted, and
+        # aborted at once with trigger_unavailable: a new user's report)
+        lines = {name for name, _ in self.store.list_lines()}
+        missing = [ps for ps in res.steps if ps.line is not None and ps.line not in lines]
+        if not missing:
+            return res
+        saved = ", ".join(sorted(lines)) or "none"
+        errors = tuple(
+            StepError(ps.index, f"wait_for.line: no line {ps.line!r} is saved (lines/save; saved: {saved})")
+            for ps in missing
+        )
+        return ValidationResult(False, res.duration, errors, res.script)
 
     def _maneuvers_validate(self, r: ScriptRequest) -> dict:
         return self._validated(r.script).to_json()

@@ -249,6 +249,21 @@ def test_a_recorded_maneuver_replays_to_the_same_poses(svc):
 
 
 # ------------------------------------------------------------------------------------------ preset delete
+def test_a_wait_for_a_line_no_one_saved_fails_validation_naming_the_step_and_the_saved_lines(svc):
+    """A new user's report: it validated (ok, errors []), run was accepted, and the maneuver aborted at once
+    with trigger_unavailable."""
+    script = "steps:\n  - wait_for: {line: nope}\n  - goto: {z: 0.1}\n"
+    ok, r = svc.call("maneuvers/validate", {"script": script})
+    assert ok and not r["ok"], r
+    assert r["errors"] == [{"step": 0, "message": "wait_for.line: no line 'nope' is saved (lines/save; saved: none)"}]
+    assert svc.call("maneuvers/save", {"name": "w", "script": script})[0]  # a line may be saved later
+    ok, r = svc.call("maneuvers/run", {"name": "w"})
+    assert not ok and r["error"] == "invalid" and "no line 'nope' is saved" in r["message"], r
+    svc.api.store.save_line("nope", [[11.0, 48.0], [11.001, 48.0]])
+    ok, r = svc.call("maneuvers/validate", {"script": script})
+    assert ok and r["ok"], r
+
+
 def test_deleting_a_preset_a_maneuver_uses_is_refused_unless_forced(svc):
     assert svc.call("presets/save", {"name": "work", "pose": {"z": 0.1}})[0]
     assert svc.call("maneuvers/save", {"name": "lift", "script": "steps:\n  - preset: work\n"})[0]

@@ -322,7 +322,13 @@ class MotionController:
             if mode != self._mode and (self._active is not None or self._maneuver.running):
                 a = self._active
                 braking = a is not None and getattr(a, "kind", None) == "stop" and not self._maneuver.running
-                what = f"motion {a.motion_id}" if a is not None else f"maneuver {self._maneuver.id}"
+                if a is None:  # a maneuver paused at rest or between steps: not "moving" (a new user's report)
+                    raise MotionError(
+                        "busy",
+                        f"mode change to {mode!r} refused while maneuver {self._maneuver.name or self._maneuver.id} "
+                        "runs (paused or not); send stop first",
+                    )
+                what = f"motion {a.motion_id}"
                 todo = "wait until it is at rest" if braking else "send stop first and wait until it is at rest"
                 raise MotionError(
                     "busy",
@@ -740,9 +746,15 @@ class MotionController:
             raise MotionError("busy", "implement change refused: the planner stayed busy; send it again")
         try:
             with self._lock:
-                if self._active is not None or self._maneuver.running:
+                if self._active is not None:
                     raise MotionError(
                         "busy", "implement change refused while the hitch is moving; send stop first and wait for rest"
+                    )
+                if self._maneuver.running:  # paused at rest, or between steps: said so (it said "moving")
+                    raise MotionError(
+                        "busy",
+                        f"implement change refused while maneuver {self._maneuver.name or self._maneuver.id} runs "
+                        "(paused or not); send stop first",
                     )
                 for g in (self.guard, self.plan_guard):
                     g.set_implement(implement)

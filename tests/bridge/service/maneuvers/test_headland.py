@@ -264,6 +264,21 @@ def test_a_wait_for_a_line_no_one_saved_fails_validation_naming_the_step_and_the
     assert ok and r["ok"], r
 
 
+def test_a_maneuver_at_rest_refuses_implement_and_mode_changes_saying_so(svc):
+    """A new user's report: with a maneuver paused and the hitch at rest, both were refused "while the hitch is
+    moving"."""
+    assert svc.call("implements/define", {"name": "h", "category": "2", "mass_kg": 500.0, "com_m": [0, 0.5, 0.3]})[0]
+    assert svc.call("maneuvers/save", {"name": "idle", "script": "steps:\n  - wait: 5\n"})[0]
+    assert svc.call("maneuvers/run", {"name": "idle"})[0]
+    svc.run(0.3)
+    assert svc.states[-1]["maneuver"] is not None and not svc.states[-1]["moving"]
+    ok, r = svc.call("implements/select", {"name": "h"})
+    assert not ok and r["error"] == "busy" and "while maneuver idle runs (paused or not)" in r["message"], r
+    ok, r = svc.call("mode", {"mode": "manual"})
+    assert not ok and r["error"] == "busy" and "while maneuver idle runs" in r["message"], r
+    assert "moving" not in r["message"]
+
+
 def test_deleting_a_preset_a_maneuver_uses_is_refused_unless_forced(svc):
     assert svc.call("presets/save", {"name": "work", "pose": {"z": 0.1}})[0]
     assert svc.call("maneuvers/save", {"name": "lift", "script": "steps:\n  - preset: work\n"})[0]

@@ -452,6 +452,14 @@ def implement_handlers(api: Any) -> dict[str, Callable[[Any], dict[str, Any]]]:
                     f"({z_min:.4g} m): the hitch could never be under it (allowed: >= {z_min:.4g} and <= 2 m)"
                     + unit_hint(r.upper_height_m, z_min, 2.0, "m"),
                 )
+        if r.headland is not None and r.upper_height_m is not None and r.headland.z > r.upper_height_m:
+            # every quick raise would be refused at the upper height (a new user's report)
+            raise RequestError(
+                "bad_request",
+                f"implements/define: headland.z = {r.headland.z:g} m is above upper_height_m = "
+                f"{r.upper_height_m:g} m: a quick raise could never reach it (allowed: headland.z <= "
+                f"{r.upper_height_m:g} m, or a higher upper_height_m)",
+            )
         return svc.define(r, owner=user())
 
     return {

@@ -168,6 +168,18 @@ def test_redefining_the_selected_implement_in_another_category_is_refused_and_no
     assert harrow["category"] == "2" and harrow["mass_kg"] == 1200.0 and svc.mc.guard.implement.mass == 1200.0
 
 
+def test_a_headland_above_the_implement_s_upper_height_is_refused_at_definition(svc):
+    """A new user's report: accepted, then every quick raise was refused at the upper height."""
+    tp = svc.mc.planner
+    svc.api.info["limits"] = {"workspace": {k: list(tp.workspace[k]) for k in ("x", "z", "roll", "pitch")}}
+    payload = {**HARROW, "name": "t1", "upper_height_m": 0.2, "headland": {**HEADLAND, "z": 0.3}}
+    ok, r = svc.call("implements/define", payload)
+    assert not ok and r["error"] == "bad_request", r
+    assert "headland.z = 0.3 m is above upper_height_m = 0.2 m" in r["message"], r
+    assert "t1" not in [i["name"] for i in svc.ok("implements/list")["implements"]]
+    assert svc.call("implements/define", {**payload, "headland": {**HEADLAND, "z": 0.2}})[0]  # at it: taken
+
+
 def test_the_name_default_is_reserved(svc):
     """A new user's report: an implement named 'default' could be defined; while no implement was selected
     ("default") it was applied, changing the checks while the config said none was selected."""

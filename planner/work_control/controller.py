@@ -83,7 +83,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from planner.errors import HitchInputError
+from planner.errors import HitchInputError, unit_hint
 
 __all__ = [
     "DRAFT_SETPOINT_MAX_N",
@@ -147,13 +147,18 @@ class WorkSettingsError(HitchInputError):
     """Bad work-control settings or step input; the message names the field and the allowed range."""
 
 
+#: the unit a setting's name ends in (``depth_max_m``, ``draft_setpoint_n``, ``stuck_s``)
+_UNITS = {"_m": "m", "_n": "N", "_s": "s"}
+
+
 def _num(name: str, v: object, lo: float, hi: float, *, open_lo: bool = False) -> float:
-    rng = f"{'(' if open_lo else '['}{lo:g}, {hi:g}]"
+    unit = next((u for suffix, u in _UNITS.items() if name.endswith(suffix)), "")
+    rng = f"{'(' if open_lo else '['}{lo:g}, {hi:g}]" + (f" {unit}" if unit else "")
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
         raise WorkSettingsError(f"{name} must be a finite number in {rng}, got {v!r}")
     x = float(v)
-    if x < lo or x > hi or (open_lo and x <= lo):
-        raise WorkSettingsError(f"{name} = {v!r} is outside the allowed range {rng}")
+    if x < lo or x > hi or (open_lo and x <= lo):  # with its unit and the mm reading of a length typed in mm
+        raise WorkSettingsError(f"{name} = {v!r} is outside the allowed range {rng}" + unit_hint(x, lo, hi, unit))
     return x
 
 

@@ -443,3 +443,20 @@ def test_with_the_measured_z_the_true_depth_stays_within_the_limits_at_a_limit()
         new = simulate_lagging_hitch(ws, give_z=True, **kw)
         assert old[1] < LIMITS["depth_min_m"] - 0.002 or old[2] > LIMITS["depth_max_m"] + 0.002, old[1:3]
         assert LIMITS["depth_min_m"] <= new[1] and new[2] <= LIMITS["depth_max_m"], new[1:3]
+
+
+@pytest.mark.parametrize(
+    ("kw", "words"),
+    [
+        ({"depth_max_m": 35.0}, "depth_max_m = 35.0 is outside the allowed range [0, 0.6] m; did you mean mm? 35 mm"),
+        ({"draft_setpoint_n": -1.0}, "draft_setpoint_n = -1.0 is outside the allowed range (0, 300000] N"),
+        ({"stuck_s": 100.0}, "stuck_s = 100.0 is outside the allowed range [0.2, 60] s"),
+        ({"blend": 2.0}, "blend = 2.0 is outside the allowed range [0, 1]"),
+    ],
+)
+def test_a_setting_out_of_range_names_its_unit_and_a_unit_slip(kw, words):
+    """A new user's report: "depth_max_m = 35.0 is outside the allowed range [0, 0.6]": no unit, no hint, where
+    the rest of the API offers the mm reading."""
+    with pytest.raises(WorkSettingsError) as info:
+        WorkSettings(**kw)
+    assert str(info.value) == words or str(info.value).startswith(words), str(info.value)

@@ -451,7 +451,9 @@ def work_handlers(api: Any) -> dict[str, Callable[[Any], dict[str, Any]]]:
 
     def settings(r: Any) -> dict[str, Any]:
         implement = api.implement
-        given = {k: getattr(r, k) for k in r.model_fields_set}
+        # null keeps a setting (the schema allows it for every field; "mode": null was refused "got None"),
+        # except slip_limit, where null switches slip limiting off
+        given = {k: getattr(r, k) for k in r.model_fields_set if getattr(r, k) is not None or k == "slip_limit"}
         current = stored(implement)
         out: dict[str, Any] = {"implement": implement}
         if given:

@@ -90,6 +90,10 @@ def test_work_settings_round_trip_persisted_per_implement(svc, tmp_path):
     assert r["status"]["settings"]["mode"] == "draft"  # the controller's work control has them too
     svc.ok("work/settings", {"slip_limit": None})  # null: slip limiting off, the rest kept
     assert svc.ok("work/settings")["settings"]["slip_limit"] is None
+    # null elsewhere keeps the setting, as docs/api.md offers it ("mode": null was refused "got None")
+    r = svc.ok("work/settings", {"mode": None, "blend": None, "sensitivity": 1.2})
+    assert r["settings"]["mode"] == "draft" and r["settings"]["blend"] == 0.5 and r["settings"]["sensitivity"] == 1.2
+    svc.ok("work/settings", {"sensitivity": 1.0})
     # another implement has its own settings (the defaults until set); back to the first: its own again
     svc.ok("implements/define", HARROW)
     svc.ok("implements/define", {**HARROW, "name": "plough"})

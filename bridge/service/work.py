@@ -245,6 +245,7 @@ class WorkControl:
         rate = draft_rate_limit(self.motion.planner, here)  # the draft demand never outruns the hitch
         acc = self.motion.track_start("tractor", ("z",), WORK_TTL_S, deadline=deadline, issued=issued)
         with self._lock:
+            old = self._session  # replaced by this one: it finished (it ended without a word: a new user's report)
             self._settings = settings
             self._ctl = WorkController(settings, z_rate_max_m_s=rate)
             self._z_op = z_op
@@ -253,6 +254,10 @@ class WorkControl:
             self._last, self._limited, self._ended = None, {}, None
             self.fallbacks = self.rejected = self.foreign_setpoints = 0
             self._session = int(acc.session)
+        if old is not None and old != self._session:
+            self.motion.post_event(
+                {"event": "work_finished", "session": old, "reason": f"replaced by work/start (session {acc.session})"}
+            )
         return {**acc.to_json(), "work": self.progress()}
 
     def stop(self) -> dict[str, Any]:

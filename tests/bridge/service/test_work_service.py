@@ -137,7 +137,7 @@ def test_a_work_start_or_resume_that_waited_past_its_deadline_or_a_later_stop_is
         assert not ok and r["error"] == "busy" and "stop" in r["message"], r
         s.run(0.5)
         assert not s.states[-1]["work"]["running"]
-        r = s.ok("work/start", {"deadline_ms": 10_000})  # sent after the stop: starts
+        r = started = s.ok("work/start", {"deadline_ms": 10_000})  # sent after the stop: starts
         assert r["work"]["running"]
         ok, r = s.call("work/resume", {}, received=time.monotonic() - 6.0)  # also before the stop
         assert not ok and r == {
@@ -145,6 +145,13 @@ def test_a_work_start_or_resume_that_waited_past_its_deadline_or_a_later_stop_is
             "message": "work/resume: resume cancelled: a stop was sent after this request arrived; not run later",
         }
         assert s.call("work/resume", {})[0]  # in time: taken (no fallback to clear: the configured mode runs)
+        # a second work/start replaces the session: the first one's end is announced (it ended without a word:
+        # a new user's report)
+        first = started["session"]
+        again = s.ok("work/start", {"deadline_ms": 10_000})
+        s.run(0.2)
+        ends = [e for e in s.events if e["event"] == "work_finished" and e["session"] == first]
+        assert ends and ends[0]["reason"] == f"replaced by work/start (session {again['session']})", s.events[-6:]
     finally:
         s.close()
 

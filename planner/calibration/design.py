@@ -78,8 +78,9 @@ def measured_rows(points: bool = False, pose: bool = True) -> np.ndarray:
 
 @dataclass(frozen=True)
 class ApproachShortfall:
-    """Pose ``row`` (0-based) reached from ``side`` has only ``room`` of the final approach's ``offset`` in
-    DOF ``dof`` before a workspace face [m or rad]: its goto's approach is cut short there."""
+    """Pose ``row`` (0-based) reached from ``side`` has only ``room`` of the ``offset`` its final approach
+    needs in DOF ``dof`` before a workspace face (the profile's offset less its lag) [m or rad]: its goto's
+    approach is cut short there."""
 
     row: int
     dof: str
@@ -102,13 +103,16 @@ def approach_shortfalls(
     lo = np.array([box[k][0] for k in CONTROLLED_POSE_NAMES])
     hi = np.array([box[k][1] for k in CONTROLLED_POSE_NAMES])
     offset = np.asarray(approach.offset())
+    # with a lag the mechanism is aimed that far beyond the goal, the via with it: the approach needs the
+    # offset less the lag before the face, from either side
+    need = offset - np.asarray(approach.lag_vector())
     out = []
     for r, p in enumerate(np.asarray(poses, float).reshape(-1, 4)):
         for side in sides:
             room = p - lo if side == "below" else hi - p
             for k, name in enumerate(CONTROLLED_POSE_NAMES):
-                if offset[k] > 0 and room[k] < offset[k] - 1e-9:
-                    out.append(ApproachShortfall(r, name, side, float(max(room[k], 0.0)), float(offset[k])))
+                if offset[k] > 0 and room[k] < need[k] - 1e-9:
+                    out.append(ApproachShortfall(r, name, side, float(max(room[k], 0.0)), float(need[k])))
     return tuple(out)
 
 

@@ -464,3 +464,26 @@ def test_poses_measured_from_both_sides_count_once_whatever_their_labels_say():
     assert unsided.n_poses == 12  # no side known: distinct readings
     repeat = replace(data, readings=np.vstack([below, below]), sides=np.full(12, -1.0))
     assert repeat.n_poses == 6  # the same readings again from the same side: a repeat
+
+
+def test_the_approach_room_a_pose_needs_is_the_offset_less_the_lag_from_either_side():
+    """With a lag the mechanism is aimed beyond the goal and its via with it: a pose needs the offset less the lag
+    before the face (a reviewer's note: it was warned about by the lag too early)."""
+    from planner.calibration.design import approach_shortfalls
+
+    lag = {"x": 0.001, "z": 0.0015, "roll": 0.002, "pitch": 0.003}
+    model = _with_final_approach({**OFFSET, "lag": lag})
+    box = model.nominal_model.workspace
+    lo = np.array([box[k][0] for k in ("x", "z", "roll", "pitch")])
+    hi = np.array([box[k][1] for k in ("x", "z", "roll", "pitch")])
+    need = np.array([OFFSET[k] - lag[k] for k in ("x", "z", "roll", "pitch")])
+    mid = (lo + hi) / 2
+    for k, name in enumerate(("x", "z", "roll", "pitch")):
+        for side, face, sign in (("below", lo, 1.0), ("above", hi, -1.0)):
+            p = mid.copy()
+            p[k] = face[k] + sign * (need[k] + 1e-6)  # just enough room
+            assert approach_shortfalls(model, p[None, :], (side,)) == ()
+            p[k] = face[k] + sign * (need[k] - 1e-4)
+            (short,) = approach_shortfalls(model, p[None, :], (side,))
+            assert (short.dof, short.side) == (name, side)
+            assert short.offset == pytest.approx(need[k]) and short.room == pytest.approx(need[k] - 1e-4)

@@ -41,7 +41,7 @@ from bridge.cli.model import bounded_float
 from bridge.cli.output import console, esc, limited_text
 from bridge.cli.plan import parse_pose_arg
 from bridge.cli.service import STOP_TIMEOUT_S, _client_options, _run
-from bridge.service.maneuvers.steps import POSE_BOUNDS
+from bridge.service.maneuvers.steps import POSE_BOUNDS, SETPOINT_VELOCITY_BOUND
 from bridge.service.wire import to_json_text
 from planner.errors import HitchError, unit_hint
 from planner.model.types import CONTROLLED_POSE_UNITS
@@ -240,7 +240,7 @@ def _column_kind(name: str) -> tuple[str, str] | None:
 
 
 #: the largest |velocity| a setpoint may carry [m/s, rad/s] (the service's track/setpoint schema)
-SETPOINT_VELOCITY_MAX = 1.0
+SETPOINT_VELOCITY_MAX = SETPOINT_VELOCITY_BOUND
 
 
 def _check_value(p: Path, line: int, col: int, name: str, kind: tuple[str, str], v: float) -> None:
@@ -430,7 +430,6 @@ def _spec(args) -> _Spec:
                 f"--around {', '.join(given)}: {args.from_file} gives {', '.join(given)} itself (absolute values); "
                 "--around sets the centre of a --sine, or the value of a DOF the file does not give"
             )
-        from bridge.service.maneuvers.steps import POSE_BOUNDS  # the service's bounds of a setpoint's pose
         from planner.errors import unit_hint
 
         for k, v in args.around.items():

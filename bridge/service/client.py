@@ -219,16 +219,15 @@ def _setpoint_body(session: int, seq: int, pose: Mapping[str, float], velocity: 
 #: what an API key looks like (``goto``, ``maneuvers/record/stop``): checked before the key reaches Zenoh
 _API_KEY_SHAPE = re.compile(r"[a-z][a-z_]*(/[a-z][a-z_]*)*")
 
-#: the bounds a setpoint's pose [m, rad] and velocity [m/s, rad/s] must lie within (the service's schema;
-#: the cheap check before the service's own refusal is asked for its words)
-_SETPOINT_POSE_BOUNDS = {"x": 1.0, "z": 2.0, "roll": math.pi / 2, "pitch": math.pi / 2}
-_SETPOINT_VELOCITY_BOUND = 1.0
-
 
 def _within_setpoint_bounds(body: Mapping[str, Any]) -> bool:
+    """The setpoint's pose [m, rad] and velocity [m/s, rad/s] within the service's bounds (the cheap check
+    before the service's own refusal is asked for its words)."""
+    from bridge.service.maneuvers.steps import POSE_BOUNDS, SETPOINT_VELOCITY_BOUND
+
     pose, vel = body.get("pose") or {}, body.get("velocity") or {}
-    return all(abs(v) <= _SETPOINT_POSE_BOUNDS[k] for k, v in pose.items()) and all(
-        abs(v) <= _SETPOINT_VELOCITY_BOUND for v in vel.values()
+    return all(POSE_BOUNDS[k][0] <= v <= POSE_BOUNDS[k][1] for k, v in pose.items()) and all(
+        abs(v) <= SETPOINT_VELOCITY_BOUND for v in vel.values()
     )
 
 

@@ -36,6 +36,7 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationEr
 from pydantic.fields import FieldInfo
 
 from bridge.service.maneuvers.language import MIN_SPEED_SCALE, NAME_PATTERN, POSE_BOUNDS
+from bridge.service.maneuvers.steps import SETPOINT_VELOCITY_BOUND
 from planner.errors import HitchInputError, unit_hint, unit_hint_within
 from planner.model.limit_names import beyond_words
 from planner.model.types import CONTROLLED_POSE_NAMES, CONTROLLED_POSE_UNITS
@@ -254,10 +255,10 @@ class TrackStop(_Strict):
 class TrackVelocity(_Strict):
     """Setpoint velocity [m/s, rad/s] of some DOF (missing: 0)."""
 
-    x: float | None = Field(None, ge=-1.0, le=1.0)
-    z: float | None = Field(None, ge=-1.0, le=1.0)
-    roll: float | None = Field(None, ge=-1.0, le=1.0)
-    pitch: float | None = Field(None, ge=-1.0, le=1.0)
+    x: float | None = Field(None, ge=-SETPOINT_VELOCITY_BOUND, le=SETPOINT_VELOCITY_BOUND)
+    z: float | None = Field(None, ge=-SETPOINT_VELOCITY_BOUND, le=SETPOINT_VELOCITY_BOUND)
+    roll: float | None = Field(None, ge=-SETPOINT_VELOCITY_BOUND, le=SETPOINT_VELOCITY_BOUND)
+    pitch: float | None = Field(None, ge=-SETPOINT_VELOCITY_BOUND, le=SETPOINT_VELOCITY_BOUND)
 
     def as_dict(self) -> dict[str, float]:
         return {k: getattr(self, k) for k in CONTROLLED_POSE_NAMES if getattr(self, k) is not None}

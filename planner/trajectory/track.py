@@ -322,7 +322,7 @@ class _DemandStop:
     """The cycle's :meth:`TrackFollower._demand_extent`, computed at its first use (once per step)."""
 
     def __init__(self, follower: TrackFollower, p_t: np.ndarray, v_t: np.ndarray, a_t: np.ndarray, lim: PoseLimits):
-        self._args = (follower, p_t.copy(), v_t, a_t, lim)
+        self._args = (follower, p_t, v_t, a_t, lim)  # the step does not change them after
         self._done = False
         self._extent: tuple[np.ndarray, np.ndarray] | None = None
 
@@ -409,7 +409,8 @@ class TrackFollower:
         self.chases = 0  # DOF-cycles that chased a target running away instead of a detour (_chase)
         self.held_short = 0  # DOF-cycles braked so as not to pass where the demand would stop (_passes_demand)
         self._met = np.zeros(4, bool)  # per DOF: the last advance moved on a rendezvous (see _passes_demand)
-        # per DOF: a setpoint's velocity was beyond the limit since it last met the demand (_passes_demand)
+        # per DOF: a setpoint's velocity or acceleration was beyond the limit since it last met the demand
+        # (_passes_demand)
         self._outrun = np.zeros(4, bool)
         self._probe = StopProbe()
         self._demand_probe = StopProbe()
@@ -512,8 +513,10 @@ class TrackFollower:
             if abs(v[d]) > self._v_lim[d]:
                 v[d] = math.copysign(self._v_lim[d], v[d])
                 limited[f"v{k}"] = _VELOCITY_NAMES[d]
+                self._outrun[d] = True  # the demand runs away faster than the DOF may (see _passes_demand)
         if self._descent is not None and self.tracked[1] and v[1] < -self._descent:
             v[1], limited["vz"] = -self._descent, self.bounds.z_descent_name
+            self._outrun[1] = True
         # the demand outruns a DOF whose acceleration is beyond the limit too (its turn is sharper than the
         # follower's: chasing it overshoots as one beyond the velocity limit does; see _passes_demand)
         self._outrun |= self.tracked & (np.abs(acc) > self._a_lim * (1 + 1e-6))
@@ -532,7 +535,6 @@ class TrackFollower:
             jk = (acc - prev.acceleration) / (now - prev.t)
         jk = np.where(self.tracked, np.clip(jk, -self._j_lim, self._j_lim), 0.0)
         self._last_a_given = acceleration is not None
-        self._outrun |= np.array([f"v{k}" in limited for k in TRACK_DOFS])
         sp = TrackSetpoint(now, p_req, v_req, p, v, acc, limited, jk, a_req)
         self._sp = sp
         self._target_terms()
@@ -1097,8 +1099,8 @@ class TrackFollower:
         demand: _DemandStop | None,
         vel_mode: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Per tracked DOF outrun by the demand (a setpoint's velocity beyond its limit, clipped: ``v<dof>``
-        in its ``limited``, since the DOF last met the demand's motion on a rendezvous) and not moving on a
+        """Per tracked DOF outrun by the demand (a setpoint's velocity or acceleration beyond its limit,
+        clipped, since the DOF last met the demand's motion on a rendezvous) and not moving on a
         rendezvous this cycle (a chase, or the time-optimal approach to the target state): the shortest stop
         of the cycle's state within the pose limits (``extent``: its lowest and highest position) passes,
         upwards / downwards, the furthest the demand reaches were it to stop now as fast

@@ -26,6 +26,7 @@ __all__ = [
     "MAX_TIMEOUT_S",
     "MIN_SPEED_SCALE",
     "POSE_BOUNDS",
+    "SETPOINT_VELOCITY_BOUND",
     "NAME_PATTERN",
     "GotoStep",
     "PresetStep",
@@ -49,6 +50,8 @@ POSE_BOUNDS: Mapping[str, tuple[float, float]] = {
     "roll": (-math.pi / 2, math.pi / 2),
     "pitch": (-math.pi / 2, math.pi / 2),
 }
+#: the largest |velocity| a track setpoint may carry [m/s, rad/s] (the track/setpoint schema's bound)
+SETPOINT_VELOCITY_BOUND = 1.0
 #: names of maneuvers, presets and implements
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}$")
 

@@ -432,7 +432,12 @@ class CanLink:
                 )
                 break
         hb = self._hb_rx.status(now_s)
-        if hb.state in (HeartbeatState.TIMEOUT, HeartbeatState.SENDER_ERROR, HeartbeatState.SHUTDOWN):
+        if hb.state in (
+            HeartbeatState.TIMEOUT,
+            HeartbeatState.SENDER_ERROR,
+            HeartbeatState.SHUTDOWN,
+            HeartbeatState.SEQUENCE_ERROR,  # a repeated or jumping counter: a hung sender (ISO 11783-7)
+        ):
             out.append(("ecu_heartbeat", f"ECU heartbeat {hb.state.value}"))
         elif hb.state is HeartbeatState.WAITING and now_s - since > cfg.heartbeat_timeout_s + _EPS_S:
             out.append(("ecu_heartbeat", f"no ECU heartbeat for {now_s - since:.3f} s"))

@@ -302,7 +302,7 @@ class HitchClient:
         scoped = self.user is not None and key != "stop" and self._serves_user_keys(base, t)
         full = user_key(base, self.user, key) if scoped and self.user is not None else f"{base}/{key}"
         if isinstance(payload, Mapping):
-            data: bytes | str = json.dumps(payload)
+            data: bytes | str = json.dumps(payload, ensure_ascii=False)  # UTF-8 as it is: the size limit counts bytes
         else:
             data = b"" if payload is None else payload
         return self._query(full, key, data, t)

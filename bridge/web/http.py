@@ -163,7 +163,10 @@ async def read_request(
     if not _DIGITS.fullmatch(raw_length):
         raise HttpError(400, f"Content-Length must be a non-negative integer of digits, got {raw_length[:20]!r}")
     length = int(raw_length)
-    parts = urlsplit(target)
+    try:
+        parts = urlsplit(target)
+    except ValueError as exc:  # e.g. 'http://[::1/api/state': an unclosed IPv6 host
+        raise HttpError(400, f"malformed request target {target[:60]!r}: {exc}") from None
     if length > max_body and method == "POST" and unquote(parts.path) in any_body_paths:
         return HttpRequest(method, unquote(parts.path), parts.query, version, headers, b"", unread=length)
     if length > max_body:

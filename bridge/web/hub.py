@@ -207,7 +207,7 @@ class ClientHub:
             if not isinstance(key, str) or not API_NAME.match(key):
                 raise CommandError(f"key must be a service API name such as 'goto', got {key!r}")
             # NaN / Infinity stay tokens: the service's own parser refuses them naming the field
-            body = json.dumps(payload).encode("utf-8")
+            body = json.dumps(payload, ensure_ascii=False).encode("utf-8")  # as sent: UTF-8, not \\u escapes
         except (ValueError, TypeError, RecursionError) as exc:
             await self._reply(c, rid, False, {"error": "bad_request", "message": f"websocket command: {exc}"})
             return

@@ -501,6 +501,50 @@ def test_missing_and_error_heartbeats_stop_motion(model):
     ecu_bus.shutdown()
 
 
+def test_a_frozen_heartbeat_counter_stops_motion_and_clears_once_in_sequence_again(model):
+    """An ECU whose main loop hangs while its CAN controller keeps re-sending the last heartbeat: the
+    counter repeats every 100 ms. ISO 11783-7 calls that a communication error and docs/faults.md says
+    ``ecu_heartbeat`` covers "out of sequence"; before, only silence, 254 and 255 raised it and a motion
+    already streaming went on. Its cause is gone after 8 heartbeats in sequence."""
+    ch = f"hbfrozen-{uuid.uuid4().hex}"
+    bus, ecu_bus = (can.Bus(interface="virtual", channel=ch) for _ in range(2))
+    link = CanLink(model, bus)
+    tilt, top, left, right = (int(c) for c in SensorScaling(model.profile).to_counts(model.neutral)[1:])
+    seq = [251]
+
+    def ecu_sends(k: int, *, frozen: bool = False) -> None:
+        ecu_bus.send(encode(PositionMeasurement(tilt, top, right, left, 1), source=169))
+        ecu_bus.send(encode(RearHitchStatus(position=0.5), source=169))
+        if k % 10 == 0:  # every 100 ms
+            ecu_bus.send(encode(Heartbeat(seq[0]), source=169))
+            if not frozen:
+                seq[0] = 0 if seq[0] in (250, 251) else seq[0] + 1
+
+    link.start(0.0)
+    for k in range(1, 101):  # 1 s healthy
+        ecu_sends(k)
+        link.poll(k * 0.01)
+    assert not link.faults.any
+    link.send_reference(model.neutral, 1.0)
+    assert link.streaming
+    for k in range(101, 131):  # the counter repeats for 0.3 s while references stream
+        ecu_sends(k, frozen=True)
+        link.poll(k * 0.01)
+    assert link.faults.ecu_heartbeat and not link.streaming
+    assert any("sequence error" in r for r in link.faults.reasons), link.faults.reasons
+    assert "ecu_heartbeat" in link.fault_causes(1.3)
+    with pytest.raises(LinkFaultError, match="sequence error"):  # no fresh command while it lasts
+        link.send_reference(model.neutral, 1.3)
+    for k in range(131, 251):  # in sequence again for 1.2 s: 12 heartbeats (8 needed)
+        ecu_sends(k)
+        link.poll(k * 0.01)
+    assert not link.fault_causes(2.5)
+    link.send_reference(model.neutral, 2.5)  # the latch lifts with a fresh command once the cause is gone
+    assert link.streaming and not link.faults.any
+    bus.shutdown()
+    ecu_bus.shutdown()
+
+
 @pytest.mark.parametrize("bus_timestamps", [True, False])
 def test_a_stall_of_the_planner_alone_is_not_an_ecu_heartbeat_fault(model, bus_timestamps):
     """The ECU keeps its 100 ms heartbeat while the planner's thread stalls for 0.4 s; the frames wait in

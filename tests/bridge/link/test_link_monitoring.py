@@ -222,7 +222,9 @@ def test_fault_causes_and_acknowledge(moving):
     assert set(link.fault_causes(rig.now_s)) == {"stale_measurement", "ecu_heartbeat"}
     assert link.clear_faults(rig.now_s).any  # causes present: nothing cleared
     rig.node.apply_fault(FaultSettings())
-    rig.run_until(rig.now_s + 0.3)
+    rig.run_until(rig.now_s + 0.3)  # fresh measurements; the heartbeat's counter jumped over the cut
+    assert link.fault_causes(rig.now_s) == ("ecu_heartbeat",)
+    rig.run_until(rig.now_s + 0.6)  # 8 heartbeats in sequence again (ISO 11783-7, docs/faults.md)
     assert link.fault_causes(rig.now_s) == ()  # condition faults: causes gone with fresh data
     assert link.faults.any  # ... but still latched in the link
     left = link.clear_faults(rig.now_s)

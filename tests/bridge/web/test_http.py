@@ -182,3 +182,14 @@ def test_well_formed_requests_still_work_with_keep_alive(server):
         data += sock.recv(65536)
     sock.close()
     assert [r for _, r in _responses(data)] == [{"path": "/a", "body": "abc"}, {"path": "/b", "body": ""}]
+
+
+@pytest.mark.parametrize("target", ["http://[::1/api/state", "//[x/api/state"])
+def test_a_malformed_request_target_gets_a_400_naming_it(server, target):
+    """urlsplit raises ValueError on an unclosed IPv6 host; before, nothing caught it: the connection
+    closed without an answer and the log showed 'Unhandled exception in client_connected_cb'."""
+    sock = server.connect()
+    sock.sendall(f"GET {target} HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n".encode())
+    ((status, body),) = _responses(_read_all(sock))
+    sock.close()
+    assert status == 400 and "malformed request target" in body["message"] and target[:10] in body["message"]

@@ -525,6 +525,31 @@ def test_websocket_commands_refuse_repeated_fields_and_name_a_nan_field(service,
     assert not service.latest_state["moving"]
 
 
+def test_a_websocket_command_counts_its_payload_in_utf8_as_http_does(service, web):
+    """A script with 30 000 'é' (60 KB of UTF-8, within the 96 KiB payload limit) saves over HTTP, over
+    the WebSocket and from the Python client alike. Before, the client and the hub re-encoded the payload
+    with \\u escapes (6 bytes a character): "payload is 180048 bytes (allowed: at most 98304)", a size the
+    page never sent."""
+    script = "# " + "é" * 30_000 + "\nsteps:\n  - goto: {z: 0.05}\n"
+    body = {"name": "accent-http", "script": script}
+    status, _, data = _request(web, "POST", "/api/maneuvers/save", json.dumps(body, ensure_ascii=False).encode())
+    assert status == 200, data
+    ws = _WSClient(web)
+    try:
+        command = {"id": 7, "key": "maneuvers/save", "payload": {"name": "accent-ws", "script": script}}
+        ws.send(json.dumps(command, ensure_ascii=False).encode())  # as a browser's JSON.stringify sends it
+        reply = ws.message("reply")
+    finally:
+        ws.close()
+    assert reply["ok"], reply
+    from bridge.service.client import HitchClient
+
+    with HitchClient(list(service.config.listen), timeout_s=10.0) as c:  # the Python client over Zenoh: the same
+        c.request("maneuvers/save", {"name": "accent-zenoh", "script": script})
+    for name in ("accent-http", "accent-ws", "accent-zenoh"):
+        assert _request(web, "POST", "/api/maneuvers/delete", json.dumps({"name": name}))[0] == 200
+
+
 def test_websocket_from_another_site_is_refused(web):
     ws = _WSClient(web, origin="http://evil.example")
     try:

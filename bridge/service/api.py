@@ -288,11 +288,9 @@ class ServiceAPI:
         return reply
 
     def _jog(self, r: JogRequest) -> dict:
-        deadline, _ = self._timing(r.deadline_ms)
-        if self.motion.clock() > deadline:  # a jog that waited past its deadline is not run
-            raise MotionError("busy", f"refused: it arrived more than {r.deadline_ms} ms ago (its deadline)")
+        deadline, issued = self._timing(r.deadline_ms)  # late, or sent before the latest stop: never run
         rates = {"vx": r.vx, "vz": r.vz, "vroll": r.vroll, "vpitch": r.vpitch}
-        reply = self.motion.jog(rates, r.ttl_ms / 1000.0).to_json()
+        reply = self.motion.jog(rates, r.ttl_ms / 1000.0, deadline=deadline, issued=issued).to_json()
         if (rec := self.recorder) is not None:  # teach-in (read once: a record/stop may run meanwhile)
             rec.on_jog(r.ttl_ms / 1000.0)
         return reply

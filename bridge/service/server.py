@@ -51,7 +51,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Executor, ThreadPoolExecutor
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -530,13 +530,23 @@ class HitchService:
         *,
         received: float | None = None,
         user: str | None = None,
+        inline: Executor | None = None,
     ) -> None:
         """Answer one request in its lane (see the module docstring): ``respond(ok, json_bytes)``
         is called exactly once, from the lane's thread. ``received``: its arrival
-        (``time.monotonic()``, default now); ``user``: who sent it (None: not named; ServiceAPI.handle)."""
+        (``time.monotonic()``, default now); ``user``: who sent it (None: not named; ServiceAPI.handle);
+        ``inline``: where the O(1) keys (:data:`INLINE_KEYS`) run (default: the caller's thread, as Zenoh's
+        callback; the operator terminal gives its own threads, so its event loop never waits). Never blocks
+        otherwise: the lanes' pools take the rest."""
         t = time.monotonic() if received is None else received
         pool = self._motion_pool if key in MOTION_KEYS_LANE else None if key in INLINE_KEYS else self._pool
         if pool is None:
+            if inline is not None:
+                try:
+                    inline.submit(self._answer, respond, key, payload, t, False, user)
+                    return
+                except RuntimeError:  # that executor shut down: answer here
+                    pass
             self._answer(respond, key, payload, t, user=user)
             return
         if pool is self._pool:

@@ -30,6 +30,7 @@ if TYPE_CHECKING:
     from bridge.web.hub import ClientHub, CommandError
     from bridge.web.server import (
         BindTimeout,
+        Dispatch,
         Handler,
         WebServer,
         WebServerError,
@@ -45,7 +46,16 @@ if TYPE_CHECKING:
 #: public name -> the module that defines it
 _SOURCES: dict[str, str] = {
     **dict.fromkeys(
-        ("WebServer", "WebServerError", "WebServerStateError", "BindTimeout", "Handler", "attach_zenoh", "start_http"),
+        (
+            "WebServer",
+            "WebServerError",
+            "WebServerStateError",
+            "BindTimeout",
+            "Handler",
+            "Dispatch",
+            "attach_zenoh",
+            "start_http",
+        ),
         "bridge.web.server",
     ),
     **dict.fromkeys(("ClientHub", "CommandError"), "bridge.web.hub"),
@@ -63,6 +73,7 @@ __all__ = [
     "WebServerStateError",
     "BindTimeout",
     "Handler",
+    "Dispatch",
     "attach_zenoh",
     "start_http",
     # the WebSocket sessions (bridge.web.hub)

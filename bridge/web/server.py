@@ -7,8 +7,12 @@ One asyncio loop in its own thread serves:
   ``presets/save`` …). The body goes **unchanged** to the service's handler
   ``handle(name, body_bytes, user) -> (ok, reply)`` (:meth:`bridge.service.api.ServiceAPI.handle`,
   the function the Zenoh queryables call), so validation, precedence and access control are the
-  service's own. ``ok`` → 200 with the reply; otherwise the reply ``{"error", "message"}`` with
-  the status from :data:`~.settings.ERROR_STATUS`;
+  service's own; in the service's lanes (:meth:`bridge.service.server.HitchService.dispatch`), as the
+  queryables' requests: motion never queues behind planning or storage, the expensive ones are refused
+  ``busy`` beyond a bounded queue, and every request is stamped with its arrival (a motion request that
+  waited past its ``deadline_ms``, or was sent before a later stop, is refused, never run late).
+  ``ok`` → 200 with the reply; otherwise the reply ``{"error", "message"}`` with the status from
+  :data:`~.settings.ERROR_STATUS`;
 * ``GET /api/state`` — the latest state message; ``GET /api/info`` — user and key prefix;
 * ``GET /api/view`` — the hitch picture's numbers for the latest state (:mod:`.view`: the model's
   points for the measured and the target actuators); ``GET /api/terminal`` — what the picture
@@ -50,9 +54,9 @@ import math
 import threading
 import time
 from collections.abc import Callable, Mapping
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Executor, ThreadPoolExecutor
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from bridge.web.http import HttpError, HttpRequest, discard, json_response, read_request, response_bytes
 from bridge.web.hub import API_NAME, ClientHub
@@ -72,12 +76,45 @@ from bridge.web.view import VIEW_RATE_HZ, HitchView
 from bridge.web.websocket import WebSocket, WebSocketError, accept_key
 from planner.errors import HitchError, HitchInputError
 
-__all__ = ["WebServer", "WebServerError", "WebServerStateError", "BindTimeout", "Handler", "attach_zenoh", "start_http"]
+__all__ = [
+    "WebServer",
+    "WebServerError",
+    "WebServerStateError",
+    "BindTimeout",
+    "Handler",
+    "Dispatch",
+    "attach_zenoh",
+    "start_http",
+]
 
 log = logging.getLogger("hitch.web")
 
-#: ``handle(name, payload_bytes, user) -> (ok, reply)`` — the service API's one entry point
-Handler = Callable[[str, bytes, "str | None"], "tuple[bool, dict]"]
+
+class Handler(Protocol):
+    """``handle(name, payload_bytes, user, *, received) -> (ok, reply)``: the service API's one entry point
+    (:meth:`bridge.service.api.ServiceAPI.handle`); ``received``: ``time.monotonic()`` when the request
+    arrived (a motion request's ``deadline_ms`` counts from then, and a stop sent after it cancels it)."""
+
+    def __call__(self, key: str, payload: bytes, user: str | None, *, received: float) -> tuple[bool, dict]: ...
+
+
+class Dispatch(Protocol):
+    """``dispatch(name, payload_bytes, respond, *, received, user, inline)``: the service's lanes
+    (:meth:`bridge.service.server.HitchService.dispatch`): answers by calling ``respond(ok, json_bytes)`` once,
+    from a lane's thread (O(1) keys on ``inline``); never blocks the caller."""
+
+    def __call__(
+        self,
+        key: str,
+        payload: bytes,
+        respond: Callable[[bool, bytes], None],
+        *,
+        received: float,
+        user: str | None,
+        inline: Executor | None,
+    ) -> None: ...
+
+
 #: paths whose POST is served whatever its body (type, size): whatever is sent to stop, stops
 _ANY_BODY_PATHS = frozenset({"/api/stop"})
 _STATIC = {"/": "index.html", "/index.html": "index.html", "/app.js": "app.js", "/style.css": "style.css"}
@@ -151,6 +188,11 @@ def _login_fields(body: bytes) -> tuple[str, str]:
     return out[0], out[1]
 
 
+def _settle(answered: asyncio.Future, ok: bool, data: bytes) -> None:
+    if not answered.done():  # a page that went away cancelled it
+        answered.set_result((ok, data))
+
+
 class WebServer:
     """HTTP + WebSocket front end of one service; see the module docstring.
 
@@ -163,6 +205,10 @@ class WebServer:
         view: the hitch picture (:class:`~.view.HitchView`), or a function that builds one (called
             once, on a thread of its own, when a page or ``/api/view`` first needs it: building a
             model takes seconds); None: no picture (``/api/view`` answers 404).
+        dispatch: the service's lanes (:class:`Dispatch`); every request but ``stop`` then goes through
+            them, as the Zenoh queryables' do: motion on its own lane, the expensive ones on a bounded queue
+            (``busy`` at once beyond it), each stamped with its arrival. None: every request on this
+            server's own worker threads (stamped likewise).
     """
 
     def __init__(
@@ -173,10 +219,12 @@ class WebServer:
         info: dict | None = None,
         accounts: Accounts | None = None,
         view: HitchView | Callable[[], HitchView] | None = None,
+        dispatch: Dispatch | None = None,
     ):
         if not callable(handler):
             raise WebServerError("handler must be callable as handle(name, payload_bytes, user)")
         self.handler = handler
+        self._dispatch = dispatch
         self.settings = settings or WebSettings()
         self.accounts = accounts
         self.sessions = SessionStore(self.settings.session_ttl_s) if accounts is not None else None
@@ -584,12 +632,29 @@ class WebServer:
         return json_response(status, json_safe(reply), keep_alive=ka)
 
     async def _call(self, name: str, body: bytes, user: str | None) -> tuple[bool, dict]:
-        """The service handler on a worker thread (it may plan for tens of milliseconds); ``stop``
-        on its own thread, so it never waits behind other requests."""
+        """One request, stamped with its arrival now (its ``deadline_ms`` counts from then, and a stop sent
+        after it cancels it: time spent queueing is not forgiven). ``stop`` on its own thread, so it never
+        waits behind other requests; the rest through the service's lanes (``dispatch``) or, without them,
+        on this server's worker threads (the handler may plan for tens of milliseconds)."""
+        received = time.monotonic()
         loop = asyncio.get_running_loop()
-        pool = self._stop_pool if name == "stop" else self._pool
         try:
-            ok, reply = await loop.run_in_executor(pool, self.handler, name, body, user)
+            if self._dispatch is not None and name != "stop":
+                answered: asyncio.Future[tuple[bool, bytes]] = loop.create_future()
+
+                def respond(ok: bool, data: bytes) -> None:
+                    try:
+                        loop.call_soon_threadsafe(_settle, answered, ok, data)
+                    except RuntimeError:  # the loop closed meanwhile: nobody waits for the answer
+                        pass
+
+                self._dispatch(name, body, respond, received=received, user=user, inline=self._pool)
+                ok, data = await answered
+                reply = json.loads(data)
+            else:
+                pool = self._stop_pool if name == "stop" else self._pool
+                call = functools.partial(self.handler, name, body, user, received=received)
+                ok, reply = await loop.run_in_executor(pool, call)
         except Exception as exc:  # noqa: BLE001 — the handler promises not to raise; never trust it blindly
             log.exception("handler raised for %s", name)
             return False, {"error": "internal", "message": f"{name}: internal error {type(exc).__name__}"}
@@ -715,12 +780,14 @@ def start_http(
             "operator terminal's commands are not checked against the access-control list"
         )
     prefix = getattr(config, "prefix", None)
+    dispatch = getattr(service, "dispatch", None) if service is not api else None
     server = WebServer(
         handler,
         WebSettings(host=host, port=port, user=user, extra_hosts=tuple(extra_hosts)),
         info={"prefix": prefix},
         accounts=accounts,
         view=_view_factory(config),
+        dispatch=dispatch if callable(dispatch) else None,
     ).start()
 
     def on_login(what: str, who: str | None, ok: bool, reply: dict) -> None:

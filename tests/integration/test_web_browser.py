@@ -845,7 +845,7 @@ def test_the_longest_fault_text_never_pushes_stop_off_screen(service, page, shot
         f"{n}: " + "the cylinder ECU reported a condition that needs the operator's attention " * 2 for n in names
     ]
     state = {**base, "ecu": {**base["ecu"], "faults": names, "ack_required": names, "fault_reasons": reasons}}
-    web = WebServer(lambda name, body, user: _forward(service, name, body), WebSettings(port=0)).start()
+    web = WebServer(lambda name, body, user, **_: _forward(service, name, body), WebSettings(port=0)).start()
     done = threading.Event()
 
     def feed() -> None:

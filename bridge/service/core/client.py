@@ -296,8 +296,10 @@ class MotionProxy:
         )
         return JsonReply(data)
 
-    def jog(self, rates: Mapping[str, float], ttl_s: float) -> JsonReply:
-        return JsonReply(self.core.call("jog", dict(rates), float(ttl_s)))
+    def jog(
+        self, rates: Mapping[str, float], ttl_s: float, *, deadline: float | None = None, issued: float | None = None
+    ) -> JsonReply:
+        return JsonReply(self.core.call("jog", dict(rates), float(ttl_s), deadline=deadline, issued=issued))
 
     def stop(self) -> int | None:
         mid = self.core.call("stop")

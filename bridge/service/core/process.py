@@ -380,7 +380,7 @@ class ControlCore:
 
         return {
             "stop": m.stop,
-            "jog": lambda rates, ttl_s: m.jog(rates, ttl_s).to_json(),
+            "jog": lambda *a, **k: m.jog(*a, **k).to_json(),
             "goto": lambda *a, **k: m.goto(*a, **k).to_json(),
             "run_maneuver": m.run_maneuver,
             "set_mode": m.set_mode,

@@ -387,12 +387,22 @@ class MotionController:
         """
         return self._start_plan(goal, speed_scale, kind, label, runner=None, deadline=deadline, issued=issued)
 
-    def jog(self, rates: Mapping[str, float], ttl_s: float) -> JogAccepted:
-        """Start or refresh a jog (pose rates, m/s and rad/s) for ``ttl_s`` seconds."""
+    def jog(
+        self,
+        rates: Mapping[str, float],
+        ttl_s: float,
+        *,
+        deadline: float | None = None,
+        issued: float | None = None,
+    ) -> JogAccepted:
+        """Start or refresh a jog (pose rates, m/s and rad/s) for ``ttl_s`` seconds. ``deadline`` and
+        ``issued`` as for :meth:`goto`: a jog that waited past its deadline, or that arrived before the
+        latest stop, is refused (``busy``), never run later."""
         v = np.array([float(rates.get(k, 0.0)) for k in ("vx", "vz", "vroll", "vpitch")])
         with self._lock:
             self._check_allowed("jog")
             self._check_no_fault("jog")
+            self._check_late("jog", self.clock(), deadline, issued)
             capped: dict[str, str] = {}  # what the mode caps, said in the reply like any other limit
             if self._mode == "attach":  # slow rates, same responsiveness (acceleration and jerk not scaled)
                 cap = ATTACH_SPEED_SCALE * self.planner.any_direction.velocity

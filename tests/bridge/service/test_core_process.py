@@ -79,6 +79,7 @@ def test_late_motion_requests_are_refused_by_the_core_not_run_later(service):
         ("maneuvers/skip", {}),
         ("work/start", {}),
         ("work/resume", {}),
+        ("jog", {"vz": 0.02, "ttl_ms": 3000}),
     ):
         ok, reply = svc.api.handle(key, json.dumps(body), received=late)
         assert not ok and reply["error"] == "busy" and "deadline" in reply["message"], (key, reply)

@@ -103,7 +103,11 @@ def test_a_stop_cancels_every_motion_request_that_arrived_before_it(r):
     r.store.save_maneuver("m", "steps:\n  - goto: {z: 0.2}\n")
     ok, _ = r.call("stop", {})  # ... when the operator stops (the hitch is at rest)
     assert ok
-    for key, body in (("goto", {"goal": {"z": 0.2}}), ("maneuvers/run", {"name": "m"})):
+    for key, body in (
+        ("goto", {"goal": {"z": 0.2}}),
+        ("maneuvers/run", {"name": "m"}),
+        ("jog", {"vz": 0.02, "ttl_ms": 3000}),  # a jog checked its deadline only: it ran after the stop
+    ):
         ok, reply = r.call(key, body, received=queued)
         assert not ok and reply["error"] == "busy" and "stop" in reply["message"], reply
     r.run(0.5)

@@ -308,7 +308,7 @@ def _feed(web, model, stop: threading.Event, states: dict, period_s: float = 0.0
 
 
 def test_view_stream_is_rate_bounded_and_only_while_a_page_is_connected(view, model):
-    web = WebServer(lambda n, b, u: (True, {}), WebSettings(port=0), view=view).start()
+    web = WebServer(lambda n, b, u, **_: (True, {}), WebSettings(port=0), view=view).start()
     stop, states = threading.Event(), {}
     feeder = _feed(web, model, stop, states)
     try:
@@ -354,7 +354,7 @@ def test_api_view_is_built_lazily_and_answers_the_latest_state(view, model):
         assert release.wait(10)
         return view
 
-    web = WebServer(lambda n, b, u: (True, {}), WebSettings(port=0), view=factory).start()
+    web = WebServer(lambda n, b, u, **_: (True, {}), WebSettings(port=0), view=factory).start()
     try:
         assert calls == []  # nothing built before it is needed
         status, reply = _get(web, "/api/view")
@@ -380,7 +380,7 @@ def test_api_view_is_built_lazily_and_answers_the_latest_state(view, model):
 
 
 def test_without_a_model_there_is_no_picture():
-    web = WebServer(lambda n, b, u: (True, {}), WebSettings(port=0)).start()
+    web = WebServer(lambda n, b, u, **_: (True, {}), WebSettings(port=0)).start()
     try:
         assert _get(web, "/api/view")[0] == 404
     finally:

@@ -525,6 +525,60 @@ def test_websocket_commands_refuse_repeated_fields_and_name_a_nan_field(service,
     assert not service.latest_state["moving"]
 
 
+def test_a_goto_sent_behind_slow_requests_never_moves_the_hitch_after_a_later_stop(service, web):
+    """A reviewer's find. Another program holds the store (a backup, the CLI, a slow disk), so four preset
+    saves from the terminal wait; a goto follows, then the operator's stop, answered at once. Before, the
+    terminal ran every request on its own four threads, stamped when a thread took it: the goto waited
+    behind the saves and started seconds after the stop (and after its 1 s deadline). Now requests take
+    the service's lanes, stamped on arrival: the goto runs at once on the motion lane (the stop then
+    brakes it) or is refused; nothing starts after the stop."""
+    import sqlite3
+    import threading
+
+    assert wait_until(lambda: not service.latest_state["moving"], 10.0)
+    replies: dict[str, tuple[int, dict]] = {}
+
+    def post(tag: str, key: str, body: dict) -> None:
+        status, _, data = _request(web, "POST", f"/api/{key}", json.dumps(body))
+        replies[tag] = (status, json.loads(data))
+
+    events: list[dict] = []
+    service.add_listener("event", events.append)
+    holder = sqlite3.connect(service.config.database_path, timeout=1, isolation_level=None)
+    holder.execute("BEGIN EXCLUSIVE")
+    try:
+        saves = [
+            threading.Thread(target=post, args=(f"save{i}", "presets/save", {"name": f"held{i}", "pose": {"z": 0.3}}))
+            for i in range(4)
+        ]
+        for t in saves:
+            t.start()
+        time.sleep(0.3)
+        z0 = service.latest_state["pose"]["z"]
+        goto = threading.Thread(target=post, args=("goto", "goto", {"goal": {"z": round(z0 + 0.1, 3)}}))
+        goto.start()
+        time.sleep(0.3)
+        status, _, data = _request(web, "POST", "/api/stop", b"{}")
+        assert status == 200, data
+        n_stop = len(events)
+        time.sleep(2.0)
+    finally:
+        holder.execute("COMMIT")
+        holder.close()
+    for t in [*saves, goto]:
+        t.join(15)
+    assert wait_until(lambda: not service.latest_state["moving"], 5.0)
+    time.sleep(0.5)
+    started_after_stop = [e for e in events[n_stop:] if e.get("event") == "motion_started"]
+    service.remove_listener("event", events.append)
+    assert not started_after_stop, started_after_stop
+    assert not service.latest_state["moving"], service.latest_state["motion"]
+    status, reply = replies["goto"]
+    assert status == 200 or reply["error"] == "busy", reply
+    for i in range(4):
+        _request(web, "POST", "/api/presets/delete", json.dumps({"name": f"held{i}"}))
+
+
 def test_a_websocket_command_counts_its_payload_in_utf8_as_http_does(service, web):
     """A script with 30 000 'é' (60 KB of UTF-8, within the 96 KiB payload limit) saves over HTTP, over
     the WebSocket and from the Python client alike. Before, the client and the hub re-encoded the payload
@@ -1022,7 +1076,7 @@ def test_stop_never_waits_behind_slow_requests():
 
     release, stopped = threading.Event(), threading.Event()
 
-    def handler(name, body, user):
+    def handler(name, body, user, *, received):
         if name == "stop":
             stopped.set()
             return True, {"stopped": True}

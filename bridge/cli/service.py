@@ -115,6 +115,7 @@ def _cmd_serve(args) -> int:
         state_rate=args.state_rate,
         data_dir=args.data_dir,
         http=args.http,
+        http_hosts=tuple(args.http_host) if args.http_host else None,
         http_user=args.http_user,
         feedforward=False if args.no_feedforward else None,
         planning_processes=args.planning_processes,
@@ -222,6 +223,14 @@ def _add_serve(sub) -> None:
     )
     p.add_argument(
         "--http", default=None, metavar="HOST:PORT", help="also serve the operator terminal (off by default)"
+    )
+    p.add_argument(
+        "--http-host",
+        action="append",
+        default=None,
+        metavar="HOST:PORT",
+        help="a further name the terminal is reached by, e.g. cab-display.local:8080 (repeatable; its address "
+        "and loopback always work; other names are refused: DNS-rebinding protection)",
     )
     p.add_argument(
         "--http-user",

@@ -139,6 +139,9 @@ class ServiceConfig(BaseModel):
     feedforward: bool = Field(True, strict=True)
     data_dir: Path = Field(default_factory=default_data_dir)
     http: str | None = None
+    #: further HOST:PORT names the terminal is reached by (its address and loopback always are; a name is refused
+    #: otherwise: DNS-rebinding protection, docs/operator_terminal.md), e.g. ("cab-display.local:8080",)
+    http_hosts: tuple[str, ...] = ()
     #: the user the web terminal's commands run as when access control is on (must be in the ACL)
     http_user: str | None = None
     workers: int = Field(4, ge=1, le=32)
@@ -196,6 +199,14 @@ class ServiceConfig(BaseModel):
     def _http(cls, v: str | None) -> str | None:
         if v is not None and not re.match(r"^[^\s:]+:\d{1,5}$", v):
             raise ServiceConfigError(f"http {v!r} must be HOST:PORT, e.g. 127.0.0.1:8080")
+        return v
+
+    @field_validator("http_hosts")
+    @classmethod
+    def _http_hosts(cls, v: tuple[str, ...]) -> tuple[str, ...]:
+        for h in v:
+            if not re.match(r"^(\[[0-9A-Fa-f:.]+\]|[^\s:\[\]]+):\d{1,5}$", h):
+                raise ServiceConfigError(f"http_hosts {h!r} must be HOST:PORT, e.g. cab-display.local:8080")
         return v
 
     @model_validator(mode="after")
@@ -256,6 +267,7 @@ _TOML_SECTIONS = {
     "service": {
         "data_dir": "data_dir",
         "http": "http",
+        "http_hosts": "http_hosts",
         "http_user": "http_user",
         "workers": "workers",
         "planning_processes": "planning_processes",

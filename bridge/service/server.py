@@ -472,7 +472,9 @@ class HitchService:
             raise ServiceStartError(f"--http {addr}: the operator terminal is not available ({exc})") from None
         try:
             users = read_users(self.config.security) if self.config.security is not None else None
-            self.http = start_http(self, addr, user=self.config.http_user, users=users)
+            self.http = start_http(
+                self, addr, user=self.config.http_user, users=users, extra_hosts=self.config.http_hosts
+            )
         except OSError as exc:  # the port is taken, the address is not local …
             raise ServiceStartError(f"--http {addr}: cannot listen ({exc})") from None
 

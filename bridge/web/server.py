@@ -485,8 +485,9 @@ class WebServer:
             return _error(
                 421,
                 "forbidden",
-                f"Host {req.header('host')!r} is not this server (DNS rebinding "
-                "protection); add it to the terminal's extra hosts",
+                f"Host {req.header('host')!r} is not this server (DNS rebinding protection): open the "
+                "terminal by its IP address, or name this HOST:PORT in the service's http_hosts "
+                "(--http-host) if it is reached by that name",
                 req.keep_alive,
             )
         if not origin_allowed(req.header("origin"), req.header("host")):

@@ -135,15 +135,27 @@ def host_allowed(host_header: str, bound: tuple[str, int], settings: WebSettings
     """Is ``Host: host_header`` a name of this server (DNS-rebinding protection)?
 
     Loopback names with the bound port are always accepted, plus the bound address and
-    ``settings.extra_hosts``. A server configured to listen on every interface (``0.0.0.0``,
-    ``::``) accepts any name: the operator chose to expose it.
+    ``settings.extra_hosts``. A server listening on every interface (``0.0.0.0``, ``::``) also accepts
+    any IP address with its port (it cannot know its addresses), but a *name* only from
+    ``extra_hosts``: a page that re-points its own domain name to this server's address (DNS
+    rebinding) sends its own name as ``Host`` (and as ``Origin``), and an IP literal is never one.
     """
     host = host_header.strip().lower()
     addr, port = bound
-    if addr in ("0.0.0.0", "::"):
-        return bool(host)
     names = {f"{h}:{port}" for h in ("127.0.0.1", "localhost", "[::1]", addr.lower(), f"[{addr.lower()}]")}
-    return host in names or host in settings.extra_hosts
+    if host in names or host in settings.extra_hosts:
+        return True
+    if addr not in ("0.0.0.0", "::"):
+        return False
+    name, sep, given_port = host.rpartition(":")
+    if not sep or given_port != str(port):
+        return False
+    literal = name[1:-1] if name.startswith("[") and name.endswith("]") else name
+    try:
+        ipaddress.ip_address(literal)
+    except ValueError:
+        return False
+    return True
 
 
 def origin_allowed(origin_header: str, host_header: str) -> bool:

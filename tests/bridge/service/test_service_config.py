@@ -56,6 +56,8 @@ def test_toml_then_flags(tmp_path):
         ({"mode": "client"}, "connect: a client needs"),
         ({"mode": "client", "connect": ["tcp/127.0.0.1:1"], "listen": ["tcp/127.0.0.1:2"]}, "a client does not listen"),
         ({"http": "8080"}, "HOST:PORT"),
+        ({"http_hosts": ["cab.local"]}, "http_hosts 'cab.local' must be HOST:PORT"),
+        ({"http_hosts": ["cab local:80"]}, "http_hosts 'cab local:80'"),
         ({"can_interface": "pcan"}, "can_interface"),
         ({"feedforward": "yes"}, "feedforward"),
         ({"simulate_ecu": 1}, "simulate_ecu"),

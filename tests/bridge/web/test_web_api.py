@@ -138,7 +138,23 @@ def test_loopback_by_default_and_host_checks():
     for bad in ("evil.example:8080", "127.0.0.1:8081", "", "127.0.0.1"):  # DNS rebinding, wrong port, none
         assert not host_allowed(bad, bound, s), bad
     assert host_allowed("cab.local:8080", bound, WebSettings(extra_hosts=("cab.local:8080",)))
-    assert host_allowed("anything:1", ("0.0.0.0", 1), WebSettings(host="0.0.0.0"))
+    everywhere = WebSettings(host="0.0.0.0")
+    for ok in ("192.168.1.20:8080", "10.0.0.5:8080", "[fe80::1]:8080", "127.0.0.1:8080", "localhost:8080"):
+        assert host_allowed(ok, ("0.0.0.0", 8080), everywhere), ok
+    # a name only when configured: DNS rebinding sends the attacker's own name (a reviewer's find: the
+    # wildcard bind accepted any Host, and the Origin check then accepted http://<that Host>)
+    for bad in ("evil.example:8080", "cab.local:8080", "192.168.1.20:8081", "192.168.1.20", "", "[fe80::1"):
+        assert not host_allowed(bad, ("0.0.0.0", 8080), everywhere), bad
+    assert host_allowed("cab.local:8080", ("::", 8080), WebSettings(host="::", extra_hosts=("cab.local:8080",)))
+
+
+def test_the_service_config_names_further_hosts_of_the_terminal(web):
+    """``http_hosts`` (``--http-host``) reaches the terminal: a name configured is served, another refused."""
+    port = web.address[1]
+    status, _, data = _request(web, "GET", "/api/info", headers={"Host": f"cab-display.local:{port}"})
+    assert status == 200, data
+    status, _, data = _request(web, "GET", "/api/info", headers={"Host": f"evil.example:{port}"})
+    assert status == 421 and b"http_hosts" in data, data
 
 
 def test_origin_check_is_same_origin_only():
@@ -174,10 +190,12 @@ def service(tmp_path_factory):
     from bridge.service.config import load_service_config
     from bridge.service.server import HitchService
 
+    http_port = free_port()
     cfg = load_service_config(
         data_dir=tmp_path_factory.mktemp("web-data"),
         listen=[f"tcp/127.0.0.1:{free_port()}"],
-        http="127.0.0.1:0",
+        http=f"127.0.0.1:{http_port}",
+        http_hosts=[f"cab-display.local:{http_port}"],
         can_channel=f"web-api-{os.getpid()}",
     )
     svc = HitchService(cfg).start()

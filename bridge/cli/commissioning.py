@@ -248,6 +248,13 @@ def _calibrate_on_bus(args, cal_model: HitchModel, nominal, implement, actuators
                     f"{args.can_channel or '(default channel)'} within {FIRST_MEASUREMENT_TIMEOUT_S:g} s "
                     f"(faults: {', '.join(link.faults.reasons) or 'none'}): is it powered and on this bus?"
                 )
+        if "lift" in actuators:  # said before anything moves: the ECU's side of the lift reading
+            lift = cal_model.profile.actuator("lift")
+            log(
+                f"the lift is read from the rear hitch position (a fraction of the ECU's lift travel): the ECU must "
+                f"be configured with the calibration link's lift travel, counts {lift.counts_min} … "
+                f"{lift.counts_max} (hitch ecu-sim --sensor-calibration)"
+            )
         ecu = link.peer_name(link.config.ecu_address)
         return SensorCalibration(
             link,

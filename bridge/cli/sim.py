@@ -349,8 +349,20 @@ def _cmd_ecu_sim(args) -> int:
         raise SimError(f"--status-every must lie in [0.05, 3600] s, got {args.status_every}")
     nominal = load_profile(args.profile)
     profile = nominal if args.sim_truth is None else load_machine_truth(args.sim_truth).profile
+    configured = nominal
+    if args.sensor_calibration:  # the lift travel hitch calibrate sensors' link reads the hitch position on
+        from bridge.link.sensor_calibration import calibration_profile
+
+        configured = calibration_profile(nominal)
+        lift = configured.actuator("lift")
+        console(stderr=True).print(
+            f"ecu-sim: configured for hitch calibrate sensors: lift travel counts {lift.counts_min} … "
+            f"{lift.counts_max} (the calibration link's; nominal {nominal.actuator('lift').counts_min} … "
+            f"{nominal.actuator('lift').counts_max})",
+            highlight=False,
+        )
     ecu = CylinderECU(
-        profile, rng=args.seed, noise_counts=args.noise_counts, gain_error=args.gain_error, calibration=nominal
+        profile, rng=args.seed, noise_counts=args.noise_counts, gain_error=args.gain_error, calibration=configured
     )
     bus = open_bus(args.interface, args.channel)
     node = EcuCanNode(ecu, bus)
@@ -798,6 +810,13 @@ def add_commands(sub) -> None:
     e.add_argument("--status-every", type=float, default=1.0, help="status line period [s]")
     e.add_argument("--profile", default="thesis-t132", help="built-in profile name or path to a .toml")
     e.add_argument("--json", action="store_true", help="print the final summary as JSON")
+    e.add_argument(
+        "--sensor-calibration",
+        action="store_true",
+        help="configure the ECU for hitch calibrate sensors: the rear hitch position (the lift, a fraction of "
+        "the travel) on the calibration link's lift travel, the nominal one widened by the reach (as the "
+        "twin of calibrate sensors without a bus is); without it the lift cannot be calibrated over the bus",
+    )
     _add_plant_options(e)
     _add_truth_option(e)
     e.set_defaults(handler=_cmd_ecu_sim)

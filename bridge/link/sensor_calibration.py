@@ -528,7 +528,23 @@ class SensorCalibration:
                     return True
                 if relay:
                     return False
-        raise SensorCalibrationError(f"sensor calibration: {what} not reached within {s.max_end_s:g} s")
+        apart = [
+            f"{name} reads {int(r)} counts, reference {int(q)}"
+            for name, r, q in zip(ACTUATOR_NAMES, last, ref, strict=True)
+            if abs(r - q) > 1
+        ]
+        hint = ""
+        if any(a.startswith("lift ") for a in apart):
+            lift = self.model.profile.actuator("lift")
+            hint = (
+                "; the lift's reading is the rear hitch position, a fraction of the travel the ECU is configured "
+                f"with: for this calibration that must be the calibration link's lift travel, counts "
+                f"{lift.counts_min} … {lift.counts_max} (hitch ecu-sim --sensor-calibration), not the nominal one"
+            )
+        raise SensorCalibrationError(
+            f"sensor calibration: {what} not reached within {s.max_end_s:g} s ({'; '.join(apart) or 'still moving'})"
+            + hint
+        )
 
     def _find_end(self, i: int, direction: int, hold_counts: np.ndarray) -> EndReading:
         s, name = self.settings, ACTUATOR_NAMES[i]

@@ -290,3 +290,26 @@ def test_detached_keeps_the_ground_clearance_and_the_keep_outs():
     boxed = profile_from_dict(data)
     exc, _, _ = calibrate(boxed, truth_of(boxed, 1), ("top",), detached=True)
     assert isinstance(exc, SensorCalibrationError) and "top refused: keep_out:at_the_mount" in str(exc)
+
+
+def test_an_ecu_configured_with_the_nominal_lift_travel_is_named_with_the_readings_and_the_travel_needed():
+    """The lift is read from the rear hitch position, a fraction of the ECU's configured lift travel. An ECU
+    on the nominal travel (as ``hitch ecu-sim`` was, with no way to change it) never lets the lift reach its
+    first approach as the link reads it. Before, the error named no reading: "lift low: the approach to 39
+    counts not reached within 120 s"."""
+    from bridge.link.sensor_calibration import SensorCalibrationSettings
+
+    nominal = load_profile("thesis-t132")
+    cal = calibration_profile(nominal, detached=True)
+    with SimRig(HitchModel(cal), FAST) as rig:
+        lift = nominal.actuator("lift")
+        rig.ecu._lift_calibration = (float(lift.counts_min), float(lift.counts_max))  # configured as nominal
+        rig.start()
+        rig.run_until(0.5)
+        run = SensorCalibration(rig.link, rig, nominal, detached=True, settings=SensorCalibrationSettings(max_end_s=5))
+        with pytest.raises(SensorCalibrationError) as exc:
+            run.run(("lift",))
+    text = str(exc.value)
+    assert "not reached within 5 s (lift reads" in text and "reference 39" in text, text
+    lo, hi = cal.actuator("lift").counts_min, cal.actuator("lift").counts_max
+    assert f"lift travel, counts {lo} … {hi} (hitch ecu-sim --sensor-calibration)" in text, text

@@ -22,6 +22,7 @@ import numpy as np
 from bridge.cli.commissioning import add_calibrate_sensors
 from bridge.cli.errors import CLIError
 from bridge.cli.model import add_model_options, bounded_float, refuse_overwriting_profile, whole_number
+from bridge.cli.output import output_path
 from bridge.link.sensor_calibration import SENSOR_PROVENANCE_MARKER
 from bridge.service.wire import to_json_text
 from bridge.sim.truth import noise_kind
@@ -411,7 +412,7 @@ def add_commands(sub) -> None:
     g = csub.add_parser("geometry", help="calibrate the geometry from a measurement file, write a profile")
     add_model_options(g)
     g.add_argument("--measurements", required=True, help="measurement CSV (see docs/commissioning.md)")
-    g.add_argument("--out", required=True, help="calibrated profile to write (.toml)")
+    g.add_argument("--out", required=True, type=output_path, help="calibrated profile to write (.toml)")
     g.add_argument("--name", default=None, help="name of the calibrated profile (default <profile>-calibrated)")
     g.add_argument(
         "--sigma-position-mm",
@@ -437,7 +438,7 @@ def add_commands(sub) -> None:
     pp = csub.add_parser("plan-poses", help="choose the poses to measure (D-optimal)")
     add_model_options(pp)
     _add_design_options(pp)
-    pp.add_argument("--out", default=None, help="also write a measurement template CSV")
+    pp.add_argument("--out", default=None, type=output_path, help="also write a measurement template CSV")
     pp.set_defaults(handler=_cmd_plan, on_interrupt=lambda _a: "nothing was written")
 
     m = csub.add_parser("measure-twin", help="measure the planned poses on the twin's true machine (CSV)")
@@ -451,7 +452,7 @@ def add_commands(sub) -> None:
         choices=("tape", "station", "none"),
         help="instrument noise: tape ±10 mm, station (or total-station) 1 mm / 1 mrad, none (default station)",
     )
-    m.add_argument("--out", required=True, help="measurement CSV to write")
+    m.add_argument("--out", required=True, type=output_path, help="measurement CSV to write")
     m.add_argument(
         "--plan",
         default=None,

@@ -23,6 +23,7 @@ from rich.console import Console
 
 from bridge.cli.errors import CLIError
 from bridge.cli.model import add_model_options, model_from_args, refuse_overwriting_profile, whole_number
+from bridge.cli.output import output_path
 from bridge.link.realtime import INTERFACES
 from bridge.link.sensor_calibration import (
     SensorCalibration,
@@ -297,9 +298,17 @@ def add_calibrate_sensors(csub) -> None:
     s = csub.add_parser(
         "sensors", help="sensor calibration over the link: each cylinder to both end stops, fit the AD map"
     )
-    s.add_argument("--out", required=True, metavar="FILE", help="write the calibrated profile (TOML) here")
+    s.add_argument(
+        "--out", required=True, metavar="FILE", type=output_path, help="write the calibrated profile (TOML) here"
+    )
     s.add_argument("--sim-truth", default=None, metavar="FILE", help="the twin's true machine (hitch sim perturb)")
-    s.add_argument("--progress", default=None, metavar="FILE", help="progress file (JSON) to resume from / record to")
+    s.add_argument(
+        "--progress",
+        default=None,
+        metavar="FILE",
+        type=output_path,
+        help="progress file (JSON) to resume from / record to",
+    )
     s.add_argument(
         "--actuators", default=None, help=f"comma-separated subset of {','.join(ACTUATOR_NAMES)} (default all)"
     )

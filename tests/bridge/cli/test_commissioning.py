@@ -149,3 +149,24 @@ def test_an_interrupted_commissioning_command_says_what_it_left(monkeypatch, cap
     monkeypatch.setattr(calibrate_cli, "_cmd_geometry", interrupted)
     assert main(["calibrate", "geometry", "--measurements", "m.csv", "--out", str(tmp_path / "c.toml")]) == 130
     assert capsys.readouterr().err.strip() == "hitch: interrupted: nothing was written"
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["calibrate", "sensors", "--detached", "--yes", "--actuators", "top", "--out", "{missing}/x.toml"],
+        ["calibrate", "sensors", "--actuators", "top", "--progress", "{missing}/p.json", "--out", "{ok}/x.toml"],
+        ["calibrate", "measure-twin", "--sim-truth", "{truth}", "--out", "{missing}/m.csv"],
+        ["calibrate", "plan-poses", "--n", "4", "--out", "{missing}/plan.csv"],
+        ["calibrate", "geometry", "--measurements", "{ok}/m.csv", "--out", "{missing}/g.toml"],
+    ],
+)
+def test_an_output_in_a_missing_folder_is_refused_before_anything_moves(args, truth_file, tmp_path, capsys):
+    """A commissioning trial: calibrate sensors crept to all ten end stops (minutes on a tractor), and
+    measure-twin drove 16 s of gotos, before finding that --out's folder did not exist; the work was lost."""
+    missing = tmp_path / "nodir"
+    filled = [a.format(missing=missing, ok=tmp_path, truth=truth_file) for a in args]
+    assert main(filled) == 2
+    err = capsys.readouterr().err
+    assert f"the folder {str(missing)!r} does not exist" in err, err
+    assert not missing.exists() and not (tmp_path / "x.toml").exists()

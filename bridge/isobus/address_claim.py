@@ -203,6 +203,13 @@ class AddressClaimer:
         """Other control functions seen claiming, by address (a copy)."""
         return dict(self._peers)
 
+    @staticmethod
+    def who_is_there() -> can.Message:
+        """A global Request for Address Claimed from the null address (J1939-81: a node without an address may
+        send it): every node on the bus answers with its claim, so :attr:`peers` learns also the nodes that
+        claimed before we started (an ECU powered up first; its NAME is the machine's identity)."""
+        return encode(RequestPgn(PGN_ADDRESS_CLAIMED), source=NULL_ADDRESS, destination=GLOBAL_ADDRESS)
+
     def start(self, now_s: float) -> list[can.Message]:
         """Send our first claim for the preferred address."""
         self._peers.clear()

@@ -216,12 +216,13 @@ class CanLink:
 
     # -- commands ----------------------------------------------------------------------
     def start(self, now_s: float) -> None:
-        """Claim our address; heartbeat and streaming are possible once it is claimed."""
+        """Ask who is on the bus (their claims name the ECU: :meth:`peer_name`) and claim our address; heartbeat
+        and streaming are possible once it is claimed."""
         with self._lock:
             self._operating_s = None
             self._streaming = False
             self._last_poll_s = now_s
-            self._send(self._claimer.start(now_s))
+            self._send([self._claimer.who_is_there(), *self._claimer.start(now_s)])
 
     def stop(self, now_s: float) -> None:
         """Stop streaming and say goodbye (heartbeat 255). The bus stays open."""

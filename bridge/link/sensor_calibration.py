@@ -466,10 +466,16 @@ class SensorCalibration:
     def _check_machine(self, machine: str | None) -> None:
         """A loaded progress file's ends are this machine's (or refused), and the operator is told what is kept."""
         recorded, kept = self.progress.get("machine"), self.progress["actuators"]
-        if machine is not None and recorded is not None and recorded != machine and kept:
+        if kept and recorded != machine:  # also when either is unknown: the ends may be another machine's
+            this = (
+                f"not on {machine}"
+                if machine
+                else "and this machine is not named (the ECU did not answer with its ISO 11783 NAME)"
+            )
             raise SensorCalibrationError(
-                f"progress file {self.progress_path} was recorded on {recorded}, not on {machine}: its end readings "
-                "are another machine's (delete the file or give another --progress to start afresh)"
+                f"progress file {self.progress_path} was recorded on {recorded or 'a machine not named'}, {this}: "
+                "its end readings may be another machine's (delete the file or give another --progress to start "
+                "afresh)"
             )
         if kept:
             ends = ", ".join(f"{a} {e}" for a, rec in kept.items() for e in ("low", "high") if e in rec)

@@ -184,6 +184,10 @@ def test_a_progress_file_of_another_machine_is_refused_and_a_resume_says_what_it
     )
     assert isinstance(other, SensorCalibrationError)
     assert "was recorded on twin A, not on twin B" in str(other) and "another --progress" in str(other)
+    # a machine that cannot be named (its ECU's NAME unheard) cannot be told from twin A: refused, not resumed
+    unnamed, _, _ = calibrate(free_top_link, second_machine, ("top",), progress=progress)
+    assert isinstance(unnamed, SensorCalibrationError), unnamed
+    assert "recorded on twin A, and this machine is not named" in str(unnamed)
     again, _, _ = calibrate(free_top_link, first_machine, ("top",), progress=progress, machine="twin A", log=log.append)
     assert again["top"] == done["top"]
     assert log[0] == f"resuming from {progress} (recorded {rec['saved']} on twin A): keeping top low, top high"

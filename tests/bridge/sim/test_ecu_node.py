@@ -366,3 +366,22 @@ def test_each_periodic_frame_carries_the_ecus_state_of_its_send_time(buses):
         checked += 1
         distinct.add((c, state))
     assert checked == 270 and len(distinct) > 20  # the counts and the state byte did change meanwhile
+
+
+def test_a_link_started_after_the_ecu_learns_its_name(buses, model):
+    """The ECU is powered first (on a tractor it always is) and claimed its address before the planner's link
+    started. Before, the link learned the ECU's NAME only from a claim it happened to hear, so a resumed sensor
+    calibration recorded "an unnamed machine" and could resume another machine's end readings (a commissioning
+    trial). The link now asks everyone for their claims when it starts (a global Request for PGN 60928)."""
+    from bridge.link.can_link import CanLink
+
+    node = EcuCanNode(CylinderECU(), buses())
+    node.start(0.0)
+    run([node], 0.0, 1.0)  # claimed, heartbeating
+    link = CanLink(model, buses())
+    link.start(1.0)
+    for k in range(1, 301):
+        t = 1.0 + k * TICK
+        node.poll(t)
+        link.poll(t)
+    assert link.peer_name(169) == cylinder_ecu_name()

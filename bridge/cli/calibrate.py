@@ -209,7 +209,7 @@ def _cmd_geometry(args) -> int:
         )
     data = load_measurements(args.measurements, prof)
     # the lag of the pin play: found where rows name both approach sides and the planner can compensate it
-    include_lag = data.two_sided and prof.motion.final_approach is not None
+    include_lag = data.two_sided and prof.motion.final_approach is not None and not args.no_lag
     model = _model(args, include_ad=not args.no_ad, include_lag=include_lag, profile=prof)
     problem = build_calibration_problem(
         model, data, sigma_position_m=1e-3 * args.sigma_position_mm, sigma_angle_rad=1e-3 * args.sigma_angle_mrad
@@ -252,56 +252,75 @@ def _cmd_geometry(args) -> int:
         "ad_map": "kept (--no-ad)" if args.no_ad else "fitted",
     }
     carried = (sensors,) if sensors is not None and args.no_ad else ()  # the maps it records are kept as they were
-    short = _approach_shorter_than_play(prof, result)
-    if not short:
+    short, noisy = _approach_shorter_than_play(prof, result)
+    misfit = result.residual_sigma > SUSPECT_SIGMA_HAT and not args.accept_misfit
+    if result.residual_sigma > SUSPECT_SIGMA_HAT and args.accept_misfit:  # recorded in the profile's provenance
+        inputs["misfit_accepted"] = f"sigma-hat {result.residual_sigma:.3g} (--accept-misfit)"
+    if not short and not misfit:
         write_calibrated_profile(args.out, model.params, result, name=args.name, inputs=inputs, comments=carried)
     worst = largest_residuals(problem, result)
-    if result.residual_sigma > SUSPECT_SIGMA_HAT:  # said on stderr, also with --json
-        rows = ", ".join(f"row {r} ({label}) {col} {v:+.1f} σ" for r, label, col, v in worst)
-        print(
-            f"hitch: warning: sigma-hat {result.residual_sigma:.3g}: the residuals are {result.residual_sigma:.3g} "
-            f"times the σ given (--sigma-position-mm {args.sigma_position_mm:g}, --sigma-angle-mrad "
-            f"{args.sigma_angle_mrad:g}): a wrong value, a unit slip (mm or degrees in a column of m or rad) or a σ "
-            f"too small for the instrument; check the measurements before using the profile; worst fit: {rows}",
-            file=sys.stderr,
-        )
+    rows = ", ".join(f"row {r} ({label}) {col} {v:+.1f} σ" for r, label, col, v in worst)
+    misfit_text = (
+        f"sigma-hat {result.residual_sigma:.3g}: the residuals are {result.residual_sigma:.3g} times the σ given "
+        f"(--sigma-position-mm {args.sigma_position_mm:g}, --sigma-angle-mrad {args.sigma_angle_mrad:g}): a wrong "
+        "value, a unit slip (mm or degrees in a column of m or rad), a sign or left/right slip, or a σ too small for "
+        f"the instrument (a tape: --sigma-position-mm 5.8 --sigma-angle-mrad 11.5); worst fit: {rows}"
+    )
+    if result.residual_sigma > SUSPECT_SIGMA_HAT and args.accept_misfit:  # said on stderr, also with --json
+        print(f"hitch: warning: {misfit_text}; written as asked (--accept-misfit)", file=sys.stderr)
     if args.json:
         largest = [{"row": r, "label": label, "column": col, "residual_sigma": v} for r, label, col, v in worst]
-        print(to_json_text({"out": None if short else str(args.out), **result.as_dict(), "largest_residuals": largest}))
+        written = None if short or misfit else str(args.out)
+        print(to_json_text({"out": written, **result.as_dict(), "largest_residuals": largest}))
     else:
         _print_fit(model, result)
-    if short:  # after the report: the fit is shown, the profile is not written
+    if misfit:  # after the report: the fit is shown, the profile is not written
         raise CLIError(
-            f"{args.out} not written: {'; '.join(short)}: the approach is shorter than the play band, so the data "
+            f"{args.out} not written: {misfit_text}; check the measurements, or give the instrument's σ; to write "
+            "it all the same: --accept-misfit"
+        )
+    if short:
+        noise = (
+            "; each lies within twice its std of that half, so the instrument's noise alone may put it there: with "
+            "a coarse instrument (a tape) keep the profile's lag instead (--no-lag; both sides then average the "
+            "play out of the geometry), or measure with a finer one"
+            if noisy
+            else ""
+        )
+        raise CLIError(
+            f"{args.out} not written: {'; '.join(short)}: if the approach is shorter than the play band, the data "
             "cannot show the whole lag (it ends near half the approach) and the poses may hold the play on either "
-            f"side; raise these offsets of [motion.final_approach] in {args.profile} well above twice the lag "
-            "and measure again (docs/commissioning.md)"
+            f"side: raise these offsets of [motion.final_approach] in {args.profile} well above twice the lag "
+            f"and measure again{noise} (docs/commissioning.md)"
         )
     if not args.json:
         print(f"wrote {args.out}")
     return 0
 
 
-def _approach_shorter_than_play(prof, result) -> list[str]:
+def _approach_shorter_than_play(prof, result) -> tuple[list[str], bool]:
     """The DOF whose fitted lag is at least half the profile's final approach there (the profile refuses such a
-    lag: an approach shorter than the play band 2·|lag| may not take the play up), as ``lag.x = … ≥ half of
-    motion.final_approach.x = …`` phrases in mm / mrad."""
+    lag: an approach shorter than the play band 2·|lag| may not take the play up), as ``lag.x = … ± std, more
+    than half of motion.final_approach.x = …`` phrases in mm / mrad; and whether every one of them lies within
+    two of its standard deviations of that half (the instrument's noise, not the approach, may be the cause)."""
     fa = prof.motion.final_approach
     if fa is None:
-        return []
-    out = []
+        return [], False
+    out, noisy = [], True
     for k, off in zip(CONTROLLED_POSE_NAMES, fa.offset(), strict=True):
         name = f"lag.{k}"
         if name not in result.names or off <= 0:
             continue
-        lag = float(result.values[list(result.names).index(name)])
+        i = list(result.names).index(name)
+        lag, std = float(result.values[i]), float(result.std[i])
         if 2.0 * abs(lag) > off + 1e-12:
             unit = "mm" if k in ("x", "z") else "mrad"
             out.append(
-                f"the fitted {name} = {1e3 * lag:.3f} {unit} is more than half motion.final_approach.{k} = "
-                f"{1e3 * off:.3f} {unit}"
+                f"the fitted {name} = {1e3 * lag:.3f} ± {1e3 * std:.3f} {unit} is more than half "
+                f"motion.final_approach.{k} = {1e3 * off:.3f} {unit}"
             )
-    return out
+            noisy = noisy and abs(lag) - 2.0 * std <= off / 2.0
+    return out, noisy and bool(out)
 
 
 def _print_fit(model, result) -> None:
@@ -433,6 +452,18 @@ def add_commands(sub) -> None:
         help="smallest singular value of the scaled Jacobian still identified (default 1)",
     )
     g.add_argument("--no-ad", action="store_true", help="keep the AD map (offsets, gains) at the profile's values")
+    g.add_argument(
+        "--no-lag",
+        action="store_true",
+        help="keep the profile's lag of the pin play (motion.final_approach.lag) rather than fit it from rows "
+        "measured from both sides (an instrument too coarse to tell it)",
+    )
+    g.add_argument(
+        "--accept-misfit",
+        action="store_true",
+        help=f"write the profile even when the residuals exceed {SUSPECT_SIGMA_HAT:g} times the σ given "
+        "(sigma-hat; recorded in the profile)",
+    )
     g.set_defaults(handler=_cmd_geometry, on_interrupt=lambda _a: "nothing was written")
 
     pp = csub.add_parser("plan-poses", help="choose the poses to measure (D-optimal)")

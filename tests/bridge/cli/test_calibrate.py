@@ -160,6 +160,15 @@ def test_end_to_end_on_a_twin_calibrates_better_than_nominal(tmp_path, capsys):
     assert "not identified (kept nominal)" in pivot and "±" not in pivot, pivot
     span = next(line for line in lines if line.strip().startswith("geometry.top_link_tractor_point[2]"))
     assert " m " in span and "± " in span, span
+    # a parameter the poses see only in small part: no std (its conditional std read as "± 0.009 mm" of a value
+    # 54 std off the truth: a commissioning trial), and its share said
+    assert main(["calibrate", "geometry", "--measurements", str(meas), "--out", str(out), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    faint = [n for n, p in report["parameters"].items() if 1e-6 <= p["identified_share"] < 0.5]
+    assert faint, report["parameters"]
+    for name in faint:
+        line = next(line for line in lines if line.strip().startswith(name + " "))
+        assert "±" not in line and "% seen: it moves only with the identified combinations" in line, line
     cal = load_profile(out)  # an ordinary profile
     prov = read_calibration_provenance(out)
     assert prov is not None and prov["poses"] == 12

@@ -129,6 +129,8 @@ def _sensors_interrupted(args) -> str:
     """What an interrupted sensor calibration leaves (the ECU's watchdog zeroes the valves without references)."""
     if args.progress is None:
         return "no profile was written; with --progress FILE an interrupted calibration resumes where it stopped"
+    if not Path(args.progress).is_file():  # interrupted before the first end was found: nothing recorded
+        return f"no profile was written and no end was found yet ({args.progress} was not written)"
     return f"no profile was written; the ends found so far are in {args.progress}: run the same command to resume"
 
 

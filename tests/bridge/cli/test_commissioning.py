@@ -141,7 +141,11 @@ def test_an_interrupted_commissioning_command_says_what_it_left(monkeypatch, cap
 
     monkeypatch.setattr(commissioning_cli, "_cmd_calibrate_sensors", interrupted)
     progress = tmp_path / "p.json"
-    assert main(["calibrate", "sensors", "--progress", str(progress), "--out", str(tmp_path / "s.toml")]) == 130
+    argv = ["calibrate", "sensors", "--progress", str(progress), "--out", str(tmp_path / "s.toml")]
+    assert main(argv) == 130  # before the first end: the file it named had never been written (a trial's report)
+    assert f"no end was found yet ({progress} was not written)" in capsys.readouterr().err
+    progress.write_text("{}")
+    assert main(argv) == 130
     err = capsys.readouterr().err.strip()
     assert err.startswith("hitch: interrupted: no profile was written") and f"{progress}: run the same command" in err
     assert main(["calibrate", "sensors", "--out", str(tmp_path / "s.toml")]) == 130
@@ -149,6 +153,27 @@ def test_an_interrupted_commissioning_command_says_what_it_left(monkeypatch, cap
     monkeypatch.setattr(calibrate_cli, "_cmd_geometry", interrupted)
     assert main(["calibrate", "geometry", "--measurements", "m.csv", "--out", str(tmp_path / "c.toml")]) == 130
     assert capsys.readouterr().err.strip() == "hitch: interrupted: nothing was written"
+
+
+def test_sigterm_ends_a_commissioning_command_as_ctrl_c_does_and_says_so(monkeypatch, capsys, tmp_path):
+    """SIGTERM (a supervisor, kill) during calibrate sensors over a bus ended it without a word (a commissioning
+    trial); it now interrupts it as Ctrl-C does: its clean-up runs, it says what it left, status 143."""
+    import os
+    import signal
+    import time
+
+    import bridge.cli.commissioning as commissioning_cli
+
+    def killed(_args):
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(5)  # the handler interrupts this
+        raise AssertionError("SIGTERM did not interrupt the command")
+
+    monkeypatch.setattr(commissioning_cli, "_cmd_calibrate_sensors", killed)
+    before = signal.getsignal(signal.SIGTERM)
+    assert main(["calibrate", "sensors", "--out", str(tmp_path / "s.toml")]) == 143
+    assert capsys.readouterr().err.startswith("hitch: terminated: no profile was written")
+    assert signal.getsignal(signal.SIGTERM) is before  # the old handler is back
 
 
 @pytest.mark.parametrize(

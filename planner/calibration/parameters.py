@@ -26,6 +26,7 @@ far beyond each goal on the approach's side.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -246,7 +247,14 @@ class ParameterSet:
         try:
             profile_from_dict(data, source="calibrated profile")
         except HitchInputError as exc:
-            raise CalibrationError(f"the calibrated parameters do not make a valid profile: {exc}") from None
+            # the value was fitted, not typed: the loader's "did you mean mm?" would send the engineer to the profile
+            why = re.sub(r";? ?did you mean [^;)]*", "", str(exc))
+            raise CalibrationError(
+                f"the calibrated parameters do not make a valid profile: {why}. The fit went far from the nominal "
+                "geometry: the measurements do not fit the model; check them for a wrong value, a unit slip (mm or "
+                "degrees in a column of m or rad), or a sign or left/right slip (x measured to the other side, the "
+                "L and R points swapped)"
+            ) from None
         return data
 
     def describe(self, direction: ArrayLike, *, threshold: float = 0.15, limit: int = 6) -> str:

@@ -170,8 +170,9 @@ def calibrated_profile_toml(
         raise CalibrationError(
             f"the calibrated profile cannot be used: {exc}. The measurements do not fit the model (residual RMS "
             f"{1e3 * result.residual_rms_position_m:.3f} mm / {1e3 * result.residual_rms_angle_rad:.3f} mrad, "
-            f"sigma-hat {result.residual_sigma:.3g}): check for a wrong value or a unit slip (mm or degrees in a "
-            "column of m or rad); nothing was written"
+            f"sigma-hat {result.residual_sigma:.3g}): check for a wrong value, a unit slip (mm or degrees in a "
+            "column of m or rad), or a sign or left/right slip (x measured to the other side, the L and R points "
+            "swapped); nothing was written"
         ) from None
     return text
 

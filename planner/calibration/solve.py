@@ -267,7 +267,8 @@ def solve_calibration(
     except KinematicsError as exc:
         raise CalibrationError(
             f"the fit ends where the mechanism cannot close ({exc}): the measurements do not fit the model; "
-            "check for a wrong value or a unit slip (mm or degrees in a column of m or rad)"
+            "check for a wrong value, a unit slip (mm or degrees in a column of m or rad), or a sign or left/right "
+            "slip (x measured to the other side, the L and R points swapped)"
         ) from None
 
 

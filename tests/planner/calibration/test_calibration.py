@@ -487,3 +487,19 @@ def test_the_approach_room_a_pose_needs_is_the_offset_less_the_lag_from_either_s
             (short,) = approach_shortfalls(model, p[None, :], (side,))
             assert (short.dof, short.side) == (name, side)
             assert short.offset == pytest.approx(need[k]) and short.room == pytest.approx(need[k] - 1e-4)
+
+
+def test_a_fit_that_leaves_the_schema_blames_the_measurements_not_a_unit_in_the_profile():
+    """A commissioning trial with the L and R points swapped: the fit ended at lower_link_pivot_span = 3.23 m and
+    the error said "did you mean mm? 3.22544 mm = 0.00322544 m", sending the engineer to write a fitted value in
+    mm. The value was fitted, not typed: the message names the measurements' likely slips instead."""
+    from planner.calibration.parameters import ParameterSet
+
+    ps = ParameterSet.from_profile(load_profile("thesis-t132"), include_ad=False)
+    values = ps.nominal.copy()
+    values[ps.index("geometry.lower_link_pivot_span")] = 3.22544
+    with pytest.raises(CalibrationError) as exc:
+        ps.profile_dict(values)
+    text = str(exc.value)
+    assert "geometry.lower_link_pivot_span" in text and "did you mean" not in text, text
+    assert "the L and R points swapped" in text and "the measurements do not fit the model" in text, text

@@ -13,7 +13,9 @@ The pieces, each a frozen value, combined in :class:`SecuritySettings`:
   :data:`MOTION_KEYS` ``goto``, ``jog``, ``presets/go``, ``maneuvers/run``, ``mode`` and the
   writing keys :data:`WRITE_KEYS` ``presets/save``, ``presets/delete``, ``maneuvers/save``,
   ``maneuvers/delete``, ``faults/ack``, ``sim/fault``, ``track/…``) — and *services* (service
-  nodes behind a router) may publish and answer. Subjects are Zenoh usernames (from usrpwd) and,
+  nodes behind a router) may declare, publish and answer only under their own prefix
+  (:meth:`AccessPolicy.service_prefix`: ``fleet/*/hitch`` gives service ``t01`` ``fleet/t01/hitch``) and send
+  no query. Subjects are Zenoh usernames (from usrpwd) and,
   with mTLS, certificate common names. Every API key is either a reading key or an operator key
   (:func:`key_access`); a key in neither is refused to viewers.
 * :class:`TlsSettings` — ``transport/link/tls``: a certificate and key (used both to listen on
@@ -62,12 +64,14 @@ __all__ = [
     "motion_keys",
     "write_keys",
     "build_acl",
+    "confine_services",
     "build_security_config",
     "security_json5",
     "write_users_file",
     "apply_security",
     "security_sections",
     "exposure_warnings",
+    "router_security_warnings",
     "read_users",
     "InternalLink",
     "grant_internal_user",
@@ -184,6 +188,34 @@ def _key(prefix: Any, name: str | None = None, what: str = "prefix") -> str:
         raise SecurityError(what, f"{key!r} is not a canonical Zenoh key expression ({exc})") from None
 
 
+def _own_prefix_example(prefix: str) -> str:
+    return "/".join("t07" if "*" in c or "$" in c else c for c in prefix.split("/"))
+
+
+def _own_prefix(prefix: str, name: str, where: str = "access.service_prefixes") -> str:
+    """The default prefix service ``name`` owns under ``prefix`` (:meth:`AccessPolicy.service_prefix`)."""
+    chunks = prefix.split("/")
+    wild = [i for i, c in enumerate(chunks) if "*" in c or "$" in c]
+    if not wild:
+        return prefix
+    if len(wild) == 1 and chunks[wild[0]] == "*":
+        if not scopable_user(name):
+            raise SecurityError(
+                where,
+                f"service {name!r} cannot stand for the '*' of the prefix {prefix!r} (a key chunk: "
+                f"{SCOPE_NAME_RULE}); name its own prefix in access.service_prefixes, e.g. "
+                f"{{{name!r}: {_own_prefix_example(prefix)!r}}}",
+            )
+        chunks[wild[0]] = name
+        return "/".join(chunks)
+    raise SecurityError(
+        where,
+        f"the prefix {prefix!r} does not say which keys service {name!r} owns (only a prefix with one '*' chunk "
+        f"does: the service's name in its place); name its own prefix in access.service_prefixes, e.g. "
+        f"{{{name!r}: {_own_prefix_example(prefix)!r}}}",
+    )
+
+
 def motion_keys(prefix: str = "hitch") -> tuple[str, ...]:
     """The full motion keys under ``prefix``: ``hitch/goto`` … ``hitch/mode``."""
     return tuple(_key(prefix, k) for k in MOTION_KEYS)
@@ -228,6 +260,10 @@ class AccessPolicy:
     viewer_cert_names: tuple[str, ...] = ()
     service_cert_names: tuple[str, ...] = ()
     viewer_queries: tuple[str, ...] = VIEWER_QUERIES  # API names viewers may query
+    #: service name (username or certificate name) -> the keys that service node alone may publish and answer
+    #: under (its own prefix, e.g. ``{"svc-7": "fleet/t07/hitch"}``); a service not named here owns
+    #: :meth:`service_prefix`'s default
+    service_prefixes: Mapping[str, str] = field(default_factory=dict, hash=False)
 
     def __post_init__(self) -> None:
         _key(self.prefix)
@@ -268,6 +304,7 @@ class AccessPolicy:
                         f"{n!r} is also a user in access.{seen[n]}: a username and a certificate name that are "
                         "equal are one user to the service and must have one role",
                     )
+        self._check_service_prefixes()
         if not (
             self.operators
             or self.viewers
@@ -277,6 +314,43 @@ class AccessPolicy:
             or self.service_cert_names
         ):
             raise SecurityError("access", "names nobody: with default deny no one could reach the service")
+
+    def _check_service_prefixes(self) -> None:
+        sp, where = self.service_prefixes, "access.service_prefixes"
+        if not isinstance(sp, Mapping) or not all(isinstance(k, str) and isinstance(v, str) for k, v in sp.items()):
+            raise SecurityError(
+                where, "must map service names to their own key prefixes, e.g. {'t07': 'fleet/t07/hitch'}"
+            )
+        services = self.services + self.service_cert_names
+        own: dict[str, str] = {}
+        for name, prefix in sp.items():
+            if name not in services:
+                raise SecurityError(
+                    where,
+                    f"{name!r} is not a service (allowed: the names in access.services and access.service_cert_names: "
+                    f"{', '.join(map(repr, services)) or 'none'})",
+                )
+            key = _key(prefix, what=where)
+            if "*" in key or "$" in key or not zenoh.KeyExpr(self.prefix).includes(zenoh.KeyExpr(key)):
+                raise SecurityError(
+                    where,
+                    f"{name!r}: {prefix!r} must be one service's own prefix: a key without wildcards under the "
+                    f"prefix {self.prefix!r} (e.g. {_own_prefix_example(self.prefix)!r})",
+                )
+            own[name] = key
+        object.__setattr__(self, "service_prefixes", own)
+        for name in services:
+            self.service_prefix(name)  # every service owns keys (or the policy is refused here, naming it)
+
+    def service_prefix(self, name: str) -> str:
+        """The prefix service node ``name`` owns: it may publish, answer and declare only under it.
+
+        Its entry in :attr:`service_prefixes`; else the policy's prefix with ``name`` in place of its one ``*``
+        chunk (``fleet/*/hitch``: service ``t07`` owns ``fleet/t07/hitch``); else, for a prefix without
+        wildcards (one service's keys, ``hitch``), the prefix itself. Any other prefix (``**``, two ``*``
+        chunks, ``$*``) needs the entry (:class:`SecurityError` naming ``access.service_prefixes``)."""
+        own = self.service_prefixes.get(name)
+        return own if own is not None else _own_prefix(self.prefix, name)
 
     def role(self, user: str) -> str | None:
         """``"operator"``, ``"viewer"``, ``"service"`` or None (a name in no role): a username, or a certificate
@@ -430,13 +504,7 @@ def build_acl(policy: AccessPolicy) -> dict:
             "messages": list(_ALL),
             "key_exprs": list(write_keys(policy.prefix)),
         },
-        {
-            "id": "service",
-            "permission": "allow",
-            "flows": ["ingress", "egress"],
-            "messages": list(_ALL),
-            "key_exprs": everything,
-        },
+        _SERVICE_OUT_RULE(everything),
     ]
     subjects, policies = [], []
     for role, users, certs, rule_ids in (
@@ -452,7 +520,7 @@ def build_acl(policy: AccessPolicy) -> dict:
             policy.viewer_cert_names,
             ["observe", "discover", "to_client", "viewer_queries", "no_motion", "no_writes"],
         ),
-        ("services", policy.services, policy.service_cert_names, ["service"]),
+        ("services", policy.services, policy.service_cert_names, [_SERVICE_OUT]),
     ):
         ids = []
         if users:
@@ -463,8 +531,96 @@ def build_acl(policy: AccessPolicy) -> dict:
             ids.append(f"{role}_certs")
         if ids:
             policies.append({"id": role, "rules": rule_ids, "subjects": ids})
+    own = [(n, "usernames", policy.service_prefix(n)) for n in policy.services]
+    own += [(c, "cert_common_names", policy.service_prefix(c)) for c in policy.service_cert_names]
+    _add_service_rules(rules, subjects, policies, own)
     acl = {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
     return scope_acl_users(acl)
+
+
+#: id of the rule of the ``services`` policy: what reaches a service node (its own declarations decide what)
+_SERVICE_OUT = "service_out"
+#: the start of the id of each service node's own subject, rule and policy (``service:<name>``,
+#: ``service:cert:<common name>``; no user name has a ':')
+_SERVICE_ID = "service:"
+
+
+def _SERVICE_OUT_RULE(everything: list[str]) -> dict[str, Any]:  # noqa: N802 — a rule, as the others in build_acl
+    """Everything under the prefix may go *to* a service node (egress): the router sends it only what its own
+    declarations, confined to its own prefix, ask for (queries to its queryables, setpoints to its subscribers)
+    and the subscribers that match its publications (a client ``fleet/*/hitch/state`` of every tractor)."""
+    return {
+        "id": _SERVICE_OUT,
+        "permission": "allow",
+        "flows": ["egress"],
+        "messages": list(_ALL),
+        "key_exprs": everything,
+    }
+
+
+def _add_service_rules(
+    rules: list[dict[str, Any]],
+    subjects: list[dict[str, Any]],
+    policies: list[dict[str, Any]],
+    own: Sequence[tuple[str, str, str]],
+) -> None:
+    """Per service node (``own``: name, ``usernames`` or ``cert_common_names``, its own prefix) one subject,
+    rule and policy: from it (ingress) every message but ``query`` only under its own prefix — it declares its
+    queryables, subscribers and token, publishes state and events and answers there, and asks nothing (a
+    service node never sends a query: not to another service, not even a reading one)."""
+    messages = [m for m in _ALL if m != "query"]
+    for name, kind, prefix in own:
+        rid = f"{_SERVICE_ID}cert:{name}" if kind == "cert_common_names" else f"{_SERVICE_ID}{name}"
+        rules.append(
+            {
+                "id": rid,
+                "permission": "allow",
+                "flows": ["ingress"],
+                "messages": messages,
+                "key_exprs": [_key(prefix, "**", "access.service_prefixes")],
+            }
+        )
+        subjects.append({"id": rid, kind: [name]})
+        policies.append({"id": rid, "rules": [rid], "subjects": [rid]})
+
+
+def confine_services(acl: Mapping[str, Any]) -> dict:
+    """``acl`` (an ``access_control`` section as :func:`build_acl` writes it) with an older version's services
+    rule replaced: that one rule (id ``service``) let every service node send every message under the whole
+    prefix — service ``t01`` could publish ``fleet/t02/hitch/state``, answer ``fleet/t02/hitch/stop`` and send
+    ``fleet/t02/hitch/goto``. Each service node gets its own prefix instead, by the default of
+    :meth:`AccessPolicy.service_prefix` (its name in place of the prefix's one ``*`` chunk; a prefix without
+    wildcards: the prefix). A file whose prefix or service names give no default is refused
+    (:class:`SecurityError`): regenerate it with :attr:`AccessPolicy.service_prefixes`. Returned unchanged (a
+    copy) when access control is off, when the file has no such rule (this version's, or hand-written)."""
+    out = json.loads(json.dumps(dict(acl)))  # a deep copy
+    rules = out.get("rules") or []
+    policies = out.get("policies") or []
+    services = next((p for p in policies if p.get("id") == "services"), None)
+    if not out.get("enabled") or services is None or "service" not in (services.get("rules") or []):
+        return out
+    everything = next((r.get("key_exprs") or [] for r in rules if r.get("id") == "observe"), [])
+    prefixes = [k[: -len("/**")] for k in everything if k.endswith("/**")]
+    if len(prefixes) != 1:
+        return out  # not written by build_acl (it writes one prefix): left as its author wrote it
+    subjects = out.get("subjects") or []
+    own = []
+    for field_, kind in (("usernames", "usernames"), ("cert_common_names", "cert_common_names")):
+        for name in dict.fromkeys(_role_members(subjects, policies, field_).get("services", ())):
+            try:
+                own.append((name, kind, _own_prefix(prefixes[0], name)))
+            except SecurityError as exc:
+                raise SecurityError(
+                    "access_control",
+                    f"written by an older version, whose one services rule let every service node use every key "
+                    f"under {prefixes[0]!r}; regenerate the file with security_json5: {exc}",
+                ) from None
+    rules = [r for r in rules if r.get("id") != "service"]
+    rules.append(_SERVICE_OUT_RULE(everything))
+    services["rules"] = [_SERVICE_OUT if r == "service" else r for r in services["rules"]]
+    _add_service_rules(rules, subjects, policies, own)
+    out["rules"], out["subjects"], out["policies"] = rules, subjects, policies
+    return out
 
 
 def scopable_user(name: Any) -> bool:
@@ -496,11 +652,11 @@ def scope_acl_users(acl: Mapping[str, Any]) -> dict:
     operators every request key, viewers their reading keys, each exact. Nobody else may query under
     ``<prefix>/user/``: the operators' queries are allowed by exact key (no ``<prefix>/**``, which would
     include every user's keys; a file of an earlier version has its ``operator_queries`` rule replaced), a
-    rule denying queries on ``<prefix>/user/**`` joins the services' policy (whose ``<prefix>/**`` lets them
-    answer), and the viewers' policy denies every message on the operator keys under ``<prefix>/user/*/`` as
-    it does on the plain ones. A deny cannot close the operators' ``<prefix>/**`` instead: Zenoh takes the
-    role's subject and a user's own for one subject when they name the same users, and a deny rule of a
-    subject outweighs its allow rules.
+    rule denying queries on ``<prefix>/user/**`` joins the services' policy (a service node sends no query
+    at all: :func:`build_acl`), and the viewers' policy denies every message on the operator keys under
+    ``<prefix>/user/*/`` as it does on the plain ones. A deny cannot close the operators' ``<prefix>/**``
+    instead: Zenoh takes the role's subject and a user's own for one subject when they name the same users,
+    and a deny rule of a subject outweighs its allow rules.
 
     Rebuilt from the roles each time (a user added to a role by hand gets keys too). Returned unchanged
     when access control is off, when it was not written by :func:`build_acl` (no ``observe`` rule: a
@@ -720,8 +876,8 @@ def apply_security(config: zenoh.Config, source: SecuritySettings | Mapping | st
     """Merge the security sections of ``source`` into ``config`` (in place; returned for chaining)."""
     for path, value in security_sections(source).items():
         acl = json.loads(value) if path == "access_control" and value else None
-        if isinstance(acl, dict):  # a file written before user scopes gets them (idempotent)
-            value = json.dumps(scope_acl_users(acl))
+        if isinstance(acl, dict):  # a file written before user scopes and own service prefixes gets them (idempotent)
+            value = json.dumps(scope_acl_users(confine_services(acl)))
         try:
             config.insert_json5(path, value)
         except Exception as exc:
@@ -816,26 +972,102 @@ def _read_users_file(path: Path) -> dict[str, str]:
     return users
 
 
-def exposure_warnings(listen: Sequence[str], settings: SecuritySettings | None) -> list[str]:
+@dataclass(frozen=True)
+class _Protection:
+    """What a listening node's security settings protect its links with."""
+
+    certificate: bool  # a certificate to listen on tls/…
+    passwords: bool  # a users dictionary (usrpwd) every link authenticates against
+    mutual: bool  # mutual TLS: every link presents a certificate from the CA
+    access: bool  # access control on
+    login: str | None = None  # the user the settings log in as (a client's file has one)
+
+
+def _protection(source: SecuritySettings | Mapping | str | Path | None) -> _Protection:
+    if source is None:
+        return _Protection(False, False, False, False)
+    if isinstance(source, SecuritySettings):
+        tls = source.tls
+        return _Protection(
+            certificate=tls is not None and tls.certificate is not None,
+            passwords=source.users_file is not None,
+            mutual=tls is not None and tls.mutual,
+            access=source.access is not None,
+            login=None if source.credentials is None else source.credentials.user,
+        )
+    sections = security_sections(source)
+    usrpwd = _usrpwd(sections)
+    tls_section = json.loads(sections.get("transport/link/tls") or "{}") or {}
+    acl = json.loads(sections.get("access_control") or "{}") or {}
+    dictionary = usrpwd.get("dictionary_file")
+    # Zenoh checks no password against an empty dictionary (grant_internal_user): no users, no authentication
+    passwords = bool(_read_users_file(Path(str(dictionary)))) if dictionary else False
+    return _Protection(
+        certificate=bool(tls_section.get("listen_certificate")),
+        passwords=passwords,
+        mutual=bool(tls_section.get("enable_mtls")) and bool(tls_section.get("root_ca_certificate")),
+        access=bool(acl.get("enabled")),
+        login=str(usrpwd["user"]) if usrpwd.get("user") else None,
+    )
+
+
+def exposure_warnings(listen: Sequence[str], settings: SecuritySettings | Mapping | str | Path | None) -> list[str]:
     """Sentences about listening beyond loopback without protection (loopback-only is the default).
 
-    A ``tls/…`` endpoint without a certificate is an error (:class:`SecurityError`).
+    ``settings``: the listening node's security settings, or its security file (a path or a parsed dict); None
+    without. A ``tls/…`` endpoint without a certificate is an error (:class:`SecurityError`).
     """
+    p = _protection(settings)
     out = []
     for ep in listen:
         proto, _, addr = ep.partition("/")
         host = addr.rsplit(":", 1)[0].strip("[]")
-        if proto == "tls" and (settings is None or settings.tls is None or settings.tls.certificate is None):
+        if proto == "tls" and not p.certificate:
             raise SecurityError("tls.certificate", f"listening on {ep} needs a certificate and private key")
         loopback = host in ("localhost", "::1") or host.startswith("127.") or proto == "unixsock-stream"
         if loopback:
             continue
         if proto != "tls":
             out.append(f"{ep} accepts unencrypted links from the network; use tls/… with a certificate")
-        if settings is None or settings.users_file is None:
+        if not (p.passwords or (p.mutual and proto == "tls")):
             out.append(f"{ep} accepts links from the network without user/password authentication")
-        if settings is None or settings.access is None:
+        if not p.access:
             out.append(f"{ep} exposes the motion keys to every connected node (no access_control)")
+    return out
+
+
+def router_security_warnings(
+    listen: Sequence[str], source: SecuritySettings | Mapping | str | Path | None
+) -> list[str]:
+    """What a fleet router listening on ``listen`` with the security file (or settings) ``source`` (None:
+    without) should say at start: :func:`exposure_warnings`, and that an authenticating file without access
+    control lets every user it authenticates use every key, motion included.
+
+    A ``source`` that authenticates no link (no users in a ``dictionary_file``, no mutual TLS) and enables no
+    access control — a client's file given by mistake: it logs in, it protects nothing — is refused
+    (:class:`SecurityError` naming ``security``): the router would run wide open while its operator believes
+    it secured."""
+    p = _protection(source)
+    if source is not None and not (p.passwords or p.mutual or p.access):
+        client = f" — it looks like a client's file (it logs in as {p.login!r})" if p.login else ""
+        raise SecurityError(
+            "security",
+            f"{str(source) + ' ' if isinstance(source, (str, Path)) else ''}authenticates no link and enables "
+            f"no access control{client}: a router's file needs transport/auth/usrpwd/dictionary_file (a users file "
+            "with at least one user) or enable_mtls, and access_control (enabled: true); write one with "
+            "security_json5(SecuritySettings(users_file=…, access=AccessPolicy(…))) (docs/security.md §5)",
+        )
+    out = exposure_warnings(listen, source)
+    if source is not None and not p.access and not any("no access_control" in w for w in out):
+        out.append(
+            "the security file enables no access_control: every user it authenticates may use every key of "
+            "every service behind the router, motion included"
+        )
+    if source is not None and p.access and not (p.passwords or p.mutual):
+        out.append(
+            "the security file authenticates no link (no users in a dictionary_file, no enable_mtls): its "
+            "access_control can match no username or certificate name"
+        )
     return out
 
 

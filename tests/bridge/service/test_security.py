@@ -388,6 +388,11 @@ def test_exposure_warnings(users_file):
     with pytest.raises(SecurityError) as exc:
         exposure_warnings(["tls/127.0.0.1:7447"], s)
     assert exc.value.field == "tls.certificate"
+    # a security file says the same as its settings (hitch router takes files)
+    path = users_file.parent / "router.json5"
+    path.write_text(security_json5(s))
+    assert exposure_warnings(["tcp/192.168.1.5:7447"], path) == exposure_warnings(["tcp/192.168.1.5:7447"], s)
+    assert len(exposure_warnings(["tcp/192.168.1.5:7447"], {"transport": {}})) == 3
 
 
 # ------------------------------------------------------------------------------------------ sessions

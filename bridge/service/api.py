@@ -42,6 +42,7 @@ from bridge.service.maneuvers.language import (
     parse_maneuver,
 )
 from bridge.service.maneuvers.recorder import ManeuverRecorder, maneuvers_using_preset, recorder_for
+from bridge.service.maneuvers.steps import GotoStep
 from bridge.service.motion.controller import MotionController
 from bridge.service.motion.types import MODES, ManeuverAccepted, MotionError, pose_dict
 from bridge.service.planning import InProcessPlanning, Planning
@@ -79,6 +80,8 @@ from bridge.service.workers import PresetPose, WorkerError, referenced_presets
 from planner.errors import HitchInputError
 from planner.ik_qp.hitch_ik import IKSolver
 from planner.limits.guard import GuardRefusal
+from planner.model.limit_names import beyond_words
+from planner.model.types import CONTROLLED_POSE_NAMES
 from planner.trajectory import MotionState, PlanError
 
 __all__ = ["ServiceAPI", "API_KEYS", "EXPENSIVE_KEYS", "MAX_IN_FLIGHT_PER_USER"]
@@ -448,9 +451,28 @@ class ServiceAPI:
         return self._validated(r.script).to_json()
 
     def _maneuvers_save(self, r: ManeuverSave) -> dict:
-        # ManeuverError (a HitchInputError) lists the problems
-        stored = self.store.save_maneuver(r.name, r.script, owner=getattr(self._caller, "user", None))
+        parsed = parse_maneuver(r.script)  # ManeuverError (a HitchInputError) lists the problems
+        self._check_goto_steps(parsed)
+        stored = self.store.save_maneuver(r.name, r.script, owner=getattr(self._caller, "user", None), parsed=parsed)
         return {"saved": stored.name, "steps": len(stored.parsed.steps)}
+
+    def _check_goto_steps(self, parsed: ManeuverScript) -> None:
+        """A goto step outside the workspace is refused at save, naming the step and the face, as presets/save
+        refuses such a pose (it was saved, then every run refused it; a fleet trial)."""
+        planner = self.motion.planner
+        for i, step in enumerate(parsed.steps):
+            if not isinstance(step, GotoStep):
+                continue
+            for k, (lo, hi) in zip(CONTROLLED_POSE_NAMES, zip(planner.lo, planner.hi, strict=True), strict=True):
+                v = getattr(step, k)
+                if v is None or lo - 1e-9 <= v <= hi + 1e-9:
+                    continue
+                unit = "m" if k in ("x", "z") else "rad"
+                raise RequestError(
+                    "unreachable",
+                    f"maneuvers/save: step {i + 1} (goto): {k} = {v:.4f} {unit} is {beyond_words(k, v > hi)} the "
+                    f"workspace ({k} from {lo:.4f} to {hi:.4f} {unit}); no run could reach it",
+                )
 
     def _maneuvers_list(self, _r: Empty) -> dict:
         return {"maneuvers": [m.to_json(script=False) for m in self.store.list_maneuvers()]}

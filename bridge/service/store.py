@@ -615,8 +615,11 @@ class HitchStore:
         return self._write("DELETE FROM presets WHERE implement = ? AND name = ?", args) > 0
 
     # ------------------------------------------------------------------ maneuvers
-    def save_maneuver(self, name: str, script: str, *, owner: str | None = None) -> StoredManeuver:
-        """Parse (once; ManeuverError lists the problems) and insert or replace a maneuver.
+    def save_maneuver(
+        self, name: str, script: str, *, owner: str | None = None, parsed: ManeuverScript | None = None
+    ) -> StoredManeuver:
+        """Parse (once; ManeuverError lists the problems; ``parsed``: ``script`` parsed already) and insert or
+        replace a maneuver.
 
         A ``name:`` inside the script, if any, must equal ``name``. ``owner``: the user saving it;
         :class:`StoreError` with field ``max_maneuvers_per_user`` or ``max_script_bytes_per_user``
@@ -625,7 +628,8 @@ class HitchStore:
         name, who = _name(name, "name"), _owner(owner)
         if not isinstance(script, str):
             raise StoreError("script", f"must be YAML text, got {type(script).__name__}")
-        parsed = parse_maneuver(script)  # ManeuverError (a HitchInputError) with the step errors
+        if parsed is None:
+            parsed = parse_maneuver(script)  # ManeuverError (a HitchInputError) with the step errors
         if parsed.name is not None and parsed.name != name:
             raise StoreError(
                 "name",

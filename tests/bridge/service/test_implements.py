@@ -504,6 +504,12 @@ def test_the_cli_round_trip_against_a_running_service(tmp_path, capsys):
             "bad_request",
             "maneuvers/save: name: the script calls itself 'b' but is saved as 'a'",
         ),
+        (  # saved, then every run refused it, while presets/save refused the same pose (a fleet trial)
+            "maneuvers/save",
+            {"name": "high", "script": "steps:\n  - wait: 1\n  - goto: {x: 0, z: 0.9}\n"},
+            "unreachable",
+            "maneuvers/save: step 2 (goto): z = 0.9000 m is above the workspace (z from",
+        ),
     ],
 )
 def test_refusals_name_their_key_once_and_the_right_code(svc, key, payload, code, text):

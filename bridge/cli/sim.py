@@ -516,14 +516,19 @@ def perturbation_summary(nominal: Profile, data: dict, play: PinPlay) -> dict:
 
 
 def _cmd_sim_perturb(args) -> int:
+    from bridge.sim.truth import check_model_builds
+
     nominal = load_profile(args.profile)
-    data, play = perturb_profile(nominal, args.seed, tape=args.tape)
+    # the nominal loads as `hitch profile show` loads it (else its own error), and the drawn truth too
+    data, play = perturb_profile(nominal, args.seed, tape=args.tape, source=f"--profile {args.profile}")
     stability = data["stability"]  # the nominal's tractor, from the file the truth goes to (printed: absolute)
     stability["tractor_profile"] = tractor_profile_for(stability["tractor_profile"], args.out and Path(args.out).parent)
     text = truth_toml(data, play)
     if args.out:
         try:
-            write_profile_text(args.out, text, what="--out truth")
+            write_profile_text(  # the file as written loads there, as `hitch profile show` loads it
+                args.out, text, what="--out truth", check=lambda p: check_model_builds(p, f"truth {p.name}")
+            )
         except HitchInputError as exc:
             raise TruthError(str(exc)) from None
     summary = perturbation_summary(nominal, data, play)

@@ -56,7 +56,10 @@ A plain profile (no such line) is a truth without play.
   physical strokes in SI (the end stops) stay;
 * **play** 0…1 mm at the lower-link balls and at the top-link pins.
 
-The implement (ISO 730 categories), limits, valves and motion settings are unchanged.
+The implement (ISO 730 categories), limits, valves and motion settings are unchanged. The nominal must load
+as ``hitch profile show`` loads it (the model of its default category builds: the neutral pose closes and,
+with a restricted workspace, lies within the hard limits), and so must the truth, else the draw is refused
+(:func:`check_model_builds`): a truth that ``hitch profile show`` or the twin cannot load is not written.
 
 :class:`Instrument` reports the true implement pose (x, z, roll, pitch) and optionally the
 positions of marked points on it (the ball centres L, R and the top-link pin U, or any named
@@ -98,6 +101,7 @@ __all__ = [
     "TapeErrors",
     "TrueMachine",
     "TruthError",
+    "check_model_builds",
     "load_machine_truth",
     "perturb_profile",
     "truth_toml",
@@ -266,6 +270,22 @@ def load_machine_truth(name_or_path: str | Path) -> MachineTruth:
 
 
 # -- perturbation --------------------------------------------------------------------------------
+def check_model_builds(profile: Profile, what: str) -> None:
+    """:class:`TruthError` naming ``what`` (e.g. ``"--profile mine.toml"``) and why, unless ``profile`` loads as
+    ``hitch profile show`` loads it: the model of its default category builds (the neutral pose closes and,
+    with a restricted workspace, lies within the hard limits)."""
+    category = profile.implement.default_category
+    try:
+        HitchModel(profile, category)
+    except HitchInputError as exc:
+        why = str(exc)
+    except np.linalg.LinAlgError as exc:  # a singular Newton step of the neutral pose: degenerate geometry
+        why = f"profile {profile.name}: cannot find the neutral pose: the geometry is degenerate ({exc})"
+    else:
+        return
+    raise TruthError(f"{what} does not load (category {category}): {why}")
+
+
 @dataclass(frozen=True)
 class TapeErrors:
     """Sizes of tape-measure errors: the largest |error| of each kind (uniformly drawn)."""
@@ -278,13 +298,20 @@ class TapeErrors:
 
 
 def perturb_profile(
-    profile: Profile | str | Path, seed: int, *, tape: bool = True, errors: TapeErrors | None = None
+    profile: Profile | str | Path,
+    seed: int,
+    *,
+    tape: bool = True,
+    errors: TapeErrors | None = None,
+    source: str | None = None,
 ) -> tuple[dict[str, Any], PinPlay]:
     """A random truth near ``profile``: (profile data loadable by ``profile_from_dict``, pin play).
 
     ``tape=True`` uses the tape-measure error sizes (:class:`TapeErrors`, module docstring); it is
-    the only error model so far. The same seed gives the same truth. The result is validated; a draw
-    the schema rejects (e.g. counts beyond 0…1023) raises :class:`TruthError`.
+    the only error model so far. The same seed gives the same truth. The nominal must load as
+    ``hitch profile show`` loads it (its default category's model builds), else :class:`TruthError` names it
+    (``source``, default its name) and why. The result is validated: a draw the schema rejects (e.g. counts
+    beyond 0…1023), or whose model does not build (:func:`check_model_builds`), raises :class:`TruthError`.
     """
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= int(seed) < 2**63:
         raise TruthError(f"seed must be an integer in [0, 2^63), got {seed!r}")
@@ -292,6 +319,7 @@ def perturb_profile(
         raise TruthError("only the tape error model exists so far: tape must be True")
     e = errors if errors is not None else TapeErrors()
     base = profile if isinstance(profile, Profile) else load_profile(profile)
+    check_model_builds(base, source or f"the nominal profile {base.name}")
     rng = np.random.default_rng(int(seed))
     data = base.model_dump(mode="python")
     data["name"] = f"{base.name}-truth-{int(seed)}"[:80]
@@ -320,9 +348,13 @@ def perturb_profile(
         spec["counts_min"], spec["counts_max"] = lo, lo + new_span
     play = PinPlay(float(rng.uniform(0.0, e.play_m)), float(rng.uniform(0.0, e.play_m)))
     try:
-        profile_from_dict(data, source=f"perturbed {base.name} (seed {int(seed)})")
+        truth = profile_from_dict(data, source=f"perturbed {base.name} (seed {int(seed)})")
     except HitchInputError as exc:
         raise TruthError(str(exc)) from None
+    try:
+        check_model_builds(truth, f"the drawn truth {data['name']} (seed {int(seed)})")
+    except TruthError as exc:
+        raise TruthError(f"{exc}; the draw is refused, nothing is written (draw another seed)") from None
     return data, play
 
 

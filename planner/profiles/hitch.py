@@ -11,8 +11,9 @@ from __future__ import annotations
 import json
 import math
 import os
+from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
@@ -29,6 +30,8 @@ __all__ = [
     "ProfileError",
     "Profile",
     "ActuatorSpec",
+    "LiftSpec",
+    "CylinderSpec",
     "Category",
     "ActuatorStops",
     "CountApproachSettings",
@@ -51,7 +54,9 @@ THESIS_CONTROLLER_A = 0.581
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, strict=False)
+    # NaN and infinity are refused field by field ("geometry.lift_arm_length = nan: Input should be a finite number
+    # (allowed: > 0 and <= 3 m)"), not by the first bound they fail ("Input should be less than or equal to 3")
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=False, allow_inf_nan=False)
 
 
 #: the fewest AD counts a sensor may read its stroke over (the ECU keeps 2 counts of end-stop margin at each
@@ -60,6 +65,14 @@ MIN_COUNT_SPAN = 16
 
 #: the largest |bound| of a workspace box's x and z [m]: no three-point hitch moves its implement further
 BOX_LENGTH_MAX_M = 2.0
+
+#: the largest |coordinate| of a geometry point [m]
+COORDINATE_MAX_M = 5.0
+
+#: the nearest the sway limiters' tractor point may lie to its lower-link pivot [m]: a limiter anchored on the
+#: pivot has the same length at every sway (the bracket's distance from the pivot) and cannot hold the link;
+#: nearer than a tape measure can tell apart from the pivot is on it
+LIMITER_POINT_MIN_DISTANCE_M = 0.001
 
 
 def _interval(name: str, value: tuple[float, float], *, angle: bool) -> tuple[float, float]:
@@ -119,10 +132,25 @@ class Geometry(_Strict):
 
     @model_validator(mode="after")
     def _check(self):
+        m = COORDINATE_MAX_M
         for name in ("lift_arm_pivot", "top_link_tractor_point", "limiter_tractor_point"):
             v = getattr(self, name)
-            if not all(math.isfinite(c) and abs(c) <= 5.0 for c in v):
-                raise ProfileError(f"{name} coordinates must be finite and within ±5 m")
+            if not all(math.isfinite(c) and abs(c) <= m for c in v):
+                worst = max(v, key=lambda c: abs(c) if math.isfinite(c) else math.inf)
+                raise ProfileError(
+                    f"{name} = [{', '.join(f'{c:g}' for c in v)}]: coordinates are in m and must be finite numbers "
+                    f"within ±{m:g} m" + unit_hint(worst, -m, m, "m")
+                )
+        c = self.limiter_tractor_point
+        if math.hypot(*c) < LIMITER_POINT_MIN_DISTANCE_M:
+            rb = math.hypot(self.limiter_bracket_position, self.limiter_bracket_offset)
+            raise ProfileError(
+                f"limiter_tractor_point = [{', '.join(f'{x:g}' for x in c)}] m lies on the lower-link pivot (it is "
+                f"relative to that side's pivot, {math.hypot(*c):.3g} m from it): a sway limiter anchored there has "
+                f"the same length at every sway (the bracket's distance from the pivot, {rb:.4g} m, from "
+                "limiter_bracket_position and limiter_bracket_offset) and cannot hold the lower link; allowed: at "
+                f"least {LIMITER_POINT_MIN_DISTANCE_M:g} m from the pivot (x outward: the thesis profile's 0.1487 m)"
+            )
         if self.lift_rod_attachment >= self.lower_link_length:
             raise ProfileError("lift_rod_attachment must lie on the lower link (< lower_link_length)")
         if self.limiter_bracket_position >= self.lower_link_length:
@@ -152,7 +180,13 @@ class Implement(_Strict):
 
 
 class ActuatorSpec(_Strict):
-    """One actuator: stroke, sensor calibration and identified valve dynamics (thesis 1.1)."""
+    """One actuator: stroke, sensor calibration and identified valve dynamics (thesis 1.1).
+
+    The stroke's unit and range are its kind's: :class:`LiftSpec` (an angle [rad]) or :class:`CylinderSpec`
+    (a length [m]), as :class:`Actuators` takes them; this class checks what every kind shares."""
+
+    #: the unit of ``min``, ``max`` and ``neutral`` ("" where the kind is not known)
+    stroke_unit: ClassVar[str] = ""
 
     min: float
     max: float
@@ -169,33 +203,67 @@ class ActuatorSpec(_Strict):
 
     @model_validator(mode="after")
     def _check(self):
-        _interval("stroke", (self.min, self.max), angle=False)
+        unit = f" {self.stroke_unit}" if self.stroke_unit else ""
+        if not self.min < self.max:
+            raise ProfileError(f"stroke needs min < max (got min = {self.min:g}{unit}, max = {self.max:g}{unit})")
+        if self.counts_min >= self.counts_max:  # a reversed pair is not a span that is too short
+            raise ProfileError(
+                f"counts_min = {self.counts_min} must be below counts_max = {self.counts_max}: the sensor reads "
+                f"counts_min at the stroke's min and counts_max at its max, at least {MIN_COUNT_SPAN} counts apart "
+                f"(counts_max - counts_min >= {MIN_COUNT_SPAN})"
+                + ("; these are reversed (swap them)" if self.counts_min > self.counts_max else "")
+            )
         if self.counts_max - self.counts_min < MIN_COUNT_SPAN:
             raise ProfileError(
                 f"counts_min ({self.counts_min}) .. counts_max ({self.counts_max}): a sensor must read its stroke "
                 f"over at least {MIN_COUNT_SPAN} counts (counts_max - counts_min >= {MIN_COUNT_SPAN})"
             )
         if self.neutral is not None and not (self.min <= self.neutral <= self.max):
-            raise ProfileError(f"neutral {self.neutral} must lie within the stroke [{self.min}, {self.max}]")
+            hint = unit_hint(self.neutral, self.min, self.max, self.stroke_unit) if self.stroke_unit else ""
+            raise ProfileError(
+                f"neutral = {self.neutral:g}{unit} must lie within the stroke [min, max] = "
+                f"[{self.min:g}, {self.max:g}]{unit}{hint}"
+            )
         return self
+
+
+#: the lift's stroke is its lift-arm angle θ_E [rad], within (-π/2, π/2) (the arm never passes the vertical)
+_LiftStroke = Annotated[float, Field(json_schema_extra={"unit": "rad"}, gt=-math.pi / 2, lt=math.pi / 2)]
+#: a cylinder's (tilt, top link, sway limiters) stroke is its length [m], within (0, 5]
+_CylinderStroke = Annotated[float, Field(json_schema_extra={"unit": "m"}, gt=0.0, le=5.0)]
+
+
+class LiftSpec(ActuatorSpec):
+    """The lift: an :class:`ActuatorSpec` whose stroke (``min``, ``max``, ``neutral``) is an angle [rad] within
+    (-π/2, π/2); a value out of range is named with its unit ("did you mean degrees? …")."""
+
+    stroke_unit: ClassVar[str] = "rad"
+
+    min: _LiftStroke
+    max: _LiftStroke
+
+
+class CylinderSpec(ActuatorSpec):
+    """A cylinder (tilt, top link, sway limiter): an :class:`ActuatorSpec` whose stroke (``min``, ``max``,
+    ``neutral``) is a length [m] within (0, 5]; a value out of range is named with its unit ("did you mean
+    mm? …")."""
+
+    stroke_unit: ClassVar[str] = "m"
+
+    min: _CylinderStroke
+    max: _CylinderStroke
 
 
 class Actuators(_Strict):
-    lift: ActuatorSpec
-    tilt: ActuatorSpec
-    top: ActuatorSpec
-    left: ActuatorSpec
-    right: ActuatorSpec
+    """The five actuators. Each stroke's range is checked field by field with its unit (``actuators.top.min =
+    655: … (allowed: > 0 and <= 5 m; did you mean mm? …)``) before the checks between fields (min < max, the
+    AD span, the neutral), so a stroke typed in mm is named as such, not as a neutral outside it."""
 
-    @model_validator(mode="after")
-    def _check(self):
-        if not (-math.pi / 2 < self.lift.min < self.lift.max < math.pi / 2):
-            raise ProfileError("lift is an angle [rad]: its stroke must lie within (-π/2, π/2)")
-        for n in ("tilt", "top", "left", "right"):
-            spec = getattr(self, n)
-            if spec.min <= 0 or spec.max > 5.0:
-                raise ProfileError(f"{n} is a length [m]: its stroke must lie within (0, 5]")
-        return self
+    lift: LiftSpec
+    tilt: CylinderSpec
+    top: CylinderSpec
+    left: CylinderSpec
+    right: CylinderSpec
 
 
 class KeepOut(_Strict):
@@ -480,10 +548,14 @@ def tractor_profile_for(value: str, out_folder: str | Path | None, *, relative_t
     return os.path.relpath(path, Path(out_folder).resolve())
 
 
-def write_profile_text(path: str | Path, text: str, *, what: str = "profile") -> Profile:
+def write_profile_text(
+    path: str | Path, text: str, *, what: str = "profile", check: Callable[[Profile], object] | None = None
+) -> Profile:
     """Write profile TOML ``text`` to ``path`` only if it loads there (:func:`load_profile`: the schema, the
-    tractor profile taken from ``path``'s folder); the loaded profile. Written to a file beside it first and
-    renamed: a refused text leaves nothing behind (an old file at ``path`` stays as it was)."""
+    tractor profile taken from ``path``'s folder) and passes ``check`` (called with the profile loaded from the
+    file; a :class:`HitchInputError` refuses it, e.g. a model that does not build); the loaded profile. Written
+    to a file beside it first and renamed: a refused text leaves nothing behind (an old file at ``path`` stays
+    as it was)."""
     p = Path(path)
     if p.suffix != ".toml":
         raise ProfileError(f"{what} file {p}: the name must end in .toml")
@@ -494,6 +566,8 @@ def write_profile_text(path: str | Path, text: str, *, what: str = "profile") ->
         raise ProfileError(f"{what} file {p}: cannot write it ({exc.strerror})") from None
     try:
         prof = load_profile(tmp)
+        if check is not None:
+            check(prof)
         os.replace(tmp, p)
     except HitchInputError as exc:
         raise ProfileError(f"{what} file {p} was not written: {str(exc).replace(str(tmp), str(p))}") from None

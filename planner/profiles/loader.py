@@ -3,6 +3,7 @@ and validation errors that name the field, the value and the allowed range."""
 
 from __future__ import annotations
 
+import math
 import tomllib
 from importlib import resources
 from importlib.resources.abc import Traversable
@@ -106,6 +107,10 @@ def _field_unit(info: FieldInfo | None) -> str:
     return unit if isinstance(unit, str) else ""
 
 
+#: pydantic's error types of a number beyond a bound
+_BOUND_ERRORS = frozenset(("greater_than", "greater_than_equal", "less_than", "less_than_equal"))
+
+
 def format_validation_error(kind: str, source: str, err: ValidationError, schema: type[BaseModel] | None = None) -> str:
     """One line per problem: ``<field path> = <value>: <what is wrong> (allowed: <range>)``."""
     lines = [f"invalid {kind} {source}:"]
@@ -120,9 +125,12 @@ def format_validation_error(kind: str, source: str, err: ValidationError, schema
             msg = "must be an array ([ … ])"
         elif e["type"] == "string_type":
             msg = "must be text (a quoted string)"
+        value = e.get("input")
+        if e["type"] in _BOUND_ERRORS and isinstance(value, float) and not math.isfinite(value):
+            # a schema that lets NaN through names the bound it fails ("less than or equal to 3"): say what it is
+            msg = "Input should be a finite number"
         info = _field_info(schema, tuple(e["loc"]))
         allowed, unit = _field_range(info), _field_unit(info)
-        value = e.get("input")
         if allowed and unit:
             allowed += f" {unit}"
             if isinstance(value, (int, float)) and not isinstance(value, bool) and info is not None:

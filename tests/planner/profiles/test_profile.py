@@ -68,7 +68,7 @@ def _mutate(raw, path, value):
         (
             ("geometry", "limiter_tractor_point"),
             [0.0, math.inf, 0.0],
-            r"limiter_tractor_point coordinates must be finite",
+            r"geometry\.limiter_tractor_point\.1 = inf: Input should be a finite number",
         ),
         (("actuators", "tilt", "min"), 0.9, r"actuators\.tilt: .*min < max"),
         (
@@ -76,10 +76,10 @@ def _mutate(raw, path, value):
             2000,
             r"actuators\.tilt\.counts_max = 2000: .*allowed: >= 0 and <= 1023 counts\)",
         ),
-        (("actuators", "lift", "max"), 2.0, r"actuators: .*lift is an angle"),
+        (("actuators", "lift", "max"), 2.0, r"actuators\.lift\.max = 2\.0: .*allowed: > -1\.5708 and < 1\.5708 rad"),
         # a 1-count sensor loaded and failed in the twin: "relay_margin_counts = 2 leaves no stroke (span 1 counts)"
         (("actuators", "lift", "counts_max"), 29, r"actuators\.lift: .*over at least 16 counts"),
-        (("actuators", "tilt", "neutral"), 0.9, r"actuators\.tilt: .*neutral 0\.9 must lie within the stroke"),
+        (("actuators", "tilt", "neutral"), 0.9, r"actuators\.tilt: .*neutral = 0\.9 m must lie within the stroke"),
         (("actuators", "top", "valve_multiplier"), 0.0, r"actuators\.top\.valve_multiplier = 0\.0"),
         (
             ("limits", "top_link_yaw_max"),

@@ -133,10 +133,15 @@ def _cmd_serve(args) -> int:
     def ready(service) -> None:
         nonlocal blackbox
         blackbox = EventLog(event_log_path(cfg.data_dir))
-        blackbox.attach(service)
         blackbox.record(
-            "service", what="started", prefix=cfg.prefix, listen=list(cfg.listen or ()), profile=cfg.profile
+            "service",
+            what="started",
+            prefix=cfg.prefix,
+            listen=list(cfg.listen or ()),
+            profile=cfg.profile,
+            warnings=list(service.warnings),  # what the start said (its events came before the black box)
         )
+        blackbox.attach(service)  # the service's own events, in-process (events it published before: a gap record)
         for w in service.warnings:
             print(f"hitch serve: warning: {w}", file=sys.stderr)
         http = getattr(service, "http", None)
@@ -155,6 +160,7 @@ def _cmd_serve(args) -> int:
         took = serve(cfg, ready=ready)
     finally:
         if blackbox is not None:
+            blackbox.summarize()  # the requests held back by the flood limits, counted before the stop record
             blackbox.record("service", what="stopped")
             blackbox.close()
     print(f"hitch serve: stopped in {took * 1000:.0f} ms", flush=True)
@@ -734,39 +740,49 @@ def _cmd_maneuver(args) -> int:
     return _run(args, maneuver)
 
 
+def _fleet_row(c, prefix: str) -> dict[str, Any]:
+    """One live service of ``hitch fleet ls``: its ``config`` (which any role that may read may ask, and
+    which carries the mode: the ``mode`` key is the operators'), or why it gave none (``error``: the message,
+    ``code``: ``timeout`` when it did not answer, else the service's refusal)."""
+    from bridge.service.client import ServiceError
+
+    try:
+        cfg = c.config(prefix)
+    except ServiceError as exc:  # that service refused, or did not answer
+        return {"prefix": prefix, "error": str(exc), "code": exc.code}
+    except HitchError as exc:  # e.g. a token whose key is no prefix this client can send to
+        return {"prefix": prefix, "error": str(exc), "code": "error"}
+    return {
+        "prefix": prefix,
+        "profile": cfg.get("profile"),
+        "category": cfg.get("category"),
+        "implement": cfg.get("implement"),
+        "mode": cfg.get("mode"),
+    }
+
+
+def _fleet_line(r: dict[str, Any]) -> str:
+    if "error" not in r:
+        return f"{r['prefix']}: {r['profile']} cat {r['category']}, implement {r['implement'] or '-'}, mode {r['mode']}"
+    what = "NO ANSWER" if r.get("code") == "timeout" else f"REFUSED ({r.get('code')})"
+    return f"{r['prefix']}: {what}: {r['error']}"
+
+
 def _cmd_fleet(args) -> int:
+    """The live services (their liveliness tokens), each with its ``config``. Exit status: 0 when every listed
+    service answered (or none is live), 1 when some did not (each shown as such), 2 when none did."""
+
     def fleet(c) -> int:
-        rows = []
-        for prefix in c.fleet(timeout_s=min(args.timeout, 5.0)):
-            try:
-                cfg = c.config(prefix)
-                st = c.request("mode", {}, prefix=prefix)
-                rows.append(
-                    {
-                        "prefix": prefix,
-                        "profile": cfg.get("profile"),
-                        "category": cfg.get("category"),
-                        "implement": cfg.get("implement"),
-                        "mode": st.get("mode"),
-                    }
-                )
-            except HitchError as exc:  # ServiceError: that service refused or did not answer
-                rows.append({"prefix": prefix, "error": str(exc)})
-        _print(
-            args,
-            {"fleet": rows},
-            "\n".join(
-                f"{r['prefix']}: "
-                + (
-                    r["error"]
-                    if "error" in r
-                    else f"{r['profile']} cat {r['category']}, implement {r['implement'] or '-'}, mode {r['mode']}"
-                )
-                for r in rows
+        rows = [_fleet_row(c, prefix) for prefix in c.fleet(timeout_s=min(args.timeout, 5.0))]
+        _print(args, {"fleet": rows}, "\n".join(map(_fleet_line, rows)) or "(no services)")
+        failed = [r for r in rows if "error" in r]
+        if failed and not args.json:  # the status says it; the line says why on stderr too
+            print(
+                f"hitch: {len(failed)} of {len(rows)} services gave no configuration: "
+                + ", ".join(r["prefix"] for r in failed),
+                file=sys.stderr,
             )
-            or "(no services)",
-        )
-        return 0
+        return 0 if not failed else 2 if len(failed) == len(rows) else 1
 
     return _run(args, fleet)
 
@@ -901,7 +917,11 @@ def add_commands(sub) -> Any:
     maneuver_actions = ms  # bridge.cli.headland adds record, pause, resume, skip (bridge.cli.main)
     p = sub.add_parser("fleet", help="services reachable through a router")
     fs = p.add_subparsers(dest="action", required=True, parser_class=type(p))
-    q = fs.add_parser("ls", help="list live services (liveliness tokens) with their profile and mode")
+    q = fs.add_parser(
+        "ls",
+        help="list live services (liveliness tokens) with their profile and mode; exit status 1 when some did not "
+        "answer, 2 when none did",
+    )
     _client_options(q)
     q.set_defaults(handler=_cmd_fleet)
 

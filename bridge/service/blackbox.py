@@ -10,10 +10,16 @@ existing log goes on after the last record's number, so a number names one recor
   on the plain keys that Zenoh's access control let through), ``accepted`` (bool), ``error`` and
   ``message`` of a refusal, ``motion_id`` of an accepted motion, ``request`` (the JSON body of a
   writing request, capped at :data:`MAX_BODY_CHARS` characters); every request but ``config``
-  (:data:`UNRECORDED_KEYS`: the service's fixed description, which every client asks once);
-* ``event`` — an event of the service as published on ``<prefix>/events`` (faults, motion
-  and maneuver outcomes, mode changes …), its fields as they are, the service's time ``t``
-  kept as ``event_t``;
+  (:data:`UNRECORDED_KEYS`: the service's fixed description, which every client asks once), within
+  the limits of :class:`RecordLimits` (below);
+* ``suppressed`` — requests of one group (``key``, ``user``, ``accepted``, ``error``) counted but not
+  written one by one (``count``, ``since``: wall time of the first, ``window_s``, ``message``);
+* ``event`` — an event of this service (faults, motion and maneuver outcomes, mode changes …) as
+  the service itself hands it to its in-process ``event`` listeners — never read back from the public
+  ``<prefix>/events`` key, where anyone allowed to put could forge one and which a router outage cuts —
+  its fields as they are, the service's time ``t`` kept as ``event_t`` and its number as ``event_seq``;
+* ``gap`` — events of the service that did not reach the black box (their numbers ``event_seq`` are
+  consecutive: ``missing``, ``first_event_seq`` … ``last_event_seq``);
 * ``service`` — start and stop of the service; ``dropped`` — records lost because the
   writer fell behind (``count``).
 
@@ -21,6 +27,14 @@ existing log goes on after the last record's number, so a number names one recor
 that a writer thread empties, so the control thread that reports an event does no file I/O.
 Attach it with :meth:`EventLog.attach` (the service's ``event`` listener and the API's
 ``on_request`` hook).
+
+Request floods cannot rotate the log away (:class:`RecordLimits`): events, ``service``, ``gap``,
+``dropped`` and ``suppressed`` records are always written; request records pass token buckets per
+group — accepted writing requests (:data:`WRITING_KEYS`) and accepted terminal logins / logouts
+generously per key and user, every other request record (reads, refusals, failed logins) sparingly per
+key, user, outcome and error and all of them together under one shared budget; what a bucket holds
+back is counted and written as one ``suppressed`` record per group at most every
+``summary_s`` seconds (and at close), so the counts add up to every request.
 
 :class:`CanRecorder` records every frame of a bus with python-can's own writers
 (:class:`can.SizedRotatingLogger`: ``.asc``, ``.blf``, candump ``.log``, ``.csv`` by the file's
@@ -62,6 +76,7 @@ if TYPE_CHECKING:
 __all__ = [
     "BlackBoxError",
     "EventLog",
+    "RecordLimits",
     "CanRecorder",
     "ReplayRecord",
     "announce_can_log_stop",
@@ -96,6 +111,8 @@ WRITING_KEYS = frozenset(
 )
 #: a logged request body is cut to this many characters
 MAX_BODY_CHARS = 2000
+#: the writer looks for due ``suppressed`` summaries at least this often while the log is quiet [s]
+_SUMMARY_POLL_S = 1.0
 _LOG_NAME = "events.jsonl"
 
 
@@ -106,6 +123,172 @@ UNRECORDED_KEYS = frozenset({"config"})
 
 class BlackBoxError(HitchInputError):
     """A log setting or file that cannot be used; the message names it and what is allowed."""
+
+
+#: accepted requests recorded generously (:attr:`RecordLimits.write_burst`): the machine's commands, the
+#: stored data's changes and the terminal's logins and logouts
+KEPT_ACCEPTED_KEYS = WRITING_KEYS | {"web/login", "web/logout"}
+
+
+@dataclass(frozen=True)
+class RecordLimits:
+    """How many request records the black box writes one by one before it counts them instead.
+
+    Token buckets (``burst`` records at once, refilled at ``per_s`` records a second):
+
+    * accepted requests on :data:`KEPT_ACCEPTED_KEYS`, per key and user: ``write_burst``, ``write_per_s``
+      (an operator's gotos are all written; a held jog button, 12 requests a second, is written for its
+      first ``write_burst`` requests, then about ``write_per_s`` a second and the rest counted);
+    * every other request record (reads, refusals of any kind, failed logins), per key, user, outcome
+      and error: ``other_burst``, ``other_per_s``; and all of those together: ``total_burst``,
+      ``total_per_s`` (names and error codes cannot multiply the budget).
+
+    A group whose bucket is empty is counted and written as one ``suppressed`` record at most every
+    ``summary_s`` seconds (and when its next record passes, and at close). At most ``max_groups``
+    groups are tracked; beyond, new groups are counted together under key and user ``"*"``.
+
+    Worst case with the defaults: the refused / reading requests of any number of clients write at most
+    about 1 record a second plus 65 summaries a minute — under 1 kB/s with records like a refused ``ik``
+    (the default log, 6 files of 5 MB, then holds some 8 hours of the flood), about 5 kB/s with every
+    record at its longest (:data:`MAX_BODY_CHARS` of body and of message: some 1.5 hours); before, 20 s
+    of refused ``ik`` requests rotated the whole log away.
+    """
+
+    write_burst: int = 100
+    write_per_s: float = 2.0
+    other_burst: int = 10
+    other_per_s: float = 0.1
+    total_burst: int = 100
+    total_per_s: float = 1.0
+    summary_s: float = 60.0
+    max_groups: int = 64
+
+    def __post_init__(self) -> None:
+        for name in ("write_burst", "other_burst", "total_burst", "max_groups"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 10**6:
+                raise BlackBoxError(f"RecordLimits.{name} must be an integer in 1..1000000, got {v!r}")
+        for name in ("write_per_s", "other_per_s", "total_per_s", "summary_s"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v <= 1e6 or not math.isfinite(v):
+                raise BlackBoxError(f"RecordLimits.{name} must be a number in (0, 1e6], got {v!r}")
+
+
+#: (key, user, accepted, error) of a request record
+_Group = tuple[str, str | None, bool, str | None]
+_OVERFLOW: _Group = ("*", "*", False, None)
+
+
+class _Bucket:
+    __slots__ = ("burst", "per_s", "tokens", "at")
+
+    def __init__(self, burst: int, per_s: float, now: float) -> None:
+        self.burst, self.per_s, self.tokens, self.at = float(burst), float(per_s), float(burst), now
+
+    def refill(self, now: float) -> None:
+        if now > self.at:
+            self.tokens = min(self.burst, self.tokens + (now - self.at) * self.per_s)
+        self.at = max(self.at, now)
+
+
+class _Tally:
+    __slots__ = ("bucket", "count", "since", "first", "last")
+
+    def __init__(self, bucket: _Bucket) -> None:
+        self.bucket = bucket
+        self.count = 0  # held back since the last summary
+        self.since: float | None = None  # wall time of the first held back
+        self.first = self.last = 0.0  # clock of the first and the last held back
+
+
+class _RequestLimiter:
+    """The token buckets of :class:`RecordLimits` and the counts of what they held back (thread-safe)."""
+
+    def __init__(self, limits: RecordLimits, clock: Callable[[], float]) -> None:
+        self.limits, self.clock = limits, clock
+        self._lock = threading.Lock()
+        self._groups: dict[_Group, _Tally] = {}
+        self._total = _Bucket(limits.total_burst, limits.total_per_s, clock())
+        self.pending = 0  # groups with a count not yet summarised
+
+    def admit(self, group: _Group, kept: bool) -> tuple[bool, dict[str, Any] | None]:
+        """Whether a record of ``group`` is written; and the summary of what the group held back before
+        (to be written first) when it is."""
+        lim, now = self.limits, self.clock()
+        with self._lock:
+            tally = self._groups.get(group)
+            if tally is None:
+                if len(self._groups) >= lim.max_groups:
+                    self._prune(now)
+                if len(self._groups) >= lim.max_groups:
+                    group, kept = _OVERFLOW, False
+                    tally = self._groups.get(group)
+                if tally is None:
+                    burst, per_s = (lim.write_burst, lim.write_per_s) if kept else (lim.other_burst, lim.other_per_s)
+                    tally = self._groups[group] = _Tally(_Bucket(burst, per_s, now))
+            tally.bucket.refill(now)
+            ok = group != _OVERFLOW and tally.bucket.tokens >= 1.0
+            if ok and not kept:
+                self._total.refill(now)
+                ok = self._total.tokens >= 1.0
+                if ok:
+                    self._total.tokens -= 1.0
+            if ok:
+                tally.bucket.tokens -= 1.0
+                return True, self._summary(group, tally, now)
+            if tally.count == 0:
+                tally.since, tally.first = time.time(), now
+                self.pending += 1
+            tally.count += 1
+            tally.last = now
+            return False, None
+
+    def due(self, *, force: bool = False) -> list[dict[str, Any]]:
+        """The summaries of the groups whose first held-back record is ``summary_s`` old (all: ``force``)."""
+        now = self.clock()
+        with self._lock:
+            if not self.pending:
+                return []
+            out = []
+            for group, tally in list(self._groups.items()):
+                if tally.count and (force or now - tally.first >= self.limits.summary_s):
+                    rec = self._summary(group, tally, now)
+                    if rec is not None:
+                        out.append(rec)
+            return out
+
+    def _summary(self, group: _Group, tally: _Tally, now: float) -> dict[str, Any] | None:
+        if not tally.count:
+            return None
+        key, user, accepted, error = group
+        window = max(0.0, now - tally.first)
+        what = "accepted" if accepted else "refused"
+        rec: dict[str, Any] = {
+            "key": key,
+            "user": user,
+            "accepted": accepted,
+            "error": error,
+            "count": tally.count,
+            "since": tally.since,
+            "window_s": round(window, 3),
+            "message": (
+                f"{tally.count} further request records of other groups (more than {self.limits.max_groups} "
+                f"groups) in the last {window:.0f} s"
+                if group == _OVERFLOW
+                else f"{tally.count} further {what} {key} requests{f' ({error})' if error else ''} from "
+                f"{user if user is not None else 'unnamed'} in the last {window:.0f} s"
+            ),
+        }
+        tally.count, tally.since = 0, None
+        self.pending -= 1
+        return rec
+
+    def _prune(self, now: float) -> None:
+        """Forget the groups with nothing held back whose bucket is full again (they start over alike)."""
+        for group, tally in list(self._groups.items()):
+            tally.bucket.refill(now)
+            if not tally.count and tally.bucket.tokens >= tally.bucket.burst:
+                del self._groups[group]
 
 
 def event_log_path(data_dir: str | Path) -> Path:
@@ -142,10 +325,19 @@ class EventLog:
         max_bytes: rotate when the file would grow beyond this, (0, 1e10] bytes.
         backup_count: rotated files kept, 1..1000.
         queue_size: records waiting for the writer, 1..1e6; more are counted as dropped.
+        limits: how many request records are written one by one (:class:`RecordLimits`; default its defaults).
+        clock: the limits' clock [s] (monotonic; tests pass their own).
     """
 
     def __init__(
-        self, path: str | Path, *, max_bytes: int = 5_000_000, backup_count: int = 5, queue_size: int = 10_000
+        self,
+        path: str | Path,
+        *,
+        max_bytes: int = 5_000_000,
+        backup_count: int = 5,
+        queue_size: int = 10_000,
+        limits: RecordLimits | None = None,
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
         if isinstance(max_bytes, bool) or not isinstance(max_bytes, int) or not 0 < max_bytes <= 10**10:
             raise BlackBoxError(f"max_bytes must be an integer in (0, 1e10], got {max_bytes!r}")
@@ -167,6 +359,9 @@ class EventLog:
         self._seq = last_seq(self.path)
         self._dropped = 0
         self._dropped_reported = 0
+        self._limiter = _RequestLimiter(limits if limits is not None else RecordLimits(), clock)
+        self._event_seq: int | None = None  # the last event number heard (None: none yet, any first is fine)
+        self._event_lock = threading.Lock()
         self._closed = False
         self._thread = threading.Thread(target=self._write_loop, name="hitch-blackbox", daemon=True)
         self._thread.start()
@@ -191,14 +386,31 @@ class EventLog:
         return True
 
     def on_event(self, event: Mapping[str, Any]) -> None:
-        """Listener for the service's ``event`` dicts."""
+        """Listener for the service's own ``event`` dicts (in-process: :meth:`attach`). The service numbers
+        its events 1, 2, … (``seq``); a number skipped — an event that did not reach the black box, e.g. a
+        bounded queue on the way overflowed — is written as a ``gap`` record before the event."""
         e = dict(event)
         if "t" in e:
             e["event_t"] = e.pop("t")
         e.pop("kind", None)
         if "seq" in e:  # the service's own event sequence number; ``seq`` is the log's
             e["event_seq"] = e.pop("seq")
-        self.record("event", **e)
+        n = e.get("event_seq")
+        with self._event_lock:  # one listener call at a time in practice; the lock keeps gap and event in order
+            if isinstance(n, int) and not isinstance(n, bool):
+                last = self._event_seq
+                if last is not None and n > last + 1:
+                    self.record(
+                        "gap",
+                        missing=n - last - 1,
+                        first_event_seq=last + 1,
+                        last_event_seq=n - 1,
+                        message=f"{n - last - 1} event(s) of the service (numbers {last + 1}..{n - 1}) were not "
+                        "recorded: published before the black box was attached, or lost on the way to it",
+                    )
+                if last is None or n > last:
+                    self._event_seq = n
+            self.record("event", **e)
 
     def on_request(
         self, key: str, user: str | None, payload: bytes | bytearray | memoryview | str | None, ok: bool, reply: Any
@@ -215,6 +427,18 @@ class EventLog:
             else:
                 rec["error"] = reply.get("error")
                 rec["message"] = str(reply.get("message", ""))[:MAX_BODY_CHARS]
+        error = rec.get("error")
+        group: _Group = (
+            str(key)[:200],
+            None if user is None else str(user)[:200],
+            bool(ok),
+            None if error is None else str(error)[:200],
+        )
+        admitted, summary = self._limiter.admit(group, bool(ok) and key in KEPT_ACCEPTED_KEYS)
+        if summary is not None:
+            self.record("suppressed", **summary)
+        if not admitted:
+            return
         if key in WRITING_KEYS and payload is not None:
             try:
                 text = payload if isinstance(payload, str) else bytes(payload).decode("utf-8", "replace")
@@ -224,9 +448,20 @@ class EventLog:
                 rec["request"] = text[:MAX_BODY_CHARS]
         self.record("request", **rec)
 
+    def summarize(self) -> None:
+        """Queue a ``suppressed`` record for every group with requests held back now (e.g. before the
+        service's stop record; :meth:`close` writes the rest)."""
+        for summary in self._limiter.due(force=True):
+            self.record("suppressed", **summary)
+
     def attach(self, service: Any) -> None:
-        """Record the events of a started :class:`~bridge.service.server.HitchService` and, when its API
-        has the ``on_request`` hook, its requests."""
+        """Record the events of a started :class:`~bridge.service.server.HitchService` (its in-process
+        ``event`` listener: the dicts the service itself publishes, never what is heard on its public
+        ``events`` key) and, when its API has the ``on_request`` hook, its requests. The service numbers
+        its events from 1: events it had already published when attached are noted as a ``gap``."""
+        with self._event_lock:
+            if self._event_seq is None:
+                self._event_seq = 0
         service.add_listener("event", self.on_event)
         api = getattr(service, "api", None)
         if api is not None and hasattr(api, "on_request"):
@@ -235,9 +470,14 @@ class EventLog:
     # ------------------------------------------------------------------ writer thread
     def _write_loop(self) -> None:
         while True:
-            rec = self._queue.get()
+            try:
+                rec = self._queue.get(timeout=_SUMMARY_POLL_S)
+            except queue.Empty:  # quiet: summaries whose time has come
+                self._write_summaries()
+                continue
             try:
                 if rec is None:
+                    self._write_summaries(force=True)
                     return
                 with self._lock:
                     lost = self._dropped - self._dropped_reported
@@ -245,8 +485,15 @@ class EventLog:
                 if lost:
                     self._write({"t": time.time(), "kind": "dropped", "count": lost})
                 self._write(rec)
+                self._write_summaries()
             finally:
                 self._queue.task_done()
+
+    def _write_summaries(self, *, force: bool = False) -> None:
+        if not self._limiter.pending:
+            return
+        for summary in self._limiter.due(force=force):
+            self._write({"t": time.time(), "kind": "suppressed", **summary})
 
     def _write(self, rec: dict[str, Any]) -> None:
         self._seq += 1

@@ -18,11 +18,14 @@ the process at once, not after the CPU-bound programs beside it had their turn. 
 runtime threads (which send every query, ``stop`` too, and take every reply) then run under the
 real-time policy ``SCHED_FIFO`` (:data:`~bridge.service.scheduling.CLIENT_RT_PRIORITY`, below the
 service's control core; needs root or CAP_SYS_NICE, else a ``RuntimeWarning`` and
-:attr:`HitchClient.realtime_refused` say why). Subscription callbacks then run on a thread of ordinary
-priority per subscription, never on those threads. The thread that calls :meth:`~HitchClient.stop` runs under
-the same policy until the answer is in, then goes back to its own. Measured (``docs/benchmarks.md``): under 20 load
-clients and two CPU-bound processes per core, the stop's way from the client to the control core
-p99 0.5 ms with it against 74 ms without.
+:attr:`HitchClient.realtime_refused` say why). Subscription callbacks run on a thread of ordinary
+priority per subscription (every client's), never on those threads. The thread that calls
+:meth:`~HitchClient.stop` runs under the same policy until the answer is in, then goes back to its own.
+Measured (``docs/benchmarks.md``): under 20 load clients and two CPU-bound processes per core, the stop's way
+from the client to the control core p99 0.5 ms with it against 74 ms without.
+
+A client or subscription a program leaves open is closed at exit (each subscription's callback thread waited
+for at most :data:`DISPATCH_JOIN_S`): the program exits, whatever its callbacks do.
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ import threading
 import time
 import traceback
 import warnings
+import weakref
 from collections.abc import Callable, Generator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -132,17 +136,23 @@ class Subscription:
     def __init__(self, subscriber: Any, owner: list[Subscription], dispatcher: threading.Thread | None = None) -> None:
         self._subscriber = subscriber
         self._owner = owner
-        self._dispatcher = dispatcher  # a real-time client's callback thread (None: Zenoh calls back itself)
+        self._dispatcher = dispatcher  # the subscription's callback thread (None: Zenoh calls back itself)
         owner.append(self)
         if dispatcher is not None:  # closed at the latest at exit, before the interpreter finalizes (close)
-            atexit.register(self.close)
+            atexit.register(self._close_at_exit)
 
     def close(self) -> None:
-        """Undeclare the subscriber: Zenoh delivers no sample after this returns. A real-time client's callback
-        thread hands over the samples it already holds and ends; this waits for it up to
-        :data:`DISPATCH_JOIN_S` (not from a callback of this client: it may be what that thread waits for). A
-        thread still inside Zenoh when the interpreter finalizes aborts the process, so one not seen to end
-        here is waited for once more at exit (as is a subscription left open), again for at most that long."""
+        """Undeclare the subscriber: Zenoh delivers no sample after this returns. The callback thread hands
+        over the samples it already holds and ends; this waits for it up to :data:`DISPATCH_JOIN_S` (not from
+        a callback of this client: it may be what that thread waits for). A thread still inside Zenoh when the
+        interpreter finalizes aborts the process, so one not seen to end here is waited for once more at exit
+        (as is a subscription left open), again for at most that long."""
+        self._close(at_exit=False)
+
+    def _close_at_exit(self) -> None:
+        self._close(at_exit=True)
+
+    def _close(self, *, at_exit: bool) -> None:
         _undeclare(self._subscriber)
         try:
             self._owner.remove(self)
@@ -151,30 +161,46 @@ class Subscription:
         th = self._dispatcher
         if th is None or not th.is_alive():
             if th is not None:
-                atexit.unregister(self.close)
+                atexit.unregister(self._close_at_exit)
             return
         if threading.current_thread().name.startswith(DISPATCH_THREAD_PREFIX):
             return  # from a callback: that thread, or another this one may hold up (joined at exit)
         th.join(DISPATCH_JOIN_S)
         if th.is_alive():
             warnings.warn(
-                f"the callback of a real-time subscription ({th.name}) has not returned {DISPATCH_JOIN_S:g} s "
-                "after close; it is waited for again at exit",
+                f"the callback of a subscription ({th.name}) has not returned {DISPATCH_JOIN_S:g} s after close"
+                + ("; the process exits without it" if at_exit else "; it is waited for again at exit"),
                 RuntimeWarning,
-                stacklevel=2,
+                stacklevel=3,
             )
-            return
-        atexit.unregister(self.close)
+            if not at_exit:
+                return
+        atexit.unregister(self._close_at_exit)
 
 
-#: the name of a real-time client's callback threads starts with this
+#: the clients not closed yet: closed at exit (weakly held: a client dropped unclosed leaves the set)
+_OPEN_CLIENTS: weakref.WeakSet[HitchClient] = weakref.WeakSet()
+
+
+def _close_open_clients() -> None:
+    """At exit: close every client still open (its subscriptions' own exit hooks ran first: registered later)."""
+    for client in list(_OPEN_CLIENTS):
+        try:
+            client.close()
+        except Exception:  # noqa: BLE001 — at exit: one client's failure must not keep the others open
+            traceback.print_exc()
+
+
+atexit.register(_close_open_clients)
+
+#: the name of a subscription's callback thread starts with this
 DISPATCH_THREAD_PREFIX = "hitch-client-"
-#: how long closing a real-time subscription waits for its callback thread to end [s]
+#: how long closing a subscription waits for its callback thread to end [s]
 DISPATCH_JOIN_S = 2.0
 
 
 def _dispatch(subscriber: Any, callback: Callable[[dict], None]) -> None:
-    """A real-time client's subscription: take the samples from the channel on an ordinary thread; a
+    """A subscription: take the samples from the channel on a daemon thread of ordinary priority; a
     callback's exception is printed and the subscription goes on (as with Zenoh's own callbacks). The
     thread runs under the ordinary policy even when the thread that subscribed is real-time."""
     caller_to_ordinary()
@@ -271,6 +297,7 @@ class HitchClient:
         except zenoh.ZError as exc:
             raise ServiceError("connect", f"cannot open a Zenoh session to {', '.join(connect)}: {exc}") from None
         self._subs: list[Subscription] = []
+        _OPEN_CLIENTS.add(self)  # closed at exit if still open (_close_open_clients)
         self.realtime = bool(realtime)
         self.realtime_refused: str | None = None
         self._tasks_seen = -1  # this process's thread count when its Zenoh threads were last raised
@@ -490,21 +517,20 @@ class HitchClient:
     # ------------------------------------------------------------------ subscriptions
     def subscribe(self, what: str, callback: Callable[[dict], None], *, prefix: str | None = None) -> Subscription:
         """Call ``callback(dict)`` for every ``state`` or ``events`` sample until the returned
-        :class:`Subscription` or this client is closed. A real-time client calls it on a thread of
-        ordinary priority of its own (at most :data:`SUBSCRIPTION_CAPACITY` samples waiting, the oldest
-        dropped beyond); otherwise Zenoh calls it on its own thread: keep it short either way."""
+        :class:`Subscription` or this client is closed, on a daemon thread of ordinary priority of the
+        subscription's own (at most :data:`SUBSCRIPTION_CAPACITY` samples waiting, the oldest dropped
+        beyond): keep it short. Left open, it is closed at exit (waiting at most :data:`DISPATCH_JOIN_S`
+        for that thread); a callback run by Zenoh's own thread (a non-daemon thread) held the exit forever."""
         if what not in ("state", "events"):
             raise ClientError(f"what must be 'state' or 'events', got {what!r}")
         key = f"{validate_prefix(prefix) if prefix else self.prefix}/{what}"
-        if not self.realtime:
-            direct = self.session.declare_subscriber(key, lambda s: callback(_decode(s.payload)))
-            return Subscription(direct, self._subs)
         sub = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(SUBSCRIPTION_CAPACITY))
         th = threading.Thread(
             target=_dispatch, args=(sub, callback), name=f"{DISPATCH_THREAD_PREFIX}{what}", daemon=True
         )
         th.start()
-        self._keep_realtime()
+        if self.realtime:
+            self._keep_realtime()
         return Subscription(sub, self._subs, th)
 
     def _keep_realtime(self) -> None:
@@ -626,6 +652,9 @@ class HitchClient:
 
     # ------------------------------------------------------------------ life cycle
     def close(self) -> None:
+        """End the subscriptions (each waiting at most :data:`DISPATCH_JOIN_S` for its callback thread), the
+        setpoint publisher and the session (idempotent). A client left open is closed so at exit."""
+        _OPEN_CLIENTS.discard(self)
         with self._track_lock:
             if self._track_pub is not None:
                 _undeclare(self._track_pub[2])

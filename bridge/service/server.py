@@ -249,6 +249,7 @@ class HitchService:
                 read_users(cfg.security)
             own_process = cfg.control_core == "process"
             private = self._open_zenoh(private_link=own_process and cfg.mode != "client")
+            self._refuse_a_served_prefix()  # before the core, the CAN bus or any key is taken
             motion: Any
             if own_process:
                 endpoints = [private] if private is not None else list(cfg.connect)
@@ -351,6 +352,27 @@ class HitchService:
                 f"the service's Zenoh threads could not be given real-time priority ({'; '.join(sorted(set(failed)))})"
             )
 
+    def _refuse_a_served_prefix(self) -> None:
+        """:class:`ServiceStartError` when another service already holds this prefix's liveliness token
+        ``<prefix>/alive`` where this session reaches (asked for at most :data:`PREFIX_CHECK_S`). Two services
+        on one prefix both answered every request — which machine took a ``goto`` or a ``stop`` was Zenoh's
+        choice — and their state streams interleaved. A token Zenoh does not let this session see (an access
+        list without ``liveliness_query`` on the prefix) is not found: the start goes on."""
+        cfg, s = self.config, self.session
+        assert s is not None
+        key = cfg.key("alive")
+        try:
+            held = [str(r.ok.key_expr) for r in s.liveliness().get(key, timeout=PREFIX_CHECK_S) if r.ok is not None]
+        except zenoh.ZError:  # the query could not be sent: nothing is known, as without the check
+            return
+        if held:
+            where = ", ".join([*(cfg.connect or ()), *(cfg.listen or ())]) or "this network"
+            raise ServiceStartError(
+                f"prefix {cfg.prefix!r} is served already: another service holds its liveliness token {key} "
+                f"(seen through {where}); two services on one prefix would both answer every request, a goto or "
+                "stop reaching either machine. Stop that service, or give this one another prefix (--prefix)"
+            )
+
     def _open_zenoh(self, *, private_link: bool) -> str | None:
         """Open the service's session; with ``private_link`` it also listens on an endpoint of its own for
         the core process, and returns that endpoint: a loopback port of its own choosing, or with a security
@@ -417,9 +439,10 @@ class HitchService:
             twin_gnss = start_twin_gnss(cfg, self.parts, s)  # the simulated tractor's receiver (None: a real one)
             if twin_gnss is not None:
                 self._decls.append(twin_gnss)
-        else:  # the core publishes; this process's listeners (terminal, black box) hear it like any client
-            # (the 50 Hz state only once something here listens to it: see _ensure_state_subscription)
-            self._serve(s.declare_subscriber(cfg.key("events"), _ring()), self._on_published("event"), "events")
+        # else the core publishes; this process's event listeners (terminal, black box, the raise / lower switch)
+        # hear its events from its notes (_core_note), never from the public events key, where anyone allowed
+        # to put could forge one and which a router outage cuts; its 50 Hz state is subscribed to only once
+        # something here listens to it (_ensure_state_subscription)
         for key in API_KEYS:
             if key == "stop" and self.core is not None:
                 continue  # answered by the core process itself: no request here can delay it
@@ -441,9 +464,20 @@ class HitchService:
                 self._serve(self._state_sub, self._on_published("state"), "state")
 
     def _core_note(self, note: dict[str, Any]) -> None:
-        """A note from the core over the private socket: a request it answered itself (``stop``), given to
-        the API's request hook (the black box), or its new mode (kept by the proxy: never taken from the
-        public ``events`` key, where anyone may put a ``mode_changed``)."""
+        """A note from the core over the private socket: an event it published (its JSON), handed to this
+        process's ``event`` listeners; a request it answered itself (``stop``), given to the API's request
+        hook (the black box); or its new mode (kept by the proxy). Never taken from the public ``events``
+        key, where anyone may put a ``mode_changed`` or a forged fault."""
+        event = note.get("event")
+        if isinstance(event, (bytes, bytearray)):
+            try:
+                msg = json.loads(event)
+            except ValueError:
+                return
+            if isinstance(msg, dict):
+                for cb in list(self._listeners["event"]):
+                    _call(cb, msg)
+            return
         if "mode" in note and isinstance(self._proxy, MotionProxy):
             self._proxy.on_mode_note(note["mode"])
             return
@@ -707,6 +741,9 @@ def _ring() -> Any:
 
 #: how many loopback ports the service tries for the core process's private link (see _open_zenoh)
 PRIVATE_PORT_TRIES = 5
+#: how long the start waits for another service's liveliness token on its prefix [s]
+#: (_refuse_a_served_prefix; a router answers from its table at once: the bound is for a peer that does not)
+PREFIX_CHECK_S = 2.0
 
 
 def _free_port() -> int:

@@ -18,8 +18,9 @@
 * calls from the service over the socket ``FD`` (:mod:`bridge.service.core.client`): ``(id,
   method, args)`` in, ``(id, "ok", value)`` or ``(id, "error", code, message)`` out; and notes
   ``(0, "note", {...})`` about what the core answered on its own (each ``stop`` it served, for the
-  service's black box) and each change of its mode (the service's ``mode`` and ``config`` answer from
-  it); sent by a thread of their own through a bounded queue, never in the way of the stop. O(1) methods
+  service's black box), each change of its mode (the service's ``mode`` and ``config`` answer from
+  it) and each event it publishes (its JSON: the service's event listeners hear it from here); sent
+  by a thread of their own through a bounded queue, never in the way of the stop. O(1) methods
   are answered on the reading thread at once (``stop`` first of all); ``goto`` and
   ``run_maneuver`` (they plan) on two threads of their own. Values travel as plain data (JSON-ready
   dicts, numbers, states); errors as the API's codes and texts.
@@ -321,10 +322,17 @@ class ControlCore:
     def _publish_event(self, event: dict[str, Any]) -> None:
         if event.get("event") == "mode_changed":  # the service keeps the mode from this note, not the public key
             self._note({"mode": event.get("mode")})
+        try:
+            data = to_json_bytes(event)
+        except Exception:  # noqa: BLE001 — as a put that fails: the outbox goes on
+            return
+        # the service's listeners (black box, terminal, the raise / lower switch) hear the core's events from
+        # this note, never from the public key (anyone allowed to put there could forge one; a router cuts it)
+        self._note({"event": data})
         pub = self._event_pub
         if pub is not None and not self._closed.is_set():
             try:
-                pub.put(to_json_bytes(event))
+                pub.put(data)
             except Exception:  # noqa: BLE001
                 pass
 

@@ -1,0 +1,114 @@
+"""``hitch fleet ls`` against a stand-in client (no Zenoh): what it asks each live service and its exit status.
+
+A fleet trial's report: for a viewer every row read ``no reply from fleet/t01/hitch/user/bob/mode: nothing
+answered that key …`` and the command exited 0 anyway. It asked ``mode``, an operator's key, though the
+``config`` reply (which any role that may read may ask) carries the mode. Now: the mode comes from ``config``
+and the ``mode`` key is never asked; a service that does not answer is shown as such, and the exit status is 0
+when every listed service answered, 1 when some did not, 2 when none did.
+
+Truth: the replies and errors the stand-in gives (the keys it was asked are recorded).
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from bridge.cli import service as cli_service
+from bridge.cli.main import main
+from bridge.service.client import ServiceError, ServiceTimeout
+
+CONFIG = {"profile": "thesis-t132", "category": "2", "implement": None, "mode": "manual", "user_keys": True}
+
+
+class _Fleet:
+    """A stand-in HitchClient for ``fleet ls``: ``services`` maps each live prefix to its config reply or the
+    error its config raises; the ``mode`` key (an operator's) never answers, as for a viewer."""
+
+    def __init__(self, services: dict[str, dict | ServiceError]):
+        self.services = services
+        self.asked: list[tuple[str, str | None]] = []
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        pass
+
+    def fleet(self, *, timeout_s: float = 2.0) -> list[str]:
+        return sorted(self.services)
+
+    def request(self, key, payload=None, *, prefix=None, timeout_s=None):
+        self.asked.append((key, prefix))
+        if key == "mode":
+            raise ServiceTimeout(f"no reply from {prefix}/user/bob/mode: nothing answered that key (0.01 s)")
+        if key != "config":
+            raise AssertionError(f"fleet ls asked {key}")
+        got = self.services[prefix]
+        if isinstance(got, ServiceError):
+            raise got
+        return dict(got)
+
+    def config(self, prefix=None):
+        return self.request("config", {}, prefix=prefix)
+
+
+def _run(monkeypatch, capsys, services, *flags):
+    client = _Fleet(services)
+    monkeypatch.setattr(cli_service, "_client", lambda args: client)
+    code = main(["fleet", "ls", *flags])
+    out = capsys.readouterr()
+    return code, out.out, out.err, client.asked
+
+
+def test_the_mode_comes_from_the_config_any_reader_may_ask(monkeypatch, capsys):
+    services: dict = {"fleet/t01/hitch": CONFIG, "fleet/t02/hitch": {**CONFIG, "mode": "auto"}}
+    code, out, err, asked = _run(monkeypatch, capsys, services, "--json")
+    assert code == 0, err
+    rows = json.loads(out)["fleet"]
+    assert [(r["prefix"], r["mode"], r["profile"]) for r in rows] == [
+        ("fleet/t01/hitch", "manual", "thesis-t132"),
+        ("fleet/t02/hitch", "auto", "thesis-t132"),
+    ]
+    assert all("error" not in r for r in rows)
+    assert asked == [("config", "fleet/t01/hitch"), ("config", "fleet/t02/hitch")]  # never the operators' mode key
+    code, out, err, _ = _run(monkeypatch, capsys, services)
+    assert code == 0 and err == ""
+    assert out.splitlines() == [
+        "fleet/t01/hitch: thesis-t132 cat 2, implement -, mode manual",
+        "fleet/t02/hitch: thesis-t132 cat 2, implement -, mode auto",
+    ]
+
+
+@pytest.mark.parametrize("json_out", [False, True], ids=["text", "json"])
+def test_a_service_that_does_not_answer_is_shown_and_sets_the_exit_status(monkeypatch, capsys, json_out):
+    silent = ServiceTimeout("no reply from fleet/t02/hitch/config: nothing answered that key (0.01 s)")
+    flags = ["--json"] if json_out else []
+    # some answered: 1; the one that did not is shown as such
+    code, out, err, _ = _run(monkeypatch, capsys, {"fleet/t01/hitch": CONFIG, "fleet/t02/hitch": silent}, *flags)
+    assert code == 1
+    if json_out:
+        rows = json.loads(out)["fleet"]
+        assert rows[0]["mode"] == "manual" and "error" not in rows[0]
+        assert rows[1] == {"prefix": "fleet/t02/hitch", "code": "timeout", "error": str(silent)}
+    else:
+        assert out.splitlines() == [
+            "fleet/t01/hitch: thesis-t132 cat 2, implement -, mode manual",
+            f"fleet/t02/hitch: NO ANSWER: {silent}",
+        ]
+        assert "1 of 2 services gave no configuration: fleet/t02/hitch" in err
+    # none answered (one silent, one refusing): 2
+    refused = ServiceError("forbidden", "config: not for this user")
+    code, out, err, _ = _run(monkeypatch, capsys, {"fleet/t01/hitch": refused, "fleet/t02/hitch": silent}, *flags)
+    assert code == 2
+    if json_out:
+        assert [r["code"] for r in json.loads(out)["fleet"]] == ["forbidden", "timeout"]
+    else:
+        assert out.splitlines()[0] == "fleet/t01/hitch: REFUSED (forbidden): config: not for this user"
+        assert "2 of 2 services gave no configuration" in err
+
+
+def test_an_empty_fleet_is_no_error(monkeypatch, capsys):
+    code, out, err, _ = _run(monkeypatch, capsys, {})
+    assert (code, out.strip(), err) == (0, "(no services)", "")

@@ -1,0 +1,272 @@
+"""The black box records its own service's events and survives request floods (bridge.service.blackbox).
+
+Fleet-trial defects: (1) the black box recorded whatever it heard on the public ``<prefix>/events`` key —
+another tractor's login could forge entries, a router outage lost the events of its duration, a second
+service on the prefix was recorded as this one; (2) 57876 refused ``ik`` requests of a viewer rotated
+the whole log (start record and operator gotos included) away in about 20 s.
+
+Truth: the events we make the service publish (a mode change we ask for) and the puts we forge; the
+records we hand the log and the limits we set (a clock of our own: no timing assertions).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+import zenoh
+
+from bridge.service.blackbox import EventLog, RecordLimits, event_log_path, read_events
+from bridge.service.config import ServiceConfig
+from bridge.service.server import HitchService
+from tests.helpers import wait_until
+from tests.integration.service_process import ROOT, free_port
+
+ROUTER = """
+import json, signal, sys, threading, zenoh
+c = zenoh.Config()
+c.insert_json5("mode", '"router"')
+c.insert_json5("listen/endpoints", json.dumps([sys.argv[1]]))
+c.insert_json5("scouting/multicast/enabled", "false")
+s = zenoh.open(c)
+stop = threading.Event()
+signal.signal(signal.SIGTERM, lambda *_: stop.set())
+print("router ready", flush=True)
+stop.wait()
+s.close()
+"""
+
+
+class _Clock:
+    def __init__(self) -> None:
+        self.t = 1000.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def _client(endpoint: str) -> zenoh.Session:
+    c = zenoh.Config()
+    c.insert_json5("mode", '"client"')
+    c.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    c.insert_json5("scouting/multicast/enabled", "false")
+    return zenoh.open(c)
+
+
+def _events(path, name: str) -> list[dict]:
+    return [r for r in read_events(path) if r.get("kind") == "event" and r.get("event") == name]
+
+
+# ---------------------------------------------------------------------------------------- own events
+@pytest.mark.slow
+def test_the_black_box_records_its_own_services_events_not_puts_on_the_public_key_and_not_through_the_router(
+    tmp_path,
+):
+    """A service whose control core runs in its own process (the default), in client mode behind a router
+    (as in the fleet trial). A put forged on ``<prefix>/events`` by another session is not recorded; the
+    service's own events are, also while the router is down (before: the forged event was recorded as
+    the service's own, and the events of an outage were lost)."""
+    port = free_port()
+    router_ep = f"tcp/127.0.0.1:{port}"
+    router = subprocess.Popen([sys.executable, "-c", ROUTER, router_ep], cwd=ROOT, stdout=subprocess.PIPE, text=True)
+    svc = None
+    log = None
+    try:
+        assert router.stdout is not None and "router ready" in router.stdout.readline()
+        prefix = f"bbtest{port}/hitch"
+        cfg = ServiceConfig(
+            mode="client",
+            connect=[router_ep],
+            listen=[],
+            prefix=prefix,
+            data_dir=tmp_path,
+            planning_processes=0,
+            can_channel=f"bb-own-{port}",
+        )
+        svc = HitchService(cfg).start()
+        assert svc.core is not None  # the control core has its own process: its events travel to the service
+        path = event_log_path(tmp_path)
+        log = EventLog(path)
+        log.attach(svc)
+        assert svc.api is not None
+
+        forger = _client(router_ep)
+        heard: list[bytes] = []
+        sub = forger.declare_subscriber(f"{prefix}/events", lambda s: heard.append(s.payload.to_bytes()))
+        try:
+            forged = {"seq": 1, "event": "fault_cleared", "fault": "ecu_watchdog", "reason": "FORGED"}
+            forger.put(f"{prefix}/events", json.dumps(forged))
+            assert wait_until(lambda: any(b"FORGED" in h for h in heard), 10.0)  # the router passed it on
+            # an event of the service's own, published after the forged one went through the router
+            ok, reply = svc.api.handle("mode", b'{"mode": "manual"}', "alice")
+            assert ok, reply
+            assert wait_until(lambda: log.flush() and _events(path, "mode_changed"), 10.0)
+        finally:
+            sub.undeclare()
+            forger.close()
+
+        router.kill()  # SIGKILL: the outage of the trial
+        router.wait(10)
+        ok, reply = svc.api.handle("mode", b'{"mode": "auto"}', "alice")
+        assert ok, reply
+        assert wait_until(lambda: log.flush() and len(_events(path, "mode_changed")) >= 2, 10.0), read_events(path)
+
+        recs = read_events(path)
+        assert not any("FORGED" in json.dumps(r) for r in recs), [r for r in recs if "FORGED" in json.dumps(r)]
+        modes = [r["mode"] for r in _events(path, "mode_changed")]
+        assert modes[-2:] == ["manual", "auto"], modes
+        seqs = [r["event_seq"] for r in recs if r.get("kind") == "event"]
+        assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)  # one service's numbering, in order
+    finally:
+        if log is not None:
+            log.close()
+        if svc is not None:
+            svc.close()
+        if router.poll() is None:
+            router.kill()
+        router.wait(10)
+
+
+def test_a_core_note_with_an_event_reaches_the_services_event_listeners_without_zenoh():
+    """The core hands each event it publishes to the service over its private socket (a note with the
+    event's JSON); the service gives it to its in-process listeners — no Zenoh on the way."""
+    svc = HitchService(ServiceConfig(planning_processes=0))
+    heard: list[dict] = []
+    svc.add_listener("event", heard.append)
+    svc._core_note({"event": b'{"seq": 3, "t": 1.5, "event": "motion_finished", "motion_id": 9}'})
+    svc._core_note({"event": b"{not json"})  # ignored, not raised into the core's reader thread
+    assert heard == [{"seq": 3, "t": 1.5, "event": "motion_finished", "motion_id": 9}]
+
+
+def test_events_that_did_not_reach_the_black_box_are_noted_as_a_gap(tmp_path):
+    """The service numbers its events; a number skipped on the way (a bounded queue that overflowed, events
+    published before the black box was attached) is written as a ``gap`` record naming the numbers."""
+
+    class Service:
+        def __init__(self) -> None:
+            self.listeners: list = []
+            self.api = None
+
+        def add_listener(self, kind, cb):
+            assert kind == "event"
+            self.listeners.append(cb)
+
+    path = event_log_path(tmp_path)
+    svc = Service()
+    with EventLog(path) as log:
+        log.attach(svc)
+        (cb,) = svc.listeners
+        for seq in (3, 4, 5, 9, 10):  # 1, 2 before it was attached; 6..8 lost on the way
+            cb({"seq": seq, "t": 1.0, "event": "fault", "fault": f"f{seq}"})
+    recs = read_events(path)
+    assert [(r["kind"], r.get("event_seq"), r.get("first_event_seq"), r.get("missing")) for r in recs] == [
+        ("gap", None, 1, 2),
+        ("event", 3, None, None),
+        ("event", 4, None, None),
+        ("event", 5, None, None),
+        ("gap", None, 6, 3),
+        ("event", 9, None, None),
+        ("event", 10, None, None),
+    ]
+    assert recs[4]["last_event_seq"] == 8 and "6..8" in recs[4]["message"]
+
+
+# ---------------------------------------------------------------------------------------- request floods
+def test_a_flood_of_refused_requests_cannot_rotate_the_records_that_matter_out_of_the_log(tmp_path):
+    """The trial's flood: refused ``ik`` requests of 8 unnamed sessions, here 60000 on a log of 3 files of
+    50 kB. The start record, the operator's goto, a forbidden goto, the events and the stop record all
+    survive; the refused requests are written a few at first and counted in ``suppressed`` records whose
+    counts add up to every one of them (before: the flood rotated everything else away)."""
+    path = event_log_path(tmp_path)
+    n_flood = 60_000
+    with EventLog(path, max_bytes=50_000, backup_count=2) as log:
+        log.record("service", what="started")
+        log.on_request("goto", "alice", b'{"goal": {"z": 0.2}}', True, {"motion_id": 1})
+        log.on_request("goto", "bob", b'{"goal": {"z": 0.3}}', False, {"error": "forbidden", "message": "viewer"})
+        for i in range(n_flood):
+            log.on_request("ik", None, b'{"x": 0, "pppp": 1}', False, {"error": "invalid", "message": "pppp"})
+            if i == n_flood // 2:
+                log.on_event({"seq": 1, "t": 2.0, "event": "fault", "fault": "ecu_watchdog"})
+                log.on_request("goto", "alice", b'{"goal": {"z": 0.1}}', True, {"motion_id": 2})
+        log.summarize()  # as `hitch serve` does before its stop record
+        log.record("service", what="stopped")
+    recs = read_events(path)
+    kinds = [(r["kind"], r.get("what") or r.get("event") or r.get("key")) for r in recs]
+    assert kinds[0] == ("service", "started") and kinds[-1] == ("service", "stopped"), kinds[:5]
+    gotos = [(r["user"], r["accepted"], r.get("motion_id")) for r in recs if r.get("key") == "goto"]
+    assert gotos == [("alice", True, 1), ("bob", False, None), ("alice", True, 2)]
+    assert ("event", "fault") in kinds
+    written = [r for r in recs if r["kind"] == "request" and r["key"] == "ik"]
+    summaries = [r for r in recs if r["kind"] == "suppressed"]
+    assert len(written) < 100  # a few one by one …
+    assert len(written) + sum(s["count"] for s in summaries) == n_flood  # … and every one counted
+    s = summaries[0]
+    assert (s["key"], s["user"], s["accepted"], s["error"]) == ("ik", None, False, "invalid")
+    assert s["message"].startswith(f"{s['count']} further refused ik requests (invalid) from unnamed in the last")
+    assert [r["seq"] for r in recs] == list(range(1, len(recs) + 1))  # nothing rotated away, nothing lost
+
+
+def test_what_a_group_held_back_is_summarised_before_its_next_record_and_after_summary_s(tmp_path):
+    """Per group (key, user, outcome, error): ``other_burst`` records one by one, then counted; the count is
+    written as one ``suppressed`` record when the group's bucket lets a record through again (before that
+    record) or when ``summary_s`` passed since the first held back (the writer's check), and at close.
+    Accepted writing requests have their own, generous bucket; a group's flood takes nothing from another
+    user's writing requests."""
+    path = event_log_path(tmp_path)
+    clock = _Clock()
+    limits = RecordLimits(other_burst=2, other_per_s=0.5, total_burst=50, total_per_s=10.0, summary_s=30.0)
+    refused = {"error": "forbidden", "message": "viewer"}
+    with EventLog(path, limits=limits, clock=clock) as log:
+        for _ in range(5):
+            log.on_request("presets/save", "bob", b"{}", False, refused)
+        for _ in range(20):
+            log.on_request("jog", "alice", b'{"x": 1}', True, {})  # within write_burst: every one written
+        assert log.flush()  # (the writer checks the summaries on our clock: written before we move it)
+        clock.t += 2.0  # one token back: the next record of bob's group passes, after the summary of three
+        log.on_request("presets/save", "bob", b"{}", False, refused)
+        for _ in range(4):
+            log.on_request("presets/save", "bob", b"{}", False, refused)  # no token left: held
+        assert log.flush()
+        clock.t += 31.0
+        log.record("tick")  # the writer checks the due summaries after each record (and each second)
+        assert log.flush()
+        recs = read_events(path)
+        sup = [r for r in recs if r["kind"] == "suppressed"]
+        assert [s["count"] for s in sup] == [3, 4], sup
+        assert recs.index(sup[0]) < len(recs) - 1 and recs[recs.index(sup[0]) + 1]["key"] == "presets/save"
+        assert sum(1 for r in recs if r.get("key") == "jog") == 20
+        log.on_request("presets/save", None, b"{}", False, refused)  # another group: its own budget
+    recs = read_events(path)
+    assert sum(1 for r in recs if r.get("key") == "presets/save" and r["kind"] == "request") == 2 + 1 + 1
+
+
+def test_new_names_and_error_codes_cannot_multiply_the_budget(tmp_path):
+    """A flood under ever new user names (where names are not checked) or error codes: all groups share
+    one budget, beyond ``max_groups`` they are counted together (key and user ``*``), and the counts still
+    add up to every request."""
+    path = event_log_path(tmp_path)
+    clock = _Clock()
+    limits = RecordLimits(total_burst=20, total_per_s=1.0, max_groups=64, summary_s=10.0)
+    n = 5000
+    with EventLog(path, limits=limits, clock=clock) as log:
+        for i in range(n):
+            log.on_request("ik", f"user{i}", b"{}", False, {"error": f"e{i % 7}", "message": "no"})
+    recs = read_events(path)
+    written = [r for r in recs if r["kind"] == "request"]
+    sup = [r for r in recs if r["kind"] == "suppressed"]
+    assert len(written) == 20  # the shared budget, though each group's own bucket was full
+    assert len(written) + sum(s["count"] for s in sup) == n
+    assert len(sup) == 64 - 20 + 1  # the groups that held back, and the one of all the groups beyond
+    (other,) = [s for s in sup if s["key"] == "*"]
+    assert other["user"] == "*" and other["count"] == n - 64
+
+
+def test_record_limits_out_of_range_are_refused_by_name():
+    from bridge.service.blackbox import BlackBoxError
+
+    with pytest.raises(BlackBoxError, match=r"RecordLimits.other_burst must be an integer"):
+        RecordLimits(other_burst=0)
+    with pytest.raises(BlackBoxError, match=r"RecordLimits.summary_s must be a number"):
+        RecordLimits(summary_s=float("nan"))

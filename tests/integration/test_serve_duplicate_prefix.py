@@ -1,0 +1,104 @@
+"""A second ``hitch serve`` on a prefix a running service already serves refuses to start.
+
+A fleet trial's report: a second service on ``fleet/t01/hitch`` started silently and printed "ready"; both
+answered, the state stream interleaved (seq 839, 1, 840, 2 …) and which machine took a goto or a stop was up
+to Zenoh. At start the service now asks for the liveliness token ``<prefix>/alive`` (bounded,
+server.PREFIX_CHECK_S) and refuses with one line naming the prefix when another service holds it. A service on
+another prefix of the same router starts, and so does one on the prefix of a service killed with SIGKILL (its
+token goes with its connection).
+
+Truth: the processes' exit status and output; the ``config`` of the service that keeps the prefix. A Zenoh
+router in the test process (loopback only) carries the services, as a fleet router does.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+
+import pytest
+import zenoh
+
+from bridge.service.client import HitchClient
+from tests.helpers import loopback_zenoh_config
+from tests.integration.service_process import ROOT, ServiceProcess, free_port
+
+pytestmark = pytest.mark.slow  # services in their own processes
+
+PREFIX = "fleet/t01/hitch"
+
+
+def _serve(ep: str, prefix: str, data_dir, *, timeout_s: float = 90.0) -> tuple[int | None, str]:
+    """Run ``hitch serve`` as a client of ``ep`` until it exits or says it is ready: (exit status or None when it
+    became ready — then it was killed —, its output)."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "bridge.cli", "serve", "--mode", "client", "--connect", ep, "--prefix", prefix]
+        + ["--data-dir", str(data_dir)],
+        cwd=ROOT,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        stdin=subprocess.DEVNULL,
+        text=True,
+    )
+    out: list[str] = []
+    end = time.monotonic() + timeout_s
+    try:
+        assert proc.stdout is not None
+        for line in proc.stdout:  # ends when the process exits
+            out.append(line)
+            if "ready on" in line:
+                return None, "".join(out)
+            if time.monotonic() > end:
+                break
+        return proc.wait(timeout=max(1.0, end - time.monotonic())), "".join(out)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+
+
+@pytest.fixture
+def router():
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    s = zenoh.open(loopback_zenoh_config("router", ep))
+    try:
+        yield ep
+    finally:
+        s.close()
+
+
+def test_a_second_service_on_a_served_prefix_refuses_to_start(router, tmp_path):
+    first = ServiceProcess(
+        ["--mode", "client", "--connect", router, "--prefix", PREFIX, "--data-dir", str(tmp_path / "a")]
+    )
+    try:
+        code, out = _serve(router, PREFIX, tmp_path / "b")
+        assert code == 2, out  # before: it started and said "ready"
+        lines = out.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("hitch: error: "), out
+        assert f"prefix {PREFIX!r} is served already" in lines[0] and f"{PREFIX}/alive" in lines[0], out
+        assert "Traceback" not in out
+        # the first one serves on, alone: one answer to config, one token
+        with HitchClient([router], prefix=PREFIX, timeout_s=10.0) as c:
+            assert c.config()["prefix"] == PREFIX
+            assert c.fleet() == [PREFIX]
+        assert first.proc.poll() is None
+        # another prefix on the same router starts
+        code, out = _serve(router, "fleet/t02/hitch", tmp_path / "c")
+        assert code is None, out
+    finally:
+        first.kill()
+
+
+def test_the_prefix_of_a_killed_service_can_be_served_again(router, tmp_path):
+    """SIGKILL closes the killed service's connection: the router drops its token at once, so a restart (a
+    supervisor's, at once) is not refused."""
+    first = ServiceProcess(
+        ["--mode", "client", "--connect", router, "--prefix", PREFIX, "--data-dir", str(tmp_path / "a")]
+    )
+    first.kill()
+    code, out = _serve(router, PREFIX, tmp_path / "a")
+    assert code is None, out

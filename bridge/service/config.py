@@ -107,6 +107,9 @@ class ServiceConfig(BaseModel):
     prefix: str = "hitch"
     #: multicast scouting (off by default: loopback only, no discovery traffic)
     scouting: bool = Field(False, strict=True)
+    #: when every node of ``connect`` (the router, for a client) is lost: "stop" brakes any motion to rest (the
+    #: fleet can no longer stop it; an event says so either way), "continue" lets it run on (docs/faults.md)
+    on_link_loss: Literal["stop", "continue"] = "stop"
     #: Zenoh security config (JSON5: usrpwd, access_control, TLS) merged into the session config
     security: Path | None = None
     #: serve each user's own request keys (``<prefix>/user/<name>/<key>``: admission, store owner and black box
@@ -239,6 +242,7 @@ _TOML_SECTIONS = {
     "zenoh": {
         "mode": "mode",
         "listen": "listen",
+        "on_link_loss": "on_link_loss",
         "connect": "connect",
         "prefix": "prefix",
         "security": "security",

@@ -197,11 +197,12 @@ class HitchService:
         self._listeners: dict[str, list[Callable[[dict[str, Any]], None]]] = {"state": [], "event": []}
         self._latest_state: dict[str, Any] | None = None
         self._closed = False
+        self._closed_event = threading.Event()  # set by close: ends the link watch
         self._close_lock = threading.Lock()
         self.close_duration_s: float | None = None
         self._service_nice_failed: str | None = None  # why the service threads could not be raised
         self._recorder: Any = None  # the CAN recorder when the core runs here
-        self._state_sub: Any = None  # the subscription to the core's state (declared when first wanted)
+        self._state_asked = False  # the core sends its state over the private socket (asked when first wanted)
         self._sub_lock = threading.Lock()
         self._proxy: MotionProxy | None = None  # the controller's proxy when the core has its own process
         self._core_link: InternalLink | None = None  # the core's made-up login (a secured service, own process)
@@ -242,8 +243,8 @@ class HitchService:
             else:
                 ik = IKSolver(build_model(cfg))
                 ik.solve((0.0, float(build_model(cfg).neutral_pose.z), 0.0, 0.0))  # warm the solver before serving
-            if cfg.security is None:  # with a security file the operator chose the protection
-                self.warnings = exposure_warnings(cfg.listen or (), None)
+            # with a security file too: a client's file (no logins checked, no access control) protects nothing
+            self.warnings = exposure_warnings(cfg.listen or (), cfg.security)
             policy = access_policy_from_file(cfg.security, cfg.prefix) if cfg.security is not None else None
             if cfg.security is not None:  # a missing or malformed users file named here, not by Zenoh's Rust error
                 read_users(cfg.security)
@@ -309,10 +310,59 @@ class HitchService:
                 self._start_http(cfg.http)
             if self.planning is not None:  # built their models meanwhile: ready before the service says so
                 self.planning.warm(60.0)
+            if cfg.connect:
+                threading.Thread(target=self._watch_links, name="hitch-link-watch", daemon=True).start()
         except BaseException:
             self.close()
             raise
         return self
+
+    def _watch_links(self) -> None:
+        """The nodes of ``connect`` (a client's router): every :data:`LINK_WATCH_S`, how many routers and peers
+        the session reaches. When the last is lost, a ``link_lost`` event (in the black box) and, by
+        ``on_link_loss`` (default ``stop``), the hitch braked to rest: nobody in the fleet can stop it now.
+        ``link_restored`` when one is back; nothing stopped resumes."""
+        reached = True  # the session opened: client mode reached a router
+        while not self._closed_event.wait(LINK_WATCH_S):
+            session, api = self.session, self.api
+            if session is None or api is None:
+                return
+            try:
+                n = len(list(session.info.routers_zid())) + len(list(session.info.peers_zid()))
+            except Exception:  # noqa: BLE001 — the session is closing
+                return
+            if reached and n == 0:
+                self._on_link_lost(api)
+            elif not reached and n > 0:
+                self._announce(
+                    api, {"event": "link_restored", "message": f"{n} node(s) reached again; nothing resumes"}
+                )
+            reached = n > 0
+
+    def _on_link_lost(self, api: ServiceAPI) -> None:
+        stop = self.config.on_link_loss == "stop"
+        then = "braking it to rest (on_link_loss = stop)" if stop else "its motion runs on (on_link_loss = continue)"
+        self._announce(
+            api,
+            {
+                "event": "link_lost",
+                "message": f"no node of connect ({', '.join(self.config.connect)}) is reached: the fleet can "
+                f"neither see nor stop the hitch; {then}",
+                "action": self.config.on_link_loss,
+            },
+        )
+        if stop:
+            try:
+                api.motion.stop("link lost: no node of connect reached")
+            except Exception:  # noqa: BLE001 — the core is closing
+                pass
+
+    @staticmethod
+    def _announce(api: ServiceAPI, event: dict[str, Any]) -> None:
+        try:
+            api.motion.post_event(event)
+        except Exception:  # noqa: BLE001 — the core is closing
+            pass
 
     def _raise_priorities(self) -> None:
         """The control and CAN threads at :data:`REALTIME_NICE` and under ``SCHED_FIFO``
@@ -454,20 +504,42 @@ class HitchService:
         self._decls.append(s.liveliness().declare_token(cfg.key("alive")))
 
     def _ensure_state_subscription(self) -> None:
-        """With the core in its own process: subscribe to its state once a listener or a reader wants it
-        (until then this process does not decode 50 messages a second that nobody uses)."""
-        if self.core is None or self.session is None or self._closed:
+        """With the core in its own process: ask it for its state over the private socket once a listener or a
+        reader wants it (until then this process does not decode 50 messages a second that nobody uses). Never
+        from the public ``state`` key: a router outage froze it there (the terminal showed a hitch "moving"
+        that had braked), and anyone allowed to put there could draw a false one."""
+        if self.core is None or self._closed:
             return
         with self._sub_lock:
-            if self._state_sub is None and not self._closed:
-                self._state_sub = self.session.declare_subscriber(self.config.key("state"), _ring())
-                self._serve(self._state_sub, self._on_published("state"), "state")
+            if self._state_asked or self._closed:
+                return
+            self._state_asked = True
+        core = self.core
+
+        def ask() -> None:  # on a thread of its own: a reader may be the thread that reads the core's answers
+            try:
+                core.call("want_state")
+            except Exception:  # noqa: BLE001 — the core is closing
+                self._state_asked = False
+
+        threading.Thread(target=ask, name="hitch-want-state", daemon=True).start()
 
     def _core_note(self, note: dict[str, Any]) -> None:
         """A note from the core over the private socket: an event it published (its JSON), handed to this
         process's ``event`` listeners; a request it answered itself (``stop``), given to the API's request
         hook (the black box); or its new mode (kept by the proxy). Never taken from the public ``events``
         key, where anyone may put a ``mode_changed`` or a forged fault."""
+        state = note.get("state")
+        if isinstance(state, (bytes, bytearray)):
+            try:
+                msg = json.loads(state)
+            except ValueError:
+                return
+            if isinstance(msg, dict):
+                self._latest_state = msg
+                for cb in list(self._listeners["state"]):
+                    _call(cb, msg)
+            return
         event = note.get("event")
         if isinstance(event, (bytes, bytearray)):
             try:
@@ -485,19 +557,6 @@ class HitchService:
         hook = None if api is None else api.on_request
         if hook is not None and note.get("request"):
             hook(str(note["request"]), None, bytes(note.get("payload") or b""), bool(note.get("ok")), note.get("reply"))
-
-    def _on_published(self, kind: str) -> Callable[[zenoh.Sample], None]:
-        def on_sample(sample: zenoh.Sample) -> None:
-            try:
-                msg = json.loads(sample.payload.to_bytes())
-            except ValueError:
-                return
-            if kind == "state":
-                self._latest_state = msg
-            for cb in list(self._listeners[kind]):
-                _call(cb, msg)
-
-        return on_sample
 
     def _start_http(self, addr: str) -> None:
         try:
@@ -682,6 +741,7 @@ class HitchService:
             if self.core is not None:
                 _quiet(self.core.close)  # it brakes, ends its stream and its session
             self._closed = True
+            self._closed_event.set()
             if self.http is not None:
                 _quiet(self.http.close)
             for d in reversed(self._decls):
@@ -719,6 +779,9 @@ class HitchService:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+
+#: period of the link watch (HitchService._watch_links) [s]
+LINK_WATCH_S = 0.1
 
 #: queries (or samples) a key's channel holds while its thread is busy; beyond it the oldest is dropped
 #: (its querier gets no reply, as from a busy service) — Zenoh never waits for Python

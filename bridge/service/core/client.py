@@ -301,8 +301,8 @@ class MotionProxy:
     ) -> JsonReply:
         return JsonReply(self.core.call("jog", dict(rates), float(ttl_s), deadline=deadline, issued=issued))
 
-    def stop(self) -> int | None:
-        mid = self.core.call("stop")
+    def stop(self, reason: str = "stop requested") -> int | None:
+        mid = self.core.call("stop", reason)
         return None if mid is None else int(mid)
 
     def run_maneuver(

@@ -93,6 +93,7 @@ _INLINE = frozenset(
         "sim_fault",
         "sim_switch",
         "post_event",
+        "want_state",
         "ping",
     }
 )
@@ -144,11 +145,17 @@ class ControlCore:
         self._pool = ThreadPoolExecutor(2, thread_name_prefix="core-motion")
         self._closed = threading.Event()
         self._state_listened = threading.Event()  # a subscriber matches the state publisher
+        # the service's own listeners (terminal, latest_state) want the state over the private socket: a router
+        # outage froze it there, and anyone allowed to put on the public key could draw a false one
+        self._state_to_service = threading.Event()
+        self._state_slot: bytes | None = None  # the newest state not sent to the service yet (older: replaced)
+        self._state_ready = threading.Event()
         self.recorder: Any = None
         self._table: dict[str, Callable[..., Any]] = {}
         self._notes: queue.Queue[dict[str, Any]] = queue.Queue(maxsize=256)
         self.notes_dropped = 0
         threading.Thread(target=self._send_notes, name="core-notes", daemon=True).start()
+        threading.Thread(target=self._send_states, name="core-state-notes", daemon=True).start()
 
     # ------------------------------------------------------------------ life cycle
     def start(self) -> dict[str, Any]:
@@ -163,7 +170,7 @@ class ControlCore:
         self.parts = parts = start_can(cfg, runners_out=runners)
         self._open_zenoh()
         self.motion, guard = build_controller(cfg, parts, on_state=self._publish_state, on_event=self._publish_event)
-        self.motion.state_wanted = self._state_listened.is_set
+        self.motion.state_wanted = lambda: self._state_listened.is_set() or self._state_to_service.is_set()
         if self.recorder is not None:
             announce_can_log_stop(self.recorder, self.motion.outbox)
         self._table = self._methods()
@@ -313,11 +320,33 @@ class ControlCore:
 
     def _publish_state(self, msg: dict[str, Any]) -> None:
         pub = self._state_pub
+        try:
+            data = to_json_bytes(msg)
+        except Exception:  # noqa: BLE001 — as a put that fails
+            return
+        if self._state_to_service.is_set():  # the newest only: a slow reader skips states, never queues them
+            self._state_slot = data
+            self._state_ready.set()
         if pub is not None and not self._closed.is_set():
             try:
-                pub.put(to_json_bytes(msg))
+                pub.put(data)
             except Exception:  # noqa: BLE001 — the session is closing
                 pass
+
+    def _send_states(self) -> None:
+        """The newest state to the service as a note, once it asked (``want_state``)."""
+        while not self._closed.is_set():
+            if not self._state_ready.wait(0.2):
+                continue
+            self._state_ready.clear()
+            data, self._state_slot = self._state_slot, None
+            if data is None:
+                continue
+            with self._send_lock:
+                try:
+                    self.conn.send((0, "note", {"state": data}))
+                except (OSError, ValueError):
+                    return
 
     def _publish_event(self, event: dict[str, Any]) -> None:
         if event.get("event") == "mode_changed":  # the service keeps the mode from this note, not the public key
@@ -408,6 +437,7 @@ class ControlCore:
             "sim_fault": sim_fault,
             "sim_switch": sim_switch,
             "post_event": m.post_event,
+            "want_state": self._state_to_service.set,
             "work": lambda op, *a: m.work.dispatch(op, *a),  # work/… (bridge.service.work.WorkControl)
             "ping": lambda: os.getpid(),
         }

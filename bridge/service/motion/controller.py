@@ -284,7 +284,7 @@ class MotionController:
         """
         if self._thread is not None and self._thread.alive and self._active is not None:
             try:
-                self.stop()
+                self.stop("service shutting down")
             except ValueError:
                 pass
             deadline = time.monotonic() + brake_s
@@ -433,8 +433,9 @@ class MotionController:
         self.outbox.flush()
         return acc
 
-    def stop(self) -> int | None:
+    def stop(self, reason: str = "stop requested") -> int | None:
         """Abort anything; brake jerk-limited to rest. Returns the stop motion's id (None when at rest).
+        ``reason``: what the abort events say (an operator's stop, the router lost …).
 
         Every motion request that arrived before it and has not started yet is cancelled.
         """
@@ -442,8 +443,8 @@ class MotionController:
         with self._lock:
             self._stopped_at = time.monotonic()
             now = self.clock()
-            self._maneuver.abort(now, "stop", "stop requested", events)
-            mid = self._brake(now, "stop requested", events)
+            self._maneuver.abort(now, "stop", reason, events)
+            mid = self._brake(now, reason, events)
             self._post(events)
         self.outbox.flush()
         return mid

@@ -1,0 +1,97 @@
+"""A service behind a router that loses it: the fleet can neither see nor stop the hitch any more.
+
+A fleet trial: a 103 s goto ran on after the router was killed, with no event and nothing in the black box.
+Now the service watches the nodes of ``connect``: losing the last one is a ``link_lost`` event and, by
+``on_link_loss`` (default ``stop``), the hitch brakes to rest; ``link_restored`` when the router is back, and
+nothing resumes. Truth: the service's own state (moving or not) and its events.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+
+import pytest
+
+from bridge.service.config import ServiceConfig
+from bridge.service.server import HitchService
+from tests.helpers import wait_until
+from tests.integration.service_process import ROOT, free_port
+
+pytestmark = pytest.mark.slow
+
+ROUTER = """
+import json, signal, sys, threading, zenoh
+c = zenoh.Config()
+c.insert_json5("mode", '"router"')
+c.insert_json5("listen/endpoints", json.dumps([sys.argv[1]]))
+c.insert_json5("scouting/multicast/enabled", "false")
+s = zenoh.open(c)
+stop = threading.Event()
+signal.signal(signal.SIGTERM, lambda *_: stop.set())
+print("router ready", flush=True)
+stop.wait()
+s.close()
+"""
+
+
+def _router(endpoint: str) -> subprocess.Popen:
+    router = subprocess.Popen([sys.executable, "-c", ROUTER, endpoint], cwd=ROOT, stdout=subprocess.PIPE, text=True)
+    assert router.stdout is not None and "router ready" in router.stdout.readline()
+    return router
+
+
+@pytest.mark.parametrize("policy", ["stop", "continue"])
+def test_losing_the_router_brakes_the_hitch_says_so_and_nothing_resumes(tmp_path, policy):
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    router = _router(endpoint)
+    svc = None
+    try:
+        cfg = ServiceConfig(
+            mode="client",
+            connect=[endpoint],
+            listen=[],
+            prefix=f"linkloss{port}/hitch",
+            data_dir=tmp_path,
+            planning_processes=0,
+            can_channel=f"link-loss-{port}",
+            on_link_loss=policy,
+        )
+        svc = HitchService(cfg).start()
+        assert svc.api is not None
+        events: list[dict] = []
+        svc.add_listener("event", events.append)
+        assert wait_until(lambda: svc.latest_state is not None and svc.latest_state["ecu"]["online"], 10.0)
+        z0 = svc.latest_state["pose"]["z"]
+        ok, reply = svc.api.handle("goto", json.dumps({"goal": {"z": z0 + 0.12}, "speed_scale": 0.05}), None)
+        assert ok and reply["duration"] > 20.0, reply
+        assert wait_until(lambda: svc.latest_state["moving"], 5.0)
+
+        router.kill()  # SIGKILL, as in the trial
+        router.wait(10)
+        assert wait_until(lambda: any(e.get("event") == "link_lost" for e in events), 5.0), events
+        lost = next(e for e in events if e.get("event") == "link_lost")
+        assert lost["action"] == policy and endpoint in lost["message"], lost
+        if policy == "stop":  # the state reaches the service over the core's own socket, not through the router
+            assert wait_until(lambda: not svc.latest_state["moving"], 5.0), svc.latest_state["motion"]
+            aborted = [e for e in events if e.get("event") == "motion_aborted"]
+            assert any("link lost" in str(e.get("reason")) for e in aborted), aborted
+        else:
+            time.sleep(1.0)
+            assert svc.latest_state["moving"] and time.time() - svc.latest_state["t"] < 1.0  # fresh, and it runs on
+
+        router = _router(endpoint)  # back: the client reconnects
+        assert wait_until(lambda: any(e.get("event") == "link_restored" for e in events), 15.0), events
+        if policy == "stop":
+            time.sleep(1.0)
+            assert not svc.latest_state["moving"]  # nothing resumed
+            started = [e.get("kind") for e in events if e.get("event") == "motion_started"]
+            assert started == ["goto", "stop"], started  # the goto, its stop, and nothing since
+    finally:
+        if svc is not None:
+            svc.close()
+        router.terminate()
+        router.wait(10)

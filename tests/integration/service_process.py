@@ -81,3 +81,26 @@ def hitch(endpoint: str, *args: str, timeout_s: float = 60.0) -> subprocess.Comp
         text=True,
         timeout=timeout_s,
     )
+
+
+#: a bare Zenoh router in its own process: ``python -c ROUTER <endpoint>``; prints "router ready", ends on SIGTERM
+ROUTER = """
+import json, signal, sys, threading, zenoh
+c = zenoh.Config()
+c.insert_json5("mode", '"router"')
+c.insert_json5("listen/endpoints", json.dumps([sys.argv[1]]))
+c.insert_json5("scouting/multicast/enabled", "false")
+s = zenoh.open(c)
+stop = threading.Event()
+signal.signal(signal.SIGTERM, lambda *_: stop.set())
+print("router ready", flush=True)
+stop.wait()
+s.close()
+"""
+
+
+def start_router(endpoint: str) -> subprocess.Popen:
+    """:data:`ROUTER` listening on ``endpoint`` (a loopback one), once it says it is ready."""
+    router = subprocess.Popen([sys.executable, "-c", ROUTER, endpoint], cwd=ROOT, stdout=subprocess.PIPE, text=True)
+    assert router.stdout is not None and "router ready" in router.stdout.readline()
+    return router

@@ -14,23 +14,10 @@ import time
 import pytest
 
 from bridge.service.client import HitchClient, ServiceError
-from tests.integration.service_process import ROOT, ServiceProcess, free_port, hitch
+from tests.integration.service_process import ROOT, ROUTER, ServiceProcess, free_port, hitch
 
 pytestmark = pytest.mark.slow  # several services and a router, each in its own process
 
-ROUTER = """
-import json, signal, sys, threading, zenoh
-c = zenoh.Config()
-c.insert_json5("mode", '"router"')
-c.insert_json5("listen/endpoints", json.dumps([sys.argv[1]]))
-c.insert_json5("scouting/multicast/enabled", "false")
-s = zenoh.open(c)
-stop = threading.Event()
-signal.signal(signal.SIGTERM, lambda *_: stop.set())
-print("router ready", flush=True)
-stop.wait()
-s.close()
-"""
 PREFIXES = ("fleet/t01/hitch", "fleet/t02/hitch", "fleet/t03/hitch")
 
 

@@ -9,8 +9,6 @@ nothing resumes. Truth: the service's own state (moving or not) and its events.
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 import time
 
 import pytest
@@ -18,36 +16,16 @@ import pytest
 from bridge.service.config import ServiceConfig
 from bridge.service.server import HitchService
 from tests.helpers import wait_until
-from tests.integration.service_process import ROOT, free_port
+from tests.integration.service_process import free_port, start_router
 
 pytestmark = pytest.mark.slow
-
-ROUTER = """
-import json, signal, sys, threading, zenoh
-c = zenoh.Config()
-c.insert_json5("mode", '"router"')
-c.insert_json5("listen/endpoints", json.dumps([sys.argv[1]]))
-c.insert_json5("scouting/multicast/enabled", "false")
-s = zenoh.open(c)
-stop = threading.Event()
-signal.signal(signal.SIGTERM, lambda *_: stop.set())
-print("router ready", flush=True)
-stop.wait()
-s.close()
-"""
-
-
-def _router(endpoint: str) -> subprocess.Popen:
-    router = subprocess.Popen([sys.executable, "-c", ROUTER, endpoint], cwd=ROOT, stdout=subprocess.PIPE, text=True)
-    assert router.stdout is not None and "router ready" in router.stdout.readline()
-    return router
 
 
 @pytest.mark.parametrize("policy", ["stop", "continue"])
 def test_losing_the_router_brakes_the_hitch_says_so_and_nothing_resumes(tmp_path, policy):
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
-    router = _router(endpoint)
+    router = start_router(endpoint)
     svc = None
     try:
         cfg = ServiceConfig(
@@ -83,7 +61,7 @@ def test_losing_the_router_brakes_the_hitch_says_so_and_nothing_resumes(tmp_path
             time.sleep(1.0)
             assert svc.latest_state["moving"] and time.time() - svc.latest_state["t"] < 1.0  # fresh, and it runs on
 
-        router = _router(endpoint)  # back: the client reconnects
+        router = start_router(endpoint)  # back: the client reconnects
         assert wait_until(lambda: any(e.get("event") == "link_restored" for e in events), 15.0), events
         if policy == "stop":
             time.sleep(1.0)

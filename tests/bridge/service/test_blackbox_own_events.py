@@ -22,21 +22,7 @@ from bridge.service.blackbox import EventLog, RecordLimits, event_log_path, read
 from bridge.service.config import ServiceConfig
 from bridge.service.server import HitchService
 from tests.helpers import wait_until
-from tests.integration.service_process import ROOT, free_port
-
-ROUTER = """
-import json, signal, sys, threading, zenoh
-c = zenoh.Config()
-c.insert_json5("mode", '"router"')
-c.insert_json5("listen/endpoints", json.dumps([sys.argv[1]]))
-c.insert_json5("scouting/multicast/enabled", "false")
-s = zenoh.open(c)
-stop = threading.Event()
-signal.signal(signal.SIGTERM, lambda *_: stop.set())
-print("router ready", flush=True)
-stop.wait()
-s.close()
-"""
+from tests.integration.service_process import ROOT, ROUTER, free_port
 
 
 class _Clock:

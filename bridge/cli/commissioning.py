@@ -19,11 +19,9 @@ import hashlib
 import sys
 from pathlib import Path
 
-from rich.console import Console
-
 from bridge.cli.errors import CLIError
 from bridge.cli.model import add_model_options, model_from_args, refuse_overwriting_profile, whole_number
-from bridge.cli.output import output_path
+from bridge.cli.output import console, output_path
 from bridge.link.realtime import INTERFACES
 from bridge.link.sensor_calibration import (
     SensorCalibration,
@@ -89,7 +87,7 @@ def _cmd_accuracy_test(args) -> int:
         out["thesis"] = {m: {d: st.as_dict() for d, st in rows.items()} for m, rows in THESIS_ACCURACY.items()}
         print(to_json_text(out))
         return 0
-    c = Console(width=200)
+    c = console(width=200)
     c.print(
         f"accuracy test (thesis tables 3-8 … 3-10): planner profile {model.profile.name}, twin truth {run.truth}, "
         f"instrument {run.instrument}, "
@@ -143,6 +141,22 @@ def _twin_identity(truth: str | None, profile: str) -> str:
     return f"the simulated twin of the truth file with sha256 {digest}"
 
 
+def _actuator_list(text: str | None) -> tuple[str, ...]:
+    """``--actuators``: a comma-separated subset of the five, each once (default all); the error names only the
+    unknown ones (``lift,tlt`` was refused as "unknown or none ['lift', 'tlt']": a commissioning trial)."""
+    if not text:
+        return ACTUATOR_NAMES
+    names = [a.strip() for a in text.split(",") if a.strip()]
+    unknown = [a for a in names if a not in ACTUATOR_NAMES]
+    if unknown or not names:
+        what = "unknown " + ", ".join(map(repr, unknown)) if unknown else "none given"
+        raise CLIError(f"--actuators {text!r}: {what}; allowed: {', '.join(ACTUATOR_NAMES)}")
+    twice = sorted({a for a in names if names.count(a) > 1})
+    if twice:
+        raise CLIError(f"--actuators {text!r}: {', '.join(map(repr, twice))} given more than once; each at most once")
+    return tuple(names)
+
+
 def _cmd_calibrate_sensors(args) -> int:
     if args.can_interface is not None and args.sim_truth is not None:
         raise CLIError(
@@ -154,12 +168,12 @@ def _cmd_calibrate_sensors(args) -> int:
     nominal_model = model_from_args(args)
     nominal = nominal_model.profile
     truth = _truth(nominal_model, args.sim_truth)
-    actuators = tuple(a.strip() for a in args.actuators.split(",") if a.strip()) if args.actuators else ACTUATOR_NAMES
+    actuators = _actuator_list(args.actuators)
     implement = None
     if args.implement not in (None, "none"):
         implement = load_tractor_profile(nominal.stability.tractor_profile).implement(args.implement)
     cal_model = HitchModel(calibration_profile(nominal, detached=args.detached), nominal_model.category)
-    log = (lambda _m: None) if args.json else (lambda m: Console().print(m, highlight=False))
+    log = (lambda _m: None) if args.json else (lambda m: console().print(m, highlight=False))
     if args.detached:  # said before anything moves
         log(f"detached: {_DETACHED_DECLARATION}")
     if args.can_interface is not None:  # a real ECU (or a twin in its own process) on a CAN bus
@@ -213,7 +227,7 @@ def _cmd_calibrate_sensors(args) -> int:
     if args.json:
         print(to_json_text({"out": args.out, "detached": args.detached, "on": where, "actuators": result}))
         return 0
-    c = Console()
+    c = console()
     for a, f in fits.items():
         n = nominal.actuator(a)
         c.print(

@@ -195,3 +195,29 @@ def test_an_output_in_a_missing_folder_is_refused_before_anything_moves(args, tr
     err = capsys.readouterr().err
     assert f"the folder {str(missing)!r} does not exist" in err, err
     assert not missing.exists() and not (tmp_path / "x.toml").exists()
+
+
+@pytest.mark.parametrize(
+    "given, expected",
+    [
+        ("lift,tlt", "--actuators 'lift,tlt': unknown 'tlt'; allowed: lift, tilt, top, left, right"),
+        ("top,top", "--actuators 'top,top': 'top' given more than once"),
+        (",", "--actuators ',': none given"),
+    ],
+)
+def test_calibrate_sensors_names_only_the_unknown_or_repeated_actuators(given, expected, tmp_path, capsys):
+    """A commissioning trial: 'lift,tlt' was refused as "unknown or none ['lift', 'tlt']" (the valid lift listed
+    as unknown), and 'top,top' was accepted."""
+    assert main(["calibrate", "sensors", "--actuators", given, "--out", str(tmp_path / "s.toml")]) == 2
+    assert expected in capsys.readouterr().err
+
+
+def test_commissioning_output_is_not_wrapped_into_a_pipe(truth_file, tmp_path, capsys):
+    """A commissioning trial: 'profile written to s.toml (calibrated … (truth \\ntruth.toml))' was cut at 80
+    columns into a pipe, which broke grep."""
+    out = tmp_path / ("a-rather-long-folder-name-" * 3) / "s.toml"
+    out.parent.mkdir()
+    argv = ["calibrate", "sensors", "--sim-truth", str(truth_file), "--actuators", "top", "--out", str(out)]
+    assert main(argv) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert any(line.startswith("profile written to ") and line.endswith(")") for line in lines), lines

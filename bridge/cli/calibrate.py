@@ -28,6 +28,7 @@ from bridge.service.wire import to_json_text
 from bridge.sim.truth import noise_kind
 from planner.calibration.measurements import APPROACH_COLUMN, TARGET_COLUMNS, load_plan_targets
 from planner.calibration.solve import IDENTIFIED_SHARE, UNIDENTIFIED_SHARE
+from planner.errors import HitchInputError
 from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
 
 __all__ = ["add_commands"]
@@ -429,6 +430,19 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _profile_name(text: str) -> str:
+    """``--name`` checked where it is read: 'my tractor' was refused only after the fit, as "the calibrated
+    parameters do not make a valid profile" (a commissioning trial)."""
+    from planner.profiles.loader import check_profile_name
+
+    try:
+        if not 1 <= len(text) <= 80:
+            raise ValueError(f"must be 1 to 80 characters, got {len(text)}")
+        return check_profile_name(text)
+    except (HitchInputError, ValueError) as exc:
+        raise argparse.ArgumentTypeError(f"{text!r}: {exc}") from None
+
+
 def add_commands(sub) -> None:
     p = sub.add_parser("calibrate", help="geometry calibration: plan poses to measure, fit a profile to measurements")
     csub = p.add_subparsers(dest="calibrate_command", required=True, parser_class=type(p))
@@ -438,7 +452,12 @@ def add_commands(sub) -> None:
     add_model_options(g)
     g.add_argument("--measurements", required=True, help="measurement CSV (see docs/commissioning.md)")
     g.add_argument("--out", required=True, type=output_path, help="calibrated profile to write (.toml)")
-    g.add_argument("--name", default=None, help="name of the calibrated profile (default <profile>-calibrated)")
+    g.add_argument(
+        "--name",
+        default=None,
+        type=_profile_name,
+        help="name of the calibrated profile: letters, digits, '-', '_', '.', up to 80 (default <profile>-calibrated)",
+    )
     g.add_argument(
         "--sigma-position-mm",
         type=bounded_float("--sigma-position-mm", 0.0, 1000.0, unit="mm"),

@@ -518,3 +518,12 @@ def test_measure_twin_measures_a_plan_file_under_its_labels(tmp_path, capsys):
         and "bad.csv row 0 (the header, line 1): no column(s) target_x" in err
         and "Traceback" not in err
     )
+
+
+def test_a_profile_name_the_schema_refuses_is_refused_before_the_fit(capsys):
+    """A commissioning trial: --name 'my tractor' was refused only after the fit, as "the calibrated parameters
+    do not make a valid profile"."""
+    argv = ["calibrate", "geometry", "--measurements", "m.csv", "--out", "p.toml", "--name", "my tractor"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "'my tractor': name may contain letters, digits, '-', '_' and '.' only" in err, err

@@ -670,11 +670,26 @@ def check_pose_in_workspace(
         side = beyond_words(k, high=v > hi)
         limit = f"workspace:{k}:{'min' if v < lo else 'max'}"
         name = f"{what}.{k}" if what else k
-        text = f"{name} = {v:.6g} {unit} is {side} the workspace ({k} from {lo:.4g} to {hi:.4g} {unit}, {limit})"
+        shown = f"{v:.6g}"
+        text = (
+            f"{name} = {shown} {unit} is {side} the workspace ({k} from {_bound_text(lo, shown)} to "
+            f"{_bound_text(hi, shown)} {unit}, {limit})"
+        )
         text += unit_hint(v, lo, hi, unit)
         problems.append(text)
     if problems:
         raise RequestError("unreachable", f"{key}: outside the workspace: " + "; ".join(problems))
+
+
+def _bound_text(bound: float, shown: str) -> str:
+    """A workspace bound in 4 significant digits, or as many more as it takes to differ from the value ``shown``
+    ("pitch = 0.062 rad is above the workspace (pitch from -0.1 to 0.062 rad)" read as a contradiction: the bound
+    was 0.061999; a commissioning trial)."""
+    for digits in range(4, 11):
+        text = f"{bound:.{digits}g}"
+        if text != shown:
+            return text
+    return repr(bound)
 
 
 def parse_request(

@@ -143,6 +143,14 @@ def test_only_motion_requests_have_a_deadline():
 
 
 # ------------------------------------------------------------------------------------------ workspace
+def test_a_value_just_beyond_a_bound_is_not_shown_equal_to_it():
+    """A commissioning trial: "pitch = 0.062 rad is above the workspace (pitch from -0.1 to 0.062 rad)" (the
+    bound was 0.061999, rounded to 4 digits): the bound is now shown with the digits that tell them apart."""
+    ws = {**WS, "pitch": (-0.1, 0.061999)}
+    msg = str(_refusal("goto", json.dumps({"goal": {"pitch": 0.062}}), workspace=ws))
+    assert "goal.pitch = 0.062 rad is above the workspace (pitch from -0.1 to 0.061999 rad, workspace:pitch:max)" in msg
+
+
 def test_a_goal_outside_the_workspace_names_the_workspace_range_of_every_dof():
     e = _refusal("goto", json.dumps({"goal": {"x": 30, "z": 250, "roll": 0.2, "pitch": 3}}), workspace=WS)
     msg = str(e)

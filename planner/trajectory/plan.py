@@ -318,6 +318,14 @@ class Violation:
             return base + "/s"
         return base + "/s²" if self.limit.startswith("acceleration:") else base
 
+    def sentence(self) -> str:
+        """``top_link_yaw_min = -0.3012 rad against its bound -0.3 rad at t = 5.92 s``: what a refusal says (it
+        named the limit and the time only, not the value or the bound: a commissioning trial)."""
+        return (
+            f"{self.limit} = {self.value:.6g} {self.unit} against its bound {self.bound:.6g} {self.unit} "
+            f"at t = {self.t:.2f} s"
+        )
+
 
 def verify_setpoints(
     sp: Setpoints,

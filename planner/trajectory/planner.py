@@ -458,7 +458,7 @@ class TrajectoryPlanner:
             in_stop = [v for v in bad if v.t <= stop.duration + 1e-9 and v.limit.startswith(_RATE_LIMITS)]
             if len(in_stop) < len(bad):
                 worst = next(v for v in bad if v not in in_stop)
-                raise PlanError(f"the plan would exceed {worst.limit} at t = {worst.t:.2f} s")
+                raise PlanError(f"the plan would exceed {worst.sentence()}")
             if not in_stop or attempt == 7:
                 break
             factor *= 0.9
@@ -500,9 +500,9 @@ class TrajectoryPlanner:
             if worst.limit.startswith(("velocity:", "acceleration:")):
                 factor *= 0.9
                 continue
-            raise PlanError(f"the plan would exceed {worst.limit} at t = {worst.t:.2f} s")
+            raise PlanError(f"the plan would exceed {worst.sentence()}")
         raise PlanError(
-            f"the plan keeps exceeding {worst.limit} at t = {worst.t:.2f} s even at {factor:.2f} of full speed"
+            f"the plan keeps exceeding {worst.sentence()} even at {factor:.2f} of full speed"
         )
 
     def _check_extrema(self, traj: Trajectory, start: np.ndarray | None = None) -> None:

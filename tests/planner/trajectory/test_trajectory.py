@@ -367,3 +367,18 @@ def test_line_limits_are_kept_per_line_and_actuator_limits(model, rng):
 def test_forward_batch_refuses_rows_that_are_not_actuators(model):
     with pytest.raises(ModelInputError, match="actuators"):
         forward_batch(model)(np.zeros((10, 4)))
+
+
+def test_a_violation_says_its_value_and_bound_in_the_limit_s_unit(tp, rng):
+    """A commissioning trial: "the plan would exceed top_link_yaw_min at t = 5.92 s" gave neither the value nor
+    the bound. Each violation of a wobbled plan says both, and they are the violation's own numbers."""
+    plan = next(iter(_plans(tp, rng)))
+    sp = plan.setpoints or sample_plan(plan, tp.inverse, tp.rate)
+    wobble = 1 + 0.04 * np.sin(9 * sp.t)[:, None] * np.array([1, -1, 1, 0.5, -0.5])
+    bad = Setpoints(sp.rate, sp.t, sp.pose, sp.pose_velocity, sp.actuators * wobble, sp.actuator_velocity * 2.5)
+    found = verify_setpoints(bad, tp.model, tp.hard, tp.limits)
+    assert found
+    for v in found:
+        text = v.sentence()
+        assert text.startswith(f"{v.limit} = {v.value:.6g} {v.unit} against its bound {v.bound:.6g} {v.unit}"), text
+        assert text.endswith(f"at t = {v.t:.2f} s") and "nan" not in text, text

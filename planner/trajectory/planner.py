@@ -501,9 +501,7 @@ class TrajectoryPlanner:
                 factor *= 0.9
                 continue
             raise PlanError(f"the plan would exceed {worst.sentence()}")
-        raise PlanError(
-            f"the plan keeps exceeding {worst.sentence()} even at {factor:.2f} of full speed"
-        )
+        raise PlanError(f"the plan keeps exceeding {worst.sentence()} even at {factor:.2f} of full speed")
 
     def _check_extrema(self, traj: Trajectory, start: np.ndarray | None = None) -> None:
         """Every DOF of ``traj`` within the workspace; with a ``start`` pose outside it, within

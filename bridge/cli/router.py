@@ -53,6 +53,7 @@ def router_warnings(listen: list[str], security: str | None = None) -> list[str]
 def _cmd_router(args) -> int:
     import zenoh
 
+    from bridge.service.client import zenoh_reason  # zenoh's own modules only where a router runs
     from bridge.service.security import SecurityError
     from bridge.service.signals import StopSignals
 
@@ -68,7 +69,7 @@ def _cmd_router(args) -> int:
         try:
             session = zenoh.open(config)
         except zenoh.ZError as exc:
-            raise CLIError(f"hitch router: cannot listen on {', '.join(listen)}: {exc}") from None
+            raise CLIError(f"hitch router: cannot listen on {', '.join(listen)}: {zenoh_reason(exc)}") from None
         try:
             print(f"hitch router: ready on {', '.join(listen)} (zid {session.info.zid()})", flush=True)
             while not stop.wait(0.5):

@@ -116,6 +116,12 @@ def client_config(connect: Sequence[str], *, mode: str = "client", security: str
     return z
 
 
+def zenoh_reason(exc: BaseException) -> str:
+    """A Zenoh error in words, without the location in Zenoh's Rust source it carries ("… at
+    /root/.cargo/git/checkouts/…/orchestrator.rs:447.": a fleet trial)."""
+    return re.sub(r"\s+at\s+\S+\.rs:\d+\.?\s*$", "", str(exc)).strip()
+
+
 def _decode(payload: zenoh.ZBytes) -> Any:
     try:
         return json.loads(payload.to_bytes())
@@ -295,7 +301,11 @@ class HitchClient:
         try:
             self.session = zenoh.open(client_config(connect, mode=mode, security=security))
         except zenoh.ZError as exc:
-            raise ServiceError("connect", f"cannot open a Zenoh session to {', '.join(connect)}: {exc}") from None
+            raise ServiceError(
+                "connect",
+                f"cannot open a Zenoh session to {', '.join(connect)}: {zenoh_reason(exc)} (is the router or service "
+                "running there? a wrong password or certificate is refused the same way)",
+            ) from None
         self._subs: list[Subscription] = []
         _OPEN_CLIENTS.add(self)  # closed at exit if still open (_close_open_clients)
         self.realtime = bool(realtime)

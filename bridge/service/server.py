@@ -60,6 +60,7 @@ import zenoh
 from bridge.link.can_link import CanLink
 from bridge.link.realtime import RealtimeRunner
 from bridge.service.api import API_KEYS, ServiceAPI
+from bridge.service.client import zenoh_reason
 from bridge.service.config import ServiceConfig
 from bridge.service.core.client import CoreProcess, MotionProxy
 from bridge.service.core.process import freeze_startup_objects, lock_memory
@@ -461,7 +462,7 @@ class HitchService:
                     break  # not the private port's fault: retrying cannot help
         raise ServiceStartError(
             f"cannot open the Zenoh session (listen {', '.join(cfg.listen or ()) or '-'}, connect "
-            f"{', '.join(cfg.connect) or '-'}): {error}"
+            f"{', '.join(cfg.connect) or '-'}): {zenoh_reason(error) if error is not None else 'unknown'}"
         ) from None
 
     def _declare_api(self) -> None:

@@ -183,3 +183,15 @@ def test_a_service_that_does_not_answer_a_secured_client_names_the_credentials_t
     args = argparse.Namespace(connect=["tcp/127.0.0.1:1"], prefix="fleet/t07/hitch", security="alice.json5")
     secured = str(_service_down(args, Exception("no reply")))
     assert "with --security alice.json5: the user and password may be refused there" in secured
+
+
+def test_a_client_that_reaches_nothing_says_so_without_zenoh_s_source_location(capsys):
+    """A fleet trial: "Unable to connect to any of [...]!  at /root/.cargo/git/checkouts/…/orchestrator.rs:447."
+    and nothing about what to check."""
+    from bench._common import free_port
+
+    port = free_port()  # nothing listens there
+    assert main(["state", "--connect", f"tcp/127.0.0.1:{port}", "--timeout", "2"]) == 2
+    err = capsys.readouterr().err
+    assert f"cannot open a Zenoh session to tcp/127.0.0.1:{port}" in err, err
+    assert ".rs:" not in err and ".cargo" not in err and "is the router or service running there?" in err, err

@@ -122,6 +122,23 @@ def zenoh_reason(exc: BaseException) -> str:
     return re.sub(r"\s+at\s+\S+\.rs:\d+\.?\s*$", "", str(exc)).strip()
 
 
+def _json_value(value: Any) -> Any:
+    """A numpy scalar or array as its Python value (``numpy.float32(0.1)`` raised a raw "Object of type float32
+    is not JSON serializable": a fleet trial); anything else is refused naming its type."""
+    if hasattr(value, "tolist") and callable(value.tolist):
+        return value.tolist()
+    raise TypeError(f"a {type(value).__name__} is not a JSON value (numbers, text, lists, mappings)")
+
+
+def _goal(goal: Any) -> dict:
+    """A goal mapping (``goto([0.1])`` raised a raw TypeError: a fleet trial)."""
+    if not isinstance(goal, Mapping):
+        raise ClientError(
+            f"goal must be a mapping of x, z, roll, pitch to SI values (m, rad), e.g. {{'z': 0.1}}, got {goal!r}"
+        )
+    return dict(goal)
+
+
 def _decode(payload: zenoh.ZBytes) -> Any:
     try:
         return json.loads(payload.to_bytes())
@@ -339,7 +356,10 @@ class HitchClient:
         scoped = self.user is not None and key != "stop" and self._serves_user_keys(base, t)
         full = user_key(base, self.user, key) if scoped and self.user is not None else f"{base}/{key}"
         if isinstance(payload, Mapping):
-            data: bytes | str = json.dumps(payload, ensure_ascii=False)  # UTF-8 as it is: the size limit counts bytes
+            try:  # UTF-8 as it is: the size limit counts bytes
+                data: bytes | str = json.dumps(payload, ensure_ascii=False, default=_json_value)
+            except (TypeError, ValueError) as exc:  # a value JSON cannot carry: said, not a raw TypeError
+                raise ClientError(f"{key}: the payload cannot be sent as JSON ({exc})") from None
         else:
             data = b"" if payload is None else payload
         return self._query(full, key, data, t)
@@ -403,11 +423,11 @@ class HitchClient:
         return self.request("ik", {"x": x, "z": z, "roll": roll, "pitch": pitch})
 
     def plan(self, goal: Mapping[str, float], speed_scale: float = 1.0) -> dict:
-        return self.request("plan", {"goal": dict(goal), "speed_scale": speed_scale})
+        return self.request("plan", {"goal": _goal(goal), "speed_scale": speed_scale})
 
     def goto(self, goal: Mapping[str, float], speed_scale: float = 1.0, *, deadline_ms: int | None = None) -> dict:
         """Start a move; ``deadline_ms``: it must start moving within this, else ``busy`` (service default 1000)."""
-        body: dict[str, Any] = {"goal": dict(goal), "speed_scale": speed_scale}
+        body: dict[str, Any] = {"goal": _goal(goal), "speed_scale": speed_scale}
         if deadline_ms is not None:
             body["deadline_ms"] = int(deadline_ms)
         return self.request("goto", body)

@@ -317,6 +317,19 @@ def _plain(value: Any) -> Any:
     return f if math.isfinite(f) else str(f)
 
 
+class _PrivateRotatingFileHandler(logging.handlers.RotatingFileHandler):
+    """Each log file readable by the service's user only (0600, also after a rotation): the records name users
+    and carry their requests. They were 0644 wherever the data folder existed already (a fleet trial)."""
+
+    def _open(self):  # type: ignore[no-untyped-def]
+        stream = super()._open()
+        try:
+            os.chmod(self.baseFilename, 0o600)
+        except OSError:
+            pass
+        return stream
+
+
 class EventLog:
     """Rotating JSON-lines log written by its own thread (see the module docstring).
 
@@ -347,8 +360,8 @@ class EventLog:
             raise BlackBoxError(f"queue_size must be an integer in 1..1000000, got {queue_size!r}")
         self.path = Path(path)
         try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._handler = logging.handlers.RotatingFileHandler(
+            self.path.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
+            self._handler = _PrivateRotatingFileHandler(
                 self.path, maxBytes=max_bytes, backupCount=backup_count, encoding="utf-8"
             )
         except OSError as exc:

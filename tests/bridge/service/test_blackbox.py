@@ -105,6 +105,27 @@ def test_the_log_rotates_by_size_and_keeps_a_bounded_number_of_files(tmp_path):
     assert [r["i"] for r in recs] == [s - 1 for s in seqs]
 
 
+def test_log_files_are_readable_by_the_service_s_user_only_also_after_a_rotation(tmp_path):
+    """A fleet trial: the black box files were 0644 where the data folder existed already; they name users and
+    carry their requests."""
+    import os
+    import stat
+
+    old = os.umask(0o022)  # the usual umask: what files get without a mode of their own
+    try:
+        path = event_log_path(tmp_path)
+        log = EventLog(path, max_bytes=2000, backup_count=2)
+        for i in range(200):
+            log.record("test", i=i, pad="x" * 40)
+        log.close()
+    finally:
+        os.umask(old)
+    files = list(path.parent.iterdir())
+    assert len(files) == 3
+    for p in files:
+        assert stat.S_IMODE(p.stat().st_mode) == 0o600, (p.name, oct(p.stat().st_mode))
+
+
 def test_record_never_blocks_and_counts_what_it_drops(tmp_path):
     log = EventLog(event_log_path(tmp_path), queue_size=5)
     gate = threading.Event()

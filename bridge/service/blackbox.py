@@ -321,7 +321,7 @@ class _PrivateRotatingFileHandler(logging.handlers.RotatingFileHandler):
     """Each log file readable by the service's user only (0600, also after a rotation): the records name users
     and carry their requests. They were 0644 wherever the data folder existed already (a fleet trial)."""
 
-    def _open(self):  # type: ignore[no-untyped-def]
+    def _open(self):
         stream = super()._open()
         try:
             os.chmod(self.baseFilename, 0o600)

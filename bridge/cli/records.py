@@ -49,6 +49,8 @@ def format_record(rec: dict[str, Any]) -> str:
         skip = {"t", "seq", "kind", "event", "event_t"}
         rest = ", ".join(f"{k}={v}" for k, v in rec.items() if k not in skip)
         return f"{head}event {rec.get('event')}" + (f": {rest}" if rest else "")
+    if kind in ("gap", "suppressed") and isinstance(rec.get("message"), str):  # their sentence says it all
+        return f"{head}{kind}: {rec['message']}"
     skip = {"t", "seq", "kind"}
     rest = ", ".join(f"{k}={v}" for k, v in rec.items() if k not in skip)
     return f"{head}{kind}" + (f": {rest}" if rest else "")

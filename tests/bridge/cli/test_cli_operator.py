@@ -230,6 +230,21 @@ def test_hitch_log_prints_the_records_verbatim(tmp_path, capsys):
     assert json.loads(only)["fault"] == "stale_measurement"
 
 
+def test_hitch_log_prints_a_gap_as_its_sentence(tmp_path, capsys):
+    """The black box's gap and suppressed records carry a sentence; hitch log printed every field as key=value."""
+    log = EventLog(event_log_path(tmp_path))
+    log.on_event({"seq": 1, "event": "mode_changed", "mode": "manual"})
+    log.on_event({"seq": 4, "event": "mode_changed", "mode": "auto"})  # 2 and 3 never arrived
+    log.close()
+    assert main(["log", "--data-dir", str(tmp_path)]) == 0
+    gap = next(line for line in capsys.readouterr().out.splitlines() if " gap: " in line)
+    assert gap.endswith(
+        "gap: 2 event(s) of the service (numbers 2..3) were not recorded: published before the "
+        "black box was attached, or lost on the way to it"
+    ), gap
+    assert "first_event_seq=" not in gap
+
+
 def test_hitch_log_without_a_log_says_where_it_looked(tmp_path, capsys, monkeypatch):
     assert main(["log", "--data-dir", str(tmp_path)]) == 0
     assert "no event log" in capsys.readouterr().out

@@ -273,6 +273,11 @@ def _calibrate_on_bus(args, cal_model: HitchModel, nominal, implement, actuators
                 f"{lift.counts_max} (hitch ecu-sim --sensor-calibration)"
             )
         ecu = link.peer_name(link.config.ecu_address)
+        if ecu is None and args.progress is not None and Path(args.progress).is_file():
+            raise SensorCalibrationError(
+                f"the ECU did not answer with its ISO 11783 NAME: it cannot be told from another machine, so the "
+                f"ends in {args.progress} are not resumed (give another --progress to start afresh)"
+            )
         return SensorCalibration(
             link,
             RealtimeDriver(runner),

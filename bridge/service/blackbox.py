@@ -218,9 +218,11 @@ class _RequestLimiter:
         with self._lock:
             tally = self._groups.get(group)
             if tally is None:
-                if len(self._groups) >= lim.max_groups:
+                # accepted writing requests always get a group of their own (keys × users: bounded), never the
+                # overflow, so a flood of made-up keys cannot silence an operator's gotos and stops
+                if len(self._groups) >= lim.max_groups and not kept:
                     self._prune(now)
-                if len(self._groups) >= lim.max_groups:
+                if len(self._groups) >= lim.max_groups and not kept:
                     group, kept = _OVERFLOW, False
                     tally = self._groups.get(group)
                 if tally is None:

@@ -311,7 +311,7 @@ class HitchService:
                 self._start_http(cfg.http)
             if self.planning is not None:  # built their models meanwhile: ready before the service says so
                 self.planning.warm(60.0)
-            if cfg.connect:
+            if cfg.mode == "client":  # its router is its only way to the fleet (a peer may reach others)
                 threading.Thread(target=self._watch_links, name="hitch-link-watch", daemon=True).start()
         except BaseException:
             self.close()
@@ -319,8 +319,8 @@ class HitchService:
         return self
 
     def _watch_links(self) -> None:
-        """The nodes of ``connect`` (a client's router): every :data:`LINK_WATCH_S`, how many routers and peers
-        the session reaches. When the last is lost, a ``link_lost`` event (in the black box) and, by
+        """The nodes of ``connect`` (a client's routers): every :data:`LINK_WATCH_S`, how many routers the session
+        reaches. When the last is lost, a ``link_lost`` event (in the black box) and, by
         ``on_link_loss`` (default ``stop``), the hitch braked to rest: nobody in the fleet can stop it now.
         ``link_restored`` when one is back; nothing stopped resumes."""
         reached = True  # the session opened: client mode reached a router
@@ -329,9 +329,12 @@ class HitchService:
             if session is None or api is None:
                 return
             try:
-                n = len(list(session.info.routers_zid())) + len(list(session.info.peers_zid()))
-            except Exception:  # noqa: BLE001 — the session is closing
-                return
+                n = len(list(session.info.routers_zid()))
+            except Exception as exc:  # noqa: BLE001 — the session is closing, or Zenoh failed once: said, then again
+                if self._closed:
+                    return
+                print(f"hitch serve: warning: the link watch could not read the session ({exc})", file=sys.stderr)
+                continue
             if reached and n == 0:
                 self._on_link_lost(api)
             elif not reached and n > 0:
@@ -342,6 +345,11 @@ class HitchService:
 
     def _on_link_lost(self, api: ServiceAPI) -> None:
         stop = self.config.on_link_loss == "stop"
+        if stop:  # first: the announcement (a call to the core) must not delay it
+            try:
+                api.motion.stop("link lost: no node of connect reached")
+            except Exception:  # noqa: BLE001 — the core is closing
+                pass
         then = "braking it to rest (on_link_loss = stop)" if stop else "its motion runs on (on_link_loss = continue)"
         self._announce(
             api,
@@ -352,11 +360,6 @@ class HitchService:
                 "action": self.config.on_link_loss,
             },
         )
-        if stop:
-            try:
-                api.motion.stop("link lost: no node of connect reached")
-            except Exception:  # noqa: BLE001 — the core is closing
-                pass
 
     @staticmethod
     def _announce(api: ServiceAPI, event: dict[str, Any]) -> None:
@@ -518,10 +521,12 @@ class HitchService:
         core = self.core
 
         def ask() -> None:  # on a thread of its own: a reader may be the thread that reads the core's answers
-            try:
-                core.call("want_state")
-            except Exception:  # noqa: BLE001 — the core is closing
-                self._state_asked = False
+            while not self._closed:  # asked again until the core answers (a failed ask left the terminal blank)
+                try:
+                    core.call("want_state")
+                    return
+                except Exception:  # noqa: BLE001 — a slow or closing core: again in a second, unless closed
+                    self._closed_event.wait(1.0)
 
         threading.Thread(target=ask, name="hitch-want-state", daemon=True).start()
 

@@ -23,6 +23,7 @@ import asyncio
 import collections
 import json
 import re
+import time
 from collections.abc import Awaitable, Callable
 from typing import Any
 
@@ -34,7 +35,9 @@ from planner.errors import HitchInputError
 __all__ = ["ClientHub", "Call", "CommandError", "EVENTS_KEPT", "MAX_PENDING", "API_NAME", "CLOSE_SESSION_ENDED"]
 
 #: ``call(name, body_bytes, user) -> (ok, reply)`` on the server's loop
-Call = Callable[[str, bytes, "str | None"], Awaitable[tuple[bool, dict]]]
+#: ``call(name, body, user, received)``: the server's request path; ``received`` the message's arrival
+#: (``time.monotonic()``), so a command held back here (a jog behind a jog) is judged by when it came
+Call = Callable[[str, bytes, "str | None", float], Awaitable[tuple[bool, dict]]]
 #: WebSocket close code when the page's session ended or was never valid (4000-4999: application codes)
 CLOSE_SESSION_ENDED = 4401
 #: events kept per page (and for pages that connect later)
@@ -60,7 +63,7 @@ class _Client:
         self.events: collections.deque[str] = collections.deque(maxlen=EVENTS_KEPT)
         self.wake = asyncio.Event()
         self.jog_busy = False
-        self.jog_next: tuple[Any, bytes] | None = None
+        self.jog_next: tuple[Any, bytes, float] | None = None  # (id, body, arrival) of a jog held back
         self.tasks: set[asyncio.Task] = set()
         self.view: str | None = None  # the newest ``view`` message (a slot, like the state)
         self.terminal: str | None = None  # the ``terminal`` message, once
@@ -190,10 +193,14 @@ class ClientHub:
             return
 
     async def _command(self, c: _Client, msg: str | bytes) -> None:
+        received = time.monotonic()  # a command's deadline counts from here, and a later stop cancels it
         stop = _as_stop(msg)
         if stop is not None:  # whatever else came with it (a NaN, an odd id, a repeated field), a stop stops
-            ok, reply = await self._call("stop", b"", c.user)
+            held, c.jog_next = c.jog_next, None  # a jog held back behind another never runs after the stop
+            ok, reply = await self._call("stop", b"", c.user, received)
             await self._reply(c, _reply_id(stop.get("id")), ok, reply)
+            if held is not None:
+                await self._reply(c, held[0], False, {"error": "busy", "message": "jog: cancelled by a stop"})
             return
         rid = None
         try:
@@ -227,24 +234,24 @@ class ClientHub:
                 )
                 return
         if key == "jog":
-            await self._jog(c, rid, body)
+            await self._jog(c, rid, body, received)
             return
-        ok, reply = await self._call(key, body, c.user)
+        ok, reply = await self._call(key, body, c.user, received)
         await self._reply(c, rid, ok, reply)
 
-    async def _jog(self, c: _Client, rid, body: bytes) -> None:
+    async def _jog(self, c: _Client, rid, body: bytes, received: float) -> None:
         if c.jog_busy:
             if c.jog_next is not None:  # superseded before it ran: answer it so the page is not left waiting
                 await self._reply(
                     c, c.jog_next[0], False, {"error": "busy", "message": "jog: superseded by a newer jog command"}
                 )
-            c.jog_next = (rid, body)
+            c.jog_next = (rid, body, received)
             return
         c.jog_busy = True
         try:
-            nxt: tuple[Any, bytes] | None = (rid, body)
+            nxt: tuple[Any, bytes, float] | None = (rid, body, received)
             while nxt is not None:
-                ok, reply = await self._call("jog", nxt[1], c.user)
+                ok, reply = await self._call("jog", nxt[1], c.user, nxt[2])
                 await self._reply(c, nxt[0], ok, reply)
                 nxt, c.jog_next = c.jog_next, None
         finally:

@@ -632,12 +632,12 @@ class WebServer:
         status = 200 if ok else ERROR_STATUS.get(str(reply.get("error")), 400)
         return json_response(status, json_safe(reply), keep_alive=ka)
 
-    async def _call(self, name: str, body: bytes, user: str | None) -> tuple[bool, dict]:
+    async def _call(self, name: str, body: bytes, user: str | None, received: float | None = None) -> tuple[bool, dict]:
         """One request, stamped with its arrival now (its ``deadline_ms`` counts from then, and a stop sent
         after it cancels it: time spent queueing is not forgiven). ``stop`` on its own thread, so it never
         waits behind other requests; the rest through the service's lanes (``dispatch``) or, without them,
         on this server's worker threads (the handler may plan for tens of milliseconds)."""
-        received = time.monotonic()
+        received = time.monotonic() if received is None else received  # a WebSocket command: when its message came
         loop = asyncio.get_running_loop()
         try:
             if self._dispatch is not None and name != "stop":

@@ -142,6 +142,8 @@ def host_allowed(host_header: str, bound: tuple[str, int], settings: WebSettings
     """
     host = host_header.strip().lower()
     addr, port = bound
+    if port == 80 and host and (host.endswith("]") or ":" not in host):  # a browser leaves out the default port
+        host = f"{host}:80"
     names = {f"{h}:{port}" for h in ("127.0.0.1", "localhost", "[::1]", addr.lower(), f"[{addr.lower()}]")}
     if host in names or host in settings.extra_hosts:
         return True

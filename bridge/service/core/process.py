@@ -36,6 +36,7 @@ import json
 import multiprocessing.connection
 import os
 import queue
+import select
 import signal
 import sys
 import threading
@@ -343,7 +344,9 @@ class ControlCore:
             if data is None:
                 continue
             with self._send_lock:
-                try:
+                try:  # never blocks under the lock the replies need: a service that reads slowly skips states
+                    if not select.select([], [self.conn], [], 0)[1]:
+                        continue
                     self.conn.send((0, "note", {"state": data}))
                 except (OSError, ValueError):
                     return

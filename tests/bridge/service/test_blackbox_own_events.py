@@ -249,6 +249,23 @@ def test_new_names_and_error_codes_cannot_multiply_the_budget(tmp_path):
     assert other["user"] == "*" and other["count"] == n - 64
 
 
+def test_made_up_keys_filling_the_groups_never_silence_an_operator_s_accepted_commands(tmp_path):
+    """A reviewer's find: once ``max_groups`` groups existed, a new group — an operator's accepted goto and
+    stop too — went to the overflow, which is only counted; a viewer fills the groups with made-up keys
+    (every key reaches the hook). Accepted writing requests now always keep a group of their own."""
+    path = event_log_path(tmp_path)
+    clock = _Clock()
+    with EventLog(path, limits=RecordLimits(max_groups=64), clock=clock) as log:
+        for i in range(64 * 20):  # 64 groups, each holding requests back (20 against a burst of 10)
+            log.on_request(f"made/up{i % 64}", "viewer", b"{}", False, {"error": "unknown_key", "message": "no"})
+        clock.t += 61.0  # past the summaries: the groups still hold counts (nothing pruned)
+        for i in range(3):
+            log.on_request("goto", "olga", b'{"goal": {"z": 0.1}}', True, {"accepted": True, "motion_id": i + 1})
+            log.on_request("stop", "olga", b"{}", True, {"stopped": True})
+    recs = [r for r in read_events(path) if r["kind"] == "request" and r.get("user") == "olga"]
+    assert [r["key"] for r in recs] == ["goto", "stop"] * 3, recs
+
+
 def test_record_limits_out_of_range_are_refused_by_name():
     from bridge.service.blackbox import BlackBoxError
 

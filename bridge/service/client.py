@@ -147,10 +147,17 @@ def _decode(payload: zenoh.ZBytes) -> Any:
 
 
 def _undeclare(decl: Any) -> None:
-    try:
-        decl.undeclare()
-    except zenoh.ZError:
-        pass
+    """Undeclare a Zenoh entity; undeclared already (``ZError``) is fine. A ``RuntimeError`` (seen once under
+    load while its callback thread read its channel: the binding's object busy that instant) is tried again,
+    for at most about 0.2 s; the caller's join then bounds the rest."""
+    for _ in range(10):
+        try:
+            decl.undeclare()
+            return
+        except zenoh.ZError:
+            return
+        except RuntimeError:
+            time.sleep(0.02)
 
 
 class Subscription:

@@ -200,7 +200,19 @@ def _cmd_geometry(args) -> int:
 
     prof = load_profile(args.profile)
     refuse_overwriting_profile(args.out, args.profile)
+    if not args.profile_given:
+        print(
+            f"hitch: note: no --profile: calibrating the built-in profile {args.profile} (give --profile with your "
+            "tractor's file, the one the poses were measured with)",
+            file=sys.stderr,
+        )
     sensors = _sensor_record(args.profile)
+    if sensors is None and args.no_ad:
+        print(
+            f"hitch: note: --no-ad keeps the AD maps of {args.profile}, which records no sensor calibration: they "
+            "are its nominal maps (calibrate the sensors first: hitch calibrate sensors)",
+            file=sys.stderr,
+        )
     if sensors is not None and not args.no_ad:
         print(
             f"hitch: warning: {args.profile} carries a sensor calibration (its AD maps were measured at the end "

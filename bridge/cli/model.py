@@ -90,10 +90,24 @@ def whole_number(name: str):
     return parse
 
 
+class _GivenProfile(argparse.Action):
+    """``--profile``, and that it was given (``profile_given``): a command that writes a calibration says when it
+    calibrates the built-in profile because none was given (a commissioning trial's tractor file was fitted as
+    thesis-t132 without a word)."""
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        setattr(namespace, self.dest, values)
+        namespace.profile_given = True
+
+
 def add_model_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
-        "--profile", default="thesis-t132", help="built-in profile name or path to a .toml (default thesis-t132)"
+        "--profile",
+        default="thesis-t132",
+        action=_GivenProfile,
+        help="built-in profile name or path to a .toml (default thesis-t132)",
     )
+    p.set_defaults(profile_given=False)
     p.add_argument("--category", default=None, help="ISO 730 implement category (default: the profile's, 2)")
     p.add_argument("--json", action="store_true", help="print JSON")
 

@@ -148,8 +148,11 @@ def test_end_to_end_on_a_twin_calibrates_better_than_nominal(tmp_path, capsys):
     capsys.readouterr()
     out = tmp_path / "cal.toml"
     assert main(["calibrate", "geometry", "--measurements", str(meas), "--out", str(out), "--json"]) == 0
-    report = json.loads(capsys.readouterr().out)
+    captured = capsys.readouterr()
+    report = json.loads(captured.out)
     assert report["n_poses"] == 12 and report["converged"]
+    # no --profile: said (a commissioning trial's tractor was fitted as thesis-t132 without a word)
+    assert "no --profile: calibrating the built-in profile thesis-t132" in captured.err
     # station noise is 1 mm / 1 mrad: the calibrated residual is at the noise, the nominal one well above it
     assert report["residual_rms_position_m"] < 0.0016 < report["residual_rms_nominal_position_m"]
     assert report["residual_rms_angle_rad"] < 0.0025 < report["residual_rms_nominal_angle_rad"]
@@ -460,7 +463,12 @@ def test_a_sensor_calibrated_profile_keeps_its_record_or_warns_and_is_never_over
     err = capsys.readouterr().err
     assert "carries a sensor calibration" in err and "give --no-ad to keep them" in err
     assert main([*argv, "--no-ad", "--out", str(tmp_path / "b.toml")]) == 0
-    assert "carries a sensor calibration" not in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "carries a sensor calibration" not in err and "records no sensor calibration" not in err
+    assert "no --profile" not in err  # it was given
+    plain = ["calibrate", "geometry", "--measurements", str(meas), "--no-ad", "--out", str(tmp_path / "c.toml")]
+    assert main(plain) == 0  # --no-ad on a profile no sensor calibration wrote: its nominal maps, said
+    assert "--no-ad keeps the AD maps of thesis-t132, which records no sensor calibration" in capsys.readouterr().err
     kept = (tmp_path / "b.toml").read_text()
     assert any(line.startswith(SENSOR_PROVENANCE_MARKER) and '"test"' in line for line in kept.splitlines())
     assert load_profile(tmp_path / "b.toml").actuator("tilt").counts_min == tilt.counts_min + 1  # the measured map

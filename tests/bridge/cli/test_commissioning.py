@@ -123,7 +123,7 @@ def test_calibrate_sensors_detached_needs_the_operator_s_confirmation(tmp_path, 
     monkeypatch.setattr("sys.stdin", _Terminal("y\n"))
     assert main(argv) == 2
     err = capsys.readouterr().err
-    assert "not confirmed" not in err and "unknown or none ['yaw']" in err
+    assert "not confirmed" not in err and "--actuators 'yaw': unknown 'yaw'" in err
     # --yes confirms only --detached
     assert main(["calibrate", "sensors", "--actuators", "lift", "--out", str(tmp_path / "x"), "--yes"]) == 2
     assert "nothing to confirm" in capsys.readouterr().err

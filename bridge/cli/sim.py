@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 import time
 from pathlib import Path
 
@@ -552,8 +553,9 @@ def _counts_arg(text: str) -> tuple[int, ...]:
         values = tuple(int(p) for p in parts)
     except ValueError:
         raise argparse.ArgumentTypeError(f"--counts must be integers 0..1023, got {text!r}") from None
-    if not all(0 <= v <= 1023 for v in values):
-        raise argparse.ArgumentTypeError(f"--counts must be integers 0..1023, got {text!r}")
+    off = [f"{name}={v}" for name, v in zip(ACTUATOR_ORDER, values, strict=True) if not 0 <= v <= 1023]
+    if off:
+        raise argparse.ArgumentTypeError(f"--counts: {', '.join(off)} outside 0..1023 (the 10-bit AD range)")
     return values
 
 
@@ -621,9 +623,17 @@ def _cmd_sim_measure(args) -> int:
     out = measure_in_sim(
         model, truth, pose=args.pose, counts=args.counts, noise=args.noise, points=args.points, seed=args.seed
     )
+    warnings: list[str] = []
+    if args.counts is not None:  # readings typed by hand may not fit one another: said as hitch fk says it
+        from bridge.cli.model import _fk_warnings
+
+        q = SensorScaling(model.profile).to_si(np.asarray(args.counts, dtype=float), tolerance_counts=1e9)
+        warnings = [f"the planner's reading of --counts: {w}" for w in _fk_warnings(model, q, model.forward(q))]
     if args.json:
-        print(to_json_text(out))
+        print(to_json_text({**out, "warnings": warnings}))
         return 0
+    for w in warnings:
+        print(f"hitch: warning: {w}", file=sys.stderr)
     c = console()
     counts = out["counts"]
     reading = ", ".join(f"{k}={v}" for k, v in counts.items()) + " counts" if isinstance(counts, dict) else str(counts)

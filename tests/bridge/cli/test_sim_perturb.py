@@ -68,6 +68,19 @@ def test_measure_nominal_twin_agrees_with_the_planner_to_the_quantisation(capsys
     assert doc["measured"]["pose"] == doc["true_pose"]
 
 
+def test_measure_of_readings_that_do_not_fit_one_another_says_so(capsys):
+    """A commissioning trial: five readings typed by hand that no implement can take gave a planner pose and a
+    true pose 170 mrad apart without a word (hitch fk warns of the same readings)."""
+    code, out, err = run(capsys, "sim", "measure", "--counts", "26,300,100,30,500", "--json")
+    assert code == 0
+    warnings = json.loads(out)["warnings"]
+    assert any("the five lengths do not fit one another" in w for w in warnings), warnings
+    code, out, err = run(capsys, "sim", "measure", "--counts", "26,300,100,30,500")
+    assert "hitch: warning: the planner's reading of --counts: not a pose the implement can take" in err
+    code, out, _ = run(capsys, "sim", "measure", "--pose", "z=0.05", "--json")
+    assert json.loads(out)["warnings"] == []  # a pose the planner holds: nothing to say
+
+
 def test_measure_with_a_truth_differs_and_reads_the_marked_points(capsys, truth_file):
     args = ("sim", "measure", "--pose", "z=0.05", "--noise", "none", "--json", "--points", "L,R,U")
     nominal = json.loads(run(capsys, *args)[1])
@@ -88,7 +101,7 @@ def test_measure_with_a_truth_differs_and_reads_the_marked_points(capsys, truth_
     ("argv", "words"),
     [
         (("sim", "measure", "--counts", "1,2"), "--counts needs 5 integers"),
-        (("sim", "measure", "--counts", "1,2,3,4,2000"), "--counts must be integers 0..1023"),
+        (("sim", "measure", "--counts", "1,2,3,4,2000"), "--counts: right=2000 outside 0..1023"),
         (("sim", "measure", "--noise", "laser"), "invalid choice: 'laser'"),
         (("sim", "measure", "--points", "L,Z9"), "--points: unknown point(s) ['Z9']"),
         (("sim", "perturb", "--seed", "1"), "--tape"),

@@ -190,14 +190,33 @@ def _data_rows(reader: Any, n_cells: int, source: str) -> Iterator[tuple[str, li
         yield where, [c.strip() for c in line]
 
 
+def _header(reader: Any, source: str) -> list[str]:
+    """The header row (blank lines before it skipped), or :class:`CalibrationError` saying what the file holds
+    instead: nothing, a comment line, or semicolons (a spreadsheet's CSV with decimal commas). Before, a file of
+    blank lines was refused for a missing lift column, and a semicolon file as one unknown column (a trial)."""
+    for row in reader:
+        cells = [h.strip() for h in row]
+        if not any(cells):
+            continue
+        if cells[0].startswith("#"):
+            raise CalibrationError(
+                f"{source} line {reader.line_num}: a comment line ('#…'); the first line that is not blank must "
+                "be the header: remove the comment"
+            )
+        if len(cells) == 1 and ";" in cells[0]:
+            raise CalibrationError(
+                f"{source} line {reader.line_num}: the header is separated by semicolons (a spreadsheet's CSV with "
+                "decimal commas?); save it as CSV with commas between cells and decimal points"
+            )
+        return cells
+    raise CalibrationError(f"{source}: empty file (a header row is required)")
+
+
 def parse_measurements(text: str, profile: Profile, *, source: str = "measurements") -> MeasurementSet:
     """Parse measurement CSV text (module docstring) against the nominal ``profile`` (its AD map and strokes).
     A UTF-8 byte-order mark (a spreadsheet's "CSV UTF-8") is allowed."""
     reader = csv.reader(io.StringIO(text.removeprefix("\ufeff")))
-    try:
-        header = [h.strip() for h in next(reader)]
-    except StopIteration:
-        raise CalibrationError(f"{source}: empty file (a header row is required)") from None
+    header = _header(reader, source)
     head = f"row 0 (the header, line {reader.line_num})"
     allowed = {
         "pose",
@@ -339,7 +358,7 @@ def load_plan_targets(path: str | Path) -> tuple[tuple[str, ...], np.ndarray]:
     except UnicodeDecodeError:
         raise CalibrationError(f"plan file {p}: not UTF-8 text") from None
     reader = csv.reader(io.StringIO(text))
-    header = [h.strip() for h in next(reader, [])]
+    header = _header(reader, f"plan file {p}")
     missing = [c for c in TARGET_COLUMNS if c not in header]
     if missing:
         raise CalibrationError(

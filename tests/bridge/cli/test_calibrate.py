@@ -30,10 +30,11 @@ GOOD_ROW = "p1,100,400,120,300,260,0.0,-0.05,0.01,0.02"
 
 
 def _err(capsys, argv) -> str:
+    """The one-line error of a refused command (notes before it, e.g. "no --profile", set aside)."""
     assert main(argv) == 2
-    err = capsys.readouterr().err.strip()
-    assert err.startswith("hitch: error:") and "\n" not in err
-    return err
+    lines = [ln for ln in capsys.readouterr().err.strip().splitlines() if not ln.startswith("hitch: note:")]
+    assert len(lines) == 1 and lines[0].startswith("hitch: error:"), lines
+    return lines[0]
 
 
 @pytest.mark.parametrize(
@@ -106,6 +107,37 @@ def test_a_byte_order_mark_is_allowed():
     plain = parse_measurements(GOOD_HEADER + "\n" + GOOD_ROW + "\n", prof)
     marked = parse_measurements("\ufeff" + GOOD_HEADER + "\n" + GOOD_ROW + "\n", prof)
     assert np.array_equal(plain.readings, marked.readings) and marked.labels == plain.labels
+
+
+@pytest.mark.parametrize(
+    "text, words",
+    [
+        ("\n\n  \n", "measurements: empty file (a header row is required)"),
+        ("# my tractor\n" + GOOD_HEADER + "\n" + GOOD_ROW + "\n", "line 1: a comment line ('#…')"),
+        (GOOD_HEADER.replace(",", ";") + "\n", "line 1: the header is separated by semicolons"),
+    ],
+)
+def test_a_file_that_is_not_a_measurement_csv_says_what_it_is(text, words):
+    """A commissioning trial: a file of blank lines was refused for a missing lift column, a semicolon CSV
+    (European spreadsheet) as one unknown column, a comment line likewise."""
+    with pytest.raises(CalibrationError) as info:
+        parse_measurements(text, load_profile("thesis-t132"))
+    assert words in str(info.value), info.value
+
+
+def test_blank_lines_before_the_header_are_skipped_and_the_header_line_is_named():
+    prof = load_profile("thesis-t132")
+    got = parse_measurements("\n\n" + GOOD_HEADER + "\n" + GOOD_ROW + "\n", prof)
+    assert got.n_rows == 1
+    with pytest.raises(CalibrationError, match=r"row 0 \(the header, line 3\): duplicate column"):
+        parse_measurements("\n\n" + GOOD_HEADER + ",x\n" + GOOD_ROW + ",0\n", prof)
+
+
+def test_an_empty_plan_file_is_called_empty(tmp_path):
+    plan = tmp_path / "plan.csv"
+    plan.write_text("")
+    with pytest.raises(CalibrationError, match=r"plan file .*plan.csv: empty file"):
+        load_plan_targets(plan)
 
 
 def test_plan_poses_prints_n_reachable_poses(capsys, tmp_path):

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 
-__all__ = ["HitchError", "HitchInputError", "first_line", "unit_hint", "unit_hint_within"]
+__all__ = ["HitchError", "HitchInputError", "distinct_texts", "first_line", "unit_hint", "unit_hint_within"]
 
 
 class HitchError(Exception):
@@ -20,6 +20,17 @@ class HitchError(Exception):
 
 class HitchInputError(HitchError, ValueError):
     """Bad input: the message names the field, the value and what is allowed."""
+
+
+def distinct_texts(value: float, bound: float) -> tuple[str, str]:
+    """``value`` (6 significant digits) and ``bound`` (4) as a refusal prints them, with as many more digits as it
+    takes for two different numbers to read differently: "pitch = 0.062 rad is above the workspace (… to 0.062
+    rad)" read as a contradiction (the bound was 0.061999, or the value 2e-9 over it: a trial and a review)."""
+    for extra in range(0, 12):
+        shown, limit = f"{value:.{6 + extra}g}", f"{bound:.{4 + extra}g}"
+        if shown != limit or value == bound:
+            return shown, limit
+    return repr(value), repr(bound)
 
 
 def unit_hint(value: float, lo: float, hi: float, unit: str) -> str:

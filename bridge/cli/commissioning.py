@@ -144,7 +144,7 @@ def _twin_identity(truth: str | None, profile: str) -> str:
 def _actuator_list(text: str | None) -> tuple[str, ...]:
     """``--actuators``: a comma-separated subset of the five, each once (default all); the error names only the
     unknown ones (``lift,tlt`` was refused as "unknown or none ['lift', 'tlt']": a commissioning trial)."""
-    if not text:
+    if text is None:
         return ACTUATOR_NAMES
     names = [a.strip() for a in text.split(",") if a.strip()]
     unknown = [a for a in names if a not in ACTUATOR_NAMES]

@@ -177,6 +177,10 @@ class RecordLimits:
 #: (key, user, accepted, error) of a request record
 _Group = tuple[str, str | None, bool, str | None]
 _OVERFLOW: _Group = ("*", "*", False, None)
+#: accepted writing requests beyond their groups' cap: one group, still written (by its own bucket), not counted away
+_OVERFLOW_KEPT: _Group = ("*", "*", True, None)
+#: accepted writing requests may hold this many times ``max_groups`` groups (keys × the users who write)
+KEPT_GROUPS_FACTOR = 4
 
 
 class _Bucket:
@@ -220,10 +224,11 @@ class _RequestLimiter:
             if tally is None:
                 # accepted writing requests always get a group of their own (keys × users: bounded), never the
                 # overflow, so a flood of made-up keys cannot silence an operator's gotos and stops
-                if len(self._groups) >= lim.max_groups and not kept:
+                cap = lim.max_groups * (KEPT_GROUPS_FACTOR if kept else 1)  # made-up user names: bounded too
+                if len(self._groups) >= cap:
                     self._prune(now)
-                if len(self._groups) >= lim.max_groups and not kept:
-                    group, kept = _OVERFLOW, False
+                if len(self._groups) >= cap:
+                    group, kept = (_OVERFLOW_KEPT, True) if kept else (_OVERFLOW, False)
                     tally = self._groups.get(group)
                 if tally is None:
                     burst, per_s = (lim.write_burst, lim.write_per_s) if kept else (lim.other_burst, lim.other_per_s)
@@ -324,6 +329,10 @@ class _PrivateRotatingFileHandler(logging.handlers.RotatingFileHandler):
     and carry their requests. They were 0644 wherever the data folder existed already (a fleet trial)."""
 
     def _open(self):
+        try:  # created 0600: not readable by others for an instant either
+            os.close(os.open(self.baseFilename, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o600))
+        except OSError:
+            pass  # the open below says why
         stream = super()._open()
         try:
             os.chmod(self.baseFilename, 0o600)

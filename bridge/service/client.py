@@ -150,13 +150,16 @@ def _undeclare(decl: Any) -> None:
     """Undeclare a Zenoh entity; undeclared already (``ZError``) is fine. A ``RuntimeError`` (seen once under
     load while its callback thread read its channel: the binding's object busy that instant) is tried again,
     for at most about 0.2 s; the caller's join then bounds the rest."""
-    for _ in range(10):
+    for attempt in range(10):
         try:
             decl.undeclare()
             return
         except zenoh.ZError:
             return
-        except RuntimeError:
+        except RuntimeError as exc:
+            if attempt == 9:
+                warnings.warn(f"could not undeclare a Zenoh entity ({exc}): it stays declared", RuntimeWarning, 2)
+                return
             time.sleep(0.02)
 
 

@@ -37,7 +37,7 @@ from pydantic.fields import FieldInfo
 
 from bridge.service.maneuvers.language import MIN_SPEED_SCALE, NAME_PATTERN, POSE_BOUNDS
 from bridge.service.maneuvers.steps import SETPOINT_VELOCITY_BOUND
-from planner.errors import HitchInputError, unit_hint, unit_hint_within
+from planner.errors import HitchInputError, distinct_texts, unit_hint, unit_hint_within
 from planner.model.limit_names import beyond_words
 from planner.model.types import CONTROLLED_POSE_NAMES, CONTROLLED_POSE_UNITS
 
@@ -670,26 +670,13 @@ def check_pose_in_workspace(
         side = beyond_words(k, high=v > hi)
         limit = f"workspace:{k}:{'min' if v < lo else 'max'}"
         name = f"{what}.{k}" if what else k
-        shown = f"{v:.6g}"
-        text = (
-            f"{name} = {shown} {unit} is {side} the workspace ({k} from {_bound_text(lo, shown)} to "
-            f"{_bound_text(hi, shown)} {unit}, {limit})"
-        )
+        shown, bound = distinct_texts(v, hi if v > hi else lo)
+        lo_text, hi_text = (bound, f"{hi:.4g}") if v < lo else (f"{lo:.4g}", bound)
+        text = f"{name} = {shown} {unit} is {side} the workspace ({k} from {lo_text} to {hi_text} {unit}, {limit})"
         text += unit_hint(v, lo, hi, unit)
         problems.append(text)
     if problems:
         raise RequestError("unreachable", f"{key}: outside the workspace: " + "; ".join(problems))
-
-
-def _bound_text(bound: float, shown: str) -> str:
-    """A workspace bound in 4 significant digits, or as many more as it takes to differ from the value ``shown``
-    ("pitch = 0.062 rad is above the workspace (pitch from -0.1 to 0.062 rad)" read as a contradiction: the bound
-    was 0.061999; a commissioning trial)."""
-    for digits in range(4, 11):
-        text = f"{bound:.{digits}g}"
-        if text != shown:
-            return text
-    return repr(bound)
 
 
 def parse_request(

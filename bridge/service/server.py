@@ -199,6 +199,7 @@ class HitchService:
         self._latest_state: dict[str, Any] | None = None
         self._closed = False
         self._closed_event = threading.Event()  # set by close: ends the link watch
+        self._routers_seen = False  # the link watch saw a router (a peer is watched from then on)
         self._close_lock = threading.Lock()
         self.close_duration_s: float | None = None
         self._service_nice_failed: str | None = None  # why the service threads could not be raised
@@ -311,7 +312,7 @@ class HitchService:
                 self._start_http(cfg.http)
             if self.planning is not None:  # built their models meanwhile: ready before the service says so
                 self.planning.warm(60.0)
-            if cfg.mode == "client":  # its router is its only way to the fleet (a peer may reach others)
+            if cfg.connect:  # its routers are its way to the fleet
                 threading.Thread(target=self._watch_links, name="hitch-link-watch", daemon=True).start()
         except BaseException:
             self.close()
@@ -319,28 +320,37 @@ class HitchService:
         return self
 
     def _watch_links(self) -> None:
-        """The nodes of ``connect`` (a client's routers): every :data:`LINK_WATCH_S`, how many routers the session
-        reaches. When the last is lost, a ``link_lost`` event (in the black box) and, by
-        ``on_link_loss`` (default ``stop``), the hitch braked to rest: nobody in the fleet can stop it now.
-        ``link_restored`` when one is back; nothing stopped resumes."""
-        reached = True  # the session opened: client mode reached a router
+        """The routers of ``connect``: every :data:`LINK_WATCH_S`, how many routers the session reaches. When the
+        last is lost, a ``link_lost`` event (in the black box) and, by ``on_link_loss`` (default ``stop``), the
+        hitch braked to rest: nobody in the fleet can stop it now. ``link_restored`` when one is back; nothing
+        stopped resumes. A client reached its router when its session opened; a peer is watched from the first
+        router it reaches (one that connects to peers only has no router to lose). A session that cannot be
+        read :data:`LINK_READ_FAILURES` times in a row counts as one that reaches none (said once)."""
+        reached = self.config.mode == "client"
+        failures = 0
         while not self._closed_event.wait(LINK_WATCH_S):
             session, api = self.session, self.api
             if session is None or api is None:
                 return
             try:
                 n = len(list(session.info.routers_zid()))
-            except Exception as exc:  # noqa: BLE001 — the session is closing, or Zenoh failed once: said, then again
+                failures = 0
+            except Exception as exc:  # noqa: BLE001 — the session is closing, or Zenoh failed
                 if self._closed:
                     return
-                print(f"hitch serve: warning: the link watch could not read the session ({exc})", file=sys.stderr)
-                continue
+                failures += 1
+                if failures < LINK_READ_FAILURES:
+                    continue
+                if failures == LINK_READ_FAILURES:
+                    print(f"hitch serve: warning: the link watch cannot read the session ({exc})", file=sys.stderr)
+                n = 0
             if reached and n == 0:
                 self._on_link_lost(api)
-            elif not reached and n > 0:
+            elif not reached and n > 0 and (self.config.mode == "client" or self._routers_seen):
                 self._announce(
-                    api, {"event": "link_restored", "message": f"{n} node(s) reached again; nothing resumes"}
+                    api, {"event": "link_restored", "message": f"{n} router(s) reached again; nothing resumes"}
                 )
+            self._routers_seen = self._routers_seen or n > 0
             reached = n > 0
 
     def _on_link_lost(self, api: ServiceAPI) -> None:
@@ -788,6 +798,8 @@ class HitchService:
 
 #: period of the link watch (HitchService._watch_links) [s]
 LINK_WATCH_S = 0.1
+#: reads of the session that fail in a row before the link watch counts it as reaching no router
+LINK_READ_FAILURES = 5
 
 #: queries (or samples) a key's channel holds while its thread is busy; beyond it the oldest is dropped
 #: (its querier gets no reply, as from a busy service) — Zenoh never waits for Python

@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from ruckig import Trajectory
 
-from planner.errors import HitchInputError
+from planner.errors import HitchInputError, distinct_texts
 from planner.model.exact_inverse import ExactInverse
 from planner.model.fast_function import MappedFunction
 from planner.model.hard_limits import STROKE_NAMES, HardLimits
@@ -320,11 +320,14 @@ class Violation:
 
     def sentence(self) -> str:
         """``top_link_yaw_min = -0.3012 rad against its bound -0.3 rad at t = 5.92 s``: what a refusal says (it
-        named the limit and the time only, not the value or the bound: a commissioning trial)."""
-        return (
-            f"{self.limit} = {self.value:.6g} {self.unit} against its bound {self.bound:.6g} {self.unit} "
-            f"at t = {self.t:.2f} s"
-        )
+        named the limit and the time only, not the value or the bound: a commissioning trial). A rate limit is a
+        bound on the magnitude: ``|velocity:lift| = 0.2 rad/s against its bound 0.15 rad/s``. The two numbers
+        are printed with the digits that tell them apart."""
+        rate = self.limit.startswith(("velocity:", "acceleration:"))
+        value = abs(self.value) if rate else self.value
+        shown, bound = distinct_texts(value, self.bound)
+        name = f"|{self.limit}|" if rate else self.limit
+        return f"{name} = {shown} {self.unit} against its bound {bound} {self.unit} at t = {self.t:.2f} s"
 
 
 def verify_setpoints(

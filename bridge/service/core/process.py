@@ -290,12 +290,25 @@ class ControlCore:
         except queue.Full:
             self.notes_dropped += 1
 
+    def _writable(self, timeout_s: float) -> bool:
+        """Whether the socket to the service takes a message now (poll: any descriptor number), waited for at most
+        ``timeout_s`` without holding the lock the replies need."""
+        try:
+            p = select.poll()
+            p.register(self.conn.fileno(), select.POLLOUT)
+            return bool(p.poll(1000.0 * timeout_s))
+        except (OSError, ValueError):
+            return True  # let the send itself fail and end the thread
+
     def _send_notes(self) -> None:
         while not self._closed.is_set():
             try:
                 note = self._notes.get(timeout=0.2)
             except queue.Empty:
                 continue
+            while not self._writable(0.2):  # a service that reads slowly: wait here, not under the lock
+                if self._closed.is_set():
+                    return
             with self._send_lock:
                 try:
                     self.conn.send((0, "note", note))
@@ -344,8 +357,8 @@ class ControlCore:
             if data is None:
                 continue
             with self._send_lock:
-                try:  # never blocks under the lock the replies need: a service that reads slowly skips states
-                    if not select.select([], [self.conn], [], 0)[1]:
+                try:  # never waits under the lock the replies need: a service that reads slowly skips states
+                    if not self._writable(0.0):
                         continue
                     self.conn.send((0, "note", {"state": data}))
                 except (OSError, ValueError):

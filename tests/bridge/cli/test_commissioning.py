@@ -203,6 +203,7 @@ def test_an_output_in_a_missing_folder_is_refused_before_anything_moves(args, tr
         ("lift,tlt", "--actuators 'lift,tlt': unknown 'tlt'; allowed: lift, tilt, top, left, right"),
         ("top,top", "--actuators 'top,top': 'top' given more than once"),
         (",", "--actuators ',': none given"),
+        ("", "--actuators '': none given"),  # not "all five" on a command that drives each to its ends (a review)
     ],
 )
 def test_calibrate_sensors_names_only_the_unknown_or_repeated_actuators(given, expected, tmp_path, capsys):

@@ -266,6 +266,22 @@ def test_made_up_keys_filling_the_groups_never_silence_an_operator_s_accepted_co
     assert [r["key"] for r in recs] == ["goto", "stop"] * 3, recs
 
 
+def test_accepted_writes_of_made_up_user_names_are_written_in_bounded_groups(tmp_path):
+    """A review: accepted writing requests bypassed the group cap, so made-up user names (user keys without a
+    router that checks them) grew the groups without bound. Beyond 4 × max_groups they share one group, still
+    written."""
+    from bridge.service.blackbox import KEPT_GROUPS_FACTOR
+
+    path = event_log_path(tmp_path)
+    with EventLog(path, limits=RecordLimits(max_groups=4), clock=_Clock()) as log:
+        for i in range(40):
+            log.on_request("goto", f"made-up-{i}", b"{}", True, {"accepted": True, "motion_id": i + 1})
+        groups = len(log._limiter._groups)
+    assert groups <= 4 * KEPT_GROUPS_FACTOR + 1, groups
+    written = [r for r in read_events(path) if r["kind"] == "request"]
+    assert len(written) == 40  # within the shared group's burst: every one written
+
+
 def test_record_limits_out_of_range_are_refused_by_name():
     from bridge.service.blackbox import BlackBoxError
 

@@ -149,6 +149,9 @@ def test_a_value_just_beyond_a_bound_is_not_shown_equal_to_it():
     ws = {**WS, "pitch": (-0.1, 0.061999)}
     msg = str(_refusal("goto", json.dumps({"goal": {"pitch": 0.062}}), workspace=ws))
     assert "goal.pitch = 0.062 rad is above the workspace (pitch from -0.1 to 0.061999 rad, workspace:pitch:max)" in msg
+    ws = {**WS, "pitch": (-0.1, 0.062)}  # a value 2e-9 over its bound (a review)
+    msg = str(_refusal("goto", json.dumps({"goal": {"pitch": 0.062000002}}), workspace=ws))
+    assert "goal.pitch = 0.062000002 rad is above the workspace (pitch from -0.1 to 0.062 rad" in msg, msg
 
 
 def test_a_goal_outside_the_workspace_names_the_workspace_range_of_every_dof():

@@ -21,17 +21,19 @@ from tests.integration.service_process import free_port, start_router
 pytestmark = pytest.mark.slow
 
 
-@pytest.mark.parametrize("policy", ["stop", "continue"])
-def test_losing_the_router_brakes_the_hitch_says_so_and_nothing_resumes(tmp_path, policy):
+@pytest.mark.parametrize(("policy", "mode"), [("stop", "client"), ("continue", "client"), ("stop", "peer")])
+def test_losing_the_router_brakes_the_hitch_says_so_and_nothing_resumes(tmp_path, policy, mode):
+    """A peer that connects to a router is watched too, from the first router it reaches (a review: the watch
+    ran for clients only, and on_link_loss was ignored for peers without a word)."""
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     router = start_router(endpoint)
     svc = None
     try:
         cfg = ServiceConfig(
-            mode="client",
+            mode=mode,
             connect=[endpoint],
-            listen=[],
+            listen=[] if mode == "client" else [f"tcp/127.0.0.1:{free_port()}"],
             prefix=f"linkloss{port}/hitch",
             data_dir=tmp_path,
             planning_processes=0,
@@ -43,6 +45,8 @@ def test_losing_the_router_brakes_the_hitch_says_so_and_nothing_resumes(tmp_path
         events: list[dict] = []
         svc.add_listener("event", events.append)
         assert wait_until(lambda: svc.latest_state is not None and svc.latest_state["ecu"]["online"], 10.0)
+        if mode == "peer":  # watched from the first router it reaches
+            time.sleep(0.5)
         z0 = svc.latest_state["pose"]["z"]
         ok, reply = svc.api.handle("goto", json.dumps({"goal": {"z": z0 + 0.12}, "speed_scale": 0.05}), None)
         assert ok and reply["duration"] > 20.0, reply

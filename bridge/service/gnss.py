@@ -73,6 +73,9 @@ MIN_SEGMENT_M = 0.01
 _A, _F = 6378137.0, 1 / 298.257223563  # WGS84
 _E2 = _F * (2 - _F)
 _MIN_SPEED = 0.05  # m/s: below this the course is the last one known
+#: the fastest a tractor may seem to move between two fixes [m/s] (about 108 km/h): a fix beyond is an outlier,
+#: refused, never a line crossing (one 1.5 km jump fired a headland step 148 m early: a field trial)
+MAX_FIX_SPEED_M_S = 30.0
 
 
 class GnssError(HitchInputError):
@@ -354,6 +357,14 @@ class GnssTracker:
                 if self.plane is None:
                     self.plane = LocalTangentPlane(lat, lon)
                 p = np.array(self.plane.to_local(lat, lon))
+                r = float(np.hypot(*p))
+                if r > MAX_LINE_RADIUS_M:  # the lines' plane: a fix of another field, or either in [lat, lon]
+                    raise GnssError(
+                        f"fix lat {lat:g}, lon {lon:g} lies {r / 1000:.1f} km from the plane's origin (the first line "
+                        f"vertex or fix, lat {self.plane.lat0:g}, lon {self.plane.lon0:g}); allowed at most "
+                        f"{MAX_LINE_RADIUS_M / 1000:g} km: a fix or the lines in [lat, lon] order, or lines of "
+                        "another field?"
+                    )
             elif "east" in data or "north" in data:
                 p = np.array([_num("east", data.get("east"), -1e5, 1e5), _num("north", data.get("north"), -1e5, 1e5)])
             else:
@@ -366,8 +377,18 @@ class GnssTracker:
             prev = self._fix
             if prev is not None:
                 dt = now - prev[0]
-                if v is None and dt > 1e-6:
-                    v = (p - prev[1]) / dt
+                if dt <= self.stale_after_s:  # a jump no tractor makes: an outlier, not a crossing
+                    jump = float(np.hypot(*(p - prev[1])))
+                    if jump > MAX_FIX_SPEED_M_S * max(dt, 0.0) + 1.0:
+                        raise GnssError(
+                            f"fix {jump:.1f} m from the last one {dt:.2f} s before (more than "
+                            f"{MAX_FIX_SPEED_M_S:g} m/s and 1 m): an outlier, not counted"
+                        )
+                moved = (p - prev[1]) / dt if dt > 1e-6 else None
+                if v is None:
+                    v = moved
+                elif moved is not None and float(np.hypot(*v)) < _MIN_SPEED <= float(np.hypot(*moved)):
+                    v = moved  # the receiver says 0 while its fixes move: the fixes' speed (lead, course)
                 if dt <= self.stale_after_s:  # a gap (stale) is no segment: the tractor may have been anywhere
                     for ln in self._lines.values():
                         hit = segment_crossing(prev[1], p, ln.local)
@@ -497,9 +518,16 @@ def start_twin_gnss(cfg: Any, parts: Any, session: Any, period_s: float = 0.1) -
     tractor = getattr(parts, "tractor_node", None)
     if tractor is None:
         return None
+
+    def speed() -> float:  # the wheel-based speed the tractor sends (with a field the twin's node has no constant)
+        if tractor.ground_speed_m_s is not None:
+            return float(tractor.ground_speed_m_s)
+        v = parts.sensors.readings().speed.value
+        return 0.0 if v is None else abs(float(v))
+
     twin = TwinGnss(
         parts.sensors.distance_m,
-        lambda: float(tractor.ground_speed_m_s or 0.0),
+        speed,
         start=tuple(cfg.sim_gnss_origin),
         heading=float(cfg.sim_gnss_heading),
     )

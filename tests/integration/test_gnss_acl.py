@@ -27,6 +27,12 @@ def _crossings(c: HitchClient) -> int:
     return int(c.request("lines/list", {})["lines"][0]["crossings"])
 
 
+def _outliers(c: HitchClient) -> int:
+    """Fixes the core received and refused as outliers (a 5 km jump from the twin's track)."""
+    gnss = c.request("lines/list", {})["gnss"]
+    return int(gnss["rejected"]) if "an outlier" in str(gnss["last_rejection"]) else 0
+
+
 def test_only_an_operator_may_publish_gnss_fixes(tmp_path):
     users = write_users_file(tmp_path / "users.txt", {"alice": "alice-pw", "bob": "bob-pw"})
     server = tmp_path / "server.json5"
@@ -40,8 +46,9 @@ def test_only_an_operator_may_publish_gnss_fixes(tmp_path):
         alice, bob = _client_file(tmp_path, "alice", "alice-pw"), _client_file(tmp_path, "bob", "bob-pw")
         with HitchClient([ep], security=alice, timeout_s=10) as c, HitchClient([ep], security=bob, timeout_s=2) as v:
             wait_online(c)
-            # a line 5 km east: the twin's own fixes (near the origin) never reach it; a fix beyond it does,
-            # and the next twin fix crosses back
+            # a line 5 km east: the twin's own fixes (near the origin) never reach it. A fix beyond it is a 5 km
+            # jump from the twin's track: the core refuses it as an outlier (never a crossing) and counts it, which
+            # shows that it arrived
             plane = LocalTangentPlane(48.0, 11.0)
             a, b = plane.to_geodetic(5000.0, -100.0), plane.to_geodetic(5000.0, 100.0)
             c.request(
@@ -55,14 +62,14 @@ def test_only_an_operator_may_publish_gnss_fixes(tmp_path):
                 v.session.put("hitch/tractor/gnss", beyond)
                 time.sleep(0.05)
             time.sleep(0.3)
-            assert _crossings(c) == 0  # denied: never reached the core
+            assert _crossings(c) == 0 and _outliers(c) == 0  # denied: never reached the core
             assert seen, "the viewer observes the twin's fixes"
             for _ in range(10):
                 c.session.put("hitch/tractor/gnss", beyond)
                 time.sleep(0.05)
             end = time.monotonic() + 5.0
-            while _crossings(c) == 0 and time.monotonic() < end:
+            while _outliers(c) == 0 and time.monotonic() < end:
                 time.sleep(0.05)
-            assert _crossings(c) > 0
+            assert _outliers(c) > 0 and _crossings(c) == 0  # the operator's fixes arrived; an outlier crosses nothing
     finally:
         svc.kill()

@@ -89,6 +89,49 @@ def test_a_straight_path_crosses_a_line_at_the_known_point():
     assert g.approach("h", t[0] + 5.0) is None  # stale
 
 
+def test_one_outlier_fix_is_refused_and_never_crosses_a_line():
+    """A field trial: one fix 1.5 km off was taken as two crossings of a line 150 m ahead and fired the headland
+    step 148 m early. A fix no tractor could reach since the last one is refused and counted."""
+    t = [0.0]
+    g = GnssTracker(lambda: t[0], origin=(48.0, 11.0))
+    g.save_lines(_line(g.plane, (150.0, -10.0), (150.0, 10.0)))  # 150 m east
+    for k in range(10):  # 2.2 m/s east
+        t[0] = 0.1 * k
+        assert g.take_payload(json.dumps({"east": 0.22 * k, "north": 0.0}))
+    t[0] = 1.0
+    far_lat, far_lon = g.plane.to_geodetic(1500.0, 0.0)
+    assert not g.take_payload(json.dumps({"lat": far_lat, "lon": far_lon}))
+    assert "an outlier, not counted" in g.counts()["last_rejection"] and g.counts()["rejected"] == 1
+    t[0] = 1.1
+    assert g.take_payload(json.dumps({"east": 2.2, "north": 0.0}))  # the track goes on
+    assert g.crossings("h") == 0
+
+
+def test_fixes_far_from_the_lines_plane_are_refused_naming_the_lat_lon_order():
+    """A field trial: lines saved in [lat, lon] order before the first fix set the plane; every correct fix then
+    lay 5700 km away, was taken, and no line could ever be crossed."""
+    g = GnssTracker(lambda: 0.0)
+    g.save_lines({"type": "LineString", "coordinates": [[48.0, 11.0], [48.0, 11.001]]}, "swapped")
+    assert not g.take_payload(json.dumps({"lat": 48.0, "lon": 11.0}))
+    last = g.counts()["last_rejection"]
+    assert "km from the plane's origin" in last and "[lat, lon] order" in last, last
+
+
+def test_a_receiver_that_says_0_m_s_while_its_fixes_move_gets_the_fixes_speed():
+    """A field trial: the twin's receiver sent speed 0 on a moving tractor; the course stayed unknown and the
+    lead compensation of ``complete: true`` was off without a word."""
+    t = [0.0]
+    g = GnssTracker(lambda: t[0], origin=(48.0, 11.0))
+    g.save_lines(_line(g.plane, (50.0, -10.0), (50.0, 10.0)))
+    for k in range(5):
+        t[0] = 0.1 * k
+        lat, lon = g.plane.to_geodetic(0.2 * k, 0.0)
+        g.take_fix({"lat": lat, "lon": lon, "speed": 0.0, "heading": math.pi / 2})
+    a = g.approach("h", t[0])
+    assert a is not None and a.distance_m is not None and abs(a.distance_m - 49.2) < 1e-6
+    assert abs(a.speed_m_s - 2.0) < 1e-6
+
+
 def test_closing_the_twins_receiver_waits_for_a_put_in_progress():
     """Defect (CI, stop 25): the twin's GNSS thread put on its Zenoh publisher while the service
     undeclared it ("RuntimeError: Already mutably borrowed" in thread twin-gnss): ``close`` returned at

@@ -946,7 +946,14 @@ class MotionController:
             )
 
     def _check_precedence(self) -> None:
-        check_precedence(self._active, self.clock())
+        m, work = self._active, self.work
+        if isinstance(m, TrackMotion) and not m.ending and work is not None and work.owns(m.session):
+            raise MotionError(  # the operator started work, not a track session: say what ends it
+                "busy",
+                f"work session {m.session} is active (motion {m.motion_id}); end it first: hitch work stop "
+                "(key work/stop), or stop",
+            )
+        check_precedence(m, self.clock())
 
     def _predict(self, t: float, *, require_link: bool = True) -> MotionState:
         """Commanded state at clock time ``t``: the active motion's, the held one or the measured pose."""

@@ -152,6 +152,12 @@ def test_a_work_start_or_resume_that_waited_past_its_deadline_or_a_later_stop_is
         s.run(0.2)
         ends = [e for e in s.events if e["event"] == "work_finished" and e["session"] == first]
         assert ends and ends[0]["reason"] == f"replaced by work/start (session {again['session']})", s.events[-6:]
+        # a goto (a quick raise, a maneuver) during work names what ends it: work/stop, not the track/stop the
+        # operator never sent (a field trial)
+        ok, r = s.call("goto", {"goal": {"z": 0.1}, "deadline_ms": 10_000})
+        assert not ok and r["error"] == "busy", r
+        assert f"work session {again['session']} is active" in r["message"] and "hitch work stop" in r["message"]
+        assert "track/stop" not in r["message"], r
     finally:
         s.close()
 

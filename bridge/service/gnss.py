@@ -166,8 +166,9 @@ def _check_local(where: str, local: np.ndarray) -> None:
     far = int(np.argmax(r))
     if r[far] > MAX_LINE_RADIUS_M:
         raise GnssError(
-            f"{where}.coordinates[{far}] lies {r[far] / 1000:.1f} km from the plane's origin (the first vertex "
-            f"saved); allowed at most {MAX_LINE_RADIUS_M / 1000:g} km: lines of one field, in [lon, lat] order"
+            f"{where}.coordinates[{far}] lies {r[far] / 1000:.1f} km from the plane's origin (the first line vertex "
+            f"or GNSS fix the service took); allowed at most {MAX_LINE_RADIUS_M / 1000:g} km: lines of one field, in "
+            "[lon, lat] order"
         )
     seg = np.hypot(*np.diff(local, axis=0).T)
     short = int(np.argmin(seg))

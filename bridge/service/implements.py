@@ -209,9 +209,11 @@ class ImplementService:
                 self.store.set_setting(SELECTED_SETTING, DEFAULT_IMPLEMENT)
                 self._announce()
                 return {"selected": DEFAULT_IMPLEMENT, "implement": None}
-            imp = self._stored_or_builtin(name)
+            imp = self._stored_or_builtin(name, save=False)
             self._check_category(imp)
-            self._apply(record_of(imp), imp.limits)
+            self._apply(record_of(imp), imp.limits)  # refused while moving: then nothing is stored either
+            if self.store.get_implement(imp.name) is None:  # a tractor profile's record: stored once applied
+                imp = self.store.save_implement(imp)
             self.selected = imp.name
             self.store.set_setting(SELECTED_SETTING, imp.name)
             self._announce()
@@ -377,7 +379,9 @@ class ImplementService:
     def _builtin(self, name: str) -> ImplementRecord | None:
         return None if self._profile is None else self._profile.implements.get(name)
 
-    def _stored_or_builtin(self, name: str) -> StoredImplement:
+    def _stored_or_builtin(self, name: str, *, save: bool = True) -> StoredImplement:
+        """The stored implement ``name``, else the tractor profile's record of it (stored, unless ``save`` is
+        False: a select that is refused must change nothing, it left the record stored: a field trial)."""
         imp = self.store.get_implement(name)
         if imp is not None:
             return imp
@@ -389,9 +393,8 @@ class ImplementService:
                 f"no implement {name!r} (defined: {', '.join(known) or 'none'}; implements/define; "
                 f"{DEFAULT_IMPLEMENT!r} selects none)",
             )
-        return self.store.save_implement(
-            StoredImplement(rec.name, rec.category, rec.mass, rec.centre_of_mass, description=rec.description)
-        )
+        built = StoredImplement(rec.name, rec.category, rec.mass, rec.centre_of_mass, description=rec.description)
+        return self.store.save_implement(built) if save else built
 
     def _announce(self) -> None:
         if self.on_select is not None:

@@ -191,6 +191,23 @@ def test_the_name_default_is_reserved(svc):
     ]
 
 
+def test_a_refused_select_of_a_tractor_profile_implement_changes_nothing(svc):
+    """A field trial: selecting a tractor profile's implement while moving was refused, yet the list showed it as
+    stored ("store", no longer "profile") afterwards."""
+    builtin = [i for i in svc.ok("implements/list")["implements"] if i["source"] == "profile"]
+    assert builtin, "the tractor profile lists implements"
+    name = builtin[0]["name"]
+    svc.ok("goto", {"goal": {"z": 0.25}})
+    svc.run(0.1)
+    ok, r = svc.call("implements/select", {"name": name})
+    assert not ok and r["error"] == "busy", r
+    after = {i["name"]: i["source"] for i in svc.ok("implements/list")["implements"]}
+    assert after[name] == "profile", after
+    svc.run(5.0)
+    svc.ok("implements/select", {"name": name})  # at rest: taken, and stored from then on
+    assert {i["name"]: i["source"] for i in svc.ok("implements/list")["implements"]}[name] == "store"
+
+
 def test_changing_the_implement_while_moving_is_refused(svc):
     svc.ok("implements/define", HARROW)
     svc.ok("goto", {"goal": {"z": 0.25}})

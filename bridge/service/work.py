@@ -41,6 +41,7 @@ from typing import Any, NoReturn, Protocol
 import numpy as np
 
 from bridge.service.motion.types import MotionError, TrackMotion
+from bridge.service.store import DEFAULT_IMPLEMENT
 from planner.errors import HitchError
 from planner.trajectory.track import subset_limits
 from planner.work_control import WorkController, WorkSettings, WorkSettingsError, WorkStatus
@@ -474,6 +475,14 @@ def work_handlers(api: Any) -> dict[str, Callable[[Any], dict[str, Any]]]:
 
     def start(r: Any) -> dict[str, Any]:
         s = stored(api.implement)
+        if s.mode != "position" and api.implement in (None, DEFAULT_IMPLEMENT):
+            from bridge.service.schemas import RequestError
+
+            raise RequestError(  # the soil-engaging modes lower the hitch by what an implement pulls: which one?
+                "not_found",
+                f"work/start: {s.mode} mode needs the implement in the soil: no implement is selected (select one "
+                "first: hitch implement select NAME, key implements/select; position mode works without one)",
+            )
         deadline, issued = api._timing(r.deadline_ms)
         return {**call("start", settings_to_json(s), r.z, deadline, issued), "implement": api.implement}
 

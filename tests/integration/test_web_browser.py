@@ -1252,6 +1252,10 @@ def test_work_control_settings_start_stop_and_the_fallback_without_a_field(servi
     the setpoint in kN; Resume is offered; Stop ends it. Still no overflow at 800×480."""
     _connected(page, service.url)
     at_rest(service, page)
+    # draft work needs an implement selected (work/start refuses it without one): a light tine, none again after
+    tine = {"name": "tine", "category": "2", "mass_kg": 150.0, "com_m": [0.0, 0.3, 0.2]}
+    assert service.api("implements/define", tine)[0] == 200
+    assert service.api("implements/select", {"name": "tine"})[0] == 200
     tab(page, "work")
     for sel in WORK_CONTROLS:  # inside the cab display, no scrolling
         box = page.locator(sel).bounding_box()
@@ -1302,6 +1306,7 @@ def test_work_control_settings_start_stop_and_the_fallback_without_a_field(servi
     assert page.get_attribute("#work-toggle", "aria-pressed") == "false" and page.is_disabled("#work-resume")
     at_rest(service, page)
     assert service.api("work/settings", {"mode": "position"})[0] == 200  # leave the shared service as found
+    assert service.api("implements/select", {"name": "default"})[0] == 200  # no implement, as the other tests expect
     page.set_viewport_size({"width": 800, "height": 480})
     try:
         assert page.evaluate("document.documentElement.scrollWidth") == 800  # no sideways overflow

@@ -23,6 +23,8 @@ from tests.helpers import SimService, wait_until
 from tests.integration.service_process import free_port
 
 HARROW = {"name": "harrow", "category": "2", "mass_kg": 1200.0, "com_m": [0.0, 0.6, 0.4]}
+#: a light tine implement: draft, mixed and float work need an implement selected (work/start refuses them without)
+TINE = {"name": "tine", "category": "2", "mass_kg": 150.0, "com_m": [0.0, 0.3, 0.2]}
 
 
 class FakeInputs:
@@ -125,6 +127,8 @@ def test_a_work_start_or_resume_that_waited_past_its_deadline_or_a_later_stop_is
     lo_z = float(TrajectoryPlanner(model).lo[1])
     s = Service(model, tmp_path / "h.sqlite3", FakeInputs(ground_z=lo_z + 0.5))
     try:
+        s.ok("implements/define", TINE)
+        s.ok("implements/select", {"name": "tine"})
         s.ok("work/settings", {"mode": "draft", "draft_setpoint_n": 20_000.0, "depth_max_m": 0.3})
         for key in ("work/start", "work/resume"):
             ok, r = s.call(key, {}, received=time.monotonic() - 6.0)
@@ -169,6 +173,8 @@ def test_a_draft_demand_beyond_the_depth_and_workspace_limits_is_clipped_and_nam
     lo_z = float(TrajectoryPlanner(model).lo[1])
     s = Service(model, tmp_path / "h.sqlite3", FakeInputs(ground_z=lo_z + 0.5))
     try:
+        s.ok("implements/define", TINE)
+        s.ok("implements/select", {"name": "tine"})
         s.ok("work/settings", {"mode": "draft", "draft_setpoint_n": 20_000.0, "depth_min_m": 0.1, "depth_max_m": 0.3})
         r = s.ok("work/start", {"z": lo_z + 0.3})
         assert r["work"]["running"] and r["session"] >= 1
@@ -221,6 +227,8 @@ def test_without_a_draft_draft_mode_falls_back_once_and_resume_engages_again(mod
     inputs = FakeInputs(ground_z=0.3)
     s = Service(model, tmp_path / "h.sqlite3", inputs)
     try:
+        s.ok("implements/define", TINE)
+        s.ok("implements/select", {"name": "tine"})
         s.ok("work/settings", {"mode": "draft"})
         inputs.draft = lambda now: (None, now)  # type: ignore[method-assign]
         s.ok("work/start", {"z": 0.1})
@@ -354,6 +362,8 @@ def test_without_a_sim_field_draft_mode_falls_back_at_once_with_one_event(tmp_pa
     events: list[dict] = []
     svc.add_listener("event", events.append)
     try:
+        _call(svc, "implements/define", TINE)
+        _call(svc, "implements/select", {"name": "tine"})
         _call(svc, "work/settings", {"mode": "draft"})
         r = _call(svc, "work/start", {"z": 0.05})
         assert r["session"] >= 1
@@ -421,6 +431,8 @@ def test_losing_the_fields_draft_in_the_running_twin_falls_back_once_and_positio
     try:
         assert svc.core is None and svc.parts is not None and svc.parts.ecu_node is not None
         assert wait_until(lambda: ((svc.latest_state or {}).get("ecu") or {}).get("online")), "no state"
+        _call(svc, "implements/define", TINE)
+        _call(svc, "implements/select", {"name": "tine"})
         _call(svc, "work/settings", {"mode": "draft", "draft_setpoint_n": 15_000.0, "depth_min_m": 0.05})
         session = _call(svc, "work/start", {"z": 0.0})["session"]
         assert wait_until(lambda: (svc.latest_state["work"] or {}).get("draft_n") is not None, 10.0), (
@@ -455,6 +467,8 @@ def test_the_live_draft_demand_never_outruns_the_hitch(model, tmp_path):
     lo_z = float(TrajectoryPlanner(model).lo[1])
     s = Service(model, tmp_path / "h.sqlite3", FakeInputs(ground_z=lo_z + 0.5))
     try:
+        s.ok("implements/define", TINE)
+        s.ok("implements/select", {"name": "tine"})
         s.ok("work/settings", {"mode": "draft", "draft_setpoint_n": 20_000.0, "depth_min_m": 0.1, "depth_max_m": 0.45})
         z0 = lo_z + 0.35
         s.ok("work/start", {"z": z0})
@@ -467,3 +481,16 @@ def test_the_live_draft_demand_never_outruns_the_hitch(model, tmp_path):
         assert fastest <= limit * 1.02, (fastest, limit)
     finally:
         s.close()
+
+
+def test_a_soil_engaging_work_mode_needs_an_implement(svc):
+    """A field trial: draft work started with no implement selected ("selected: none") and drove the hitch down
+    under draft control. Draft, mixed and float work need an implement; position mode works without one."""
+    svc.ok("work/settings", {"mode": "draft", "draft_setpoint_n": 20_000.0})
+    ok, r = svc.call("work/start", {"z": 0.1})
+    assert not ok and r["error"] == "not_found", r
+    assert "draft mode needs the implement in the soil: no implement is selected" in r["message"], r
+    assert "hitch implement select NAME" in r["message"]
+    svc.ok("work/settings", {"mode": "position"})
+    assert svc.ok("work/start", {"z": 0.1})["work"]["running"]
+    svc.ok("work/stop")

@@ -545,25 +545,18 @@ class HitchService:
         process's ``event`` listeners; a request it answered itself (``stop``), given to the API's request
         hook (the black box); or its new mode (kept by the proxy). Never taken from the public ``events``
         key, where anyone may put a ``mode_changed`` or a forged fault."""
-        state = note.get("state")
-        if isinstance(state, (bytes, bytearray)):
+        for kind in ("state", "event"):  # the JSON the core published, to this process's listeners of that kind
+            raw = note.get(kind)
+            if not isinstance(raw, (bytes, bytearray)):
+                continue
             try:
-                msg = json.loads(state)
+                msg = json.loads(raw)
             except ValueError:
                 return
             if isinstance(msg, dict):
-                self._latest_state = msg
-                for cb in list(self._listeners["state"]):
-                    _call(cb, msg)
-            return
-        event = note.get("event")
-        if isinstance(event, (bytes, bytearray)):
-            try:
-                msg = json.loads(event)
-            except ValueError:
-                return
-            if isinstance(msg, dict):
-                for cb in list(self._listeners["event"]):
+                if kind == "state":
+                    self._latest_state = msg
+                for cb in list(self._listeners[kind]):
                     _call(cb, msg)
             return
         if "mode" in note and isinstance(self._proxy, MotionProxy):

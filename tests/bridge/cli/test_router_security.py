@@ -5,7 +5,6 @@ protection is warned about, as ``hitch serve`` does (a fleet trial: both ran sil
 from __future__ import annotations
 
 import json
-import socket
 import subprocess
 import sys
 
@@ -22,19 +21,7 @@ from bridge.service.security import (
     security_json5,
     write_users_file,
 )
-from tests.integration.service_process import ROOT
-
-
-def _port() -> int:
-    """A free TCP port of 127.0.0.1 in 17500-17599."""
-    for port in range(17599, 17499, -1):
-        with socket.socket() as s:
-            try:
-                s.bind(("127.0.0.1", port))
-            except OSError:
-                continue
-            return port
-    raise AssertionError("no free port in 17500-17599")
+from tests.integration.service_process import ROOT, free_port
 
 
 @pytest.fixture
@@ -55,15 +42,20 @@ def files(tmp_path):
     return out
 
 
-def test_hitch_router_refuses_a_client_security_file(files):
-    ep = f"tcp/127.0.0.1:{_port()}"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "bridge.cli", "router", "--listen", ep, "--security", str(files["client"])],
+def _router(ep: str, security) -> subprocess.Popen:
+    """``hitch router --listen ep --security FILE`` in its own process (its output piped)."""
+    return subprocess.Popen(
+        [sys.executable, "-m", "bridge.cli", "router", "--listen", ep, "--security", str(security)],
         cwd=ROOT,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
     )
+
+
+def test_hitch_router_refuses_a_client_security_file(files):
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    proc = _router(ep, files["client"])
     try:
         out, err = proc.communicate(timeout=30)
     except subprocess.TimeoutExpired:  # it runs: unprotected
@@ -114,14 +106,8 @@ def test_hitch_router_warns_about_an_exposed_listener_without_security(monkeypat
 
 
 def test_hitch_router_runs_with_a_router_security_file(files):
-    ep = f"tcp/127.0.0.1:{_port()}"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "bridge.cli", "router", "--listen", ep, "--security", str(files["router"])],
-        cwd=ROOT,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    proc = _router(ep, files["router"])
     try:
         assert proc.stdout is not None
         line = proc.stdout.readline()

@@ -10,13 +10,13 @@ policies includes the message's key, and no deny rule does) and with a real Zeno
 from __future__ import annotations
 
 import json
-import socket
 import threading
 import time
 
 import pytest
 import zenoh
 
+from bench._common import free_port
 from bridge.service.security import (
     AccessPolicy,
     Credentials,
@@ -167,16 +167,6 @@ def test_a_file_of_an_older_version_confines_its_services_when_applied(tmp_path)
 
 
 # ------------------------------------------------------------------------------------------ real Zenoh
-def _port() -> int:
-    """A free TCP port of 127.0.0.1 in 17500-17599."""
-    for port in range(17500, 17600):
-        with socket.socket() as s:
-            try:
-                s.bind(("127.0.0.1", port))
-            except OSError:
-                continue
-            return port
-    raise AssertionError("no free port in 17500-17599")
 
 
 def _session(ep: str, mode: str, settings: SecuritySettings) -> zenoh.Session:
@@ -191,7 +181,7 @@ def _session(ep: str, mode: str, settings: SecuritySettings) -> zenoh.Session:
 def test_through_a_real_router_a_service_login_cannot_reach_or_pose_as_another_service(tmp_path):
     pw = {"alice": "alice-pw", "t01": "t01-pw", "t02": "t02-pw"}
     users = write_users_file(tmp_path / "users.txt", pw)
-    ep = f"tcp/127.0.0.1:{_port()}"
+    ep = f"tcp/127.0.0.1:{free_port()}"
     opened: list[zenoh.Session] = []
 
     def login(user: str) -> zenoh.Session:

@@ -98,8 +98,16 @@ def _cmd_quick(args) -> int:
             r = {**r, "final": final}
         target = r.get("headland") if args.command == "raise" else r.get("last_work")
         ended, status = _ended(final)
+        work = ""
+        if r.get("work_paused"):
+            w = r["work_paused"]
+            work = f"; work session {w['session']} paused ({w['mode']}, z {w['z_operator']:.3f} m): return resumes it"
+        elif r.get("resumes_work"):
+            work = "; work starts again when it arrives"
         _print(
-            args, r, f"motion {r['motion_id']}: {args.command} to {_fmt_pose(target)}, {r['duration']:.2f} s" + ended
+            args,
+            r,
+            f"motion {r['motion_id']}: {args.command} to {_fmt_pose(target)}, {r['duration']:.2f} s" + work + ended,
         )
         return status
 

@@ -25,15 +25,17 @@ here); the J1939 operator switch and the CLI end up in the same methods.
 
 from __future__ import annotations
 
+import json
 import math
 import threading
 from collections import deque
 from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
-from bridge.service.motion.types import pose_dict
+from bridge.service.motion.types import MotionError, pose_dict
 from bridge.service.schemas import ImplementDefine, QuickMove, RequestError, check_pose_in_workspace
 from bridge.service.store import DEFAULT_IMPLEMENT, HitchStore, StoredImplement
+from bridge.service.work import call_work
 from planner.errors import HitchError, unit_hint
 from planner.limits.implement_limits import ImplementLimits
 from planner.limits.tractor import ImplementRecord, TractorProfile, load_tractor_profile
@@ -117,7 +119,7 @@ class ImplementService:
         self.selected: str = persisted or selected or DEFAULT_IMPLEMENT
         self.warning: str | None = None
         #: how a switch edge is served (``key`` → the API's handling of it; set by :func:`implement_handlers`)
-        self.dispatch: Callable[[str], tuple[bool, dict[str, Any]]] | None = None
+        self.dispatch: Callable[[str, bytes], tuple[bool, dict[str, Any]]] | None = None
         #: told every implement the controller accepted (the planning processes: previews and maneuver
         #: validation plan with the selected implement's guard; set by :func:`implement_handlers`)
         self.on_applied: Callable[[ImplementRecord | None, ImplementLimits], None] | None = None
@@ -129,6 +131,9 @@ class ImplementService:
         #: the switch's edges and what became of them, newest last (key, the dispatch's answer or
         #: "dropped: busy"), at most :data:`SWITCH_HISTORY` — a press that did not move the hitch says why
         self.switch_log: deque[tuple[str, tuple[bool, dict[str, Any]] | str]] = deque(maxlen=SWITCH_HISTORY)
+        #: the work session a quick raise ended (``implement``, ``session``, ``z`` [m], ``mode``) and the return
+        #: motion that starts it again on arrival (``return_motion``); None: a return only goes back
+        self.paused_work: dict[str, Any] | None = None
 
     # ------------------------------------------------------------------ start
     def restore(self) -> None:
@@ -207,6 +212,7 @@ class ImplementService:
                 self._apply(None, ImplementLimits())
                 self.selected = DEFAULT_IMPLEMENT
                 self.store.set_setting(SELECTED_SETTING, DEFAULT_IMPLEMENT)
+                self.paused_work = None
                 self._announce()
                 return {"selected": DEFAULT_IMPLEMENT, "implement": None}
             imp = self._stored_or_builtin(name, save=False)
@@ -216,6 +222,8 @@ class ImplementService:
                 imp = self.store.save_implement(imp)
             self.selected = imp.name
             self.store.set_setting(SELECTED_SETTING, imp.name)
+            if self.paused_work is not None and self.paused_work["implement"] != imp.name:
+                self.paused_work = None  # another implement's work never starts again by a return
             self._announce()
         return {"selected": imp.name, "implement": imp.to_json()}
 
@@ -258,14 +266,66 @@ class ImplementService:
                 f"hitch/raise: implement {imp.name!r} has no headland pose (define it with 'headland' or save "
                 f"a preset named {HEADLAND_PRESET!r})",
             )
+        # at work (work/start): the work session ends smoothly and the raise takes over; the return starts it again
+        paused = self._pause_work(imp.name, deadline, issued)
         # the implement's pose (the mechanism less the profile's lag): a return aims the mechanism back here
         here = pose_dict(self.motion.planner.implement_pose(self.motion.current_state().position))
         scale = r.speed_scale or 1.0
-        acc = self.motion.goto(dict(goal), scale, kind="preset", label="raise", deadline=deadline, issued=issued)
+        try:
+            acc = self.motion.goto(dict(goal), scale, kind="preset", label="raise", deadline=deadline, issued=issued)
+        except MotionError as exc:
+            if paused is None:
+                raise
+            raise MotionError(  # the work session has ended all the same: say so
+                exc.code, f"{exc}; the work session {paused['session']} has ended (the hitch brakes to rest there)"
+            ) from exc
         if not _close(here, goal):  # pressing raise at the headland keeps the work pose
             with self._lock:  # serialised with define, which rewrites the whole record
                 self.store.update_implement(imp.name, last_work=here)
-        return {**acc.to_json(), "raise": True, "headland": dict(goal), "last_work": here}
+        out = {**acc.to_json(), "raise": True, "headland": dict(goal), "last_work": here}
+        if self.paused_work is not None and self.paused_work["implement"] == imp.name:
+            out["work_paused"] = _paused_json(self.paused_work)
+        return out
+
+    def _pause_work(self, implement: str, deadline: float | None, issued: float | None) -> dict[str, Any] | None:
+        """End a running work session for a quick raise (``work_paused`` event); what was paused, or None."""
+        try:
+            reply = call_work(self.motion, "pause", deadline, issued, "quick raise (hitch/raise)")
+        except RequestError as exc:
+            if exc.code == "unavailable":  # a service without work control: nothing to pause
+                return None
+            raise
+        paused = reply.get("paused")
+        if not paused:
+            return None
+        with self._lock:
+            self.paused_work = {"implement": implement, **paused, "return_motion": None}
+        self._post(
+            {
+                "event": "work_paused",
+                "session": paused["session"],
+                "mode": paused["mode"],
+                "z_operator": paused["z"],
+                "message": f"quick raise: work session {paused['session']} ({paused['mode']} control) ended; "
+                "hitch/return lowers to the work pose and starts work again",
+            }
+        )
+        return dict(paused)
+
+    def clear_paused_work(self) -> dict[str, Any] | None:
+        """Forget the work a quick raise paused (a new work/start or work/stop, another implement): the
+        return then only goes back. The paused work, or None."""
+        with self._lock:
+            paused, self.paused_work = self.paused_work, None
+        return None if paused is None else _paused_json(paused)
+
+    def _post(self, event: dict[str, Any]) -> None:
+        post = getattr(self.motion, "post_event", None)
+        if callable(post):
+            try:
+                post(event)
+            except Exception:  # noqa: BLE001 — the core is gone (closing)
+                pass
 
     def quick_return(self, r: QuickMove, deadline: float | None, issued: float | None) -> dict[str, Any]:
         """Go back to the last work pose (where the last raise started)."""
@@ -277,7 +337,58 @@ class ImplementService:
         scale = r.speed_scale or 1.0
         goal = dict(imp.last_work)
         acc = self.motion.goto(goal, scale, kind="preset", label="return", deadline=deadline, issued=issued)
-        return {**acc.to_json(), "return": True, "last_work": dict(imp.last_work)}
+        out = {**acc.to_json(), "return": True, "last_work": dict(imp.last_work)}
+        with self._lock:
+            paused = self.paused_work
+            if paused is not None and paused["implement"] == imp.name:
+                paused["return_motion"] = out["motion_id"]  # work starts again when it arrives (on_event)
+                out["resumes_work"] = _paused_json(paused)
+        return out
+
+    def _resume_paused_work(self, event: Mapping[str, Any]) -> None:
+        """The return motion of paused work ended: arrived (``motion_finished``) → ``work/start`` at the
+        operator's z of the paused session, on a thread of its own (through :attr:`dispatch`, so the black box
+        records it and work/start's checks apply); replaced or stopped (``motion_aborted``) → no work, the
+        pause is kept (a later return starts it). A refused start is announced (``work_resume_refused``)."""
+        name = event.get("event")
+        with self._lock:
+            paused = self.paused_work
+            if paused is None or paused.get("return_motion") is None:
+                return
+            if event.get("motion_id") != paused["return_motion"]:
+                return
+            paused["return_motion"] = None
+            if name != "motion_finished" or self.dispatch is None:
+                return
+            self.paused_work = None
+        dispatch = self.dispatch
+        payload = json.dumps({"z": paused["z"]}).encode()
+
+        def run() -> None:
+            try:
+                ok, reply = dispatch("work/start", payload)
+            except Exception as exc:  # noqa: BLE001 — announced, never lost with the thread
+                ok, reply = False, {"error": "internal", "message": f"{type(exc).__name__}: {exc}"}
+            if ok:
+                self._post(
+                    {
+                        "event": "work_resumed",
+                        "session": reply.get("session"),
+                        "after": paused["session"],
+                        "z_operator": paused["z"],
+                    }
+                )
+            else:
+                self._post(
+                    {
+                        "event": "work_resume_refused",
+                        "session": paused["session"],
+                        "error": str(reply.get("error", "refused")),
+                        "message": str(reply.get("message", ""))[:500],
+                    }
+                )
+
+        threading.Thread(target=run, name="hitch-work-resume", daemon=True).start()
 
     # ------------------------------------------------------------------ the operator switch
     def on_event(self, event: Mapping[str, Any]) -> None:
@@ -286,6 +397,9 @@ class ImplementService:
         thread must not plan). One at a time: an edge while the previous request runs is dropped. A
         press the API refuses is announced as ``hitch_switch_refused`` (``command``, ``error``,
         ``message``): the operator sees why the hitch did not move."""
+        if event.get("event") in ("motion_finished", "motion_aborted"):
+            self._resume_paused_work(event)
+            return
         if event.get("event") != "hitch_switch" or self.dispatch is None:
             return
         key = {"raise": "hitch/raise", "return": "hitch/return"}.get(str(event.get("command")))
@@ -299,7 +413,7 @@ class ImplementService:
         def run() -> None:
             try:
                 try:
-                    answer = dispatch(key)
+                    answer = dispatch(key, b"{}")
                 except Exception as exc:  # noqa: BLE001 — logged and announced, never lost with the thread
                     answer = (False, {"error": "internal", "message": f"{type(exc).__name__}: {exc}"})
                 self.switch_log.append((key, answer))
@@ -436,7 +550,7 @@ def implement_handlers(api: Any) -> dict[str, Callable[[Any], dict[str, Any]]]:
     except HitchError as exc:  # the service starts anyway (without the implement), and says why
         svc.warning = f"the selected implement {svc.selected!r} could not be applied: {exc}"
 
-    svc.dispatch = lambda key: api.handle(key, b"{}")  # the black box records it like any request
+    svc.dispatch = api.handle  # the black box records it like any request
 
     def user() -> str | None:
         return getattr(api._caller, "user", None)
@@ -476,3 +590,8 @@ def implement_handlers(api: Any) -> dict[str, Callable[[Any], dict[str, Any]]]:
         "hitch/return": lambda r: svc.quick_return(r, *api._timing(r.deadline_ms)),
         "sim/switch": lambda r: svc.press(r.position),
     }
+
+
+def _paused_json(paused: Mapping[str, Any]) -> dict[str, Any]:
+    """The paused work as a reply shows it: ``session``, ``mode``, ``z_operator`` [m]."""
+    return {"session": paused["session"], "mode": paused["mode"], "z_operator": paused["z"]}

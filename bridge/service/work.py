@@ -55,6 +55,7 @@ __all__ = [
     "WorkInputs",
     "WindowSlope",
     "Z_RATE_SHARE",
+    "call_work",
     "draft_rate_limit",
     "settings_from_json",
     "settings_to_json",
@@ -196,6 +197,7 @@ class WorkControl:
         self._limited: dict[str, str] = {}
         self._draft: float | None = None
         self._ended: str | None = None
+        self._end_reason: str | None = None  # why the session's track ends (pause); None: it just ended
         self.fallbacks = 0
         self.rejected = 0
         self.last_rejection: str | None = None
@@ -204,7 +206,8 @@ class WorkControl:
 
     # ------------------------------------------------------------------ API (any thread)
     def dispatch(self, op: str, *args: Any) -> dict[str, Any]:
-        """``configure`` (settings JSON), ``start`` (settings JSON, z or None), ``stop``, ``resume``, ``status``."""
+        """``configure`` (settings JSON), ``start`` (settings JSON, z or None), ``stop``, ``resume``, ``pause``
+        (deadline, issued, reason), ``status``."""
         if op == "configure":
             return self.configure(settings_from_json(args[0]))
         if op == "start":
@@ -214,9 +217,11 @@ class WorkControl:
             return self.stop()
         if op == "resume":
             return self.resume(*args[:2])
+        if op == "pause":
+            return self.pause(*args[:3])
         if op == "status":
             return self.progress()
-        raise WorkSettingsError(f"work: op must be one of configure, start, stop, resume, status, got {op!r}")
+        raise WorkSettingsError(f"work: op must be one of configure, start, stop, resume, pause, status, got {op!r}")
 
     def configure(self, settings: WorkSettings) -> dict[str, Any]:
         """New settings: a live session takes them on its next cycle (bumpless; a fallback is cleared)."""
@@ -252,7 +257,7 @@ class WorkControl:
             self._z_op = z_op
             self._slope = WindowSlope(_RATE_WINDOW_S)
             self._pending, self._resume = None, False
-            self._last, self._limited, self._ended = None, {}, None
+            self._last, self._limited, self._ended, self._end_reason = None, {}, None, None
             self.fallbacks = self.rejected = self.foreign_setpoints = 0
             self._session = int(acc.session)
         if old is not None and old != self._session:
@@ -281,6 +286,28 @@ class WorkControl:
             self._resume = True
         return self.progress()
 
+    def pause(
+        self, deadline: float | None = None, issued: float | None = None, reason: str = "paused"
+    ) -> dict[str, Any]:
+        """End a running work session smoothly for a motion that takes over (the operator's quick raise at
+        the headland): ``{"paused": {"session", "z", "mode"}}`` (the operator's z [m] and the mode, for the
+        work that starts again after it) or ``{"paused": None}`` when none runs. ``deadline`` and ``issued``
+        as for :meth:`resume`: a request too late, or sent before a later stop, ends nothing (``busy``).
+        ``reason`` goes into the ``work_finished`` event."""
+        self.motion.check_in_time(reason, deadline, issued)
+        with self._lock:
+            session, z_op, mode = self._session, self._z_op, self._settings.mode
+            if session is None:
+                return {"paused": None}
+            self._end_reason = reason
+        try:
+            self.motion.track_stop(session)
+        except MotionError:  # it ended meanwhile (a stop, a jog): nothing to pause, the stop's reason stands
+            with self._lock:
+                self._end_reason = None
+            return {"paused": None}
+        return {"paused": {"session": session, "z": z_op, "mode": mode}}
+
     def owns(self, session: int) -> bool:
         """Whether ``session`` is the live work session (its setpoints come from work control alone)."""
         return self._session is not None and self._session == session
@@ -308,7 +335,7 @@ class WorkControl:
                 return
             if not isinstance(active, TrackMotion) or active.session != session:
                 self._session = None
-                self._ended = "the track session ended"
+                self._ended = self._end_reason or "the track session ended"
                 events.append({"event": "work_finished", "session": session, "reason": self._ended})
                 return
             pending, self._pending = self._pending, None
@@ -430,21 +457,34 @@ def build_work_control(cfg: Any, motion: Any, sensors: Any, link: Any, pivot_hei
 
 
 # ---------------------------------------------------------------------- the API keys
+def call_work(motion: Any, op: str, *args: Any) -> dict[str, Any]:
+    """:meth:`WorkControl.dispatch` of ``motion``'s work control: in the core process through its proxy
+    (``motion.work_call``), in the service's threads directly (``motion.work``); ``unavailable`` without one."""
+    remote = getattr(motion, "work_call", None)
+    if callable(remote):
+        return dict(remote(op, *args))
+    work = getattr(motion, "work", None)
+    if work is None:
+        from bridge.service.schemas import RequestError
+
+        raise RequestError("unavailable", "work control is not available in this service")
+    return dict(work.dispatch(op, *args))
+
+
+def _forget_paused_work(api: Any) -> dict[str, Any] | None:
+    """Clear the work a quick raise paused (``hitch/return`` then only goes back); what it was, or None."""
+    implements = getattr(api, "implements", None)
+    clear = getattr(implements, "clear_paused_work", None)
+    return clear() if callable(clear) else None
+
+
 def work_handlers(api: Any) -> dict[str, Callable[[Any], dict[str, Any]]]:
     """The ``work/…`` keys for ``api`` (a :class:`~bridge.service.api.ServiceAPI`): settings per
     selected implement in the store, the session calls to the controller's work control (in the
     service's threads: ``motion.work``; in the core process: ``motion.work_call``)."""
 
     def call(op: str, *args: Any) -> dict[str, Any]:
-        remote = getattr(api.motion, "work_call", None)
-        if callable(remote):
-            return dict(remote(op, *args))
-        work = getattr(api.motion, "work", None)
-        if work is None:
-            from bridge.service.schemas import RequestError
-
-            raise RequestError("unavailable", "work control is not available in this service")
-        return work.dispatch(op, *args)
+        return call_work(api.motion, op, *args)
 
     def stored(implement: str) -> WorkSettings:
         data = api.store.get_work_settings(implement)
@@ -484,7 +524,19 @@ def work_handlers(api: Any) -> dict[str, Callable[[Any], dict[str, Any]]]:
                 "first: hitch implement select NAME, key implements/select; position mode works without one)",
             )
         deadline, issued = api._timing(r.deadline_ms)
-        return {**call("start", settings_to_json(s), r.z, deadline, issued), "implement": api.implement}
+        reply = {**call("start", settings_to_json(s), r.z, deadline, issued), "implement": api.implement}
+        _forget_paused_work(api)  # this session replaces the work a quick raise paused
+        return reply
+
+    def stop(_r: Any) -> dict[str, Any]:
+        try:
+            return call("stop")  # brakes: no deadline
+        except MotionError:
+            paused = _forget_paused_work(api)
+            if paused is None:
+                raise
+            # at the headland after a quick raise: no session runs, the return would have started one
+            return {"stopping": False, "work_paused_cleared": paused, "work": call("status")}
 
     def resume(r: Any) -> dict[str, Any]:
         deadline, issued = api._timing(r.deadline_ms)
@@ -493,6 +545,6 @@ def work_handlers(api: Any) -> dict[str, Callable[[Any], dict[str, Any]]]:
     return {
         "work/settings": settings,
         "work/start": start,
-        "work/stop": lambda _r: call("stop"),  # brakes: no deadline
+        "work/stop": stop,
         "work/resume": resume,
     }

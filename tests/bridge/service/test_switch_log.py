@@ -23,7 +23,8 @@ def test_each_switch_edge_is_logged_with_its_answer_or_why_it_was_dropped(tmp_pa
         refused = (False, {"error": "busy", "message": "refused: the planner stayed busy"})
         answers = iter([refused, (True, {"ok": 1})])
 
-        def dispatch(key):
+        def dispatch(key, payload):
+            assert payload == b"{}"
             release.wait(5.0)
             return next(answers)
 

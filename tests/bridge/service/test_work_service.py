@@ -494,3 +494,107 @@ def test_a_soil_engaging_work_mode_needs_an_implement(svc):
     svc.ok("work/settings", {"mode": "position"})
     assert svc.ok("work/start", {"z": 0.1})["work"]["running"]
     svc.ok("work/stop")
+
+
+def _run_forwarding(s, seconds: float) -> None:
+    """``s.run`` with the controller's events handed to the implements logic as the service's event listener does
+    (``HitchService.add_listener("event", implements.on_event)``)."""
+    seen = len(s.events)
+
+    def each() -> None:
+        nonlocal seen
+        new, seen = s.events[seen:], len(s.events)
+        for e in new:
+            s.api.implements.on_event(e)
+
+    s.run(seconds, each)
+
+
+def _at_work_with_a_headland(s) -> None:
+    s.ok("implements/define", {**TINE, "headland": {"x": 0.0, "z": 0.25, "roll": 0.0, "pitch": 0.0}})
+    s.ok("implements/select", {"name": "tine"})
+    s.ok("work/settings", {"mode": "position"})
+    s.ok("work/start", {"z": 0.1})
+    _run_forwarding(s, 3.0)
+    assert abs(s.states[-1]["pose"]["z"] - 0.1) < 3e-3
+
+
+def test_a_quick_raise_at_work_pauses_work_and_the_return_starts_it_again(svc):
+    """Headland management as operators know it from commercial hitch control: at the headland the raise
+    switch lifts the implement out of work control, lowering returns to the work pose and work control takes
+    over again. Before, a raise during work was refused (``busy``: "work session … is active")."""
+    _at_work_with_a_headland(svc)
+    session = svc.states[-1]["work"]["session"]
+    r = svc.ok("hitch/raise")
+    assert r["accepted"] and r["work_paused"] == {"session": session, "mode": "position", "z_operator": 0.1}, r
+    _run_forwarding(svc, r["duration"] + 1.0)
+    assert abs(svc.states[-1]["pose"]["z"] - 0.25) < 1e-3 and not svc.states[-1]["work"]["running"]
+    paused = [e for e in svc.events if e["event"] == "work_paused"]
+    finished = [e for e in svc.events if e["event"] == "work_finished"]
+    assert len(paused) == 1 and paused[0]["session"] == session and "hitch/return" in paused[0]["message"]
+    assert len(finished) == 1 and finished[0]["reason"] == "quick raise (hitch/raise)", finished
+    r = svc.ok("hitch/return")
+    assert r["resumes_work"]["session"] == session, r
+    _run_forwarding(svc, r["duration"] + 0.5)
+    assert wait_until(lambda: any(e["event"] == "work_resumed" for e in svc.events))
+    _run_forwarding(svc, 2.0)
+    w = svc.states[-1]["work"]
+    assert w["running"] and w["session"] != session and w["z_operator"] == pytest.approx(0.1)
+    assert abs(svc.states[-1]["pose"]["z"] - 0.1) < 3e-3
+    assert svc.api.implements.paused_work is None
+
+
+def test_paused_work_starts_again_only_when_the_return_arrives_and_work_stop_forgets_it(svc):
+    """A stop during the return keeps the pause (the next return starts work once it arrives); ``work/stop`` at
+    the headland forgets it: the return then only goes back."""
+    _at_work_with_a_headland(svc)
+    r = svc.ok("hitch/raise")
+    _run_forwarding(svc, r["duration"] + 1.0)
+    svc.ok("hitch/return")
+    _run_forwarding(svc, 0.3)
+    svc.ok("stop")
+    _run_forwarding(svc, 2.0)
+    assert not svc.states[-1]["work"]["running"] and svc.api.implements.paused_work is not None
+    r = svc.ok("hitch/return")
+    _run_forwarding(svc, r["duration"] + 0.5)
+    assert wait_until(lambda: any(e["event"] == "work_resumed" for e in svc.events))
+    _run_forwarding(svc, 0.5)
+    assert svc.states[-1]["work"]["running"]
+    r = svc.ok("hitch/raise")
+    _run_forwarding(svc, r["duration"] + 1.0)
+    cleared = svc.ok("work/stop")
+    assert cleared["stopping"] is False and cleared["work_paused_cleared"]["z_operator"] == pytest.approx(0.1)
+    ok, r = svc.call("work/stop")
+    assert not ok and r["error"] == "not_found", r
+    r = svc.ok("hitch/return")
+    assert "resumes_work" not in r
+    _run_forwarding(svc, r["duration"] + 1.0)
+    assert not svc.states[-1]["work"]["running"]
+    assert len([e for e in svc.events if e["event"] == "work_resumed"]) == 1
+
+
+@pytest.mark.slow
+def test_the_operator_switch_pauses_work_at_the_headland_and_resumes_it_with_the_core_in_its_own_process(tmp_path):
+    """The tractor's raise / lower switch (the twin's CAN switch) during work, the core in its own process."""
+    svc = _start(tmp_path)
+    events: list[dict] = []
+    svc.add_listener("event", events.append)
+    try:
+        _call(svc, "implements/define", {**TINE, "headland": {"x": 0.0, "z": 0.25, "roll": 0.0, "pitch": 0.0}})
+        _call(svc, "implements/select", {"name": "tine"})
+        _call(svc, "work/settings", {"mode": "position"})
+        first = _call(svc, "work/start", {"z": 0.05})["session"]
+        assert wait_until(lambda: abs(svc.latest_state["pose"]["z"] - 0.05) < 3e-3, 10.0)
+        _call(svc, "sim/switch", {"position": "raise"})
+        assert wait_until(lambda: abs(svc.latest_state["pose"]["z"] - 0.25) < 3e-3, 15.0), svc.latest_state["pose"]
+        assert not svc.latest_state["work"]["running"]
+        assert [e["session"] for e in events if e.get("event") == "work_paused"] == [first]
+        _call(svc, "sim/switch", {"position": "lower"})
+        assert wait_until(lambda: any(e.get("event") == "work_resumed" for e in events), 15.0), events[-5:]
+        assert wait_until(lambda: svc.latest_state["work"]["running"], 5.0), [str(e) for e in events[-6:]]
+        assert wait_until(lambda: abs(svc.latest_state["pose"]["z"] - 0.05) < 3e-3, 10.0)
+        w = svc.latest_state["work"]
+        assert w["running"] and w["session"] != first and w["z_operator"] == pytest.approx(0.05), w
+        assert not [e for e in events if e.get("event") in ("hitch_switch_refused", "work_resume_refused")], events
+    finally:
+        svc.close()

@@ -180,8 +180,9 @@ class Guard:
     def stability_at(self, q, points=None) -> StabilityReport:
         """Stability of tractor + implement with the hitch at actuators ``q`` (``points``: its FK points)."""
         P = points if points is not None else self.model.points(np.asarray(q, float))
-        # x_i = (L − R)/|L − R|, z_i = (U − T)/|U − T|, y_i = z_i × x_i in Python floats: numpy's
-        # differences, norm (sqrt of the left-to-right sum of squares) and quotients, bit for bit
+        # x_i = (L − R)/|L − R|, z_i = (U − T)/|U − T|, y_i = z_i × x_i in Python floats: the differences,
+        # the norm as sqrt of the left-to-right sum of squares (stability._dot's; np.linalg.norm's BLAS may fuse
+        # multiply-add) and the quotients
         (l0, l1, l2), (r0, r1, r2) = P["L"].tolist(), P["R"].tolist()
         (u0, u1, u2), (t0, t1, t2) = P["U"].tolist(), P["T"].tolist()
         x0, x1, x2 = l0 - r0, l1 - r1, l2 - r2

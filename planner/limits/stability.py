@@ -82,6 +82,18 @@ _SUPPORT_CACHE: weakref.WeakKeyDictionary[Tractor, tuple] = weakref.WeakKeyDicti
 _ENERGY_CACHE: weakref.WeakKeyDictionary[Tractor, dict[bytes, tuple]] = weakref.WeakKeyDictionary()
 
 
+def _dot(a, b) -> float:
+    """a · b of two short vectors in IEEE doubles, summed left to right (a0 b0 + a1 b1 + …). Not numpy's ``@``:
+    it calls BLAS, whose kernels fuse multiply and add on some CPUs (AVX-512) and so round differently on
+    another machine (``stability_scalar`` gave other last bits than this reference on one: a CI machine's
+    finding); this is the same on every machine and is what ``stability_scalar`` computes."""
+    x, y = np.asarray(a, dtype=float).tolist(), np.asarray(b, dtype=float).tolist()
+    s = x[0] * y[0]
+    for xi, yi in zip(x[1:], y[1:], strict=True):
+        s += xi * yi
+    return float(s)
+
+
 def _cross3(a, b) -> np.ndarray:
     """Cross product of two 3-vectors (np.cross costs ~35 µs per call; this ~1 µs)."""
     return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
@@ -193,8 +205,9 @@ def _support_frame(tractor: Tractor):
 
 def _segment_distance(q: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
     ab = b - a
-    s = min(1.0, max(0.0, float((q - a) @ ab) / float(ab @ ab)))
-    return float(np.linalg.norm(q - (a + s * ab)))
+    s = min(1.0, max(0.0, _dot(q - a, ab) / _dot(ab, ab)))
+    r = q - (a + s * ab)
+    return math.sqrt(_dot(r, r))
 
 
 @dataclass(frozen=True)
@@ -250,12 +263,12 @@ def support_margins(tractor: Tractor, centre_of_mass, gravity) -> SupportMargins
 def _support_margins(tractor: Tractor, p: np.ndarray, g: np.ndarray) -> SupportMargins:
     """:func:`support_margins` of inputs already checked."""
     V, n, e1, e2, V2, edges = _support_constants(tractor)
-    denom = float(n @ g)
+    denom = _dot(n, g)
     if abs(denom) < 1e-9:
         raise StabilityInputError("slope: gravity is parallel to the support plane; no projection exists")
-    q = p + (float(n @ (V[0] - p)) / denom) * g
-    q2 = np.array([(q - V[0]) @ e1, (q - V[0]) @ e2])
-    d = [float(m @ (q2 - va)) for va, m, _ in edges]
+    q = p + (_dot(n, V[0] - p) / denom) * g
+    q2 = np.array([_dot(q - V[0], e1), _dot(q - V[0], e2)])
+    d = [_dot(m, q2 - va) for va, m, _ in edges]
     if min(d) > 0:
         ssm = min(d)
     else:
@@ -315,9 +328,9 @@ def _energy_margins(tractor: Tractor, m: float, p: np.ndarray, g: np.ndarray) ->
     out = []
     for A, axis, lift, side in _energy_constants(tractor, up):
         r = p - A
-        r_perp = r - (r @ axis) * axis
-        rise = np.linalg.norm(r_perp) * lift - float(r_perp @ up)
-        sign = float(np.sign(side @ r))
+        r_perp = r - _dot(r, axis) * axis
+        rise = math.sqrt(_dot(r_perp, r_perp)) * lift - _dot(r_perp, up)
+        sign = float(np.sign(_dot(side, r)))
         out.append(sign * m * STANDARD_GRAVITY * max(0.0, float(rise)))
     return EnergyMargins((out[0], out[1], out[2]))
 

@@ -6,9 +6,9 @@ fraction of the cost (the guard's jog check and the state message evaluate one p
 control cycle; ~40 numpy calls on 3-vectors cost more than the arithmetic). It performs the
 same IEEE operations in the same order on Python floats:
 
-- a dot product of 3-vectors (``a @ b``) is ``a0 b0 + a1 b1 + a2 b2`` summed left to right, and
-  ``np.linalg.norm`` is ``sqrt`` of that sum — which is what numpy computes for vectors this
-  short (no blocked or fused summation; checked over random inputs in the tests);
+- a dot product of short vectors is ``a0 b0 + a1 b1 + a2 b2`` summed left to right and a norm is ``sqrt`` of
+  that sum: the reference's ``stability._dot`` (not numpy's ``@`` or ``np.linalg.norm``, whose BLAS kernels fuse
+  multiply and add on AVX-512 CPUs, so their last bits differ from machine to machine);
 - the one matrix-vector product whose rounding is BLAS's (the implement's CoM ``R_i c_i``,
   thesis 2.41's p_i = T + R_i c_i) is left to numpy, as are the rare branches (the CoM outside
   the support triangle), which call the reference functions themselves.

@@ -17,6 +17,7 @@ from planner.limits.stability import (
     StabilityInputError,
     StabilityThresholds,
     _cross3,
+    _dot,
     _segment_distance,
     _support_frame,
     axle_loads,
@@ -440,8 +441,8 @@ def test_default_profile_values(profile, tractor):
 def reference_support_margins(tractor, p, g):
     """The former support_margins, recomputing the support frame and the edges on every call."""
     V, n, e1, e2, V2 = _support_frame(tractor)
-    q = p + (float(n @ (V[0] - p)) / float(n @ g)) * g
-    q2 = np.array([(q - V[0]) @ e1, (q - V[0]) @ e2])
+    q = p + (_dot(n, V[0] - p) / _dot(n, g)) * g  # per pose: _dot (the same bits on every CPU; BLAS's are not)
+    q2 = np.array([_dot(q - V[0], e1), _dot(q - V[0], e2)])
     travel = np.array([e1[1], e2[1]])
     travel /= np.linalg.norm(travel)
     d, s_lo, s_hi, misses = [], -math.inf, math.inf, False
@@ -450,7 +451,7 @@ def reference_support_margins(tractor, p, g):
         m = np.array([-edge[1], edge[0]]) / np.linalg.norm(edge)
         if m @ (V2[c] - V2[a]) < 0:
             m = -m
-        di = float(m @ (q2 - V2[a]))
+        di = _dot(m, q2 - V2[a])
         d.append(di)
         mv = float(m @ travel)
         if abs(mv) < 1e-12:
@@ -474,12 +475,12 @@ def reference_energies(tractor, mass, p, g):
         A = V[a_i]
         axis = (V[b_i] - A) / np.linalg.norm(V[b_i] - A)
         r = p - A
-        r_perp = r - (r @ axis) * axis
-        rise = np.linalg.norm(r_perp) * math.sqrt(max(0.0, 1.0 - float(axis @ up) ** 2)) - float(r_perp @ up)
+        r_perp = r - _dot(r, axis) * axis
+        rise = math.sqrt(_dot(r_perp, r_perp)) * math.sqrt(max(0.0, 1.0 - float(axis @ up) ** 2)) - _dot(r_perp, up)
         side = np.cross(axis, up)
         if side @ (V[c_i] - A) < 0:
             side = -side
-        out.append(float(np.sign(side @ r)) * mass * G * max(0.0, float(rise)))
+        out.append(float(np.sign(_dot(side, r))) * mass * G * max(0.0, float(rise)))
     return tuple(out)
 
 

@@ -105,7 +105,7 @@ def test_guard_stability_at_equals_the_reference_frame():
     """Guard.stability_at (the frame x_i, y_i, z_i and the stability in floats) against the numpy frame and
     evaluate_stability, bit for bit, at random reachable actuators, two slopes, with and without implement."""
     from planner.limits.guard import Guard
-    from planner.limits.stability import _cross3
+    from planner.limits.stability import _cross3, _dot
     from planner.model.kinematics import HitchModel
     from planner.trajectory import TrajectoryPlanner
 
@@ -119,10 +119,12 @@ def test_guard_stability_at_equals_the_reference_frame():
         for _ in range(150):
             q = tp.inverse(*(tp.lo + rng.random(4) * (tp.hi - tp.lo)))
             P = tp.model.forward(q).points
+            # the norm as sqrt of the left-to-right sum (np.linalg.norm calls BLAS, which fuses multiply-add
+            # on AVX-512 machines: other last bits there)
             xi = P["L"] - P["R"]
-            xi /= np.linalg.norm(xi)
+            xi /= math.sqrt(_dot(xi, xi))
             zi = P["U"] - P["T"]
-            zi /= np.linalg.norm(zi)
+            zi /= math.sqrt(_dot(zi, zi))
             R = np.column_stack([xi, _cross3(zi, xi), zi])
             ref = evaluate_stability(
                 guard.tractor,

@@ -35,7 +35,9 @@ class EndStopZone:
         Finite 1-D inputs are evaluated in Python floats (the jog check's path, once per guarded
         cycle): the same IEEE operations as :meth:`allowed_speed` and the ratio below, bit for bit
         (``sqrt`` is correctly rounded in both, the first smallest ratio binds as ``argmin`` picks
-        it); anything else (NaN, other shapes) takes the array path.
+        it); anything else (NaN, other shapes) takes the array path. A non-finite position or rate binds with
+        the factor 0 (fail closed: NaN compares false, so ``argmin`` and ``min(1, nan)`` read it as "no
+        slow-down" before; a reviewer's reproduction).
         """
         ql, qdl = np.asarray(q, float).tolist(), np.asarray(qdot, float).tolist()
         if isinstance(ql, list) and isinstance(qdl, list) and len(ql) == len(qdl) == len(self.lower):
@@ -64,6 +66,9 @@ class EndStopZone:
         return (float(min(1.0, best)), best_i if best < 1.0 else None)
 
     def _speed_factor_arrays(self, q: np.ndarray, qdot: np.ndarray) -> tuple[float, int | None]:
+        bad = np.flatnonzero(~(np.isfinite(np.broadcast_to(q, np.shape(qdot))) & np.isfinite(qdot)))
+        if bad.size:  # fail closed, naming the first actuator without a number
+            return 0.0, int(bad[0])
         allow = self.allowed_speed(q, np.sign(qdot))
         with np.errstate(divide="ignore", invalid="ignore"):
             ratio = np.where(np.abs(qdot) > 1e-12, allow / np.abs(qdot), np.inf)

@@ -14,6 +14,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from planner.errors import unit_hint
 from planner.model.fast_function import FastFunction
 from planner.model.geometry import (
     LEFT,
@@ -264,12 +265,28 @@ class HitchModel:
     # ------------------------------------------------------------------ helpers
     @staticmethod
     def _as_vector(actuators) -> np.ndarray:
-        q = actuators.as_array() if isinstance(actuators, Actuators) else np.asarray(actuators, dtype=float).reshape(-1)
+        """The five actuators [rad, m, m, m, m] as a float vector; ModelInputError for anything else, and for a
+        lift angle beyond ±π: the same physical angle as one within, so almost surely degrees (12.6 for
+        0.22 rad closed the mechanism and gave a pose: a reviewer's reproduction)."""
+        if isinstance(actuators, Actuators):
+            q = actuators.as_array()
+        else:
+            try:
+                q = np.asarray(actuators, dtype=float).reshape(-1)
+            except (TypeError, ValueError) as exc:
+                raise ModelInputError(
+                    f"actuators: expected 5 numbers ({', '.join(ACTUATOR_NAMES)}), got {actuators!r}"
+                ) from exc
         if q.size != 5:
             raise ModelInputError(f"actuators: expected 5 values ({', '.join(ACTUATOR_NAMES)}), got {q.size}")
         for name, v in zip(ACTUATOR_NAMES, q, strict=True):
             if not math.isfinite(v):
                 raise ModelInputError(f"actuators.{name} must be a finite number, got {v}")
+        if not -math.pi <= q[0] <= math.pi:
+            raise ModelInputError(
+                f"actuators.lift = {q[0]:.6g} rad is beyond ±π (allowed [-3.14159, 3.14159] rad)"
+                + unit_hint(float(q[0]), -math.pi, math.pi, "rad")
+            )
         return q
 
     def _check(self, checks: np.ndarray, features: np.ndarray, q: np.ndarray | None = None) -> None:

@@ -42,9 +42,15 @@ def test_closed_form_and_fallbacks():
     f, i = zone.speed_factor(q, qd)
     assert i == 2 and math.isclose(f, VEL[2] * math.sqrt(0.25) / 0.08, rel_tol=1e-12)
     assert zone.speed_factor(q, np.zeros(5)) == (1.0, None)
+    # a non-finite position or rate fails closed: factor 0, naming it (it read as 1.0, "no slow-down", while
+    # actuator 2 bound at 0.25; a reviewer's reproduction)
     nan = qd.copy()
-    nan[0] = np.nan  # the array path's answer for non-finite input
-    assert zone.speed_factor(q, nan) == zone._speed_factor_arrays(q, nan)
+    nan[0] = np.nan
+    assert zone.speed_factor(q, nan) == (0.0, 0)
+    q_nan = q.copy()
+    q_nan[3] = np.nan
+    assert zone.speed_factor(q_nan, qd) == (0.0, 3)
+    assert zone.speed_factor(q, np.where(np.arange(5) == 4, np.inf, qd)) == (0.0, 4)
     empty = EndStopZone(LO, HI, VEL, 0.0)  # no zone: numpy's x / 0, not a ZeroDivisionError
     with np.errstate(divide="ignore", invalid="ignore"):
         assert empty.speed_factor(q, qd) == empty._speed_factor_arrays(q, qd)

@@ -7,7 +7,7 @@ import pytest
 
 from planner.model.geometry import link_direction
 from planner.model.kinematics import FEATURE_NAMES, POINT_NAMES, HitchModel
-from planner.model.types import Actuators, KinematicsError
+from planner.model.types import Actuators, KinematicsError, ModelInputError
 from tests.helpers import random_closing_actuators
 
 G = None
@@ -173,6 +173,17 @@ def test_bad_actuator_input(model):
     with pytest.raises(ValueError, match="5 values"):
         model.forward([0.2, 0.6])
     assert model.forward(Actuators.from_array(model.neutral)).pose.x == pytest.approx(0, abs=1e-12)
+    # text, and a lift angle in degrees (12.6 for the neutral 0.22 rad closed the mechanism: a pose z = -0.068 m)
+    with pytest.raises(ModelInputError, match=r"expected 5 numbers .* got 'abcde'"):
+        model.forward("abcde")
+    degrees = model.neutral.copy()
+    degrees[0] = math.degrees(model.neutral[0])
+    with pytest.raises(ModelInputError, match=r"actuators.lift = 12.6\d* rad is beyond ±π.*did you mean degrees"):
+        model.forward(degrees)
+    edge = model.neutral.copy()
+    edge[0] = math.pi + 2 * math.pi  # the same angle as π: refused too (one turn is never meant)
+    with pytest.raises(ModelInputError, match="beyond ±π"):
+        model.points(edge)
 
 
 def test_never_nan_over_a_wide_box(model, rng):

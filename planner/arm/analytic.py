@@ -39,7 +39,7 @@ from typing import Literal
 
 import numpy as np
 
-from planner.arm.dh import DHChain, check_joint_vector, forward_kinematics, limit_violations
+from planner.arm.dh import DHChain, check_joint_values, check_joint_vector, forward_kinematics, limit_violations
 from planner.arm.transforms import (
     ArmInputError,
     check_rotation,
@@ -72,6 +72,10 @@ _ZERO_A = (0, 2, 3, 4, 5)
 _ZERO_D = (1, 2, 4)
 #: Relative tolerance on |cos β| - 1 before a target counts as outside the workspace.
 _REACH_TOL = 1e-12
+#: Largest accepted ``rotation_tol`` of :func:`solve_arm_ik` (a defect of 0.1 is no rotation any more).
+_MAX_ROTATION_TOL = 0.1
+#: An unreachable target gets a "did you mean mm?" hint only beyond this many arm reaches.
+_MM_HINT_FACTOR = 10.0
 Shoulder = Literal["right", "left"]
 Elbow = Literal["up", "down"]
 Wrist = Literal["I", "II"]
@@ -245,6 +249,44 @@ def _fit_joints(chain: DHChain, q: Sequence[float], reference: np.ndarray) -> tu
     return tuple(float(x) for x in fitted), True
 
 
+def _rotation_tol(value) -> float:
+    """``rotation_tol`` of :func:`solve_arm_ik` checked: a finite number in ``(0, 0.1]``."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ArmInputError(f"rotation_tol must be a number, got {type(value).__name__} {value!r}")
+    v = float(value)
+    if not (math.isfinite(v) and 0.0 < v <= _MAX_ROTATION_TOL):
+        raise ArmInputError(f"rotation_tol = {v} is outside the allowed (0, {_MAX_ROTATION_TOL:g}]")
+    return v
+
+
+def _wrist_centre(arm: SphericalWristArm, p: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """``(R06, p_w, cos β)`` of the tool pose ``(p [m], R)``: the DH part's target rotation, the wrist
+    centre in frame 0 [m] and the elbow cosine of arm thesis 2.42 (``|cos β| > 1``: unreachable)."""
+    chain = arm.chain
+    # Target of the DH part: T06 = base⁻¹ · T · tool⁻¹ (tool and base are rigid).
+    T06 = invert_transform(chain.base) @ homogeneous(R, p) @ invert_transform(chain.tool)
+    R06 = T06[:3, :3]
+    pw0 = T06[:3, 3] - arm.d6 * R06[:, 2]  # wrist centre in frame 0 (arm thesis 2.38-2.40)
+    x, y, z = pw0[0], pw0[1], pw0[2] - arm.d1
+    a2, d4 = arm.a2, arm.d4
+    c = (x * x + y * y + z * z - a2 * a2 - d4 * d4) / (2.0 * a2 * d4)  # arm thesis 2.42
+    return R06, pw0, float(c)
+
+
+def _mm_hint(arm: SphericalWristArm, p: np.ndarray, R: np.ndarray, distance: float) -> str:
+    """``"; did you mean mm? …"`` when the unreachable position ``p`` read as millimetres is
+    reachable (typed in mm, the wrist centre lands ~1000 times too far), else ``""``. Only for a
+    wrist centre more than :data:`_MM_HINT_FACTOR` reaches away (``distance`` [m] from the
+    shoulder): a near miss in metres is no unit slip."""
+    if float(np.max(np.abs(p))) < 1.0 or distance <= _MM_HINT_FACTOR * (arm.a2 + arm.d4):
+        return ""  # as planner.errors.unit_hint: no hint for values below 1
+    p_m = p / 1000.0
+    if abs(_wrist_centre(arm, p_m, R)[2]) > 1.0 + _REACH_TOL:
+        return ""
+    shown = ", ".join(f"{v:.6g}" for v in p.tolist())
+    return f"; did you mean mm? position ({shown}) mm = ({', '.join(f'{v:.6g}' for v in p_m.tolist())}) m is reachable"
+
+
 def solve_arm_ik(
     arm: SphericalWristArm,
     position,
@@ -267,28 +309,27 @@ def solve_arm_ik(
             With ``False`` the textbook formulas are applied to the given entries, as the
             source does with its 4-decimal matrix; the forward-kinematics error then reflects
             the matrix's own defect.
-        rotation_tol: Accepted orthonormality defect of ``rotation`` (default 1e-3, enough for
-            matrices printed to four decimals).
+        rotation_tol: Accepted orthonormality defect of ``rotation``, ``0 < rotation_tol <= 0.1``
+            (default 1e-3, enough for matrices printed to four decimals).
 
-    An unreachable target gives ``reachable=False`` with a ``reason`` and no solutions.
+    An unreachable target gives ``reachable=False`` with a ``reason`` and no solutions; when the
+    position read as millimetres would be reachable, the reason ends "did you mean mm?". A
+    reference beyond ±2π (degrees) raises :class:`ArmInputError`.
     """
     chain = arm.chain
     p = _vec3(position, "position")
-    R_in = check_rotation(rotation, "rotation", atol=rotation_tol)
-    ref = np.zeros(6) if reference is None else check_joint_vector(chain, reference, "reference")
+    tol = _rotation_tol(rotation_tol)
+    R_in = check_rotation(rotation, "rotation", atol=tol)
+    ref = np.zeros(6) if reference is None else check_joint_values(chain, reference, "reference")
     defect = orthonormality_defect(R_in)
     R = nearest_rotation(R_in) if orthonormalize else R_in
     change = float(np.max(np.abs(R - R_in))) if orthonormalize else 0.0
 
-    # Target of the DH part: T06 = base⁻¹ · T · tool⁻¹ (tool and base are rigid).
-    T06 = invert_transform(chain.base) @ homogeneous(R, p) @ invert_transform(chain.tool)
-    R06 = T06[:3, :3]
-    pw0 = T06[:3, 3] - arm.d6 * R06[:, 2]  # wrist centre in frame 0 (arm thesis 2.38-2.40)
+    R06, pw0, c = _wrist_centre(arm, p, R)
     wc = (chain.base @ np.append(pw0, 1.0))[:3]
     x, y, z = pw0[0], pw0[1], pw0[2] - arm.d1
     a2, d4, off = arm.a2, arm.d4, arm.offsets
     rho0 = math.hypot(x, y)
-    c = (rho0 * rho0 + z * z - a2 * a2 - d4 * d4) / (2.0 * a2 * d4)  # arm thesis 2.42
 
     for arr in (p, R, wc):
         arr.setflags(write=False)
@@ -315,7 +356,7 @@ def solve_arm_ik(
             f"target unreachable: the wrist centre ({wc[0]:.6g}, {wc[1]:.6g}, {wc[2]:.6g}) m is {dist:.6g} m from the "
             f"shoulder, {side} it; reachable distances are [{abs(a2 - d4):.6g}, {a2 + d4:.6g}] m "
             f"(elbow cos β = {c:.6g}, allowed [-1, 1])"
-        )
+        ) + _mm_hint(arm, p, R, dist)
         return result((), False, reason)
     c = min(1.0, max(-1.0, c))
     s_abs = math.sqrt(max(0.0, 1.0 - c * c))
@@ -339,7 +380,7 @@ def solve_arm_ik(
                 @ chain.links[1].transform(t2 - off[1])
                 @ chain.links[2].transform(t3 - off[2])
             )[:3, :3]
-            zyz = solve_euler_zyz(R03.T @ R06, reference_phi=ref[3] + off[3], atol=max(rotation_tol, 1e-9))
+            zyz = solve_euler_zyz(R03.T @ R06, reference_phi=ref[3] + off[3], atol=max(tol, 1e-9))
             for wrist, angles in zip(_WRISTS, zyz.branches, strict=False):  # one branch when wrist-singular
                 theta = (t1, t2, t3, angles.phi, angles.theta, angles.psi)
                 q = [wrap_angle(th - o) for th, o in zip(theta, off, strict=True)]
@@ -367,7 +408,7 @@ def select_nearest_solution(
     *,
     weights=None,
 ) -> ArmIKSolution:
-    """The admissible solution nearest ``reference`` (6,) [rad] in the weighted joint distance.
+    """The admissible solution nearest ``reference`` (6,) [rad, each within ±2π] in the weighted joint distance.
 
     Each joint is first moved to its 2π-equivalent inside the limits nearest the reference;
     the returned solution carries those values. ``weights`` (6,) >= 0 default to ones.
@@ -375,7 +416,7 @@ def select_nearest_solution(
     :class:`NoAdmissibleSolutionError` when every solution violates a joint limit.
     """
     chain = arm.chain
-    ref = check_joint_vector(chain, reference, "reference")
+    ref = check_joint_values(chain, reference, "reference")
     w = np.ones(6) if weights is None else check_joint_vector(chain, weights, "weights")
     if np.any(w < 0):
         raise ArmInputError(f"weights must be >= 0, got {w.tolist()}")

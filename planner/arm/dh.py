@@ -31,7 +31,7 @@ import casadi as ca
 import numpy as np
 
 from planner.arm.transforms import ArmInputError, check_transform, homogeneous_ca, rotx_ca, rotz_ca
-from planner.errors import HitchInputError
+from planner.errors import HitchInputError, unit_hint
 
 __all__ = [
     "JointKind",
@@ -46,15 +46,23 @@ __all__ = [
     "forward_kinematics",
     "geometric_jacobian",
     "check_joint_vector",
+    "check_joint_values",
     "limit_violations",
     "build_casadi_chain",
+    "MAX_LENGTH",
+    "MAX_REVOLUTE",
 ]
 
 JointKind = Literal["revolute", "prismatic"]
 _KINDS = ("revolute", "prismatic")
-#: Joint limits must lie within ±2π (revolute) or ±100 m (prismatic); so must a and d.
-_MAX_REVOLUTE = 2.0 * math.pi
-_MAX_LENGTH = 100.0
+#: Revolute joint limits, and so every meaningful revolute joint value, lie within ±2π [rad].
+MAX_REVOLUTE = 2.0 * math.pi
+#: Link lengths ``a``, offsets ``d`` and prismatic joint limits lie within ±10 m [m]: no serial
+#: arm of this product comes near it, and a length typed in millimetres (a2 = 100) exceeds it
+#: (the error then asks "did you mean mm?").
+MAX_LENGTH = 10.0
+#: Slack [rad or m] on the ±MAX bounds of joint values (a limit of exactly 2π plus rounding).
+_VALUE_SLACK = 1e-9
 
 
 class JointLimitError(HitchInputError):
@@ -92,9 +100,15 @@ class DHLink:
     name: str = ""
 
     def __post_init__(self) -> None:
+        if not isinstance(self.name, str):
+            raise ArmInputError(
+                f"name must be a string (the joint's label), got {type(self.name).__name__} {self.name!r}"
+            )
         label = self.name or "link"
         for f in ("a", "alpha", "d", "theta", "lower", "upper"):
             v = getattr(self, f)
+            if isinstance(v, (bool, str, bytes)):  # float(True) == 1.0, float("0.1") == 0.1: not numbers here
+                raise ArmInputError(f"{label}.{f} must be a number, got {type(v).__name__} {v!r}")
             try:
                 v = float(v)
             except (TypeError, ValueError):
@@ -105,20 +119,30 @@ class DHLink:
         if self.kind not in _KINDS:
             raise ArmInputError(f"{label}.kind must be one of {_KINDS}, got {self.kind!r}")
         for f in ("a", "d"):
-            if abs(getattr(self, f)) > _MAX_LENGTH:
-                raise ArmInputError(f"{label}.{f} = {getattr(self, f)} m is outside the allowed ±{_MAX_LENGTH} m")
+            v = getattr(self, f)
+            if abs(v) > MAX_LENGTH:
+                raise ArmInputError(
+                    f"{label}.{f} = {v:.6g} m is outside the allowed [-{MAX_LENGTH:g}, {MAX_LENGTH:g}] m"
+                    + unit_hint(v, -MAX_LENGTH, MAX_LENGTH, "m")
+                )
         for f in ("alpha", "theta"):
-            if abs(getattr(self, f)) > 2.0 * math.pi:
-                raise ArmInputError(f"{label}.{f} = {getattr(self, f)} rad is outside the allowed ±2π")
+            v = getattr(self, f)
+            if abs(v) > MAX_REVOLUTE:
+                raise ArmInputError(
+                    f"{label}.{f} = {v:.6g} rad is outside the allowed ±2π rad"
+                    + unit_hint(v, -MAX_REVOLUTE, MAX_REVOLUTE, "rad")
+                )
         if not self.lower < self.upper:
             raise ArmInputError(f"{label}: joint limits need lower < upper, got [{self.lower}, {self.upper}]")
-        bound = _MAX_REVOLUTE if self.kind == "revolute" else _MAX_LENGTH
+        bound = MAX_REVOLUTE if self.kind == "revolute" else MAX_LENGTH
         unit = "rad" if self.kind == "revolute" else "m"
-        if abs(self.lower) > bound or abs(self.upper) > bound:
-            raise ArmInputError(
-                f"{label}: {self.kind} joint limits [{self.lower}, {self.upper}] {unit} "
-                f"must lie within ±{bound:.6g} {unit}"
-            )
+        for f in ("lower", "upper"):
+            v = getattr(self, f)
+            if abs(v) > bound:
+                raise ArmInputError(
+                    f"{label}.{f} = {v:.6g} {unit} is outside the allowed ±{bound:.6g} {unit} for a {self.kind} joint"
+                    + unit_hint(v, -bound, bound, unit)
+                )
 
     def parameters(self, q: float) -> tuple[float, float, float, float]:
         """``(a, alpha, d, theta)`` with the joint variable ``q`` applied."""
@@ -222,6 +246,23 @@ def check_joint_vector(chain: DHChain, q, name: str = "q") -> np.ndarray:
     return v
 
 
+def check_joint_values(chain: DHChain, q, name: str = "q") -> np.ndarray:
+    """:func:`check_joint_vector`, and every joint value within the range any joint limit can have:
+    ±2π rad for a revolute joint (:data:`MAX_REVOLUTE`), ±10 m for a prismatic one
+    (:data:`MAX_LENGTH`). A value beyond it is no pose of the arm but a unit slip (degrees or
+    millimetres): :class:`ArmInputError` naming the joint, the value and the range, with a
+    "did you mean degrees?" / "did you mean mm?" hint."""
+    v = check_joint_vector(chain, q, name)
+    for i, (link, x) in enumerate(zip(chain.links, v.tolist(), strict=True)):
+        bound, unit = (MAX_REVOLUTE, "rad") if link.kind == "revolute" else (MAX_LENGTH, "m")
+        if abs(x) > bound + _VALUE_SLACK:
+            raise ArmInputError(
+                f"{name}[{i}] ({link.name}) = {x:.6g} {unit} is outside ±{bound:.6g} {unit}, the widest range "
+                f"a {link.kind} joint's limits may have" + unit_hint(x, -bound, bound, unit)
+            )
+    return v
+
+
 def limit_violations(chain: DHChain, q, *, tol: float = 0.0) -> tuple[str, ...]:
     """Human-readable list of joint-limit violations of ``q`` (empty when within limits)."""
     v = check_joint_vector(chain, q)
@@ -265,9 +306,11 @@ class ChainFrames:
 
 
 def forward_kinematics(chain: DHChain, q, *, check_limits: bool = False) -> ChainFrames:
-    """Every frame of the chain at ``q`` (arm thesis 2.16). With ``check_limits`` a joint
-    vector outside the limits raises :class:`JointLimitError`."""
-    v = check_joint_vector(chain, q)
+    """Every frame of the chain at ``q`` [rad or m] (arm thesis 2.16). With ``check_limits`` a joint
+    vector outside the limits raises :class:`JointLimitError`; without, a revolute value beyond
+    ±2π (or a prismatic one beyond ±10 m) still raises :class:`ArmInputError` ("did you mean
+    degrees?"), see :func:`check_joint_values`."""
+    v = check_joint_values(chain, q)
     if check_limits:
         bad = limit_violations(chain, v)
         if bad:

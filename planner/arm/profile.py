@@ -11,16 +11,20 @@ Schema (``schema_version = 1``)::
     [[joints]]                         # one table per joint, base to tool (1..12)
     name = "waist"
     type = "revolute"                  # or "prismatic"
-    a = 0.0                            # [m]   link length along x_i
-    alpha = 1.5707963267948966         # [rad] link twist about x_i
-    d = 0.100                          # [m]   offset along z_{i-1} (+ q if prismatic)
-    theta = 0.0                        # [rad] angle about z_{i-1} (+ q if revolute)
-    lower = -3.141592653589793         # joint limits [rad] (revolute) or [m] (prismatic)
-    upper = 3.141592653589793
+    a = 0.0                            # [m]   link length along x_i, |a| <= 10
+    alpha = 1.5707963267948966         # [rad] link twist about x_i, |alpha| <= 2π
+    d = 0.100                          # [m]   offset along z_{i-1} (+ q if prismatic), |d| <= 10
+    theta = 0.0                        # [rad] angle about z_{i-1} (+ q if revolute), |theta| <= 2π
+    lower = -3.141592653589793         # joint limits [rad] (revolute, within ±2π)
+    upper = 3.141592653589793          #   or [m] (prismatic, within ±10)
     [base]                             # optional: frame 0 in the world frame
-    position = [0.0, 0.0, 0.0]         # [m]
-    zyz = [0.0, 0.0, 0.0]              # [rad] ZYZ Euler angles (phi, theta, psi)
-    [tool]                             # optional: tool frame in frame n (same keys)
+    position = [0.0, 0.0, 0.0]         # [m], each within ±100
+    zyz = [0.0, 0.0, 0.0]              # [rad] ZYZ Euler angles (phi, theta, psi), within ±2π
+    [tool]                             # optional: tool frame in frame n (same keys; position within ±10 m)
+
+Lengths are bounded by 10 m (:data:`planner.arm.dh.MAX_LENGTH`): no serial arm of this product
+comes near it, and millimetres typed as metres (``a = 100.0``) exceed it; such an error, and a
+revolute angle typed in degrees, carries a "did you mean mm?" / "did you mean degrees?" hint.
 """
 
 from __future__ import annotations
@@ -31,9 +35,9 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from planner.arm.dh import DHChain, DHLink, build_dh_chain
+from planner.arm.dh import MAX_LENGTH, DHChain, DHLink, build_dh_chain
 from planner.arm.transforms import euler_zyz_matrix, homogeneous
-from planner.errors import HitchInputError
+from planner.errors import HitchInputError, unit_hint
 from planner.profiles.loader import builtin_profiles, check_profile_name, format_validation_error, read_profile
 
 __all__ = [
@@ -50,7 +54,10 @@ __all__ = [
 #: Built-in profile used when none is named.
 DEFAULT_ARM_PROFILE = "arm-source-example"
 _TWO_PI = 2.0 * math.pi
-_MAX_LENGTH = 100.0
+#: |a|, |d|, prismatic limits and the tool position [m] (see the module docstring).
+_MAX_LENGTH = MAX_LENGTH
+#: Base position components [m]: where the arm stands in the world frame may lie farther out.
+_MAX_BASE_POSITION = 100.0
 
 
 class ArmProfileError(HitchInputError):
@@ -79,6 +86,7 @@ class JointSpec(_Strict):
         if abs(v) > _MAX_LENGTH:
             raise ArmProfileError(
                 f"{info.field_name} = {v} m is outside the allowed [-{_MAX_LENGTH:g}, {_MAX_LENGTH:g}] m"
+                + unit_hint(v, -_MAX_LENGTH, _MAX_LENGTH, "m")
             )
         return v
 
@@ -86,7 +94,10 @@ class JointSpec(_Strict):
     @classmethod
     def _angle(cls, v: float, info) -> float:
         if abs(v) > _TWO_PI:
-            raise ArmProfileError(f"{info.field_name} = {v} rad is outside the allowed [-2π, 2π] rad")
+            raise ArmProfileError(
+                f"{info.field_name} = {v} rad is outside the allowed [-2π, 2π] rad"
+                + unit_hint(v, -_TWO_PI, _TWO_PI, "rad")
+            )
         return v
 
     @model_validator(mode="after")
@@ -99,7 +110,7 @@ class JointSpec(_Strict):
             if abs(v) > bound:
                 raise ArmProfileError(
                     f"joint {self.name!r}: {side} = {v} {unit} is outside the allowed ±{bound:.6g} {unit} "
-                    f"for a {self.type} joint"
+                    f"for a {self.type} joint" + unit_hint(v, -bound, bound, unit)
                 )
         return self
 
@@ -116,8 +127,14 @@ class FrameSpec(_Strict):
     @field_validator("position")
     @classmethod
     def _position(cls, v: list[float]) -> list[float]:
-        if not all(math.isfinite(x) and abs(x) <= _MAX_LENGTH for x in v):
-            raise ArmProfileError(f"position components must be finite and within ±{_MAX_LENGTH:g} m")
+        for x in v:
+            if not math.isfinite(x):
+                raise ArmProfileError("position components must be finite")
+            if abs(x) > _MAX_BASE_POSITION:
+                raise ArmProfileError(
+                    f"position component {x} m is outside the allowed ±{_MAX_BASE_POSITION:g} m"
+                    + unit_hint(x, -_MAX_BASE_POSITION, _MAX_BASE_POSITION, "m")
+                )
         return v
 
     @field_validator("zyz")
@@ -153,6 +170,17 @@ class ArmProfile(_Strict):
         if dup:
             raise ArmProfileError(f"joint names must be unique; repeated: {', '.join(dup)}")
         return self
+
+    @field_validator("tool")
+    @classmethod
+    def _tool(cls, v: FrameSpec) -> FrameSpec:
+        for i, x in enumerate(v.position):  # the tool offset is a link of the arm: ±10 m, like a and d
+            if abs(x) > _MAX_LENGTH:
+                raise ArmProfileError(
+                    f"position[{i}] = {x} m is outside the allowed ±{_MAX_LENGTH:g} m for the tool"
+                    + unit_hint(x, -_MAX_LENGTH, _MAX_LENGTH, "m")
+                )
+        return v
 
     def chain(self) -> DHChain:
         """The :class:`~planner.arm.dh.DHChain` this profile describes."""

@@ -295,9 +295,9 @@ class ZYZSolution:
 
     Attributes:
         branches: ``(branch I, branch II)`` normally; one entry when ``singular``.
-        singular: ``sin(theta)`` was at most the singular tolerance: only ``phi + psi``
-            (``theta = 0``) or ``phi - psi`` (``theta = pi``) is defined, ``phi`` was set to the
-            requested reference.
+        singular: ``sin(theta)`` was at most the singular tolerance: ``theta`` is exactly 0 or
+            ``pi``, only ``phi + psi`` (``theta = 0``) or ``phi - psi`` (``theta = pi``) is
+            defined, ``phi`` was set to the requested reference.
         sin_theta: ``|sin(theta)| = sqrt(r13² + r23²)`` of the input.
     """
 
@@ -337,8 +337,11 @@ def solve_euler_zyz(
     (the source prints ``atan2(-r23, r13)`` in 2.68; its Matlab listing, figure 3.4, has the
     correct ``atan2(-r23, -r13)``). All angles are wrapped into ``(-pi, pi]``.
 
-    Singular case ``sqrt(r13² + r23²) <= singular_tol``: ``phi = reference_phi`` and ``psi``
-    follows from the rest of the matrix; a single branch is returned. Close to the singularity
+    Singular case ``sqrt(r13² + r23²) <= singular_tol``: ``theta`` is exactly 0 (``r33 > 0``) or
+    ``pi``, ``phi = reference_phi`` and ``psi`` follows from the rest of the matrix; a single branch
+    is returned. Its round trip drops the residual tilt: ``euler_zyz_matrix(*angles)`` differs
+    from ``R`` by at most ``sqrt(r13² + r23²) <= singular_tol`` per entry (plus rounding; exact
+    for an exactly singular matrix). Close to the singularity
     (``sin(theta) < 1e-4``) ``psi`` is taken from the full matrix as well, which keeps
     ``euler_zyz_matrix(*angles) == R`` to rounding error.
 
@@ -352,7 +355,9 @@ def solve_euler_zyz(
     r13, r23, r33 = R[0, 2], R[1, 2], R[2, 2]
     st = math.hypot(r13, r23)
     if st <= singular_tol:
-        theta = math.atan2(st, r33)
+        # Exactly 0 or π, as documented: with phi fixed at the reference, the tilt atan2(st, r33)
+        # would point in the reference's direction, not the matrix's, and double the error.
+        theta = 0.0 if r33 > 0.0 else math.pi
         phi = wrap_angle(ref)
         psi = wrap_angle(_psi_consistent(R, phi, theta))
         return ZYZSolution((EulerZYZ(phi, theta, psi),), True, st)

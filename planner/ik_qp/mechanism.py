@@ -100,7 +100,7 @@ class Mechanism:
 
     Attributes:
         name: Label used in messages.
-        actuator_names: ``n`` names; limits are reported as ``stroke:<name>:min|max``.
+        actuator_names: ``n`` names; limits are reported as ``<limit_kind>:<name>:min|max``.
         lower, upper: Hard actuator bounds ``(n,)`` (±inf allowed, ``lower <= upper``).
         task: ``q -> (t (m,1), dt/dq (m,n))``, the task vector (e.g. pose features).
         task_names: ``m`` names (task bounds are reported as ``<label>:<task name>:min|max``).
@@ -116,6 +116,12 @@ class Mechanism:
             ``t = (p, r)`` with ``r`` the rotation vector of ``R``, ``J = (J_v, J_ω)`` (linear and
             world angular-velocity Jacobians), ``e = (p* − p, log(R* Rᵀ))``.
         inequality_side_names: Optional ``r`` pairs ``(min_name, max_name)``.
+        limit_kind: What an actuator bound is called in limit names: ``"stroke"`` (the hitch's
+            cylinders and lift arms, the default) or e.g. ``"joint"`` (a serial arm's joints).
+        several_solutions: Whether a target may have several IK solutions (a serial arm: up to
+            eight), so a stationary point of the weighted error at a non-zero residual may be a
+            local minimum of a reachable target; the SQP solver's reason then does not claim the
+            target is out of reach. ``several_solutions_note`` says where every solution is found.
 
     Arrays are stored read-only; equality is identity (``eq=False``), so mechanisms can key
     dictionaries.
@@ -135,11 +141,20 @@ class Mechanism:
     g_upper: np.ndarray = field(default_factory=lambda: np.zeros(0))
     task_error: TaskError | None = None
     inequality_side_names: tuple[tuple[str, str], ...] | None = None
+    limit_kind: str = "stroke"
+    several_solutions: bool = False
+    several_solutions_note: str = ""
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
         if not isinstance(self.name, str) or not self.name:
             raise IKInputError(f"name: must be a non-empty string, got {self.name!r}")
+        if not isinstance(self.limit_kind, str) or not self.limit_kind.isidentifier():
+            raise IKInputError(f"limit_kind: must be a word such as 'stroke' or 'joint', got {self.limit_kind!r}")
+        if not isinstance(self.several_solutions, bool):
+            raise IKInputError(f"several_solutions: must be True or False, got {self.several_solutions!r}")
+        if not isinstance(self.several_solutions_note, str):
+            raise IKInputError(f"several_solutions_note: must be a string, got {self.several_solutions_note!r}")
         set_(self, "actuator_names", _names(self.actuator_names, "actuator_names"))
         n = len(self.actuator_names)
         if n == 0:

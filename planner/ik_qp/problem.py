@@ -236,14 +236,21 @@ class IKSolution:
 
     Attributes:
         q: ``(n,)`` actuators at the solution (always finite, always within the actuator bounds).
-        status: ``"ok"`` target reached (``residual <= reach_tol``); ``"limited"`` target out of
-            reach, ``q`` is a stationary point of the weighted task error on the feasible set
-            (the nearest reachable point in the weighted sense); ``"failed"`` no feasible
-            point found (``reason`` says why; ``q`` is the best point found).
+        status: ``"ok"`` target reached (``residual <= reach_tol``); ``"limited"`` target not
+            reached, ``q`` is a feasible point where the solve stopped: a stationary point of the
+            weighted task error on the feasible set (``reason`` says when the iteration limit
+            stopped it first). On a mechanism with one solution near it (the hitch) that is the
+            nearest reachable point in the weighted sense: the target is out of reach. On a
+            mechanism with several IK solutions (a serial arm, ``several_solutions``) it may
+            also be a local minimum of a *reachable* target (the SQP is a local solver), and
+            ``reason`` says "a local minimum or out of reach" instead of claiming either (for the
+            arm, :func:`planner.arm.analytic.solve_arm_ik` lists every solution).
+            ``"failed"`` no feasible point found (``reason`` says why; ``q`` is the best point found).
         reason: Human-readable explanation.
         active: Names of the limits that stop the target (at their bound, non-zero multiplier):
-            ``stroke:<actuator>:min|max``, ``<inequality>:min|max`` (or the mechanism's side
-            names), ``<label>:<task>:min|max``.
+            ``stroke:<actuator>:min|max`` (``joint:<joint>:min|max`` on a serial arm, the
+            mechanism's ``limit_kind``), ``<inequality>:min|max`` (or the mechanism's
+            side names), ``<label>:<task>:min|max``.
         iterations: SQP iterations (QP solves of the main problem).
         residual: ``‖W e(q)‖₂``, the weighted task error at ``q`` (task units).
         solve_time_s: Wall time of the solve [s].

@@ -20,7 +20,10 @@ Iteration ``k`` at actuators ``q``:
 
 ``λ_k = μ_k ‖W e_k‖`` vanishes with the error, so reachable targets converge
 quadratically. Unreachable ones converge to a stationary point of ``‖W e‖`` on the
-feasible set (status ``"limited"``, binding limits named from the QP multipliers); where
+feasible set (status ``"limited"``, binding limits named from the QP multipliers) — or so
+do reachable ones that stop in a local minimum: on a mechanism with several IK solutions (a
+serial arm, ``Mechanism.several_solutions``) the reason says "a local minimum or out of reach", a
+local solver cannot tell the two apart; where
 Gauss–Newton is only linear there (large residual, curved active limits) a secant estimate
 ``S`` of the missing Lagrangian curvature (:class:`~planner.ik_qp.mechanism.LagrangianCurvature`)
 is added, and dropped again whenever it misleads. A solver is stateful (warm starts,
@@ -151,20 +154,23 @@ class _Layout:
         self.rows = rows
         self.k = k = self.p + self.r + rows.size
         tasks = [mech.task_names[i] for i in rows.tolist()]
-        # inequality rows keep the mechanism's own names (any string); task bounds and strokes
-        # are named as LimitName spells them: <label>:<task>:min|max, stroke:<actuator>:min|max
+        # inequality rows keep the mechanism's own names (any string); task bounds and actuator
+        # bounds are named as LimitName spells them: <label>:<task>:min|max and
+        # <kind>:<actuator>:min|max, kind "stroke" (the hitch's cylinders) unless the mechanism
+        # says otherwise (a serial arm: "joint", Mechanism.limit_kind)
+        kind = mech.limit_kind
         side = list(mech.limit_names()) + [
             (str(LimitName(label, t, "min")), str(LimitName(label, t, "max"))) for t in tasks
         ]
-        # Indexed like the QP rows (strokes, equalities, inequalities, task bounds);
+        # Indexed like the QP rows (actuator bounds, equalities, inequalities, task bounds);
         # equalities are no limits and have no names.
         self.names_min = (
-            tuple(str(LimitName("stroke", a, "min")) for a in mech.actuator_names)
+            tuple(str(LimitName(kind, a, "min")) for a in mech.actuator_names)
             + ("",) * self.p
             + tuple(s[0] for s in side)
         )
         self.names_max = (
-            tuple(str(LimitName("stroke", a, "max")) for a in mech.actuator_names)
+            tuple(str(LimitName(kind, a, "max")) for a in mech.actuator_names)
             + ("",) * self.p
             + tuple(s[1] for s in side)
         )
@@ -487,15 +493,10 @@ class SQPSolver:
             status, reason = "ok", "target reached"
         else:
             status = "limited"
-            reason = (
-                f"target out of reach: nearest reachable point, weighted residual {cur.res:.3g}"
-                if stationary
-                else f"{reason or 'stopped'} before convergence, weighted residual {cur.res:.3g}"
-            )
         limits = self._limits(lay, cur, y, use_duals=status == "limited")
         active, at_bound = limits.active, limits.at_bound
         if status == "limited":
-            reason += f"; stopped by {', '.join(active)}" if active else "; no limit active (mechanism reach)"
+            reason = self._limited_reason(cur.res, active, stationary, reason)
         return IKSolution(
             q=cur.q.copy(),
             status=status,
@@ -509,6 +510,31 @@ class SQPSolver:
             violation=float(cur.vinf),
             at_bound=at_bound,
         )
+
+    def _limited_reason(self, residual: float, active: tuple[str, ...], stationary: bool, why: str) -> str:
+        """The ``reason`` of a ``"limited"`` result at weighted residual ``residual`` with the binding
+        limits ``active``; ``why`` says what stopped a solve that is not ``stationary``.
+
+        A stationary point is the nearest reachable point only if the mechanism has one solution
+        near it (the hitch). For a mechanism with several IK solutions (a serial arm,
+        ``Mechanism.several_solutions``) it may be a local minimum of a reachable target: the reason
+        says that a local solver cannot tell the two apart instead of claiming "out of reach"."""
+        res = f"weighted residual {residual:.3g}"
+        several, note = self.mechanism.several_solutions, self.mechanism.several_solutions_note
+        if not stationary:
+            text = f"{why or 'stopped'} before convergence, {res}"
+            if active:
+                return text + f"; stopped by {', '.join(active)}"
+            return text + ("; no limit active" if several else "; no limit active (mechanism reach)")
+        if not several:
+            text = f"target out of reach: nearest reachable point, {res}"
+            return text + (f"; stopped by {', '.join(active)}" if active else "; no limit active (mechanism reach)")
+        where = (
+            f"stopped at {'limit' if len(active) == 1 else 'limits'} {', '.join(active)} with {res}"
+            if active
+            else f"stationary with no limit active, {res}"
+        )
+        return f"{where}: a local minimum or out of reach (a local solver cannot tell{'; ' + note if note else ''})"
 
     def _no_valid_point(self, seed: ArrayLike | None, t_start: float) -> IKSolution:
         q = self._clip(self._mid.copy() if seed is None else np.array(seed, dtype=float).reshape(-1))

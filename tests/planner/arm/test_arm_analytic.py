@@ -27,6 +27,7 @@ from planner.arm.analytic import (
 from planner.arm.dh import DHLink, build_dh_chain, forward_kinematics
 from planner.arm.profile import load_arm_profile
 from planner.arm.transforms import (
+    ArmInputError,
     RotationMatrixError,
     homogeneous,
     invert_transform,
@@ -498,3 +499,35 @@ def test_bad_targets_are_named(arm):
     res = solve_arm_ik(arm, [0.1, 0.0, 0.1], np.eye(3))
     with pytest.raises(ValueError, match="weights must be >= 0"):
         select_nearest_solution(arm, res, np.zeros(6), weights=[1, 1, 1, 1, 1, -1])
+
+
+# --------------------------------------------------------------------------- unit slips, bad options
+def test_target_in_millimetres_gets_a_hint(arm):
+    R = forward_kinematics(arm.chain, [0.6135, -0.2181, 1.2956, 1.1074, 1.9395, -2.5735]).rotation
+    res = solve_arm_ik(arm, [100, 50, 120], R)
+    assert not res.reachable and res.solutions == ()
+    assert "too far from it; reachable distances are [0.05, 0.15] m" in res.reason
+    assert res.reason.endswith("; did you mean mm? position (100, 50, 120) mm = (0.1, 0.05, 0.12) m is reachable")
+    with pytest.raises(UnreachableTargetError, match=r"did you mean mm\?"):
+        select_nearest_solution(arm, res, np.zeros(6))
+    # a target out of reach in metres too gets no hint
+    far = solve_arm_ik(arm, [1.0, 0.0, 0.5], np.eye(3))
+    assert not far.reachable and "did you mean" not in far.reason
+
+
+@pytest.mark.parametrize("tol", [float("nan"), -1.0, 0.0, float("inf"), 0.5, True, "1e-3"])
+def test_rotation_tol_is_checked(arm, tol):
+    with pytest.raises(ArmInputError, match=r"rotation_tol"):
+        solve_arm_ik(arm, [0.1, 0.05, 0.12], np.eye(3), rotation_tol=tol)
+
+
+def test_reference_in_degrees_is_refused(arm):
+    p, R = [0.1, 0.05, 0.12], np.eye(3)
+    ref_deg = [35.1493, -12.4968, 74.2324, 63.4518, 111.1249, -147.4508]
+    with pytest.raises(ArmInputError, match=r"reference\[0\] \(waist\) = 35\.1493 rad .*did you mean degrees\?"):
+        solve_arm_ik(arm, p, R, reference=ref_deg)
+    res = solve_arm_ik(arm, p, R)
+    with pytest.raises(ArmInputError, match=r"reference\[2\] \(elbow\) = 74\.2324 rad .*did you mean degrees\?"):
+        select_nearest_solution(arm, res, [0.6, -0.2, 74.2324, 1.1, 1.9, -2.6])
+    # weights are no angles: large weights stay allowed
+    select_nearest_solution(arm, res, np.zeros(6), weights=[100.0] * 6)

@@ -67,7 +67,8 @@ def test_integers_are_accepted_for_floats():
         (lambda d: d["joints"][1].update(a="0.1"), r"joints\.1\.a = '0\.1': Input should be a valid number"),
         (
             lambda d: d["joints"][1].update(a=250.0),
-            r"joints\.1\.a = 250\.0: .*a = 250\.0 m is outside the allowed \[-100, 100\] m",
+            r"joints\.1\.a = 250\.0: .*a = 250\.0 m is outside the allowed \[-10, 10\] m; did you mean mm\? "
+            r"250 mm = 0\.25 m",
         ),
         (lambda d: d["joints"][2].pop("d"), r"joints\.2\.d: Field required"),
         (lambda d: d["joints"][3].update(lower=1.0, upper=0.5), r"joint 'forearm_roll': limits need lower < upper"),
@@ -103,3 +104,46 @@ def test_bad_files_and_names(tmp_path):
         load_arm_profile("arm-nonexistent")
     with pytest.raises(ArmProfileError, match="not found"):
         load_arm_profile("thesis-t132")  # a hitch profile is not an arm profile
+
+
+def test_millimetres_typed_as_metres_are_refused_with_a_hint():
+    data = example_data()
+    data["joints"][1].update(a=100.0, d=50.0)  # the source's printed numbers, millimetres
+    with pytest.raises(ArmProfileError) as err:
+        arm_profile_from_dict(data, source="test")
+    text = str(err.value)
+    assert "joints.1.a = 100.0: a = 100.0 m is outside the allowed [-10, 10] m; did you mean mm? 100 mm = 0.1 m" in text
+    assert "joints.1.d = 50.0: d = 50.0 m is outside the allowed [-10, 10] m; did you mean mm? 50 mm = 0.05 m" in text
+
+
+@pytest.mark.parametrize(
+    "mutate, expected",
+    [
+        (
+            lambda d: d["joints"][4].update(lower=-180.0, upper=180.0),
+            r"joint 'wrist_bend': lower = -180\.0 rad is outside the allowed ±6\.28319 rad for a revolute joint; "
+            r"did you mean degrees\? -180 deg = -3\.14159 rad",
+        ),
+        (lambda d: d["joints"][2].update(theta=90.0), r"theta = 90\.0 rad .*did you mean degrees\? 90 deg = 1\.5708"),
+        (
+            lambda d: d.update(tool={"position": [0, 0, 20.0]}),
+            r"tool: position\[2\] = 20\.0 m is outside the allowed ±10 m for the tool; did you mean mm\? 20 mm",
+        ),
+        (
+            lambda d: d.update(base={"position": [0, 0, 250.0]}),
+            r"base\.position = .*250\.0 m is outside the allowed ±100 m; did you mean mm\? 250 mm = 0\.25 m",
+        ),
+    ],
+)
+def test_unit_slips_get_a_hint(mutate, expected):
+    data = example_data()
+    mutate(data)
+    with pytest.raises(ArmProfileError, match=expected):
+        arm_profile_from_dict(data, source="test")
+
+
+def test_base_may_stand_farther_out_than_a_link_is_long():
+    data = example_data()
+    data["base"] = {"position": [50.0, -20.0, 1.0]}
+    data["joints"][1]["a"] = 10.0
+    arm_profile_from_dict(data)

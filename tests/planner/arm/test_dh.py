@@ -22,7 +22,7 @@ from planner.arm.dh import (
     limit_violations,
 )
 from planner.arm.profile import load_arm_profile
-from planner.arm.transforms import homogeneous, rotx, roty, rotz, translation, vee
+from planner.arm.transforms import ArmInputError, homogeneous, rotx, roty, rotz, translation, vee
 
 SEED = 20261125
 H = math.pi / 2
@@ -318,7 +318,7 @@ def test_bad_input_is_named():
         DHLink(0, 0, 0, 0, kind="helical")
     with pytest.raises(ValueError, match=r"j\.a must be finite"):
         DHLink(float("inf"), 0, 0, 0, name="j")
-    with pytest.raises(ValueError, match="within ±6.28319 rad"):
+    with pytest.raises(ValueError, match=r"j\.lower = -10 rad is outside the allowed ±6\.28319 rad"):
         DHLink(0, 0, 0, 0, lower=-10, upper=0, name="j")
     with pytest.raises(ValueError, match="unique"):
         build_dh_chain([DHLink(0, 0, 0, 0, name="x"), DHLink(0, 0, 0, 0, name="x")])
@@ -326,3 +326,58 @@ def test_bad_input_is_named():
         build_dh_chain([])
     with pytest.raises(ValueError, match="base rotation block is not a rotation"):
         build_dh_chain(chain.links, base=np.diag([2.0, 1.0, 1.0, 1.0]))
+
+
+# --------------------------------------------------------------------------- unit slips
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(a=100.0), r"j\.a = 100 m is outside the allowed \[-10, 10\] m; did you mean mm\? 100 mm = 0\.1 m"),
+        (dict(d=50.0), r"j\.d = 50 m is outside the allowed \[-10, 10\] m; did you mean mm\? 50 mm = 0\.05 m"),
+        (dict(theta=90.0), r"j\.theta = 90 rad is outside the allowed ±2π rad; did you mean degrees\? 90 deg"),
+        (
+            dict(lower=-180.0, upper=180.0),
+            r"j\.lower = -180 rad is outside the allowed ±6\.28319 rad for a revolute joint; "
+            r"did you mean degrees\? -180 deg = -3\.14159 rad",
+        ),
+        (
+            dict(kind="prismatic", lower=0.0, upper=500.0),
+            r"j\.upper = 500 m is outside the allowed ±10 m for a prismatic joint; did you mean mm\? 500 mm = 0\.5 m",
+        ),
+        (dict(a=True), r"j\.a must be a number, got bool True"),
+        (dict(d="0.1"), r"j\.d must be a number, got str '0\.1'"),
+        (dict(name=5), r"name must be a string \(the joint's label\), got int 5"),
+    ],
+)
+def test_dh_link_unit_slips_and_non_numbers_are_refused(kwargs, match):
+    args = dict(a=0.0, alpha=0.0, d=0.0, theta=0.0, name="j") | kwargs
+    with pytest.raises(ArmInputError, match=match):
+        DHLink(**args)
+
+
+def test_dh_link_bounds_accept_plausible_arms():
+    DHLink(a=10.0, alpha=-2 * math.pi, d=-10.0, theta=2 * math.pi, lower=-2 * math.pi, upper=2 * math.pi)
+    DHLink(0, 0, 0, 0, kind="prismatic", lower=-10.0, upper=10.0)
+    DHLink(np.float64(0.1), np.int64(0), 0, 0)  # numpy numbers are numbers
+
+
+def test_forward_kinematics_refuses_revolute_joints_in_degrees():
+    chain = table21_chain()
+    q_deg = [35.1493, -12.4968, 74.2324, 63.4518, 111.1249, -147.4508]  # the source's first solution, degrees
+    with pytest.raises(
+        ArmInputError,
+        match=r"q\[0\] \(joint1\) = 35\.1493 rad is outside ±6\.28319 rad, the widest range a revolute joint's "
+        r"limits may have; did you mean degrees\? 35\.1493 deg = 0\.613471 rad",
+    ):
+        forward_kinematics(chain, q_deg)
+    with pytest.raises(ArmInputError, match=r"q\[1\] \(joint2\) = -7 rad .*did you mean degrees\?"):
+        geometric_jacobian(chain, [0.0, -7.0, 0, 0, 0, 0])
+    # ±2π itself (a limit may be 2π) and anything within it still evaluate
+    forward_kinematics(chain, [2 * math.pi, -2 * math.pi, 6.0, -6.0, 0.0, 3.0])
+
+
+def test_forward_kinematics_refuses_prismatic_joints_in_mm():
+    chain = build_dh_chain([DHLink(0, 0, 0.1, 0, kind="prismatic", lower=0.0, upper=2.0, name="boom")])
+    with pytest.raises(ArmInputError, match=r"q\[0\] \(boom\) = 1500 m is outside ±10 m.*did you mean mm\? 1500 mm"):
+        forward_kinematics(chain, [1500.0])
+    assert forward_kinematics(chain, [1.5]).position[2] == pytest.approx(1.6)

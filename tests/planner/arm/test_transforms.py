@@ -288,3 +288,17 @@ def test_wrap_angle():
     assert wrap_angle(-math.pi) == math.pi
     assert wrap_angle(3 * math.pi / 2) == pytest.approx(-math.pi / 2)
     np.testing.assert_allclose(wrap_angle(np.array([0.1, 7.0])), [0.1, 7.0 - 2 * math.pi])
+
+
+@pytest.mark.parametrize("theta", [1e-11, -1e-11, 5e-11, math.pi - 1e-11, math.pi - 5e-11])
+@pytest.mark.parametrize("phi, psi, reference", [(1.0, -0.4, 0.0), (2.0, -1.0, 0.0), (-3.0, 3.1, 0.0), (0.3, 0.5, 1.0)])
+def test_zyz_singular_branch_sets_theta_exactly_and_drops_at_most_the_tilt(theta, phi, psi, reference):
+    """Inside ``singular_tol`` theta is exactly 0 or π (only phi ± psi is defined) and the round trip
+    misses ``R`` by at most the dropped tilt sin(theta) = sqrt(r13² + r23²), not twice it."""
+    R = euler_zyz_matrix(phi, theta, psi)
+    sol = solve_euler_zyz(R, reference_phi=reference)
+    assert sol.singular and len(sol.branches) == 1
+    b = sol.branches[0]
+    assert b.theta == (0.0 if abs(theta) < 1.0 else math.pi)
+    assert b.phi == reference
+    assert np.max(np.abs(b.matrix() - R)) <= sol.sin_theta + 1e-15

@@ -6,6 +6,7 @@ reach (arm straight, stroke limit, inequality limit, workspace bound), brute-for
 searches, and the KKT conditions of the QPs. Everything is SI (m, rad).
 """
 
+import dataclasses
 import math
 
 import casadi as ca
@@ -252,6 +253,29 @@ def test_beyond_reach_stopped_by_stroke_limit_closed_form():
         assert "stroke:j2:min" in sol.reason
         assert sol.q[1] == pytest.approx(0.5, abs=1e-12)
         np.testing.assert_allclose(sol.task, r_max * np.array([math.cos(phi), math.sin(phi)]), atol=1e-8)
+
+
+def test_stroke_limit_reason_names_the_target_out_of_reach():
+    """The default (the hitch's wording and names): a stationary point is the nearest reachable one."""
+    mech = arm2(lower=(-3.0, 0.5), upper=(3.0, 2.6))
+    sol = SQPSolver(mech).solve(build_ik_problem(mech, [2.5, 0.0]), seed=[0.0, 1.5])
+    assert sol.reason.startswith("target out of reach: nearest reachable point, weighted residual ")
+    assert sol.reason.endswith("; stopped by stroke:j2:min")
+
+
+def test_several_solution_mechanism_reason_does_not_claim_out_of_reach():
+    base = arm2(lower=(-3.0, 0.5), upper=(3.0, 2.6))
+    mech = dataclasses.replace(
+        base, limit_kind="joint", several_solutions=True, several_solutions_note="see the closed form"
+    )
+    sol = SQPSolver(mech).solve(build_ik_problem(mech, [2.5, 0.0]), seed=[0.0, 1.5])
+    ref = SQPSolver(base).solve(build_ik_problem(base, [2.5, 0.0]), seed=[0.0, 1.5])
+    np.testing.assert_array_equal(sol.q, ref.q)  # same numerics, other words
+    assert sol.status == "limited" and sol.active == ("joint:j2:min",) and sol.at_bound == ("joint:j2:min",)
+    assert sol.reason == (
+        f"stopped at limit joint:j2:min with weighted residual {sol.residual:.3g}: a local minimum or out of "
+        "reach (a local solver cannot tell; see the closed form)"
+    )
 
 
 def test_inequality_limit_closed_form_nearest_point():

@@ -45,6 +45,8 @@ __all__ = [
     "API_KEYS",
     "ANY_PAYLOAD_KEYS",
     "MAX_PAYLOAD_BYTES",
+    "MAX_SETPOINT_BYTES",
+    "setpoint_too_large",
     "MIN_SPEED_SCALE",
     "DEFAULT_DEADLINE_MS",
     "MAX_DEADLINE_MS",
@@ -80,6 +82,10 @@ __all__ = [
 ]
 
 MAX_PAYLOAD_BYTES = 96 * 1024  # a 64 KiB maneuver script, JSON-escaped, fits
+#: a ``track/setpoint`` put's bound [bytes]: a setpoint is about 200 bytes (session, seq, four pose and four
+#: rate values); the stream is taken in the control core's Zenoh session, beside ``stop``, so a larger put is
+#: dropped unread (``setpoint_too_large``): 90 KB puts at full rate had delayed a stop by 8 s (a safety trial)
+MAX_SETPOINT_BYTES = 2048
 _NAME = NAME_PATTERN.pattern
 #: deadline of a motion request [ms]: it must start within this time or is refused with ``busy``
 DEFAULT_DEADLINE_MS = 1000
@@ -636,6 +642,14 @@ def _scan(data: Any) -> tuple[bool, tuple[str, str] | None]:
     return False, first
 
 
+def setpoint_too_large(size: int) -> str | None:
+    """The refusal of a ``track/setpoint`` put of ``size`` bytes, read before its payload is copied or parsed
+    (None: within :data:`MAX_SETPOINT_BYTES`)."""
+    if size <= MAX_SETPOINT_BYTES:
+        return None
+    return f"track/setpoint: payload is {size} bytes (allowed: at most {MAX_SETPOINT_BYTES}); dropped unread"
+
+
 def setpoint_session(payload: bytes | bytearray | memoryview | str | None) -> int | None:
     """The ``session`` a ``track/setpoint`` payload names, read without validating the rest (None: not a
     JSON object with an integer ``session``): a setpoint refused by the schema is still counted against
@@ -700,8 +714,9 @@ def parse_request(
     if isinstance(raw, str):
         raw = raw.encode("utf-8", "surrogatepass")
     raw = bytes(raw)
-    if len(raw) > MAX_PAYLOAD_BYTES:
-        raise RequestError("bad_request", f"{key}: payload is {len(raw)} bytes (allowed: at most {MAX_PAYLOAD_BYTES})")
+    bound = MAX_SETPOINT_BYTES if key == "track/setpoint" else MAX_PAYLOAD_BYTES
+    if len(raw) > bound:
+        raise RequestError("bad_request", f"{key}: payload is {len(raw)} bytes (allowed: at most {bound})")
     if not raw.strip():
         data: Any = {}
     else:

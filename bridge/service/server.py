@@ -66,7 +66,7 @@ from bridge.service.core.client import CoreProcess, MotionProxy
 from bridge.service.core.process import freeze_startup_objects, lock_memory
 from bridge.service.gnss import restore_lines, start_twin_gnss
 from bridge.service.machine import CanParts, build_controller, build_guard, build_model, service_info, start_can
-from bridge.service.motion.controller import MotionController
+from bridge.service.motion.controller import LIVE_SESSION, MotionController
 from bridge.service.planning import GuardPlanning, InProcessPlanning, Planning
 from bridge.service.scheduling import (
     CONTROL_RT_PRIORITY,
@@ -77,6 +77,7 @@ from bridge.service.scheduling import (
     thread_nice,
     zenoh_thread_ids,
 )
+from bridge.service.schemas import setpoint_too_large
 from bridge.service.security import (
     USER_SCOPE,
     InternalLink,
@@ -623,6 +624,12 @@ class HitchService:
         counted in the state's ``track`` entry and announced by a ``track_setpoint_rejected`` event)."""
         api = self.api
         if api is None or self._closed:
+            return
+        too_large = setpoint_too_large(len(sample.payload))
+        if too_large is not None:  # dropped before it is copied or parsed (as the core process does)
+            refused = getattr(api.motion, "track_setpoint_refused", None)
+            if callable(refused):
+                refused(LIVE_SESSION, too_large)
             return
         api.handle("track/setpoint", sample.payload.to_bytes(), None, received=time.monotonic())
 

@@ -50,7 +50,7 @@ import zenoh
 from bridge.service.config import ServiceConfig
 from bridge.service.gnss import start_twin_gnss
 from bridge.service.machine import CanParts, build_controller, service_info, start_can
-from bridge.service.motion.controller import MotionController
+from bridge.service.motion.controller import LIVE_SESSION, MotionController
 from bridge.service.scheduling import (
     CONTROL_RT_PRIORITY,
     CORE_RT_PRIORITY,
@@ -59,7 +59,7 @@ from bridge.service.scheduling import (
     raise_to_fifo,
     zenoh_thread_ids,
 )
-from bridge.service.schemas import RequestError, parse_request, setpoint_session
+from bridge.service.schemas import RequestError, parse_request, setpoint_session, setpoint_too_large
 from bridge.service.security import connect_sections
 from bridge.service.wire import to_json_bytes
 from bridge.service.workers import error_code
@@ -155,6 +155,8 @@ class ControlCore:
         self._table: dict[str, Callable[..., Any]] = {}
         self._notes: queue.Queue[dict[str, Any]] = queue.Queue(maxsize=256)
         self.notes_dropped = 0
+        #: ``track/setpoint`` puts dropped unread (beyond MAX_SETPOINT_BYTES)
+        self.setpoints_too_large = 0
         threading.Thread(target=self._send_notes, name="core-notes", daemon=True).start()
         threading.Thread(target=self._send_states, name="core-state-notes", daemon=True).start()
 
@@ -316,7 +318,14 @@ class ControlCore:
                     return
 
     def _on_setpoint(self, sample: zenoh.Sample) -> None:
-        """A streamed ``track/setpoint`` put (O(1)): refusals are counted and announced by the controller."""
+        """A streamed ``track/setpoint`` put (O(1)): refusals are counted and announced by the controller. A put
+        beyond :data:`~bridge.service.schemas.MAX_SETPOINT_BYTES` is dropped before it is copied or parsed (this
+        callback runs in the session that answers ``stop``), counted in :attr:`setpoints_too_large`."""
+        too_large = setpoint_too_large(len(sample.payload))
+        if too_large is not None:  # whose it is cannot be known unread: counted against the live session, if any
+            self.setpoints_too_large += 1
+            self._call_safely("track_setpoint_refused", (LIVE_SESSION, too_large))
+            return
         raw = sample.payload.to_bytes()
         try:
             r = parse_request("track/setpoint", raw)

@@ -128,7 +128,10 @@ from planner.model.types import KinematicsError
 from planner.trajectory import JogController, MotionState, Plan
 from planner.trajectory.track import TrackFollower, TrackInputError, TrackStateError
 
-__all__ = ["MotionController", "MotionControllerError", "TrackSensors"]
+__all__ = ["LIVE_SESSION", "MotionController", "MotionControllerError", "TrackSensors"]
+
+#: :meth:`MotionController.track_setpoint_refused`'s session for a put whose session is not known (dropped unread)
+LIVE_SESSION = "live"
 
 _PLAN_LEAD_S = 0.08  # a replacing plan starts this far ahead of the request (planning time) [s]
 _MOVED = 5e-3  # m or rad: a measured start pose that moved more while planning is re-planned
@@ -555,10 +558,13 @@ class MotionController:
         """A setpoint for ``session`` that was refused before it reached the session (its request did not
         parse: a value outside the schema's range, a wrong type): counted and announced as a rejection
         of the live session, as :meth:`track_setpoint` does with the setpoints it cannot take. Nothing
-        else changes; another session's (or none's) is left alone."""
+        else changes; another session's (or none's) is left alone. ``session`` :data:`LIVE_SESSION`: whichever is
+        live (a put dropped unread, whose session is not known)."""
         with self._lock:
             m = self._active
-            if not isinstance(m, TrackMotion) or isinstance(session, bool) or m.session != session:
+            if not isinstance(m, TrackMotion) or isinstance(session, bool):
+                return
+            if session != LIVE_SESSION and m.session != session:
                 return
             self._count_rejection(m, message, self.clock())
         self.outbox.flush()

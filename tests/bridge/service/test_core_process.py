@@ -105,6 +105,38 @@ def test_a_setpoint_query_the_schema_refuses_is_counted_against_the_live_session
         c.request("track/stop", {"session": session})
 
 
+def test_oversized_setpoint_puts_are_dropped_unread_and_a_stop_still_stops(service):
+    """A safety trial: 90 KB puts on ``track/setpoint`` at full rate (no session needed) were each copied, parsed
+    twice and refused in the core's Zenoh session, the one that answers ``stop``: a stop was taken 8–22 s late
+    and the hitch moved on. A put beyond MAX_SETPOINT_BYTES is now dropped unread, counted against the live
+    session with a message that says so; a setpoint of normal size still counts as before."""
+    import zenoh
+
+    from bridge.service.schemas import MAX_SETPOINT_BYTES
+
+    svc, ep = service
+    with HitchClient([ep], timeout_s=10) as c:
+        session = c.request("track/start", {"frame": "tractor", "dof": ["z"], "ttl_ms": 1000})["session"]
+        conf = zenoh.Config()
+        conf.insert_json5("mode", '"client"')
+        conf.insert_json5("connect/endpoints", f'["{ep}"]')
+        conf.insert_json5("scouting/multicast/enabled", "false")
+        pad = "0" * 90_000
+        big = json.dumps({"session": session, "seq": 1, "pose": {"z": 0.1}, "pad": pad}).encode()
+        assert len(big) > MAX_SETPOINT_BYTES
+        with zenoh.open(conf) as z:
+            for _ in range(5):
+                z.put(svc.config.key("track/setpoint"), big)
+            assert wait_until(lambda: (svc.latest_state.get("track") or {}).get("rejected") == 5), svc.latest_state[
+                "track"
+            ]
+            assert "dropped unread" in svc.latest_state["track"]["last_rejection"]
+            z.put(svc.config.key("track/setpoint"), json.dumps({"session": session, "seq": 2, "pose": {"z": 0.1}}))
+            assert wait_until(lambda: (svc.latest_state.get("track") or {}).get("setpoints", 0) >= 1)
+        stop = c.stop()
+        assert stop["stopped"], stop
+
+
 def test_the_mode_is_the_cores_whatever_anyone_puts_on_the_events_key(service):
     """The old proxy took the mode from any ``mode_changed`` on the public events key: a forged one made
     ``mode`` and ``config`` report 'transport' while the core (which moved the hitch) stayed in 'auto'."""

@@ -68,6 +68,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import secrets
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -126,7 +127,7 @@ from planner.limits.implement_limits import ImplementLimits, track_bounds
 from planner.limits.tractor import ImplementRecord
 from planner.model.types import KinematicsError
 from planner.trajectory import JogController, MotionState, Plan
-from planner.trajectory.track import TrackFollower, TrackInputError, TrackStateError
+from planner.trajectory.track import TRACK_DOFS, TrackFollower, TrackInputError, TrackStateError
 
 __all__ = ["LIVE_SESSION", "MotionController", "MotionControllerError", "TrackSensors"]
 
@@ -168,6 +169,14 @@ class TrackSensors(Protocol):
 
 #: a rejected setpoint is announced at most this often per session [s] (each one is counted)
 _REJECTION_EVENT_EVERY_S = 1.0
+#: track session ids start at a random number below this (and stay below 2^53, JSON's exact integers)
+SESSION_ID_SPAN = 2**40
+
+
+def first_session_id() -> int:
+    """The first track session id of a controller: random in [1, :data:`SESSION_ID_SPAN`], so two runs of the
+    service (or two services) practically never hand out the same id."""
+    return secrets.randbelow(SESSION_ID_SPAN) + 1
 
 
 class MotionController:
@@ -251,7 +260,10 @@ class MotionController:
         self._cycle_n = 0
         self._thread: PeriodicThread | None = None
         self.sensors = sensors
-        self._sessions = itertools.count(1)
+        # track session ids from a random start: a streamer of an earlier run of the service (its ids began at 1
+        # too) must never feed a session of this one (a new user's report: after a restart an old streamer's
+        # puts for session 1 drove a new client's session 1 135 mm away)
+        self._sessions = itertools.count(first_session_id())
         #: how the last few track sessions ended (session → reason): a setpoint or stop for one says why
         self._ended_tracks: dict[int, str] = {}
         self._rejection_event_at = -math.inf
@@ -527,27 +539,36 @@ class MotionController:
                 raise MotionError("not_found", self._not_live(session, m))
             if self.work is not None and self.work.owns(session):  # work control alone feeds a work session
                 self.work.refuse_setpoint(m)  # counted; raises MotionError busy (bridge.service.work)
-            if not m.seq.accept(seq):
-                return {"accepted": False, "ignored": "seq", "session": session, "seq": seq}
             now = self.clock()
             try:
+                # the body is checked before its seq: a field error is said whatever the seq, and a refused
+                # setpoint leaves its seq for the corrected resend (it used it up: a new user's report)
+                new = m.seq.is_new(seq)
                 target = self._to_tractor_frame(m, pose, now)
                 if (acceleration is not None or jerk is not None) and m.frame != "tractor":
                     raise MotionError(
                         "bad_request",
                         f"setpoint.acceleration / jerk: only in frame tractor (session frame {m.frame})",
                     )
-                sp = m.follower.set_setpoint(
-                    target,
-                    self._frame_velocity(m, pose, velocity, now),
-                    now,
-                    acceleration=acceleration,
-                    jerk=jerk,
-                )
+                self._check_plausible_in_frame(m, pose, target)
+                v_tractor = self._frame_velocity(m, pose, velocity, now)
+                if not new:
+                    m.follower.validate(target, v_tractor)
+                    m.seq.accept(seq)  # counted as ignored
+                    return {"accepted": False, "ignored": "seq", "session": session, "seq": seq}
+                sp = m.follower.set_setpoint(target, v_tractor, now, acceleration=acceleration, jerk=jerk)
+                m.seq.accept(seq)
             except (TrackInputError, TrackStateError, MotionError) as exc:
-                self._count_rejection(m, str(exc), now)
+                text = str(exc).removeprefix("track/setpoint: ")
+                if isinstance(exc, TrackStateError) and m.follower.stale:  # no resume() in the service
+                    text = (
+                        f"track session {m.session}: the setpoint stream went stale (no setpoint within "
+                        f"{m.follower.ttl_s:g} s) and the hitch brakes to rest; the session takes no more "
+                        "setpoints: track/start starts a new one"
+                    )
+                self._count_rejection(m, text, now)
                 code = exc.code if isinstance(exc, MotionError) else "bad_request"
-                raise MotionError(code, str(exc).removeprefix("track/setpoint: ")) from None
+                raise MotionError(code, text) from None
             finally:
                 m.take_stop(seq)
             m.accepted += 1
@@ -653,6 +674,28 @@ class MotionController:
                 "unavailable", f"{what}: frame 'ground' needs the implement's ground-distance sensor (no fresh reading)"
             )
         return None, dist
+
+    @staticmethod
+    def _check_plausible_in_frame(m: TrackMotion, pose: Mapping[str, float], target: Mapping[str, float]) -> None:
+        """A setpoint of a ``level`` or ``ground`` session whose tractor-frame value is not plausible, refused
+        naming the value sent and the range in the session's frame (the follower's check names the converted
+        value: "z = 0.999268 m" for a ground height of 1.5 m, a new user's report)."""
+        if m.frame == "tractor":
+            return
+        for k, sent in pose.items():
+            if k not in TRACK_DOFS or isinstance(sent, bool) or not isinstance(sent, (int, float)):
+                continue  # the follower names it
+            lo, hi = m.follower.plausible_range(k)
+            value = float(target[k])
+            if not lo <= value <= hi:
+                shift = value - float(sent)
+                u = "m" if k in ("x", "z") else "rad"
+                raise MotionError(
+                    "bad_request",
+                    f"setpoint.pose.{k} = {float(sent):g} {u} in frame {m.frame} ({value:.6g} {u} in the tractor "
+                    f"frame) is not a plausible SI value: allowed [{lo - shift:.3f}, {hi - shift:.3f}] {u} in frame "
+                    f"{m.frame} now (beyond the workspace it is clipped)",
+                )
 
     def _to_tractor_frame(self, m: TrackMotion, pose: Mapping[str, float], now: float) -> dict[str, float]:
         """A setpoint in the session's frame as a tractor-frame pose (``docs/tracking.md``):

@@ -431,3 +431,81 @@ def test_a_path_streamed_with_acceleration_and_jerk_is_taken_in_the_tractor_fram
     level = r.start(dof=["roll"], frame="level")
     with pytest.raises(MotionError, match="only in frame tractor"):
         r.mc.track_setpoint(level, 1, {"roll": 0.0}, acceleration={"roll": 0.01})
+
+
+def test_a_streamer_of_an_earlier_run_never_feeds_a_session_of_this_one(model, tmp_path):
+    """A new user's report: session ids began at 1 in every run of the service, so after a restart a streamer
+    left from before (its client reconnects by itself) fed a new client's session 1 and drove the hitch 135 mm
+    from where that client held it. Ids now start at a random number: the old streamer's puts are refused."""
+    first = Rig(model, tmp_path / "a")
+    try:
+        old = first.start()
+    finally:
+        first.store.close()
+        first.rig.close()
+    r = Rig(model, tmp_path / "b")
+    try:
+        session = r.start()
+        assert session != old and 1 <= session <= 2**53
+        z0 = r.measured()[1]
+        ok, reply = r.setpoint(old, {"z": z0 + 0.05})
+        assert not ok and reply["error"] == "not_found", reply
+        r.setpoint(session, {"z": z0})
+        r.run(1.0)
+        assert abs(r.measured()[1] - z0) < 2e-3
+    finally:
+        r.store.close()
+        r.rig.close()
+
+
+def test_a_refused_setpoint_leaves_its_seq_and_field_errors_are_said_whatever_the_seq(r):
+    """A new user's report: a refused setpoint used up its seq (the corrected resend was ignored as 'seq'), and
+    an old seq with a malformed body was answered 'ignored: seq' instead of naming the field."""
+    session = r.start(dof=["z"])
+    z0 = r.measured()[1]
+    ok, reply = r.setpoint(session, {"x": 0.0}, seq=5)
+    assert not ok and "x not tracked" in reply["message"], reply
+    ok, reply = r.setpoint(session, {"z": 0.9}, seq=6)
+    assert not ok and "not a plausible SI value" in reply["message"], reply
+    ok, reply = r.setpoint(session, {"z": z0}, seq=5)  # the corrected resend of 5 is taken
+    assert ok and reply["accepted"], reply
+    ok, reply = r.setpoint(session, {"z": z0, "x": 0.0}, seq=3)  # old seq, bad body: the field is named
+    assert not ok and "x not tracked" in reply["message"], reply
+    ok, reply = r.setpoint(session, {"z": z0}, seq=4)  # old seq, good body: ignored and counted
+    assert ok and reply == {"accepted": False, "ignored": "seq", "session": session, "seq": 4}
+    r.run(0.04)
+    track = r.states[-1]["track"]
+    assert track["setpoints"] == 1 and track["ignored_seq"] == 1 and track["rejected"] == 3, track
+
+
+def test_a_ground_frame_setpoint_out_of_range_names_the_value_sent_and_the_range_in_its_frame(r):
+    """A new user's report: frame ground refused z = 1.5 m as "setpoint.pose.z = 0.999268 m … allowed [-0.716,
+    0.812] m", the converted tractor-frame value and range."""
+    r.sensors.dist = 0.30
+    session = r.start(dof=["z"], frame="ground")
+    z_m = r.measured()[1]
+    from planner.trajectory.track import PLAUSIBLE_MARGIN
+
+    lo, hi = r.planner.lo[1] - PLAUSIBLE_MARGIN, r.planner.hi[1] + PLAUSIBLE_MARGIN  # the tractor frame's
+    ok, reply = r.setpoint(session, {"z": 1.5})
+    assert not ok and reply["error"] == "bad_request", reply
+    shift = z_m - 0.30  # z_tractor = z_ground + (z_m - d)
+    text = reply["message"]
+    assert "setpoint.pose.z = 1.5 m in frame ground" in text, text
+    assert f"allowed [{lo - shift:.3f}, {hi - shift:.3f}] m in frame ground" in text, text
+    ok, _ = r.setpoint(session, {"z": 0.30})
+    assert ok
+
+
+def test_a_setpoint_after_the_stream_went_stale_says_the_session_is_over(r):
+    """It said "resume() before streaming again", a method of the library's follower the service has no key
+    for: the session brakes to rest and ends, a new one starts with track/start."""
+    session = r.start(dof=["z"], ttl_ms=200)
+    z0 = r.measured()[1]
+    r.run(0.5, each=lambda t: r.setpoint(session, {"z": z0 + 0.05}))
+    r.run(0.25)  # stale: braking, the session still live
+    assert r.states[-1]["track"]["stale"] and r.states[-1]["track"]["session"] == session
+    ok, reply = r.setpoint(session, {"z": z0})
+    assert not ok, reply
+    assert "went stale" in reply["message"] and "track/start starts a new one" in reply["message"], reply
+    assert "resume()" not in reply["message"]

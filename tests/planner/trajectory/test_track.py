@@ -762,3 +762,33 @@ def test_a_descent_bound_never_makes_ruckig_refuse_a_cycle(tp, amp, freq):
     outs = run_stream(tp, f, pose, lambda t: {"z": amp * w * math.cos(w * t)}, 400)
     assert f.fallbacks == 0
     assert min(o.state.velocity[1] for o in outs) >= -0.02 * (1 + 1e-6)
+
+
+@pytest.mark.parametrize("speed", [0.04, 0.08])
+def test_a_stream_that_dies_is_not_followed_on_for_its_whole_time_to_live(tp, speed):
+    """A new user's report: with ttl 1 s a z ramp at 0.04 m/s whose streamer was killed ran on 46.8 mm past the
+    last setpoint (84.5 mm at 0.08 m/s) before braking: the target was extrapolated along the last velocity
+    until the stream went stale. It is extrapolated for EXTRAPOLATION_INTERVALS of the stream's interval only,
+    then rests; the hitch stops within that extrapolation plus its own shortest stop."""
+    from planner.trajectory.track import EXTRAPOLATION_INTERVALS
+
+    c = centre(tp)
+    start = c.copy()
+    start[1] = tp.lo[1] + 0.05
+    tr = TrackFollower(tp, MotionState.at_rest(start), ("z",), 1.0)
+    z = start[1]
+    for _ in range(100):  # 2 s of a ramp, a setpoint every control cycle (the stream's interval: dt)
+        t = tr.t + tr.dt
+        z = start[1] + speed * (t - 0.5) if t > 0.5 else start[1]
+        tr.set_setpoint({"z": z}, {"z": speed if t > 0.5 else 0.0}, t)
+        tr.step()
+    assert tr.state.velocity[1] > 0.8 * speed  # on the ramp
+    assert tr.extrapolation_s == pytest.approx(EXTRAPOLATION_INTERVALS * tr.dt)
+    for _ in range(150):  # the streamer is gone: 3 s, past the ttl and the stop
+        tr.step()
+    a, j = tp.any_direction.acceleration[1], tp.any_direction.jerk[1]
+    shortest_stop = speed**2 / (2 * a) + speed * a / (2 * j)
+    past = tr.state.position[1] - z
+    assert not tr.state.moving
+    assert past <= speed * tr.extrapolation_s + shortest_stop + 1e-3, (past, shortest_stop)
+    assert past < 0.25 * speed * tr.ttl_s  # the old follower ran ~1.15 ttl of it

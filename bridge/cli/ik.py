@@ -27,8 +27,9 @@ def _cmd_ik(args) -> int:
         if res.actuators is not None:
             c.print("actuators: " + "  ".join(f"{k}={v:.5f}" for k, v in res.actuators.as_dict().items()))
             c.print("pose:      " + "  ".join(f"{k}={signed(v, 5)}" for k, v in res.pose.as_dict().items()))
-        if res.active:
-            c.print("active limits: " + esc(", ".join(res.active)))
+        if res.active:  # a baseline's are the limits its actuators break (it enforces none), the QP's those it met
+            label = "limits broken" if res.extra.get("violated") else "active limits"
+            c.print(f"{label}: " + esc(", ".join(res.active)))
         c.print(f"iterations {res.iterations}, residual {res.residual:.3g}, {res.solve_time_s * 1e6:.0f} µs")
     return 0 if res.status != "failed" else 1
 

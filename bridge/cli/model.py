@@ -192,6 +192,31 @@ def _fk_warnings(model: HitchModel, q: np.ndarray, state) -> list[str]:
     return out
 
 
+def neutral_warnings(model: HitchModel) -> list[str]:
+    """What makes the category's neutral pose one the hitch cannot take: each hard limit it breaks, a stroke with
+    the actuator, its value and the stroke (a new user's trial: ``profile show --category 4`` listed a neutral
+    top link of 0.9728 m beside its 0.905 m stroke without a word). A category with a restricted workspace
+    never loads so (:meth:`HitchModel._check_neutral`); one without may (the thesis profile's category 4: its
+    1.1 m mast needs that top link at zero pitch)."""
+    from planner.model.hard_limits import STROKE_NAMES, HardLimits
+
+    q = model.neutral
+    f, _ = model.features(q)
+    out = []
+    for name in HardLimits.from_model(model).violations(q, f):
+        i = next((k for k, pair in enumerate(STROKE_NAMES) if name in pair), None)
+        if i is None:
+            out.append(f"the neutral pose of category {model.category} breaks {name}")
+            continue
+        n, unit = ACTUATOR_NAMES[i], ACTUATOR_UNITS[ACTUATOR_NAMES[i]]
+        out.append(
+            f"the neutral pose of category {model.category} needs {n} = {q[i]:.4f} {unit}, beyond its stroke "
+            f"{model.lower[i]:g}..{model.upper[i]:g} {unit} ({name}): the hitch cannot take this pose"
+            + ("; the category has no restricted workspace (no Cartesian motion)" if model.workspace is None else "")
+        )
+    return out
+
+
 def profile_summary(model: HitchModel) -> dict:
     prof = model.profile
     return {
@@ -217,6 +242,7 @@ def profile_summary(model: HitchModel) -> dict:
         "z_reference": prof.workspace.z_reference,
         "workspace": None if model.workspace is None else {k: list(v) for k, v in model.workspace.items()},
         "motion": prof.motion.model_dump(mode="json"),
+        "warnings": neutral_warnings(model),
     }
 
 
@@ -238,6 +264,8 @@ def _cmd_profile_show(args) -> int:
         t.add_row(n, f"{lo:.4f}", f"{hi:.4f}", f"{s['neutral_actuators'][n]:.4f}", "rad" if n == "lift" else "m")
     c.print(t)
     c.print("neutral pose: " + "  ".join(f"{k}={signed(v, 4)}" for k, v in s["neutral_pose"].items()))
+    for w in s["warnings"]:
+        c.print(f"[yellow]warning:[/yellow] {esc(w)}")
     ws = s["workspace"]
     c.print(
         "restricted workspace: "
@@ -306,6 +334,8 @@ def _cmd_demo(args) -> int:
     c.print(f"[bold]hitch-planner demo[/bold] — profile {esc(s['profile'])}, category {esc(model.category)}")
     c.print("neutral actuators: " + "  ".join(f"{k}={v:.4f}" for k, v in s["neutral_actuators"].items()))
     c.print("neutral pose:      " + "  ".join(f"{k}={signed(v, 4)}" for k, v in s["neutral_pose"].items()))
+    for w in s["warnings"]:
+        c.print(f"[yellow]warning:[/yellow] {esc(w)}; the table below holds it there")
     t = Table(title="forward kinematics over the lift stroke (other actuators at neutral)")
     for h in ("lift [rad]",) + tuple(f"{n} [{'m' if n in ('x', 'y', 'z') else 'rad'}]" for n in POSE_NAMES):
         t.add_column(h, justify="right")

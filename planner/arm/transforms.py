@@ -254,7 +254,10 @@ def check_rotation(R, name: str = "rotation", *, atol: float = 1e-9) -> np.ndarr
     defect = orthonormality_defect(R)
     if not defect <= atol:
         what = "has det <= 0 (a reflection or singular)" if math.isinf(defect) else f"has max|RᵀR - I| = {defect:.3g}"
-        raise RotationMatrixError(f"{name} is not a rotation matrix: it {what}; allowed: <= {atol:g} with det > 0")
+        raise RotationMatrixError(  # the bound names its quantity: "allowed: <= 0.001 with det > 0" did not
+            f"{name} is not a rotation matrix: it {what}; allowed: <= {atol:g} for max|RᵀR - I| "
+            "(elementwise), with det(R) > 0"
+        )
     return R
 
 

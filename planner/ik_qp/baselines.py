@@ -19,6 +19,14 @@ is R_z(α)R_y(β)R_x(γ) with swapped labels); the −J_U4 of 2.52 is +J_U4 here
 pitch is a right-hand rotation (the thesis's β = atan(y/z) has the opposite sign).
 The thesis gives no μ or stopping margin ("never tuned"): μ = 1, margin 1e-6, at most
 50 iterations, configurable.
+
+The thesis's methods enforce no limit. Their result is checked, not corrected: status "ok"
+only when the actuators lie within every hard limit (:class:`~planner.model.hard_limits.HardLimits`:
+strokes, top-link angles, ground clearance) and the exact pose is within the method's
+``reach_tol`` of the target; else "limited", with ``active`` naming the limits the actuators
+break (the QP's names, ``stroke:<actuator>:min|max``, …) and ``reason`` the values and the
+pose error. Unlike the QP's "limited" (the nearest reachable pose, within every limit), a
+baseline's "limited" actuators may lie outside the limits: they are what the method computed.
 """
 
 from __future__ import annotations
@@ -34,10 +42,18 @@ from planner.ik_qp.result import IKResult, check_target
 from planner.model.angle_maps import AngleMaps
 from planner.model.fast_function import FastFunction
 from planner.model.geometry import LEFT, RIGHT, link_direction, side_geometry
+from planner.model.hard_limits import STROKE_NAMES, HardLimits
 from planner.model.kinematics import HitchModel
-from planner.model.types import Actuators, KinematicsError
+from planner.model.types import ACTUATOR_NAMES, Actuators, KinematicsError
 
-__all__ = ["GeometricIK", "DLSIK", "HybridIK", "BaselineSettings"]
+__all__ = ["GeometricIK", "DLSIK", "HybridIK", "BaselineSettings", "REACH_TOL"]
+
+#: Largest pose error ‖pose − target‖∞ [m, rad] of status "ok", per method: what each reaches on a reachable
+#: target (docs/benchmarks.md: DLS ~2e-7, hybrid ~1e-5, geometric a few mm / mrad near the start pose, its
+#: small-change model error), so a result further off says the method missed the target.
+REACH_TOL = {"dls": 1e-5, "hybrid": 1e-4, "geometric": 5e-3}
+#: Distance beyond a hard limit that counts as breaking it [m, rad] (the QP's feasibility tolerance).
+LIMIT_TOL = 1e-9
 
 
 @dataclass(frozen=True)
@@ -45,6 +61,7 @@ class BaselineSettings:
     step: float = 1.0  # μ (thesis 2.54)
     margin: float = 1e-6  # stop when ‖e‖∞ below this [m, rad]
     max_iterations: int = 50
+    reach_tol: float | None = None  # status "ok" needs ‖pose − target‖∞ <= this [m, rad]; None: REACH_TOL[method]
 
 
 def _build_angle_space(model: HitchModel):
@@ -96,6 +113,9 @@ class _Baseline:
         self.model = model
         self.settings = settings or BaselineSettings()
         self.maps = AngleMaps(model.profile)
+        self.limits = HardLimits.from_model(model)
+        tol = self.settings.reach_tol
+        self.reach_tol = REACH_TOL[self.method] if tol is None else float(tol)
         self._s = _build_angle_space(model)
         self._top = _build_top_link(model)
         st = model.forward(model.neutral)
@@ -118,15 +138,50 @@ class _Baseline:
             return IKResult.failed(f"{self.method}: {exc}", iterations, time.perf_counter() - t0)
         self.theta, self.top = theta.copy(), top
         err = state.pose.controlled() - target
+        residual = float(np.max(np.abs(err)))
+        try:
+            f, _ = self.model.features(q)
+        except KinematicsError as exc:  # defensive: forward() closed at q
+            return IKResult.failed(f"{self.method}: {exc}", iterations, time.perf_counter() - t0)
+        broken = self.limits.violations(q, f, tol=LIMIT_TOL)
+        missed = not residual <= self.reach_tol
         return IKResult(
             actuators=Actuators.from_array(q),
             pose=state.pose,
-            status="ok",
-            active=(),
+            status="limited" if broken or missed else "ok",
+            active=broken,
             iterations=iterations,
-            residual=float(np.max(np.abs(err))),
+            residual=residual,
             solve_time_s=time.perf_counter() - t0,
+            reason=self._limited_reason(q, broken, err, residual) if broken or missed else "",
+            extra={"violated": broken},
         )
+
+    def _limited_reason(self, q: np.ndarray, broken: tuple[str, ...], err: np.ndarray, residual: float) -> str:
+        """Why a result is "limited": the limits the actuators break (name, value, stroke) and the pose error."""
+        parts = []
+        if broken:
+            said = []
+            for name in broken:
+                i = next((k for k, pair in enumerate(STROKE_NAMES) if name in pair), None)
+                if i is None:
+                    said.append(name)
+                    continue
+                unit = "rad" if ACTUATOR_NAMES[i] == "lift" else "m"
+                said.append(
+                    f"{name} ({ACTUATOR_NAMES[i]} = {q[i]:.5g} {unit}, stroke "
+                    f"{self.model.lower[i]:g}..{self.model.upper[i]:g} {unit})"
+                )
+            parts.append(f"the method enforces no limit and breaks {', '.join(said)}")
+        if not residual <= self.reach_tol:
+            worst = int(np.argmax(np.abs(err)))
+            dof = ("x", "z", "roll", "pitch")[worst]
+            unit = "m" if worst < 2 else "rad"
+            parts.append(
+                f"pose error {residual:.3g} (worst {dof} {err[worst]:+.3g} {unit}) beyond the {self.method} "
+                f"tolerance {self.reach_tol:g} m/rad"
+            )
+        return f"{self.method}: " + "; ".join(parts)
 
     def _dls_step(self, theta: np.ndarray, target: np.ndarray):
         s, J, T, yaw, _, _ = self._s(theta)

@@ -147,7 +147,7 @@ class Guard:
         self.tractor = tractor or load_tractor_profile(prof.stability.tractor_profile).tractor(
             prof.geometry.pivot_height
         )
-        self.implement = implement
+        self.implement = self._checked_implement(implement)
         self.thresholds = thresholds or StabilityThresholds()
         self.slope = (0.0, 0.0)
         self.end_stops = EndStopZone(
@@ -170,7 +170,21 @@ class Guard:
         self.slope = (float(roll), float(pitch))
 
     def set_implement(self, implement: ImplementRecord | None) -> None:
-        self.implement = implement
+        """The implement on the hitch (an :class:`ImplementRecord`, None for none) for every later check."""
+        self.implement = self._checked_implement(implement)
+
+    def _checked_implement(self, implement: object) -> ImplementRecord | None:
+        """``implement`` if it is an :class:`ImplementRecord` or None, else a :class:`StabilityInputError` saying how
+        to get one (a name given for the record passed here and failed at the first plan, "'str' object has no
+        attribute 'centre_of_mass'")."""
+        if implement is None or isinstance(implement, ImplementRecord):
+            return implement
+        source = self.model.profile.stability.tractor_profile
+        name = implement if isinstance(implement, str) else "<name>"
+        raise StabilityInputError(
+            f"implement must be an ImplementRecord or None, got {type(implement).__name__} {implement!r}; "
+            f"get the record from its tractor profile: load_tractor_profile({source!r}).implement({name!r})"
+        )
 
     def set_implement_limits(self, limits: ImplementLimits) -> None:
         """The implement's limits (:mod:`planner.limits.implement_limits`) for every later check."""

@@ -51,8 +51,10 @@ def read_profile(
     """(source, parsed TOML) from a path to a .toml file or a built-in name; ``error`` on failure."""
     p = Path(name_or_path)
     if p.suffix == ".toml" or p.exists():
+        if p.is_dir():  # "profile file /tmp does not exist" for a folder that does
+            raise error(f"{kind} file {p} is a directory, not a file: give a .toml file or a built-in name")
         if not p.is_file():
-            raise error(f"{kind} file {p} does not exist")
+            raise error(f"{kind} file {p} " + ("is not a regular file" if p.exists() else "does not exist"))
         source, text = str(p), read_text_file(p, f"{kind} file", error)
     else:
         source = str(name_or_path)

@@ -152,3 +152,14 @@ def test_parser_errors(argv, message, capsys):
     with pytest.raises(SystemExit):
         parser().parse_args(argv)
     assert message in capsys.readouterr().err
+
+
+def test_ik_command_rotation_error_names_what_the_bound_is_on():
+    """A new user's trial: "allowed: <= 0.001 with det > 0" did not say what must be <= 0.001."""
+    from planner.arm.transforms import RotationMatrixError
+
+    bound = r"allowed: <= 0\.001 for max\|RᵀR - I\| \(elementwise\), with det\(R\) > 0"
+    with pytest.raises(RotationMatrixError, match=r"it has max\|RᵀR - I\| = 0\.21; " + bound):
+        arm_ik_command(P_TARGET, [1, 0, 0, 0, 1, 0, 0, 0, 1.1])
+    with pytest.raises(RotationMatrixError, match=r"it has det <= 0 \(a reflection or singular\); " + bound):
+        arm_ik_command(P_TARGET, [1, 0, 0, 0, 1, 0, 0, 0, -1])

@@ -281,3 +281,24 @@ def test_stability_cli_json():
     total = d["axle_loads"]["front"] + d["axle_loads"]["rear"]
     assert d["front_axle_share"] == pytest.approx(d["axle_loads"]["front"] / total)
     assert d["ok"] is True
+
+
+def test_an_implement_name_for_the_record_is_refused_saying_how_to_get_one(ballasted, heavy):
+    """A new user's trial: ``Guard(planner, implement="cat2-power-harrow-1500")`` was accepted and the first plan
+    crashed with "'str' object has no attribute 'centre_of_mass'"."""
+    from planner.errors import HitchInputError
+
+    tp = TrajectoryPlanner(ballasted)
+    with pytest.raises(
+        HitchInputError,
+        match=r"implement must be an ImplementRecord or None, got str "
+        r"'cat2-power-harrow-1500'; get the record from its tractor profile: "
+        r"load_tractor_profile\('tractor-6t'\)\.implement\('cat2-power-harrow-1500'\)",
+    ):
+        Guard(tp, implement="cat2-power-harrow-1500")
+    g = Guard(tp, implement=heavy)
+    with pytest.raises(HitchInputError, match=r"implement must be an ImplementRecord or None, got dict"):
+        g.set_implement({"mass": 1500.0})
+    assert g.implement is heavy  # the refused one did not replace it
+    g.set_implement(None)
+    assert g.implement is None

@@ -10,6 +10,7 @@ file's folder (``prof/prof/my-tractor.toml``), and left that unloadable file on 
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 import pytest
@@ -55,3 +56,15 @@ def test_a_profile_text_is_written_only_where_it_loads(own_tractor):
     assert load_profile("out/copy.toml") == prof
     with pytest.raises(ProfileError, match=r"must end in \.toml"):
         write_profile_text("out/copy.txt", fixed)
+
+
+def test_a_directory_given_for_a_profile_is_named_a_directory(tmp_path):
+    """A new user's trial: ``--profile /tmp`` said "profile file /tmp does not exist"."""
+    with pytest.raises(ProfileError, match=rf"profile file {re.escape(str(tmp_path))} is a directory, not a file"):
+        load_profile(tmp_path)
+    folder = tmp_path / "mine.toml"  # a folder named like a profile file
+    folder.mkdir()
+    with pytest.raises(ProfileError, match="is a directory, not a file"):
+        load_profile(folder)
+    with pytest.raises(ProfileError, match=r"profile file \S+missing\.toml does not exist"):
+        load_profile(tmp_path / "missing.toml")

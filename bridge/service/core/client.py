@@ -162,6 +162,10 @@ class CoreProcess:
             except (EOFError, OSError):
                 break
             if status == "note":
+                ended = rest[0].get("core_ended") if isinstance(rest[0], dict) else None
+                if ended is not None:  # the core ends itself, and says why (a CAN thread stopped)
+                    self.ended = self.ended or f"the control core ended: {ended}"
+                    continue
                 hook = self.on_note
                 if hook is not None:
                     try:

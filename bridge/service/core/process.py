@@ -65,6 +65,9 @@ from bridge.service.wire import to_json_bytes
 from bridge.service.workers import error_code
 from planner.errors import HitchError
 
+#: period of the core's check of its CAN threads [s]
+RUNNER_WATCH_S = 0.2
+
 __all__ = ["CORE_NICE", "TWIN_NICE", "ControlCore", "freeze_startup_objects", "lock_memory", "raise_core_to_realtime"]
 
 #: nice value of every thread of the core process (the control cycle, CAN, its Zenoh session)
@@ -171,6 +174,7 @@ class ControlCore:
             self.recorder = CanRecorder.of_config(cfg)
         runners: list[Any] = []
         self.parts = parts = start_can(cfg, runners_out=runners)
+        self._runners = runners
         self._open_zenoh()
         self.motion, guard = build_controller(cfg, parts, on_state=self._publish_state, on_event=self._publish_event)
         self.motion.state_wanted = lambda: self._state_listened.is_set() or self._state_to_service.is_set()
@@ -186,6 +190,7 @@ class ControlCore:
         if twin_gnss is not None:
             self._decls.append(twin_gnss)
         self.motion.start()
+        threading.Thread(target=self._watch_runners, name="core-can-watch", daemon=True).start()
         if nice_failed is None:
             for t in threading.enumerate():
                 if t.name == TWIN_THREAD and t.native_id is not None:
@@ -284,6 +289,29 @@ class ControlCore:
 
         self._decls.append(s.declare_queryable(exact, on_stop, complete=True))
         self._decls.append(s.declare_subscriber(cfg.key("track/setpoint"), self._on_setpoint))
+
+    def _watch_runners(self) -> None:
+        """Every :data:`RUNNER_WATCH_S`: a CAN thread that stopped (its transport failed: a remote CAN hub killed,
+        a Broken pipe) ends the core, as it ends the service whose control cycle runs in its own threads
+        (``bridge.service.server.serve``): the motion is stopped, the service told why (the ``core_ended`` note:
+        its ``serve`` then ends with that reason) and the core closes. It stayed up with a dead CAN thread
+        before, and after a ``faults/ack`` said "no fault held" while no frame went out (a safety trial)."""
+        while not self._closed.wait(RUNNER_WATCH_S):
+            failed = [r.error for r in self._runners if r.error is not None]
+            if not failed:
+                continue
+            reason = "a CAN thread stopped: " + "; ".join(f"{type(e).__name__}: {e}" for e in failed)
+            if self.motion is not None:
+                try:
+                    self.motion.stop(reason)
+                except Exception:  # noqa: BLE001 — the bus is gone: the ECU's watchdog holds the valves at zero
+                    pass
+            self._note({"core_ended": reason})
+            end = time.monotonic() + 1.0
+            while not self._notes.empty() and time.monotonic() < end:  # the reason reaches the service first
+                time.sleep(0.01)
+            signal.raise_signal(signal.SIGINT)  # the main thread's serve() ends and closes the core (main)
+            return
 
     def _note(self, note: dict[str, Any]) -> None:
         """Tell the service what the core answered on its own (its black box records it); never blocks."""

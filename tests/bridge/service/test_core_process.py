@@ -137,6 +137,50 @@ def test_oversized_setpoint_puts_are_dropped_unread_and_a_stop_still_stops(servi
         assert stop["stopped"], stop
 
 
+def test_a_can_thread_that_stops_ends_the_core_and_the_service_says_why(tmp_path):
+    """A safety trial: the remote CAN hub killed mid-move stopped the core's CAN thread for good (Broken pipe),
+    yet the core stayed up and after faults/ack the service said "no fault held" while no frame went out. The
+    core now ends itself as the service in threads does (serve() ends on a stopped CAN thread), and says why."""
+    import subprocess
+    import sys
+
+    from bridge.link.loopback import hub_url
+
+    port = free_port()
+    hub = subprocess.Popen([sys.executable, "-m", "bridge.cli.main", "can-hub", "--port", str(port)])
+    try:
+        cfg = ServiceConfig(
+            listen=[f"tcp/127.0.0.1:{free_port()}"],
+            data_dir=tmp_path,
+            planning_processes=0,
+            can_interface="remote",
+            can_channel=hub_url(port),
+        )
+        assert wait_until(lambda: _accepts(port), 20.0), "the hub did not start"
+        svc = HitchService(cfg).start()
+        try:
+            assert svc.core is not None
+            assert wait_until(lambda: (svc.latest_state or {}).get("ecu", {}).get("online")), "no state from the core"
+            hub.kill()  # the transport dies
+            assert wait_until(lambda: not svc.core.alive, 10.0), "the core ran on with a dead CAN thread"
+            assert "a CAN thread stopped" in (svc.core.ended or ""), svc.core.ended  # serve() ends with it
+        finally:
+            svc.close()
+    finally:
+        hub.kill()
+        hub.wait(5)
+
+
+def _accepts(port: int) -> bool:
+    import socket
+
+    try:
+        with socket.create_connection(("127.0.0.1", port), timeout=0.5):
+            return True
+    except OSError:
+        return False
+
+
 def test_the_mode_is_the_cores_whatever_anyone_puts_on_the_events_key(service):
     """The old proxy took the mode from any ``mode_changed`` on the public events key: a forged one made
     ``mode`` and ``config`` report 'transport' while the core (which moved the hitch) stayed in 'auto'."""

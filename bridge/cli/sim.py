@@ -38,7 +38,7 @@ from bridge.cli.model import (
 from bridge.cli.output import console, output_path, plot_path
 from bridge.cli.plan import parse_pose_arg
 from bridge.cli.service import _client_options
-from bridge.link.realtime import INTERFACES, RealtimeRunner, open_bus
+from bridge.link.realtime import INTERFACES, RealtimeRunner, open_bus, shutdown_bus
 from bridge.link.state import LinkConfig
 from bridge.service.maneuvers.language import MIN_SPEED_SCALE
 from bridge.service.wire import to_json_text
@@ -342,6 +342,37 @@ def _cmd_sim_field(args) -> int:
     return 0
 
 
+#: a draft setpoint [N] below this is refused as a value meant in kN: no tool works at a draft of less than 1 kN,
+#: and 1…999 kN would be plausible drafts (a chisel: 10…40 kN)
+DRAFT_SETPOINT_KN_HINT_BELOW_N = 1000.0
+
+
+def draft_setpoint_newtons(text: str) -> float:
+    """argparse type of ``--draft-setpoint`` [N]: in (0, 300000] N, and at least 1000 N — a smaller number is
+    taken for kN given in the wrong unit (``20`` → "did you mean kN? 20 kN = 20000 N")."""
+    v = finite_float("--draft-setpoint")(text)
+    if not 0.0 < v <= DRAFT_SETPOINT_MAX_N:
+        raise argparse.ArgumentTypeError(f"--draft-setpoint must lie in (0, {DRAFT_SETPOINT_MAX_N:g}] N, got {text}")
+    if v < DRAFT_SETPOINT_KN_HINT_BELOW_N:
+        raise argparse.ArgumentTypeError(
+            f"--draft-setpoint is in newtons: {v:g} N is below {DRAFT_SETPOINT_KN_HINT_BELOW_N:g} N, no working "
+            f"draft; did you mean kN? {v:g} kN = {v * 1000.0:g} N (--draft-setpoint {v * 1000.0:g} or "
+            f"--draft-setpoint-kn {v:g})"
+        )
+    return v
+
+
+def _ecu_status_line(now_s: float, node: EcuCanNode, ecu: CylinderECU) -> str:
+    """The ``ecu-sim`` status line: plain numbers (print it without markup: numpy's repr in brackets was taken
+    for rich markup and vanished)."""
+    n = node.counters
+    valves = " ".join(str(int(v)) for v in ecu.valve_commands())
+    return (
+        f"t={now_s:7.1f} s  {node.claim_state.value}  refs {n.references}  "
+        f"tx {n.frames_tx}  malformed {n.malformed}  valves {valves}"
+    )
+
+
 # -- hitch ecu-sim -------------------------------------------------------------------------
 def _cmd_ecu_sim(args) -> int:
     if args.duration is not None and not (np.isfinite(args.duration) and args.duration > 0):
@@ -379,19 +410,22 @@ def _cmd_ecu_sim(args) -> int:
             if runner.wait(step) or (deadline is not None and time.monotonic() >= deadline):
                 break
             if not args.json:
-                n = node.counters
-                c.print(
-                    f"t={runner.now():7.1f} s  {node.claim_state.value}  refs {n.references}  "
-                    f"tx {n.frames_tx}  malformed {n.malformed}  valves {list(ecu.valve_commands())}"
-                )
+                c.print(_ecu_status_line(runner.now(), node, ecu), markup=False, highlight=False)
     except KeyboardInterrupt:  # Ctrl-C is the normal end: stop cleanly and print the summary
         pass
     finally:
         runner.stop()
-        node.shutdown(runner.now())
-        bus.shutdown()
+        try:  # heartbeat 255: on a bus that went away (the hub killed) the send fails
+            node.shutdown(runner.now())
+        except Exception as exc:  # noqa: BLE001 (OSError, CanError, python-can-remote's WebsocketClosed …: said below)
+            gone: BaseException | None = exc
+        else:
+            gone = None
+        gone = shutdown_bus(bus) or gone
     if runner.error is not None:
-        raise SimError(f"ECU node stopped: {runner.error}")
+        raise SimError(f"ECU node stopped: the CAN bus failed: {type(runner.error).__name__}: {runner.error}")
+    if gone is not None:
+        raise SimError(f"ECU node stopped: the CAN bus went away: {type(gone).__name__}: {gone}")
     summary = {
         "interface": args.interface,
         "time_s": round(ecu.time_s, 3),
@@ -770,7 +804,13 @@ def add_commands(sub) -> None:
         "--mode", choices=("position", "draft", "mixed", "float"), default="position", help="default position"
     )
     draft = fl.add_mutually_exclusive_group()
-    draft.add_argument("--draft-setpoint", dest="draft_setpoint_n", type=finite_float("--draft-setpoint"), help="[N]")
+    draft.add_argument(
+        "--draft-setpoint",
+        dest="draft_setpoint_n",
+        type=draft_setpoint_newtons,
+        help=f"[N], (0, {DRAFT_SETPOINT_MAX_N:g}] N; below {DRAFT_SETPOINT_KN_HINT_BELOW_N:g} N refused as a value "
+        "likely meant in kN (use --draft-setpoint-kn)",
+    )
     draft.add_argument(
         "--draft-setpoint-kn",
         dest="draft_setpoint_kn",

@@ -8,6 +8,14 @@ it; the loser either claims another address (if arbitrary address capable) or
 sends Cannot Claim — Address Claimed from the null address 254 — and stays
 silent. A Request (PGN 59904) for PGN 60928 is answered with our claim.
 
+A control function that lost its address may check whether the winner is still there
+(``recheck_s``): every ``recheck_s`` it asks the address (a Request for Address Claimed
+from the null address, which J1939-81 allows a node without an address to send) and, when
+no claim with a NAME lower than ours answers within the contention window, claims its
+preferred address again (a spoofed or departed claimant does not hold it for ever; a real
+one answers, and the claimer stays in "cannot claim"). :attr:`AddressClaimer.holder` names
+the NAME that holds it meanwhile.
+
 :class:`AddressClaimer` owns no thread and no clock: feed it received frames with
 ``handle(frame, now_s)`` and call ``poll(now_s)`` periodically; both return the
 frames to transmit.
@@ -157,10 +165,21 @@ class AddressClaimer:
         name: our NAME.
         preferred_address: the address to claim first (thesis: planner 166,
             cylinder ECU 169).
-        wait_s: contention window after a claim, s (ISO 11783-5: 0.25).
+        wait_s: contention window after a claim, s (ISO 11783-5: 0.25); also how long an asked
+            holder of the preferred address has to answer.
+        recheck_s: after losing the preferred address, ask its holder this often and claim it
+            again when nobody with a lower NAME answers (module docstring); None (default): stay
+            in "cannot claim" until :meth:`start`.
     """
 
-    def __init__(self, name: Name, preferred_address: int = PLANNER_ADDRESS, *, wait_s: float = CLAIM_WAIT_S) -> None:
+    def __init__(
+        self,
+        name: Name,
+        preferred_address: int = PLANNER_ADDRESS,
+        *,
+        wait_s: float = CLAIM_WAIT_S,
+        recheck_s: float | None = None,
+    ) -> None:
         if (
             isinstance(preferred_address, bool)
             or not isinstance(preferred_address, int)
@@ -169,6 +188,13 @@ class AddressClaimer:
             raise AddressClaimError(f"preferred_address must be in 0..253, got {preferred_address!r}")
         if not wait_s > 0:
             raise AddressClaimError(f"wait_s must be > 0 s, got {wait_s!r}")
+        if recheck_s is not None and (
+            isinstance(recheck_s, bool) or not isinstance(recheck_s, (int, float)) or not 0 < recheck_s <= 3600
+        ):
+            raise AddressClaimError(f"recheck_s must be None or a number of seconds in (0, 3600], got {recheck_s!r}")
+        self._recheck_s = None if recheck_s is None else float(recheck_s)
+        self._recheck_due_s = float("inf")  # when to ask the holder of the preferred address next
+        self._asked_s: float | None = None  # when we asked it (an answer is awaited)
         self._name = name
         self._preferred = preferred_address
         self._wait_s = float(wait_s)
@@ -199,6 +225,17 @@ class AddressClaimer:
         return self._state is ClaimState.CLAIMED
 
     @property
+    def preferred_address(self) -> int:
+        """The address we claim (and claim again after losing it, with ``recheck_s``)."""
+        return self._preferred
+
+    @property
+    def holder(self) -> Name | None:
+        """While we cannot claim: the NAME that holds our preferred address (last heard claiming it), else
+        None."""
+        return self._peers.get(self._preferred) if self._state is ClaimState.CANNOT_CLAIM else None
+
+    @property
     def peers(self) -> dict[int, Name]:
         """Other control functions seen claiming, by address (a copy)."""
         return dict(self._peers)
@@ -214,14 +251,33 @@ class AddressClaimer:
         """Send our first claim for the preferred address."""
         self._peers.clear()
         self._pending.clear()
+        self._recheck_due_s = float("inf")
         return self._claim(self._preferred, now_s)
 
+    def announce(self) -> list[can.Message]:
+        """Our claim once more, to every node (J1939-81: a node that receives a message other than Address
+        Claimed with its own source address sends its claim, so that the other node sees the contention);
+        [] unless we hold or are claiming an address."""
+        if self._address is None or self._state not in (ClaimState.CLAIMING, ClaimState.CLAIMED):
+            return []
+        return [self._claim_frame(self._address)]
+
     def poll(self, now_s: float) -> list[can.Message]:
-        """Advance time: finish the contention window, release delayed answers."""
+        """Advance time: finish the contention window, release delayed answers, check the holder of a lost
+        address (``recheck_s``)."""
         if self._state is ClaimState.CLAIMING and now_s >= self._deadline_s:
             self._state = ClaimState.CLAIMED
         due = [msg for t, msg in self._pending if t <= now_s]
         self._pending = [(t, msg) for t, msg in self._pending if t > now_s]
+        if self._state is ClaimState.CANNOT_CLAIM and self._recheck_s is not None:
+            if self._asked_s is not None and now_s >= self._asked_s + self._wait_s:
+                self._peers.pop(self._preferred, None)  # nobody with a lower NAME answered: it is free
+                return [*due, *self._claim(self._preferred, now_s)]
+            if self._asked_s is None and now_s >= self._recheck_due_s:
+                self._asked_s = now_s
+                self._recheck_due_s = now_s + self._recheck_s
+                ask = encode(RequestPgn(PGN_ADDRESS_CLAIMED), source=NULL_ADDRESS, destination=self._preferred)
+                return [*due, ask]
         return due
 
     def handle(self, frame: can.Message, now_s: float) -> list[can.Message]:
@@ -249,14 +305,18 @@ class AddressClaimer:
         return encode(AddressClaimed(self._name.value), source=source, destination=GLOBAL_ADDRESS)
 
     def _claim(self, address: int, now_s: float) -> list[can.Message]:
+        self._asked_s = None
         self._address = address
         self._state = ClaimState.CLAIMING
         self._deadline_s = now_s + self._wait_s
         return [self._claim_frame(address)]
 
-    def _give_up(self) -> list[can.Message]:
+    def _give_up(self, now_s: float) -> list[can.Message]:
         self._state = ClaimState.CANNOT_CLAIM
         self._address = None
+        self._asked_s = None
+        if self._recheck_s is not None:
+            self._recheck_due_s = now_s + self._recheck_s
         return [self._claim_frame(NULL_ADDRESS)]
 
     def _on_request(self, pgn: int, destination: int, now_s: float) -> list[can.Message]:
@@ -281,7 +341,14 @@ class AddressClaimer:
             if peer == other:
                 del self._peers[address]  # that NAME moved
         self._peers[source] = other
-        if self._state is ClaimState.CANNOT_CLAIM or source != self._address:
+        if self._state is ClaimState.CANNOT_CLAIM:
+            if source == self._preferred and self._asked_s is not None:
+                if other.value < self._name.value:
+                    self._asked_s = None  # the holder answered: it still holds the address
+                else:  # a higher NAME holds it now: we win the contention
+                    return self._claim(self._preferred, now_s)
+            return []
+        if source != self._address:
             return []
         if self._name.value < other.value:
             # We win: defend the address; a claim in progress restarts its window.
@@ -289,10 +356,10 @@ class AddressClaimer:
                 self._deadline_s = now_s + self._wait_s
             return [self._claim_frame(self._address)]
         if not self._name.arbitrary_address_capable:
-            return self._give_up()
+            return self._give_up(now_s)
         low, high = SELF_CONFIGURABLE_RANGE
         free = [a for a in range(low, high + 1) if a not in self._peers]
         if not free:
-            return self._give_up()
+            return self._give_up(now_s)
         after = [a for a in free if a > source]
         return self._claim((after or free)[0], now_s)

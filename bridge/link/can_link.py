@@ -21,11 +21,21 @@
   silent > 300 ms / in error / shut down, an ECU restart (heartbeat 251 again, a
   change of the restart counter or the no-reference bit reappearing in the system
   state), references that do not arrive (while streaming, the ECU's system state says
-  its watchdog expired), a lost address claim or repeated send failures latch a fault
+  its watchdog expired), a lost address claim, a frame with our source address that we did not
+  send (another node uses our address: ``address_conflict``) or repeated send failures latch a fault
   (:class:`~bridge.link.state.LinkFaults` lists each, how fast and whether it latches)
   and **stop the reference stream**; the ECU's watchdog then zeroes its valves within its timeout
   (100 ms). Motion resumes only on a fresh :meth:`send_reference`, accepted once the
   causes are gone; the old reference is never resumed.
+* **Address.** The link claims its address at :meth:`CanLink.start`. Lost to a lower NAME, it asks
+  the address every ``LinkConfig.address_recheck_s`` (1 s) whether the winner still holds it and
+  claims it back when nobody with a lower NAME answers (a spoofed claim does not take it for ever);
+  meanwhile :attr:`CanLink.address_problem` names the NAME that holds it, and ``address_lost``
+  stays present in :meth:`CanLink.fault_causes`. A frame with our source address is our own echo only
+  when we sent one with the same identifier and data within the last second
+  (:data:`ECHO_WINDOW_S`); any other is an address conflict (J1939-81): fault ``address_conflict``,
+  present while such frames arrive (:data:`CONFLICT_HOLD_S`), and our claim is sent again so that the
+  other node sees the contention.
 * **Accounting.** Malformed frames (codec rejections), unknown PGNs (other ISOBUS
   traffic — counted, not a fault), frames from other sources, our own echo
   (udp_multicast), unavailable or out-of-span readings, dropped periodic frames
@@ -44,6 +54,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections import deque
 from dataclasses import replace
 
 import can
@@ -85,7 +96,7 @@ from bridge.link.state import (
 from planner.model.kinematics import HitchModel
 from planner.model.sensors import SensorScaling
 
-__all__ = ["CanLink", "HOLD_AFTER_RESENT"]
+__all__ = ["CONFLICT_HOLD_S", "ECHO_WINDOW_S", "CanLink", "HOLD_AFTER_RESENT"]
 
 _EPS_S = 1e-6  # float-time tolerance of the stream schedule
 #: a fresh reference may go this fraction of a period before its slot; a repetition waits as long after
@@ -95,6 +106,15 @@ _SLOT_SLACK = 0.5
 #: frames in a row re-sending an older reference after which the link counts as holding (:attr:`CanLink.holding`):
 #: one late control cycle while moving does not count
 HOLD_AFTER_RESENT = 2
+#: a received frame with our source address is our echo if we sent its identifier and data this recently, s
+ECHO_WINDOW_S = 1.0
+#: an address conflict (a frame with our source address we did not send) stays present this long after the
+#: last such frame, s: the link refuses to stream meanwhile
+CONFLICT_HOLD_S = 1.0
+#: our claim is sent again on an address conflict at most this often, s
+_CONFLICT_CLAIM_EVERY_S = 1.0
+#: claim states in which frames with our source address are another node's (not a conflict)
+_ADDRESS_NOT_OURS = (ClaimState.IDLE, ClaimState.CANNOT_CLAIM)
 #: the messages the link reads (every other known message is counted ``foreign`` without decoding it)
 _CONSUMED_PGNS = frozenset({PGN_HEARTBEAT, PGN_POSITION_MEASUREMENT, PGN_REAR_HITCH_STATUS})
 
@@ -123,7 +143,9 @@ class CanLink:
         self._codec = load_codec()
         self._known_pgns = frozenset(decode_id(m.frame_id).pgn for m in self._codec.database.messages)
         cfg = self._cfg
-        self._claimer = AddressClaimer(cfg.name, cfg.source_address, wait_s=cfg.claim_wait_s)
+        self._claimer = AddressClaimer(
+            cfg.name, cfg.source_address, wait_s=cfg.claim_wait_s, recheck_s=cfg.address_recheck_s or None
+        )
         self._hb_tx = HeartbeatSender(cfg.source_address, period_s=cfg.heartbeat_period_s)
         self._hb_rx = HeartbeatMonitor(cfg.ecu_address, timeout_s=cfg.heartbeat_timeout_s)
         self._lock = threading.RLock()
@@ -140,6 +162,11 @@ class CanLink:
         self._resent = 0  # frames in a row that re-sent a reference taken before the previous frame
         self._last_tx_s = -math.inf  # when the last reference frame went out (kept across restarts)
         self._tx_error_run = 0
+        self._sent: dict[tuple[int, bytes], deque[float]] = {}  # (id, data) → send times within ECHO_WINDOW_S
+        self._sent_pruned_s = -math.inf
+        self._conflict_s = -math.inf  # the last frame with our source address that we did not send
+        self._conflict_reason = ""
+        self._conflict_claim_s = -math.inf  # when our claim last went out because of a conflict
         self._rx = MeasurementAssembler(model, self._scaling, self._cfg, self._bump)
 
     # -- read-only views ---------------------------------------------------------------
@@ -170,6 +197,28 @@ class CanLink:
     def claimed(self) -> bool:
         """Our address claim succeeded and holds."""
         return self._claimer.claimed
+
+    @property
+    def address_problem(self) -> str:
+        """Why our address is not ours, "" while it is claimed or being claimed: e.g. "address 166 lost, not
+        claimed: NAME 0x0000000000000000 holds it (a lower NAME than ours, 0x…)". Present as long as it
+        is true (the link re-checks the holder every ``address_recheck_s`` and claims the address
+        back when it is silent); also the reason of ``address_lost`` and :attr:`LinkStatus.address_problem`."""
+        with self._lock:
+            return self._address_problem()
+
+    def _address_problem(self) -> str:
+        if self._claimer.state is not ClaimState.CANNOT_CLAIM:
+            return ""
+        sa, ours = self._cfg.source_address, self._claimer.name.value
+        holder = self._claimer.holder
+        who = f"NAME 0x{holder.value:016X} holds it" if holder is not None else "another node holds it"
+        again = (
+            f"; asked again every {self._cfg.address_recheck_s:g} s, claimed back once the holder is silent"
+            if self._cfg.address_recheck_s
+            else ""
+        )
+        return f"address {sa} lost, not claimed: {who} (a lower NAME than ours, 0x{ours:016X}){again}"
 
     @property
     def streaming(self) -> bool:
@@ -207,6 +256,8 @@ class CanLink:
                 LinkCounters(**self._counts),
                 self._last_malformed,
                 self._rx.last_problem,
+                self._address_problem(),
+                tuple(dict.fromkeys(name for name, _ in self._conditions(now_s))),
             )
 
     def next_due_s(self) -> float:
@@ -222,14 +273,14 @@ class CanLink:
             self._operating_s = None
             self._streaming = False
             self._last_poll_s = now_s
-            self._send([self._claimer.who_is_there(), *self._claimer.start(now_s)])
+            self._send([self._claimer.who_is_there(), *self._claimer.start(now_s)], now_s)
 
     def stop(self, now_s: float) -> None:
         """Stop streaming and say goodbye (heartbeat 255). The bus stays open."""
         with self._lock:
             self._streaming = False
             if self._operating_s is not None:
-                self._send(self._hb_tx.shutdown())
+                self._send(self._hb_tx.shutdown(), now_s)
             self._operating_s = None
 
     def close(self) -> None:
@@ -251,8 +302,11 @@ class CanLink:
         with self._lock:
             present = set(self.fault_causes(now_s))
             keep = {name: name in present for name in self._faults.active()}
-            reasons = self._faults.reasons if any(keep.values()) else ()
-            self._faults = replace(LinkFaults(), **{k: v for k, v in keep.items() if v}, reasons=reasons)
+            kept = any(keep.values())
+            reasons, names = (self._faults.reasons, self._faults.reason_names) if kept else ((), ())
+            self._faults = replace(
+                LinkFaults(), **{k: v for k, v in keep.items() if v}, reasons=reasons, reason_names=names
+            )
             return self._faults
 
     def stop_motion(self) -> None:
@@ -306,7 +360,7 @@ class CanLink:
         with self._lock:
             if not self.claimed:
                 raise LinkFaultError(f"address {self._cfg.source_address} is not claimed")
-            self._send([self._codec.encode(parameters, source=self._cfg.source_address)])
+            self._send([self._codec.encode(parameters, source=self._cfg.source_address)], now_s)
 
     # -- the loop ----------------------------------------------------------------------
     def poll(self, now_s: float) -> None:
@@ -315,13 +369,17 @@ class CanLink:
             while (frame := self._bus.recv(timeout=0.0)) is not None:
                 self.handle(frame, now_s)
             self._last_poll_s = now_s
-            self._send(self._claimer.poll(now_s))
+            self._send(self._claimer.poll(now_s), now_s)
             if self._claimer.claimed:
                 if self._operating_s is None:
                     self._operating_s = now_s
-                    self._send(self._hb_tx.start(now_s))
+                    self._send(self._hb_tx.start(now_s), now_s)
                 else:
-                    self._send(self._hb_tx.poll(now_s))
+                    self._send(self._hb_tx.poll(now_s), now_s)
+            elif self._claimer.state is ClaimState.CANNOT_CLAIM:
+                self._operating_s = None  # silent; a claim won back starts over (heartbeat 251)
+            if now_s - self._sent_pruned_s >= ECHO_WINDOW_S:
+                self._prune_sent(now_s)
             self._raise(self._conditions(now_s))
             self._stream(now_s)
 
@@ -340,9 +398,14 @@ class CanLink:
             except J1939Error as exc:
                 self._malformed(str(exc))
                 return
-            self._send(self._claimer.handle(frame, now_s))
+            self._send(self._claimer.handle(frame, now_s), now_s)
             if ident.source_address == self._cfg.source_address:
-                self._bump(own_echo=1)
+                if self._is_echo(frame, now_s):
+                    self._bump(own_echo=1)
+                elif ident.pgn == PGN_ADDRESS_CLAIMED or self._claimer.state in _ADDRESS_NOT_OURS:
+                    self._bump(foreign=1)  # a contending claim (the claimer decides), or the address is not ours
+                else:
+                    self._on_conflict(ident.pgn, now_s)
                 return
             if ident.pgn in (PGN_ADDRESS_CLAIMED, PGN_REQUEST):
                 return
@@ -398,6 +461,38 @@ class CanLink:
                 ]
             )
 
+    def _is_echo(self, frame: can.Message, now_s: float) -> bool:
+        """The frame is one we sent within :data:`ECHO_WINDOW_S` (each sent frame echoes once)."""
+        times = self._sent.get((frame.arbitration_id, bytes(frame.data)))
+        while times and times[0] < now_s - ECHO_WINDOW_S:
+            times.popleft()
+        if not times:
+            return False
+        times.popleft()
+        return True
+
+    def _prune_sent(self, now_s: float) -> None:
+        old = now_s - ECHO_WINDOW_S
+        self._sent = {k: v for k, v in self._sent.items() if v and v[-1] >= old}
+        self._sent_pruned_s = now_s
+
+    def _on_conflict(self, pgn: int, now_s: float) -> None:
+        """A frame with our source address that we did not send: another node uses our address
+        (J1939-81). Raise ``address_conflict`` and send our claim again (at most once a second), so that
+        the other node sees the contention."""
+        self._bump(address_conflicts=1)
+        sa = self._cfg.source_address
+        self._conflict_s = now_s
+        self._conflict_reason = (
+            f"address conflict: a frame with our source address {sa} (PGN 0x{pgn:04X}) that this link did not "
+            f"send: another node on the bus uses address {sa} (spoofed or misconfigured); motion refused until "
+            f"none has arrived for {CONFLICT_HOLD_S:g} s"
+        )
+        self._raise([("address_conflict", self._conflict_reason)])
+        if self._claimer.claimed and now_s - self._conflict_claim_s >= _CONFLICT_CLAIM_EVERY_S:
+            self._conflict_claim_s = now_s
+            self._send(self._claimer.announce(), now_s)
+
     def _on_restart(self, reason: str) -> None:
         self._rx.forget_reference()
         self._raise([("ecu_restart", reason)])
@@ -412,7 +507,9 @@ class CanLink:
         out: list[tuple[str, str]] = []
         cfg = self._cfg
         if self._claimer.state is ClaimState.CANNOT_CLAIM:
-            out.append(("address_lost", f"address {cfg.source_address} lost to a lower NAME"))
+            out.append(("address_lost", self._address_problem()))
+        if now_s - self._conflict_s < CONFLICT_HOLD_S:
+            out.append(("address_conflict", self._conflict_reason))
         if self._tx_error_run >= cfg.max_consecutive_tx_errors:
             out.append(("bus_error", f"{self._tx_error_run} sends failed in a row"))
         if self._operating_s is None:
@@ -447,7 +544,12 @@ class CanLink:
     def _raise(self, causes: list[tuple[str, str]]) -> None:
         for name, reason in causes:
             if not getattr(self._faults, name):
-                self._faults = replace(self._faults, **{name: True}, reasons=self._faults.reasons + (reason,))
+                self._faults = replace(
+                    self._faults,
+                    **{name: True},
+                    reasons=self._faults.reasons + (reason,),
+                    reason_names=self._faults.reason_names + (name,),
+                )
                 self._bump(faults_raised=1)
         if self._faults.any:
             self._streaming = False
@@ -470,10 +572,10 @@ class CanLink:
         self._last_tx_s = now_s
         self._resent = 0 if self._fresh else self._resent + 1
         self._fresh = False
-        if self._send([self._codec.encode(self._reference, source=self._cfg.source_address)]):
+        if self._send([self._codec.encode(self._reference, source=self._cfg.source_address)], now_s):
             self._bump(references_tx=1)
 
-    def _send(self, frames: list[can.Message]) -> bool:
+    def _send(self, frames: list[can.Message], now_s: float) -> bool:
         ok = True
         for frame in frames:
             try:
@@ -485,6 +587,11 @@ class CanLink:
             else:
                 self._tx_error_run = 0
                 self._bump(frames_tx=1)
+                key = (frame.arbitration_id, bytes(frame.data))  # its echo is ours (_is_echo)
+                times = self._sent.get(key)
+                if times is None:
+                    times = self._sent[key] = deque()
+                times.append(now_s)
         return ok
 
     def _bump(self, **deltas: int) -> None:

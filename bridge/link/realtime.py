@@ -28,6 +28,7 @@ __all__ = [
     "RealtimeRunner",
     "SharedBusNodes",
     "open_bus",
+    "shutdown_bus",
     "waiting_reader",
 ]
 
@@ -71,6 +72,19 @@ def open_bus(interface: str, channel: str | None = None, **kwargs: Any) -> can.B
             else ""
         )
         raise LinkError(f"cannot open {interface} channel {channel!r}: {exc}{hint}") from None
+
+
+def shutdown_bus(bus: can.BusABC) -> BaseException | None:
+    """Shut ``bus`` down; a bus whose other end went away (a killed CAN hub: python-can-remote's shutdown
+    raises ``OSError`` [Errno 107] on its dead socket, or its ``WebsocketClosed``) is returned as the
+    exception, not raised, and counts as shut down (python-can would otherwise try again, with a traceback,
+    when the object is collected)."""
+    try:
+        bus.shutdown()
+    except Exception as exc:  # noqa: BLE001 (whatever the interface raises for a dead connection: returned)
+        bus._is_shutdown = True  # noqa: SLF001 (python-can's own flag: its __del__ would shut it down again)
+        return exc
+    return None
 
 
 class BusNode(Protocol):

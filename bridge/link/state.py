@@ -148,6 +148,14 @@ class LinkConfig:
         ecu_watchdog_timeout_s: the ECU's reference watchdog, s (thesis ECU: 0.1 s). While
             references stream, a 0xFF22 whose system state says "watchdog expired" proves
             that they do not arrive (fault ``references_lost``).
+        address_recheck_s: after losing our address to a lower NAME, ask every this many seconds
+            whether its holder is still there and claim it back when it is silent (0: never, the
+            link stays "cannot claim" until restarted), s.
+        ecu_rearm_s: after its watchdog expired, how long the ECU's references must arrive
+            without a break before it drives again, s (the simulated ECU: 0.05 s,
+            :mod:`bridge.sim.watchdog`; references queued up during a link stall then never move
+            a cylinder). A new stream after a stop or a fault shows "watchdog expired" that much
+            longer (:attr:`references_lost_after_s`).
         link_latency_s: transport allowance per direction on top of the watchdog, s.
             A measurement is believed about the stream only once the stream has run for
             :attr:`references_lost_after_s`.
@@ -186,6 +194,8 @@ class LinkConfig:
     link_latency_s: float = 0.02
     bus_timestamps: bool = False
     check_period_s: float = 0.01
+    ecu_rearm_s: float = 0.05
+    address_recheck_s: float = 1.0
 
     def __post_init__(self) -> None:
         check_address("source_address", self.source_address)
@@ -209,6 +219,8 @@ class LinkConfig:
         check_period("claim_wait_s", self.claim_wait_s, 0.001, 10.0)
         check_period("ecu_watchdog_timeout_s", self.ecu_watchdog_timeout_s, 0.001, 10.0)
         check_period("link_latency_s", self.link_latency_s, 0.0, 1.0)
+        check_period("ecu_rearm_s", self.ecu_rearm_s, 0.0, 1.0)
+        check_period("address_recheck_s", self.address_recheck_s, 0.0, 3600.0)
         check_period("check_period_s", self.check_period_s, 0.001, 0.05)
         tol = self.reading_tolerance_counts
         if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not 0.0 <= tol <= 50.0:
@@ -226,10 +238,11 @@ class LinkConfig:
     @property
     def references_lost_after_s(self) -> float:
         """How long a stream runs before a "watchdog expired" measurement means its references
-        are lost, s: the ECU's watchdog, the transport allowance and one measurement period
-        (0.1 + 0.02 + 0.01 = 0.13 s by default). Measurements older than that cannot
+        are lost, s: the ECU's watchdog, its re-arm window (a stream starting after a trip drives
+        only once it has been continuous that long), the transport allowance and one measurement
+        period (0.1 + 0.05 + 0.02 + 0.01 = 0.18 s by default). Measurements older than that cannot
         describe the stream yet."""
-        return self.ecu_watchdog_timeout_s + self.link_latency_s + self.measurement_period_s
+        return self.ecu_watchdog_timeout_s + self.ecu_rearm_s + self.link_latency_s + self.measurement_period_s
 
     @property
     def control_period_s(self) -> float:
@@ -295,7 +308,7 @@ class LinkFaults:
 
     * **Condition faults** have a cause that can be re-checked — they may clear themselves
       when data is fresh again (the cause disappears from ``fault_causes``):
-      ``stale_measurement``, ``ecu_heartbeat``, ``address_lost``, ``bus_error``.
+      ``stale_measurement``, ``ecu_heartbeat``, ``address_lost``, ``address_conflict``, ``bus_error``.
     * **Event faults** record something that happened and has no present cause to re-check —
       they stay latched until a fresh command or an acknowledge: ``ecu_restart``,
       ``references_lost``.
@@ -318,14 +331,22 @@ class LinkFaults:
             system state says the ECU's watchdog expired (bit 1): the ECU has had no
             reference for its watchdog timeout, so planner → ECU frames are lost (or the
             stream stalled). Believed only once the stream has run for
-            ``references_lost_after_s`` (130 ms); raised on that frame, i.e. at most
+            ``references_lost_after_s`` (180 ms); raised on that frame, i.e. at most
             watchdog (100 ms) + one reference period (20 ms) + one measurement period
-            (10 ms) + transport after the first lost reference (about 130 ms). Event.
+            (10 ms) + transport after the first lost reference (about 130 ms; a stream that
+            starts into a cut link: after 180 ms). Event.
         address_lost: our address claim was lost (cannot claim); raised at the next poll.
-            Condition (it stays present until the link is restarted).
+            Condition: present while another NAME holds our address
+            (:attr:`~bridge.link.can_link.CanLink.address_problem` names it; the link asks every
+            ``address_recheck_s`` and claims the address back once the holder is silent).
+        address_conflict: a frame with our source address that this link did not send (not our
+            echo: :data:`~bridge.link.can_link.ECHO_WINDOW_S`) — another node uses our address
+            (J1939-81), e.g. spoofed references; raised on that frame. Condition: present until
+            none has arrived for :data:`~bridge.link.can_link.CONFLICT_HOLD_S` (1 s).
         bus_error: ``max_consecutive_tx_errors`` (3) sends failed in a row; raised at the
             failing send. Condition: gone with the next successful send.
         reasons: one line per fault raised since the last re-arm, oldest first.
+        reason_names: the fault each of ``reasons`` is about (same order; :meth:`reason_of`).
 
     The field names are stable: the service reports them as fault names.
     """
@@ -336,7 +357,16 @@ class LinkFaults:
     address_lost: bool = False
     bus_error: bool = False
     references_lost: bool = False
+    address_conflict: bool = False
     reasons: tuple[str, ...] = ()
+    reason_names: tuple[str, ...] = ()
+
+    def reason_of(self, name: str) -> str | None:
+        """The latest reason given for fault ``name`` (None: none recorded)."""
+        for n, r in zip(reversed(self.reason_names), reversed(self.reasons), strict=False):
+            if n == name:
+                return r
+        return None
 
     @property
     def any(self) -> bool:
@@ -348,8 +378,8 @@ class LinkFaults:
         return tuple(name for name in _FAULT_NAMES if getattr(self, name))
 
 
-#: the fault fields of :class:`LinkFaults` (every field but ``reasons``), looked up once (checked every poll)
-_FAULT_NAMES = tuple(f.name for f in fields(LinkFaults) if f.name != "reasons")
+#: the fault fields of :class:`LinkFaults` (every field but the reasons), looked up once (checked every poll)
+_FAULT_NAMES = tuple(f.name for f in fields(LinkFaults) if f.name not in ("reasons", "reason_names"))
 
 
 @dataclass(frozen=True)
@@ -358,7 +388,9 @@ class LinkCounters:
 
     ``unknown_pgn`` counts valid frames of PGNs the DBC does not describe (other ISOBUS
     traffic: counted, never a fault); ``foreign`` frames of known PGNs from sources we
-    do not listen to; ``malformed`` frames rejected by the codec; ``dropped_*``
+    do not listen to (and frames with our own source address while the address is not ours);
+    ``own_echo`` our own frames received back; ``address_conflicts`` frames with our source
+    address that we did not send; ``malformed`` frames rejected by the codec; ``dropped_*``
     periodic frames inferred lost from arrival gaps; ``bus_errors`` error frames
     received; ``tx_errors`` failed sends.
     """
@@ -382,6 +414,7 @@ class LinkCounters:
     bus_errors: int = 0
     tx_errors: int = 0
     faults_raised: int = 0
+    address_conflicts: int = 0
 
     def as_dict(self) -> dict[str, int]:
         """The counters by name."""
@@ -404,6 +437,13 @@ class LinkStatus:
         last_malformed: the codec's reason for the last rejected frame, or "".
         last_reading_problem: why the last reading was not used (unavailable, outside the
             calibrated span, mechanism cannot close), or "".
+        address_problem: why our address is not ours while another NAME holds it (e.g. "address 166
+            lost, not claimed: NAME 0x… holds it …"), "" while it is claimed or being claimed: a supervisor
+            keeps ``address_lost`` held (refuses to acknowledge it) while this is non-empty.
+        fault_causes: names of the faults whose causes are present at ``now_s``
+            (:meth:`~bridge.link.can_link.CanLink.fault_causes`): an acknowledge of one of them
+            cannot hold (e.g. ``address_lost`` while another NAME holds our address,
+            ``address_conflict`` while frames with our address keep arriving).
     """
 
     now_s: float
@@ -416,6 +456,8 @@ class LinkStatus:
     counters: LinkCounters
     last_malformed: str = ""
     last_reading_problem: str = ""
+    address_problem: str = ""
+    fault_causes: tuple[str, ...] = ()
 
 
 class MeasurementAssembler:

@@ -4,7 +4,9 @@
 CAN API as the thesis's PhyCORE-MPC555 ECU (the messages of ``bridge/isobus/hitch.dbc``):
 
 * receives 0xFF21 position references (→ :meth:`CylinderECU.set_reference`, which
-  feeds the 100 ms watchdog), 0xFF23 parameters (controllers on/off, watchdog
+  feeds the 100 ms watchdog; after a trip the valves stay at zero until the references have
+  arrived without a break for 50 ms, so a burst of references queued during a link stall never
+  moves a cylinder: :mod:`bridge.sim.watchdog`), 0xFF23 parameters (controllers on/off, watchdog
   timeout) and the planner's heartbeat (monitored);
 * sends 0xFF22 position measurements (tilt, top, right, left + system-state byte)
   every ``measurement_period_s`` (100 Hz), the lift through the ISO 11783-7 rear

@@ -14,7 +14,10 @@ Timing (all on an integer grid of internal steps, default 1 ms):
   and — if controllers are on, a reference has arrived and the watchdog has not
   expired — runs the unit controllers to new valve commands;
 * every internal step the watchdog is checked (valves forced to zero as soon as the
-  last reference is ``watchdog_timeout_s`` old, independent of the controller tick),
+  last reference is ``watchdog_timeout_s`` old, independent of the controller tick; after such a
+  trip they stay at zero until the references have arrived without a break for
+  ``watchdog_rearm_s``: references queued up during a link stall never move a cylinder,
+  :mod:`bridge.sim.watchdog`),
   and each cylinder integrates one step with its valve command (see
   :mod:`bridge.sim.cylinder` for the exact ZOH scheme and the transport delay).
 
@@ -41,7 +44,7 @@ from bridge.isobus.system_state import (
 )
 from bridge.sim.controller import ControllerConfig, ControllerOutput, UnitController
 from bridge.sim.cylinder import AD_MAX_COUNTS, Cylinder, CylinderParams, build_cylinder_params
-from bridge.sim.watchdog import Watchdog
+from bridge.sim.watchdog import DEFAULT_REARM_S, Watchdog
 from planner.errors import HitchInputError
 from planner.profiles.hitch import Profile, load_profile
 
@@ -118,7 +121,7 @@ class CylinderECU:
     reproducible).  ``noise_counts``: AD noise standard deviation [counts], scalar or per
     cylinder.  ``gain_error``: relative valve-gain error of the simulated plant (scalar,
     5-sequence or mapping by actuator name; the controllers keep the identified gains).
-    ``watchdog_timeout_s``: see :mod:`bridge.sim.watchdog`.  ``controller``: shared
+    ``watchdog_timeout_s``, ``watchdog_rearm_s``: see :mod:`bridge.sim.watchdog`.  ``controller``: shared
     unit-controller settings (default: :class:`ControllerConfig` with the profile's
     ``motion.controller_a``).  ``step_s``: internal integration step [s].
     ``initial_counts``: start positions [counts] (default: the profile's neutral, else
@@ -137,6 +140,7 @@ class CylinderECU:
         noise_counts=0.0,
         gain_error=None,
         watchdog_timeout_s: float = 0.1,
+        watchdog_rearm_s: float = DEFAULT_REARM_S,
         controller: ControllerConfig | None = None,
         step_s: float = 1e-3,
         initial_counts=None,
@@ -179,7 +183,7 @@ class CylinderECU:
             for p, g, s, x in zip(self.params, gains, noise, x0, strict=True)
         )
         self._controllers = tuple(UnitController(p, controller) for p in self.params)
-        self._watchdog = Watchdog(watchdog_timeout_s)
+        self._watchdog = Watchdog(watchdog_timeout_s, watchdog_rearm_s)
         self._tick = 0
         self._enabled = bool(controllers_enabled)
         self._restarts = 0

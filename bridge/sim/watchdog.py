@@ -8,6 +8,18 @@ timeout (``now − last ≥ timeout``, with a 1 ns tolerance for float time).  U
 ``≥`` makes the valves zero exactly ``timeout`` after the last reference, so "no
 reference for more than 100 ms" never passes a non-zero command.
 
+**Re-arming after a trip.** Once it has expired after having been fed (a stream that broke:
+the planner stopped, or the link stalled), one reference is not enough: the watchdog stays
+expired until the reference stream is *continuous again* for ``rearm_s`` (default 50 ms) —
+references arriving with every gap below the timeout, the last of them at least ``rearm_s``
+after the first. References that queued up during a stall (in a CAN hub, in the ECU's own
+receive queue) arrive in a burst when the link comes back: a burst spans a few milliseconds,
+never ``rearm_s``, and after it nothing follows (the planner stopped streaming long ago), so the
+ECU never acts on seconds-old references. A live planner's stream re-arms it after about
+``rearm_s`` plus one reference period. Before the first reference since power-up or
+:meth:`Watchdog.reset` the first reference arms it at once (nothing can have queued up for a
+node that was not there).
+
 Times in seconds of the ECU's (simulated) clock.
 """
 
@@ -17,7 +29,7 @@ import math
 
 from planner.errors import HitchInputError
 
-__all__ = ["WatchdogError", "Watchdog"]
+__all__ = ["DEFAULT_REARM_S", "WatchdogError", "Watchdog"]
 
 #: Float-time tolerance for the expiry comparison [s].
 _TIME_EPS_S = 1e-9
@@ -27,23 +39,39 @@ class WatchdogError(HitchInputError):
     """Bad watchdog configuration or time; the message names the field and the allowed range."""
 
 
-class Watchdog:
-    """Expires when no reference arrived for ``timeout_s`` (default 100 ms, thesis ECU)."""
+#: Default re-arm window after a trip [s] (module docstring).
+DEFAULT_REARM_S = 0.05
 
-    def __init__(self, timeout_s: float = 0.1) -> None:
-        if isinstance(timeout_s, bool) or not isinstance(timeout_s, (int, float)) or not math.isfinite(timeout_s):
-            raise WatchdogError(f"timeout_s must be a finite number of seconds, got {timeout_s!r}")
-        if not 0.001 <= timeout_s <= 10.0:
-            raise WatchdogError(f"timeout_s = {timeout_s} outside [0.001, 10] s")
-        self.timeout_s = float(timeout_s)
+
+def _check_seconds(name: str, value: object, low: float, high: float) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise WatchdogError(f"{name} must be a finite number of seconds, got {value!r}")
+    if not low <= value <= high:
+        raise WatchdogError(f"{name} = {value} outside [{low:g}, {high:g}] s")
+    return float(value)
+
+
+class Watchdog:
+    """Expires when no reference arrived for ``timeout_s`` (default 100 ms, thesis ECU); after
+    a trip it re-arms only on a stream continuous for ``rearm_s`` (module docstring; 0: at the
+    first reference, as before)."""
+
+    def __init__(self, timeout_s: float = 0.1, rearm_s: float = DEFAULT_REARM_S) -> None:
+        self.timeout_s = _check_seconds("timeout_s", timeout_s, 0.001, 10.0)
+        self.rearm_s = _check_seconds("rearm_s", rearm_s, 0.0, 10.0)
         self._last: float | None = None
+        self._run_start = 0.0  # first reference of the current unbroken run (every gap < timeout)
         self._tripped = True
+        self._latched = False  # expired after having been fed: re-arms only on a continuous stream
+        self._counted = True  # the last reference's expiry was counted as a trip
         self._trips = 0
 
     def reset(self) -> None:
         """Forget the last reference (ECU restart): expired until the next :meth:`feed`."""
         self._last = None
         self._tripped = True
+        self._latched = False
+        self._counted = True
 
     def feed(self, now_s: float) -> None:
         """A reference arrived at ``now_s`` [s]."""
@@ -51,21 +79,39 @@ class Watchdog:
             raise WatchdogError(f"now_s must be finite, got {now_s!r}")
         if self._last is not None and now_s < self._last - _TIME_EPS_S:
             raise WatchdogError(f"now_s = {now_s} is earlier than the last reference at {self._last} s")
+        if self._last is None or self._broken(now_s):
+            self._run_start = float(now_s)  # a new run (the expiry of the last one is counted, latched)
         self._last = float(now_s)
+        self._counted = False
+        if self._latched and now_s - self._run_start < self.rearm_s - _TIME_EPS_S:
+            self._tripped = True  # a stream after a trip: not continuous for rearm_s yet
+            return
+        self._latched = False
         self._tripped = False
 
+    def _broken(self, now_s: float) -> bool:
+        """The last reference is ``timeout`` old at ``now_s``: count its expiry once (a trip) and latch."""
+        if self._last is None or now_s - self._last < self.timeout_s - _TIME_EPS_S:
+            return False
+        if not self._counted:
+            self._counted = True
+            self._trips += 1
+        self._tripped = self._latched = True
+        return True
+
     def expired(self, now_s: float) -> bool:
-        """True if valves must be held at zero at ``now_s`` [s]; counts each trip once."""
+        """True if valves must be held at zero at ``now_s`` [s]: never fed, the last reference
+        ``timeout`` old, or after a trip a stream not continuous for ``rearm_s`` yet. Counts each
+        reference's expiry once (:attr:`trip_count`)."""
         if self._last is None:
             return True
-        if not self._tripped and now_s - self._last >= self.timeout_s - _TIME_EPS_S:
-            self._tripped = True
-            self._trips += 1
+        self._broken(now_s)
         return self._tripped
 
     def fed_at(self, now_s: float) -> bool:
-        """True if the last reference is younger than the timeout at ``now_s`` [s]: ``not expired(now_s)``
-        without counting a trip (a pure reading)."""
+        """True if the last reference is younger than the timeout at ``now_s`` [s] (references arrive):
+        ``not expired(now_s)`` without counting a trip (a pure reading), except while a stream re-arms
+        after a trip (fed, valves still at zero)."""
         return self._last is not None and now_s - self._last < self.timeout_s - _TIME_EPS_S
 
     @property
@@ -75,5 +121,5 @@ class Watchdog:
 
     @property
     def trip_count(self) -> int:
-        """How often the watchdog expired after having been fed."""
+        """How often a reference expired (the watchdog expired after having been fed; each reference once)."""
         return self._trips

@@ -206,3 +206,36 @@ def test_malformed_and_unrelated_frames_are_ignored():
 def test_claimer_rejects_bad_configuration(address, wait):
     with pytest.raises(ValueError, match="preferred_address|wait_s"):
         AddressClaimer(planner_name(), address, wait_s=wait)
+
+
+def test_a_lost_address_is_asked_again_and_claimed_back_when_its_holder_is_silent():
+    name = planner_name(identity_number=50)
+    ac = AddressClaimer(name, 166, recheck_s=1.0)
+    ac.start(0.0)
+    ac.poll(0.3)
+    lower = planner_name(identity_number=3)
+    ac.handle(claim_frame(lower, 166), 0.5)
+    assert ac.state is ClaimState.CANNOT_CLAIM and ac.holder == lower
+    assert ac.poll(1.49) == []
+    ask = ac.poll(1.5)  # a Request for Address Claimed to 166 from the null address
+    assert [f.arbitration_id for f in ask] == [0x18EAA6FE] and decode(ask[0]) == RequestPgn(0xEE00)
+    ac.handle(claim_frame(lower, 166), 1.6)  # the holder answers: it keeps the address
+    assert ac.poll(1.8) == [] and ac.state is ClaimState.CANNOT_CLAIM and ac.holder == lower
+    again = ac.poll(2.5)  # asked again a period later; nobody answers
+    assert [(f.arbitration_id, bytes(f.data)) for f in again] == [(0x18EAA6FE, bytes(ask[0].data))]
+    out = ac.poll(2.75)
+    assert [f.arbitration_id for f in out] == [0x18EEFFA6] and ac.state is ClaimState.CLAIMING
+    assert ac.holder is None
+    ac.poll(3.0)
+    assert ac.claimed and ac.address == 166
+    assert [(f.arbitration_id, decode(f)) for f in ac.announce()] == [(0x18EEFFA6, AddressClaimed(name.value))]
+    with pytest.raises(ValueError, match="recheck_s"):
+        AddressClaimer(name, 166, recheck_s=0.0)
+
+
+def test_without_recheck_a_lost_address_stays_lost():
+    ac = AddressClaimer(planner_name(identity_number=50), 166)
+    ac.start(0.0)
+    ac.handle(claim_frame(planner_name(identity_number=3), 166), 0.1)
+    assert all(ac.poll(0.1 * k) == [] for k in range(2, 100))
+    assert ac.state is ClaimState.CANNOT_CLAIM and ac.announce() == []

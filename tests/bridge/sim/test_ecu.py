@@ -117,10 +117,17 @@ def test_watchdog_zeroes_valves_within_timeout_and_motion_stops(profile):
     ecu.step(3.0)
     assert np.allclose(ecu.piston_counts(), x_rest, atol=1e-6)
     assert ecu.watchdog.trip_count == 1
-    # a fresh reference re-arms the watchdog; commands resume at the next controller tick
+    # after a trip one reference is not enough: valves stay zero until the stream has been continuous for
+    # the re-arm window (50 ms); commands resume at the next controller tick after it
     ecu.set_reference(ref, 3.0)
-    assert not ecu.system_state() & STATE_WATCHDOG_TRIPPED
+    assert ecu.system_state() & STATE_WATCHDOG_TRIPPED
     ecu.step(3.0 + PERIOD)
+    assert not ecu.valve_commands().any()
+    drive(ecu, ref, 3.01, 3.05)
+    assert ecu.system_state() & STATE_WATCHDOG_TRIPPED and not ecu.valve_commands().any()
+    ecu.set_reference(ref, 3.05)
+    assert not ecu.system_state() & STATE_WATCHDOG_TRIPPED
+    ecu.step(3.05 + PERIOD)
     assert ecu.valve_commands()[1] > 0
 
 
@@ -337,10 +344,16 @@ def test_watchdog_expires_exactly_at_the_timeout():
     assert not w.expired(0.5999)
     assert w.expired(0.6)  # age 0.1 s (0.6 − 0.5 < 0.1 in floats)
     assert w.trip_count == 1 and w.expired(0.61) and w.trip_count == 1
-    w.feed(0.7)
-    assert not w.expired(0.75)
+    w.feed(0.7)  # after a trip: re-armed only by a stream without a break for rearm_s (50 ms)
+    assert w.expired(0.75) and w.trip_count == 1
+    w.feed(0.74)
+    assert w.expired(0.745)
+    w.feed(0.75)
+    assert not w.expired(0.75) and not w.expired(0.8499)
     w.reset()
     assert w.expired(0.75) and w.last_feed_s is None
+    w.feed(0.8)  # after power-up or a restart the first reference arms it
+    assert not w.expired(0.8)
     with pytest.raises(WatchdogError, match="earlier"):
         w.feed(0.8) or w.feed(0.7)
     with pytest.raises(WatchdogError, match="timeout_s"):
@@ -429,3 +442,36 @@ def test_the_ecu_runs_with_the_profiles_controller_tuning():
     assert CylinderECU(profile).config.a == profile.motion.controller_a == THESIS_CONTROLLER_A
     other = profile.model_copy(update={"motion": profile.motion.model_copy(update={"controller_a": 0.4})})
     assert CylinderECU(other).config.a == 0.4
+
+
+def test_watchdog_after_a_trip_a_burst_of_queued_references_never_re_arms_it():
+    """References that queued up during a stall arrive in a burst: never enough to re-arm (the
+    ECU would otherwise drive on references seconds old); a live stream re-arms it after 50 ms."""
+    from bridge.sim import Watchdog
+
+    w = Watchdog(0.1)
+    for k in range(50):  # a 50 Hz stream for 1 s
+        w.feed(0.02 * k)
+        assert not w.expired(0.02 * k)
+    assert w.expired(0.98 + 0.1) and w.trip_count == 1
+    for k in range(10):  # the stall's backlog, read within 9 ms 3 s later
+        w.feed(4.0 + 0.001 * k)
+        assert w.expired(4.0 + 0.001 * k)
+    assert all(w.expired(4.009 + 0.01 * k) for k in range(30))
+    assert w.trip_count == 2  # each reference's expiry counted once
+    # a stream with a break (≥ the timeout) starts its run again
+    for t in (5.0, 5.02, 5.04, 5.2, 5.22, 5.24):
+        w.feed(t)
+        assert w.expired(t), t
+    w.feed(5.26)
+    assert not w.expired(5.26) and not w.expired(5.3599)
+    assert w.expired(5.36)
+    w.feed(5.4)
+    assert w.expired(5.4)  # a trip again: latched again
+    with pytest.raises(ValueError, match="rearm_s"):
+        Watchdog(0.1, rearm_s=-0.01)
+    free = Watchdog(0.1, rearm_s=0.0)  # 0: the first reference re-arms it (the behaviour before)
+    free.feed(0.0)
+    assert free.expired(0.1)
+    free.feed(3.0)
+    assert not free.expired(3.0)

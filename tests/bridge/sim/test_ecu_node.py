@@ -385,3 +385,67 @@ def test_a_link_started_after_the_ecu_learns_its_name(buses, model):
         node.poll(t)
         link.poll(t)
     assert link.peer_name(169) == cylinder_ecu_name()
+
+
+@pytest.mark.parametrize("stalled", ["ecu", "hub"])
+def test_references_queued_during_a_stall_longer_than_the_watchdog_never_move_a_cylinder(model, stalled):
+    """Safety tester: during a goto the CAN hub (or the ECU process) was stopped for 3 s; after it
+    went on, the references queued meanwhile arrived in a burst, fed the ECU's watchdog when read, and
+    the ECU drove about 100 ms on references seconds old while the planner had long stopped."""
+    low, high = low_and_high(model)
+    with SimRig(model, initial_actuators=low) as rig:
+        rig.start()
+        rig.run_until(0.5)
+        rig.link.send_reference(high, rig.next_tick_s)
+        rig.run_until(1.0)
+        assert rig.ecu.valve_commands()[0] != 0  # moving
+        held = []
+        t_stall = rig.now_s
+        if stalled == "ecu":  # kill -STOP ecu-sim: neither reads nor sends; the planner's frames wait in its queue
+            rig.ecu_paused = True
+        else:  # kill -STOP the hub: the ECU runs on; frames each way wait in the hub
+            rig.node.handle = lambda frame, now_s: held.append(frame)
+            rig.node.bus.send = lambda frame, timeout=None: None
+        rig.run_until(t_stall + 3.0)
+        assert rig.link.faults.any and not rig.link.streaming  # the planner stopped long ago
+        rig.ecu.step(rig.now_s)  # the machine: the watchdog closed the valves 100 ms into the stall
+        before = rig.ecu.piston_counts().copy()
+        assert not rig.ecu.valve_commands().any()
+        if stalled == "ecu":
+            rig.ecu_paused = False  # kill -CONT: the queued frames are read at once
+        else:
+            del rig.node.handle, rig.node.bus.send
+            refs = [f for f in held if decode_id(f.arbitration_id).pgn == 0xFF21]
+            assert len(refs) >= 5
+            for frame in held:  # the hub delivers its backlog in a burst
+                rig.node.handle(frame, rig.next_tick_s)
+        valves = []
+        while rig.now_s < t_stall + 4.0:
+            rig.tick()
+            valves.append(rig.ecu.valve_commands().copy())
+        assert rig.node.counters.references > 0
+        assert not np.any(valves), "the ECU acted on references queued during the stall"
+        assert np.max(np.abs(rig.ecu.piston_counts() - before)) < 1e-6
+
+
+def test_after_a_trip_a_live_stream_re_arms_the_ecu_within_about_60_ms(model):
+    """The re-arm costs a live planner one re-arm window: a new command after a fault moves at once after it."""
+    low, high = low_and_high(model)
+    with SimRig(model, initial_actuators=low) as rig:
+        rig.start()
+        rig.run_until(0.5)
+        rig.link.send_reference(high, rig.next_tick_s)
+        rig.run_until(1.0)
+        rig.link.stop_motion()
+        rig.run_until(1.5)
+        assert rig.ecu.watchdog.trip_count == 1 and not rig.ecu.valve_commands().any()
+        t0 = rig.next_tick_s
+        rig.link.send_reference(high, t0)
+        moved = None
+        while rig.now_s < t0 + 0.2 and moved is None:
+            t = rig.tick()
+            if rig.ecu.valve_commands()[0] != 0:
+                moved = t
+        assert moved is not None and 0.05 <= moved - t0 <= 0.08
+        rig.run_until(t0 + 0.5)
+        assert not rig.link.faults.any and rig.link.streaming

@@ -169,6 +169,11 @@ class TrackSensors(Protocol):
 
 #: a rejected setpoint is announced at most this often per session [s] (each one is counted)
 _REJECTION_EVENT_EVERY_S = 1.0
+#: a motion request that arrived within this time after a stop is refused too [s]: it may have been sent before
+#: the stop and stamped late (a request's arrival is stamped when the service's Zenoh callback runs, which a
+#: loaded service runs tens of ms late, while the stop goes to the core on its own path; a safety trial under a
+#: request flood: 14 of 15 gotos sent 0.2-9 ms before a stop started after it, 2 of 8 at 25 ms)
+STOP_GRACE_S = 0.1
 #: track session ids start at a random number below this (and stay below 2^53, JSON's exact integers)
 SESSION_ID_SPAN = 2**40
 
@@ -830,12 +835,22 @@ class MotionController:
 
     def ack_faults(self) -> FaultAck:
         """Acknowledge the latched faults (``faults/ack``): they are cleared, with a
-        ``fault_cleared`` event; self-clearing faults whose data is not fresh yet stay. Motion
-        needs a new command afterwards (nothing resumes)."""
+        ``fault_cleared`` event; self-clearing faults whose data is not fresh yet stay, and so do latched ones
+        whose cause the link still sees (``LinkStatus.fault_causes``: our address held or used by another
+        node). Motion needs a new command afterwards (nothing resumes)."""
         with self._lock:
-            acked = tuple(n for n, f in self._faults.items() if f.latches)
+            # a latched fault whose cause is still there (another node holds our address, or uses it) is not
+            # cleared: after an ack of address_lost the service said "no fault held" and refused every goto
+            # "not claimed" (a safety trial); its reason says what holds it
+            status = self.link.status(self.clock())
+            causes = set(getattr(status, "fault_causes", ()) or ())
+            acked = tuple(n for n, f in self._faults.items() if f.latches and n not in causes)
             for n in acked:
                 del self._faults[n]
+            problem = getattr(status, "address_problem", "")
+            held = self._faults.get("address_lost")
+            if held is not None and problem:
+                self._faults["address_lost"] = replace(held, reason=problem)
             if acked:
                 self._post(
                     [{"event": "fault_cleared", "cleared": list(acked), "by": "ack", "faults": list(self._faults)}]
@@ -967,6 +982,12 @@ class MotionController:
     def _check_late(self, what: str, now: float, deadline: float | None, issued: float | None) -> None:
         if issued is not None and issued <= self._stopped_at:
             raise MotionError("busy", f"{what} cancelled: a stop was sent after this request arrived; not run later")
+        if issued is not None and issued - self._stopped_at <= STOP_GRACE_S:
+            raise MotionError(
+                "busy",
+                f"{what} refused: it arrived {1000.0 * (issued - self._stopped_at):.0f} ms after a stop (within "
+                f"{1000.0 * STOP_GRACE_S:.0f} ms it may have been sent before the stop); send it again",
+            )
         if deadline is not None and now > deadline:
             raise MotionError(
                 "busy",
@@ -1139,6 +1160,11 @@ class MotionController:
                 self._faults[name] = Fault(name, self._reason(name, status), True, now)
 
     def _reason(self, name: str, status: LinkStatus) -> str:
+        """The link's reason for fault ``name``: the one it recorded for that name (a guess from the fault's last
+        word picked another fault's text: stale_measurement showed references_lost's, a new user's report)."""
+        own = status.faults.reason_of(name)
+        if own is not None:
+            return own
         hint = name.replace("_", " ").split()[-1]
         for r in status.faults.reasons:
             if hint.lower() in r.lower():

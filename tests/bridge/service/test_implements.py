@@ -8,12 +8,14 @@ from __future__ import annotations
 
 import json
 import sqlite3
+import time
 
 import numpy as np
 import pytest
 
 from bridge.service.config import ServiceConfig
 from bridge.service.implements import HEADLAND_PRESET
+from bridge.service.motion.controller import STOP_GRACE_S
 from bridge.service.server import HitchService
 from bridge.service.store import MIGRATIONS, SCHEMA_VERSION, HitchStore
 from bridge.service.workers import PlanningWorkers, WorkerSpec
@@ -286,6 +288,7 @@ def test_transport_lock_refuses_every_motion_but_stop(svc):
     svc.run(0.5)
     np.testing.assert_allclose(svc.pose(), start, atol=1e-9)  # nothing moved
     svc.ok("implements/unlock")
+    time.sleep(STOP_GRACE_S + 0.02)  # a goto that arrives just after a stop may have been sent before it
     assert svc.ok("goto", {"goal": {"z": 0.2}})["accepted"]
 
 

@@ -49,3 +49,51 @@ def test_a_stall_of_the_links_thread_alone_raises_no_ecu_heartbeat_fault():
         assert not link.faults.any, link.faults.reasons
     finally:
         parts.close()
+
+
+def test_an_ack_keeps_address_lost_while_another_node_holds_our_address_and_names_it(model, tmp_path):
+    """A safety trial: a spoofed Address Claimed (NAME 0 for address 166) during a move raised address_lost;
+    faults/ack then said "no fault held" while every goto was refused "not claimed". The ack keeps it while
+    the cause is there, with the link's sentence naming the holder; once the link has won its address back
+    (nobody answered its re-check) the ack clears it and a goto moves again."""
+    import can
+
+    from bridge.isobus.codec import AddressClaimed, encode
+    from tests.helpers import SimService
+
+    svc = SimService(model, tmp_path / "h.sqlite3")
+    rival = can.Bus(interface="virtual", channel=svc.rig.channel)
+    try:
+        svc.ok("goto", {"goal": {"z": 0.2}})
+        svc.run(0.3)
+        rival.send(encode(AddressClaimed(0), source=166))  # the lowest NAME there is
+        svc.run(0.1)
+        assert "address_lost" in svc.mc._faults  # noqa: SLF001 — the controller's held faults
+        ack = svc.ok("faults/ack")
+        assert "address_lost" in ack["faults"] and "address_lost" not in ack["acknowledged"], ack
+        assert "NAME 0x0000000000000000 holds it" in svc.mc._faults["address_lost"].reason  # noqa: SLF001
+        ok, r = svc.call("goto", {"goal": {"z": 0.1}})
+        assert not ok and "address_lost" in r["message"], r
+        svc.run(2.5)  # the link asks again at 1 s, nobody answers, it claims 166 back
+        assert svc.ok("faults/ack")["faults"] == []
+        assert svc.ok("goto", {"goal": {"z": 0.1}})["accepted"]
+    finally:
+        rival.shutdown()
+        svc.close()
+
+
+def test_each_held_fault_shows_the_links_reason_for_it():
+    """A new user's report: with references_lost latched, a cut of ECU → planner held stale_measurement with
+    the reason "the ECU reports its reference watchdog expired …; no valid cylinder positions …": the
+    controller guessed each fault's reason from its name's last word ("measurement" is in neither text)."""
+    with running_machine("machine") as (_, parts, mc, events):
+        assert goto_when_ready(mc, {"z": 0.3}, speed_scale=0.3), "the link never became ready"
+        time.sleep(0.5)
+        assert parts.ecu_node is not None
+        parts.ecu_node.apply_fault({"cut": "planner_to_ecu"})
+        assert wait_until(lambda: "references_lost" in {f.name for f in mc.faults}, 2.0)
+        parts.ecu_node.apply_fault({"cut": "both"})
+        assert wait_until(lambda: "stale_measurement" in {f.name for f in mc.faults}, 2.0)
+        held = {f.name: f.reason for f in mc.faults}
+        assert "watchdog" in held["references_lost"] and "watchdog" not in held["stale_measurement"], held
+        assert ";" not in held["stale_measurement"], held  # one reason, not every one joined

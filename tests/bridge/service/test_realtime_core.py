@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from bridge.service.api import MAX_IN_FLIGHT_PER_USER
+from bridge.service.motion.controller import STOP_GRACE_S
 from bridge.service.motion.types import FAULT_CLEAR_AFTER_S, MotionError
 from planner.ik_qp.hitch_ik import IKSolver
 from planner.limits.guard import Guard
@@ -112,6 +113,10 @@ def test_a_stop_cancels_every_motion_request_that_arrived_before_it(r):
         assert not ok and reply["error"] == "busy" and "stop" in reply["message"], reply
     r.run(0.5)
     assert "motion_started" not in r.names()
+    ok, reply = r.call("goto", {"goal": {"z": 0.2}})  # arrived within STOP_GRACE_S of it: maybe sent before
+    assert not ok and reply["error"] == "busy" and "after a stop" in reply["message"], reply
+    assert "send it again" in reply["message"]
+    time.sleep(STOP_GRACE_S + 0.02)
     ok, reply = r.call("goto", {"goal": {"z": 0.2}})  # sent after the stop: runs
     assert ok, reply
 
@@ -152,6 +157,7 @@ def test_a_stop_cancels_a_resume_or_a_track_start_that_arrived_before_it(r):
         assert not ok and reply["error"] == "busy" and "stop" in reply["message"], (key, reply)
     ok, reply = r.call("track/start", {"dof": ["z"]}, received=queued - 6.0)
     assert not ok and reply["error"] == "busy", reply
+    time.sleep(STOP_GRACE_S + 0.02)
     ok, reply = r.call("track/start", {"dof": ["z"]})  # sent after the stop: starts
     assert ok, reply
 

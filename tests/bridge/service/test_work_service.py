@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from bridge.service.config import ServiceConfig
+from bridge.service.motion.controller import STOP_GRACE_S
 from bridge.service.server import HitchService
 from bridge.service.store import HitchStore
 from bridge.service.work import WorkControl
@@ -141,6 +142,7 @@ def test_a_work_start_or_resume_that_waited_past_its_deadline_or_a_later_stop_is
         assert not ok and r["error"] == "busy" and "stop" in r["message"], r
         s.run(0.5)
         assert not s.states[-1]["work"]["running"]
+        time.sleep(STOP_GRACE_S + 0.02)  # within it, a request may have been sent before the stop: refused
         r = started = s.ok("work/start", {"deadline_ms": 10_000})  # sent after the stop: starts
         assert r["work"]["running"]
         ok, r = s.call("work/resume", {}, received=time.monotonic() - 6.0)  # also before the stop
@@ -156,7 +158,7 @@ def test_a_work_start_or_resume_that_waited_past_its_deadline_or_a_later_stop_is
         s.run(0.2)
         ends = [e for e in s.events if e["event"] == "work_finished" and e["session"] == first]
         assert ends and ends[0]["reason"] == f"replaced by work/start (session {again['session']})", s.events[-6:]
-        # a goto (a quick raise, a maneuver) during work names what ends it: work/stop, not the track/stop the
+        # a goto (a preset, a maneuver) during work names what ends it: work/stop, not the track/stop the
         # operator never sent (a field trial)
         ok, r = s.call("goto", {"goal": {"z": 0.1}, "deadline_ms": 10_000})
         assert not ok and r["error"] == "busy", r
@@ -555,6 +557,7 @@ def test_paused_work_starts_again_only_when_the_return_arrives_and_work_stop_for
     svc.ok("stop")
     _run_forwarding(svc, 2.0)
     assert not svc.states[-1]["work"]["running"] and svc.api.implements.paused_work is not None
+    time.sleep(STOP_GRACE_S + 0.02)  # a return just after a stop may have been sent before it: refused
     r = svc.ok("hitch/return")
     _run_forwarding(svc, r["duration"] + 0.5)
     assert wait_until(lambda: any(e["event"] == "work_resumed" for e in svc.events))

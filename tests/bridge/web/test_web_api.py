@@ -596,9 +596,7 @@ def test_a_goto_sent_behind_slow_requests_never_moves_the_hitch_after_a_later_st
     time.sleep(0.5)
     # the stop's own braking motion may be announced after its reply (the event and the reply race): not one
     # that started after the stop
-    started_after_stop = [
-        e for e in events[n_stop:] if e.get("event") == "motion_started" and e.get("kind") != "stop"
-    ]
+    started_after_stop = [e for e in events[n_stop:] if e.get("event") == "motion_started" and e.get("kind") != "stop"]
     service.remove_listener("event", events.append)
     assert not started_after_stop, started_after_stop
     assert not service.latest_state["moving"], service.latest_state["motion"]

@@ -28,6 +28,7 @@ from __future__ import annotations
 import json
 import math
 import threading
+import time
 from collections import deque
 from collections.abc import Callable, Mapping
 from typing import Any, Protocol
@@ -62,6 +63,24 @@ _AT_HEADLAND = 5e-3
 
 
 _NO_IMPLEMENT = "no implement is selected (select one first: `hitch implement select NAME`, key implements/select)"
+
+
+class Dispatch(Protocol):
+    """How the implement logic sends a request of its own (the API's ``handle``: the black box records it)."""
+
+    def __call__(
+        self, key: str, payload: bytes, user: str | None = None, *, received: float | None = None
+    ) -> tuple[bool, dict[str, Any]]: ...
+
+
+def _monotonic_of(event: Mapping[str, Any]) -> float:
+    """``time.monotonic()`` of when ``event`` happened, from its wall-clock ``t`` [s] (now when it has none, or a
+    ``t`` in the future)."""
+    now = time.monotonic()
+    t = event.get("t")
+    if isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t):
+        return now
+    return now - max(0.0, time.time() - float(t))
 
 
 class ImplementMotion(Protocol):
@@ -119,7 +138,7 @@ class ImplementService:
         self.selected: str = persisted or selected or DEFAULT_IMPLEMENT
         self.warning: str | None = None
         #: how a switch edge is served (``key`` → the API's handling of it; set by :func:`implement_handlers`)
-        self.dispatch: Callable[[str, bytes], tuple[bool, dict[str, Any]]] | None = None
+        self.dispatch: Dispatch | None = None
         #: told every implement the controller accepted (the planning processes: previews and maneuver
         #: validation plan with the selected implement's guard; set by :func:`implement_handlers`)
         self.on_applied: Callable[[ImplementRecord | None, ImplementLimits], None] | None = None
@@ -134,6 +153,10 @@ class ImplementService:
         #: the work session a quick raise ended (``implement``, ``session``, ``z`` [m], ``mode``) and the return
         #: motion that starts it again on arrival (``return_motion``); None: a return only goes back
         self.paused_work: dict[str, Any] | None = None
+        # its own lock: the event listener reads it on the thread that reads the core's replies, which must never
+        # wait for ``_lock`` (held across calls to the core: a select waited 10 s for a reply that thread was to
+        # read; a reviewer's finding)
+        self._pause_lock = threading.Lock()
 
     # ------------------------------------------------------------------ start
     def restore(self) -> None:
@@ -212,7 +235,8 @@ class ImplementService:
                 self._apply(None, ImplementLimits())
                 self.selected = DEFAULT_IMPLEMENT
                 self.store.set_setting(SELECTED_SETTING, DEFAULT_IMPLEMENT)
-                self.paused_work = None
+                with self._pause_lock:
+                    self.paused_work = None
                 self._announce()
                 return {"selected": DEFAULT_IMPLEMENT, "implement": None}
             imp = self._stored_or_builtin(name, save=False)
@@ -222,8 +246,9 @@ class ImplementService:
                 imp = self.store.save_implement(imp)
             self.selected = imp.name
             self.store.set_setting(SELECTED_SETTING, imp.name)
-            if self.paused_work is not None and self.paused_work["implement"] != imp.name:
-                self.paused_work = None  # another implement's work never starts again by a return
+            with self._pause_lock:
+                if self.paused_work is not None and self.paused_work["implement"] != imp.name:
+                    self.paused_work = None  # another implement's work never starts again by a return
             self._announce()
         return {"selected": imp.name, "implement": imp.to_json()}
 
@@ -276,6 +301,8 @@ class ImplementService:
         except MotionError as exc:
             if paused is None:
                 raise
+            with self._lock:  # work ended here: the return goes back here, not to an earlier headland turn's pose
+                self.store.update_implement(imp.name, last_work=here)
             raise MotionError(  # the work session has ended all the same: say so
                 exc.code, f"{exc}; the work session {paused['session']} has ended (the hitch brakes to rest there)"
             ) from exc
@@ -283,8 +310,9 @@ class ImplementService:
             with self._lock:  # serialised with define, which rewrites the whole record
                 self.store.update_implement(imp.name, last_work=here)
         out = {**acc.to_json(), "raise": True, "headland": dict(goal), "last_work": here}
-        if self.paused_work is not None and self.paused_work["implement"] == imp.name:
-            out["work_paused"] = _paused_json(self.paused_work)
+        with self._pause_lock:
+            if self.paused_work is not None and self.paused_work["implement"] == imp.name:
+                out["work_paused"] = _paused_json(self.paused_work)
         return out
 
     def _pause_work(self, implement: str, deadline: float | None, issued: float | None) -> dict[str, Any] | None:
@@ -298,7 +326,7 @@ class ImplementService:
         paused = reply.get("paused")
         if not paused:
             return None
-        with self._lock:
+        with self._pause_lock:
             self.paused_work = {"implement": implement, **paused, "return_motion": None}
         self._post(
             {
@@ -315,7 +343,7 @@ class ImplementService:
     def clear_paused_work(self) -> dict[str, Any] | None:
         """Forget the work a quick raise paused (a new work/start or work/stop, another implement): the
         return then only goes back. The paused work, or None."""
-        with self._lock:
+        with self._pause_lock:
             paused, self.paused_work = self.paused_work, None
         return None if paused is None else _paused_json(paused)
 
@@ -331,14 +359,17 @@ class ImplementService:
         """Go back to the last work pose (where the last raise started)."""
         imp = self._need_current("hitch/return")
         if imp.last_work is None:
-            raise RequestError(
-                "not_found", f"hitch/return: implement {imp.name!r} has no work pose yet (raise it once first)"
+            raise RequestError(  # a raise from the headland pose records none: "raise it once" was no advice
+                "not_found",
+                f"hitch/return: implement {imp.name!r} has no work pose yet: a raise records the pose it starts "
+                f"from, but not one that starts at the headland pose (within {_AT_HEADLAND * 1000:g} mm / "
+                f"{_AT_HEADLAND * 1000:g} mrad of it); raise from a work pose first",
             )
         scale = r.speed_scale or 1.0
         goal = dict(imp.last_work)
         acc = self.motion.goto(goal, scale, kind="preset", label="return", deadline=deadline, issued=issued)
         out = {**acc.to_json(), "return": True, "last_work": dict(imp.last_work)}
-        with self._lock:
+        with self._pause_lock:
             paused = self.paused_work
             if paused is not None and paused["implement"] == imp.name:
                 paused["return_motion"] = out["motion_id"]  # work starts again when it arrives (on_event)
@@ -351,7 +382,11 @@ class ImplementService:
         records it and work/start's checks apply); replaced or stopped (``motion_aborted``) → no work, the
         pause is kept (a later return starts it). A refused start is announced (``work_resume_refused``)."""
         name = event.get("event")
-        with self._lock:
+        if self.paused_work is None:  # the common case: no lock taken on the event thread
+            return
+        # the arrival's own time: a stop sent after the return arrived cancels the start, however late this runs
+        arrived = _monotonic_of(event)
+        with self._pause_lock:
             paused = self.paused_work
             if paused is None or paused.get("return_motion") is None:
                 return
@@ -366,7 +401,7 @@ class ImplementService:
 
         def run() -> None:
             try:
-                ok, reply = dispatch("work/start", payload)
+                ok, reply = dispatch("work/start", payload, received=arrived)
             except Exception as exc:  # noqa: BLE001 — announced, never lost with the thread
                 ok, reply = False, {"error": "internal", "message": f"{type(exc).__name__}: {exc}"}
             if ok:

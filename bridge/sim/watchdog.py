@@ -12,11 +12,14 @@ reference for more than 100 ms" never passes a non-zero command.
 the planner stopped, or the link stalled), one reference is not enough: the watchdog stays
 expired until the reference stream is *continuous again* for ``rearm_s`` (default 50 ms) —
 references arriving with every gap below the timeout, the last of them at least ``rearm_s``
-after the first. References that queued up during a stall (in a CAN hub, in the ECU's own
-receive queue) arrive in a burst when the link comes back: a burst spans a few milliseconds,
-never ``rearm_s``, and after it nothing follows (the planner stopped streaming long ago), so the
-ECU never acts on seconds-old references. A live planner's stream re-arms it after about
-``rearm_s`` plus one reference period. Before the first reference since power-up or
+after the first, and at least :data:`REARM_REFERENCES` of them *spaced as a stream is*: each
+``min_gap_s`` (default 10 ms, half the 20 ms reference period) or more after the frame before it.
+References that queued up during a stall (in a CAN hub, in the ECU's own receive queue) arrive
+back to back when the link comes back (about 0.5 ms apart on a 250 kbit/s bus): none of them but
+the first is spaced, however long the burst (2 s of a 50 Hz stream spans 50 ms on the bus: a
+reviewer's finding against a re-arm by duration alone), and after it nothing follows (the planner
+stopped streaming long ago), so the ECU never acts on seconds-old references. A live planner's
+stream re-arms it after about ``rearm_s`` plus one reference period. Before the first reference since power-up or
 :meth:`Watchdog.reset` the first reference arms it at once (nothing can have queued up for a
 node that was not there).
 
@@ -29,7 +32,7 @@ import math
 
 from planner.errors import HitchInputError
 
-__all__ = ["DEFAULT_REARM_S", "WatchdogError", "Watchdog"]
+__all__ = ["DEFAULT_MIN_GAP_S", "DEFAULT_REARM_S", "REARM_REFERENCES", "WatchdogError", "Watchdog"]
 
 #: Float-time tolerance for the expiry comparison [s].
 _TIME_EPS_S = 1e-9
@@ -41,6 +44,10 @@ class WatchdogError(HitchInputError):
 
 #: Default re-arm window after a trip [s] (module docstring).
 DEFAULT_REARM_S = 0.05
+#: Default least gap before a reference that counts as one of a live stream when re-arming [s].
+DEFAULT_MIN_GAP_S = 0.01
+#: References spaced as a stream (each ``min_gap_s`` after the one before) a re-arm needs.
+REARM_REFERENCES = 3
 
 
 def _check_seconds(name: str, value: object, low: float, high: float) -> float:
@@ -56,9 +63,13 @@ class Watchdog:
     a trip it re-arms only on a stream continuous for ``rearm_s`` (module docstring; 0: at the
     first reference, as before)."""
 
-    def __init__(self, timeout_s: float = 0.1, rearm_s: float = DEFAULT_REARM_S) -> None:
+    def __init__(
+        self, timeout_s: float = 0.1, rearm_s: float = DEFAULT_REARM_S, min_gap_s: float = DEFAULT_MIN_GAP_S
+    ) -> None:
         self.timeout_s = _check_seconds("timeout_s", timeout_s, 0.001, 10.0)
         self.rearm_s = _check_seconds("rearm_s", rearm_s, 0.0, 10.0)
+        self.min_gap_s = _check_seconds("min_gap_s", min_gap_s, 0.0, self.timeout_s)
+        self._spaced = 0  # references of the current run spaced as a stream (min_gap_s after the one before)
         self._last: float | None = None
         self._run_start = 0.0  # first reference of the current unbroken run (every gap < timeout)
         self._tripped = True
@@ -81,10 +92,17 @@ class Watchdog:
             raise WatchdogError(f"now_s = {now_s} is earlier than the last reference at {self._last} s")
         if self._last is None or self._broken(now_s):
             self._run_start = float(now_s)  # a new run (the expiry of the last one is counted, latched)
+            self._spaced = 1  # its first reference came after a gap of at least the timeout
+        elif now_s - self._last >= self.min_gap_s - _TIME_EPS_S:
+            self._spaced += 1
         self._last = float(now_s)
         self._counted = False
-        if self._latched and now_s - self._run_start < self.rearm_s - _TIME_EPS_S:
-            self._tripped = True  # a stream after a trip: not continuous for rearm_s yet
+        if (
+            self._latched
+            and self.rearm_s > 0.0
+            and (now_s - self._run_start < self.rearm_s - _TIME_EPS_S or self._spaced < REARM_REFERENCES)
+        ):
+            self._tripped = True  # a stream after a trip: not continuous for rearm_s, or a burst of queued frames
             return
         self._latched = False
         self._tripped = False

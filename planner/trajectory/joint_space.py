@@ -29,9 +29,9 @@ class JointSamples:
     acceleration: np.ndarray
 
 
-def _joint_vector(name: str, value: object, n: int | None) -> np.ndarray:
-    """``value`` as a 1-D float vector of finite numbers (``n`` of them when given); TrajectoryInputError naming
-    ``name`` otherwise."""
+def _joint_vector(name: str, value: object, n: int | None, *, infinite: bool = False) -> np.ndarray:
+    """``value`` as a 1-D float vector of finite numbers (``n`` of them when given; ``infinite``: ±inf allowed, a
+    joint limit that is not there); TrajectoryInputError naming ``name`` otherwise."""
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError) as exc:
@@ -39,9 +39,10 @@ def _joint_vector(name: str, value: object, n: int | None) -> np.ndarray:
     if arr.ndim != 1 or arr.size == 0 or (n is not None and arr.size != n):
         want = "a non-empty vector" if n is None else f"{n} values (one per joint of the start)"
         raise TrajectoryInputError(f"{name} must be {want}, got shape {arr.shape}")
-    bad = np.flatnonzero(~np.isfinite(arr))
+    bad = np.flatnonzero(np.isnan(arr) if infinite else ~np.isfinite(arr))
     if bad.size:
-        raise TrajectoryInputError(f"{name}[{bad[0]}] must be a finite number, got {arr[bad[0]]}")
+        what = "a number (±inf: no limit)" if infinite else "a finite number"
+        raise TrajectoryInputError(f"{name}[{bad[0]}] must be {what}, got {arr[bad[0]]}")
     return arr
 
 
@@ -78,8 +79,8 @@ def plan_joint_move(
     )
     if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not (1.0 <= rate <= 1000.0):
         raise TrajectoryInputError(f"rate must lie within 1..1000 Hz, got {rate!r}")
-    lo = None if lower is None else _joint_vector("lower", lower, n)
-    hi = None if upper is None else _joint_vector("upper", upper, n)
+    lo = None if lower is None else _joint_vector("lower", lower, n, infinite=True)
+    hi = None if upper is None else _joint_vector("upper", upper, n, infinite=True)
     if lo is not None and hi is not None and np.any(lo > hi):
         i = int(np.argmax(lo > hi))
         raise TrajectoryInputError(f"joint {i}: lower limit {lo[i]:g} is above its upper limit {hi[i]:g}")

@@ -175,3 +175,16 @@ def test_a_real_holder_of_our_address_keeps_it_and_the_condition_stays(rig, riva
     with pytest.raises(LinkFaultError, match="not claimed"):
         rig.link.send_reference(model.neutral, rig.next_tick_s)
     assert np.isfinite(rig.now_s)
+
+
+def test_the_sends_kept_to_tell_our_echo_stay_within_the_echo_window_on_a_bus_that_echoes_nothing(rig, model):
+    """A reviewer's finding: on a bus without echoes (the virtual bus, socketcan) the send times of a held
+    pose's reference frame were never dropped (30 000 after 10 minutes of holding). Only those within the echo
+    window are kept."""
+    from bridge.link.can_link import ECHO_WINDOW_S
+
+    rig.link.send_reference(model.neutral, rig.next_tick_s)
+    rig.run_until(rig.now_s + 20.0)  # holding: the same frame re-sent at 50 Hz
+    kept = sum(len(v) for v in rig.link._sent.values())  # noqa: SLF001 — the link's echo table
+    per_s = 1.0 / rig.link.config.control_period_s
+    assert kept <= 3 * (ECHO_WINDOW_S + 1.0) * per_s, kept  # its frames of at most ~2 s, not 20 s

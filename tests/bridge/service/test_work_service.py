@@ -601,3 +601,84 @@ def test_the_operator_switch_pauses_work_at_the_headland_and_resumes_it_with_the
         assert not [e for e in events if e.get("event") in ("hitch_switch_refused", "work_resume_refused")], events
     finally:
         svc.close()
+
+
+def test_work_started_again_by_a_return_is_cancelled_by_a_stop_sent_after_the_return_arrived(svc):
+    """A reviewer's finding: the work/start that follows an arrived return was stamped when its thread ran, so
+    a stop pressed after the return arrived, with the event delivered more than STOP_GRACE_S later, did not
+    cancel it: work (motion) began after the stop. It is stamped with the arrival's own time now."""
+    _at_work_with_a_headland(svc)
+    r = svc.ok("hitch/raise")
+    _run_forwarding(svc, r["duration"] + 1.0)
+    r = svc.ok("hitch/return")
+    seen = len(svc.events)
+    svc.run(r["duration"] + 0.5)  # it arrives; its motion_finished not yet handed to the implement logic
+    assert any(e["event"] == "motion_finished" and e["motion_id"] == r["motion_id"] for e in svc.events[seen:])
+    assert svc.call("stop")[0]  # the operator stops after the arrival
+    time.sleep(STOP_GRACE_S + 0.05)  # the event reaches the listener late
+    _run_forwarding(svc, 0.0)
+    for e in svc.events[seen:]:
+        svc.api.implements.on_event(e)
+    assert wait_until(lambda: any(e["event"] == "work_resume_refused" for e in svc.events))
+    refused = [e for e in svc.events if e["event"] == "work_resume_refused"][0]
+    assert "stop" in refused["message"], refused
+    _run_forwarding(svc, 1.0)
+    assert not svc.states[-1]["work"]["running"] and not svc.states[-1]["moving"]
+
+
+def test_a_raise_refused_after_it_ended_work_keeps_this_work_pose_for_the_return(svc):
+    """A reviewer's finding: the raise ends the work session, then its goto may be refused (a fault, a late
+    request); the work pose was then not recorded and the return went to an earlier headland turn's pose."""
+    from bridge.service.motion.types import Fault
+
+    _at_work_with_a_headland(svc)
+    svc.ok("work/stop")
+    _run_forwarding(svc, 1.0)
+    svc.ok("goto", {"goal": {"z": 0.02}})  # an earlier work pose, recorded by a raise from it
+    _run_forwarding(svc, 3.0)
+    r = svc.ok("hitch/raise")
+    _run_forwarding(svc, r["duration"] + 0.5)
+    time.sleep(STOP_GRACE_S + 0.02)
+    svc.ok("work/start", {"z": 0.1})  # a new work session at another depth
+    _run_forwarding(svc, 3.0)
+    svc.mc._faults["internal"] = Fault("internal", "a test's fault", True, 0.0)  # noqa: SLF001 — goto refused
+    ok, r = svc.call("hitch/raise")
+    assert not ok and "has ended" in r["message"], r
+    last = svc.store.get_implement("tine").last_work
+    assert last is not None and last["z"] == pytest.approx(0.1, abs=5e-3), last
+
+
+def test_a_motion_event_never_waits_for_an_implement_change_in_progress(tmp_path):
+    """A reviewer's finding: the event listener took the implement lock, which a select holds across its call to
+    the core; with the core in its own process both run on the one thread that reads the core's replies, so the
+    select waited 10 s for a reply that thread could not read. A motion event never takes that lock now."""
+    import threading
+
+    from bridge.service.implements import ImplementService
+    from bridge.service.schemas import ImplementDefine
+    from bridge.service.store import HitchStore
+
+    store = HitchStore(tmp_path / "h.sqlite3")
+    handled = threading.Event()
+
+    class Motion:
+        def select_implement(self, implement, limits):
+            # the reply reader delivers a motion event while this call waits for its reply
+            def deliver():
+                svc.on_event({"event": "motion_finished", "motion_id": 7})
+                handled.set()
+
+            threading.Thread(target=deliver).start()
+            assert handled.wait(2.0), "the event listener waited for the implement lock"
+            return {}
+
+        def post_event(self, event):
+            pass
+
+    try:
+        svc = ImplementService(store, Motion())
+        svc.define(ImplementDefine(**TINE))
+        svc.select("tine")
+        assert handled.is_set()
+    finally:
+        store.close()

@@ -475,3 +475,26 @@ def test_watchdog_after_a_trip_a_burst_of_queued_references_never_re_arms_it():
     assert free.expired(0.1)
     free.feed(3.0)
     assert not free.expired(3.0)
+
+
+def test_watchdog_a_long_backlog_delivered_back_to_back_never_re_arms_it():
+    """A reviewer's finding: a re-arm by duration alone (every gap below the timeout for 50 ms) was met by a long
+    backlog: 250 queued references at 0.52 ms each (an 8-byte extended frame at 250 kbit/s) span 130 ms, so
+    the watchdog re-armed at frame 97 and the ECU drove on references seconds old. Frames back to back do not
+    count as a stream; a live 50 Hz stream after the backlog re-arms it."""
+    from bridge.sim import Watchdog
+
+    w = Watchdog(0.1)
+    for k in range(50):
+        w.feed(0.02 * k)
+    assert w.expired(1.2)
+    t = 6.0
+    for _ in range(250):
+        w.feed(t)
+        assert w.expired(t), t
+        t += 0.00052
+    assert w.expired(t)
+    live = [t + 0.02 * (k + 1) for k in range(5)]  # the planner streams again at 50 Hz
+    for s in live:
+        w.feed(s)
+    assert not w.expired(live[-1])

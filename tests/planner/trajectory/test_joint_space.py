@@ -28,6 +28,15 @@ def test_a_move_starts_and_ends_at_rest_on_its_points_within_its_limits():
     assert np.all(np.abs(r.position[-3][moving] - q1[moving]) > 0)
 
 
+def test_an_infinite_joint_limit_is_no_limit_and_nan_is_refused():
+    """A continuous joint has no limit: ±inf as before the input checks (a reviewer's finding); NaN is no limit."""
+    lo, hi = np.full(6, -np.inf), np.full(6, np.inf)
+    r = plan_joint_move(np.zeros(6), np.full(6, 10.0), **KW, lower=lo, upper=hi)
+    np.testing.assert_allclose(r.position[-1], 10.0, atol=1e-9)
+    with pytest.raises(TrajectoryInputError, match=r"upper\[1\] must be a number \(±inf: no limit\), got nan"):
+        plan_joint_move(np.zeros(6), np.ones(6), **KW, lower=lo, upper=[np.inf, np.nan, 1, 1, 1, 1])
+
+
 @pytest.mark.parametrize(
     ("args", "kw", "error", "text"),
     [

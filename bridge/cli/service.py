@@ -545,7 +545,9 @@ def _cmd_mode(args) -> int:
 def _cmd_config(args) -> int:
     def config(c) -> int:
         r = c.config()
-        text = [f"{k}: {r[k]}" for k in ("prefix", "profile", "category", "implement", "mode", "user_keys") if k in r]
+        # no value (no implement selected) reads "-", as in `fleet ls`, never Python's "None"
+        keys = ("prefix", "profile", "category", "implement", "mode", "user_keys")
+        text = [f"{k}: {'-' if r[k] is None else r[k]}" for k in keys if k in r]
         _print(args, r, "\n".join(text) + "\n(--json for everything: limits, workspace, actuators)")
         return 0
 
@@ -814,8 +816,9 @@ def add_commands(sub) -> Any:
             f"--{n}",
             type=finite_float(f"--{n}"),
             default=None,
-            help=f"rate [{unit}] (default 0); the service caps it at its jog speed (its config key: "
-            "limits.jog_velocity) and says so in 'limited'",
+            help=f"rate [{unit}] (default 0); the service caps it at its jog speed (from the profile's actuator "
+            "speeds, not a service setting; `hitch config --json` shows it as limits.jog_velocity) and says so "
+            "in 'limited'",
         )
     p.add_argument(
         "--ttl-ms",

@@ -71,9 +71,9 @@ def _cmd_stability(args) -> int:
         f"(weakest edge: {esc(out['weakest_edge'])})"
     )
     c.print(
-        f"minimum front ballast (the manuals' formula: level ground, "
-        f"{guard.thresholds.front_axle_fraction_hard * 100:.0f} % of the weight on the front axle; "
-        f"the slope is in the margins below): {out['min_front_ballast']:.0f} kg"
+        f"minimum front ballast (the manuals' formula, level ground: front axle load at least "
+        f"{guard.thresholds.front_axle_fraction_hard * 100:.0f} % of the empty tractor's weight, not a share of "
+        f"the total; the slope is in the margins below): {out['min_front_ballast']:.0f} kg"
     )
     for v in out["violations"]:
         u = MEASURE_UNITS.get(v["measure"], "")

@@ -17,7 +17,8 @@ existing log goes on after the last record's number, so a number names one recor
 * ``event`` — an event of this service (faults, motion and maneuver outcomes, mode changes …) as
   the service itself hands it to its in-process ``event`` listeners — never read back from the public
   ``<prefix>/events`` key, where anyone allowed to put could forge one and which a router outage cuts —
-  its fields as they are, the service's time ``t`` kept as ``event_t`` and its number as ``event_seq``;
+  its fields as they are, the service's time ``t`` kept as ``event_t``, its number as ``event_seq`` and
+  its own ``kind`` (a motion's ``goto``, ``preset``, ``jog``, ``stop`` …; a maneuver step's) as ``event_kind``;
 * ``gap`` — events of the service that did not reach the black box (their numbers ``event_seq`` are
   consecutive: ``missing``, ``first_event_seq`` … ``last_event_seq``);
 * ``service`` — start and stop of the service; ``dropped`` — records lost because the
@@ -416,7 +417,8 @@ class EventLog:
         e = dict(event)
         if "t" in e:
             e["event_t"] = e.pop("t")
-        e.pop("kind", None)
+        if "kind" in e:  # the motion's (goto, preset, jog, stop …) or step's kind; ``kind`` is the record's
+            e["event_kind"] = e.pop("kind")
         if "seq" in e:  # the service's own event sequence number; ``seq`` is the log's
             e["event_seq"] = e.pop("seq")
         n = e.get("event_seq")

@@ -230,6 +230,16 @@ def test_hitch_log_prints_the_records_verbatim(tmp_path, capsys):
     assert json.loads(only)["fault"] == "stale_measurement"
 
 
+def test_hitch_log_shows_the_kind_of_each_motion(tmp_path, capsys):
+    """The black box keeps an event's motion kind (``event_kind``); ``hitch log`` shows it on the event's line."""
+    log = EventLog(event_log_path(tmp_path))
+    log.on_event({"t": 1.0, "seq": 1, "event": "motion_started", "motion_id": 3, "kind": "stop"})
+    log.close()
+    assert main(["log", "--data-dir", str(tmp_path)]) == 0
+    (line,) = capsys.readouterr().out.splitlines()
+    assert line.endswith("event motion_started: motion_id=3, event_kind=stop, event_seq=1"), line
+
+
 def test_hitch_log_prints_a_gap_as_its_sentence(tmp_path, capsys):
     """The black box's gap and suppressed records carry a sentence; hitch log printed every field as key=value."""
     log = EventLog(event_log_path(tmp_path))
@@ -553,3 +563,27 @@ def test_implement_list_says_when_none_is_selected(monkeypatch, capsys):
     monkeypatch.setattr(cli_service, "_client", lambda args: Client())
     assert main(["implement", "list"]) == 0
     assert "selected: none ('default': the hitch without an implement's data)" in capsys.readouterr().out
+
+
+def test_config_prints_no_python_none_for_a_service_without_an_implement(monkeypatch, capsys):
+    """A new user's report: `hitch config` printed `implement: None`; `fleet ls` prints `-` for the same reply."""
+
+    class Client(_FakeClient):
+        def config(self):
+            return {"prefix": "hitch", "profile": "thesis-t132", "category": "2", "implement": None, "mode": "auto"}
+
+    monkeypatch.setattr(cli_service, "_client", lambda args: Client())
+    assert main(["config"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert "implement: -" in lines
+    assert not any("None" in line for line in lines), lines
+
+
+def test_jog_help_names_jog_velocity_as_a_field_of_the_config_reply_not_a_setting(capsys):
+    """A new user's report: the help called limits.jog_velocity "its config key", but a service config file with
+    [limits] is refused; it is a field of the `config` reply, from the profile's actuator speeds."""
+    with pytest.raises(SystemExit):
+        main(["jog", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "config key" not in text
+    assert "not a service setting" in text and "`hitch config --json` shows it as limits.jog_velocity" in text

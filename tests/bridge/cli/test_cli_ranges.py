@@ -103,6 +103,17 @@ def test_stability_exits_1_when_the_verdict_is_not_ok(capsys):
     assert main(argv) == 1 and "NOT OK" in capsys.readouterr().out
 
 
+def test_stability_states_the_ballast_rule_as_a_share_of_the_empty_tractors_weight(capsys):
+    """A new user's report: "20 % of the weight on the front axle" beside "front share 16.8 %" and 0 kg of
+    ballast read as a contradiction; the rule (docs/api.md) is front axle load >= 20 % of the empty tractor."""
+    argv = ["stability", "--pose", "z=0.3", "--slope-roll", "0.17", "--implement", "cat2-power-harrow-1500"]
+    assert main(argv) == 0
+    out = " ".join(capsys.readouterr().out.split())  # rich may wrap the long line
+    assert "front share 16.8 %" in out
+    assert "20 % of the empty tractor's weight" in out
+    assert "of the weight on the front axle" not in out
+
+
 # ---------------------------------------------------------------------------------------- plan
 def test_plan_reports_every_goal_dof_off_the_workspace_with_the_mm_hint(capsys):
     assert main(["plan", "--to", "x=50,z=300"]) == 2

@@ -61,6 +61,26 @@ def test_records_are_json_lines_in_order_with_who_what_and_outcome(tmp_path):
     assert read_events(path) == recs
 
 
+def test_an_event_keeps_its_motion_kind_so_a_stop_reads_apart_from_a_goto(tmp_path):
+    """A new user's report: the black box dropped the event's ``kind``, so its records could not tell a stop
+    from a goto, preset or jog. ``kind`` names the record, so the event's own is kept as ``event_kind``."""
+    path = event_log_path(tmp_path)
+    log = EventLog(path)
+    for mid, kind in enumerate(("goto", "preset", "jog", "stop"), start=1):
+        log.on_event({"t": 1.0, "event": "motion_started", "motion_id": mid, "kind": kind, "seq": mid})
+    log.on_event({"t": 2.0, "event": "motion_finished", "motion_id": 4, "kind": "stop", "seq": 5})
+    log.close()
+    recs = read_events(path)
+    assert all(r["kind"] == "event" for r in recs)
+    assert [(r["motion_id"], r.get("event_kind")) for r in recs] == [
+        (1, "goto"),
+        (2, "preset"),
+        (3, "jog"),
+        (4, "stop"),
+        (4, "stop"),
+    ]
+
+
 def test_record_numbers_go_on_across_service_starts_so_a_number_names_one_record(tmp_path):
     """Before, each service start numbered its records from 1 again in the same file (a new user's
     report: ``hitch log`` showed two records #1). A torn last line (killed writer) is skipped; after a

@@ -407,6 +407,23 @@ def test_quick_raise_and_return_in_thread_mode(svc):
     assert svc.pose()[1] == pytest.approx(0.2, abs=1e-6)
 
 
+def test_a_return_after_a_raise_that_started_at_the_headland_says_that_raise_recorded_no_work_pose(svc):
+    """A new user's report: raised at the headland pose, `hitch return` said "has no work pose yet (raise it
+    once first)" — they just had. A raise from the headland pose keeps (here: has) no work pose; say so."""
+    svc.ok("implements/define", {**HARROW, "headland": HEADLAND})
+    svc.ok("implements/select", {"name": "harrow"})
+    svc.ok("goto", {"goal": HEADLAND})
+    svc.run(5.0)
+    r = svc.ok("hitch/raise")  # accepted: already at the headland pose, so no work pose is recorded
+    svc.run(r["duration"] + 0.3)
+    ok, r = svc.call("hitch/return")
+    assert not ok and r["error"] == "not_found"
+    msg = r["message"]
+    assert "raise it once first" not in msg
+    assert "no work pose yet" in msg and "starts at the headland pose (within 5 mm / 5 mrad" in msg
+    assert "raise from a work pose first" in msg
+
+
 def test_a_refused_quick_raise_is_called_a_raise(svc):
     """A field operator's report: `hitch raise` with a fault held answered "hitch/raise: preset refused: …"."""
     from bridge.service.motion.types import Fault

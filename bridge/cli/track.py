@@ -66,6 +66,8 @@ MAX_AMPLITUDE = 0.5
 MAX_FREQUENCY_HZ = 10.0
 #: highest setpoint rate [Hz] (the service takes setpoints at up to 100 Hz)
 MAX_RATE_HZ = 100.0
+#: the longest a run streams [s]: ``--duration``, and a file played whole (its span from its first row)
+MAX_DURATION_S = 3600.0
 #: setpoints ``--dry-run`` prints
 DRY_RUN_COUNT = 10
 #: the longest the command waits for the service to report the motion finished after track/stop [s]
@@ -264,6 +266,11 @@ def _check_value(p: Path, line: int, col: int, name: str, kind: tuple[str, str],
         )
 
 
+#: a CSV cell that is a number: what Python's ``float`` reads, less its digit separators (``1_0``) and non-ASCII
+#: digits (a spreadsheet writes neither); a non-finite one is refused as such before this is asked
+_PLAIN_NUMBER = re.compile(r"\s*[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?\s*", re.ASCII)
+
+
 def read_signal_csv(path: str | Path) -> CsvSignal:
     """Read a signal file (see the module docstring); :class:`CLIError` naming the file, line and column."""
     p = Path(path)
@@ -319,6 +326,11 @@ def read_signal_csv(path: str | Path) -> CsvSignal:
                 raise CLIError(f"{p}: line {n}, column {col} ({name}): not a number: {cell.strip()!r}") from None
             if not math.isfinite(v):
                 raise CLIError(f"{p}: line {n}, column {col} ({name}): must be finite, got {cell.strip()!r}")
+            if not _PLAIN_NUMBER.fullmatch(cell):  # Python's float() also reads "1_0" as 10, "١٠" as 10
+                raise CLIError(
+                    f"{p}: line {n}, column {col} ({name}): not a number: {cell.strip()!r} (a plain decimal number "
+                    "such as 10, -0.5 or 1.5e-3: ASCII digits, no '_' or other separators)"
+                )
             _check_value(p, n, col, name, kinds[col - 1], v)
             vals.append(v)
         t = vals[kinds.index(("t", ""))]
@@ -345,18 +357,23 @@ def setpoints(
     signal: TrackSignal, rate_hz: float, duration_s: float | None = None
 ) -> Iterator[tuple[int, float, dict]]:
     """``(seq, t, body)`` at ``t = seq / rate`` for ``t`` ≤ ``duration_s`` (None: the signal's, or without
-    end); ``body`` ``{"pose", "velocity"?}`` as a setpoint carries them."""
+    end), and one more at ``t = duration_s`` when the end is not a whole number of periods: the last
+    setpoint is always the signal at its end (the hitch ends where the recording ends; before, a file of
+    0.05 s at 50 Hz ended with its value at 0.04 s, its last row never sent); ``body`` ``{"pose",
+    "velocity"?}`` as a setpoint carries them."""
     end = signal.duration_s if duration_s is None else duration_s
     k = 0
     while True:
         t = k / rate_hz
         if end is not None and t > end + 1e-9:
-            return
+            t = end  # the end itself, less than a period after the one before (the last one)
         pose, vel = signal.sample(t)
         body: dict[str, Any] = {"pose": pose}
         if vel is not None:
             body["velocity"] = vel
         yield k, t, body
+        if end is not None and t >= end - 1e-9:
+            return
         k += 1
 
 
@@ -458,6 +475,13 @@ def _spec(args) -> _Spec:
             f"--duration {args.duration:g} s is longer than {args.from_file} ({csv_signal.span_s:g} s); "
             "leave it out to play the whole file"
         )
+    if csv_signal is not None and args.duration is None and csv_signal.span_s > MAX_DURATION_S:
+        # before: a file spanning 1e9 s was played whole, while --duration is capped at an hour
+        raise CLIError(
+            f"--from-file {args.from_file}: the file spans {csv_signal.span_s:g} s from its first row, more than the "
+            f"{MAX_DURATION_S:g} s a track run may last (as --duration (0, {MAX_DURATION_S:g}] s); play a part of "
+            "it with --duration S or split the file"
+        )
     return _Spec(args.frame, dofs, ttl_ms, args.rate, args.duration, args.sine, csv_signal, args.around or {})
 
 
@@ -472,6 +496,9 @@ class _Monitor:
         self.track: dict[str, Any] | None = None
         self.pose: dict[str, Any] | None = None
         self.outcome: dict[str, Any] | None = None
+        #: the last state of the session before it began to brake (its ``track.ending`` false): the measured
+        #: ``pose``, the commanded ``velocity`` and what ``limited`` the control then (:func:`_end_note`)
+        self.at_stop: dict[str, Any] | None = None
         self.seen = False
         self.ended = threading.Event()
         self.outcome_seen = threading.Event()
@@ -497,6 +524,12 @@ class _Monitor:
                 return
             if isinstance(tr, dict) and tr.get("session") == self.session:
                 self.track, self.seen = dict(tr), True
+                if not tr.get("ending") and isinstance(s.get("pose"), dict):
+                    self.at_stop = {
+                        "pose": dict(s["pose"]),
+                        "velocity": dict(s.get("velocity") or {}),
+                        "limited": {**(s.get("limited") or {}), **(tr.get("control_limited") or {})},
+                    }
             elif self.seen:  # it was live and is gone
                 self.ended.set()
 
@@ -524,7 +557,9 @@ def _end_session(c, mon: _Monitor, session: int, last_seq: int | None) -> str | 
     from bridge.service.client import ServiceError
 
     main = threading.current_thread() is threading.main_thread()
-    old = signals.signal(signals.SIGINT, signals.SIG_IGN) if main else None
+    # a second Ctrl-C, or the hang-up of a terminal closing after the first, must not end the wait (nor the stop)
+    ignored = (signals.SIGINT, signals.SIGHUP) if hasattr(signals, "SIGHUP") else (signals.SIGINT,)
+    old = {sig: signals.signal(sig, signals.SIG_IGN) for sig in ignored} if main else {}
     problem: str | None = None
     try:
         if not mon.ended.is_set():
@@ -537,8 +572,8 @@ def _end_session(c, mon: _Monitor, session: int, last_seq: int | None) -> str | 
             problem = (problem + "; " if problem else "") + f"the session did not finish within {FINISH_TIMEOUT_S:g} s"
         mon.outcome_seen.wait(1.0)  # the outcome event follows the state that shows the end
     finally:
-        if old is not None:
-            signals.signal(signals.SIGINT, old)
+        for sig, handler in old.items():
+            signals.signal(sig, handler)
     return problem
 
 
@@ -552,6 +587,82 @@ def _end_gap(frame: str, last: dict[str, float], pose: dict[str, Any] | None) ->
     if frame != "tractor" or not last or not pose:
         return None
     return {k: float(pose[k]) - float(v) for k, v in last.items() if k in pose}
+
+
+def _amount(k: str, v: float, per_s: bool = False) -> str:
+    """``z +7.4 mm`` / ``roll -3.0 mrad`` (``/s`` with ``per_s``) of a value in SI [m, rad]."""
+    return f"{k} {1e3 * v:+.1f} {'mm' if k in ('x', 'z') else 'mrad'}{'/s' if per_s else ''}"
+
+
+def _end_note(
+    gap: Mapping[str, float] | None, at_stop: Mapping[str, Any] | None, pose: Mapping[str, Any] | None
+) -> tuple[str | None, dict[str, float] | None]:
+    """``(text, braking)``: the note on an end pose more than :data:`END_GAP_NOTE` from the last setpoint sent
+    (``gap``: end pose minus that setpoint, :func:`_end_gap`), None without one; ``braking``: how far the hitch
+    travelled after the stop began [m, rad] — the end pose minus the pose in the last state before the session
+    began to brake (``at_stop``; None when no such state was seen).
+
+    ``track/stop`` brakes from the velocity the hitch has then: a hitch that follows a moving signal comes to
+    rest beyond the last setpoint, in the direction it travelled, by at most the distance it braked (less the
+    little it trailed the stream). A gap that way and no larger is the stop's braking distance (the README's
+    quick-start sine, 63 mm/s through its centre: z +7.4 mm after braking 14.8 mm, the hitch 7.4 mm behind the
+    setpoint as the stop began: transport and measurement). Only a gap beyond the braking distance, against the
+    travel (short of the setpoint), or with the control limited when the stop began blames the signal; before,
+    every gap did ("the signal ran faster than the hitch may follow" for that unclipped sine)."""
+    far = {k: g for k, g in (gap or {}).items() if abs(g) > END_GAP_NOTE}
+    if not far:
+        return None, None
+    gaps = ", ".join(_amount(k, g) for k, g in far.items())
+    braking: dict[str, float] | None = None
+    before = (at_stop or {}).get("pose") or {}
+    if at_stop is not None and pose and all(k in pose and k in before for k in far):
+        braking = {k: float(pose[k]) - float(before[k]) for k in (gap or {}) if k in pose and k in before}
+    blame = (
+        "the signal ran faster than the hitch may follow, or it began far from where the hitch stood (the hitch "
+        "starts where it is: docs/tracking.md)"
+    )
+    if braking is None:  # no state before the stop: what the stop did is not known
+        return (
+            f"hitch: note: the hitch ended away from the last setpoint sent ({gaps}: end pose minus setpoint): "
+            f"{blame.removesuffix(' (the hitch starts where it is: docs/tracking.md)')}, or it braked that far "
+            "after track/stop (docs/tracking.md)",
+            braking,
+        )
+    travelled = ", ".join(_amount(k, braking[k]) for k in far)
+    limited = (at_stop or {}).get("limited") or {}
+    explained = all(g * braking[k] > 0 and abs(g) <= abs(braking[k]) for k, g in far.items())
+    if limited or not explained:
+        why = f"it travelled {travelled} after the stop began"
+        if limited:
+            why += f"; control limited as the stop began: {limited_text(limited)}"
+        return (
+            f"hitch: note: the hitch ended away from the last setpoint sent ({gaps}: end pose minus setpoint; {why}): "
+            + blame,
+            braking,
+        )
+    velocity = (at_stop or {}).get("velocity") or {}
+    rates = ", ".join(_amount(k, float(velocity[k]), per_s=True) for k in far if k in velocity)
+    return (
+        f"hitch: note: the hitch came to rest {gaps} beyond the last setpoint sent (end pose minus setpoint): the "
+        "braking distance of track/stop, which brakes from the velocity the hitch had"
+        + (f" ({rates})" if rates else "")
+        + f"; it travelled {travelled} after the stop began (docs/tracking.md)",
+        braking,
+    )
+
+
+def _say(text: str) -> None:
+    """A line on stderr; nothing when stderr is gone (a closed terminal after SIGHUP: the stop goes on)."""
+    try:
+        print(text, file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        pass
+
+
+#: how ``hitch track`` names the signal that ended its stream (SIGINT: Ctrl-C)
+_SIGNAL_WORDS: dict[int, str] = {signals.SIGTERM: "terminated (SIGTERM)"}
+if hasattr(signals, "SIGHUP"):
+    _SIGNAL_WORDS[signals.SIGHUP] = "hung up (SIGHUP: the terminal closed)"
 
 
 def _stream(args, c, spec: _Spec) -> int:
@@ -577,25 +688,36 @@ def _stream(args, c, spec: _Spec) -> int:
     sent, t_sent, interrupted = 0, 0.0, False
     last_seq: int | None = None
     last_pose: dict[str, float] = {}
-    # SIGTERM (a supervisor, `kill`) ends the stream as Ctrl-C does: track/stop sent and awaited, not a silent
-    # exit that leaves the service to brake at the ttl (a new user's report)
-    old_term = (
-        signals.signal(signals.SIGTERM, signals.default_int_handler)
+    # SIGTERM (a supervisor, `kill`) and SIGHUP (the terminal closed) end the stream as Ctrl-C does: track/stop
+    # sent and awaited, not a silent exit that leaves the service to brake at the ttl (new users' reports)
+    caught: list[int] = []
+
+    def on_signal(signum: int, _frame: object) -> None:
+        caught.append(signum)
+        raise KeyboardInterrupt
+
+    old_handlers = (
+        {sig: signals.signal(sig, on_signal) for sig in _SIGNAL_WORDS}
         if threading.current_thread() is threading.main_thread()
-        else None
+        else {}
     )
     t0 = time.monotonic()
     next_progress = PROGRESS_EVERY_S
+    stream = setpoints(sig, spec.rate_hz, spec.duration_s)
     try:
-        for seq, t, body in setpoints(sig, spec.rate_hz, spec.duration_s):
+        ahead = next(stream, None)
+        while ahead is not None:
+            (seq, t, body), ahead = ahead, next(stream, None)
             if mon.ended.is_set():
                 break
             due = t0 + t
             delay = due - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
-            elif -delay > 2.0 / spec.rate_hz and seq > 0:
-                continue  # late (a loaded machine): skip to the setpoint of now rather than replaying the past
+            elif -delay > 2.0 / spec.rate_hz and seq > 0 and ahead is not None:
+                # late (a loaded machine): skip to the setpoint of now rather than replaying the past — never the
+                # last one: the hitch ends where the signal ends
+                continue
             last_seq = seq  # before it goes: a stop after an interrupted put waits for it (at most the ttl)
             if seq == 0:  # the first one answered: a bad value is named at once
                 c.track_setpoint_request(session, seq, body["pose"], body.get("velocity"), timeout_s=STOP_TIMEOUT_S)
@@ -609,16 +731,21 @@ def _stream(args, c, spec: _Spec) -> int:
                 out.print(_progress_line(t, sent, tr), highlight=False)
     except KeyboardInterrupt:
         interrupted = True
-        print(f"hitch: interrupted: sending track/stop (session {session})", file=sys.stderr, flush=True)
+        _say(
+            f"hitch: {_SIGNAL_WORDS.get(caught[-1], 'interrupted') if caught else 'interrupted'}: sending track/stop "
+            f"(session {session})"
+        )
     except HitchError:  # the first setpoint refused (or a client error): end the session, then report
         _end_session(c, mon, session, last_seq)
         raise
     finally:
-        if old_term is not None:
-            signals.signal(signals.SIGTERM, old_term)
+        for signum, handler in old_handlers.items():
+            signals.signal(signum, handler)
     problem = _end_session(c, mon, session, last_seq)
     with mon.lock:
-        outcome, tr, pose = mon.outcome, mon.track, mon.pose
+        outcome, tr, pose, at_stop = mon.outcome, mon.track, mon.pose, mon.at_stop
+    end_gap = _end_gap(spec.frame, last_pose, pose)
+    note, braking = _end_note(end_gap, at_stop, pose)
     reason = (outcome or {}).get("reason")
     ours = reason == "track/stop" or (outcome is None and problem is None)
     summary = {
@@ -635,14 +762,34 @@ def _stream(args, c, spec: _Spec) -> int:
         "pose": pose,
         "problem": problem,
         "interrupted": interrupted,
-        "end_gap": _end_gap(spec.frame, last_pose, pose),
+        "end_gap": end_gap,
+        "end_braking": braking,
     }
+    try:
+        _summary(out, summary, quiet)
+    except OSError:  # stdout gone (a closed terminal): the session has ended all the same
+        pass
+    if note is not None and not interrupted:
+        _say(note)
+    if problem is not None:
+        _say(f"hitch: {problem}; stop the hitch another way (`hitch stop`, STOP)")
+    if interrupted:
+        raise KeyboardInterrupt
+    if problem is not None:
+        return 1
+    return 0 if ours else 1
+
+
+def _summary(out, summary: dict[str, Any], quiet: bool) -> None:
+    """The summary at the end of a stream: one JSON object (``--json``), else one line."""
+    session, mid, sent, tr, pose = (summary[k] for k in ("session", "motion_id", "sent", "track", "pose"))
+    outcome, reason, t_sent = summary["outcome"], summary["reason"], summary["streamed_s"]
     if quiet:
         print(to_json_text(summary))
     else:
         text = f"track session {session} (motion {mid}) " + (
             f"{(outcome or {}).get('event', 'ended').replace('motion_', '')}: {reason or '-'}"
-            if mon.ended.is_set()
+            if summary["finished"]
             else "did not finish"
         )
         text += f"; sent {sent} setpoints over {t_sent:.2f} s"
@@ -652,32 +799,11 @@ def _stream(args, c, spec: _Spec) -> int:
             )
             if tr.get("rejected") and tr.get("last_rejection"):  # why (a new user's report: only `hitch log` said)
                 text += f"; last rejection: {tr['last_rejection']}"
-            if mon.ended.is_set() and sent > (tr.get("setpoints") or 0) + (tr.get("rejected") or 0):
+            if summary["finished"] and sent > (tr.get("setpoints") or 0) + (tr.get("rejected") or 0):
                 text += "; setpoints sent after the session ended were not taken"
         if pose:
             text += "; now at " + "  ".join(f"{k}={pose[k]:+.4f} {CONTROLLED_POSE_UNITS[k]}" for k in DOFS if k in pose)
         out.print(esc(text), highlight=False)
-    far = {k: g for k, g in (summary["end_gap"] or {}).items() if abs(g) > END_GAP_NOTE}
-    if far and not interrupted:
-        gaps = ", ".join(f"{k} {1e3 * g:+.1f} {'mm' if k in ('x', 'z') else 'mrad'}" for k, g in far.items())
-        print(
-            f"hitch: note: the hitch ended away from the last setpoint sent ({gaps}: end pose minus setpoint): "
-            "the signal ran faster than the hitch may follow, or it began far from where the hitch stood "
-            "(the hitch starts where it is: docs/tracking.md)",
-            file=sys.stderr,
-            flush=True,
-        )
-    if problem is not None:
-        print(
-            f"hitch: {problem}; stop the hitch another way (`hitch stop`, STOP)",
-            file=sys.stderr,
-            flush=True,
-        )
-    if interrupted:
-        raise KeyboardInterrupt
-    if problem is not None:
-        return 1
-    return 0 if ours else 1
 
 
 def _dry_run(args, spec: _Spec) -> int:
@@ -790,9 +916,10 @@ def add_commands(sub) -> None:
     )
     p.add_argument(
         "--duration",
-        type=bounded_float("--duration", 0.0, 3600.0, unit="s"),
+        type=bounded_float("--duration", 0.0, MAX_DURATION_S, unit="s"),
         default=None,
-        help="stream this long, (0, 3600] s (default: the whole file; a sine until Ctrl-C)",
+        help=f"stream this long, (0, {MAX_DURATION_S:g}] s (default: the whole file, at most {MAX_DURATION_S:g} s "
+        "long; a sine until Ctrl-C)",
     )
     p.add_argument(
         "--dry-run",

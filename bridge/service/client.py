@@ -33,6 +33,7 @@ from __future__ import annotations
 import atexit
 import json
 import math
+import numbers
 import os
 import queue
 import re
@@ -244,13 +245,52 @@ def _dispatch(subscriber: Any, callback: Callable[[dict], None]) -> None:
             traceback.print_exc()
 
 
+def _plain(v: Any) -> Any:
+    """A number as Python's own (``np.int64(300)`` → ``300``, ``np.float32(0.5)`` → ``0.5``), for a field whose
+    range the service checks and names; anything else as it is (the service refuses it in its words)."""
+    if isinstance(v, bool):
+        return v
+    if isinstance(v, numbers.Integral):
+        return int(v)
+    if isinstance(v, numbers.Real):
+        return float(v)
+    return v
+
+
+def _integer(name: str, v: Any, lo: int) -> int:
+    """``v`` as a Python ``int`` >= ``lo``: any integer, numpy's too (``np.int64(2)``), or a float with no
+    fraction (``2.0``, as the service takes it); :class:`ClientError` naming ``name`` otherwise (a bool, text,
+    ``2.5``, NaN). Before, a numpy integer was refused as "seq must be an integer >= 0, got np.int64(2)"."""
+    if not isinstance(v, bool):  # (numpy's bool_ is no number: refused below)
+        if isinstance(v, numbers.Integral):
+            n = int(v)
+            if n >= lo:
+                return n
+        elif isinstance(v, numbers.Real):
+            f = float(v)
+            if math.isfinite(f) and f.is_integer() and f >= lo:
+                return int(f)
+    raise ClientError(f"{name} must be an integer >= {lo}, got {v!r}")
+
+
+def _real(name: str, v: Any) -> float:
+    """``v`` as a finite Python ``float``: any real number, numpy's too (``np.float32(0.12)``); :class:`ClientError`
+    naming ``name`` otherwise. Before, a numpy ``float32`` was refused as "must be a finite number"."""
+    if not isinstance(v, bool) and isinstance(v, numbers.Real):
+        f = float(v)
+        if math.isfinite(f):
+            return f
+    raise ClientError(f"{name} must be a finite number [SI: m, rad, m/s, rad/s], got {v!r}")
+
+
 def _setpoint_body(session: int, seq: int, pose: Mapping[str, float], velocity: Mapping[str, float] | None) -> bytes:
     """The JSON of one ``track/setpoint``; :class:`ClientError` naming the field for a value the service
-    would refuse anyway (never a NaN on the wire)."""
-    for name, v, lo in (("session", session, 1), ("seq", seq, 0)):
-        if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-            raise ClientError(f"{name} must be an integer >= {lo}, got {v!r}")
-    body: dict[str, Any] = {"session": session, "seq": seq}
+    would refuse anyway (never a NaN on the wire). Numbers may be numpy's (sent as Python's)."""
+    body: dict[str, Any] = {"session": _integer("session", session, 1), "seq": _integer("seq", seq, 0)}
+    if pose is None:  # before: a body without a pose was put, refused by the service unseen (a new user's report)
+        raise ClientError(
+            "pose is required: a mapping of every DOF the session tracks (x, z [m], roll, pitch [rad]), got None"
+        )
     for what, m in (("pose", pose), ("velocity", velocity)):
         if m is None:
             continue
@@ -260,9 +300,7 @@ def _setpoint_body(session: int, seq: int, pose: Mapping[str, float], velocity: 
         for k, val in m.items():
             if k not in ("x", "z", "roll", "pitch"):
                 raise ClientError(f"{what}: unknown field {k!r}; allowed: x, z, roll, pitch")
-            if isinstance(val, bool) or not isinstance(val, (int, float)) or not math.isfinite(val):
-                raise ClientError(f"{what}.{k} must be a finite number [SI: m, rad, m/s, rad/s], got {val!r}")
-            out[k] = float(val)
+            out[k] = _real(f"{what}.{k}", val)
         body[what] = out
     data = json.dumps(body).encode("utf-8")
     if not _within_setpoint_bounds(body):  # a put is not answered: say now what the service would refuse
@@ -474,9 +512,9 @@ class HitchClient:
         ``{"accepted", "session", "motion_id", "frame", "dof", "ttl_ms"}``."""
         if isinstance(dof, str):
             raise ClientError(f"dof must be a list of DOF names such as ['x', 'z'], got the string {dof!r}")
-        body: dict[str, Any] = {"frame": frame, "dof": list(dof), "ttl_ms": ttl_ms}
-        if deadline_ms is not None:
-            body["deadline_ms"] = int(deadline_ms)
+        body: dict[str, Any] = {"frame": frame, "dof": list(dof), "ttl_ms": _plain(ttl_ms)}
+        if deadline_ms is not None:  # (int() made 2.7 ms 2 and raised a raw ValueError for text)
+            body["deadline_ms"] = _plain(deadline_ms)
         return self.request("track/start", body)
 
     def maneuver_control(self, action: str, *, deadline_ms: int | None = None) -> dict:
@@ -539,9 +577,9 @@ class HitchClient:
         ``{"stopping", "session", "motion_id"}`` (and ``after_seq`` while it waits for ``last_seq``);
         the setpoint publisher of that session is released. ``last_seq``: the last setpoint streamed —
         a put may arrive after this query; the service takes it before braking (waits at most the ttl)."""
-        body: dict[str, int] = {} if session is None else {"session": session}
+        body: dict[str, int] = {} if session is None else {"session": _integer("session", session, 1)}
         if last_seq is not None:
-            body["last_seq"] = last_seq
+            body["last_seq"] = _integer("last_seq", last_seq, 0)
         try:
             return self.request("track/stop", body, timeout_s=timeout_s)
         finally:

@@ -279,6 +279,21 @@ class TrackSetpoint(_Strict):
     pose: Goal
     velocity: TrackVelocity | None = None
 
+    @model_validator(mode="before")
+    @classmethod
+    def _no_null_pose(cls, data: Any) -> Any:
+        """A pose value ``null`` is not a number: named as such (``{"z": null}`` was refused as "pose = a JSON
+        object needs at least one of x, z, roll, pitch", its own DOF unnamed; a DOF is left out, not null)."""
+        pose = data.get("pose") if isinstance(data, dict) else None
+        if isinstance(pose, dict):
+            for k, v in pose.items():
+                if v is None and k in CONTROLLED_POSE_NAMES:
+                    raise ValueError(
+                        f"pose.{k} must be a number ({CONTROLLED_POSE_UNITS[k]}), got null; a DOF the session does "
+                        "not track is left out"
+                    )
+        return data
+
 
 class PresetDelete(NameRequest):
     """Delete a preset; refused (``in_use``, naming the maneuvers) while a saved maneuver uses it unless ``force``."""

@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import re
 import signal
 import subprocess
 import sys
@@ -369,3 +370,54 @@ def _interrupted_stream(endpoint: str, sig: int) -> tuple[str, str, int]:
     p.send_signal(sig)
     so, se = p.communicate(timeout=60)
     return so, se, p.returncode
+
+
+# ---------------------------------------------------------------------------------------- a new user's trial
+@pytest.mark.parametrize(
+    ("text", "rate", "times", "last_z"),
+    [
+        ("t,z\n0,0.1\n0.05,0.2\n", "50", [0.0, 0.02, 0.04, 0.05], 0.2),  # sent 0.1, 0.14, 0.18: never 0.2
+        ("t,z\n0,0.1\n0.033,0.11\n0.077,0.12\n", "10", [0.0, 0.077], 0.12),  # sent 0.1 alone
+    ],
+)
+def test_the_last_row_is_sent_when_the_file_is_no_whole_number_of_periods(capsys, tmp_path, text, rate, times, last_z):
+    f = tmp_path / "s.csv"
+    f.write_text(text)
+    assert main(["track", "--from-file", str(f), "--rate", rate, "--dry-run", "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)["setpoints"]
+    assert [r["t"] for r in rows] == pytest.approx(times) and [r["seq"] for r in rows] == list(range(len(times)))
+    assert rows[-1]["pose"]["z"] == pytest.approx(last_z)
+    # a --duration that is no whole number of periods ends at its own time, the signal's value there
+    sps = list(setpoints(read_signal_csv(f), 100.0, 0.025))
+    assert sps[-1][1] == pytest.approx(0.025) and len(sps) == 4
+    # a whole number of periods: no extra setpoint
+    sig = SineSignal((SineTerm("z", 0.02, 0.5),), {"z": 0.1}, duration_s=2.0)
+    assert len(list(setpoints(sig, 50.0))) == 101
+
+
+@pytest.mark.parametrize("cell", ["1_0", "0.1_5", "\u0661\u0660", "\uff11"])  # separators, Arabic-Indic, full-width
+def test_a_number_python_reads_but_no_csv_writes_is_refused(capsys, tmp_path, cell):
+    """A new user's report: the value 1_0 was read as 10 (Python's float takes digit separators)."""
+    f = tmp_path / "signal.csv"
+    f.write_text(f"t,z\n0,0.1\n1,{cell}\n", encoding="utf-8")
+    words = f"line 3, column 2 (z): not a number: {cell!r}"
+    with pytest.raises(CLIError, match=re.escape(words)):
+        read_signal_csv(f)
+    assert words in _err(capsys, "--from-file", str(f), "--dry-run")
+    f.write_text("t,z\n 0 ,+.1\n1e0,1.5E-1\n2.,-0.0\n")  # what a CSV writer may write is still read
+    assert read_signal_csv(f).positions["z"].tolist() == [0.1, 0.15, 0.0]
+
+
+def test_a_file_longer_than_the_longest_run_is_refused_naming_the_limit(capsys, tmp_path):
+    """A new user's report: a file spanning 1e9 s was taken and played whole, while --duration is capped at 3600 s."""
+    f = tmp_path / "long.csv"
+    f.write_text("t,z\n0,0.1\n1e9,0.2\n")
+    err = _err(capsys, "--from-file", str(f), "--dry-run")
+    assert f"--from-file {f}: the file spans 1e+09 s" in err and "more than the 3600 s a track run may last" in err
+    f.write_text("t,z\n5,0.1\n3605,0.2\n")  # an hour from its first row: taken
+    assert main(["track", "--from-file", str(f), "--dry-run"]) == 0
+    capsys.readouterr()
+    f.write_text("t,z\n5,0.1\n3605.5,0.2\n")
+    assert "the file spans 3600.5 s" in _err(capsys, "--from-file", str(f), "--dry-run")
+    assert main(["track", "--from-file", str(f), "--duration", "60", "--dry-run"]) == 0  # a part of it: taken
+    capsys.readouterr()

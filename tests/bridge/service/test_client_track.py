@@ -159,3 +159,52 @@ def test_a_request_key_of_no_api_key_s_shape_is_refused_before_zenoh(peer, key):
     from bridge.service.client import _API_KEY_SHAPE
 
     assert all(_API_KEY_SHAPE.fullmatch(k) for k in API_KEYS)  # every key the service serves passes
+
+
+def test_a_setpoint_without_a_pose_is_refused_naming_pose(peer):
+    """A new user's report: track_setpoint(s, 1, None) returned None and put a body with no pose, which the service
+    counted as a rejection while the user was told nothing."""
+    endpoint, got = peer
+    with HitchClient([endpoint], timeout_s=2.0) as c:
+        for call in (c.track_setpoint, c.track_setpoint_request):
+            with pytest.raises(ClientError, match=r"^pose is required: a mapping of every DOF the session tracks"):
+                call(1, 1, None)  # type: ignore[arg-type]
+    assert got.empty()
+
+
+def test_numpy_numbers_are_taken_by_every_track_method(peer, monkeypatch):
+    """A new user's report: {"z": np.float32(0.12)} was refused "pose.z must be a finite number", seq=np.int64(2)
+    "seq must be an integer >= 0", while np.float64 and an np.int64 ttl_ms were taken."""
+    import numpy as np
+
+    from bridge.service.client import _setpoint_body
+    from bridge.service.schemas import parse_request
+
+    data = _setpoint_body(np.int64(3), np.int64(2), {"z": np.float32(0.121928595)}, {"z": np.float32(0.5)})
+    body = json.loads(data)
+    assert body == {"session": 3, "seq": 2, "pose": {"z": pytest.approx(0.121928595)}, "velocity": {"z": 0.5}}
+    assert type(body["seq"]) is int and type(body["pose"]["z"]) is float
+    parse_request("track/setpoint", data)
+    for v in (np.int32(1), np.uint8(1), np.float16(0.25), np.float64(0.1)):
+        assert json.loads(_setpoint_body(1, 1, {"z": v}, None))["pose"]["z"] == pytest.approx(float(v))
+    for bad, words in (
+        ((1, np.int64(-1), {"z": 0.1}), "seq must be an integer >= 0, got np.int64(-1)"),
+        ((1, np.bool_(True), {"z": 0.1}), "seq must be an integer >= 0"),
+        ((1, 2.5, {"z": 0.1}), "seq must be an integer >= 0, got 2.5"),
+        ((1, 1, {"z": np.float32("nan")}), "pose.z must be a finite number"),
+        ((1, 1, {"z": np.bool_(True)}), "pose.z must be a finite number"),
+    ):
+        with pytest.raises(ClientError, match=re.escape(words)):
+            _setpoint_body(*bad, None)
+    sent: list[tuple[str, dict]] = []
+    monkeypatch.setattr(HitchClient, "request", lambda self, key, payload=None, **kw: sent.append((key, payload)) or {})
+    endpoint, _ = peer
+    with HitchClient([endpoint], timeout_s=2.0) as c:
+        c.track_start("tractor", ["z"], np.int64(300), deadline_ms=np.int64(2500))
+        c.track_stop(np.int64(3), last_seq=np.int64(2))
+        with pytest.raises(ClientError, match=re.escape("last_seq must be an integer >= 0, got -1")):
+            c.track_stop(3, last_seq=-1)
+    for key, payload in sent:
+        assert all(type(v) is int for v in payload.values() if not isinstance(v, (str, list))), payload
+        parse_request(key, json.dumps(payload))
+    assert sent[1] == ("track/stop", {"session": 3, "last_seq": 2})

@@ -255,3 +255,16 @@ def test_type_errors_read_as_the_api_s_own_words(key, payload, wanted):
     with pytest.raises(RequestError) as err:
         parse_request(key, payload)
     assert wanted in str(err.value) and "Input should" not in str(err.value) and "String should" not in str(err.value)
+
+
+def test_a_null_pose_value_is_named_as_not_a_number():
+    """A new user's report: {"pose": {"z": null}} was refused "pose = a JSON object needs at least one of x, z, roll,
+    pitch", the z that was sent unnamed."""
+    for pose, dof in (({"z": None}, "z"), ({"x": 0.1, "roll": None}, "roll")):
+        raw = json.dumps({"session": 3, "seq": 1, "pose": pose})
+        msg = str(_refusal("track/setpoint", raw))
+        assert msg.startswith(f"track/setpoint: pose.{dof} must be a number"), msg
+        assert "got null" in msg and "needs at least one" not in msg
+    assert "needs at least one of x, z, roll, pitch" in str(
+        _refusal("track/setpoint", b'{"session":3,"seq":1,"pose":{}}')
+    )

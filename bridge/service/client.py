@@ -468,9 +468,13 @@ class HitchClient:
         )
 
     def ik(self, x: float, z: float, roll: float, pitch: float) -> dict:
+        """The service's inverse kinematics of a pose: ``x``, ``z`` [m], ``roll``, ``pitch`` [rad] → its reply
+        (``status``, ``actuators`` [rad, m], ``pose``, ``active`` limits; ``docs/api.md``). Nothing moves."""
         return self.request("ik", {"x": x, "z": z, "roll": roll, "pitch": pitch})
 
     def plan(self, goal: Mapping[str, float], speed_scale: float = 1.0) -> dict:
+        """A goto's plan from where the hitch is to ``goal`` (x, z [m], roll, pitch [rad]; partial), checked by
+        the guard, at ``speed_scale`` (0.05…1) of the limits: duration, guard decision, limits. Nothing moves."""
         return self.request("plan", {"goal": _goal(goal), "speed_scale": speed_scale})
 
     def goto(self, goal: Mapping[str, float], speed_scale: float = 1.0, *, deadline_ms: int | None = None) -> dict:
@@ -483,9 +487,13 @@ class HitchClient:
     def jog(
         self, vx: float = 0.0, vz: float = 0.0, vroll: float = 0.0, vpitch: float = 0.0, ttl_ms: float = 200.0
     ) -> dict:
+        """Start or refresh a jog: pose rates ``vx``, ``vz`` [m/s], ``vroll``, ``vpitch`` [rad/s] for ``ttl_ms``
+        [ms]; send it again within ``ttl_ms`` to keep moving (a dead man's button), else the hitch brakes."""
         return self.request("jog", {"vx": vx, "vz": vz, "vroll": vroll, "vpitch": vpitch, "ttl_ms": ttl_ms})
 
     def stop(self) -> dict:
+        """Stop: brake jerk-limited to rest, abort a maneuver, cancel motion requests sent before it
+        (``{"stopped": true, "motion_id"}``; any payload stops, ``docs/faults.md``)."""
         return self.request("stop", {})
 
     def ack_faults(self) -> dict:
@@ -499,6 +507,8 @@ class HitchClient:
         return self.request("sim/fault", dict(settings))
 
     def mode(self, mode: str | None = None) -> dict:
+        """The operating mode (``auto``, ``manual``, ``attach``, ``transport``, ``config``: ``docs/api.md``);
+        ``mode`` given: switch to it (refused while moving)."""
         return self.request("mode", {} if mode is None else {"mode": mode})
 
     # ------------------------------------------------------------------ track mode (docs/tracking.md)
@@ -590,6 +600,8 @@ class HitchClient:
                     self._track_pub = None
 
     def config(self, prefix: str | None = None) -> dict:
+        """The service's configuration and limits (profile, workspace [m, rad], jog velocity, …); ``prefix``: of
+        another service of the fleet."""
         return self.request("config", {}, prefix=prefix)
 
     # ------------------------------------------------------------------ subscriptions

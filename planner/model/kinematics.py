@@ -217,6 +217,10 @@ class HitchModel:
 
     @classmethod
     def from_profile(cls, name_or_path: str | Path = "thesis-t132", category: str | None = None) -> HitchModel:
+        """The model of a built-in profile name (``thesis-t132``, the default) or a ``.toml`` profile path;
+        ``category``: the ISO 730 category of the implement attached (its lower-link span and mast height;
+        default: the profile's ``implement.default_category``). Raises ProfileError naming the field of a bad
+        profile or the categories allowed."""
         return cls(load_profile(name_or_path), category)
 
     # ------------------------------------------------------------------ evaluation

@@ -442,6 +442,11 @@ class Workspace(_Strict):
 
 
 class Profile(_Strict):
+    """A hitch profile (``docs/profiles.md``; SI: m, rad, s): the geometry of the tractor's three-point linkage,
+    the implement, the actuators (strokes, AD sensor scaling, speeds), the hard limits, the workspace, motion
+    settings and the stability set-up. Load one with :func:`load_profile`; every field is validated and an
+    error names the field, its value and the allowed range."""
+
     schema_version: Literal[1]
     name: str = Field(min_length=1, max_length=80)
     description: str = ""

@@ -13,6 +13,7 @@ import time
 
 import pytest
 
+from bridge.service.motion.controller import STOP_GRACE_S
 from tests.integration.test_web_browser import FLAGS, Service, _install_chromium, wait_for, wait_js
 
 pytestmark = pytest.mark.slow  # a real browser against the service in its own process
@@ -81,6 +82,7 @@ def _rest(service) -> None:
         return not st["moving"] and st.get("track") is None and not st["ecu"]["faults"]
 
     wait_for(ready, 15, "rest, no session, no fault held")
+    time.sleep(STOP_GRACE_S + 0.02)  # a motion request just after a stop may have been sent before it: refused
 
 
 def _pressed(pg) -> str:

@@ -30,6 +30,7 @@ from pathlib import Path
 import pytest
 
 from bench._common import free_port
+from bridge.service.motion.controller import STOP_GRACE_S
 
 pytestmark = pytest.mark.slow  # a real browser against the service in its own process
 
@@ -273,6 +274,7 @@ def _at(state: dict, z: float) -> bool:
 def at_rest(service, pg):
     service.api("stop")
     wait_for(lambda: not service.state()["moving"], 10, "the hitch to come to rest")
+    time.sleep(STOP_GRACE_S + 0.02)  # a motion request just after a stop may have been sent before it: refused
     if service.state()["mode"] != "auto":
         assert service.api("mode", {"mode": "auto"})[0] == 200
     wait_js(pg, "!document.getElementById('motion').textContent.startsWith('Moving')")

@@ -157,6 +157,9 @@ class ImplementService:
         # wait for ``_lock`` (held across calls to the core: a select waited 10 s for a reply that thread was to
         # read; a reviewer's finding)
         self._pause_lock = threading.Lock()
+        #: the last motions that ended (their ``motion_finished`` / ``motion_aborted`` events): a return whose end
+        #: was announced before its own reply was read (the core in its own process) still starts the work
+        self._ended_motions: deque[Mapping[str, Any]] = deque(maxlen=16)
 
     # ------------------------------------------------------------------ start
     def restore(self) -> None:
@@ -374,6 +377,9 @@ class ImplementService:
             if paused is not None and paused["implement"] == imp.name:
                 paused["return_motion"] = out["motion_id"]  # work starts again when it arrives (on_event)
                 out["resumes_work"] = _paused_json(paused)
+        for ended in list(self._ended_motions):  # it ended already (a return of almost no length)
+            if ended.get("motion_id") == out["motion_id"]:
+                self._resume_paused_work(ended)
         return out
 
     def _resume_paused_work(self, event: Mapping[str, Any]) -> None:
@@ -433,6 +439,7 @@ class ImplementService:
         press the API refuses is announced as ``hitch_switch_refused`` (``command``, ``error``,
         ``message``): the operator sees why the hitch did not move."""
         if event.get("event") in ("motion_finished", "motion_aborted"):
+            self._ended_motions.append(event)
             self._resume_paused_work(event)
             return
         if event.get("event") != "hitch_switch" or self.dispatch is None:

@@ -682,3 +682,50 @@ def test_a_motion_event_never_waits_for_an_implement_change_in_progress(tmp_path
         assert handled.is_set()
     finally:
         store.close()
+
+
+def test_a_return_whose_arrival_is_announced_before_its_reply_still_starts_the_paused_work(tmp_path):
+    """A reviewer's finding: the return's motion id was set on the pause after the goto's reply; with the core in
+    its own process a return of almost no length can end, and its motion_finished reach the listener, first:
+    the work was then never started again."""
+    import threading
+
+    from bridge.service.implements import ImplementService
+    from bridge.service.schemas import ImplementDefine, QuickMove
+    from bridge.service.store import HitchStore
+
+    store = HitchStore(tmp_path / "h.sqlite3")
+    started = threading.Event()
+
+    class Accepted:
+        def to_json(self):
+            return {"accepted": True, "motion_id": 42, "duration": 0.01}
+
+    class Motion:
+        def select_implement(self, implement, limits):
+            return {}
+
+        def goto(self, goal, scale, **kw):
+            svc.on_event({"event": "motion_finished", "motion_id": 42, "t": time.time()})  # before the reply
+            return Accepted()
+
+        def post_event(self, event):
+            pass
+
+    def dispatch(key, payload, user=None, *, received=None):
+        assert key == "work/start" and json.loads(payload) == {"z": 0.1}
+        started.set()
+        return True, {"session": 9}
+
+    try:
+        svc = ImplementService(store, Motion())
+        svc.dispatch = dispatch
+        svc.define(ImplementDefine(**TINE))
+        svc.select("tine")
+        store.update_implement("tine", last_work={"x": 0.0, "z": 0.1, "roll": 0.0, "pitch": 0.0})
+        svc.paused_work = {"implement": "tine", "session": 5, "z": 0.1, "mode": "position", "return_motion": None}
+        reply = svc.quick_return(QuickMove(), None, None)
+        assert reply["resumes_work"]["session"] == 5
+        assert started.wait(2.0), "the paused work was never started again"
+    finally:
+        store.close()

@@ -579,6 +579,31 @@ def test_keyboard_jog_is_the_same_dead_man(service, page):
     assert shown_pose(page)["z"] < z0 - 0.005
 
 
+def test_keys_typed_in_a_script_box_or_a_list_never_jog_or_stop(service, page):
+    """An operator's trial: holding W in the maneuver script box jogged the hitch (pitch), a Space typed there
+    sent STOP and was swallowed, and ArrowUp on the work mode list raised the hitch at 23 mm/s: only text inputs
+    counted as typing. Text areas and drop-down lists do now; Escape still stops from anywhere."""
+    at_rest(service, page)
+    tab(page, "maneuvers")
+    page.click("#maneuver-editor summary")  # "New maneuver script"
+    box = page.locator("textarea[name='script']")
+    box.click()
+    page.keyboard.down("KeyW")
+    time.sleep(0.6)
+    page.keyboard.up("KeyW")
+    page.keyboard.type("name: a b")
+    assert service.state()["motion"] is None and not service.state()["moving"], service.state()["motion"]
+    assert box.input_value().endswith("name: a b"), box.input_value()
+    box.fill("")
+    page.click("#maneuver-editor summary")
+    tab(page, "work")
+    page.focus("#work-mode")
+    page.keyboard.down("ArrowUp")
+    time.sleep(0.6)
+    page.keyboard.up("ArrowUp")
+    assert service.state()["motion"] is None and not service.state()["moving"], service.state()["motion"]
+
+
 def test_stop_mid_motion(service, page, shots):
     at_rest(service, page)
     z0 = service.state()["pose"]["z"]

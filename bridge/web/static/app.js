@@ -926,7 +926,14 @@
     level.halt("the page was hidden: setpoints stopped, the service brakes");
   });
 
-  const typing = (ev) => ev.target instanceof HTMLInputElement && ev.target.type !== "range";
+  // keys that edit a field: text boxes, the maneuver script boxes, drop-down lists (arrow keys choose there) —
+  // never a jog or Space = STOP (typing "W" in a script jogged the hitch, a Space in it stopped it, ArrowUp on the
+  // work mode list raised it: an operator's trial); Escape stops from anywhere
+  const typing = (ev) => {
+    const t = ev.target;
+    if (t instanceof HTMLInputElement) return !["range", "button", "submit", "reset"].includes(t.type);
+    return t instanceof HTMLTextAreaElement || t instanceof HTMLSelectElement || (t instanceof HTMLElement && t.isContentEditable);
+  };
   document.addEventListener("keydown", (ev) => {
     if (ev.code === "Escape" || (ev.code === "Space" && !typing(ev))) {
       ev.preventDefault();

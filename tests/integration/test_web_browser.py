@@ -1343,3 +1343,301 @@ def test_work_control_settings_start_stop_and_the_fallback_without_a_field(servi
     finally:
         page.set_viewport_size({"width": 1024, "height": 600})
     assert page.errors == []
+
+
+# ---------------------------------------------------------------------------------------------- operator's trial
+def type_into(pg, sel: str, text: str) -> None:
+    """Clear a field and type ``text`` key by key, as an operator does (``fill`` bypasses what a browser's
+    number input makes of a decimal comma)."""
+    pg.fill(sel, "")
+    pg.locator(sel).press_sequentially(text)
+
+
+def _goto_answer(pg, button: str) -> str:
+    pg.evaluate("document.getElementById('goto-result').textContent = ''")
+    pg.click(button)
+    wait_js(pg, "document.getElementById('goto-result').textContent.length > 0", timeout=5_000)
+    return pg.text_content("#goto-result")
+
+
+def test_a_decimal_comma_is_a_decimal_point_in_every_number_field(service, page):
+    """The operator typed ``12,5`` mm into z: the browser's number input dropped the comma, the field held
+    125 and the hitch went to 125 mm. Now 12,5 is 12.5 (goto, and the work settings' kN and blend)."""
+    _connected(page, service.url)
+    at_rest(service, page)
+    tab(page, "goto")
+    for k in ("x", "roll", "pitch"):
+        page.fill(f"#goto-form input[name={k}]", "")
+    type_into(page, "#goto-form input[name=z]", "12,5")
+    type_into(page, "#goto-form input[name=speed]", "100")
+    text = _goto_answer(page, "#goto-go")
+    assert text.startswith("moving: motion #") or re.fullmatch(r"motion #\d+ finished", text), text
+    wait_for(lambda: not service.state()["moving"], 20, "the goto to end")
+    ref_z = service.state()["reference"]["pose"]["z"]
+    assert ref_z == pytest.approx(0.0125, abs=1e-4), f"the hitch went to z = {ref_z * 1000:.1f} mm for 12,5 mm"
+    assert page.input_value("#goto-form input[name=z]") == "12,5"  # the field keeps what was typed
+    # an invalid number is refused in the form, nothing is sent
+    type_into(page, "#goto-form input[name=z]", "1e")
+    text = _goto_answer(page, "#goto-go")
+    assert "z:" in text and "not a number" in text and "mm" in text, text
+    assert "err" in page.get_attribute("#goto-result", "class")
+    time.sleep(0.3)
+    assert not service.state()["moving"]
+    assert service.state()["reference"]["pose"]["z"] == pytest.approx(0.0125, abs=1e-4)
+    page.fill("#goto-form input[name=z]", "")
+    # Work ⚙ Settings: blend 0,4 and draft 2,5 kN (not 4 and 25 kN)
+    before = service.api("work/settings")[1]["settings"]
+    tab(page, "work")
+    page.click("#work-settings")
+    page.wait_for_selector("#work-dialog:not(.hidden)")
+    try:
+        type_into(page, "#work-form input[name=draft_kn]", "2,5")
+        type_into(page, "#work-form input[name=blend]", "0,4")
+        page.click("#work-save")
+        page.wait_for_selector("#work-dialog", state="hidden", timeout=5_000)
+        stored = service.api("work/settings")[1]["settings"]
+        assert stored["draft_setpoint_n"] == pytest.approx(2_500.0), stored
+        assert stored["blend"] == pytest.approx(0.4), stored
+    finally:
+        if not page.is_hidden("#work-dialog"):
+            page.click("#work-cancel")
+        keep = {k: before[k] for k in ("draft_setpoint_n", "blend", "depth_min_m", "depth_max_m")}
+        assert service.api("work/settings", keep)[0] == 200
+    assert page.errors == []
+
+
+def test_check_refuses_exactly_what_go_refuses(service, page):
+    """Check (hitch/plan) ignored what Go refused: speed 0, 2.5 and 500 % were checked at 5 % and 100 %,
+    an invalid x was dropped. Both now give the same refusal, in the field's unit, and nothing is sent."""
+    _connected(page, service.url)
+    at_rest(service, page)
+    tab(page, "goto")
+    cases = [
+        ({"z": "50", "speed": "0"}, "speed", "5–100 %"),
+        ({"z": "50", "speed": "2.5"}, "speed", "5–100 %"),
+        ({"z": "50", "speed": "500"}, "speed", "5–100 %"),
+        ({"x": "1e", "z": "50", "speed": "100"}, "x:", "mm"),
+    ]
+    for fields, names, unit in cases:
+        for k in ("x", "z", "roll", "pitch", "speed"):
+            type_into(page, f"#goto-form input[name={k}]", fields.get(k, ""))
+        check = _goto_answer(page, "#goto-plan")
+        assert "err" in page.get_attribute("#goto-result", "class"), (fields, check)
+        go = _goto_answer(page, "#goto-go")
+        assert "err" in page.get_attribute("#goto-result", "class"), (fields, go)
+        assert check == go, (fields, check, go)
+        assert names in check and unit in check, (fields, check)
+        time.sleep(0.2)
+        assert not service.state()["moving"], fields
+    type_into(page, "#goto-form input[name=speed]", "100")
+    page.fill("#goto-form input[name=x]", "")
+    assert page.errors == []
+
+
+def test_work_settings_are_checked_in_the_dialogs_units_and_refusals_come_back_in_them(service, page):
+    """An empty or "abc" draft closed the dialog as if saved; the service's refusals came in N and m for the
+    kN and cm fields. Now the dialog refuses in kN and cm before sending, and converts the service's words."""
+    _connected(page, service.url)
+    at_rest(service, page)
+    before = service.api("work/settings")[1]["settings"]
+    tab(page, "work")
+    page.click("#work-settings")
+    page.wait_for_selector("#work-dialog:not(.hidden)")
+    try:
+        for draft in ("", "abc"):
+            page.evaluate("document.getElementById('work-form-result').textContent = ''")
+            type_into(page, "#work-form input[name=draft_kn]", draft)
+            page.click("#work-save")
+            wait_js(page, "document.getElementById('work-form-result').textContent.length > 0", timeout=5_000)
+            text = page.text_content("#work-form-result")
+            assert not page.is_hidden("#work-dialog"), f"draft {draft!r} closed the dialog"
+            assert text.startswith("draft") and "kN" in text, text
+        type_into(page, "#work-form input[name=draft_kn]", "20000")
+        page.click("#work-save")
+        wait_js(page, "document.getElementById('work-form-result').textContent.includes('20000 kN')", timeout=5_000)
+        assert "300] kN" in page.text_content("#work-form-result")
+        type_into(page, "#work-form input[name=draft_kn]", "20")
+        type_into(page, "#work-form input[name=depth_min_cm]", "40")
+        type_into(page, "#work-form input[name=depth_max_cm]", "30")
+        page.click("#work-save")
+        wait_js(
+            page, "document.getElementById('work-form-result').textContent.includes('must be below')", timeout=5_000
+        )
+        text = page.text_content("#work-form-result")
+        assert "depth min = 40 cm" in text and "depth max = 30 cm" in text, text
+        assert not page.is_hidden("#work-dialog")
+    finally:
+        if not page.is_hidden("#work-dialog"):
+            page.click("#work-cancel")
+    assert service.api("work/settings")[1]["settings"] == before  # nothing was stored
+    # the service's own refusals (SI, its field names) in the dialog's units and labels
+    for body, want in (
+        ({"draft_setpoint_n": 2e7}, ["draft = 20000 kN", "(0, 300] kN"]),
+        ({"depth_max_m": 3.0}, ["depth max = 300 cm", "[0, 60] cm"]),
+        ({"depth_min_m": 0.4, "depth_max_m": 0.3}, ["depth min = 40 cm", "depth max = 30 cm"]),
+    ):
+        status, reply = service.api("work/settings", body)
+        assert status >= 400, reply
+        shown = page.evaluate("(t) => window.hitchTerminal.workUnits(t)", reply["message"])
+        for w in want:
+            assert w in shown, (reply["message"], shown)
+        assert not re.search(r"\d\]?\s*(N|m)\b|_n\b|_m\b", shown), shown
+    assert service.api("work/settings")[1]["settings"] == before
+    assert page.errors == []
+
+
+def test_gauges_turn_stale_when_the_ecu_stops_reporting(service, page):
+    """``hitch sim fault --cut ecu_to_planner``: the gauges kept the last values in normal colours; now they
+    are greyed and the banner says the measurement's age, as when the service is down."""
+    _connected(page, service.url)
+    at_rest(service, page)
+    wait_js(page, "!document.body.classList.contains('stale')")
+    status, reply = service.api("sim/fault", {"cut": "ecu_to_planner"})
+    assert status == 200, reply
+    try:
+        wait_for(lambda: not service.state()["ecu"]["online"], 5, "the ECU to go offline")
+        wait_js(page, "document.body.classList.contains('stale')", timeout=5_000)
+        assert page.evaluate("getComputedStyle(document.getElementById('gauges')).opacity") != "1"
+        banner = page.text_content("#banner")
+        assert page.is_visible("#banner") and re.search(r"\d+(\.\d)? s old", banner), banner
+        assert page.text_content("#conn").startswith("Service: connected")  # the service itself is live
+    finally:
+        _reconnect_ecu(service)
+    wait_js(page, "!document.body.classList.contains('stale')", timeout=5_000)
+    assert page.is_hidden("#banner")
+    assert page.errors == []
+
+
+def _reconnect_ecu(service) -> None:
+    """Undo a cut link: fresh measurements again and the faults it latched acknowledged (the other tests
+    expect none)."""
+    assert service.api("sim/fault", {"cut": "none"})[0] == 200
+
+    def fresh() -> bool:
+        age = service.state()["ecu"]["measurement_age_s"]
+        return age is not None and age < 0.1
+
+    wait_for(fresh, 10, "fresh measurements")
+    for _ in range(40):
+        if not service.state()["ecu"]["faults"]:
+            return
+        service.api("faults/ack")
+        time.sleep(0.25)
+    raise AssertionError(f"faults still latched: {service.state()['ecu']['faults']}")
+
+
+def test_the_quick_row_follows_the_raise_to_its_end(service, page):
+    """The quick row kept saying ``raise: moving, motion #4, 3.0 s`` after the motion finished."""
+    _connected(page, service.url)
+    at_rest(service, page)
+    headland = {"x": 0.0, "z": 0.12, "roll": 0.0, "pitch": 0.0}
+    spec = {"name": "rake", "category": "2", "mass_kg": 100.0, "com_m": [0.0, 0.3, 0.2], "headland": headland}
+    assert service.api("implements/define", spec)[0] == 200
+    assert service.api("implements/select", {"name": "rake"})[0] == 200
+    try:
+        work = {"x": 0.0, "z": 0.0, "roll": 0.0, "pitch": 0.0}  # raise from a work pose (return needs one)
+        assert service.api("goto", {"goal": work})[0] == 200
+        _settle(service, work)
+        wait_js(page, "!document.getElementById('act-raise').disabled")
+        page.click("#act-raise")
+        wait_js(page, "document.getElementById('act-result').textContent.startsWith('raise: moving')")
+        motion = re.search(r"motion #(\d+)", page.text_content("#act-result")).group(1)
+        wait_for(lambda: not service.state()["moving"], 20, "the raise to end")
+        wait_js(
+            page,
+            f"document.getElementById('act-result').textContent === 'raise: motion #{motion} finished'",
+            timeout=5_000,
+        )
+        assert "ok" in page.get_attribute("#act-result", "class")
+        page.click("#act-return")
+        wait_js(page, "document.getElementById('act-result').textContent.startsWith('return: moving')")
+        motion = re.search(r"motion #(\d+)", page.text_content("#act-result")).group(1)
+        service.api("stop")  # stopped mid-way: the row says aborted
+        wait_js(
+            page,
+            f"/^return: motion aborted #{motion}/.test(document.getElementById('act-result').textContent)",
+            timeout=5_000,
+        )
+        assert "err" in page.get_attribute("#act-result", "class")
+    finally:
+        at_rest(service, page)
+        assert service.api("implements/select", {"name": "default"})[0] == 200
+    assert page.errors == []
+
+
+@pytest.mark.parametrize("size", [(375, 667), (360, 640)])
+def test_stop_is_whole_and_nothing_scrolls_sideways_on_a_phone(service, page, size):
+    """At 375×667 STOP was cut to "ST" and the page scrolled sideways (scrollWidth 430)."""
+    width, height = size
+    page.set_viewport_size({"width": width, "height": height})
+    try:
+        _connected(page, service.url)
+        for name in ("jog", "goto", "presets", "maneuvers", "implement", "work", "help"):
+            tab(page, name)
+            box = page.locator("#stop").bounding_box()
+            assert box is not None and box["x"] >= 0 and box["x"] + box["width"] <= width + 0.5, (name, box)
+            assert box["y"] >= 0 and box["height"] >= 44 and box["width"] >= 90, (name, box)
+            # the whole word: the button's text is not clipped
+            assert page.evaluate(
+                "(() => { const b = document.getElementById('stop'); return b.scrollWidth <= b.clientWidth; })()"
+            ), name
+            hit = page.evaluate(
+                "([x, y]) => document.elementFromPoint(x, y).id", [box["x"] + box["width"] / 2, box["y"] + 8]
+            )
+            assert hit == "stop", name
+            widths = page.evaluate(
+                "[document.documentElement.scrollWidth, document.body.scrollWidth,"
+                " document.querySelector('main').scrollWidth, document.querySelector('main').clientWidth,"
+                " document.querySelector('header').scrollWidth]"
+            )
+            assert widths[0] == width and widths[1] == width and widths[2] <= widths[3] and widths[4] <= width, (
+                name,
+                widths,
+            )
+            for sel in ("#modes", "#panel", "#goto-go", "#act-skip"):
+                b = page.locator(sel).bounding_box()
+                if b is not None:
+                    assert b["x"] >= 0 and b["x"] + b["width"] <= width + 0.5, (name, sel, b)
+    finally:
+        page.set_viewport_size({"width": 1024, "height": 600})
+        tab(page, "jog")
+    assert page.errors == []
+
+
+def test_saving_a_preset_under_an_existing_name_asks_first(service, page):
+    """Saving under an existing name overwrote it silently; now the page asks (Cancel keeps it)."""
+    _connected(page, service.url)
+    at_rest(service, page)
+    z_now = service.state()["pose"]["z"]
+    stored_z = 0.2 if z_now < 0.1 else -0.1
+    pose = {"x": 0.0, "z": stored_z, "roll": 0.0, "pitch": 0.0}
+    assert service.api("presets/save", {"name": "dup", "pose": pose})[0] == 200
+
+    def dup_z() -> float:
+        return next(p for p in service.api("presets/list")[1]["presets"] if p["name"] == "dup")["pose"]["z"]
+
+    try:
+        tab(page, "presets")
+        page.fill("#preset-form input[name=name]", "dup")
+        page.click("#preset-save")
+        page.wait_for_selector("#confirm:not(.hidden)", timeout=5_000)
+        assert "dup" in page.text_content("#confirm-title") and page.text_content("#confirm-ok") == "Overwrite"
+        page.click("#confirm-cancel")
+        wait_js(page, "document.getElementById('log').textContent.includes('not saved')")
+        assert dup_z() == pytest.approx(stored_z, abs=1e-6)
+        page.fill("#preset-form input[name=name]", "dup")
+        page.click("#preset-save")
+        page.wait_for_selector("#confirm:not(.hidden)", timeout=5_000)
+        page.click("#confirm-ok")
+        wait_for(lambda: abs(dup_z() - stored_z) > 0.01, 5, "the preset to be overwritten")
+        # a new name: no question
+        page.fill("#preset-form input[name=name]", "dup2")
+        page.click("#preset-save")
+        wait_js(page, "document.getElementById('log').textContent.includes('preset dup2 saved')")
+        assert page.is_hidden("#confirm")
+    finally:
+        if not page.is_hidden("#confirm"):
+            page.click("#confirm-cancel")
+        for n in ("dup", "dup2"):
+            service.api("presets/delete", {"name": n})
+    assert page.errors == []

@@ -31,6 +31,7 @@
   const LEVEL_PERIOD_MS = 100;     // levelling: a track/setpoint {roll: 0} this often while on and visible
   const LEVEL_TTL_MS = 500;        // the service brakes this long after the last setpoint (the dead-man)
   const STATE_STALE_MS = 500;      // no state for this long: the service is not publishing
+  const ECU_STALE_S = 0.2;         // s: an ECU measurement older than this is not live (the service's default limit)
   const REQUEST_TIMEOUT_MS = 15000;
   const KIN_CAUTION_S = 2.0, KIN_DANGER_S = 0.5;   // page colours for the kinematic margin (assumed)
   // ECU pill: the valves drive while the reference moves or the measurement is farther from the
@@ -765,13 +766,33 @@
     } else { text = ui.rate > 0 ? `Service: connected · ${fmt(ui.rate)} Hz` : "Service: connected"; cls = "good"; }
     c.textContent = text;
     c.className = `pill ${cls}`;
-    banner.textContent = alert;
-    banner.classList.toggle("hidden", !alert);
-    document.body.classList.toggle("stale", Boolean(alert));
+    // the service is live but the ECU's measurement is old (the ECU stopped reporting): the gauges show the
+    // last values it sent, greyed like a service that is down, and the banner says how old they are
+    const ecuOld = !alert && ui.state ? ecuStale(ui.state) : "";
+    banner.textContent = alert || ecuOld;
+    banner.classList.toggle("hidden", !(alert || ecuOld));
+    document.body.classList.toggle("stale", Boolean(alert || ecuOld));
+    document.body.classList.toggle("ecu-stale", Boolean(ecuOld));
     if (alert) {
       $("#motion").textContent = "Motion: unknown"; $("#motion").className = "pill";
       if (!ui.connected) { $("#ecu").textContent = "ECU: unknown"; $("#ecu").className = "pill bad"; }
     }
+  }
+
+  // The ECU's measurement age from the state (`ecu.measurement_age_s`, [s]): older than the service's limit
+  // (config `stale_timeout_s`, 0.2 s by default) or none at all → the gauges are not live. Returns the banner's
+  // sentence, or "" while the measurement is fresh.
+  function ecuStale(s) {
+    const e = s.ecu;
+    if (!e) return "";
+    const cfg = ui.config || {};
+    const lim = [cfg.stale_timeout_s, cfg.can && cfg.can.stale_timeout_s].find((v) => Number.isFinite(v) && v > 0) || ECU_STALE_S;
+    const age = e.measurement_age_s;
+    if (age === null || age === undefined) {
+      return e.online === false ? "No measurement from the cylinder ECU: the gauges show no live values." : "";
+    }
+    if (!Number.isFinite(age) || age <= lim) return "";
+    return `The cylinder ECU stopped reporting: its measurement is ${fmt(age, 1)} s old (limit ${fmt(lim, 1)} s) — the gauges show the last values, not live.`;
   }
 
   // frame-rate meter (what the operator sees refreshing) and the staleness watchdog
@@ -800,6 +821,7 @@
       ui.outcomes.set(e.motion_id, outcome);   // kept for a goto whose reply is still on its way
       if (ui.outcomes.size > 50) ui.outcomes.delete(ui.outcomes.keys().next().value);
       if (e.motion_id === ui.gotoId) { result("#goto-result", ...outcome); ui.gotoId = null; }
+      if (name === "motion_finished" || name === "motion_aborted") actions.motionEnded(e.motion_id, ...outcome);
     }
     level.onEvent(e);
     if (name === "implement_selected") refreshImplements();
@@ -1067,18 +1089,44 @@
     });
   }
 
+  // What an operator types into a number field. The fields are text inputs (inputmode="decimal"): a browser's
+  // number input drops what it cannot read ("12,5" became 125, "1e" became empty) and the page never saw it.
+  // A decimal comma is a decimal point ("12,5" = 12.5); anything else that is not one plain number is refused
+  // with a message in the field's unit, and nothing is sent. Returns {empty}, {value} or {error}.
+  const NUMBER_RE = /^[-+−]?(?:\d+(?:[.,]\d*)?|[.,]\d+)(?:[eE][-+]?\d+)?$/;
+  function readNumber(raw, label, unit) {
+    const t = String(raw).trim().replace(/\s+/g, "");
+    if (t === "") return { empty: true };
+    const u = unit ? ` ${unit}` : "";
+    if ((t.match(/[.,]/g) || []).length > 1) {
+      return { error: `${label}: “${raw.trim()}” is not one number — use one decimal comma or point (e.g. 12,5${u})` };
+    }
+    if (!NUMBER_RE.test(t)) return { error: `${label}: “${raw.trim()}” is not a number — type a number${unit ? " in " + unit : ""} (e.g. 12,5${u})` };
+    const v = Number(t.replace(",", ".").replace("−", "-"));
+    if (!Number.isFinite(v)) return { error: `${label}: “${raw.trim()}” is not a finite number${unit ? " in " + unit : ""}` };
+    return { value: v };
+  }
+  window.hitchTerminal.readNumber = readNumber;   // for the browser test
+
+  const SPEED_MIN = 5, SPEED_MAX = 100;   // % (speed_scale 0.05–1: the service refuses less than 0.05)
+  // The goto form's request, or {error}: Go and Check read the form through this one function, so Check
+  // refuses exactly what Go refuses, with the same words.
   function gotoRequest() {
     const f = $("#goto-form"), goal = {};
     for (const k of DOFS) {
-      const raw = f.elements[k].value.trim();
-      if (raw === "") continue;
-      const v = Number(raw);
-      if (!Number.isFinite(v)) return { error: `${k}: not a number` };
-      goal[k] = v / dofK(k);   // the form takes mm and the page's angle unit: x_mm → m, roll_mrad (or deg) → rad
+      const n = readNumber(f.elements[k].value, k, dofUnit(k));
+      if (n.error) return { error: n.error };
+      if (n.empty) continue;
+      goal[k] = n.value / dofK(k);   // the form takes mm and the page's angle unit: x_mm → m, roll_mrad (or deg) → rad
     }
     if (!Object.keys(goal).length) return { error: "enter at least one of x, z, roll, pitch (empty = keep)" };
-    const speed = Number(f.elements.speed.value || 100);
-    return { goal, speed_scale: Math.max(0.05, Math.min(1, speed / 100)), metres: metresInMm(goal) };
+    const sp = readNumber(f.elements.speed.value, "speed", "%");
+    if (sp.error) return { error: sp.error };
+    const speed = sp.empty ? SPEED_MAX : sp.value;   // empty: full speed, as the field's default says
+    if (!(speed >= SPEED_MIN && speed <= SPEED_MAX)) {
+      return { error: `speed: ${fmt(speed, Number.isInteger(speed) ? 0 : 1)} % is outside ${SPEED_MIN}–${SPEED_MAX} % — nothing sent` };
+    }
+    return { goal, speed_scale: speed / 100, metres: metresInMm(goal) };
   }
 
   // Lengths that look typed in metres into a mm field: under 1 mm, not whole, and inside the workspace read as
@@ -1165,6 +1213,16 @@
   $("#preset-form").addEventListener("submit", async (ev) => {
     ev.preventDefault();
     const name = ev.target.elements.name.value.trim();
+    // a preset of this name exists (the service's list now, not what the page drew): ask before overwriting it
+    const listed = await call("presets/list", {}, true);
+    const old = listed.ok ? (listed.data.presets || []).find((p) => p.name === name) : null;
+    if (old) {
+      const was = DOFS.map((k) => `${k} ${fmt(old.pose[k] * dofK(k), dofDigits(k))} ${dofUnit(k)}`).join(" · ");
+      if (!(await confirmDialog(`Overwrite preset ${name}?`, `${name} is stored at ${was}; Overwrite replaces it with the current pose.`, "Overwrite"))) {
+        log(`preset ${name} not saved: it exists (kept as it was)`);
+        return;
+      }
+    }
     const r = await call("presets/save", { name });
     if (r.ok) { log(`preset ${r.data.saved} saved at the current pose`); ev.target.reset(); refreshPresets(); }
   });
@@ -1291,6 +1349,7 @@
     // the running maneuver's step, kind and what is left, from the state
     draw(s) {
       const man = s.maneuver, viewer = this.isViewer(), p = $("#act-progress");
+      this.followMotion(s);
       $("#act-pause").disabled = viewer || !man || Boolean(man.paused);
       $("#act-resume").disabled = viewer || !man || !man.paused;
       $("#act-skip").disabled = viewer || !man;
@@ -1324,11 +1383,40 @@
     if (r.ok) actions.say(okText(r.data), true); else actions.say(r.data.message || `${key}: ${r.data.error}`, false);
     return r;
   }
+  // Raise / Return: "moving" while the motion runs, then its end (the motion_finished / motion_aborted event,
+  // or the outcome that came before the reply); the state's motion ending without an event says "ended".
+  async function quickMotion(key, what) {
+    actions.motion = null;
+    const r = await actionCall(key, {}, (d) => `${what}: moving, motion #${d.motion_id}, ${fmt(d.duration, 1)} s`);
+    if (!r.ok || !Number.isInteger(r.data.motion_id)) return r;
+    actions.motion = { id: r.data.motion_id, what, seen: false };
+    const ended = ui.outcomes.get(r.data.motion_id);
+    if (ended) actions.motionEnded(r.data.motion_id, ended[0], ended[1]);
+    return r;
+  }
+  actions.motionEnded = function motionEnded(id, text, ok) {
+    const m = this.motion;
+    if (!m || m.id !== id) return;
+    this.motion = null;
+    this.say(`${m.what}: ${ok ? `motion #${id} finished` : text}`, ok);
+  };
+  // from the state: the motion is no longer the one running (its end event may be lost over a reconnect)
+  actions.followMotion = function followMotion(s) {
+    const m = this.motion;
+    if (!m) return;
+    if (s.moving && s.motion_id === m.id) { m.seen = true; return; }
+    if (!m.seen && !(Number.isInteger(s.motion_id) && s.motion_id > m.id)) return;   // not started in the state yet
+    if (!m.endSeenMs) { m.endSeenMs = performance.now(); return; }
+    if (performance.now() - m.endSeenMs > 1000) {   // no event within 1 s of the state's end: say what is known
+      this.motion = null;
+      this.say(`${m.what}: motion #${m.id} ended`, true);
+    }
+  };
   $("#act-raise").addEventListener("click", async () => {
-    const r = await actionCall("hitch/raise", {}, (d) => `raise: moving, motion #${d.motion_id}, ${fmt(d.duration, 1)} s`);
+    const r = await quickMotion("hitch/raise", "raise");
     if (r.ok) refreshImplements();   // the raise's start became the implement's last work pose
   });
-  $("#act-return").addEventListener("click", () => actionCall("hitch/return", {}, (d) => `return: moving, motion #${d.motion_id}, ${fmt(d.duration, 1)} s`));
+  $("#act-return").addEventListener("click", () => quickMotion("hitch/return", "return"));
   $("#act-lock").addEventListener("click", async () => {
     const imp = actions.current();
     if (!imp) return;
@@ -1471,19 +1559,64 @@
   });
   $("#work-settings").addEventListener("click", async () => { await work.load(); work.openDialog(); });
   $("#work-cancel").addEventListener("click", () => $("#work-dialog").classList.add("hidden"));
+  // The dialog's fields in their own units: [input, label, unit, the API's key, SI per field unit, lo, hi, lo open]
+  const WORK_FIELDS = [
+    ["draft_kn", "draft", "kN", "draft_setpoint_n", 1000, 0, 300, true],
+    ["blend", "blend", "", "blend", 1, 0, 1, false],
+    ["depth_min_cm", "depth min", "cm", "depth_min_m", 0.01, 0, 60, false],
+    ["depth_max_cm", "depth max", "cm", "depth_max_m", 0.01, 0, 60, false],
+  ];
+  const workNum = (v) => String(Number(v.toPrecision(6)));
+  // The service's refusal of work/settings (SI: N, m, its field names) in the dialog's units and labels:
+  // "draft_setpoint_n = 20000000.0 is outside the allowed range (0, 300000] N" → "draft = 20000 kN is outside
+  // the allowed range (0, 300] kN"; "depth_min_m = 0.4 must be below depth_max_m = 0.3 (both in [0, 0.6])" →
+  // "depth min = 40 cm must be below depth max = 30 cm (both in [0, 60] cm)".
+  function workUnits(text) {
+    if (typeof text !== "string") return text;
+    const N = String.raw`[-−+]?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?`;
+    const num = (t) => Number(t.replace("−", "-"));
+    let t = text.replace(/;?\s*did you mean (?:mm|degrees|mrad)\?[^;)]*/g, "");
+    // ranges with a unit: (0, 300000] N → (0, 300] kN; [0, 0.6] m → [0, 60] cm
+    t = t.replace(new RegExp(String.raw`([\[(])\s*(${N})\s*,\s*(${N})\s*\]\s*(N|m)\b`, "g"), (_, o, a, b, u) =>
+      u === "N" ? `${o}${workNum(num(a) / 1000)}, ${workNum(num(b) / 1000)}] kN` : `${o}${workNum(num(a) * 100)}, ${workNum(num(b) * 100)}] cm`);
+    // the depth pair's range without a unit: "(both in [0, 0.6])"
+    t = t.replace(new RegExp(String.raw`both in \[\s*(${N})\s*,\s*(${N})\s*\](?!\s*(?:cm|kN))`, "g"),
+      (_, a, b) => `both in [${workNum(num(a) * 100)}, ${workNum(num(b) * 100)}] cm`);
+    // each field by its label, its value in the field's unit
+    const names = { draft_setpoint_n: ["draft", "kN", 1e-3], draft_max_n: ["draft limit", "kN", 1e-3],
+      depth_min_m: ["depth min", "cm", 100], depth_max_m: ["depth max", "cm", 100] };
+    for (const [key, [label, unit, k]] of Object.entries(names)) {
+      t = t.replace(new RegExp(String.raw`\b${key}\s*=\s*(${N})`, "g"), (_, a) => `${label} = ${workNum(num(a) * k)} ${unit}`);
+      t = t.replace(new RegExp(String.raw`\b${key}\b`, "g"), label);
+    }
+    return t;
+  }
+  window.hitchTerminal.workUnits = workUnits;   // for the browser test
+  // the dialog's values → the API's body in SI, or {error} in the dialog's units (nothing is sent)
+  function workRequest(f) {
+    const body = {}, shown = {};
+    for (const [name, label, unit, key, scale, lo, hi, openLo] of WORK_FIELDS) {
+      const n = readNumber(f[name].value, label, unit);
+      const rng = `${openLo ? "(" : "["}${lo}, ${hi}] ${unit || ""}`.trim();
+      if (n.error) return { error: n.error };
+      if (n.empty) return { error: `${label}: enter a number in ${rng}` };
+      const u = unit ? ` ${unit}` : "";
+      if (n.value > hi || n.value < lo || (openLo && n.value <= lo)) {
+        return { error: `${label} = ${workNum(n.value)}${u} is outside ${rng} [${key}] — nothing saved` };
+      }
+      body[key] = n.value * scale; shown[key] = `${workNum(n.value)}${u}`;
+    }
+    if (!(body.depth_min_m < body.depth_max_m)) {
+      return { error: `depth min = ${shown.depth_min_m} must be below depth max = ${shown.depth_max_m} — nothing saved` };
+    }
+    return { body };
+  }
   $("#work-form").addEventListener("submit", async (ev) => {
     ev.preventDefault();
-    const f = ev.target, body = {};
-    const num = (v) => (String(v).trim() === "" ? null : Number(v));
-    for (const [name, key, scale] of [["draft_kn", "draft_setpoint_n", 1000], ["blend", "blend", 1],
-      ["depth_min_cm", "depth_min_m", 0.01], ["depth_max_cm", "depth_max_m", 0.01]]) {
-      const v = num(f[name].value);
-      if (v === null) continue;
-      if (!Number.isFinite(v)) { result("#work-form-result", `${name.replace("_", " ")}: enter a number`, false); return; }
-      body[key] = v * scale;
-    }
-    const r = await work.put(body);
-    if (!r.ok) { result("#work-form-result", r.data.message || r.data.error, false); return; }
+    const req = workRequest(ev.target);
+    if (req.error) { result("#work-form-result", req.error, false); return; }
+    const r = await work.put(req.body);
+    if (!r.ok) { result("#work-form-result", workUnits(r.data.message || r.data.error), false); return; }
     $("#work-dialog").classList.add("hidden");
     const s = r.data.settings;
     actions.say(`work settings saved: ${s.mode}, draft ${work.kn(s.draft_setpoint_n)} kN, blend ${s.blend}, depth ${work.cm(s.depth_min_m)}–${work.cm(s.depth_max_m)} cm`, true);

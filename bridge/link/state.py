@@ -373,6 +373,11 @@ class LinkFaults:
         """True if any fault is latched."""
         return any(getattr(self, name) for name in _FAULT_NAMES)
 
+    @staticmethod
+    def names() -> tuple[str, ...]:
+        """Every fault's name (the boolean fields; not the reasons)."""
+        return _FAULT_NAMES
+
     def active(self) -> tuple[str, ...]:
         """Names of the latched faults."""
         return tuple(name for name in _FAULT_NAMES if getattr(self, name))

@@ -354,7 +354,8 @@ def test_the_written_fault_policy_is_the_one_the_controller_applies():
 
     text = (Path(__file__).resolve().parents[3] / "docs" / "faults.md").read_text(encoding="utf-8")
     rows = dict(re.findall(r"^\| `([a-z_]+)` \|[^|]*\| (self-clearing|latching) \|", text, re.MULTILINE))
-    link_faults = {f.name for f in fields(LinkFaults) if f.name != "reasons"}
+    link_faults = set(LinkFaults.names())
+    assert link_faults == {f.name for f in fields(LinkFaults) if f.type in ("bool", bool)}  # every boolean field
     assert set(rows) == link_faults | {"internal"}, sorted(rows)
     assert {n for n, kind in rows.items() if kind == "self-clearing"} == set(SELF_CLEARING_FAULTS)
     assert f"fresh for {FAULT_CLEAR_AFTER_S:g} s" in text

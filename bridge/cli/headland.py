@@ -27,6 +27,11 @@ def add_maneuver_actions(ms: Any) -> None:
     _client_command(rs, "start", "start recording", _cmd_record)
     r = _client_command(rs, "stop", "stop recording and print the script (YAML)", _cmd_record)
     r.add_argument("--save", metavar="NAME", default=None, help="also save the script as maneuver NAME")
+    r.add_argument(
+        "--replace",
+        action="store_true",
+        help="with --save: replace a maneuver NAME (else refused, and the recording goes on)",
+    )
     for action, text in (
         ("pause", "pause the running maneuver (the hitch brakes to rest and holds)"),
         ("resume", "resume the paused maneuver (its motion step is planned again from the pose now)"),
@@ -51,15 +56,19 @@ def add_lines_command(sub: Any) -> None:
 
 
 def _cmd_record(args: Any) -> int:
+    if getattr(args, "replace", False) and (args.record_action != "stop" or args.save is None):
+        raise CLIError("--replace needs record stop --save NAME (the maneuver to replace)")
+
     def record(c: Any) -> int:
         if args.record_action == "start":
             r = c.request("maneuvers/record/start", {})
             _print(args, r, "recording (hitch maneuver record stop to end)")
             return 0
-        r = c.request("maneuvers/record/stop", {} if args.save is None else {"name": args.save})
+        body = {} if args.save is None else {"name": args.save, **({"replace": True} if args.replace else {})}
+        r = c.request("maneuvers/record/stop", body)
         text = r["script"].rstrip("\n")
         if args.save is not None and "saved" in r:  # the service saved it (record/stop with a name)
-            text += f"\nsaved {r['saved']} ({r['steps']} steps)"
+            text += f"\n{'replaced' if r.get('replaced') else 'saved'} {r['saved']} ({r['steps']} steps)"
         elif args.save is not None:
             text += f"\nnot saved: {r.get('not_saved', 'the service did not save it')}"
         _print(args, r, text)
@@ -71,9 +80,13 @@ def _cmd_record(args: Any) -> int:
 def _cmd_control(args: Any) -> int:
     def control(c: Any) -> int:
         r = c.request(f"maneuvers/{args.action}", _deadline(args))
-        m = r.get("maneuver") or {}
-        state = "paused" if m.get("paused") else "running"
-        _print(args, r, f"{args.action}: maneuver {r.get('maneuver_id')} {state}, step {m.get('step')}")
+        m = r.get("maneuver")
+        if m is None:  # a skip of the last step finished the maneuver (docs/maneuvers.md)
+            text = f"{args.action}: maneuver {r.get('maneuver_id')} finished (no step left)"
+        else:
+            state = "paused" if m.get("paused") else "running"
+            text = f"{args.action}: maneuver {r.get('maneuver_id')} {state}, step {m.get('step')}"
+        _print(args, r, text)
         return 0
 
     return _run(args, control)

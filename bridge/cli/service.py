@@ -129,9 +129,11 @@ def _cmd_serve(args) -> int:
     if cfg.can_log is not None:  # refuse a bad suffix before anything starts (the recorder runs with the CAN buses)
         CanRecorder.check_path(cfg.can_log)
     blackbox: EventLog | None = None
+    served: list[Any] = []  # the service, for what it holds at the stop (an unsaved teach-in recording)
 
     def ready(service) -> None:
         nonlocal blackbox
+        served.append(service)
         blackbox = EventLog(event_log_path(cfg.data_dir))
         blackbox.record(
             "service",
@@ -161,6 +163,11 @@ def _cmd_serve(args) -> int:
     finally:
         if blackbox is not None:
             blackbox.summarize()  # the requests held back by the flood limits, counted before the stop record
+            from bridge.service.maneuvers.recorder import discarded_recording
+
+            lost = discarded_recording(getattr(served[0], "api", None)) if served else None
+            if lost is not None:  # discarded without trace, before (a field user's report)
+                blackbox.record("service", **lost)
             blackbox.record("service", what="stopped")
             blackbox.close()
     print(f"hitch serve: stopped in {took * 1000:.0f} ms", flush=True)
@@ -705,9 +712,11 @@ def _cmd_maneuver(args) -> int:
             )
             return 0 if r["ok"] else 1
         if a == "save":
-            r = c.request("maneuvers/save", {"name": args.name, "script": script})
+            body = {"name": args.name, "script": script, **({"replace": True} if args.replace else {})}
+            r = c.request("maneuvers/save", body)
             steps = f"{r['steps']} step" + ("" if r["steps"] == 1 else "s")
-            _print(args, r, f"saved {r['saved']} ({steps}; parsed only: `hitch maneuver validate` plans it)")
+            what = "replaced" if r.get("replaced") else "saved"
+            _print(args, r, f"{what} {r['saved']} ({steps}; parsed only: `hitch maneuver validate` plans it)")
         elif a == "list":
             r = c.request("maneuvers/list", {})
             _print(
@@ -915,6 +924,10 @@ def add_commands(sub) -> Any:
             q.add_argument(a)
         if action == "run":
             _wait_options(q)
+        if action == "save":
+            q.add_argument(
+                "--replace", action="store_true", help="replace a maneuver of that name (else refused: in_use)"
+            )
         _client_options(q)
         q.set_defaults(handler=_cmd_maneuver)
     maneuver_actions = ms  # bridge.cli.headland adds record, pause, resume, skip (bridge.cli.main)

@@ -39,10 +39,11 @@ from bridge.service.maneuvers.language import (
     ManeuverScript,
     StepError,
     ValidationResult,
+    goto_workspace_errors,
     parse_maneuver,
 )
 from bridge.service.maneuvers.recorder import ManeuverRecorder, maneuvers_using_preset, recorder_for
-from bridge.service.maneuvers.steps import GotoStep
+from bridge.service.maneuvers.steps import WaitForStep
 from bridge.service.motion.controller import MotionController
 from bridge.service.motion.types import MODES, ManeuverAccepted, MotionError, pose_dict
 from bridge.service.planning import InProcessPlanning, Planning
@@ -74,14 +75,12 @@ from bridge.service.schemas import (
     setpoint_session,
 )
 from bridge.service.security import AccessPolicy
-from bridge.service.store import DEFAULT_IMPLEMENT, HitchStore, StoreError
+from bridge.service.store import DEFAULT_IMPLEMENT, HitchStore, ManeuverExists, StoreError
 from bridge.service.work import work_handlers
 from bridge.service.workers import PresetPose, WorkerError, referenced_presets
 from planner.errors import HitchInputError
 from planner.ik_qp.hitch_ik import IKSolver
 from planner.limits.guard import GuardRefusal
-from planner.model.limit_names import beyond_words
-from planner.model.types import CONTROLLED_POSE_NAMES
 from planner.trajectory import MotionState, PlanError
 
 __all__ = ["ServiceAPI", "API_KEYS", "EXPENSIVE_KEYS", "MAX_IN_FLIGHT_PER_USER"]
@@ -411,7 +410,21 @@ class ServiceAPI:
         out: dict[str, Any] = {"script": script, "steps": len(rec.steps)}
         if r.name is not None:  # saved as the API says (it was only named: a new user's report)
             try:
-                out.update(self._maneuvers_save(ManeuverSave(name=r.name, script=script)))
+                out.update(self._save_maneuver(r.name, script, r.replace))
+            except ManeuverExists as exc:  # not replaced unasked (a 6-step maneuver became a 1-step recording)
+                with self._record_lock:  # the recording goes on: stop it again with another name, or replace
+                    kept = self.recorder is None
+                    if kept:
+                        self.recorder = rec
+                if kept:
+                    raise RequestError(
+                        "in_use",
+                        f"maneuvers/record/stop: {_exists(exc)}; nothing was saved and the recording goes on "
+                        f"({len(rec.steps)} step(s) so far): record/stop it with another name, or with "
+                        f'"replace": true (CLI: hitch maneuver record stop --save {exc.name} --replace) to replace '
+                        f"{exc.name!r}",
+                    ) from None
+                out["not_saved"] = f"{_exists(exc)} (a new recording runs: this script is not kept by the service)"
             except HitchInputError as exc:  # the script is returned all the same: nothing recorded is lost
                 out["not_saved"] = str(exc)
             out["steps"] = len(rec.steps)
@@ -432,47 +445,68 @@ class ServiceAPI:
                 presets[name] = PresetPose(dict(p.pose), p.speed_scale)
         start = MotionState.at_rest(self.motion.current_state().position)
         res = self.planning.validate(script, start, presets)
-        if not res.ok:
-            return res
-        # a wait_for line no one saved: the run would abort at that step (it validated, was accepted, and
-        # aborted at once with trigger_unavailable: a new user's report)
+        # every step's own problems, beside what planning found (it stops at the first step it cannot plan,
+        # or at a missing preset: a missing line at step 0 was not said beside a missing preset at step 2):
+        # a wait_for line no one saved (the run would abort at that step: it validated, was accepted, and
+        # aborted at once with trigger_unavailable: a new user's report), and a goto whose own goal lies
+        # outside the workspace (known without planning from the step before)
         lines = {name for name, _ in self.store.list_lines()}
-        missing = [ps for ps in res.steps if ps.line is not None and ps.line not in lines]
-        if not missing:
-            return res
         saved = ", ".join(sorted(lines)) or "none"
-        errors = tuple(
-            StepError(ps.index, f"wait_for.line: no line {ps.line!r} is saved (lines/save; saved: {saved})")
-            for ps in missing
-        )
-        return ValidationResult(False, res.duration, errors, res.script)
+        extra = [
+            StepError(i, f"wait_for.line: no line {s.line!r} is saved (lines/save; saved: {saved})")
+            for i, s in enumerate(script.steps)
+            if isinstance(s, WaitForStep) and s.line is not None and s.line not in lines
+        ]
+        said = {e.step for e in res.errors}
+        extra += [
+            StepError(e.step, f"goto cannot be planned: {e.message}")
+            for e in goto_workspace_errors(script, self.motion.planner)
+            if e.step not in said
+        ]
+        if not extra:
+            return res
+        errors = sorted([*res.errors, *extra], key=lambda e: -1 if e.step is None else e.step)
+        return ValidationResult(False, res.duration if res.ok else 0.0, tuple(errors), res.script)
 
     def _maneuvers_validate(self, r: ScriptRequest) -> dict:
         return self._validated(r.script).to_json()
 
     def _maneuvers_save(self, r: ManeuverSave) -> dict:
-        parsed = parse_maneuver(r.script)  # ManeuverError (a HitchInputError) lists the problems
+        """Store a maneuver; a name saved already is refused (``in_use``) unless ``replace`` (a 6-step maneuver
+        was silently replaced by a 1-step recording). With ``replace`` the reply says ``replaced: true`` when
+        it did replace one."""
+        try:
+            return self._save_maneuver(r.name, r.script, r.replace)
+        except ManeuverExists as exc:
+            raise RequestError(
+                "in_use",
+                f'maneuvers/save: {_exists(exc)}; send it with "replace": true to replace it (CLI: hitch '
+                f"maneuver save {exc.name} FILE --replace), or save it under another name",
+            ) from None
+
+    def _save_maneuver(self, name: str, script: str, replace: bool) -> dict:
+        """Parse, check and store (:class:`ManeuverExists` when ``name`` is saved and not ``replace``)."""
+        parsed = parse_maneuver(script)  # ManeuverError (a HitchInputError) lists the problems
         self._check_goto_steps(parsed)
-        stored = self.store.save_maneuver(r.name, r.script, owner=getattr(self._caller, "user", None), parsed=parsed)
-        return {"saved": stored.name, "steps": len(stored.parsed.steps)}
+        stored = self.store.save_maneuver(
+            name, script, owner=getattr(self._caller, "user", None), parsed=parsed, replace=replace
+        )
+        out: dict[str, Any] = {"saved": stored.name, "steps": len(stored.parsed.steps)}
+        if stored.replaced:
+            out["replaced"] = True
+        return out
 
     def _check_goto_steps(self, parsed: ManeuverScript) -> None:
-        """A goto step outside the workspace is refused at save, naming the step and the face, as presets/save
-        refuses such a pose (it was saved, then every run refused it; a fleet trial)."""
-        planner = self.motion.planner
-        for i, step in enumerate(parsed.steps):
-            if not isinstance(step, GotoStep):
-                continue
-            for k, (lo, hi) in zip(CONTROLLED_POSE_NAMES, zip(planner.lo, planner.hi, strict=True), strict=True):
-                v = getattr(step, k)
-                if v is None or lo - 1e-9 <= v <= hi + 1e-9:
-                    continue
-                unit = "m" if k in ("x", "z") else "rad"
-                raise RequestError(
-                    "unreachable",
-                    f"maneuvers/save: step {i + 1} (goto): {k} = {v:.4f} {unit} is {beyond_words(k, v > hi)} the "
-                    f"workspace ({k} from {lo:.4f} to {hi:.4f} {unit}); no run could reach it",
-                )
+        """A goto step outside the workspace is refused at save, naming the step (0-based, as validate and the
+        runner count them) and the face with the planner's own words and unit hint, as validate says it and
+        presets/save refuses such a pose (it was saved, then every run refused it; a fleet trial)."""
+        errors = goto_workspace_errors(parsed, self.motion.planner)
+        if errors:
+            said = "; ".join(f"step {e.step} (goto): {e.message}" for e in errors)
+            raise RequestError(
+                "unreachable",
+                f"maneuvers/save: {said}; no run could reach {'it' if len(errors) == 1 else 'them'}",
+            )
 
     def _maneuvers_list(self, _r: Empty) -> dict:
         return {"maneuvers": [m.to_json(script=False) for m in self.store.list_maneuvers()]}
@@ -500,6 +534,12 @@ class ServiceAPI:
 
 #: StoreError fields that mean the database itself (not a value of the request)
 _STORE_FAULT_FIELDS = frozenset({"path", "database", "store", "schema_version"})
+
+
+def _exists(exc: ManeuverExists) -> str:
+    """``a maneuver 'x' is saved already (6 steps)``: what a save without replace would have replaced."""
+    steps = "" if exc.steps is None else f" ({exc.steps} step{'' if exc.steps == 1 else 's'})"
+    return f"a maneuver {exc.name!r} is saved already{steps}"
 
 
 def _named(key: str, exc: BaseException) -> str:

@@ -537,6 +537,26 @@ class HitchClient:
             raise ClientError("pause only brakes: it takes no deadline_ms")
         return self.request(f"maneuvers/{action}", {} if deadline_ms is None else {"deadline_ms": int(deadline_ms)})
 
+    def save_maneuver(self, name: str, script: str, *, replace: bool = False) -> dict:
+        """Store a maneuver script (YAML) as ``name`` (``maneuvers/save``, operators): ``{"saved", "steps"}``.
+        A name saved already is refused (``in_use``, :class:`ServiceError`) unless ``replace``; the reply of
+        a save that replaced one also says ``"replaced": true`` (docs/maneuvers.md)."""
+        body: dict[str, Any] = {"name": name, "script": script}
+        if replace:
+            body["replace"] = True
+        return self.request("maneuvers/save", body)
+
+    def record_stop(self, name: str | None = None, *, replace: bool = False) -> dict:
+        """End teach-in (``maneuvers/record/stop``): ``{"script", "steps"}``; with ``name`` also saved as
+        ``name`` (``saved``, or ``not_saved`` saying why). A name saved already is refused (``in_use``) and the
+        recording goes on, unless ``replace``."""
+        if replace and name is None:
+            raise ClientError("replace needs a name: the maneuver the recording replaces")
+        body: dict[str, Any] = {} if name is None else {"name": name}
+        if replace:
+            body["replace"] = True
+        return self.request("maneuvers/record/stop", body)
+
     def track_setpoint(
         self,
         session: int,

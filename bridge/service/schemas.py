@@ -210,8 +210,11 @@ class ScriptRequest(_Strict):
 
 
 class ManeuverSave(_Strict):
+    """Store a maneuver; a name already saved is refused (``in_use``) unless ``replace``."""
+
     name: str = Field(pattern=_NAME)
     script: str = Field(max_length=64 * 1024)
+    replace: bool = False
 
 
 class ManeuverRun(NameRequest):
@@ -302,9 +305,11 @@ class PresetDelete(NameRequest):
 
 
 class RecordStop(_Strict):
-    """End teach-in: the recorded script (YAML) is returned for review, named ``name`` if given."""
+    """End teach-in: the recorded script (YAML) is returned for review, named ``name`` if given (and saved as
+    ``name``: a name already saved is refused, the recording going on, unless ``replace``)."""
 
     name: str | None = Field(None, pattern=_NAME)
+    replace: bool = False
 
 
 class LinesSave(_Strict):

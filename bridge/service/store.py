@@ -52,6 +52,7 @@ from collections import OrderedDict
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from dataclasses import replace as dc_replace
 from pathlib import Path
 from typing import Any
 
@@ -70,6 +71,7 @@ from planner.limits.tractor import ISO730_CATEGORIES
 
 __all__ = [
     "StoreError",
+    "ManeuverExists",
     "StoreLimits",
     "Preset",
     "StoredManeuver",
@@ -181,6 +183,14 @@ class StoreError(HitchInputError):
         super().__init__(message if message.startswith(field) else f"{field}: {message}")
 
 
+class ManeuverExists(StoreError):
+    """:meth:`HitchStore.save_maneuver` without ``replace``: a maneuver of that name is saved (``steps`` of it)."""
+
+    def __init__(self, name: str, steps: int | None):
+        self.name, self.steps = name, steps
+        super().__init__("name", f"a maneuver {name!r} is saved already")
+
+
 @dataclass(frozen=True)
 class StoreLimits:
     """Per-owner limits of the store (see the module docstring); each must be >= 1."""
@@ -224,6 +234,8 @@ class StoredManeuver:
     parsed: ManeuverScript = field(repr=False)
     updated_s: float = 0.0
     owner: str = ""
+    #: set by :meth:`HitchStore.save_maneuver`: this save replaced a maneuver of that name
+    replaced: bool = field(default=False, compare=False)
 
     def to_json(self, *, script: bool = True) -> dict[str, Any]:
         """Name, script text (unless ``script`` is False: the listing), description, step count, timeout [s]."""
@@ -616,14 +628,21 @@ class HitchStore:
 
     # ------------------------------------------------------------------ maneuvers
     def save_maneuver(
-        self, name: str, script: str, *, owner: str | None = None, parsed: ManeuverScript | None = None
+        self,
+        name: str,
+        script: str,
+        *,
+        owner: str | None = None,
+        parsed: ManeuverScript | None = None,
+        replace: bool = True,
     ) -> StoredManeuver:
         """Parse (once; ManeuverError lists the problems; ``parsed``: ``script`` parsed already) and insert or
-        replace a maneuver.
+        replace a maneuver (the result's ``replaced`` says which).
 
         A ``name:`` inside the script, if any, must equal ``name``. ``owner``: the user saving it;
         :class:`StoreError` with field ``max_maneuvers_per_user`` or ``max_script_bytes_per_user``
-        when the owner's limits would be exceeded.
+        when the owner's limits would be exceeded. ``replace`` False: a maneuver of that name is not
+        replaced — :class:`ManeuverExists` (checked in the write's transaction).
         """
         name, who = _name(name, "name"), _owner(owner)
         if not isinstance(script, str):
@@ -640,7 +659,13 @@ class HitchStore:
         form, description, steps, timeout_s, size = _listing(parsed, script)
         max_count, max_bytes = self.limits.max_maneuvers_per_user, self.limits.max_script_bytes_per_user
 
+        existed: list[bool] = []
+
         def check(db: sqlite3.Connection) -> None:
+            old = db.execute("SELECT steps FROM maneuvers WHERE name = ?", (name,)).fetchone()
+            existed.append(old is not None)
+            if old is not None and not replace:
+                raise ManeuverExists(name, old[0])
             n, total = db.execute(
                 "SELECT COUNT(*), COALESCE(SUM(size_bytes), 0) FROM maneuvers WHERE owner = ? AND name != ?",
                 (who, name),
@@ -670,7 +695,7 @@ class HitchStore:
         )
         with self._lock:
             self._remember((name, stored.updated_s), parsed)
-        return stored
+        return dc_replace(stored, replaced=bool(existed and existed[-1]))
 
     def get_maneuver(self, name: str) -> StoredManeuver | None:
         """The maneuver with its parsed form (rebuilt from the stored form, no YAML), or None.

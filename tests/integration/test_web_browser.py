@@ -585,7 +585,7 @@ def test_keys_typed_in_a_script_box_or_a_list_never_jog_or_stop(service, page):
     counted as typing. Text areas and drop-down lists do now; Escape still stops from anywhere."""
     at_rest(service, page)
     tab(page, "maneuvers")
-    page.click("#maneuver-editor summary")  # "New maneuver script"
+    page.evaluate("document.getElementById('maneuver-editor').open = true")  # "New maneuver script"
     box = page.locator("textarea[name='script']")
     box.click()
     page.keyboard.down("KeyW")
@@ -595,7 +595,7 @@ def test_keys_typed_in_a_script_box_or_a_list_never_jog_or_stop(service, page):
     assert service.state()["motion"] is None and not service.state()["moving"], service.state()["motion"]
     assert box.input_value().endswith("name: a b"), box.input_value()
     box.fill("")
-    page.click("#maneuver-editor summary")
+    page.evaluate("document.getElementById('maneuver-editor').open = false")
     tab(page, "work")
     page.focus("#work-mode")
     page.keyboard.down("ArrowUp")
@@ -707,7 +707,7 @@ def test_maneuver_validate_run_and_live_progress(service, page, shots):
     assert service.api("maneuvers/save", {"name": "headland", "script": script})[0] == 200
     tab(page, "maneuvers")
     page.wait_for_selector("#maneuver-list li[data-name='headland']")
-    page.click("#maneuver-editor summary")
+    page.evaluate("document.getElementById('maneuver-editor').open = true")  # "New maneuver script"
     page.fill("#maneuver-form input[name=name]", "headland")
     page.fill("#maneuver-form textarea", script)
     page.click("#maneuver-validate")
@@ -718,6 +718,31 @@ def test_maneuver_validate_run_and_live_progress(service, page, shots):
     page.screenshot(path=str(shots / "10-maneuver-progress.png"))
     wait_js(page, "document.getElementById('maneuver-result').textContent.includes('finished')", timeout=20_000)
     page.wait_for_selector("#maneuver-progress", state="hidden", timeout=3_000)
+
+
+def test_saving_a_maneuver_over_one_saved_already_asks_and_replaces_only_when_told(service, page):
+    """maneuvers/save refuses a name saved already unless sent with replace (a teach-in recording had replaced a
+    6-step maneuver without a word): the page asks, Cancel keeps the saved one, Replace replaces it."""
+    one, two = "steps:\n  - wait: 1.0\n", "steps:\n  - wait: 1.0\n  - wait: 2.0\n"
+    assert service.api("maneuvers/save", {"name": "twice", "script": one})[0] == 200
+    tab(page, "maneuvers")
+    page.evaluate("document.getElementById('maneuver-editor').open = true")  # whatever an earlier test left
+    page.fill("#maneuver-form input[name=name]", "twice")
+    page.fill("#maneuver-form textarea", two)
+    page.click("#maneuver-save")
+    page.wait_for_selector("#confirm:not(.hidden)")
+    assert "Replace maneuver twice?" in page.text_content("#confirm-title")
+    page.click("#confirm-cancel")
+    wait_js(page, "document.getElementById('maneuver-result').textContent.includes('kept as it was')")
+    listed = {m["name"]: m for m in service.api("maneuvers/list")[1]["maneuvers"]}
+    assert listed["twice"]["steps"] == 1
+    page.click("#maneuver-save")
+    page.wait_for_selector("#confirm:not(.hidden)")
+    page.click("#confirm-ok")
+    wait_js(page, "document.getElementById('maneuver-result').textContent.includes('twice saved (2 steps)')")
+    listed = {m["name"]: m for m in service.api("maneuvers/list")[1]["maneuvers"]}
+    assert listed["twice"]["steps"] == 2
+    page.evaluate("document.getElementById('maneuver-editor').open = false")
 
 
 def test_killing_the_service_is_shown_and_the_page_reconnects(service, page, shots):

@@ -97,6 +97,7 @@ __all__ = [
     "parse_maneuver",
     "validate",
     "guarded_plan_step",
+    "goto_workspace_errors",
     "StepPlan",
     "pose_tolerance",
     "within_tolerance_s",
@@ -572,6 +573,29 @@ def validate(script: str | ManeuverScript, ctx: PlanningContext) -> ValidationRe
         errors = sorted([*errors, *unresolved], key=lambda e: -1 if e.step is None else e.step)
         return ValidationResult(False, 0.0, tuple(errors), script)
     return ValidationResult(not errors, t, tuple(errors), script, _with_leads(script, planned), dist)
+
+
+def goto_workspace_errors(script: ManeuverScript, planner: Any) -> list[StepError]:
+    """Every ``goto`` step whose own goal lies outside the workspace of ``planner`` (a
+    :class:`~planner.trajectory.TrajectoryPlanner`: ``lo``, ``hi``, ``check_in_workspace``) — known
+    without planning from the step before: a DOF the step gives out of ``[lo, hi]``. The message is the
+    planner's own (``goal.x = … m is left of the workspace (x_min = … m)``, with its unit hint), as
+    planning the step would give it; steps indexed 0-based."""
+    lo, hi = np.asarray(planner.lo, float), np.asarray(planner.hi, float)
+    out = []
+    for i, step in enumerate(script.steps):
+        if not isinstance(step, GotoStep):
+            continue
+        pose = (lo + hi) / 2.0  # the DOF it does not give keep a value inside the workspace
+        for j, k in enumerate(POSE_BOUNDS):
+            v = getattr(step, k)
+            if v is not None:
+                pose[j] = float(v)
+        try:
+            planner.check_in_workspace(pose, "goal")
+        except ValueError as exc:  # PlanError
+            out.append(StepError(i, str(exc)))
+    return out
 
 
 def _check_leads(raw: list[Any], steps: list[Step]) -> list[StepError]:

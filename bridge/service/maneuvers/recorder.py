@@ -31,7 +31,7 @@ from bridge.service.maneuvers.language import MAX_STEPS, parse_maneuver
 from bridge.service.maneuvers.steps import MAX_TIMEOUT_S, POSE_BOUNDS
 from planner.errors import HitchInputError
 
-__all__ = ["ManeuverRecorder", "RecorderError"]
+__all__ = ["ManeuverRecorder", "RecorderError", "discarded_recording"]
 
 #: the longest single ``wait`` [s] and ``wait_for distance`` [m] a script allows (steps.WaitStep, WaitForStep)
 _MAX_WAIT_S = MAX_TIMEOUT_S
@@ -184,6 +184,24 @@ def recorder_for(motion: Any) -> ManeuverRecorder:
         ),
         motion.distance_travelled,
     )
+
+
+def discarded_recording(api: Any) -> dict[str, Any] | None:
+    """At shutdown: the teach-in recording the service's API (``api.recorder``) still holds, unsaved — for the
+    black box (it was discarded without trace) — as ``{"what", "steps", "dropped", "message"}``; None when
+    nothing records."""
+    rec = getattr(api, "recorder", None)
+    if not isinstance(rec, ManeuverRecorder):
+        return None
+    with rec._lock:
+        steps, dropped = len(rec.steps), rec.dropped
+    return {
+        "what": "recording_discarded",
+        "steps": steps,
+        "dropped": dropped,
+        "message": f"an unsaved teach-in recording of {steps} step(s) was discarded when the service stopped "
+        "(maneuvers/record/stop returns and saves a recording)",
+    }
 
 
 def maneuvers_using_preset(store: Any, preset: str) -> list[str]:

@@ -285,9 +285,11 @@ class ManeuverRunner:
             self._entered = False  # re-plan the motion from the current pose
         return {"event": "maneuver_resumed", "maneuver": self.name, "step": self.current_step, "t": now_s, "held": held}
 
-    def skip(self, now_s: float) -> tuple[dict[str, Any], bool]:
-        """End the step in progress and go on with the next one (also while paused). Returns the
-        ``maneuver_skipped`` event and whether the skipped step was a motion (the caller brakes it)."""
+    def skip(self, now_s: float) -> tuple[list[dict[str, Any]], bool]:
+        """End the step in progress and go on with the next one (also while paused). Returns the events —
+        ``maneuver_skipped``, and ``maneuver_finished`` when that was the last step: the maneuver ends at
+        once, paused or not (a pause held it, its timeout frozen, until a resume or stop) — and whether the
+        skipped step was a motion (the caller brakes it)."""
         now_s = _finite("now_s", now_s)
         self._require_running("skip")
         ps = self._steps[self._index]
@@ -295,15 +297,24 @@ class ManeuverRunner:
         self._entered = self._awaiting = False
         self._left = {}
         nxt = self.current_step
-        ev = {
-            "event": "maneuver_skipped",
-            "maneuver": self.name,
-            "step": ps.index,
-            "kind": ps.kind,
-            "next": nxt,
-            "t": now_s,
-        }
-        return ev, ps.goal is not None
+        events: list[dict[str, Any]] = [
+            {
+                "event": "maneuver_skipped",
+                "maneuver": self.name,
+                "step": ps.index,
+                "kind": ps.kind,
+                "next": nxt,
+                "t": now_s,
+            }
+        ]
+        if self._index >= len(self._steps):  # nothing left: finished now (the hitch stays where it is)
+            elapsed_at = now_s if self._paused_at is None else self._paused_at  # a pause's time is not run time
+            self._paused_at = None
+            self._status = "finished"
+            events.append(
+                {"event": "maneuver_finished", "maneuver": self.name, "t": now_s, "elapsed": elapsed_at - self._t0}
+            )
+        return events, ps.goal is not None
 
     def progress(self) -> dict[str, Any]:
         """The step in progress for the state message: index, kind, paused, and the time [s] or

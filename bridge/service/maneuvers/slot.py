@@ -107,8 +107,10 @@ class ManeuverSlot:
             events.extend(self._tag([r.resume(now)]))
             return False
         if action == "skip":
-            ev, motion = r.skip(now)
-            events.extend(self._tag([ev]))
+            evs, motion = r.skip(now)
+            events.extend(self._tag(evs))
+            if r.status != "running":  # the last step was skipped: the maneuver is over (finished)
+                self.runner = None
             return motion
         raise ManeuverRunError(f"action must be one of pause, resume, skip, got {action!r}")
 

@@ -1271,9 +1271,18 @@
     result("#maneuver-result", q.data.ok ? `valid: ${fmt(q.data.duration, 1)} s from the current pose`
       : stepErrors(q.data.errors), q.data.ok);
   });
+  // maneuvers/save: a name saved already is refused (in_use) unless sent with replace — the operator is asked first
+  async function saveManeuver(body, quiet) {
+    const q = await call("maneuvers/save", body, quiet);
+    if (q.ok || q.data.error !== "in_use" || !/is saved already/.test(q.data.message || "")) return q;
+    const ok = await confirmDialog(`Replace maneuver ${body.name}?`,
+      `A maneuver ${body.name} is saved already. Replace replaces it with this script; Cancel keeps it.`, "Replace");
+    if (!ok) return { ok: false, data: { error: "in_use", message: `maneuver ${body.name} not saved: it exists (kept as it was)` } };
+    return call("maneuvers/save", { ...body, replace: true }, quiet);
+  }
   $("#maneuver-form").addEventListener("submit", async (ev) => {
     ev.preventDefault();
-    const q = await call("maneuvers/save", scriptRequest());
+    const q = await saveManeuver(scriptRequest());
     if (q.ok) { result("#maneuver-result", `${q.data.saved} saved (${q.data.steps} steps)`, true); refreshManeuvers(); }
     else result("#maneuver-result", q.data.message, false);
   });
@@ -1468,7 +1477,7 @@
   $("#review-save").addEventListener("click", async () => {
     const name = $("#review-name").value.trim();
     if (!name) { result("#review-result", "enter a name: 1–64 of A–Z a–z 0–9 _ . -", false); return; }
-    const q = await call("maneuvers/save", { name, script: $("#review-script").value }, true);
+    const q = await saveManeuver({ name, script: $("#review-script").value }, true);
     if (!q.ok) { result("#review-result", q.data.message, false); return; }
     review.close();
     actions.say(`${q.data.saved} saved (${q.data.steps} steps)`, true);

@@ -275,7 +275,9 @@ def test_a_recorded_maneuver_replays_to_the_same_poses(svc):
     assert kinds[0] == "goto" and "preset" in kinds and kinds[-1] == "goto" and "wait" in kinds, script
     assert svc.call("goto", {"goal": {"z": 0.1, "x": 0.0}})[0]
     svc.run(3.0)
-    assert svc.call("maneuvers/save", {"name": "taught", "script": script})[0]
+    # saved by record/stop already: saving it again replaces it only when asked to
+    assert svc.call("maneuvers/save", {"name": "taught", "script": script})[1]["error"] == "in_use"
+    assert svc.call("maneuvers/save", {"name": "taught", "script": script, "replace": True})[1]["replaced"] is True
     ok, r = svc.call("maneuvers/run", {"name": "taught"})
     assert ok, r
     seen = {}

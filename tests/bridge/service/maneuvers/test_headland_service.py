@@ -105,7 +105,8 @@ def test_pause_resume_skip_and_teach_in_through_the_core_process(service):
         steps = [next(iter(s)) for s in yaml.safe_load(r["script"])["steps"]]
         assert steps[0] == "goto" and steps[-1] == "goto" and len(steps) == 3, r["script"]
         assert steps[1] in ("wait", "wait_for"), r["script"]  # the simulated tractor drives: maybe a distance
-        c.request("maneuvers/save", {"name": "taught", "script": r["script"]})
+        assert r["saved"] == "taught"  # saved by record/stop; saved again, it must say so (replace)
+        assert c.save_maneuver("taught", r["script"], replace=True) == {"saved": "taught", "steps": 3, "replaced": True}
         c.request("maneuvers/run", {"name": "taught"})
         assert wait_until(
             lambda: any(e.get("event") == "maneuver_finished" and e.get("maneuver") == "taught" for e in events), 30.0

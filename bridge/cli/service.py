@@ -141,6 +141,9 @@ def _cmd_serve(args) -> int:
             prefix=cfg.prefix,
             listen=list(cfg.listen or ()),
             profile=cfg.profile,
+            # the implement the guard plans with from the start (its implement_selected event came before the
+            # black box: a restarted service's log did not say which: a field-scripting user's report)
+            implement=getattr(getattr(service, "api", None), "implement", None),
             warnings=list(service.warnings),  # what the start said (its events came before the black box)
         )
         blackbox.attach(service)  # the service's own events, in-process (events it published before: a gap record)

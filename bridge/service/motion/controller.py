@@ -1196,17 +1196,20 @@ class MotionController:
                 self._faults[f] = Fault(f, self._reason(f, status), f not in SELF_CLEARING_FAULTS, now)
             self._fresh_since = None
             latched = [f for f in raised if f not in SELF_CLEARING_FAULTS]
+            # the new faults' own reasons (every reason the link held repeated those of faults acknowledged
+            # long ago: a safety trial's ecu_heartbeat event began with references_lost's text)
+            why = "; ".join(self._faults[f].reason for f in raised)
             events.append(
                 {
                     "event": "fault",
                     "faults": list(self._faults),
                     "new": raised,
                     "ack_required": bool(latched),
-                    "message": "; ".join(status.faults.reasons) or ", ".join(raised),
+                    "message": why,
                 }
             )
             if self._active is not None or self._hold is not None or self._maneuver.running:
-                self._abort_all("link fault: " + "; ".join(status.faults.reasons or raised), now, events)
+                self._abort_all("link fault: " + why, now, events)
                 self.link.stop_motion()
             return
         clearing = [n for n, f in self._faults.items() if not f.latches]

@@ -92,3 +92,28 @@ def test_serve_notes_an_unsaved_recording_in_the_black_box_when_it_stops(monkeyp
     records = [r for r in read_events(event_log_path(tmp_path)) if r.get("kind") == "service"]
     assert [r["what"] for r in records] == ["started", "recording_discarded", "stopped"], records
     assert records[1]["steps"] == 2 and "2 step(s) was discarded" in records[1]["message"]
+
+
+def test_serve_names_the_selected_implement_in_its_started_record(monkeypatch, tmp_path):
+    """After a restart the log did not say which implement the guard plans with: its implement_selected event
+    is published before the black box is attached."""
+    from types import SimpleNamespace
+
+    import bridge.service.server as server
+    from bridge.service.blackbox import event_log_path, read_events
+
+    service = SimpleNamespace(
+        warnings=[],
+        http=None,
+        add_listener=lambda *a: None,
+        api=SimpleNamespace(recorder=None, on_request=None, implement="cat2-power-harrow-1500"),
+    )
+
+    def fake_serve(cfg, ready):
+        ready(service)
+        return 0.01
+
+    monkeypatch.setattr(server, "serve", fake_serve)
+    assert main(["serve", "--data-dir", str(tmp_path)]) == 0
+    started = [r for r in read_events(event_log_path(tmp_path)) if r.get("what") == "started"]
+    assert started and started[0]["implement"] == "cat2-power-harrow-1500", started

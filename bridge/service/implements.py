@@ -466,22 +466,19 @@ class ImplementService:
         threading.Thread(target=run, name="hitch-switch", daemon=True).start()
 
     def _announce_refusal(self, key: str, answer: tuple[bool, dict[str, Any]]) -> None:
-        """``hitch_switch_refused`` for an ``(ok, reply)`` answer that is not ok (nothing otherwise)."""
-        post = getattr(self.motion, "post_event", None)
+        """``hitch_switch_refused`` for an ``(ok, reply)`` answer that is not ok (nothing otherwise; a core that
+        is gone loses it: the refusal is in switch_log)."""
         ok, reply = answer
-        if ok or not callable(post):
+        if ok:
             return
-        try:
-            post(
-                {
-                    "event": "hitch_switch_refused",
-                    "command": key.removeprefix("hitch/"),
-                    "error": str(reply.get("error", "refused")),
-                    "message": str(reply.get("message", ""))[:500],
-                }
-            )
-        except Exception:  # noqa: BLE001 — the core is gone (closing): the refusal is in switch_log
-            pass
+        self._post(
+            {
+                "event": "hitch_switch_refused",
+                "command": key.removeprefix("hitch/"),
+                "error": str(reply.get("error", "refused")),
+                "message": str(reply.get("message", ""))[:500],
+            }
+        )
 
     def use_twin(self, tractor: Any) -> None:
         """``sim/switch`` on the simulated tractor ``tractor`` (its ``bus``; None: no twin here)."""

@@ -125,7 +125,7 @@ from planner.errors import HitchError
 from planner.limits.guard import Guard, GuardedPlan
 from planner.limits.implement_limits import ImplementLimits, track_bounds
 from planner.limits.tractor import ImplementRecord
-from planner.model.types import KinematicsError
+from planner.model.types import CONTROLLED_POSE_UNITS, KinematicsError
 from planner.trajectory import JogController, MotionState, Plan
 from planner.trajectory.track import TRACK_DOFS, TrackFollower, TrackInputError, TrackStateError
 
@@ -694,7 +694,7 @@ class MotionController:
             value = float(target[k])
             if not lo <= value <= hi:
                 shift = value - float(sent)
-                u = "m" if k in ("x", "z") else "rad"
+                u = CONTROLLED_POSE_UNITS[k]
                 raise MotionError(
                     "bad_request",
                     f"setpoint.pose.{k} = {float(sent):g} {u} in frame {m.frame} ({value:.6g} {u} in the tractor "

@@ -72,7 +72,6 @@ def test_serve_notes_an_unsaved_recording_in_the_black_box_when_it_stops(monkeyp
     """An unsaved teach-in recording was discarded without trace when the service stopped."""
     from types import SimpleNamespace
 
-    import bridge.service.server as server
     from bridge.service.blackbox import event_log_path, read_events
     from bridge.service.maneuvers.recorder import ManeuverRecorder
 
@@ -83,12 +82,7 @@ def test_serve_notes_an_unsaved_recording_in_the_black_box_when_it_stops(monkeyp
         warnings=[], http=None, add_listener=lambda *a: None, api=SimpleNamespace(recorder=rec, on_request=None)
     )
 
-    def fake_serve(cfg, ready):
-        ready(service)
-        return 0.01
-
-    monkeypatch.setattr(server, "serve", fake_serve)
-    assert main(["serve", "--data-dir", str(tmp_path)]) == 0
+    _serve_once(monkeypatch, tmp_path, service)
     records = [r for r in read_events(event_log_path(tmp_path)) if r.get("kind") == "service"]
     assert [r["what"] for r in records] == ["started", "recording_discarded", "stopped"], records
     assert records[1]["steps"] == 2 and "2 step(s) was discarded" in records[1]["message"]
@@ -99,7 +93,6 @@ def test_serve_names_the_selected_implement_in_its_started_record(monkeypatch, t
     is published before the black box is attached."""
     from types import SimpleNamespace
 
-    import bridge.service.server as server
     from bridge.service.blackbox import event_log_path, read_events
 
     service = SimpleNamespace(
@@ -109,11 +102,18 @@ def test_serve_names_the_selected_implement_in_its_started_record(monkeypatch, t
         api=SimpleNamespace(recorder=None, on_request=None, implement="cat2-power-harrow-1500"),
     )
 
+    _serve_once(monkeypatch, tmp_path, service)
+    started = [r for r in read_events(event_log_path(tmp_path)) if r.get("what") == "started"]
+    assert started and started[0]["implement"] == "cat2-power-harrow-1500", started
+
+
+def _serve_once(monkeypatch, tmp_path, service) -> None:
+    """``hitch serve`` around ``service`` (a stand-in): it is ready, then stops at once."""
+    import bridge.service.server as server
+
     def fake_serve(cfg, ready):
         ready(service)
         return 0.01
 
     monkeypatch.setattr(server, "serve", fake_serve)
     assert main(["serve", "--data-dir", str(tmp_path)]) == 0
-    started = [r for r in read_events(event_log_path(tmp_path)) if r.get("what") == "started"]
-    assert started and started[0]["implement"] == "cat2-power-harrow-1500", started

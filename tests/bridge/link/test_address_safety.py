@@ -11,7 +11,6 @@ from bridge.isobus.j1939 import PGN_ADDRESS_CLAIMED, PGN_REQUEST, decode_id
 from bridge.link.can_link import CanLink
 from bridge.link.state import LinkFaultError
 from bridge.link.virtual import InProcessBus
-from bridge.sim.move import SimRig
 from planner.model.exact_inverse import ExactInverse
 
 
@@ -20,14 +19,6 @@ def drain(bus):
     while (f := bus.recv(timeout=0.0)) is not None:
         out.append(f)
     return out
-
-
-@pytest.fixture
-def rig(model):
-    with SimRig(model) as r:
-        r.start()
-        r.run_until(0.4)
-        yield r
 
 
 @pytest.fixture
@@ -79,8 +70,8 @@ def test_spoofed_references_with_our_source_address_are_an_address_conflict_that
 
 
 def test_our_own_echo_is_no_conflict(model):
-    """udp_multicast (or a bus with receive_own_messages) gives us our frames back: only echoes of frames we
-    sent within the echo window count as ours."""
+    """A bus with receive_own_messages (as a multicast transport would) gives us our frames back: only echoes
+    of frames we sent within the echo window count as ours."""
     channel = "echo-test"
     bus = InProcessBus(channel=channel, receive_own_messages=True)
     link = CanLink(model, bus, own_bus=True)

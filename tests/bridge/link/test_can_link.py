@@ -41,14 +41,6 @@ def references_on(frames):
 
 
 @pytest.fixture
-def rig(model):
-    with SimRig(model) as r:
-        r.start()
-        r.run_until(0.4)
-        yield r
-
-
-@pytest.fixture
 def tap(rig):
     bus = can.Bus(interface="virtual", channel=rig.channel)
     yield bus

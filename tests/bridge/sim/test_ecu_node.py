@@ -3,6 +3,7 @@ hand-checked frames, watchdog through the bus, parameters, malformed frames, add
 contention, restart, own echo. (The ECU as its own process: tests/integration/test_ecu_process.py,
 on the loopback hub.)"""
 
+import contextlib
 import uuid
 
 import can
@@ -167,6 +168,19 @@ def low_and_high(model):
     return inv(0.0, -0.2, 0.0, 0.0), inv(0.0, 0.3, 0.0, 0.0)
 
 
+@contextlib.contextmanager
+def _moving(model):
+    """A rig whose planner has streamed a reference from ``low`` to ``high`` for 0.5 s (the ECU drives): (rig,
+    the high reference)."""
+    low, high = low_and_high(model)
+    with SimRig(model, initial_actuators=low) as rig:
+        rig.start()
+        rig.run_until(0.5)
+        rig.link.send_reference(high, rig.next_tick_s)
+        rig.run_until(1.0)
+        yield rig, high
+
+
 def test_watchdog_stops_the_valves_within_100_ms_of_the_last_reference(model):
     low, high = low_and_high(model)
     with SimRig(model, initial_actuators=low) as rig:
@@ -195,12 +209,7 @@ def test_watchdog_stops_the_valves_within_100_ms_of_the_last_reference(model):
 
 
 def test_parameters_switch_controllers_and_watchdog_and_refuse_multipliers(model):
-    low, high = low_and_high(model)
-    with SimRig(model, initial_actuators=low) as rig:
-        rig.start()
-        rig.run_until(0.5)
-        rig.link.send_reference(high, rig.next_tick_s)
-        rig.run_until(1.0)
+    with _moving(model) as (rig, high):
         rig.link.send_parameters(EcuParameters(valve_multipliers=(0.5, None, None, None, None)), rig.now_s)
         rig.run_until(1.02)
         assert rig.node.counters.parameters_rejected == 1 and rig.node.counters.parameters == 0
@@ -392,12 +401,7 @@ def test_references_queued_during_a_stall_longer_than_the_watchdog_never_move_a_
     """Safety tester: during a goto the CAN hub (or the ECU process) was stopped for 3 s; after it
     went on, the references queued meanwhile arrived in a burst, fed the ECU's watchdog when read, and
     the ECU drove about 100 ms on references seconds old while the planner had long stopped."""
-    low, high = low_and_high(model)
-    with SimRig(model, initial_actuators=low) as rig:
-        rig.start()
-        rig.run_until(0.5)
-        rig.link.send_reference(high, rig.next_tick_s)
-        rig.run_until(1.0)
+    with _moving(model) as (rig, high):
         assert rig.ecu.valve_commands()[0] != 0  # moving
         held = []
         t_stall = rig.now_s
@@ -430,12 +434,7 @@ def test_references_queued_during_a_stall_longer_than_the_watchdog_never_move_a_
 
 def test_after_a_trip_a_live_stream_re_arms_the_ecu_within_about_60_ms(model):
     """The re-arm costs a live planner one re-arm window: a new command after a fault moves at once after it."""
-    low, high = low_and_high(model)
-    with SimRig(model, initial_actuators=low) as rig:
-        rig.start()
-        rig.run_until(0.5)
-        rig.link.send_reference(high, rig.next_tick_s)
-        rig.run_until(1.0)
+    with _moving(model) as (rig, high):
         rig.link.stop_motion()
         rig.run_until(1.5)
         assert rig.ecu.watchdog.trip_count == 1 and not rig.ecu.valve_commands().any()

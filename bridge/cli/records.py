@@ -18,6 +18,7 @@ from enum import Enum
 from pathlib import Path
 from typing import Any
 
+from bridge.cli.errors import CLIError
 from bridge.cli.model import add_model_options, bounded_float, model_from_args, whole_number
 from bridge.cli.output import console
 from bridge.service.wire import to_json_text
@@ -60,6 +61,11 @@ def _cmd_log(args) -> int:
     from bridge.service.blackbox import event_log_path, follow_events, read_events
     from bridge.service.config import default_data_dir
 
+    if args.data_dir is not None and not args.data_dir.is_dir():  # a typo'd folder: not an empty log
+        raise CLIError(
+            f"--data-dir {args.data_dir}: no such folder (the folder `hitch serve --data-dir` was given; "
+            "default $XDG_DATA_HOME/hitch-planner)"
+        )
     path = event_log_path(args.data_dir or default_data_dir())
     c = console(soft_wrap=True)
 
@@ -144,6 +150,12 @@ def _cmd_replay(args) -> int:
                 f"  -> pose x={p['x']:+.4f} m z={p['z']:+.4f} m roll={p['roll']:+.4f} rad pitch={p['pitch']:+.4f} rad"
             )
         c.print(line, markup=False, highlight=False)
+    if not counts and not faults:  # python-can's text readers skip what they cannot parse: say it, not "0 frames"
+        size = Path(args.file).stat().st_size
+        raise CLIError(
+            f"CAN log {args.file} ({size} bytes): no CAN frame in it — a recording of a bus with no traffic, or "
+            f"not a {Path(args.file).suffix or 'CAN'} log (its reader skips lines it cannot parse)"
+        )
     if not args.json:
         c.print(
             f"{sum(counts.values())} frames: "

@@ -673,7 +673,7 @@ def _stream(args, c, spec: _Spec) -> int:
     sig = spec.signal(start_state.get("pose") or {})
     quiet = args.json
     out = console(soft_wrap=True, stderr=False)
-    r = c.track_start(spec.frame, spec.dofs, spec.ttl_ms)
+    r = c.track_start(spec.frame, spec.dofs, spec.ttl_ms, replace=args.replace)
     session, mid = int(r["session"]), int(r["motion_id"])
     mon.watch(session, mid)
     if not quiet:
@@ -920,6 +920,11 @@ def add_commands(sub) -> None:
         default=None,
         help=f"stream this long, (0, {MAX_DURATION_S:g}] s (default: the whole file, at most {MAX_DURATION_S:g} s "
         "long; a sine until Ctrl-C)",
+    )
+    p.add_argument(
+        "--replace",
+        action="store_true",
+        help="take over a track session another client streams (default: refused busy while its stream is live)",
     )
     p.add_argument(
         "--dry-run",

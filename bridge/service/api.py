@@ -304,7 +304,7 @@ class ServiceAPI:
     def _track_start(self, r: TrackStart) -> dict:
         deadline, issued = self._timing(r.deadline_ms)
         return self.motion.track_start(
-            r.frame, tuple(r.dof), r.ttl_ms / 1000.0, deadline=deadline, issued=issued
+            r.frame, tuple(r.dof), r.ttl_ms / 1000.0, deadline=deadline, issued=issued, replace=r.replace
         ).to_json()
 
     def _maneuver_control(self, action: str, r: MotionControl) -> dict:

@@ -513,16 +513,25 @@ class HitchClient:
 
     # ------------------------------------------------------------------ track mode (docs/tracking.md)
     def track_start(
-        self, frame: str = "tractor", dof: Sequence[str] = ("z",), ttl_ms: int = 200, *, deadline_ms: int | None = None
+        self,
+        frame: str = "tractor",
+        dof: Sequence[str] = ("z",),
+        ttl_ms: int = 200,
+        *,
+        deadline_ms: int | None = None,
+        replace: bool = False,
     ) -> dict:
         """Start a track session (``track/start``, operators): setpoints of ``dof`` (a subset of x, z,
         roll, pitch) in ``frame`` (``tractor``, ``level``, ``ground``); without a setpoint within
         ``ttl_ms`` (50…1000 ms) the hitch brakes to rest and the session ends; ``deadline_ms``: it must
-        start within this, else ``busy`` (service default 1000). The reply:
+        start within this, else ``busy`` (service default 1000). Another session whose stream is live is
+        refused ``busy`` unless ``replace`` (it then ends, ``replaced by track``). The reply:
         ``{"accepted", "session", "motion_id", "frame", "dof", "ttl_ms"}``."""
         if isinstance(dof, str):
             raise ClientError(f"dof must be a list of DOF names such as ['x', 'z'], got the string {dof!r}")
         body: dict[str, Any] = {"frame": frame, "dof": list(dof), "ttl_ms": _plain(ttl_ms)}
+        if replace:
+            body["replace"] = True
         if deadline_ms is not None:  # (int() made 2.7 ms 2 and raised a raw ValueError for text)
             body["deadline_ms"] = _plain(deadline_ms)
         return self.request("track/start", body)

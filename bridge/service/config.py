@@ -145,7 +145,8 @@ class ServiceConfig(BaseModel):
     #: further HOST:PORT names the terminal is reached by (its address and loopback always are; a name is refused
     #: otherwise: DNS-rebinding protection, docs/operator_terminal.md), e.g. ("cab-display.local:8080",)
     http_hosts: tuple[str, ...] = ()
-    #: the user the web terminal's commands run as when access control is on (must be in the ACL)
+    #: the user the web terminal's commands run as when it has no login (no access control); ignored, with a
+    #: warning, when it has one (a users file); with access control and no users file the terminal refuses to start
     http_user: str | None = None
     workers: int = Field(4, ge=1, le=32)
     #: where the control core runs: "process" (its own, bridge.service.core) or "thread" (in the service's)

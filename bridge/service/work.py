@@ -249,7 +249,11 @@ class WorkControl:
         here = self.motion.current_state().position
         z_op = float(z) if z is not None else float(here[1])
         rate = draft_rate_limit(self.motion.planner, here)  # the draft demand never outruns the hitch
-        acc = self.motion.track_start("tractor", ("z",), WORK_TTL_S, deadline=deadline, issued=issued)
+        with self._lock:
+            own = self._session  # work/start again: its own live session is taken over, another one is not
+        acc = self.motion.track_start(
+            "tractor", ("z",), WORK_TTL_S, deadline=deadline, issued=issued, replace=own if own is not None else False
+        )
         with self._lock:
             old = self._session  # replaced by this one: it finished (it ended without a word: a new user's report)
             self._settings = settings

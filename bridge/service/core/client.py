@@ -330,9 +330,12 @@ class MotionProxy:
         *,
         deadline: float | None = None,
         issued: float | None = None,
+        replace: bool | int = False,
     ) -> JsonReply:
         return JsonReply(
-            self.core.call("track_start", frame, tuple(dofs), float(ttl_s), deadline=deadline, issued=issued)
+            self.core.call(
+                "track_start", frame, tuple(dofs), float(ttl_s), deadline=deadline, issued=issued, replace=replace
+            )
         )
 
     def track_setpoint(

@@ -478,12 +478,15 @@ class MotionController:
         *,
         deadline: float | None = None,
         issued: float | None = None,
+        replace: bool | int = False,
     ) -> TrackAccepted:
         """Start a track session (``docs/tracking.md``): setpoints of ``dofs`` in ``frame`` follow with
         online jerk-limited motion; without a setpoint within ``ttl_s`` the hitch brakes to rest and
         the session ends. Takes over a running goto or maneuver (aborted) from its state; refused
-        while a stop brakes or a jog command is live (stop > jog > track > goto). ``deadline`` and
-        ``issued`` as for :meth:`goto`."""
+        while a stop brakes or a jog command is live (stop > jog > track > goto). Another live session
+        whose stream is fresh (not ending) is taken over only with ``replace`` True, or ``replace`` its
+        session number (work control restarting its own); else ``busy``: two streams would fight over
+        the hitch, each cutting the other off. ``deadline`` and ``issued`` as for :meth:`goto`."""
         if frame not in TRACK_FRAMES:
             raise MotionError("bad_request", f"frame must be one of {', '.join(TRACK_FRAMES)}, got {frame!r}")
         with self._lock:
@@ -497,6 +500,14 @@ class MotionController:
             if isinstance(m, JogMotion) and now < m.expires:
                 raise MotionError(
                     "busy", f"a jog command is live (motion {m.motion_id}); jog has precedence over track"
+                )
+            if isinstance(m, TrackMotion) and not m.ending and replace is not True and replace != m.session:
+                owned = self.work is not None and self.work.owns(m.session)
+                whose = " (work control's: work/stop ends it)" if owned else ""
+                raise MotionError(
+                    "busy",
+                    f"track session {m.session} (frame {m.frame}, dof {', '.join(m.dofs)}) is live{whose}: "
+                    "track/stop ends it; track/start with replace: true takes it over",
                 )
             why = link_problem(self.link.status(now), now, self.link.config.stale_after_s)
             if why:

@@ -356,6 +356,33 @@ def test_hitch_replay_prints_decoded_frames_poses_and_faults(tmp_path, capsys):
     assert "does not exist" in _err_line(capsys)
 
 
+def test_hitch_replay_of_a_file_with_no_frame_is_an_error_not_0_frames(tmp_path, capsys):
+    """A text file that is no CAN log: python-can's .asc reader skips every line it cannot parse, and
+    `hitch replay` said "0 frames: none" and exited 0, as if an empty bus had been replayed."""
+    import can
+
+    for name, text in [("notes.asc", "shopping list\nmilk\n"), ("empty.asc", "")]:
+        path = tmp_path / name
+        path.write_text(text, encoding="utf-8")
+        assert main(["replay", str(path)]) == 2
+        err = _err_line(capsys)
+        assert f"CAN log {path} ({len(text)} bytes): no CAN frame in it" in err, err
+        assert f"not a {path.suffix} log" in err, err
+    empty = tmp_path / "quiet.asc"  # a recording of a silent bus: its header only, still no frame to replay
+    can.ASCWriter(str(empty)).stop()
+    assert main(["replay", str(empty)]) == 2
+    assert "a recording of a bus with no traffic" in _err_line(capsys)
+
+
+def test_hitch_log_of_a_data_dir_that_does_not_exist_is_an_error(tmp_path, capsys):
+    """A typo'd --data-dir printed "(no event log at …)" and exited 0, as for a service that has logged nothing."""
+    missing = tmp_path / "nope"
+    for extra in ([], ["--follow"]):
+        assert main(["log", "--data-dir", str(missing), *extra]) == 2
+        err = _err_line(capsys)
+        assert f"--data-dir {missing}: no such folder" in err, err
+
+
 def test_hitch_replay_prints_each_message_at_most_once_an_interval_and_only_the_named_ones(tmp_path, capsys):
     """One second of a bus at rest: the slope sensor and the ECU at 100 Hz. Before, every slope frame
     was printed (100 lines a second, burying the measurements); now each message once per --interval

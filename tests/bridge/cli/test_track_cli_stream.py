@@ -55,7 +55,8 @@ class FakeService:
     def state(self) -> dict:
         return {"pose": self._pose(), "track": None, "limited": {}}
 
-    def track_start(self, frame, dofs, ttl_ms):
+    def track_start(self, frame, dofs, ttl_ms, *, replace=False):
+        self.replace = replace
         return {"session": self.SESSION, "motion_id": self.MOTION, "frame": frame, "dof": list(dofs), "ttl_ms": ttl_ms}
 
     def _publish(self, *, ending: bool, velocity: float) -> None:
@@ -150,6 +151,13 @@ def test_the_end_note_blames_the_signal_beyond_the_braking_distance_or_when_limi
     assert "the signal ran faster than the hitch may follow" in out.err
     assert ("control limited as the stop began: " in out.err) == bool(limited)
     assert json.loads(out.out)["end_braking"] == {"z": pytest.approx(braking)}
+
+
+@pytest.mark.parametrize("flag", [[], ["--replace"]])
+def test_replace_takes_over_another_clients_session_only_when_asked(monkeypatch, capsys, flag):
+    fake = FakeService()
+    assert _run_with(monkeypatch, fake, "--sine", "z=0.02@0.5Hz", "--duration", "0.1", "--json", *flag) == 0
+    assert fake.replace is bool(flag)
 
 
 SIGHUP_SCRIPT = """

@@ -316,6 +316,35 @@ def test_precedence_stop_over_jog_over_track_over_goto(r):
     assert not ok and reply["error"] == "not_found"
 
 
+def test_a_second_track_start_is_refused_while_a_stream_is_live_unless_it_replaces(r):
+    """A second client's track/start took the live session over without a word to it (a levelling operator
+    lost levelling to a CLI stream, and the two streams cut each other off in turn). Now it is refused busy,
+    naming the live session, unless sent with replace; a session whose stream went stale is taken over."""
+    session = r.start(dof=["roll"], frame="tractor")
+    r.run(0.3, each=lambda t: r.setpoint(session, {"roll": 0.0}))
+    ok, reply = r.call("track/start", {"dof": ["z"], "ttl_ms": 300})
+    assert not ok and reply["error"] == "busy", reply
+    assert reply["message"] == (
+        f"track/start: track session {session} (frame tractor, dof roll) is live: track/stop ends it; "
+        "track/start with replace: true takes it over"
+    ), reply
+    assert r.states[-1]["track"]["session"] == session  # untouched
+    ok, reply = r.setpoint(session, {"roll": 0.0})
+    assert ok and reply["accepted"], reply
+    session2 = r.start(dof=["z"], replace=True)
+    assert session2 != session
+    assert any(e.get("reason") == "replaced by track" for e in _events(r, "motion_aborted"))
+    ok, reply = r.setpoint(session, {"roll": 0.0})
+    assert not ok and "it ended: replaced by track" in reply["message"], reply
+    # a stream gone stale (its client crashed) never blocks a new session
+    z0 = r.measured()[1]
+    r.run(0.6, each=lambda t: r.setpoint(session2, {"z": z0 + 0.1}))
+    r.run(0.32)  # > ttl 300 ms: stale, braking from its speed
+    assert r.states[-1]["track"]["session"] == session2 and r.states[-1]["track"]["stale"], r.states[-1]["track"]
+    session3 = r.start(dof=["z"])
+    assert session3 not in (session, session2)
+
+
 def test_old_and_out_of_order_sequence_numbers_are_ignored_and_counted(r):
     session = r.start(dof=["z"])
     z0 = r.measured()[1]

@@ -122,15 +122,51 @@ def test_work_keys_are_operator_keys(svc):
     assert {"work/start", "work/stop", "work/resume"} <= set(MOTION_KEYS) and "work/settings" in WRITE_KEYS
 
 
-def test_a_work_start_or_resume_that_waited_past_its_deadline_or_a_later_stop_is_refused(model, tmp_path):
-    """``work/start`` and ``work/resume`` start motion: they came without a deadline and ran whenever a worker
-    took them (fails on the old code: a 6 s old start began a session)."""
+def _tine_in_draft(model, tmp_path) -> Service:
+    """A service with the tine selected, in draft control at 20 kN, the ground 0.5 m above the lowest z."""
     lo_z = float(TrajectoryPlanner(model).lo[1])
     s = Service(model, tmp_path / "h.sqlite3", FakeInputs(ground_z=lo_z + 0.5))
     try:
         s.ok("implements/define", TINE)
         s.ok("implements/select", {"name": "tine"})
         s.ok("work/settings", {"mode": "draft", "draft_setpoint_n": 20_000.0, "depth_max_m": 0.3})
+    except BaseException:
+        s.close()
+        raise
+    return s
+
+
+def test_work_and_another_track_stream_never_take_each_other_over_silently(model, tmp_path):
+    """A levelling operator's track/start ended a running work session (draft control) without a word, and
+    work/start ended a live levelling stream: each is now refused busy naming the live session; work/start
+    again still replaces work's own session (the test above)."""
+    s = _tine_in_draft(model, tmp_path)
+    try:
+        work = s.ok("work/start", {"deadline_ms": 10_000})["session"]
+        s.run(0.3)
+        ok, r = s.call("track/start", {"dof": ["roll"], "ttl_ms": 500})
+        assert not ok and r["error"] == "busy", r
+        assert (
+            f"track session {work} (frame tractor, dof z) is live (work control's: work/stop ends it)" in r["message"]
+        ), r
+        s.run(0.3)
+        assert s.states[-1]["work"]["running"] and s.states[-1]["track"]["session"] == work
+        s.ok("work/stop")
+        s.run(1.5)
+        assert s.states[-1]["motion"] is None
+        level = s.ok("track/start", {"dof": ["roll"], "ttl_ms": 500})["session"]
+        ok, r = s.call("work/start", {"deadline_ms": 10_000})
+        assert not ok and r["error"] == "busy" and f"track session {level} " in r["message"], r
+        assert not s.states[-1]["work"]["running"]
+    finally:
+        s.close()
+
+
+def test_a_work_start_or_resume_that_waited_past_its_deadline_or_a_later_stop_is_refused(model, tmp_path):
+    """``work/start`` and ``work/resume`` start motion: they came without a deadline and ran whenever a worker
+    took them (fails on the old code: a 6 s old start began a session)."""
+    s = _tine_in_draft(model, tmp_path)
+    try:
         for key in ("work/start", "work/resume"):
             ok, r = s.call(key, {}, received=time.monotonic() - 6.0)
             assert not ok and r["error"] == "busy" and "deadline" in r["message"], (key, r)

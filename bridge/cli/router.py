@@ -17,7 +17,7 @@ import json
 import sys
 
 from bridge.cli.errors import CLIError
-from bridge.service.config import DEFAULT_LISTEN, validate_endpoint
+from bridge.service.config import DEFAULT_LISTEN, ZENOH_LEASE_MS, validate_endpoint
 
 __all__ = ["add_commands", "router_config", "router_warnings"]
 
@@ -37,6 +37,7 @@ def router_config(listen: list[str], security: str | None = None):
     z.insert_json5("listen/endpoints", json.dumps(eps))
     z.insert_json5("connect/endpoints", "[]")
     z.insert_json5("scouting/multicast/enabled", "false")
+    z.insert_json5("transport/link/tx/lease", json.dumps(ZENOH_LEASE_MS))  # a frozen router noticed within it
     if security is not None:
         apply_security(z, security)
     return z

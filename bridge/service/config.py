@@ -57,6 +57,11 @@ __all__ = [
 
 #: Loopback only by default: nothing outside this machine reaches the service unless configured.
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
+#: the Zenoh link lease a service and ``hitch router`` announce [ms] (Zenoh's default 10 000): a node that
+#: hears nothing from them this long closes the link. With the default a frozen router (SIGSTOP, a hung
+#: host, a half-open TCP link) was noticed by its services only after 9 s, while nobody could stop the hitch
+#: through it (a fleet trial); now within about this time. Keep-alives go every quarter of it.
+ZENOH_LEASE_MS = 2000
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|unixsock-stream|ws)/[^\s]+$")
 _CHUNK = re.compile(r"^[A-Za-z0-9_\-.]+$")
 

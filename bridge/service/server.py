@@ -61,7 +61,7 @@ from bridge.link.can_link import CanLink
 from bridge.link.realtime import RealtimeRunner
 from bridge.service.api import API_KEYS, ServiceAPI
 from bridge.service.client import zenoh_reason
-from bridge.service.config import ServiceConfig
+from bridge.service.config import ZENOH_LEASE_MS, ServiceConfig
 from bridge.service.core.client import CoreProcess, MotionProxy
 from bridge.service.core.process import freeze_startup_objects, lock_memory
 from bridge.service.gnss import restore_lines, start_twin_gnss
@@ -149,13 +149,15 @@ class ServiceStopped(HitchError, RuntimeError):
 
 
 def build_zenoh_config(cfg: ServiceConfig) -> zenoh.Config:
-    """The session config: mode, endpoints, scouting, then the security file (if any)."""
+    """The session config: mode, endpoints, scouting, the link lease (:data:`ZENOH_LEASE_MS`), then the security
+    file (if any)."""
     z = zenoh.Config()
     for path, value in (
         ("mode", cfg.mode),
         ("listen/endpoints", list(cfg.listen or ())),
         ("connect/endpoints", list(cfg.connect)),
         ("scouting/multicast/enabled", cfg.scouting),
+        ("transport/link/tx/lease", ZENOH_LEASE_MS),
     ):
         z.insert_json5(path, json.dumps(value))
     if cfg.security is not None:
@@ -210,6 +212,11 @@ class HitchService:
         self._proxy: MotionProxy | None = None  # the controller's proxy when the core has its own process
         self._core_link: InternalLink | None = None  # the core's made-up login (a secured service, own process)
         self._core_link_dir: Path | None = None  # where its users file lies (removed at close)
+        #: this service's instance on its prefix: "<start time, ns, 20 digits>-<Zenoh id>" (_watch_instances)
+        self.instance = f"{time.time_ns():020d}"
+        self._instances_met: set[str] = set()
+        #: why this service must end (another, earlier service serves its prefix): :func:`serve` ends on it
+        self.conflict: str | None = None
 
     @property
     def core_in_process(self) -> bool:
@@ -517,6 +524,45 @@ class HitchService:
                 q = s.declare_queryable(cfg.key(f"{USER_SCOPE}/*/{key}"), _ring(), complete=True)
                 self._serve(q, self._query_callback(key, scoped=True), f"{key}@user")
         self._decls.append(s.liveliness().declare_token(cfg.key("alive")))
+        self._watch_instances()
+
+    def _watch_instances(self) -> None:
+        """Two services on one prefix that :meth:`_refuse_a_served_prefix` could not see — both started within
+        its wait, or one started while the router between them was down — are found when they meet: each holds
+        a second token ``<prefix>/instance/<start ns>-<zid>`` and watches ``<prefix>/instance/*``. Meeting
+        another, both brake to rest and announce ``prefix_conflict``; the one that started later (the larger
+        instance name) ends itself (:attr:`conflict`, :func:`serve` exits on it), the earlier one serves on.
+        Before, both answered every request: one ``goto`` moved two tractors (a fleet trial)."""
+        cfg, s = self.config, self.session
+        assert s is not None
+        self.instance = f"{self.instance}-{s.info.zid()}"
+        self._decls.append(s.liveliness().declare_token(cfg.key(f"instance/{self.instance}")))
+        watch = s.liveliness().declare_subscriber(cfg.key("instance/*"), _ring(), history=True)
+        self._serve(watch, self._on_instance, "instances")
+
+    def _on_instance(self, sample: zenoh.Sample) -> None:
+        """A token on ``<prefix>/instance/*`` appeared (:meth:`_watch_instances`)."""
+        other = str(sample.key_expr).rsplit("/", 1)[-1]
+        if sample.kind != zenoh.SampleKind.PUT or other == self.instance or other in self._instances_met:
+            return
+        self._instances_met.add(other)
+        later = other < self.instance  # the other started first: this one is the later
+        text = (
+            f"another service serves prefix {self.config.prefix!r} (instance {other}; this one {self.instance}): "
+            "two services on one prefix both answer every request, a goto or stop reaching either machine; "
+            "motion stopped; "
+            + ("this service, the later one, ends itself" if later else "the later one ends itself, this one serves on")
+        )
+        if later:
+            self.conflict = text
+        api = self.api
+        if api is None:
+            return
+        try:
+            api.motion.stop(f"prefix conflict: another service serves {self.config.prefix!r}")
+        except Exception:  # noqa: BLE001 — the core is closing
+            pass
+        self._announce(api, {"event": "prefix_conflict", "message": text, "other": other, "ends": later})
 
     def _ensure_state_subscription(self) -> None:
         """With the core in its own process: ask it for its state over the private socket once a listener or a
@@ -882,6 +928,8 @@ def _serve_until(stop: StopSignals, config: ServiceConfig, ready: Callable[[Hitc
             ready(service)
         while not stop.wait(0.5):
             core = service.core
+            if service.conflict is not None:
+                raise ServiceStopped(service.conflict)
             if core is not None and not core.alive:
                 raise ServiceStopped(core.ended or "the control core ended")
             if any(r.error is not None for r in service._runners):

@@ -77,3 +77,57 @@ def test_losing_the_router_brakes_the_hitch_says_so_and_nothing_resumes(tmp_path
             svc.close()
         router.terminate()
         router.wait(10)
+
+
+def test_a_frozen_router_is_noticed_within_the_lease_and_the_hitch_brakes(tmp_path):
+    """A fleet trial: a router stopped with SIGSTOP (a hung host, a half-open TCP link) was noticed only after
+    8.9 s, Zenoh's default 10 s lease, while nobody in the fleet could stop the hitch. `hitch router` and the
+    service now announce a lease of ZENOH_LEASE_MS: link_lost and the brake come within it (plus the 0.1 s watch)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    from bridge.service.config import ZENOH_LEASE_MS
+    from tests.integration.service_process import ROOT
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = subprocess.Popen(
+        [sys.executable, "-m", "bridge.cli", "router", "--listen", endpoint],
+        cwd=ROOT,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    svc = None
+    try:
+        assert router.stdout is not None and "ready on" in router.stdout.readline()
+        cfg = ServiceConfig(
+            mode="client",
+            connect=[endpoint],
+            prefix="frozen/hitch",
+            data_dir=tmp_path,
+            planning_processes=0,
+            can_channel=f"frozen-{endpoint[-5:]}",
+        )
+        svc = HitchService(cfg).start()
+        assert svc.api is not None
+        events: list[dict] = []
+        svc.add_listener("event", events.append)
+        assert wait_until(lambda: svc.latest_state is not None and svc.latest_state["ecu"]["online"], 10.0)
+        z0 = svc.latest_state["pose"]["z"]
+        ok, reply = svc.api.handle("goto", json.dumps({"goal": {"z": z0 + 0.12}, "speed_scale": 0.05}), None)
+        assert ok, reply
+        assert wait_until(lambda: svc.latest_state["moving"], 5.0)
+        os.kill(router.pid, signal.SIGSTOP)
+        frozen = time.monotonic()
+        assert wait_until(lambda: any(e.get("event") == "link_lost" for e in events), 8.0), events
+        took = time.monotonic() - frozen
+        assert took < ZENOH_LEASE_MS / 1000.0 + 1.0, took  # before: 8.9 s
+        assert wait_until(lambda: not svc.latest_state["moving"], 5.0)
+    finally:
+        if svc is not None:
+            svc.close()
+        os.kill(router.pid, signal.SIGKILL)
+        router.wait(10)

@@ -102,3 +102,39 @@ def test_the_prefix_of_a_killed_service_can_be_served_again(router, tmp_path):
     first.kill()
     code, out = _serve(router, PREFIX, tmp_path / "a")
     assert code is None, out
+
+
+def test_two_services_that_meet_on_one_prefix_stop_and_the_later_one_ends(tmp_path):
+    """A fleet trial: with the router down, a second service on t01's prefix started (its check saw nobody);
+    once the router was back both served, and one goto moved both tractors (both black boxes accepted it 2 ms
+    apart). Now they meet through their instance tokens: both brake (``prefix_conflict``), the later one ends
+    (exit 2, one line naming the prefix), the earlier one serves on alone."""
+    router_ep = f"tcp/127.0.0.1:{free_port()}"
+    router = zenoh.open(loopback_zenoh_config("router", router_ep))
+    first = ServiceProcess(
+        ["--mode", "client", "--connect", router_ep, "--prefix", PREFIX, "--data-dir", str(tmp_path / "a")]
+    )
+    second = None
+    try:
+        router.close()  # the router is down: the second one's start-up check reaches nobody
+        own = f"tcp/127.0.0.1:{free_port()}"
+        second = ServiceProcess(
+            ["--mode", "peer", "--listen", own, "--connect", router_ep, "--prefix", PREFIX]
+            + ["--data-dir", str(tmp_path / "b")]
+        )
+        router = zenoh.open(loopback_zenoh_config("router", router_ep))  # back: the two meet
+        assert second.proc.wait(timeout=60) == 2, "".join(second.output)
+        last = second.output[-1]
+        assert last.startswith("hitch: error: another service serves prefix 'fleet/t01/hitch'"), second.output
+        assert "this service, the later one, ends itself" in last, last
+        assert first.proc.poll() is None  # the earlier one serves on, alone
+        with HitchClient([router_ep], prefix=PREFIX, timeout_s=20.0) as c:
+            assert c.fleet() == [PREFIX]
+            assert c.config()["prefix"] == PREFIX
+        log = (tmp_path / "a" / "log" / "events.jsonl").read_text(encoding="utf-8")
+        assert '"event":"prefix_conflict"' in log.replace(" ", "") and "the later one ends itself" in log, log[-2000:]
+    finally:
+        for p in (first, second):
+            if p is not None:
+                p.kill()
+        router.close()

@@ -42,6 +42,8 @@ def format_record(rec: dict[str, Any]) -> str:
         who = rec.get("user") or "-"
         if rec.get("accepted"):
             what = "accepted" + (f" (motion {rec['motion_id']})" if rec.get("motion_id") is not None else "")
+            if rec.get("read"):  # a writing key's request that changed nothing (``hitch work status``)
+                what += " (read only, nothing changed)"
         else:
             what = f"REFUSED {rec.get('error')}: {rec.get('message', '')}"
         body = f" {rec['request']}" if rec.get("request") else ""

@@ -2,9 +2,10 @@
 
 ``hitch work settings [--mode … --draft-setpoint-kn … --blend … --sensitivity … --depth-min … --depth-max …
 --slip-limit …|--no-slip-limit]`` reads (no option) or sets the selected implement's settings;
-``hitch work start [--z M]``, ``hitch work stop``, ``hitch work resume`` (after a fallback) and
-``hitch work status``: client commands of ``hitch serve``. The draft setpoint is given in kN at this
-boundary (``--draft-setpoint-kn``) and sent in N.
+``hitch work start [--z M]``, ``hitch work stop`` (at the headland after a quick raise, where no session
+runs: clears the paused work, so the return only goes back), ``hitch work resume`` (after a fallback: says
+whether there was one to clear) and ``hitch work status``: client commands of ``hitch serve``. The draft
+setpoint is given in kN at this boundary (``--draft-setpoint-kn``) and sent in N.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from bridge.cli.model import bounded_float, finite_float
 from bridge.cli.service import _client_command, _client_options, _print, _run
 from planner.work_control import DRAFT_SETPOINT_MAX_N
 
-__all__ = ["add_commands", "format_status"]
+__all__ = ["add_commands", "format_resume", "format_status", "format_stop"]
 
 
 def _opt(v: Any, fmt: str, unit: str) -> str:
@@ -51,12 +52,63 @@ def format_status(status: dict[str, Any]) -> str:
 
 
 def _fmt_settings(s: dict[str, Any]) -> str:
+    def num(k: str, per: float = 1.0) -> str:
+        v = s.get(k)
+        return "-" if isinstance(v, bool) or not isinstance(v, (int, float)) else f"{v / per:g}"
+
     slip = s.get("slip_limit")
     return (
-        f"mode {s['mode']}, draft setpoint {s['draft_setpoint_n'] / 1000.0:g} kN, blend {s['blend']:g}, "
-        f"sensitivity {s['sensitivity']:g}, depth {s['depth_min_m']:g}..{s['depth_max_m']:g} m, "
-        f"slip limit {'off' if slip is None else f'{slip:g}'}"
+        f"mode {s.get('mode', '-')}, draft setpoint {num('draft_setpoint_n', 1000.0)} kN, blend {num('blend')}, "
+        f"sensitivity {num('sensitivity')}, depth {num('depth_min_m')}..{num('depth_max_m')} m, "
+        f"slip limit {'off' if slip is None else num('slip_limit')}"
     )
+
+
+def format_stop(reply: dict[str, Any]) -> str:
+    """A ``work/stop`` reply in words: the session that stops, or — at the headland after a quick raise, where no
+    session runs — the paused work it cleared (``stopping: false``, ``work_paused_cleared``, docs/implements.md)."""
+    cleared = reply.get("work_paused_cleared")
+    if reply.get("stopping") is False or (reply.get("session") is None and cleared is not None):
+        if not isinstance(cleared, dict):
+            return "no work session was running: nothing to stop"
+        z = cleared.get("z_operator")
+        what = ", ".join(
+            part
+            for part in (
+                None if cleared.get("session") is None else f"session {cleared['session']}",
+                None if cleared.get("mode") is None else f"{cleared['mode']} mode",
+                None if not isinstance(z, (int, float)) else f"operator's z {z:.3f} m",
+            )
+            if part
+        )
+        return (
+            f"no work session was running; paused work cleared{f' ({what})' if what else ''}: it will not restart on "
+            "return (hitch return only goes back)"
+        )
+    mid = reply.get("motion_id")
+    return f"work session {reply.get('session', '-')} stopping" + (f" (motion {mid})" if mid is not None else "")
+
+
+def format_resume(reply: dict[str, Any]) -> str:
+    """A ``work/resume`` reply (the work block as the resume found it) in words: what the resume does. It takes
+    effect on the next control cycle, so a ``fallback`` in the reply is the one it clears; while its cause
+    remains (no draft reading) the session falls back again at once — said, not a bare "resumed"."""
+    session, mode, fallback = reply.get("session"), reply.get("mode"), reply.get("fallback")
+    if reply.get("running") is False:
+        head = "work resume: no work session is running (hitch work start): nothing resumed"
+    elif fallback:
+        head = (
+            f"work session {session}: resume asked: {mode} control engages again on the next control cycle, "
+            f"leaving the fallback to position ({fallback}); if that cause remains it falls back again at once "
+            "(a work_fallback event; check with hitch work status)"
+        )
+    else:
+        active = reply.get("active")
+        head = f"work session {session}: nothing to resume: no fallback latched" + (
+            f", {active} control in effect" if active else f" ({mode} mode)"
+        )
+    detail = format_status({**reply, "fallback": None}).split("\n")[1:]  # draft, depth, slip: the block's numbers
+    return "\n".join([head, *detail])
 
 
 def settings_body(args: Any) -> dict[str, Any]:
@@ -83,19 +135,25 @@ def _cmd_work(args: Any) -> int:
         if args.action == "settings":
             r = c.request("work/settings", settings_body(args))
             what = "saved" if r.get("saved") else "settings"
-            _print(args, r, f"{r['implement']}: {what}: {_fmt_settings(r['settings'])}")
+            _print(args, r, f"{r.get('implement', '-')}: {what}: {_fmt_settings(r.get('settings') or {})}")
         elif args.action == "status":
             r = c.request("work/settings", {})
-            _print(args, r, f"{r['implement']}: {_fmt_settings(r['settings'])}\n{format_status(r['status'])}")
+            _print(
+                args,
+                r,
+                f"{r.get('implement', '-')}: {_fmt_settings(r.get('settings') or {})}\n"
+                f"{format_status(r.get('status') or {})}",
+            )
         elif args.action == "start":
             r = c.request("work/start", {} if args.z is None else {"z": args.z})
-            _print(args, r, f"work session {r['session']} started (motion {r['motion_id']}): {r['work']['mode']}")
+            mode = (r.get("work") or {}).get("mode", "-")
+            _print(args, r, f"work session {r.get('session', '-')} started (motion {r.get('motion_id', '-')}): {mode}")
         elif args.action == "stop":
             r = c.request("work/stop", {})
-            _print(args, r, f"work session {r['session']} stopping")
+            _print(args, r, format_stop(r))
         else:
             r = c.request("work/resume", {})
-            _print(args, r, f"resumed: {format_status(r)}")
+            _print(args, r, format_resume(r))
         return 0
 
     return _run(args, run)

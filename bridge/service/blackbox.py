@@ -9,7 +9,10 @@ existing log goes on after the last record's number, so a number names one recor
 * ``request`` — who asked what and what came of it: ``key``, ``user`` (None: not named, a request
   on the plain keys that Zenoh's access control let through), ``accepted`` (bool), ``error`` and
   ``message`` of a refusal, ``motion_id`` of an accepted motion, ``request`` (the JSON body of a
-  writing request, capped at :data:`MAX_BODY_CHARS` characters); every request but ``config``
+  request on a motion or writing key — :data:`WRITING_KEYS`, :data:`WRITING_PREFIXES`: every operator key of
+  :mod:`bridge.service.security` — capped at :data:`MAX_BODY_CHARS` characters), ``read`` (true: a request on
+  such a key that changed nothing and only read, :data:`READ_OR_WRITE_KEYS`: ``hitch work status``'s
+  ``work/settings`` without a setting); every request but ``config``
   (:data:`UNRECORDED_KEYS`: the service's fixed description, which every client asks once), within
   the limits of :class:`RecordLimits` (below);
 * ``suppressed`` — requests of one group (``key``, ``user``, ``accepted``, ``error``) counted but not
@@ -31,9 +34,10 @@ Attach it with :meth:`EventLog.attach` (the service's ``event`` listener and the
 
 Request floods cannot rotate the log away (:class:`RecordLimits`): events, ``service``, ``gap``,
 ``dropped`` and ``suppressed`` records are always written; request records pass token buckets per
-group — accepted writing requests (:data:`WRITING_KEYS`) and accepted terminal logins / logouts
-generously per key and user, every other request record (reads, refusals, failed logins) sparingly per
-key, user, outcome and error and all of them together under one shared budget; what a bucket holds
+group — accepted motion and writing requests (:func:`is_writing_key`; not their reads) and accepted terminal
+logins / logouts generously per key and user, every other request record (reads, refusals, failed logins)
+sparingly per key, user, outcome, error and read and all of them together under one shared budget (reads of a
+key never share a bucket with its writes, so reads cannot crowd a write out); what a bucket holds
 back is counted and written as one ``suppressed`` record per group at most every
 ``summary_s`` seconds (and at close), so the counts add up to every request.
 
@@ -68,6 +72,7 @@ from typing import TYPE_CHECKING, Any
 import can
 from can.io.generic import TextIOMessageWriter
 
+from bridge.service.security import MOTION_KEYS, WRITE_KEYS, WRITE_PREFIXES
 from planner.errors import HitchInputError, first_line
 
 if TYPE_CHECKING:
@@ -88,28 +93,73 @@ __all__ = [
     "follow_events",
     "replay_can_log",
     "WRITING_KEYS",
+    "WRITING_PREFIXES",
+    "READ_OR_WRITE_KEYS",
+    "is_writing_key",
+    "STREAMED_KEYS",
     "UNRECORDED_KEYS",
     "MAX_BODY_CHARS",
 ]
 
-#: request keys whose JSON body is kept in the log (they change the machine or the stored data)
-WRITING_KEYS = frozenset(
-    {
-        "goto",
-        "jog",
-        "stop",
-        "mode",
-        "presets/save",
-        "presets/go",
-        "presets/delete",
-        "maneuvers/save",
-        "maneuvers/run",
-        "maneuvers/delete",
-        "faults/ack",
-        "sim/fault",
-        "sim/switch",
-    }
-)
+#: request keys whose JSON body is kept in the log and whose accepted requests are kept generously: every key
+#: that moves the hitch or changes the stored data or the service's state — taken from the access control's own
+#: lists (:data:`~bridge.service.security.MOTION_KEYS`, :data:`~bridge.service.security.WRITE_KEYS`), so a key
+#: added there is recorded without a change here (a list of its own here had missed hitch/raise|return,
+#: work/…, implements/…, lines/…, maneuvers/pause|resume|skip|record/…) — and ``stop`` (open to viewers, but a
+#: command of the machine)
+WRITING_KEYS = frozenset(MOTION_KEYS) | frozenset(WRITE_KEYS) | {"stop"}
+#: every key under these prefixes is a writing key too (:data:`~bridge.service.security.WRITE_PREFIXES`:
+#: ``track/start``, ``track/setpoint``, ``track/stop``)
+WRITING_PREFIXES: tuple[str, ...] = tuple(WRITE_PREFIXES)
+#: writing keys whose request changes nothing when it gives no value: it reads (``mode`` without a mode,
+#: ``work/settings`` without a setting: ``hitch work status``); per key the fields whose null is still a
+#: change (``work/settings``: ``"slip_limit": null`` switches slip limiting off). Such a read is recorded
+#: with ``read: true`` and limited as a read, apart from the key's writes.
+READ_OR_WRITE_KEYS: Mapping[str, frozenset[str]] = {
+    "mode": frozenset(),
+    "work/settings": frozenset({"slip_limit"}),
+}
+
+
+#: writing keys limited as reads all the same: the streamed ``track/setpoint`` (up to 100 a second for hours:
+#: kept generously it would rotate the rest of the log away; its session's start and stop are kept)
+STREAMED_KEYS = frozenset({"track/setpoint"})
+
+
+def is_writing_key(key: str) -> bool:
+    """Whether requests on ``key`` move the hitch or change data (:data:`WRITING_KEYS`, :data:`WRITING_PREFIXES`),
+    not counting the streamed setpoints (:data:`STREAMED_KEYS`)."""
+    return (
+        isinstance(key, str) and key not in STREAMED_KEYS and (key in WRITING_KEYS or key.startswith(WRITING_PREFIXES))
+    )
+
+
+def _body_text(payload: bytes | bytearray | memoryview | str | None) -> str:
+    if payload is None:
+        return ""
+    try:
+        return payload if isinstance(payload, str) else bytes(payload).decode("utf-8", "replace")
+    except (TypeError, ValueError):
+        return ""
+
+
+def _only_reads(key: str, text: str, ok: bool, reply: Any) -> bool:
+    """Whether a request on a key of :data:`READ_OR_WRITE_KEYS` only read: an accepted ``work/settings`` whose
+    reply did not save; else a body that is empty or gives no value (null, except where null is a change)."""
+    changes_when_null = READ_OR_WRITE_KEYS.get(key)
+    if changes_when_null is None:
+        return False
+    if key == "work/settings" and ok and isinstance(reply, Mapping) and "settings" in reply:
+        return not reply.get("saved")  # the service's own word: it saved the settings or only read them
+    if not text.strip():
+        return True
+    try:
+        body = json.loads(text)
+    except ValueError:
+        return False
+    return isinstance(body, dict) and all(v is None and k not in changes_when_null for k, v in body.items())
+
+
 #: a logged request body is cut to this many characters
 MAX_BODY_CHARS = 2000
 #: the writer looks for due ``suppressed`` summaries at least this often while the log is quiet [s]
@@ -127,8 +177,14 @@ class BlackBoxError(HitchInputError):
 
 
 #: accepted requests recorded generously (:attr:`RecordLimits.write_burst`): the machine's commands, the
-#: stored data's changes and the terminal's logins and logouts
+#: stored data's changes (:func:`is_writing_key`; keys under :data:`WRITING_PREFIXES` too, not the reads of
+#: :data:`READ_OR_WRITE_KEYS`) and the terminal's logins and logouts
 KEPT_ACCEPTED_KEYS = WRITING_KEYS | {"web/login", "web/logout"}
+
+
+def _kept(key: str, ok: bool, read: bool) -> bool:
+    """Whether a request record is limited generously (an accepted command or change, login or logout)."""
+    return ok and not read and (key in KEPT_ACCEPTED_KEYS or is_writing_key(key))
 
 
 @dataclass(frozen=True)
@@ -175,11 +231,12 @@ class RecordLimits:
                 raise BlackBoxError(f"RecordLimits.{name} must be a number in (0, 1e6], got {v!r}")
 
 
-#: (key, user, accepted, error) of a request record
-_Group = tuple[str, str | None, bool, str | None]
-_OVERFLOW: _Group = ("*", "*", False, None)
+#: (key, user, accepted, error, read) of a request record: the reads of a writing key (:data:`READ_OR_WRITE_KEYS`)
+#: are a group of their own, limited as reads, never in the bucket of the key's writes
+_Group = tuple[str, str | None, bool, str | None, bool]
+_OVERFLOW: _Group = ("*", "*", False, None, False)
 #: accepted writing requests beyond their groups' cap: one group, still written (by its own bucket), not counted away
-_OVERFLOW_KEPT: _Group = ("*", "*", True, None)
+_OVERFLOW_KEPT: _Group = ("*", "*", True, None, False)
 #: accepted writing requests may hold this many times ``max_groups`` groups (keys × the users who write)
 KEPT_GROUPS_FACTOR = 4
 
@@ -268,7 +325,7 @@ class _RequestLimiter:
     def _summary(self, group: _Group, tally: _Tally, now: float) -> dict[str, Any] | None:
         if not tally.count:
             return None
-        key, user, accepted, error = group
+        key, user, accepted, error, read = group
         window = max(0.0, now - tally.first)
         what = "accepted" if accepted else "refused"
         rec: dict[str, Any] = {
@@ -279,11 +336,13 @@ class _RequestLimiter:
             "count": tally.count,
             "since": tally.since,
             "window_s": round(window, 3),
+            **({"read": True} if read else {}),
             "message": (
                 f"{tally.count} further request records of other groups (more than {self.limits.max_groups} "
                 f"groups) in the last {window:.0f} s"
                 if group == _OVERFLOW
-                else f"{tally.count} further {what} {key} requests{f' ({error})' if error else ''} from "
+                else f"{tally.count} further {what} {key} {'reads' if read else 'requests'}"
+                f"{f' ({error})' if error else ''} from "
                 f"{user if user is not None else 'unnamed'} in the last {window:.0f} s"
             ),
         }
@@ -454,22 +513,25 @@ class EventLog:
                 rec["error"] = reply.get("error")
                 rec["message"] = str(reply.get("message", ""))[:MAX_BODY_CHARS]
         error = rec.get("error")
+        writing = is_writing_key(key)
+        text = _body_text(payload) if key in READ_OR_WRITE_KEYS else None
+        read = text is not None and _only_reads(key, text, bool(ok), reply)
+        if read:
+            rec["read"] = True
         group: _Group = (
             str(key)[:200],
             None if user is None else str(user)[:200],
             bool(ok),
             None if error is None else str(error)[:200],
+            read,
         )
-        admitted, summary = self._limiter.admit(group, bool(ok) and key in KEPT_ACCEPTED_KEYS)
+        admitted, summary = self._limiter.admit(group, _kept(key, bool(ok), read))
         if summary is not None:
             self.record("suppressed", **summary)
         if not admitted:
             return
-        if key in WRITING_KEYS and payload is not None:
-            try:
-                text = payload if isinstance(payload, str) else bytes(payload).decode("utf-8", "replace")
-            except (TypeError, ValueError):
-                text = ""
+        if writing:
+            text = _body_text(payload) if text is None else text
             if text:
                 rec["request"] = text[:MAX_BODY_CHARS]
         self.record("request", **rec)

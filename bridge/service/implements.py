@@ -19,8 +19,19 @@ here); the J1939 operator switch and the CLI end up in the same methods.
   threads or in the core process: :attr:`ImplementService.sim_switch`).
 * **Quick raise** goes to the headland pose: the implement's own ``headland`` pose if defined, else its
   preset named :data:`HEADLAND_PRESET`; the pose the hitch was at when the raise was accepted becomes
-  the implement's ``last_work`` pose (persisted; not replaced when the raise starts at the headland pose
-  already, so pressing raise twice keeps the work pose). **Return** goes to ``last_work``.
+  the implement's ``last_work`` pose (persisted). Only a raise that starts from a work position records
+  one: not a raise that starts at the headland pose already, nor one that starts while the hitch is on its
+  way between work and the headland because the last quick motion (a raise, or a return that has not
+  arrived) is still running or was stopped or replaced — pressing raise twice, or raise / stop / raise,
+  keeps the work pose. A raise after a return arrived, or after the operator moved the hitch since the
+  last quick motion (a goto, preset, jog, track or work session, maneuver: their ``motion_started``
+  events, which :meth:`ImplementService.on_event` watches; a stop is no such move; a mode change counts as
+  one: the hitch left the planner's hands), records the pose it starts from. What was the last quick motion
+  lives in memory: after a restart the first raise records its start pose (unless at the headland).
+  **Return** goes to ``last_work``.
+* **Transport lock** (``implements/lock``) forgets the work a quick raise paused (reply
+  ``work_paused_cleared``): the lock means road transport, so the next return after the unlock only goes
+  back to the work pose and never starts work control again by itself (``work/start`` does).
 """
 
 from __future__ import annotations
@@ -160,6 +171,13 @@ class ImplementService:
         #: the last motions that ended (their ``motion_finished`` / ``motion_aborted`` events): a return whose end
         #: was announced before its own reply was read (the core in its own process) still starts the work
         self._ended_motions: deque[Mapping[str, Any]] = deque(maxlen=16)
+        # the last quick raise / return (``implement``, ``what``: raise | return, ``motion_id``, ``arrived``) and the
+        # newest motion the operator started since (not a stop): whether a raise starts from a work position
+        # (a field trial: a second raise on the way up overwrote the work pose). Its own lock, never held
+        # across a call: the event thread takes it.
+        self._quick_lock = threading.Lock()
+        self._quick: dict[str, Any] | None = None
+        self._newest_start: int | None = None
 
     # ------------------------------------------------------------------ start
     def restore(self) -> None:
@@ -266,7 +284,10 @@ class ImplementService:
         return {"deleted": name}
 
     def set_lock(self, locked: bool) -> dict[str, Any]:
-        """Transport lock of the selected implement on or off (refused while moving)."""
+        """Transport lock of the selected implement on or off (refused while moving). Locking forgets the work a
+        quick raise paused (reply ``work_paused_cleared``, as ``work/stop`` at the headland): the lock means road
+        transport, and work control never starts again by itself after it — the next return (after the unlock)
+        only goes back to the work pose; ``work/start`` starts work."""
         key = "implements/lock" if locked else "implements/unlock"
         with self._lock:
             if self.selected == DEFAULT_IMPLEMENT:
@@ -278,11 +299,18 @@ class ImplementService:
             limits = ImplementLimits(imp.limits.upper_height_m, imp.limits.lowering_speed_m_s, locked)
             self._apply(record_of(imp), limits)
             imp = self.store.update_implement(imp.name, transport_locked=locked)
-        return {"implement": imp.name, "transport_locked": imp.limits.transport_locked}
+        out: dict[str, Any] = {"implement": imp.name, "transport_locked": imp.limits.transport_locked}
+        if locked:
+            cleared = self.clear_paused_work()
+            if cleared is not None:
+                out["work_paused_cleared"] = cleared
+        return out
 
     # ------------------------------------------------------------------ quick raise / return
     def quick_raise(self, r: QuickMove, deadline: float | None, issued: float | None) -> dict[str, Any]:
-        """Go to the headland pose; the pose it starts from becomes the last work pose (persisted)."""
+        """Go to the headland pose; the pose it starts from becomes the last work pose (persisted) when it starts
+        from a work position (:meth:`_raise_from_work`, and not at the headland pose); the reply's ``last_work`` is
+        the work pose the return goes to, with ``last_work_kept: true`` when this raise kept the earlier one."""
         imp = self._need_current("hitch/raise")
         goal = imp.headland
         if goal is None:
@@ -298,6 +326,9 @@ class ImplementService:
         paused = self._pause_work(imp.name, deadline, issued)
         # the implement's pose (the mechanism less the profile's lag): a return aims the mechanism back here
         here = pose_dict(self.motion.planner.implement_pose(self.motion.current_state().position))
+        # pressing raise at the headland, or again on the way up (or after a stop there), keeps the work pose;
+        # decided before the goto, whose own motion_started the listener may see first
+        from_work = self._raise_from_work(imp.name) and not _close(here, goal)
         scale = r.speed_scale or 1.0
         try:
             acc = self.motion.goto(dict(goal), scale, kind="preset", label="raise", deadline=deadline, issued=issued)
@@ -306,13 +337,22 @@ class ImplementService:
                 raise
             with self._lock:  # work ended here: the return goes back here, not to an earlier headland turn's pose
                 self.store.update_implement(imp.name, last_work=here)
+            with self._quick_lock:
+                self._quick = None  # the hitch is at work: the next raise starts from a work position
             raise MotionError(  # the work session has ended all the same: say so
                 exc.code, f"{exc}; the work session {paused['session']} has ended (the hitch brakes to rest there)"
             ) from exc
-        if not _close(here, goal):  # pressing raise at the headland keeps the work pose
+        accepted = acc.to_json()
+        self._quick_started(imp.name, "raise", accepted.get("motion_id"))
+        if from_work:
             with self._lock:  # serialised with define, which rewrites the whole record
                 self.store.update_implement(imp.name, last_work=here)
-        out = {**acc.to_json(), "raise": True, "headland": dict(goal), "last_work": here}
+            last_work: dict[str, float] | None = here
+        else:
+            last_work = None if imp.last_work is None else dict(imp.last_work)
+        out = {**accepted, "raise": True, "headland": dict(goal), "last_work": last_work}
+        if not from_work:
+            out["last_work_kept"] = True
         with self._pause_lock:
             if self.paused_work is not None and self.paused_work["implement"] == imp.name:
                 out["work_paused"] = _paused_json(self.paused_work)
@@ -372,6 +412,7 @@ class ImplementService:
         goal = dict(imp.last_work)
         acc = self.motion.goto(goal, scale, kind="preset", label="return", deadline=deadline, issued=issued)
         out = {**acc.to_json(), "return": True, "last_work": dict(imp.last_work)}
+        self._quick_started(imp.name, "return", out.get("motion_id"))
         with self._pause_lock:
             paused = self.paused_work
             if paused is not None and paused["implement"] == imp.name:
@@ -381,6 +422,43 @@ class ImplementService:
             if ended.get("motion_id") == out["motion_id"]:
                 self._resume_paused_work(ended)
         return out
+
+    def _raise_from_work(self, implement: str) -> bool:
+        """Whether a raise of ``implement`` starting now starts from a work position: no quick motion of it is
+        remembered, or the last one was a return that arrived, or the operator started a motion (not a stop)
+        after it. False while the hitch is between work and the headland because of a raise (running, stopped
+        or replaced) or a return that has not arrived: its work pose is kept."""
+        with self._quick_lock:
+            q = self._quick
+            if q is None or q["implement"] != implement:
+                return True
+            if q["what"] == "return" and q["arrived"]:
+                return True
+            mid, newest = q["motion_id"], self._newest_start
+            return _is_id(mid) and _is_id(newest) and newest > mid
+
+    def _quick_started(self, implement: str, what: str, motion_id: Any) -> None:
+        """Remember the quick raise / return just accepted (its end may have been announced already)."""
+        arrived = any(
+            e.get("motion_id") == motion_id and e.get("event") == "motion_finished" for e in list(self._ended_motions)
+        )
+        with self._quick_lock:
+            self._quick = {"implement": implement, "what": what, "motion_id": motion_id, "arrived": arrived}
+
+    def _note_motion(self, event: Mapping[str, Any]) -> None:
+        """Follow the motions for :meth:`_raise_from_work` (on the event thread: a short lock only)."""
+        mid = event.get("motion_id")
+        with self._quick_lock:
+            if event.get("event") == "motion_started":
+                if event.get("kind") != "stop" and isinstance(mid, int) and _is_id(mid):  # a stop: no move
+                    newest = self._newest_start
+                    self._newest_start = mid if newest is None or mid > newest else newest
+            elif event.get("event") == "mode_changed":  # out of the planner's hands (manual …): moved, perhaps
+                self._quick = None
+            elif event.get("event") == "motion_finished":
+                q = self._quick
+                if q is not None and q["motion_id"] == mid:
+                    q["arrived"] = True
 
     def _resume_paused_work(self, event: Mapping[str, Any]) -> None:
         """The return motion of paused work ended: arrived (``motion_finished``) → ``work/start`` at the
@@ -437,9 +515,15 @@ class ImplementService:
         ``hitch/raise`` or ``hitch/return`` through :attr:`dispatch` on a thread of its own (the event
         thread must not plan). One at a time: an edge while the previous request runs is dropped. A
         press the API refuses is announced as ``hitch_switch_refused`` (``command``, ``error``,
-        ``message``): the operator sees why the hitch did not move."""
+        ``message``): the operator sees why the hitch did not move. Motion events (``motion_started`` …) and
+        ``mode_changed`` are followed for the quick raise's work pose (:meth:`_raise_from_work`) and the paused
+        work's return."""
+        if event.get("event") in ("motion_started", "mode_changed"):
+            self._note_motion(event)
+            return
         if event.get("event") in ("motion_finished", "motion_aborted"):
             self._ended_motions.append(event)
+            self._note_motion(event)
             self._resume_paused_work(event)
             return
         if event.get("event") != "hitch_switch" or self.dispatch is None:
@@ -552,6 +636,11 @@ class ImplementService:
     def _announce(self) -> None:
         if self.on_select is not None:
             self.on_select(self.selected)
+
+
+def _is_id(v: Any) -> bool:
+    """A motion id that orders (the controller numbers its motions 1, 2, …)."""
+    return isinstance(v, int) and not isinstance(v, bool)
 
 
 def _close(a: Mapping[str, float], b: Mapping[str, float]) -> bool:

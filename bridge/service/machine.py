@@ -42,7 +42,7 @@ from bridge.link.tractor_sensors import TractorSensors, TractorSensorsConfig
 from bridge.service.config import ServiceConfig
 from bridge.service.motion.controller import MotionController
 from bridge.service.motion.types import MODES, actuator_dict
-from bridge.service.work import build_work_control, sim_field_tractor
+from bridge.service.work import build_work_control, sim_field_tractor, simulated_ground_speed
 from bridge.sim.can_node import EcuCanNode
 from bridge.sim.ecu import CylinderECU
 from bridge.sim.tractor_node import TractorTwinNode, hitch_height_from_ecu
@@ -347,7 +347,7 @@ def service_info(cfg: ServiceConfig, guard: Guard) -> dict[str, Any]:
             "interface": cfg.can_interface,
             "channel": cfg.can_channel,
             "simulated_ecu": cfg.simulate_ecu,
-            "simulated_ground_speed": cfg.sim_ground_speed if cfg.simulate_ecu else None,
+            "simulated_ground_speed": simulated_ground_speed(cfg),  # the speed the twin drives (a field's own)
         },
         "limits": {
             "workspace": {k: list(tp.workspace[k]) for k in CONTROLLED_POSE_NAMES},

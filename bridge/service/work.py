@@ -43,6 +43,7 @@ import numpy as np
 from bridge.service.motion.types import MotionError, TrackMotion
 from bridge.service.store import DEFAULT_IMPLEMENT
 from planner.errors import HitchError
+from planner.model.hard_limits import WORKSPACE_NAMES
 from planner.trajectory.track import subset_limits
 from planner.work_control import WorkController, WorkSettings, WorkSettingsError, WorkStatus
 
@@ -60,6 +61,7 @@ __all__ = [
     "settings_from_json",
     "settings_to_json",
     "sim_field_tractor",
+    "simulated_ground_speed",
     "tool_drop_m",
     "work_handlers",
 ]
@@ -176,6 +178,14 @@ def draft_rate_limit(planner: Any, pose: Any) -> float:
     return Z_RATE_SHARE * v
 
 
+def _reachable_z(follower: Any) -> tuple[float, float, tuple[str, str]]:
+    """The z range the session's follower keeps its setpoints in (the workspace's faces, the top lowered by
+    the session's bounds: an implement's upper height) and the names of its faces (``workspace:z:min`` …)."""
+    lo, hi = float(follower.lo[1]), float(follower.hi[1])
+    names = getattr(follower, "_names", WORKSPACE_NAMES)[1]
+    return lo, hi, (str(names[0]), str(names[1]))
+
+
 class WorkControl:
     """Work sessions on a motion controller (module docstring). API calls from any thread;
     :meth:`on_cycle` from the control cycle under the controller's lock. Its own lock is held only for
@@ -262,6 +272,7 @@ class WorkControl:
             self._slope = WindowSlope(_RATE_WINDOW_S)
             self._pending, self._resume = None, False
             self._last, self._limited, self._ended, self._end_reason = None, {}, None, None
+            self._draft = None
             self.fallbacks = self.rejected = self.foreign_setpoints = 0
             self._session = int(acc.session)
         if old is not None and old != self._session:
@@ -357,7 +368,10 @@ class WorkControl:
             slip = self.inputs.slip(now)
             ground = self.inputs.ground_z(now)
         self._draft = draft_n
-        st = ctl.step(now, self._z_op, draft_n=draft_n, draft_t=draft_t, slip=slip, ground_z=ground)
+        z_lo, z_hi, z_names = _reachable_z(active.follower)
+        st = ctl.step(
+            now, self._z_op, draft_n=draft_n, draft_t=draft_t, slip=slip, ground_z=ground, z_range=(z_lo, z_hi)
+        )
         if st.event is not None:
             self.fallbacks += 1
             events.append(
@@ -370,6 +384,8 @@ class WorkControl:
                 limited["depth"] = "work:depth_max"
             elif st.depth_m <= s.depth_min_m + 1e-6 and st.active != "float":
                 limited["depth"] = "work:depth_min"
+        if st.z_limit is not None:  # the demand held at the face it cannot pass (the follower sees it inside)
+            limited["z"] = z_names[0] if st.z_limit == "min" else z_names[1]
         try:
             sp = active.follower.set_setpoint({"z": st.z}, {"z": self._slope.add(now, st.z)}, now)
             active.accepted += 1
@@ -382,18 +398,25 @@ class WorkControl:
     # ------------------------------------------------------------------ state
     def progress(self) -> dict[str, Any]:
         """The state message's ``work`` block (SI: draft [N], depth [m], z [m])."""
-        st, s = self._last, self._settings
-        running = self._session is not None
+        with self._lock:  # one consistent snapshot (on_cycle swaps them together)
+            session, s = self._session, self._settings
+            running = session is not None
+            # the live fields describe the running session only: after it ended they are null/empty (the
+            # last session's numbers described an implement that may be out of the soil by now; ``ended``
+            # says how it ended)
+            st = self._last if running else None
+            draft = self._draft if running else None
+            limited = dict(self._limited) if running else {}
         action = "none"
         if st is not None and st.slip_limited:
             action = f"raise {st.slip_raise_m:.3f} m" if st.slip_raise_m > 0 else f"cut {st.slip_cut:.2f}"
         return {
             "running": running,
-            "session": self._session,
+            "session": session,
             "mode": s.mode,
-            "active": None if st is None or not running else st.active,
+            "active": None if st is None else st.active,
             "fallback": None if st is None else st.fallback,
-            "draft_n": self._draft,
+            "draft_n": draft,
             "draft_setpoint_n": s.draft_setpoint_n,
             "depth_m": None if st is None else st.depth_m,
             "z_operator": self._z_op if running else None,
@@ -401,7 +424,7 @@ class WorkControl:
             "slip": None,
             "slip_action": action,
             "slip_note": _SLIP_NOTE if s.slip_limit is not None or s.mode != "position" else None,
-            "limited": dict(self._limited),
+            "limited": limited,
             "fallbacks": self.fallbacks,
             "rejected": self.rejected,
             "setpoints_refused": self.foreign_setpoints,
@@ -416,19 +439,66 @@ class WorkControl:
         return dict(self._json)
 
 
+def _explicit_ground_speed(cfg: Any) -> float | None:
+    """``cfg.sim_ground_speed`` when the user gave it (a config file or a flag; a pydantic config knows which of
+    its fields were set), else None (the default: a field's scenario then keeps its own speed)."""
+    v = getattr(cfg, "sim_ground_speed", None)
+    fields_set = getattr(cfg, "model_fields_set", None)
+    if v is None or (fields_set is not None and "sim_ground_speed" not in fields_set):
+        return None
+    return float(v)
+
+
+def _sim_field_setup(cfg: Any) -> Any:
+    """The field of ``cfg.sim_field`` as the twin drives it: at ``sim_ground_speed`` (constant) when the user
+    gave one, which wins over the scenario's speed; else at the scenario's own speed. None: no field."""
+    name = getattr(cfg, "sim_field", None)
+    if name is None:
+        return None
+    from dataclasses import replace
+
+    from bridge.sim.field import FieldError, load_field
+    from bridge.sim.terrain import SpeedProfile, TerrainError
+
+    fs = load_field(name)
+    v = _explicit_ground_speed(cfg)
+    if v is None:
+        return fs
+    try:
+        speed = SpeedProfile.constant(v)
+    except TerrainError as exc:
+        raise FieldError(f"sim_ground_speed = {v:g} m/s with sim_field {name!r}: {exc}") from None
+    twin = replace(fs.scenario.twin, speed=speed)
+    return replace(fs, scenario=replace(fs.scenario, twin=twin))
+
+
+def simulated_ground_speed(cfg: Any) -> float | None:
+    """The ground speed the simulated tractor actually drives [m/s] (for the ``config`` reply): without a field
+    ``cfg.sim_ground_speed``; with one, ``sim_ground_speed`` when the user gave it, else the field scenario's
+    constant speed (None: its speed varies over time, a speed profile). None without a simulated ECU."""
+    if not getattr(cfg, "simulate_ecu", True):
+        return None
+    fs = _sim_field_setup(cfg)
+    if fs is None:
+        return float(cfg.sim_ground_speed)
+    speeds = set(fs.scenario.twin.speed.speeds_m_s)
+    return float(next(iter(speeds))) if len(speeds) == 1 else None
+
+
 def sim_field_tractor(
     cfg: Any, bus: Any, height: Callable[[float], float | None], ecu_node: Any, pivot_height_m: float
 ) -> Any:
     """The twin's tractor over ``cfg.sim_field`` (its terrain scenario) with the field's draft on the
-    ECU node (module docstring); None when no field is configured."""
-    name = getattr(cfg, "sim_field", None)
-    if name is None:
+    ECU node (module docstring); None when no field is configured. The twin drives at ``sim_ground_speed``
+    when the user gave it (config file or flag), else at the scenario's speed (:func:`simulated_ground_speed`
+    says which); the field's draft and the tractor's wheel speed and GNSS all follow that one speed."""
+    fs = _sim_field_setup(cfg)
+    if fs is None:
         return None
-    from bridge.sim.field import FieldDraft, FieldRun, load_field
+    from bridge.sim.field import FieldDraft, FieldRun
     from bridge.sim.sensors import TwinSensors
     from bridge.sim.tractor_node import TractorTwinNode
 
-    fs = load_field(name)
     drop = tool_drop_m(pivot_height_m, fs.working_depth_m)
 
     def tip_z() -> float:

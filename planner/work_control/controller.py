@@ -19,7 +19,10 @@ Modes (:attr:`WorkSettings.mode`):
   (the integral), ``z = clip(z_i + s·K_P·d_ref·e, ground_z - depth_max, ground_z - depth_min)``, with
   ``s`` the sensitivity and ``d_ref`` the middle of the depth limits (so the gains are the same
   fraction of the depth range for any implement). Anti-windup: ``z_i`` is clamped to the same
-  depth limits, so after a limit the regulator leaves it as soon as the error changes sign. ``z_i``
+  depth limits, so after a limit the regulator leaves it as soon as the error changes sign. Given the z range
+  the hitch can reach (``step(…, z_range=…)``: the follower's workspace faces), the output and ``z_i`` stay
+  within it too (a demand beyond a face only wound up there: a 0.6 m depth limit below the workspace floor
+  kept the hitch on the floor for seconds after a lower setpoint), and the status names the face. ``z_i``
   starts at the operator's ``z`` (clipped to the limits) when the mode engages (bumpless). The
   ground reference bounds the setpoint but is not fed forward: the undulation reaches the draft
   loop as a draft error, as on a tractor's draft control (feeding the ground height forward made
@@ -232,6 +235,8 @@ class WorkStatus:
         slip_cut: draft: the share of the draft setpoint the slip limiter takes away (0: not limiting).
         slip_limited: the slip limiter acted this cycle.
         note: why an optional input was ignored ("slip unavailable"), else None.
+        z_limit: ``"min"`` / ``"max"`` when the reachable z range (``step(…, z_range=…)``) bounded the
+            draft demand this cycle (the hitch cannot go deeper / higher), else None.
     """
 
     t: float
@@ -247,6 +252,7 @@ class WorkStatus:
     slip_cut: float = 0.0
     slip_limited: bool = False
     note: str | None = None
+    z_limit: str | None = None
 
 
 def _finite(v: float | None) -> bool:
@@ -336,6 +342,7 @@ class WorkController:
         ground_z: float | None = None,
         ground_ahead_z: float | None = None,
         z_measured: float | None = None,
+        z_range: tuple[float, float] | None = None,
     ) -> WorkStatus:
         """One control cycle at ``now_s`` [s] for the operator's setpoint ``z`` [m] (module docstring).
 
@@ -344,7 +351,10 @@ class WorkController:
         ``ground_ahead_z``: the ground reference where the tool will be when the hitch has followed this
         setpoint (a ground preview, one hitch lag ahead) [m], or None (no preview: the old regulator);
         ``z_measured``: the hitch's measured z [m] (with a preview: the tool's estimated true depth
-        ``ground_z − z_measured`` sets the depth limits' tracking margin), or None (no margin).
+        ``ground_z − z_measured`` sets the depth limits' tracking margin), or None (no margin);
+        ``z_range``: (lowest, highest) z the hitch can reach [m] (the follower's workspace faces), or None
+        (unbounded): the draft demand and its integral stay within it as within the depth limits, so
+        they never wind up beyond a face the hitch cannot pass (:attr:`WorkStatus.z_limit` names it).
 
         Raises:
             WorkSettingsError: ``now_s`` or ``z`` not a finite number, ``ground_z`` not None or finite.
@@ -354,6 +364,13 @@ class WorkController:
         g = None if ground_z is None else _num("ground_z", ground_z, -10.0, 10.0)
         ga = None if ground_ahead_z is None or g is None else _num("ground_ahead_z", ground_ahead_z, -10.0, 10.0)
         zm = None if z_measured is None else _num("z_measured", z_measured, -10.0, 10.0)
+        r_lo, r_hi = -math.inf, math.inf
+        if z_range is not None:
+            r_lo = _num("z_range[0]", z_range[0], -10.0, 10.0)
+            r_hi = _num("z_range[1]", z_range[1], -10.0, 10.0)
+            if r_lo > r_hi:
+                raise WorkSettingsError(f"z_range = {z_range!r}: the lowest z must not exceed the highest")
+        z_limit: str | None = None
         s = self._s
         dt = 0.0 if self._last_t is None else min(_DT_MAX, max(0.0, now - self._last_t))
         self._last_t = now
@@ -380,6 +397,7 @@ class WorkController:
                 self._slip_cut,
                 limited,
                 note,
+                z_limit,
             )
 
         if mode == "position":
@@ -406,7 +424,10 @@ class WorkController:
         assert draft_n is not None
         d_lo, d_hi = s.depth_min_m, s.depth_max_m
         d_ref = 0.5 * (d_lo + d_hi)
-        z_lo, z_hi = g - d_hi, g - d_lo  # the depth limits as hitch heights
+        # the depth limits as hitch heights, within the z the hitch can reach: a demand (or an integral) beyond
+        # a workspace face only winds up (the follower clips it), and coming back takes the wound-up way
+        dz_lo, dz_hi = g - d_hi, g - d_lo
+        z_lo, z_hi = min(r_hi, max(r_lo, dz_lo)), min(r_hi, max(r_lo, dz_hi))
         start = min(z_hi, max(z_lo, z_op if self._z_out is None else self._z_out))  # bumpless (re)start
         if self._z_i is None:
             self._z_i = start
@@ -425,7 +446,7 @@ class WorkController:
                 err = (g - zm) - self._depth_dem
                 self._track_var += (err * err - self._track_var) * min(1.0, dt / DEPTH_TRACK_S)
             m = min(DEPTH_MARGIN_MAX * (d_hi - d_lo), DEPTH_MARGIN_SIGMAS * math.sqrt(self._track_var))
-            z_draft = self._draft_with_preview(ga, start, e, zp, d_lo + m, d_hi - m, d_ref, dt)
+            z_draft, beyond = self._draft_with_preview(ga, start, e, zp, d_lo + m, d_hi - m, d_ref, dt, r_lo, r_hi)
             self._depth_dem = ga - z_draft
             self._z_i = min(z_hi, max(z_lo, z_draft - zp))  # a step without the preview continues from here
         else:
@@ -433,8 +454,10 @@ class WorkController:
             zi = self._z_i + s.sensitivity * KI_DRAFT * d_ref * e * dt
             if self._slip_raise > 0.0:
                 zi = max(zi, self._z_i)  # mixed: while the slip limiter lifts, the draft regulator may only lift
-            zi = min(z_hi, max(z_lo, zi))  # anti-windup: the integral stays within the depth limits
+            zi = min(z_hi, max(z_lo, zi))  # anti-windup: the integral stays within the limits (depth, reach)
+            want = min(dz_hi, max(dz_lo, zi + zp))  # the demand within the depth limits alone
             z_draft = min(z_hi, max(z_lo, zi + zp))
+            beyond = "min" if want < r_lo else "max" if want > r_hi else None
             if self._rate is not None:
                 # the hitch's speed: never ask for more, and let the integral keep only what the hitch can
                 # follow (back-calculation), or it runs ahead of a lagging hitch and the loop cycles. A
@@ -447,29 +470,48 @@ class WorkController:
                     zi = min(z_hi, max(z_lo, z_draft - zp))
             self._z_i = zi
         self._z_draft = z_draft
-        if mode == "draft":
-            return out(z_draft, mode, limited, float(draft_n), e)
-        zz = (1.0 - s.blend) * z_op + s.blend * z_draft
-        zz, limited, note = self._slip_raise_z(zz, slip, dt, z_hi)
+        zz = z_draft
+        if mode != "draft":
+            zz = (1.0 - s.blend) * z_op + s.blend * z_draft
+            zz, limited, note = self._slip_raise_z(zz, slip, dt, z_hi)
+        # the reachable range bounded the demand and the output sits at that face: name it
+        if (beyond == "min" and zz <= r_lo + 1e-9) or (beyond == "max" and zz >= r_hi - 1e-9):
+            z_limit = beyond
         return out(zz, mode, limited, float(draft_n), e)
 
     def _draft_with_preview(
-        self, ga: float, start: float, e: float, zp: float, d_lo: float, d_hi: float, d_ref: float, dt: float
-    ) -> float:
+        self,
+        ga: float,
+        start: float,
+        e: float,
+        zp: float,
+        d_lo: float,
+        d_hi: float,
+        d_ref: float,
+        dt: float,
+        r_lo: float = -math.inf,
+        r_hi: float = math.inf,
+    ) -> tuple[float, str | None]:
         """The draft demand with a ground preview: the PI regulates the working depth, and the previewed
         ground ``ga`` (where the tool will be when the hitch gets there) is fed forward, so the undulation
         never reaches the draft loop as an error. ``depth = clip(d_i − K_P·d_ref·e)``, ``d_i ← d_i −
         K_I·d_ref·e·Δt`` (both scaled by the sensitivity; the signs of the z regulator), ``z = ga − depth``:
         the depth limits hold on the previewed ground, i.e. on the depth the tool will have. With the
         hitch's rate the demand moves no faster than the hitch and the integral is set back to the
-        bounded output (back-calculation); the depth limits on ``ga`` win over the rate."""
+        bounded output (back-calculation); the depth limits on ``ga`` win over the rate. The reachable z
+        range ``[r_lo, r_hi]`` bounds the depth (and its integral) too: returns the demand and the face the
+        demand within the depth limits alone would lie beyond (``"min"``/``"max"``, or None)."""
         s = self._s
+        want_lo, want_hi = d_lo, d_hi  # the depth limits alone
+        d_lo, d_hi = min(ga - r_lo, max(ga - r_hi, d_lo)), min(ga - r_lo, max(ga - r_hi, d_hi))
         if self._d_i is None:
             self._d_i = min(d_hi, max(d_lo, ga - start))  # bumpless: the depth of the last z handed out
         di = self._d_i - s.sensitivity * KI_DRAFT * d_ref * e * dt
         if self._slip_raise > 0.0:
             di = min(di, self._d_i)  # mixed: while the slip limiter lifts, the draft regulator may only lift
-        di = min(d_hi, max(d_lo, di))  # anti-windup within the depth limits
+        di = min(d_hi, max(d_lo, di))  # anti-windup within the depth limits (and the reachable z)
+        want = min(want_hi, max(want_lo, di - zp))
+        beyond = "min" if ga - want < r_lo else "max" if ga - want > r_hi else None
         z_draft = ga - min(d_hi, max(d_lo, di - zp))
         if self._rate is not None:
             prev = self._z_draft if self._z_draft is not None else start
@@ -479,7 +521,7 @@ class WorkController:
                 z_draft = min(ga - d_lo, max(ga - d_hi, z_rl))
                 di = min(d_hi, max(d_lo, ga - z_draft + zp))
         self._d_i = di
-        return z_draft
+        return z_draft, beyond
 
     def _slip_target(self, x: float, dt: float, margin: bool = True) -> float:
         """The limiter's target: ``slip_limit`` less the ripple margin (:data:`MARGIN_SIGMAS` times the slip's

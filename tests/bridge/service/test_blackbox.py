@@ -518,3 +518,20 @@ def test_can_log_settings_out_of_range_are_refused_by_name():
         CanRecorder("/tmp/never.asc", "virtual", "bb-never", keep=0)
     with pytest.raises(BlackBoxError, match=r"suffixes: \.asc, \.blf"):
         CanRecorder.check_path("/tmp/never.txt")
+
+
+def test_the_body_of_every_write_is_kept_and_cut_to_the_same_bound(tmp_path):
+    """A field trial: ``hitch/raise`` and ``implements/define`` were logged as "accepted" without what they
+    asked; their bodies are kept now, cut to MAX_BODY_CHARS as a goto's."""
+    from bridge.service.blackbox import MAX_BODY_CHARS
+
+    path = event_log_path(tmp_path)
+    long_name = "t" * (3 * MAX_BODY_CHARS)
+    with EventLog(path) as log:
+        log.on_request("hitch/raise", "olga", b'{"deadline_ms": 500}', True, {"accepted": True, "motion_id": 4})
+        log.on_request("implements/define", "olga", json.dumps({"name": long_name}).encode(), True, {"ok": True})
+        log.on_request("goto", "olga", json.dumps({"name": long_name}).encode(), True, {"motion_id": 5})
+    raise_, define, goto = [r for r in read_events(path) if r["kind"] == "request"]
+    assert json.loads(raise_["request"]) == {"deadline_ms": 500} and raise_["motion_id"] == 4
+    assert len(define["request"]) == len(goto["request"]) == MAX_BODY_CHARS
+    assert define["request"].startswith('{"name": "ttt')

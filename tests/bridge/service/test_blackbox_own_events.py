@@ -289,3 +289,111 @@ def test_record_limits_out_of_range_are_refused_by_name():
         RecordLimits(other_burst=0)
     with pytest.raises(BlackBoxError, match=r"RecordLimits.summary_s must be a number"):
         RecordLimits(summary_s=float("nan"))
+
+
+# ---------------------------------------------------------------------------------------- what was changed
+def _write_body(key: str) -> bytes:
+    """A body that changes something on ``key`` (``mode`` and ``work/settings`` read without a value)."""
+    if key == "mode":
+        return b'{"mode": "manual"}'
+    if key == "work/settings":
+        return b'{"draft_setpoint_n": 25000.0}'
+    return json.dumps({"marker": key}).encode()
+
+
+def test_every_motion_and_write_key_of_the_access_control_is_kept_with_its_body(tmp_path):
+    """A field trial: ``goto`` records carried their body, but hitch/raise|return, work/…, implements/…,
+    lines/…, track/start did not, and their accepted requests were limited as reads (10, then one per 10 s):
+    the black box's own key list had fallen behind the access control's. Every operator key (security's
+    MOTION_KEYS, WRITE_KEYS, any key under WRITE_PREFIXES, and every API key the access control calls a write)
+    is now kept, each of its accepted requests written with its body."""
+    from bridge.service.schemas import REQUESTS
+    from bridge.service.security import MOTION_KEYS, WRITE_KEYS, WRITE_PREFIXES, key_access
+
+    api_writes = {k for k in REQUESTS if key_access(k) == "write"}
+    from bridge.service.blackbox import STREAMED_KEYS  # the setpoint stream: limited as reads (the test below)
+
+    keys = sorted(
+        (set(MOTION_KEYS) | set(WRITE_KEYS) | api_writes | {f"{p}start" for p in WRITE_PREFIXES}) - STREAMED_KEYS
+    )
+    assert {"hitch/raise", "work/settings", "implements/lock", "lines/save", "track/start"} <= set(keys)
+    path = event_log_path(tmp_path)
+    # reads sparingly (one record per group): a key limited as a read would lose its second and third request
+    limits = RecordLimits(other_burst=1, other_per_s=0.001, total_burst=1, total_per_s=0.001)
+    with EventLog(path, limits=limits, clock=_Clock()) as log:
+        for i in range(3):
+            for key in keys:
+                reply = {"accepted": True, "motion_id": i + 1}
+                if key == "work/settings":
+                    reply = {"implement": "default", "saved": True, "settings": {}, "status": {}}
+                log.on_request(key, "olga", _write_body(key), True, reply)
+    recs = [r for r in read_events(path) if r["kind"] == "request"]
+    assert not [r for r in read_events(path) if r["kind"] == "suppressed"]
+    for key in keys:
+        mine = [r for r in recs if r["key"] == key]
+        assert len(mine) == 3, (key, mine)
+        assert all(r.get("request") == _write_body(key).decode() and not r.get("read") for r in mine), mine
+    from bridge.service.blackbox import is_writing_key  # the rule itself, for keys added later
+
+    assert all(is_writing_key(k) for k in keys), [k for k in keys if not is_writing_key(k)]
+
+
+def test_work_status_reads_never_crowd_out_a_settings_write_and_read_apart_from_it(tmp_path):
+    """The field trial: 15 ``hitch work status`` (work/settings without a setting) and then one write of 25 kN
+    left 10 records, each ``request work/settings by -: accepted``, and not the write: it fell in the reads'
+    bucket. Reads are now their own group, limited as reads and marked ``read``; the write is kept, with its
+    body."""
+    from bridge.cli.records import format_record
+
+    path = event_log_path(tmp_path)
+    status = {"implement": "default", "settings": {"mode": "draft"}, "status": {"running": False}}
+    with EventLog(path, clock=_Clock()) as log:
+        for i in range(15):
+            log.on_request("work/settings", None, b"{}" if i % 2 else b"", True, status)
+        log.on_request("work/settings", None, b'{"draft_setpoint_n": 25000.0}', True, {**status, "saved": True})
+        # the same decided from the body where there is no settings reply (a refusal): null slip_limit changes
+        log.on_request("work/settings", None, b'{"slip_limit": null}', False, {"error": "busy", "message": "x"})
+        log.on_request("work/settings", None, b'{"mode": null}', False, {"error": "busy", "message": "x"})
+        log.on_request("mode", "olga", b"", True, {"mode": "auto", "modes": []})  # a read of the mode
+        log.on_request("mode", "olga", b'{"mode": "manual"}', True, {"mode": "manual", "modes": []})
+    recs = read_events(path)
+    reqs = [r for r in recs if r["kind"] == "request" and r["key"] == "work/settings" and r["accepted"]]
+    reads = [r for r in reqs if r.get("read")]
+    writes = [r for r in reqs if not r.get("read")]
+    assert len(reads) == 10 and len(writes) == 1, reqs
+    assert json.loads(writes[0]["request"]) == {"draft_setpoint_n": 25000.0}
+    (sup,) = [r for r in recs if r["kind"] == "suppressed"]
+    assert sup["key"] == "work/settings" and sup["count"] == 5 and sup["read"] is True and "reads" in sup["message"]
+    refused = [r for r in recs if r["kind"] == "request" and r["key"] == "work/settings" and not r["accepted"]]
+    assert [bool(r.get("read")) for r in refused] == [False, True]
+    modes = [r for r in recs if r["kind"] == "request" and r["key"] == "mode"]
+    assert [bool(r.get("read")) for r in modes] == [True, False] and json.loads(modes[1]["request"]) == {
+        "mode": "manual"
+    }
+    assert "read only" in format_record(reads[0]) and "read only" not in format_record(writes[0])
+    assert "25000" in format_record(writes[0])
+
+
+def test_streamed_setpoints_are_limited_as_reads_while_their_session_start_is_kept(tmp_path):
+    """track/setpoint is a write (under track/), but it streams at up to 100 Hz for hours: kept as generously as
+    a goto it would fill the log at about 2 records a second. It is limited as reads are; track/start is kept."""
+    from bridge.service.blackbox import is_writing_key
+
+    assert not is_writing_key("track/setpoint") and is_writing_key("track/start") and is_writing_key("track/stop")
+    path = event_log_path(tmp_path)
+    limits = RecordLimits(other_burst=5, other_per_s=0.001, total_burst=5, total_per_s=0.001)
+    with EventLog(path, limits=limits, clock=_Clock()) as log:
+        log.on_request("track/start", "olga", b'{"dof": ["z"]}', True, {"accepted": True, "session": 3})
+        for seq in range(300):
+            body = json.dumps({"session": 3, "seq": seq, "pose": {"z": 0.1}}).encode()
+            log.on_request("track/setpoint", "olga", body, True, {"accepted": True})
+        log.on_request("track/stop", "olga", b'{"session": 3}', True, {"stopping": True})
+    recs = read_events(path)
+    setpoints = [r for r in recs if r["kind"] == "request" and r["key"] == "track/setpoint"]
+    assert len(setpoints) == 5, len(setpoints)  # the reads' burst, then counted
+    held = sum(r.get("count", 0) for r in recs if r["kind"] == "suppressed" and r.get("key") == "track/setpoint")
+    assert held == 295, [r for r in recs if r["kind"] == "suppressed"]
+    assert [r["key"] for r in recs if r["kind"] == "request" and r["key"] != "track/setpoint"] == [
+        "track/start",
+        "track/stop",
+    ]

@@ -222,12 +222,14 @@ def test_a_draft_demand_beyond_the_depth_and_workspace_limits_is_clipped_and_nam
         assert w["z_setpoint"] == pytest.approx(lo_z + 0.5 - 0.3, abs=1e-9)  # ground - depth_max
         assert w["limited"] == {"depth": "work:depth_max"}
         assert abs(s.states[-1]["pose"]["z"] - (lo_z + 0.2)) < 5e-3
-        # a depth limit that lies below the workspace: the follower clips at the face and names it
+        # a depth limit that lies below the workspace: the demand stops at the face (no windup beyond it), the
+        # face is named and the depth reported is the one the hitch can reach (not the depth limit's)
         s.ok("work/settings", {"depth_max_m": 0.6})
         s.run(4.0)
         w = s.states[-1]["work"]
-        assert w["z_setpoint"] == pytest.approx(lo_z + 0.5 - 0.6, abs=1e-9)
-        assert w["limited"]["z"].startswith("workspace:z") and w["limited"]["depth"] == "work:depth_max"
+        assert w["z_setpoint"] == pytest.approx(lo_z, abs=1e-9)
+        assert w["depth_m"] == pytest.approx(0.5, abs=1e-9)
+        assert w["limited"] == {"z": "workspace:z:min"}
         assert "z" in s.states[-1]["limited"]  # the state's "control limited" names it too
         assert s.states[-1]["pose"]["z"] >= lo_z - 2e-3
         assert not any(e["event"] == "work_fallback" for e in s.events)
@@ -765,3 +767,104 @@ def test_a_return_whose_arrival_is_announced_before_its_reply_still_starts_the_p
         assert started.wait(2.0), "the paused work was never started again"
     finally:
         store.close()
+
+
+def test_the_work_block_keeps_no_stale_numbers_after_the_session_ended(model, tmp_path):
+    """A field trial: ``work start; work stop; raise --wait; work status`` showed the last session's draft (19.69
+    kN), depth, z setpoint, fallback and ``limited: vz …`` with the implement out of the soil. After the session
+    the live fields are null/empty (``ended`` says how it ended), in the state and in ``work/settings``."""
+    lo_z = float(TrajectoryPlanner(model).lo[1])
+    inputs = FakeInputs(ground_z=lo_z + 0.5)
+    s = Service(model, tmp_path / "h.sqlite3", inputs)
+    live = ("active", "fallback", "draft_n", "depth_m", "z_operator", "z_setpoint")
+    try:
+        s.ok("implements/define", TINE)
+        s.ok("implements/select", {"name": "tine"})
+        s.ok("work/settings", {"mode": "draft", "draft_setpoint_n": 20_000.0, "depth_max_m": 0.6})
+        for draft in (inputs.draft, lambda now: (None, now)):  # regulating at a limit, then a fallback
+            inputs.draft = draft  # type: ignore[method-assign]
+            s.ok("work/start", {"z": lo_z + 0.1})
+            s.run(3.0)
+            w = s.states[-1]["work"]
+            assert w["running"] and w["z_setpoint"] is not None and w["depth_m"] is not None, w
+            assert w["limited"] or w["fallback"], w
+            s.ok("work/stop")
+            s.run(1.0)
+            for w in (s.states[-1]["work"], s.ok("work/settings")["status"]):
+                assert not w["running"] and w["session"] is None, w
+                assert {k: w[k] for k in live} == dict.fromkeys(live), w
+                assert w["limited"] == {} and w["slip_action"] == "none", w
+                assert w["ended"], w  # how the last session ended stays readable
+    finally:
+        s.close()
+
+
+def test_a_draft_demand_beyond_the_workspace_floor_stops_there_and_leaves_it_at_once(model, tmp_path):
+    """A field trial: draft 300 kN with depth 0..0.6 m drove the setpoint to -0.426 m (depth "0.597 m") with the
+    hitch at the workspace floor; set to 8 kN the hitch then stayed at the floor for 2.3 s while the wound-up
+    setpoint came back. Now the demand never goes below the floor, the floor is named, the depth is the real
+    one, and after a lower setpoint the hitch leaves the floor within the regulator's time constant (1/K_I)."""
+    from planner.work_control.controller import KI_DRAFT
+
+    lo_z = float(TrajectoryPlanner(model).lo[1])
+    ground = lo_z + 0.3  # the depth limit 0.6 lies 0.3 m below the floor
+    s = Service(model, tmp_path / "h.sqlite3", FakeInputs(ground_z=ground))
+    try:
+        s.ok("implements/define", TINE)
+        s.ok("implements/select", {"name": "tine"})
+        s.ok("work/settings", {"mode": "draft", "draft_setpoint_n": 300_000.0, "depth_min_m": 0.0, "depth_max_m": 0.6})
+        s.ok("work/start", {"z": lo_z + 0.2})
+        s.run(8.0)
+        zs = [st["work"]["z_setpoint"] for st in s.states if st["work"]["z_setpoint"] is not None]
+        assert min(zs) >= lo_z - 1e-9, (min(zs), lo_z)
+        w = s.states[-1]["work"]
+        assert w["z_setpoint"] == pytest.approx(lo_z, abs=1e-9) and w["depth_m"] == pytest.approx(0.3, abs=1e-9), w
+        assert w["limited"] == {"z": "workspace:z:min"}, w
+        assert abs(s.states[-1]["pose"]["z"] - lo_z) < 2e-3
+        n = len(s.states)
+        s.ok("work/settings", {"draft_setpoint_n": 500.0})  # the draft (1 kN) now lies above it: shallower
+        s.run(1.0 / KI_DRAFT)
+        after = s.states[n:]
+        assert after[-1]["pose"]["z"] > lo_z + 0.01, after[-1]["pose"]
+        assert after[-1]["work"]["z_setpoint"] > lo_z + 0.03 and "z" not in after[-1]["work"]["limited"]
+    finally:
+        s.close()
+
+
+def test_a_sim_field_twin_drives_at_the_users_sim_ground_speed_and_config_reports_the_speed_driven():
+    """``sim_ground_speed = 1.5`` with ``sim_field = "chisel"``: the twin drove at the scenario's 8 km/h (GNSS
+    2.222 m/s) while ``config`` said 1.5. The user's speed now wins (the tractor's wheel speed, the field's
+    draft and the GNSS all follow the twin's speed); without it the scenario's speed is driven, and
+    ``simulated_ground_speed`` gives the speed the twin drives either way."""
+    from types import SimpleNamespace
+
+    from bridge.service import work
+    from bridge.service.work import sim_field_tractor
+
+    def twin(**kw):
+        cfg = ServiceConfig(sim_field="chisel", **kw)
+        ecu = SimpleNamespace(draft_source=None)
+        node = sim_field_tractor(cfg, None, lambda t: None, ecu, 0.5)
+        return cfg, node, ecu.draft_source
+
+    cfg, node, draft = twin(sim_ground_speed=1.5)
+    assert node.sensors.twin.speed.speed_m_s(10.0) == pytest.approx(1.5)
+    assert node.sensors.wheel_speed(10.0).speed_m_s == pytest.approx(1.5, rel=1e-3)
+    assert draft.run.step(10.0).speed_m_s == pytest.approx(1.5)  # the draft is that of the speed driven
+    simulated_ground_speed = work.simulated_ground_speed  # what the config reply should say (machine.service_info)
+    assert simulated_ground_speed(cfg) == pytest.approx(1.5)
+    cfg, node, draft = twin()  # not given: the scenario's 8 km/h, and the config says so
+    assert node.sensors.twin.speed.speed_m_s(10.0) == pytest.approx(8 / 3.6, abs=1e-3)
+    assert simulated_ground_speed(cfg) == pytest.approx(8 / 3.6, abs=1e-3)
+    assert simulated_ground_speed(ServiceConfig(sim_ground_speed=3.0)) == 3.0  # no field: as configured
+
+
+def test_the_config_reply_names_the_ground_speed_the_field_twin_drives():
+    """machine.service_info said ``sim_ground_speed``'s default 1.5 m/s while a field twin drove its scenario's
+    8 km/h (a field trial)."""
+    from bridge.service.machine import build_guard, build_model, service_info
+
+    for kw, speed in (({}, 8 / 3.6), ({"sim_ground_speed": 3.0}, 3.0)):
+        cfg = ServiceConfig(sim_field="chisel", **kw)
+        info = service_info(cfg, build_guard(cfg, build_model(cfg)))
+        assert info["can"]["simulated_ground_speed"] == pytest.approx(speed, abs=1e-3), (kw, info["can"])

@@ -714,10 +714,21 @@ def implement_handlers(api: Any) -> dict[str, Callable[[Any], dict[str, Any]]]:
         "implements/delete": lambda r: svc.delete(r.name),
         "implements/lock": lambda _r: svc.set_lock(True),
         "implements/unlock": lambda _r: svc.set_lock(False),
-        "hitch/raise": lambda r: svc.quick_raise(r, *api._timing(r.deadline_ms)),
-        "hitch/return": lambda r: svc.quick_return(r, *api._timing(r.deadline_ms)),
+        "hitch/raise": lambda r: _taught(api, r, svc.quick_raise(r, *api._timing(r.deadline_ms)), "headland"),
+        "hitch/return": lambda r: _taught(api, r, svc.quick_return(r, *api._timing(r.deadline_ms)), "last_work"),
         "sim/switch": lambda r: svc.press(r.position),
     }
+
+
+def _taught(api: Any, r: QuickMove, reply: dict[str, Any], goal: str) -> dict[str, Any]:
+    """A teach-in records an accepted quick raise or return as the ``goto`` it is (to the reply's ``goal`` pose:
+    the headland, the work pose): a maneuver script has no raise step, and before, the recording left both out
+    without a word (a field trial). Returns ``reply``."""
+    rec = getattr(api, "recorder", None)  # read once: a record/stop may run meanwhile
+    pose = reply.get(goal)
+    if rec is not None and isinstance(pose, Mapping):
+        rec.on_goto(pose, r.speed_scale or 1.0, float(reply.get("duration", 0.0)))
+    return reply
 
 
 def _paused_json(paused: Mapping[str, Any]) -> dict[str, Any]:

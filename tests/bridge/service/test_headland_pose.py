@@ -165,3 +165,26 @@ def test_a_raise_after_the_operator_jogged_from_a_stopped_raise_records_the_jogg
     assert "last_work_kept" not in r and r["last_work"]["z"] == pytest.approx(jogged, abs=1e-3), r
     svc.run_forwarding(r["duration"] + 0.5)
     assert svc.last_work_z() == pytest.approx(jogged, abs=1e-3)
+
+
+def test_a_teach_in_records_the_raise_and_the_return_as_gotos_to_their_poses(svc):
+    """A field trial: record start; return; raise; goto z=0.2; record stop gave a script of the goto alone:
+    the raise and the return were left out without a word. They are recorded as the gotos they are."""
+    import yaml
+
+    work = _at_work(svc)
+    up = svc.ok("hitch/raise")
+    svc.run_forwarding(up["duration"] + 0.5)
+    assert svc.ok("maneuvers/record/start")
+    back = svc.ok("hitch/return")
+    svc.run_forwarding(back["duration"] + 0.5)
+    up = svc.ok("hitch/raise", {"speed_scale": 0.5})
+    svc.run_forwarding(up["duration"] + 0.5)
+    svc.ok("goto", {"goal": {"z": 0.2}})
+    svc.run_forwarding(3.0)
+    script = yaml.safe_load(svc.ok("maneuvers/record/stop")["script"])
+    gotos = [s["goto"] for s in script["steps"] if "goto" in s]
+    assert len(gotos) == 3, script
+    assert gotos[0]["z"] == pytest.approx(work[1], abs=1e-3) and "speed_scale" not in gotos[0]  # the return
+    assert gotos[1] == {**HEADLAND, "speed_scale": 0.5}  # the raise, at its speed
+    assert gotos[2] == {"z": 0.2}

@@ -10,8 +10,10 @@ Client commands talk to a running service over Zenoh, each with ``--connect ENDP
 
 A refused request (:class:`~bridge.service.client.ServiceError`) exits with status 2 and the
 service's message on one line; no answer at all names the endpoint tried and says to start
-``hitch serve``. ``goto``, ``preset go`` and ``maneuver run`` take ``--wait`` (until the motion
-or maneuver has ended); Ctrl-C then stops the motion (a ``stop`` is sent and its answer
+``hitch serve`` (one that holds its liveliness token but does not answer is said to be busy or hung).
+``goto``, ``preset go`` and ``maneuver run`` take ``--wait`` (until the motion or maneuver has ended: a motion
+exits 0 only when its ``motion_finished`` event was heard; aborted, or its end not heard — the link to the
+service interrupted, said as UNKNOWN — exits 1); Ctrl-C then stops the motion (a ``stop`` is sent and its answer
 awaited, at most :data:`STOP_TIMEOUT_S`) unless ``--detach`` is given, which leaves the motion
 running as it is. Text from the service is printed as it is (no rich markup or emoji codes).
 
@@ -341,7 +343,12 @@ def add_deadline_option(
 
 
 def _wait_options(p) -> None:
-    p.add_argument("--wait", action="store_true", help="wait until the motion has ended; Ctrl-C then stops it")
+    p.add_argument(
+        "--wait",
+        action="store_true",
+        help="wait until the motion has ended (exit status 1 when it was aborted or its end was not heard); "
+        "Ctrl-C then stops it",
+    )
     p.add_argument("--detach", action="store_true", help="with --wait: Ctrl-C only stops waiting, the motion goes on")
     add_deadline_option(p)
 
@@ -389,6 +396,12 @@ def _run(args, fn) -> int:
                 return fn(c)
             except ServiceTimeout as exc:
                 if _alive(c):  # the service is up: slow, or this user may not use that key
+                    if getattr(exc, "timeout_s", None) is not None:  # its query went out, no answer came
+                        raise ServiceTimeout(
+                            f"{exc}; the service holds its liveliness token {c.prefix}/alive — it is up but did not "
+                            f"answer within {exc.timeout_s:g} s: busy or hung",
+                            timeout_s=exc.timeout_s,
+                        ) from None
                     raise
                 raise _service_down(args, exc) from None
     except ServiceError as exc:
@@ -429,6 +442,9 @@ def _motion(args, c, start: Callable[[], dict], wait: Callable[[dict], dict]) ->
     goes on up (exit status 130).
     """
     reply: dict | None = None
+    # the events and states of the motion from its start on (its outcome may come before a wait subscribes)
+    watch = _MotionWatch(c) if args.wait else None
+    args.motion_watch = watch
     try:
         reply = start()
         if args.wait and not getattr(args, "json", False):  # said at once: the wait may be long
@@ -448,41 +464,199 @@ def _motion(args, c, start: Callable[[], dict], wait: Callable[[dict], dict]) ->
         else:
             _stop_after_interrupt(c, None if reply is None else reply.get("motion_id"))
         raise
+    finally:
+        args.motion_watch = None
+        if watch is not None:
+            watch.close()
+
+
+#: a pose this far from the goal [m, rad] is "away from the goal" in the words on an unknown outcome
+GOAL_TOLERANCE = 0.005
+#: consecutive state samples further apart than this [s] mean samples were missed (the link interrupted)
+STATE_GAP_S = 2.0
+
+
+class _MotionWatch:
+    """The ``events`` and ``state`` samples a motion command hears from before its request on: the outcome event of
+    its motion (``motion_finished`` / ``motion_aborted``), the motion's goal, and whether samples were missed on
+    the way (a gap in the events' or states' numbers, or in the states' time: the link to the service was
+    interrupted), so that a missing outcome is said as unknown, never taken for a success (a fleet trial)."""
+
+    def __init__(self, c) -> None:
+        self.lock = threading.Lock()
+        self.heard = threading.Event()
+        self.motion_id: int | None = None
+        self.events: list[dict] = []  # before the motion id is known (the reply), every motion event
+        self.outcome: dict | None = None
+        self.goal: dict | None = None
+        self.state: dict | None = None
+        self.missed_events = 0
+        self.missed_states = 0
+        self.gap_s = 0.0  # the longest time between two state samples beyond STATE_GAP_S [s]
+        self._event_seq: int | None = None
+        self._state_seq: int | None = None
+        self._state_t: float | None = None
+        self._subs = [c.subscribe("events", self.on_event), c.subscribe("state", self.on_state)]
+
+    def close(self) -> None:
+        for sub in self._subs:
+            close = getattr(sub, "close", None)
+            if callable(close):
+                close()
+        self._subs = []
+
+    def watch(self, motion_id: int) -> None:
+        with self.lock:
+            self.motion_id = motion_id
+            for e in self.events:
+                self._take(e)
+            self.events = []
+
+    def on_event(self, e: dict) -> None:
+        if not isinstance(e, dict):
+            return
+        with self.lock:
+            n = e.get("seq")
+            if isinstance(n, int) and not isinstance(n, bool):
+                last = self._event_seq
+                if last is not None and n != last + 1:  # skipped numbers, or the service restarted (fewer)
+                    self.missed_events += max(1, n - last - 1)
+                self._event_seq = n
+            if self.motion_id is None:
+                if e.get("motion_id") is not None:
+                    self.events.append(e)
+                return
+            self._take(e)
+
+    def _take(self, e: dict) -> None:
+        if e.get("motion_id") != self.motion_id:
+            return
+        if e.get("event") == "motion_started" and isinstance(e.get("goal"), dict):
+            self.goal = dict(e["goal"])
+        if e.get("event") in ("motion_finished", "motion_aborted") and self.outcome is None:
+            self.outcome = dict(e)
+            self.heard.set()
+
+    def on_state(self, st: dict) -> None:
+        if not isinstance(st, dict):
+            return
+        with self.lock:
+            self.state = st
+            n, t = st.get("seq"), st.get("t")
+            if isinstance(n, int) and not isinstance(n, bool):
+                if self._state_seq is not None and n != self._state_seq + 1:
+                    self.missed_states += max(1, n - self._state_seq - 1)
+                self._state_seq = n
+            if isinstance(t, (int, float)) and not isinstance(t, bool):
+                if self._state_t is not None and t - self._state_t > STATE_GAP_S:
+                    self.gap_s = max(self.gap_s, t - self._state_t)
+                self._state_t = float(t)
+            goal = st.get("goal")
+            if st.get("motion_id") == self.motion_id and isinstance(goal, dict) and isinstance(goal.get("pose"), dict):
+                self.goal = dict(goal["pose"])
 
 
 def _wait_motion(args, c, r: dict) -> dict:
     """Wait until motion ``r["motion_id"]`` has ended: the pose then and its ``outcome`` event
-    (``motion_finished`` or ``motion_aborted`` with the reason; None if none was heard)."""
+    (``motion_finished`` or ``motion_aborted`` with the reason; None if none was heard, and then ``unknown``:
+    why its outcome is not known — never a success)."""
+    from bridge.service.client import ServiceTimeout
+
     mid = r["motion_id"]
-    outcome: dict[str, Any] = {}
-    heard = threading.Event()
+    pre: _MotionWatch | None = getattr(args, "motion_watch", None)
+    own = pre is None
+    # not started through _motion: subscribed now (an outcome before this is missed)
+    watch = _MotionWatch(c) if pre is None else pre
+    watch.watch(mid)
+    lost: str | None = None
+    try:
+        try:
+            st = c.wait_motion(mid, timeout_s=max(args.timeout, float(r.get("duration", 0.0)) + 10.0))
+        except ServiceTimeout as exc:
+            if not getattr(exc, "link_lost", False):
+                raise
+            lost, st = str(exc), {}
+        if lost is None:
+            watch.heard.wait(1.0)  # the outcome follows the state that shows the end
+        with watch.lock:
+            outcome = dict(watch.outcome) if watch.outcome else None
+            if not st and watch.state:
+                st = dict(watch.state)
+            unknown = None if outcome is not None else _unknown_outcome(args, watch, mid, st, lost)
+    finally:
+        if own:
+            watch.close()
+    final = {"pose": st.get("pose"), "motion_id": st.get("motion_id"), "moving": st.get("moving"), "outcome": outcome}
+    if unknown is not None:
+        final["unknown"] = unknown
+    if lost is not None:  # the pose is the last one heard before the link was lost
+        final["link_lost"] = True
+    return final
 
-    def on_event(e: dict) -> None:
-        if e.get("motion_id") == mid and e.get("event") in ("motion_finished", "motion_aborted"):
-            outcome.update(e)
-            heard.set()
 
-    c.subscribe("events", on_event)  # before the wait: the outcome follows the state that shows the end
-    st = c.wait_motion(mid, timeout_s=max(args.timeout, float(r.get("duration", 0.0)) + 10.0))
-    heard.wait(1.0)
-    return {
-        "pose": st.get("pose"),
-        "motion_id": st.get("motion_id"),
-        "moving": st.get("moving"),
-        "outcome": dict(outcome) or None,
-    }
+def _unknown_outcome(args, watch: _MotionWatch, mid: int, st: dict, lost: str | None) -> str:
+    """Why the outcome of motion ``mid`` is not known, and what the service's state shows instead (under the
+    watch's lock)."""
+    if lost is not None:
+        why = lost
+    else:
+        why = "its end event (motion_finished / motion_aborted) was not heard"
+        gaps = []
+        if watch.missed_events:
+            gaps.append(f"{watch.missed_events} event(s)")
+        if watch.missed_states:
+            gaps.append(f"{watch.missed_states} state sample(s)")
+        if watch.gap_s:
+            gaps.append(f"no state for {watch.gap_s:.1f} s")
+        if gaps:
+            why += f": events were missed ({', '.join(gaps)}): the link to the service was interrupted"
+        else:
+            why += ": it may have been missed (e.g. the link to the service was interrupted)"
+    shows = []
+    state = (
+        "the last state heard (before the link was lost) showed" if lost is not None else "the service's state shows"
+    )
+    now_mid = st.get("motion_id")
+    if isinstance(now_mid, int) and now_mid != mid:
+        shows.append(f"{state} motion {now_mid}, not {mid} (it was replaced or aborted)")
+    elif st.get("moving"):
+        shows.append(f"{state} motion {mid} still moving")
+    goal = watch.goal or (args.to if isinstance(getattr(args, "to", None), dict) else None)
+    pose = st.get("pose") or {}
+    if goal and pose:
+        away = {
+            k: float(pose[k]) - float(v)
+            for k, v in goal.items()
+            if k in CONTROLLED_POSE_UNITS and k in pose and isinstance(v, (int, float))
+        }
+        far = {k: g for k, g in away.items() if abs(g) > GOAL_TOLERANCE}
+        if far:
+            shows.append(
+                f"the hitch {'was' if lost is not None else 'is'} away from the goal ("
+                + ", ".join(f"{k} {g:+.4f} {CONTROLLED_POSE_UNITS[k]}" for k, g in far.items())
+                + ": pose minus goal)"
+            )
+        elif away:
+            shows.append(f"the hitch {'was' if lost is not None else 'is'} at the goal")
+    return why + ("; " + "; ".join(shows) if shows else "") + " — see the service's black box (`hitch log`)"
 
 
 def _ended(final: dict | None) -> tuple[str, int]:
-    """The text and exit status for how an awaited motion ended: 0 unless it was aborted (a stop, a
-    fault, a replacing command), which is said with the service's reason and exits 1."""
+    """The text and exit status for how an awaited motion ended: 0 only when its ``motion_finished`` event was
+    heard; aborted (a stop, a fault, a replacing command) is said with the service's reason and exits 1; an
+    outcome not heard (events missed: the link to the service interrupted) is said as UNKNOWN and exits 1."""
     if final is None:
         return "", 0
     where = f"; now at {_fmt_pose(final['pose'])}" if final.get("pose") else ""
     out = final.get("outcome") or {}
     if out.get("event") == "motion_aborted":
         return f"; ABORTED: {out.get('reason') or 'no reason given'}{where}", 1
-    return (f"; finished{where}" if out.get("event") == "motion_finished" else where), 0
+    if out.get("event") == "motion_finished":
+        return f"; finished{where}", 0
+    why = final.get("unknown") or "its end event (motion_finished / motion_aborted) was not heard"
+    if final.get("link_lost") and final.get("pose"):
+        where = f"; last heard at {_fmt_pose(final['pose'])}"
+    return f"; outcome UNKNOWN: {why}{where}", 1
 
 
 def _cmd_goto(args) -> int:
@@ -757,13 +931,18 @@ def _cmd_maneuver(args) -> int:
 def _fleet_row(c, prefix: str) -> dict[str, Any]:
     """One live service of ``hitch fleet ls``: its ``config`` (which any role that may read may ask, and
     which carries the mode: the ``mode`` key is the operators'), or why it gave none (``error``: the message,
-    ``code``: ``timeout`` when it did not answer, else the service's refusal)."""
+    ``code``: ``timeout`` when it did not answer, else the service's refusal; ``timeout_s`` when its query went
+    out and no answer came within it: the service, listed by its token, is busy or hung)."""
     from bridge.service.client import ServiceError
 
     try:
         cfg = c.config(prefix)
     except ServiceError as exc:  # that service refused, or did not answer
-        return {"prefix": prefix, "error": str(exc), "code": exc.code}
+        row = {"prefix": prefix, "error": str(exc), "code": exc.code}
+        waited = getattr(exc, "timeout_s", None)
+        if waited is not None:  # its query went out, no answer came: busy or hung
+            row["timeout_s"] = waited
+        return row
     except HitchError as exc:  # e.g. a token whose key is no prefix this client can send to
         return {"prefix": prefix, "error": str(exc), "code": "error"}
     return {
@@ -778,6 +957,11 @@ def _fleet_row(c, prefix: str) -> dict[str, Any]:
 def _fleet_line(r: dict[str, Any]) -> str:
     if "error" not in r:
         return f"{r['prefix']}: {r['profile']} cat {r['category']}, implement {r['implement'] or '-'}, mode {r['mode']}"
+    if r.get("code") == "timeout" and r.get("timeout_s") is not None:  # its token listed it: it is up
+        return (
+            f"{r['prefix']}: NO ANSWER within {r['timeout_s']:g} s (the service is up — its liveliness token is "
+            "there — but did not answer: busy or hung)"
+        )
     what = "NO ANSWER" if r.get("code") == "timeout" else f"REFUSED ({r.get('code')})"
     return f"{r['prefix']}: {what}: {r['error']}"
 
@@ -788,7 +972,13 @@ def _cmd_fleet(args) -> int:
 
     def fleet(c) -> int:
         rows = [_fleet_row(c, prefix) for prefix in c.fleet(timeout_s=min(args.timeout, 5.0))]
-        _print(args, {"fleet": rows}, "\n".join(map(_fleet_line, rows)) or "(no services)")
+        # with a login, access control may hide every service from it (its tokens are not shown to this user)
+        none = (
+            "(no services visible: none runs, or this login may see none — access control)"
+            if args.security
+            else "(no services)"
+        )
+        _print(args, {"fleet": rows}, "\n".join(map(_fleet_line, rows)) or none)
         failed = [r for r in rows if "error" in r]
         if failed and not args.json:  # the status says it; the line says why on stderr too
             print(

@@ -89,10 +89,27 @@ class ServiceError(HitchInputError):
 
 
 class ServiceTimeout(ServiceError):
-    """No answer within the timeout (service down, unreachable, or the key denied by access control)."""
+    """No answer within the timeout (service down, unreachable, or the key denied by access control).
 
-    def __init__(self, message: str):
+    ``timeout_s``: the whole timeout [s] was spent on a query that went out (Zenoh ended it with its own
+    ``Timeout`` reply, or it ran to its end): something took it but gave no answer — a service busy or hung
+    (``hitch fleet ls``: NO ANSWER within …). None: nothing answered that key at all, or no query (a wait).
+    ``link_lost``: a wait (:meth:`HitchClient.wait_motion`) ended because this client's session reached no
+    router or peer for :data:`LINK_GRACE_S`: what the service did meanwhile is not known."""
+
+    def __init__(self, message: str, *, timeout_s: float | None = None, link_lost: bool = False):
         super().__init__("timeout", message)
+        self.timeout_s = timeout_s
+        self.link_lost = link_lost
+
+
+#: how long a wait (:meth:`HitchClient.wait_motion`) goes on while this client's session reaches no router or
+#: peer, before it ends with a :class:`ServiceTimeout` (``link_lost``) instead of waiting out its timeout [s]
+LINK_GRACE_S = 5.0
+#: how often a wait looks at the session's links [s]
+LINK_POLL_S = 0.2
+#: the payload of the error reply Zenoh itself gives a query whose timeout ran out (no service sends it)
+ZENOH_TIMEOUT_REPLY = b"Timeout"
 
 
 def client_config(connect: Sequence[str], *, mode: str = "client", security: str | Path | None = None) -> zenoh.Config:
@@ -145,6 +162,35 @@ def _decode(payload: zenoh.ZBytes) -> Any:
         return json.loads(payload.to_bytes())
     except (ValueError, UnicodeDecodeError):
         return {"error": "bad_reply", "message": "the reply is not JSON"}
+
+
+def _zenoh_timeout(err: Any) -> bool:
+    """Is this error reply Zenoh's own for a query whose timeout ran out (payload ``Timeout``, no JSON)? Before, it
+    was decoded as the service's and said "REFUSED (bad_reply): the reply is not JSON" for a hung service (a fleet
+    trial)."""
+    try:
+        return err is not None and bytes(err.payload.to_bytes()).strip() == ZENOH_TIMEOUT_REPLY
+    except Exception:  # noqa: BLE001 — not a reply of the shape Zenoh gives: not its timeout
+        return False
+
+
+def _error_reply(err: Any) -> ServiceError:
+    """The :class:`ServiceError` of an error reply: the service's ``error`` code and ``message`` (JSON); an error
+    that is no JSON (not the service's) as ``bad_reply`` with its text."""
+    if err is None:
+        return ServiceError("error", "the service refused")
+    try:
+        raw = bytes(err.payload.to_bytes())
+    except Exception:  # noqa: BLE001
+        raw = b""
+    try:
+        body = json.loads(raw)
+    except (ValueError, UnicodeDecodeError):
+        text = raw.decode("utf-8", "replace").strip()[:200]
+        return ServiceError("bad_reply", f"the error reply is not the service's (not JSON): {text!r}")
+    if not isinstance(body, dict):
+        body = {}
+    return ServiceError(str(body.get("error", "error")), str(body.get("message", "the service refused")))
 
 
 def _undeclare(decl: Any) -> None:
@@ -420,12 +466,13 @@ class HitchClient:
             t0 = time.monotonic()
             try:
                 reply = self._query(f"{base}/config", "config", b"{}", timeout_s)
-            except ServiceTimeout:
+            except ServiceTimeout as exc:
                 if time.monotonic() - t0 < 0.8 * timeout_s:
                     return False  # nothing answered at once (e.g. an access list without it): the plain keys
                 raise ServiceTimeout(  # the whole timeout spent already: not once more for the request itself
                     f"no reply from {base} within {timeout_s:g} s (asked {base}/config; is the service running "
-                    "and reachable, and may this user use that key?)"
+                    "and reachable, and may this user use that key?)",
+                    timeout_s=exc.timeout_s if exc.timeout_s is not None else timeout_s,
                 ) from None
             except ServiceError:
                 return False
@@ -443,28 +490,30 @@ class HitchClient:
         t0 = time.monotonic()
         # the stop's query is built under this thread and its answer wakes it: real-time until the answer is in
         restore = caller_to_fifo(CLIENT_RT_PRIORITY) if key == "stop" and self.realtime else None
+        timed_out = False  # Zenoh's own Timeout reply: the query went out, no answer came within t
         try:
             for reply in self.session.get(full, payload=data, timeout=t, **qos):
                 if reply.ok is not None:
                     return _decode(reply.ok.payload)
-                err = {} if reply.err is None else _decode(reply.err.payload)
-                if not isinstance(err, dict):
-                    err = {}
-                raise ServiceError(str(err.get("error", "error")), str(err.get("message", "the service refused")))
+                if _zenoh_timeout(reply.err):
+                    timed_out = True
+                    break
+                raise _error_reply(reply.err)
         finally:
             if restore is not None:
                 restore()
             if self.realtime:  # Zenoh starts some runtime threads at first use: raise those too
                 self._keep_realtime()
         waited = time.monotonic() - t0
-        if waited < 0.8 * t:  # the query ended early without an answer: nothing answers that key
+        if waited < 0.8 * t and not timed_out:  # the query ended early without an answer: nothing answers that key
             raise ServiceTimeout(
                 f"no reply from {full}: nothing answered that key ({waited:.2f} s, before the {t:g} s timeout); "
                 "is the prefix right, is the service running and reachable, and may this user use that key?"
             )
         raise ServiceTimeout(
-            f"no reply from {full} within {t:g} s (is the service running and reachable, "
-            "and may this user use that key?)"
+            f"no reply from {full} within {t:g} s: the query went out but no answer came (a service busy or hung, "
+            "or an access list that drops this user's query of that key)",
+            timeout_s=t,
         )
 
     def ik(self, x: float, z: float, roll: float, pitch: float) -> dict:
@@ -706,9 +755,28 @@ class HitchClient:
         finally:
             samples.close()
 
-    def wait_motion(self, motion_id: int, *, timeout_s: float = 60.0) -> dict:
-        """Block until motion ``motion_id`` has ended (finished, aborted or replaced); the state then.
-        A maneuver is several motions: wait for it with :meth:`wait_maneuver`."""
+    def linked(self) -> bool:
+        """Does this client's session reach a router or a peer now (Zenoh's session info)? False: nothing it sends
+        arrives and no sample reaches it (in client mode: it lost its router; Zenoh reconnects by itself)."""
+        try:
+            info = self.session.info
+            return any(True for _ in info.routers_zid()) or any(True for _ in info.peers_zid())
+        except Exception:  # noqa: BLE001 — the session is closing: no link
+            return False
+
+    def wait_motion(self, motion_id: int, *, timeout_s: float = 60.0, link_grace_s: float | None = None) -> dict:
+        """Block until the state shows that motion ``motion_id`` has ended; the state then. That state says *that*
+        it ended, not *how*: its ``motion_id`` is ``motion_id`` at rest, or a newer motion's (the motion was replaced
+        or aborted: a stop, a fault, a link loss starts a braking motion of its own). Its ``motion_finished`` /
+        ``motion_aborted`` event (``events``, subscribed before the request) says how; without it the outcome is
+        not known (a fleet trial: a wait through a router restart returned the stop's state of a motion the link
+        loss had aborted, and ``hitch goto --wait`` called it a success).
+
+        :class:`ServiceTimeout` when it has not ended within ``timeout_s``, or (``link_lost``) as soon as this
+        client's session has reached no router or peer for ``link_grace_s`` (default :data:`LINK_GRACE_S`): no
+        state can then come, and the service may have stopped the motion (before, such a wait hung silently for
+        its whole timeout). A maneuver is several motions: wait for it with :meth:`wait_maneuver`."""
+        grace = LINK_GRACE_S if link_grace_s is None else float(link_grace_s)
         done = threading.Event()
         last: dict = {}
 
@@ -719,9 +787,24 @@ class HitchClient:
                 done.set()
 
         sub = self.subscribe("state", on_state)
+        end = time.monotonic() + timeout_s
+        unlinked_since: float | None = None
         try:
-            if not done.wait(timeout_s):
-                raise ServiceTimeout(f"motion {motion_id} still running after {timeout_s:g} s")
+            while not done.wait(max(0.0, min(LINK_POLL_S, end - time.monotonic()))):
+                now = time.monotonic()
+                if now >= end:
+                    raise ServiceTimeout(f"motion {motion_id} still running after {timeout_s:g} s")
+                if self.linked():
+                    unlinked_since = None
+                    continue
+                unlinked_since = now if unlinked_since is None else unlinked_since
+                if now - unlinked_since >= grace:
+                    raise ServiceTimeout(
+                        f"motion {motion_id}: the link to the service is lost — this client's session has reached no "
+                        f"router or peer for {now - unlinked_since:.1f} s — so its end cannot be seen (the service "
+                        "may have stopped it: a service that loses its router brakes, docs/faults.md)",
+                        link_lost=True,
+                    )
         finally:
             sub.close()
         return dict(last)

@@ -747,7 +747,14 @@ def _stream(args, c, spec: _Spec) -> int:
     end_gap = _end_gap(spec.frame, last_pose, pose)
     note, braking = _end_note(end_gap, at_stop, pose)
     reason = (outcome or {}).get("reason")
-    ours = reason == "track/stop" or (outcome is None and problem is None)
+    ours = reason == "track/stop"
+    unknown = None
+    if outcome is None and problem is None:  # its end was seen in the state only: the event never came
+        unknown = (
+            f"hitch: outcome UNKNOWN: session {session} (motion {mid}) ended, but its end event was not heard — "
+            "events were missed (the link to the service broke, or a router restarted); `hitch log` on the "
+            "service says how it ended"
+        )
     summary = {
         "session": session,
         "motion_id": mid,
@@ -773,6 +780,8 @@ def _stream(args, c, spec: _Spec) -> int:
         _say(note)
     if problem is not None:
         _say(f"hitch: {problem}; stop the hitch another way (`hitch stop`, STOP)")
+    if unknown is not None:
+        _say(unknown)
     if interrupted:
         raise KeyboardInterrupt
     if problem is not None:

@@ -38,9 +38,11 @@ class FakeService:
         limited: dict | None = None,
         slow_put_s: float = 0.0,
         hup_at: int | None = None,
+        lose_events: bool = False,
     ) -> None:
         self.lag, self.braking, self.v_stop, self.limited = lag, braking, v_stop, dict(limited or {})
         self.slow_put_s, self.hup_at = slow_put_s, hup_at
+        self.lose_events = lose_events  # the events key cut (a router restart): the end is seen in the state only
         self.callbacks: dict = {}
         self.sent: list[tuple[int, dict]] = []
         self.stops: list[tuple[int | None, int | None]] = []
@@ -92,9 +94,10 @@ class FakeService:
         self.z += self.braking
         self._publish(ending=True, velocity=0.0)
         self.callbacks["state"]({"pose": self._pose(), "velocity": dict.fromkeys(DOFS, 0.0), "track": None})
-        self.callbacks["events"](
-            {"event": "motion_finished", "motion_id": self.MOTION, "kind": "track", "reason": "track/stop"}
-        )
+        if not self.lose_events:
+            self.callbacks["events"](
+                {"event": "motion_finished", "motion_id": self.MOTION, "kind": "track", "reason": "track/stop"}
+            )
         return {"stopping": True, "session": session, "motion_id": self.MOTION}
 
 
@@ -158,6 +161,16 @@ def test_replace_takes_over_another_clients_session_only_when_asked(monkeypatch,
     fake = FakeService()
     assert _run_with(monkeypatch, fake, "--sine", "z=0.02@0.5Hz", "--duration", "0.1", "--json", *flag) == 0
     assert fake.replace is bool(flag)
+
+
+def test_a_session_whose_end_event_was_not_heard_is_outcome_unknown_not_success(monkeypatch, capsys):
+    """A fleet trial: `hitch track` through a router restart printed "ended: -" and exited 0, though the
+    service had aborted the session (link lost). Without the motion's own end event the outcome is unknown."""
+    fake = FakeService(lose_events=True)
+    assert _run_with(monkeypatch, fake, "--sine", "z=0.02@0.5Hz", "--duration", "0.1") == 1
+    err = capsys.readouterr().err
+    assert "hitch: outcome UNKNOWN: session 7 (motion 70) ended, but its end event was not heard" in err, err
+    assert "stop the hitch another way" not in err
 
 
 SIGHUP_SCRIPT = """

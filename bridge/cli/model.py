@@ -246,8 +246,21 @@ def profile_summary(model: HitchModel) -> dict:
     }
 
 
+def check_workspace_reachable(model: HitchModel) -> None:
+    """The check ``serve`` (its control core) and every planner make of the category's restricted box: each point
+    of its 3⁴ grid reachable within the hard limits, else the :class:`PlanError` naming the box's face and the
+    point and pointing at ``hitch profile fit-workspace`` (``profile show`` passed a box that ``serve`` and
+    ``accuracy-test`` refused). Nothing to check for a category without a restricted box."""
+    if model.workspace is None:
+        return
+    from planner.trajectory import TrajectoryPlanner
+
+    TrajectoryPlanner(model)
+
+
 def _cmd_profile_show(args) -> int:
     model = model_from_args(args)
+    check_workspace_reachable(model)  # exit 2 naming the face, as serve refuses it
     s = profile_summary(model)
     if args.json:
         print(to_json_text(s))

@@ -779,15 +779,49 @@ def _cmd_faults(args) -> int:
     return _run(args, ack if args.action == "ack" else held)
 
 
+def _activity(s: dict) -> str:
+    """What runs besides the motion: the maneuver and its step (a wait says what it waits for), the track
+    session, work control (a field trial: "auto at rest motion 13" while a maneuver waited for a line 16.8 m
+    ahead and work control ran)."""
+    parts = []
+    m = s.get("maneuver")
+    if isinstance(m, dict):
+        text = f"maneuver {m.get('name') or '-'} step {m.get('step', '-')}"
+        if m.get("kind"):
+            text += f" {m['kind']}"
+        if m.get("paused"):
+            text += " PAUSED"
+        for key, unit in (("time_left", "s"), ("distance_left", "m")):
+            v = m.get(key)
+            if isinstance(v, (int, float)) and not isinstance(v, bool):
+                text += f" {v:.1f} {unit} left"
+        parts.append(text)
+    tr = s.get("track")
+    if isinstance(tr, dict):
+        parts.append(
+            f"track session {tr.get('session')} ({tr.get('frame')}, {','.join(map(str, tr.get('dof') or []))})"
+            + (" stale" if tr.get("stale") else "")
+        )
+    w = s.get("work")
+    if isinstance(w, dict) and w.get("running"):
+        text = f"work {w.get('active') or w.get('mode')}"
+        if w.get("fallback"):
+            text += f" (fallback: {w['fallback']})"
+        parts.append(text)
+    return "  ".join(parts)
+
+
 def _state_line(s: dict) -> str:
     """One line of rich markup (data escaped)."""
     ecu = s.get("ecu") or {}
     lim = s.get("limited") or {}
+    doing = _activity(s)
     return esc(
         f"#{s.get('seq')} {s.get('mode')} {'moving' if s.get('moving') else 'at rest'} "
         f"motion {s.get('motion_id') if s.get('motion_id') is not None else '-'}  pose {_fmt_pose(s.get('pose'))}  ECU "
         f"{'online' if ecu.get('online') else 'OFFLINE'}"
         f"{' ' + ','.join(map(str, ecu.get('faults', []))) if ecu.get('faults') else ''}"
+        + (f"  {doing}" if doing else "")
     ) + (f"  [red]control limited: {esc(limited_text(lim))}[/red]" if lim else "")
 
 

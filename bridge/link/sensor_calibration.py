@@ -518,14 +518,39 @@ class SensorCalibration:
         except (ReferenceRefused, LinkFaultError) as exc:
             raise SensorCalibrationError(f"sensor calibration stopped: {exc}") from None
 
+    def _check_streaming(self, what: str) -> None:
+        """Stop at once when the link no longer streams the references (a latched link fault: the ECU's watchdog
+        has zeroed the valves and nothing moves): the wait would run to ``max_end_s`` and blame the reading (a
+        remote bus's fault: "the approach to 242 counts not reached within 120 s … the calibration link's lift
+        travel"). Names the fault's reason and how to resume; the ends found so far stay recorded."""
+        faults = self.link.faults
+        if self.link.streaming and not faults.any:
+            return
+        reason = "; ".join(dict.fromkeys(faults.reasons)) if faults.any else ""
+        if not reason:
+            reason = ", ".join(faults.active()) if faults.any else "the stream was stopped"
+        if self.progress_path is None:
+            resume = "without --progress the ends found so far are not kept (with --progress FILE a calibration "
+            resume += "resumes where it stopped)"
+        elif self.progress["actuators"] and any(self.progress["actuators"].values()):
+            resume = f"the ends found so far are kept in {self.progress_path}: resume with the same command"
+        else:
+            resume = f"no end was found yet; resume with the same command (--progress {self.progress_path})"
+        raise SensorCalibrationError(
+            f"sensor calibration stopped during {what}: the link stopped streaming references: {reason}; "
+            f"{resume} once the link is sound"
+        )
+
     def _step_to(self, ref: np.ndarray, what: str) -> bool:
-        """Step reference ``ref`` (counts); True once reached (within a count, still), False if the relay stopped it."""
+        """Step reference ``ref`` (counts); True once reached (within a count, still), False if the relay stopped it;
+        a :class:`SensorCalibrationError` at once when the link stops streaming (:meth:`_check_streaming`)."""
         s = self.settings
         self._send(ref)
         t0 = self.driver.now_s
         still_since, last = t0, self._reading()[0]
         while self.driver.now_s - t0 < s.max_end_s:
             self.driver.tick()
+            self._check_streaming(what)
             r, relay = self._reading()
             if not np.array_equal(r, last):
                 still_since, last = self.driver.now_s, r
@@ -578,6 +603,7 @@ class SensorCalibration:
                 self._send(ref)
                 next_send = self.driver.now_s + period
             self.driver.tick()
+            self._check_streaming(f"{name}: the creep to its {'low' if direction < 0 else 'high'} end")
             r_all, relay = self._reading()
             if r_all[i] != last:
                 last, changed_s = r_all[i], self.driver.now_s

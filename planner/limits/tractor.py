@@ -57,6 +57,8 @@ __all__ = [
 STANDARD_GRAVITY: float = 9.80665
 #: ISO 730 implement categories (thesis table 3-6).
 ISO730_CATEGORIES: tuple[str, ...] = ("1N", "1", "2N", "2", "3N", "3", "4N", "4")
+#: the lightest empty tractor a profile may give [kg] (sub-compact tractors with a three-point hitch weigh more)
+TRACTOR_MASS_MIN_KG: float = 300.0
 Category = Literal["1N", "1", "2N", "2", "3N", "3", "4N", "4"]
 
 
@@ -232,7 +234,9 @@ class FrontBallastSpec(_Strict):
 class TractorSpec(_Strict):
     """The empty tractor. ``mass`` T_L and ``front_axle_mass_empty`` T_V in kg, lengths in m."""
 
-    mass: float = Field(json_schema_extra={"unit": "kg"}, gt=0.0, le=50_000.0)
+    #: from TRACTOR_MASS_MIN_KG (no lighter machine carries a three-point hitch; a mass typed in tonnes, 6.0, is
+    #: named as such) to 50 t
+    mass: float = Field(json_schema_extra={"unit": "kg"}, ge=TRACTOR_MASS_MIN_KG, le=50_000.0)
     #: weighbridge reading of the empty front axle; if given it must match the CoM within 1 % of mass
     front_axle_mass_empty: float | None = Field(json_schema_extra={"unit": "kg"}, default=None, gt=0.0, le=50_000.0)
     centre_of_mass: CentreOfMassSpec
@@ -259,7 +263,18 @@ class TractorSpec(_Strict):
             )
         if self.front_axle_mass_empty is not None:
             implied = self.mass * (y_r - com.y) / self.wheelbase
-            if abs(implied - self.front_axle_mass_empty) > 0.01 * self.mass:
+            front = self.front_axle_mass_empty
+            if not front < self.mass:  # no centre of mass between the axles matches it: say so, not a y outside them
+                raise TractorProfileError(
+                    f"front_axle_mass_empty = {front} kg must be less than the tractor's mass = {self.mass} kg (the "
+                    f"front axle carries part of it; this centre_of_mass.y implies {implied:.1f} kg)"
+                )
+            if front * 1000.0 < self.mass and abs(implied - front * 1000.0) <= 0.01 * self.mass:
+                raise TractorProfileError(
+                    f"front_axle_mass_empty = {front} kg disagrees with centre_of_mass.y = {com.y} (which implies "
+                    f"{implied:.1f} kg); did you mean t? {front:.6g} t = {front * 1000.0:.6g} kg"
+                )
+            if abs(implied - front) > 0.01 * self.mass:
                 y_match = y_r - self.front_axle_mass_empty * self.wheelbase / self.mass
                 raise TractorProfileError(
                     f"front_axle_mass_empty = {self.front_axle_mass_empty} kg disagrees with centre_of_mass.y = "

@@ -273,6 +273,20 @@ class KeepOut(_Strict):
     centre: tuple[float, float, float]
     radius: float = Field(json_schema_extra={"unit": "m"}, gt=0, le=1.0)
 
+    @field_validator("centre")
+    @classmethod
+    def _centre(cls, v: tuple[float, float, float]) -> tuple[float, float, float]:
+        """Within ±COORDINATE_MAX_M of the tractor frame's origin, as the geometry's points: a centre typed in mm
+        (``[0, 300, 860]``) put the sphere hundreds of metres away and silently switched the keep-out off."""
+        m = COORDINATE_MAX_M
+        if not all(math.isfinite(c) and abs(c) <= m for c in v):
+            worst = max(v, key=lambda c: abs(c) if math.isfinite(c) else math.inf)
+            raise ProfileError(
+                f"coordinates are in m (tractor frame) and must be finite numbers within ±{m:g} m"
+                + unit_hint(worst, -m, m, "m")
+            )
+        return v
+
 
 class Limits(_Strict):
     top_link_yaw_max: float = Field(json_schema_extra={"unit": "rad"}, gt=0, le=math.pi / 2)

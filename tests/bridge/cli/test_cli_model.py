@@ -128,3 +128,26 @@ def test_sim_move_frame_loss_is_a_probability_below_one(capsys):
         assert main(["sim", "move", "--frame-loss", text]) == 2
         err = capsys.readouterr().err
         assert f"--frame-loss must lie in [0, 1), got {text}" in err and "Traceback" not in err
+
+
+def test_profile_show_refuses_a_restricted_box_serve_refuses(tmp_path):
+    """`profile show` exited 0 with "warnings": [] for a box whose corners the mechanism cannot reach; serve then
+    failed "control core could not start: PlanError: workspace.restricted.2 … not all reachable"."""
+    from importlib import resources
+
+    text = (resources.files("planner") / "profiles" / "thesis-t132.toml").read_text()
+    good = "[workspace.restricted.2]\nx = [-0.060000, 0.060000]"
+    assert good in text
+    bad = tmp_path / "wide.toml"
+    bad.write_text(text.replace(good, "[workspace.restricted.2]\nx = [-0.300000, 0.300000]"))
+    for extra in ([], ["--json"]):
+        r = run("profile", "show", "--profile", str(bad), "--category", "2", *extra)
+        assert r.returncode == 2, r.stdout
+        assert "workspace.restricted.2" in r.stderr and "not all reachable" in r.stderr
+        assert "hitch profile fit-workspace" in r.stderr
+        assert r.stdout == ""
+    # another category's box (reachable) still shows; the shipped profile's boxes all pass
+    assert run("profile", "show", "--profile", str(bad), "--category", "3", "--json").returncode == 0
+    r = run("profile", "show", "--category", "2", "--json")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["warnings"] == []

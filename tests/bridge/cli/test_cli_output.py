@@ -189,3 +189,24 @@ def test_control_limited_is_printed_in_words_with_its_code():
     text = limited_text(lim)
     assert text == "lift arm slowing before its stroke end (end_stop:lift), height limit reached (top) (z)"
     assert "control limited: lift arm slowing before its stroke end (end_stop:lift)" in _state_line({"limited": lim})
+
+
+def test_the_state_line_says_what_runs_a_maneuver_waiting_a_track_session_work_control():
+    """A field trial: `hitch state` said "#2012 auto at rest motion 13 …" while a maneuver waited for a line
+    16.8 m ahead and work control ran; now the line names them."""
+    from bridge.cli.service import _state_line
+
+    state = {
+        "seq": 2012,
+        "mode": "auto",
+        "moving": False,
+        "motion_id": 13,
+        "maneuver": {"name": "headland", "step": 2, "kind": "wait_for", "paused": False, "distance_left": 16.84},
+        "work": {"running": True, "mode": "draft", "active": "position", "fallback": "no draft reading"},
+    }
+    line = _state_line(state)
+    assert "maneuver headland step 2 wait_for 16.8 m left" in line, line
+    assert "work position (fallback: no draft reading)" in line, line
+    state = {"track": {"session": 7, "frame": "level", "dof": ["roll"], "stale": True}, "work": {"running": False}}
+    line = _state_line(state)
+    assert "track session 7 (level, roll) stale" in line and "work" not in line, line

@@ -317,3 +317,68 @@ def test_an_ecu_configured_with_the_nominal_lift_travel_is_named_with_the_readin
     assert "not reached within 5 s (lift reads" in text and "reference 39" in text, text
     lo, hi = cal.actuator("lift").counts_min, cal.actuator("lift").counts_max
     assert f"lift travel, counts {lo} … {hi} (hitch ecu-sim --sensor-calibration)" in text, text
+
+
+class _FaultAfterLog:
+    """A driver (the rig's ticks) that injects ``fault`` into the ECU node at the first tick after the log
+    line starting ``after`` (the link then latches a fault and stops streaming references)."""
+
+    def __init__(self, rig, after: str, fault: dict) -> None:
+        self.rig, self.after, self.fault, self.armed, self.injected_s = rig, after, fault, False, None
+        self.lines: list[str] = []
+
+    @property
+    def now_s(self) -> float:
+        return self.rig.now_s
+
+    def log(self, line: str) -> None:
+        self.lines.append(line)
+        if line.startswith(self.after):
+            self.armed = True
+
+    def tick(self) -> float:
+        if self.armed and self.injected_s is None:
+            self.rig.node.apply_fault(self.fault)
+            self.injected_s = self.rig.now_s
+        return self.rig.tick()
+
+
+@pytest.mark.parametrize("fault", [{"restart_ecu": True}, {"cut": "both"}])
+def test_a_link_fault_during_a_wait_stops_at_once_naming_it_and_keeps_the_progress(free_top_link, tmp_path, fault):
+    """Over a remote bus a link fault stopped the reference stream; the wait for the approach ran its 120 s and
+    then blamed the lift travel ("the approach to 242 counts not reached within 120 s … must be the calibration
+    link's lift travel"). The wait now checks the link each tick and names the fault's reason."""
+    from bridge.link.sensor_calibration import SensorCalibrationSettings
+
+    truth = truth_of(free_top_link, 2)
+    progress = tmp_path / "progress.json"
+    cal = calibration_profile(free_top_link)
+    with SimRig(HitchModel(cal), FAST, truth=truth) as rig:
+        rig.start()
+        rig.run_until(0.5)
+        driver = _FaultAfterLog(rig, "top low:", fault)
+        run = SensorCalibration(
+            rig.link,
+            driver,
+            free_top_link,
+            progress=progress,
+            log=driver.log,
+            settings=SensorCalibrationSettings(max_end_s=30),
+        )
+        with pytest.raises(SensorCalibrationError) as exc:
+            run.run(("top",))
+        stopped_after = rig.now_s - driver.injected_s
+        reasons = rig.link.faults.reasons
+    text = str(exc.value)
+    assert driver.injected_s is not None, driver.lines
+    assert stopped_after < 2.0, (stopped_after, text)  # not the wait's 30 s
+    assert "the link stopped streaming references: " in text and "not reached within" not in text, text
+    assert reasons and reasons[0] in text, (reasons, text)
+    assert "top: the hold" in text and f"kept in {progress}" in text and "resume" in text, text
+    rec = json.loads(progress.read_text())
+    assert "low" in rec["actuators"]["top"] and "high" not in rec["actuators"]["top"]
+    # the resume finds only the high end and fits the truth
+    again, _, _ = calibrate(free_top_link, truth, ("top",), progress=progress)
+    assert not isinstance(again, Exception), again
+    t = truth.profile.actuator("top")
+    assert abs(again["top"].counts_min - t.counts_min) <= 1 and abs(again["top"].counts_max - t.counts_max) <= 1

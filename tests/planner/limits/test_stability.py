@@ -518,4 +518,29 @@ def test_a_tractor_length_typed_in_mm_is_refused_with_its_unit_and_the_mm_readin
         "tractor.wheelbase = 2500.0: " in text
         and "(allowed: > 0.5 and <= 6 m; did you mean mm? 2500 mm = 2.5 m)" in text
     )
-    assert "tractor.mass = -1.0: " in text and "(allowed: > 0 and <= 50000 kg)" in text
+    assert "tractor.mass = -1.0: " in text and "(allowed: >= 300 and <= 50000 kg)" in text
+
+
+def test_a_tractor_mass_typed_in_tonnes_is_a_range_error_in_kg_with_the_tonnes_reading():
+    """mass = 6.0 (t) passed the range (> 0 kg) and read "centre_of_mass.y = -1080.3000 would match"."""
+    data = _profile_dict()
+    data["tractor"]["mass"] = 6.0
+    with pytest.raises(TractorProfileError) as err:
+        tractor_profile_from_dict(data)
+    text = str(err.value)
+    assert "tractor.mass = 6.0: " in text
+    assert "(allowed: >= 300 and <= 50000 kg; did you mean t? 6 t = 6000 kg)" in text
+    assert "would match" not in text and "centre_of_mass" not in text
+
+
+def test_a_front_axle_mass_in_tonnes_or_above_the_mass_gives_no_centre_of_mass_outside_the_axles():
+    data = _profile_dict()
+    data["tractor"]["front_axle_mass_empty"] = 2.4
+    with pytest.raises(TractorProfileError) as err:
+        tractor_profile_from_dict(data)
+    assert "did you mean t? 2.4 t = 2400 kg" in str(err.value) and "would match" not in str(err.value)
+    data["tractor"]["front_axle_mass_empty"] = 7000.0
+    with pytest.raises(TractorProfileError) as err:
+        tractor_profile_from_dict(data)
+    assert "must be less than the tractor's mass = 6000.0 kg" in str(err.value)
+    assert "would match" not in str(err.value)

@@ -166,3 +166,29 @@ def test_write_profile_text_writes_nothing_a_check_refuses(tmp_path):
     seen = []
     prof = write_profile_text(out, text, check=seen.append)
     assert seen == [prof] and load_profile(out) == prof
+
+
+@pytest.mark.parametrize(
+    ("centre", "words"),
+    [
+        ([0.0, 300, 860], "did you mean mm? 860 mm = 0.86 m"),
+        ([0, 1e6, -1e6], "within ±5 m"),
+        ([0.0, 0.3, 5.5], "within ±5 m"),
+    ],
+)
+def test_a_keep_out_centre_out_of_range_is_refused_with_its_field_range_and_mm_reading(raw, centre, words):
+    """A keep-out centre in mm loaded and put the coupler sphere hundreds of metres away (keep-out silently off)."""
+    data = copy.deepcopy(raw)
+    data["limits"]["keep_out"][0]["centre"] = centre
+    with pytest.raises(ProfileError) as err:
+        profile_from_dict(data, source="test")
+    text = str(err.value)
+    assert "limits.keep_out.0.centre" in text
+    assert "coordinates are in m" in text and "±5 m" in text
+    assert words in text
+
+
+def test_a_keep_out_centre_in_metres_still_loads(raw):
+    data = copy.deepcopy(raw)
+    data["limits"]["keep_out"][0]["centre"] = [0.0, 0.3, 0.86]
+    assert profile_from_dict(data, source="test").limits.keep_out[0].centre == (0.0, 0.3, 0.86)

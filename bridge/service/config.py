@@ -37,7 +37,16 @@ import tomllib
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, Strict, ValidationError, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    Strict,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
 from planner.errors import HitchInputError
 from planner.profiles.loader import format_validation_error
@@ -97,6 +106,14 @@ def validate_endpoint(endpoint: str) -> str:
             f"endpoint {endpoint!r} must look like 'tcp/127.0.0.1:7447' "
             "(protocol tcp, udp, tls, quic, unixsock-stream or ws)"
         )
+    if not endpoint.startswith("unixsock-stream/"):  # the port, said here ("invalid port value" from Zenoh)
+        address = re.split(r"[?#]", endpoint.split("/", 1)[1], maxsplit=1)[0]
+        port = address.rsplit(":", 1)[1] if ":" in address else ""
+        if not port.isdigit() or not 0 <= int(port) <= 65535:
+            raise ServiceConfigError(
+                f"endpoint {endpoint!r}: the port {port or '(none)'!s} must be a whole number 0…65535 "
+                "(e.g. tcp/127.0.0.1:7447)"
+            )
     return endpoint
 
 
@@ -176,10 +193,26 @@ class ServiceConfig(BaseModel):
     def _prefix(cls, v: str) -> str:
         return validate_prefix(v)
 
+    @field_validator("listen", "connect", mode="before")
+    @classmethod
+    def _endpoint_list(cls, v: Any, info: ValidationInfo) -> Any:
+        if isinstance(v, str):  # (pydantic said "Input should be a valid tuple")
+            raise ServiceConfigError(
+                f'{info.field_name} must be a list of endpoints such as ["tcp/127.0.0.1:7447"], got the string {v!r}'
+            )
+        return v
+
     @field_validator("listen", "connect")
     @classmethod
     def _endpoints(cls, v: tuple[str, ...] | None) -> tuple[str, ...] | None:
         return None if v is None else tuple(validate_endpoint(e) for e in v)
+
+    @field_validator("user_keys", mode="before")
+    @classmethod
+    def _user_keys(cls, v: Any) -> Any:
+        if v != "auto" and not isinstance(v, bool):  # (pydantic named its literal['auto'] and bool branches)
+            raise ServiceConfigError(f'user_keys must be "auto", true or false, got {v!r}')
+        return v
 
     @field_validator("stale_timeout_s", "control_rate", "state_rate", "sim_ground_speed")
     @classmethod
@@ -206,16 +239,18 @@ class ServiceConfig(BaseModel):
     @field_validator("http")
     @classmethod
     def _http(cls, v: str | None) -> str | None:
-        if v is not None and not re.match(r"^[^\s:]+:\d{1,5}$", v):
-            raise ServiceConfigError(f"http {v!r} must be HOST:PORT, e.g. 127.0.0.1:8080")
+        if v is not None and (not re.match(r"^[^\s:]+:\d{1,5}$", v) or int(v.rsplit(":", 1)[1]) > 65535):
+            raise ServiceConfigError(f"http {v!r} must be HOST:PORT, e.g. 127.0.0.1:8080 (port 0…65535)")
         return v
 
     @field_validator("http_hosts")
     @classmethod
     def _http_hosts(cls, v: tuple[str, ...]) -> tuple[str, ...]:
         for h in v:
-            if not re.match(r"^(\[[0-9A-Fa-f:.]+\]|[^\s:\[\]]+):\d{1,5}$", h):
-                raise ServiceConfigError(f"http_hosts {h!r} must be HOST:PORT, e.g. cab-display.local:8080")
+            if not re.match(r"^(\[[0-9A-Fa-f:.]+\]|[^\s:\[\]]+):\d{1,5}$", h) or int(h.rsplit(":", 1)[1]) > 65535:
+                raise ServiceConfigError(
+                    f"http_hosts {h!r} must be HOST:PORT, e.g. cab-display.local:8080 (port 0…65535)"
+                )
         return v
 
     @model_validator(mode="after")

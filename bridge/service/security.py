@@ -823,6 +823,12 @@ def security_sections(source: SecuritySettings | Mapping | str | Path) -> dict[s
         text, where = json.dumps(source), "<dict>"
     else:
         raise SecurityError("security", f"must be SecuritySettings, a dict or a file path, got {type(source).__name__}")
+    if not text.strip():  # (Zenoh's parser said "expected array, boolean, null, number, object, or string")
+        raise SecurityError(
+            "security",
+            f"{where} is empty: a security file is a JSON5 object with transport.auth.usrpwd, transport.link.tls "
+            "and/or access_control (docs/security.md: security_json5 writes one)",
+        )
     try:
         parsed = zenoh.Config.from_json5(text)
     except Exception as exc:  # zenoh's ZError: unknown key, wrong type, bad JSON5

@@ -867,3 +867,14 @@ def test_build_security_config_for_a_mutual_tls_client(pki):
     assert cfg["transport"]["auth"]["usrpwd"] == {"user": "alice", "password": "alice-pw"}
     assert "access_control" not in cfg
     assert os.path.isabs(tls["root_ca_certificate"])
+
+
+def test_an_empty_security_file_says_what_it_should_hold(tmp_path):
+    """A fleet trial: an empty file gave Zenoh's parser error ("expected array, boolean, null, number, object,
+    or string")."""
+    from bridge.service.security import SecurityError, security_sections
+
+    empty = tmp_path / "empty.json5"
+    empty.write_text("  \n", encoding="utf-8")
+    with pytest.raises(SecurityError, match=r"empty\.json5 is empty: a security file is a JSON5 object with"):
+        security_sections(empty)

@@ -61,6 +61,14 @@ def test_toml_then_flags(tmp_path):
         ({"can_interface": "pcan"}, "can_interface"),
         ({"feedforward": "yes"}, "feedforward"),
         ({"simulate_ecu": 1}, "simulate_ecu"),
+        # a fleet trial: these said "invalid port value", "Input should be a valid tuple", pydantic's literal['auto']
+        # branches, or "must be HOST:PORT" for a port out of range
+        ({"listen": ["tcp/127.0.0.1:99999"]}, "the port 99999 must be a whole number 0…65535"),
+        ({"listen": ["tcp/localhost"]}, "the port (none) must be a whole number 0…65535"),
+        ({"connect": "tcp/127.0.0.1:7447"}, 'connect must be a list of endpoints such as ["tcp/127.0.0.1:7447"]'),
+        ({"user_keys": "yes"}, "user_keys must be \"auto\", true or false, got 'yes'"),
+        ({"http": "127.0.0.1:174010"}, "(port 0…65535)"),
+        ({"http_hosts": ["cab.local:70000"]}, "(port 0…65535)"),
     ],
 )
 def test_bad_values_name_the_field(kwargs, text):

@@ -481,9 +481,18 @@ class HitchService:
                 error = exc
                 if private is None or not private.startswith("tcp/") or private.removeprefix("tcp/") not in str(exc):
                     break  # not the private port's fault: retrying cannot help
+        reason = zenoh_reason(error) if error is not None else "unknown"
+        hint = ""
+        if cfg.connect and "Unable to connect" in reason:  # (a fleet trial: a wrong password said only this)
+            hint = "; check that a router listens there" + (
+                ", and the login (transport.auth.usrpwd) and TLS files of --security: a router refuses a wrong "
+                "password or certificate this way"
+                if cfg.security is not None
+                else ", and whether it requires a login or TLS (--security)"
+            )
         raise ServiceStartError(
             f"cannot open the Zenoh session (listen {', '.join(cfg.listen or ()) or '-'}, connect "
-            f"{', '.join(cfg.connect) or '-'}): {zenoh_reason(error) if error is not None else 'unknown'}"
+            f"{', '.join(cfg.connect) or '-'}): {reason}{hint}"
         ) from None
 
     def _declare_api(self) -> None:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from bridge.service.config import ServiceConfigError, default_data_dir, load_service_config
+from bridge.service.config import ServiceConfig, ServiceConfigError, default_data_dir, load_service_config
 from bridge.service.server import build_zenoh_config, to_json_bytes
 
 
@@ -180,3 +180,17 @@ def test_the_config_reference_lists_every_key_the_service_reads():
     data = tomllib.loads(block.group(1))
     _flatten_toml(data, "docs/service_config.md")  # every section and key known
     assert {s: set(v) for s, v in data.items()} == {s: set(v) for s, v in _TOML_SECTIONS.items()}
+
+
+def test_a_client_that_reaches_no_router_is_told_what_to_check(tmp_path):
+    """A fleet trial: a wrong password (or no router) said only Zenoh's "Unable to connect to any of …"."""
+    from bridge.service.server import HitchService, ServiceStartError
+    from tests.integration.service_process import free_port
+
+    ep = f"tcp/127.0.0.1:{free_port()}"  # nothing listens there
+    cfg = ServiceConfig(mode="client", connect=[ep], data_dir=tmp_path, planning_processes=0, prefix="nobody/hitch")
+    with pytest.raises(ServiceStartError) as ei:
+        HitchService(cfg).start()
+    text = str(ei.value)
+    assert f"connect {ep}" in text and "Unable to connect" in text, text
+    assert "check that a router listens there, and whether it requires a login or TLS (--security)" in text, text

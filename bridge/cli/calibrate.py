@@ -27,7 +27,7 @@ from bridge.link.sensor_calibration import SENSOR_PROVENANCE_MARKER
 from bridge.service.wire import to_json_text
 from bridge.sim.truth import noise_kind
 from planner.calibration.measurements import APPROACH_COLUMN, TARGET_COLUMNS, load_plan_targets
-from planner.calibration.solve import IDENTIFIED_SHARE, UNIDENTIFIED_SHARE
+from planner.calibration.solve import IDENTIFIED_SHARE, OUTLIER_SIGMA, UNIDENTIFIED_SHARE
 from planner.errors import HitchInputError
 from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
 
@@ -82,7 +82,7 @@ def _cmd_plan(args) -> int:
         for k in range(d.poses.shape[0])
     ]
     if args.out is not None:
-        _write_plan_csv(Path(args.out), rows, _template_sides(model.profile, args.two_sided))
+        _write_plan_csv(Path(args.out), rows, _template_sides(model.profile, args.two_sided), points=args.points)
     if args.json:
         print(
             to_json_text(
@@ -98,9 +98,9 @@ def _cmd_plan(args) -> int:
         )
     else:
         print(
-            f"{len(rows)} poses (D-optimal over {d.candidates} candidates; of the {d.identifiable} parameter "
-            f"directions the workspace can identify they separate {d.rank} and determine {d.determined} well "
-            "enough for the calibration, which keeps the rest at nominal)"
+            f"{len(rows)} pose{'' if len(rows) == 1 else 's'} (D-optimal over {d.candidates} candidates; of the "
+            f"{d.identifiable} parameter directions the workspace can identify they separate {d.rank} and determine "
+            f"{d.determined} well enough for the calibration, which keeps the rest at nominal)"
         )
     _warn_if_too_few(d, "plan-poses")
     if args.json:
@@ -117,7 +117,8 @@ def _warn_if_too_few(d, command: str) -> None:
     """On stderr: the planned poses ``d`` cannot separate every direction the workspace can identify."""
     if d.rank < d.identifiable:
         print(
-            f"hitch calibrate {command}: warning: {d.poses.shape[0]} poses can separate only {d.rank} of the "
+            f"hitch calibrate {command}: warning: {d.poses.shape[0]} pose{'' if d.poses.shape[0] == 1 else 's'} can "
+            f"separate only {d.rank} of the "
             f"{d.identifiable} parameter directions the workspace can identify, whatever is measured; a "
             f"calibration from them keeps at least {d.identifiable - d.rank} more combinations at nominal: "
             "plan more poses (--n)",
@@ -163,18 +164,26 @@ def _template_sides(profile, two_sided: bool) -> tuple[str, ...]:
     return (fa.side, other) if two_sided else (fa.side,)
 
 
-def _write_plan_csv(path: Path, rows: list[dict[str, Any]], sides: tuple[str, ...] = ()) -> None:
+#: the measurement columns of the marked points (L, R, U: x, y, z each), in a template planned with --points
+POINT_COLUMNS = tuple(f"{p}_{c}" for p in ("L", "R", "U") for c in "xyz")
+
+
+def _write_plan_csv(
+    path: Path, rows: list[dict[str, Any]], sides: tuple[str, ...] = (), *, points: bool = False
+) -> None:
     """The measurement template: label, the planned nominal counts (to be replaced by the readings at rest),
-    the measured pose empty (the operator fills it in), the planned pose as ``target_*`` (m, rad) and, with
+    the measured pose empty (the operator fills it in), with ``points`` the marked points' columns ``L_x … U_z``
+    empty too (a --points plan's template had none), the planned pose as ``target_*`` (m, rad) and, with
     ``sides``, the ``approach`` column: one pass over the poses per side (a goto of the profile as it is, then
     one with its final approach's ``side`` flipped)."""
-    header = ["pose", *(f"{n}_counts" for n in ACTUATOR_NAMES), *CONTROLLED_POSE_NAMES, *TARGET_COLUMNS]
+    measured = [*CONTROLLED_POSE_NAMES, *(POINT_COLUMNS if points else ())]
+    header = ["pose", *(f"{n}_counts" for n in ACTUATOR_NAMES), *measured, *TARGET_COLUMNS]
     header += [APPROACH_COLUMN] if sides else []
     lines = [",".join(header)]
     for side in sides or ("",):
         for r in rows:
             targets = [repr(float(r[k])) for k in CONTROLLED_POSE_NAMES]
-            cells = [r["pose"], *(str(r[f"{n}_counts"]) for n in ACTUATOR_NAMES), "", "", "", "", *targets]
+            cells = [r["pose"], *(str(r[f"{n}_counts"]) for n in ACTUATOR_NAMES), *([""] * len(measured)), *targets]
             lines.append(",".join(cells + ([side] if sides else [])))
     try:
         path.write_text("\n".join(lines) + "\n", encoding="utf-8")
@@ -195,7 +204,13 @@ def _cmd_geometry(args) -> int:
     from planner.calibration.measurements import load_measurements
     from planner.calibration.parameters import CalibrationError
     from planner.calibration.profile_out import write_calibrated_profile
-    from planner.calibration.solve import build_calibration_problem, largest_residuals, solve_calibration
+    from planner.calibration.solve import (
+        build_calibration_problem,
+        check_residual_dof,
+        largest_residuals,
+        outlying_rows,
+        solve_calibration,
+    )
     from planner.profiles.hitch import load_profile
 
     prof = load_profile(args.profile)
@@ -221,6 +236,7 @@ def _cmd_geometry(args) -> int:
             file=sys.stderr,
         )
     data = load_measurements(args.measurements, prof)
+    _warn_copies(args.measurements, data)
     # the lag of the pin play: found where rows name both approach sides and the planner can compensate it
     include_lag = data.two_sided and prof.motion.final_approach is not None and not args.no_lag
     model = _model(args, include_ad=not args.no_ad, include_lag=include_lag, profile=prof)
@@ -229,6 +245,7 @@ def _cmd_geometry(args) -> int:
     )
     try:
         result = solve_calibration(problem, min_singular=args.min_singular)
+        check_residual_dof(result, data)  # too few spare values to check the fit: refused, nothing written
     except CalibrationError as exc:  # "measurements: …" names the file the engineer gave
         raise CalibrationError(f"{args.measurements}: {str(exc).removeprefix('measurements: ')}") from None
     sides = data.side_vector
@@ -281,6 +298,17 @@ def _cmd_geometry(args) -> int:
     )
     if result.residual_sigma > SUSPECT_SIGMA_HAT and args.accept_misfit:  # said on stderr, also with --json
         print(f"hitch: warning: {misfit_text}; written as asked (--accept-misfit)", file=sys.stderr)
+    elif result.residual_sigma <= SUSPECT_SIGMA_HAT:  # one bad cell hides in a good sigma-hat: name its row
+        outliers = outlying_rows(problem, result)
+        if outliers:
+            listed = ", ".join(f"row {r} ({label}) {col} {v:+.1f} σ" for r, label, col, v in outliers[:6])
+            more = f" and {len(outliers) - 6} more" if len(outliers) > 6 else ""
+            print(
+                f"hitch: warning: {args.measurements}: {listed}{more}: beyond {OUTLIER_SIGMA:g} σ of the fit although "
+                f"sigma-hat is {result.residual_sigma:.3g}: check these cells for a wrong value or a slip (the fit "
+                "takes them in as they are)",
+                file=sys.stderr,
+            )
     if args.json:
         largest = [{"row": r, "label": label, "column": col, "residual_sigma": v} for r, label, col, v in worst]
         written = None if short or misfit else str(args.out)
@@ -309,6 +337,17 @@ def _cmd_geometry(args) -> int:
     if not args.json:
         print(f"wrote {args.out}")
     return 0
+
+
+def _warn_copies(source, data) -> None:
+    """On stderr: the rows of ``data``'s file that repeat an earlier row exactly (a copied row), counted once."""
+    for row, earlier in data.copies[:5]:
+        print(f"hitch: warning: {source}: row {row} repeats row {earlier}: counted once", file=sys.stderr)
+    if len(data.copies) > 5:
+        print(
+            f"hitch: warning: {source}: {len(data.copies) - 5} more rows repeat earlier rows: counted once",
+            file=sys.stderr,
+        )
 
 
 def _approach_shorter_than_play(prof, result) -> tuple[list[str], bool]:
@@ -347,11 +386,14 @@ def _print_fit(model, result) -> None:
     print(f"{result.identified} of {len(result.names)} parameter directions identified; parameters (value ± std):")
     units = ["" if p.unit == "1" else p.unit for p in model.params.parameters]  # AD gains: dimensionless
     for n, a, v, s, u, share in zip(
-        result.names, result.nominal, result.values, result.std, units, result.identified_share, strict=True
+        result.names, result.nominal, result.values, result.std_total, units, result.identified_share, strict=True
     ):
         print(f"  {n:36s} {v:+.6f} {u:3s} (nominal {a:+.6f}) {_spread(s, u, share)}")
     if np.any((result.identified_share >= REPORTED_STD_SHARE) & (result.identified_share < IDENTIFIED_SHARE)):
-        print("  * the share of the parameter the poses identify; its std holds with the rest at nominal")
+        print(
+            "  * the share of the parameter the poses identify; its std includes the tape error (σ = scale/√3) "
+            "of the part they cannot identify"
+        )
     if result.unidentifiable:
         print("combinations these poses cannot identify (left at nominal along them):")
         for u in result.unidentifiable:
@@ -372,7 +414,10 @@ def _spread(std: float, unit: str, share: float) -> str:
         return "not identified (kept nominal)"
     if share < REPORTED_STD_SHARE:  # its conditional std (~1e-5 m) would read as known; it is not
         seen = "< 1" if share < 0.005 else f"{100 * share:.0f}"
-        return f"not identified ({seen} % seen: it moves only with the identified combinations it is part of)"
+        return (
+            f"not identified ({seen} % seen: it moves only with the identified combinations it is part of; "
+            f"σ {std:.2e}{' ' + unit if unit else ''}, mostly its tape error)"
+        )
     text = f"± {std:.2e} {unit}".rstrip()
     if share < IDENTIFIED_SHARE:
         text += f", {100 * share:.0f} % identified*"
@@ -442,6 +487,22 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
     )
 
 
+#: the allowed --min-singular: below 0.1 a freed direction moves the fit by less than 0.1 σ per tape size, so
+#: the noise carries it ten tape sizes and more (0.01 and 0 ended where the profile cannot close: a trial)
+MIN_SINGULAR_RANGE = (0.1, 1e6)
+
+
+def _min_singular(text: str) -> float:
+    """argparse type of --min-singular: a number in :data:`MIN_SINGULAR_RANGE`, the error saying why."""
+    try:
+        return bounded_float("--min-singular", *MIN_SINGULAR_RANGE, lo_open=False)(text)
+    except argparse.ArgumentTypeError as exc:
+        raise argparse.ArgumentTypeError(
+            f"{exc} (below {MIN_SINGULAR_RANGE[0]:g} the directions it frees move the fit by less than "
+            f"{MIN_SINGULAR_RANGE[0]:g} σ per tape size: the noise would carry them far; default 1)"
+        ) from None
+
+
 def _profile_name(text: str) -> str:
     """``--name`` checked where it is read: 'my tractor' was refused only after the fit, as "the calibrated
     parameters do not make a valid profile" (a commissioning trial)."""
@@ -484,9 +545,10 @@ def add_commands(sub) -> None:
     )
     g.add_argument(
         "--min-singular",
-        type=bounded_float("--min-singular", 0.0, 1e6, lo_open=False),
+        type=_min_singular,
         default=1.0,
-        help="smallest singular value of the scaled Jacobian still identified (default 1)",
+        help=f"smallest singular value of the scaled Jacobian still identified, [{MIN_SINGULAR_RANGE[0]:g}, "
+        f"{MIN_SINGULAR_RANGE[1]:g}] (default 1)",
     )
     g.add_argument("--no-ad", action="store_true", help="keep the AD map (offsets, gains) at the profile's values")
     g.add_argument(

@@ -223,7 +223,11 @@ def plan_poses(
         raise CalibrationError(f"n (poses to plan) must be an integer in [1, 1000], got {n_poses!r}")
     poses, acts = candidate_poses(model, candidates, seed=seed, two_sided=two_sided)
     if n_poses > poses.shape[0]:
-        raise CalibrationError(f"n = {n_poses} poses asked, only {poses.shape[0]} candidates are reachable")
+        raise CalibrationError(
+            f"n = {n_poses} poses asked, only {poses.shape[0]} candidates are reachable (the workspace box's corners "
+            f"and face centres and {candidates} random poses): ask for fewer poses, or for more candidates "
+            "(candidates, --candidates, up to 100000)"
+        )
     sigma = np.array([sigma_angle_rad if c in _ANGLES else sigma_position_m for c in MEASURED_COLUMNS])
     rows = measured_rows(points=points)
     js = _informations(model, acts, rows, sigma)

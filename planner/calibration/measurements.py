@@ -4,9 +4,10 @@ Columns (header row required; order free; unknown columns are an error):
 
 * ``pose`` — optional label of the row (text);
 * the actuator readings, for each of ``lift, tilt, top, left, right`` **either** ``<name>_counts`` —
-  the raw AD reading the ECU reports (0…1023, may be fractional for an averaged reading), converted
-  with the *nominal* profile's AD map — **or** ``<name>`` — the reading in SI (rad for ``lift``, m
-  for the others) through the nominal AD map, within the stroke ± 10 %;
+  the raw AD reading the ECU reports (may be fractional for an averaged reading), within the nominal AD
+  map's span ± 10 % (and 0…1023), converted with the *nominal* profile's AD map — **or** ``<name>`` —
+  the reading in SI (rad for ``lift``, m for the others) through the nominal AD map, within the stroke
+  ± 10 %;
 * the measured pose in SI: ``x, z, roll, pitch`` (m, rad; all four or none) and optionally ``y, yaw``;
 * optionally marked points in m: ``L_x, L_y, L_z`` (left ball centre), ``R_*`` (right), ``U_*``
   (top-link pin), three columns per point;
@@ -17,7 +18,10 @@ Columns (header row required; order free; unknown columns are an error):
   play averaged). With any row below or above the fit also finds the lag the pin play leaves
   (:mod:`planner.calibration.parameters`).
 
-Every row needs its five readings and at least one measured quantity; an empty cell means "not
+A row that repeats an earlier one exactly (the same readings, approach side and measured values: a
+copied row) is dropped and listed in :attr:`MeasurementSet.copies`; a repeat with other measured values is a
+repeated measurement of that pose and kept. Every row needs its five readings and at least one measured
+quantity; an empty cell means "not
 measured" (only for the measured columns). Measured values must lie within ±3 m (positions) and
 ±π/2 (angles). A bad file raises :class:`~planner.calibration.parameters.CalibrationError` naming the
 row (1 = first data row; the header is row 0) with its line, the column and the allowed range.
@@ -72,13 +76,17 @@ _STROKE_MARGIN = 0.10
 class MeasurementSet:
     """Measured poses: actuator readings (N, 5) in SI through the nominal AD map, measured outputs (N, 15)
     in :data:`OUTPUT_NAMES` order with ``mask`` (N, 15) true where measured, the row labels and the side
-    each pose was approached from (N,: −1 below, +1 above, 0 unknown; default all 0)."""
+    each pose was approached from (N,: −1 below, +1 above, 0 unknown; default all 0). ``rows``: the data row
+    numbers of the file the rows come from (1 = the first; default 1…N: a file's exact copies of earlier rows
+    are dropped, so the numbers may skip), ``copies``: the (row, earlier row) pairs so dropped."""
 
     readings: np.ndarray
     values: np.ndarray
     mask: np.ndarray
     labels: tuple[str, ...]
     sides: np.ndarray | None = None
+    rows: tuple[int, ...] | None = None
+    copies: tuple[tuple[int, int], ...] = ()
 
     def __post_init__(self) -> None:
         n = self.readings.shape[0] if self.readings.ndim == 2 else -1
@@ -90,12 +98,22 @@ class MeasurementSet:
         if sides.shape != (n,) or not np.all(np.isin(sides, (-1.0, 0.0, 1.0))):
             raise CalibrationError("measurements: one approach side per row, each -1 (below), 0 or +1 (above)")
         object.__setattr__(self, "sides", sides)
+        rows = tuple(range(1, n + 1)) if self.rows is None else tuple(int(r) for r in self.rows)
+        if len(rows) != n:
+            raise CalibrationError("measurements: one row number per row")
+        object.__setattr__(self, "rows", rows)
         if not np.all(np.isfinite(self.readings)) or not np.all(np.isfinite(self.values[self.mask])):
             raise CalibrationError("measurements: readings and measured values must be finite")
 
     @property
     def n_rows(self) -> int:
         return int(self.readings.shape[0])
+
+    @property
+    def row_numbers(self) -> tuple[int, ...]:
+        """The file's data row number of each row (1 = the first data row)."""
+        assert self.rows is not None  # set in __post_init__
+        return self.rows
 
     @property
     def n_poses(self) -> int:
@@ -149,6 +167,7 @@ class MeasurementSet:
             self.mask[idx],
             tuple(self.labels[i] for i in idx),
             self.side_vector[idx],
+            tuple(self.row_numbers[i] for i in idx),
         )
 
 
@@ -254,7 +273,9 @@ def parse_measurements(text: str, profile: Profile, *, source: str = "measuremen
     if not measured:
         raise CalibrationError(f"{source} {head}: no measured column (x, z, roll, pitch and/or L_x … U_z)")
     sc = SensorScaling(profile)
-    readings, values, masks, labels, sides = [], [], [], [], []
+    readings, values, masks, labels, sides, rows = [], [], [], [], [], []
+    copies: list[tuple[int, int]] = []
+    first: dict[tuple[Any, ...], int] = {}
     for r, (where, cells) in enumerate(_data_rows(reader, len(header), source), start=1):
         q = np.zeros(5)
         for k, n in enumerate(ACTUATOR_NAMES):
@@ -264,6 +285,12 @@ def parse_measurements(text: str, profile: Profile, *, source: str = "measuremen
                 q[k] = _cell(cells[cols[n]], where, n, lo - m, hi + m, "rad" if n == "lift" else "m")
             else:
                 c = _cell(cells[cols[f"{n}_counts"]], where, f"{n}_counts", 0.0, float(AD_COUNTS_MAX), "counts")
+                lo, hi = _counts_range(sc, k)
+                if not lo <= c <= hi:  # a count the sensor cannot give (0 for a span 28…258) was accepted
+                    raise CalibrationError(
+                        f"{where}, column {n}_counts: {c:g} counts is outside the allowed [{lo:g}, {hi:g}] counts "
+                        f"(the profile's {n} sensor span {sc.counts_min[k]:.0f}…{sc.counts_max[k]:.0f} counts ± 10 %)"
+                    )
                 q[k] = sc.si_min[k] + (c - sc.counts_min[k]) * sc.resolution[k]
         vals = np.full(15, np.nan)
         mask = np.zeros(15, dtype=bool)
@@ -290,14 +317,36 @@ def parse_measurements(text: str, profile: Profile, *, source: str = "measuremen
                     "(allowed: below, above, or empty for unknown)"
                 )
             side = APPROACH_SIDES[word]
+        key = (tuple(q), side, tuple(np.where(mask, vals, 0.0)), tuple(mask))
+        if key in first:  # an exact copy of an earlier row (readings, side and every measured value): no new data
+            copies.append((r, first[key]))
+            continue
+        first[key] = r
         readings.append(q)
         values.append(vals)
         masks.append(mask)
         labels.append(cells[cols["pose"]] if "pose" in cols else str(r))
         sides.append(side)
+        rows.append(r)
     if not readings:
         raise CalibrationError(f"{source}: no data rows after the header")
-    return MeasurementSet(np.array(readings), np.array(values), np.array(masks), tuple(labels), np.array(sides))
+    return MeasurementSet(
+        np.array(readings),
+        np.array(values),
+        np.array(masks),
+        tuple(labels),
+        np.array(sides),
+        tuple(rows),
+        tuple(copies),
+    )
+
+
+def _counts_range(sc: SensorScaling, k: int) -> tuple[float, float]:
+    """The counts a reading of actuator ``k`` may have: the nominal AD map's span ± 10 % (as the SI columns'
+    stroke ± 10 %: the map is fitted, so a reading may lie a little beyond it), within 0…1023. A count the
+    sensor cannot give (0 for a span 28…258) was accepted, and the fit blamed other rows (a trial)."""
+    m = _STROKE_MARGIN * (sc.counts_max[k] - sc.counts_min[k])
+    return max(0.0, math.floor(sc.counts_min[k] - m)), min(float(AD_COUNTS_MAX), math.ceil(sc.counts_max[k] + m))
 
 
 def load_measurements(path: str | Path, profile: Profile) -> MeasurementSet:

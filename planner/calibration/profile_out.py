@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from planner.calibration.parameters import CalibrationError, ParameterSet
-from planner.calibration.solve import UNIDENTIFIED_SHARE, CalibrationResult
+from planner.calibration.solve import UNIDENTIFIED_SHARE, CalibrationResult, weak_fit_cause
 from planner.errors import HitchInputError
 from planner.model.exact_inverse import ExactInverse
 from planner.model.kinematics import HitchModel
@@ -120,7 +120,24 @@ def calibrated_profile_toml(
     if result.names != params.names:
         raise CalibrationError("the calibration result is not for this parameter set")
     base = params.profile
-    data = params.profile_dict(result.values, name=name or f"{base.name}-calibrated"[:80])
+    weak = weak_fit_cause(
+        result.names,
+        result.scale,
+        (result.values - result.nominal) / result.scale,
+        result.singular_values,
+        result.identified,
+        result.min_singular,
+        result.residual_sigma,
+        result.converged,
+        [p.unit for p in params.parameters],
+    )
+    try:
+        data = params.profile_dict(result.values, name=name or _calibrated_name(base.name))
+    except CalibrationError as exc:
+        if weak is None:
+            raise
+        why = str(exc).split(". The fit went far")[0]
+        raise CalibrationError(f"{why}: {weak}; nothing was written") from None
     data["stability"]["tractor_profile"] = tractor_profile_for(data["stability"]["tractor_profile"], out_folder)
     _keep_the_neutral_pose(data, base)
     when = date or _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat()
@@ -133,10 +150,11 @@ def calibrated_profile_toml(
         "residual_sigma": float(result.residual_sigma),
         "identified": result.identified,
         "nominal_profile": base.name,
-        # a std only where the data see the parameter (identified share > 0); the share beside it
+        # a std only where the data see the parameter (identified share > 0), with the tape prior of the part
+        # they do not see (std_total: the identified part's alone read 1.5e-05 m for one 41σ off); the share beside it
         "std": {
             n: float(s)
-            for n, s, h in zip(result.names, result.std, result.identified_share, strict=True)
+            for n, s, h in zip(result.names, result.std_total, result.identified_share, strict=True)
             if h >= UNIDENTIFIED_SHARE
         },
         "identified_share": {n: round(float(h), 4) for n, h in zip(result.names, result.identified_share, strict=True)},
@@ -167,6 +185,10 @@ def calibrated_profile_toml(
     try:  # a profile the planner cannot use (no neutral pose, no closure) is never written
         HitchModel(prof)
     except HitchInputError as exc:
+        if weak is not None:
+            raise CalibrationError(
+                f"the calibrated profile cannot be used: {exc}. {weak}; nothing was written"
+            ) from None
         raise CalibrationError(
             f"the calibrated profile cannot be used: {exc}. The measurements do not fit the model (residual RMS "
             f"{1e3 * result.residual_rms_position_m:.3f} mm / {1e3 * result.residual_rms_angle_rad:.3f} mrad, "
@@ -175,6 +197,16 @@ def calibrated_profile_toml(
             "swapped); nothing was written"
         ) from None
     return text
+
+
+#: the suffix of a calibrated profile's default name
+CALIBRATED_SUFFIX = "-calibrated"
+
+
+def _calibrated_name(base: str) -> str:
+    """``<base>-calibrated`` (at most 80 characters), once: recalibrating ``mine-calibrated`` keeps its name (it
+    became ``mine-calibrated-calibrated``)."""
+    return base[:80] if base.endswith(CALIBRATED_SUFFIX) else f"{base}{CALIBRATED_SUFFIX}"[:80]
 
 
 def write_calibrated_profile(

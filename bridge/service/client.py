@@ -772,6 +772,8 @@ class HitchClient:
         not known (a fleet trial: a wait through a router restart returned the stop's state of a motion the link
         loss had aborted, and ``hitch goto --wait`` called it a success).
 
+        A restarted service (its state's ``seq`` goes back) ends the wait too: the motion is gone.
+
         :class:`ServiceTimeout` when it has not ended within ``timeout_s``, or (``link_lost``) as soon as this
         client's session has reached no router or peer for ``link_grace_s`` (default :data:`LINK_GRACE_S`): no
         state can then come, and the service may have stopped the motion (before, such a wait hung silently for
@@ -781,9 +783,14 @@ class HitchClient:
         last: dict = {}
 
         def on_state(s: dict) -> None:
+            seq, before = s.get("seq"), last.get("seq")
             last.update(s)
             mid = s.get("motion_id")
             if isinstance(mid, int) and (mid > motion_id or (mid == motion_id and not s.get("moving"))):
+                done.set()
+            elif isinstance(seq, int) and isinstance(before, int) and seq < before:
+                # the service restarted: its motion is gone and it numbers its motions from 1 again (a review:
+                # the wait ran to its timeout and said "still running"); how it ended is not known here
                 done.set()
 
         sub = self.subscribe("state", on_state)

@@ -275,6 +275,10 @@ def run_field_loop(
         except MotionError as exc:
             raise FieldLoopError(f"the track session could not start: {exc}") from None
         work = WorkController(s.work, z_rate_max_m_s=draft_rate_limit(mc.planner, p0) if s.rate_limit else None)
+        # the z the session can reach (the workspace: no implement bounds here), as the live service passes it
+        # (bridge.service.work): the regulator clips its demand and integrator there (a review: the loop did
+        # not, so its draft could wind up below the workspace floor where the service's cannot)
+        z_range = (float(mc.planner.lo[1]), float(mc.planner.hi[1]))
         front = None if s.preview is None else PreviewSensor(sc.twin, s.preview)
         preview = None
         if front is not None:
@@ -337,6 +341,7 @@ def run_field_loop(
                 ground_z=ground,
                 ground_ahead_z=ground_ahead,
                 z_measured=z_meas,
+                z_range=z_range,
             )
             cycle_s.append(time.perf_counter() - w0)
             cycle_cpu_s.append(time.thread_time() - c0)

@@ -427,7 +427,7 @@ class ImplementService:
         """Whether a raise of ``implement`` starting now starts from a work position: no quick motion of it is
         remembered, or the last one was a return that arrived, or the operator started a motion (not a stop)
         after it. False while the hitch is between work and the headland because of a raise (running, stopped
-        or replaced) or a return that has not arrived: its work pose is kept."""
+        or replaced by another raise) or a return that has not arrived: its work pose is kept."""
         with self._quick_lock:
             q = self._quick
             if q is None or q["implement"] != implement:
@@ -438,11 +438,14 @@ class ImplementService:
             return _is_id(mid) and _is_id(newest) and newest > mid
 
     def _quick_started(self, implement: str, what: str, motion_id: Any) -> None:
-        """Remember the quick raise / return just accepted (its end may have been announced already)."""
-        arrived = any(
-            e.get("motion_id") == motion_id and e.get("event") == "motion_finished" for e in list(self._ended_motions)
-        )
+        """Remember the quick raise / return just accepted (its end may have been announced already). Looked up
+        under the lock: :meth:`on_event` files an end in ``_ended_motions`` before :meth:`_note_motion` takes the
+        lock, so an end is either seen here or marks this record there, never lost between (a review)."""
         with self._quick_lock:
+            arrived = any(
+                e.get("motion_id") == motion_id and e.get("event") == "motion_finished"
+                for e in list(self._ended_motions)
+            )
             self._quick = {"implement": implement, "what": what, "motion_id": motion_id, "arrived": arrived}
 
     def _note_motion(self, event: Mapping[str, Any]) -> None:

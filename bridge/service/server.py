@@ -45,6 +45,7 @@ SIGTERM.
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import sys
 import tempfile
@@ -540,8 +541,11 @@ class HitchService:
         its wait, or one started while the router between them was down — are found when they meet: each holds
         a second token ``<prefix>/instance/<start ns>-<zid>`` and watches ``<prefix>/instance/*``. Meeting
         another, both brake to rest and announce ``prefix_conflict``; the one that started later (the larger
-        instance name) ends itself (:attr:`conflict`, :func:`serve` exits on it), the earlier one serves on.
-        Before, both answered every request: one ``goto`` moved two tractors (a fleet trial)."""
+        instance name) refuses every request but ``stop`` at once and ends itself (:attr:`conflict`,
+        :func:`serve` exits on it), the earlier one serves on. Before, both answered every request: one ``goto``
+        moved two tractors (a fleet trial). "Later" is by the computers' clocks (the start time in the name; the
+        Zenoh id breaks a tie): with a clock far off the earlier service may be the one that ends — either way
+        both have braked and one serves the prefix."""
         cfg, s = self.config, self.session
         assert s is not None
         self.instance = f"{self.instance}-{s.info.zid()}"
@@ -554,6 +558,8 @@ class HitchService:
         other = str(sample.key_expr).rsplit("/", 1)[-1]
         if sample.kind != zenoh.SampleKind.PUT or other == self.instance or other in self._instances_met:
             return
+        if not _INSTANCE_NAME.fullmatch(other):  # not a service's (it would sort first and end this one)
+            return
         self._instances_met.add(other)
         later = other < self.instance  # the other started first: this one is the later
         text = (
@@ -563,7 +569,7 @@ class HitchService:
             + ("this service, the later one, ends itself" if later else "the later one ends itself, this one serves on")
         )
         if later:
-            self.conflict = text
+            self.conflict = text  # from now on every request but stop is refused (_answer); serve() ends on it
         api = self.api
         if api is None:
             return
@@ -749,6 +755,9 @@ class HitchService:
         try:
             if self.api is None or self._closed:
                 ok, reply = False, {"error": "unavailable", "message": f"{key}: the service is shutting down"}
+            elif self.conflict is not None and key != "stop":  # it ends: a goto here could move a second tractor
+                why = f"{key}: refused, the service ends: {self.conflict}"
+                ok, reply = False, {"error": "unavailable", "message": why}
             else:
                 ok, reply = self.api.handle(key, payload, user, received=received)
             data = to_json_bytes(reply)
@@ -869,6 +878,10 @@ def _serves_user_keys(cfg: ServiceConfig) -> bool:
     if cfg.user_keys != "auto":
         return bool(cfg.user_keys)
     return cfg.security is not None and cfg.mode != "client" and acl_scopes_users(cfg.security)
+
+
+#: a service's instance name on its prefix (_watch_instances): start time [ns] in 20 digits, '-', its Zenoh id
+_INSTANCE_NAME = re.compile(r"\d{20}-[0-9a-f]{1,32}")
 
 
 def _ring() -> Any:

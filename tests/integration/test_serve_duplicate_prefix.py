@@ -138,3 +138,51 @@ def test_two_services_that_meet_on_one_prefix_stop_and_the_later_one_ends(tmp_pa
             if p is not None:
                 p.kill()
         router.close()
+
+
+def test_the_later_of_two_services_refuses_every_request_but_stop_at_once_and_junk_names_are_ignored(tmp_path):
+    """A review: the service that must end went on answering (a goto could still move both tractors) until
+    serve()'s 0.5 s poll ended it, and an embedded service never acted on it; and any token under
+    <prefix>/instance/ (e.g. "0", which sorts first) made the real service end itself."""
+    import json
+    import types
+
+    from bridge.service.config import ServiceConfig
+    from bridge.service.server import HitchService
+
+    cfg = ServiceConfig(
+        listen=[f"tcp/127.0.0.1:{free_port()}"], data_dir=tmp_path, planning_processes=0, prefix="conflict/hitch"
+    )
+    svc = HitchService(cfg).start()
+    try:
+        events: list[dict] = []
+        svc.add_listener("event", events.append)
+
+        def meet(name: str) -> None:
+            key = f"conflict/hitch/instance/{name}"
+            svc._on_instance(types.SimpleNamespace(key_expr=key, kind=zenoh.SampleKind.PUT))
+
+        def ask(key: str, body: dict) -> tuple[bool, dict]:
+            out: list = []
+            svc.dispatch(key, json.dumps(body).encode(), lambda ok, data: out.append((ok, json.loads(data))))
+            deadline = time.monotonic() + 10.0
+            while not out and time.monotonic() < deadline:
+                time.sleep(0.01)
+            return out[0]
+
+        for junk in ("0", "00000000000000000001", "notes-ab", "0000000000000000000x-ab"):
+            meet(junk)
+        assert svc.conflict is None and ask("config", {})[0]
+        meet("00000000000000000001-0a")  # started long before this one
+        assert svc.conflict is not None and "this service, the later one, ends itself" in svc.conflict
+        ok, reply = ask("goto", {"goal": {"z": 0.1}})
+        assert not ok and reply["error"] == "unavailable" and "refused, the service ends" in reply["message"], reply
+        assert not ask("config", {})[0]
+        assert ask("stop", {})[0]  # stop always
+        wait_until = time.monotonic() + 5.0
+        while time.monotonic() < wait_until and not any(e.get("event") == "prefix_conflict" for e in events):
+            time.sleep(0.02)
+        conflict = [e for e in events if e.get("event") == "prefix_conflict"]
+        assert conflict and conflict[0]["ends"] is True and conflict[0]["other"] == "00000000000000000001-0a", events
+    finally:
+        svc.close()

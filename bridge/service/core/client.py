@@ -36,7 +36,7 @@ from bridge.service.motion.types import MotionError
 from bridge.service.security import Credentials
 from planner.trajectory import MotionState, TrajectoryPlanner
 
-__all__ = ["CoreError", "CoreProcess", "MotionProxy", "JsonReply"]
+__all__ = ["CoreError", "CoreProcess", "MotionProxy", "JsonReply", "core_config_json"]
 
 #: how long the core may take to start (models, buses, Zenoh) [s]
 START_TIMEOUT_S = 60.0
@@ -56,6 +56,14 @@ class JsonReply:
 
     def to_json(self) -> dict[str, Any]:
         return dict(self._data)
+
+
+def core_config_json(cfg: ServiceConfig) -> str:
+    """The service's config as the core process reads it back (``ServiceConfig.model_validate_json``): only
+    the fields the user set, so the copy knows which were set, as the service's own does (a full dump marked
+    every field set: the field twin then took ``sim_ground_speed``'s default 1.5 m/s for the user's speed and
+    drove at it instead of the field's own 8 km/h, a review)."""
+    return cfg.model_dump_json(exclude_unset=True)
 
 
 class CoreProcess:
@@ -107,7 +115,7 @@ class CoreProcess:
                     "-m",
                     "bridge.service.core.process",
                     str(fd),
-                    self.config.model_dump_json(),
+                    core_config_json(self.config),
                     json.dumps(self.endpoints),
                     *(["login"] if self.credentials is not None or self.zid is not None else []),
                 ],

@@ -173,3 +173,32 @@ def test_the_wait_ends_when_its_session_loses_the_router(tmp_path, monkeypatch, 
             svc.close()
         router.kill()
         router.wait(10)
+
+
+def test_a_wait_ends_when_the_service_restarts_and_the_outcome_is_unknown():
+    """A review: a service restarted during `--wait` numbers its motions from 1 again (and its state's seq), so
+    the wait, which ended only on the motion's own id at rest or a newer one, ran to its timeout and said "still
+    running". The state's seq going back ends it; the caller has heard no outcome (UNKNOWN)."""
+
+    class Restarting:
+        def subscribe(self, what, callback):
+            assert what == "state"
+
+            def feed():
+                for s in (
+                    {"seq": 900, "motion_id": 7, "moving": True},
+                    {"seq": 901, "motion_id": 7, "moving": True},
+                    {"seq": 2, "motion_id": None, "moving": False},  # the restarted service
+                ):
+                    time.sleep(0.05)
+                    callback(s)
+
+            threading.Thread(target=feed, daemon=True).start()
+            return type("Sub", (), {"close": lambda self: None})()
+
+        def linked(self):
+            return True
+
+    t0 = time.monotonic()
+    last = HitchClient.wait_motion(Restarting(), 7, timeout_s=10.0)  # type: ignore[arg-type]
+    assert last["seq"] == 2 and time.monotonic() - t0 < 5.0, last

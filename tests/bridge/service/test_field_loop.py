@@ -119,3 +119,16 @@ def test_the_ground_preview_sees_the_ground_under_the_tool_one_hitch_lag_ahead(m
         FieldLoopSettings(preview_lead_s=2.0)
     with pytest.raises(FieldLoopError, match="preview"):
         FieldLoopSettings(preview="front")
+
+
+def test_a_draft_demand_beyond_the_workspace_floor_stops_at_the_floor_in_the_field_loop(model, patches):
+    """A review: the live service clips the draft regulator to the z the session can reach, the field loop (the
+    benches' closed loop) did not: a draft setpoint far above what the soil gives wound its z setpoint below
+    the workspace floor."""
+    from planner.trajectory import TrajectoryPlanner
+
+    floor = float(TrajectoryPlanner(model).lo[1])
+    work = WorkSettings(mode="draft", draft_setpoint_n=300_000.0, depth_min_m=0.0, depth_max_m=0.6)
+    r = run_field_loop(model, patches, FieldLoopSettings(work=work, duration_s=6.0, settle_s=1.0))
+    assert np.nanmin(r.z_setpoint) >= floor - 1e-9, (float(np.nanmin(r.z_setpoint)), floor)
+    assert np.nanmin(r.z_setpoint) == pytest.approx(floor, abs=1e-3)  # it went down to it

@@ -868,3 +868,21 @@ def test_the_config_reply_names_the_ground_speed_the_field_twin_drives():
         cfg = ServiceConfig(sim_field="chisel", **kw)
         info = service_info(cfg, build_guard(cfg, build_model(cfg)))
         assert info["can"]["simulated_ground_speed"] == pytest.approx(speed, abs=1e-3), (kw, info["can"])
+
+
+def test_the_core_process_reads_the_config_with_the_fields_the_user_set():
+    """A review: the service handed its config to the core process as a full dump, which marked every field set:
+    with the core in its own process (the default) the field twin took sim_ground_speed's default 1.5 m/s for
+    the user's and drove at it, not at the field's 8 km/h."""
+    from bridge.service.core.client import core_config_json
+    from bridge.service.work import simulated_ground_speed
+
+    for kw in (
+        {"sim_field": "chisel"},
+        {"sim_field": "chisel", "sim_ground_speed": 1.5},
+        {"mode": "client", "connect": ["tcp/127.0.0.1:7447"]},
+    ):
+        cfg = ServiceConfig(**kw)
+        copy = ServiceConfig.model_validate_json(core_config_json(cfg))
+        assert copy == cfg and copy.model_fields_set == cfg.model_fields_set, kw
+        assert simulated_ground_speed(copy) == simulated_ground_speed(cfg), kw

@@ -17,12 +17,13 @@ import json
 import sys
 
 from bridge.cli.errors import CLIError
-from bridge.service.config import DEFAULT_LISTEN, ZENOH_LEASE_MS, validate_endpoint
+from bridge.cli.model import bounded_float
+from bridge.service.config import DEFAULT_LEASE_S, DEFAULT_LISTEN, LEASE_RANGE_S, validate_endpoint
 
 __all__ = ["add_commands", "router_config", "router_warnings"]
 
 
-def router_config(listen: list[str], security: str | None = None):
+def router_config(listen: list[str], security: str | None = None, lease_s: float = DEFAULT_LEASE_S):
     """The zenoh.Config of a router listening on ``listen`` (no multicast scouting), secured by the security file
     ``security``; a file that would leave the router unprotected is refused (``security.SecurityError``, see
     :func:`router_warnings`)."""
@@ -37,7 +38,8 @@ def router_config(listen: list[str], security: str | None = None):
     z.insert_json5("listen/endpoints", json.dumps(eps))
     z.insert_json5("connect/endpoints", "[]")
     z.insert_json5("scouting/multicast/enabled", "false")
-    z.insert_json5("transport/link/tx/lease", json.dumps(ZENOH_LEASE_MS))  # a frozen router noticed within it
+    # its services count a frozen router lost within this (and brake, on_link_loss = "stop")
+    z.insert_json5("transport/link/tx/lease", json.dumps(round(lease_s * 1000.0)))
     if security is not None:
         apply_security(z, security)
     return z
@@ -61,7 +63,7 @@ def _cmd_router(args) -> int:
     listen = args.listen or [DEFAULT_LISTEN]
     try:
         warnings = router_warnings(listen, args.security)
-        config = router_config(listen, args.security)
+        config = router_config(listen, args.security, args.lease_s)
     except SecurityError as exc:
         raise CLIError(f"hitch router: {exc}") from None
     for w in warnings:
@@ -95,5 +97,13 @@ def add_commands(sub) -> None:
         default=None,
         help="the router's Zenoh security file (JSON5: users dictionary, access_control, TLS; docs/security.md §5); "
         "a file that authenticates no link and enables no access control (a client's) is refused",
+    )
+    lo, hi = LEASE_RANGE_S
+    p.add_argument(
+        "--lease-s",
+        type=bounded_float("--lease-s", lo, hi, unit="s", lo_open=False),
+        default=DEFAULT_LEASE_S,
+        help=f"the link lease the router announces, [{lo:g}, {hi:g}] s (default {DEFAULT_LEASE_S:g}): its services "
+        "count a router silent this long lost (and brake, on_link_loss = stop); longer for radio links with gaps",
     )
     p.set_defaults(handler=_cmd_router)

@@ -66,11 +66,15 @@ __all__ = [
 
 #: Loopback only by default: nothing outside this machine reaches the service unless configured.
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
-#: the Zenoh link lease a service and ``hitch router`` announce [ms] (Zenoh's default 10 000): a node that
-#: hears nothing from them this long closes the link. With the default a frozen router (SIGSTOP, a hung
-#: host, a half-open TCP link) was noticed by its services only after 9 s, while nobody could stop the hitch
-#: through it (a fleet trial); now within about this time. Keep-alives go every quarter of it.
-ZENOH_LEASE_MS = 2000
+#: the Zenoh link lease a service and ``hitch router`` announce by default [s] (``[zenoh] lease_s``,
+#: ``hitch router --lease-s``; Zenoh's own default is 10 s): a node that hears nothing from them this long closes
+#: the link. With Zenoh's default a frozen router (SIGSTOP, a hung host, a half-open TCP link) was noticed by its
+#: services only after 9 s, while nobody could stop the hitch through it (a fleet trial). Keep-alives go every
+#: quarter of it. A radio link with longer gaps needs a longer lease (a router's lease decides when its services
+#: count it lost and, with ``on_link_loss = "stop"``, brake).
+DEFAULT_LEASE_S = 2.0
+#: the allowed lease range [s]
+LEASE_RANGE_S = (0.5, 60.0)
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|unixsock-stream|ws)/[^\s]+$")
 _CHUNK = re.compile(r"^[A-Za-z0-9_\-.]+$")
 
@@ -132,6 +136,9 @@ class ServiceConfig(BaseModel):
     #: when every node of ``connect`` (the router, for a client) is lost: "stop" brakes any motion to rest (the
     #: fleet can no longer stop it; an event says so either way), "continue" lets it run on (docs/faults.md)
     on_link_loss: Literal["stop", "continue"] = "stop"
+    #: the Zenoh link lease this service announces [s] (:data:`DEFAULT_LEASE_S`): how long a router or a client
+    #: waits for word from it before it counts the link lost
+    lease_s: float = Field(DEFAULT_LEASE_S, ge=LEASE_RANGE_S[0], le=LEASE_RANGE_S[1])
     #: Zenoh security config (JSON5: usrpwd, access_control, TLS) merged into the session config
     security: Path | None = None
     #: serve each user's own request keys (``<prefix>/user/<name>/<key>``: admission, store owner and black box
@@ -284,6 +291,7 @@ _TOML_SECTIONS = {
         "mode": "mode",
         "listen": "listen",
         "on_link_loss": "on_link_loss",
+        "lease_s": "lease_s",
         "connect": "connect",
         "prefix": "prefix",
         "security": "security",

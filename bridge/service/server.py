@@ -62,7 +62,7 @@ from bridge.link.can_link import CanLink
 from bridge.link.realtime import RealtimeRunner
 from bridge.service.api import API_KEYS, ServiceAPI
 from bridge.service.client import zenoh_reason
-from bridge.service.config import ZENOH_LEASE_MS, ServiceConfig
+from bridge.service.config import ServiceConfig
 from bridge.service.core.client import CoreProcess, MotionProxy
 from bridge.service.core.process import freeze_startup_objects, lock_memory
 from bridge.service.gnss import restore_lines, start_twin_gnss
@@ -150,7 +150,7 @@ class ServiceStopped(HitchError, RuntimeError):
 
 
 def build_zenoh_config(cfg: ServiceConfig) -> zenoh.Config:
-    """The session config: mode, endpoints, scouting, the link lease (:data:`ZENOH_LEASE_MS`), then the security
+    """The session config: mode, endpoints, scouting, the link lease (``lease_s``), then the security
     file (if any)."""
     z = zenoh.Config()
     for path, value in (
@@ -158,7 +158,7 @@ def build_zenoh_config(cfg: ServiceConfig) -> zenoh.Config:
         ("listen/endpoints", list(cfg.listen or ())),
         ("connect/endpoints", list(cfg.connect)),
         ("scouting/multicast/enabled", cfg.scouting),
-        ("transport/link/tx/lease", ZENOH_LEASE_MS),
+        ("transport/link/tx/lease", round(cfg.lease_s * 1000.0)),
     ):
         z.insert_json5(path, json.dumps(value))
     if cfg.security is not None:

@@ -69,6 +69,8 @@ def test_toml_then_flags(tmp_path):
         ({"user_keys": "yes"}, "user_keys must be \"auto\", true or false, got 'yes'"),
         ({"http": "127.0.0.1:174010"}, "(port 0…65535)"),
         ({"http_hosts": ["cab.local:70000"]}, "(port 0…65535)"),
+        ({"lease_s": 0.1}, "lease_s"),
+        ({"lease_s": 600}, "lease_s"),
     ],
 )
 def test_bad_values_name_the_field(kwargs, text):
@@ -194,3 +196,22 @@ def test_a_client_that_reaches_no_router_is_told_what_to_check(tmp_path):
     text = str(ei.value)
     assert f"connect {ep}" in text and "Unable to connect" in text, text
     assert "check that a router listens there, and whether it requires a login or TLS (--security)" in text, text
+
+
+def test_the_link_lease_is_the_services_and_the_routers_to_set(tmp_path):
+    """A review: the 2 s lease (a frozen router noticed within it, not after Zenoh's 10 s) was a constant; a radio
+    link with longer gaps braked the hitch with no way to say so. [zenoh] lease_s and hitch router --lease-s."""
+    import json
+
+    from bridge.cli.router import router_config
+    from bridge.service.server import build_zenoh_config
+
+    def lease_ms(z) -> int:
+        return json.loads(z.get_json("transport"))["link"]["tx"]["lease"]
+
+    assert lease_ms(build_zenoh_config(ServiceConfig())) == 2000
+    f = tmp_path / "svc.toml"
+    f.write_text("[zenoh]\nlease_s = 7.5\n")
+    assert lease_ms(build_zenoh_config(load_service_config(f))) == 7500
+    assert lease_ms(router_config(["tcp/127.0.0.1:7447"])) == 2000
+    assert lease_ms(router_config(["tcp/127.0.0.1:7447"], None, 12.0)) == 12000

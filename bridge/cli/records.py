@@ -2,7 +2,8 @@
 
 ``hitch log`` prints the service's event log (``<data dir>/log/events.jsonl`` and its rotated
 files, oldest first; :mod:`bridge.service.blackbox`): who asked what, accepted or refused,
-faults and motion outcomes. ``--follow`` then keeps printing new records (Ctrl-C ends it).
+faults and motion outcomes; ``--kind``, ``--key`` (a request's key or an event's name) and ``--since`` (a
+duration ago or a local time) pick records. ``--follow`` then keeps printing new records (Ctrl-C ends it).
 ``hitch replay FILE`` reads a CAN log recorded with ``hitch serve --can-log FILE`` (or any
 ``.asc``/``.blf``/candump ``.log`` of the same bus) into a CAN link and prints what it decodes:
 references, measurements with the measured pose, the tractor's sensors, heartbeats (``--all``) and
@@ -13,6 +14,8 @@ frames that cannot be decoded are always printed, and the closing line counts ev
 
 from __future__ import annotations
 
+import argparse
+import re
 import time
 from enum import Enum
 from pathlib import Path
@@ -77,7 +80,8 @@ def _cmd_log(args) -> int:
         else:
             c.print(format_record(rec), markup=False, highlight=False)
 
-    records = read_events(path)
+    keep = _record_filter(args)
+    records = [r for r in read_events(path) if keep(r)]
     absent = not records and not path.exists()
     if absent:
         if not args.follow:
@@ -89,15 +93,77 @@ def _cmd_log(args) -> int:
             markup=False,
             highlight=False,
         )
+    if not records and not absent and not args.follow and not args.json:
+        c.print(f"(no record of {path} matches --kind / --key / --since)", markup=False, highlight=False)
     for rec in records[-args.last :] if args.last else records:
         show(rec)
     if args.follow:
         try:
             for rec in follow_events(path, from_start=absent):  # a log that appears since: all of it
-                show(rec)
+                if keep(rec):
+                    show(rec)
         except KeyboardInterrupt:
             return 0
     return 0
+
+
+#: the kinds of black-box record (bridge.service.blackbox): ``hitch log --kind``
+RECORD_KINDS = ("request", "event", "service", "gap", "dropped", "suppressed", "unreadable")
+_AGO = re.compile(r"^(\d+(?:\.\d+)?)\s*(s|min|m|h|d)$")
+_AGO_S = {"s": 1.0, "m": 60.0, "min": 60.0, "h": 3600.0, "d": 86400.0}
+
+
+def _names(what: str, allowed: tuple[str, ...] | None = None):
+    """argparse type: comma-separated names of ``what`` (``allowed``: each one of these); argparse names the
+    option."""
+
+    def parse(text: str) -> frozenset[str]:
+        names = [n.strip() for n in text.split(",") if n.strip()]
+        unknown = [n for n in names if allowed is not None and n not in allowed]
+        if not names or unknown:
+            raise argparse.ArgumentTypeError(
+                f"unknown {what} {', '.join(unknown) or '(none given)'}; allowed: "
+                + (", ".join(allowed) if allowed is not None else "names separated by commas")
+            )
+        return frozenset(names)
+
+    return parse
+
+
+def _since(text: str) -> float:
+    """argparse type for ``--since``: a duration ago (``90s``, ``10m``, ``2h``, ``1d``) or a local time
+    (``2026-12-06 21:00``, ``…:30``, ``21:00`` today) → Unix time [s]."""
+    t = text.strip()
+    m = _AGO.match(t)
+    if m:
+        return time.time() - float(m.group(1)) * _AGO_S[m.group(2)]
+    for fmt in ("%Y-%m-%d %H:%M:%S", "%Y-%m-%d %H:%M", "%Y-%m-%dT%H:%M:%S", "%Y-%m-%dT%H:%M", "%H:%M:%S", "%H:%M"):
+        try:
+            parsed = time.strptime(t, fmt)
+        except ValueError:
+            continue
+        if fmt.startswith("%H"):  # today
+            today = time.localtime()
+            parsed = time.struct_time((today.tm_year, today.tm_mon, today.tm_mday, *parsed[3:6], 0, 0, -1))
+        return time.mktime(parsed)
+    raise argparse.ArgumentTypeError(
+        f"{text!r}: a duration ago (90s, 10m, 2h, 1d) or a local time (2026-12-06 21:00[:30], 21:00)"
+    )
+
+
+def _record_filter(args):
+    """The records ``hitch log`` shows: ``--kind``, ``--key`` (a request's key or an event's name), ``--since``."""
+    kinds, keys, since = args.kind, args.key, args.since
+
+    def keep(rec: dict[str, Any]) -> bool:
+        if kinds is not None and rec.get("kind") not in kinds:
+            return False
+        if keys is not None and rec.get("key") not in keys and rec.get("event") not in keys:
+            return False
+        t = rec.get("t")
+        return since is None or (isinstance(t, (int, float)) and t >= since)
+
+    return keep
 
 
 def _fmt_fields(fields: dict[str, Any]) -> str:
@@ -171,8 +237,6 @@ def _cmd_replay(args) -> int:
 
 def _message_names(text: str) -> frozenset[str]:
     """``--only``: comma-separated message names the codec knows (argparse names the option)."""
-    import argparse
-
     from bridge.isobus.codec import PAYLOAD_NAMES
 
     names = [n.strip() for n in text.split(",") if n.strip()]
@@ -197,6 +261,27 @@ def add_commands(sub) -> None:
         "--last", type=whole_number("--last"), default=0, help="print only the last N records first, N >= 0 (0: all)"
     )
     p.add_argument("--json", action="store_true", help="print the records as JSON lines")
+    p.add_argument(
+        "--kind",
+        type=_names("kind", RECORD_KINDS),
+        default=None,
+        metavar="KINDS",
+        help=f"only these record kinds, comma-separated: {', '.join(RECORD_KINDS)}",
+    )
+    p.add_argument(
+        "--key",
+        type=_names("key"),
+        default=None,
+        metavar="NAMES",
+        help="only requests on these keys and events of these names, comma-separated (e.g. goto,stop,fault)",
+    )
+    p.add_argument(
+        "--since",
+        type=_since,
+        default=None,
+        metavar="WHEN",
+        help="only records from then on: a duration ago (90s, 10m, 2h, 1d) or a local time (2026-12-06 21:00, 21:00)",
+    )
     p.set_defaults(handler=_cmd_log)
 
     p = sub.add_parser("replay", help="replay a recorded CAN log (hitch serve --can-log) into a link, decoded")

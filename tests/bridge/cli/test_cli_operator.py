@@ -18,7 +18,7 @@ import pytest
 from bridge.cli import service as cli_service
 from bridge.cli.main import main
 from bridge.cli.output import console, esc
-from bridge.service.blackbox import EventLog, event_log_path
+from bridge.service.blackbox import EventLog, event_log_path, read_events
 from planner.model.exact_inverse import ExactInverse
 from planner.model.kinematics import HitchModel
 from planner.model.sensors import SensorScaling
@@ -614,3 +614,38 @@ def test_jog_help_names_jog_velocity_as_a_field_of_the_config_reply_not_a_settin
     text = " ".join(capsys.readouterr().out.split())
     assert "config key" not in text
     assert "not a service setting" in text and "`hitch config --json` shows it as limits.jog_velocity" in text
+
+
+def test_hitch_log_picks_records_by_kind_key_and_time(tmp_path, capsys):
+    """A service engineer reading an incident: the log printed everything, without a way to pick the faults, one
+    key's requests or the last ten minutes."""
+    path = event_log_path(tmp_path)
+    log = EventLog(path)
+    log.on_event({"seq": 1, "event": "mode_changed", "mode": "manual"})
+    log.on_request("goto", "olga", b'{"goal": {"z": 0.1}}', True, {"accepted": True, "motion_id": 4})
+    log.on_request("presets/save", "olga", b'{"name": "a"}', False, {"error": "bad_request", "message": "no"})
+    log.on_event({"seq": 2, "event": "fault", "faults": ["ecu_heartbeat"], "message": "ECU heartbeat timeout"})
+    log.close()
+    recs = [r for r in read_events(path) if r["kind"] in ("request", "event")]
+    old = recs[0]["t"]
+
+    def shown(*argv: str) -> list[str]:
+        assert main(["log", "--data-dir", str(tmp_path), "--json", *argv]) == 0
+        return [
+            json.loads(line).get("key") or json.loads(line).get("event")
+            for line in capsys.readouterr().out.splitlines()
+        ]
+
+    assert shown("--kind", "event") == ["mode_changed", "fault"]
+    assert shown("--key", "goto,fault") == ["goto", "fault"]
+    assert shown("--kind", "request", "--key", "presets/save") == ["presets/save"]
+    assert (
+        "mode_changed" in shown("--since", "1h")
+        and shown("--since", time.strftime("%Y-%m-%d %H:%M", time.localtime(old + 120))) == []
+    )
+    assert main(["log", "--data-dir", str(tmp_path), "--key", "jog"]) == 0
+    assert "matches --kind / --key / --since" in capsys.readouterr().out
+    assert main(["log", "--data-dir", str(tmp_path), "--kind", "requests"]) == 2
+    assert "--kind: unknown kind requests; allowed: request, event" in _err_line(capsys)
+    assert main(["log", "--data-dir", str(tmp_path), "--since", "yesterday"]) == 2
+    assert "--since: 'yesterday': a duration ago (90s, 10m, 2h, 1d) or a local time" in _err_line(capsys)

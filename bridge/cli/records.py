@@ -32,9 +32,12 @@ _QUIET_MESSAGES = frozenset({"Heartbeat", "AddressClaimed", "RequestPgn", "Wheel
 
 
 def _when(t: Any) -> str:
-    if not isinstance(t, (int, float)):
+    if not isinstance(t, (int, float)) or isinstance(t, bool):
         return "-"
-    return time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(t)) + f".{int((t % 1) * 1000):03d}"
+    try:
+        return time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(t)) + f".{int((t % 1) * 1000):03d}"
+    except (OverflowError, OSError, ValueError):  # a damaged record's time (1e300, NaN): shown as it is
+        return f"t={t!r}"
 
 
 def format_record(rec: dict[str, Any]) -> str:

@@ -125,7 +125,7 @@ def _cmd_serve(args) -> int:
         can_log_max_mb=args.can_log_max_mb,
         can_log_keep=args.can_log_keep,
     )
-    from bridge.service.blackbox import CanRecorder, EventLog, event_log_path
+    from bridge.service.blackbox import CanRecorder, EventLog, ended_cleanly, event_log_path, last_record
 
     sys.setswitchinterval(5e-4)  # threads waiting for the GIL (the 50 Hz loop) wait ≤ 0.5 ms, not 5 ms
     if cfg.can_log is not None:  # refuse a bad suffix before anything starts (the recorder runs with the CAN buses)
@@ -136,7 +136,18 @@ def _cmd_serve(args) -> int:
     def ready(service) -> None:
         nonlocal blackbox
         served.append(service)
+        before = last_record(event_log_path(cfg.data_dir))
         blackbox = EventLog(event_log_path(cfg.data_dir))
+        if not ended_cleanly(before):  # killed, crashed, power lost: its last motion has no outcome in the log
+            assert before is not None
+            blackbox.record(
+                "service",
+                what="previous_run_unclean",
+                message=f"the previous run ended without a stop record (killed, crashed or power lost) after "
+                f"record #{before.get('seq')}; what it did last has no outcome here",
+                last_seq=before.get("seq"),
+                last_t=before.get("t"),
+            )
         blackbox.record(
             "service",
             what="started",
@@ -163,8 +174,12 @@ def _cmd_serve(args) -> int:
             flush=True,
         )
 
+    why: str | None = None  # why serve ended other than by a signal (a control core that died …)
     try:
         took = serve(cfg, ready=ready)
+    except BaseException as exc:
+        why = f"{type(exc).__name__}: {exc}" if not isinstance(exc, KeyboardInterrupt) else None
+        raise
     finally:
         if blackbox is not None:
             blackbox.summarize()  # the requests held back by the flood limits, counted before the stop record
@@ -173,7 +188,8 @@ def _cmd_serve(args) -> int:
             lost = discarded_recording(getattr(served[0], "api", None)) if served else None
             if lost is not None:  # discarded without trace, before (a field user's report)
                 blackbox.record("service", **lost)
-            blackbox.record("service", what="stopped")
+            # the reason when it was not a stop signal (a killed control core read as a normal stop: a trial)
+            blackbox.record("service", what="stopped", **({"reason": why} if why else {}))
             blackbox.close()
     print(f"hitch serve: stopped in {took * 1000:.0f} ms", flush=True)
     args.end_process = True  # everything is closed: the program ends here (bridge.cli.main)

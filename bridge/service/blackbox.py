@@ -93,6 +93,8 @@ __all__ = [
     "follow_events",
     "replay_can_log",
     "WRITING_KEYS",
+    "last_record",
+    "ended_cleanly",
     "WRITING_PREFIXES",
     "READ_OR_WRITE_KEYS",
     "is_writing_key",
@@ -432,6 +434,7 @@ class EventLog:
         self.path = Path(path)
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
+            _end_torn_line(self.path)
             self._handler = _PrivateRotatingFileHandler(
                 self.path, maxBytes=max_bytes, backupCount=backup_count, encoding="utf-8"
             )
@@ -631,9 +634,9 @@ def _log_files(path: Path) -> list[Path]:
     return [p for _, p in sorted(rotated, reverse=True)] + ([path] if path.exists() else [])
 
 
-def last_seq(path: str | Path, *, tail_bytes: int = 65_536) -> int:
-    """The ``seq`` of the newest readable record of the log at ``path`` (the live file, else the newest
-    rotated one), 0 for none. Reads only the files' last ``tail_bytes``; a torn last line (a killed
+def last_record(path: str | Path, *, tail_bytes: int = 65_536) -> dict[str, Any] | None:
+    """The newest readable record (with a ``seq``) of the log at ``path`` (the live file, else the newest
+    rotated one), None for none. Reads only the files' last ``tail_bytes``; a torn last line (a killed
     writer) is skipped."""
     p = Path(path)
     for f in reversed(_log_files(p)):
@@ -647,9 +650,36 @@ def last_seq(path: str | Path, *, tail_bytes: int = 65_536) -> int:
         for line in reversed(tail.splitlines()):
             rec = _parse_line(line)
             seq = None if rec is None else rec.get("seq")
-            if isinstance(seq, int) and not isinstance(seq, bool) and seq >= 0:
-                return seq
-    return 0
+            if rec is not None and isinstance(seq, int) and not isinstance(seq, bool) and seq >= 0:
+                return rec
+    return None
+
+
+def last_seq(path: str | Path, *, tail_bytes: int = 65_536) -> int:
+    """The ``seq`` of :func:`last_record`, 0 for none."""
+    rec = last_record(path, tail_bytes=tail_bytes)
+    return 0 if rec is None else int(rec["seq"])
+
+
+def ended_cleanly(record: dict[str, Any] | None) -> bool:
+    """Whether a log whose newest record is ``record`` was closed by its service (``service`` ``stopped``), or
+    holds none; False after a kill, a crash or a power loss, which leave no stop record."""
+    return record is None or (record.get("kind") == "service" and record.get("what") == "stopped")
+
+
+def _end_torn_line(path: Path) -> None:
+    """A log whose last line was cut (a writer killed mid-line, power lost) gets its newline, so the next record
+    starts a line of its own (it was appended to the torn one: both unreadable)."""
+    try:
+        with path.open("rb+") as fh:
+            fh.seek(0, os.SEEK_END)
+            if fh.tell() == 0:
+                return
+            fh.seek(-1, os.SEEK_END)
+            if fh.read(1) != b"\n":
+                fh.write(b"\n")
+    except FileNotFoundError:
+        return
 
 
 def _parse_line(line: str) -> dict[str, Any] | None:

@@ -189,8 +189,14 @@ class CoreProcess:
                 fut.set_result(rest[0])
             else:
                 fut.set_exception(CoreError(str(rest[0]), str(rest[1])))
-        code = None if self.process is None else self.process.poll()
-        self.ended = self.ended or f"the control core ended (exit code {code})"
+        code = None
+        if self.process is not None:
+            try:  # its socket closed as it died: the exit status follows at once (poll() said None: not reaped yet)
+                code = self.process.wait(timeout=1.0)
+            except subprocess.TimeoutExpired:
+                code = None
+        how = "still running" if code is None else f"killed by signal {-code}" if code < 0 else f"exit code {code}"
+        self.ended = self.ended or f"the control core ended ({how})"
         with self._pending_lock:
             pending, self._pending = list(self._pending.values()), {}
         for fut in pending:

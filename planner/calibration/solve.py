@@ -329,8 +329,9 @@ def solve_calibration(
         ) from None
 
 
-class _MapError(Exception):
-    """The AD map the fit reached cannot be written (snapping it to whole counts); its text says why."""
+class _MapError(CalibrationError):
+    """The AD map the fit reached cannot be written (snapping it to whole counts); its text says why (a
+    CalibrationError: every exception of the planner derives from HitchError)."""
 
 
 def weak_fit_cause(

@@ -542,7 +542,14 @@ class CanLink:
             HeartbeatState.SHUTDOWN,
             HeartbeatState.SEQUENCE_ERROR,  # a repeated or jumping counter: a hung sender (ISO 11783-7)
         ):
-            out.append(("ecu_heartbeat", f"ECU heartbeat {hb.state.value}"))
+            # how long, against what limit, and the counter last heard (an incident investigator's report: it
+            # said "ECU heartbeat timeout" alone, where the stale fault says its age and limit)
+            said = f"ECU heartbeat {hb.state.value}"
+            if hb.state is HeartbeatState.TIMEOUT and hb.age_s is not None:
+                said += f": none for {hb.age_s:.3f} s (limit {cfg.heartbeat_timeout_s:g} s)"
+            if hb.last_sequence is not None:
+                said += f"; last counter {hb.last_sequence}"
+            out.append(("ecu_heartbeat", said))
         elif hb.state is HeartbeatState.WAITING and now_s - since > cfg.heartbeat_timeout_s + _EPS_S:
             out.append(("ecu_heartbeat", f"no ECU heartbeat for {now_s - since:.3f} s"))
         return out

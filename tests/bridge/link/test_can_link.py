@@ -493,6 +493,37 @@ def test_missing_and_error_heartbeats_stop_motion(model):
     ecu_bus.shutdown()
 
 
+def test_a_silent_heartbeat_fault_says_how_long_against_what_limit_and_the_last_counter(model):
+    """An incident investigator's report: the fault said "ECU heartbeat timeout" alone, where the stale
+    measurement's says its age and limit."""
+    ch = f"hb-silent-{uuid.uuid4().hex}"
+    bus, ecu_bus = (can.Bus(interface="virtual", channel=ch) for _ in range(2))
+    link = CanLink(model, bus)
+    counts = SensorScaling(model.profile).to_counts(model.neutral)
+    tilt, top, left, right = (int(c) for c in counts[1:])
+    link.start(0.0)
+    seq, t = 251, 0.0
+    for k in range(1, 60):  # measurements every 10 ms, heartbeats every 100 ms
+        t = k * 0.01
+        ecu_bus.send(encode(PositionMeasurement(tilt, top, right, left, 1), source=169))
+        ecu_bus.send(encode(RearHitchStatus(position=0.5), source=169))
+        if k % 10 == 0:
+            ecu_bus.send(encode(Heartbeat(seq), source=169))
+            last, seq = seq, 0 if seq == 251 else seq + 1
+        link.poll(t)
+    for k in range(60, 110):  # the heartbeats stop, the measurements go on
+        t = k * 0.01
+        ecu_bus.send(encode(PositionMeasurement(tilt, top, right, left, 1), source=169))
+        ecu_bus.send(encode(RearHitchStatus(position=0.5), source=169))
+        link.poll(t)
+    assert link.faults.ecu_heartbeat
+    said = [r for r in link.faults.reasons if "heartbeat" in r]
+    assert said and said[0].startswith("ECU heartbeat timeout: none for 0."), said
+    assert f"s (limit {link.config.heartbeat_timeout_s:g} s); last counter {last}" in said[0], said
+    bus.shutdown()
+    ecu_bus.shutdown()
+
+
 def test_a_frozen_heartbeat_counter_stops_motion_and_clears_once_in_sequence_again(model):
     """An ECU whose main loop hangs while its CAN controller keeps re-sending the last heartbeat: the
     counter repeats every 100 ms. ISO 11783-7 calls that a communication error and docs/faults.md says

@@ -760,8 +760,8 @@ FLUSH_EVERY_S = 0.25
 
 
 class _Flusher(can.Listener):
-    """Flushes a text log writer's file every ``every_s`` seconds of frames (runs after the writer;
-    the rotating logger's current writer, which changes at each rotation)."""
+    """Flushes a log writer's file every ``every_s`` seconds of frames (a BLF writer's container too; runs after
+    the writer; the rotating logger's current writer, which changes at each rotation)."""
 
     def __init__(self, logger: can.io.BaseRotatingLogger, every_s: float) -> None:
         self._logger, self._every_s = logger, every_s
@@ -772,11 +772,19 @@ class _Flusher(can.Listener):
         if now - self._last >= self._every_s:
             self._last = now
             writer = self._logger.writer
-            if isinstance(writer, TextIOMessageWriter):
-                try:
+            try:
+                if isinstance(writer, can.BLFWriter):
+                    # a BLF writer holds up to a 128 KiB container (some 7 s of this bus) in memory: a kill or a
+                    # power loss lost it (an incident investigator's trial: a whole goto missing). Its container
+                    # is written now; python-can has no public call for it (4.x: _flush), so only if it is there
+                    write_container = getattr(writer, "_flush", None)
+                    if callable(write_container):
+                        write_container()
                     writer.file.flush()
-                except (OSError, ValueError):  # closed meanwhile
-                    pass
+                elif isinstance(writer, TextIOMessageWriter):
+                    writer.file.flush()
+            except (OSError, ValueError):  # closed meanwhile
+                pass
 
 
 class _Counter(can.Listener):
@@ -932,7 +940,7 @@ class CanRecorder:
             raise
         self._count = _Counter()
         listeners: list[can.Listener] = [self._writer]
-        if isinstance(self._writer.writer, TextIOMessageWriter):  # text logs reach the disk within 0.25 s
+        if isinstance(self._writer.writer, (TextIOMessageWriter, can.BLFWriter)):  # on the disk within 0.25 s
             listeners.append(_Flusher(self._writer, FLUSH_EVERY_S))
         self._notifier = can.Notifier(self._bus, [*listeners, self._count], timeout=0.1)
         self._closed = False

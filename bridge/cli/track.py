@@ -750,6 +750,7 @@ def _stream(args, c, spec: _Spec) -> int:
     ours = reason == "track/stop"
     unknown = None
     if outcome is None and problem is None:  # its end was seen in the state only: the event never came
+        reason, note = "outcome unknown (its end event was not heard)", None  # not "ended: -", nor the signal blamed
         unknown = (
             f"hitch: outcome UNKNOWN: session {session} (motion {mid}) ended, but its end event was not heard — "
             "events were missed (the link to the service broke, or a router restarted); `hitch log` on the "

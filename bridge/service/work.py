@@ -262,7 +262,13 @@ class WorkControl:
         with self._lock:
             own = self._session  # work/start again: its own live session is taken over, another one is not
         acc = self.motion.track_start(
-            "tractor", ("z",), WORK_TTL_S, deadline=deadline, issued=issued, replace=own if own is not None else False
+            "tractor",
+            ("z",),
+            WORK_TTL_S,
+            deadline=deadline,
+            issued=issued,
+            replace=own if own is not None else False,
+            caller="work/start",
         )
         with self._lock:
             old = self._session  # replaced by this one: it finished (it ended without a word: a new user's report)

@@ -345,10 +345,18 @@ class MotionProxy:
         deadline: float | None = None,
         issued: float | None = None,
         replace: bool | int = False,
+        caller: str = "track/start",
     ) -> JsonReply:
         return JsonReply(
             self.core.call(
-                "track_start", frame, tuple(dofs), float(ttl_s), deadline=deadline, issued=issued, replace=replace
+                "track_start",
+                frame,
+                tuple(dofs),
+                float(ttl_s),
+                deadline=deadline,
+                issued=issued,
+                replace=replace,
+                caller=caller,
             )
         )
 

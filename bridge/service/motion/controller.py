@@ -479,6 +479,7 @@ class MotionController:
         deadline: float | None = None,
         issued: float | None = None,
         replace: bool | int = False,
+        caller: str = "track/start",
     ) -> TrackAccepted:
         """Start a track session (``docs/tracking.md``): setpoints of ``dofs`` in ``frame`` follow with
         online jerk-limited motion; without a setpoint within ``ttl_s`` the hitch brakes to rest and
@@ -486,7 +487,8 @@ class MotionController:
         while a stop brakes or a jog command is live (stop > jog > track > goto). Another live session
         whose stream is fresh (not ending) is taken over only with ``replace`` True, or ``replace`` its
         session number (work control restarting its own); else ``busy``: two streams would fight over
-        the hitch, each cutting the other off. ``deadline`` and ``issued`` as for :meth:`goto`."""
+        the hitch, each cutting the other off. ``caller``: the request the refusal advises for (``work/start`` has
+        no ``replace``). ``deadline`` and ``issued`` as for :meth:`goto`."""
         if frame not in TRACK_FRAMES:
             raise MotionError("bad_request", f"frame must be one of {', '.join(TRACK_FRAMES)}, got {frame!r}")
         with self._lock:
@@ -504,11 +506,13 @@ class MotionController:
             if isinstance(m, TrackMotion) and not m.ending and replace is not True and replace != m.session:
                 owned = self.work is not None and self.work.owns(m.session)
                 whose = " (work control's: work/stop ends it)" if owned else ""
-                raise MotionError(
-                    "busy",
-                    f"track session {m.session} (frame {m.frame}, dof {', '.join(m.dofs)}) is live{whose}: "
-                    "track/stop ends it; track/start with replace: true takes it over",
+                how = (
+                    "track/stop ends it; track/start with replace: true (hitch track --replace) takes it over"
+                    if caller == "track/start"
+                    else "end it first (track/stop: hitch track's Ctrl-C, the terminal's levelling off)"
                 )
+                live = f"track session {m.session} (frame {m.frame}, dof {', '.join(m.dofs)}) is live{whose}"
+                raise MotionError("busy", f"{live}: {how}")
             why = link_problem(self.link.status(now), now, self.link.config.stale_after_s)
             if why:
                 raise MotionError("ecu", f"track refused: {why}")

@@ -171,6 +171,13 @@ def test_a_session_whose_end_event_was_not_heard_is_outcome_unknown_not_success(
     err = capsys.readouterr().err
     assert "hitch: outcome UNKNOWN: session 7 (motion 70) ended, but its end event was not heard" in err, err
     assert "stop the hitch another way" not in err
+    # the summary says so, and no end note blames the signal (a new user's trial: "ended: -", then "the signal ran
+    # faster than the hitch may follow" after a router restart)
+    fake = FakeService(lose_events=True, braking=0.02, v_stop=0.05)
+    assert _run_with(monkeypatch, fake, "--sine", "z=0.02@0.5Hz", "--duration", "0.1") == 1
+    out = capsys.readouterr()
+    assert "ended: outcome unknown (its end event was not heard)" in out.out and "ended: -" not in out.out, out.out
+    assert "the signal ran faster" not in out.err, out.err
 
 
 SIGHUP_SCRIPT = """

@@ -326,7 +326,7 @@ def test_a_second_track_start_is_refused_while_a_stream_is_live_unless_it_replac
     assert not ok and reply["error"] == "busy", reply
     assert reply["message"] == (
         f"track/start: track session {session} (frame tractor, dof roll) is live: track/stop ends it; "
-        "track/start with replace: true takes it over"
+        "track/start with replace: true (hitch track --replace) takes it over"
     ), reply
     assert r.states[-1]["track"]["session"] == session  # untouched
     ok, reply = r.setpoint(session, {"roll": 0.0})

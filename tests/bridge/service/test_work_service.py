@@ -157,6 +157,8 @@ def test_work_and_another_track_stream_never_take_each_other_over_silently(model
         level = s.ok("track/start", {"dof": ["roll"], "ttl_ms": 500})["session"]
         ok, r = s.call("work/start", {"deadline_ms": 10_000})
         assert not ok and r["error"] == "busy" and f"track session {level} " in r["message"], r
+        # work/start has no replace: it is told to end the stream first (a new user's trial: it was told replace)
+        assert "replace" not in r["message"] and "end it first (track/stop" in r["message"], r
         assert not s.states[-1]["work"]["running"]
     finally:
         s.close()

@@ -6,10 +6,14 @@ faults and motion outcomes; ``--kind``, ``--key`` (a request's key or an event's
 duration ago or a local time) pick records. ``--follow`` then keeps printing new records (Ctrl-C ends it).
 ``hitch replay FILE`` reads a CAN log recorded with ``hitch serve --can-log FILE`` (or any
 ``.asc``/``.blf``/candump ``.log`` of the same bus) into a CAN link and prints what it decodes:
-references, measurements with the measured pose, the tractor's sensors, heartbeats (``--all``) and
-the faults the link raises in the log's time. Each message is printed at most once per ``--interval``
-per sender (the bus carries some 400 frames a second), ``--only`` picks message names; faults and
-frames that cannot be decoded are always printed, and the closing line counts every frame.
+references, measurements with the measured pose (the ECU's system state in words), the tractor's sensors,
+heartbeats (``--all``) and every fault the link raises and clears in the log's time (a stale measurement or
+missing heartbeat at the log's start, before the first one arrived, is said to be that and not counted). Each
+message is printed at most once per ``--interval`` per sender (the bus carries some 400 frames a second),
+``--only`` picks message names — for ``--json`` too; faults and frames that cannot be decoded are always
+printed, and the closing line counts every frame and the faults raised and cleared. The first line says when
+the log starts (local and Unix time), ``--clock`` puts each line's local time of day in front, and JSON
+records carry ``timestamp`` (Unix s): to line a replay up with ``hitch log``.
 """
 
 from __future__ import annotations
@@ -170,10 +174,14 @@ def _record_filter(args):
 
 
 def _fmt_fields(fields: dict[str, Any]) -> str:
+    from bridge.service.blackbox import describe_system_state
+
     out = []
     for k, v in fields.items():
         if isinstance(v, Enum):
             v = v.name
+        elif k == "system_state" and isinstance(v, int) and not isinstance(v, bool):
+            v = f"{v} ({describe_system_state(v)})"  # the ECU's bit field in words: watchdog tripped …
         elif isinstance(v, dict):
             v = "/".join(str(x) for x in v.values())
         elif isinstance(v, float):
@@ -182,46 +190,92 @@ def _fmt_fields(fields: dict[str, Any]) -> str:
     return " ".join(out)
 
 
+def _local(t: float, fmt: str) -> str:
+    """Local time ``t`` (Unix s) to the millisecond, rounded (``_when`` cuts: 1.16 would show as .159)."""
+    secs, ms = divmod(round(t * 1000), 1000)
+    try:
+        return time.strftime(fmt, time.localtime(secs)) + f".{ms:03d}"
+    except (OverflowError, OSError, ValueError):
+        return f"t={t!r}"
+
+
+def _time_of_day(t: float | None) -> str:
+    """``--clock``: local time of day of a record (``-`` when the log has no date)."""
+    return f"{'-':12}" if t is None else _local(t, "%H:%M:%S")
+
+
 def _cmd_replay(args) -> int:
     from bridge.service.blackbox import replay_can_log
 
     model = model_from_args(args)
     c = console(soft_wrap=True)
     counts: dict[str, int] = {}
-    faults = 0
+    raised = cleared = at_start = 0
     last_t: dict[tuple[str, int | None], float] = {}  # per message and sender: when it was last printed
     only: frozenset[str] | None = args.only
-    for r in replay_can_log(Path(args.file), model, stale_after_s=args.stale_after):
-        if args.json:
-            print(to_json_text(r.to_json()))
-        if r.name == "fault":
-            faults += len(r.faults)
-            for f in r.faults if not args.json else ():
-                c.print(f"{r.t_s:9.3f} s  FAULT {f}", markup=False, highlight=False)
-            continue
-        counts[r.name] = counts.get(r.name, 0) + 1
-        if args.json:
-            continue
-        if r.error:
-            c.print(f"{r.t_s:9.3f} s  {r.name} from {r.source}: not decoded ({r.error})", markup=False, highlight=False)
-            continue
+    started = False
+
+    def shown(r) -> bool:
+        """--only, --interval and --all pick the frames shown (text and JSON alike); faults and frames that
+        cannot be decoded are always shown."""
+        if r.name in ("fault", "fault_cleared") or r.error:
+            return True
         if only is not None and r.name not in only:
-            continue
+            return False
         if not args.all:
             if only is None and r.name in _QUIET_MESSAGES:
-                continue
+                return False
             key = (r.name, r.source)
             if r.t_s - last_t.get(key, -float("inf")) < args.interval:
-                continue
+                return False
             last_t[key] = r.t_s
-        line = f"{r.t_s:9.3f} s  {r.name} from {r.source}: {_fmt_fields(dict(r.fields))}"
-        if r.pose is not None:
-            p = r.pose
-            line += (
-                f"  -> pose x={p['x']:+.4f} m z={p['z']:+.4f} m roll={p['roll']:+.4f} rad pitch={p['pitch']:+.4f} rad"
-            )
-        c.print(line, markup=False, highlight=False)
-    if not counts and not faults:  # python-can's text readers skip what they cannot parse: say it, not "0 frames"
+        return True
+
+    def say(r, text: str) -> None:
+        head = f"{_time_of_day(r.timestamp)}  " if args.clock else ""
+        c.print(f"{head}{r.t_s:9.3f} s  {text}", markup=False, highlight=False)
+
+    for r in replay_can_log(Path(args.file), model, stale_after_s=args.stale_after):
+        if not started and not args.json:  # the log's wall-clock start, to line it up with `hitch log`
+            started = True
+            if r.timestamp is None:
+                c.print(
+                    "log starts at an unknown time (its header names no date; times below count from its first frame)",
+                    markup=False,
+                    highlight=False,
+                )
+            else:
+                start = r.timestamp - r.t_s
+                c.print(f"log starts {_local(start, '%Y-%m-%d %H:%M:%S')} ({start:.6f})", markup=False, highlight=False)
+        if r.name == "fault":
+            at_start += r.log_start
+            raised += not r.log_start
+        elif r.name == "fault_cleared":
+            cleared += not r.log_start
+        else:
+            counts[r.name] = counts.get(r.name, 0) + 1
+        if not shown(r):
+            continue
+        if args.json:
+            print(to_json_text(r.to_json()))
+            continue
+        if r.name == "fault":
+            for f in r.faults:
+                say(r, f if r.log_start else f"FAULT {r.fault}: {f}")
+        elif r.name == "fault_cleared":
+            say(r, r.faults[0] if r.log_start and r.faults else f"CLEARED {r.fault}")
+        elif r.error:
+            say(r, f"{r.name} from {r.source}: not decoded ({r.error})")
+        else:
+            line = f"{r.name} from {r.source}: {_fmt_fields(dict(r.fields))}"
+            if r.pose is not None:
+                p = r.pose
+                line += (
+                    f"  -> pose x={p['x']:+.4f} m z={p['z']:+.4f} m roll={p['roll']:+.4f} rad "
+                    f"pitch={p['pitch']:+.4f} rad"
+                )
+            say(r, line)
+    if not counts:  # python-can's text readers skip what they cannot parse: say it, not "0 frames"
         size = Path(args.file).stat().st_size
         raise CLIError(
             f"CAN log {args.file} ({size} bytes): no CAN frame in it — a recording of a bus with no traffic, or "
@@ -231,7 +285,8 @@ def _cmd_replay(args) -> int:
         c.print(
             f"{sum(counts.values())} frames: "
             + (", ".join(f"{n} {k}" for k, n in sorted(counts.items())) or "none")
-            + f"; {faults} faults raised",
+            + f"; {raised} faults raised, {cleared} cleared"
+            + (f" (and {at_start} at the log's start, before its first measurement or heartbeat)" if at_start else ""),
             markup=False,
             highlight=False,
         )
@@ -308,6 +363,11 @@ def add_commands(sub) -> None:
         type=bounded_float("--stale-after", 0.0, 10.0, unit="s"),
         default=0.2,
         help="the link's stale-measurement limit, (0, 10] s (default 0.2, the service's)",
+    )
+    p.add_argument(
+        "--clock",
+        action="store_true",
+        help="print each line's local time of day too (the log's own timestamps), to line it up with `hitch log`",
     )
     add_model_options(p)
     p.set_defaults(handler=_cmd_replay)

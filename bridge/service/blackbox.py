@@ -48,8 +48,8 @@ suffix) through a listener bus of its own on the same channel, rotated by size l
 format's suffix stays last, so every file reads back with :class:`can.LogReader` and ``hitch replay``).
 :func:`replay_can_log` reads a recorded
 log (:class:`can.LogReader`) into a :class:`~bridge.link.can_link.CanLink` on a private channel,
-in the log's time, and yields what the link made of it: decoded frames, measured poses and the
-faults the link raised.
+in the log's time, and yields what the link made of it: decoded frames (with their Unix time), measured
+poses and each fault the link raised or cleared.
 """
 
 from __future__ import annotations
@@ -1024,13 +1024,56 @@ class CanRecorder:
         self.close()
 
 
+def describe_system_state(value: Any) -> str:
+    """The cylinder ECU's system-state byte (0xFF22 byte 8) in words: its bits by name and the restart count,
+    e.g. ``controllers on, watchdog tripped; restart count 0`` (a value that is no byte: as it is)."""
+    from bridge.isobus.messages import CodecError
+    from bridge.isobus.system_state import decode_system_state
+
+    try:
+        s = decode_system_state(value)
+    except CodecError:
+        return repr(value)
+    words = ["controllers on" if s.controllers_on else "controllers off"]
+    words += [
+        text
+        for on, text in (
+            (s.watchdog_tripped, "watchdog tripped"),
+            (s.end_stop_relay, "end-stop relay engaged"),
+            (s.no_reference_since_restart, "no reference since restart"),
+        )
+        if on
+    ]
+    return ", ".join(words) + f"; restart count {s.restart_count_mod16}"
+
+
+def _named(value: Any) -> Any:
+    """JSON-able fields with enums by name (as the text shows them), the rest as :func:`_plain` renders it."""
+    if isinstance(value, Enum):
+        return value.name
+    if is_dataclass(value) and not isinstance(value, type):
+        return _named(asdict(value))
+    if isinstance(value, Mapping):
+        return {str(k): _named(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_named(v) for v in value]
+    return _plain(value)
+
+
 @dataclass(frozen=True)
 class ReplayRecord:
     """One replayed frame: log time ``t_s`` (from the first frame), J1939 source, message and fields.
 
-    ``pose`` is the link's measured pose (x, z [m], roll, pitch [rad]) after a measurement;
-    ``error`` the codec's reason for a frame it could not decode. A record named ``fault`` (no
-    source) lists the faults the link raised at ``t_s`` (their reasons), between or at frames.
+    ``timestamp`` is the frame's own time (Unix time [s]; python-can's ASC reader is asked for absolute times,
+    from the log's header date) — None when the log carries no date (an ``.asc`` whose header names none:
+    its times only count from its start). ``pose`` is the link's measured pose (x, z [m], roll, pitch [rad])
+    after a measurement; ``error`` the codec's reason for a frame it could not decode.
+
+    Records named ``fault`` and ``fault_cleared`` (no source) say that the link raised fault ``fault`` at
+    ``t_s`` (``faults``: its reason) or that it cleared (its cause gone), between or at frames; every raise
+    and every clear is one record. ``log_start``: a stale measurement or a missing ECU heartbeat at the start
+    of the log, before the first complete measurement (or heartbeat) arrived — the recording began before the
+    link heard it, which is no fault of the machine — and, on a ``fault_cleared``, the end of that.
     """
 
     t_s: float
@@ -1040,17 +1083,28 @@ class ReplayRecord:
     pose: Mapping[str, float] | None = None
     faults: tuple[str, ...] = ()
     error: str = ""
+    timestamp: float | None = None
+    fault: str = ""
+    log_start: bool = False
 
     def to_json(self) -> dict[str, Any]:
-        return {
+        out: dict[str, Any] = {
             "t": self.t_s,
+            "timestamp": self.timestamp,
             "source": self.source,
             "message": self.name,
-            "fields": _plain(self.fields),
+            "fields": _named(self.fields),
             "pose": None if self.pose is None else dict(self.pose),
             "faults": list(self.faults),
-            **({"error": self.error} if self.error else {}),
         }
+        if "system_state" in self.fields:
+            out["system_state"] = describe_system_state(self.fields["system_state"])
+        if self.fault:
+            out["fault"] = self.fault
+            out["log_start"] = self.log_start
+        if self.error:
+            out["error"] = self.error
+        return out
 
 
 #: source address of the replaying link (J1939: off-board diagnostic-service tool #1), so the
@@ -1060,14 +1114,64 @@ REPLAY_ADDRESS = 249
 _REPLAY_STEP_S = 0.01
 
 
-def _frames(path: Path) -> Iterator[can.Message]:
+def _is_asc(path: Path) -> bool:
+    suffixes = [x.lower() for x in path.suffixes]
+    return suffixes[-1:] == [".asc"] or suffixes[-2:] == [".asc", ".gz"]
+
+
+#: the fraction of a second in an ASC header date (``… 21:51:58.42 2026``)
+_ASC_FRACTION = r"(:\d{2})\.(\d{1,3})(?=\s)"
+
+
+class _AscReader(can.ASCReader):
+    """python-can's ASC reader with absolute times read right: its writer puts the header's milliseconds
+    unpadded (42 ms as ``58.42``) and its reader takes them as a fraction (``.42`` s), up to 0.9 s wrong; here
+    one to three digits are milliseconds (CANoe writes three, where both readings agree). ``dated``: a header
+    date was read (without one, python-can counts the times from 0 even when asked for absolute ones)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.dated = False
+
+    def _datetime_to_timestamp(self, datetime_string: str) -> float:  # type: ignore[override]  # called on self
+        import re
+
+        fixed = re.sub(_ASC_FRACTION, lambda m: f"{m.group(1)}.{int(m.group(2)):03d}", datetime_string)
+        t = can.ASCReader._datetime_to_timestamp(fixed)
+        self.dated = True
+        return t
+
+
+def _reader(path: Path, wall: bool) -> tuple[Any, Iterator[can.Message]]:
+    """python-can's reader of ``path`` and its frames; an ``.asc`` with absolute times (``wall``) — its reader's
+    default are times relative to the header's date."""
+    if not _is_asc(path):
+        reader = can.LogReader(str(path))
+    elif path.suffix.lower() == ".gz":
+        import gzip
+
+        reader = _AscReader(gzip.open(path, mode="rt"), relative_timestamp=not wall)
+    else:
+        reader = _AscReader(str(path), relative_timestamp=not wall)
+    return reader, iter(reader)
+
+
+def _frames(path: Path, clock: dict[str, bool] | None = None) -> Iterator[can.Message]:
     """The frames of a CAN log in time order; a :class:`BlackBoxError` naming the frame for what cannot be read
     (python-can's readers raise whatever their parsing meets: ValueError, UnicodeDecodeError, struct.error,
-    BLFParseError …), for a timestamp that is not a finite number and for one that goes back in time."""
+    BLFParseError …), for a timestamp that is not a finite number and for one that goes back in time.
+
+    Timestamps are Unix times: python-can's ASC reader gives times relative to the header's date unless asked
+    for absolute ones (``relative_timestamp=False``: the header's date + the relative time), which it is; for an
+    ``.asc`` whose header names no date it can parse, the times count from its start and ``clock["wall"]`` (if
+    given) says False."""
     if not path.is_file():
         raise BlackBoxError(f"CAN log {path} does not exist")
+    if clock is None:
+        clock = {}
+    clock["wall"] = True
     try:
-        reader = iter(can.LogReader(str(path)))
+        source, reader = _reader(path, wall=True)
     except Exception as exc:  # noqa: BLE001 — as below: the BLF reader parses its header here
         raise BlackBoxError(f"CAN log {path}: cannot read ({first_line(exc)}); {_SUFFIX_HINT}") from None
     n, last = 0, -math.inf
@@ -1076,11 +1180,21 @@ def _frames(path: Path) -> Iterator[can.Message]:
             msg = next(reader)
         except StopIteration:
             return
+        except ValueError as exc:
+            if n == 0 and clock["wall"] and _is_asc(path) and "datetime" in str(exc):
+                clock["wall"] = False  # a header date the reader cannot parse: times from the log's start
+                source, reader = _reader(path, wall=False)
+                continue
+            raise BlackBoxError(
+                f"CAN log {path}: cannot read frame {n + 1} ({first_line(exc)}); {_SUFFIX_HINT}"
+            ) from None
         except Exception as exc:  # noqa: BLE001 — a third-party parser on a damaged file: any of its errors
             raise BlackBoxError(
                 f"CAN log {path}: cannot read frame {n + 1} ({first_line(exc)}); {_SUFFIX_HINT}"
             ) from None
         n += 1
+        if n == 1 and not getattr(source, "dated", True):
+            clock["wall"] = False  # an .asc without a header date: its times count from its start
         t = float(msg.timestamp)
         if not math.isfinite(t):
             raise BlackBoxError(f"CAN log {path}: frame {n} has timestamp {t}; a timestamp is a finite number of s")
@@ -1099,29 +1213,97 @@ def replay_can_log(path: str | Path, model: Any, *, stale_after_s: float = 0.2) 
     ``model`` is the :class:`~planner.model.kinematics.HitchModel` of the recorded machine. The
     link runs on a private virtual channel (it sends nowhere) with its own address
     (:data:`REPLAY_ADDRESS`), so every recorded node — the planner's references included — is
-    read as traffic. Yields one :class:`ReplayRecord` per frame, and one named ``fault`` when the
-    link raises faults (checked at least every 10 ms of log time, so a silence shows when its
-    limit passed).
+    read as traffic. Yields one :class:`ReplayRecord` per frame, and one ``fault`` / ``fault_cleared``
+    per fault the link raises / clears (checked at least every 10 ms of log time, so a silence shows
+    when its limit passed): the link's latched faults are compared step by step and acknowledged
+    (:meth:`~bridge.link.can_link.CanLink.clear_faults`) as soon as their causes are gone, so a fault
+    that comes back is raised again (an event fault — ``ecu_restart`` — is raised each time it happens).
+    A stale measurement before the log's first complete measurement, or a missing ECU heartbeat before its
+    first heartbeat, is marked ``log_start`` with a reason that says so.
     """
     from bridge.isobus.codec import CodecError, load_codec
     from bridge.isobus.j1939 import J1939Error, decode_id
+    from bridge.isobus.messages import Heartbeat, PositionMeasurement, RearHitchStatus
     from bridge.link.can_link import CanLink
     from bridge.link.realtime import open_bus
     from bridge.link.state import LinkConfig
 
     codec = load_codec()
     cfg = LinkConfig(source_address=REPLAY_ADDRESS, stale_after_s=stale_after_s)
+    clock: dict[str, bool] = {}
+    frames = _frames(Path(path), clock)
     bus = open_bus("virtual", f"hitch-replay-{uuid.uuid4().hex}")
     link = CanLink(model, bus, cfg, own_bus=True)
+    heard: set[str] = set()  # of the log so far: "measurement", "lift", "heartbeat"
+    latched: set[str] = set()  # the link's faults latched after the last acknowledge
+    at_start: set[str] = set()  # of those, the ones raised at the log's start (below)
+    t0 = 0.0
+
+    def stamp(t: float) -> float | None:
+        return t0 + t if clock.get("wall") else None
+
+    def start_reason(name: str, t: float) -> str | None:
+        """The plain reason of a fault raised at the log's start; None: a fault of the machine."""
+        if name == "stale_measurement" and link.latest_state() is None:
+            missing = [
+                what
+                for key, what in (
+                    ("measurement", f"cylinder positions (0xFF22) from the cylinder ECU (address {cfg.ecu_address})"),
+                    ("lift", f"lift position (rear hitch status) from the tractor (address {cfg.hitch_source})"),
+                )
+                if key not in heard
+            ]
+            said = " and no ".join(missing) if missing else "valid measurement"
+            return (
+                f"log start: no {said} in the log yet ({t:.3f} s after its first frame), so no complete "
+                "measurement — the recording began before it arrived; not a fault of the machine"
+            )
+        if name == "ecu_heartbeat" and "heartbeat" not in heard:
+            return (
+                f"log start: no ECU heartbeat (address {cfg.ecu_address}) in the log yet ({t:.3f} s after its "
+                "first frame) — the recording began before it arrived; not a fault of the machine"
+            )
+        return None
+
+    def changes(t: float) -> Iterator[ReplayRecord]:
+        """Faults raised since the last step (by name, in the link's order), then acknowledged: those whose
+        causes are gone (and every event fault) clear, and a clear is reported for each one latched before."""
+        nonlocal latched
+        faults = link.faults
+        for name in faults.active():
+            if name in latched:
+                continue
+            reason = faults.reason_of(name) or name
+            plain = start_reason(name, t)
+            if plain is not None:
+                at_start.add(name)
+            yield ReplayRecord(
+                t, None, "fault", faults=(plain or reason,), timestamp=stamp(t), fault=name, log_start=plain is not None
+            )
+        now = set(link.clear_faults(t).active()) if faults.any else set()
+        for name in faults.names():
+            if name in latched and name not in now:
+                start = name in at_start
+                at_start.discard(name)
+                if start:
+                    what = "a complete measurement" if name == "stale_measurement" else "the ECU's heartbeat"
+                    text = f"log start over: {what} in the log"
+                else:
+                    text = f"{name} cleared (its cause is gone)"
+                yield ReplayRecord(
+                    t, None, "fault_cleared", faults=(text,), timestamp=stamp(t), fault=name, log_start=start
+                )
+        latched = now
+
     try:
-        t0: float | None = None
         link.start(-cfg.claim_wait_s - 0.01)
         link.poll(-0.001)  # the claim is made before the first recorded frame
-        last, seen = -0.001, len(link.faults.reasons)
-        for msg in _frames(Path(path)):
-            if t0 is None:
-                t0 = float(msg.timestamp)
-            t = float(msg.timestamp) - t0
+        last = -0.001
+        first = True
+        for msg in frames:
+            if first:
+                t0, first = float(msg.timestamp), False
+            t = round(float(msg.timestamp) - t0, 6)  # the logs' resolution: 1 µs (0.2, not 0.20000004768)
             try:
                 source: int | None = decode_id(msg.arbitration_id).source_address if msg.is_extended_id else None
             except J1939Error:
@@ -1130,31 +1312,34 @@ def replay_can_log(path: str | Path, model: Any, *, stale_after_s: float = 0.2) 
             while last + step < t:
                 last += step
                 link.poll(last)
-                reasons = link.faults.reasons
-                if len(reasons) > seen:
-                    yield ReplayRecord(last, None, "fault", faults=tuple(reasons[seen:]))
-                seen = len(reasons)
+                yield from changes(last)
             last = max(last, t)
-            state_before = link.status(t).state
+            state_before = link.latest_state()
             link.handle(msg, t)
             link.poll(t)
-            status = link.status(t)
-            if len(status.faults.reasons) > seen:
-                yield ReplayRecord(t, None, "fault", faults=tuple(status.faults.reasons[seen:]))
-            seen = len(status.faults.reasons)
+            error = ""
             try:
-                decoded = codec.decode_frame(msg)
+                payload: Any = codec.decode_frame(msg).payload
             except CodecError as exc:
+                payload, error = None, str(exc) or type(exc).__name__
+            else:
+                if source == cfg.ecu_address and isinstance(payload, PositionMeasurement):
+                    heard.add("measurement")
+                if source == cfg.ecu_address and isinstance(payload, Heartbeat):
+                    heard.add("heartbeat")
+                if source == cfg.hitch_source and isinstance(payload, RearHitchStatus):
+                    heard.add("lift")
+            yield from changes(t)
+            if error:
                 name = "error_frame" if msg.is_error_frame else f"0x{msg.arbitration_id:08X}"
-                yield ReplayRecord(t, source, name, error=str(exc))
+                yield ReplayRecord(t, source, name, error=error, timestamp=stamp(t))
                 continue
-            payload = decoded.payload
             fields = asdict(payload) if is_dataclass(payload) and not isinstance(payload, type) else {}
-            state = status.state
+            state = link.latest_state()
             pose = None
             if state is not None and state is not state_before:
                 p = state.pose
                 pose = {"x": float(p.x), "z": float(p.z), "roll": float(p.roll), "pitch": float(p.pitch)}
-            yield ReplayRecord(t, source, type(payload).__name__, fields, pose)
+            yield ReplayRecord(t, source, type(payload).__name__, fields, pose, timestamp=stamp(t))
     finally:
         link.close()

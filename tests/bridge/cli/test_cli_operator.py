@@ -649,3 +649,82 @@ def test_hitch_log_picks_records_by_kind_key_and_time(tmp_path, capsys):
     assert "--kind: unknown kind requests; allowed: request, event" in _err_line(capsys)
     assert main(["log", "--data-dir", str(tmp_path), "--since", "yesterday"]) == 2
     assert "--since: 'yesterday': a duration ago (90s, 10m, 2h, 1d) or a local time" in _err_line(capsys)
+
+
+def _replay_log(tmp_path, name: str = "bus.asc"):
+    """2.5 s of the cylinder ECU (169): 0xFF22 (system state 3: controllers on, watchdog tripped) and its lift
+    at 100 Hz, its heartbeat at 10 Hz; measurements silent 0.5–1.0 s and again 1.5–2.0 s (stale twice)."""
+    import can
+
+    from bridge.isobus.codec import load_codec
+    from bridge.isobus.messages import Heartbeat, PositionMeasurement, RearHitchStatus
+
+    model = HitchModel.from_profile("thesis-t132")
+    scale = SensorScaling(model.profile)
+    c = np.rint(scale.counts_min + (model.neutral - scale.si_min) / scale.resolution).astype(int)
+    fraction = float((c[0] - scale.counts_min[0]) / (scale.counts_max[0] - scale.counts_min[0]))
+    meas = PositionMeasurement(int(c[1]), int(c[2]), int(c[4]), int(c[3]), 3)
+    codec = load_codec()
+    t0 = 1_765_000_000.0
+    path = tmp_path / name
+    with can.ASCWriter(str(path)) as w:
+        for k in range(250):
+            t = 0.01 * k
+            out = [] if 0.5 <= t < 1.0 or 1.5 <= t < 2.0 else [meas, RearHitchStatus(position=fraction)]
+            out += [Heartbeat(k // 10)] if k % 10 == 0 else []
+            for p in out:
+                m = codec.encode(p, source=169)
+                m.timestamp = t0 + t
+                w.on_message_received(m)
+    return path, t0
+
+
+def test_hitch_replay_prints_every_fault_raise_and_clear_and_counts_both(tmp_path, capsys):
+    """The stale measurement came twice; replay said it once ("1 faults raised") and never that it cleared."""
+    path, _ = _replay_log(tmp_path)
+    assert main(["replay", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert out.count("FAULT stale_measurement") == 2 and out.count("CLEARED stale_measurement") == 2, out
+    assert out.rstrip().endswith("2 faults raised, 2 cleared"), out
+
+
+def test_hitch_replay_prints_the_logs_start_in_local_time_and_with_clock_each_lines(tmp_path, capsys):
+    """Replay gave only seconds from the first frame: nothing to line it up with `hitch log` (local time)."""
+    path, t0 = _replay_log(tmp_path)
+    day = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(t0))
+    assert main(["replay", str(path)]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert first == f"log starts {day}.000 ({t0:.6f})", first
+    assert main(["replay", str(path), "--clock", "--only", "Heartbeat", "--interval", "1"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    beats = [ln for ln in lines if "Heartbeat from 169" in ln]
+    assert [ln.split()[0] for ln in beats] == [
+        time.strftime("%H:%M:%S", time.localtime(t0 + s)) + ".000" for s in (0, 1, 2)
+    ]
+    stale = next(ln for ln in lines if "FAULT stale_measurement" in ln)
+    t_s = float(stale.split()[1])
+    assert stale.split()[0] == time.strftime("%H:%M:%S", time.localtime(t0 + t_s)) + f".{round(t_s * 1000) % 1000:03d}"
+
+
+def test_hitch_replay_json_applies_only_and_interval_and_names_enums(tmp_path, capsys):
+    """`--json --only Heartbeat` printed every record of the log; now --only and --interval pick the JSON
+    records as they pick the text lines (faults always), each with its Unix time, the system state in words."""
+    path, t0 = _replay_log(tmp_path)
+    assert main(["replay", str(path), "--json", "--only", "Heartbeat", "--interval", "1"]) == 0
+    recs = [json.loads(ln) for ln in capsys.readouterr().out.splitlines()]
+    frames = [r for r in recs if r["source"] is not None]
+    assert [r["message"] for r in frames] == ["Heartbeat"] * 3, frames
+    assert [r["timestamp"] for r in frames] == [pytest.approx(t0 + s, abs=1e-5) for s in (0, 1, 2)]
+    assert [r["message"] for r in recs if r["source"] is None] == ["fault", "fault_cleared"] * 2
+    assert main(["replay", str(path), "--json", "--only", "PositionMeasurement", "--interval", "1"]) == 0
+    recs = [json.loads(ln) for ln in capsys.readouterr().out.splitlines()]
+    ff22 = [r for r in recs if r["message"] == "PositionMeasurement"]
+    assert len(ff22) == 3 and "watchdog tripped" in ff22[0]["system_state"], ff22
+
+
+def test_hitch_replay_prints_the_ecus_system_state_by_name(tmp_path, capsys):
+    """`system_state=3` was printed raw, though its bits have names (bridge.isobus.system_state)."""
+    path, _ = _replay_log(tmp_path)
+    assert main(["replay", str(path), "--only", "PositionMeasurement", "--interval", "5"]) == 0
+    line = next(ln for ln in capsys.readouterr().out.splitlines() if "PositionMeasurement from 169" in ln)
+    assert "system_state=3 (controllers on, watchdog tripped; restart count 0)" in line, line

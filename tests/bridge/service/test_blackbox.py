@@ -559,3 +559,141 @@ def test_a_blf_can_log_reaches_the_disk_while_it_records(tmp_path):
     finally:
         rec.close()
         sender.shutdown()
+
+
+# ---------------------------------------------------------------------------------------- replay: faults, clock, JSON
+_T0 = 1_765_000_000.042  # Unix time of a log's first frame; 42 ms: python-can's ASC header writes it as "…:40.42"
+
+
+def _neutral_measurement(model: HitchModel, system_state: int = 0) -> tuple[PositionMeasurement, float]:
+    scale = SensorScaling(model.profile)
+    c = np.rint(scale.counts_min + (model.neutral - scale.si_min) / scale.resolution).astype(int)
+    fraction = float((c[0] - scale.counts_min[0]) / (scale.counts_max[0] - scale.counts_min[0]))
+    return PositionMeasurement(int(c[1]), int(c[2]), int(c[4]), int(c[3]), system_state), fraction
+
+
+def _incident_frames(model: HitchModel, t0: float = _T0) -> list[can.Message]:
+    """4.5 s of the cylinder ECU (address 169): 0xFF22 at 100 Hz from the first frame, its lift (rear hitch
+    status) at 10 Hz only from 0.25 s on, its heartbeat at 10 Hz; measurements silent 1.0–1.6 s and again
+    3.0–3.6 s, heartbeats silent 2.0–2.7 s."""
+    meas, fraction = _neutral_measurement(model)
+    codec = load_codec()
+    frames: list[can.Message] = []
+    seq = 0
+
+    def silent(t: float, gaps: list[tuple[float, float]]) -> bool:
+        return any(a <= t < b for a, b in gaps)
+
+    for k in range(450):
+        t = round(0.01 * k, 6)
+        out = []
+        if not silent(t, [(1.0, 1.6), (3.0, 3.6)]):
+            out.append(meas)
+            if k % 10 == 5 and t >= 0.25:
+                out.append(RearHitchStatus(position=fraction))
+        if k % 10 == 0 and not silent(t, [(2.0, 2.7)]):
+            out.append(Heartbeat(seq % 251))
+            seq += 1
+        for p in out:
+            frames.append(codec.encode(p, source=169))
+            frames[-1].timestamp = t0 + t
+    return frames
+
+
+def _write_log(path, frames: list[can.Message]):
+    writer = can.ASCWriter(str(path)) if path.suffix == ".asc" else can.CanutilsLogWriter(str(path), channel="vcan0")
+    with writer as w:
+        for f in frames:
+            w.on_message_received(f)
+    return path
+
+
+@pytest.mark.parametrize("name", ["bus.log", "bus.asc"])
+def test_replay_reports_every_raise_and_every_clear_of_a_fault_in_the_logs_time(tmp_path, name):
+    """An investigator's log: stale, heartbeat, stale again. The replay's fault reasons only grew, so each
+    fault was reported once per file and never cleared (the second stale was not seen at all, a stale
+    latched at the log's start hid it). Now every raise and every clear, each at its time."""
+    model = HitchModel.from_profile("thesis-t132")
+    path = _write_log(tmp_path / name, _incident_frames(model))
+    faults = [r for r in replay_can_log(path, model) if r.name in ("fault", "fault_cleared") and not r.log_start]
+    assert [(r.name, r.fault) for r in faults] == [
+        ("fault", "stale_measurement"),
+        ("fault_cleared", "stale_measurement"),
+        ("fault", "ecu_heartbeat"),
+        ("fault", "stale_measurement"),
+        ("fault_cleared", "ecu_heartbeat"),
+        ("fault_cleared", "stale_measurement"),
+    ]
+    # the lift came last at 0.95 s: stale 0.2 s later, in the silence; fresh again with the lift at 1.65 s
+    assert faults[0].t_s == pytest.approx(1.15, abs=0.015) and faults[1].t_s == pytest.approx(1.65, abs=1e-6)
+    assert faults[2].t_s == pytest.approx(2.2, abs=0.015)  # the heartbeat of 1.9 s was the last one for 0.8 s
+    assert faults[3].t_s == pytest.approx(3.15, abs=0.015) and faults[5].t_s == pytest.approx(3.65, abs=1e-6)
+    assert "lift" in faults[0].faults[0] and "heartbeat" in faults[2].faults[0].lower()
+    assert all(r.source is None and r.timestamp == pytest.approx(_T0 + r.t_s, abs=2e-3) for r in faults)
+
+
+def test_replay_says_plainly_what_the_log_start_lacked_instead_of_a_false_fault(tmp_path):
+    """The log's first 0.25 s carry 0xFF22 but no lift yet: the replay printed "FAULT no valid cylinder positions"
+    at 0.2 s — wrong twice: the positions were there, and nothing of the machine had failed; the recording had
+    begun before the lift arrived. Now that fault is marked log_start, names what was missing, and its end too."""
+    model = HitchModel.from_profile("thesis-t132")
+    path = _write_log(tmp_path / "bus.log", _incident_frames(model))
+    start = [r for r in replay_can_log(path, model) if r.name in ("fault", "fault_cleared") and r.log_start]
+    assert [(r.name, r.fault) for r in start] == [
+        ("fault", "stale_measurement"),
+        ("fault_cleared", "stale_measurement"),
+    ]
+    raised, cleared = start
+    assert raised.t_s == pytest.approx(0.2, abs=0.015) and cleared.t_s == pytest.approx(0.25, abs=1e-6)
+    text = raised.faults[0]
+    assert "log start" in text and "lift position" in text and "not a fault of the machine" in text, text
+    assert "cylinder positions" not in text, text  # they were heard from the first frame
+    assert raised.to_json()["log_start"] is True and raised.to_json()["fault"] == "stale_measurement"
+
+
+def test_replay_records_carry_the_frames_own_unix_time_from_every_format(tmp_path):
+    """Replay gave only seconds from the first frame, nothing to line up with `hitch log`. Now each record has
+    the frame's Unix time — also from an .asc, whose python-can reader gives times relative to its header's date
+    (and reads the date's unpadded milliseconds "40.42" as 0.42 s): absolute, the 42 ms kept. An .asc whose
+    header names no date has no wall clock: None, its times still counted from the first frame."""
+    model = HitchModel.from_profile("thesis-t132")
+    frames = _incident_frames(model)[:30]
+    for name in ("bus.log", "bus.asc"):
+        recs = [r for r in replay_can_log(_write_log(tmp_path / name, frames), model) if r.source is not None]
+        assert len(recs) == len(frames)
+        for r, f in zip(recs, frames, strict=True):
+            assert r.timestamp == pytest.approx(f.timestamp, abs=1e-5), name
+            assert r.to_json()["timestamp"] == r.timestamp and r.to_json()["t"] == r.t_s
+            assert r.t_s == pytest.approx(f.timestamp - _T0, abs=1e-6)
+    undated = tmp_path / "undated.asc"
+    undated.write_text(
+        "date someday\nbase hex  timestamps absolute\n 0.500000 1  18FF22A9x       Rx   d 8 00 00 00 00 00 00 00 00\n"
+        " 0.600000 1  18FF22A9x       Rx   d 8 00 00 00 00 00 00 00 00\n",
+        encoding="utf-8",
+    )
+    recs = [r for r in replay_can_log(undated, model) if r.source is not None]
+    assert [(r.t_s, r.timestamp) for r in recs] == [(0.0, None), (pytest.approx(0.1, abs=1e-6), None)]
+
+
+def test_replay_json_gives_enums_by_name_and_the_system_state_in_words(tmp_path):
+    """--json gave FigureOfMerit as 0 where the text said FULLY_FUNCTIONAL, and 0xFF22's system state only as
+    the raw byte; now names in both, and the state's bits in words (3: controllers on, watchdog tripped)."""
+    from bridge.isobus.messages import FigureOfMerit, SlopeSensorInformation
+
+    model = HitchModel.from_profile("thesis-t132")
+    codec = load_codec()
+    ok = FigureOfMerit.FULLY_FUNCTIONAL
+    meas, _ = _neutral_measurement(model, system_state=3)
+    frames = [
+        codec.encode(
+            SlopeSensorInformation(0.01, 0.02, 0.0, pitch_merit=ok, roll_merit=ok, pitch_rate_merit=ok), source=226
+        ),
+        codec.encode(meas, source=169),
+    ]
+    for k, f in enumerate(frames):
+        f.timestamp = _T0 + 0.01 * k
+    recs = [r.to_json() for r in replay_can_log(_write_log(tmp_path / "bus.log", frames), model)]
+    ssi, ff22 = (r for r in recs if r["source"] is not None)
+    assert ssi["fields"]["pitch_merit"] == "FULLY_FUNCTIONAL", ssi
+    assert ff22["fields"]["system_state"] == 3 and "watchdog tripped" in ff22["system_state"], ff22
+    assert json.loads(json.dumps(recs)) == recs

@@ -74,7 +74,10 @@ def _cmd_router(args) -> int:
         except zenoh.ZError as exc:
             raise CLIError(f"hitch router: cannot listen on {', '.join(listen)}: {zenoh_reason(exc)}") from None
         try:
-            print(f"hitch router: ready on {', '.join(listen)} (zid {session.info.zid()})", flush=True)
+            print(
+                f"hitch router: ready on {', '.join(listen)} (zid {session.info.zid()}, lease {args.lease_s:g} s)",
+                flush=True,
+            )
             while not stop.wait(0.5):
                 pass
         finally:

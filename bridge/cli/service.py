@@ -136,6 +136,12 @@ def _cmd_serve(args) -> int:
     def ready(service) -> None:
         nonlocal blackbox
         served.append(service)
+        reached = service.nodes_reached() if cfg.connect else None
+        if reached == 0:  # a peer whose router is down starts serving locally (a new user's trial: "connected to")
+            service.warnings.append(
+                f"connect {', '.join(cfg.connect)}: not reached yet; the service serves locally and is watched from "
+                "the first router it reaches (link_lost, on_link_loss)"
+            )
         before = last_record(event_log_path(cfg.data_dir))
         blackbox = EventLog(event_log_path(cfg.data_dir))
         if not ended_cleanly(before):  # killed, crashed, power lost: its last motion has no outcome in the log
@@ -165,9 +171,9 @@ def _cmd_serve(args) -> int:
         http = getattr(service, "http", None)
         if http is not None:
             print(f"hitch serve: operator terminal at {http.url}", flush=True)
+        link = (" connecting to " if reached == 0 else " connected to ") + ", ".join(cfg.connect) if cfg.connect else ""
         print(
-            f"hitch serve: ready on {', '.join(cfg.listen or ()) or '(no listener)'}"
-            f"{' connected to ' + ', '.join(cfg.connect) if cfg.connect else ''} prefix {cfg.prefix!r}, "
+            f"hitch serve: ready on {', '.join(cfg.listen or ()) or '(no listener)'}{link} prefix {cfg.prefix!r}, "
             f"profile {cfg.profile}{', twin truth ' + str(cfg.sim_truth) if cfg.sim_truth is not None else ''}, "
             f"data {cfg.database_path}, log {event_log_path(cfg.data_dir)}"
             + (f", CAN log {cfg.can_log}" if cfg.can_log is not None else ""),

@@ -1166,7 +1166,11 @@ def _frames(path: Path, clock: dict[str, bool] | None = None) -> Iterator[can.Me
     ``.asc`` whose header names no date it can parse, the times count from its start and ``clock["wall"]`` (if
     given) says False."""
     if not path.is_file():
-        raise BlackBoxError(f"CAN log {path} does not exist")
+        raise BlackBoxError(
+            f"CAN log {path} is a folder: give one of its log files (.asc, .blf, .log, .csv)"
+            if path.is_dir()
+            else f"CAN log {path} does not exist"
+        )
     if clock is None:
         clock = {}
     clock["wall"] = True

@@ -328,6 +328,16 @@ class HitchService:
             raise
         return self
 
+    def nodes_reached(self) -> int | None:
+        """How many routers and peers the service's session reaches now (None: no session, or it cannot be read)."""
+        session = self.session
+        if session is None:
+            return None
+        try:
+            return len(list(session.info.routers_zid())) + len(list(session.info.peers_zid()))
+        except Exception:  # noqa: BLE001 — the session is closing
+            return None
+
     def _watch_links(self) -> None:
         """The routers of ``connect``: every :data:`LINK_WATCH_S`, how many routers the session reaches. When the
         last is lost, a ``link_lost`` event (in the black box) and, by ``on_link_loss`` (default ``stop``), the

@@ -131,3 +131,22 @@ def test_a_frozen_router_is_noticed_within_the_lease_and_the_hitch_brakes(tmp_pa
             svc.close()
         os.kill(router.pid, signal.SIGKILL)
         router.wait(10)
+
+
+def test_a_peer_whose_router_is_down_at_start_says_it_is_not_reached(tmp_path):
+    """A new user's trial: `hitch serve --listen … --connect <a router that is down>` said "ready … connected to
+    …", and its started record had no warning."""
+    from bridge.service.blackbox import event_log_path, read_events
+    from tests.integration.service_process import ServiceProcess
+
+    down = f"tcp/127.0.0.1:{free_port()}"  # nothing listens there
+    svc = ServiceProcess(["--listen", f"tcp/127.0.0.1:{free_port()}", "--connect", down, "--data-dir", str(tmp_path)])
+    try:
+        out = "".join(svc.output)
+        assert f"connecting to {down}" in out and f"connected to {down}" not in out, out
+        assert f"warning: connect {down}: not reached yet" in out, out
+    finally:
+        svc.proc.send_signal(2)
+        svc.proc.wait(30)
+    started = next(r for r in read_events(event_log_path(tmp_path)) if r.get("what") == "started")
+    assert any("not reached yet" in w for w in started["warnings"]), started

@@ -111,7 +111,7 @@ def test_hitch_router_runs_with_a_router_security_file(files):
     try:
         assert proc.stdout is not None
         line = proc.stdout.readline()
-        assert f"hitch router: ready on {ep}" in line, line
+        assert f"hitch router: ready on {ep}" in line and "lease 2 s)" in line, line  # the lease it announces
     finally:
         proc.terminate()
         out, err = proc.communicate(timeout=20)

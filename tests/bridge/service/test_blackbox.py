@@ -342,6 +342,8 @@ def test_replay_of_a_missing_or_unknown_file_is_a_clear_error(tmp_path):
     model = HitchModel.from_profile("thesis-t132")
     with pytest.raises(BlackBoxError, match="does not exist"):
         list(replay_can_log(tmp_path / "nope.asc", model))
+    with pytest.raises(BlackBoxError, match=r"is a folder: give one of its log files"):  # it said "does not exist"
+        list(replay_can_log(tmp_path, model))
     bad = tmp_path / "bus.weird"
     bad.write_text("x", encoding="utf-8")
     with pytest.raises(BlackBoxError, match="cannot read"):

@@ -88,8 +88,9 @@ def _cmd_log(args) -> int:
             c.print(format_record(rec), markup=False, highlight=False)
 
     keep = _record_filter(args)
-    records = [r for r in read_events(path) if keep(r)]
-    absent = not records and not path.exists()
+    every = read_events(path)
+    records = [r for r in every if keep(r)]
+    absent = not every and not path.exists()
     if absent:
         if not args.follow:
             c.print(f"(no event log at {path}; `hitch serve` writes it)", markup=False, highlight=False)
@@ -100,7 +101,8 @@ def _cmd_log(args) -> int:
             markup=False,
             highlight=False,
         )
-    if not records and not absent and not args.follow and not args.json:
+    filtered = args.kind is not None or args.key is not None or args.since is not None
+    if every and not records and filtered and not args.follow and not args.json:
         c.print(f"(no record of {path} matches --kind / --key / --since)", markup=False, highlight=False)
     for rec in records[-args.last :] if args.last else records:
         show(rec)

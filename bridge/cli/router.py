@@ -107,6 +107,7 @@ def add_commands(sub) -> None:
         type=bounded_float("--lease-s", lo, hi, unit="s", lo_open=False),
         default=DEFAULT_LEASE_S,
         help=f"the link lease the router announces, [{lo:g}, {hi:g}] s (default {DEFAULT_LEASE_S:g}): its services "
-        "count a router silent this long lost (and brake, on_link_loss = stop); longer for radio links with gaps",
+        "count a router silent this long lost (and brake, on_link_loss = stop); for radio links with gaps raise it "
+        "and the services' [zenoh] lease_s",
     )
     p.set_defaults(handler=_cmd_router)

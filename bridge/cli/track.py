@@ -750,7 +750,7 @@ def _stream(args, c, spec: _Spec) -> int:
     ours = reason == "track/stop"
     unknown = None
     if outcome is None and problem is None:  # its end was seen in the state only: the event never came
-        reason, note = "outcome unknown (its end event was not heard)", None  # not "ended: -", nor the signal blamed
+        note = None  # the end note would blame the signal for what the link did
         unknown = (
             f"hitch: outcome UNKNOWN: session {session} (motion {mid}) ended, but its end event was not heard — "
             "events were missed (the link to the service broke, or a router restarted); `hitch log` on the "
@@ -772,6 +772,7 @@ def _stream(args, c, spec: _Spec) -> int:
         "interrupted": interrupted,
         "end_gap": end_gap,
         "end_braking": braking,
+        "outcome_unknown": unknown is not None,  # (``reason`` stays the service's own: None here)
     }
     try:
         _summary(out, summary, quiet)
@@ -798,7 +799,9 @@ def _summary(out, summary: dict[str, Any], quiet: bool) -> None:
         print(to_json_text(summary))
     else:
         text = f"track session {session} (motion {mid}) " + (
-            f"{(outcome or {}).get('event', 'ended').replace('motion_', '')}: {reason or '-'}"
+            "ended: outcome unknown (its end event was not heard)"
+            if summary.get("outcome_unknown")
+            else f"{(outcome or {}).get('event', 'ended').replace('motion_', '')}: {reason or '-'}"
             if summary["finished"]
             else "did not finish"
         )

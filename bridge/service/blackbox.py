@@ -1211,6 +1211,13 @@ def _frames(path: Path, clock: dict[str, bool] | None = None) -> Iterator[can.Me
         yield msg
 
 
+#: how long after a log's first frame a missing measurement or heartbeat is the recording's start, not a fault
+#: [s]: a few of the machine's own periods and limits (the stale limit 0.2 s, the heartbeat timeout 0.3 s); a
+#: reading still missing later is a fault of the machine (a review: an ECU that never sent a heartbeat read as
+#: "not a fault of the machine" through a whole log)
+_LOG_START_S = 1.0
+
+
 def replay_can_log(path: str | Path, model: Any, *, stale_after_s: float = 0.2) -> Iterator[ReplayRecord]:
     """Feed a recorded CAN log into a :class:`~bridge.link.can_link.CanLink` in the log's time.
 
@@ -1247,7 +1254,10 @@ def replay_can_log(path: str | Path, model: Any, *, stale_after_s: float = 0.2) 
         return t0 + t if clock.get("wall") else None
 
     def start_reason(name: str, t: float) -> str | None:
-        """The plain reason of a fault raised at the log's start; None: a fault of the machine."""
+        """The plain reason of a fault raised at the log's start (within :data:`_LOG_START_S` of its first
+        frame); None: a fault of the machine (an ECU that never sends is one, however the log began)."""
+        if t > _LOG_START_S:
+            return None
         if name == "stale_measurement" and link.latest_state() is None:
             missing = [
                 what
@@ -1274,6 +1284,12 @@ def replay_can_log(path: str | Path, model: Any, *, stale_after_s: float = 0.2) 
         causes are gone (and every event fault) clear, and a clear is reported for each one latched before."""
         nonlocal latched
         faults = link.faults
+        if t > _LOG_START_S:  # a start fault still held past the log's start is the machine's: said as such
+            for name in sorted(at_start & latched):
+                at_start.discard(name)
+                what = "no complete measurement" if name == "stale_measurement" else "no ECU heartbeat"
+                text = f"{what} still {t:.3f} s into the log: {faults.reason_of(name) or name}"
+                yield ReplayRecord(t, None, "fault", faults=(text,), timestamp=stamp(t), fault=name)
         for name in faults.active():
             if name in latched:
                 continue

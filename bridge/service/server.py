@@ -963,7 +963,7 @@ def _serve_until(stop: StopSignals, config: ServiceConfig, ready: Callable[[Hitc
             if service.conflict is not None:
                 raise ServiceStopped(service.conflict)
             if core is not None and not core.alive:
-                raise ServiceStopped(core.ended or "the control core ended")
+                raise ServiceStopped(core.end_reason())
             if any(r.error is not None for r in service._runners):
                 raise ServiceStopped(
                     "a CAN thread stopped: " + "; ".join(repr(r.error) for r in service._runners if r.error is not None)

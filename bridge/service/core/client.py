@@ -189,18 +189,31 @@ class CoreProcess:
                 fut.set_result(rest[0])
             else:
                 fut.set_exception(CoreError(str(rest[0]), str(rest[1])))
-        code = None
-        if self.process is not None:
-            try:  # its socket closed as it died: the exit status follows at once (poll() said None: not reaped yet)
-                code = self.process.wait(timeout=1.0)
-            except subprocess.TimeoutExpired:
-                code = None
-        how = "still running" if code is None else f"killed by signal {-code}" if code < 0 else f"exit code {code}"
-        self.ended = self.ended or f"the control core ended ({how})"
-        with self._pending_lock:
+        with self._pending_lock:  # the calls waiting fail first: a stop must not wait for the exit status
             pending, self._pending = list(self._pending.values()), {}
         for fut in pending:
-            fut.set_exception(CoreError("unavailable", self.ended))
+            fut.set_exception(CoreError("unavailable", self.ended or "the control core ended"))
+        if self.process is not None:
+            try:  # its socket closed as it died: the exit status follows at once (poll() said None: not reaped yet)
+                self.process.wait(timeout=1.0)
+            except subprocess.TimeoutExpired:
+                pass
+        self.ended = self.ended or self.end_reason()
+
+    def end_reason(self) -> str:
+        """Why the core ended, from its exit status (the same words whichever thread asks first: the reader above,
+        or :func:`~bridge.service.server.serve`'s watch that may reap it before)."""
+        if self.ended is not None:
+            return self.ended
+        code = None if self.process is None else self.process.poll()
+        how = (
+            "its exit status not known yet"
+            if code is None
+            else f"killed by signal {-code}"
+            if code < 0
+            else f"exit code {code}"
+        )
+        return f"the control core ended ({how})"
 
     def call(self, method: str, *args: Any, timeout_s: float = CALL_TIMEOUT_S, **kwargs: Any) -> Any:
         """Call ``method`` of the core; its value or :class:`CoreError` (the API's code)."""

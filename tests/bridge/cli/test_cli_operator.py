@@ -645,6 +645,11 @@ def test_hitch_log_picks_records_by_kind_key_and_time(tmp_path, capsys):
     )
     assert main(["log", "--data-dir", str(tmp_path), "--key", "jog"]) == 0
     assert "matches --kind / --key / --since" in capsys.readouterr().out
+    empty = tmp_path / "empty"  # a log with no record, no filter: no word about filters (a review)
+    event_log_path(empty).parent.mkdir(parents=True)
+    event_log_path(empty).write_text("")
+    assert main(["log", "--data-dir", str(empty)]) == 0
+    assert "matches" not in capsys.readouterr().out
     assert main(["log", "--data-dir", str(tmp_path), "--kind", "requests"]) == 2
     assert "--kind: unknown kind requests; allowed: request, event" in _err_line(capsys)
     assert main(["log", "--data-dir", str(tmp_path), "--since", "yesterday"]) == 2

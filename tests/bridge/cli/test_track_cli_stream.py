@@ -178,6 +178,11 @@ def test_a_session_whose_end_event_was_not_heard_is_outcome_unknown_not_success(
     out = capsys.readouterr()
     assert "ended: outcome unknown (its end event was not heard)" in out.out and "ended: -" not in out.out, out.out
     assert "the signal ran faster" not in out.err, out.err
+    # --json keeps reason the service's own (none heard) and says outcome_unknown (a review: made-up text in reason)
+    fake = FakeService(lose_events=True)
+    assert _run_with(monkeypatch, fake, "--sine", "z=0.02@0.5Hz", "--duration", "0.1", "--json") == 1
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["reason"] is None and summary["outcome_unknown"] is True, summary
 
 
 SIGHUP_SCRIPT = """

@@ -653,6 +653,22 @@ def test_replay_says_plainly_what_the_log_start_lacked_instead_of_a_false_fault(
     assert raised.to_json()["log_start"] is True and raised.to_json()["fault"] == "stale_measurement"
 
 
+def test_an_ecu_that_never_sends_a_heartbeat_is_a_fault_not_the_logs_start(tmp_path):
+    """A review: a heartbeat still missing late in the log was marked log_start ("not a fault of the machine")
+    and left out of the count: an ECU that never came up read as no fault. Only the log's first second is its
+    start."""
+    from bridge.isobus.codec import load_codec
+
+    model = HitchModel.from_profile("thesis-t132")
+    hb_id = load_codec().encode(Heartbeat(0), source=169).arbitration_id
+    frames = [f for f in _incident_frames(model) if f.arbitration_id != hb_id]
+    recs = [r for r in replay_can_log(_write_log(tmp_path / "bus.log", frames), model) if r.name == "fault"]
+    hb = [r for r in recs if r.fault == "ecu_heartbeat"]
+    assert hb and hb[0].t_s <= 1.0 and hb[0].log_start, [(r.t_s, r.fault, r.log_start) for r in recs]
+    assert all(not r.log_start for r in hb if r.t_s > 1.0)
+    assert any(r.t_s > 1.0 and not r.log_start for r in hb), [(r.t_s, r.log_start) for r in hb]
+
+
 def test_replay_records_carry_the_frames_own_unix_time_from_every_format(tmp_path):
     """Replay gave only seconds from the first frame, nothing to line up with `hitch log`. Now each record has
     the frame's Unix time — also from an .asc, whose python-can reader gives times relative to its header's date

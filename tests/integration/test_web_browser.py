@@ -1397,7 +1397,13 @@ def test_a_decimal_comma_is_a_decimal_point_in_every_number_field(service, page)
     type_into(page, "#goto-form input[name=speed]", "100")
     text = _goto_answer(page, "#goto-go")
     assert text.startswith("moving: motion #") or re.fullmatch(r"motion #\d+ finished", text), text
-    wait_for(lambda: not service.state()["moving"], 20, "the goto to end")
+    mid = int(re.search(r"motion #(\d+)", text).group(1))
+
+    def ended() -> bool:  # its own end: a state from before it started also says "not moving" (a CI-style run
+        s = service.state()  # read the start pose's reference, 9.8 mm)
+        return (s.get("motion_id") or 0) >= mid and not s["moving"]
+
+    wait_for(ended, 20, "the goto to end")
     ref_z = service.state()["reference"]["pose"]["z"]
     assert ref_z == pytest.approx(0.0125, abs=1e-4), f"the hitch went to z = {ref_z * 1000:.1f} mm for 12,5 mm"
     assert page.input_value("#goto-form input[name=z]") == "12,5"  # the field keeps what was typed

@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import re
 import time
+from collections.abc import Callable, Sequence
 from enum import Enum
 from pathlib import Path
 from typing import Any
@@ -122,17 +123,18 @@ _AGO = re.compile(r"^(\d+(?:\.\d+)?)\s*(s|min|m|h|d)$")
 _AGO_S = {"s": 1.0, "m": 60.0, "min": 60.0, "h": 3600.0, "d": 86400.0}
 
 
-def _names(what: str, allowed: tuple[str, ...] | None = None):
-    """argparse type: comma-separated names of ``what`` (``allowed``: each one of these); argparse names the
-    option."""
+def _names(what: str, allowed: Callable[[], Sequence[str]] | None = None):
+    """argparse type: comma-separated names of ``what``; ``allowed()`` (read when an option is parsed: the codec's
+    names load only then) lists the names allowed, None: any. argparse names the option."""
 
     def parse(text: str) -> frozenset[str]:
         names = [n.strip() for n in text.split(",") if n.strip()]
-        unknown = [n for n in names if allowed is not None and n not in allowed]
+        known = None if allowed is None else tuple(allowed())
+        unknown = [n for n in names if known is not None and n not in known]
         if not names or unknown:
             raise argparse.ArgumentTypeError(
                 f"unknown {what} {', '.join(unknown) or '(none given)'}; allowed: "
-                + (", ".join(allowed) if allowed is not None else "names separated by commas")
+                + (", ".join(known) if known is not None else "names separated by commas")
             )
         return frozenset(names)
 
@@ -295,17 +297,11 @@ def _cmd_replay(args) -> int:
     return 0
 
 
-def _message_names(text: str) -> frozenset[str]:
-    """``--only``: comma-separated message names the codec knows (argparse names the option)."""
+def _codec_names() -> Sequence[str]:
+    """The message names the codec knows (``hitch replay --only``)."""
     from bridge.isobus.codec import PAYLOAD_NAMES
 
-    names = [n.strip() for n in text.split(",") if n.strip()]
-    unknown = [n for n in names if n not in PAYLOAD_NAMES]
-    if not names or unknown:
-        raise argparse.ArgumentTypeError(
-            f"unknown message {', '.join(unknown) or '(none given)'}; allowed: {', '.join(PAYLOAD_NAMES)}"
-        )
-    return frozenset(names)
+    return PAYLOAD_NAMES
 
 
 def add_commands(sub) -> None:
@@ -323,7 +319,7 @@ def add_commands(sub) -> None:
     p.add_argument("--json", action="store_true", help="print the records as JSON lines")
     p.add_argument(
         "--kind",
-        type=_names("kind", RECORD_KINDS),
+        type=_names("kind", lambda: RECORD_KINDS),
         default=None,
         metavar="KINDS",
         help=f"only these record kinds, comma-separated: {', '.join(RECORD_KINDS)}",
@@ -355,7 +351,7 @@ def add_commands(sub) -> None:
     )
     p.add_argument(
         "--only",
-        type=_message_names,
+        type=_names("message", _codec_names),
         default=None,
         metavar="NAMES",
         help="print only these messages, comma-separated (e.g. PositionMeasurement,PositionCounts); faults always",

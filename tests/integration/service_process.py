@@ -16,7 +16,7 @@ from pathlib import Path
 from bench._common import free_port
 from bridge.service.client import HitchClient
 
-__all__ = ["ROOT", "ServiceProcess", "free_port", "hitch", "wait_online"]
+__all__ = ["ROOT", "ServiceProcess", "free_port", "hitch", "start_hitch_router", "wait_online"]
 
 ROOT = str(Path(__file__).resolve().parents[2])
 """The repository root: the working directory of every process these tests start."""
@@ -103,4 +103,24 @@ def start_router(endpoint: str) -> subprocess.Popen:
     """:data:`ROUTER` listening on ``endpoint`` (a loopback one), once it says it is ready."""
     router = subprocess.Popen([sys.executable, "-c", ROUTER, endpoint], cwd=ROOT, stdout=subprocess.PIPE, text=True)
     assert router.stdout is not None and "router ready" in router.stdout.readline()
+    return router
+
+
+def start_hitch_router(endpoint: str, *args: str) -> subprocess.Popen:
+    """``hitch router --listen endpoint`` (and ``args``), returned once it says it is ready (a service started
+    before the router listens cannot connect)."""
+    router = subprocess.Popen(
+        [sys.executable, "-m", "bridge.cli", "router", "--listen", endpoint, *args],
+        cwd=ROOT,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    assert router.stdout is not None
+    line = router.stdout.readline()
+    if "hitch router: ready on " + endpoint not in line:
+        router.kill()
+        router.wait(5)
+        raise AssertionError(f"the router did not start: {line!r}")
     return router

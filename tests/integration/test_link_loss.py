@@ -16,7 +16,7 @@ import pytest
 from bridge.service.config import ServiceConfig
 from bridge.service.server import HitchService
 from tests.helpers import wait_until
-from tests.integration.service_process import free_port, start_router
+from tests.integration.service_process import free_port, start_hitch_router, start_router
 
 pytestmark = pytest.mark.slow
 
@@ -85,24 +85,13 @@ def test_a_frozen_router_is_noticed_within_the_lease_and_the_hitch_brakes(tmp_pa
     service now announce a lease of DEFAULT_LEASE_S: link_lost and the brake come within it (plus the 0.1 s watch)."""
     import os
     import signal
-    import subprocess
-    import sys
 
     from bridge.service.config import DEFAULT_LEASE_S
-    from tests.integration.service_process import ROOT
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    router = subprocess.Popen(
-        [sys.executable, "-m", "bridge.cli", "router", "--listen", endpoint],
-        cwd=ROOT,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
+    router = start_hitch_router(endpoint)
     svc = None
     try:
-        assert router.stdout is not None and "ready on" in router.stdout.readline()
         cfg = ServiceConfig(
             mode="client",
             connect=[endpoint],

@@ -18,7 +18,14 @@ import pytest
 
 from bridge.service.blackbox import event_log_path, read_events
 from bridge.service.client import HitchClient
-from tests.integration.service_process import ROOT, ServiceProcess, free_port, hitch, wait_online
+from tests.integration.service_process import (
+    ROOT,
+    ServiceProcess,
+    free_port,
+    hitch,
+    start_hitch_router,
+    wait_online,
+)
 
 pytestmark = pytest.mark.slow
 
@@ -204,24 +211,7 @@ def test_the_black_box_and_the_can_log_record_what_happened(service):
     assert any(x["message"] == "PositionCounts" and x["source"] == 166 for x in rows)  # the references
 
 
-def _router(endpoint: str) -> subprocess.Popen:
-    """``hitch router --listen endpoint``, returned once it says it is ready (a service started before the router
-    listens cannot connect)."""
-    router = subprocess.Popen(
-        [sys.executable, "-m", "bridge.cli", "router", "--listen", endpoint],
-        cwd=ROOT,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
-    assert router.stdout is not None
-    line = router.stdout.readline()
-    if "hitch router: ready on " + endpoint not in line:
-        router.kill()
-        router.wait(5)
-        raise AssertionError(f"the router did not start: {line!r}")
-    return router
+_router = start_hitch_router  # (tests/integration/service_process.py)
 
 
 def test_hitch_router_carries_a_fleet(tmp_path):

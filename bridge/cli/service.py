@@ -63,7 +63,7 @@ def _client(args):
         warnings.simplefilter("ignore", RuntimeWarning)
         client = HitchClient(
             args.connect or [DEFAULT_LISTEN],
-            prefix=args.prefix,
+            prefix="hitch" if args.prefix is None else args.prefix,  # None: `fleet ls` without its filter
             timeout_s=args.timeout,
             security=args.security,
             # `hitch stop` asks for real-time priority whenever it is permitted (silent where it is not)
@@ -310,7 +310,9 @@ def _add_serve(sub) -> None:
 
 
 # ---------------------------------------------------------------------------------------- clients
-def _client_options(p) -> None:
+def _client_options(p, *, prefix_help: str | None = None) -> None:
+    """The options every client command has; ``prefix_help``: ``--prefix`` is a filter with this help and no
+    default (``hitch fleet ls``), not the one service's prefix."""
     p.add_argument(
         "--connect",
         action="append",
@@ -318,7 +320,10 @@ def _client_options(p) -> None:
         metavar="ENDPOINT",
         help=f"service or router endpoint (repeatable; default {DEFAULT_LISTEN})",
     )
-    p.add_argument("--prefix", default="hitch", help="key prefix of the service (default hitch)")
+    if prefix_help is None:
+        p.add_argument("--prefix", default="hitch", help="key prefix of the service (default hitch)")
+    else:
+        p.add_argument("--prefix", default=None, help=prefix_help)
     p.add_argument("--security", default=None, help="Zenoh security config of this client (credentials, TLS CA)")
     p.add_argument(
         "--user",
@@ -1027,13 +1032,16 @@ def _cmd_fleet(args) -> int:
     service answered (or none is live), 1 when some did not (each shown as such), 2 when none did."""
 
     def fleet(c) -> int:
-        rows = [_fleet_row(c, prefix) for prefix in c.fleet(timeout_s=min(args.timeout, 5.0))]
+        live = c.fleet(timeout_s=min(args.timeout, 5.0), under=args.prefix)
+        rows = [_fleet_row(c, prefix) for prefix in live]
         # with a login, access control may hide every service from it (its tokens are not shown to this user)
         none = (
             "(no services visible: none runs, or this login may see none — access control)"
             if args.security
             else "(no services)"
         )
+        if args.prefix is not None:
+            none = none.replace("(no services", f"(no services under {args.prefix}", 1)
         _print(args, {"fleet": rows}, "\n".join(map(_fleet_line, rows)) or none)
         failed = [r for r in rows if "error" in r]
         if failed and not args.json:  # the status says it; the line says why on stderr too
@@ -1187,7 +1195,11 @@ def add_commands(sub) -> Any:
         help="list live services (liveliness tokens) with their profile and mode; exit status 1 when some did not "
         "answer, 2 when none did",
     )
-    _client_options(q)
+    _client_options(
+        q,
+        prefix_help="list only the services whose key prefix is this one or under it, e.g. fleet or "
+        "fleet/t07/hitch (default: every service)",
+    )
     q.set_defaults(handler=_cmd_fleet)
 
     p = sub.add_parser("faults", help="faults the service holds: list | ack")

@@ -850,10 +850,13 @@ class HitchClient:
         return dict(out)
 
     # ------------------------------------------------------------------ fleet
-    def fleet(self, *, timeout_s: float = 2.0) -> list[str]:
-        """Key prefixes of every live service (liveliness tokens ``<prefix>/alive``), sorted."""
+    def fleet(self, *, timeout_s: float = 2.0, under: str | None = None) -> list[str]:
+        """Key prefixes of every live service (liveliness tokens ``<prefix>/alive``), sorted; with ``under``
+        (a prefix without wildcards, e.g. ``fleet`` or ``fleet/t07/hitch``) only the services whose prefix is
+        that one or begins with its chunks (``fleet`` lists ``fleet/t07/hitch``, not ``fleetwood/hitch``)."""
         out = set()
-        for reply in self.session.liveliness().get("**/alive", timeout=timeout_s):
+        selector = f"{validate_prefix(under)}/**/alive" if under is not None else "**/alive"
+        for reply in self.session.liveliness().get(selector, timeout=timeout_s):
             if reply.ok is not None:
                 k = str(reply.ok.key_expr)
                 out.add(k[: -len("/alive")] if k.endswith("/alive") else k)

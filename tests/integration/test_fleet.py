@@ -79,6 +79,27 @@ def test_fleet_ls_lists_every_service_and_each_answers(fleet):
         assert lists == {"fleet/t01/hitch": [], "fleet/t02/hitch": ["only-t02"], "fleet/t03/hitch": []}
 
 
+def test_fleet_ls_prefix_lists_only_the_services_under_it(fleet):
+    """``--prefix`` was accepted and ignored (a fleet trial): ``fleet ls --prefix fleet/t02`` listed all three.
+    Now it lists the services whose prefix is that one or has its chunks first; a bad filter is named."""
+    router_ep, _ = fleet
+
+    def listed(*flags: str) -> list[str]:
+        p = hitch(router_ep, "fleet", "ls", "--json", *flags)
+        assert p.returncode == 0, p.stderr
+        return [r["prefix"] for r in json.loads(p.stdout)["fleet"]]
+
+    deadline = time.monotonic() + 10
+    while listed() != list(PREFIXES) and time.monotonic() < deadline:
+        time.sleep(0.3)
+    assert listed("--prefix", "fleet") == list(PREFIXES)
+    assert listed("--prefix", "fleet/t02") == ["fleet/t02/hitch"]
+    assert listed("--prefix", "fleet/t02/hitch") == ["fleet/t02/hitch"]
+    assert listed("--prefix", "flee") == []  # chunks, not characters
+    p = hitch(router_ep, "fleet", "ls", "--prefix", "fleet/*")
+    assert p.returncode != 0 and "fleet/*" in p.stderr and "no wildcards" in p.stderr
+
+
 def test_a_stopped_service_leaves_the_fleet(fleet):
     router_ep, services = fleet
     services[2].proc.terminate()

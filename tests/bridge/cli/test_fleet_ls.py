@@ -36,8 +36,8 @@ class _Fleet:
     def __exit__(self, *exc):
         pass
 
-    def fleet(self, *, timeout_s: float = 2.0) -> list[str]:
-        return sorted(self.services)
+    def fleet(self, *, timeout_s: float = 2.0, under: str | None = None) -> list[str]:
+        return sorted(p for p in self.services if under is None or f"{p}/".startswith(f"{under}/"))
 
     def request(self, key, payload=None, *, prefix=None, timeout_s=None):
         self.asked.append((key, prefix))
@@ -112,3 +112,8 @@ def test_a_service_that_does_not_answer_is_shown_and_sets_the_exit_status(monkey
 def test_an_empty_fleet_is_no_error(monkeypatch, capsys):
     code, out, err, _ = _run(monkeypatch, capsys, {})
     assert (code, out.strip(), err) == (0, "(no services)", "")
+
+
+def test_an_empty_filtered_fleet_names_the_filter(monkeypatch, capsys):
+    code, out, err, _ = _run(monkeypatch, capsys, {"fleet/t01/hitch": CONFIG}, "--prefix", "farm")
+    assert (code, out.strip(), err) == (0, "(no services under farm)", "")

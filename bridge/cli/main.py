@@ -92,10 +92,13 @@ def one_line(text: str) -> str:
 
 @contextlib.contextmanager
 def _term_interrupts(args: argparse.Namespace, terminated: list[int]) -> Iterator[None]:
-    """For a command that says what an interruption leaves (``on_interrupt``), SIGTERM (a supervisor, ``kill``)
-    interrupts it as Ctrl-C does, so its clean-up runs and it says so; before, a sensor calibration over a bus
-    ended silently. Only in the main thread, and the old handler comes back after."""
-    if not callable(getattr(args, "on_interrupt", None)) or threading.current_thread() is not threading.main_thread():
+    """For a command that says what an interruption leaves (``on_interrupt``) or that moves the hitch while it
+    runs (``term_interrupts``: a motion waited for, a held jog), SIGTERM (a supervisor, ``kill``, ``timeout``)
+    interrupts it as Ctrl-C does, so its clean-up runs (a motion is stopped) and it says so; before, a sensor
+    calibration over a bus ended silently and ``timeout 5 hitch goto … --wait`` left the motion going. Only in
+    the main thread, and the old handler comes back after."""
+    handled = callable(getattr(args, "on_interrupt", None)) or bool(getattr(args, "term_interrupts", False))
+    if not handled or threading.current_thread() is not threading.main_thread():
         yield
         return
 

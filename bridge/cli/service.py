@@ -374,10 +374,13 @@ def _wait_options(p) -> None:
         "--wait",
         action="store_true",
         help="wait until the motion has ended (exit status 1 when it was aborted or its end was not heard); "
-        "Ctrl-C then stops it",
+        "Ctrl-C (or SIGTERM: a supervisor, `timeout`) then stops it",
     )
-    p.add_argument("--detach", action="store_true", help="with --wait: Ctrl-C only stops waiting, the motion goes on")
+    p.add_argument(
+        "--detach", action="store_true", help="with --wait: Ctrl-C (or SIGTERM) only stops waiting, the motion goes on"
+    )
     add_deadline_option(p)
+    p.set_defaults(term_interrupts=True)  # SIGTERM is taken as Ctrl-C: the motion is stopped (bridge.cli.main)
 
 
 def _deadline(args) -> dict[str, int]:
@@ -1096,8 +1099,9 @@ def add_commands(sub) -> Any:
         "--duration",
         type=bounded_float("--duration", 0.0, 3600.0, unit="s"),
         default=None,
-        help="keep jogging this long, (0, 3600] s (default: one command of --ttl-ms)",
+        help="keep jogging this long, (0, 3600] s (default: one command of --ttl-ms); Ctrl-C or SIGTERM stops",
     )
+    p.set_defaults(term_interrupts=True)  # SIGTERM is taken as Ctrl-C: the jog is stopped (bridge.cli.main)
     _client_options(p)
     p.set_defaults(handler=_cmd_jog)
 

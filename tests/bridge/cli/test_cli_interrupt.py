@@ -85,13 +85,15 @@ def _go_low(client: HitchClient) -> int:
     return int(reply["motion_id"])
 
 
-def _interrupt_once_moving(c: HitchClient, low: int, proc: subprocess.Popen) -> tuple[dict, str, str]:
-    """Ctrl-C to the CLI ``proc`` 0.3 s after the hitch started a motion newer than ``low``: (the first moving
-    state, stdout, stderr); the CLI is killed if it does not end."""
+def _interrupt_once_moving(
+    c: HitchClient, low: int, proc: subprocess.Popen, sig: int = signal.SIGINT
+) -> tuple[dict, str, str]:
+    """Ctrl-C (or ``sig``) to the CLI ``proc`` 0.3 s after the hitch started a motion newer than ``low``: (the
+    first moving state, stdout, stderr); the CLI is killed if it does not end."""
     try:
         moving = _wait_moving(c, low)
         time.sleep(0.3)
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(sig)
         out, err = proc.communicate(timeout=20)
     finally:
         if proc.poll() is None:
@@ -150,6 +152,24 @@ def test_ctrl_c_on_a_waiting_motion_stops_it(service, argv):
         time.sleep(1.0)
         later = c.state(timeout_s=2.0)
         assert not later["moving"] and abs(later["pose"]["z"] - rest["pose"]["z"]) < 0.01
+
+
+@pytest.mark.parametrize(
+    "argv", [["goto", "--to", "z=0.3", "--speed-scale", "0.15", "--wait"], ["jog", "--vz", "0.05", "--duration", "10"]]
+)
+def test_sigterm_on_a_waiting_motion_or_a_held_jog_stops_it(service, argv):
+    """``timeout 5 hitch goto … --wait`` (SIGTERM, as a supervisor or ``timeout`` sends it) ended the CLI and left
+    the motion going: only Ctrl-C stopped it. Now SIGTERM is taken as Ctrl-C: stop sent, exit status 143."""
+    _svc, ep, _data = service
+    with HitchClient([ep], timeout_s=10.0) as c:
+        wait_online(c)
+        low = _go_low(c)
+        proc = _cli(ep, *argv)
+        start, out, err = _interrupt_once_moving(c, low, proc, signal.SIGTERM)
+        assert proc.returncode == 143, (out, err)
+        assert "stop sent" in err, err
+        rest = _wait_rest(c, 10.0)  # braked: at rest well before the 0.45 m move (or 10 s of jog) could end
+        assert rest["pose"]["z"] < 0.2, (start["pose"], rest["pose"])
 
 
 def test_ctrl_c_on_a_held_jog_stops_it_at_once(service):

@@ -48,11 +48,15 @@ def add_lines_command(sub: Any) -> None:
     """``hitch lines save NAME FILE|list|delete NAME``."""
     p = sub.add_parser("lines", help="field-boundary and headland lines (GeoJSON) for maneuver wait_for line")
     ls = p.add_subparsers(dest="action", required=True, parser_class=type(p))
-    _client_command(
+    q = _client_command(
         ls, "save", "save the LineString(s) of a GeoJSON file (one line: under NAME)", _cmd_lines, "name", "file"
     )
+    q.add_argument("--replace", action="store_true", help="replace lines of those names (else refused: in_use)")
     _client_command(ls, "list", "the saved lines and the tractor's position", _cmd_lines)
-    _client_command(ls, "delete", "delete a line", _cmd_lines, "name")
+    q = _client_command(ls, "delete", "delete a line", _cmd_lines, "name")
+    q.add_argument(
+        "--force", action="store_true", help="delete it even while saved maneuvers wait for it (else refused: in_use)"
+    )
 
 
 def _cmd_record(args: Any) -> int:
@@ -108,8 +112,13 @@ def _cmd_lines(args: Any) -> int:
     def lines(c: Any) -> int:
         if args.action == "save":
             geo = _read_geojson(args.file)
-            r = c.request("lines/save", {"name": args.name, "geojson": geo})
-            _print(args, r, f"saved {', '.join(r['saved'])}")
+            r = c.request(
+                "lines/save", {"name": args.name, "geojson": geo, **({"replace": True} if args.replace else {})}
+            )
+            replaced = r.get("replaced") or []
+            _print(
+                args, r, f"saved {', '.join(r['saved'])}" + (f" (replaced {', '.join(replaced)})" if replaced else "")
+            )
         elif args.action == "list":
             r = c.request("lines/list", {})
             rows = [f"{ln['name']}: {ln['vertices']} vertices, crossed {ln['crossings']} time(s)" for ln in r["lines"]]
@@ -120,8 +129,8 @@ def _cmd_lines(args: Any) -> int:
                 rows[-1] += f"; GNSS fixes {g['fixes']}, rejected {g['rejected']} (last: {g['last_rejection']})"
             _print(args, r, "\n".join(rows) if r["lines"] else "(no lines)\n" + rows[-1])
         else:
-            r = c.request("lines/delete", {"name": args.name})
-            _print(args, r, f"deleted {r['deleted']}")
+            r = c.request("lines/delete", {"name": args.name, **({"force": True} if args.force else {})})
+            _print(args, r, f"deleted {r['deleted']}" + (f" (warning: {r['warning']})" if r.get("warning") else ""))
         return 0
 
     return _run(args, lines)

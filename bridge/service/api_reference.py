@@ -64,10 +64,12 @@ KEY_SUMMARY: Mapping[str, str] = {
     "maneuvers/skip": "skip the running maneuver's current step",
     "maneuvers/record/start": "start teaching a maneuver in (each motion becomes a step)",
     "maneuvers/record/stop": "end teach-in: the recorded script for review (saved as `name` if given)",
-    "lines/save": "store field / headland lines (GeoJSON, WGS84 degrees) for `wait_for: {line: …}`",
+    "lines/save": "store field / headland lines (GeoJSON, WGS84 degrees) for `wait_for: {line: …}`; a name saved "
+    "already is refused (`in_use`, nothing saved) unless `replace` (the reply's `replaced` names them)",
     "lines/list": "the stored lines, the GNSS `position` and `gnss`: `{fixes, rejected, last_rejection}` (a bad "
     "`tractor/gnss` put is not answered: it is counted here)",
-    "lines/delete": "delete stored lines",
+    "lines/delete": "delete a stored line; refused (`in_use`, naming them) while saved maneuvers wait for it unless "
+    "`force` (the reply's `warning` and `maneuvers` name them)",
     "implements/list": "the defined implements and which is selected",
     "implements/define": "define or replace an implement (category, mass, centre of mass, limits, headland pose)",
     "implements/select": "select the implement the guard, presets and limits use",

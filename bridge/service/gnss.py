@@ -544,21 +544,47 @@ def lines_handlers(api: Any) -> dict[str, Callable[[Any], dict[str, Any]]]:
     restart, :func:`restore_lines`)."""
 
     def save(r: Any) -> dict[str, Any]:
+        from bridge.service.schemas import RequestError
+
         lines = parse_lines(r.geojson, r.name)  # GnssError: nothing saved anywhere
-        out = api.motion.lines_request("save", r.name, r.geojson)
+        saved = {name for name, _ in api.store.list_lines()}
+        again = [ln.name for ln in lines if ln.name in saved]
+        if again and not r.replace:  # a typo in a name replaced a headland line silently (a field trial)
+            raise RequestError(
+                "in_use",
+                f"lines/save: line(s) {', '.join(map(repr, again))} saved already; nothing was saved: send "
+                '"replace": true (CLI: hitch lines save NAME FILE --replace) to replace them, or use other names',
+            )
+        out = dict(api.motion.lines_request("save", r.name, r.geojson))
         owner = getattr(api._caller, "user", None)
         for ln in lines:
             api.store.save_line(ln.name, ln.coordinates, owner=owner)
-        return dict(out)
+        if again:
+            out["replaced"] = again
+        return out
 
     def delete(r: Any) -> dict[str, Any]:
+        from bridge.service.maneuvers.recorder import maneuvers_using_line
+        from bridge.service.schemas import RequestError
+
+        users = maneuvers_using_line(api.store, r.name)
+        if users and not r.force:  # those maneuvers would abort at the headland (trigger_unavailable)
+            raise RequestError(
+                "in_use",
+                f"lines/delete: line {r.name!r} is waited for by the saved maneuver(s) {', '.join(users)}; send "
+                "force: true (`hitch lines delete NAME --force`) to delete it anyway (those maneuvers then fail to "
+                "validate, and a run aborts at that step: trigger_unavailable)",
+            )
         stored = api.store.delete_line(r.name)
         try:
-            return dict(api.motion.lines_request("delete", r.name))
+            out = dict(api.motion.lines_request("delete", r.name))
         except ValueError:  # not in the tracker (MotionError not_found): fine if it was stored
-            if stored:
-                return {"deleted": r.name}
-            raise
+            if not stored:
+                raise
+            out = {"deleted": r.name}
+        if users:
+            out.update(warning=f"line {r.name!r} was waited for by {', '.join(users)}", maneuvers=users)
+        return out
 
     return {
         "lines/save": save,

@@ -319,6 +319,14 @@ class LinesSave(_Strict):
 
     name: str | None = Field(None, pattern=_NAME)
     geojson: dict[str, Any]
+    replace: bool = False  # a line of a name saved already is refused (in_use) unless this
+
+
+class LinesDelete(NameRequest):
+    """Delete a line; refused (``in_use``, naming the maneuvers) while a saved maneuver waits for it unless
+    ``force``."""
+
+    force: bool = False
 
 
 class ImplementDefine(_Strict):
@@ -401,7 +409,7 @@ REQUESTS: Mapping[str, type[_Strict]] = {
     "maneuvers/record/stop": RecordStop,
     "lines/save": LinesSave,
     "lines/list": Empty,
-    "lines/delete": NameRequest,
+    "lines/delete": LinesDelete,
     "implements/list": Empty,
     "implements/define": ImplementDefine,
     "implements/select": NameRequest,

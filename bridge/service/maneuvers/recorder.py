@@ -28,7 +28,7 @@ from typing import Any
 import yaml
 
 from bridge.service.maneuvers.language import MAX_STEPS, parse_maneuver
-from bridge.service.maneuvers.steps import MAX_TIMEOUT_S, POSE_BOUNDS
+from bridge.service.maneuvers.steps import MAX_TIMEOUT_S, POSE_BOUNDS, PresetStep, WaitForStep
 from planner.errors import HitchInputError
 
 __all__ = ["ManeuverRecorder", "RecorderError", "discarded_recording"]
@@ -206,14 +206,21 @@ def discarded_recording(api: Any) -> dict[str, Any] | None:
 
 def maneuvers_using_preset(store: Any, preset: str) -> list[str]:
     """Names of the saved maneuvers with a ``preset`` step of that name (sorted)."""
-    from bridge.service.maneuvers.steps import PresetStep
+    return _maneuvers_with(store, lambda s: isinstance(s, PresetStep) and s.name == preset)
 
+
+def maneuvers_using_line(store: Any, line: str) -> list[str]:
+    """Names of the saved maneuvers with a ``wait_for: {line: …}`` step on that line (sorted)."""
+    return _maneuvers_with(store, lambda s: isinstance(s, WaitForStep) and s.line == line)
+
+
+def _maneuvers_with(store: Any, uses: Callable[[Any], bool]) -> list[str]:
     out = []
     for summary in store.list_maneuvers():
         try:
             m = store.get_maneuver(summary.name)
-        except ValueError:  # a row this program cannot parse (StoreError): it uses no preset we can tell
+        except ValueError:  # a row this program cannot parse (StoreError): it uses nothing we can tell
             continue
-        if m is not None and any(isinstance(s, PresetStep) and s.name == preset for s in m.parsed.steps):
+        if m is not None and any(uses(s) for s in m.parsed.steps):
             out.append(m.name)
     return sorted(out)

@@ -54,8 +54,19 @@ def test_lines_save_list_delete(service, capsys, tmp_path):
     assert rc != 0 and "lat" in err and "[-85, 85]" in err, err
     rc, _, err = _cli(capsys, ep, "lines", "save", "x", str(tmp_path / "missing.geojson"))
     assert rc == 2 and "does not exist" in err
-    rc, out, _ = _cli(capsys, ep, "lines", "delete", "headland")
-    assert rc == 0 and "deleted headland" in out
+    rc, _, err = _cli(capsys, ep, "lines", "save", "headland", str(f))  # saved already: not replaced unasked
+    assert rc != 0 and "saved already" in err and "--replace" in err, err
+    rc, out, err = _cli(capsys, ep, "lines", "save", "headland", str(f), "--replace")
+    assert rc == 0 and "saved headland (replaced headland)" in out, err
+    lift = tmp_path / "lift.yaml"  # a saved maneuver waits for the line: delete needs --force
+    lift.write_text("steps:\n  - wait_for: {line: headland}\n  - goto: {z: 0.2}\n")
+    rc, _, err = _cli(capsys, ep, "maneuver", "save", "lift", str(lift))
+    assert rc == 0, err
+    rc, _, err = _cli(capsys, ep, "lines", "delete", "headland")
+    assert rc != 0 and "waited for by the saved maneuver(s) lift" in err and "--force" in err, err
+    rc, out, _ = _cli(capsys, ep, "lines", "delete", "headland", "--force")
+    assert rc == 0 and "deleted headland (warning: line 'headland' was waited for by lift)" in out
+    assert _cli(capsys, ep, "maneuver", "delete", "lift")[0] == 0
     rc, _, err = _cli(capsys, ep, "lines", "delete", "headland")
     assert rc != 0 and ("not_found" in err or "no line" in err), err
 

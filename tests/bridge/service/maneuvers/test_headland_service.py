@@ -195,3 +195,38 @@ def test_lines_are_kept_across_a_restart_and_loaded_from_a_file(tmp_path):
             assert lines["headland"]["coordinates"] == want
     finally:
         svc.close()
+
+
+def test_a_saved_line_is_replaced_only_when_asked_and_one_in_use_is_deleted_only_with_force(tmp_path):
+    """A field trial: ``lines/save`` of a name saved already replaced that headland line silently (a typo in a
+    name moves where the hitch lifts), and ``lines/delete`` deleted a line a saved maneuver waits for (its
+    run then aborts at the headland: trigger_unavailable). Now, as for maneuvers and presets: refused
+    (``in_use``, nothing changed) unless ``replace`` / ``force``, and the reply says what was replaced or who
+    used the deleted line."""
+    plane = LocalTangentPlane(48.0, 11.0)
+    svc, ep = _start(tmp_path, control_core="thread")
+    try:
+        with HitchClient([ep], timeout_s=10) as c:
+            c.request("lines/save", {"name": "headland", "geojson": _line_across(plane, 30.0)})
+            first = c.request("lines/list", {})["lines"][0]["coordinates"]
+            with pytest.raises(ServiceError) as ei:
+                c.request("lines/save", {"name": "headland", "geojson": _line_across(plane, 60.0)})
+            assert ei.value.code == "in_use" and "'headland'" in str(ei.value) and "replace" in str(ei.value)
+            assert c.request("lines/list", {})["lines"][0]["coordinates"] == first  # nothing changed
+            r = c.request("lines/save", {"name": "headland", "geojson": _line_across(plane, 60.0), "replace": True})
+            assert r["saved"] == ["headland"] and r["replaced"] == ["headland"]
+            assert c.request("lines/list", {})["lines"][0]["coordinates"] == _line_across(plane, 60.0)["coordinates"]
+            script = "steps:\n  - wait_for: {line: headland}\n  - goto: {z: 0.2}\n"
+            c.request("maneuvers/save", {"name": "lift-at-headland", "script": script})
+            with pytest.raises(ServiceError) as ei:
+                c.request("lines/delete", {"name": "headland"})
+            assert ei.value.code == "in_use" and "lift-at-headland" in str(ei.value) and "force" in str(ei.value)
+            assert [ln["name"] for ln in c.request("lines/list", {})["lines"]] == ["headland"]
+            r = c.request("lines/delete", {"name": "headland", "force": True})
+            assert r["deleted"] == "headland" and r["maneuvers"] == ["lift-at-headland"] and "warning" in r
+            assert c.request("lines/list", {})["lines"] == []
+            with pytest.raises(ServiceError) as ei:  # a line never saved: not_found, as before
+                c.request("lines/delete", {"name": "other", "force": True})
+            assert ei.value.code == "not_found" and "other" in str(ei.value)
+    finally:
+        svc.close()

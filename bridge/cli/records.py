@@ -45,6 +45,23 @@ def _when(t: Any) -> str:
         return f"t={t!r}"
 
 
+def _where(rec: dict[str, Any]) -> str:
+    """`` | at x … mm, z … mm, roll … mrad, pitch … mrad (measured … s before)`` from an event's
+    ``measured_pose`` [m, rad] and ``measured_age_s``; "" without them (or with values that are no numbers)."""
+    pose, age = rec.get("measured_pose"), rec.get("measured_age_s")
+    if not isinstance(pose, dict):
+        return ""
+    parts = []
+    for name, unit in (("x", "mm"), ("z", "mm"), ("roll", "mrad"), ("pitch", "mrad")):
+        v = pose.get(name)
+        if isinstance(v, (int, float)) and not isinstance(v, bool):
+            parts.append(f"{name} {v * 1000:+.1f} {unit}")
+    if not parts:
+        return ""
+    ago = f" (measured {age:.3f} s before)" if isinstance(age, (int, float)) and not isinstance(age, bool) else ""
+    return " | at " + ", ".join(parts) + ago
+
+
 def format_record(rec: dict[str, Any]) -> str:
     """One line of plain text for an event-log record."""
     kind = rec.get("kind")
@@ -60,9 +77,9 @@ def format_record(rec: dict[str, Any]) -> str:
         body = f" {rec['request']}" if rec.get("request") else ""
         return f"{head}request {rec.get('key')} by {who}{body}: {what}"
     if kind == "event":
-        skip = {"t", "seq", "kind", "event", "event_t"}
+        skip = {"t", "seq", "kind", "event", "event_t", "measured_pose", "measured_age_s"}
         rest = ", ".join(f"{k}={v}" for k, v in rec.items() if k not in skip)
-        return f"{head}event {rec.get('event')}" + (f": {rest}" if rest else "")
+        return f"{head}event {rec.get('event')}" + (f": {rest}" if rest else "") + _where(rec)
     if kind in ("gap", "suppressed") and isinstance(rec.get("message"), str):  # their sentence says it all
         return f"{head}{kind}: {rec['message']}"
     skip = {"t", "seq", "kind"}

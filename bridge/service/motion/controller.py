@@ -1408,6 +1408,16 @@ class MotionController:
 
     def _post(self, events: list[Event]) -> None:
         """Number and queue ``events`` (call under the lock: the numbering is the order things
-        happened in); :meth:`Outbox.flush` after the lock delivers them."""
+        happened in); :meth:`Outbox.flush` after the lock delivers them. Each gets where the hitch was:
+        ``measured_pose`` (the link's newest measured pose [m, rad]) and ``measured_age_s`` (its age [s] on the
+        link's clock: a link fault's pose is from before the link went quiet), when there was a measurement
+        (an incident trial: the black box said that a fault came, not where the implement was)."""
+        ls = self.link.latest_state()
+        where: dict[str, Any] = {}
+        if ls is not None:
+            where = {
+                "measured_pose": {k: round(float(v), 6) for k, v in ls.pose.as_dict().items()},
+                "measured_age_s": round(max(0.0, float(self.clock()) - float(ls.t_s)), 4),
+            }
         for e in events:
-            self.outbox.put_event(e)
+            self.outbox.put_event({**where, **e} if where else e)

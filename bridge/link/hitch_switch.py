@@ -8,7 +8,10 @@ commands: an edge into raise → ``"raise"``, an edge into lower → ``"return"`
 sets the position (a switch resting at lower when the service starts returns nothing), and holding a
 position repeats nothing. :class:`HitchSwitchNode` is the bus node (for a
 :class:`~bridge.link.realtime.SharedBusNodes` runner): it decodes the frames and hands each command
-to ``on_command`` (called on the CAN thread: it must only queue work, never plan).
+to ``on_command`` (called on the CAN thread: it must only queue work, never plan). An edge whose frame is
+older than :data:`MAX_EDGE_AGE_S` when the node reads it (its bus stamp against the wall clock: the frame
+waited in the bus while the service stalled) gives no command — a "lower" pressed seconds ago must not
+start a return and resume work when the service runs again (a safety trial) — and goes to ``on_stale``.
 :func:`press_frames` / :func:`press_switch` are the twin's side: the frames of one momentary press
 (released, the position, released: one edge whatever the switch's last position), as the service's
 ``sim/switch`` key makes the simulated tractor send them.
@@ -16,6 +19,7 @@ to ``on_command`` (called on the CAN thread: it must only queue work, never plan
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from typing import Literal
 
@@ -25,6 +29,7 @@ from bridge.isobus.codec import decode_frame, encode
 from bridge.isobus.j1939 import decode_id
 from bridge.isobus.messages import OPERATOR_SWITCH_ADDRESS, PGN_HITCH_PTO_COMMANDS, CodecError, HitchCommand
 from bridge.link.realtime import ReceivingNode
+from bridge.link.state import frame_stamp
 
 __all__ = [
     "RAISE_AT",
@@ -36,7 +41,12 @@ __all__ = [
     "press_switch",
     "SwitchEdges",
     "HitchSwitchNode",
+    "MAX_EDGE_AGE_S",
 ]
+
+#: an edge read this long after its frame's bus stamp [s] gives no command (module docstring); a press is
+#: read within a few ms, under CPU load within tens of ms
+MAX_EDGE_AGE_S = 0.5
 
 #: rear hitch position command (fraction) from which the switch counts as raised / lowered
 RAISE_AT = 0.9
@@ -113,7 +123,11 @@ class HitchSwitchNode(ReceivingNode):
         self.source = source
         self.edges = SwitchEdges()
         self._now = 0.0
-        self.frames = self.ignored = self.commands = 0
+        self.frames = self.ignored = self.commands = self.stale = 0
+        #: called with (command, age [s]) for an edge too old to act on (on the CAN thread: queue work only)
+        self.on_stale: Callable[[Command, float], None] | None = None
+        self.max_age_s = MAX_EDGE_AGE_S
+        self.wall_clock: Callable[[], float] = time.time  # the bus stamps' clock
 
     def take(self, frame: can.Message, now_s: float) -> Command | None:
         """One frame at ``now_s``; the command it gives (None: none, or not a switch frame)."""
@@ -134,10 +148,19 @@ class HitchSwitchNode(ReceivingNode):
         if not isinstance(payload, HitchCommand):
             return None
         self.frames += 1
-        cmd = self.edges.update(switch_position(payload.rear_position))
-        if cmd is not None:
-            self.commands += 1
-            hook = self.on_command
-            if hook is not None:
-                hook(cmd)
+        cmd = self.edges.update(switch_position(payload.rear_position))  # the position is taken, old or not
+        if cmd is None:
+            return None
+        stamp = frame_stamp(frame)
+        age = None if stamp is None else self.wall_clock() - stamp
+        if age is not None and age > self.max_age_s:
+            self.stale += 1
+            stale_hook = self.on_stale
+            if stale_hook is not None:
+                stale_hook(cmd, age)
+            return None
+        self.commands += 1
+        hook = self.on_command
+        if hook is not None:
+            hook(cmd)
         return cmd

@@ -84,6 +84,11 @@ class Dispatch(Protocol):
     ) -> tuple[bool, dict[str, Any]]: ...
 
 
+#: a ``hitch_switch`` event that reaches this process later than this after it was posted [s] is not acted on
+#: (the service stalled; the switch node drops edges whose frames are older: bridge.link.hitch_switch)
+SWITCH_EVENT_MAX_DELAY_S = 1.0
+
+
 def _monotonic_of(event: Mapping[str, Any]) -> float:
     """``time.monotonic()`` of when ``event`` happened, from its wall-clock ``t`` [s] (now when it has none, or a
     ``t`` in the future)."""
@@ -533,6 +538,19 @@ class ImplementService:
             return
         key = {"raise": "hitch/raise", "return": "hitch/return"}.get(str(event.get("command")))
         if key is None:
+            return
+        late = time.monotonic() - _monotonic_of(event)
+        if late > SWITCH_EVENT_MAX_DELAY_S:  # this process stalled: a press of seconds ago must not move now
+            answer = (
+                False,
+                {
+                    "error": "busy",
+                    "message": f"the switch press reached the service {late:.2f} s after it happened (limit "
+                    f"{SWITCH_EVENT_MAX_DELAY_S:g} s: the service was stalled); not acted on — press it again",
+                },
+            )
+            self.switch_log.append((key, answer))
+            self._announce_refusal(key, answer)
             return
         if not self._switch_busy.acquire(blocking=False):
             self.switch_log.append((key, "dropped: the previous switch request still runs"))

@@ -85,6 +85,7 @@ from bridge.service.gnss import GnssTracker
 from bridge.service.maneuvers.language import ValidationResult, guarded_plan_step
 from bridge.service.maneuvers.runner import AbortReason, LoopState, ManeuverRunner
 from bridge.service.maneuvers.slot import ManeuverSlot
+from bridge.service.motion.following import FollowingErrorLimits, FollowingSupervisor
 from bridge.service.motion.link_port import LinkPort
 from bridge.service.motion.outbox import Outbox
 from bridge.service.motion.types import (
@@ -218,6 +219,7 @@ class MotionController:
         spawn: Callable[[Callable[[], None]], None] | None = None,
         feedforward: bool = True,
         sensors: TrackSensors | None = None,
+        following: FollowingErrorLimits | None = None,
     ):
         self.guard, self.plan_guard = guard, plan_guard
         self.planner = guard.planner
@@ -260,6 +262,8 @@ class MotionController:
         self._resume_deadline: float | None = None  # a maneuver resume's or skip's deadline for its next step
         self._limited: dict[str, str] = {}
         self._reference: Reference | None = None
+        #: the cylinders follow the streamed references (fault following_error; bridge.service.motion.following)
+        self.following = FollowingSupervisor(following)
         self._eval_cache = EvaluationCache()
         self._seq = 0
         self._cycle_n = 0
@@ -422,6 +426,7 @@ class MotionController:
         with self._lock:
             self._check_allowed("jog")
             self._check_no_fault("jog")
+            self._check_controllers_on("jog")
             self._check_late("jog", self.clock(), deadline, issued)
             capped: dict[str, str] = {}  # what the mode caps, said in the reply like any other limit
             if self._mode == "attach":  # slow rates, same responsiveness (acceleration and jerk not scaled)
@@ -494,6 +499,7 @@ class MotionController:
         with self._lock:
             self._check_allowed("track")
             self._check_no_fault("track")
+            self._check_controllers_on("track")
             now = self.clock()
             self._check_late("track", now, deadline, issued)
             m = self._active
@@ -986,7 +992,19 @@ class MotionController:
         self._check_allowed(kind)
         self._check_precedence()
         self._check_no_fault(what)
+        self._check_controllers_on(what)
         self._check_late(what, now, deadline, issued)
+
+    def _check_controllers_on(self, what: str) -> None:
+        """Refused (``ecu``) while the cylinder ECU reports its controllers off (system-state bit 0): it
+        would not drive the valves, and the motion would run its plan with nothing moving."""
+        ls = self.link.latest_state()
+        if ls is not None and not ls.system.controllers_on:
+            raise MotionError(
+                "ecu",
+                f"{what} refused: the cylinder ECU reports its controllers off (system state bit 0): it does not "
+                "drive the valves; switch them on at the ECU",
+            )
 
     def check_in_time(self, what: str, deadline: float | None, issued: float | None) -> None:
         """Refuse (``busy``) a request that would start or resume motion after its ``deadline`` [s, this
@@ -1162,12 +1180,43 @@ class MotionController:
                     self.link.stop_motion()
                     if isinstance(exc, LinkFaultError):  # the link's latched faults that are still there
                         self._latch_link_faults(status, now)
+            self._supervise_following(status, now, events)
             if isinstance(self._active, TrackMotion):  # its guard look-ahead, after the reference is out
                 self._active.look_ahead(self.guard)
             self._post(events)
         if state is not None:  # this thread's guard and cache, outside the lock: requests never wait for it
             self.outbox.put_state(state())
         self.outbox.flush()
+
+    def _supervise_following(self, status: LinkStatus, now: float, events: list[Event]) -> None:
+        """The fault ``following_error`` (latching) when a cylinder does not follow the streamed references
+        (:mod:`bridge.service.motion.following`): the motion is aborted and the stream stopped, so the ECU's
+        watchdog holds the valves at zero. Supervised only while references stream to an ECU whose watchdog
+        has not expired, with a fresh measurement (the link's faults cover the rest)."""
+        ls, ref = status.state, self._reference
+        if not status.streaming or ref is None or ls is None or ls.system.watchdog_tripped or self._faults:
+            self.following.reset()
+            return
+        self.following.streamed(now, ref, ref.actuators, ref.rates)
+        if ls.age_s(now) > self.link.config.stale_after_s:
+            return
+        why = self.following.check(ls.actuators.as_array(), ls.measurement_t_s, ls.lift_t_s)
+        if why is None:
+            return
+        self._faults["following_error"] = Fault("following_error", why, True, now)
+        self._fresh_since = None
+        events.append(
+            {
+                "event": "fault",
+                "faults": list(self._faults),
+                "new": ["following_error"],
+                "ack_required": True,
+                "message": why,
+            }
+        )
+        self._abort_all("following error: " + why, now, events)
+        self.link.stop_motion()
+        self.following.reset()
 
     def _latch_link_faults(self, status: LinkStatus, now: float) -> None:
         for name in status.faults.active():

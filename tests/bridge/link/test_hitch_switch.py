@@ -17,6 +17,7 @@ from bridge.isobus.codec import decode_frame, encode
 from bridge.isobus.j1939 import decode_id
 from bridge.isobus.messages import OPERATOR_SWITCH_ADDRESS, PGN_HITCH_PTO_COMMANDS, CodecError, HitchCommand
 from bridge.link.hitch_switch import (
+    MAX_EDGE_AGE_S,
     HitchSwitchNode,
     SwitchEdges,
     press_frames,
@@ -67,6 +68,31 @@ def test_the_node_decodes_frames_and_ignores_other_senders():
         assert node.take(can.Message(arbitration_id=0x123, is_extended_id=False, data=b"\0"), 0.5) is None
         assert got == ["raise", "return"] and node.commands == 2
     finally:
+        node.bus.shutdown()
+
+
+def test_an_edge_read_long_after_its_frame_was_stamped_gives_no_command():
+    """A safety trial: the service stalled 2 s (SIGSTOP) while the operator pressed "lower"; when it ran again
+    it read the waiting frames, returned the hitch and resumed the paused work. An edge whose frame's bus
+    stamp is older than MAX_EDGE_AGE_S when it is read gives no command now; ``on_stale`` hears of it, and
+    the position is taken (holding the switch later repeats nothing)."""
+    channel = f"stale-{uuid.uuid4().hex}"
+    bus = can.Bus(interface="virtual", channel=channel)
+    got: list[str] = []
+    stale: list[tuple[str, float]] = []
+    node = HitchSwitchNode(can.Bus(interface="virtual", channel=channel), got.append)
+    node.on_stale = lambda cmd, age: stale.append((cmd, age))
+    try:
+        press_switch(bus, "lower")
+        time.sleep(MAX_EDGE_AGE_S + 0.2)  # the service stalls; the frames wait on the bus
+        node.poll(0.0)
+        assert got == [] and node.commands == 0 and node.stale == 1
+        assert [c for c, _ in stale] == ["return"] and stale[0][1] > MAX_EDGE_AGE_S
+        press_switch(bus, "raise")  # a fresh press is taken at once
+        node.poll(1.0)
+        assert got == ["raise"] and node.commands == 1
+    finally:
+        bus.shutdown()
         node.bus.shutdown()
 
 

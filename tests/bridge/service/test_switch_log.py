@@ -54,3 +54,33 @@ def test_each_switch_edge_is_logged_with_its_answer_or_why_it_was_dropped(tmp_pa
         assert len(svc.switch_log) == SWITCH_HISTORY
     finally:
         store.close()
+
+
+def test_a_switch_event_that_reaches_the_service_late_is_not_acted_on(tmp_path):
+    """A safety trial: a stalled process acted on a switch press seconds later (a return, then the paused work
+    resumed). An event delivered more than SWITCH_EVENT_MAX_DELAY_S after it was posted (its ``t``) is refused
+    and announced; one delivered at once runs."""
+    import time
+
+    from bridge.service.implements import SWITCH_EVENT_MAX_DELAY_S
+
+    store = HitchStore(tmp_path / "hitch.sqlite3")
+    try:
+        posted: list[dict] = []
+
+        class Motion:
+            def post_event(self, event):
+                posted.append(dict(event))
+
+        svc = ImplementService(store, motion=Motion())
+        asked: list[str] = []
+        svc.dispatch = lambda key, payload: (asked.append(key), (True, {}))[1]
+        svc.on_event({"event": "hitch_switch", "command": "return", "t": time.time() - SWITCH_EVENT_MAX_DELAY_S - 1.0})
+        assert wait_until(lambda: len(svc.switch_log) == 1, 5.0)
+        key, (ok, reply) = svc.switch_log[0]
+        assert key == "hitch/return" and not ok and "s after it happened" in reply["message"], reply
+        assert asked == [] and posted[0]["event"] == "hitch_switch_refused" and posted[0]["command"] == "return"
+        svc.on_event({"event": "hitch_switch", "command": "return", "t": time.time()})
+        assert wait_until(lambda: asked == ["hitch/return"], 5.0)
+    finally:
+        store.close()

@@ -1,0 +1,124 @@
+"""Following-error supervision (bridge.service.motion.following): the cylinders must follow the references.
+
+An integrator's trial with his own ECU: an ECU whose controllers were off (or a cylinder that did not move)
+let a goto run its plan to the end and announce ``motion_finished`` 50 mm short of the goal, exit status 0.
+Now a cylinder that stays beyond its allowance for ``time_s`` raises the latching fault ``following_error``,
+aborts the motion and stops the stream; a motion is refused while the ECU reports its controllers off.
+
+Truth: the allowance's closed form ``e_max + lag_s · |q̇_ref|`` and its time, on hand-made histories; the
+simulated ECU with its controllers switched off mid-move (its valves at zero: nothing follows).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from bridge.service.motion.following import FollowingErrorLimits, FollowingSupervisor
+from bridge.service.motion.types import MotionError
+from planner.model.types import ACTUATOR_NAMES
+from tests.helpers import goto_when_ready, running_machine, wait_until
+
+TOP = ACTUATOR_NAMES.index("top")
+LIFT = ACTUATOR_NAMES.index("lift")
+
+
+def _q(top: float = 0.1, lift: float = 0.5) -> np.ndarray:
+    q = np.full(len(ACTUATOR_NAMES), 0.05)
+    q[TOP], q[LIFT] = top, lift
+    return q
+
+
+_REF = object()  # one streamed reference, recorded once
+
+
+def _run(sup: FollowingSupervisor, ref_q, ref_qd, meas, times, ref=_REF) -> list[tuple[float, str | None]]:
+    out = []
+    for t in times:
+        sup.streamed(t, ref, ref_q, ref_qd)  # the same reference object: recorded once
+        out.append((t, sup.check(meas, t, t)))
+    return out
+
+
+def test_an_error_beyond_the_allowance_trips_after_time_s_and_not_before():
+    lim = FollowingErrorLimits(lift_rad=0.02, length_m=0.01, lag_s=0.3, time_s=0.5)
+    times = np.arange(0.0, 1.0001, 0.02)
+    zero = np.zeros(len(ACTUATOR_NAMES))
+    # top link 11 mm off at rest (allowance 10 mm): over from t = 0, tripped at t = 0.5 s exactly
+    got = _run(FollowingSupervisor(lim), _q(), zero, _q(top=0.111), times)
+    first = next(t for t, why in got if why is not None)
+    assert first == pytest.approx(0.5, abs=1e-9)
+    why = dict(got)[first]
+    assert why is not None and why.startswith("top +11.0 mm from its reference") and "0.50 s" in why
+    # 9 mm off: never
+    assert all(why is None for _, why in _run(FollowingSupervisor(lim), _q(), zero, _q(top=0.109), times))
+    # the lift in rad: 25 mrad (allowance 20) trips, 15 does not
+    assert any(w is not None for _, w in _run(FollowingSupervisor(lim), _q(), zero, _q(lift=0.525), times))
+    assert all(w is None for _, w in _run(FollowingSupervisor(lim), _q(), zero, _q(lift=0.515), times))
+
+
+def test_the_allowance_grows_with_the_reference_speed():
+    lim = FollowingErrorLimits(length_m=0.01, lag_s=0.3, time_s=0.5)
+    qd = np.zeros(len(ACTUATOR_NAMES))
+    qd[TOP] = 0.05  # 50 mm/s: allowance 10 + 0.3 × 50 = 25 mm
+    times = np.arange(0.0, 1.0001, 0.02)
+    assert all(w is None for _, w in _run(FollowingSupervisor(lim), _q(), qd, _q(top=0.1 - 0.024), times))
+    assert any(w is not None for _, w in _run(FollowingSupervisor(lim), _q(), qd, _q(top=0.1 - 0.026), times))
+
+
+def test_a_late_measurement_is_compared_with_the_reference_of_its_own_time():
+    """A measurement that arrived at t = 0.9 s (read late, under CPU load) is compared with the reference
+    streamed then, not with the step to +100 mm streamed at t = 1 s."""
+    sup = FollowingSupervisor(FollowingErrorLimits(time_s=0.1))
+    zero = np.zeros(len(ACTUATOR_NAMES))
+    old, new = object(), object()
+    sup.streamed(0.0, old, _q(top=0.1), zero)
+    sup.streamed(1.0, new, _q(top=0.2), zero)
+    for _ in range(20):  # read again and again: still the reference of t = 0.9
+        assert sup.check(_q(top=0.1), 0.9, 0.9) is None
+    assert sup.check(_q(top=0.1), 1.0, 1.0) is None  # over from here …
+    assert sup.check(_q(top=0.1), 1.1, 1.1) is not None  # … for time_s
+
+
+def test_limits_out_of_range_are_refused_by_name():
+    with pytest.raises(ValueError, match=r"time_s must be a number in \[0.05, 10\]"):
+        FollowingErrorLimits(time_s=0.0)
+    with pytest.raises(ValueError, match="length_m"):
+        FollowingErrorLimits(length_m=float("nan"))
+
+
+@pytest.mark.slow
+def test_a_cylinder_that_stops_following_aborts_the_motion_and_latches_following_error():
+    with running_machine("following") as (_, parts, mc, events):
+        assert goto_when_ready(mc, {"z": -0.1}), "the link never became ready"
+        assert wait_until(lambda: any(e.get("event") == "motion_finished" for e in events), 20.0)
+        events.clear()
+        acc = mc.goto({"z": 0.25}, speed_scale=0.5)
+        time.sleep(0.4)
+        assert parts.ecu_node is not None
+        parts.ecu_node.ecu.controllers_enabled = False  # valves at zero: nothing follows any more
+        t_off = time.monotonic()
+        assert wait_until(lambda: "following_error" in {f.name for f in mc.faults}, 3.0), events
+        took = time.monotonic() - t_off
+        aborted = [e for e in events if e.get("event") == "motion_aborted" and e.get("motion_id") == acc.motion_id]
+        assert aborted and "following error" in aborted[0]["reason"], events
+        assert not any(e.get("event") == "motion_finished" and e.get("motion_id") == acc.motion_id for e in events)
+        fault = next(f for f in mc.faults if f.name == "following_error")
+        assert fault.latches and "from its reference" in fault.reason, fault
+        assert took < 0.5 + 0.3 + 1.0, took  # time_s, the lag allowance, the detection's own cycles
+        # refused while the fault is held and the controllers are off
+        with pytest.raises(MotionError, match="following_error"):
+            mc.goto({"z": 0.0})
+        mc.ack_faults()
+        with pytest.raises(MotionError, match="controllers off"):
+            mc.goto({"z": 0.0})
+        parts.ecu_node.ecu.controllers_enabled = True
+        assert wait_until(lambda: mc.link.latest_state().system.controllers_on, 2.0)
+        acc = mc.goto({"z": 0.0})
+        assert wait_until(
+            lambda: any(e.get("event") == "motion_finished" and e.get("motion_id") == acc.motion_id for e in events),
+            20.0,
+        ), events
+        assert "following_error" not in {f.name for f in mc.faults}

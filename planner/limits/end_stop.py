@@ -29,6 +29,17 @@ class EndStopZone:
         frac = np.sqrt(np.clip(dist / zone, 0.0, 1.0))
         return self.velocity * frac
 
+    def in_zone(self, q: np.ndarray, qdot: np.ndarray, i: int) -> bool:
+        """Whether actuator ``i`` at ``q`` moving with the sign of ``qdot`` is inside its end-stop zone (closer
+        to the stroke end it moves to than ``zone_fraction`` of its stroke): there :meth:`speed_factor` slows
+        it for the end stop; outside, a factor below 1 is its plain velocity limit."""
+        qi, qdi = float(np.asarray(q, float)[i]), float(np.asarray(qdot, float)[i])
+        if not (math.isfinite(qi) and math.isfinite(qdi)):
+            return True  # fail closed: :meth:`speed_factor` stops it, named for the end stop
+        lo, hi = float(self.lower[i]), float(self.upper[i])
+        dist = hi - qi if qdi > 0 else qi - lo
+        return dist < self.zone_fraction * (hi - lo)
+
     def speed_factor(self, q: np.ndarray, qdot: np.ndarray) -> tuple[float, int | None]:
         """Largest factor ≤ 1 by which ``qdot`` must be scaled at ``q``, and the actuator that binds.
 

@@ -54,13 +54,16 @@ _FK_CLOSED_M = 0.5e-9  # closure residual [m] trusted in a batch (HitchModel.for
 _KEEP_OUT_TOL_M = 1e-10  # bound on |batch - per-sample| keep-out distance [m] (rounding ~1e-15 m)
 #: ``end_stop:<actuator>`` per actuator, order ACTUATOR_NAMES.
 _END_STOP_NAMES: tuple[str, ...] = tuple(str(LimitName("end_stop", n)) for n in ACTUATOR_NAMES)
+#: ``velocity:<actuator>`` per actuator: a jog asked faster than an actuator can go, outside its end-stop zone
+_VELOCITY_NAMES: tuple[str, ...] = tuple(str(LimitName("velocity", n)) for n in ACTUATOR_NAMES)
 #: per sample: keep-out clearances (name, distance [m], radius [m]) and the stability report
 _Exact = tuple[list[tuple[str, float, float]], StabilityReport]
 
 
 @dataclass(frozen=True)
 class GuardReason:
-    measure: str  # "ssm", "esm", "front_axle_load", "lsm", "keep_out:<name>", "end_stop:<actuator>"
+    #: "ssm", "esm", "front_axle_load", "lsm", "keep_out:<name>", "end_stop:<actuator>", "velocity:<actuator>"
+    measure: str
     value: float
     threshold: float
     t_s: float  # time in the plan (jog: seconds ahead)
@@ -575,9 +578,12 @@ class Guard:
                 reasons.append(GuardReason(self._keep_out_names[j], dist, r, h, "hard", "m"))
         if any(r.level == "hard" for r in reasons):
             return np.zeros(4), GuardDecision("refused", 0.0, tuple(reasons), ahead)
-        f_end, i = self.end_stops.speed_factor(q_now, jac @ rates)
-        if i is not None:
-            reasons.append(GuardReason(_END_STOP_NAMES[i], f_end, 1.0, 0.0, "speed"))
+        qdot = jac @ rates
+        f_end, i = self.end_stops.speed_factor(q_now, qdot)
+        if i is not None:  # named for the end stop inside its zone, else the actuator's speed limit (an operator
+            # read "lift arm slowing before its stroke end" for a jog asked faster than the lift can go, mid-stroke)
+            name = _END_STOP_NAMES[i] if self.end_stops.in_zone(q_now, qdot, i) else _VELOCITY_NAMES[i]
+            reasons.append(GuardReason(name, f_end, 1.0, 0.0, "speed"))
             factor = min(factor, f_end)
         action: Action = "ok" if factor >= 1.0 and clipped_by is None else "scaled"
         return rates * factor, GuardDecision(action, factor, tuple(reasons), ahead)

@@ -302,3 +302,35 @@ def test_an_implement_name_for_the_record_is_refused_saying_how_to_get_one(balla
     assert g.implement is heavy  # the refused one did not replace it
     g.set_implement(None)
     assert g.implement is None
+
+
+def test_in_zone_by_hand():
+    z = EndStopZone(np.zeros(5), np.ones(5), np.full(5, 2.0), zone_fraction=0.1)
+    q = np.array([0.5, 0.95, 0.05, 0.5, 0.5])
+    up, down = np.ones(5), -np.ones(5)
+    assert [z.in_zone(q, up, i) for i in range(5)] == [False, True, False, False, False]
+    assert [z.in_zone(q, down, i) for i in range(5)] == [False, False, True, False, False]
+    assert z.in_zone(np.array([np.nan, 0, 0, 0, 0]), up, 0)  # fail closed
+
+
+def test_a_jog_faster_than_an_actuator_mid_stroke_is_named_for_its_speed_not_its_end_stop(model):
+    """An operator trial: `hitch jog --vz 0.2` with the lift at 40 % said "lift arm slowing before its stroke end
+    [end_stop:lift]": the factor below 1 was the lift's plain speed limit, far from either end. Now the reason is
+    velocity:<actuator> outside the end-stop zone and end_stop:<actuator> inside it."""
+    guard = Guard(TrajectoryPlanner(model))
+    tp = guard.planner
+    mid = MotionState.at_rest([0.0, tp.lo[1] + 0.4 * (tp.hi[1] - tp.lo[1]), 0.0, 0.0])  # the lift at ~40 %
+    q_mid = tp.inverse(*mid.position)
+    zone = guard.end_stops
+    assert not zone.in_zone(q_mid, np.ones(5), 0) and not zone.in_zone(q_mid, -np.ones(5), 0)  # lift mid-stroke
+    rates, dec = guard.check_jog(mid, np.array([0.0, 0.2, 0.0, 0.0]))  # faster than the lift goes (the trial's)
+    speed = [r for r in dec.reasons if r.level == "speed"]
+    assert dec.action == "scaled" and rates[1] < 0.2
+    assert [r.measure for r in speed] == ["velocity:lift"], dec.reasons
+    # close to the lift's lower end (the workspace reaching it), moving down: the end stop binds, named so
+    z_end = _z_at_lift_lower_end(model)
+    g = Guard(TrajectoryPlanner(model, workspace=dict(model.workspace, z=(z_end, model.workspace["z"][1]))))
+    low = MotionState.at_rest([0.0, z_end + 0.002, 0.0, 0.0])
+    assert g.end_stops.in_zone(g.planner.inverse(*low.position), -np.ones(5), 0)
+    _, dec = g.check_jog(low, np.array([0.0, -0.1, 0.0, 0.0]))
+    assert "end_stop:lift" in [r.measure for r in dec.reasons if r.level == "speed"], dec.reasons

@@ -11,7 +11,9 @@ heartbeats (``--all``) and every fault the link raises and clears in the log's t
 missing heartbeat at the log's start, before the first one arrived, is said to be that and not counted). Each
 message is printed at most once per ``--interval`` per sender (the bus carries some 400 frames a second),
 ``--only`` picks message names — for ``--json`` too; faults and frames that cannot be decoded are always
-printed, and the closing line counts every frame and the faults raised and cleared. The first line says when
+printed, and the closing line counts every frame and the faults raised and cleared, and the frames stamped out
+of time order by a bus's jitter (up to 0.25 s back: the CAN hub's senders), taken in the file's order (``--json``:
+a last record ``out_of_order``); a larger step back is refused, naming the frame. The first line says when
 the log starts (local and Unix time), ``--clock`` puts each line's local time of day in front, and JSON
 records carry ``timestamp`` (Unix s): to line a replay up with ``hitch log``.
 """
@@ -226,7 +228,7 @@ def _time_of_day(t: float | None) -> str:
 
 
 def _cmd_replay(args) -> int:
-    from bridge.service.blackbox import replay_can_log
+    from bridge.service.blackbox import OUT_OF_ORDER, replay_can_log
 
     model = model_from_args(args)
     c = console(soft_wrap=True)
@@ -235,6 +237,7 @@ def _cmd_replay(args) -> int:
     last_t: dict[tuple[str, int | None], float] = {}  # per message and sender: when it was last printed
     only: frozenset[str] | None = args.only
     started = False
+    out_of_order = ""  # the replay's count of frames stamped out of time order (taken in file order), said last
 
     def shown(r) -> bool:
         """--only, --interval and --all pick the frames shown (text and JSON alike); faults and frames that
@@ -268,6 +271,11 @@ def _cmd_replay(args) -> int:
             else:
                 start = r.timestamp - r.t_s
                 c.print(f"log starts {_local(start, '%Y-%m-%d %H:%M:%S')} ({start:.6f})", markup=False, highlight=False)
+        if r.name == OUT_OF_ORDER:  # the closing count, no frame: in the closing line (--json: a last record)
+            out_of_order = r.faults[0] if r.faults else ""
+            if args.json:
+                print(to_json_text(r.to_json()))
+            continue
         if r.name == "fault":
             at_start += r.log_start
             raised += not r.log_start
@@ -307,7 +315,8 @@ def _cmd_replay(args) -> int:
             f"{sum(counts.values())} frames: "
             + (", ".join(f"{n} {k}" for k, n in sorted(counts.items())) or "none")
             + f"; {raised} faults raised, {cleared} cleared"
-            + (f" (and {at_start} at the log's start, before its first measurement or heartbeat)" if at_start else ""),
+            + (f" (and {at_start} at the log's start, before its first measurement or heartbeat)" if at_start else "")
+            + (f"; {out_of_order}" if out_of_order else ""),
             markup=False,
             highlight=False,
         )

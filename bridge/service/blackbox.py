@@ -43,7 +43,9 @@ back is counted and written as one ``suppressed`` record per group at most every
 
 :class:`CanRecorder` records every frame of a bus with python-can's own writers
 (:class:`can.SizedRotatingLogger`: ``.asc``, ``.blf``, candump ``.log``, ``.csv`` by the file's
-suffix) through a listener bus of its own on the same channel, rotated by size like the event log:
+suffix) through a listener bus of its own on the same channel, in the order it receives them and in time order (a
+frame stamped before one written already — the CAN hub's senders' jitter — is written at the latest time), rotated
+by size like the event log:
 ``bus.asc`` is the newest, ``bus.1.asc`` the one before … ``bus.N.asc`` the oldest kept (the
 format's suffix stays last, so every file reads back with :class:`can.LogReader` and ``hitch replay``).
 :func:`replay_can_log` reads a recorded
@@ -54,6 +56,7 @@ poses and each fault the link raised or cleared.
 
 from __future__ import annotations
 
+import copy
 import json
 import logging
 import logging.handlers
@@ -101,6 +104,9 @@ __all__ = [
     "STREAMED_KEYS",
     "UNRECORDED_KEYS",
     "MAX_BODY_CHARS",
+    "MAX_OUT_OF_ORDER_S",
+    "OUT_OF_ORDER",
+    "describe_out_of_order",
 ]
 
 #: request keys whose JSON body is kept in the log and whose accepted requests are kept generously: every key
@@ -827,15 +833,39 @@ class _SizedLog(can.SizedRotatingLogger):
     def __init__(self, base_filename: str, max_bytes: int) -> None:
         self._since_size = 0
         self.failed: BaseException | None = None
+        self._last_t = -math.inf  # the latest timestamp written
+        self.out_of_order = 0  # frames written at the latest time, stamped before it (below)
+        self.max_back_s = 0.0  # the most such a frame was stamped before the latest one [s]
         super().__init__(base_filename, max_bytes=max_bytes)
 
+    def _in_order(self, msg: can.Message) -> can.Message:
+        """``msg``, or a copy at the latest time written when it is stamped before it by at most
+        :data:`MAX_OUT_OF_ORDER_S`: the frames are written in the order the recorder received them, in time order.
+
+        A CAN hub (:class:`~bridge.link.loopback.LoopbackHub`: python-can's ``virtual`` bus in one process)
+        stamps each frame when a sender's thread hands it on and then puts it into every client's queue; the
+        threads of several senders interleave between the two, so a frame stamped earlier can reach the
+        recorder after one stamped later (up to 15 ms measured). A larger step back is no such jitter (the
+        computer's clock set back): written as it is, and the log's time goes on from there."""
+        t = float(msg.timestamp)
+        if t >= self._last_t or not self._last_t - t <= MAX_OUT_OF_ORDER_S:
+            self._last_t = t
+            return msg
+        if self._last_t - t > _BACKWARDS_TOLERANCE_S:
+            self.out_of_order += 1
+            self.max_back_s = max(self.max_back_s, self._last_t - t)
+        taken = copy.copy(msg)
+        taken.timestamp = self._last_t
+        return taken
+
     def on_message_received(self, msg: can.Message) -> None:
-        """Write ``msg``; after an error (a rotation that could not rename leaves the writer closed)
-        nothing more: the error went to the notifier's listeners once, not again for every frame."""
+        """Write ``msg`` (in time order: :meth:`_in_order`); after an error (a rotation that could not rename
+        leaves the writer closed) nothing more: the error went to the notifier's listeners once, not again for
+        every frame."""
         if self.failed is not None:
             return
         try:
-            super().on_message_received(msg)
+            super().on_message_received(self._in_order(msg))
         except Exception as exc:
             self.failed = exc
             raise
@@ -874,6 +904,15 @@ CAN_LOG_SUFFIXES = (".asc", ".blf", ".log", ".csv")
 _SUFFIX_HINT = "suffixes: .asc, .blf, .log (candump), .csv"
 #: how far a replayed frame's timestamp may lie before the latest one (the writers' rounding) [s]
 _BACKWARDS_TOLERANCE_S = 1e-6
+#: how far a frame's timestamp may lie before an earlier frame's and still be a bus's timestamp jitter, taken in
+#: the file's order at the latest time (by the recorder, :class:`CanRecorder`, and by the replay,
+#: :func:`replay_can_log`) [s]. The product's own hub interleaves its senders' stamps by up to 15 ms (an
+#: integrator's 150 000-frame log), more on a loaded computer; software-stamped loggers of real buses (USB
+#: adapters that buffer frames, channels merged) by a few to tens of ms. Ten times the hub's worst seen and
+#: more: 0.25 s. A step back of more than this is no jitter but two recordings put together, a damaged file or a
+#: clock set back — refused by the replay, which says how many frames it took late and by how much (a frame
+#: taken late by about a stale or heartbeat limit, 0.2 / 0.3 s, could show a fault the bus did not have).
+MAX_OUT_OF_ORDER_S = 0.25
 
 
 def rotated_can_log(path: str | Path, k: int) -> Path:
@@ -951,6 +990,17 @@ class CanRecorder:
         return self._count.n
 
     @property
+    def frames_out_of_order(self) -> int:
+        """Frames stamped before one written earlier (the hub's senders' jitter, by at most
+        :data:`MAX_OUT_OF_ORDER_S`), written in the order received at the latest time written."""
+        return self._writer.out_of_order
+
+    @property
+    def max_out_of_order_s(self) -> float:
+        """The most one of :attr:`frames_out_of_order` was stamped before the latest time written [s]."""
+        return self._writer.max_back_s
+
+    @property
     def error(self) -> BaseException | None:
         """What stopped the recording (a rotation that could not rename, a full disk), or None."""
         return self._count.error
@@ -969,7 +1019,7 @@ class CanRecorder:
         return cls(cfg.can_log, cfg.can_interface, cfg.can_channel, max_bytes=max_bytes, keep=cfg.can_log_keep)
 
     @staticmethod
-    def _open(path: Path, max_bytes: int, keep: int) -> can.SizedRotatingLogger:
+    def _open(path: Path, max_bytes: int, keep: int) -> _SizedLog:
         if isinstance(max_bytes, bool) or not isinstance(max_bytes, int) or not 100_000 <= max_bytes <= 10**11:
             raise BlackBoxError(f"--can-log: max_bytes must be an integer in [100000, 1e11], got {max_bytes!r}")
         if isinstance(keep, bool) or not isinstance(keep, int) or not 1 <= keep <= 1000:
@@ -1107,6 +1157,17 @@ class ReplayRecord:
         return out
 
 
+#: the name of the replay's closing record that counts the frames of the log stamped out of time order
+#: (:func:`replay_can_log`)
+OUT_OF_ORDER = "out_of_order"
+
+
+def describe_out_of_order(frames: int, max_back_s: float) -> str:
+    """``N frames out of time order by up to X ms, taken in file order`` (``max_back_s`` [s])."""
+    what = "frames" if frames != 1 else "frame"
+    return f"{frames} {what} out of time order by up to {max_back_s * 1000:.1f} ms, taken in file order"
+
+
 #: source address of the replaying link (J1939: off-board diagnostic-service tool #1), so the
 #: recorded planner's frames are read as another node's
 REPLAY_ADDRESS = 249
@@ -1156,10 +1217,24 @@ def _reader(path: Path, wall: bool) -> tuple[Any, Iterator[can.Message]]:
     return reader, iter(reader)
 
 
-def _frames(path: Path, clock: dict[str, bool] | None = None) -> Iterator[can.Message]:
+@dataclass
+class _Order:
+    """Frames of a replayed log stamped before an earlier one (by more than the writers' rounding, by at most
+    :data:`MAX_OUT_OF_ORDER_S`), taken in the file's order at the latest time: how many, the most one lay
+    before [s] and the first one's number (1: the log's first frame)."""
+
+    frames: int = 0
+    max_back_s: float = 0.0
+    first_frame: int = 0
+
+
+def _frames(path: Path, clock: dict[str, bool] | None = None, order: _Order | None = None) -> Iterator[can.Message]:
     """The frames of a CAN log in time order; a :class:`BlackBoxError` naming the frame for what cannot be read
     (python-can's readers raise whatever their parsing meets: ValueError, UnicodeDecodeError, struct.error,
-    BLFParseError …), for a timestamp that is not a finite number and for one that goes back in time.
+    BLFParseError …), for a timestamp that is not a finite number and for one that goes back in time by more than
+    :data:`MAX_OUT_OF_ORDER_S` (two logs put together, a damaged file). A frame stamped before an earlier one by
+    less — a bus's timestamp jitter, several senders stamping their own times (the product's own hub) — is
+    yielded in the file's order at the latest time (its ``timestamp`` set to it) and counted in ``order``.
 
     Timestamps are Unix times: python-can's ASC reader gives times relative to the header's date unless asked
     for absolute ones (``relative_timestamp=False``: the header's date + the relative time), which it is; for an
@@ -1202,11 +1277,18 @@ def _frames(path: Path, clock: dict[str, bool] | None = None) -> Iterator[can.Me
         t = float(msg.timestamp)
         if not math.isfinite(t):
             raise BlackBoxError(f"CAN log {path}: frame {n} has timestamp {t}; a timestamp is a finite number of s")
-        if t < last - _BACKWARDS_TOLERANCE_S:
+        if t < last - MAX_OUT_OF_ORDER_S:
             raise BlackBoxError(
-                f"CAN log {path}: frame {n} at {t:.6f} s goes back in time from {last:.6f} s (a log is replayed "
-                "in time order)"
+                f"CAN log {path}: frame {n} at {t:.6f} s goes back in time from {last:.6f} s, by {last - t:.6f} s "
+                f"(more than the {MAX_OUT_OF_ORDER_S * 1000:.0f} ms of a bus's timestamp jitter: two logs put "
+                "together or a damaged file? A log is replayed in time order)"
             )
+        if t < last:  # jitter: taken in the file's order, at the latest time
+            if order is not None and t < last - _BACKWARDS_TOLERANCE_S:
+                order.frames += 1
+                order.max_back_s = max(order.max_back_s, last - t)
+                order.first_frame = order.first_frame or n
+            msg.timestamp = last
         last = max(last, t)
         yield msg
 
@@ -1231,6 +1313,13 @@ def replay_can_log(path: str | Path, model: Any, *, stale_after_s: float = 0.2) 
     that comes back is raised again (an event fault — ``ecu_restart`` — is raised each time it happens).
     A stale measurement before the log's first complete measurement, or a missing ECU heartbeat before its
     first heartbeat, is marked ``log_start`` with a reason that says so.
+
+    Frames stamped before an earlier frame by at most :data:`MAX_OUT_OF_ORDER_S` (timestamp jitter: the
+    product's own hub, software-stamped loggers) are taken in the file's order at the latest time; a last record
+    named :data:`OUT_OF_ORDER` (no source) counts them: ``fields`` ``frames``, ``max_back_s`` (the most one lay
+    before [s]), ``first_frame`` (its number in the file, from 1), ``limit_s``; ``faults`` the sentence
+    (:func:`describe_out_of_order`). A larger step back raises :class:`BlackBoxError` naming the frame and both
+    times.
     """
     from bridge.isobus.codec import CodecError, load_codec
     from bridge.isobus.j1939 import J1939Error, decode_id
@@ -1242,7 +1331,8 @@ def replay_can_log(path: str | Path, model: Any, *, stale_after_s: float = 0.2) 
     codec = load_codec()
     cfg = LinkConfig(source_address=REPLAY_ADDRESS, stale_after_s=stale_after_s)
     clock: dict[str, bool] = {}
-    frames = _frames(Path(path), clock)
+    order = _Order()
+    frames = _frames(Path(path), clock, order)
     bus = open_bus("virtual", f"hitch-replay-{uuid.uuid4().hex}")
     link = CanLink(model, bus, cfg, own_bus=True)
     heard: set[str] = set()  # of the log so far: "measurement", "lift", "heartbeat"
@@ -1361,5 +1451,19 @@ def replay_can_log(path: str | Path, model: Any, *, stale_after_s: float = 0.2) 
                 p = state.pose
                 pose = {"x": float(p.x), "z": float(p.z), "roll": float(p.roll), "pitch": float(p.pitch)}
             yield ReplayRecord(t, source, type(payload).__name__, fields, pose, timestamp=stamp(t))
+        if order.frames:
+            yield ReplayRecord(
+                last,
+                None,
+                OUT_OF_ORDER,
+                {
+                    "frames": order.frames,
+                    "max_back_s": round(order.max_back_s, 6),
+                    "first_frame": order.first_frame,
+                    "limit_s": MAX_OUT_OF_ORDER_S,
+                },
+                faults=(describe_out_of_order(order.frames, order.max_back_s),),
+                timestamp=stamp(last),
+            )
     finally:
         link.close()

@@ -348,15 +348,27 @@ class WorkControl:
         raise MotionError("busy", text)
 
     # ------------------------------------------------------------------ the control cycle
-    def on_cycle(self, now: float, active: Any, events: list[dict[str, Any]]) -> None:
-        """One control cycle (under the controller's lock): the work controller's z to the live session."""
+    def on_cycle(
+        self,
+        now: float,
+        active: Any,
+        events: list[dict[str, Any]],
+        ended: Callable[[int], str | None] | None = None,
+    ) -> None:
+        """One control cycle (under the controller's lock): the work controller's z to the live session.
+        ``ended``: how a track session ended (its abort or finish reason), for the ``work_finished`` event."""
         with self._lock:
             session = self._session
             if session is None:
                 return
             if not isinstance(active, TrackMotion) or active.session != session:
                 self._session = None
-                self._ended = self._end_reason or "the track session ended"
+                why = None if ended is None else ended(session)
+                # the cause, not only that it ended (a safety trial: a fault, a lost link and references_lost
+                # all read "the track session ended")
+                self._ended = self._end_reason or (
+                    f"the track session ended: {why}" if why else "the track session ended"
+                )
                 events.append({"event": "work_finished", "session": session, "reason": self._ended})
                 return
             pending, self._pending = self._pending, None

@@ -1166,7 +1166,7 @@ class MotionController:
             self._check_faults(status, now, events)
             self._drive_maneuver(status, now, events)
             if self.work is not None:  # a work session's z setpoint for this cycle (bridge.service.work)
-                self.work.on_cycle(now, self._active, events)
+                self.work.on_cycle(now, self._active, events, self._ended_tracks.get)
             ref = self._reference_at(now, events)
             if ref is not None and not (ref is self._reference and self._active is None and status.streaming):
                 # (a held reference the link streams already is not checked and sent again)

@@ -888,3 +888,17 @@ def test_the_core_process_reads_the_config_with_the_fields_the_user_set():
         copy = ServiceConfig.model_validate_json(core_config_json(cfg))
         assert copy == cfg and copy.model_fields_set == cfg.model_fields_set, kw
         assert simulated_ground_speed(copy) == simulated_ground_speed(cfg), kw
+
+
+def test_work_finished_says_why_its_track_session_ended(svc):
+    """A safety trial: ``work_finished`` said "the track session ended" whether a stop, a fault, a lost link or
+    references_lost ended it; the cause was only in ``motion_aborted``. Now it carries the session's own end."""
+    svc.ok("work/settings", {"mode": "position"})
+    svc.ok("work/start", {"z": 0.1})
+    _run_forwarding(svc, 1.0)
+    session = svc.states[-1]["work"]["session"]
+    svc.ok("stop")
+    _run_forwarding(svc, 1.0)
+    finished = [e for e in svc.events if e["event"] == "work_finished" and e["session"] == session]
+    assert len(finished) == 1, finished
+    assert finished[0]["reason"] == "the track session ended: stop requested", finished

@@ -124,7 +124,8 @@ class PositionMeasurement:
     right_counts: int | None
     left_counts: int | None
     system_state: int = 0
-    """Byte 8 bit field, meaning defined by the cylinder ECU."""
+    """Byte 8 bit field; both ends agree on its bits in :mod:`bridge.isobus.system_state` (controllers on,
+    watchdog expired, end-stop relay, no reference since restart, restart counter)."""
 
 
 @dataclass(frozen=True)

@@ -27,6 +27,14 @@
   and **stop the reference stream**; the ECU's watchdog then zeroes its valves within its timeout
   (100 ms). Motion resumes only on a fresh :meth:`send_reference`, accepted once the
   causes are gone; the old reference is never resumed.
+* **What it tells the ECU.** Once its address is claimed, when the ECU starts (its first heartbeat 251) and
+  whenever the ECU restarts, one 0xFF23 with controllers on and the reference watchdog the link assumes
+  (``LinkConfig.ecu_watchdog_timeout_s``); every :data:`MEASURED_POSE_PERIOD_S` (100 ms) the newest measured
+  pose as 0xFF25 while the measurements are fresh, none while they are stale (both on :meth:`poll`).
+* **Reasons.** Each occurrence of a fault gives its own reason: a cause that comes back while its fault is
+  still latched, or changes its kind (a heartbeat timeout become a sequence error), replaces the older reason.
+  The stale fault says why the frames that arrived were not taken (the last rejection and how many, or their
+  sender's other address: :meth:`~bridge.link.state.MeasurementAssembler.why_stale`).
 * **Address.** The link claims its address at :meth:`CanLink.start`. Lost to a lower NAME, it asks
   the address every ``LinkConfig.address_recheck_s`` (1 s) whether the winner still holds it and
   claims it back when nobody with a lower NAME answers (a spoofed claim does not take it for ever);
@@ -53,6 +61,7 @@ service thread may call :meth:`send_reference` while the runner polls.
 from __future__ import annotations
 
 import math
+import re
 import threading
 from collections import deque
 from dataclasses import replace
@@ -65,12 +74,13 @@ from bridge.isobus.codec import (
     CodecError,
     EcuParameters,
     Heartbeat,
+    MeasuredPose,
     PositionCounts,
     PositionMeasurement,
     RearHitchStatus,
     load_codec,
 )
-from bridge.isobus.heartbeat import HeartbeatMonitor, HeartbeatSender, HeartbeatState
+from bridge.isobus.heartbeat import INITIAL_SEQUENCE, HeartbeatMonitor, HeartbeatSender, HeartbeatState
 from bridge.isobus.j1939 import (
     PGN_ADDRESS_CLAIMED,
     PGN_HEARTBEAT,
@@ -83,6 +93,8 @@ from bridge.isobus.j1939 import (
 from bridge.isobus.system_state import STATE_WATCHDOG_TRIPPED
 from bridge.link.reference_check import ReferenceCheck
 from bridge.link.state import (
+    HITCH,
+    MEASUREMENT,
     LinkConfig,
     LinkCounters,
     LinkFaultError,
@@ -96,7 +108,7 @@ from bridge.link.state import (
 from planner.model.kinematics import HitchModel
 from planner.model.sensors import SensorScaling
 
-__all__ = ["CONFLICT_HOLD_S", "ECHO_WINDOW_S", "CanLink", "HOLD_AFTER_RESENT"]
+__all__ = ["CONFLICT_HOLD_S", "ECHO_WINDOW_S", "CanLink", "HOLD_AFTER_RESENT", "MEASURED_POSE_PERIOD_S"]
 
 _EPS_S = 1e-6  # float-time tolerance of the stream schedule
 #: a fresh reference may go this fraction of a period before its slot; a repetition waits as long after
@@ -115,6 +127,11 @@ CONFLICT_HOLD_S = 1.0
 _CONFLICT_CLAIM_EVERY_S = 1.0
 #: claim states in which frames with our source address are another node's (not a conflict)
 _ADDRESS_NOT_OURS = (ClaimState.IDLE, ClaimState.CANNOT_CLAIM)
+#: a condition's kind: its reason up to the first digit (the numbers — ages, counters, counts — change from one
+#: check to the next, the words do not: "ECU heartbeat timeout: none for ", "ECU heartbeat sequence error; …")
+_KIND = re.compile(r"[^0-9]*")
+#: the period of the measured pose the link sends (0xFF25, to a logging PC), s
+MEASURED_POSE_PERIOD_S = 0.1
 #: the messages the link reads (every other known message is counted ``foreign`` without decoding it)
 _CONSUMED_PGNS = frozenset({PGN_HEARTBEAT, PGN_POSITION_MEASUREMENT, PGN_REAR_HITCH_STATUS})
 
@@ -167,7 +184,18 @@ class CanLink:
         self._conflict_s = -math.inf  # the last frame with our source address that we did not send
         self._conflict_reason = ""
         self._conflict_claim_s = -math.inf  # when our claim last went out because of a conflict
+        # the condition causes present at the last check, name → its kind (_kind): a cause that was absent, or of
+        # another kind, is a new occurrence and records its own reason though its fault is still latched
+        self._occurring: dict[str, str] = {}
+        self._pose_due_s = math.inf  # when the next measured pose (0xFF25) is due
         self._rx = MeasurementAssembler(model, self._scaling, self._cfg, self._bump)
+        # what the stale fault calls the lift's sender
+        self._hitch_sender = "cylinder ECU" if cfg.hitch_source == cfg.ecu_address else "tractor"
+        # 0xFF23: controllers on, the ECU's reference watchdog as the link assumes it (_send_ecu_parameters)
+        self._parameters_frame = self._codec.encode(
+            EcuParameters(controllers_enabled=True, watchdog_timeout_s=cfg.ecu_watchdog_timeout_s),
+            source=cfg.source_address,
+        )
 
     # -- read-only views ---------------------------------------------------------------
     @property
@@ -242,8 +270,11 @@ class CanLink:
         return self._rx.state
 
     def status(self, now_s: float) -> LinkStatus:
-        """A consistent snapshot for a supervisor."""
+        """A consistent snapshot for a supervisor. A cause that came back since the last :meth:`poll` while its
+        fault is still latched gives its own reason in it already (raising is the poll's)."""
         with self._lock:
+            conditions = self._conditions(now_s)
+            self._raise_present(conditions, latch=False)
             ref = self._reference.as_tuple() if self._reference is not None else None
             return LinkStatus(
                 now_s,
@@ -257,7 +288,7 @@ class CanLink:
                 self._last_malformed,
                 self._rx.last_problem,
                 self._address_problem(),
-                tuple(dict.fromkeys(name for name, _ in self._conditions(now_s))),
+                tuple(dict.fromkeys(name for name, _ in conditions)),
             )
 
     def next_due_s(self) -> float:
@@ -270,7 +301,7 @@ class CanLink:
         """Ask who is on the bus (their claims name the ECU: :meth:`peer_name`) and claim our address; heartbeat
         and streaming are possible once it is claimed."""
         with self._lock:
-            self._operating_s = None
+            self._operating_s, self._pose_due_s = None, math.inf
             self._streaming = False
             self._last_poll_s = now_s
             self._send([self._claimer.who_is_there(), *self._claimer.start(now_s)], now_s)
@@ -281,7 +312,7 @@ class CanLink:
             self._streaming = False
             if self._operating_s is not None:
                 self._send(self._hb_tx.shutdown(), now_s)
-            self._operating_s = None
+            self._operating_s, self._pose_due_s = None, math.inf
 
     def close(self) -> None:
         """Stop streaming and shut the bus down if the link owns it."""
@@ -340,7 +371,7 @@ class CanLink:
                     )
                 active = self._conditions(now_s)
                 if active:
-                    self._raise(active)
+                    self._raise_present(active)
                     raise LinkFaultError("motion refused, fault active: " + "; ".join(r for _, r in active))
                 if self._rx.state is None:
                     raise LinkFaultError("motion refused: no complete measurement from the ECU yet")
@@ -364,7 +395,9 @@ class CanLink:
 
     # -- the loop ----------------------------------------------------------------------
     def poll(self, now_s: float) -> None:
-        """Handle every waiting frame, run the claim and heartbeat, check faults, stream."""
+        """Handle every waiting frame, run the claim and heartbeat, check faults, stream; once claimed, bring the
+        ECU to the parameters the link assumes (0xFF23, :meth:`_send_ecu_parameters`) and send the measured pose
+        every :data:`MEASURED_POSE_PERIOD_S` while it is fresh (0xFF25)."""
         with self._lock:
             while (frame := self._bus.recv(timeout=0.0)) is not None:
                 self.handle(frame, now_s)
@@ -372,16 +405,20 @@ class CanLink:
             self._send(self._claimer.poll(now_s), now_s)
             if self._claimer.claimed:
                 if self._operating_s is None:
-                    self._operating_s = now_s
+                    self._operating_s, self._pose_due_s = now_s, now_s
                     self._send(self._hb_tx.start(now_s), now_s)
+                    self._send_ecu_parameters(now_s)
                 else:
                     self._send(self._hb_tx.poll(now_s), now_s)
             elif self._claimer.state is ClaimState.CANNOT_CLAIM:
-                self._operating_s = None  # silent; a claim won back starts over (heartbeat 251)
+                # silent; a claim won back starts over (heartbeat 251)
+                self._operating_s, self._pose_due_s = None, math.inf
             if now_s - self._sent_pruned_s >= ECHO_WINDOW_S:
                 self._prune_sent(now_s)
-            self._raise(self._conditions(now_s))
+            self._raise_present(self._conditions(now_s))
             self._stream(now_s)
+            if now_s >= self._pose_due_s - _EPS_S:
+                self._send_pose(now_s)
 
     def handle(self, frame: can.Message, now_s: float) -> None:
         """Process one received frame at ``now_s``."""
@@ -415,23 +452,33 @@ class CanLink:
             if ident.pgn not in _CONSUMED_PGNS:  # another node's traffic (slope sensor, pressures …): not decoded
                 self._bump(foreign=1)
                 return
+            src, cfg = ident.source_address, self._cfg
             try:
-                payload = self._codec.decode_frame(frame).payload
+                decoded = self._codec.decode_frame(frame)
             except CodecError as exc:
                 self._malformed(str(exc))
+                # a measurement its sender sent that cannot be read: the stale fault says why (why_stale)
+                if ident.pgn == PGN_POSITION_MEASUREMENT and src == cfg.ecu_address:
+                    self._rx.reject(MEASUREMENT, str(exc), now_s)
+                elif ident.pgn == PGN_REAR_HITCH_STATUS and src == cfg.hitch_source:
+                    self._rx.reject(HITCH, str(exc), now_s)
                 return
-            src, cfg = ident.source_address, self._cfg
+            payload = decoded.payload
             if isinstance(payload, Heartbeat) and src == cfg.ecu_address:
                 self._on_heartbeat(payload.sequence, now_s, frame_stamp(frame) if cfg.bus_timestamps else None)
             elif isinstance(payload, PositionMeasurement) and src == cfg.ecu_address:
-                restart = self._rx.on_measurement(payload, now_s, frame_stamp(frame))
+                restart = self._rx.on_measurement(payload, now_s, frame_stamp(frame), decoded.errors)
                 if restart:
-                    self._on_restart(restart)
+                    self._on_restart(restart, now_s)
                 else:
                     self._check_references_arrive(payload.system_state, now_s)
             elif isinstance(payload, RearHitchStatus) and src == cfg.hitch_source:
-                self._rx.on_hitch_status(payload, now_s, frame_stamp(frame))
+                self._rx.on_hitch_status(payload, now_s, frame_stamp(frame), decoded.errors)
             else:
+                if isinstance(payload, PositionMeasurement):  # named by the stale fault (why_stale)
+                    self._rx.from_elsewhere(MEASUREMENT, src, now_s)
+                elif isinstance(payload, RearHitchStatus):
+                    self._rx.from_elsewhere(HITCH, src, now_s)
                 self._bump(foreign=1)
 
     # -- receive internals -------------------------------------------------------------
@@ -440,7 +487,9 @@ class CanLink:
         before = self._hb_rx.status(now_s).restarts
         self._hb_rx.handle_sequence(sequence, now_s, stamp_s=stamp_s)
         if self._hb_rx.status(now_s).restarts > before:
-            self._on_restart("the cylinder ECU restarted (its heartbeat counter began again at 251)")
+            self._on_restart("the cylinder ECU restarted (its heartbeat counter began again at 251)", now_s)
+        elif sequence == INITIAL_SEQUENCE:  # the ECU starts (its first heartbeat): it may have missed our 0xFF23
+            self._send_ecu_parameters(now_s)
 
     def _check_references_arrive(self, system_state: int, now_s: float) -> None:
         """While streaming, a measurement saying the ECU's watchdog expired proves that our
@@ -494,14 +543,18 @@ class CanLink:
             f"send: another node on the bus uses address {sa} (spoofed or misconfigured); motion refused until "
             f"none has arrived for {CONFLICT_HOLD_S:g} s"
         )
-        self._raise([("address_conflict", self._conflict_reason)])
+        # frames of one conflict (present until none for CONFLICT_HOLD_S) give its reason once; a later one its own
+        new = "address_conflict" not in self._occurring
+        self._occurring["address_conflict"] = _kind(self._conflict_reason)
+        self._raise([("address_conflict", self._conflict_reason)], {"address_conflict"} if new else ())
         if self._claimer.claimed and now_s - self._conflict_claim_s >= _CONFLICT_CLAIM_EVERY_S:
             self._conflict_claim_s = now_s
             self._send(self._claimer.announce(), now_s)
 
-    def _on_restart(self, reason: str) -> None:
+    def _on_restart(self, reason: str, now_s: float) -> None:
         self._rx.forget_reference()
         self._raise([("ecu_restart", reason)])
+        self._send_ecu_parameters(now_s)  # a restarted ECU starts on its own defaults
 
     def _malformed(self, reason: str) -> None:
         self._last_malformed = reason
@@ -522,16 +575,28 @@ class CanLink:
             return out
         st = self._rx.state
         since = self._operating_s
-        for what, src, t in (  # said so an operator can act on it, with the bus names for the engineer
-            ("cylinder positions (0xFF22) from the cylinder ECU", cfg.ecu_address, st.measurement_t_s if st else since),
-            ("lift position (rear hitch status) from the tractor", cfg.hitch_source, st.lift_t_s if st else since),
+        for source, what, src, t in (  # said so an operator can act on it, with the bus names for the engineer
+            (
+                MEASUREMENT,
+                "cylinder positions (0xFF22) from the cylinder ECU",
+                cfg.ecu_address,
+                st.measurement_t_s if st else since,
+            ),
+            (
+                HITCH,
+                f"lift position (rear hitch status) from the {self._hitch_sender}",
+                cfg.hitch_source,
+                st.lift_t_s if st else since,
+            ),
         ):
             if now_s - t > cfg.stale_after_s + _EPS_S:
+                # why the frames that did arrive were not taken, or that none did
+                why = self._rx.why_stale(source, t, src) or "check the CAN cable and the ECU's power"
                 out.append(
                     (
                         "stale_measurement",
                         f"no valid {what} (address {src}) for {now_s - t:.3f} s (limit {cfg.stale_after_s:g} s): "
-                        "check the CAN cable and the ECU's power",
+                        + why,
                     )
                 )
                 break
@@ -554,16 +619,40 @@ class CanLink:
             out.append(("ecu_heartbeat", f"no ECU heartbeat for {now_s - since:.3f} s"))
         return out
 
-    def _raise(self, causes: list[tuple[str, str]]) -> None:
+    def _raise_present(self, causes: list[tuple[str, str]], *, latch: bool = True) -> None:
+        """Raise the condition ``causes`` present now (:meth:`_conditions`). A cause that was absent at the last
+        check, or is of another kind now (a heartbeat timeout become a sequence error), is a new occurrence: it
+        records its own reason even while its fault is still latched (every later heartbeat fault repeated the
+        first one's "timeout" before, an integrator's report). ``latch=False`` (a status snapshot): only the
+        reasons of faults latched already; raising is the poll's."""
+        before, occurring, renew = self._occurring, {}, set()
         for name, reason in causes:
-            if not getattr(self._faults, name):
+            if name not in occurring:
+                occurring[name] = kind = _kind(reason)
+                if before.get(name) != kind:
+                    renew.add(name)
+        self._occurring = occurring
+        if latch:
+            self._raise(causes, renew)
+        elif renew:
+            self._raise([(n, r) for n, r in causes if n in renew and getattr(self._faults, n)], renew)
+
+    def _raise(self, causes: list[tuple[str, str]], renew: set[str] | tuple[str, ...] = ()) -> None:
+        """Latch the faults of ``causes`` (name, reason) and stop the stream; a fault latched already records
+        the new reason only if its name is in ``renew`` (a new occurrence; its older reasons are dropped)."""
+        for name, reason in causes:
+            latched = getattr(self._faults, name)
+            if not latched or name in renew:
+                f = self._faults
+                keep = [(n, r) for n, r in zip(f.reason_names, f.reasons, strict=True) if n != name]
                 self._faults = replace(
                     self._faults,
                     **{name: True},
-                    reasons=self._faults.reasons + (reason,),
-                    reason_names=self._faults.reason_names + (name,),
+                    reasons=tuple(r for _, r in keep) + (reason,),
+                    reason_names=tuple(n for n, _ in keep) + (name,),
                 )
-                self._bump(faults_raised=1)
+                if not latched:
+                    self._bump(faults_raised=1)
         if self._faults.any:
             self._streaming = False
 
@@ -588,6 +677,30 @@ class CanLink:
         if self._send([self._codec.encode(self._reference, source=self._cfg.source_address)], now_s):
             self._bump(references_tx=1)
 
+    def _send_ecu_parameters(self, now_s: float) -> None:
+        """Bring the ECU to what the link assumes of it: controllers on, its reference watchdog
+        ``ecu_watchdog_timeout_s`` (0xFF23; the valve multipliers unchanged). Sent once our address is claimed,
+        when the ECU starts (its first heartbeat 251: it may have been deaf to the first) and when it restarts:
+        an ECU that powers up with its controllers off or another watchdog would otherwise not move, or not
+        stop when the stream stops, as the link's fault timing assumes. Counted (``parameters_tx``)."""
+        if self._operating_s is not None and self._send([self._parameters_frame], now_s):
+            self._bump(parameters_tx=1)
+
+    def _send_pose(self, now_s: float) -> None:
+        """Send the newest measured pose (0xFF25, x, z, roll, pitch for a logging PC) while the measurements
+        are fresh, none while they are stale; the next one :data:`MEASURED_POSE_PERIOD_S` later on its grid."""
+        self._pose_due_s = max(self._pose_due_s + MEASURED_POSE_PERIOD_S, now_s)
+        st = self._rx.state
+        if st is None or st.age_s(now_s) > self._cfg.stale_after_s + _EPS_S:
+            return
+        p = st.pose
+        try:
+            frame = self._codec.encode(MeasuredPose(p.x, p.z, p.roll, p.pitch), source=self._cfg.source_address)
+        except CodecError:
+            return  # beyond the frame's ±3.2 m, rad: nothing a hitch reaches, nothing to log
+        if self._send([frame], now_s):
+            self._bump(poses_tx=1)
+
     def _send(self, frames: list[can.Message], now_s: float) -> bool:
         ok = True
         for frame in frames:
@@ -611,3 +724,9 @@ class CanLink:
         counts = self._counts
         for k, v in deltas.items():
             counts[k] += v
+
+
+def _kind(reason: str) -> str:
+    """The kind of a condition's ``reason`` (:data:`_KIND`): the same words, whatever the numbers."""
+    m = _KIND.match(reason)
+    return m.group() if m is not None else reason

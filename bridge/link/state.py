@@ -37,7 +37,9 @@ __all__ = [
     "LinkFaultError",
     "LinkFaults",
     "LinkState",
+    "HITCH",
     "HITCH_POSITION_STEPS",
+    "MEASUREMENT",
     "LinkStatus",
     "MeasurementAssembler",
     "ReferenceRefused",
@@ -111,6 +113,19 @@ def frame_stamp(frame: can.Message) -> float | None:
     return float(ts) if isinstance(ts, (int, float)) and math.isfinite(ts) and ts > 0.0 else None
 
 
+#: the two sources of a :class:`LinkState`: the cylinder ECU's 0xFF22 and the rear hitch status (the lift)
+#: (:meth:`MeasurementAssembler.reject`, :meth:`~MeasurementAssembler.why_stale`)
+MEASUREMENT, HITCH = "measurement", "hitch"
+#: the raw values of a 10-bit 0xFF22 reading that are no reading (J1939: error indicator, not available)
+_READING_ERROR_COUNTS, _READING_NOT_AVAILABLE_COUNTS = 1022, 1023
+#: the 0xFF22 readings in frame order: name, DBC signal
+_READING_SIGNALS = (
+    ("tilt", "TiltMeasurement"),
+    ("top", "TopMeasurement"),
+    ("right", "RightMeasurement"),
+    ("left", "LeftMeasurement"),
+)
+
 #: how far the stamps of two frames may lie further apart than their read times [s] before the stamps are
 #: taken for a step of the bus's wall clock (frames read together at a deadline lie a few periods apart)
 _STAMP_SLACK_S = 1.0
@@ -141,12 +156,13 @@ class LinkConfig:
             (counts − counts_min)/span and rounded: take the nearest count, which recovers
             the reading exactly while the travel spans at most 250 counts. False: use the
             fraction as it is. None (default): True when the cylinder ECU sends the hitch
-            status (``hitch_status_address`` None: its mapping is ours), False when another
+            status (``hitch_status_address`` None or its address: its mapping is ours), False when another
             node (the tractor ECU) does, whose sensor and rounding we do not know.
         name: our ISO 11783-5 NAME (claimed at start, 250 ms contention window).
         claim_wait_s: contention window, s.
-        ecu_watchdog_timeout_s: the ECU's reference watchdog, s (thesis ECU: 0.1 s). While
-            references stream, a 0xFF22 whose system state says "watchdog expired" proves
+        ecu_watchdog_timeout_s: the ECU's reference watchdog, s, in [0.01, 2.5] (thesis ECU: 0.1 s; the
+            link sets it in the ECU with 0xFF23 after its claim and whenever the ECU starts or restarts,
+            10 ms resolution). While references stream, a 0xFF22 whose system state says "watchdog expired" proves
             that they do not arrive (fault ``references_lost``).
         address_recheck_s: after losing our address to a lower NAME, ask every this many seconds
             whether its holder is still there and claim it back when it is silent (0: never, the
@@ -217,7 +233,8 @@ class LinkConfig:
         check_period("heartbeat_timeout_s", self.heartbeat_timeout_s, 0.01, 10.0)
         check_period("heartbeat_period_s", self.heartbeat_period_s, 0.01, 10.0)
         check_period("claim_wait_s", self.claim_wait_s, 0.001, 10.0)
-        check_period("ecu_watchdog_timeout_s", self.ecu_watchdog_timeout_s, 0.001, 10.0)
+        # the range 0xFF23 sets it in (the link sends it to the ECU: CanLink._send_ecu_parameters)
+        check_period("ecu_watchdog_timeout_s", self.ecu_watchdog_timeout_s, 0.01, 2.5)
         check_period("link_latency_s", self.link_latency_s, 0.0, 1.0)
         check_period("ecu_rearm_s", self.ecu_rearm_s, 0.0, 1.0)
         check_period("address_recheck_s", self.address_recheck_s, 0.0, 3600.0)
@@ -252,7 +269,9 @@ class LinkConfig:
     @property
     def lift_count_grid(self) -> bool:
         """Whether the lift is taken on its sensor's count grid (see ``lift_on_count_grid``)."""
-        return self.hitch_status_address is None if self.lift_on_count_grid is None else self.lift_on_count_grid
+        # the cylinder ECU's own hitch status (its mapping is ours), also when its address is set explicitly (an
+        # explicit 169 fell back to the fraction as it is: a documentation review)
+        return self.hitch_source == self.ecu_address if self.lift_on_count_grid is None else self.lift_on_count_grid
 
     @property
     def hitch_source(self) -> int:
@@ -319,8 +338,9 @@ class LinkFaults:
             that (within 1 ms in simulated time; in real time within one
             ``check_period_s`` while the link is at rest, and as the frames arrive while it
             streams; at rest a frame is read up to one check period after its arrival, so up to
-            two check periods after ``stale_after_s``). Covers ECU → planner loss. Condition:
-            gone when both are fresh.
+            two check periods after ``stale_after_s``). Covers ECU → planner loss. Its reason names
+            the sender's address and why the frames that arrived were not taken (the last rejection and
+            how many, frames from another address), or that none arrived. Condition: gone when both are fresh.
         ecu_heartbeat: ECU heartbeat silent for more than ``heartbeat_timeout_s``
             (ISO 11783-7: 300 ms), or it says error (254) / shut down (255); raised at the
             next poll. Condition: gone with the next valid heartbeat.
@@ -345,7 +365,8 @@ class LinkFaults:
             none has arrived for :data:`~bridge.link.can_link.CONFLICT_HOLD_S` (1 s).
         bus_error: ``max_consecutive_tx_errors`` (3) sends failed in a row; raised at the
             failing send. Condition: gone with the next successful send.
-        reasons: one line per fault raised since the last re-arm, oldest first.
+        reasons: one line per fault raised since the last re-arm, oldest first: the latest occurrence's (a
+            cause that came back while its fault was latched, or changed its kind, replaces the older line).
         reason_names: the fault each of ``reasons`` is about (same order; :meth:`reason_of`).
 
     The field names are stable: the service reports them as fault names.
@@ -397,7 +418,9 @@ class LinkCounters:
     ``own_echo`` our own frames received back; ``address_conflicts`` frames with our source
     address that we did not send; ``malformed`` frames rejected by the codec; ``dropped_*``
     periodic frames inferred lost from arrival gaps; ``bus_errors`` error frames
-    received; ``tx_errors`` failed sends.
+    received; ``tx_errors`` failed sends; ``parameters_tx`` 0xFF23 frames the link sent of itself
+    (controllers on and the watchdog it assumes: after its claim, when the ECU starts or restarts);
+    ``poses_tx`` 0xFF25 measured poses sent (every 100 ms while the measurements are fresh).
     """
 
     frames_rx: int = 0
@@ -420,6 +443,8 @@ class LinkCounters:
     tx_errors: int = 0
     faults_raised: int = 0
     address_conflicts: int = 0
+    parameters_tx: int = 0
+    poses_tx: int = 0
 
     def as_dict(self) -> dict[str, int]:
         """The counters by name."""
@@ -472,6 +497,9 @@ class MeasurementAssembler:
     calibrated span by more than ``reading_tolerance_counts`` are rejected and counted;
     the state keeps the arrival times of the two sources it was built from, so a
     stream of rejected frames ages it (and the link's staleness check stops motion).
+    Why the frames of each source were not taken since the last one that was (the link adds
+    the codec's refusals and frames from another address) is :meth:`why_stale`, which the
+    stale fault's reason says.
 
     Args:
         model: kinematic model (forward kinematics).
@@ -499,14 +527,62 @@ class MeasurementAssembler:
         """The newest complete state, or None."""
         self.last_problem = ""
         """Why the last reading was rejected ("" if none)."""
+        # per source (MEASUREMENT, HITCH), while frames of it are not taken: (why the last was rejected, how many
+        # since one was taken, when [s]); (the other address the last came from, how many, when [s])
+        self._rejected: dict[str, tuple[str, int, float]] = {}
+        self._elsewhere: dict[str, tuple[int, int, float]] = {}
+
+    def reject(self, source: str, reason: str, now_s: float) -> None:
+        """A frame of ``source`` (:data:`MEASUREMENT`: 0xFF22, :data:`HITCH`: the rear hitch status) from its
+        sender was not taken at ``now_s`` [s] for ``reason`` (e.g. the codec refused it): counted for
+        :meth:`why_stale` until one is taken."""
+        self.last_problem = reason
+        prev = self._rejected.get(source)
+        self._rejected[source] = (reason, 1 if prev is None else prev[1] + 1, now_s)
+
+    def from_elsewhere(self, source: str, address: int, now_s: float) -> None:
+        """A frame of ``source`` arrived at ``now_s`` [s] from ``address``, not the sender it is taken from."""
+        prev = self._elsewhere.get(source)
+        self._elsewhere[source] = (address, 1 if prev is None else prev[1] + 1, now_s)
+
+    def why_stale(self, source: str, since_s: float, sender: int) -> str:
+        """Why no frame of ``source`` has been taken since ``since_s`` [s] although some arrived, "" when none
+        did: the last rejection and how many were rejected, and frames from another address than ``sender``
+        (the address it is taken from), e.g. "last 0xFF22 rejected: tilt reading 1022 = error indicator (12
+        rejected); frames from address 170 ignored: the ECU is 169"."""
+        out = []
+        rejected = self._rejected.get(source)
+        if rejected is not None and rejected[2] >= since_s:
+            what = "0xFF22" if source == MEASUREMENT else "rear hitch status"
+            out.append(f"last {what} rejected: {rejected[0]} ({rejected[1]} rejected)")
+        other = self._elsewhere.get(source)
+        if other is not None and other[2] >= since_s:
+            if source == MEASUREMENT:
+                out.append(f"frames from address {other[0]} ignored ({other[1]}): the ECU is {sender}")
+            else:
+                out.append(
+                    f"rear hitch status arrives from {other[0]}, the service takes it from {sender}: "
+                    "set [can] hitch_status_address"
+                )
+        return "; ".join(out)
+
+    def _taken(self, source: str) -> None:
+        """A frame of ``source`` went into the state: its rejections are over."""
+        if self._rejected:
+            self._rejected.pop(source, None)
+        if self._elsewhere:
+            self._elsewhere.pop(source, None)
 
     def forget_reference(self) -> None:
         """The ECU restarted: its reference is gone until the link sends one again."""
         self._ecu_had_reference = False
 
-    def on_measurement(self, m: PositionMeasurement, now_s: float, stamp_s: float | None = None) -> str | None:
+    def on_measurement(
+        self, m: PositionMeasurement, now_s: float, stamp_s: float | None = None, errors: tuple[str, ...] = ()
+    ) -> str | None:
         """Take a 0xFF22 payload read at ``now_s``, stamped ``stamp_s`` by the bus (None: unstamped);
-        returns a restart reason if the system state shows one."""
+        ``errors``: the DBC signals that carried the error indicator (the other missing readings were "not
+        available"). Returns a restart reason if the system state shows one."""
         self._bump(measurements_rx=1)
         self._count_gap("measurement", now_s, stamp_s, self._cfg.measurement_period_s, "dropped_measurements")
         system = decode_system_state(m.system_state)
@@ -520,41 +596,59 @@ class MeasurementAssembler:
         self._system = system
         tilt, top, left, right = m.tilt_counts, m.top_counts, m.left_counts, m.right_counts
         if tilt is None or top is None or left is None or right is None:
-            self.last_problem = "0xFF22 reading not available or in error"
+            self.reject(MEASUREMENT, self._missing_reading(m, errors), now_s)
             self._bump(unavailable_readings=1)
-        elif self._in_span((tilt, top, left, right)):
+        elif problem := self._out_of_span((tilt, top, left, right)):
+            self.reject(MEASUREMENT, problem, now_s)
+        else:
             self._meas = (now_s, (tilt, top, left, right))
-            self._update(now_s)
+            if self._update(now_s):
+                self._taken(MEASUREMENT)
         return restart
 
-    def on_hitch_status(self, h: RearHitchStatus, now_s: float, stamp_s: float | None = None) -> None:
+    @staticmethod
+    def _missing_reading(m: PositionMeasurement, errors: tuple[str, ...]) -> str:
+        """Which reading of ``m`` is missing and why, e.g. "tilt reading 1022 = error indicator"."""
+        for name, signal in _READING_SIGNALS:
+            if getattr(m, f"{name}_counts") is None:
+                if signal in errors:
+                    return f"{name} reading {_READING_ERROR_COUNTS} = error indicator"
+                return f"{name} reading {_READING_NOT_AVAILABLE_COUNTS} = not available"
+        return "0xFF22 reading not available or in error"
+
+    def on_hitch_status(
+        self, h: RearHitchStatus, now_s: float, stamp_s: float | None = None, errors: tuple[str, ...] = ()
+    ) -> None:
         """Take a rear hitch status payload (the lift, fraction of travel) read at ``now_s``, stamped
-        ``stamp_s`` by the bus (None: unstamped)."""
+        ``stamp_s`` by the bus (None: unstamped); ``errors``: the DBC signals that carried the error indicator."""
         self._bump(hitch_status_rx=1)
         self._count_gap("hitch", now_s, stamp_s, self._cfg.hitch_status_period_s, "dropped_hitch_status")
         if h.position is None:
-            self.last_problem = "rear hitch position not available or in error"
+            said = "254 = error indicator" if "RearHitchPosition" in errors else "255 = not available"
+            self.reject(HITCH, f"rear hitch position {said}", now_s)
             self._bump(unavailable_readings=1)
             return
         self._hitch = (now_s, float(h.position))
-        self._update(now_s)
+        if self._update(now_s):
+            self._taken(HITCH)
 
-    def _in_span(self, readings: tuple[int, int, int, int]) -> bool:
-        """True if every reading (tilt, top, left, right) lies in its calibrated span ± tolerance."""
+    def _out_of_span(self, readings: tuple[int, int, int, int]) -> str:
+        """Which reading (tilt, top, left, right) lies outside its calibrated span ± tolerance, "" if none."""
         s, tol = self._scaling, self._cfg.reading_tolerance_counts
         for i, r in enumerate(readings, start=1):
             if not s.counts_min[i] - tol <= r <= s.counts_max[i] + tol:
-                self.last_problem = (
+                self._bump(rejected_readings=1)
+                return (
                     f"{ACTUATOR_NAMES[i]} reading {r} counts outside the calibrated "
                     f"span [{s.counts_min[i]:.0f}, {s.counts_max[i]:.0f}] ± {tol:g}"
                 )
-                self._bump(rejected_readings=1)
-                return False
-        return True
+        return ""
 
-    def _update(self, now_s: float) -> None:
+    def _update(self, now_s: float) -> bool:
+        """Build the state from the newest readings; False if they do not close the mechanism (a rejected
+        0xFF22: :meth:`reject`), True otherwise (also while a source is still missing)."""
         if self._meas is None or self._hitch is None or self._system is None:
-            return
+            return True
         (t_m, (tilt, top, left, right)), (t_h, frac) = self._meas, self._hitch
         s = self._scaling
         lift_counts = lift_counts_from_fraction(
@@ -572,14 +666,15 @@ class MeasurementAssembler:
             try:
                 hs = self._model.forward(q)
             except KinematicsError as exc:
-                self.last_problem = f"measured actuators do not close the mechanism: {exc}"
+                self.reject(MEASUREMENT, f"measured actuators do not close the mechanism: {exc}", now_s)
                 self._bump(kinematics_failures=1)
-                return
+                return False
             actuators, pose, points = hs.actuators, hs.pose, hs.points
             for a in points.values():
                 a.setflags(write=False)
             self._solved = (counts, actuators, pose, points)
         self.state = LinkState(now_s, t_m, t_h, counts, frac, actuators, pose, self._system, points)
+        return True
 
     def _count_gap(self, key: str, now_s: float, stamp_s: float | None, period_s: float, counter: str) -> None:
         """Count the frames missing before this one from the spacing of the bus stamps when the link

@@ -18,9 +18,12 @@ CAN log — is taken from the config file's folder)::
     [can]      interface = "virtual"; channel = "hitch"; simulate_ecu = true; stale_timeout_s = 0.2
                sim_ground_speed = 1.5   # m/s of the simulated tractor (wheel-based speed, PGN 65096)
                sim_truth = "truth.toml" # the simulated machine's own true profile (hitch sim perturb)
+               hitch_status_address = 240   # sender of the rear hitch status (the lift); absent: the cylinder ECU
     [hitch]    profile = "thesis-t132"; category = "2"; implement = "cat2-spreader-400";
                control_rate = 50.0; state_rate = 50.0
                feedforward = true   # stream the unit loops' feed-forward reference (bridge.link.unit_loop)
+               following_error_lift_rad = 0.02; following_error_m = 0.01   # fault following_error: allowed
+               following_error_lag_s = 0.3; following_error_s = 0.5        # error + lag x speed, for this long
     [service]  data_dir = "/var/lib/hitch"; http = "127.0.0.1:8080"; workers = 4; planning_processes = 2
                realtime = true   # the control path under SCHED_FIFO where permitted (bridge.service.scheduling)
                max_presets_per_user = 1000; max_maneuvers_per_user = 200
@@ -48,6 +51,7 @@ from pydantic import (
     model_validator,
 )
 
+from bridge.isobus.j1939 import CYLINDER_ECU_ADDRESS
 from planner.errors import HitchInputError
 from planner.profiles.loader import format_validation_error
 
@@ -149,6 +153,10 @@ class ServiceConfig(BaseModel):
     #: run the simulated cylinder ECU in this process on the same bus
     simulate_ecu: bool = Field(True, strict=True)
     stale_timeout_s: float = Field(0.2, ge=0.05, le=2.0)
+    #: the source address the link takes the ISO 11783-7 rear hitch status (the lift) from, 0..253; None: the
+    #: cylinder ECU (169; its simulated twin sends it). A tractor whose TECU sends it: its address (thesis: 240)
+    #: (bridge.link.state.LinkConfig.hitch_status_address)
+    hitch_status_address: int | None = Field(None, ge=0, le=253, strict=True)
     #: ground speed of the simulated tractor (PGN 65096, for maneuver ``wait_for``) [m/s]
     sim_ground_speed: float = Field(1.5, ge=0.0, le=20.0)
     #: the simulated machine's own truth profile (bridge.sim.truth); None: the planner's profile exactly
@@ -169,6 +177,13 @@ class ServiceConfig(BaseModel):
     state_rate: float = Field(50.0, ge=1.0, le=100.0)
     #: stream the unit loops' feed-forward reference (False: the plan's actuators as they are)
     feedforward: bool = Field(True, strict=True)
+    #: following-error supervision (fault following_error; bridge.service.motion.following): allowed error at rest
+    #: of the lift [rad] and of the other actuators [m], extra allowance per unit of reference speed [s], and how long
+    #: an error beyond it is borne [s]
+    following_error_lift_rad: float = Field(0.02, ge=1e-3, le=0.5)
+    following_error_m: float = Field(0.01, ge=1e-4, le=0.2)
+    following_error_lag_s: float = Field(0.3, ge=0.0, le=5.0)
+    following_error_s: float = Field(0.5, ge=0.05, le=10.0)
     data_dir: Path = Field(default_factory=default_data_dir)
     http: str | None = None
     #: further HOST:PORT names the terminal is reached by (its address and loopback always are; a name is refused
@@ -268,6 +283,12 @@ class ServiceConfig(BaseModel):
             raise ServiceConfigError("listen: a client does not listen (mode = 'client'); give connect endpoints only")
         if self.mode == "client" and not self.connect:
             raise ServiceConfigError("connect: a client needs at least one endpoint to connect to (a router or a peer)")
+        if self.simulate_ecu and self.hitch_status_address not in (None, CYLINDER_ECU_ADDRESS):
+            raise ServiceConfigError(
+                f"hitch_status_address {self.hitch_status_address}: the simulated cylinder ECU (simulate_ecu = true) "
+                f"sends the rear hitch status from {CYLINDER_ECU_ADDRESS}; leave hitch_status_address unset, or set "
+                "simulate_ecu = false for a tractor that sends it"
+            )
         return self
 
     def key(self, name: str) -> str:
@@ -303,6 +324,7 @@ _TOML_SECTIONS = {
         "channel": "can_channel",
         "simulate_ecu": "simulate_ecu",
         "stale_timeout_s": "stale_timeout_s",
+        "hitch_status_address": "hitch_status_address",
         "sim_ground_speed": "sim_ground_speed",
         "sim_truth": "sim_truth",
         "sim_field": "sim_field",
@@ -316,6 +338,10 @@ _TOML_SECTIONS = {
         "control_rate": "control_rate",
         "state_rate": "state_rate",
         "feedforward": "feedforward",
+        "following_error_lift_rad": "following_error_lift_rad",
+        "following_error_m": "following_error_m",
+        "following_error_lag_s": "following_error_lag_s",
+        "following_error_s": "following_error_s",
     },
     "service": {
         "data_dir": "data_dir",

@@ -41,6 +41,7 @@ from bridge.link.state import LinkConfig
 from bridge.link.tractor_sensors import TractorSensors, TractorSensorsConfig
 from bridge.service.config import ServiceConfig
 from bridge.service.motion.controller import MotionController
+from bridge.service.motion.following import FollowingErrorLimits
 from bridge.service.motion.types import MODES, actuator_dict
 from bridge.service.work import build_work_control, sim_field_tractor, simulated_ground_speed
 from bridge.sim.can_node import EcuCanNode
@@ -59,6 +60,7 @@ __all__ = [
     "PLANNER_PGNS",
     "TWIN_PGNS",
     "pgn_filters",
+    "planner_filters",
     "ReadingsAsTrackSensors",
     "build_controller",
     "build_guard",
@@ -98,6 +100,15 @@ def pgn_filters(pgns: frozenset[int]) -> list[dict[str, Any]]:
         mask = 0x3FF0000 if pdu1 else 0x3FFFF00  # data page + PF (+ PS for PDU2), never the priority or source
         out.append({"can_id": (pgn << 8) & mask, "can_mask": mask, "extended": True})
     return out
+
+
+def planner_filters(source_address: int) -> list[dict[str, Any]]:
+    """The planner bus's receive filters: :data:`PLANNER_PGNS` from any source, and every frame with the link's
+    own ``source_address`` whatever its PGN. The bus never gives the link its own frames back (python-can's
+    virtual bus, the loopback hub and socketcan deliver a frame to the other buses only), so such a frame is
+    another node's using our address — the link's ``address_conflict`` (J1939-81). Before, the PGN filter
+    dropped 0xFF21 and 0xFF23 and spoofed references from 166 went unnoticed (an integrator's finding)."""
+    return [*pgn_filters(PLANNER_PGNS), {"can_id": source_address, "can_mask": 0xFF, "extended": True}]
 
 
 #: the longest a CAN runner waits for a frame before it polls its node again [s]
@@ -164,8 +175,8 @@ def start_can(cfg: ServiceConfig, *, runners_out: list[RealtimeRunner] | None = 
     started: list[RealtimeRunner] = runners_out if runners_out is not None else []
     buses: list[can.BusABC] = []
 
-    def bus(pgns: frozenset[int]) -> can.BusABC:
-        b = open_bus(cfg.can_interface, cfg.can_channel, can_filters=pgn_filters(pgns))
+    def bus(filters: list[dict[str, Any]]) -> can.BusABC:
+        b = open_bus(cfg.can_interface, cfg.can_channel, can_filters=filters)
         buses.append(b)
         return b
 
@@ -182,7 +193,7 @@ def start_can(cfg: ServiceConfig, *, runners_out: list[RealtimeRunner] | None = 
             # the twin starts with the pistons at the model's neutral actuators (x = roll = pitch = 0)
             scale = SensorScaling(truth.profile)
             neutral_counts = scale.counts_min + (ecu_model.neutral - scale.si_min) / scale.resolution
-            twin = SharedBusNodes(bus(TWIN_PGNS))
+            twin = SharedBusNodes(bus(pgn_filters(TWIN_PGNS)))
             ecu = CylinderECU(truth.profile, initial_counts=list(neutral_counts), calibration=ecu_model.profile)
             ecu_node = EcuCanNode(ecu, twin.port())
             true_model = build_model(cfg) if cfg.sim_truth is None else HitchModel(truth.profile, cfg.category)
@@ -200,21 +211,19 @@ def start_can(cfg: ServiceConfig, *, runners_out: list[RealtimeRunner] | None = 
                     twin, max_wait_s=_MAX_WAIT_S, name="EcuCanNode-rt", prompt=lambda: ecu.fed and not ecu.holding
                 ).start()
             )
-        planner = SharedBusNodes(bus(PLANNER_PGNS))
-        sensors = TractorSensors(planner.port(), TractorSensorsConfig(read_draft=True))  # draft: work control
-        link = CanLink(
-            build_model(cfg),
-            planner.port(),
-            # real time: the bus stamps frames on a real clock, so a stall of this process alone is not
-            # taken for a late ECU heartbeat (LinkConfig.bus_timestamps)
-            # at rest the link is checked once a control period, within [10, 20] ms (LinkConfig.check_period_s)
-            LinkConfig(
-                control_rate_hz=cfg.control_rate,
-                stale_after_s=cfg.stale_timeout_s,
-                bus_timestamps=True,
-                check_period_s=min(max(1.0 / cfg.control_rate, _MIN_CHECK_PERIOD_S), _MAX_WAIT_S),
-            ),
+        # real time: the bus stamps frames on a real clock, so a stall of this process alone is not
+        # taken for a late ECU heartbeat (LinkConfig.bus_timestamps)
+        # at rest the link is checked once a control period, within [10, 20] ms (LinkConfig.check_period_s)
+        link_cfg = LinkConfig(
+            hitch_status_address=cfg.hitch_status_address,
+            control_rate_hz=cfg.control_rate,
+            stale_after_s=cfg.stale_timeout_s,
+            bus_timestamps=True,
+            check_period_s=min(max(1.0 / cfg.control_rate, _MIN_CHECK_PERIOD_S), _MAX_WAIT_S),
         )
+        planner = SharedBusNodes(bus(planner_filters(link_cfg.source_address)))
+        sensors = TractorSensors(planner.port(), TractorSensorsConfig(read_draft=True))  # draft: work control
+        link = CanLink(build_model(cfg), planner.port(), link_cfg)
         switch = HitchSwitchNode(planner.port())
         planner.add(sensors).add(link).add(switch)
         # frames as they arrive only while changing references stream; at rest, and while the link holds a
@@ -324,12 +333,27 @@ def build_controller(
         state_every=max(1, round(cfg.control_rate / cfg.state_rate)),
         odometer=parts.sensors.distance_m,
         feedforward=cfg.feedforward,
+        following=FollowingErrorLimits(
+            lift_rad=cfg.following_error_lift_rad,
+            length_m=cfg.following_error_m,
+            lag_s=cfg.following_error_lag_s,
+            time_s=cfg.following_error_s,
+        ),
         sensors=ReadingsAsTrackSensors(parts.sensors),
     )
     pivot = float(mc.planner.model.profile.geometry.pivot_height)
     mc.work = build_work_control(cfg, mc, parts.sensors, parts.link, pivot)  # work/… (bridge.service.work)
-    if parts.switch is not None:  # a switch edge becomes an event; the service raises / returns on it
-        parts.switch.on_command = lambda cmd: mc.post_event({"event": "hitch_switch", "command": cmd})
+    if (switch := parts.switch) is not None:  # a switch edge becomes an event; the service raises / returns on it
+        switch.on_command = lambda cmd: mc.post_event({"event": "hitch_switch", "command": cmd})
+        switch.on_stale = lambda cmd, age: mc.post_event(
+            {
+                "event": "hitch_switch_ignored",
+                "command": cmd,
+                "age_s": round(age, 3),
+                "message": f"switch {cmd} read {age:.2f} s after it was pressed (limit "
+                f"{switch.max_age_s:g} s: the service was stalled); not acted on — press it again",
+            }
+        )
     return mc, guard
 
 

@@ -96,6 +96,23 @@ def test_an_edge_read_long_after_its_frame_was_stamped_gives_no_command():
         node.bus.shutdown()
 
 
+def test_a_stale_edge_is_announced_by_the_service_as_ignored():
+    """The machine as the service builds it: a switch edge read 2 s after its frame was stamped is the event
+    ``hitch_switch_ignored`` (the black box and the terminal say why the press did nothing), no ``hitch_switch``."""
+    from tests.helpers import running_machine
+
+    with running_machine("switch-stale") as (_, parts, _mc, events):
+        assert parts.switch is not None
+        old = switch_frame("lower")
+        old.timestamp = time.time() - 2.0  # stamped 2 s ago: it waited while the service stalled
+        parts.switch.take(switch_frame("released"), 0.0)
+        parts.switch.take(old, 0.0)
+        assert wait_until(lambda: any(e.get("event") == "hitch_switch_ignored" for e in events), 5.0), events
+        e = next(e for e in events if e.get("event") == "hitch_switch_ignored")
+        assert e["command"] == "return" and e["age_s"] >= 1.9 and "not acted on" in e["message"], e
+        assert not any(e.get("event") == "hitch_switch" for e in events)
+
+
 def test_a_press_gives_exactly_one_edge_whatever_the_switch_did_before():
     assert [bytes(f.data)[1] for f in press_frames("raise")] == [0xFF, 250, 0xFF]
     assert [bytes(f.data)[1] for f in press_frames("released")] == [0xFF]

@@ -122,3 +122,21 @@ def test_a_cylinder_that_stops_following_aborts_the_motion_and_latches_following
             20.0,
         ), events
         assert "following_error" not in {f.name for f in mc.faults}
+
+
+def test_the_settings_reach_the_controller_and_bad_ones_are_refused_by_name(tmp_path):
+    from bridge.service.config import ServiceConfigError, load_service_config
+    from bridge.service.machine import build_controller, start_can
+
+    f = tmp_path / "service.toml"
+    f.write_text("[hitch]\nfollowing_error_m = 0.02\nfollowing_error_lift_rad = 0.05\nfollowing_error_s = 1.5\n")
+    cfg = load_service_config(f, data_dir=str(tmp_path), can_channel=f"fe-{tmp_path.name}")
+    parts = start_can(cfg)
+    try:
+        mc, _ = build_controller(cfg, parts, on_state=lambda m: None, on_event=lambda e: None)
+        assert mc.following.limits == FollowingErrorLimits(lift_rad=0.05, length_m=0.02, lag_s=0.3, time_s=1.5)
+    finally:
+        parts.close()
+    f.write_text("[hitch]\nfollowing_error_s = 0\n")
+    with pytest.raises(ServiceConfigError, match=r"following_error_s.*0\.05"):
+        load_service_config(f)

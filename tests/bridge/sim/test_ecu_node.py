@@ -154,6 +154,7 @@ def test_every_lift_count_survives_the_hitch_status_byte():
     from bridge.link.state import LinkConfig
 
     assert LinkConfig().lift_count_grid and not LinkConfig(hitch_status_address=240).lift_count_grid
+    assert LinkConfig(hitch_status_address=169).lift_count_grid  # the cylinder ECU named explicitly: its mapping
     assert LinkConfig(hitch_status_address=240, lift_on_count_grid=True).lift_count_grid
     with pytest.raises(ValueError, match="lift_on_count_grid"):
         LinkConfig(lift_on_count_grid="yes")
@@ -210,9 +211,10 @@ def test_watchdog_stops_the_valves_within_100_ms_of_the_last_reference(model):
 
 def test_parameters_switch_controllers_and_watchdog_and_refuse_multipliers(model):
     with _moving(model) as (rig, high):
+        applied = rig.node.counters.parameters  # the link's own 0xFF23 after its claim (controllers on, watchdog)
         rig.link.send_parameters(EcuParameters(valve_multipliers=(0.5, None, None, None, None)), rig.now_s)
         rig.run_until(1.02)
-        assert rig.node.counters.parameters_rejected == 1 and rig.node.counters.parameters == 0
+        assert rig.node.counters.parameters_rejected == 1 and rig.node.counters.parameters == applied
         assert rig.ecu.controllers_enabled and rig.ecu.valve_commands()[0] != 0
         rig.link.send_parameters(EcuParameters(controllers_enabled=False), rig.now_s)
         rig.tick()

@@ -137,8 +137,9 @@ def test_figures_on_a_synthetic_trace():
 
 
 def test_bus_load_matches_the_frame_budget(runs):
-    # 50 Hz references + 100 Hz measurements + 100 Hz hitch status + 2 x 10 Hz heartbeats, all DLC 8
-    expected = bus_load({8: 50 + 100 + 100 + 10 + 10})
+    # 50 Hz references + 100 Hz measurements + 100 Hz hitch status + 2 x 10 Hz heartbeats + the planner's 10 Hz
+    # MeasuredPose (0xFF25), all DLC 8
+    expected = bus_load({8: 50 + 100 + 100 + 10 + 10 + 10})
     assert runs["trajectory"].bus_load == pytest.approx(expected, rel=0.02)
     assert 0.16 < expected < 0.18
 

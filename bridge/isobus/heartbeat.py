@@ -147,6 +147,8 @@ class HeartbeatStatus:
         restarts: how many times the sender restarted (251 after the first frame).
         sequence_errors: sequence errors seen.
         timeouts: silences longer than the timeout seen.
+        last_gap_s: the gap between two heartbeats that last counted as a silence, s (``None``: none yet);
+            a timeout state with a young ``age_s`` is this gap, not yet recovered from.
     """
 
     state: HeartbeatState
@@ -155,6 +157,7 @@ class HeartbeatStatus:
     restarts: int
     sequence_errors: int
     timeouts: int
+    last_gap_s: float | None = None
 
     @property
     def healthy(self) -> bool:
@@ -184,6 +187,7 @@ class HeartbeatMonitor:
         self._restarts = 0
         self._sequence_errors = 0
         self._timeouts = 0
+        self._last_gap_s: float | None = None
 
     def handle(self, frame: can.Message, now_s: float) -> bool:
         """Process a received frame; True if it was a heartbeat from our sender."""
@@ -221,6 +225,7 @@ class HeartbeatMonitor:
                 gap = min(gap, max(0.0, stamp_s - self._last_stamp_s))
             if gap > self._timeout_s + _TIME_EPS_S:
                 self._timeouts += 1
+                self._last_gap_s = gap
                 self._enter(HeartbeatState.TIMEOUT)
         self._last_rx_s, self._last_stamp_s = now_s, stamp_s
         first, self._last = self._last is None, sequence
@@ -256,7 +261,9 @@ class HeartbeatMonitor:
         age = None if self._last_rx_s is None else now_s - self._last_rx_s
         if age is not None and age > self._timeout_s + _TIME_EPS_S:
             state = HeartbeatState.TIMEOUT
-        return HeartbeatStatus(state, self._last, age, self._restarts, self._sequence_errors, self._timeouts)
+        return HeartbeatStatus(
+            state, self._last, age, self._restarts, self._sequence_errors, self._timeouts, self._last_gap_s
+        )
 
     def healthy(self, now_s: float) -> bool:
         """True when the sender is operational and not silent."""

@@ -611,7 +611,13 @@ class CanLink:
             # said "ECU heartbeat timeout" alone, where the stale fault says its age and limit)
             said = f"ECU heartbeat {hb.state.value}"
             if hb.state is HeartbeatState.TIMEOUT and hb.age_s is not None:
-                said += f": none for {hb.age_s:.3f} s (limit {cfg.heartbeat_timeout_s:g} s)"
+                if hb.age_s > cfg.heartbeat_timeout_s or hb.last_gap_s is None:
+                    said += f": none for {hb.age_s:.3f} s (limit {cfg.heartbeat_timeout_s:g} s)"
+                else:  # heartbeats again after a gap: not yet 8 in sequence ("none for 0.000 s" contradicted itself)
+                    said += (
+                        f": a gap of {hb.last_gap_s:.3f} s between two (limit {cfg.heartbeat_timeout_s:g} s); "
+                        "heartbeats arrive again, not yet 8 in sequence"
+                    )
             if hb.last_sequence is not None:
                 said += f"; last counter {hb.last_sequence}"
             out.append(("ecu_heartbeat", said))

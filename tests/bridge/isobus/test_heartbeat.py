@@ -195,3 +195,13 @@ def test_monitor_judges_the_gap_by_the_frames_timestamps_when_given():
     assert n.status(0.1).state is HeartbeatState.OPERATIONAL
     n.handle_sequence(1, 0.5)
     assert n.status(0.5).state is HeartbeatState.TIMEOUT
+
+
+def test_the_gap_that_counted_as_a_silence_is_kept():
+    m = HeartbeatMonitor(0xA9)
+    for k, t in enumerate((0.0, 0.1, 0.2, 0.75, 0.85)):
+        m.handle_sequence(k, t)
+    st = m.status(0.86)
+    assert st.state is HeartbeatState.TIMEOUT and st.age_s == pytest.approx(0.01)
+    assert st.last_gap_s == pytest.approx(0.55) and st.timeouts == 1
+    assert HeartbeatMonitor(0xA9).status(0.0).last_gap_s is None

@@ -212,3 +212,15 @@ def test_rejections_are_counted_from_the_last_frame_taken(ecu):
     assert reason != first and "top reading 1023" in reason and "tilt" not in reason
     n = int(reason.rsplit("(", 1)[1].split()[0])
     assert 20 <= n <= 25, reason  # this episode's frames only
+
+
+def test_a_heartbeat_back_after_a_gap_says_the_gap_not_none_for_zero_seconds(ecu):
+    """An operator trial: "ECU heartbeat timeout: none for 0.000 s (limit 0.3 s)": the timeout state latched from
+    a late heartbeat (not yet 8 in sequence) was said with the age of the newest one. Now the gap is said."""
+    link = ecu.link
+    ecu.run(0.5, heartbeat="stop")
+    ecu.run(0.15)  # heartbeats again, one or two: the monitor still in its timeout state
+    hb = link.status(ecu.now_s).heartbeat
+    assert hb.state.value == "timeout" and hb.age_s is not None and hb.age_s < 0.3 and hb.last_gap_s > 0.5, hb
+    reason = link.status(ecu.now_s).faults.reason_of("ecu_heartbeat")
+    assert f"a gap of {hb.last_gap_s:.3f} s between two (limit 0.3 s)" in reason and "none for" not in reason, reason

@@ -8,13 +8,19 @@ roll_tractor = 0 within the closed loop's 2 mrad) and the workspace from ``confi
 
 from __future__ import annotations
 
-import signal
 import time
 
 import pytest
 
 from bridge.service.motion.controller import STOP_GRACE_S
-from tests.integration.test_web_browser import FLAGS, Service, _install_chromium, wait_for, wait_js
+from tests.integration.test_web_browser import (
+    _install_chromium,
+    chromium_context,
+    open_page,
+    running_service,
+    wait_for,
+    wait_js,
+)
 
 pytestmark = pytest.mark.slow  # a real browser against the service in its own process
 
@@ -23,43 +29,16 @@ ROLL_TOL = 2e-3  # rad: the closed loop's steady state (README, "Closed loop ove
 
 @pytest.fixture(scope="module")
 def service(tmp_path_factory):
-    svc = Service(tmp_path_factory.mktemp("hitch-serve-levelling")).start()
-    yield svc
-    svc.kill(signal.SIGTERM)
-    svc.kill()
+    with running_service(tmp_path_factory.mktemp("hitch-serve-levelling")) as svc:
+        yield svc
 
 
 @pytest.fixture(scope="module")
 def page(service, tmp_path_factory):
-    chromium = _install_chromium()
-    try:
-        from playwright.sync_api import sync_playwright
-    except ImportError:
-        pytest.fail("the playwright package is missing: pip install 'playwright>=1.45' (test extra)")
-    pw = sync_playwright().start()
-    ctx = None
-    try:
-        ctx = pw.chromium.launch_persistent_context(
-            str(tmp_path_factory.mktemp("chromium-profile-levelling")),
-            executable_path=chromium,
-            headless=True,
-            args=FLAGS,
-            viewport={"width": 1024, "height": 600},
-            has_touch=True,
-        )
-        pg = ctx.pages[0] if ctx.pages else ctx.new_page()
-        pg.set_default_timeout(10_000)
-        errors: list[str] = []
-        pg.on("pageerror", lambda e: errors.append(str(e)))
-        pg.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
-        pg.goto(service.url)
-        pg.errors = errors
+    with chromium_context(_install_chromium(), tmp_path_factory.mktemp("chromium-profile-levelling")) as ctx:
+        pg = open_page(ctx, service.url, first=True)
         wait_js(pg, "document.getElementById('conn').textContent.startsWith('Service: connected')", 20_000)
         yield pg
-    finally:
-        if ctx is not None:
-            ctx.close()
-        pw.stop()
 
 
 @pytest.fixture

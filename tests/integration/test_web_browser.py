@@ -15,6 +15,7 @@ limit's name, and the service process being gone.
 
 from __future__ import annotations
 
+import contextlib
 import http.cookiejar
 import json
 import os
@@ -25,7 +26,9 @@ import subprocess
 import sys
 import time
 import urllib.request
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -178,16 +181,28 @@ class Service:
         self.csrf = None  # a new service process knows no session
 
 
+@contextlib.contextmanager
+def running_service(data_dir: Path, *args: str) -> Iterator[Service]:
+    """``hitch serve`` in its own process on ``data_dir`` (``args``: more options) until the block ends: then a
+    SIGTERM (its clean stop), and a kill if that did not end it."""
+    svc = Service(data_dir, *args).start()
+    try:
+        yield svc
+    finally:
+        svc.kill(signal.SIGTERM)
+        svc.kill()
+
+
 @pytest.fixture(scope="module")
 def service(tmp_path_factory):
-    svc = Service(tmp_path_factory.mktemp("hitch-serve")).start()
-    yield svc
-    svc.kill(signal.SIGTERM)
-    svc.kill()
+    with running_service(tmp_path_factory.mktemp("hitch-serve")) as svc:
+        yield svc
 
 
-@pytest.fixture(scope="module")
-def page(chromium, service, tmp_path_factory):
+@contextlib.contextmanager
+def chromium_context(chromium: str, profile_dir: Path) -> Iterator[Any]:
+    """A headless chromium (``chromium``: its executable) with a persistent profile in ``profile_dir``, the cab
+    display's 1024×600 viewport and touch; closed on exit."""
     try:
         from playwright.sync_api import sync_playwright
     except ImportError:
@@ -199,25 +214,37 @@ def page(chromium, service, tmp_path_factory):
     ctx = None
     try:
         ctx = pw.chromium.launch_persistent_context(
-            str(tmp_path_factory.mktemp("chromium-profile")),
+            str(profile_dir),
             executable_path=chromium,
             headless=True,
             args=FLAGS,
             viewport={"width": 1024, "height": 600},
             has_touch=True,
         )  # the cab display
-        pg = ctx.pages[0] if ctx.pages else ctx.new_page()
-        pg.set_default_timeout(10_000)
-        errors: list[str] = []
-        pg.on("pageerror", lambda e: errors.append(str(e)))
-        pg.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
-        pg.goto(service.url)
-        pg.errors = errors
-        yield pg
+        yield ctx
     finally:
         if ctx is not None:
             ctx.close()
         pw.stop()
+
+
+def open_page(ctx: Any, url: str, *, first: bool = False) -> Any:
+    """A page of ``ctx`` at ``url`` (``first``: the context's first page) whose script errors and console errors
+    collect in its ``errors`` list."""
+    pg = ctx.pages[0] if first and ctx.pages else ctx.new_page()
+    pg.set_default_timeout(10_000)
+    errors: list[str] = []
+    pg.on("pageerror", lambda e: errors.append(str(e)))
+    pg.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+    pg.goto(url)
+    pg.errors = errors
+    return pg
+
+
+@pytest.fixture(scope="module")
+def page(chromium, service, tmp_path_factory):
+    with chromium_context(chromium, tmp_path_factory.mktemp("chromium-profile")) as ctx:
+        yield open_page(ctx, service.url, first=True)
 
 
 # ---------------------------------------------------------------------------------------------- helpers

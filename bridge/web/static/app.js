@@ -77,6 +77,8 @@
 
   // ------------------------------------------------------------------ formatting
   const fmt = (v, digits = 0) => (v === null || v === undefined || !Number.isFinite(v)) ? "—" : v.toFixed(digits);
+  // no "-0" ("roll -0" in the preset list): a value that rounds to zero is shown as 0
+  const fmtNoNegZero = (v, digits = 0) => { const t = fmt(v, digits); return /^-0(\.0*)?$/.test(t) ? t.slice(1) : t; };
   const show_mm = (m) => `${fmt(m * 1000, 1)} mm`;
   const angleUnit = () => ANGLES[units.angle];
   const show_angle = (rad) => `${fmt(rad * angleUnit().k, angleUnit().digits)} ${angleUnit().unit}`;
@@ -105,6 +107,14 @@
     return Number.isFinite(v) ? String(Number(v.toFixed(2))) : t;
   };
   const milliUnit = (u, rate) => `${u === "rad" ? angleUnit().unit : "mm"}${rate || ""}`;
+  // The maneuver editor's scripts are in metres and radians (docs/maneuvers.md): its refusals keep the service's
+  // SI numbers, a bare one after a DOF name gets its unit ("goal.z = 0.5 m" — "goal.z = 500 mm" for a typed
+  // 0.5 confused an operator)
+  function siUnits(text) {
+    if (typeof text !== "string") return text;
+    return text.replace(new RegExp(String.raw`(\b(?:workspace:)?(x|z|roll|pitch)(?::(?:min|max))?\s*(?:=|reaches)\s*)(${NUM})(?![\d.eE])(?!\s*(?:mm|mrad|m|rad|s|ms|deg|counts?)(?![A-Za-z])|\s*[%°])`, "g"),
+      (_, head, dof, a) => `${head}${a} ${isLength(dof) ? "m" : "rad"}`);
+  }
   function displayUnits(text) {
     if (typeof text !== "string") return text;
     const guard = String.raw`(?<![\w.])`;
@@ -122,7 +132,7 @@
       (_, head, dof, a) => `${head}${milli(a, isLength(dof) ? "m" : "rad")} ${dofUnit(dof)}`);
     return t;
   }
-  window.hitchTerminal = { displayUnits };   // for the browser test (the page keeps its CSP: no eval)
+  window.hitchTerminal = { displayUnits, siUnits };   // for the browser test (the page keeps its CSP: no eval)
 
   // A refusal naming limits by code gets their operator words appended (the terminal's table:
   // "… stroke:top:max … — top link at its stroke end (longest)").
@@ -204,12 +214,44 @@
 
   async function call(key, payload, quiet = false) {
     const r = await link.request(key, payload);
+    if (!r.ok) conflictRefusal(r.data);
     if (!r.ok && !quiet) log(r.data.message || `${key}: ${r.data.error}`, true);
     return r;
   }
 
+  // ------------------------------------------------------------------ two services on one prefix
+  // The service announces `prefix_conflict` {message, other, ends} when it meets another service on its key
+  // prefix: both brake; the later one (`ends`) refuses every request but stop and ends itself. A red banner
+  // says so until the operator dismisses it (a grey footer line, overwritten by the next event, was all
+  // before: an operator's trial). A refusal "…: refused, the service ends: …" raises it too.
+  function showConflict(c) {
+    ui.conflict = c;
+    const other = c.other ? ` (instance ${c.other})` : "";
+    const prefix = (ui.hello && ui.hello.prefix) || (ui.config && ui.config.prefix);
+    const on = prefix ? `prefix “${prefix}”` : "this prefix";
+    $("#conflict-text").textContent = `Prefix conflict: another hitch service${other} serves ${on} as well — ` +
+      "a goto or STOP could reach either tractor. Both braked to rest. " +
+      (c.ends ? "This page's service refuses every command but STOP and ends itself. "
+        : "This page's service serves on; the other one ends itself. ") +
+      "Stop one of the two services on this prefix (or give one its own prefix) before moving the hitch.";
+    $("#conflict").title = c.message ? displayUnits(c.message) : "";
+    $("#conflict").classList.remove("hidden");
+  }
+  function conflictRefusal(data) {
+    const m = /refused, the service ends: (.*)$/.exec((data && data.message) || "");
+    if (m && !(ui.conflict && ui.conflict.ends)) showConflict({ message: m[1], other: (/\(instance (\S+?)[;)]/.exec(m[1]) || [])[1], ends: true });
+  }
+  $("#conflict-dismiss").addEventListener("click", () => { ui.conflict = null; $("#conflict").classList.add("hidden"); });
+
+  // a restarted service (its state's seq went back) counts motions and sessions from 1 again
+  function serviceRestarted() {
+    ui.outcomes.clear(); ui.gotoId = null;
+    level.forget("");
+  }
+
   async function onConnected() {
     ui.outcomes.clear();   // motion ids are the service run's own: a restarted service counts from 1 again
+    level.forget("");
     renderConnection();
     const r = await call("config", {});
     if (r.ok) { ui.config = r.data; buildGauges(); renderConfig(); renderRanges(); }
@@ -336,11 +378,12 @@
       el(svg, "line", { class: "zero", y1: 20, y2: 52, x1: pos(0), x2: pos(0) });
       for (const v of [lo, hi]) el(svg, "line", { class: "limit", y1: 20, y2: 52, x1: pos(v), x2: pos(v) });
       g.target = el(svg, "path", { class: "target", d: "M0,0 l-6,-8 h12 z" });
-      el(svg, "text", { x: off, y: 10 }, "x   ◀ left");
-      el(svg, "text", { x: off + len, y: 10, "text-anchor": "end" }, "right ▶");
-      el(svg, "text", { x: pos(hi), y: 64, class: "dim", "text-anchor": "middle" }, `${fmt(hi * 1000)}`);
+      el(svg, "text", { x: off, y: 11 }, "x   ◀ left");   // y 11: the 11 px text's top inside the box
+      el(svg, "text", { x: off + len, y: 11, "text-anchor": "end" }, "right ▶");
+      // unsigned: the side is the label's (+x is the left); the readout says "left/right n mm" too
+      el(svg, "text", { x: pos(hi), y: 64, class: "dim", "text-anchor": "middle" }, `${fmtNoNegZero(Math.abs(hi) * 1000)}`);
       el(svg, "text", { x: pos(0), y: 64, class: "dim", "text-anchor": "middle" }, "0");
-      el(svg, "text", { x: pos(lo), y: 64, class: "dim", "text-anchor": "middle" }, `${fmt(lo * 1000)} mm`);
+      el(svg, "text", { x: pos(lo), y: 64, class: "dim", "text-anchor": "middle" }, `${fmtNoNegZero(Math.abs(lo) * 1000)} mm`);
     }
     return g;
   }
@@ -374,7 +417,7 @@
     g.needle = el(svg, "line", { class: "needle", x1: cx, y1: cy, x2: cx, y2: cy - r + 4 });
     el(svg, "circle", { cx, cy, r: 5, fill: "#e8edf2" });
     el(svg, "text", { x: 2, y: 12 }, dof);
-    g.label = el(svg, "text", { x: cx, y: 82, "text-anchor": "middle" }, "—");
+    g.label = el(svg, "text", { x: cx, y: 80, "text-anchor": "middle" }, "—");   // its descenders inside the 84 px box
     return g;
   }
 
@@ -430,8 +473,10 @@
     [["lift_rod_left"], "S_l", "A_l", "m thin"], [["top_link"], "H", "U", "m cyl"],
     [["mast", "implement"], "T", "U", "m impl"],
   ];
-  // px kept free above (titles; the "Control limited" box, two lines, covers them) and below the ground line (labels)
-  const VIEW_TOP = 32, VIEW_BOTTOM = 13;
+  // px kept free above (titles; the "Control limited" box, two lines, covers them) and below the ground line (labels:
+  // the rear view's heights on a line of their own above "◀ left … right ▶" — on one line "↑624 mm" ran into
+  // "right ▶" on a phone)
+  const VIEW_TOP = 32, VIEW_BOTTOM = 24;
 
   function onTerminal(t) { hv.info = t; hv.rear = hv.side = null; hv.drawn = null; ui.drawn = false; requestAnimationFrame(draw); }
   function onView(v) { hv.msg = v; ui.drawn = false; requestAnimationFrame(draw); }
@@ -473,12 +518,14 @@
     v.fixed = ["L0", "R0", "Q_l", "Q_r", "H", "C_l", "C_r"].map((n) => ({ n, e: el(svg, "rect", { class: "fixed", width: 4, height: 4 }) }));
     v.balls = (rear ? ["L", "R"] : ["L"]).map((n) => ({ n, e: el(svg, "circle", { class: "ball", r: 3.5, "data-member": "implement", "data-point": n }) }));
     const bottom = sc.H - 2;   // labels under the ground line: nothing is drawn there
-    el(svg, "text", { class: "title", x: 4, y: 11 }, rear ? "Rear view" : "Side view, from the left");
+    // a narrow side view (a phone): the short title, the "Angles" button covers its right end ("◀ front … rear ▶"
+    // under it say the side)
+    el(svg, "text", { class: "title", x: 4, y: 11 }, rear ? "Rear view" : VIEW_W < 300 ? "Side view" : "Side view, from the left");
     if (rear) {
       el(svg, "text", { class: "title", x: 4, y: bottom }, "◀ left");
       el(svg, "text", { class: "title", x: VIEW_W - 4, y: bottom, "text-anchor": "end" }, "right ▶");
-      v.hL = el(svg, "text", { class: "hgt", "text-anchor": "middle", y: bottom });
-      v.hR = el(svg, "text", { class: "hgt", "text-anchor": "middle", y: bottom });
+      v.hL = el(svg, "text", { class: "hgt", "text-anchor": "end", y: bottom - 11 });
+      v.hR = el(svg, "text", { class: "hgt", "text-anchor": "start", y: bottom - 11 });
       v.note = el(svg, "text", { class: "title", x: VIEW_W - 4, y: 11, "text-anchor": "end" }, "");
     } else {
       el(svg, "text", { class: "title", x: 4, y: bottom }, "◀ front");
@@ -488,6 +535,9 @@
     }
     return v;
   }
+
+  // a drawn text's width [px] (one unit = one CSS pixel in the views); 0 before it is laid out
+  const textLength = (t) => { try { return t.getComputedTextLength(); } catch (e) { return 0; } };
 
   function setLine(e, p0, p1) {
     e.setAttribute("x1", p0[0].toFixed(1)); e.setAttribute("y1", p0[1].toFixed(1));
@@ -532,13 +582,21 @@
     if (v.rear) {
       // the lower hitch points' heights above the ground, under each point
       const [lx] = v.at(p.L), [rx] = v.at(p.R);
-      v.hL.setAttribute("x", (lx - 8).toFixed(1)); v.hL.textContent = `↑${fmt(1000 * ag.L, 0)}`;
-      v.hR.setAttribute("x", (rx + 8).toFixed(1)); v.hR.textContent = `↑${fmt(1000 * ag.R, 0)} mm`;
+      // under each lower hitch point, outwards from the middle, kept inside the view
+      v.hL.textContent = `↑${fmt(1000 * ag.L, 0)} mm`; v.hR.textContent = `↑${fmt(1000 * ag.R, 0)} mm`;
+      v.hL.setAttribute("x", Math.max(2 + textLength(v.hL), lx).toFixed(1));
+      v.hR.setAttribute("x", Math.min(v.sc.W - 2 - textLength(v.hR), rx).toFixed(1));
     } else {
       const [tx, ty] = v.at(p.T), [sx, sy] = v.at(p.S_l);
-      v.hT.setAttribute("x", (tx + 8).toFixed(1)); v.hT.setAttribute("y", (ty + 4).toFixed(1)); v.hT.textContent = `${fmt(1000 * ag.T, 0)} mm`;
-      v.lift.setAttribute("x", sx.toFixed(1)); v.lift.setAttribute("y", (sy - 7).toFixed(1));
+      v.hT.textContent = `${fmt(1000 * ag.T, 0)} mm`;
+      // right of the tool point, or left of it where the view ends (it was cut off at the right edge)
+      const right = tx + 8 + textLength(v.hT) <= v.sc.W - 2;
+      v.hT.setAttribute("text-anchor", right ? "start" : "end");
+      v.hT.setAttribute("x", (right ? tx + 8 : tx - 8).toFixed(1)); v.hT.setAttribute("y", (ty + 4).toFixed(1));
       v.lift.textContent = `lift ${fmt(100 * meas.lift_fraction, 0)} %`;
+      const half = textLength(v.lift) / 2;
+      v.lift.setAttribute("x", Math.max(2 + half, Math.min(v.sc.W - 2 - half, sx)).toFixed(1));
+      v.lift.setAttribute("y", (sy - 7).toFixed(1));
     }
   }
 
@@ -586,6 +644,7 @@
 
   // ------------------------------------------------------------------ state → screen
   function onState(s) {
+    if (ui.state && Number.isFinite(s.seq) && Number.isFinite(ui.state.seq) && s.seq < ui.state.seq) serviceRestarted();
     ui.state = s;
     ui.lastStateMs = performance.now();
     ui.drawn = false;
@@ -764,7 +823,18 @@
     } else if (!ui.state || age > STATE_STALE_MS) {
       text = "Service: no state"; cls = "bad"; alert = "The service sends no state: the values shown are not live.";
     } else { text = ui.rate > 0 ? `Service: connected · ${fmt(ui.rate)} Hz` : "Service: connected"; cls = "good"; }
-    c.textContent = text;
+    // "Service: " and the rate in spans of their own: a phone hides them (the pill said "Service: c…" next to
+    // the running motion); the text stays whole for everything else
+    if (c.textContent !== text) {
+      const m = /^(Service: )(.*?)( · \d+ Hz)?$/.exec(text);
+      c.textContent = "";
+      if (m) {
+        const k = document.createElement("span"); k.className = "k"; k.textContent = m[1];
+        c.append(k, m[2]);
+        if (m[3]) { const hz = document.createElement("span"); hz.className = "hz"; hz.textContent = m[3]; c.append(hz); }
+      } else c.textContent = text;
+    }
+    c.title = `WebSocket to the hitch service: ${text.replace(/^Service: /, "")}`;
     c.className = `pill ${cls}`;
     // the service is live but the ECU's measurement is old (the ECU stopped reporting): the gauges show the
     // last values it sent, greyed like a service that is down, and the banner says how old they are
@@ -807,12 +877,26 @@
   // ------------------------------------------------------------------ events
   function onEvent(e) {
     const name = e.event || "event";
+    if (name === "prefix_conflict") {
+      showConflict(e);
+      log(`prefix conflict: another service (instance ${e.other || "?"}) serves this prefix: ` +
+        (e.ends ? "this service ends itself" : "the other one ends itself"), true);
+      return;
+    }
     let text = name.replace(/_/g, " ");
     if (e.motion_id !== undefined) text += ` #${e.motion_id}`;
     if (e.kind) text += ` (${e.kind})`;
     if (Array.isArray(e.cleared)) text += `: ${e.cleared.join(", ")}` + (e.by ? ` (${e.by})` : "");
     if (e.reason) text += `: ${e.reason}`;
     if (e.message) text += `: ${e.message}`;
+    // which limits: {key: limit name} in the words of the "Control limited" box ("limit reached #18" alone
+    // named none: an operator's trial)
+    if (name === "limit_reached" && e.limits && typeof e.limits === "object" && Object.keys(e.limits).length) {
+      text += ": " + Object.entries(e.limits).map(([k, v]) => {
+        const [words, code] = limitedEntryWords(k, v);
+        return code ? `${words} [${code}]` : words;
+      }).join("; ");
+    }
     if (e.maneuver) text = `maneuver ${e.maneuver}: ${name.replace("maneuver_", "")}` + (e.step !== undefined ? ` step ${e.step + 1}` : "") + (e.reason ? ` (${e.reason}: ${e.message || ""})` : "");
     log(text, /abort|fault$|limit/.test(name));
     if (name === "maneuver_started" && e.steps) ui.maneuverSteps[e.maneuver] = e.steps;
@@ -836,7 +920,7 @@
   // ------------------------------------------------------------------ STOP and modes
   async function stop() {
     jog.releaseAll();
-    level.halt("STOP");
+    level.halt("STOP", false, true);
     const r = await link.request("stop", {});
     if (r.ok) { log("STOP: motion stopped"); return; }
     // the WebSocket is down: try the plain HTTP API of the same server
@@ -908,11 +992,15 @@
     },
     send() {
       link.request("jog", this.rates()).then((r) => {
-        if (!r.ok && r.data.error !== "disconnected") { log(r.data.message || "jog refused", true); }
+        if (r.ok) { this.saidDisconnected = false; return; }
+        // not connected: said once per press (a jog was dropped silently while goto said so: a trial)
+        if (r.data.error === "disconnected") { if (!this.saidDisconnected) log(r.data.message || "jog: not connected to the service", true); this.saidDisconnected = true; return; }
+        log(r.data.message || "jog refused", true);
       });
     },
     press(source, dof, sign) {
       if (this.held.has(source) || document.body.classList.contains("viewer")) return;
+      if (this.held.size === 0) this.saidDisconnected = false;
       this.held.set(source, { dof, sign });
       this.mark();
       this.send();
@@ -945,15 +1033,20 @@
   document.addEventListener("visibilitychange", () => {
     if (!document.hidden) return;
     jog.releaseAll();
-    level.halt("the page was hidden: setpoints stopped, the service brakes");
+    level.halt("the page was hidden: setpoints stopped, the service brakes", false, true);
   });
 
   // keys that edit a field: text boxes, the maneuver script boxes, drop-down lists (arrow keys choose there) —
   // never a jog or Space = STOP (typing "W" in a script jogged the hitch, a Space in it stopped it, ArrowUp on the
   // work mode list raised it: an operator's trial); Escape stops from anywhere
+  // A focused slider (the jog speed) takes the arrow keys, Page Up/Down, Home and End itself: they change the
+  // speed, never jog (holding ↑ on the jog speed slider raised the hitch 25 mm and left the speed at 40 %: a
+  // trial); Space on it still stops
+  const SLIDER_KEYS = /^(Arrow(Up|Down|Left|Right)|Page(Up|Down)|Home|End)$/;
   const typing = (ev) => {
     const t = ev.target;
-    if (t instanceof HTMLInputElement) return !["range", "button", "submit", "reset"].includes(t.type);
+    if (t instanceof HTMLInputElement && t.type === "range") return SLIDER_KEYS.test(ev.code || ev.key);
+    if (t instanceof HTMLInputElement) return !["button", "submit", "reset"].includes(t.type);
     return t instanceof HTMLTextAreaElement || t instanceof HTMLSelectElement || (t instanceof HTMLElement && t.isContentEditable);
   };
   document.addEventListener("keydown", (ev) => {
@@ -988,17 +1081,40 @@
     if (m) return `${m[1]} at its acceleration limit`;
     m = /^(x|z|roll|pitch)$/.exec(key);
     if (m && /workspace/.test(n)) return `${m[1]} braking before the workspace face (${displayUnits(n)})`;
-    return displayUnits(`${key}: ${n}`);
+    // anything else (a stroke end, the guard's "caution: front_axle_load would be 1.212e+04 N …"): the words of
+    // the main "Control limited" box (the raw guard sentence was shown here: an operator's trial)
+    const [words, code] = limitedEntryWords(key, n);
+    return code ? `${words} [${code}]` : words;
   }
 
   const level = {
-    on: false, busy: false, session: null, motionId: null, seq: 0, timer: null, note: "", noteErr: false,
-    async start() {
+    on: false, busy: false, session: null, motionId: null, seq: 0, timer: null, note: "", noteErr: false, busySession: null, motionGoneMs: null,
+    async start(replace = false) {
       if (this.on || this.busy || document.body.classList.contains("viewer")) return;
-      this.busy = true; this.note = "starting…"; this.noteErr = false; this.render();
-      const r = await call("track/start", { frame: "level", dof: ["roll"], ttl_ms: LEVEL_TTL_MS }, true);
+      this.busy = true; this.note = "starting…"; this.noteErr = false; this.busySession = null; this.render();
+      const body = { frame: "level", dof: ["roll"], ttl_ms: LEVEL_TTL_MS };
+      if (replace) body.replace = true;
+      const r = await call("track/start", body, true);
       this.busy = false;
-      if (!r.ok) { this.note = r.data.message || `track/start: ${r.data.error}`; this.noteErr = true; log(this.note, true); this.render(); return; }
+      if (!r.ok) {
+        const live = r.data.error === "busy" && /track session (\d+) \(frame (\S+), dof ([^)]*)\) is live(?: \(work control's)?/.exec(r.data.message || "");
+        if (live && !replace && !/work control's/.test(r.data.message)) {
+          // another client streams setpoints (hitch track, another terminal): STOP ends it; take-over = replace
+          this.note = `another client is streaming setpoints (track session ${live[1]}): take over?`;
+          this.render();
+          const ok = await confirmDialog("Take over levelling?",
+            `Another client is streaming setpoints (track session ${live[1]}, frame ${live[2]}, ${live[3]}). ` +
+            "Take over ends its stream and levels the roll from this terminal; Cancel leaves it running (STOP ends it).",
+            "Take over");
+          if (ok) { this.start(true); return; }
+          this.busySession = Number(live[1]);
+          this.note = `not started: another client is streaming setpoints (track session ${live[1]}) — STOP ends it, or press Levelling again to take over`;
+        } else if (live) {
+          this.busySession = Number(live[1]);
+          this.note = `not started: work control streams setpoints (track session ${live[1]}) — stop it on the Work tab, or STOP`;
+        } else this.note = r.data.message || `track/start: ${r.data.error}`;
+        this.noteErr = true; log(this.note, true); this.render(); return;
+      }
       if (document.hidden || !ui.connected) {   // hidden while starting: never stream from a hidden page
         this.session = r.data.session; this.halt("the page was hidden: setpoints stopped, the service brakes"); return;
       }
@@ -1011,7 +1127,7 @@
     },
     send() {
       if (!this.on || this.session === null) return;
-      if (document.hidden || !ui.connected) { this.halt("the page was hidden: setpoints stopped, the service brakes"); return; }
+      if (document.hidden || !ui.connected) { this.halt("the page was hidden: setpoints stopped, the service brakes", false, ui.connected); return; }
       const session = this.session;
       link.request("track/setpoint", { session, seq: this.seq++, pose: { roll: 0 } }).then((r) => {
         if (r.ok || r.data.error === "disconnected" || session !== this.session) return;
@@ -1020,23 +1136,35 @@
       });
     },
     async stop() {
-      const session = this.session;
-      this.halt("");
+      const session = this.session, motionId = this.motionId;
+      this.halt("", false, true);   // the motion kept for its outcome (motion_finished: track/stop)
       if (session === null) return;
       const r = await call("track/stop", this.seq > 0 ? { session, last_seq: this.seq - 1 } : { session }, true);
       if (r.ok) {   // the motion's outcome may have come first (the same socket, other threads): it stays shown
-        if (this.motionId !== null) { this.note = "off: braking to rest"; this.noteErr = false; }
+        if (this.motionId !== null && this.motionId === motionId) { this.note = "off: braking to rest"; this.noteErr = false; }
         log(`levelling off: track/stop (session ${session})`);
       }
       else if (r.data.error !== "not_found") { this.note = r.data.message || "track/stop refused"; this.noteErr = true; log(this.note, true); }
       this.render();
     },
     // stop streaming (no request): the service brakes at the TTL
-    halt(why, isError = false) {
+    // and forget the motion unless `keep` (its outcome is awaited: STOP, track/stop, a hidden page's TTL brake —
+    // for a short while only, see draw): after a service restart an unrelated motion with the same number ending
+    // said "off: replaced by preset" (an operator's trial)
+    halt(why, isError = false, keep = false) {
       if (this.timer) { clearInterval(this.timer); this.timer = null; }
       const was = this.on;
       this.on = false; this.session = null;
+      if (!keep) this.motionId = null;
+      this.motionGoneMs = null;
       if (was && why) { this.note = why; this.noteErr = isError; }
+      this.render();
+    },
+    // a new connection or a restarted service (its state's seq went back): motion numbers and sessions are
+    // that run's own, and a refusal of before ("not connected", "busy") is no longer news
+    forget(why) {
+      this.motionId = null; this.busySession = null;
+      if (!this.on && this.noteErr) { this.note = why; this.noteErr = false; }
       this.render();
     },
     onEvent(e) {
@@ -1061,6 +1189,17 @@
     },
     draw(s) {
       const t = s.track, counts = $("#level-counts"), box = $("#level-limited");
+      if (!this.on && this.motionId !== null) {
+        // the awaited outcome: the state shows the motion over for 2 s and no event came (lost over a
+        // reconnect): forget it
+        if (s.moving && s.motion_id === this.motionId) this.motionGoneMs = null;
+        else if (this.motionGoneMs === null) this.motionGoneMs = performance.now();
+        else if (performance.now() - this.motionGoneMs > 2000) { this.motionId = null; this.motionGoneMs = null; }
+      }
+      if (this.busySession !== null && this.busySession !== undefined && (!t || t.session !== this.busySession)) {
+        this.busySession = null;   // the other client's stream ended: the refusal is no longer news
+        if (!this.on && this.noteErr) { this.note = ""; this.noteErr = false; this.render(); }
+      }
       if (!t) { counts.textContent = ""; box.classList.add("hidden"); return; }
       const mine = this.session !== null && t.session === this.session;
       const target = t.target && Number.isFinite(t.target.roll) ? ` · target ${show_angle(t.target.roll)}` : "";
@@ -1137,9 +1276,9 @@
       !Number.isInteger(goal[k] * 1000) && (!w || (goal[k] * 1000 >= w[k][0] && goal[k] * 1000 <= w[k][1])));
   }
   // the answer under a form, scrolled into its tab's view (a long refusal ran under the quick row at 1024×600)
-  function result(sel, text, ok) {
-    const r = $(sel);
-    r.textContent = ok ? displayUnits(text) : inWords(displayUnits(text));
+  function result(sel, text, ok, si = false) {
+    const r = $(sel), shown = si ? siUnits(text) : displayUnits(text);
+    r.textContent = ok ? shown : inWords(shown);
     r.className = `result ${ok ? "ok" : "err"}`;
     if (text && r.offsetParent !== null) r.scrollIntoView({ block: "nearest" });
   }
@@ -1161,7 +1300,7 @@
     const ended = r.ok ? ui.outcomes.get(r.data.motion_id) : undefined;
     if (ended) { ui.gotoId = null; result("#goto-result", ...ended); return; }   // over before its reply came
     ui.gotoId = r.ok ? r.data.motion_id : null;
-    result("#goto-result", r.ok ? `moving: motion #${r.data.motion_id}, ${fmt(r.data.duration, 2)} s` : r.data.message, r.ok);
+    result("#goto-result", r.ok ? `moving: motion #${r.data.motion_id}, ${fmt(r.data.duration, 2)} s${planGuardWords(r.data)}` : r.data.message, r.ok);
   });
   $("#goto-plan").addEventListener("click", async () => {
     const req = gotoRequest();
@@ -1169,8 +1308,30 @@
     delete req.metres;   // a check moves nothing: no question
     const r = await call("plan", req);
     if (!r.ok) result("#goto-result", r.data.message, false);
-    else result("#goto-result", r.data.ok ? `reachable: ${fmt(r.data.duration, 2)} s (${r.data.guard})` : `refused: ${r.data.refused}`, r.data.ok);
+    else result("#goto-result", r.data.ok ? `reachable: ${fmt(r.data.duration, 2)} s${planGuardWords(r.data)}` : `refused: ${r.data.refused}`, r.data.ok);
   });
+  // the guard's verdict on a plan in words: "(scaled)" alone did not say by how much or why (an operator's trial)
+  function planGuardWords(d) {
+    const f = d.speed_factor;
+    if (!(Number.isFinite(f) && f < 1)) return "";
+    const why = (d.reasons || []).filter((r) => r.level !== "hard").map((r) => guardReasonWords(r)).filter(Boolean);
+    return ` — slowed to ${fmt(100 * f, 0)} %${why.length ? `: ${why.join("; ")}` : ""}`;
+  }
+  // one guard reason {measure, value, threshold, t, level, unit} in the operator's words and units (as the
+  // server words the guard's sentences in the "Control limited" box: bridge/web/wording.py limited_words)
+  const MEASURE_UNITS = { ssm: [1, "m", 2], lsm: [1, "m", 2], esm: [0.001, "kJ", 1] };
+  function guardReasonWords(r) {
+    const table = (hv.info && hv.info.words) || {}, base = table[r.measure] || r.measure.replace(/_/g, " ");
+    const tractorN = hv.info && hv.info.tractor_weight_n, ok = Number.isFinite(r.value) && Number.isFinite(r.threshold);
+    const bound = r.level === "hard" ? "minimum" : "slows below", when = Number.isFinite(r.t) ? ` in ${fmt(r.t, 1)} s` : "";
+    if (r.measure === "front_axle_load" && ok && Number.isFinite(tractorN) && tractorN > 0) {
+      return `front axle load ${fmt(100 * r.value / tractorN, 0)} % of the tractor's weight (${bound} ${fmt(100 * r.threshold / tractorN, 0)} %)${when}`;
+    }
+    const u = MEASURE_UNITS[r.measure];
+    if (u && ok) return `${base}: ${fmt(r.value * u[0], u[2])} ${u[1]} (${bound} ${fmt(r.threshold * u[0], u[2])} ${u[1]})${when}`;
+    return `${base}${when}`;
+  }
+  window.hitchTerminal.planGuardWords = planGuardWords;   // for the browser test
   $("#goto-current").addEventListener("click", () => {
     const p = (ui.state && ui.state.pose) || {}, f = $("#goto-form");
     for (const k of DOFS) f.elements[k].value = Number.isFinite(p[k]) ? (p[k] * dofK(k)).toFixed(dofDigits(k)) : "";
@@ -1199,7 +1360,7 @@
     const list = $("#preset-list");
     list.textContent = "";
     for (const p of r.data.presets) {
-      const sub = DOFS.map((k) => `${k} ${fmt(p.pose[k] * dofK(k), isLength(k) ? 0 : dofDigits(k) - 1)}`).join(" · ") + ` (mm, ${angleUnit().unit})`;
+      const sub = DOFS.map((k) => `${k} ${fmtNoNegZero(p.pose[k] * dofK(k), isLength(k) ? 0 : dofDigits(k) - 1)}`).join(" · ") + ` (mm, ${angleUnit().unit})`;
       item(list, p.name, sub, [
         ["Go", "primary motion-only", async () => { const q = await call("presets/go", { name: p.name }); if (q.ok) log(`preset ${p.name}: moving, ${fmt(q.data.duration, 2)} s`); }],
         ["Delete", "danger", async () => {
@@ -1245,8 +1406,8 @@
           }
           const q = await call("maneuvers/validate", { script: m.script });
           if (q.ok) result("#maneuver-result", q.data.ok ? `${m.name}: valid, ${fmt(q.data.duration, 1)} s`
-            : `${m.name}: ` + stepErrors(q.data.errors), q.data.ok);
-          else result("#maneuver-result", q.data.message, false);
+            : `${m.name}: ` + stepErrors(q.data.errors), q.data.ok, true);   // in the script's units (m, rad)
+          else result("#maneuver-result", q.data.message, false, true);
         }],
         ["Run", "primary motion-only", async () => {
           const ended = ui.maneuversEnded;
@@ -1267,9 +1428,9 @@
   }
   $("#maneuver-validate").addEventListener("click", async () => {
     const q = await call("maneuvers/validate", { script: scriptRequest().script });
-    if (!q.ok) { result("#maneuver-result", q.data.message, false); return; }
+    if (!q.ok) { result("#maneuver-result", q.data.message, false, true); return; }
     result("#maneuver-result", q.data.ok ? `valid: ${fmt(q.data.duration, 1)} s from the current pose`
-      : stepErrors(q.data.errors), q.data.ok);
+      : stepErrors(q.data.errors), q.data.ok, true);   // in the script's units (m, rad)
   });
   // maneuvers/save: a name saved already is refused (in_use) unless sent with replace — the operator is asked first
   async function saveManeuver(body, quiet) {
@@ -1284,7 +1445,7 @@
     ev.preventDefault();
     const q = await saveManeuver(scriptRequest());
     if (q.ok) { result("#maneuver-result", `${q.data.saved} saved (${q.data.steps} steps)`, true); refreshManeuvers(); }
-    else result("#maneuver-result", q.data.message, false);
+    else result("#maneuver-result", q.data.message, false, true);
   });
 
   function drawManeuver(man) {
@@ -1489,9 +1650,9 @@
   // Resume after a fallback; the state's `work` block in words. Self-contained: it follows ui.state on
   // its own timer and reads the selected implement's settings (work/settings) on each connection.
   const work = {
-    settings: null, implement: undefined, ws: null, shown: null,
+    settings: null, implement: undefined, ws: null, shown: null, stopping: null,
     kn: (n) => (Number.isFinite(n) ? (n / 1000).toFixed(1) : "—"),
-    cm: (m) => (Number.isFinite(m) ? (m * 100).toFixed(0) : "—"),
+    cm: (m) => (Number.isFinite(m) ? String(Number((m * 100).toFixed(1))) : "—"),   // the dialog's 0.1 cm steps
     take(d) {
       this.settings = d.settings; this.implement = d.implement;
       $("#work-mode").value = d.settings.mode;
@@ -1532,6 +1693,12 @@
       $("#work-mode").disabled = viewer;
       $("#work-settings").disabled = viewer;
       $("#work-resume").disabled = viewer || !running || !w.fallback;
+      // "work session N: stopping" on the quick row's line becomes "ended" once the state says so (it stayed)
+      const ending = this.stopping;
+      if (ending && !running) {
+        this.stopping = null;
+        if ($("#act-result").textContent === ending.text) actions.say(`work session ${ending.session}: ended`, true);
+      }
       const text = this.words(w);
       st.textContent = text; st.title = text;
       st.className = `work-line ${running ? (w.fallback ? "fallback" : "running") : ""}`;
@@ -1613,6 +1780,10 @@
       if (n.value > hi || n.value < lo || (openLo && n.value <= lo)) {
         return { error: `${label} = ${workNum(n.value)}${u} is outside ${rng} [${key}] — nothing saved` };
       }
+      // depths in steps of 0.1 cm, what the page shows (0.001–0.002 cm was taken and summarised as "0–0 cm")
+      if (unit === "cm" && Math.abs(n.value * 10 - Math.round(n.value * 10)) > 1e-6) {
+        return { error: `${label} = ${workNum(n.value)} cm: the depth is set in steps of 0.1 cm (e.g. ${fmt(n.value, 1)} cm) — nothing saved` };
+      }
       body[key] = n.value * scale; shown[key] = `${workNum(n.value)}${u}`;
     }
     if (!(body.depth_min_m < body.depth_max_m)) {
@@ -1632,7 +1803,10 @@
   });
   $("#work-toggle").addEventListener("click", async () => {
     const running = Boolean(ui.state && ui.state.work && ui.state.work.running);
-    if (running) await actionCall("work/stop", {}, (d) => `work session ${d.session}: stopping`);
+    if (running) {
+      const r = await actionCall("work/stop", {}, (d) => `work session ${d.session}: stopping`);
+      if (r.ok) work.stopping = { session: r.data.session, text: $("#act-result").textContent };
+    }
     else await actionCall("work/start", {}, (d) => `work session ${d.session} started: ${d.work.mode}`);
   });
   $("#work-resume").addEventListener("click", () => actionCall("work/resume", {}, (d) => `work: ${d.mode} again`));

@@ -14,6 +14,11 @@ A core that dies ends the service's motion for good: every call then fails with 
 and the service's supervisor (:func:`bridge.service.server.serve`) stops the service with the
 reason — an old plan is never resumed, and the ECU's watchdog holds the valves at zero without
 references.
+
+A thread of its own (``core-keepalive``) sends the core a keep-alive every :data:`KEEPALIVE_S`, whatever the
+request threads do: a core that hears nothing from its service for
+:data:`~bridge.service.core.process.SERVICE_SILENCE_S` (the service frozen, hung or swapped out: nobody's
+``stop`` reaches the core through it) brakes the hitch to rest (``service_lost``).
 """
 
 from __future__ import annotations
@@ -42,6 +47,9 @@ __all__ = ["CoreError", "CoreProcess", "MotionProxy", "JsonReply", "core_config_
 START_TIMEOUT_S = 60.0
 #: the longest any call waits for its answer unless it says otherwise [s]
 CALL_TIMEOUT_S = 10.0
+#: period of the service's keep-alive to its core [s]: a core that hears nothing for
+#: :data:`~bridge.service.core.process.SERVICE_SILENCE_S` (2 s, 8 periods) brakes the hitch (``service_lost``)
+KEEPALIVE_S = 0.25
 
 
 class CoreError(MotionError):
@@ -104,6 +112,7 @@ class CoreProcess:
         self.ready: dict[str, Any] = {}
         self.ended: str | None = None
         """Why the core is gone (None while it runs)."""
+        self._closing = threading.Event()  # ends the keep-alive thread
 
     def start(self) -> CoreProcess:
         mine, theirs = socket.socketpair()
@@ -151,7 +160,20 @@ class CoreProcess:
         self.ready = dict(rest[0])
         self._reader = threading.Thread(target=self._read, name="core-replies", daemon=True)
         self._reader.start()
+        threading.Thread(target=self._keep_alive, name="core-keepalive", daemon=True).start()
         return self
+
+    def _keep_alive(self) -> None:
+        """Every :data:`KEEPALIVE_S`: ``alive`` to the core (no answer; module docstring), until it ends."""
+        conn = self._conn
+        assert conn is not None
+        while self.ended is None and not self._closing.is_set():
+            try:
+                with self._send_lock:
+                    conn.send((0, "alive", (), {}))
+            except (OSError, ValueError):
+                return
+            self._closing.wait(KEEPALIVE_S)
 
     @property
     def pid(self) -> int | None:
@@ -240,6 +262,7 @@ class CoreProcess:
 
     def close(self, timeout_s: float = 2.0) -> None:
         """Ask the core to brake and end, then make sure it did (killed after ``timeout_s``)."""
+        self._closing.set()
         if self._conn is not None and self.ended is None and self.process is not None and self.process.poll() is None:
             try:
                 self.call("close", timeout_s=timeout_s)

@@ -10,11 +10,17 @@
   root or CAP_SYS_NICE; otherwise it runs at normal priority and the ``ready`` message says why);
 * its own Zenoh session (a client of the service's session on its private loopback listener, or
   of the routers the service connects to in client mode: ``ENDPOINTS_JSON``): the
-  ``<prefix>/stop`` queryable (any payload stops), the ``<prefix>/track/setpoint`` subscriber,
+  ``<prefix>/stop`` queryable (any payload stops), the ``<prefix>/track/setpoint`` subscriber (a ring
+  that a thread of its own empties at most :data:`SETPOINT_MAX_HZ` a second: a flood of puts never
+  holds up the session that answers ``stop``),
   and the ``<prefix>/state`` and ``<prefix>/events`` publishers. Nothing the service's request
   handling does (thousands of requests, storage, validation, the terminal) runs under this
   process's interpreter lock: the control cycle only shares it with the CAN threads, the outbox
   and the motion commands below;
+* a watch of the service (:meth:`ControlCore._watch_service`): the service sends a keep-alive over the
+  socket every 0.25 s; silent for :data:`SERVICE_SILENCE_S` (a frozen or hung service: nobody can reach
+  this core's ``stop`` through it) the core brakes the hitch to rest and posts ``service_lost``; heard
+  again, ``service_restored`` — nothing stopped resumes;
 * calls from the service over the socket ``FD`` (:mod:`bridge.service.core.client`): ``(id,
   method, args)`` in, ``(id, "ok", value)`` or ``(id, "error", code, message)`` out; and notes
   ``(0, "note", {...})`` about what the core answered on its own (each ``stop`` it served, for the
@@ -67,6 +73,23 @@ from planner.errors import HitchError
 
 #: period of the core's check of its CAN threads [s]
 RUNNER_WATCH_S = 0.2
+#: a service silent this long over the private socket counts as lost: the core brakes the hitch to rest
+#: (``service_lost``). The service sends a keep-alive every
+#: :data:`~bridge.service.core.client.KEEPALIVE_S` (0.25 s) from a thread of its own, so this is 8 of them
+#: missed in a row: a Python thread of a loaded computer is delayed tens of milliseconds, a full garbage
+#: collection of the service ~0.1 s, never seconds; a frozen (SIGSTOP), hung or swapped-out service is
+#: braked within this plus :data:`SERVICE_WATCH_S` [s]
+SERVICE_SILENCE_S = 2.0
+#: period of the core's watch of its service [s]
+SERVICE_WATCH_S = 0.1
+#: setpoint puts the core's ring holds for its setpoint thread (``core-setpoints``); beyond it the oldest is
+#: dropped, in Zenoh
+SETPOINT_RING = 256
+#: the most setpoint puts a second the setpoint thread takes after a burst of :data:`SETPOINT_BURST` [Hz]: 20 times
+#: the documented 100 Hz maximum of a stream; a flood beyond it waits in (and falls out of) the ring
+SETPOINT_MAX_HZ = 2000.0
+#: setpoints taken at once before :data:`SETPOINT_MAX_HZ` applies (a stream's burst after a hiccup)
+SETPOINT_BURST = 64
 
 __all__ = ["CORE_NICE", "TWIN_NICE", "ControlCore", "freeze_startup_objects", "lock_memory", "raise_core_to_realtime"]
 
@@ -146,6 +169,7 @@ class ControlCore:
         self._state_pub: zenoh.Publisher | None = None
         self._event_pub: zenoh.Publisher | None = None
         self._decls: list[Any] = []
+        self._setpoints: Any = None  # the setpoint subscriber's ring (_take_setpoints)
         self._pool = ThreadPoolExecutor(2, thread_name_prefix="core-motion")
         self._closed = threading.Event()
         self._state_listened = threading.Event()  # a subscriber matches the state publisher
@@ -160,6 +184,9 @@ class ControlCore:
         self.notes_dropped = 0
         #: ``track/setpoint`` puts dropped unread (beyond MAX_SETPOINT_BYTES)
         self.setpoints_too_large = 0
+        #: when the last message from the service arrived (``time.monotonic()``; the watch of the service)
+        self._heard = time.monotonic()
+        self._heard_gap = 0.0  # the longest time between two messages from the service since the watch reset it [s]
         threading.Thread(target=self._send_notes, name="core-notes", daemon=True).start()
         threading.Thread(target=self._send_states, name="core-state-notes", daemon=True).start()
 
@@ -200,6 +227,7 @@ class ControlCore:
                         pass
         warnings = []
         fifo_failed = raise_core_to_realtime() if cfg.realtime else "switched off (realtime = false)"
+        threading.Thread(target=self._take_setpoints, name="core-setpoints", daemon=True).start()
         if fifo_failed is not None and cfg.realtime:
             warnings.append(
                 f"control core: real-time scheduling (SCHED_FIFO) not possible ({fifo_failed}); its threads run at "
@@ -288,7 +316,10 @@ class ControlCore:
                 self._note({"request": "stop", "ok": ok, "reply": answer, "payload": payload[:1024]})
 
         self._decls.append(s.declare_queryable(exact, on_stop, complete=True))
-        self._decls.append(s.declare_subscriber(cfg.key("track/setpoint"), self._on_setpoint))
+        # the setpoint puts into a ring that Zenoh fills without running Python (the oldest dropped when full): this
+        # session's threads never wait for the interpreter lock for them (core-setpoints takes them, start)
+        self._setpoints = s.declare_subscriber(cfg.key("track/setpoint"), zenoh.handlers.RingChannel(SETPOINT_RING))
+        self._decls.append(self._setpoints)
 
     def _watch_runners(self) -> None:
         """Every :data:`RUNNER_WATCH_S`: a CAN thread that stopped (its transport failed: a remote CAN hub killed,
@@ -312,6 +343,71 @@ class ControlCore:
                 time.sleep(0.01)
             signal.raise_signal(signal.SIGINT)  # the main thread's serve() ends and closes the core (main)
             return
+
+    def _watch_service(self) -> None:
+        """Every :data:`SERVICE_WATCH_S`: has the service said anything (a call, its keep-alive) within
+        :data:`SERVICE_SILENCE_S`? A service frozen (SIGSTOP), hung or swapped out no longer routes anyone's
+        ``stop`` to this core (a peer's clients reach the core through its session): the core then brakes
+        whatever runs — a goto, a maneuver, a track stream, a work session — as a lost router does with
+        ``on_link_loss = stop``, and posts ``service_lost`` (the service's black box gets it over the socket once
+        it reads again). When the service is heard again, ``service_restored``; nothing stopped resumes. Before,
+        a work session ran on for as long as the service stayed frozen (a safety trial: 15.6 s, and on after
+        SIGCONT). A message waiting unread on the socket counts as heard (this core's reader busy, not the
+        service silent)."""
+        lost = False
+        while not self._closed.wait(SERVICE_WATCH_S):
+            silent = time.monotonic() - self._heard
+            if not lost:
+                if silent < SERVICE_SILENCE_S or self._service_waiting():
+                    continue
+                lost = True
+                self._heard_gap = 0.0  # the whole silence, measured by the reader when the service speaks again
+                self._on_service_lost(silent)
+            elif silent < SERVICE_SILENCE_S:
+                lost = False
+                gap = self._heard_gap
+                self._post(
+                    {
+                        "event": "service_restored",
+                        "silent_s": round(gap, 2),
+                        "message": f"the service is heard again after {gap:.1f} s of silence; nothing stopped resumes",
+                    }
+                )
+
+    def _on_service_lost(self, silent: float) -> None:
+        motion = self.motion
+        if motion is None:
+            return
+        try:  # first: the announcement must not delay it
+            motion.stop(f"service lost: no word from the service for {silent:.1f} s")
+        except Exception:  # noqa: BLE001 — the bus is gone: the ECU's watchdog holds the valves at zero
+            pass
+        self._post(
+            {
+                "event": "service_lost",
+                "silent_s": round(silent, 2),
+                "message": f"the service has said nothing for {silent:.1f} s (frozen, hung or overloaded): nobody "
+                f"can reach this control core's stop through it; braking the hitch to rest (bound "
+                f"{SERVICE_SILENCE_S:g} s)",
+            }
+        )
+
+    def _post(self, event: dict[str, Any]) -> None:
+        motion = self.motion
+        if motion is not None:
+            try:
+                motion.post_event(event)
+            except Exception:  # noqa: BLE001 — closing
+                pass
+
+    def _service_waiting(self) -> bool:
+        """Whether a message from the service waits unread on the socket (poll, no wait)."""
+        try:
+            p = select.poll()
+            p.register(self.conn.fileno(), select.POLLIN)
+            return any(ev & select.POLLIN for _, ev in p.poll(0))
+        except (OSError, ValueError):
+            return False
 
     def _note(self, note: dict[str, Any]) -> None:
         """Tell the service what the core answered on its own (its black box records it); never blocks."""
@@ -345,10 +441,40 @@ class ControlCore:
                 except (OSError, ValueError):
                     return
 
+    def _take_setpoints(self) -> None:
+        """The setpoint puts from their ring (:meth:`_open_zenoh`), at most :data:`SETPOINT_MAX_HZ` a second after a
+        burst of :data:`SETPOINT_BURST` (a token bucket): beyond that this thread sleeps and the ring keeps the
+        newest :data:`SETPOINT_RING`, the older ones dropped in Zenoh. A stream of the documented 100 Hz, bursts
+        after a network hiccup included, never waits. Under the normal policy (``SCHED_OTHER``) at the core's
+        nice: a flood (a safety trial: ~350 000 puts a second from one client) costs this thread its CPU share,
+        never the real-time threads theirs, and never delays the ``stop`` this session answers (before, each put
+        ran this callback on the session's own thread: another client's ``stop`` waited 0.8–1.9 s behind them)."""
+        try:  # started by the main thread after it went real-time: this one is ordinary (its nice stays the core's)
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+        except (OSError, AttributeError):
+            pass
+        sub = self._setpoints
+        if sub is None:
+            return
+        tokens, last = float(SETPOINT_BURST), time.monotonic()
+        for sample in sub:  # ends when the subscriber is undeclared or the session closes
+            now = time.monotonic()
+            tokens = min(float(SETPOINT_BURST), tokens + (now - last) * SETPOINT_MAX_HZ)
+            last = now
+            if tokens < 1.0:
+                time.sleep((1.0 - tokens) / SETPOINT_MAX_HZ)
+                now = time.monotonic()
+                tokens, last = min(float(SETPOINT_BURST), tokens + (now - last) * SETPOINT_MAX_HZ), now
+            tokens -= 1.0
+            try:
+                self._on_setpoint(sample)
+            except Exception:  # noqa: BLE001 — one bad put must not end the stream
+                pass
+
     def _on_setpoint(self, sample: zenoh.Sample) -> None:
         """A streamed ``track/setpoint`` put (O(1)): refusals are counted and announced by the controller. A put
-        beyond :data:`~bridge.service.schemas.MAX_SETPOINT_BYTES` is dropped before it is copied or parsed (this
-        callback runs in the session that answers ``stop``), counted in :attr:`setpoints_too_large`."""
+        beyond :data:`~bridge.service.schemas.MAX_SETPOINT_BYTES` is dropped before it is copied or parsed, counted in
+        :attr:`setpoints_too_large`; on ``core-setpoints`` (:meth:`_take_setpoints`), never in the session's threads."""
         too_large = setpoint_too_large(len(sample.payload))
         if too_large is not None:  # whose it is cannot be known unread: counted against the live session, if any
             self.setpoints_too_large += 1
@@ -518,13 +644,20 @@ class ControlCore:
                 pass
 
     def serve(self) -> None:
-        """Answer the service's calls until its socket closes or it sends ``close``."""
+        """Answer the service's calls until its socket closes or it sends ``close``; its keep-alives
+        (``alive``, no answer) and every call feed the watch of the service (:meth:`_watch_service`)."""
+        self._heard = time.monotonic()
+        threading.Thread(target=self._watch_service, name="core-service-watch", daemon=True).start()
         while True:
             try:
                 msg = self.conn.recv()
             except (EOFError, OSError):
                 return
+            now = time.monotonic()
+            self._heard_gap, self._heard = max(self._heard_gap, now - self._heard), now
             call_id, method, args, kwargs = msg
+            if method == "alive":
+                continue
             if method == "close":
                 self.close()
                 with self._send_lock:

@@ -85,7 +85,7 @@ from bridge.service.gnss import GnssTracker
 from bridge.service.maneuvers.language import ValidationResult, guarded_plan_step
 from bridge.service.maneuvers.runner import AbortReason, LoopState, ManeuverRunner
 from bridge.service.maneuvers.slot import ManeuverSlot
-from bridge.service.motion.following import FollowingErrorLimits, FollowingSupervisor
+from bridge.service.motion.following import FOLLOWING_ERROR, FollowingErrorLimits, FollowingSupervisor
 from bridge.service.motion.link_port import LinkPort
 from bridge.service.motion.outbox import Outbox
 from bridge.service.motion.types import (
@@ -1203,13 +1203,13 @@ class MotionController:
         why = self.following.check(ls.actuators.as_array(), ls.measurement_t_s, ls.lift_t_s)
         if why is None:
             return
-        self._faults["following_error"] = Fault("following_error", why, True, now)
+        self._faults[FOLLOWING_ERROR] = Fault(FOLLOWING_ERROR, why, True, now)
         self._fresh_since = None
         events.append(
             {
                 "event": "fault",
                 "faults": list(self._faults),
-                "new": ["following_error"],
+                "new": [FOLLOWING_ERROR],
                 "ack_required": True,
                 "message": why,
             }

@@ -32,7 +32,10 @@ import numpy as np
 
 from planner.model.types import ACTUATOR_NAMES
 
-__all__ = ["FollowingErrorLimits", "FollowingSupervisor"]
+__all__ = ["FOLLOWING_ERROR", "FollowingErrorLimits", "FollowingSupervisor"]
+
+#: the fault the supervision raises (latching; docs/faults.md)
+FOLLOWING_ERROR = "following_error"
 
 
 @dataclass(frozen=True)

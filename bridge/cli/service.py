@@ -441,11 +441,13 @@ def _run(args, fn) -> int:
 
 
 def _stop_after_interrupt(c, motion_id: object) -> None:
-    """Ctrl-C during a motion command: send ``stop`` and wait (bounded) for its answer; a second
-    Ctrl-C meanwhile is ignored, so the stop is not cut short."""
+    """Ctrl-C (or SIGTERM) during a motion command: send ``stop`` and wait (bounded) for its answer; a second
+    Ctrl-C or SIGTERM meanwhile is ignored, so the stop is not cut short."""
     from bridge.service.client import ServiceError
 
     old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # a second SIGTERM (taken as Ctrl-C while the command ran: bridge.cli.main) would cut the stop short too
+    old_term = signal.signal(signal.SIGTERM, signal.SIG_IGN)
     t0 = time.monotonic()
     try:
         r = c.request("stop", {}, timeout_s=STOP_TIMEOUT_S)
@@ -463,6 +465,7 @@ def _stop_after_interrupt(c, motion_id: object) -> None:
         )
     finally:
         signal.signal(signal.SIGINT, old)
+        signal.signal(signal.SIGTERM, old_term)
 
 
 def _motion(args, c, start: Callable[[], dict], wait: Callable[[dict], dict]) -> tuple[dict, dict | None]:

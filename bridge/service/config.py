@@ -18,7 +18,8 @@ CAN log — is taken from the config file's folder)::
     [can]      interface = "virtual"; channel = "hitch"; simulate_ecu = true; stale_timeout_s = 0.2
                sim_ground_speed = 1.5   # m/s of the simulated tractor (wheel-based speed, PGN 65096)
                sim_truth = "truth.toml" # the simulated machine's own true profile (hitch sim perturb)
-               hitch_status_address = 240   # sender of the rear hitch status (the lift); absent: the cylinder ECU
+               hitch_status_address = 240   # the rear hitch status's (the lift's) sender, with simulate_ecu = false
+                                            # (a tractor's TECU); absent: the cylinder ECU (169)
     [hitch]    profile = "thesis-t132"; category = "2"; implement = "cat2-spreader-400";
                control_rate = 50.0; state_rate = 50.0
                feedforward = true   # stream the unit loops' feed-forward reference (bridge.link.unit_loop)

@@ -541,9 +541,19 @@ def start_twin_gnss(cfg: Any, parts: Any, session: Any, period_s: float = 0.1) -
 def lines_handlers(api: Any) -> dict[str, Callable[[Any], dict[str, Any]]]:
     """The ``lines/save|list|delete`` handlers of a :class:`~bridge.service.api.ServiceAPI`: the lines
     live in the control core's tracker (``motion.lines_request``) and in the store (kept across a
-    restart, :func:`restore_lines`)."""
+    restart, :func:`restore_lines`). A save or delete checks and changes under one lock: two saves of one new
+    name at once are one save and one ``in_use``, never a silent replacement (a review)."""
+    lock = threading.Lock()
 
     def save(r: Any) -> dict[str, Any]:
+        with lock:
+            return _save(r)
+
+    def delete(r: Any) -> dict[str, Any]:
+        with lock:
+            return _delete(r)
+
+    def _save(r: Any) -> dict[str, Any]:
         from bridge.service.schemas import RequestError
 
         lines = parse_lines(r.geojson, r.name)  # GnssError: nothing saved anywhere
@@ -563,7 +573,7 @@ def lines_handlers(api: Any) -> dict[str, Callable[[Any], dict[str, Any]]]:
             out["replaced"] = again
         return out
 
-    def delete(r: Any) -> dict[str, Any]:
+    def _delete(r: Any) -> dict[str, Any]:
         from bridge.service.maneuvers.recorder import maneuvers_using_line
         from bridge.service.schemas import RequestError
 

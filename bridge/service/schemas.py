@@ -236,13 +236,15 @@ class SimFaultRequest(_Strict):
 class TrackStart(_Strict):
     """Start a track session: setpoints of ``dof`` in ``frame`` (tractor, level: roll/pitch relative to
     gravity, ground: z above the ground); without a setpoint within ``ttl_ms`` the hitch brakes to rest.
-    Another live session with a fresh stream is refused (``busy``) unless ``replace``."""
+    Another live session with a fresh stream is refused (``busy``) unless ``replace``: true takes over whatever
+    session is live, a session number only that one (a take-over the operator confirmed for session N never takes
+    over another that started meanwhile, e.g. work control's)."""
 
     frame: Literal["tractor", "level", "ground"] = "tractor"
     dof: list[Literal["x", "z", "roll", "pitch"]] = Field(min_length=1, max_length=4)
     ttl_ms: WholeNumber = Field(200, ge=50, le=1000)
     deadline_ms: WholeNumber = _deadline()
-    replace: bool = False
+    replace: bool | Annotated[int, Field(ge=1)] = False
 
     @model_validator(mode="after")
     def _unique(self) -> TrackStart:

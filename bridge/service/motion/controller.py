@@ -1461,6 +1461,8 @@ class MotionController:
         ``measured_pose`` (the link's newest measured pose [m, rad]) and ``measured_age_s`` (its age [s] on the
         link's clock: a link fault's pose is from before the link went quiet), when there was a measurement
         (an incident trial: the black box said that a fault came, not where the implement was)."""
+        if not events:  # called every cycle: nothing to number, nothing to look up
+            return
         ls = self.link.latest_state()
         where: dict[str, Any] = {}
         if ls is not None:

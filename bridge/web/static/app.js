@@ -1093,7 +1093,9 @@
       if (this.on || this.busy || document.body.classList.contains("viewer")) return;
       this.busy = true; this.note = "starting…"; this.noteErr = false; this.busySession = null; this.render();
       const body = { frame: "level", dof: ["roll"], ttl_ms: LEVEL_TTL_MS };
-      if (replace) body.replace = true;
+      // the session the operator agreed to take over, by its number: never another that started meanwhile
+      // (work control's, say: the service refuses it then, busy)
+      if (replace) body.replace = replace;
       const r = await call("track/start", body, true);
       this.busy = false;
       if (!r.ok) {
@@ -1106,7 +1108,7 @@
             `Another client is streaming setpoints (track session ${live[1]}, frame ${live[2]}, ${live[3]}). ` +
             "Take over ends its stream and levels the roll from this terminal; Cancel leaves it running (STOP ends it).",
             "Take over");
-          if (ok) { this.start(true); return; }
+          if (ok) { this.start(Number(live[1])); return; }
           this.busySession = Number(live[1]);
           this.note = `not started: another client is streaming setpoints (track session ${live[1]}) — STOP ends it, or press Levelling again to take over`;
         } else if (live) {

@@ -327,3 +327,35 @@ def test_a_double_ctrl_c_on_a_service_behind_a_router_ends_it_quietly(tmp_path):
             if p is not None and p.poll() is None:
                 p.kill()
                 p.wait(10)
+
+
+def test_a_second_sigterm_while_the_stop_is_sent_does_not_cut_it_short(capsys):
+    """A review: the stop after an interruption ignored a second Ctrl-C but not a second SIGTERM (taken as Ctrl-C
+    while the command ran): ``kill -TERM`` twice ended the CLI inside its stop request, without the stop's answer
+    or the warning that it was not confirmed. Here the second SIGTERM comes while the stop is being sent."""
+    import os
+
+    from bridge.cli.service import _stop_after_interrupt
+
+    def on_term(signum, frame):
+        raise KeyboardInterrupt
+
+    class Client:
+        sent = 0
+
+        def request(self, key, body, timeout_s=None):
+            assert key == "stop"
+            os.kill(os.getpid(), signal.SIGTERM)  # the supervisor's second SIGTERM, mid-request
+            time.sleep(0.05)
+            self.sent += 1
+            return {"motion_id": 7}
+
+    old = signal.signal(signal.SIGTERM, on_term)  # as bridge.cli.main installs it for a motion command
+    try:
+        c = Client()
+        _stop_after_interrupt(c, 7)
+        assert c.sent == 1
+        assert "stop sent (motion 7)" in capsys.readouterr().err
+        assert signal.getsignal(signal.SIGTERM) is on_term  # given back
+    finally:
+        signal.signal(signal.SIGTERM, old)

@@ -345,6 +345,22 @@ def test_a_second_track_start_is_refused_while_a_stream_is_live_unless_it_replac
     assert session3 not in (session, session2)
 
 
+def test_replace_by_session_number_takes_over_only_that_session(r):
+    """A review: the terminal's take-over (the operator confirmed "take over track session N") sent replace: true,
+    which takes over whatever is live by then — work control's session, had N ended meanwhile. replace: N takes
+    over session N only; another live session is refused busy, untouched."""
+    session = r.start(dof=["roll"], frame="tractor")
+    r.run(0.3, each=lambda t: r.setpoint(session, {"roll": 0.0}))
+    ok, reply = r.call("track/start", {"dof": ["z"], "ttl_ms": 300, "replace": session + 1})  # another number
+    assert not ok and reply["error"] == "busy" and f"track session {session}" in reply["message"], reply
+    assert r.states[-1]["track"]["session"] == session  # untouched
+    ok, reply = r.call("track/start", {"dof": ["z"], "ttl_ms": 300, "replace": session})
+    assert ok and reply["session"] != session, reply
+    for bad in (0, -3, 1.5, "1"):
+        ok, reply = r.call("track/start", {"dof": ["z"], "replace": bad})
+        assert not ok and reply["error"] == "bad_request" and "replace" in reply["message"], (bad, reply)
+
+
 def test_old_and_out_of_order_sequence_numbers_are_ignored_and_counted(r):
     session = r.start(dof=["z"])
     z0 = r.measured()[1]

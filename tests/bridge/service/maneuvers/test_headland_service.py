@@ -230,3 +230,38 @@ def test_a_saved_line_is_replaced_only_when_asked_and_one_in_use_is_deleted_only
             assert ei.value.code == "not_found" and "other" in str(ei.value)
     finally:
         svc.close()
+
+
+def test_two_saves_of_one_new_line_name_at_once_are_one_save_and_one_in_use(model, tmp_path):
+    """A review: lines/save checked "saved already?" and then saved: two saves of one new name at once both
+    passed the check and the second silently replaced the first. The check and the save are one step now."""
+    import threading
+
+    from tests.helpers import SimService
+
+    s = SimService(model, tmp_path / "hitch.sqlite3")
+    try:
+        plane = LocalTangentPlane(48.0, 11.0)
+        real = s.api.motion.lines_request
+
+        def slow(*a, **k):  # the tracker's save takes a while (the core process's round trip)
+            time.sleep(0.2)
+            return real(*a, **k)
+
+        s.api.motion.lines_request = slow
+        answers: list[tuple[bool, dict]] = []
+
+        def save(east: float) -> None:
+            answers.append(s.call("lines/save", {"name": "headland", "geojson": _line_across(plane, east)}))
+
+        threads = [threading.Thread(target=save, args=(e,)) for e in (30.0, 60.0)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(10)
+        oks = [ok for ok, _ in answers]
+        assert sorted(oks) == [False, True], answers
+        refused = next(r for ok, r in answers if not ok)
+        assert refused["error"] == "in_use", refused
+    finally:
+        s.close()

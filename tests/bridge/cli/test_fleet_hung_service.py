@@ -83,7 +83,7 @@ class _EmptyFleet:
     def __exit__(self, *exc):
         pass
 
-    def fleet(self, *, timeout_s: float = 2.0) -> list[str]:
+    def fleet(self, *, timeout_s: float = 2.0, under: str | None = None) -> list[str]:
         return []
 
 

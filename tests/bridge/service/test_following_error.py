@@ -149,3 +149,25 @@ def test_the_settings_reach_the_controller_and_bad_ones_are_refused_by_name(tmp_
     f.write_text("[hitch]\nfollowing_error_s = 0\n")
     with pytest.raises(ServiceConfigError, match=r"following_error_s.*0\.05"):
         load_service_config(f)
+
+
+def test_a_cylinder_closing_in_on_a_stepped_reference_follows_a_frozen_one_does_not():
+    """A stalled control thread (the reference held, the plan's time going on) then streams a step: the top link
+    catches up, its error beyond the allowance for longer than time_s but shrinking by more than e_max / 2 per
+    time_s — it follows, late (the slow-planning test tripped it). The same error not shrinking trips."""
+    lim = FollowingErrorLimits(length_m=0.01, lag_s=0.3, time_s=0.5)
+    zero = np.zeros(len(ACTUATOR_NAMES))
+    times = np.arange(0.0, 2.0001, 0.02)
+    catching = FollowingSupervisor(lim)
+    frozen = FollowingSupervisor(lim)
+    ref = object()
+    got_catching, got_frozen = [], []
+    for t in times:
+        catching.streamed(t, ref, _q(top=0.1), zero)
+        frozen.streamed(t, ref, _q(top=0.1), zero)
+        err = max(0.0, 0.06 - 0.03 * t)  # 60 mm behind, closing at 30 mm/s (> 10 mm / 2 per 0.5 s)
+        got_catching.append(catching.check(_q(top=0.1 - err), t, t))
+        got_frozen.append(frozen.check(_q(top=0.1 - 0.06), t, t))
+    assert all(w is None for w in got_catching)
+    first = next(t for t, w in zip(times, got_frozen, strict=True) if w is not None)
+    assert first == pytest.approx(0.5, abs=1e-9)

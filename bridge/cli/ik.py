@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 from bridge.cli.model import add_model_options, finite_float, model_from_args
 from bridge.cli.output import console, esc, signed
 from bridge.service.wire import to_json_text
@@ -30,7 +32,9 @@ def _cmd_ik(args) -> int:
         if res.active:  # a baseline's are the limits its actuators break (it enforces none), the QP's those it met
             label = "limits broken" if res.extra.get("violated") else "active limits"
             c.print(f"{label}: " + esc(", ".join(res.active)))
-        c.print(f"iterations {res.iterations}, residual {res.residual:.3g}, {res.solve_time_s * 1e6:.0f} µs")
+        # no solution, no residual ("residual inf": a fuzz trial; --json says null)
+        resid = f"{res.residual:.3g}" if math.isfinite(res.residual) else "none (no solution)"
+        c.print(f"iterations {res.iterations}, residual {resid}, {res.solve_time_s * 1e6:.0f} µs")
     return 0 if res.status != "failed" else 1
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +28,15 @@ __all__ = [
 ]
 
 
+#: a plain decimal number as the command line and the files take it: Python's ``float()`` also reads "1_000" as 1000
+#: and full-width or other scripts' digits ("１") as digits (a fuzz trial: ``--z=１`` was taken as 1 m)
+PLAIN_NUMBER = re.compile(
+    r"\s*[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?\s*|\s*[+-]?(?:inf|infinity|nan)\s*", re.ASCII | re.IGNORECASE
+)
+#: what a number must look like, in errors
+PLAIN_NUMBER_WORDS = "a plain decimal number such as 10, -0.5 or 1.5e-3: ASCII digits, no '_' or other separators"
+
+
 def _converted(name: str, text: str, cast, what: str):
     """``cast(text)``, or the argparse error naming the option and what it must be."""
     try:
@@ -35,11 +45,20 @@ def _converted(name: str, text: str, cast, what: str):
         raise argparse.ArgumentTypeError(f"{name} must be {what}, got {text!r}") from None
 
 
+def plain_number(name: str, text: str) -> float:
+    """``text`` as a float when it is a :data:`PLAIN_NUMBER` (non-finite ones included: the caller says why
+    those are refused), else the argparse error naming ``name``."""
+    v = _converted(name, text, float, "a number")
+    if not PLAIN_NUMBER.fullmatch(text):
+        raise argparse.ArgumentTypeError(f"{name} must be {PLAIN_NUMBER_WORDS}, got {text!r}")
+    return v
+
+
 def finite_float(name: str):
     """argparse type: a finite float, with an error naming the option."""
 
     def parse(text: str) -> float:
-        v = _converted(name, text, float, "a number")
+        v = plain_number(name, text)
         if not math.isfinite(v):
             raise argparse.ArgumentTypeError(f"{name} must be finite, got {text!r}")
         return v

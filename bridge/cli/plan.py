@@ -6,7 +6,7 @@ import argparse
 
 import numpy as np
 
-from bridge.cli.model import add_model_options, bounded_float, model_from_args
+from bridge.cli.model import add_model_options, bounded_float, model_from_args, plain_number
 from bridge.cli.output import console, esc, plot_path, pose_text
 from bridge.cli.ranges import check_pose_ranges
 from bridge.link.count_tail import plan_count_tail
@@ -30,10 +30,7 @@ def parse_pose_arg(text: str) -> dict[str, float]:
             raise argparse.ArgumentTypeError(f"unknown pose field {k!r}; allowed: x, z, roll, pitch")
         if k in out:
             raise argparse.ArgumentTypeError(f"pose field {k!r} given twice; give each of x, z, roll, pitch once")
-        try:
-            out[k] = float(v)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{k} must be a number, got {v!r}") from None
+        out[k] = plain_number(k, v)
         if not np.isfinite(out[k]):
             raise argparse.ArgumentTypeError(f"{k} must be finite, got {v!r}")
     if not out:

@@ -37,7 +37,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from bridge.cli.errors import CLIError
-from bridge.cli.model import bounded_float
+from bridge.cli.model import PLAIN_NUMBER, PLAIN_NUMBER_WORDS, bounded_float
 from bridge.cli.output import console, esc, limited_text
 from bridge.cli.plan import parse_pose_arg
 from bridge.cli.service import STOP_TIMEOUT_S, _client_options, _run
@@ -268,14 +268,15 @@ def _check_value(p: Path, line: int, col: int, name: str, kind: tuple[str, str],
 
 #: a CSV cell that is a number: what Python's ``float`` reads, less its digit separators (``1_0``) and non-ASCII
 #: digits (a spreadsheet writes neither); a non-finite one is refused as such before this is asked
-_PLAIN_NUMBER = re.compile(r"\s*[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?\s*", re.ASCII)
+_PLAIN_NUMBER = PLAIN_NUMBER  # the command line's (bridge.cli.model)
 
 
 def read_signal_csv(path: str | Path) -> CsvSignal:
     """Read a signal file (see the module docstring); :class:`CLIError` naming the file, line and column."""
     p = Path(path)
-    if not p.is_file():
-        raise CLIError(f"--from-file {p}: no such file")
+    if not p.is_file():  # a folder, /dev/zero or a pipe exist, but hold no signal (a fuzz trial: "no such file")
+        what = "is a folder" if p.is_dir() else "is not a regular file" if p.exists() else "does not exist"
+        raise CLIError(f"--from-file {p}: {what}: give a CSV signal file (header t and DOF names)")
     try:
         text = p.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
@@ -328,8 +329,7 @@ def read_signal_csv(path: str | Path) -> CsvSignal:
                 raise CLIError(f"{p}: line {n}, column {col} ({name}): must be finite, got {cell.strip()!r}")
             if not _PLAIN_NUMBER.fullmatch(cell):  # Python's float() also reads "1_0" as 10, "١٠" as 10
                 raise CLIError(
-                    f"{p}: line {n}, column {col} ({name}): not a number: {cell.strip()!r} (a plain decimal number "
-                    "such as 10, -0.5 or 1.5e-3: ASCII digits, no '_' or other separators)"
+                    f"{p}: line {n}, column {col} ({name}): not a number: {cell.strip()!r} ({PLAIN_NUMBER_WORDS})"
                 )
             _check_value(p, n, col, name, kinds[col - 1], v)
             vals.append(v)

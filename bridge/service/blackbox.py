@@ -1244,6 +1244,8 @@ def _frames(path: Path, clock: dict[str, bool] | None = None, order: _Order | No
         raise BlackBoxError(
             f"CAN log {path} is a folder: give one of its log files (.asc, .blf, .log, .csv)"
             if path.is_dir()
+            else f"CAN log {path} is not a regular file (a device or a pipe): give a log file (.asc, .blf, .log, .csv)"
+            if path.exists()
             else f"CAN log {path} does not exist"
         )
     if clock is None:

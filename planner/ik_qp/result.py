@@ -30,7 +30,7 @@ def _finite(name: str, value: object) -> float:
     if abs(v) > lim:
         unit = "m" if name in ("x", "z") else "rad"
         hint = unit_hint(v, -lim, lim, unit)
-        raise IKInputError(f"{name} = {v} is outside the accepted range ±{lim:.4g} {unit}{hint}")
+        raise IKInputError(f"{name} = {v} is outside the accepted range ±{lim:.7g} {unit}{hint}")
     return v
 
 

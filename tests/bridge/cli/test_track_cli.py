@@ -178,9 +178,12 @@ def test_columns_may_carry_their_si_unit_as_the_scenario_csvs_do(tmp_path):
 
 
 def test_a_missing_file_is_named(capsys, tmp_path):
-    assert f"--from-file {tmp_path / 'nope.csv'}: no such file" in _err(
+    assert f"--from-file {tmp_path / 'nope.csv'}: does not exist" in _err(
         capsys, "--from-file", str(tmp_path / "nope.csv"), "--dry-run"
     )
+    # a folder and a device exist: said so, not "no such file" (a fuzz trial)
+    assert f"--from-file {tmp_path}: is a folder" in _err(capsys, "--from-file", str(tmp_path), "--dry-run")
+    assert "--from-file /dev/zero: is not a regular file" in _err(capsys, "--from-file", "/dev/zero", "--dry-run")
 
 
 def test_duration_beyond_the_file_is_refused(capsys, tmp_path):

@@ -135,7 +135,7 @@ def test_backends_agree_with_osqp(model, solver, backend, rng):
         ({"z": 300.0}, r"z = 300.0 is outside the accepted range ±10 m; did you mean mm\? 300 mm = 0.3 m"),
         (
             {"roll": 10.0},
-            r"roll = 10.0 is outside the accepted range ±1.571 rad; did you mean degrees\? 10 deg = 0.1745",
+            r"roll = 10.0 is outside the accepted range ±1.570796 rad; did you mean degrees\? 10 deg = 0.1745",
         ),
     ],
 )

@@ -368,6 +368,11 @@ def _flatten_toml(data: dict, source: str) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for section, values in data.items():
         if section not in _TOML_SECTIONS:
+            home = [name for name, keys in _TOML_SECTIONS.items() if section in keys]
+            if home and not isinstance(values, dict):  # a key above every table (a fuzz trial: "unknown section")
+                raise ServiceConfigError(
+                    f"invalid service config {source}: {section} is a key of [{home[0]}]: put it under that table"
+                )
             raise ServiceConfigError(
                 f"invalid service config {source}: unknown section [{section}]; allowed: {', '.join(_TOML_SECTIONS)}"
             )

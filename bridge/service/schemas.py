@@ -323,6 +323,15 @@ class LinesSave(_Strict):
     geojson: dict[str, Any]
     replace: bool = False  # a line of a name saved already is refused (in_use) unless this
 
+    @field_validator("geojson", mode="before")
+    @classmethod
+    def _geojson_object(cls, v: Any) -> Any:
+        if not isinstance(v, dict):  # said as what it must be (pydantic's "a valid dictionary": a fuzz trial)
+            raise ValueError(
+                f"must be a GeoJSON object (LineString, Feature or FeatureCollection), got {type(v).__name__}"
+            )
+        return v
+
 
 class LinesDelete(NameRequest):
     """Delete a line; refused (``in_use``, naming the maneuvers) while a saved maneuver waits for it unless

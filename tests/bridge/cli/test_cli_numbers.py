@@ -50,3 +50,22 @@ def test_a_failed_baseline_prints_no_infinite_residual(capsys):
 def test_replay_of_a_device_says_it_is_no_log_file(capsys):
     code, _, err = _run(capsys, "replay", "/dev/zero")
     assert code != 0 and "is not a regular file" in err and "does not exist" not in err, err
+
+
+def test_a_service_key_above_every_table_names_its_table(tmp_path):
+    """A fuzz trial: ``control_rate = 50`` at the top of a service config said "unknown section [control_rate]"."""
+    from bridge.service.config import ServiceConfigError, load_service_config
+
+    f = tmp_path / "service.toml"
+    f.write_text("control_rate = 50\n")
+    with pytest.raises(ServiceConfigError, match=r"control_rate is a key of \[hitch\]: put it under that table"):
+        load_service_config(f)
+
+
+def test_lines_save_says_geojson_must_be_an_object():
+    import json
+
+    from bridge.service.schemas import RequestError, parse_request
+
+    with pytest.raises(RequestError, match=r"geojson = 'x' must be a GeoJSON object \(LineString, Feature or"):
+        parse_request("lines/save", json.dumps({"name": "l1", "geojson": "x"}))

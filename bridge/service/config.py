@@ -53,6 +53,7 @@ from pydantic import (
 )
 
 from bridge.isobus.j1939 import CYLINDER_ECU_ADDRESS
+from bridge.service.motion.following import LIMIT_RANGES, FollowingErrorLimits
 from planner.errors import HitchInputError
 from planner.profiles.loader import format_validation_error
 
@@ -126,6 +127,13 @@ def validate_endpoint(endpoint: str) -> str:
     return endpoint
 
 
+def _following(name: str) -> Any:
+    """A following-error setting: the default and range of that field of
+    :class:`~bridge.service.motion.following.FollowingErrorLimits`."""
+    lo, hi = LIMIT_RANGES[name]
+    return Field(getattr(FollowingErrorLimits(), name), ge=lo, le=hi)
+
+
 class ServiceConfig(BaseModel):
     """Everything one service instance needs; SI units (rates in Hz, times in s)."""
 
@@ -181,10 +189,10 @@ class ServiceConfig(BaseModel):
     #: following-error supervision (fault following_error; bridge.service.motion.following): allowed error at rest
     #: of the lift [rad] and of the other actuators [m], extra allowance per unit of reference speed [s], and how long
     #: an error beyond it is borne [s]
-    following_error_lift_rad: float = Field(0.02, ge=1e-3, le=0.5)
-    following_error_m: float = Field(0.01, ge=1e-4, le=0.2)
-    following_error_lag_s: float = Field(0.3, ge=0.0, le=5.0)
-    following_error_s: float = Field(0.5, ge=0.05, le=10.0)
+    following_error_lift_rad: float = _following("lift_rad")
+    following_error_m: float = _following("length_m")
+    following_error_lag_s: float = _following("lag_s")
+    following_error_s: float = _following("time_s")
     data_dir: Path = Field(default_factory=default_data_dir)
     http: str | None = None
     #: further HOST:PORT names the terminal is reached by (its address and loopback always are; a name is refused

@@ -37,7 +37,15 @@ import numpy as np
 
 from planner.model.types import ACTUATOR_NAMES
 
-__all__ = ["FOLLOWING_ERROR", "FollowingErrorLimits", "FollowingSupervisor"]
+__all__ = ["FOLLOWING_ERROR", "LIMIT_RANGES", "FollowingErrorLimits", "FollowingSupervisor"]
+
+#: the allowed range of each :class:`FollowingErrorLimits` field (the service's settings take theirs from here)
+LIMIT_RANGES: dict[str, tuple[float, float]] = {
+    "lift_rad": (1e-3, 0.5),
+    "length_m": (1e-4, 0.2),
+    "lag_s": (0.0, 5.0),
+    "time_s": (0.05, 10.0),
+}
 
 #: the fault the supervision raises (latching; docs/faults.md)
 FOLLOWING_ERROR = "following_error"
@@ -60,8 +68,7 @@ class FollowingErrorLimits:
     time_s: float = 0.5
 
     def __post_init__(self) -> None:
-        bounds = (("lift_rad", 1e-3, 0.5), ("length_m", 1e-4, 0.2), ("lag_s", 0.0, 5.0), ("time_s", 0.05, 10.0))
-        for name, lo, hi in bounds:
+        for name, (lo, hi) in LIMIT_RANGES.items():
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo <= v <= hi:
                 raise ValueError(f"following error {name} must be a number in [{lo:g}, {hi:g}], got {v!r}")
@@ -135,9 +142,11 @@ class FollowingSupervisor:
         """``measured`` actuators (lift [rad], others [m]); the cylinders' measurement arrived at
         ``measurement_t``, the lift's at ``lift_t`` [s, link clock]. The reason when tripped, else None."""
         reason = None
+        # two arrival times (the lift's, the cylinders'): each looked up once per cycle, not once per actuator
+        at = {t: self._reference_at(t) for t in {measurement_t, lift_t}}
         for i, name in enumerate(ACTUATOR_NAMES):
             t = lift_t if i == _LIFT else measurement_t
-            ref = self._reference_at(t)
+            ref = at[t]
             if ref is None:
                 self._over_since[i] = None
                 continue

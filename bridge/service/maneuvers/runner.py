@@ -79,6 +79,7 @@ AbortReason = Literal[
     "predicted_violation",
     "interrupted",
     "plan_failed",
+    "refused",
     "trigger_unavailable",
     "deadline",
 ]

@@ -905,12 +905,16 @@ class MotionController:
         """
         from_maneuver = runner is not None
         what = label if kind == "preset" and label in ("raise", "return") else kind  # named so in refusals
+        if from_maneuver:
+            what = f"maneuver {label}"  # "maneuver step 2 refused: …"
         lead = _PLAN_LEAD_S
         for _ in range(_PLAN_TRIES):
             with self._lock:
                 now = self.clock()
                 if not from_maneuver:
                     self._check_startable(kind, now, deadline, issued, what)
+                else:  # a step comes when its maneuver gets there: the ECU may have switched off meanwhile
+                    self._check_controllers_on(what)
                 self._expire_jog(now)  # a dying jog is replaced from its braking plan
                 why = link_problem(self.link.status(now), now, self.link.config.stale_after_s)
                 if why:
@@ -1324,8 +1328,9 @@ class MotionController:
         except ValueError as exc:
             events: list[Event] = []
             late = isinstance(exc, MotionError) and exc.code == "busy" and deadline is not None
-            reason: AbortReason = "deadline" if late else "plan_failed"
-            text = f"step {step}: {exc}" if late else f"step {step} cannot be planned: {exc}"
+            refused = isinstance(exc, MotionError) and not late  # the link or the ECU not ready: says why
+            reason: AbortReason = "deadline" if late else "refused" if refused else "plan_failed"
+            text = f"step {step}: {exc}" if late else str(exc) if refused else f"step {step} cannot be planned: {exc}"
             with self._lock:
                 if self._maneuver.owns(runner, request):
                     self._maneuver.abort(self.clock(), reason, text, events)

@@ -171,3 +171,30 @@ def test_a_cylinder_closing_in_on_a_stepped_reference_follows_a_frozen_one_does_
     assert all(w is None for w in got_catching)
     first = next(t for t, w in zip(times, got_frozen, strict=True) if w is not None)
     assert first == pytest.approx(0.5, abs=1e-9)
+
+
+def test_a_maneuver_step_is_refused_while_the_controllers_are_off_and_the_run_says_so(model, tmp_path):
+    """A maneuver's next motion step came while the ECU's controllers were off: it started its plan with
+    nothing moving (the following error aborted it a second later as a ``fault``). Now the step is refused
+    when it comes: the maneuver aborts at once as ``refused``, naming the controllers, no motion starts."""
+    s = SimService(model, tmp_path / "hitch.sqlite3", settle_s=0.5)
+    try:
+        script = "steps:\n  - goto: {z: 0.0}\n  - wait: 1.0\n  - goto: {z: 0.2}\n"
+        assert s.call("maneuvers/save", {"name": "m", "script": script})[0]
+        s.run(0.2)
+        ok, r = s.call("maneuvers/run", {"name": "m"})
+        assert ok, r
+        while not any(e.get("event") == "maneuver_step" and e.get("step") == 1 for e in s.events):
+            assert s.rig.now_s < 20.0, s.events
+            s.run(0.02)
+        s.rig.ecu.controllers_enabled = False  # during the wait
+        started = sum(e.get("event") == "motion_started" for e in s.events)
+        s.run(2.0)
+        aborted = [e for e in s.events if e.get("event") == "maneuver_aborted"]
+        assert aborted, [(e["event"], e.get("step"), e.get("reason") or e.get("message")) for e in s.events]
+        assert aborted[0]["reason"] == "refused", aborted
+        assert "controllers off" in aborted[0]["message"] and "step 2" in aborted[0]["message"], aborted
+        assert sum(e.get("event") == "motion_started" for e in s.events) == started  # nothing started
+        assert "following_error" not in {f.name for f in s.mc.faults}
+    finally:
+        s.close()

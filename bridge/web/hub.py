@@ -32,7 +32,24 @@ from bridge.web.settings import json_safe
 from bridge.web.websocket import WebSocket
 from planner.errors import HitchInputError
 
-__all__ = ["ClientHub", "Call", "CommandError", "EVENTS_KEPT", "MAX_PENDING", "API_NAME", "CLOSE_SESSION_ENDED"]
+__all__ = [
+    "ClientHub",
+    "Call",
+    "CommandError",
+    "CommandRate",
+    "EVENTS_KEPT",
+    "MAX_PENDING",
+    "MAX_PAYLOAD_DEPTH",
+    "API_NAME",
+    "CLOSE_SESSION_ENDED",
+    "CLOSE_TOO_MANY_COMMANDS",
+    "parse_command",
+    "COMMAND_FIELDS",
+    "MAX_COMMAND_RATE_HZ",
+    "COMMAND_BURST",
+    "MAX_COMMAND_BYTES_PER_S",
+    "COMMAND_BURST_BYTES",
+]
 
 #: ``call(name, body_bytes, user) -> (ok, reply)`` on the server's loop
 #: ``call(name, body, user, received)``: the server's request path; ``received`` the message's arrival
@@ -46,10 +63,67 @@ EVENTS_KEPT = 200
 MAX_PENDING = 32
 #: a service API name: ``goto``, ``presets/save``, ``maneuvers/record/start`` …
 API_NAME = re.compile(r"^[a-z]+(/[a-z]+){0,2}$")
+#: commands a page may send per second on average, and in a burst (the page itself sends at most ~40 a
+#: second: a held jog button 12.5, levelling 10, the work panel 10); a page above it is closed (1008)
+MAX_COMMAND_RATE_HZ = 100.0
+COMMAND_BURST = 100
+#: bytes of commands a page may send per second on average [B/s], and in a burst [B] (a maneuver script, the
+#: largest payload, is at most 96 KiB)
+MAX_COMMAND_BYTES_PER_S = 256 * 1024
+COMMAND_BURST_BYTES = 512 * 1024
+#: levels a payload may nest (the service's ``bridge.service.schemas.MAX_PAYLOAD_DEPTH``: the web layer does not
+#: import the service; a test checks they agree), said when a command nests too deeply to be read at all
+MAX_PAYLOAD_DEPTH = 32
+#: WebSocket close code of a page that sent more than the rates above (RFC 6455 §7.4.1: policy violation)
+CLOSE_TOO_MANY_COMMANDS = 1008
+#: the fields of a command; any other is refused (a misspelt ``payloads`` ran the command without its payload)
+COMMAND_FIELDS = ("id", "key", "payload", "csrf")
 
 
 class CommandError(HitchInputError):
     """A WebSocket command that is not ``{"id", "key", "payload"}`` as the page sends it."""
+
+
+class CommandRate:
+    """Token buckets of one page: ``rate_hz`` commands a second with bursts of ``burst``, and
+    ``bytes_per_s`` with bursts of ``burst_bytes``. :meth:`take` is False once a command exceeds either.
+
+    A page that floods the terminal with commands (a fuzzer sent thousands of tiny frames a second) kept
+    the server's loop busy parsing and answering them, and an HTTP ``stop`` waited 3.6–7.5 s behind it.
+    """
+
+    def __init__(
+        self,
+        rate_hz: float = MAX_COMMAND_RATE_HZ,
+        burst: int = COMMAND_BURST,
+        bytes_per_s: float = MAX_COMMAND_BYTES_PER_S,
+        burst_bytes: int = COMMAND_BURST_BYTES,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        if not (rate_hz > 0 and burst >= 1 and bytes_per_s > 0 and burst_bytes >= 1):
+            raise ValueError("CommandRate: rates and bursts must be positive")
+        self.rate_hz, self.burst, self.bytes_per_s, self.burst_bytes = rate_hz, burst, bytes_per_s, burst_bytes
+        self._clock = clock
+        self._t = clock()
+        self._commands, self._bytes = float(burst), float(burst_bytes)
+
+    def take(self, size_bytes: int) -> bool:
+        """Count one command of ``size_bytes``; False when it is over the page's rate."""
+        now = self._clock()
+        dt, self._t = max(0.0, now - self._t), now
+        self._commands = min(float(self.burst), self._commands + dt * self.rate_hz)
+        self._bytes = min(float(self.burst_bytes), self._bytes + dt * self.bytes_per_s)
+        if self._commands < 1.0 or self._bytes < size_bytes:
+            return False  # not taken: nothing spent
+        self._commands -= 1.0
+        self._bytes -= size_bytes
+        return True
+
+    def describe(self) -> str:
+        return (
+            f"at most {self.rate_hz:g} commands a second (bursts of {self.burst}) and "
+            f"{self.bytes_per_s / 1024:g} KiB a second (bursts of {self.burst_bytes // 1024} KiB)"
+        )
 
 
 class _Client:
@@ -66,6 +140,7 @@ class _Client:
         self.jog_next: tuple[Any, bytes, float] | None = None  # (id, body, arrival) of a jog held back
         self.tasks: set[asyncio.Task] = set()
         self.view: str | None = None  # the newest ``view`` message (a slot, like the state)
+        self.rate = CommandRate()
         self.terminal: str | None = None  # the ``terminal`` message, once
         if state is not None:
             self.wake.set()
@@ -74,8 +149,15 @@ class _Client:
 class ClientHub:
     """All connected pages of one web server (use from its event loop only)."""
 
-    def __init__(self, call: Call, hello: dict, sessions: SessionStore | None = None):
+    def __init__(
+        self,
+        call: Call,
+        hello: dict,
+        sessions: SessionStore | None = None,
+        command_rate: Callable[[], CommandRate] = CommandRate,
+    ):
         self._call = call
+        self._command_rate = command_rate  # each page's own buckets
         self.hello = hello
         self.sessions = sessions
         self._clients: set[_Client] = set()
@@ -138,6 +220,7 @@ class ClientHub:
             return
         who = session.user if session is not None else user
         client = _Client(ws, self.state_text, session, who)
+        client.rate = self._command_rate()
         client.terminal, client.view = self.terminal_text, self.view_text
         if client.terminal is not None or client.view is not None:
             client.wake.set()
@@ -148,13 +231,18 @@ class ClientHub:
         try:
             await ws.send_text(json.dumps({"type": "hello", "data": json_safe(hello)}, allow_nan=False))
             while True:
+                if ws.buffered:  # frames read already: recv returns without waiting, so give the other
+                    await asyncio.sleep(0)  # pages and HTTP requests (a stop) their turn first
                 msg = await ws.recv()
                 if msg is None:
+                    break
+                if not client.rate.take(len(msg)):
+                    await self._flooded(client, msg)
                     break
                 if len(client.tasks) >= MAX_PENDING and not _is_stop(msg):
                     await self._reply(
                         client,
-                        None,
+                        _lenient_id(msg),
                         False,
                         {"error": "busy", "message": f"more than {MAX_PENDING} commands of this page pending"},
                     )
@@ -169,6 +257,22 @@ class ClientHub:
             client.wake.set()
             await ws.close(1000)
             sender.cancel()
+
+    async def _flooded(self, c: _Client, msg: str | bytes) -> None:
+        """A page over its command rate: a stop among its commands still stops; the page is told and closed."""
+        if _is_stop(msg):
+            await self._command(c, msg)
+        await self._reply(
+            c,
+            _lenient_id(msg),
+            False,
+            {
+                "error": "busy",
+                "message": f"this page sent commands faster than the terminal takes ({c.rate.describe()}): "
+                "closed; reload the page",
+            },
+        )
+        await c.ws.close(CLOSE_TOO_MANY_COMMANDS, "too many commands")
 
     async def _sender(self, c: _Client) -> None:
         try:
@@ -202,21 +306,10 @@ class ClientHub:
             if held is not None:
                 await self._reply(c, held[0], False, {"error": "busy", "message": "jog: cancelled by a stop"})
             return
-        rid = None
         try:
-            data = json.loads(msg, object_pairs_hook=_unique_pairs)
-            if not isinstance(data, dict):
-                raise CommandError("a command is a JSON object {id, key, payload}")
-            rid, key, payload, csrf = data.get("id"), data.get("key"), data.get("payload", {}), data.get("csrf")
-            if rid is not None and _reply_id(rid) is None:
-                rid = None
-                raise CommandError("id must be an integer or a string")
-            if not isinstance(key, str) or not API_NAME.match(key):
-                raise CommandError(f"key must be a service API name such as 'goto', got {key!r}")
-            # NaN / Infinity stay tokens: the service's own parser refuses them naming the field
-            body = json.dumps(payload, ensure_ascii=False).encode("utf-8")  # as sent: UTF-8, not \\u escapes
-        except (ValueError, TypeError, RecursionError) as exc:
-            await self._reply(c, rid, False, {"error": "bad_request", "message": f"websocket command: {exc}"})
+            rid, key, body, csrf = parse_command(msg)
+        except CommandError as exc:
+            await self._reply(c, _lenient_id(msg), False, {"error": "bad_request", "message": str(exc)})
             return
         if key != "stop" and c.session is not None:  # stop needs no session: anyone may stop the hitch
             if not self._session_alive(c):
@@ -267,7 +360,9 @@ class ClientHub:
 
 
 class _DuplicateField(HitchInputError):
-    pass
+    def __init__(self, name: str):
+        self.name = name
+        super().__init__(f"duplicate key {name!r}")
 
 
 def _unique_pairs(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
@@ -275,9 +370,78 @@ def _unique_pairs(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for k, v in pairs:
         if k in out:
-            raise _DuplicateField(f"duplicate key {k!r} (each field may appear once)")
+            raise _DuplicateField(k)
         out[k] = v
     return out
+
+
+def parse_command(msg: str | bytes) -> tuple[int | str | None, str, bytes, Any]:
+    """A page's command ``{"id", "key", "payload", "csrf"}`` → ``(id, key, payload as UTF-8 JSON, csrf)``.
+
+    :class:`CommandError` in the words the service's own parser uses for the same payload over HTTP
+    (``goto: duplicate key 'z' in the payload …``, ``… more than 4300 digits …``), naming the key when it
+    can be read. NaN and Infinity stay tokens in the payload: the service refuses them naming the field.
+    """
+    try:
+        data = json.loads(msg, object_pairs_hook=_unique_pairs)
+    except _DuplicateField as exc:
+        key = _lenient_key(msg)
+        where = "in the payload" if key else "in the command"
+        raise CommandError(
+            f"{key or 'command'}: duplicate key {exc.name!r} {where} (each field may appear once)"
+        ) from None
+    except RecursionError:
+        raise CommandError(
+            f"command: nests too deeply (allowed: at most {MAX_PAYLOAD_DEPTH} levels in its payload)"
+        ) from None
+    except UnicodeDecodeError as exc:
+        raise CommandError(f"command: not UTF-8 text (byte {exc.start}); a command is JSON text") from None
+    except ValueError as exc:  # JSONDecodeError, integers of more than 4300 digits
+        if "Exceeds the limit" in str(exc):  # Python's int parser (its message names sys.set_int_max_str_digits)
+            raise CommandError(
+                f"{_lenient_key(msg) or 'command'}: payload holds an integer of more than 4300 digits "
+                "(no field takes one)"
+            ) from None
+        raise CommandError(f"command: not valid JSON ({str(exc)[:80]}); a command is {{id, key, payload}}") from None
+    if not isinstance(data, dict):
+        raise CommandError("command: a command is a JSON object {id, key, payload}")
+    rid, key, payload, csrf = data.get("id"), data.get("key"), data.get("payload", {}), data.get("csrf")
+    if rid is not None and _reply_id(rid) is None:
+        raise CommandError("command: id must be an integer or a string")
+    if not isinstance(key, str) or not API_NAME.match(key):
+        raise CommandError(f"command: key must be a service API name such as 'goto', got {key!r}")
+    unknown = [k for k in data if k not in COMMAND_FIELDS]
+    if unknown:
+        raise CommandError(f"{key}: unknown field {unknown[0]!r} in the command (allowed: {', '.join(COMMAND_FIELDS)})")
+    try:
+        body = json.dumps(payload, ensure_ascii=False).encode("utf-8")  # as sent: UTF-8, not \\u escapes
+    except UnicodeEncodeError as exc:  # a lone surrogate escape ("\\ud800") is no character
+        bad = exc.object[exc.start : exc.end] if isinstance(exc.object, str) else ""
+        raise CommandError(
+            f"{key}: payload holds {ascii(bad)}, a lone UTF-16 surrogate escape, not a character"
+        ) from None
+    return _reply_id(rid), key, body, csrf
+
+
+def _lenient(msg: str | bytes) -> dict | None:
+    """The command read leniently (a repeated field keeps its last value), or None when it is no JSON object."""
+    try:
+        data = json.loads(msg)
+    except (ValueError, TypeError, RecursionError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def _lenient_key(msg: str | bytes) -> str | None:
+    data = _lenient(msg)
+    key = None if data is None else data.get("key")
+    return key if isinstance(key, str) and API_NAME.match(key) else None
+
+
+def _lenient_id(msg: str | bytes) -> int | str | None:
+    """The id a reply to this command carries, when it can be read at all (a busy or bad-request reply)."""
+    data = _lenient(msg)
+    return None if data is None else _reply_id(data.get("id"))
 
 
 def _reply_id(rid: Any) -> int | str | None:

@@ -107,7 +107,7 @@ def encode_frame(opcode: int, payload: bytes = b"", *, fin: bool = True, mask: b
 
 
 def decode_frame(
-    data: bytes, *, require_mask: bool = True, max_bytes: int = MAX_MESSAGE_BYTES
+    data: bytes | bytearray, *, require_mask: bool = True, max_bytes: int = MAX_MESSAGE_BYTES
 ) -> tuple[Frame, int] | None:
     """Decode one frame from the start of ``data``: ``(frame, bytes used)``, or None if incomplete."""
     if len(data) < 2:
@@ -138,10 +138,10 @@ def decode_frame(
     if masked:
         if len(data) < i + 4:
             return None
-        key, i = data[i : i + 4], i + 4
+        key, i = bytes(data[i : i + 4]), i + 4
     if len(data) < i + n:
         return None
-    payload = data[i : i + n]
+    payload = bytes(data[i : i + n])
     return Frame(fin, opcode, _mask(payload, key) if masked else payload, masked), i + n
 
 
@@ -159,15 +159,22 @@ class WebSocket:
         self._reader, self._writer = reader, writer
         self.max_message_bytes = max_message_bytes
         self._send_lock = asyncio.Lock()
-        self._buf = b""
+        self._buf = bytearray()
         self.closed = False
+
+    @property
+    def buffered(self) -> bool:
+        """Bytes of the peer's next frames already read (a :meth:`recv` may return without waiting)."""
+        return bool(self._buf)
 
     async def _read_frame(self) -> Frame:
         while True:
             got = decode_frame(self._buf, max_bytes=self.max_message_bytes)
             if got is not None:
                 frame, used = got
-                self._buf = self._buf[used:]
+                # drop the frame from the front in place (a bytearray's front is cut without a copy): a
+                # 64 KiB read of thousands of tiny frames was copied once per frame, quadratic in a flood
+                del self._buf[:used]
                 return frame
             chunk = await self._reader.read(65536)
             if not chunk:
@@ -222,6 +229,9 @@ class WebSocket:
         async with self._send_lock:
             if self.closed and opcode != OP_CLOSE:
                 raise ConnectionResetError("WebSocket is closed")
+            if self._writer.is_closing():  # the peer is gone: asyncio would log every further write
+                self.closed = True
+                raise ConnectionResetError("the peer closed the TCP connection")
             self._writer.write(encode_frame(opcode, payload))
             await self._writer.drain()
 

@@ -20,9 +20,11 @@ from __future__ import annotations
 
 import argparse
 import math
+import socket
 import sys
 import time
 from pathlib import Path
+from urllib.parse import urlsplit
 
 import numpy as np
 
@@ -39,10 +41,11 @@ from bridge.cli.output import console, output_path, plot_path
 from bridge.cli.plan import parse_pose_arg
 from bridge.cli.service import _client_options
 from bridge.link.realtime import INTERFACES, RealtimeRunner, open_bus, shutdown_bus
-from bridge.link.state import LinkConfig
+from bridge.link.state import LinkConfig, LinkError
 from bridge.service.maneuvers.language import MIN_SPEED_SCALE
 from bridge.service.wire import to_json_text
 from bridge.sim.can_node import EcuCanNode
+from bridge.sim.cylinder import VALVE_MAX
 from bridge.sim.ecu import ACTUATOR_ORDER, CylinderECU
 from bridge.sim.fault_injector import CUTS, MAX_DELAY_MS, FaultSettings
 from bridge.sim.move import (
@@ -77,7 +80,15 @@ from planner.profiles.hitch import Profile, load_profile, tractor_profile_for, w
 from planner.trajectory import TrajectoryPlanner
 from planner.work_control import DRAFT_SETPOINT_MAX_N
 
-__all__ = ["add_commands", "measure_in_sim", "move_json", "perturbation_summary", "plot_move", "plot_track"]
+__all__ = [
+    "add_commands",
+    "ecu_sim_summary_text",
+    "measure_in_sim",
+    "move_json",
+    "perturbation_summary",
+    "plot_move",
+    "plot_track",
+]
 
 _POSE = ("x", "z", "roll", "pitch")
 
@@ -362,15 +373,86 @@ def draft_setpoint_newtons(text: str) -> float:
     return v
 
 
+#: what the ``ecu-sim`` status line's valve figures are: the ECU's valve commands, integers in
+#: -VALVE_MAX…VALVE_MAX (bridge.sim.cylinder: ±254 = the full command; + = the reading grows)
+VALVE_COMMANDS_LABEL = f"valve commands [±{VALVE_MAX} = full]"
+
+
 def _ecu_status_line(now_s: float, node: EcuCanNode, ecu: CylinderECU) -> str:
     """The ``ecu-sim`` status line: plain numbers (print it without markup: numpy's repr in brackets was taken
-    for rich markup and vanished)."""
+    for rich markup and vanished); each valve command named by its actuator, with its scale."""
     n = node.counters
-    valves = " ".join(str(int(v)) for v in ecu.valve_commands())
+    valves = "  ".join(f"{a} {int(v)}" for a, v in zip(ACTUATOR_ORDER, ecu.valve_commands(), strict=True))
     return (
         f"t={now_s:7.1f} s  {node.claim_state.value}  refs {n.references}  "
-        f"tx {n.frames_tx}  malformed {n.malformed}  valves {valves}"
+        f"tx {n.frames_tx}  malformed {n.malformed}  {VALVE_COMMANDS_LABEL}: {valves}"
     )
+
+
+#: the words of the ``ecu-sim`` summary for the node's counters (EcuNodeCounters; another one: its own name)
+_COUNTER_WORDS = {
+    "frames_rx": "received",
+    "frames_tx": "sent",
+    "references": "references",
+    "parameters": "parameter frames",
+    "parameters_rejected": "parameter frames rejected",
+    "malformed": "malformed",
+    "unknown_pgn": "unknown PGN",
+    "ignored": "ignored",
+    "error_frames": "error frames",
+    "tx_errors": "send errors",
+    "restarts": "ECU restarts",
+}
+
+
+def ecu_sim_summary_text(summary: dict) -> str:
+    """The closing summary of ``hitch ecu-sim`` as labelled lines (``--json``: the same as JSON)."""
+    counters = ", ".join(f"{_COUNTER_WORDS.get(k, k.replace('_', ' '))} {v}" for k, v in summary["counters"].items())
+    counts = ", ".join(f"{k} {v}" for k, v in summary["measurement_counts"].items())
+    return "\n".join(
+        (
+            f"ecu-sim ran {summary['time_s']:.3f} s on interface {summary['interface']}; "
+            f"address claim: {summary['claim']}; watchdog trips: {summary['watchdog_trips']}",
+            f"frames: {counters}",
+            f"measurement [AD counts]: {counts}",
+        )
+    )
+
+
+def _open_ecu_bus(interface: str, channel: str | None):
+    """``open_bus`` for ``ecu-sim``: with ``--interface remote`` and no hub listening at the channel, the refusal
+    says to start ``hitch can-hub --port P`` (P: the channel's port) first — ecu-sim joins a hub, it starts none."""
+    try:
+        return open_bus(interface, channel)
+    except LinkError as exc:
+        if interface != "remote":
+            raise
+        from bridge.link.loopback import DEFAULT_HUB_PORT, hub_url
+
+        url = channel or hub_url()
+        try:
+            parts = urlsplit(url)
+            host, port = parts.hostname, parts.port or DEFAULT_HUB_PORT
+        except ValueError:
+            raise exc from None
+        if host not in ("127.0.0.1", "localhost") or not _refused(host, port):
+            raise
+        raise LinkError(
+            f"cannot open remote channel {url!r}: no CAN hub runs there (connection refused). ecu-sim "
+            f"--interface remote joins a running hub: start `hitch can-hub --port {port}` first (another terminal), "
+            f"then ecu-sim with --channel {hub_url(port)}"
+        ) from None
+
+
+def _refused(host: str, port: int) -> bool:
+    """True when nothing listens on ``host``:``port`` (TCP connection refused)."""
+    try:
+        socket.create_connection((host, port), timeout=1.0).close()
+    except ConnectionRefusedError:
+        return True
+    except OSError:
+        return False
+    return False
 
 
 # -- hitch ecu-sim -------------------------------------------------------------------------
@@ -396,7 +478,7 @@ def _cmd_ecu_sim(args) -> int:
     ecu = CylinderECU(
         profile, rng=args.seed, noise_counts=args.noise_counts, gain_error=args.gain_error, calibration=configured
     )
-    bus = open_bus(args.interface, args.channel)
+    bus = _open_ecu_bus(args.interface, args.channel)
     node = EcuCanNode(ecu, bus)
     runner = RealtimeRunner(node)
     c = console(stderr=True)
@@ -434,7 +516,7 @@ def _cmd_ecu_sim(args) -> int:
         "watchdog_trips": ecu.watchdog.trip_count,
         "measurement_counts": dict(zip(ACTUATOR_ORDER, map(int, ecu.measurement_counts()), strict=True)),
     }
-    print(to_json_text(summary) if args.json else summary)
+    print(to_json_text(summary) if args.json else ecu_sim_summary_text(summary))
     return 0
 
 
@@ -472,7 +554,13 @@ def _cmd_can_hub(args) -> int:
     from bridge.link.loopback import LoopbackHub
 
     hub = LoopbackHub(args.port)
-    console(stderr=True).print(f"CAN hub on {hub.url} (open buses with --interface remote --channel {hub.url})")
+    console(stderr=True).print(
+        f"CAN hub on {hub.url} (open buses with --interface remote --channel {hub.url}); next, in other "
+        f"terminals: hitch ecu-sim --interface remote --channel {hub.url}, then hitch serve --can-interface remote "
+        f"--can-channel {hub.url} --no-sim-ecu",
+        markup=False,
+        highlight=False,
+    )
     try:
         hub.serve_forever()
     except KeyboardInterrupt:
@@ -874,13 +962,25 @@ def add_commands(sub) -> None:
     f.add_argument("--restart-ecu", action="store_true", help="restart the simulated ECU once")
     _client_options(f)
     f.set_defaults(handler=_cmd_sim_fault)
-    e = sub.add_parser("ecu-sim", help="run the simulated cylinder ECU on a CAN interface in real time")
-    e.add_argument("--interface", choices=INTERFACES, default="udp_multicast", help="python-can interface")
+    e = sub.add_parser(
+        "ecu-sim",
+        help="run the simulated cylinder ECU on a CAN interface in real time",
+        description="Run the simulated cylinder ECU on a CAN interface in real time. Across processes on this "
+        "computer: start the hub first (hitch can-hub --port P), then hitch ecu-sim --interface remote --channel "
+        "ws://127.0.0.1:P/, then hitch serve --can-interface remote --can-channel ws://127.0.0.1:P/ --no-sim-ecu. "
+        "Status lines go to stderr, the summary to stdout when it stops (Ctrl-C or --duration).",
+    )
+    e.add_argument(
+        "--interface",
+        choices=INTERFACES,
+        default="udp_multicast",
+        help="python-can interface (default udp_multicast; remote: joins a running hitch can-hub, start that first)",
+    )
     e.add_argument(
         "--channel",
         default=None,
         help="channel (udp_multicast: python-can's default IPv4 group; socketcan: vcan0; "
-        "remote: a hitch can-hub, default ws://127.0.0.1:54701/)",
+        "remote: the URL of a running hitch can-hub, default ws://127.0.0.1:54701/)",
     )
     e.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: Ctrl-C)")
     e.add_argument("--status-every", type=float, default=1.0, help="status line period [s]")
@@ -957,6 +1057,12 @@ def add_commands(sub) -> None:
     _add_truth_option(so)
     add_model_options(so)
     so.set_defaults(handler=_cmd_sim_stop_offsets)
-    h = sub.add_parser("can-hub", help="a CAN hub on 127.0.0.1 for nodes in several processes (--interface remote)")
+    h = sub.add_parser(
+        "can-hub",
+        help="a CAN hub on 127.0.0.1 for nodes in several processes (--interface remote)",
+        description="A CAN hub on 127.0.0.1 for nodes in several processes; start it first, then the nodes "
+        "(hitch ecu-sim --interface remote --channel ws://127.0.0.1:PORT/, hitch serve --can-interface remote "
+        "--can-channel ws://127.0.0.1:PORT/ --no-sim-ecu). It runs until Ctrl-C.",
+    )
     h.add_argument("--port", type=int, default=54701, help="TCP port on 127.0.0.1 (default 54701; 0: any free one)")
     h.set_defaults(handler=_cmd_can_hub)

@@ -11,11 +11,19 @@ sender restarted; more than 300 ms without a heartbeat is a communication error.
 After any error, eight consecutive correct heartbeats (or a restart, 251) return
 the monitor to operational.
 
+A counter that errs against the last heartbeat but continues one heard before it
+(10, 200, 11, 201, … or 0, 0, 1, 1, …) is two counters interleaved: two nodes
+sending with the one source address (a second simulated ECU on the bus). After
+two such heartbeats (before the monitor is operational again) the status says so
+(:attr:`HeartbeatStatus.interleaved`, :meth:`HeartbeatStatus.sequence_error_hint`);
+a single jump, or one repeat, is not taken for it.
+
 Neither class owns a thread or a clock: both are driven by ``now_s``.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 from enum import Enum
 
@@ -55,6 +63,8 @@ SEQUENCE_MODULUS = 251
 RECOVERY_COUNT = 8
 """Consecutive correct heartbeats needed to leave an error state."""
 _MAX_ADVANCE = 3  # advance 2 or 3 = one or two heartbeats lost, tolerated
+_INTERLEAVE_WINDOW = 8  # heartbeats over which interleaved counters are looked for
+_INTERLEAVE_EVIDENCE = 2  # heartbeats continuing an earlier counter (not the last) within the window: two senders
 _TIME_EPS_S = 1e-6  # a gap of exactly the timeout (within float noise) is still on time
 
 
@@ -158,11 +168,25 @@ class HeartbeatStatus:
     sequence_errors: int
     timeouts: int
     last_gap_s: float | None = None
+    interleaved: bool = False
+    source: int | None = None
 
     @property
     def healthy(self) -> bool:
         """True only when operational."""
         return self.state is HeartbeatState.OPERATIONAL
+
+    def sequence_error_hint(self) -> str | None:
+        """The likely cause of a sequence error whose counter runs as two interleaved sequences (``interleaved``):
+        two nodes sending heartbeats with one source address. None otherwise (a single jump or repeat, another
+        state): a reason says it only when it fits."""
+        if self.state is not HeartbeatState.SEQUENCE_ERROR or not self.interleaved:
+            return None
+        who = "" if self.source is None else f" {self.source} = 0x{self.source:02X}"
+        return (
+            "the counter interleaves two sequences, possibly two nodes sending with source address"
+            f"{who} (e.g. a second hitch ecu-sim on the bus)"
+        )
 
 
 class HeartbeatMonitor:
@@ -188,6 +212,8 @@ class HeartbeatMonitor:
         self._sequence_errors = 0
         self._timeouts = 0
         self._last_gap_s: float | None = None
+        self._recent: deque[int] = deque(maxlen=_INTERLEAVE_WINDOW)  # the last counters (0..251) received
+        self._evidence: deque[bool] = deque(maxlen=_INTERLEAVE_WINDOW)  # per heartbeat: continued an older one
 
     def handle(self, frame: can.Message, now_s: float) -> bool:
         """Process a received frame; True if it was a heartbeat from our sender."""
@@ -245,15 +271,26 @@ class HeartbeatMonitor:
                 self._sequence_error()
             self._counter = sequence
         else:
-            base = -1 if self._counter == INITIAL_SEQUENCE else self._counter
-            advance = (sequence - base) % SEQUENCE_MODULUS
+            advance = _advance(self._counter, sequence)
             if advance == 0 or advance > _MAX_ADVANCE:  # repeat or jump
+                self._evidence.append(self._continues_earlier(sequence))
                 self._sequence_error()
             elif advance == 1:
                 self._good_run += 1
                 if self._good_run >= RECOVERY_COUNT:
                     self._state = HeartbeatState.OPERATIONAL
             self._counter = sequence
+        if sequence <= INITIAL_SEQUENCE:
+            self._recent.append(sequence)
+        if self._state is HeartbeatState.OPERATIONAL:
+            self._evidence.clear()
+
+    def _continues_earlier(self, sequence: int) -> bool:
+        """Whether ``sequence`` (an error against the last counter) advances by 1..3 from the counter heard just
+        before the last: the mark of a second sender interleaving its own count."""
+        if len(self._recent) < 2:
+            return False
+        return 1 <= _advance(self._recent[-2], sequence) <= _MAX_ADVANCE
 
     def status(self, now_s: float) -> HeartbeatStatus:
         """The monitor's conclusion at ``now_s``."""
@@ -262,7 +299,15 @@ class HeartbeatMonitor:
         if age is not None and age > self._timeout_s + _TIME_EPS_S:
             state = HeartbeatState.TIMEOUT
         return HeartbeatStatus(
-            state, self._last, age, self._restarts, self._sequence_errors, self._timeouts, self._last_gap_s
+            state,
+            self._last,
+            age,
+            self._restarts,
+            self._sequence_errors,
+            self._timeouts,
+            self._last_gap_s,
+            interleaved=sum(self._evidence) >= _INTERLEAVE_EVIDENCE,
+            source=self._source,
         )
 
     def healthy(self, now_s: float) -> bool:
@@ -276,3 +321,9 @@ class HeartbeatMonitor:
     def _enter(self, state: HeartbeatState) -> None:
         self._state = state
         self._good_run = 0
+
+
+def _advance(previous: int, sequence: int) -> int:
+    """How far ``sequence`` advances the counter from ``previous`` (251, the initial value, counts as -1)."""
+    base = -1 if previous == INITIAL_SEQUENCE else previous
+    return (sequence - base) % SEQUENCE_MODULUS

@@ -618,6 +618,9 @@ class CanLink:
                         f": a gap of {hb.last_gap_s:.3f} s between two (limit {cfg.heartbeat_timeout_s:g} s); "
                         "heartbeats arrive again, not yet 8 in sequence"
                     )
+            hint = hb.sequence_error_hint()  # interleaved counters: two nodes with the ECU's address
+            if hint is not None:  # before the counter: a latched reason is re-recorded when its words change
+                said += f": {hint}"
             if hb.last_sequence is not None:
                 said += f"; last counter {hb.last_sequence}"
             out.append(("ecu_heartbeat", said))

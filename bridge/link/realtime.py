@@ -13,6 +13,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 from typing import Any, Protocol
+from urllib.parse import urlsplit
 
 import can
 
@@ -66,8 +67,10 @@ def open_bus(interface: str, channel: str | None = None, **kwargs: Any) -> can.B
             return InProcessBus(channel=channel, **kwargs)
         return can.Bus(interface=interface, channel=channel, **kwargs)
     except (can.CanError, OSError, ImportError) as exc:
+        port = urlsplit(channel).port if interface == "remote" and isinstance(channel, str) else None
         hint = (
-            " (no hub there: start one with `hitch can-hub`, or give the hub's URL as the channel)"
+            f" (no hub there: start one with `hitch can-hub{f' --port {port}' if port else ''}`, or give the hub's "
+            "URL as the channel)"
             if interface == "remote" and isinstance(exc, ConnectionRefusedError)
             else ""
         )

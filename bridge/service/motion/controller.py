@@ -1049,7 +1049,9 @@ class MotionController:
         check_mode_allows(self._mode, what)
         if self.guard.implement_limits.transport_locked:  # the implement's transport lock (docs/implements.md)
             raise MotionError(
-                "locked", f"{what} refused: the implement is transport-locked (implements/unlock; stop is allowed)"
+                "locked",
+                f"{what} refused: the implement is transport-locked (unlock it first: `hitch implement unlock`, "
+                "key implements/unlock; stop is allowed)",
             )
 
     def _check_precedence(self) -> None:

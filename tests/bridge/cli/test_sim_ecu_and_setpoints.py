@@ -61,7 +61,8 @@ def test_ecu_sim_status_line_shows_the_valve_commands_as_plain_numbers(capsys):
     )
     assert rc == 0
     lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("t=")]
-    assert lines and all(line.rstrip().endswith("valves 0 0 0 0 0") for line in lines), lines
+    want = "valve commands [±254 = full]: lift 0  tilt 0  top 0  left 0  right 0"
+    assert lines and all(line.rstrip().endswith(want) for line in lines), lines
 
 
 @pytest.mark.parametrize(

@@ -568,6 +568,37 @@ def test_a_frozen_heartbeat_counter_stops_motion_and_clears_once_in_sequence_aga
     ecu_bus.shutdown()
 
 
+def test_two_ecus_on_one_address_are_named_as_a_possible_cause_of_the_sequence_error(model):
+    """A second ``hitch ecu-sim`` left running on the hub: two heartbeat counters interleave from address 169.
+    The fault said only "ECU heartbeat sequence error; last counter 17"; now it names the likely cause. A
+    single jump of one ECU's counter does not."""
+
+    def run(counters: list[int]) -> list[str]:
+        ch = f"hbtwo-{uuid.uuid4().hex}"
+        bus, ecu_bus = (can.Bus(interface="virtual", channel=ch) for _ in range(2))
+        link = CanLink(model, bus)
+        tilt, top, left, right = (int(c) for c in SensorScaling(model.profile).to_counts(model.neutral)[1:])
+        link.start(0.0)
+        for k in range(1, 10 * len(counters) + 1):
+            ecu_bus.send(encode(PositionMeasurement(tilt, top, right, left, 1), source=169))
+            ecu_bus.send(encode(RearHitchStatus(position=0.5), source=169))
+            if k % 10 == 0:
+                ecu_bus.send(encode(Heartbeat(counters[k // 10 - 1]), source=169))
+            link.poll(k * 0.01)
+        bus.shutdown()
+        ecu_bus.shutdown()
+        return [r for r in link.faults.reasons if "heartbeat" in r]
+
+    one = list(range(0, 20))
+    two = [v for pair in zip(range(0, 20), range(100, 120), strict=True) for v in pair]  # two ECUs, 50 ms apart
+    jump = list(range(0, 10)) + list(range(40, 50))
+    assert run(one) == []
+    said = run(two)
+    assert said and all("possibly two nodes sending with source address 169" in r for r in said), said
+    said = run(jump)
+    assert said and not any("two nodes" in r for r in said), said
+
+
 @pytest.mark.parametrize("bus_timestamps", [True, False])
 def test_a_stall_of_the_planner_alone_is_not_an_ecu_heartbeat_fault(model, bus_timestamps):
     """The ECU keeps its 100 ms heartbeat while the planner's thread stalls for 0.4 s; the frames wait in

@@ -15,9 +15,11 @@ def test_an_unknown_interface_names_the_allowed_ones():
 
 
 def test_a_remote_channel_without_a_hub_says_to_start_one():
-    """A new user's report: `hitch switch raise` said only 'Connection refused'."""
-    url = f"ws://127.0.0.1:{free_port()}/"
+    """A new user's report: `hitch switch raise` said only 'Connection refused'. And the hint said `hitch can-hub`
+    (its default port 54701) for any port: a hub started so is not found; it names the port."""
+    port = free_port()  # nothing listens there
+    url = f"ws://127.0.0.1:{port}/"
     with pytest.raises(LinkError) as err:
         open_bus("remote", url)
     msg = str(err.value)
-    assert url in msg and "`hitch can-hub`" in msg
+    assert url in msg and f"start one with `hitch can-hub --port {port}`" in msg

@@ -284,6 +284,10 @@ def test_transport_lock_refuses_every_motion_but_stop(svc):
         ok, r = svc.call(key, payload)
         assert not ok and r["error"] == "locked" and "transport-locked" in r["message"], key
         assert r["message"].startswith(key) and not r["message"].startswith(f"{key}: {key} "), r["message"]
+        # the CLI command too, not only the API key (a new user's trial)
+        assert r["message"].endswith(
+            "transport-locked (unlock it first: `hitch implement unlock`, key implements/unlock; stop is allowed)"
+        ), r["message"]
     assert svc.call("stop")[0]
     svc.run(0.5)
     np.testing.assert_allclose(svc.pose(), start, atol=1e-9)  # nothing moved

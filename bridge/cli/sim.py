@@ -43,6 +43,7 @@ from bridge.cli.service import _client_options
 from bridge.link.realtime import INTERFACES, RealtimeRunner, open_bus, shutdown_bus
 from bridge.link.state import LinkConfig, LinkError
 from bridge.service.maneuvers.language import MIN_SPEED_SCALE
+from bridge.service.scheduling import TWIN_RT_PRIORITY
 from bridge.service.wire import to_json_text
 from bridge.sim.can_node import EcuCanNode
 from bridge.sim.cylinder import VALVE_MAX
@@ -478,6 +479,7 @@ def _cmd_ecu_sim(args) -> int:
     ecu = CylinderECU(
         profile, rng=args.seed, noise_counts=args.noise_counts, gain_error=args.gain_error, calibration=configured
     )
+    realtime_process(args, TWIN_RT_PRIORITY, "ecu-sim")  # before the bus and the runner start their threads
     bus = _open_ecu_bus(args.interface, args.channel)
     node = EcuCanNode(ecu, bus)
     runner = RealtimeRunner(node)
@@ -520,6 +522,33 @@ def _cmd_ecu_sim(args) -> int:
     return 0
 
 
+def realtime_process(args: argparse.Namespace, priority: int, who: str) -> None:
+    """This command's threads under ``SCHED_FIFO`` at ``priority`` where permitted (not with ``--no-realtime``):
+    a twin process or a hub at ordinary priority let a busy computer delay its frames past the link's limits
+    (bridge.service.scheduling.process_to_fifo). Not permitted: a note on stderr, and it runs on."""
+    if getattr(args, "no_realtime", False):
+        return
+    from bridge.service.scheduling import process_to_fifo
+
+    why = process_to_fifo(priority)
+    if why is not None:
+        console(stderr=True).print(
+            f"{who}: runs at ordinary priority (real-time SCHED_FIFO {why}: run as root or with CAP_SYS_NICE, or "
+            "with chrt, for steady timing on a busy computer)",
+            markup=False,
+            highlight=False,
+        )
+
+
+def add_realtime_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--no-realtime",
+        action="store_true",
+        help="run at ordinary priority (default: its threads under SCHED_FIFO where permitted, root or "
+        "CAP_SYS_NICE, so a busy computer does not delay its frames)",
+    )
+
+
 # -- hitch sim fault -----------------------------------------------------------------------
 def _cmd_sim_fault(args) -> int:
     settings = FaultSettings(cut=args.cut, loss=args.loss, delay_ms=args.delay_ms, restart_ecu=args.restart_ecu)
@@ -553,6 +582,7 @@ def fault_settings_text(applied: dict) -> str:
 def _cmd_can_hub(args) -> int:
     from bridge.link.loopback import LoopbackHub
 
+    realtime_process(args, TWIN_RT_PRIORITY, "can-hub")  # the bus's wire: before the hub starts its threads
     hub = LoopbackHub(args.port)
     console(stderr=True).print(
         f"CAN hub on {hub.url} (open buses with --interface remote --channel {hub.url}); next, in other "
@@ -995,6 +1025,7 @@ def add_commands(sub) -> None:
     )
     _add_plant_options(e)
     _add_truth_option(e)
+    add_realtime_option(e)
     e.set_defaults(handler=_cmd_ecu_sim)
     pp = ssub.add_parser("perturb", help="write a random true machine (truth profile) with tape-measure errors")
     pp.add_argument(
@@ -1065,4 +1096,5 @@ def add_commands(sub) -> None:
         "--can-channel ws://127.0.0.1:PORT/ --no-sim-ecu). It runs until Ctrl-C.",
     )
     h.add_argument("--port", type=int, default=54701, help="TCP port on 127.0.0.1 (default 54701; 0: any free one)")
+    add_realtime_option(h)
     h.set_defaults(handler=_cmd_can_hub)

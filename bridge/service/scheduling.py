@@ -53,6 +53,7 @@ __all__ = [
     "ZENOH_THREAD_PREFIXES",
     "ThreadSchedule",
     "pin_to_one_cpu",
+    "process_to_fifo",
     "caller_to_fifo",
     "caller_to_ordinary",
     "python_thread_ids",
@@ -161,6 +162,27 @@ def caller_to_fifo(priority: int) -> Callable[[], None] | None:
             pass
 
     return restore
+
+
+def process_to_fifo(priority: int) -> str | None:
+    """Put the calling thread under ``SCHED_FIFO`` at ``priority`` for good, before it starts the process's
+    other threads: they inherit its policy (Linux ``clone``). For a command that stands for a computer of its
+    own in the field — ``hitch ecu-sim``, ``hitch can-hub`` (the bus between them) — or that is a control path
+    of its own (``hitch calibrate sensors`` on a bus). None when done (or the thread runs under a real-time or
+    deadline policy already, e.g. started with ``chrt``: left as it is), else why not.
+
+    Measured (4 busy processes on the 2-core machine, the top link's calibration over a hub, all three
+    processes at ordinary priority): 3 of 3 runs stopped by a stale measurement or the ECU's reference
+    watchdog; under ``chrt -f 20``: 2 of 2 finished in 29 s, as unloaded.
+    """
+    if not 1 <= priority <= 99:
+        raise ValueError(f"priority must be within 1…99, got {priority}")
+    try:
+        if _base_policy() not in (os.SCHED_OTHER, os.SCHED_BATCH, os.SCHED_IDLE):
+            return None
+    except (AttributeError, OSError):
+        return "os.sched_getscheduler is not available on this system"
+    return set_thread_fifo(0, priority)
 
 
 def caller_to_ordinary() -> None:

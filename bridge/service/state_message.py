@@ -233,6 +233,10 @@ class StateMessage:
             "limited": dict(self.limited),
             "pose": None if ls is None else ls.pose.as_dict(),
             "actuators": None if ls is None else ls.actuators.as_dict(),
+            # the ECU's readings as received [AD counts], before the profile's AD map: what a commissioning
+            # engineer writes into a measurement file (docs/commissioning.md); the lift's recovered from the
+            # rear hitch position
+            "actuator_counts": None if ls is None else actuator_dict(ls.counts),
             "reference": None
             if ref is None
             else {"pose": pose_dict(ref.state.position), "actuators": actuator_dict(ref.actuators)},

@@ -64,6 +64,7 @@ import math
 import re
 import threading
 from collections import deque
+from collections.abc import Iterable
 from dataclasses import replace
 
 import can
@@ -327,12 +328,14 @@ class CanLink:
         with self._lock:
             return tuple(dict.fromkeys(name for name, _ in self._conditions(now_s)))
 
-    def clear_faults(self, now_s: float) -> LinkFaults:
-        """Acknowledge: clear the latched faults whose causes are gone at ``now_s``, keep the
-        others (their reasons too). Never starts the stream; returns the faults left."""
+    def clear_faults(self, now_s: float, names: Iterable[str] | None = None) -> LinkFaults:
+        """Acknowledge: clear the latched faults whose causes are gone at ``now_s`` (only those in ``names``
+        when given), keep the others (their reasons too). Never starts the stream; returns the faults left.
+        A fault cleared so and raised again is a new occurrence the link reports afresh."""
         with self._lock:
             present = set(self.fault_causes(now_s))
-            keep = {name: name in present for name in self._faults.active()}
+            only = None if names is None else set(names)
+            keep = {name: name in present or (only is not None and name not in only) for name in self._faults.active()}
             kept = any(keep.values())
             reasons, names = (self._faults.reasons, self._faults.reason_names) if kept else ((), ())
             self._faults = replace(

@@ -868,6 +868,12 @@ class MotionController:
             acked = tuple(n for n, f in self._faults.items() if f.latches and n not in causes)
             for n in acked:
                 del self._faults[n]
+            if acked:
+                # the link's latched flags of these go too (nothing starts): one raised again after this ack
+                # is new to the link and reported as a fault; kept latched there until the next accepted
+                # reference, a second ECU restart after an ack went unreported and a goto was accepted
+                self.link.clear_faults(self.clock(), acked)
+                self._link_reported = tuple(n for n in self._link_reported if n not in acked)
             problem = getattr(status, "address_problem", "")
             held = self._faults.get("address_lost")
             if held is not None and problem:

@@ -27,6 +27,7 @@ Replies are the ``to_json()`` of the values the motion controller and the store 
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -85,6 +86,9 @@ from planner.trajectory import MotionState, PlanError
 
 __all__ = ["ServiceAPI", "API_KEYS", "EXPENSIVE_KEYS", "MAX_IN_FLIGHT_PER_USER"]
 
+#: internal errors (a request that raised what no handler expected) are logged here with their traceback
+log = logging.getLogger("hitch.service.api")
+
 #: requests whose cost is not bounded by the control loop (planning, validation): admission-controlled
 EXPENSIVE_KEYS = frozenset({"plan", "maneuvers/validate"})
 #: expensive requests one user may have running at a time; more are refused with ``busy`` at once
@@ -111,6 +115,9 @@ class ServiceAPI:
 
     #: implements and the quick raise / return (set while the handlers are built: bridge.service.implements)
     implements: ImplementService
+
+    #: every key :meth:`handle` serves (the operator terminal answers a GET of any other 'unknown key')
+    api_keys: tuple[str, ...] = tuple(API_KEYS)
 
     def __init__(
         self,
@@ -225,6 +232,8 @@ class ServiceAPI:
         except ValueError as exc:
             return self._err("bad_request", _named(key, exc))
         except Exception as exc:  # noqa: BLE001 — a bug must not kill the service or leave a query open
+            # the reply names the exception only: its traceback goes to the log (stderr) for the developer
+            log.exception("service API: internal error serving %r for user %r", key, user)
             return self._err("internal", f"{key}: internal error {type(exc).__name__}: {str(exc)[:200]}")
         finally:
             if admitted is not None:

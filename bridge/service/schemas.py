@@ -586,6 +586,8 @@ def _format(key: str, exc: ValidationError, model: type[BaseModel]) -> str:
         return f"{key}: {path} must be a JSON object, got {_show(e.get('input'))}"
     elif e["type"] in ("int_type", "int_from_float", "int_parsing"):
         msg = "must be an integer"
+    elif e["type"] == "float_type" and _huge_int(e.get("input")):  # a number all the same: too large for any range
+        msg = "is out of range" if _allowed(model, loc) else f"is out of range (a number lies within ±{_FLOAT_MAX:.4g})"
     elif e["type"] in ("float_type", "float_parsing"):
         given = e.get("input")
         msg = "must be a number" + (
@@ -615,8 +617,30 @@ def _format(key: str, exc: ValidationError, model: type[BaseModel]) -> str:
         return f"{key}: {path} must hold {want} items, got {n if n is not None else 'another number'}"
     allowed = _allowed(model, loc)
     if msg == "is out of range" and isinstance(e.get("input"), (int, float)):
-        allowed += _range_hint(model, loc, float(e["input"]))
+        value = _as_float(e["input"])
+        allowed += "" if value is None else _range_hint(model, loc, value)
     return f"{key}: {path} = {_show(e.get('input'))} {msg}{allowed}"
+
+
+#: the largest finite float: a JSON integer beyond it (309+ digits) has no float value
+_FLOAT_MAX = 1.7976931348623157e308
+
+
+def _huge_int(v: Any) -> bool:
+    """An integer (not a bool) too large to be a float: pydantic's strict float refuses it as "not a number"."""
+    return isinstance(v, int) and not isinstance(v, bool) and _as_float(v) is None
+
+
+def _as_float(v: Any) -> float | None:
+    """``v`` as a finite float; None for a non-number (a bool too), NaN, infinity and an integer beyond the float
+    range (``float(10**400)`` raises OverflowError: a goto of z = 400 digits answered "internal error")."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return None
+    try:
+        f = float(v)
+    except OverflowError:
+        return None
+    return f if math.isfinite(f) else None
 
 
 def _range_hint(model: type[BaseModel], loc: tuple[int | str, ...], value: float) -> str:
@@ -708,7 +732,8 @@ def check_pose_in_workspace(
 ) -> None:
     """:class:`RequestError` (``unreachable``) naming the workspace range of every DOF of ``pose``
     outside ``workspace`` (DOF name → [min, max]; x, z [m], roll, pitch [rad]), with a hint when
-    the value fits in mm (x, z) or degrees (roll, pitch). Non-numbers are left to the schema;
+    the value fits in mm (x, z) or degrees (roll, pitch). Non-numbers (and integers beyond a float's range,
+    309+ digits) are left to the schema, which refuses them naming the field and its range;
     ``workspace`` None: nothing to check. ``what``: the pose's field in the payload ("" when the pose
     fields are the payload's own, as ``work/start``'s ``z``)."""
     if not workspace or not isinstance(pose, Mapping):
@@ -716,7 +741,8 @@ def check_pose_in_workspace(
     problems = []
     for k in ("x", "z", "roll", "pitch"):
         v, rng = pose.get(k), workspace.get(k)
-        if rng is None or isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        v = _as_float(v)
+        if rng is None or v is None:  # not a number, or no float (an integer of 309+ digits): the schema names it
             continue
         lo, hi = float(rng[0]), float(rng[1])
         if lo - 1e-9 <= v <= hi + 1e-9:

@@ -41,7 +41,15 @@ way it refuses that user over Zenoh. Without access control there is no login an
 as the configured ``user`` (normally none). ``stop`` runs on a thread of its own: it never waits
 for other requests of the terminal, and any POST to ``/api/stop`` stops, whatever its body's type or
 size (a JSON content type is required of every other request: a cross-site "simple" form post
-cannot reach them).
+cannot reach them), and whatever its body's framing: a chunked stop is served as soon as its header
+is in (its chunks are read after the answer; the connection stays open if they are well formed and
+within the size and time limits), one with a framing refused elsewhere (both ``Content-Length`` and
+``Transfer-Encoding``, a coding other than chunked) is served and the connection closed. Every
+other request may send its body chunked (:func:`~.http.read_chunked`: the same 96 KiB and 10 s limits).
+
+Protocol answers: ``GET /ws`` without a WebSocket upgrade 426 (Upgrade Required); a request without a
+``Host`` header 400 saying so; ``GET /api/<key>`` 405 "use POST" for a key of the API, 404
+``unknown_key`` for a name that is none.
 """
 
 from __future__ import annotations
@@ -53,12 +61,21 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Collection, Mapping
 from concurrent.futures import Executor, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, Protocol
 
-from bridge.web.http import HttpError, HttpRequest, discard, json_response, read_request, response_bytes
+from bridge.web.http import (
+    MAX_DISCARD_BYTES,
+    HttpError,
+    HttpRequest,
+    discard,
+    json_response,
+    read_chunked,
+    read_request,
+    response_bytes,
+)
 from bridge.web.hub import API_NAME, ClientHub
 from bridge.web.sessions import (
     Accounts,
@@ -220,10 +237,14 @@ class WebServer:
         accounts: Accounts | None = None,
         view: HitchView | Callable[[], HitchView] | None = None,
         dispatch: Dispatch | None = None,
+        api_keys: Collection[str] | None = None,
     ):
         if not callable(handler):
             raise WebServerError("handler must be callable as handle(name, payload_bytes, user)")
         self.handler = handler
+        #: the keys the handler serves (a GET of another is answered 'unknown key', of one of them 'use POST');
+        #: None: every well-formed name counts as a key
+        self.api_keys = None if api_keys is None else frozenset(api_keys)
         self._dispatch = dispatch
         self.settings = settings or WebSettings()
         self.accounts = accounts
@@ -468,6 +489,15 @@ class WebServer:
                 await writer.drain()
                 if req.unread:  # a stop's body over the limit, not read: dropped before closing
                     await discard(reader, req.unread)
+                if req.chunked:  # a stop's chunked body, served before it was read: read (and dropped) now
+                    try:
+                        await read_chunked(reader)
+                    except HttpError as exc:  # answered already; where the next request would begin is unknown
+                        log.info("operator terminal: closing after a stop whose chunked body failed: %s", exc)
+                        await discard(reader, MAX_DISCARD_BYTES)
+                        return
+                if req.framing_unknown:  # a stop's body of unknown length: dropped (bounded) before closing
+                    await discard(reader, MAX_DISCARD_BYTES)
                 if not req.keep_alive:
                     return
         except (ConnectionError, OSError, asyncio.IncompleteReadError):
@@ -481,6 +511,14 @@ class WebServer:
 
     def _check(self, req: HttpRequest) -> bytes | None:
         """The refusal for a request from elsewhere, or None."""
+        if not req.header("host").strip():
+            return _error(
+                400,
+                "bad_request",
+                "the request has no Host header (or an empty one): every request must name the terminal's "
+                "HOST:PORT in Host (DNS rebinding protection; HTTP/1.1 requires it)",
+                req.keep_alive,
+            )
         if not host_allowed(req.header("host"), self.address, self.settings):
             return _error(
                 421,
@@ -601,6 +639,20 @@ class WebServer:
             )
         if req.path == "/favicon.ico":
             return response_bytes(204, keep_alive=ka)
+        if req.path == "/ws":  # a WebSocket upgrade is served by _connection; anything else at /ws is not one
+            return response_bytes(
+                426,
+                json.dumps(
+                    {
+                        "error": "bad_request",
+                        "message": "/ws is the terminal's WebSocket: it needs a WebSocket upgrade "
+                        "(GET with Upgrade: websocket, Connection: Upgrade, Sec-WebSocket-Version: 13)",
+                    }
+                ).encode(),
+                "application/json",
+                headers={"Upgrade": "websocket"},
+                keep_alive=ka,
+            )
         session = self._session(req)
         if self.login_required and session is None and not (req.path == "/api/stop" and req.method == "POST"):
             return _error(401, "unauthenticated", f"{req.path}: log in first (POST /api/login)", ka)
@@ -621,6 +673,8 @@ class WebServer:
         if not API_NAME.match(name):
             return _error(404, "unknown_key", f"unknown API path {req.path!r}", ka)
         if req.method != "POST":
+            if self.api_keys is not None and name not in self.api_keys:  # "use POST" only for a key POST reaches
+                return _error(404, "unknown_key", f"unknown API key {name!r}: nothing at {req.path!r}", ka)
             return _error(405, "bad_request", f"use POST for /api/{name}", ka)
         ctype = req.header("content-type").split(";")[0].strip().lower()
         if req.body and ctype != "application/json" and name != "stop":  # whatever is sent to stop, stops
@@ -789,6 +843,7 @@ def start_http(
         accounts=accounts,
         view=_view_factory(config),
         dispatch=dispatch if callable(dispatch) else None,
+        api_keys=getattr(api, "api_keys", None),
     ).start()
 
     def on_login(what: str, who: str | None, ok: bool, reply: dict) -> None:

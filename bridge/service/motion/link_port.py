@@ -8,6 +8,7 @@ tilt, top, left, right [m]).
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import Protocol
 
 import numpy as np
@@ -46,4 +47,9 @@ class LinkPort(Protocol):
 
     def stop_motion(self) -> None:
         """End the reference stream (the ECU watchdog then zeroes the valves)."""
+        ...
+
+    def clear_faults(self, now_s: float, names: Iterable[str] | None = None) -> object:
+        """Acknowledge the latched faults (only ``names`` when given) whose causes are gone at ``now_s``;
+        never starts the stream. One raised again afterwards is reported afresh."""
         ...

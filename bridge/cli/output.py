@@ -97,7 +97,10 @@ def limited_text(limited: Mapping[str, Any]) -> str:
     """A state's ``limited`` (or a track session's ``control_limited``) entries in the operator's words, each
     with its code: ``lift arm slowing before its stroke end (end_stop:lift), …`` (the guard's own sentence,
     "end_stop:lift: speed: end_stop:lift would be 0.8086 (threshold 1) at t = 0.00 s", named the limit twice
-    and gave a speed factor without saying so: a new user's report)."""
-    from bridge.web.wording import limited_words
+    and gave a speed factor without saying so: a new user's report). Each limit once
+    (:func:`bridge.web.wording.limited_entries`): a track DOF flagged by the implement's lowering speed limit
+    and the guard's reason on that limit are one entry, ``lowering faster than the implement allows: 0.060 m/s
+    (limit 0.050 m/s): slowed (vz)``; a speed factor reads as a share of full speed."""
+    from bridge.web.wording import limited_entries
 
-    return ", ".join(f"{limited_words(str(k), str(v))} ({k})" for k, v in limited.items())
+    return ", ".join(f"{w} ({k})" for k, w in limited_entries(limited))

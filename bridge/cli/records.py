@@ -4,6 +4,11 @@
 files, oldest first; :mod:`bridge.service.blackbox`): who asked what, accepted or refused,
 faults and motion outcomes; ``--kind``, ``--key`` (a request's key or an event's name) and ``--since`` (a
 duration ago or a local time) pick records. ``--follow`` then keeps printing new records (Ctrl-C ends it).
+It first says on stderr which log file(s) it reads (and that the folder is the default one, shared by every run
+of this user), so stdout stays the records (``--json``: one JSON object a line, its numbers exact). The text
+lines round numbers to their resolution with the unit the field's name says (``duration=11.674 s``,
+``depth_m=0.1235 m``, ``draft_n=12346 N``, a share such as ``speed_scale`` in %), poses in mm/mrad and a
+``limit_reached`` event's limits in the operator's words (:func:`bridge.web.wording.limited_entries`).
 ``hitch replay FILE`` reads a CAN log recorded with ``hitch serve --can-log FILE`` (or any
 ``.asc``/``.blf``/candump ``.log`` of the same bus) into a CAN link and prints what it decodes:
 references, measurements with the measured pose (the ECU's system state in words), the tractor's sensors,
@@ -21,6 +26,7 @@ records carry ``timestamp`` (Unix s): to line a replay up with ``hitch log``.
 from __future__ import annotations
 
 import argparse
+import math
 import re
 import time
 from collections.abc import Callable, Sequence
@@ -47,21 +53,119 @@ def _when(t: Any) -> str:
         return f"t={t!r}"
 
 
+#: the fields of a pose [m, rad] and the unit each is shown in (a thousandth of it: mm, mrad)
+_POSE_UNITS: dict[str, str] = {"x": "mm", "y": "mm", "z": "mm", "roll": "mrad", "pitch": "mrad", "yaw": "mrad"}
+#: the controlled DOFs: what ``_where`` says of a measured pose
+_CONTROLLED = ("x", "z", "roll", "pitch")
+
+
+def _is_number(v: Any) -> bool:
+    """An int or a float, not a bool."""
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _pose_parts(pose: dict[str, Any], names: Sequence[str]) -> list[str]:
+    """``["x +12.0 mm", "roll -1.5 mrad", …]``: the fields ``names`` of a pose [m, rad] that are numbers, in
+    mm and mrad (0.1 resolution)."""
+    return [f"{n} {pose[n] * 1000:+.1f} {_POSE_UNITS[n]}" for n in names if _is_number(pose.get(n))]
+
+
 def _where(rec: dict[str, Any]) -> str:
     """`` | at x … mm, z … mm, roll … mrad, pitch … mrad (measured … s before)`` from an event's
     ``measured_pose`` [m, rad] and ``measured_age_s``; "" without them (or with values that are no numbers)."""
     pose, age = rec.get("measured_pose"), rec.get("measured_age_s")
     if not isinstance(pose, dict):
         return ""
-    parts = []
-    for name, unit in (("x", "mm"), ("z", "mm"), ("roll", "mrad"), ("pitch", "mrad")):
-        v = pose.get(name)
-        if isinstance(v, (int, float)) and not isinstance(v, bool):
-            parts.append(f"{name} {v * 1000:+.1f} {unit}")
+    parts = _pose_parts(pose, _CONTROLLED)
     if not parts:
         return ""
-    ago = f" (measured {age:.3f} s before)" if isinstance(age, (int, float)) and not isinstance(age, bool) else ""
+    ago = f" (measured {age:.3f} s before)" if _is_number(age) else ""
     return " | at " + ", ".join(parts) + ago
+
+
+#: a field's unit by the end of its name, first match first (``_m_s`` before ``_s``): (suffix, factor to the
+#: shown unit, shown unit, decimals); the service's events, requests and CAN frames name their units so
+_SUFFIX_UNITS: tuple[tuple[str, float, str, int], ...] = (
+    ("_m_s", 1.0, "m/s", 4),
+    ("_rad_s", 1.0, "rad/s", 4),
+    ("_ms", 1.0, "ms", 1),
+    ("_mm", 1.0, "mm", 1),
+    ("_s", 1.0, "s", 3),
+    ("_m", 1.0, "m", 4),
+    ("_rad", 1.0, "rad", 4),
+    ("_deg", 1.0, "°", 2),
+    ("_kg", 1.0, "kg", 1),
+    ("_n", 1.0, "N", 0),
+    ("_pa", 1e-5, "bar", 2),
+    ("_hz", 1.0, "Hz", 2),
+)
+#: fields in seconds without a ``_s`` in their name (maneuver events, motion replies, the service's clock)
+_SECONDS = frozenset({"duration", "elapsed", "timeout", "clock"})
+#: fields that are a share of full [1]: shown in % (``speed_scale`` 0.5: 50 %)
+_SHARES = frozenset({"progress", "speed_scale", "speed_factor", "front_axle_share"})
+#: fields that hold a ``state.limited``-like map (limit or guard sentence by key): shown in words
+_LIMIT_MAPS = frozenset({"limits", "limited", "control_limited"})
+
+
+def _fixed(v: float, decimals: int) -> str:
+    """``v`` with at most ``decimals`` decimals, trailing zeros dropped (``45``, ``11.674``), never ``-0``."""
+    text = f"{round(v, decimals) + 0.0:.{decimals}f}"
+    return text.rstrip("0").rstrip(".") if "." in text else text
+
+
+def _unit_of(key: str) -> tuple[float, str, int] | None:
+    """(factor, unit, decimals) of a field by its name, None when its name says no unit."""
+    if key in _SECONDS:
+        return 1.0, "s", 3
+    for suffix, factor, unit, decimals in _SUFFIX_UNITS:
+        if key.endswith(suffix):
+            return factor, unit, decimals
+    return None
+
+
+def _number_text(key: str, v: float) -> str:
+    """A number of field ``key`` rounded and with its unit (a share [1] in %); an int with no unit as it is,
+    a float with no unit to 4 significant digits, a non-finite one as it is."""
+    if not math.isfinite(v):
+        return str(v)
+    if key in _SHARES:
+        return f"{_fixed(100.0 * v, 1)} %"
+    unit = _unit_of(key)
+    if unit is not None:
+        factor, shown, decimals = unit
+        return f"{_fixed(v * factor, decimals)} {shown}"
+    return str(v) if isinstance(v, int) else f"{v:.4g}"
+
+
+def _limits_text(limits: dict[Any, Any]) -> str:
+    """A ``limit_reached`` event's ``limits`` (limit or guard sentence by key) in the operator's words, each with
+    its code: ``[tilt cylinder (right lift rod) at its speed limit: slowed to 51 % (velocity:tilt)]``."""
+    from bridge.web.wording import limited_entries
+
+    return "[" + "; ".join(f"{w} ({k})" for k, w in limited_entries(limits)) + "]"
+
+
+def _value_text(key: str, v: Any) -> str:
+    """One field's value for the text output: numbers rounded with their unit (by the field's name), a pose in
+    mm/mrad, limits in words, maps and lists without Python's quotes."""
+    if isinstance(v, Enum):
+        return v.name
+    if _is_number(v):
+        return _number_text(key, v)
+    if isinstance(v, dict):
+        if key in _LIMIT_MAPS and v:
+            return _limits_text(v)
+        if v and set(v) <= set(_POSE_UNITS) and all(_is_number(x) for x in v.values()):
+            return "(" + ", ".join(_pose_parts(v, tuple(_POSE_UNITS))) + ")"
+        return "(" + ", ".join(f"{k}={_value_text(str(k), x)}" for k, x in v.items()) + ")"
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_value_text(key, x) for x in v) + "]"
+    return str(v)
+
+
+def _fields_text(rec: dict[str, Any], skip: frozenset[str] | set[str]) -> str:
+    """``k=v, k=v`` of a record's fields but ``skip``, each value by :func:`_value_text`."""
+    return ", ".join(f"{k}={_value_text(k, v)}" for k, v in rec.items() if k not in skip)
 
 
 def format_record(rec: dict[str, Any]) -> str:
@@ -80,17 +184,26 @@ def format_record(rec: dict[str, Any]) -> str:
         return f"{head}request {rec.get('key')} by {who}{body}: {what}"
     if kind == "event":
         skip = {"t", "seq", "kind", "event", "event_t", "measured_pose", "measured_age_s"}
-        rest = ", ".join(f"{k}={v}" for k, v in rec.items() if k not in skip)
+        rest = _fields_text(rec, skip)
         return f"{head}event {rec.get('event')}" + (f": {rest}" if rest else "") + _where(rec)
     if kind in ("gap", "suppressed") and isinstance(rec.get("message"), str):  # their sentence says it all
         return f"{head}{kind}: {rec['message']}"
-    skip = {"t", "seq", "kind"}
-    rest = ", ".join(f"{k}={v}" for k, v in rec.items() if k not in skip)
+    rest = _fields_text(rec, {"t", "seq", "kind"})
     return f"{head}{kind}" + (f": {rest}" if rest else "")
 
 
+def _reading_note(path: Path, files: Sequence[Path], *, default: bool, follow: bool) -> str:
+    """The line ``hitch log`` says first (on stderr): which log it reads, its rotated files (oldest first: the
+    order read) and, for the default folder, that it is one (``--data-dir`` names another)."""
+    rotated = [f.name for f in files if f != path]
+    more = f" and {len(rotated)} rotated file(s) before it ({', '.join(rotated)})" if rotated else ""
+    where = " (the default data dir; --data-dir names another)" if default else ""
+    then = ", then following it (Ctrl-C ends)" if follow else ""
+    return f"(reading the event log {path}{more}{where}{then})"
+
+
 def _cmd_log(args) -> int:
-    from bridge.service.blackbox import event_log_path, follow_events, read_events
+    from bridge.service.blackbox import event_log_path, follow_events, log_files, read_events
     from bridge.service.config import default_data_dir
 
     if args.data_dir is not None and not args.data_dir.is_dir():  # a typo'd folder: not an empty log
@@ -100,6 +213,13 @@ def _cmd_log(args) -> int:
         )
     path = event_log_path(args.data_dir or default_data_dir())
     c = console(soft_wrap=True)
+    if path.exists() or log_files(path):  # else the lines below say where it looked
+        # on stderr: stdout stays the records (--json: one per line); a default folder may hold a stranger's run
+        console(soft_wrap=True, stderr=True).print(
+            _reading_note(path, log_files(path), default=args.data_dir is None, follow=args.follow),
+            markup=False,
+            highlight=False,
+        )
 
     def show(rec: dict[str, Any]) -> None:
         if args.json:
@@ -112,8 +232,9 @@ def _cmd_log(args) -> int:
     records = [r for r in every if keep(r)]
     absent = not every and not path.exists()
     if absent:
-        if not args.follow:
-            c.print(f"(no event log at {path}; `hitch serve` writes it)", markup=False, highlight=False)
+        if not args.follow:  # --json: on stderr, stdout stays JSON lines (none)
+            out = console(soft_wrap=True, stderr=True) if args.json else c
+            out.print(f"(no event log at {path}; `hitch serve` writes it)", markup=False, highlight=False)
             return 0
         # said on stderr: --json output stays one record per line
         console(soft_wrap=True, stderr=True).print(
@@ -197,6 +318,8 @@ def _record_filter(args):
 
 
 def _fmt_fields(fields: dict[str, Any]) -> str:
+    """A decoded CAN frame's fields as ``k=v k=v``: enums by name, the ECU's system state in words, floats rounded
+    with the unit their name says (:func:`_number_text`)."""
     from bridge.service.blackbox import describe_system_state
 
     out = []
@@ -208,7 +331,7 @@ def _fmt_fields(fields: dict[str, Any]) -> str:
         elif isinstance(v, dict):
             v = "/".join(str(x) for x in v.values())
         elif isinstance(v, float):
-            v = f"{v:.4g}"
+            v = _number_text(k, v)  # rounded, with the unit its name says (x_m, latency_s, lift_pa …)
         out.append(f"{k}={v}")
     return " ".join(out)
 

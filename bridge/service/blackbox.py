@@ -91,6 +91,7 @@ __all__ = [
     "announce_can_log_stop",
     "can_log_stopped_event",
     "event_log_path",
+    "log_files",
     "last_seq",
     "read_events",
     "follow_events",
@@ -630,7 +631,7 @@ class EventLog:
 
 
 # ---------------------------------------------------------------------------------------- reading
-def _log_files(path: Path) -> list[Path]:
+def log_files(path: Path) -> list[Path]:
     """Rotated files oldest first, then the live file."""
     rotated = []
     for p in path.parent.glob(path.name + ".*"):
@@ -645,7 +646,7 @@ def last_record(path: str | Path, *, tail_bytes: int = 65_536) -> dict[str, Any]
     rotated one), None for none. Reads only the files' last ``tail_bytes``; a torn last line (a killed
     writer) is skipped."""
     p = Path(path)
-    for f in reversed(_log_files(p)):
+    for f in reversed(log_files(p)):
         try:
             with f.open("rb") as fh:
                 fh.seek(0, os.SEEK_END)
@@ -703,7 +704,7 @@ def read_events(path: str | Path) -> list[dict[str, Any]]:
     """Every record of the log at ``path`` and its rotated files, oldest first."""
     p = Path(path)
     out: list[dict[str, Any]] = []
-    for f in _log_files(p):
+    for f in log_files(p):
         try:
             text = f.read_text(encoding="utf-8", errors="replace")
         except OSError:

@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from bridge.web.wording import KEY_WORDS, MEASURE_WORDS, highlight, limited_words, words
+from bridge.web.wording import KEY_WORDS, MEASURE_WORDS, highlight, limited_entries, words
 from planner.errors import HitchInputError
 from planner.limits.stability import StabilityThresholds
 from planner.limits.tractor import load_tractor_profile
@@ -186,17 +186,12 @@ class HitchView:
         limited: list[dict[str, Any]] = []
         lit: list[str] = []
         if isinstance(limited_in, Mapping):
-            for k, v in limited_in.items():
-                code = str(v).split(":", 1)[1].split(" would be", 1)[0].strip() if " would be " in str(v) else str(v)
+            # each limit once: a track DOF flagged by a limit and the guard's reason on that limit are one entry
+            for k, said in limited_entries(limited_in, self.tractor_weight_n):
+                v = str(limited_in[k])
+                code = v.split(":", 1)[1].split(" would be", 1)[0].strip() if " would be " in v else v
                 members = highlight(code) or highlight(str(k).rstrip("+-"))
-                limited.append(
-                    {
-                        "key": str(k),
-                        "code": code,
-                        "words": limited_words(str(k), str(v), self.tractor_weight_n),
-                        "highlight": list(members),
-                    }
-                )
+                limited.append({"key": str(k), "code": code, "words": said, "highlight": list(members)})
                 lit += [mm for mm in members if mm not in lit]
         share = None
         stab = state.get("stability")

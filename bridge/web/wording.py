@@ -14,6 +14,8 @@ model, no I/O):
 * :data:`WORKSPACE_WORDS` — the workspace faces, ``(dof, side)`` → words (``+x`` is the driver's
   left, roll ``+`` the left side down, pitch ``+`` the mast top towards the tractor);
 * :data:`MEASURE_WORDS` — the guard's stability measures;
+* :data:`IMPLEMENT_WORDS` — the implement's own limits (:mod:`planner.limits.implement_limits`: their names
+  have spaces, ``implement lowering speed limit``);
 * :data:`KEY_WORDS` — the keys of ``state.limited`` that are not limit names (what was being
   commanded when the limit bit);
 * :data:`HIGHLIGHT` — which drawn member of the hitch picture a code lights up.
@@ -21,7 +23,8 @@ model, no I/O):
 :func:`words` gives the operator sentence of one code (None when the table has none — the tests
 check that every code the service can emit has one); :func:`limited_words` the sentence of one
 ``state.limited`` entry, with the guard's numbers in the operator's units when it knows the
-tractor's weight.
+tractor's weight; :func:`limited_entries` all entries of one ``state.limited``, each limit once (a
+track DOF flagged by a limit and the guard's reason on that limit are one entry).
 """
 
 from __future__ import annotations
@@ -36,11 +39,13 @@ __all__ = [
     "KIND_WORDS",
     "WORKSPACE_WORDS",
     "MEASURE_WORDS",
+    "IMPLEMENT_WORDS",
     "KEY_WORDS",
     "HIGHLIGHT",
     "words",
     "highlight",
     "limited_words",
+    "limited_entries",
 ]
 
 #: actuators (``ACTUATOR_NAMES``), controlled DOFs and hitch sides as the operator calls them
@@ -100,6 +105,14 @@ MEASURE_WORDS: dict[str, str] = {
     "esm": "tip-over energy margin too low",
 }
 
+#: the implement's own limits, by the names the guard and the track follower give them
+#: (:data:`planner.limits.implement_limits.UPPER_HEIGHT_LIMIT` … — the tests check the names match)
+IMPLEMENT_WORDS: dict[str, str] = {
+    "implement upper height limit": "implement at its upper height limit",
+    "implement lowering speed limit": "lowering faster than the implement allows",
+    "implement transport lock": "implement locked for transport",
+}
+
 #: keys of ``state.limited`` that are not limit names: the jog directions and the track DOFs
 KEY_WORDS: dict[str, str] = {
     "x+": "moving left",
@@ -115,7 +128,7 @@ KEY_WORDS: dict[str, str] = {
     "roll": "roll",
     "pitch": "pitch",
     "vx": "lateral speed",
-    "vz": "lifting speed",
+    "vz": "vertical speed",
     "vroll": "roll speed",
     "vpitch": "pitch speed",
 }
@@ -139,6 +152,7 @@ HIGHLIGHT: dict[str, tuple[str, ...]] = {
     "z_left_end": ("lower_link_left",),
     "z_right_end": ("lower_link_right",),
     "stability": ("implement",),
+    "implement_limit": ("implement",),
 }
 
 #: SSM, LSM [m] and ESM [J] as shown: (factor, unit, digits)
@@ -147,9 +161,17 @@ _MEASURE_UNITS: Mapping[str, tuple[float, str, int]] = {
     "lsm": (1.0, "m", 2),
     "esm": (1e-3, "kJ", 1),
 }
-_GUARD = re.compile(  # GuardReason.sentence: the numbers may carry their SI unit ("1.2e+04 N", "0.3 m/s")
-    r"^(?P<level>hard|caution|speed):\s*(?P<measure>\S+) would be (?P<value>[-+0-9.eE]+)(?: [^\s()]+)? "
-    r"\(threshold (?P<threshold>[-+0-9.eE]+)(?: [^\s()]+)?\)"
+#: a limit of the implement (:data:`IMPLEMENT_WORDS`) as shown, by its SI unit: (factor, unit, decimals)
+_LIMIT_UNITS: Mapping[str, tuple[float, str, int]] = {
+    "m/s": (1.0, "m/s", 3),
+    "m": (1.0, "m", 3),
+}
+#: what the guard's level does to the motion
+_TAIL: Mapping[str, str] = {"hard": "refused", "caution": "slowed", "speed": "slowed"}
+_GUARD = re.compile(  # GuardReason.sentence: the numbers may carry their SI unit ("1.2e+04 N", "0.3 m/s");
+    # a measure may have spaces ("implement lowering speed limit"); no unit: a speed factor (threshold 1)
+    r"^(?P<level>hard|caution|speed):\s*(?P<measure>\S.*?) would be (?P<value>[-+0-9.eE]+|nan|inf)"
+    r"(?: (?P<unit>[^\s()]+))? \(threshold (?P<threshold>[-+0-9.eE]+|nan|inf)(?: [^\s()]+)?\)"
 )
 
 
@@ -166,6 +188,8 @@ def words(code: str) -> str | None:
         return None
     if code in MEASURE_WORDS:
         return MEASURE_WORDS[code]
+    if code in IMPLEMENT_WORDS:
+        return IMPLEMENT_WORDS[code]
     name = _parse(code)
     if name is None:
         return None
@@ -193,6 +217,8 @@ def highlight(code: str) -> tuple[str, ...]:
     """The drawn members one code lights up in the hitch picture (empty: none)."""
     if code in MEASURE_WORDS:
         return HIGHLIGHT["stability"]
+    if code in IMPLEMENT_WORDS:
+        return HIGHLIGHT["implement_limit"]
     name = _parse(code) if isinstance(code, str) and code else None
     if name is None:
         return ()
@@ -203,14 +229,45 @@ def highlight(code: str) -> tuple[str, ...]:
     return HIGHLIGHT.get(name.member, ())
 
 
+def percent(factor: float) -> str:
+    """A speed factor [1] as a share of full speed: ``51 %``; a share below 1 % with one significant digit
+    (``0.4 %``), never a ``0 %`` that is not zero."""
+    pct = 100.0 * float(factor)
+    return f"{pct:.1g} %" if 0.0 < pct < 0.95 else f"{pct:.0f} %"
+
+
+def _guard_words(m: re.Match[str], tractor_weight_n: float | None) -> str:
+    """The words of one parsed guard sentence (:data:`_GUARD`); the numbers in the operator's units."""
+    measure, level, unit = m.group("measure"), m.group("level"), m.group("unit") or ""
+    v, th = float(m.group("value")), float(m.group("threshold"))
+    base = words(measure) or measure
+    tail = _TAIL[level]
+    bound = "minimum" if level == "hard" else "slows below"
+    if measure == "front_axle_load" and tractor_weight_n:
+        share, limit = 100.0 * v / tractor_weight_n, 100.0 * th / tractor_weight_n
+        return f"front axle load {share:.0f} % of the tractor's weight ({bound} {limit:.0f} %): {tail}"
+    if measure in _MEASURE_UNITS:
+        k, shown, digits = _MEASURE_UNITS[measure]
+        return f"{base}: {v * k:.{digits}f} {shown} ({bound} {th * k:.{digits}f} {shown}): {tail}"
+    if measure in MEASURE_WORDS:
+        return f"{base}: {tail}"
+    if level == "speed" and not unit:  # GuardReason: no unit is a speed factor (threshold 1)
+        return f"{base}: slowed to {percent(v)}"
+    if measure in IMPLEMENT_WORDS and unit in _LIMIT_UNITS:
+        k, shown, digits = _LIMIT_UNITS[unit]
+        return f"{base}: {v * k:.{digits}f} {shown} (limit {th * k:.{digits}f} {shown}): {tail}"
+    return base  # keep-outs say it themselves
+
+
 def limited_words(key: str, value: str, tractor_weight_n: float | None = None) -> str:
     """One ``state.limited`` entry in words.
 
     ``value`` is a limit name (``workspace:x:max``) or the guard's ``"<level>: <measure> would be
     <value> (threshold <threshold>) …"``; the guard's numbers come out in the operator's units:
     the front-axle load as a share of the empty tractor's weight ``tractor_weight_n`` [N] (when
-    given), SSM and LSM in m, ESM in kJ. Anything the table does not know stays as it came
-    (``key: value``), never dropped.
+    given), SSM and LSM in m, ESM in kJ, a speed factor (no unit) as a share of full speed [%], the
+    implement's lowering speed [m/s] and height [m] beside their limit. Anything the table does not
+    know stays as it came (``key: value``), never dropped.
     """
     text = str(value)
     w = words(text)
@@ -218,18 +275,31 @@ def limited_words(key: str, value: str, tractor_weight_n: float | None = None) -
         return w
     m = _GUARD.match(text)
     if m is not None:
-        measure, level = m.group("measure"), m.group("level")
-        v, th = float(m.group("value")), float(m.group("threshold"))
-        base = words(measure) or measure
-        tail = {"hard": "refused", "caution": "slowed", "speed": "slowed"}[level]
-        if measure == "front_axle_load" and tractor_weight_n:
-            share, limit = 100.0 * v / tractor_weight_n, 100.0 * th / tractor_weight_n
-            bound = "minimum" if level == "hard" else "slows below"
-            return f"front axle load {share:.0f} % of the tractor's weight ({bound} {limit:.0f} %): {tail}"
-        if measure in _MEASURE_UNITS:
-            k, unit, digits = _MEASURE_UNITS[measure]
-            bound = "minimum" if level == "hard" else "slows below"
-            return f"{base}: {v * k:.{digits}f} {unit} ({bound} {th * k:.{digits}f} {unit}): {tail}"
-        return f"{base}: {tail}" if measure in MEASURE_WORDS else base  # end stops, keep-outs say it themselves
+        return _guard_words(m, tractor_weight_n)
     kw = KEY_WORDS.get(key)
     return f"{kw}: {text}" if kw is not None else f"{key}: {text}"
+
+
+def _guard_measure(value: str) -> str | None:
+    """The measure of a guard sentence (``"speed: <measure> would be …"``); None for anything else."""
+    m = _GUARD.match(value)
+    return None if m is None else m.group("measure")
+
+
+def limited_entries(limited: Mapping[str, object], tractor_weight_n: float | None = None) -> list[tuple[str, str]]:
+    """The entries of one ``state.limited`` (or a track session's ``control_limited``) as ``(key, words)``,
+    in their order, each limit once: a key flagged by a limit (``"vz": "implement lowering speed limit"``)
+    beside the guard's reason on that limit (``"implement lowering speed limit": "speed: … would be 0.06 m/s
+    (threshold 0.05 m/s) …"``) is one entry, the flagged key with the guard's words and numbers.
+    ``tractor_weight_n`` [N] as for :func:`limited_words`."""
+    items = {str(k): str(v) for k, v in limited.items()}
+    said_by = {v: k for k, v in items.items() if v != k and v in items and _guard_measure(items[v]) == v}
+    out: list[tuple[str, str]] = []
+    for k, v in items.items():
+        if k in said_by:
+            continue  # said under the key its limit flags
+        if said_by.get(v) == k:
+            out.append((k, limited_words(v, items[v], tractor_weight_n)))
+        else:
+            out.append((k, limited_words(k, v, tractor_weight_n)))
+    return out

@@ -187,8 +187,9 @@ def test_control_limited_is_printed_in_words_with_its_code():
 
     lim = {"end_stop:lift": "speed: end_stop:lift would be 0.8086 (threshold 1) at t = 0.00 s", "z": "workspace:z:max"}
     text = limited_text(lim)
-    assert text == "lift arm slowing before its stroke end (end_stop:lift), height limit reached (top) (z)"
-    assert "control limited: lift arm slowing before its stroke end (end_stop:lift)" in _state_line({"limited": lim})
+    end_stop = "lift arm slowing before its stroke end: slowed to 81 % (end_stop:lift)"  # the factor 0.8086 in %
+    assert text == f"{end_stop}, height limit reached (top) (z)"
+    assert f"control limited: {end_stop}" in _state_line({"limited": lim})
 
 
 def test_the_state_line_says_what_runs_a_maneuver_waiting_a_track_session_work_control():

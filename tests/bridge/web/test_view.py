@@ -207,7 +207,7 @@ def test_guard_entries_in_words_with_units():
         "side stability margin too low: 0.15 m (slows below 0.20 m): slowed"
     )
     es = GuardReason("end_stop:tilt", 0.01, 0.02, 0.0, "speed")
-    expected = "tilt cylinder (right lift rod) slowing before its stroke end"  # no "slowed" twice
+    expected = "tilt cylinder (right lift rod) slowing before its stroke end: slowed to 1 %"  # the factor, in %
     assert limited_words("end_stop:tilt", f"speed: {es.sentence()}") == expected
     assert limited_words("x+", "workspace:x:max") == "left limit reached (lateral position)"
     assert limited_words("what", "ever") == "what: ever"  # unknown: shown as it came, never dropped
@@ -385,3 +385,17 @@ def test_without_a_model_there_is_no_picture():
         assert _get(web, "/api/view")[0] == 404
     finally:
         web.close()
+
+
+def test_a_limit_flagged_on_a_track_dof_and_its_guard_reason_are_one_entry_on_the_page(view, model):
+    """The page said the lowering limit twice ("vertical speed: implement lowering speed limit" and the guard's
+    "implement lowering speed limit: speed: … would be 0.06001 m/s …"), as the CLI did."""
+    state = _state(3, model.neutral)
+    state["limited"] = {
+        "vz": "implement lowering speed limit",
+        "implement lowering speed limit": "speed: implement lowering speed limit would be 0.06001 m/s "
+        "(threshold 0.05 m/s) at t = 0.00 s",
+    }
+    entries = view.message(state)["limited"]
+    assert [e["key"] for e in entries] == ["vz"], entries
+    assert entries[0]["words"] == "lowering faster than the implement allows: 0.060 m/s (limit 0.050 m/s): slowed"

@@ -27,7 +27,12 @@ from bridge.link.sensor_calibration import SENSOR_PROVENANCE_MARKER
 from bridge.service.wire import to_json_text
 from bridge.sim.truth import noise_kind
 from planner.calibration.measurements import APPROACH_COLUMN, TARGET_COLUMNS, load_plan_targets
-from planner.calibration.solve import IDENTIFIED_SHARE, OUTLIER_SIGMA, UNIDENTIFIED_SHARE
+from planner.calibration.solve import (
+    IDENTIFIED_SHARE,
+    OUTLIER_SIGMA,
+    WEAKLY_IDENTIFIED_SHARE,
+    identification_status,
+)
 from planner.errors import HitchInputError
 from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
 
@@ -108,7 +113,8 @@ def _cmd_plan(args) -> int:
     for r in rows:
         print(
             f"{r['pose']:>4}: x {1e3 * r['x']:7.1f} mm  z {1e3 * r['z']:7.1f} mm  roll {1e3 * r['roll']:6.1f} mrad  "
-            f"pitch {1e3 * r['pitch']:6.1f} mrad   counts " + ",".join(str(r[f"{n}_counts"]) for n in ACTUATOR_NAMES)
+            f"pitch {1e3 * r['pitch']:6.1f} mrad   counts "
+            + " ".join(f"{n} {r[f'{n}_counts']}" for n in ACTUATOR_NAMES)
         )
     return 0
 
@@ -164,6 +170,16 @@ def _template_sides(profile, two_sided: bool) -> tuple[str, ...]:
     return (fa.side, other) if two_sided else (fa.side,)
 
 
+#: decimals of a template's target_* cells (m, rad): 1 µm / 1 µrad, far below any instrument's σ (repr wrote
+#: 0.30116901999999995: a commissioning trial)
+TARGET_DECIMALS = 6
+
+
+def _target_cell(v: float) -> str:
+    """A planned pose value [m or rad] as a template cell: fixed :data:`TARGET_DECIMALS` decimals, no "-0"."""
+    return f"{round(float(v), TARGET_DECIMALS) + 0.0:.{TARGET_DECIMALS}f}"
+
+
 #: the measurement columns of the marked points (L, R, U: x, y, z each), in a template planned with --points
 POINT_COLUMNS = tuple(f"{p}_{c}" for p in ("L", "R", "U") for c in "xyz")
 
@@ -182,7 +198,7 @@ def _write_plan_csv(
     lines = [",".join(header)]
     for side in sides or ("",):
         for r in rows:
-            targets = [repr(float(r[k])) for k in CONTROLLED_POSE_NAMES]
+            targets = [_target_cell(r[k]) for k in CONTROLLED_POSE_NAMES]
             cells = [r["pose"], *(str(r[f"{n}_counts"]) for n in ACTUATOR_NAMES), *([""] * len(measured)), *targets]
             lines.append(",".join(cells + ([side] if sides else [])))
     try:
@@ -309,6 +325,8 @@ def _cmd_geometry(args) -> int:
                 "takes them in as they are)",
                 file=sys.stderr,
             )
+    if result.residual_sigma < 1.0 / SUSPECT_SIGMA_HAT:  # σ far too large: written, but said (also with --json)
+        print(f"hitch: warning: {_overstated_sigma_text(args, result)}", file=sys.stderr)
     if args.json:
         largest = [{"row": r, "label": label, "column": col, "residual_sigma": v} for r, label, col, v in worst]
         written = None if short or misfit else str(args.out)
@@ -337,6 +355,26 @@ def _cmd_geometry(args) -> int:
     if not args.json:
         print(f"wrote {args.out}")
     return 0
+
+
+def _overstated_sigma_text(args, result) -> str:
+    """What a sigma-hat far below 1 means (the σ given are far larger than the measurements' scatter): how many
+    times less they scatter, what is judged with the σ given, the residual RMS (mm / mrad) and the options to set.
+    A total station's data fitted with a tape's σ (5.8 mm / 11.5 mrad) gave sigma-hat 0.14 without a word and
+    kept 4 more directions at nominal than its own σ (a commissioning trial); small residuals are not wrong data,
+    so it is a warning: the profile is written as with any good fit."""
+    s = result.residual_sigma
+    times = f"{1.0 / s:.3g}" if s > 0.0 else "infinitely"
+    return (
+        f"sigma-hat {s:.3g}: the measurements scatter {times}× less than the σ given (--sigma-position-mm "
+        f"{args.sigma_position_mm:g}, --sigma-angle-mrad {args.sigma_angle_mrad:g}; residual RMS "
+        f"{1e3 * result.residual_rms_position_m:.3f} mm / {1e3 * result.residual_rms_angle_rad:.3f} mrad); which "
+        f"parameter directions are identified ({result.identified} of {len(result.names)}: --min-singular counts "
+        "in units of the σ given) and the standard deviations are judged with those σ, so the fit may keep at "
+        "nominal directions the data could identify: give the instrument's own σ (a total station: "
+        "--sigma-position-mm 1 --sigma-angle-mrad 1) and fit again (small residuals are not wrong data: the fit "
+        "itself stands)"
+    )
 
 
 def _warn_copies(source, data) -> None:
@@ -389,10 +427,16 @@ def _print_fit(model, result) -> None:
         result.names, result.nominal, result.values, result.std_total, units, result.identified_share, strict=True
     ):
         print(f"  {n:36s} {v:+.6f} {u:3s} (nominal {a:+.6f}) {_spread(s, u, share)}")
-    if np.any((result.identified_share >= REPORTED_STD_SHARE) & (result.identified_share < IDENTIFIED_SHARE)):
+    share = result.identified_share
+    if np.any((share >= REPORTED_STD_SHARE) & (share < IDENTIFIED_SHARE)):
         print(
-            "  * the share of the parameter the poses identify; its std includes the tape error (σ = scale/√3) "
-            "of the part they cannot identify"
+            "  * partly identified: the share of the parameter the poses identify; its std includes the tape error "
+            "(σ = scale/√3) of the part they cannot identify"
+        )
+    if np.any(share < REPORTED_STD_SHARE):  # the words the profile's record lists them under
+        print(
+            "  not identified: kept at nominal, no std (the profile's record: not_identified); weakly identified: "
+            f"under {100 * REPORTED_STD_SHARE:.0f} % identified, σ mostly its tape error (record: weakly_identified)"
         )
     if result.unidentifiable:
         print("combinations these poses cannot identify (left at nominal along them):")
@@ -404,22 +448,23 @@ def _print_fit(model, result) -> None:
 SUSPECT_SIGMA_HAT = 3.0
 #: the identified share below which a parameter's std is not printed: it holds only with the unidentified
 #: combinations at nominal, and a commissioning trial read "± 0.009 mm" of a value 54 std off the truth
-REPORTED_STD_SHARE = 0.5
+REPORTED_STD_SHARE = WEAKLY_IDENTIFIED_SHARE
 
 
 def _spread(std: float, unit: str, share: float) -> str:
     """A parameter's ± std as it can be read (:attr:`CalibrationResult.identified_share`): no std for one
     the data cannot see (its std would print as ~1e-18), a conditional one for one they see in part."""
-    if share < UNIDENTIFIED_SHARE:
+    status = identification_status(share)  # the words of the profile's record too
+    if status == "not identified":
         return "not identified (kept nominal)"
-    if share < REPORTED_STD_SHARE:  # its conditional std (~1e-5 m) would read as known; it is not
+    if status == "weakly identified":  # its conditional std (~1e-5 m) would read as known; it is not
         seen = "< 1" if share < 0.005 else f"{100 * share:.0f}"
         return (
-            f"not identified ({seen} % seen: it moves only with the identified combinations it is part of; "
-            f"σ {std:.2e}{' ' + unit if unit else ''}, mostly its tape error)"
+            f"weakly identified ({seen} % identified: it moves only with the identified combinations it is part "
+            f"of; σ {std:.2e}{' ' + unit if unit else ''}, mostly its tape error)"
         )
     text = f"± {std:.2e} {unit}".rstrip()
-    if share < IDENTIFIED_SHARE:
+    if status == "partly identified":
         text += f", {100 * share:.0f} % identified*"
     return text
 

@@ -22,6 +22,7 @@ from pathlib import Path
 from bridge.cli.errors import CLIError
 from bridge.cli.model import add_model_options, model_from_args, refuse_overwriting_profile, whole_number
 from bridge.cli.output import console, output_path
+from bridge.cli.realtime import add_realtime_option, realtime_process
 from bridge.link.realtime import INTERFACES
 from bridge.link.sensor_calibration import (
     SensorCalibration,
@@ -40,33 +41,50 @@ from planner.model.kinematics import HitchModel
 from planner.model.types import ACTUATOR_NAMES
 from planner.profiles.hitch import write_profile_text
 
-__all__ = ["accuracy_table", "add_commands"]
+__all__ = ["ACCURACY_LEGEND", "accuracy_table", "add_commands", "deflected_dofs"]
 
 _DOF = ("x", "z", "roll", "pitch")
 _UNIT = {"x": "mm", "z": "mm", "roll": "mrad", "pitch": "mrad"}
 
 
+#: what the table's columns are, printed under it (a new user could not tell what E, |E| and TT were)
+ACCURACY_LEGEND = "E: mean error (measured − commanded); |E|: mean absolute; |E|max: largest; TT: repeatability"
+
+
 def _cells(st: DofStatistics) -> str:
-    tt = "  –" if st.repeatability != st.repeatability else f"{1e3 * st.repeatability:6.1f}"
-    return f"{1e3 * st.mean:7.1f} {1e3 * st.mean_abs:6.1f} {1e3 * st.max_abs:6.1f} {tt}"
+    """E, |E|, |E|max, TT of ``st`` [m or rad] in mm / mrad (``–`` for a TT not known), 7 columns each."""
+    tt = "–" if st.repeatability != st.repeatability else f"{1e3 * st.repeatability:.1f}"
+    return f"{1e3 * st.mean:7.1f} {1e3 * st.mean_abs:7.1f} {1e3 * st.max_abs:7.1f} {tt:>7}"
 
 
-def accuracy_table(run: AccuracyRun) -> str:
-    """The run's table (E, |E|, |E|max, TT per DOF, mm / mrad) beside the thesis's tables 3-8 … 3-10."""
+def deflected_dofs(sequence) -> tuple[str, ...]:
+    """The DOF (x, z, roll, pitch order) a test ``sequence`` deflects from home: the others are only held there."""
+    moved = {d for step in sequence for d, v in zip(_DOF, step.offset, strict=True) if v != 0.0}
+    return tuple(d for d in _DOF if d in moved)
+
+
+def accuracy_table(run: AccuracyRun, deflected: tuple[str, ...] = _DOF) -> str:
+    """The run's table (E, |E|, |E|max, TT, mm / mrad) of each ``deflected`` DOF, the twin's row above the
+    thesis's tables 3-8 … 3-10 (one row per source: 66 columns, where one row per DOF took 174), and its legend;
+    the DOF not deflected (held at home: cross-talk and the instrument's noise, nothing the thesis's rows
+    measured) on a line of their own, marked so."""
     models = list(THESIS_ACCURACY)
-    head = f"{'DOF':<6}{'unit':<5}| {'twin: E':>7} {'|E|':>6} {'|E|max':>6} {'TT':>6} "
-    head += "".join(f"| {m + ': E':>20} {'|E|':>6} {'|E|max':>6} {'TT':>6} " for m in models)
+    head = f"{'DOF':<6}{'unit':<5}{'source':<24}{'E':>7} {'|E|':>7} {'|E|max':>7} {'TT':>7}"
     lines = [head, "-" * len(head)]
-    for d in _DOF:
-        row = f"{d:<6}{_UNIT[d]:<5}| {_cells(run.statistics[d])} "
-        row += "".join(f"| {'':>13}{_cells(THESIS_ACCURACY[m][d])} " for m in models)
-        lines.append(row)
+    for d in deflected:
+        lines.append(f"{d:<6}{_UNIT[d]:<5}{'twin':<24}{_cells(run.statistics[d])}")
+        lines += [f"{d:<6}{_UNIT[d]:<5}{'thesis ' + m:<24}{_cells(THESIS_ACCURACY[m][d])}" for m in models]
+    lines.append(ACCURACY_LEGEND)
+    held = [d for d in _DOF if d not in deflected]
+    if held:
+        lines.append("not deflected (held at home: cross-talk and the instrument's noise, not the thesis's rows):")
+        lines += [f"{d:<6}{_UNIT[d]:<5}{'twin, held':<24}{_cells(run.statistics[d])}" for d in held]
     lines.append("")
     lines.append(
         "twin without the instrument (true − commanded): "
         + ", ".join(
             f"{d} E {1e3 * st.mean:.1f} |E|max {1e3 * st.max_abs:.1f} {_UNIT[d]}"
-            for d, st in ((d, run.true_statistics[d]) for d in _DOF)
+            for d, st in ((d, run.true_statistics[d]) for d in deflected)
         )
     )
     return "\n".join(lines)
@@ -82,8 +100,16 @@ def _cmd_accuracy_test(args) -> int:
     dofs = tuple(d.strip() for d in args.dofs.split(",") if d.strip())
     sequence = thesis_sequence(dofs=dofs, combined=set(dofs) == set(_DOF))
     run = run_accuracy_test(model, truth, AccuracyRunSettings(instrument=args.instrument, seed=args.seed), sequence)
+    deflected = deflected_dofs(sequence)
     if args.json:
         out = run.as_dict()
+        held = [d for d in _DOF if d not in deflected]
+        out["deflected"] = list(deflected)
+        out["not_deflected"] = {  # held at home: cross-talk and the instrument's noise, not the thesis's rows
+            "dofs": held,
+            "statistics": {d: out["statistics"].pop(d) for d in held},
+            "true_statistics": {d: out["true_statistics"].pop(d) for d in held},
+        }
         out["thesis"] = {m: {d: st.as_dict() for d, st in rows.items()} for m, rows in THESIS_ACCURACY.items()}
         print(to_json_text(out))
         return 0
@@ -94,7 +120,7 @@ def _cmd_accuracy_test(args) -> int:
         f"{len(run.labels)} measured poses, {run.simulated_s:.0f} s simulated",
         highlight=False,
     )
-    c.print(accuracy_table(run), highlight=False, markup=False)
+    c.print(accuracy_table(run, deflected), highlight=False, markup=False)
     return 0
 
 
@@ -244,7 +270,15 @@ FIRST_MEASUREMENT_TIMEOUT_S = 5.0
 
 
 def _calibrate_on_bus(args, cal_model: HitchModel, nominal, implement, actuators, log) -> dict:
-    """The calibration over a real bus: the link in a real-time runner, the procedure on the wall clock."""
+    """The calibration over a real bus: the link in a real-time runner, the procedure on the wall clock; the
+    control path's threads under SCHED_FIFO where permitted (bridge.cli.realtime)."""
+    from bridge.service.scheduling import CONTROL_RT_PRIORITY
+
+    with realtime_process(args, CONTROL_RT_PRIORITY, "calibrate sensors"):
+        return _calibrate_on_bus_now(args, cal_model, nominal, implement, actuators, log)
+
+
+def _calibrate_on_bus_now(args, cal_model: HitchModel, nominal, implement, actuators, log) -> dict:
     from bridge.link.can_link import CanLink
     from bridge.link.realtime import RealtimeRunner, open_bus
     from bridge.link.sensor_calibration import RealtimeDriver
@@ -350,4 +384,5 @@ def add_calibrate_sensors(csub) -> None:
     )
     s.add_argument("--can-channel", default=None, help="the bus's channel (e.g. can0, a hub's ws:// address)")
     add_model_options(s)
+    add_realtime_option(s)
     s.set_defaults(handler=_cmd_calibrate_sensors, on_interrupt=_sensors_interrupted)

@@ -5,13 +5,14 @@ from __future__ import annotations
 import argparse
 import math
 import re
+import tomllib
 from pathlib import Path
 
 import numpy as np
 from rich.table import Table
 
 from bridge.cli.errors import CLIError
-from bridge.cli.output import console, esc, signed
+from bridge.cli.output import POSE_UNITS, console, esc, signed
 from bridge.cli.ranges import ACTUATOR_UNITS, check_actuators
 from bridge.service.wire import to_json_text
 from planner.model.kinematics import HitchModel
@@ -295,7 +296,7 @@ def _cmd_profile_show(args) -> int:
         lo, hi = s["strokes"][n]
         t.add_row(n, f"{lo:.4f}", f"{hi:.4f}", f"{s['neutral_actuators'][n]:.4f}", "rad" if n == "lift" else "m")
     c.print(t)
-    c.print("neutral pose: " + "  ".join(f"{k}={signed(v, 4)}" for k, v in s["neutral_pose"].items()))
+    c.print("neutral pose: " + "  ".join(f"{k}={signed(v, 4)} {POSE_UNITS[k]}" for k, v in s["neutral_pose"].items()))
     for w in s["warnings"]:
         c.print(f"[yellow]warning:[/yellow] {esc(w)}")
     ws = s["workspace"]
@@ -304,7 +305,7 @@ def _cmd_profile_show(args) -> int:
         + (
             "none for this category"
             if ws is None
-            else "  ".join(f"{k} [{a:+.4f}, {b:+.4f}]" for k, (a, b) in ws.items())
+            else "  ".join(f"{k} [{a:+.4f}, {b:+.4f}] {POSE_UNITS[k]}" for k, (a, b) in ws.items())
         )
     )
     lim = s["limits"]
@@ -317,13 +318,9 @@ def _cmd_profile_show(args) -> int:
     if fa is None:
         c.print("final approach: off (gotos end straight from where they come)")
     else:
-        offs = "  ".join(f"{k}={v:g}" for k, v in zip(("x", "z", "roll", "pitch"), fa.offset(), strict=True))
-        lag = (
-            "none"
-            if fa.lag is None
-            else "  ".join(f"{k}={v:g}" for k, v in zip(("x", "z", "roll", "pitch"), fa.lag.vector(), strict=True))
-        )
-        c.print(f"final approach: from {fa.side}, offsets {offs} [m, m, rad, rad]; lag of the pin play: {lag}")
+        offs = _approach_values(fa.offset())
+        lag = "none" if fa.lag is None else _approach_values(fa.lag.vector())
+        c.print(f"final approach: from {fa.side}, offsets {offs}; lag of the pin play: {lag}")
     ca = model.profile.motion.count_approach
     c.print(
         "count approach: off"
@@ -334,11 +331,27 @@ def _cmd_profile_show(args) -> int:
     return 0
 
 
+#: the display unit of each controlled DOF of a final approach (offsets and lag; the profile holds m, rad) and the
+#: factor from SI to it
+_APPROACH_UNITS = {"x": ("mm", 1e3), "z": ("mm", 1e3), "roll": ("mrad", 1e3), "pitch": ("mrad", 1e3)}
+
+
+def _approach_values(values) -> str:
+    """Offsets or a lag of the final approach (x, z, roll, pitch; m, rad) as ``x=0.557 mm  …  pitch=… mrad``:
+    the lag printed as ``x=0.000556913`` without a unit (a new user's trial)."""
+    return "  ".join(
+        f"{k}={signed(factor * v, 3)} {unit}"
+        for (k, (unit, factor)), v in zip(_APPROACH_UNITS.items(), np.asarray(values, float), strict=True)
+    )
+
+
 def _cmd_fit_workspace(args) -> int:
     from planner.model.workspace import fit_restricted_box
 
     model = model_from_args(args)
     res = fit_restricted_box(model)
+    lines = _box_lines(model.category, res)
+    target = _write_fitted_box(args, model, lines) if args.write or args.out is not None else None
     if args.json:
         print(
             to_json_text(
@@ -346,17 +359,125 @@ def _cmd_fit_workspace(args) -> int:
                     "category": model.category,
                     "box": {k: list(v) for k, v in res.box.items()},
                     "stopped_by": res.stopped_by,
+                    "written": target,  # the profile file the box was written into (--write, --out), or None
                 }
             )
         )
         return 0
-    print(f"[workspace.restricted.{model.category}]")
+    print("\n".join(lines))
+    if target is not None:
+        print(f"wrote [workspace.restricted.{model.category}] into {target} (its other lines and comments kept)")
+    return 0
+
+
+def _box_lines(category: str, res) -> list[str]:
+    """The fitted box as the TOML lines of ``[workspace.restricted.<category>]`` (m, rad; 6 decimals, rounded
+    inward), each with the limits that stopped its faces as a comment."""
+    out = [f"[workspace.restricted.{category}]"]
     for k, (lo, hi) in res.box.items():
         lo, hi = math.ceil(lo * 1e6) / 1e6, math.floor(hi * 1e6) / 1e6  # round inward
-        print(
+        out.append(
             f"{k} = [{lo:.6f}, {hi:.6f}]   # {k}:min {res.stopped_by[k + ':min']}; {k}:max {res.stopped_by[k + ':max']}"
         )
-    return 0
+    return out
+
+
+def _builtin_profile_file(path: Path) -> bool:
+    """``path`` is one of the profile files shipped with the package (a built-in profile or tractor)."""
+    import planner.profiles
+
+    folder = Path(planner.profiles.__file__).resolve().parent
+    resolved = path.resolve()
+    return resolved.suffix == ".toml" and folder in resolved.parents
+
+
+def _write_fitted_box(args, model: HitchModel, lines: list[str]) -> str:
+    """Write the profile of ``--profile`` with its ``[workspace.restricted.<category>]`` replaced by ``lines``
+    (:func:`_box_lines`) into the profile file itself (``--write``) or into ``--out``; the file written. The
+    profile's text is edited in place: the box's four lines are replaced where the table stands (a table not
+    there is appended), every other line and comment is kept. Refused (nothing written): a built-in profile
+    as the file to write, a box given other than as a ``[workspace.restricted.<category>]`` table of its own,
+    a text that would not load or whose box the planner refuses (the checks of ``profile show``)."""
+    from planner.profiles.hitch import tractor_profile_for, write_profile_text
+
+    source = Path(args.profile)
+    from_file = source.suffix == ".toml" or source.exists()
+    if args.write and args.out is not None:
+        raise CLIError("--write writes the fitted box into the --profile file, --out into another: give one of them")
+    if args.write and not from_file:
+        raise CLIError(
+            f"--write: {args.profile} is a built-in profile, which is never changed: give --out FILE.toml for a copy "
+            "with the fitted box"
+        )
+    target = source if args.write else Path(args.out)
+    if _builtin_profile_file(target):
+        raise CLIError(
+            f"{target} lies in the folder of the built-in profiles, which are never changed: write to another file"
+        )
+    if from_file:
+        text = source.read_text(encoding="utf-8")
+    else:
+        import planner.profiles
+
+        text = (Path(planner.profiles.__file__).resolve().parent / f"{args.profile}.toml").read_text(encoding="utf-8")
+    text = _replace_box(text, model.category, lines, str(source))
+    tractor = model.profile.stability.tractor_profile
+    written = tractor_profile_for(tractor, target.parent)
+    if written != tractor:  # a tractor profile by path: as seen from the written file's folder
+        text = _TRACTOR_LINE.sub(lambda m: m.group(1) + _toml_string(written), text, count=1)
+
+    def check(prof) -> None:
+        check_workspace_reachable(HitchModel(prof, model.category))
+
+    write_profile_text(target, text, what="fitted profile", check=check)
+    return str(target)
+
+
+#: the ``stability.tractor_profile = "…"`` line of a profile text (its value group 2)
+_TRACTOR_LINE = re.compile(r'^(\s*tractor_profile\s*=\s*)("(?:[^"\\]|\\.)*"|\'[^\']*\')', re.MULTILINE)
+#: a table header line ``[…]`` or ``[[…]]``
+_TABLE_HEADER = re.compile(r"^\s*\[")
+#: a box key line of a restricted table: ``x = [lo, hi]`` on one line (comment allowed)
+_BOX_KEY = re.compile(r"^\s*(x|z|roll|pitch)\s*=\s*\[[^\]]*\]\s*(#.*)?$")
+
+
+def _toml_string(value: str) -> str:
+    return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
+def _replace_box(text: str, category: str, lines: list[str], source: str) -> str:
+    """``text`` (a profile's TOML) with the box of ``[workspace.restricted.<category>]`` replaced by ``lines``
+    (header first): the table's x, z, roll, pitch lines give way to the new ones where the first stood, its
+    other lines (comments) stay; without such a table the lines are appended at the end. CLIError where the
+    box is written otherwise (an inline table, a key over several lines): the text cannot be edited safely."""
+    header = re.compile(
+        r"^\s*\[\s*workspace\s*\.\s*restricted\s*\.\s*(?:" + re.escape(category) + r'|"' + re.escape(category) + r'")'
+        r"\s*\]\s*(#.*)?$"
+    )
+    rows = text.splitlines()
+    at = [i for i, row in enumerate(rows) if header.match(row)]
+    if not at:
+        box = (tomllib.loads(text).get("workspace", {}).get("restricted") or {}).get(category)
+        if box is not None:
+            raise CLIError(
+                f"{source}: its workspace.restricted.{category} is not written as a [workspace.restricted.{category}] "
+                "table of its own; it is not edited in place: copy the printed box into it by hand"
+            )
+        return text.rstrip("\n") + "\n\n" + "\n".join(lines) + "\n"
+    start = at[0] + 1
+    end = next((i for i in range(start, len(rows)) if _TABLE_HEADER.match(rows[i])), len(rows))
+    body = rows[start:end]
+    keys = [i for i, row in enumerate(body) if _BOX_KEY.match(row)]
+    stray = [row for row in body if re.match(r"^\s*(x|z|roll|pitch)\s*=", row) and not _BOX_KEY.match(row)]
+    if stray or len(keys) != len({_BOX_KEY.match(body[i]).group(1) for i in keys}):  # type: ignore[union-attr]
+        raise CLIError(
+            f"{source}: [workspace.restricted.{category}] writes its box other than one line per key; it is not "
+            "edited in place: copy the printed box into it by hand"
+        )
+    first = keys[0] if keys else 0
+    kept = [row for i, row in enumerate(body) if i not in keys]
+    new_body = kept[:first] + lines[1:] + kept[first:]
+    return "\n".join(rows[:start] + new_body + rows[end:]) + ("\n" if text.endswith("\n") else "")
 
 
 def _cmd_demo(args) -> int:
@@ -403,7 +524,31 @@ def add_commands(sub) -> None:
     p.set_defaults(handler=_cmd_profile_show)
     p = prof.add_parser("fit-workspace", help="fit the restricted workspace box of a category (prints TOML)")
     add_model_options(p)
+    p.add_argument(
+        "--write",
+        action="store_true",
+        help="write the fitted box into the --profile file (its [workspace.restricted.<category>] lines replaced, "
+        "its other lines and comments kept; never a built-in profile)",
+    )
+    p.add_argument(
+        "--out",
+        default=None,
+        metavar="FILE",
+        type=_profile_out_path,
+        help="write a copy of the --profile file with the fitted box here (.toml)",
+    )
     p.set_defaults(handler=_cmd_fit_workspace)
+
+
+def _profile_out_path(text: str) -> str:
+    """argparse type of ``profile fit-workspace --out``: an output file (:func:`bridge.cli.output.output_path`)
+    ending in .toml."""
+    from bridge.cli.output import output_path
+
+    path = output_path(text)
+    if Path(path).suffix != ".toml":
+        raise argparse.ArgumentTypeError(f"{text!r}: a profile file must end in .toml")
+    return path
 
 
 def refuse_overwriting_profile(out: str, profile: str) -> None:

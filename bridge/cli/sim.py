@@ -39,6 +39,7 @@ from bridge.cli.model import (
 )
 from bridge.cli.output import console, output_path, plot_path
 from bridge.cli.plan import parse_pose_arg
+from bridge.cli.realtime import add_realtime_option, realtime_process
 from bridge.cli.service import _client_options
 from bridge.link.realtime import INTERFACES, RealtimeRunner, open_bus, shutdown_bus
 from bridge.link.state import LinkConfig, LinkError
@@ -458,6 +459,11 @@ def _refused(host: str, port: int) -> bool:
 
 # -- hitch ecu-sim -------------------------------------------------------------------------
 def _cmd_ecu_sim(args) -> int:
+    with realtime_process(args, TWIN_RT_PRIORITY, "ecu-sim"):  # the ECU's computer: its threads inherit it
+        return _run_ecu_sim(args)
+
+
+def _run_ecu_sim(args) -> int:
     if args.duration is not None and not (np.isfinite(args.duration) and args.duration > 0):
         raise SimError(f"--duration must be a positive number of seconds, got {args.duration}")
     if not (np.isfinite(args.status_every) and 0.05 <= args.status_every <= 3600):
@@ -479,7 +485,6 @@ def _cmd_ecu_sim(args) -> int:
     ecu = CylinderECU(
         profile, rng=args.seed, noise_counts=args.noise_counts, gain_error=args.gain_error, calibration=configured
     )
-    realtime_process(args, TWIN_RT_PRIORITY, "ecu-sim")  # before the bus and the runner start their threads
     bus = _open_ecu_bus(args.interface, args.channel)
     node = EcuCanNode(ecu, bus)
     runner = RealtimeRunner(node)
@@ -522,33 +527,6 @@ def _cmd_ecu_sim(args) -> int:
     return 0
 
 
-def realtime_process(args: argparse.Namespace, priority: int, who: str) -> None:
-    """This command's threads under ``SCHED_FIFO`` at ``priority`` where permitted (not with ``--no-realtime``):
-    a twin process or a hub at ordinary priority let a busy computer delay its frames past the link's limits
-    (bridge.service.scheduling.process_to_fifo). Not permitted: a note on stderr, and it runs on."""
-    if getattr(args, "no_realtime", False):
-        return
-    from bridge.service.scheduling import process_to_fifo
-
-    why = process_to_fifo(priority)
-    if why is not None:
-        console(stderr=True).print(
-            f"{who}: runs at ordinary priority (real-time SCHED_FIFO {why}: run as root or with CAP_SYS_NICE, or "
-            "with chrt, for steady timing on a busy computer)",
-            markup=False,
-            highlight=False,
-        )
-
-
-def add_realtime_option(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--no-realtime",
-        action="store_true",
-        help="run at ordinary priority (default: its threads under SCHED_FIFO where permitted, root or "
-        "CAP_SYS_NICE, so a busy computer does not delay its frames)",
-    )
-
-
 # -- hitch sim fault -----------------------------------------------------------------------
 def _cmd_sim_fault(args) -> int:
     settings = FaultSettings(cut=args.cut, loss=args.loss, delay_ms=args.delay_ms, restart_ecu=args.restart_ecu)
@@ -580,9 +558,13 @@ def fault_settings_text(applied: dict) -> str:
 
 # -- hitch can-hub -------------------------------------------------------------------------
 def _cmd_can_hub(args) -> int:
+    with realtime_process(args, TWIN_RT_PRIORITY, "can-hub"):  # the bus's wire: the hub's threads inherit it
+        return _run_can_hub(args)
+
+
+def _run_can_hub(args) -> int:
     from bridge.link.loopback import LoopbackHub
 
-    realtime_process(args, TWIN_RT_PRIORITY, "can-hub")  # the bus's wire: before the hub starts its threads
     hub = LoopbackHub(args.port)
     console(stderr=True).print(
         f"CAN hub on {hub.url} (open buses with --interface remote --channel {hub.url}); next, in other "

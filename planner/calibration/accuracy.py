@@ -133,9 +133,9 @@ class DofStatistics:
     mean_abs: float
     max_abs: float
     repeatability: float
-    n: int
+    n: int | None  # poses measured; None where not known (the thesis's tables give no count)
 
-    def as_dict(self) -> dict[str, float | int]:
+    def as_dict(self) -> dict[str, float | int | None]:
         return {
             "E": self.mean,
             "abs_E": self.mean_abs,
@@ -183,10 +183,11 @@ def accuracy_statistics(commanded: ArrayLike, measured: ArrayLike, labels: Seque
 
 
 def _row(e_mm: float, a_mm: float, m_mm: float, tt_mm: float, scale: float = 1e-3) -> DofStatistics:
-    return DofStatistics(e_mm * scale, a_mm * scale, m_mm * scale, tt_mm * scale, 0)
+    return DofStatistics(e_mm * scale, a_mm * scale, m_mm * scale, tt_mm * scale, None)
 
 
-#: The thesis's field figures (tables 3-8 hybrid, 3-9 DLS, 3-10 geometric), SI (m, rad); ``n`` unknown (0).
+#: The thesis's field figures (tables 3-8 hybrid, 3-9 DLS, 3-10 geometric), SI (m, rad); ``n`` not known (None:
+#: the thesis gives no count of measured poses; JSON null, where 0 read as "no measurements").
 THESIS_ACCURACY: Mapping[str, Mapping[str, DofStatistics]] = {
     "hybrid (3-8)": {
         "x": _row(3.81, 8.9, 30, 17.9),

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import math
+import re
 import tomllib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -21,7 +22,12 @@ from typing import Any
 import numpy as np
 
 from planner.calibration.parameters import CalibrationError, ParameterSet
-from planner.calibration.solve import UNIDENTIFIED_SHARE, CalibrationResult, weak_fit_cause
+from planner.calibration.solve import (
+    UNIDENTIFIED_SHARE,
+    CalibrationResult,
+    identification_status,
+    weak_fit_cause,
+)
 from planner.errors import HitchInputError
 from planner.model.exact_inverse import ExactInverse
 from planner.model.kinematics import HitchModel
@@ -30,6 +36,7 @@ from planner.profiles.hitch import Profile, profile_from_dict, tractor_profile_f
 
 __all__ = [
     "PROVENANCE_MARKER",
+    "calibrated_description",
     "calibrated_profile_toml",
     "read_calibration_provenance",
     "toml_value",
@@ -141,6 +148,8 @@ def calibrated_profile_toml(
     data["stability"]["tractor_profile"] = tractor_profile_for(data["stability"]["tractor_profile"], out_folder)
     _keep_the_neutral_pose(data, base)
     when = date or _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat()
+    data["description"] = calibrated_description(base.description, when, result.n_poses)
+    status = [identification_status(float(h)) for h in result.identified_share]
     prov = {
         "date": when,
         "poses": result.n_poses,
@@ -158,9 +167,11 @@ def calibrated_profile_toml(
             if h >= UNIDENTIFIED_SHARE
         },
         "identified_share": {n: round(float(h), 4) for n, h in zip(result.names, result.identified_share, strict=True)},
-        "not_identified": [
-            n for n, h in zip(result.names, result.identified_share, strict=True) if h < UNIDENTIFIED_SHARE
-        ],
+        # the words of the text report (identification_status): kept at nominal without a std; under half
+        # identified (moves only with the identified combinations, std mostly its tape error); partly identified
+        "not_identified": [n for n, w in zip(result.names, status, strict=True) if w == "not identified"],
+        "weakly_identified": [n for n, w in zip(result.names, status, strict=True) if w == "weakly identified"],
+        "partly_identified": [n for n, w in zip(result.names, status, strict=True) if w == "partly identified"],
         "unidentifiable": list(result.unidentifiable),
     }
     if inputs:
@@ -169,7 +180,10 @@ def calibrated_profile_toml(
         f"# Calibrated hitch profile (hitch calibrate geometry), from {base.name}, {when}:",
         f"# {result.n_poses} measured poses, residual RMS {1e3 * result.residual_rms_position_m:.3f} mm / "
         f"{1e3 * result.residual_rms_angle_rad:.3f} mrad, {result.identified} of {len(result.names)} "
-        "parameter directions identified; the others stay nominal (listed in the line below).",
+        "parameter directions identified; the others stay nominal (unidentifiable in the line below).",
+        "# not_identified: parameters kept at nominal (no std); weakly_identified: under half identified (they",
+        "# move only with the identified combinations; std mostly their tape error); partly_identified: std",
+        "# includes the tape error of the unidentified part; identified_share: the share of each (as printed).",
         f"{PROVENANCE_MARKER} {_value(prov)}",
     ]
     for line in comments:
@@ -197,6 +211,24 @@ def calibrated_profile_toml(
             "swapped); nothing was written"
         ) from None
     return text
+
+
+#: where a calibrated profile's description says so (a recalibration replaces what follows it)
+CALIBRATED_DESCRIPTION = "; calibrated "
+#: a claim of the nominal profile's description a calibrated one no longer makes (the thesis profile's)
+_TAPE_CLAIM = re.compile(r"\s*\(tape-measured\)", re.IGNORECASE)
+
+
+def calibrated_description(base: str, date: str, poses: int) -> str:
+    """The description of a profile calibrated on ``date`` (ISO; its day is written) from ``poses`` poses: the
+    nominal profile's own text ``base`` without its "(tape-measured)" (the geometry is calibrated now) and
+    without an earlier calibration's note, then ``"; calibrated <day> from <N> poses (hitch calibrate
+    geometry)"``. The calibrated thesis profile kept "… (tape-measured)" (a commissioning trial)."""
+    own = base.split(CALIBRATED_DESCRIPTION, 1)[0]
+    own = _TAPE_CLAIM.sub("", own).strip()
+    day = date.split("T", 1)[0]
+    note = f"calibrated {day} from {poses} pose{'' if poses == 1 else 's'} (hitch calibrate geometry)"
+    return f"{own}; {note}" if own else note[:1].upper() + note[1:]
 
 
 #: the suffix of a calibrated profile's default name

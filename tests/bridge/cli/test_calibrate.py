@@ -203,7 +203,7 @@ def test_end_to_end_on_a_twin_calibrates_better_than_nominal(tmp_path, capsys):
     assert faint, report["parameters"]
     for name in faint:
         line = next(line for line in lines if line.strip().startswith(name + " "))
-        assert "±" not in line and "% seen: it moves only with the identified combinations" in line, line
+        assert "±" not in line and "% identified: it moves only with the identified combinations" in line, line
     cal = load_profile(out)  # an ordinary profile
     prov = read_calibration_provenance(out)
     assert prov is not None and prov["poses"] == 12

@@ -455,7 +455,7 @@ def test_profile_show_says_the_final_approach_its_lag_and_the_count_approach(tmp
     )
     assert main(["profile", "show", "--profile", str(prof)]) == 0
     out = capsys.readouterr().out
-    assert "final approach: from below, offsets x=0.0025" in out and "lag of the pin play: x=0.0005" in out
+    assert "final approach: from below, offsets x=+2.500 mm" in out and "lag of the pin play: x=+0.500 mm" in out
     assert "count approach: on" in out
     assert main(["profile", "show", "--profile", str(prof), "--json"]) == 0
     motion = json.loads(capsys.readouterr().out)["motion"]

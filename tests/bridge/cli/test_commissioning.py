@@ -20,11 +20,12 @@ def test_accuracy_test_prints_the_table_beside_the_thesis_s(truth_file, capsys):
     capsys.readouterr()
     assert main(["accuracy-test", "--sim-truth", str(truth_file), "--dofs", "z"]) == 0
     out = capsys.readouterr().out
-    assert "twin: E" in out and "hybrid (3-8)" in out and "DLS (3-9)" in out and "geometric (3-10)" in out
+    assert "twin" in out and "hybrid (3-8)" in out and "DLS (3-9)" in out and "geometric (3-10)" in out
     assert "planner profile thesis-t132, twin truth" in out  # which profile was tested (it named only the truth)
     lines = {ln.split()[0]: ln for ln in out.splitlines() if ln[:5].strip() in ("x", "z", "roll", "pitch")}
-    assert set(lines) == {"x", "z", "roll", "pitch"}
-    assert "39.0" in lines["pitch"]  # the thesis's hybrid |E| of pitch, 39 mrad
+    assert set(lines) == {"x", "z", "roll", "pitch"}  # z deflected; the others held (marked so)
+    hybrid = next(ln for ln in out.splitlines() if ln.startswith("z") and "hybrid (3-8)" in ln)
+    assert "8.4" in hybrid  # the thesis's hybrid |E| of z, 8.36 mm
 
 
 def test_accuracy_test_json_has_the_columns_and_the_thesis_figures(capsys):

@@ -71,3 +71,17 @@ def test_the_hub_and_the_ecu_process_run_real_time_where_permitted(tmp_path, no_
                     p.wait(10)
                 except subprocess.TimeoutExpired:
                     p.kill()
+
+
+def test_a_command_run_in_process_gives_the_caller_its_own_policy_back():
+    """A test's ``main(["ecu-sim", …])`` left the test process's main thread under SCHED_FIFO for good (every
+    later thread inheriting it): the command is real-time for its own run only."""
+    import os
+    import uuid
+
+    from bridge.cli.main import main
+
+    before = (os.sched_getscheduler(0), os.sched_getparam(0).sched_priority)
+    argv = ["ecu-sim", "--interface", "virtual", "--channel", f"t-{uuid.uuid4().hex}", "--duration", "0.2", "--json"]
+    assert main(argv) == 0
+    assert (os.sched_getscheduler(0), os.sched_getparam(0).sched_priority) == before

@@ -129,6 +129,12 @@ _READING_SIGNALS = (
 #: how far the stamps of two frames may lie further apart than their read times [s] before the stamps are
 #: taken for a step of the bus's wall clock (frames read together at a deadline lie a few periods apart)
 _STAMP_SLACK_S = 1.0
+#: the ECU's full valve command: a cylinder's fastest motion is its valve gain × this [counts/s] (thesis tables
+#: 3-3, 3-4: kv in counts/s per command unit, commands in −254…254)
+VALVE_FULL_COMMAND = 254
+#: implausible readings that keep to a new level among themselves this long are taken [s] (longer than the
+#: stale limit: motion has stopped by then)
+REANCHOR_S = 0.3
 
 
 @dataclass(frozen=True)
@@ -150,6 +156,15 @@ class LinkConfig:
         heartbeat_period_s: our own heartbeat period (ISO 11783-7: 0.1 s).
         reading_tolerance_counts: AD readings this far outside the calibrated span are
             still taken (AD noise at an end stop); farther out they are rejected.
+        reading_rate_factor: a reading that moved since the last one taken by more than this many
+            times what its cylinder can at full valve (``max(kv_pos, kv_neg) · 254`` counts/s, the
+            profile's valve gains) over the time between them, plus ``reading_jump_counts``, is
+            implausible and not taken (a glitch, a second node sending as the ECU); readings that keep
+            to a new level among themselves for :data:`REANCHOR_S` are taken then (a sensor replaced
+            mid-run; the stale fault has stopped motion meanwhile). 0 turns the check off.
+        reading_jump_counts: how far a reading may always move from one taken to the next, whatever the
+            time between (AD noise: the twin's ``--noise-counts 2`` moves a reading by up to about 8
+            counts between two frames, 2.9 σ of their difference), counts in [0, 100].
         max_consecutive_tx_errors: failed sends in a row that raise the bus fault.
         lift_on_count_grid: the hitch position (0.4 %/bit of the calibrated travel) comes
             from an integer-count lift sensor (thesis table 3-2: 26..255) mapped as
@@ -202,6 +217,8 @@ class LinkConfig:
     heartbeat_timeout_s: float = HEARTBEAT_TIMEOUT_S
     heartbeat_period_s: float = HEARTBEAT_PERIOD_S
     reading_tolerance_counts: float = 2.0
+    reading_rate_factor: float = 3.0
+    reading_jump_counts: float = 8.0
     max_consecutive_tx_errors: int = 3
     lift_on_count_grid: bool | None = None
     name: Name = field(default_factory=planner_name)
@@ -242,6 +259,12 @@ class LinkConfig:
         tol = self.reading_tolerance_counts
         if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not 0.0 <= tol <= 50.0:
             raise LinkError(f"reading_tolerance_counts must be a number in [0, 50] counts, got {tol!r}")
+        jump = self.reading_jump_counts
+        if isinstance(jump, bool) or not isinstance(jump, (int, float)) or not 0.0 <= jump <= 100.0:
+            raise LinkError(f"reading_jump_counts must be a number in [0, 100] counts, got {jump!r}")
+        k = self.reading_rate_factor
+        if isinstance(k, bool) or not isinstance(k, (int, float)) or not (k == 0.0 or 1.0 <= k <= 100.0):
+            raise LinkError(f"reading_rate_factor must be 0 (off) or a number in [1, 100], got {k!r}")
         n = self.max_consecutive_tx_errors
         if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= 1000:
             raise LinkError(f"max_consecutive_tx_errors must be an integer in 1..1000, got {n!r}")
@@ -531,6 +554,16 @@ class MeasurementAssembler:
         # since one was taken, when [s]); (the other address the last came from, how many, when [s])
         self._rejected: dict[str, tuple[str, int, float]] = {}
         self._elsewhere: dict[str, tuple[int, int, float]] = {}
+        # the plausibility of each reading's motion: per actuator the fastest a cylinder can move at full valve
+        # [counts/s]; per source the last reading taken (read time, bus stamp or None, counts in actuator order
+        # with NaN where the source has none) and the readings of an implausible jump kept to since (when it
+        # began, the last of them)
+        prof = model.profile
+        self._full_speed_counts_s = np.array(
+            [max(prof.actuator(n).kv_pos, prof.actuator(n).kv_neg) * VALVE_FULL_COMMAND for n in ACTUATOR_NAMES]
+        )
+        self._last_taken: dict[str, tuple[float, float | None, np.ndarray]] = {}
+        self._jump: dict[str, tuple[float, tuple[float, float | None, np.ndarray]]] = {}
 
     def reject(self, source: str, reason: str, now_s: float) -> None:
         """A frame of ``source`` (:data:`MEASUREMENT`: 0xFF22, :data:`HITCH`: the rear hitch status) from its
@@ -600,6 +633,10 @@ class MeasurementAssembler:
             self._bump(unavailable_readings=1)
         elif problem := self._out_of_span((tilt, top, left, right)):
             self.reject(MEASUREMENT, problem, now_s)
+        elif problem := self._implausible(
+            MEASUREMENT, np.array([np.nan, tilt, top, left, right], dtype=float), now_s, stamp_s
+        ):
+            self.reject(MEASUREMENT, problem, now_s)
         else:
             self._meas = (now_s, (tilt, top, left, right))
             if self._update(now_s):
@@ -628,9 +665,67 @@ class MeasurementAssembler:
             self.reject(HITCH, f"rear hitch position {said}", now_s)
             self._bump(unavailable_readings=1)
             return
+        sc = self._scaling
+        lift = lift_counts_from_fraction(
+            float(h.position), sc.counts_min[0], sc.counts_max[0], on_count_grid=self._cfg.lift_count_grid
+        )
+        if problem := self._implausible(HITCH, np.array([lift, *[np.nan] * 4], dtype=float), now_s, stamp_s):
+            self.reject(HITCH, problem, now_s)
+            return
         self._hitch = (now_s, float(h.position))
         if self._update(now_s):
             self._taken(HITCH)
+
+    def _implausible(self, source: str, counts: np.ndarray, now_s: float, stamp_s: float | None) -> str:
+        """Why the readings ``counts`` [AD counts, actuator order, NaN: not in this source] read at ``now_s``
+        (bus stamp ``stamp_s``) moved faster than their cylinders can since the last ones of ``source`` that
+        were taken, "" if they did not (and they count as taken). The time between two frames is the larger of
+        the read times' and the stamps' spacing (a backlog read at once keeps its stamps; a clock step back
+        falls back to the read times)."""
+        k = self._cfg.reading_rate_factor
+        stamp = stamp_s if self._cfg.bus_timestamps else None
+        here = (now_s, stamp, counts)
+        prev = self._last_taken.get(source)
+        if k == 0.0 or prev is None:
+            self._last_taken[source] = here
+            return ""
+        step = self._too_fast(prev, here, k)
+        if step is None:
+            self._last_taken[source] = here
+            self._jump.pop(source, None)
+            return ""
+        jump = self._jump.get(source)
+        if jump is not None and self._too_fast(jump[1], here, k) is None:  # keeps to the new level
+            if now_s - jump[0] >= REANCHOR_S - 1e-9:
+                self._last_taken[source] = here
+                self._jump.pop(source, None)
+                return ""
+            self._jump[source] = (jump[0], here)
+        else:
+            self._jump[source] = (now_s, here)
+        self._bump(rejected_readings=1)
+        name, moved, dt_s, allowed = step
+        return (
+            f"{name} reading jumped {moved:+.0f} counts in {dt_s * 1000:.0f} ms since the last one taken: faster "
+            f"than the cylinder can move (at most {allowed:.1f} counts; a glitch, or a second node sending as the "
+            f"ECU at address {self._cfg.ecu_address})"
+        )
+
+    def _too_fast(
+        self, prev: tuple[float, float | None, np.ndarray], here: tuple[float, float | None, np.ndarray], k: float
+    ) -> tuple[str, float, float, float] | None:
+        """The first actuator whose reading moved from ``prev`` to ``here`` faster than ``k`` times its full-valve
+        speed (plus ``reading_jump_counts``): (name, counts moved, time between [s], counts allowed); None if none."""
+        dt = now_dt = here[0] - prev[0]
+        if here[1] is not None and prev[1] is not None:
+            dt = max(now_dt, here[1] - prev[1])
+        dt = max(dt, 0.0)
+        moved = here[2] - prev[2]
+        allowed = k * self._full_speed_counts_s * dt + self._cfg.reading_jump_counts
+        for i, name in enumerate(ACTUATOR_NAMES):
+            if math.isfinite(moved[i]) and abs(moved[i]) > allowed[i]:
+                return name, float(moved[i]), dt, float(allowed[i])
+        return None
 
     def _out_of_span(self, readings: tuple[int, int, int, int]) -> str:
         """Which reading (tilt, top, left, right) lies outside its calibrated span ± tolerance, "" if none."""

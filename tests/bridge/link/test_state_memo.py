@@ -17,6 +17,7 @@ class _PickyModel:
 
     def __init__(self, model: HitchModel, limit_m: float) -> None:
         self._model, self._limit_m = model, limit_m
+        self.profile = model.profile  # the valve gains: how fast a reading can move
 
     def forward(self, q: np.ndarray) -> HitchState:
         if q[1] > self._limit_m:
@@ -28,10 +29,10 @@ def test_every_state_is_the_kinematics_of_its_readings_with_repeats_and_failures
     scaling = SensorScaling(model.profile)
     neutral_si = scaling.to_si(scaling.to_counts(model.neutral))
     picky = _PickyModel(model, float(neutral_si[1]) + 0.002)
-    cfg = LinkConfig()
-    bumps: dict[str, int] = {}
+    cfg = LinkConfig(reading_rate_factor=0.0)  # readings jump anywhere at once: their motion's plausibility is
+    bumps: dict[str, int] = {}  # tests/bridge/link/test_reading_plausibility.py's
     rx = MeasurementAssembler(
-        picky,  # type: ignore[arg-type]  # duck-typed: the assembler only calls forward
+        picky,  # type: ignore[arg-type]  # duck-typed: forward and the profile
         scaling,
         cfg,
         lambda **d: [bumps.__setitem__(k, bumps.get(k, 0) + v) for k, v in d.items()],

@@ -58,6 +58,14 @@ def test_every_error_class_derives_from_the_project_root():
 def test_the_can_link_offers_what_the_motion_controller_uses():
     """Structural: every member of :class:`LinkPort` exists on :class:`CanLink` (mypy checks the types)."""
     members = [n for n in vars(LinkPort) if not n.startswith("_")]
-    assert set(members) == {"config", "status", "latest_state", "check_reference", "send_reference", "stop_motion"}
+    assert set(members) == {
+        "config",
+        "status",
+        "latest_state",
+        "check_reference",
+        "send_reference",
+        "stop_motion",
+        "clear_faults",
+    }
     for n in members:
         assert hasattr(CanLink, n), n

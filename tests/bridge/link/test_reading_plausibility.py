@@ -1,0 +1,131 @@
+"""A reading that moves faster than its cylinder can is not taken (bridge.link.state, ``reading_rate_factor``).
+
+A CAN fuzz trial: a node sending 0xFF22 as the ECU (address 169) with in-span, kinematically valid readings of
+another pose, 300 times a second, interleaved with the ECU's own: the link took them, the next goto planned
+from the spoofed pose and its first reference dropped the real lift by 31 counts. Now a reading that moved
+since the last one taken by more than ``reading_rate_factor`` × its cylinder's full-valve speed
+(``max(kv_pos, kv_neg) · 254`` counts/s) over the time between, plus the reading tolerance, is rejected,
+naming the actuator; readings that keep to a new level among themselves for ``REANCHOR_S`` are taken then.
+
+Truth: the allowance by hand from the profile's valve gains (thesis tables 3-3, 3-4); the simulated ECU's
+own readings on the real CAN path.
+"""
+
+from __future__ import annotations
+
+import can
+import numpy as np
+import pytest
+
+from bridge.isobus.codec import PositionMeasurement, RearHitchStatus, encode
+from bridge.link.state import REANCHOR_S, LinkConfig, LinkError, MeasurementAssembler
+from planner.model.sensors import SensorScaling
+
+
+def _assembler(model, **cfg):
+    bumps: dict[str, int] = {}
+    rx = MeasurementAssembler(
+        model,
+        SensorScaling(model.profile),
+        LinkConfig(**cfg),
+        lambda **d: [bumps.__setitem__(k, bumps.get(k, 0) + v) for k, v in d.items()],
+    )
+    return rx, bumps
+
+
+def _neutral(model) -> list[int]:
+    return [int(round(c)) for c in SensorScaling(model.profile).to_counts(model.neutral)]
+
+
+def _send(rx, counts, t: float) -> None:
+    _, tilt, top, left, right = counts
+    rx.on_measurement(PositionMeasurement(tilt, top, right, left, system_state=1), t)
+
+
+def test_the_allowance_is_the_full_valve_speed_times_the_factor_plus_the_tolerance(model):
+    tilt = model.profile.actuator("tilt")
+    full = max(tilt.kv_pos, tilt.kv_neg) * 254  # counts/s at full valve: 0.452 · 254 = 114.8
+    dt = 0.01
+    allowed = 3.0 * full * dt + 8.0  # reading_rate_factor 3, reading_jump_counts 8: 11.44 counts in 10 ms
+    assert allowed == pytest.approx(11.44, abs=0.01)
+    c = _neutral(model)
+    for step, taken in ((int(np.floor(allowed)), True), (int(np.floor(allowed)) + 1, False)):
+        rx, _ = _assembler(model)
+        _send(rx, c, 0.0)
+        moved = list(c)
+        moved[1] += step
+        _send(rx, moved, dt)
+        assert (rx.last_problem == "") is taken, (step, rx.last_problem)
+    assert "tilt reading jumped +12 counts in 10 ms" in rx.last_problem
+    assert "a second node sending as the ECU at address 169" in rx.last_problem
+
+
+def test_a_spoofed_pose_interleaved_with_the_ecus_frames_is_never_taken(model):
+    rx, bumps = _assembler(model)
+    real = _neutral(model)
+    spoof = list(real)
+    spoof[1] -= 40  # another pose, in span
+    hitch = RearHitchStatus(position=0.5)
+    for k in range(300):  # 1 s: the ECU at 100 Hz, the spoof at 300 Hz between its frames
+        t = k / 300
+        if k % 3 == 0:
+            _send(rx, real, t)
+            rx.on_hitch_status(hitch, t)
+        else:
+            _send(rx, spoof, t)
+        if k > 0:
+            assert rx.state is not None and rx.state.counts[1] == float(real[1]), (k, rx.state)
+    assert bumps["rejected_readings"] == 200  # every spoofed frame, never re-anchored
+
+
+def test_a_reading_that_keeps_to_a_new_level_is_taken_after_reanchor_s(model):
+    rx, _ = _assembler(model)
+    c = _neutral(model)
+    _send(rx, c, 0.0)
+    rx.on_hitch_status(RearHitchStatus(position=0.5), 0.0)
+    top = model.profile.actuator("top")
+    # a jump beyond what the top link could move even in REANCHOR_S: 3 · 0.257 · 254 · 0.3 + 8 = 66.8 counts
+    assert 100 > 3.0 * max(top.kv_pos, top.kv_neg) * 254 * REANCHOR_S + 8.0
+    new = list(c)
+    new[2] += 100  # the top link's sensor replaced mid-run: a new level, steady
+    t, k = 0.01, 1
+    while t < 0.01 + REANCHOR_S - 0.005:
+        _send(rx, new, t)
+        assert rx.state is not None and rx.state.counts[2] == float(c[2]), (t, rx.state.counts)
+        assert "top reading jumped +100 counts" in rx.last_problem, (t, rx.last_problem)
+        k += 1
+        t = 0.01 * k
+    _send(rx, new, 0.01 + REANCHOR_S)
+    assert rx.state is not None and rx.state.counts[2] == float(new[2])
+
+
+def test_the_factor_is_checked_and_zero_turns_the_check_off(model):
+    with pytest.raises(LinkError, match=r"reading_rate_factor must be 0 \(off\) or a number in \[1, 100\]"):
+        LinkConfig(reading_rate_factor=0.5)
+    with pytest.raises(LinkError, match=r"reading_jump_counts must be a number in \[0, 100\] counts"):
+        LinkConfig(reading_jump_counts=-1.0)
+    rx, _ = _assembler(model, reading_rate_factor=0.0)
+    c = _neutral(model)
+    _send(rx, c, 0.0)
+    c[1] += 40
+    _send(rx, c, 0.0)
+    assert rx.last_problem == ""
+
+
+def test_on_the_bus_a_spoofed_ecu_does_not_move_the_measured_pose(rig, model):
+    """The real CAN path: a rogue node sends another pose as the ECU after each of the ECU's frames."""
+    link, ecu = rig.link, rig.ecu
+    rogue = can.Bus(interface="virtual", channel=rig.channel)
+    real = [int(v) for v in ecu.measurement_counts()]
+    spoof = PositionMeasurement(real[1] - 40, real[2], real[4], real[3], ecu.system_state())
+    try:
+        for _ in range(100):  # 1 s
+            rig.run_until(rig.now_s + 0.01)
+            rogue.send(encode(spoof, source=169))
+            link.poll(rig.now_s)
+            state = link.latest_state()
+            assert state is not None and state.counts[1] == float(real[1]), state.counts
+        assert not link.faults.any, link.faults.reasons  # the ECU's own frames keep the measurement fresh
+        assert "tilt reading jumped -40 counts" in link.status(rig.now_s).last_reading_problem
+    finally:
+        rogue.shutdown()

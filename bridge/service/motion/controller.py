@@ -746,7 +746,11 @@ class MotionController:
             ls = self.link.latest_state()
             if ls is None:
                 raise MotionError("unavailable", "setpoint refused: no measured hitch height yet (frame 'ground')")
-            out["z"] = float(ls.pose.controlled()[1]) + (float(out["z"]) - dist)
+            z_m = float(ls.pose.controlled()[1])
+            stuck = m.ground_watch.check(dist, z_m, now)
+            if stuck is not None:  # refused like a missing reading: the session brakes at its ttl
+                raise MotionError("unavailable", f"setpoint refused: {stuck}")
+            out["z"] = z_m + (float(out["z"]) - dist)
         return out
 
     def run_maneuver(

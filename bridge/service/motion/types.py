@@ -19,6 +19,7 @@ import numpy as np
 
 from bridge.link.count_tail import CountTail
 from bridge.link.unit_loop import FeedforwardShaper
+from bridge.service.motion.ground_watch import GroundWatch
 from planner.errors import HitchInputError
 from planner.limits.guard import Guard, GuardDecision, GuardedPlan, GuardRefusal
 from planner.limits.stability import StabilityReport, StabilityViolation
@@ -433,6 +434,8 @@ class TrackMotion:
     #: a ``track/stop`` that waits for the client's last setpoint: (its seq, clock time [s] after which
     #: the follower brakes anyway — the setpoint was lost on the way); None: no stop waits
     stop_after: tuple[int, float] | None = None
+    #: frame ``ground``: whether its ground-distance reading stays stuck while the hitch moves
+    ground_watch: GroundWatch = field(default_factory=GroundWatch)
 
     @property
     def dofs(self) -> tuple[str, ...]:

@@ -554,3 +554,22 @@ def test_a_setpoint_after_the_stream_went_stale_says_the_session_is_over(r):
     assert not ok, reply
     assert "went stale" in reply["message"] and "track/start starts a new one" in reply["message"], reply
     assert "resume()" not in reply["message"]
+
+
+def test_a_stuck_ground_distance_sensor_does_not_drive_the_hitch_to_its_height_limit(r, model):
+    """A CAN fuzz trial: the ground distance held at 0.30 m while a ground-frame session asked for 0.25 m —
+    every setpoint asked for 5 cm lower again (positive feedback) and the hitch ran to z = −0.218 m, "height
+    limit reached (bottom)". Now a reading that stays at one value for 1 s while the hitch moves more than
+    20 mm is taken for stuck: setpoints are refused naming it and the session brakes at its ttl."""
+    r.sensors.dist = 0.30  # stuck: it never follows the hitch
+    session = r.start(dof=["z"], frame="ground", ttl_ms=200)
+    z0 = r.measured()[1]
+    replies: list[tuple[bool, dict]] = []
+    r.run(6.0, each=lambda t: replies.append(r.setpoint(session, {"z": 0.25})))
+    refused = [rep for ok, rep in replies if not ok]
+    assert refused and "stuck ground-distance sensor" in refused[0]["message"], replies[-1]
+    assert "stayed at 0.300 m for 1.0 s" in refused[0]["message"]
+    assert r.states[-1]["motion"] is None  # braked to rest
+    lo = r.states[-1]["pose"]["z"]
+    workspace_min = model.workspace["z"][0]
+    assert z0 - lo < 0.5 * (z0 - workspace_min), (z0, lo, workspace_min)  # stopped well before the limit

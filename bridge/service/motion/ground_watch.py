@@ -1,0 +1,57 @@
+"""A stuck ground-distance sensor under a ``ground``-frame track session (``docs/tracking.md``).
+
+In frame ``ground`` a setpoint z is a height above the ground: z_tractor = z_m + (z_set − d), with the
+measured hitch height z_m and the ground distance d. A sensor that keeps sending one value while the hitch
+moves turns that into positive feedback: every setpoint asks for the same difference again, and the hitch
+runs to its height limit (a CAN fuzz trial: a ground distance held at 0.30 m drove the hitch to z = −0.218 m,
+"height limit reached (bottom)").
+
+:class:`GroundWatch` notices it: a reading that stayed within ``same_m`` of one value for ``frozen_s`` while the
+measured hitch height moved more than ``moved_m`` is stuck (a real sensor's noise and the follower's lag move
+the reading whenever the hitch moves; ground that rises and falls exactly with the hitch for a second is not
+what a field does). Pure: no clock, no I/O.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+__all__ = ["GroundWatch", "FROZEN_S", "MOVED_M", "SAME_M"]
+
+#: how long a reading must stay at one value while the hitch moves to be taken for stuck [s]
+FROZEN_S = 1.0
+#: how far the measured hitch height must move meanwhile [m]
+MOVED_M = 0.02
+#: readings within this of the first one count as the same value [m] (below any sensor's resolution step)
+SAME_M = 1e-6
+
+
+@dataclass
+class GroundWatch:
+    """The value a ground-distance reading stays at, since when [s], and the hitch height then [m]."""
+
+    frozen_s: float = FROZEN_S
+    moved_m: float = MOVED_M
+    same_m: float = SAME_M
+    value_m: float | None = None
+    since_s: float = 0.0
+    z_since_m: float = 0.0
+    z_min_m: float = 0.0
+    z_max_m: float = 0.0
+
+    def check(self, distance_m: float, hitch_z_m: float, now_s: float) -> str | None:
+        """Take the reading ``distance_m`` with the measured hitch height ``hitch_z_m`` at ``now_s``; why the
+        sensor looks stuck (a sentence with the value, the time and how far the hitch moved), else None."""
+        if self.value_m is None or abs(distance_m - self.value_m) > self.same_m:
+            self.value_m, self.since_s = distance_m, now_s
+            self.z_since_m = self.z_min_m = self.z_max_m = hitch_z_m
+            return None
+        self.z_min_m, self.z_max_m = min(self.z_min_m, hitch_z_m), max(self.z_max_m, hitch_z_m)
+        held_s, moved_m = now_s - self.since_s, self.z_max_m - self.z_min_m
+        if held_s >= self.frozen_s and moved_m > self.moved_m:
+            return (
+                f"the ground distance stayed at {self.value_m:.3f} m for {held_s:.1f} s while the hitch moved "
+                f"{moved_m * 1000:.0f} mm: a stuck ground-distance sensor (frame 'ground' would drive the hitch to "
+                "its height limit)"
+            )
+        return None

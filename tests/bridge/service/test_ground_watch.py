@@ -1,0 +1,42 @@
+"""The stuck ground-distance check of frame ``ground`` (bridge.service.motion.ground_watch), on hand-made histories.
+
+Truth: the rule itself (a value held within 1 µm for 1 s while the hitch moved more than 20 mm), and a real
+sensor's noise (1 mm resolution, 1 mm RMS) never looking stuck.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bridge.service.motion.ground_watch import GroundWatch
+
+
+def _run(watch: GroundWatch, d, z, dt: float = 0.02) -> list[tuple[float, str | None]]:
+    return [(k * dt, watch.check(float(dk), float(zk), k * dt)) for k, (dk, zk) in enumerate(zip(d, z, strict=True))]
+
+
+def test_a_reading_held_while_the_hitch_moves_is_stuck_after_frozen_s_and_not_before():
+    n = 100  # 2 s at 50 Hz
+    z = np.linspace(0.30, 0.25, n)  # the hitch lowered 50 mm over 2 s: 25 mm per second
+    got = _run(GroundWatch(), np.full(n, 0.30), z)
+    first = next(t for t, why in got if why is not None)
+    assert abs(first - 1.0) < 1e-9
+    why = dict(got)[first]
+    assert why is not None and why.startswith(
+        "the ground distance stayed at 0.300 m for 1.0 s while the hitch moved 25 mm"
+    )
+
+
+def test_a_held_reading_at_rest_or_a_small_move_is_not_stuck():
+    n = 250
+    assert all(w is None for _, w in _run(GroundWatch(), np.full(n, 0.30), np.full(n, 0.25)))
+    z = 0.25 + 0.009 * np.sin(np.linspace(0, 6, n))  # ±9 mm: 18 mm range, under 20
+    assert all(w is None for _, w in _run(GroundWatch(), np.full(n, 0.30), z))
+
+
+def test_a_real_sensors_noise_while_the_hitch_follows_the_ground_is_never_stuck():
+    rng = np.random.default_rng(3)
+    n = 1500  # 30 s of terrain following: the hitch moves ±50 mm, the reading keeps near its setpoint
+    z = 0.25 + 0.05 * np.sin(np.linspace(0, 20, n))
+    d = np.round((0.30 + rng.normal(0.0, 0.001, n)) * 1000) / 1000  # 1 mm resolution, 1 mm RMS
+    assert all(w is None for _, w in _run(GroundWatch(), d, z))

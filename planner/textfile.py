@@ -1,4 +1,4 @@
-"""Reading the project's text files (profiles, maneuvers, scenarios): UTF-8, or one clear error.
+"""Reading the project's text files (profiles, maneuvers, scenarios, CSV): UTF-8, or one clear error.
 
 ``Path.read_text`` raises ``UnicodeDecodeError`` (a ``ValueError`` that is not a
 :class:`~planner.errors.HitchError`: the CLI shows it as a traceback) for a byte that is not
@@ -8,12 +8,13 @@ caller's :class:`~planner.errors.HitchInputError`, naming the file and the byte.
 
 from __future__ import annotations
 
+import csv
 from importlib.resources.abc import Traversable
 from pathlib import Path
 
 from planner.errors import HitchInputError
 
-__all__ = ["read_text_file"]
+__all__ = ["read_text_file", "csv_error_words"]
 
 
 def read_text_file(path: str | Path | Traversable, what: str, error: type[HitchInputError] = HitchInputError) -> str:
@@ -32,3 +33,16 @@ def read_text_file(path: str | Path | Traversable, what: str, error: type[HitchI
         raise error(
             f"{what} {p}: not UTF-8 text (byte {exc.start}, line {line}: 0x{data[exc.start]:02x}); save it as UTF-8"
         ) from None
+
+
+def csv_error_words(exc: csv.Error, first_line: int, last_line: int) -> str:
+    """What a :class:`csv.Error` of a row from ``first_line`` to ``last_line`` (the reader's line when it gave
+    up) means, in the operator's words: an opening quote without its closing one reads the rest of the file
+    as one cell (a 210 KB file with a stray ``"`` in a label raised ``_csv.Error: field larger than field
+    limit`` as a traceback, a trial); a single line too long is no CSV such a file holds."""
+    limit = csv.field_size_limit()
+    if "field larger than field limit" in str(exc) or "unexpected end of data" in str(exc):
+        if last_line > first_line or "unexpected end" in str(exc):
+            return f'a quoted field never ends (a stray " ?; it ran on to line {last_line})'
+        return f"a cell longer than {limit} characters (not a CSV file of this kind?)"
+    return f"not readable as CSV ({exc})"

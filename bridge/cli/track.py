@@ -45,6 +45,7 @@ from bridge.service.maneuvers.steps import POSE_BOUNDS, SETPOINT_VELOCITY_BOUND
 from bridge.service.wire import to_json_text
 from planner.errors import HitchError, unit_hint
 from planner.model.types import CONTROLLED_POSE_UNITS
+from planner.textfile import csv_error_words, read_text_file
 
 __all__ = [
     "CsvSignal",
@@ -271,23 +272,65 @@ def _check_value(p: Path, line: int, col: int, name: str, kind: tuple[str, str],
 _PLAIN_NUMBER = PLAIN_NUMBER  # the command line's (bridge.cli.model)
 
 
+#: the most data rows a signal file may hold: what the longest run (:data:`MAX_DURATION_S`) plays at the highest
+#: setpoint rate (:data:`MAX_RATE_HZ`), both ends included; a file of more rows has more than a run can use (a
+#: 3-million-row file took 55 s and 1.7 GB before a run was refused or began: a fuzz trial)
+MAX_SIGNAL_ROWS = round(MAX_DURATION_S * MAX_RATE_HZ) + 1
+#: the most characters of a header cell an error shows (a binary file's "header" echoed 2.4 KB of junk)
+_SHOWN_CHARS = 60
+
+
+def _shown(text: str) -> str:
+    """``text`` as an error shows it: its ``repr``, cut to :data:`_SHOWN_CHARS` characters and "…"."""
+    shown = repr(text)
+    return shown if len(shown) <= _SHOWN_CHARS else shown[:_SHOWN_CHARS] + "…"
+
+
+def _csv_rows(p: Path, f: Any) -> Iterator[tuple[int, list[str]]]:
+    """``(line, cells)`` of the rows of the open file ``f`` that are neither blank nor a comment ('#…'); a row the
+    CSV reader cannot read (a stray quote: the rest of the file one cell) as :class:`CLIError` naming its line."""
+    reader = csv.reader(f)
+    while True:
+        first = reader.line_num + 1
+        try:
+            row = next(reader, None)
+        except csv.Error as exc:
+            raise CLIError(f"{p}: line {first}: {csv_error_words(exc, first, reader.line_num)}") from None
+        if row is None:
+            return
+        if row and not row[0].lstrip().startswith("#") and any(c.strip() for c in row):
+            yield reader.line_num, row
+
+
 def read_signal_csv(path: str | Path) -> CsvSignal:
-    """Read a signal file (see the module docstring); :class:`CLIError` naming the file, line and column."""
+    """Read a signal file (see the module docstring); :class:`CLIError` naming the file, line and column.
+    The file is read row by row, and refused past :data:`MAX_SIGNAL_ROWS` data rows."""
     p = Path(path)
     if not p.is_file():  # a folder, /dev/zero or a pipe exist, but hold no signal (a fuzz trial: "no such file")
         what = "is a folder" if p.is_dir() else "is not a regular file" if p.exists() else "does not exist"
         raise CLIError(f"--from-file {p}: {what}: give a CSV signal file (header t and DOF names)")
     try:
-        text = p.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise CLIError(f"--from-file {p}: cannot read it ({exc})") from None
-    text = text.removeprefix("\ufeff")  # a spreadsheet's "CSV UTF-8" starts with a byte-order mark
-    rows = [(n, r) for n, r in enumerate(csv.reader(text.splitlines()), 1) if r and not r[0].lstrip().startswith("#")]
-    rows = [(n, r) for n, r in rows if any(c.strip() for c in r)]
-    if not rows:
+        # utf-8-sig: a spreadsheet's "CSV UTF-8" starts with a byte-order mark
+        with p.open(encoding="utf-8-sig", newline="") as f:
+            return _read_signal_rows(p, _csv_rows(p, f))
+    except OSError as exc:
+        raise CLIError(f"--from-file {p}: cannot read it ({exc.strerror or exc})") from None
+    except UnicodeDecodeError:
+        read_text_file(p, "--from-file", CLIError)  # names the byte and line
+        raise CLIError(f"--from-file {p}: not UTF-8 text") from None  # (the file changed meanwhile)
+
+
+def _read_signal_rows(p: Path, rows: Iterator[tuple[int, list[str]]]) -> CsvSignal:
+    first = next(rows, None)
+    if first is None:
         raise CLIError(f"{p}: empty; expected a header such as 't,z,roll' and rows of numbers (SI: s, m, rad)")
-    head_line, header = rows[0]
+    head_line, header = first
     names = [h.strip() for h in header]
+    if len(names) == 1 and ";" in names[0]:  # the wording of the calibration CSV reader's (planner.calibration)
+        raise CLIError(
+            f"{p}: line {head_line}: the header is separated by semicolons (a spreadsheet's CSV with decimal "
+            "commas?); save it as CSV with commas between cells and decimal points"
+        )
     kinds: list[tuple[str, str]] = []
     for col, name in enumerate(names, 1):
         kind = _column_kind(name)
@@ -295,12 +338,12 @@ def read_signal_csv(path: str | Path) -> CsvSignal:
             m = _UNIT_SUFFIX.match(name)
             if m is not None and _column_kind(m.group("name")) is not None:
                 raise CLIError(
-                    f"{p}: line {head_line}, column {col} ({name!r}): only SI units — the values are SI (t in s, "
-                    f"x z in m, roll pitch in rad, v_<dof> in m/s or rad/s); name the column {m.group('name')!r} "
+                    f"{p}: line {head_line}, column {col} ({_shown(name)}): only SI units — the values are SI (t in "
+                    f"s, x z in m, roll pitch in rad, v_<dof> in m/s or rad/s); name the column {m.group('name')!r} "
                     "(or with its SI unit: t_s, z_m, roll_rad, v_z_m_s, …)"
                 )
             raise CLIError(
-                f"{p}: line {head_line}, column {col}: unknown column {name!r}; allowed: t, "
+                f"{p}: line {head_line}, column {col}: unknown column {_shown(name)}; allowed: t, "
                 f"{', '.join(DOFS)}, {', '.join('v_' + k for k in DOFS)} (SI units)"
             )
         if kind in kinds:
@@ -314,43 +357,70 @@ def read_signal_csv(path: str | Path) -> CsvSignal:
     for col, (k, d) in enumerate(kinds, 1):
         if k == "vel" and d not in pos:
             raise CLIError(f"{p}: line {head_line}, column {col}: v_{d} without a {d} column")
-    data: list[list[float]] = []
+    ti = kinds.index(("t", ""))
+    bounds = [_value_bounds(k) for k in kinds]
+    data: list[float] = []  # flat, row after row: a list per row cost 1.7 GB for 3 million rows
     last_t: float | None = None
-    for n, row in rows[1:]:
+    n_rows = 0
+    for n, row in rows:
+        n_rows += 1
+        if n_rows > MAX_SIGNAL_ROWS:
+            raise CLIError(
+                f"{p}: line {n}: more than {MAX_SIGNAL_ROWS} rows of values (allowed: at most {MAX_SIGNAL_ROWS}, "
+                f"{MAX_DURATION_S:g} s at {MAX_RATE_HZ:g} Hz, the longest run at the highest setpoint rate); "
+                "play a part of the file, or resample it"
+            )
         if len(row) != len(names):
             raise CLIError(f"{p}: line {n}: {len(row)} values, the header has {len(names)} columns")
-        vals: list[float] = []
-        for col, (cell, name) in enumerate(zip(row, names, strict=True), 1):
+        for col, cell in enumerate(row):
             try:
                 v = float(cell)
             except ValueError:
-                raise CLIError(f"{p}: line {n}, column {col} ({name}): not a number: {cell.strip()!r}") from None
-            if not math.isfinite(v):
-                raise CLIError(f"{p}: line {n}, column {col} ({name}): must be finite, got {cell.strip()!r}")
-            if not _PLAIN_NUMBER.fullmatch(cell):  # Python's float() also reads "1_0" as 10, "١٠" as 10
-                raise CLIError(
-                    f"{p}: line {n}, column {col} ({name}): not a number: {cell.strip()!r} ({PLAIN_NUMBER_WORDS})"
-                )
-            _check_value(p, n, col, name, kinds[col - 1], v)
-            vals.append(v)
-        t = vals[kinds.index(("t", ""))]
+                v = math.nan
+                bad = True
+            else:
+                bad = not (bounds[col][0] <= v <= bounds[col][1]) or not _PLAIN_NUMBER.fullmatch(cell)
+            if bad:  # the exact reason (the common case above costs one comparison a cell)
+                _check_cell(p, n, col + 1, names[col], kinds[col], cell)
+            data.append(v)
+        t = data[-len(names) + ti]
         if last_t is None and t < 0:
-            raise CLIError(f"{p}: line {n}, column {kinds.index(('t', '')) + 1} (t): t must be >= 0 s, got {t:g}")
+            raise CLIError(f"{p}: line {n}, column {ti + 1} (t): t must be >= 0 s, got {t:g}")
         if last_t is not None and t <= last_t:
             raise CLIError(
-                f"{p}: line {n}, column {kinds.index(('t', '')) + 1} (t): t must increase strictly, "
-                f"got {t:g} s after {last_t:g} s"
+                f"{p}: line {n}, column {ti + 1} (t): t must increase strictly, got {t:g} s after {last_t:g} s"
             )
         last_t = t
-        data.append(vals)
-    if len(data) < 2:
-        raise CLIError(f"{p}: needs at least 2 rows of values after the header (got {len(data)})")
-    arr = np.asarray(data, float)
-    ti = kinds.index(("t", ""))
+    if n_rows < 2:
+        raise CLIError(f"{p}: needs at least 2 rows of values after the header (got {n_rows})")
+    arr = np.asarray(data, float).reshape(n_rows, len(names))
     t_col = arr[:, ti] - arr[0, ti]
-    positions = {d: arr[:, i] for i, (k, d) in enumerate(kinds) if k == "pos"}
-    velocities = {d: arr[:, i] for i, (k, d) in enumerate(kinds) if k == "vel"}
+    positions = {d: arr[:, i].copy() for i, (k, d) in enumerate(kinds) if k == "pos"}
+    velocities = {d: arr[:, i].copy() for i, (k, d) in enumerate(kinds) if k == "vel"}
     return CsvSignal(str(p), t_col, positions, velocities)
+
+
+def _value_bounds(kind: tuple[str, str]) -> tuple[float, float]:
+    """The values a column of ``kind`` may hold (:func:`_check_value`): finite, within a setpoint's bounds."""
+    what, dof = kind
+    if what == "pos":
+        return POSE_BOUNDS[dof]
+    if what == "vel":
+        return -SETPOINT_VELOCITY_MAX, SETPOINT_VELOCITY_MAX
+    return -sys.float_info.max, sys.float_info.max  # t: any finite number (checked after)
+
+
+def _check_cell(p: Path, n: int, col: int, name: str, kind: tuple[str, str], cell: str) -> None:
+    """:class:`CLIError` for a cell that is not a plain finite number within its column's bounds."""
+    try:
+        v = float(cell)
+    except ValueError:
+        raise CLIError(f"{p}: line {n}, column {col} ({name}): not a number: {cell.strip()!r}") from None
+    if not math.isfinite(v):
+        raise CLIError(f"{p}: line {n}, column {col} ({name}): must be finite, got {cell.strip()!r}")
+    if not _PLAIN_NUMBER.fullmatch(cell):  # Python's float() also reads "1_0" as 10, "١٠" as 10
+        raise CLIError(f"{p}: line {n}, column {col} ({name}): not a number: {cell.strip()!r} ({PLAIN_NUMBER_WORDS})")
+    _check_value(p, n, col, name, kind, v)
 
 
 def setpoints(

@@ -56,6 +56,7 @@ from bridge.isobus.j1939 import CYLINDER_ECU_ADDRESS
 from bridge.service.motion.following import LIMIT_RANGES, FollowingErrorLimits
 from planner.errors import HitchInputError
 from planner.profiles.loader import format_validation_error
+from planner.textfile import read_text_file
 
 if TYPE_CHECKING:
     from bridge.service.store import StoreLimits
@@ -81,6 +82,28 @@ DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
 DEFAULT_LEASE_S = 2.0
 #: the allowed lease range [s]
 LEASE_RANGE_S = (0.5, 60.0)
+#: the settings that are numbers: a boolean or text is refused for each, naming it (:meth:`ServiceConfig._number`)
+NUMBER_FIELDS: tuple[str, ...] = (
+    "lease_s",
+    "stale_timeout_s",
+    "hitch_status_address",
+    "sim_ground_speed",
+    "sim_gnss_origin",
+    "sim_gnss_heading",
+    "control_rate",
+    "state_rate",
+    "following_error_lift_rad",
+    "following_error_m",
+    "following_error_lag_s",
+    "following_error_s",
+    "workers",
+    "can_log_max_mb",
+    "can_log_keep",
+    "planning_processes",
+    "max_presets_per_user",
+    "max_maneuvers_per_user",
+    "max_script_bytes_per_user",
+)
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|unixsock-stream|ws)/[^\s]+$")
 _CHUNK = re.compile(r"^[A-Za-z0-9_\-.]+$")
 
@@ -129,9 +152,15 @@ def validate_endpoint(endpoint: str) -> str:
 
 def _following(name: str) -> Any:
     """A following-error setting: the default and range of that field of
-    :class:`~bridge.service.motion.following.FollowingErrorLimits`."""
+    :class:`~bridge.service.motion.following.FollowingErrorLimits`, its unit from the name's suffix."""
     lo, hi = LIMIT_RANGES[name]
-    return Field(getattr(FollowingErrorLimits(), name), ge=lo, le=hi)
+    unit = name.rsplit("_", 1)[1]
+    return Field(getattr(FollowingErrorLimits(), name), ge=lo, le=hi, strict=True, json_schema_extra={"unit": unit})
+
+
+def _unit(unit: str) -> dict[str, Any]:
+    """A field's unit, said with its allowed range in an error (:func:`format_validation_error`)."""
+    return {"unit": unit}
 
 
 class ServiceConfig(BaseModel):
@@ -151,7 +180,9 @@ class ServiceConfig(BaseModel):
     on_link_loss: Literal["stop", "continue"] = "stop"
     #: the Zenoh link lease this service announces [s] (:data:`DEFAULT_LEASE_S`): how long a router or a client
     #: waits for word from it before it counts the link lost
-    lease_s: float = Field(DEFAULT_LEASE_S, ge=LEASE_RANGE_S[0], le=LEASE_RANGE_S[1])
+    lease_s: float = Field(
+        DEFAULT_LEASE_S, ge=LEASE_RANGE_S[0], le=LEASE_RANGE_S[1], strict=True, json_schema_extra=_unit("s")
+    )
     #: Zenoh security config (JSON5: usrpwd, access_control, TLS) merged into the session config
     security: Path | None = None
     #: serve each user's own request keys (``<prefix>/user/<name>/<key>``: admission, store owner and black box
@@ -161,13 +192,13 @@ class ServiceConfig(BaseModel):
     can_channel: str = "hitch"
     #: run the simulated cylinder ECU in this process on the same bus
     simulate_ecu: bool = Field(True, strict=True)
-    stale_timeout_s: float = Field(0.2, ge=0.05, le=2.0)
+    stale_timeout_s: float = Field(0.2, ge=0.05, le=2.0, strict=True, json_schema_extra=_unit("s"))
     #: the source address the link takes the ISO 11783-7 rear hitch status (the lift) from, 0..253; None: the
     #: cylinder ECU (169; its simulated twin sends it). A tractor whose TECU sends it: its address (thesis: 240)
     #: (bridge.link.state.LinkConfig.hitch_status_address)
     hitch_status_address: int | None = Field(None, ge=0, le=253, strict=True)
     #: ground speed of the simulated tractor (PGN 65096, for maneuver ``wait_for``) [m/s]
-    sim_ground_speed: float = Field(1.5, ge=0.0, le=20.0)
+    sim_ground_speed: float = Field(1.5, ge=0.0, le=20.0, strict=True, json_schema_extra=_unit("m/s"))
     #: the simulated machine's own truth profile (bridge.sim.truth); None: the planner's profile exactly
     sim_truth: Path | None = None
     #: the simulated tractor drives over this field (bridge.sim.field: a built-in name or a .toml path) and
@@ -175,15 +206,17 @@ class ServiceConfig(BaseModel):
     sim_field: str | None = None
     #: the simulated tractor's GNSS (hitch/tractor/gnss, bridge.service.gnss.TwinGnss): its start (lat, lon [deg])
     #: and its straight course (clockwise from north [rad]; default due east)
-    sim_gnss_origin: tuple[float, float] = (48.0, 11.0)
-    sim_gnss_heading: float = Field(math.pi / 2, ge=-2 * math.pi, le=2 * math.pi, allow_inf_nan=False)
+    sim_gnss_origin: tuple[Annotated[float, Strict()], Annotated[float, Strict()]] = (48.0, 11.0)
+    sim_gnss_heading: float = Field(
+        math.pi / 2, ge=-2 * math.pi, le=2 * math.pi, allow_inf_nan=False, strict=True, json_schema_extra=_unit("rad")
+    )
     #: GeoJSON field lines loaded (and saved in the store) at start-up (maneuver wait_for line)
     lines_file: Path | None = None
     profile: str = "thesis-t132"
     category: str | None = None
     implement: str | None = None
-    control_rate: float = Field(50.0, ge=10.0, le=200.0)
-    state_rate: float = Field(50.0, ge=1.0, le=100.0)
+    control_rate: float = Field(50.0, ge=10.0, le=200.0, strict=True, json_schema_extra=_unit("Hz"))
+    state_rate: float = Field(50.0, ge=1.0, le=100.0, strict=True, json_schema_extra=_unit("Hz"))
     #: stream the unit loops' feed-forward reference (False: the plan's actuators as they are)
     feedforward: bool = Field(True, strict=True)
     #: following-error supervision (fault following_error; bridge.service.motion.following): allowed error at rest
@@ -201,7 +234,7 @@ class ServiceConfig(BaseModel):
     #: the user the web terminal's commands run as when it has no login (no access control); ignored, with a
     #: warning, when it has one (a users file); with access control and no users file the terminal refuses to start
     http_user: str | None = None
-    workers: int = Field(4, ge=1, le=32)
+    workers: int = Field(4, ge=1, le=32, strict=True)
     #: where the control core runs: "process" (its own, bridge.service.core) or "thread" (in the service's)
     control_core: Literal["process", "thread"] = "process"
     #: run the control path under the real-time policy SCHED_FIFO where permitted (bridge.service.scheduling);
@@ -210,14 +243,16 @@ class ServiceConfig(BaseModel):
     #: record every CAN frame to this file (.asc, .blf, candump .log, .csv; python-can's writers), rotated
     #: at can_log_max_mb megabytes (10^6 bytes) a file, can_log_keep rotated files kept (bridge.service.blackbox)
     can_log: Path | None = None
-    can_log_max_mb: float = Field(50.0, ge=0.1, le=100_000.0)
+    can_log_max_mb: float = Field(50.0, ge=0.1, le=100_000.0, strict=True, json_schema_extra=_unit("MB"))
     can_log_keep: int = Field(10, ge=1, le=1000, strict=True)
     #: processes for plan previews, maneuver validation and IK (bridge.service.workers); 0: on the worker threads
     planning_processes: int = Field(2, ge=0, le=32, strict=True)
     #: per-user limits of the presets and maneuvers store (see bridge.service.store.StoreLimits)
     max_presets_per_user: int = Field(1000, ge=1, le=100_000, strict=True)
     max_maneuvers_per_user: int = Field(200, ge=1, le=10_000, strict=True)
-    max_script_bytes_per_user: int = Field(4 * 1024 * 1024, ge=64 * 1024, le=1024**3, strict=True)
+    max_script_bytes_per_user: int = Field(
+        4 * 1024 * 1024, ge=64 * 1024, le=1024**3, strict=True, json_schema_extra=_unit("bytes")
+    )
 
     @field_validator("prefix")
     @classmethod
@@ -243,6 +278,26 @@ class ServiceConfig(BaseModel):
     def _user_keys(cls, v: Any) -> Any:
         if v != "auto" and not isinstance(v, bool):  # (pydantic named its literal['auto'] and bool branches)
             raise ServiceConfigError(f'user_keys must be "auto", true or false, got {v!r}')
+        return v
+
+    @field_validator(*NUMBER_FIELDS, mode="before")
+    @classmethod
+    def _number(cls, v: Any, info: ValidationInfo) -> Any:
+        # a boolean is no number (pydantic's lax mode read stale_timeout_s = true as 1.0 s, a fuzz trial), nor is
+        # text; the error line adds the allowed range with its unit
+        pair = info.field_name == "sim_gnss_origin"
+        for x in v if pair and isinstance(v, (list, tuple)) else (v,):
+            if x is None or (isinstance(x, (int, float)) and not isinstance(x, bool)):
+                continue
+            if isinstance(x, bool):
+                got = f"{str(x).lower()} (a boolean)"
+            elif isinstance(x, str):
+                got = f"the text {x[:40]!r}" + ("…" if len(x) > 40 else "") + " (a number is written without quotes)"
+            else:
+                kind = "table" if isinstance(x, dict) else "list" if isinstance(x, (list, tuple)) else type(x).__name__
+                got = f"a {kind}"
+            what = "two numbers (lat, lon in deg)" if pair else "a number"
+            raise ServiceConfigError(f"must be {what}, got {got}")
         return v
 
     @field_validator("stale_timeout_s", "control_rate", "state_rate", "sim_ground_speed")
@@ -427,16 +482,31 @@ def load_service_config(path: str | Path | None = None, **overrides: Any) -> Ser
         if not p.is_file():
             raise ServiceConfigError(f"service config file {p} does not exist")
         source = str(p)
+        # not UTF-8: "service config FILE: not UTF-8 text (byte N, …)", as the profile and scenario loaders say
+        text = read_text_file(p, "service config", ServiceConfigError)  # (a UnicodeDecodeError traceback before)
         try:
-            data = _flatten_toml(tomllib.loads(p.read_text(encoding="utf-8").removeprefix("\ufeff")), source)
+            data = _flatten_toml(tomllib.loads(text), source)
         except tomllib.TOMLDecodeError as exc:
             raise ServiceConfigError(f"service config {p} is not valid TOML: {exc}") from None
         values.update(_from_folder(data, p.parent))
-    values.update({k: v for k, v in overrides.items() if v is not None})
+    given = {k: v for k, v in overrides.items() if v is not None}
+    values.update(given)
+    # a value from the file is named as the file names it: its table and key (can.stale_timeout_s)
+    in_file = {f: f"{t}.{k}" for t, keys in _TOML_SECTIONS.items() for k, f in keys.items() if f in values}
+    in_file = {f: name for f, name in in_file.items() if f not in given} if path is not None else {}
     try:
         return ServiceConfig.model_validate(values)
     except ValidationError as exc:
         lines = format_validation_error("service config", source, exc, ServiceConfig).splitlines()[1:]
         raise ServiceConfigError(
-            f"invalid service config ({source}): " + "; ".join(ln.strip().removeprefix("<root>: ") for ln in lines)
+            f"invalid service config ({source}): "
+            + "; ".join(_toml_name(ln.strip().removeprefix("<root>: "), in_file) for ln in lines)
         ) from None
+
+
+def _toml_name(line: str, in_file: dict[str, str]) -> str:
+    """An error ``line`` of :func:`format_validation_error` with its field named as the file names it."""
+    m = re.match(r"^([a-z_]+)(?=[ .:\[])", line)
+    if m is None or m.group(1) not in in_file:
+        return line
+    return in_file[m.group(1)] + line[m.end() :]

@@ -54,7 +54,7 @@ from bridge.sim.terrain import (
 )
 from planner.errors import HitchInputError
 from planner.profiles.loader import format_validation_error
-from planner.textfile import read_text_file
+from planner.textfile import csv_error_words, read_text_file
 
 __all__ = ["SCHEMA_VERSION", "Scenario", "ScenarioError", "builtin_scenarios", "load_scenario", "scenario_from_dict"]
 
@@ -197,7 +197,16 @@ def _read_csv(
         )
     text = read_text_file(where, "CSV file", ScenarioError).removeprefix("\ufeff")
     rows = csv.reader(io.StringIO(text))
-    header = next(rows, None)
+
+    def next_row() -> list[str] | None:
+        # a stray quote reads the rest of the file as one cell: csv.Error, a traceback before (a fuzz trial)
+        first = rows.line_num + 1
+        try:
+            return next(rows, None)
+        except csv.Error as exc:
+            raise ScenarioError(f"{name} line {first}: {csv_error_words(exc, first, rows.line_num)}") from None
+
+    header = next_row()
     if header is None:
         raise ScenarioError(f"{name}: empty file, expected a header {','.join(required)}")
     header = [h.strip() for h in header]
@@ -213,7 +222,7 @@ def _read_csv(
         )
     out: dict[str, list[float]] = {h: [] for h in header}
     lines: list[int] = []
-    for row in rows:
+    while (row := next_row()) is not None:
         line = rows.line_num
         if not row or all(not c.strip() for c in row):
             continue

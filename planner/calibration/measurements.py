@@ -45,6 +45,7 @@ from planner.errors import unit_hint
 from planner.model.sensors import AD_COUNTS_MAX, SensorScaling
 from planner.model.types import ACTUATOR_NAMES
 from planner.profiles.hitch import Profile
+from planner.textfile import csv_error_words
 
 __all__ = [
     "APPROACH_COLUMN",
@@ -192,12 +193,27 @@ def _cell(text: str, where: str, col: str, lo: float, hi: float, unit: str) -> f
 MAX_DATA_ROWS = 2000
 
 
+def _next_row(reader: Any, source: str, row: int) -> list[str] | None:
+    """The next row of ``reader`` (None at the end); a :class:`csv.Error` as :class:`CalibrationError` naming
+    the file, the ``row`` (0: the header) and its line, and what it means (:func:`csv_error_words`)."""
+    first = reader.line_num + 1
+    try:
+        return next(reader, None)
+    except csv.Error as exc:
+        line = f"the header, line {first}" if row == 0 else f"line {first}"
+        raise CalibrationError(f"{source} row {row} ({line}): {csv_error_words(exc, first, reader.line_num)}") from None
+
+
 def _data_rows(reader: Any, n_cells: int, source: str) -> Iterator[tuple[str, list[str]]]:
     """The data rows of a CSV ``reader`` past its header: ``(where, stripped cells)``, ``where`` naming the
     file, the row (1 = the first; blank lines are not rows) and its line; a row of another width is refused,
-    and so is a file of more than :data:`MAX_DATA_ROWS` rows."""
+    and so is a file of more than :data:`MAX_DATA_ROWS` rows, and a row the CSV reader cannot read (a stray
+    quote) names its row and line."""
     r = 0
-    for line in reader:
+    while True:
+        line = _next_row(reader, source, r + 1)
+        if line is None:
+            return
         if not line or all(not c.strip() for c in line):
             continue
         r += 1
@@ -213,7 +229,7 @@ def _header(reader: Any, source: str) -> list[str]:
     """The header row (blank lines before it skipped), or :class:`CalibrationError` saying what the file holds
     instead: nothing, a comment line, or semicolons (a spreadsheet's CSV with decimal commas). Before, a file of
     blank lines was refused for a missing lift column, and a semicolon file as one unknown column (a trial)."""
-    for row in reader:
+    while (row := _next_row(reader, source, 0)) is not None:
         cells = [h.strip() for h in row]
         if not any(cells):
             continue

@@ -304,7 +304,7 @@ def parse_maneuver(text: Any) -> ManeuverScript:
     try:
         data = _load_yaml(text)
     except Exception as exc:  # noqa: BLE001 — PyYAML's constructors also raise IndexError, AttributeError, …
-        where = getattr(exc, "problem_mark", None)
+        where = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
         at = f" at line {where.line + 1}, column {where.column + 1}" if where is not None else ""
         problem = (
             "nesting too deep"
@@ -314,6 +314,14 @@ def parse_maneuver(text: Any) -> ManeuverScript:
                 str(exc)[:200] if isinstance(exc, (yaml.YAMLError, ValueError)) else f"bad value ({type(exc).__name__})"
             )
         )
+        if isinstance(exc, yaml.reader.ReaderError):
+            # a character YAML does not allow: the reader's error has no mark, and said 'in "<unicode string>",
+            # position 0' (a fuzz trial); its position is an index into the text, said as line and column here
+            pos = int(exc.position)
+            line, column = text.count("\n", 0, pos) + 1, pos - (text.rfind("\n", 0, pos) + 1) + 1
+            char = exc.character
+            shown = f"U+{char:04X}" if isinstance(char, int) else repr(char)
+            at, problem = f" at line {line}, column {column}", f"character {shown} is not allowed ({exc.reason})"
         raise ManeuverError([StepError(None, f"script is not valid YAML{at}: {problem}")]) from None
     if not isinstance(data, dict):
         raise ManeuverError(

@@ -1,0 +1,33 @@
+"""A scenario's speed or terrain CSV the CSV reader cannot read is refused naming the file and line (a fuzz
+trial: ``_csv.Error: field larger than field limit`` as a traceback)."""
+
+from __future__ import annotations
+
+import pytest
+
+from bridge.sim.scenario import ScenarioError, load_scenario
+
+
+def _scenario(tmp_path, csv_text: str):
+    (tmp_path / "speed.csv").write_text(csv_text)
+    f = tmp_path / "s.toml"
+    f.write_text('schema_version = 1\nname = "s"\nduration_s = 10.0\n[speed]\ncsv = "speed.csv"\n')
+    return f
+
+
+def test_a_stray_quote_names_the_file_and_line(tmp_path):
+    f = _scenario(tmp_path, 'time_s,speed_m_s\n0,1.0\n"60,1.0\n' + "".join(f"{60 + k},1.0\n" for k in range(1, 30000)))
+    with pytest.raises(ScenarioError) as ei:
+        load_scenario(f)
+    assert f'{tmp_path / "speed.csv"} line 3: a quoted field never ends (a stray " ?; it ran on to line ' in str(
+        ei.value
+    )
+
+
+def test_one_huge_line_names_the_file_and_line(tmp_path):
+    f = _scenario(tmp_path, "time_s,speed_m_s\n0,1.0\n" + "1" * 5_000_000 + "\n")
+    with pytest.raises(ScenarioError) as ei:
+        load_scenario(f)
+    assert str(ei.value) == (
+        f"{tmp_path / 'speed.csv'} line 3: a cell longer than 131072 characters (not a CSV file of this kind?)"
+    )

@@ -935,10 +935,14 @@ def _maneuver_outcome(out: dict) -> str:
 
 
 def script_errors(errors: list[dict]) -> str:
-    """A maneuver's validation errors, one indented line each (``step N`` or, before any step, ``script``)."""
-    return "\n".join(
-        f"  {'script' if e.get('step') is None else 'step ' + str(e['step'])}: {e['message']}" for e in errors
-    )
+    """A maneuver's validation errors, one indented line each: ``step N (index i)`` — counted from 1 as a reader
+    counts the script's steps, with the API's 0-based index (events, ``steps[i]``) beside it — or, before any
+    step, ``script``."""
+
+    def where(step: object) -> str:
+        return "script" if not isinstance(step, int) else f"step {step + 1} (index {step})"
+
+    return "\n".join(f"  {where(e.get('step'))}: {e['message']}" for e in errors)
 
 
 def _cmd_maneuver(args) -> int:
@@ -952,7 +956,9 @@ def _cmd_maneuver(args) -> int:
             _print(
                 args,
                 r,
-                f"ok, {r['duration']:.2f} s" if r["ok"] else "invalid:\n" + script_errors(r["errors"]),
+                f"{args.file}: ok, {r['duration']:.2f} s"
+                if r["ok"]
+                else f"{args.file}: invalid:\n" + script_errors(r["errors"]),
             )
             return 0 if r["ok"] else 1
         if a == "save":

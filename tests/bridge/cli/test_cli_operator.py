@@ -80,7 +80,8 @@ def test_a_state_at_rest_and_a_script_error_without_a_step_print_no_python_none(
     line = capsys.readouterr().out
     assert "None" not in line and "motion -" in line
     errors = [{"step": None, "message": "script is not valid YAML"}, {"step": 2, "message": "unknown step"}]
-    assert cli_service.script_errors(errors) == "  script: script is not valid YAML\n  step 2: unknown step"
+    # steps counted from 1 as a reader counts them, the API's index beside (a fuzz trial read "step 0")
+    assert cli_service.script_errors(errors) == "  script: script is not valid YAML\n  step 3 (index 2): unknown step"
 
 
 def test_console_and_esc_helpers():

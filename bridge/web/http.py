@@ -102,6 +102,9 @@ class HttpRequest:
     #: a body whose framing is not known (both Content-Length and Transfer-Encoding, another coding than
     #: chunked; only for ``any_body_paths``): served with an empty body, the connection closes after the response
     framing_unknown: bool = False
+    #: a Content-Length body within the limit not read yet (only for ``any_body_paths``): served on its header,
+    #: the server reads it after the response; the connection stays open only if it arrives whole and in time
+    deferred: int = 0
 
     def header(self, name: str, default: str = "") -> str:
         return self.headers.get(name.lower(), default)
@@ -327,6 +330,8 @@ async def read_request(
     length = int(raw_length)
     if length > max_body and any_body:
         return HttpRequest(method, path, query, version, headers, b"", unread=length)
+    if length and any_body:  # a stop is served on its header: a slow or short body (Expect: 100-continue) never
+        return HttpRequest(method, path, query, version, headers, b"", deferred=length)  # holds it back
     if length > max_body:
         raise HttpError(413, f"request body of {length} bytes exceeds the limit of {max_body} bytes")
     try:

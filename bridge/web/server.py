@@ -67,6 +67,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from bridge.web.http import (
+    BODY_TIMEOUT_S,
     MAX_DISCARD_BYTES,
     HttpError,
     HttpRequest,
@@ -496,6 +497,11 @@ class WebServer:
                         log.info("operator terminal: closing after a stop whose chunked body failed: %s", exc)
                         await discard(reader, MAX_DISCARD_BYTES)
                         return
+                if req.deferred:  # a stop's body, served before it was read: read (and dropped) now
+                    try:
+                        await asyncio.wait_for(reader.readexactly(req.deferred), BODY_TIMEOUT_S)
+                    except (TimeoutError, asyncio.IncompleteReadError):
+                        return  # answered already; the body never came whole: close
                 if req.framing_unknown:  # a stop's body of unknown length: dropped (bounded) before closing
                     await discard(reader, MAX_DISCARD_BYTES)
                 if not req.keep_alive:

@@ -13,6 +13,7 @@ named ``counts``/``*_counts``.
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, fields
 
@@ -135,6 +136,10 @@ VALVE_FULL_COMMAND = 254
 #: implausible readings that keep to a new level among themselves this long are taken [s] (longer than the
 #: stale limit: motion has stopped by then)
 REANCHOR_S = 0.3
+#: readings that jump by more than twice the allowance this many times within CONFLICT_WINDOW_S, while others
+#: are plausible, come from two senders: none is taken until no such jump came for CONFLICT_WINDOW_S [s]
+CONFLICT_COUNT = 5
+CONFLICT_WINDOW_S = 0.3
 
 
 @dataclass(frozen=True)
@@ -564,6 +569,12 @@ class MeasurementAssembler:
         )
         self._last_taken: dict[str, tuple[float, float | None, np.ndarray]] = {}
         self._jump: dict[str, tuple[float, tuple[float, float | None, np.ndarray]]] = {}
+        # per source: the times of the last far jumps, when a reading was last plausible, a conflict's end and
+        # its step (name, counts moved, s, allowed), the last implausible step
+        self._far: dict[str, deque[float]] = {}
+        self._plausible_at: dict[str, float] = {}
+        self._conflict: dict[str, tuple[float, tuple[str, float, float, float]]] = {}
+        self._conflict_steps: dict[str, tuple[str, float, float, float]] = {}
 
     def reject(self, source: str, reason: str, now_s: float) -> None:
         """A frame of ``source`` (:data:`MEASUREMENT`: 0xFF22, :data:`HITCH`: the rear hitch status) from its
@@ -678,10 +689,12 @@ class MeasurementAssembler:
 
     def _implausible(self, source: str, counts: np.ndarray, now_s: float, stamp_s: float | None) -> str:
         """Why the readings ``counts`` [AD counts, actuator order, NaN: not in this source] read at ``now_s``
-        (bus stamp ``stamp_s``) moved faster than their cylinders can since the last ones of ``source`` that
-        were taken, "" if they did not (and they count as taken). The time between two frames is the larger of
-        the read times' and the stamps' spacing (a backlog read at once keeps its stamps; a clock step back
-        falls back to the read times)."""
+        (bus stamp ``stamp_s``) are not taken, "" when they are (they then count as the last taken): they moved
+        faster than their cylinders can since the last ones taken, or the source's readings alternate between
+        two levels (:data:`CONFLICT_COUNT` jumps of more than twice the allowance within
+        :data:`CONFLICT_WINDOW_S` while others are taken: two nodes sending as one) — then none is taken until
+        no such jump came for :data:`CONFLICT_WINDOW_S`, whichever level came first (the stale fault stops
+        motion and says why). A level kept among itself for the re-anchor time is taken then."""
         k = self._cfg.reading_rate_factor
         stamp = stamp_s if self._cfg.bus_timestamps else None
         here = (now_s, stamp, counts)
@@ -690,13 +703,43 @@ class MeasurementAssembler:
             self._last_taken[source] = here
             return ""
         step = self._too_fast(prev, here, k)
+        far = self._far.setdefault(source, deque(maxlen=CONFLICT_COUNT))
+        if step is None:
+            self._plausible_at[source] = now_s
+        elif abs(step[1]) > 2.0 * step[3]:
+            far.append(now_s)
+        if (
+            len(far) == CONFLICT_COUNT
+            and now_s - far[0] <= CONFLICT_WINDOW_S
+            and self._plausible_at.get(source, -math.inf) > far[0]  # the other level came between: interleaved
+        ):
+            self._conflict[source] = (
+                now_s + CONFLICT_WINDOW_S,
+                step if step is not None else self._conflict_step(source),
+            )
+        conflict = self._conflict.get(source)
+        if conflict is not None and now_s < conflict[0]:
+            if step is None:
+                self._last_taken[source] = here  # follow the level held; taken again once the conflict ends
+            self._bump(rejected_readings=1)
+            name, moved, _, _ = conflict[1]
+            sender = self._cfg.ecu_address if source == MEASUREMENT else self._cfg.hitch_source
+            what = "0xFF22" if source == MEASUREMENT else "rear hitch status"
+            return (
+                f"{what} readings alternate between two levels ({name} {moved:+.0f} counts apart, {CONFLICT_COUNT} "
+                f"times within {CONFLICT_WINDOW_S:g} s): two nodes sending as address {sender}? none taken until "
+                f"one level holds for {CONFLICT_WINDOW_S:g} s"
+            )
+        self._conflict.pop(source, None)
         if step is None:
             self._last_taken[source] = here
             self._jump.pop(source, None)
             return ""
+        self._conflict_steps[source] = step
         jump = self._jump.get(source)
+        reanchor_s = max(REANCHOR_S, self._cfg.stale_after_s + 0.1)  # after the stale fault, whatever its limit
         if jump is not None and self._too_fast(jump[1], here, k) is None:  # keeps to the new level
-            if now_s - jump[0] >= REANCHOR_S - 1e-9:
+            if now_s - jump[0] >= reanchor_s - 1e-9:
                 self._last_taken[source] = here
                 self._jump.pop(source, None)
                 return ""
@@ -705,21 +748,26 @@ class MeasurementAssembler:
             self._jump[source] = (now_s, here)
         self._bump(rejected_readings=1)
         name, moved, dt_s, allowed = step
+        sender = self._cfg.ecu_address if source == MEASUREMENT else self._cfg.hitch_source
         return (
             f"{name} reading jumped {moved:+.0f} counts in {dt_s * 1000:.0f} ms since the last one taken: faster "
-            f"than the cylinder can move (at most {allowed:.1f} counts; a glitch, or a second node sending as the "
-            f"ECU at address {self._cfg.ecu_address})"
+            f"than the cylinder can move (at most {allowed:.1f} counts; a glitch, or a second node sending as "
+            f"address {sender})"
         )
+
+    def _conflict_step(self, source: str) -> tuple[str, float, float, float]:
+        return self._conflict_steps.get(source, ("reading", 0.0, 0.0, 0.0))
 
     def _too_fast(
         self, prev: tuple[float, float | None, np.ndarray], here: tuple[float, float | None, np.ndarray], k: float
     ) -> tuple[str, float, float, float] | None:
         """The first actuator whose reading moved from ``prev`` to ``here`` faster than ``k`` times its full-valve
         speed (plus ``reading_jump_counts``): (name, counts moved, time between [s], counts allowed); None if none."""
-        dt = now_dt = here[0] - prev[0]
+        dt = now_dt = max(here[0] - prev[0], 0.0)
         if here[1] is not None and prev[1] is not None:
-            dt = max(now_dt, here[1] - prev[1])
-        dt = max(dt, 0.0)
+            stamp_dt = here[1] - prev[1]
+            if 0.0 <= stamp_dt <= now_dt + _STAMP_SLACK_S:  # else the bus's clock stepped: the read times
+                dt = max(now_dt, stamp_dt)
         moved = here[2] - prev[2]
         allowed = k * self._full_speed_counts_s * dt + self._cfg.reading_jump_counts
         for i, name in enumerate(ACTUATOR_NAMES):

@@ -747,7 +747,7 @@ class MotionController:
             if ls is None:
                 raise MotionError("unavailable", "setpoint refused: no measured hitch height yet (frame 'ground')")
             z_m = float(ls.pose.controlled()[1])
-            stuck = m.ground_watch.check(dist, z_m, now)
+            stuck = m.ground_watch.check(dist, z_m, now, float(out["z"]) - dist)
             if stuck is not None:  # refused like a missing reading: the session brakes at its ttl
                 raise MotionError("unavailable", f"setpoint refused: {stuck}")
             out["z"] = z_m + (float(out["z"]) - dist)

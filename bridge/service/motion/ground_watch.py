@@ -7,7 +7,8 @@ runs to its height limit (a CAN fuzz trial: a ground distance held at 0.30 m dro
 "height limit reached (bottom)").
 
 :class:`GroundWatch` notices it: a reading that stayed within ``same_m`` of one value for ``frozen_s`` while the
-measured hitch height moved more than ``moved_m`` is stuck (a real sensor's noise and the follower's lag move
+setpoints asked for a move of more than ``asked_min_m`` from it and the measured hitch height moved more than
+``moved_m`` is stuck (a real sensor's noise and the follower's lag move
 the reading whenever the hitch moves; ground that rises and falls exactly with the hitch for a second is not
 what a field does). Pure: no clock, no I/O.
 """
@@ -16,7 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["GroundWatch", "FROZEN_S", "MOVED_M", "SAME_M"]
+__all__ = ["GroundWatch", "FROZEN_S", "MOVED_M", "SAME_M", "ASKED_MIN_M"]
 
 #: how long a reading must stay at one value while the hitch moves to be taken for stuck [s]
 FROZEN_S = 1.0
@@ -24,6 +25,8 @@ FROZEN_S = 1.0
 MOVED_M = 0.02
 #: readings within this of the first one count as the same value [m] (below any sensor's resolution step)
 SAME_M = 1e-6
+#: a setpoint that asks for at most this much (setpoint − reading) asks for nothing that could run away [m]
+ASKED_MIN_M = 0.01
 
 
 @dataclass
@@ -33,15 +36,25 @@ class GroundWatch:
     frozen_s: float = FROZEN_S
     moved_m: float = MOVED_M
     same_m: float = SAME_M
+    asked_min_m: float = ASKED_MIN_M
     value_m: float | None = None
     since_s: float = 0.0
     z_since_m: float = 0.0
     z_min_m: float = 0.0
     z_max_m: float = 0.0
 
-    def check(self, distance_m: float, hitch_z_m: float, now_s: float) -> str | None:
+    def check(self, distance_m: float, hitch_z_m: float, now_s: float, asked_m: float | None = None) -> str | None:
         """Take the reading ``distance_m`` with the measured hitch height ``hitch_z_m`` at ``now_s``; why the
-        sensor looks stuck (a sentence with the value, the time and how far the hitch moved), else None."""
+        sensor looks stuck (a sentence with the value, the time and how far the hitch moved), else None.
+
+        ``asked_m``: the setpoint's height above the ground less the reading [m] — the move the setpoint asks
+        for. Only a reading that stays away from what is asked (more than ``asked_min_m``) counts: a reading
+        at its setpoint while the hitch follows a steady grade (a 1 mm sensor tracked to 0.2 mm reads one
+        value, a review) asks for nothing and cannot run away; a stuck one under another setpoint asks for the
+        same move again and again."""
+        if asked_m is not None and abs(asked_m) <= self.asked_min_m:
+            self.value_m = None  # at its setpoint: nothing runs away
+            return None
         if self.value_m is None or abs(distance_m - self.value_m) > self.same_m:
             self.value_m, self.since_s = distance_m, now_s
             self.z_since_m = self.z_min_m = self.z_max_m = hitch_z_m

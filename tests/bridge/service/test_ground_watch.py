@@ -40,3 +40,15 @@ def test_a_real_sensors_noise_while_the_hitch_follows_the_ground_is_never_stuck(
     z = 0.25 + 0.05 * np.sin(np.linspace(0, 20, n))
     d = np.round((0.30 + rng.normal(0.0, 0.001, n)) * 1000) / 1000  # 1 mm resolution, 1 mm RMS
     assert all(w is None for _, w in _run(GroundWatch(), d, z))
+
+
+def test_a_reading_at_its_setpoint_while_the_hitch_follows_a_steady_grade_is_not_stuck():
+    """A review: a 1 mm sensor tracked to within 0.2 mm reads one value while the hitch ramps 25 mm/s on a steady
+    grade — the setpoint asks for nothing (the reading is at it), so nothing runs away."""
+    n = 150
+    z = np.linspace(0.25, 0.25 + 0.025 * 3.0, n)  # 3 s at 25 mm/s
+    watch = GroundWatch()
+    assert all(watch.check(0.30, float(zk), k * 0.02, asked_m=0.0004) is None for k, zk in enumerate(z))
+    watch = GroundWatch()  # the same reading under a setpoint 50 mm lower: stuck after 1 s
+    got = [watch.check(0.30, float(zk), k * 0.02, asked_m=-0.05) for k, zk in enumerate(z)]
+    assert next(k for k, w in enumerate(got) if w is not None) * 0.02 == 1.0

@@ -64,9 +64,10 @@ MAX_PENDING = 32
 #: a service API name: ``goto``, ``presets/save``, ``maneuvers/record/start`` …
 API_NAME = re.compile(r"^[a-z]+(/[a-z]+){0,2}$")
 #: commands a page may send per second on average, and in a burst (the page itself sends at most ~40 a
-#: second: a held jog button 12.5, levelling 10, the work panel 10); a page above it is closed (1008)
+#: second: a held jog button 12.5, levelling 10, the work panel 10; after a network stall the kernel's send
+#: buffer delivers its backlog at once: 1000 covers 25 s of it); a page above it is closed (1008)
 MAX_COMMAND_RATE_HZ = 100.0
-COMMAND_BURST = 100
+COMMAND_BURST = 1000
 #: bytes of commands a page may send per second on average [B/s], and in a burst [B] (a maneuver script, the
 #: largest payload, is at most 96 KiB)
 MAX_COMMAND_BYTES_PER_S = 256 * 1024
@@ -269,7 +270,7 @@ class ClientHub:
             {
                 "error": "busy",
                 "message": f"this page sent commands faster than the terminal takes ({c.rate.describe()}): "
-                "closed; reload the page",
+                "closed (the page connects again by itself)",
             },
         )
         await c.ws.close(CLOSE_TOO_MANY_COMMANDS, "too many commands")

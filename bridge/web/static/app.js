@@ -29,6 +29,7 @@
     return lim && Number.isFinite(lim[dof]) && lim[dof] > 0 ? lim[dof] : JOG_MAX_FALLBACK[dof];
   };
   const LEVEL_PERIOD_MS = 100;     // levelling: a track/setpoint {roll: 0} this often while on and visible
+  const REPEATED_KEYS = new Set(["jog", "track/setpoint"]);   // sent periodically: never queued behind a stall
   const LEVEL_TTL_MS = 500;        // the service brakes this long after the last setpoint (the dead-man)
   const STATE_STALE_MS = 500;      // no state for this long: the service is not publishing
   const ECU_STALE_S = 0.2;         // s: an ECU measurement older than this is not live (the service's default limit)
@@ -196,6 +197,12 @@
     request(key, payload = {}) {
       if (!this.ws || this.ws.readyState !== WebSocket.OPEN) {
         return Promise.resolve({ ok: false, data: { error: "disconnected", message: `${key}: not connected to the service` } });
+      }
+      // A repeated command (a held jog, levelling's setpoints) is not queued behind a stalled connection: the
+      // service brakes at its ttl meanwhile, and a stall's backlog sent at once looked like a flood (the server
+      // closes a page above 100 commands a second, a review).
+      if (REPEATED_KEYS.has(key) && this.ws.bufferedAmount > 0) {
+        return Promise.resolve({ ok: false, data: { error: "disconnected", message: `${key}: not sent, the connection is backed up` } });
       }
       const id = this.nextId++;
       return new Promise((resolve) => {

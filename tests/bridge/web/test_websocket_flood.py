@@ -251,3 +251,22 @@ def test_the_socket_is_not_written_once_the_peer_is_gone():
         return closed
 
     assert asyncio.run(run())
+
+
+def test_a_network_stalls_backlog_arriving_at_once_does_not_close_the_page():
+    """A review: 4.4 s of a held jog and levelling (130 commands) queued in a stalled connection arrived at once
+    and closed the page with a burst of 100 — levelling stopped in the field. The burst covers 25 s of it."""
+    import asyncio
+
+    from bridge.web.hub import ClientHub
+
+    async def call(name, body, user, received):
+        return True, {}
+
+    clock = _Clock()  # the whole backlog at one instant
+    msgs = [json.dumps({"id": i, "key": "jog" if i % 2 else "track/setpoint", "payload": {}}) for i in range(40 * 25)]
+    sent: list[dict] = []
+    ws = _FakeWS(msgs, sent)
+    asyncio.run(ClientHub(call, {}, command_rate=lambda: CommandRate(clock=clock)).serve(ws))  # type: ignore[arg-type]
+    assert ws.closed != CLOSE_TOO_MANY_COMMANDS
+    assert len([m for m in sent if m.get("type") == "reply"]) == 40 * 25

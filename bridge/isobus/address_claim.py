@@ -6,7 +6,14 @@ without a contending claim (thesis section 1.3, ISO 11783-5). When two control
 functions claim the same address the one with the numerically lower NAME keeps
 it; the loser either claims another address (if arbitrary address capable) or
 sends Cannot Claim — Address Claimed from the null address 254 — and stays
-silent. A Request (PGN 59904) for PGN 60928 is answered with our claim.
+silent. A Request (PGN 59904) for PGN 60928 is answered with our claim, at most one claim every
+``answer_interval_s`` (:data:`REQUEST_ANSWER_INTERVAL_S`, 100 ms): a request that comes sooner after our last
+claim is answered when the interval is over, by one claim for every request that came meanwhile (a claim goes to
+every node). A node flooding requests (a fuzz trial: 1000 requests/s drew 1000 claims/s, most of a 250 kbit/s
+bus) so gets at most 10 claims a second, and every request is still answered within 100 ms — well inside the
+250 ms a node re-checking a lost address waits for the holder's answer, and within the 200 ms J1939-21 gives a
+responder. Claims in a contention (a defence, a claim of another address, Cannot Claim) are never held back;
+each one also answers the requests before it.
 
 A control function that lost its address may check whether the winner is still there
 (``recheck_s``): every ``recheck_s`` it asks the address (a Request for Address Claimed
@@ -46,6 +53,7 @@ __all__ = [
     "CLAIM_WAIT_S",
     "ClaimState",
     "Name",
+    "REQUEST_ANSWER_INTERVAL_S",
     "SELF_CONFIGURABLE_RANGE",
     "cylinder_ecu_name",
     "planner_name",
@@ -53,6 +61,8 @@ __all__ = [
 
 CLAIM_WAIT_S = 0.25
 """Time without contention after which a claimed address may be used, s."""
+REQUEST_ANSWER_INTERVAL_S = 0.1
+"""A Request for Address Claimed is answered at most this often (later ones wait, then share one answer), s."""
 SELF_CONFIGURABLE_RANGE = (128, 247)
 """Addresses an arbitrary-address-capable control function may pick (J1939-81)."""
 
@@ -170,6 +180,9 @@ class AddressClaimer:
         recheck_s: after losing the preferred address, ask its holder this often and claim it
             again when nobody with a lower NAME answers (module docstring); None (default): stay
             in "cannot claim" until :meth:`start`.
+        answer_interval_s: the shortest time between two claims that answer Requests for Address
+            Claimed (module docstring; default :data:`REQUEST_ANSWER_INTERVAL_S`); less than ``wait_s``, so
+            that a holder asked by a node re-checking its lost address answers within that node's window.
     """
 
     def __init__(
@@ -179,6 +192,7 @@ class AddressClaimer:
         *,
         wait_s: float = CLAIM_WAIT_S,
         recheck_s: float | None = None,
+        answer_interval_s: float = REQUEST_ANSWER_INTERVAL_S,
     ) -> None:
         if (
             isinstance(preferred_address, bool)
@@ -192,6 +206,17 @@ class AddressClaimer:
             isinstance(recheck_s, bool) or not isinstance(recheck_s, (int, float)) or not 0 < recheck_s <= 3600
         ):
             raise AddressClaimError(f"recheck_s must be None or a number of seconds in (0, 3600], got {recheck_s!r}")
+        if (
+            isinstance(answer_interval_s, bool)
+            or not isinstance(answer_interval_s, (int, float))
+            or not 0 <= answer_interval_s < wait_s
+        ):
+            raise AddressClaimError(
+                f"answer_interval_s must be a number of seconds in [0, wait_s = {wait_s!r}), got {answer_interval_s!r}"
+            )
+        self._answer_interval_s = float(answer_interval_s)
+        self._answered_s = -float("inf")  # when our last claim (or Cannot Claim) went out
+        self._answer_due_s: float | None = None  # when a held-back answer to a request goes out
         self._recheck_s = None if recheck_s is None else float(recheck_s)
         self._recheck_due_s = float("inf")  # when to ask the holder of the preferred address next
         self._asked_s: float | None = None  # when we asked it (an answer is awaited)
@@ -202,7 +227,6 @@ class AddressClaimer:
         self._address: int | None = None
         self._deadline_s = 0.0
         self._peers: dict[int, Name] = {}
-        self._pending: list[tuple[float, can.Message]] = []
 
     @property
     def name(self) -> Name:
@@ -250,7 +274,8 @@ class AddressClaimer:
     def start(self, now_s: float) -> list[can.Message]:
         """Send our first claim for the preferred address."""
         self._peers.clear()
-        self._pending.clear()
+        self._answer_due_s = None
+        self._answered_s = -float("inf")
         self._recheck_due_s = float("inf")
         return self._claim(self._preferred, now_s)
 
@@ -260,15 +285,16 @@ class AddressClaimer:
         [] unless we hold or are claiming an address."""
         if self._address is None or self._state not in (ClaimState.CLAIMING, ClaimState.CLAIMED):
             return []
-        return [self._claim_frame(self._address)]
+        return [encode(AddressClaimed(self._name.value), source=self._address, destination=GLOBAL_ADDRESS)]
 
     def poll(self, now_s: float) -> list[can.Message]:
         """Advance time: finish the contention window, release delayed answers, check the holder of a lost
         address (``recheck_s``)."""
         if self._state is ClaimState.CLAIMING and now_s >= self._deadline_s:
             self._state = ClaimState.CLAIMED
-        due = [msg for t, msg in self._pending if t <= now_s]
-        self._pending = [(t, msg) for t, msg in self._pending if t > now_s]
+        due: list[can.Message] = []
+        if self._answer_due_s is not None and now_s >= self._answer_due_s:
+            due = self._answer(now_s)
         if self._state is ClaimState.CANNOT_CLAIM and self._recheck_s is not None:
             if self._asked_s is not None and now_s >= self._asked_s + self._wait_s:
                 self._peers.pop(self._preferred, None)  # nobody with a lower NAME answered: it is free
@@ -301,7 +327,11 @@ class AddressClaimer:
             return self._on_claim(decoded.source_address, other, now_s)
         return []
 
-    def _claim_frame(self, source: int) -> can.Message:
+    def _claim_frame(self, source: int, now_s: float) -> can.Message:
+        """Our claim of ``source`` (Cannot Claim from the null address), sent at ``now_s``: it answers every
+        request before it."""
+        self._answered_s = now_s
+        self._answer_due_s = None
         return encode(AddressClaimed(self._name.value), source=source, destination=GLOBAL_ADDRESS)
 
     def _claim(self, address: int, now_s: float) -> list[can.Message]:
@@ -309,7 +339,7 @@ class AddressClaimer:
         self._address = address
         self._state = ClaimState.CLAIMING
         self._deadline_s = now_s + self._wait_s
-        return [self._claim_frame(address)]
+        return [self._claim_frame(address, now_s)]
 
     def _give_up(self, now_s: float) -> list[can.Message]:
         self._state = ClaimState.CANNOT_CLAIM
@@ -317,20 +347,38 @@ class AddressClaimer:
         self._asked_s = None
         if self._recheck_s is not None:
             self._recheck_due_s = now_s + self._recheck_s
-        return [self._claim_frame(NULL_ADDRESS)]
+        return [self._claim_frame(NULL_ADDRESS, now_s)]
+
+    def _answer(self, now_s: float) -> list[can.Message]:
+        """The answer to the requests held back until now: our claim as it stands now (Cannot Claim while we
+        cannot claim, nothing before :meth:`start`)."""
+        self._answer_due_s = None
+        if self._state is ClaimState.CANNOT_CLAIM:
+            return [self._claim_frame(NULL_ADDRESS, now_s)]
+        if self._address is None:
+            return []
+        return [self._claim_frame(self._address, now_s)]
 
     def _on_request(self, pgn: int, destination: int, now_s: float) -> list[can.Message]:
+        """Answer a Request for Address Claimed at once, or — within ``answer_interval_s`` of our last claim —
+        when the interval is over (one answer for every request meanwhile: module docstring)."""
         if pgn != PGN_ADDRESS_CLAIMED:
             return []
+        earliest_s = now_s
         if self._state is ClaimState.CANNOT_CLAIM:
-            if destination == GLOBAL_ADDRESS:
-                # J1939-81: pseudo-random 0..153 ms delay against simultaneous answers.
-                delay_s = (self._name.value % 154) / 1000.0
-                self._pending.append((now_s + delay_s, self._claim_frame(NULL_ADDRESS)))
+            if destination != GLOBAL_ADDRESS:
+                return []
+            # J1939-81: pseudo-random 0..153 ms delay against simultaneous answers.
+            earliest_s += (self._name.value % 154) / 1000.0
+        elif self._address is None or destination not in (GLOBAL_ADDRESS, self._address):
             return []
-        if self._address is None or destination not in (GLOBAL_ADDRESS, self._address):
+        if self._answer_due_s is not None:
+            return []  # an answer is on its way already: it answers this request too
+        due_s = max(earliest_s, self._answered_s + self._answer_interval_s)
+        if due_s > now_s:
+            self._answer_due_s = due_s
             return []
-        return [self._claim_frame(self._address)]
+        return self._answer(now_s)
 
     def _on_claim(self, source: int, other: Name, now_s: float) -> list[can.Message]:
         if source == NULL_ADDRESS:
@@ -354,7 +402,7 @@ class AddressClaimer:
             # We win: defend the address; a claim in progress restarts its window.
             if self._state is ClaimState.CLAIMING:
                 self._deadline_s = now_s + self._wait_s
-            return [self._claim_frame(self._address)]
+            return [self._claim_frame(self._address, now_s)]
         if not self._name.arbitrary_address_capable:
             return self._give_up(now_s)
         low, high = SELF_CONFIGURABLE_RANGE

@@ -34,7 +34,10 @@
 * **Reasons.** Each occurrence of a fault gives its own reason: a cause that comes back while its fault is
   still latched, or changes its kind (a heartbeat timeout become a sequence error), replaces the older reason.
   The stale fault says why the frames that arrived were not taken (the last rejection and how many, or their
-  sender's other address: :meth:`~bridge.link.state.MeasurementAssembler.why_stale`).
+  sender's other address: :meth:`~bridge.link.state.MeasurementAssembler.why_stale`). The link follows the address
+  claims of the ECU's address it sees: when the ECU lost it to a lower NAME, the stale and heartbeat reasons say so
+  (its NAME, the winner's, when) instead of pointing at the cable (:meth:`CanLink._ecu_claim_loss`). An all-0xFF
+  0xFF22 (J1939 "not available") is no measurement and has no system state: not a restart, not lost references.
 * **Address.** The link claims its address at :meth:`CanLink.start`. Lost to a lower NAME, it asks
   the address every ``LinkConfig.address_recheck_s`` (1 s) whether the winner still holds it and
   claims it back when nobody with a lower NAME answers (a spoofed claim does not take it for ever);
@@ -72,6 +75,7 @@ from numpy.typing import ArrayLike
 
 from bridge.isobus.address_claim import AddressClaimer, ClaimState, Name
 from bridge.isobus.codec import (
+    AddressClaimed,
     CodecError,
     EcuParameters,
     Heartbeat,
@@ -91,7 +95,7 @@ from bridge.isobus.j1939 import (
     J1939Error,
     decode_id,
 )
-from bridge.isobus.system_state import STATE_WATCHDOG_TRIPPED
+from bridge.isobus.system_state import STATE_WATCHDOG_TRIPPED, measurement_not_available
 from bridge.link.reference_check import ReferenceCheck
 from bridge.link.state import (
     HITCH,
@@ -133,6 +137,9 @@ _ADDRESS_NOT_OURS = (ClaimState.IDLE, ClaimState.CANNOT_CLAIM)
 _KIND = re.compile(r"[^0-9]*")
 #: the period of the measured pose the link sends (0xFF25, to a logging PC), s
 MEASURED_POSE_PERIOD_S = 0.1
+#: a loss of the ECU's address this long before its last frame taken still explains its silence (the frames it
+#: sent before it saw the winning claim), s
+_CLAIM_LOSS_BEFORE_S = 1.0
 #: the messages the link reads (every other known message is counted ``foreign`` without decoding it)
 _CONSUMED_PGNS = frozenset({PGN_HEARTBEAT, PGN_POSITION_MEASUREMENT, PGN_REAR_HITCH_STATUS})
 
@@ -189,6 +196,11 @@ class CanLink:
         # another kind, is a new occurrence and records its own reason though its fault is still latched
         self._occurring: dict[str, str] = {}
         self._pose_due_s = math.inf  # when the next measured pose (0xFF25) is due
+        # the claims of the ECU's address seen on the bus (_on_ecu_address_claim): the NAME holding it, a higher
+        # NAME's claim the holder has not answered yet (NAME, when), the holder's last loss (when, loser, winner)
+        self._ecu_holder: Name | None = None
+        self._ecu_challenger: tuple[Name, float] | None = None
+        self._ecu_claim_lost: tuple[float, Name, Name] | None = None
         self._rx = MeasurementAssembler(model, self._scaling, self._cfg, self._bump)
         # what the stale fault calls the lift's sender
         self._hitch_sender = "cylinder ECU" if cfg.hitch_source == cfg.ecu_address else "tractor"
@@ -336,10 +348,15 @@ class CanLink:
             present = set(self.fault_causes(now_s))
             only = None if names is None else set(names)
             keep = {name: name in present or (only is not None and name not in only) for name in self._faults.active()}
-            kept = any(keep.values())
-            reasons, names = (self._faults.reasons, self._faults.reason_names) if kept else ((), ())
+            held = {k for k, v in keep.items() if v}
+            old = self._faults
+            if len(old.reason_names) == len(old.reasons):  # the cleared faults' reasons go with them (a review)
+                pairs = [(n, r) for n, r in zip(old.reason_names, old.reasons, strict=True) if n in held]
+                reasons, reason_names = tuple(r for _, r in pairs), tuple(n for n, _ in pairs)
+            else:  # reasons without their names (an older record): kept whole while any fault is
+                reasons, reason_names = (old.reasons, old.reason_names) if held else ((), ())
             self._faults = replace(
-                LinkFaults(), **{k: v for k, v in keep.items() if v}, reasons=reasons, reason_names=names
+                LinkFaults(), **dict.fromkeys(held, True), reasons=reasons, reason_names=reason_names
             )
             return self._faults
 
@@ -448,6 +465,8 @@ class CanLink:
                     self._on_conflict(ident.pgn, now_s)
                 return
             if ident.pgn in (PGN_ADDRESS_CLAIMED, PGN_REQUEST):
+                if ident.pgn == PGN_ADDRESS_CLAIMED and ident.source_address == self._cfg.ecu_address:
+                    self._on_ecu_address_claim(frame, now_s)
                 return
             if ident.pgn not in self._known_pgns:
                 self._bump(unknown_pgn=1)
@@ -470,6 +489,9 @@ class CanLink:
             if isinstance(payload, Heartbeat) and src == cfg.ecu_address:
                 self._on_heartbeat(payload.sequence, now_s, frame_stamp(frame) if cfg.bus_timestamps else None)
             elif isinstance(payload, PositionMeasurement) and src == cfg.ecu_address:
+                if measurement_not_available(payload):
+                    self._on_measurement_not_available(frame, now_s)
+                    return
                 restart = self._rx.on_measurement(payload, now_s, frame_stamp(frame), decoded.errors)
                 if restart:
                     self._on_restart(restart, now_s)
@@ -493,6 +515,61 @@ class CanLink:
             self._on_restart("the cylinder ECU restarted (its heartbeat counter began again at 251)", now_s)
         elif sequence == INITIAL_SEQUENCE:  # the ECU starts (its first heartbeat): it may have missed our 0xFF23
             self._send_ecu_parameters(now_s)
+
+    def _on_ecu_address_claim(self, frame: can.Message, now_s: float) -> None:
+        """An Address Claimed for the ECU's address: who holds it (J1939-81: the lower NAME wins a contention;
+        a higher NAME's claim that the holder does not answer within the claim window takes it). A claim with a
+        lower NAME than the holder's is the holder losing the address: kept (when, who lost, who won) for the
+        stale and heartbeat reasons (:meth:`_ecu_claim_loss`) until the loser holds the address again."""
+        try:
+            payload = self._codec.decode_frame(frame).payload
+        except CodecError:
+            return  # counted by nobody: the claimer ignores it too
+        if not isinstance(payload, AddressClaimed):
+            return
+        name = Name.from_int(payload.name)
+        self._settle_ecu_claim(now_s)
+        holder = self._ecu_holder
+        if holder is None or name == holder:
+            self._ecu_holder, self._ecu_challenger = name, None  # the first claim heard, or the holder's defence
+        elif name.value < holder.value:
+            self._ecu_holder, self._ecu_challenger = name, None
+            self._ecu_claim_lost = (now_s, holder, name)
+        else:
+            self._ecu_challenger = (name, now_s)
+
+    def _settle_ecu_claim(self, now_s: float) -> None:
+        """A higher NAME's claim of the ECU's address that the holder did not answer within the claim window
+        holds it now (the holder left); the ECU's own NAME holding it again ends a kept loss."""
+        challenger = self._ecu_challenger
+        if challenger is not None and now_s >= challenger[1] + self._cfg.claim_wait_s - _EPS_S:
+            self._ecu_holder, self._ecu_challenger = challenger[0], None
+        lost = self._ecu_claim_lost
+        if lost is not None and self._ecu_holder == lost[1]:
+            self._ecu_claim_lost = None
+
+    def _ecu_claim_loss(self, last_s: float, now_s: float) -> str:
+        """Why the ECU may have fallen silent since ``last_s`` [s]: it lost its address to a lower NAME (seen
+        at most :data:`_CLAIM_LOSS_BEFORE_S` before ``last_s``, or after it, and not won back), "" if not."""
+        self._settle_ecu_claim(now_s)
+        lost = self._ecu_claim_lost
+        if lost is None or lost[0] < last_s - _CLAIM_LOSS_BEFORE_S:
+            return ""
+        t, loser, winner = lost
+        return (
+            f"the cylinder ECU (NAME 0x{loser.value:016X}) lost its address {self._cfg.ecu_address} to NAME "
+            f"0x{winner.value:016X} (address claim at t = {t:.3f} s), a lower NAME"
+        )
+
+    def _on_measurement_not_available(self, frame: can.Message, now_s: float) -> None:
+        """A 0xFF22 from the ECU with no reading and the system-state byte 0xFF (an all-0xFF frame: J1939 "not
+        available", :func:`~bridge.isobus.system_state.measurement_not_available`): no measurement, and no system
+        state — its restart counter is not read as "15" (a fuzz trial latched "ECU restart counter 0 -> 15", and
+        the next real frame "15 -> 0"), nor its watchdog bit as lost references. Counted as a measurement with
+        unavailable readings; the stale fault says it (:meth:`~bridge.link.state.MeasurementAssembler.why_stale`)."""
+        self._bump(measurements_rx=1, unavailable_readings=1)
+        said = "an all-0xFF frame" if bytes(frame.data) == b"\xff" * 8 else "no reading and system state 0xFF"
+        self._rx.reject(MEASUREMENT, f"{said} = not available (no reading, no system state)", now_s)
 
     def _check_references_arrive(self, system_state: int, now_s: float) -> None:
         """While streaming, a measurement saying the ECU's watchdog expired proves that our
@@ -593,8 +670,11 @@ class CanLink:
             ),
         ):
             if now_s - t > cfg.stale_after_s + _EPS_S:
-                # why the frames that did arrive were not taken, or that none did
-                why = self._rx.why_stale(source, t, src) or "check the CAN cable and the ECU's power"
+                # the ECU lost its address (a claim seen on the bus); why the frames that did arrive were not
+                # taken; or that none did
+                lost = self._ecu_claim_loss(t, now_s) if src == cfg.ecu_address else ""
+                why = "; ".join(w for w in (lost, self._rx.why_stale(source, t, src)) if w)
+                why = why or "check the CAN cable and the ECU's power"
                 out.append(
                     (
                         "stale_measurement",
@@ -624,11 +704,15 @@ class CanLink:
             hint = hb.sequence_error_hint()  # interleaved counters: two nodes with the ECU's address
             if hint is not None:  # before the counter: a latched reason is re-recorded when its words change
                 said += f": {hint}"
+            if hb.state is HeartbeatState.TIMEOUT and hb.age_s is not None:  # silent since it lost its address?
+                if lost := self._ecu_claim_loss(now_s - hb.age_s, now_s):
+                    said += f": {lost}"
             if hb.last_sequence is not None:
                 said += f"; last counter {hb.last_sequence}"
             out.append(("ecu_heartbeat", said))
         elif hb.state is HeartbeatState.WAITING and now_s - since > cfg.heartbeat_timeout_s + _EPS_S:
-            out.append(("ecu_heartbeat", f"no ECU heartbeat for {now_s - since:.3f} s"))
+            lost = self._ecu_claim_loss(since, now_s)
+            out.append(("ecu_heartbeat", f"no ECU heartbeat for {now_s - since:.3f} s" + (f": {lost}" if lost else "")))
         return out
 
     def _raise_present(self, causes: list[tuple[str, str]], *, latch: bool = True) -> None:

@@ -163,8 +163,8 @@ def test_request_for_address_claim_is_answered():
     ac = AddressClaimer(planner_name(), 166)
     assert ac.handle(request_claims(), 0.0) == []  # not started: silent
     ac.start(0.0)
-    for dest, answered in ((255, True), (166, True), (169, False)):
-        out = ac.handle(request_claims(destination=dest), 0.1)
+    for t, dest, answered in ((0.1, 255, True), (0.3, 166, True), (0.5, 169, False)):  # 0.1 s apart at least
+        out = ac.handle(request_claims(destination=dest), t)
         assert len(out) == answered
         if answered:
             assert out[0].arbitration_id == 0x18EEFFA6

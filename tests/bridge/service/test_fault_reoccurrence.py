@@ -44,3 +44,26 @@ def test_a_fault_after_its_ack_is_reported_again_and_refuses_motion(model, tmp_p
         assert s.ok("goto", {"goal": {"z": 0.1}})["accepted"]
     finally:
         s.close()
+
+
+def test_an_acknowledged_faults_reason_leaves_the_link_with_it(model, tmp_path):
+    """A review: the ack cleared ecu_restart's flag in the link but kept its reason while another flag (the
+    ECU restart's own stale measurement) stayed latched there: ``link.faults.reasons`` still said "ECU restart"."""
+    from bridge.link.state import LinkFaults
+
+    s = SimService(model, tmp_path / "hitch.sqlite3", settle_s=0.5)
+    try:
+        link = s.rig.link
+        link._faults = LinkFaults(  # two latched in the link, as after an ECU restart
+            ecu_restart=True,
+            stale_measurement=True,
+            reasons=("ECU restart counter 0 -> 1", "no valid cylinder positions for 0.300 s"),
+            reason_names=("ecu_restart", "stale_measurement"),
+        )
+        left = link.clear_faults(s.rig.now_s, ["ecu_restart"])
+        assert left.active() == ("stale_measurement",)
+        assert left.reasons == ("no valid cylinder positions for 0.300 s",) and left.reason_names == (
+            "stale_measurement",
+        )
+    finally:
+        s.close()

@@ -6,7 +6,7 @@ moves turns that into positive feedback: every setpoint asks for the same differ
 runs to its height limit (a CAN fuzz trial: a ground distance held at 0.30 m drove the hitch to z = −0.218 m,
 "height limit reached (bottom)").
 
-:class:`GroundWatch` notices it: a reading that stayed within ``same_m`` of one value for ``frozen_s`` while the
+:class:`GroundWatch` notices it: a reading that stayed within a band ``same_m`` wide for ``frozen_s`` while the
 setpoints asked for a move of more than ``asked_min_m`` from it and the measured hitch height moved more than
 ``moved_m`` is stuck (a real sensor's noise and the follower's lag move
 the reading whenever the hitch moves; ground that rises and falls exactly with the hitch for a second is not
@@ -21,10 +21,11 @@ __all__ = ["GroundWatch", "FROZEN_S", "MOVED_M", "SAME_M", "ASKED_MIN_M"]
 
 #: how long a reading must stay at one value while the hitch moves to be taken for stuck [s]
 FROZEN_S = 1.0
-#: how far the measured hitch height must move meanwhile [m]
-MOVED_M = 0.02
-#: readings within this of the first one count as the same value [m] (below any sensor's resolution step)
-SAME_M = 1e-6
+#: how far the measured hitch height must move meanwhile [m] (beyond a follower's lag on a terrain ramp)
+MOVED_M = 0.04
+#: readings that keep within a band this wide count as one value [m]: a stuck sensor may dither by its
+#: resolution step (a recheck: 0.300 / 0.301 m alternating ran the hitch to its bottom limit past a 1 µm band)
+SAME_M = 0.003
 #: a setpoint that asks for at most this much (setpoint − reading) asks for nothing that could run away [m]
 ASKED_MIN_M = 0.01
 
@@ -42,6 +43,8 @@ class GroundWatch:
     z_since_m: float = 0.0
     z_min_m: float = 0.0
     z_max_m: float = 0.0
+    d_min_m: float = 0.0
+    d_max_m: float = 0.0
 
     def check(self, distance_m: float, hitch_z_m: float, now_s: float, asked_m: float | None = None) -> str | None:
         """Take the reading ``distance_m`` with the measured hitch height ``hitch_z_m`` at ``now_s``; why the
@@ -55,15 +58,23 @@ class GroundWatch:
         if asked_m is not None and abs(asked_m) <= self.asked_min_m:
             self.value_m = None  # at its setpoint: nothing runs away
             return None
-        if self.value_m is None or abs(distance_m - self.value_m) > self.same_m:
+        if self.value_m is not None:
+            self.d_min_m, self.d_max_m = min(self.d_min_m, distance_m), max(self.d_max_m, distance_m)
+        if self.value_m is None or self.d_max_m - self.d_min_m > self.same_m:
             self.value_m, self.since_s = distance_m, now_s
+            self.d_min_m = self.d_max_m = distance_m
             self.z_since_m = self.z_min_m = self.z_max_m = hitch_z_m
             return None
         self.z_min_m, self.z_max_m = min(self.z_min_m, hitch_z_m), max(self.z_max_m, hitch_z_m)
         held_s, moved_m = now_s - self.since_s, self.z_max_m - self.z_min_m
         if held_s >= self.frozen_s and moved_m > self.moved_m:
+            at = (
+                f"at {self.value_m:.3f} m"
+                if self.d_max_m - self.d_min_m < 0.0005
+                else f"within {self.d_min_m:.3f} … {self.d_max_m:.3f} m"
+            )
             return (
-                f"the ground distance stayed at {self.value_m:.3f} m for {held_s:.1f} s while the hitch moved "
+                f"the ground distance stayed {at} for {held_s:.1f} s while the hitch moved "
                 f"{moved_m * 1000:.0f} mm: a stuck ground-distance sensor (frame 'ground' would drive the hitch to "
                 "its height limit)"
             )

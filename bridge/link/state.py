@@ -140,6 +140,13 @@ REANCHOR_S = 0.3
 #: are plausible, come from two senders: none is taken until no such jump came for CONFLICT_WINDOW_S [s]
 CONFLICT_COUNT = 5
 CONFLICT_WINDOW_S = 0.3
+#: frames of a source arriving more than RATE_FACTOR × (window / its period) + 3 times within a window come
+#: from two senders: none is taken until the rate is normal for a window. The window [s] is RATE_WINDOW_S on
+#: bus stamps (a 300/s spoof is refused within about 0.1 s), RATE_WINDOW_READ_S on read times (a stall's
+#: backlog is read at once: up to about 0.8 s of it is not taken for a second sender)
+RATE_FACTOR = 1.8
+RATE_WINDOW_S = 0.2
+RATE_WINDOW_READ_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -575,6 +582,11 @@ class MeasurementAssembler:
         self._plausible_at: dict[str, float] = {}
         self._conflict: dict[str, tuple[float, tuple[str, float, float, float]]] = {}
         self._conflict_steps: dict[str, tuple[str, float, float, float]] = {}
+        # per source: arrival times within the last RATE_WINDOW_S, until when frames are refused as crowded,
+        # and the rate that was seen [1/s]
+        self._arrivals: dict[str, deque[float]] = {}
+        self._crowded_until: dict[str, float] = {}
+        self._crowded_rate: dict[str, float] = {}
 
     def reject(self, source: str, reason: str, now_s: float) -> None:
         """A frame of ``source`` (:data:`MEASUREMENT`: 0xFF22, :data:`HITCH`: the rear hitch status) from its
@@ -629,6 +641,9 @@ class MeasurementAssembler:
         available"). Returns a restart reason if the system state shows one."""
         self._bump(measurements_rx=1)
         self._count_gap("measurement", now_s, stamp_s, self._cfg.measurement_period_s, "dropped_measurements")
+        if crowded := self._too_many(MEASUREMENT, now_s, stamp_s, self._cfg.measurement_period_s):
+            self.reject(MEASUREMENT, crowded, now_s)  # its system state is not read either: whose would it be?
+            return None
         system = decode_system_state(m.system_state)
         bits, restart = system.restart_count_mod16, None
         if self._restart_bits is not None and bits != self._restart_bits:
@@ -671,6 +686,9 @@ class MeasurementAssembler:
         ``stamp_s`` by the bus (None: unstamped); ``errors``: the DBC signals that carried the error indicator."""
         self._bump(hitch_status_rx=1)
         self._count_gap("hitch", now_s, stamp_s, self._cfg.hitch_status_period_s, "dropped_hitch_status")
+        if crowded := self._too_many(HITCH, now_s, stamp_s, self._cfg.hitch_status_period_s):
+            self.reject(HITCH, crowded, now_s)
+            return
         if h.position is None:
             said = "254 = error indicator" if "RearHitchPosition" in errors else "255 = not available"
             self.reject(HITCH, f"rear hitch position {said}", now_s)
@@ -754,6 +772,36 @@ class MeasurementAssembler:
             f"than the cylinder can move (at most {allowed:.1f} counts; a glitch, or a second node sending as "
             f"address {sender})"
         )
+
+    def _too_many(self, source: str, now_s: float, stamp_s: float | None, period_s: float) -> str:
+        """Why frames of ``source`` are not taken because they arrive faster than their sender sends them, ""
+        if they do not: more than :data:`RATE_FACTOR` × the expected number (``period_s``) within a window
+        (:data:`RATE_WINDOW_S` of bus stamps when trusted, else :data:`RATE_WINDOW_READ_S` of read times: a backlog
+        read at once is only the frames a stall held back) means a second node sends as the same address — the
+        readings of both may lie within the jump allowance of each other (a recheck: a spoof 8 counts off
+        alternated with the ECU's frames and was taken as the pose). None is taken until the rate is normal for
+        a window."""
+        stamped = self._cfg.bus_timestamps and stamp_s is not None
+        t = stamp_s if stamped and stamp_s is not None else now_s
+        window = RATE_WINDOW_S if stamped else RATE_WINDOW_READ_S  # read times: a stall's backlog comes at once
+        times = self._arrivals.setdefault(source, deque())
+        times.append(t)
+        while times and times[0] < t - window:
+            times.popleft()
+        allowed = RATE_FACTOR * window / period_s + 3
+        if len(times) > allowed:
+            self._crowded_until[source] = t + window
+            self._crowded_rate[source] = len(times) / window
+        if t < self._crowded_until.get(source, -math.inf):
+            self._bump(rejected_readings=1)
+            sender = self._cfg.ecu_address if source == MEASUREMENT else self._cfg.hitch_source
+            what = "0xFF22" if source == MEASUREMENT else "rear hitch status"
+            return (
+                f"{what} arrives {self._crowded_rate[source]:.0f} times a second from address {sender}, its sender "
+                f"sends {1.0 / period_s:.0f}: two nodes sending as address {sender}? none taken until the rate is "
+                "normal again"
+            )
+        return ""
 
     def _conflict_step(self, source: str) -> tuple[str, float, float, float]:
         return self._conflict_steps.get(source, ("reading", 0.0, 0.0, 0.0))

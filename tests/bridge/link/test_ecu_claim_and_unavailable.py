@@ -11,15 +11,12 @@ frames are built with the product's codec or byte by byte, expected reasons writ
 from __future__ import annotations
 
 import re
-import uuid
 
 import can
 import pytest
 
 from bridge.isobus.codec import AddressClaimed, Heartbeat, PositionMeasurement, RearHitchStatus, encode
-from bridge.link.can_link import CanLink
-from bridge.link.virtual import InProcessBus
-from planner.model.sensors import SensorScaling
+from tests.bridge.link.test_fault_reasons import HandEcu
 
 TICK = 0.01
 #: running, no reference yet (bit 3), restart counter 0
@@ -36,25 +33,13 @@ CLAIM_169 = 0x18EEFFA9
 CANNOT_CLAIM = 0x18EEFFFE
 
 
-class Ecu:
-    """A link on a private channel and the ECU's frames sent by hand, a tick at a time."""
+class Ecu(HandEcu):
+    """A link on a private channel and the ECU's frames sent by hand, a tick at a time (the fault-reason tests'
+    hand-driven ECU, answering the link's claim request at start)."""
 
     def __init__(self, model) -> None:
-        channel = f"ecu-claim-{uuid.uuid4().hex}"
-        self.link = CanLink(model, InProcessBus(channel=channel), own_bus=True)
-        self.bus = InProcessBus(channel=channel)
-        scaling = SensorScaling(model.profile)
-        c = [int(v) for v in scaling.to_counts(model.neutral)]  # lift, tilt, top, left, right
-        self.counts = c
-        self.lift = (c[0] - scaling.counts_min[0]) / (scaling.counts_max[0] - scaling.counts_min[0])
-        self.k = 0
-        self.sequence = 251
-        self.link.start(0.0)
+        super().__init__(model)
         self.send(claim_frame(ECU_NAME))  # the ECU's claim, as it answers the link's request at start
-
-    @property
-    def now_s(self) -> float:
-        return self.k * TICK
 
     def send(self, frame: can.Message) -> None:
         self.bus.send(frame)
@@ -79,10 +64,6 @@ class Ecu:
             for frame in extra(self) if extra is not None else ():
                 self.send(frame)
             self.link.poll(self.now_s)
-
-    def close(self) -> None:
-        self.link.close()
-        self.bus.shutdown()
 
 
 def claim_frame(name: int, source: int = 169) -> can.Message:

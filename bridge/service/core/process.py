@@ -187,6 +187,14 @@ class ControlCore:
         #: when the last message from the service arrived (``time.monotonic()``; the watch of the service)
         self._heard = time.monotonic()
         self._heard_gap = 0.0  # the longest time between two messages from the service since the watch reset it [s]
+
+    def send_ready(self, ready: dict[str, Any]) -> None:
+        """Answer the start (``(0, "ok", ready)``), then begin sending notes. Notes queued while starting (an ECU
+        heartbeat fault of a loaded machine, the ``realtime`` warning) wait behind the answer: one sent first
+        was read as the answer and the service refused to start ("the control core could not start: {'event':
+        …}", a run under load 28)."""
+        with self._send_lock:
+            self.conn.send((0, "ok", ready))
         threading.Thread(target=self._send_notes, name="core-notes", daemon=True).start()
         threading.Thread(target=self._send_states, name="core-state-notes", daemon=True).start()
 
@@ -768,7 +776,7 @@ def main(argv: list[str]) -> int:
         except (HitchError, OSError, zenoh.ZError) as exc:
             conn.send((0, "error", "start", f"{type(exc).__name__}: {exc}"))
             return 1
-        conn.send((0, "ok", ready))
+        core.send_ready(ready)
         core.serve()
     except KeyboardInterrupt:  # a SIGINT sent to the core itself (a terminal's Ctrl-C reaches only the service:
         pass  # the core runs in a process group of its own, CoreProcess.start)

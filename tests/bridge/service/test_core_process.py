@@ -497,3 +497,28 @@ def test_the_core_builds_its_state_only_while_someone_subscribes(tmp_path):
             assert built < cycles / 5, f"{built} states built in {cycles:.0f} cycles while nobody subscribed"
     finally:
         svc.close()
+
+
+def test_notes_queued_while_the_core_starts_wait_behind_its_start_answer():
+    """A run under load 28: an ECU heartbeat fault raised while the core started went to the service before the
+    core's start answer; the service read that note as the answer and refused to start ("the control core could
+    not start: {'event': …}"). Notes now wait until the answer has been sent."""
+    import multiprocessing
+
+    from bridge.service.core.process import ControlCore
+
+    service_end, core_end = multiprocessing.Pipe()
+    core = ControlCore(ServiceConfig(), core_end, [], nice_failed=None)
+    try:
+        core._note({"event": "fault", "faults": ["ecu_heartbeat"]})  # raised while starting
+        assert not service_end.poll(0.3), service_end.recv()  # nothing before the start answer
+        core.send_ready({"pid": 1})
+        assert service_end.recv() == (0, "ok", {"pid": 1})
+        assert service_end.poll(2.0) and service_end.recv() == (
+            0,
+            "note",
+            {"event": "fault", "faults": ["ecu_heartbeat"]},
+        )
+    finally:
+        core.close()
+        service_end.close()

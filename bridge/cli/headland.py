@@ -13,6 +13,7 @@ from typing import Any
 
 from bridge.cli.errors import CLIError
 from bridge.cli.service import _client_command, _deadline, _print, _run, add_deadline_option
+from bridge.service.maneuvers.steps import step_words
 
 __all__ = ["add_maneuver_actions", "add_lines_command"]
 
@@ -89,7 +90,9 @@ def _cmd_control(args: Any) -> int:
             text = f"{args.action}: maneuver {r.get('maneuver_id')} finished (no step left)"
         else:
             state = "paused" if m.get("paused") else "running"
-            text = f"{args.action}: maneuver {r.get('maneuver_id')} {state}, step {m.get('step')}"
+            step = m.get("step")
+            where = step_words(step) if isinstance(step, int) and not isinstance(step, bool) else "step -"
+            text = f"{args.action}: maneuver {r.get('maneuver_id')} {state}, {where}"
         _print(args, r, text)
         return 0
 

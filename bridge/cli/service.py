@@ -41,6 +41,7 @@ from bridge.cli.plan import parse_pose_arg
 from bridge.link.realtime import INTERFACES
 from bridge.service.config import DEFAULT_LISTEN, load_service_config
 from bridge.service.maneuvers.language import MIN_SPEED_SCALE
+from bridge.service.maneuvers.steps import step_words
 from bridge.service.schemas import DEFAULT_DEADLINE_MS, MAX_DEADLINE_MS
 from bridge.service.wire import to_json_text
 from planner.errors import HitchError
@@ -819,7 +820,9 @@ def _activity(s: dict) -> str:
     parts = []
     m = s.get("maneuver")
     if isinstance(m, dict):
-        text = f"maneuver {m.get('name') or '-'} step {m.get('step', '-')}"
+        step = m.get("step")
+        where = step_words(step) if isinstance(step, int) and not isinstance(step, bool) else "step -"
+        text = f"maneuver {m.get('name') or '-'} {where}"
         if m.get("kind"):
             text += f" {m['kind']}"
         if m.get("paused"):
@@ -940,7 +943,7 @@ def script_errors(errors: list[dict]) -> str:
     step, ``script``."""
 
     def where(step: object) -> str:
-        return "script" if not isinstance(step, int) else f"step {step + 1} (index {step})"
+        return "script" if not isinstance(step, int) or isinstance(step, bool) else step_words(step)
 
     return "\n".join(f"  {where(e.get('step'))}: {e['message']}" for e in errors)
 

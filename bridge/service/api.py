@@ -44,7 +44,7 @@ from bridge.service.maneuvers.language import (
     parse_maneuver,
 )
 from bridge.service.maneuvers.recorder import ManeuverRecorder, maneuvers_using_preset, recorder_for
-from bridge.service.maneuvers.steps import WaitForStep
+from bridge.service.maneuvers.steps import WaitForStep, step_words
 from bridge.service.motion.controller import MotionController
 from bridge.service.motion.types import MODES, ManeuverAccepted, MotionError, pose_dict
 from bridge.service.planning import InProcessPlanning, Planning
@@ -506,12 +506,12 @@ class ServiceAPI:
         return out
 
     def _check_goto_steps(self, parsed: ManeuverScript) -> None:
-        """A goto step outside the workspace is refused at save, naming the step (0-based, as validate and the
-        runner count them) and the face with the planner's own words and unit hint, as validate says it and
+        """A goto step outside the workspace is refused at save, naming the step (:func:`step_words`, as validate and
+        the runner name it) and the face with the planner's own words and unit hint, as validate says it and
         presets/save refuses such a pose (it was saved, then every run refused it; a fleet trial)."""
         errors = goto_workspace_errors(parsed, self.motion.planner)
         if errors:
-            said = "; ".join(f"step {e.step} (goto): {e.message}" for e in errors)
+            said = "; ".join(f"{step_words(e.step or 0, 'goto')}: {e.message}" for e in errors)  # each has a step
             raise RequestError(
                 "unreachable",
                 f"maneuvers/save: {said}; no run could reach {'it' if len(errors) == 1 else 'them'}",

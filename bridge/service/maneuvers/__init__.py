@@ -58,6 +58,7 @@ if TYPE_CHECKING:
         WaitForStep,
         WaitStep,
         check_name,
+        step_words,
     )
 
 #: public name -> the module that defines it
@@ -78,6 +79,7 @@ _SOURCES: dict[str, str] = {
             "Step",
             "ManeuverScript",
             "check_name",
+            "step_words",
         ),
         "bridge.service.maneuvers.steps",
     ),
@@ -122,6 +124,7 @@ __all__ = [
     "Step",
     "ManeuverScript",
     "check_name",
+    "step_words",
     # parsing and validation (bridge.service.maneuvers.language)
     "MAX_SCRIPT_BYTES",
     "MAX_STEPS",

@@ -65,6 +65,7 @@ from bridge.service.maneuvers.steps import (  # the step schema; re-exported (se
     _Header,
     _show,
     check_name,
+    step_words,
 )
 from planner.errors import HitchInputError, unit_hint_within
 from planner.model.types import CONTROLLED_POSE_UNITS
@@ -128,7 +129,7 @@ class StepError:
         return {"step": self.step, "message": self.message}
 
     def sentence(self) -> str:
-        return self.message if self.step is None else f"step {self.step}: {self.message}"
+        return self.message if self.step is None else f"{step_words(self.step)}: {self.message}"
 
 
 # ---------------------------------------------------------------------------------------- parsing

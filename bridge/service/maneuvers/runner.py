@@ -32,6 +32,7 @@ from typing import Any, Literal, Protocol
 
 from bridge.isobus.heartbeat import HEARTBEAT_TIMEOUT_S
 from bridge.service.maneuvers.language import PlannedStep, ValidationResult
+from bridge.service.maneuvers.steps import step_words
 from planner.errors import HitchInputError
 
 __all__ = [
@@ -230,12 +231,11 @@ class ManeuverRunner:
                     return Command("goto", ps.index, dict(ps.goal), ps.speed_scale, tuple(events), self._request)
             verdict = self._progress(ps, now_s, state, distance_travelled_m)
             if verdict == "unavailable":
-                cmd = self.abort(now_s, "trigger_unavailable", f"step {ps.index}: no line {ps.line!r} is saved")
+                cmd = self.abort(now_s, "trigger_unavailable", f"{step_words(ps.index)}: no line {ps.line!r} is saved")
                 return Command(cmd.action, cmd.step, events=tuple(events) + cmd.events)
             if verdict == "interrupted":
-                cmd = self.abort(
-                    now_s, "interrupted", f"the motion of step {ps.index} was replaced by motion {state.motion_id!r}"
-                )
+                replaced = f"the motion of {step_words(ps.index)} was replaced by motion {state.motion_id!r}"
+                cmd = self.abort(now_s, "interrupted", replaced)
                 return Command(cmd.action, cmd.step, events=tuple(events) + cmd.events)
             if verdict == "waiting":
                 return Command("continue", ps.index, events=tuple(events))

@@ -36,6 +36,7 @@ __all__ = [
     "Step",
     "ManeuverScript",
     "check_name",
+    "step_words",
 ]
 
 DEFAULT_TIMEOUT_S = 60.0
@@ -71,6 +72,13 @@ def check_name(value: Any, what: str = "name") -> str:
             f"letter or digit, got {_show(value)}"
         )
     return value
+
+
+def step_words(index: int, kind: str | None = None) -> str:
+    """A step as every text names it: counted from 1 as a reader counts a script's steps, with the API's
+    0-based index (``step`` in events, errors and the state; ``steps[i]``) beside it — ``step 2 (index 1)``,
+    ``step 2 (index 1, goto)``. (The CLI and the page said "step 0" at run time and "step 1" in validate.)"""
+    return f"step {index + 1} (index {index}{', ' + kind if kind else ''})"
 
 
 def _show(value: Any) -> str:

@@ -85,6 +85,7 @@ from bridge.service.gnss import GnssTracker
 from bridge.service.maneuvers.language import ValidationResult, guarded_plan_step
 from bridge.service.maneuvers.runner import AbortReason, LoopState, ManeuverRunner
 from bridge.service.maneuvers.slot import ManeuverSlot
+from bridge.service.maneuvers.steps import step_words
 from bridge.service.motion.following import FOLLOWING_ERROR, FollowingErrorLimits, FollowingSupervisor
 from bridge.service.motion.link_port import LinkPort
 from bridge.service.motion.outbox import Outbox
@@ -916,7 +917,7 @@ class MotionController:
         from_maneuver = runner is not None
         what = label if kind == "preset" and label in ("raise", "return") else kind  # named so in refusals
         if from_maneuver:
-            what = f"maneuver {label}"  # "maneuver step 2 refused: …"
+            what = f"maneuver {label}"  # "maneuver step 2 (index 1) refused: …"
         lead = _PLAN_LEAD_S
         for _ in range(_PLAN_TRIES):
             with self._lock:
@@ -1335,14 +1336,15 @@ class MotionController:
         request: int | None = None,
         deadline: float | None = None,
     ) -> None:
+        named = "a step" if step is None else step_words(step)
         try:
-            self._start_plan(goal, scale, "maneuver", f"step {step}", runner=runner, request=request, deadline=deadline)
+            self._start_plan(goal, scale, "maneuver", named, runner=runner, request=request, deadline=deadline)
         except ValueError as exc:
             events: list[Event] = []
             late = isinstance(exc, MotionError) and exc.code == "busy" and deadline is not None
             refused = isinstance(exc, MotionError) and not late  # the link or the ECU not ready: says why
             reason: AbortReason = "deadline" if late else "refused" if refused else "plan_failed"
-            text = f"step {step}: {exc}" if late else str(exc) if refused else f"step {step} cannot be planned: {exc}"
+            text = f"{named}: {exc}" if late else str(exc) if refused else f"{named} cannot be planned: {exc}"
             with self._lock:
                 if self._maneuver.owns(runner, request):
                     self._maneuver.abort(self.clock(), reason, text, events)

@@ -84,6 +84,13 @@ def test_a_state_at_rest_and_a_script_error_without_a_step_print_no_python_none(
     assert cli_service.script_errors(errors) == "  script: script is not valid YAML\n  step 3 (index 2): unknown step"
 
 
+def test_the_state_line_names_a_running_maneuvers_step_as_validate_does():
+    """The state line said ``maneuver m step 0`` for the step validate calls ``step 1 (index 0)``."""
+    m = {"name": "m", "step": 0, "kind": "goto", "paused": True}
+    assert cli_service._activity({"maneuver": m}) == "maneuver m step 1 (index 0) goto PAUSED"
+    assert cli_service._activity({"maneuver": {"name": "m", "step": None}}) == "maneuver m step -"
+
+
 def test_console_and_esc_helpers():
     c = console(record=True, width=200)
     c.print(f"[bold]{esc('[red]x[/red] :x:')}[/bold]")

@@ -85,7 +85,7 @@ def test_pause_resume_skip_and_record_through_the_cli(service, capsys, tmp_path)
     assert rc == 0, err
     assert wait_until(lambda: svc.latest_state["pose"]["z"] > 0.03, 10.0)
     rc, out, err = _cli(capsys, ep, "maneuver", "pause")
-    assert rc == 0 and "paused, step 0" in out, (out, err)
+    assert rc == 0 and "paused, step 1 (index 0)" in out, (out, err)
     assert wait_until(lambda: not svc.latest_state["moving"], 5.0)
     assert svc.latest_state["maneuver"]["paused"] is True
     rc, out, _ = _cli(capsys, ep, "maneuver", "resume", "--json")

@@ -193,7 +193,7 @@ def test_a_maneuver_step_is_refused_while_the_controllers_are_off_and_the_run_sa
         aborted = [e for e in s.events if e.get("event") == "maneuver_aborted"]
         assert aborted, [(e["event"], e.get("step"), e.get("reason") or e.get("message")) for e in s.events]
         assert aborted[0]["reason"] == "refused", aborted
-        assert "controllers off" in aborted[0]["message"] and "step 2" in aborted[0]["message"], aborted
+        assert "controllers off" in aborted[0]["message"] and "step 3 (index 2)" in aborted[0]["message"], aborted
         assert sum(e.get("event") == "motion_started" for e in s.events) == started  # nothing started
         assert "following_error" not in {f.name for f in s.mc.faults}
     finally:

@@ -549,7 +549,7 @@ def test_the_cli_round_trip_against_a_running_service(tmp_path, capsys):
             "maneuvers/save",
             {"name": "high", "script": "steps:\n  - wait: 1\n  - goto: {x: 0, z: 0.9}\n"},
             "unreachable",
-            "maneuvers/save: step 1 (goto): goal.z = 0.9000 m is above the workspace (workspace:z:max = ",
+            "maneuvers/save: step 2 (index 1, goto): goal.z = 0.9000 m is above the workspace (workspace:z:max = ",
         ),
     ],
 )

@@ -101,16 +101,17 @@ def test_record_stop_with_a_saved_name_keeps_the_recording(svc):
 
 
 # ------------------------------------------------------------------------------------------ 3. the same step numbers
-def test_save_names_the_step_0_based_in_validates_words(svc):
+def test_save_names_the_step_in_validates_words(svc):
     """validate said ``step 1: goto cannot be planned: goal.x = 0.2000 m is left of the workspace …``, save said
-    ``step 2 (goto): x = 0.2000 m …``: steps are 0-based everywhere."""
+    ``step 2 (goto): x = 0.2000 m …``: every text names a step as :func:`step_words` does (counted from 1, the
+    0-based index of ``step`` fields beside it)."""
     script = "steps:\n  - wait: 1\n  - goto: {x: 0.2}\n"
     ok, v = svc.call("maneuvers/validate", {"script": script})
     assert ok and not v["ok"] and v["errors"][0]["step"] == 1, v
     ok, r = svc.call("maneuvers/save", {"name": "m", "script": script})
     assert not ok and r["error"] == "unreachable", r
     said = v["errors"][0]["message"].removeprefix("goto cannot be planned: ")
-    assert r["message"] == f"maneuvers/save: step 1 (goto): {said}; no run could reach it", (r, v)
+    assert r["message"] == f"maneuvers/save: step 2 (index 1, goto): {said}; no run could reach it", (r, v)
 
 
 def test_save_gives_the_unit_hint_validate_gives(svc):
@@ -120,7 +121,7 @@ def test_save_gives_the_unit_hint_validate_gives(svc):
     ok, v = svc.call("maneuvers/validate", {"script": script})
     assert ok and "did you mean degrees?" in v["errors"][0]["message"], v
     ok, r = svc.call("maneuvers/save", {"name": "m", "script": script})
-    assert not ok and r["message"].startswith("maneuvers/save: step 1 (goto): goal.pitch"), r
+    assert not ok and r["message"].startswith("maneuvers/save: step 2 (index 1, goto): goal.pitch"), r
     assert f"did you mean degrees? {degrees:g} deg = " in r["message"], r
 
 

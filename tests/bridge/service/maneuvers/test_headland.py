@@ -304,6 +304,8 @@ def test_a_wait_for_a_line_no_one_saved_fails_validation_naming_the_step_and_the
     assert svc.call("maneuvers/save", {"name": "w", "script": script})[0]  # a line may be saved later
     ok, r = svc.call("maneuvers/run", {"name": "w"})
     assert not ok and r["error"] == "invalid" and "no line 'nope' is saved" in r["message"], r
+    # named as validate's CLI and the page name it (the refusal said "step 0" where they say "step 1")
+    assert "validate from the current pose: step 1 (index 0): wait_for.line: no line" in r["message"], r
     svc.api.store.save_line("nope", [[11.0, 48.0], [11.001, 48.0]])
     ok, r = svc.call("maneuvers/validate", {"script": script})
     assert ok and r["ok"], r

@@ -10,14 +10,20 @@ runs to its height limit (a CAN fuzz trial: a ground distance held at 0.30 m dro
 setpoints asked for a move of more than ``asked_min_m`` from it and the measured hitch height moved more than
 ``moved_m`` is stuck (a real sensor's noise and the follower's lag move
 the reading whenever the hitch moves; ground that rises and falls exactly with the hitch for a second is not
-what a field does). Pure: no clock, no I/O.
+what a field does). A setpoint within ``asked_min_m`` of the reading asks for nothing that could run away on
+one reading — but a stuck sensor under it asks for the same few millimetres again every cycle (a review: a
+setpoint 9 mm from a reading stuck at 0.30 m ran the hitch 333 mm to its bottom limit, never noticed), so a
+reading that stays within the band for ``frozen_s`` while the hitch moved more than ``moved_far_m`` is stuck
+whatever was asked: more than the ±50 mm of ground a ground-frame session follows (``docs/tracking.md``) with
+one reading is a relative ramp of the ground a field gives only at a sharp change of grade, read by a sensor
+with less noise than a real one (the twin's: 3 mm RMS). Pure: no clock, no I/O.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["GroundWatch", "FROZEN_S", "MOVED_M", "SAME_M", "ASKED_MIN_M"]
+__all__ = ["GroundWatch", "FROZEN_S", "MOVED_M", "MOVED_FAR_M", "SAME_M", "ASKED_MIN_M"]
 
 #: how long a reading must stay at one value while the hitch moves to be taken for stuck [s]
 FROZEN_S = 1.0
@@ -26,56 +32,82 @@ MOVED_M = 0.04
 #: readings that keep within a band this wide count as one value [m]: a stuck sensor may dither by its
 #: resolution step (a recheck: 0.300 / 0.301 m alternating ran the hitch to its bottom limit past a 1 µm band)
 SAME_M = 0.003
-#: a setpoint that asks for at most this much (setpoint − reading) asks for nothing that could run away [m]
+#: a setpoint that asks for at most this much (setpoint − reading) asks for nothing that could run away on one
+#: reading [m] (the hitch following a grade it reads well)
 ASKED_MIN_M = 0.01
+#: how far the measured hitch height may move with one reading whatever the setpoints ask [m]: beyond the
+#: 100 mm peak to peak of the ground a session follows
+MOVED_FAR_M = 0.12
 
 
 @dataclass
 class GroundWatch:
-    """The value a ground-distance reading stays at, since when [s], and the hitch height then [m]."""
+    """The value a ground-distance reading stays at, since when [s], the hitch height's range since then [m], and
+    since when [s] (None: not now) the setpoints asked for more than ``asked_min_m`` with the hitch height's range
+    over that time [m]."""
 
     frozen_s: float = FROZEN_S
     moved_m: float = MOVED_M
+    moved_far_m: float = MOVED_FAR_M
     same_m: float = SAME_M
     asked_min_m: float = ASKED_MIN_M
     value_m: float | None = None
     since_s: float = 0.0
-    z_since_m: float = 0.0
     z_min_m: float = 0.0
     z_max_m: float = 0.0
     d_min_m: float = 0.0
     d_max_m: float = 0.0
+    asked_since_s: float | None = None
+    asked_z_min_m: float = 0.0
+    asked_z_max_m: float = 0.0
 
     def check(self, distance_m: float, hitch_z_m: float, now_s: float, asked_m: float | None = None) -> str | None:
         """Take the reading ``distance_m`` with the measured hitch height ``hitch_z_m`` at ``now_s``; why the
         sensor looks stuck (a sentence with the value, the time and how far the hitch moved), else None.
 
         ``asked_m``: the setpoint's height above the ground less the reading [m] — the move the setpoint asks
-        for. Only a reading that stays away from what is asked (more than ``asked_min_m``) counts: a reading
-        at its setpoint while the hitch follows a steady grade (a 1 mm sensor tracked to 0.2 mm reads one
-        value, a review) asks for nothing and cannot run away; a stuck one under another setpoint asks for the
-        same move again and again."""
-        if asked_m is not None and abs(asked_m) <= self.asked_min_m:
-            self.value_m = None  # at its setpoint: nothing runs away
-            return None
+        for (None: taken as asking for more than ``asked_min_m``). Stuck: the reading held for ``frozen_s`` while
+        every setpoint asked for more than ``asked_min_m`` and the hitch moved more than ``moved_m``, or held for
+        ``frozen_s`` while the hitch moved more than ``moved_far_m`` whatever was asked. A reading at its setpoint
+        while the hitch follows a grade (a 1 mm sensor tracked to 0.2 mm reads one value, a review) is not stuck
+        within ``moved_far_m``."""
+        asks = asked_m is None or abs(asked_m) > self.asked_min_m
         if self.value_m is not None:
             self.d_min_m, self.d_max_m = min(self.d_min_m, distance_m), max(self.d_max_m, distance_m)
         if self.value_m is None or self.d_max_m - self.d_min_m > self.same_m:
             self.value_m, self.since_s = distance_m, now_s
             self.d_min_m = self.d_max_m = distance_m
-            self.z_since_m = self.z_min_m = self.z_max_m = hitch_z_m
+            self.z_min_m = self.z_max_m = hitch_z_m
+            self.asked_since_s = now_s if asks else None
+            self.asked_z_min_m = self.asked_z_max_m = hitch_z_m
             return None
         self.z_min_m, self.z_max_m = min(self.z_min_m, hitch_z_m), max(self.z_max_m, hitch_z_m)
+        if not asks:
+            self.asked_since_s = None
+        elif self.asked_since_s is None:
+            self.asked_since_s = now_s
+            self.asked_z_min_m = self.asked_z_max_m = hitch_z_m
+        else:
+            self.asked_z_min_m = min(self.asked_z_min_m, hitch_z_m)
+            self.asked_z_max_m = max(self.asked_z_max_m, hitch_z_m)
         held_s, moved_m = now_s - self.since_s, self.z_max_m - self.z_min_m
-        if held_s >= self.frozen_s and moved_m > self.moved_m:
-            at = (
-                f"at {self.value_m:.3f} m"
-                if self.d_max_m - self.d_min_m < 0.0005
-                else f"within {self.d_min_m:.3f} … {self.d_max_m:.3f} m"
-            )
-            return (
-                f"the ground distance stayed {at} for {held_s:.1f} s while the hitch moved "
-                f"{moved_m * 1000:.0f} mm: a stuck ground-distance sensor (frame 'ground' would drive the hitch to "
-                "its height limit)"
-            )
+        if self.asked_since_s is not None and now_s - self.asked_since_s >= self.frozen_s:
+            asked_moved_m = self.asked_z_max_m - self.asked_z_min_m
+            if asked_moved_m > self.moved_m:
+                return self._why(now_s - self.asked_since_s, asked_moved_m)
+        if held_s >= self.frozen_s and moved_m > self.moved_far_m:
+            return self._why(held_s, moved_m)
         return None
+
+    def _why(self, held_s: float, moved_m: float) -> str:
+        assert self.value_m is not None
+        at = (
+            f"at {self.value_m:.3f} m"
+            if self.d_max_m - self.d_min_m < 0.0005
+            else f"within {self.d_min_m:.3f} … {self.d_max_m:.3f} m"
+        )
+        return (
+            f"the ground distance stayed {at} for {held_s:.1f} s while the hitch moved "
+            f"{moved_m * 1000:.0f} mm: a stuck ground-distance sensor (frame 'ground' would drive the hitch to "
+            "its height limit)"
+        )

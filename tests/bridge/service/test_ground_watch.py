@@ -43,10 +43,11 @@ def test_a_real_sensors_noise_while_the_hitch_follows_the_ground_is_never_stuck(
 
 
 def test_a_reading_at_its_setpoint_while_the_hitch_follows_a_steady_grade_is_not_stuck():
-    """A review: a 1 mm sensor tracked to within 0.2 mm reads one value while the hitch ramps 25 mm/s on a steady
-    grade — the setpoint asks for nothing (the reading is at it), so nothing runs away."""
-    n = 150
-    z = np.linspace(0.25, 0.25 + 0.05 * 3.0, n)  # 3 s at 50 mm/s
+    """A review: a 1 mm sensor tracked to within 0.2 mm reads one value while the hitch ramps 50 mm/s on a steady
+    grade — the setpoint asks for nothing (the reading is at it), so nothing runs away: not stuck within the
+    100 mm peak to peak of ground a session follows."""
+    n = 120
+    z = np.linspace(0.25, 0.25 + 0.05 * 2.4, n)  # 2.4 s at 50 mm/s: 120 mm, the most one reading may see
     watch = GroundWatch()
     assert all(watch.check(0.30, float(zk), k * 0.02, asked_m=0.0004) is None for k, zk in enumerate(z))
     watch = GroundWatch()  # the same reading under a setpoint 50 mm lower: stuck after 1 s
@@ -67,3 +68,25 @@ def test_a_sensor_dithering_by_its_resolution_step_is_stuck_too():
     first = next(k for k, w in enumerate(got) if w is not None)
     assert first * 0.02 == 1.0
     assert "stayed within 0.300 … 0.301 m for 1.0 s" in str(got[first])
+
+
+def test_a_reading_held_under_a_setpoint_a_few_millimetres_away_is_stuck_once_the_hitch_ran_beyond_the_ground():
+    """A review: a sensor stuck at 0.300 m under a setpoint of 0.291 m asks for 9 mm (under ``asked_min_m``) again
+    every cycle; the hitch crept 17 mm/s to its bottom limit, 333 mm, never noticed. Stuck once the hitch moved
+    more than ``moved_far_m`` (120 mm) with that one reading, whatever is asked, and not before."""
+    dt, n = 0.02, 1000  # 20 s
+    z = 0.1156 - 0.017 * dt * np.arange(n)  # the run the review measured
+    watch = GroundWatch()
+    got = [watch.check(0.300, float(zk), k * dt, asked_m=-0.009) for k, zk in enumerate(z)]
+    first = next(k for k, w in enumerate(got) if w is not None)
+    assert 0.120 < z[0] - z[first] <= 0.120 + 0.017 * dt + 1e-12, z[0] - z[first]
+    assert "stayed at 0.300 m for 7.1 s while the hitch moved 120 mm: a stuck ground-distance sensor" in str(got[first])
+    # the same reading with real noise (3 mm RMS, the twin's sensor) while the hitch follows the ground: never
+    rng = np.random.default_rng(7)
+    noisy = GroundWatch()
+    zz = 0.25 + 0.05 * np.sin(np.linspace(0.0, 20.0, n))
+    d = 0.30 + rng.normal(0.0, 0.003, n)
+    assert all(
+        noisy.check(float(dk), float(zk), k * dt, asked_m=0.0) is None
+        for k, (dk, zk) in enumerate(zip(d, zz, strict=True))
+    )

@@ -573,3 +573,19 @@ def test_a_stuck_ground_distance_sensor_does_not_drive_the_hitch_to_its_height_l
     lo = r.states[-1]["pose"]["z"]
     workspace_min = model.workspace["z"][0]
     assert z0 - lo < 0.5 * (z0 - workspace_min), (z0, lo, workspace_min)  # stopped well before the limit
+
+
+def test_a_stuck_ground_sensor_under_a_setpoint_a_few_millimetres_away_is_noticed_too(r, model):
+    """A review of the fix above: under a setpoint 9 mm from the stuck reading (within the 10 mm a setpoint at
+    its reading may ask) every setpoint asked for 9 mm lower again, and the hitch crept 333 mm to z = −0.218 m,
+    the workspace's bottom limit, never refused. Now stuck once the hitch moved 120 mm with one reading."""
+    r.sensors.dist = 0.30  # stuck
+    session = r.start(dof=["z"], frame="ground", ttl_ms=200)
+    z0 = r.measured()[1]
+    replies: list[tuple[bool, dict]] = []
+    r.run(20.0, each=lambda t: replies.append(r.setpoint(session, {"z": 0.291})))
+    refused = [rep for ok, rep in replies if not ok]
+    assert refused and "stuck ground-distance sensor" in refused[0]["message"], replies[-1]
+    assert r.states[-1]["motion"] is None  # braked to rest
+    lo = r.states[-1]["pose"]["z"]
+    assert z0 - lo < 0.5 * (z0 - model.workspace["z"][0]), (z0, lo)  # stopped well before the limit

@@ -2,6 +2,7 @@
 
 * :mod:`bridge.link.can_link` — :class:`CanLink`, the link to one cylinder ECU;
 * :mod:`bridge.link.state` — its settings, measured state, faults, counters and errors;
+* :mod:`bridge.link.arrival_rate` — frames of one source arriving faster than their sender sends them;
 * :mod:`bridge.link.realtime` — opening a python-can bus and running a node in real time;
 * :mod:`bridge.link.stop_signal` — the stop flag the real-time loops sleep on;
 * :mod:`bridge.link.loopback` — a CAN hub on 127.0.0.1 for nodes in other processes;
@@ -22,6 +23,7 @@ from typing import TYPE_CHECKING
 from planner.lazy import lazy_exports
 
 if TYPE_CHECKING:
+    from bridge.link.arrival_rate import ArrivalRate
     from bridge.link.can_link import CanLink
     from bridge.link.count_tail import CountTail, arrival_sides, build_count_tail, plan_count_tail
     from bridge.link.loopback import DEFAULT_HUB_PORT, LOOPBACK_HOST, LoopbackHub, hub_url
@@ -127,6 +129,7 @@ _SOURCES: dict[str, str] = {
     **dict.fromkeys(("DEFAULT_HUB_PORT", "LOOPBACK_HOST", "LoopbackHub", "hub_url"), "bridge.link.loopback"),
     "InProcessBus": "bridge.link.virtual",
     "StopSignal": "bridge.link.stop_signal",
+    "ArrivalRate": "bridge.link.arrival_rate",
     **dict.fromkeys(
         (
             "Plausibility",
@@ -219,6 +222,7 @@ __all__ = [
     "RealtimeRunner",
     "ReceivingNode",
     "StopSignal",
+    "ArrivalRate",
     "open_bus",
     # python-can's in-process virtual bus with a cheaper frame copy (bridge.link.virtual)
     "InProcessBus",

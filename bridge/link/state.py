@@ -25,6 +25,7 @@ from bridge.isobus.codec import PositionMeasurement, RearHitchStatus
 from bridge.isobus.heartbeat import HEARTBEAT_PERIOD_S, HEARTBEAT_TIMEOUT_S, HeartbeatStatus
 from bridge.isobus.j1939 import CYLINDER_ECU_ADDRESS, PLANNER_ADDRESS
 from bridge.isobus.system_state import SystemStatus, decode_system_state
+from bridge.link.arrival_rate import RATE_FACTOR, STAMP_SLACK_S, ArrivalRate
 from planner.errors import HitchInputError
 from planner.model.kinematics import HitchModel
 from planner.model.sensors import SensorScaling
@@ -127,9 +128,6 @@ _READING_SIGNALS = (
     ("left", "LeftMeasurement"),
 )
 
-#: how far the stamps of two frames may lie further apart than their read times [s] before the stamps are
-#: taken for a step of the bus's wall clock (frames read together at a deadline lie a few periods apart)
-_STAMP_SLACK_S = 1.0
 #: the ECU's full valve command: a cylinder's fastest motion is its valve gain × this [counts/s] (thesis tables
 #: 3-3, 3-4: kv in counts/s per command unit, commands in −254…254)
 VALVE_FULL_COMMAND = 254
@@ -140,13 +138,6 @@ REANCHOR_S = 0.3
 #: are plausible, come from two senders: none is taken until no such jump came for CONFLICT_WINDOW_S [s]
 CONFLICT_COUNT = 5
 CONFLICT_WINDOW_S = 0.3
-#: frames of a source arriving more than RATE_FACTOR × (window / its period) + 3 times within a window come
-#: from two senders: none is taken until the rate is normal for a window. The window [s] is RATE_WINDOW_S on
-#: bus stamps (a 300/s spoof is refused within about 0.1 s), RATE_WINDOW_READ_S on read times (a stall's
-#: backlog is read at once: up to about 0.8 s of it is not taken for a second sender)
-RATE_FACTOR = 1.8
-RATE_WINDOW_S = 0.2
-RATE_WINDOW_READ_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -582,11 +573,8 @@ class MeasurementAssembler:
         self._plausible_at: dict[str, float] = {}
         self._conflict: dict[str, tuple[float, tuple[str, float, float, float]]] = {}
         self._conflict_steps: dict[str, tuple[str, float, float, float]] = {}
-        # per source: arrival times within the last RATE_WINDOW_S, until when frames are refused as crowded,
-        # and the rate that was seen [1/s]
-        self._arrivals: dict[str, deque[float]] = {}
-        self._crowded_until: dict[str, float] = {}
-        self._crowded_rate: dict[str, float] = {}
+        # per source: the check of the rate its frames arrive at (bridge.link.arrival_rate)
+        self._rates: dict[str, ArrivalRate] = {}
 
     def reject(self, source: str, reason: str, now_s: float) -> None:
         """A frame of ``source`` (:data:`MEASUREMENT`: 0xFF22, :data:`HITCH`: the rear hitch status) from its
@@ -775,33 +763,28 @@ class MeasurementAssembler:
 
     def _too_many(self, source: str, now_s: float, stamp_s: float | None, period_s: float) -> str:
         """Why frames of ``source`` are not taken because they arrive faster than their sender sends them, ""
-        if they do not: more than :data:`RATE_FACTOR` × the expected number (``period_s``) within a window
-        (:data:`RATE_WINDOW_S` of bus stamps when trusted, else :data:`RATE_WINDOW_READ_S` of read times: a backlog
-        read at once is only the frames a stall held back) means a second node sends as the same address — the
-        readings of both may lie within the jump allowance of each other (a recheck: a spoof 8 counts off
-        alternated with the ECU's frames and was taken as the pose). None is taken until the rate is normal for
-        a window."""
+        if they do not (:class:`~bridge.link.arrival_rate.ArrivalRate`: more than :data:`RATE_FACTOR` × the rate
+        ``1/period_s`` beyond a burst's allowance, on bus stamps when trusted, else on read times, a gap's backlog
+        credited): a second node sends as the same address — the readings of both may lie within the jump
+        allowance of each other (a recheck: a spoof 8 counts off alternated with the ECU's frames and was taken
+        as the pose). None is taken until the rate is normal again."""
         stamped = self._cfg.bus_timestamps and stamp_s is not None
-        t = stamp_s if stamped and stamp_s is not None else now_s
-        window = RATE_WINDOW_S if stamped else RATE_WINDOW_READ_S  # read times: a stall's backlog comes at once
-        times = self._arrivals.setdefault(source, deque())
-        times.append(t)
-        while times and times[0] < t - window:
-            times.popleft()
-        allowed = RATE_FACTOR * window / period_s + 3
-        if len(times) > allowed:
-            self._crowded_until[source] = t + window
-            self._crowded_rate[source] = len(times) / window
-        if t < self._crowded_until.get(source, -math.inf):
-            self._bump(rejected_readings=1)
-            sender = self._cfg.ecu_address if source == MEASUREMENT else self._cfg.hitch_source
-            what = "0xFF22" if source == MEASUREMENT else "rear hitch status"
-            return (
-                f"{what} arrives {self._crowded_rate[source]:.0f} times a second from address {sender}, its sender "
-                f"sends {1.0 / period_s:.0f}: two nodes sending as address {sender}? none taken until the rate is "
-                "normal again"
-            )
-        return ""
+        rate = self._rates.get(source)
+        if rate is None:
+            rate = self._rates[source] = ArrivalRate(period_s)
+        if not rate.arrive(now_s, stamp_s if stamped else None):
+            return ""
+        self._bump(rejected_readings=1)
+        sender = self._cfg.ecu_address if source == MEASUREMENT else self._cfg.hitch_source
+        if source == MEASUREMENT:
+            what, setting = "0xFF22", "measurement_period_s"
+        else:
+            what, setting = "rear hitch status", "hitch_status_period_s"
+        return (
+            f"{what} arrives {rate.rate_hz():.0f} times a second from address {sender}, more than {RATE_FACTOR:g} × "
+            f"the {1.0 / period_s:.0f} a second its sender sends (LinkConfig.{setting}): two nodes sending as "
+            f"address {sender}? none taken until the rate is normal again"
+        )
 
     def _conflict_step(self, source: str) -> tuple[str, float, float, float]:
         return self._conflict_steps.get(source, ("reading", 0.0, 0.0, 0.0))
@@ -814,7 +797,7 @@ class MeasurementAssembler:
         dt = now_dt = max(here[0] - prev[0], 0.0)
         if here[1] is not None and prev[1] is not None:
             stamp_dt = here[1] - prev[1]
-            if 0.0 <= stamp_dt <= now_dt + _STAMP_SLACK_S:  # else the bus's clock stepped: the read times
+            if 0.0 <= stamp_dt <= now_dt + STAMP_SLACK_S:  # else the bus's clock stepped: the read times
                 dt = max(now_dt, stamp_dt)
         moved = here[2] - prev[2]
         allowed = k * self._full_speed_counts_s * dt + self._cfg.reading_jump_counts
@@ -877,7 +860,7 @@ class MeasurementAssembler:
         self._rx_t[key] = (stamped, t, now_s)
         if prev is not None and prev[0] == stamped:  # never a read time against a stamp
             gap = t - prev[1]
-            if stamped and not 0.0 <= gap <= now_s - prev[2] + _STAMP_SLACK_S:
+            if stamped and not 0.0 <= gap <= now_s - prev[2] + STAMP_SLACK_S:
                 gap = now_s - prev[2]  # the bus's wall clock stepped (NTP, a GNSS time fix): read times
             missed = int(math.floor(gap / period_s + 0.5)) - 1
             if missed > 0:

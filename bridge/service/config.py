@@ -20,6 +20,7 @@ CAN log — is taken from the config file's folder)::
                sim_truth = "truth.toml" # the simulated machine's own true profile (hitch sim perturb)
                hitch_status_address = 240   # the rear hitch status's (the lift's) sender, with simulate_ecu = false
                                             # (a tractor's TECU); absent: the cylinder ECU (169)
+               hitch_status_period_s = 0.1  # its period; absent: 0.01 from the cylinder ECU, else 0.1 (ISO 11783-7)
     [hitch]    profile = "thesis-t132"; category = "2"; implement = "cat2-spreader-400";
                control_rate = 50.0; state_rate = 50.0
                feedforward = true   # stream the unit loops' feed-forward reference (bridge.link.unit_loop)
@@ -87,6 +88,7 @@ NUMBER_FIELDS: tuple[str, ...] = (
     "lease_s",
     "stale_timeout_s",
     "hitch_status_address",
+    "hitch_status_period_s",
     "sim_ground_speed",
     "sim_gnss_origin",
     "sim_gnss_heading",
@@ -197,6 +199,11 @@ class ServiceConfig(BaseModel):
     #: cylinder ECU (169; its simulated twin sends it). A tractor whose TECU sends it: its address (thesis: 240)
     #: (bridge.link.state.LinkConfig.hitch_status_address)
     hitch_status_address: int | None = Field(None, ge=0, le=253, strict=True)
+    #: the period the rear hitch status is sent at [s]; None: 0.01 from the cylinder ECU (its twin sends it with
+    #: every 0xFF22), 0.1 from another sender (ISO 11783-7). Frames arriving 1.8 × faster are a second node
+    #: sending as its address (bridge.link.arrival_rate; a review: a spoof at 150/s passed beside a 10 Hz TECU
+    #: taken as a 100 Hz sender) (bridge.link.state.LinkConfig.hitch_status_period_s)
+    hitch_status_period_s: float | None = Field(None, ge=0.001, le=1.0, strict=True, json_schema_extra=_unit("s"))
     #: ground speed of the simulated tractor (PGN 65096, for maneuver ``wait_for``) [m/s]
     sim_ground_speed: float = Field(1.5, ge=0.0, le=20.0, strict=True, json_schema_extra=_unit("m/s"))
     #: the simulated machine's own truth profile (bridge.sim.truth); None: the planner's profile exactly
@@ -355,6 +362,13 @@ class ServiceConfig(BaseModel):
             )
         return self
 
+    def hitch_status_period(self) -> float:
+        """The rear hitch status's period the link expects [s] (``hitch_status_period_s``, or its default: 0.01
+        from the cylinder ECU, 0.1 from another sender)."""
+        if self.hitch_status_period_s is not None:
+            return self.hitch_status_period_s
+        return 0.01 if self.hitch_status_address in (None, CYLINDER_ECU_ADDRESS) else 0.1
+
     def key(self, name: str) -> str:
         """Full key of an API name: ``key("goto")`` → ``"hitch/goto"``."""
         return f"{self.prefix}/{name}"
@@ -389,6 +403,7 @@ _TOML_SECTIONS = {
         "simulate_ecu": "simulate_ecu",
         "stale_timeout_s": "stale_timeout_s",
         "hitch_status_address": "hitch_status_address",
+        "hitch_status_period_s": "hitch_status_period_s",
         "sim_ground_speed": "sim_ground_speed",
         "sim_truth": "sim_truth",
         "sim_field": "sim_field",

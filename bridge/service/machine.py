@@ -216,6 +216,7 @@ def start_can(cfg: ServiceConfig, *, runners_out: list[RealtimeRunner] | None = 
         # at rest the link is checked once a control period, within [10, 20] ms (LinkConfig.check_period_s)
         link_cfg = LinkConfig(
             hitch_status_address=cfg.hitch_status_address,
+            hitch_status_period_s=cfg.hitch_status_period(),
             control_rate_hz=cfg.control_rate,
             stale_after_s=cfg.stale_timeout_s,
             bus_timestamps=True,

@@ -35,8 +35,8 @@ def test_another_sender_than_the_simulated_ecu_is_refused_with_the_simulated_ecu
         load_service_config(hitch_status_address=240)
 
 
-@pytest.mark.parametrize("address, source", [(None, 169), (240, 240)])
-def test_the_setting_reaches_the_link(address, source):
+@pytest.mark.parametrize("address, source, period_s", [(None, 169, 0.01), (240, 240, 0.1)])
+def test_the_setting_reaches_the_link(address, source, period_s):
     cfg = ServiceConfig(
         data_dir=tempfile.mkdtemp(),
         can_channel=f"hitch-status-{uuid.uuid4().hex}",
@@ -47,5 +47,44 @@ def test_the_setting_reaches_the_link(address, source):
     try:
         assert parts.link.config.hitch_status_address == address
         assert parts.link.config.hitch_source == source
+        assert parts.link.config.hitch_status_period_s == period_s
     finally:
         parts.close()
+
+
+def test_the_period_defaults_to_the_standards_100_ms_from_a_tractor_ecu_and_a_file_sets_it(tmp_path):
+    """A review: the link took a 10 Hz TECU's hitch status for a 100 Hz sender, so a node sending as 240 at
+    15 times the TECU's rate stayed under the rate check (1.8 × 100/s) and was taken as the lift."""
+    assert load_service_config().hitch_status_period() == 0.01
+    f = tmp_path / "service.toml"
+    f.write_text("[can]\nsimulate_ecu = false\nhitch_status_address = 240\n")
+    assert load_service_config(f).hitch_status_period() == 0.1
+    f.write_text("[can]\nsimulate_ecu = false\nhitch_status_address = 240\nhitch_status_period_s = 0.02\n")
+    assert load_service_config(f).hitch_status_period() == 0.02
+
+
+@pytest.mark.parametrize("bad", [0.0, 2.0, True, "0.1"])
+def test_a_period_out_of_range_is_refused_naming_the_field_and_the_range(bad):
+    with pytest.raises(ServiceConfigError, match=r"hitch_status_period_s"):
+        load_service_config(simulate_ecu=False, hitch_status_address=240, hitch_status_period_s=bad)
+
+
+def test_a_spoof_beside_a_10_hz_tractor_ecu_is_refused_once_the_period_is_known(model):
+    """The review's case at the link: the TECU (240) at 10 Hz, a node sending as 240 at 150/s one 0.4 % step
+    off; with the standard's 100 ms the spoof is refused within 0.2 s and the lift stays the TECU's."""
+    from bridge.isobus.codec import RearHitchStatus
+    from bridge.link.state import LinkConfig, MeasurementAssembler
+    from planner.model.sensors import SensorScaling
+
+    cfg = load_service_config(simulate_ecu=False, hitch_status_address=240)
+    link = LinkConfig(hitch_status_address=240, hitch_status_period_s=cfg.hitch_status_period(), bus_timestamps=True)
+    rx = MeasurementAssembler(model, SensorScaling(model.profile), link, lambda **_: None)
+    taken = []
+    for k in range(300):  # 2 s at 150/s, the TECU's frames among them every 0.1 s
+        t = k / 150
+        own = k % 15 == 0
+        rx.on_hitch_status(RearHitchStatus(position=0.5 if own else 0.504), t, stamp_s=t)
+        if rx._hitch is not None and rx._hitch[0] == t:
+            taken.append((t, own))
+    assert all(own for t, own in taken if t > 0.2), taken
+    assert "rear hitch status arrives" in rx.last_problem and "hitch_status_period_s" in rx.last_problem

@@ -63,6 +63,8 @@ from planner.trajectory.pose_limits import PoseLimits
 
 __all__ = [
     "SeqFilter",
+    "SEQ_AHEAD",
+    "SEQ_AHEAD_PER_S",
     "TrackError",
     "TrackFollower",
     "TrackInputError",
@@ -253,8 +255,18 @@ class TrackOutput:
         return self.state.moving
 
 
+#: how far a sequence number may lie ahead of the last one taken: this many + :data:`SEQ_AHEAD_PER_S` per second
+#: since (a client may number its setpoints by milliseconds)
+SEQ_AHEAD = 1000
+SEQ_AHEAD_PER_S = 1000.0
+
+
 class SeqFilter:
-    """Accepts strictly increasing sequence numbers of one session; counts the others (ignored)."""
+    """Accepts strictly increasing sequence numbers of one session; counts the others (ignored). A number further
+    ahead of the last one taken than :data:`SEQ_AHEAD` + :data:`SEQ_AHEAD_PER_S` × the seconds since is refused
+    (:class:`TrackInputError`): taken, it would have every later setpoint of the session's own stream ignored (a
+    fleet trial: one put with seq 2^53 from another client froze a live session's 50 Hz stream until it went
+    stale, and its client was told nothing)."""
 
     def __init__(self) -> None:
         self.reset()
@@ -262,24 +274,39 @@ class SeqFilter:
     def reset(self) -> None:
         """A new session: any sequence number is accepted next."""
         self.last: int | None = None
+        self.last_t: float | None = None  # when the last one was taken [s] (None: not told)
         self.accepted = 0
         self.ignored = 0
 
-    def accept(self, seq: int) -> bool:
-        """True for a sequence number above every one accepted before (then it is the last one)."""
-        if not self.is_new(seq):
+    def accept(self, seq: int, now_s: float | None = None) -> bool:
+        """True for a sequence number above every one accepted before (then it is the last one, taken at
+        ``now_s`` [s])."""
+        if not self.is_new(seq, now_s):
             self.ignored += 1
             return False
-        self.last = seq
+        self.last, self.last_t = seq, now_s
         self.accepted += 1
         return True
 
-    def is_new(self, seq: int) -> bool:
+    def is_new(self, seq: int, now_s: float | None = None) -> bool:
         """Whether ``seq`` is above every one accepted before, without taking it (a setpoint is validated
-        before its number is used up: a refused one leaves it for the corrected resend)."""
+        before its number is used up: a refused one leaves it for the corrected resend). With ``now_s`` [s], a
+        number too far ahead of the last one (class docstring) raises :class:`TrackInputError` naming the
+        allowed range."""
         if isinstance(seq, bool) or not isinstance(seq, int) or seq < 0:
             raise TrackInputError(f"seq must be an integer >= 0, got {seq!r}")
-        return self.last is None or seq > self.last
+        if self.last is None or seq <= self.last:
+            return self.last is None
+        if now_s is not None and self.last_t is not None:
+            since = max(now_s - self.last_t, 0.0)
+            most = self.last + SEQ_AHEAD + int(SEQ_AHEAD_PER_S * since + 1e-9)
+            if seq > most:
+                raise TrackInputError(
+                    f"seq = {seq} is more than {SEQ_AHEAD} + {SEQ_AHEAD_PER_S:g}/s x {since:.3f} s ahead of the "
+                    f"last one taken ({self.last}; allowed: {self.last + 1} … {most}): taken, it would have the "
+                    "session's own later setpoints ignored"
+                )
+        return True
 
 
 def _braking_speed(distance: float, a: float, j: float) -> float:

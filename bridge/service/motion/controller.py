@@ -570,7 +570,7 @@ class MotionController:
             try:
                 # the body is checked before its seq: a field error is said whatever the seq, and a refused
                 # setpoint leaves its seq for the corrected resend (it used it up: a new user's report)
-                new = m.seq.is_new(seq)
+                new = m.seq.is_new(seq, now)
                 target = self._to_tractor_frame(m, pose, now)
                 if (acceleration is not None or jerk is not None) and m.frame != "tractor":
                     raise MotionError(
@@ -581,10 +581,10 @@ class MotionController:
                 v_tractor = self._frame_velocity(m, pose, velocity, now)
                 if not new:
                     m.follower.validate(target, v_tractor)
-                    m.seq.accept(seq)  # counted as ignored
+                    m.seq.accept(seq, now)  # counted as ignored
                     return {"accepted": False, "ignored": "seq", "session": session, "seq": seq}
                 sp = m.follower.set_setpoint(target, v_tractor, now, acceleration=acceleration, jerk=jerk)
-                m.seq.accept(seq)
+                m.seq.accept(seq, now)
             except (TrackInputError, TrackStateError, MotionError) as exc:
                 text = str(exc).removeprefix("track/setpoint: ")
                 if isinstance(exc, TrackStateError) and m.follower.stale:  # no resume() in the service

@@ -589,3 +589,20 @@ def test_a_stuck_ground_sensor_under_a_setpoint_a_few_millimetres_away_is_notice
     assert r.states[-1]["motion"] is None  # braked to rest
     lo = r.states[-1]["pose"]["z"]
     assert z0 - lo < 0.5 * (z0 - model.workspace["z"][0]), (z0, lo)  # stopped well before the limit
+
+
+def test_one_setpoint_numbered_far_ahead_is_refused_and_the_live_stream_goes_on(r):
+    """A fleet trial: another client put one setpoint with seq 2^53 into a live session; it was taken, every
+    later setpoint of the session's own 50 Hz stream was ignored as old, and the session ended stale while its
+    client streamed, told nothing. Now refused naming seq and its allowed range; the stream goes on."""
+    session = r.start(dof=["z"], ttl_ms=200)
+    z0 = r.measured()[1]
+    r.run(0.5, each=lambda t: r.setpoint(session, {"z": z0}))
+    ok, rep = r.setpoint(session, {"z": z0 + 0.08}, seq=2**53)
+    assert not ok and rep["error"] == "bad_request" and rep["message"].startswith("track/setpoint: seq = 9007199254740992"), rep
+    assert "allowed:" in rep["message"], rep
+    replies: list[tuple[bool, dict]] = []
+    r.run(1.0, each=lambda t: replies.append(r.setpoint(session, {"z": z0 + 0.02})))
+    assert all(ok and rep.get("accepted") for ok, rep in replies), replies[-1]
+    assert r.states[-1]["track"]["session"] == session and r.states[-1]["track"]["ignored_seq"] == 0
+    assert abs(r.measured()[1] - (z0 + 0.02)) < 0.005  # followed its own stream, never the far one

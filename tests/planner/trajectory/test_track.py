@@ -344,6 +344,18 @@ def test_seq_filter_accepts_strictly_increasing_numbers():
             f.accept(bad)
 
 
+def test_seq_filter_refuses_a_number_further_ahead_than_a_stream_can_count_in_the_time_since():
+    """A fleet trial: one put with seq 2^53 from another client had the live stream's own setpoints ignored
+    until the session went stale. Allowed: up to SEQ_AHEAD + SEQ_AHEAD_PER_S x the seconds since the last."""
+    f = SeqFilter()
+    assert f.accept(40, now_s=10.0)
+    with pytest.raises(TrackInputError, match=r"seq = 9007199254740992 .*allowed: 41 … 1060\)"):
+        f.is_new(2**53, now_s=10.02)
+    assert f.last == 40 and f.is_new(1060, now_s=10.02) and f.accept(41, now_s=10.02)
+    assert f.accept(41 + 1000 + 2000, now_s=12.02)  # a stream numbered by milliseconds, 2 s later: taken
+    assert f.accept(10**15)  # without a time (a caller that keeps none) nothing is refused
+
+
 SUBSETS = [("x",), ("z",), ("roll",), ("pitch",), ("x", "z"), ("roll", "pitch"), ("z", "roll", "pitch")]
 
 

@@ -795,12 +795,14 @@ class _Flusher(can.Listener):
 
 
 class _Counter(can.Listener):
-    """Counts the frames the listeners before it have taken; keeps the error that ended the recording
-    and tells it to the callback given to :meth:`watch` (exactly once, whichever comes first)."""
+    """Counts the frames the listeners before it have taken; keeps the error that ended the recording, calls
+    ``end`` (on the notifier's thread: the recording ends there) and tells the error to the callback given to
+    :meth:`watch` (exactly once, whichever comes first)."""
 
-    def __init__(self) -> None:
+    def __init__(self, end: Callable[[], None] | None = None) -> None:
         self.n = 0
         self.error: BaseException | None = None
+        self._end = end
         self._callback: Callable[[BaseException], None] | None = None
         self._mu = threading.Lock()
 
@@ -813,6 +815,8 @@ class _Counter(can.Listener):
             if self.error is not None:  # told once: the first error is what stopped the recording
                 return
             self.error, callback = exc, self._callback
+        if self._end is not None:
+            self._end()
         if callback is not None:
             try:
                 callback(exc)
@@ -978,12 +982,33 @@ class CanRecorder:
         except HitchInputError:
             self._writer.stop()
             raise
-        self._count = _Counter()
+        self._notifier: can.Notifier | None = None
+        self._ended = False  # the notifier was stopped (by the first error, or by close)
+        self._end_lock = threading.Lock()
+        self._count = _Counter(end=self._end)
         listeners: list[can.Listener] = [self._writer]
         if isinstance(self._writer.writer, (TextIOMessageWriter, can.BLFWriter)):  # on the disk within 0.25 s
             listeners.append(_Flusher(self._writer, FLUSH_EVERY_S))
         self._notifier = can.Notifier(self._bus, [*listeners, self._count], timeout=0.1)
         self._closed = False
+        if self._count.error is not None:  # the first error came before the notifier was kept
+            self._end()
+
+    def _end(self, timeout_s: float = 0.0) -> None:
+        """Stop the notifier once (its listeners close the file). From the notifier's own thread (the first error:
+        ``timeout_s`` 0, no join): a listener that returns from ``on_error`` tells python-can the error was
+        handled and its thread reads the bus again at once — a remote hub that went away raised on every read,
+        and that thread spun at the control core's real-time priority holding the GIL: stop refused for 14 s to
+        minutes (a field trial)."""
+        with self._end_lock:
+            notifier = self._notifier
+            if self._ended or notifier is None:
+                return
+            self._ended = True
+        try:
+            notifier.stop(timeout=timeout_s)
+        except Exception:  # noqa: BLE001 — a listener that cannot close after the error: the recording ended anyway
+            pass
 
     @property
     def frames_written(self) -> int:
@@ -1065,8 +1090,11 @@ class CanRecorder:
         if self._closed:
             return
         self._closed = True
-        self._notifier.stop(timeout=2.0)  # stops its listeners too: the writer flushes and closes the file
-        self._bus.shutdown()
+        self._end(timeout_s=2.0)  # stops its listeners too: the writer flushes and closes the file
+        try:
+            self._bus.shutdown()
+        except OSError:  # a remote hub that went away: its socket is gone already
+            pass
 
     def __enter__(self) -> CanRecorder:
         return self

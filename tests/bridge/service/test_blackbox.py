@@ -715,3 +715,39 @@ def test_replay_json_gives_enums_by_name_and_the_system_state_in_words(tmp_path)
     assert ssi["fields"]["pitch_merit"] == "FULLY_FUNCTIONAL", ssi
     assert ff22["fields"]["system_state"] == 3 and "watchdog tripped" in ff22["system_state"], ff22
     assert json.loads(json.dumps(recs)) == recs
+
+
+def test_a_can_log_whose_remote_hub_went_away_ends_its_thread_instead_of_spinning(tmp_path):
+    """A field trial: the CAN hub killed mid-motion with can_log set; the recorder's bus raised on every read,
+    its on_error told python-can the error was handled, and the notifier thread read again at once — spinning
+    at the control core's real-time priority with the GIL: stop refused for 14 s to minutes, the state frozen
+    "moving". Now the first error ends the recording's thread (told once), and close() returns at once."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, time; from bridge.link.loopback import LoopbackHub; h = LoopbackHub().start(); "
+        "print(h.url, flush=True); time.sleep(60)"
+    )
+    hub = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    try:
+        assert hub.stdout is not None
+        url = hub.stdout.readline().strip()
+        told: list[BaseException] = []
+        rec = CanRecorder(tmp_path / "bus.asc", "remote", url)
+        try:
+            rec.on_stop(told.append)
+            assert rec._notifier is not None
+            threads = [t for t in rec._notifier._readers if isinstance(t, threading.Thread)]  # python-can's thread
+            assert threads and threads[0].is_alive()
+            hub.kill()  # as the trial's kill -9
+            hub.wait(5.0)
+            assert wait_until(lambda: not threads[0].is_alive(), 5.0), (rec.error, told)
+            assert rec.error is not None and told == [rec.error]
+        finally:
+            t0 = time.monotonic()
+            rec.close()
+            assert time.monotonic() - t0 < 1.0
+    finally:
+        hub.kill()
+        hub.wait(5.0)

@@ -187,6 +187,7 @@ class CanLink:
         self._resent = 0  # frames in a row that re-sent a reference taken before the previous frame
         self._last_tx_s = -math.inf  # when the last reference frame went out (kept across restarts)
         self._tx_error_run = 0
+        self._tx_error_last = ""  # what the last failed send raised
         self._sent: dict[tuple[int, bytes], deque[float]] = {}  # (id, data) → send times within ECHO_WINDOW_S
         self._sent_pruned_s = -math.inf
         self._conflict_s = -math.inf  # the last frame with our source address that we did not send
@@ -650,7 +651,7 @@ class CanLink:
         if now_s - self._conflict_s < CONFLICT_HOLD_S:
             out.append(("address_conflict", self._conflict_reason))
         if self._tx_error_run >= cfg.max_consecutive_tx_errors:
-            out.append(("bus_error", f"{self._tx_error_run} sends failed in a row"))
+            out.append(("bus_error", f"{self._tx_error_run} sends failed in a row (last: {self._tx_error_last})"))
         if self._operating_s is None:
             return out
         st = self._rx.state
@@ -802,8 +803,9 @@ class CanLink:
         for frame in frames:
             try:
                 self._bus.send(frame)
-            except can.CanError:
+            except (can.CanError, OSError) as exc:  # OSError: a remote hub that went away (BrokenPipeError)
                 ok = False
+                self._tx_error_last = f"{type(exc).__name__}: {str(exc)[:160]}"
                 self._tx_error_run += 1
                 self._bump(tx_errors=1)
             else:

@@ -685,6 +685,26 @@ def test_failed_sends_are_counted_and_raise_the_bus_fault(model):
     link.close()
 
 
+class _GoneHubBus(_BrokenBus):
+    """A remote hub that went away: the websocket's send raises the socket's own error."""
+
+    def send(self, msg, timeout=None):
+        raise BrokenPipeError(32, "Broken pipe")
+
+
+def test_a_send_to_a_hub_that_went_away_is_a_bus_fault_naming_it_not_an_internal_error(model):
+    """A field trial: the hub killed mid-motion; the send raised BrokenPipeError through the control cycle, and the
+    operator read "internal error: BrokenPipeError" (fault ``internal``). Now counted as a failed send: the bus
+    fault says what the sends raised."""
+    link = CanLink(model, _GoneHubBus(), own_bus=True)
+    link.start(0.0)
+    for k in range(1, 40):
+        link.poll(k * 0.01)
+    assert link.counters.tx_errors >= 3 and link.faults.bus_error
+    assert "sends failed in a row (last: BrokenPipeError: [Errno 32] Broken pipe)" in " ".join(link.faults.reasons)
+    link.close()
+
+
 def test_link_config_validation():
     with pytest.raises(ValueError, match="control_rate_hz"):
         LinkConfig(control_rate_hz=500)

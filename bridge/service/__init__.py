@@ -18,6 +18,7 @@ token ``<prefix>/alive``. Modules, one concept each:
   step logic of one run), :mod:`.maneuvers.slot` (the controller's running maneuver);
 * :mod:`.odometer`      — distance travelled from wheel-based speed on the CAN bus;
 * :mod:`.store`         — presets and maneuvers in SQLite;
+* :mod:`.data_lock`     — one service per data folder;
 * :mod:`.security`      — Zenoh authentication, access control, TLS;
 * :mod:`.server`        — :class:`HitchService`: CAN, Zenoh session, queryables, publishers, shutdown;
 * :mod:`.client`        — :class:`HitchClient`: the client side used by the CLI and the bench.

@@ -65,6 +65,7 @@ from bridge.service.client import zenoh_reason
 from bridge.service.config import ServiceConfig
 from bridge.service.core.client import CoreProcess, MotionProxy
 from bridge.service.core.process import freeze_startup_objects, lock_memory
+from bridge.service.data_lock import DataDirLock
 from bridge.service.gnss import restore_lines, start_twin_gnss
 from bridge.service.machine import CanParts, build_controller, build_guard, build_model, service_info, start_can
 from bridge.service.motion.controller import LIVE_SESSION, MotionController
@@ -184,6 +185,7 @@ class HitchService:
         self.ecu_node: EcuCanNode | None = None
         self.parts: CanParts | None = None
         self.store: HitchStore | None = None
+        self._data_lock: DataDirLock | None = None  # the data folder, this service's alone while it runs
         self.planning: PlanningWorkers | None = None  # the planning processes (None: in-process planning)
         self.session: zenoh.Session | None = None
         self.warnings: list[str] = []
@@ -245,6 +247,7 @@ class HitchService:
             # a new data dir is the service user's alone (the event log and the store name users and their
             # actions); one that exists keeps the permissions its owner gave it
             cfg.data_dir.mkdir(parents=True, exist_ok=True, mode=0o700)
+            self._data_lock = DataDirLock(cfg.data_dir).acquire()  # before the store or the event log is touched
             self.store = HitchStore(cfg.database_path, limits=cfg.store_limits())
             ik: IKSolver | None = None
             planning: Planning | None = None
@@ -860,6 +863,8 @@ class HitchService:
                 _quiet(self._recorder.close)
             if self.store is not None:
                 _quiet(self.store.close)
+            if self._data_lock is not None:
+                self._data_lock.release()
             self.close_duration_s = time.monotonic() - t0
             return self.close_duration_s
 

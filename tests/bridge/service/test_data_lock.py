@@ -1,0 +1,63 @@
+"""One service per data folder (bridge.service.data_lock): a newcomer's trial ran ``make run`` in two clones on the
+default folder; the second service ran beside the first, wrote a false ``previous_run_unclean`` record about it
+and interleaved the event log's record numbers."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import tempfile
+import uuid
+
+import pytest
+
+from bridge.service.config import ServiceConfig
+from bridge.service.data_lock import LOCK_FILE, DataDirInUseError, DataDirLock
+from bridge.service.server import HitchService
+from tests.integration.service_process import free_port
+
+
+def test_a_second_holder_is_refused_naming_the_folder_and_the_first_and_takes_it_once_released(tmp_path):
+    first = DataDirLock(tmp_path).acquire()
+    with pytest.raises(DataDirInUseError, match=rf"data folder {tmp_path} is in use by another hitch service \(pid "):
+        DataDirLock(tmp_path).acquire()
+    first.release()
+    first.release()  # idempotent
+    with DataDirLock(tmp_path):
+        pass
+    assert (tmp_path / LOCK_FILE).exists()
+
+
+def test_the_lock_goes_with_a_killed_holder(tmp_path):
+    code = (
+        f"from bridge.service.data_lock import DataDirLock; DataDirLock({str(tmp_path)!r}).acquire(); "
+        "print(1, flush=True); input()"
+    )
+    holder = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout is not None and holder.stdout.readline().strip() == "1"
+        with pytest.raises(DataDirInUseError, match=rf"pid {holder.pid}\)"):
+            DataDirLock(tmp_path).acquire()
+    finally:
+        holder.kill()
+        holder.wait(5.0)
+    DataDirLock(tmp_path).acquire().release()  # nothing stale left
+
+
+def test_a_second_service_on_the_same_data_folder_is_refused_before_it_touches_anything():
+    data = tempfile.mkdtemp()
+
+    def config() -> ServiceConfig:
+        return ServiceConfig(
+            data_dir=data,
+            listen=(f"tcp/127.0.0.1:{free_port()}",),
+            can_channel=f"lock-{uuid.uuid4().hex}",
+            control_core="thread",
+            planning_processes=0,
+        )
+
+    with HitchService(config()):
+        with pytest.raises(DataDirInUseError, match="is in use by another hitch service"):
+            HitchService(config()).start()
+    with HitchService(config()):  # the first closed: the folder is free again
+        pass

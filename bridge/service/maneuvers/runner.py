@@ -46,6 +46,10 @@ __all__ = [
     "START_LATENCY_S",
 ]
 
+#: a ``wait_for: distance`` step without a distance travelled (no wheel-based speed, PGN 65096) this long — since the
+#: step began, since it was resumed or since the last one — is aborted ``trigger_unavailable`` [s] (a field trial:
+#: with no tractor on the bus the step waited until the maneuver's timeout, its state saying nothing)
+DISTANCE_SILENT_S = 2.0
 #: a motion step asked for is followed by the measured hitch this long later [s]: the controller's
 #: plan lead (80 ms), the control ticks until the reference streams and the hydraulics' response.
 #: Measured in bench/headland_bench.py (``latency_measured_s``: the time from the trigger's tick until
@@ -140,6 +144,7 @@ class ManeuverRunner:
         self._entered = False
         self._t0 = self._t_step = 0.0
         self._dist0: float | None = None
+        self._dist_seen_s = 0.0  # a distance wait's last distance travelled (or when it began) [s]
         self._motion_id: Hashable | None = None
         self._previous_motion: Hashable | None = None
         self.lines = lines
@@ -233,6 +238,14 @@ class ManeuverRunner:
             if verdict == "unavailable":
                 cmd = self.abort(now_s, "trigger_unavailable", f"{step_words(ps.index)}: no line {ps.line!r} is saved")
                 return Command(cmd.action, cmd.step, events=tuple(events) + cmd.events)
+            if verdict == "no_distance":
+                cmd = self.abort(
+                    now_s,
+                    "trigger_unavailable",
+                    f"{step_words(ps.index)}: no distance travelled for {DISTANCE_SILENT_S:g} s (no wheel-based speed, "
+                    "PGN 65096, from the tractor on the bus): wait_for distance cannot be measured",
+                )
+                return Command(cmd.action, cmd.step, events=tuple(events) + cmd.events)
             if verdict == "interrupted":
                 replaced = f"the motion of {step_words(ps.index)} was replaced by motion {state.motion_id!r}"
                 cmd = self.abort(now_s, "interrupted", replaced)
@@ -281,6 +294,7 @@ class ManeuverRunner:
         held = max(0.0, now_s - self._paused_at)
         self._t0 += held
         self._t_step += held
+        self._dist_seen_s += held
         self._paused_at = None
         if self._index < len(self._steps) and self._steps[self._index].goal is not None:
             self._entered = False  # re-plan the motion from the current pose
@@ -350,6 +364,7 @@ class ManeuverRunner:
         self, ps: PlannedStep, now_s: float, state: LoopState, dist: float | None, events: list[dict[str, Any]]
     ) -> None:
         self._entered, self._t_step, self._dist0 = True, now_s, dist
+        self._dist_seen_s = now_s  # a distance wait's last distance travelled (or when it began) [s]
         self._motion_id, self._previous_motion = None, state.motion_id
         self._left = {}
         if ps.line is not None:
@@ -391,7 +406,8 @@ class ManeuverRunner:
             return self._at_line(ps, now_s)
         # wait_for: distance since the step began; an odometer that goes back (reset) is re-based
         if dist is None:
-            return "waiting"
+            return "no_distance" if now_s - self._dist_seen_s > DISTANCE_SILENT_S else "waiting"
+        self._dist_seen_s = now_s
         if self._dist0 is None or dist < self._dist0:
             self._dist0 = dist
         left = ps.distance_m - (dist - self._dist0)

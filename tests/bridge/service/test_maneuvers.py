@@ -404,6 +404,34 @@ def test_wait_for_rebases_a_reset_odometer_and_waits_without_distance():
     assert run.step(0.5, _state(ecu=0.5), 6.0).action == "done"
 
 
+def test_a_distance_wait_without_wheel_speed_aborts_after_distance_silent_s_naming_the_step_and_the_message():
+    """A field trial: with no tractor on the bus the docs' headland script sat in its wait_for distance step until
+    the maneuver's timeout, its state saying nothing. Now aborted (trigger_unavailable) once no distance travelled
+    came for DISTANCE_SILENT_S — since the step began, or since the last one — and not before; a pause stops
+    that clock as it stops the step's."""
+    from bridge.service.maneuvers.runner import DISTANCE_SILENT_S
+
+    def events_until_abort(feed):
+        run = ManeuverRunner(_validated("steps:\n  - wait: 0.1\n  - wait_for: {distance: 5}\n"))
+        t = 0.0
+        while t < 10.0:
+            c = run.step(t, _state(ecu=t), feed(t))
+            aborted = [e for e in c.events if e["event"] == "maneuver_aborted"]
+            if aborted:
+                return t, aborted[0]
+            t = round(t + 0.02, 9)
+        return None, None
+
+    t, ev = events_until_abort(lambda t: None)  # never a wheel speed: the step began at 0.1 s
+    assert t is not None and abs(t - (0.1 + DISTANCE_SILENT_S + 0.02)) < 0.021, t
+    assert ev["reason"] == "trigger_unavailable" and ev["message"].startswith("step 2 (index 1): no distance travelled")
+    assert "PGN 65096" in ev["message"], ev
+    t, ev = events_until_abort(lambda t: 1.0 if t < 1.0 else None)  # the tractor fell silent at 1 s
+    assert t is not None and abs(t - (1.0 + DISTANCE_SILENT_S)) < 0.03, t
+    t, _ = events_until_abort(lambda t: t * 0.1)  # a steady 0.1 m/s: 5 m in 50 s, never silent
+    assert t is None
+
+
 def test_runner_finish_time_matches_the_waits_for_random_scripts():
     rng = np.random.default_rng(3)
     for _ in range(40):

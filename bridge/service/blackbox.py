@@ -948,6 +948,11 @@ def announce_can_log_stop(recorder: CanRecorder, outbox: Outbox) -> None:
     recorder.on_stop(stopped)
 
 
+#: python-can's ``Notifier.stop`` timeout from the notifier's own thread: far enough below zero that no step of the
+#: wall clock between its two readings of ``time.time()`` makes it join its own thread (a review) [s]
+_ON_OWN_THREAD_S = -86400.0
+
+
 class CanRecorder:
     """Record every frame of ``interface``/``channel`` to ``path`` with python-can's writers.
 
@@ -985,6 +990,7 @@ class CanRecorder:
         self._notifier: can.Notifier | None = None
         self._ended = False  # the notifier was stopped (by the first error, or by close)
         self._end_lock = threading.Lock()
+        self._stopped = threading.Event()  # its listeners stopped: the file is complete
         self._count = _Counter(end=self._end)
         listeners: list[can.Listener] = [self._writer]
         if isinstance(self._writer.writer, (TextIOMessageWriter, can.BLFWriter)):  # on the disk within 0.25 s
@@ -994,21 +1000,28 @@ class CanRecorder:
         if self._count.error is not None:  # the first error came before the notifier was kept
             self._end()
 
-    def _end(self, timeout_s: float = 0.0) -> None:
-        """Stop the notifier once (its listeners close the file). From the notifier's own thread (the first error:
-        ``timeout_s`` 0, no join): a listener that returns from ``on_error`` tells python-can the error was
-        handled and its thread reads the bus again at once — a remote hub that went away raised on every read,
-        and that thread spun at the control core's real-time priority holding the GIL: stop refused for 14 s to
-        minutes (a field trial)."""
+    def _end(self, timeout_s: float = _ON_OWN_THREAD_S) -> None:
+        """Stop the notifier once (its listeners close the file); a second call waits (up to 2 s) until the first
+        has stopped them. From the notifier's own thread (the first error: a negative ``timeout_s``, so python-can's
+        ``stop`` joins no thread — it would be its own —, whatever the wall clock does meanwhile): a listener that
+        returns from ``on_error`` tells python-can the error was handled and its thread reads the bus again at
+        once — a remote hub that went away raised on every read, and that thread spun at the control core's
+        real-time priority holding the GIL: stop refused for 14 s to minutes (a field trial)."""
         with self._end_lock:
             notifier = self._notifier
-            if self._ended or notifier is None:
+            if notifier is None:  # an error before the notifier was kept: __init__ ends it
                 return
-            self._ended = True
+            first, self._ended = not self._ended, True
+        if not first:
+            if timeout_s > 0.0:  # close() during the error's stop: the file complete before it returns
+                self._stopped.wait(timeout_s)
+            return
         try:
             notifier.stop(timeout=timeout_s)
         except Exception:  # noqa: BLE001 — a listener that cannot close after the error: the recording ended anyway
             pass
+        finally:
+            self._stopped.set()
 
     @property
     def frames_written(self) -> int:

@@ -751,3 +751,62 @@ def test_a_can_log_whose_remote_hub_went_away_ends_its_thread_instead_of_spinnin
     finally:
         hub.kill()
         hub.wait(5.0)
+
+
+class _DyingBus(can.BusABC):
+    """60 frames, then every read raises (a remote hub that went away)."""
+
+    def __init__(self) -> None:
+        self.k = 0
+        super().__init__(channel="dying")
+
+    def _recv_internal(self, timeout):
+        self.k += 1
+        time.sleep(0.002)
+        if self.k <= 60:
+            return can.Message(arbitration_id=0x18FF22A9, data=bytes(8), timestamp=time.time()), False
+        raise BrokenPipeError(32, "Broken pipe")
+
+    def send(self, msg, timeout=None):
+        pass
+
+
+@pytest.mark.parametrize("clock_steps_back", [False, True])
+def test_a_can_log_ended_by_an_error_is_complete_when_close_returns(tmp_path, monkeypatch, clock_steps_back):
+    """A review of the fix above: close() during the error's own stop returned at once, the writer still closing
+    (a process exiting then cut the file short); and a step back of the wall clock between python-can's two
+    readings in its stop had it join its own thread (RuntimeError, swallowed): the file was never closed."""
+    import can.notifier
+
+    import bridge.link.realtime as realtime
+    from bridge.service import blackbox
+
+    monkeypatch.setattr(realtime, "open_bus", lambda interface, channel=None, **kw: _DyingBus())
+    slow_stop, stopped = blackbox._SizedLog.stop, threading.Event()
+
+    def stop(self):
+        time.sleep(0.3)  # a slow disk
+        slow_stop(self)
+        stopped.set()
+
+    monkeypatch.setattr(blackbox._SizedLog, "stop", stop)
+    if clock_steps_back:
+
+        class SteppingTime:  # on the notifier's thread, every second reading is 1 s back
+            n = 0
+
+            def __getattr__(self, name):
+                return getattr(time, name)
+
+            def time(self):
+                if threading.current_thread().name.startswith("Notifier"):
+                    self.n += 1
+                    return time.time() - (1.0 if self.n % 2 == 0 else 0.0)
+                return time.time()
+
+        monkeypatch.setattr(can.notifier, "time", SteppingTime())
+    rec = CanRecorder(tmp_path / "bus.asc", "virtual", "x")
+    assert wait_until(lambda: rec.error is not None, 5.0)
+    rec.close()
+    assert stopped.is_set()
+    assert (tmp_path / "bus.asc").read_text().rstrip().endswith("End TriggerBlock")

@@ -781,8 +781,8 @@ class MeasurementAssembler:
         else:
             what, setting = "rear hitch status", "hitch_status_period_s"
         return (
-            f"{what} arrives {rate.rate_hz():.0f} times a second from address {sender}, more than {RATE_FACTOR:g} × "
-            f"the {1.0 / period_s:.0f} a second its sender sends (LinkConfig.{setting}): two nodes sending as "
+            f"{what} arrives {rate.arrival_words()} from address {sender}, more than {RATE_FACTOR:g} × "
+            f"the {1.0 / period_s:.0f} a second its sender sends ({setting}): two nodes sending as "
             f"address {sender}? none taken until the rate is normal again"
         )
 

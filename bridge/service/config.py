@@ -81,6 +81,8 @@ DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
 #: quarter of it. A radio link with longer gaps needs a longer lease (a router's lease decides when its services
 #: count it lost and, with ``on_link_loss = "stop"``, brake).
 DEFAULT_LEASE_S = 2.0
+#: the period the simulated cylinder ECU sends the rear hitch status at [s] (``EcuNodeConfig.hitch_status_period_s``)
+SIM_HITCH_STATUS_PERIOD_S = 0.01
 #: the allowed lease range [s]
 LEASE_RANGE_S = (0.5, 60.0)
 #: the settings that are numbers: a boolean or text is refused for each, naming it (:meth:`ServiceConfig._number`)
@@ -360,6 +362,22 @@ class ServiceConfig(BaseModel):
                 f"sends the rear hitch status from {CYLINDER_ECU_ADDRESS}; leave hitch_status_address unset, or set "
                 "simulate_ecu = false for a tractor that sends it"
             )
+        period = self.hitch_status_period()
+        if self.simulate_ecu and period != SIM_HITCH_STATUS_PERIOD_S:
+            raise ServiceConfigError(
+                f"hitch_status_period_s {period:g} s: the simulated cylinder ECU (simulate_ecu = true) sends the rear "
+                f"hitch status every {SIM_HITCH_STATUS_PERIOD_S:g} s; leave hitch_status_period_s unset, or set "
+                "simulate_ecu = false for a sender of another period"
+            )
+        if period >= self.stale_timeout_s:
+            default = (
+                " (its default from a sender other than the cylinder ECU)" if self.hitch_status_period_s is None else ""
+            )
+            raise ServiceConfigError(
+                f"hitch_status_period_s {period:g} s{default}: not below stale_timeout_s = "
+                f"{self.stale_timeout_s:g} s (the lift would be stale between any two frames); a shorter period, or a "
+                "longer stale_timeout_s"
+            )
         return self
 
     def hitch_status_period(self) -> float:
@@ -367,7 +385,7 @@ class ServiceConfig(BaseModel):
         from the cylinder ECU, 0.1 from another sender)."""
         if self.hitch_status_period_s is not None:
             return self.hitch_status_period_s
-        return 0.01 if self.hitch_status_address in (None, CYLINDER_ECU_ADDRESS) else 0.1
+        return SIM_HITCH_STATUS_PERIOD_S if self.hitch_status_address in (None, CYLINDER_ECU_ADDRESS) else 0.1
 
     def key(self, name: str) -> str:
         """Full key of an API name: ``key("goto")`` → ``"hitch/goto"``."""

@@ -88,3 +88,27 @@ def test_a_gap_whose_frames_never_come_lends_its_credit_only_briefly():
     first = _first_refused(ArrivalRate(T), times, times)
     plain = np.sort(np.concatenate([np.arange(0.0, 5.0, T), spoof]))
     assert first is not None and abs(first - _first_refused(ArrivalRate(T), plain, plain)) < 1e-9
+
+
+@pytest.mark.parametrize("silent_s", [2.0, 10.0])
+def test_a_stamped_gap_lends_no_credit_to_a_spoof_beside_the_returning_sender(silent_s):
+    """A review: a silent ECU's gap (stamped: its frames never come) lent up to 999 frames of credit, and a 300/s
+    spoof beside the returning ECU passed for up to 1.8 s. Stamps keep a backlog's spacing: no credit there."""
+    back = 1.0 + silent_s
+    own = np.concatenate([np.arange(0.0, 1.0, T), np.arange(back, back + 2.0, T)])
+    spoof = np.arange(back, back + 2.0, 1 / 300) + 1e-4
+    times = np.sort(np.concatenate([own, spoof]))
+    first = _first_refused(ArrivalRate(T), times, times)
+    assert first is not None and first - back <= (ArrivalRate(T).allowance - 1.0) / (400 - RATE_FACTOR / T) + T
+
+
+@pytest.mark.parametrize("waiting", [30, 150])
+def test_frames_waiting_when_the_reader_starts_are_taken_and_a_burst_is_named_as_one(waiting):
+    """A review: 30 frames waiting at the link's first read (read times) were refused as "two nodes", saying
+    "arrives 0 times a second"."""
+    rate = ArrivalRate(T)
+    read = np.concatenate([np.full(waiting, 0.3), 0.3 + T * np.arange(1, 300)])
+    assert _first_refused(rate, read) is None
+    burst = ArrivalRate(T)
+    assert any([burst.arrive(5.0) for _ in range(300)])  # 300 at once, past the start's 2 s of frames
+    assert burst.arrival_words() == "64 or more frames at one time"  # the last 64 are kept

@@ -88,3 +88,19 @@ def test_a_spoof_beside_a_10_hz_tractor_ecu_is_refused_once_the_period_is_known(
             taken.append((t, own))
     assert all(own for t, own in taken if t > 0.2), taken
     assert "rear hitch status arrives" in rx.last_problem and "hitch_status_period_s" in rx.last_problem
+
+
+def test_a_period_the_simulated_ecu_does_not_send_at_or_one_the_stale_limit_never_lets_through_is_refused():
+    """A review: hitch_status_period_s = 0.1 with the simulated ECU (it sends every 10 ms) was accepted and every
+    lift frame was refused as two nodes; a period of 0.5 s beside stale_timeout_s 0.2 s had the lift always stale."""
+    from bridge.service.config import SIM_HITCH_STATUS_PERIOD_S
+    from bridge.sim.can_node import EcuNodeConfig
+
+    assert SIM_HITCH_STATUS_PERIOD_S == EcuNodeConfig().hitch_status_period_s
+    with pytest.raises(ServiceConfigError, match=r"hitch_status_period_s 0.1 s: the simulated cylinder ECU .* 0.01 s"):
+        load_service_config(hitch_status_period_s=0.1)
+    assert load_service_config(hitch_status_period_s=0.01).hitch_status_period() == 0.01
+    with pytest.raises(ServiceConfigError, match=r"hitch_status_period_s 0.5 s: not below stale_timeout_s = 0.2 s"):
+        load_service_config(simulate_ecu=False, hitch_status_address=240, hitch_status_period_s=0.5)
+    with pytest.raises(ServiceConfigError, match=r"0.1 s \(its default from a sender other than the cylinder ECU\)"):
+        load_service_config(simulate_ecu=False, hitch_status_address=240, stale_timeout_s=0.1)

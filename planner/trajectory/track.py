@@ -256,9 +256,10 @@ class TrackOutput:
 
 
 #: how far a sequence number may lie ahead of the last one taken: this many + :data:`SEQ_AHEAD_PER_S` per second
-#: since (a client may number its setpoints by milliseconds)
-SEQ_AHEAD = 1000
-SEQ_AHEAD_PER_S = 1000.0
+#: since — room for a client that numbers its setpoints by nanoseconds (``time.time_ns()``; a review: a bound of
+#: 1000 + 1000/s refused streams numbered by µs); 2^53 from a stream near 0 is refused
+SEQ_AHEAD = 10**9
+SEQ_AHEAD_PER_S = 1e9
 
 
 class SeqFilter:
@@ -299,10 +300,10 @@ class SeqFilter:
             return self.last is None
         if now_s is not None and self.last_t is not None:
             since = max(now_s - self.last_t, 0.0)
-            most = self.last + SEQ_AHEAD + int(SEQ_AHEAD_PER_S * since + 1e-9)
+            most = self.last + SEQ_AHEAD + int(SEQ_AHEAD_PER_S * since + 1e-6)
             if seq > most:
                 raise TrackInputError(
-                    f"seq = {seq} is more than {SEQ_AHEAD} + {SEQ_AHEAD_PER_S:g}/s x {since:.3f} s ahead of the "
+                    f"seq = {seq} is more than {SEQ_AHEAD:g} + {SEQ_AHEAD_PER_S:g}/s x {since:.3f} s ahead of the "
                     f"last one taken ({self.last}; allowed: {self.last + 1} … {most}): taken, it would have the "
                     "session's own later setpoints ignored"
                 )

@@ -346,13 +346,19 @@ def test_seq_filter_accepts_strictly_increasing_numbers():
 
 def test_seq_filter_refuses_a_number_further_ahead_than_a_stream_can_count_in_the_time_since():
     """A fleet trial: one put with seq 2^53 from another client had the live stream's own setpoints ignored
-    until the session went stale. Allowed: up to SEQ_AHEAD + SEQ_AHEAD_PER_S x the seconds since the last."""
+    until the session went stale. Allowed: up to SEQ_AHEAD + SEQ_AHEAD_PER_S x the seconds since the last — a
+    stream numbered by nanoseconds fits (a review: 1000 + 1000/s refused one numbered by µs)."""
     f = SeqFilter()
     assert f.accept(40, now_s=10.0)
-    with pytest.raises(TrackInputError, match=r"seq = 9007199254740992 .*allowed: 41 … 1060\)"):
+    with pytest.raises(TrackInputError, match=r"seq = 9007199254740992 .*allowed: 41 … 1020000040\)"):
         f.is_new(2**53, now_s=10.02)
-    assert f.last == 40 and f.is_new(1060, now_s=10.02) and f.accept(41, now_s=10.02)
-    assert f.accept(41 + 1000 + 2000, now_s=12.02)  # a stream numbered by milliseconds, 2 s later: taken
+    assert f.last == 40 and f.is_new(1_020_000_040, now_s=10.02) and f.accept(41, now_s=10.02)
+    ns = SeqFilter()
+    for k in range(100):  # 50 Hz numbered by nanoseconds since the session began, one 0.9 s pause
+        t = k * 0.02 + (0.9 if k > 50 else 0.0)
+        assert ns.accept(int(round(t * 1e9)), now_s=t), k
+    us, t0 = SeqFilter(), 1_796_600_000_000_000  # µs since 1970 in 2026 (under the API's 2^53)
+    assert all(us.accept(t0 + int(round(k * 0.02 * 1e6)), now_s=k * 0.02) for k in range(100))
     assert f.accept(10**15)  # without a time (a caller that keeps none) nothing is refused
 
 

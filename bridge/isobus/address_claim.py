@@ -13,7 +13,7 @@ every node). A node flooding requests (a fuzz trial: 1000 requests/s drew 1000 c
 bus) so gets at most 10 claims a second, and every request is still answered within 100 ms — well inside the
 250 ms a node re-checking a lost address waits for the holder's answer, and within the 200 ms J1939-21 gives a
 responder. Without an address (Cannot Claim) the answer to a global request also waits J1939-81's pseudo-random
-delay (NAME mod 154 ms): within 100 + 153 ms. Claims in a contention (a defence, a claim of another address,
+delay (NAME mod 154 ms): within the larger of the two. Claims in a contention (a defence, a claim of another address,
 Cannot Claim) are never held back; each one also answers the requests before it.
 
 A control function that lost its address may check whether the winner is still there

@@ -123,10 +123,13 @@ def test_under_a_request_flood_a_contention_is_decided_and_a_lost_address_re_che
     b_cannot = [t for t, src, f in bus.log if src is b and f.arbitration_id == CANNOT_CLAIM]
     assert b_cannot, "b never said it cannot claim"
     assert all(y - x >= 0.1 - 1e-9 for x, y in zip(b_cannot, b_cannot[1:], strict=False)), b_cannot  # ≤ 10 a second
-    # ... and every global request answered: within the 100 ms interval + b's J1939 delay (NAME mod 154 ms) of the
-    # one before (a review: the spacing alone held with no request answered at all)
-    most = 0.1 + (high.value % 154) / 1000.0 + DT
-    assert all(y - x <= most + 1e-9 for x, y in zip(b_cannot, [*b_cannot[1:], 6.0], strict=True)), (most, b_cannot)
+    # ... and every global request answered: at max(request + b's J1939 delay (NAME mod 154 ms), the answer before +
+    # 100 ms), so under the flood the answers lie at most max(100 ms, delay) + the 2 ms between its global requests
+    # apart (reviews: the spacing alone held with no request answered; 100 ms + delay let a 2.4 times slower
+    # answerer pass)
+    most = max(0.1, (high.value % 154) / 1000.0) + 2 * DT
+    gaps = [round(y - x, 4) for x, y in zip(b_cannot, [*b_cannot[1:], 6.0], strict=True)]
+    assert all(g <= most + 1e-9 for g in gaps), (most, [g for g in gaps if g > most + 1e-9], b_cannot[-3:])
 
 
 @pytest.mark.parametrize("interval", [-0.1, 0.25, 1.0, True, "0.1"])

@@ -242,9 +242,9 @@ def test_a_request_flood_draws_at_most_ten_claims_a_second_from_the_link_and_its
     cannot = [t for t, ident in seen if ident == CANNOT_CLAIM]
     assert cannot, "the link never said it cannot claim"  # its give-up, then answers to the flood: ≤ 10 a second
     assert all(b - a >= 0.1 - 1e-9 for a, b in zip(cannot, cannot[1:], strict=False)), cannot
-    # ... and the flood answered while the address is lost: within the 100 ms interval + the J1939 delay (NAME mod
-    # 154 ms) + a tick of each other (a review: the spacing alone held with no request answered at all)
-    most = 0.1 + (ecu.link.config.name.value % 154) / 1000.0 + 2 * TICK
+    # ... and the flood answered while the address is lost: at most max(100 ms, the J1939 delay: NAME mod 154 ms)
+    # + the ticks apart (reviews: the spacing alone held with no request answered; 100 ms + delay was too loose)
+    most = max(0.1, (ecu.link.config.name.value % 154) / 1000.0) + 2 * TICK
     lost = [spoofed_at, *[t for t in cannot if t < reclaim[0]], reclaim[0]]
     assert all(b - a <= most + 1e-9 for a, b in zip(lost, lost[1:], strict=False)), (most, lost)
     assert ecu.link.claimed and "address_lost" not in ecu.link.fault_causes(ecu.now_s)

@@ -122,6 +122,19 @@ class PoseRequest(_Strict):
     pitch: float = _dof("pitch", True)
 
 
+def _no_null_dof(data: Any, field: str, hint: str) -> Any:
+    """Refuse a DOF of the partial pose ``data[field]`` given as ``null``, naming it (``goal.z must be a number
+    (m), got null``): it is no number, and a DOF is left out, not null — a fleet trial's ``{"x": 0.01, "z":
+    null}`` goto ran with z kept where it was, and ``{"z": null}`` was refused as "needs at least one of x, z,
+    roll, pitch", its own DOF unnamed."""
+    pose = data.get(field) if isinstance(data, dict) else None
+    if isinstance(pose, dict):
+        for k, v in pose.items():
+            if v is None and k in CONTROLLED_POSE_NAMES:
+                raise ValueError(f"{field}.{k} must be a number ({CONTROLLED_POSE_UNITS[k]}), got null; {hint}")
+    return data
+
+
 class Goal(_Strict):
     """A partial pose: unspecified DOF keep their current value."""
 
@@ -165,6 +178,11 @@ class StopRequest(_Strict):
 
 class PlanRequest(_Strict):
     goal: Goal
+
+    @model_validator(mode="before")
+    @classmethod
+    def _no_null_goal(cls, data: Any) -> Any:
+        return _no_null_dof(data, "goal", "a DOF left out keeps its value")
     speed_scale: float = _scale(1.0)
 
 
@@ -197,6 +215,11 @@ class PresetSave(_Strict):
     name: str = Field(pattern=_NAME)
     pose: Goal | None = None
     speed_scale: float | None = _scale(None)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _no_null_pose(cls, data: Any) -> Any:
+        return _no_null_dof(data, "pose", "a DOF left out keeps its value")
 
 
 class PresetGo(_Strict):
@@ -289,17 +312,7 @@ class TrackSetpoint(_Strict):
     @model_validator(mode="before")
     @classmethod
     def _no_null_pose(cls, data: Any) -> Any:
-        """A pose value ``null`` is not a number: named as such (``{"z": null}`` was refused as "pose = a JSON
-        object needs at least one of x, z, roll, pitch", its own DOF unnamed; a DOF is left out, not null)."""
-        pose = data.get("pose") if isinstance(data, dict) else None
-        if isinstance(pose, dict):
-            for k, v in pose.items():
-                if v is None and k in CONTROLLED_POSE_NAMES:
-                    raise ValueError(
-                        f"pose.{k} must be a number ({CONTROLLED_POSE_UNITS[k]}), got null; a DOF the session does "
-                        "not track is left out"
-                    )
-        return data
+        return _no_null_dof(data, "pose", "a DOF the session does not track is left out")
 
 
 class PresetDelete(NameRequest):

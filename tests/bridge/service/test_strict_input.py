@@ -268,3 +268,21 @@ def test_a_null_pose_value_is_named_as_not_a_number():
     assert "needs at least one of x, z, roll, pitch" in str(
         _refusal("track/setpoint", b'{"session":3,"seq":1,"pose":{}}')
     )
+
+
+@pytest.mark.parametrize(
+    "key, field, body",
+    [
+        ("goto", "goal", {"goal": {"x": 0.01, "z": None}}),
+        ("goto", "goal", {"goal": {"z": None}}),
+        ("plan", "goal", {"goal": {"roll": None}}),
+        ("presets/save", "pose", {"name": "a", "pose": {"pitch": None}}),
+    ],
+)
+def test_a_null_dof_of_a_goal_or_a_preset_is_refused_naming_it(key, field, body):
+    """A fleet trial: {"goal": {"x": 0.01, "z": null}} was accepted with z kept where it was; {"goal": {"z": null}}
+    was refused "needs at least one of x, z, roll, pitch", the z that was sent unnamed."""
+    dof = next(k for k, v in body[field].items() if v is None)
+    msg = str(_refusal(key, json.dumps(body)))
+    assert msg.startswith(f"{key}: {field}.{dof} must be a number ("), msg
+    assert "got null; a DOF left out keeps its value" in msg and "needs at least one" not in msg

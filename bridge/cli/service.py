@@ -411,8 +411,10 @@ def _service_down(args, exc: Exception) -> CLIError:
         if getattr(args, "security", None)
         else "; a service with access control answers only clients with credentials: give them with --security FILE"
     )
+    prefix = getattr(args, "prefix", None)  # None: `fleet ls` without its filter (it said "prefix None")
+    which = "no hitch service" if prefix is None else f"no hitch service with prefix {prefix!r}"
     return CLIError(
-        f"{why} — no hitch service with prefix {args.prefix!r} answers at {tried}; start one with "
+        f"{why} — {which} answers at {tried}; start one with "
         f"`hitch serve` (it listens on {DEFAULT_LISTEN} by default) or give its endpoint with --connect ENDPOINT"
         + secured
     )

@@ -203,7 +203,7 @@ def parse_lines(geojson: Any, name: str | None = None) -> list[FieldLine]:
     elif kind == "LineString":
         features = [("geojson", {"type": "Feature", "geometry": geojson, "properties": {}}, name)]
     else:
-        raise GnssError(f"geojson.type must be LineString, Feature or FeatureCollection, got {kind!r}")
+        raise GnssError(f"geojson.type must be LineString, Feature or FeatureCollection, got {_type_of(geojson)}")
     out = []
     for where, f, given in features:
         if not isinstance(f, Mapping) or f.get("type") != "Feature":
@@ -223,7 +223,10 @@ def parse_lines(geojson: Any, name: str | None = None) -> list[FieldLine]:
 
 
 def _type_of(geom: Any) -> str:
-    return repr(geom.get("type")) if isinstance(geom, Mapping) else f"a {type(geom).__name__}"
+    """The ``type`` of a GeoJSON object as a message shows it: its value, "no type" (never Python's None)."""
+    if not isinstance(geom, Mapping):
+        return f"a {type(geom).__name__}"
+    return "no type" if geom.get("type") is None else repr(geom.get("type"))
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> float:

@@ -117,3 +117,13 @@ def test_an_empty_fleet_is_no_error(monkeypatch, capsys):
 def test_an_empty_filtered_fleet_names_the_filter(monkeypatch, capsys):
     code, out, err, _ = _run(monkeypatch, capsys, {"fleet/t01/hitch": CONFIG}, "--prefix", "farm")
     assert (code, out.strip(), err) == (0, "(no services under farm)", "")
+
+
+def test_a_fleet_listing_that_reaches_no_service_says_no_python_none():
+    """A fleet trial: `hitch fleet ls` reaching nothing said "no hitch service with prefix None answers"."""
+    import argparse
+
+    err = cli_service._service_down(argparse.Namespace(connect=["tcp/127.0.0.1:1"], prefix=None), OSError("x"))
+    assert "no hitch service answers at tcp/127.0.0.1:1" in str(err) and "None" not in str(err), err
+    one = cli_service._service_down(argparse.Namespace(connect=None, prefix="fleet/t01/hitch"), OSError("x"))
+    assert "no hitch service with prefix 'fleet/t01/hitch' answers" in str(one)

@@ -428,3 +428,21 @@ def test_the_twins_receiver_goes_on_after_a_put_that_failed():
     assert twin.put_failures == 2 and twin.last_error == "RuntimeError: congested"
     assert all(json.loads(p)["speed"] == 2.0 for p in puts[2:5])
     assert not thread.is_alive()
+
+
+@pytest.mark.parametrize(
+    "geojson, said",
+    [
+        ({"coordinates": [[11.0, 48.0], [11.001, 48.0]]}, "got no type"),
+        ({"type": "Nope"}, "got 'Nope'"),
+        (
+            {"type": "Feature", "geometry": {"coordinates": []}},
+            "geojson.geometry.type must be 'LineString', got no type",
+        ),
+    ],
+)
+def test_a_geojson_type_that_is_missing_is_said_so_never_as_python_none(geojson, said):
+    """A fleet trial: lines/save of an object without a type said "… got None"."""
+    with pytest.raises(GnssError) as err:
+        parse_lines(geojson, "l")
+    assert said in str(err.value) and "None" not in str(err.value), err.value

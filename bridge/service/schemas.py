@@ -183,6 +183,7 @@ class PlanRequest(_Strict):
     @classmethod
     def _no_null_goal(cls, data: Any) -> Any:
         return _no_null_dof(data, "goal", "a DOF left out keeps its value")
+
     speed_scale: float = _scale(1.0)
 
 

@@ -741,3 +741,53 @@ def test_hitch_replay_prints_the_ecus_system_state_by_name(tmp_path, capsys):
     assert main(["replay", str(path), "--only", "PositionMeasurement", "--interval", "5"]) == 0
     line = next(ln for ln in capsys.readouterr().out.splitlines() if "PositionMeasurement from 169" in ln)
     assert "system_state=3 (controllers on, watchdog tripped; restart count 0)" in line, line
+
+
+class _VirtualTime:
+    """time.monotonic / time.sleep on a clock that moves only when slept or told to."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def monotonic(self) -> float:
+        return self.now
+
+    def sleep(self, s: float) -> None:
+        self.now += max(0.0, s)
+
+
+def test_a_held_jog_is_refreshed_on_a_fixed_grid_and_a_late_refresh_does_not_shift_the_rest(monkeypatch):
+    """A new engineer's trial: the CLI slept 100 ms after each reply, so every period grew by the reply's time and
+    one reply late under load (297 ms) split the jog in two."""
+    clock = _VirtualTime()
+    monkeypatch.setattr(cli_service, "time", clock)
+    calls: list[float] = []
+
+    def refresh() -> dict:
+        calls.append(clock.now)
+        clock.now += 0.3 if len(calls) == 3 else 0.01  # each reply takes 10 ms, the third 300 ms
+        return {"motion_id": 1}
+
+    cli_service._refresh_until(refresh, {}, 1.0, 0.1)
+    gaps = np.diff(calls)
+    assert np.allclose(gaps[:2], 0.1) and abs(gaps[2] - 0.3) < 1e-9, gaps  # on the grid; after the late one at once
+    assert np.allclose(gaps[3:], 0.1), gaps
+    assert calls[-1] < 1.0
+
+
+def test_a_jog_that_lapsed_between_refreshes_says_so_and_names_its_motions(monkeypatch, capsys):
+    import contextlib
+
+    clock = _VirtualTime()
+    monkeypatch.setattr(cli_service, "time", clock)
+    replies = iter([1, 1, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2])
+
+    class Client:
+        def jog(self, *a):
+            clock.now += 0.01
+            return {"motion_id": next(replies), "limited": {}}
+
+    monkeypatch.setattr(cli_service, "_client", lambda args: contextlib.nullcontext(Client()))
+    assert main(["jog", "--vz", "0.05", "--duration", "0.5"]) == 0
+    out = capsys.readouterr().out
+    assert "jog motions 1, 2: it lapsed 1 time(s)" in out and "ttl 200 ms" in out, out

@@ -818,6 +818,14 @@ def _stream(args, c, spec: _Spec) -> int:
     note, braking = _end_note(end_gap, at_stop, pose)
     reason = (outcome or {}).get("reason")
     ours = reason == "track/stop"
+    if note is not None and outcome is not None and not ours:
+        # ended by something else (a stale stream, a fault, a stop): that is why it is away from the last setpoint,
+        # not the signal (a field trial: a stale stream and a killed ECU were blamed on the signal's speed)
+        far = ", ".join(_amount(k, g) for k, g in (end_gap or {}).items() if abs(g) > END_GAP_NOTE)
+        note = (
+            f"hitch: note: the hitch ended away from the last setpoint sent ({far}: end pose minus setpoint): the "
+            f"session ended before track/stop — {reason or (outcome or {}).get('event')}"
+        )
     unknown = None
     if outcome is None and problem is None:  # its end was seen in the state only: the event never came
         note = None  # the end note would blame the signal for what the link did

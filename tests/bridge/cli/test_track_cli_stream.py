@@ -39,8 +39,10 @@ class FakeService:
         slow_put_s: float = 0.0,
         hup_at: int | None = None,
         lose_events: bool = False,
+        end: tuple[str, str] = ("motion_finished", "track/stop"),
     ) -> None:
         self.lag, self.braking, self.v_stop, self.limited = lag, braking, v_stop, dict(limited or {})
+        self.end = end  # the session's end event and reason (another than track/stop: it ended before the stop)
         self.slow_put_s, self.hup_at = slow_put_s, hup_at
         self.lose_events = lose_events  # the events key cut (a router restart): the end is seen in the state only
         self.callbacks: dict = {}
@@ -96,7 +98,7 @@ class FakeService:
         self.callbacks["state"]({"pose": self._pose(), "velocity": dict.fromkeys(DOFS, 0.0), "track": None})
         if not self.lose_events:
             self.callbacks["events"](
-                {"event": "motion_finished", "motion_id": self.MOTION, "kind": "track", "reason": "track/stop"}
+                {"event": self.end[0], "motion_id": self.MOTION, "kind": "track", "reason": self.end[1]}
             )
         return {"stopping": True, "session": session, "motion_id": self.MOTION}
 
@@ -154,6 +156,23 @@ def test_the_end_note_blames_the_signal_beyond_the_braking_distance_or_when_limi
     assert "the signal ran faster than the hitch may follow" in out.err
     assert ("control limited as the stop began: " in out.err) == bool(limited)
     assert json.loads(out.out)["end_braking"] == {"z": pytest.approx(braking)}
+
+
+@pytest.mark.parametrize(
+    "end",
+    [("motion_finished", "stale: no setpoint within 200 ms"), ("motion_aborted", "fault: ecu_heartbeat")],
+)
+def test_a_session_that_ended_before_track_stop_names_its_end_not_the_signal(monkeypatch, capsys, end):
+    """A field trial: after a stale stream and after a killed ECU the note said "the signal ran faster than the
+    hitch may follow, or it began far from where the hitch stood"."""
+    fake = FakeService(lag=0.03, braking=0.003, v_stop=0.05, end=end)
+    assert _run_with(monkeypatch, fake, "--sine", "z=0.02@0.5Hz", "--duration", "0.2") == 1
+    err = capsys.readouterr().err
+    assert "ran faster than the hitch may follow" not in err, err
+    assert (
+        f"hitch: note: the hitch ended away from the last setpoint sent (z -27.0 mm: end pose minus setpoint): the "
+        f"session ended before track/stop — {end[1]}" in err
+    ), err
 
 
 @pytest.mark.parametrize("flag", [[], ["--replace"]])

@@ -168,6 +168,23 @@ def _fields_text(rec: dict[str, Any], skip: frozenset[str] | set[str]) -> str:
     return ", ".join(f"{k}={_value_text(k, v)}" for k, v in rec.items() if k not in skip)
 
 
+#: an event logged this much after it happened [s] has both times shown
+_LOGGED_LATE_S = 0.5
+
+
+def _event_head(rec: dict[str, Any]) -> str:
+    """An event's line starts with when it happened (``event_t``, the service's Unix time), and when it was
+    logged too where that came later by more than :data:`_LOGGED_LATE_S` (a field trial: after a frozen service
+    an abort, service_lost and a finish all showed the time they were written, 1 s after the abort)."""
+    t, happened = rec.get("t"), rec.get("event_t")
+    # the event's own time where it is the service's Unix time (before the log, at most an hour: older services
+    # stamped some events with their control clock)
+    if not (_is_number(happened) and _is_number(t) and 0.0 <= float(t) - float(happened) <= 3600.0):
+        return f"{_when(t)} #{rec.get('seq', '-')} "
+    late = float(t) - float(happened) > _LOGGED_LATE_S
+    return f"{_when(happened)} #{rec.get('seq', '-')} " + (f"(logged {_when(t)[11:]}) " if late else "")
+
+
 def format_record(rec: dict[str, Any]) -> str:
     """One line of plain text for an event-log record."""
     kind = rec.get("kind")
@@ -185,7 +202,7 @@ def format_record(rec: dict[str, Any]) -> str:
     if kind == "event":
         skip = {"t", "seq", "kind", "event", "event_t", "measured_pose", "measured_age_s"}
         rest = _fields_text(rec, skip)
-        return f"{head}event {rec.get('event')}" + (f": {rest}" if rest else "") + _where(rec)
+        return f"{_event_head(rec)}event {rec.get('event')}" + (f": {rest}" if rest else "") + _where(rec)
     if kind in ("gap", "suppressed") and isinstance(rec.get("message"), str):  # their sentence says it all
         return f"{head}{kind}: {rec['message']}"
     rest = _fields_text(rec, {"t", "seq", "kind"})

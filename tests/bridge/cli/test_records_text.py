@@ -137,3 +137,20 @@ def test_hitch_log_json_without_a_log_keeps_stdout_empty(tmp_path, capsys):
     cap = capsys.readouterr()
     assert cap.out == ""
     assert "no event log at" in cap.err
+
+
+def test_an_event_shows_when_it_happened_and_when_it_was_logged_if_that_was_later():
+    """A field trial: after the service was frozen, an abort, service_lost and a finish all showed the time they
+    were written (05:52:48.636), not when they happened (the abort at 05:52:47.684)."""
+    import time
+
+    happened = time.mktime((2026, 12, 7, 5, 52, 47, 0, 0, -1)) + 0.684
+    late = format_record(
+        {"t": happened + 0.9525, "seq": 9, "kind": "event", "event": "motion_aborted", "event_t": happened}
+    )
+    assert late.startswith("2026-12-07 05:52:47.684 #9 (logged 05:52:48.636) event motion_aborted"), late
+    prompt = format_record({"t": happened + 0.002, "seq": 10, "kind": "event", "event": "x", "event_t": happened})
+    assert prompt.startswith("2026-12-07 05:52:47.684 #10 event x"), prompt  # logged at once: one time
+    assert format_record({"t": happened, "seq": 11, "kind": "event", "event": "y"}).startswith(
+        "2026-12-07 05:52:47.684 #11 event y"
+    )

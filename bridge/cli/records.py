@@ -179,7 +179,9 @@ def _event_head(rec: dict[str, Any]) -> str:
     t, happened = rec.get("t"), rec.get("event_t")
     # the event's own time where it is the service's Unix time (before the log, at most an hour: older services
     # stamped some events with their control clock)
-    if not (_is_number(happened) and _is_number(t) and 0.0 <= float(t) - float(happened) <= 3600.0):
+    if not (isinstance(happened, (int, float)) and isinstance(t, (int, float)) and _is_number(happened)):
+        return f"{_when(t)} #{rec.get('seq', '-')} "
+    if isinstance(t, bool) or not 0.0 <= float(t) - float(happened) <= 3600.0:
         return f"{_when(t)} #{rec.get('seq', '-')} "
     late = float(t) - float(happened) > _LOGGED_LATE_S
     return f"{_when(happened)} #{rec.get('seq', '-')} " + (f"(logged {_when(t)[11:]}) " if late else "")

@@ -548,6 +548,8 @@ class HitchService:
                 self._serve(q, self._query_callback(key, scoped=True), f"{key}@user")
         self._decls.append(s.liveliness().declare_token(cfg.key("alive")))
         self._watch_instances()
+        if self.api is not None:  # config says which run answers: motion ids, event and state seq restart with it
+            self.api.info["instance"] = self.instance
 
     def _watch_instances(self) -> None:
         """Two services on one prefix that :meth:`_refuse_a_served_prefix` could not see — both started within

@@ -61,3 +61,25 @@ def test_a_second_service_on_the_same_data_folder_is_refused_before_it_touches_a
             HitchService(config()).start()
     with HitchService(config()):  # the first closed: the folder is free again
         pass
+
+
+def test_config_names_the_run_and_a_restart_on_the_same_folder_is_another():
+    """A fleet trial: after a restart the motion ids began at 1 again and a client waiting on "motion 18" could
+    match another; `config` now says which run answers (`instance`, as the liveliness token)."""
+    from bridge.service.client import HitchClient
+
+    data, port = tempfile.mkdtemp(), free_port()
+    cfg = ServiceConfig(
+        data_dir=data,
+        listen=(f"tcp/127.0.0.1:{port}",),
+        can_channel=f"run-{uuid.uuid4().hex}",
+        control_core="thread",
+        planning_processes=0,
+    )
+    runs = []
+    for _ in range(2):
+        with HitchService(cfg) as svc, HitchClient([f"tcp/127.0.0.1:{port}"], timeout_s=10) as c:
+            got = c.config()["instance"]
+            assert got == svc.instance and got.split("-")[0].isdigit(), got
+            runs.append(got)
+    assert runs[0] != runs[1]

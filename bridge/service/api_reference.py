@@ -44,7 +44,10 @@ KEY_SUMMARY: Mapping[str, str] = {
     "jog": "move at pose rates for `ttl_ms` (a dead-man: send again to keep moving); all zero brakes",
     "stop": "stop every motion now and cancel what is queued; answered by the control core itself",
     "mode": "no field: read the mode; `mode`: set it (`auto` moves; `attach` jogs slowly; others: no motion)",
-    "config": "the service's configuration: profile, limits (workspace, velocities), prefix, mode, implement, instance (this run of the service)",
+    "config": (
+        "the service's configuration: profile, limits (workspace, velocities), prefix, mode, implement, instance "
+        "(this run of the service)"
+    ),
     "presets/list": "the presets of the selected implement",
     "presets/save": "save a named pose (absent DOFs: the current pose) for the selected implement",
     "presets/go": "move to a preset, as `goto`",

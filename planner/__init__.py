@@ -17,7 +17,8 @@ verified against every limit, and a guard for the limits and the tractor's stabi
 Every error the planner raises on purpose derives from :class:`HitchError`; bad input also from
 ``ValueError`` (:class:`HitchInputError`). Names load lazily: ``import planner.errors`` imports
 nothing heavy. Sub-packages: :mod:`planner.model`, :mod:`planner.profiles`, :mod:`planner.ik_qp`,
-:mod:`planner.trajectory`, :mod:`planner.limits`, :mod:`planner.arm`.
+:mod:`planner.trajectory`, :mod:`planner.limits`, :mod:`planner.arm`, :mod:`planner.calibration` (commissioning),
+:mod:`planner.work_control` (draft, mixed and float control).
 """
 
 from __future__ import annotations

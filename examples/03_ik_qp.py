@@ -6,7 +6,7 @@ inequalities. A reachable target comes back with status "ok"; one out of reach c
 "limited", with the nearest reachable pose and the limits that stop it.
 """
 
-from planner import HitchModel, IKSolver, Target
+from planner import ACTUATOR_UNITS, HitchModel, IKSolver, Target
 
 model = HitchModel.from_profile()
 solver = IKSolver(model)
@@ -17,9 +17,11 @@ def show(label: str, target: Target) -> None:
     res = solver.solve(target)
     print(f"{label}: status {res.status}, {res.iterations} iterations, {res.solve_time_s * 1e6:.0f} µs")
     if res.actuators is not None and res.pose is not None:
-        print("  actuators: " + ", ".join(f"{k} = {v:.4f}" for k, v in res.actuators.as_dict().items()))
-        p = res.pose
-        print(f"  pose: x = {p.x:+.4f} m, z = {p.z:+.4f} m, roll = {p.roll:+.4f} rad, pitch = {p.pitch:+.4f} rad")
+        q = res.actuators.as_dict()
+        print("  actuators: " + ", ".join(f"{k} = {v:.4f} {ACTUATOR_UNITS[k]}" for k, v in q.items()))
+        p = {k: round(v, 4) + 0.0 for k, v in res.pose.as_dict().items()}  # +0.0000, never -0.0000
+        print(f"  pose: x = {p['x']:+.4f} m, z = {p['z']:+.4f} m, roll = {p['roll']:+.4f} rad, ", end="")
+        print(f"pitch = {p['pitch']:+.4f} rad")
     if res.active:
         print("  active limits: " + ", ".join(res.active))
 

@@ -22,7 +22,7 @@ print(
 rep = guard.stability_at(checked.setpoints.actuators[-1])
 print(
     f"  at the goal: front axle {rep.axle_loads.front:.0f} N, rear axle {rep.axle_loads.rear:.0f} N, "
-    f"SSM {rep.ssm:.3f} m, ESM {rep.esm:.0f} J"
+    f"static stability margin (SSM) {rep.ssm:.3f} m, energy stability margin (ESM) {rep.esm:.0f} J"
 )
 
 # Lifting an implement from the bottom to the top of the workspace, on level ground and on a
@@ -37,9 +37,7 @@ for name, slope in (("cat2-spreader-400", 0.0), ("cat2-spreader-400", 0.35), ("c
     except GuardRefusal as refusal:  # nothing moves; the reasons say why
         print(f"{name}, slope {slope:.2f} rad: {refusal}")
         continue
-    why = "; ".join(
-        f"{r.level} {r.measure} = {r.value:.4g} (threshold {r.threshold:.4g})" for r in checked.decision.reasons
-    )
+    why = "; ".join(f"{r.level}: {r.sentence()}" for r in checked.decision.reasons)
     print(
         f"{name}, slope {slope:.2f} rad: {checked.decision.action}, speed factor "
         f"{checked.decision.speed_factor:.2f}, {checked.plan.duration:.2f} s" + (f" ({why})" if why else "")

@@ -8,7 +8,7 @@ PGNs and out-of-range values with a CodecError saying why.
 import can
 
 from bridge import CodecError, PositionCounts, decode_frame, encode_position_reference
-from planner import ACTUATOR_NAMES, HitchModel, SensorScaling
+from planner import ACTUATOR_NAMES, ACTUATOR_UNITS, HitchModel, SensorScaling
 
 model = HitchModel.from_profile()
 scaling = SensorScaling(model.profile)  # thesis tables 3-1 and 3-2: SI <-> counts
@@ -17,7 +17,10 @@ q = model.neutral  # actuators in SI: lift [rad], tilt, top, left, right [m]
 counts = PositionCounts(*(int(c) for c in scaling.to_counts(q)))
 print(
     "reference: "
-    + ", ".join(f"{n} {v:.4f} -> {c} counts" for n, v, c in zip(ACTUATOR_NAMES, q, counts.as_tuple(), strict=True))
+    + ", ".join(
+        f"{n} {v:.4f} {ACTUATOR_UNITS[n]} -> {c} counts"
+        for n, v, c in zip(ACTUATOR_NAMES, q, counts.as_tuple(), strict=True)
+    )
 )
 
 frame = encode_position_reference(counts)

@@ -41,6 +41,7 @@ if TYPE_CHECKING:
     from planner.model.sensors import SensorRangeError, SensorScaling
     from planner.model.types import (
         ACTUATOR_NAMES,
+        ACTUATOR_UNITS,
         CONTROLLED_POSE_NAMES,
         POSE_NAMES,
         Actuators,
@@ -60,10 +61,8 @@ if TYPE_CHECKING:
 #: public name -> the module that defines it
 _SOURCES: dict[str, str] = {
     **dict.fromkeys(("HitchError", "HitchInputError"), "planner.errors"),
-    **dict.fromkeys(
-        ("ACTUATOR_NAMES", "POSE_NAMES", "CONTROLLED_POSE_NAMES", "Actuators", "Pose", "HitchState", "KinematicsError"),
-        "planner.model.types",
-    ),
+    **dict.fromkeys(("ACTUATOR_NAMES", "ACTUATOR_UNITS", "POSE_NAMES", "CONTROLLED_POSE_NAMES"), "planner.model.types"),
+    **dict.fromkeys(("Actuators", "Pose", "HitchState", "KinematicsError"), "planner.model.types"),
     "HitchModel": "planner.model.kinematics",
     "ExactInverse": "planner.model.exact_inverse",
     "HardLimits": "planner.model.hard_limits",
@@ -88,6 +87,7 @@ __all__ = [
     "HitchError",
     "HitchInputError",
     "ACTUATOR_NAMES",
+    "ACTUATOR_UNITS",
     "POSE_NAMES",
     "CONTROLLED_POSE_NAMES",
     "Actuators",

@@ -5,11 +5,12 @@ from __future__ import annotations
 import math
 
 from bridge.cli.model import add_model_options, finite_float, model_from_args
-from bridge.cli.output import console, esc, signed
+from bridge.cli.output import POSE_UNITS, console, esc, signed
 from bridge.service.wire import to_json_text
 from planner.ik_qp.baselines import DLSIK, GeometricIK, HybridIK
 from planner.ik_qp.hitch_ik import IKSolver
 from planner.ik_qp.result import Target
+from planner.model.types import ACTUATOR_UNITS
 
 __all__ = ["add_commands"]
 
@@ -27,14 +28,20 @@ def _cmd_ik(args) -> int:
         c = console()
         c.print(f"status: [bold]{res.status}[/bold]" + (f" — {esc(res.reason)}" if res.reason else ""))
         if res.actuators is not None:
-            c.print("actuators: " + "  ".join(f"{k}={v:.5f}" for k, v in res.actuators.as_dict().items()))
-            c.print("pose:      " + "  ".join(f"{k}={signed(v, 5)}" for k, v in res.pose.as_dict().items()))
+            q = res.actuators.as_dict()
+            c.print("actuators: " + "  ".join(f"{k}={v:.5f} {ACTUATOR_UNITS[k]}" for k, v in q.items()))
+            c.print(
+                "pose:      " + "  ".join(f"{k}={signed(v, 5)} {POSE_UNITS[k]}" for k, v in res.pose.as_dict().items())
+            )
         if res.active:  # a baseline's are the limits its actuators break (it enforces none), the QP's those it met
             label = "limits broken" if res.extra.get("violated") else "active limits"
             c.print(f"{label}: " + esc(", ".join(res.active)))
-        # no solution, no residual ("residual inf": a fuzz trial; --json says null)
-        resid = f"{res.residual:.3g}" if math.isfinite(res.residual) else "none (no solution)"
-        c.print(f"iterations {res.iterations}, residual {resid}, {res.solve_time_s * 1e6:.0f} µs")
+        # no solution, no residual ("residual inf": a fuzz trial; --json says null). Named apart from the solver's
+        # "weighted residual" in the status line (a newcomer read two residuals, both unnamed and unitless)
+        resid = f"{res.residual:.3g} (m or rad)" if math.isfinite(res.residual) else "none (no solution)"
+        c.print(
+            f"iterations {res.iterations}, largest pose error |pose - target| {resid}, {res.solve_time_s * 1e6:.0f} µs"
+        )
     return 0 if res.status != "failed" else 1
 
 

@@ -294,7 +294,7 @@ def _cmd_profile_show(args) -> int:
     t = Table("actuator", "min", "max", "neutral", "unit")
     for n in ACTUATOR_NAMES:
         lo, hi = s["strokes"][n]
-        t.add_row(n, f"{lo:.4f}", f"{hi:.4f}", f"{s['neutral_actuators'][n]:.4f}", "rad" if n == "lift" else "m")
+        t.add_row(n, f"{lo:.4f}", f"{hi:.4f}", f"{s['neutral_actuators'][n]:.4f}", ACTUATOR_UNITS[n])
     c.print(t)
     c.print("neutral pose: " + "  ".join(f"{k}={signed(v, 4)} {POSE_UNITS[k]}" for k, v in s["neutral_pose"].items()))
     for w in s["warnings"]:
@@ -485,8 +485,12 @@ def _cmd_demo(args) -> int:
     c = console()
     s = profile_summary(model)
     c.print(f"[bold]hitch-planner demo[/bold] — profile {esc(s['profile'])}, category {esc(model.category)}")
-    c.print("neutral actuators: " + "  ".join(f"{k}={v:.4f}" for k, v in s["neutral_actuators"].items()))
-    c.print("neutral pose:      " + "  ".join(f"{k}={signed(v, 4)}" for k, v in s["neutral_pose"].items()))
+    c.print(
+        "neutral actuators: " + "  ".join(f"{k}={v:.4f} {ACTUATOR_UNITS[k]}" for k, v in s["neutral_actuators"].items())
+    )
+    c.print(
+        "neutral pose:      " + "  ".join(f"{k}={signed(v, 4)} {POSE_UNITS[k]}" for k, v in s["neutral_pose"].items())
+    )
     for w in s["warnings"]:
         c.print(f"[yellow]warning:[/yellow] {esc(w)}; the table below holds it there")
     t = Table(title="forward kinematics over the lift stroke (other actuators at neutral)")

@@ -19,12 +19,9 @@ from numpy.typing import ArrayLike
 from bridge.cli.errors import CLIError
 from bridge.service.schemas import RequestError, check_pose_in_workspace
 from planner.errors import unit_hint
-from planner.model.types import ACTUATOR_NAMES
+from planner.model.types import ACTUATOR_NAMES, ACTUATOR_UNITS
 
 __all__ = ["ACTUATOR_UNITS", "actuator_problems", "check_actuators", "check_pose_ranges", "pose_problems"]
-
-#: SI unit of each actuator: the lift arm is an angle, the others are lengths
-ACTUATOR_UNITS: dict[str, str] = {n: "rad" if n == "lift" else "m" for n in ACTUATOR_NAMES}
 
 
 def actuator_problems(

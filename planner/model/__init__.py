@@ -20,6 +20,7 @@ if TYPE_CHECKING:
     from planner.model.sensors import AD_COUNTS_MAX, SensorRangeError, SensorScaling
     from planner.model.types import (
         ACTUATOR_NAMES,
+        ACTUATOR_UNITS,
         CONTROLLED_POSE_NAMES,
         CONTROLLED_POSE_UNITS,
         POSE_NAMES,
@@ -36,6 +37,7 @@ _SOURCES: dict[str, str] = {
     **dict.fromkeys(
         (
             "ACTUATOR_NAMES",
+            "ACTUATOR_UNITS",
             "POSE_NAMES",
             "CONTROLLED_POSE_NAMES",
             "CONTROLLED_POSE_UNITS",
@@ -61,6 +63,7 @@ _SOURCES: dict[str, str] = {
 
 __all__ = [
     "ACTUATOR_NAMES",
+    "ACTUATOR_UNITS",
     "POSE_NAMES",
     "CONTROLLED_POSE_NAMES",
     "CONTROLLED_POSE_UNITS",

@@ -19,6 +19,7 @@ __all__ = [
     "POSE_NAMES",
     "CONTROLLED_POSE_NAMES",
     "CONTROLLED_POSE_UNITS",
+    "ACTUATOR_UNITS",
     "Actuators",
     "Pose",
     "HitchState",
@@ -34,6 +35,8 @@ POSE_NAMES: tuple[str, ...] = ("x", "y", "z", "roll", "pitch", "yaw")
 CONTROLLED_POSE_NAMES: tuple[str, ...] = ("x", "z", "roll", "pitch")
 #: SI unit of each controlled degree of freedom (lengths in m, angles in rad), in that order.
 CONTROLLED_POSE_UNITS: dict[str, str] = {"x": "m", "z": "m", "roll": "rad", "pitch": "rad"}
+#: SI unit of each actuator (the lift is an angle, the others are lengths), in :data:`ACTUATOR_NAMES` order.
+ACTUATOR_UNITS: dict[str, str] = {"lift": "rad", "tilt": "m", "top": "m", "left": "m", "right": "m"}
 
 
 class KinematicsError(HitchInputError):

@@ -552,12 +552,12 @@ class ControlCore:
             except Exception:  # noqa: BLE001
                 pass
 
-    def close(self) -> None:
-        """Brake and end everything (idempotent)."""
+    def close(self, why: str = "service shutting down") -> None:
+        """Brake and end everything (idempotent); ``why``: the running motion's abort reason."""
         if self._closed.is_set():
             return
         if self.motion is not None:
-            self.motion.close()
+            self.motion.close(why=why)
         self._closed.set()
         for d in reversed(self._decls):
             _quiet(d.undeclare)
@@ -659,7 +659,9 @@ class ControlCore:
         while True:
             try:
                 msg = self.conn.recv()
-            except (EOFError, OSError):
+            except (EOFError, OSError):  # the service went without a close: killed or crashed (a fleet trial read
+                # "service shutting down" after a kill -9 of the service)
+                self.close(why="the service ended without closing the core (killed or crashed)")
                 return
             now = time.monotonic()
             self._heard_gap, self._heard = max(self._heard_gap, now - self._heard), now

@@ -301,15 +301,15 @@ class MotionController:
         """Control cycles that started late (since start)."""
         return 0 if self._thread is None else self._thread.overruns
 
-    def close(self, brake_s: float = 0.4) -> None:
-        """Stop any motion, end the control thread and the reference stream.
+    def close(self, brake_s: float = 0.4, why: str = "service shutting down") -> None:
+        """Stop any motion, end the control thread and the reference stream; ``why`` is the motion's abort reason.
 
         A moving hitch gets the jerk-limited stop for up to ``brake_s`` seconds; then the stream
         ends and the ECU watchdog zeroes the valves (within its 100 ms) whatever is left.
         """
         if self._thread is not None and self._thread.alive and self._active is not None:
             try:
-                self.stop("service shutting down")
+                self.stop(why)
             except ValueError:
                 pass
             deadline = time.monotonic() + brake_s
@@ -317,7 +317,7 @@ class MotionController:
                 time.sleep(self.dt / 2)
         events: list[Event] = []
         with self._lock:
-            self._abort_all("service shutting down", self.clock(), events, "stop")
+            self._abort_all(why, self.clock(), events, "stop")
             self._post(events)
         if self._thread is not None:
             self._thread.stop(0.5)

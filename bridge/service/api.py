@@ -257,11 +257,18 @@ class ServiceAPI:
         with self._in_flight_lock:
             n = self._in_flight.get(who, 0)
             if n >= MAX_IN_FLIGHT_PER_USER:
+                whose = (
+                    "this user"
+                    if user
+                    # every client without a user name shares one allowance (a fleet trial read "of this client"
+                    # while its own client had none running: another anonymous client flooded)
+                    else "clients without a user name (they share one allowance; a user's own keys have their own: "
+                    "docs/security.md)"
+                )
                 raise RequestError(
                     "busy",
-                    f"{key}: {n} expensive requests ({', '.join(sorted(EXPENSIVE_KEYS))}) of "
-                    f"{'this user' if user else 'this client'} are running (allowed: {MAX_IN_FLIGHT_PER_USER} "
-                    "at a time); send it again when one has been answered",
+                    f"{key}: {n} expensive requests ({', '.join(sorted(EXPENSIVE_KEYS))}) of {whose} are running "
+                    f"(allowed: {MAX_IN_FLIGHT_PER_USER} at a time); send it again when one has been answered",
                 )
             self._in_flight[who] = n + 1
         return who

@@ -269,6 +269,9 @@ def test_expensive_requests_are_admitted_a_few_per_user(r):
     try:
         ok, reply = r.call("plan", body)  # one more of the same user: at once busy
         assert not ok and reply["error"] == "busy" and "at a time" in reply["message"], reply
+        # anonymous requests share one allowance, and say so (a fleet trial read "of this client" while its own
+        # client had none running)
+        assert "of clients without a user name (they share one allowance" in reply["message"], reply
         ok, reply = r.call("maneuvers/validate", {"script": "steps: [{wait: 1}]"})
         assert not ok and reply["error"] == "busy"
         # another user is admitted meanwhile: the limit is per user, not the service's

@@ -858,6 +858,14 @@ def _stream(args, c, spec: _Spec) -> int:
         pass
     if note is not None and not interrupted:
         _say(note)
+    ignored, taken = (tr or {}).get("ignored_seq") or 0, (tr or {}).get("last_seq")
+    if ignored and isinstance(taken, int) and last_seq is not None and taken > last_seq:
+        # the session took a seq this stream never sent: another client put into it (a fleet trial: its stream
+        # was then ignored until it went stale, and the note blamed the signal)
+        _say(
+            f"hitch: note: {ignored} setpoint(s) of this stream were ignored: session {session} took seq {taken}, "
+            f"above the last this stream sent ({last_seq}) — another client sent into this session"
+        )
     if problem is not None:
         _say(f"hitch: {problem}; stop the hitch another way (`hitch stop`, STOP)")
     if unknown is not None:

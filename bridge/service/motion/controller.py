@@ -277,6 +277,7 @@ class MotionController:
         #: how the last few track sessions ended (session → reason): a setpoint or stop for one says why
         self._ended_tracks: dict[int, str] = {}
         self._rejection_event_at = -math.inf
+        self._ignored_event_at = -math.inf  # the last track_setpoint_ignored event (_announce_ignored)
         #: work control of track sessions (bridge.service.work.WorkControl; set by machine.build_controller)
         self.work: Any = None
         self._goal_plan: Any = None  # the plan whose end pose ``_goal`` holds (state message)
@@ -582,6 +583,7 @@ class MotionController:
                 if not new:
                     m.follower.validate(target, v_tractor)
                     m.seq.accept(seq, now)  # counted as ignored
+                    self._announce_ignored(m, seq, now)
                     return {"accepted": False, "ignored": "seq", "session": session, "seq": seq}
                 sp = m.follower.set_setpoint(target, v_tractor, now, acceleration=acceleration, jerk=jerk)
                 m.seq.accept(seq, now)
@@ -616,6 +618,28 @@ class MotionController:
                 return
             self._count_rejection(m, message, self.clock())
         self.outbox.flush()
+
+    def _announce_ignored(self, m: TrackMotion, seq: int, now: float) -> None:
+        """Announce setpoints ignored for their ``seq``, at most one ``track_setpoint_ignored`` event per
+        ``_REJECTION_EVENT_EVERY_S`` (call under the lock): a second sender putting a larger ``seq`` into a live
+        session had the session's own stream ignored until it went stale, and nothing said so (a fleet trial)."""
+        if now - self._ignored_event_at < _REJECTION_EVENT_EVERY_S:
+            return
+        self._ignored_event_at = now
+        self._post(
+            [
+                {
+                    "event": "track_setpoint_ignored",
+                    "motion_id": m.motion_id,
+                    "session": m.session,
+                    "ignored": m.seq.ignored,
+                    "message": (
+                        f"seq {seq} is not above the last one session {m.session} took ({m.seq.last}): ignored — a "
+                        "late or repeated setpoint, or another client sending into this session"
+                    ),
+                }
+            ]
+        )
 
     def _count_rejection(self, m: TrackMotion, message: str, now: float) -> None:
         """Count a rejected setpoint of ``m`` (the state's ``track`` entry) and announce it, at most one

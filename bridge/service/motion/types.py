@@ -519,6 +519,7 @@ class TrackMotion:
             "setpoints": self.accepted,
             "rejected": self.rejected,
             "ignored_seq": self.seq.ignored,
+            "last_seq": self.seq.last,
             "stale": self.follower.stale,
             "ending": self.ending,
             "target": None if sp is None else pose_dict(sp.position),

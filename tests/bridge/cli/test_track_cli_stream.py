@@ -40,7 +40,9 @@ class FakeService:
         hup_at: int | None = None,
         lose_events: bool = False,
         end: tuple[str, str] = ("motion_finished", "track/stop"),
+        intruder_seq: int | None = None,
     ) -> None:
+        self.intruder_seq = intruder_seq  # another client's seq taken into the session: ours ignored from then
         self.lag, self.braking, self.v_stop, self.limited = lag, braking, v_stop, dict(limited or {})
         self.end = end  # the session's end event and reason (another than track/stop: it ended before the stop)
         self.slow_put_s, self.hup_at = slow_put_s, hup_at
@@ -68,7 +70,10 @@ class FakeService:
             "session": self.SESSION,
             "setpoints": len(self.sent),
             "rejected": 0,
-            "ignored_seq": 0,
+            "ignored_seq": 0 if self.intruder_seq is None else len(self.sent),
+            "last_seq": self.intruder_seq
+            if self.intruder_seq is not None
+            else (self.sent[-1][0] if self.sent else None),
             "ending": ending,
             "control_limited": {} if ending else dict(self.limited),
         }
@@ -173,6 +178,16 @@ def test_a_session_that_ended_before_track_stop_names_its_end_not_the_signal(mon
         f"hitch: note: the hitch ended away from the last setpoint sent (z -27.0 mm: end pose minus setpoint): the "
         f"session ended before track/stop — {end[1]}" in err
     ), err
+
+
+def test_a_stream_another_client_took_over_by_seq_is_told_so(monkeypatch, capsys):
+    """A fleet re-run: another client's put with seq 1e9 had this stream ignored until the session went stale;
+    the CLI blamed the signal."""
+    fake = FakeService(end=("motion_finished", "stale: no setpoint within 200 ms"), intruder_seq=10**9)
+    assert _run_with(monkeypatch, fake, "--sine", "z=0.02@0.5Hz", "--duration", "0.2") == 1
+    err = capsys.readouterr().err
+    assert "session 7 took seq 1000000000, above the last this stream sent (" in err, err
+    assert "another client sent into this session" in err and "ran faster than the hitch may follow" not in err
 
 
 @pytest.mark.parametrize("flag", [[], ["--replace"]])

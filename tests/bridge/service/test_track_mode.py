@@ -607,3 +607,21 @@ def test_one_setpoint_numbered_far_ahead_is_refused_and_the_live_stream_goes_on(
     assert all(ok and rep.get("accepted") for ok, rep in replies), replies[-1]
     assert r.states[-1]["track"]["session"] == session and r.states[-1]["track"]["ignored_seq"] == 0
     assert abs(r.measured()[1] - (z0 + 0.02)) < 0.005  # followed its own stream, never the far one
+
+
+def test_setpoints_ignored_for_their_seq_are_announced_and_the_state_says_the_last_taken(r):
+    """A fleet re-run: another client's one put with seq 1e9 (within the bound) had the session's own stream
+    ignored until it went stale, and nothing said so. Now a track_setpoint_ignored event (at most one a second)
+    names the seq taken, and the state's track says it (last_seq)."""
+    session = r.start(dof=["z"], ttl_ms=300)
+    z0 = r.measured()[1]
+    r.run(0.2, each=lambda t: r.setpoint(session, {"z": z0}))
+    ok, _ = r.setpoint(session, {"z": z0}, seq=10**9)  # the other client's
+    assert ok
+    r.run(0.5, each=lambda t: r.setpoint(session, {"z": z0}))  # ours, all below it now
+    ignored = [e for e in r.events if e.get("event") == "track_setpoint_ignored"]
+    assert len(ignored) == 1, ignored  # one a second
+    assert f"is not above the last one session {session} took (1000000000): ignored" in ignored[0]["message"]
+    assert "another client sending into this session" in ignored[0]["message"]
+    tr = [s["track"] for s in r.states if s.get("track")][-1]  # the session went stale meanwhile: its last entry
+    assert tr["last_seq"] == 10**9 and tr["ignored_seq"] > 5, tr

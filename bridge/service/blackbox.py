@@ -932,7 +932,7 @@ def can_log_stopped_event(path: str | Path, error: BaseException) -> dict[str, A
         "event": "can_log_stopped",
         "path": str(path),
         "message": f"--can-log {path}: recording stopped ({type(error).__name__}: {error}); the service goes on "
-        "without a CAN log",
+        "without a CAN log — unless the bus itself failed (a CAN hub that went away ends the service too)",
     }
 
 

@@ -721,6 +721,25 @@ def _end_note(
     )
 
 
+def _missed_outcome(c: Any, motion_id: int) -> dict[str, Any] | None:
+    """The end event of ``motion_id`` from the service's recent events (``events/recent``), when the subscription
+    missed it (a frozen service, a router restart: the field trial's "outcome UNKNOWN"); None when it is not kept
+    or cannot be asked."""
+    try:
+        latest = c.recent_events(0).get("latest") or 0
+        got = c.recent_events(max(0, int(latest) - MAX_EVENTS_ASKED)).get("events") or []
+    except Exception:  # noqa: BLE001 — an older service without the key, or the link still down: unknown it stays
+        return None
+    ends = [
+        e for e in got if e.get("motion_id") == motion_id and e.get("event") in ("motion_finished", "motion_aborted")
+    ]
+    return ends[-1] if ends else None
+
+
+#: how many of the newest events :func:`_missed_outcome` looks through (one reply's worth)
+MAX_EVENTS_ASKED = 500
+
+
 def _say(text: str) -> None:
     """A line on stderr; nothing when stderr is gone (a closed terminal after SIGHUP: the stop goes on)."""
     try:
@@ -814,6 +833,8 @@ def _stream(args, c, spec: _Spec) -> int:
     problem = _end_session(c, mon, session, last_seq)
     with mon.lock:
         outcome, tr, pose, at_stop = mon.outcome, mon.track, mon.pose, mon.at_stop
+    if outcome is None and problem is None:  # its end was seen in the state only: the event never came
+        outcome = _missed_outcome(c, mid)  # asked for afterwards (events/recent)
     end_gap = _end_gap(spec.frame, last_pose, pose)
     note, braking = _end_note(end_gap, at_stop, pose)
     reason = (outcome or {}).get("reason")
@@ -827,7 +848,7 @@ def _stream(args, c, spec: _Spec) -> int:
             f"session ended before track/stop — {reason or (outcome or {}).get('event')}"
         )
     unknown = None
-    if outcome is None and problem is None:  # its end was seen in the state only: the event never came
+    if outcome is None and problem is None:  # not heard, and no longer kept (or not asked: an older service)
         note = None  # the end note would blame the signal for what the link did
         unknown = (
             f"hitch: outcome UNKNOWN: session {session} (motion {mid}) ended, but its end event was not heard — "

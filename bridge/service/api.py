@@ -33,6 +33,7 @@ import time
 from collections.abc import Callable, Mapping
 from typing import Any
 
+from bridge.service.event_ring import EventRing
 from bridge.service.gnss import lines_handlers
 from bridge.service.implements import ImplementService, implement_handlers
 from bridge.service.maneuvers.language import (
@@ -52,6 +53,7 @@ from bridge.service.schemas import (
     API_KEYS,
     REQUESTS,
     Empty,
+    EventsRecent,
     GotoRequest,
     JogRequest,
     ManeuverRun,
@@ -149,6 +151,7 @@ class ServiceAPI:
             "stop": self._stop,
             "mode": self._mode,
             "config": self._config,
+            "events/recent": self._events_recent,
             "presets/list": self._presets_list,
             "presets/save": self._presets_save,
             "presets/go": self._presets_go,
@@ -173,6 +176,8 @@ class ServiceAPI:
             **work_handlers(self),  # work/settings|start|stop|resume (bridge.service.work, docs/soil.md)
         }
         self.recorder: ManeuverRecorder | None = None  # teach-in (maneuvers/record/start)
+        #: the last events the service heard, for ``events/recent`` (its server feeds :meth:`EventRing.take`)
+        self.events = EventRing()
         self.counts = {"ok": 0, "error": 0}
         #: optional ``on_request(key, user, payload, ok, reply)`` after every request (the black box)
         self.on_request: Callable[..., None] | None = None
@@ -293,6 +298,11 @@ class ServiceAPI:
     def _plan(self, r: PlanRequest) -> dict:
         start = self.motion.preview_start()
         return self.planning.preview(start, r.goal.as_dict(), r.speed_scale)
+
+    def _events_recent(self, r: EventsRecent) -> dict:
+        """The events after ``r.after`` the service still keeps (:class:`~bridge.service.event_ring.EventRing`), with
+        this run's ``instance``: numbers from another run mean nothing here."""
+        return {**self.events.after(r.after, r.limit), "instance": self.info.get("instance")}
 
     def _config(self, _r: Empty) -> dict:
         return {**self.info, "mode": self.motion.mode, "implement": self.info.get("implement")}

@@ -48,6 +48,9 @@ KEY_SUMMARY: Mapping[str, str] = {
         "the service's configuration: profile, limits (workspace, velocities), prefix, mode, implement, instance "
         "(this run of the service)"
     ),
+    "events/recent": (
+        "the events numbered above `after` the service still keeps (the last 2000), for a client that missed some"
+    ),
     "presets/list": "the presets of the selected implement",
     "presets/save": "save a named pose (absent DOFs: the current pose) for the selected implement",
     "presets/go": "move to a preset, as `goto`",

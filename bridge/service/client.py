@@ -682,6 +682,12 @@ class HitchClient:
         another service of the fleet."""
         return self.request("config", {}, prefix=prefix)
 
+    def recent_events(self, after: int = 0, *, prefix: str | None = None) -> dict:
+        """The events numbered above ``after`` the service still keeps (``events/recent``): ``{"events", "oldest",
+        "latest", "missed", "more", "instance"}`` — for a client whose subscription missed some (a router restart,
+        a radio gap). ``instance``: the run they belong to (``config``'s)."""
+        return self.request("events/recent", {"after": after}, prefix=prefix)
+
     # ------------------------------------------------------------------ subscriptions
     def subscribe(self, what: str, callback: Callable[[dict], None], *, prefix: str | None = None) -> Subscription:
         """Call ``callback(dict)`` for every ``state`` or ``events`` sample until the returned

@@ -35,6 +35,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, field_validator, model_validator
 from pydantic.fields import FieldInfo
 
+from bridge.service.event_ring import MAX_EVENTS_PER_REPLY
 from bridge.service.maneuvers.language import MIN_SPEED_SCALE, NAME_PATTERN, POSE_BOUNDS
 from bridge.service.maneuvers.steps import SETPOINT_VELOCITY_BOUND
 from planner.errors import HitchInputError, distinct_texts, unit_hint, unit_hint_within
@@ -74,6 +75,7 @@ __all__ = [
     "TrackSetpoint",
     "TrackVelocity",
     "Empty",
+    "EventsRecent",
     "MotionControl",
     "ImplementDefine",
     "QuickMove",
@@ -405,6 +407,13 @@ class WorkStart(_Strict):
     deadline_ms: WholeNumber = _deadline()
 
 
+class EventsRecent(_Strict):
+    """``events/recent``: the events numbered above ``after`` (``seq``), at most ``limit`` of them."""
+
+    after: WholeNumber = Field(0, ge=0, le=2**53)
+    limit: WholeNumber = Field(MAX_EVENTS_PER_REPLY, ge=1, le=MAX_EVENTS_PER_REPLY)
+
+
 REQUESTS: Mapping[str, type[_Strict]] = {
     "ik": PoseRequest,
     "plan": PlanRequest,
@@ -413,6 +422,7 @@ REQUESTS: Mapping[str, type[_Strict]] = {
     "stop": StopRequest,
     "mode": ModeRequest,
     "config": Empty,
+    "events/recent": EventsRecent,
     "presets/list": Empty,
     "presets/save": PresetSave,
     "presets/go": PresetGo,

@@ -134,6 +134,7 @@ VIEWER_QUERIES: tuple[str, ...] = (
     "plan",
     "stop",
     "config",
+    "events/recent",
     "presets/list",
     "maneuvers/validate",
     "maneuvers/list",

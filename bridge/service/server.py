@@ -308,6 +308,7 @@ class HitchService:
                 planning=planning,
             )
             self.add_listener("event", self.api.implements.on_event)  # the operator's raise / lower switch
+            self.add_listener("event", self.api.events.take)  # kept for events/recent
             if self.parts is not None:  # sim/switch on the in-process twin (the core process has its own)
                 self.api.implements.use_twin(self.parts.tractor_node)
             self.warnings.extend(restore_lines(self.api, cfg.lines_file))  # the field's lines (store, file)

@@ -41,7 +41,9 @@ class FakeService:
         lose_events: bool = False,
         end: tuple[str, str] = ("motion_finished", "track/stop"),
         intruder_seq: int | None = None,
+        keeps_events: bool = False,
     ) -> None:
+        self.keeps_events = keeps_events  # events/recent answers the end event its subscription missed
         self.intruder_seq = intruder_seq  # another client's seq taken into the session: ours ignored from then
         self.lag, self.braking, self.v_stop, self.limited = lag, braking, v_stop, dict(limited or {})
         self.end = end  # the session's end event and reason (another than track/stop: it ended before the stop)
@@ -95,6 +97,12 @@ class FakeService:
 
     def track_setpoint(self, session, seq, pose, velocity=None):
         self._take(seq, pose)
+
+    def recent_events(self, after=0):
+        if not self.keeps_events:
+            raise AttributeError("recent_events")  # as an older service's client: no such key
+        end = {"seq": 41, "event": self.end[0], "motion_id": self.MOTION, "kind": "track", "reason": self.end[1]}
+        return {"events": [end] if after < 41 else [], "latest": 41, "oldest": 1, "missed": False, "more": False}
 
     def track_stop(self, session=None, *, last_seq=None, timeout_s=None):
         self.stops.append((session, last_seq))
@@ -217,6 +225,19 @@ def test_a_session_whose_end_event_was_not_heard_is_outcome_unknown_not_success(
     assert _run_with(monkeypatch, fake, "--sine", "z=0.02@0.5Hz", "--duration", "0.1", "--json") == 1
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert summary["reason"] is None and summary["outcome_unknown"] is True, summary
+
+
+def test_a_missed_end_event_is_asked_for_afterwards_and_the_outcome_is_known(monkeypatch, capsys):
+    """A field trial: after a frozen service `hitch track` said "outcome UNKNOWN" though the black box had the
+    end; the service keeps its recent events (events/recent) and the CLI asks for the one it missed."""
+    fake = FakeService(lose_events=True, keeps_events=True)
+    assert _run_with(monkeypatch, fake, "--sine", "z=0.02@0.5Hz", "--duration", "0.1", "--json") == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["reason"] == "track/stop" and summary["outcome_unknown"] is False, summary
+    fake = FakeService(lose_events=True, keeps_events=True, end=("motion_aborted", "link lost"))
+    assert _run_with(monkeypatch, fake, "--sine", "z=0.02@0.5Hz", "--duration", "0.1") == 1
+    err = capsys.readouterr().err
+    assert "outcome UNKNOWN" not in err, err
 
 
 SIGHUP_SCRIPT = """

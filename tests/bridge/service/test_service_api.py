@@ -30,6 +30,7 @@ VALID = {
     "stop": {},
     "mode": {"mode": "auto"},
     "config": {},
+    "events/recent": {"after": 12, "limit": 100},
     "presets/list": {},
     "presets/save": {"name": "a"},
     "presets/go": {"name": "a"},

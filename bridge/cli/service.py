@@ -182,8 +182,14 @@ def _cmd_serve(args) -> int:
         )
 
     why: str | None = None  # why serve ended other than by a signal (a control core that died …)
+    from bridge.service.data_lock import DataDirLock
+
+    # the data folder is this service's until its event log is closed below, after the service's own close (a
+    # review: the service gave the lock up before the stop record was written, and a second one took the folder)
+    cfg.data_dir.mkdir(parents=True, exist_ok=True, mode=0o700)
+    data_lock = DataDirLock(cfg.data_dir).acquire()
     try:
-        took = serve(cfg, ready=ready)
+        took = serve(cfg, ready=ready, data_lock=data_lock)
     except BaseException as exc:
         why = f"{type(exc).__name__}: {exc}" if not isinstance(exc, KeyboardInterrupt) else None
         raise
@@ -198,6 +204,7 @@ def _cmd_serve(args) -> int:
             # the reason when it was not a stop signal (a killed control core read as a normal stop: a trial)
             blackbox.record("service", what="stopped", **({"reason": why} if why else {}))
             blackbox.close()
+        data_lock.release()
     print(f"hitch serve: stopped in {took * 1000:.0f} ms", flush=True)
     args.end_process = True  # everything is closed: the program ends here (bridge.cli.main)
     return 0
@@ -729,7 +736,7 @@ def _refresh_until(refresh: Callable[[], dict], last: dict, end: float, period_s
     (a fixed sleep after each reply added the reply's own time to every period, and a late one's delay to the
     next)."""
     due = time.monotonic() + period_s
-    while due < end:
+    while due <= end:  # the last one at the end: the jog holds until ttl after it, as long as asked
         time.sleep(max(0.0, due - time.monotonic()))
         last = refresh()
         due = max(due + period_s, time.monotonic())
@@ -756,7 +763,7 @@ def _cmd_jog(args) -> int:
             r = refresh()
             r = _refresh_until(refresh, r, time.monotonic() + (args.duration or 0.0), jog_refresh_period(args.ttl_ms))
         except KeyboardInterrupt:  # brake now, as goto --wait does (before: silent, braked by the ttl ~0.7 s later)
-            _stop_after_interrupt(c, r.get("motion_id"))
+            _stop_after_interrupt(c, ids[-1] if ids else r.get("motion_id"))  # the jog's latest motion (a review)
             raise
         limited = ", ".join(f"{k} by {v}" for k, v in (r.get("limited") or {}).items())
         text = f"jog motion {r['motion_id']}" + (f", limited: {limited}" if limited else "")

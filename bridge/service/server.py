@@ -176,8 +176,11 @@ class HitchService:
     holding the interpreter lock: a pause of 75–84 ms of every thread was measured 8.6 s into a
     track stream, long enough for the ECU's 100 ms watchdog to trip (``references_lost``)."""
 
-    def __init__(self, config: ServiceConfig):
+    def __init__(self, config: ServiceConfig, *, data_lock: DataDirLock | None = None):
+        """``data_lock``: the data folder's lock, held by the caller already (``hitch serve`` holds it until its
+        event log is closed, after the service's close); None: the service takes it and gives it up itself."""
         self.config = config
+        self._lock_held_for_us = data_lock
         self.api: ServiceAPI | None = None
         self.motion: MotionController | None = None  # the controller when the core runs in this process
         self.core: CoreProcess | None = None  # the control core's process (``control_core = "process"``)
@@ -247,7 +250,8 @@ class HitchService:
             # a new data dir is the service user's alone (the event log and the store name users and their
             # actions); one that exists keeps the permissions its owner gave it
             cfg.data_dir.mkdir(parents=True, exist_ok=True, mode=0o700)
-            self._data_lock = DataDirLock(cfg.data_dir).acquire()  # before the store or the event log is touched
+            if self._lock_held_for_us is None:  # before the store or the event log is touched
+                self._data_lock = DataDirLock(cfg.data_dir).acquire()
             self.store = HitchStore(cfg.database_path, limits=cfg.store_limits())
             ik: IKSolver | None = None
             planning: Planning | None = None
@@ -949,15 +953,26 @@ def _quiet(fn: Callable[[], object]) -> None:
         pass
 
 
-def serve(config: ServiceConfig, *, ready: Callable[[HitchService], None] | None = None) -> float:
-    """Run a service until SIGINT/SIGTERM; returns the shutdown time [s]."""
+def serve(
+    config: ServiceConfig,
+    *,
+    ready: Callable[[HitchService], None] | None = None,
+    data_lock: DataDirLock | None = None,
+) -> float:
+    """Run a service until SIGINT/SIGTERM; returns the shutdown time [s]. ``data_lock``: the data folder's lock
+    when the caller holds it (:class:`HitchService`)."""
     with StopSignals() as stop:
-        return _serve_until(stop, config, ready)
+        return _serve_until(stop, config, ready, data_lock)
 
 
-def _serve_until(stop: StopSignals, config: ServiceConfig, ready: Callable[[HitchService], None] | None) -> float:
+def _serve_until(
+    stop: StopSignals,
+    config: ServiceConfig,
+    ready: Callable[[HitchService], None] | None,
+    data_lock: DataDirLock | None = None,
+) -> float:
     """:func:`serve`'s body under its signal handlers (``stop``)."""
-    service = HitchService(config).start()
+    service = HitchService(config, data_lock=data_lock).start()
     if service.motion is not None:  # the control cycle runs in this process: as the core process does
         freeze_startup_objects()  # no full-GC pause over the start-up objects
         why = lock_memory()  # no page of the control path evicted

@@ -111,7 +111,7 @@ def _serve_once(monkeypatch, tmp_path, service) -> None:
     """``hitch serve`` around ``service`` (a stand-in): it is ready, then stops at once."""
     import bridge.service.server as server
 
-    def fake_serve(cfg, ready):
+    def fake_serve(cfg, ready, data_lock=None):
         ready(service)
         return 0.01
 

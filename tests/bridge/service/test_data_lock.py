@@ -83,3 +83,46 @@ def test_config_names_the_run_and_a_restart_on_the_same_folder_is_another():
             assert got == svc.instance and got.split("-")[0].isdigit(), got
             runs.append(got)
     assert runs[0] != runs[1]
+
+
+def test_hitch_serve_holds_the_folder_until_its_event_log_is_closed(tmp_path, monkeypatch):
+    """A review: the service gave the lock up in its close, before `hitch serve` wrote the stop record; a second
+    service could take the folder then, find no stop record and call the first's run unclean."""
+    import bridge.service.server as server
+    from bridge.cli.main import main
+    from bridge.service.blackbox import EventLog
+
+    seen: list[str] = []
+    real_close = EventLog.close
+
+    def close(self):  # the event log's last write: the folder must still be this service's
+        try:
+            DataDirLock(tmp_path).acquire().release()
+            seen.append("free")
+        except DataDirInUseError:
+            seen.append("held")
+        real_close(self)
+
+    class Stand:
+        warnings: list[str] = []
+        api = None
+
+        def nodes_reached(self):
+            return None
+
+        def add_listener(self, kind, callback):
+            pass
+
+        def remove_listener(self, kind, callback):
+            pass
+
+    def fake_serve(cfg, ready, data_lock=None):
+        assert data_lock is not None  # the CLI's, handed to the service
+        ready(Stand())
+        return 0.01
+
+    monkeypatch.setattr(EventLog, "close", close)
+    monkeypatch.setattr(server, "serve", fake_serve)
+    assert main(["serve", "--data-dir", str(tmp_path)]) == 0
+    assert seen == ["held"]
+    DataDirLock(tmp_path).acquire().release()  # and given up after it

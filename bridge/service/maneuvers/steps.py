@@ -115,6 +115,20 @@ class GotoStep(_Strict):
     pitch: float | None = _pose_field("pitch")
     speed_scale: float | None = Field(None, ge=MIN_SPEED_SCALE, le=1.0)
 
+    @model_validator(mode="before")
+    @classmethod
+    def _no_null(cls, data: Any) -> Any:
+        """A DOF given as null (JSON ``null``, YAML ``~`` or an empty value) is no number: named, as ``goto``'s
+        goal refuses it (a review: ``{x: 0.01, z: null}`` ran with z kept where it was)."""
+        if isinstance(data, dict):
+            for k, v in data.items():
+                if v is None and k in POSE_BOUNDS:
+                    unit = "m" if k in ("x", "z") else "rad"
+                    raise ManeuverSchemaError(
+                        f"{k} must be a number ({unit}), got null; a DOF left out keeps its value"
+                    )
+        return data
+
     @model_validator(mode="after")
     def _some_dof(self) -> GotoStep:
         if all(getattr(self, k) is None for k in POSE_BOUNDS):

@@ -461,3 +461,13 @@ def test_runner_refuses_bad_use():
         run.step(0.0, _state(), math.nan)
     with pytest.raises(ValueError, match="ecu_timeout_s"):
         ManeuverRunner(_validated("steps: [{wait: 1}]"), ecu_timeout_s=0.0)
+
+
+@pytest.mark.parametrize("value", ["null", "~", ""])
+def test_a_goto_step_with_a_null_dof_is_refused_naming_it(value):
+    """A review: goto refused {x: 0.01, z: null}, a maneuver's goto step ran it with z kept where it was."""
+    from bridge.service.maneuvers.language import ManeuverError, parse_maneuver
+
+    with pytest.raises(ManeuverError) as err:
+        parse_maneuver(f"steps:\n  - goto: {{x: 0.01, z: {value}}}\n")
+    assert "steps[0].goto: z must be a number (m), got null; a DOF left out keeps its value" in str(err.value)

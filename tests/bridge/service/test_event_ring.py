@@ -29,6 +29,11 @@ def test_the_ring_answers_what_came_after_and_says_what_it_no_longer_keeps():
     assert [e["seq"] for e in r["events"]] == [4, 5] and r["more"] and not r["missed"]
     assert ring.after(8)["events"] == [] and not ring.after(8)["missed"]
     assert EventRing().after(0) == {"events": [], "oldest": None, "latest": None, "missed": False, "more": False}
+    gap = EventRing()
+    for n in (1, 2, 4, 5):  # 3 never heard (an outbox or the core's note queue dropped it)
+        gap.take({"seq": n})
+    assert gap.after(0)["missed"] and gap.after(1)["missed"] and not gap.after(3)["missed"]  # a review
+    assert not gap.after(0, limit=2)["missed"]  # 1, 2: nothing skipped in what was answered
 
 
 @pytest.mark.parametrize("body", [b'{"after": -1}', b'{"after": 1.5}', b'{"limit": 0}', b'{"limit": 501}', b'{"x": 1}'])

@@ -721,19 +721,31 @@ def _end_note(
     )
 
 
-def _missed_outcome(c: Any, motion_id: int) -> dict[str, Any] | None:
+def _missed_outcome(c: Any, motion_id: int, instance: Any) -> dict[str, Any] | None:
     """The end event of ``motion_id`` from the service's recent events (``events/recent``), when the subscription
-    missed it (a frozen service, a router restart: the field trial's "outcome UNKNOWN"); None when it is not kept
-    or cannot be asked."""
+    missed it (a frozen service, a router restart: the field trial's "outcome UNKNOWN"); None when it is not kept,
+    cannot be asked, or the service is another run than ``instance`` (the one the session began in: motion ids
+    restart with a run, a review)."""
     try:
-        latest = c.recent_events(0).get("latest") or 0
-        got = c.recent_events(max(0, int(latest) - MAX_EVENTS_ASKED)).get("events") or []
+        first = c.recent_events(0)
+        if instance is None or first.get("instance") != instance:
+            return None
+        reply = c.recent_events(max(0, int(first.get("latest") or 0) - MAX_EVENTS_ASKED))
+        got = reply.get("events") or [] if reply.get("instance") == instance else []
     except Exception:  # noqa: BLE001 — an older service without the key, or the link still down: unknown it stays
         return None
     ends = [
         e for e in got if e.get("motion_id") == motion_id and e.get("event") in ("motion_finished", "motion_aborted")
     ]
     return ends[-1] if ends else None
+
+
+def _run_of(c: Any) -> Any:
+    """The service run ``c`` talks to (``config``'s ``instance``); None when it cannot be asked (an older service)."""
+    try:
+        return c.config().get("instance")
+    except Exception:  # noqa: BLE001 — not known: a missed outcome is then not looked up
+        return None
 
 
 #: how many of the newest events :func:`_missed_outcome` looks through (one reply's worth)
@@ -759,6 +771,7 @@ def _stream(args, c, spec: _Spec) -> int:
     c.subscribe("events", mon.on_event)
     c.subscribe("state", mon.on_state)
     start_state = c.state()
+    run = _run_of(c)  # the service's run the session begins in (config's instance)
     sig = spec.signal(start_state.get("pose") or {})
     quiet = args.json
     out = console(soft_wrap=True, stderr=False)
@@ -834,7 +847,7 @@ def _stream(args, c, spec: _Spec) -> int:
     with mon.lock:
         outcome, tr, pose, at_stop = mon.outcome, mon.track, mon.pose, mon.at_stop
     if outcome is None and problem is None:  # its end was seen in the state only: the event never came
-        outcome = _missed_outcome(c, mid)  # asked for afterwards (events/recent)
+        outcome = _missed_outcome(c, mid, run)  # asked for afterwards (events/recent), from the same run
     end_gap = _end_gap(spec.frame, last_pose, pose)
     note, braking = _end_note(end_gap, at_stop, pose)
     reason = (outcome or {}).get("reason")

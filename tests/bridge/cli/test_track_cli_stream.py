@@ -42,7 +42,10 @@ class FakeService:
         end: tuple[str, str] = ("motion_finished", "track/stop"),
         intruder_seq: int | None = None,
         keeps_events: bool = False,
+        instance: str = "run-1",
+        events_instance: str = "run-1",
     ) -> None:
+        self.instance, self.events_instance = instance, events_instance  # config's run; the run events/recent is of
         self.keeps_events = keeps_events  # events/recent answers the end event its subscription missed
         self.intruder_seq = intruder_seq  # another client's seq taken into the session: ours ignored from then
         self.lag, self.braking, self.v_stop, self.limited = lag, braking, v_stop, dict(limited or {})
@@ -102,7 +105,17 @@ class FakeService:
         if not self.keeps_events:
             raise AttributeError("recent_events")  # as an older service's client: no such key
         end = {"seq": 41, "event": self.end[0], "motion_id": self.MOTION, "kind": "track", "reason": self.end[1]}
-        return {"events": [end] if after < 41 else [], "latest": 41, "oldest": 1, "missed": False, "more": False}
+        return {
+            "events": [end] if after < 41 else [],
+            "latest": 41,
+            "oldest": 1,
+            "missed": False,
+            "more": False,
+            "instance": self.events_instance,
+        }
+
+    def config(self):
+        return {"instance": self.instance}
 
     def track_stop(self, session=None, *, last_seq=None, timeout_s=None):
         self.stops.append((session, last_seq))
@@ -238,6 +251,10 @@ def test_a_missed_end_event_is_asked_for_afterwards_and_the_outcome_is_known(mon
     assert _run_with(monkeypatch, fake, "--sine", "z=0.02@0.5Hz", "--duration", "0.1") == 1
     err = capsys.readouterr().err
     assert "outcome UNKNOWN" not in err, err
+    # the service restarted meanwhile: its events are another run's, its motion 70 another motion (a review)
+    fake = FakeService(lose_events=True, keeps_events=True, events_instance="run-2")
+    assert _run_with(monkeypatch, fake, "--sine", "z=0.02@0.5Hz", "--duration", "0.1") == 1
+    assert "outcome UNKNOWN" in capsys.readouterr().err
 
 
 SIGHUP_SCRIPT = """

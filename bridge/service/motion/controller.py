@@ -277,7 +277,6 @@ class MotionController:
         #: how the last few track sessions ended (session → reason): a setpoint or stop for one says why
         self._ended_tracks: dict[int, str] = {}
         self._rejection_event_at = -math.inf
-        self._ignored_event_at = -math.inf  # the last track_setpoint_ignored event (_announce_ignored)
         #: work control of track sessions (bridge.service.work.WorkControl; set by machine.build_controller)
         self.work: Any = None
         self._goal_plan: Any = None  # the plan whose end pose ``_goal`` holds (state message)
@@ -623,9 +622,9 @@ class MotionController:
         """Announce setpoints ignored for their ``seq``, at most one ``track_setpoint_ignored`` event per
         ``_REJECTION_EVENT_EVERY_S`` (call under the lock): a second sender putting a larger ``seq`` into a live
         session had the session's own stream ignored until it went stale, and nothing said so (a fleet trial)."""
-        if now - self._ignored_event_at < _REJECTION_EVENT_EVERY_S:
+        if now - m.ignored_announced_s < _REJECTION_EVENT_EVERY_S:
             return
-        self._ignored_event_at = now
+        m.ignored_announced_s = now
         self._post(
             [
                 {

@@ -11,6 +11,7 @@ Every value the service sends as JSON has a ``to_json()`` method returning a JSO
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -436,6 +437,7 @@ class TrackMotion:
     stop_after: tuple[int, float] | None = None
     #: frame ``ground``: whether its ground-distance reading stays stuck while the hitch moves
     ground_watch: GroundWatch = field(default_factory=GroundWatch)
+    ignored_announced_s: float = -math.inf  # its last track_setpoint_ignored event (one a second, per session)
 
     @property
     def dofs(self) -> tuple[str, ...]:

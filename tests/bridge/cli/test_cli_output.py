@@ -206,7 +206,7 @@ def test_the_state_line_says_what_runs_a_maneuver_waiting_a_track_session_work_c
         "work": {"running": True, "mode": "draft", "active": "position", "fallback": "no draft reading"},
     }
     line = _state_line(state)
-    assert "maneuver headland step 2 wait_for 16.8 m left" in line, line
+    assert "maneuver headland step 3 (index 2) wait_for 16.8 m left" in line, line
     assert "work position (fallback: no draft reading)" in line, line
     state = {"track": {"session": 7, "frame": "level", "dof": ["roll"], "stale": True}, "work": {"running": False}}
     line = _state_line(state)

@@ -96,6 +96,7 @@ from bridge.isobus.j1939 import (
     decode_id,
 )
 from bridge.isobus.system_state import STATE_WATCHDOG_TRIPPED, measurement_not_available
+from bridge.link.realtime import shutdown_bus
 from bridge.link.reference_check import ReferenceCheck
 from bridge.link.state import (
     HITCH,
@@ -333,7 +334,7 @@ class CanLink:
         with self._lock:
             self._streaming = False
             if self._own_bus:
-                self._bus.shutdown()
+                shutdown_bus(self._bus)  # a hub that went away: nothing raised, nothing retried at collection
 
     def fault_causes(self, now_s: float) -> tuple[str, ...]:
         """Names of the condition faults whose causes are present at ``now_s`` (see

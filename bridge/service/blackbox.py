@@ -1104,10 +1104,9 @@ class CanRecorder:
             return
         self._closed = True
         self._end(timeout_s=2.0)  # stops its listeners too: the writer flushes and closes the file
-        try:
-            self._bus.shutdown()
-        except OSError:  # a remote hub that went away: its socket is gone already
-            pass
+        from bridge.link.realtime import shutdown_bus
+
+        shutdown_bus(self._bus)  # a remote hub that went away: its socket is gone already (said, never raised)
 
     def __enter__(self) -> CanRecorder:
         return self

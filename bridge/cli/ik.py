@@ -9,12 +9,17 @@ from bridge.cli.output import POSE_UNITS, console, esc, signed
 from bridge.service.wire import to_json_text
 from planner.ik_qp.baselines import DLSIK, GeometricIK, HybridIK
 from planner.ik_qp.hitch_ik import IKSolver
-from planner.ik_qp.result import Target
+from planner.ik_qp.result import Target, check_target
 from planner.model.types import ACTUATOR_UNITS
 
 __all__ = ["add_commands"]
 
 METHODS = {"qp": IKSolver, "dls": DLSIK, "hybrid": HybridIK, "geometric": GeometricIK}
+
+
+def _amount(k: str, v: float) -> str:
+    """``x +230.3 mm`` / ``roll -212.6 mrad`` of a pose error in SI [m, rad]."""
+    return f"{k} {round(1e3 * v, 1) + 0.0:+.1f} {'mm' if k in ('x', 'z') else 'mrad'}"  # +0.0, never -0.0
 
 
 def _cmd_ik(args) -> int:
@@ -36,12 +41,16 @@ def _cmd_ik(args) -> int:
         if res.active:  # a baseline's are the limits its actuators break (it enforces none), the QP's those it met
             label = "limits broken" if res.extra.get("violated") else "active limits"
             c.print(f"{label}: " + esc(", ".join(res.active)))
-        # no solution, no residual ("residual inf": a fuzz trial; --json says null). Named apart from the solver's
-        # "weighted residual" in the status line (a newcomer read two residuals, both unnamed and unitless)
-        resid = f"{res.residual:.3g} (m or rad)" if math.isfinite(res.residual) else "none (no solution)"
-        c.print(
-            f"iterations {res.iterations}, largest pose error |pose - target| {resid}, {res.solve_time_s * 1e6:.0f} µs"
-        )
+        # no solution, no error ("residual inf": a fuzz trial; --json says null). Per DOF with its unit, apart from
+        # the solver's "weighted residual" in the status line (a newcomer read two residuals, unnamed and unitless)
+        if res.pose is not None and math.isfinite(res.residual):
+            got = res.pose.as_dict()
+            errs = ", ".join(
+                _amount(k, got[k] - t) for k, t in zip(("x", "z", "roll", "pitch"), check_target(target), strict=True)
+            )
+        else:
+            errs = "none (no solution)"
+        c.print(f"iterations {res.iterations}, pose - target: {errs}, {res.solve_time_s * 1e6:.0f} µs")
     return 0 if res.status != "failed" else 1
 
 

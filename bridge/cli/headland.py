@@ -12,8 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from bridge.cli.errors import CLIError
-from bridge.cli.service import _client_command, _deadline, _print, _run, add_deadline_option
-from bridge.service.maneuvers.steps import step_words
+from bridge.cli.service import _client_command, _deadline, _print, _run, add_deadline_option, step_text
 
 __all__ = ["add_maneuver_actions", "add_lines_command"]
 
@@ -90,9 +89,7 @@ def _cmd_control(args: Any) -> int:
             text = f"{args.action}: maneuver {r.get('maneuver_id')} finished (no step left)"
         else:
             state = "paused" if m.get("paused") else "running"
-            step = m.get("step")
-            where = step_words(step) if isinstance(step, int) and not isinstance(step, bool) else "step -"
-            text = f"{args.action}: maneuver {r.get('maneuver_id')} {state}, {where}"
+            text = f"{args.action}: maneuver {r.get('maneuver_id')} {state}, {step_text(m.get('step'))}"
         _print(args, r, text)
         return 0
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 
 from bridge.cli.model import add_model_options, finite_float, model_from_args
-from bridge.cli.output import POSE_UNITS, console, esc, signed
+from bridge.cli.output import POSE_UNITS, console, esc, milli_text, signed
 from bridge.service.wire import to_json_text
 from planner.ik_qp.baselines import DLSIK, GeometricIK, HybridIK
 from planner.ik_qp.hitch_ik import IKSolver
@@ -15,11 +15,6 @@ from planner.model.types import ACTUATOR_UNITS
 __all__ = ["add_commands"]
 
 METHODS = {"qp": IKSolver, "dls": DLSIK, "hybrid": HybridIK, "geometric": GeometricIK}
-
-
-def _amount(k: str, v: float) -> str:
-    """``x +230.3 mm`` / ``roll -212.6 mrad`` of a pose error in SI [m, rad]."""
-    return f"{k} {round(1e3 * v, 1) + 0.0:+.1f} {'mm' if k in ('x', 'z') else 'mrad'}"  # +0.0, never -0.0
 
 
 def _cmd_ik(args) -> int:
@@ -46,7 +41,8 @@ def _cmd_ik(args) -> int:
         if res.pose is not None and math.isfinite(res.residual):
             got = res.pose.as_dict()
             errs = ", ".join(
-                _amount(k, got[k] - t) for k, t in zip(("x", "z", "roll", "pitch"), check_target(target), strict=True)
+                milli_text(k, got[k] - t)
+                for k, t in zip(("x", "z", "roll", "pitch"), check_target(target), strict=True)
             )
         else:
             errs = "none (no solution)"

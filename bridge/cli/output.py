@@ -52,6 +52,12 @@ def signed(value: float, digits: int) -> str:
 POSE_UNITS = {"x": "m", "y": "m", "z": "m", "roll": "rad", "pitch": "rad", "yaw": "rad"}
 
 
+def milli_text(name: str, value: float, per_s: bool = False) -> str:
+    """``z +7.4 mm`` / ``roll -3.0 mrad`` (``/s`` with ``per_s``) of a pose field's value in SI [m, rad]."""
+    unit = "mm" if POSE_UNITS[name] == "m" else "mrad"
+    return f"{name} {signed(1e3 * value, 1)} {unit}{'/s' if per_s else ''}"
+
+
 def pose_text(values: Any, names: tuple[str, ...] = ("x", "y", "z", "roll", "pitch", "yaw"), digits: int = 4) -> str:
     """``x=+0.0123 m  z=… m  roll=… rad …``: a pose's fields, each with its unit (``values`` in the
     order of ``names``)."""

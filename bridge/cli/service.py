@@ -851,6 +851,12 @@ def _cmd_faults(args) -> int:
     return _run(args, ack if args.action == "ack" else held)
 
 
+def step_text(step: object) -> str:
+    """A state's or reply's maneuver ``step`` (the API's 0-based index) as every text names it (:func:`step_words`);
+    ``step -`` when there is none."""
+    return step_words(step) if isinstance(step, int) and not isinstance(step, bool) else "step -"
+
+
 def _activity(s: dict) -> str:
     """What runs besides the motion: the maneuver and its step (a wait says what it waits for), the track
     session, work control (a field trial: "auto at rest motion 13" while a maneuver waited for a line 16.8 m
@@ -858,9 +864,7 @@ def _activity(s: dict) -> str:
     parts = []
     m = s.get("maneuver")
     if isinstance(m, dict):
-        step = m.get("step")
-        where = step_words(step) if isinstance(step, int) and not isinstance(step, bool) else "step -"
-        text = f"maneuver {m.get('name') or '-'} {where}"
+        text = f"maneuver {m.get('name') or '-'} {step_text(m.get('step'))}"
         if m.get("kind"):
             text += f" {m['kind']}"
         if m.get("paused"):

@@ -38,7 +38,7 @@ import numpy as np
 
 from bridge.cli.errors import CLIError
 from bridge.cli.model import PLAIN_NUMBER, PLAIN_NUMBER_WORDS, bounded_float
-from bridge.cli.output import console, esc, limited_text
+from bridge.cli.output import console, esc, limited_text, milli_text
 from bridge.cli.plan import parse_pose_arg
 from bridge.cli.service import STOP_TIMEOUT_S, _client_options, _run
 from bridge.service.maneuvers.steps import POSE_BOUNDS, SETPOINT_VELOCITY_BOUND
@@ -659,11 +659,6 @@ def _end_gap(frame: str, last: dict[str, float], pose: dict[str, Any] | None) ->
     return {k: float(pose[k]) - float(v) for k, v in last.items() if k in pose}
 
 
-def _amount(k: str, v: float, per_s: bool = False) -> str:
-    """``z +7.4 mm`` / ``roll -3.0 mrad`` (``/s`` with ``per_s``) of a value in SI [m, rad]."""
-    return f"{k} {1e3 * v:+.1f} {'mm' if k in ('x', 'z') else 'mrad'}{'/s' if per_s else ''}"
-
-
 def _end_note(
     gap: Mapping[str, float] | None, at_stop: Mapping[str, Any] | None, pose: Mapping[str, Any] | None
 ) -> tuple[str | None, dict[str, float] | None]:
@@ -682,7 +677,7 @@ def _end_note(
     far = {k: g for k, g in (gap or {}).items() if abs(g) > END_GAP_NOTE}
     if not far:
         return None, None
-    gaps = ", ".join(_amount(k, g) for k, g in far.items())
+    gaps = ", ".join(milli_text(k, g) for k, g in far.items())
     braking: dict[str, float] | None = None
     before = (at_stop or {}).get("pose") or {}
     if at_stop is not None and pose and all(k in pose and k in before for k in far):
@@ -698,7 +693,7 @@ def _end_note(
             "after track/stop (docs/tracking.md)",
             braking,
         )
-    travelled = ", ".join(_amount(k, braking[k]) for k in far)
+    travelled = ", ".join(milli_text(k, braking[k]) for k in far)
     limited = (at_stop or {}).get("limited") or {}
     explained = all(g * braking[k] > 0 and abs(g) <= abs(braking[k]) for k, g in far.items())
     if limited or not explained:
@@ -711,7 +706,7 @@ def _end_note(
             braking,
         )
     velocity = (at_stop or {}).get("velocity") or {}
-    rates = ", ".join(_amount(k, float(velocity[k]), per_s=True) for k in far if k in velocity)
+    rates = ", ".join(milli_text(k, float(velocity[k]), per_s=True) for k in far if k in velocity)
     return (
         f"hitch: note: the hitch came to rest {gaps} beyond the last setpoint sent (end pose minus setpoint): the "
         "braking distance of track/stop, which brakes from the velocity the hitch had"
@@ -855,7 +850,7 @@ def _stream(args, c, spec: _Spec) -> int:
     if note is not None and outcome is not None and not ours:
         # ended by something else (a stale stream, a fault, a stop): that is why it is away from the last setpoint,
         # not the signal (a field trial: a stale stream and a killed ECU were blamed on the signal's speed)
-        far = ", ".join(_amount(k, g) for k, g in (end_gap or {}).items() if abs(g) > END_GAP_NOTE)
+        far = ", ".join(milli_text(k, g) for k, g in (end_gap or {}).items() if abs(g) > END_GAP_NOTE)
         note = (
             f"hitch: note: the hitch ended away from the last setpoint sent ({far}: end pose minus setpoint): the "
             f"session ended before track/stop — {reason or (outcome or {}).get('event')}"

@@ -19,6 +19,7 @@ from typing import Any, ClassVar
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from planner.errors import HitchInputError
+from planner.model.types import CONTROLLED_POSE_UNITS
 
 __all__ = [
     "ManeuverSchemaError",
@@ -123,9 +124,8 @@ class GotoStep(_Strict):
         if isinstance(data, dict):
             for k, v in data.items():
                 if v is None and k in POSE_BOUNDS:
-                    unit = "m" if k in ("x", "z") else "rad"
                     raise ManeuverSchemaError(
-                        f"{k} must be a number ({unit}), got null; a DOF left out keeps its value"
+                        f"{k} must be a number ({CONTROLLED_POSE_UNITS[k]}), got null; a DOF left out keeps its value"
                     )
         return data
 

@@ -92,9 +92,13 @@ class Bus:
     def run(self, until_s, dt=0.001, t0=0.0):
         t = t0
         while t <= until_s + 1e-9:
-            for sender in self.nodes:
-                self._broadcast(sender, sender.poll(t), t)
+            self.tick(t)
             t += dt
+
+    def tick(self, t):
+        """Every node's periodic frames at ``t`` (``poll``), delivered."""
+        for sender in self.nodes:
+            self._broadcast(sender, sender.poll(t), t)
 
     def _broadcast(self, sender, frames, t):
         queue = [(sender, f) for f in frames]

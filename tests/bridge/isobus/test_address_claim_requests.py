@@ -9,6 +9,7 @@ import pytest
 
 from bridge.isobus.address_claim import AddressClaimer, ClaimState, Name, planner_name
 from bridge.isobus.codec import AddressClaimed, RequestPgn, decode, encode
+from tests.bridge.isobus.test_address_claim import Bus  # every frame to every other node, the rogue's to all
 
 #: Address Claimed from 166 and Cannot Claim (from the null address 254), PGN 60928 to global, priority 6 (by hand)
 CLAIM_166 = 0x18EEFFA6
@@ -27,27 +28,6 @@ def request_claims(source: int = 0x77, destination: int = 255) -> can.Message:
 
 def claim(name: Name, source: int) -> can.Message:
     return encode(AddressClaimed(name.value), source=source)
-
-
-class Bus:
-    """Every frame to every other node at the time it is sent; the rogue's frames to every node."""
-
-    def __init__(self, nodes: list[AddressClaimer]) -> None:
-        self.nodes = nodes
-        self.log: list[tuple[float, object, can.Message]] = []
-
-    def send(self, sender: object, frames: list[can.Message], t: float) -> None:
-        queue = [(sender, f) for f in frames]
-        while queue:
-            src, f = queue.pop(0)
-            self.log.append((t, src, f))
-            for node in self.nodes:
-                if node is not src:
-                    queue.extend((node, g) for g in node.handle(f, t))
-
-    def tick(self, t: float) -> None:
-        for node in self.nodes:
-            self.send(node, node.poll(t), t)
 
 
 def test_a_flood_of_requests_draws_at_most_ten_claims_a_second_and_each_request_an_answer_within_100_ms():

@@ -561,34 +561,32 @@ def test_a_stuck_ground_distance_sensor_does_not_drive_the_hitch_to_its_height_l
     every setpoint asked for 5 cm lower again (positive feedback) and the hitch ran to z = −0.218 m, "height
     limit reached (bottom)". Now a reading that stays within 3 mm for 1 s while the hitch moves more than
     40 mm is taken for stuck: setpoints are refused naming it and the session brakes at its ttl."""
+    message = _stuck_sensor_run(r, model, setpoint_m=0.25, seconds=6.0)
+    assert "stayed at 0.300 m for 1.0 s" in message
+
+
+def _stuck_sensor_run(r, model, setpoint_m: float, seconds: float) -> str:
+    """A ground-frame session over a ground distance stuck at 0.30 m, ``setpoint_m`` asked for ``seconds``: it must
+    be refused naming the stuck sensor, brake to rest, and stop well before the height limit. The first refusal."""
     r.sensors.dist = 0.30  # stuck: it never follows the hitch
     session = r.start(dof=["z"], frame="ground", ttl_ms=200)
     z0 = r.measured()[1]
     replies: list[tuple[bool, dict]] = []
-    r.run(6.0, each=lambda t: replies.append(r.setpoint(session, {"z": 0.25})))
+    r.run(seconds, each=lambda t: replies.append(r.setpoint(session, {"z": setpoint_m})))
     refused = [rep for ok, rep in replies if not ok]
     assert refused and "stuck ground-distance sensor" in refused[0]["message"], replies[-1]
-    assert "stayed at 0.300 m for 1.0 s" in refused[0]["message"]
     assert r.states[-1]["motion"] is None  # braked to rest
     lo = r.states[-1]["pose"]["z"]
     workspace_min = model.workspace["z"][0]
     assert z0 - lo < 0.5 * (z0 - workspace_min), (z0, lo, workspace_min)  # stopped well before the limit
+    return refused[0]["message"]
 
 
 def test_a_stuck_ground_sensor_under_a_setpoint_a_few_millimetres_away_is_noticed_too(r, model):
     """A review of the fix above: under a setpoint 9 mm from the stuck reading (within the 10 mm a setpoint at
     its reading may ask) every setpoint asked for 9 mm lower again, and the hitch crept 333 mm to z = −0.218 m,
     the workspace's bottom limit, never refused. Now stuck once the hitch moved 120 mm with one reading."""
-    r.sensors.dist = 0.30  # stuck
-    session = r.start(dof=["z"], frame="ground", ttl_ms=200)
-    z0 = r.measured()[1]
-    replies: list[tuple[bool, dict]] = []
-    r.run(20.0, each=lambda t: replies.append(r.setpoint(session, {"z": 0.291})))
-    refused = [rep for ok, rep in replies if not ok]
-    assert refused and "stuck ground-distance sensor" in refused[0]["message"], replies[-1]
-    assert r.states[-1]["motion"] is None  # braked to rest
-    lo = r.states[-1]["pose"]["z"]
-    assert z0 - lo < 0.5 * (z0 - model.workspace["z"][0]), (z0, lo)  # stopped well before the limit
+    _stuck_sensor_run(r, model, setpoint_m=0.291, seconds=20.0)
 
 
 def test_one_setpoint_numbered_far_ahead_is_refused_and_the_live_stream_goes_on(r):

@@ -137,6 +137,7 @@ def _through_twin(job: tuple) -> dict:
         "z_max": float(z.max()),
         "within_3sigma": int(np.sum(z <= 3.0)),
         "identified": int(z.size),
+        "z_abs": z.tolist(),
         "lag_fitted": res.values[li].tolist(),
         "lag_std": res.std[li].tolist(),
         "lag_truth": _truth_values(pm, truth)[li].tolist(),
@@ -384,6 +385,10 @@ def _run_through_twin(
         ),
         "two_sided": two_sided,
         "z_max": max(r["z_max"] for r in res),
+        # an honest σ gives z of RMS 1 over all the identified directions of all the twins
+        "z_rms_all_directions": float(np.sqrt(np.mean(np.concatenate([r["z_abs"] for r in res]) ** 2))),
+        "directions_beyond_3sigma": f"{sum(r['identified'] - r['within_3sigma'] for r in res)} of "
+        f"{sum(r['identified'] for r in res)}",
         "refused_poses": [len(r["calibrated_refused"]) for r in res],
         "boxes_fitted": {r["seed"]: r["box_fitted"] for r in res if r["box_fitted"] is not None},
         "floor_exact_profile": floors,

@@ -201,6 +201,38 @@ class ParameterSet:
                     out.append(float((nom.counts_min[k] - tru.counts_min[k]) * tru.resolution[k]))
         return np.array(out)
 
+    def ad_count_jacobian(self, values: ArrayLike) -> np.ndarray:
+        """∂ values / ∂ (counts_min, counts_max) of every actuator at ``values`` (n, 10: columns counts_min,
+        counts_max of the first actuator, then of the next; zero rows for the geometry and the lag).
+
+        The profile stores each AD map as two whole counts (:meth:`profile_dict` rounds them), so a written
+        map is off the fitted one by up to half a count at each end. With span = si_max − si_min and the
+        reading's resolution r = span / (counts_max − counts_min) = r_nom · (1 + gain), offset =
+        (counts_min_nom − counts_min) · r:
+
+            ∂gain/∂counts_min = r² / (span · r_nom) = −∂gain/∂counts_max
+            ∂offset/∂counts_min = −r + offset · r / span,   ∂offset/∂counts_max = −offset · r / span
+        """
+        v = self.vector(values)
+        nom = SensorScaling(self.profile)
+        out = np.zeros((len(self), 2 * len(ACTUATOR_NAMES)))
+        names = self.names
+        for k, n in enumerate(ACTUATOR_NAMES):
+            io = names.index(f"ad_offset.{n}") if f"ad_offset.{n}" in names else None
+            ig = names.index(f"ad_gain.{n}") if f"ad_gain.{n}" in names else None
+            if io is None and ig is None:
+                continue
+            gain = float(v[ig]) if ig is not None else 0.0
+            offset = float(v[io]) if io is not None else 0.0
+            span = float(nom.si_max[k] - nom.si_min[k])
+            r = float(nom.resolution[k]) * (1.0 + gain)
+            if ig is not None:
+                d = r * r / (span * float(nom.resolution[k]))
+                out[ig, 2 * k : 2 * k + 2] = (d, -d)
+            if io is not None:
+                out[io, 2 * k : 2 * k + 2] = (-r + offset * r / span, -offset * r / span)
+        return out
+
     def profile_dict(self, values: ArrayLike, *, name: str | None = None, lag: bool = True) -> dict[str, Any]:
         """The nominal profile's data with ``values`` written in (validated; loads with ``profile_from_dict``).
 

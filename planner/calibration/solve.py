@@ -10,9 +10,11 @@ named in the result. The solver works in the identifiable subspace (fixed from t
 nominal parameters and refreshed once at the solution).
 
 Standard deviations come from the residual variance σ̂² = |r|² / (m − k) (m observations, k
-identified directions) times the inverse information of the identified directions; with exact
-measurements they are ~0. That ``std`` holds with the unidentified directions at nominal: a parameter
-only partly in the identified subspace is uncertain along the rest by its tape error, so the reported σ
+identified directions) times the inverse information of the identified directions, plus what rounding the
+AD map to the profile's whole counts adds (each count uniform within ± 0.5: 1/√12 count, the GUM's
+resolution term, carried through the geometry's refit); with exact measurements and no rounding they are
+~0. That ``std`` holds with the unidentified directions at nominal: a parameter only partly in the
+identified subspace is uncertain along the rest by its tape error, so the reported σ
 (:attr:`CalibrationResult.std_total`) adds the tape prior of the unidentified part, (1 − share) · (scale/√3)²
 (the tape error: uniform within ± scale). A parameter wholly unidentified (share below
 :data:`UNIDENTIFIED_SHARE`: kept at nominal) has no σ (NaN; ``None`` in :meth:`CalibrationResult.as_dict`).
@@ -40,6 +42,7 @@ __all__ = [
     "IDENTIFIED_SHARE",
     "OUTLIER_SIGMA",
     "PRIOR_SIGMA_SCALED",
+    "ROUNDING_VARIANCE_COUNTS2",
     "UNIDENTIFIED_SHARE",
     "WEAKLY_IDENTIFIED_SHARE",
     "CalibrationProblem",
@@ -293,12 +296,27 @@ def _lm(problem: CalibrationProblem, basis: np.ndarray, u0: np.ndarray, max_iter
     return u0 + basis @ w, r, js, it, converged
 
 
-def _snap_ad(problem: CalibrationProblem, u: np.ndarray, min_singular: float, max_iter: int, tol: float):
-    """Round the AD map to whole counts (the profile's integers) and refit the geometry with it fixed."""
+#: the variance of a value rounded to a whole count, in counts² (uniform within ± 0.5 count: the resolution
+#: term of the GUM, u = q / √12)
+ROUNDING_VARIANCE_COUNTS2 = 1.0 / 12.0
+
+
+def _snap_ad(
+    problem: CalibrationProblem, u: np.ndarray, min_singular: float, max_iter: int, tol: float
+) -> tuple[np.ndarray, int, np.ndarray]:
+    """Round the AD map to whole counts (the profile's integers) and refit the geometry with it fixed:
+    (scaled deltas, iterations, the covariance the rounding adds to them in scaled units (n, n)).
+
+    Each written count is off the fitted one by up to half a count (variance :data:`ROUNDING_VARIANCE_COUNTS2`);
+    the AD parameters move by G δ (G = :meth:`ParameterSet.ad_count_jacobian`, δ the rounding errors) and the
+    refit moves the rest to take up what it can, −B (J B)⁺ J_ad G δ (J the weighted scaled Jacobian, B the
+    refit's basis), so the written values carry T G δ with T = [I; −B (J B)⁺ J_ad]: the covariance
+    T G (I / 12) Gᵀ Tᵀ."""
     ps = problem.params
-    ad = np.array([n.startswith("ad_") for n in ps.names])
+    n = len(ps)
+    ad = np.array([name.startswith("ad_") for name in ps.names])
     if not ad.any():
-        return u, 0
+        return u, 0, np.zeros((n, n))
     p = ps.nominal + ps.scale * u
     rounded = ps.values_of(profile_from_dict(ps.profile_dict(p, lag=False)))  # only its AD part is used
     u0 = u.copy()
@@ -306,10 +324,17 @@ def _snap_ad(problem: CalibrationProblem, u: np.ndarray, min_singular: float, ma
     _, js = problem.residuals(u0)
     assert js is not None
     _, sub, _ = identifiable_basis(js[:, ~ad], min_singular)
-    basis = np.zeros((len(ps), sub.shape[1]))
+    basis = np.zeros((n, sub.shape[1]))
     basis[~ad] = sub
+    g = ps.ad_count_jacobian(ps.nominal + ps.scale * u0) / ps.scale[:, None]  # scaled deltas per count
+    t = np.zeros((n, int(ad.sum())))
+    t[ad] = np.eye(int(ad.sum()))
+    if basis.shape[1]:
+        t -= basis @ (np.linalg.pinv(js @ basis) @ js[:, ad])
+    tg = t @ g[ad]
+    cov_round = ROUNDING_VARIANCE_COUNTS2 * (tg @ tg.T)
     u1, _, _, iters, _ = _lm(problem, basis, u0, max_iter, tol)
-    return u1, iters
+    return u1, iters, cov_round
 
 
 def solve_calibration(
@@ -323,8 +348,10 @@ def solve_calibration(
     """Calibrate: LM over the identifiable directions; singular values, σ̂, standard deviations (module).
 
     ``snap_ad``: round the calibrated AD map to whole counts (as the profile stores it) and refit the
-    geometry with that map fixed, so the written profile is the best one the schema can hold; the
-    standard deviations and the named combinations are those of the continuous fit. A fit that ends where
+    geometry with that map fixed, so the written profile is the best one the schema can hold; the named
+    combinations are those of the continuous fit, the standard deviations its own plus what the rounding
+    adds (each count off by up to half a count, carried through the refit: :func:`_snap_ad`), so they
+    describe the values written. A fit that ends where
     the mechanism cannot close is a :class:`CalibrationError` naming the cause: measurements that do not fit
     the model (a wrong value, a unit slip: σ̂ large), or, where the fit agrees with the measurements, weakly
     identified directions (``min_singular`` small) that carried the parameters many tape sizes away.
@@ -458,10 +485,12 @@ def _solve(
     )
     if snap_ad:
         try:
-            u, more = _snap_ad(problem, u, min_singular, max_iter, tol)
+            u, more, cov_round = _snap_ad(problem, u, min_singular, max_iter, tol)
         except CalibrationError as exc:  # the AD map left the counts: not the measurements' fault alone
             raise _MapError(str(exc)) from None
         iters += more
+        cov_u = cov_u + cov_round
+        std = ps.scale * np.sqrt(np.maximum(np.diag(cov_u), 0.0))
         r, _ = problem.residuals(u, jacobian=False)
     rms = _rms(problem, r)
     return CalibrationResult(

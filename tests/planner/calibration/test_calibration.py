@@ -55,6 +55,16 @@ def _data(model: ParametricModel, readings: np.ndarray, p: np.ndarray, *, points
     return MeasurementSet(readings, np.where(mask, y, np.nan), mask, tuple(str(i) for i in range(len(readings))))
 
 
+def _visible(model: ParametricModel) -> tuple[np.ndarray, np.ndarray]:
+    """24 candidate readings and the parameter directions (scaled) their exact measurements identify."""
+    readings = _candidates()[1][:24]
+    problem0 = build_calibration_problem(model, _data(model, readings, model.params.nominal))
+    _, js = problem0.residuals(np.zeros(len(model.params)))
+    assert js is not None
+    _, basis, _ = identifiable_basis(js, 1.0)
+    return readings, basis
+
+
 def test_plain_parametric_model_equals_hitch_model_at_nominal():
     model = _model(rigid=False)
     hm = HitchModel(_profile())
@@ -92,12 +102,7 @@ def test_jacobian_matches_central_differences():
 
 def test_exact_measurements_recover_a_known_perturbation_to_solver_tolerance():
     model = _model()
-    poses, acts = _candidates()
-    readings = acts[:24]
-    problem0 = build_calibration_problem(model, _data(model, readings, model.params.nominal))
-    _, js = problem0.residuals(np.zeros(len(model.params)))
-    assert js is not None
-    _, basis, _ = identifiable_basis(js, 1.0)
+    readings, basis = _visible(model)
     rng = np.random.default_rng(5)
     u_true = basis @ rng.uniform(-0.8, 0.8, basis.shape[1])  # a tape-sized perturbation the data can see
     p_true = model.params.nominal + model.params.scale * u_true
@@ -503,3 +508,52 @@ def test_a_fit_that_leaves_the_schema_blames_the_measurements_not_a_unit_in_the_
     text = str(exc.value)
     assert "geometry.lower_link_pivot_span" in text and "did you mean" not in text, text
     assert "the L and R points swapped" in text and "the measurements do not fit the model" in text, text
+
+
+def test_the_ad_count_jacobian_matches_central_differences_of_whole_counts():
+    ps = _model().params
+    prof = _profile()
+    rng = np.random.default_rng(8)
+    data = prof.model_dump()
+    for n in ("lift", "tilt", "top", "left", "right"):  # a map some counts off the nominal one
+        a = data["actuators"][n]
+        a["counts_min"] += int(rng.integers(-4, 5))
+        a["counts_max"] += int(rng.integers(-4, 5))
+    base = profile_from_dict(data)
+    v = ps.values_of(base)
+    jac = ps.ad_count_jacobian(v)
+    fd = np.zeros_like(jac)
+    for k, n in enumerate(("lift", "tilt", "top", "left", "right")):
+        for c, key in enumerate(("counts_min", "counts_max")):
+            moved = []
+            for step in (1, -1):
+                d = base.model_dump()
+                d["actuators"][n][key] += step
+                moved.append(ps.values_of(profile_from_dict(d)))
+            fd[:, 2 * k + c] = (moved[0] - moved[1]) / 2.0
+    ad = np.array([name.startswith("ad_") for name in ps.names])
+    assert np.all(jac[~ad] == 0.0)
+    # central differences over one whole count: exact for the offset's linear terms, O(1e-6) relative for 1/span
+    assert np.max(np.abs(fd - jac) / ps.scale[:, None]) < 1e-5
+    assert np.max(np.abs(jac[ad]) / ps.scale[ad, None]) > 0.1  # not a zero map
+
+
+def test_the_written_profile_s_std_holds_the_rounding_of_its_ad_map_to_whole_counts():
+    """With exact measurements the continuous fit has σ ≈ 0, but the profile stores its AD map in whole counts:
+    the values written are off the truth by the rounding. Their std must say so (it was the continuous fit's,
+    ~1e-9 of a tape size, so the written values lay millions of σ from the truth)."""
+    model = _model()
+    readings, basis = _visible(model)
+    rng = np.random.default_rng(21)
+    z = []
+    for _ in range(6):
+        u_true = basis @ rng.uniform(-0.8, 0.8, basis.shape[1])
+        p_true = model.params.nominal + model.params.scale * u_true
+        res = solve_calibration(build_calibration_problem(model, _data(model, readings, p_true)))
+        err = res.values - p_true
+        moved = np.abs(err) > 1e-9 * model.params.scale
+        assert moved.sum() >= 5  # the rounding moved the AD map (and the geometry's refit) off the truth
+        z.append(err[moved] / res.std[moved])
+    zs = np.concatenate(z)
+    assert np.max(np.abs(zs)) < 4.0
+    assert 0.4 < float(np.sqrt(np.mean(zs**2))) < 1.6  # a rounding spread the std describes

@@ -276,8 +276,9 @@ def _cmd_geometry(args) -> int:
         print(
             f"hitch: note: {args.measurements} names approach sides, but {args.profile} has no "
             "motion.final_approach: the lag of the pin play is not fitted (as many rows from each side average it "
-            "out of the geometry); to find it and have the planner aim by it, fit with the profile the poses were "
-            "measured with (--profile)",
+            "out of the geometry); to find it and have the planner aim by it, give the profile a "
+            "[motion.final_approach], measure each pose by goto from both sides with it (measure-twin --by goto "
+            "--sides both) and fit with it as --profile (docs/commissioning.md)",
             file=sys.stderr,
         )
     elif data.sided and not include_lag and np.sum(sides < 0) != np.sum(sides > 0):  # as many each side: averages
@@ -299,9 +300,12 @@ def _cmd_geometry(args) -> int:
     }
     carried = (sensors,) if sensors is not None and args.no_ad else ()  # the maps it records are kept as they were
     short, noisy = _approach_shorter_than_play(prof, result)
-    misfit = result.residual_sigma > SUSPECT_SIGMA_HAT and not args.accept_misfit
+    doubts = _implausible_fit(args, model.params, problem, result)
+    misfit = (result.residual_sigma > SUSPECT_SIGMA_HAT or bool(doubts)) and not args.accept_misfit
     if result.residual_sigma > SUSPECT_SIGMA_HAT and args.accept_misfit:  # recorded in the profile's provenance
         inputs["misfit_accepted"] = f"sigma-hat {result.residual_sigma:.3g} (--accept-misfit)"
+    if doubts and args.accept_misfit:
+        inputs["implausible_accepted"] = [f"{d} (--accept-misfit)" for d in doubts]
     if not short and not misfit:
         write_calibrated_profile(args.out, model.params, result, name=args.name, inputs=inputs, comments=carried)
     worst = largest_residuals(problem, result)
@@ -333,9 +337,12 @@ def _cmd_geometry(args) -> int:
         print(to_json_text({"out": written, **result.as_dict(), "largest_residuals": largest}))
     else:
         _print_fit(model, result)
+    if doubts and args.accept_misfit:
+        print(f"hitch: warning: {'; '.join(doubts)}; written as asked (--accept-misfit)", file=sys.stderr)
     if misfit:  # after the report: the fit is shown, the profile is not written
+        why = misfit_text if result.residual_sigma > SUSPECT_SIGMA_HAT else "; ".join(doubts)
         raise CLIError(
-            f"{args.out} not written: {misfit_text}; check the measurements, or give the instrument's σ; to write "
+            f"{args.out} not written: {why}; check the measurements, or give the instrument's σ; to write "
             "it all the same: --accept-misfit"
         )
     if short:
@@ -355,6 +362,66 @@ def _cmd_geometry(args) -> int:
     if not args.json:
         print(f"wrote {args.out}")
     return 0
+
+
+#: a parameter the fit moves further than this many tape sizes (its scale: the tape error the profile's value
+#: may have) from the profile's value is not a tape error: the measurements do not fit the profile
+FAR_TAPE_SIZES = 5.0
+#: a row's residual beyond this many σ is a wrong cell, not noise (5…10 σ: warned, the fit stands)
+WRONG_CELL_SIGMA = 10.0
+#: a fitted lag below zero by more than this many of its std: the rows' approach sides are swapped
+NEGATIVE_LAG_STD = 3.0
+
+
+def _implausible_fit(args, params, problem, result) -> list[str]:
+    """Why a fit that passed sigma-hat cannot be the machine (each a phrase; empty: none): a parameter moved
+    more than :data:`FAR_TAPE_SIZES` tape sizes (a commissioning trial: z measured from the ground with a
+    generous σ moved lift_arm_pivot[2] 15 tape sizes, sigma-hat 2.9, and wrote a profile no command loads), a row
+    beyond :data:`WRONG_CELL_SIGMA` σ (a row with its left and right counts swapped, 22 σ, was written with a
+    warning), a lag of the pin play below zero by more than :data:`NEGATIVE_LAG_STD` std (the approach column's
+    below and above swapped: −6 σ in pitch, written without a word; the play can only leave the implement behind
+    the mechanism)."""
+    from planner.calibration.solve import outlying_rows
+
+    out: list[str] = []
+    moved = (result.values - result.nominal) / result.scale
+    far = [i for i in np.argsort(-np.abs(moved)) if abs(moved[i]) > FAR_TAPE_SIZES]
+    if far:
+        words = ", ".join(
+            f"{result.names[i]} moved {moved[i]:+.1f} tape sizes "
+            f"({_si(result.values[i] - result.nominal[i], params, i)}, its tape size "
+            f"{_si(result.scale[i], params, i, sign=False)})"
+            for i in far[:3]
+        )
+        out.append(
+            f"{words} from the value in {args.profile}: a tape-measured value is not that far off; the measurements "
+            "do not fit the profile (a column measured from another origin, e.g. z from the ground; a unit or sign "
+            "slip) or that value of the profile is wrong (measure it again; an AD map: hitch calibrate sensors)"
+        )
+    wrong = outlying_rows(problem, result, WRONG_CELL_SIGMA)
+    if wrong:
+        listed = ", ".join(f"row {r} ({label}) {col} {v:+.1f} σ" for r, label, col, v in wrong[:4])
+        more = f" and {len(wrong) - 4} more" if len(wrong) > 4 else ""
+        out.append(
+            f"{args.measurements}: {listed}{more} beyond {WRONG_CELL_SIGMA:g} σ of the fit: a wrong cell, not noise "
+            "(a swapped pair of counts, a typing slip); correct or delete the row"
+        )
+    for i in params.lag_index:
+        lag, std = float(result.values[i]), float(result.std[i])
+        if std > 0.0 and lag < -NEGATIVE_LAG_STD * std:
+            out.append(
+                f"the fitted {result.names[i]} = {_si(lag, params, i)} ± {_si(std, params, i, sign=False)} is below "
+                f"zero by {-lag / std:.1f} std: the pin play can only leave the implement behind the mechanism; are "
+                "below and above swapped in the approach column?"
+            )
+    return out
+
+
+def _si(value: float, params, i: int, *, sign: bool = True) -> str:
+    """``value`` of parameter ``i`` in mm, mrad or as a number (the unit of the parameter: m, rad, 1)."""
+    unit = params.parameters[i].unit
+    scaled, shown = (1e3 * value, " mm") if unit == "m" else (1e3 * value, " mrad") if unit == "rad" else (value, "")
+    return f"{scaled:+.3g}{shown}" if sign else f"{scaled:.3g}{shown}"
 
 
 def _overstated_sigma_text(args, result) -> str:

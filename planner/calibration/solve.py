@@ -521,12 +521,22 @@ def _solve(
 def check_residual_dof(result: CalibrationResult, data: MeasurementSet) -> None:
     """:class:`CalibrationError` when the fit's residual degrees of freedom (values − identified directions)
     are fewer than its identified directions: σ̂ from so few spare values cannot check the fit (2 poses: 8
-    values, 7 directions, σ̂ 0.40 from one spare value, and the profile was written: a trial). The message
+    values, 7 directions, σ̂ 0.40 from one spare value, and the profile was written: a trial); likewise when the
+    distinct poses (a pose measured from both sides once) hold fewer than twice the identified directions' values
+    (one pose from both sides, 8 values for 4 directions, was written: a commissioning trial). The message
     names how many values and poses a fit needs."""
     m, k = result.n_observations, result.identified
-    if m - k >= k:
-        return
     per = max(1, int(np.max(data.mask.sum(axis=1))))
+    if m - k >= k:
+        poses = data.n_poses  # a pose measured from both sides counts once
+        if poses * per >= 2 * k:
+            return
+        raise CalibrationError(
+            f"measurements: {_count(data.n_rows, 'row')} hold {_count(poses, 'distinct pose')} (a pose measured from "
+            f"both sides counts once: its two rows tell the pin play's lag, not more geometry) with {per} values "
+            f"each for {_count(k, 'identified parameter direction')}: a fit needs at least {2 * k} values of "
+            f"distinct poses, at least {math.ceil(2 * k / per)} poses; measure more poses"
+        )
     raise CalibrationError(
         f"measurements: {_count(result.n_poses, 'pose')} with {_count(m, 'measured value')} for "
         f"{_count(k, 'identified parameter direction')} leave {m - k} to check the fit (sigma-hat), fewer than "

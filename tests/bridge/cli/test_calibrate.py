@@ -653,6 +653,93 @@ def test_too_few_spare_values_to_check_the_fit_are_refused_naming_the_poses_need
     assert "a fit needs at least 14 values, at least 4 poses of 4 values each" in err and not out.exists()
 
 
+def test_one_pose_measured_from_both_sides_is_refused_as_one_pose(tmp_path, capsys):
+    """A commissioning trial: the two rows of one pose (from below and from above: 8 values, 4 identified
+    directions) wrote a "calibrated" profile whose pitch was worse than the nominal one; 3 poses from one side were
+    refused. The two sides of a pose tell its lag, not more geometry."""
+    _, meas = _twin_measurements(tmp_path, load_profile("thesis-t132"))
+    lines = meas.read_text().splitlines()
+    assert lines[1].split(",")[0] == lines[2].split(",")[0] and lines[1].endswith("below"), lines[1:3]
+    assert lines[2].endswith("above"), lines[2]
+    one = tmp_path / "one.csv"
+    one.write_text("\n".join(lines[:3]) + "\n")
+    out = tmp_path / "c.toml"
+    err = _err(capsys, ["calibrate", "geometry", "--measurements", str(one), "--no-ad", "--out", str(out)])
+    assert f"error: {one}: 2 rows hold 1 distinct pose (a pose measured from both sides counts once" in err, err
+    assert "measure more poses" in err and not out.exists()
+
+
+def _with_column(text: str, column: str, change) -> str:
+    """The CSV ``text`` with ``change(value, row)`` applied to ``column`` in every data row."""
+    lines = text.splitlines()
+    k = lines[0].split(",").index(column)
+    out = [lines[0]]
+    for n, line in enumerate(lines[1:], start=1):
+        cells = line.split(",")
+        cells[k] = change(cells[k], n)
+        out.append(",".join(cells))
+    return "\n".join(out) + "\n"
+
+
+def test_a_fit_that_moves_a_parameter_many_tape_sizes_is_not_written(tmp_path, capsys):
+    """A commissioning trial: z measured from the ground (+0.5 m in every row) with a generous σ gave sigma-hat
+    2.9 and moved lift_arm_pivot[2] 15 tape sizes; the profile was written, and no command could load it."""
+    _, meas = _twin_measurements(tmp_path, load_profile("thesis-t132"))
+    ground = tmp_path / "ground.csv"
+    ground.write_text(_with_column(meas.read_text(), "z", lambda v, _n: repr(float(v) + 0.5)))
+    out = tmp_path / "c.toml"
+    argv = ["calibrate", "geometry", "--measurements", str(ground), "--no-ad", "--out", str(out)]
+    rc = main([*argv, "--sigma-position-mm", "10", "--sigma-angle-mrad", "20"])
+    err = capsys.readouterr().err
+    assert rc == 2 and not out.exists(), err
+    assert re.search(r"geometry\.\S+ moved [+-]\d+\.\d tape sizes \([+-][\d.]+ mm, its tape size (10|5) mm\)", err), err
+    assert "z from the ground" in err and "--accept-misfit" in err
+    assert main([*argv, "--sigma-position-mm", "10", "--sigma-angle-mrad", "20", "--accept-misfit"]) in (0, 2)
+
+
+def test_a_row_far_beyond_the_noise_is_refused_naming_it(tmp_path, capsys):
+    """A commissioning trial: one row with its left and right counts swapped lay 22 σ off the fit; it was only
+    warned about and the profile written (x error 0.6 → 2.7 mm)."""
+    _, meas = _twin_measurements(tmp_path, load_profile("thesis-t132"))
+    lines = meas.read_text().splitlines()
+    head = lines[0].split(",")
+    li, ri = head.index("left_counts"), head.index("right_counts")
+    cells = lines[7].split(",")
+    assert abs(int(cells[li]) - int(cells[ri])) > 20, cells  # a pose off the middle: the swap moves it
+    cells[li], cells[ri] = cells[ri], cells[li]
+    lines[7] = ",".join(cells)
+    bad = tmp_path / "swapped.csv"
+    bad.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "c.toml"
+    tape = ["--sigma-position-mm", "5.8", "--sigma-angle-mrad", "11.5"]  # the trial's σ: sigma-hat stays below 3
+    rc = main(["calibrate", "geometry", "--measurements", str(bad), "--no-ad", "--out", str(out), *tape])
+    err = capsys.readouterr().err
+    assert rc == 2 and not out.exists(), err
+    assert "sigma-hat" not in err.split("not written:")[1], err
+    assert re.search(r"row 7 \(\S+\) \w+ [+-]\d+\.\d σ", err) and "beyond 10 σ of the fit: a wrong cell" in err, err
+
+
+def test_swapped_approach_sides_are_refused_as_a_negative_lag(tmp_path, capsys):
+    """A commissioning trial: below and above swapped in the approach column fitted a lag below zero in every
+    DOF (pitch −6 σ) and wrote the profile without a word; its accuracy was worse than with the right labels."""
+    prof_file, _, meas = _measured_from_both_sides(tmp_path, PinPlay(0.001, 0.0005))
+    capsys.readouterr()
+    swap = {"below": "above", "above": "below"}
+    swapped = tmp_path / "swapped.csv"
+    swapped.write_text(_with_column(meas.read_text(), "approach", lambda v, _n: swap[v]))
+    out = tmp_path / "c.toml"
+    argv = ["calibrate", "geometry", "--profile", str(prof_file), "--measurements", str(swapped), "--out", str(out)]
+    rc = main(argv)
+    err = capsys.readouterr().err
+    assert rc == 2 and not out.exists(), err
+    assert re.search(r"the fitted lag\.\w+ = -[\d.]+ m(m|rad) ± [\d.]+ m(m|rad) is below zero by \d+\.\d std", err), err
+    assert "below and above swapped in the approach column" in err
+    assert (
+        main(["calibrate", "geometry", "--profile", str(prof_file), "--measurements", str(meas), "--out", str(out)])
+        == 0
+    )
+
+
 def test_reported_standard_deviations_hold_against_the_truth_and_none_for_what_is_not_identified(tmp_path, capsys):
     """A commissioning trial over 10 twins: pivot_height had std 9.7e-19 m in --json; the provenance gave
     limiter_bracket_position 1.5e-05 m (41σ off the truth); top_link_tractor_point[1] "± 4.4e-04 m, 80 %

@@ -139,6 +139,16 @@ class JogController:
         cyc = self._plan_cycle(np.asarray(rates, float))
         return cyc.target, cyc.flags
 
+    def speed_flags(self, rates: np.ndarray) -> dict[str, str]:
+        """The DOFs whose rate ``rates`` [m/s, rad/s] exceeds the jog speed limit: ``{"x+": "velocity:x", …}``
+        (a rate above it is capped to it, and said so)."""
+        r = np.asarray(rates, float)
+        return {
+            f"{k}{'+' if r[d] > 0 else '-'}": str(LimitName("velocity", k))
+            for d, k in enumerate(CONTROLLED_POSE_NAMES)
+            if abs(r[d]) > self.limits.velocity[d] * (1.0 + 1e-9)
+        }
+
     def step(self, now_s: float | None = None) -> JogOutput:
         """Advance one control cycle (dt = 1/rate)."""
         now = self.t + self.dt if now_s is None else now_s
@@ -162,10 +172,7 @@ class JogController:
         """The jog speed limits and the caps at the faces for braking from the capped speed
         with the jog's own limits (the approach to a face within those limits)."""
         v = np.clip(rates, -self.limits.velocity, self.limits.velocity)
-        flags: dict[str, str] = {}
-        for d, k in enumerate(CONTROLLED_POSE_NAMES):  # a rate above the jog speed limit: capped, and said so
-            if abs(rates[d]) > self.limits.velocity[d] * (1.0 + 1e-9):
-                flags[f"{k}{'+' if rates[d] > 0 else '-'}"] = str(LimitName("velocity", k))
+        flags = self.speed_flags(rates)
         p = self.state.position
         cur = self.state.velocity
         for d, (k, (name_min, name_max)) in enumerate(zip(CONTROLLED_POSE_NAMES, WORKSPACE_NAMES, strict=True)):

@@ -364,22 +364,30 @@ class JogMotion:
     def refresh(self, guard: Guard, rates: np.ndarray, expires: float) -> JogAccepted:
         """A new command: rates [m/s, rad/s] until clock time ``expires``; checked ahead by the guard."""
         self.rates, self.expires = np.asarray(rates, float), float(expires)
-        allowed, self.decision = guard.check_jog(self.jog.state, self.rates)
+        allowed, self.decision = self._checked(guard)
         _, flags = self.jog.clipped_rates(allowed)
-        self.limited = {**flags, **guard_limits(self.decision)}
+        self.limited = {**self.jog.speed_flags(self.rates), **flags, **guard_limits(self.decision)}
         return JogAccepted(self.motion_id, dict(self.limited), self.decision)
 
     def step(self, guard: Guard) -> tuple[JogOutput, list[Event]]:
         """One control cycle: the rates re-checked ahead by the guard, then the jerk-limited step.
         Returns the step and a ``limit_reached`` event naming each limit that newly caps the jog
         (a workspace face, a stability measure ahead, an end-stop zone)."""
-        allowed, self.decision = guard.check_jog(self.jog.state, self.rates)
+        allowed, self.decision = self._checked(guard)
         self.jog.command(allowed, 1.0)  # the dead-man TTL is ours (``expires``), not the controller's
         out = self.jog.step()
-        self.limited = {**out.limited, **guard_limits(self.decision)}
+        self.limited = {**self.jog.speed_flags(self.rates), **out.limited, **guard_limits(self.decision)}
         new = newly_limited(self.limited, self.decision, self.reported)
         events: list[Event] = [{"event": "limit_reached", "motion_id": self.motion_id, "limits": new}] if new else []
         return out, events
+
+    def _checked(self, guard: Guard) -> tuple[np.ndarray, GuardDecision]:
+        """The guard's rates and decision for the rates asked within the jog's speed limits: the rates the jog can
+        run. Judged as asked, a jog asked at 1 m/s was judged at the workspace face 1 s ahead, where a heavy
+        implement's energy margin passed, and lifted it 124 mm that the same jog at its real speed was refused
+        (an operator's trial)."""
+        v = self.jog.limits.velocity
+        return guard.check_jog(self.jog.state, np.clip(self.rates, -v, v))
 
 
 #: the frames a track session's setpoints may be given in (``docs/tracking.md``)

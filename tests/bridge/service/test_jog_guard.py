@@ -49,3 +49,20 @@ def test_a_lift_jog_asked_beyond_its_speed_limit_gets_the_verdict_of_its_real_sp
     # lowering improves the margin: allowed at any rate asked, run at the jog's speed limit
     accepted = jog.refresh(guard, np.array([0.0, -asked_vz, 0.0, 0.0]), 1.0)
     assert accepted.decision.action != "refused", accepted
+
+
+def test_a_lift_jog_asked_beyond_its_speed_limit_is_slowed_by_a_caution_as_at_its_real_speed(planner):
+    """The trial: with the 1500 kg power harrow at z = −0.1 m a lift jog at the speed limit was slowed to 0.8 for
+    front_axle_load; asked at 1 m/s it ran at full speed (judged at the face, front_axle_load not named)."""
+    from planner.limits.tractor import load_tractor_profile
+
+    guard = Guard(planner, implement=load_tractor_profile().implement("cat2-power-harrow-1500"))
+    jog = JogMotion(1, JogController(planner, MotionState.at_rest([0.0, -0.1, 0.0, 0.0])), np.zeros(4), 1.0)
+    v_max = jog.jog.limits.velocity[1]
+    _, at_limit = guard.check_jog(jog.jog.state, np.array([0.0, v_max, 0.0, 0.0]))
+    assert at_limit.action == "scaled" and at_limit.speed_factor == pytest.approx(0.8), at_limit
+    assert "front_axle_load" in {r.measure for r in at_limit.reasons}
+    accepted = jog.refresh(guard, np.array([0.0, 1.0, 0.0, 0.0]), 1.0)
+    assert accepted.decision.speed_factor == pytest.approx(0.8), accepted
+    assert {r.measure for r in accepted.decision.reasons} == {r.measure for r in at_limit.reasons}
+    assert accepted.limited.get("z+") == "velocity:z"  # the speed asked beyond the limit is still said

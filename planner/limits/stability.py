@@ -390,6 +390,14 @@ def minimum_front_ballast(
     a = _scalar("ballast_arm", ballast_arm, 0.0, 10.0)
     cd = _scalar("c", c, -10.0, 10.0) + _scalar("d", d, -10.0, 10.0)
     f = _scalar("front_fraction", front_fraction, 0.0, 1.0)
+    return _front_ballast(G_H, cd, T_V, T_L, a, b, f)
+
+
+def _front_ballast(G_H: float, cd: float, T_V: float, T_L: float, a: float, b: float, f: float) -> float:
+    """:func:`minimum_front_ballast`'s formula on checked values (an evaluation's own c + d is not a typed
+    input: an implement's centre of mass may lie up to 10 m from its frame in every axis, so d reaches
+    beyond ±10 m once the implement is pitched; checked as an input, it latched an ``internal`` fault in the
+    service for an implement the service had accepted, an operator's trial)."""
     return max(0.0, (G_H * cd - T_V * b + f * T_L * b) / (a + b))
 
 
@@ -516,15 +524,14 @@ def _report(
     t_pt, p_impl = load.tool_point, load.implement_centre_of_mass
     if t_pt is not None and p_impl is not None:  # both are set exactly when there is an implement
         c, d = t_pt[1] - tractor.rear_axle[1], p_impl[1] - t_pt[1]
-    ballast = minimum_front_ballast(
-        load.implement_mass,
-        c,
-        d,
-        empty_mass=tractor.mass,
-        empty_front_axle_mass=tractor.empty_front_axle_mass,
-        wheelbase=tractor.wheelbase,
-        ballast_arm=tractor.front_ballast_arm,
-        front_fraction=thresholds.front_axle_fraction_hard,
+    ballast = _front_ballast(
+        float(load.implement_mass),
+        float(c + d),
+        float(tractor.empty_front_axle_mass),
+        float(tractor.mass),
+        float(tractor.front_ballast_arm),
+        float(tractor.wheelbase),
+        float(thresholds.front_axle_fraction_hard),
     )
     th, w = thresholds, tractor.empty_weight
     rows: tuple[tuple[Measure, float, float, float], ...] = (

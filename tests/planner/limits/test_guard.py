@@ -334,3 +334,18 @@ def test_a_jog_faster_than_an_actuator_mid_stroke_is_named_for_its_speed_not_its
     assert g.end_stops.in_zone(g.planner.inverse(*low.position), -np.ones(5), 0)
     _, dec = g.check_jog(low, np.array([0.0, -0.1, 0.0, 0.0]))
     assert "end_stop:lift" in [r.measure for r in dec.reasons if r.level == "speed"], dec.reasons
+
+
+def test_an_implement_with_its_centre_of_mass_10_m_off_in_every_axis_is_evaluated_not_refused_as_input():
+    """An operator's trial: an implement the service accepted (20 t, centre of mass [10, 10, 10] m) made the
+    guard raise "d = 10.07 is outside the allowed range [-10.0, 10.0]" (the ballast formula's input check on the
+    evaluation's own lever arm) and latched an ``internal`` fault; every motion was refused until another
+    implement was selected. The evaluation holds for every implement the schema accepts."""
+    from planner.limits.tractor import ImplementRecord
+
+    tp = TrajectoryPlanner(HitchModel(load_profile()))
+    for com in ((10.0, 10.0, 10.0), (0.0, 9.95, 0.0), (-10.0, 10.0, -10.0)):
+        g = Guard(tp, implement=ImplementRecord("heavy", "2", 20_000.0, com))
+        for pitch in (tp.lo[3], 0.0, tp.hi[3]):
+            r = g.stability_at(tp.inverse(0.0, 0.15, 0.0, pitch))
+            assert np.isfinite(r.esm) and np.isfinite(r.min_front_ballast_kg) and r.min_front_ballast_kg > 0.0

@@ -30,7 +30,7 @@ import sys
 import threading
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -717,12 +717,20 @@ def _cmd_goto(args) -> int:
             args,
             r,
             f"motion {r['motion_id']} accepted, {r['duration']:.2f} s"
-            + (f" (slowed x{r['speed_factor']:.2f})" if r["speed_factor"] < 1 else "")
+            + (f" (slowed x{r['speed_factor']:.2f}{_by(r)})" if r["speed_factor"] < 1 else "")
             + ended,
         )
         return status
 
     return _run(args, go)
+
+
+def _by(reply: Mapping[str, Any]) -> str:
+    """What slowed a goto, from its reply's ``limited`` (``{measure: "caution: sentence"}``): " by <sentence>; …"
+    ("motion 11 accepted, 4.96 s (slowed x0.80)" named no limit, an operator's trial; the reply did)."""
+    limited = reply.get("limited") or {}
+    said = [str(v).split(": ", 1)[-1] for v in limited.values()]
+    return f" by {'; '.join(said)}" if said else ""
 
 
 def jog_refresh_period(ttl_ms: float) -> float:
@@ -782,7 +790,9 @@ def _cmd_jog(args) -> int:
 def _cmd_stop(args) -> int:
     def stop(c) -> int:
         r = c.stop()
-        _print(args, r, "stopping (motion {})".format(r["motion_id"]) if r["motion_id"] else "at rest")
+        text = "stopping (motion {})".format(r["motion_id"]) if r["motion_id"] else "at rest"
+        ended = [str(e) for e in r.get("ended") or ()]  # a maneuver waiting between its motions has no motion
+        _print(args, r, f"{text}; aborted {', '.join(ended)}" if ended else text)
         return 0
 
     return _run(args, stop)
@@ -894,9 +904,16 @@ def _state_line(s: dict) -> str:
     ecu = s.get("ecu") or {}
     lim = s.get("limited") or {}
     doing = _activity(s)
+    motion = "moving" if s.get("moving") else "at rest"
+    pose = _fmt_pose(s.get("pose"))
+    age = ecu.get("measurement_age_s")
+    if not ecu.get("online") and isinstance(age, (int, float)) and not isinstance(age, bool):
+        # an old measurement is not the hitch now (an operator's trial: "at rest … z=+0.1074 m" 3.5 s after the
+        # ECU fell silent, read as live)
+        motion, pose = f"last seen {motion}", f"{pose} (measured {age:.1f} s ago)"
     return esc(
-        f"#{s.get('seq')} {s.get('mode')} {'moving' if s.get('moving') else 'at rest'} "
-        f"motion {s.get('motion_id') if s.get('motion_id') is not None else '-'}  pose {_fmt_pose(s.get('pose'))}  ECU "
+        f"#{s.get('seq')} {s.get('mode')} {motion} "
+        f"motion {s.get('motion_id') if s.get('motion_id') is not None else '-'}  pose {pose}  ECU "
         f"{'online' if ecu.get('online') else 'OFFLINE'}"
         f"{' ' + ','.join(map(str, ecu.get('faults', []))) if ecu.get('faults') else ''}"
         + (f"  {doing}" if doing else "")

@@ -325,7 +325,7 @@ class ServiceAPI:
 
     def _stop(self, _r: object) -> dict:  # whatever came with it: a stop stops
         taken = time.time()  # Unix time [s] the stop was taken (the core's own answer carries the same)
-        return {"stopped": True, "motion_id": self.motion.stop(), "t": taken}
+        return {"stopped": True, **self.motion.stop_report(), "t": taken}
 
     def _track_start(self, r: TrackStart) -> dict:
         deadline, issued = self._timing(r.deadline_ms)

@@ -542,7 +542,8 @@ class HitchClient:
 
     def stop(self) -> dict:
         """Stop: brake jerk-limited to rest, abort a maneuver, cancel motion requests sent before it
-        (``{"stopped": true, "motion_id"}``; any payload stops, ``docs/faults.md``)."""
+        (``{"stopped": true, "motion_id", "ended": [what it aborted besides the motion, e.g. "maneuver 'mw' at step
+        1 (index 0)"], "t"}``; any payload stops, ``docs/faults.md``)."""
         return self.request("stop", {})
 
     def ack_faults(self) -> dict:

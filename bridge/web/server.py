@@ -662,6 +662,8 @@ class WebServer:
         session = self._session(req)
         if self.login_required and session is None and not (req.path == "/api/stop" and req.method == "POST"):
             return _error(401, "unauthenticated", f"{req.path}: log in first (POST /api/login)", ka)
+        if req.path in ("/api/state", "/api/info") and req.method != "GET":  # not "unknown API key" (a trial)
+            return _error(405, "bad_request", f"use GET for {req.path}", ka)
         if req.path == "/api/state" and req.method == "GET":
             if self._state is None:
                 return _error(503, "unavailable", "the service has published no state yet", ka)

@@ -409,7 +409,7 @@ def test_save_a_preset_from_the_page(service, page, shots):
 
 def test_goto_moves_the_gauges_and_they_settle_at_the_target(service, page, shots):
     at_rest(service, page)
-    goal = {"x": -0.03, "z": 0.20, "roll": 0.03, "pitch": 0.0}
+    goal = {"x": -0.03, "z": 0.20, "roll": 0.03, "pitch": 0.02}
     start = shown_pose(page)
     goto_target(service, page, goal)
     wait_js(page, "document.getElementById('motion').textContent.startsWith('Moving')")
@@ -464,6 +464,27 @@ def test_goto_moves_the_gauges_and_they_settle_at_the_target(service, page, shot
     assert page.evaluate("getComputedStyle(document.querySelector('#g-z .target')).display") != "none"
     ref = service.state()["reference"]["pose"]
     assert all(ref[k] == pytest.approx(goal[k], abs=1e-6) for k in goal)  # the service's target is exact
+    _needles_turn_as_the_pictures(service, page)
+
+
+def _needles_turn_as_the_pictures(service, page) -> None:
+    """The roll and pitch needles and the jog buttons' arrows turn the way the hitch pictures beside them do (an
+    operator's trial: with roll and pitch +0.05 rad the rear view's bar rose to the right and the side view's mast
+    leaned to the front, both counter-clockwise, while both needles turned clockwise and the arrows said ↷ ⤻).
+    The pictures: the rear view draws +x (L) on the left, the side view the front on the left (``buildView``)."""
+    p = _view(service)["measured"]["points"]
+    # counter-clockwise on the screen: the bar from L (left) to R rises; the mast from T to U leans to the front (−y)
+    roll_ccw = p["R"][2] > p["L"][2]
+    pitch_ccw = p["U"][1] < p["T"][1]
+
+    def needle_deg(dof: str) -> float:  # rotate(deg cx cy): SVG angles are clockwise on the screen
+        t = page.get_attribute(f"#g-{dof} .needle", "transform") or ""
+        return float(t.split("(")[1].split()[0])
+
+    assert (needle_deg("roll") < 0) == roll_ccw and abs(needle_deg("roll")) > 1.0, (needle_deg("roll"), p)
+    assert (needle_deg("pitch") < 0) == pitch_ccw and abs(needle_deg("pitch")) > 1.0, (needle_deg("pitch"), p)
+    plus = {d: page.text_content(f"button.jog[data-dof={d}][data-sign='1']") or "" for d in ("roll", "pitch")}
+    assert ("↶" in plus["roll"]) == roll_ccw and ("⤺" in plus["pitch"]) == pitch_ccw, plus
 
 
 def _view(service) -> dict:
@@ -539,7 +560,16 @@ def test_metres_typed_into_a_mm_field_are_asked_about_before_the_goto(service, p
     page.fill("#goto-form input[name=z]", "0.25")
     page.click("#goto-go")
     page.wait_for_selector("#confirm:not(.hidden)", timeout=5_000)
-    assert "z = 0.250 mm (did you mean 250 mm?)" in page.text_content("#confirm-text")
+    assert "z = 0.25 mm (did you mean 250 mm?)" in page.text_content("#confirm-text")
+    page.click("#confirm-cancel")
+    wait_js(page, "document.getElementById('goto-result').textContent.startsWith('not sent')")
+    # an operator's trial: 0.0001 (0.1 mm meant) was asked as "z = 0.000 mm (did you mean 0 mm?)", and the last
+    # "not sent" stood under the dialog
+    page.fill("#goto-form input[name=z]", "0.0001")
+    page.click("#goto-go")
+    page.wait_for_selector("#confirm:not(.hidden)", timeout=5_000)
+    assert "z = 0.0001 mm (did you mean 0.1 mm?)" in page.text_content("#confirm-text")
+    assert page.text_content("#goto-result") == ""
     page.click("#confirm-cancel")
     wait_js(page, "document.getElementById('goto-result').textContent.startsWith('not sent')")
     time.sleep(0.3)
@@ -1102,6 +1132,12 @@ def test_action_row_raise_return_lock_and_the_implement_chooser(service, page, s
     assert page.evaluate("[document.documentElement.scrollWidth, document.documentElement.scrollHeight]") == [1024, 600]
     page.wait_for_selector("#act-implement option[value='plough']", state="attached")
     tab(page, "implement")
+    # an implement without a headland pose and no preset "headland": said so, and Raise has nowhere to go (an
+    # operator's trial: the tab showed 'the preset “headland”', which did not exist, and Raise stayed enabled)
+    page.select_option("#act-implement", "cat2-spreader-400")
+    wait_js(page, "document.getElementById('act-result').textContent === 'implement: cat2-spreader-400'")
+    wait_js(page, "document.getElementById('imp-limits').textContent.includes('none: define one, or save a preset')")
+    wait_js(page, "document.getElementById('act-raise').disabled === true")
     page.select_option("#act-implement", "plough")
     wait_js(page, "document.getElementById('act-result').textContent === 'implement: plough'")
     assert service.api("implements/list")[1]["selected"] == "plough"

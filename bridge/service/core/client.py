@@ -359,6 +359,9 @@ class MotionProxy:
         mid = self.core.call("stop", reason)
         return None if mid is None else int(mid)
 
+    def stop_report(self, reason: str = "stop requested") -> dict[str, Any]:
+        return dict(self.core.call("stop_report", reason))
+
     def run_maneuver(
         self, validated: Any, name: str | None, *, deadline: float | None = None, issued: float | None = None
     ) -> int:

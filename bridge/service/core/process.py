@@ -106,6 +106,7 @@ SWITCH_INTERVAL_S = 0.001
 _INLINE = frozenset(
     {
         "stop",
+        "stop_report",
         "jog",
         "set_mode",
         "mode",
@@ -304,8 +305,8 @@ class ControlCore:
             with query:
                 if str(query.key_expr) != exact:
                     return  # a wildcard query reaches every queryable: only the exact key stops
-                ok, reply = self._call_safely("stop", ())
-                answer = {"stopped": True, "motion_id": reply, "t": taken} if ok else reply
+                ok, reply = self._call_safely("stop_report", ())
+                answer = {"stopped": True, **reply, "t": taken} if ok else reply
                 data = to_json_bytes(answer)
                 try:
                     if ok:  # the reply as urgent as the stop itself
@@ -604,6 +605,7 @@ class ControlCore:
 
         return {
             "stop": m.stop,
+            "stop_report": m.stop_report,
             "jog": lambda *a, **k: m.jog(*a, **k).to_json(),
             "goto": lambda *a, **k: m.goto(*a, **k).to_json(),
             "run_maneuver": m.run_maneuver,

@@ -355,6 +355,13 @@ class MotionController:
                     )
                 what = f"motion {a.motion_id}"
                 todo = "wait until it is at rest" if braking else "send stop first and wait until it is at rest"
+                if isinstance(a, TrackMotion):  # levelling on at rest is not "moving" (an operator's trial)
+                    raise MotionError(
+                        "busy",
+                        f"mode change to {mode!r} refused while track session {a.session} ({a.frame} frame) follows "
+                        f"its setpoints (motion {a.motion_id}): end it first (track/stop: the terminal's levelling "
+                        "off, hitch track's Ctrl-C) or send stop",
+                    )
                 raise MotionError(
                     "busy",
                     f"mode change to {mode!r} refused while the hitch is "
@@ -465,15 +472,27 @@ class MotionController:
 
         Every motion request that arrived before it and has not started yet is cancelled.
         """
+        return self.stop_report(reason)["motion_id"]
+
+    def stop_report(self, reason: str = "stop requested") -> dict[str, Any]:
+        """:meth:`stop`, with what it ended: ``{"motion_id": the stop's id (None: at rest), "ended": [what the
+        stop aborted besides the motion, in words: "maneuver 'mw' at step 1 (index 0)"]}``. A maneuver waiting
+        between its motions has no motion to brake: the stop that ended it answered only "at rest" (an operator's
+        trial)."""
         events: list[Event] = []
         with self._lock:
             self._stopped_at = time.monotonic()
             now = self.clock()
             self._maneuver.abort(now, "stop", reason, events)
             mid = self._brake(now, reason, events)
+            ended = [
+                f"maneuver {e.get('maneuver')!r}" + ("" if e.get("step") is None else f" at {step_words(e['step'])}")
+                for e in events
+                if e.get("event") == "maneuver_aborted"
+            ]
             self._post(events)
         self.outbox.flush()
-        return mid
+        return {"motion_id": mid, "ended": ended}
 
     # ------------------------------------------------------------------ track mode
     def track_start(

@@ -407,15 +407,18 @@
     if (show) g.target.setAttribute("transform", g.vertical ? `translate(24,${g.pos(target)})` : `translate(${g.pos(target)},22)`);
   }
 
-  // A needle dial over ±range (range = 1.3 × the larger limit); 0 points up.
+  // A needle dial over ±range (range = 1.3 × the larger limit); 0 points up, a positive angle turns it
+  // counter-clockwise: as the pictures beside it turn (the rear view's bar rises to the right with +roll, the side
+  // view's mast leans to the front, left, with +pitch; the needles turned the other way, an operator's trial).
   function buildDial(svg, dof) {
     svg.textContent = "";
     const [lo, hi] = ui.config.limits.workspace[dof];
     const range = 1.3 * Math.max(Math.abs(lo), Math.abs(hi), 1e-3);
     const cx = 60, cy = 66, r = 48;
-    const ang = (v) => Math.max(-100, Math.min(100, v / range * 90)) * Math.PI / 180;
+    const ang = (v) => -Math.max(-100, Math.min(100, v / range * 90)) * Math.PI / 180;   // screen: clockwise > 0
     const pt = (v, rr) => [cx + rr * Math.sin(ang(v)), cy - rr * Math.cos(ang(v))];
-    const arc = (v0, v1) => { const [x0, y0] = pt(v0, r), [x1, y1] = pt(v1, r); return `M${x0},${y0} A${r},${r} 0 0 1 ${x1},${y1}`; };
+    // clockwise on the screen from v1 (left of up for v1 > 0) to v0
+    const arc = (v0, v1) => { const [x0, y0] = pt(v1, r), [x1, y1] = pt(v0, r); return `M${x0},${y0} A${r},${r} 0 0 1 ${x1},${y1}`; };
     el(svg, "path", { class: "arc", d: arc(-range, range) });
     el(svg, "path", { class: "arc-ok", d: arc(lo, hi) });
     for (const v of [lo, hi]) { const [x0, y0] = pt(v, r - 9), [x1, y1] = pt(v, r + 9); el(svg, "line", { class: "limit", x1: x0, y1: y0, x2: x1, y2: y1 }); }
@@ -1297,7 +1300,11 @@
     const req = gotoRequest();
     if (req.error) { result("#goto-result", req.error, false); return; }
     if (req.metres.length) {
-      const what = req.metres.map((k) => `${k} = ${fmt(req.goal[k] * 1000, 3)} mm (did you mean ${fmt(req.goal[k] * 1e6, 0)} mm?)`).join(", ");
+      // the values as typed and as meant, to 6 significant digits: "z = 0.000 mm (did you mean 0 mm?)" for 0.0001
+      // typed (0.1 mm meant) had both rounded away (an operator's trial)
+      const num = (v) => String(Number(v.toPrecision(6)));
+      const what = req.metres.map((k) => `${k} = ${num(req.goal[k] * 1000)} mm (did you mean ${num(req.goal[k] * 1e6)} mm?)`).join(", ");
+      result("#goto-result", "", true);       // the last answer is not this one's while the dialog asks
       if (!(await confirmDialog("Millimetres?", `The fields take mm: ${what}.`, "Go as typed"))) {
         result("#goto-result", `not sent: ${what}; the fields take mm`, false);
         return;
@@ -1368,6 +1375,10 @@
     if (!r.ok) return;
     const list = $("#preset-list");
     list.textContent = "";
+    // the selected implement's presets: a raise without a headland pose of its own goes to the one named "headland"
+    ui.presetNames = new Set(r.data.presets.map((p) => p.name));
+    actions.drawLock();
+    actions.drawRecord();
     for (const p of r.data.presets) {
       const sub = DOFS.map((k) => `${k} ${fmtNoNegZero(p.pose[k] * dofK(k), isLength(k) ? 0 : dofDigits(k) - 1)}`).join(" · ") + ` (mm, ${angleUnit().unit})`;
       item(list, p.name, sub, [
@@ -1487,7 +1498,10 @@
       t.textContent = !imp ? "no implement selected: raise, return and the lock need one"
         : locked ? "transport lock on: every motion but STOP is refused" : "transport lock off: the hitch may move";
       for (const id of ["#act-raise", "#act-return"]) $(id).disabled = this.isViewer() || !imp;
+      if (imp && !imp.headland && !this.headlandPreset()) $("#act-raise").disabled = true;   // nowhere to raise to
     },
+    // whether the selected implement has a preset named "headland" (known once the presets were listed)
+    headlandPreset: () => Boolean(ui.presetNames && ui.presetNames.has("headland")),
     drawImplements() {
       const sel = $("#act-implement");
       sel.textContent = "";
@@ -1515,7 +1529,8 @@
         if (Array.isArray(imp.com_m)) rows.push(["centre of mass", `${imp.com_m.map((v) => fmt(v * 1000, 0)).join(" · ")} mm (x · y · z)`]);
         rows.push(["upper height", Number.isFinite(imp.upper_height_m) ? `${show_mm(imp.upper_height_m)} (tool point z)` : "no limit"]);
         rows.push(["lowering speed", Number.isFinite(imp.lowering_speed_m_s) ? `${fmt(imp.lowering_speed_m_s * 1000, 0)} mm/s` : "no limit"]);
-        rows.push(["headland pose", pose(imp.headland) || "the preset “headland”"]);
+        rows.push(["headland pose", pose(imp.headland) || (this.headlandPreset() ? "the preset “headland”"
+          : "none: define one, or save a preset named “headland” (Raise needs it)")]);
         rows.push(["last work pose", pose(imp.last_work) || "none yet (set by a raise)"]);
         rows.push(["source", imp.source === "profile" ? "tractor profile (stored when selected)" : "stored"]);
         if (imp.description) rows.push(["description", imp.description]);

@@ -791,3 +791,18 @@ def test_a_jog_that_lapsed_between_refreshes_says_so_and_names_its_motions(monke
     assert main(["jog", "--vz", "0.05", "--duration", "0.5"]) == 0
     out = capsys.readouterr().out
     assert "jog motions 1, 2: it lapsed 1 time(s)" in out and "ttl 200 ms" in out, out
+
+
+def test_a_state_with_the_ecu_offline_shows_how_old_its_pose_is(capsys):
+    """An operator's trial: 3.5 s after the ECU fell silent ``hitch state`` printed ``auto at rest … z=+0.1074 m
+    … ECU OFFLINE`` with no age: an old pose read as live."""
+    args = argparse.Namespace(json=False)
+    ecu = {"online": False, "faults": ["stale_measurement"], "measurement_age_s": 3.52}
+    old = {"seq": 9, "mode": "auto", "moving": False, "motion_id": None, "pose": {"z": 0.1074}, "ecu": ecu}
+    cli_service._print(args, old, cli_service._state_line(old), markup=True)
+    line = capsys.readouterr().out
+    assert "last seen at rest" in line and "z=+0.1074 m (measured 3.5 s ago)" in line, line
+    live = {**old, "ecu": {"online": True, "measurement_age_s": 0.004}}
+    cli_service._print(args, live, cli_service._state_line(live), markup=True)
+    line = capsys.readouterr().out
+    assert "auto at rest" in line and "ago" not in line, line

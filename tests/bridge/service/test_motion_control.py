@@ -356,6 +356,31 @@ def test_maneuver_runs_its_steps_and_a_stop_aborts_it(bench):
     assert bench.states[-1]["maneuver"] is None
 
 
+def test_a_stop_that_ends_a_waiting_maneuver_says_so(bench):
+    """An operator's trial: a stop during a maneuver's wait (no motion to brake) answered only "at rest"
+    (``motion_id`` null) while the log said ``maneuver_aborted reason=stop``."""
+    script = "name: mw\nsteps:\n  - wait: 4\n  - goto: {z: 0.05}\n"
+    res = validate(script, PlanningContext(bench.mc.current_state(), bench.mc.plan_step, lambda name: None))
+    assert res.ok, res.errors
+    bench.mc.run_maneuver(res, "mw")
+    bench.run(0.5)
+    report = bench.mc.stop_report()
+    assert report == {"motion_id": None, "ended": ["maneuver 'mw' at step 1 (index 0)"]}, report
+    assert bench.mc.stop_report() == {"motion_id": None, "ended": []}  # nothing left to end
+
+
+def test_a_mode_change_during_a_track_session_names_the_session_not_motion(bench):
+    """An operator's trial: with levelling on and the hitch still, manual was refused "while the hitch is moving
+    (motion 1)"."""
+    session = bench.mc.track_start("tractor", ("roll",), 1.0).session
+    bench.run(0.2)
+    with pytest.raises(MotionError) as err:
+        bench.mc.set_mode("manual")
+    text = str(err.value)
+    assert f"while track session {session} (tractor frame) follows its setpoints" in text, text
+    assert "moving" not in text and "track/stop" in text
+
+
 def test_a_maneuver_a_link_fault_ends_says_fault_not_stop(bench):
     """A field operator's report: a maneuver ended by the ECU falling silent said `aborted (stop: link fault …)`,
     read as someone pressing STOP."""

@@ -242,6 +242,16 @@ def test_get_of_a_key_that_does_not_exist_says_unknown_key_and_of_a_real_key_use
         assert status == 405 and json.loads(data)["message"] == f"use POST for /api/{key}"
 
 
+def test_another_method_on_a_get_path_says_use_get(web):
+    """An operator's trial: DELETE /api/state answered 404 "unknown API key 'state'" (HEAD too)."""
+    for method in ("DELETE", "POST", "PUT", "HEAD"):
+        for path in ("/api/state", "/api/info"):
+            status, _, data = _request(web, method, path)
+            assert status == 405, (method, path, status, data)
+            if method != "HEAD":
+                assert json.loads(data)["message"] == f"use GET for {path}", (method, path, data)
+
+
 def test_ws_without_an_upgrade_is_426_upgrade_required(web):
     status, headers, data = _request(web, "GET", "/ws")
     reply = json.loads(data)

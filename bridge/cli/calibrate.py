@@ -11,6 +11,7 @@ file of ``hitch sim perturb``) for poses planned here, to try the procedure end 
 from __future__ import annotations
 
 import argparse
+import csv
 import hashlib
 import sys
 from collections.abc import Sequence
@@ -74,6 +75,8 @@ def _design(args, model):
 def _cmd_plan(args) -> int:
     from planner.model.sensors import SensorScaling
 
+    if args.out is not None and not args.force:
+        _refuse_overwriting_measurements(Path(args.out))
     model = _model(args, include_ad=not args.no_ad)
     d = _design(args, model)
     sc = SensorScaling(model.profile)
@@ -182,6 +185,31 @@ def _target_cell(v: float) -> str:
 
 #: the measurement columns of the marked points (L, R, U: x, y, z each), in a template planned with --points
 POINT_COLUMNS = tuple(f"{p}_{c}" for p in ("L", "R", "U") for c in "xyz")
+
+
+def _refuse_overwriting_measurements(path: Path) -> None:
+    """CLIError when ``path`` exists and is not an empty template: a file with a measured value in any row (or
+    one that is no measurement file) would be lost under a new template (a commissioning trial: plan-poses --out
+    over the filled file replaced its measurements without a word). ``--force`` writes it all the same."""
+    if not path.exists():
+        return
+    try:
+        with path.open(encoding="utf-8-sig", newline="") as f:
+            rows = list(csv.reader(f))
+    except (OSError, UnicodeDecodeError, csv.Error):
+        rows = []
+    measured = {*CONTROLLED_POSE_NAMES, *POINT_COLUMNS}
+    head = [c.strip() for c in rows[0]] if rows else []
+    cols = [k for k, c in enumerate(head) if c in measured]
+    filled = [n for n, row in enumerate(rows[1:], start=1) if any(k < len(row) and row[k].strip() for k in cols)]
+    if cols and not filled:
+        return  # a template with nothing measured yet: written over
+    why = (
+        f"it holds measured values (row {filled[0]}{f' and {len(filled) - 1} more' if len(filled) > 1 else ''})"
+        if filled
+        else "it is no measurement template"
+    )
+    raise CLIError(f"--out {path} exists and {why}: a new template would replace it; write to another file, or --force")
 
 
 def _write_plan_csv(
@@ -681,6 +709,11 @@ def add_commands(sub) -> None:
     add_model_options(pp)
     _add_design_options(pp)
     pp.add_argument("--out", default=None, type=output_path, help="also write a measurement template CSV")
+    pp.add_argument(
+        "--force",
+        action="store_true",
+        help="write --out over a file that holds measured values (refused otherwise: they would be lost)",
+    )
     pp.set_defaults(handler=_cmd_plan, on_interrupt=lambda _a: "nothing was written")
 
     m = csub.add_parser("measure-twin", help="measure the planned poses on the twin's true machine (CSV)")

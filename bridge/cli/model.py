@@ -557,6 +557,10 @@ def _profile_out_path(text: str) -> str:
 
 def refuse_overwriting_profile(out: str, profile: str) -> None:
     """CLIError when a command's ``--out`` is the profile it starts from (``--profile``): the nominal profile is
-    what a calibration is measured against, and it was replaced without a word."""
+    what a calibration is measured against, and it was replaced without a word; or when ``--out`` cannot be a
+    profile file (checked before anything moves: ``calibrate sensors --out sensors.csv`` drove all ten stroke ends
+    and only then said the name must end in .toml, a commissioning trial)."""
+    if Path(out).suffix != ".toml":
+        raise CLIError(f"--out profile file {out}: the name must end in .toml")
     if Path(out).resolve() == Path(profile).resolve():
         raise CLIError(f"--out {out} is the profile the calibration starts from (--profile): write it to another file")

@@ -856,3 +856,20 @@ def test_plan_poses_counts_one_pose_names_candidates_and_a_recalibrated_profile_
     argv = ["calibrate", "geometry", "--profile", str(first), "--measurements", str(meas), "--out", str(second)]
     assert main(argv) == 0
     assert load_profile(second).name == "thesis-t132-calibrated"
+
+
+def test_plan_poses_does_not_write_a_template_over_measured_values(tmp_path, capsys):
+    """A commissioning trial: ``plan-poses --out filled.csv`` replaced the measured values with an empty template
+    without a word."""
+    _, meas = _twin_measurements(tmp_path, load_profile("thesis-t132"))
+    filled = meas.read_text()
+    common = ["calibrate", "plan-poses", "--n", "12", "--candidates", "80", "--seed", "2", "--out", str(meas)]
+    err = _err(capsys, common)
+    assert f"--out {meas} exists and it holds measured values (row 1 and " in err and "--force" in err, err
+    assert meas.read_text() == filled
+    other = tmp_path / "notes.csv"
+    other.write_text("my notes\n")
+    assert "it is no measurement template" in _err(capsys, [*common[:-1], str(other)])
+    template = tmp_path / "t.csv"
+    assert main([*common[:-1], str(template)]) == 0 and main([*common[:-1], str(template)]) == 0  # an empty one: over
+    assert main([*common, "--force"]) == 0 and meas.read_text() == template.read_text()

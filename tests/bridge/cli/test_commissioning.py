@@ -70,10 +70,28 @@ def test_calibrate_sensors_writes_a_profile_with_the_truth_s_counts(truth_file, 
 
 
 def test_calibrate_sensors_refuses_naming_the_limit(truth_file, tmp_path, capsys):
-    argv = ["calibrate", "sensors", "--sim-truth", str(truth_file), "--actuators", "lift", "--out", str(tmp_path / "x")]
+    out = tmp_path / "x.toml"
+    argv = ["calibrate", "sensors", "--sim-truth", str(truth_file), "--actuators", "lift", "--out", str(out)]
     assert main(argv) == 2
     assert "top_link_pitch_max" in capsys.readouterr().err
-    assert not (tmp_path / "x").exists()
+    assert not out.exists()
+
+
+def test_calibrate_sensors_refuses_an_out_that_is_no_profile_file_before_anything_moves(
+    truth_file, tmp_path, capsys, monkeypatch
+):
+    """A commissioning trial: ``--out sensors.csv`` crept all ten stroke ends (30 s on the twin, ~3 min on a
+    tractor) and only then said the name must end in .toml; nothing was kept."""
+    from bridge.cli import commissioning
+
+    def no_machine(*_a, **_k):
+        raise AssertionError("the machine was started for an --out that cannot be written")
+
+    monkeypatch.setattr(commissioning, "_truth", no_machine)
+    out = tmp_path / "sensors.csv"
+    assert main(["calibrate", "sensors", "--sim-truth", str(truth_file), "--detached", "--yes", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"--out profile file {out}: the name must end in .toml" in err and not out.exists(), err
 
 
 class _Terminal:

@@ -45,7 +45,7 @@ from bridge.service.maneuvers.steps import step_words
 from bridge.service.schemas import DEFAULT_DEADLINE_MS, MAX_DEADLINE_MS
 from bridge.service.wire import to_json_text
 from planner.errors import HitchError
-from planner.model.types import CONTROLLED_POSE_UNITS
+from planner.model.types import ACTUATOR_UNITS, CONTROLLED_POSE_UNITS
 from planner.textfile import read_text_file
 
 __all__ = ["add_commands", "STOP_TIMEOUT_S"]
@@ -814,10 +814,36 @@ def _cmd_config(args) -> int:
         # no value (no implement selected) reads "-", as in `fleet ls`, never Python's "None"
         keys = ("prefix", "profile", "category", "implement", "mode", "user_keys")
         text = [f"{k}: {'-' if r[k] is None else r[k]}" for k in keys if k in r]
-        _print(args, r, "\n".join(text) + "\n(--json for everything: limits, workspace, actuators)")
+        text += _limit_lines(r.get("limits") or {})
+        _print(args, r, "\n".join(text) + "\n(--json for everything: every limit in SI, the actuators)")
         return 0
 
     return _run(args, config)
+
+
+def _limit_lines(limits: Mapping[str, Any]) -> list[str]:
+    """The workspace box, the strokes and the jog's top rates of a ``config`` reply, in mm and mrad with their
+    units (an operator's trial: ``hitch config`` said "profile, limits, workspace" and printed neither)."""
+    units = {**CONTROLLED_POSE_UNITS, **ACTUATOR_UNITS}
+
+    def milli_unit(name: str) -> str:
+        return "mm" if units.get(name) == "m" else "mrad"
+
+    def span(values: Any, unit: str) -> str:
+        lo, hi = (float(v) for v in values)
+        return f"[{1e3 * lo:.1f}, {1e3 * hi:.1f}] {unit}"
+
+    out = []
+    ws = limits.get("workspace") or {}
+    if ws:
+        out.append("workspace: " + ", ".join(f"{k} {span(v, milli_unit(k))}" for k, v in ws.items()))
+    strokes = limits.get("strokes") or {}
+    if strokes:
+        out.append("strokes: " + ", ".join(f"{k} {span(v, milli_unit(k))}" for k, v in strokes.items()))
+    jog = limits.get("jog_velocity") or {}
+    if jog:
+        out.append("jog top rates: " + ", ".join(f"{k} {1e3 * float(v):.1f} {milli_unit(k)}/s" for k, v in jog.items()))
+    return out
 
 
 def faults_text(ecu: dict) -> str:

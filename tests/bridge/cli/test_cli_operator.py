@@ -614,6 +614,30 @@ def test_config_prints_no_python_none_for_a_service_without_an_implement(monkeyp
     assert not any("None" in line for line in lines), lines
 
 
+def test_config_prints_the_workspace_strokes_and_jog_rates_with_units(monkeypatch, capsys):
+    """An operator's trial: ``hitch config`` printed no limit or workspace though its help says "profile, limits,
+    workspace, mode". Truth: the limits of a real config reply (``service_info``'s), printed in mm / mrad."""
+    limits = {
+        "workspace": {"x": [-0.06, 0.06], "z": [-0.21627, 0.311729], "roll": [-0.058, 0.058], "pitch": [-0.1, 0.058]},
+        "strokes": {"lift": [-0.223, 0.7], "tilt": [0.58, 0.73]},
+        "jog_velocity": {"x": 0.02713267, "z": 0.0465232, "roll": 0.01335401, "pitch": 0.02542145},
+    }
+
+    class Client(_FakeClient):
+        def config(self):
+            return {"prefix": "hitch", "profile": "thesis-t132", "mode": "auto", "limits": limits}
+
+    monkeypatch.setattr(cli_service, "_client", lambda args: Client())
+    assert main(["config"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert (
+        "workspace: x [-60.0, 60.0] mm, z [-216.3, 311.7] mm, roll [-58.0, 58.0] mrad, pitch [-100.0, 58.0] mrad"
+        in (lines)
+    ), lines
+    assert "strokes: lift [-223.0, 700.0] mrad, tilt [580.0, 730.0] mm" in lines, lines
+    assert "jog top rates: x 27.1 mm/s, z 46.5 mm/s, roll 13.4 mrad/s, pitch 25.4 mrad/s" in lines, lines
+
+
 def test_jog_help_names_jog_velocity_as_a_field_of_the_config_reply_not_a_setting(capsys):
     """A new user's report: the help called limits.jog_velocity "its config key", but a service config file with
     [limits] is refused; it is a field of the `config` reply, from the profile's actuator speeds."""

@@ -511,7 +511,8 @@ def _approach_shorter_than_play(prof, result) -> tuple[list[str], bool]:
 def _print_fit(model, result) -> None:
     """The fit's report: residuals, the parameters with their spread, what the poses cannot identify."""
     print(
-        f"calibrated {model.profile.name} from {result.n_poses} poses ({result.n_observations} values) in "
+        f"calibrated {model.profile.name} from {result.n_poses} pose{'' if result.n_poses == 1 else 's'} "
+        f"({result.n_observations} values) in "
         f"{result.duration_s:.2f} s: residual RMS {1e3 * result.residual_rms_position_m:.3f} mm / "
         f"{1e3 * result.residual_rms_angle_rad:.3f} mrad (nominal {1e3 * result.residual_rms_nominal_position_m:.3f}"
         f" mm / {1e3 * result.residual_rms_nominal_angle_rad:.3f} mrad), sigma-hat {result.residual_sigma:.3g}"
@@ -569,6 +570,14 @@ def _cmd_measure_twin(args) -> int:
     from bridge.sim.truth import load_machine_truth
 
     model = _model(args, include_ad=not args.no_ad)
+    if args.by == "goto" and args.sides == "both" and model.profile.motion.final_approach is None:
+        # named by the file given (a sensor-calibrated profile keeps its built-in name: "thesis-t132 has none …
+        # give that profile with --profile" was read as --profile not taken, a commissioning trial)
+        given = f"--profile {args.profile}" if getattr(args, "profile_given", False) else f"the built-in {args.profile}"
+        raise CLIError(
+            f"measuring from both sides by goto (--sides both) needs the profile's motion.final_approach, and "
+            f"{given} has none: add [motion.final_approach] to it (docs/commissioning.md)"
+        )
     if args.plan is not None:  # the poses of a plan file, under its labels
         labels, poses = load_plan_targets(args.plan)
     else:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -873,3 +874,15 @@ def test_plan_poses_does_not_write_a_template_over_measured_values(tmp_path, cap
     template = tmp_path / "t.csv"
     assert main([*common[:-1], str(template)]) == 0 and main([*common[:-1], str(template)]) == 0  # an empty one: over
     assert main([*common, "--force"]) == 0 and meas.read_text() == template.read_text()
+
+
+def test_measuring_both_sides_by_goto_without_a_final_approach_names_the_profile_file(tmp_path, capsys):
+    """A commissioning trial: a sensor-calibrated profile keeps its built-in name, so "thesis-t132 has none …
+    give that profile with --profile" was said for the file given with --profile."""
+    prof = tmp_path / "sensors.toml"
+    prof.write_text((Path(__file__).parents[3] / "planner" / "profiles" / "thesis-t132.toml").read_text())
+    truth = tmp_path / "truth.toml"
+    truth.write_text(truth_toml(perturb_profile(load_profile("thesis-t132"), 3)[0], PinPlay(0.0005, 0.0005)))
+    argv = ["calibrate", "measure-twin", "--profile", str(prof), "--sim-truth", str(truth), "--by", "goto"]
+    err = _err(capsys, [*argv, "--sides", "both", "--out", str(tmp_path / "m.csv")])
+    assert f"--profile {prof} has none: add [motion.final_approach] to it" in err, err

@@ -808,9 +808,20 @@ def test_killing_the_service_is_shown_and_the_page_reconnects(service, page, sho
     assert "Service not reachable" in page.text_content("#banner")
     assert page.text_content("#conn") == "Service: disconnected"
     page.screenshot(path=str(shots / "11-service-down.png"))
+    tab(page, "goto")
+    page.fill("#goto-form input[name=z]", "100")
+    page.click("#goto-go")  # refused while disconnected: said under the form
+    try:
+        wait_js(page, "document.getElementById('goto-result').textContent.includes('not connected to the service')")
+    except AssertionError as exc:
+        raise AssertionError(f"{exc}; goto-result: {page.text_content('#goto-result')!r}") from None
     service.start()  # same ports and data: the page comes back by itself
     wait_js(page, "document.getElementById('conn').textContent.startsWith('Service: connected')", timeout=15_000)
     assert page.is_hidden("#banner")
+    # an operator's trial: "goto: not connected to the service" stayed under the form and in the footer after the
+    # page had reconnected
+    wait_js(page, "document.getElementById('goto-result').textContent === ''")
+    assert page.text_content("#log").endswith("connected to the service again"), page.text_content("#log")
     tab(page, "presets")
     page.wait_for_selector("#preset-list li[data-name='start']")  # acknowledged preset survived kill -9
 

@@ -166,8 +166,13 @@
       ws.onopen = () => { this.retryMs = 500; ui.connected = true; ui.closedReason = ""; onConnected(); };
       ws.onmessage = (ev) => this.dispatch(ev.data);
       ws.onclose = (ev) => {
+        const was = ui.connected;
         ui.connected = false;
-        ui.closedReason = ev.code === 1001 ? "the hitch service stopped" : "the connection to the hitch service was lost";
+        // the close of the open connection says why; the failed reconnects after it do not overwrite that (a
+        // service stopped cleanly, 1001, read "the connection … was lost" after the first retry, an operator's trial)
+        if (was || !ui.closedReason) {
+          ui.closedReason = ev.code === 1001 ? "the hitch service stopped" : "the connection to the hitch service was lost";
+        }
         for (const [, p] of this.pending) p.resolve({ ok: false, data: { error: "disconnected", message: "not connected to the service" } });
         this.pending.clear();
         jog.releaseAll();
@@ -258,6 +263,13 @@
 
   async function onConnected() {
     ui.outcomes.clear();   // motion ids are the service run's own: a restarted service counts from 1 again
+    // what was refused while disconnected is no longer news once connected (a trial: "goto: not connected to the
+    // service" stood under the form and in the footer beside "Service: connected")
+    for (const r of document.querySelectorAll(".result.err")) {
+      if (r.textContent.includes("not connected to the service")) { r.textContent = ""; r.className = "result"; }
+    }
+    if (ui.wasConnected) log("connected to the service again");
+    ui.wasConnected = true;
     level.forget("");
     renderConnection();
     const r = await call("config", {});

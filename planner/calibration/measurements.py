@@ -324,6 +324,12 @@ def parse_measurements(text: str, profile: Profile, *, source: str = "measuremen
             idx = [MEASURED_COLUMNS.index(g) for g in group if g in cols]
             if idx and 0 < mask[idx].sum() < len(idx):
                 raise CalibrationError(f"{where}: columns {', '.join(group)} must be all given or all empty")
+        il, ir = MEASURED_COLUMNS.index("L_x"), MEASURED_COLUMNS.index("R_x")
+        if mask[il] and mask[ir] and vals[il] <= vals[ir]:  # the left ball lies at +x (the lower links ~0.8 m apart)
+            raise CalibrationError(
+                f"{where}, columns L_x, R_x: L_x = {vals[il]:g} m is not left of R_x = {vals[ir]:g} m (x points to "
+                "the left: L_x > R_x at every pose); are the L and R points swapped, or x measured to the other side?"
+            )
         side = 0.0
         if APPROACH_COLUMN in cols:
             word = cells[cols[APPROACH_COLUMN]].lower()

@@ -832,7 +832,7 @@ def test_a_points_template_has_the_point_columns_one_and_two_sided(tmp_path, cap
     for line in lines[1:]:
         cells = line.split(",")
         for c in (*POSE, *points):
-            cells[header.index(c)] = "0.1"
+            cells[header.index(c)] = {"L_x": "0.4", "R_x": "-0.4"}.get(c, "0.1")  # the left ball at +x
         filled.append(",".join(cells))
     data = parse_measurements("\n".join(filled) + "\n", load_profile("thesis-t132"))
     assert data.n_rows == 4 and data.mask.sum() == 4 * (4 + 9)

@@ -50,3 +50,20 @@ def test_the_plan_file_reader_names_the_row_too(tmp_path):
     with pytest.raises(CalibrationError) as ei:
         load_plan_targets(f)
     assert str(ei.value).startswith(f'plan file {f} row 2 (line 3): a quoted field never ends (a stray " ?;')
+
+
+def test_left_and_right_points_swapped_name_the_row_and_the_columns(tmp_path):
+    """A commissioning trial: a --points file with L_* and R_* swapped ended in "the fit ends where the mechanism
+    cannot close (… at actuators [0.16607, 0.614526, …] …)" naming no row or column. The left ball lies at +x."""
+    f = tmp_path / "m.csv"
+    head = HEADER.strip() + ",L_x,L_y,L_z,R_x,R_y,R_z\n"
+    good = "p1,63,413,47,313,222,-0.05,-0.18,-0.03,0.07,0.39,0.93,-0.2,-0.46,0.92,-0.17\n"
+    swapped = "p2,63,413,47,313,222,-0.05,-0.18,-0.03,0.07,-0.46,0.92,-0.17,0.39,0.93,-0.2\n"
+    f.write_text(head + good + swapped)
+    with pytest.raises(CalibrationError) as ei:
+        load_measurements(f, load_profile())
+    text = str(ei.value)
+    assert text.startswith(f"{f} row 2 (line 3), columns L_x, R_x: L_x = -0.46 m is not left of R_x = 0.39 m"), text
+    assert "are the L and R points swapped" in text
+    f.write_text(head + good)
+    assert load_measurements(f, load_profile()).n_rows == 1

@@ -948,15 +948,31 @@ def _state_line(s: dict) -> str:
 
 def _cmd_state(args) -> int:
     def state(c) -> int:
+        from bridge.service.client import ServiceTimeout
+
         if not args.follow:
             s = c.state()
             _print(args, s, _state_line(s), markup=True)
             return 0
-        for n, s in enumerate(c.follow("state"), 1):
-            _print(args, s, _state_line(s), markup=True)
-            if args.count and n >= args.count:
+        n, silent = 0, False
+        while True:
+            try:
+                for s in c.follow("state"):
+                    n, silent = n + 1, False
+                    _print(args, s, _state_line(s), markup=True)
+                    if args.count and n >= args.count:
+                        return 0
                 return 0
-        return 0
+            except ServiceTimeout as exc:
+                if n == 0:  # never heard: no service there (the setup error)
+                    raise
+                if not silent:  # heard before: it stopped or the link is down; keep following, as tail -f does (an
+                    # operator's trial: --follow ended with "no state sample … start one with hitch serve")
+                    print(
+                        f"hitch: note: {exc}: the service stopped or the link is down; following on (Ctrl-C ends)",
+                        file=sys.stderr,
+                    )
+                    silent = True
 
     return _run(args, state)
 

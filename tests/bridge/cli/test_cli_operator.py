@@ -830,3 +830,35 @@ def test_a_state_with_the_ecu_offline_shows_how_old_its_pose_is(capsys):
     cli_service._print(args, live, cli_service._state_line(live), markup=True)
     line = capsys.readouterr().out
     assert "auto at rest" in line and "ago" not in line, line
+
+
+def test_state_follow_keeps_following_through_a_silence_after_samples(monkeypatch, capsys):
+    """An operator's trial: ``hitch state --follow`` exited 2 with "no h30op/state sample within 5 s — … start one
+    with hitch serve" when the service stopped, though it had been receiving samples; it follows on now, saying
+    the silence once. A service never heard stays the setup error."""
+    from bridge.service.client import ServiceTimeout
+
+    state = {"seq": 1, "mode": "auto", "moving": False, "motion_id": None, "pose": {"z": 0.1}, "ecu": {"online": True}}
+    bursts = [[state, {**state, "seq": 2}], [], [], [{**state, "seq": 3}]]  # samples, two silences, samples again
+
+    class Client(_FakeClient):
+        def follow(self, what="state", **kw):
+            batch = bursts.pop(0)
+            yield from batch
+            raise ServiceTimeout("no hitch/state sample within 5 s")
+
+    monkeypatch.setattr(cli_service, "_client", lambda args: Client())
+    assert main(["state", "--follow", "--count", "3"]) == 0
+    captured = capsys.readouterr()
+    assert [line.split()[0] for line in captured.out.splitlines()] == ["#1", "#2", "#3"], captured.out
+    assert captured.err.count("the service stopped or the link is down; following on") == 1, captured.err
+
+    class Never(_FakeClient):
+        def follow(self, what="state", **kw):
+            raise ServiceTimeout("no hitch/state sample within 5 s")
+            yield {}
+
+    monkeypatch.setattr(cli_service, "_client", lambda args: Never())
+    monkeypatch.setattr(cli_service, "_alive", lambda c, timeout_s=1.0: False)
+    assert main(["state", "--follow"]) == 2
+    assert "start one with `hitch serve`" in capsys.readouterr().err

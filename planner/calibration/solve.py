@@ -528,7 +528,7 @@ def check_residual_dof(result: CalibrationResult, data: MeasurementSet) -> None:
     m, k = result.n_observations, result.identified
     per = max(1, int(np.max(data.mask.sum(axis=1))))
     if m - k >= k:
-        poses = data.n_poses  # a pose measured from both sides counts once
+        poses = _poses_by_label(data)  # a pose measured from both sides (its label on both) counts once
         if poses * per >= 2 * k:
             return
         raise CalibrationError(
@@ -544,6 +544,18 @@ def check_residual_dof(result: CalibrationResult, data: MeasurementSet) -> None:
         f"{per} values each (more poses identify more directions and need more still: plan-poses plans 20); "
         "measure more poses"
     )
+
+
+def _poses_by_label(data: MeasurementSet) -> int:
+    """Distinct poses for :func:`check_residual_dof`: the distinct labels of the rows with a side (a pose measured
+    from below and from above has its label on both; its readings differ by the lag), plus the distinct readings
+    of the rows without one. Not :attr:`MeasurementSet.n_poses` (the larger side's count): 8 poses measured once
+    each, from alternating sides, counted 4 and were refused (a review)."""
+    side = data.side_vector
+    sided = {data.labels[i] for i in np.flatnonzero(side != 0).tolist()}
+    rows = side == 0
+    unsided = int(np.unique(data.readings[rows], axis=0).shape[0]) if np.any(rows) else 0
+    return len(sided) + unsided
 
 
 def _count(n: int, noun: str) -> str:

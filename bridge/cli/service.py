@@ -781,6 +781,14 @@ def _cmd_jog(args) -> int:
                 f"than its ttl {args.ttl_ms:g} ms (a busy computer: --realtime, or a longer --ttl-ms) and the hitch "
                 "braked before it went on" + (f"; limited: {limited}" if limited else "")
             )
+        if r.get("guard") == "refused":  # the jog holds: nothing moves (a re-run: "jog motion 95, limited: …", exit 0)
+            _print(
+                args,
+                r,
+                f"jog refused by the guard (motion {r['motion_id']} holds the hitch)"
+                + (f": {limited}" if limited else ""),
+            )
+            return 1
         _print(args, r, text)
         return 0
 
@@ -936,7 +944,9 @@ def _state_line(s: dict) -> str:
     if not ecu.get("online") and isinstance(age, (int, float)) and not isinstance(age, bool):
         # an old measurement is not the hitch now (an operator's trial: "at rest … z=+0.1074 m" 3.5 s after the
         # ECU fell silent, read as live)
-        motion, pose = f"last seen {motion}", f"{pose} (measured {age:.1f} s ago)"
+        # nor is "at rest": that is the planner's (it aborted the motion), the hitch may still move (a re-run: "last
+        # seen at rest" for a pose measured while it moved, 41 mm from where it stood)
+        motion, pose = "moving or not: unknown (ECU silent)", f"{pose} (measured {age:.1f} s ago)"
     return esc(
         f"#{s.get('seq')} {s.get('mode')} {motion} "
         f"motion {s.get('motion_id') if s.get('motion_id') is not None else '-'}  pose {pose}  ECU "

@@ -470,7 +470,8 @@ def test_goto_moves_the_gauges_and_they_settle_at_the_target(service, page, shot
 def _needles_turn_as_the_pictures(service, page) -> None:
     """The roll and pitch needles and the jog buttons' arrows turn the way the hitch pictures beside them do (an
     operator's trial: with roll and pitch +0.05 rad the rear view's bar rose to the right and the side view's mast
-    leaned to the front, both counter-clockwise, while both needles turned clockwise and the arrows said ↷ ⤻).
+    leaned to the front, both counter-clockwise, while both needles turned clockwise and the arrows said ↷ ⤻; ⤻ is
+    an anticlockwise arrow by its Unicode name, a review: the arrows are ↺ and ↻).
     The pictures: the rear view draws +x (L) on the left, the side view the front on the left (``buildView``)."""
     p = _view(service)["measured"]["points"]
     # counter-clockwise on the screen: the bar from L (left) to R rises; the mast from T to U leans to the front (−y)
@@ -483,8 +484,12 @@ def _needles_turn_as_the_pictures(service, page) -> None:
 
     assert (needle_deg("roll") < 0) == roll_ccw and abs(needle_deg("roll")) > 1.0, (needle_deg("roll"), p)
     assert (needle_deg("pitch") < 0) == pitch_ccw and abs(needle_deg("pitch")) > 1.0, (needle_deg("pitch"), p)
-    plus = {d: page.text_content(f"button.jog[data-dof={d}][data-sign='1']") or "" for d in ("roll", "pitch")}
-    assert ("↶" in plus["roll"]) == roll_ccw and ("⤺" in plus["pitch"]) == pitch_ccw, plus
+    for sign, ccw in (("1", True), ("-1", False)):  # ↺ anticlockwise, ↻ clockwise (U+21BA, U+21BB)
+        arrows = {
+            d: page.text_content(f"button.jog[data-dof={d}][data-sign='{sign}']") or "" for d in ("roll", "pitch")
+        }
+        assert ("↺" in arrows["roll"]) == (roll_ccw == ccw) and ("↻" in arrows["roll"]) == (roll_ccw != ccw), arrows
+        assert ("↺" in arrows["pitch"]) == (pitch_ccw == ccw) and ("↻" in arrows["pitch"]) == (pitch_ccw != ccw), arrows
 
 
 def _view(service) -> dict:

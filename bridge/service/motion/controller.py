@@ -486,7 +486,7 @@ class MotionController:
             self._maneuver.abort(now, "stop", reason, events)
             mid = self._brake(now, reason, events)
             ended = [
-                f"maneuver {e.get('maneuver')!r}" + ("" if e.get("step") is None else f" at {step_words(e['step'])}")
+                f"maneuver {_maneuver_words(e)}" + ("" if e.get("step") is None else f" at {step_words(e['step'])}")
                 for e in events
                 if e.get("event") == "maneuver_aborted"
             ]
@@ -1533,3 +1533,12 @@ class MotionController:
             }
         for e in events:
             self.outbox.put_event({**where, **e} if where else e)
+
+
+def _maneuver_words(event: Mapping[str, Any]) -> str:
+    """A maneuver event's maneuver in words: its name quoted, else its id ("maneuver None" for one run unnamed,
+    a review), else "(unnamed)"."""
+    name, mid = event.get("maneuver"), event.get("maneuver_id")
+    if name:
+        return repr(name)
+    return f"#{mid}" if mid is not None else "(unnamed)"

@@ -930,7 +930,7 @@
       if (name === "motion_finished" || name === "motion_aborted") actions.motionEnded(e.motion_id, ...outcome);
     }
     level.onEvent(e);
-    if (name === "implement_selected") refreshImplements();
+    if (name === "implement_selected") { refreshImplements(); refreshPresets(); }   // the presets are the implement's
     if (name === "maneuver_finished" || name === "maneuver_aborted") {
       ui.maneuversEnded += 1;
       $("#maneuver-result").textContent = name === "maneuver_finished"
@@ -1384,7 +1384,7 @@
 
   async function refreshPresets() {
     const r = await call("presets/list", {}, true);
-    if (!r.ok) return;
+    if (!r.ok) { ui.presetNames = null; actions.drawLock(); actions.drawRecord(); return; }   // not known: not said
     const list = $("#preset-list");
     list.textContent = "";
     // the selected implement's presets: a raise without a headland pose of its own goes to the one named "headland"
@@ -1510,10 +1510,11 @@
       t.textContent = !imp ? "no implement selected: raise, return and the lock need one"
         : locked ? "transport lock on: every motion but STOP is refused" : "transport lock off: the hitch may move";
       for (const id of ["#act-raise", "#act-return"]) $(id).disabled = this.isViewer() || !imp;
-      if (imp && !imp.headland && !this.headlandPreset()) $("#act-raise").disabled = true;   // nowhere to raise to
+      if (imp && !imp.headland && this.headlandPreset() === false) $("#act-raise").disabled = true;   // nowhere to go
     },
-    // whether the selected implement has a preset named "headland" (known once the presets were listed)
-    headlandPreset: () => Boolean(ui.presetNames && ui.presetNames.has("headland")),
+    // whether the selected implement has a preset named "headland": true, false, or null while not known (the
+    // presets not listed: Raise stays enabled, the service says if there is nowhere to go)
+    headlandPreset: () => (ui.presetNames ? ui.presetNames.has("headland") : null),
     drawImplements() {
       const sel = $("#act-implement");
       sel.textContent = "";
@@ -1541,8 +1542,9 @@
         if (Array.isArray(imp.com_m)) rows.push(["centre of mass", `${imp.com_m.map((v) => fmt(v * 1000, 0)).join(" · ")} mm (x · y · z)`]);
         rows.push(["upper height", Number.isFinite(imp.upper_height_m) ? `${show_mm(imp.upper_height_m)} (tool point z)` : "no limit"]);
         rows.push(["lowering speed", Number.isFinite(imp.lowering_speed_m_s) ? `${fmt(imp.lowering_speed_m_s * 1000, 0)} mm/s` : "no limit"]);
-        rows.push(["headland pose", pose(imp.headland) || (this.headlandPreset() ? "the preset “headland”"
-          : "none: define one, or save a preset named “headland” (Raise needs it)")]);
+        const preset = this.headlandPreset();
+        rows.push(["headland pose", pose(imp.headland) || (preset ? "the preset “headland”" : preset === false
+          ? "none: define one, or save a preset named “headland” (Raise needs it)" : "the preset “headland”, if saved")]);
         rows.push(["last work pose", pose(imp.last_work) || "none yet (set by a raise)"]);
         rows.push(["source", imp.source === "profile" ? "tractor profile (stored when selected)" : "stored"]);
         if (imp.description) rows.push(["description", imp.description]);

@@ -817,6 +817,29 @@ def test_a_jog_that_lapsed_between_refreshes_says_so_and_names_its_motions(monke
     assert "jog motions 1, 2: it lapsed 1 time(s)" in out and "ttl 200 ms" in out, out
 
 
+def test_a_jog_the_guard_refuses_says_so_and_exits_1(monkeypatch, capsys):
+    """A re-run of an operator's trial: a jog the guard refused printed "jog motion 95, limited: …" and exited 0
+    (the reply's "accepted": true: the motion exists and holds the hitch)."""
+    import contextlib
+
+    reply = {
+        "accepted": True,
+        "motion_id": 95,
+        "guard": "refused",
+        "speed_factor": 0.0,
+        "limited": {"esm": "hard: esm would be 76.21 J (threshold 2000 J) at t = 1.00 s"},
+    }
+
+    class Client:
+        def jog(self, *a):
+            return dict(reply)
+
+    monkeypatch.setattr(cli_service, "_client", lambda args: contextlib.nullcontext(Client()))
+    assert main(["jog", "--vz", "0.02"]) == 1
+    out = capsys.readouterr().out
+    assert out.startswith("jog refused by the guard (motion 95 holds the hitch): esm by hard: esm would be"), out
+
+
 def test_a_state_with_the_ecu_offline_shows_how_old_its_pose_is(capsys):
     """An operator's trial: 3.5 s after the ECU fell silent ``hitch state`` printed ``auto at rest … z=+0.1074 m
     … ECU OFFLINE`` with no age: an old pose read as live."""
@@ -825,7 +848,8 @@ def test_a_state_with_the_ecu_offline_shows_how_old_its_pose_is(capsys):
     old = {"seq": 9, "mode": "auto", "moving": False, "motion_id": None, "pose": {"z": 0.1074}, "ecu": ecu}
     cli_service._print(args, old, cli_service._state_line(old), markup=True)
     line = capsys.readouterr().out
-    assert "last seen at rest" in line and "z=+0.1074 m (measured 3.5 s ago)" in line, line
+    assert "moving or not: unknown (ECU silent)" in line and "z=+0.1074 m (measured 3.5 s ago)" in line, line
+    assert "at rest" not in line, line  # the planner's word, not the hitch's (a re-run: it moved on 41 mm)
     live = {**old, "ecu": {"online": True, "measurement_age_s": 0.004}}
     cli_service._print(args, live, cli_service._state_line(live), markup=True)
     line = capsys.readouterr().out

@@ -367,6 +367,13 @@ def test_a_stop_that_ends_a_waiting_maneuver_says_so(bench):
     report = bench.mc.stop_report()
     assert report == {"motion_id": None, "ended": ["maneuver 'mw' at step 1 (index 0)"]}, report
     assert bench.mc.stop_report() == {"motion_id": None, "ended": []}  # nothing left to end
+    unnamed = validate(
+        script.replace("name: mw\n", ""),
+        PlanningContext(bench.mc.current_state(), bench.mc.plan_step, lambda name: None),
+    )
+    mid = bench.mc.run_maneuver(unnamed, None)  # run unnamed: said by its id, not "maneuver None" (a review)
+    bench.run(0.5)
+    assert bench.mc.stop_report()["ended"] == [f"maneuver #{mid} at step 1 (index 0)"]
 
 
 def test_a_mode_change_during_a_track_session_names_the_session_not_motion(bench):

@@ -327,7 +327,7 @@ def _cmd_geometry(args) -> int:
         "ad_map": "kept (--no-ad)" if args.no_ad else "fitted",
     }
     carried = (sensors,) if sensors is not None and args.no_ad else ()  # the maps it records are kept as they were
-    short, noisy = _approach_shorter_than_play(prof, result)
+    short, noisy, negative_only = _approach_shorter_than_play(prof, result)
     doubts = _implausible_fit(args, model.params, problem, result)
     misfit = (result.residual_sigma > SUSPECT_SIGMA_HAT or bool(doubts)) and not args.accept_misfit
     if result.residual_sigma > SUSPECT_SIGMA_HAT and args.accept_misfit:  # recorded in the profile's provenance
@@ -381,7 +381,7 @@ def _cmd_geometry(args) -> int:
             if noisy
             else ""
         )
-        if all("is below zero" in p for p in short):  # noise alone: a longer approach does not help
+        if negative_only:  # below zero: a longer approach does not help
             raise CLIError(
                 f"{args.out} not written: {'; '.join(short)}: keep the profile's lag instead (--no-lag; both sides "
                 "then average the play out of the geometry), or measure with a finer instrument (docs/commissioning.md)"
@@ -491,37 +491,44 @@ def _warn_copies(source, data) -> None:
         )
 
 
-def _approach_shorter_than_play(prof, result) -> tuple[list[str], bool]:
+def _approach_shorter_than_play(prof, result) -> tuple[list[str], bool, bool]:
     """The DOF whose fitted lag is at least half the profile's final approach there (the profile refuses such a
     lag: an approach shorter than the play band 2·|lag| may not take the play up), as ``lag.x = … ± std, more
     than half of motion.final_approach.x = …`` phrases in mm / mrad; and whether every one of them lies within
-    two of its standard deviations of that half (the instrument's noise, not the approach, may be the cause)."""
+    two of its standard deviations of that half (the instrument's noise, not the approach, may be the cause); and
+    whether every one of them is below zero (a longer approach does not mend those)."""
     fa = prof.motion.final_approach
     if fa is None:
-        return [], False
-    out, noisy = [], True
+        return [], False, False
+    out, noisy, negative = [], True, []
     for k, off in zip(CONTROLLED_POSE_NAMES, fa.offset(), strict=True):
         name = f"lag.{k}"
         if name not in result.names or off <= 0:
             continue
         i = list(result.names).index(name)
-        lag, std = float(result.values[i]), float(result.std[i])
+        lag, std = float(result.values[i]), float(result.std_total[i])
         if 2.0 * abs(lag) > off + 1e-12:
             unit = "mm" if k in ("x", "z") else "mrad"
-            if lag < 0.0:  # the play cannot lead: a negative lag this large is the instrument's noise (a review read
-                # "more than half the approach … raise these offsets" for lag.x = -1.252 ± 0.887 mm of tape data)
+            if lag < 0.0:  # the play cannot lead (a re-run read "more than half the approach … raise these offsets"
+                # for lag.x = -1.252 ± 0.887 mm of tape data): the instrument's noise, or the sides swapped
+                why = (
+                    "the instrument's noise, not the play"
+                    if abs(lag) - 2.0 * std <= off / 2.0
+                    else f"{-lag / std:.1f} std below zero: are below and above swapped in the approach column?"
+                )
                 out.append(
                     f"the fitted {name} = {1e3 * lag:.3f} ± {1e3 * std:.3f} {unit} is below zero (the play can only "
                     f"leave the implement behind) by more than half motion.final_approach.{k} = {1e3 * off:.3f} "
-                    f"{unit}: the instrument's noise, not the play"
+                    f"{unit}: {why}"
                 )
-                continue  # noisy: its advice (--no-lag) holds
+                negative.append(name)
+                continue
             out.append(
                 f"the fitted {name} = {1e3 * lag:.3f} ± {1e3 * std:.3f} {unit} is more than half "
                 f"motion.final_approach.{k} = {1e3 * off:.3f} {unit}"
             )
             noisy = noisy and abs(lag) - 2.0 * std <= off / 2.0
-    return out, noisy and bool(out)
+    return out, noisy and bool(out), bool(out) and len(negative) == len(out)
 
 
 def _print_fit(model, result) -> None:

@@ -785,7 +785,7 @@ def _cmd_jog(args) -> int:
             _print(
                 args,
                 r,
-                f"jog refused by the guard (motion {r['motion_id']} holds the hitch)"
+                f"jog refused by the guard at its last refresh (motion {r['motion_id']} holds the hitch)"
                 + (f": {limited}" if limited else ""),
             )
             return 1

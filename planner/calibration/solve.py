@@ -552,10 +552,13 @@ def _poses_by_label(data: MeasurementSet) -> int:
     of the rows without one. Not :attr:`MeasurementSet.n_poses` (the larger side's count): 8 poses measured once
     each, from alternating sides, counted 4 and were refused (a review)."""
     side = data.side_vector
+    by_readings = data.n_poses
+    if tuple(data.labels) == tuple(str(n) for n in data.row_numbers):  # no pose column: the readings alone (a pose's
+        return by_readings  # two rows were 2 poses by their row numbers, a second review)
     sided = {data.labels[i] for i in np.flatnonzero(side != 0).tolist()}
     rows = side == 0
     unsided = int(np.unique(data.readings[rows], axis=0).shape[0]) if np.any(rows) else 0
-    return len(sided) + unsided
+    return max(len(sided) + unsided, by_readings)  # one label for several poses: their readings tell them apart
 
 
 def _count(n: int, noun: str) -> str:

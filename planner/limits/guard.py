@@ -52,11 +52,11 @@ Action = Literal["ok", "scaled", "refused"]
 _MEASURES = ("front_axle_load", "ssm", "lsm", "esm")
 #: samples of a jog's straight path over the horizon judged on the way (besides its end)
 JOG_PATH_SAMPLES = 8
-#: a dip on a jog's way counts from this share of the measure's hard threshold (smaller: numerical wobble)
-JOG_PATH_DIP = 0.01
-#: how far the top link may come closer to a keep-out per second of jog horizon [m/s] (jog rates ≤ 0.05 m/s, 0.03
-#: rad/s at ~1 m of lever): within this reach of one the way is looked at
-JOG_KEEP_OUT_REACH_M = 0.1
+#: a violated margin getting worse on a jog's way counts from this share of its value now (smaller: the wobble of
+#: a margin that improves overall, ~5e-4 of it)
+JOG_WAY_DIP = 0.001
+#: the top link's way between two poses bends: its points may stray this much more than the ends' displacement
+JOG_WAY_REACH_FACTOR = 1.5
 _FK_CLOSED_M = 0.5e-9  # closure residual [m] trusted in a batch (HitchModel.forward refuses > 1e-9)
 _KEEP_OUT_TOL_M = 1e-10  # bound on |batch - per-sample| keep-out distance [m] (rounding ~1e-15 m)
 #: ``end_stop:<actuator>`` per actuator, order ACTUATOR_NAMES.
@@ -585,8 +585,9 @@ class Guard:
         for j, (_, dist, r) in enumerate(self.keep_out_clearance(q_ahead, points_ahead)):
             if dist < r:
                 reasons.append(GuardReason(self._keep_out_names[j], dist, r, h, "hard", "m"))
-        if along_path and not any(r.level == "hard" for r in reasons) and self._near_a_limit(now, vals, q_now, h):
-            on_the_way = self._jog_path_refusal(p_now, rates, h, now)
+        near = self._near_a_limit(now, vals, q_now, points_ahead)
+        if along_path and not any(r.level == "hard" for r in reasons) and near:
+            on_the_way = self._jog_path_refusal(p_now, rates, h, now, q_now)
             if on_the_way is not None:
                 reasons = [r for r in reasons if r.level != "caution"] + list(on_the_way.reasons)
         if any(r.level == "hard" for r in reasons):
@@ -601,61 +602,83 @@ class Guard:
         action: Action = "ok" if factor >= 1.0 and clipped_by is None else "scaled"
         return rates * factor, GuardDecision(action, factor, tuple(reasons), ahead)
 
-    def _near_a_limit(self, now: dict[str, float], ahead: dict[str, float], q_now: np.ndarray, h: float) -> bool:
-        """Whether the way of a jog over the horizon ``h`` may hold what its end does not show: a stability measure
-        now or at the end below its caution threshold, or a keep-out within the reach of the horizon's motion
-        (:data:`JOG_KEEP_OUT_REACH_M` per second) of the top link now. Elsewhere no dip on the way reaches hard."""
+    def _near_a_limit(
+        self, now: dict[str, float], ahead: dict[str, float], q_now: np.ndarray, points_ahead: dict[str, np.ndarray]
+    ) -> bool:
+        """Whether the way of a jog (or a track session's look-ahead) may hold what its end does not show: a
+        stability measure now or at the end below its caution threshold, or a keep-out the top link may reach on
+        the way. The top link's ends move by at most ``reach`` from now to the end (the larger of H's and U's
+        displacement, × :data:`JOG_WAY_REACH_FACTOR` for the way's curvature), so each point of it stays within
+        ``reach`` of where it was: a keep-out farther than ``reach`` beyond its radius now cannot be entered.
+        Elsewhere no dip on the way reaches hard (a dip from above caution to below hard within the horizon is not
+        looked for)."""
         _, caution_th = self._thresholds()
         if any(min(now[m], ahead[m]) < caution_th[m] for m in _MEASURES):
             return True
-        return any(d < r + JOG_KEEP_OUT_REACH_M * h for _, d, r in self.keep_out_clearance(q_now))
+        if not self.keep_out:
+            return False
+        pts_now = self.model.points(q_now)
+        reach = JOG_WAY_REACH_FACTOR * max(float(np.linalg.norm(points_ahead[n] - pts_now[n])) for n in ("H", "U"))
+        return any(d < r + reach for _, d, r in self.keep_out_clearance(q_now, pts_now))
 
     def _jog_path_refusal(
-        self, p_now: np.ndarray, rates: np.ndarray, h: float, now: dict[str, float]
+        self, p_now: np.ndarray, rates: np.ndarray, h: float, now: dict[str, float], q_now: np.ndarray
     ) -> GuardDecision | None:
-        """The refusal of a jog that enters a keep-out, or makes a hard stability violation worse by more than
-        :data:`JOG_PATH_DIP` of its threshold, somewhere on its way over the horizon ``h``
-        (:data:`JOG_PATH_SAMPLES` samples of the straight path ``p_now + rates · t`` within the box); None: no
-        refusal (also where a sample has no inverse: the end's own check names that).
+        """The refusal of a jog that enters a keep-out (or goes deeper into one it is in), crosses a stability
+        threshold from above, or makes a hard stability violation worse by more than :data:`JOG_WAY_DIP` of the
+        value now, somewhere on its way over the horizon ``h`` (:data:`JOG_PATH_SAMPLES` samples of the straight
+        path ``p_now + rates · t`` within the box); None: no refusal. A sample without an inverse ends the way
+        looked at there (the end's own check names it).
 
-        Judged at the horizon's end alone, the way is not looked at: a keep-out the top link passes through
-        half-way was entered by a jog a goto along the same line was refused for (a review), and with 2500 kg 1.2
-        m behind the hitch a jog asked at 1 m/s was judged at the face 1 m ahead (an operator's trial). A dip is
-        counted from :data:`JOG_PATH_DIP` of the threshold on, not from 1e-9: the margins wobble by 1e-7 on the
-        way while they improve, and lowering a heavy implement, the way out of a low margin, was refused for
-        0.6 N of 1199 N of front-axle load (a review). The end itself is judged strictly (:meth:`check_jog`),
-        so the margin cannot creep down by the tolerance cycle after cycle."""
+        Judged at the horizon's end alone, the way was not looked at: a keep-out the top link passes half-way was
+        entered by a jog a goto along the same line was refused for (a review), and with 2500 kg 1.2 m behind the
+        hitch a jog asked at 1 m/s was judged at the face 1 m ahead (an operator's trial). Worse than now counts
+        from :data:`JOG_WAY_DIP` of the value on (the margins wobble on the way while they improve: lowering a
+        heavy implement, the way out of a low margin, was refused for 0.6 N of 1199 N of front-axle load, a
+        review), not from a share of the threshold (1 % of it let a 0.3 % dip of a 76 J energy margin 2000 J
+        below its threshold through, a second review); a crossing of the threshold counts at once. The end is
+        judged strictly (:meth:`check_jog`)."""
         t = np.linspace(0.0, h, JOG_PATH_SAMPLES + 1)[1:]
         poses = np.clip(p_now + np.outer(t, rates), self.planner.lo, self.planner.hi)
         inv = self.planner.inverse.solve_batch(poses, np.tile(rates, (len(t), 1)))
-        if not bool(np.all(inv.ok)):
+        n_ok = int(np.argmin(inv.ok)) if not bool(np.all(inv.ok)) else len(t)  # the way up to the first without one
+        if n_ok == 0:
             return None
-        Q = inv.actuators
+        t, Q = t[:n_ok], inv.actuators[:n_ok]
         P, suspect = self._points_batch(Q)
         batch = evaluate_stability_batch(
             self.tractor, self.implement, *_implement_frames(P), *self.slope, front_ballast=self.settings.front_ballast
         )
         vals = np.array(batch.values, float)
         dist = self._keep_out_batch(P)
-        for k in np.flatnonzero(suspect | batch.suspect).tolist():  # rows the batch cannot vouch for: exactly
-            clear, rep = self._exact_entry(Q[k], {})
+        cache: dict[bytes, _Exact] = {}
+        exact_rows = suspect | batch.suspect | ~np.isfinite(dist).all(axis=0)
+        if self.keep_out:
+            radii = np.array([r for _, _, r in self.keep_out]).reshape(-1, 1)
+            exact_rows |= (np.abs(dist - radii) <= _KEEP_OUT_TOL_M).any(axis=0)
+        for k in np.flatnonzero(exact_rows).tolist():  # rows the batch cannot vouch for: per sample
+            clear, rep = self._exact_entry(Q[k], cache)
             vals[k] = [_measure_values(rep)[m] for m in _MEASURES]
             if clear:
                 dist[:, k] = [d for _, d, _ in clear]
         hard_th, _ = self._thresholds()
         reasons: list[GuardReason] = []
         for j, m in enumerate(_MEASURES):
-            limit = min(hard_th[m], now[m] - JOG_PATH_DIP * abs(hard_th[m]))
-            for k in np.flatnonzero(vals[:, j] < limit + (0.0 if batch.exact else batch.tolerance[m])).tolist():
-                v = _measure_values(self._exact_entry(Q[k], {})[1])[m]  # the value reported: exact
+            h_m, s_m = hard_th[m], now[m]
+            # ok now: any sample below the threshold crosses it; violated now: worse than now beyond the wobble
+            limit = h_m if s_m >= h_m else s_m - JOG_WAY_DIP * max(abs(s_m), 1e-9)
+            slack = 0.0 if batch.exact else batch.tolerance[m]
+            for k in np.flatnonzero(vals[:, j] < limit + slack).tolist():
+                v = _measure_values(self._exact_entry(Q[k], cache)[1])[m]  # the value reported: exact
                 if v < limit:
-                    reasons.append(GuardReason(m, v, hard_th[m], float(t[k]), "hard", MEASURE_UNITS[m]))
+                    reasons.append(GuardReason(m, v, h_m, float(t[k]), "hard", MEASURE_UNITS[m]))
                     break
-        for j, (_, _, r) in enumerate(self.keep_out):
-            if (k_in := _earliest(dist[j] < r, t)) is not None:
-                reasons.append(
-                    GuardReason(self._keep_out_names[j], float(dist[j, k_in]), r, float(t[k_in]), "hard", "m")
-                )
+        for j, (_, d_now, r) in enumerate(self.keep_out_clearance(q_now)):
+            # outside now: entering refuses; inside now: only going deeper (leaving it is the way out, a review)
+            bad = dist[j] < r if d_now >= r else dist[j] < d_now - _KEEP_OUT_TOL_M
+            if (k_in := _earliest(bad, t)) is not None:
+                name = self._keep_out_names[j]
+                reasons.append(GuardReason(name, float(dist[j, k_in]), r, float(t[k_in]), "hard", "m"))
         return GuardDecision("refused", 0.0, tuple(reasons)) if reasons else None
 
     def _context(self) -> tuple:

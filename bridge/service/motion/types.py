@@ -360,7 +360,6 @@ class JogMotion:
     #: changes, e.g. from the jog speed limit to the workspace face, is announced again)
     reported: dict[str, str] = field(default_factory=dict)
     decision: GuardDecision = field(default_factory=lambda: GuardDecision("ok"))
-    cycles: int = 0  # control cycles stepped
 
     def refresh(self, guard: Guard, rates: np.ndarray, expires: float) -> JogAccepted:
         """A new command: rates [m/s, rad/s] until clock time ``expires``; checked ahead by the guard."""
@@ -374,8 +373,7 @@ class JogMotion:
         """One control cycle: the rates re-checked ahead by the guard, then the jerk-limited step.
         Returns the step and a ``limit_reached`` event naming each limit that newly caps the jog
         (a workspace face, a stability measure ahead, an end-stop zone)."""
-        self.cycles += 1
-        allowed, self.decision = self._checked(guard, along_path=self.cycles % JOG_PATH_EVERY == 0)
+        allowed, self.decision = self._checked(guard)
         self.jog.command(allowed, 1.0)  # the dead-man TTL is ours (``expires``), not the controller's
         out = self.jog.step()
         self.limited = {**self._speed_flags(), **out.limited, **guard_limits(self.decision)}
@@ -387,18 +385,16 @@ class JogMotion:
         """The jog speed limits the rates asked exceed (none while the guard refuses the jog: nothing moves)."""
         return {} if self.decision.action == "refused" else self.jog.speed_flags(self.rates)
 
-    def _checked(self, guard: Guard, *, along_path: bool = True) -> tuple[np.ndarray, GuardDecision]:
+    def _checked(self, guard: Guard) -> tuple[np.ndarray, GuardDecision]:
         """The guard's rates and decision for the rates asked within the jog's speed limits: the rates the jog can
         run (judged as asked, a jog asked at 1 m/s was judged at the workspace face 1 s ahead: an operator's trial
-        read a caution's 0.8 lost, the jog ran at full speed). ``along_path``: the way there too
-        (:meth:`Guard.check_jog`; every :data:`JOG_PATH_EVERY`-th cycle and on every new command: ~0.6 ms)."""
+        read a caution's 0.8 lost, the jog ran at full speed). Every cycle with its way (:meth:`Guard.check_jog`:
+        ~0.6 ms near a limit; judged every 5th cycle, a refusal on the way was dropped at the next and the jog went
+        into the keep-out it had been refused for, a review)."""
         v = self.jog.limits.velocity
-        return guard.check_jog(self.jog.state, np.clip(self.rates, -v, v), along_path=along_path)
+        return guard.check_jog(self.jog.state, np.clip(self.rates, -v, v))
 
 
-#: a live jog's way over the guard's horizon is judged every this many control cycles (and on each new command);
-#: its end every cycle. The way checked covers the next second, so the cycles between lose nothing of it
-JOG_PATH_EVERY = 5
 #: the frames a track session's setpoints may be given in (``docs/tracking.md``)
 TRACK_FRAMES: tuple[str, ...] = ("tractor", "level", "ground")
 #: a track session's stability check 1 s ahead runs every this many control cycles (it costs ~0.4 ms)

@@ -344,16 +344,16 @@ def test_a_lag_refusal_within_the_noise_says_so_and_no_lag_keeps_the_profile_s_l
 
     prof = load_profile(profile_file_with_final_approach(tmp_path))  # roll approach 5 mrad
     names = ("lag.x", "lag.z", "lag.roll", "lag.pitch")
-    noisy = types.SimpleNamespace(
-        names=names, values=np.array([0, 0, 0.003477, 0]), std=np.array([1, 1, 1.91, 1]) * 1e-3
-    )
-    short, within = _approach_shorter_than_play(prof, noisy)
+    std = np.array([1, 1, 1.91, 1]) * 1e-3
+    noisy = types.SimpleNamespace(names=names, values=np.array([0, 0, 0.003477, 0]), std=std, std_total=std)
+    short, within, _ = _approach_shorter_than_play(prof, noisy)
     assert short == [
         "the fitted lag.roll = 3.477 ± 1.910 mrad is more than half motion.final_approach.roll = 5.000 mrad"
     ]
     assert within
-    sure = types.SimpleNamespace(names=names, values=np.array([0, 0, 0.003477, 0]), std=np.array([1, 1, 0.2, 1]) * 1e-3)
-    assert _approach_shorter_than_play(prof, sure) == ([short[0].replace("1.910", "0.200")], False)
+    std = np.array([1, 1, 0.2, 1]) * 1e-3
+    sure = types.SimpleNamespace(names=names, values=np.array([0, 0, 0.003477, 0]), std=std, std_total=std)
+    assert _approach_shorter_than_play(prof, sure) == ([short[0].replace("1.910", "0.200")], False, False)
     prof_file, _, meas = _measured_from_both_sides(tmp_path, PinPlay(0.001, 0.0005))
     capsys.readouterr()
     out = tmp_path / "kept.toml"
@@ -668,6 +668,13 @@ def test_one_pose_measured_from_both_sides_is_refused_as_one_pose(tmp_path, caps
     err = _err(capsys, ["calibrate", "geometry", "--measurements", str(one), "--no-ad", "--out", str(out)])
     assert f"error: {one}: 2 rows hold 1 distinct pose (a pose measured from both sides counts once" in err, err
     assert "measure more poses" in err and not out.exists()
+    # without the pose column (labels then are row numbers): the same one pose (a second review: written)
+    head = lines[0].split(",")
+    unlabelled = tmp_path / "unlabelled.csv"
+    unlabelled.write_text("\n".join(",".join(r.split(",")[1:]) for r in lines[:3]) + "\n")
+    assert head[0] == "pose"
+    err = _err(capsys, ["calibrate", "geometry", "--measurements", str(unlabelled), "--no-ad", "--out", str(out)])
+    assert "2 rows hold 1 distinct pose" in err and not out.exists(), err
 
 
 def _with_column(text: str, column: str, change) -> str:
@@ -954,9 +961,15 @@ def test_a_negative_lag_beyond_half_the_approach_is_called_noise_not_a_short_app
     half = prof.motion.final_approach.offset()[0] / 2.0
     values = result.values.copy()
     values[i] = -1.5 * half
-    phrases, _ = cli_calibrate._approach_shorter_than_play(prof, replace(result, values=values))
-    assert len(phrases) == 1 and "lag.x" in phrases[0] and "is below zero" in phrases[0], phrases
+    std = float(result.std_total[i])
+    values[i] = -(half + 1.5 * std)  # within twice its std of the half: noise
+    phrases, _, negative_only = cli_calibrate._approach_shorter_than_play(prof, replace(result, values=values))
+    assert negative_only and len(phrases) == 1 and "lag.x" in phrases[0] and "is below zero" in phrases[0], phrases
     assert "the instrument's noise, not the play" in phrases[0] and "is more than half" not in phrases[0]
+    values[i] = -(half + 30.0 * std)  # far beyond the noise: the sides swapped (a second review: called noise)
+    phrases, _, negative_only = cli_calibrate._approach_shorter_than_play(prof, replace(result, values=values))
+    assert negative_only and "are below and above swapped in the approach column?" in phrases[0], phrases
     values[i] = 1.5 * half  # a positive one: the short approach, as before
-    phrases, _ = cli_calibrate._approach_shorter_than_play(prof, replace(result, values=values))
+    phrases, _, negative_only = cli_calibrate._approach_shorter_than_play(prof, replace(result, values=values))
+    assert not negative_only
     assert len(phrases) == 1 and "is more than half motion.final_approach.x" in phrases[0], phrases

@@ -837,7 +837,7 @@ def test_a_jog_the_guard_refuses_says_so_and_exits_1(monkeypatch, capsys):
     monkeypatch.setattr(cli_service, "_client", lambda args: contextlib.nullcontext(Client()))
     assert main(["jog", "--vz", "0.02"]) == 1
     out = capsys.readouterr().out
-    assert out.startswith("jog refused by the guard (motion 95 holds the hitch): esm by hard: esm would be"), out
+    assert out.startswith("jog refused by the guard at its last refresh (motion 95 holds the hitch): esm by hard"), out
 
 
 def test_a_state_with_the_ecu_offline_shows_how_old_its_pose_is(capsys):

@@ -122,15 +122,15 @@ def test_calibrate_sensors_detached_calibrates_the_lift_the_pinned_calibration_r
 
 
 def test_calibrate_sensors_detached_is_refused_with_an_implement(tmp_path, capsys):
-    argv = ["calibrate", "sensors", "--actuators", "lift", "--out", str(tmp_path / "x"), "--detached", "--yes"]
+    argv = ["calibrate", "sensors", "--actuators", "lift", "--out", str(tmp_path / "x.toml"), "--detached", "--yes"]
     assert main([*argv, "--implement", "plough"]) == 2
     err = capsys.readouterr().err
     assert "--detached declares that no implement is attached: it cannot go with --implement plough" in err
-    assert not (tmp_path / "x").exists()
+    assert not (tmp_path / "x.toml").exists()
 
 
 def test_calibrate_sensors_detached_needs_the_operator_s_confirmation(tmp_path, capsys, monkeypatch):
-    argv = ["calibrate", "sensors", "--actuators", "yaw", "--out", str(tmp_path / "x"), "--detached"]
+    argv = ["calibrate", "sensors", "--actuators", "yaw", "--out", str(tmp_path / "x.toml"), "--detached"]
     monkeypatch.setattr("sys.stdin", _Terminal("", tty=False))
     assert main(argv) == 2
     assert "confirm it with --yes" in capsys.readouterr().err
@@ -144,9 +144,9 @@ def test_calibrate_sensors_detached_needs_the_operator_s_confirmation(tmp_path, 
     err = capsys.readouterr().err
     assert "not confirmed" not in err and "--actuators 'yaw': unknown 'yaw'" in err
     # --yes confirms only --detached
-    assert main(["calibrate", "sensors", "--actuators", "lift", "--out", str(tmp_path / "x"), "--yes"]) == 2
+    assert main(["calibrate", "sensors", "--actuators", "lift", "--out", str(tmp_path / "x.toml"), "--yes"]) == 2
     assert "nothing to confirm" in capsys.readouterr().err
-    assert not (tmp_path / "x").exists()
+    assert not (tmp_path / "x.toml").exists()
 
 
 def test_an_interrupted_commissioning_command_says_what_it_left(monkeypatch, capsys, tmp_path):

@@ -74,7 +74,7 @@ def stream_cycles(
         c1, t1 = time.thread_time(), time.perf_counter()
         g = gc = 0.0
         if guard is not None and n % guard_every == 0:
-            guard.check_jog(out.state, tr.guard_rates(h))
+            guard.check_jog(out.state, tr.guard_rates(h), along_path=False)  # as TrackMotion.look_ahead
             g = time.perf_counter() - t1
             gc = time.thread_time() - c1
             guard_s.append(g)

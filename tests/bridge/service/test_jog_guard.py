@@ -132,10 +132,10 @@ def test_from_inside_a_keep_out_a_jog_that_leaves_it_is_allowed_one_going_deeper
     assert deeper.action == "refused" and deeper.reasons[0].measure == "keep_out:hose", deeper
 
 
-def test_a_track_look_ahead_faster_than_a_jog_sees_a_keep_out_on_its_way(planner):
-    """A second review: the way was looked at only within 0.1 m of a keep-out (a jog's speed), but the track
-    session's look-ahead asks about rates with no such bound: 0.3 m/s up past a 20 mm sphere 0.15 m away passed,
-    a goto along it was refused."""
+def test_rates_faster_than_a_jog_see_a_keep_out_on_their_way(planner):
+    """A second review: the way was looked at only within 0.1 m of a keep-out (a jog's speed), but ``check_jog``
+    takes rates with no such bound: 0.3 m/s up past a 20 mm sphere 0.15 m away passed, a goto along it was refused.
+    (The track session's look-ahead judges the end only, ``along_path=False``, for its cycle's cost.)"""
     p0, rates = np.array([0.0, -0.1, 0.0, 0.0]), np.array([0.0, 0.3, 0.0, 0.0])
     guard, c, r = _keep_out_on_the_way(planner, p0, rates, at="U", radius=0.02)
     assert _top_link_distance(guard.planner.model, guard.planner, p0, c) > r + 0.1  # beyond a jog's reach

@@ -163,9 +163,9 @@ def _spy_guard_and_sends(r, refuse_at_call=None):
     guard, link = r.mc.guard, r.mc.link
     check, send = guard.check_jog, link.send_reference
 
-    def check_jog(state, rates):
+    def check_jog(state, rates, **kw):
         log.append(("guard", r.mc._cycle_n))
-        allowed, decision = check(state, rates)
+        allowed, decision = check(state, rates, **kw)
         if refuse_at_call is not None and sum(1 for k, _ in log if k == "guard") == refuse_at_call:
             return allowed * 0.0, GuardDecision("refused")
         return allowed, decision

@@ -585,8 +585,11 @@ class Guard:
         for j, (_, dist, r) in enumerate(self.keep_out_clearance(q_ahead, points_ahead)):
             if dist < r:
                 reasons.append(GuardReason(self._keep_out_names[j], dist, r, h, "hard", "m"))
-        near = self._near_a_limit(now, vals, q_now, points_ahead)
-        if along_path and not any(r.level == "hard" for r in reasons) and near:
+        if (  # the way only where it is asked for and may matter (the track look-ahead asks for the end alone)
+            along_path
+            and not any(r.level == "hard" for r in reasons)
+            and self._near_a_limit(now, vals, q_now, points_ahead)
+        ):
             on_the_way = self._jog_path_refusal(p_now, rates, h, now, q_now)
             if on_the_way is not None:
                 reasons = [r for r in reasons if r.level != "caution"] + list(on_the_way.reasons)

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from bridge.cli.errors import CLIError
-from bridge.cli.service import _client_command, _deadline, _print, _run, add_deadline_option, step_text
+from bridge.cli.service import _client_command, _client_options, _deadline, _print, _run, add_deadline_option, step_text
 
 __all__ = ["add_maneuver_actions", "add_lines_command"]
 
@@ -23,6 +23,7 @@ MAX_GEOJSON_BYTES = 4 * 1024 * 1024
 def add_maneuver_actions(ms: Any) -> None:
     """``record start|stop`` and ``pause``, ``resume``, ``skip`` under ``hitch maneuver``."""
     q = ms.add_parser("record", help="teach-in: record goto, preset and jog commands into a script")
+    _client_options(q, outer=True)
     rs = q.add_subparsers(dest="record_action", required=True, parser_class=type(q))
     _client_command(rs, "start", "start recording", _cmd_record)
     r = _client_command(rs, "stop", "stop recording and print the script (YAML)", _cmd_record)
@@ -47,6 +48,7 @@ def add_maneuver_actions(ms: Any) -> None:
 def add_lines_command(sub: Any) -> None:
     """``hitch lines save NAME FILE|list|delete NAME``."""
     p = sub.add_parser("lines", help="field-boundary and headland lines (GeoJSON) for maneuver wait_for line")
+    _client_options(p, outer=True)
     ls = p.add_subparsers(dest="action", required=True, parser_class=type(p))
     q = _client_command(
         ls, "save", "save the LineString(s) of a GeoJSON file (one line: under NAME)", _cmd_lines, "name", "file"

@@ -146,6 +146,7 @@ def _cmd_switch(args) -> int:
 
 def add_commands(sub) -> None:
     p = sub.add_parser("implement", help="implements: list, define, select, transport lock")
+    _client_options(p, outer=True)
     acts = p.add_subparsers(dest="action", required=True, parser_class=type(p))
     _client_command(acts, "list", "stored and tractor-profile implements (* selected)", _cmd_implement)
     q = acts.add_parser("define", help="define (or replace) an implement")

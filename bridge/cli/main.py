@@ -14,7 +14,7 @@ import os
 import signal
 import sys
 import threading
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from importlib import metadata
 from typing import NoReturn
 
@@ -47,6 +47,14 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> NoReturn:  # one clear line instead of usage + message
         # main() prints "hitch: error: …"; a subcommand's parser names itself ("hitch fk: …"), the top level does not
         raise CLIError(message if self.prog == PROG else f"{self.prog}: {message}")
+
+    def parse_known_args(  # type: ignore[override]
+        self, args: Sequence[str] | None = None, namespace: argparse.Namespace | None = None
+    ) -> tuple[argparse.Namespace, list[str]]:
+        parsed, rest = super().parse_known_args(args, namespace)
+        if self.prog == PROG:  # the whole line is parsed: the client options neither level gave get their defaults
+            cli_service.apply_client_option_defaults(parsed)
+        return parsed, rest
 
 
 def package_version() -> str:

@@ -24,6 +24,7 @@ the service's black box (:class:`~bridge.service.blackbox.EventLog`) is always w
 
 from __future__ import annotations
 
+import argparse
 import re
 import signal
 import sys
@@ -318,10 +319,31 @@ def _add_serve(sub) -> None:
 
 
 # ---------------------------------------------------------------------------------------- clients
-def _client_options(p, *, prefix_help: str | None = None) -> None:
+#: ``hitch fleet ls --prefix``: a filter, not one service's prefix
+FLEET_PREFIX_HELP = (
+    "list only the services whose key prefix is this one or under it, e.g. fleet or fleet/t07/hitch (default: every "
+    "service)"
+)
+#: the namespace attribute holding the client options' defaults (applied by the top-level parser after parsing)
+CLIENT_OPTION_DEFAULTS = "client_option_defaults"
+
+
+def _client_options(p, *, prefix_help: str | None = None, outer: bool = False) -> None:
     """The options every client command has; ``prefix_help``: ``--prefix`` is a filter with this help and no
-    default (``hitch fleet ls``), not the one service's prefix."""
-    p.add_argument(
+    default (``hitch fleet ls``), not the one service's prefix.
+
+    ``outer``: the same options on a group's parser, so they may also stand before the action
+    (``hitch faults --connect X list``, as ``hitch faults list --connect X``; given at both, the action's
+    wins). Their defaults are therefore not argparse's (a subcommand's default would override the
+    value given before it): they are recorded under :data:`CLIENT_OPTION_DEFAULTS` and applied by the
+    top-level parser (:func:`apply_client_option_defaults`) to what neither place gave."""
+    defaults: dict[str, Any] = {}
+
+    def option(*flags: str, default: Any, **kwargs: Any) -> None:
+        action = p.add_argument(*flags, default=argparse.SUPPRESS, **kwargs)
+        defaults[action.dest] = default
+
+    option(
         "--connect",
         action="append",
         default=None,
@@ -329,29 +351,41 @@ def _client_options(p, *, prefix_help: str | None = None) -> None:
         help=f"service or router endpoint (repeatable; default {DEFAULT_LISTEN})",
     )
     if prefix_help is None:
-        p.add_argument("--prefix", default="hitch", help="key prefix of the service (default hitch)")
+        option("--prefix", default="hitch", help="key prefix of the service (default hitch)")
     else:
-        p.add_argument("--prefix", default=None, help=prefix_help)
-    p.add_argument("--security", default=None, help="Zenoh security config of this client (credentials, TLS CA)")
-    p.add_argument(
+        option("--prefix", default=None, help=prefix_help)
+    option("--security", default=None, help="Zenoh security config of this client (credentials, TLS CA)")
+    option(
         "--user",
         default=None,
         help="send the requests as this user, on its own keys where the service serves them (default: the user "
         "--security logs in as; '' for the shared keys; docs/security.md)",
     )
-    p.add_argument(
+    option(
         "--timeout",
         type=bounded_float("--timeout", 0.0, 600.0, unit="s"),
         default=5.0,
         help="seconds to wait for a reply, (0, 600] (default 5)",
     )
-    p.add_argument(
+    option(
         "--realtime",
         action="store_true",
+        default=False,
         help="run this client's Zenoh threads under SCHED_FIFO (needs root or CAP_SYS_NICE): on a busy "
         "computer its stop (the stop command, Ctrl-C) leaves at once instead of after the busy programs' turn",
     )
-    p.add_argument("--json", action="store_true", help="print JSON")
+    option("--json", action="store_true", default=False, help="print JSON")
+    if not outer:
+        p.set_defaults(**{CLIENT_OPTION_DEFAULTS: defaults})
+
+
+def apply_client_option_defaults(args: argparse.Namespace) -> argparse.Namespace:
+    """Give a parsed client command the defaults of the client options neither its action nor its group got
+    (:func:`_client_options`); other commands are returned as they are."""
+    for dest, value in getattr(args, CLIENT_OPTION_DEFAULTS, {}).items():
+        if not hasattr(args, dest):
+            setattr(args, dest, list(value) if isinstance(value, list) else value)
+    return args
 
 
 def _client_command(sub, name: str, help_text: str, handler, *positionals: str):
@@ -1261,6 +1295,7 @@ def add_commands(sub) -> Any:
     p.set_defaults(handler=_cmd_state)
 
     p = sub.add_parser("preset", help="saved poses of the current implement")
+    _client_options(p, outer=True)
     ps = p.add_subparsers(dest="action", required=True, parser_class=type(p))
     for action, needs_name, what in (
         ("save", True, "save a pose (default: the current one) under a name"),
@@ -1295,6 +1330,7 @@ def add_commands(sub) -> Any:
         q.set_defaults(handler=_cmd_preset)
 
     p = sub.add_parser("maneuver", help="scripted maneuvers (YAML)")
+    _client_options(p, outer=True)
     ms = p.add_subparsers(dest="action", required=True, parser_class=type(p))
     for action, pos, what in (
         ("validate", ("file",), "check a YAML script against the service (parse, then plan every step)"),
@@ -1316,20 +1352,18 @@ def add_commands(sub) -> Any:
         q.set_defaults(handler=_cmd_maneuver)
     maneuver_actions = ms  # bridge.cli.headland adds record, pause, resume, skip (bridge.cli.main)
     p = sub.add_parser("fleet", help="services reachable through a router")
+    _client_options(p, prefix_help=FLEET_PREFIX_HELP, outer=True)
     fs = p.add_subparsers(dest="action", required=True, parser_class=type(p))
     q = fs.add_parser(
         "ls",
         help="list live services (liveliness tokens) with their profile and mode; exit status 1 when some did not "
         "answer, 2 when none did",
     )
-    _client_options(
-        q,
-        prefix_help="list only the services whose key prefix is this one or under it, e.g. fleet or "
-        "fleet/t07/hitch (default: every service)",
-    )
+    _client_options(q, prefix_help=FLEET_PREFIX_HELP)
     q.set_defaults(handler=_cmd_fleet)
 
     p = sub.add_parser("faults", help="faults the service holds: list | ack")
+    _client_options(p, outer=True)
     fs = p.add_subparsers(dest="action", required=True, parser_class=type(p))
     q = fs.add_parser("list", help="the faults held now, each latching or self-clearing, with its reason")
     _client_options(q)

@@ -161,6 +161,7 @@ def _cmd_work(args: Any) -> int:
 
 def add_commands(sub: Any) -> None:
     p = sub.add_parser("work", help="work control: draft / mixed / float on the live service")
+    _client_options(p, outer=True)
     acts = p.add_subparsers(dest="action", required=True, parser_class=type(p))
     q = acts.add_parser("settings", help="read (no option) or set the selected implement's work settings")
     q.add_argument("--mode", choices=("position", "draft", "mixed", "float"), default=None)

@@ -134,12 +134,22 @@ class StopProbe:
         self._traj = Trajectory(dofs)  # reused by :meth:`extent` (called every control cycle)
 
     def trajectory(
-        self, state: MotionState, limits: PoseLimits, *, relative: bool = False, out: Trajectory | None = None
+        self,
+        state: MotionState,
+        limits: PoseLimits,
+        *,
+        relative: bool = False,
+        out: Trajectory | None = None,
+        along_line: bool = False,
     ) -> Trajectory:
         """The stop from ``state`` (from position 0 when ``relative``) within ``limits`` (floored by |v|, |a|);
-        computed into ``out`` when given (no allocation), else into a new trajectory."""
+        computed into ``out`` when given (no allocation), else into a new trajectory. ``along_line``: the DOFs
+        brake together, phase-synchronised (the state's v and a on one line stay on it; Ruckig falls back to
+        time synchronisation otherwise) — longer in the DOFs that could stop sooner, but the actuators' mix stays
+        that of the motion (each on its own they can combine beyond an actuator's limits)."""
         lim = limits.floored(current_floor(state))
         inp = self._input
+        inp.synchronization = Synchronization.Phase if along_line else Synchronization.No
         inp.max_velocity = [float(max(x, 1e-9)) for x in lim.velocity]
         inp.max_acceleration = [float(max(x, 1e-9)) for x in lim.acceleration]
         inp.max_jerk = [float(max(x, 1e-9)) for x in lim.jerk]

@@ -232,3 +232,47 @@ def test_a_slow_goto_from_a_moving_state_is_planned_not_a_ruckig_error(tp, scale
     )
     s0 = plan.state_at(0.0)  # continuous with the motion it replaces
     np.testing.assert_allclose(s0.velocity, st.velocity, atol=1e-12)
+
+
+def test_a_replan_that_stops_first_keeps_every_actuator_within_its_limits(tp):
+    """A user's trial: a goto replacing a lowering goto 0.37 s into it. Before, its stop first was made again with
+    lower braking limits (jerk too) for a small excess, and ran lift at 1.58 × its velocity limit (113 samples over
+    a limit; Guard.plan then refused naming end_stop:lift)."""
+    start = MotionState.at_rest([0.045, 0.118, 0.033, 0.053])
+    first = tp.plan_move(start, {"x": 0.019, "z": -0.172, "roll": 0.015, "pitch": -0.097})
+    st = first.state_at(0.37)
+    plan = tp.plan_move(st, {"x": 0.021, "z": 0.311, "roll": -0.001, "pitch": 0.047})
+    assert plan.info.get("braking") == "stop first (actuator limits)"
+    assert verify_setpoints(plan.sampled(), tp.model, tp.hard, tp.limits) == []
+    np.testing.assert_allclose(plan.state_at(0.0).velocity, st.velocity, atol=1e-12)  # continuous with the motion
+    Guard(tp).plan(st, {"x": 0.021, "z": 0.311, "roll": -0.001, "pitch": 0.047})  # not refused
+
+
+def test_a_replan_whose_stop_first_leaves_the_workspace_is_made_another_way_not_a_private_error(tp):
+    """A user's trial: the re-plan raised planner.trajectory.planner._LeavesWorkspace (roll -0.0589 beyond its face
+    -0.0580, from its lengthened stop first)."""
+    start = MotionState.at_rest([0.015, 0.2575, 0.032, -0.0644])
+    first = tp.plan_move(start, {"x": -0.024, "z": 0.245, "roll": -0.0574, "pitch": 0.0298})
+    st = first.state_at(0.347)
+    plan = tp.plan_move(st, {"x": 0.0356, "z": 0.0308, "roll": -0.0228, "pitch": -0.056})
+    sp = plan.sampled()
+    assert verify_setpoints(sp, tp.model, tp.hard, tp.limits) == []
+    assert np.all(sp.pose[:, [0, 2, 3, 4]] >= tp.lo - 1e-6) and np.all(sp.pose[:, [0, 2, 3, 4]] <= tp.hi + 1e-6)
+
+
+def test_random_replans_from_moving_states_stay_within_every_limit(tp):
+    """300 gotos replacing a goto in its first 30 %, all poses random in the workspace. Before: 5 over a limit (up
+    to 1.60 × a velocity limit), 4 raised the private _LeavesWorkspace, 6 were refused (PlanError)."""
+    rng = np.random.default_rng(0)
+    names = ("x", "z", "roll", "pitch")
+    made = 0
+    for _ in range(300):
+        a, b, c = (tp.lo + (tp.hi - tp.lo) * rng.random(4) for _ in range(3))
+        first = tp.plan_move(MotionState.at_rest(a), dict(zip(names, b, strict=True)))
+        st = first.state_at(rng.random() * 0.3 * first.duration)
+        plan = tp.plan_move(st, dict(zip(names, c, strict=True)))
+        sp = plan.sampled()
+        assert verify_setpoints(sp, tp.model, tp.hard, tp.limits) == [], plan.info
+        np.testing.assert_allclose(sp.pose[-1, [0, 2, 3, 4]], c, atol=1e-7)  # Ruckig reaches its goal to ~1e-8
+        made += 1
+    assert made == 300

@@ -271,6 +271,18 @@ def loopback_zenoh_config(mode: str, endpoint: str) -> Any:
     return cfg
 
 
+def loopback_client_session(endpoint: str) -> Any:
+    """A Zenoh session in client mode connected to ``endpoint`` (``tcp/127.0.0.1:…``), multicast scouting off;
+    the caller closes it."""
+    import zenoh
+
+    cfg = zenoh.Config()
+    cfg.insert_json5("mode", '"client"')
+    cfg.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    cfg.insert_json5("scouting/multicast/enabled", "false")
+    return zenoh.open(cfg)
+
+
 class Gate:
     """Holds calls of a function until opened: ``held = Gate(fn)``; every call of ``held`` first counts
     itself (``entered``, one release per call) and then waits until :meth:`open` (at most ``wait_s``)."""

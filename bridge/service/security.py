@@ -491,6 +491,14 @@ def build_acl(policy: AccessPolicy) -> dict:
             "messages": ["put", "declare_subscriber"],  # the service's subscriber is declared to the publisher
             "key_exprs": [_key(policy.prefix, "track/setpoint"), _key(policy.prefix, "tractor/gnss")],
         },
+        # a put on stop stops as the query does (fleet software broadcasting a stop): open as the query is
+        {
+            "id": "stop_puts",
+            "permission": "allow",
+            "flows": ["ingress", "egress"],
+            "messages": ["put", "declare_subscriber"],
+            "key_exprs": [_key(policy.prefix, "stop")],
+        },
         {
             "id": "no_motion",
             "permission": "deny",
@@ -513,13 +521,13 @@ def build_acl(policy: AccessPolicy) -> dict:
             "operators",
             policy.operators,
             policy.operator_cert_names,
-            ["observe", "discover", "to_client", "operator_queries", "operator_puts"],
+            ["observe", "discover", "to_client", "operator_queries", "operator_puts", "stop_puts"],
         ),
         (
             "viewers",
             policy.viewers,
             policy.viewer_cert_names,
-            ["observe", "discover", "to_client", "viewer_queries", "no_motion", "no_writes"],
+            ["observe", "discover", "to_client", "viewer_queries", "stop_puts", "no_motion", "no_writes"],
         ),
         ("services", policy.services, policy.service_cert_names, [_SERVICE_OUT]),
     ):

@@ -543,6 +543,9 @@ class HitchService:
         # hear its events from its notes (_core_note), never from the public events key, where anyone allowed
         # to put could forge one and which a router outage cuts; its 50 Hz state is subscribed to only once
         # something here listens to it (_ensure_state_subscription)
+        if self.core is None:  # a put on stop stops too (the core process takes its own)
+            stop_put = s.declare_subscriber(cfg.key("stop"), _ring())
+            self._serve(stop_put, self._on_stop_put, "stop-put")
         for key in API_KEYS:
             if key == "stop" and self.core is not None:
                 continue  # answered by the core process itself: no request here can delay it
@@ -699,6 +702,13 @@ class HitchService:
             self.dispatch(key, payload, lambda ok, data: _reply(query, ok, data), received=received, user=user)
 
         return on_query
+
+    def _on_stop_put(self, sample: zenoh.Sample) -> None:
+        """A put on ``<prefix>/stop``: a stop as the query's (any payload; nothing to answer). Before, a put was
+        ignored and the hitch moved on (a fleet trial: fleet software broadcasting a stop)."""
+        if str(sample.key_expr) != self.config.key("stop") or sample.kind != zenoh.SampleKind.PUT:
+            return
+        self.dispatch("stop", sample.payload.to_bytes(), lambda ok, data: None, received=time.monotonic())
 
     def _on_setpoint(self, sample: zenoh.Sample) -> None:
         """A ``track/setpoint`` put: handled at once (O(1)); its reply goes nowhere (rejections are

@@ -173,3 +173,27 @@ def test_a_secured_service_runs_its_control_core_in_its_own_process_logged_in_as
         svc.proc.send_signal(signal.SIGTERM)
         svc.proc.wait(30)
     assert list(tmp.glob("hitch-core-link-*")) == []
+
+
+def test_a_viewers_put_on_stop_stops_through_the_acl(secured):
+    """A put on stop stops as the query does (a fleet trial: a put was ignored); with access control the ACL
+    lets every role put on stop, as it lets every role query it — and still no other key."""
+    ep, alice, bob, _ = secured
+    with HitchClient([ep], security=alice, timeout_s=10) as c:
+        wait_online(c)
+        r = c.goto({"z": 0.3}, speed_scale=0.2)
+        assert r["accepted"]
+        with HitchClient([ep], security=bob, timeout_s=5) as v:
+            v.session.put("hitch/mode", b'{"mode": "manual"}')  # not a stop: denied, and ignored anyway
+            time.sleep(0.5)
+            assert c.state()["motion"] == "goto" and c.state()["mode"] != "manual"
+            v.session.put("hitch/stop", b"")
+            end = time.monotonic() + 3.0
+            while c.state()["motion"] == "goto" and time.monotonic() < end:
+                time.sleep(0.05)
+        aborted = [
+            e
+            for e in c.request("events/recent", {})["events"]
+            if e.get("motion_id") == r["motion_id"] and e["event"] == "motion_aborted"
+        ]
+    assert aborted and "stop" in aborted[-1]["reason"]

@@ -325,6 +325,18 @@ class ControlCore:
                 self._note({"request": "stop", "ok": ok, "reply": answer, "payload": payload[:1024]})
 
         self._decls.append(s.declare_queryable(exact, on_stop, complete=True))
+
+        def on_stop_put(sample: zenoh.Sample) -> None:
+            """A put on ``<prefix>/stop`` stops as the query does (fleet software broadcasting a stop; before,
+            it was ignored and the hitch moved on: a fleet trial); nothing to answer, the black box notes it."""
+            if str(sample.key_expr) != exact or sample.kind != zenoh.SampleKind.PUT:
+                return
+            ok, reply = self._call_safely("stop_report", ())
+            answer = {"stopped": True, **reply} if ok else reply
+            payload = sample.payload.to_bytes()[:1024]
+            self._note({"request": "stop", "ok": ok, "reply": answer, "payload": payload, "via": "put"})
+
+        self._decls.append(s.declare_subscriber(exact, on_stop_put))
         # the setpoint puts into a ring that Zenoh fills without running Python (the oldest dropped when full): this
         # session's threads never wait for the interpreter lock for them (core-setpoints takes them, start)
         self._setpoints = s.declare_subscriber(cfg.key("track/setpoint"), zenoh.handlers.RingChannel(SETPOINT_RING))

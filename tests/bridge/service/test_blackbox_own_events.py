@@ -21,7 +21,7 @@ import zenoh
 from bridge.service.blackbox import EventLog, RecordLimits, event_log_path, read_events
 from bridge.service.config import ServiceConfig
 from bridge.service.server import HitchService
-from tests.helpers import wait_until
+from tests.helpers import loopback_client_session, wait_until
 from tests.integration.service_process import ROOT, ROUTER, free_port
 
 
@@ -34,11 +34,7 @@ class _Clock:
 
 
 def _client(endpoint: str) -> zenoh.Session:
-    c = zenoh.Config()
-    c.insert_json5("mode", '"client"')
-    c.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    c.insert_json5("scouting/multicast/enabled", "false")
-    return zenoh.open(c)
+    return loopback_client_session(endpoint)
 
 
 def _events(path, name: str) -> list[dict]:

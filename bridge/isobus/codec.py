@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 from enum import Enum, IntEnum
 from functools import cache
 from importlib import resources
+from numbers import Integral
 from typing import Any, Generic, TypeVar, cast
 
 import can
@@ -53,6 +54,7 @@ from bridge.isobus.j1939 import (
     classify_raw,
     decode_id,
     encode_id,
+    largest_valid_raw,
 )
 from bridge.isobus.messages import (
     ACTUATORS,
@@ -135,10 +137,19 @@ def _raw_limits(sig: Signal) -> tuple[int, int]:
     return max(lo, 0), min(hi, all_ones)
 
 
-def _range_text(sig: Signal) -> str:
+def _valid_limits(sig: Signal, j1939: bool) -> tuple[int, int]:
+    """:func:`_raw_limits`; for a J1939 field (``j1939``) without the reserved / error / not-available raw values
+    at its top, which carry no number."""
     lo, hi = _raw_limits(sig)
+    return (lo, min(hi, largest_valid_raw(sig.length))) if j1939 else (lo, hi)
+
+
+def _range_text(sig: Signal, j1939: bool = False) -> str:
+    """The values ``sig`` may carry, in its DBC unit; a J1939 field's without its special raw values (an exit
+    reason code of 62 was refused as "outside 0..63", the DBC range, where 0..61 are allowed)."""
+    lo, hi = _valid_limits(sig, j1939)
     low = sig.minimum if sig.minimum is not None else lo * sig.scale + sig.offset
-    high = sig.maximum if sig.maximum is not None else hi * sig.scale + sig.offset
+    high = sig.maximum if sig.maximum is not None and hi == _raw_limits(sig)[1] else hi * sig.scale + sig.offset
     return f"{low:g}..{high:g}{(' ' + sig.unit) if sig.unit else ''}"
 
 
@@ -168,9 +179,9 @@ def _encode_number(where: str, sig: Signal, value: object, *, integral: bool, j1
             raise CodecError(f"{where} is required, got None")
         return (1 << sig.length) - 1
     if integral:
-        if isinstance(value, bool) or not isinstance(value, int):
+        if isinstance(value, bool) or not isinstance(value, Integral):  # numpy integers too
             raise CodecError(f"{where} must be an integer, got {value!r}")
-        raw = value
+        raw = int(value)
     else:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise CodecError(f"{where} must be a number, got {value!r}")
@@ -179,7 +190,7 @@ def _encode_number(where: str, sig: Signal, value: object, *, integral: bool, j1
         raw = round((value - sig.offset) / sig.scale)
     lo, hi = _raw_limits(sig)
     if not lo <= raw <= hi or (j1939 and classify_raw(raw, sig.length) is not RawStatus.VALID):
-        raise CodecError(f"{where} = {value!r} outside {_range_text(sig)}")
+        raise CodecError(f"{where} = {value!r} outside {_range_text(sig, j1939)}")
     return raw
 
 
@@ -233,7 +244,7 @@ class _Scaled(_Signal[float | None]):
         if status is not RawStatus.VALID:
             notes.add(sig.name, status)
             return None
-        return _in_range(self.where, sig, raw) * sig.scale + sig.offset
+        return float(_in_range(self.where, sig, raw) * sig.scale + sig.offset)  # a float: DBC factors may be ints
 
 
 @dataclass(frozen=True)
@@ -253,10 +264,11 @@ class _Converted(_Scaled):
         try:
             return super().encode(where, sig, value / self.si_per_unit)
         except CodecError:
-            lo, hi = _raw_limits(sig)
+            lo, hi = _valid_limits(sig, True)
             low, high = ((r * sig.scale + sig.offset) * self.si_per_unit for r in (lo, hi))
+            wire = _range_text(sig, True)
             raise CodecError(
-                f"{where} = {value!r} outside {low:.6g}..{high:.6g} {self.si_unit} ({_range_text(sig)} on the wire)"
+                f"{where} = {value!r} outside {low:.6g}..{high:.6g} {self.si_unit} ({wire} on the wire)"
             ) from None
 
     def decode(self, sig: Signal, raw: int, notes: _Notes) -> float | None:
@@ -1034,7 +1046,13 @@ class Codec:
         return can.Message(arbitration_id=can_id, is_extended_id=True, data=data)
 
     def decode_frame(self, msg: can.Message) -> Decoded:
-        """Decode ``msg`` with its identifier fields and unavailable-signal lists."""
+        """Decode ``msg`` with its identifier fields and unavailable-signal lists; :class:`CodecError` for anything
+        but a ``can.Message`` (bytes or None failed as "has no attribute 'is_extended_id'")."""
+        if not isinstance(msg, can.Message):
+            raise CodecError(
+                f"a can.Message is expected (can.Message(arbitration_id=…, is_extended_id=True, data=…)), "
+                f"got {type(msg).__name__}"
+            )
         if msg.is_extended_id and not (msg.is_error_frame or msg.is_remote_frame):
             key = (msg.arbitration_id, msg.dlc, bytes(msg.data))
             hit = self._decoded.get(key)

@@ -277,6 +277,17 @@ def classify_raw(raw: int, length: int) -> RawStatus:
     return RawStatus.VALID
 
 
+def largest_valid_raw(length: int) -> int:
+    """The largest raw value :func:`classify_raw` calls valid for an unsigned field of ``length`` bits (the values
+    above it are J1939's reserved, error and not-available ones)."""
+    _check_range("length", length, 1, 64)
+    if length == 1:
+        return 1
+    if length % 8 == 0:
+        return (0xFB << (length - 8)) - 1
+    return (1 << length) - 3
+
+
 class Switch(IntEnum):
     """A measured two-bit J1939 state (00 off, 01 on, 10 error, 11 not available)."""
 

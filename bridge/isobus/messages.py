@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from enum import IntEnum
+from numbers import Integral
 from typing import TypeAlias
 
 from bridge.isobus.j1939 import J1939Id, LimitStatus, MachineDirection, Switch
@@ -84,9 +85,12 @@ class CodecError(HitchInputError):
     """A frame or payload that must not reach the planner; the message says why."""
 
 
-def _require_int(owner: str, name: str, value: object, low: int, high: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+def _require_int(owner: str, name: str, value: object, low: int, high: int) -> int:
+    """``value`` as an ``int`` if it is an integer (a numpy one too: counts come from numpy arrays, and
+    ``np.int64(140)`` was refused) in ``low..high``, else :class:`CodecError`; not a bool."""
+    if isinstance(value, bool) or not isinstance(value, Integral) or not low <= int(value) <= high:
         raise CodecError(f"{owner}.{name} must be an integer in {low}..{high}, got {value!r}")
+    return int(value)
 
 
 @dataclass(frozen=True)
@@ -104,8 +108,8 @@ class PositionCounts:
     right: int
 
     def __post_init__(self) -> None:
-        for name in ACTUATORS:
-            _require_int("PositionCounts", name, getattr(self, name), 0, MAX_COUNTS)
+        for name in ACTUATORS:  # kept as int: the codec and its memo take Python integers
+            object.__setattr__(self, name, _require_int("PositionCounts", name, getattr(self, name), 0, MAX_COUNTS))
 
     def as_tuple(self) -> tuple[int, int, int, int, int]:
         """The counts in :data:`ACTUATORS` order."""
@@ -213,7 +217,7 @@ class Heartbeat:
     sequence: int
 
     def __post_init__(self) -> None:
-        _require_int("Heartbeat", "sequence", self.sequence, 0, 255)
+        object.__setattr__(self, "sequence", _require_int("Heartbeat", "sequence", self.sequence, 0, 255))
         if self.sequence in (252, 253):
             raise CodecError(f"Heartbeat.sequence {self.sequence} is reserved (252-253)")
 
@@ -280,7 +284,7 @@ class AddressClaimed:
     name: int
 
     def __post_init__(self) -> None:
-        _require_int("AddressClaimed", "name", self.name, 0, (1 << 64) - 1)
+        object.__setattr__(self, "name", _require_int("AddressClaimed", "name", self.name, 0, (1 << 64) - 1))
 
 
 @dataclass(frozen=True)
@@ -290,7 +294,7 @@ class RequestPgn:
     pgn: int
 
     def __post_init__(self) -> None:
-        _require_int("RequestPgn", "pgn", self.pgn, 0, 0x3FFFF)
+        object.__setattr__(self, "pgn", _require_int("RequestPgn", "pgn", self.pgn, 0, 0x3FFFF))
 
 
 class FigureOfMerit(IntEnum):

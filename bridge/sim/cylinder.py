@@ -65,6 +65,10 @@ __all__ = [
 AD_MAX_COUNTS = 1023
 #: Largest valve command magnitude (thesis §3.1: commands −254 … 254).
 VALVE_MAX = 254
+#: Allowed relative valve-gain error of the simulated plant.
+GAIN_ERROR_RANGE = (-0.9, 10.0)
+#: Allowed AD noise standard deviation [counts].
+NOISE_COUNTS_RANGE = (0.0, 100.0)
 
 
 class CylinderError(HitchInputError):
@@ -225,10 +229,10 @@ class Cylinder:
         if not 1e-5 <= step_s <= 0.01:
             raise CylinderError(f"step_s = {step_s} outside [1e-5, 0.01] s")
         gain_error = _finite(f"{params.name} gain_error", gain_error)
-        if not -0.9 <= gain_error <= 10.0:
+        if not GAIN_ERROR_RANGE[0] <= gain_error <= GAIN_ERROR_RANGE[1]:
             raise CylinderError(f"{params.name} gain_error = {gain_error} outside [−0.9, 10] (relative)")
         noise_counts = _finite("noise_counts", noise_counts)
-        if not 0 <= noise_counts <= 100:
+        if not NOISE_COUNTS_RANGE[0] <= noise_counts <= NOISE_COUNTS_RANGE[1]:
             raise CylinderError(f"noise_counts = {noise_counts} outside [0, 100] counts")
         if noise_counts > 0 and rng is None:
             raise CylinderError("noise_counts > 0 needs an rng (numpy.random.Generator)")

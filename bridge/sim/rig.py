@@ -29,6 +29,7 @@ from bridge.link.can_link import CanLink
 from bridge.link.state import LinkConfig
 from bridge.link.virtual import InProcessBus
 from bridge.sim.can_node import EcuCanNode, EcuNodeConfig
+from bridge.sim.cylinder import GAIN_ERROR_RANGE, NOISE_COUNTS_RANGE
 from bridge.sim.ecu import CylinderECU
 from bridge.sim.truth import MachineTruth, TrueMachine
 from planner.errors import HitchInputError
@@ -105,6 +106,15 @@ class SimSettings:
             or not 0.0 <= self.frame_loss < 1.0
         ):
             raise SimError(f"frame_loss must be a fraction in [0, 1), got {self.frame_loss!r}")
+        # checked here, naming the setting (a negative noise was taken and failed only when a rig was built)
+        for name, (lo, hi), unit in (
+            ("noise_counts", NOISE_COUNTS_RANGE, " counts"),
+            ("gain_error", GAIN_ERROR_RANGE, " (relative)"),
+            ("watchdog_timeout_s", (0.001, 10.0), " s"),
+        ):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
+                raise SimError(f"{name} must be a number in [{lo:g}, {hi:g}]{unit}, got {v!r}")
 
 
 class SimRig:

@@ -74,8 +74,9 @@ class IKSolver:
         self._problems: dict[tuple[bytes, bool], IKProblem] = {}
 
     def reset(self, actuators: ArrayLike | None = None) -> None:
-        """Forget the warm start (next solve starts from ``actuators`` or the neutral pose)."""
-        self.last = self.model.neutral.copy() if actuators is None else np.asarray(actuators, dtype=float).copy()
+        """Forget the warm start (next solve starts from ``actuators`` [rad, m, m, m, m] or the neutral pose);
+        :class:`IKInputError` for anything but 5 finite values (a NaN was kept and seeded the next solve)."""
+        self.last = self.model.neutral.copy() if actuators is None else self._actuator_values(actuators, "actuators")
 
     def solve(
         self,
@@ -146,7 +147,18 @@ class IKSolver:
         return self.last
 
     def _seed(self, seed: Actuators | ArrayLike) -> np.ndarray:
-        q = seed.as_array() if isinstance(seed, Actuators) else np.asarray(seed, dtype=float).reshape(-1)
-        if q.size != 5 or not np.all(np.isfinite(q)):
-            raise IKInputError("seed must be 5 finite actuator values (lift, tilt, top, left, right)")
+        q = self._actuator_values(seed, "seed")
         return np.clip(q, self.limits.actuator_lower, self.limits.actuator_upper)
+
+    @staticmethod
+    def _actuator_values(value: Actuators | ArrayLike, what: str) -> np.ndarray:
+        """``value`` as a new float vector of 5 finite actuator values, else :class:`IKInputError` naming ``what``."""
+        try:
+            q = value.as_array() if isinstance(value, Actuators) else np.array(value, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            q = np.full(0, np.nan)
+        if q.size != 5 or not np.all(np.isfinite(q)):
+            raise IKInputError(
+                f"{what} must be 5 finite actuator values (lift [rad], tilt, top, left, right [m]), got {value!r}"
+            )
+        return q

@@ -43,7 +43,15 @@ from planner.limits.tractor import ImplementRecord, StabilityInputError, Tractor
 from planner.model.kinematics import POINT_NAMES, HitchModel
 from planner.model.limit_names import LimitName
 from planner.model.types import ACTUATOR_NAMES
-from planner.trajectory.plan import MotionState, Plan, PlanError, Setpoints, forward_batch, verify_setpoints
+from planner.trajectory.plan import (
+    MotionState,
+    Plan,
+    PlanError,
+    Setpoints,
+    check_state,
+    forward_batch,
+    verify_setpoints,
+)
 from planner.trajectory.planner import TrajectoryPlanner
 
 __all__ = ["Guard", "GuardDecision", "GuardReason", "GuardRefusal", "GuardedPlan"]
@@ -274,6 +282,7 @@ class Guard:
             raise StabilityInputError(
                 f"setpoints must be a Setpoints (a planned move's .setpoints; a stop has none), got {type(sp).__name__}"
             )
+        _check_setpoint_shapes(sp)
         bad = verify_setpoints(sp, self.model, self.planner.hard, self.planner.limits)
         if bad:
             reasons = tuple(_dedupe(GuardReason(v.limit, v.value, v.bound, v.t, "hard", v.unit) for v in bad))
@@ -456,6 +465,7 @@ class Guard:
         speed × the caution factor, as when the full-speed plan comes first. A speed reason's value is
         the factor relative to the speed asked for (``speed_scale``), whichever plan found it.
         """
+        check_state(start, "start")
         total, caution_applied = 1.0, False
         reasons: list[GuardReason] = []
         cache: dict[bytes, _Exact] = {}  # per-sample results: the plans share start and goal
@@ -503,18 +513,19 @@ class Guard:
         ``start``: a measure below its caution threshold at the goal and not below its hard one, unless
         the start is below the caution threshold too and the goal is no worse (the rule of every
         sample in :meth:`check_setpoints`). Empty when it proves none, when the goal is refused
-        (planning says why) or cannot be evaluated."""
-        return self._caution_at_goal(start, goal, {})
+        (planning says why) or cannot be evaluated. A start that is no :class:`MotionState` and a goal
+        :meth:`~planner.trajectory.planner.TrajectoryPlanner.plan_move` would not take (an unknown field,
+        not a number) are refused as there (an unknown field gave an empty answer)."""
+        return self._caution_at_goal(check_state(start, "start"), goal, {})
 
     def _caution_at_goal(
         self, start: MotionState, goal: Mapping[str, float], cache: dict[bytes, _Exact]
     ) -> tuple[GuardReason, ...]:
         """:meth:`caution_at_goal`; the start's and the goal's results go into ``cache`` (by actuator bytes)."""
+        p0 = np.asarray(start.position, float)
+        p1 = self.planner.goal_vector(p0, goal)  # a malformed goal: TrajectoryInputError naming it, as plan_move
         try:
-            p0 = np.asarray(start.position, float)
-            ends = [
-                self._exact_entry(self.planner.inverse(*p), cache)[1] for p in (p0, self.planner.goal_vector(p0, goal))
-            ]
+            ends = [self._exact_entry(self.planner.inverse(*p), cache)[1] for p in (p0, p1)]
         except HitchError:
             return ()
         s, g = (_measure_values(r) for r in ends)
@@ -546,9 +557,19 @@ class Guard:
         """Rates allowed for jog from ``state``: evaluated ``jog_horizon`` seconds ahead.
 
         A hard stability violation ahead that the motion makes worse stops the motion (rates
-        zero); caution slows it (0.8); the end-stop zone scales it.
+        zero); caution slows it (0.8); the end-stop zone scales it. ``rates``: 4 finite numbers (vx, vz [m/s],
+        vroll, vpitch [rad/s]), else :class:`StabilityInputError` (2 rates failed as numpy's broadcast error).
         """
-        rates = np.asarray(rates, float)
+        check_state(state, "state", values=False)  # per cycle: a NaN state is refused by the inverse below
+        given = rates
+        try:
+            rates = np.asarray(rates, float)
+        except (TypeError, ValueError):
+            rates = np.full(0, np.nan)
+        if rates.shape != (4,) or not np.isfinite(rates).all():
+            raise StabilityInputError(
+                f"check_jog: rates must be 4 finite numbers (vx, vz [m/s], vroll, vpitch [rad/s]), got {given!r}"
+            )
         if not np.any(rates):
             return rates, GuardDecision("ok")
         h = self.settings.jog_horizon
@@ -710,6 +731,21 @@ class Guard:
             "esm": th.esm_caution,
         }
         return hard, caution
+
+
+def _check_setpoint_shapes(sp: Setpoints) -> None:
+    """:class:`StabilityInputError` unless ``sp`` holds N ≥ 1 samples with t (N,), pose (N, 6), pose_velocity (N, 4),
+    actuators (N, 5) and actuator_velocity (N, 5) (none failed as an IndexError at the first sample)."""
+    n = np.shape(sp.t)[0] if np.ndim(sp.t) == 1 else -1
+    if n < 1:
+        raise StabilityInputError(
+            f"setpoints.t must hold at least one sample time (N,) [s], got shape {np.shape(sp.t)}"
+        )
+    for name, cols in (("pose", 6), ("pose_velocity", 4), ("actuators", 5), ("actuator_velocity", 5)):
+        if np.shape(getattr(sp, name)) != (n, cols):
+            raise StabilityInputError(
+                f"setpoints.{name} must be ({n}, {cols}) for {n} sample(s), got shape {np.shape(getattr(sp, name))}"
+            )
 
 
 def _implement_frames(P: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:

@@ -127,8 +127,15 @@ class ExactInverse:
         self._last: tuple[bytes, np.ndarray, np.ndarray, tuple[float, float]] | None = None
 
     def __call__(self, x: float, z: float, roll: float, pitch: float) -> np.ndarray:
-        """Actuators (lift, tilt, top, left, right) reaching the pose exactly; KinematicsError if none."""
-        return self.solve(np.array([x, z, roll, pitch], dtype=float))[0]
+        """Actuators (lift, tilt, top, left, right) reaching the pose exactly; KinematicsError if none,
+        ModelInputError for an argument that is not a number (text failed as numpy's ValueError)."""
+        try:
+            target = np.array([x, z, roll, pitch], dtype=float)
+        except (TypeError, ValueError):
+            raise ModelInputError(
+                f"target must be 4 finite numbers (x [m], z [m], roll [rad], pitch [rad]), got {[x, z, roll, pitch]!r}"
+            ) from None
+        return self.solve(target)[0]
 
     def solve(self, target: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """(actuators, d actuators / d (x, z, roll, pitch)) for a target of 4 values."""

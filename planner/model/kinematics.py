@@ -193,6 +193,11 @@ class HitchModel:
     """
 
     def __init__(self, profile: Profile, category: str | None = None):
+        if not isinstance(profile, Profile):  # a name failed as "'str' object has no attribute 'implement'"
+            raise ModelInputError(
+                f"profile must be a Profile (load_profile(name)), got {type(profile).__name__} {profile!r}; "
+                "for a built-in name or a .toml path use HitchModel.from_profile(name_or_path)"
+            )
         self.profile = profile
         self.category = category if category is not None else profile.implement.default_category
         profile.category(self.category)  # validates the name

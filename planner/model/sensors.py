@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from planner.errors import HitchInputError
-from planner.model.types import ACTUATOR_NAMES
+from planner.model.types import ACTUATOR_NAMES, ModelInputError
 from planner.profiles.hitch import Profile
 
 __all__ = ["SensorRangeError", "SensorScaling", "AD_COUNTS_MAX"]
@@ -37,8 +37,9 @@ class SensorScaling:
         self.resolution = (self.si_max - self.si_min) / (self.counts_max - self.counts_min)
 
     def counts_of(self, q: ArrayLike) -> np.ndarray:
-        """The exact (unrounded) counts [float] of actuators ``q`` (SI), unchecked."""
-        return self.counts_min + (np.asarray(q, dtype=float).reshape(5) - self.si_min) / self.resolution
+        """The exact (unrounded) counts [float] of actuators ``q`` (SI), unchecked against the span (not 5 numbers:
+        :class:`ModelInputError`)."""
+        return self.counts_min + (_five(q, "actuators") - self.si_min) / self.resolution
 
     def to_counts(self, q: ArrayLike, *, tolerance_counts: float = 0.5) -> np.ndarray:
         """Nearest integer counts of actuators ``q`` (SI); raises if beyond the calibrated span."""
@@ -48,7 +49,7 @@ class SensorScaling:
 
     def to_si(self, counts: ArrayLike, *, tolerance_counts: float = 0.0) -> np.ndarray:
         """Actuators (SI) from raw counts; raises if a reading lies outside the calibrated span."""
-        c = np.asarray(counts, dtype=float).reshape(5)
+        c = _five(counts, "counts")
         self._check(c, tolerance_counts, "reading")
         return self.si_min + (c - self.counts_min) * self.resolution
 
@@ -60,3 +61,15 @@ class SensorScaling:
         ]
         if bad:
             raise SensorRangeError("; ".join(bad))
+
+
+def _five(values: ArrayLike, what: str) -> np.ndarray:
+    """``values`` as 5 floats (order ACTUATOR_NAMES), else :class:`ModelInputError` naming ``what`` (3 values
+    failed as numpy's "cannot reshape array of size 3 into shape (5,)")."""
+    try:
+        v = np.asarray(values, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        v = np.empty(0)
+    if v.size != len(ACTUATOR_NAMES):
+        raise ModelInputError(f"{what} must be 5 numbers ({', '.join(ACTUATOR_NAMES)}), got {values!r}")
+    return v

@@ -37,6 +37,8 @@ CONTROLLED_POSE_NAMES: tuple[str, ...] = ("x", "z", "roll", "pitch")
 CONTROLLED_POSE_UNITS: dict[str, str] = {"x": "m", "z": "m", "roll": "rad", "pitch": "rad"}
 #: SI unit of each actuator (the lift is an angle, the others are lengths), in :data:`ACTUATOR_NAMES` order.
 ACTUATOR_UNITS: dict[str, str] = {"lift": "rad", "tilt": "m", "top": "m", "left": "m", "right": "m"}
+#: what a coordinate may be (besides finite, not bool)
+_NUMBERS = (int, float, np.integer, np.floating)
 
 
 class KinematicsError(HitchInputError):
@@ -64,6 +66,23 @@ class Actuators:
     top: float
     left: float
     right: float
+
+    def __post_init__(self) -> None:
+        """:class:`ModelInputError` naming the field for anything but a finite number (NaN and text were kept and
+        failed, or gave NaN, wherever the value went). One sum tests the common case (5 finite numbers, ~0.1 µs
+        of a construction's 0.7 µs: forward kinematics builds one per call); the fields are named only on failure."""
+        try:
+            fine = math.isfinite(self.lift + self.tilt + self.top + self.left + self.right)
+        except (TypeError, ValueError):
+            fine = False
+        kinds = (type(self.lift), type(self.tilt), type(self.top), type(self.left), type(self.right))
+        if not fine or bool in kinds:
+            for name in ACTUATOR_NAMES:
+                v = getattr(self, name)
+                if isinstance(v, bool) or not isinstance(v, _NUMBERS) or not math.isfinite(v):
+                    raise ModelInputError(
+                        f"Actuators.{name} must be a finite number [{ACTUATOR_UNITS[name]}], got {v!r}"
+                    )
 
     def as_array(self) -> np.ndarray:
         return np.array([self.lift, self.tilt, self.top, self.left, self.right], dtype=float)

@@ -7,6 +7,7 @@ import math
 import tomllib
 from importlib import resources
 from importlib.resources.abc import Traversable
+from os import PathLike
 from pathlib import Path
 from typing import Any
 
@@ -48,7 +49,13 @@ def builtin_profiles(subfolder: str | None) -> list[str]:
 def read_profile(
     name_or_path: str | Path, *, subfolder: str | None, kind: str, error: type[HitchInputError]
 ) -> tuple[str, dict[str, Any]]:
-    """(source, parsed TOML) from a path to a .toml file or a built-in name; ``error`` on failure."""
+    """(source, parsed TOML) from a path to a .toml file or a built-in name; ``error`` on failure (also for a
+    name that is neither text nor a path: ``None`` failed in ``Path`` with a bare TypeError)."""
+    if not isinstance(name_or_path, (str, PathLike)):
+        raise error(
+            f"{kind}: a built-in name ({', '.join(builtin_profiles(subfolder))}) or a path to a .toml file is "
+            f"expected, got {type(name_or_path).__name__} {name_or_path!r}"
+        )
     p = Path(name_or_path)
     if p.suffix == ".toml" or p.exists():
         if p.is_dir():  # "profile file /tmp does not exist" for a folder that does

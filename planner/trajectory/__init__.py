@@ -2,7 +2,7 @@
 sampled into verified actuator setpoints; jog; track (streamed setpoints); joint-space moves; braking
 from a moving state with the actuators' real limits; the ideal follower (the physical tracking limit)."""
 
-from planner.trajectory.actuator_limits import ActuatorLimits
+from planner.trajectory.actuator_limits import ActuatorLimits, ActuatorLimitsError
 from planner.trajectory.braking import StopProbe, braking_limits
 from planner.trajectory.count_approach import (
     CountApproach,
@@ -45,6 +45,7 @@ from planner.trajectory.track import (
 
 __all__ = [
     "ActuatorLimits",
+    "ActuatorLimitsError",
     "ApproachVia",
     "CountApproach",
     "CountApproachError",

@@ -8,27 +8,60 @@ bounds both directions. A fraction of it is left to the unit controllers.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from planner.errors import HitchInputError
 from planner.model.sensors import SensorScaling
 from planner.model.types import ACTUATOR_NAMES
 from planner.profiles.hitch import Profile
 
-__all__ = ["ActuatorLimits", "VALVE_COMMAND_MAX"]
+__all__ = ["ActuatorLimits", "ActuatorLimitsError", "VALVE_COMMAND_MAX"]
 
 #: Largest valve command of the thesis ECU (commands range −254 … 254).
 VALVE_COMMAND_MAX = 254
 
 
+#: unit of each field for the lift (an angle) and for the cylinders (lengths)
+_UNITS = {"velocity": ("rad/s", "m/s"), "acceleration": ("rad/s²", "m/s²"), "jerk": ("rad/s³", "m/s³")}
+
+
+class ActuatorLimitsError(HitchInputError):
+    """Actuator limits that cannot be used (not 5 values, not a positive finite number); names the field."""
+
+
 @dataclass(frozen=True)
 class ActuatorLimits:
-    """Limits in actuator units per s, s², s³ (rad for lift, m for the cylinders), order ACTUATOR_NAMES."""
+    """Limits in actuator units per s, s², s³ (rad for lift, m for the cylinders), order ACTUATOR_NAMES.
+
+    Each field: 5 numbers in (0, inf), kept as float arrays; else :class:`ActuatorLimitsError` naming the field
+    and the actuator (3 values failed at the planner as numpy's broadcast error, and a negative, zero or NaN
+    limit was taken)."""
 
     velocity: np.ndarray
     acceleration: np.ndarray
     jerk: np.ndarray
+
+    def __post_init__(self) -> None:
+        for name, (lift_unit, unit) in _UNITS.items():
+            given = getattr(self, name)
+            try:
+                v = np.asarray(given, dtype=float)
+            except (TypeError, ValueError):
+                raise ActuatorLimitsError(
+                    f"{name} must be 5 numbers ({', '.join(ACTUATOR_NAMES)}), got {given!r}"
+                ) from None
+            if v.shape != (len(ACTUATOR_NAMES),):
+                raise ActuatorLimitsError(
+                    f"{name} must be 5 numbers ({', '.join(ACTUATOR_NAMES)}), got shape {v.shape}"
+                )
+            for n, x in zip(ACTUATOR_NAMES, v.tolist(), strict=True):
+                if not (math.isfinite(x) and x > 0.0):
+                    u = lift_unit if n == "lift" else unit
+                    raise ActuatorLimitsError(f"{name}.{n} must lie within (0, inf) {u}, got {x!r}")
+            object.__setattr__(self, name, v)
 
     @classmethod
     def from_profile(cls, profile: Profile) -> ActuatorLimits:
@@ -47,7 +80,14 @@ class ActuatorLimits:
         return cls(velocity=v, acceleration=a, jerk=a / mo.jerk_time)
 
     def scaled(self, factor: float) -> ActuatorLimits:
-        """Velocity × factor, acceleration × factor², jerk × factor³ (a slower copy of the same motion)."""
+        """Velocity × factor, acceleration × factor², jerk × factor³ (a slower copy of the same motion);
+        ``factor`` in (0, inf), else :class:`ActuatorLimitsError` (0 and −1 gave zero and negative limits)."""
+        if (
+            isinstance(factor, bool)
+            or not isinstance(factor, (int, float, np.integer, np.floating))
+            or not 0 < factor < math.inf
+        ):
+            raise ActuatorLimitsError(f"scaled: factor must be a number within (0, inf), got {factor!r}")
         return ActuatorLimits(self.velocity * factor, self.acceleration * factor**2, self.jerk * factor**3)
 
     def as_dict(self) -> dict[str, dict[str, float]]:

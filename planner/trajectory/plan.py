@@ -31,6 +31,7 @@ from planner.trajectory.actuator_limits import ActuatorLimits
 
 __all__ = [
     "MotionState",
+    "check_state",
     "Plan",
     "Setpoints",
     "PlanError",
@@ -97,6 +98,19 @@ class MotionState:
     @property
     def moving(self) -> bool:
         return bool(np.any(np.abs(self.velocity) > 1e-12) or np.any(np.abs(self.acceleration) > 1e-12))
+
+
+def check_state(state: object, what: str = "state", *, values: bool = True) -> MotionState:
+    """``state`` if it is a :class:`MotionState` (with ``values``: whose arrays pass :meth:`MotionState.check`),
+    else :class:`TrajectoryInputError` naming ``what`` (a mapping or an array given for it failed as "'dict' object
+    has no attribute 'check'"). ``values=False`` for a per-cycle path (the check costs ~8 µs) that refuses a NaN
+    further on anyway."""
+    if not isinstance(state, MotionState):
+        raise TrajectoryInputError(
+            f"{what} must be a MotionState (MotionState.at_rest([x, z, roll, pitch]) for one at rest), "
+            f"got {type(state).__name__}"
+        )
+    return state.check(what) if values else state
 
 
 @dataclass(frozen=True)

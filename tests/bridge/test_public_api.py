@@ -7,6 +7,9 @@ import really loads).
 import importlib
 import subprocess
 import sys
+import tomllib
+from importlib import resources
+from pathlib import Path
 
 import pytest
 
@@ -53,3 +56,13 @@ def test_import_bridge_alone_loads_no_subpackage():
     loaded = _loaded_after("import bridge")
     assert not any(m.startswith("bridge.") for m in loaded)
     assert "zenoh" not in loaded and "casadi" not in loaded
+
+
+def test_bridge_is_marked_typed_and_ships_the_marker_as_planner_does():
+    """Only ``planner/py.typed`` existed: a type checker treated ``bridge`` as untyped."""
+    package_data = tomllib.loads((Path(__file__).parents[2] / "pyproject.toml").read_text())["tool"]["setuptools"][
+        "package-data"
+    ]
+    for package in ("planner", "bridge"):
+        assert (resources.files(package) / "py.typed").is_file(), package
+        assert "py.typed" in package_data[package], package

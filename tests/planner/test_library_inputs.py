@@ -16,7 +16,7 @@ import sys
 import numpy as np
 import pytest
 
-from planner import Guard, HardLimits, HitchModel, MotionState, TrajectoryPlanner
+from planner import ActuatorLimits, Guard, HardLimits, HitchModel, MotionState, TrajectoryPlanner
 from planner.errors import HitchError
 from planner.limits.tractor import StabilityInputError
 from planner.trajectory.plan import TrajectoryInputError
@@ -143,3 +143,151 @@ def test_the_exact_inverse_names_the_value_and_the_unit_it_may_have_been_meant_i
         inv.actuators(30.0, 200.0, 0.0, 0.0)
     with pytest.raises(ModelInputError, match=r"got \[nan, 0.0, 0.0, 0.0\]"):
         inv.actuators(float("nan"), 0.0, 0.0, 0.0)
+
+
+# --- a second user trial: bare Python / numpy errors, and bad values taken silently --------------------------------
+
+
+def test_a_model_needs_a_profile_and_a_profile_name_is_text():
+    """``HitchModel("thesis-t132")`` failed as "'str' object has no attribute 'implement'", and
+    ``HitchModel.from_profile(None)`` as a TypeError from ``Path``."""
+    from planner.model.types import ModelInputError
+    from planner.profiles.hitch import ProfileError
+
+    with pytest.raises(ModelInputError, match=r"profile must be a Profile .* use HitchModel\.from_profile\(name"):
+        HitchModel("thesis-t132")
+    with pytest.raises(ProfileError, match=r"a built-in name \(.*thesis-t132.*\) or a path to a \.toml file"):
+        HitchModel.from_profile(None)
+
+
+def test_the_exact_inverse_of_text_names_the_target(parts):
+    from planner import ExactInverse
+    from planner.model.types import ModelInputError
+
+    with pytest.raises(ModelInputError, match=r"target must be 4 finite numbers .* got \['a', 0.2, 0, 0\]"):
+        ExactInverse(parts[0])("a", 0.2, 0, 0)
+
+
+@pytest.mark.parametrize(
+    "values, words",
+    [
+        ((float("nan"), 0.63, 0.74, 0.54, 0.54), r"Actuators\.lift must be a finite number \[rad\], got nan"),
+        (("a", 0.63, 0.74, 0.54, 0.54), r"Actuators\.lift must be a finite number \[rad\], got 'a'"),
+        ((0.22, 0.63, 0.74, float("inf"), 0.54), r"Actuators\.left must be a finite number \[m\], got inf"),
+        ((0.22, True, 0.74, 0.54, 0.54), r"Actuators\.tilt must be a finite number \[m\], got True"),
+    ],
+)
+def test_actuators_are_five_finite_numbers(values, words):
+    from planner import Actuators
+    from planner.model.types import ModelInputError
+
+    with pytest.raises(ModelInputError, match=words):
+        Actuators(*values)
+    assert Actuators(0.22, 0.63, np.float64(0.74), np.int64(1), 0.54).left == 1  # numpy numbers are numbers
+
+
+def test_sensor_scaling_needs_five_values(parts):
+    from planner import SensorScaling
+    from planner.model.types import ModelInputError
+
+    sc = SensorScaling(parts[0].profile)
+    with pytest.raises(ModelInputError, match=r"actuators must be 5 numbers \(lift, tilt, top, left, right\)"):
+        sc.to_counts([0.2, 0.6, 0.7])
+    with pytest.raises(ModelInputError, match=r"counts must be 5 numbers"):
+        sc.to_si([100, 200])
+
+
+def test_an_ik_warm_start_is_five_finite_actuators(parts):
+    from planner import IKSolver
+    from planner.ik_qp.errors import IKInputError
+
+    ik = IKSolver(parts[0])
+    with pytest.raises(IKInputError, match=r"actuators must be 5 finite actuator values .* got \[nan"):
+        ik.reset([np.nan] * 5)
+    with pytest.raises(IKInputError, match=r"seed must be 5 finite actuator values .* got 'abc'"):
+        ik.solve({"x": 0.0, "z": 0.2, "roll": 0.0, "pitch": 0.0}, seed="abc")
+    ik.reset(parts[0].neutral)
+    assert ik.solve({"x": 0.0, "z": 0.2, "roll": 0.0, "pitch": 0.0}).status == "ok"
+
+
+@pytest.mark.parametrize(
+    "make, words",
+    [
+        (lambda: ActuatorLimits(np.ones(3), np.ones(3), np.ones(3)), r"velocity must be 5 numbers .* shape \(3,\)"),
+        (
+            lambda: ActuatorLimits(-np.ones(5), np.ones(5), np.ones(5)),
+            r"velocity\.lift must lie within \(0, inf\) rad/s",
+        ),
+        (
+            lambda: ActuatorLimits(np.ones(5), np.full(5, np.nan), np.ones(5)),
+            r"acceleration\.lift .* \(0, inf\) rad/s²",
+        ),
+        (lambda: ActuatorLimits(np.ones(5), np.ones(5), [1, 1, 0, 1, 1]), r"jerk\.top must lie within \(0, inf\) m/s³"),
+        (lambda: ActuatorLimits(np.ones(5), np.ones(5), "fast"), r"jerk must be 5 numbers"),
+        (lambda: ActuatorLimits(np.ones(5), np.ones(5), np.ones(5)).scaled(0), r"factor .* within \(0, inf\), got 0"),
+        (lambda: ActuatorLimits(np.ones(5), np.ones(5), np.ones(5)).scaled(-1), r"factor .* \(0, inf\), got -1"),
+    ],
+)
+def test_actuator_limits_are_five_positive_finite_numbers_each(make, words):
+    """3 limits failed in the planner as numpy's broadcast error; negative, zero and NaN limits were taken."""
+    from planner.trajectory.actuator_limits import ActuatorLimitsError
+
+    with pytest.raises(ActuatorLimitsError, match=words):
+        make()
+
+
+def test_a_planner_with_three_limits_is_refused_naming_them(parts):
+    from planner.trajectory.actuator_limits import ActuatorLimitsError
+
+    m = parts[0]
+    with pytest.raises(ActuatorLimitsError, match=r"velocity must be 5 numbers"):
+        TrajectoryPlanner(m, limits=ActuatorLimits(np.ones(3), np.ones(3), np.ones(3)))
+    lim = ActuatorLimits([1, 1, 1, 1, 1], np.ones(5), np.ones(5)).scaled(0.5)  # a list is kept as a float array
+    assert lim.velocity.tolist() == [0.5] * 5 and lim.jerk.tolist() == [0.125] * 5
+
+
+def test_the_guard_wants_a_motion_state_and_four_rates(parts):
+    """``check_jog(start, [0, 0.1])`` failed as numpy's broadcast error; a mapping for the state as an
+    AttributeError."""
+    _, _, g, s0 = parts
+    with pytest.raises(StabilityInputError, match=r"rates must be 4 finite numbers .* got \[0, 0\.1\]"):
+        g.check_jog(s0, [0, 0.1])
+    with pytest.raises(StabilityInputError, match=r"rates must be 4 finite numbers .* got \[nan, 0, 0, 0\]"):
+        g.check_jog(s0, [np.nan, 0, 0, 0])
+    with pytest.raises(TrajectoryInputError, match=r"state must be a MotionState .* got dict"):
+        g.check_jog({"z": 0.2}, [0, 0.1, 0, 0])
+    for call in (g.plan, g.caution_at_goal):
+        with pytest.raises(TrajectoryInputError, match=r"start must be a MotionState .* got dict"):
+            call({"z": 0.1}, {"z": 0.2})
+        with pytest.raises(TrajectoryInputError, match=r"start must be a MotionState .* got ndarray"):
+            call(np.zeros(4), {"z": 0.2})
+    assert g.check_jog(s0, [0, 0.01, 0, 0])[1].action in ("ok", "scaled")
+
+
+def test_caution_at_goal_refuses_an_unknown_field_as_plan_move_does(parts):
+    _, tp, g, s0 = parts
+    with pytest.raises(TrajectoryInputError, match=r"goal: unknown field\(s\) height; allowed: x, z, roll, pitch"):
+        tp.plan_move(s0, {"height": 0.2})
+    with pytest.raises(TrajectoryInputError, match=r"goal: unknown field\(s\) height; allowed: x, z, roll, pitch"):
+        g.caution_at_goal(s0, {"height": 0.2})
+    with pytest.raises(TrajectoryInputError, match=r"goal\.z must be a finite number, got 'a'"):
+        g.caution_at_goal(s0, {"z": "a"})
+    assert g.caution_at_goal(s0, {"z": 5.0}) == ()  # a goal planning refuses (outside): planning says why
+
+
+def test_setpoints_without_a_sample_are_refused_naming_them(parts):
+    """Setpoints of 0 rows failed as an IndexError at the first sample."""
+    _, tp, g, s0 = parts
+    sp = tp.plan_move(s0, {"z": 0.25}).setpoints
+    empty = dataclasses.replace(
+        sp,
+        t=sp.t[:0],
+        pose=sp.pose[:0],
+        pose_velocity=sp.pose_velocity[:0],
+        actuators=sp.actuators[:0],
+        actuator_velocity=sp.actuator_velocity[:0],
+    )
+    with pytest.raises(StabilityInputError, match=r"setpoints\.t must hold at least one sample time"):
+        g.check_setpoints(empty)
+    with pytest.raises(StabilityInputError, match=r"setpoints\.actuators must be \(\d+, 5\) .* got shape \(\d+, 4\)"):
+        g.check_setpoints(dataclasses.replace(sp, actuators=sp.actuators[:, :4]))

@@ -435,3 +435,54 @@ def test_encoding_rejects_a_destination_for_broadcast_messages_and_unknown_types
 
 def test_codec_error_is_a_value_error():
     assert issubclass(CodecError, ValueError)
+
+
+# --- a user trial: bare errors, a wrong range in a refusal, an int for a float, numpy integers refused ------------
+
+
+@pytest.mark.parametrize("bad", [None, b"\x00\x01\x02", bytearray(8), "0CFE4566#00"])
+def test_decoding_something_that_is_no_can_message_says_so(bad):
+    """``decode(None)`` and ``decode(b"...")`` failed as "has no attribute 'is_extended_id'"."""
+    for call in (decode, decode_frame, load_codec().decode):
+        with pytest.raises(CodecError, match=rf"a can\.Message is expected .* got {type(bad).__name__}"):
+            call(bad)
+
+
+@pytest.mark.parametrize("code", [62, 63, 64])
+def test_an_exit_reason_code_is_refused_naming_the_codes_allowed(code):
+    """0..61 may be sent (62 is "error", 63 "not available"); the refusal said "outside 0..63", the DBC range."""
+    with pytest.raises(CodecError, match=rf"RearHitchStatus\.exit_reason_code = {code} outside 0\.\.61$"):
+        encode(RearHitchStatus(exit_reason_code=code))
+    assert decode(encode(RearHitchStatus(exit_reason_code=61))).exit_reason_code == 61
+
+
+def test_a_scaled_value_decodes_as_a_float():
+    """``lift_pa`` (annotated float | None) decoded as int 1000: the DBC factor 1000 is an integer."""
+    got = decode(encode(PressureMeasurement(lift_pa=1000.0, supply_pa=20e6)))
+    assert type(got.lift_pa) is float and got.lift_pa == 1000.0
+    assert type(got.supply_pa) is float and got.supply_pa == 20e6
+    assert got.tilt_pa is None
+
+
+def test_counts_may_be_numpy_integers():
+    """``PositionCounts(*SensorScaling(profile).to_counts(q))`` was refused: "must be an integer in 0..1021, got
+    np.int64(140)". Any integer (numbers.Integral) is taken, kept as int; a bool or a float is not."""
+    import numpy as np
+
+    from planner import HitchModel, SensorScaling
+
+    m = HitchModel.from_profile()
+    counts = SensorScaling(m.profile).to_counts(m.neutral)
+    pc = PositionCounts(*counts)
+    assert pc.as_tuple() == tuple(int(c) for c in counts) and all(type(c) is int for c in pc.as_tuple())
+    assert decode(encode_position_reference(pc)) == pc
+    assert Heartbeat(np.uint8(7)).sequence == 7 and type(Heartbeat(np.uint8(7)).sequence) is int
+    assert decode(encode(PositionMeasurement(np.int32(5), np.int64(6), 7, 8))).top_counts == 6
+    with pytest.raises(
+        CodecError, match=r"PositionCounts\.lift must be an integer in 0\.\.1021, got np\.int64\(1022\)"
+    ):
+        PositionCounts(np.int64(1022), 0, 0, 0, 0)
+    with pytest.raises(CodecError, match=r"must be an integer in 0\.\.1021, got True"):
+        PositionCounts(True, 0, 0, 0, 0)
+    with pytest.raises(CodecError, match=r"must be an integer in 0\.\.1021, got np\.float64\(140\.0\)"):
+        PositionCounts(np.float64(140.0), 0, 0, 0, 0)

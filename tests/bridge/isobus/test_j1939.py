@@ -14,6 +14,7 @@ from bridge.isobus.j1939 import (
     decode_id,
     encode_id,
     frame_bits,
+    largest_valid_raw,
 )
 
 
@@ -174,3 +175,10 @@ def test_bus_load_of_the_default_traffic_hand_computed():
 def test_bus_load_rejects_bad_input(traffic, kwargs, match):
     with pytest.raises(ValueError, match=match):
         bus_load(traffic, **kwargs)
+
+
+@pytest.mark.parametrize("length", [1, 2, 6, 8, 10, 16, 32])
+def test_largest_valid_raw_is_the_last_one_classify_raw_calls_valid(length):
+    top = largest_valid_raw(length)
+    assert classify_raw(top, length) is RawStatus.VALID
+    assert top == (1 << length) - 1 or classify_raw(top + 1, length) is not RawStatus.VALID

@@ -270,6 +270,23 @@ def test_bad_moves_are_refused(model):
         SimSettings(frame_loss=-0.1)
 
 
+@pytest.mark.parametrize(
+    "setting, words",
+    [
+        ({"noise_counts": -1}, r"noise_counts must be a number in \[0, 100\] counts, got -1"),
+        ({"noise_counts": float("nan")}, r"noise_counts must be a number in \[0, 100\] counts, got nan"),
+        ({"gain_error": -1.0}, r"gain_error must be a number in \[-0\.9, 10\] \(relative\), got -1\.0"),
+        ({"gain_error": "10%"}, r"gain_error must be a number"),
+        ({"watchdog_timeout_s": 0}, r"watchdog_timeout_s must be a number in \[0\.001, 10\] s, got 0"),
+    ],
+)
+def test_sim_settings_are_checked_when_made(setting, words):
+    """``SimSettings(noise_counts=-1)`` was taken (the ECU refused it only when a rig was built from it)."""
+    with pytest.raises(SimError, match=words):
+        SimSettings(**setting)
+    assert SimSettings(noise_counts=2, gain_error=0.1, watchdog_timeout_s=0.2).noise_counts == 2
+
+
 def test_cli_sim_move_json(capsys):
     assert main(["sim", "move", "--to", "z=-0.0863", "--reference", "step", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)

@@ -44,6 +44,7 @@ from planner.trajectory.plan import (
     Setpoints,
     TrajectoryInputError,
     Violation,
+    check_state,
     sample_plan,
     verify_setpoints,
 )
@@ -88,6 +89,10 @@ class TrajectoryPlanner:
         rate: float | None = None,
         workspace: Mapping[str, tuple[float, float]] | None = None,
     ):
+        if not isinstance(model, HitchModel):
+            raise TrajectoryInputError(f"model must be a HitchModel (HitchModel.from_profile(name)), got {model!r}")
+        if limits is not None and not isinstance(limits, ActuatorLimits):
+            raise TrajectoryInputError(f"limits must be ActuatorLimits (velocity, acceleration, jerk), got {limits!r}")
         self.model = model
         self.inverse = ExactInverse(model)
         self.hard = HardLimits.from_model(model)
@@ -174,7 +179,9 @@ class TrajectoryPlanner:
         return out
 
     def check_in_workspace(self, p: np.ndarray, what: str = "goal") -> None:
-        """PlanError naming the workspace face when pose ``p`` (x, z, roll, pitch) lies outside the workspace."""
+        """PlanError naming the workspace face when pose ``p`` (x, z, roll, pitch) lies outside the workspace;
+        :class:`TrajectoryInputError` for anything but 4 finite numbers (a NaN pose was taken as inside)."""
+        p = _finite_vector(p, what, "x, z [m], roll, pitch [rad]")
         for i, (k, (name_min, name_max)) in enumerate(zip(CONTROLLED_POSE_NAMES, WORKSPACE_NAMES, strict=True)):
             unit = "m" if k in ("x", "z") else "rad"
             hint = unit_hint(float(p[i]), float(self.lo[i]), float(self.hi[i]), unit)  # "; did you mean mm? …"
@@ -222,7 +229,7 @@ class TrajectoryPlanner:
         height); a DOF whose aim a face or the ceiling cuts is named in ``info["final_approach"]["aim_short"]``
         (its implement then rests that much short of the goal)."""
         scale = _check_scale(speed_scale)
-        start.check("start")
+        check_state(start, "start")
         p1 = self.goal_vector(start.position, goal)
         self.check_in_workspace(p1)
         if self.final_approach is None:
@@ -250,7 +257,7 @@ class TrajectoryPlanner:
         self, start: MotionState, waypoints: Sequence[Waypoint], *, blend: bool = False, blend_fraction: float = 0.5
     ) -> Plan:
         """Through waypoints, stopping at each (``blend=False``) or passing with non-zero velocity."""
-        start.check("start")
+        check_state(start, "start")
         if not waypoints:
             raise TrajectoryInputError("waypoints: at least one waypoint is needed")
         pts, prev = [], start.position
@@ -281,7 +288,7 @@ class TrajectoryPlanner:
         the workspace (or, outside it, goes no further out); otherwise with the actuators' real
         limits along the current motion (:meth:`braking_limits`), e.g. from a goto at full speed.
         """
-        state.check("state")
+        check_state(state, "state")
         traj = self._probe.trajectory(state, self._stop_limits(state))
         return Plan((traj,), state, traj.duration, 0.0, info={"kind": "stop"})
 
@@ -311,8 +318,13 @@ class TrajectoryPlanner:
             raise TrajectoryInputError(f"rate must lie within 1..200 Hz, got {r}")
         return sample_plan(plan, self.inverse, r)
 
-    def lower_bound(self, q0, q1, q0_velocity=None) -> float:
-        """Longest per-actuator time-optimal jerk-limited move q0 → q1 (at rest at q1)."""
+    def lower_bound(self, q0: ArrayLike, q1: ArrayLike, q0_velocity: ArrayLike | None = None) -> float:
+        """Longest per-actuator time-optimal jerk-limited move q0 → q1 (at rest at q1) [s]; ``q0``, ``q1``: the 5
+        actuators (lift [rad], tilt, top, left, right [m]), ``q0_velocity`` their rates at q0 (default at rest)."""
+        q0 = _finite_vector(q0, "q0", "the 5 actuators", n=5)
+        q1 = _finite_vector(q1, "q1", "the 5 actuators", n=5)
+        if q0_velocity is not None:
+            q0_velocity = _finite_vector(q0_velocity, "q0_velocity", "the 5 actuators' rates", n=5)
         inp, tr = self._input1, self._traj1
         t = 0.0
         for i in range(5):
@@ -323,7 +335,11 @@ class TrajectoryPlanner:
             inp.max_velocity = [float(self.limits.velocity[i])]
             inp.max_acceleration = [float(self.limits.acceleration[i])]
             inp.max_jerk = [float(self.limits.jerk[i])]
-            if self._ruckig1.calculate(inp, tr) not in _OK:
+            try:
+                ok = self._ruckig1.calculate(inp, tr) in _OK
+            except (RuckigError, ValueError) as exc:
+                raise PlanError(f"lower bound for actuator {i} could not be computed ({first_line(exc)})") from None
+            if not ok:
                 raise PlanError(f"lower bound for actuator {i} could not be computed")
             t = max(t, tr.duration)
         return t
@@ -578,6 +594,19 @@ class TrajectoryPlanner:
                         f"the trajectory would leave the workspace: {k} reaches {pose[j, i]:.4f} at "
                         f"t = {sp.t[j]:.2f} s ({name} = {face:.4f}{_start_note(bound, face)})"
                     )
+
+
+def _finite_vector(values: object, what: str, names: str, *, n: int = 4) -> np.ndarray:
+    """``values`` as ``n`` finite floats, else :class:`TrajectoryInputError` naming ``what`` and ``names``."""
+    try:
+        out = np.asarray(values, dtype=float)
+    except (TypeError, ValueError):
+        raise TrajectoryInputError(f"{what} must be {n} numbers ({names}), got {values!r}") from None
+    if out.shape != (n,):
+        raise TrajectoryInputError(f"{what} must be {n} numbers ({names}), got shape {out.shape}")
+    if not np.all(np.isfinite(out)):
+        raise TrajectoryInputError(f"{what} must be finite ({names}), got {out.tolist()}")
+    return out
 
 
 def _workspace_box(ws: object) -> dict[str, tuple[float, float]]:

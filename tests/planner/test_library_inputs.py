@@ -291,3 +291,34 @@ def test_setpoints_without_a_sample_are_refused_naming_them(parts):
         g.check_setpoints(empty)
     with pytest.raises(StabilityInputError, match=r"setpoints\.actuators must be \(\d+, 5\) .* got shape \(\d+, 4\)"):
         g.check_setpoints(dataclasses.replace(sp, actuators=sp.actuators[:, :4]))
+
+
+def test_the_trajectory_planner_names_each_bad_argument(parts):
+    """A user trial: plan_move / plan_sequence / plan_stop with a dict or an array for the state failed as
+    "'dict' object has no attribute 'check'"; lower_bound of NaN raised RuckigError and of 3 values IndexError;
+    check_in_workspace took a NaN pose as inside; limits of another type failed later."""
+    m, tp, _, s0 = parts
+    for bad, got in (({"z": 0.1}, "dict"), (np.zeros(4), "ndarray")):
+        with pytest.raises(TrajectoryInputError, match=rf"start must be a MotionState .* got {got}"):
+            tp.plan_move(bad, {"z": 0.2})
+        with pytest.raises(TrajectoryInputError, match=rf"start must be a MotionState .* got {got}"):
+            tp.plan_sequence(bad, [])
+        with pytest.raises(TrajectoryInputError, match=rf"state must be a MotionState .* got {got}"):
+            tp.plan_stop(bad)
+    q = m.neutral  # the 5 actuators at the neutral pose
+    with pytest.raises(TrajectoryInputError, match=r"q0 must be finite"):
+        tp.lower_bound([np.nan] * 5, q)
+    with pytest.raises(TrajectoryInputError, match=r"q0 must be 5 numbers .* shape \(3,\)"):
+        tp.lower_bound([0.1, 0.2, 0.3], q)
+    with pytest.raises(TrajectoryInputError, match=r"q0_velocity must be finite"):
+        tp.lower_bound(q, q, [np.inf, 0, 0, 0, 0])
+    assert tp.lower_bound(q, q) == 0.0
+    with pytest.raises(TrajectoryInputError, match=r"goal must be finite"):
+        tp.check_in_workspace(np.full(4, np.nan))
+    with pytest.raises(TrajectoryInputError, match=r"goal must be 4 numbers"):
+        tp.check_in_workspace(["a", 0, 0, 0])
+    tp.check_in_workspace(s0.position)  # inside: no error
+    with pytest.raises(TrajectoryInputError, match=r"limits must be ActuatorLimits"):
+        TrajectoryPlanner(m, limits={"velocity": 1.0})
+    with pytest.raises(TrajectoryInputError, match=r"model must be a HitchModel"):
+        TrajectoryPlanner("thesis-t132")

@@ -93,6 +93,7 @@ from bridge.service.security import (
     scopable_user,
 )
 from bridge.service.signals import StopSignals
+from bridge.service.stall_watch import StallWatch
 from bridge.service.store import HitchStore
 from bridge.service.wire import to_json_bytes
 from bridge.service.workers import PlanningWorkers, WorkerSpec
@@ -198,6 +199,8 @@ class HitchService:
         self._runners: list[RealtimeRunner] = []
         self._decls: list[Any] = []  # zenoh queryables, subscribers and the liveliness token
         self._pool: ThreadPoolExecutor | None = None
+        #: the earliest a request taken now may have arrived (this process's stalls: bridge.service.stall_watch)
+        self._stall = StallWatch().start()
         self._motion_pool: ThreadPoolExecutor | None = None
         self._queued = 0  # requests waiting in or running on the worker pool
         self._queued_lock = threading.Lock()
@@ -697,7 +700,7 @@ class HitchService:
                 # motion commands nobody asked for by name, so only exact keys are served
                 query.drop()
                 return
-            received = time.monotonic()
+            received = self._stall.arrival()  # now, or after a stall of this process the tick before it
             payload = b"" if query.payload is None else query.payload.to_bytes()
             self.dispatch(key, payload, lambda ok, data: _reply(query, ok, data), received=received, user=user)
 
@@ -740,7 +743,7 @@ class HitchService:
         ``inline``: where the O(1) keys (:data:`INLINE_KEYS`) run (default: the caller's thread, as Zenoh's
         callback; the operator terminal gives its own threads, so its event loop never waits). Never blocks
         otherwise: the lanes' pools take the rest."""
-        t = time.monotonic() if received is None else received
+        t = self._stall.arrival() if received is None else received
         pool = self._motion_pool if key in MOTION_KEYS_LANE else None if key in INLINE_KEYS else self._pool
         if pool is None:
             if inline is not None:
@@ -846,6 +849,7 @@ class HitchService:
             if self._closed:
                 return self.close_duration_s or 0.0
             t0 = time.monotonic()
+            self._stall.close()
             if self.motion is not None:
                 self.motion.close()
             if self.core is not None:

@@ -322,3 +322,33 @@ def test_the_trajectory_planner_names_each_bad_argument(parts):
         TrajectoryPlanner(m, limits={"velocity": 1.0})
     with pytest.raises(TrajectoryInputError, match=r"model must be a HitchModel"):
         TrajectoryPlanner("thesis-t132")
+
+
+def test_setpoints_whose_positions_jump_are_refused_whatever_their_velocity_column_says(parts):
+    """A user's trial: two samples 0.02 s apart, lift moving 0.149 rad (7.4 rad/s against 0.106 rad/s) with zero
+    velocities, passed check_setpoints ("ok"): only the velocity column was compared with the limits."""
+    from planner import ExactInverse, Setpoints
+
+    m, tp, g, _ = parts
+    inv = ExactInverse(m)
+    p0 = m.neutral_pose.controlled()
+    p1 = p0 + np.array([0.0, 0.14, 0.0, 0.0])
+
+    def full(p):
+        st = m.forward(inv(*p))
+        return [p[0], st.pose.y, p[1], p[2], p[3], st.pose.yaw]
+
+    q0, q1 = np.asarray(inv(*p0), float), np.asarray(inv(*p1), float)
+    sp = Setpoints(
+        rate=50.0,
+        t=np.array([0.0, 0.02]),
+        pose=np.array([full(p0), full(p1)]),
+        pose_velocity=np.zeros((2, 4)),
+        actuators=np.array([q0, q1]),
+        actuator_velocity=np.zeros((2, 5)),
+    )
+    d = g.check_setpoints(sp)
+    assert d.action == "refused" and d.reasons[0].measure == "velocity:lift", d
+    # the same move planned: accepted, and its own samples' mean velocities are within the limits
+    plan = tp.plan_move(MotionState.at_rest(p0), {"z": float(p1[1])})
+    assert g.check_setpoints(plan.setpoints).action in ("ok", "scaled")

@@ -206,7 +206,8 @@ def reference_sample(plan, inverse, rate):
 
 
 def reference_verify(sp, model, hard, limits, rel_tol=1e-6):
-    """The former per-sample verification (HitchModel.features and HardLimits.violations per sample)."""
+    """The former per-sample verification (HitchModel.features and HardLimits.violations per sample), and the mean
+    velocity between samples from the positions."""
     out = []
     for k in range(len(sp.t)):
         f, _ = model.features(sp.actuators[k])
@@ -214,6 +215,12 @@ def reference_verify(sp, model, hard, limits, rel_tol=1e-6):
         for i in np.flatnonzero(np.abs(sp.actuator_velocity[k]) > limits.velocity * (1 + rel_tol)).tolist():
             v, b = float(sp.actuator_velocity[k, i]), float(limits.velocity[i])
             out.append(Violation(str(LimitName("velocity", ACTUATOR_NAMES[i])), float(sp.t[k]), v, b))
+    for k in range(1, len(sp.t)):  # the mean velocity between samples, from the positions (1e-5 relative)
+        for i in range(len(ACTUATOR_NAMES)):
+            rate = (sp.actuators[k, i] - sp.actuators[k - 1, i]) / (sp.t[k] - sp.t[k - 1])
+            if abs(rate) > limits.velocity[i] * (1 + 1e-5):
+                name = str(LimitName("velocity", ACTUATOR_NAMES[i]))
+                out.append(Violation(name, float(sp.t[k]), float(rate), float(limits.velocity[i])))
     acc = np.diff(sp.actuator_velocity, axis=0) / np.diff(sp.t)[:, None]
     rows, cols = np.nonzero(np.abs(acc) > limits.acceleration * (1 + rel_tol))
     for k, i in zip(rows.tolist(), cols.tolist(), strict=True):

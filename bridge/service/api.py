@@ -91,8 +91,10 @@ __all__ = ["ServiceAPI", "API_KEYS", "EXPENSIVE_KEYS", "MAX_IN_FLIGHT_PER_USER"]
 #: internal errors (a request that raised what no handler expected) are logged here with their traceback
 log = logging.getLogger("hitch.service.api")
 
-#: requests whose cost is not bounded by the control loop (planning, validation): admission-controlled
-EXPENSIVE_KEYS = frozenset({"plan", "maneuvers/validate"})
+#: requests whose cost is not bounded by the control loop (planning, parsing and validating a maneuver script):
+#: admission-controlled. A save parses its script as validate does (up to 64 KiB of YAML, tens of ms), on the
+#: service's threads: six clients flooding saves held presets/list 4.6 s (a trial)
+EXPENSIVE_KEYS = frozenset({"plan", "maneuvers/validate", "maneuvers/save"})
 #: expensive requests one user may have running at a time; more are refused with ``busy`` at once
 MAX_IN_FLIGHT_PER_USER = 2
 
@@ -256,8 +258,8 @@ class ServiceAPI:
         return False, {"error": code, "message": message}
 
     def _admit(self, key: str, user: str | None) -> str:
-        """Admission control: at most :data:`MAX_IN_FLIGHT_PER_USER` expensive requests (plan,
-        validate) of one user at a time; beyond that ``busy`` at once. Returns the user's slot."""
+        """Admission control: at most :data:`MAX_IN_FLIGHT_PER_USER` expensive requests (plan, maneuver
+        validate and save) of one user at a time; beyond that ``busy`` at once. Returns the user's slot."""
         who = user or "-"
         with self._in_flight_lock:
             n = self._in_flight.get(who, 0)

@@ -17,8 +17,10 @@ A maneuver is the headland-sequence idea of commercial hitch systems, written in
 
 Rules: :func:`parse_maneuver` reads the text with PyYAML's safe loader only, at most
 :data:`MAX_SCRIPT_BYTES` and :data:`MAX_STEPS`; anchors/aliases of mappings or lists are refused
-(no "billion laughs"); a key written twice in one mapping is an error naming the key and its line
-(plain YAML keeps the last one silently); every step is a mapping with exactly one step key;
+(no "billion laughs") and so is nesting deeper than 6 levels, both from one linear pass over the text
+before the parser reads it (:class:`_NestingScan`; PyYAML's time grows with the square of the nesting); a
+key written twice in one mapping is an error naming the key and its line (plain YAML keeps the last one
+silently); every step is a mapping with exactly one step key;
 speed scales are at least :data:`MIN_SPEED_SCALE` (0.05: plan time grows as 1/scale); unknown keys, wrong
 types, NaN/inf and out-of-range values are errors ``{"step": index, "message": ...}`` naming the
 field and the allowed range (``step`` is the 0-based index in ``steps``, ``None`` for the
@@ -109,6 +111,8 @@ MAX_SCRIPT_BYTES = 64 * 1024
 MAX_STEPS = 500
 _MAX_DEPTH = 6
 _MAX_NODES = 20_000
+_TOO_DEEP = f"the script nests deeper than {_MAX_DEPTH} levels"
+_ALIASED = "YAML anchors/aliases of mappings or lists are not allowed"
 _UNITS = {**CONTROLLED_POSE_UNITS, "seconds": "s", "distance": "m", "timeout": "s"}
 
 
@@ -186,7 +190,22 @@ def _unit_hint(model: type[BaseModel], name: str, value: object) -> str:
 
 
 class _UniqueKeyLoader(yaml.SafeLoader):
-    """PyYAML's safe loader, but a key written twice in one mapping is an error (naming the key and line)."""
+    """PyYAML's safe loader, but a key written twice in one mapping is an error (naming the key and line), and
+    a collection nested deeper than :data:`_MAX_DEPTH` is refused as it starts (:class:`ManeuverError`): the
+    exact limit behind :class:`_NestingScan`'s cheap one (which may count fewer levels: ``[a: [b: …]]``)."""
+
+    _open = 0  # collections being composed around the next node
+
+    def compose_node(self, parent: yaml.Node | None, index: int) -> yaml.Node | None:
+        if not self.check_event(yaml.SequenceStartEvent, yaml.MappingStartEvent):
+            return super().compose_node(parent, index)
+        if self._open >= _MAX_DEPTH:
+            raise ManeuverError([StepError(None, _TOO_DEEP)])
+        self._open += 1
+        try:
+            return super().compose_node(parent, index)
+        finally:
+            self._open -= 1
 
     def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
         seen: dict[Any, Any] = {}
@@ -239,6 +258,279 @@ def _load_yaml(text: str) -> Any:
     return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 — a SafeLoader subclass
 
 
+_BREAKS = str.maketrans({"\r": "\n", "\x85": "\n", "\u2028": "\n", "\u2029": "\n"})
+#: a plain scalar's text in a flow collection, up to a blank or an indicator (PyYAML's scan_plain)
+_FLOW_PLAIN = re.compile(r"(?:[^ \t\n,?\[\]{}:]|:(?![ \t\n,\[\]{}]|\Z))*")
+#: what ends a plain scalar after a ':' in a flow collection (and the text's end)
+_FLOW_ENDS = frozenset(("", " ", "\t", "\n", ",", "[", "]", "{", "}"))
+_BLANKS = re.compile(r"[ \t\n]*")
+#: a plain scalar in block context ends at a key's ':', a comment or the line's end
+_PLAIN_STOP = re.compile(r":(?=[ \t\n]|\Z)|(?<=[ \t])#|\n")
+_DOUBLE_QUOTED_REST = re.compile(r'(?:[^"\\]|\\.)*"?', re.S)
+_COMMENT = re.compile(r"[ \t]#")
+_SPACES = re.compile(r"[ \t]*")
+_TOKEN = re.compile(r"[^ \t\n]*")
+_ANCHOR_NAME = re.compile(r"[0-9A-Za-z_-]*")
+_BLANK = frozenset(" \t\n")
+
+
+class _Refused(Exception):
+    pass
+
+
+class _NestingScan:
+    """One linear pass over a script's text, before the YAML parser sees it: how deep its collections nest
+    (block mappings and sequences by their indentation, as PyYAML's scanner opens them, and flow ``[`` ``{``),
+    and whether an alias names an anchored mapping or list. PyYAML's scanner is quadratic in the nesting of
+    flow collections (30 000 ``[`` took 0.8 s to be refused as too deep, 1000 half a second), so nesting
+    deeper than the language allows (:data:`_MAX_DEPTH`) is refused here, in time linear in the text.
+
+    Quotes, comments, block scalars (``|``, ``>``) and plain scalars over several lines are skipped as
+    PyYAML reads them, so brackets in text never count. Where this reading is unsure it counts fewer levels,
+    never more: a flow collection as a mapping key or a single-pair mapping in a flow sequence (``[a: b]``)
+    adds no level here; the composer's own limit (:meth:`_UniqueKeyLoader.compose_node`) and
+    :func:`_check_structure` after parsing are exact. An anchor is of a collection when ``[`` or ``{``
+    follows it, or when it ends its line and the next line opens a block collection."""
+
+    def __init__(self, text: str):
+        self.t = text.translate(_BREAKS)  # PyYAML's line breaks; "\r\n" becomes an extra blank line
+        self.n = len(self.t)
+        self.block: list[list[Any]] = []  # open block collections: [column, is a mapping, its indentless sequence]
+        self.flow = 0
+        self.line_start = 0
+        self.collections: set[str] = set()  # anchors of mappings or lists
+        self.anchor: str | None = None  # an anchor whose node has not started yet
+        self.anchor_line = -1  # the line (its start) of that anchor
+        self.literal_above: int | None = None  # a block scalar: lines indented more than this are its text
+        self.plain_above: int | None = None  # a plain scalar may go on on lines indented more than this
+
+    def problem(self) -> str | None:
+        try:
+            self._run()
+        except _Refused as exc:
+            return str(exc)
+        return None
+
+    # ------------------------------------------------------------------ state
+    def _top(self) -> int:
+        return self.block[-1][0] if self.block else -1
+
+    def _check(self) -> None:
+        if len(self.block) + sum(b[2] for b in self.block) + self.flow > _MAX_DEPTH:
+            raise _Refused(_TOO_DEEP)
+
+    def _push(self, column: int, mapping: bool) -> None:
+        """A block entry ('- ', or '? ', ': ') or a key at ``column``: a new collection if it is indented further
+        (PyYAML's ``add_indent``); a '- ' at the column of a mapping's keys is its value, an indentless sequence.
+        An anchor on an earlier line is the new collection's (else its node was empty)."""
+        earlier = self.anchor is not None and self.anchor_line != self.line_start
+        opened = False
+        if column > self._top():
+            self.block.append([column, mapping, False])
+            opened = True
+        elif not mapping and column == self._top() and self.block[-1][1] and not self.block[-1][2]:
+            self.block[-1][2] = opened = True
+        self._node(earlier and opened)
+        self._check()
+
+    def _node(self, collection: bool) -> None:
+        """The node an anchor waits for has started: a collection or not."""
+        if self.anchor is not None:
+            if collection:
+                self.collections.add(self.anchor)
+            self.anchor = None
+
+    def _anchor(self, q: int) -> int:
+        end = _ANCHOR_NAME.match(self.t, q + 1).end()  # type: ignore[union-attr]
+        self.anchor, self.anchor_line = self.t[q + 1 : end], self.line_start
+        return end
+
+    def _alias(self, q: int) -> int:
+        end = _ANCHOR_NAME.match(self.t, q + 1).end()  # type: ignore[union-attr]
+        if self.t[q + 1 : end] in self.collections:
+            raise _Refused(_ALIASED)
+        return end
+
+    def _eol(self, q: int) -> int:
+        e = self.t.find("\n", q)
+        return self.n if e < 0 else e
+
+    def _quoted(self, q: int) -> int:
+        """The position after the quoted scalar that starts at ``q`` (it may span lines)."""
+        t = self.t
+        if t[q] == "'":
+            end = q + 1
+            while True:
+                e = t.find("'", end)
+                if e < 0:
+                    end = self.n
+                    break
+                if t.startswith("''", e):
+                    end = e + 2
+                    continue
+                end = e + 1
+                break
+        else:
+            end = _DOUBLE_QUOTED_REST.match(t, q + 1).end()  # type: ignore[union-attr]
+        nl = t.rfind("\n", q, end)
+        if nl >= 0:
+            self.line_start = nl + 1
+        return end
+
+    # ------------------------------------------------------------------ the pass
+    def _run(self) -> None:
+        t, n = self.t, self.n
+        p = 1 if t.startswith("\ufeff") else 0
+        while p < n:  # one line in block context per pass
+            self.line_start = p
+            eol = self._eol(p)
+            q = _SPACES.match(t, p).end()  # type: ignore[union-attr]
+            col = q - p
+            if q == eol or t[q] == "#":  # a blank line, a comment line
+                if q < eol:
+                    self.plain_above = None
+                p = eol + 1
+                continue
+            if col == 0 and t.startswith(("---", "..."), q) and (q + 3 >= n or t[q + 3] in _BLANK):
+                self.block.clear()  # a document starts or ends (more than one is an error of the parser's)
+                self.literal_above = self.plain_above = None
+                p = self._line(q + 3) if t[q] == "-" else eol + 1
+                continue
+            if self.literal_above is not None:
+                if col > self.literal_above:
+                    p = eol + 1
+                    continue
+                self.literal_above = None
+            if self.plain_above is not None:
+                if col > self.plain_above:  # the plain scalar goes on: its text, up to a comment
+                    if _COMMENT.search(t, q, eol) is not None:
+                        self.plain_above = None
+                    p = eol + 1
+                    continue
+                self.plain_above = None
+            if col == 0 and t[q] == "%":  # a directive
+                p = eol + 1
+                continue
+            while self.block and self.block[-1][0] > col:
+                self.block.pop()
+            if (
+                self.block
+                and self.block[-1][0] == col
+                and not (t[q] == "-" and t[q + 1 : q + 2] in ("", " ", "\t", "\n"))
+            ):
+                self.block[-1][2] = False  # the indentless sequence ended
+            p = self._line(q)
+
+    def _line(self, q: int) -> int:
+        """The rest of a line from ``q``, where a node may start (block context); returns where the next
+        line starts."""
+        t, n = self.t, self.n
+        props: int | None = None  # the column of the node's first tag or anchor on this line: a key's column
+        while True:
+            q = _SPACES.match(t, q).end()  # type: ignore[union-attr]
+            if q >= n or t[q] == "\n":
+                return q + 1
+            c, col = t[q], q - self.line_start
+            key_col = col if props is None else props
+            follows = t[q + 1] if q + 1 < n else "\n"
+            if c == "#":
+                return self._eol(q) + 1
+            if c in "-?:" and follows in _BLANK:  # a block entry, a complex key or its value
+                self._push(key_col if c == ":" else col, c != "-")  # (':' after a property: an empty key)
+                q, props = q + 1, None
+                continue
+            if c in "&!":  # an anchor, a tag (PyYAML's tags end at a blank)
+                q = self._anchor(q) if c == "&" else _TOKEN.match(t, q).end()  # type: ignore[union-attr]
+                props = key_col
+                continue
+            if c in "[{":
+                self._node(True)
+                line = self.line_start
+                q = self._flow(q)
+                if self._key_follows(q) and self.line_start == line:  # a flow collection as a key
+                    self._push(key_col, True)
+                    q, props = self._key_end(q), None
+                    continue
+                return self._eol(q) + 1
+            if c in "|>":
+                self._node(False)
+                self.literal_above = self._top()
+                return self._eol(q) + 1
+            if c in "\"'" or c == "*":
+                line = self.line_start
+                end = self._quoted(q) if c != "*" else self._alias(q)
+                if self._key_follows(end) and self.line_start == line:
+                    self._push(key_col, True)
+                    q, props = self._key_end(end), None
+                    continue
+                self._node(False)
+                return self._eol(end) + 1
+            m = _PLAIN_STOP.search(t, q)  # a plain scalar: a key if ':' ends it
+            if m is None:
+                self._node(False)
+                return n
+            if m.group() == ":":
+                self._push(key_col, True)
+                q, props = m.end(), None
+                continue
+            self._node(False)
+            if m.group() == "\n":
+                self.plain_above = self._top()
+                return m.end()
+            return self._eol(m.end()) + 1
+
+    def _key_follows(self, q: int) -> bool:
+        q = _SPACES.match(self.t, q).end()  # type: ignore[union-attr]
+        return q < self.n and self.t[q] == ":" and (q + 1 >= self.n or self.t[q + 1] in _BLANK)
+
+    def _key_end(self, q: int) -> int:
+        return _SPACES.match(self.t, q).end() + 1  # type: ignore[union-attr]
+
+    def _flow(self, q: int) -> int:
+        """A flow collection from its '[' or '{' at ``q``, token by token as PyYAML's scanner reads the flow
+        context: the position after its closing bracket."""
+        t, n = self.t, self.n
+        plain = False  # in a plain scalar: after blanks it goes on (quotes, '&', '*', '!' are its text)
+        while q < n:
+            c = t[q]
+            if c in " \t":
+                q += 1
+            elif c == "\n":
+                self.line_start = q = q + 1
+            elif c == "#":  # at a token's start, or after a blank in a plain scalar: a comment
+                q, plain = self._eol(q), False
+            elif c in "[{":
+                self._node(True)
+                self.flow += 1
+                self._check()
+                q, plain = q + 1, False
+            elif c in "]}":
+                self.flow -= 1
+                q, plain = q + 1, False
+                if self.flow == 0:
+                    return q
+            elif c in ",?" or (c == ":" and (not plain or t[q + 1 : q + 2] in _FLOW_ENDS)):
+                q, plain = q + 1, False  # an indicator (':' inside a plain scalar only before a blank or , [ ] { })
+            elif plain:
+                q = _FLOW_PLAIN.match(t, q).end() or q + 1  # type: ignore[union-attr]
+            elif c in "\"'":
+                self._node(False)
+                q = self._quoted(q)
+            elif c == "&":
+                q = self._anchor(q)
+                nxt = _BLANKS.match(t, q).end()  # type: ignore[union-attr]
+                self._node(nxt < n and t[nxt] in "[{")
+            elif c == "*":
+                self._node(False)
+                q = self._alias(q)
+            elif c == "!":  # a tag: up to a blank (its URI may hold brackets and commas)
+                q = _TOKEN.match(t, q).end()  # type: ignore[union-attr]
+            else:
+                self._node(False)
+                q, plain = _FLOW_PLAIN.match(t, q).end() or q + 1, True  # type: ignore[union-attr]
+        return n
+
+
 def _check_structure(data: Any) -> str | None:
     """Refuse shared containers (YAML aliases), deep nesting and huge node counts; non-string keys."""
     seen: set[int] = set()
@@ -251,10 +543,10 @@ def _check_structure(data: Any) -> str | None:
             return f"the script has more than {_MAX_NODES} YAML nodes"
         if isinstance(node, (dict, list)):
             if id(node) in seen:
-                return "YAML anchors/aliases of mappings or lists are not allowed"
+                return _ALIASED
             seen.add(id(node))
             if depth >= _MAX_DEPTH:
-                return f"the script nests deeper than {_MAX_DEPTH} levels"
+                return _TOO_DEEP
             if isinstance(node, dict):
                 for k in node:
                     if not isinstance(k, str):
@@ -302,8 +594,13 @@ def parse_maneuver(text: Any) -> ManeuverScript:
     size = len(text.encode("utf-8", "surrogatepass"))
     if size > MAX_SCRIPT_BYTES:
         raise ManeuverError([StepError(None, f"script is {size} bytes (allowed: at most {MAX_SCRIPT_BYTES} bytes)")])
+    problem = _NestingScan(text).problem()  # before the parser: its cost grows with the square of the nesting
+    if problem:
+        raise ManeuverError([StepError(None, problem)])
     try:
         data = _load_yaml(text)
+    except ManeuverError:
+        raise
     except Exception as exc:  # noqa: BLE001 — PyYAML's constructors also raise IndexError, AttributeError, …
         where = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
         at = f" at line {where.line + 1}, column {where.column + 1}" if where is not None else ""

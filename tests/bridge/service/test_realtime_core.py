@@ -274,6 +274,10 @@ def test_expensive_requests_are_admitted_a_few_per_user(r):
         assert "of clients without a user name (they share one allowance" in reply["message"], reply
         ok, reply = r.call("maneuvers/validate", {"script": "steps: [{wait: 1}]"})
         assert not ok and reply["error"] == "busy"
+        # a save parses its script as validate does, on the service's threads: within the same allowance (six
+        # clients flooding saves of deeply nested scripts held presets/list 4.6 s; a trial)
+        ok, reply = r.call("maneuvers/save", {"name": "held", "script": "steps: [{wait: 1}]"})
+        assert not ok and reply["error"] == "busy" and "maneuvers/save" in reply["message"], reply
         # another user is admitted meanwhile: the limit is per user, not the service's
         other = threading.Thread(target=lambda: results.append(r.call("plan", body, user="alice")))
         other.start()
@@ -288,6 +292,8 @@ def test_expensive_requests_are_admitted_a_few_per_user(r):
     assert all(ok for ok, _ in results)
     ok, _ = r.call("plan", body)  # answered ones free their slot
     assert ok
+    ok, reply = r.call("maneuvers/save", {"name": "held", "script": "steps: [{wait: 1}]"})
+    assert ok and reply["saved"] == "held", reply
 
 
 # ---------------------------------------------------------------------------- fault policy

@@ -469,19 +469,20 @@ class HitchService:
 
     def _open_zenoh(self, *, private_link: bool) -> str | None:
         """Open the service's session; with ``private_link`` it also listens on an endpoint of its own for
-        the core process, and returns that endpoint: a loopback port of its own choosing, or with a security
-        file the link :mod:`bridge.service.security` makes up — a user of its own when a users file
-        authenticates every link (:func:`~bridge.service.security.grant_internal_user`), else a Unix socket
-        in a private directory (:func:`~bridge.service.security.grant_internal_socket`).
+        the core process, and returns that endpoint, the link :mod:`bridge.service.security` makes up: a Unix
+        socket in a private directory (:func:`~bridge.service.security.grant_internal_socket`; no TCP port
+        beside the configured ones: a fleet trial could not meet a port policy), or with a security file whose
+        users file authenticates every link a loopback port and a user of its own
+        (:func:`~bridge.service.security.grant_internal_user`).
 
         The private port is found free and then bound by Zenoh; if another socket took it in between
         (any outgoing connection on the machine may be given it as its local port), another port is
         tried, up to ``PRIVATE_PORT_TRIES`` times. A port the operator chose is never replaced."""
         cfg = self.config
         link_dir, users = None, False
-        if private_link and cfg.security is not None:  # the core's link: made up for it (docs/security.md)
+        if private_link:  # the core's link: made up for it (docs/security.md), never a TCP port of its own
             link_dir = self._core_link_dir = Path(tempfile.mkdtemp(prefix="hitch-core-link-"))  # 0700; removed at close
-            users = bool(read_users(cfg.security))  # {} without a users file or with an empty one
+            users = cfg.security is not None and bool(read_users(cfg.security))  # {}: no users file, or empty
         for _ in range(PRIVATE_PORT_TRIES if private_link else 1):
             private = f"tcp/127.0.0.1:{_free_port()}" if private_link else None
             z = build_zenoh_config(cfg)

@@ -37,7 +37,12 @@ def unit_hint(value: float, lo: float, hi: float, unit: str) -> str:
     """``; did you mean mm? …`` for a length [m], ``; did you mean degrees? …`` and/or ``mrad? …`` for an
     angle [rad], whose value read so lies in ``[lo, hi]``; ``""`` when none fits (a suffix for a
     :class:`HitchInputError` message about ``value`` outside ``[lo, hi]``). Angles are offered in mrad too:
-    this product prints them so (a pose of ``plan-poses`` copied as radians read "did you mean degrees?")."""
+    this product prints them so (a pose of ``plan-poses`` copied as radians read "did you mean degrees?").
+    A mass [kg] is offered in tonnes (``; did you mean t? 1.2 t = 1200 kg``): a tractor's, an implement's or a
+    ballast's mass typed in tonnes is a slip as likely as a length in mm."""
+    if unit == "kg":
+        kg = value * 1000.0
+        return f"; did you mean t? {value:.6g} t = {kg:.6g} kg" if 0.0 < value and lo <= kg <= hi else ""
     if abs(value) < 1.0:
         return ""
     if unit == "m" and lo <= value / 1000.0 <= hi:

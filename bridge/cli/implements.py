@@ -152,7 +152,7 @@ def add_commands(sub) -> None:
     q = acts.add_parser("define", help="define (or replace) an implement")
     q.add_argument("name")
     q.add_argument("--category", required=True, help="ISO 730 category: 1N 1 2N 2 3N 3 4N 4")
-    q.add_argument("--mass", type=finite_float("--mass"), required=True, help="mass [kg], 1..20000")
+    q.add_argument("--mass", type=finite_float("--mass"), required=True, help="mass [kg] (not t), > 20 and <= 20000")
     q.add_argument("--com", type=_com, required=True, help="centre of mass x,y,z in the implement frame [m]")
     q.add_argument("--upper-height", type=finite_float("--upper-height"), default=None, help="upper height [m]")
     q.add_argument("--lowering-speed", type=finite_float("--lowering-speed"), default=None, help="[m/s]")

@@ -260,7 +260,10 @@ def _add_serve(sub) -> None:
     p.add_argument("--profile", default=None, help="hitch profile (default thesis-t132)")
     p.add_argument("--category", default=None, help="ISO 730 category (default: the profile's)")
     p.add_argument(
-        "--implement", default=None, help="implement record of the tractor profile (presets are per implement)"
+        "--implement",
+        default=None,
+        help="implement record of the tractor profile, for this start: it comes before the persisted selection, "
+        "which comes before the config file's (presets are per implement; docs/implements.md)",
     )
     p.add_argument("--control-rate", type=finite_float("--control-rate"), default=None, help="Hz, 10..200 (default 50)")
     p.add_argument("--state-rate", type=finite_float("--state-rate"), default=None, help="Hz, 1..100 (default 50)")

@@ -111,7 +111,9 @@ class ServiceAPI:
             in-process planning (when ``planning`` is None).
         store: a :class:`~bridge.service.store.HitchStore`.
         info: the static part of the ``config`` reply (profile, limits, rates …).
-        implement: the implement the presets belong to (None: the store's default).
+        implement: the implement named at start-up (None: none; the persisted selection may win over it:
+            :class:`~bridge.service.implements.ImplementService`).
+        implement_source: where ``implement`` came from: "flag" (it wins over the persisted selection) or "file".
         policy: roles applied when a caller passes ``user``.
         planning: where ``plan``, validation and ``ik`` run (:class:`~bridge.service.planning.Planning`;
             default: :class:`~bridge.service.planning.InProcessPlanning` on ``motion`` and ``ik``).
@@ -131,6 +133,7 @@ class ServiceAPI:
         info: Mapping[str, Any],
         *,
         implement: str | None = None,
+        implement_source: str = "file",
         policy: AccessPolicy | None = None,
         sim_fault: Callable[[Mapping[str, Any]], Any] | None = None,
         planning: Planning | None = None,
@@ -143,6 +146,9 @@ class ServiceAPI:
         self._record_lock = threading.Lock()  # maneuvers/record/start|stop
         self.info = dict(info)
         self.implement = implement or DEFAULT_IMPLEMENT
+        #: where the start-up's ``implement`` came from ("flag": it wins over the persisted selection; "file": the
+        #: persisted selection wins over it; ServiceConfig.implement_source, bridge.service.implements)
+        self.implement_source = implement_source
         self.policy = policy
         self._caller = threading.local()  # .user: the user of the request this thread is serving (store owner)
         self._handlers: Mapping[str, Callable[[Any], dict]] = {

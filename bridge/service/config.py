@@ -9,6 +9,10 @@ a Zenoh peer listening on ``tcp/127.0.0.1:7447`` with multicast scouting off, ke
 ``thesis-t132`` category 2, 50 Hz control, presets and maneuvers under
 ``$XDG_DATA_HOME/hitch-planner`` (``~/.local/share/hitch-planner``).
 
+The implement has a third source, the selection the service persisted: ``implement_source`` says whether
+``implement`` came from a flag (it comes before the persisted selection) or from the file (after it;
+``docs/implements.md``).
+
 TOML layout (every key optional; the names are the field names below; a relative path in the file — the
 security file, the truth, the profile or field when given as a file, the data folder, the lines file, the
 CAN log — is taken from the config file's folder)::
@@ -224,6 +228,10 @@ class ServiceConfig(BaseModel):
     profile: str = "thesis-t132"
     category: str | None = None
     implement: str | None = None
+    #: where ``implement`` came from: "flag" (``hitch serve --implement``: it wins over the selection the store
+    #: persisted) or "file" (the config file, or a program's own config: the persisted selection wins over it;
+    #: docs/implements.md). Not a key of the file: :func:`load_service_config` sets it
+    implement_source: Literal["file", "flag"] = "file"
     control_rate: float = Field(50.0, ge=10.0, le=200.0, strict=True, json_schema_extra=_unit("Hz"))
     state_rate: float = Field(50.0, ge=1.0, le=100.0, strict=True, json_schema_extra=_unit("Hz"))
     #: stream the unit loops' feed-forward reference (False: the plan's actuators as they are)
@@ -524,6 +532,8 @@ def load_service_config(path: str | Path | None = None, **overrides: Any) -> Ser
         values.update(_from_folder(data, p.parent))
     given = {k: v for k, v in overrides.items() if v is not None}
     values.update(given)
+    if "implement" in given:  # a flag's implement wins over the persisted selection, the file's does not
+        values.setdefault("implement_source", "flag")
     # a value from the file is named as the file names it: its table and key (can.stale_timeout_s)
     in_file = {f: f"{t}.{k}" for t, keys in _TOML_SECTIONS.items() for k, f in keys.items() if f in values}
     in_file = {f: name for f, name in in_file.items() if f not in given} if path is not None else {}

@@ -12,7 +12,10 @@ here); the J1939 operator switch and the CLI end up in the same methods.
 * **Selecting** an implement gives the motion controller its record and limits
   (``select_implement``: the guards' stability uses its mass and CoM, their limit checks its limits),
   is refused while the hitch moves (``busy``; send stop first), makes the presets keys use its presets
-  and is persisted (setting ``selected_implement``): a restarted service selects it again. The planning
+  and is persisted (setting ``selected_implement``): a restarted service selects it again (unless
+  ``hitch serve --implement`` names another: the flag comes first, then the persisted selection, then the config
+  file's implement; :meth:`ImplementService.restore` checks the category of the one chosen and says at start
+  when it is not the one named, :attr:`ImplementService.warnings`). The planning
   processes get it too (:attr:`ImplementService.on_applied` → ``PlanningWorkers.set_implement``), so
   previews and maneuver validation plan with the selected implement's guard.
 * ``sim/switch`` makes the simulated tractor send one press of the operator switch (in the service's
@@ -137,6 +140,7 @@ class ImplementService:
         tractor_profile: str | None = None,
         on_select: Callable[[str], None] | None = None,
         category: str | None = None,
+        selected_by: str = "file",
     ):
         self.store, self.motion = store, motion
         #: the hitch's ISO 730 category (its lower-link span): only implements of it are selected (None: any)
@@ -151,8 +155,19 @@ class ImplementService:
                 self._profile = None
         # an API built without a store (some tests embed one) runs without the implement keys' data
         persisted = store.get_setting(SELECTED_SETTING) if store is not None else None
-        self.selected: str = persisted or selected or DEFAULT_IMPLEMENT
-        self.warning: str | None = None
+        # the implement named at start-up (``selected_by``: "flag", --implement; "file", the config file's) and the
+        # persisted selection: the flag wins over the persisted one, the persisted one over the file's, the file's
+        # over none (a user trial: --implement was ignored once a selection was persisted; docs/implements.md)
+        named = selected if selected and selected != DEFAULT_IMPLEMENT else None
+        self._named = None if named is None else (named, "flag" if selected_by == "flag" else "file")
+        self._persisted = persisted or None
+        if self._named is not None and self._named[1] == "flag":
+            self.selected: str = self._named[0]
+        else:
+            self.selected = persisted or selected or DEFAULT_IMPLEMENT
+        #: what the start-up has to say about the implement (a line each: the one that runs and the one not taken,
+        #: an implement dropped); the service's start-up warnings (printed by ``hitch serve``, in the black box)
+        self.warnings: list[str] = []
         #: how a switch edge is served (``key`` → the API's handling of it; set by :func:`implement_handlers`)
         self.dispatch: Dispatch | None = None
         #: told every implement the controller accepted (the planning processes: previews and maneuver
@@ -186,20 +201,74 @@ class ImplementService:
 
     # ------------------------------------------------------------------ start
     def restore(self) -> None:
-        """Give the controller the selected implement's stored record and limits (at start)."""
-        imp = self.store.get_implement(self.selected) if self.selected != DEFAULT_IMPLEMENT else None
-        if imp is None and self.selected != DEFAULT_IMPLEMENT and self._builtin(self.selected) is None:
-            self.warning = f"the selected implement {self.selected!r} is not defined; running without one"
+        """Give the controller and the planning the selected implement at start: its stored record and limits, or
+        the tractor profile's record (no limits); none: nothing is given. The guards are built without an implement
+        (:func:`bridge.service.machine.build_guard`, the planning workers): this is the one way in, so the
+        category check holds on every path. An implement that is not defined, or of another ISO 730 category than
+        the hitch, is not taken (the service runs without one); that, and a selection other than one named at
+        start-up, is said in :attr:`warnings`."""
+        name = self.selected
+        dropped: str | None = None  # why ``name`` is not taken
+        record: ImplementRecord | None = None
+        limits = ImplementLimits()
+        if name != DEFAULT_IMPLEMENT:
+            imp = self.store.get_implement(name)
+            rec = self._builtin(name) if imp is None else None
+            if rec is not None:  # a tractor profile's record not stored yet: its record, no limits
+                imp = StoredImplement(rec.name, rec.category, rec.mass, rec.centre_of_mass, description=rec.description)
+            if imp is None:
+                dropped = "it is not defined (neither stored nor a record of the tractor profile)"
+            elif self.category is not None and imp.category != self.category:
+                dropped = f"it is an ISO 730 category {imp.category} implement, this hitch category {self.category}"
+            else:
+                record, limits = record_of(imp), imp.limits
+        if record is not None:  # none: nothing to give (the guards have none; an API embedded without a controller)
+            try:
+                self._apply(record, limits)
+            except HitchError as exc:  # the service starts anyway (without the implement), and says why
+                dropped = f"it could not be applied: {exc}"
+        if dropped is not None:
             self.selected = DEFAULT_IMPLEMENT
-        if imp is not None and self.category is not None and imp.category != self.category:
-            self.warning = (
-                f"the selected implement {self.selected!r} is category {imp.category}, the hitch category "
-                f"{self.category}; running without one"
-            )
-            self.selected, imp = DEFAULT_IMPLEMENT, None
-        if imp is not None:
-            self._apply(record_of(imp), imp.limits)
+        line = self._start_line(name, dropped)
+        if line is not None:
+            self.warnings.append(line)
         self._announce()
+
+    def _start_line(self, tried: str, dropped: str | None) -> str | None:
+        """One line when the implement that runs is not the one named at start-up (flag or file) or the persisted
+        one: which runs, which was not taken and why, how to change it; None when they agree."""
+        origin = {"flag": "--implement", "file": "the config file's implement"}
+        candidates: list[tuple[str, str]] = []
+        if self._named is not None:
+            candidates.append((self._named[0], origin[self._named[1]]))
+        if self._persisted is not None:
+            if candidates and candidates[0][0] == self._persisted:  # the same one: named once
+                candidates[0] = (self._persisted, f"{candidates[0][1]} and the persisted selection")
+            else:
+                candidates.append((self._persisted, "the persisted selection"))
+        not_taken = []
+        for name, where in candidates:
+            if name == self.selected or (name == tried and dropped is None):
+                continue
+            shown = "none" if name == DEFAULT_IMPLEMENT else repr(name)
+            if name == tried:
+                why = dropped
+            elif self._named is not None and self._named[1] == "flag":
+                why = f"--implement comes first; a start without it selects {shown} again"
+            else:
+                why = "the persisted selection comes before it"
+            not_taken.append(f"{shown} ({where}: {why})")
+        if not not_taken:
+            return None
+        if self.selected == DEFAULT_IMPLEMENT:
+            runs = "no implement" + (" (the persisted selection)" if dropped is None else "")
+        else:
+            where = next(w for n, w in candidates if n == self.selected)
+            runs = f"{self.selected!r} ({where})"
+        return (
+            f"implement: {runs} is selected; not taken: {'; '.join(not_taken)}. Change it with "
+            f"`hitch implement select NAME` (persisted; `default` selects none)"
+        )
 
     # ------------------------------------------------------------------ queries
     def list(self) -> dict[str, Any]:
@@ -683,6 +752,7 @@ def implement_handlers(api: Any) -> dict[str, Callable[[Any], dict[str, Any]]]:
         api.store,
         api.motion,
         selected=api.implement,
+        selected_by=getattr(api, "implement_source", "file"),
         tractor_profile=profile,
         on_select=on_select,
         category=api.info.get("category") or (None if planner is None else planner.model.category),
@@ -697,7 +767,7 @@ def implement_handlers(api: Any) -> dict[str, Callable[[Any], dict[str, Any]]]:
     try:
         svc.restore()
     except HitchError as exc:  # the service starts anyway (without the implement), and says why
-        svc.warning = f"the selected implement {svc.selected!r} could not be applied: {exc}"
+        svc.warnings.append(f"implement: no implement could be given to the controller at start: {exc}")
 
     svc.dispatch = api.handle  # the black box records it like any request
 

@@ -49,7 +49,6 @@ from bridge.sim.ecu import CylinderECU
 from bridge.sim.tractor_node import TractorTwinNode, hitch_height_from_ecu
 from bridge.sim.truth import MachineTruth, load_machine_truth
 from planner.limits.guard import Guard
-from planner.limits.tractor import load_tractor_profile
 from planner.model.kinematics import HitchModel
 from planner.model.sensors import SensorScaling
 from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
@@ -124,12 +123,11 @@ def build_model(cfg: ServiceConfig) -> HitchModel:
 
 
 def build_guard(cfg: ServiceConfig, model: HitchModel) -> Guard:
-    """The guard of ``model`` at the control rate, with the configured implement."""
-    planner = TrajectoryPlanner(model, rate=cfg.control_rate)
-    implement = None
-    if cfg.implement is not None:
-        implement = load_tractor_profile(model.profile.stability.tractor_profile).implement(cfg.implement)
-    return Guard(planner, implement=implement)
+    """The guard of ``model`` at the control rate, without an implement: the service's implement (the configured
+    one, or the persisted selection) comes from :meth:`bridge.service.implements.ImplementService.restore`, which
+    checks its ISO 730 category. Built with ``cfg.implement`` before, a category-2 implement named on a category-3
+    hitch went into every guard unchecked (a user trial)."""
+    return Guard(TrajectoryPlanner(model, rate=cfg.control_rate))
 
 
 @dataclass

@@ -39,6 +39,7 @@ from bridge.service.event_ring import MAX_EVENTS_PER_REPLY
 from bridge.service.maneuvers.language import MIN_SPEED_SCALE, NAME_PATTERN, POSE_BOUNDS
 from bridge.service.maneuvers.steps import SETPOINT_VELOCITY_BOUND
 from planner.errors import HitchInputError, distinct_texts, unit_hint, unit_hint_within
+from planner.limits.tractor import IMPLEMENT_MASS_MAX_KG, IMPLEMENT_MASS_MIN_KG
 from planner.model.limit_names import beyond_words
 from planner.model.types import CONTROLLED_POSE_NAMES, CONTROLLED_POSE_UNITS
 
@@ -363,7 +364,9 @@ class ImplementDefine(_Strict):
 
     name: str = Field(pattern=_NAME)
     category: Literal["1N", "1", "2N", "2", "3N", "3", "4N", "4"]
-    mass_kg: float = Field(ge=1.0, le=20_000.0)  # an implement of less than 1 kg is a typing error (1e-300 was taken)
+    # the tractor profile's range: (20, 20000] kg; a mass in tonnes (1.2) is refused with "did you mean t?" (a user
+    # trial: [1, 20000] took it as 1.2 kg; 1e-300 was taken before that)
+    mass_kg: float = Field(gt=IMPLEMENT_MASS_MIN_KG, le=IMPLEMENT_MASS_MAX_KG)
     com_m: list[Annotated[float, Field(ge=-10.0, le=10.0)]] = Field(min_length=3, max_length=3)
     upper_height_m: float | None = Field(None, ge=-1.0, le=2.0)
     lowering_speed_m_s: float | None = Field(None, ge=0.005, le=2.0)

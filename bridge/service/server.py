@@ -96,7 +96,7 @@ from bridge.service.signals import StopSignals
 from bridge.service.stall_watch import StallWatch
 from bridge.service.store import HitchStore
 from bridge.service.wire import to_json_bytes
-from bridge.service.workers import PlanningWorkers, WorkerSpec
+from bridge.service.workers import PlanningWorkers, WorkerSpec, check_spec
 from bridge.sim.can_node import EcuCanNode
 from planner.errors import HitchError, HitchInputError
 from planner.ik_qp.hitch_ik import IKSolver
@@ -258,8 +258,12 @@ class HitchService:
             self.store = HitchStore(cfg.database_path, limits=cfg.store_limits())
             ik: IKSolver | None = None
             planning: Planning | None = None
+            # the profile, category and implement exist (an implement not in the tractor profile: refused here); the
+            # implement itself goes to no guard as it is built (theirs, the core's, the planning's) but through the
+            # implement service's restore, which checks its category and the persisted selection (docs/implements.md)
+            check_spec(WorkerSpec(cfg.profile, cfg.category, cfg.control_rate, cfg.implement))
             if cfg.planning_processes > 0:  # they build their models while the rest starts
-                spec = WorkerSpec(cfg.profile, cfg.category, cfg.control_rate, cfg.implement)
+                spec = WorkerSpec(cfg.profile, cfg.category, cfg.control_rate, None)
                 planning = self.planning = PlanningWorkers(spec, cfg.planning_processes).start()
             else:
                 ik = IKSolver(build_model(cfg))
@@ -310,10 +314,13 @@ class HitchService:
                 self.store,
                 info,
                 implement=cfg.implement,
+                implement_source=cfg.implement_source,
                 policy=policy,
                 sim_fault=sim_fault,
                 planning=planning,
             )
+            # an implement named at start-up and not taken, or dropped (another category, not defined): said at start
+            self.warnings.extend(self.api.implements.warnings)
             self.add_listener("event", self.api.implements.on_event)  # the operator's raise / lower switch
             self.add_listener("event", self.api.events.take)  # kept for events/recent
             if self.parts is not None:  # sim/switch on the in-process twin (the core process has its own)

@@ -40,6 +40,8 @@ from planner.profiles.loader import format_validation_error, read_profile
 __all__ = [
     "STANDARD_GRAVITY",
     "ISO730_CATEGORIES",
+    "IMPLEMENT_MASS_MIN_KG",
+    "IMPLEMENT_MASS_MAX_KG",
     "StabilityInputError",
     "TractorProfileError",
     "Tractor",
@@ -59,6 +61,12 @@ STANDARD_GRAVITY: float = 9.80665
 ISO730_CATEGORIES: tuple[str, ...] = ("1N", "1", "2N", "2", "3N", "3", "4N", "4")
 #: the lightest empty tractor a profile may give [kg] (sub-compact tractors with a three-point hitch weigh more)
 TRACTOR_MASS_MIN_KG: float = 300.0
+#: an implement's mass [kg], a tractor profile's record and the service's ``implements/define`` alike: more than
+#: IMPLEMENT_MASS_MIN_KG (no three-point implement weighs 20 kg or less; every mass up to it could be typed in tonnes
+#: and is refused with the tonnes reading: "did you mean t? 1.2 t = 1200 kg") up to IMPLEMENT_MASS_MAX_KG. Before,
+#: (0, 20000] here and [1, 20000] in the service took 1.65 (t) as a 1.65 kg implement (a user trial)
+IMPLEMENT_MASS_MIN_KG: float = 20.0
+IMPLEMENT_MASS_MAX_KG: float = 20_000.0
 Category = Literal["1N", "1", "2N", "2", "3N", "3", "4N", "4"]
 
 
@@ -288,7 +296,7 @@ class ImplementSpec(_Strict):
     """An implement record: ISO 730 category, mass [kg], CoM [x_i, y_i, z_i] in the implement frame [m]."""
 
     category: Category
-    mass: float = Field(json_schema_extra={"unit": "kg"}, gt=0.0, le=20_000.0)
+    mass: float = Field(json_schema_extra={"unit": "kg"}, gt=IMPLEMENT_MASS_MIN_KG, le=IMPLEMENT_MASS_MAX_KG)
     centre_of_mass: tuple[float, float, float]
     description: str = ""
 

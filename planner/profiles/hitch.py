@@ -437,15 +437,29 @@ class Motion(_Strict):
     count_approach: CountApproachSettings | None = None
 
 
+#: a front ballast [kg] is 0 (none) or more than this: every value up to it could be typed in tonnes (5 t being the
+#: heaviest) and is refused with the tonnes reading ("did you mean t? 0.9 t = 900 kg"; 0.9 was taken as 0.9 kg: a
+#: user trial); no front ballast weighs 5 kg or less
+FRONT_BALLAST_MIN_KG = 5.0
+
+
 class Stability(_Strict):
     """Which tractor carries the hitch (a profile in planner/profiles/tractors/) and its front ballast [kg]."""
 
     tractor_profile: str = "tractor-6t"
+    #: 0 (none) or (FRONT_BALLAST_MIN_KG, 5000] kg
     front_ballast: float = Field(json_schema_extra={"unit": "kg"}, default=0.0, ge=0.0, le=5000.0)
     #: slow-down factor when a margin falls below its caution threshold (free-gait source: 0.8)
     caution_speed_factor: float = Field(default=0.8, gt=0.0, le=1.0)
     #: how far ahead jog motion is evaluated [s] (free-gait source: about one second)
     jog_horizon: float = Field(json_schema_extra={"unit": "s"}, default=1.0, gt=0.0, le=5.0)
+
+    @field_validator("front_ballast")
+    @classmethod
+    def _ballast(cls, v: float) -> float:
+        if 0.0 < v <= FRONT_BALLAST_MIN_KG:  # the loader adds the range and "did you mean t?"
+            raise ValueError(f"must be 0 (no ballast) or more than {FRONT_BALLAST_MIN_KG:g} kg")
+        return v
 
 
 class Workspace(_Strict):

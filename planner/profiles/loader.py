@@ -116,25 +116,6 @@ def _field_unit(info: FieldInfo | None) -> str:
     return unit if isinstance(unit, str) else ""
 
 
-def _unit_hint(value: float, constraints, unit: str) -> str:
-    """:func:`unit_hint_within`, and for a mass [kg] the tonnes reading (``; did you mean t? 6 t = 6000 kg``):
-    a tractor's mass typed in tonnes is a slip as likely as a length in mm."""
-    if unit != "kg":
-        return unit_hint_within(value, constraints, unit)
-    items = list(constraints)
-    lo = max(
-        (float(getattr(c, a)) for c in items for a in ("gt", "ge") if getattr(c, a, None) is not None),
-        default=-math.inf,
-    )
-    hi = min(
-        (float(getattr(c, a)) for c in items for a in ("lt", "le") if getattr(c, a, None) is not None), default=math.inf
-    )
-    kg = value * 1000.0
-    if 0.0 < value and lo <= kg <= hi:
-        return f"; did you mean t? {value:.6g} t = {kg:.6g} kg"
-    return ""
-
-
 #: pydantic's error types of a number beyond a bound
 _BOUND_ERRORS = frozenset(("greater_than", "greater_than_equal", "less_than", "less_than_equal"))
 
@@ -162,7 +143,7 @@ def format_validation_error(kind: str, source: str, err: ValidationError, schema
         if allowed and unit:
             allowed += f" {unit}"
             if isinstance(value, (int, float)) and not isinstance(value, bool) and info is not None:
-                allowed += _unit_hint(float(value), info.metadata, unit)
+                allowed += unit_hint_within(float(value), info.metadata, unit)  # mm?, degrees?, t?
         if not allowed:
             ctx = e.get("ctx") or {}
             allowed = " and ".join(

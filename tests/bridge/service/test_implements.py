@@ -529,6 +529,21 @@ def test_the_cli_round_trip_against_a_running_service(tmp_path, capsys):
         svc.close()
 
 
+def test_an_implement_mass_in_tonnes_is_refused_with_the_tonnes_reading(svc):
+    """A user trial: ``hitch implement define x --category 3 --mass 1.2`` defined a 1.2 kg implement. The range is
+    the tractor profile's records' one, (20, 20000] kg, and a mass in tonnes is named as the tractor's is."""
+    ok, r = svc.call("implements/define", {**HARROW, "name": "plough", "mass_kg": 1.2})
+    assert not ok and r["error"] == "bad_request", r
+    assert r["message"] == (
+        "implements/define: mass_kg = 1.2 is out of range (allowed: > 20 and <= 20000 kg); did you mean t? 1.2 t = "
+        "1200 kg"
+    ), r
+    assert "plough" not in [i["name"] for i in svc.ok("implements/list")["implements"]]
+    ok, r = svc.call("implements/define", {**HARROW, "name": "plough", "mass_kg": 25_000.0})  # 25 t: no hint
+    assert not ok and r["message"].endswith("(allowed: > 20 and <= 20000 kg)"), r
+    assert svc.ok("implements/define", {**HARROW, "name": "plough", "mass_kg": 20.5})["defined"] == "plough"
+
+
 @pytest.mark.parametrize(
     "key, payload, code, text",
     [
@@ -573,5 +588,5 @@ def test_an_implement_limit_the_hitch_can_never_meet_is_refused(svc, model):
         "upper_height_m = -0.9 m is below the workspace's lowest z" in r["message"] and f"{z_min:.4g}" in r["message"]
     )
     ok, r = svc.call("implements/define", {**HARROW, "name": "feather", "mass_kg": 1e-300})
-    assert not ok and "mass_kg" in r["message"] and ">= 1" in r["message"], r
+    assert not ok and "mass_kg" in r["message"] and "> 20" in r["message"], r
     assert svc.ok("implements/define", {**HARROW, "name": "fine", "upper_height_m": z_min + 0.1})["defined"] == "fine"

@@ -533,6 +533,21 @@ def test_a_tractor_mass_typed_in_tonnes_is_a_range_error_in_kg_with_the_tonnes_r
     assert "would match" not in text and "centre_of_mass" not in text
 
 
+@pytest.mark.parametrize("mass, taken", [(1.65, False), (20.0, False), (20.5, True), (20_000.0, True)])
+def test_an_implement_mass_typed_in_tonnes_is_a_range_error_in_kg_with_the_tonnes_reading(mass, taken):
+    """A user trial: ``[implements.my-plough-4f] mass = 1.65`` (t) was taken as a 1.65 kg implement. The records take
+    (20, 20000] kg, as implements/define does; every mass up to 20 could be tonnes and is named so."""
+    data = _profile_dict()
+    data["implements"]["cat2-spreader-400"]["mass"] = mass
+    if taken:
+        assert tractor_profile_from_dict(data).implement("cat2-spreader-400").mass == mass
+        return
+    with pytest.raises(TractorProfileError) as err:
+        tractor_profile_from_dict(data)
+    assert f"implements.cat2-spreader-400.mass = {mass}: " in str(err.value)
+    assert f"(allowed: > 20 and <= 20000 kg; did you mean t? {mass:g} t = {mass * 1000:g} kg)" in str(err.value)
+
+
 def test_a_front_axle_mass_in_tonnes_or_above_the_mass_gives_no_centre_of_mass_outside_the_axles():
     data = _profile_dict()
     data["tractor"]["front_axle_mass_empty"] = 2.4

@@ -120,6 +120,14 @@ def test_validation_errors_name_field_value_and_range(raw, path, value, expect):
         ),
         (("stability", "jog_horizon"), 600.0, "(allowed: > 0 and <= 5 s)"),
         (("actuators", "tilt", "valve_multiplier"), 2.0, "(allowed: > 0 and <= 1)"),  # a ratio: no unit
+        # a front ballast in tonnes: taken as 0.9 kg before (a user trial)
+        (
+            ("stability", "front_ballast"),
+            0.9,
+            "stability.front_ballast = 0.9: must be 0 (no ballast) or more than 5 kg (allowed: >= 0 and <= 5000 kg; "
+            "did you mean t? 0.9 t = 900 kg)",
+        ),
+        (("stability", "front_ballast"), 6000.0, "(allowed: >= 0 and <= 5000 kg)"),  # 6 t is beyond it too: no hint
     ],
 )
 def test_a_value_out_of_range_is_named_with_its_unit_and_a_unit_slip_is_offered(raw, path, value, expect):

@@ -1043,9 +1043,10 @@ def _cmd_preset(args) -> int:
                 "name": args.name,
                 **({"pose": args.pose} if args.pose else {}),
                 **({"speed_scale": args.speed_scale} if args.speed_scale is not None else {}),
+                **({"replace": True} if args.replace else {}),
             }
             r = c.request("presets/save", body)
-            _print(args, r, f"saved {r['saved']}: {_fmt_pose(r['pose'])}")
+            _print(args, r, f"{'replaced' if r.get('replaced') else 'saved'} {r['saved']}: {_fmt_pose(r['pose'])}")
         elif args.action == "go":
             body = {
                 "name": args.name,
@@ -1314,6 +1315,9 @@ def add_commands(sub) -> Any:
                 "--force", action="store_true", help="delete it although saved maneuvers use it (they then fail)"
             )
         if action == "save":
+            q.add_argument(
+                "--replace", action="store_true", help="replace a preset of that name (else refused: in_use)"
+            )
             q.add_argument(
                 "--pose",
                 type=parse_pose_arg,

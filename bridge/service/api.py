@@ -78,7 +78,7 @@ from bridge.service.schemas import (
     setpoint_session,
 )
 from bridge.service.security import AccessPolicy
-from bridge.service.store import DEFAULT_IMPLEMENT, HitchStore, ManeuverExists, StoreError
+from bridge.service.store import DEFAULT_IMPLEMENT, HitchStore, ManeuverExists, PresetExists, StoreError
 from bridge.service.work import work_handlers
 from bridge.service.workers import PresetPose, WorkerError, referenced_presets
 from planner.errors import HitchInputError
@@ -389,14 +389,28 @@ class ServiceAPI:
                 f"presets/save: pose.z = {pose[1]:.4f} m is above the upper height of the implement {imp.name!r}, "
                 f"{upper:g} m (upper_height_m): presets/go would refuse it",
             )
-        p = self.store.save_preset(
-            r.name,
-            pose_dict(pose),
-            implement=self.implement,
-            speed_scale=r.speed_scale,
-            owner=getattr(self._caller, "user", None),
-        )
-        return {"saved": p.name, "pose": dict(p.pose), "implement": p.implement}
+        replaced = r.replace and self.store.get_preset(r.name, implement=self.implement) is not None
+        try:
+            p = self.store.save_preset(
+                r.name,
+                pose_dict(pose),
+                implement=self.implement,
+                speed_scale=r.speed_scale,
+                owner=getattr(self._caller, "user", None),
+                replace=r.replace,
+            )
+        except PresetExists as exc:  # not replaced unasked (a fleet trial: a save overwrote a preset silently)
+            was = ", ".join(f"{k} {v:.4g}" for k, v in exc.pose.items())
+            raise RequestError(
+                "in_use",
+                f"presets/save: implement {self.implement!r} has a preset {exc.name!r} already ({was} [m, rad]); send "
+                f'it with "replace": true to replace it (CLI: hitch preset save {exc.name} --replace), or save it '
+                "under another name",
+            ) from None
+        out: dict[str, Any] = {"saved": p.name, "pose": dict(p.pose), "implement": p.implement}
+        if replaced:
+            out["replaced"] = True
+        return out
 
     def _presets_go(self, r: PresetGo) -> dict:
         p = self.store.get_preset(r.name, implement=self.implement)

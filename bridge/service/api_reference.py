@@ -52,7 +52,8 @@ KEY_SUMMARY: Mapping[str, str] = {
         "the events numbered above `after` the service still keeps (the last 2000), for a client that missed some"
     ),
     "presets/list": "the presets of the selected implement",
-    "presets/save": "save a named pose (absent DOFs: the current pose) for the selected implement",
+    "presets/save": "save a named pose (absent DOFs: the current pose) for the selected implement; a name it has "
+    "already is refused (`in_use`, naming its pose) unless `replace`",
     "presets/go": "move to a preset, as `goto`",
     "presets/delete": "delete a preset (`force`: also while a saved maneuver uses it)",
     "maneuvers/validate": "parse and check a maneuver script (YAML text) from the current pose; nothing is stored",

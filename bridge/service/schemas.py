@@ -216,9 +216,12 @@ class NameRequest(_Strict):
 
 
 class PresetSave(_Strict):
+    """Save a pose under a name; a name the implement has already is refused (``in_use``) unless ``replace``."""
+
     name: str = Field(pattern=_NAME)
     pose: Goal | None = None
     speed_scale: float | None = _scale(None)
+    replace: bool = False
 
     @model_validator(mode="before")
     @classmethod

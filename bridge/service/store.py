@@ -191,6 +191,14 @@ class ManeuverExists(StoreError):
         super().__init__("name", f"a maneuver {name!r} is saved already")
 
 
+class PresetExists(StoreError):
+    """:meth:`HitchStore.save_preset` without ``replace``: the implement has a preset of that name (``pose``)."""
+
+    def __init__(self, name: str, pose: dict[str, float]):
+        self.name, self.pose = name, pose
+        super().__init__("name", f"a preset {name!r} is saved already")
+
+
 @dataclass(frozen=True)
 class StoreLimits:
     """Per-owner limits of the store (see the module docstring); each must be >= 1."""
@@ -545,11 +553,13 @@ class HitchStore:
         implement: str = DEFAULT_IMPLEMENT,
         speed_scale: float | None = None,
         owner: str | None = None,
+        replace: bool = True,
     ) -> Preset:
         """Insert or replace a preset (atomically, durably); returns what was stored.
 
         ``owner``: the user saving it (None: no user named); :class:`StoreError` with field
-        ``max_presets_per_user`` when a new name would exceed the owner's limit.
+        ``max_presets_per_user`` when a new name would exceed the owner's limit. ``replace=False``:
+        :class:`PresetExists` when the implement has a preset of that name (checked in the same transaction).
         """
         preset = Preset(
             _name(implement, "implement"),
@@ -563,6 +573,13 @@ class HitchStore:
         limit = self.limits.max_presets_per_user
 
         def check(db: sqlite3.Connection) -> None:
+            if not replace:
+                old = db.execute(
+                    "SELECT x, z, roll, pitch FROM presets WHERE implement = ? AND name = ?",
+                    (preset.implement, preset.name),
+                ).fetchone()
+                if old is not None:
+                    raise PresetExists(preset.name, dict(zip(("x", "z", "roll", "pitch"), old, strict=True)))
             (n,) = db.execute(
                 "SELECT COUNT(*) FROM presets WHERE owner = ? AND NOT (implement = ? AND name = ?)",
                 (preset.owner, preset.implement, preset.name),

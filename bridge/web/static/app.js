@@ -1416,7 +1416,7 @@
         return;
       }
     }
-    const r = await call("presets/save", { name });
+    const r = await call("presets/save", old ? { name, replace: true } : { name });
     if (r.ok) { log(`preset ${r.data.saved} saved at the current pose`); ev.target.reset(); refreshPresets(); }
   });
 

@@ -262,6 +262,21 @@ def test_presets_round_trip_and_go_moves(svc):
         assert not ok and r["error"] == "not_found" and "'work'" in r["message"]
 
 
+def test_a_preset_is_not_overwritten_unasked(svc):
+    """A fleet trial: saving 'dup' at z 0.0 and then at z 0.1 answered ok both times and kept only z 0.1
+    (maneuvers/save and lines/save refuse an existing name unless replace)."""
+    assert svc.call("presets/save", {"name": "dup", "pose": {"z": 0.0}})[0]
+    ok, r = svc.call("presets/save", {"name": "dup", "pose": {"z": 0.1}})
+    assert not ok and r["error"] == "in_use" and "'dup'" in r["message"] and '"replace": true' in r["message"]
+    assert "z 0 " in r["message"] or "z 0," in r["message"], r["message"]  # the pose it keeps
+    assert svc.call("presets/list")[1]["presets"][0]["pose"]["z"] == pytest.approx(0.0)
+    ok, r = svc.call("presets/save", {"name": "dup", "pose": {"z": 0.1}, "replace": True})
+    assert ok and r["replaced"] is True and r["pose"]["z"] == pytest.approx(0.1)
+    assert svc.call("presets/list")[1]["presets"][0]["pose"]["z"] == pytest.approx(0.1)
+    ok, r = svc.call("presets/save", {"name": "new", "pose": {"z": 0.1}, "replace": True})
+    assert ok and "replaced" not in r  # nothing to replace: saved
+
+
 def test_plan_answers_without_moving(svc):
     ok, r = svc.call("plan", {"goal": {"z": 0.25}, "speed_scale": 0.5})
     assert ok and r["ok"] and r["duration"] > 0 and r["stability"]["ok"]

@@ -148,6 +148,6 @@ def _admissible(
         hold = tail.approach.via_hold_s
         t = np.array([0.0, hold, 2.0 * hold])
         sp = Setpoints(planner.rate, t, poses, np.zeros((3, 4)), q, np.zeros((3, 5)))
-        if guard.check_setpoints(sp).action == "refused":
+        if guard.check_setpoints(sp, rest_poses=True).action == "refused":  # poses at rest: no speed between
             return None
     return ctrl

@@ -263,8 +263,10 @@ class Guard:
         return kinematic_margin(f[rows], fr[rows], q, qd, f, fr, self.planner.hard, self.planner.workspace)
 
     # ------------------------------------------------------------------ plans
-    def check_setpoints(self, sp: Setpoints) -> GuardDecision:
-        """Evaluate every sample of a plan; see the module docstring for the rules.
+    def check_setpoints(self, sp: Setpoints, *, rest_poses: bool = False) -> GuardDecision:
+        """Evaluate every sample of a plan; see the module docstring for the rules. ``rest_poses``: the samples
+        are poses the hitch rests at one after another (a count approach's via and final pose), not a trajectory:
+        no velocity between them is judged from their positions.
 
         All samples at once: forward kinematics through the mapped CasADi function, end-stop
         factors, keep-out distances and stability measures vectorised (:mod:`.stability_batch`).
@@ -283,7 +285,7 @@ class Guard:
                 f"setpoints must be a Setpoints (a planned move's .setpoints; a stop has none), got {type(sp).__name__}"
             )
         _check_setpoint_shapes(sp)
-        bad = verify_setpoints(sp, self.model, self.planner.hard, self.planner.limits)
+        bad = verify_setpoints(sp, self.model, self.planner.hard, self.planner.limits, mean_rates=not rest_poses)
         if bad:
             reasons = tuple(_dedupe(GuardReason(v.limit, v.value, v.bound, v.t, "hard", v.unit) for v in bad))
             return GuardDecision("refused", 0.0, reasons)
@@ -746,6 +748,9 @@ def _check_setpoint_shapes(sp: Setpoints) -> None:
             raise StabilityInputError(
                 f"setpoints.{name} must be ({n}, {cols}) for {n} sample(s), got shape {np.shape(getattr(sp, name))}"
             )
+    t = np.asarray(sp.t, float)
+    if not (np.all(np.isfinite(t)) and np.all(np.diff(t) > 0.0)):  # (a NaN time let a 70x jump pass a review)
+        raise StabilityInputError(f"setpoints.t must be finite and strictly increasing [s], got {t[:8].tolist()}")
 
 
 def _implement_frames(P: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:

@@ -162,13 +162,16 @@ class StopProbe:
             raise PlanError(f"stop could not be computed (ruckig {res})")
         return traj
 
-    def extent(self, state: MotionState, limits: PoseLimits) -> tuple[np.ndarray, np.ndarray]:
-        """Lowest and highest position per DOF the stop from ``state`` passes (absolute).
+    def extent(
+        self, state: MotionState, limits: PoseLimits, *, along_line: bool = False
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Lowest and highest position per DOF the stop from ``state`` passes (absolute; ``along_line`` as
+        :meth:`trajectory`).
 
         Computed from position 0 and shifted: Ruckig's velocity-interface extrema start
         from 0 rather than from the current position.
         """
-        traj = self.trajectory(state, limits, relative=True, out=self._traj)
+        traj = self.trajectory(state, limits, relative=True, out=self._traj, along_line=along_line)
         ext = traj.position_extrema
         p = np.asarray(state.position, float)
         lo = np.array([min(e.min, 0.0) for e in ext]) + p

@@ -357,10 +357,12 @@ def verify_setpoints(
     *,
     rel_tol: float = 1e-6,
     check_acceleration: bool = True,
+    mean_rates: bool = True,
 ) -> list[Violation]:
     """Every limit on every sample; velocities also by forward differences of the positions (the mean velocity
     over each interval: samples made elsewhere are judged by their positions, not only by their velocity column),
-    accelerations by forward differences of the velocities.
+    accelerations by forward differences of the velocities. ``mean_rates=False``: the samples are poses the
+    hitch rests at one after another, not a trajectory (no velocity between them is judged).
 
     The forward kinematics of all samples in one mapped evaluation (:func:`forward_batch`);
     a sample whose mechanism might not close is evaluated alone (:meth:`HitchModel.features`
@@ -409,15 +411,16 @@ def verify_setpoints(
         ]
         for i in np.flatnonzero(over[k]).tolist():
             out.append(Violation(_VELOCITY_NAMES[i], t, float(sp.actuator_velocity[k, i]), float(limits.velocity[i])))
-    if len(sp.t) >= 2:
+    if mean_rates and len(sp.t) >= 2:
         # the positions themselves: (q[k+1] − q[k]) / dt is the mean velocity over the interval, so it cannot
         # exceed a bound the true velocity respects; setpoints made elsewhere whose velocity column does not match
-        # their positions (a jump 70 × the limit with zero velocity passed: a user's trial) are judged by it
-        rate = np.diff(Q, axis=0) / np.diff(np.asarray(sp.t, float))[:, None]
-        with np.errstate(invalid="ignore"):
-            fast = np.abs(rate) > limits.velocity * (1 + _MEAN_RATE_TOL)
+        # their positions (a jump 70 × the limit with zero velocity passed: a user's trial) are judged by it. Each
+        # is stamped with its interval's start, as the accelerations are; a NaN rate (bad times) is over
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rate = np.diff(Q, axis=0) / np.diff(np.asarray(sp.t, float))[:, None]
+            fast = ~(np.abs(rate) <= limits.velocity * (1 + _MEAN_RATE_TOL))
         for k, i in zip(*(a.tolist() for a in np.nonzero(fast)), strict=True):
-            out.append(Violation(_VELOCITY_NAMES[i], float(sp.t[k + 1]), float(rate[k, i]), float(limits.velocity[i])))
+            out.append(Violation(_VELOCITY_NAMES[i], float(sp.t[k]), float(rate[k, i]), float(limits.velocity[i])))
     if check_acceleration and len(sp.t) >= 3:
         # forward differences: (v[k+1] − v[k]) / dt is the mean acceleration over the interval,
         # so it cannot exceed a bound the true acceleration respects

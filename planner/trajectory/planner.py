@@ -43,7 +43,6 @@ from planner.trajectory.plan import (
     PlanError,
     Setpoints,
     TrajectoryInputError,
-    Violation,
     check_state,
     sample_plan,
     verify_setpoints,
@@ -418,7 +417,7 @@ class TrajectoryPlanner:
           Ruckig has no profile), or whose first segment runs on past both the shortest stop with the
           real braking limits and its own target by more than :data:`OVERRUN_TOLERANCE` (a reversal
           braked with the new move's smaller limits: e.g. 19 cm beyond a 2.5 cm stop), becomes a
-          stop with the real braking limits followed by the move from rest (:meth:`_stop_then`);
+          stop (the stop command's: :meth:`_stop_then`) followed by the move from rest;
         * so does one with a speed scale below 1 whose limits the current motion exceeds (its |v| or |a|):
           the move would otherwise keep the motion's speed (its limits floored by the state), not the
           speed asked for (a 5 % reversal ran at full speed)."""
@@ -468,37 +467,39 @@ class TrajectoryPlanner:
         velocity limit). The excess kept is within the stop and never more than the stop command's own
         (``info["stop_excess"]``: the largest |rate| / limit); any other violation is a :class:`PlanError`. A
         move that, verified on its own samples, exceeds a rate limit on the whole plan's (shifted in time by the
-        stop) is made a little slower (× 0.9, down to half; ``info["move_scale"]``)."""
+        stop) is made a little slower (× 0.9, down to half; ``info["move_scale"]``). A try after the first that
+        fails (its stop passes a workspace face, its move cannot be made) is passed over: the plan in hand stays."""
         brake = self._stop_limits(start)
         tries = [(1.0, False), (1.0, True), *((0.9**k, False) for k in range(1, 7))]
         best: tuple[float, Plan] | None = None
-        worst: Violation | None = None
         move_scale, k = 1.0, 0
         while k < len(tries):
             factor, along_line = tries[k]
             lim = PoseLimits(brake.velocity, brake.acceleration * factor, brake.jerk)
-            stop = self._probe.trajectory(start, lim, along_line=along_line)
-            p_stop, _, _ = stop.at_time(stop.duration)
             try:
-                self._check_extrema(stop, start.position)  # from outside the workspace: no further out
+                stop = self._probe.trajectory(start, lim, along_line=along_line)
+                # from outside the workspace: no further out (the stop's extent from its start: Ruckig's extrema of
+                # a velocity-interface stop include 0, which a workspace need not: every such re-plan was refused)
+                self._check_stop_extent(start, lim, along_line)
+                p_stop, _, _ = stop.at_time(stop.duration)
                 chain = [(p, v, scale * move_scale) for p, v, scale in targets]
                 move = self._plan_chain(MotionState.at_rest(np.array(p_stop, float)), chain, None)
                 plan = Plan((stop, *move.segments), start, float(stop.duration + move.duration), 0.0)
                 sp = self.sample(plan)
                 self._check_samples(sp, start.position, stop.duration)
-            except _LeavesWorkspace as exc:
+                bad = verify_setpoints(sp, self.model, self.hard, self.limits)
+                in_stop = [v for v in bad if v.t <= stop.duration + 1e-9 and v.limit.startswith(_RATE_LIMITS)]
+                if len(in_stop) < len(bad):
+                    worst = next(v for v in bad if v not in in_stop)
+                    if worst.limit.startswith(_RATE_LIMITS) and move_scale > 0.5:
+                        move_scale *= 0.9  # the same stop again, the move after it slower
+                        continue
+                    raise PlanError(f"the plan would exceed {worst.sentence()}")
+            except PlanError as exc:  # _LeavesWorkspace too
                 if k == 0:  # the stop command's own stop, or the move from where it ends
                     raise PlanError(str(exc)) from None
-                k += 1  # another stop ends elsewhere: try the next
+                k += 1  # another stop, which ends elsewhere: the one in hand stays; try the next
                 continue
-            bad = verify_setpoints(sp, self.model, self.hard, self.limits)
-            in_stop = [v for v in bad if v.t <= stop.duration + 1e-9 and v.limit.startswith(_RATE_LIMITS)]
-            if len(in_stop) < len(bad):
-                worst = next(v for v in bad if v not in in_stop)
-                if worst.limit.startswith(_RATE_LIMITS) and move_scale > 0.5:
-                    move_scale *= 0.9  # the same stop again, the move after it slower
-                    continue
-                raise PlanError(f"the plan would exceed {worst.sentence()}")
             excess = max((abs(v.value) / v.bound for v in in_stop), default=0.0)
             info = {
                 **move.info,
@@ -516,9 +517,26 @@ class TrajectoryPlanner:
             if not in_stop:
                 break
             k += 1
-        if best is None:  # no stop but the first was tried to the end: it left the workspace or kept exceeding
-            raise PlanError(f"the plan would exceed {worst.sentence()}" if worst else "no stop first was found")
+        assert best is not None  # the first try either gives a plan or raises
         return best[1]
+
+    def _check_stop_extent(self, start: MotionState, lim: PoseLimits, along_line: bool) -> None:
+        """:class:`_LeavesWorkspace` when the stop from ``start`` within ``lim`` passes a workspace face (from
+        outside the workspace: goes further out than where it starts)."""
+        lo, hi = self._probe.extent(start, lim, along_line=along_line)
+        p = np.asarray(start.position, float)
+        lo_ok, hi_ok = np.minimum(self.lo, p), np.maximum(self.hi, p)
+        for i, (k, (name_min, name_max)) in enumerate(zip(CONTROLLED_POSE_NAMES, WORKSPACE_NAMES, strict=True)):
+            if lo[i] < lo_ok[i] - 1e-6:
+                raise _LeavesWorkspace(
+                    f"the stop would leave the workspace: {k} reaches {lo[i]:.4f} ({name_min} = {self.lo[i]:.4f}"
+                    f"{_start_note(lo_ok[i], self.lo[i])})"
+                )
+            if hi[i] > hi_ok[i] + 1e-6:
+                raise _LeavesWorkspace(
+                    f"the stop would leave the workspace: {k} reaches {hi[i]:.4f} ({name_max} = {self.hi[i]:.4f}"
+                    f"{_start_note(hi_ok[i], self.hi[i])})"
+                )
 
     def _plan_chain(self, start: MotionState, targets, brake: PoseLimits | None) -> Plan:
         factor = 1.0

@@ -352,3 +352,27 @@ def test_setpoints_whose_positions_jump_are_refused_whatever_their_velocity_colu
     # the same move planned: accepted, and its own samples' mean velocities are within the limits
     plan = tp.plan_move(MotionState.at_rest(p0), {"z": float(p1[1])})
     assert g.check_setpoints(plan.setpoints).action in ("ok", "scaled")
+
+
+@pytest.mark.parametrize("t1", [float("nan"), float("inf"), 0.0, -0.02])
+def test_setpoint_times_must_be_finite_and_increasing(parts, t1):
+    """A review: with t = [0, nan] the 70x jump above passed again ("ok"), with [0, 0] it was judged at an infinite
+    rate with numpy's divide warning."""
+    m, tp, g, s0 = parts
+    sp = tp.plan_move(s0, {"z": 0.25}).setpoints
+    bad = dataclasses.replace(sp, t=np.r_[0.0, t1, sp.t[2:]])
+    with pytest.raises(StabilityInputError, match=r"setpoints\.t must be finite and strictly increasing"):
+        g.check_setpoints(bad)
+
+
+def test_rest_poses_are_not_judged_as_a_trajectory(parts):
+    """Poses the hitch rests at one after another (a count approach's via and final pose, made-up times): their
+    distance over the times is no speed (Guard.check_setpoints rest_poses)."""
+    from planner import Setpoints
+
+    m, tp, g, s0 = parts
+    a = tp.plan_move(s0, {"z": 0.25}).setpoints
+    idx = [0, len(a.t) - 1]  # the start and the end of a move, 0.05 s apart
+    sp = Setpoints(a.rate, np.array([0.0, 0.05]), a.pose[idx], np.zeros((2, 4)), a.actuators[idx], np.zeros((2, 5)))
+    assert g.check_setpoints(sp).action == "refused"
+    assert g.check_setpoints(sp, rest_poses=True).action in ("ok", "scaled")

@@ -490,3 +490,50 @@ def test_a_plan_preview_lasts_as_long_as_the_goto_with_its_count_approach(model,
     plain = InProcessPlanning(GuardPlanning(Guard(TrajectoryPlanner(model))), None).preview(start, GOAL, 1.0)
     assert plain["ok"] and plain["count_approach_s"] == 0.0
     assert plain["duration"] == pytest.approx(local["duration"] - local["count_approach_s"], abs=1e-9)
+
+
+def test_a_short_via_hold_gives_the_same_tails_the_default_does():
+    """A review: the guard's check of a tail's via and final pose judged the count steps as speeds over the made-up
+    times 0, hold, 2·hold (the mean velocity between samples): with via_hold_s 0.1, 15 of 39 tails fell back to
+    one-count back-offs, with 0.05 7 of 40 were lost. They are poses at rest (Guard.check_setpoints rest_poses)."""
+    import numpy as np
+
+    from planner.limits.guard import Guard
+    from planner.model.kinematics import HitchModel
+    from planner.profiles import profile_from_dict
+    from planner.trajectory import MotionState, TrajectoryPlanner
+
+    base = HitchModel.from_profile("thesis-t132", "2")
+    table = {
+        "from_below_counts": {
+            "lift": [0.193, 0.305, 0.426],
+            "tilt": [-0.089, -0.087, -0.084],
+            "top": [-0.124, -0.123, -0.119],
+            "left": [-0.115, -0.111],
+            "right": [-0.113, -0.109],
+        },
+        "from_above_counts": {
+            "lift": [-0.196, -0.306, -0.452],
+            "tilt": [0.083],
+            "top": [0.116, 0.108],
+            "left": [0.064],
+            "right": [0.114],
+        },
+    }
+    tails = {}
+    for hold in (0.6, 0.05):
+        data = base.profile.model_dump()
+        data["motion"]["count_approach"] = dict(table, via_hold_s=hold)
+        tp = TrajectoryPlanner(HitchModel(profile_from_dict(data)))
+        g = Guard(tp)
+        s0 = MotionState.at_rest((tp.lo + tp.hi) / 2)
+        rng = np.random.default_rng(8)
+        out = []
+        for _ in range(40):
+            goal = tp.lo + (tp.hi - tp.lo) * rng.random(4)
+            plan = tp.plan_move(s0, dict(zip(("x", "z", "roll", "pitch"), goal, strict=True)))
+            tail = plan_count_tail(tp, plan, lambda q: None, g)
+            out.append(None if tail is None else (tuple(tail.via_actuators), tuple(tail.final_actuators)))
+        tails[hold] = out
+    assert sum(t is not None for t in tails[0.6]) >= 30
+    assert tails[0.05] == tails[0.6]

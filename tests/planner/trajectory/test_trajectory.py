@@ -220,7 +220,7 @@ def reference_verify(sp, model, hard, limits, rel_tol=1e-6):
             rate = (sp.actuators[k, i] - sp.actuators[k - 1, i]) / (sp.t[k] - sp.t[k - 1])
             if abs(rate) > limits.velocity[i] * (1 + 1e-5):
                 name = str(LimitName("velocity", ACTUATOR_NAMES[i]))
-                out.append(Violation(name, float(sp.t[k]), float(rate), float(limits.velocity[i])))
+                out.append(Violation(name, float(sp.t[k - 1]), float(rate), float(limits.velocity[i])))
     acc = np.diff(sp.actuator_velocity, axis=0) / np.diff(sp.t)[:, None]
     rows, cols = np.nonzero(np.abs(acc) > limits.acceleration * (1 + rel_tol))
     for k, i in zip(rows.tolist(), cols.tolist(), strict=True):

@@ -14,8 +14,9 @@ here); the J1939 operator switch and the CLI end up in the same methods.
   is refused while the hitch moves (``busy``; send stop first), makes the presets keys use its presets
   and is persisted (setting ``selected_implement``): a restarted service selects it again (unless
   ``hitch serve --implement`` names another: the flag comes first, then the persisted selection, then the config
-  file's implement; :meth:`ImplementService.restore` checks the category of the one chosen and says at start
-  when it is not the one named, :attr:`ImplementService.warnings`). The planning
+  file's implement, then none; :meth:`ImplementService.restore` takes the first of them that is defined and of the
+  hitch's category, and says at start which runs and why each other named one was not taken,
+  :attr:`ImplementService.warnings`). The planning
   processes get it too (:attr:`ImplementService.on_applied` → ``PlanningWorkers.set_implement``), so
   previews and maneuver validation plan with the selected implement's guard.
 * ``sim/switch`` makes the simulated tractor send one press of the operator switch (in the service's
@@ -157,7 +158,8 @@ class ImplementService:
         persisted = store.get_setting(SELECTED_SETTING) if store is not None else None
         # the implement named at start-up (``selected_by``: "flag", --implement; "file", the config file's) and the
         # persisted selection: the flag wins over the persisted one, the persisted one over the file's, the file's
-        # over none (a user trial: --implement was ignored once a selection was persisted; docs/implements.md)
+        # over none (a user trial: --implement was ignored once a selection was persisted; docs/implements.md).
+        # ``selected`` is that choice until :meth:`restore` takes the first valid one of them (it falls through).
         named = selected if selected and selected != DEFAULT_IMPLEMENT else None
         self._named = None if named is None else (named, "flag" if selected_by == "flag" else "file")
         self._persisted = persisted or None
@@ -165,8 +167,8 @@ class ImplementService:
             self.selected: str = self._named[0]
         else:
             self.selected = persisted or selected or DEFAULT_IMPLEMENT
-        #: what the start-up has to say about the implement (a line each: the one that runs and the one not taken,
-        #: an implement dropped); the service's start-up warnings (printed by ``hitch serve``, in the black box)
+        #: what the start-up has to say about the implement (one line: the one that runs and each one named at start
+        #: that was not taken, and why); the service's start-up warnings (printed by ``hitch serve``, in the black box)
         self.warnings: list[str] = []
         #: how a switch edge is served (``key`` → the API's handling of it; set by :func:`implement_handlers`)
         self.dispatch: Dispatch | None = None
@@ -201,70 +203,117 @@ class ImplementService:
 
     # ------------------------------------------------------------------ start
     def restore(self) -> None:
-        """Give the controller and the planning the selected implement at start: its stored record and limits, or
-        the tractor profile's record (no limits); none: nothing is given. The guards are built without an implement
-        (:func:`bridge.service.machine.build_guard`, the planning workers): this is the one way in, so the
-        category check holds on every path. An implement that is not defined, or of another ISO 730 category than
-        the hitch, is not taken (the service runs without one); that, and a selection other than one named at
-        start-up, is said in :attr:`warnings`."""
-        name = self.selected
-        dropped: str | None = None  # why ``name`` is not taken
-        record: ImplementRecord | None = None
-        limits = ImplementLimits()
-        if name != DEFAULT_IMPLEMENT:
-            imp = self.store.get_implement(name)
-            rec = self._builtin(name) if imp is None else None
-            if rec is not None:  # a tractor profile's record not stored yet: its record, no limits
-                imp = StoredImplement(rec.name, rec.category, rec.mass, rec.centre_of_mass, description=rec.description)
-            if imp is None:
-                dropped = "it is not defined (neither stored nor a record of the tractor profile)"
-            elif self.category is not None and imp.category != self.category:
-                dropped = f"it is an ISO 730 category {imp.category} implement, this hitch category {self.category}"
-            else:
-                record, limits = record_of(imp), imp.limits
-        if record is not None:  # none: nothing to give (the guards have none; an API embedded without a controller)
+        """Give the controller and the planning the implement to start with: the first one of the precedence — the
+        ``--implement`` flag's, the persisted selection, the config file's, none — that can be taken. A candidate is
+        taken when it is defined (stored, or a record of the tractor profile: its record, no limits), of the hitch's
+        ISO 730 category, and the controller accepts it; otherwise the next one is tried (a review: a persisted
+        selection no longer defined, or a flag of another category, left the service without an implement although
+        a valid one came next — and the guard then counted no implement mass: front axle share 0.506 against 0.309
+        with the harrow). A persisted ``default`` is taken as none. The guards are built without an implement
+        (:func:`bridge.service.machine.build_guard`, the planning workers): this is the one way in, so the category
+        check holds on every path. Nothing is written to the store (the flag's implement is not persisted, a
+        profile record is not stored). Whenever one named at start is left out, :attr:`warnings` says in one line
+        which runs and why each one left out was not taken."""
+        candidates = self._candidates()
+        reasons: list[str | None] = []  # per candidate: why it cannot be taken (None: it can)
+        taken: int | None = None
+        apply_failed = False
+        for i, (name, _where) in enumerate(candidates):
+            if name == DEFAULT_IMPLEMENT:  # a persisted `default`: none, chosen
+                reasons.append(None)
+                if taken is None:
+                    taken = i
+                continue
+            why, imp = self._check_candidate(name)
+            if why is None and taken is None and imp is not None:
+                try:
+                    self._apply(record_of(imp), imp.limits)
+                except HitchError as exc:  # the next one is tried; the service starts anyway, and says why
+                    why, apply_failed = f"it could not be applied: {exc}", True
+                else:
+                    taken = i
+            reasons.append(why)
+        self.selected = DEFAULT_IMPLEMENT if taken is None else candidates[taken][0]
+        if apply_failed and self.selected == DEFAULT_IMPLEMENT:  # undo what a half-applied one may have left
             try:
-                self._apply(record, limits)
-            except HitchError as exc:  # the service starts anyway (without the implement), and says why
-                dropped = f"it could not be applied: {exc}"
-        if dropped is not None:
-            self.selected = DEFAULT_IMPLEMENT
-        line = self._start_line(name, dropped)
+                self._apply(None, ImplementLimits())
+            except HitchError as exc:
+                self.warnings.append(f"implement: the controller's implement could not be cleared at start: {exc}")
+        line = self._start_line(candidates, reasons, taken)
         if line is not None:
             self.warnings.append(line)
         self._announce()
 
-    def _start_line(self, tried: str, dropped: str | None) -> str | None:
-        """One line when the implement that runs is not the one named at start-up (flag or file) or the persisted
-        one: which runs, which was not taken and why, how to change it; None when they agree."""
-        origin = {"flag": "--implement", "file": "the config file's implement"}
-        candidates: list[tuple[str, str]] = []
-        if self._named is not None:
-            candidates.append((self._named[0], origin[self._named[1]]))
-        if self._persisted is not None:
-            if candidates and candidates[0][0] == self._persisted:  # the same one: named once
-                candidates[0] = (self._persisted, f"{candidates[0][1]} and the persisted selection")
+    def _candidates(self) -> list[tuple[str, str]]:
+        """The implements named at start in the order of precedence (name, where it was named): the flag's, the
+        persisted selection, the config file's; one named twice is one candidate, at its first place."""
+        out: list[tuple[str, str]] = []
+        named, persisted = self._named, self._persisted
+        if named is not None and named[1] == "flag":
+            out.append((named[0], "--implement"))
+        if persisted is not None:
+            out.append((persisted, "the persisted selection"))
+        if named is not None and named[1] == "file":
+            out.append((named[0], "the config file's implement"))
+        merged: list[tuple[str, str]] = []
+        for name, where in out:
+            first = next((k for k, (n, _) in enumerate(merged) if n == name), None)
+            if first is None:
+                merged.append((name, where))
             else:
-                candidates.append((self._persisted, "the persisted selection"))
+                merged[first] = (name, f"{merged[first][1]} and {where}")
+        return merged
+
+    def _check_candidate(self, name: str) -> tuple[str | None, StoredImplement | None]:
+        """(why ``name`` cannot be taken or None, its stored implement or the tractor profile's record of it —
+        not stored: a start writes nothing)."""
+        imp = self.store.get_implement(name)
+        if imp is None:
+            rec = self._builtin(name)
+            if rec is not None:
+                imp = StoredImplement(rec.name, rec.category, rec.mass, rec.centre_of_mass, description=rec.description)
+        if imp is None:
+            return "it is not defined (neither stored nor a record of the tractor profile)", None
+        if self.category is not None and imp.category != self.category:
+            return f"it is an ISO 730 category {imp.category} implement, this hitch category {self.category}", imp
+        return None, imp
+
+    def _start_line(
+        self, candidates: list[tuple[str, str]], reasons: list[str | None], taken: int | None
+    ) -> str | None:
+        """One line when an implement named at start (flag, persisted selection, file) is not the one that runs:
+        which runs (and where it was named), each one not taken and why (its own fault, or one before it in the
+        precedence was taken — and whether it could be taken otherwise), how to change it; None when none was
+        left out."""
         not_taken = []
-        for name, where in candidates:
-            if name == self.selected or (name == tried and dropped is None):
+        for i, ((name, where), why) in enumerate(zip(candidates, reasons, strict=True)):
+            if i == taken:
                 continue
             shown = "none" if name == DEFAULT_IMPLEMENT else repr(name)
-            if name == tried:
-                why = dropped
-            elif self._named is not None and self._named[1] == "flag":
-                why = f"--implement comes first; a start without it selects {shown} again"
-            else:
-                why = "the persisted selection comes before it"
+            if taken is not None and i > taken:  # one before it was taken
+                first = candidates[taken][1]
+                if first.startswith("--implement"):
+                    why = (
+                        f"--implement comes first; a start without it selects {shown} again"
+                        if why is None
+                        else f"--implement comes first; a start without it would not select it either: {why}"
+                    )
+                else:
+                    before = (
+                        "the persisted selection comes before it"
+                        if first.startswith("the persisted selection")
+                        else f"{first} comes before it"
+                    )
+                    why = before if why is None else f"{before}; nor could it be taken: {why}"
             not_taken.append(f"{shown} ({where}: {why})")
         if not not_taken:
             return None
-        if self.selected == DEFAULT_IMPLEMENT:
-            runs = "no implement" + (" (the persisted selection)" if dropped is None else "")
+        if taken is None:
+            runs = "no implement"
+        elif candidates[taken][0] == DEFAULT_IMPLEMENT:
+            runs = f"no implement ({candidates[taken][1]})"
         else:
-            where = next(w for n, w in candidates if n == self.selected)
-            runs = f"{self.selected!r} ({where})"
+            runs = f"{candidates[taken][0]!r} ({candidates[taken][1]})"
         return (
             f"implement: {runs} is selected; not taken: {'; '.join(not_taken)}. Change it with "
             f"`hitch implement select NAME` (persisted; `default` selects none)"

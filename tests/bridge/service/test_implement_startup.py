@@ -21,13 +21,18 @@ import pytest
 from bridge.service.config import ServiceConfig, ServiceConfigError, load_service_config
 from bridge.service.implements import SELECTED_SETTING, ImplementService
 from bridge.service.server import HitchService
-from bridge.service.store import HitchStore
+from bridge.service.store import HitchStore, StoredImplement
+from planner.errors import HitchError
 from planner.limits.implement_limits import ImplementLimits
 from tests.helpers import SimService, wait_until
 
 HARROW = {"name": "harrow", "category": "2", "mass_kg": 1200.0, "com_m": [0.0, 0.6, 0.4], "upper_height_m": 0.28}
 CAT2 = "cat2-power-harrow-1500"  # a category-2 record of tractor-6t (the thesis profile's tractor)
+SPREADER = "cat2-spreader-400"  # another one (400 kg)
 SELECT = "Change it with `hitch implement select NAME`"
+TAIL = f"{SELECT} (persisted; `default` selects none)"
+NOT_DEFINED = "it is not defined (neither stored nor a record of the tractor profile)"
+CAT2_ON_3 = "it is an ISO 730 category 2 implement, this hitch category 3"
 
 
 class _Motion:
@@ -187,3 +192,160 @@ def test_the_control_core_in_its_own_process_and_the_planning_process_get_no_imp
             svc.close()
 
     assert share(CAT2, "a") == pytest.approx(share(None, "b"), abs=1e-6)
+
+
+# ---------------------------------------------------------------- a review of the precedence: fall through to the next
+
+
+def _plough3(store: HitchStore) -> None:
+    """A stored category-3 implement ``plough3``, persisted as the selection."""
+    store.save_implement(StoredImplement("plough3", "3", 900.0, (0.0, 0.8, 0.3), ImplementLimits(upper_height_m=0.3)))
+    store.set_setting(SELECTED_SETTING, "plough3")
+
+
+def test_a_persisted_selection_no_longer_defined_falls_through_to_the_config_file_s_implement(tmp_path):
+    """The review's case A: the persisted ``gone-implement`` is no longer defined, the file names a valid
+    ``cat2-spreader-400``: the service ran with no implement (the guard counted no implement mass) and the line
+    said the file's was not taken because the persisted one came first — which was not taken either. The file's
+    is taken now, and the line says why the persisted one is not; nothing is written to the store."""
+    store = HitchStore(tmp_path / "hitch.sqlite3")
+    store.set_setting(SELECTED_SETTING, "gone-implement")
+    svc, motion, planning = _restored(store, selected=SPREADER, category="2")
+    assert [(r.name, r.mass) for r, _ in motion.selected] == [(SPREADER, 400.0)]
+    assert [r.name for r in planning] == [SPREADER] and svc.selected == SPREADER
+    assert svc.warnings == [
+        f"implement: {SPREADER!r} (the config file's implement) is selected; not taken: 'gone-implement' (the "
+        f"persisted selection: {NOT_DEFINED}). {TAIL}"
+    ]
+    assert store.get_setting(SELECTED_SETTING) == "gone-implement" and store.get_implement(SPREADER) is None
+
+
+def test_case_a_on_the_simulated_rig_the_guards_count_the_file_s_implement(model, tmp_path):
+    path = tmp_path / "hitch.sqlite3"
+    store = HitchStore(path)
+    store.set_setting(SELECTED_SETTING, "gone-implement")
+    store.close()
+    svc = SimService(model, path, implement=SPREADER)  # the file's (implement_source "file")
+    try:
+        assert svc.ok("implements/list")["selected"] == SPREADER and svc.ok("config")["implement"] == SPREADER
+        for g in (svc.mc.guard, svc.mc.plan_guard):
+            assert g.implement is not None and g.implement.name == SPREADER and g.implement.mass == 400.0
+        assert (
+            "not taken: 'gone-implement' (the persisted selection: it is not defined" in svc.api.implements.warnings[0]
+        )
+        assert svc.store.get_setting(SELECTED_SETTING) == "gone-implement"
+    finally:
+        svc.close()
+
+
+def test_a_flag_of_another_category_falls_through_to_the_persisted_selection(tmp_path):
+    """The review's case B: ``--implement`` names a category-2 implement on a category-3 hitch while a valid stored
+    ``plough3`` is persisted: the service ran with no implement. The persisted one is taken now (its record and its
+    limits), the line says why the flag's is not, and the persisted selection stays."""
+    store = HitchStore(tmp_path / "hitch.sqlite3")
+    _plough3(store)
+    svc, motion, planning = _restored(store, selected=CAT2, selected_by="flag", category="3")
+    assert [(r.name, r.mass, lim.upper_height_m) for r, lim in motion.selected] == [("plough3", 900.0, 0.3)]
+    assert [r.name for r in planning] == ["plough3"] and svc.selected == "plough3"
+    assert svc.warnings == [
+        f"implement: 'plough3' (the persisted selection) is selected; not taken: {CAT2!r} (--implement: {CAT2_ON_3}). "
+        f"{TAIL}"
+    ]
+    assert store.get_setting(SELECTED_SETTING) == "plough3" and store.get_implement(CAT2) is None
+
+
+def test_case_b_on_a_started_service_the_guards_count_the_persisted_implement(tmp_path):
+    """Case B as ``hitch serve --category 3 --implement cat2-power-harrow-1500`` runs it (the control core in the
+    service's threads): the guards have ``plough3``, ``config`` names it, the start-up warnings say why the flag's
+    implement is not taken."""
+    store = HitchStore(tmp_path / "hitch.sqlite3")
+    _plough3(store)
+    store.close()
+    cfg = ServiceConfig(
+        listen=[],
+        category="3",
+        implement=CAT2,
+        implement_source="flag",
+        control_core="thread",
+        planning_processes=0,
+        data_dir=tmp_path,
+    )
+    svc = HitchService(cfg).start()
+    try:
+        assert svc.motion is not None
+        for g in (svc.motion.guard, svc.motion.plan_guard):
+            assert g.implement is not None and (g.implement.name, g.implement.mass) == ("plough3", 900.0)
+        ok, config = svc.api.handle("config", b"{}")
+        assert ok and config["implement"] == "plough3", config
+        line = [w for w in svc.warnings if w.startswith("implement: ")]
+        assert line == [
+            f"implement: 'plough3' (the persisted selection) is selected; not taken: {CAT2!r} (--implement: "
+            f"{CAT2_ON_3}). {TAIL}"
+        ]
+    finally:
+        svc.close()
+
+
+def test_when_every_named_implement_is_invalid_none_runs_and_each_reason_is_said(tmp_path):
+    """Every candidate is tried and none can be taken: no implement, and the line gives each one's own reason (not
+    "comes before it")."""
+    store = HitchStore(tmp_path / "hitch.sqlite3")
+    store.set_setting(SELECTED_SETTING, "gone-implement")
+    svc, motion, planning = _restored(store, selected=CAT2, category="3")  # the file's, of another category
+    assert motion.selected == [] and planning == [] and svc.selected == "default"
+    assert svc.warnings == [
+        f"implement: no implement is selected; not taken: 'gone-implement' (the persisted selection: {NOT_DEFINED}); "
+        f"{CAT2!r} (the config file's implement: {CAT2_ON_3}). {TAIL}"
+    ]
+    # the flag's of another category, the persisted one not defined
+    svc, motion, planning = _restored(store, selected=CAT2, selected_by="flag", category="3")
+    assert motion.selected == [] and planning == [] and svc.selected == "default"
+    assert svc.warnings == [
+        f"implement: no implement is selected; not taken: {CAT2!r} (--implement: {CAT2_ON_3}); 'gone-implement' (the "
+        f"persisted selection: {NOT_DEFINED}). {TAIL}"
+    ]
+    assert store.get_setting(SELECTED_SETTING) == "gone-implement" and store.list_implements() == []
+
+
+def test_one_left_out_below_the_one_taken_is_said_accurately(tmp_path):
+    """The flag's is taken and the persisted one is not defined: a start without the flag would not select it
+    either (the line used to say it would). The persisted one is taken and the file's is of another category: the
+    line says both reasons."""
+    store = HitchStore(tmp_path / "hitch.sqlite3")
+    store.set_setting(SELECTED_SETTING, "gone-implement")
+    svc, motion, _ = _restored(store, selected=SPREADER, selected_by="flag", category="2")
+    assert [r.name for r, _ in motion.selected] == [SPREADER]
+    assert svc.warnings == [
+        f"implement: {SPREADER!r} (--implement) is selected; not taken: 'gone-implement' (the persisted selection: "
+        f"--implement comes first; a start without it would not select it either: {NOT_DEFINED}). {TAIL}"
+    ]
+    _plough3(store)
+    svc, motion, _ = _restored(store, selected=CAT2, category="3")
+    assert [r.name for r, _ in motion.selected] == ["plough3"]
+    assert svc.warnings == [
+        f"implement: 'plough3' (the persisted selection) is selected; not taken: {CAT2!r} (the config file's "
+        f"implement: the persisted selection comes before it; nor could it be taken: {CAT2_ON_3}). {TAIL}"
+    ]
+
+
+def test_an_implement_the_controller_refuses_at_start_falls_through_to_the_next(tmp_path):
+    """The controller refuses the persisted implement (a HitchError): the file's is tried next, and the line says
+    why the persisted one is not taken."""
+
+    class _Refusing(_Motion):
+        def select_implement(self, implement: Any, limits: ImplementLimits) -> dict[str, Any]:
+            if implement is not None and implement.name == "plough3":
+                raise HitchError("the hitch is above plough3's upper height")
+            return super().select_implement(implement, limits)
+
+    store = HitchStore(tmp_path / "hitch.sqlite3")
+    _plough3(store)
+    store.save_implement(StoredImplement("disc3", "3", 700.0, (0.0, 0.7, 0.3)))
+    motion = _Refusing()
+    svc = ImplementService(store, motion, selected="disc3", tractor_profile="tractor-6t", category="3")  # type: ignore[arg-type]
+    svc.restore()
+    assert [r.name for r, _ in motion.selected] == ["disc3"] and svc.selected == "disc3"
+    assert svc.warnings == [
+        "implement: 'disc3' (the config file's implement) is selected; not taken: 'plough3' (the persisted selection: "
+        f"it could not be applied: the hitch is above plough3's upper height). {TAIL}"
+    ]

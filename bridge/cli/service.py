@@ -327,6 +327,8 @@ FLEET_PREFIX_HELP = (
     "list only the services whose key prefix is this one or under it, e.g. fleet or fleet/t07/hitch (default: every "
     "service)"
 )
+#: the namespace attribute of ``--connect`` given before a group's action (merged into ``connect``)
+OUTER_CONNECT = "outer_connect"
 #: the namespace attribute holding the client options' defaults (applied by the top-level parser after parsing)
 CLIENT_OPTION_DEFAULTS = "client_option_defaults"
 
@@ -337,9 +339,10 @@ def _client_options(p, *, prefix_help: str | None = None, outer: bool = False) -
 
     ``outer``: the same options on a group's parser, so they may also stand before the action
     (``hitch faults --connect X list``, as ``hitch faults list --connect X``; given at both, the action's
-    wins). Their defaults are therefore not argparse's (a subcommand's default would override the
-    value given before it): they are recorded under :data:`CLIENT_OPTION_DEFAULTS` and applied by the
-    top-level parser (:func:`apply_client_option_defaults`) to what neither place gave."""
+    wins, but ``--connect`` endpoints given at both are all taken). Their defaults are therefore not
+    argparse's (a subcommand's default would override the value given before it): they are recorded under
+    :data:`CLIENT_OPTION_DEFAULTS` and applied by the top-level parser (:func:`apply_client_option_defaults`)
+    to what neither place gave."""
     defaults: dict[str, Any] = {}
 
     def option(*flags: str, default: Any, **kwargs: Any) -> None:
@@ -348,6 +351,7 @@ def _client_options(p, *, prefix_help: str | None = None, outer: bool = False) -
 
     option(
         "--connect",
+        **({"dest": OUTER_CONNECT} if outer else {}),  # endpoints given at both levels are all taken
         action="append",
         default=None,
         metavar="ENDPOINT",
@@ -385,6 +389,10 @@ def _client_options(p, *, prefix_help: str | None = None, outer: bool = False) -
 def apply_client_option_defaults(args: argparse.Namespace) -> argparse.Namespace:
     """Give a parsed client command the defaults of the client options neither its action nor its group got
     (:func:`_client_options`); other commands are returned as they are."""
+    outer = getattr(args, OUTER_CONNECT, None)
+    if outer is not None:  # --connect before the action and after it: every endpoint, in the order given
+        args.connect = [*outer, *(getattr(args, "connect", None) or [])]
+        delattr(args, OUTER_CONNECT)
     for dest, value in getattr(args, CLIENT_OPTION_DEFAULTS, {}).items():
         if not hasattr(args, dest):
             setattr(args, dest, list(value) if isinstance(value, list) else value)

@@ -593,6 +593,36 @@ def _add_service_rules(
         policies.append({"id": rid, "rules": [rid], "subjects": [rid]})
 
 
+def allow_stop_puts(acl: Mapping[str, Any]) -> dict:
+    """``acl`` (an ``access_control`` section as :func:`build_acl` writes it) with the ``stop_puts`` rule a file
+    written before it lacks: a put on ``<prefix>/stop`` stops as the query does, and with the default deny such a
+    file refused it silently (a put has no reply: the sender believed it had stopped the hitch; a review). Added
+    to the operators' and viewers' policies, as the query on stop is open to both. Returned unchanged (a copy) when
+    access control is off, the rule is there, or the file was not written by :func:`build_acl` (one prefix)."""
+    out = json.loads(json.dumps(dict(acl)))
+    rules = out.get("rules") or []
+    if not out.get("enabled") or any(r.get("id") == "stop_puts" for r in rules):
+        return out
+    everything = next((r.get("key_exprs") or [] for r in rules if r.get("id") == "observe"), [])
+    prefixes = [k[: -len("/**")] for k in everything if k.endswith("/**")]
+    if len(prefixes) != 1:
+        return out
+    rules.append(
+        {
+            "id": "stop_puts",
+            "permission": "allow",
+            "flows": ["ingress", "egress"],
+            "messages": ["put", "declare_subscriber"],
+            "key_exprs": [f"{prefixes[0]}/stop"],
+        }
+    )
+    out["rules"] = rules
+    for policy in out.get("policies") or []:
+        if policy.get("id") in ("operators", "viewers"):
+            policy["rules"] = [*(policy.get("rules") or []), "stop_puts"]
+    return out
+
+
 def confine_services(acl: Mapping[str, Any]) -> dict:
     """``acl`` (an ``access_control`` section as :func:`build_acl` writes it) with an older version's services
     rule replaced: that one rule (id ``service``) let every service node send every message under the whole
@@ -891,8 +921,8 @@ def apply_security(config: zenoh.Config, source: SecuritySettings | Mapping | st
     """Merge the security sections of ``source`` into ``config`` (in place; returned for chaining)."""
     for path, value in security_sections(source).items():
         acl = json.loads(value) if path == "access_control" and value else None
-        if isinstance(acl, dict):  # a file written before user scopes and own service prefixes gets them (idempotent)
-            value = json.dumps(scope_acl_users(confine_services(acl)))
+        if isinstance(acl, dict):  # a file written before user scopes, own service prefixes, stop puts gets them
+            value = json.dumps(scope_acl_users(confine_services(allow_stop_puts(acl))))
         try:
             config.insert_json5(path, value)
         except Exception as exc:

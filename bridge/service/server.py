@@ -45,6 +45,7 @@ SIGTERM.
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
 import sys
@@ -64,7 +65,7 @@ from bridge.service.api import API_KEYS, ServiceAPI
 from bridge.service.client import zenoh_reason
 from bridge.service.config import ServiceConfig
 from bridge.service.core.client import CoreProcess, MotionProxy
-from bridge.service.core.process import freeze_startup_objects, lock_memory
+from bridge.service.core.process import STOP_PUT_RING, freeze_startup_objects, lock_memory
 from bridge.service.data_lock import DataDirLock
 from bridge.service.gnss import restore_lines, start_twin_gnss
 from bridge.service.machine import CanParts, build_controller, build_guard, build_model, service_info, start_can
@@ -81,6 +82,7 @@ from bridge.service.scheduling import (
 )
 from bridge.service.schemas import setpoint_too_large
 from bridge.service.security import (
+    INTERNAL_SOCKET_NAME,
     USER_SCOPE,
     InternalLink,
     access_policy_from_file,
@@ -137,6 +139,30 @@ SWITCH_INTERVAL_S = 0.001
 SERVICE_NICE = -5
 #: threads raised to :data:`REALTIME_NICE` (by name)
 REALTIME_THREADS = frozenset({"hitch-control", "CanLink-rt", "EcuCanNode-rt"})
+
+
+#: the longest path of a Unix socket Linux takes (sun_path is 108 bytes with its terminating NUL)
+_UNIX_PATH_MAX = 107
+
+
+def private_link_dir() -> Path:
+    """A fresh 0700 directory for the control core's Unix socket (``core.sock``): under the temporary directory
+    (``TMPDIR``), or — when the socket's path there would be longer than a Unix socket's (a long ``TMPDIR``: a
+    review; the service failed to start with Zenoh's "path must be shorter than SUN_LEN") — under
+    ``XDG_RUNTIME_DIR`` or ``/tmp``; :class:`ServiceStartError` naming ``TMPDIR`` when none is short enough."""
+    tried = []
+    for base in (None, os.environ.get("XDG_RUNTIME_DIR"), "/tmp"):
+        if base is not None and not os.path.isdir(base):
+            continue
+        d = Path(tempfile.mkdtemp(prefix="hitch-core-link-", dir=base))
+        if len(os.fsencode(d / INTERNAL_SOCKET_NAME)) <= _UNIX_PATH_MAX:
+            return d
+        shutil.rmtree(d, ignore_errors=True)
+        tried.append(str(d.parent))
+    raise ServiceStartError(
+        f"the control core's socket would have a path longer than a Unix socket's {_UNIX_PATH_MAX} bytes under "
+        f"each of {', '.join(tried)}: give TMPDIR a shorter directory"
+    )
 
 
 class HitchServiceError(HitchInputError):
@@ -199,8 +225,9 @@ class HitchService:
         self._runners: list[RealtimeRunner] = []
         self._decls: list[Any] = []  # zenoh queryables, subscribers and the liveliness token
         self._pool: ThreadPoolExecutor | None = None
-        #: the earliest a request taken now may have arrived (this process's stalls: bridge.service.stall_watch)
-        self._stall = StallWatch().start()
+        #: the earliest a request taken now may have arrived (this process's stalls: bridge.service.stall_watch);
+        #: ticking from :meth:`start`, once this process's threads have their scheduling
+        self._stall = StallWatch()
         self._motion_pool: ThreadPoolExecutor | None = None
         self._queued = 0  # requests waiting in or running on the worker pool
         self._queued_lock = threading.Lock()
@@ -249,6 +276,7 @@ class HitchService:
 
     def _start(self) -> HitchService:
         cfg = self.config
+        self._stall.start()  # at this thread's nice value, as the request threads it watches (close() ends it)
         try:
             # a new data dir is the service user's alone (the event log and the store name users and their
             # actions); one that exists keeps the permissions its owner gave it
@@ -488,7 +516,7 @@ class HitchService:
         cfg = self.config
         link_dir, users = None, False
         if private_link:  # the core's link: made up for it (docs/security.md), never a TCP port of its own
-            link_dir = self._core_link_dir = Path(tempfile.mkdtemp(prefix="hitch-core-link-"))  # 0700; removed at close
+            link_dir = self._core_link_dir = private_link_dir()  # 0700; removed at close
             users = cfg.security is not None and bool(read_users(cfg.security))  # {}: no users file, or empty
         for _ in range(PRIVATE_PORT_TRIES if private_link else 1):
             private = f"tcp/127.0.0.1:{_free_port()}" if private_link else None
@@ -554,8 +582,8 @@ class HitchService:
         # hear its events from its notes (_core_note), never from the public events key, where anyone allowed
         # to put could forge one and which a router outage cuts; its 50 Hz state is subscribed to only once
         # something here listens to it (_ensure_state_subscription)
-        if self.core is None:  # a put on stop stops too (the core process takes its own)
-            stop_put = s.declare_subscriber(cfg.key("stop"), _ring())
+        if self.core is None:  # a put on stop stops too (the core process takes its own); a small ring: they are alike
+            stop_put = s.declare_subscriber(cfg.key("stop"), zenoh.handlers.RingChannel(STOP_PUT_RING))
             self._serve(stop_put, self._on_stop_put, "stop-put")
         for key in API_KEYS:
             if key == "stop" and self.core is not None:
@@ -715,9 +743,10 @@ class HitchService:
         return on_query
 
     def _on_stop_put(self, sample: zenoh.Sample) -> None:
-        """A put on ``<prefix>/stop``: a stop as the query's (any payload; nothing to answer). Before, a put was
-        ignored and the hitch moved on (a fleet trial: fleet software broadcasting a stop)."""
-        if str(sample.key_expr) != self.config.key("stop") or sample.kind != zenoh.SampleKind.PUT:
+        """A put or delete on ``<prefix>/stop`` — exactly, or by a wildcard that includes it (a fleet's broadcast
+        ``fleet/*/hitch/stop``): a stop as the query's (any payload; nothing to answer). Before, a put was ignored
+        and the hitch moved on (a fleet trial)."""
+        if not zenoh.KeyExpr(str(sample.key_expr)).includes(zenoh.KeyExpr(self.config.key("stop"))):
             return
         self.dispatch("stop", sample.payload.to_bytes(), lambda ok, data: None, received=time.monotonic())
 

@@ -64,7 +64,12 @@ class StallWatch:
         stall."""
         now = self._clock()
         if now - self._last > STALL_S:
-            self._stall = (self._last, now)
+            # a stall that begins within DRAIN_S after the last one ended continues it: what was sent during the
+            # first may still wait to be taken (a review: stamped with the second's start, after a stop in the
+            # first, a request sent before that stop would have run)
+            prev = self._stall
+            start = prev[0] if prev is not None and self._last - prev[1] <= DRAIN_S else self._last
+            self._stall = (start, now)
         self._last = now
 
     def arrival(self, now: float | None = None) -> float:

@@ -40,6 +40,22 @@ def test_the_arrival_during_and_just_after_a_stall_is_the_stalls_start():
     assert w.arrival() == now[0]  # drained: now again
 
 
+def test_two_stalls_close_together_count_from_the_first_ones_start():
+    """A review: stall A 100.0-101.5 (a goto sent at 100.3, a stop at 101.0), 0.1 s of ticks, stall B 0.25 s: the
+    goto taken after B was stamped with B's start (101.6), after the stop, and not refused."""
+    now = [100.0]
+    w = StallWatch(clock=lambda: now[0])
+    w.tick()
+    now[0] = 101.5
+    w.tick()  # stall A noticed
+    for _ in range(5):
+        now[0] += 0.02
+        w.tick()
+    now[0] += 0.25
+    w.tick()  # stall B, within DRAIN_S of A's end
+    assert w.arrival() == 100.0
+
+
 @pytest.mark.slow
 def test_a_goto_sent_while_the_service_is_frozen_never_starts_after_a_stop(tmp_path):
     router_ep = f"tcp/127.0.0.1:{free_port()}"

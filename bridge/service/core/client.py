@@ -81,8 +81,8 @@ class CoreProcess:
         config: the service's settings (the core builds its parts from them).
         on_note: called (on the reader thread) with each note the core sends about what it answered on
             its own (``{"request": "stop", "ok", "reply", "payload"}``).
-        endpoints: what the core's Zenoh session connects to (the service session's private loopback
-            listener; in client mode the routers the service connects to).
+        endpoints: what the core's Zenoh session connects to (the service session's private link: a Unix
+            socket, or a loopback listener with a made-up login; in client mode the routers the service connects to).
         credentials: the user and password the core's link logs in with (a secured service's made-up
             user, :func:`~bridge.service.security.grant_internal_user`);
         zid: the Zenoh id the core's session takes (a secured service without a users file: its ACL allows

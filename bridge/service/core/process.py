@@ -8,9 +8,11 @@
   thread — every thread of this process at nice :data:`CORE_NICE`, and once started every Python and
   Zenoh thread under the real-time policy ``SCHED_FIFO`` (:func:`raise_core_to_realtime`; both need
   root or CAP_SYS_NICE; otherwise it runs at normal priority and the ``ready`` message says why);
-* its own Zenoh session (a client of the service's session on its private loopback listener, or
+* its own Zenoh session (a client of the service's session on its private link — a Unix socket, or with a
+  users file a loopback listener with a made-up login — or
   of the routers the service connects to in client mode: ``ENDPOINTS_JSON``): the
-  ``<prefix>/stop`` queryable (any payload stops), the ``<prefix>/track/setpoint`` subscriber (a ring
+  ``<prefix>/stop`` queryable (any payload stops) and subscriber (a put or delete stops too: a small ring
+  a thread of its own empties, one stop per burst), the ``<prefix>/track/setpoint`` subscriber (a ring
   that a thread of its own empties at most :data:`SETPOINT_MAX_HZ` a second: a flood of puts never
   holds up the session that answers ``stop``),
   and the ``<prefix>/state`` and ``<prefix>/events`` publishers. Nothing the service's request
@@ -74,6 +76,8 @@ from planner.errors import HitchError
 #: period of the core's check of its CAN threads [s]
 RUNNER_WATCH_S = 0.2
 #: a service silent this long over the private socket counts as lost: the core brakes the hitch to rest
+#: the ring of puts on ``<prefix>/stop`` (the oldest dropped when full: they all mean the same)
+STOP_PUT_RING = 8
 #: (``service_lost``). The service sends a keep-alive every
 #: :data:`~bridge.service.core.client.KEEPALIVE_S` (0.25 s) from a thread of its own, so this is 8 of them
 #: missed in a row: a Python thread of a loaded computer is delayed tens of milliseconds, a full garbage
@@ -171,6 +175,7 @@ class ControlCore:
         self._event_pub: zenoh.Publisher | None = None
         self._decls: list[Any] = []
         self._setpoints: Any = None  # the setpoint subscriber's ring (_take_setpoints)
+        self._stop_puts: Any = None  # the stop puts' ring (_take_stop_puts)
         self._pool = ThreadPoolExecutor(2, thread_name_prefix="core-motion")
         self._closed = threading.Event()
         self._state_listened = threading.Event()  # a subscriber matches the state publisher
@@ -237,6 +242,7 @@ class ControlCore:
         warnings = []
         fifo_failed = raise_core_to_realtime() if cfg.realtime else "switched off (realtime = false)"
         threading.Thread(target=self._take_setpoints, name="core-setpoints", daemon=True).start()
+        threading.Thread(target=self._take_stop_puts, name="core-stop-puts", daemon=True).start()
         if fifo_failed is not None and cfg.realtime:
             warnings.append(
                 f"control core: real-time scheduling (SCHED_FIFO) not possible ({fifo_failed}); its threads run at "
@@ -326,17 +332,10 @@ class ControlCore:
 
         self._decls.append(s.declare_queryable(exact, on_stop, complete=True))
 
-        def on_stop_put(sample: zenoh.Sample) -> None:
-            """A put on ``<prefix>/stop`` stops as the query does (fleet software broadcasting a stop; before,
-            it was ignored and the hitch moved on: a fleet trial); nothing to answer, the black box notes it."""
-            if str(sample.key_expr) != exact or sample.kind != zenoh.SampleKind.PUT:
-                return
-            ok, reply = self._call_safely("stop_report", ())
-            answer = {"stopped": True, **reply} if ok else reply
-            payload = sample.payload.to_bytes()[:1024]
-            self._note({"request": "stop", "ok": ok, "reply": answer, "payload": payload, "via": "put"})
-
-        self._decls.append(s.declare_subscriber(exact, on_stop_put))
+        # a put (or delete) on stop stops as the query does: into a small ring Zenoh fills without running Python,
+        # taken by core-stop-puts (_take_stop_puts), one stop per burst — a flood of them costs that thread only
+        self._stop_puts = s.declare_subscriber(exact, zenoh.handlers.RingChannel(STOP_PUT_RING))
+        self._decls.append(self._stop_puts)
         # the setpoint puts into a ring that Zenoh fills without running Python (the oldest dropped when full): this
         # session's threads never wait for the interpreter lock for them (core-setpoints takes them, start)
         self._setpoints = s.declare_subscriber(cfg.key("track/setpoint"), zenoh.handlers.RingChannel(SETPOINT_RING))
@@ -462,6 +461,29 @@ class ControlCore:
                 except (OSError, ValueError):
                     return
 
+    def _take_stop_puts(self) -> None:
+        """The puts and deletes on ``<prefix>/stop`` (:meth:`_open_zenoh`): each that names this key — exactly or
+        by a wildcard that includes it (``fleet/*/hitch/stop``: a fleet's broadcast) — stops as the query does,
+        and what waits in the ring behind it is taken with it (one stop, one note per burst). A fleet trial: a put
+        was ignored and the hitch moved on. Under the normal policy (``SCHED_OTHER``) at the core's nice, as
+        :meth:`_take_setpoints`: a flood costs this thread its share, never the real-time threads theirs."""
+        _ordinary_policy()
+        sub = self._stop_puts
+        if sub is None:
+            return
+        exact = zenoh.KeyExpr(self.cfg.key("stop"))
+        for sample in sub:  # ends when the subscriber is undeclared or the session closes
+            if not zenoh.KeyExpr(str(sample.key_expr)).includes(exact):
+                continue
+            ok, reply = self._call_safely("stop_report", ())
+            burst = 1
+            while sub.try_recv() is not None:  # the rest of the burst: stopped already
+                burst += 1
+            answer = {"stopped": True, **reply} if ok else reply
+            payload = sample.payload.to_bytes()[:1024]
+            kind = "delete" if sample.kind == zenoh.SampleKind.DELETE else "put"
+            self._note({"request": "stop", "ok": ok, "reply": answer, "payload": payload, "via": kind, "burst": burst})
+
     def _take_setpoints(self) -> None:
         """The setpoint puts from their ring (:meth:`_open_zenoh`), at most :data:`SETPOINT_MAX_HZ` a second after a
         burst of :data:`SETPOINT_BURST` (a token bucket): beyond that this thread sleeps and the ring keeps the
@@ -470,10 +492,7 @@ class ControlCore:
         nice: a flood (a safety trial: ~350 000 puts a second from one client) costs this thread its CPU share,
         never the real-time threads theirs, and never delays the ``stop`` this session answers (before, each put
         ran this callback on the session's own thread: another client's ``stop`` waited 0.8–1.9 s behind them)."""
-        try:  # started by the main thread after it went real-time: this one is ordinary (its nice stays the core's)
-            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-        except (OSError, AttributeError):
-            pass
+        _ordinary_policy()
         sub = self._setpoints
         if sub is None:
             return
@@ -816,3 +835,12 @@ if __name__ == "__main__":  # run the module's canonical copy
     sys.stdout.flush()
     sys.stderr.flush()
     os._exit(code)
+
+
+def _ordinary_policy() -> None:
+    """This thread under the normal policy (``SCHED_OTHER``), its nice staying the core's: a thread started by the
+    main thread after it went real-time, which a flood must cost its own share only."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except (OSError, AttributeError):
+        pass

@@ -64,6 +64,10 @@ def test_without_client_options_every_command_gets_their_defaults(group, action)
 def test_given_at_both_levels_the_actions_value_wins_and_the_defaults_are_not_shared():
     view = _client_view(["faults", "--timeout", "3", "--connect", "tcp/127.0.0.1:1", "list", "--timeout", "4"])
     assert view["timeout"] == 4.0 and view["connect"] == ["tcp/127.0.0.1:1"]
+    # endpoints at both levels are all taken (a review: the group's were dropped silently)
+    view = _client_view(["faults", "--connect", "tcp/a:1", "list", "--connect", "tcp/b:2", "--connect", "tcp/c:3"])
+    assert view["connect"] == ["tcp/a:1", "tcp/b:2", "tcp/c:3"]
+    assert not hasattr(build_parser().parse_args(["faults", "--connect", "tcp/a:1", "list"]), "outer_connect")
     # an appended --connect starts from a fresh list each time (the default is not a shared object)
     a = build_parser().parse_args(["faults", "list"])
     assert a.connect is None

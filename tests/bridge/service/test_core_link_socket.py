@@ -54,3 +54,30 @@ def test_a_service_listens_only_where_it_is_told(tmp_path):
             assert c.stop()["stopped"] is True
     finally:
         svc.close()
+
+
+def test_a_long_temporary_directory_does_not_keep_the_service_from_starting(tmp_path, monkeypatch):
+    """A review: with a TMPDIR longer than about 72 characters the core's socket path passed a Unix socket's 107
+    bytes and a default `hitch serve` failed to start ("path must be shorter than SUN_LEN")."""
+    import tempfile
+
+    from bridge.service.server import private_link_dir
+
+    long_dir = tmp_path / ("t" * 60) / ("m" * 60)
+    long_dir.mkdir(parents=True)
+    monkeypatch.setattr(tempfile, "tempdir", str(long_dir))
+    d = private_link_dir()
+    try:
+        assert len(os.fsencode(d / "core.sock")) <= 107 and oct(d.stat().st_mode & 0o777) == "0o700"
+    finally:
+        d.rmdir()
+    port = free_port()
+    svc = HitchService(
+        ServiceConfig(listen=[f"tcp/127.0.0.1:{port}"], data_dir=tmp_path / "data", control_core="process")
+    ).start()
+    try:
+        with HitchClient([f"tcp/127.0.0.1:{port}"], timeout_s=10.0) as c:
+            assert c.stop()["stopped"] is True  # answered by the core, over its link
+    finally:
+        svc.close()
+    assert list(long_dir.iterdir()) == []

@@ -397,7 +397,9 @@ def test_the_control_path_runs_under_sched_fifo_the_twin_above_the_control_cycle
     assert fifo.count(TWIN_RT_PRIORITY) == 1 and fifo.count(CONTROL_RT_PRIORITY) == 2, core
     zen = [s for s in core if s.name.startswith(ZENOH_THREAD_PREFIXES)]
     assert zen and all(s.policy == "fifo" and s.rt_priority == CORE_RT_PRIORITY for s in zen), zen
-    assert len([s for s in core if s.policy != "fifo"]) <= os.cpu_count(), core  # a BLAS pool at most
+    # ordinary by design: the takers of the setpoint and the stop-put rings (a flood costs them, never the real-time
+    # threads); besides them a BLAS pool at most
+    assert len([s for s in core if s.policy != "fifo"]) <= os.cpu_count() + 1, core
     cpus = {frozenset(os.sched_getaffinity(s.tid)) for s in core if s.policy == "fifo"}
     assert len(cpus) == 1 and len(next(iter(cpus))) == 1, cpus
     mine = thread_schedule()

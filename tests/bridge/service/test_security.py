@@ -878,3 +878,28 @@ def test_an_empty_security_file_says_what_it_should_hold(tmp_path):
     empty.write_text("  \n", encoding="utf-8")
     with pytest.raises(SecurityError, match=r"empty\.json5 is empty: a security file is a JSON5 object with"):
         security_sections(empty)
+
+
+def test_a_security_file_written_before_stop_puts_gets_them():
+    """A review: a file written before the stop_puts rule refused every put on stop (default deny), silently — a
+    put has no reply. apply_security adds the rule to the operators' and viewers' policies, once."""
+    import json
+
+    import zenoh
+
+    from bridge.service.security import allow_stop_puts
+
+    acl = build_acl(AccessPolicy(prefix="fleet/t07/hitch", operators=("alice",), viewers=("bob",)))
+    old = json.loads(json.dumps(acl))
+    old["rules"] = [r for r in old["rules"] if r["id"] != "stop_puts"]
+    for p in old["policies"]:
+        p["rules"] = [r for r in p["rules"] if r != "stop_puts"]
+    new = allow_stop_puts(old)
+    rule = next(r for r in new["rules"] if r["id"] == "stop_puts")
+    assert rule["key_exprs"] == ["fleet/t07/hitch/stop"] and rule["messages"] == ["put", "declare_subscriber"]
+    assert {p["id"] for p in new["policies"] if "stop_puts" in p["rules"]} == {"operators", "viewers"}
+    assert allow_stop_puts(new) == new  # once
+    assert allow_stop_puts(acl) == acl  # a current file: unchanged
+    conf = apply_security(zenoh.Config(), {"access_control": old})
+    applied = json.loads(conf.get_json("access_control"))
+    assert any(r["id"] == "stop_puts" for r in applied["rules"])

@@ -37,14 +37,17 @@ def _online(c: HitchClient) -> None:
         time.sleep(0.1)
 
 
-def _put_during_a_goto(ep: str, c: HitchClient, *puts: tuple[str, bytes]) -> dict:
-    """A slow goto (several seconds), then ``puts`` from another session; the goto's reply."""
+def _put_during_a_goto(ep: str, c: HitchClient, *puts: tuple[str, bytes | None]) -> dict:
+    """A slow goto (several seconds), then ``puts`` from another session (None: a delete); the goto's reply."""
     r = _slow_goto(c)
     s = loopback_client_session(ep)
     try:
         time.sleep(0.3)  # the put's route to the subscriber
         for key, payload in puts:
-            s.put(key, payload)
+            if payload is None:
+                s.delete(key)
+            else:
+                s.put(key, payload)
         time.sleep(0.5)
     finally:
         s.close()
@@ -59,12 +62,21 @@ def _slow_goto(c: HitchClient) -> dict:
     return r
 
 
-@pytest.mark.parametrize("payload", [b"{}", b"", b"\xff not json"])
-def test_a_put_on_stop_stops_the_motion(service, payload):
+@pytest.mark.parametrize(
+    ("key", "payload"),
+    [
+        ("hitch/stop", b"{}"),
+        ("hitch/stop", b""),
+        ("hitch/stop", b"\xff not json"),
+        ("*/stop", b""),  # a fleet's broadcast: a wildcard that includes this service's stop key (a review)
+        ("hitch/stop", None),  # a delete: whatever is sent to stop, stops
+    ],
+)
+def test_a_put_on_stop_stops_the_motion(service, key, payload):
     svc, ep = service
     with HitchClient([ep], timeout_s=10.0) as c:
         _online(c)
-        r = _put_during_a_goto(ep, c, ("hitch/stop", payload))
+        r = _put_during_a_goto(ep, c, (key, payload))
         end = time.monotonic() + 3.0
         while c.state()["motion"] == "goto" and time.monotonic() < end:
             time.sleep(0.05)

@@ -274,8 +274,9 @@ _ANCHOR_NAME = re.compile(r"[0-9A-Za-z_-]*")
 _BLANK = frozenset(" \t\n")
 
 
-class _Refused(Exception):
-    pass
+class _Refused(HitchInputError):
+    """Internal: a refusal found by the scan, caught by :meth:`_NestingScan.problem` (under the root error as every
+    class here)."""
 
 
 class _NestingScan:

@@ -34,7 +34,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from planner.errors import HitchInputError
+from planner.errors import HitchInputError, unit_hint
 from planner.profiles.loader import format_validation_error, read_profile
 
 __all__ = [
@@ -300,11 +300,20 @@ class ImplementSpec(_Strict):
     centre_of_mass: tuple[float, float, float]
     description: str = ""
 
+    @field_validator("centre_of_mass", mode="before")
+    @classmethod
+    def _com_three(cls, v):
+        """Three numbers, said so (two gave pydantic's "centre_of_mass.2 …: Field required": a user trial)."""
+        if not isinstance(v, (list, tuple)) or len(v) != 3:
+            raise TractorProfileError(f"must be 3 numbers [x_i, y_i, z_i] in the implement frame [m], got {v!r}")
+        return tuple(v)  # (strict validation takes a tuple, not the list a JSON array became)
+
     @field_validator("centre_of_mass")
     @classmethod
     def _com(cls, v):
-        if not all(abs(c) <= 10.0 for c in v):
-            raise TractorProfileError("coordinates must lie within ±10 m")
+        for axis, c in zip(("x_i", "y_i", "z_i"), v, strict=True):
+            if abs(c) > 10.0:  # with the mm reading a coordinate in mm gets elsewhere (a user trial: 1600 had none)
+                raise TractorProfileError(f"{axis} = {c:g} m must lie within ±10 m" + unit_hint(c, -10.0, 10.0, "m"))
         return v
 
 

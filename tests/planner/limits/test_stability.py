@@ -559,3 +559,20 @@ def test_a_front_axle_mass_in_tonnes_or_above_the_mass_gives_no_centre_of_mass_o
         tractor_profile_from_dict(data)
     assert "must be less than the tractor's mass = 6000.0 kg" in str(err.value)
     assert "would match" not in str(err.value)
+
+
+@pytest.mark.parametrize(
+    ("com", "words"),
+    [
+        ([0.0, 1600.0, 350.0], "y_i = 1600 m must lie within ±10 m; did you mean mm? 1600 mm = 1.6 m"),
+        ([1.6, 0.35], "must be 3 numbers [x_i, y_i, z_i] in the implement frame [m], got [1.6, 0.35]"),
+    ],
+)
+def test_an_implement_centre_of_mass_in_mm_or_short_of_a_coordinate_is_named(com, words):
+    """A user trial: [0, 1600, 350] (mm) said "coordinates must lie within ±10 m" without the mm reading the CLI's
+    --com gives; [1.6, 0.35] said "centre_of_mass.2 = [1.6, 0.35]: Field required"."""
+    data = _profile_dict()
+    data["implements"]["cat2-spreader-400"]["centre_of_mass"] = com
+    with pytest.raises(TractorProfileError) as err:
+        tractor_profile_from_dict(data)
+    assert "implements.cat2-spreader-400.centre_of_mass" in str(err.value) and words in str(err.value), str(err.value)

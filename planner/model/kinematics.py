@@ -28,7 +28,7 @@ from planner.model.geometry import (
     solve_link_angles,
 )
 from planner.model.types import ACTUATOR_NAMES, Actuators, HitchState, KinematicsError, ModelInputError, Pose
-from planner.profiles.hitch import Profile, ProfileError, load_profile
+from planner.profiles.hitch import CATEGORY_LENGTH_MAX_M, Profile, ProfileError, load_profile
 
 __all__ = ["HitchModel", "SymbolicModel", "FEATURE_NAMES", "POINT_NAMES"]
 
@@ -75,6 +75,20 @@ _RESIDUAL_CAUSES = (
     "right sway limiter cannot reach its bracket with this length",
 )
 _CLOSURE_TOL_M = 1e-9
+#: the largest ISO span and mast height of a category [m] (the profile schema's)
+_SPAN_MAX_M = _MAST_MAX_M = CATEGORY_LENGTH_MAX_M
+
+
+def _within(lo: float, hi: float, top: float) -> str:
+    """A range of a length field [m] that is positive and at most ``top``, rounded inward to 0.1 mm (each number
+    said lies in it): ``within a..b m``, ``at most b m`` (from 0), ``at least a m`` (to ``top``); "none" when
+    nothing of it is left after rounding."""
+    a, b = math.ceil(lo * 1e4) / 1e4, math.floor(hi * 1e4) / 1e4
+    if lo <= 0.0:
+        return f"at most {b:.4f} m" if hi < top else f"within (0, {top:g}] m"
+    if a > b:
+        return "none"
+    return f"at least {a:.4f} m" if hi >= top else f"within {a:.4f}..{b:.4f} m"
 
 
 def _build(profile: Profile, category: str) -> tuple[ca.Function, ca.Function, SymbolicModel]:
@@ -299,11 +313,9 @@ class HitchModel:
         return q
 
     def _check(self, checks: np.ndarray, features: np.ndarray, q: np.ndarray | None = None) -> None:
-        bad = [i for i in range(4) if not abs(checks[i]) <= _CLOSURE_TOL_M]  # also catches NaN
-        if bad:
-            cause = self._closure_cause(q) if q is not None else None
-            r = checks[bad[0]]
-            raise KinematicsError(f"{cause or _RESIDUAL_CAUSES[bad[0]]} (closure error {r:.3g} m)")
+        closure = self._closure_error(checks, q)
+        if closure is not None:
+            raise closure
         if not abs(checks[4]) <= 1.0:
             raise KinematicsError(
                 "top link cannot reach the implement mast with this length (circle-sphere miss, "
@@ -311,6 +323,14 @@ class HitchModel:
             )
         if not np.all(np.isfinite(features)):
             raise KinematicsError("degenerate configuration (lower-link ends coincide)")
+
+    def _closure_error(self, checks: np.ndarray, q: np.ndarray | None) -> KinematicsError | None:
+        """The error of a side whose lower link does not close (lift rod or tilt cylinder, sway limiter), or None."""
+        bad = [i for i in range(4) if not abs(checks[i]) <= _CLOSURE_TOL_M]  # also catches NaN
+        if not bad:
+            return None
+        cause = self._closure_cause(q) if q is not None else None
+        return KinematicsError(f"{cause or _RESIDUAL_CAUSES[bad[0]]} (closure error {checks[bad[0]]:.3g} m)")
 
     @staticmethod
     def _fast_ok(checks: np.ndarray, features: np.ndarray) -> bool:
@@ -360,11 +380,21 @@ class HitchModel:
         for i, n in enumerate(ACTUATOR_NAMES):
             if not self.lower[i] - 1e-9 <= q[i] <= self.upper[i] + 1e-9:
                 unit = "rad" if n == "lift" else "m"
+                mast = ""
+                if n == "top":  # the mast the top link holds upright: a mast height is the likelier slip
+                    field = f"implement.categories.{self.category}.mast_height"
+                    heights = self._mast_heights_for_top(q)
+                    mast = (
+                        f", or {field} = {self.mast_height:g} m must be {heights} (the masts the stroke holds "
+                        "upright, the other fields as given)"
+                        if heights != "none"
+                        else f"; no {field} puts it within the stroke (the other fields as given)"
+                    )
                 raise ProfileError(
                     f"profile {p.name}: the neutral pose (x = 0, pitch = 0, the category's span) needs {n} = "
                     f"{q[i]:.4f} {unit}, outside its stroke actuators.{n} [{self.lower[i]:g}, {self.upper[i]:g}] "
                     f"{unit}: the stroke must contain it (category {self.category} has a workspace: "
-                    "workspace.restricted)"
+                    f"workspace.restricted){mast}"
                 )
         f, _ = self.features(q)
         for name in HardLimits.from_model(self).violations(q, f):
@@ -382,7 +412,13 @@ class HitchModel:
 
     def _solve_neutral(self) -> np.ndarray:
         """Neutral actuators: lift and tilt at their profile neutrals; limiters and top link
-        chosen so that x = 0, |L−R| = span and pitch = 0 (Newton on the exact model)."""
+        chosen so that x = 0, |L−R| = span and pitch = 0 (Newton on the exact model).
+
+        x and the span do not depend on the top link: the limiters are solved first (from mid-stroke), and the
+        top link starts at the length that holds the mast upright there (started mid-stroke, a mast its middle
+        could not reach failed as "top link cannot reach the implement mast", though the pose needs only a longer
+        top link). A span the lower links cannot reach is refused naming the category's span and the spans they
+        reach (:meth:`_span_refusal`)."""
         p = self.profile
         q = np.array(
             [
@@ -398,18 +434,119 @@ class HitchModel:
             ]
         )
         q[2:] = (self.lower[2:] + self.upper[2:]) / 2
+        limiters, step, exc = self._neutral_limiters(q, self.span)
+        if limiters is None:
+            cause = str(exc) if step == 0 else self._span_refusal(q)  # step 0: no span closes the start
+            raise KinematicsError(f"profile {p.name}: cannot find the neutral pose: {cause}")
+        q[3:] = limiters
+        p_th, u0 = self._upright_terms(q)
+        q[2] = float(np.linalg.norm(p_th + self.mast_height * u0))
         free = [2, 3, 4]
         for _ in range(50):
             try:
                 f, jac = self.features(q)
             except KinematicsError as exc:
-                raise KinematicsError(f"profile {p.name}: cannot find the neutral pose: {exc}") from None
+                field = f"implement.categories.{self.category}.mast_height"
+                raise KinematicsError(
+                    f"profile {p.name}: cannot find the neutral pose: {field} = {self.mast_height:g} m: the top "
+                    f"link cannot hold the mast upright ({exc})"
+                ) from None
             r = np.array([f[0], f[6] - self.span, f[4]])
             if np.max(np.abs(r)) < 1e-13:
                 return q
             J = jac[[0, 6, 4]][:, free]
             q[free] -= np.linalg.solve(J, r)
         raise KinematicsError(f"profile {p.name}: neutral pose did not converge (residual {r})")
+
+    def _neutral_limiters(self, q0: np.ndarray, span: float) -> tuple[np.ndarray | None, int, KinematicsError | None]:
+        """The sway limiters [m] that put x = 0 and the ball-centre span ``span`` [m] with lift and tilt of
+        ``q0`` (Newton from ``q0``'s limiters; neither depends on the top link): (limiters, steps, None), or
+        (None, the step at which it failed, why) when the links do not close there."""
+        q = q0.copy()
+        r = np.zeros(2)
+        for k in range(50):
+            f, jac, checks = self._features(q)
+            exc = self._closure_error(checks[:, 0], q)
+            if exc is None and not np.isfinite(f[[0, 6], 0]).all():
+                exc = KinematicsError("degenerate configuration (lower-link ends coincide)")
+            if exc is not None:
+                return None, k, exc
+            r = np.array([f[0, 0], f[6, 0] - span])
+            if np.max(np.abs(r)) < 1e-13:
+                return q[3:].copy(), k, None
+            try:
+                q[3:] -= np.linalg.solve(jac[[0, 6]][:, [3, 4]], r)
+            except np.linalg.LinAlgError:
+                return None, k, KinematicsError("degenerate geometry (singular Newton step)")
+        return None, 50, KinematicsError(f"neutral pose did not converge (residual {r})")
+
+    def _span_refusal(self, q0: np.ndarray) -> str:
+        """Why the lower links do not close at the category's span: the profile field, its value and the ISO
+        spans (other fields as given) they close at, found by bisection with :meth:`_neutral_limiters` from the
+        same start (so a span within them loads as far as the links go), rounded inward to 0.1 mm."""
+        corr = self.profile.implement.ball_centre_correction
+        field = f"implement.categories.{self.category}.span"
+        given = self.span - corr
+        head = (
+            f"{field} = {given:g} m: the lower links cannot reach this span with lift and tilt at their neutrals "
+            f"(actuators.lift.neutral, actuators.tilt.neutral)"
+        )
+
+        def closes(ball: float) -> bool:
+            return self._neutral_limiters(q0, ball)[0] is not None
+
+        start = float(self._features(q0)[0][6, 0])  # the links' span at the start (x about 0)
+        if not closes(start):
+            return head
+
+        def edge(good: float, bad: float) -> tuple[float, bool]:
+            """(the last span that closes between ``good`` and ``bad``, whether ``bad`` itself closes)."""
+            if closes(bad):
+                return bad, True
+            for _ in range(32):  # 2 m / 2^32: below 1e-9 m
+                mid = (good + bad) / 2.0
+                good, bad = (mid, bad) if closes(mid) else (good, mid)
+            return good, False
+
+        lowest, highest = corr + 1e-9, corr + _SPAN_MAX_M  # the schema's ISO span is (0, 2] m
+        if self.span > start:
+            (lo, lo_end), (hi, hi_end) = edge(start, lowest), edge(start, self.span)
+        else:
+            (lo, lo_end), (hi, hi_end) = edge(start, self.span), edge(start, highest)
+        within = _within(0.0 if lo_end else lo - corr, _SPAN_MAX_M if hi_end else hi - corr, _SPAN_MAX_M)
+        return (
+            f"{head}; with the other fields as given, {field} must be {within} (ISO 730, inner faces; the ball "
+            f"centres are implement.ball_centre_correction = {corr:g} m wider)"
+            if within != "none"
+            else head
+        )
+
+    def _upright_terms(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(T − H, u0) [m, 1] at ``q``: with the mast upright (pitch 0) the top link is |T − H + h·u0| long for a
+        mast of height h (:func:`~planner.model.geometry.mast_point`); the lower links must close at ``q``."""
+        _, pts, _, _ = self._points(q)
+        at = {n: pts[:, i].copy() for i, n in enumerate(POINT_NAMES)}
+        xi = (at["L"] - at["R"]) / np.linalg.norm(at["L"] - at["R"])
+        up = np.array([0.0, 0.0, 1.0]) - xi[2] * xi
+        return at["T"] - at["H"], up / np.linalg.norm(up)
+
+    def _mast_heights_for_top(self, q: np.ndarray) -> str:
+        """The mast heights (0, 2] m whose upright mast the top link reaches within its stroke at ``q`` (the
+        lower links as there), as :func:`_within` says them (two ranges joined by "or"); "none" if none.
+        |T − H + h·u0|² = h² + 2βh + |T − H|² with β = (T − H)·u0, so each stroke end is a quadratic's roots."""
+        p_th, u0 = self._upright_terms(q)
+        beta, c = float(p_th @ u0), float(p_th @ p_th)
+
+        def roots(top: float) -> tuple[float, float] | None:
+            disc = beta * beta - c + top * top
+            return None if disc < 0 else (-beta - math.sqrt(disc), -beta + math.sqrt(disc))
+
+        outer, inner = roots(self.upper[2]), roots(self.lower[2])
+        if outer is None:
+            return "none"
+        pieces = [outer] if inner is None else [(outer[0], inner[0]), (inner[1], outer[1])]
+        out = [_within(max(a, 0.0), min(b, _MAST_MAX_M), _MAST_MAX_M) for a, b in pieces if b > 0 and a < b]
+        return " or ".join(out) or "none"
 
     def _workspace(self) -> dict[str, tuple[float, float]] | None:
         """The profile's restricted box for this category, or None when the profile has none

@@ -66,6 +66,9 @@ MIN_COUNT_SPAN = 16
 #: the largest |bound| of a workspace box's x and z [m]: no three-point hitch moves its implement further
 BOX_LENGTH_MAX_M = 2.0
 
+#: the largest span and mast height of an implement category [m]
+CATEGORY_LENGTH_MAX_M = 2.0
+
 #: the largest |coordinate| of a geometry point [m]
 COORDINATE_MAX_M = 5.0
 
@@ -117,11 +120,15 @@ class Box(_Strict):
         return {k: tuple(getattr(self, k)) for k in BOX_KEYS}
 
 
+#: the largest length of a geometry field [m]
+_FIELD_MAX_M = 3.0
+
+
 class Geometry(_Strict):
-    lower_link_pivot_span: float = Field(json_schema_extra={"unit": "m"}, gt=0, le=3.0)
-    lower_link_length: float = Field(json_schema_extra={"unit": "m"}, gt=0, le=3.0)
-    lift_rod_attachment: float = Field(json_schema_extra={"unit": "m"}, gt=0, le=3.0)
-    limiter_bracket_position: float = Field(json_schema_extra={"unit": "m"}, gt=0, le=3.0)
+    lower_link_pivot_span: float = Field(json_schema_extra={"unit": "m"}, gt=0, le=_FIELD_MAX_M)
+    lower_link_length: float = Field(json_schema_extra={"unit": "m"}, gt=0, le=_FIELD_MAX_M)
+    lift_rod_attachment: float = Field(json_schema_extra={"unit": "m"}, gt=0, le=_FIELD_MAX_M)
+    limiter_bracket_position: float = Field(json_schema_extra={"unit": "m"}, gt=0, le=_FIELD_MAX_M)
     limiter_bracket_offset: float = Field(json_schema_extra={"unit": "m"}, ge=0, le=1.0)
     fixed_lift_rod_length: float = Field(json_schema_extra={"unit": "m"}, gt=0, le=3.0)
     lift_arm_length: float = Field(json_schema_extra={"unit": "m"}, gt=0, le=3.0)
@@ -151,18 +158,34 @@ class Geometry(_Strict):
                 "limiter_bracket_position and limiter_bracket_offset) and cannot hold the lower link; allowed: at "
                 f"least {LIMITER_POINT_MIN_DISTANCE_M:g} m from the pivot (x outward: the thesis profile's 0.1487 m)"
             )
-        if self.lift_rod_attachment >= self.lower_link_length:
-            raise ProfileError("lift_rod_attachment must lie on the lower link (< lower_link_length)")
-        if self.limiter_bracket_position >= self.lower_link_length:
-            raise ProfileError("limiter_bracket_position must lie on the lower link (< lower_link_length)")
+        self._check_points_on_link()
         return self
+
+    def _check_points_on_link(self) -> None:
+        """The lift-rod attachment and the limiter bracket lie on the lower link (measured from its pivot, short
+        of its end), else a ProfileError naming the fields, their values and the range of each (the others as
+        given): a short lower_link_length was refused as "lift_rod_attachment must lie on the lower link"."""
+        length, on_link = self.lower_link_length, ("lift_rod_attachment", "limiter_bracket_position")
+        beyond = [n for n in on_link if getattr(self, n) >= length]
+        if not beyond:
+            return
+        m = _FIELD_MAX_M
+        given = " and ".join(f"{n} = {getattr(self, n):g} m" for n in beyond)
+        farthest = max(getattr(self, n) for n in on_link)
+        longer = f"lower_link_length must be within ({farthest:g}, {m:g}] m" if farthest < m else ""
+        shorter = f"{' and '.join(beyond)} within (0, {length:g}) m"
+        raise ProfileError(
+            f"{given} {'lie' if len(beyond) > 1 else 'lies'} beyond the end of the lower link, lower_link_length = "
+            f"{length:g} m (points on it are measured along it from its pivot): with the other fields as given, "
+            + (f"{longer}, or {shorter}" if longer else f"{' and '.join(beyond)} must be within (0, {length:g}) m")
+        )
 
 
 class Category(_Strict):
     """ISO 730 implement category: lower hitch span (inner faces, as in the standard) and mast height [m]."""
 
-    span: float = Field(json_schema_extra={"unit": "m"}, gt=0, le=2.0)
-    mast_height: float = Field(json_schema_extra={"unit": "m"}, gt=0, le=2.0)
+    span: float = Field(json_schema_extra={"unit": "m"}, gt=0, le=CATEGORY_LENGTH_MAX_M)
+    mast_height: float = Field(json_schema_extra={"unit": "m"}, gt=0, le=CATEGORY_LENGTH_MAX_M)
 
 
 class Implement(_Strict):

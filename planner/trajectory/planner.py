@@ -148,8 +148,8 @@ class TrajectoryPlanner:
             try:
                 q = self.inverse(*c)
                 bad = hard.violations(q, self.model.features(q)[0], tol)
-            except KinematicsError as exc:
-                bad = (first_line(exc),)
+            except KinematicsError as exc:  # the project's own one-line text, without "KinematicsError: "
+                bad = (str(exc).strip().splitlines()[0],)
             if bad:
                 raise PlanError(
                     f"{field} ({box}; m, rad) is not all reachable: at {at} {', '.join(bad)} "

@@ -192,3 +192,37 @@ def test_a_keep_out_centre_in_metres_still_loads(raw):
     data = copy.deepcopy(raw)
     data["limits"]["keep_out"][0]["centre"] = [0.0, 0.3, 0.86]
     assert profile_from_dict(data, source="test").limits.keep_out[0].centre == (0.0, 0.3, 0.86)
+
+
+def test_a_lower_link_shorter_than_the_points_on_it_names_the_fields_and_their_ranges(raw):
+    """A user trial: lower_link_length = 0.2 was refused as "lift_rod_attachment must lie on the lower link
+    (< lower_link_length)", naming neither the value nor a range. The ranges stated load; their ends do not."""
+    text = _error(raw, {("geometry", "lower_link_length"): 0.2})
+    assert (
+        "geometry: lift_rod_attachment = 0.3 m and limiter_bracket_position = 0.54 m lie beyond the end of the "
+        "lower link, lower_link_length = 0.2 m (points on it are measured along it from its pivot): with the other "
+        "fields as given, lower_link_length must be within (0.54, 3] m, or lift_rod_attachment and "
+        "limiter_bracket_position within (0, 0.2) m"
+    ) in text
+    text = _error(raw, {("geometry", "limiter_bracket_position"): 1.2})
+    assert (
+        "geometry: limiter_bracket_position = 1.2 m lies beyond the end of the lower link, lower_link_length = "
+        "0.96 m (points on it are measured along it from its pivot): with the other fields as given, "
+        "lower_link_length must be within (1.2, 3] m, or limiter_bracket_position within (0, 0.96) m"
+    ) in text
+    assert "lift_rod_attachment" not in text
+
+    def geometry(**fields: float) -> dict:
+        data = copy.deepcopy(raw)
+        data["geometry"].update(fields)
+        return data
+
+    from planner.model.kinematics import HitchModel  # the geometry closes over the range (category 4: no stroke check)
+
+    for length in (0.5401, 3.0):
+        assert HitchModel(profile_from_dict(geometry(lower_link_length=length)), "4").neutral is not None
+    assert "lower_link_length must be within (0.54, 3] m" in _error(raw, {("geometry", "lower_link_length"): 0.54})
+    for position in (0.9599, 0.001):
+        profile_from_dict(geometry(limiter_bracket_position=position))
+    assert "within (0, 0.96) m" in _error(raw, {("geometry", "limiter_bracket_position"): 0.96})
+    profile_from_dict(geometry(limiter_bracket_position=1.2, lower_link_length=1.2001))

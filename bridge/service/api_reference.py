@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from bridge.service.schemas import ANY_PAYLOAD_KEYS, FIELD_UNITS, REQUESTS
+from planner.work_control import DRAFT_SETPOINT_MAX_N
 
 __all__ = ["BEGIN", "END", "KEY_SUMMARY", "render_requests", "replace_generated"]
 
@@ -46,7 +47,8 @@ KEY_SUMMARY: Mapping[str, str] = {
     "mode": "no field: read the mode; `mode`: set it (`auto` moves; `attach` jogs slowly; others: no motion)",
     "config": (
         "the service's configuration: profile, limits (workspace, velocities), prefix, mode, implement, instance "
-        "(this run of the service)"
+        "(this run of the service); `implement` null: none selected (what `presets/list`, `implements/list` and "
+        '`work/settings` call `"default"`)'
     ),
     "events/recent": (
         "the events numbered above `after` the service still keeps (the last 2000), for a client that missed some"
@@ -73,8 +75,12 @@ KEY_SUMMARY: Mapping[str, str] = {
     "maneuvers/record/stop": "end teach-in: the recorded script for review (saved as `name` if given)",
     "lines/save": "store field / headland lines (GeoJSON, WGS84 degrees) for `wait_for: {line: …}`; a name saved "
     "already is refused (`in_use`, nothing saved) unless `replace` (the reply's `replaced` names them)",
-    "lines/list": "the stored lines, the GNSS `position` and `gnss`: `{fixes, rejected, last_rejection}` (a bad "
-    "`tractor/gnss` put is not answered: it is counted here)",
+    "lines/list": "the stored `lines` (`name`, `vertices`, `coordinates` [lon, lat] deg, `crossings`, `crossed_at`: "
+    "[t s on the control core's clock, east m, north m] of the last crossing or null), the GNSS `position`: [east, "
+    "north] m of the latest `tractor/gnss` fix in the field's local tangent plane (origin: the first vertex of the "
+    "first line saved, or the first fix), extrapolated to now along its velocity, null without a fix of the last "
+    "1 s; and `gnss`: `{fixes, rejected, last_rejection}` (a bad `tractor/gnss` put is not answered: it is counted "
+    "here)",
     "lines/delete": "delete a stored line; refused (`in_use`, naming them) while saved maneuvers wait for it unless "
     "`force` (the reply's `warning` and `maneuvers` name them)",
     "implements/list": "the defined implements and which is selected",
@@ -86,7 +92,11 @@ KEY_SUMMARY: Mapping[str, str] = {
     "hitch/raise": "quick raise to the implement's headland pose (the tractor's raise switch too; at work: pauses it)",
     "hitch/return": "return to the last work pose (work a raise paused starts again on arrival)",
     "sim/switch": "twin only: one press of the tractor's raise / lower switch",
-    "work/settings": "no field: read the selected implement's work-control settings; fields: set them",
+    "work/settings": "no field: read the selected implement's work-control settings; fields: set them (the "
+    "others kept; null keeps one, but `slip_limit` null switches slip limiting off). The service's ranges (a value "
+    f"outside is `bad_request` naming it): `draft_setpoint_n` (0, {DRAFT_SETPOINT_MAX_N:g}] N, `blend` [0, 1], "
+    "`sensitivity` [0.1, 2], `depth_min_m` [0, 0.6] m, `depth_max_m` [0, 0.6] m with `depth_min_m` < "
+    "`depth_max_m`, `slip_limit` (0, 0.5]",
     "work/start": "start work control (position, draft, mixed or float; docs/soil.md)",
     "work/stop": "end work control",
     "work/resume": "resume work control after a fallback",

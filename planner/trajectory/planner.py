@@ -229,6 +229,8 @@ class TrajectoryPlanner:
         (its implement then rests that much short of the goal)."""
         scale = _check_scale(speed_scale)
         check_state(start, "start")
+        if ceiling is not None:  # checked whether or not a final approach uses it (bad ones passed, or numpy's error)
+            ceiling = _ceiling(ceiling)
         p1 = self.goal_vector(start.position, goal)
         self.check_in_workspace(p1)
         if self.final_approach is None:
@@ -612,6 +614,22 @@ class TrajectoryPlanner:
                         f"the trajectory would leave the workspace: {k} reaches {pose[j, i]:.4f} at "
                         f"t = {sp.t[j]:.2f} s ({name} = {face:.4f}{_start_note(bound, face)})"
                     )
+
+
+def _ceiling(values: object) -> np.ndarray:
+    """``ceiling`` of :meth:`TrajectoryPlanner.plan_move`: 4 numbers (x, z [m], roll, pitch [rad]), ``inf`` for none;
+    :class:`TrajectoryInputError` naming it otherwise (NaN included)."""
+    try:
+        out = np.asarray(values, dtype=float)
+    except (TypeError, ValueError):
+        raise TrajectoryInputError(
+            f"ceiling must be 4 numbers (x, z [m], roll, pitch [rad]; inf: none), got {values!r}"
+        ) from None
+    if out.shape != (4,) or np.any(np.isnan(out)):
+        raise TrajectoryInputError(
+            f"ceiling must be 4 numbers (x, z [m], roll, pitch [rad]; inf: none), got {values!r}"
+        )
+    return out
 
 
 def _finite_vector(values: object, what: str, names: str, *, n: int = 4) -> np.ndarray:

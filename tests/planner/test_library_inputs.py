@@ -376,3 +376,13 @@ def test_rest_poses_are_not_judged_as_a_trajectory(parts):
     sp = Setpoints(a.rate, np.array([0.0, 0.05]), a.pose[idx], np.zeros((2, 4)), a.actuators[idx], np.zeros((2, 5)))
     assert g.check_setpoints(sp).action == "refused"
     assert g.check_setpoints(sp, rest_poses=True).action in ("ok", "scaled")
+
+
+@pytest.mark.parametrize("ceiling", [[1.0, 2.0], [float("nan")] * 4, "abc"])
+def test_a_bad_ceiling_is_named_whether_or_not_a_final_approach_uses_it(parts, ceiling):
+    """A re-run of a trial: plan_move(..., ceiling=[1, 2] | [nan]*4 | "abc") planned on without a final approach,
+    and with one raised numpy's broadcast / conversion error or "target must be 4 finite numbers"."""
+    _, tp, _, s0 = parts
+    with pytest.raises(TrajectoryInputError, match=r"ceiling must be 4 numbers"):
+        tp.plan_move(s0, {"z": 0.2}, ceiling=ceiling)
+    assert tp.plan_move(s0, {"z": 0.2}, ceiling=[np.inf, 0.3, np.inf, np.inf]).duration > 0

@@ -65,7 +65,7 @@ from bridge.service.api import API_KEYS, ServiceAPI
 from bridge.service.client import zenoh_reason
 from bridge.service.config import ServiceConfig
 from bridge.service.core.client import CoreProcess, MotionProxy
-from bridge.service.core.process import STOP_PUT_RING, freeze_startup_objects, lock_memory
+from bridge.service.core.process import STOP_PUT_INTERVAL_S, STOP_PUT_RING, freeze_startup_objects, lock_memory
 from bridge.service.data_lock import DataDirLock
 from bridge.service.gnss import restore_lines, start_twin_gnss
 from bridge.service.machine import CanParts, build_controller, build_guard, build_model, service_info, start_can
@@ -749,6 +749,7 @@ class HitchService:
         if not zenoh.KeyExpr(str(sample.key_expr)).includes(zenoh.KeyExpr(self.config.key("stop"))):
             return
         self.dispatch("stop", sample.payload.to_bytes(), lambda ok, data: None, received=time.monotonic())
+        time.sleep(STOP_PUT_INTERVAL_S)  # a flood of them: one stop per interval, the ring keeping the newest
 
     def _on_setpoint(self, sample: zenoh.Sample) -> None:
         """A ``track/setpoint`` put: handled at once (O(1)); its reply goes nowhere (rejections are

@@ -78,6 +78,8 @@ RUNNER_WATCH_S = 0.2
 #: a service silent this long over the private socket counts as lost: the core brakes the hitch to rest
 #: the ring of puts on ``<prefix>/stop`` (the oldest dropped when full: they all mean the same)
 STOP_PUT_RING = 8
+#: a put on stop is taken at most this often [s] (one stop per burst; a flood of them stops the hitch continually)
+STOP_PUT_INTERVAL_S = 0.05
 #: (``service_lost``). The service sends a keep-alive every
 #: :data:`~bridge.service.core.client.KEEPALIVE_S` (0.25 s) from a thread of its own, so this is 8 of them
 #: missed in a row: a Python thread of a loaded computer is delayed tens of milliseconds, a full garbage
@@ -483,6 +485,11 @@ class ControlCore:
             payload = sample.payload.to_bytes()[:1024]
             kind = "delete" if sample.kind == zenoh.SampleKind.DELETE else "put"
             self._note({"request": "stop", "ok": ok, "reply": answer, "payload": payload, "via": kind, "burst": burst})
+            # a flood of them is a flood of stops: at most one every STOP_PUT_INTERVAL_S (the ring keeps the newest
+            # meanwhile), which bounds this thread's work. What a flood on this key still costs the stop query is
+            # Zenoh's delivery of the puts to this subscriber (5 threads, ~1 M puts/s: stop query median 15-18 ms,
+            # max 98-119 ms, as without the interval, 19 / 75-166 ms; 2-3 / 4-7 ms with the flood on another key)
+            time.sleep(STOP_PUT_INTERVAL_S)
 
     def _take_setpoints(self) -> None:
         """The setpoint puts from their ring (:meth:`_open_zenoh`), at most :data:`SETPOINT_MAX_HZ` a second after a

@@ -491,12 +491,12 @@ def build_acl(policy: AccessPolicy) -> dict:
             "messages": ["put", "declare_subscriber"],  # the service's subscriber is declared to the publisher
             "key_exprs": [_key(policy.prefix, "track/setpoint"), _key(policy.prefix, "tractor/gnss")],
         },
-        # a put on stop stops as the query does (fleet software broadcasting a stop): open as the query is
+        # a put or delete on stop stops as the query does (fleet software broadcasting a stop): open as the query is
         {
             "id": "stop_puts",
             "permission": "allow",
             "flows": ["ingress", "egress"],
-            "messages": ["put", "declare_subscriber"],
+            "messages": list(STOP_PUT_MESSAGES),
             "key_exprs": [_key(policy.prefix, "stop")],
         },
         {
@@ -593,6 +593,13 @@ def _add_service_rules(
         policies.append({"id": rid, "rules": [rid], "subjects": [rid]})
 
 
+#: what the ``stop_puts`` rule lets through on exactly ``<prefix>/stop``: a put or a delete stops (a review: deletes
+#: were refused by the default deny); the service's subscriber is declared to the publisher. Zenoh's access
+#: control passes a key only when the rule's key includes it, so a wildcard put (``fleet/*/hitch/stop``) is refused
+#: under access control: send the stop to each service's own key there
+STOP_PUT_MESSAGES = ("put", "delete", "declare_subscriber")
+
+
 def allow_stop_puts(acl: Mapping[str, Any]) -> dict:
     """``acl`` (an ``access_control`` section as :func:`build_acl` writes it) with the ``stop_puts`` rule a file
     written before it lacks: a put on ``<prefix>/stop`` stops as the query does, and with the default deny such a
@@ -601,7 +608,11 @@ def allow_stop_puts(acl: Mapping[str, Any]) -> dict:
     access control is off, the rule is there, or the file was not written by :func:`build_acl` (one prefix)."""
     out = json.loads(json.dumps(dict(acl)))
     rules = out.get("rules") or []
-    if not out.get("enabled") or any(r.get("id") == "stop_puts" for r in rules):
+    if not out.get("enabled"):
+        return out
+    have = next((r for r in rules if r.get("id") == "stop_puts"), None)
+    if have is not None:  # a rule of a version that let puts but not deletes through
+        have["messages"] = list(dict.fromkeys([*(have.get("messages") or []), *STOP_PUT_MESSAGES]))
         return out
     everything = next((r.get("key_exprs") or [] for r in rules if r.get("id") == "observe"), [])
     prefixes = [k[: -len("/**")] for k in everything if k.endswith("/**")]
@@ -612,7 +623,7 @@ def allow_stop_puts(acl: Mapping[str, Any]) -> dict:
             "id": "stop_puts",
             "permission": "allow",
             "flows": ["ingress", "egress"],
-            "messages": ["put", "declare_subscriber"],
+            "messages": list(STOP_PUT_MESSAGES),
             "key_exprs": [f"{prefixes[0]}/stop"],
         }
     )

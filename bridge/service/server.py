@@ -154,14 +154,19 @@ def private_link_dir() -> Path:
     for base in (None, os.environ.get("XDG_RUNTIME_DIR"), "/tmp"):
         if base is not None and not os.path.isdir(base):
             continue
-        d = Path(tempfile.mkdtemp(prefix="hitch-core-link-", dir=base))
+        try:
+            d = Path(tempfile.mkdtemp(prefix="hitch-core-link-", dir=base))
+        except OSError as exc:  # not ours to write (an inherited XDG_RUNTIME_DIR of another user: a review)
+            tried.append(f"{base or tempfile.gettempdir()} ({exc.strerror})")
+            continue
         if len(os.fsencode(d / INTERNAL_SOCKET_NAME)) <= _UNIX_PATH_MAX:
             return d
         shutil.rmtree(d, ignore_errors=True)
         tried.append(str(d.parent))
     raise ServiceStartError(
-        f"the control core's socket would have a path longer than a Unix socket's {_UNIX_PATH_MAX} bytes under "
-        f"each of {', '.join(tried)}: give TMPDIR a shorter directory"
+        f"no directory for the control core's socket: under each of {', '.join(tried)} its path would be longer than "
+        f"a Unix socket's {_UNIX_PATH_MAX} bytes or the directory could not be made: give TMPDIR a short directory "
+        "this user may write"
     )
 
 

@@ -26,7 +26,7 @@ import threading
 import time
 from collections.abc import Callable
 
-__all__ = ["DRAIN_S", "STALL_S", "TICK_S", "StallWatch"]
+__all__ = ["CHAIN_MAX_S", "DRAIN_S", "STALL_S", "TICK_S", "StallWatch"]
 
 #: the watch's period [s]
 TICK_S = 0.02
@@ -35,6 +35,9 @@ STALL_S = 0.1
 #: for this long after a stall's end what is taken counts as arrived at the stall's start [s]: what was sent during
 #: it is taken after the thaw, and the threads that take it may run after the tick that notices the stall
 DRAIN_S = 0.5
+#: a stall beginning within DRAIN_S after the last one continues it, as long as that one began at most this long
+#: before [s] (a request still untaken after it is stamped later than it was sent: the limit of this watch)
+CHAIN_MAX_S = 2.0
 
 
 class StallWatch:
@@ -52,6 +55,7 @@ class StallWatch:
     def start(self) -> StallWatch:
         """Tick on a daemon thread (``hitch-stall-watch``) until :meth:`close`."""
         if self._thread is None:
+            self._last = self._clock()  # from now: the time since it was made is no stall (a review)
             self._thread = threading.Thread(target=self._run, name="hitch-stall-watch", daemon=True)
             self._thread.start()
         return self
@@ -67,8 +71,11 @@ class StallWatch:
             # a stall that begins within DRAIN_S after the last one ended continues it: what was sent during the
             # first may still wait to be taken (a review: stamped with the second's start, after a stop in the
             # first, a request sent before that stop would have run)
+            # — up to CHAIN_MAX_S back: stalls every half second for long (a loaded machine) would otherwise push
+            # every stamp back without end and refuse every motion request as late (a review)
             prev = self._stall
-            start = prev[0] if prev is not None and self._last - prev[1] <= DRAIN_S else self._last
+            chained = prev is not None and self._last - prev[1] <= DRAIN_S and self._last - prev[0] <= CHAIN_MAX_S
+            start = prev[0] if chained and prev is not None else self._last
             self._stall = (start, now)
         self._last = now
 

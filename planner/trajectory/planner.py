@@ -616,18 +616,35 @@ class TrajectoryPlanner:
                     )
 
 
+def _shown(values: object) -> str:
+    """``values`` as typed, cut to 80 characters (a 400-digit integer filled the message)."""
+    text = repr(values)
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+def _floats(values: object) -> np.ndarray:
+    """``values`` as a float array; ValueError for text (numpy would read "1" as 1.0) or a number beyond a float."""
+    items = np.ravel(np.array(values, dtype=object))
+    if isinstance(values, (str, bytes)) or any(isinstance(v, (str, bytes)) for v in items):
+        raise ValueError("text")
+    try:
+        return np.asarray(values, dtype=float)
+    except OverflowError:
+        raise ValueError("beyond a float") from None
+
+
 def _ceiling(values: object) -> np.ndarray:
     """``ceiling`` of :meth:`TrajectoryPlanner.plan_move`: 4 numbers (x, z [m], roll, pitch [rad]), ``inf`` for none;
-    :class:`TrajectoryInputError` naming it otherwise (NaN included)."""
+    :class:`TrajectoryInputError` naming it otherwise (NaN and −inf included)."""
     try:
-        out = np.asarray(values, dtype=float)
+        out = _floats(values)
     except (TypeError, ValueError):
         raise TrajectoryInputError(
-            f"ceiling must be 4 numbers (x, z [m], roll, pitch [rad]; inf: none), got {values!r}"
+            f"ceiling must be 4 numbers (x, z [m], roll, pitch [rad]; inf: none), got {_shown(values)}"
         ) from None
-    if out.shape != (4,) or np.any(np.isnan(out)):
+    if out.shape != (4,) or np.any(np.isnan(out)) or np.any(out == -np.inf):
         raise TrajectoryInputError(
-            f"ceiling must be 4 numbers (x, z [m], roll, pitch [rad]; inf: none), got {values!r}"
+            f"ceiling must be 4 numbers (x, z [m], roll, pitch [rad]; inf: none), got {_shown(values)}"
         )
     return out
 
@@ -635,9 +652,9 @@ def _ceiling(values: object) -> np.ndarray:
 def _finite_vector(values: object, what: str, names: str, *, n: int = 4) -> np.ndarray:
     """``values`` as ``n`` finite floats, else :class:`TrajectoryInputError` naming ``what`` and ``names``."""
     try:
-        out = np.asarray(values, dtype=float)
+        out = _floats(values)
     except (TypeError, ValueError):
-        raise TrajectoryInputError(f"{what} must be {n} numbers ({names}), got {values!r}") from None
+        raise TrajectoryInputError(f"{what} must be {n} numbers ({names}), got {_shown(values)}") from None
     if out.shape != (n,):
         raise TrajectoryInputError(f"{what} must be {n} numbers ({names}), got shape {out.shape}")
     if not np.all(np.isfinite(out)):

@@ -175,9 +175,21 @@ def test_a_secured_service_runs_its_control_core_in_its_own_process_logged_in_as
     assert list(tmp.glob("hitch-core-link-*")) == []
 
 
+def _stopped_by(c: HitchClient, ep: str, bob, motion_id: int, send) -> list[dict]:
+    """``send(viewer_session)`` during motion ``motion_id``; the motion's ``motion_aborted`` events after it."""
+    with HitchClient([ep], security=bob, timeout_s=5) as v:
+        time.sleep(0.5)
+        send(v.session)
+        end = time.monotonic() + 3.0
+        while c.state()["motion"] == "goto" and time.monotonic() < end:
+            time.sleep(0.05)
+    events = c.request("events/recent", {})["events"]
+    return [e for e in events if e.get("motion_id") == motion_id and e["event"] == "motion_aborted"]
+
+
 def test_a_viewers_put_on_stop_stops_through_the_acl(secured):
-    """A put on stop stops as the query does (a fleet trial: a put was ignored); with access control the ACL
-    lets every role put on stop, as it lets every role query it — and still no other key."""
+    """A put or delete on stop stops as the query does (a fleet trial: a put was ignored; a review: a delete was
+    refused by the ACL); with access control every role may put on stop, as it may query it — no other key."""
     ep, alice, bob, _ = secured
     with HitchClient([ep], security=alice, timeout_s=10) as c:
         wait_online(c)
@@ -187,13 +199,12 @@ def test_a_viewers_put_on_stop_stops_through_the_acl(secured):
             v.session.put("hitch/mode", b'{"mode": "manual"}')  # not a stop: denied, and ignored anyway
             time.sleep(0.5)
             assert c.state()["motion"] == "goto" and c.state()["mode"] != "manual"
-            v.session.put("hitch/stop", b"")
-            end = time.monotonic() + 3.0
-            while c.state()["motion"] == "goto" and time.monotonic() < end:
-                time.sleep(0.05)
-        aborted = [
-            e
-            for e in c.request("events/recent", {})["events"]
-            if e.get("motion_id") == r["motion_id"] and e["event"] == "motion_aborted"
-        ]
-    assert aborted and "stop" in aborted[-1]["reason"]
+        aborted = _stopped_by(c, ep, bob, r["motion_id"], lambda s: s.put("hitch/stop", b""))
+        assert aborted and "stop" in aborted[-1]["reason"], aborted
+        end = time.monotonic() + 5.0
+        while c.state()["moving"] and time.monotonic() < end:  # the stop brakes to rest first
+            time.sleep(0.05)
+        r = c.goto({"z": -0.15}, speed_scale=0.2)  # several seconds
+        assert r["accepted"]
+        aborted = _stopped_by(c, ep, bob, r["motion_id"], lambda s: s.delete("hitch/stop"))
+        assert aborted and "stop" in aborted[-1]["reason"], aborted

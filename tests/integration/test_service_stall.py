@@ -16,7 +16,7 @@ import time
 import pytest
 
 from bridge.service.client import HitchClient, ServiceError
-from bridge.service.stall_watch import DRAIN_S, STALL_S, StallWatch
+from bridge.service.stall_watch import CHAIN_MAX_S, DRAIN_S, STALL_S, StallWatch
 from tests.integration.service_process import ServiceProcess, free_port, start_hitch_router, wait_online
 
 
@@ -54,6 +54,23 @@ def test_two_stalls_close_together_count_from_the_first_ones_start():
     now[0] += 0.25
     w.tick()  # stall B, within DRAIN_S of A's end
     assert w.arrival() == 100.0
+
+
+def test_stalls_every_half_second_do_not_push_the_stamps_back_without_end():
+    """A review: 150 ms stalls every ~0.45 s for 10 s chained into one and stamped a request taken then 9.55 s old
+    (every motion request refused as late while it lasts). A chain reaches back at most CHAIN_MAX_S."""
+    now = [100.0]
+    w = StallWatch(clock=lambda: now[0])
+    w.tick()
+    worst = 0.0
+    while now[0] < 110.0:
+        for _ in range(15):  # 0.3 s of ticks
+            now[0] += 0.02
+            w.tick()
+        now[0] += 0.15  # a stall
+        w.tick()
+        worst = max(worst, now[0] - w.arrival())
+    assert worst <= CHAIN_MAX_S + 0.5 + 0.15
 
 
 @pytest.mark.slow

@@ -378,7 +378,9 @@ def test_rest_poses_are_not_judged_as_a_trajectory(parts):
     assert g.check_setpoints(sp, rest_poses=True).action in ("ok", "scaled")
 
 
-@pytest.mark.parametrize("ceiling", [[1.0, 2.0], [float("nan")] * 4, "abc"])
+@pytest.mark.parametrize(
+    "ceiling", [[1.0, 2.0], [float("nan")] * 4, "abc", [10**400, 0, 0, 0], ["1", "2", "3", "4"], [-np.inf, 0, 0, 0]]
+)
 def test_a_bad_ceiling_is_named_whether_or_not_a_final_approach_uses_it(parts, ceiling):
     """A re-run of a trial: plan_move(..., ceiling=[1, 2] | [nan]*4 | "abc") planned on without a final approach,
     and with one raised numpy's broadcast / conversion error or "target must be 4 finite numbers"."""

@@ -477,10 +477,10 @@ class ControlCore:
         for sample in sub:  # ends when the subscriber is undeclared or the session closes
             if not zenoh.KeyExpr(str(sample.key_expr)).includes(exact):
                 continue
-            ok, reply = self._call_safely("stop_report", ())
             burst = 1
-            while sub.try_recv() is not None:  # the rest of the burst: stopped already
-                burst += 1
+            while sub.try_recv() is not None:  # the rest of the burst, taken first: one stop for all of them (a put
+                burst += 1  # arriving after the stop is taken by the next pass, a review: drained after, it was lost)
+            ok, reply = self._call_safely("stop_report", ())
             answer = {"stopped": True, **reply} if ok else reply
             payload = sample.payload.to_bytes()[:1024]
             kind = "delete" if sample.kind == zenoh.SampleKind.DELETE else "put"

@@ -896,10 +896,15 @@ def test_a_security_file_written_before_stop_puts_gets_them():
         p["rules"] = [r for r in p["rules"] if r != "stop_puts"]
     new = allow_stop_puts(old)
     rule = next(r for r in new["rules"] if r["id"] == "stop_puts")
-    assert rule["key_exprs"] == ["fleet/t07/hitch/stop"] and rule["messages"] == ["put", "declare_subscriber"]
+    assert rule["key_exprs"] == ["fleet/t07/hitch/stop"]
     assert {p["id"] for p in new["policies"] if "stop_puts" in p["rules"]} == {"operators", "viewers"}
     assert allow_stop_puts(new) == new  # once
     assert allow_stop_puts(acl) == acl  # a current file: unchanged
+    assert rule["messages"] == ["put", "delete", "declare_subscriber"]  # a delete stops too (a review: refused)
+    first = json.loads(json.dumps(acl))  # the first version's rule, without delete: given it
+    next(r for r in first["rules"] if r["id"] == "stop_puts")["messages"] = ["put", "declare_subscriber"]
+    again = next(r for r in allow_stop_puts(first)["rules"] if r["id"] == "stop_puts")
+    assert again["messages"] == ["put", "declare_subscriber", "delete"]
     conf = apply_security(zenoh.Config(), {"access_control": old})
     applied = json.loads(conf.get_json("access_control"))
     assert any(r["id"] == "stop_puts" for r in applied["rules"])

@@ -375,7 +375,9 @@ def _box_lines(category: str, res) -> list[str]:
     inward), each with the limits that stopped its faces as a comment."""
     out = [f"[workspace.restricted.{category}]"]
     for k, (lo, hi) in res.box.items():
-        lo, hi = math.ceil(lo * 1e6) / 1e6, math.floor(hi * 1e6) / 1e6  # round inward
+        # round inward; a face within 1e-12 m (rad) of a whole µm is that µm: the solver's last digits (a face at a
+        # bound of exactly 0.056 m came out 0.05599999999999 after a change of the neutral pose's start: 0.055999)
+        lo, hi = math.ceil(lo * 1e6 - 1e-6) / 1e6, math.floor(hi * 1e6 + 1e-6) / 1e6
         out.append(
             f"{k} = [{lo:.6f}, {hi:.6f}]   # {k}:min {res.stopped_by[k + ':min']}; {k}:max {res.stopped_by[k + ':max']}"
         )

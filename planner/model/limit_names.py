@@ -6,7 +6,7 @@ is that scheme as a value. Two spellings exist:
 
 * ``<kind>:<member>:<side>``, parts left out when empty: ``stroke:<actuator>:min|max``,
   ``workspace:<dof>:min|max`` (any task-bound label in place of ``workspace``),
-  ``velocity:<actuator>``, ``acceleration:<actuator>``, ``end_stop:<actuator>``,
+  ``velocity:<actuator>``, ``acceleration:<actuator>``, ``jerk:<actuator>``, ``end_stop:<actuator>``,
   ``keep_out:<sphere name>``;
 * the hitch's feature limits, joined with ``_`` as the profile names them (``flat``):
   ``top_link_yaw_min|max``, ``top_link_pitch_min|max``, ``ground_clearance_left|right``
@@ -34,7 +34,7 @@ _SIDES: tuple[str, ...] = ("min", "max")
 FEATURE_KINDS: tuple[str, ...] = ("top_link_pitch", "top_link_yaw", "ground_clearance", "z_right_end", "z_left_end")
 #: Kinds named ``<kind>:<member>`` without a side; the member is everything after the first ``:``
 #: (a keep-out sphere's name may itself contain ``:``).
-SIDELESS_KINDS: tuple[str, ...] = ("velocity", "acceleration", "end_stop", "keep_out")
+SIDELESS_KINDS: tuple[str, ...] = ("velocity", "acceleration", "jerk", "end_stop", "keep_out")
 
 
 class LimitNameError(HitchInputError):
@@ -47,7 +47,7 @@ class LimitName:
 
     Attributes:
         kind: What is limited: ``"stroke"``, a task-bound label (``"workspace"``), ``"velocity"``,
-            ``"acceleration"``, ``"end_stop"``, ``"keep_out"`` or a feature kind (:data:`FEATURE_KINDS`).
+            ``"acceleration"``, ``"jerk"``, ``"end_stop"``, ``"keep_out"`` or a feature kind (:data:`FEATURE_KINDS`).
         member: Which one: an actuator, a DOF, a side of the hitch (``"left"``), a keep-out name;
             ``""`` when the kind has only one.
         side: ``"min"`` or ``"max"`` for the bound reached, ``""`` when the limit has one side only.

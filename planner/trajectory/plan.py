@@ -47,6 +47,7 @@ __all__ = [
 #: ``velocity:<actuator>`` and ``acceleration:<actuator>``, order ACTUATOR_NAMES.
 _VELOCITY_NAMES: tuple[str, ...] = tuple(str(LimitName("velocity", n)) for n in ACTUATOR_NAMES)
 _ACCELERATION_NAMES: tuple[str, ...] = tuple(str(LimitName("acceleration", n)) for n in ACTUATOR_NAMES)
+_JERK_NAMES: tuple[str, ...] = tuple(str(LimitName("jerk", n)) for n in ACTUATOR_NAMES)
 #: closure residual [m] a batch row must keep to be trusted without the per-sample check (that one refuses > 1e-9)
 _FK_CLOSED_M = 0.5e-9
 
@@ -325,11 +326,13 @@ class Violation:
     @property
     def unit(self) -> str:
         """SI unit of ``value`` and ``bound``: the lift and the top-link angles in rad, the other strokes and
-        the ground clearance in m; rates per s, s²."""
-        angle = self.limit.startswith(("stroke:lift", "top_link", "velocity:lift", "acceleration:lift"))
+        the ground clearance in m; rates per s, s², s³."""
+        angle = self.limit.startswith(("stroke:lift", "top_link", "velocity:lift", "acceleration:lift", "jerk:lift"))
         base = "rad" if angle else "m"
         if self.limit.startswith("velocity:"):
             return base + "/s"
+        if self.limit.startswith("jerk:"):
+            return base + "/s³"
         return base + "/s²" if self.limit.startswith("acceleration:") else base
 
     def sentence(self) -> str:
@@ -337,7 +340,7 @@ class Violation:
         named the limit and the time only, not the value or the bound: a commissioning trial). A rate limit is a
         bound on the magnitude: ``|velocity:lift| = 0.2 rad/s against its bound 0.15 rad/s``. The two numbers
         are printed with the digits that tell them apart."""
-        rate = self.limit.startswith(("velocity:", "acceleration:"))
+        rate = self.limit.startswith(("velocity:", "acceleration:", "jerk:"))
         value = abs(self.value) if rate else self.value
         shown, bound = distinct_texts(value, self.bound)
         name = f"|{self.limit}|" if rate else self.limit
@@ -358,11 +361,19 @@ def verify_setpoints(
     rel_tol: float = 1e-6,
     check_acceleration: bool = True,
     mean_rates: bool = True,
+    check_jerk: bool = False,
 ) -> list[Violation]:
     """Every limit on every sample; velocities also by forward differences of the positions (the mean velocity
     over each interval: samples made elsewhere are judged by their positions, not only by their velocity column),
     accelerations by forward differences of the velocities. ``mean_rates=False``: the samples are poses the
     hitch rests at one after another, not a trajectory (no velocity between them is judged).
+
+    ``check_jerk``: also the actuators' jerk, by second divided differences of the sampled velocities,
+    ``j_k = 2 (v[t_k+1, t_k+2] − v[t_k, t_k+1]) / (t_k+2 − t_k)`` with ``v[a, b]`` the mean acceleration between two
+    samples. For a velocity with a continuous derivative (the acceleration; a jerk-limited trajectory mapped through
+    the smooth inverse) the divided difference is a mean of the jerk over [t_k, t_k+2] weighted by a positive kernel
+    of unit integral (Peano), so it never exceeds the largest |jerk| there: a sample over the limit is a real excess
+    (at 50 Hz it can miss a short one). Stamped with the middle sample's time.
 
     The forward kinematics of all samples in one mapped evaluation (:func:`forward_batch`);
     a sample whose mechanism might not close is evaluated alone (:meth:`HitchModel.features`
@@ -431,4 +442,11 @@ def verify_setpoints(
             out.append(
                 Violation(_ACCELERATION_NAMES[i], float(sp.t[k]), float(acc[k, i]), float(limits.acceleration[i]))
             )
+    if check_jerk and len(sp.t) >= 3:
+        ts = np.asarray(sp.t, float)
+        acc = np.diff(sp.actuator_velocity, axis=0) / np.diff(ts)[:, None]
+        jerk = 2.0 * np.diff(acc, axis=0) / (ts[2:] - ts[:-2])[:, None]
+        rows, cols = np.nonzero(np.abs(jerk) > limits.jerk * (1 + rel_tol))
+        for k, i in zip(rows.tolist(), cols.tolist(), strict=True):
+            out.append(Violation(_JERK_NAMES[i], float(ts[k + 1]), float(jerk[k, i]), float(limits.jerk[i])))
     return out

@@ -56,6 +56,8 @@ _OK = (Result.Working, Result.Finished)
 #: and its target before it is made as that stop followed by the move from rest (TrajectoryPlanner._plan_segments)
 OVERRUN_TOLERANCE = 1e-3
 _RATE_LIMITS = ("velocity:", "acceleration:")
+#: the rate limits with the actuators' jerk (a ramp rougher than the valves' own ramp times)
+_ALL_RATES = (*_RATE_LIMITS, "jerk:")
 
 
 def _check_scale(speed_scale: object) -> float:
@@ -467,7 +469,8 @@ class TrajectoryPlanner:
         smallest. Only the acceleration is lowered: a lower jerk would let a state still speeding up run on
         faster before it brakes (its speed grows by a²/2j; lowering it too ran a re-plan at 1.58 × lift's
         velocity limit). The excess kept is within the stop and never more than the stop command's own
-        (``info["stop_excess"]``: the largest |rate| / limit); any other violation is a :class:`PlanError`. A
+        (``info["stop_excess"]``: the largest |rate| / limit; the actuators' jerk is kept out of that choice and its
+        excess within the stop given as ``info["stop_jerk_excess"]``); any other violation is a :class:`PlanError`. A
         move that, verified on its own samples, exceeds a rate limit on the whole plan's (shifted in time by the
         stop) is made a little slower (× 0.9, down to half; ``info["move_scale"]``). A try after the first that
         fails (its stop passes a workspace face, its move cannot be made) is passed over: the plan in hand stays."""
@@ -489,11 +492,12 @@ class TrajectoryPlanner:
                 plan = Plan((stop, *move.segments), start, float(stop.duration + move.duration), 0.0)
                 sp = self.sample(plan)
                 self._check_samples(sp, start.position, stop.duration)
-                bad = verify_setpoints(sp, self.model, self.hard, self.limits)
-                in_stop = [v for v in bad if v.t <= stop.duration + 1e-9 and v.limit.startswith(_RATE_LIMITS)]
-                if len(in_stop) < len(bad):
-                    worst = next(v for v in bad if v not in in_stop)
-                    if worst.limit.startswith(_RATE_LIMITS) and move_scale > 0.5:
+                bad = verify_setpoints(sp, self.model, self.hard, self.limits, check_jerk=True)
+                in_stop_all = [v for v in bad if v.t <= stop.duration + 1e-9 and v.limit.startswith(_ALL_RATES)]
+                in_stop = [v for v in in_stop_all if v.limit.startswith(_RATE_LIMITS)]
+                if len(in_stop_all) < len(bad):
+                    worst = next(v for v in bad if v not in in_stop_all)
+                    if worst.limit.startswith(_ALL_RATES) and move_scale > 0.5:
                         move_scale *= 0.9  # the same stop again, the move after it slower
                         continue
                     raise PlanError(f"the plan would exceed {worst.sentence()}")
@@ -513,6 +517,9 @@ class TrajectoryPlanner:
             }
             if in_stop:
                 info["stop_excess"] = excess
+            jerks = [abs(v.value) / v.bound for v in in_stop_all if v.limit.startswith("jerk:")]
+            if jerks:
+                info["stop_jerk_excess"] = max(jerks)
             if best is None or excess < best[0]:
                 lb = float(stop.duration) + move.lower_bound
                 best = (excess, Plan(plan.segments, start, plan.duration, lb, sp, info))
@@ -541,6 +548,9 @@ class TrajectoryPlanner:
                 )
 
     def _plan_chain(self, start: MotionState, targets, brake: PoseLimits | None) -> Plan:
+        """The segments through ``targets`` from ``start``, verified on their samples; a velocity, acceleration or
+        jerk excess of an actuator makes the whole chain again as a slower copy (limits × the speed factor, its
+        powers, and the pass-through velocities × the factor), up to 12 times."""
         factor = 1.0
         for attempt in range(12):
             segs, state = [], start
@@ -548,7 +558,7 @@ class TrajectoryPlanner:
                 lim = self._segment_limits(state.position, p1, state.moving or bool(np.any(v1)), scale * factor)
                 if k == 0 and brake is not None:
                     lim = lim.floored(brake.scaled(factor))
-                traj = self._solve_segment(state, p1, v1, lim)
+                traj = self._solve_segment(state, p1, np.asarray(v1, float) * factor, lim)
                 # the first segment may start outside the workspace: it must not go further out
                 self._check_extrema(traj, start.position if k == 0 else None)
                 segs.append(traj)
@@ -558,7 +568,7 @@ class TrajectoryPlanner:
             plan = Plan(tuple(segs), start, duration, 0.0)
             sp = self.sample(plan)
             self._check_samples(sp, start.position, segs[0].duration)
-            bad = verify_setpoints(sp, self.model, self.hard, self.limits)
+            bad = verify_setpoints(sp, self.model, self.hard, self.limits, check_jerk=True)
             if not bad:
                 q0, q0d = sp.actuators[0], sp.actuator_velocity[0]
                 lb = self.lower_bound(q0, sp.actuators[-1], q0d)
@@ -567,7 +577,7 @@ class TrajectoryPlanner:
                     info["braking"] = "actuator limits"
                 return Plan(plan.segments, start, duration, lb, sp, info)
             worst = bad[0]
-            if worst.limit.startswith(("velocity:", "acceleration:")):
+            if worst.limit.startswith(_ALL_RATES):
                 factor *= 0.9
                 continue
             raise PlanError(f"the plan would exceed {worst.sentence()}")

@@ -396,3 +396,65 @@ def test_a_violation_says_its_value_and_bound_in_the_limit_s_unit():
         Violation("acceleration:top", 0.5, 1.25, 1.0).sentence()
         == "|acceleration:top| = 1.25 m/s² against its bound 1 m/s² at t = 0.50 s"
     )
+
+
+@pytest.mark.parametrize(("actuator", "unit"), [(0, "rad/s³"), (2, "m/s³")])
+def test_the_actuators_jerk_is_judged_by_second_divided_differences(tp, model, actuator, unit):
+    """Closed form: q(t) = q0 + j t³ / 6 has velocity j t² / 2, whose second divided difference is j exactly. Just
+    under the limit passes, 1.001 × the limit is named (``jerk:<actuator>``, its unit, the middle sample's time);
+    without ``check_jerk`` the jerk is not judged (the other callers' setpoints, as before)."""
+    t = np.arange(6) / 50.0
+    q0 = np.asarray(model.neutral, float)
+    for share, named in ((1.0 - 1e-9, False), (1.001, True)):
+        j = share * float(tp.limits.jerk[actuator])
+        q = np.tile(q0, (len(t), 1))
+        qd = np.zeros_like(q)
+        q[:, actuator] += j * t**3 / 6
+        qd[:, actuator] = j * t**2 / 2
+        sp = Setpoints(50.0, t, np.zeros((len(t), 6)), np.zeros((len(t), 4)), q, qd)
+        assert verify_setpoints(sp, model, tp.hard, tp.limits) == []
+        bad = verify_setpoints(sp, model, tp.hard, tp.limits, check_jerk=True)
+        if not named:
+            assert bad == []
+            continue
+        assert [v.limit for v in bad] == [str(LimitName("jerk", ACTUATOR_NAMES[actuator]))] * (len(t) - 2)
+        assert [v.t for v in bad] == pytest.approx(t[1:-1].tolist())
+        assert bad[0].value == pytest.approx(j, rel=1e-9) and bad[0].unit == unit
+        assert bad[0].sentence().startswith(f"|jerk:{ACTUATOR_NAMES[actuator]}| = ") and unit in bad[0].sentence()
+
+
+def test_a_slower_blended_sequence_passes_its_waypoints_slower_too(tp):
+    """A blended sequence made again slower (its speed factor, after a rate excess) passes its waypoints with its
+    velocities × the factor: with the pass-through velocities kept while the limits were lowered, the segment ran
+    past its waypoint and out of the workspace (random blends, seed 7, no. 50: "pitch reaches 0.0581 … max
+    0.0580", refused)."""
+    a, b, c, d = (
+        [0.0564, -0.1094, -0.0286, -0.0684],
+        [0.059, -0.0649, 0.0122, 0.0565],
+        [0.054, -0.1939, 0.0025, -0.005],
+        [0.0243, -0.0389, -0.02, -0.0993],
+    )
+    wps = [Waypoint(dict(zip(DOFS, b, strict=True))), Waypoint(dict(zip(DOFS, c, strict=True)), 0.5)]
+    plan = tp.plan_sequence(MotionState.at_rest(a), [*wps, Waypoint(dict(zip(DOFS, d, strict=True)))], blend=True)
+    assert plan.info["speed_factor"] < 1.0  # the slower copy is the case
+    sp = plan.sampled()
+    assert verify_setpoints(sp, tp.model, tp.hard, tp.limits, check_jerk=True) == []
+    assert np.all(sp.pose[:, [0, 2, 3, 4]] <= tp.hi + 1e-6) and np.all(sp.pose[:, [0, 2, 3, 4]] >= tp.lo - 1e-6)
+
+
+def test_random_blended_sequences_keep_the_actuators_jerk(tp):
+    """Blended sequences do not move on one line, so the actuators' jerk is not kept by construction: 200 random
+    ones (seed 7) had 53 beyond it, up to 1.30 ×. They are now made slower until within it, as for the velocity
+    and acceleration."""
+    rng = np.random.default_rng(7)
+    planned = 0
+    for _ in range(60):
+        a, b, c, d = (tp.lo + (tp.hi - tp.lo) * rng.random(4) for _ in range(4))
+        wps = [Waypoint(dict(zip(DOFS, p, strict=True)), s) for p, s in ((b, 1.0), (c, 0.5), (d, 1.0))]
+        try:
+            plan = tp.plan_sequence(MotionState.at_rest(a), wps, blend=True)
+        except PlanError:
+            continue  # a blend that leaves the workspace (refused as before)
+        planned += 1
+        assert verify_setpoints(plan.sampled(), tp.model, tp.hard, tp.limits, check_jerk=True) == [], plan.info
+    assert planned >= 50

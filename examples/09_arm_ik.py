@@ -30,6 +30,10 @@ for s in result.solutions:  # label: shoulder/elbow/wrist branch
     print(f"  {s.label:<14} q = [{rad}] rad, fk error {s.fk_error:.1e}")
 first = result.solutions[0]
 print("first solution [deg]: " + ", ".join(f"{math.degrees(q):.4f}" for q in first.joints))
+# The source applies its formulas to the 4-decimal matrix as given: orthonormalize=False gives its numbers (docs/arm.md,
+# "All eight solutions", θ6 = -147.4508 of the fig. 3.4 erratum); the projection above moves them by about 1e-3°.
+as_given = solve_arm_ik(arm, position, rotation, orthonormalize=False).solutions[0]
+print("the matrix as given [deg]: " + ", ".join(f"{math.degrees(q):.4f}" for q in as_given.joints))
 
 # The admissible solution nearest a reference posture, checked by forward kinematics.
 best = select_nearest_solution(arm, result, np.zeros(6))

@@ -222,6 +222,8 @@ class ExactInverse:
         return out
 
     def actuators(self, x: float, z: float, roll: float, pitch: float) -> Actuators:
+        """:meth:`__call__` as named :class:`~planner.model.types.Actuators` (lift [rad]; tilt, top, left, right
+        [m]) for the pose x, z [m], roll, pitch [rad]; no limit is checked."""
         return Actuators.from_array(self(x, z, roll, pitch))
 
 

@@ -1,7 +1,7 @@
 """The hard (free-workspace) limits of the hitch, evaluated on actuators and features.
 
 Hard limits are what the machine cannot or must not exceed: actuator strokes (thesis
-table 3-1/3-2), top-link angles relative to its tractor mount (thesis §3.2: 0.15 rad
+table 3-1/3-2), top-link angles relative to its tractor mount (thesis §3.2, §2.2.8: 0.15 rad
 each way horizontally, 0.35 rad upwards) and the lower-link ends' ground clearance.
 Names follow one scheme everywhere (IK ``active`` lists, refusals, "Control limited"),
 :class:`~planner.model.limit_names.LimitName`: ``stroke:<actuator>:min|max``,

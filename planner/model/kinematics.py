@@ -112,9 +112,9 @@ def _build(profile: Profile, category: str) -> tuple[ca.Function, ca.Function, S
     L, R = pl["end"], pr["end"]
     H = ca.DM(g.top_link_tractor_point)
     U, pitch, reach = mast_point(L, R, H, top, mast)
-    T = (L + R) / 2.0
+    T = (L + R) / 2.0  # tool point T, the midpoint of the lower-link ends (thesis 2.21)
     v = L - R
-    roll = ca.atan2(-v[2], v[0])
+    roll = ca.atan2(-v[2], v[0])  # atan2(z_R − z_L, x_L − x_R) (thesis 2.22 in this frame)
     yaw = ca.atan2(v[1], v[0])
     tl_yaw, tl_pitch = direction_angles(U - H)
     features = ca.vertcat(T[0], T[1], T[2], roll, pitch, yaw, ca.norm_2(v), tl_yaw, tl_pitch, L[2], R[2])

@@ -316,6 +316,8 @@ class TrajectoryPlanner:
         return bool(np.any(lo < np.minimum(self.lo, p) - 1e-9) or np.any(hi > np.maximum(self.hi, p) + 1e-9))
 
     def sample(self, plan: Plan, rate: float | None = None) -> Setpoints:
+        """``plan`` sampled at ``rate`` [Hz] (1..200; default the planner's control rate; plus the exact
+        endpoint), the actuators of every sample (:func:`~planner.trajectory.plan.sample_plan`)."""
         r = self.rate if rate is None else float(rate)
         if not 1.0 <= r <= 200.0:
             raise TrajectoryInputError(f"rate must lie within 1..200 Hz, got {r}")

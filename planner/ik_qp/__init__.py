@@ -1,5 +1,7 @@
-"""Inverse kinematics as a constrained QP: the mechanism-agnostic SQP core and the hitch IK."""
+"""Inverse kinematics as a constrained QP: the mechanism-agnostic SQP core and the hitch IK; the thesis's
+geometric, DLS and hybrid IK kept as measured baselines (:mod:`planner.ik_qp.baselines`)."""
 
+from planner.ik_qp.baselines import DLSIK, GeometricIK, HybridIK
 from planner.ik_qp.errors import IKInputError
 from planner.ik_qp.hitch_ik import BACKENDS, IKSolver, default_weights
 from planner.ik_qp.mechanism import Mechanism, build_mechanism
@@ -9,6 +11,9 @@ from planner.ik_qp.sqp import SQPSettings, SQPSolver
 
 __all__ = [
     "BACKENDS",
+    "DLSIK",
+    "GeometricIK",
+    "HybridIK",
     "IKInputError",
     "IKSolver",
     "default_weights",

@@ -104,7 +104,7 @@ from planner.model.kinematics import HitchModel
 from planner.model.sensors import SensorScaling
 from planner.model.types import CONTROLLED_POSE_NAMES
 from planner.trajectory import MotionState, TrajectoryPlanner
-from planner.trajectory.track import TrackFollower
+from planner.trajectory.track import PLAUSIBLE_VELOCITY, TrackFollower
 
 __all__ = [
     "JOBS",
@@ -990,7 +990,10 @@ def run_track_loop(
             if sp is not None and target is not None:
                 if s.strategy == "track" and session is not None:
                     seq += 1
-                    vel = {dof: rate} if s.send_velocity else None
+                    # a measured demand may outrun what a setpoint may carry (a ditch's edge at 6 km/h: over
+                    # 1.3 m/s); the service refuses such a setpoint whole (and, refused for its ttl, the stream
+                    # goes stale and ends the session), and clips any velocity beyond the limits anyway
+                    vel = {dof: min(max(rate, -PLAUSIBLE_VELOCITY), PLAUSIBLE_VELOCITY)} if s.send_velocity else None
                     path_derivatives = (
                         {} if row_acc is None else {"acceleration": {dof: row_acc}, "jerk": {dof: row_jerk}}
                     )

@@ -894,6 +894,7 @@ def run_track_loop(
         path = np.zeros(0)
         path_t: np.ndarray | None = None
         seq = 0
+        session_over = False
         last_goal: float | None = None
         counts = {
             "references_outside_strokes": 0,
@@ -1001,7 +1002,16 @@ def run_track_loop(
                         mc.track_setpoint(session, seq, {dof: sp}, vel, **path_derivatives)
                     except MotionError as exc:
                         counts["setpoints_rejected"] += 1
-                        _note(notes, f"setpoint rejected: {exc}")
+                        if exc.code == "not_found" and not session_over:
+                            # said whatever the notes hold already (five different values of one refusal hid it:
+                            # the job ran on unfollowed and only a count said so)
+                            session_over = True
+                            notes.append(
+                                f"the track session ended at {now - t_loop:.2f} s of the loop; every later setpoint "
+                                f"was refused: {exc}"
+                            )
+                        else:
+                            _note(notes, f"setpoint rejected: {exc}")
                 elif s.strategy == "goto_stream":
                     goal = float(np.clip(target, lo[d], hi[d]))
                     if goal != last_goal:

@@ -278,3 +278,23 @@ def test_a_ditch_whose_demand_outruns_a_setpoints_velocity_range_does_not_end_th
     # past the ditch the implement is back at its working height
     after = r.t > r.t[-1] - 1.0
     assert np.max(np.abs(r.error[after])) < 0.01, np.max(np.abs(r.error[after]))
+
+
+def test_a_session_that_ends_during_the_run_is_said_whatever_the_notes_hold(model, side_slope, monkeypatch):
+    """The ditch run's session went stale after five different velocity refusals had filled the notes (at most
+    five); the refusal of every later setpoint (the session was over) was never said, only counted."""
+    import bridge.service.track_loop as tl
+
+    # five notes before the session ends, as the ditch's five velocity refusals were
+    monkeypatch.setattr(tl, "_coverage_notes", lambda twin, duration: tuple(f"earlier note {k}" for k in range(5)))
+    cycles = {"n": 0}
+
+    def on_cycle(loop):
+        cycles["n"] += 1
+        if cycles["n"] == 150:  # 3 s into the run: an operator's stop ends the session
+            loop.mc.stop()
+
+    r = run_track_loop(model, side_slope, LoopSettings(strategy="track", settle_s=3.0), on_cycle=on_cycle)
+    assert r.counts["setpoints_rejected"] > 0
+    ended = [n for n in r.notes if n.startswith("the track session ended at ")]
+    assert len(ended) == 1 and "stop requested" in ended[0], r.notes

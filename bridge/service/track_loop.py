@@ -104,7 +104,7 @@ from planner.model.kinematics import HitchModel
 from planner.model.sensors import SensorScaling
 from planner.model.types import CONTROLLED_POSE_NAMES
 from planner.trajectory import MotionState, TrajectoryPlanner
-from planner.trajectory.track import TrackFollower
+from planner.trajectory.track import PLAUSIBLE_VELOCITY, TrackFollower
 
 __all__ = [
     "JOBS",
@@ -894,6 +894,7 @@ def run_track_loop(
         path = np.zeros(0)
         path_t: np.ndarray | None = None
         seq = 0
+        session_over = False
         last_goal: float | None = None
         counts = {
             "references_outside_strokes": 0,
@@ -990,7 +991,10 @@ def run_track_loop(
             if sp is not None and target is not None:
                 if s.strategy == "track" and session is not None:
                     seq += 1
-                    vel = {dof: rate} if s.send_velocity else None
+                    # a measured demand may outrun what a setpoint may carry (a ditch's edge at 6 km/h: over
+                    # 1.3 m/s); the service refuses such a setpoint whole (and, refused for its ttl, the stream
+                    # goes stale and ends the session), and clips any velocity beyond the limits anyway
+                    vel = {dof: min(max(rate, -PLAUSIBLE_VELOCITY), PLAUSIBLE_VELOCITY)} if s.send_velocity else None
                     path_derivatives = (
                         {} if row_acc is None else {"acceleration": {dof: row_acc}, "jerk": {dof: row_jerk}}
                     )
@@ -998,7 +1002,16 @@ def run_track_loop(
                         mc.track_setpoint(session, seq, {dof: sp}, vel, **path_derivatives)
                     except MotionError as exc:
                         counts["setpoints_rejected"] += 1
-                        _note(notes, f"setpoint rejected: {exc}")
+                        if exc.code == "not_found" and not session_over:
+                            # said whatever the notes hold already (five different values of one refusal hid it:
+                            # the job ran on unfollowed and only a count said so)
+                            session_over = True
+                            notes.append(
+                                f"the track session ended at {now - t_loop:.2f} s of the loop; every later setpoint "
+                                f"was refused: {exc}"
+                            )
+                        else:
+                            _note(notes, f"setpoint rejected: {exc}")
                 elif s.strategy == "goto_stream":
                     goal = float(np.clip(target, lo[d], hi[d]))
                     if goal != last_goal:

@@ -210,6 +210,11 @@ def _read_csv(
     if header is None:
         raise ScenarioError(f"{name}: empty file, expected a header {','.join(required)}")
     header = [h.strip() for h in header]
+    if len(header) == 1 and ";" in header[0]:  # the wording of the other CSV readers' (hitch track, calibration)
+        raise ScenarioError(
+            f"{name} line 1: the header is separated by semicolons (a spreadsheet's CSV with decimal commas?); "
+            f"save it as CSV with commas between cells and decimal points: {','.join(required)}"
+        )
     allowed = required + optional
     if (
         header[: len(required)] != list(required)

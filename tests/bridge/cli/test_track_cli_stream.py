@@ -286,3 +286,21 @@ def test_without_a_state_before_the_stop_the_note_names_both_causes():
     assert braking is None and note is not None
     assert "(z +7.4 mm: end pose minus setpoint)" in note and "or it braked that far after track/stop" in note
     assert cli_track._end_note({"z": 0.004}, None, {"z": 0.1}) == (None, None)  # within 5 mm: nothing to say
+
+
+class _LosesAPut(FakeService):
+    """A put lost on the way (dropped under congestion): the service never takes that seq."""
+
+    def track_setpoint(self, session, seq, pose, velocity=None):
+        if seq != 2:
+            self._take(seq, pose)
+
+
+def test_a_put_lost_in_the_middle_is_not_called_sent_after_the_session_ended(monkeypatch, capsys):
+    """A field trial: 151 setpoints sent, 150 taken, the last one among them and the session ended by its own
+    track/stop; the summary said "setpoints sent after the session ended were not taken"."""
+    fake = _LosesAPut()
+    assert _run_with(monkeypatch, fake, "--sine", "z=0.02@0.5Hz", "--duration", "0.2") == 0
+    out = capsys.readouterr().out
+    assert "after the session ended" not in out, out
+    assert "1 setpoint put(s) did not reach the service (a put is dropped, never queued)" in out, out

@@ -252,3 +252,49 @@ def test_a_scenario_whose_csv_profiles_end_before_the_run_says_so(tmp_path):
     (tmp_path / "g.csv").write_text("distance_m,height_m\n-2,0\n30,0.05\n")
     covered = load_scenario(str(toml))
     assert _coverage_notes(covered.twin, covered.duration_s) == ()
+
+
+def test_a_ditch_whose_demand_outruns_a_setpoints_velocity_range_does_not_end_the_session(model, tmp_path):
+    """A technician's field: a 2 m wide, 0.25 m deep ditch crossed at 6 km/h. The client's estimate of the
+    demand's rate passed 1 m/s (the body pitches into the ditch), the service refused those setpoints whole
+    (velocity beyond the plausible ±1 m/s), the stream went stale, the session ended, and every later setpoint
+    was refused: the hitch stayed 50 mm off its working height for the rest of the run."""
+    import math
+
+    rows = ["distance_m,height_m"]
+    for i in range(-40, 121):
+        d = i / 4
+        rows.append(f"{d:.2f},{-0.25 * math.sin(math.pi * (d - 10) / 2) if 10 <= d <= 12 else 0.0:.4f}")
+    (tmp_path / "ditch.csv").write_text("\n".join(rows) + "\n")
+    toml = tmp_path / "ditch.toml"
+    toml.write_text(
+        'schema_version = 1\nname = "ditch"\nduration_s = 11.0\n[speed]\nconstant_m_s = 1.6667\n'
+        '[terrain]\ncsv = "ditch.csv"\n'
+    )
+    r = run_track_loop(model, load_scenario(str(toml)), LoopSettings(strategy="track", settle_s=3.0))
+    assert r.job == "terrain" and r.frame == "ground"
+    assert r.counts["setpoints_rejected"] == 0, r.notes
+    assert r.counts["references_outside_strokes"] == 0 and r.counts["outside_workspace"] == 0
+    # past the ditch the implement is back at its working height
+    after = r.t > r.t[-1] - 1.0
+    assert np.max(np.abs(r.error[after])) < 0.01, np.max(np.abs(r.error[after]))
+
+
+def test_a_session_that_ends_during_the_run_is_said_whatever_the_notes_hold(model, side_slope, monkeypatch):
+    """The ditch run's session went stale after five different velocity refusals had filled the notes (at most
+    five); the refusal of every later setpoint (the session was over) was never said, only counted."""
+    import bridge.service.track_loop as tl
+
+    # five notes before the session ends, as the ditch's five velocity refusals were
+    monkeypatch.setattr(tl, "_coverage_notes", lambda twin, duration: tuple(f"earlier note {k}" for k in range(5)))
+    cycles = {"n": 0}
+
+    def on_cycle(loop):
+        cycles["n"] += 1
+        if cycles["n"] == 150:  # 3 s into the run: an operator's stop ends the session
+            loop.mc.stop()
+
+    r = run_track_loop(model, side_slope, LoopSettings(strategy="track", settle_s=3.0), on_cycle=on_cycle)
+    assert r.counts["setpoints_rejected"] > 0
+    ended = [n for n in r.notes if n.startswith("the track session ended at ")]
+    assert len(ended) == 1 and "stop requested" in ended[0], r.notes

@@ -31,3 +31,16 @@ def test_one_huge_line_names_the_file_and_line(tmp_path):
     assert str(ei.value) == (
         f"{tmp_path / 'speed.csv'} line 3: a cell longer than 131072 characters (not a CSV file of this kind?)"
     )
+
+
+def test_a_semicolon_file_from_a_european_spreadsheet_is_named_as_such(tmp_path):
+    """A technician's speed file saved by a spreadsheet with decimal commas was refused as a header
+    'time_s;speed_m_s' that "must be time_s,speed_m_s", which does not say what to change (hitch track's and the
+    calibration reader's say so)."""
+    f = _scenario(tmp_path, "time_s;speed_m_s\n0;1,6\n10;1,6\n")
+    with pytest.raises(ScenarioError) as ei:
+        load_scenario(f)
+    assert str(ei.value) == (
+        f"{tmp_path / 'speed.csv'} line 1: the header is separated by semicolons (a spreadsheet's CSV with decimal "
+        "commas?); save it as CSV with commas between cells and decimal points: time_s,speed_m_s"
+    )

@@ -18,6 +18,10 @@ def _stop_first() -> None:
 
 _stop_first()
 
-from bridge.cli.main import build_parser, main  # noqa: E402 — after the stop's priority (module docstring)
+try:  # after the stop's priority (module docstring)
+    from bridge.cli.main import build_parser, main
+except KeyboardInterrupt:  # Ctrl-C while the command line loads (~2 s on a loaded computer): no traceback
+    sys.stderr.write("hitch: interrupted while starting\n")
+    raise SystemExit(130) from None
 
 __all__ = ["build_parser", "main"]

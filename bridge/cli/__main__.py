@@ -2,6 +2,6 @@
 
 import sys
 
-from bridge.cli.main import main
+from bridge.cli import main  # Ctrl-C while it loads: a line and status 130, not a traceback
 
 sys.exit(main())

@@ -112,6 +112,8 @@ def _cmd_serve(args) -> int:
         simulate_ecu=False if args.no_sim_ecu else None,
         sim_ground_speed=args.sim_ground_speed,
         sim_truth=args.sim_truth,
+        sim_field=args.sim_field,
+        sim_scenario=args.sim_scenario,
         profile=args.profile,
         category=args.category,
         implement=args.implement,
@@ -256,6 +258,21 @@ def _add_serve(sub) -> None:
         default=None,
         metavar="FILE",
         help="the simulated machine's own true profile (hitch sim perturb); default: the planner's profile",
+    )
+    p.add_argument(
+        "--sim-scenario",
+        default=None,
+        metavar="SCENARIO",
+        help="the simulated tractor drives over this track scenario's terrain, slope and row signal (a built-in "
+        "name: levelling, levelling-inside, guidance, terrain, flat; or a .toml file; docs/tracking.md); "
+        "default: flat ground",
+    )
+    p.add_argument(
+        "--sim-field",
+        default=None,
+        metavar="FIELD",
+        help="the simulated tractor drives over this field, its draft on the draft pins (a built-in name or a .toml "
+        "file; docs/soil.md); not with --sim-scenario",
     )
     p.add_argument("--profile", default=None, help="hitch profile (default thesis-t132)")
     p.add_argument("--category", default=None, help="ISO 730 category (default: the profile's)")

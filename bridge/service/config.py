@@ -217,6 +217,10 @@ class ServiceConfig(BaseModel):
     #: the simulated tractor drives over this field (bridge.sim.field: a built-in name or a .toml path) and
     #: the twin's draft pins send its draft (bridge.service.work); None: flat ground, no draft
     sim_field: str | None = None
+    #: the simulated tractor drives over this track scenario's terrain, slope and row signal (bridge.sim.scenario:
+    #: a built-in name such as "levelling" or a .toml path), without draft: levelling, guidance and terrain
+    #: following can be tried on the service; None: flat ground (or sim_field's terrain). Not with sim_field
+    sim_scenario: str | None = None
     #: the simulated tractor's GNSS (hitch/tractor/gnss, bridge.service.gnss.TwinGnss): its start (lat, lon [deg])
     #: and its straight course (clockwise from north [rad]; default due east)
     sim_gnss_origin: tuple[Annotated[float, Strict()], Annotated[float, Strict()]] = (48.0, 11.0)
@@ -339,6 +343,28 @@ class ServiceConfig(BaseModel):
             raise ServiceConfigError(f"sim_truth {str(v)!r} must be an existing truth profile file (.toml)")
         return v
 
+    @field_validator("sim_scenario")
+    @classmethod
+    def _sim_scenario(cls, v: str | None) -> str | None:
+        if v is None:
+            return v
+        from bridge.sim.scenario import ScenarioError, load_scenario
+
+        try:
+            load_scenario(v)  # named now: a bad file refused before the service starts, naming the key
+        except ScenarioError as exc:
+            raise ServiceConfigError(f"sim_scenario {v!r}: {exc}") from None
+        return v
+
+    @model_validator(mode="after")
+    def _one_terrain(self) -> ServiceConfig:
+        if self.sim_field is not None and self.sim_scenario is not None:
+            raise ServiceConfigError(
+                f"sim_field {self.sim_field!r} and sim_scenario {self.sim_scenario!r}: give one (a field drives over "
+                "its own scenario, named by its file's scenario key)"
+            )
+        return self
+
     @field_validator("http")
     @classmethod
     def _http(cls, v: str | None) -> str | None:
@@ -433,6 +459,7 @@ _TOML_SECTIONS = {
         "sim_ground_speed": "sim_ground_speed",
         "sim_truth": "sim_truth",
         "sim_field": "sim_field",
+        "sim_scenario": "sim_scenario",
         "sim_gnss_origin": "sim_gnss_origin",
         "sim_gnss_heading": "sim_gnss_heading",
     },
@@ -495,7 +522,7 @@ def _flatten_toml(data: dict, source: str) -> dict[str, Any]:
 #: config keys that are files or folders: a relative one in a config file is taken from the file's folder
 _PATH_KEYS = ("security", "sim_truth", "lines_file", "data_dir", "can_log")
 #: config keys that are a built-in name or a file: taken from the file's folder when they name a file
-_NAME_OR_PATH_KEYS = ("profile", "sim_field")
+_NAME_OR_PATH_KEYS = ("profile", "sim_field", "sim_scenario")
 
 
 def _from_folder(values: dict[str, Any], folder: Path) -> dict[str, Any]:

@@ -43,7 +43,7 @@ from bridge.service.config import ServiceConfig
 from bridge.service.motion.controller import MotionController
 from bridge.service.motion.following import FollowingErrorLimits
 from bridge.service.motion.types import MODES, actuator_dict
-from bridge.service.work import build_work_control, sim_field_tractor, simulated_ground_speed
+from bridge.service.work import build_work_control, sim_field_tractor, sim_scenario_tractor, simulated_ground_speed
 from bridge.sim.can_node import EcuCanNode
 from bridge.sim.ecu import CylinderECU
 from bridge.sim.tractor_node import TractorTwinNode, hitch_height_from_ecu
@@ -197,8 +197,10 @@ def start_can(cfg: ServiceConfig, *, runners_out: list[RealtimeRunner] | None = 
             true_model = build_model(cfg) if cfg.sim_truth is None else HitchModel(truth.profile, cfg.category)
             height = hitch_height_from_ecu(ecu_node.ecu, true_model)
             pivot = float(true_model.profile.geometry.pivot_height)  # the field's terrain and draft (sim_field)
-            tractor = sim_field_tractor(cfg, twin.port(), height, ecu_node, pivot) or TractorTwinNode(
-                twin.port(), ground_speed_m_s=cfg.sim_ground_speed, hitch_height_m=height
+            tractor = (
+                sim_field_tractor(cfg, twin.port(), height, ecu_node, pivot)
+                or sim_scenario_tractor(cfg, twin.port(), height)
+                or TractorTwinNode(twin.port(), ground_speed_m_s=cfg.sim_ground_speed, hitch_height_m=height)
             )
             twin.add(ecu_node).add(tractor)
             # frames as they arrive while changing references feed the ECU; otherwise (at rest, or holding a
@@ -371,6 +373,9 @@ def service_info(cfg: ServiceConfig, guard: Guard) -> dict[str, Any]:
             "channel": cfg.can_channel,
             "simulated_ecu": cfg.simulate_ecu,
             "simulated_ground_speed": simulated_ground_speed(cfg),  # the speed the twin drives (a field's own)
+            # what the twin's tractor drives over (None: flat ground, or no twin)
+            "simulated_scenario": cfg.sim_scenario if cfg.simulate_ecu else None,
+            "simulated_field": cfg.sim_field if cfg.simulate_ecu else None,
         },
         "limits": {
             "workspace": {k: list(tp.workspace[k]) for k in CONTROLLED_POSE_NAMES},

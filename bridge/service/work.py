@@ -467,6 +467,23 @@ def _explicit_ground_speed(cfg: Any) -> float | None:
     return float(v)
 
 
+def _at_user_speed(cfg: Any, scenario: Any, key: str, error: type[Exception]) -> Any:
+    """``scenario`` (a :class:`~bridge.sim.scenario.Scenario`) driven at ``sim_ground_speed`` (constant) when the
+    user gave one, which wins over the scenario's own speed; ``error`` names ``key`` when that speed cannot be."""
+    from dataclasses import replace
+
+    from bridge.sim.terrain import SpeedProfile, TerrainError
+
+    v = _explicit_ground_speed(cfg)
+    if v is None:
+        return scenario
+    try:
+        speed = SpeedProfile.constant(v)
+    except TerrainError as exc:
+        raise error(f"sim_ground_speed = {v:g} m/s with {key} {getattr(cfg, key)!r}: {exc}") from None
+    return replace(scenario, twin=replace(scenario.twin, speed=speed))
+
+
 def _sim_field_setup(cfg: Any) -> Any:
     """The field of ``cfg.sim_field`` as the twin drives it: at ``sim_ground_speed`` (constant) when the user
     gave one, which wins over the scenario's speed; else at the scenario's own speed. None: no field."""
@@ -476,31 +493,47 @@ def _sim_field_setup(cfg: Any) -> Any:
     from dataclasses import replace
 
     from bridge.sim.field import FieldError, load_field
-    from bridge.sim.terrain import SpeedProfile, TerrainError
 
     fs = load_field(name)
-    v = _explicit_ground_speed(cfg)
-    if v is None:
-        return fs
-    try:
-        speed = SpeedProfile.constant(v)
-    except TerrainError as exc:
-        raise FieldError(f"sim_ground_speed = {v:g} m/s with sim_field {name!r}: {exc}") from None
-    twin = replace(fs.scenario.twin, speed=speed)
-    return replace(fs, scenario=replace(fs.scenario, twin=twin))
+    return replace(fs, scenario=_at_user_speed(cfg, fs.scenario, "sim_field", FieldError))
+
+
+def _sim_scenario_setup(cfg: Any) -> Any:
+    """The track scenario of ``cfg.sim_scenario`` as the twin drives it (at ``sim_ground_speed`` when the user
+    gave one, as :func:`_sim_field_setup`); None: none configured."""
+    name = getattr(cfg, "sim_scenario", None)
+    if name is None:
+        return None
+    from bridge.sim.scenario import ScenarioError, load_scenario
+
+    return _at_user_speed(cfg, load_scenario(name), "sim_scenario", ScenarioError)
 
 
 def simulated_ground_speed(cfg: Any) -> float | None:
     """The ground speed the simulated tractor actually drives [m/s] (for the ``config`` reply): without a field
-    ``cfg.sim_ground_speed``; with one, ``sim_ground_speed`` when the user gave it, else the field scenario's
-    constant speed (None: its speed varies over time, a speed profile). None without a simulated ECU."""
+    or scenario ``cfg.sim_ground_speed``; with one, ``sim_ground_speed`` when the user gave it, else the
+    scenario's constant speed (None: its speed varies over time, a speed profile). None without a simulated ECU."""
     if not getattr(cfg, "simulate_ecu", True):
         return None
     fs = _sim_field_setup(cfg)
-    if fs is None:
+    sc = fs.scenario if fs is not None else _sim_scenario_setup(cfg)
+    if sc is None:
         return float(cfg.sim_ground_speed)
-    speeds = set(fs.scenario.twin.speed.speeds_m_s)
+    speeds = set(sc.twin.speed.speeds_m_s)
     return float(next(iter(speeds))) if len(speeds) == 1 else None
+
+
+def sim_scenario_tractor(cfg: Any, bus: Any, height: Callable[[float], float | None]) -> Any:
+    """The twin's tractor over ``cfg.sim_scenario`` (a track scenario: terrain, slope, row signal; no draft);
+    None when none is configured. Its sensors' messages are those of ``hitch sim track`` (slope sensor, ground
+    distance, row camera, wheel speed: :class:`~bridge.sim.tractor_node.TractorTwinNode`)."""
+    sc = _sim_scenario_setup(cfg)
+    if sc is None:
+        return None
+    from bridge.sim.sensors import TwinSensors
+    from bridge.sim.tractor_node import TractorTwinNode
+
+    return TractorTwinNode(bus, TwinSensors(sc.twin), hitch_height_m=height)
 
 
 def sim_field_tractor(

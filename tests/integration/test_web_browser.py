@@ -1763,3 +1763,56 @@ def test_saving_a_preset_under_an_existing_name_asks_first(service, page):
         for n in ("dup", "dup2"):
             service.api("presets/delete", {"name": n})
     assert page.errors == []
+
+
+def test_a_viewer_sees_saving_deleting_and_acknowledging_disabled(secured, page):
+    """A trial: a viewer's page had *Save current*, each preset's *Delete*, the maneuver editor's *Save* and the
+    header's *Acknowledge* enabled (the service refused each with 403) while the other commands were disabled;
+    saving, deleting and acknowledging are an operator's (docs/security.md §1)."""
+    pose = {"x": 0.0, "z": 0.0, "roll": 0.0, "pitch": 0.0}
+    assert secured.api("presets/save", {"name": "kept", "pose": pose, "replace": True})[0] == 200
+    assert secured.api("sim/fault", {"restart_ecu": True})[0] == 200  # ecu_restart latches: Acknowledge shows
+    pg = page.context.new_page()
+    pg.set_default_timeout(10_000)
+    try:
+        pg.goto(secured.url)
+        pg.wait_for_selector("#login:not(.hidden)")
+        pg.fill("#login-form input[name=user]", "victor")
+        pg.fill("#login-form input[name=password]", "v-secret")
+        pg.click("#login-go")
+        wait_js(pg, "document.getElementById('conn').textContent.startsWith('Service: connected')", timeout=15_000)
+        wait_js(pg, "!document.getElementById('faults-ack').classList.contains('hidden')")
+        assert pg.is_disabled("#faults-ack")
+        tab(pg, "presets")
+        pg.wait_for_selector("#preset-list li[data-name='kept']")
+        assert pg.is_disabled("#preset-save")
+        assert pg.is_disabled("#preset-list li[data-name='kept'] button.danger")
+        tab(pg, "maneuvers")
+        pg.click("#maneuver-editor summary")
+        assert pg.is_disabled("#maneuver-save")
+        assert not pg.is_disabled("#maneuver-validate")  # a reading key: a viewer may check a script
+    finally:
+        pg.close()
+        secured.api("sim/fault", {})
+        secured.api("faults/ack", {})
+        secured.api("presets/delete", {"name": "kept"})
+
+
+def test_the_footer_names_the_mode_and_the_implement_another_client_chose(service, page):
+    """A trial: another client's mode change and implement choice showed as "mode changed" and "implement
+    selected" alone in the footer: the operator could not tell which mode or implement."""
+    _connected(page, service.url)
+    at_rest(service, page)
+    record_log(page)
+    try:
+        assert service.api("mode", {"mode": "attach"})[0] == 200
+        wait_log(page, "mode changed: Implement attach \\(was Automatic\\)")
+        assert service.api("mode", {"mode": "auto"})[0] == 200
+        assert service.api("implements/select", {"name": "cat2-spreader-400"})[0] == 200
+        wait_log(page, "implement selected: cat2-spreader-400")
+        assert service.api("implements/select", {"name": "default"})[0] == 200
+        wait_log(page, "implement selected: none \\(the hitch alone\\)")
+    finally:
+        service.api("mode", {"mode": "auto"})
+        service.api("implements/select", {"name": "default"})
+    assert page.errors == []

@@ -825,7 +825,7 @@
     const b = $("#faults-ack");
     b.disabled = true;
     const r = await call("faults/ack", {});
-    b.disabled = false;
+    b.disabled = document.body.classList.contains("viewer");   // operators only (a viewer's is refused)
     if (r.ok) {
       const left = r.data.faults || [];
       log(`faults acknowledged: ${(r.data.acknowledged || []).join(", ") || "none latched"}` +
@@ -908,6 +908,13 @@
     let text = name.replace(/_/g, " ");
     if (e.motion_id !== undefined) text += ` #${e.motion_id}`;
     if (e.kind) text += ` (${e.kind})`;
+    // what changed, named: another page's mode change or implement choice read "mode changed" / "implement
+    // selected" alone (a trial: the operator could not tell to which)
+    if (name === "mode_changed" && e.mode) {
+      text += `: ${MODE_NAMES[e.mode] || e.mode}` + (e.previous ? ` (was ${MODE_NAMES[e.previous] || e.previous})` : "");
+    }
+    if (name === "implement_selected") text += `: ${e.implement && e.implement !== "default" ? e.implement : "none (the hitch alone)"}`;
+    if (name === "hitch_switch" && e.command) text += `: ${e.command}`;
     if (Array.isArray(e.cleared)) text += `: ${e.cleared.join(", ")}` + (e.by ? ` (${e.by})` : "");
     if (e.reason) text += `: ${e.reason}`;
     if (e.message) text += `: ${e.message}`;
@@ -1395,7 +1402,7 @@
       const sub = DOFS.map((k) => `${k} ${fmtNoNegZero(p.pose[k] * dofK(k), isLength(k) ? 0 : dofDigits(k) - 1)}`).join(" · ") + ` (mm, ${angleUnit().unit})`;
       item(list, p.name, sub, [
         ["Go", "primary motion-only", async () => { const q = await call("presets/go", { name: p.name }); if (q.ok) log(`preset ${p.name}: moving, ${fmt(q.data.duration, 2)} s`); }],
-        ["Delete", "danger", async () => {
+        ["Delete", "danger motion-only", async () => {
           if (!(await confirmDialog(`Delete preset ${p.name}?`, "The stored pose is removed for this implement.", "Delete"))) return;
           const q = await call("presets/delete", { name: p.name }); if (q.ok) { log(`preset ${p.name} deleted`); refreshPresets(); }
         }],

@@ -1816,3 +1816,25 @@ def test_the_footer_names_the_mode_and_the_implement_another_client_chose(servic
         service.api("mode", {"mode": "auto"})
         service.api("implements/select", {"name": "default"})
     assert page.errors == []
+
+
+def test_after_a_service_restart_the_login_form_says_why(secured, page):
+    """A trial: the service restarted while an operator's page was open; the page came back with a blank login form
+    (the service keeps no sessions over a restart) and nothing said why the operator was logged out."""
+    pg = page.context.new_page()
+    pg.set_default_timeout(10_000)
+    try:
+        pg.goto(secured.url)
+        pg.wait_for_selector("#login:not(.hidden)")
+        pg.fill("#login-form input[name=user]", "olga")
+        pg.fill("#login-form input[name=password]", "o-secret")
+        pg.click("#login-go")
+        wait_js(pg, "document.getElementById('conn').textContent.startsWith('Service: connected')", timeout=15_000)
+        secured.kill(signal.SIGTERM)
+        wait_js(pg, "document.getElementById('conn').textContent.includes('disconnected')")
+        secured.start()
+        pg.wait_for_selector("#login:not(.hidden)", timeout=30_000)
+        wait_js(pg, "document.getElementById('login-result').textContent.includes('log in again')")
+        assert "the service restarted" in pg.text_content("#login-result")
+    finally:
+        pg.close()

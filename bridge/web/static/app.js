@@ -179,7 +179,10 @@
         level.halt("the connection was lost: setpoints stopped, the service brakes");
         renderConnection();
         if (ev.code === 4401) { checkSession(ev.reason || "session ended"); return; }   // logged out or expired
-        setTimeout(() => (ui.session && ui.session.login ? checkSession("") : this.connect()), this.retryMs);
+        // with a login: ask the server whether the session lives on; if not (the service restarted: it keeps no
+        // sessions), say so on the login form (it came up blank after a restart: a trial)
+        const ended = ui.session && ui.session.authenticated ? "your session ended (the service restarted, or the login expired): log in again" : "";
+        setTimeout(() => (ui.session && ui.session.login ? checkSession(ended) : this.connect()), this.retryMs);
         this.retryMs = Math.min(this.retryMs * 2, 4000);
       };
     }

@@ -1838,3 +1838,20 @@ def test_after_a_service_restart_the_login_form_says_why(secured, page):
         assert "the service restarted" in pg.text_content("#login-result")
     finally:
         pg.close()
+
+
+def test_a_refused_maneuver_step_is_named_by_one_number(service, page):
+    """A trial: validating a script whose second step was out of range read "step 2: steps[1].goto.z = 250 m …" —
+    the page's 1-based step and the service's 0-based YAML index for the same step."""
+    _connected(page, service.url)
+    tab(page, "maneuvers")
+    if page.is_hidden("#maneuver-form"):
+        page.click("#maneuver-editor summary")
+    script = "steps:\n  - goto: {z: 0.1}\n  - goto: {z: 250}\n  - got: {x: 0}\n"
+    page.fill("#maneuver-form textarea[name=script]", script)
+    page.click("#maneuver-validate")
+    wait_js(page, "document.getElementById('maneuver-result').textContent.includes('step 2')")
+    shown = page.text_content("#maneuver-result")
+    assert "step 2: goto.z = 250 m" in shown and "step 3: unknown step 'got'" in shown, shown
+    assert "steps[" not in shown, shown
+    assert page.errors == []

@@ -1432,7 +1432,11 @@
 
   // ------------------------------------------------------------------ maneuvers
   // the API's step index is 0-based; the operator reads step 1 … n
-  const stepErrors = (errors) => errors.map((e) => `${e.step === null ? "script" : "step " + (e.step + 1)}: ${e.message}`).join("; ");
+  // the service's own message names the step by its 0-based YAML index ("steps[1].goto.z = 250 …"): dropped after
+  // the 1-based "step 2: " (the operator read "step 2: steps[1]…", two numbers for one step: a trial)
+  const stepErrors = (errors) => errors.map((e) => Number.isInteger(e.step)
+    ? `step ${e.step + 1}: ${String(e.message).replace(new RegExp(String.raw`^steps\[${e.step}\](?:\.|:\s*)`), "")}`
+    : `script: ${e.message}`).join("; ");
   async function refreshManeuvers() {
     const r = await call("maneuvers/list", {}, true);
     if (!r.ok) return;

@@ -1855,3 +1855,35 @@ def test_a_refused_maneuver_step_is_named_by_one_number(service, page):
     assert "step 2: goto.z = 250 m" in shown and "step 3: unknown step 'got'" in shown, shown
     assert "steps[" not in shown, shown
     assert page.errors == []
+
+
+def test_control_limited_words_the_implement_s_upper_height_in_mm(service, page):
+    """A trial: z+ held against an implement's upper height showed "Control limited: implement upper height limit:
+    speed: implement upper height limit would be 218.9 mm (threshold 200 mm) at t = 1.00 s" — the guard's raw
+    sentence (the page read a measure without spaces only), not the words the server sends (which are in SI)."""
+    _connected(page, service.url)
+    at_rest(service, page)
+    limits = {"upper_height_m": 0.2, "lowering_speed_m_s": 0.05}
+    body = {"name": "low-roof", "category": "2", "mass_kg": 500, "com_m": [0, 0.6, 0.3], **limits}
+    assert service.api("implements/define", body)[0] == 200
+    try:
+        assert service.api("implements/select", {"name": "low-roof"})[0] == 200
+        assert service.api("goto", {"goal": {"z": 0.12}})[0] == 200
+        wait_for(lambda: not service.state()["moving"], 15, "the goto below the upper height")
+        tab(page, "jog")
+        set_jog_speed(page, 100)
+        box = page.locator("button.jog[data-dof='z'][data-sign='1']").bounding_box()
+        page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+        page.mouse.down()
+        try:
+            wait_js(page, "document.getElementById('limited').textContent.includes('upper height')", timeout=8_000)
+            shown = page.text_content("#limited")
+        finally:
+            page.mouse.up()
+        assert "implement at its upper height limit" in shown and "limit 200 mm" in shown, shown
+        assert "would be" not in shown and " m " not in shown, shown
+    finally:
+        at_rest(service, page)
+        service.api("implements/select", {"name": "default"})
+        service.api("implements/delete", {"name": "low-roof"})
+    assert page.errors == []

@@ -715,11 +715,15 @@
 
   // One state.limited entry in the operator's words: the server's (with the guard's numbers) when its
   // latest view has the same entry, else the terminal's table, else as it came. Returns [words, code].
-  const GUARD_RE = /^(hard|caution|speed):\s*(\S+) would be/;
+  // a measure may have spaces: the implement's own limits ("speed: implement upper height limit would be 0.2464 m …"
+  // was shown as it came, the guard's raw sentence in metres: a trial)
+  const GUARD_RE = /^(hard|caution|speed):\s*(\S.*?) would be/;
+  // the implement's limits: the server words them in SI (m, m/s; bridge/web/wording.py), the page shows mm
+  const IMPLEMENT_LIMIT = /^implement .* limit$/;
   function limitedEntryWords(k, v) {
     const name = String(v), info = hv.info, g = GUARD_RE.exec(name), code = g ? g[2] : name;
     const fromView = ((hv.msg && hv.msg.limited) || []).find((e) => e.key === k && e.code === code);
-    if (fromView) return [fromView.words, code];
+    if (fromView) return [IMPLEMENT_LIMIT.test(code) ? displayUnits(fromView.words) : fromView.words, code];
     const w = info && info.words && info.words[code];
     const measure = g && hv.info && hv.info.words && ["front_axle_load", "ssm", "lsm", "esm"].includes(code);
     if (w) return [measure ? `${w}: ${g[1] === "hard" ? "refused" : "slowed"}` : w, code];

@@ -1772,6 +1772,7 @@ def test_a_viewer_sees_saving_deleting_and_acknowledging_disabled(secured, page)
     pose = {"x": 0.0, "z": 0.0, "roll": 0.0, "pitch": 0.0}
     assert secured.api("presets/save", {"name": "kept", "pose": pose, "replace": True})[0] == 200
     assert secured.api("sim/fault", {"restart_ecu": True})[0] == 200  # ecu_restart latches: Acknowledge shows
+    page.context.clear_cookies()  # an earlier test's login in this browser: log in afresh
     pg = page.context.new_page()
     pg.set_default_timeout(10_000)
     try:
@@ -1821,6 +1822,7 @@ def test_the_footer_names_the_mode_and_the_implement_another_client_chose(servic
 def test_after_a_service_restart_the_login_form_says_why(secured, page):
     """A trial: the service restarted while an operator's page was open; the page came back with a blank login form
     (the service keeps no sessions over a restart) and nothing said why the operator was logged out."""
+    page.context.clear_cookies()  # an earlier test's login in this browser: log in afresh
     pg = page.context.new_page()
     pg.set_default_timeout(10_000)
     try:

@@ -556,6 +556,7 @@ FIELD_UNITS: Mapping[str, str] = {
     "vpitch": "rad/s",
     "ttl_ms": "ms",
     "deadline_ms": "ms",
+    "delay_ms": "ms",
     "mass_kg": "kg",
     "com_m": "m",
     "upper_height_m": "m",

@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from bridge.web.wording import KEY_WORDS, MEASURE_WORDS, highlight, limited_entries, words
+from bridge.web.wording import IMPLEMENT_WORDS, KEY_WORDS, MEASURE_WORDS, highlight, limited_entries, words
 from planner.errors import HitchInputError
 from planner.limits.stability import StabilityThresholds
 from planner.limits.tractor import load_tractor_profile
@@ -58,7 +58,7 @@ _DIGITS = 6  # points rounded to 1 µm
 def limit_codes(model: HitchModel) -> tuple[str, ...]:
     """Every limit code this hitch can report: strokes, workspace faces, feature limits, speed and
     acceleration of every actuator and DOF, end stops, the profile's keep-out spheres, the guard's
-    measures (the same name constructors the planner uses)."""
+    measures and the implement's own limits (the same name constructors the planner uses)."""
     codes: list[str] = [n for pair in STROKE_NAMES + WORKSPACE_NAMES for n in pair]
     codes += [n for _, lo, hi in FEATURE_LIMIT_ROWS for n in (lo, hi) if n]
     for kind in ("velocity", "acceleration"):
@@ -66,6 +66,7 @@ def limit_codes(model: HitchModel) -> tuple[str, ...]:
     codes += [str(LimitName("end_stop", n)) for n in ACTUATOR_NAMES]
     codes += [str(LimitName("keep_out", k.name)) for k in model.profile.limits.keep_out]
     codes += list(MEASURE_WORDS)
+    codes += list(IMPLEMENT_WORDS)  # the selected implement's own limits (upper height, lowering speed)
     return tuple(dict.fromkeys(codes))
 
 

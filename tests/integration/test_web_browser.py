@@ -1763,3 +1763,129 @@ def test_saving_a_preset_under_an_existing_name_asks_first(service, page):
         for n in ("dup", "dup2"):
             service.api("presets/delete", {"name": n})
     assert page.errors == []
+
+
+def test_a_viewer_sees_saving_deleting_and_acknowledging_disabled(secured, page):
+    """A trial: a viewer's page had *Save current*, each preset's *Delete*, the maneuver editor's *Save* and the
+    header's *Acknowledge* enabled (the service refused each with 403) while the other commands were disabled;
+    saving, deleting and acknowledging are an operator's (docs/security.md §1)."""
+    pose = {"x": 0.0, "z": 0.0, "roll": 0.0, "pitch": 0.0}
+    assert secured.api("presets/save", {"name": "kept", "pose": pose, "replace": True})[0] == 200
+    assert secured.api("sim/fault", {"restart_ecu": True})[0] == 200  # ecu_restart latches: Acknowledge shows
+    page.context.clear_cookies()  # an earlier test's login in this browser: log in afresh
+    pg = page.context.new_page()
+    pg.set_default_timeout(10_000)
+    try:
+        pg.goto(secured.url)
+        pg.wait_for_selector("#login:not(.hidden)")
+        pg.fill("#login-form input[name=user]", "victor")
+        pg.fill("#login-form input[name=password]", "v-secret")
+        pg.click("#login-go")
+        wait_js(pg, "document.getElementById('conn').textContent.startsWith('Service: connected')", timeout=15_000)
+        wait_js(pg, "!document.getElementById('faults-ack').classList.contains('hidden')")
+        assert pg.is_disabled("#faults-ack")
+        tab(pg, "presets")
+        pg.wait_for_selector("#preset-list li[data-name='kept']")
+        assert pg.is_disabled("#preset-save")
+        assert pg.is_disabled("#preset-list li[data-name='kept'] button.danger")
+        tab(pg, "maneuvers")
+        pg.click("#maneuver-editor summary")
+        assert pg.is_disabled("#maneuver-save")
+        assert not pg.is_disabled("#maneuver-validate")  # a reading key: a viewer may check a script
+    finally:
+        pg.close()
+        secured.api("sim/fault", {})
+        secured.api("faults/ack", {})
+        secured.api("presets/delete", {"name": "kept"})
+
+
+def test_the_footer_names_the_mode_and_the_implement_another_client_chose(service, page):
+    """A trial: another client's mode change and implement choice showed as "mode changed" and "implement
+    selected" alone in the footer: the operator could not tell which mode or implement."""
+    _connected(page, service.url)
+    at_rest(service, page)
+    record_log(page)
+    try:
+        assert service.api("mode", {"mode": "attach"})[0] == 200
+        wait_log(page, "mode changed: Implement attach \\(was Automatic\\)")
+        assert service.api("mode", {"mode": "auto"})[0] == 200
+        assert service.api("implements/select", {"name": "cat2-spreader-400"})[0] == 200
+        wait_log(page, "implement selected: cat2-spreader-400")
+        assert service.api("implements/select", {"name": "default"})[0] == 200
+        wait_log(page, "implement selected: none \\(the hitch alone\\)")
+    finally:
+        service.api("mode", {"mode": "auto"})
+        service.api("implements/select", {"name": "default"})
+    assert page.errors == []
+
+
+def test_after_a_service_restart_the_login_form_says_why(secured, page):
+    """A trial: the service restarted while an operator's page was open; the page came back with a blank login form
+    (the service keeps no sessions over a restart) and nothing said why the operator was logged out."""
+    page.context.clear_cookies()  # an earlier test's login in this browser: log in afresh
+    pg = page.context.new_page()
+    pg.set_default_timeout(10_000)
+    try:
+        pg.goto(secured.url)
+        pg.wait_for_selector("#login:not(.hidden)")
+        pg.fill("#login-form input[name=user]", "olga")
+        pg.fill("#login-form input[name=password]", "o-secret")
+        pg.click("#login-go")
+        wait_js(pg, "document.getElementById('conn').textContent.startsWith('Service: connected')", timeout=15_000)
+        secured.kill(signal.SIGTERM)
+        wait_js(pg, "document.getElementById('conn').textContent.includes('disconnected')")
+        secured.start()
+        pg.wait_for_selector("#login:not(.hidden)", timeout=30_000)
+        wait_js(pg, "document.getElementById('login-result').textContent.includes('log in again')")
+        assert "the service restarted" in pg.text_content("#login-result")
+    finally:
+        pg.close()
+
+
+def test_a_refused_maneuver_step_is_named_by_one_number(service, page):
+    """A trial: validating a script whose second step was out of range read "step 2: steps[1].goto.z = 250 m …" —
+    the page's 1-based step and the service's 0-based YAML index for the same step."""
+    _connected(page, service.url)
+    tab(page, "maneuvers")
+    if page.is_hidden("#maneuver-form"):
+        page.click("#maneuver-editor summary")
+    script = "steps:\n  - goto: {z: 0.1}\n  - goto: {z: 250}\n  - got: {x: 0}\n"
+    page.fill("#maneuver-form textarea[name=script]", script)
+    page.click("#maneuver-validate")
+    wait_js(page, "document.getElementById('maneuver-result').textContent.includes('step 2')")
+    shown = page.text_content("#maneuver-result")
+    assert "step 2: goto.z = 250 m" in shown and "step 3: unknown step 'got'" in shown, shown
+    assert "steps[" not in shown, shown
+    assert page.errors == []
+
+
+def test_control_limited_words_the_implement_s_upper_height_in_mm(service, page):
+    """A trial: z+ held against an implement's upper height showed "Control limited: implement upper height limit:
+    speed: implement upper height limit would be 218.9 mm (threshold 200 mm) at t = 1.00 s" — the guard's raw
+    sentence (the page read a measure without spaces only), not the words the server sends (which are in SI)."""
+    _connected(page, service.url)
+    at_rest(service, page)
+    limits = {"upper_height_m": 0.2, "lowering_speed_m_s": 0.05}
+    body = {"name": "low-roof", "category": "2", "mass_kg": 500, "com_m": [0, 0.6, 0.3], **limits}
+    assert service.api("implements/define", body)[0] == 200
+    try:
+        assert service.api("implements/select", {"name": "low-roof"})[0] == 200
+        assert service.api("goto", {"goal": {"z": 0.12}})[0] == 200
+        wait_for(lambda: not service.state()["moving"], 15, "the goto below the upper height")
+        tab(page, "jog")
+        set_jog_speed(page, 100)
+        box = page.locator("button.jog[data-dof='z'][data-sign='1']").bounding_box()
+        page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+        page.mouse.down()
+        try:
+            wait_js(page, "document.getElementById('limited').textContent.includes('upper height')", timeout=8_000)
+            shown = page.text_content("#limited")
+        finally:
+            page.mouse.up()
+        assert "implement at its upper height limit" in shown and "limit 200 mm" in shown, shown
+        assert "would be" not in shown and " m " not in shown, shown
+    finally:
+        at_rest(service, page)
+        service.api("implements/select", {"name": "default"})
+        service.api("implements/delete", {"name": "low-roof"})
+    assert page.errors == []

@@ -179,7 +179,10 @@
         level.halt("the connection was lost: setpoints stopped, the service brakes");
         renderConnection();
         if (ev.code === 4401) { checkSession(ev.reason || "session ended"); return; }   // logged out or expired
-        setTimeout(() => (ui.session && ui.session.login ? checkSession("") : this.connect()), this.retryMs);
+        // with a login: ask the server whether the session lives on; if not (the service restarted: it keeps no
+        // sessions), say so on the login form (it came up blank after a restart: a trial)
+        const ended = ui.session && ui.session.authenticated ? "your session ended (the service restarted, or the login expired): log in again" : "";
+        setTimeout(() => (ui.session && ui.session.login ? checkSession(ended) : this.connect()), this.retryMs);
         this.retryMs = Math.min(this.retryMs * 2, 4000);
       };
     }
@@ -712,11 +715,15 @@
 
   // One state.limited entry in the operator's words: the server's (with the guard's numbers) when its
   // latest view has the same entry, else the terminal's table, else as it came. Returns [words, code].
-  const GUARD_RE = /^(hard|caution|speed):\s*(\S+) would be/;
+  // a measure may have spaces: the implement's own limits ("speed: implement upper height limit would be 0.2464 m …"
+  // was shown as it came, the guard's raw sentence in metres: a trial)
+  const GUARD_RE = /^(hard|caution|speed):\s*(\S.*?) would be/;
+  // the implement's limits: the server words them in SI (m, m/s; bridge/web/wording.py), the page shows mm
+  const IMPLEMENT_LIMIT = /^implement .* limit$/;
   function limitedEntryWords(k, v) {
     const name = String(v), info = hv.info, g = GUARD_RE.exec(name), code = g ? g[2] : name;
     const fromView = ((hv.msg && hv.msg.limited) || []).find((e) => e.key === k && e.code === code);
-    if (fromView) return [fromView.words, code];
+    if (fromView) return [IMPLEMENT_LIMIT.test(code) ? displayUnits(fromView.words) : fromView.words, code];
     const w = info && info.words && info.words[code];
     const measure = g && hv.info && hv.info.words && ["front_axle_load", "ssm", "lsm", "esm"].includes(code);
     if (w) return [measure ? `${w}: ${g[1] === "hard" ? "refused" : "slowed"}` : w, code];
@@ -825,7 +832,7 @@
     const b = $("#faults-ack");
     b.disabled = true;
     const r = await call("faults/ack", {});
-    b.disabled = false;
+    b.disabled = document.body.classList.contains("viewer");   // operators only (a viewer's is refused)
     if (r.ok) {
       const left = r.data.faults || [];
       log(`faults acknowledged: ${(r.data.acknowledged || []).join(", ") || "none latched"}` +
@@ -908,6 +915,13 @@
     let text = name.replace(/_/g, " ");
     if (e.motion_id !== undefined) text += ` #${e.motion_id}`;
     if (e.kind) text += ` (${e.kind})`;
+    // what changed, named: another page's mode change or implement choice read "mode changed" / "implement
+    // selected" alone (a trial: the operator could not tell to which)
+    if (name === "mode_changed" && e.mode) {
+      text += `: ${MODE_NAMES[e.mode] || e.mode}` + (e.previous ? ` (was ${MODE_NAMES[e.previous] || e.previous})` : "");
+    }
+    if (name === "implement_selected") text += `: ${e.implement && e.implement !== "default" ? e.implement : "none (the hitch alone)"}`;
+    if (name === "hitch_switch" && e.command) text += `: ${e.command}`;
     if (Array.isArray(e.cleared)) text += `: ${e.cleared.join(", ")}` + (e.by ? ` (${e.by})` : "");
     if (e.reason) text += `: ${e.reason}`;
     if (e.message) text += `: ${e.message}`;
@@ -1395,7 +1409,7 @@
       const sub = DOFS.map((k) => `${k} ${fmtNoNegZero(p.pose[k] * dofK(k), isLength(k) ? 0 : dofDigits(k) - 1)}`).join(" · ") + ` (mm, ${angleUnit().unit})`;
       item(list, p.name, sub, [
         ["Go", "primary motion-only", async () => { const q = await call("presets/go", { name: p.name }); if (q.ok) log(`preset ${p.name}: moving, ${fmt(q.data.duration, 2)} s`); }],
-        ["Delete", "danger", async () => {
+        ["Delete", "danger motion-only", async () => {
           if (!(await confirmDialog(`Delete preset ${p.name}?`, "The stored pose is removed for this implement.", "Delete"))) return;
           const q = await call("presets/delete", { name: p.name }); if (q.ok) { log(`preset ${p.name} deleted`); refreshPresets(); }
         }],
@@ -1422,7 +1436,11 @@
 
   // ------------------------------------------------------------------ maneuvers
   // the API's step index is 0-based; the operator reads step 1 … n
-  const stepErrors = (errors) => errors.map((e) => `${e.step === null ? "script" : "step " + (e.step + 1)}: ${e.message}`).join("; ");
+  // the service's own message names the step by its 0-based YAML index ("steps[1].goto.z = 250 …"): dropped after
+  // the 1-based "step 2: " (the operator read "step 2: steps[1]…", two numbers for one step: a trial)
+  const stepErrors = (errors) => errors.map((e) => Number.isInteger(e.step)
+    ? `step ${e.step + 1}: ${String(e.message).replace(new RegExp(String.raw`^steps\[${e.step}\](?:\.|:\s*)`), "")}`
+    : `script: ${e.message}`).join("; ");
   async function refreshManeuvers() {
     const r = await call("maneuvers/list", {}, true);
     if (!r.ok) return;

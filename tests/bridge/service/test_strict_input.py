@@ -286,3 +286,11 @@ def test_a_null_dof_of_a_goal_or_a_preset_is_refused_naming_it(key, field, body)
     msg = str(_refusal(key, json.dumps(body)))
     assert msg.startswith(f"{key}: {field}.{dof} must be a number ("), msg
     assert "got null; a DOF left out keeps its value" in msg and "needs at least one" not in msg
+
+
+def test_the_twin_s_frame_delay_names_its_unit():
+    """A trial: ``sim/fault`` with ``delay_ms = -3`` was refused "(allowed: >= 0 and <= 5000)", the only millisecond
+    field whose range said no unit."""
+    with pytest.raises(RequestError) as exc:
+        parse_request("sim/fault", json.dumps({"delay_ms": -3}))
+    assert "delay_ms = -3" in str(exc.value) and "(allowed: >= 0 and <= 5000 ms)" in str(exc.value), exc.value

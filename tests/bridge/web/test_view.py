@@ -399,3 +399,13 @@ def test_a_limit_flagged_on_a_track_dof_and_its_guard_reason_are_one_entry_on_th
     entries = view.message(state)["limited"]
     assert [e["key"] for e in entries] == ["vz"], entries
     assert entries[0]["words"] == "lowering faster than the implement allows: 0.060 m/s (limit 0.050 m/s): slowed"
+
+
+def test_the_terminal_has_words_for_the_implement_s_own_limits(view):
+    """A trial: with an upper height the page's *Check* said "slowed to 49 %: implement lowering speed limit" and
+    the limit codes of the implement had no words in the terminal's table, as every other code has."""
+    from bridge.web.wording import IMPLEMENT_WORDS
+
+    table = view.terminal()["words"]
+    for code, said in IMPLEMENT_WORDS.items():
+        assert table.get(code) == said, code

@@ -326,7 +326,8 @@ class ServiceAPI:
     def _jog(self, r: JogRequest) -> dict:
         deadline, issued = self._timing(r.deadline_ms)  # late, or sent before the latest stop: never run
         rates = {"vx": r.vx, "vz": r.vz, "vroll": r.vroll, "vpitch": r.vpitch}
-        reply = self.motion.jog(rates, r.ttl_ms / 1000.0, deadline=deadline, issued=issued).to_json()
+        holder = getattr(self._caller, "user", None)  # one jog at a time: another user's is refused while live
+        reply = self.motion.jog(rates, r.ttl_ms / 1000.0, deadline=deadline, issued=issued, holder=holder).to_json()
         if (rec := self.recorder) is not None:  # teach-in (read once: a record/stop may run meanwhile)
             rec.on_jog(r.ttl_ms / 1000.0)
         return reply

@@ -351,9 +351,17 @@ class MotionProxy:
         return JsonReply(data)
 
     def jog(
-        self, rates: Mapping[str, float], ttl_s: float, *, deadline: float | None = None, issued: float | None = None
+        self,
+        rates: Mapping[str, float],
+        ttl_s: float,
+        *,
+        deadline: float | None = None,
+        issued: float | None = None,
+        holder: str | None = None,
     ) -> JsonReply:
-        return JsonReply(self.core.call("jog", dict(rates), float(ttl_s), deadline=deadline, issued=issued))
+        return JsonReply(
+            self.core.call("jog", dict(rates), float(ttl_s), deadline=deadline, issued=issued, holder=holder)
+        )
 
     def stop(self, reason: str = "stop requested") -> int | None:
         mid = self.core.call("stop", reason)

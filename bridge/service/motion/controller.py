@@ -426,10 +426,17 @@ class MotionController:
         *,
         deadline: float | None = None,
         issued: float | None = None,
+        holder: str | None = None,
     ) -> JogAccepted:
         """Start or refresh a jog (pose rates, m/s and rad/s) for ``ttl_s`` seconds. ``deadline`` and
         ``issued`` as for :meth:`goto`: a jog that waited past its deadline, or that arrived before the
-        latest stop, is refused (``busy``), never run later."""
+        latest stop, is refused (``busy``), never run later.
+
+        ``holder``: who sends it (the request's user; None: an anonymous client). One jog at a time: while the
+        live jog's command has not expired, a jog of another holder is refused (``busy``, naming the holder and
+        the time left) — two operators' pages held z+ and z− alternately and both were taken, the hitch went down
+        66.7 mm while one held "up" (a terminal trial). Once the command expired (released) another may take the
+        jog over. Anonymous clients cannot be told apart: their jogs are one jog, as before."""
         v = np.array([float(rates.get(k, 0.0)) for k in ("vx", "vz", "vroll", "vpitch")])
         with self._lock:
             self._check_allowed("jog")
@@ -450,6 +457,13 @@ class MotionController:
                     "busy", f"a stop is in progress (motion {m.motion_id}); jog is refused until the hitch is at rest"
                 )
             events: list[Event] = []
+            if isinstance(m, JogMotion) and m.holder != holder and now < m.expires:
+                who = "an anonymous client" if m.holder is None else f"user {m.holder!r}"
+                raise MotionError(
+                    "busy",
+                    f"a jog of {who} is live (motion {m.motion_id}, {m.expires - now:.2f} s left): one jog at a time; "
+                    "it is yours once they release it (its ttl) — or stop",
+                )
             if not isinstance(m, JogMotion):
                 start = self._predict(now)
                 if m is not None:
@@ -459,6 +473,7 @@ class MotionController:
                 m = JogMotion(next(self._ids), jc, v, now + ttl_s, t_state=now)
                 self._install(m)
                 events.append(self._ev("motion_started", m, kind="jog"))
+            m.holder = holder
             acc = m.refresh(self.guard, v, now + ttl_s)
             if capped:
                 acc = replace(acc, limited={**capped, **acc.limited})

@@ -360,6 +360,9 @@ class JogMotion:
     #: changes, e.g. from the jog speed limit to the workspace face, is announced again)
     reported: dict[str, str] = field(default_factory=dict)
     decision: GuardDecision = field(default_factory=lambda: GuardDecision("ok"))
+    #: who sends the live command (the request's user; None: an anonymous client): while it is live a jog of
+    #: another is refused (:meth:`MotionController.jog`)
+    holder: str | None = None
 
     def refresh(self, guard: Guard, rates: np.ndarray, expires: float) -> JogAccepted:
         """A new command: rates [m/s, rad/s] until clock time ``expires``; checked ahead by the guard."""

@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from bridge.web.wording import IMPLEMENT_WORDS, KEY_WORDS, MEASURE_WORDS, highlight, limited_entries, words
+from bridge.web.wording import IMPLEMENT_WORDS, KEY_WORDS, MEASURE_WORDS, MODE_WORDS, highlight, limited_entries, words
 from planner.errors import HitchInputError
 from planner.limits.stability import StabilityThresholds
 from planner.limits.tractor import load_tractor_profile
@@ -57,16 +57,18 @@ _DIGITS = 6  # points rounded to 1 µm
 
 def limit_codes(model: HitchModel) -> tuple[str, ...]:
     """Every limit code this hitch can report: strokes, workspace faces, feature limits, speed and
-    acceleration of every actuator and DOF, end stops, the profile's keep-out spheres, the guard's
+    acceleration of every actuator and DOF, each actuator's jerk (a plan's refusal), end stops, the profile's keep-out spheres, the guard's
     measures and the implement's own limits (the same name constructors the planner uses)."""
     codes: list[str] = [n for pair in STROKE_NAMES + WORKSPACE_NAMES for n in pair]
     codes += [n for _, lo, hi in FEATURE_LIMIT_ROWS for n in (lo, hi) if n]
     for kind in ("velocity", "acceleration"):
         codes += [str(LimitName(kind, n)) for n in ACTUATOR_NAMES + CONTROLLED_POSE_NAMES]
+    codes += [str(LimitName("jerk", n)) for n in ACTUATOR_NAMES]  # a plan refused for a ramp rougher than the valves'
     codes += [str(LimitName("end_stop", n)) for n in ACTUATOR_NAMES]
     codes += [str(LimitName("keep_out", k.name)) for k in model.profile.limits.keep_out]
     codes += list(MEASURE_WORDS)
     codes += list(IMPLEMENT_WORDS)  # the selected implement's own limits (upper height, lowering speed)
+    codes += list(MODE_WORDS)  # what a mode caps (attach: a quarter of full speed)
     return tuple(dict.fromkeys(codes))
 
 

@@ -69,6 +69,7 @@ KIND_WORDS: dict[tuple[str, str], str] = {
     ("stroke", "max"): "{m} at its stroke end (longest)",
     ("velocity", ""): "{m} at its speed limit",
     ("acceleration", ""): "{m} at its acceleration limit",
+    ("jerk", ""): "{m} at its jerk limit",
     ("end_stop", ""): "{m} slowing before its stroke end",
     ("keep_out", ""): "top link close to the {m}",
     ("top_link_yaw", "min"): "top link at its sideways limit (swung left)",
@@ -111,6 +112,11 @@ IMPLEMENT_WORDS: dict[str, str] = {
     "implement upper height limit": "implement at its upper height limit",
     "implement lowering speed limit": "lowering faster than the implement allows",
     "implement transport lock": "implement locked for transport",
+}
+
+#: what an operating mode caps (the motion controller's jog in attach mode: a quarter of full speed)
+MODE_WORDS: dict[str, str] = {
+    "mode:attach": "attach mode: a quarter of full speed",
 }
 
 #: keys of ``state.limited`` that are not limit names: the jog directions and the track DOFs
@@ -190,6 +196,8 @@ def words(code: str) -> str | None:
         return MEASURE_WORDS[code]
     if code in IMPLEMENT_WORDS:
         return IMPLEMENT_WORDS[code]
+    if code in MODE_WORDS:
+        return MODE_WORDS[code]
     name = _parse(code)
     if name is None:
         return None

@@ -473,10 +473,8 @@ class MotionController:
                 m = JogMotion(next(self._ids), jc, v, now + ttl_s, t_state=now)
                 self._install(m)
                 events.append(self._ev("motion_started", m, kind="jog"))
-            m.holder = holder
+            m.holder, m.caps = holder, capped
             acc = m.refresh(self.guard, v, now + ttl_s)
-            if capped:
-                acc = replace(acc, limited={**capped, **acc.limited})
             self._post(events)
         self.outbox.flush()
         return acc

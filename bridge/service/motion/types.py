@@ -363,13 +363,16 @@ class JogMotion:
     #: who sends the live command (the request's user; None: an anonymous client): while it is live a jog of
     #: another is refused (:meth:`MotionController.jog`)
     holder: str | None = None
+    #: what the mode caps in the command's rates (``{"z+": "mode:attach"}``), named in the reply and, while it
+    #: lasts, in the state (the state's "Control limited" missed attach mode's quarter speed: a terminal trial)
+    caps: dict[str, str] = field(default_factory=dict)
 
     def refresh(self, guard: Guard, rates: np.ndarray, expires: float) -> JogAccepted:
         """A new command: rates [m/s, rad/s] until clock time ``expires``; checked ahead by the guard."""
         self.rates, self.expires = np.asarray(rates, float), float(expires)
         allowed, self.decision = self._checked(guard)
         _, flags = self.jog.clipped_rates(allowed)
-        self.limited = {**self._speed_flags(), **flags, **guard_limits(self.decision)}
+        self.limited = {**self.caps, **self._speed_flags(), **flags, **guard_limits(self.decision)}
         return JogAccepted(self.motion_id, dict(self.limited), self.decision)
 
     def step(self, guard: Guard) -> tuple[JogOutput, list[Event]]:
@@ -379,7 +382,7 @@ class JogMotion:
         allowed, self.decision = self._checked(guard)
         self.jog.command(allowed, 1.0)  # the dead-man TTL is ours (``expires``), not the controller's
         out = self.jog.step()
-        self.limited = {**self._speed_flags(), **out.limited, **guard_limits(self.decision)}
+        self.limited = {**self.caps, **self._speed_flags(), **out.limited, **guard_limits(self.decision)}
         new = newly_limited(self.limited, self.decision, self.reported)
         events: list[Event] = [{"event": "limit_reached", "motion_id": self.motion_id, "limits": new}] if new else []
         return out, events

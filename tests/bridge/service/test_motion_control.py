@@ -296,6 +296,8 @@ def test_modes_gate_motion(bench):
     assert bench.mc.jog({"vz": 1.0}, 0.2).limited["z+"] == "mode:attach"
     bench.run(1.0, each=lambda: (bench.mc.jog({"vz": 1.0}, 0.2), vz.append(bench.mc.current_state().velocity[1])))
     assert max(vz) <= ATTACH_SPEED_SCALE * vmax * (1 + 1e-6) and max(vz) > 0.5 * ATTACH_SPEED_SCALE * vmax
+    # and the state says so while it lasts ("Control limited" showed nothing: a terminal trial)
+    assert bench.states[-1]["limited"].get("z+") == "mode:attach", bench.states[-1]["limited"]
     with pytest.raises(MotionError) as ei:  # mode change while moving: refused
         bench.mc.set_mode("auto")
     assert ei.value.code == "busy" and "send stop first" in str(ei.value)

@@ -409,3 +409,12 @@ def test_the_terminal_has_words_for_the_implement_s_own_limits(view):
     table = view.terminal()["words"]
     for code, said in IMPLEMENT_WORDS.items():
         assert table.get(code) == said, code
+
+
+def test_attach_mode_s_quarter_speed_has_words():
+    """The state names attach mode's cap on a jog (``{"z+": "mode:attach"}``); the terminal says it in words (it
+    showed nothing before: a terminal trial), and the code is among the hitch's limit codes."""
+    from bridge.web.wording import limited_words
+
+    assert limited_words("z+", "mode:attach") == "attach mode: a quarter of full speed"
+    assert "mode:attach" in limit_codes(HitchModel.from_profile("thesis-t132", "2"))

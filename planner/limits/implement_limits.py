@@ -89,18 +89,23 @@ class ImplementLimits:
 
 
 def upper_height_violation(z: np.ndarray, limits: ImplementLimits) -> tuple[int, float] | None:
-    """(first sample, its z [m]) of heights ``z`` (N,) above the upper height limit, or None.
+    """(the highest sample, its z [m]) of heights ``z`` (N,) above the upper height limit, or None; a NaN
+    height counts as above (the first one is given).
 
-    A plan starting above the limit is allowed to stay at or below its start height (it may only
-    descend towards the limit)."""
+    The highest, not the first: a goto to 300 mm under a 200 mm limit was refused "would be 200.6 mm … at
+    t = 0.96 s", the first sample over it, not the goal asked (a terminal trial). A plan starting above the
+    limit is allowed to stay at or below its start height (it may only descend towards the limit)."""
     upper = limits.upper_height_m
     if upper is None or len(z) == 0:
         return None
     bound = max(upper, float(z[0])) + _TOL_M
     with np.errstate(invalid="ignore"):
         above = ~(z <= bound)  # NaN counts as above
-    idx = np.flatnonzero(above)
-    return None if not idx.size else (int(idx[0]), float(z[idx[0]]))
+    if not above.any():
+        return None
+    nan = np.flatnonzero(np.isnan(z))
+    k = int(nan[0]) if nan.size else int(np.argmax(z))
+    return k, float(z[k])
 
 
 def lowering_speed_factor(vz: np.ndarray, limits: ImplementLimits) -> tuple[int, float, float] | None:

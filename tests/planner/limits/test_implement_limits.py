@@ -48,7 +48,8 @@ def test_limits_are_validated_naming_the_field(kwargs, field):
 
 def test_pure_checks():
     lim = ImplementLimits(upper_height_m=0.2, lowering_speed_m_s=0.1)
-    assert upper_height_violation(np.array([0.1, 0.2, 0.21, 0.3]), lim) == (2, 0.21)
+    # the highest sample, the goal of a goto (the first one over the limit read 200.6 mm for a goto to 300 mm)
+    assert upper_height_violation(np.array([0.1, 0.2, 0.21, 0.3, 0.25]), lim) == (3, 0.3)
     assert upper_height_violation(np.array([0.3, 0.25, 0.2]), lim) is None  # starting above: may only go down
     assert upper_height_violation(np.array([0.3, 0.31]), lim) == (1, 0.31)
     assert upper_height_violation(np.array([0.1, np.nan]), lim) == (1, pytest.approx(np.nan, nan_ok=True))
@@ -69,6 +70,8 @@ def test_a_goto_above_the_upper_height_limit_is_refused_naming_it(planner):
         guard.plan(start, {"z": 0.25})
     (reason,) = ei.value.decision.reasons
     assert reason.measure == UPPER_HEIGHT_LIMIT and reason.threshold == 0.2 and reason.value > 0.2
+    # the goal's height, not the first sample over the limit (200.6 mm for a goto to 300 mm: a terminal trial)
+    assert reason.value == pytest.approx(0.25, abs=1e-6)
     assert UPPER_HEIGHT_LIMIT in str(ei.value)
     gp = guard.plan(start, {"z": 0.19})  # below it: runs
     assert float(np.max(gp.setpoints.pose[:, 2])) <= 0.2

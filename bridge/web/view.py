@@ -57,12 +57,13 @@ _DIGITS = 6  # points rounded to 1 µm
 
 def limit_codes(model: HitchModel) -> tuple[str, ...]:
     """Every limit code this hitch can report: strokes, workspace faces, feature limits, speed and
-    acceleration of every actuator and DOF, end stops, the profile's keep-out spheres, the guard's
+    acceleration of every actuator and DOF, the actuators' jerk, end stops, the profile's keep-out spheres, the guard's
     measures (the same name constructors the planner uses)."""
     codes: list[str] = [n for pair in STROKE_NAMES + WORKSPACE_NAMES for n in pair]
     codes += [n for _, lo, hi in FEATURE_LIMIT_ROWS for n in (lo, hi) if n]
     for kind in ("velocity", "acceleration"):
         codes += [str(LimitName(kind, n)) for n in ACTUATOR_NAMES + CONTROLLED_POSE_NAMES]
+    codes += [str(LimitName("jerk", n)) for n in ACTUATOR_NAMES]  # a plan's refusal may name one
     codes += [str(LimitName("end_stop", n)) for n in ACTUATOR_NAMES]
     codes += [str(LimitName("keep_out", k.name)) for k in model.profile.limits.keep_out]
     codes += list(MEASURE_WORDS)

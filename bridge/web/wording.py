@@ -69,6 +69,7 @@ KIND_WORDS: dict[tuple[str, str], str] = {
     ("stroke", "max"): "{m} at its stroke end (longest)",
     ("velocity", ""): "{m} at its speed limit",
     ("acceleration", ""): "{m} at its acceleration limit",
+    ("jerk", ""): "{m} at its jerk limit",
     ("end_stop", ""): "{m} slowing before its stroke end",
     ("keep_out", ""): "top link close to the {m}",
     ("top_link_yaw", "min"): "top link at its sideways limit (swung left)",

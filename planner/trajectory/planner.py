@@ -43,6 +43,7 @@ from planner.trajectory.plan import (
     PlanError,
     Setpoints,
     TrajectoryInputError,
+    Violation,
     check_state,
     sample_plan,
     verify_setpoints,
@@ -472,7 +473,8 @@ class TrajectoryPlanner:
         faster before it brakes (its speed grows by a²/2j; lowering it too ran a re-plan at 1.58 × lift's
         velocity limit). The excess kept is within the stop and never more than the stop command's own
         (``info["stop_excess"]``: the largest |rate| / limit; the actuators' jerk is kept out of that choice and its
-        excess within the stop given as ``info["stop_jerk_excess"]``); any other violation is a :class:`PlanError`. A
+        excess within the stop given as ``info["stop_jerk_excess"]``, a jerk whose window of two sample intervals
+        starts within the stop counted as the stop's); any other violation is a :class:`PlanError`. A
         move that, verified on its own samples, exceeds a rate limit on the whole plan's (shifted in time by the
         stop) is made a little slower (× 0.9, down to half; ``info["move_scale"]``). A try after the first that
         fails (its stop passes a workspace face, its move cannot be made) is passed over: the plan in hand stays."""
@@ -489,13 +491,16 @@ class TrajectoryPlanner:
                 # a velocity-interface stop include 0, which a workspace need not: every such re-plan was refused)
                 self._check_stop_extent(start, lim, along_line)
                 p_stop, _, _ = stop.at_time(stop.duration)
-                chain = [(p, v, scale * move_scale) for p, v, scale in targets]
+                # a slower move passes its waypoints slower too (as _plan_chain's speed factor)
+                chain = [(p, np.asarray(v, float) * move_scale, scale * move_scale) for p, v, scale in targets]
                 move = self._plan_chain(MotionState.at_rest(np.array(p_stop, float)), chain, None)
                 plan = Plan((stop, *move.segments), start, float(stop.duration + move.duration), 0.0)
                 sp = self.sample(plan)
                 self._check_samples(sp, start.position, stop.duration)
                 bad = verify_setpoints(sp, self.model, self.hard, self.limits, check_jerk=True)
-                in_stop_all = [v for v in bad if v.t <= stop.duration + 1e-9 and v.limit.startswith(_ALL_RATES)]
+                # a jerk is stamped with the middle of its window [t - dt, t + dt]: one whose window starts within
+                # the stop holds the stop's jerk too (a stop's last jerk phase made the move after it slower)
+                in_stop_all = [v for v in bad if _in_stop(v, stop.duration, self.rate)]
                 in_stop = [v for v in in_stop_all if v.limit.startswith(_RATE_LIMITS)]
                 if len(in_stop_all) < len(bad):
                     worst = next(v for v in bad if v not in in_stop_all)
@@ -626,6 +631,15 @@ class TrajectoryPlanner:
                         f"the trajectory would leave the workspace: {k} reaches {pose[j, i]:.4f} at "
                         f"t = {sp.t[j]:.2f} s ({name} = {face:.4f}{_start_note(bound, face)})"
                     )
+
+
+def _in_stop(v: Violation, stop_end: float, rate: float) -> bool:
+    """A rate violation of a stop-first plan that belongs to its stop (ending at ``stop_end`` [s]): a velocity or
+    acceleration at a sample within it, a jerk whose window (the two intervals about ``v.t`` at ``rate`` [Hz])
+    starts within it."""
+    if v.limit.startswith("jerk:"):
+        return v.t - 1.0 / rate < stop_end
+    return v.limit.startswith(_RATE_LIMITS) and v.t <= stop_end + 1e-9
 
 
 def _shown(values: object) -> str:

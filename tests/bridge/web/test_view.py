@@ -145,7 +145,8 @@ def _service_codes(model: HitchModel) -> set[str]:
     from planner.model.hard_limits import STROKE_NAMES, WORKSPACE_NAMES
 
     codes |= {n for pair in STROKE_NAMES + WORKSPACE_NAMES for n in pair}
-    codes |= set(plan._VELOCITY_NAMES) | set(plan._ACCELERATION_NAMES) | set(track._VELOCITY_NAMES)
+    codes |= set(plan._VELOCITY_NAMES) | set(plan._ACCELERATION_NAMES) | set(plan._JERK_NAMES)
+    codes |= set(track._VELOCITY_NAMES)
     codes |= set(guard._END_STOP_NAMES) | set(guard._MEASURES) | set(typing.get_args(stability.Measure))
     codes |= set(Guard(TrajectoryPlanner(model))._keep_out_names)
     return codes

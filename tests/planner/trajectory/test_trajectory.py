@@ -458,3 +458,25 @@ def test_random_blended_sequences_keep_the_actuators_jerk(tp):
         planned += 1
         assert verify_setpoints(plan.sampled(), tp.model, tp.hard, tp.limits, check_jerk=True) == [], plan.info
     assert planned >= 50
+
+
+def test_a_blended_sequence_after_a_stop_first_passes_its_waypoints_slower_with_its_move(tp):
+    """From a moving state a blended sequence may become a stop first whose move is made slower (``move_scale``):
+    its pass-through velocities are slowed with it, as a slower copy's are (they were kept at full speed while the
+    segments' limits were lowered: the cause of seed 7 no. 50's excursion out of the workspace)."""
+    s = MotionState(
+        np.array([0.007357802472308208, 0.02523249904554241, -0.008666261926630735, -0.037590573533141915]),
+        np.array([0.015603767845752979, -0.012939818326218103, 0.027867022091061247, 0.0393812145599559]),
+        np.zeros(4),
+    )
+    c = [-0.03168073361413386, -0.1633548714002128, 0.03344833582773785, -0.027170720963257233]
+    d = [-0.055018570759930455, 0.13129999530100137, -0.03545777214873745, 0.002488785690938078]
+    e = [0.048982907403988654, 0.205240554940858, 0.04226650601292604, -0.09832293866500028]
+    wps = [Waypoint(dict(zip(DOFS, p, strict=True)), k) for p, k in ((c, 1.0), (d, 0.5), (e, 1.0))]
+    plan = tp.plan_sequence(s, wps, blend=True)
+    assert "stop_duration" in plan.info and plan.info["move_scale"] < 1.0, plan.info  # the case
+    first = plan.segments[1]  # after the stop: to c, passing it
+    _, v, _ = first.at_time(first.duration)
+    blend = tp._blend_velocity(s.position, np.array(c), np.array(d), 0.5, 0.5)
+    np.testing.assert_allclose(v, blend * plan.info["move_scale"], rtol=1e-6, atol=1e-9)
+    assert verify_setpoints(plan.sampled(), tp.model, tp.hard, tp.limits) == []

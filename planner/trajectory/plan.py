@@ -442,11 +442,27 @@ def verify_setpoints(
             out.append(
                 Violation(_ACCELERATION_NAMES[i], float(sp.t[k]), float(acc[k, i]), float(limits.acceleration[i]))
             )
-    if check_jerk and len(sp.t) >= 3:
-        ts = np.asarray(sp.t, float)
-        acc = np.diff(sp.actuator_velocity, axis=0) / np.diff(ts)[:, None]
-        jerk = 2.0 * np.diff(acc, axis=0) / (ts[2:] - ts[:-2])[:, None]
-        rows, cols = np.nonzero(np.abs(jerk) > limits.jerk * (1 + rel_tol))
-        for k, i in zip(rows.tolist(), cols.tolist(), strict=True):
-            out.append(Violation(_JERK_NAMES[i], float(ts[k + 1]), float(jerk[k, i]), float(limits.jerk[i])))
+    if check_jerk:
+        out += jerk_violations(sp.t, sp.actuator_velocity, limits, rel_tol)
     return out
+
+
+def jerk_violations(
+    t: np.ndarray, actuator_velocity: np.ndarray, limits: ActuatorLimits, rel_tol: float = 1e-6
+) -> list[Violation]:
+    """The actuators' jerk beyond ``limits.jerk`` by second divided differences of their velocities (N, 5) at
+    times ``t`` (N,) [s] (:func:`verify_setpoints`, ``check_jerk``): a lower bound of the largest |jerk| over each
+    window [t_k, t_k+2], stamped with the middle sample's time; rows with a non-finite velocity are skipped."""
+    ts = np.asarray(t, float)
+    qd = np.asarray(actuator_velocity, float)
+    if len(ts) < 3:
+        return []
+    with np.errstate(invalid="ignore"):
+        acc = np.diff(qd, axis=0) / np.diff(ts)[:, None]
+        jerk = 2.0 * np.diff(acc, axis=0) / (ts[2:] - ts[:-2])[:, None]
+        over = np.abs(jerk) > limits.jerk * (1 + rel_tol)  # NaN (a row the inverse could not solve): not judged
+    rows, cols = np.nonzero(over)
+    return [
+        Violation(_JERK_NAMES[i], float(ts[k + 1]), float(jerk[k, i]), float(limits.jerk[i]))
+        for k, i in zip(rows.tolist(), cols.tolist(), strict=True)
+    ]

@@ -805,8 +805,11 @@
     else if (faults.length) { ecu.textContent = `ECU fault: ${faults.join(", ")} · ${activity}`; ecu.className = "pill bad"; }
     else { ecu.textContent = `ECU: online · ${activity}`; ecu.className = "pill good"; }
     ecu.dataset.activity = activity;
-    ecu.title = [`Cylinder ECU: ${activity}`, ...(e.fault_reasons || [])].join("\n");
-    $("#faults-ack").classList.toggle("hidden", faults.length === 0);
+    // offline: what its valves do is not known here (the ECU zeroes them without fresh references)
+    const doing = e.online ? activity : "offline, its valves not known here (without fresh references it zeroes them)";
+    ecu.title = [`Cylinder ECU: ${doing}`, ...(e.fault_reasons || [])].join("\n");
+    // only latched faults wait for an acknowledgement (self-clearing ones go once the data is fresh again)
+    $("#faults-ack").classList.toggle("hidden", (e.ack_required || []).length === 0);
   }
 
   // Valve activity from what the state carries: the ECU drives its valves towards the reference

@@ -17,11 +17,28 @@ from planner.errors import HitchInputError
 __all__ = ["read_text_file", "csv_error_words"]
 
 
-def read_text_file(path: str | Path | Traversable, what: str, error: type[HitchInputError] = HitchInputError) -> str:
+def read_text_file(
+    path: str | Path | Traversable,
+    what: str,
+    error: type[HitchInputError] = HitchInputError,
+    *,
+    max_bytes: int | None = None,
+) -> str:
     """The text of ``path`` (UTF-8, a leading byte-order mark dropped: Windows editors and spreadsheets write
     one, and TOML read it as "Invalid statement at line 1, column 1"); ``error`` naming ``what`` (e.g.
-    "maneuver file"), the path and the offending byte when it cannot be read or is not UTF-8 text."""
+    "maneuver file"), the path and the offending byte when it cannot be read or is not UTF-8 text; and, with
+    ``max_bytes``, naming the size and the limit of a larger file before reading it."""
     p = Path(path) if isinstance(path, str) else path
+    if max_bytes is not None and isinstance(p, Path):
+        try:
+            size = p.stat().st_size
+        except OSError:
+            size = 0  # read_bytes says why
+        if size > max_bytes:
+            raise error(
+                f"{what} {p}: {size / 2**20:.1f} MiB, larger than this kind of file may be "
+                f"({max_bytes / 2**20:g} MiB allowed)"
+            )
     try:
         data = p.read_bytes()
     except OSError as exc:

@@ -44,3 +44,19 @@ def test_a_semicolon_file_from_a_european_spreadsheet_is_named_as_such(tmp_path)
         f"{tmp_path / 'speed.csv'} line 1: the header is separated by semicolons (a spreadsheet's CSV with decimal "
         "commas?); save it as CSV with commas between cells and decimal points: time_s,speed_m_s"
     )
+
+
+def test_a_csv_larger_than_a_scenario_may_be_is_refused_before_it_is_read(tmp_path):
+    """A 51 MB scenario CSV was read into 712 MB of memory (a field trial); beyond 32 MiB it is refused naming the
+    file, its size and the limit, before reading."""
+    from bridge.sim.scenario import MAX_CSV_BYTES
+
+    f = _scenario(tmp_path, "time_s,speed_m_s\n0,1.0\n10,1.0\n")
+    with (tmp_path / "speed.csv").open("ab") as fh:  # a sparse tail: the size without writing 32 MiB
+        fh.truncate(MAX_CSV_BYTES + 1)
+    with pytest.raises(ScenarioError) as ei:
+        load_scenario(f)
+    assert (
+        str(ei.value)
+        == f"CSV file {tmp_path / 'speed.csv'}: 32.0 MiB, larger than this kind of file may be (32 MiB allowed)"
+    )

@@ -1895,3 +1895,18 @@ def test_control_limited_words_the_implement_s_upper_height_in_mm(service, page)
         service.api("implements/select", {"name": "default"})
         service.api("implements/delete", {"name": "low-roof"})
     assert page.errors == []
+
+
+def test_the_kinematic_margin_names_the_limit_ahead_without_reached(service, page):
+    """While moving, the margin row read "1.73 s to height limit reached (top)" (a terminal trial): the words of a
+    reached limit, for one still ahead."""
+    _connected(page, service.url)
+    at_rest(service, page)
+    z0 = service.state()["pose"]["z"]
+    assert service.api("goto", {"goal": {"z": -0.15 if z0 > 0.05 else 0.25}, "speed_scale": 0.3})[0] == 200
+    try:
+        wait_js(page, "document.querySelector('#m-kin .n').textContent.startsWith('to ')")
+        text = page.text_content("#m-kin .n")
+        assert "reached" not in text and "limit" in text, text
+    finally:
+        at_rest(service, page)

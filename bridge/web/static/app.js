@@ -759,7 +759,8 @@
       const t = km.time_s;
       row.querySelector(".v").textContent = t === null || t === undefined ? "∞" : `${fmt(t, 2)} s`;
       const w = km.limit && hv.info && hv.info.words && hv.info.words[km.limit];
-      row.querySelector(".n").textContent = km.limit ? `to ${w || km.limit}` : "at rest";
+      // "to the height limit (top)", not "to height limit reached (top)": the words say a limit is reached
+      row.querySelector(".n").textContent = km.limit ? `to ${(w || km.limit).replace(/ reached\b/, "")}` : "at rest";
       row.title = km.limit ? `time to the nearest limit at the current speed: ${w || ""} [${km.limit}]` : "at rest: no limit ahead";
       setLevel(row, t === null || t === undefined || t > KIN_CAUTION_S ? "ok" : t > KIN_DANGER_S ? "caution" : "danger");
     } else { row.querySelector(".v").textContent = "—"; setLevel(row, ""); }

@@ -404,6 +404,9 @@ def test_save_a_preset_from_the_page(service, page, shots):
     st = service.state()
     for k in ("x", "z", "roll", "pitch"):  # saved at the current pose
         assert p["pose"][k] == pytest.approx(st["pose"][k], abs=3e-3), k
+    # the list says x as the gauges do, left/right of centre, not a signed number (a terminal trial)
+    sub = page.text_content("#preset-list li[data-name='start']")
+    assert re.search(r"x (centre|left \d+|right \d+) ·", sub), sub
     page.screenshot(path=str(shots / "02-presets.png"))
 
 

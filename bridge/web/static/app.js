@@ -1410,7 +1410,14 @@
     actions.drawLock();
     actions.drawRecord();
     for (const p of r.data.presets) {
-      const sub = DOFS.map((k) => `${k} ${fmtNoNegZero(p.pose[k] * dofK(k), isLength(k) ? 0 : dofDigits(k) - 1)}`).join(" · ") + ` (mm, ${angleUnit().unit})`;
+      // x as everywhere else, left/right of centre (+x is the driver's left); angles with the gauges' digits
+      // (a signed "x 20" and pitch 0.8 mrad shown as "1": a terminal trial)
+      const shown = (k) => {
+        const v = p.pose[k] * dofK(k);
+        if (k !== "x") return `${k} ${fmtNoNegZero(v, isLength(k) ? 0 : dofDigits(k))}`;
+        return Math.abs(v) < 0.5 ? "x centre" : `x ${v > 0 ? "left" : "right"} ${fmtNoNegZero(Math.abs(v), 0)}`;
+      };
+      const sub = DOFS.map(shown).join(" · ") + ` (mm, ${angleUnit().unit})`;
       item(list, p.name, sub, [
         ["Go", "primary motion-only", async () => { const q = await call("presets/go", { name: p.name }); if (q.ok) log(`preset ${p.name}: moving, ${fmt(q.data.duration, 2)} s`); }],
         ["Delete", "danger motion-only", async () => {

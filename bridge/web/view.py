@@ -57,8 +57,9 @@ _DIGITS = 6  # points rounded to 1 µm
 
 def limit_codes(model: HitchModel) -> tuple[str, ...]:
     """Every limit code this hitch can report: strokes, workspace faces, feature limits, speed and
-    acceleration of every actuator and DOF, each actuator's jerk (a plan's refusal), end stops, the profile's keep-out spheres, the guard's
-    measures and the implement's own limits (the same name constructors the planner uses)."""
+    acceleration of every actuator and DOF, each actuator's jerk (a plan's refusal), end stops, the profile's
+    keep-out spheres, the guard's measures, the implement's own limits and what a mode caps (the same name
+    constructors the planner uses)."""
     codes: list[str] = [n for pair in STROKE_NAMES + WORKSPACE_NAMES for n in pair]
     codes += [n for _, lo, hi in FEATURE_LIMIT_ROWS for n in (lo, hi) if n]
     for kind in ("velocity", "acceleration"):

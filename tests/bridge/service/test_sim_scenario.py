@@ -83,3 +83,13 @@ def test_a_flags_terrain_wins_over_the_other_one_in_the_config_file(tmp_path):
     assert (cfg.sim_field, cfg.sim_scenario) == (None, "terrain")
     with pytest.raises(ServiceConfigError, match="give one"):  # both flags: still refused
         load_service_config(conf, sim_scenario="terrain", sim_field="chisel")
+
+
+def test_a_scenario_without_a_simulated_tractor_is_said_at_start_not_ignored():
+    """A review: hitch serve --no-sim-ecu --sim-scenario levelling started without a word about the scenario."""
+    from bridge.service.work import unused_sim_terrain
+
+    assert unused_sim_terrain(load_service_config(None, sim_scenario="levelling")) == []
+    (w,) = unused_sim_terrain(load_service_config(None, sim_scenario="levelling", simulate_ecu=False))
+    assert "sim_scenario 'levelling'" in w and "not used" in w and "--no-sim-ecu" in w
+    assert unused_sim_terrain(load_service_config(None, simulate_ecu=False)) == []

@@ -558,6 +558,9 @@ def load_service_config(path: str | Path | None = None, **overrides: Any) -> Ser
             raise ServiceConfigError(f"service config {p} is not valid TOML: {exc}") from None
         values.update(_from_folder(data, p.parent))
     given = {k: v for k, v in overrides.items() if v is not None}
+    for flag, other in (("sim_field", "sim_scenario"), ("sim_scenario", "sim_field")):
+        if flag in given and other not in given:  # a flag's terrain wins over the file's other one (one of the two)
+            values.pop(other, None)
     values.update(given)
     if "implement" in given:  # a flag's implement wins over the persisted selection, the file's does not
         values.setdefault("implement_source", "flag")

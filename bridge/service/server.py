@@ -98,6 +98,7 @@ from bridge.service.signals import StopSignals
 from bridge.service.stall_watch import StallWatch
 from bridge.service.store import HitchStore
 from bridge.service.wire import to_json_bytes
+from bridge.service.work import unused_sim_terrain
 from bridge.service.workers import PlanningWorkers, WorkerSpec, check_spec
 from bridge.sim.can_node import EcuCanNode
 from planner.errors import HitchError, HitchInputError
@@ -303,6 +304,7 @@ class HitchService:
                 ik.solve((0.0, float(build_model(cfg).neutral_pose.z), 0.0, 0.0))  # warm the solver before serving
             # with a security file too: a client's file (no logins checked, no access control) protects nothing
             self.warnings = exposure_warnings(cfg.listen or (), cfg.security)
+            self.warnings.extend(unused_sim_terrain(cfg))  # a twin's terrain with no twin: said, not ignored
             policy = access_policy_from_file(cfg.security, cfg.prefix) if cfg.security is not None else None
             if cfg.security is not None:  # a missing or malformed users file named here, not by Zenoh's Rust error
                 read_users(cfg.security)

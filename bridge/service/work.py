@@ -63,6 +63,7 @@ __all__ = [
     "sim_field_tractor",
     "simulated_ground_speed",
     "tool_drop_m",
+    "unused_sim_terrain",
     "work_handlers",
 ]
 
@@ -521,6 +522,18 @@ def simulated_ground_speed(cfg: Any) -> float | None:
         return float(cfg.sim_ground_speed)
     speeds = set(sc.twin.speed.speeds_m_s)
     return float(next(iter(speeds))) if len(speeds) == 1 else None
+
+
+def unused_sim_terrain(cfg: Any) -> list[str]:
+    """A start warning when ``sim_scenario`` or ``sim_field`` is given but no simulated tractor runs
+    (``simulate_ecu = false``, ``--no-sim-ecu``): they were ignored without a word (a review; the ``config``
+    reply's ``can.simulated_scenario`` only says None)."""
+    if getattr(cfg, "simulate_ecu", True):
+        return []
+    named = [f"{k} {getattr(cfg, k)!r}" for k in ("sim_scenario", "sim_field") if getattr(cfg, k, None) is not None]
+    if not named:
+        return []
+    return [f"{' and '.join(named)}: not used: simulate_ecu = false (--no-sim-ecu), no simulated tractor runs"]
 
 
 def sim_scenario_tractor(cfg: Any, bus: Any, height: Callable[[float], float | None]) -> Any:

@@ -260,6 +260,11 @@ class MotionController:
         self._faults: dict[str, Fault] = {}  # what the controller holds (docs/faults.md)
         self._fresh_since: float | None = None  # data fresh again since (self-clearing faults)
         self._stopped_at = -math.inf  # time.monotonic() of the latest stop
+        #: [holder, clock time its latch lapses, stop's motion id]: a jog a stop ended while its command was live.
+        #: That holder's jogs are refused while their stream goes on (each extends it by its ttl): a held button
+        #: must be released and pressed again after a stop (a review: alice's held page restarted the hitch
+        #: 0.45 s after bob's stop, and bob, told "or stop", never got the jog)
+        self._stopped_jog: list[Any] | None = None
         self._resume_deadline: float | None = None  # a maneuver resume's or skip's deadline for its next step
         self._limited: dict[str, str] = {}
         self._reference: Reference | None = None
@@ -439,6 +444,7 @@ class MotionController:
         jog over. Anonymous clients cannot be told apart: their jogs are one jog, as before."""
         v = np.array([float(rates.get(k, 0.0)) for k in ("vx", "vz", "vroll", "vpitch")])
         with self._lock:
+            self._check_stopped_jog(holder, ttl_s)
             self._check_allowed("jog")
             self._check_no_fault("jog")
             self._check_controllers_on("jog")
@@ -479,6 +485,26 @@ class MotionController:
         self.outbox.flush()
         return acc
 
+    def _check_stopped_jog(self, holder: str | None, ttl_s: float) -> None:
+        """Refuse (``busy``) a jog of the holder whose live jog a stop ended while their commands keep coming:
+        a held button (a page sends every 80 ms) goes on after another operator's stop and restarted the hitch
+        once the stop had braked. Each refused command extends the latch by its ttl; released (no command of
+        theirs within it), they may jog again. Another holder is not held back by it."""
+        sj = self._stopped_jog
+        if sj is None:
+            return
+        now = self.clock()
+        if now >= sj[1]:
+            self._stopped_jog = None
+            return
+        if sj[0] != holder:
+            return
+        sj[1] = max(sj[1], now + float(ttl_s))
+        raise MotionError(
+            "busy",
+            f"jog ended by a stop (motion {sj[2]}) while it was held: release the jog and press again",
+        )
+
     def stop(self, reason: str = "stop requested") -> int | None:
         """Abort anything; brake jerk-limited to rest. Returns the stop motion's id (None when at rest).
         ``reason``: what the abort events say (an operator's stop, the router lost …).
@@ -496,6 +522,9 @@ class MotionController:
         with self._lock:
             self._stopped_at = time.monotonic()
             now = self.clock()
+            m = self._active
+            if isinstance(m, JogMotion) and now < m.expires:  # a held jog: released before it may go on
+                self._stopped_jog = [m.holder, m.expires, m.motion_id]
             self._maneuver.abort(now, "stop", reason, events)
             mid = self._brake(now, reason, events)
             ended = [

@@ -63,3 +63,40 @@ def test_anonymous_clients_cannot_be_told_apart_and_stay_one_jog(r):
     assert ok and b["motion_id"] == a["motion_id"]
     ok, c = r.call("jog", {"vz": 0.04, "ttl_ms": 300}, user="alice")  # an identified user, a live anonymous jog
     assert not ok and "an anonymous client" in c["message"]
+
+
+def test_a_jog_held_through_another_users_stop_stays_stopped_until_released(r):
+    """A review (hitch serve, two terminal pages): bob stopped while alice's page held z+; her page went on
+    sending every 80 ms and its jog started again once the stop had braked (0.45 s), and bob, told "or stop",
+    was refused. A stop ends a held jog: its holder releases and presses again."""
+    for _ in range(5):
+        ok, reply = r.call("jog", {"vz": 0.04, "ttl_ms": 250}, user="alice")
+        assert ok, reply
+        r.run(0.08)
+    ok, _ = r.call("stop", {}, user="bob")
+    assert ok
+    time.sleep(STOP_GRACE_S + 0.02)  # past the stop's grace (wall clock): only the latch refuses her now
+    replies = []
+    for _ in range(25):  # 2 s: alice's page still holds the button
+        replies.append(r.call("jog", {"vz": 0.04, "ttl_ms": 250}, user="alice"))
+        r.run(0.08)
+    assert not any(ok for ok, _ in replies), [rep for ok, rep in replies if ok][:1]
+    assert "ended by a stop" in replies[-1][1]["message"] and "release" in replies[-1][1]["message"], replies[-1]
+    assert not r.states[-1]["moving"]  # the stop holds
+    ok, reply = r.call("jog", {"vz": -0.04, "ttl_ms": 250}, user="bob")  # the jog is anyone's but hers
+    assert ok, reply
+    r.run(0.5)  # bob released; so did alice (no command of hers within its ttl)
+    ok, reply = r.call("jog", {"vz": 0.04, "ttl_ms": 250}, user="alice")  # pressed again: hers
+    assert ok, reply
+
+
+def test_a_jog_released_before_the_stop_is_not_held_back(r):
+    ok, _ = r.call("jog", {"vz": 0.04, "ttl_ms": 200}, user="alice")
+    assert ok
+    r.run(0.3)  # released: braking by its ttl
+    ok, _ = r.call("stop", {}, user="alice")
+    assert ok
+    r.run(1.0)
+    time.sleep(STOP_GRACE_S + 0.02)
+    ok, reply = r.call("jog", {"vz": 0.04, "ttl_ms": 200}, user="alice")
+    assert ok, reply

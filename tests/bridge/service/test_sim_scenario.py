@@ -69,3 +69,27 @@ def test_a_scenario_is_checked_before_the_service_starts_and_not_with_a_field():
     with pytest.raises(ServiceConfigError, match="sim_field 'chisel' and sim_scenario 'levelling': give one"):
         load_service_config(None, sim_field="chisel", sim_scenario="levelling")
     assert load_service_config(None, sim_scenario="levelling").sim_scenario == "levelling"
+
+
+def test_a_flags_terrain_wins_over_the_other_one_in_the_config_file(tmp_path):
+    """A review: a config file with [can] sim_scenario and hitch serve --sim-field chisel was refused "give one";
+    a flag overrides the file (as --implement does), and sim_field and sim_scenario are one choice."""
+    conf = tmp_path / "service.toml"
+    conf.write_text('[can]\nsim_scenario = "levelling"\n')
+    cfg = load_service_config(conf, sim_field="chisel")
+    assert (cfg.sim_field, cfg.sim_scenario) == ("chisel", None)
+    conf.write_text('[can]\nsim_field = "chisel"\n')
+    cfg = load_service_config(conf, sim_scenario="terrain")
+    assert (cfg.sim_field, cfg.sim_scenario) == (None, "terrain")
+    with pytest.raises(ServiceConfigError, match="give one"):  # both flags: still refused
+        load_service_config(conf, sim_scenario="terrain", sim_field="chisel")
+
+
+def test_a_scenario_without_a_simulated_tractor_is_said_at_start_not_ignored():
+    """A review: hitch serve --no-sim-ecu --sim-scenario levelling started without a word about the scenario."""
+    from bridge.service.work import unused_sim_terrain
+
+    assert unused_sim_terrain(load_service_config(None, sim_scenario="levelling")) == []
+    (w,) = unused_sim_terrain(load_service_config(None, sim_scenario="levelling", simulate_ecu=False))
+    assert "sim_scenario 'levelling'" in w and "not used" in w and "--no-sim-ecu" in w
+    assert unused_sim_terrain(load_service_config(None, simulate_ecu=False)) == []

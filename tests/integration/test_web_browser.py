@@ -1913,3 +1913,29 @@ def test_the_kinematic_margin_names_the_limit_ahead_without_reached(service, pag
         assert "reached" not in text and "limit" in text, text
     finally:
         at_rest(service, page)
+
+
+def test_a_refused_jog_is_said_once_and_releases_the_button(service, page):
+    """A held jog button the service refuses (here the mode; another operator's live jog or a stop that ended this
+    jog alike) went on sending 12 refusals a second, each a footer line, and stayed "held" (a review): now the
+    refusal is said once and the page stops sending until the button is pressed again."""
+    _connected(page, service.url)
+    at_rest(service, page)
+    tab(page, "jog")
+    assert service.api("mode", {"mode": "manual"})[0] == 200
+    wait_js(page, "document.querySelector('#modes button.active').dataset.mode === 'manual'")
+    record_log(page)
+    sel = "button.jog[data-dof='z'][data-sign='1']"
+    box = page.locator(sel).bounding_box()
+    page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+    page.mouse.down()
+    try:
+        wait_log(page, "manual")
+        time.sleep(0.6)  # 7 more periods of the page's jog
+        said = page.evaluate("(window.__hitchLog || []).filter((t) => /manual/.test(t)).length")
+        assert said == 1, page.evaluate("window.__hitchLog")
+        assert "held" not in (page.get_attribute(sel, "class") or "")
+    finally:
+        page.mouse.up()
+        assert service.api("mode", {"mode": "auto"})[0] == 200
+    assert not service.state()["moving"]

@@ -1035,12 +1035,16 @@
         if (r.ok) { this.saidDisconnected = false; return; }
         // not connected: said once per press (a jog was dropped silently while goto said so: a trial)
         if (r.data.error === "disconnected") { if (!this.saidDisconnected) log(r.data.message || "jog: not connected to the service", true); this.saidDisconnected = true; return; }
-        log(r.data.message || "jog refused", true);
+        // refused (another operator's jog, a stop that ended this one, the mode, a fault): said once and the
+        // buttons released — press again to jog (it went on sending 12 refusals a second: a review)
+        if (!this.saidRefused) log(r.data.message || "jog refused", true);
+        this.saidRefused = true;
+        this.releaseAll();
       });
     },
     press(source, dof, sign) {
       if (this.held.has(source) || document.body.classList.contains("viewer")) return;
-      if (this.held.size === 0) this.saidDisconnected = false;
+      if (this.held.size === 0) { this.saidDisconnected = false; this.saidRefused = false; }
       this.held.set(source, { dof, sign });
       this.mark();
       this.send();

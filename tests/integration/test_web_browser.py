@@ -1774,6 +1774,20 @@ def test_saving_a_preset_under_an_existing_name_asks_first(service, page):
     assert page.errors == []
 
 
+def _fresh_login(page, url: str, user: str, password: str):
+    """A new page of ``page``'s browser logged in to ``url`` as ``user`` (an earlier test's login cleared first)."""
+    page.context.clear_cookies()
+    pg = page.context.new_page()
+    pg.set_default_timeout(10_000)
+    pg.goto(url)
+    pg.wait_for_selector("#login:not(.hidden)")
+    pg.fill("#login-form input[name=user]", user)
+    pg.fill("#login-form input[name=password]", password)
+    pg.click("#login-go")
+    wait_js(pg, "document.getElementById('conn').textContent.startsWith('Service: connected')", timeout=15_000)
+    return pg
+
+
 def test_a_viewer_sees_saving_deleting_and_acknowledging_disabled(secured, page):
     """A trial: a viewer's page had *Save current*, each preset's *Delete*, the maneuver editor's *Save* and the
     header's *Acknowledge* enabled (the service refused each with 403) while the other commands were disabled;
@@ -1781,16 +1795,8 @@ def test_a_viewer_sees_saving_deleting_and_acknowledging_disabled(secured, page)
     pose = {"x": 0.0, "z": 0.0, "roll": 0.0, "pitch": 0.0}
     assert secured.api("presets/save", {"name": "kept", "pose": pose, "replace": True})[0] == 200
     assert secured.api("sim/fault", {"restart_ecu": True})[0] == 200  # ecu_restart latches: Acknowledge shows
-    page.context.clear_cookies()  # an earlier test's login in this browser: log in afresh
-    pg = page.context.new_page()
-    pg.set_default_timeout(10_000)
+    pg = _fresh_login(page, secured.url, "victor", "v-secret")
     try:
-        pg.goto(secured.url)
-        pg.wait_for_selector("#login:not(.hidden)")
-        pg.fill("#login-form input[name=user]", "victor")
-        pg.fill("#login-form input[name=password]", "v-secret")
-        pg.click("#login-go")
-        wait_js(pg, "document.getElementById('conn').textContent.startsWith('Service: connected')", timeout=15_000)
         wait_js(pg, "!document.getElementById('faults-ack').classList.contains('hidden')")
         assert pg.is_disabled("#faults-ack")
         tab(pg, "presets")
@@ -1831,16 +1837,8 @@ def test_the_footer_names_the_mode_and_the_implement_another_client_chose(servic
 def test_after_a_service_restart_the_login_form_says_why(secured, page):
     """A trial: the service restarted while an operator's page was open; the page came back with a blank login form
     (the service keeps no sessions over a restart) and nothing said why the operator was logged out."""
-    page.context.clear_cookies()  # an earlier test's login in this browser: log in afresh
-    pg = page.context.new_page()
-    pg.set_default_timeout(10_000)
+    pg = _fresh_login(page, secured.url, "olga", "o-secret")
     try:
-        pg.goto(secured.url)
-        pg.wait_for_selector("#login:not(.hidden)")
-        pg.fill("#login-form input[name=user]", "olga")
-        pg.fill("#login-form input[name=password]", "o-secret")
-        pg.click("#login-go")
-        wait_js(pg, "document.getElementById('conn').textContent.startsWith('Service: connected')", timeout=15_000)
         secured.kill(signal.SIGTERM)
         wait_js(pg, "document.getElementById('conn').textContent.includes('disconnected')")
         secured.start()

@@ -502,7 +502,8 @@ class MotionController:
         sj[1] = max(sj[1], now + float(ttl_s))
         raise MotionError(
             "busy",
-            f"jog ended by a stop (motion {sj[2]}) while it was held: release the jog and press again",
+            f"jog ended by a stop (motion {sj[2]}) while it was held: release the jog for at least {ttl_s:.2f} s "
+            "(its ttl), then press again",
         )
 
     def stop(self, reason: str = "stop requested") -> int | None:

@@ -82,6 +82,7 @@ def test_a_jog_held_through_another_users_stop_stays_stopped_until_released(r):
         r.run(0.08)
     assert not any(ok for ok, _ in replies), [rep for ok, rep in replies if ok][:1]
     assert "ended by a stop" in replies[-1][1]["message"] and "release" in replies[-1][1]["message"], replies[-1]
+    assert "for at least 0.25 s (its ttl)" in replies[-1][1]["message"]  # how long: a quick re-press is refused too
     assert not r.states[-1]["moving"]  # the stop holds
     ok, reply = r.call("jog", {"vz": -0.04, "ttl_ms": 250}, user="bob")  # the jog is anyone's but hers
     assert ok, reply

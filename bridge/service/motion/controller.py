@@ -72,7 +72,7 @@ import secrets
 import threading
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from functools import partial
 from typing import Any, Protocol
 
@@ -147,6 +147,16 @@ _COUNT_APPROACH_KINDS = frozenset({"goto"})
 
 #: how many ended track sessions the controller remembers the reason of (MotionController._not_live)
 ENDED_TRACKS_KEPT = 16
+
+
+@dataclass
+class _StoppedJog:
+    """A jog a stop ended while its command was live: its ``holder``, the clock time [s] ``until`` which their jogs
+    are refused (extended by each refused command's ttl) and the stop's ``stop_id``."""
+
+    holder: str | None
+    until: float
+    stop_id: int
 
 
 class MotionControllerError(HitchError, RuntimeError):
@@ -260,11 +270,10 @@ class MotionController:
         self._faults: dict[str, Fault] = {}  # what the controller holds (docs/faults.md)
         self._fresh_since: float | None = None  # data fresh again since (self-clearing faults)
         self._stopped_at = -math.inf  # time.monotonic() of the latest stop
-        #: [holder, clock time its latch lapses, stop's motion id]: a jog a stop ended while its command was live.
-        #: That holder's jogs are refused while their stream goes on (each extends it by its ttl): a held button
-        #: must be released and pressed again after a stop (a review: alice's held page restarted the hitch
-        #: 0.45 s after bob's stop, and bob, told "or stop", never got the jog)
-        self._stopped_jog: list[Any] | None = None
+        #: a jog a stop ended while its command was live: that holder's jogs are refused while their stream goes on
+        #: (each extends it by its ttl): a held button must be released and pressed again after a stop (a review:
+        #: alice's held page restarted the hitch 0.45 s after bob's stop, and bob, told "or stop", never got the jog)
+        self._stopped_jog: _StoppedJog | None = None
         self._resume_deadline: float | None = None  # a maneuver resume's or skip's deadline for its next step
         self._limited: dict[str, str] = {}
         self._reference: Reference | None = None
@@ -494,15 +503,15 @@ class MotionController:
         if sj is None:
             return
         now = self.clock()
-        if now >= sj[1]:
+        if now >= sj.until:
             self._stopped_jog = None
             return
-        if sj[0] != holder:
+        if sj.holder != holder:
             return
-        sj[1] = max(sj[1], now + float(ttl_s))
+        sj.until = max(sj.until, now + float(ttl_s))
         raise MotionError(
             "busy",
-            f"jog ended by a stop (motion {sj[2]}) while it was held: release the jog for at least {ttl_s:.2f} s "
+            f"jog ended by a stop (motion {sj.stop_id}) while it was held: release the jog for at least {ttl_s:.2f} s "
             "(its ttl), then press again",
         )
 
@@ -525,7 +534,7 @@ class MotionController:
             now = self.clock()
             m = self._active
             if isinstance(m, JogMotion) and now < m.expires:  # a held jog: released before it may go on
-                self._stopped_jog = [m.holder, m.expires, m.motion_id]
+                self._stopped_jog = _StoppedJog(m.holder, m.expires, m.motion_id)
             self._maneuver.abort(now, "stop", reason, events)
             mid = self._brake(now, reason, events)
             ended = [

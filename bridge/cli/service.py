@@ -884,11 +884,33 @@ def _cmd_config(args) -> int:
         # no value (no implement selected) reads "-", as in `fleet ls`, never Python's "None"
         keys = ("prefix", "profile", "category", "implement", "mode", "user_keys")
         text = [f"{k}: {'-' if r[k] is None else r[k]}" for k in keys if k in r]
+        text += _can_lines(r.get("can") or {})
         text += _limit_lines(r.get("limits") or {})
         _print(args, r, "\n".join(text) + "\n(--json for everything: every limit in SI, the actuators)")
         return 0
 
     return _run(args, config)
+
+
+def _can_lines(can: Mapping[str, Any]) -> list[str]:
+    """The bus and, with the simulated ECU, what its tractor drives over and how fast (km/h beside m/s) of a
+    ``config`` reply's ``can`` part (a field technician's trial: the plain text did not say which scenario the twin
+    was started with; only ``--json`` did)."""
+    if not can:
+        return []
+    bus = f"can: {can.get('interface', '-')} {can.get('channel', '-')}"
+    if not can.get("simulated_ecu"):
+        return [bus + " (a real cylinder ECU)"]
+    over = (
+        f"scenario {can['simulated_scenario']}"
+        if can.get("simulated_scenario")
+        else f"field {can['simulated_field']}"
+        if can.get("simulated_field")
+        else "flat ground"
+    )
+    v = can.get("simulated_ground_speed")
+    speed = "varies (the scenario's speed profile)" if v is None else f"{float(v):.2f} m/s ({3.6 * float(v):.1f} km/h)"
+    return [bus + " (the simulated ECU and tractor)", f"simulated tractor: {over}, ground speed {speed}"]
 
 
 def _limit_lines(limits: Mapping[str, Any]) -> list[str]:

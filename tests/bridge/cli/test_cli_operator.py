@@ -886,3 +886,34 @@ def test_state_follow_keeps_following_through_a_silence_after_samples(monkeypatc
     monkeypatch.setattr(cli_service, "_alive", lambda c, timeout_s=1.0: False)
     assert main(["state", "--follow"]) == 2
     assert "start one with `hitch serve`" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("kw", "want"),
+    [
+        ({}, ["can: virtual hitch (the simulated ECU and tractor)", "ground speed 1.50 m/s (5.4 km/h)", "flat ground"]),
+        ({"sim_scenario": "terrain"}, ["simulated tractor: scenario terrain, ground speed"]),
+        ({"sim_field": "chisel"}, ["simulated tractor: field chisel, ground speed 2.22 m/s (8.0 km/h)"]),
+        ({"simulate_ecu": False}, ["(a real cylinder ECU)"]),
+    ],
+)
+def test_config_says_what_the_simulated_tractor_drives_over(monkeypatch, capsys, kw, want):
+    """A field technician's trial: a service started with ``--sim-scenario`` said so only in ``hitch config
+    --json``; the plain text named no bus, no scenario and no speed. Truth: the config reply of a real service
+    config (``service_info``)."""
+    from bridge.service.config import ServiceConfig
+    from bridge.service.machine import build_guard, build_model, service_info
+
+    cfg = ServiceConfig(**kw)
+    reply = service_info(cfg, build_guard(cfg, build_model(cfg)))
+
+    class Client(_FakeClient):
+        def config(self):
+            return reply
+
+    monkeypatch.setattr(cli_service, "_client", lambda args: Client())
+    assert main(["config"]) == 0
+    out = capsys.readouterr().out
+    for w in want:
+        assert w in out, out
+    assert ("simulated tractor" in out) == cfg.simulate_ecu, out

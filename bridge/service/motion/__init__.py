@@ -2,6 +2,8 @@
 
 * :mod:`bridge.service.motion.controller` — :class:`MotionController`: the control thread,
   goto/preset/maneuver-step planning and the smooth hand-over, jog, stop, modes, faults;
+* :mod:`bridge.service.motion.fault_book` — :class:`FaultBook`: the faults the controller holds and the
+  policy that raises, clears and acknowledges them (``docs/faults.md``);
 * :mod:`bridge.service.motion.link_port` — :class:`LinkPort`, what the controller needs of the
   CAN link (:class:`bridge.link.can_link.CanLink` satisfies it);
 * :mod:`bridge.service.motion.outbox` — :class:`Outbox`: events numbered (``seq``) and delivered
@@ -21,6 +23,7 @@ from planner.lazy import lazy_exports
 
 if TYPE_CHECKING:
     from bridge.service.motion.controller import MotionController, MotionControllerError
+    from bridge.service.motion.fault_book import FaultBook
     from bridge.service.motion.link_port import LinkPort
     from bridge.service.motion.outbox import Outbox
     from bridge.service.motion.types import (
@@ -58,6 +61,7 @@ if TYPE_CHECKING:
 #: public name -> the module that defines it
 _SOURCES: dict[str, str] = {
     **dict.fromkeys(("MotionController", "MotionControllerError"), "bridge.service.motion.controller"),
+    **dict.fromkeys(("FaultBook",), "bridge.service.motion.fault_book"),
     **dict.fromkeys(("LinkPort",), "bridge.service.motion.link_port"),
     **dict.fromkeys(("Outbox",), "bridge.service.motion.outbox"),
     **dict.fromkeys(
@@ -100,6 +104,8 @@ __all__ = [
     # the controller (bridge.service.motion.controller)
     "MotionController",
     "MotionControllerError",
+    # its faults and their policy (bridge.service.motion.fault_book)
+    "FaultBook",
     # its seam to the CAN link (bridge.service.motion.link_port)
     "LinkPort",
     # its outbox (bridge.service.motion.outbox)

@@ -36,7 +36,8 @@ runs is refused with the reason: send stop first — changing modes never stops 
 Faults (``docs/faults.md``): when the link reports a fault or refuses a reference, the motion
 is aborted, the reference stream stops (the ECU watchdog zeroes its valves) and nothing moves
 until a fresh command — an old plan is never resumed. The controller keeps its own fault record
-(:class:`~bridge.service.motion.types.Fault`): ``stale_measurement`` and ``ecu_heartbeat``
+(:class:`~bridge.service.motion.fault_book.FaultBook` of :class:`~bridge.service.motion.types.Fault`):
+``stale_measurement`` and ``ecu_heartbeat``
 (:data:`~bridge.service.motion.types.SELF_CLEARING_FAULTS`) clear themselves, with a
 ``fault_cleared`` event, once the ECU's data has been fresh for
 :data:`~bridge.service.motion.types.FAULT_CLEAR_AFTER_S`; every other fault latches until
@@ -72,7 +73,7 @@ import secrets
 import threading
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from functools import partial
 from typing import Any, Protocol
 
@@ -86,14 +87,13 @@ from bridge.service.maneuvers.language import ValidationResult, guarded_plan_ste
 from bridge.service.maneuvers.runner import AbortReason, LoopState, ManeuverRunner
 from bridge.service.maneuvers.slot import ManeuverSlot
 from bridge.service.maneuvers.steps import step_words
+from bridge.service.motion.fault_book import FaultBook
 from bridge.service.motion.following import FOLLOWING_ERROR, FollowingErrorLimits, FollowingSupervisor
 from bridge.service.motion.link_port import LinkPort
 from bridge.service.motion.outbox import Outbox
 from bridge.service.motion.types import (
     ATTACH_SPEED_SCALE,
-    FAULT_CLEAR_AFTER_S,
     MODES,
-    SELF_CLEARING_FAULTS,
     TRACK_FRAMES,
     ActiveMotion,
     Event,
@@ -266,9 +266,8 @@ class MotionController:
         self._generation = 0
         self.gnss = GnssTracker(clock)  # the tractor's GNSS position and the field's lines (wait_for line)
         self._maneuver = ManeuverSlot(self.gnss)
-        self._link_reported: tuple[str, ...] = ()  # the link's latched faults seen last cycle
-        self._faults: dict[str, Fault] = {}  # what the controller holds (docs/faults.md)
-        self._fresh_since: float | None = None  # data fresh again since (self-clearing faults)
+        #: what the controller holds, and the policy raising and clearing it (docs/faults.md)
+        self._faults = FaultBook(link.config.stale_after_s)
         self._stopped_at = -math.inf  # time.monotonic() of the latest stop
         #: a jog a stop ended while its command was live: that holder's jogs are refused while their stream goes on
         #: (each extends it by its ttl): a held button must be released and pressed again after a stop (a review:
@@ -347,7 +346,7 @@ class MotionController:
     def faults(self) -> tuple[Fault, ...]:
         """The faults the controller holds now (oldest first)."""
         with self._lock:
-            return tuple(self._faults.values())
+            return self._faults.held
 
     def current_state(self) -> MotionState:
         """The commanded pose-space state now (or the measured pose at rest when idle)."""
@@ -962,26 +961,14 @@ class MotionController:
             # a latched fault whose cause is still there (another node holds our address, or uses it) is not
             # cleared: after an ack of address_lost the service said "no fault held" and refused every goto
             # "not claimed" (a safety trial); its reason says what holds it
-            status = self.link.status(self.clock())
-            causes = set(getattr(status, "fault_causes", ()) or ())
-            acked = tuple(n for n, f in self._faults.items() if f.latches and n not in causes)
-            for n in acked:
-                del self._faults[n]
+            acked = self._faults.acknowledge(self.link.status(self.clock()))
             if acked:
                 # the link's latched flags of these go too (nothing starts): one raised again after this ack
                 # is new to the link and reported as a fault; kept latched there until the next accepted
                 # reference, a second ECU restart after an ack went unreported and a goto was accepted
                 self.link.clear_faults(self.clock(), acked)
-                self._link_reported = tuple(n for n in self._link_reported if n not in acked)
-            problem = getattr(status, "address_problem", "")
-            held = self._faults.get("address_lost")
-            if held is not None and problem:
-                self._faults["address_lost"] = replace(held, reason=problem)
-            if acked:
-                self._post(
-                    [{"event": "fault_cleared", "cleared": list(acked), "by": "ack", "faults": list(self._faults)}]
-                )
-            remaining = tuple(self._faults)
+                self._post([self._faults.cleared_event(acked)])
+            remaining = tuple(self._faults.names)
         self.outbox.flush()
         return FaultAck(acked, remaining)
 
@@ -1138,17 +1125,9 @@ class MotionController:
             )
 
     def _check_no_fault(self, kind: str) -> None:
-        if not self._faults:
-            return
-        held = list(self._faults.values())
-        latched = [f.name for f in held if f.latches]
-        what = "; ".join(f"{f.name} ({f.reason})" for f in held)
-        hint = (
-            f"acknowledge {', '.join(latched)} with faults/ack once the cause is fixed"
-            if latched
-            else "it clears itself once the ECU's data is fresh again"
-        )
-        raise MotionError("ecu", f"{kind} refused: fault held: {what}; {hint}")
+        why = self._faults.refusal(kind)
+        if why is not None:
+            raise MotionError("ecu", why)
 
     def _check_allowed(self, what: str) -> None:
         check_mode_allows(self._mode, what)
@@ -1243,16 +1222,8 @@ class MotionController:
             self._abort_all(f"internal error: {type(exc).__name__}: {exc}", now, evs)
             self.link.stop_motion()
             msg = f"{type(exc).__name__}: {exc}"
-            self._faults["internal"] = Fault("internal", msg[:300], True, now)
             evs.append(
-                {
-                    "event": "fault",
-                    "fault": "internal",
-                    "new": ["internal"],
-                    "faults": list(self._faults),
-                    "ack_required": True,
-                    "message": msg,
-                }
+                {**self._faults.hold(Fault("internal", msg[:300], True, now)), "fault": "internal", "message": msg}
             )
             self._post(evs)
         self.outbox.flush()
@@ -1260,9 +1231,11 @@ class MotionController:
     def cycle(self) -> None:
         """One control cycle (public for deterministic tests).
 
-        The state is taken first, right after the wake-up (stamped then, so its period is as
-        regular as the wake-ups): measured pose now, with the reference sent in the previous cycle
-        (the one the ECU is tracking). Then the motion is advanced and the new reference sent; a track
+        The link's faults are taken first (a fault raised now ends the motion now), then the state,
+        right after the wake-up (stamped then, so its period is as regular as the wake-ups): measured
+        pose now, with the reference sent in the previous cycle (the one the ECU is tracking) and the
+        faults of the same moment (it said ``online: false`` with no fault and the motion still running
+        for one message). Then the motion is advanced and the new reference sent; a track
         session's guard look-ahead and the state's guard evaluations (kinematic margin, stability) are
         computed only after that, so a streamed setpoint reaches the bus without waiting for them.
         Bounded work: no planning, no storage, no serialisation (the outbox does that).
@@ -1273,8 +1246,8 @@ class MotionController:
             status = self.link.status(now)
             self._cycle_n += 1
             due = self._cycle_n % self.state_every == 0 and self.state_wanted()
+            self._check_faults(status, now, events)  # first: the state says the faults of its own moment
             state = self._state_draft(now, status) if due else None
-            self._check_faults(status, now, events)
             self._drive_maneuver(status, now, events)
             if self.work is not None:  # a work session's z setpoint for this cycle (bridge.service.work)
                 self.work.on_cycle(now, self._active, events, self._ended_tracks.get)
@@ -1290,7 +1263,7 @@ class MotionController:
                     self._abort_all(f"reference refused: {exc}", now, events)
                     self.link.stop_motion()
                     if isinstance(exc, LinkFaultError):  # the link's latched faults that are still there
-                        self._latch_link_faults(status, now)
+                        self._faults.latch_link(status, now)
             self._supervise_following(status, now, events)
             if isinstance(self._active, TrackMotion):  # its guard look-ahead, after the reference is out
                 self._active.look_ahead(self.guard)
@@ -1314,94 +1287,21 @@ class MotionController:
         why = self.following.check(ls.actuators.as_array(), ls.measurement_t_s, ls.lift_t_s)
         if why is None:
             return
-        self._faults[FOLLOWING_ERROR] = Fault(FOLLOWING_ERROR, why, True, now)
-        self._fresh_since = None
-        events.append(
-            {
-                "event": "fault",
-                "faults": list(self._faults),
-                "new": [FOLLOWING_ERROR],
-                "ack_required": True,
-                "message": why,
-            }
-        )
+        events.append(self._faults.hold(Fault(FOLLOWING_ERROR, why, True, now)))
         self._abort_all("following error: " + why, now, events)
         self.link.stop_motion()
         self.following.reset()
 
-    def _latch_link_faults(self, status: LinkStatus, now: float) -> None:
-        for name in status.faults.active():
-            if name not in SELF_CLEARING_FAULTS and name not in self._faults:
-                self._faults[name] = Fault(name, self._reason(name, status), True, now)
-
-    def _reason(self, name: str, status: LinkStatus) -> str:
-        """The link's reason for fault ``name``: the one it recorded for that name (a guess from the fault's last
-        word picked another fault's text: stale_measurement showed references_lost's, a new user's report)."""
-        own = status.faults.reason_of(name)
-        if own is not None:
-            return own
-        hint = name.replace("_", " ").split()[-1]
-        for r in status.faults.reasons:
-            if hint.lower() in r.lower():
-                return r
-        return "; ".join(status.faults.reasons) or name
-
-    def _cause_present(self, name: str, status: LinkStatus, now: float, link_faults: tuple[str, ...]) -> bool:
-        """Whether the cause of a self-clearing fault is there now (judged from the data itself)."""
-        if name == "stale_measurement":
-            ls = status.state
-            return ls is None or ls.age_s(now) > self.link.config.stale_after_s
-        if name == "ecu_heartbeat":
-            return not status.heartbeat.healthy
-        return name in link_faults
-
     def _check_faults(self, status: LinkStatus, now: float, events: list[Event]) -> None:
-        """The fault policy (``docs/faults.md``). A fault the link raised since the last cycle is
-        held and aborts everything (an old plan never resumes); self-clearing ones are released
-        once their data has been fresh for ``FAULT_CLEAR_AFTER_S``, with a ``fault_cleared`` event."""
-        link_faults = status.faults.active() if status.faults.any else ()
-        raised = [f for f in link_faults if f not in self._link_reported and f not in self._faults]
-        for f in link_faults:  # cleared here, still latched in the link, and its cause came back
-            if f in SELF_CLEARING_FAULTS and f not in self._faults and f not in raised:
-                if self._cause_present(f, status, now, link_faults):
-                    raised.append(f)
-        self._link_reported = link_faults
-        if raised:
-            for f in raised:
-                self._faults[f] = Fault(f, self._reason(f, status), f not in SELF_CLEARING_FAULTS, now)
-            self._fresh_since = None
-            latched = [f for f in raised if f not in SELF_CLEARING_FAULTS]
-            # the new faults' own reasons (every reason the link held repeated those of faults acknowledged
-            # long ago: a safety trial's ecu_heartbeat event began with references_lost's text)
-            why = "; ".join(self._faults[f].reason for f in raised)
-            events.append(
-                {
-                    "event": "fault",
-                    "faults": list(self._faults),
-                    "new": raised,
-                    "ack_required": bool(latched),
-                    "message": why,
-                }
-            )
-            if self._active is not None or self._hold is not None or self._maneuver.running:
-                self._abort_all("link fault: " + why, now, events)
-                self.link.stop_motion()
+        """The fault policy (:meth:`FaultBook.review`, ``docs/faults.md``): a fault the link raised since the
+        last cycle aborts everything (an old plan never resumes) and stops the stream."""
+        event = self._faults.review(status, now)
+        if event is None:
             return
-        clearing = [n for n, f in self._faults.items() if not f.latches]
-        if not clearing:
-            return
-        if any(self._cause_present(n, status, now, link_faults) for n in clearing):
-            self._fresh_since = None
-            return
-        if self._fresh_since is None:
-            self._fresh_since = now
-        if now - self._fresh_since >= FAULT_CLEAR_AFTER_S - 1e-9:
-            for n in clearing:
-                del self._faults[n]
-            self._fresh_since = None
-            events.append(
-                {"event": "fault_cleared", "cleared": clearing, "by": "fresh data", "faults": list(self._faults)}
-            )
+        events.append(event)
+        if event["event"] == "fault" and (self._active is not None or self._hold is not None or self._maneuver.running):
+            self._abort_all("link fault: " + event["message"], now, events)
+            self.link.stop_motion()
 
     def _drive_maneuver(self, status: LinkStatus, now: float, events: list[Event]) -> None:
         m, runner, ls = self._active, self._maneuver.runner, status.state
@@ -1524,7 +1424,7 @@ class MotionController:
         )
         ref = self._reference if (m is not None or self._hold is not None) else None
         stale_after_s = self.link.config.stale_after_s
-        faults = tuple(self._faults.values())
+        faults = self._faults.held
         return partial(
             build_state_message,
             seq=self._seq,

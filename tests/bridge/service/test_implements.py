@@ -435,7 +435,7 @@ def test_a_refused_quick_raise_is_called_a_raise(svc):
     svc.ok("implements/define", HARROW)
     svc.ok("implements/select", {"name": "harrow"})
     svc.ok("presets/save", {"name": HEADLAND_PRESET, "pose": HEADLAND})
-    svc.mc._faults["internal"] = Fault("internal", "a test's fault", True, 0.0)
+    svc.mc._faults.hold(Fault("internal", "a test's fault", True, 0.0))
     ok, r = svc.call("hitch/raise")
     assert not ok and r["error"] == "ecu" and "raise refused: fault held: internal" in r["message"], r
     assert "preset" not in r["message"], r

@@ -319,6 +319,24 @@ def test_a_stale_measurement_clears_itself_with_an_event_and_never_resumes(r):
     r.mc.goto({"z": 0.1})  # a new command moves again
 
 
+def test_no_state_says_offline_without_the_fault_that_takes_it_offline(r):
+    """Each state message is one moment: the cycle in which the measurement crossed its age limit said
+    ``online: false`` with ``faults: []`` and a motion still running (the fault came one message later; CI's
+    browser test read that message). Cycle by cycle while the ECU falls silent during a goto: whenever a
+    state says offline, it holds ``stale_measurement`` and no motion."""
+    acc = r.mc.goto({"z": 0.22})
+    r.run(0.2)
+    assert r.states[-1]["moving"], acc
+    first = len(r.states)
+    r.run(0.4, ecu=False)
+    seen = r.states[first:]
+    offline = [s for s in seen if not s["ecu"]["online"]]
+    assert offline, [s["ecu"] for s in seen]  # the silence did take it offline
+    for s in offline:
+        assert "stale_measurement" in s["ecu"]["faults"], s["ecu"]
+        assert not s["moving"] and s["motion"] is None, s
+
+
 def test_a_latched_fault_needs_an_acknowledge(r):
     """An internal error (a bug in a cycle) latches: motion is refused naming faults/ack until an
     operator acknowledges it; the ack is an event and nothing resumes by itself."""

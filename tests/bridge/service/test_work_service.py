@@ -681,7 +681,7 @@ def test_a_raise_refused_after_it_ended_work_keeps_this_work_pose_for_the_return
     time.sleep(STOP_GRACE_S + 0.02)
     svc.ok("work/start", {"z": 0.1})  # a new work session at another depth
     _run_forwarding(svc, 3.0)
-    svc.mc._faults["internal"] = Fault("internal", "a test's fault", True, 0.0)  # noqa: SLF001 — goto refused
+    svc.mc._faults.hold(Fault("internal", "a test's fault", True, 0.0))  # noqa: SLF001 — goto refused
     ok, r = svc.call("hitch/raise")
     assert not ok and "has ended" in r["message"], r
     last = svc.store.get_implement("tine").last_work

@@ -595,8 +595,9 @@ def _add_service_rules(
 
 #: what the ``stop_puts`` rule lets through on exactly ``<prefix>/stop``: a put or a delete stops (a review: deletes
 #: were refused by the default deny); the service's subscriber is declared to the publisher. Zenoh's access
-#: control passes a key only when the rule's key includes it, so a wildcard put (``fleet/*/hitch/stop``) is refused
-#: under access control: send the stop to each service's own key there
+#: control passes a key only when the rule's key includes it: with the fleet prefix ``fleet/*/hitch`` the put on
+#: ``fleet/*/hitch/stop`` reaches every tractor, a wider wildcard (``fleet/**/stop``) is refused: send such a stop
+#: to each service's own key there
 STOP_PUT_MESSAGES = ("put", "delete", "declare_subscriber")
 
 

@@ -239,3 +239,46 @@ def test_through_a_real_router_a_service_login_cannot_reach_or_pose_as_another_s
     finally:
         for s in reversed(opened):
             s.close()
+
+
+def test_through_a_real_router_one_wildcard_put_on_the_fleet_prefix_stops_every_tractor(tmp_path):
+    """A fleet router's ACL (prefix ``fleet/*/hitch``) has the ``stop_puts`` rule on ``fleet/*/hitch/stop``, which
+    includes the put ``fleet/*/hitch/stop``: a viewer's one broadcast reaches every tractor's stop subscriber (a
+    fleet trial found the docs saying such a put is refused under access control). A wider wildcard
+    (``fleet/**/stop``) is included in no rule and reaches none."""
+    acl = build_acl(_fleet_policy())
+    assert may(acl, "bob", "ingress", "put", FLEET + "/stop")
+    assert not may(acl, "bob", "ingress", "put", "fleet/**/stop")
+    pw = {"bob": "bob-pw", "t01": "t01-pw", "t02": "t02-pw"}
+    users = write_users_file(tmp_path / "users.txt", pw)
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    opened: list[zenoh.Session] = []
+
+    def login(user: str) -> zenoh.Session:
+        opened.append(_session(ep, "client", SecuritySettings(credentials=Credentials(user, pw[user]))))
+        return opened[-1]
+
+    try:
+        opened.append(_session(ep, "router", SecuritySettings(users_file=users, access=_fleet_policy())))
+        t01, t02, bob = login("t01"), login("t02"), login("bob")
+        got: list[tuple[str, str]] = []
+        lock = threading.Lock()
+
+        def on_stop(name: str):
+            def cb(s: zenoh.Sample) -> None:
+                with lock:
+                    got.append((name, s.payload.to_string()))
+
+            return cb
+
+        subs = [svc.declare_subscriber(f"fleet/{n}/hitch/stop", on_stop(n)) for svc, n in ((t01, "t01"), (t02, "t02"))]
+        time.sleep(0.8)
+        bob.put("fleet/**/stop", "wide")
+        bob.put(FLEET + "/stop", "fleet")
+        time.sleep(0.5)
+        with lock:
+            assert sorted(got) == [("t01", "fleet"), ("t02", "fleet")]
+        del subs
+    finally:
+        for s in reversed(opened):
+            s.close()

@@ -106,6 +106,8 @@ class ServiceTimeout(ServiceError):
 #: how long a wait (:meth:`HitchClient.wait_motion`) goes on while this client's session reaches no router or
 #: peer, before it ends with a :class:`ServiceTimeout` (``link_lost``) instead of waiting out its timeout [s]
 LINK_GRACE_S = 5.0
+#: the events that end a maneuver (its outcome, :meth:`HitchClient.wait_maneuver`)
+_MANEUVER_ENDS = ("maneuver_finished", "maneuver_aborted")
 #: how often a wait looks at the session's links [s]
 LINK_POLL_S = 0.2
 #: the payload of the error reply Zenoh itself gives a query whose timeout ran out (no service sends it)
@@ -825,21 +827,24 @@ class HitchClient:
 
     def wait_maneuver(self, maneuver_id: int, *, timeout_s: float = 600.0) -> dict:
         """Block until maneuver ``maneuver_id`` (a ``maneuvers/run`` reply's ``maneuver_id``) has finished or
-        was aborted: ``{"outcome": its maneuver_finished / maneuver_aborted event (absent if none was heard),
-        "state": the last state}``."""
-        done, outcome_seen = threading.Event(), threading.Event()
+        was aborted: ``{"outcome": its maneuver_finished / maneuver_aborted event (absent if none was heard or
+        kept), "state": the last state (absent if none came)}``. A maneuver that ended before the wait began, or
+        whose outcome event this client missed, is looked up in the events the service keeps (``events/recent``,
+        the last 2000, of the same run): a fleet trial's run, stop, wait got no outcome though the service had it."""
+        done, outcome_seen, state_seen = threading.Event(), threading.Event(), threading.Event()
         out: dict[str, Any] = {}
         seen = [False]
         t0 = time.monotonic()
 
         def on_event(e: dict) -> None:
-            if e.get("maneuver_id") == maneuver_id and e.get("event") in ("maneuver_finished", "maneuver_aborted"):
+            if e.get("maneuver_id") == maneuver_id and e.get("event") in _MANEUVER_ENDS:
                 out["outcome"] = e
                 outcome_seen.set()
                 done.set()
 
         def on_state(s: dict) -> None:
             out["state"] = s
+            state_seen.set()
             m = s.get("maneuver")
             if isinstance(m, dict) and m.get("maneuver_id", m.get("motion_id")) == maneuver_id:
                 seen[0] = True
@@ -848,13 +853,44 @@ class HitchClient:
 
         subs = (self.subscribe("events", on_event), self.subscribe("state", on_state))
         try:
+            kept, instance = self._kept_maneuver_end(maneuver_id, None)
+            if kept is not None and "outcome" not in out:  # it ended before the subscriptions heard it
+                out["outcome"] = kept
+                outcome_seen.set()
+                done.set()
+                state_seen.wait(1.0)  # the state now, as for a wait that saw the end
             if not done.wait(timeout_s):
                 raise ServiceTimeout(f"maneuver {maneuver_id} still running after {timeout_s:g} s")
-            outcome_seen.wait(1.0)  # the outcome event follows the state that shows the end
+            if not outcome_seen.wait(1.0):  # the outcome event follows the state that shows the end
+                kept, _ = self._kept_maneuver_end(maneuver_id, instance)
+                if kept is not None:
+                    out["outcome"] = kept
         finally:
             for sub in subs:
                 sub.close()
         return dict(out)
+
+    def _kept_maneuver_end(self, maneuver_id: int, instance: Any) -> tuple[dict | None, Any]:
+        """Maneuver ``maneuver_id``'s ``maneuver_finished`` / ``maneuver_aborted`` among the events the service
+        keeps, and the run they belong to (``instance``; given: only from that run — a restarted service numbers
+        its maneuvers from 1 again); (None, its run) when none is kept or the service did not answer."""
+        after, run = 0, instance
+        try:
+            for _ in range(8):  # 2000 kept events, 500 a reply
+                r = self.recent_events(after)
+                if instance is not None and r.get("instance") != instance:
+                    return None, instance
+                run = r.get("instance")
+                events = [e for e in r.get("events") or () if isinstance(e, dict)]
+                for e in events:
+                    if e.get("maneuver_id") == maneuver_id and e.get("event") in _MANEUVER_ENDS:
+                        return e, run
+                if not r.get("more") or not events or not isinstance(events[-1].get("seq"), int):
+                    break
+                after = events[-1]["seq"]
+        except ServiceError:  # not answered (busy, refused, no route): the outcome stays unknown
+            pass
+        return None, run
 
     # ------------------------------------------------------------------ fleet
     def fleet(self, *, timeout_s: float = 2.0, under: str | None = None) -> list[str]:

@@ -4,6 +4,7 @@ save|list|delete`` against a running service (the control core in its own proces
 from __future__ import annotations
 
 import json
+import time
 
 import pytest
 
@@ -136,3 +137,24 @@ def test_a_client_waits_for_a_maneuver_by_the_id_its_run_reply_gives(service, ca
         assert abs(out["state"]["pose"]["z"] - 0.08) < 3e-3
     rc, out_text, err = _cli(capsys, ep, "maneuver", "run", "two", "--wait")
     assert rc == 0 and "finished" in out_text, (out_text, err)
+
+
+def test_a_wait_for_a_maneuver_that_ended_before_it_began_gives_its_outcome(service):
+    """A fleet trial: run a maneuver, stop it, then ``wait_maneuver``: no outcome, though the service kept the
+    ``maneuver_aborted`` event (``events/recent``). Truth: the event the subscription heard while it happened."""
+    svc, ep = service
+    with HitchClient([ep], timeout_s=10) as c:
+        heard: list[dict] = []
+        sub = c.subscribe("events", heard.append)
+        c.request("maneuvers/save", {"name": "long", "script": "steps:\n  - goto: {z: 0.02}\n  - goto: {z: 0.2}\n"})
+        r = c.request("maneuvers/run", {"name": "long"})
+        mid = r["maneuver_id"]
+        c.stop()
+        assert wait_until(lambda: any(e.get("maneuver_id") == mid and e["event"] == "maneuver_aborted" for e in heard))
+        sub.close()
+        t0 = time.monotonic()
+        out = c.wait_maneuver(mid, timeout_s=30)
+        took = time.monotonic() - t0
+        want = next(e for e in heard if e.get("maneuver_id") == mid and e["event"] == "maneuver_aborted")
+        assert out.get("outcome") == want, out
+        assert "state" in out and took < 2.0, took  # not the 2 s a wait gives a maneuver it never saw

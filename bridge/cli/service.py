@@ -183,6 +183,9 @@ def _cmd_serve(args) -> int:
             + (f", CAN log {cfg.can_log}" if cfg.can_log is not None else ""),
             flush=True,
         )
+        hint = access_check_hint(cfg)
+        if hint is not None:
+            print(f"hitch serve: {hint}", flush=True)
 
     why: str | None = None  # why serve ended other than by a signal (a control core that died …)
     from bridge.service.data_lock import DataDirLock
@@ -855,6 +858,18 @@ def _cmd_jog(args) -> int:
         return 0
 
     return _run(args, jog)
+
+
+def access_check_hint(cfg: Any) -> str | None:
+    """What to check after a start behind a router with access control (``security`` and ``connect``), else None:
+    the router drops what this login may not declare without telling the service (a fleet trial: a service whose
+    prefix the router's policy did not give its login said ready, and nobody could see or stop it)."""
+    if cfg.security is None or not cfg.connect:
+        return None
+    return (
+        f"behind a router with access control, check the fleet sees this service: hitch fleet ls --connect "
+        f"{cfg.connect[0]} --prefix {cfg.prefix} --security OPERATOR.json5 must list it (docs/security.md)"
+    )
 
 
 def _cmd_stop(args) -> int:

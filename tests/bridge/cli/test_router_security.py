@@ -117,3 +117,27 @@ def test_hitch_router_runs_with_a_router_security_file(files):
         out, err = proc.communicate(timeout=20)
     assert proc.returncode == 0, err
     assert "warning" not in err
+
+
+def test_serve_behind_a_secured_router_says_how_to_check_the_fleet_sees_it(files):
+    """A fleet trial: a service whose prefix the router's policy did not give its login said ready, and nobody
+    could list or stop it; the service cannot see that itself. With ``security`` and ``connect`` the start names
+    the check, a command the CLI takes; without either it says nothing."""
+    import shlex
+
+    from bridge.cli.main import build_parser
+    from bridge.cli.service import access_check_hint
+    from bridge.service.config import ServiceConfig
+
+    cfg = ServiceConfig(
+        mode="client", connect=["tcp/127.0.0.1:48999"], prefix="fleet/t03/hitch", security=files["client"]
+    )
+    hint = access_check_hint(cfg)
+    assert hint is not None
+    command = hint.split("check the fleet sees this service: ", 1)[1].split(" must list it")[0]
+    argv = shlex.split(command)
+    assert argv[0] == "hitch"
+    args = build_parser().parse_args(argv[1:])
+    assert args.connect == ["tcp/127.0.0.1:48999"] and args.prefix == "fleet/t03/hitch" and args.security
+    assert access_check_hint(ServiceConfig(connect=["tcp/127.0.0.1:48999"])) is None
+    assert access_check_hint(ServiceConfig(security=files["client"])) is None

@@ -1241,16 +1241,78 @@ def _fleet_row(c, prefix: str) -> dict[str, Any]:
     }
 
 
+#: how long ``fleet ls`` waits for one state of every listed service (all at once) [s]; the state runs at 50 Hz
+FLEET_STATE_WAIT_S = 1.0
+
+
+def fleet_states(c, prefixes: list[str], wait_s: float = FLEET_STATE_WAIT_S) -> dict[str, dict[str, Any]]:
+    """One ``state`` of each of ``prefixes``, all subscribed at once and waited for at most ``wait_s`` [s]: per
+    prefix its ECU link (``ecu_online``, ``faults`` held, ``ack_required``) and motion (``moving``, ``motion``);
+    a prefix with no state in that time is absent (its control core silent, or this login may not read it)."""
+    got: dict[str, dict[str, Any]] = {}
+    lock, all_in = threading.Lock(), threading.Event()
+
+    def taker(prefix: str) -> Callable[[dict], None]:
+        def take(state: dict) -> None:
+            raw = state.get("ecu")
+            ecu: dict[str, Any] = raw if isinstance(raw, dict) else {}
+            with lock:
+                got.setdefault(
+                    prefix,
+                    {
+                        "ecu_online": bool(ecu.get("online")),
+                        "faults": [str(f) for f in ecu.get("faults") or ()],
+                        "ack_required": [str(f) for f in ecu.get("ack_required") or ()],
+                        "moving": bool(state.get("moving")),
+                        "motion": state.get("motion"),
+                    },
+                )
+                if len(got) == len(prefixes):
+                    all_in.set()
+
+        return take
+
+    subs = []
+    try:
+        for prefix in prefixes:
+            try:
+                subs.append(c.subscribe("state", taker(prefix), prefix=prefix))
+            except HitchError:  # a token whose key is no prefix this client can subscribe to: no state
+                continue
+        if subs:
+            all_in.wait(wait_s)
+    finally:
+        for sub in subs:
+            sub.close()
+    with lock:
+        return dict(got)
+
+
+def _state_words(st: dict[str, Any] | None) -> str:
+    """A fleet row's machine part: the ECU link, the faults held, what moves."""
+    if st is None:
+        return f"no state within {FLEET_STATE_WAIT_S:g} s"
+    ecu = "ECU online" if st["ecu_online"] else "ECU OFFLINE"
+    faults = st["faults"]
+    held = f", faults {', '.join(faults)}" + (" (acknowledge: hitch faults ack)" if st["ack_required"] else "")
+    moving = f", moving ({st['motion']})" if st["moving"] else ", at rest"
+    return ecu + (held if faults else "") + moving
+
+
 def _fleet_line(r: dict[str, Any]) -> str:
+    machine = "; " + _state_words(r.get("state"))
     if "error" not in r:
-        return f"{r['prefix']}: {r['profile']} cat {r['category']}, implement {r['implement'] or '-'}, mode {r['mode']}"
+        return (
+            f"{r['prefix']}: {r['profile']} cat {r['category']}, implement {r['implement'] or '-'}, mode {r['mode']}"
+            + machine
+        )
     if r.get("code") == "timeout" and r.get("timeout_s") is not None:  # its token listed it: it is up
         return (
             f"{r['prefix']}: NO ANSWER within {r['timeout_s']:g} s (the service is up — its liveliness token is "
-            "there — but did not answer: busy or hung)"
+            "there — but did not answer: busy or hung)" + machine
         )
     what = "NO ANSWER" if r.get("code") == "timeout" else f"REFUSED ({r.get('code')})"
-    return f"{r['prefix']}: {what}: {r['error']}"
+    return f"{r['prefix']}: {what}: {r['error']}" + machine
 
 
 def _cmd_fleet(args) -> int:
@@ -1260,6 +1322,9 @@ def _cmd_fleet(args) -> int:
     def fleet(c) -> int:
         live = c.fleet(timeout_s=min(args.timeout, 5.0), under=args.prefix)
         rows = [_fleet_row(c, prefix) for prefix in live]
+        states = fleet_states(c, live)
+        for r in rows:  # each service's machine now: its ECU link, faults and motion (None: no state came)
+            r["state"] = states.get(r["prefix"])
         # with a login, access control may hide every service from it (its tokens are not shown to this user)
         none = (
             "(no services visible: none runs, or this login may see none — access control)"
@@ -1425,8 +1490,8 @@ def add_commands(sub) -> Any:
     fs = p.add_subparsers(dest="action", required=True, parser_class=type(p))
     q = fs.add_parser(
         "ls",
-        help="list live services (liveliness tokens) with their profile and mode; exit status 1 when some did not "
-        "answer, 2 when none did",
+        help="list live services (liveliness tokens) with their profile and mode, and from one state each its ECU "
+        "link, faults and motion; exit status 1 when some did not answer, 2 when none did",
     )
     _client_options(q, prefix_help=FLEET_PREFIX_HELP)
     q.set_defaults(handler=_cmd_fleet)

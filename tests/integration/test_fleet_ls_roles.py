@@ -57,11 +57,14 @@ def test_a_viewer_lists_the_fleet_with_each_mode(secured):
             "category": rows[0]["category"],
             "implement": None,
             "mode": "auto",
+            # its machine now, from one state (a viewer may read it): the simulated ECU online, at rest
+            "state": {"ecu_online": True, "faults": [], "ack_required": [], "moving": False, "motion": None},
         }
     ], rows
     p = hitch(ep, "fleet", "ls", "--security", str(bob), "--timeout", "5")
     assert p.returncode == 0 and p.stderr == "", p.stderr
-    assert p.stdout.startswith("hitch: thesis-t132 cat ") and p.stdout.rstrip().endswith("mode auto"), p.stdout
+    assert p.stdout.startswith("hitch: thesis-t132 cat "), p.stdout
+    assert p.stdout.rstrip().endswith("mode auto; ECU online, at rest"), p.stdout
 
 
 def test_a_live_token_without_a_service_is_shown_as_not_answering():
@@ -79,6 +82,7 @@ def test_a_live_token_without_a_service_is_shown_as_not_answering():
         p = hitch(ep, "fleet", "ls", "--timeout", "2")
         assert p.returncode == 2
         assert p.stdout.startswith("fleet/t09/hitch: NO ANSWER: no reply from fleet/t09/hitch/config"), p.stdout
+        assert p.stdout.rstrip().endswith("; no state within 1 s"), p.stdout  # nothing publishes its state
         assert "1 of 1 services gave no configuration: fleet/t09/hitch" in p.stderr
         token.undeclare()
     finally:

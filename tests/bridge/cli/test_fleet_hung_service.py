@@ -27,7 +27,7 @@ from tests.integration.service_process import free_port
 PREFIX = "fleet/t01/hitch"
 HUNG = (
     f"{PREFIX}: NO ANSWER within 1 s (the service is up — its liveliness token is there — but did not answer: "
-    "busy or hung)"
+    "busy or hung); no state within 1 s"
 )
 
 

@@ -20,14 +20,17 @@ from bridge.cli.main import main
 from bridge.service.client import ServiceError, ServiceTimeout
 
 CONFIG = {"profile": "thesis-t132", "category": "2", "implement": None, "mode": "manual", "user_keys": True}
+#: a state message's parts fleet ls reads (bridge.service.state_message), of a service at rest with its ECU online
+AT_REST = {"ecu": {"online": True, "faults": [], "ack_required": []}, "moving": False, "motion": None, "seq": 7}
 
 
 class _Fleet:
     """A stand-in HitchClient for ``fleet ls``: ``services`` maps each live prefix to its config reply or the
     error its config raises; the ``mode`` key (an operator's) never answers, as for a viewer."""
 
-    def __init__(self, services: dict[str, dict | ServiceError]):
+    def __init__(self, services: dict[str, dict | ServiceError], states: dict[str, dict] | None = None):
         self.services = services
+        self.states = {p: AT_REST for p in services} if states is None else states
         self.asked: list[tuple[str, str | None]] = []
 
     def __enter__(self):
@@ -53,9 +56,20 @@ class _Fleet:
     def config(self, prefix=None):
         return self.request("config", {}, prefix=prefix)
 
+    def subscribe(self, what, callback, *, prefix=None):
+        assert what == "state", what
+        if prefix in self.states:  # its control core publishes: the first sample comes at once
+            callback(self.states[prefix])
+        return _Closed()
 
-def _run(monkeypatch, capsys, services, *flags):
-    client = _Fleet(services)
+
+class _Closed:
+    def close(self):
+        pass
+
+
+def _run(monkeypatch, capsys, services, *flags, states=None):
+    client = _Fleet(services, states)
     monkeypatch.setattr(cli_service, "_client", lambda args: client)
     code = main(["fleet", "ls", *flags])
     out = capsys.readouterr()
@@ -76,8 +90,8 @@ def test_the_mode_comes_from_the_config_any_reader_may_ask(monkeypatch, capsys):
     code, out, err, _ = _run(monkeypatch, capsys, services)
     assert code == 0 and err == ""
     assert out.splitlines() == [
-        "fleet/t01/hitch: thesis-t132 cat 2, implement -, mode manual",
-        "fleet/t02/hitch: thesis-t132 cat 2, implement -, mode auto",
+        "fleet/t01/hitch: thesis-t132 cat 2, implement -, mode manual; ECU online, at rest",
+        "fleet/t02/hitch: thesis-t132 cat 2, implement -, mode auto; ECU online, at rest",
     ]
 
 
@@ -91,11 +105,11 @@ def test_a_service_that_does_not_answer_is_shown_and_sets_the_exit_status(monkey
     if json_out:
         rows = json.loads(out)["fleet"]
         assert rows[0]["mode"] == "manual" and "error" not in rows[0]
-        assert rows[1] == {"prefix": "fleet/t02/hitch", "code": "timeout", "error": str(silent)}
+        assert rows[1] == {"prefix": "fleet/t02/hitch", "code": "timeout", "error": str(silent), "state": STATE_JSON}
     else:
         assert out.splitlines() == [
-            "fleet/t01/hitch: thesis-t132 cat 2, implement -, mode manual",
-            f"fleet/t02/hitch: NO ANSWER: {silent}",
+            "fleet/t01/hitch: thesis-t132 cat 2, implement -, mode manual; ECU online, at rest",
+            f"fleet/t02/hitch: NO ANSWER: {silent}; ECU online, at rest",
         ]
         assert "1 of 2 services gave no configuration: fleet/t02/hitch" in err
     # none answered (one silent, one refusing): 2
@@ -105,8 +119,50 @@ def test_a_service_that_does_not_answer_is_shown_and_sets_the_exit_status(monkey
     if json_out:
         assert [r["code"] for r in json.loads(out)["fleet"]] == ["forbidden", "timeout"]
     else:
-        assert out.splitlines()[0] == "fleet/t01/hitch: REFUSED (forbidden): config: not for this user"
+        assert (
+            out.splitlines()[0]
+            == "fleet/t01/hitch: REFUSED (forbidden): config: not for this user; ECU online, at rest"
+        )
         assert "2 of 2 services gave no configuration" in err
+
+
+STATE_JSON = {"ecu_online": True, "faults": [], "ack_required": [], "moving": False, "motion": None}
+
+
+def test_each_row_says_the_machine_now_ecu_link_faults_and_motion(monkeypatch, capsys):
+    """A fleet trial: ``fleet ls --json`` had no ECU online or fault fields; a fleet had to subscribe to every
+    state itself. Truth: the state each stand-in service publishes (a frozen service's core still does; one
+    whose core is silent has none)."""
+    services: dict = {"fleet/t01/hitch": CONFIG, "fleet/t02/hitch": CONFIG, "fleet/t03/hitch": CONFIG}
+    states = {
+        "fleet/t01/hitch": {
+            "ecu": {"online": False, "faults": ["stale_measurement", "ecu_restart"], "ack_required": ["ecu_restart"]},
+            "moving": False,
+            "motion": None,
+        },
+        "fleet/t02/hitch": {**AT_REST, "moving": True, "motion": "goto"},
+    }
+    code, out, err, _ = _run(monkeypatch, capsys, services, states=states)
+    assert code == 0, err
+    assert out.splitlines() == [
+        "fleet/t01/hitch: thesis-t132 cat 2, implement -, mode manual; ECU OFFLINE, faults stale_measurement, "
+        "ecu_restart (acknowledge: hitch faults ack), at rest",
+        "fleet/t02/hitch: thesis-t132 cat 2, implement -, mode manual; ECU online, moving (goto)",
+        "fleet/t03/hitch: thesis-t132 cat 2, implement -, mode manual; no state within 1 s",
+    ]
+    code, out, _, _ = _run(monkeypatch, capsys, services, "--json", states=states)
+    rows = {r["prefix"]: r["state"] for r in json.loads(out)["fleet"]}
+    assert rows == {
+        "fleet/t01/hitch": {
+            "ecu_online": False,
+            "faults": ["stale_measurement", "ecu_restart"],
+            "ack_required": ["ecu_restart"],
+            "moving": False,
+            "motion": None,
+        },
+        "fleet/t02/hitch": {**STATE_JSON, "moving": True, "motion": "goto"},
+        "fleet/t03/hitch": None,
+    }
 
 
 def test_an_empty_fleet_is_no_error(monkeypatch, capsys):

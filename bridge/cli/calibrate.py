@@ -258,7 +258,7 @@ def _cmd_geometry(args) -> int:
     from planner.profiles.hitch import load_profile
 
     prof = load_profile(args.profile)
-    refuse_overwriting_profile(args.out, args.profile)
+    refuse_overwriting_profile(args.out, args.profile, force=args.force)
     if not args.profile_given:
         print(
             f"hitch: note: no --profile: calibrating the built-in profile {args.profile} (give --profile with your "
@@ -697,6 +697,11 @@ def add_commands(sub) -> None:
     add_model_options(g)
     g.add_argument("--measurements", required=True, help="measurement CSV (see docs/commissioning.md)")
     g.add_argument("--out", required=True, type=output_path, help="calibrated profile to write (.toml)")
+    g.add_argument(
+        "--force",
+        action="store_true",
+        help="write --out over a file that holds a calibration or a twin's truth (refused otherwise: it would be lost)",
+    )
     g.add_argument(
         "--name",
         default=None,

@@ -179,8 +179,9 @@ def test_end_to_end_on_a_twin_calibrates_better_than_nominal(tmp_path, capsys):
     prof = load_profile("thesis-t132")
     data, meas = _twin_measurements(tmp_path, prof)
     capsys.readouterr()
-    out = tmp_path / "cal.toml"
-    assert main(["calibrate", "geometry", "--measurements", str(meas), "--out", str(out), "--json"]) == 0
+    out = tmp_path / "cal.toml"  # each run writes a file of its own: a calibration is not written over
+    first = tmp_path / "first.toml"
+    assert main(["calibrate", "geometry", "--measurements", str(meas), "--out", str(first), "--json"]) == 0
     captured = capsys.readouterr()
     report = json.loads(captured.out)
     assert report["n_poses"] == 12 and report["converged"]
@@ -190,7 +191,7 @@ def test_end_to_end_on_a_twin_calibrates_better_than_nominal(tmp_path, capsys):
     assert report["residual_rms_position_m"] < 0.0016 < report["residual_rms_nominal_position_m"]
     assert report["residual_rms_angle_rad"] < 0.0025 < report["residual_rms_nominal_angle_rad"]
     # in words: a parameter the poses cannot see has no std, the others carry their unit
-    assert main(["calibrate", "geometry", "--measurements", str(meas), "--out", str(out)]) == 0
+    assert main(["calibrate", "geometry", "--measurements", str(meas), "--out", str(tmp_path / "text.toml")]) == 0
     lines = capsys.readouterr().out.splitlines()
     pivot = next(line for line in lines if line.strip().startswith("geometry.pivot_height"))
     assert "not identified (kept nominal)" in pivot and "±" not in pivot, pivot
@@ -509,6 +510,31 @@ def test_a_sensor_calibrated_profile_keeps_its_record_or_warns_and_is_never_over
     assert main([*argv, "--no-ad", "--out", str(sensors)]) == 2
     assert "is the profile the calibration starts from" in capsys.readouterr().err
     assert sensors.read_text() == before
+
+
+def test_calibrate_geometry_does_not_write_over_an_earlier_calibration_without_force(tmp_path, capsys):
+    """A commissioning trial: a second ``calibrate geometry --out tractor.toml`` (a tape fit tried after the total
+    station's) replaced the first calibrated profile, its fit and provenance, without a word."""
+    prof = load_profile("thesis-t132")
+    _, meas = _twin_measurements(tmp_path, prof)
+    out = tmp_path / "tractor.toml"
+    argv = ["calibrate", "geometry", "--measurements", str(meas), "--out", str(out)]
+    assert main(argv) == 0
+    first = out.read_text()
+    assert read_calibration_provenance(out) is not None
+    capsys.readouterr()
+    assert main([*argv, "--sigma-position-mm", "2"]) == 2
+    err = capsys.readouterr().err
+    assert f"--out {out} exists and holds a geometry calibration (hitch calibrate geometry)" in err, err
+    assert "--force" in err and out.read_text() == first
+    truth = tmp_path / "truth3.toml"
+    assert main(["sim", "perturb", "--seed", "3", "--tape", "--out", str(truth)]) == 0
+    kept = truth.read_text()
+    assert main([*argv[:-1], str(truth)]) == 2
+    assert "holds a twin's true machine (hitch sim perturb)" in capsys.readouterr().err
+    assert truth.read_text() == kept
+    assert main([*argv, "--sigma-position-mm", "2", "--force"]) == 0
+    assert out.read_text() != first
 
 
 def test_too_few_poses_are_refused_naming_the_file_and_what_a_fit_needs(tmp_path, capsys):

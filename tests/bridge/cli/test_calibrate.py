@@ -116,6 +116,13 @@ def test_a_byte_order_mark_is_allowed():
         ("\n\n  \n", "measurements: empty file (a header row is required)"),
         ("# my tractor\n" + GOOD_HEADER + "\n" + GOOD_ROW + "\n", "line 1: a comment line ('#…')"),
         (GOOD_HEADER.replace(",", ";") + "\n", "line 1: the header is separated by semicolons"),
+        (GOOD_HEADER.replace(",", "\t") + "\n", "line 1: the header is separated by tabs"),
+        # a spreadsheet's decimal commas quoted into a comma-separated file (a commissioning trial: only "not a
+        # number")
+        (
+            GOOD_HEADER + '\np1,100,400,120,300,260,"0,06",0,0,0\n',
+            "column x: '0,06' is not a number (allowed: [-3, 3] m); a decimal comma? write 0.06 with a decimal point",
+        ),
     ],
 )
 def test_a_file_that_is_not_a_measurement_csv_says_what_it_is(text, words):

@@ -669,9 +669,13 @@ def test_one_cell_far_beyond_the_noise_is_named_although_sigma_hat_is_fine(tmp_p
     rc, report, err = _geometry_json(capsys, meas, tmp_path / "c.toml")
     assert rc == 0 and report is not None and report["residual_sigma"] < 3.0
     assert f"warning: {meas}: row 5 ({cells[0]}) z +" in err and "beyond 5 σ of the fit" in err, err
+    # and the written profile keeps it: its provenance had no trace of the warning (a commissioning trial)
+    named = read_calibration_provenance(tmp_path / "c.toml")["inputs"]["rows_beyond_outlier_sigma"]
+    assert any(row.startswith(f"row 5 ({cells[0]}) z +") for row in named), named
     _, meas2 = _twin_measurements(tmp_path, prof)  # the clean file: no such warning
     rc, _, err = _geometry_json(capsys, meas2, tmp_path / "d.toml")
     assert rc == 0 and "beyond 5 σ" not in err
+    assert "rows_beyond_outlier_sigma" not in read_calibration_provenance(tmp_path / "d.toml")["inputs"]
 
 
 def test_too_few_spare_values_to_check_the_fit_are_refused_naming_the_poses_needed(tmp_path, capsys):

@@ -189,7 +189,7 @@ def _cmd_calibrate_sensors(args) -> int:
             "--sim-truth gives the simulated twin its machine; with --can-interface the machine on the bus is "
             "calibrated: give one of them"
         )
-    refuse_overwriting_profile(args.out, args.profile)
+    refuse_overwriting_profile(args.out, args.profile, force=args.force, sim_truth=args.sim_truth)
     _confirm_detached(args)
     nominal_model = model_from_args(args)
     nominal = nominal_model.profile
@@ -355,6 +355,11 @@ def add_calibrate_sensors(csub) -> None:
     )
     s.add_argument(
         "--out", required=True, metavar="FILE", type=output_path, help="write the calibrated profile (TOML) here"
+    )
+    s.add_argument(
+        "--force",
+        action="store_true",
+        help="write --out over a file that holds a calibration or a twin's truth (refused otherwise: it would be lost)",
     )
     s.add_argument("--sim-truth", default=None, metavar="FILE", help="the twin's true machine (hitch sim perturb)")
     s.add_argument(

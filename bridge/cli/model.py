@@ -557,12 +557,45 @@ def _profile_out_path(text: str) -> str:
     return path
 
 
-def refuse_overwriting_profile(out: str, profile: str) -> None:
+#: The structured comment lines that make a file a calibration's result or a twin's truth (the records of
+#: ``calibrate geometry``, ``calibrate sensors`` and ``sim perturb``), with what they are called in a refusal.
+_RECORDS = (
+    ("#! calibration", "a geometry calibration (hitch calibrate geometry)"),
+    ("#! sensor_calibration", "a sensor calibration (hitch calibrate sensors)"),
+    ("#! sim-truth", "a twin's true machine (hitch sim perturb)"),
+)
+
+
+def _record_held(path: Path) -> str | None:
+    """What :data:`_RECORDS` line an existing file holds (its description), or None (no file, or none)."""
+    try:
+        text = path.read_text(encoding="utf-8", errors="replace")
+    except OSError:
+        return None
+    for line in text.splitlines():
+        for prefix, what in _RECORDS:
+            if line.startswith(prefix + " "):
+                return what
+    return None
+
+
+def refuse_overwriting_profile(out: str, profile: str, *, force: bool = False, sim_truth: str | None = None) -> None:
     """CLIError when a command's ``--out`` is the profile it starts from (``--profile``): the nominal profile is
     what a calibration is measured against, and it was replaced without a word; or when ``--out`` cannot be a
     profile file (checked before anything moves: ``calibrate sensors --out sensors.csv`` drove all ten stroke ends
-    and only then said the name must end in .toml, a commissioning trial)."""
+    and only then said the name must end in .toml, a commissioning trial); or when ``--out`` is the twin's truth
+    (``--sim-truth``); or, unless ``force``, when ``--out`` exists and holds a calibration's record or a truth
+    (``calibrate sensors --out tractor.toml`` replaced a geometry-calibrated profile with the nominal geometry, and
+    ``calibrate geometry`` an earlier calibration, without a word: a commissioning trial)."""
     if Path(out).suffix != ".toml":
         raise CLIError(f"--out profile file {out}: the name must end in .toml")
     if Path(out).resolve() == Path(profile).resolve():
         raise CLIError(f"--out {out} is the profile the calibration starts from (--profile): write it to another file")
+    if sim_truth is not None and Path(out).resolve() == Path(sim_truth).resolve():
+        raise CLIError(f"--out {out} is the twin's true machine (--sim-truth): write it to another file")
+    if not force:
+        held = _record_held(Path(out))
+        if held is not None:
+            raise CLIError(
+                f"--out {out} exists and holds {held}: it would be replaced; write to another file, or --force"
+            )

@@ -178,7 +178,13 @@ def _cell(text: str, where: str, col: str, lo: float, hi: float, unit: str) -> f
     try:
         v = float(text)
     except ValueError:
-        raise CalibrationError(f"{where}, column {col}: {text!r} is not a number (allowed: {allowed})") from None
+        hint = ""
+        if text.count(",") == 1:  # a spreadsheet's decimal comma, quoted into a comma-separated file
+            try:
+                hint = f"; a decimal comma? write {float(text.replace(',', '.')):g} with a decimal point"
+            except ValueError:
+                pass
+        raise CalibrationError(f"{where}, column {col}: {text!r} is not a number (allowed: {allowed}){hint}") from None
     if not math.isfinite(v):
         raise CalibrationError(f"{where}, column {col}: {text!r} is not a finite number (allowed: {allowed})")
     if not lo <= v <= hi:
@@ -227,8 +233,9 @@ def _data_rows(reader: Any, n_cells: int, source: str) -> Iterator[tuple[str, li
 
 def _header(reader: Any, source: str) -> list[str]:
     """The header row (blank lines before it skipped), or :class:`CalibrationError` saying what the file holds
-    instead: nothing, a comment line, or semicolons (a spreadsheet's CSV with decimal commas). Before, a file of
-    blank lines was refused for a missing lift column, and a semicolon file as one unknown column (a trial)."""
+    instead: nothing, a comment line, semicolons (a spreadsheet's CSV with decimal commas) or tabs. Before, a file
+    of blank lines was refused for a missing lift column, and a semicolon or tab file as one unknown column
+    (trials)."""
     while (row := _next_row(reader, source, 0)) is not None:
         cells = [h.strip() for h in row]
         if not any(cells):
@@ -237,6 +244,11 @@ def _header(reader: Any, source: str) -> list[str]:
             raise CalibrationError(
                 f"{source} line {reader.line_num}: a comment line ('#…'); the first line that is not blank must "
                 "be the header: remove the comment"
+            )
+        if len(cells) == 1 and "\t" in cells[0]:
+            raise CalibrationError(
+                f"{source} line {reader.line_num}: the header is separated by tabs (a spreadsheet's text export?); "
+                "save it as CSV with commas between cells and decimal points"
             )
         if len(cells) == 1 and ";" in cells[0]:
             raise CalibrationError(

@@ -116,6 +116,13 @@ def test_a_byte_order_mark_is_allowed():
         ("\n\n  \n", "measurements: empty file (a header row is required)"),
         ("# my tractor\n" + GOOD_HEADER + "\n" + GOOD_ROW + "\n", "line 1: a comment line ('#…')"),
         (GOOD_HEADER.replace(",", ";") + "\n", "line 1: the header is separated by semicolons"),
+        (GOOD_HEADER.replace(",", "\t") + "\n", "line 1: the header is separated by tabs"),
+        # a spreadsheet's decimal commas quoted into a comma-separated file (a commissioning trial: only "not a
+        # number")
+        (
+            GOOD_HEADER + '\np1,100,400,120,300,260,"0,06",0,0,0\n',
+            "column x: '0,06' is not a number (allowed: [-3, 3] m); a decimal comma? write 0.06 with a decimal point",
+        ),
     ],
 )
 def test_a_file_that_is_not_a_measurement_csv_says_what_it_is(text, words):
@@ -179,8 +186,9 @@ def test_end_to_end_on_a_twin_calibrates_better_than_nominal(tmp_path, capsys):
     prof = load_profile("thesis-t132")
     data, meas = _twin_measurements(tmp_path, prof)
     capsys.readouterr()
-    out = tmp_path / "cal.toml"
-    assert main(["calibrate", "geometry", "--measurements", str(meas), "--out", str(out), "--json"]) == 0
+    out = tmp_path / "cal.toml"  # each run writes a file of its own: a calibration is not written over
+    first = tmp_path / "first.toml"
+    assert main(["calibrate", "geometry", "--measurements", str(meas), "--out", str(first), "--json"]) == 0
     captured = capsys.readouterr()
     report = json.loads(captured.out)
     assert report["n_poses"] == 12 and report["converged"]
@@ -190,7 +198,7 @@ def test_end_to_end_on_a_twin_calibrates_better_than_nominal(tmp_path, capsys):
     assert report["residual_rms_position_m"] < 0.0016 < report["residual_rms_nominal_position_m"]
     assert report["residual_rms_angle_rad"] < 0.0025 < report["residual_rms_nominal_angle_rad"]
     # in words: a parameter the poses cannot see has no std, the others carry their unit
-    assert main(["calibrate", "geometry", "--measurements", str(meas), "--out", str(out)]) == 0
+    assert main(["calibrate", "geometry", "--measurements", str(meas), "--out", str(tmp_path / "text.toml")]) == 0
     lines = capsys.readouterr().out.splitlines()
     pivot = next(line for line in lines if line.strip().startswith("geometry.pivot_height"))
     assert "not identified (kept nominal)" in pivot and "±" not in pivot, pivot
@@ -511,6 +519,31 @@ def test_a_sensor_calibrated_profile_keeps_its_record_or_warns_and_is_never_over
     assert sensors.read_text() == before
 
 
+def test_calibrate_geometry_does_not_write_over_an_earlier_calibration_without_force(tmp_path, capsys):
+    """A commissioning trial: a second ``calibrate geometry --out tractor.toml`` (a tape fit tried after the total
+    station's) replaced the first calibrated profile, its fit and provenance, without a word."""
+    prof = load_profile("thesis-t132")
+    _, meas = _twin_measurements(tmp_path, prof)
+    out = tmp_path / "tractor.toml"
+    argv = ["calibrate", "geometry", "--measurements", str(meas), "--out", str(out)]
+    assert main(argv) == 0
+    first = out.read_text()
+    assert read_calibration_provenance(out) is not None
+    capsys.readouterr()
+    assert main([*argv, "--sigma-position-mm", "2"]) == 2
+    err = capsys.readouterr().err
+    assert f"--out {out} exists and holds a geometry calibration (hitch calibrate geometry)" in err, err
+    assert "--force" in err and out.read_text() == first
+    truth = tmp_path / "truth3.toml"
+    assert main(["sim", "perturb", "--seed", "3", "--tape", "--out", str(truth)]) == 0
+    kept = truth.read_text()
+    assert main([*argv[:-1], str(truth)]) == 2
+    assert "holds a twin's true machine (hitch sim perturb)" in capsys.readouterr().err
+    assert truth.read_text() == kept
+    assert main([*argv, "--sigma-position-mm", "2", "--force"]) == 0
+    assert out.read_text() != first
+
+
 def test_too_few_poses_are_refused_naming_the_file_and_what_a_fit_needs(tmp_path, capsys):
     """It said "measurements: … 4 measured values cannot determine 4 parameter directions": no file, and 4 for 4
     read as enough (a commissioning engineer's report)."""
@@ -636,9 +669,13 @@ def test_one_cell_far_beyond_the_noise_is_named_although_sigma_hat_is_fine(tmp_p
     rc, report, err = _geometry_json(capsys, meas, tmp_path / "c.toml")
     assert rc == 0 and report is not None and report["residual_sigma"] < 3.0
     assert f"warning: {meas}: row 5 ({cells[0]}) z +" in err and "beyond 5 σ of the fit" in err, err
+    # and the written profile keeps it: its provenance had no trace of the warning (a commissioning trial)
+    named = read_calibration_provenance(tmp_path / "c.toml")["inputs"]["rows_beyond_outlier_sigma"]
+    assert any(row.startswith(f"row 5 ({cells[0]}) z +") for row in named), named
     _, meas2 = _twin_measurements(tmp_path, prof)  # the clean file: no such warning
     rc, _, err = _geometry_json(capsys, meas2, tmp_path / "d.toml")
     assert rc == 0 and "beyond 5 σ" not in err
+    assert "rows_beyond_outlier_sigma" not in read_calibration_provenance(tmp_path / "d.toml")["inputs"]
 
 
 def test_too_few_spare_values_to_check_the_fit_are_refused_naming_the_poses_needed(tmp_path, capsys):

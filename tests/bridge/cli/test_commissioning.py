@@ -94,6 +94,33 @@ def test_calibrate_sensors_refuses_an_out_that_is_no_profile_file_before_anythin
     assert f"--out profile file {out}: the name must end in .toml" in err and not out.exists(), err
 
 
+def test_calibrate_sensors_does_not_write_over_a_calibration_or_the_truth_before_anything_moves(
+    truth_file, tmp_path, capsys, monkeypatch
+):
+    """A commissioning trial: ``calibrate sensors --out tractor.toml`` replaced a geometry-calibrated profile (its
+    fit and provenance) with the nominal geometry and new counts, and ``--out`` the ``--sim-truth`` file replaced
+    the twin's truth, each without a word. Refused before anything moves; ``--force`` writes over a calibration."""
+    from bridge.cli import commissioning
+
+    def no_machine(*_a, **_k):
+        raise AssertionError("the machine was started for an --out that would be refused")
+
+    monkeypatch.setattr(commissioning, "_truth", no_machine)
+    calibrated = tmp_path / "tractor.toml"
+    calibrated.write_text('#! calibration = { date = "2026-12-07", poses = 20 }\nschema_version = 1\n')
+    before = calibrated.read_text()
+    argv = ["calibrate", "sensors", "--sim-truth", str(truth_file), "--actuators", "top"]
+    assert main([*argv, "--out", str(calibrated)]) == 2
+    err = capsys.readouterr().err
+    assert f"--out {calibrated} exists and holds a geometry calibration" in err and "--force" in err, err
+    assert calibrated.read_text() == before
+    assert main([*argv, "--out", str(truth_file), "--force"]) == 2
+    assert "is the twin's true machine (--sim-truth)" in capsys.readouterr().err
+    monkeypatch.undo()
+    assert main([*argv, "--out", str(calibrated), "--force"]) == 0
+    assert "#! sensor_calibration" in calibrated.read_text()
+
+
 class _Terminal:
     """A stand-in for the operator's terminal on stdin: ``tty`` or not, answering ``answer``."""
 

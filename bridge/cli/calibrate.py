@@ -339,8 +339,11 @@ def _cmd_geometry(args) -> int:
     outliers = outlying_rows(problem, result) if result.residual_sigma <= SUSPECT_SIGMA_HAT else []
     if outliers:
         inputs["rows_beyond_outlier_sigma"] = [f"row {r} ({label}) {col} {v:+.1f} σ" for r, label, col, v in outliers]
+    predicted = _predicted_p95(model, result)
     if not short and not misfit:
-        write_calibrated_profile(args.out, model.params, result, name=args.name, inputs=inputs, comments=carried)
+        write_calibrated_profile(
+            args.out, model.params, result, name=args.name, inputs=inputs, comments=carried, predicted=predicted
+        )
     worst = largest_residuals(problem, result)
     rows = ", ".join(f"row {r} ({label}) {col} {v:+.1f} σ" for r, label, col, v in worst)
     misfit_text = (
@@ -365,9 +368,12 @@ def _cmd_geometry(args) -> int:
     if args.json:
         largest = [{"row": r, "label": label, "column": col, "residual_sigma": v} for r, label, col, v in worst]
         written = None if short or misfit else str(args.out)
-        print(to_json_text({"out": written, **result.as_dict(), "largest_residuals": largest}))
+        print(
+            to_json_text({"out": written, **result.as_dict(), "largest_residuals": largest, "predicted_p95": predicted})
+        )
     else:
         _print_fit(model, result)
+        _print_predicted(predicted)
     if doubts and args.accept_misfit:
         print(f"hitch: warning: {'; '.join(doubts)}; written as asked (--accept-misfit)", file=sys.stderr)
     if misfit:  # after the report: the fit is shown, the profile is not written
@@ -564,6 +570,47 @@ def _print_fit(model, result) -> None:
         print("combinations these poses cannot identify (left at nominal along them):")
         for u in result.unidentifiable:
             print(f"  {u}")
+
+
+#: how many random workspace poses the predicted accuracy is taken over (as the calibration bench's evaluation)
+PREDICTED_POSES = 200
+
+
+def _predicted_p95(model, result) -> dict[str, dict[str, float]] | None:
+    """The predicted p95 pose error over :data:`PREDICTED_POSES` random workspace poses of the calibrated profile
+    and of the nominal (tape-measured) one (:mod:`planner.calibration.predicted`); None for a profile without a
+    restricted workspace (no poses to predict at)."""
+    from planner.calibration.design import candidate_poses
+    from planner.calibration.parameters import CalibrationError
+    from planner.calibration.predicted import calibrated_covariance, predict_accuracy, tape_covariance
+
+    try:
+        _, readings = candidate_poses(model, PREDICTED_POSES, seed=0, random_only=True)
+    except CalibrationError:
+        return None
+    calibrated = predict_accuracy(model, result.values, calibrated_covariance(result), readings)
+    nominal = predict_accuracy(model, result.nominal, tape_covariance(len(result.names)), readings)
+    return {"calibrated": calibrated.as_dict(), "nominal": nominal.as_dict()}
+
+
+def _print_predicted(predicted: dict[str, dict[str, float]] | None) -> None:
+    """The report's predicted accuracy line (mm, mrad): is the profile good enough, and were the measurements?"""
+    if predicted is None:
+        return
+
+    def words(p95: dict[str, float]) -> str:
+        return (
+            f"x {1e3 * p95['x_m']:.2f} mm, z {1e3 * p95['z_m']:.2f} mm, roll {1e3 * p95['roll_rad']:.2f} mrad, "
+            f"pitch {1e3 * p95['pitch_rad']:.2f} mrad"
+        )
+
+    print(
+        f"predicted pose error p95 over {PREDICTED_POSES} random workspace poses, from the parameters' σ: "
+        f"{words(predicted['calibrated'])} (a profile known to its tape sizes only, uncalibrated: "
+        f"{words(predicted['nominal'])}); "
+        "the geometry's part only: the AD counts (about ±1.9 mm of z) and the pin play add to it "
+        "(docs/commissioning.md)"
+    )
 
 
 #: sigma-hat (residuals in units of the σ given) above which the fit is reported as suspect

@@ -5,7 +5,8 @@
 parameters), :mod:`~planner.calibration.solve` (Levenberg–Marquardt, identifiability, standard
 deviations), :mod:`~planner.calibration.design` (D-optimal poses to measure),
 :mod:`~planner.calibration.measurements` (the CSV measurement file),
-:mod:`~planner.calibration.profile_out` (the calibrated profile with provenance) and
+:mod:`~planner.calibration.profile_out` (the calibrated profile with provenance),
+:mod:`~planner.calibration.predicted` (the pose accuracy a calibration predicts) and
 :mod:`~planner.calibration.accuracy` (the thesis's accuracy test). Names load lazily.
 """
 
@@ -34,6 +35,12 @@ if TYPE_CHECKING:
     )
     from planner.calibration.parameters import CalibrationError, Parameter, ParameterSet
     from planner.calibration.parametric import OUTPUT_NAMES, ParametricModel
+    from planner.calibration.predicted import (
+        PredictedAccuracy,
+        calibrated_covariance,
+        predict_accuracy,
+        tape_covariance,
+    )
     from planner.calibration.profile_out import (
         calibrated_profile_toml,
         read_calibration_provenance,
@@ -70,6 +77,10 @@ _SOURCES: dict[str, str] = {
     **dict.fromkeys(("CalibrationError", "Parameter", "ParameterSet"), "planner.calibration.parameters"),
     **dict.fromkeys(("OUTPUT_NAMES", "ParametricModel"), "planner.calibration.parametric"),
     **dict.fromkeys(
+        ("PredictedAccuracy", "calibrated_covariance", "predict_accuracy", "tape_covariance"),
+        "planner.calibration.predicted",
+    ),
+    **dict.fromkeys(
         ("calibrated_profile_toml", "read_calibration_provenance", "write_calibrated_profile"),
         "planner.calibration.profile_out",
     ),
@@ -102,7 +113,9 @@ __all__ = [
     "ParameterSet",
     "ParametricModel",
     "PoseDesign",
+    "PredictedAccuracy",
     "build_calibration_problem",
+    "calibrated_covariance",
     "calibrated_profile_toml",
     "candidate_poses",
     "identifiable_basis",
@@ -111,8 +124,10 @@ __all__ = [
     "measurements_csv",
     "parse_measurements",
     "plan_poses",
+    "predict_accuracy",
     "read_calibration_provenance",
     "solve_calibration",
+    "tape_covariance",
     "write_calibrated_profile",
 ]
 

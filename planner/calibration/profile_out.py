@@ -118,12 +118,14 @@ def calibrated_profile_toml(
     inputs: Mapping[str, Any] | None = None,
     out_folder: str | Path | None = None,
     comments: Sequence[str] = (),
+    predicted: Mapping[str, Mapping[str, float]] | None = None,
 ) -> str:
     """TOML text of the profile with the calibrated parameters and the provenance comment lines; ``inputs``
     (what the calibration was made from: the measurement file and its SHA-256, the σ given, …) is recorded
-    in the provenance as it is. A tractor profile given by path is written relative to ``out_folder``, the
-    folder the text goes to (None: absolute). ``comments``: comment lines carried over from the source
-    profile (its sensor calibration record), written after the provenance."""
+    in the provenance as it is; so is ``predicted`` (the predicted p95 pose error of this profile and of the
+    nominal one, :mod:`planner.calibration.predicted`) as ``predicted_p95``. A tractor profile given by path is
+    written relative to ``out_folder``, the folder the text goes to (None: absolute). ``comments``: comment lines
+    carried over from the source profile (its sensor calibration record), written after the provenance."""
     if result.names != params.names:
         raise CalibrationError("the calibration result is not for this parameter set")
     base = params.profile
@@ -174,6 +176,8 @@ def calibrated_profile_toml(
         "partly_identified": [n for n, w in zip(result.names, status, strict=True) if w == "partly identified"],
         "unidentifiable": list(result.unidentifiable),
     }
+    if predicted:
+        prov["predicted_p95"] = {k: dict(v) for k, v in predicted.items()}
     if inputs:
         prov["inputs"] = dict(inputs)
     out = [
@@ -249,13 +253,16 @@ def write_calibrated_profile(
     name: str | None = None,
     inputs: Mapping[str, Any] | None = None,
     comments: Sequence[str] = (),
+    predicted: Mapping[str, Mapping[str, float]] | None = None,
 ) -> Profile:
-    """Write the calibrated profile to ``path`` (``inputs``: :func:`calibrated_profile_toml`) if it loads there
-    (nothing is written otherwise); returns it as loaded back by ``load_profile``."""
+    """Write the calibrated profile to ``path`` (``inputs``, ``predicted``: :func:`calibrated_profile_toml`) if it
+    loads there (nothing is written otherwise); returns it as loaded back by ``load_profile``."""
     p = Path(path)
     if p.suffix != ".toml":
         raise CalibrationError(f"--out {p}: a profile file must end in .toml")
-    text = calibrated_profile_toml(params, result, name=name, inputs=inputs, out_folder=p.parent, comments=comments)
+    text = calibrated_profile_toml(
+        params, result, name=name, inputs=inputs, out_folder=p.parent, comments=comments, predicted=predicted
+    )
     try:
         return write_profile_text(p, text, what="--out profile")
     except HitchInputError as exc:

@@ -232,6 +232,14 @@ def test_end_to_end_on_a_twin_calibrates_better_than_nominal(tmp_path, capsys):
     err_cal = np.abs(true_poses(HitchModel(cal), truth, check)[0] - check)
     assert np.percentile(err_cal[:, 1], 95) < 0.5 * np.percentile(err_nom[:, 1], 95)  # z
     assert np.max(err_cal[:, [0, 1]]) < 0.004 and np.max(err_cal[:, [2, 3]]) < 0.004
+    # the accuracy it predicts (a commissioning trial: nothing said whether the measurements were good enough):
+    # in the report, the --json and the provenance, the same figures; the calibrated far below the uncalibrated
+    predicted = report["predicted_p95"]
+    assert prov["predicted_p95"] == predicted
+    keys = ("x_m", "z_m", "roll_rad", "pitch_rad")
+    assert all(0.0 < predicted["calibrated"][k] < 0.3 * predicted["nominal"][k] for k in keys), predicted
+    said = next(line for line in lines if line.startswith("predicted pose error p95 over 200 random workspace poses"))
+    assert f"z {1e3 * predicted['calibrated']['z_m']:.2f} mm" in said and "the AD counts" in said, said
 
 
 def test_measure_twin_with_an_exact_instrument_reads_the_truth():

@@ -6,7 +6,9 @@ import argparse
 import math
 import re
 import tomllib
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from rich.table import Table
@@ -278,10 +280,62 @@ def check_workspace_reachable(model: HitchModel) -> None:
     TrajectoryPlanner(model)
 
 
+def profile_records(profile: str) -> dict[str, Any]:
+    """The commissioning records a profile file carries (its comment lines): ``calibration`` (a geometry
+    calibration's provenance), ``sensor_calibration`` (a sensor calibration's); absent ones are left out; a
+    built-in profile name has none."""
+    from bridge.link.sensor_calibration import SENSOR_PROVENANCE_MARKER
+    from planner.calibration.profile_out import read_calibration_provenance
+
+    path = Path(profile)
+    if not path.is_file():
+        return {}
+    out: dict[str, Any] = {}
+    geometry = read_calibration_provenance(path)
+    if geometry is not None:
+        out["calibration"] = geometry
+    for line in path.read_text(encoding="utf-8").splitlines():
+        if line.startswith(SENSOR_PROVENANCE_MARKER):
+            try:
+                out["sensor_calibration"] = tomllib.loads("r =" + line[len(SENSOR_PROVENANCE_MARKER) :])["r"]
+            except tomllib.TOMLDecodeError as exc:
+                raise CLIError(f"{path}: its sensor_calibration line is not valid TOML: {exc}") from None
+    return out
+
+
+def _record_lines(records: Mapping[str, Any]) -> list[str]:
+    """``profile show``'s words for :func:`profile_records` (a commissioning trial: the calibration a profile
+    came from was only in its file's comment lines)."""
+    out = []
+    geo = records.get("calibration")
+    if geo is not None:
+        line = (
+            f"geometry calibration: {geo.get('date')}, {geo.get('poses')} poses, residual RMS "
+            f"{1e3 * float(geo.get('residual_rms_position_m', math.nan)):.3f} mm / "
+            f"{1e3 * float(geo.get('residual_rms_angle_rad', math.nan)):.3f} mrad, "
+            f"{geo.get('identified')} parameter directions identified, from {geo.get('nominal_profile')}"
+        )
+        pred = (geo.get("predicted_p95") or {}).get("calibrated")
+        if pred:
+            line += (
+                f"; predicted p95 x {1e3 * pred['x_m']:.2f} mm, z {1e3 * pred['z_m']:.2f} mm, roll "
+                f"{1e3 * pred['roll_rad']:.2f} mrad, pitch {1e3 * pred['pitch_rad']:.2f} mrad (geometry only)"
+            )
+        out.append(line)
+    sensors = records.get("sensor_calibration")
+    if sensors is not None:
+        when = sensors.get("date", "?") if isinstance(sensors, dict) else "?"
+        out.append(f"sensor calibration: {when} (its AD maps measured at the end stops)")
+    return out
+
+
 def _cmd_profile_show(args) -> int:
     model = model_from_args(args)
     check_workspace_reachable(model)  # exit 2 naming the face, as serve refuses it
     s = profile_summary(model)
+    records = profile_records(args.profile)
+    if records:
+        s = {**s, "records": records}
     if args.json:
         print(to_json_text(s))
         return 0
@@ -328,6 +382,8 @@ def _cmd_profile_show(args) -> int:
         else f"count approach: on (keep_arrival_side {ca.keep_arrival_side}, via {ca.via_hold_s:g} s, "
         f"final {ca.final_hold_s:g} s)"
     )
+    for line in _record_lines(records):
+        c.print(esc(line))
     return 0
 
 

@@ -240,6 +240,13 @@ def test_end_to_end_on_a_twin_calibrates_better_than_nominal(tmp_path, capsys):
     assert all(0.0 < predicted["calibrated"][k] < 0.3 * predicted["nominal"][k] for k in keys), predicted
     said = next(line for line in lines if line.startswith("predicted pose error p95 over 200 random workspace poses"))
     assert f"z {1e3 * predicted['calibrated']['z_m']:.2f} mm" in said and "the AD counts" in said, said
+    # and `profile show` says what the file records (a commissioning trial: only its comment lines did)
+    assert main(["profile", "show", "--profile", str(out)]) == 0
+    shown = capsys.readouterr().out
+    assert "geometry calibration: " in shown and ", 12 poses, residual RMS" in shown, shown
+    assert f"predicted p95 x {1e3 * predicted['calibrated']['x_m']:.2f} mm" in shown, shown
+    assert main(["profile", "show", "--profile", str(out), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["records"]["calibration"] == prov
 
 
 def test_measure_twin_with_an_exact_instrument_reads_the_truth():

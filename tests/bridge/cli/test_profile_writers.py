@@ -47,3 +47,17 @@ def test_every_profile_writer_keeps_the_tractor_profile_reachable(own_tractor, c
         assert main([*argv, "--out", out]) == 0, capsys.readouterr().err
         assert _tractor_of(out) == mine
     capsys.readouterr()
+
+
+def test_profile_show_names_the_sensor_calibration_a_profile_records(tmp_path, capsys):
+    """A commissioning trial: ``profile show`` did not show the calibration record a profile carries (only its
+    comment line did). Truth: the record written by the sensor calibration's own writer."""
+    from bridge.link.sensor_calibration import sensor_profile_toml
+
+    out = tmp_path / "sensors.toml"
+    when = "2026-12-07T17:30:16+00:00"
+    out.write_text(sensor_profile_toml("thesis-t132", {"lift": (40, 990)}, provenance={"date": when, "machine": "t01"}))
+    assert main(["profile", "show", "--profile", str(out)]) == 0
+    assert f"sensor calibration: {when} (its AD maps measured at the end stops)" in capsys.readouterr().out
+    assert main(["profile", "show", "--profile", "thesis-t132"]) == 0  # a built-in profile: no record
+    assert "calibration:" not in capsys.readouterr().out

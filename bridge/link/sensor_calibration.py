@@ -59,6 +59,7 @@ import datetime as _dt
 import importlib.resources
 import json
 import math
+import os
 import re
 import tomllib
 from collections.abc import Callable, Mapping, Sequence
@@ -73,6 +74,7 @@ from bridge.link.can_link import CanLink
 from bridge.link.realtime import RealtimeRunner
 from bridge.link.state import LinkFaultError, ReferenceRefused
 from planner.errors import HitchInputError
+from planner.filelock import LockHeldError, take_lock
 from planner.limits.guard import Guard
 from planner.limits.tractor import ImplementRecord
 from planner.model.hard_limits import HardLimits
@@ -415,10 +417,15 @@ class SensorCalibration:
         self.guard = Guard(tp, implement=implement)
         self.progress_path = Path(progress) if progress is not None else None
         self._log = log if log is not None else (lambda _msg: None)
+        self._lock_fd = _lock_progress(self.progress_path) if self.progress_path is not None else None
         self.progress: dict[str, Any] = {"version": _PROGRESS_VERSION, "profile": nominal.name, "actuators": {}}
         if self.progress_path is not None and self.progress_path.is_file():
-            self._load_progress()
-            self._check_machine(machine)
+            try:
+                self._load_progress()
+                self._check_machine(machine)
+            except BaseException:  # refused: the file is not held on
+                self.close()
+                raise
         if machine is not None:
             self.progress["machine"] = machine
         self.progress["detached"] = detached  # the state the operator declared for this run (a record only)
@@ -626,7 +633,20 @@ class SensorCalibration:
         return float(spec.min), float(spec.max)
 
     def run(self, actuators: Sequence[str] = ACTUATOR_NAMES) -> dict[str, SensorFit]:
-        """Calibrate ``actuators`` (default all five); returns their fits (recorded ends are reused)."""
+        """Calibrate ``actuators`` (default all five); returns their fits (recorded ends are reused). The progress
+        file is this calibration's until it returns or raises (:meth:`close`)."""
+        try:
+            return self._run(actuators)
+        finally:
+            self.close()
+
+    def close(self) -> None:
+        """Give the progress file up to another calibration (idempotent; the process's exit does it too)."""
+        fd, self._lock_fd = self._lock_fd, None
+        if fd is not None:
+            os.close(fd)
+
+    def _run(self, actuators: Sequence[str]) -> dict[str, SensorFit]:
         unknown = [a for a in actuators if a not in ACTUATOR_NAMES]
         if unknown or not actuators:
             raise SensorCalibrationError(
@@ -666,6 +686,24 @@ def _profile_text(profile: str | Path) -> str:
     if p.suffix == ".toml" or p.exists():
         return p.read_text(encoding="utf-8")
     return (importlib.resources.files("planner.profiles") / f"{profile}.toml").read_text(encoding="utf-8")
+
+
+def _lock_progress(progress: Path) -> int:
+    """Take ``<progress>.lock`` for this process (an flock, released when its descriptor closes): two calibrations
+    on one progress file wrote each other's ends (a commissioning trial: a resume ran while the first run still
+    wrote); :class:`SensorCalibrationError` naming the holder while another holds it."""
+    lock = progress.with_name(progress.name + ".lock")
+    try:
+        return take_lock(lock)
+    except LockHeldError as exc:
+        raise SensorCalibrationError(
+            f"progress file {progress} is in use by another sensor calibration ({exc.holder}): let it end (or stop "
+            "it) before resuming, or give another --progress"
+        ) from None
+    except OSError as exc:
+        raise SensorCalibrationError(
+            f"progress file {progress}: cannot open its lock {lock} ({exc.strerror})"
+        ) from None
 
 
 #: start of the comment line that carries a sensor calibration's provenance (the loader ignores comments)

@@ -11,11 +11,11 @@ or crashed too): nothing stale is left to clean up.
 
 from __future__ import annotations
 
-import fcntl
 import os
 from pathlib import Path
 
 from planner.errors import HitchInputError
+from planner.filelock import LockHeldError, take_lock
 
 __all__ = ["DataDirInUseError", "DataDirLock", "LOCK_FILE"]
 
@@ -36,21 +36,13 @@ class DataDirLock:
 
     def acquire(self) -> DataDirLock:
         """Take the folder for this process (the folder must exist); refuses while another process holds it."""
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.pread(fd, 200, 0).decode("utf-8", "replace").strip() or "a process"
-            os.close(fd)
+            fd = take_lock(self.path)
+        except LockHeldError as exc:
             raise DataDirInUseError(
-                f"data folder {self.path.parent} is in use by another hitch service ({holder}): one folder holds one "
-                "service's store and event log; give this one its own (--data-dir, or [service] data_dir)"
+                f"data folder {self.path.parent} is in use by another hitch service ({exc.holder}): one folder holds "
+                "one service's store and event log; give this one its own (--data-dir, or [service] data_dir)"
             ) from None
-        except OSError:
-            os.close(fd)
-            raise
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"pid {os.getpid()}\n".encode(), 0)
         self._fd = fd
         return self
 

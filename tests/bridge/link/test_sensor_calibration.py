@@ -382,3 +382,23 @@ def test_a_link_fault_during_a_wait_stops_at_once_naming_it_and_keeps_the_progre
     assert not isinstance(again, Exception), again
     t = truth.profile.actuator("top")
     assert abs(again["top"].counts_min - t.counts_min) <= 1 and abs(again["top"].counts_max - t.counts_max) <= 1
+
+
+def test_two_calibrations_on_one_progress_file_are_refused_until_the_first_has_ended(free_top_link, tmp_path):
+    """A commissioning trial: a resume ran while the first run (its background job) still wrote the same progress
+    file; both finished, each writing its ends over the other's. The second is refused naming the first, before
+    anything moves; once the first has ended (returned, raised or refused) the file can be resumed."""
+    truth = truth_of(free_top_link, 2)
+    progress = tmp_path / "progress.json"
+    with SimRig(HitchModel(calibration_profile(free_top_link)), FAST, truth=truth) as rig:
+        first = SensorCalibration(rig.link, rig, free_top_link, progress=progress)
+        start = rig.ecu.piston_counts()
+        with pytest.raises(SensorCalibrationError, match=rf"progress file {progress} is in use .*\(pid \d+\)"):
+            SensorCalibration(rig.link, rig, free_top_link, progress=progress)
+        assert np.array_equal(rig.ecu.piston_counts(), start)
+        first.close()
+        SensorCalibration(rig.link, rig, free_top_link, progress=progress).close()  # free again
+    done, _, _ = calibrate(free_top_link, truth, ("top",), progress=progress)  # a run gives it up when it ends
+    assert not isinstance(done, Exception), done
+    again, _, _ = calibrate(free_top_link, truth, ("top",), progress=progress)
+    assert not isinstance(again, Exception) and again["top"] == done["top"], again

@@ -321,6 +321,12 @@ def _cmd_geometry(args) -> int:
         "measurements": str(args.measurements),
         "measurements_sha256": hashlib.sha256(Path(args.measurements).read_bytes()).hexdigest(),
         "profile": str(args.profile),
+        # which file it was (a commissioning trial: a path alone does not say the file was not edited since)
+        **(
+            {"profile_sha256": hashlib.sha256(Path(args.profile).read_bytes()).hexdigest()}
+            if Path(args.profile).is_file()
+            else {}
+        ),
         "sigma_position_m": 1e-3 * args.sigma_position_mm,
         "sigma_angle_rad": 1e-3 * args.sigma_angle_mrad,
         "min_singular": float(args.min_singular),

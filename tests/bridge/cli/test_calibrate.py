@@ -280,6 +280,12 @@ def test_measuring_by_goto_with_a_final_approach_and_the_calibrated_profile_keep
     assert not any(n.startswith("lag.") for n in json.loads(res.out)["parameters"])
     fa = load_profile(out).motion.final_approach
     assert fa is not None and fa.offset() == (0.0025, 0.004, 0.005, 0.007) and fa.lag is None
+    # the provenance names the source profile file by its content too (a commissioning trial: a path alone)
+    import hashlib
+
+    prov = read_calibration_provenance(out)
+    assert prov is not None
+    assert prov["inputs"]["profile_sha256"] == hashlib.sha256(prof_file.read_bytes()).hexdigest(), prov["inputs"]
     assert "--by: invalid choice" in _err(
         capsys, ["calibrate", "measure-twin", "--sim-truth", "x", "--out", "y", "--by", "z"]
     )

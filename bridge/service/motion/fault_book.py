@@ -50,6 +50,8 @@ class FaultBook:
         self._held: dict[str, Fault] = {}
         self._link_reported: tuple[str, ...] = ()  # the link's latched faults seen at the last review
         self._fresh_since: float | None = None  # every self-clearing cause absent since [s]
+        #: faults held from the data before the link latched them (their reason is replaced by the link's own)
+        self._ahead_of_link: set[str] = set()
 
     # ------------------------------------------------------------------ reading
     def __bool__(self) -> bool:
@@ -107,20 +109,44 @@ class FaultBook:
             return not status.heartbeat.healthy
         return name in link_faults
 
+    def _stale_ahead_of_link(self, status: LinkStatus, now: float) -> str | None:
+        """Why the measurement is stale at ``now`` when the link has not latched ``stale_measurement`` yet (it
+        does so in its own poll, on its own thread, every ``check_period_s``): a cycle between the crossing and
+        that poll said ``online: false`` with no fault and the motion running (a review). None: not stale, or
+        no measurement yet (before the first one the link raises nothing either)."""
+        ls = status.state
+        if ls is None or "stale_measurement" in self._held:
+            return None
+        age = ls.age_s(now)
+        if age <= self.stale_after_s:
+            return None
+        return f"the ECU measurements are {age:.3f} s old (limit {self.stale_after_s:g} s)"
+
     def review(self, status: LinkStatus, now: float) -> Event | None:
         """One cycle of the policy at clock time ``now`` [s]: a ``fault`` event when the link raised something
-        new (the caller aborts everything and stops the stream), a ``fault_cleared`` event when self-clearing
-        faults were released, else None."""
+        new, or the measurement went stale before the link's own poll latched it (the caller aborts everything
+        and stops the stream), a ``fault_cleared`` event when self-clearing faults were released, else None."""
         link_faults = status.faults.active() if status.faults.any else ()
+        for f in link_faults:  # held from the data first: the link's own reason now (it names the sender, why)
+            if f in self._ahead_of_link and f in self._held:
+                self._held[f] = replace(self._held[f], reason=link_reason(f, status))
+                self._ahead_of_link.discard(f)
         raised = [f for f in link_faults if f not in self._link_reported and f not in self._held]
         for f in link_faults:  # cleared here, still latched in the link, and its cause came back
             if f in SELF_CLEARING_FAULTS and f not in self._held and f not in raised:
                 if self.cause_present(f, status, now, link_faults):
                     raised.append(f)
         self._link_reported = link_faults
+        reasons = {f: link_reason(f, status) for f in raised}
+        if "stale_measurement" not in raised:
+            ahead = self._stale_ahead_of_link(status, now)
+            if ahead is not None:
+                raised.append("stale_measurement")
+                reasons["stale_measurement"] = ahead
+                self._ahead_of_link.add("stale_measurement")
         if raised:
             for f in raised:
-                self._held[f] = Fault(f, link_reason(f, status), f not in SELF_CLEARING_FAULTS, now)
+                self._held[f] = Fault(f, reasons[f], f not in SELF_CLEARING_FAULTS, now)
             self._fresh_since = None
             # the new faults' own reasons (every reason the link held repeated those of faults acknowledged
             # long ago: a safety trial's ecu_heartbeat event began with references_lost's text)
@@ -143,6 +169,7 @@ class FaultBook:
             return None
         for n in clearing:
             del self._held[n]
+            self._ahead_of_link.discard(n)
         self._fresh_since = None
         return {"event": "fault_cleared", "cleared": clearing, "by": "fresh data", "faults": self.names}
 

@@ -55,8 +55,7 @@ def _stale() -> LinkFaults:
 def test_a_new_link_fault_is_raised_once_with_its_own_reason():
     book = FaultBook(STALE_S)
     faults = _latched(references_lost="the watchdog expired", ecu_restart="the ECU restarted (heartbeat 251)")
-    st = _Status(faults, _Measured(0.0))
-    ev = book.review(st, 0.01)
+    ev = book.review(_Status(faults, _Measured(0.0)), 0.01)
     assert ev is not None and ev["event"] == "fault" and ev["ack_required"]
     assert set(ev["new"]) == {"references_lost", "ecu_restart"}
     assert {f.name: f.reason for f in book.held} == {
@@ -64,7 +63,8 @@ def test_a_new_link_fault_is_raised_once_with_its_own_reason():
         "ecu_restart": "the ECU restarted (heartbeat 251)",
     }
     for k in range(50):  # latched: still there, never raised again, never cleared by fresh data
-        assert book.review(st, 0.02 + 0.02 * k) is None
+        now = 0.02 + 0.02 * k
+        assert book.review(_Status(faults, _Measured(now)), now) is None
     assert len(book.held) == 2 and "faults/ack" in (book.refusal("goto") or "")
 
 
@@ -150,3 +150,24 @@ def test_a_reason_is_the_one_recorded_for_that_name_not_another_faults():
     st = _Status(faults, None)
     assert link_reason("stale_measurement", st) == "no valid measurement for 0.3 s"
     assert link_reason("ecu_heartbeat", st) == "references lost: the watchdog expired; no valid measurement for 0.3 s"
+
+
+def test_a_stale_measurement_is_held_from_its_age_before_the_link_s_poll_latches_it():
+    """A review: the link latches stale_measurement in its own poll; a cycle between the crossing and that poll
+    said offline with no fault and the motion running. The book raises it from the measurement's age (its own
+    reason), takes the link's reason once the link latches it (no second event), and clears it as any other.
+    Before the first measurement nothing is raised (the link raises nothing then either)."""
+    book = FaultBook(STALE_S)
+    assert book.review(_Status(LinkFaults(), None), 5.0) is None  # no measurement yet: not a fault
+    assert book.review(_Status(LinkFaults(), _Measured(0.0)), STALE_S) is None  # at the limit: fresh
+    ev = book.review(_Status(LinkFaults(), _Measured(0.0)), 0.213)
+    assert ev is not None and ev["new"] == ["stale_measurement"] and not ev["ack_required"], ev
+    assert ev["message"] == "the ECU measurements are 0.213 s old (limit 0.2 s)"
+    assert book.review(_Status(_stale(), _Measured(0.0)), 0.22) is None  # the link latched it: no new event
+    assert [(f.name, f.reason) for f in book.held] == [("stale_measurement", "no valid cylinder positions for 0.3 s")]
+    now = 0.3
+    while book:  # fresh again: released after FAULT_CLEAR_AFTER_S
+        now += 0.01
+        ev = book.review(_Status(_stale(), _Measured(now)), now)
+        assert now < 0.3 + FAULT_CLEAR_AFTER_S + 0.02
+    assert ev is not None and ev["event"] == "fault_cleared", ev

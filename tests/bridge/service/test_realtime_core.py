@@ -337,22 +337,19 @@ def test_no_state_says_offline_without_the_fault_that_takes_it_offline(r):
         assert not s["moving"] and s["motion"] is None, s
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="review of 3484f97: the link latches stale_measurement in its own poll (its thread, every check_period_s);"
-    " a control cycle between the crossing and that poll still says online: false with faults [] and moving",
-)
 @pytest.mark.parametrize("phase_ms", [3, 7])
 def test_no_state_says_offline_without_its_fault_when_the_link_polls_on_its_own_schedule(r, phase_ms):
     """As the test above, with the link polled as in the service: by its own thread every 10 ms
-    (``check_period_s``), not just before each control cycle. Truth: the state's own ``online`` flag."""
+    (``check_period_s``), not just before each control cycle (a review: a cycle between the crossing and the
+    link's poll still said offline with no fault and the motion running; the fault book now raises it from the
+    measurement's age). Truth: the state's own ``online`` flag."""
     acc = r.mc.goto({"z": 0.22})
     r.run(0.2)
     assert r.states[-1]["moving"], acc
     rig = r.rig
     for _ in range(phase_ms):  # the control cycle's phase against the ECU's frames and the link's polls
         rig.tick()
-    first = len(r.states)
+    first, first_event = len(r.states), len(r.events)
     end = rig.now_s + 0.4
     while rig.now_s < end - 1e-9:  # the ECU falls silent
         t = rig.now_s + DT
@@ -365,6 +362,11 @@ def test_no_state_says_offline_without_its_fault_when_the_link_polls_on_its_own_
     assert offline
     for s in offline:
         assert "stale_measurement" in s["ecu"]["faults"], (s["ecu"], s["moving"])
+        assert not s["moving"], s
+    # the link's own reason once it latched it (it names the sender and why), one fault event
+    held = {f.name: f.reason for f in r.mc.faults}
+    assert "address" in held["stale_measurement"], held
+    assert sum("stale_measurement" in e["new"] for e in r.events[first_event:] if e["event"] == "fault") == 1
 
 
 def test_a_latched_fault_needs_an_acknowledge(r):

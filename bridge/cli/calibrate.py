@@ -587,15 +587,17 @@ def _predicted_p95(model, result) -> dict[str, dict[str, float]] | None:
     and of the nominal (tape-measured) one (:mod:`planner.calibration.predicted`); None for a profile without a
     restricted workspace (no poses to predict at)."""
     from planner.calibration.design import candidate_poses
-    from planner.calibration.parameters import CalibrationError
     from planner.calibration.predicted import calibrated_covariance, predict_accuracy, tape_covariance
+    from planner.errors import HitchInputError
 
+    fa = model.profile.motion.final_approach  # gotos end from its side: a fitted lag's error shows there
+    side = 0.0 if fa is None else (1.0 if fa.side == "above" else -1.0)
     try:
         _, readings = candidate_poses(model, PREDICTED_POSES, seed=0, random_only=True)
-    except CalibrationError:
-        return None
-    calibrated = predict_accuracy(model, result.values, calibrated_covariance(result), readings)
-    nominal = predict_accuracy(model, result.nominal, tape_covariance(len(result.names)), readings)
+        calibrated = predict_accuracy(model, result.values, calibrated_covariance(result), readings, side=side)
+        nominal = predict_accuracy(model, result.nominal, tape_covariance(len(result.names)), readings, side=side)
+    except HitchInputError:  # no workspace to predict at, or a fit the mechanism cannot close there (a review):
+        return None  # the report and its refusals stand without it
     return {"calibrated": calibrated.as_dict(), "nominal": nominal.as_dict()}
 
 

@@ -1198,7 +1198,9 @@ def _cmd_maneuver(args) -> int:
                 args,
                 c,
                 lambda: c.request("maneuvers/run", {"name": args.name, **_deadline(args)}),
-                lambda reply: c.wait_maneuver(reply["maneuver_id"], timeout_s=_MANEUVER_WAIT_S),
+                lambda reply: c.wait_maneuver(
+                    reply["maneuver_id"], timeout_s=_MANEUVER_WAIT_S, instance=reply.get("instance")
+                ),
             )
             text = f"maneuver {args.name} started (id {r['maneuver_id']}, planned {r['duration']:.2f} s)"
             if final is not None:
@@ -1251,6 +1253,8 @@ def fleet_states(c, prefixes: list[str], wait_s: float = FLEET_STATE_WAIT_S) -> 
     a prefix with no state in that time is absent (its control core silent, or this login may not read it)."""
     got: dict[str, dict[str, Any]] = {}
     lock, all_in = threading.Lock(), threading.Event()
+    wanted = [len(prefixes)]  # the states to wait for: one per subscription made (a review: one that failed
+    # made every listing wait the whole time)
 
     def taker(prefix: str) -> Callable[[dict], None]:
         def take(state: dict) -> None:
@@ -1267,7 +1271,7 @@ def fleet_states(c, prefixes: list[str], wait_s: float = FLEET_STATE_WAIT_S) -> 
                         "motion": state.get("motion"),
                     },
                 )
-                if len(got) == len(prefixes):
+                if len(got) >= wanted[0]:
                     all_in.set()
 
         return take
@@ -1278,7 +1282,12 @@ def fleet_states(c, prefixes: list[str], wait_s: float = FLEET_STATE_WAIT_S) -> 
             try:
                 subs.append(c.subscribe("state", taker(prefix), prefix=prefix))
             except HitchError:  # a token whose key is no prefix this client can subscribe to: no state
+                with lock:
+                    wanted[0] -= 1
                 continue
+        with lock:
+            if len(got) >= wanted[0]:
+                all_in.set()
         if subs:
             all_in.wait(wait_s)
     finally:
@@ -1288,19 +1297,21 @@ def fleet_states(c, prefixes: list[str], wait_s: float = FLEET_STATE_WAIT_S) -> 
         return dict(got)
 
 
-def _state_words(st: dict[str, Any] | None) -> str:
-    """A fleet row's machine part: the ECU link, the faults held, what moves."""
+def _state_words(st: dict[str, Any] | None, prefix: str) -> str:
+    """A fleet row's machine part: the ECU link, the faults held (and the command that acknowledges the latched
+    ones, for this service's ``prefix``), what moves."""
     if st is None:
         return f"no state within {FLEET_STATE_WAIT_S:g} s"
     ecu = "ECU online" if st["ecu_online"] else "ECU OFFLINE"
     faults = st["faults"]
-    held = f", faults {', '.join(faults)}" + (" (acknowledge: hitch faults ack)" if st["ack_required"] else "")
+    ack = f" (acknowledge: hitch faults ack --prefix {prefix})" if st["ack_required"] else ""
+    held = f", faults {', '.join(faults)}{ack}"
     moving = f", moving ({st['motion']})" if st["moving"] else ", at rest"
     return ecu + (held if faults else "") + moving
 
 
 def _fleet_line(r: dict[str, Any]) -> str:
-    machine = "; " + _state_words(r.get("state"))
+    machine = "; " + _state_words(r.get("state"), r["prefix"])
     if "error" not in r:
         return (
             f"{r['prefix']}: {r['profile']} cat {r['category']}, implement {r['implement'] or '-'}, mode {r['mode']}"

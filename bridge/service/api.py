@@ -573,7 +573,10 @@ class ServiceAPI:
         deadline, issued = self._timing(r.deadline_ms)
         mid = self.motion.run_maneuver(res, r.name, deadline=deadline, issued=issued)
         script_steps = len(res.script.steps) if res.script is not None else len(res.steps)
-        return ManeuverAccepted(mid, res.duration, script_steps, r.name, actions=len(res.steps)).to_json()
+        out = ManeuverAccepted(mid, res.duration, script_steps, r.name, actions=len(res.steps)).to_json()
+        if self.info.get("instance") is not None:  # the run its id belongs to (a restarted service counts from 1)
+            out["instance"] = self.info["instance"]
+        return out
 
     def _maneuvers_delete(self, r: NameRequest) -> dict:
         if not self.store.delete_maneuver(r.name):

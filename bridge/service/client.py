@@ -108,6 +108,8 @@ class ServiceTimeout(ServiceError):
 LINK_GRACE_S = 5.0
 #: the events that end a maneuver (its outcome, :meth:`HitchClient.wait_maneuver`)
 _MANEUVER_ENDS = ("maneuver_finished", "maneuver_aborted")
+#: events a reply of ``events/recent`` holds at most (its ``limit``'s top)
+_KEPT_PAGE = 500
 #: how often a wait looks at the session's links [s]
 LINK_POLL_S = 0.2
 #: the payload of the error reply Zenoh itself gives a query whose timeout ran out (no service sends it)
@@ -825,12 +827,14 @@ class HitchClient:
             sub.close()
         return dict(last)
 
-    def wait_maneuver(self, maneuver_id: int, *, timeout_s: float = 600.0) -> dict:
+    def wait_maneuver(self, maneuver_id: int, *, timeout_s: float = 600.0, instance: str | None = None) -> dict:
         """Block until maneuver ``maneuver_id`` (a ``maneuvers/run`` reply's ``maneuver_id``) has finished or
         was aborted: ``{"outcome": its maneuver_finished / maneuver_aborted event (absent if none was heard or
         kept), "state": the last state (absent if none came)}``. A maneuver that ended before the wait began, or
         whose outcome event this client missed, is looked up in the events the service keeps (``events/recent``,
-        the last 2000, of the same run): a fleet trial's run, stop, wait got no outcome though the service had it."""
+        the last 2000, newest first): a fleet trial's run, stop, wait got no outcome though the service had it.
+        ``instance``: the run the maneuver belongs to (the reply's ``instance``): only that run's kept events
+        count (a restarted service numbers its maneuvers from 1 again); None: the run answering now."""
         done, outcome_seen, state_seen = threading.Event(), threading.Event(), threading.Event()
         out: dict[str, Any] = {}
         seen = [False]
@@ -853,7 +857,7 @@ class HitchClient:
 
         subs = (self.subscribe("events", on_event), self.subscribe("state", on_state))
         try:
-            kept, instance = self._kept_maneuver_end(maneuver_id, None)
+            kept, instance = self._kept_maneuver_end(maneuver_id, instance)
             if kept is not None and "outcome" not in out:  # it ended before the subscriptions heard it
                 out["outcome"] = kept
                 outcome_seen.set()
@@ -872,24 +876,28 @@ class HitchClient:
 
     def _kept_maneuver_end(self, maneuver_id: int, instance: Any) -> tuple[dict | None, Any]:
         """Maneuver ``maneuver_id``'s ``maneuver_finished`` / ``maneuver_aborted`` among the events the service
-        keeps, and the run they belong to (``instance``; given: only from that run — a restarted service numbers
-        its maneuvers from 1 again); (None, its run) when none is kept or the service did not answer."""
-        after, run = 0, instance
+        keeps, searched newest first (500 a reply), and the run they belong to; ``instance`` given: only in that
+        run (None once the service answers for another). (None, the run) when none is kept or nothing answered."""
         try:
-            for _ in range(8):  # 2000 kept events, 500 a reply
-                r = self.recent_events(after)
-                if instance is not None and r.get("instance") != instance:
-                    return None, instance
-                run = r.get("instance")
-                events = [e for e in r.get("events") or () if isinstance(e, dict)]
-                for e in events:
+            head = self.request("events/recent", {"after": 0, "limit": 1})
+            run = head.get("instance")
+            if instance is not None and run != instance:
+                return None, instance
+            latest, oldest = head.get("latest"), head.get("oldest")
+            if not isinstance(latest, int) or not isinstance(oldest, int):
+                return None, run
+            hi = latest
+            while hi >= oldest:  # pages (lo, hi], newest first: the maneuver ended lately, its end is near the top
+                lo = max(oldest - 1, hi - _KEPT_PAGE)
+                r = self.request("events/recent", {"after": lo, "limit": _KEPT_PAGE})
+                if r.get("instance") != run:  # restarted meanwhile
+                    return None, run
+                for e in reversed([e for e in r.get("events") or () if isinstance(e, dict)]):
                     if e.get("maneuver_id") == maneuver_id and e.get("event") in _MANEUVER_ENDS:
                         return e, run
-                if not r.get("more") or not events or not isinstance(events[-1].get("seq"), int):
-                    break
-                after = events[-1]["seq"]
+                hi = lo
         except ServiceError:  # not answered (busy, refused, no route): the outcome stays unknown
-            pass
+            return None, instance
         return None, run
 
     # ------------------------------------------------------------------ fleet

@@ -181,7 +181,8 @@ def _cell(text: str, where: str, col: str, lo: float, hi: float, unit: str) -> f
         hint = ""
         if text.count(",") == 1:  # a spreadsheet's decimal comma, quoted into a comma-separated file
             try:
-                hint = f"; a decimal comma? write {float(text.replace(',', '.')):g} with a decimal point"
+                float(text.replace(",", "."))  # a number once the comma is a point
+                hint = f"; a decimal comma? write {text.replace(',', '.')} with a decimal point"
             except ValueError:
                 pass
         raise CalibrationError(f"{where}, column {col}: {text!r} is not a number (allowed: {allowed}){hint}") from None

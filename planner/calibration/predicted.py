@@ -111,18 +111,27 @@ def tape_covariance(n_params: int) -> np.ndarray:
 
 
 def predict_accuracy(
-    model: ParametricModel, values: np.ndarray, covariance_scaled: np.ndarray, readings: np.ndarray
+    model: ParametricModel,
+    values: np.ndarray,
+    covariance_scaled: np.ndarray,
+    readings: np.ndarray,
+    *,
+    side: float = 0.0,
 ) -> PredictedAccuracy:
     """The predicted pose error at ``readings`` (M, 5) [SI] of a profile with parameters ``values`` [SI] whose
     errors have covariance ``covariance_scaled`` (n, n; scaled units ``(p − p̂)/scale``): σ per pose and DOF,
-    sqrt(diag(Jₛ Σ Jₛᵀ)) with Jₛ = J · diag(scale) (module docstring). Lag parameters add nothing (side 0: the
-    planner aims by the lag)."""
+    sqrt(diag(Jₛ Σ Jₛᵀ)) with Jₛ = J · diag(scale) (module docstring). ``side``: the side every goto ends from
+    (−1 rising: the profile's final approach ``below``; +1 ``above``; 0 none): the planner aims by the fitted
+    lag of the pin play, so the lag's own error adds there as side · δlag."""
+    if side not in (-1.0, 0.0, 1.0):
+        raise CalibrationError(f"side must be -1, 0 or 1, got {side!r}")
     ps = model.params
     cov = np.asarray(covariance_scaled, dtype=float)
     if cov.shape != (len(ps), len(ps)) or not np.all(np.isfinite(cov)):
         raise CalibrationError(f"covariance must be a finite ({len(ps)}, {len(ps)}) matrix, got shape {cov.shape}")
-    _, jac = model.batch(readings, values, jacobian=True)
+    r = np.asarray(readings, dtype=float)
+    _, jac = model.batch(r, values, jacobian=True, sides=np.full(r.shape[0] if r.ndim == 2 else 0, float(side)))
     assert jac is not None
     js = jac[:, _ROWS, :] * ps.scale[None, None, :]  # (M, 4, n)
     var = np.einsum("mdi,ij,mdj->md", js, cov, js)
-    return PredictedAccuracy(np.asarray(readings, dtype=float), np.sqrt(np.maximum(var, 0.0)))
+    return PredictedAccuracy(r, np.sqrt(np.maximum(var, 0.0)))

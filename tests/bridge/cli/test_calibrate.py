@@ -123,6 +123,11 @@ def test_a_byte_order_mark_is_allowed():
             GOOD_HEADER + '\np1,100,400,120,300,260,"0,06",0,0,0\n',
             "column x: '0,06' is not a number (allowed: [-3, 3] m); a decimal comma? write 0.06 with a decimal point",
         ),
+        # the value as written, not rounded to 6 digits (a review: '1234,5678' was suggested as 1234.57)
+        (
+            GOOD_HEADER + '\np1,100,400,120,300,260,0,"0,1234567",0,0\n',
+            "column z: '0,1234567' is not a number (allowed: [-3, 3] m); a decimal comma? write 0.1234567 with",
+        ),
     ],
 )
 def test_a_file_that_is_not_a_measurement_csv_says_what_it_is(text, words):

@@ -17,7 +17,7 @@ import pytest
 
 from bridge.cli import service as cli_service
 from bridge.cli.main import main
-from bridge.service.client import ServiceError, ServiceTimeout
+from bridge.service.client import ClientError, ServiceError, ServiceTimeout
 
 CONFIG = {"profile": "thesis-t132", "category": "2", "implement": None, "mode": "manual", "user_keys": True}
 #: a state message's parts fleet ls reads (bridge.service.state_message), of a service at rest with its ECU online
@@ -32,6 +32,7 @@ class _Fleet:
         self.services = services
         self.states = {p: AT_REST for p in services} if states is None else states
         self.asked: list[tuple[str, str | None]] = []
+        self.unsubscribable: set[str] = set()
 
     def __enter__(self):
         return self
@@ -58,6 +59,8 @@ class _Fleet:
 
     def subscribe(self, what, callback, *, prefix=None):
         assert what == "state", what
+        if prefix in self.unsubscribable:  # a token whose key this client cannot subscribe to
+            raise ClientError(f"prefix {prefix!r}: not a key prefix")
         if prefix in self.states:  # its control core publishes: the first sample comes at once
             callback(self.states[prefix])
         return _Closed()
@@ -146,7 +149,7 @@ def test_each_row_says_the_machine_now_ecu_link_faults_and_motion(monkeypatch, c
     assert code == 0, err
     assert out.splitlines() == [
         "fleet/t01/hitch: thesis-t132 cat 2, implement -, mode manual; ECU OFFLINE, faults stale_measurement, "
-        "ecu_restart (acknowledge: hitch faults ack), at rest",
+        "ecu_restart (acknowledge: hitch faults ack --prefix fleet/t01/hitch), at rest",
         "fleet/t02/hitch: thesis-t132 cat 2, implement -, mode manual; ECU online, moving (goto)",
         "fleet/t03/hitch: thesis-t132 cat 2, implement -, mode manual; no state within 1 s",
     ]
@@ -163,6 +166,22 @@ def test_each_row_says_the_machine_now_ecu_link_faults_and_motion(monkeypatch, c
         "fleet/t02/hitch": {**STATE_JSON, "moving": True, "motion": "goto"},
         "fleet/t03/hitch": None,
     }
+
+
+def test_a_service_whose_state_cannot_be_subscribed_does_not_hold_the_listing(monkeypatch, capsys):
+    """A review: one subscription that failed left the wait for every state unfinished, so each listing took the
+    whole second. Truth: the wall time of the listing against the 1 s wait."""
+    import time
+
+    client = _Fleet({"fleet/t01/hitch": CONFIG, "fleet/t02/hitch": CONFIG})
+    client.unsubscribable = {"fleet/t02/hitch"}
+    monkeypatch.setattr(cli_service, "_client", lambda args: client)
+    t0 = time.monotonic()
+    assert main(["fleet", "ls"]) == 0
+    took = time.monotonic() - t0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].endswith("; ECU online, at rest") and lines[1].endswith("; no state within 1 s"), lines
+    assert took < 0.5, took
 
 
 def test_an_empty_fleet_is_no_error(monkeypatch, capsys):

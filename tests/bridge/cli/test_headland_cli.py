@@ -158,3 +158,7 @@ def test_a_wait_for_a_maneuver_that_ended_before_it_began_gives_its_outcome(serv
         want = next(e for e in heard if e.get("maneuver_id") == mid and e["event"] == "maneuver_aborted")
         assert out.get("outcome") == want, out
         assert "state" in out and took < 2.0, took  # not the 2 s a wait gives a maneuver it never saw
+        # the run's id in the reply: a wait for that run finds it; one for another run (a restarted service
+        # numbers its maneuvers from 1 again: a review) does not take this run's event for its outcome
+        assert r.get("instance") and c.wait_maneuver(mid, timeout_s=30, instance=r["instance"])["outcome"] == want
+        assert "outcome" not in c.wait_maneuver(mid, timeout_s=30, instance="another-run")

@@ -122,3 +122,29 @@ def test_the_predicted_p95_is_what_noisy_fits_reach_against_their_truth():
 def test_a_covariance_of_the_wrong_shape_is_refused():
     with pytest.raises(CalibrationError, match="covariance"):
         predict_accuracy(_model(), _model().params.nominal, np.eye(3), _evaluation()[:2])
+
+
+def test_a_fitted_lag_s_error_shows_on_the_side_gotos_end_from():
+    """A review: the lag was evaluated at side 0, so its own σ never reached the prediction although every goto
+    ends from the final approach's side. Closed form: with only the lag uncertain (σ of a tape size each), a
+    pose's error in each DOF the lag acts on is that σ times the lag's scale, from either side; none at side 0."""
+    from planner.calibration import ParameterSet
+    from planner.profiles.hitch import profile_from_dict
+
+    data = load_profile("thesis-t132").model_dump()
+    data["motion"]["final_approach"] = {"x": 0.0025, "z": 0.004, "roll": 0.005, "pitch": 0.007}
+    prof = profile_from_dict(data)
+    model = ParametricModel(prof, params=ParameterSet.from_profile(prof, include_lag=True))
+    ps = model.params
+    lag = ps.lag_index
+    cov = np.zeros((len(ps), len(ps)))
+    cov[lag, lag] = 0.3**2
+    readings = _evaluation()[:5]
+    for side in (-1.0, 1.0):
+        got = predict_accuracy(model, ps.nominal, cov, readings, side=side).sigma
+        want = np.zeros(4)
+        want[list(ps.lag_dofs)] = 0.3 * ps.scale[lag]
+        assert np.allclose(got, want[None, :], rtol=1e-9, atol=1e-15), (got, want)
+    assert np.all(predict_accuracy(model, ps.nominal, cov, readings).sigma == 0.0)
+    with pytest.raises(CalibrationError, match="side"):
+        predict_accuracy(model, ps.nominal, cov, readings, side=0.5)

@@ -578,6 +578,90 @@ def _print_fit(model, result) -> None:
             print(f"  {u}")
 
 
+def _cmd_check(args) -> int:
+    """Fresh measurements against a profile, nothing refitted (``calibrate check``): exit 0 when they fit
+    within the instrument's σ (sigma-hat ≤ :data:`SUSPECT_SIGMA_HAT`), 1 when not."""
+    from planner.calibration.measurements import MEASURED_COLUMNS, load_measurements
+    from planner.calibration.profile_out import read_calibration_provenance
+    from planner.calibration.solve import build_calibration_problem
+    from planner.profiles.hitch import load_profile
+
+    prof = load_profile(args.profile)
+    data = load_measurements(args.measurements, prof)  # counts through this profile's AD map
+    fa = prof.motion.final_approach
+    # the profile's own lag of the pin play shifts a pose by its side (rows that name one)
+    model = _model(args, include_ad=False, include_lag=fa is not None and fa.lag is not None, profile=prof)
+    problem = build_calibration_problem(
+        model, data, sigma_position_m=1e-3 * args.sigma_position_mm, sigma_angle_rad=1e-3 * args.sigma_angle_mrad
+    )
+    y, _ = model.batch(data.readings, None, jacobian=False, seeds=problem.seeds, sides=data.side_vector)
+    diff = np.where(data.mask, np.nan_to_num(data.values) - y, np.nan)  # measured − the profile's model
+    z = diff / problem.sigma
+    sigma_hat = float(np.sqrt(np.nanmean(z**2)))
+    per_column = {}
+    for k, col in enumerate(MEASURED_COLUMNS):
+        d = diff[:, k][np.isfinite(diff[:, k])]
+        if d.size:
+            per_column[col] = {"rms": float(np.sqrt(np.mean(d**2))), "max_abs": float(np.max(np.abs(d))), "n": d.size}
+    zabs = np.nan_to_num(np.abs(z), nan=-1.0)
+    worst_col = np.argmax(zabs, axis=1)
+    order = np.argsort(-zabs[np.arange(len(zabs)), worst_col], kind="stable")[:3]
+    worst = [
+        {
+            "row": data.row_numbers[int(i)],
+            "label": data.labels[int(i)],
+            "column": MEASURED_COLUMNS[int(worst_col[i])],
+            "residual_sigma": float(z[i, worst_col[i]]),
+        }
+        for i in order
+    ]
+    fits = sigma_hat <= SUSPECT_SIGMA_HAT
+    prov = read_calibration_provenance(args.profile) if Path(args.profile).is_file() else None
+    predicted = ((prov or {}).get("predicted_p95") or {}).get("calibrated")
+    if args.json:
+        print(
+            to_json_text(
+                {
+                    "profile": str(args.profile),
+                    "measurements": str(args.measurements),
+                    "rows": len(data.labels),
+                    "sigma_hat": sigma_hat,
+                    "fits": fits,
+                    "residuals": per_column,  # SI: m, rad
+                    "worst_rows": worst,
+                    "predicted_p95": predicted,
+                }
+            )
+        )
+        return 0 if fits else 1
+    angle = {"roll", "pitch", "yaw"}
+    unit = {c: ("mrad" if c in angle else "mm") for c in per_column}
+    print(
+        f"{args.measurements}: {len(data.labels)} rows against {prof.name} ({args.profile}), nothing refitted; "
+        "measured − the profile's model, RMS / largest:"
+    )
+    for c, st in per_column.items():
+        print(f"  {c:8s} {1e3 * st['rms']:.3f} / {1e3 * st['max_abs']:.3f} {unit[c]}  ({st['n']} values)")
+    if predicted:
+        print(
+            f"the profile predicts p95 x {1e3 * predicted['x_m']:.2f} mm, z {1e3 * predicted['z_m']:.2f} mm, roll "
+            f"{1e3 * predicted['roll_rad']:.2f} mrad, pitch {1e3 * predicted['pitch_rad']:.2f} mrad (geometry only); "
+            "the instrument's σ adds to the residuals"
+        )
+    rows = ", ".join(f"row {w['row']} ({w['label']}) {w['column']} {w['residual_sigma']:+.1f} σ" for w in worst)
+    given = f"--sigma-position-mm {args.sigma_position_mm:g}, --sigma-angle-mrad {args.sigma_angle_mrad:g}"
+    if fits:
+        print(f"fits: sigma-hat {sigma_hat:.3g} (the residuals in units of the σ given: {given}); worst: {rows}")
+        return 0
+    print(
+        f"DOES NOT FIT: sigma-hat {sigma_hat:.3g}: the residuals are {sigma_hat:.3g} times the σ given ({given}); "
+        f"worst: {rows}. The machine is not what the profile says (calibrate it again: hitch calibrate geometry), "
+        "or a measurement is wrong (a unit, a sign, left/right), or the σ is too small for the instrument",
+        file=sys.stderr,
+    )
+    return 1
+
+
 #: how many random workspace poses the predicted accuracy is taken over (as the calibration bench's evaluation)
 PREDICTED_POSES = 200
 
@@ -746,6 +830,17 @@ def _profile_name(text: str) -> str:
         raise argparse.ArgumentTypeError(f"{text!r}: {exc}") from None
 
 
+def _add_sigma_options(p) -> None:
+    """The instrument's σ of ``calibrate geometry`` and ``calibrate check`` (mm, mrad at this boundary)."""
+    for flag, unit in (("--sigma-position-mm", "mm"), ("--sigma-angle-mrad", "mrad")):
+        p.add_argument(
+            flag,
+            type=bounded_float(flag, 0.0, 1000.0, unit=unit),
+            default=1.0,
+            help=f"instrument σ, (0, 1000] {unit} (default 1)",
+        )
+
+
 def add_commands(sub) -> None:
     p = sub.add_parser("calibrate", help="geometry calibration: plan poses to measure, fit a profile to measurements")
     csub = p.add_subparsers(dest="calibrate_command", required=True, parser_class=type(p))
@@ -766,18 +861,7 @@ def add_commands(sub) -> None:
         type=_profile_name,
         help="name of the calibrated profile: letters, digits, '-', '_', '.', up to 80 (default <profile>-calibrated)",
     )
-    g.add_argument(
-        "--sigma-position-mm",
-        type=bounded_float("--sigma-position-mm", 0.0, 1000.0, unit="mm"),
-        default=1.0,
-        help="instrument σ, (0, 1000] mm (default 1)",
-    )
-    g.add_argument(
-        "--sigma-angle-mrad",
-        type=bounded_float("--sigma-angle-mrad", 0.0, 1000.0, unit="mrad"),
-        default=1.0,
-        help="instrument σ, (0, 1000] mrad (default 1)",
-    )
+    _add_sigma_options(g)
     g.add_argument(
         "--min-singular",
         type=_min_singular,
@@ -799,6 +883,15 @@ def add_commands(sub) -> None:
         "(sigma-hat; recorded in the profile)",
     )
     g.set_defaults(handler=_cmd_geometry, on_interrupt=lambda _a: "nothing was written")
+
+    ck = csub.add_parser(
+        "check",
+        help="measurements against a profile, nothing refitted: does the profile fit them? (exit 1 when not)",
+    )
+    add_model_options(ck)
+    ck.add_argument("--measurements", required=True, help="measurement CSV of new poses (docs/commissioning.md)")
+    _add_sigma_options(ck)
+    ck.set_defaults(handler=_cmd_check)
 
     pp = csub.add_parser("plan-poses", help="choose the poses to measure (D-optimal)")
     add_model_options(pp)

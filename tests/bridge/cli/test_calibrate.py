@@ -1036,3 +1036,27 @@ def test_a_negative_lag_beyond_half_the_approach_is_called_noise_not_a_short_app
     phrases, _, negative_only = cli_calibrate._approach_shorter_than_play(prof, replace(result, values=values))
     assert not negative_only
     assert len(phrases) == 1 and "is more than half motion.final_approach.x" in phrases[0], phrases
+
+
+def test_calibrate_check_says_whether_fresh_measurements_fit_a_profile_without_refitting(tmp_path, capsys):
+    """A commissioning trial: nothing checked a profile against a few new poses without fitting again (the docs'
+    step 5 said "measure a few new poses against it"). Truth: the twin the profile was calibrated on, measured
+    at other poses: its calibrated profile fits them within the instrument's σ, the nominal (tape) one does not."""
+    prof = load_profile("thesis-t132")
+    _, meas = _twin_measurements(tmp_path, prof)
+    cal = tmp_path / "cal.toml"
+    assert main(["calibrate", "geometry", "--measurements", str(meas), "--out", str(cal)]) == 0
+    fresh = tmp_path / "fresh.csv"  # other poses of the same twin (another candidate seed), station noise
+    argv = ["calibrate", "measure-twin", "--sim-truth", str(tmp_path / "truth.toml"), "--out", str(fresh)]
+    assert main([*argv, "--n", "8", "--candidates", "60", "--seed", "7"]) == 0
+    capsys.readouterr()
+    assert main(["calibrate", "check", "--profile", str(cal), "--measurements", str(fresh), "--json"]) == 0
+    good = json.loads(capsys.readouterr().out)
+    assert good["fits"] and good["rows"] == 16 and good["sigma_hat"] < 2.0, good  # each pose from both sides
+    assert good["predicted_p95"] is not None and set(good["residuals"]) == {"x", "z", "roll", "pitch"}
+    assert main(["calibrate", "check", "--measurements", str(fresh)]) == 1  # the built-in, tape-measured profile
+    res = capsys.readouterr()
+    assert "DOES NOT FIT: sigma-hat" in res.err and "calibrate it again: hitch calibrate geometry" in res.err
+    bad = float(res.err.split("DOES NOT FIT: sigma-hat ")[1].split(":")[0])
+    assert bad > 3.0 > good["sigma_hat"], (bad, good["sigma_hat"])
+    assert "z " in res.out and " mm  (16 values)" in res.out, res.out

@@ -23,7 +23,7 @@ import numpy as np
 from bridge.cli.commissioning import add_calibrate_sensors
 from bridge.cli.errors import CLIError
 from bridge.cli.model import add_model_options, bounded_float, refuse_overwriting_profile, whole_number
-from bridge.cli.output import output_path
+from bridge.cli.output import output_path, p95_words
 from bridge.link.sensor_calibration import SENSOR_PROVENANCE_MARKER
 from bridge.service.wire import to_json_text
 from bridge.sim.truth import noise_kind
@@ -583,7 +583,7 @@ def _cmd_check(args) -> int:
     within the instrument's σ (sigma-hat ≤ :data:`SUSPECT_SIGMA_HAT`), 1 when not."""
     from planner.calibration.measurements import MEASURED_COLUMNS, load_measurements
     from planner.calibration.profile_out import read_calibration_provenance
-    from planner.calibration.solve import build_calibration_problem
+    from planner.calibration.solve import build_calibration_problem, largest_residuals
     from planner.profiles.hitch import load_profile
 
     prof = load_profile(args.profile)
@@ -603,17 +603,9 @@ def _cmd_check(args) -> int:
         d = diff[:, k][np.isfinite(diff[:, k])]
         if d.size:
             per_column[col] = {"rms": float(np.sqrt(np.mean(d**2))), "max_abs": float(np.max(np.abs(d))), "n": d.size}
-    zabs = np.nan_to_num(np.abs(z), nan=-1.0)
-    worst_col = np.argmax(zabs, axis=1)
-    order = np.argsort(-zabs[np.arange(len(zabs)), worst_col], kind="stable")[:3]
     worst = [
-        {
-            "row": data.row_numbers[int(i)],
-            "label": data.labels[int(i)],
-            "column": MEASURED_COLUMNS[int(worst_col[i])],
-            "residual_sigma": float(z[i, worst_col[i]]),
-        }
-        for i in order
+        {"row": row, "label": label, "column": col, "residual_sigma": v}
+        for row, label, col, v in largest_residuals(problem, model.params.nominal)
     ]
     fits = sigma_hat <= SUSPECT_SIGMA_HAT
     prov = read_calibration_provenance(args.profile) if Path(args.profile).is_file() else None
@@ -644,9 +636,7 @@ def _cmd_check(args) -> int:
         print(f"  {c:8s} {1e3 * st['rms']:.3f} / {1e3 * st['max_abs']:.3f} {unit[c]}  ({st['n']} values)")
     if predicted:
         print(
-            f"the profile predicts p95 x {1e3 * predicted['x_m']:.2f} mm, z {1e3 * predicted['z_m']:.2f} mm, roll "
-            f"{1e3 * predicted['roll_rad']:.2f} mrad, pitch {1e3 * predicted['pitch_rad']:.2f} mrad (geometry only); "
-            "the instrument's σ adds to the residuals"
+            f"the profile predicts p95 {p95_words(predicted)} (geometry only); the instrument's σ adds to the residuals"
         )
     rows = ", ".join(f"row {w['row']} ({w['label']}) {w['column']} {w['residual_sigma']:+.1f} σ" for w in worst)
     given = f"--sigma-position-mm {args.sigma_position_mm:g}, --sigma-angle-mrad {args.sigma_angle_mrad:g}"
@@ -690,16 +680,10 @@ def _print_predicted(predicted: dict[str, dict[str, float]] | None) -> None:
     if predicted is None:
         return
 
-    def words(p95: dict[str, float]) -> str:
-        return (
-            f"x {1e3 * p95['x_m']:.2f} mm, z {1e3 * p95['z_m']:.2f} mm, roll {1e3 * p95['roll_rad']:.2f} mrad, "
-            f"pitch {1e3 * p95['pitch_rad']:.2f} mrad"
-        )
-
     print(
         f"predicted pose error p95 over {PREDICTED_POSES} random workspace poses, from the parameters' σ: "
-        f"{words(predicted['calibrated'])} (a profile known to its tape sizes only, uncalibrated: "
-        f"{words(predicted['nominal'])}); "
+        f"{p95_words(predicted['calibrated'])} (a profile known to its tape sizes only, uncalibrated: "
+        f"{p95_words(predicted['nominal'])}); "
         "the geometry's part only: the AD counts (about ±1.9 mm of z) and the pin play add to it "
         "(docs/commissioning.md)"
     )

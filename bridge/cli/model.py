@@ -14,7 +14,7 @@ import numpy as np
 from rich.table import Table
 
 from bridge.cli.errors import CLIError
-from bridge.cli.output import POSE_UNITS, console, esc, signed
+from bridge.cli.output import POSE_UNITS, console, esc, p95_words, signed
 from bridge.cli.ranges import ACTUATOR_UNITS, check_actuators
 from bridge.service.wire import to_json_text
 from planner.model.kinematics import HitchModel
@@ -317,10 +317,7 @@ def _record_lines(records: Mapping[str, Any]) -> list[str]:
         )
         pred = (geo.get("predicted_p95") or {}).get("calibrated")
         if pred:
-            line += (
-                f"; predicted p95 x {1e3 * pred['x_m']:.2f} mm, z {1e3 * pred['z_m']:.2f} mm, roll "
-                f"{1e3 * pred['roll_rad']:.2f} mrad, pitch {1e3 * pred['pitch_rad']:.2f} mrad (geometry only)"
-            )
+            line += f"; predicted p95 {p95_words(pred)} (geometry only)"
         out.append(line)
     sensors = records.get("sensor_calibration")
     if sensors is not None:

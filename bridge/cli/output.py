@@ -16,12 +16,21 @@ from typing import Any
 from rich.console import Console
 from rich.markup import escape
 
-__all__ = ["console", "esc", "limited_text", "output_path", "plot_path", "pose_text", "signed"]
+__all__ = ["console", "esc", "limited_text", "output_path", "p95_words", "plot_path", "pose_text", "signed"]
 
 
 #: the width of a console whose output is not a terminal (a pipe, a file, a log): wide enough that no
 #: record is split from its unit
 PIPE_WIDTH = 200
+
+
+def p95_words(p95: Mapping[str, float]) -> str:
+    """A predicted p95 pose error (``{x_m, z_m, roll_rad, pitch_rad}``, SI: ``PredictedAccuracy.as_dict``) as an
+    operator reads it: ``x 0.48 mm, z 0.58 mm, roll 0.64 mrad, pitch 0.64 mrad``."""
+    return (
+        f"x {1e3 * p95['x_m']:.2f} mm, z {1e3 * p95['z_m']:.2f} mm, roll {1e3 * p95['roll_rad']:.2f} mrad, "
+        f"pitch {1e3 * p95['pitch_rad']:.2f} mrad"
+    )
 
 
 def console(**kwargs: Any) -> Console:

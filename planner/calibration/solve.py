@@ -566,14 +566,16 @@ def _count(n: int, noun: str) -> str:
 
 
 def largest_residuals(
-    problem: CalibrationProblem, result: CalibrationResult, count: int = 3
+    problem: CalibrationProblem, result: CalibrationResult | np.ndarray, count: int = 3
 ) -> list[tuple[int, str, str, float]]:
     """The ``count`` data rows that fit worst, worst first: ``(row, label, column, residual)`` with ``row``
     counted from 1 as the measurement file's data rows, the column of the row's largest residual and that
-    residual (measured − calibrated) in units of its σ. With σ̂ far above 1 the worst row is where to look
+    residual (measured − model) in units of its σ. The model at the calibration ``result``, or at parameter
+    values (an array: a profile's own, ``calibrate check``). With σ̂ far above 1 the worst row is where to look
     for a wrong value or a unit slip (an engineer's report: the warning named no row)."""
+    values = result.values if isinstance(result, CalibrationResult) else result
     y, _ = problem.model.batch(
-        problem.data.readings, result.values, jacobian=False, seeds=problem.seeds, sides=problem.data.side_vector
+        problem.data.readings, values, jacobian=False, seeds=problem.seeds, sides=problem.data.side_vector
     )
     r = np.where(problem.data.mask, (np.nan_to_num(problem.data.values) - y) / problem.sigma, 0.0)
     worst = np.argmax(np.abs(r), axis=1)

@@ -178,15 +178,30 @@ def _session(ep: str, mode: str, settings: SecuritySettings) -> zenoh.Session:
     return zenoh.open(c)
 
 
-def test_through_a_real_router_a_service_login_cannot_reach_or_pose_as_another_service(tmp_path):
-    pw = {"alice": "alice-pw", "t01": "t01-pw", "t02": "t02-pw"}
-    users = write_users_file(tmp_path / "users.txt", pw)
-    ep = f"tcp/127.0.0.1:{free_port()}"
-    opened: list[zenoh.Session] = []
+class _FleetRouter:
+    """A real router on loopback with the fleet policy and users ``passwords`` (name → password); :meth:`login`
+    opens a client session as one of them; :meth:`close` closes every session, the router last."""
 
-    def login(user: str) -> zenoh.Session:
-        opened.append(_session(ep, "client", SecuritySettings(credentials=Credentials(user, pw[user]))))
-        return opened[-1]
+    def __init__(self, tmp_path, passwords: dict[str, str]):
+        self.passwords = passwords
+        self.ep = f"tcp/127.0.0.1:{free_port()}"
+        users = write_users_file(tmp_path / "users.txt", passwords)
+        self.opened = [_session(self.ep, "router", SecuritySettings(users_file=users, access=_fleet_policy()))]
+
+    def login(self, user: str) -> zenoh.Session:
+        self.opened.append(
+            _session(self.ep, "client", SecuritySettings(credentials=Credentials(user, self.passwords[user])))
+        )
+        return self.opened[-1]
+
+    def close(self) -> None:
+        for s in reversed(self.opened):
+            s.close()
+
+
+def test_through_a_real_router_a_service_login_cannot_reach_or_pose_as_another_service(tmp_path):
+    fleet = _FleetRouter(tmp_path, {"alice": "alice-pw", "t01": "t01-pw", "t02": "t02-pw"})
+    login = fleet.login
 
     def answer(tag: str):
         return lambda q: q.reply(q.key_expr, json.dumps({"by": tag}))
@@ -195,7 +210,6 @@ def test_through_a_real_router_a_service_login_cannot_reach_or_pose_as_another_s
         return [json.loads(r.ok.payload.to_string())["by"] for r in s.get(key, timeout=1.0) if r.ok]
 
     try:
-        opened.append(_session(ep, "router", SecuritySettings(users_file=users, access=_fleet_policy())))
         t01, t02, alice = login("t01"), login("t02"), login("alice")
         decls = [
             svc.declare_queryable(f"fleet/{name}/hitch/{key}", answer(name))
@@ -237,8 +251,7 @@ def test_through_a_real_router_a_service_login_cannot_reach_or_pose_as_another_s
         alive = sorted(str(r.ok.key_expr) for r in alice.liveliness().get("**/alive", timeout=1.0) if r.ok)
         assert alive == ["fleet/t01/hitch/alive", "fleet/t02/hitch/alive"]  # hitch fleet ls
     finally:
-        for s in reversed(opened):
-            s.close()
+        fleet.close()
 
 
 def test_through_a_real_router_one_wildcard_put_on_the_fleet_prefix_stops_every_tractor(tmp_path):
@@ -249,18 +262,9 @@ def test_through_a_real_router_one_wildcard_put_on_the_fleet_prefix_stops_every_
     acl = build_acl(_fleet_policy())
     assert may(acl, "bob", "ingress", "put", FLEET + "/stop")
     assert not may(acl, "bob", "ingress", "put", "fleet/**/stop")
-    pw = {"bob": "bob-pw", "t01": "t01-pw", "t02": "t02-pw"}
-    users = write_users_file(tmp_path / "users.txt", pw)
-    ep = f"tcp/127.0.0.1:{free_port()}"
-    opened: list[zenoh.Session] = []
-
-    def login(user: str) -> zenoh.Session:
-        opened.append(_session(ep, "client", SecuritySettings(credentials=Credentials(user, pw[user]))))
-        return opened[-1]
-
+    fleet = _FleetRouter(tmp_path, {"bob": "bob-pw", "t01": "t01-pw", "t02": "t02-pw"})
     try:
-        opened.append(_session(ep, "router", SecuritySettings(users_file=users, access=_fleet_policy())))
-        t01, t02, bob = login("t01"), login("t02"), login("bob")
+        t01, t02, bob = fleet.login("t01"), fleet.login("t02"), fleet.login("bob")
         got: list[tuple[str, str]] = []
         lock = threading.Lock()
 
@@ -280,5 +284,4 @@ def test_through_a_real_router_one_wildcard_put_on_the_fleet_prefix_stops_every_
             assert sorted(got) == [("t01", "fleet"), ("t02", "fleet")]
         del subs
     finally:
-        for s in reversed(opened):
-            s.close()
+        fleet.close()

@@ -942,7 +942,10 @@ def test_latched_faults_are_acknowledged_from_the_header(service, page, shots):
     # the reply ("faults acknowledged: …") or the service's event that follows it ("… cleared: … (ack)")
     wait_log(page, "faults acknowledged: ecu_restart|fault cleared: ecu_restart \\(ack\\)")
     page.wait_for_selector("#faults-ack", state="hidden", timeout=5_000)
-    assert service.state()["ecu"]["faults"] == []
+    # the ack cleared the latched restart; the gap's self-clearing faults (stale measurement, heartbeat) may
+    # still be held when the click comes early (a loaded CI machine): they clear themselves on fresh data
+    assert "ecu_restart" not in service.state()["ecu"]["faults"]
+    wait_for(lambda: service.state()["ecu"]["faults"] == [], 10.0, "the restart gap's faults to clear themselves")
     # with nothing latched the service's answer is shown as it is: no error, nothing moves
     page.evaluate("document.getElementById('faults-ack').click()")
     wait_log(page, "none latched")

@@ -3,7 +3,8 @@
 For each twin (``perturb_profile(seed)``, tape errors and pin play) the instrument (total station:
 1 mm / 1 mrad, Gaussian) measures the poses — planned (D-optimal, ``hitch calibrate plan-poses``)
 or random workspace poses — each approached from both sides (the play averages out). The profile is
-calibrated from the measurements; then 200 random workspace poses are commanded through each
+calibrated from the measurements (as ``hitch calibrate geometry`` does: with the tape prior, its default;
+``--no-tape-prior`` here: the plain least squares); then 200 random workspace poses are commanded through each
 profile's exact inverse, and the true machine's pose (truth geometry and AD map, rigid implement) is
 compared with the commanded pose: the error p95 per DOF, in two evaluations:
 
@@ -52,7 +53,7 @@ pose) averaged over the rows (the count step can leave the play a little short o
 
 Run: .venv/bin/python bench/calibration_bench.py [--twins 20] [--json bench/out/calibration.json] [--plot PNG]
      [--through-twin N] [--workers 2] [--skip-static] [--count-approach] [--check 200] [--check-seed 999]
-     [--twin-plot PNG] [--without-play] [--two-sided]
+     [--twin-plot PNG] [--without-play] [--two-sided] [--no-tape-prior]
 """
 
 from __future__ import annotations
@@ -116,13 +117,15 @@ def _floor_through_twin(job: tuple) -> dict:
 
 def _through_twin(job: tuple) -> dict:
     """One twin through the running twin (module docstring): p95 nominal / calibrated, refused poses, times."""
-    seed, prof_data, planned, check, without_play, two_sided = job
+    seed, prof_data, planned, check, without_play, two_sided, tape_prior = job
     prof = profile_from_dict(prof_data)
     pm = ParametricModel(prof, params=ParameterSet.from_profile(prof, include_lag=two_sided))  # as the CLI
     data, play = perturb_profile(load_profile("thesis-t132"), seed)
     truth = MachineTruth(profile_from_dict(data), PinPlay() if without_play else play)
     t0 = time.perf_counter()
-    res, cal_profile, _, tm = _calibrate(pm, truth, planned, seed, by="goto", approach="both" if two_sided else None)
+    res, cal_profile, _, tm = _calibrate(
+        pm, truth, planned, seed, by="goto", approach="both" if two_sided else None, tape_prior=tape_prior
+    )
     cal, fitted = _reachable_box(HitchModel(cal_profile))
     # the lag the measurements hold: side · (implement − mechanism), averaged (the count step may leave the play
     # a little short of its band's edge in some DOF)
@@ -222,6 +225,7 @@ def _calibrate(
     dither: bool = False,
     by: str = "static",
     approach: str | None = None,
+    tape_prior: bool = True,
 ):
     """Measure ``poses`` on the twin (``measure_twin(..., by=by, approach=approach)``, station noise) and calibrate
     from them: (result, calibrated profile, solver time [s], the twin measurements)."""
@@ -233,7 +237,7 @@ def _calibrate(
     mask = np.isfinite(tm.measured)
     data = MeasurementSet(readings, tm.measured, mask, tuple(str(i) for i in range(len(readings))), tm.sides)
     t0 = time.perf_counter()
-    res = solve_calibration(build_calibration_problem(pm, data))
+    res = solve_calibration(build_calibration_problem(pm, data), tape_prior=tape_prior)
     dt = time.perf_counter() - t0
     cal = profile_from_dict(pm.params.profile_dict(res.values))
     return res, cal, dt, tm
@@ -309,6 +313,7 @@ def _run_through_twin(
     plot: str = "",
     without_play: bool = False,
     two_sided: bool = False,
+    tape_prior: bool = True,
 ) -> dict:
     """The through-the-twin evaluation of the first ``n_twin`` twins (module docstring), its table and summary;
     ``count_approach``: every goto of every profile (measuring, calibrated, floors) ends with the count approach
@@ -321,7 +326,7 @@ def _run_through_twin(
         data["motion"]["count_approach"] = twin_count_approach(prof)
         print(f"count approach: {data['motion']['count_approach']}", flush=True)
     planned = plan_poses(ParametricModel(profile_from_dict(data)), 20, two_sided=two_sided).poses
-    jobs = [(seed, data, planned, check, without_play, two_sided) for seed in range(n_twin)]
+    jobs = [(seed, data, planned, check, without_play, two_sided, tape_prior) for seed in range(n_twin)]
     print(f"\nthrough the twin: {n_twin} twins on {workers} processes (final approach {FINAL_APPROACH})", flush=True)
     t0 = time.perf_counter()
     with multiprocessing.get_context("fork").Pool(max(1, workers)) as pool:
@@ -367,6 +372,7 @@ def _run_through_twin(
     return {
         "final_approach": FINAL_APPROACH,
         "count_approach": data["motion"].get("count_approach"),
+        "tape_prior": tape_prior,
         "calibrated_max_p95": cal_p.max(axis=0).tolist(),
         "calibrated_median_p95": np.median(cal_p, axis=0).tolist(),
         "nominal_min_p95": nom_p.min(axis=0).tolist(),
@@ -400,6 +406,11 @@ def _run_through_twin(
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--twins", type=int, default=20)
+    ap.add_argument(
+        "--no-tape-prior",
+        action="store_true",
+        help="calibrate by plain least squares (hitch calibrate geometry's option)",
+    )
     ap.add_argument("--check", type=int, default=200, help="random workspace poses to check")
     ap.add_argument("--check-seed", type=int, default=999, help="seed of the random check poses")
     ap.add_argument("--json", default=None)
@@ -440,10 +451,23 @@ def main() -> None:
     check, _ = candidate_poses(pm, 4 * args.check, seed=args.check_seed, random_only=True)
     check = _tour(check[: args.check])
     n_twin = args.twins if args.through_twin is None else args.through_twin
-    if args.skip_static:
-        res = _run_through_twin(
-            prof, n_twin, args.workers, check, args.count_approach, args.twin_plot, args.without_play, args.two_sided
+
+    def through_twin() -> dict:
+        """The through-the-twin part with the options given."""
+        return _run_through_twin(
+            prof,
+            n_twin,
+            args.workers,
+            check,
+            args.count_approach,
+            args.twin_plot,
+            args.without_play,
+            args.two_sided,
+            not args.no_tape_prior,
         )
+
+    if args.skip_static:
+        res = through_twin()
         print(f"\nthrough_twin: { {k: v for k, v in res.items() if k != 'twins'} }")
         if args.json:
             write_json(args.json, {"machine": machine_note(), "summary": {"through_twin": res}})
@@ -468,7 +492,7 @@ def main() -> None:
             "random40": pool[rng.choice(len(pool), 40, replace=False)],
         }
         for name, poses in cases.items():
-            res, cal, dt, _ = _calibrate(pm, truth, poses, seed)
+            res, cal, dt, _ = _calibrate(pm, truth, poses, seed, tape_prior=not args.no_tape_prior)
             cal_model = HitchModel(cal)
             row[name], err = _p95(cal_model, truth, check)
             row[f"{name}_physical"], err_phys = _p95(cal_model, truth, check, phys)
@@ -484,7 +508,7 @@ def main() -> None:
                 row["planned20_play_only"], _ = _p95(cal_model, truth, check, phys, counts=False)
                 if worst_map is None or err_phys.max() > worst_map[2].max():
                     worst_map = (seed, err, err_phys, err_nom)
-        res, cal, _, _ = _calibrate(pm, truth, planned[20], seed, dither=True)
+        res, cal, _, _ = _calibrate(pm, truth, planned[20], seed, dither=True, tape_prior=not args.no_tape_prior)
         row["planned20_dither_physical"], _ = _p95(HitchModel(cal), truth, check, phys)
         rows.append(row)
         r = row
@@ -575,16 +599,7 @@ def main() -> None:
         ],
         "plan_time_s": t_plan,
     }
-    summary["through_twin"] = _run_through_twin(
-        prof,
-        n_twin,
-        args.workers,
-        check,
-        args.count_approach,
-        args.twin_plot,
-        args.without_play,
-        args.two_sided,
-    )
+    summary["through_twin"] = through_twin()
     print()
     for k, v in summary.items():
         print(f"{k}: {v}")

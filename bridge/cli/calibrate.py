@@ -288,7 +288,7 @@ def _cmd_geometry(args) -> int:
         model, data, sigma_position_m=1e-3 * args.sigma_position_mm, sigma_angle_rad=1e-3 * args.sigma_angle_mrad
     )
     try:
-        result = solve_calibration(problem, min_singular=args.min_singular)
+        result = solve_calibration(problem, min_singular=args.min_singular, tape_prior=not args.no_tape_prior)
         check_residual_dof(result, data)  # too few spare values to check the fit: refused, nothing written
     except CalibrationError as exc:  # "measurements: …" names the file the engineer gave
         raise CalibrationError(f"{args.measurements}: {str(exc).removeprefix('measurements: ')}") from None
@@ -331,6 +331,7 @@ def _cmd_geometry(args) -> int:
         "sigma_angle_rad": 1e-3 * args.sigma_angle_mrad,
         "min_singular": float(args.min_singular),
         "ad_map": "kept (--no-ad)" if args.no_ad else "fitted",
+        "prior": "none (--no-tape-prior)" if args.no_tape_prior else "tape: each parameter uniform within its scale",
     }
     carried = (sensors,) if sensors is not None and args.no_ad else ()  # the maps it records are kept as they were
     short, noisy, negative_only = _approach_shorter_than_play(prof, result)
@@ -555,7 +556,16 @@ def _print_fit(model, result) -> None:
         f"{1e3 * result.residual_rms_angle_rad:.3f} mrad (nominal {1e3 * result.residual_rms_nominal_position_m:.3f}"
         f" mm / {1e3 * result.residual_rms_nominal_angle_rad:.3f} mrad), sigma-hat {result.residual_sigma:.3g}"
     )
-    print(f"{result.identified} of {len(result.names)} parameter directions identified; parameters (value ± std):")
+    prior = (
+        "weighed with the tape measure's accuracy (each parameter within ± its scale; --no-tape-prior: plain least "
+        "squares)"
+        if result.tape_prior
+        else "plain least squares (--no-tape-prior)"
+    )
+    print(
+        f"{result.identified} of {len(result.names)} parameter directions identified, {prior}; parameters "
+        "(value ± std):"
+    )
     units = ["" if p.unit == "1" else p.unit for p in model.params.parameters]  # AD gains: dimensionless
     for n, a, v, s, u, share in zip(
         result.names, result.nominal, result.values, result.std_total, units, result.identified_share, strict=True
@@ -852,6 +862,12 @@ def add_commands(sub) -> None:
         default=1.0,
         help=f"smallest singular value of the scaled Jacobian still identified, [{MIN_SINGULAR_RANGE[0]:g}, "
         f"{MIN_SINGULAR_RANGE[1]:g}] (default 1)",
+    )
+    g.add_argument(
+        "--no-tape-prior",
+        action="store_true",
+        help="plain least squares: do not weigh the identified directions with the tape measurement's own accuracy "
+        "(each parameter within ± its scale of the profile's value; docs/commissioning.md)",
     )
     g.add_argument("--no-ad", action="store_true", help="keep the AD map (offsets, gains) at the profile's values")
     g.add_argument(

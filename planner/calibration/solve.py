@@ -20,6 +20,18 @@ identified subspace is uncertain along the rest by its tape error, so the report
 :data:`UNIDENTIFIED_SHARE`: kept at nominal) has no σ (NaN; ``None`` in :meth:`CalibrationResult.as_dict`).
 A fit needs at least as many residual degrees of freedom m − k as identified directions k to check itself
 (σ̂ from one or two spare values says nothing): :func:`check_residual_dof` refuses fewer.
+
+**The tape prior** (``tape_prior=True``, the default; ``hitch calibrate geometry --no-tape-prior`` leaves it
+out): the profile's values were tape-measured, each within ± its scale (σ = scale · :data:`PRIOR_SIGMA_SCALED`).
+That knowledge is weighed in along the identified directions (a maximum a posteriori fit): after the least-squares
+fit has given σ̂, the fit is repeated from its solution with the rows w · u appended, w = σ̂ / PRIOR_SIGMA_SCALED
+(the measurements' noise taken as σ̂ times the σ given: the prior weighs as much against the data as their own
+scatter says; with exact measurements σ̂ → 0 and the fit is the least-squares one, a known perturbation recovered to
+solver tolerance). The covariance is then σ̂² (Bᵀ(Jᵀ J + W²) B)⁻¹ in the identified coordinates B (the posterior's).
+In a direction the poses see at singular value s the prior adds 3 to s² (1.59² = 2.5 for the lift-arm pivot's
+fore-aft position of the 20 planned poses): it halves how far the noise carries that direction, and with it the
+curvature's shift of the directions coupled to it (the lift chain's, docs/commissioning.md); no reported σ exceeds
+the tape's own. The lag (``lag.*``) has no prior: the play's band is not an error around a nominal value.
 """
 
 from __future__ import annotations
@@ -183,6 +195,7 @@ class CalibrationResult:
     converged: bool
     duration_s: float
     min_singular: float = 1.0
+    tape_prior: bool = False
 
     @property
     def identified_share(self) -> np.ndarray:
@@ -235,6 +248,7 @@ class CalibrationResult:
             "iterations": self.iterations,
             "converged": self.converged,
             "duration_s": self.duration_s,
+            "tape_prior": self.tape_prior,
         }
 
 
@@ -249,11 +263,27 @@ def _rms(problem: CalibrationProblem, r: np.ndarray) -> tuple[float, float]:
     )
 
 
-def _lm(problem: CalibrationProblem, basis: np.ndarray, u0: np.ndarray, max_iter: int, tol: float):
-    """Levenberg–Marquardt in the coordinates w of ``basis`` (u = u0 + basis w)."""
+def _lm(
+    problem: CalibrationProblem,
+    basis: np.ndarray,
+    u0: np.ndarray,
+    max_iter: int,
+    tol: float,
+    prior_weight: np.ndarray | None = None,
+):
+    """Levenberg–Marquardt in the coordinates w of ``basis`` (u = u0 + basis w); ``prior_weight`` (n,): the
+    prior's rows ``prior_weight · u`` appended to the residuals (None: none). Returns the data residuals."""
     k = basis.shape[1]
     w = np.zeros(k)
-    r, js = problem.residuals(u0)
+    pw = np.zeros(basis.shape[0]) if prior_weight is None else np.asarray(prior_weight, float)
+
+    def augmented(u: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray | None]:
+        rd, jd = problem.residuals(u)
+        if jd is None:
+            return rd, None, rd, None
+        return np.concatenate([rd, pw * u]), np.vstack([jd, np.diag(pw)]), rd, jd
+
+    r, js, rd, jd = augmented(u0)
     assert js is not None
     cost = float(r @ r)
     lam = 1e-3
@@ -273,7 +303,7 @@ def _lm(problem: CalibrationProblem, basis: np.ndarray, u0: np.ndarray, max_iter
                 lam *= 10.0
                 continue
             try:
-                r_new, js_new = problem.residuals(u0 + basis @ (w + step))
+                r_new, js_new, rd_new, jd_new = augmented(u0 + basis @ (w + step))
             except KinematicsError:  # a trial step the mechanism cannot close: shorten it
                 lam *= 10.0
                 continue
@@ -284,7 +314,7 @@ def _lm(problem: CalibrationProblem, basis: np.ndarray, u0: np.ndarray, max_iter
                 done = np.linalg.norm(step) <= tol * (1.0 + np.linalg.norm(w)) or cost - c_new <= tol * max(
                     cost, 1e-300
                 )
-                r, js, cost = r_new, js_new, c_new
+                r, js, cost, rd, jd = r_new, js_new, c_new, rd_new, jd_new
                 assert js is not None
                 lam = max(lam / 10.0, 1e-12)
                 converged = bool(done)
@@ -293,7 +323,7 @@ def _lm(problem: CalibrationProblem, basis: np.ndarray, u0: np.ndarray, max_iter
         if not improved:
             converged = bool(np.linalg.norm(g) <= 1e-9 * max(1.0, math.sqrt(cost)))
             break
-    return u0 + basis @ w, r, js, it, converged
+    return u0 + basis @ w, rd, jd, it, converged
 
 
 #: the variance of a value rounded to a whole count, in counts² (uniform within ± 0.5 count: the resolution
@@ -302,7 +332,12 @@ ROUNDING_VARIANCE_COUNTS2 = 1.0 / 12.0
 
 
 def _snap_ad(
-    problem: CalibrationProblem, u: np.ndarray, min_singular: float, max_iter: int, tol: float
+    problem: CalibrationProblem,
+    u: np.ndarray,
+    min_singular: float,
+    max_iter: int,
+    tol: float,
+    prior_weight: np.ndarray | None = None,
 ) -> tuple[np.ndarray, int, np.ndarray]:
     """Round the AD map to whole counts (the profile's integers) and refit the geometry with it fixed:
     (scaled deltas, iterations, the covariance the rounding adds to them in scaled units (n, n)).
@@ -330,10 +365,15 @@ def _snap_ad(
     t = np.zeros((n, int(ad.sum())))
     t[ad] = np.eye(int(ad.sum()))
     if basis.shape[1]:
-        t -= basis @ (np.linalg.pinv(js @ basis) @ js[:, ad])
+        jb = js @ basis
+        if prior_weight is None:
+            t -= basis @ (np.linalg.pinv(jb) @ js[:, ad])
+        else:  # the refit with the prior's rows: (JBᵀJB + Bᵀ W² B)⁻¹ (JB)ᵀ J_ad
+            info = jb.T @ jb + basis.T @ (prior_weight[:, None] ** 2 * basis)
+            t -= basis @ np.linalg.solve(info, jb.T @ js[:, ad])
     tg = t @ g[ad]
     cov_round = ROUNDING_VARIANCE_COUNTS2 * (tg @ tg.T)
-    u1, _, _, iters, _ = _lm(problem, basis, u0, max_iter, tol)
+    u1, _, _, iters, _ = _lm(problem, basis, u0, max_iter, tol, prior_weight)
     return u1, iters, cov_round
 
 
@@ -344,6 +384,7 @@ def solve_calibration(
     max_iter: int = 50,
     tol: float = 1e-12,
     snap_ad: bool = True,
+    tape_prior: bool = True,
 ) -> CalibrationResult:
     """Calibrate: LM over the identifiable directions; singular values, σ̂, standard deviations (module).
 
@@ -362,7 +403,7 @@ def solve_calibration(
         raise CalibrationError(f"max_iter must be an integer in [1, 1000], got {max_iter!r}")
     state: dict[str, object] = {}
     try:
-        return _solve(problem, float(min_singular), max_iter, tol, snap_ad, state)
+        return _solve(problem, float(min_singular), max_iter, tol, snap_ad, state, bool(tape_prior))
     except (KinematicsError, _MapError) as exc:
         weak = None
         if "u" in state:
@@ -434,6 +475,7 @@ def _solve(
     tol: float,
     snap_ad: bool,
     state: dict[str, object] | None = None,
+    tape_prior: bool = True,
 ) -> CalibrationResult:
     """:func:`solve_calibration` (its arguments checked) without its translation of a mechanism that cannot close;
     ``state`` receives the continuous fit (u, s, k, sigma_hat, converged) for that translation."""
@@ -475,8 +517,15 @@ def _solve(
         )
     sigma_hat = math.sqrt(float(r @ r) / (m - k))
     state.update(u=u.copy(), s=s, k=k, sigma_hat=sigma_hat, converged=bool(converged))
+    pw = None
+    if tape_prior and k:
+        pw = np.full(n, sigma_hat / PRIOR_SIGMA_SCALED)
+        pw[problem.params.lag_index] = 0.0  # the lag's band is not a tape error around a nominal
+        u, r, js, more, converged = _lm(problem, basis2, u, max_iter, tol, pw)
+        iters += more
     jw = js @ basis2
-    cov_w = sigma_hat**2 * np.linalg.inv(jw.T @ jw) if k else np.zeros((0, 0))
+    info = jw.T @ jw if pw is None else jw.T @ jw + basis2.T @ (pw[:, None] ** 2 * basis2)
+    cov_w = sigma_hat**2 * np.linalg.inv(info) if k else np.zeros((0, 0))
     cov_u = basis2 @ cov_w @ basis2.T
     std = ps.scale * np.sqrt(np.maximum(np.diag(cov_u), 0.0))
     words = tuple(
@@ -485,7 +534,7 @@ def _solve(
     )
     if snap_ad:
         try:
-            u, more, cov_round = _snap_ad(problem, u, min_singular, max_iter, tol)
+            u, more, cov_round = _snap_ad(problem, u, min_singular, max_iter, tol, pw)
         except CalibrationError as exc:  # the AD map left the counts: not the measurements' fault alone
             raise _MapError(str(exc)) from None
         iters += more
@@ -515,6 +564,7 @@ def _solve(
         converged=bool(converged),
         duration_s=time.perf_counter() - t0,
         min_singular=min_singular,
+        tape_prior=pw is not None,
     )
 
 

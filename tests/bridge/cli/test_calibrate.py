@@ -20,6 +20,7 @@ from bridge.sim.truth import MachineTruth, PinPlay, TrueMachine, load_machine_tr
 from planner.calibration import CalibrationError, parse_measurements, read_calibration_provenance
 from planner.calibration.design import candidate_poses
 from planner.calibration.measurements import load_plan_targets
+from planner.calibration.parameters import ParameterSet
 from planner.calibration.parametric import ParametricModel
 from planner.model.kinematics import HitchModel
 from planner.profiles.hitch import load_profile, profile_from_dict
@@ -252,6 +253,33 @@ def test_end_to_end_on_a_twin_calibrates_better_than_nominal(tmp_path, capsys):
     assert f"predicted p95 x {1e3 * predicted['calibrated']['x_m']:.2f} mm" in shown, shown
     assert main(["profile", "show", "--profile", str(out), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["records"]["calibration"] == prov
+
+
+def test_the_tape_prior_is_said_recorded_and_can_be_left_out(tmp_path, capsys):
+    """The fit weighs the tape's own accuracy by default; --no-tape-prior is the plain least squares. Each says so
+    in the report, the --json and the profile's record, and no reported σ exceeds the tape's with the prior."""
+    prof = load_profile("thesis-t132")
+    _, meas = _twin_measurements(tmp_path, prof)
+    capsys.readouterr()
+    reports = {}
+    for flag, out in (((), "with.toml"), (("--no-tape-prior",), "plain.toml")):
+        args = ["calibrate", "geometry", "--measurements", str(meas), "--out", str(tmp_path / out), *flag]
+        assert main(args) == 0
+        text = capsys.readouterr().out
+        assert main([*args, "--json", "--force"]) == 0
+        reports[out] = (text, json.loads(capsys.readouterr().out), read_calibration_provenance(tmp_path / out))
+    text, report, prov = reports["with.toml"]
+    assert report["tape_prior"] is True and "weighed with the tape measure's accuracy" in text
+    assert prov is not None and prov["inputs"]["prior"].startswith("tape")
+    text_plain, plain, prov_plain = reports["plain.toml"]
+    assert plain["tape_prior"] is False and "plain least squares (--no-tape-prior)" in text_plain
+    assert prov_plain is not None and prov_plain["inputs"]["prior"] == "none (--no-tape-prior)"
+    tape = {q.name: q.scale / np.sqrt(3.0) for q in ParameterSet.from_profile(prof).parameters}
+    over = {n: p["std"] / tape[n] for n, p in plain["parameters"].items() if p["std"] is not None and n in tape}
+    assert max(over.values()) > 1.5, over  # lift_arm_pivot[1] (1.84 × the tape's σ): these 12 poses see it weakly
+    # with the prior none is above the tape's own but for what rounding the AD map to whole counts adds (1/√12 count)
+    ratios = {n: p["std"] / tape[n] for n, p in report["parameters"].items() if p["std"] is not None}
+    assert max(ratios.values()) < 1.02, ratios
 
 
 def test_measure_twin_with_an_exact_instrument_reads_the_truth():
@@ -860,7 +888,9 @@ def test_a_min_singular_too_small_to_fit_is_refused_naming_the_allowed_range(cap
 
 def test_a_fit_freed_along_weak_directions_names_that_cause_not_the_measurements(tmp_path, capsys):
     """With min_singular near 0 the weakly identified directions carried the parameters out of the mechanism's
-    closure: the error blamed the measurements (sigma-hat 1.31, a good fit); it names the weak directions."""
+    closure: the error blamed the measurements (sigma-hat 1.31, a good fit); it names the weak directions. That
+    is the plain least squares (--no-tape-prior); the tape prior (the default) holds those directions within the
+    tape's accuracy, and the same fit makes a profile."""
     from planner.calibration.parameters import ParameterSet
     from planner.calibration.profile_out import calibrated_profile_toml
     from planner.calibration.solve import build_calibration_problem, solve_calibration
@@ -878,8 +908,12 @@ def test_a_fit_freed_along_weak_directions_names_that_cause_not_the_measurements
         model = ParametricModel(prof, params=ps)
         problem = build_calibration_problem(model, load_measurements(meas, prof))
         with pytest.raises(CalibrationError) as info:
-            res = solve_calibration(problem, min_singular=min_singular)
+            res = solve_calibration(problem, min_singular=min_singular, tape_prior=False)
             calibrated_profile_toml(ps, res)
+        res = solve_calibration(problem, min_singular=min_singular)
+        calibrated_profile_toml(ps, res)  # a profile the planner loads: the mechanism closes
+        u = (res.values - ps.nominal) / ps.scale
+        assert np.max(np.abs(u)) < 3.0, u  # within three tape sizes, each
         text = str(info.value)
         assert "do not fit the model" not in text, text
         assert "tape sizes" in text and "identify only weakly" in text and "raise --min-singular" in text, text

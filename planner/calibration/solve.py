@@ -24,14 +24,16 @@ A fit needs at least as many residual degrees of freedom m − k as identified d
 **The tape prior** (``tape_prior=True``, the default; ``hitch calibrate geometry --no-tape-prior`` leaves it
 out): the profile's values were tape-measured, each within ± its scale (σ = scale · :data:`PRIOR_SIGMA_SCALED`).
 That knowledge is weighed in along the identified directions (a maximum a posteriori fit): after the least-squares
-fit has given σ̂, the fit is repeated from its solution with the rows w · u appended, w = σ̂ / PRIOR_SIGMA_SCALED
-(the measurements' noise taken as σ̂ times the σ given: the prior weighs as much against the data as their own
-scatter says; with exact measurements σ̂ → 0 and the fit is the least-squares one, a known perturbation recovered to
-solver tolerance). The covariance is then σ̂² (Bᵀ(Jᵀ J + W²) B)⁻¹ in the identified coordinates B (the posterior's).
-In a direction the poses see at singular value s the prior adds 3 to s² (1.59² = 2.5 for the lift-arm pivot's
-fore-aft position of the 20 planned poses): it halves how far the noise carries that direction, and with it the
-curvature's shift of the directions coupled to it (the lift chain's, docs/commissioning.md); no reported σ exceeds
-the tape's own. The lag (``lag.*``) has no prior: the play's band is not an error around a nominal value.
+fit has given σ̂, the fit is repeated, from its solution and from the nominal values (the lower cost kept: a least
+squares gone far along weak directions is no start the prior's fit comes back from), with the rows w · u appended,
+w = σ̂ / PRIOR_SIGMA_SCALED (the measurements' noise taken as σ̂ times the σ given: the prior weighs as much against
+the data as their own scatter says; with exact measurements σ̂ → 0 and the fit is the least-squares one, a known
+perturbation recovered to solver tolerance). The covariance is then σ̂² (Bᵀ(Jᵀ J + W²) B)⁻¹ in the identified
+coordinates B (the posterior's). In a direction the poses see at singular value s the prior adds 3 to s² (1.59² = 2.5
+for the lift-arm pivot's fore-aft position of the 20 planned poses): it halves the variance the noise gives that
+direction (its σ 1/√(s² + 3) tape sizes instead of 1/s: two thirds), and with it the curvature's shift of the
+directions coupled to it (the lift chain's, docs/commissioning.md); no reported σ exceeds the tape's own. The lag
+(``lag.*``) has no prior: the play's band is not an error around a nominal value.
 """
 
 from __future__ import annotations
@@ -521,8 +523,13 @@ def _solve(
     if tape_prior and k:
         pw = np.full(n, sigma_hat / PRIOR_SIGMA_SCALED)
         pw[problem.params.lag_index] = 0.0  # the lag's band is not a tape error around a nominal
-        u, r, js, more, converged = _lm(problem, basis2, u, max_iter, tol, pw)
-        iters += more
+        # from the least-squares solution and from the nominal, the lower cost |r|² + |W u|² kept: where the least
+        # squares went far along weak directions (a small min_singular; a polish whose direction the final split
+        # drops: outside basis2, the fit from there cannot move back) the fit from its solution stopped 62 tape
+        # sizes out, "converged", every σ within the tape's (a review: min_singular 0.01; 5.4 at 0.1)
+        runs = [_lm(problem, basis2, start, max_iter, tol, pw) for start in (u, np.zeros(n))]
+        iters += sum(run[3] for run in runs)
+        u, r, js, _, converged = min(runs, key=lambda run: float(run[1] @ run[1]) + float(np.sum((pw * run[0]) ** 2)))
     jw = js @ basis2
     info = jw.T @ jw if pw is None else jw.T @ jw + basis2.T @ (pw[:, None] ** 2 * basis2)
     cov_w = sigma_hat**2 * np.linalg.inv(info) if k else np.zeros((0, 0))

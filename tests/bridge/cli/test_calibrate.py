@@ -791,7 +791,11 @@ def test_a_fit_that_moves_a_parameter_many_tape_sizes_is_not_written(tmp_path, c
     rc = main([*argv, "--sigma-position-mm", "10", "--sigma-angle-mrad", "20"])
     err = capsys.readouterr().err
     assert rc == 2 and not out.exists(), err
-    assert re.search(r"geometry\.\S+ moved [+-]\d+\.\d tape sizes \([+-][\d.]+ mm, its tape size (10|5) mm\)", err), err
+    assert re.search(
+        r"geometry\.\S+ moved [+-]\d+\.\d tape sizes by the measurements alone \(least squares\) \([+-][\d.]+ mm, "
+        r"its tape size (10|5) mm; [+-]\d+\.\d with the tape prior\)",
+        err,
+    ), err
     assert "z from the ground" in err and "--accept-misfit" in err
     assert main([*argv, "--sigma-position-mm", "10", "--sigma-angle-mrad", "20", "--accept-misfit"]) == 0
     accepted = read_calibration_provenance(out)["inputs"]["implausible_accepted"]
@@ -1026,13 +1030,43 @@ def test_a_large_lag_of_the_pin_play_is_not_taken_for_a_tape_error(tmp_path):
     assert "lag.x" in names
     far_lag = result.values.copy()
     far_lag[names.index("lag.x")] += 6.0 * result.scale[names.index("lag.x")]
-    said = cli_calibrate._implausible_fit(args, model.params, problem, replace(result, values=far_lag))
+    said = cli_calibrate._implausible_fit(
+        args, model.params, problem, replace(result, values=far_lag, values_least_squares=far_lag)
+    )
     assert not any("tape sizes" in d for d in said), said
     far_geometry = result.values.copy()
     i = names.index("geometry.lift_arm_pivot[2]")
     far_geometry[i] += 6.0 * result.scale[i]
-    said = cli_calibrate._implausible_fit(args, model.params, problem, replace(result, values=far_geometry))
+    said = cli_calibrate._implausible_fit(
+        args, model.params, problem, replace(result, values=far_geometry, values_least_squares=far_geometry)
+    )
     assert any(re.search(r"geometry.lift_arm_pivot\[2\] moved \+6\.\d tape sizes", d) for d in said), said
+
+
+def test_a_value_the_tape_prior_pulls_under_five_tape_sizes_is_still_refused(tmp_path):
+    """A review: a truth 6 tape sizes off the profile's values moved a parameter 6.3 tape sizes by least squares and
+    4.8 with the tape prior (which pulls toward the profile's value), under the 5 at which a fit is refused: the
+    profile was written without a word. The check reads how far the measurements alone move it."""
+    import argparse
+    from dataclasses import replace
+
+    from bridge.cli import calibrate as cli_calibrate
+
+    prof, meas, model, problem, result = _fit_with_lag(tmp_path)
+    assert result.tape_prior and result.values_least_squares is not None
+    args = argparse.Namespace(profile="tractor.toml", measurements=str(meas))
+    i = list(result.names).index("geometry.lift_arm_pivot[1]")
+    least_squares, prior = result.values.copy(), result.values.copy()
+    least_squares[i] = result.nominal[i] + 6.3 * result.scale[i]
+    prior[i] = result.nominal[i] + 4.8 * result.scale[i]
+    said = cli_calibrate._implausible_fit(
+        args, model.params, problem, replace(result, values=prior, values_least_squares=least_squares)
+    )
+    assert any(
+        "geometry.lift_arm_pivot[1] moved +6.3 tape sizes by the measurements alone (least squares)" in d
+        and "+4.8 with the tape prior" in d
+        for d in said
+    ), said
 
 
 def _fit_with_lag(tmp_path):

@@ -282,12 +282,12 @@ def _lm(
     prior's rows ``prior_weight · u`` appended to the residuals (None: none). Returns the data residuals."""
     k = basis.shape[1]
     w = np.zeros(k)
-    pw = np.zeros(basis.shape[0]) if prior_weight is None else np.asarray(prior_weight, float)
+    pw = None if prior_weight is None else np.asarray(prior_weight, float)
 
     def augmented(u: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray | None]:
         rd, jd = problem.residuals(u)
-        if jd is None:
-            return rd, None, rd, None
+        if jd is None or pw is None:  # no prior: the data's rows alone
+            return rd, jd, rd, jd
         return np.concatenate([rd, pw * u]), np.vstack([jd, np.diag(pw)]), rd, jd
 
     r, js, rd, jd = augmented(u0)
@@ -333,6 +333,13 @@ def _lm(
     return u0 + basis @ w, rd, jd, it, converged
 
 
+def _information(jb: np.ndarray, basis: np.ndarray, prior_weight: np.ndarray | None) -> np.ndarray:
+    """The information of the coordinates of ``basis`` (k, k): (JB)ᵀ JB, plus Bᵀ W² B with the prior's weights
+    ``prior_weight`` (None: no prior)."""
+    info = jb.T @ jb
+    return info if prior_weight is None else info + basis.T @ (prior_weight[:, None] ** 2 * basis)
+
+
 #: the variance of a value rounded to a whole count, in counts² (uniform within ± 0.5 count: the resolution
 #: term of the GUM, u = q / √12)
 ROUNDING_VARIANCE_COUNTS2 = 1.0 / 12.0
@@ -376,8 +383,7 @@ def _snap_ad(
         if prior_weight is None:
             t -= basis @ (np.linalg.pinv(jb) @ js[:, ad])
         else:  # the refit with the prior's rows: (JBᵀJB + Bᵀ W² B)⁻¹ (JB)ᵀ J_ad
-            info = jb.T @ jb + basis.T @ (prior_weight[:, None] ** 2 * basis)
-            t -= basis @ np.linalg.solve(info, jb.T @ js[:, ad])
+            t -= basis @ np.linalg.solve(_information(jb, basis, prior_weight), jb.T @ js[:, ad])
     tg = t @ g[ad]
     cov_round = ROUNDING_VARIANCE_COUNTS2 * (tg @ tg.T)
     u1, _, _, iters, _ = _lm(problem, basis, u0, max_iter, tol, prior_weight)
@@ -536,9 +542,7 @@ def _solve(
         runs = [_lm(problem, basis2, start, max_iter, tol, pw) for start in (u, np.zeros(n))]
         iters += sum(run[3] for run in runs)
         u, r, js, _, converged = min(runs, key=lambda run: float(run[1] @ run[1]) + float(np.sum((pw * run[0]) ** 2)))
-    jw = js @ basis2
-    info = jw.T @ jw if pw is None else jw.T @ jw + basis2.T @ (pw[:, None] ** 2 * basis2)
-    cov_w = sigma_hat**2 * np.linalg.inv(info) if k else np.zeros((0, 0))
+    cov_w = sigma_hat**2 * np.linalg.inv(_information(js @ basis2, basis2, pw)) if k else np.zeros((0, 0))
     cov_u = basis2 @ cov_w @ basis2.T
     std = ps.scale * np.sqrt(np.maximum(np.diag(cov_u), 0.0))
     words = tuple(

@@ -215,13 +215,15 @@ class SimService:
         self.rig.start()
         self.rig.run_until(0.5)
         self.events: list[dict] = []
+        #: called with each event as it is delivered (after it is in ``events``): what a client does on it
+        self.event_listeners: list[Callable[[dict], None]] = []
         self.states: list[dict] = []
         self.mc = MotionController(
             Guard(TrajectoryPlanner(model)),
             plan_guard or Guard(TrajectoryPlanner(model)),
             self.rig.link,
             lambda: self.rig.now_s,
-            on_event=self.events.append,
+            on_event=self._deliver,
             on_state=self.states.append,
             spawn=lambda fn: fn(),
         )
@@ -233,6 +235,11 @@ class SimService:
         self.api = ServiceAPI(self.mc, ik, self.store, {"profile": "thesis-t132"}, **api_options)
         if settle_s is not None:
             self.run(settle_s)
+
+    def _deliver(self, event: dict) -> None:
+        self.events.append(event)
+        for listener in list(self.event_listeners):
+            listener(event)
 
     def call(self, key: str, payload: Any = None, user: str | None = None, **kw: Any) -> tuple[bool, dict]:
         """``api.handle``; ``payload`` a mapping (sent as JSON; None: ``{}``) or raw bytes / text."""

@@ -48,7 +48,7 @@ from collections import deque
 from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
-from bridge.service.motion.types import MotionError, pose_dict
+from bridge.service.motion.types import Event, MotionError, implement_selected_event, pose_dict
 from bridge.service.schemas import ImplementDefine, QuickMove, RequestError, check_pose_in_workspace
 from bridge.service.store import DEFAULT_IMPLEMENT, HitchStore, StoredImplement
 from bridge.service.work import call_work
@@ -121,7 +121,9 @@ class ImplementMotion(Protocol):
         issued: float | None = None,
     ) -> Any: ...
 
-    def select_implement(self, implement: ImplementRecord | None, limits: ImplementLimits) -> Any: ...
+    def select_implement(
+        self, implement: ImplementRecord | None, limits: ImplementLimits, *, announce: bool = True
+    ) -> Any: ...
 
 
 def record_of(imp: StoredImplement) -> ImplementRecord:
@@ -218,6 +220,7 @@ class ImplementService:
         reasons: list[str | None] = []  # per candidate: why it cannot be taken (None: it can)
         taken: int | None = None
         apply_failed = False
+        announced: Event | None = None  # the implement_selected event of what the guards were given last
         for i, (name, _where) in enumerate(candidates):
             if name == DEFAULT_IMPLEMENT:  # a persisted `default`: none, chosen
                 reasons.append(None)
@@ -227,7 +230,7 @@ class ImplementService:
             why, imp = self._check_candidate(name)
             if why is None and taken is None and imp is not None:
                 try:
-                    self._apply(record_of(imp), imp.limits)
+                    announced = self._apply(record_of(imp), imp.limits)
                 except HitchError as exc:  # the next one is tried; the service starts anyway, and says why
                     why, apply_failed = f"it could not be applied: {exc}", True
                 else:
@@ -236,13 +239,15 @@ class ImplementService:
         self.selected = DEFAULT_IMPLEMENT if taken is None else candidates[taken][0]
         if apply_failed and self.selected == DEFAULT_IMPLEMENT:  # undo what a half-applied one may have left
             try:
-                self._apply(None, ImplementLimits())
+                announced = self._apply(None, ImplementLimits())
             except HitchError as exc:
                 self.warnings.append(f"implement: the controller's implement could not be cleared at start: {exc}")
         line = self._start_line(candidates, reasons, taken)
         if line is not None:
             self.warnings.append(line)
         self._announce()
+        if announced is not None:
+            self._post(announced)
 
     def _candidates(self) -> list[tuple[str, str]]:
         """The implements named at start in the order of precedence (name, where it was named): the flag's, the
@@ -365,10 +370,13 @@ class ImplementService:
                 None if old is None else old.last_work,
                 r.description,
             )
+            announced: Event | None = None
             if r.name == self.selected:
                 self._check_category(imp, "implements/define")  # as a select would: it stays selected
-                self._apply(record_of(imp), limits)  # busy while moving: nothing stored
+                announced = self._apply(record_of(imp), limits)  # busy while moving: nothing stored
             stored = self.store.save_implement(imp, owner=owner)
+            if announced is not None:
+                self._post(announced)
         return {"defined": stored.name, "implement": stored.to_json(), "selected": self.selected}
 
     def select(self, name: str) -> dict[str, Any]:
@@ -376,16 +384,17 @@ class ImplementService:
         (the hitch alone: no implement mass in the stability check, no implement limits); busy while moving."""
         with self._lock:
             if name == DEFAULT_IMPLEMENT:
-                self._apply(None, ImplementLimits())
+                announced = self._apply(None, ImplementLimits())
                 self.selected = DEFAULT_IMPLEMENT
                 self.store.set_setting(SELECTED_SETTING, DEFAULT_IMPLEMENT)
                 with self._pause_lock:
                     self.paused_work = None
                 self._announce()
+                self._post(announced)
                 return {"selected": DEFAULT_IMPLEMENT, "implement": None}
             imp = self._stored_or_builtin(name, save=False)
             self._check_category(imp)
-            self._apply(record_of(imp), imp.limits)  # refused while moving: then nothing is stored either
+            announced = self._apply(record_of(imp), imp.limits)  # refused while moving: nothing is stored either
             if self.store.get_implement(imp.name) is None:  # a tractor profile's record: stored once applied
                 imp = self.store.save_implement(imp)
             self.selected = imp.name
@@ -394,6 +403,7 @@ class ImplementService:
                 if self.paused_work is not None and self.paused_work["implement"] != imp.name:
                     self.paused_work = None  # another implement's work never starts again by a return
             self._announce()
+            self._post(announced)
         return {"selected": imp.name, "implement": imp.to_json()}
 
     def delete(self, name: str) -> dict[str, Any]:
@@ -420,8 +430,9 @@ class ImplementService:
                 )
             imp = self._stored_or_builtin(self.selected)
             limits = ImplementLimits(imp.limits.upper_height_m, imp.limits.lowering_speed_m_s, locked)
-            self._apply(record_of(imp), limits)
+            announced = self._apply(record_of(imp), limits)
             imp = self.store.update_implement(imp.name, transport_locked=locked)
+            self._post(announced)
         out: dict[str, Any] = {"implement": imp.name, "transport_locked": imp.limits.transport_locked}
         if locked:
             cleared = self.clear_paused_work()
@@ -735,11 +746,15 @@ class ImplementService:
                 f"or start the service with --category {imp.category}",
             )
 
-    def _apply(self, record: ImplementRecord | None, limits: ImplementLimits) -> None:
-        """The controller's guards first (refused while moving: nothing else changes), then the planning."""
-        self.motion.select_implement(record, limits)
+    def _apply(self, record: ImplementRecord | None, limits: ImplementLimits) -> Event:
+        """The controller's guards first (refused while moving: nothing else changes), then the planning. Returns
+        the ``implement_selected`` event, for the caller to post once the change is recorded (selection, store,
+        the API's presets): the terminal reads ``implements/list`` and ``presets/list`` back on that event, and
+        the controller's own event came before them (CI: the chooser kept "no implement", Raise disabled)."""
+        self.motion.select_implement(record, limits, announce=False)
         if self.on_applied is not None:
             self.on_applied(record, limits)
+        return implement_selected_event(record, limits)
 
     def _need_current(self, key: str) -> StoredImplement:
         if self.selected == DEFAULT_IMPLEMENT:

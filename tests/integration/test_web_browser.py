@@ -1699,6 +1699,66 @@ def test_the_quick_row_follows_the_raise_to_its_end(service, page):
     assert page.errors == []
 
 
+def test_an_older_list_answered_after_a_newer_one_is_not_drawn_over_it(service, page):
+    """The server runs each command as its own task, so replies can come back out of order. The chooser's
+    list asked for on connecting (no implement selected) was drawn over the one asked for on the
+    ``implement_selected`` event when its answer came last: the chooser said "no implement" and Raise stayed
+    disabled. Here the connect-time answers of ``implements/list`` and ``presets/list`` are held back until the
+    event's answers are shown."""
+    import json
+
+    headland = {"x": 0.0, "z": 0.12, "roll": 0.0, "pitch": 0.0}
+    spec = {"name": "rake", "category": "2", "mass_kg": 100.0, "com_m": [0.0, 0.3, 0.2], "headland": headland}
+    assert service.api("implements/define", spec)[0] == 200
+    assert service.api("implements/select", {"name": "default"})[0] == 200
+    keys = {"implements/list", "presets/list"}
+    asked: dict[int, str] = {}  # request id → key, of the lists the page asked for
+    held: list[str] = []  # the first answer of each list (asked on connecting), sent to the page later
+    pg = page.context.new_page()
+    pg.set_default_timeout(10_000)
+    pg.errors = []
+    pg.on("pageerror", lambda e: pg.errors.append(str(e)))
+
+    def route(ws):
+        server = ws.connect_to_server()
+
+        def to_server(msg):
+            cmd = json.loads(msg)
+            if cmd.get("key") in keys:
+                asked[cmd["id"]] = cmd["key"]
+            server.send(msg)
+
+        def to_page(msg):
+            reply = json.loads(msg)
+            key = asked.get(reply.get("id")) if reply.get("type") == "reply" else None
+            if key is not None and sum(1 for k in asked.values() if k == key) == 1:
+                held.append(msg)  # the only one of its key asked so far: the connect-time answer
+            else:
+                ws.send(msg)
+
+        ws.on_message(to_server)
+        server.on_message(to_page)
+        pg.release = lambda: [ws.send(m) for m in held]
+
+    try:
+        pg.route_web_socket("**/ws", route)
+        pg.goto(service.url)
+        wait_js(pg, "document.getElementById('conn').textContent.startsWith('Service: connected')", timeout=15_000)
+        # (the route's handlers run while this thread is in a Playwright call: the evaluate)
+        wait_for(lambda: pg.evaluate("true") and len(held) == 2, 10, "the connect-time answers of both lists")
+        assert service.api("implements/select", {"name": "rake"})[0] == 200
+        wait_js(pg, "document.getElementById('act-implement').value === 'rake'")
+        wait_js(pg, "!document.getElementById('act-raise').disabled")
+        pg.release()  # the older answers (no implement) come last
+        pg.wait_for_timeout(300)
+        assert pg.evaluate("document.getElementById('act-implement').value") == "rake"
+        assert pg.evaluate("!document.getElementById('act-raise').disabled")
+        assert pg.errors == []
+    finally:
+        pg.close()
+        assert service.api("implements/select", {"name": "default"})[0] == 200
+
+
 @pytest.mark.parametrize("size", [(375, 667), (360, 640)])
 def test_stop_is_whole_and_nothing_scrolls_sideways_on_a_phone(service, page, size):
     """At 375×667 STOP was cut to "ST" and the page scrolled sideways (scrollWidth 430)."""

@@ -448,6 +448,7 @@ class MotionProxy:
         """``work/…``: the core's work control (:meth:`bridge.service.work.WorkControl.dispatch`)."""
         return dict(self.core.call("work", op, *args))
 
-    def select_implement(self, implement: Any, limits: Any) -> dict[str, Any]:
-        """The implement (an ImplementRecord or None) and its ImplementLimits for the core's guards."""
-        return dict(self.core.call("select_implement", implement, limits))
+    def select_implement(self, implement: Any, limits: Any, *, announce: bool = True) -> dict[str, Any]:
+        """The implement (an ImplementRecord or None) and its ImplementLimits for the core's guards
+        (``announce``: as :meth:`bridge.service.motion.controller.MotionController.select_implement`)."""
+        return dict(self.core.call("select_implement", implement, limits, announce=announce))

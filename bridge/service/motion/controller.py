@@ -109,6 +109,7 @@ from bridge.service.motion.types import (
     TrackMotion,
     check_mode_allows,
     check_precedence,
+    implement_selected_event,
     plan_state,
     pose_dict,
     streamed_reference,
@@ -923,9 +924,13 @@ class MotionController:
             self._post([dict(event)])
         self.outbox.flush()
 
-    def select_implement(self, implement: ImplementRecord | None, limits: ImplementLimits) -> dict[str, Any]:
+    def select_implement(
+        self, implement: ImplementRecord | None, limits: ImplementLimits, *, announce: bool = True
+    ) -> dict[str, Any]:
         """Give both guards an implement (stability: its mass and CoM) and its limits (``docs/implements.md``);
-        refused (``busy``) while a motion or a maneuver runs: send stop first."""
+        refused (``busy``) while a motion or a maneuver runs: send stop first. ``announce=False``: no
+        ``implement_selected`` event; the caller posts it (:func:`implement_selected_event`) once everything the
+        change touches is recorded (the implement service: its selection, store and presets)."""
         if not self._plan_lock.acquire(timeout=2.0):  # no plan is being made with the old implement
             raise MotionError("busy", "implement change refused: the planner stayed busy; send it again")
         try:
@@ -946,7 +951,8 @@ class MotionController:
                 self._eval_cache = EvaluationCache()
                 self._generation += 1  # a goto planned meanwhile is planned again
                 name = None if implement is None else implement.name
-                self._post([{"event": "implement_selected", "implement": name, **limits.to_json()}])
+                if announce:
+                    self._post([implement_selected_event(implement, limits)])
         finally:
             self._plan_lock.release()
         self.outbox.flush()

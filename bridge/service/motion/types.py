@@ -23,7 +23,9 @@ from bridge.link.unit_loop import FeedforwardShaper
 from bridge.service.motion.ground_watch import GroundWatch
 from planner.errors import HitchInputError
 from planner.limits.guard import Guard, GuardDecision, GuardedPlan, GuardRefusal
+from planner.limits.implement_limits import ImplementLimits
 from planner.limits.stability import StabilityReport, StabilityViolation
+from planner.limits.tractor import ImplementRecord
 from planner.model.types import ACTUATOR_NAMES, CONTROLLED_POSE_NAMES
 from planner.trajectory import JogController, JogOutput, MotionState, Plan, PlanError
 from planner.trajectory.track import SeqFilter, TrackFollower, TrackOutput
@@ -61,6 +63,7 @@ __all__ = [
     "tail_at",
     "TailNow",
     "pose_dict",
+    "implement_selected_event",
     "streamed_reference",
 ]
 
@@ -127,6 +130,17 @@ class FaultAck:
 def pose_dict(p: Iterable[float]) -> dict[str, float]:
     """A controlled pose (or its rates) by name: x, z [m]; roll, pitch [rad] (per second for rates)."""
     return dict(zip(CONTROLLED_POSE_NAMES, map(float, p), strict=True))
+
+
+def implement_selected_event(implement: ImplementRecord | None, limits: ImplementLimits) -> Event:
+    """The ``implement_selected`` event: the implement the guards plan with (``implement`` null: none) and its
+    limits (``docs/implements.md``). Posted once the change is recorded everywhere a client reads it back
+    (``implements/list``, ``presets/list``): the terminal asks those on this event."""
+    return {
+        "event": "implement_selected",
+        "implement": None if implement is None else implement.name,
+        **limits.to_json(),
+    }
 
 
 def actuator_dict(q: Iterable[float]) -> dict[str, float]:

@@ -227,6 +227,15 @@
   }
   const link = new Link();
 
+  // Replies can come back out of order (the server runs each command as its own task): a list asked for earlier
+  // whose answer comes after a later one's is not drawn over it. `asking(kind)` before the call; the function it
+  // returns says whether the answer is still the newest of its kind (then it is the one shown).
+  const answered = {};
+  function asking(kind) {
+    const mine = (answered[kind] = answered[kind] || { asked: 0, shown: 0 }).asked += 1;
+    return () => { const a = answered[kind]; if (mine < a.shown) return false; a.shown = mine; return true; };
+  }
+
   async function call(key, payload, quiet = false) {
     const r = await link.request(key, payload);
     if (!r.ok) conflictRefusal(r.data);
@@ -1405,7 +1414,9 @@
   }
 
   async function refreshPresets() {
+    const newest = asking("presets/list");
     const r = await call("presets/list", {}, true);
+    if (!newest()) return;   // a later list's answer is shown already
     if (!r.ok) { ui.presetNames = null; actions.drawLock(); actions.drawRecord(); return; }   // not known: not said
     const list = $("#preset-list");
     list.textContent = "";
@@ -1612,8 +1623,9 @@
   window.hitchTerminal.actions = actions;   // for the browser test
 
   async function refreshImplements() {
+    const newest = asking("implements/list");
     const r = await call("implements/list", {}, true);
-    if (!r.ok) return;
+    if (!r.ok || !newest()) return;
     actions.implements = r.data.implements || [];
     actions.selected = r.data.selected;
     actions.drawImplements();

@@ -41,7 +41,7 @@ class _Motion:
     def __init__(self) -> None:
         self.selected: list[tuple[Any, ImplementLimits]] = []
 
-    def select_implement(self, implement: Any, limits: ImplementLimits) -> dict[str, Any]:
+    def select_implement(self, implement: Any, limits: ImplementLimits, *, announce: bool = True) -> dict[str, Any]:
         self.selected.append((implement, limits))
         return {}
 
@@ -333,10 +333,10 @@ def test_an_implement_the_controller_refuses_at_start_falls_through_to_the_next(
     why the persisted one is not taken."""
 
     class _Refusing(_Motion):
-        def select_implement(self, implement: Any, limits: ImplementLimits) -> dict[str, Any]:
+        def select_implement(self, implement: Any, limits: ImplementLimits, *, announce: bool = True) -> dict[str, Any]:
             if implement is not None and implement.name == "plough3":
                 raise HitchError("the hitch is above plough3's upper height")
-            return super().select_implement(implement, limits)
+            return super().select_implement(implement, limits, announce=announce)
 
     store = HitchStore(tmp_path / "hitch.sqlite3")
     _plough3(store)

@@ -68,3 +68,75 @@ def test_a_database_of_an_earlier_schema_version_reaches_the_current_one(tmp_pat
         assert store.get_work_settings("harrow") == {"mode": "draft"}
     finally:
         store.close()
+
+
+RAKE = {
+    "name": "rake",
+    "category": "2",
+    "mass_kg": 100.0,
+    "com_m": [0.0, 0.3, 0.2],
+    "headland": {"x": 0.0, "z": 0.12, "roll": 0.0, "pitch": 0.0},
+}
+
+
+def _listed_when_announced(svc: SimService, key: str, payload: dict) -> dict:
+    """What ``implements/list`` (``presets/list`` under "presets") answers when sent the moment the
+    ``implement_selected`` event of ``key`` is delivered (the terminal refreshes its chooser and presets on that
+    event; CI: the event came before the selection was recorded, the chooser kept "no implement" and Raise stayed
+    disabled)."""
+    listed: list[dict] = []
+    fired: list[threading.Thread] = []
+
+    def on_event(event: dict) -> None:
+        if event.get("event") != "implement_selected":
+            return
+
+        def ask() -> None:  # as the terminal does: its chooser and the implement's presets
+            listed.append({**svc.call("implements/list")[1], "presets": svc.call("presets/list")[1]})
+
+        t = threading.Thread(target=ask)
+        fired.append(t)
+        t.start()
+        t.join(timeout=0.5)  # answered at once if nothing holds it back (the old order: before the change)
+
+    svc.event_listeners.append(on_event)
+    try:
+        ok, r = svc.call(key, payload)
+        assert ok, r
+    finally:
+        svc.event_listeners.remove(on_event)
+    assert len(fired) == 1
+    fired[0].join(timeout=10.0)
+    assert not fired[0].is_alive()
+    return listed[0]
+
+
+def test_a_list_asked_on_the_selection_event_names_the_new_selection(model, tmp_path):
+    svc = SimService(model, tmp_path / "hitch.sqlite3")
+    try:
+        assert svc.call("implements/define", RAKE)[0]
+        listed = _listed_when_announced(svc, "implements/select", {"name": "rake"})
+        assert listed["selected"] == "rake", listed
+        assert listed["presets"]["implement"] == "rake", listed  # the presets are the implement's
+    finally:
+        svc.close()
+
+
+@pytest.mark.parametrize(
+    ("first", "key", "payload", "field", "shown"),
+    [
+        ({**RAKE, "headland": None}, "implements/define", RAKE, "headland", RAKE["headland"]),  # redefined
+        (RAKE, "implements/lock", {}, "transport_locked", True),
+    ],
+    ids=["redefined", "locked"],
+)
+def test_a_list_asked_on_the_change_event_shows_the_changed_record(model, tmp_path, first, key, payload, field, shown):
+    svc = SimService(model, tmp_path / "hitch.sqlite3")
+    try:
+        assert svc.call("implements/define", first)[0]
+        assert svc.call("implements/select", {"name": "rake"})[0]
+        listed = _listed_when_announced(svc, key, payload)
+        (rake,) = [i for i in listed["implements"] if i["name"] == "rake"]
+        assert rake[field] == shown, rake
+    finally:
+        svc.close()

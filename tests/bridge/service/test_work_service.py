@@ -702,7 +702,7 @@ def test_a_motion_event_never_waits_for_an_implement_change_in_progress(tmp_path
     handled = threading.Event()
 
     class Motion:
-        def select_implement(self, implement, limits):
+        def select_implement(self, implement, limits, *, announce=True):
             # the reply reader delivers a motion event while this call waits for its reply
             def deliver():
                 svc.on_event({"event": "motion_finished", "motion_id": 7})
@@ -742,7 +742,7 @@ def test_a_return_whose_arrival_is_announced_before_its_reply_still_starts_the_p
             return {"accepted": True, "motion_id": 42, "duration": 0.01}
 
     class Motion:
-        def select_implement(self, implement, limits):
+        def select_implement(self, implement, limits, *, announce=True):
             return {}
 
         def goto(self, goal, scale, **kw):

@@ -2008,3 +2008,141 @@ def test_a_refused_jog_is_said_once_and_releases_the_button(service, page):
         page.mouse.up()
         assert service.api("mode", {"mode": "auto"})[0] == 200
     assert not service.state()["moving"]
+
+
+def test_a_maneuver_run_over_a_running_one_says_the_new_one_runs(service, page):
+    """maneuvers/run replaces a running maneuver: the replaced one's ``maneuver_aborted`` ("replaced by another
+    maneuver") is posted before the run's reply. The page counted every maneuver end between its Run and the
+    reply as this run's own, so it never said that the new one runs: "slowpoke aborted: interrupted" stood under
+    the list while "crawl" moved the hitch."""
+    _connected(page, service.url)
+    at_rest(service, page)
+    z = service.state()["pose"]["z"]
+    up = min(z + 0.12, 0.28)
+    for name in ("slowpoke", "crawl"):
+        script = f"name: {name}\nsteps:\n  - goto: {{z: {up:.3f}}}\n  - wait: 8.0\n  - goto: {{z: {z:.3f}}}\n"
+        status, reply = service.api("maneuvers/save", {"name": name, "script": script, "replace": True})
+        assert status == 200, reply
+    tab(page, "maneuvers")
+    page.wait_for_selector("#maneuver-list li[data-name='crawl']")
+    try:
+        page.click("#maneuver-list li[data-name='slowpoke'] button.primary")
+        wait_js(page, "document.getElementById('maneuver-result').textContent.startsWith('slowpoke: running')")
+        page.click("#maneuver-list li[data-name='crawl'] button.primary")
+        wait_for(lambda: (service.state().get("maneuver") or {}).get("name") == "crawl", 5, "crawl to run")
+        wait_js(page, "document.querySelector('#maneuver-progress .text').textContent.startsWith('crawl')")
+        page.wait_for_timeout(300)  # the run's reply and the replaced one's end have both come by now
+        shown = page.evaluate("document.getElementById('maneuver-result').textContent")
+        assert shown.startswith("crawl: running"), shown
+        assert page.errors == []
+    finally:
+        at_rest(service, page)
+
+
+@contextlib.contextmanager
+def first_answers_held(page, service, keys: set[str], *, at_connect: bool = True) -> Iterator[Any]:
+    """A new page of ``page``'s browser on ``service`` whose first answer of each of ``keys`` is held back until
+    ``pg.release()``: the server answers commands as parallel tasks, so such an answer can come after the answer
+    of a later request of the same key, or after an event the request caused. ``at_connect``: the keys are asked
+    on connecting (the page is yielded once their answers are held)."""
+    asked: dict[int, str] = {}  # request id → key, of the requests of ``keys`` the page sent
+    held: dict[str, str] = {}  # key → its first answer
+    to_the_page: list[Any] = []  # the page's side of the routed WebSocket
+    pg = page.context.new_page()
+    pg.set_default_timeout(10_000)
+    pg.errors = []
+    pg.on("pageerror", lambda e: pg.errors.append(str(e)))
+
+    def route(ws):
+        server = ws.connect_to_server()
+        to_the_page.append(ws)
+
+        def to_server(msg):
+            cmd = json.loads(msg)
+            if cmd.get("key") in keys:
+                asked[cmd["id"]] = cmd["key"]
+            server.send(msg)
+
+        def to_page(msg):
+            reply = json.loads(msg)
+            key = asked.get(reply.get("id")) if reply.get("type") == "reply" else None
+            if key is not None and key not in held:
+                held[key] = msg  # the first answer of its key: the connect-time one
+            else:
+                ws.send(msg)
+
+        ws.on_message(to_server)
+        server.on_message(to_page)
+
+    pg.release = lambda: [to_the_page[-1].send(m) for m in held.values()]
+    try:
+        pg.route_web_socket("**/ws", route)
+        pg.goto(service.url)
+        wait_js(pg, "document.getElementById('conn').textContent.startsWith('Service: connected')", timeout=15_000)
+        # (the route's handlers run while this thread is in a Playwright call: the evaluate)
+        if at_connect:
+            wait_for(lambda: pg.evaluate("true") and set(held) == keys, 10, f"the connect-time answers of {keys}")
+        pg.held = lambda: set(held)
+        yield pg
+    finally:
+        pg.close()
+
+
+def test_an_older_maneuver_list_answered_after_a_newer_one_is_not_drawn_over_it(service, page):
+    """The maneuver list asked for on connecting, answered after the one asked for on opening the tab, was drawn
+    over it: a maneuver saved in between (here by another client; on the page, its own save) vanished from the
+    list until the tab was opened again."""
+    service.api("maneuvers/delete", {"name": "latecomer"})
+    with first_answers_held(page, service, {"maneuvers/list"}) as pg:
+        script = "name: latecomer\nsteps:\n  - wait: 0.5\n"
+        assert service.api("maneuvers/save", {"name": "latecomer", "script": script})[0] == 200
+        tab(pg, "maneuvers")  # asks for the list again: it has the new one
+        pg.wait_for_selector("#maneuver-list li[data-name='latecomer']")
+        pg.release()  # the connect-time answer (without it) comes last
+        pg.wait_for_timeout(300)
+        assert pg.evaluate("Boolean(document.querySelector(\"#maneuver-list li[data-name='latecomer']\"))")
+        assert pg.errors == []
+    assert service.api("maneuvers/delete", {"name": "latecomer"})[0] == 200
+
+
+def test_an_older_work_settings_answer_is_not_drawn_over_a_newer_one(service, page):
+    """The Work tab reads the selected implement's settings on connecting; that answer, come after the answer of
+    a mode the operator chose meanwhile (work/settings {"mode"}), put the old mode back in the selector while
+    the service had stored the new one (work/start then ran in a mode the page did not show)."""
+    assert service.api("work/settings", {"mode": "position"})[0] == 200
+    try:
+        with first_answers_held(page, service, {"work/settings"}) as pg:
+            tab(pg, "work")
+            pg.select_option("#work-mode", "draft")
+            wait_for(lambda: service.api("work/settings")[1]["settings"]["mode"] == "draft", 5, "mode draft stored")
+            wait_js(pg, "document.getElementById('work-summary').textContent.includes('draft')")
+            pg.release()  # the connect-time answer (position) comes last
+            pg.wait_for_timeout(300)
+            assert pg.evaluate("document.getElementById('work-mode').value") == "draft"
+            assert "position" not in pg.evaluate("document.getElementById('work-summary').textContent")
+            assert pg.errors == []
+    finally:
+        assert service.api("work/settings", {"mode": "position"})[0] == 200
+
+
+def test_a_preset_go_over_before_its_reply_came_is_not_said_to_be_moving(service, page):
+    """A preset at the pose the hitch is at ends within a cycle: its ``motion_finished`` can reach the page
+    before the ``presets/go`` reply (the same socket, other threads). The page then logged "preset …: moving"
+    last, over the motion's end, and the footer said the hitch moved while it stood (goto and the quick row's
+    raise keep such an outcome; the preset's Go did not)."""
+    at_rest(service, page)
+    assert service.api("presets/save", {"name": "here", "replace": True})[0] == 200
+    try:
+        with first_answers_held(page, service, {"presets/go"}, at_connect=False) as pg:
+            record_log(pg)
+            tab(pg, "presets")
+            pg.click("#preset-list li[data-name='here'] button.primary")
+            wait_for(lambda: pg.evaluate("true") and pg.held() == {"presets/go"}, 5, "the presets/go answer")
+            wait_log(pg, "motion finished #\\d+")  # its end came first
+            pg.release()
+            pg.wait_for_timeout(300)
+            shown = pg.evaluate("document.getElementById('log').textContent")
+            assert "moving" not in shown and "finished" in shown, shown
+            assert pg.errors == []
+    finally:
+        assert service.api("presets/delete", {"name": "here"})[0] == 200

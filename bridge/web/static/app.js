@@ -70,7 +70,10 @@
   const ui = {
     config: null, state: null, lastStateMs: 0, drawn: true, frames: 0, rate: 0,
     presets: [], maneuvers: [], maneuverSteps: {}, connected: false, closedReason: "", gotoId: null,
-    outcomes: new Map(), maneuversEnded: 0,   // an outcome can reach the page before its request's reply
+    outcomes: new Map(),   // an outcome can reach the page before its request's reply
+    // maneuver id → its end [text, ok] (kept for a run whose reply is still on its way), and the maneuver whose
+    // run this page shows under the list: an older one's end (the one a Run replaced) is not drawn over it
+    maneuverEnds: new Map(), maneuverShown: null,
     session: null,   // GET /api/session: {login, authenticated, user, role, csrf}
   };
   // the hitch picture: `terminal` info (once), the newest `view` message, the built views
@@ -270,11 +273,13 @@
   // a restarted service (its state's seq went back) counts motions and sessions from 1 again
   function serviceRestarted() {
     ui.outcomes.clear(); ui.gotoId = null;
+    ui.maneuverEnds.clear(); ui.maneuverShown = null;
     level.forget("");
   }
 
   async function onConnected() {
     ui.outcomes.clear();   // motion ids are the service run's own: a restarted service counts from 1 again
+    ui.maneuverEnds.clear(); ui.maneuverShown = null;   // and maneuver ids
     // what was refused while disconnected is no longer news once connected (a trial: "goto: not connected to the
     // service" stood under the form and in the footer beside "Service: connected")
     for (const r of document.querySelectorAll(".result.err")) {
@@ -959,10 +964,17 @@
     level.onEvent(e);
     if (name === "implement_selected") { refreshImplements(); refreshPresets(); }   // the presets are the implement's
     if (name === "maneuver_finished" || name === "maneuver_aborted") {
-      ui.maneuversEnded += 1;
-      $("#maneuver-result").textContent = name === "maneuver_finished"
-        ? `${e.maneuver} finished in ${fmt(e.elapsed, 1)} s` : `${e.maneuver} aborted: ${e.reason} — ${e.message || ""}`;
-      $("#maneuver-result").className = `result ${name === "maneuver_finished" ? "ok" : "err"}`;
+      const ended = [name === "maneuver_finished" ? `${e.maneuver} finished in ${fmt(e.elapsed, 1)} s`
+        : `${e.maneuver} aborted: ${e.reason} — ${e.message || ""}`, name === "maneuver_finished"];
+      ui.maneuverEnds.set(e.maneuver_id, ended);
+      if (ui.maneuverEnds.size > 50) ui.maneuverEnds.delete(ui.maneuverEnds.keys().next().value);
+      // the end of a maneuver older than the one shown running (a Run replaces the running maneuver, whose
+      // "replaced by another maneuver" may come after the new one's reply) does not cover it
+      const older = Number.isInteger(e.maneuver_id) && Number.isInteger(ui.maneuverShown) && e.maneuver_id < ui.maneuverShown;
+      if (!older) {
+        $("#maneuver-result").textContent = ended[0];
+        $("#maneuver-result").className = `result ${ended[1] ? "ok" : "err"}`;
+      }
     }
   }
 
@@ -1434,7 +1446,14 @@
       };
       const sub = DOFS.map(shown).join(" · ") + ` (mm, ${angleUnit().unit})`;
       item(list, p.name, sub, [
-        ["Go", "primary motion-only", async () => { const q = await call("presets/go", { name: p.name }); if (q.ok) log(`preset ${p.name}: moving, ${fmt(q.data.duration, 2)} s`); }],
+        ["Go", "primary motion-only", async () => {
+          const q = await call("presets/go", { name: p.name });
+          if (!q.ok) return;
+          // over before its reply came (a preset at the pose the hitch is at): its end, not "moving", is said last
+          const ended = ui.outcomes.get(q.data.motion_id);
+          if (ended) log(`preset ${p.name}: ${ended[0]}`, !ended[1]);
+          else log(`preset ${p.name}: moving, ${fmt(q.data.duration, 2)} s`);
+        }],
         ["Delete", "danger motion-only", async () => {
           if (!(await confirmDialog(`Delete preset ${p.name}?`, "The stored pose is removed for this implement.", "Delete"))) return;
           const q = await call("presets/delete", { name: p.name }); if (q.ok) { log(`preset ${p.name} deleted`); refreshPresets(); }
@@ -1468,8 +1487,9 @@
     ? `step ${e.step + 1}: ${String(e.message).replace(new RegExp(String.raw`^steps\[${e.step}\](?:\.|:\s*)`), "")}`
     : `script: ${e.message}`).join("; ");
   async function refreshManeuvers() {
+    const newest = asking("maneuvers/list");   // the connect-time list, answered last, hid a maneuver saved since
     const r = await call("maneuvers/list", {}, true);
-    if (!r.ok) return;
+    if (!r.ok || !newest()) return;
     const list = $("#maneuver-list");
     list.textContent = "";
     for (const m of r.data.maneuvers) {
@@ -1486,10 +1506,13 @@
           else result("#maneuver-result", q.data.message, false, true);
         }],
         ["Run", "primary motion-only", async () => {
-          const ended = ui.maneuversEnded;
           const q = await call("maneuvers/run", { name: m.name });
-          // an outcome that came before this reply stays shown
-          if (q.ok && ui.maneuversEnded === ended) result("#maneuver-result", `${m.name}: running, ${fmt(q.data.duration, 1)} s planned`, true);
+          if (!q.ok) return;
+          // its own end, come before this reply, stays shown; the end of the maneuver it replaced (posted before
+          // the reply) is another's: it counted as this run's and "running" was never said (a review)
+          ui.maneuverShown = q.data.maneuver_id;
+          if (ui.maneuverEnds.has(q.data.maneuver_id)) return;
+          result("#maneuver-result", `${m.name}: running, ${fmt(q.data.duration, 1)} s planned`, true);
         }],
         ["Abort", "danger", async () => { await stop(); }],
       ];
@@ -1740,14 +1763,18 @@
       this.settings = d.settings; this.implement = d.implement;
       $("#work-mode").value = d.settings.mode;
     },
+    // a read and a change answer alike (the settings then): an answer older than one shown is not drawn (the
+    // connect-time read, answered after a mode chosen meanwhile, put the old mode back in the selector)
     async load() {
+      const newest = asking("work/settings");
       const r = await call("work/settings", {}, true);
-      if (r.ok) this.take(r.data);
+      if (r.ok && newest()) this.take(r.data);
       return r;
     },
     async put(payload) {
+      const newest = asking("work/settings");
       const r = await call("work/settings", payload, true);
-      if (r.ok) this.take(r.data); else if (this.settings) $("#work-mode").value = this.settings.mode;
+      if (r.ok && newest()) this.take(r.data); else if (this.settings) $("#work-mode").value = this.settings.mode;
       return r;
     },
     // the work block in words, e.g. "draft control · draft 21.3 kN (setpoint 20.0 kN) · depth 18 cm"

@@ -1699,6 +1699,23 @@ def test_the_quick_row_follows_the_raise_to_its_end(service, page):
     assert page.errors == []
 
 
+def test_the_help_tab_names_the_implement_selected_since_connecting(service, page):
+    """Help's configuration kept the implement of the connect-time ``config`` answer ("none" after a select: an
+    audit): it follows every ``implement_selected`` event."""
+    _connected(page, service.url)
+    spec = {"name": "rake", "category": "2", "mass_kg": 100.0, "com_m": [0.0, 0.3, 0.2]}
+    assert service.api("implements/define", spec)[0] == 200
+    shown = "(() => { const dl = document.getElementById('config'); const dt = [...dl.querySelectorAll('dt')]"
+    shown += ".find((d) => d.textContent === 'implement'); return dt ? dt.nextElementSibling.textContent : ''; })()"
+    try:
+        for name, words in (("rake", "rake"), ("default", "none")):
+            assert service.api("implements/select", {"name": name})[0] == 200
+            wait_js(page, f"{shown} === {words!r}")
+    finally:
+        assert service.api("implements/select", {"name": "default"})[0] == 200
+    assert page.errors == []
+
+
 def test_an_older_list_answered_after_a_newer_one_is_not_drawn_over_it(service, page):
     """The server runs each command as its own task, so replies can come back out of order. The chooser's
     list asked for on connecting (no implement selected) was drawn over the one asked for on the

@@ -962,7 +962,10 @@
       if (name === "motion_finished" || name === "motion_aborted") actions.motionEnded(e.motion_id, ...outcome);
     }
     level.onEvent(e);
-    if (name === "implement_selected") { refreshImplements(); refreshPresets(); }   // the presets are the implement's
+    if (name === "implement_selected") {
+      refreshImplements(); refreshPresets();   // the presets are the implement's
+      if (ui.config) { ui.config.implement = e.implement || null; renderConfig(); }   // Help's "implement" (it kept the connect-time one)
+    }
     if (name === "maneuver_finished" || name === "maneuver_aborted") {
       const ended = [name === "maneuver_finished" ? `${e.maneuver} finished in ${fmt(e.elapsed, 1)} s`
         : `${e.maneuver} aborted: ${e.reason} — ${e.message || ""}`, name === "maneuver_finished"];

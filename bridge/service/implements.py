@@ -469,8 +469,8 @@ class ImplementService:
         except MotionError as exc:
             if paused is None:
                 raise
-            with self._lock:  # work ended here: the return goes back here, not to an earlier headland turn's pose
-                self.store.update_implement(imp.name, last_work=here)
+            # work ended here: the return goes back here, not to an earlier headland turn's pose
+            self._record_last_work(imp.name, here)
             with self._quick_lock:
                 self._quick = None  # the hitch is at work: the next raise starts from a work position
             raise MotionError(  # the work session has ended all the same: say so
@@ -479,8 +479,7 @@ class ImplementService:
         accepted = acc.to_json()
         self._quick_started(imp.name, "raise", accepted.get("motion_id"))
         if from_work:
-            with self._lock:  # serialised with define, which rewrites the whole record
-                self.store.update_implement(imp.name, last_work=here)
+            self._record_last_work(imp.name, here)
             last_work: dict[str, float] | None = here
         else:
             last_work = None if imp.last_work is None else dict(imp.last_work)
@@ -491,6 +490,15 @@ class ImplementService:
             if self.paused_work is not None and self.paused_work["implement"] == imp.name:
                 out["work_paused"] = _paused_json(self.paused_work)
         return out
+
+    def _record_last_work(self, implement: str, pose: dict[str, float]) -> None:
+        """Persist ``pose`` as the implement's last work pose (where a return goes), then announce it:
+        ``last_work_recorded`` ``{implement, last_work}`` — a raise from the cab's switch or another client changed it
+        without a word, and the terminal's Implement tab kept the old pose (an audit). Under the lock: serialised
+        with define, which rewrites the whole record."""
+        with self._lock:
+            self.store.update_implement(implement, last_work=pose)
+            self._post({"event": "last_work_recorded", "implement": implement, "last_work": dict(pose)})
 
     def _pause_work(self, implement: str, deadline: float | None, issued: float | None) -> dict[str, Any] | None:
         """End a running work session for a quick raise (``work_paused`` event); what was paused, or None."""

@@ -1660,14 +1660,27 @@ def _reconnect_ecu(service) -> None:
     raise AssertionError(f"faults still latched: {service.state()['ecu']['faults']}")
 
 
+def _select_headland_implement(service, name: str) -> None:
+    """Define (category 2, 100 kg, a headland pose at z = 0.12 m) and select the implement ``name``."""
+    headland = {"x": 0.0, "z": 0.12, "roll": 0.0, "pitch": 0.0}
+    spec = {"name": name, "category": "2", "mass_kg": 100.0, "com_m": [0.0, 0.3, 0.2], "headland": headland}
+    assert service.api("implements/define", spec)[0] == 200
+    assert service.api("implements/select", {"name": name})[0] == 200
+
+
+def _definition_js(dl_id: str, term: str) -> str:
+    """A JavaScript expression: the text the definition list ``dl_id`` shows for ``term`` ('' if none)."""
+    return (
+        f"(() => {{ const dt = [...document.getElementById({dl_id!r}).querySelectorAll('dt')]"
+        f".find((d) => d.textContent === {term!r}); return dt ? dt.nextElementSibling.textContent : ''; }})()"
+    )
+
+
 def test_the_quick_row_follows_the_raise_to_its_end(service, page):
     """The quick row kept saying ``raise: moving, motion #4, 3.0 s`` after the motion finished."""
     _connected(page, service.url)
     at_rest(service, page)
-    headland = {"x": 0.0, "z": 0.12, "roll": 0.0, "pitch": 0.0}
-    spec = {"name": "rake", "category": "2", "mass_kg": 100.0, "com_m": [0.0, 0.3, 0.2], "headland": headland}
-    assert service.api("implements/define", spec)[0] == 200
-    assert service.api("implements/select", {"name": "rake"})[0] == 200
+    _select_headland_implement(service, "rake")
     try:
         work = {"x": 0.0, "z": 0.0, "roll": 0.0, "pitch": 0.0}  # raise from a work pose (return needs one)
         assert service.api("goto", {"goal": work})[0] == 200
@@ -1705,13 +1718,33 @@ def test_the_help_tab_names_the_implement_selected_since_connecting(service, pag
     _connected(page, service.url)
     spec = {"name": "rake", "category": "2", "mass_kg": 100.0, "com_m": [0.0, 0.3, 0.2]}
     assert service.api("implements/define", spec)[0] == 200
-    shown = "(() => { const dl = document.getElementById('config'); const dt = [...dl.querySelectorAll('dt')]"
-    shown += ".find((d) => d.textContent === 'implement'); return dt ? dt.nextElementSibling.textContent : ''; })()"
+    shown = _definition_js("config", "implement")
     try:
         for name, words in (("rake", "rake"), ("default", "none")):
             assert service.api("implements/select", {"name": name})[0] == 200
             wait_js(page, f"{shown} === {words!r}")
     finally:
+        assert service.api("implements/select", {"name": "default"})[0] == 200
+    assert page.errors == []
+
+
+def test_the_implement_tab_follows_a_raise_from_another_client(service, page):
+    """A raise from the cab's switch or another client recorded a new last work pose; the Implement tab kept
+    "none yet (set by a raise)" (an audit): it follows ``last_work_recorded``."""
+    _connected(page, service.url)
+    at_rest(service, page)
+    _select_headland_implement(service, "tedder")
+    row = _definition_js("imp-limits", "last work pose")
+    try:
+        wait_js(page, f"{row} === 'none yet (set by a raise)'")
+        work = {"x": 0.0, "z": 0.0, "roll": 0.0, "pitch": 0.0}
+        assert service.api("goto", {"goal": work})[0] == 200
+        _settle(service, work)
+        assert service.api("hitch/raise")[0] == 200  # not this page's raise
+        wait_js(page, f"/^centre|^left|^right/.test({row})")
+        wait_for(lambda: not service.state()["moving"], 20, "the raise to end")
+    finally:
+        at_rest(service, page)
         assert service.api("implements/select", {"name": "default"})[0] == 200
     assert page.errors == []
 

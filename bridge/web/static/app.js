@@ -930,6 +930,11 @@
         (e.ends ? "this service ends itself" : "the other one ends itself"), true);
       return;
     }
+    if (name === "last_work_recorded") {   // where a return goes: a raise from the cab's switch or another client
+      const imp = actions.implements.find((i) => i.name === e.implement);
+      if (imp && e.last_work) { imp.last_work = e.last_work; actions.drawRecord(); }
+      return;   // not logged: the raise's own events say what happened
+    }
     let text = name.replace(/_/g, " ");
     if (e.motion_id !== undefined) text += ` #${e.motion_id}`;
     if (e.kind) text += ` (${e.kind})`;

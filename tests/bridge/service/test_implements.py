@@ -411,6 +411,31 @@ def test_quick_raise_and_return_in_thread_mode(svc):
     assert svc.pose()[1] == pytest.approx(0.2, abs=1e-6)
 
 
+def test_a_recorded_work_pose_is_announced_once_stored(svc):
+    """A raise from the cab's switch or another client changed the last work pose without a word (the terminal's
+    Implement tab kept the old one: an audit). ``last_work_recorded`` says it, after it is stored; a raise that
+    keeps the pose says nothing."""
+    seen: list[tuple[dict, dict]] = []  # (the event, implements/list's record asked on it)
+
+    def on_event(event: dict) -> None:
+        if event.get("event") == "last_work_recorded":
+            (rec,) = [i for i in svc.ok("implements/list")["implements"] if i["name"] == event["implement"]]
+            seen.append((event, rec))
+
+    svc.ok("implements/define", {**HARROW, "headland": HEADLAND})
+    svc.ok("implements/select", {"name": "harrow"})
+    svc.ok("goto", {"goal": {"x": WORK["x"], "z": WORK["z"]}})
+    svc.run(5.0)
+    svc.event_listeners.append(on_event)
+    r = svc.ok("hitch/raise")
+    assert len(seen) == 1, seen
+    event, rec = seen[0]
+    assert event["implement"] == "harrow" and event["last_work"] == r["last_work"] == rec["last_work"], seen
+    svc.run(r["duration"] + 0.3)
+    r = svc.ok("hitch/raise")  # at the headland: the work pose is kept, nothing is announced
+    assert r.get("last_work_kept") is True and len(seen) == 1, (r, seen)
+
+
 def test_a_return_after_a_raise_that_started_at_the_headland_says_that_raise_recorded_no_work_pose(svc):
     """A new user's report: raised at the headland pose, `hitch return` said "has no work pose yet (raise it
     once first)" — they just had. A raise from the headland pose keeps (here: has) no work pose; say so."""

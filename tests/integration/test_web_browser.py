@@ -2121,6 +2121,77 @@ def test_a_maneuver_run_over_a_running_one_says_the_new_one_runs(service, page):
         at_rest(service, page)
 
 
+def test_a_run_s_reply_come_after_a_newer_run_s_does_not_cover_it(service, page):
+    """Two Runs in a row: the replies can come back out of order (each command is a task of its own) and the
+    replaced maneuver's end after both. The older run's reply set the maneuver shown back to the replaced one:
+    "slowpoke: running" and then its "aborted: interrupted" stood under the list while "crawl" moved the hitch."""
+    at_rest(service, page)
+    z = service.state()["pose"]["z"]
+    up = min(z + 0.12, 0.28)
+    for name in ("slowpoke", "crawl"):
+        script = f"name: {name}\nsteps:\n  - goto: {{z: {up:.3f}}}\n  - wait: 8.0\n  - goto: {{z: {z:.3f}}}\n"
+        status, reply = service.api("maneuvers/save", {"name": name, "script": script, "replace": True})
+        assert status == 200, reply
+    held: list[str] = []  # the first run's reply, then its end: sent to the page in that order, late
+    first: dict[str, Any] = {}  # the first maneuvers/run's request id, then its maneuver id
+    to_the_page: list[Any] = []
+    pg = page.context.new_page()
+    pg.set_default_timeout(10_000)
+    pg.errors = []
+    pg.on("pageerror", lambda e: pg.errors.append(str(e)))
+
+    def route(ws):
+        server = ws.connect_to_server()
+        to_the_page.append(ws)
+
+        def to_server(msg):
+            cmd = json.loads(msg)
+            if cmd.get("key") == "maneuvers/run" and "request" not in first:
+                first["request"] = cmd["id"]
+            server.send(msg)
+
+        def to_page(msg):
+            m = json.loads(msg)
+            if m.get("type") == "reply" and "request" in first and m.get("id") == first["request"]:
+                first["maneuver"] = (m.get("data") or {}).get("maneuver_id")
+                held.append(msg)
+            elif (
+                m.get("type") == "event"
+                and (m.get("data") or {}).get("event") in ("maneuver_aborted", "maneuver_finished")
+                and first.get("maneuver") is not None
+                and (m.get("data") or {}).get("maneuver_id") == first["maneuver"]
+            ):
+                held.append(msg)
+            else:
+                ws.send(msg)
+
+        ws.on_message(to_server)
+        server.on_message(to_page)
+
+    try:
+        pg.route_web_socket("**/ws", route)
+        pg.goto(service.url)
+        wait_js(pg, "document.getElementById('conn').textContent.startsWith('Service: connected')", timeout=15_000)
+        tab(pg, "maneuvers")
+        pg.wait_for_selector("#maneuver-list li[data-name='crawl']")
+        pg.click("#maneuver-list li[data-name='slowpoke'] button.primary")
+        # (the route's handlers run while this thread is in a Playwright call: the evaluate)
+        wait_for(lambda: pg.evaluate("true") and len(held) == 1, 10, "slowpoke's run reply held")
+        pg.click("#maneuver-list li[data-name='crawl'] button.primary")
+        wait_js(pg, "document.getElementById('maneuver-result').textContent.startsWith('crawl: running')")
+        wait_for(lambda: pg.evaluate("true") and len(held) == 2, 10, "slowpoke's end held")
+        record_log(pg)
+        for m in held:  # slowpoke's reply, then its end
+            to_the_page[-1].send(m)
+        wait_log(pg, "maneuver slowpoke: aborted")
+        shown = pg.evaluate("document.getElementById('maneuver-result').textContent")
+        assert shown.startswith("crawl: running"), shown
+        assert pg.errors == []
+    finally:
+        pg.close()
+        at_rest(service, page)
+
+
 @contextlib.contextmanager
 def first_answers_held(page, service, keys: set[str], *, at_connect: bool = True) -> Iterator[Any]:
     """A new page of ``page``'s browser on ``service`` whose first answer of each of ``keys`` is held back until

@@ -1518,8 +1518,12 @@
           if (!q.ok) return;
           // its own end, come before this reply, stays shown; the end of the maneuver it replaced (posted before
           // the reply) is another's: it counted as this run's and "running" was never said (a review)
-          ui.maneuverShown = q.data.maneuver_id;
-          if (ui.maneuverEnds.has(q.data.maneuver_id)) return;
+          // a newer run's reply came first (replies can come back out of order): this one was replaced, and
+          // neither its "running" nor its end covers the newer one's
+          const id = q.data.maneuver_id;
+          if (Number.isInteger(id) && Number.isInteger(ui.maneuverShown) && id < ui.maneuverShown) return;
+          ui.maneuverShown = id;
+          if (ui.maneuverEnds.has(id)) return;
           result("#maneuver-result", `${m.name}: running, ${fmt(q.data.duration, 1)} s planned`, true);
         }],
         ["Abort", "danger", async () => { await stop(); }],

@@ -394,8 +394,11 @@ class ImplementService:
                 return {"selected": DEFAULT_IMPLEMENT, "implement": None}
             imp = self._stored_or_builtin(name, save=False)
             self._check_category(imp)
+            new_record = self.store.get_implement(imp.name) is None  # a tractor profile's record: stored once applied
+            if new_record:  # a full store refuses it before the guards take it (they planned with it, unselected)
+                self.store.check_implement_room(imp.name)
             announced = self._apply(record_of(imp), imp.limits)  # refused while moving: nothing is stored either
-            if self.store.get_implement(imp.name) is None:  # a tractor profile's record: stored once applied
+            if new_record:
                 imp = self.store.save_implement(imp)
             self.selected = imp.name
             self.store.set_setting(SELECTED_SETTING, imp.name)

@@ -406,6 +406,13 @@ def _who(owner: str) -> str:
     return f"user {owner!r}" if owner else "the anonymous user (no user named by the transport)"
 
 
+def _check_implement_room(db: sqlite3.Connection, name: str) -> None:
+    """StoreError ``max_implements`` when storing ``name`` (not stored yet) would pass :data:`MAX_IMPLEMENTS`."""
+    (n,) = db.execute("SELECT COUNT(*) FROM implements WHERE name != ?", (name,)).fetchone()
+    if n >= MAX_IMPLEMENTS:
+        raise StoreError("max_implements", f"the store already has {n} implements (limit {MAX_IMPLEMENTS}); delete one")
+
+
 class HitchStore:
     """Presets and maneuvers in one SQLite file; see the module docstring."""
 
@@ -765,11 +772,7 @@ class HitchStore:
         imp = StoredImplement(**{**imp.__dict__, "updated_s": time.time(), "owner": _owner(owner)})
 
         def check(db: sqlite3.Connection) -> None:
-            (n,) = db.execute("SELECT COUNT(*) FROM implements WHERE name != ?", (imp.name,)).fetchone()
-            if n >= MAX_IMPLEMENTS:
-                raise StoreError(
-                    "max_implements", f"the store already has {n} implements (limit {MAX_IMPLEMENTS}); delete one"
-                )
+            _check_implement_room(db, imp.name)
 
         lim = imp.limits
         self._write(
@@ -798,6 +801,13 @@ class HitchStore:
             check,
         )
         return imp
+
+    def check_implement_room(self, name: str) -> None:
+        """StoreError ``max_implements`` when :meth:`save_implement` of ``name`` would be refused for the number of
+        implements: checked before a change that must not happen unless the implement can be stored."""
+        args = _name(name, "name")
+        with self._locked() as db:
+            _check_implement_room(db, args)
 
     def get_implement(self, name: str) -> StoredImplement | None:
         args = (_name(name, "name"),)

@@ -21,7 +21,7 @@ import pytest
 from bridge.service.config import ServiceConfig, ServiceConfigError, load_service_config
 from bridge.service.implements import SELECTED_SETTING, ImplementService
 from bridge.service.server import HitchService
-from bridge.service.store import HitchStore, StoredImplement
+from bridge.service.store import HitchStore, StoredImplement, StoreError
 from planner.errors import HitchError
 from planner.limits.implement_limits import ImplementLimits
 from tests.helpers import SimService, wait_until
@@ -349,3 +349,24 @@ def test_an_implement_the_controller_refuses_at_start_falls_through_to_the_next(
         "implement: 'disc3' (the config file's implement) is selected; not taken: 'plough3' (the persisted selection: "
         f"it could not be applied: the hitch is above plough3's upper height). {TAIL}"
     ]
+
+
+def test_a_profile_record_a_full_store_cannot_take_is_refused_before_the_guards_take_it(tmp_path, monkeypatch):
+    """A review: selecting a tractor profile's record with the store full gave the controller's guards the record,
+    then the store refused it (``max_implements``): the guards planned with an implement that was not selected.
+    The store's room is checked first: nothing changes."""
+    import bridge.service.store as store_module
+
+    store = HitchStore(tmp_path / "hitch.sqlite3")
+    store.save_implement(StoredImplement("harrow", "2", 1200.0, (0.0, 0.6, 0.4)))
+    motion = _Motion()
+    svc = ImplementService(store, motion, tractor_profile="tractor-6t", category="2")  # type: ignore[arg-type]
+    svc.select("harrow")
+    given = list(motion.selected)
+    monkeypatch.setattr(store_module, "MAX_IMPLEMENTS", 1)
+    with pytest.raises(StoreError, match="limit 1") as err:
+        svc.select(CAT2)
+    assert err.value.field == "max_implements", err.value
+    assert motion.selected == given and svc.selected == "harrow"
+    assert store.get_implement(CAT2) is None
+    store.close()

@@ -2227,7 +2227,15 @@ def first_answers_held(page, service, keys: set[str], *, at_connect: bool = True
         ws.on_message(to_server)
         server.on_message(to_page)
 
-    pg.release = lambda: [to_the_page[-1].send(m) for m in held.values()]
+    def release() -> None:
+        """Send the held answers, then an event of the test's own, and wait until the page logged it: it handles
+        its messages in order and draws an answer before the next message, so it has drawn the held ones."""
+        record_log(pg)
+        for m in [*held.values(), json.dumps({"type": "event", "data": {"event": "test_barrier"}})]:
+            to_the_page[-1].send(m)
+        wait_log(pg, "test barrier")
+
+    pg.release = release
     try:
         pg.route_web_socket("**/ws", route)
         pg.goto(service.url)
@@ -2241,6 +2249,44 @@ def first_answers_held(page, service, keys: set[str], *, at_connect: bool = True
         pg.close()
 
 
+def test_a_config_answer_older_than_a_selection_does_not_name_the_old_implement(service, page):
+    """Help's implement came from the connect-time ``config`` answer: one computed before an ``implement_selected``
+    event but answered after it named the implement selected before (a review)."""
+    _select_headland_implement(service, "rake")
+    assert service.api("implements/select", {"name": "default"})[0] == 200
+    try:
+        with first_answers_held(page, service, {"config"}) as pg:
+            record_log(pg)
+            assert service.api("implements/select", {"name": "rake"})[0] == 200
+            wait_log(pg, "implement selected: rake")
+            pg.release()  # the config answer (no implement) comes after the event
+            assert pg.evaluate(_definition_js("config", "implement")) == "rake"
+            assert pg.errors == []
+    finally:
+        assert service.api("implements/select", {"name": "default"})[0] == 200
+
+
+def test_a_list_answer_older_than_a_recorded_work_pose_does_not_put_the_old_one_back(service, page):
+    """``last_work_recorded`` set the Implement tab's last work pose, but a list asked before the raise and answered
+    after the event put the old one back (a review): the event asks for the list again."""
+    at_rest(service, page)
+    _select_headland_implement(service, "baler")
+    try:
+        work = {"x": 0.0, "z": 0.0, "roll": 0.0, "pitch": 0.0}
+        assert service.api("goto", {"goal": work})[0] == 200
+        _settle(service, work)
+        with first_answers_held(page, service, {"implements/list"}) as pg:
+            status, reply = service.api("hitch/raise")  # not this page's raise
+            assert status == 200, reply
+            pg.release()  # the connect-time list (no work pose yet) comes after the event
+            wait_js(pg, f"/^centre|^left|^right/.test({_definition_js('imp-limits', 'last work pose')})")
+            assert pg.errors == []
+        wait_for(lambda: not service.state()["moving"], 20, "the raise to end")
+    finally:
+        at_rest(service, page)
+        assert service.api("implements/select", {"name": "default"})[0] == 200
+
+
 def test_an_older_maneuver_list_answered_after_a_newer_one_is_not_drawn_over_it(service, page):
     """The maneuver list asked for on connecting, answered after the one asked for on opening the tab, was drawn
     over it: a maneuver saved in between (here by another client; on the page, its own save) vanished from the
@@ -2252,7 +2298,6 @@ def test_an_older_maneuver_list_answered_after_a_newer_one_is_not_drawn_over_it(
         tab(pg, "maneuvers")  # asks for the list again: it has the new one
         pg.wait_for_selector("#maneuver-list li[data-name='latecomer']")
         pg.release()  # the connect-time answer (without it) comes last
-        pg.wait_for_timeout(300)
         assert pg.evaluate("Boolean(document.querySelector(\"#maneuver-list li[data-name='latecomer']\"))")
         assert pg.errors == []
     assert service.api("maneuvers/delete", {"name": "latecomer"})[0] == 200
@@ -2268,9 +2313,9 @@ def test_an_older_work_settings_answer_is_not_drawn_over_a_newer_one(service, pa
             tab(pg, "work")
             pg.select_option("#work-mode", "draft")
             wait_for(lambda: service.api("work/settings")[1]["settings"]["mode"] == "draft", 5, "mode draft stored")
-            wait_js(pg, "document.getElementById('work-summary').textContent.includes('draft')")
+            # the summary says the mode ("includes('draft')" matched the "draft setpoint" of any mode)
+            wait_js(pg, "/: draft ·/.test(document.getElementById('work-summary').textContent)")
             pg.release()  # the connect-time answer (position) comes last
-            pg.wait_for_timeout(300)
             assert pg.evaluate("document.getElementById('work-mode').value") == "draft"
             assert "position" not in pg.evaluate("document.getElementById('work-summary').textContent")
             assert pg.errors == []
@@ -2293,8 +2338,7 @@ def test_a_preset_go_over_before_its_reply_came_is_not_said_to_be_moving(service
             wait_for(lambda: pg.evaluate("true") and pg.held() == {"presets/go"}, 5, "the presets/go answer")
             wait_log(pg, "motion finished #\\d+")  # its end came first
             pg.release()
-            pg.wait_for_timeout(300)
-            shown = pg.evaluate("document.getElementById('log').textContent")
+            shown = pg.evaluate("window.__hitchLog.filter((t) => !/test barrier/.test(t)).pop()")  # before the barrier
             assert "moving" not in shown and "finished" in shown, shown
             assert pg.errors == []
     finally:

@@ -74,6 +74,7 @@
     // maneuver id → its end [text, ok] (kept for a run whose reply is still on its way), and the maneuver whose
     // run this page shows under the list: an older one's end (the one a Run replaced) is not drawn over it
     maneuverEnds: new Map(), maneuverShown: null,
+    implementSelections: 0, implementSelected: null,   // implement_selected events handled, and the last one's
     session: null,   // GET /api/session: {login, authenticated, user, role, csrf}
   };
   // the hitch picture: `terminal` info (once), the newest `view` message, the built views
@@ -289,8 +290,14 @@
     ui.wasConnected = true;
     level.forget("");
     renderConnection();
+    const selections = ui.implementSelections;
     const r = await call("config", {});
-    if (r.ok) { ui.config = r.data; buildGauges(); renderConfig(); renderRanges(); }
+    if (r.ok) {
+      ui.config = r.data;
+      // an implement_selected handled while this answer was on its way is newer than the answer's implement
+      if (ui.implementSelections !== selections) ui.config.implement = ui.implementSelected;
+      buildGauges(); renderConfig(); renderRanges();
+    }
     refreshPresets();
     refreshManeuvers();
     refreshImplements();
@@ -933,6 +940,7 @@
     if (name === "last_work_recorded") {   // where a return goes: a raise from the cab's switch or another client
       const imp = actions.implements.find((i) => i.name === e.implement);
       if (imp && e.last_work) { imp.last_work = e.last_work; actions.drawRecord(); }
+      refreshImplements();   // asked after the record: an older list's answer still on its way is not drawn over it
       return;   // not logged: the raise's own events say what happened
     }
     let text = name.replace(/_/g, " ");
@@ -969,7 +977,9 @@
     level.onEvent(e);
     if (name === "implement_selected") {
       refreshImplements(); refreshPresets();   // the presets are the implement's
-      if (ui.config) { ui.config.implement = e.implement || null; renderConfig(); }   // Help's "implement" (it kept the connect-time one)
+      // Help's "implement" (it kept the connect-time one); counted for a config answer still on its way
+      ui.implementSelections += 1; ui.implementSelected = e.implement || null;
+      if (ui.config) { ui.config.implement = ui.implementSelected; renderConfig(); }
     }
     if (name === "maneuver_finished" || name === "maneuver_aborted") {
       const ended = [name === "maneuver_finished" ? `${e.maneuver} finished in ${fmt(e.elapsed, 1)} s`
@@ -1774,6 +1784,7 @@
     take(d) {
       this.settings = d.settings; this.implement = d.implement;
       $("#work-mode").value = d.settings.mode;
+      if (ui.state) this.draw(ui.state);   // the summary says the new settings now, not at the next state message
     },
     // a read and a change answer alike (the settings then): an answer older than one shown is not drawn (the
     // connect-time read, answered after a mode chosen meanwhile, put the old mode back in the selector)

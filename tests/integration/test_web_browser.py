@@ -2235,7 +2235,13 @@ def first_answers_held(page, service, keys: set[str], *, at_connect: bool = True
             to_the_page[-1].send(m)
         wait_log(pg, "test barrier")
 
+    def hold_again(key: str) -> None:
+        """Hold the next answer of ``key`` (one of ``keys``; its earlier held answer is sent first)."""
+        if key in held:
+            to_the_page[-1].send(held.pop(key))
+
     pg.release = release
+    pg.hold_again = hold_again
     try:
         pg.route_web_socket("**/ws", route)
         pg.goto(service.url)
@@ -2271,15 +2277,24 @@ def test_a_list_answer_older_than_a_recorded_work_pose_does_not_put_the_old_one_
     after the event put the old one back (a review): the event asks for the list again."""
     at_rest(service, page)
     _select_headland_implement(service, "baler")
+    row = _definition_js("imp-limits", "last work pose")
     try:
         work = {"x": 0.0, "z": 0.0, "roll": 0.0, "pitch": 0.0}
         assert service.api("goto", {"goal": work})[0] == 200
         _settle(service, work)
         with first_answers_held(page, service, {"implements/list"}) as pg:
-            status, reply = service.api("hitch/raise")  # not this page's raise
+            pg.hold_again("implements/list")  # the connect-time list is drawn: no work pose yet
+            wait_js(pg, f"{row} === 'none yet (set by a raise)'")
+            record_log(pg)
+            assert service.api("implements/select", {"name": "baler"})[0] == 200  # the page asks for the list
+            wait_log(pg, "implement selected: baler")
+            wait_for(lambda: pg.evaluate("true") and pg.held() == {"implements/list"}, 5, "the list's answer held")
+            status, reply = service.api("hitch/raise")  # not this page's raise: the list was answered before it
             assert status == 200, reply
-            pg.release()  # the connect-time list (no work pose yet) comes after the event
-            wait_js(pg, f"/^centre|^left|^right/.test({_definition_js('imp-limits', 'last work pose')})")
+            wait_js(pg, f"/^centre|^left|^right/.test({row})")
+            pg.release()  # that list (no work pose yet) comes after the event
+            shown = pg.evaluate(row)
+            assert re.match(r"centre|left|right", shown), shown
             assert pg.errors == []
         wait_for(lambda: not service.state()["moving"], 20, "the raise to end")
     finally:

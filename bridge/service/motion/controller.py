@@ -1024,7 +1024,7 @@ class MotionController:
             t_plan = self.clock()
             wait = None if deadline is None else max(0.0, deadline - t_plan)
             if not self._plan_lock.acquire(timeout=-1 if wait is None else wait):
-                raise MotionError("busy", f"{kind} refused: the planner stayed busy past its deadline; not run later")
+                raise MotionError("busy", f"{what} refused: the planner stayed busy past its deadline; not run later")
             try:
                 gp = self.plan_guard.plan(start, goal, speed_scale=speed_scale)  # PlanError / GuardRefusal
                 tail = self._count_tail(gp.plan) if kind in _COUNT_APPROACH_KINDS else None
@@ -1091,7 +1091,7 @@ class MotionController:
         its deadline not passed (all O(1), under the lock). ``what`` names it in refusals (default ``kind``:
         a quick raise is a ``preset`` motion, refused as ``raise``)."""
         what = what or kind
-        self._check_allowed(kind)
+        self._check_allowed(what)  # (a raise in transport mode was "preset is refused …": a newcomer's trial)
         self._check_precedence()
         self._check_no_fault(what)
         self._check_controllers_on(what)

@@ -466,6 +466,22 @@ def test_a_refused_quick_raise_is_called_a_raise(svc):
     assert "preset" not in r["message"], r
 
 
+def test_a_raise_refused_by_the_mode_or_the_lock_is_called_a_raise(svc):
+    """A newcomer's trial: ``hitch raise`` in transport mode answered "hitch/raise: preset is refused in mode
+    'transport'", and with the lock on "preset refused: the implement is transport-locked"."""
+    svc.ok("implements/define", {**HARROW, "headland": HEADLAND})
+    svc.ok("implements/select", {"name": "harrow"})
+    svc.ok("mode", {"mode": "transport"})
+    ok, r = svc.call("hitch/raise")
+    assert not ok and r["error"] == "mode" and "raise is refused in mode 'transport'" in r["message"], r
+    assert "preset" not in r["message"], r
+    svc.ok("mode", {"mode": "auto"})
+    svc.ok("implements/lock")
+    ok, r = svc.call("hitch/raise")
+    assert not ok and r["error"] == "locked" and "raise refused: the implement is transport-locked" in r["message"], r
+    assert "preset" not in r["message"], r
+
+
 @pytest.mark.slow
 def test_quick_raise_return_and_selection_with_the_core_in_its_own_process(tmp_path):
     cfg = ServiceConfig(listen=[f"tcp/127.0.0.1:{free_port()}"], data_dir=tmp_path, planning_processes=0)

@@ -72,7 +72,13 @@ def _cmd_implement(args) -> int:
             if args.headland is not None:
                 body["headland"] = args.headland
             r = c.request("implements/define", body)
-            _print(args, r, f"defined {r['defined']}")
+            cleared = r.get("cleared") or []
+            said = f"defined {r['defined']}"
+            if cleared:  # a define replaces the whole record: what it had and this one leaves out is gone
+                said += (
+                    f"; cleared {', '.join(cleared)} (a define replaces the whole record: give them again to keep them)"
+                )
+            _print(args, r, said)
         elif args.action == "select":
             r = c.request("implements/select", {"name": args.name})
             none = r["selected"] == "default"  # bridge.service.store.DEFAULT_IMPLEMENT (not imported for --help)

@@ -377,7 +377,12 @@ class ImplementService:
             stored = self.store.save_implement(imp, owner=owner)
             if announced is not None:
                 self._post(announced)
-        return {"defined": stored.name, "implement": stored.to_json(), "selected": self.selected}
+        return {
+            "defined": stored.name,
+            "implement": stored.to_json(),
+            "selected": self.selected,
+            "cleared": _cleared(old, stored),
+        }
 
     def select(self, name: str) -> dict[str, Any]:
         """Select an implement (stored, or a tractor profile record: stored first), or ``default`` for none
@@ -806,6 +811,20 @@ class ImplementService:
 def _is_id(v: Any) -> bool:
     """A motion id that orders (the controller numbers its motions 1, 2, …)."""
     return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _cleared(old: StoredImplement | None, new: StoredImplement) -> list[str]:
+    """The fields a redefinition left out that the record had (a define replaces the whole record: a newcomer
+    changed the mass and lost the upper height, the lowering speed and the headland pose without a word)."""
+    if old is None:
+        return []
+    had = {
+        "upper_height_m": (old.limits.upper_height_m, new.limits.upper_height_m),
+        "lowering_speed_m_s": (old.limits.lowering_speed_m_s, new.limits.lowering_speed_m_s),
+        "headland": (old.headland, new.headland),
+        "description": (old.description or None, new.description or None),
+    }
+    return [name for name, (before, after) in had.items() if before is not None and after is None]
 
 
 def _close(a: Mapping[str, float], b: Mapping[str, float]) -> bool:

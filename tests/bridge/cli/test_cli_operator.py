@@ -917,3 +917,25 @@ def test_config_says_what_the_simulated_tractor_drives_over(monkeypatch, capsys,
     for w in want:
         assert w in out, out
     assert ("simulated tractor" in out) == cfg.simulate_ecu, out
+
+
+def test_implement_define_says_what_a_redefinition_cleared(monkeypatch, capsys):
+    """A newcomer redefined an implement to change its mass: its upper height, lowering speed and headland were
+    gone without a word. The CLI says what the service's reply lists as cleared."""
+    sent = []
+
+    class Client(_FakeClient):
+        def request(self, key, payload=None, **kw):
+            sent.append((key, payload))
+            return {
+                "defined": "plough3",
+                "implement": {},
+                "selected": "plough3",
+                "cleared": ["upper_height_m", "headland"],
+            }
+
+    monkeypatch.setattr(cli_service, "_client", lambda args: Client())
+    assert main(["implement", "define", "plough3", "--category", "2", "--mass", "1200", "--com", "0,0.7,0.35"]) == 0
+    out = capsys.readouterr().out
+    assert "defined plough3; cleared upper_height_m, headland (a define replaces the whole record" in out, out
+    assert sent[0][0] == "implements/define"

@@ -466,6 +466,19 @@ def test_a_refused_quick_raise_is_called_a_raise(svc):
     assert "preset" not in r["message"], r
 
 
+def test_a_redefinition_names_the_fields_it_cleared(svc):
+    """A define replaces the whole record: a newcomer changed the mass only and lost the upper height, the
+    lowering speed and the headland pose without a word. The reply names them (``cleared``); kept fields not."""
+    full = {**HARROW, "upper_height_m": 0.28, "lowering_speed_m_s": 0.05, "headland": HEADLAND, "description": "d"}
+    assert svc.ok("implements/define", full)["cleared"] == []  # new
+    assert svc.ok("implements/define", full)["cleared"] == []  # the same again
+    r = svc.ok("implements/define", {**HARROW, "mass_kg": 1100.0})
+    assert r["cleared"] == ["upper_height_m", "lowering_speed_m_s", "headland", "description"], r
+    imp = r["implement"]
+    assert imp["upper_height_m"] is None and imp["headland"] is None and imp["mass_kg"] == 1100.0, imp
+    assert svc.ok("implements/define", {**HARROW, "upper_height_m": 0.3})["cleared"] == []  # nothing left to clear
+
+
 def test_a_raise_refused_by_the_mode_or_the_lock_is_called_a_raise(svc):
     """A newcomer's trial: ``hitch raise`` in transport mode answered "hitch/raise: preset is refused in mode
     'transport'", and with the lock on "preset refused: the implement is transport-locked"."""

@@ -1108,7 +1108,8 @@ def _cmd_preset(args) -> int:
                 **({"replace": True} if args.replace else {}),
             }
             r = c.request("presets/save", body)
-            _print(args, r, f"{'replaced' if r.get('replaced') else 'saved'} {r['saved']}: {_fmt_pose(r['pose'])}")
+            said = f"{'replaced' if r.get('replaced') else 'saved'} {r['saved']}: {_fmt_pose(r['pose'])}"
+            _print(args, r, said + (f"\nnote: {r['note']}" if r.get("note") else ""))
         elif args.action == "go":
             body = {
                 "name": args.name,

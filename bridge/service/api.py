@@ -411,6 +411,12 @@ class ServiceAPI:
         out: dict[str, Any] = {"saved": p.name, "pose": dict(p.pose), "implement": p.implement}
         if replaced:
             out["replaced"] = True
+        if p.name == "headland" and imp is not None and imp.headland is not None:  # implements.HEADLAND_PRESET
+            # the implement's own pose comes first: a taught "headland" that a raise never used (a newcomer's trial)
+            out["note"] = (
+                f"implement {imp.name!r} has a headland pose of its own (z {imp.headland['z']:.4f} m): hitch/raise "
+                "goes there, not to this preset; redefine the implement without 'headland' to raise to this one"
+            )
         return out
 
     def _presets_go(self, r: PresetGo) -> dict:

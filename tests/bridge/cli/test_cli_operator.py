@@ -939,3 +939,16 @@ def test_implement_define_says_what_a_redefinition_cleared(monkeypatch, capsys):
     out = capsys.readouterr().out
     assert "defined plough3; cleared upper_height_m, headland (a define replaces the whole record" in out, out
     assert sent[0][0] == "implements/define"
+
+
+def test_preset_save_prints_the_service_s_note(monkeypatch, capsys):
+    """The service's ``note`` (a headland preset the implement's own pose shadows) is printed, not only in --json."""
+
+    class Client(_FakeClient):
+        def request(self, key, payload=None, **kw):
+            pose = {"x": 0.0, "z": 0.2, "roll": 0.0, "pitch": 0.0}
+            return {"saved": "headland", "pose": pose, "implement": "p", "note": "implement 'p' has a headland pose"}
+
+    monkeypatch.setattr(cli_service, "_client", lambda args: Client())
+    assert main(["preset", "save", "headland"]) == 0
+    assert "note: implement 'p' has a headland pose" in capsys.readouterr().out

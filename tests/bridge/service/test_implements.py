@@ -479,6 +479,18 @@ def test_a_redefinition_names_the_fields_it_cleared(svc):
     assert svc.ok("implements/define", {**HARROW, "upper_height_m": 0.3})["cleared"] == []  # nothing left to clear
 
 
+def test_a_headland_preset_that_the_implement_s_own_pose_shadows_is_said_so(svc):
+    """A newcomer taught ``hitch preset save headland`` for an implement defined with a headland pose: saved, and
+    every raise still went to the implement's pose. The reply's ``note`` says so; without one, no note."""
+    svc.ok("implements/define", {**HARROW, "headland": HEADLAND})
+    svc.ok("implements/select", {"name": "harrow"})
+    r = svc.ok("presets/save", {"name": HEADLAND_PRESET})
+    assert "has a headland pose of its own" in r["note"] and "hitch/raise goes there" in r["note"], r
+    assert "note" not in svc.ok("presets/save", {"name": "work"})  # another name: nothing to say
+    svc.ok("implements/define", HARROW)  # without a headland pose: the preset is the one a raise goes to
+    assert "note" not in svc.ok("presets/save", {"name": HEADLAND_PRESET, "replace": True})
+
+
 def test_a_raise_refused_by_the_mode_or_the_lock_is_called_a_raise(svc):
     """A newcomer's trial: ``hitch raise`` in transport mode answered "hitch/raise: preset is refused in mode
     'transport'", and with the lock on "preset refused: the implement is transport-locked"."""

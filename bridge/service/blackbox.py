@@ -336,6 +336,7 @@ class _RequestLimiter:
             return None
         key, user, accepted, error, read = group
         window = max(0.0, now - tally.first)
+        span = f"{window:.1f}" if window < 10.0 else f"{window:.0f}"  # "in the last 0 s" for 0.4 s (a trial)
         what = "accepted" if accepted else "refused"
         rec: dict[str, Any] = {
             "key": key,
@@ -348,11 +349,11 @@ class _RequestLimiter:
             **({"read": True} if read else {}),
             "message": (
                 f"{tally.count} further request records of other groups (more than {self.limits.max_groups} "
-                f"groups) in the last {window:.0f} s"
+                f"groups) in the last {span} s"
                 if group == _OVERFLOW
                 else f"{tally.count} further {what} {key} {'reads' if read else 'requests'}"
                 f"{f' ({error})' if error else ''} from "
-                f"{user if user is not None else 'unnamed'} in the last {window:.0f} s"
+                f"{user if user is not None else 'unnamed'} in the last {span} s"
             ),
         }
         tally.count, tally.since = 0, None

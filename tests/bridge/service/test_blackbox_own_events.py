@@ -393,3 +393,19 @@ def test_streamed_setpoints_are_limited_as_reads_while_their_session_start_is_ke
         "track/start",
         "track/stop",
     ]
+
+
+def test_a_summary_of_under_ten_seconds_says_its_window_to_a_tenth(tmp_path):
+    """A newcomer's held jog: each summary said "4 further accepted jog requests from unnamed in the last 0 s"
+    (a 0.4 s window rounded to whole seconds)."""
+    path = event_log_path(tmp_path)
+    clock = _Clock()
+    limits = RecordLimits(other_burst=1, other_per_s=2.5, total_burst=50, total_per_s=10.0)
+    refused = {"error": "forbidden", "message": "viewer"}
+    with EventLog(path, limits=limits, clock=clock) as log:
+        log.on_request("presets/save", "bob", b"{}", False, refused)  # the burst
+        log.on_request("presets/save", "bob", b"{}", False, refused)  # held back at t
+        clock.t += 0.4  # one token back: the next passes, after the summary of one over 0.4 s
+        log.on_request("presets/save", "bob", b"{}", False, refused)
+    (sup,) = [r for r in read_events(path) if r["kind"] == "suppressed"]
+    assert sup["window_s"] == pytest.approx(0.4) and sup["message"].endswith("in the last 0.4 s"), sup
